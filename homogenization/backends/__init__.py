@@ -1,0 +1,45 @@
+"""Registry of cell-model backends: ``--backend`` choices map to implementing classes.
+
+Backends are imported lazily, so using the analytical backend never imports Warp or torch.
+Every class takes ``(contact_law, radius, **options)`` and implements
+``homogenization.cell_model.CellModel``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from warp_hcell.parameters import CellDefaults, ContactLaw
+
+BACKENDS: dict[str, str] = {
+    "analytical": "homogenization.backends.analytical:AnalyticalCell",
+    "dem": "homogenization.backends.dem:DemCell",
+    "ann": "homogenization.backends.ann:AnnCell",
+}
+"""Backend name -> "module:Class" of its implementation."""
+
+
+def backend_class(name: str) -> type:
+    """Return the class implementing backend ``name``; ValueError (one line) if unknown."""
+    if name not in BACKENDS:
+        raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+    module_name, class_name = BACKENDS[name].split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name == module_name:
+            raise ValueError(f"backend {name!r} is not available in this version") from exc
+        raise
+    return getattr(module, class_name)
+
+
+def make_cell_model(
+    name: str,
+    *,
+    contact_law: ContactLaw | None = None,
+    radius: float = CellDefaults.radius,
+    **options: Any,
+):
+    """Construct backend ``name`` with the given physical parameters and options."""
+    return backend_class(name)(contact_law or ContactLaw(), radius, **options)

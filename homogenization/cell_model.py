@@ -1,0 +1,107 @@
+"""The cell-model protocol shared by the analytical, DEM and ANN backends.
+
+A cell model advances a batch of independent cells (one per orientation, or one per
+database probe) by per-cell strain increments given in each cell's local frame (n, t), and
+returns the Love-Weber moment S and the cell area V_cell. The homogenisation drives any
+cell model through this protocol without knowing which backend it is; backends know
+nothing about orientations, weights or loading programmes.
+
+Sign convention: compression and contraction positive (strain increments, forces, S).
+Local frame: index 0 = n (cell axis), index 1 = t (lateral direction).
+
+States are values: ``step`` never modifies its input state, so saving a state is keeping a
+reference to it, and a trial increment (stress control) is a ``step`` whose result is
+discarded. ``take`` gathers cells (with repetition) to restore saved cells or fan a state
+out into probes; ``state_to_arrays``/``state_from_arrays`` round-trip a state through
+named numpy arrays (HDF5 snapshots, resume).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Protocol, TypeVar, runtime_checkable
+
+import numpy as np
+
+S = TypeVar("S")
+
+
+@dataclass(frozen=True)
+class CellResponse:
+    """Meso-stress output of a batch of cells.
+
+    Attributes:
+        moment: Love-Weber sum S = sum_c f_c (x) l_c over the contacts [N m], shape
+            (n_cells, 2, 2), local frame (index 0 = n, 1 = t), compression positive.
+            sigma_cell = moment / area.
+        area: cell area V_cell [m^2], shape (n_cells,): the polygon through the centres
+            of the driven (outer) grains (the hexagon for the H-cell).
+        diagnostics: per-call scalars a backend may report (e.g. DEM ``substeps`` spent
+            and ``n_unconverged`` cells); empty for closed-form backends.
+    """
+
+    moment: np.ndarray
+    area: np.ndarray
+    diagnostics: Mapping[str, float] = field(default_factory=dict)
+
+
+@runtime_checkable
+class CellModel(Protocol[S]):
+    """What the homogenisation needs from a cell backend.
+
+    Implementations are constructed with the physical parameters (a
+    ``warp_hcell.parameters.ContactLaw``, the grain radius [m]) and keyword-only numerical
+    options; see ``homogenization.backends.make_cell_model``.
+    """
+
+    name: str
+    """Backend name as used by ``--backend``."""
+
+    def init_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> S:
+        """Touching, force-free initial cells.
+
+        Args:
+            alpha0_deg: initial opening angle [deg], scalar or shape (n_cells,), each in
+                [30, 90).
+            n_cells: number of cells in the batch.
+        """
+        ...
+
+    def step(self, state: S, d_eps_local: np.ndarray) -> tuple[S, CellResponse]:
+        """Advance every cell by its own strain increment; pure (``state`` untouched).
+
+        Args:
+            state: cells before the increment.
+            d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive:
+                l1 <- l1 (1 - d_eps_n), l2 <- l2 (1 - d_eps_t).
+
+        Returns:
+            The new state and its meso-stress response.
+        """
+        ...
+
+    def response(self, state: S) -> CellResponse:
+        """Meso-stress of ``state`` without advancing it (e.g. the initial state)."""
+        ...
+
+    def observables(self, state: S) -> dict[str, np.ndarray]:
+        """Named per-cell quantities, each of shape (n_cells,).
+
+        H-cell backends return at least ``l1, l2, d1, d2`` [m], ``alpha_deg`` [deg],
+        ``N1, N2, T1`` [N] (compression positive, T1 > 0 resists opening),
+        ``S_nn, S_tt`` [N m], ``area`` [m^2], and contact flags ``closed1, closed2``
+        (bool: type-1 / type-2 contacts closed).
+        """
+        ...
+
+    def take(self, state: S, index: np.ndarray) -> S:
+        """New state made of cells ``state[index]`` (int array, repetition allowed)."""
+        ...
+
+    def state_to_arrays(self, state: S) -> dict[str, np.ndarray]:
+        """Named numpy arrays (first axis n_cells) that fully describe ``state``."""
+        ...
+
+    def state_from_arrays(self, arrays: Mapping[str, Any]) -> S:
+        """Inverse of ``state_to_arrays``."""
+        ...

@@ -1,0 +1,133 @@
+"""Physical constants and numerical defaults, in one place.
+
+Every default of the package and of its command-line interfaces is read from the frozen
+dataclasses below (specification: shared/spec/hmodel.md, sections 1 and 10). No default
+value is typed twice: CLIs build their ``default=`` from these objects.
+
+Units: SI, 2D (forces per unit length for stresses, N/m). Angles carry the suffix ``_deg``
+when in degrees; code works in radians internally. Sign convention: compression and
+contraction positive.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+ALPHA_MIN_DEG = 30.0
+"""Smallest admissible opening angle [deg]: lateral grains 2-6 and 3-5 touch."""
+ALPHA_MAX_DEG = 90.0
+"""Opening angle [deg] at which grains 1-4 touch; initial states need alpha0 < 90."""
+
+
+def check_alpha0_deg(alpha0_deg: float) -> float:
+    """Return ``alpha0_deg`` as float if it lies in [30, 90) deg, else raise ValueError (one line)."""
+    value = float(alpha0_deg)
+    if not (ALPHA_MIN_DEG <= value < ALPHA_MAX_DEG):
+        raise ValueError(f"alpha0 = {value:g} deg is outside [{ALPHA_MIN_DEG:g}, {ALPHA_MAX_DEG:g}) deg")
+    return value
+
+
+def check_positive(name: str, value: float) -> float:
+    """Return ``value`` as float if finite and > 0, else raise ValueError naming ``name``."""
+    value = float(value)
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f"{name} = {value:g} must be finite and > 0")
+    return value
+
+
+@dataclass(frozen=True)
+class ContactLaw:
+    """Linear contact law with Coulomb friction, shared by every backend."""
+
+    kn: float = 2e8
+    """Normal contact stiffness [N/m]."""
+    kt_over_kn: float = 0.5
+    """Tangential to normal stiffness ratio [-]."""
+    phi_g_deg: float = 30.0
+    """Inter-granular friction angle [deg]."""
+
+    def __post_init__(self) -> None:
+        check_positive("kn", self.kn)
+        check_positive("kt_over_kn", self.kt_over_kn)
+        if not (0.0 <= self.phi_g_deg < 90.0):
+            raise ValueError(f"phi_g = {self.phi_g_deg:g} deg is outside [0, 90) deg")
+
+    @property
+    def kt(self) -> float:
+        """Tangential contact stiffness [N/m]."""
+        return self.kt_over_kn * self.kn
+
+    @property
+    def mu(self) -> float:
+        """Friction coefficient tan(phi_g) [-]."""
+        return math.tan(math.radians(self.phi_g_deg))
+
+
+@dataclass(frozen=True)
+class CellDefaults:
+    """Defaults of the H-cell and of the orientation set (spec section 1)."""
+
+    radius: float = 0.5
+    """Grain radius r [m] (diameter D = 2 r)."""
+    alpha0_deg: float = 55.0
+    """Initial opening angle [deg], admissible range [30, 90)."""
+    n_orientations: int = 360
+    """Number of cell orientations theta_k = k pi / N [-]."""
+    p0: float = 5.85e6
+    """Confining pressure of the isotropic stage [N/m], compression positive."""
+
+    def __post_init__(self) -> None:
+        check_positive("radius", self.radius)
+        check_alpha0_deg(self.alpha0_deg)
+        check_positive("p0", self.p0)
+        if int(self.n_orientations) < 1:
+            raise ValueError(f"n_orientations = {self.n_orientations} must be >= 1")
+
+
+@dataclass(frozen=True)
+class LoadingDefaults:
+    """Defaults of the loading programmes (spec section 9)."""
+
+    increment: float = 1e-5
+    """Axial strain increment of the shear stage [-]."""
+    iso_increment: float = 5e-6
+    """Volumetric-strain increment per component of the isotropic stage [-]."""
+    eps_max: float = 0.2
+    """Axial strain eps1 at the end of the shear stage, counted from its start [-]."""
+    stress_rtol: float = 1e-6
+    """Relative tolerance of stress-controlled components [-]."""
+    max_newton_iterations: int = 30
+    """Newton iterations allowed per stress-controlled increment [-]."""
+
+
+@dataclass(frozen=True)
+class DemSettings:
+    """Numerical settings of the meso-DEM (spec section 10)."""
+
+    density: float = 2650.0
+    """Grain density [kg/m^3]; disk mass per unit thickness is density * pi r^2 [kg/m]."""
+    dt_factor: float = 0.2
+    """Time step as a fraction of sqrt(m / kn) [-]."""
+    damping: float = 0.5
+    """Cundall local (non-viscous) damping coefficient [-]."""
+    strain_per_substep: float = 2.5e-7
+    """Largest cell-strain component applied per substep [-]."""
+    force_tolerance: float = 1e-6
+    """Quasi-static criterion: unbalanced force ratio below this value [-]."""
+    max_substeps: int = 200_000
+    """Substeps allowed per increment before a cell is reported unconverged [-]."""
+    contact_tolerance: float = 1e-9
+    """Gap, as a fraction of the mean diameter of the pair, that still counts as a contact [-]."""
+
+    def __post_init__(self) -> None:
+        check_positive("density", self.density)
+        check_positive("dt_factor", self.dt_factor)
+        check_positive("strain_per_substep", self.strain_per_substep)
+        check_positive("force_tolerance", self.force_tolerance)
+        if not (0.0 <= self.damping < 1.0):
+            raise ValueError(f"damping = {self.damping:g} is outside [0, 1)")
+        if int(self.max_substeps) < 1:
+            raise ValueError(f"max_substeps = {self.max_substeps} must be >= 1")
+        if not (0.0 <= self.contact_tolerance < 1e-3):
+            raise ValueError(f"contact_tolerance = {self.contact_tolerance:g} is outside [0, 1e-3)")
