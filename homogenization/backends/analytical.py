@@ -1,0 +1,237 @@
+"""Analytical H-cell backend: the one-unknown equilibrium solve of spec section 6.
+
+``AnalyticalCell`` implements ``homogenization.cell_model.CellModel``. Per increment and
+per cell, l1 and l2 follow the imposed local strain (spec section 3); the only unknown,
+y2 = d2/2, is found such that grain 2 is in equilibrium along n:
+
+    f(y2) = N2 - N1 cos a - T1 sin a (- g2 T1) = 0,
+
+with N1 = kn <D - d1>, N2 = kn <D - d2> and T1 the incremental tangential spring with a
+Coulomb cap evaluated from the state at the start of the increment:
+T_trial = T1_old + kt d1_mid (a - a_old), T1 = clip(T_trial, -mu N1, +mu N1). The cap
+takes its sign from the trial force, and T1 = 0 (history reset) whenever the type-1
+contact is open, because then N1 = 0. The solve is a safeguarded Newton iteration on the
+whole batch at once (bisection inside the current bracket when a Newton step leaves it);
+where both contacts are open f is identically zero and y2 is kept.
+
+Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
+growing). Local frame: index 0 = n, 1 = t.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, NamedTuple
+
+import numpy as np
+
+from homogenization.backends import hcell
+from homogenization.cell_model import CellResponse
+from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, ContactLaw, check_alpha0_deg, check_positive
+
+
+class AnalyticalState(NamedTuple):
+    """Batch of analytical H-cells; every field has shape (n_cells,).
+
+    (l1, l2, y2) fix the geometry; the other fields are derived from it at the end of the
+    increment that produced the state and kept so that the next increment starts from them.
+    """
+
+    l1: np.ndarray
+    """Axial length, centre 1 to centre 4 [m]."""
+    l2: np.ndarray
+    """Distance between the lateral columns [m]."""
+    y2: np.ndarray
+    """n-coordinate of grain 2, d2/2 [m]."""
+    d1: np.ndarray
+    """Type-1 branch length [m]."""
+    alpha: np.ndarray
+    """Opening angle [rad]."""
+    N1: np.ndarray
+    """Normal force of the type-1 contacts [N], compression positive."""
+    N2: np.ndarray
+    """Normal force of the type-2 contacts [N], compression positive."""
+    T1: np.ndarray
+    """Tangential force of the type-1 contacts [N], > 0 resists opening."""
+
+
+class AnalyticalCell:
+    """Closed-form H-cell (spec sections 2-7), vectorised over cells.
+
+    Args:
+        contact_law: contact stiffnesses and friction (``warp_hcell.parameters.ContactLaw``).
+        radius: grain radius r [m].
+        g2: coefficient of the published "G2" variant of the equilibrium (spec section 5),
+            N2 = N1 cos a + T1 sin a + g2 T1 [-]. 0 (the default) is the consistent model.
+        tolerance: equilibrium residual accepted, as a fraction of kn r [-].
+        max_iterations: Newton/bisection iterations allowed per increment [-]; cells still
+            above the tolerance are counted in ``diagnostics["n_unconverged"]``.
+    """
+
+    name = "analytical"
+
+    def __init__(
+        self,
+        contact_law: ContactLaw,
+        radius: float,
+        *,
+        g2: float = 0.0,
+        tolerance: float = 1e-10,
+        max_iterations: int = 60,
+    ) -> None:
+        self.contact_law = contact_law
+        self.radius = check_positive("radius", radius)
+        if not math.isfinite(g2):
+            raise ValueError(f"g2 = {g2:g} must be finite")
+        self.g2 = float(g2)
+        self.diameter = 2.0 * self.radius
+        self.kn = contact_law.kn
+        self.kt = contact_law.kt
+        self.mu = contact_law.mu
+        self.f_tolerance = check_positive("tolerance", tolerance) * self.kn * self.radius
+        if int(max_iterations) < 1:
+            raise ValueError(f"max_iterations = {max_iterations} must be >= 1")
+        self.max_iterations = int(max_iterations)
+
+    def init_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> AnalyticalState:
+        """Touching, force-free cells: d1 = d2 = D at opening angle alpha0.
+
+        Args:
+            alpha0_deg: initial opening angle [deg], scalar or shape (n_cells,), each in
+                [30, 90); ValueError otherwise.
+            n_cells: number of cells.
+        """
+        alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (int(n_cells),))
+        bad = ~((alpha0 >= ALPHA_MIN_DEG) & (alpha0 < ALPHA_MAX_DEG))
+        if bad.any():
+            check_alpha0_deg(alpha0[bad][0])
+        alpha = np.radians(alpha0)
+        D = np.full(alpha.shape, self.diameter)
+        l1, l2 = hcell.lengths(D, D, alpha)
+        zero = np.zeros_like(alpha)
+        return AnalyticalState(l1, l2, 0.5 * D, D, alpha, zero, zero.copy(), zero.copy())
+
+    def step(self, state: AnalyticalState, d_eps_local: np.ndarray) -> tuple[AnalyticalState, CellResponse]:
+        """Advance every cell by its local strain increment; ``state`` is left untouched.
+
+        Args:
+            state: cells at the start of the increment.
+            d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
+
+        Returns:
+            The equilibrium state at the end of the increment and its response.
+        """
+        d_eps = np.asarray(d_eps_local, dtype=np.float64)
+        l1 = state.l1 * (1.0 - d_eps[:, 0])
+        l2 = state.l2 * (1.0 - d_eps[:, 1])
+        new, iterations, n_unconverged = self._solve(state, l1, l2)
+        moment, area = hcell.love_weber_moment(
+            new.alpha, new.N1, new.N2, new.T1, l1, l2, kn=self.kn, diameter=self.diameter
+        )
+        diagnostics = {"iterations": float(iterations), "n_unconverged": float(n_unconverged)}
+        return new, CellResponse(moment, area, diagnostics)
+
+    def _solve(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray) -> tuple[AnalyticalState, int, int]:
+        """Equilibrium y2 for the new lengths; returns (state, iterations, n_unconverged)."""
+        kn, kt, mu, D, g2 = self.kn, self.kt, self.mu, self.diameter, self.g2
+        h = 0.5 * l2
+        half_l1 = 0.5 * l1
+        alpha_old, T_old, half_d1_old = old.alpha, old.T1, 0.5 * old.d1
+        lo = np.zeros_like(l1)
+        hi = half_l1
+        y = np.minimum(old.y2, half_l1)
+        for iteration in range(1, self.max_iterations + 1):
+            u = half_l1 - y
+            d1 = np.hypot(h, u)
+            c = u / d1
+            s = h / d1
+            alpha = np.arctan2(h, u)
+            gap1 = D - d1
+            closed1 = gap1 > 0.0
+            N1 = kn * np.maximum(gap1, 0.0)
+            gap2 = D - 2.0 * y
+            N2 = kn * np.maximum(gap2, 0.0)
+            d_alpha = alpha - alpha_old
+            d1_mid = half_d1_old + 0.5 * d1
+            trial = T_old + kt * d1_mid * d_alpha
+            cap = mu * N1
+            T1 = np.minimum(np.maximum(trial, -cap), cap)
+            f = N2 - N1 * c - (s + g2) * T1
+            if np.abs(f).max() <= self.f_tolerance:
+                return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), iteration, 0
+            # df/dy2, with dd1/dy2 = -cos a, da/dy2 = sin a / d1.
+            dT = np.where(
+                np.abs(trial) < cap,
+                kt * (d1_mid * s / d1 - 0.5 * c * d_alpha),
+                np.copysign(mu * kn, trial) * c * closed1,
+            )
+            df = (s * (N1 * s - T1 * c) / d1 - (s + g2) * dT) - kn * (2.0 * (gap2 > 0.0) + c * c * closed1)
+            lo = np.where(f > 0.0, y, lo)
+            hi = np.where(f < 0.0, y, hi)
+            y_newton = y - f / np.minimum(df, -kn * 1e-12)
+            # Newton inside the open bracket, or a step below the resolution of y;
+            # else bisection (Newton may cycle across the kinks where contacts open).
+            inside = ((y_newton > lo) & (y_newton < hi)) | (y_newton == y)
+            y = np.where(inside, y_newton, 0.5 * (lo + hi))
+        n_unconverged = int(np.count_nonzero(np.abs(f) > self.f_tolerance))
+        # y moved after the last evaluation: return the state at that y.
+        return self._state_at(old, l1, l2, y), self.max_iterations, n_unconverged
+
+    def _state_at(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray, y2: np.ndarray) -> AnalyticalState:
+        """State with geometry (l1, l2, y2) and forces from the contact law (no solve)."""
+        d1, d2, alpha = hcell.branches_from_y2(l1, l2, y2)
+        N1 = self.kn * np.maximum(self.diameter - d1, 0.0)
+        N2 = self.kn * np.maximum(self.diameter - d2, 0.0)
+        trial = old.T1 + self.kt * 0.5 * (old.d1 + d1) * (alpha - old.alpha)
+        cap = self.mu * N1
+        return AnalyticalState(l1, l2, y2, d1, alpha, N1, N2, np.clip(trial, -cap, cap))
+
+    def response(self, state: AnalyticalState) -> CellResponse:
+        """Meso-stress of ``state`` without advancing it."""
+        moment, area = hcell.love_weber_moment(
+            state.alpha, state.N1, state.N2, state.T1, state.l1, state.l2, kn=self.kn, diameter=self.diameter
+        )
+        return CellResponse(moment, area)
+
+    def observables(self, state: AnalyticalState) -> dict[str, np.ndarray]:
+        """Named per-cell quantities, each shape (n_cells,).
+
+        ``l1, l2, d1, d2`` [m], ``alpha_deg`` [deg], ``N1, N2, T1`` [N] (compression
+        positive, T1 > 0 resists opening), ``S_nn, S_tt`` [N m], ``area`` [m^2],
+        ``closed1, closed2`` (bool: type-1 / type-2 contacts carry force) and grain centres
+        ``x_n{i}, x_t{i}`` [m] for labels i = 1..6 (cell centre at the origin).
+        """
+        response = self.response(state)
+        positions = hcell.grain_positions(state.l1, state.l2, state.y2)
+        out = {
+            "l1": state.l1,
+            "l2": state.l2,
+            "d1": state.d1,
+            "d2": 2.0 * state.y2,
+            "alpha_deg": np.degrees(state.alpha),
+            "N1": state.N1,
+            "N2": state.N2,
+            "T1": state.T1,
+            "S_nn": response.moment[:, 0, 0],
+            "S_tt": response.moment[:, 1, 1],
+            "area": response.area,
+            "closed1": state.N1 > 0.0,
+            "closed2": state.N2 > 0.0,
+        }
+        for i in range(hcell.N_GRAINS):
+            out[f"x_n{i + 1}"] = positions[:, i, 0]
+            out[f"x_t{i + 1}"] = positions[:, i, 1]
+        return out
+
+    def take(self, state: AnalyticalState, index: np.ndarray) -> AnalyticalState:
+        """New state made of cells ``state[index]`` (int array, repetition allowed)."""
+        index = np.asarray(index, dtype=np.intp)
+        return AnalyticalState(*(field[index] for field in state))
+
+    def state_to_arrays(self, state: AnalyticalState) -> dict[str, np.ndarray]:
+        """Copies of the state fields, keyed by field name (``AnalyticalState._fields``)."""
+        return {name: np.array(value, dtype=np.float64) for name, value in zip(state._fields, state)}
+
+    def state_from_arrays(self, arrays: Mapping[str, Any]) -> AnalyticalState:
+        """Inverse of ``state_to_arrays``; KeyError names a missing field."""
+        return AnalyticalState(*(np.array(arrays[name], dtype=np.float64) for name in AnalyticalState._fields))
