@@ -1,0 +1,347 @@
+"""Run a loading programme on a set of oriented cells: ``run(cell_model, programme) -> Record``.
+
+The driver localises each macro strain increment to every cell (``orientation.localise``),
+advances all cells with one ``cell_model.step`` call, averages their moments to the macro
+stress sigma = sum_k w_k S_k / (V0 J) and records the history. It is the only place where
+stress-controlled components are solved: a quasi-Newton (Broyden) iteration on trial
+``step`` calls from the saved state, seeded and refreshed with a finite-difference tangent;
+trials cost one ``step`` each because steps are pure. Convergence: every controlled stress
+within ``stress_rtol`` times the stress scale of the run (the largest of the |targets| and
+the largest |sigma| recorded so far).
+
+It imports the cell-model protocol only, never a backend. Sign convention: compression
+and contraction positive; stresses [N/m], strains [-], macro shear strain always zero.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from homogenization import orientation as orient_mod
+from homogenization.cell_model import CellModel, CellResponse
+from homogenization.invariants import deviator, mean_stress
+from homogenization.loading import Programme, Step, validate
+from warp_hcell.parameters import CellDefaults, LoadingDefaults
+
+FD_FRACTION = 1e-2
+"""Finite-difference strain step as a fraction of the current strain increment [-]."""
+FD_FLOOR = 1e-9
+"""Smallest finite-difference strain step [-]."""
+
+
+class ControlError(RuntimeError):
+    """A stress-controlled increment did not converge (e.g. the material cannot carry the target)."""
+
+
+@dataclass
+class Record:
+    """History of a run, one entry per increment (the force-free initial state is implicit).
+
+    Stresses [N/m] and strains [-] are compression/contraction positive; strains are the
+    sums of the applied macro increments, counted from the initial state.
+
+    Attributes:
+        stage: stage label of each increment, shape (n,), str.
+        eps11, eps22: macro strain [-], shape (n,).
+        sigma11, sigma22, sigma12: macro stress [N/m], shape (n,).
+        p: mean stress (sigma11 + sigma22) / 2 [N/m], shape (n,).
+        q: deviator sigma11 - sigma22 [N/m], shape (n,).
+        J: volume ratio V / V0 [-], shape (n,).
+        volume: macro volume V = V0 J [m^2], shape (n,).
+        newton_iterations: ``step`` calls spent on the increment (1 when purely
+            strain-controlled), shape (n,), int.
+        diagnostics: backend diagnostics of the accepted ``step`` call per increment (e.g.
+            DEM ``substeps``, ``n_unconverged``), name -> shape (n,); NaN where absent.
+        snapshot_increment: number of completed increments at each snapshot, shape (m,).
+        snapshot_stage: stage label of each snapshot, shape (m,), str.
+        snapshots: per-cell ``cell_model.observables``, name -> shape (m, n_cells).
+        theta_deg: cell-axis orientations [deg], shape (n_cells,).
+        weights: fabric weights [-], shape (n_cells,).
+        V0: initial macro volume [m^2].
+        alpha0_deg: initial opening angle [deg].
+        backend: name of the cell model.
+        programme: the loading programme that was run.
+        final_state: ``cell_model.state_to_arrays`` of the last state (resume, inspection).
+    """
+
+    stage: np.ndarray
+    eps11: np.ndarray
+    eps22: np.ndarray
+    sigma11: np.ndarray
+    sigma22: np.ndarray
+    sigma12: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    J: np.ndarray
+    volume: np.ndarray
+    newton_iterations: np.ndarray
+    diagnostics: dict[str, np.ndarray]
+    snapshot_increment: np.ndarray
+    snapshot_stage: np.ndarray
+    snapshots: dict[str, np.ndarray]
+    theta_deg: np.ndarray
+    weights: np.ndarray
+    V0: float
+    alpha0_deg: float
+    backend: str
+    programme: Programme
+    final_state: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def n_increments(self) -> int:
+        """Number of recorded increments."""
+        return int(self.eps11.shape[0])
+
+
+class _Runner:
+    """Mutable state of one run: current cells, J, accumulated strain, history buffers."""
+
+    def __init__(self, cell_model: CellModel, orient: orient_mod.Orientations, state: Any, V0: float,
+                 n_max: int, stress_rtol: float, max_iterations: int) -> None:
+        self.model = cell_model
+        self.orient = orient
+        self.state = state
+        self.V0 = V0
+        self.J = 1.0
+        self.eps = np.zeros(2)
+        self.sigma = np.zeros(3)
+        self.sigma_peak = 0.0
+        self.rtol = stress_rtol
+        self.max_iterations = max_iterations
+        self.k = 0
+        self.rows = np.empty((n_max, 6))  # eps11, eps22, sigma11, sigma22, sigma12, J
+        self.iterations = np.empty(n_max, dtype=np.int64)
+        self.stage_index = np.empty(n_max, dtype=np.int64)
+        self.diagnostics: dict[str, np.ndarray] = {}
+        self.snap_k: list[int] = []
+        self.snap_stage: list[int] = []
+        self.snaps: list[dict[str, np.ndarray]] = []
+
+    # -- one trial -------------------------------------------------------------------------
+    def trial(self, d_eps: np.ndarray, d_local: np.ndarray | None = None) -> tuple[Any, CellResponse, np.ndarray, float]:
+        """Step every cell by the macro increment ``d_eps`` (11, 22, 12) from the saved state."""
+        if d_local is None:
+            d_local = orient_mod.localise(self.orient, d_eps)
+        new_state, resp = self.model.step(self.state, d_local)
+        J = self.J * orient_mod.volume_ratio_factor(d_eps)
+        sigma = orient_mod.average_moment(self.orient, resp.moment) / (self.V0 * J)
+        return new_state, resp, sigma, J
+
+    def accept(self, new_state: Any, resp: CellResponse, sigma: np.ndarray, J: float, d_eps: np.ndarray,
+               iterations: int, stage: int) -> None:
+        k = self.k
+        self.state = new_state
+        self.J = J
+        self.eps += d_eps[:2]
+        self.sigma = sigma
+        self.sigma_peak = max(self.sigma_peak, float(np.abs(sigma).max()))
+        row = self.rows[k]
+        row[0], row[1] = self.eps
+        row[2:5] = sigma
+        row[5] = J
+        self.iterations[k] = iterations
+        self.stage_index[k] = stage
+        for name, value in resp.diagnostics.items():
+            if name not in self.diagnostics:
+                self.diagnostics[name] = np.full(self.rows.shape[0], np.nan)
+            self.diagnostics[name][k] = value
+        self.k = k + 1
+
+    def snapshot(self, stage: int) -> None:
+        if self.snap_k and self.snap_k[-1] == self.k:
+            return
+        self.snap_k.append(self.k)
+        self.snap_stage.append(stage)
+        self.snaps.append({name: np.array(v) for name, v in self.model.observables(self.state).items()})
+
+    # -- stress control --------------------------------------------------------------------
+    def _fd_tangent(self, d_eps: np.ndarray, sigma: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        h = max(FD_FRACTION * float(np.abs(d_eps[:2]).max()), FD_FLOOR)
+        K = np.empty((idx.size, idx.size))
+        for j, comp in enumerate(idx):
+            d = d_eps.copy()
+            d[comp] += h
+            K[:, j] = (self.trial(d)[2][idx] - sigma[idx]) / h
+        return K
+
+    def solve_stress(self, d_eps: np.ndarray, idx: np.ndarray, target: np.ndarray, K: np.ndarray | None,
+                     where: str) -> tuple[Any, CellResponse, np.ndarray, float, np.ndarray, int, np.ndarray]:
+        """Find the strain increments of components ``idx`` giving sigma[idx] = ``target``.
+
+        ``d_eps`` holds the strain-controlled increments and the initial guess of the others.
+        Returns the accepted trial, the solved increment, the calls spent and the tangent.
+        """
+        d_eps = d_eps.copy()
+        tol = self.rtol * max(float(np.abs(target).max()), self.sigma_peak)
+        calls = 0
+        x_prev = r_prev = None
+        while True:
+            new_state, resp, sigma, J = self.trial(d_eps)
+            calls += 1
+            r = sigma[idx] - target
+            if float(np.abs(r).max()) <= tol:
+                return new_state, resp, sigma, J, d_eps, calls, K
+            if calls >= self.max_iterations:
+                raise ControlError(f"{where}: stress control did not converge in {calls} step calls "
+                                   f"(residual {float(np.abs(r).max()):.3g} N/m, tolerance {tol:.3g} N/m)")
+            x = d_eps[idx]
+            if x_prev is not None and K is not None:
+                dx, dr = x - x_prev, r - r_prev
+                K = K + np.outer(dr - K @ dx, dx) / float(dx @ dx)
+            if K is None or (r_prev is not None and np.abs(r).max() > 0.5 * np.abs(r_prev).max()):
+                K = self._fd_tangent(d_eps, sigma, idx)
+                calls += idx.size
+            x_prev, r_prev = x.copy(), r
+            try:
+                d_eps[idx] = x - np.linalg.solve(K, r)
+            except np.linalg.LinAlgError:
+                raise ControlError(f"{where}: the material has no stiffness against the controlled stress "
+                                   f"(singular tangent)") from None
+
+    def land_on_p(self, d_eps: np.ndarray, p_stop: float, p_over: float, where: str):
+        """Scale the increment ``d_eps`` by lambda in (0, 1] so that p = ``p_stop`` (Illinois)."""
+        tol = self.rtol * p_stop
+        lo, f_lo = 0.0, float(mean_stress(self.sigma[0], self.sigma[1])) - p_stop
+        hi, f_hi = 1.0, p_over - p_stop
+        side = 0
+        for calls in range(1, self.max_iterations + 1):
+            lam = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+            d = d_eps * lam
+            new_state, resp, sigma, J = self.trial(d)
+            f = float(mean_stress(sigma[0], sigma[1])) - p_stop
+            if abs(f) <= tol:
+                return new_state, resp, sigma, J, d, calls + 1
+            if f > 0.0:
+                hi, f_hi = lam, f
+                if side == 1:
+                    f_lo *= 0.5
+                side = 1
+            else:
+                lo, f_lo = lam, f
+                if side == -1:
+                    f_hi *= 0.5
+                side = -1
+        raise ControlError(f"{where}: could not land p on {p_stop:g} N/m in {self.max_iterations} step calls")
+
+    # -- one programme step ----------------------------------------------------------------
+    def run_step(self, step: Step, stage: int, snapshot_interval: int, bar: tqdm) -> None:
+        n = step.n_increments
+        mask = np.array(step.stress_mask)
+        idx = np.flatnonzero(mask)
+        d_eps = np.zeros(3)
+        d_eps[:2] = np.where(mask, 0.0, np.asarray(step.target) / n)
+        sigma_start = self.sigma[:2].copy()
+        target_end = np.asarray(step.target)
+        d_local = orient_mod.localise(self.orient, d_eps) if idx.size == 0 else None
+        K = None
+        for i in range(n):
+            where = f"step {step.label!r}, increment {i + 1}"
+            if idx.size:
+                target = sigma_start[idx] + (target_end[idx] - sigma_start[idx]) * ((i + 1) / n)
+                new_state, resp, sigma, J, d_eps, calls, K = self.solve_stress(d_eps, idx, target, K, where)
+            else:
+                new_state, resp, sigma, J = self.trial(d_eps, d_local)
+                calls = 1
+                if step.stop_at_p is not None:
+                    p_new = 0.5 * (sigma[0] + sigma[1])
+                    if p_new >= step.stop_at_p:
+                        if p_new - step.stop_at_p > self.rtol * step.stop_at_p:
+                            new_state, resp, sigma, J, d, extra = self.land_on_p(d_eps, step.stop_at_p, p_new, where)
+                            calls += extra
+                        else:
+                            d = d_eps
+                        self.accept(new_state, resp, sigma, J, d, calls, stage)
+                        bar.update(1)
+                        return
+            self.accept(new_state, resp, sigma, J, d_eps, calls, stage)
+            bar.update(1)
+            if snapshot_interval and self.k % snapshot_interval == 0:
+                self.snapshot(stage)
+        if step.stop_at_p is not None:
+            raise ControlError(f"step {step.label!r} ended at p = {mean_stress(self.sigma[0], self.sigma[1]):.6g} N/m "
+                               f"before reaching {step.stop_at_p:g} N/m; allow more strain")
+
+
+def run(
+    cell_model: CellModel,
+    programme: Programme,
+    *,
+    alpha0_deg: float = CellDefaults.alpha0_deg,
+    n_orientations: int = CellDefaults.n_orientations,
+    fabric_anisotropy: float = 0.0,
+    fabric_direction_deg: float = 0.0,
+    snapshot_interval: int = 0,
+    stress_rtol: float = LoadingDefaults.stress_rtol,
+    max_newton_iterations: int = LoadingDefaults.max_newton_iterations,
+    progress: bool = True,
+) -> Record:
+    """Run ``programme`` on ``n_orientations`` cells of ``cell_model`` and record the history.
+
+    Args:
+        cell_model: any ``CellModel`` backend.
+        programme: loading steps, run in order (see ``homogenization.loading``).
+        alpha0_deg: initial opening angle of every cell [deg], in [30, 90).
+        n_orientations: number N of cell orientations theta_k = k pi / N.
+        fabric_anisotropy: a_f in [0, 1) of the weights w(theta) (0 = isotropic fabric).
+        fabric_direction_deg: preferred fabric direction b_f [deg].
+        snapshot_interval: also store per-cell observables every this many increments
+            (0: only at the end of each stage).
+        stress_rtol: relative tolerance on stress-controlled components [-].
+        max_newton_iterations: ``step`` calls allowed per stress-controlled increment.
+        progress: show a tqdm progress bar per stage.
+
+    Returns:
+        The ``Record`` of the run.
+
+    Raises:
+        ValueError: invalid programme or options (one line).
+        ControlError: a stress-controlled increment could not be solved.
+    """
+    programme = validate(programme)
+    if snapshot_interval < 0:
+        raise ValueError(f"snapshot_interval = {snapshot_interval} must be >= 0")
+    orient = orient_mod.orientations(n_orientations, anisotropy=fabric_anisotropy, direction_deg=fabric_direction_deg)
+    state = cell_model.init_state(alpha0_deg, orient.n_cells)
+    V0 = orient_mod.initial_volume(orient, cell_model.response(state).area)
+    runner = _Runner(cell_model, orient, state, V0, sum(s.n_increments for s in programme),
+                     stress_rtol, max_newton_iterations)
+    labels = [s.label for s in programme]
+    for stage, step in enumerate(programme):
+        with tqdm(total=step.n_increments, desc=step.label, unit="incr", disable=not progress,
+                  mininterval=0.5, leave=False) as bar:
+            runner.run_step(step, stage, snapshot_interval, bar)
+        runner.snapshot(stage)
+
+    k = runner.k
+    rows = runner.rows[:k]
+    sigma11, sigma22 = rows[:, 2].copy(), rows[:, 3].copy()
+    snap_names = runner.snaps[0].keys() if runner.snaps else ()
+    label_array = np.array(labels)
+    return Record(
+        stage=label_array[runner.stage_index[:k]],
+        eps11=rows[:, 0].copy(),
+        eps22=rows[:, 1].copy(),
+        sigma11=sigma11,
+        sigma22=sigma22,
+        sigma12=rows[:, 4].copy(),
+        p=mean_stress(sigma11, sigma22),
+        q=deviator(sigma11, sigma22),
+        J=rows[:, 5].copy(),
+        volume=V0 * rows[:, 5],
+        newton_iterations=runner.iterations[:k].copy(),
+        diagnostics={name: v[:k].copy() for name, v in runner.diagnostics.items()},
+        snapshot_increment=np.array(runner.snap_k, dtype=np.int64),
+        snapshot_stage=label_array[np.array(runner.snap_stage, dtype=np.int64)],
+        snapshots={name: np.stack([s[name] for s in runner.snaps]) for name in snap_names},
+        theta_deg=np.degrees(orient.theta),
+        weights=np.array(orient.weights),
+        V0=V0,
+        alpha0_deg=float(alpha0_deg),
+        backend=str(getattr(cell_model, "name", type(cell_model).__name__)),
+        programme=programme,
+        final_state={name: np.array(v) for name, v in cell_model.state_to_arrays(runner.state).items()},
+    )
