@@ -157,8 +157,12 @@ class AnalyticalCell:
             cap = mu * N1
             T1 = np.minimum(np.maximum(trial, -cap), cap)
             f = N2 - N1 * c - (s + g2) * T1
-            if np.abs(f).max() <= self.f_tolerance:
-                return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), iteration, 0
+            converged = np.abs(f) <= self.f_tolerance
+            if iteration == self.max_iterations or converged.all():
+                break
+            # Converged cells keep their y (f -> 0), so a cell's result does not depend
+            # on the other cells of the batch.
+            f = np.where(converged, 0.0, f)
             # df/dy2, with dd1/dy2 = -cos a, da/dy2 = sin a / d1.
             dT = np.where(
                 np.abs(trial) < cap,
@@ -173,18 +177,8 @@ class AnalyticalCell:
             # else bisection (Newton may cycle across the kinks where contacts open).
             inside = ((y_newton > lo) & (y_newton < hi)) | (y_newton == y)
             y = np.where(inside, y_newton, 0.5 * (lo + hi))
-        n_unconverged = int(np.count_nonzero(np.abs(f) > self.f_tolerance))
-        # y moved after the last evaluation: return the state at that y.
-        return self._state_at(old, l1, l2, y), self.max_iterations, n_unconverged
-
-    def _state_at(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray, y2: np.ndarray) -> AnalyticalState:
-        """State with geometry (l1, l2, y2) and forces from the contact law (no solve)."""
-        d1, d2, alpha = hcell.branches_from_y2(l1, l2, y2)
-        N1 = self.kn * np.maximum(self.diameter - d1, 0.0)
-        N2 = self.kn * np.maximum(self.diameter - d2, 0.0)
-        trial = old.T1 + self.kt * 0.5 * (old.d1 + d1) * (alpha - old.alpha)
-        cap = self.mu * N1
-        return AnalyticalState(l1, l2, y2, d1, alpha, N1, N2, np.clip(trial, -cap, cap))
+        n_unconverged = int(converged.size - np.count_nonzero(converged))
+        return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), iteration, n_unconverged
 
     def response(self, state: AnalyticalState) -> CellResponse:
         """Meso-stress of ``state`` without advancing it."""
