@@ -1,0 +1,207 @@
+"""Meso-DEM cell backend: batched few-grain DEM cells (Warp kernels) behind the CellModel protocol.
+
+``DemCell(contact_law, radius, *, mesostructure=None, settings=DemSettings(), device="cpu",
+threads=2, engine="warp")`` advances every cell of a batch by its own strain increment with
+the quasi-static DEM of ``warp_hcell`` (one Warp thread per cell; ``engine="numpy"`` runs the
+same step with numpy, for comparisons). Without ``mesostructure`` the cells are H-cells
+built from ``alpha0_deg``; with one, every cell starts from that mesostructure (its
+``alpha0`` argument is then ignored).
+
+Sign convention: compression and contraction positive. The DEM's tension-positive
+Love-Weber sum is converted in ``to_compression_positive`` only. V_cell is the area of the
+polygon through the centres of the outer (driven) grains: the hexagon for the H-cell.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+import numpy as np
+
+from homogenization.cell_model import CellResponse
+from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
+from warp_hcell.mesostructure import Mesostructure, polygon_area
+from warp_hcell.model import DemModel
+from warp_hcell.parameters import ContactLaw, DemSettings, check_positive
+from warp_hcell.state import DemState
+
+_MODEL_ARRAYS = ("radius", "reference_position", "reference_cell_size")
+
+
+@dataclass(frozen=True, eq=False)
+class DemCellState:
+    """A batch of DEM cells: its immutable model (per-cell reference geometry) and its state."""
+
+    model: DemModel
+    dem: DemState
+
+    @property
+    def n_cells(self) -> int:
+        """Number of cells."""
+        return self.model.n_cells
+
+
+def love_weber_tension_positive(contact_force: np.ndarray, branch: np.ndarray) -> np.ndarray:
+    """DEM Love-Weber sum, tension positive: sum_c f_c (x) l_c.
+
+    Args:
+        contact_force: force on grain i by grain j [N], shape (n_cells, n_pairs, 2).
+        branch: x_j - x_i [m], shape (n_cells, n_pairs, 2).
+
+    Returns:
+        (n_cells, 2, 2) [N m], local frame (n, t); negative for a compressed cell.
+    """
+    return np.einsum("cpa,cpb->cab", contact_force, branch)
+
+
+def to_compression_positive(moment_tension_positive: np.ndarray) -> np.ndarray:
+    """THE sign conversion of the DEM boundary: tension-positive -> compression-positive moment."""
+    return -moment_tension_positive
+
+
+class DemCell:
+    """Meso-DEM backend (see the module docstring).
+
+    Args:
+        contact_law: stiffnesses and friction.
+        radius: grain radius r [m] of the H-cell (ignored with ``mesostructure``).
+        mesostructure: cell description; None = H-cell from ``alpha0_deg``.
+        settings: DEM numerical settings.
+        device: Warp device ("cpu", "cuda:0").
+        threads: CPU chunks launched in parallel (results do not depend on it).
+        engine: "warp" (kernels) or "numpy" (same step in numpy, CPU only).
+    """
+
+    name = "dem"
+
+    def __init__(self, contact_law: ContactLaw, radius: float, *, mesostructure: Mesostructure | None = None,
+                 settings: DemSettings = DemSettings(), device: str = "cpu", threads: int = 2,
+                 engine: str = "warp"):
+        if engine not in ("warp", "numpy"):
+            raise ValueError(f"engine {engine!r} is not one of 'warp', 'numpy'")
+        if int(threads) < 1:
+            raise ValueError(f"threads = {threads} must be >= 1")
+        self.contact_law = contact_law
+        self.radius = check_positive("radius", radius)
+        self.mesostructure = mesostructure
+        self.settings = settings
+        self.device = str(device)
+        self.threads = int(threads)
+        self.engine = engine
+        self._integrators: dict[int, Any] = {}
+
+    # -- construction ---------------------------------------------------------------------
+    def _model(self, alpha0_deg: float | np.ndarray, n_cells: int) -> DemModel:
+        options = dict(contact_law=self.contact_law, settings=self.settings, device=self.device)
+        if self.mesostructure is None:
+            return DemModel.build_h_cell(alpha0_deg, n_cells, self.radius, **options)
+        return DemModel.build(self.mesostructure, n_cells, **options)
+
+    def _integrator(self, model: DemModel):
+        key = id(model)
+        integrator = self._integrators.get(key)
+        if integrator is None or integrator.model is not model:
+            integrator = (DemIntegrator(model, threads=self.threads) if self.engine == "warp"
+                          else NumpyIntegrator(model))
+            self._integrators = {key: integrator}  # keep only the latest model's integrator
+        return integrator
+
+    # -- CellModel protocol ---------------------------------------------------------------
+    def init_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> DemCellState:
+        """Touching, force-free cells; ``alpha0_deg`` [deg] scalar or (n_cells,)."""
+        model = self._model(alpha0_deg, int(n_cells))
+        return DemCellState(model, model.state())
+
+    def step(self, state: DemCellState, d_eps_local: np.ndarray) -> tuple[DemCellState, CellResponse]:
+        """Advance every cell by (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
+
+        Pure: ``state`` is not modified. Cells that reach max_substeps without equilibrium are
+        counted in ``diagnostics["n_unconverged"]`` and reported with a warning.
+        """
+        model = state.model
+        out = DemState.empty(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)
+        self._integrator(model).step(state.dem, out, d_eps_local)
+        new = DemCellState(model, out)
+        response = self.response(new)
+        if response.diagnostics["n_unconverged"]:
+            warnings.warn(f"DEM: {response.diagnostics['n_unconverged']:g} of {model.n_cells} cells did not reach "
+                          f"equilibrium within max_substeps = {self.settings.max_substeps}", RuntimeWarning,
+                          stacklevel=2)
+        return new, response
+
+    def response(self, state: DemCellState) -> CellResponse:
+        """Love-Weber moment (compression positive) and V_cell of ``state``; diagnostics of its step."""
+        arrays = state.dem.to_numpy()
+        pairs = state.model.meso.pairs
+        branch = arrays["position"][:, pairs[:, 1]] - arrays["position"][:, pairs[:, 0]]
+        moment = to_compression_positive(love_weber_tension_positive(arrays["contact_force"], branch))
+        substeps = arrays["substeps"]
+        diagnostics = {"substeps": float(substeps.sum()), "max_substeps": float(substeps.max(initial=0)),
+                       "n_unconverged": float(np.count_nonzero(arrays["converged"] == 0))}
+        return CellResponse(moment=moment, area=polygon_area(arrays["position"], state.model.meso.outer),
+                            diagnostics=diagnostics)
+
+    def observables(self, state: DemCellState) -> dict[str, np.ndarray]:
+        """Per-cell quantities, shape (n_cells,) each.
+
+        Always: ``l1, l2, area`` [m, m^2], ``S_nn, S_tt, S_nt`` [N m] (compression positive),
+        ``n_contacts`` (closed contacts), ``substeps`` and ``converged`` of the last step, and
+        grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label). H-cells also give ``d1, d2``
+        [m], ``alpha_deg`` [deg], ``N1, N2, T1`` [N] (T1 > 0 resists opening) and ``closed1,
+        closed2`` (bool), measured at the reference contacts 1-2 and 2-3 (equal to the other
+        type-1 / type-2 contacts by symmetry).
+        """
+        arrays = state.dem.to_numpy()
+        meso = state.model.meso
+        response = self.response(state)
+        x = arrays["position"]
+        obs: dict[str, np.ndarray] = {
+            "l1": arrays["cell_size"][:, 0].copy(), "l2": arrays["cell_size"][:, 1].copy(),
+            "area": response.area, "S_nn": response.moment[:, 0, 0], "S_tt": response.moment[:, 1, 1],
+            "S_nt": response.moment[:, 0, 1], "n_contacts": arrays["contact"].sum(axis=1),
+            "substeps": arrays["substeps"].copy(), "converged": arrays["converged"] == 1,
+        }
+        reference = meso.h_reference_pairs
+        if reference is not None:
+            p1, p2 = reference
+            b1 = x[:, 1] - x[:, 0]
+            b2 = x[:, 2] - x[:, 1]
+            d1 = np.hypot(b1[:, 0], b1[:, 1])
+            u1 = b1 / d1[:, None]
+            u2 = b2 / np.hypot(b2[:, 0], b2[:, 1])[:, None]
+            f1, f2 = arrays["contact_force"][:, p1], arrays["contact_force"][:, p2]
+            obs.update({
+                "d1": d1, "d2": np.hypot(b2[:, 0], b2[:, 1]),
+                "alpha_deg": np.degrees(np.arctan2(-b1[:, 1], -b1[:, 0])),
+                "N1": -np.sum(f1 * u1, axis=1), "N2": -np.sum(f2 * u2, axis=1),
+                "T1": arrays["shear_force"][:, p1].copy(),
+                "closed1": arrays["contact"][:, p1] == 1, "closed2": arrays["contact"][:, p2] == 1,
+            })
+        for g in range(meso.n_grains):
+            obs[f"x_n{g + 1}"] = x[:, g, 0].copy()
+            obs[f"x_t{g + 1}"] = x[:, g, 1].copy()
+        return obs
+
+    def take(self, state: DemCellState, index: np.ndarray) -> DemCellState:
+        """Cells ``state[index]`` (int array, repetition allowed), model included."""
+        index = np.asarray(index, dtype=np.int64)
+        arrays = {k: v[index] for k, v in state.dem.to_numpy().items()}
+        model = state.model.take(index)
+        return DemCellState(model, DemState.from_numpy(arrays, model.device))
+
+    def state_to_arrays(self, state: DemCellState) -> dict[str, np.ndarray]:
+        """Every state array plus the per-cell reference geometry (first axis n_cells)."""
+        arrays = {k: np.array(v) for k, v in state.dem.to_numpy().items()}
+        arrays.update({k: np.array(getattr(state.model, k).numpy()) for k in _MODEL_ARRAYS})
+        return arrays
+
+    def state_from_arrays(self, arrays: Mapping[str, Any]) -> DemCellState:
+        """Inverse of ``state_to_arrays`` (topology from this backend's mesostructure)."""
+        meso = self.mesostructure if self.mesostructure is not None else self._model(55.0, 1).meso
+        arrays = {k: np.asarray(arrays[k]) for k in (*_MODEL_ARRAYS, *(f.name for f in fields(DemState)))}
+        model = DemModel.from_reference(meso, arrays["radius"], arrays["reference_position"],
+                                        arrays["reference_cell_size"], contact_law=self.contact_law,
+                                        settings=self.settings, device=self.device)
+        return DemCellState(model, DemState.from_numpy(arrays, self.device))

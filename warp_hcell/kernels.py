@@ -1,0 +1,275 @@
+"""All Warp code of the meso-DEM: the contact law and the batched cell-step kernel (float64).
+
+One thread advances one cell through a whole strain increment: the substep loop runs
+inside the kernel and the cell (positions, velocities, displacements, shear forces) lives in
+fixed-size local vectors. Kernels are generated per topology (candidate pairs and driven
+DOF mask are compile-time constants), so every grain/pair index is static and the loops are
+unrolled; ``step_kernel`` caches one kernel per topology.
+
+Conventions inside the kernels (tension-positive DEM quantities, local frame (n, t)):
+    - pair p = (i, j): unit normal u = (x_j - x_i) / |x_j - x_i|, tangent w = (-u_t, u_n);
+    - ``contact_force[p]`` is the force exerted ON grain i BY grain j: -f_n u + f_s w,
+      with f_n >= 0 the normal (repulsive) force and f_s the tangential spring force
+      (``shear_force``), which grows by kt * ((dx_j - dx_i) . w);
+    - a pair is in contact when its gap is <= contact_tolerance * (r_i + r_j); a contact with
+      a gap >= 0 carries zero force (and so zero shear force).
+The conversion to compression-positive quantities happens on the host
+(``homogenization.backends.dem.to_compression_positive``).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def contact_law(
+    overlap: wp.float64,
+    shear_increment: wp.float64,
+    shear_force: wp.float64,
+    kn: wp.float64,
+    kt: wp.float64,
+    mu: wp.float64,
+):
+    """Linear normal spring without tension, incremental tangential spring with Coulomb cap.
+
+    Args:
+        overlap: r_i + r_j - |x_j - x_i| [m] (negative = gap within the contact tolerance).
+        shear_increment: tangential relative displacement of the substep [m].
+        shear_force: tangential force before the substep [N].
+        kn, kt: normal and tangential stiffness [N/m]; mu: friction coefficient [-].
+
+    Returns:
+        (normal force >= 0 [N], new tangential force [N]); the trial force decides the
+        sliding direction: f_s = clip(f_s + kt du, -mu f_n, +mu f_n).
+    """
+    normal = kn * wp.max(overlap, wp.float64(0.0))
+    cap = mu * normal
+    trial = shear_force + kt * shear_increment
+    return normal, wp.clamp(trial, -cap, cap)
+
+
+@functools.lru_cache(maxsize=None)
+def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bool], ...]) -> wp.Kernel:
+    """The cell-step kernel for one topology.
+
+    Args:
+        pairs: candidate contact pairs (i, j), 0-based, i < j.
+        driven: per grain, (driven along n, driven along t).
+
+    Returns:
+        A kernel launched with one thread per cell (see ``integrator.launch_step``).
+    """
+    n_grains = len(driven)
+    n_pairs = len(pairs)
+    pi = tuple(p[0] for p in pairs)
+    pj = tuple(p[1] for p in pairs)
+    drive_n = tuple(bool(d[0]) for d in driven)
+    drive_t = tuple(bool(d[1]) for d in driven)
+    vec_g = wp.types.vector(length=n_grains, dtype=wp.float64)
+    vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
+    vec_pi = wp.types.vector(length=n_pairs, dtype=wp.int32)
+
+    @wp.kernel(module="unique", module_options={"enable_backward": False, "max_unroll": 4096})
+    def dem_step(
+        radius: wp.array2d(dtype=wp.float64),
+        inv_mass: wp.array2d(dtype=wp.float64),
+        reference_position: wp.array2d(dtype=wp.vec2d),
+        reference_cell_size: wp.array(dtype=wp.vec2d),
+        dt: wp.array(dtype=wp.float64),
+        force_floor: wp.array(dtype=wp.float64),
+        kn: wp.float64,
+        kt: wp.float64,
+        mu: wp.float64,
+        damping: wp.float64,
+        contact_tolerance: wp.float64,
+        strain_per_substep: wp.float64,
+        force_tolerance: wp.float64,
+        max_substeps: wp.int32,
+        position_in: wp.array2d(dtype=wp.vec2d),
+        velocity_in: wp.array2d(dtype=wp.vec2d),
+        shear_force_in: wp.array2d(dtype=wp.float64),
+        cell_size_in: wp.array(dtype=wp.vec2d),
+        d_eps_local: wp.array(dtype=wp.vec2d),
+        # outputs
+        position_out: wp.array2d(dtype=wp.vec2d),
+        velocity_out: wp.array2d(dtype=wp.vec2d),
+        shear_force_out: wp.array2d(dtype=wp.float64),
+        contact_force_out: wp.array2d(dtype=wp.vec2d),
+        contact_out: wp.array2d(dtype=wp.int32),
+        cell_size_out: wp.array(dtype=wp.vec2d),
+        substeps_out: wp.array(dtype=wp.int32),
+        converged_out: wp.array(dtype=wp.int32),
+    ):
+        c = wp.tid()
+        zero = wp.float64(0.0)
+        one = wp.float64(1.0)
+        h = dt[c]
+        half_h = wp.float64(0.5) * h
+        floor = force_floor[c]
+
+        xn = vec_g()
+        xt = vec_g()
+        vn = vec_g()
+        vt = vec_g()
+        dxn = vec_g()
+        dxt = vec_g()
+        fn_g = vec_g()
+        ft_g = vec_g()
+        refn = vec_g()
+        reft = vec_g()
+        im = vec_g()
+        for g in range(wp.static(n_grains)):
+            x0 = position_in[c, g]
+            v0 = velocity_in[c, g]
+            r0 = reference_position[c, g]
+            xn[g] = x0[0]
+            xt[g] = x0[1]
+            vn[g] = v0[0]
+            vt[g] = v0[1]
+            refn[g] = r0[0]
+            reft[g] = r0[1]
+            im[g] = inv_mass[c, g]
+
+        fs = vec_p()
+        rsum = vec_p()
+        cut2 = vec_p()
+        fn_p = vec_p()
+        touch = vec_pi()
+        widen = one + contact_tolerance
+        for p in range(wp.static(n_pairs)):
+            fs[p] = shear_force_in[c, p]
+            r_sum = radius[c, wp.static(pi[p])] + radius[c, wp.static(pj[p])]
+            rsum[p] = r_sum
+            cut2[p] = (r_sum * widen) * (r_sum * widen)
+
+        # driven coordinates follow l(k) = l_start + (l_end - l_start) k / n_drive
+        l_ref = reference_cell_size[c]
+        l_start = cell_size_in[c]
+        de = d_eps_local[c]
+        l_end = wp.vec2d(l_start[0] * (one - de[0]), l_start[1] * (one - de[1]))
+        n_drive = wp.int32(wp.ceil(wp.max(wp.abs(de[0]), wp.abs(de[1])) / strain_per_substep))
+        scale_n0 = l_start[0] / l_ref[0]
+        scale_t0 = l_start[1] / l_ref[1]
+        dscale_n = (l_end[0] - l_start[0]) / l_ref[0]
+        dscale_t = (l_end[1] - l_start[1]) / l_ref[1]
+        inv_n_drive = one / wp.float64(wp.max(n_drive, 1))
+
+        substeps = wp.int32(0)
+        converged = wp.int32(0)
+        while True:
+            # contact forces at the current positions (shear increment from the last move)
+            fmax = zero
+            for g in range(wp.static(n_grains)):
+                fn_g[g] = zero
+                ft_g[g] = zero
+            for p in range(wp.static(n_pairs)):
+                i = wp.static(pi[p])
+                j = wp.static(pj[p])
+                bn = xn[j] - xn[i]
+                bt = xt[j] - xt[i]
+                dist2 = bn * bn + bt * bt
+                if dist2 <= cut2[p]:
+                    dist = wp.sqrt(dist2)
+                    un = bn / dist
+                    ut = bt / dist
+                    du = (dxt[j] - dxt[i]) * un - (dxn[j] - dxn[i]) * ut
+                    normal, shear = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
+                    fs[p] = shear
+                    fn_p[p] = normal
+                    touch[p] = 1
+                    fin = -normal * un - shear * ut
+                    fit = -normal * ut + shear * un
+                    fn_g[i] = fn_g[i] + fin
+                    ft_g[i] = ft_g[i] + fit
+                    fn_g[j] = fn_g[j] - fin
+                    ft_g[j] = ft_g[j] - fit
+                    fmax = wp.max(fmax, normal)
+                else:
+                    fs[p] = zero
+                    fn_p[p] = zero
+                    touch[p] = 0
+
+            if substeps >= n_drive:
+                unbalanced = zero
+                for g in range(wp.static(n_grains)):
+                    if wp.static(not drive_n[g]):
+                        unbalanced = wp.max(unbalanced, wp.abs(fn_g[g]))
+                    if wp.static(not drive_t[g]):
+                        unbalanced = wp.max(unbalanced, wp.abs(ft_g[g]))
+                if unbalanced <= force_tolerance * wp.max(fmax, floor):
+                    converged = 1
+                    break
+                if substeps >= max_substeps:
+                    break
+
+            substeps += 1
+            s = wp.min(wp.float64(substeps) * inv_n_drive, one)
+            scale_n = scale_n0 + dscale_n * s
+            scale_t = scale_t0 + dscale_t * s
+            for g in range(wp.static(n_grains)):
+                unloaded = fn_g[g] == zero and ft_g[g] == zero
+                if wp.static(drive_n[g]):
+                    x_new = refn[g] * scale_n
+                    dxn[g] = x_new - xn[g]
+                    xn[g] = x_new
+                    vn[g] = dxn[g] / h
+                else:
+                    f = fn_g[g]
+                    v = vn[g]
+                    if unloaded:
+                        v = zero
+                    else:
+                        a = f * im[g]
+                        if f * (v + half_h * a) > zero:
+                            a = a * (one - damping)
+                        elif f * (v + half_h * a) < zero:
+                            a = a * (one + damping)
+                        v = v + h * a
+                    vn[g] = v
+                    dxn[g] = v * h
+                    xn[g] = xn[g] + v * h
+                if wp.static(drive_t[g]):
+                    x_new = reft[g] * scale_t
+                    dxt[g] = x_new - xt[g]
+                    xt[g] = x_new
+                    vt[g] = dxt[g] / h
+                else:
+                    f = ft_g[g]
+                    v = vt[g]
+                    if unloaded:
+                        v = zero
+                    else:
+                        a = f * im[g]
+                        if f * (v + half_h * a) > zero:
+                            a = a * (one - damping)
+                        elif f * (v + half_h * a) < zero:
+                            a = a * (one + damping)
+                        v = v + h * a
+                    vt[g] = v
+                    dxt[g] = v * h
+                    xt[g] = xt[g] + v * h
+
+        for g in range(wp.static(n_grains)):
+            position_out[c, g] = wp.vec2d(xn[g], xt[g])
+            velocity_out[c, g] = wp.vec2d(vn[g], vt[g])
+        for p in range(wp.static(n_pairs)):
+            shear_force_out[c, p] = fs[p]
+            i = wp.static(pi[p])
+            j = wp.static(pj[p])
+            bn = xn[j] - xn[i]
+            bt = xt[j] - xt[i]
+            dist = wp.sqrt(bn * bn + bt * bt)
+            un = bn / dist
+            ut = bt / dist
+            contact_force_out[c, p] = wp.vec2d(-fn_p[p] * un - fs[p] * ut, -fn_p[p] * ut + fs[p] * un)
+            contact_out[c, p] = touch[p]
+        cell_size_out[c] = l_end
+        substeps_out[c] = substeps
+        converged_out[c] = converged
+
+    return dem_step

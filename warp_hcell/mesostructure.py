@@ -1,0 +1,294 @@
+"""Few-grain mesostructures of one cell: disks, driven DOFs, candidate contacts, outer polygon.
+
+A ``Mesostructure`` is a frozen numpy description of ONE cell in its local frame
+(index 0 = n, the cell axis; index 1 = t, the lateral direction). Every degree of freedom
+(grain, direction) is either driven or free. A driven coordinate follows the cell strain
+homothetically: x_n = x_n,ref * l1 / l1_ref and x_t = x_t,ref * l2 / l2_ref. Free
+coordinates are integrated by the DEM. The outer polygon (ordered grains) has area V_cell.
+
+Exports:
+    ``Mesostructure``: the description (validated on construction).
+    ``MesostructureError``: raised, with a one-line message, for invalid descriptions.
+    ``h_cell(alpha0_deg, radius)``: the six-grain H-cell of spec section 2 (the only code
+        that knows the H-cell has six grains).
+    ``h_cell_reference(alpha0_deg, radius)``: vectorised H-cell reference positions and cell
+        sizes for a batch of alpha0.
+    ``load_mesostructure(path)``: read a TOML or JSON description (format in ``data/README``
+        and in the docstring of ``load_mesostructure``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from itertools import combinations
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from warp_hcell.parameters import DemSettings, check_alpha0_deg, check_positive
+
+H_TYPE1_PAIRS = ((1, 2), (1, 6), (3, 4), (4, 5))
+"""Type-1 contacts of the H-cell as (label, label), labels 1..6 of spec section 2."""
+H_TYPE2_PAIRS = ((2, 3), (5, 6))
+"""Type-2 contacts of the H-cell (parallel to n)."""
+
+
+class MesostructureError(ValueError):
+    """An invalid mesostructure description; the message is one line."""
+
+
+@dataclass(frozen=True, eq=False)
+class Mesostructure:
+    """One cell made of a few disks, in the local frame (index 0 = n, index 1 = t).
+
+    Attributes:
+        name: short description.
+        radius: grain radii [m], shape (n_grains,), > 0. Grain label = index + 1.
+        position: reference centre positions [m], shape (n_grains, 2), (x_n, x_t).
+        driven: True where the DOF (grain, direction) is driven by the cell strain,
+            shape (n_grains, 2) bool; False = free (integrated by the DEM).
+        pairs: candidate contact pairs (i, j), i < j, 0-based, shape (n_pairs, 2).
+        outer: ordered 0-based grain indices of the outer polygon whose area is V_cell,
+            shape (n_outer,).
+        cell_size: reference cell size (l1_ref, l2_ref) [m], shape (2,).
+        pair_type: H-cell label of each pair, shape (n_pairs,): 1 = type-1, 2 = type-2,
+            0 = unlabelled. All zeros for a mesostructure without H-cell labels.
+    """
+
+    name: str
+    radius: np.ndarray
+    position: np.ndarray
+    driven: np.ndarray
+    pairs: np.ndarray
+    outer: np.ndarray
+    cell_size: np.ndarray
+    pair_type: np.ndarray = field(default=None)  # type: ignore[assignment]
+    contact_tolerance: float = DemSettings.contact_tolerance
+    """Allowed overlap, as a fraction of the pair's mean diameter, when validating [-]."""
+
+    def __post_init__(self) -> None:
+        radius = np.asarray(self.radius, dtype=np.float64).reshape(-1)
+        n_grains = radius.size
+        position = np.asarray(self.position, dtype=np.float64)
+        driven = np.asarray(self.driven)
+        pairs = np.asarray(self.pairs, dtype=np.int64).reshape(-1, 2)
+        outer = np.asarray(self.outer, dtype=np.int64).reshape(-1)
+        cell_size = np.asarray(self.cell_size, dtype=np.float64).reshape(-1)
+        pair_type = (np.zeros(pairs.shape[0], np.int8) if self.pair_type is None
+                     else np.asarray(self.pair_type, dtype=np.int8).reshape(-1))
+        _validate(self.name, radius, position, driven, pairs, outer, cell_size, pair_type,
+                  self.contact_tolerance)
+        for name, value in (("radius", radius), ("position", position), ("driven", driven.astype(bool)),
+                            ("pairs", pairs), ("outer", outer), ("cell_size", cell_size),
+                            ("pair_type", pair_type)):
+            value = np.array(value)
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
+
+    @property
+    def n_grains(self) -> int:
+        """Number of grains."""
+        return int(self.radius.size)
+
+    @property
+    def n_pairs(self) -> int:
+        """Number of candidate contact pairs."""
+        return int(self.pairs.shape[0])
+
+    @property
+    def is_h_cell(self) -> bool:
+        """True when the H-cell labels (type-1 contact 1-2, type-2 contact 2-3) are attached."""
+        return self.h_reference_pairs is not None
+
+    @property
+    def h_reference_pairs(self) -> tuple[int, int] | None:
+        """Pair indices of the reference contacts 1-2 (type 1) and 2-3 (type 2), or None."""
+        found = []
+        for (i, j), kind in (((0, 1), 1), ((1, 2), 2)):
+            hit = np.flatnonzero((self.pairs[:, 0] == i) & (self.pairs[:, 1] == j) & (self.pair_type == kind))
+            if hit.size != 1:
+                return None
+            found.append(int(hit[0]))
+        return found[0], found[1]
+
+    def topology_key(self) -> tuple:
+        """Hashable (pairs, driven) description: cells sharing it share one compiled kernel."""
+        return (tuple(map(tuple, self.pairs.tolist())), tuple(map(tuple, self.driven.tolist())))
+
+
+def polygon_area(position: np.ndarray, outer: np.ndarray) -> np.ndarray:
+    """Area of the polygon through ``position[..., outer, :]`` (shoelace, absolute value).
+
+    Args:
+        position: centre positions [m], shape (..., n_grains, 2).
+        outer: ordered grain indices, shape (n_outer,).
+
+    Returns:
+        Area [m^2], shape (...).
+    """
+    p = position[..., outer, :]
+    q = np.roll(p, -1, axis=-2)
+    return 0.5 * np.abs(np.sum(p[..., 0] * q[..., 1] - q[..., 0] * p[..., 1], axis=-1))
+
+
+def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_type, tolerance) -> None:
+    n_grains = radius.size
+    if n_grains < 2:
+        raise MesostructureError(f"mesostructure {name!r}: needs at least 2 grains, got {n_grains}")
+    bad = np.flatnonzero(~(np.isfinite(radius) & (radius > 0.0)))
+    if bad.size:
+        raise MesostructureError(
+            f"mesostructure {name!r}: grain {bad[0] + 1} has radius {radius[bad[0]]:g}; radii must be finite and > 0")
+    if position.shape != (n_grains, 2) or not np.all(np.isfinite(position)):
+        raise MesostructureError(f"mesostructure {name!r}: positions must be finite, shape ({n_grains}, 2)")
+    if driven.shape != (n_grains, 2) or driven.dtype != bool:
+        raise MesostructureError(f"mesostructure {name!r}: driven flags must be booleans, shape ({n_grains}, 2)")
+    if cell_size.shape != (2,) or not np.all(np.isfinite(cell_size) & (cell_size > 0.0)):
+        raise MesostructureError(f"mesostructure {name!r}: cell_size must be two finite values > 0")
+    if pairs.shape[0] == 0:
+        raise MesostructureError(f"mesostructure {name!r}: no candidate contact pairs")
+    if pairs.min() < 0 or pairs.max() >= n_grains or np.any(pairs[:, 0] >= pairs[:, 1]):
+        raise MesostructureError(f"mesostructure {name!r}: pairs must be (i, j) with 1 <= i < j <= {n_grains}")
+    if len(set(map(tuple, pairs.tolist()))) != pairs.shape[0]:
+        raise MesostructureError(f"mesostructure {name!r}: duplicate contact pairs")
+    if pair_type.shape != (pairs.shape[0],) or not np.all(np.isin(pair_type, (0, 1, 2))):
+        raise MesostructureError(f"mesostructure {name!r}: pair types must be 0, 1 or 2, one per pair")
+    if outer.size < 3 or len(set(outer.tolist())) != outer.size or outer.min() < 0 or outer.max() >= n_grains:
+        raise MesostructureError(f"mesostructure {name!r}: outer polygon needs >= 3 distinct grains in 1..{n_grains}")
+    undriven = [int(g) + 1 for g in outer if not driven[g].any()]
+    if undriven:
+        raise MesostructureError(
+            f"mesostructure {name!r}: outer grain {undriven[0]} has no driven DOF; outer grains follow the cell strain")
+    if not driven[:, 0].any() or not driven[:, 1].any():
+        raise MesostructureError(f"mesostructure {name!r}: needs at least one DOF driven along n and one along t")
+    if not polygon_area(position, outer) > 0.0:
+        raise MesostructureError(f"mesostructure {name!r}: outer polygon has zero area")
+    for i, j in combinations(range(n_grains), 2):
+        gap = math.dist(position[i], position[j]) - radius[i] - radius[j]
+        if gap < -tolerance * (radius[i] + radius[j]):
+            raise MesostructureError(
+                f"mesostructure {name!r}: grains {i + 1} and {j + 1} overlap by {-gap:.3g} m "
+                f"(more than the contact tolerance)")
+
+
+def h_cell_reference(alpha0_deg: float | np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Touching H-cell reference positions and cell sizes for a batch of opening angles.
+
+    Args:
+        alpha0_deg: initial opening angles [deg], scalar or shape (n_cells,), each in [30, 90).
+        radius: grain radius r [m] (all six grains equal, D = 2 r).
+
+    Returns:
+        position: (n_cells, 6, 2) [m], (x_n, x_t) of grains 1..6 with d1 = d2 = D;
+        cell_size: (n_cells, 2) [m], (l1, l2) = (D + 2 D cos a, 2 D sin a).
+    """
+    alpha0_deg = np.atleast_1d(np.asarray(alpha0_deg, dtype=np.float64))
+    for value in np.unique(alpha0_deg):
+        check_alpha0_deg(value)
+    diameter = 2.0 * check_positive("radius", radius)
+    alpha = np.radians(alpha0_deg)
+    top = diameter / 2.0 + diameter * np.cos(alpha)
+    side = diameter * np.sin(alpha)
+    half = np.full_like(alpha, diameter / 2.0)
+    zero = np.zeros_like(alpha)
+    x_n = np.stack([top, half, -half, -top, -half, half], axis=1)
+    x_t = np.stack([zero, -side, -side, zero, side, side], axis=1)
+    cell_size = np.stack([2.0 * top, 2.0 * side], axis=1)
+    return np.stack([x_n, x_t], axis=2), cell_size
+
+
+def h_cell(alpha0_deg: float = 55.0, radius: float = 0.5) -> Mesostructure:
+    """The six-grain H-cell of spec section 2, touching and force-free.
+
+    Grains 1 and 4 are driven along n and t (x_t = 0); grains 2, 3, 5, 6 are driven along t
+    and free along n. All 15 pairs are candidates; type-1 and type-2 contacts are labelled.
+    The outer polygon is the hexagon 1-2-3-4-5-6.
+
+    Args:
+        alpha0_deg: initial opening angle [deg], in [30, 90).
+        radius: grain radius r [m].
+    """
+    position, cell_size = h_cell_reference(alpha0_deg, radius)
+    driven = np.array([[True, True]] + [[False, True]] * 2 + [[True, True]] + [[False, True]] * 2)
+    return _with_labels(
+        name=f"h-cell alpha0={float(alpha0_deg):g} deg",
+        radius=np.full(6, float(radius)), position=position[0], driven=driven,
+        outer=np.arange(6), cell_size=cell_size[0],
+        type1=H_TYPE1_PAIRS, type2=H_TYPE2_PAIRS)
+
+
+def _with_labels(*, name, radius, position, driven, outer, cell_size, type1, type2, pairs=None,
+                 contact_tolerance=DemSettings.contact_tolerance) -> Mesostructure:
+    """Build a Mesostructure with all pairs (unless given) and type-1/type-2 labels (1-based)."""
+    n_grains = len(radius)
+    pairs = list(combinations(range(n_grains), 2)) if pairs is None else [tuple(sorted(p)) for p in pairs]
+    labels = {tuple(sorted((a - 1, b - 1))): 1 for a, b in type1}
+    labels.update({tuple(sorted((a - 1, b - 1))): 2 for a, b in type2})
+    unknown = set(labels) - set(pairs)
+    if unknown:
+        a, b = sorted(unknown)[0]
+        raise MesostructureError(f"mesostructure {name!r}: labelled pair {a + 1}-{b + 1} is not a candidate pair")
+    pair_type = [labels.get(p, 0) for p in pairs]
+    return Mesostructure(name=name, radius=np.asarray(radius, float), position=np.asarray(position, float),
+                         driven=np.asarray(driven), pairs=np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+                         outer=np.asarray(outer), cell_size=np.asarray(cell_size, float),
+                         pair_type=np.asarray(pair_type), contact_tolerance=contact_tolerance)
+
+
+def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettings.contact_tolerance) -> Mesostructure:
+    """Read a mesostructure from a TOML (``.toml``) or JSON (``.json``) file.
+
+    Format (labels are 1-based, coordinates (n, t) in metres)::
+
+        name = "h-cell, lateral grains 0.7 D"
+        cell_size = [l1_ref, l2_ref]
+        outer = [1, 2, 3, 4, 5, 6]          # ordered around the polygon whose area is V_cell
+        pairs = [[1, 2], ...]               # optional; default: all pairs
+        type1 = [[1, 2], [1, 6], ...]       # optional H-cell labels (enable N1, N2, T1, alpha)
+        type2 = [[2, 3], [5, 6]]
+        [[grains]]                          # one table per grain, in label order
+        radius = 0.5
+        position = [x_n, x_t]
+        driven = [true, false]              # (along n, along t)
+
+    Raises:
+        MesostructureError: unreadable file or invalid description (one-line message).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+        data = tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MesostructureError(f"cannot read mesostructure file {path}: {exc.strerror or exc}") from None
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+        raise MesostructureError(f"mesostructure file {path} is not valid {path.suffix[1:].upper()}: {exc}") from None
+    return _from_mapping(data, default_name=path.stem, contact_tolerance=contact_tolerance)
+
+
+def _from_mapping(data: Mapping[str, Any], *, default_name: str, contact_tolerance: float) -> Mesostructure:
+    name = str(data.get("name", default_name))
+    try:
+        grains = data["grains"]
+        radius = [float(g["radius"]) for g in grains]
+        position = [[float(v) for v in g["position"]] for g in grains]
+        driven = [list(g["driven"]) for g in grains]
+        if not all(isinstance(v, bool) and len(d) == 2 for d in driven for v in d):
+            raise MesostructureError(f"mesostructure {name!r}: each grain needs driven = [bool, bool] (n, t)")
+        to_index = lambda labels: [[int(a) - 1 for a in p] for p in labels]  # noqa: E731
+        pairs = data.get("pairs")
+        return _with_labels(
+            name=name, radius=radius, position=position, driven=driven,
+            outer=[int(g) - 1 for g in data["outer"]], cell_size=[float(v) for v in data["cell_size"]],
+            pairs=None if pairs is None else to_index(pairs),
+            type1=[tuple(p) for p in data.get("type1", ())], type2=[tuple(p) for p in data.get("type2", ())],
+            contact_tolerance=contact_tolerance)
+    except KeyError as exc:
+        raise MesostructureError(f"mesostructure {name!r}: missing key {exc.args[0]!r}") from None
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, MesostructureError):
+            raise
+        raise MesostructureError(f"mesostructure {name!r}: malformed entry ({exc})") from None

@@ -1,0 +1,148 @@
+"""Immutable DEM model of a batch of cells: per-cell reference geometry, masses, constants.
+
+``DemModel.build`` replicates one mesostructure (or stacks one per cell, same topology);
+``DemModel.build_h_cell`` builds H-cells from per-cell alpha0. A model is never modified:
+``take`` and ``from_reference`` return new models. ``model.state()`` gives the touching,
+force-free initial state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import warp as wp
+
+from warp_hcell.mesostructure import Mesostructure, MesostructureError, h_cell, h_cell_reference
+from warp_hcell.parameters import ContactLaw, DemSettings
+from warp_hcell.state import DemState
+
+
+@dataclass(frozen=True, eq=False)
+class DemModel:
+    """Device arrays and constants of a batch of cells sharing one topology.
+
+    Attributes:
+        meso: topology template (pairs, driven mask, outer polygon, labels).
+        device: Warp device name.
+        radius: grain radii [m], shape (n_cells, n_grains).
+        inv_mass: 1 / (density pi r^2) [1/kg] per grain, shape (n_cells, n_grains).
+        reference_position: reference centres [m], shape (n_cells, n_grains) vec2d.
+        reference_cell_size: (l1_ref, l2_ref) [m], shape (n_cells,) vec2d.
+        dt: time step dt_factor sqrt(m_min / kn) [s] of each cell (its lightest grain), (n_cells,).
+        force_floor: kn * contact_tolerance * mean grain diameter [N], shape (n_cells,): the
+            force below which the resolution of contact detection is reached; the unbalanced
+            force ratio is taken relative to max(largest normal force, force_floor).
+        contact_law: normal/tangential stiffness and friction.
+        settings: numerical settings (damping, strain per substep, tolerances).
+    """
+
+    meso: Mesostructure
+    device: str
+    radius: wp.array
+    inv_mass: wp.array
+    reference_position: wp.array
+    reference_cell_size: wp.array
+    dt: wp.array
+    force_floor: wp.array
+    contact_law: ContactLaw
+    settings: DemSettings
+
+    @property
+    def n_cells(self) -> int:
+        """Number of cells."""
+        return int(self.dt.shape[0])
+
+    @classmethod
+    def from_reference(cls, meso: Mesostructure, radius: np.ndarray, reference_position: np.ndarray,
+                       reference_cell_size: np.ndarray, *, contact_law: ContactLaw = ContactLaw(),
+                       settings: DemSettings = DemSettings(), device: str = "cpu") -> "DemModel":
+        """Model from per-cell reference arrays.
+
+        Args:
+            meso: topology template.
+            radius: (n_cells, n_grains) [m].
+            reference_position: (n_cells, n_grains, 2) [m].
+            reference_cell_size: (n_cells, 2) [m].
+        """
+        radius = np.ascontiguousarray(radius, dtype=np.float64)
+        mass = settings.density * math.pi * radius**2
+        dt = settings.dt_factor * np.sqrt(mass.min(axis=1) / contact_law.kn)
+        floor = contact_law.kn * settings.contact_tolerance * 2.0 * radius.mean(axis=1)
+
+        def put(a, dtype):
+            return wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=dtype, device=device)
+
+        return cls(meso=meso, device=str(device), radius=put(radius, wp.float64), inv_mass=put(1.0 / mass, wp.float64),
+                   reference_position=put(reference_position, wp.vec2d),
+                   reference_cell_size=put(reference_cell_size, wp.vec2d), dt=put(dt, wp.float64),
+                   force_floor=put(floor, wp.float64), contact_law=contact_law, settings=settings)
+
+    @classmethod
+    def build(cls, meso: Mesostructure | Sequence[Mesostructure], n_cells: int, *,
+              contact_law: ContactLaw = ContactLaw(), settings: DemSettings = DemSettings(),
+              device: str = "cpu") -> "DemModel":
+        """Replicate one mesostructure ``n_cells`` times, or stack one per cell.
+
+        Args:
+            meso: a template, or a sequence of n_cells mesostructures with the same topology
+                (pairs, driven mask, outer polygon, labels); radii and positions may differ.
+            n_cells: number of cells.
+        """
+        templates = [meso] * n_cells if isinstance(meso, Mesostructure) else list(meso)
+        if len(templates) != n_cells or n_cells < 1:
+            raise ValueError(f"need n_cells = {n_cells} >= 1 mesostructures, got {len(templates)}")
+        first = templates[0]
+        key = (first.topology_key(), first.outer.tolist(), first.pair_type.tolist())
+        for m in templates:
+            if (m.topology_key(), m.outer.tolist(), m.pair_type.tolist()) != key:
+                raise MesostructureError(f"mesostructure {m.name!r} has another topology than {first.name!r}")
+        return cls.from_reference(
+            first, np.stack([m.radius for m in templates]), np.stack([m.position for m in templates]),
+            np.stack([m.cell_size for m in templates]), contact_law=contact_law, settings=settings, device=device)
+
+    @classmethod
+    def build_h_cell(cls, alpha0_deg: float | np.ndarray, n_cells: int, radius: float, *,
+                     contact_law: ContactLaw = ContactLaw(), settings: DemSettings = DemSettings(),
+                     device: str = "cpu") -> "DemModel":
+        """H-cells with per-cell opening angles (vectorised).
+
+        Args:
+            alpha0_deg: initial opening angle [deg], scalar or shape (n_cells,), in [30, 90).
+            n_cells: number of cells.
+            radius: grain radius [m].
+        """
+        alpha0_deg = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (n_cells,))
+        position, cell_size = h_cell_reference(alpha0_deg, radius)
+        return cls.from_reference(h_cell(float(alpha0_deg[0]), radius), np.full((n_cells, 6), float(radius)),
+                                  position, cell_size, contact_law=contact_law, settings=settings, device=device)
+
+    def take(self, index: np.ndarray) -> "DemModel":
+        """Model of cells ``index`` (int array, repetition allowed)."""
+        index = np.asarray(index, dtype=np.int64)
+        return DemModel.from_reference(
+            self.meso, self.radius.numpy()[index], self.reference_position.numpy()[index],
+            self.reference_cell_size.numpy()[index], contact_law=self.contact_law, settings=self.settings,
+            device=self.device)
+
+    def state(self) -> DemState:
+        """Touching, force-free initial state: grains at their reference positions, at rest."""
+        n_cells, n_grains, n_pairs = self.n_cells, self.meso.n_grains, self.meso.n_pairs
+        position = self.reference_position.numpy()
+        return DemState.from_numpy({
+            "position": position, "velocity": np.zeros_like(position),
+            "shear_force": np.zeros((n_cells, n_pairs)), "contact_force": np.zeros((n_cells, n_pairs, 2)),
+            "contact": initial_contacts(position, self.radius.numpy(), self.meso.pairs,
+                                        self.settings.contact_tolerance),
+            "cell_size": self.reference_cell_size.numpy(), "substeps": np.zeros(n_cells, np.int32),
+            "converged": np.ones(n_cells, np.int32)}, self.device)
+
+
+def initial_contacts(position: np.ndarray, radius: np.ndarray, pairs: np.ndarray, tolerance: float) -> np.ndarray:
+    """Contact flags (int32, (n_cells, n_pairs)): gap <= tolerance * (r_i + r_j)."""
+    i, j = pairs[:, 0], pairs[:, 1]
+    dist = np.linalg.norm(position[:, j] - position[:, i], axis=-1)
+    rsum = radius[:, i] + radius[:, j]
+    return (dist - rsum <= tolerance * rsum).astype(np.int32)

@@ -1,0 +1,74 @@
+"""Time-varying DEM state of a batch of cells (Warp arrays, float64); created by ``DemModel.state``.
+
+Everything that evolves lives here; every parameter lives in ``DemModel``. Frame: local
+(n, t), component 0 = n. Forces are the DEM's tension-positive contact forces (see
+``warp_hcell.kernels``); the last step's per-cell substep count and convergence flag are kept
+with the state they produced.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Mapping
+
+import numpy as np
+import warp as wp
+
+_DTYPES = {
+    "position": wp.vec2d, "velocity": wp.vec2d, "shear_force": wp.float64, "contact_force": wp.vec2d,
+    "contact": wp.int32, "cell_size": wp.vec2d, "substeps": wp.int32, "converged": wp.int32,
+}
+
+
+@dataclass(frozen=True, eq=False)
+class DemState:
+    """Arrays of one batch state.
+
+    Attributes:
+        position: grain centres [m], shape (n_cells, n_grains) vec2d, (x_n, x_t).
+        velocity: grain velocities [m/s], shape (n_cells, n_grains) vec2d.
+        shear_force: tangential spring force of each candidate pair [N], shape
+            (n_cells, n_pairs); the force on grain i along w = (-u_t, u_n).
+        contact_force: force on grain i of pair (i, j) by grain j [N], shape
+            (n_cells, n_pairs) vec2d; zero for pairs out of contact.
+        contact: 1 where the pair is in contact (gap <= tolerance), shape (n_cells, n_pairs) int32.
+        cell_size: (l1, l2) [m], shape (n_cells,) vec2d.
+        substeps: substeps spent by the step that produced this state, shape (n_cells,) int32.
+        converged: 1 where that step reached quasi-static equilibrium, shape (n_cells,) int32.
+    """
+
+    position: wp.array
+    velocity: wp.array
+    shear_force: wp.array
+    contact_force: wp.array
+    contact: wp.array
+    cell_size: wp.array
+    substeps: wp.array
+    converged: wp.array
+
+    @property
+    def n_cells(self) -> int:
+        """Number of cells."""
+        return int(self.cell_size.shape[0])
+
+    @classmethod
+    def empty(cls, n_cells: int, n_grains: int, n_pairs: int, device: str) -> "DemState":
+        """Uninitialised state arrays (to be filled by a step or by ``from_numpy``)."""
+        shapes = {"position": (n_cells, n_grains), "velocity": (n_cells, n_grains),
+                  "shear_force": (n_cells, n_pairs), "contact_force": (n_cells, n_pairs),
+                  "contact": (n_cells, n_pairs), "cell_size": n_cells, "substeps": n_cells, "converged": n_cells}
+        return cls(**{k: wp.empty(shapes[k], dtype=_DTYPES[k], device=device) for k in shapes})
+
+    @classmethod
+    def from_numpy(cls, arrays: Mapping[str, np.ndarray], device: str) -> "DemState":
+        """State from numpy arrays named like the fields (vec2d fields with a trailing axis of 2)."""
+        return cls(**{f.name: wp.array(np.ascontiguousarray(arrays[f.name]), dtype=_DTYPES[f.name], device=device)
+                      for f in fields(cls)})
+
+    def to_numpy(self) -> dict[str, np.ndarray]:
+        """Numpy views (CPU) or copies (GPU) of every field, named like the fields."""
+        return {f.name: getattr(self, f.name).numpy() for f in fields(self)}
+
+    def chunk(self, start: int, stop: int) -> "DemState":
+        """Views of cells [start, stop) (no copy)."""
+        return DemState(**{f.name: getattr(self, f.name)[start:stop] for f in fields(self)})
