@@ -175,7 +175,7 @@ class DemCell:
             obs.update({
                 "d1": d1, "d2": np.hypot(b2[:, 0], b2[:, 1]),
                 "alpha_deg": np.degrees(np.arctan2(-b1[:, 1], -b1[:, 0])),
-                "N1": -np.sum(f1 * u1, axis=1), "N2": -np.sum(f2 * u2, axis=1),
+                "N1": 0.0 - np.sum(f1 * u1, axis=1), "N2": 0.0 - np.sum(f2 * u2, axis=1),
                 "T1": arrays["shear_force"][:, p1].copy(),
                 "closed1": arrays["contact"][:, p1] == 1, "closed2": arrays["contact"][:, p2] == 1,
             })

@@ -1,0 +1,147 @@
+"""Mesostructures: the H-cell builder against spec section 2, the file loader, and bad descriptions."""
+
+import json
+import math
+import tomllib
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from warp_hcell.mesostructure import (
+    Mesostructure,
+    MesostructureError,
+    h_cell,
+    h_cell_reference,
+    load_mesostructure,
+    polygon_area,
+)
+
+DATA = resources.files("warp_hcell") / "data"
+
+
+@pytest.mark.parametrize("alpha0_deg", [30.0, 40.0, 55.0, 60.0, 89.0])
+def test_h_cell_matches_spec_geometry(alpha0_deg):
+    r = 0.5
+    meso = h_cell(alpha0_deg, r)
+    a = math.radians(alpha0_deg)
+    x_n, x_t = meso.position[:, 0], meso.position[:, 1]
+    # spec section 2, labels 1..6, coordinates (x_t, x_n) there, (x_n, x_t) here
+    np.testing.assert_allclose(x_n, [0.5 + math.cos(a), 0.5, -0.5, -0.5 - math.cos(a), -0.5, 0.5], atol=1e-15)
+    np.testing.assert_allclose(x_t, [0.0, -math.sin(a), -math.sin(a), 0.0, math.sin(a), math.sin(a)], atol=1e-15)
+    np.testing.assert_allclose(meso.cell_size, [1.0 + 2.0 * math.cos(a), 2.0 * math.sin(a)], rtol=1e-15)
+    # V_cell = l2 (d2 + d1 cos a) with d1 = d2 = D
+    assert polygon_area(meso.position, meso.outer) == pytest.approx(2 * math.sin(a) * (1 + math.cos(a)), rel=1e-14)
+    # grains 1, 4 driven along n and t; 2, 3, 5, 6 driven along t only
+    assert meso.driven.tolist() == [[True, True], [False, True], [False, True],
+                                    [True, True], [False, True], [False, True]]
+
+
+def test_h_cell_labels_and_candidate_pairs():
+    meso = h_cell(55.0, 0.5)
+    assert meso.n_grains == 6 and meso.n_pairs == 15
+    labelled = {(int(i) + 1, int(j) + 1): int(k) for (i, j), k in zip(meso.pairs, meso.pair_type) if k}
+    assert labelled == {(1, 2): 1, (1, 6): 1, (3, 4): 1, (4, 5): 1, (2, 3): 2, (5, 6): 2}
+    p12, p23 = meso.h_reference_pairs
+    assert meso.pairs[p12].tolist() == [0, 1] and meso.pairs[p23].tolist() == [1, 2]
+    # the six labelled contacts are touching: d1 = d2 = D
+    i, j = meso.pairs[meso.pair_type > 0].T
+    np.testing.assert_allclose(np.linalg.norm(meso.position[j] - meso.position[i], axis=1), 1.0, rtol=1e-15)
+
+
+def test_vectorised_reference_matches_builder():
+    alphas = np.array([33.0, 47.5, 71.0])
+    position, cell_size = h_cell_reference(alphas, 0.7)
+    for k, a in enumerate(alphas):
+        meso = h_cell(a, 0.7)
+        assert np.array_equal(position[k], meso.position) and np.array_equal(cell_size[k], meso.cell_size)
+
+
+def test_shipped_lateral_file_is_a_touching_h_cell():
+    meso = load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")
+    assert meso.is_h_cell and meso.n_grains == 6
+    np.testing.assert_array_equal(meso.radius, [0.5, 0.35, 0.35, 0.5, 0.35, 0.35])
+    i, j = meso.pairs[meso.pair_type > 0].T
+    gap = np.linalg.norm(meso.position[j] - meso.position[i], axis=1) - meso.radius[i] - meso.radius[j]
+    np.testing.assert_allclose(gap, 0.0, atol=1e-12)
+    a = math.radians(55.0)
+    np.testing.assert_allclose(meso.cell_size, [0.7 + 2 * 0.85 * math.cos(a), 2 * 0.85 * math.sin(a)], rtol=1e-14)
+
+
+def test_shipped_fine_grain_file_has_a_free_grain_in_the_pore():
+    meso = load_mesostructure(DATA / "h_cell_fine_grain.toml")
+    assert meso.n_grains == 7 and meso.n_pairs == 21
+    assert meso.driven[6].tolist() == [False, False]
+    assert 6 not in meso.outer.tolist()
+    gaps = [np.linalg.norm(meso.position[6] - meso.position[g]) - meso.radius[6] - meso.radius[g] for g in (1, 2, 4, 5)]
+    np.testing.assert_allclose(gaps, 0.0, atol=1e-12)
+
+
+def test_json_and_toml_describe_the_same_cell(tmp_path):
+    source = DATA / "h_cell_lateral_0.7D.toml"
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(tomllib.loads(source.read_text())))
+    a, b = load_mesostructure(source), load_mesostructure(path)
+    for name in ("radius", "position", "driven", "pairs", "outer", "cell_size", "pair_type"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def _square(**changes):
+    """Four equal grains at the corners of a unit square (neighbours touching), all DOFs driven."""
+    description = dict(name="square", radius=[0.5] * 4, position=[[0.5, 0.5], [-0.5, 0.5], [-0.5, -0.5], [0.5, -0.5]],
+                       driven=[[True, True]] * 4, pairs=[[0, 1], [1, 2], [2, 3], [0, 3]], outer=[0, 1, 2, 3],
+                       cell_size=[2.0, 2.0])
+    description.update(changes)
+    return Mesostructure(**{k: np.asarray(v) if k != "name" else v for k, v in description.items()})
+
+
+@pytest.mark.parametrize("changes, message", [
+    (dict(radius=[0.5, -0.1, 0.5, 0.5]), "mesostructure 'square': grain 2 has radius -0.1; radii must be finite and > 0"),
+    (dict(radius=[0.5, 0.5, 0.0, 0.5]), "mesostructure 'square': grain 3 has radius 0; radii must be finite and > 0"),
+    (dict(position=[[0.4, 0.5], [-0.5, 0.5], [-0.5, -0.5], [0.5, -0.5]]),
+     "mesostructure 'square': grains 1 and 2 overlap by 0.1 m (more than the contact tolerance)"),
+    (dict(driven=[[True, True], [False, False], [True, True], [True, True]]),
+     "mesostructure 'square': outer grain 2 has no driven DOF; outer grains follow the cell strain"),
+    (dict(driven=[[1, 1]] * 4), "mesostructure 'square': driven flags must be booleans, shape (4, 2)"),
+    (dict(pairs=[[1, 1]]), "mesostructure 'square': pairs must be (i, j) with 1 <= i < j <= 4"),
+    (dict(pairs=[[0, 1], [0, 1]]), "mesostructure 'square': duplicate contact pairs"),
+    (dict(outer=[0, 1, 1]), "mesostructure 'square': outer polygon needs >= 3 distinct grains in 1..4"),
+    (dict(cell_size=[1.0, 0.0]), "mesostructure 'square': cell_size must be two finite values > 0"),
+])
+def test_invalid_descriptions_give_one_line_errors(changes, message):
+    with pytest.raises(MesostructureError) as info:
+        _square(**changes)
+    assert str(info.value) == message
+
+
+def test_overlap_within_tolerance_is_accepted():
+    meso = _square(position=[[0.5 - 1e-12, 0.5], [-0.5, 0.5], [-0.5, -0.5], [0.5, -0.5]])
+    assert meso.n_pairs == 4 and not meso.is_h_cell
+
+
+def test_loader_errors(tmp_path):
+    text = (DATA / "h_cell_lateral_0.7D.toml").read_text()
+    bad_syntax = tmp_path / "bad.toml"
+    bad_syntax.write_text(text.replace("outer = [", "outer = [[", 1))
+    with pytest.raises(MesostructureError, match="is not valid TOML"):
+        load_mesostructure(bad_syntax)
+    missing = tmp_path / "missing.toml"
+    missing.write_text(text.replace("cell_size", "cellsize", 1))
+    with pytest.raises(MesostructureError, match="missing key 'cell_size'"):
+        load_mesostructure(missing)
+    overlap = tmp_path / "overlap.toml"
+    overlap.write_text(text.replace("radius = 0.35", "radius = 0.45", 1))
+    with pytest.raises(MesostructureError, match="grains 1 and 2 overlap by 0.1 m"):
+        load_mesostructure(overlap)
+    flags = tmp_path / "flags.toml"
+    flags.write_text(text.replace("driven = [false, true]", 'driven = ["no", true]', 1))
+    with pytest.raises(MesostructureError, match=r"each grain needs driven = \[bool, bool\]"):
+        load_mesostructure(flags)
+    with pytest.raises(MesostructureError, match="cannot read mesostructure file"):
+        load_mesostructure(tmp_path / "absent.toml")
+    assert issubclass(MesostructureError, ValueError)
+
+
+def test_h_cell_rejects_inadmissible_alpha0():
+    with pytest.raises(ValueError, match=r"alpha0 = 90 deg is outside \[30, 90\) deg"):
+        h_cell(90.0, 0.5)
