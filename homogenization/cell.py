@@ -15,7 +15,7 @@ origin) and one row per increment. Units: lengths [m], angle [deg], contact forc
 compression positive. The DEM backend with a general ``--mesostructure`` (not an H-cell)
 has no l1..T1 of its own: only the columns that the backend reports among
 ``observables()`` are written, in the order above, and with ``--positions`` every grain
-centre it reports.
+centre it reports; the cell then starts from that mesostructure and --alpha0 is unused.
 
 Bad input (missing or malformed PATH.csv, alpha0 outside [30, 90) deg, unwritable --out)
 is one line on stderr and exit code 2; an existing OUT.csv is kept unless --overwrite.
