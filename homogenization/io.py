@@ -1,0 +1,224 @@
+"""Run files: ``DIR/run.h5`` (everything) and ``DIR/curve.csv`` (the macro curve).
+
+``write_run(directory, record, ...)`` writes both through ``cli.atomic_write`` so that a
+failed run never destroys older output; ``read_run(path)`` reads ``run.h5`` back into a
+``driver.Record`` and raises ``cli.UserError`` (one line) for missing or corrupt files.
+
+run.h5 layout (one dataset per quantity, attributes ``units``, ``description`` and, for
+stresses and strains, ``sign_convention``):
+
+- ``/history/{stage, eps11, eps22, sigma11, sigma22, sigma12, p, q, J, volume,
+  newton_iterations}``, shape (n_increments,);
+- ``/diagnostics/<name>``: backend diagnostics per increment;
+- ``/orientations/{theta_deg, weights}``, shape (n_cells,);
+- ``/snapshots/{increment, stage}`` (n_snapshots,) and ``/snapshots/cells/<name>``
+  (n_snapshots, n_cells): per-cell observables;
+- ``/final_state/<name>``: the backend state after the last increment;
+- root attributes: backend, alpha0_deg, V0, the volume rule, the sign convention, the
+  programme and the parameters (JSON), the seed, code version, git revision and library
+  versions.
+
+curve.csv: header ``stage,eps11,eps22,sigma11,sigma22,sigma12,p,q``, one row per increment,
+strains [-] and stresses [N/m], compression positive.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import subprocess
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Mapping
+
+import h5py
+import numpy as np
+
+from homogenization import loading
+from homogenization.cli import UserError, atomic_write
+from homogenization.driver import Record
+from homogenization.orientation import VOLUME_RULE
+
+RUN_FILE = "run.h5"
+CURVE_FILE = "curve.csv"
+FORMAT = "hmodel-run/1"
+"""Value of the ``format`` root attribute of run files written by this module."""
+SIGN_CONVENTION = "compression and contraction positive"
+CURVE_COLUMNS = ("stage", "eps11", "eps22", "sigma11", "sigma22", "sigma12", "p", "q")
+"""Columns of curve.csv, in order."""
+
+_HISTORY = {
+    "eps11": ("1", "macro strain, sum of the applied increments"),
+    "eps22": ("1", "macro strain, sum of the applied increments"),
+    "sigma11": ("N/m", "macro stress sum_k w_k S_k,11 / V"),
+    "sigma22": ("N/m", "macro stress sum_k w_k S_k,22 / V"),
+    "sigma12": ("N/m", "macro shear stress sum_k w_k S_k,12 / V"),
+    "p": ("N/m", "mean stress (sigma11 + sigma22) / 2"),
+    "q": ("N/m", "deviator sigma11 - sigma22"),
+    "J": ("1", "volume ratio V / V0"),
+    "volume": ("m^2", "macro volume V = V0 J"),
+    "newton_iterations": ("1", "cell-model step calls spent on the increment"),
+}
+_SIGNED = {"eps11", "eps22", "sigma11", "sigma22", "sigma12", "p", "q"}
+
+
+@dataclass(frozen=True)
+class StoredRun:
+    """A run read back from run.h5."""
+
+    record: Record
+    """The history, snapshots and final state."""
+    attrs: dict[str, Any]
+    """Root attributes (provenance, parameters, seed); JSON attributes decoded."""
+
+
+def _version(distribution: str) -> str:
+    try:
+        return metadata.version(distribution)
+    except metadata.PackageNotFoundError:
+        return "not installed"
+
+
+def git_revision() -> str:
+    """Git commit of the source tree this module was loaded from, or "unknown"."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
+                             capture_output=True, text=True, timeout=10, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return out.stdout.strip() or "unknown"
+
+
+def provenance() -> dict[str, str]:
+    """Code version, git revision and library versions, as stored in every run file."""
+    return {
+        "code_version": _version("meso-hmodel"),
+        "git_revision": git_revision(),
+        "python_version": platform.python_version(),
+        "numpy_version": np.__version__,
+        "h5py_version": h5py.__version__,
+        "warp_version": _version("warp-lang"),
+        "torch_version": _version("torch"),
+    }
+
+
+def _dataset(group: h5py.Group, name: str, data: np.ndarray, units: str, description: str, signed: bool = False) -> None:
+    ds = group.create_dataset(name, data=data)
+    ds.attrs["units"] = units
+    ds.attrs["description"] = description
+    if signed:
+        ds.attrs["sign_convention"] = SIGN_CONVENTION
+
+
+def _strings(values: np.ndarray) -> np.ndarray:
+    return np.asarray(values, dtype=object).astype(h5py.string_dtype())
+
+
+def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], seed: int) -> Path:
+    """Write ``record`` to the HDF5 file ``path`` (atomically); returns ``path``.
+
+    Args:
+        path: destination file.
+        record: the run history from ``driver.run``.
+        parameters: the full parameter set of the run (JSON-serialisable).
+        seed: the seed of the run.
+    """
+    path = Path(path)
+    with atomic_write(path, "wb") as tmp, h5py.File(tmp, "w", track_order=True) as f:
+        f.attrs["format"] = FORMAT
+        f.attrs["backend"] = record.backend
+        f.attrs["alpha0_deg"] = record.alpha0_deg
+        f.attrs["V0"] = record.V0
+        f.attrs["V0_units"] = "m^2"
+        f.attrs["volume_rule"] = VOLUME_RULE
+        f.attrs["sign_convention"] = SIGN_CONVENTION
+        f.attrs["stress_units"] = "N/m (2D: force per unit length)"
+        f.attrs["programme"] = json.dumps(loading.to_dict(record.programme))
+        f.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True)
+        f.attrs["seed"] = int(seed)
+        for key, value in provenance().items():
+            f.attrs[key] = value
+
+        hist = f.create_group("history")
+        _dataset(hist, "stage", _strings(record.stage), "", "stage label of the increment")
+        for name, (units, description) in _HISTORY.items():
+            _dataset(hist, name, getattr(record, name), units, description, name in _SIGNED)
+        diag = f.create_group("diagnostics")
+        for name, values in record.diagnostics.items():
+            _dataset(diag, name, values, "", "backend diagnostic of the accepted step call")
+        orient = f.create_group("orientations")
+        _dataset(orient, "theta_deg", record.theta_deg, "deg", "cell-axis angle theta_k = k 180 / N")
+        _dataset(orient, "weights", record.weights, "1", "fabric weight w_k")
+        snaps = f.create_group("snapshots")
+        _dataset(snaps, "increment", record.snapshot_increment, "1", "completed increments at the snapshot")
+        _dataset(snaps, "stage", _strings(record.snapshot_stage), "", "stage label at the snapshot")
+        cells = snaps.create_group("cells")
+        for name, values in record.snapshots.items():
+            _dataset(cells, name, values, "see the backend's observables()", "per-cell observable, (n_snapshots, n_cells)")
+        state = f.create_group("final_state")
+        for name, values in record.final_state.items():
+            _dataset(state, name, values, "see the backend's state_to_arrays()", "backend state after the last increment")
+    return path
+
+
+def write_curve_csv(path: Path, record: Record) -> Path:
+    """Write the macro curve of ``record`` to ``path`` (atomically); returns ``path``."""
+    path = Path(path)
+    columns = np.stack([getattr(record, name) for name in CURVE_COLUMNS[1:]], axis=1)
+    lines = [",".join(CURVE_COLUMNS)]
+    lines += [f"{stage}," + ",".join(f"{v:.17g}" for v in row) for stage, row in zip(record.stage, columns.tolist())]
+    with atomic_write(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_run(directory: Path, record: Record, *, parameters: Mapping[str, Any], seed: int) -> tuple[Path, Path]:
+    """Write ``directory/run.h5`` and ``directory/curve.csv``; returns both paths."""
+    directory = Path(directory)
+    return (write_run_h5(directory / RUN_FILE, record, parameters=parameters, seed=seed),
+            write_curve_csv(directory / CURVE_FILE, record))
+
+
+def _decode(values: np.ndarray) -> np.ndarray:
+    return np.array([v.decode() if isinstance(v, bytes) else str(v) for v in values])
+
+
+def read_run(path: Path) -> StoredRun:
+    """Read a run file written by ``write_run_h5``.
+
+    Raises:
+        UserError: one line, if the file is missing, not HDF5 or not a run file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: no such run file")
+    try:
+        with h5py.File(path, "r") as f:
+            if f.attrs.get("format") != FORMAT:
+                raise UserError(f"{path}: not a run file (format attribute is not {FORMAT!r})")
+            attrs = {key: (value.item() if isinstance(value, np.generic) else value) for key, value in f.attrs.items()}
+            attrs["programme"] = json.loads(attrs["programme"])
+            attrs["parameters"] = json.loads(attrs["parameters"])
+            hist, snaps = f["history"], f["snapshots"]
+            record = Record(
+                stage=_decode(hist["stage"][()]),
+                **{name: hist[name][()] for name in _HISTORY},
+                diagnostics={name: ds[()] for name, ds in f["diagnostics"].items()},
+                snapshot_increment=snaps["increment"][()],
+                snapshot_stage=_decode(snaps["stage"][()]),
+                snapshots={name: ds[()] for name, ds in snaps["cells"].items()},
+                theta_deg=f["orientations/theta_deg"][()],
+                weights=f["orientations/weights"][()],
+                V0=float(attrs["V0"]),
+                alpha0_deg=float(attrs["alpha0_deg"]),
+                backend=str(attrs["backend"]),
+                programme=loading.from_dict(attrs["programme"]),
+                final_state={name: ds[()] for name, ds in f["final_state"].items()},
+            )
+    except UserError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise UserError(f"{path}: unreadable or corrupt run file ({reason})") from None
+    return StoredRun(record, attrs)
