@@ -66,6 +66,9 @@ class AnalyticalCell:
         tolerance: equilibrium residual accepted, as a fraction of kn r [-].
         max_iterations: Newton/bisection iterations allowed per increment [-]; cells still
             above the tolerance are counted in ``diagnostics["n_unconverged"]``.
+
+    ``step`` reports ``diagnostics = {"iterations": residual evaluations spent by the batch,
+    "n_unconverged": cells above the tolerance}``.
     """
 
     name = "analytical"
@@ -172,6 +175,8 @@ class AnalyticalCell:
             df = (s * (N1 * s - T1 * c) / d1 - (s + g2) * dT) - kn * (2.0 * (gap2 > 0.0) + c * c * closed1)
             lo = np.where(f > 0.0, y, lo)
             hi = np.where(f < 0.0, y, hi)
+            # f decreases in y2 wherever a contact is closed; a slope that is not negative
+            # (rounding) is replaced by a tiny negative one, which sends y out of the bracket.
             y_newton = y - f / np.minimum(df, -kn * 1e-12)
             # Newton inside the open bracket, or a step below the resolution of y;
             # else bisection (Newton may cycle across the kinks where contacts open).
