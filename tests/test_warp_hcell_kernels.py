@@ -1,0 +1,112 @@
+"""The cell-step kernel: contact law in closed form, Warp vs numpy engines, no drift of unloaded grains."""
+
+import math
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
+from warp_hcell.mesostructure import Mesostructure, load_mesostructure
+from warp_hcell.model import DemModel
+from warp_hcell.parameters import ContactLaw, DemSettings
+from warp_hcell.state import DemState
+
+LAW = ContactLaw()
+
+
+def _rhombus(s: float) -> Mesostructure:
+    """Four unit disks (D = 1) at (+-s, 0), (0, +-c), s^2 + c^2 = 1: neighbours touching, all DOFs driven."""
+    c = math.sqrt(1.0 - s * s)
+    return Mesostructure(name="rhombus", radius=np.full(4, 0.5), position=np.array([[s, 0], [0, c], [-s, 0], [0, -c]]),
+                         driven=np.ones((4, 2), bool), pairs=np.array([[0, 1], [1, 2], [2, 3], [0, 3]]),
+                         outer=np.arange(4), cell_size=np.array([2 * s, 2 * c]))
+
+
+def _run(model, state, increments, engine="warp"):
+    integrator = DemIntegrator(model, threads=1) if engine == "warp" else NumpyIntegrator(model)
+    for d_eps in increments:
+        out = DemState.empty(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)
+        integrator.step(state, out, np.broadcast_to(d_eps, (model.n_cells, 2)))
+        state = out
+    return state
+
+
+@pytest.mark.parametrize("s, sliding", [(0.8, False), (0.6, True)])
+def test_contact_law_closed_form(device, s, sliding):
+    """Axial compression e of the rhombus: overlap s^2 e, tangential displacement -s c e per contact."""
+    c, e = math.sqrt(1 - s * s), 1e-4
+    model = DemModel.build(_rhombus(s), 1, device=device)
+    state = _run(model, model.state(), [(e, 0.0)]).to_numpy()
+    # pair (0, 1): grain 1 at (s, 0), grain 2 at (0, c)
+    f = state["contact_force"][0, 0]
+    u = np.array([-s * (1 - e), c]) / math.hypot(s * (1 - e), c)
+    normal, shear = -f @ u, f @ np.array([-u[1], u[0]])
+    exact_normal = LAW.kn * (1.0 - math.hypot(s * (1 - e), c))
+    assert normal == pytest.approx(exact_normal, rel=1e-9)
+    assert normal == pytest.approx(LAW.kn * s * s * e, rel=2e-4)
+    if sliding:  # |kt s c e| > mu kn s^2 e: the cap takes the sign of the trial force
+        assert shear == pytest.approx(-LAW.mu * normal, rel=1e-12)
+    else:
+        assert shear == pytest.approx(-LAW.kt * s * c * e, rel=2e-4)
+    assert state["shear_force"][0, 0] == pytest.approx(shear, rel=1e-12)
+    assert state["converged"][0] == 1 and state["substeps"][0] == math.ceil(e / DemSettings().strain_per_substep)
+
+
+def test_no_tension_and_history_reset_on_opening(device):
+    model = DemModel.build(_rhombus(0.8), 1, device=device)
+    state = _run(model, model.state(), [(1e-4, 0.0), (-3e-4, 0.0)]).to_numpy()
+    assert np.all(state["contact_force"] == 0.0) and np.all(state["shear_force"] == 0.0)
+    assert np.all(state["contact"] == 0)
+
+
+def test_touching_grains_are_contacts_from_the_start(device):
+    """Exactly touching H-cell: six zero-force contacts; the smallest compression loads all of them."""
+    model = DemModel.build_h_cell(55.0, 1, 0.5, device=device)
+    initial = model.state().to_numpy()
+    labelled = model.meso.pair_type > 0
+    assert np.all(initial["contact"][0, labelled] == 1) and np.all(initial["contact"][0, ~labelled] == 0)
+    state = _run(model, model.state(), [(1e-7, 1e-7)]).to_numpy()
+    normal = np.linalg.norm(state["contact_force"][0], axis=1)
+    assert np.all(normal[labelled] > 0.0) and np.all(normal[~labelled] == 0.0)
+
+
+def _mixed_increments(rng, n_cells, n_steps):
+    """Per-cell increments of magnitudes 1e-6..3e-4 in all directions, after an isotropic compression."""
+    steps = [np.full((n_cells, 2), 4e-4)]
+    for _ in range(n_steps):
+        steps.append(rng.uniform(-1, 1, (n_cells, 2)) * 10 ** rng.uniform(-6, -3.5, (n_cells, 1)))
+    return steps
+
+
+@pytest.mark.parametrize("source", ["h_cell", "h_cell_fine_grain.toml"])
+def test_warp_and_numpy_engines_agree(device, source):
+    rng = np.random.default_rng(7)
+    n_cells = 12
+    meso = None if source == "h_cell" else load_mesostructure(resources.files("warp_hcell") / "data" / source)
+    alpha0 = rng.uniform(32.0, 85.0, n_cells)
+    build = (lambda dev: DemModel.build_h_cell(alpha0, n_cells, 0.5, device=dev)) if meso is None else (
+        lambda dev: DemModel.build(meso, n_cells, device=dev))
+    increments = _mixed_increments(rng, n_cells, 4)
+    warp_model, numpy_model = build(device), build("cpu")
+    a = _run(warp_model, warp_model.state(), increments).to_numpy()
+    b = _run(numpy_model, numpy_model.state(), increments, engine="numpy").to_numpy()
+    force_scale = np.abs(b["contact_force"]).max()
+    assert force_scale > 1e4
+    np.testing.assert_allclose(a["position"], b["position"], rtol=0, atol=1e-13)
+    np.testing.assert_allclose(a["contact_force"], b["contact_force"], rtol=0, atol=1e-9 * force_scale)
+    np.testing.assert_allclose(a["shear_force"], b["shear_force"], rtol=0, atol=1e-9 * force_scale)
+    assert np.array_equal(a["contact"], b["contact"]) and np.array_equal(a["cell_size"], b["cell_size"])
+    assert np.all(np.abs(a["substeps"] - b["substeps"]) <= 1) and np.all(a["converged"] == 1)
+
+
+def test_unloaded_free_grains_do_not_drift(device):
+    """Open H-cells (mechanism state): free coordinates stay put and velocities are zero."""
+    model = DemModel.build_h_cell(np.array([45.0, 55.0, 70.0]), 3, 0.5, device=device)
+    state = _run(model, model.state(), [(2e-4, 2e-4), (-6e-4, -6e-4)])
+    before = state.to_numpy()
+    assert np.all(before["contact_force"] == 0.0)
+    after = _run(model, state, [(0.0, -2e-4), (1e-5, -1e-4)]).to_numpy()
+    free = ~model.meso.driven
+    assert np.array_equal(after["position"][:, free], before["position"][:, free])
+    assert np.all(after["velocity"][:, free] == 0.0) and np.all(after["converged"] == 1)
