@@ -1,0 +1,436 @@
+"""Run: yade -n -x tests/yade/hcell_paths.py --path CASE.path.csv --alpha0-deg 55 --out PREFIX
+
+YADE reference of the six-disk H-cell (shared/spec/hmodel.md, sections 2-4 and 10) along a
+prescribed cell strain path. It is an independent check of the analytical and Warp DEM
+backends, so it uses only YADE's own contact law and integrator:
+
+- spheres of radius r in the plane z = 0, FrictMat + Ip2_FrictMat_FrictMat_FrictPhys +
+  Law2_ScGeom_FrictPhys_CundallStrack: linear normal spring without tension (kn = young r
+  for equal spheres, so young = kn / r), incremental tangential spring ks = poisson kn with
+  a Coulomb cap tan(phi_g) N, interaction erased (shear history reset) when it opens;
+- Ig2_Sphere_Sphere_ScGeom with avoidGranularRatcheting=False, contacts detected up to a
+  gap of ``contact_tolerance`` D (they carry no force until the disks overlap);
+- rotations blocked, no gravity, NewtonIntegrator with Cundall local damping,
+  dt = dt_factor sqrt(m / kn) with the disk mass m = density pi r^2.
+
+Cell frame -> YADE axes: n (cell axis) = YADE x, t (lateral) = YADE y. Grains 1 and 4 are
+driven along n and t, grains 2, 3, 5, 6 along t and free along n (spec section 3). A driven
+coordinate follows the cell strain affinely (x_n = x_n_ref l1 / l1_ref,
+x_t = x_t_ref l2 / l2_ref) through constant velocities over ceil(max|d_eps| /
+strain_per_substep) substeps per path row, then the cell relaxes (driven grains at rest)
+until the unbalanced force ratio of the FREE degrees of freedom is below
+``force_tolerance`` or ``max_substeps`` is spent. YADE's own ``unbalancedForce()`` cannot
+be used for this: it counts the full force on grains 2, 3, 5, 6, including the t
+component carried by the driver (F2), which never vanishes. The ratio used here is
+mean_{grains 2,3,5,6} |F_n| / mean_{contacts with force} |f|, zero when no contact carries
+force (stress-free mechanism).
+
+Input: ``--path``: CSV with header ``d_eps_n,d_eps_t``, one row per increment [-],
+compression positive (l1 <- l1 (1 - d_eps_n), l2 <- l2 (1 - d_eps_t)); ``--alpha0-deg``:
+initial opening angle [deg]. The cell starts exactly touching with zero forces.
+
+Output: ``PREFIX.yade.csv``, one row per path row (state after it), columns
+``l1,l2`` [m], ``alpha_deg`` [deg], ``d1,d2`` [m] (mean branch lengths of the type-1 and
+type-2 pairs), ``N1,N2`` [N] (mean normal forces of type-1 / type-2 contacts, compression
+positive, 0 when open), ``T1`` [N] (mean tangential force of type-1 contacts, T1 > 0
+resists opening, spec section 4), ``S_nn,S_tt`` [N m] (Love-Weber moment over every
+contact of the cell, pathological 1-4, 2-6, 3-5 included, cell frame, compression
+positive), ``x_n1,x_t1,...,x_n6,x_t6`` [m] (grain centres in the cell frame, cell centre
+at the origin); and ``PREFIX.json`` with every parameter, the YADE version and run totals.
+Exit code 2 with a one-line message for bad input.
+
+Also imported (inside YADE) by benchmarks/bench_yade.py, which builds many cells with
+``HCellScene``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import inspect
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+# ``yade -x`` runs this file with YADE's own globals (``__file__`` is YADE's launcher), so
+# the location comes from the code object.
+REPO_ROOT = Path(inspect.currentframe().f_code.co_filename).resolve().parents[2]
+if str(REPO_ROOT) not in sys.path:
+    sys.path.insert(0, str(REPO_ROOT))
+
+from warp_hcell.parameters import CellDefaults, ContactLaw, DemSettings, check_alpha0_deg  # noqa: E402
+
+import yade  # noqa: E402
+from yade import O  # noqa: E402
+from yade.wrapper import (  # noqa: E402
+    Bo1_Sphere_Aabb,
+    ForceResetter,
+    FrictMat,
+    Ig2_Sphere_Sphere_ScGeom,
+    InsertionSortCollider,
+    InteractionLoop,
+    Ip2_FrictMat_FrictMat_FrictPhys,
+    Law2_ScGeom_FrictPhys_CundallStrack,
+    NewtonIntegrator,
+)
+from yade.utils import sphere  # noqa: E402
+from yade.minieigenHP import Vector3  # noqa: E402
+
+N_GRAINS = 6
+TYPE1_PAIRS = ((1, 2), (1, 6), (4, 3), (4, 5))
+"""Type-1 contacts as (outer grain, lateral grain) labels."""
+TYPE2_PAIRS = ((2, 3), (6, 5))
+"""Type-2 contacts as (upper, lower) lateral grain labels."""
+FREE_LABELS = (2, 3, 5, 6)
+"""Grains whose n coordinate is free."""
+HEADER = ("l1", "l2", "alpha_deg", "d1", "d2", "N1", "N2", "T1", "S_nn", "S_tt") + tuple(
+    f"x_{axis}{label}" for label in range(1, N_GRAINS + 1) for axis in ("n", "t")
+)
+"""Columns of the output CSV."""
+
+
+def reference_positions(alpha0: float, radius: float) -> np.ndarray:
+    """Touching H-cell of spec section 2 (d1 = d2 = D).
+
+    Args:
+        alpha0: initial opening angle [rad].
+        radius: grain radius r [m].
+
+    Returns:
+        Grain centres [m], shape (6, 2), columns (x_n, x_t), row = label - 1, cell centre
+        at the origin.
+    """
+    diameter = 2.0 * radius
+    c, s = math.cos(alpha0), math.sin(alpha0)
+    return np.array(
+        [
+            [0.5 * diameter + diameter * c, 0.0],
+            [0.5 * diameter, -diameter * s],
+            [-0.5 * diameter, -diameter * s],
+            [-0.5 * diameter - diameter * c, 0.0],
+            [-0.5 * diameter, diameter * s],
+            [0.5 * diameter, diameter * s],
+        ]
+    )
+
+
+def read_path(path: Path) -> np.ndarray:
+    """Strain path [-], shape (n_increments, 2), columns (d_eps_n, d_eps_t), compression positive.
+
+    Raises:
+        ValueError: (one line) on a wrong header, a non-numeric value or |d_eps| >= 1.
+    """
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle))
+    if not rows or [name.strip() for name in rows[0]] != ["d_eps_n", "d_eps_t"]:
+        raise ValueError(f"{path}: header must be 'd_eps_n,d_eps_t'")
+    try:
+        values = np.array([[float(v) for v in row] for row in rows[1:] if row], dtype=np.float64)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    if values.ndim != 2 or values.shape[1] != 2 or len(values) == 0:
+        raise ValueError(f"{path}: expected one or more rows of two values")
+    if not np.all(np.abs(values) < 1.0):
+        raise ValueError(f"{path}: every |d_eps| must be < 1")
+    return values
+
+
+class HCellScene:
+    """The YADE scene (global ``O``) holding ``n_cells`` identical, independent H-cells.
+
+    Cells sit side by side along the t axis (YADE y), ``spacing`` apart, all following the
+    same cell strain. ``ids[k, label - 1]`` is the YADE body id of grain ``label`` of cell
+    ``k``; ``origin[k]`` its centre (n, t) [m]; ``stretch`` the current (l1 / l1_ref,
+    l2 / l2_ref) [-].
+    """
+
+    def __init__(
+        self,
+        alpha0_deg: float,
+        n_cells: int,
+        law: ContactLaw,
+        radius: float,
+        settings: DemSettings,
+    ) -> None:
+        self.law = law
+        self.radius = radius
+        self.settings = settings
+        self.alpha0 = math.radians(check_alpha0_deg(alpha0_deg))
+        self.reference = reference_positions(self.alpha0, radius)
+        self.mass = settings.density * math.pi * radius**2
+        self.dt = settings.dt_factor * math.sqrt(self.mass / law.kn)
+        self.stretch = np.ones(2)
+        spacing = 2.0 * float(np.max(np.abs(self.reference[:, 1]))) + 4.0 * radius
+        self.origin = np.zeros((n_cells, 2))
+        self.origin[:, 1] = spacing * np.arange(n_cells)
+
+        O.reset()
+        material = O.materials.append(
+            FrictMat(
+                young=law.kn / radius,
+                poisson=law.kt_over_kn,
+                frictionAngle=math.radians(law.phi_g_deg),
+                density=settings.density,
+            )
+        )
+        detection = 1.0 + settings.contact_tolerance
+        O.engines = [
+            ForceResetter(),
+            InsertionSortCollider([Bo1_Sphere_Aabb(aabbEnlargeFactor=detection)]),
+            InteractionLoop(
+                [Ig2_Sphere_Sphere_ScGeom(interactionDetectionFactor=detection, avoidGranularRatcheting=False)],
+                [Ip2_FrictMat_FrictMat_FrictPhys()],
+                [Law2_ScGeom_FrictPhys_CundallStrack(neverErase=False)],
+            ),
+            NewtonIntegrator(damping=settings.damping, gravity=(0.0, 0.0, 0.0)),
+        ]
+        O.dt = self.dt
+        inertia = 0.5 * self.mass * radius**2
+        ids = []
+        for origin in self.origin:
+            cell = []
+            for label in range(1, N_GRAINS + 1):
+                x_n, x_t = origin + self.reference[label - 1]
+                body = sphere((x_n, x_t, 0.0), radius, material=material, fixed=False)
+                body.state.blockedDOFs = "yzXYZ" if label in FREE_LABELS else "xyzXYZ"
+                body.state.mass = self.mass
+                body.state.inertia = Vector3(inertia, inertia, inertia)
+                cell.append(O.bodies.append(body))
+            ids.append(cell)
+        self.ids = np.array(ids, dtype=np.int64)
+        self._driven_n = self.ids[:, [0, 3]].ravel()
+        self._free = self.ids[:, [label - 1 for label in FREE_LABELS]].ravel()
+
+    def _targets(self) -> np.ndarray:
+        """Driven-coordinate targets [m] of every grain at the current stretch, shape (n_cells, 6, 2)."""
+        return self.origin[:, None, :] + self.reference[None, :, :] * self.stretch[None, None, :]
+
+    def drive(self, d_eps: np.ndarray) -> int:
+        """Apply one path row (d_eps_n, d_eps_t) [-] through velocities; return the substeps spent.
+
+        The driven coordinates move at constant velocity to their targets over
+        ceil(max|d_eps| / strain_per_substep) substeps, are set exactly on the targets
+        (a rounding-level correction) and stopped.
+        """
+        # The relative slack keeps exact multiples (2e-4 / 2.5e-7) from rounding up a substep.
+        ratio = float(np.max(np.abs(d_eps))) / self.settings.strain_per_substep
+        n_sub = max(1, math.ceil(ratio * (1.0 - 1e-12)))
+        self.stretch = self.stretch * (1.0 - np.asarray(d_eps, dtype=np.float64))
+        targets = self._targets()
+        duration = n_sub * self.dt
+        bodies = O.bodies
+        for k, cell in enumerate(self.ids):
+            for index, body_id in enumerate(cell):
+                state = bodies[int(body_id)].state
+                pos = state.pos
+                v_t = (targets[k, index, 1] - pos[1]) / duration
+                v_n = (targets[k, index, 0] - pos[0]) / duration if index in (0, 3) else state.vel[0]
+                state.vel = Vector3(v_n, v_t, 0.0)
+        for _ in range(n_sub):
+            O.step()
+        for k, cell in enumerate(self.ids):
+            for index, body_id in enumerate(cell):
+                state = bodies[int(body_id)].state
+                driven_n = index in (0, 3)
+                x_n = targets[k, index, 0] if driven_n else state.pos[0]
+                state.pos = Vector3(x_n, targets[k, index, 1], 0.0)
+                state.vel = Vector3(0.0 if driven_n else state.vel[0], 0.0, 0.0)
+        return n_sub
+
+    def unbalanced(self) -> float:
+        """Mean |F_n| on the free grains / mean |f| of the contacts carrying force [-]; 0 if none."""
+        contact_sum, n_contacts = 0.0, 0
+        for interaction in O.interactions:
+            if not interaction.isReal:
+                continue
+            magnitude = (interaction.phys.normalForce + interaction.phys.shearForce).norm()
+            if magnitude > 0.0:
+                contact_sum += magnitude
+                n_contacts += 1
+        if n_contacts == 0:
+            return 0.0
+        free_sum = sum(abs(O.forces.f(int(body_id))[0]) for body_id in self._free)
+        return (free_sum / len(self._free)) / (contact_sum / n_contacts)
+
+    def relax(self) -> tuple[int, float]:
+        """Step with the driven grains at rest until quasi-static; return (substeps, final ratio).
+
+        At least one substep is taken, so forces always match the final driven positions.
+        """
+        for n in range(1, self.settings.max_substeps + 1):
+            O.step()
+            ratio = self.unbalanced()
+            if ratio < self.settings.force_tolerance:
+                break
+        return n, ratio
+
+    def positions(self, cell: int) -> np.ndarray:
+        """Grain centres of ``cell`` relative to its origin [m], shape (6, 2), columns (x_n, x_t)."""
+        pos = np.array([[O.bodies[int(i)].state.pos[0], O.bodies[int(i)].state.pos[1]] for i in self.ids[cell]])
+        return pos - self.origin[cell]
+
+    def contact_force(self, cell: int, label_a: int, label_b: int) -> np.ndarray:
+        """Force of grain ``label_a`` on grain ``label_b`` [N], shape (2,), (n, t); zero if no contact."""
+        id_a, id_b = int(self.ids[cell, label_a - 1]), int(self.ids[cell, label_b - 1])
+        interaction = O.interactions[id_a, id_b] if O.interactions.has(id_a, id_b) else None
+        if interaction is None or not interaction.isReal:
+            return np.zeros(2)
+        force = interaction.phys.normalForce + interaction.phys.shearForce  # on body id2
+        on_b = np.array([force[0], force[1]])
+        return on_b if interaction.id2 == id_b else -on_b
+
+    def record(self, cell: int) -> list[float]:
+        """Values of the ``HEADER`` columns for ``cell`` in the current state."""
+        pos = self.positions(cell)
+        lengths, angles, normal, tangential = [], [], [], []
+        for outer, lateral in TYPE1_PAIRS:
+            branch = pos[lateral - 1] - pos[outer - 1]
+            length = float(np.hypot(*branch))
+            u = branch / length
+            lateral_dir = np.array([0.0, math.copysign(1.0, u[1])])
+            t_open = lateral_dir - (lateral_dir @ u) * u
+            t_open /= np.hypot(*t_open)
+            force = self.contact_force(cell, outer, lateral)
+            lengths.append(length)
+            angles.append(math.atan2(abs(branch[1]), abs(branch[0])))
+            normal.append(float(force @ u))
+            tangential.append(-float(force @ t_open))
+        d2_values, n2_values = [], []
+        for upper, lower in TYPE2_PAIRS:
+            branch = pos[lower - 1] - pos[upper - 1]
+            length = float(np.hypot(*branch))
+            d2_values.append(length)
+            n2_values.append(float(self.contact_force(cell, upper, lower) @ (branch / length)))
+        moment = np.zeros((2, 2))
+        for interaction in O.interactions:
+            if not interaction.isReal:
+                continue
+            ids = {int(interaction.id1), int(interaction.id2)}
+            if not ids <= set(int(i) for i in self.ids[cell]):
+                continue
+            force = interaction.phys.normalForce + interaction.phys.shearForce  # on body id2
+            p1 = O.bodies[int(interaction.id1)].state.pos
+            p2 = O.bodies[int(interaction.id2)].state.pos
+            moment += np.outer([force[0], force[1]], [p2[0] - p1[0], p2[1] - p1[1]])
+        l1 = (self.reference[0, 0] - self.reference[3, 0]) * self.stretch[0]
+        l2 = (self.reference[5, 1] - self.reference[1, 1]) * self.stretch[1]
+        return [
+            l1,
+            l2,
+            math.degrees(float(np.mean(angles))),
+            float(np.mean(lengths)),
+            float(np.mean(d2_values)),
+            float(np.mean(normal)),
+            float(np.mean(n2_values)),
+            float(np.mean(tangential)),
+            moment[0, 0],
+            moment[1, 1],
+        ] + [float(v) for v in pos.ravel()]
+
+
+def run_path(path: np.ndarray, alpha0_deg: float, law: ContactLaw, radius: float, settings: DemSettings):
+    """Run one cell along ``path`` (n_increments, 2); return (rows, totals dict)."""
+    scene = HCellScene(alpha0_deg, 1, law, radius, settings)
+    rows, drive_steps, relax_steps, worst, n_capped = [], 0, 0, 0.0, 0
+    start = time.perf_counter()
+    for d_eps in path:
+        drive_steps += scene.drive(d_eps)
+        steps, ratio = scene.relax()
+        relax_steps += steps
+        worst = max(worst, ratio)
+        n_capped += ratio >= settings.force_tolerance
+        rows.append(scene.record(0))
+    totals = {
+        "n_increments": len(path),
+        "driving_substeps": drive_steps,
+        "relaxation_substeps": relax_steps,
+        "rows_relaxation_capped": int(n_capped),
+        "max_final_unbalanced_ratio": worst,
+        "wall_s": time.perf_counter() - start,
+        "dt_s": scene.dt,
+        "disk_mass_kg": scene.mass,
+    }
+    return rows, totals
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    """Command line of the script (arguments after the script name; a lone ``--`` is ignored)."""
+    settings = DemSettings()
+    parser = argparse.ArgumentParser(
+        prog="yade -n -x tests/yade/hcell_paths.py",
+        description="YADE six-disk H-cell along a cell strain path (reference cases).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--path", type=Path, required=True, help="CSV with header d_eps_n,d_eps_t")
+    parser.add_argument("--alpha0-deg", type=float, default=CellDefaults.alpha0_deg, help="initial opening angle [deg]")
+    parser.add_argument("--out", type=Path, required=True, help="output prefix: writes PREFIX.yade.csv, PREFIX.json")
+    parser.add_argument(
+        "--strain-per-substep",
+        type=float,
+        default=settings.strain_per_substep,
+        help="largest cell-strain component per substep [-]",
+    )
+    parser.add_argument(
+        "--force-tolerance", type=float, default=settings.force_tolerance, help="free-DOF unbalanced force ratio [-]"
+    )
+    return parser.parse_args([a for a in argv if a != "--"])
+
+
+def main(argv: list[str]) -> int:
+    """Entry point; returns the exit code."""
+    args = parse_args(argv)
+    law = ContactLaw()
+    radius = CellDefaults.radius
+    try:
+        check_alpha0_deg(args.alpha0_deg)
+        settings = DemSettings(strain_per_substep=args.strain_per_substep, force_tolerance=args.force_tolerance)
+        path = read_path(args.path)
+    except (OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    rows, totals = run_path(path, args.alpha0_deg, law, radius, settings)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with open(f"{args.out}.yade.csv", "w", newline="") as handle:
+        handle.write(",".join(HEADER) + "\n")
+        for row in rows:
+            handle.write(",".join(f"{v:.10e}" for v in row) + "\n")
+    meta = {
+        "description": "YADE six-disk H-cell along a prescribed cell strain path (tests/yade/hcell_paths.py)",
+        "yade_version": yade.config.version,
+        "path_file": args.path.name,
+        "alpha0_deg": args.alpha0_deg,
+        "radius_m": radius,
+        "kn_N_per_m": law.kn,
+        "kt_over_kn": law.kt_over_kn,
+        "phi_g_deg": law.phi_g_deg,
+        "yade_young_Pa": law.kn / radius,
+        "yade_poisson": law.kt_over_kn,
+        "density_kg_per_m3": settings.density,
+        "dt_factor": settings.dt_factor,
+        "damping": settings.damping,
+        "strain_per_substep": settings.strain_per_substep,
+        "force_tolerance": settings.force_tolerance,
+        "max_substeps_per_relaxation": settings.max_substeps,
+        "contact_tolerance": settings.contact_tolerance,
+        "frame": "cell n = YADE x, cell t = YADE y; outputs in (n, t), cell centre at the origin",
+        "sign_convention": "compression and contraction positive; T1 > 0 resists opening",
+        "unbalanced_ratio": "mean |F_n| on grains 2,3,5,6 / mean |f| of contacts carrying force",
+        "columns": list(HEADER),
+        "units": "lengths m, angles deg, forces N, S N m",
+        **totals,
+    }
+    with open(f"{args.out}.json", "w") as handle:
+        json.dump(meta, handle, indent=1)
+        handle.write("\n")
+    print(f"{args.out}.yade.csv: {len(rows)} rows, {totals['wall_s']:.1f} s, capped {totals['rows_relaxation_capped']}")
+    return 0
+
+
+if __name__ == "__main__":
+    code = main(sys.argv[1:])
+    if code:
+        sys.exit(code)
