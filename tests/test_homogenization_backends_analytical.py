@@ -244,3 +244,15 @@ def test_observables_names_and_positions(model):
     np.testing.assert_allclose(obs["x_n1"] - obs["x_n4"], obs["l1"], rtol=1e-14)
     np.testing.assert_allclose(obs["x_n2"] - obs["x_n3"], obs["d2"], rtol=1e-14)
     np.testing.assert_allclose(np.hypot(obs["x_n1"] - obs["x_n2"], obs["x_t1"] - obs["x_t2"]), obs["d1"], rtol=1e-13)
+
+
+def test_friction_locked_cell_whose_type2_contact_opens(model):
+    """alpha > 60 deg, axis extended and width compressed from the touching state: 2-3
+    opens and grain 2 hangs on friction, T1 = -N1 cot(alpha) with |T1| < mu N1. There f grows
+    with y2 where the contact slides back, yet the solve needs few iterations."""
+    state = model.init_state(np.array([70.0, 80.0, 85.0]), 3)
+    new, response = model.step(state, np.array([[-7e-7, 3e-7]] * 3))
+    assert response.diagnostics["iterations"] <= 8 and response.diagnostics["n_unconverged"] == 0
+    assert np.all(new.N2 == 0.0) and np.all(new.N1 > 0.0)
+    np.testing.assert_allclose(new.T1, -new.N1 / np.tan(new.alpha), rtol=1e-6)
+    assert np.all(np.abs(new.T1) < MU * new.N1)

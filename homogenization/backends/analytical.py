@@ -143,6 +143,7 @@ class AnalyticalCell:
         lo = np.zeros_like(l1)
         hi = half_l1
         y = np.minimum(old.y2, half_l1)
+        walk = None
         for iteration in range(1, self.max_iterations + 1):
             u = half_l1 - y
             d1 = np.hypot(h, u)
@@ -178,10 +179,21 @@ class AnalyticalCell:
             # f decreases in y2 wherever a contact is closed; a slope that is not negative
             # (rounding) is replaced by a tiny negative one, which sends y out of the bracket.
             y_newton = y - f / np.minimum(df, -kn * 1e-12)
-            # Newton inside the open bracket, or a step below the resolution of y;
-            # else bisection (Newton may cycle across the kinks where contacts open).
+            # Newton inside the open bracket, or a step below the resolution of y.
             inside = ((y_newton > lo) & (y_newton < hi)) | (y_newton == y)
-            y = np.where(inside, y_newton, 0.5 * (lo + hi))
+            if inside.all():
+                y = y_newton
+                continue
+            # Else (Newton cycles across the kinks where contacts open, or f grows with y
+            # where a friction-locked cell slides back): walk towards the root by steps
+            # that start at the size of the increment and double, never beyond the middle
+            # of the bracket, so the (wide) initial bracket costs no long bisection.
+            if walk is None:
+                walk = np.abs(l1 - old.l1) + np.abs(l2 - old.l2) + self.f_tolerance / kn
+            mid = 0.5 * (lo + hi)
+            y_walk = np.where(f > 0.0, np.minimum(y + walk, mid), np.maximum(y - walk, mid))
+            y = np.where(inside, y_newton, y_walk)
+            walk = np.where(inside, walk, 2.0 * walk)
         n_unconverged = int(converged.size - np.count_nonzero(converged))
         return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), iteration, n_unconverged
 
