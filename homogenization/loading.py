@@ -150,13 +150,21 @@ def proportional_strain(d_eps11: float, d_eps22: float, n_increments: int, *, la
     return Step(("strain", "strain"), (d_eps11, d_eps22), n_increments, label)
 
 
-def biaxial(p0: float, eps1_end: float, increment: float, *, drained: bool = False) -> Programme:
+def biaxial(
+    p0: float,
+    eps1_end: float,
+    increment: float,
+    *,
+    iso_increment: float = LoadingDefaults.iso_increment,
+    drained: bool = False,
+) -> Programme:
     """Isotropic compression to p0, then constant-volume (or drained, sigma22 = p0) shear.
 
     Args:
         p0: confining pressure [N/m], > 0.
         eps1_end: axial strain of the shear stage, counted from its start [-], > 0.
         increment: axial strain increment of the shear stage [-], > 0.
+        iso_increment: strain increment per component of the isotropic stage [-], > 0.
         drained: hold sigma22 = p0 instead of constant volume.
     """
     if not (math.isfinite(p0) and p0 > 0.0):
@@ -165,7 +173,7 @@ def biaxial(p0: float, eps1_end: float, increment: float, *, drained: bool = Fal
         raise ValueError(f"eps1_end = {eps1_end:g} must be finite and > 0")
     n = n_increments_for(eps1_end, increment)
     shear = drained_biaxial(p0, eps1_end, n) if drained else constant_volume_biaxial(eps1_end, n)
-    return (isotropic(p0), shear)
+    return (isotropic(p0, increment=iso_increment), shear)
 
 
 def to_dict(programme: Programme) -> dict[str, Any]:

@@ -1,0 +1,126 @@
+"""The biaxial CLI: tiny end-to-end runs with a physical end check, errors, overwrite, overlay."""
+
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from homogenization import biaxial, io
+from homogenization.backends import BACKENDS
+from homogenization.cli import run_main
+
+TINY = ["--alpha0", "55", "--p0", "5.85e6", "--eps-max", "0.05", "--increment", "5e-4", "--iso-increment", "1e-4",
+        "--orientations", "24"]
+P0 = 5.85e6
+
+
+def cli(argv: list[str]) -> int:
+    return run_main(biaxial.main, argv)
+
+
+def last_curve_row(path: Path) -> dict[str, str]:
+    with open(path) as fh:
+        return list(csv.DictReader(fh))[-1]
+
+
+def test_constant_volume_run_ends_on_the_reference_curve(tmp_path, capsys):
+    out = tmp_path / "cv"
+    assert cli(TINY + ["--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert f"-> {out / 'run.h5'}, {out / 'curve.csv'}" in printed and f"figure -> {out / 'cambridge.png'}" in printed
+    row = last_curve_row(out / "curve.csv")
+    assert row["stage"] == "shear"
+    # shared/spec/reference.md, alpha0 = 55, p0 = 5.85e6, eps1 = 5 %: p/p0 = 0.937, q/p0 = 0.573
+    assert float(row["p"]) / P0 == pytest.approx(0.937, abs=0.005)
+    assert float(row["q"]) / P0 == pytest.approx(0.573, abs=0.005)
+    stored = io.read_run(out / "run.h5")
+    assert stored.attrs["parameters"]["alpha0_deg"] == 55.0 and stored.attrs["parameters"]["n_orientations"] == 24
+    assert stored.record.p[stored.record.stage == "iso"][-1] == pytest.approx(P0, rel=1e-6)
+    assert (out / "cambridge.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_drained_run_holds_sigma22(tmp_path):
+    out = tmp_path / "drained"
+    assert cli(TINY + ["--drained", "--out", str(out)]) == 0
+    stored = io.read_run(out / "run.h5").record
+    shear = stored.stage == "shear"
+    assert np.abs(stored.sigma22[shear] / P0 - 1.0).max() <= 1e-6
+    assert stored.sigma11[shear][-1] > 1.5 * P0
+
+
+def test_existing_output_needs_overwrite(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert cli(TINY + ["--out", str(out)]) == 0
+    before = (out / "curve.csv").read_bytes()
+    capsys.readouterr()
+    assert cli(TINY + ["--p0", "2e5", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == f"hmodel: error: {out} exists; pass --overwrite to replace it"
+    assert (out / "curve.csv").read_bytes() == before
+    assert cli(TINY + ["--p0", "2e5", "--overwrite", "--out", str(out)]) == 0
+    assert float(last_curve_row(out / "curve.csv")["p"]) < 0.5 * 2e5  # the low-pressure run replaced it
+
+
+def test_comma_list_overlays_backends(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(BACKENDS, "elastic", "cell_doubles:ElasticCell")
+    out = tmp_path / "both"
+    assert cli(TINY + ["--backend", "analytical,elastic", "--out", str(out)]) == 0
+    for name in ("analytical", "elastic"):
+        assert io.read_run(out / name / "run.h5").record.backend == name
+        assert (out / name / "curve.csv").is_file()
+    assert not (out / "run.h5").exists()
+    assert sorted(p.name for p in out.iterdir()) == ["analytical", "cambridge.png", "elastic"]
+    assert capsys.readouterr().out.count(" increments in ") == 2
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--backend", "analytical,foo"], "argument --backend: unknown backend 'foo'; choose from analytical, dem, ann"),
+    (["--alpha0", "25"], "argument --alpha0: alpha0 = 25 deg is outside [30, 90) deg"),
+    (["--alpha0", "90"], "argument --alpha0: alpha0 = 90 deg is outside [30, 90) deg"),
+    (["--p0", "0"], "argument --p0: 0 must be > 0"),
+    (["--p0=-5e5"], "argument --p0: -5e5 must be > 0"),
+    (["--orientations", "0"], "argument --orientations: 0 must be >= 1"),
+])
+def test_bad_arguments_one_line_exit_2(tmp_path, capsys, extra, message):
+    with pytest.raises(SystemExit) as info:
+        cli(TINY + extra + ["--out", str(tmp_path / "x")])
+    assert info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(f"error: {message}")
+    assert not (tmp_path / "x").exists()
+
+
+def test_inconsistent_options_one_line_exit_2(tmp_path, capsys, monkeypatch):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    monkeypatch.setitem(BACKENDS, "ghost", "homogenization.backends.ghost:GhostCell")
+    cases = [
+        (["--threads", "4", "--out", str(tmp_path / "a")], "--threads applies to --backend dem only"),
+        (["--model", "m.pt", "--out", str(tmp_path / "a")], "--model applies to --backend ann only"),
+        (["--device", "cuda", "--out", str(tmp_path / "a")],
+         "--device applies to --backend dem or ann only (analytical runs on the cpu)"),
+        (["--backend", "ghost", "--out", str(tmp_path / "a")], "backend 'ghost' is not available in this version"),
+        (["--out", str(blocker / "sub")], f"cannot write to {blocker / 'sub'}: {blocker} is not a folder"),
+    ]
+    for extra, message in cases:
+        assert cli(TINY + extra) == 2
+        assert capsys.readouterr().err.strip() == f"hmodel: error: {message}"
+    assert not (tmp_path / "a").exists()
+
+
+def test_real_process_exit_code_and_help(tmp_path):
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    cmd = [sys.executable, "-m", "homogenization.biaxial"]
+    bad = subprocess.run(cmd + ["--alpha0", "95", "--out", str(tmp_path / "x")], capture_output=True, text=True, env=env)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert bad.stderr.strip().splitlines()[-1].endswith("error: argument --alpha0: alpha0 = 95 deg is outside [30, 90) deg")
+    helped = subprocess.run(cmd + ["--help"], capture_output=True, text=True, env=env)
+    assert helped.returncode == 0 and "--eps-max" in helped.stdout and "(default: 1e-05)" in helped.stdout
+
+
+def test_module_docstring_starts_with_the_command():
+    assert biaxial.__doc__.splitlines()[0].startswith("python -m homogenization.biaxial --backend analytical --alpha0 55")
