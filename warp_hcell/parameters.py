@@ -131,3 +131,70 @@ class DemSettings:
             raise ValueError(f"max_substeps = {self.max_substeps} must be >= 1")
         if not (0.0 <= self.contact_tolerance < 1e-3):
             raise ValueError(f"contact_tolerance = {self.contact_tolerance:g} is outside [0, 1e-3)")
+
+
+@dataclass(frozen=True)
+class DatabaseSettings:
+    """Options of the learning-database generator ``warp_hcell.generate`` (spec section 11).
+
+    Strains are compression positive; a path length is sqrt(sum d_eps_n^2 + d_eps_t^2) in
+    the (eps_n, eps_t) plane of the cell.
+    """
+
+    samples: int = 300_000
+    """Number of samples (one strain probe of one sampled state each) [-]."""
+    chunk_size: int = 5_000
+    """Probes computed as one batch; also the unit of resume and of parallel work [-]."""
+    alpha0_min_deg: float = 30.0
+    """Smallest initial opening angle of the exploration grid [deg]."""
+    alpha0_max_deg: float = 89.0
+    """Largest initial opening angle of the exploration grid [deg]."""
+    n_alpha0: int = 12
+    """Initial opening angles evenly spaced in [alpha0_min_deg, alpha0_max_deg] [-]."""
+    alpha0_focus_deg: tuple[float, ...] = (35.0, 40.0, 55.0)
+    """Initial opening angles of the homogenisation runs, added to the grid [deg]."""
+    precompression: tuple[float, ...] = (0.0, 1e-3, 3e-3, 1e-2, 2e-2, 3e-2)
+    """Isotropic strains eps_n = eps_t from which the proportional legs start [-]
+    (p ~ 2.2e8 N/m x eps: 1e-3 ~ p0 = 2e5 N/m, 2e-2 to 3e-2 ~ p0 = 5.85e6 N/m)."""
+    n_directions: int = 24
+    """Leg directions psi_k = 360 k / n_directions [deg] in the (eps_n, eps_t) plane [-]."""
+    sample_spacing: float = 5e-3
+    """Path length between sampled states, also the exploration increment [-]."""
+    leg_refinement: int = 3
+    """A leg's first increment is sample_spacing / 2**leg_refinement, then increments double
+    up to sample_spacing (finer sampling just after the change of direction) [-]."""
+    leg_length: float = 0.45
+    """Largest path length of a leg [-] (constant-volume shearing to eps1 = 0.3 moves a
+    cell by up to 0.3 sqrt 2)."""
+    leg_volumetric: float = 0.05
+    """Largest change |d(eps_n + eps_t)| of the cell's volumetric strain along a leg [-]."""
+    probe_min: float = 1e-6
+    """Smallest probe magnitude |d_eps| [-]."""
+    probe_max: float = 1e-3
+    """Largest probe magnitude |d_eps| [-]."""
+    probe_focus_min: float = 1e-5
+    """Smallest magnitude of the focus probes (the ANN's usual increments) [-]."""
+    probe_focus_max: float = 1e-4
+    """Largest magnitude of the focus probes [-]."""
+    probe_focus_fraction: float = 0.5
+    """Fraction of the probes drawn in [probe_focus_min, probe_focus_max] [-]."""
+
+    def __post_init__(self) -> None:
+        if int(self.leg_refinement) < 0:
+            raise ValueError(f"leg_refinement = {self.leg_refinement} must be >= 0")
+        for name in ("samples", "chunk_size", "n_alpha0", "n_directions"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} = {getattr(self, name)} must be >= 1")
+        for name in ("sample_spacing", "leg_length", "leg_volumetric", "probe_min", "probe_focus_min"):
+            check_positive(name, getattr(self, name))
+        for value in (self.alpha0_min_deg, self.alpha0_max_deg, *self.alpha0_focus_deg):
+            check_alpha0_deg(value)
+        if self.alpha0_min_deg > self.alpha0_max_deg:
+            raise ValueError(f"alpha0_min_deg = {self.alpha0_min_deg:g} exceeds alpha0_max_deg = {self.alpha0_max_deg:g}")
+        if not self.precompression or min(self.precompression) < 0.0 or not all(map(math.isfinite, self.precompression)):
+            raise ValueError(f"precompression = {self.precompression} needs finite strains >= 0")
+        for lo, hi in (("probe_min", "probe_max"), ("probe_focus_min", "probe_focus_max")):
+            if not getattr(self, lo) <= getattr(self, hi) < 1.0:
+                raise ValueError(f"{hi} = {getattr(self, hi):g} must lie in [{lo}, 1)")
+        if not 0.0 <= self.probe_focus_fraction <= 1.0:
+            raise ValueError(f"probe_focus_fraction = {self.probe_focus_fraction:g} is outside [0, 1]")
