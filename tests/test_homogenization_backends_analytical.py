@@ -256,3 +256,18 @@ def test_friction_locked_cell_whose_type2_contact_opens(model):
     assert np.all(new.N2 == 0.0) and np.all(new.N1 > 0.0)
     np.testing.assert_allclose(new.T1, -new.N1 / np.tan(new.alpha), rtol=1e-6)
     assert np.all(np.abs(new.T1) < MU * new.N1)
+
+
+def test_cell_held_at_alpha_90_when_no_equilibrium_exists_below(model):
+    """alpha0 = 89.5 deg compressed along its axis: once l1 < D (grains 1-4 touch), 2-3
+    pushes grain 2 past alpha = 90 deg, outside the H-model; the cell stays at the limit,
+    flagged, and its moment carries the 1-4 contact."""
+    state = model.init_state(np.array([89.5, 60.0]), 2)
+    for _ in range(20):
+        state, response = model.step(state, np.array([[1e-3, 0.0], [1e-3, 0.0]]))
+        assert response.diagnostics["iterations"] <= 6 and response.diagnostics["n_unconverged"] == 0
+    assert response.diagnostics["n_alpha_limit"] == 1
+    assert state.alpha[0] == np.pi / 2 and state.alpha[1] < np.pi / 2
+    l1, d2 = state.l1[0], 2 * state.y2[0]
+    assert l1 < D and d2 == l1
+    np.testing.assert_allclose(response.moment[0, 0, 0], 2 * state.N2[0] * d2 + KN * (D - l1) * l1, rtol=1e-12)

@@ -67,8 +67,10 @@ class AnalyticalCell:
         max_iterations: Newton/bisection iterations allowed per increment [-]; cells still
             above the tolerance are counted in ``diagnostics["n_unconverged"]``.
 
-    ``step`` reports ``diagnostics = {"iterations": residual evaluations spent by the batch,
-    "n_unconverged": cells above the tolerance}``.
+    ``step`` reports ``diagnostics``: ``iterations`` (residual evaluations spent by the
+    batch), ``n_unconverged`` (cells above the tolerance) and ``n_alpha_limit`` (cells held
+    at alpha = 90 deg because no equilibrium exists below it: grain 2 would pass over grain
+    1, outside the H-model; their residual is not zero).
     """
 
     name = "analytical"
@@ -127,15 +129,14 @@ class AnalyticalCell:
         d_eps = np.asarray(d_eps_local, dtype=np.float64)
         l1 = state.l1 * (1.0 - d_eps[:, 0])
         l2 = state.l2 * (1.0 - d_eps[:, 1])
-        new, iterations, n_unconverged = self._solve(state, l1, l2)
+        new, diagnostics = self._solve(state, l1, l2)
         moment, area = hcell.love_weber_moment(
             new.alpha, new.N1, new.N2, new.T1, l1, l2, kn=self.kn, diameter=self.diameter
         )
-        diagnostics = {"iterations": float(iterations), "n_unconverged": float(n_unconverged)}
         return new, CellResponse(moment, area, diagnostics)
 
-    def _solve(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray) -> tuple[AnalyticalState, int, int]:
-        """Equilibrium y2 for the new lengths; returns (state, iterations, n_unconverged)."""
+    def _solve(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray) -> tuple[AnalyticalState, dict]:
+        """Equilibrium y2 for the new lengths; returns the state and the diagnostics."""
         kn, kt, mu, D, g2 = self.kn, self.kt, self.mu, self.diameter, self.g2
         h = 0.5 * l2
         half_l1 = 0.5 * l1
@@ -162,6 +163,11 @@ class AnalyticalCell:
             T1 = np.minimum(np.maximum(trial, -cap), cap)
             f = N2 - N1 * c - (s + g2) * T1
             converged = np.abs(f) <= self.f_tolerance
+            if converged.all():
+                break
+            # f > 0 at y2 = l1/2 (alpha = 90 deg, grains 2-1-6 aligned): no equilibrium in
+            # the admissible range; the cell stays at that limit (reported).
+            converged |= (u == 0.0) & (f > 0.0)
             if iteration == self.max_iterations or converged.all():
                 break
             # Converged cells keep their y (f -> 0), so a cell's result does not depend
@@ -176,8 +182,9 @@ class AnalyticalCell:
             df = (s * (N1 * s - T1 * c) / d1 - (s + g2) * dT) - kn * (2.0 * (gap2 > 0.0) + c * c * closed1)
             lo = np.where(f > 0.0, y, lo)
             hi = np.where(f < 0.0, y, hi)
-            # f decreases in y2 wherever a contact is closed; a slope that is not negative
-            # (rounding) is replaced by a tiny negative one, which sends y out of the bracket.
+            # f mostly decreases in y2; a slope that is not negative (all contacts open, or a
+            # friction-locked cell sliding back) is made tiny and negative, so y leaves the
+            # bracket and the walk below takes over.
             y_newton = y - f / np.minimum(df, -kn * 1e-12)
             # Newton inside the open bracket, or a step below the resolution of y.
             inside = ((y_newton > lo) & (y_newton < hi)) | (y_newton == y)
@@ -187,15 +194,22 @@ class AnalyticalCell:
             # Else (Newton cycles across the kinks where contacts open, or f grows with y
             # where a friction-locked cell slides back): walk towards the root by steps
             # that start at the size of the increment and double, never beyond the middle
-            # of the bracket, so the (wide) initial bracket costs no long bisection.
+            # of the bracket, so the (wide) initial bracket costs no long bisection; the
+            # walk may reach the limit y2 = l1/2 while that end is not yet evaluated.
             if walk is None:
                 walk = np.abs(l1 - old.l1) + np.abs(l2 - old.l2) + self.f_tolerance / kn
             mid = 0.5 * (lo + hi)
-            y_walk = np.where(f > 0.0, np.minimum(y + walk, mid), np.maximum(y - walk, mid))
+            upper = np.where(hi == half_l1, hi, mid)
+            y_walk = np.where(f > 0.0, np.minimum(y + walk, upper), np.maximum(y - walk, mid))
             y = np.where(inside, y_newton, y_walk)
             walk = np.where(inside, walk, 2.0 * walk)
-        n_unconverged = int(converged.size - np.count_nonzero(converged))
-        return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), iteration, n_unconverged
+        n_limit = np.count_nonzero((u == 0.0) & (f > self.f_tolerance))
+        diagnostics = {
+            "iterations": float(iteration),
+            "n_unconverged": float(np.count_nonzero(np.abs(f) > self.f_tolerance) - n_limit),
+            "n_alpha_limit": float(n_limit),
+        }
+        return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), diagnostics
 
     def response(self, state: AnalyticalState) -> CellResponse:
         """Meso-stress of ``state`` without advancing it."""
