@@ -11,8 +11,11 @@ Coulomb cap evaluated from the state at the start of the increment:
 T_trial = T1_old + kt d1_mid (a - a_old), T1 = clip(T_trial, -mu N1, +mu N1). The cap
 takes its sign from the trial force, and T1 = 0 (history reset) whenever the type-1
 contact is open, because then N1 = 0. The solve is a safeguarded Newton iteration on the
-whole batch at once (bisection inside the current bracket when a Newton step leaves it);
-where both contacts are open f is identically zero and y2 is kept.
+whole batch at once, from the previous y2, inside a bracket in (0, l1/2]: when a Newton step
+leaves the bracket (kinks where contacts open or start sliding), y2 walks towards the root
+by doubling steps, never past the middle of the bracket. Converged cells are frozen, so a
+cell's result does not depend on its batch. Where both contacts are open f is identically
+zero and y2 is kept. Where f > 0 even at y2 = l1/2 (alpha = 90 deg) the cell is held there.
 
 Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
 growing). Local frame: index 0 = n, 1 = t.
