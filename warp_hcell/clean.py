@@ -35,6 +35,10 @@ import numpy as np
 from warp_hcell import database
 from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG
 
+ALPHA_TOLERANCE_DEG = 1e-9
+"""Rounding allowance of the alpha range [deg]: a cell built at alpha0 = 30 deg reads
+29.999999999999996 deg."""
+
 REASONS = {
     "alpha_range": f"alpha before or after the probe outside [{ALPHA_MIN_DEG:g}, {ALPHA_MAX_DEG:g}] deg",
     "mechanism": "no closed contact before or after the probe (stress-free mechanism)",
@@ -42,6 +46,11 @@ REASONS = {
     "non_finite": "non-finite value in inputs or outputs",
 }
 """Cleaning reasons and their rules."""
+
+
+def alpha_in_range(alpha_deg: np.ndarray) -> np.ndarray:
+    """True where alpha [deg] lies in [30, 90] deg, to within ``ALPHA_TOLERANCE_DEG``."""
+    return (alpha_deg >= ALPHA_MIN_DEG - ALPHA_TOLERANCE_DEG) & (alpha_deg <= ALPHA_MAX_DEG + ALPHA_TOLERANCE_DEG)
 
 
 def pathological(samples: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -58,8 +67,7 @@ def pathological(samples: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     pre, post = samples["pre_state"], samples["post_state"]
 
     def out_of_range(table: np.ndarray) -> np.ndarray:
-        alpha = table[:, col["alpha_deg"]]
-        return ~((alpha >= ALPHA_MIN_DEG) & (alpha <= ALPHA_MAX_DEG))
+        return ~alpha_in_range(table[:, col["alpha_deg"]])
 
     def open_cell(table: np.ndarray) -> np.ndarray:
         return ~((table[:, col["closed1"]] > 0.0) | (table[:, col["closed2"]] > 0.0))

@@ -75,7 +75,7 @@ from tqdm import tqdm
 
 from warp_hcell import clean as cleaning
 from warp_hcell import database
-from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, DatabaseSettings
+from warp_hcell.parameters import DatabaseSettings
 
 BACKEND_PREFIX = "backend/"
 """Prefix of the backend's own state arrays among the sampled-state arrays."""
@@ -149,12 +149,12 @@ def admissible(table: np.ndarray, converged: np.ndarray) -> np.ndarray:
         converged: per-cell convergence of the step that produced them, shape (n,).
 
     Returns:
-        bool (n,): converged, finite, alpha in [30, 90] deg and at least one contact closed.
+        bool (n,): converged, finite, alpha in [30, 90] deg (``clean.alpha_in_range``) and
+        at least one contact closed.
     """
     col = {name: i for i, name in enumerate(database.STATE_FEATURES)}
-    alpha = table[:, col["alpha_deg"]]
     closed = (table[:, col["closed1"]] > 0.0) | (table[:, col["closed2"]] > 0.0)
-    in_range = (alpha >= ALPHA_MIN_DEG) & (alpha <= ALPHA_MAX_DEG)
+    in_range = cleaning.alpha_in_range(table[:, col["alpha_deg"]])
     return converged & np.isfinite(table).all(axis=1) & in_range & closed
 
 
@@ -571,6 +571,11 @@ def _run(argv: Sequence[str] | None) -> int:
     check_output_path(args.out, overwrite=args.overwrite)
     if args.out.is_dir():
         raise UserError(f"{args.out} is a folder; --out must be a file")
+    ancestor = args.out.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise UserError(f"cannot write {args.out}: {ancestor} is not a folder")
     law, radius = ContactLaw(), CellDefaults.radius
     meta: dict[str, Any] = {"backend": args.backend, "kn": law.kn, "kt": law.kt, "kt_over_kn": law.kt_over_kn,
                             "phi_g_deg": law.phi_g_deg, "radius": radius, "device": args.device}
