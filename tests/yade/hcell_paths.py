@@ -204,6 +204,7 @@ class HCellScene:
         self.ids = np.array(ids, dtype=np.int64)
         self._driven_n = self.ids[:, [0, 3]].ravel()
         self._free = self.ids[:, [label - 1 for label in FREE_LABELS]].ravel()
+        self.settled = self.positions()
 
     def _targets(self) -> np.ndarray:
         """Driven-coordinate targets [m] of every grain at the current stretch, shape (n_cells, 6, 2)."""
@@ -260,18 +261,23 @@ class HCellScene:
         """Step with the driven grains at rest until quasi-static; return (substeps, final ratio).
 
         At least one substep is taken, so forces always match the final driven positions.
+        ``settled`` keeps the grain centres the final forces were computed from (the
+        positions before the last substep), like a DEM that tests equilibrium before moving.
         """
         for n in range(1, self.settings.max_substeps + 1):
+            before = self.positions()
             O.step()
             ratio = self.unbalanced()
             if ratio < self.settings.force_tolerance:
                 break
+        self.settled = before
         return n, ratio
 
-    def positions(self, cell: int) -> np.ndarray:
-        """Grain centres of ``cell`` relative to its origin [m], shape (6, 2), columns (x_n, x_t)."""
-        pos = np.array([[O.bodies[int(i)].state.pos[0], O.bodies[int(i)].state.pos[1]] for i in self.ids[cell]])
-        return pos - self.origin[cell]
+    def positions(self) -> np.ndarray:
+        """Grain centres relative to their cell's origin [m], shape (n_cells, 6, 2), columns (x_n, x_t)."""
+        bodies = O.bodies
+        pos = np.array([[tuple(bodies[int(i)].state.pos)[:2] for i in cell] for cell in self.ids])
+        return pos - self.origin[:, None, :]
 
     def contact_force(self, cell: int, label_a: int, label_b: int) -> np.ndarray:
         """Force of grain ``label_a`` on grain ``label_b`` [N], shape (2,), (n, t); zero if no contact."""
@@ -284,8 +290,11 @@ class HCellScene:
         return on_b if interaction.id2 == id_b else -on_b
 
     def record(self, cell: int) -> list[float]:
-        """Values of the ``HEADER`` columns for ``cell`` in the current state."""
-        pos = self.positions(cell)
+        """Values of the ``HEADER`` columns for ``cell`` in the state left by ``relax``.
+
+        Positions are ``settled`` (those the recorded contact forces were computed from).
+        """
+        pos = self.settled[cell]
         lengths, angles, normal, tangential = [], [], [], []
         for outer, lateral in TYPE1_PAIRS:
             branch = pos[lateral - 1] - pos[outer - 1]
@@ -305,17 +314,14 @@ class HCellScene:
             length = float(np.hypot(*branch))
             d2_values.append(length)
             n2_values.append(float(self.contact_force(cell, upper, lower) @ (branch / length)))
+        index = {int(body_id): label_index for label_index, body_id in enumerate(self.ids[cell])}
         moment = np.zeros((2, 2))
         for interaction in O.interactions:
-            if not interaction.isReal:
-                continue
-            ids = {int(interaction.id1), int(interaction.id2)}
-            if not ids <= set(int(i) for i in self.ids[cell]):
+            i1, i2 = int(interaction.id1), int(interaction.id2)
+            if not interaction.isReal or i1 not in index or i2 not in index:
                 continue
             force = interaction.phys.normalForce + interaction.phys.shearForce  # on body id2
-            p1 = O.bodies[int(interaction.id1)].state.pos
-            p2 = O.bodies[int(interaction.id2)].state.pos
-            moment += np.outer([force[0], force[1]], [p2[0] - p1[0], p2[1] - p1[1]])
+            moment += np.outer([force[0], force[1]], pos[index[i2]] - pos[index[i1]])
         l1 = (self.reference[0, 0] - self.reference[3, 0]) * self.stretch[0]
         l2 = (self.reference[5, 1] - self.reference[1, 1]) * self.stretch[1]
         return [
