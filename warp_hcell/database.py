@@ -160,9 +160,13 @@ def read_database(path: Path) -> tuple[dict[str, np.ndarray], dict[str, np.ndarr
         ``states`` group arrays, and the root attrs (JSON strings left as stored).
 
     Raises:
-        ValueError: (one line) if ``path`` is not a database of this format version.
+        ValueError: (one line) if ``path`` is not a readable HDF5 database of this format version.
     """
-    with h5py.File(path, "r") as f:
+    try:
+        handle = h5py.File(path, "r")
+    except OSError:
+        raise ValueError(f"{path}: not a readable HDF5 file") from None
+    with handle as f:
         if f.attrs.get("format") != FORMAT or int(f.attrs.get("format_version", -1)) != FORMAT_VERSION:
             raise ValueError(f"{path} is not a {FORMAT} file of format_version {FORMAT_VERSION}")
         samples = {name: f[name][()] for name in SAMPLE_DATASETS}
