@@ -93,6 +93,8 @@ def check_output_path(path: Path, *, overwrite: bool) -> Path:
     parent = path if path.is_dir() else path.parent
     while not parent.exists():
         parent = parent.parent
+    if not parent.is_dir():
+        raise UserError(f"cannot write below {parent}: it is a file, not a folder")
     if not os.access(parent, os.W_OK):
         raise UserError(f"cannot write to {parent}")
     return path
