@@ -244,7 +244,7 @@ def explore(cell_model, settings: DatabaseSettings) -> dict[str, np.ndarray]:
     leg_dir = np.tile(np.arange(n_dir), origin.size)
     arc = leg_arc(settings)
     steps = leg_steps(settings, directions, arc)[leg_dir]
-    starts = cell_model.state_from_arrays({name: value[leg_origin] for name, value in _backend_arrays(iso).items()})
+    starts = cell_model.state_from_arrays({name: value[leg_origin] for name, value in backend_arrays(iso).items()})
     increments = np.diff(arc, prepend=0.0)[None, :, None] * directions[leg_dir][:, None, :]
     legs = _walk(cell_model, starts, increments, steps, "proportional legs", sample_start=False)
     step, cell = legs.pop("step"), legs.pop("cell")
@@ -351,7 +351,7 @@ def _load_npz(path: Path) -> dict[str, np.ndarray]:
         return {name.replace(":", "/"): data[name] for name in data.files}
 
 
-def _backend_arrays(states: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+def backend_arrays(states: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The backend's state arrays among the ``explore`` output (prefix ``backend/`` removed)."""
     return {name[len(BACKEND_PREFIX):]: value for name, value in states.items() if name.startswith(BACKEND_PREFIX)}
 
@@ -372,7 +372,7 @@ def _worker_init(factory: Callable[[], Any], states_file: str) -> None:
     """Process-pool initializer: build the backend and the pool of sampled states once."""
     cell_model = factory()
     states = _load_npz(Path(states_file))
-    pool = cell_model.state_from_arrays(_backend_arrays(states))
+    pool = cell_model.state_from_arrays(backend_arrays(states))
     _WORKER.update(cell_model=cell_model, pool=pool, states=states)
 
 
@@ -475,7 +475,7 @@ def generate(
     initial = settings.samples - sum(chunk_size(settings, c) for c in missing)
     with tqdm(total=settings.samples, initial=initial, desc="probes", unit="sample", smoothing=0.1) as bar:
         if workers <= 1:
-            pool = cell_model.state_from_arrays(_backend_arrays(states))
+            pool = cell_model.state_from_arrays(backend_arrays(states))
             for chunk in todo:
                 _save_npz(_chunk_file(sidecar, chunk), compute_chunk(cell_model, pool, states, settings, seed, chunk))
                 bar.update(chunk_size(settings, chunk))
