@@ -163,7 +163,7 @@ class NumpyIntegrator:
             dist2 = b[..., 0] ** 2 + b[..., 1] ** 2
             on = dist2 <= cut2[act]
             dist = np.sqrt(np.where(on, dist2, 1.0))
-            u = b / dist[..., None]
+            u = b * (1.0 / dist)[..., None]
             ddx = dx[act][:, pj] - dx[act][:, pi]
             du = ddx[..., 1] * u[..., 0] - ddx[..., 0] * u[..., 1]
             normal = law.kn * np.maximum(rsum[act] - dist, 0.0)

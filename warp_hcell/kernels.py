@@ -74,7 +74,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
     vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
     vec_pi = wp.types.vector(length=n_pairs, dtype=wp.int32)
 
-    @wp.kernel(module="unique", module_options={"enable_backward": False, "max_unroll": 4096})
+    @wp.kernel(module="unique", module_options={"enable_backward": False, "max_unroll": 4096, "fuse_fp": False})
     def dem_step(
         radius: wp.array2d(dtype=wp.float64),
         inv_mass: wp.array2d(dtype=wp.float64),
@@ -175,8 +175,9 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                 dist2 = bn * bn + bt * bt
                 if dist2 <= cut2[p]:
                     dist = wp.sqrt(dist2)
-                    un = bn / dist
-                    ut = bt / dist
+                    inv_dist = one / dist
+                    un = bn * inv_dist
+                    ut = bt * inv_dist
                     du = (dxt[j] - dxt[i]) * un - (dxn[j] - dxn[i]) * ut
                     normal, shear = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
                     fs[p] = shear
