@@ -37,6 +37,10 @@ resists opening, spec section 4), ``S_nn,S_tt`` [N m] (Love-Weber moment over ev
 contact of the cell, pathological 1-4, 2-6, 3-5 included, cell frame, compression
 positive), ``x_n1,x_t1,...,x_n6,x_t6`` [m] (grain centres in the cell frame, cell centre
 at the origin); and ``PREFIX.json`` with every parameter, the YADE version and run totals.
+``l1, l2`` are the imposed lengths; the positions are those the recorded forces were
+computed from (before the last relaxation substep). Where every contact is open the cell
+is a stress-free mechanism: its free grains keep, undamped, the velocity they had when the
+last contact opened, so their n coordinates there are not fixed by statics.
 Exit code 2 with a one-line message for bad input.
 
 Also imported (inside YADE) by benchmarks/bench_yade.py, which builds many cells with
@@ -210,36 +214,47 @@ class HCellScene:
         """Driven-coordinate targets [m] of every grain at the current stretch, shape (n_cells, 6, 2)."""
         return self.origin[:, None, :] + self.reference[None, :, :] * self.stretch[None, None, :]
 
-    def drive(self, d_eps: np.ndarray) -> int:
-        """Apply one path row (d_eps_n, d_eps_t) [-] through velocities; return the substeps spent.
+    def start_row(self, d_eps: np.ndarray) -> int:
+        """Set the driving velocities of one path row (d_eps_n, d_eps_t) [-]; return its substeps.
 
-        The driven coordinates move at constant velocity to their targets over
-        ceil(max|d_eps| / strain_per_substep) substeps, are set exactly on the targets
-        (a rounding-level correction) and stopped.
+        The driven coordinates will reach their targets at constant velocity after
+        ceil(max|d_eps| / strain_per_substep) substeps; free components keep their velocity.
         """
         # The relative slack keeps exact multiples (2e-4 / 2.5e-7) from rounding up a substep.
         ratio = float(np.max(np.abs(d_eps))) / self.settings.strain_per_substep
         n_sub = max(1, math.ceil(ratio * (1.0 - 1e-12)))
         self.stretch = self.stretch * (1.0 - np.asarray(d_eps, dtype=np.float64))
-        targets = self._targets()
+        self._row_targets = self._targets()
         duration = n_sub * self.dt
         bodies = O.bodies
         for k, cell in enumerate(self.ids):
             for index, body_id in enumerate(cell):
                 state = bodies[int(body_id)].state
                 pos = state.pos
-                v_t = (targets[k, index, 1] - pos[1]) / duration
-                v_n = (targets[k, index, 0] - pos[0]) / duration if index in (0, 3) else state.vel[0]
+                target = self._row_targets[k, index]
+                v_t = (target[1] - pos[1]) / duration
+                v_n = (target[0] - pos[0]) / duration if index in (0, 3) else state.vel[0]
                 state.vel = Vector3(v_n, v_t, 0.0)
-        for _ in range(n_sub):
-            O.step()
+        return n_sub
+
+    def finish_row(self) -> None:
+        """Set the driven coordinates exactly on their targets (a rounding-level correction) and stop them."""
+        bodies = O.bodies
         for k, cell in enumerate(self.ids):
             for index, body_id in enumerate(cell):
                 state = bodies[int(body_id)].state
                 driven_n = index in (0, 3)
-                x_n = targets[k, index, 0] if driven_n else state.pos[0]
-                state.pos = Vector3(x_n, targets[k, index, 1], 0.0)
+                target = self._row_targets[k, index]
+                x_n = target[0] if driven_n else state.pos[0]
+                state.pos = Vector3(x_n, target[1], 0.0)
                 state.vel = Vector3(0.0 if driven_n else state.vel[0], 0.0, 0.0)
+
+    def drive(self, d_eps: np.ndarray) -> int:
+        """Apply one path row (d_eps_n, d_eps_t) [-] through velocities; return the substeps spent."""
+        n_sub = self.start_row(d_eps)
+        for _ in range(n_sub):
+            O.step()
+        self.finish_row()
         return n_sub
 
     def unbalanced(self) -> float:
