@@ -1,0 +1,197 @@
+"""Meso-ANN H-cell backend (spec section 11): a trained ``CellNet`` replaces the equilibrium solve.
+
+``AnnCell`` implements ``homogenization.cell_model.CellModel``. Per macro increment, ONE
+batched network call over all cells maps the probe (d_eps_n, d_eps_t) and the state at the
+start of the increment (alpha, N1, N2, T1, l1, l2) to the end values of (alpha, N1, N2,
+T1). What is not learned:
+
+- l1, l2 follow the imposed strain (spec section 3): l1 <- l1 (1 - d_eps_n),
+  l2 <- l2 (1 - d_eps_t);
+- the geometry d1 = l2 / (2 sin a), d2 = l1 - 2 d1 cos a and the Love-Weber moment with
+  its pathological contacts come from ``homogenization.backends.hcell`` (spec section 7).
+
+Non-physical network outputs are mapped onto the contact law, never silently: a negative
+normal force becomes 0 (no tension, N = max(N, 0), as the contact law itself does), and
+|T1| > mu N1 is capped at mu N1 with the sign of the prediction (Coulomb, so an open
+contact carries no tangential force). Each ``step`` reports in
+``CellResponse.diagnostics`` how many cells were affected: ``n_tension_clipped`` (N1 or N2
+< 0 predicted), ``n_coulomb_capped`` and ``n_alpha_outside`` (alpha outside [30, 90] deg,
+left as predicted).
+
+Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
+growing). Local frame: index 0 = n, 1 = t.
+"""
+
+from __future__ import annotations
+
+import math
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping, NamedTuple
+
+import numpy as np
+import torch
+
+from homogenization.backends import hcell
+from homogenization.cell_model import CellResponse
+from training.checkpoint import CheckpointError, check_compatible, load_checkpoint
+from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, ContactLaw, check_alpha0_deg, check_positive
+
+DEFAULT_MODEL = "ann_default.pt"
+"""File name of the model shipped in ``homogenization/data`` (with its ``.json``)."""
+
+
+def default_model_path() -> Path:
+    """Path of the shipped default model state_dict (its metadata sits next to it)."""
+    return Path(str(resources.files("homogenization") / "data" / DEFAULT_MODEL))
+
+
+class AnnState(NamedTuple):
+    """Batch of ANN H-cells; every field has shape (n_cells,)."""
+
+    alpha: np.ndarray
+    """Opening angle [rad]."""
+    N1: np.ndarray
+    """Normal force of the type-1 contacts [N], compression positive."""
+    N2: np.ndarray
+    """Normal force of the type-2 contacts [N], compression positive."""
+    T1: np.ndarray
+    """Tangential force of the type-1 contacts [N], > 0 resists opening."""
+    l1: np.ndarray
+    """Axial length, centre 1 to centre 4 [m]."""
+    l2: np.ndarray
+    """Distance between the lateral columns [m]."""
+
+
+class AnnCell:
+    """H-cell whose increment is predicted by a trained ``training.network.CellNet``.
+
+    Args:
+        contact_law: contact stiffnesses and friction; must match the model's training data.
+        radius: grain radius r [m]; must match the model's training data.
+        model: path of a model state_dict (``.pt``, metadata in the ``.json`` next to it);
+            None loads the default model shipped in ``homogenization/data``.
+        device: torch device of the network ("cpu", "cuda", ...).
+
+    Raises:
+        training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
+            mismatched model file, or a model trained for another contact law or radius.
+    """
+
+    name = "ann"
+
+    def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None, device: str = "cpu") -> None:
+        self.contact_law = contact_law
+        self.radius = check_positive("radius", radius)
+        self.diameter = 2.0 * self.radius
+        self.kn = contact_law.kn
+        self.mu = contact_law.mu
+        path = default_model_path() if model is None else Path(model)
+        if model is None and not path.is_file():
+            raise CheckpointError(f"{path}: the default ANN model is not installed; pass model=PATH (--model)")
+        self.net, self.metadata = load_checkpoint(path)
+        check_compatible(self.metadata, kn=contact_law.kn, kt_over_kn=contact_law.kt_over_kn,
+                         phi_g_deg=contact_law.phi_g_deg, radius=self.radius, source=str(path))
+        self.model_path = path
+        self.device = torch.device(device)
+        self.net.to(self.device)
+
+    def init_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> AnnState:
+        """Touching, force-free cells: d1 = d2 = D at opening angle alpha0.
+
+        Args:
+            alpha0_deg: initial opening angle [deg], scalar or shape (n_cells,), each in
+                [30, 90); ValueError otherwise.
+            n_cells: number of cells.
+        """
+        alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (int(n_cells),))
+        bad = ~((alpha0 >= ALPHA_MIN_DEG) & (alpha0 < ALPHA_MAX_DEG))
+        if bad.any():
+            check_alpha0_deg(alpha0[bad][0])
+        alpha = np.radians(alpha0)
+        D = np.full(alpha.shape, self.diameter)
+        l1, l2 = hcell.lengths(D, D, alpha)
+        zero = np.zeros_like(alpha)
+        return AnnState(alpha, zero, zero.copy(), zero.copy(), l1, l2)
+
+    def step(self, state: AnnState, d_eps_local: np.ndarray) -> tuple[AnnState, CellResponse]:
+        """Advance every cell by its local strain increment with one network call; pure.
+
+        Args:
+            state: cells at the start of the increment.
+            d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
+
+        Returns:
+            The state at the end of the increment and its response (diagnostics: counts of
+            cells whose prediction was mapped onto the contact law, see the module docstring).
+        """
+        d_eps = np.asarray(d_eps_local, dtype=np.float64)
+        inputs = np.column_stack([d_eps, np.degrees(state.alpha), state.N1, state.N2, state.T1, state.l1, state.l2])
+        with torch.inference_mode():
+            out = self.net.predict(torch.from_numpy(inputs).to(self.device)).cpu().numpy()
+        alpha = np.radians(out[:, 0])
+        N1 = np.maximum(out[:, 1], 0.0)
+        N2 = np.maximum(out[:, 2], 0.0)
+        cap = self.mu * N1
+        T1 = np.clip(out[:, 3], -cap, cap)
+        l1 = state.l1 * (1.0 - d_eps[:, 0])
+        l2 = state.l2 * (1.0 - d_eps[:, 1])
+        new = AnnState(alpha, N1, N2, T1, l1, l2)
+        moment, area = hcell.love_weber_moment(alpha, N1, N2, T1, l1, l2, kn=self.kn, diameter=self.diameter)
+        alpha_deg = out[:, 0]
+        diagnostics = {
+            "n_tension_clipped": float(np.count_nonzero((out[:, 1] < 0.0) | (out[:, 2] < 0.0))),
+            "n_coulomb_capped": float(np.count_nonzero(np.abs(out[:, 3]) > cap)),
+            "n_alpha_outside": float(np.count_nonzero((alpha_deg < ALPHA_MIN_DEG) | (alpha_deg > ALPHA_MAX_DEG))),
+        }
+        return new, CellResponse(moment, area, diagnostics)
+
+    def response(self, state: AnnState) -> CellResponse:
+        """Meso-stress of ``state`` without advancing it."""
+        moment, area = hcell.love_weber_moment(state.alpha, state.N1, state.N2, state.T1, state.l1, state.l2,
+                                               kn=self.kn, diameter=self.diameter)
+        return CellResponse(moment, area)
+
+    def observables(self, state: AnnState) -> dict[str, np.ndarray]:
+        """Named per-cell quantities, each shape (n_cells,).
+
+        ``l1, l2, d1, d2`` [m] (d1, d2 from l1, l2, alpha), ``alpha_deg`` [deg],
+        ``N1, N2, T1`` [N] (compression positive, T1 > 0 resists opening), ``S_nn, S_tt``
+        [N m], ``area`` [m^2], ``closed1, closed2`` (bool: the contact carries a normal
+        force) and grain centres ``x_n{i}, x_t{i}`` [m], labels i = 1..6.
+        """
+        response = self.response(state)
+        d1, d2 = hcell.branches_from_alpha(state.l1, state.l2, state.alpha)
+        positions = hcell.grain_positions(state.l1, state.l2, 0.5 * d2)
+        out = {
+            "l1": state.l1,
+            "l2": state.l2,
+            "d1": d1,
+            "d2": d2,
+            "alpha_deg": np.degrees(state.alpha),
+            "N1": state.N1,
+            "N2": state.N2,
+            "T1": state.T1,
+            "S_nn": response.moment[:, 0, 0],
+            "S_tt": response.moment[:, 1, 1],
+            "area": response.area,
+            "closed1": state.N1 > 0.0,
+            "closed2": state.N2 > 0.0,
+        }
+        for i in range(hcell.N_GRAINS):
+            out[f"x_n{i + 1}"] = positions[:, i, 0]
+            out[f"x_t{i + 1}"] = positions[:, i, 1]
+        return out
+
+    def take(self, state: AnnState, index: np.ndarray) -> AnnState:
+        """New state made of cells ``state[index]`` (int array, repetition allowed)."""
+        index = np.asarray(index, dtype=np.intp)
+        return AnnState(*(field[index] for field in state))
+
+    def state_to_arrays(self, state: AnnState) -> dict[str, np.ndarray]:
+        """Copies of the state fields, keyed by field name (``AnnState._fields``)."""
+        return {name: np.array(value, dtype=np.float64) for name, value in zip(state._fields, state)}
+
+    def state_from_arrays(self, arrays: Mapping[str, Any]) -> AnnState:
+        """Inverse of ``state_to_arrays``; KeyError names a missing field."""
+        return AnnState(*(np.array(arrays[name], dtype=np.float64) for name in AnnState._fields))

@@ -1,0 +1,129 @@
+"""ANN backend: the cell-model protocol, one network call per increment, the handling of
+non-physical outputs and model-file errors.
+
+The tests use a network trained for a few epochs on a tiny database generated inside the
+test (analytical backend).
+"""
+
+import numpy as np
+import pytest
+import torch
+
+from homogenization.backends import make_cell_model
+from homogenization.backends.ann import AnnCell
+from homogenization.backends.analytical import AnalyticalCell
+from training.checkpoint import CheckpointError
+from training.train import main as train_main
+from warp_hcell import generate
+from warp_hcell.parameters import ContactLaw
+
+LAW, RADIUS = ContactLaw(), 0.5
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("ann")
+    db = folder / "tiny.h5"
+    assert generate.main(["--backend", "analytical", "--samples", "3000", "--n-alpha0", "3", "--n-directions", "8",
+                          "--seed", "1", "--clean", "--out", str(db)]) == 0
+    assert train_main(["--data", str(db), "--out", str(folder / "m.pt"), "--epochs", "3", "--threads", "1"]) == 0
+    return folder / "m.pt"
+
+
+@pytest.fixture(scope="module")
+def cell(model_path):
+    return AnnCell(LAW, RADIUS, model=model_path)
+
+
+def _loaded(cell, n=12, seed=0):
+    """A state after a few random increments, and the next increments, shape (n, 2)."""
+    rng = np.random.default_rng(seed)
+    state = cell.init_state(np.linspace(40, 70, n), n)
+    for _ in range(5):
+        state, _ = cell.step(state, np.full((n, 2), 2e-4))
+    return state, rng.normal(scale=1e-5, size=(n, 2))
+
+
+def test_initial_state_is_touching_and_force_free(cell):
+    state = cell.init_state(55.0, 4)
+    response = cell.response(state)
+    reference = AnalyticalCell(LAW, RADIUS)
+    assert np.all(response.moment == 0.0)
+    assert np.allclose(response.area, reference.response(reference.init_state(55.0, 4)).area, rtol=1e-14)
+    obs = cell.observables(state)
+    assert np.allclose(obs["d1"], 1.0) and np.allclose(obs["d2"], 1.0) and np.allclose(obs["alpha_deg"], 55.0)
+    with pytest.raises(ValueError, match="alpha0 = 95 deg is outside"):
+        cell.init_state(95.0, 2)
+
+
+def test_step_is_pure_and_uses_one_batched_network_call(cell):
+    state, d_eps = _loaded(cell)
+    before = cell.state_to_arrays(state)
+    calls = []
+    hook = cell.net.register_forward_hook(lambda module, args, out: calls.append(args[0].shape[0]))
+    try:
+        new, response = cell.step(state, d_eps)
+    finally:
+        hook.remove()
+    assert calls == [12]
+    assert all(np.array_equal(before[k], v) for k, v in cell.state_to_arrays(state).items())
+    assert response.moment.shape == (12, 2, 2) and response.area.shape == (12,)
+    again, _ = cell.step(state, d_eps)
+    assert all(np.array_equal(a, b) for a, b in zip(new, again))
+
+
+def test_lengths_follow_the_strain_and_forces_the_network(cell):
+    state, d_eps = _loaded(cell)
+    new, response = cell.step(state, d_eps)
+    assert np.array_equal(new.l1, state.l1 * (1.0 - d_eps[:, 0]))
+    assert np.array_equal(new.l2, state.l2 * (1.0 - d_eps[:, 1]))
+    inputs = np.column_stack([d_eps, np.degrees(state.alpha), state.N1, state.N2, state.T1, state.l1, state.l2])
+    out = cell.net.predict(torch.from_numpy(inputs)).numpy()
+    assert np.allclose(np.degrees(new.alpha), out[:, 0], rtol=1e-14)
+    assert np.array_equal(new.N1, np.maximum(out[:, 1], 0.0))
+    obs = cell.observables(new)
+    assert np.allclose(obs["d1"], new.l2 / (2.0 * np.sin(new.alpha)), rtol=1e-14)
+    assert np.allclose(obs["S_nn"], response.moment[:, 0, 0], rtol=1e-14)
+
+
+def test_a_zero_increment_changes_nothing(cell):
+    state, _ = _loaded(cell)
+    new, response = cell.step(state, np.zeros((12, 2)))
+    assert all(np.array_equal(a, b) for a, b in zip(new, state))
+    assert np.array_equal(response.moment, cell.response(state).moment)
+
+
+def test_non_physical_outputs_are_mapped_to_the_contact_law_and_counted(cell, monkeypatch):
+    state, d_eps = _loaded(cell, n=3)
+    predicted = torch.tensor([[55.0, -10.0, 5.0, 3.0], [56.0, 100.0, -1.0, 200.0], [95.0, 100.0, 50.0, -20.0]],
+                             dtype=torch.float64)
+    monkeypatch.setattr(cell.net, "predict", lambda inputs: predicted)
+    new, response = cell.step(state, d_eps)
+    mu = LAW.mu
+    assert np.array_equal(new.N1, [0.0, 100.0, 100.0]) and np.array_equal(new.N2, [5.0, 0.0, 50.0])
+    assert np.allclose(new.T1, [0.0, 100.0 * mu, -20.0])
+    assert response.diagnostics == {"n_tension_clipped": 2.0, "n_coulomb_capped": 2.0, "n_alpha_outside": 1.0}
+
+
+def test_take_and_array_round_trip(cell):
+    state, _ = _loaded(cell)
+    taken = cell.take(state, np.array([3, 3, 0]))
+    assert np.array_equal(taken.alpha, state.alpha[[3, 3, 0]])
+    restored = cell.state_from_arrays(cell.state_to_arrays(state))
+    assert all(np.array_equal(a, b) for a, b in zip(restored, state))
+
+
+def test_a_cells_result_does_not_depend_on_its_batch(cell):
+    state, d_eps = _loaded(cell)
+    batch, _ = cell.step(state, d_eps)
+    alone, _ = cell.step(cell.take(state, np.array([7])), d_eps[7:8])
+    assert np.allclose([a[7] for a in batch], [a[0] for a in alone], rtol=1e-13, atol=0.0)
+
+
+def test_model_errors_are_one_line(model_path, tmp_path):
+    with pytest.raises(CheckpointError, match="no such model file"):
+        AnnCell(LAW, RADIUS, model=tmp_path / "missing.pt")
+    with pytest.raises(CheckpointError, match=r"model trained with kn = 200000000.0, this run uses kn = 1e\+08"):
+        AnnCell(ContactLaw(kn=1e8), RADIUS, model=model_path)
+    with pytest.raises(CheckpointError, match="model trained with radius = 0.5, this run uses radius = 1"):
+        make_cell_model("ann", radius=1.0, model=model_path)
