@@ -2,7 +2,7 @@
 
 ``DemIntegrator.step(state_in, state_out, d_eps_local)`` launches the cell-step kernel
 (``warp_hcell.kernels``); ``launch_step`` is the only code that knows its argument order. On
-the CPU the batch is split into ``threads`` contiguous chunks launched from Python threads
+the CPU the batch is split into contiguous chunks launched from ``threads`` Python threads
 (Warp CPU launches release the GIL); every cell is computed by the same code whatever the
 chunking, so results are bit-identical for any ``threads``.
 
@@ -31,6 +31,10 @@ from warp_hcell.model import DemModel
 from warp_hcell.state import DemState
 
 
+CHUNKS_PER_THREAD = 4
+"""CPU chunks per thread: chunks are taken by the threads as they finish (load balancing)."""
+
+
 def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:
     """Validate a strain increment: finite, shape (n_cells, 2), within max_substeps.
 
@@ -43,7 +47,9 @@ def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(d_eps)):
         raise ValueError("d_eps_local contains non-finite values")
     largest = float(np.abs(d_eps).max(initial=0.0))
-    if largest >= 1.0 or math.ceil(largest / model.settings.strain_per_substep) > model.settings.max_substeps:
+    if largest >= 1.0:
+        raise ValueError(f"strain increment {largest:g} must be < 1 in magnitude (l <- l (1 - d_eps))")
+    if math.ceil(largest / model.settings.strain_per_substep) > model.settings.max_substeps:
         raise ValueError(f"strain increment {largest:g} is too large for max_substeps = "
                          f"{model.settings.max_substeps} at {model.settings.strain_per_substep:g} per substep")
     return d_eps
@@ -103,7 +109,8 @@ class DemIntegrator:
         model = self.model
         d_eps = wp.array(check_increment(model, d_eps_local), dtype=wp.vec2d, device=model.device)
         n_cells = model.n_cells
-        bounds = np.linspace(0, n_cells, min(self.threads, n_cells) + 1).astype(int)
+        # more chunks than threads: the pool balances cells of very different substep counts
+        bounds = np.linspace(0, n_cells, min(CHUNKS_PER_THREAD * self.threads, n_cells) + 1).astype(int)
         if self._pool is None or len(bounds) <= 2:
             launch_step(model, state_in, state_out, d_eps)
             return

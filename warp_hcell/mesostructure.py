@@ -29,7 +29,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from warp_hcell.parameters import DemSettings, check_alpha0_deg, check_positive
+from warp_hcell.parameters import CellDefaults, DemSettings, check_alpha0_deg, check_positive
 
 H_TYPE1_PAIRS = ((1, 2), (1, 6), (3, 4), (4, 5))
 """Type-1 contacts of the H-cell as (label, label), labels 1..6 of spec section 2."""
@@ -201,7 +201,7 @@ def h_cell_reference(alpha0_deg: float | np.ndarray, radius: float) -> tuple[np.
     return np.stack([x_n, x_t], axis=2), cell_size
 
 
-def h_cell(alpha0_deg: float = 55.0, radius: float = 0.5) -> Mesostructure:
+def h_cell(alpha0_deg: float = CellDefaults.alpha0_deg, radius: float = CellDefaults.radius) -> Mesostructure:
     """The six-grain H-cell of spec section 2, touching and force-free.
 
     Grains 1 and 4 are driven along n and t (x_t = 0); grains 2, 3, 5, 6 are driven along t

@@ -116,7 +116,8 @@ class DemModel:
         """
         alpha0_deg = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (n_cells,))
         position, cell_size = h_cell_reference(alpha0_deg, radius)
-        return cls.from_reference(h_cell(float(alpha0_deg[0]), radius), np.full((n_cells, 6), float(radius)),
+        template = h_cell(float(alpha0_deg[0]), radius)
+        return cls.from_reference(template, np.broadcast_to(template.radius, (n_cells, template.n_grains)),
                                   position, cell_size, contact_law=contact_law, settings=settings, device=device)
 
     def take(self, index: np.ndarray) -> "DemModel":

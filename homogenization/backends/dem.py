@@ -22,7 +22,7 @@ import numpy as np
 
 from homogenization.cell_model import CellResponse
 from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
-from warp_hcell.mesostructure import Mesostructure, polygon_area
+from warp_hcell.mesostructure import Mesostructure, h_cell, polygon_area
 from warp_hcell.model import DemModel
 from warp_hcell.parameters import ContactLaw, DemSettings, check_positive
 from warp_hcell.state import DemState
@@ -166,8 +166,9 @@ class DemCell:
         reference = meso.h_reference_pairs
         if reference is not None:
             p1, p2 = reference
-            b1 = x[:, 1] - x[:, 0]
-            b2 = x[:, 2] - x[:, 1]
+            (i1, j1), (i2, j2) = meso.pairs[p1], meso.pairs[p2]
+            b1 = x[:, j1] - x[:, i1]
+            b2 = x[:, j2] - x[:, i2]
             d1 = np.hypot(b1[:, 0], b1[:, 1])
             u1 = b1 / d1[:, None]
             u2 = b2 / np.hypot(b2[:, 0], b2[:, 1])[:, None]
@@ -199,7 +200,7 @@ class DemCell:
 
     def state_from_arrays(self, arrays: Mapping[str, Any]) -> DemCellState:
         """Inverse of ``state_to_arrays`` (topology from this backend's mesostructure)."""
-        meso = self.mesostructure if self.mesostructure is not None else self._model(55.0, 1).meso
+        meso = self.mesostructure if self.mesostructure is not None else h_cell(radius=self.radius)
         arrays = {k: np.asarray(arrays[k]) for k in (*_MODEL_ARRAYS, *(f.name for f in fields(DemState)))}
         model = DemModel.from_reference(meso, arrays["radius"], arrays["reference_position"],
                                         arrays["reference_cell_size"], contact_law=self.contact_law,
