@@ -15,6 +15,7 @@ and contraction positive; stresses [N/m], strains [-], macro shear strain always
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -66,6 +67,8 @@ class Record:
         backend: name of the cell model.
         programme: the loading programme that was run.
         final_state: ``cell_model.state_to_arrays`` of the last state (resume, inspection).
+        step_seconds: wall time of each programme step [s], shape (n_steps,); not written
+            to run files, which stay bit-reproducible.
     """
 
     stage: np.ndarray
@@ -90,6 +93,7 @@ class Record:
     backend: str
     programme: Programme
     final_state: dict[str, np.ndarray] = field(default_factory=dict)
+    step_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n_increments(self) -> int:
@@ -311,11 +315,14 @@ def run(
     runner = _Runner(cell_model, orient, state, V0, sum(s.n_increments for s in programme),
                      stress_rtol, max_newton_iterations)
     labels = [s.label for s in programme]
+    step_seconds = np.zeros(len(programme))
     for stage, step in enumerate(programme):
+        start = time.perf_counter()
         with tqdm(total=step.n_increments, desc=step.label, unit="incr", disable=not progress,
                   mininterval=0.5, leave=False) as bar:
             runner.run_step(step, stage, snapshot_interval, bar)
         runner.snapshot(stage)
+        step_seconds[stage] = time.perf_counter() - start
 
     k = runner.k
     rows = runner.rows[:k]
@@ -345,4 +352,5 @@ def run(
         backend=str(getattr(cell_model, "name", type(cell_model).__name__)),
         programme=programme,
         final_state={name: np.array(v) for name, v in cell_model.state_to_arrays(runner.state).items()},
+        step_seconds=step_seconds,
     )

@@ -190,6 +190,7 @@ def test_snapshots_diagnostics_and_determinism():
     assert set(first.diagnostics) >= {"n_unconverged"} and first.diagnostics["n_unconverged"].shape == (first.n_increments,)
     for name in ("eps11", "eps22", "sigma11", "sigma22", "sigma12", "J"):
         assert np.array_equal(getattr(first, name), getattr(again, name))
+    assert first.step_seconds.shape == (2,) and np.all(first.step_seconds > 0.0)
     restored = cell_model.state_from_arrays(first.final_state)
     assert np.allclose(cell_model.observables(restored)["alpha_deg"], first.snapshots["alpha_deg"][-1], rtol=0, atol=0)
 
