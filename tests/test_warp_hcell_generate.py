@@ -172,7 +172,7 @@ def exit_code(argv):
 
 @pytest.mark.parametrize("args, message", [
     (["--samples", "-5"], "argument --samples: -5 must be >= 1"),
-    (["--out", "{file}/db.h5"], "is not a folder"),
+    (["--out", "{file}/db.h5"], "not a folder"),
     (["--out", "{existing}"], "exists; pass --overwrite to replace it"),
     (["--backend", "dem", "--mesostructure", "{tmp}/missing.toml"], "missing.toml does not exist"),
     (["--mesostructure", "{tmp}/missing.toml"], "--mesostructure needs --backend dem"),
