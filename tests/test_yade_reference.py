@@ -96,6 +96,10 @@ def test_committed_cases_are_the_defined_cases():
         assert len(yade["l1"]) == len(path) == meta["n_increments"], name
         assert meta["alpha0_deg"] == MAKE_REFERENCE.CASES[name].alpha0_deg
         assert meta["rows_relaxation_capped"] == 0, f"{name}: some rows did not reach the force tolerance"
+        stiffness = meta["yade_contact_stiffness"]
+        assert stiffness["kn"] == pytest.approx(LAW.kn, rel=1e-12), name
+        assert stiffness["ks"] == pytest.approx(LAW.kt, rel=1e-12), name
+        assert stiffness["tan_phi"] == pytest.approx(LAW.mu, rel=1e-12), name
 
 
 @pytest.mark.parametrize("name", CASE_NAMES)

@@ -288,6 +288,14 @@ class HCellScene:
         self.settled = before
         return n, ratio
 
+    def contact_stiffness(self) -> dict[str, float] | None:
+        """kn [N/m], ks [N/m] and tan(phi_g) [-] that YADE computed for a closed contact; None if none."""
+        for interaction in O.interactions:
+            if interaction.isReal:
+                phys = interaction.phys
+                return {"kn": phys.kn, "ks": phys.ks, "tan_phi": phys.tangensOfFrictionAngle}
+        return None
+
     def positions(self) -> np.ndarray:
         """Grain centres relative to their cell's origin [m], shape (n_cells, 6, 2), columns (x_n, x_t)."""
         bodies = O.bodies
@@ -357,10 +365,12 @@ def run_path(path: np.ndarray, alpha0_deg: float, law: ContactLaw, radius: float
     """Run one cell along ``path`` (n_increments, 2); return (rows, totals dict)."""
     scene = HCellScene(alpha0_deg, 1, law, radius, settings)
     rows, drive_steps, relax_steps, worst, n_capped = [], 0, 0, 0.0, 0
+    stiffness = None
     start = time.perf_counter()
     for d_eps in path:
         drive_steps += scene.drive(d_eps)
         steps, ratio = scene.relax()
+        stiffness = stiffness or scene.contact_stiffness()
         relax_steps += steps
         worst = max(worst, ratio)
         n_capped += ratio >= settings.force_tolerance
@@ -372,6 +382,7 @@ def run_path(path: np.ndarray, alpha0_deg: float, law: ContactLaw, radius: float
         "rows_relaxation_capped": int(n_capped),
         "max_final_unbalanced_ratio": worst,
         "wall_s": time.perf_counter() - start,
+        "yade_contact_stiffness": stiffness,
         "dt_s": scene.dt,
         "disk_mass_kg": scene.mass,
     }
