@@ -201,3 +201,31 @@ def test_cli_writes_a_cleaned_database(tmp_path, capsys):
     samples, _, attrs = database.read_database(out)
     assert attrs["seed"] == 1 and attrs["cleaned"] and attrs["backend"] == "analytical"
     assert attrs["kn"] == ContactLaw().kn and samples["valid"].shape == (1000,)
+
+
+def test_explored_states_cover_constant_volume_homogenisation():
+    """Cells of every orientation sheared at constant volume to eps1 = 0.3 after isotropic
+    compression (p0 ~ 2e5 and 5.85e6 N/m) stay close to an explored state: distance in
+    (alpha / 60 deg, forces / 6e6 N, lengths / 1 m) comparable to the database's own spacing."""
+    cell = ANALYTICAL()
+    states = generate.explore(cell, DatabaseSettings())
+    col = [database.STATE_FEATURES.index(n) for n in ("alpha_deg", "N1", "N2", "T1", "l1", "l2")]
+    scale = np.array([60.0, 6e6, 6e6, 6e6, 1.0, 1.0])
+    explored = states["observables"][:, col] / scale
+    theta = np.arange(12) * np.pi / 12
+    d_eps = 2e-3 * np.stack([np.cos(2.0 * theta), -np.cos(2.0 * theta)], axis=1)
+    visited = []
+    for alpha0 in (35.0, 40.0, 55.0):
+        for eps_iso in (9e-4, 2.5e-2):
+            state, _ = cell.step(cell.init_state(alpha0, 12), np.full((12, 2), eps_iso))
+            for k in range(150):
+                state, _ = cell.step(state, d_eps)
+                if k % 6 == 5:
+                    obs = cell.observables(state)
+                    keep = (obs["closed1"] | obs["closed2"]) & (obs["alpha_deg"] > 30.0) & (obs["alpha_deg"] < 90.0)
+                    visited.append(database.state_table(obs)[keep][:, col] / scale)
+    visited = np.concatenate(visited)
+    squared = (visited**2).sum(axis=1)[:, None] + (explored**2).sum(axis=1)[None, :] - 2.0 * visited @ explored.T
+    distance = np.sqrt(np.maximum(squared.min(axis=1), 0.0))
+    assert visited.shape[0] > 500
+    assert np.median(distance) < 0.02 and np.quantile(distance, 0.99) < 0.1
