@@ -76,6 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
     parser.add_argument("--snapshot-interval", type=positive_int, default=None,
                         help="also store per-cell observables every this many increments (None: at stage ends only)")
+    parser.add_argument("--deviator", choices=plotting.DEVIATORS, default=plotting.DEVIATORS[0],
+                        help="figure deviator: q = s11 - s22 or t = q/2")
+    parser.add_argument("--fourth-panel", choices=plotting.FOURTH_PANELS, default=plotting.FOURTH_PANELS[0],
+                        help="fourth panel of the figure: stress ratio or second-order work W2")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--mesostructure", type=Path, default=None,
                         help="TOML/JSON mesostructure file (dem only; None: the H-cell)")
@@ -172,7 +176,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     kind = "drained" if args.drained else "constant-volume"
     title = f"{kind} biaxial test, alpha0 = {args.alpha0:g} deg, p0 = {args.p0:g} N/m, N = {args.orientations}"
-    fig = plotting.make_figure(records, drained=args.drained, title=title)
+    fig = plotting.make_figure(records, drained=args.drained, fourth=args.fourth_panel, deviator=args.deviator,
+                               title=title)
     figure = plotting.save_figure(fig, out / FIGURE_FILE)
     print(f"figure -> {figure}")
     return 0

@@ -1,7 +1,7 @@
 """The 2x2 biaxial-test figure of shared/spec/conventions.md, several backends overlaid.
 
 Panels: q vs eps1; q vs p (stress path in the Cambridge plane); p vs eps1 (drained tests:
-eps_v vs eps1); q/p vs eps1 (or W2 vs eps1). eps1 and eps_v are counted from the end of the
+eps_v vs eps1); q/p vs eps1 (or W2 vs eps1). The half-difference t = q/2 can replace q. eps1 and eps_v are counted from the end of the
 first (isotropic) stage, whose end point starts every curve. ``make_figure`` builds the
 figure from ``{label: Record}``; ``save_figure`` writes it atomically.
 
@@ -23,6 +23,8 @@ from homogenization.driver import Record
 
 FOURTH_PANELS = ("q/p", "W2")
 """Choices of the fourth panel."""
+DEVIATORS = ("q", "t")
+"""Deviator measure drawn: q = sigma11 - sigma22 or t = q / 2."""
 
 
 @dataclass(frozen=True)
@@ -70,7 +72,7 @@ def shear_curve(record: Record) -> ShearCurve:
     )
 
 
-def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: str = "q/p",
+def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: str = "q/p", deviator: str = "q",
                 title: str | None = None) -> Figure:
     """2x2 figure of the shear stage of every run in ``runs`` (label -> record), overlaid.
 
@@ -78,22 +80,26 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
         runs: curves to draw, keyed by legend label (e.g. backend name).
         drained: third panel shows eps_v vs eps1 instead of p vs eps1.
         fourth: "q/p" or "W2" for the fourth panel.
+        deviator: "q" (sigma11 - sigma22) or "t" (half of it) on the deviator axes.
         title: figure title.
     """
     if fourth not in FOURTH_PANELS:
         raise ValueError(f"fourth panel {fourth!r} is not one of {FOURTH_PANELS}")
+    if deviator not in DEVIATORS:
+        raise ValueError(f"deviator {deviator!r} is not one of {DEVIATORS}")
+    factor = 1.0 if deviator == "q" else 0.5
     if not runs:
         raise ValueError("nothing to plot: no runs given")
     fig = Figure(figsize=(11.0, 8.5), layout="constrained")
     (ax_q, ax_pq), (ax_3, ax_4) = fig.subplots(2, 2)
-    eps1_label = r"$\varepsilon_1$ = $\varepsilon_{11}$ from the end of isotropic stage [%]"
-    q_label = r"$q = \sigma_{11} - \sigma_{22}$ [N/m]"
+    eps1_label = r"$\varepsilon_1 = \varepsilon_{11}$ since the end of stage 1 [%]"
+    q_label = r"$q = \sigma_{11} - \sigma_{22}$ [N/m]" if deviator == "q" else r"$t = (\sigma_{11} - \sigma_{22})/2$ [N/m]"
     p_label = r"$p = (\sigma_{11} + \sigma_{22})/2$ [N/m]"
     for label, record in runs.items():
         c = shear_curve(record)
         pct = 100.0 * c.eps1
-        ax_q.plot(pct, c.q, label=label)
-        ax_pq.plot(c.p, c.q, label=label)
+        ax_q.plot(pct, factor * c.q, label=label)
+        ax_pq.plot(c.p, factor * c.q, label=label)
         if drained:
             ax_3.plot(pct, 100.0 * c.eps_v, label=label)
         else:
@@ -102,14 +108,13 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
             ax_4.plot(0.5 * (pct[1:] + pct[:-1]), c.w2, label=label)
         else:
             with np.errstate(divide="ignore", invalid="ignore"):
-                ax_4.plot(pct, np.where(c.p > 0.0, c.q / c.p, np.nan), label=label)
+                ax_4.plot(pct, np.where(c.p > 0.0, factor * c.q / c.p, np.nan), label=label)
     ax_q.set(xlabel=eps1_label, ylabel=q_label, title="deviator")
     ax_pq.set(xlabel=p_label, ylabel=q_label, title="stress path (Cambridge plane)")
     if drained:
         ax_3.set(xlabel=eps1_label,
-                 ylabel=r"$\varepsilon_v = \varepsilon_{11} + \varepsilon_{22}$ from the end of isotropic stage"
-                        " [%], contraction > 0",
-                 title="volumetric strain")
+                 ylabel=r"$\varepsilon_v = \varepsilon_{11} + \varepsilon_{22}$ since stage 1 [%]",
+                 title="volumetric strain (contraction > 0)")
     else:
         ax_3.set(xlabel=eps1_label, ylabel=p_label, title="mean stress")
     if fourth == "W2":
@@ -117,7 +122,7 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
                  title="second-order work")
         ax_4.axhline(0.0, color="0.6", lw=0.8)
     else:
-        ax_4.set(xlabel=eps1_label, ylabel=r"$q/p$ [-]", title="stress ratio")
+        ax_4.set(xlabel=eps1_label, ylabel=f"${deviator}/p$ [-]", title="stress ratio")
     for ax in (ax_q, ax_pq, ax_3, ax_4):
         ax.grid(True, alpha=0.3)
         ax.legend()

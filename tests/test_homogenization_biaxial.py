@@ -47,7 +47,7 @@ def test_constant_volume_run_ends_on_the_reference_curve(tmp_path, capsys):
 
 def test_drained_run_holds_sigma22(tmp_path):
     out = tmp_path / "drained"
-    assert cli(TINY + ["--drained", "--out", str(out)]) == 0
+    assert cli(TINY + ["--drained", "--deviator", "t", "--fourth-panel", "W2", "--out", str(out)]) == 0
     stored = io.read_run(out / "run.h5").record
     shear = stored.stage == "shear"
     assert np.abs(stored.sigma22[shear] / P0 - 1.0).max() <= 1e-6

@@ -57,10 +57,20 @@ def test_figure_panels_labels_and_overlay(runs, tmp_path):
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_half_deviator_option(runs):
+    fig = plotting.make_figure(runs, deviator="t")
+    curve = plotting.shear_curve(runs["analytical"])
+    assert fig.axes[0].get_ylabel().startswith("$t = ")
+    assert np.array_equal(fig.axes[1].get_lines()[0].get_ydata(), 0.5 * curve.q)
+    assert fig.axes[3].get_ylabel() == "$t/p$ [-]"
+
+
 def test_drained_and_w2_panels(runs):
     fig = plotting.make_figure(runs, drained=True, fourth="W2")
     assert "varepsilon_v" in fig.axes[2].get_ylabel() and "W_2" in fig.axes[3].get_ylabel()
     with pytest.raises(ValueError, match=r"^fourth panel 'x' is not one of \('q/p', 'W2'\)$"):
         plotting.make_figure(runs, fourth="x")
+    with pytest.raises(ValueError, match=r"^deviator 's' is not one of \('q', 't'\)$"):
+        plotting.make_figure(runs, deviator="s")
     with pytest.raises(ValueError, match="^nothing to plot: no runs given$"):
         plotting.make_figure({})
