@@ -137,10 +137,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     law = ContactLaw()
     radius = CellDefaults.radius
 
+    # build every backend first, so that a missing model file fails before any run
+    options = {name: backend_options(args, name) for name in args.backend}
+    models = {name: make_cell_model(name, contact_law=law, radius=radius, **options[name]) for name in args.backend}
     records: dict[str, driver.Record] = {}
-    for name in args.backend:
-        options = backend_options(args, name)
-        model = make_cell_model(name, contact_law=law, radius=radius, **options)
+    for name, model in models.items():
         start = time.perf_counter()
         try:
             record = driver.run(model, programme, alpha0_deg=args.alpha0, n_orientations=args.orientations,
@@ -150,7 +151,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         elapsed = time.perf_counter() - start
         parameters = {
             "backend": name,
-            "backend_options": {k: str(v) if isinstance(v, Path) else v for k, v in options.items() if k != "mesostructure"},
+            "backend_options": {k: str(v) if isinstance(v, Path) else v for k, v in options[name].items()
+                                if k != "mesostructure"},
             "contact_law": asdict(law),
             "radius": radius,
             "alpha0_deg": args.alpha0,

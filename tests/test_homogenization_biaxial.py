@@ -124,3 +124,11 @@ def test_real_process_exit_code_and_help(tmp_path):
 
 def test_module_docstring_starts_with_the_command():
     assert biaxial.__doc__.splitlines()[0].startswith("python -m homogenization.biaxial --backend analytical --alpha0 55")
+
+
+def test_every_backend_is_built_before_any_run(tmp_path, capsys):
+    out = tmp_path / "both"
+    assert cli(TINY + ["--backend", "analytical,ann", "--model", str(tmp_path / "missing.pt"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("hmodel: error: ") and "\n" not in err and "missing.pt" in err
+    assert not out.exists()  # the analytical run did not start
