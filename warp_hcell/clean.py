@@ -128,10 +128,12 @@ def clean_file(path: Path, out: Path) -> dict[str, Any]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line: clean a database file (see the module docstring)."""
-    parser = argparse.ArgumentParser(prog="python -m warp_hcell.clean", description=__doc__.splitlines()[2],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m warp_hcell.clean", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="Mark pathological samples of a learning database in `valid` and record the counts per "
+                    "reason (alpha range, mechanism, unconverged, non-finite) as root attrs.")
     parser.add_argument("database", type=Path, help="database file written by warp_hcell.generate")
-    parser.add_argument("--out", type=Path, default=None, help="write the cleaned file here (default: in place)")
+    parser.add_argument("--out", type=Path, default=None, help="write the cleaned file here; unset: clean in place")
     args = parser.parse_args(argv)
     out = args.out or args.database
     if not args.database.is_file():

@@ -541,11 +541,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--backend", choices=GENERATOR_BACKENDS, default=GENERATOR_BACKENDS[0],
                         help="cell backend that explores and probes")
     parser.add_argument("--mesostructure", type=Path, default=None,
-                        help="DEM mesostructure file (TOML/JSON, H-cell labels required); default: the H-cell")
+                        help="DEM mesostructure file (TOML/JSON, H-cell labels required); unset: the H-cell")
     parser.add_argument("--workers", type=positive_int, default=1,
                         help="worker processes computing chunks (the result does not depend on it)")
     parser.add_argument("--threads", type=positive_int, default=None,
-                        help="DEM CPU threads per process (default: the DEM backend's)")
+                        help="DEM CPU threads per process; unset: the DEM backend's own default")
     parser.add_argument("--chunk-size", type=positive_int, default=defaults.chunk_size,
                         help="probes per batch (unit of resume and of parallel work)")
     parser.add_argument("--max-chunks", type=positive_int, default=None,
