@@ -32,6 +32,7 @@ from homogenization.cli import (
     alpha0_deg,
     check_output_path,
     common_parser,
+    finite_float,
     positive_float,
     positive_int,
     run_main,
@@ -54,6 +55,14 @@ def backend_list(text: str) -> tuple[str, ...]:
     return names
 
 
+def fabric_anisotropy(text: str) -> float:
+    """argparse type: fabric anisotropy a_f in [0, 1)."""
+    value = finite_float(text)
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"{text} is outside [0, 1)")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the biaxial command (defaults read from warp_hcell.parameters)."""
     cell, load = CellDefaults(), LoadingDefaults()
@@ -73,6 +82,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--iso-increment", type=positive_float, default=load.iso_increment,
                         help="strain increment per component of the isotropic stage [-]")
     parser.add_argument("--orientations", type=positive_int, default=cell.n_orientations, help="number N of cell orientations")
+    parser.add_argument("--fabric-anisotropy", type=fabric_anisotropy, default=0.0,
+                        help="a_f of the orientation weights w = (1 + a_f cos 2(theta - b_f)) / pi; 0 = isotropic fabric")
+    parser.add_argument("--fabric-direction", type=finite_float, default=0.0, help="preferred fabric direction b_f [deg]")
     parser.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
     parser.add_argument("--snapshot-interval", type=positive_int, default=None,
                         help="also store per-cell observables every this many increments (None: at stage ends only)")
@@ -145,6 +157,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         start = time.perf_counter()
         try:
             record = driver.run(model, programme, alpha0_deg=args.alpha0, n_orientations=args.orientations,
+                                fabric_anisotropy=args.fabric_anisotropy, fabric_direction_deg=args.fabric_direction,
                                 snapshot_interval=args.snapshot_interval or 0)
         except driver.ControlError as exc:
             raise UserError(f"{name}: {exc}") from None
@@ -161,7 +174,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "increment": args.increment,
             "iso_increment": args.iso_increment,
             "n_orientations": args.orientations,
-            "fabric_anisotropy": 0.0,
+            "fabric_anisotropy": args.fabric_anisotropy,
+            "fabric_direction_deg": args.fabric_direction,
             "drained": args.drained,
             "stress_rtol": LoadingDefaults.stress_rtol,
             "mesostructure_file": str(args.mesostructure) if name == "dem" and args.mesostructure else None,

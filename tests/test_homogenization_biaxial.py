@@ -54,6 +54,17 @@ def test_drained_run_holds_sigma22(tmp_path):
     assert stored.sigma11[shear][-1] > 1.5 * P0
 
 
+def test_fabric_weights_reach_the_run(tmp_path):
+    out = tmp_path / "fabric"
+    assert cli(TINY + ["--fabric-anisotropy", "0.3", "--fabric-direction", "90", "--eps-max", "0.01", "--out", str(out)]) == 0
+    stored = io.read_run(out / "run.h5")
+    w = stored.record.weights
+    assert w.sum() == pytest.approx(1.0) and w[0] == pytest.approx((1 - 0.3) / 24)  # theta = 0 is 90 deg off b_f
+    assert stored.attrs["parameters"]["fabric_anisotropy"] == 0.3
+    iso = stored.record.stage == "iso"
+    assert stored.record.q[iso][-1] < -1e-3 * P0  # more cells along 22: stiffer in 22 under isotropic strain
+
+
 def test_existing_output_needs_overwrite(tmp_path, capsys):
     out = tmp_path / "run"
     assert cli(TINY + ["--out", str(out)]) == 0
@@ -85,6 +96,7 @@ def test_comma_list_overlays_backends(tmp_path, monkeypatch, capsys):
     (["--p0", "0"], "argument --p0: 0 must be > 0"),
     (["--p0=-5e5"], "argument --p0: -5e5 must be > 0"),
     (["--orientations", "0"], "argument --orientations: 0 must be >= 1"),
+    (["--fabric-anisotropy", "1"], "argument --fabric-anisotropy: 1 is outside [0, 1)"),
 ])
 def test_bad_arguments_one_line_exit_2(tmp_path, capsys, extra, message):
     with pytest.raises(SystemExit) as info:
