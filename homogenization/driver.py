@@ -219,7 +219,7 @@ class _Runner:
             new_state, resp, sigma, J = self.trial(d)
             f = float(mean_stress(sigma[0], sigma[1])) - p_stop
             if abs(f) <= tol:
-                return new_state, resp, sigma, J, d, calls + 1
+                return new_state, resp, sigma, J, d, calls
             if f > 0.0:
                 hi, f_hi = lam, f
                 if side == 1:
@@ -242,11 +242,14 @@ class _Runner:
         sigma_start = self.sigma[:2].copy()
         target_end = np.asarray(step.target)
         d_local = orient_mod.localise(self.orient, d_eps) if idx.size == 0 else None
+        if step.stop_at_p is not None and mean_stress(self.sigma[0], self.sigma[1]) >= step.stop_at_p:
+            raise ControlError(f"step {step.label!r} starts at p = {mean_stress(self.sigma[0], self.sigma[1]):.6g} N/m, "
+                               f"already at or above stop_at_p = {step.stop_at_p:g} N/m")
         K = None
         for i in range(n):
-            where = f"step {step.label!r}, increment {i + 1}"
             if idx.size:
                 target = sigma_start[idx] + (target_end[idx] - sigma_start[idx]) * ((i + 1) / n)
+                where = f"step {step.label!r}, increment {i + 1}"
                 new_state, resp, sigma, J, d_eps, calls, K = self.solve_stress(d_eps, idx, target, K, where)
             else:
                 new_state, resp, sigma, J = self.trial(d_eps, d_local)
@@ -255,6 +258,7 @@ class _Runner:
                     p_new = 0.5 * (sigma[0] + sigma[1])
                     if p_new >= step.stop_at_p:
                         if p_new - step.stop_at_p > self.rtol * step.stop_at_p:
+                            where = f"step {step.label!r}, increment {i + 1}"
                             new_state, resp, sigma, J, d, extra = self.land_on_p(d_eps, step.stop_at_p, p_new, where)
                             calls += extra
                         else:

@@ -178,6 +178,12 @@ def test_unreachable_p0_is_an_error():
                    alpha0_deg=55.0, n_orientations=8, progress=False)
 
 
+def test_stop_at_p_already_reached_is_an_error():
+    programme = (loading.isotropic(2e5, increment=1e-4), loading.isotropic(1e5, increment=1e-4, label="again"))
+    with pytest.raises(driver.ControlError, match=r"^step 'again' starts at p = 200000 N/m, already at or above "):
+        driver.run(make_cell_model("analytical"), programme, alpha0_deg=55.0, n_orientations=8, progress=False)
+
+
 def test_snapshots_diagnostics_and_determinism():
     programme = loading.biaxial(2e5, 0.01, 1e-3)
     cell_model = make_cell_model("analytical")
