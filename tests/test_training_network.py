@@ -14,7 +14,7 @@ KN, D = 2e8, 1.0
 def _net(seed: int = 0, hidden=DEFAULT_HIDDEN) -> CellNet:
     torch.manual_seed(seed)
     net = CellNet(hidden, kn=KN, diameter=D)
-    net.set_normalisation(np.zeros(8), np.full(8, 0.5), np.full(4, 0.1), np.full(4, 2.0))
+    net.set_normalisation(np.zeros(11), np.full(11, 0.5), np.full(4, 0.1), np.full(4, 2.0))
     return net.eval()
 
 
@@ -84,5 +84,5 @@ def test_bad_hidden_widths_are_refused(hidden):
 def test_hidden_layers_are_configurable():
     net = _net(hidden=(16, 4))
     linear = [m for m in net.mlp if isinstance(m, torch.nn.Linear)]
-    assert [(m.in_features, m.out_features) for m in linear] == [(8, 16), (16, 4), (4, 4)]
+    assert [(m.in_features, m.out_features) for m in linear] == [(11, 16), (16, 4), (4, 4)]
     assert sum(isinstance(m, torch.nn.Tanh) for m in net.mlp) == 2

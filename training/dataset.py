@@ -236,7 +236,7 @@ class Normalisation:
     """z-score statistics (from the training split) in dimensionless units.
 
     Attributes:
-        feature_mean, feature_std: of ``(u_n, u_t, alpha [rad], N1, N2, T1 [kn D], l1, l2 [D])``, shape (8,).
+        feature_mean, feature_std: of ``training.network.features`` (u_n, u_t, alpha [rad], N1, N2, T1 [kn D], l1, l2 [D], closed1, closed2, T1/N1), shape (11,).
         rate_mean, rate_std: of the rates (increment / |d_eps|) of ``alpha [rad], N1, N2, T1 [kn D]``, shape (4,).
     """
 
@@ -247,7 +247,7 @@ class Normalisation:
 
 
 def dimensionless(db: Database, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Un-z-scored features (n, 8) and rates (n, 4) of the samples ``index``."""
+    """Un-z-scored features (n, 11) and rates (n, 4) of the samples ``index``."""
     inputs = torch.from_numpy(db.inputs[index])
     raw, magnitude = features(inputs, db.kn, db.diameter)
     increment = db.outputs[index] - db.inputs[index][:, 2:6]
@@ -264,7 +264,7 @@ def fit_normalisation(db: Database, train: np.ndarray) -> Normalisation:
 
 
 def tensors(db: Database, index: np.ndarray, norm: Normalisation) -> tuple[torch.Tensor, torch.Tensor]:
-    """z-scored features (n, 8) and z-scored rate targets (n, 4), float64 tensors."""
+    """z-scored features (n, 11) and z-scored rate targets (n, 4), float64 tensors."""
     raw, rate = dimensionless(db, index)
     return (
         torch.from_numpy((raw - norm.feature_mean) / norm.feature_std),

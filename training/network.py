@@ -11,7 +11,12 @@ How the 8 inputs become features (the normalisation of the spec, then z-scores):
 - the probe is split into its magnitude m = |d_eps| [-] and direction
   u = d_eps / m (u = 0 where m = 0);
 - the state is made dimensionless: alpha [rad], N1, N2, T1 / (kn D), l1, l2 / D;
-- features ``(u_n, u_t, alpha, N1, N2, T1, l1, l2)`` are z-scored with training statistics.
+- three derived features expose what switches the cell's incremental response and is a
+  sharp function of the inputs (hard for a small tanh network to resolve near zero force):
+  the contact flags ``closed1 = [N1 > 0]``, ``closed2 = [N2 > 0]`` and the friction ratio
+  ``T1 / N1`` (0 where N1 = 0; |T1 / N1| = mu when sliding);
+- the 11 features ``(u_n, u_t, alpha, N1, N2, T1, l1, l2, closed1, closed2, T1/N1)`` are
+  z-scored with training statistics.
 
 The multilayer perceptron (tanh hidden layers, linear output) returns z-scored
 dimensionless *rates* r = increment / m of ``(alpha [rad], N1, N2, T1 [kn D])``; the
@@ -34,6 +39,8 @@ N_INPUTS = 8
 """Physical inputs: d_eps_n, d_eps_t [-], alpha_deg [deg], N1, N2, T1 [N], l1, l2 [m]."""
 N_OUTPUTS = 4
 """Physical outputs: alpha_deg [deg], N1, N2, T1 [N] after the increment."""
+N_FEATURES = 11
+"""Network inputs derived from the physical inputs (see the module docstring)."""
 DEFAULT_HIDDEN: tuple[int, ...] = (8, 8, 8)
 """Hidden layer widths of the spec (3 x 8 tanh)."""
 ACTIVATION = "tanh"
@@ -57,9 +64,13 @@ def dimensionless_state(state: torch.Tensor, kn: torch.Tensor | float, diameter:
 
 
 def features(inputs: torch.Tensor, kn: torch.Tensor | float, diameter: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Un-z-scored features (n, 8) and probe magnitudes (n, 1) of physical inputs (n, 8)."""
+    """Un-z-scored features (n, 11) and probe magnitudes (n, 1) of physical inputs (n, 8)."""
     magnitude, direction = probe_split(inputs[:, :2])
-    return torch.cat([direction, dimensionless_state(inputs[:, 2:], kn, diameter)], dim=1), magnitude
+    state = dimensionless_state(inputs[:, 2:], kn, diameter)
+    N1, N2, T1 = state[:, 1:2], state[:, 2:3], state[:, 3:4]
+    closed1 = N1 > 0
+    ratio = torch.where(closed1, T1 / torch.where(closed1, N1, 1.0), 0.0)
+    return torch.cat([direction, state, closed1.to(state.dtype), (N2 > 0).to(state.dtype), ratio], dim=1), magnitude
 
 
 class CellNet(nn.Module):
@@ -71,7 +82,7 @@ class CellNet(nn.Module):
         diameter: grain diameter D = 2 r of the training data [m] (length scale).
 
     Buffers (set with ``set_normalisation`` before training, restored by
-    ``load_state_dict``): ``feature_mean``, ``feature_std`` (8,) and ``rate_mean``,
+    ``load_state_dict``): ``feature_mean``, ``feature_std`` (11,) and ``rate_mean``,
     ``rate_std`` (4,) in dimensionless units; ``kn`` [N/m] and ``diameter`` [m].
     """
 
@@ -80,7 +91,7 @@ class CellNet(nn.Module):
         self.hidden = tuple(int(h) for h in hidden)
         if not self.hidden or min(self.hidden) < 1:
             raise ValueError(f"hidden = {list(self.hidden)} must be a non-empty list of widths >= 1")
-        widths = (N_INPUTS, *self.hidden)
+        widths = (N_FEATURES, *self.hidden)
         layers: list[nn.Module] = []
         for n_in, n_out in zip(widths[:-1], widths[1:]):
             layers += [nn.Linear(n_in, n_out, dtype=torch.float64), nn.Tanh()]
@@ -88,23 +99,23 @@ class CellNet(nn.Module):
         self.mlp = nn.Sequential(*layers)
         self.register_buffer("kn", torch.tensor(float(kn), dtype=torch.float64))
         self.register_buffer("diameter", torch.tensor(float(diameter), dtype=torch.float64))
-        self.register_buffer("feature_mean", torch.zeros(N_INPUTS, dtype=torch.float64))
-        self.register_buffer("feature_std", torch.ones(N_INPUTS, dtype=torch.float64))
+        self.register_buffer("feature_mean", torch.zeros(N_FEATURES, dtype=torch.float64))
+        self.register_buffer("feature_std", torch.ones(N_FEATURES, dtype=torch.float64))
         self.register_buffer("rate_mean", torch.zeros(N_OUTPUTS, dtype=torch.float64))
         self.register_buffer("rate_std", torch.ones(N_OUTPUTS, dtype=torch.float64))
 
     def set_normalisation(self, feature_mean, feature_std, rate_mean, rate_std) -> None:
-        """Copy z-score statistics (dimensionless features (8,), rates (4,)) into the buffers."""
+        """Copy z-score statistics (dimensionless features (11,), rates (4,)) into the buffers."""
         for name, value in (("feature_mean", feature_mean), ("feature_std", feature_std),
                             ("rate_mean", rate_mean), ("rate_std", rate_std)):
             getattr(self, name).copy_(torch.as_tensor(value, dtype=torch.float64))
 
     def forward(self, z_features: torch.Tensor) -> torch.Tensor:
-        """z-scored features (n, 8) -> z-scored dimensionless rates (n, 4)."""
+        """z-scored features (n, 11) -> z-scored dimensionless rates (n, 4)."""
         return self.mlp(z_features)
 
     def normalise(self, inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Physical inputs (n, 8) -> z-scored features (n, 8) and probe magnitudes m (n, 1)."""
+        """Physical inputs (n, 8) -> z-scored features (n, 11) and probe magnitudes m (n, 1)."""
         raw, magnitude = features(inputs, self.kn, self.diameter)
         return (raw - self.feature_mean) / self.feature_std, magnitude
 
