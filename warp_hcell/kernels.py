@@ -12,7 +12,15 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
       with f_n >= 0 the normal (repulsive) force and f_s the tangential spring force
       (``shear_force``), which grows by kt * ((dx_j - dx_i) . w);
     - a pair is in contact when its gap is <= contact_tolerance * (r_i + r_j); a contact with
-      a gap >= 0 carries zero force (and so zero shear force).
+      a gap >= 0 carries zero force (and so zero shear force); out of contact the shear
+      history is reset;
+    - free DOFs: explicit (leapfrog) integration with Cundall local damping,
+      f (1 -+ damping) by the sign of f * v(t); a free grain whose net force is exactly zero
+      is set at rest (no drift of unloaded grains in mechanism states);
+    - driven DOFs: x = x_ref * l(k) / l_ref with l(k) moving linearly from the old to the new
+      cell size over n_drive = ceil(max|d_eps| / strain_per_substep) substeps; then
+      relaxation until max free-DOF force <= force_tolerance * max(max normal force,
+      force_floor), or max_substeps.
 The conversion to compression-positive quantities happens on the host
 (``homogenization.backends.dem.to_compression_positive``).
 """

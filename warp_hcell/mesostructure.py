@@ -13,8 +13,8 @@ Exports:
         that knows the H-cell has six grains).
     ``h_cell_reference(alpha0_deg, radius)``: vectorised H-cell reference positions and cell
         sizes for a batch of alpha0.
-    ``load_mesostructure(path)``: read a TOML or JSON description (format in ``data/README``
-        and in the docstring of ``load_mesostructure``).
+    ``load_mesostructure(path)``: read a TOML or JSON description (format in its docstring;
+        examples in ``warp_hcell/data``).
 """
 
 from __future__ import annotations

@@ -62,8 +62,11 @@ class DemState:
     @classmethod
     def from_numpy(cls, arrays: Mapping[str, np.ndarray], device: str) -> "DemState":
         """State from numpy arrays named like the fields (vec2d fields with a trailing axis of 2)."""
-        return cls(**{f.name: wp.array(np.ascontiguousarray(arrays[f.name]), dtype=_DTYPES[f.name], device=device)
-                      for f in fields(cls)})
+        def put(name):
+            host = np.ascontiguousarray(arrays[name], dtype=np.int32 if _DTYPES[name] is wp.int32 else np.float64)
+            return wp.array(host, dtype=_DTYPES[name], device=device)
+
+        return cls(**{f.name: put(f.name) for f in fields(cls)})
 
     def to_numpy(self) -> dict[str, np.ndarray]:
         """Numpy views (CPU) or copies (GPU) of every field, named like the fields."""
