@@ -23,6 +23,8 @@ from homogenization.driver import Record
 
 FOURTH_PANELS = ("q/p", "W2")
 """Choices of the fourth panel."""
+LINE_STYLES = ("-", "--", ":", "-.")
+"""Line style of the 1st, 2nd, ... run, so that coinciding backends remain distinguishable."""
 DEVIATORS = ("q", "t")
 """Deviator measure drawn: q = sigma11 - sigma22 or t = q / 2."""
 
@@ -95,20 +97,21 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
     eps1_label = r"$\varepsilon_1 = \varepsilon_{11}$ since the end of stage 1 [%]"
     q_label = r"$q = \sigma_{11} - \sigma_{22}$ [N/m]" if deviator == "q" else r"$t = (\sigma_{11} - \sigma_{22})/2$ [N/m]"
     p_label = r"$p = (\sigma_{11} + \sigma_{22})/2$ [N/m]"
-    for label, record in runs.items():
+    for i, (label, record) in enumerate(runs.items()):
         c = shear_curve(record)
         pct = 100.0 * c.eps1
-        ax_q.plot(pct, factor * c.q, label=label)
-        ax_pq.plot(c.p, factor * c.q, label=label)
+        style = {"label": label, "linestyle": LINE_STYLES[i % len(LINE_STYLES)]}  # overlays stay visible
+        ax_q.plot(pct, factor * c.q, **style)
+        ax_pq.plot(c.p, factor * c.q, **style)
         if drained:
-            ax_3.plot(pct, 100.0 * c.eps_v, label=label)
+            ax_3.plot(pct, 100.0 * c.eps_v, **style)
         else:
-            ax_3.plot(pct, c.p, label=label)
+            ax_3.plot(pct, c.p, **style)
         if fourth == "W2":
-            ax_4.plot(0.5 * (pct[1:] + pct[:-1]), c.w2, label=label)
+            ax_4.plot(0.5 * (pct[1:] + pct[:-1]), c.w2, **style)
         else:
             with np.errstate(divide="ignore", invalid="ignore"):
-                ax_4.plot(pct, np.where(c.p > 0.0, factor * c.q / c.p, np.nan), label=label)
+                ax_4.plot(pct, np.where(c.p > 0.0, factor * c.q / c.p, np.nan), **style)
     ax_q.set(xlabel=eps1_label, ylabel=q_label, title="deviator")
     ax_pq.set(xlabel=p_label, ylabel=q_label, title="stress path (Cambridge plane)")
     if drained:
