@@ -144,3 +144,15 @@ def test_every_backend_is_built_before_any_run(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("hmodel: error: ") and "\n" not in err and "missing.pt" in err
     assert not out.exists()  # the analytical run did not start
+
+
+def test_analytical_and_dem_overlay_agree(tmp_path):
+    pytest.importorskip("warp")
+    out = tmp_path / "overlay"
+    argv = ["--backend", "analytical,dem", "--alpha0", "55", "--p0", "2e5", "--eps-max", "0.01", "--increment", "1e-3",
+            "--iso-increment", "1e-4", "--orientations", "12", "--out", str(out)]
+    assert cli(argv) == 0
+    a, d = (io.read_run(out / name / "run.h5").record for name in ("analytical", "dem"))
+    assert np.array_equal(a.stage, d.stage)
+    assert np.abs(a.p - d.p).max() <= 1e-4 * 2e5 and np.abs(a.q - d.q).max() <= 1e-4 * 2e5  # spec: 3-4 digits
+    assert d.diagnostics["substeps"].shape == (d.n_increments,) and d.diagnostics["n_unconverged"].sum() == 0
