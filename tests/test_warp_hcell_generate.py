@@ -19,6 +19,12 @@ META = {"backend": "analytical", "kn": ContactLaw().kn, "kt": ContactLaw().kt, "
 ANALYTICAL = functools.partial(make_cell_model, "analytical")
 
 
+@pytest.fixture(autouse=True)
+def fixed_revision(monkeypatch):
+    """Colleagues commit while tests run: pin the recorded git revision so files compare by bytes."""
+    monkeypatch.setattr(generate, "git_revision", lambda: "pinned-for-tests")
+
+
 def run(tmp_path, name="db.h5", *, factory=ANALYTICAL, settings=SMALL, **kwargs):
     out = tmp_path / name
     kwargs.setdefault("seed", 3)
