@@ -101,19 +101,23 @@ def check_output_path(path: Path, *, overwrite: bool) -> Path:
 
 
 @contextmanager
-def atomic_write(path: Path, mode: str = "w") -> Iterator[Path]:
+def atomic_write(path: Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` only on success.
 
     An interrupted or failed run therefore never leaves a truncated file in place of a good
-    one. ``mode`` is unused by the caller's writer but documents intent ("w" or "wb").
+    one. The file gets the usual permissions (0666 less the umask), not mkstemp's 0600.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
+    umask = os.umask(0)
+    os.umask(umask)
     try:
         yield tmp_path
+        if tmp_path.exists():
+            os.chmod(tmp_path, 0o666 & ~umask)
         os.replace(tmp_path, path)
     finally:
         if tmp_path.exists():

@@ -125,7 +125,7 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
         seed: the seed of the run.
     """
     path = Path(path)
-    with atomic_write(path, "wb") as tmp, h5py.File(tmp, "w", track_order=True) as f:
+    with atomic_write(path) as tmp, h5py.File(tmp, "w", track_order=True) as f:
         f.attrs["format"] = FORMAT
         f.attrs["backend"] = record.backend
         f.attrs["alpha0_deg"] = record.alpha0_deg

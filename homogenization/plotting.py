@@ -137,6 +137,6 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
 def save_figure(fig: Figure, path: Path, *, dpi: int = 120) -> Path:
     """Write ``fig`` as PNG to ``path`` atomically; returns ``path``."""
     path = Path(path)
-    with atomic_write(path, "wb") as tmp:
+    with atomic_write(path) as tmp:
         fig.savefig(tmp, format="png", dpi=dpi)
     return path
