@@ -116,16 +116,6 @@ def backend_options(args: argparse.Namespace, name: str) -> dict[str, Any]:
     return options
 
 
-def check_output_folder(out: Path, *, overwrite: bool) -> None:
-    """``cli.check_output_path`` for a folder, plus: ``out`` and its nearest existing parent are folders."""
-    parent = out
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise UserError(f"cannot write to {out}: {parent} is not a folder")
-    check_output_path(out, overwrite=overwrite)
-
-
 def check_options(args: argparse.Namespace) -> None:
     """One-line UserError for flags that no chosen backend takes; fail early on unbuilt backends."""
     for dest, takers in BACKEND_ONLY_OPTIONS.items():
@@ -142,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
     out: Path = args.out
-    check_output_folder(out, overwrite=args.overwrite)
+    check_output_path(out, overwrite=args.overwrite)
     check_options(args)
     programme = loading.biaxial(args.p0, args.eps_max, args.increment, iso_increment=args.iso_increment,
                                 drained=args.drained)

@@ -114,11 +114,6 @@ def _check_out(out: Path, *, overwrite: bool) -> None:
     if out.is_dir():
         raise UserError(f"--out {out} is a folder; give a file name")
     check_output_path(out, overwrite=overwrite)
-    parent = out.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise UserError(f"cannot write to {out}: {parent} is not a folder")
 
 
 def _backend_options(args: argparse.Namespace) -> dict:

@@ -94,7 +94,7 @@ def check_output_path(path: Path, *, overwrite: bool) -> Path:
     while not parent.exists():
         parent = parent.parent
     if not parent.is_dir():
-        raise UserError(f"cannot write below {parent}: it is a file, not a folder")
+        raise UserError(f"cannot write to {path}: {parent} is not a folder")
     if not os.access(parent, os.W_OK):
         raise UserError(f"cannot write to {parent}")
     return path
