@@ -408,7 +408,80 @@ def git_revision() -> str:
 
 def run_description(settings: DatabaseSettings, seed: int, metadata_attrs: Mapping[str, Any]) -> dict[str, Any]:
     """What identifies a run (resuming requires the same): settings, seed, physics, backend."""
-    return {"generator": asdict(settings), "seed": int(seed), "metadata": dict(metadata_attrs)}
+    return json.loads(json.dumps({"generator": asdict(settings), "seed": int(seed), "metadata": dict(metadata_attrs)}))
+
+
+def _open_sidecar(sidecar: Path, description: Mapping[str, Any], discard_partial: bool) -> dict[str, Any]:
+    """Start or resume the run recorded in ``sidecar/run.json``; returns its record.
+
+    The record keeps the git revision and versions of the run's start, so a resumed run
+    writes the same attrs as an uninterrupted one.
+    """
+    run_file = sidecar / "run.json"
+    if run_file.exists() and json.loads(run_file.read_text())["description"] != description:
+        if not discard_partial:
+            raise ValueError(f"{sidecar} holds an unfinished run with other options; "
+                             f"rerun it with the same options or pass --overwrite to discard it")
+        shutil.rmtree(sidecar)
+    if not run_file.exists():
+        sidecar.mkdir(parents=True, exist_ok=True)
+        run = {"description": description, "git_revision": git_revision(), "versions": versions()}
+        tmp = run_file.with_name("run.json.tmp")
+        tmp.write_text(json.dumps(run, indent=1, sort_keys=True))
+        os.replace(tmp, run_file)
+    return json.loads(run_file.read_text())
+
+
+def _compute_chunks(factory: Callable[[], Any], cell_model, states_file: Path, settings: DatabaseSettings,
+                    seed: int, todo: Sequence[int], workers: int, bar: tqdm) -> None:
+    """Compute chunks ``todo`` into the sidecar, in this process or in ``workers`` processes."""
+    sidecar = states_file.parent
+    if workers <= 1:
+        states = _load_npz(states_file)
+        pool = cell_model.state_from_arrays(backend_arrays(states))
+        for chunk in todo:
+            _save_npz(_chunk_file(sidecar, chunk), compute_chunk(cell_model, pool, states, settings, seed, chunk))
+            bar.update(chunk_samples(settings, chunk))
+        return
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init,
+                             initargs=(factory, str(states_file))) as executor:
+        jobs = [executor.submit(_worker_chunk, settings, seed, chunk, str(sidecar)) for chunk in todo]
+        try:
+            for job in jobs:
+                bar.update(job.result())
+        finally:
+            for job in jobs:
+                job.cancel()
+
+
+def _assemble(out: Path, sidecar: Path, settings: DatabaseSettings, seed: int, run: Mapping[str, Any],
+              metadata_attrs: Mapping[str, Any], clean: bool) -> None:
+    """Write the database from the sidecar's chunks to a temporary file, rename it onto ``out``."""
+    states = _load_npz(sidecar / "states.npz")
+    chunks = [_load_npz(_chunk_file(sidecar, c)) for c in range(n_chunks(settings))]
+    samples = {name: np.concatenate([part[name] for part in chunks]) for name in chunks[0]}
+    attrs = {
+        "format": database.FORMAT,
+        "format_version": database.FORMAT_VERSION,
+        "sign_convention": database.SIGN_CONVENTION,
+        "seed": int(seed),
+        **{f"version_{name.replace('-', '_')}": value for name, value in run["versions"].items()},
+        "git_revision": run["git_revision"],
+        **metadata_attrs,
+        "generator": asdict(settings),
+        "n_samples": int(settings.samples),
+        "n_states": int(states["path_id"].size),
+        "n_paths": int(np.unique(states["path_id"]).size),
+        "n_unconverged": int(np.count_nonzero(~samples["converged"])),
+    }
+    samples["valid"], cleaning_attrs = cleaning.clean_samples(samples) if clean else cleaning.not_cleaned(samples)
+    attrs.update(cleaning_attrs)
+    tmp = out.with_name(f".{out.name}.tmp")
+    try:
+        database.write_database(tmp, samples, states, attrs)
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def generate(
@@ -449,72 +522,19 @@ def generate(
     """
     out = Path(out)
     sidecar = sidecar_path(out)
-    description = run_description(settings, seed, metadata_attrs)
-    run_file = sidecar / "run.json"
-    if run_file.exists():
-        previous = json.loads(run_file.read_text())
-        if previous["description"] != json.loads(json.dumps(description)):
-            if not discard_partial:
-                raise ValueError(f"{sidecar} holds an unfinished run with other options; "
-                                 f"rerun it with the same options or pass --overwrite to discard it")
-            shutil.rmtree(sidecar)
-    if not run_file.exists():
-        sidecar.mkdir(parents=True, exist_ok=True)
-        run = {"description": description, "git_revision": git_revision(), "versions": versions()}
-        tmp = run_file.with_name("run.json.tmp")
-        tmp.write_text(json.dumps(run, indent=1, sort_keys=True))
-        os.replace(tmp, run_file)
-    run = json.loads(run_file.read_text())
-
+    run = _open_sidecar(sidecar, run_description(settings, seed, metadata_attrs), discard_partial)
     cell_model = factory()
     states_file = sidecar / "states.npz"
     if not states_file.exists():
         _save_npz(states_file, explore(cell_model, settings))
-    states = _load_npz(states_file)
-
     missing = [c for c in range(n_chunks(settings)) if not _chunk_file(sidecar, c).exists()]
     todo = missing if max_chunks is None else missing[:max_chunks]
-    initial = settings.samples - sum(chunk_samples(settings, c) for c in missing)
-    with tqdm(total=settings.samples, initial=initial, desc="probes", unit="sample", smoothing=0.1) as bar:
-        if workers <= 1:
-            pool = cell_model.state_from_arrays(backend_arrays(states))
-            for chunk in todo:
-                _save_npz(_chunk_file(sidecar, chunk), compute_chunk(cell_model, pool, states, settings, seed, chunk))
-                bar.update(chunk_samples(settings, chunk))
-        else:
-            with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init,
-                                     initargs=(factory, str(states_file))) as executor:
-                jobs = [executor.submit(_worker_chunk, settings, seed, chunk, str(sidecar)) for chunk in todo]
-                try:
-                    for job in jobs:
-                        bar.update(job.result())
-                finally:
-                    for job in jobs:
-                        job.cancel()
+    done = settings.samples - sum(chunk_samples(settings, c) for c in missing)
+    with tqdm(total=settings.samples, initial=done, desc="probes", unit="sample", smoothing=0.1) as bar:
+        _compute_chunks(factory, cell_model, states_file, settings, seed, todo, workers, bar)
     if len(todo) < len(missing):
         return None
-
-    chunks = [_load_npz(_chunk_file(sidecar, c)) for c in range(n_chunks(settings))]
-    samples = {name: np.concatenate([part[name] for part in chunks]) for name in chunks[0]}
-    attrs = {
-        "format": database.FORMAT,
-        "format_version": database.FORMAT_VERSION,
-        "sign_convention": database.SIGN_CONVENTION,
-        "seed": int(seed),
-        **{f"version_{name.replace('-', '_')}": value for name, value in run["versions"].items()},
-        "git_revision": run["git_revision"],
-        **metadata_attrs,
-        "generator": asdict(settings),
-        "n_samples": int(settings.samples),
-        "n_states": int(states["path_id"].size),
-        "n_paths": int(np.unique(states["path_id"]).size),
-        "n_unconverged": int(np.count_nonzero(~samples["converged"])),
-    }
-    samples["valid"], cleaning_attrs = cleaning.clean_samples(samples) if clean else cleaning.not_cleaned(samples)
-    attrs.update(cleaning_attrs)
-    tmp = out.with_name(f".{out.name}.tmp")
-    database.write_database(tmp, samples, states, attrs)
-    os.replace(tmp, out)
+    _assemble(out, sidecar, settings, seed, run, metadata_attrs, clean)
     shutil.rmtree(sidecar)
     return out
 
