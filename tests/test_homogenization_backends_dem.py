@@ -11,6 +11,7 @@ from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell
 from homogenization.backends.dem import DemCell
 from homogenization.cell_model import CellModel
+from warp_hcell.integrator import MIN_CELLS_PER_CHUNK
 from warp_hcell.mesostructure import load_mesostructure
 from warp_hcell.parameters import ContactLaw, DemSettings
 
@@ -102,7 +103,7 @@ def _assert_same(a, b, rows=slice(None)):
 
 def test_bitwise_determinism_and_batch_invariance(device):
     rng = np.random.default_rng(3)
-    n = 9
+    n = 2 * MIN_CELLS_PER_CHUNK + 37  # several CPU chunks with 2 and 3 threads
     alpha0 = rng.uniform(32.0, 85.0, n)
     increments = _increments(rng, n)
     cells = [DemCell(LAW, 0.5, device=device, threads=t) for t in (1, 2, 3, 1)]
@@ -110,7 +111,7 @@ def test_bitwise_determinism_and_batch_invariance(device):
     for other in runs[1:]:
         _assert_same(runs[0], other)
     # a cell alone, and the batch reversed, give the same cells bit for bit
-    k = 4
+    k = MIN_CELLS_PER_CHUNK + 3
     alone = _history(DemCell(LAW, 0.5, device=device), DemCell(LAW, 0.5, device=device).init_state(alpha0[k], 1),
                      [d[k:k + 1] for d in increments])
     _assert_same(runs[0], alone, rows=slice(k, k + 1))

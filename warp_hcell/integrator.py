@@ -33,6 +33,8 @@ from warp_hcell.state import DemState
 
 CHUNKS_PER_THREAD = 4
 """CPU chunks per thread: chunks are taken by the threads as they finish (load balancing)."""
+MIN_CELLS_PER_CHUNK = 128
+"""Smallest CPU chunk [cells]: smaller batches run in one launch on the calling thread."""
 
 
 def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:
@@ -55,28 +57,21 @@ def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:
     return d_eps
 
 
-def launch_step(model: DemModel, state_in: DemState, state_out: DemState, d_eps_local: wp.array) -> None:
-    """Launch the cell-step kernel over all cells of the given (chunk) states."""
+def launch_step(model: DemModel, state_in: DemState, state_out: DemState, d_eps_local: wp.array,
+                start: int, stop: int) -> None:
+    """Launch the cell-step kernel over cells [start, stop) of the batch (whole arrays passed)."""
     settings, law = model.settings, model.contact_law
     kernel = step_kernel(*model.meso.topology_key())
     wp.launch(
-        kernel, dim=state_in.n_cells,
+        kernel, dim=stop - start,
         inputs=[model.radius, model.inv_mass, model.reference_position, model.reference_cell_size, model.dt,
                 model.force_floor, law.kn, law.kt, law.mu, settings.damping, settings.contact_tolerance,
                 settings.strain_per_substep, settings.force_tolerance, int(settings.max_substeps),
-                state_in.position, state_in.velocity, state_in.shear_force, state_in.cell_size, d_eps_local],
+                state_in.position, state_in.velocity, state_in.shear_force, state_in.cell_size, d_eps_local,
+                int(start)],
         outputs=[state_out.position, state_out.velocity, state_out.shear_force, state_out.contact_force,
                  state_out.contact, state_out.cell_size, state_out.substeps, state_out.converged],
         device=model.device)
-
-
-def _chunk_model(model: DemModel, start: int, stop: int) -> DemModel:
-    """Model views of cells [start, stop) (no copy)."""
-    return DemModel(meso=model.meso, device=model.device, radius=model.radius[start:stop],
-                    inv_mass=model.inv_mass[start:stop], reference_position=model.reference_position[start:stop],
-                    reference_cell_size=model.reference_cell_size[start:stop], dt=model.dt[start:stop],
-                    force_floor=model.force_floor[start:stop], contact_law=model.contact_law,
-                    settings=model.settings)
 
 
 class DemIntegrator:
@@ -84,7 +79,7 @@ class DemIntegrator:
 
     Args:
         model: the batch model.
-        threads: CPU chunks launched in parallel (ignored on CUDA devices).
+        threads: CPU threads launching chunks in parallel (ignored on CUDA devices).
     """
 
     def __init__(self, model: DemModel, *, threads: int = 2):
@@ -93,10 +88,10 @@ class DemIntegrator:
         self.model = model
         self.threads = 1 if wp.get_device(model.device).is_cuda else int(threads)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
-        # compile/load the kernel once, here, rather than concurrently from the chunk threads
-        first = _chunk_model(model, 0, 1)
+        # compile/load the kernel here, once, rather than concurrently from the chunk threads
+        one = model.take(np.zeros(1, dtype=np.int64))
         scratch = DemState.empty(1, model.meso.n_grains, model.meso.n_pairs, model.device)
-        launch_step(first, first.state(), scratch, wp.zeros(1, dtype=wp.vec2d, device=model.device))
+        launch_step(one, one.state(), scratch, wp.zeros(1, dtype=wp.vec2d, device=model.device), 0, 1)
 
     def step(self, state_in: DemState, state_out: DemState, d_eps_local: np.ndarray) -> None:
         """Advance every cell by its strain increment; writes ``state_out`` only.
@@ -109,14 +104,15 @@ class DemIntegrator:
         model = self.model
         d_eps = wp.array(check_increment(model, d_eps_local), dtype=wp.vec2d, device=model.device)
         n_cells = model.n_cells
-        # more chunks than threads: the pool balances cells of very different substep counts
-        bounds = np.linspace(0, n_cells, min(CHUNKS_PER_THREAD * self.threads, n_cells) + 1).astype(int)
-        if self._pool is None or len(bounds) <= 2:
-            launch_step(model, state_in, state_out, d_eps)
+        # more chunks than threads, so that the pool balances cells of very different substep
+        # counts; no chunk below MIN_CELLS_PER_CHUNK (the thread hand-off would cost more)
+        n_chunks = min(CHUNKS_PER_THREAD * self.threads, n_cells // MIN_CELLS_PER_CHUNK)
+        if self._pool is None or n_chunks < 2:
+            launch_step(model, state_in, state_out, d_eps, 0, n_cells)
             return
-        jobs = [self._pool.submit(launch_step, _chunk_model(model, a, b), state_in.chunk(a, b),
-                                  state_out.chunk(a, b), d_eps[a:b])
-                for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+        bounds = np.linspace(0, n_cells, n_chunks + 1).astype(int)
+        jobs = [self._pool.submit(launch_step, model, state_in, state_out, d_eps, start, stop)
+                for start, stop in zip(bounds[:-1], bounds[1:])]
         for job in jobs:
             job.result()
 

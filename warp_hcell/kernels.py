@@ -70,7 +70,8 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         driven: per grain, (driven along n, driven along t).
 
     Returns:
-        A kernel launched with one thread per cell (see ``integrator.launch_step``).
+        A kernel launched with one thread per cell of cells [first_cell, first_cell + dim)
+        (see ``integrator.launch_step``).
     """
     n_grains = len(driven)
     n_pairs = len(pairs)
@@ -103,6 +104,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         shear_force_in: wp.array2d(dtype=wp.float64),
         cell_size_in: wp.array(dtype=wp.vec2d),
         d_eps_local: wp.array(dtype=wp.vec2d),
+        first_cell: wp.int32,
         # outputs
         position_out: wp.array2d(dtype=wp.vec2d),
         velocity_out: wp.array2d(dtype=wp.vec2d),
@@ -113,7 +115,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         substeps_out: wp.array(dtype=wp.int32),
         converged_out: wp.array(dtype=wp.int32),
     ):
-        c = wp.tid()
+        c = first_cell + wp.tid()
         zero = wp.float64(0.0)
         one = wp.float64(1.0)
         h = dt[c]

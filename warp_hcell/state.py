@@ -71,7 +71,3 @@ class DemState:
     def to_numpy(self) -> dict[str, np.ndarray]:
         """Numpy views (CPU) or copies (GPU) of every field, named like the fields."""
         return {f.name: getattr(self, f.name).numpy() for f in fields(self)}
-
-    def chunk(self, start: int, stop: int) -> "DemState":
-        """Views of cells [start, stop) (no copy)."""
-        return DemState(**{f.name: getattr(self, f.name)[start:stop] for f in fields(self)})
