@@ -211,3 +211,21 @@ def test_bad_inputs_give_one_line_errors():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         cell.step(state, np.zeros((2, 2)))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("alpha0_deg, iso", [(55.0, 9e-4), (55.0, 0.026), (40.0, 0.0222)])
+def test_dem_matches_analytical_to_three_digits_along_long_paths(alpha0_deg, iso):
+    """36 orientations, constant volume to eps1 = 10 % (spec section 10: 3-4 significant digits)."""
+    theta = np.arange(36) * np.pi / 36
+    dem, ana = DemCell(LAW, 0.5), AnalyticalCell(LAW, 0.5)
+    sd, sa = dem.init_state(alpha0_deg, theta.size), ana.init_state(alpha0_deg, theta.size)
+    worst, force_max = dict.fromkeys(("N1", "N2", "T1", "alpha_deg"), 0.0), 0.0
+    for d_eps in _constant_volume_path(theta.size, theta, iso, round(iso / 1e-4), 1e-4, 1000):
+        (sd, _), (sa, _) = dem.step(sd, d_eps), ana.step(sa, d_eps)
+        od, oa = dem.observables(sd), ana.observables(sa)
+        force_max = max(force_max, oa["N1"].max(), oa["N2"].max())
+        worst = {k: max(v, np.abs(od[k] - oa[k]).max()) for k, v in worst.items()}
+    for name in ("N1", "N2", "T1"):
+        assert worst[name] <= 1e-3 * force_max, name
+    assert worst["alpha_deg"] <= 1e-3
