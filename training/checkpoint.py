@@ -61,7 +61,7 @@ def save_checkpoint(path: str | Path, net: CellNet, metadata: dict[str, Any]) ->
     """Write ``net.state_dict()`` to ``path`` and metadata to ``metadata_path(path)``.
 
     ``metadata`` is extended with the format tag, the architecture, the scales (kn [N/m],
-    diameter [m]) and the normalisation statistics (copies of the buffers, for readers
+    diameter [m], mu [-]) and the normalisation statistics (copies of the buffers, for readers
     without torch). Returns the two paths written.
     """
     path = Path(path)
@@ -70,7 +70,7 @@ def save_checkpoint(path: str | Path, net: CellNet, metadata: dict[str, Any]) ->
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "architecture": architecture(net),
-        "scales": {"kn": float(net.kn), "diameter": float(net.diameter)},
+        "scales": {"kn": float(net.kn), "diameter": float(net.diameter), "mu": float(net.mu)},
         "normalisation": buffers,
         **metadata,
     }
@@ -122,7 +122,7 @@ def load_checkpoint(path: str | Path) -> tuple[CellNet, dict[str, Any]]:
     except RuntimeError:
         raise CheckpointError(f"{path}: state_dict does not match the architecture in {metadata_path(path).name} (hidden = {meta['architecture']['hidden']})") from None
     scales = meta.get("scales", {})
-    if not all(math.isclose(float(getattr(net, k)), float(scales.get(k, math.nan)), rel_tol=1e-12) for k in ("kn", "diameter")):
+    if not all(math.isclose(float(getattr(net, k)), float(scales.get(k, math.nan)), rel_tol=1e-12) for k in ("kn", "diameter", "mu")):
         raise CheckpointError(f"{path}: scales in the state_dict differ from {metadata_path(path).name}")
     return net.eval(), meta
 

@@ -79,6 +79,11 @@ class Database:
         """Grain diameter D = 2 r [m]."""
         return 2.0 * self.radius
 
+    @property
+    def mu(self) -> float:
+        """Friction coefficient tan(phi_g) [-]."""
+        return math.tan(math.radians(self.phi_g_deg))
+
 
 def file_sha256(path: Path) -> str:
     """Hex SHA-256 of a file's bytes."""
@@ -236,7 +241,8 @@ class Normalisation:
     """z-score statistics (from the training split) in dimensionless units.
 
     Attributes:
-        feature_mean, feature_std: of ``training.network.features`` (u_n, u_t, alpha [rad], N1, N2, T1 [kn D], l1, l2 [D], closed1, closed2, T1/N1), shape (11,).
+        feature_mean, feature_std: of the dimensionless ``training.network.features``,
+            shape (N_FEATURES,).
         rate_mean, rate_std: of the rates (increment / |d_eps|) of ``alpha [rad], N1, N2, T1 [kn D]``, shape (4,).
     """
 
@@ -247,9 +253,9 @@ class Normalisation:
 
 
 def dimensionless(db: Database, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Un-z-scored features (n, 11) and rates (n, 4) of the samples ``index``."""
+    """Un-z-scored features (n, N_FEATURES) and rates (n, 4) of the samples ``index``."""
     inputs = torch.from_numpy(db.inputs[index])
-    raw, magnitude = features(inputs, db.kn, db.diameter)
+    raw, magnitude = features(inputs, db.kn, db.diameter, db.mu)
     increment = db.outputs[index] - db.inputs[index][:, 2:6]
     increment[:, 0] = np.radians(increment[:, 0])
     increment[:, 1:] /= db.kn * db.diameter
@@ -264,7 +270,7 @@ def fit_normalisation(db: Database, train: np.ndarray) -> Normalisation:
 
 
 def tensors(db: Database, index: np.ndarray, norm: Normalisation) -> tuple[torch.Tensor, torch.Tensor]:
-    """z-scored features (n, 11) and z-scored rate targets (n, 4), float64 tensors."""
+    """z-scored features (n, N_FEATURES) and z-scored rate targets (n, 4), float64 tensors."""
     raw, rate = dimensionless(db, index)
     return (
         torch.from_numpy((raw - norm.feature_mean) / norm.feature_std),

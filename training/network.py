@@ -11,12 +11,16 @@ How the 8 inputs become features (the normalisation of the spec, then z-scores):
 - the probe is split into its magnitude m = |d_eps| [-] and direction
   u = d_eps / m (u = 0 where m = 0);
 - the state is made dimensionless: alpha [rad], N1, N2, T1 / (kn D), l1, l2 / D;
-- three derived features expose what switches the cell's incremental response and is a
-  sharp function of the inputs (hard for a small tanh network to resolve near zero force):
-  the contact flags ``closed1 = [N1 > 0]``, ``closed2 = [N2 > 0]`` and the friction ratio
-  ``T1 / N1`` (0 where N1 = 0; |T1 / N1| = mu when sliding);
-- the 11 features ``(u_n, u_t, alpha, N1, N2, T1, l1, l2, closed1, closed2, T1/N1)`` are
-  z-scored with training statistics.
+- derived features expose what switches the cell's incremental response and is a sharp
+  function of the inputs (hard for a small tanh network to resolve near zero force or at
+  the Coulomb cap): the contact flags ``closed1 = [N1 > 0]``, ``closed2 = [N2 > 0]``, the
+  friction ratio ``T1 / N1`` (0 where N1 = 0) and the sliding flag ``slip = sign(T1)`` where
+  |T1| >= mu N1 (1 - ``SLIP_TOLERANCE``) on a closed contact, else 0;
+- log10(m) is a feature too: over a finite probe a contact may start sliding or open
+  part-way, so the mean rate depends (weakly) on the magnitude; m is floored at
+  ``MAGNITUDE_FLOOR`` inside the logarithm only;
+- the 13 features ``(u_n, u_t, alpha, N1, N2, T1, l1, l2, closed1, closed2, T1/N1, slip,
+  log10 m)`` are z-scored with training statistics.
 
 The multilayer perceptron (tanh hidden layers, linear output) returns z-scored
 dimensionless *rates* r = increment / m of ``(alpha [rad], N1, N2, T1 [kn D])``; the
@@ -39,8 +43,12 @@ N_INPUTS = 8
 """Physical inputs: d_eps_n, d_eps_t [-], alpha_deg [deg], N1, N2, T1 [N], l1, l2 [m]."""
 N_OUTPUTS = 4
 """Physical outputs: alpha_deg [deg], N1, N2, T1 [N] after the increment."""
-N_FEATURES = 11
+N_FEATURES = 13
 """Network inputs derived from the physical inputs (see the module docstring)."""
+MAGNITUDE_FLOOR = 1e-12
+"""Probe magnitude [-] below which log10(m) is clamped (a zero probe gives a zero increment anyway)."""
+SLIP_TOLERANCE = 1e-6
+"""Relative distance to the Coulomb cap mu N1 [-] within which a contact counts as sliding."""
 DEFAULT_HIDDEN: tuple[int, ...] = (8, 8, 8)
 """Hidden layer widths of the spec (3 x 8 tanh)."""
 ACTIVATION = "tanh"
@@ -63,14 +71,23 @@ def dimensionless_state(state: torch.Tensor, kn: torch.Tensor | float, diameter:
     )
 
 
-def features(inputs: torch.Tensor, kn: torch.Tensor | float, diameter: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Un-z-scored features (n, 11) and probe magnitudes (n, 1) of physical inputs (n, 8)."""
+def features(
+    inputs: torch.Tensor, kn: torch.Tensor | float, diameter: torch.Tensor | float, mu: torch.Tensor | float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Un-z-scored features (n, 13) and probe magnitudes (n, 1) of physical inputs (n, 8).
+
+    ``kn`` [N/m], ``diameter`` [m] and the friction coefficient ``mu`` [-] are those of the
+    training data.
+    """
     magnitude, direction = probe_split(inputs[:, :2])
     state = dimensionless_state(inputs[:, 2:], kn, diameter)
     N1, N2, T1 = state[:, 1:2], state[:, 2:3], state[:, 3:4]
     closed1 = N1 > 0
     ratio = torch.where(closed1, T1 / torch.where(closed1, N1, 1.0), 0.0)
-    return torch.cat([direction, state, closed1.to(state.dtype), (N2 > 0).to(state.dtype), ratio], dim=1), magnitude
+    slip = torch.where(closed1 & (torch.abs(T1) >= mu * N1 * (1.0 - SLIP_TOLERANCE)), torch.sign(T1), 0.0)
+    log_m = torch.log10(torch.clamp(magnitude, min=MAGNITUDE_FLOOR))
+    derived = [closed1.to(state.dtype), (N2 > 0).to(state.dtype), ratio, slip, log_m]
+    return torch.cat([direction, state, *derived], dim=1), magnitude
 
 
 class CellNet(nn.Module):
@@ -80,13 +97,15 @@ class CellNet(nn.Module):
         hidden: widths of the hidden layers (default 3 x 8).
         kn: normal contact stiffness of the training data [N/m] (force scale kn D).
         diameter: grain diameter D = 2 r of the training data [m] (length scale).
+        mu: friction coefficient tan(phi_g) of the training data [-] (sliding flag).
 
     Buffers (set with ``set_normalisation`` before training, restored by
-    ``load_state_dict``): ``feature_mean``, ``feature_std`` (11,) and ``rate_mean``,
-    ``rate_std`` (4,) in dimensionless units; ``kn`` [N/m] and ``diameter`` [m].
+    ``load_state_dict``): ``feature_mean``, ``feature_std`` (13,) and ``rate_mean``,
+    ``rate_std`` (4,) in dimensionless units; ``kn`` [N/m], ``diameter`` [m], ``mu`` [-].
     """
 
-    def __init__(self, hidden: Sequence[int] = DEFAULT_HIDDEN, *, kn: float = 1.0, diameter: float = 1.0) -> None:
+    def __init__(self, hidden: Sequence[int] = DEFAULT_HIDDEN, *, kn: float = 1.0, diameter: float = 1.0,
+                 mu: float = 1.0) -> None:
         super().__init__()
         self.hidden = tuple(int(h) for h in hidden)
         if not self.hidden or min(self.hidden) < 1:
@@ -99,24 +118,25 @@ class CellNet(nn.Module):
         self.mlp = nn.Sequential(*layers)
         self.register_buffer("kn", torch.tensor(float(kn), dtype=torch.float64))
         self.register_buffer("diameter", torch.tensor(float(diameter), dtype=torch.float64))
+        self.register_buffer("mu", torch.tensor(float(mu), dtype=torch.float64))
         self.register_buffer("feature_mean", torch.zeros(N_FEATURES, dtype=torch.float64))
         self.register_buffer("feature_std", torch.ones(N_FEATURES, dtype=torch.float64))
         self.register_buffer("rate_mean", torch.zeros(N_OUTPUTS, dtype=torch.float64))
         self.register_buffer("rate_std", torch.ones(N_OUTPUTS, dtype=torch.float64))
 
     def set_normalisation(self, feature_mean, feature_std, rate_mean, rate_std) -> None:
-        """Copy z-score statistics (dimensionless features (11,), rates (4,)) into the buffers."""
+        """Copy z-score statistics (dimensionless features (13,), rates (4,)) into the buffers."""
         for name, value in (("feature_mean", feature_mean), ("feature_std", feature_std),
                             ("rate_mean", rate_mean), ("rate_std", rate_std)):
             getattr(self, name).copy_(torch.as_tensor(value, dtype=torch.float64))
 
     def forward(self, z_features: torch.Tensor) -> torch.Tensor:
-        """z-scored features (n, 11) -> z-scored dimensionless rates (n, 4)."""
+        """z-scored features (n, 13) -> z-scored dimensionless rates (n, 4)."""
         return self.mlp(z_features)
 
     def normalise(self, inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Physical inputs (n, 8) -> z-scored features (n, 11) and probe magnitudes m (n, 1)."""
-        raw, magnitude = features(inputs, self.kn, self.diameter)
+        """Physical inputs (n, 8) -> z-scored features (n, 13) and probe magnitudes m (n, 1)."""
+        raw, magnitude = features(inputs, self.kn, self.diameter, self.mu)
         return (raw - self.feature_mean) / self.feature_std, magnitude
 
     def increment(self, inputs: torch.Tensor) -> torch.Tensor:

@@ -126,7 +126,7 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = F
     device = torch.device(config.device)
     x_train, y_train = (t.to(device) for t in tensors(db, split.train, norm))
     x_val, y_val = (t.to(device) for t in tensors(db, split.val, norm))
-    net = CellNet(config.hidden, kn=db.kn, diameter=db.diameter)
+    net = CellNet(config.hidden, kn=db.kn, diameter=db.diameter, mu=db.mu)
     net.set_normalisation(norm.feature_mean, norm.feature_std, norm.rate_mean, norm.rate_std)
     net.to(device)
     train_set = TensorDataset(x_train, y_train)
