@@ -197,14 +197,13 @@ class NumpyIntegrator:
             va, xa, ha = v[act], x[act], h[act]
             accel = force * inv_mass[act]
             power = force * (va + 0.5 * ha * accel)
-            accel = np.where(power > 0.0, accel * (1.0 - settings.damping),
-                             np.where(power < 0.0, accel * (1.0 + settings.damping), accel))
+            damped = va + ha * (accel * (1.0 - settings.damping * np.sign(power)))
             unloaded = np.all(force == 0.0, axis=2, keepdims=True)
-            v_free = np.where(unloaded, 0.0, va + ha * accel)
-            dx_new = np.where(free, v_free * ha, x_drive - xa)
+            v_free = np.where(unloaded, 0.0, damped)
+            dx[act] = np.where(free, v_free * ha, x_drive - xa)
             x[act] = np.where(free, xa + v_free * ha, x_drive)
-            v[act] = np.where(free, v_free, dx_new / ha)
-            dx[act] = dx_new
+            v[act] = v_free
+        v = np.where(free, v, dx / h)  # driven DOFs: the velocity of their last substep
         b = x[:, pj] - x[:, pi]
         u = b / np.linalg.norm(b, axis=-1, keepdims=True)
         contact_force = np.stack([-fn * u[..., 0] - fs * u[..., 1], -fn * u[..., 1] + fs * u[..., 0]], -1)

@@ -14,9 +14,9 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
     - a pair is in contact when its gap is <= contact_tolerance * (r_i + r_j); a contact with
       a gap >= 0 carries zero force (and so zero shear force); out of contact the shear
       history is reset;
-    - free DOFs: explicit (leapfrog) integration with Cundall local damping,
-      f (1 -+ damping) by the sign of f * v(t); a free grain whose net force is exactly zero
-      is set at rest (no drift of unloaded grains in mechanism states);
+    - free DOFs: explicit (leapfrog) integration with Cundall local damping
+      (``damped_velocity``); a free grain whose net force is exactly zero is set at rest (no
+      drift of unloaded grains in mechanism states);
     - driven DOFs: x = x_ref * l(k) / l_ref with l(k) moving linearly from the old to the new
       cell size over n_drive = ceil(max|d_eps| / strain_per_substep) substeps; then
       relaxation until max free-DOF force <= force_tolerance * max(max normal force,
@@ -61,6 +61,31 @@ def contact_law(
     return normal, wp.clamp(trial, -cap, cap)
 
 
+@wp.func
+def damped_velocity(
+    force: wp.float64,
+    velocity: wp.float64,
+    inv_mass: wp.float64,
+    dt: wp.float64,
+    damping: wp.float64,
+):
+    """Leapfrog velocity update of one free DOF with Cundall local (non-viscous) damping.
+
+    Args:
+        force: net force on the DOF [N]; velocity: v(t - dt/2) [m/s]; inv_mass [1/kg];
+        dt: time step [s]; damping: Cundall coefficient [-].
+
+    Returns:
+        v(t + dt/2) = v + dt f/m (1 - damping sign(f v(t))), v(t) estimated as v + dt/2 f/m.
+    """
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    accel = force * inv_mass
+    power = force * (velocity + wp.float64(0.5) * dt * accel)
+    sign = wp.where(power > zero, one, wp.where(power < zero, -one, zero))
+    return velocity + dt * (accel * (one - damping * sign))
+
+
 @functools.lru_cache(maxsize=None)
 def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bool], ...]) -> wp.Kernel:
     """The cell-step kernel for one topology.
@@ -81,7 +106,6 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
     drive_t = tuple(bool(d[1]) for d in driven)
     vec_g = wp.types.vector(length=n_grains, dtype=wp.float64)
     vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
-    vec_pi = wp.types.vector(length=n_pairs, dtype=wp.int32)
 
     @wp.kernel(module="unique", module_options={"enable_backward": False, "max_unroll": 4096, "fuse_fp": False})
     def dem_step(
@@ -119,7 +143,6 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         zero = wp.float64(0.0)
         one = wp.float64(1.0)
         h = dt[c]
-        half_h = wp.float64(0.5) * h
         floor = force_floor[c]
 
         xn = vec_g()
@@ -148,8 +171,6 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         fs = vec_p()
         rsum = vec_p()
         cut2 = vec_p()
-        fn_p = vec_p()
-        touch = vec_pi()
         widen = one + contact_tolerance
         for p in range(wp.static(n_pairs)):
             fs[p] = shear_force_in[c, p]
@@ -191,8 +212,6 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     du = (dxt[j] - dxt[i]) * un - (dxn[j] - dxn[i]) * ut
                     normal, shear = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
                     fs[p] = shear
-                    fn_p[p] = normal
-                    touch[p] = 1
                     fin = -normal * un - shear * ut
                     fit = -normal * ut + shear * un
                     fn_g[i] = fn_g[i] + fin
@@ -202,8 +221,6 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     fmax = wp.max(fmax, normal)
                 else:
                     fs[p] = zero
-                    fn_p[p] = zero
-                    touch[p] = 0
 
             if substeps >= n_drive:
                 unbalanced = zero
@@ -228,19 +245,8 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     x_new = refn[g] * scale_n
                     dxn[g] = x_new - xn[g]
                     xn[g] = x_new
-                    vn[g] = dxn[g] / h
                 else:
-                    f = fn_g[g]
-                    v = vn[g]
-                    if unloaded:
-                        v = zero
-                    else:
-                        a = f * im[g]
-                        if f * (v + half_h * a) > zero:
-                            a = a * (one - damping)
-                        elif f * (v + half_h * a) < zero:
-                            a = a * (one + damping)
-                        v = v + h * a
+                    v = wp.where(unloaded, zero, damped_velocity(fn_g[g], vn[g], im[g], h, damping))
                     vn[g] = v
                     dxn[g] = v * h
                     xn[g] = xn[g] + v * h
@@ -248,25 +254,19 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     x_new = reft[g] * scale_t
                     dxt[g] = x_new - xt[g]
                     xt[g] = x_new
-                    vt[g] = dxt[g] / h
                 else:
-                    f = ft_g[g]
-                    v = vt[g]
-                    if unloaded:
-                        v = zero
-                    else:
-                        a = f * im[g]
-                        if f * (v + half_h * a) > zero:
-                            a = a * (one - damping)
-                        elif f * (v + half_h * a) < zero:
-                            a = a * (one + damping)
-                        v = v + h * a
+                    v = wp.where(unloaded, zero, damped_velocity(ft_g[g], vt[g], im[g], h, damping))
                     vt[g] = v
                     dxt[g] = v * h
                     xt[g] = xt[g] + v * h
 
         for g in range(wp.static(n_grains)):
             position_out[c, g] = wp.vec2d(xn[g], xt[g])
+            # driven DOFs: the velocity of their last substep
+            if wp.static(drive_n[g]):
+                vn[g] = dxn[g] / h
+            if wp.static(drive_t[g]):
+                vt[g] = dxt[g] / h
             velocity_out[c, g] = wp.vec2d(vn[g], vt[g])
         for p in range(wp.static(n_pairs)):
             shear_force_out[c, p] = fs[p]
@@ -274,11 +274,15 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
             j = wp.static(pj[p])
             bn = xn[j] - xn[i]
             bt = xt[j] - xt[i]
-            dist = wp.sqrt(bn * bn + bt * bt)
+            dist2 = bn * bn + bt * bt
+            dist = wp.sqrt(dist2)
             un = bn / dist
             ut = bt / dist
-            contact_force_out[c, p] = wp.vec2d(-fn_p[p] * un - fs[p] * ut, -fn_p[p] * ut + fs[p] * un)
-            contact_out[c, p] = touch[p]
+            # the last force evaluation ran at these positions: same contacts, same normal forces
+            touching = dist2 <= cut2[p]
+            normal = wp.where(touching, kn * wp.max(rsum[p] - dist, zero), zero)
+            contact_force_out[c, p] = wp.vec2d(-normal * un - fs[p] * ut, -normal * ut + fs[p] * un)
+            contact_out[c, p] = wp.where(touching, 1, 0)
         cell_size_out[c] = l_end
         substeps_out[c] = substeps
         converged_out[c] = converged
