@@ -191,7 +191,7 @@ class NumpyIntegrator:
             if not act.size:
                 break
             substeps[act] += 1
-            s = np.minimum(substeps[act] * inv_n_drive[act], 1.0)
+            s = np.where(substeps[act] < n_drive[act], substeps[act] * inv_n_drive[act], 1.0)
             scale = scale0[act] + dscale[act] * s[:, None]
             x_drive = ref[act] * scale[:, None, :]
             va, xa, ha = v[act], x[act], h[act]

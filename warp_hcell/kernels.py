@@ -55,10 +55,12 @@ def contact_law(
         (normal force >= 0 [N], new tangential force [N]); the trial force decides the
         sliding direction: f_s = clip(f_s + kt du, -mu f_n, +mu f_n).
     """
-    normal = kn * wp.max(overlap, wp.float64(0.0))
+    zero = wp.float64(0.0)
+    normal = kn * wp.where(overlap > zero, overlap, zero)
     cap = mu * normal
     trial = shear_force + kt * shear_increment
-    return normal, wp.clamp(trial, -cap, cap)
+    # comparisons rather than wp.clamp/wp.max: no NaN handling on the hot path
+    return normal, wp.where(trial > cap, cap, wp.where(trial < -cap, -cap, trial))
 
 
 @wp.func
@@ -218,7 +220,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     ft_g[i] = ft_g[i] + fit
                     fn_g[j] = fn_g[j] - fin
                     ft_g[j] = ft_g[j] - fit
-                    fmax = wp.max(fmax, normal)
+                    fmax = wp.where(normal > fmax, normal, fmax)
                 else:
                     fs[p] = zero
 
@@ -226,17 +228,17 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                 unbalanced = zero
                 for g in range(wp.static(n_grains)):
                     if wp.static(not drive_n[g]):
-                        unbalanced = wp.max(unbalanced, wp.abs(fn_g[g]))
+                        unbalanced = wp.where(wp.abs(fn_g[g]) > unbalanced, wp.abs(fn_g[g]), unbalanced)
                     if wp.static(not drive_t[g]):
-                        unbalanced = wp.max(unbalanced, wp.abs(ft_g[g]))
-                if unbalanced <= force_tolerance * wp.max(fmax, floor):
+                        unbalanced = wp.where(wp.abs(ft_g[g]) > unbalanced, wp.abs(ft_g[g]), unbalanced)
+                if unbalanced <= force_tolerance * wp.where(fmax > floor, fmax, floor):
                     converged = 1
                     break
                 if substeps >= max_substeps:
                     break
 
             substeps += 1
-            s = wp.min(wp.float64(substeps) * inv_n_drive, one)
+            s = wp.where(substeps < n_drive, wp.float64(substeps) * inv_n_drive, one)
             scale_n = scale_n0 + dscale_n * s
             scale_t = scale_t0 + dscale_t * s
             for g in range(wp.static(n_grains)):
