@@ -28,7 +28,8 @@ def _write(path, *, n_bad=0, attrs=None, drop=None, outputs_rows=None):
     state = np.column_stack([rng.uniform(40, 80, n), rng.uniform(0, 1e6, (n, 2)), rng.uniform(-1e5, 1e5, n),
                              rng.uniform(1.5, 2.0, n), rng.uniform(1.0, 1.7, n)])
     inputs = np.column_stack([rng.normal(scale=1e-5, size=(n, 2)), state])
-    outputs = state[:, :4] + rng.normal(scale=[1e-3, 1e3, 1e3, 1e3], size=(n, 4))
+    magnitude = np.hypot(inputs[:, 0], inputs[:, 1])[:, None]
+    outputs = state[:, :4] + magnitude * np.clip(rng.normal(size=(n, 4)), -3, 3) * [30.0, 1e8, 1e8, 1e8]
     table = np.zeros((n, len(STATE_FEATURES)))
     table[:, STATE_FEATURES.index("alpha_deg")] = 60.0
     table[:, STATE_FEATURES.index("closed1")] = 1.0
@@ -145,3 +146,16 @@ def test_too_few_paths_is_a_one_line_error(tmp_path):
         f["path_id"][...] = 0
     with pytest.raises(DataError, match="too few to split"):
         split_by_path(load_database(path), val_fraction=0.2, test_path_fraction=0.0, n_test_alpha0=0, seed=0)
+
+
+def test_snap_through_jumps_are_dropped_and_counted(tmp_path):
+    path = _write(tmp_path / "db.h5")
+    with h5py.File(path, "a") as f:
+        inputs, outputs = f["inputs"][()], f["outputs"][()]
+        magnitude = math.hypot(*inputs[5, :2])
+        outputs[5, 0] = inputs[5, 2] + math.degrees(11.0 * magnitude)  # rate 11 rad per unit strain
+        outputs[6, 1] = inputs[6, 3] + 9.0 * math.hypot(*inputs[6, :2]) * KN * 2 * RADIUS  # rate 9 kn D: kept
+        f["outputs"][...] = outputs
+    db = load_database(path)
+    assert db.n_jumps == 1 and db.n_samples == 299
+    assert not np.any(np.all(db.inputs == inputs[5], axis=1))

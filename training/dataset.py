@@ -6,7 +6,11 @@ Contract:
   that are ``valid`` (not removed by the generator's cleaning step), pass the cleaning
   rules of ``warp_hcell.clean`` (re-applied, so an uncleaned file is cleaned the same
   way: converged, finite, alpha in [30, 90] deg and a closed contact before and after
-  the probe) and have a non-zero probe (a zero probe has no rate to learn). Any
+  the probe) and have a non-zero probe (a zero probe has no rate to learn). It also drops
+  snap-through jumps: probes whose dimensionless rate (see below) exceeds ``RATE_LIMIT``
+  in any output, i.e. the cell jumped to another equilibrium branch within the probe (a
+  discontinuity, not a rate; 2 of 3e5 samples of the DEM database, both from one state
+  at alpha = 60 deg sliding with N2 = 0, that otherwise dominate the training MSE). Any
   unreadable, incomplete or wrong-format file raises ``DataError`` (one line).
 - ``split_by_path`` makes disjoint training / validation / test sets of whole paths (never
   of samples): the test set holds every path of a few held-out ``alpha0`` values plus a
@@ -38,6 +42,11 @@ from warp_hcell.clean import pathological
 from warp_hcell.database import FORMAT, FORMAT_VERSION, INPUT_FEATURES, OUTPUT_FEATURES, STATE_FEATURES
 
 
+RATE_LIMIT = 10.0
+"""Largest |rate| accepted [-]: d_alpha [rad] or dN1, dN2, dT1 [kn D] per unit |d_eps|.
+Regular probes stay below ~1.6 (the H-cell's stiffness in these units)."""
+
+
 class DataError(ValueError):
     """A database file that cannot be used; the message is one line naming the file."""
 
@@ -54,7 +63,8 @@ class Database:
         alpha0_deg: initial opening angle of the sample's path [deg], shape (n,).
         kn: normal contact stiffness [N/m]; kt_over_kn [-]; phi_g_deg [deg]; radius r [m].
         sha256: hex digest of the file bytes (the training-data hash of checkpoints).
-        source: the file path; n_stored: samples in the file before selection.
+        source: the file path; n_stored: samples in the file before selection;
+        n_jumps: selected-but-dropped snap-through samples (|rate| > ``RATE_LIMIT``).
     """
 
     inputs: np.ndarray
@@ -68,6 +78,7 @@ class Database:
     sha256: str
     source: str
     n_stored: int
+    n_jumps: int
 
     @property
     def n_samples(self) -> int:
@@ -163,6 +174,9 @@ def load_database(path: str | Path) -> Database:
         & ~np.logical_or.reduce(list(removed.values()))
         & np.any(inputs[:, :2] != 0.0, axis=1)
     )
+    jumps = np.zeros_like(keep)
+    jumps[keep] = np.abs(rates(inputs[keep], outputs[keep], kn, 2.0 * radius)).max(axis=1) > RATE_LIMIT
+    keep &= ~jumps
     if not keep.any():
         raise DataError(f"{path}: no valid, converged sample with a non-zero probe among {n_stored}")
     return Database(
@@ -177,6 +191,7 @@ def load_database(path: str | Path) -> Database:
         sha256=file_sha256(path),
         source=str(path),
         n_stored=int(n_stored),
+        n_jumps=int(np.count_nonzero(jumps)),
     )
 
 
@@ -252,14 +267,23 @@ class Normalisation:
     rate_std: np.ndarray
 
 
+def rates(inputs: np.ndarray, outputs: np.ndarray, kn: float, diameter: float) -> np.ndarray:
+    """Dimensionless rates (n, 4): increments of alpha [rad] and N1, N2, T1 [kn D] over |d_eps|.
+
+    Args:
+        inputs: (n, 8) database inputs, non-zero probes; outputs: (n, 4) database outputs.
+        kn: normal stiffness [N/m]; diameter: grain diameter D [m].
+    """
+    increment = outputs - inputs[:, 2:6]
+    increment[:, 0] = np.radians(increment[:, 0])
+    increment[:, 1:] /= kn * diameter
+    return increment / np.hypot(inputs[:, 0], inputs[:, 1])[:, None]
+
+
 def dimensionless(db: Database, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Un-z-scored features (n, N_FEATURES) and rates (n, 4) of the samples ``index``."""
-    inputs = torch.from_numpy(db.inputs[index])
-    raw, magnitude = features(inputs, db.kn, db.diameter, db.mu)
-    increment = db.outputs[index] - db.inputs[index][:, 2:6]
-    increment[:, 0] = np.radians(increment[:, 0])
-    increment[:, 1:] /= db.kn * db.diameter
-    return raw.numpy(), increment / magnitude.numpy()
+    raw, _ = features(torch.from_numpy(db.inputs[index]), db.kn, db.diameter, db.mu)
+    return raw.numpy(), rates(db.inputs[index], db.outputs[index], db.kn, db.diameter)
 
 
 def fit_normalisation(db: Database, train: np.ndarray) -> Normalisation:

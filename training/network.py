@@ -47,8 +47,10 @@ N_FEATURES = 13
 """Network inputs derived from the physical inputs (see the module docstring)."""
 MAGNITUDE_FLOOR = 1e-12
 """Probe magnitude [-] below which log10(m) is clamped (a zero probe gives a zero increment anyway)."""
-SLIP_TOLERANCE = 1e-6
-"""Relative distance to the Coulomb cap mu N1 [-] within which a contact counts as sliding."""
+SLIP_TOLERANCE = 1e-4
+"""Relative distance to the Coulomb cap mu N1 [-] within which a contact counts as sliding.
+The DEM's quasi-static tolerance leaves sliding contacts up to ~1e-5 below the cap; a
+contact 1e-4 below it starts sliding after ~1e-6 of strain, less than the smallest probe."""
 DEFAULT_HIDDEN: tuple[int, ...] = (8, 8, 8)
 """Hidden layer widths of the spec (3 x 8 tanh)."""
 ACTIVATION = "tanh"
