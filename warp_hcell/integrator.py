@@ -80,14 +80,16 @@ class DemIntegrator:
     Args:
         model: the batch model.
         threads: CPU threads launching chunks in parallel (ignored on CUDA devices).
+        pool: an executor with ``threads`` workers to reuse (e.g. across the models of one
+            backend); by default the integrator makes its own.
     """
 
-    def __init__(self, model: DemModel, *, threads: int = 2):
+    def __init__(self, model: DemModel, *, threads: int = 2, pool: ThreadPoolExecutor | None = None):
         if int(threads) < 1:
             raise ValueError(f"threads = {threads} must be >= 1")
         self.model = model
         self.threads = 1 if wp.get_device(model.device).is_cuda else int(threads)
-        self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        self._pool = None if self.threads == 1 else pool or ThreadPoolExecutor(self.threads)
         # compile/load the kernel here, once, rather than concurrently from the chunk threads
         one = model.take(np.zeros(1, dtype=np.int64))
         scratch = DemState.empty(1, model.meso.n_grains, model.meso.n_pairs, model.device)

@@ -15,6 +15,7 @@ polygon through the centres of the outer (driven) grains: the hexagon for the H-
 from __future__ import annotations
 
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
@@ -90,7 +91,8 @@ class DemCell:
         self.device = str(device)
         self.threads = int(threads)
         self.engine = engine
-        self._integrators: dict[int, Any] = {}
+        self._pool = ThreadPoolExecutor(self.threads) if engine == "warp" and self.threads > 1 else None
+        self._last_integrator: DemIntegrator | NumpyIntegrator | None = None
 
     # -- construction ---------------------------------------------------------------------
     def _model(self, alpha0_deg: float | np.ndarray, n_cells: int) -> DemModel:
@@ -99,13 +101,13 @@ class DemCell:
             return DemModel.build_h_cell(alpha0_deg, n_cells, self.radius, **options)
         return DemModel.build(self.mesostructure, n_cells, **options)
 
-    def _integrator(self, model: DemModel):
-        key = id(model)
-        integrator = self._integrators.get(key)
+    def _integrator(self, model: DemModel) -> DemIntegrator | NumpyIntegrator:
+        """The integrator of ``model`` (the last one is kept: trial steps reuse it)."""
+        integrator = self._last_integrator
         if integrator is None or integrator.model is not model:
-            integrator = (DemIntegrator(model, threads=self.threads) if self.engine == "warp"
+            integrator = (DemIntegrator(model, threads=self.threads, pool=self._pool) if self.engine == "warp"
                           else NumpyIntegrator(model))
-            self._integrators = {key: integrator}  # keep only the latest model's integrator
+            self._last_integrator = integrator
         return integrator
 
     # -- CellModel protocol ---------------------------------------------------------------
