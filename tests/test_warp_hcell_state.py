@@ -1,0 +1,26 @@
+"""DemState: numpy round trip with dtype casting, empty allocation."""
+
+import numpy as np
+
+from warp_hcell.model import DemModel
+from warp_hcell.state import DemState
+
+
+def test_numpy_round_trip_casts_to_the_field_types(device):
+    arrays = DemModel.build_h_cell(55.0, 2, 0.5).state().to_numpy()
+    arrays["contact"] = arrays["contact"].astype(np.int64)  # e.g. read back from HDF5
+    arrays["position"] = arrays["position"].astype(np.float32).astype(np.float64)
+    state = DemState.from_numpy(arrays, device)
+    back = state.to_numpy()
+    assert back["contact"].dtype == np.int32 and back["position"].dtype == np.float64
+    for name, value in arrays.items():
+        assert np.array_equal(back[name], value), name
+    assert state.n_cells == 2
+
+
+def test_empty_shapes(device):
+    state = DemState.empty(5, 7, 21, device)
+    shapes = {k: v.shape for k, v in state.to_numpy().items()}
+    assert shapes == {"position": (5, 7, 2), "velocity": (5, 7, 2), "shear_force": (5, 21),
+                      "contact_force": (5, 21, 2), "contact": (5, 21), "cell_size": (5, 2),
+                      "substeps": (5,), "converged": (5,)}
