@@ -66,10 +66,10 @@ def test_step_is_pure_and_uses_one_batched_network_call(cell):
     finally:
         hook.remove()
     assert calls == [12]
-    assert all(np.array_equal(before[k], v) for k, v in cell.state_to_arrays(state).items())
+    assert all(np.array_equal(before[k], v, equal_nan=True) for k, v in cell.state_to_arrays(state).items())
     assert response.moment.shape == (12, 2, 2) and response.area.shape == (12,)
     again, _ = cell.step(state, d_eps)
-    assert all(np.array_equal(a, b) for a, b in zip(new, again))
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(new, again))
 
 
 def test_lengths_follow_the_strain_and_forces_the_network(cell):
@@ -89,20 +89,54 @@ def test_lengths_follow_the_strain_and_forces_the_network(cell):
 def test_a_zero_increment_changes_nothing(cell):
     state, _ = _loaded(cell)
     new, response = cell.step(state, np.zeros((12, 2)))
-    assert all(np.array_equal(a, b) for a, b in zip(new, state))
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(new, state))
     assert np.array_equal(response.moment, cell.response(state).moment)
+
+
+def _predicting(cell, monkeypatch, rows):
+    predicted = torch.tensor(rows, dtype=torch.float64)
+    monkeypatch.setattr(cell.net, "predict", lambda inputs: predicted[: inputs.shape[0]])
 
 
 def test_non_physical_outputs_are_mapped_to_the_contact_law_and_counted(cell, monkeypatch):
     state, d_eps = _loaded(cell, n=3)
-    predicted = torch.tensor([[55.0, -10.0, 5.0, 3.0], [56.0, 100.0, -1.0, 200.0], [95.0, 100.0, 50.0, -20.0]],
-                             dtype=torch.float64)
-    monkeypatch.setattr(cell.net, "predict", lambda inputs: predicted)
+    # tension on N2 at alpha = 65 deg > 60 deg: a friction-locked cell, not a mechanism
+    _predicting(cell, monkeypatch, [[65.0, 100.0, -1.0, -20.0], [56.0, 100.0, 5.0, 200.0], [95.0, 100.0, 50.0, -20.0]])
     new, response = cell.step(state, d_eps)
-    mu = LAW.mu
-    assert np.array_equal(new.N1, [0.0, 100.0, 100.0]) and np.array_equal(new.N2, [5.0, 0.0, 50.0])
-    assert np.allclose(new.T1, [0.0, 100.0 * mu, -20.0])
-    assert response.diagnostics == {"n_tension_clipped": 2.0, "n_coulomb_capped": 2.0, "n_alpha_outside": 1.0}
+    assert np.array_equal(new.N1, [100.0, 100.0, 100.0]) and np.array_equal(new.N2, [0.0, 5.0, 50.0])
+    assert np.allclose(new.T1, [-20.0, 100.0 * LAW.mu, -20.0])
+    assert np.all(np.isnan(new.y2_free))
+    assert response.diagnostics == {"n_tension_clipped": 1.0, "n_coulomb_capped": 1.0, "n_mechanism": 0.0,
+                                    "n_alpha_outside": 1.0}
+
+
+def _open_state(cell, n=2):
+    """Force-free cells at alpha = 55 deg, stretched by 1e-3 in both directions (both contacts open)."""
+    state = cell.init_state(55.0, n)
+    return state._replace(l1=state.l1 * 1.001, l2=state.l2 * 1.001)
+
+
+def test_a_cell_that_loses_equilibrium_becomes_a_kinematic_mechanism(cell, monkeypatch):
+    state = _open_state(cell)
+    # N1 < 0 (contact 1 open): grain 2 cannot be balanced by N2 alone; N2 = 0 at alpha < 60 deg: same
+    _predicting(cell, monkeypatch, [[55.5, -10.0, 5.0, 3.0], [55.5, 10.0, -5.0, 3.0]])
+    d_eps = np.full((2, 2), -1e-4)
+    new, response = cell.step(state, d_eps)
+    assert np.all(np.isfinite(new.y2_free)) and response.diagnostics["n_mechanism"] == 2.0
+    assert np.all(new.N1 == 0.0) and np.all(new.N2 == 0.0) and np.all(new.T1 == 0.0)
+    assert np.all(response.moment == 0.0)
+    obs = cell.observables(new)
+    assert np.all(obs["d1"] >= 1.0 - 1e-12) and np.all(obs["d2"] >= 1.0 - 1e-12)
+    # further opening: y2 kept, alpha from the kinematics, whatever the network says
+    _predicting(cell, monkeypatch, [[80.0, 1e6, 1e6, 0.0], [80.0, 1e6, 1e6, 0.0]])
+    later, response = cell.step(new, d_eps)
+    assert np.array_equal(later.y2_free, new.y2_free) and np.all(later.N1 == 0.0)
+    u = 0.5 * later.l1 - later.y2_free
+    assert np.allclose(later.alpha, np.arctan2(0.5 * later.l2, u), rtol=1e-14)
+    # compression closes a contact: the network's prediction is used again
+    closed, response = cell.step(later, np.full((2, 2), 5e-3))
+    assert np.all(np.isnan(closed.y2_free)) and np.array_equal(closed.N1, [1e6, 1e6])
+    assert response.diagnostics["n_mechanism"] == 0.0
 
 
 def test_take_and_array_round_trip(cell):
@@ -110,14 +144,14 @@ def test_take_and_array_round_trip(cell):
     taken = cell.take(state, np.array([3, 3, 0]))
     assert np.array_equal(taken.alpha, state.alpha[[3, 3, 0]])
     restored = cell.state_from_arrays(cell.state_to_arrays(state))
-    assert all(np.array_equal(a, b) for a, b in zip(restored, state))
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(restored, state))
 
 
 def test_a_cells_result_does_not_depend_on_its_batch(cell):
     state, d_eps = _loaded(cell)
     batch, _ = cell.step(state, d_eps)
     alone, _ = cell.step(cell.take(state, np.array([7])), d_eps[7:8])
-    assert np.allclose([a[7] for a in batch], [a[0] for a in alone], rtol=1e-13, atol=0.0)
+    assert np.allclose([a[7] for a in batch], [a[0] for a in alone], rtol=1e-13, atol=0.0, equal_nan=True)
 
 
 def test_model_errors_are_one_line(model_path, tmp_path):

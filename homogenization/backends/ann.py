@@ -13,10 +13,21 @@ T1). What is not learned:
 Non-physical network outputs are mapped onto the contact law, never silently: a negative
 normal force becomes 0 (no tension, N = max(N, 0), as the contact law itself does), and
 |T1| > mu N1 is capped at mu N1 with the sign of the prediction (Coulomb, so an open
-contact carries no tangential force). Each ``step`` reports in
-``CellResponse.diagnostics`` how many cells were affected: ``n_tension_clipped`` (N1 or N2
-< 0 predicted), ``n_coulomb_capped`` and ``n_alpha_outside`` (alpha outside [30, 90] deg,
-left as predicted).
+contact carries no tangential force).
+
+Stress-free mechanisms are not learned (the database cleaning removes them: their alpha
+is not fixed by equilibrium) and follow spec sections 5-6 instead. When a contact opens
+so that grain 2 cannot be in equilibrium along n with the other one closed (N1 = 0, or
+N2 = 0 with alpha < 90 deg - phi_g), every force drops to 0 and the cell becomes a
+mechanism: y2 = d2/2 is kept (chosen in the range where both contacts are open or
+touching) and alpha, d1 follow l1, l2 by kinematics. The network is still called for
+these cells (one call per increment for the whole batch) and its prediction is used again
+from the increment in which the kinematics closes a contact.
+
+Each ``step`` reports in ``CellResponse.diagnostics`` how many cells were affected:
+``n_tension_clipped`` (N1 or N2 < 0 predicted), ``n_coulomb_capped``, ``n_mechanism``
+(cells in the mechanism state after the increment) and ``n_alpha_outside`` (alpha outside
+[30, 90] deg, left as predicted).
 
 Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
 growing). Local frame: index 0 = n, 1 = t.
@@ -61,6 +72,25 @@ class AnnState(NamedTuple):
     """Axial length, centre 1 to centre 4 [m]."""
     l2: np.ndarray
     """Distance between the lateral columns [m]."""
+    y2_free: np.ndarray
+    """n-coordinate of grain 2 [m] kept while the cell is a stress-free mechanism; NaN otherwise."""
+
+
+def mechanism_y2(l1: np.ndarray, l2: np.ndarray, d2: np.ndarray, diameter: float) -> np.ndarray:
+    """y2 [m] of a cell entering the mechanism state: d2 / 2 clipped to where d1, d2 >= D.
+
+    Args:
+        l1, l2: cell lengths [m], shape (n,).
+        d2: type-2 branch length of the prediction [m], shape (n,).
+        diameter: grain diameter D [m].
+
+    Returns:
+        y2 [m], shape (n,); NaN where no y2 opens both contacts (d1 >= D needs
+        y2 <= l1/2 - sqrt(D^2 - l2^2/4), d2 >= D needs y2 >= D/2).
+    """
+    y2_max = 0.5 * l1 - np.sqrt(np.maximum(diameter**2 - 0.25 * l2**2, 0.0))
+    y2_min = np.full_like(l1, 0.5 * diameter)
+    return np.where(y2_min <= y2_max, np.clip(0.5 * d2, y2_min, y2_max), np.nan)
 
 
 class AnnCell:
@@ -86,6 +116,8 @@ class AnnCell:
         self.diameter = 2.0 * self.radius
         self.kn = contact_law.kn
         self.mu = contact_law.mu
+        self.alpha_lock = math.radians(90.0 - contact_law.phi_g_deg)
+        """Opening angle [rad] above which a cell with N2 = 0 can be friction-locked (spec section 5)."""
         path = default_model_path() if model is None else Path(model)
         if model is None and not path.is_file():
             raise CheckpointError(f"{path}: the default ANN model is not installed; pass model=PATH (--model)")
@@ -112,7 +144,7 @@ class AnnCell:
         D = np.full(alpha.shape, self.diameter)
         l1, l2 = hcell.lengths(D, D, alpha)
         zero = np.zeros_like(alpha)
-        return AnnState(alpha, zero, zero.copy(), zero.copy(), l1, l2)
+        return AnnState(alpha, zero, zero.copy(), zero.copy(), l1, l2, np.full_like(alpha, np.nan))
 
     def step(self, state: AnnState, d_eps_local: np.ndarray) -> tuple[AnnState, CellResponse]:
         """Advance every cell by its local strain increment with one network call; pure.
@@ -136,12 +168,27 @@ class AnnCell:
         T1 = np.clip(out[:, 3], -cap, cap)
         l1 = state.l1 * (1.0 - d_eps[:, 0])
         l2 = state.l2 * (1.0 - d_eps[:, 1])
-        new = AnnState(alpha, N1, N2, T1, l1, l2)
+        # mechanisms: kinematics with y2 kept while both contacts stay open
+        was_free = np.isfinite(state.y2_free)
+        d1_k, d2_k, alpha_k = hcell.branches_from_y2(l1, l2, np.where(was_free, state.y2_free, 0.5 * l1))
+        stays_free = was_free & (d1_k >= self.diameter) & (d2_k >= self.diameter)
+        # cells that lose grain-2 equilibrium with a closed contact become mechanisms
+        unbalanced = ~was_free & ((N1 == 0.0) | ((N2 == 0.0) & (alpha < self.alpha_lock)))
+        _, d2 = hcell.branches_from_alpha(l1, l2, alpha)
+        y2_new = np.where(unbalanced, mechanism_y2(l1, l2, d2, self.diameter), np.nan)
+        enters = np.isfinite(y2_new)
+        y2_free = np.where(stays_free, state.y2_free, y2_new)
+        free = stays_free | enters
+        _, _, alpha_e = hcell.branches_from_y2(l1, l2, np.where(enters, y2_new, 0.5 * l1))
+        alpha = np.where(stays_free, alpha_k, np.where(enters, alpha_e, alpha))
+        N1, N2, T1 = (np.where(free, 0.0, f) for f in (N1, N2, T1))
+        new = AnnState(alpha, N1, N2, T1, l1, l2, y2_free)
         moment, area = hcell.love_weber_moment(alpha, N1, N2, T1, l1, l2, kn=self.kn, diameter=self.diameter)
-        alpha_deg = out[:, 0]
+        alpha_deg = np.degrees(alpha)
         diagnostics = {
             "n_tension_clipped": float(np.count_nonzero((out[:, 1] < 0.0) | (out[:, 2] < 0.0))),
             "n_coulomb_capped": float(np.count_nonzero(np.abs(out[:, 3]) > cap)),
+            "n_mechanism": float(np.count_nonzero(free)),
             "n_alpha_outside": float(np.count_nonzero((alpha_deg < ALPHA_MIN_DEG) | (alpha_deg > ALPHA_MAX_DEG))),
         }
         return new, CellResponse(moment, area, diagnostics)
