@@ -96,7 +96,8 @@ def _square(**changes):
 
 
 @pytest.mark.parametrize("changes, message", [
-    (dict(radius=[0.5, -0.1, 0.5, 0.5]), "mesostructure 'square': grain 2 has radius -0.1; radii must be finite and > 0"),
+    (dict(radius=[0.5, -0.1, 0.5, 0.5]),
+     "mesostructure 'square': grain 2 has radius -0.1; radii must be finite and > 0"),
     (dict(radius=[0.5, 0.5, 0.0, 0.5]), "mesostructure 'square': grain 3 has radius 0; radii must be finite and > 0"),
     (dict(position=[[0.4, 0.5], [-0.5, 0.5], [-0.5, -0.5], [0.5, -0.5]]),
      "mesostructure 'square': grains 1 and 2 overlap by 0.1 m (more than the contact tolerance)"),
