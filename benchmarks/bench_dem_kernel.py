@@ -37,9 +37,22 @@ def _sizes(text: str) -> list[int]:
 
 
 def _positive(text: str) -> float:
-    value = float(text)
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
     if not value > 0:
         raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
     return value
 
 
@@ -78,8 +91,8 @@ def main() -> None:
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--sizes", type=_sizes, default=_sizes("1e3,1e4,1e5,3e5"), help="numbers of cells")
     parser.add_argument("--increment", type=_positive, default=1e-5, help="strain increment magnitude [-]")
-    parser.add_argument("--repeat", type=int, default=3, help="timed repetitions (best kept)")
-    parser.add_argument("--numpy-max-cells", type=int, default=100_000, help="largest batch run with numpy")
+    parser.add_argument("--repeat", type=_count, default=3, help="timed repetitions (best kept)")
+    parser.add_argument("--numpy-max-cells", type=_count, default=100_000, help="largest batch run with numpy")
     parser.add_argument("--device", default="cpu", help="Warp device")
     parser.add_argument("--out", type=Path, default=None, help="optional JSON file for the results")
     args = parser.parse_args()
