@@ -212,5 +212,5 @@ class NumpyIntegrator:
         out = {"position": x, "velocity": v, "shear_force": fs, "contact_force": contact_force, "contact": touch,
                "cell_size": l_end, "substeps": substeps, "converged": converged}
         for name, value in out.items():
-            getattr(state_out, name).assign(value.astype(getattr(state_out, name).numpy().dtype, copy=False)
-                                            if name in ("contact", "substeps", "converged") else value)
+            target = getattr(state_out, name)
+            target.assign(np.ascontiguousarray(value, dtype=target.numpy().dtype))
