@@ -5,8 +5,8 @@ constant-volume or drained shear); the DEM must stay within 1 % of p0 of the ana
 and q at every increment, reach p0 to 1e-4, report zero unconverged cells in run.h5 and
 follow the independent reference table of shared/spec/reference.md. CI runs 36 orientations
 to eps1 = 10 %; the full-size comparison (360 orientations, eps1 = 20 %) is marked slow
-(``pytest -m slow tests/test_homogenization_dem_vs_analytical.py``; about 1-2 min of DEM per
-case on two cores) and is also ``benchmarks/bench_dem_homogenization.py``.
+(``pytest -m slow tests/test_homogenization_dem_vs_analytical.py``; 5-15 s of DEM per case on
+two cores) and is also ``benchmarks/bench_dem_homogenization.py``.
 
 Sign convention: compression positive; stresses [N/m], strains [-].
 """
