@@ -57,6 +57,8 @@ class Record:
             strain-controlled), shape (n,), int.
         diagnostics: backend diagnostics of the accepted ``step`` call per increment (e.g.
             DEM ``substeps``, ``n_unconverged``), name -> shape (n,); NaN where absent.
+            ``<name>_all_calls`` sums the same diagnostic over every ``step`` call of the
+            increment, trial calls of stress control included (the work really spent).
         snapshot_increment: number of completed increments at each snapshot, shape (m,).
         snapshot_stage: stage label of each snapshot, shape (m,), str.
         snapshots: per-cell ``cell_model.observables``, name -> shape (m, n_cells).
@@ -121,6 +123,7 @@ class _Runner:
         self.iterations = np.empty(n_max, dtype=np.int64)
         self.stage_index = np.empty(n_max, dtype=np.int64)
         self.diagnostics: dict[str, np.ndarray] = {}
+        self.call_totals: dict[str, float] = {}
         self.snap_k: list[int] = []
         self.snap_stage: list[int] = []
         self.snaps: list[dict[str, np.ndarray]] = []
@@ -131,6 +134,8 @@ class _Runner:
         if d_local is None:
             d_local = orient_mod.localise(self.orient, d_eps)
         new_state, resp = self.model.step(self.state, d_local)
+        for name, value in resp.diagnostics.items():
+            self.call_totals[name] = self.call_totals.get(name, 0.0) + float(value)
         J = self.J * orient_mod.volume_ratio_factor(d_eps)
         sigma = orient_mod.average_moment(self.orient, resp.moment) / (self.V0 * J)
         return new_state, resp, sigma, J
@@ -149,10 +154,12 @@ class _Runner:
         row[5] = J
         self.iterations[k] = iterations
         self.stage_index[k] = stage
-        for name, value in resp.diagnostics.items():
+        totals = {f"{name}_all_calls": value for name, value in self.call_totals.items()}
+        for name, value in (*resp.diagnostics.items(), *totals.items()):
             if name not in self.diagnostics:
                 self.diagnostics[name] = np.full(self.rows.shape[0], np.nan)
             self.diagnostics[name][k] = value
+        self.call_totals = {}
         self.k = k + 1
 
     def snapshot(self, stage: int) -> None:

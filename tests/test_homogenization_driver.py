@@ -206,3 +206,15 @@ def test_bad_programme_is_one_line_error():
         driver.run(ElasticCell(), (), progress=False)
     with pytest.raises(ValueError, match="snapshot_interval = -1 must be >= 0"):
         driver.run(ElasticCell(), (loading.proportional_strain(1e-3, 0.0, 2),), snapshot_interval=-1, progress=False)
+
+
+def test_diagnostics_count_every_step_call_of_stress_controlled_increments():
+    # ElasticCell reports calls = 1 per step: the per-increment sum over all calls must equal
+    # the calls the driver says it spent (trial calls of Newton included), the accepted-call
+    # value stays 1.
+    record = driver.run(ElasticCell(), loading.biaxial(2e6, 0.01, 1e-3, drained=True), alpha0_deg=55.0,
+                        n_orientations=12, progress=False)
+    shear = record.stage == "shear"
+    assert np.all(record.diagnostics["calls"] == 1.0)
+    assert np.array_equal(record.diagnostics["calls_all_calls"], record.newton_iterations.astype(float))
+    assert record.newton_iterations[shear].max() > 1  # stress control really iterated
