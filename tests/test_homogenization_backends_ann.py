@@ -107,7 +107,17 @@ def test_non_physical_outputs_are_mapped_to_the_contact_law_and_counted(cell, mo
     assert np.allclose(new.T1, [-20.0, 100.0 * LAW.mu, -20.0])
     assert np.all(np.isnan(new.y2_free))
     assert response.diagnostics == {"n_tension_clipped": 1.0, "n_coulomb_capped": 1.0, "n_mechanism": 0.0,
-                                    "n_alpha_outside": 1.0}
+                                    "n_equilibrium_n2": 0.0, "n_alpha_outside": 1.0}
+
+
+def test_an_unbalanced_cell_whose_lengths_keep_a_contact_closed_gets_n2_from_equilibrium(cell, monkeypatch):
+    state, d_eps = _loaded(cell, n=1)  # compressed: no y2 opens both contacts
+    _predicting(cell, monkeypatch, [[50.0, 100.0, -5.0, -20.0]])
+    new, response = cell.step(state, d_eps)
+    a = np.radians(50.0)
+    assert np.isnan(new.y2_free[0]) and new.N1[0] == 100.0 and new.T1[0] == -20.0
+    assert np.isclose(new.N2[0], 100.0 * np.cos(a) - 20.0 * np.sin(a), rtol=1e-14)
+    assert response.diagnostics["n_equilibrium_n2"] == 1.0
 
 
 def _open_state(cell, n=2):

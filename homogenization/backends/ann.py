@@ -22,12 +22,14 @@ N2 = 0 with alpha < 90 deg - phi_g), every force drops to 0 and the cell becomes
 mechanism: y2 = d2/2 is kept (chosen in the range where both contacts are open or
 touching) and alpha, d1 follow l1, l2 by kinematics. The network is still called for
 these cells (one call per increment for the whole batch) and its prediction is used again
-from the increment in which the kinematics closes a contact.
+from the increment in which the kinematics closes a contact. Where l1, l2 leave no y2
+with both contacts open, the cell stays closed and N2 is set by the equilibrium of grain
+2 along n, N2 = max(N1 cos a + T1 sin a, 0) (spec section 5).
 
 Each ``step`` reports in ``CellResponse.diagnostics`` how many cells were affected:
 ``n_tension_clipped`` (N1 or N2 < 0 predicted), ``n_coulomb_capped``, ``n_mechanism``
-(cells in the mechanism state after the increment) and ``n_alpha_outside`` (alpha outside
-[30, 90] deg, left as predicted).
+(cells in the mechanism state after the increment), ``n_equilibrium_n2`` (N2 from
+equilibrium) and ``n_alpha_outside`` (alpha outside [30, 90] deg, left as predicted).
 
 Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
 growing). Local frame: index 0 = n, 1 = t.
@@ -177,6 +179,9 @@ class AnnCell:
         _, d2 = hcell.branches_from_alpha(l1, l2, alpha)
         y2_new = np.where(unbalanced, mechanism_y2(l1, l2, d2, self.diameter), np.nan)
         enters = np.isfinite(y2_new)
+        # ... unless l1, l2 keep a contact closed: then grain-2 equilibrium gives N2 (spec section 5)
+        balanced = unbalanced & ~enters
+        N2 = np.where(balanced, np.maximum(N1 * np.cos(alpha) + T1 * np.sin(alpha), 0.0), N2)
         y2_free = np.where(stays_free, state.y2_free, y2_new)
         free = stays_free | enters
         _, _, alpha_e = hcell.branches_from_y2(l1, l2, np.where(enters, y2_new, 0.5 * l1))
@@ -189,6 +194,7 @@ class AnnCell:
             "n_tension_clipped": float(np.count_nonzero((out[:, 1] < 0.0) | (out[:, 2] < 0.0))),
             "n_coulomb_capped": float(np.count_nonzero(np.abs(out[:, 3]) > cap)),
             "n_mechanism": float(np.count_nonzero(free)),
+            "n_equilibrium_n2": float(np.count_nonzero(balanced)),
             "n_alpha_outside": float(np.count_nonzero((alpha_deg < ALPHA_MIN_DEG) | (alpha_deg > ALPHA_MAX_DEG))),
         }
         return new, CellResponse(moment, area, diagnostics)
