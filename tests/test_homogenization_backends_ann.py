@@ -1,23 +1,28 @@
 """ANN backend: the cell-model protocol, one network call per increment, the handling of
-non-physical outputs and model-file errors.
+non-physical outputs, mechanisms and model-file errors, and the shipped default model
+against the analytical cell.
 
-The tests use a network trained for a few epochs on a tiny database generated inside the
-test (analytical backend).
+Protocol tests use a network trained for a few epochs on a tiny database generated inside
+the test (analytical backend); the physics tests use the shipped default model.
 """
 
 import numpy as np
 import pytest
 import torch
 
+from homogenization import driver, loading
 from homogenization.backends import make_cell_model
-from homogenization.backends.ann import AnnCell
+from homogenization.backends.ann import AnnCell, default_model_path
 from homogenization.backends.analytical import AnalyticalCell
 from training.checkpoint import CheckpointError
-from training.train import main as train_main
+from training.dataset import load_database
+from training.train import evaluate, main as train_main
 from warp_hcell import generate
 from warp_hcell.parameters import ContactLaw
 
 LAW, RADIUS = ContactLaw(), 0.5
+R2_ANALYTICAL_INCREMENT = 0.99
+"""R^2 of the shipped model's increments on the analytical test database (measured 0.9990-0.9999)."""
 
 
 @pytest.fixture(scope="module")
@@ -171,3 +176,37 @@ def test_model_errors_are_one_line(model_path, tmp_path):
         AnnCell(ContactLaw(kn=1e8), RADIUS, model=model_path)
     with pytest.raises(CheckpointError, match="model trained with radius = 0.5, this run uses radius = 1"):
         make_cell_model("ann", radius=1.0, model=model_path)
+
+
+# -- the shipped default model ------------------------------------------------------------
+@pytest.fixture(scope="module")
+def default_cell():
+    return AnnCell(LAW, RADIUS)
+
+
+def test_the_default_model_is_shipped_and_predicts_the_analytical_cell(default_cell, model_path):
+    assert default_model_path().is_file() and default_model_path().with_suffix(".json").is_file()
+    meta = default_cell.metadata
+    assert meta["training_data"]["n_selected"] > 200_000 and meta["architecture"]["hidden"] == [64, 64, 64]
+    # the DEM reproduces the analytical cell to 3-4 digits: so must the network trained on it
+    db = load_database(model_path.with_name("tiny.h5"))
+    r2 = evaluate(default_cell.net, db, np.arange(db.n_samples))
+    assert min(r2["increment"].values()) > R2_ANALYTICAL_INCREMENT, r2
+    assert min(r2["value"].values()) > 0.9999, r2
+
+
+@pytest.mark.parametrize("p0, tolerance", [
+    (5.85e6, 0.02),  # acceptance: within 2 % of p0 (measured 0.1 % on p, 0.25 % on q)
+    (2e5, 0.06),  # static liquefaction: measured 1.2 % on p, 3.9 % on q
+])
+def test_default_model_follows_the_analytical_constant_volume_test(default_cell, p0, tolerance):
+    """alpha0 = 55 deg, eps1 to 20 % in 1e-5 increments, 36 orientations (CI size)."""
+    programme = loading.biaxial(p0, 0.2, 1e-5)
+    kwargs = dict(alpha0_deg=55.0, n_orientations=36, progress=False)
+    reference = driver.run(make_cell_model("analytical"), programme, **kwargs)
+    ann = driver.run(default_cell, programme, **kwargs)
+    ref, net = reference.stage == "shear", ann.stage == "shear"
+    assert ref.sum() == net.sum() == 20000
+    assert np.max(np.abs(ann.p[net] - reference.p[ref])) < tolerance * p0
+    assert np.max(np.abs(ann.q[net] - reference.q[ref])) < tolerance * p0
+    assert abs(ann.q[net].max() / reference.q[ref].max() - 1.0) < 0.02

@@ -31,6 +31,7 @@ def test_round_trip_restores_the_same_network_and_metadata(saved):
     assert meta["normalisation"]["feature_mean"] == list(np.arange(13.0))
     assert meta["scales"] == {"kn": 2e8, "diameter": 1.0, "mu": 0.5}
     assert sorted(p.name for p in path.parent.iterdir()) == ["model.json", "model.pt"]  # no temporary left
+    assert all(p.stat().st_mode & 0o777 == 0o644 for p in path.parent.iterdir())
 
 
 def test_the_state_dict_file_holds_tensors_only(saved):

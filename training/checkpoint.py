@@ -46,6 +46,7 @@ def _replace_atomically(path: Path, write) -> None:
     os.close(fd)
     try:
         write(Path(tmp))
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600 files; a model is meant to be shared
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

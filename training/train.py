@@ -256,7 +256,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _format_r2(metrics: dict[str, dict[str, float]]) -> str:
-    return "  ".join(f"{k}={v:.6f}" for group in ("increment", "value") for k, v in metrics[group].items())
+    digits = {"increment": 6, "value": 10}
+    return "  ".join(f"{k}={v:.{digits[group]}f}" for group in digits for k, v in metrics[group].items())
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -38,7 +38,6 @@ growing). Local frame: index 0 = n, 1 = t.
 from __future__ import annotations
 
 import math
-from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping, NamedTuple
 
@@ -55,8 +54,12 @@ DEFAULT_MODEL = "ann_default.pt"
 
 
 def default_model_path() -> Path:
-    """Path of the shipped default model state_dict (its metadata sits next to it)."""
-    return Path(str(resources.files("homogenization") / "data" / DEFAULT_MODEL))
+    """Path of the shipped default model state_dict (its metadata sits next to it).
+
+    Found next to the package's modules (package data ``homogenization/data``), which works
+    for regular and editable installs alike.
+    """
+    return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODEL
 
 
 class AnnState(NamedTuple):
