@@ -16,7 +16,7 @@ LAW = {"kn": 2e8, "kt_over_kn": 0.5, "phi_g_deg": 30.0}
 def saved(tmp_path):
     torch.manual_seed(0)
     net = CellNet((8, 6), kn=2e8, diameter=1.0, mu=0.5)
-    net.set_normalisation(np.arange(13.0), np.full(13, 2.0), np.ones(4), np.full(4, 3.0))
+    net.set_normalisation(np.arange(12.0), np.full(12, 2.0), np.ones(4), np.full(4, 3.0))
     path = tmp_path / "model.pt"
     save_checkpoint(path, net, {"contact_law": LAW, "radius": 0.5, "metrics_r2": {"val": {"x": 0.5}}})
     return path, net
@@ -28,7 +28,7 @@ def test_round_trip_restores_the_same_network_and_metadata(saved):
     x = torch.from_numpy(np.random.default_rng(0).normal(size=(5, 8)))
     assert torch.equal(loaded.predict(x), net.predict(x))
     assert meta["architecture"]["hidden"] == [8, 6] and meta["metrics_r2"] == {"val": {"x": 0.5}}
-    assert meta["normalisation"]["feature_mean"] == list(np.arange(13.0))
+    assert meta["normalisation"]["feature_mean"] == list(np.arange(12.0))
     assert meta["scales"] == {"kn": 2e8, "diameter": 1.0, "mu": 0.5}
     assert sorted(p.name for p in path.parent.iterdir()) == ["model.json", "model.pt"]  # no temporary left
     assert all(p.stat().st_mode & 0o777 == 0o644 for p in path.parent.iterdir())

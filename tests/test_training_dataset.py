@@ -122,9 +122,9 @@ def test_normalisation_uses_training_statistics_and_spec_units(db_file):
     split = split_by_path(db, val_fraction=0.2, test_path_fraction=0.1, n_test_alpha0=1, seed=0)
     norm = fit_normalisation(db, split.train)
     x, y = tensors(db, split.train, norm)
-    assert torch.allclose(x.mean(0), torch.zeros(13, dtype=torch.float64), atol=1e-12)
+    assert torch.allclose(x.mean(0), torch.zeros(12, dtype=torch.float64), atol=1e-12)
     # every random force is > 0: the contact flags are constant, z-scored with std 1 to 0
-    constant = torch.tensor([False] * 8 + [True, True, False, False, False])
+    constant = torch.tensor([False] * 8 + [True, True, False, False])
     expected_std = torch.where(constant, 0.0, 1.0).to(torch.float64)
     assert torch.allclose(x.std(0, unbiased=False), expected_std, atol=1e-12)
     assert np.array_equal(norm.feature_std[8:10], [1.0, 1.0])

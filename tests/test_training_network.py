@@ -14,7 +14,7 @@ KN, D, MU = 2e8, 1.0, 0.5
 def _net(seed: int = 0, hidden=DEFAULT_HIDDEN) -> CellNet:
     torch.manual_seed(seed)
     net = CellNet(hidden, kn=KN, diameter=D, mu=MU)
-    net.set_normalisation(np.zeros(13), np.full(13, 0.5), np.full(4, 0.1), np.full(4, 2.0))
+    net.set_normalisation(np.zeros(12), np.full(12, 0.5), np.full(4, 0.1), np.full(4, 2.0))
     return net.eval()
 
 
@@ -37,24 +37,23 @@ def test_zero_probe_leaves_the_state_exactly_unchanged():
     assert torch.equal(_net().predict(x), x[:, 2:6])
 
 
-def test_increment_is_the_probe_magnitude_times_a_rate():
+def test_increment_is_homogeneous_of_degree_one_in_the_probe():
     net, x = _net(), _inputs(7)
-    with torch.no_grad():
-        net.mlp[-1].weight.zero_()  # constant rate: the increment must scale exactly with |d_eps|
     scaled = x.clone()
     scaled[:, :2] *= 10.0
     assert torch.allclose(net.increment(scaled), 10.0 * net.increment(x), rtol=1e-12, atol=0.0)
-    trained_like = _net()
-    assert not torch.allclose(trained_like.increment(scaled), 10.0 * trained_like.increment(x), rtol=1e-6)
+    opposite = x.clone()
+    opposite[:, :2] *= -1.0  # another direction: not simply the negative (incremental nonlinearity)
+    assert not torch.allclose(net.increment(opposite), -net.increment(x), rtol=1e-3)
 
 
-def test_derived_features_flag_contacts_friction_ratio_sliding_and_log_magnitude():
+def test_derived_features_flag_contacts_friction_ratio_and_sliding():
     x = torch.tensor([[3e-5, 4e-5, 60.0, 0.02 * KN, 0.0, -0.01 * KN, 1.9, 1.7],
                       [0.0, 0.0, 60.0, 0.0, 0.01 * KN, 0.0, 1.9, 1.7],
                       [1e-5, 0.0, 60.0, 0.02 * KN, 0.01 * KN, 0.4 * 0.02 * KN, 1.9, 1.7]], dtype=torch.float64)
-    raw, _ = features(x, KN, D, 0.5)
-    assert raw.shape == (3, 13)
-    expected = [[1.0, 0.0, -0.5, -1.0, math.log10(5e-5)], [0.0, 1.0, 0.0, 0.0, -12.0], [1.0, 1.0, 0.4, 0.0, -5.0]]
+    raw, magnitude = features(x, KN, D, 0.5)
+    assert raw.shape == (3, 12) and torch.allclose(magnitude[:, 0], torch.tensor([5e-5, 0.0, 1e-5], dtype=torch.float64))
+    expected = [[1.0, 0.0, -0.5, -1.0], [0.0, 1.0, 0.0, 0.0], [1.0, 1.0, 0.4, 0.0]]
     assert torch.allclose(raw[:, 8:], torch.tensor(expected, dtype=torch.float64))
 
 
@@ -95,5 +94,5 @@ def test_bad_hidden_widths_are_refused(hidden):
 def test_hidden_layers_are_configurable():
     net = _net(hidden=(16, 4))
     linear = [m for m in net.mlp if isinstance(m, torch.nn.Linear)]
-    assert [(m.in_features, m.out_features) for m in linear] == [(13, 16), (16, 4), (4, 4)]
+    assert [(m.in_features, m.out_features) for m in linear] == [(12, 16), (16, 4), (4, 4)]
     assert sum(isinstance(m, torch.nn.Tanh) for m in net.mlp) == 2
