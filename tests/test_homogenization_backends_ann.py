@@ -195,11 +195,11 @@ def test_the_default_model_is_shipped_and_predicts_the_analytical_cell(default_c
     assert min(r2["value"].values()) > 0.9999, r2
 
 
-@pytest.mark.parametrize("p0, tolerance", [
-    (5.85e6, 0.02),  # acceptance: within 2 % of p0 (measured 0.1 % on p, 0.25 % on q)
-    (2e5, 0.06),  # static liquefaction: measured 1.2 % on p, 3.9 % on q
+@pytest.mark.parametrize("p0, tolerance, peak_tolerance", [
+    (5.85e6, 0.02, 0.02),  # acceptance: 2 % of p0 (measured 0.4 % on p and q, q peak -0.1 %)
+    (2e5, 0.06, 0.04),  # static liquefaction: measured 1.4 % on p, 4.0 % on q, q peak +1.9 %
 ])
-def test_default_model_follows_the_analytical_constant_volume_test(default_cell, p0, tolerance):
+def test_default_model_follows_the_analytical_constant_volume_test(default_cell, p0, tolerance, peak_tolerance):
     """alpha0 = 55 deg, eps1 to 20 % in 1e-5 increments, 36 orientations (CI size)."""
     programme = loading.biaxial(p0, 0.2, 1e-5)
     kwargs = dict(alpha0_deg=55.0, n_orientations=36, progress=False)
@@ -209,4 +209,4 @@ def test_default_model_follows_the_analytical_constant_volume_test(default_cell,
     assert ref.sum() == net.sum() == 20000
     assert np.max(np.abs(ann.p[net] - reference.p[ref])) < tolerance * p0
     assert np.max(np.abs(ann.q[net] - reference.q[ref])) < tolerance * p0
-    assert abs(ann.q[net].max() / reference.q[ref].max() - 1.0) < 0.02
+    assert abs(ann.q[net].max() / reference.q[ref].max() - 1.0) < peak_tolerance
