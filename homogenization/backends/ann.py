@@ -173,34 +173,49 @@ class AnnCell:
         T1 = np.clip(out[:, 3], -cap, cap)
         l1 = state.l1 * (1.0 - d_eps[:, 0])
         l2 = state.l2 * (1.0 - d_eps[:, 1])
-        # mechanisms: kinematics with y2 kept while both contacts stay open
-        was_free = np.isfinite(state.y2_free)
-        d1_k, d2_k, alpha_k = hcell.branches_from_y2(l1, l2, np.where(was_free, state.y2_free, 0.5 * l1))
-        stays_free = was_free & (d1_k >= self.diameter) & (d2_k >= self.diameter)
-        # cells that lose grain-2 equilibrium with a closed contact become mechanisms
-        unbalanced = ~was_free & ((N1 == 0.0) | ((N2 == 0.0) & (alpha < self.alpha_lock)))
-        _, d2 = hcell.branches_from_alpha(l1, l2, alpha)
-        y2_new = np.where(unbalanced, mechanism_y2(l1, l2, d2, self.diameter), np.nan)
-        enters = np.isfinite(y2_new)
-        # ... unless l1, l2 keep a contact closed: then grain-2 equilibrium gives N2 (spec section 5)
-        balanced = unbalanced & ~enters
-        N2 = np.where(balanced, np.maximum(N1 * np.cos(alpha) + T1 * np.sin(alpha), 0.0), N2)
-        y2_free = np.where(stays_free, state.y2_free, y2_new)
-        free = stays_free | enters
-        _, _, alpha_e = hcell.branches_from_y2(l1, l2, np.where(enters, y2_new, 0.5 * l1))
-        alpha = np.where(stays_free, alpha_k, np.where(enters, alpha_e, alpha))
-        N1, N2, T1 = (np.where(free, 0.0, f) for f in (N1, N2, T1))
+        alpha, N1, N2, T1, y2_free, balanced = self._mechanisms(state.y2_free, alpha, N1, N2, T1, l1, l2)
         new = AnnState(alpha, N1, N2, T1, l1, l2, y2_free)
         moment, area = hcell.love_weber_moment(alpha, N1, N2, T1, l1, l2, kn=self.kn, diameter=self.diameter)
         alpha_deg = np.degrees(alpha)
         diagnostics = {
             "n_tension_clipped": float(np.count_nonzero((out[:, 1] < 0.0) | (out[:, 2] < 0.0))),
             "n_coulomb_capped": float(np.count_nonzero(np.abs(out[:, 3]) > cap)),
-            "n_mechanism": float(np.count_nonzero(free)),
+            "n_mechanism": float(np.count_nonzero(np.isfinite(y2_free))),
             "n_equilibrium_n2": float(np.count_nonzero(balanced)),
             "n_alpha_outside": float(np.count_nonzero((alpha_deg < ALPHA_MIN_DEG) | (alpha_deg > ALPHA_MAX_DEG))),
         }
         return new, CellResponse(moment, area, diagnostics)
+
+    def _mechanisms(self, y2_old, alpha, N1, N2, T1, l1, l2):
+        """Apply the mechanism rules of the module docstring to a clamped prediction.
+
+        Args:
+            y2_old: ``y2_free`` at the start of the increment [m], shape (n_cells,).
+            alpha [rad], N1, N2, T1 [N]: prediction after the contact-law mapping.
+            l1, l2: lengths at the end of the increment [m].
+
+        Returns:
+            (alpha, N1, N2, T1, y2_free, balanced): the end state and the mask of cells
+            whose N2 was set by grain-2 equilibrium; all shape (n_cells,).
+        """
+        D = self.diameter
+        was_free = np.isfinite(y2_old)
+        # a mechanism keeps y2 while the kinematics leaves both contacts open
+        d1_k, d2_k, alpha_k = hcell.branches_from_y2(l1, l2, np.where(was_free, y2_old, 0.5 * l1))
+        stays_free = was_free & (d1_k >= D) & (d2_k >= D)
+        # a cell that loses grain-2 equilibrium with a closed contact becomes a mechanism ...
+        unbalanced = ~was_free & ((N1 == 0.0) | ((N2 == 0.0) & (alpha < self.alpha_lock)))
+        _, d2 = hcell.branches_from_alpha(l1, l2, alpha)
+        y2_new = np.where(unbalanced, mechanism_y2(l1, l2, d2, D), np.nan)
+        enters = np.isfinite(y2_new)
+        # ... unless l1, l2 keep a contact closed: then grain-2 equilibrium gives N2 (spec section 5)
+        balanced = unbalanced & ~enters
+        N2 = np.where(balanced, np.maximum(N1 * np.cos(alpha) + T1 * np.sin(alpha), 0.0), N2)
+        _, _, alpha_e = hcell.branches_from_y2(l1, l2, np.where(enters, y2_new, 0.5 * l1))
+        alpha = np.where(stays_free, alpha_k, np.where(enters, alpha_e, alpha))
+        free = stays_free | enters
+        N1, N2, T1 = (np.where(free, 0.0, f) for f in (N1, N2, T1))
+        return alpha, N1, N2, T1, np.where(stays_free, y2_old, y2_new), balanced
 
     def response(self, state: AnnState) -> CellResponse:
         """Meso-stress of ``state`` without advancing it."""
