@@ -246,7 +246,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=_positive(int), default=d.batch_size, help="samples per Adam step")
     p.add_argument("--lr", type=_positive(float), default=d.lr, help="initial Adam learning rate")
     p.add_argument("--patience", type=_positive(int), default=d.patience, help="early-stopping patience [epochs]")
-    p.add_argument("--hidden", type=_hidden, default=d.hidden, help="hidden layer widths, comma separated")
+    p.add_argument("--hidden", type=_hidden, default=",".join(map(str, d.hidden)), help="hidden layer widths, comma separated")
     p.add_argument("--n-test-alpha0", type=int, default=d.n_test_alpha0, help="alpha0 values held out for the test set")
     p.add_argument("--seed", type=int, default=d.seed, help="seed of the split, weights and batch order")
     p.add_argument("--threads", type=_positive(int), default=d.threads, help="torch CPU threads")
