@@ -116,7 +116,10 @@ def _mse(net: CellNet, x: torch.Tensor, y: torch.Tensor, chunk: int = 65536) -> 
 
 
 def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = False) -> FitResult:
-    """Train a ``CellNet`` on ``db`` (see module docstring); deterministic for a given seed."""
+    """Train a ``CellNet`` on ``db`` (see module docstring); deterministic for a given seed.
+
+    Sets torch's process-wide thread count (``config.threads``) and deterministic mode.
+    """
     torch.set_num_threads(config.threads)
     torch.use_deterministic_algorithms(True)
     torch.manual_seed(config.seed)
