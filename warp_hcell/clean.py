@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -116,13 +115,7 @@ def clean_file(path: Path, out: Path) -> dict[str, Any]:
     samples, states, attrs = database.read_database(path)
     samples["valid"], cleaning_attrs = clean_samples(samples)
     attrs.update(cleaning_attrs)
-    out = Path(out)
-    tmp = out.with_name(f".{out.name}.tmp")
-    try:
-        database.write_database(tmp, samples, states, attrs)
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
+    database.write_database(Path(out), samples, states, attrs)
     return cleaning_attrs
 
 

@@ -9,7 +9,8 @@ pipeline. It exports:
   ``SIGN_CONVENTION``);
 - ``state_table``: a backend's ``observables`` dict -> the (n, 13) state columns;
 - ``sample_arrays``: probes, pre/post states -> the per-sample datasets;
-- ``write_database`` / ``read_database``: the whole file, written atomically by the caller.
+- ``write_database`` / ``read_database``: the whole file, written atomically (temporary
+  file renamed into place, so a failure never leaves a truncated database).
 
 Sign convention: compression and contraction positive (probe strains, N1, N2, S);
 T1 > 0 resists opening. Local frame: index 0 = n, 1 = t. Lengths in m, forces in N (2D,
@@ -19,6 +20,7 @@ per unit thickness), angles in degrees (``_deg``).
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -120,16 +122,33 @@ def write_database(
     states: Mapping[str, np.ndarray],
     attrs: Mapping[str, Any],
 ) -> None:
-    """Write a complete database file (the caller makes it atomic, e.g. ``atomic_write``).
+    """Write a complete database file atomically.
 
+    The file is written under a temporary name in the same folder and renamed onto
+    ``path`` only once complete, so an existing database is replaced whole or not at all.
     No timestamps are stored, so the same arrays and attrs give a byte-identical file.
 
     Args:
-        path: file to create (truncated if it exists).
+        path: file to create or replace.
         samples: every dataset of ``SAMPLE_DATASETS`` (first axis n_samples).
         states: datasets of the ``states`` group (first axis n_states).
         attrs: root attributes; mappings are stored as JSON strings.
     """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        _write_file(tmp, samples, states, attrs)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _write_file(
+    path: Path,
+    samples: Mapping[str, np.ndarray],
+    states: Mapping[str, np.ndarray],
+    attrs: Mapping[str, Any],
+) -> None:
     feature_names = {"inputs": INPUT_FEATURES, "outputs": OUTPUT_FEATURES}
     feature_names.update({"pre_state": STATE_FEATURES, "post_state": STATE_FEATURES})
     with h5py.File(path, "w", track_order=True) as f:

@@ -476,12 +476,7 @@ def _assemble(out: Path, sidecar: Path, settings: DatabaseSettings, seed: int, r
     }
     samples["valid"], cleaning_attrs = cleaning.clean_samples(samples) if clean else cleaning.not_cleaned(samples)
     attrs.update(cleaning_attrs)
-    tmp = out.with_name(f".{out.name}.tmp")
-    try:
-        database.write_database(tmp, samples, states, attrs)
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
+    database.write_database(out, samples, states, attrs)
 
 
 def generate(
