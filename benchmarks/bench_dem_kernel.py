@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from homogenization.cli import positive_float, positive_int
+
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
@@ -34,26 +36,6 @@ def _sizes(text: str) -> list[int]:
     if not sizes or min(sizes) < 1:
         raise argparse.ArgumentTypeError(f"--sizes {text!r}: sizes must be >= 1")
     return sizes
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
-    return value
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
-    return value
 
 
 def prepared_batch(n_cells: int, increment: float, device: str):
@@ -90,9 +72,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[2],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--sizes", type=_sizes, default=_sizes("1e3,1e4,1e5,3e5"), help="numbers of cells")
-    parser.add_argument("--increment", type=_positive, default=1e-5, help="strain increment magnitude [-]")
-    parser.add_argument("--repeat", type=_count, default=3, help="timed repetitions (best kept)")
-    parser.add_argument("--numpy-max-cells", type=_count, default=100_000, help="largest batch run with numpy")
+    parser.add_argument("--increment", type=positive_float, default=1e-5, help="strain increment magnitude [-]")
+    parser.add_argument("--repeat", type=positive_int, default=3, help="timed repetitions (best kept)")
+    parser.add_argument("--numpy-max-cells", type=positive_int, default=100_000, help="largest batch run with numpy")
     parser.add_argument("--device", default="cpu", help="Warp device")
     parser.add_argument("--out", type=Path, default=None, help="optional JSON file for the results")
     args = parser.parse_args()
