@@ -105,3 +105,26 @@ class CellModel(Protocol[S]):
     def state_from_arrays(self, arrays: Mapping[str, Any]) -> S:
         """Inverse of ``state_to_arrays``."""
         ...
+
+
+class ArrayStateMixin:
+    """``take`` and the array round trip for backends whose state is a NamedTuple of arrays.
+
+    The backend sets ``state_type`` to its NamedTuple class; every field is a float64 array
+    of shape (n_cells,).
+    """
+
+    state_type: type
+
+    def take(self, state, index: np.ndarray):
+        """New state made of cells ``state[index]`` (int array, repetition allowed)."""
+        index = np.asarray(index, dtype=np.intp)
+        return self.state_type(*(value[index] for value in state))
+
+    def state_to_arrays(self, state) -> dict[str, np.ndarray]:
+        """Copies of the state fields, keyed by field name."""
+        return {name: np.array(value, dtype=np.float64) for name, value in zip(state._fields, state)}
+
+    def state_from_arrays(self, arrays: Mapping[str, Any]):
+        """Inverse of ``state_to_arrays``; KeyError names a missing field."""
+        return self.state_type(*(np.array(arrays[name], dtype=np.float64) for name in self.state_type._fields))

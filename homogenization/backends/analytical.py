@@ -24,12 +24,12 @@ growing). Local frame: index 0 = n, 1 = t.
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from homogenization.backends import hcell
-from homogenization.cell_model import CellResponse
+from homogenization.cell_model import ArrayStateMixin, CellResponse
 from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, ContactLaw, check_alpha0_deg, check_positive
 
 
@@ -58,7 +58,7 @@ class AnalyticalState(NamedTuple):
     """Tangential force of the type-1 contacts [N], > 0 resists opening."""
 
 
-class AnalyticalCell:
+class AnalyticalCell(ArrayStateMixin):
     """Closed-form H-cell (spec sections 2-7), vectorised over cells.
 
     Args:
@@ -77,6 +77,7 @@ class AnalyticalCell:
     """
 
     name = "analytical"
+    state_type = AnalyticalState
 
     def __init__(
         self,
@@ -230,36 +231,6 @@ class AnalyticalCell:
         ``x_n{i}, x_t{i}`` [m] for labels i = 1..6 (cell centre at the origin).
         """
         response = self.response(state)
-        positions = hcell.grain_positions(state.l1, state.l2, state.y2)
-        out = {
-            "l1": state.l1,
-            "l2": state.l2,
-            "d1": state.d1,
-            "d2": 2.0 * state.y2,
-            "alpha_deg": np.degrees(state.alpha),
-            "N1": state.N1,
-            "N2": state.N2,
-            "T1": state.T1,
-            "S_nn": response.moment[:, 0, 0],
-            "S_tt": response.moment[:, 1, 1],
-            "area": response.area,
-            "closed1": state.N1 > 0.0,
-            "closed2": state.N2 > 0.0,
-        }
-        for i in range(hcell.N_GRAINS):
-            out[f"x_n{i + 1}"] = positions[:, i, 0]
-            out[f"x_t{i + 1}"] = positions[:, i, 1]
-        return out
+        return hcell.observables(state.l1, state.l2, state.d1, 2.0 * state.y2, state.alpha, state.N1, state.N2,
+                                 state.T1, response.moment, response.area)
 
-    def take(self, state: AnalyticalState, index: np.ndarray) -> AnalyticalState:
-        """New state made of cells ``state[index]`` (int array, repetition allowed)."""
-        index = np.asarray(index, dtype=np.intp)
-        return AnalyticalState(*(field[index] for field in state))
-
-    def state_to_arrays(self, state: AnalyticalState) -> dict[str, np.ndarray]:
-        """Copies of the state fields, keyed by field name (``AnalyticalState._fields``)."""
-        return {name: np.array(value, dtype=np.float64) for name, value in zip(state._fields, state)}
-
-    def state_from_arrays(self, arrays: Mapping[str, Any]) -> AnalyticalState:
-        """Inverse of ``state_to_arrays``; KeyError names a missing field."""
-        return AnalyticalState(*(np.array(arrays[name], dtype=np.float64) for name in AnalyticalState._fields))

@@ -39,13 +39,13 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Mapping, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
 from homogenization.backends import hcell
-from homogenization.cell_model import CellResponse
+from homogenization.cell_model import ArrayStateMixin, CellResponse
 from training.checkpoint import CheckpointError, check_compatible, load_checkpoint
 from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, ContactLaw, check_alpha0_deg, check_positive
 
@@ -98,7 +98,7 @@ def mechanism_y2(l1: np.ndarray, l2: np.ndarray, d2: np.ndarray, diameter: float
     return np.where(y2_min <= y2_max, np.clip(0.5 * d2, y2_min, y2_max), np.nan)
 
 
-class AnnCell:
+class AnnCell(ArrayStateMixin):
     """H-cell whose increment is predicted by a trained ``training.network.CellNet``.
 
     Args:
@@ -114,6 +114,7 @@ class AnnCell:
     """
 
     name = "ann"
+    state_type = AnnState
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None, device: str = "cpu") -> None:
         self.contact_law = contact_law
@@ -233,36 +234,6 @@ class AnnCell:
         """
         response = self.response(state)
         d1, d2 = hcell.branches_from_alpha(state.l1, state.l2, state.alpha)
-        positions = hcell.grain_positions(state.l1, state.l2, 0.5 * d2)
-        out = {
-            "l1": state.l1,
-            "l2": state.l2,
-            "d1": d1,
-            "d2": d2,
-            "alpha_deg": np.degrees(state.alpha),
-            "N1": state.N1,
-            "N2": state.N2,
-            "T1": state.T1,
-            "S_nn": response.moment[:, 0, 0],
-            "S_tt": response.moment[:, 1, 1],
-            "area": response.area,
-            "closed1": state.N1 > 0.0,
-            "closed2": state.N2 > 0.0,
-        }
-        for i in range(hcell.N_GRAINS):
-            out[f"x_n{i + 1}"] = positions[:, i, 0]
-            out[f"x_t{i + 1}"] = positions[:, i, 1]
-        return out
+        return hcell.observables(state.l1, state.l2, d1, d2, state.alpha, state.N1, state.N2, state.T1,
+                                 response.moment, response.area)
 
-    def take(self, state: AnnState, index: np.ndarray) -> AnnState:
-        """New state made of cells ``state[index]`` (int array, repetition allowed)."""
-        index = np.asarray(index, dtype=np.intp)
-        return AnnState(*(field[index] for field in state))
-
-    def state_to_arrays(self, state: AnnState) -> dict[str, np.ndarray]:
-        """Copies of the state fields, keyed by field name (``AnnState._fields``)."""
-        return {name: np.array(value, dtype=np.float64) for name, value in zip(state._fields, state)}
-
-    def state_from_arrays(self, arrays: Mapping[str, Any]) -> AnnState:
-        """Inverse of ``state_to_arrays``; KeyError names a missing field."""
-        return AnnState(*(np.array(arrays[name], dtype=np.float64) for name in AnnState._fields))
