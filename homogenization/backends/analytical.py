@@ -30,7 +30,7 @@ import numpy as np
 
 from homogenization.backends import hcell
 from homogenization.cell_model import ArrayStateMixin, CellResponse
-from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, ContactLaw, check_alpha0_deg, check_positive
+from warp_hcell.parameters import ContactLaw, check_positive
 
 
 class AnalyticalState(NamedTuple):
@@ -110,13 +110,8 @@ class AnalyticalCell(ArrayStateMixin):
                 [30, 90); ValueError otherwise.
             n_cells: number of cells.
         """
-        alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (int(n_cells),))
-        bad = ~((alpha0 >= ALPHA_MIN_DEG) & (alpha0 < ALPHA_MAX_DEG))
-        if bad.any():
-            check_alpha0_deg(alpha0[bad][0])
-        alpha = np.radians(alpha0)
+        alpha, l1, l2 = hcell.touching_cells(alpha0_deg, n_cells, self.diameter)
         D = np.full(alpha.shape, self.diameter)
-        l1, l2 = hcell.lengths(D, D, alpha)
         zero = np.zeros_like(alpha)
         return AnalyticalState(l1, l2, 0.5 * D, D, alpha, zero, zero.copy(), zero.copy())
 

@@ -47,7 +47,7 @@ import torch
 from homogenization.backends import hcell
 from homogenization.cell_model import ArrayStateMixin, CellResponse
 from training.checkpoint import CheckpointError, check_compatible, load_checkpoint
-from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, ContactLaw, check_alpha0_deg, check_positive
+from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, ContactLaw, check_positive
 
 DEFAULT_MODEL = "ann_default.pt"
 """File name of the model shipped in ``homogenization/data`` (with its ``.json``)."""
@@ -142,13 +142,7 @@ class AnnCell(ArrayStateMixin):
                 [30, 90); ValueError otherwise.
             n_cells: number of cells.
         """
-        alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (int(n_cells),))
-        bad = ~((alpha0 >= ALPHA_MIN_DEG) & (alpha0 < ALPHA_MAX_DEG))
-        if bad.any():
-            check_alpha0_deg(alpha0[bad][0])
-        alpha = np.radians(alpha0)
-        D = np.full(alpha.shape, self.diameter)
-        l1, l2 = hcell.lengths(D, D, alpha)
+        alpha, l1, l2 = hcell.touching_cells(alpha0_deg, n_cells, self.diameter)
         zero = np.zeros_like(alpha)
         return AnnState(alpha, zero, zero.copy(), zero.copy(), l1, l2, np.full_like(alpha, np.nan))
 

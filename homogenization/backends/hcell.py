@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, check_alpha0_deg
+
 N_GRAINS = 6
 """Number of grains of the H-cell [-]."""
 
@@ -217,3 +219,25 @@ def observables(
         out[f"x_n{i + 1}"] = positions[:, i, 0]
         out[f"x_t{i + 1}"] = positions[:, i, 1]
     return out
+
+
+def touching_cells(alpha0_deg: float | np.ndarray, n_cells: int, diameter: float) -> tuple[np.ndarray, ...]:
+    """Geometry of force-free initial cells: d1 = d2 = D at opening angle alpha0.
+
+    Args:
+        alpha0_deg: initial opening angle [deg], scalar or shape (n_cells,), each in
+            [30, 90); ValueError (one line) otherwise.
+        n_cells: number of cells.
+        diameter: grain diameter D [m].
+
+    Returns:
+        alpha [rad], l1 [m], l2 [m], each shape (n_cells,).
+    """
+    alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (int(n_cells),))
+    bad = ~((alpha0 >= ALPHA_MIN_DEG) & (alpha0 < ALPHA_MAX_DEG))
+    if bad.any():
+        check_alpha0_deg(alpha0[bad][0])
+    alpha = np.radians(alpha0)
+    D = np.full(alpha.shape, float(diameter))
+    l1, l2 = lengths(D, D, alpha)
+    return alpha, l1, l2
