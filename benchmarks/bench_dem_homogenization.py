@@ -35,9 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
-from homogenization import driver, io, loading, orientation, plotting
+from homogenization import driver, loading, orientation, plotting
 from homogenization.backends import make_cell_model
 from warp_hcell.parameters import DemSettings
+from warp_hcell.provenance import git_revision
 
 ROOT = Path(__file__).resolve().parent.parent
 CASES = {"a55_p5.85e6": (55.0, 5.85e6), "a55_p2e5": (55.0, 2e5), "a40_p5.85e6": (40.0, 5.85e6)}
@@ -125,7 +126,7 @@ def print_row(row: dict) -> None:
 def machine() -> dict:
     load = os.getloadavg()
     return {"date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "cpus": os.cpu_count(),
-            "load_average_1_5_15": [round(v, 2) for v in load], "git_revision": io.git_revision()}
+            "load_average_1_5_15": [round(v, 2) for v in load], "git_revision": git_revision()}
 
 
 def main() -> None:

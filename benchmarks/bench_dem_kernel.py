@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from homogenization.cli import positive_float, positive_int
+from warp_hcell.cli import positive_float, positive_int
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

@@ -25,7 +25,7 @@ from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings
 
 def run(engine: str, settings: DatabaseSettings, threads: int) -> dict:
     """Explore and probe with one DEM engine; returns timings [s] and the samples."""
-    from homogenization.backends.dem import DemCell
+    from warp_hcell.dem_cell import DemCell
 
     cell = functools.partial(DemCell, ContactLaw(), CellDefaults.radius, engine=engine, threads=threads)()
     start = time.perf_counter()

@@ -27,7 +27,7 @@ from typing import Any, Sequence
 
 from homogenization import driver, io, loading, plotting
 from homogenization.backends import BACKENDS, backend_class, make_cell_model
-from homogenization.cli import (
+from warp_hcell.cli import (
     UserError,
     alpha0_deg,
     check_output_path,

@@ -31,7 +31,7 @@ from typing import Sequence
 import numpy as np
 
 from homogenization.backends import BACKENDS, make_cell_model
-from homogenization.cli import (
+from warp_hcell.cli import (
     UserError,
     alpha0_deg,
     atomic_write,
@@ -136,7 +136,7 @@ def run_path(model, alpha0: float, d_eps: np.ndarray, *, positions: bool) -> tup
     """Drive one cell of ``model`` along ``d_eps`` from its initial state.
 
     Args:
-        model: a ``homogenization.cell_model.CellModel``.
+        model: a ``warp_hcell.cell_model.CellModel``.
         alpha0: initial opening angle [deg].
         d_eps: local strain increments (d_eps_n, d_eps_t) [-], shape (n_increments, 2),
             compression positive.

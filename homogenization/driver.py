@@ -23,7 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from homogenization import orientation as orient_mod
-from homogenization.cell_model import CellModel, CellResponse
+from warp_hcell.cell_model import CellModel, CellResponse
 from homogenization.invariants import deviator, mean_stress
 from homogenization.loading import Programme, Step, validate
 from warp_hcell.parameters import CellDefaults, LoadingDefaults

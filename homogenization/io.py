@@ -25,10 +25,7 @@ strains [-] and stresses [N/m], compression positive.
 from __future__ import annotations
 
 import json
-import platform
-import subprocess
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -36,7 +33,8 @@ import h5py
 import numpy as np
 
 from homogenization import loading
-from homogenization.cli import UserError, atomic_write
+from warp_hcell.cli import UserError, atomic_write
+from warp_hcell.provenance import provenance
 from homogenization.driver import Record
 from homogenization.orientation import VOLUME_RULE
 
@@ -71,36 +69,6 @@ class StoredRun:
     """The history, snapshots and final state."""
     attrs: dict[str, Any]
     """Root attributes (provenance, parameters, seed); JSON attributes decoded."""
-
-
-def _version(distribution: str) -> str:
-    try:
-        return metadata.version(distribution)
-    except metadata.PackageNotFoundError:
-        return "not installed"
-
-
-def git_revision() -> str:
-    """Git commit of the source tree this module was loaded from, or "unknown"."""
-    try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
-                             capture_output=True, text=True, timeout=10, check=True)
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return out.stdout.strip() or "unknown"
-
-
-def provenance() -> dict[str, str]:
-    """Code version, git revision and library versions, as stored in every run file."""
-    return {
-        "code_version": _version("meso-hmodel"),
-        "git_revision": git_revision(),
-        "python_version": platform.python_version(),
-        "numpy_version": np.__version__,
-        "h5py_version": h5py.__version__,
-        "warp_version": _version("warp-lang"),
-        "torch_version": _version("torch"),
-    }
 
 
 def _dataset(group: h5py.Group, name: str, data: np.ndarray, units: str, description: str, signed: bool = False) -> None:

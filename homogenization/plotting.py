@@ -18,7 +18,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from homogenization import invariants
-from homogenization.cli import atomic_write
+from warp_hcell.cli import atomic_write
 from homogenization.driver import Record
 
 FOURTH_PANELS = ("q/p", "W2")

@@ -25,7 +25,7 @@ class ElasticCell:
         return np.zeros((n_cells, 2))
 
     def response(self, state: np.ndarray):
-        from homogenization.cell_model import CellResponse
+        from warp_hcell.cell_model import CellResponse
 
         en, et = state[:, 0], state[:, 1]
         moment = np.zeros((state.shape[0], 2, 2))

@@ -7,7 +7,7 @@ import pytest
 
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell, AnalyticalState
-from homogenization.cell_model import CellModel
+from warp_hcell.cell_model import CellModel
 from warp_hcell.parameters import ContactLaw
 
 LAW = ContactLaw()

@@ -9,8 +9,8 @@ import pytest
 
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell
-from homogenization.backends.dem import DemCell
-from homogenization.cell_model import CellModel
+from warp_hcell.dem_cell import DemCell
+from warp_hcell.cell_model import CellModel
 from warp_hcell.integrator import MIN_CELLS_PER_CHUNK
 from warp_hcell.mesostructure import load_mesostructure
 from warp_hcell.parameters import ContactLaw, DemSettings

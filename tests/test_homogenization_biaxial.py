@@ -13,7 +13,7 @@ import pytest
 
 from homogenization import biaxial, io
 from homogenization.backends import BACKENDS
-from homogenization.cli import run_main
+from warp_hcell.cli import run_main
 
 TINY = ["--alpha0", "55", "--p0", "5.85e6", "--eps-max", "0.05", "--increment", "5e-4", "--iso-increment", "1e-4",
         "--orientations", "24"]

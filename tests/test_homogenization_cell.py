@@ -9,7 +9,7 @@ import pytest
 
 from homogenization import cell
 from homogenization.backends import BACKENDS
-from homogenization.cli import run_main
+from warp_hcell.cli import run_main
 from warp_hcell.parameters import ContactLaw
 
 MU = ContactLaw().mu

@@ -11,7 +11,7 @@ import pytest
 
 from homogenization import driver, io, loading
 from homogenization.backends import make_cell_model
-from homogenization.cli import UserError
+from warp_hcell.cli import UserError
 
 
 @pytest.fixture(scope="module")

@@ -240,7 +240,7 @@ def test_analytical_cell_reproduces_yade(name):
 def test_dem_cell_reproduces_yade(name, device):
     """The Warp DEM backend, one increment per row, matches YADE (forces and positions)."""
     pytest.importorskip("warp")
-    pytest.importorskip("homogenization.backends.dem")
+    pytest.importorskip("warp_hcell.dem_cell")
     check_backend_against_yade(run_backend("dem", device), name)
 
 

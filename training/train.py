@@ -24,7 +24,6 @@ import dataclasses
 import math
 import os
 import platform
-import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
@@ -49,6 +48,7 @@ from training.dataset import (
 )
 from training.network import DEFAULT_HIDDEN, CellNet
 from warp_hcell.database import OUTPUT_FEATURES
+from warp_hcell.provenance import git_revision
 
 
 @dataclass(frozen=True)
@@ -193,15 +193,6 @@ def evaluate(net: CellNet, db: Database, index: np.ndarray) -> dict[str, dict[st
     }
 
 
-def _git_revision() -> str | None:
-    try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
-                             cwd=Path(__file__).resolve().parent)
-    except OSError:
-        return None
-    return out.stdout.strip() or None
-
-
 def _plot_learning_curve(path: Path, history: dict) -> None:
     import matplotlib.pyplot as plt
 
@@ -292,7 +283,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "epochs_run": len(result.history["epoch"]),
                     "best_val_loss": min(result.history["val_loss"])},
         "versions": {"python": platform.python_version(), "torch": torch.__version__, "numpy": np.__version__,
-                     "git_revision": _git_revision()},
+                     "git_revision": git_revision()},
         "command": "python -m training.train " + " ".join(sys.argv[1:] if argv is None else argv),
     }
     save_checkpoint(out, result.net, metadata)

@@ -47,9 +47,9 @@ Import direction: the generator core (``explore``, ``compute_chunk``, ``generate
 duck-typed: it takes any object implementing the cell-model protocol (``init_state``,
 ``step``, ``observables``, ``take``, ``state_to_arrays``, ``state_from_arrays``), or a
 picklable factory of one, and imports nothing from ``homogenization``. Only ``main`` (the
-command line, the composition root) imports ``homogenization.backends`` and
-``homogenization.cli`` to build the chosen backend, lazily inside the function, so
-importing any ``warp_hcell`` module never imports ``homogenization``.
+command line, the composition root) imports ``homogenization.backends`` to build the
+chosen backend, lazily inside the function, so importing any ``warp_hcell`` module never
+imports ``homogenization``.
 
 Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
 """
@@ -62,12 +62,10 @@ import json
 import math
 import os
 import shutil
-import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
-from importlib import metadata
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -77,7 +75,9 @@ from tqdm import tqdm
 
 from warp_hcell import clean as cleaning
 from warp_hcell import database
+from warp_hcell.cli import UserError, check_output_path, common_parser, positive_float, positive_int, run_main
 from warp_hcell.parameters import DatabaseSettings
+from warp_hcell.provenance import git_revision, package_versions
 
 BACKEND_PREFIX = "backend/"
 """Prefix of the backend's own state arrays among the sampled-state arrays."""
@@ -385,27 +385,6 @@ def _worker_chunk(settings: DatabaseSettings, seed: int, chunk: int, sidecar: st
     return chunk_samples(settings, chunk)
 
 
-def versions() -> dict[str, str]:
-    """Versions of this package and of its numerical dependencies ("not installed" if absent)."""
-    out = {}
-    for name in ("meso-hmodel", "numpy", "h5py", "warp-lang", "torch"):
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
-
-
-def git_revision() -> str:
-    """Commit of the source tree, or "unknown"."""
-    try:
-        result = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
-                                text=True, timeout=10, check=True)
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return result.stdout.strip() or "unknown"
-
-
 def run_description(settings: DatabaseSettings, seed: int, metadata_attrs: Mapping[str, Any]) -> dict[str, Any]:
     """What identifies a run (resuming requires the same): settings, seed, physics, backend."""
     return json.loads(json.dumps({"generator": asdict(settings), "seed": int(seed), "metadata": dict(metadata_attrs)}))
@@ -425,7 +404,7 @@ def _open_sidecar(sidecar: Path, description: Mapping[str, Any], discard_partial
         shutil.rmtree(sidecar)
     if not run_file.exists():
         sidecar.mkdir(parents=True, exist_ok=True)
-        run = {"description": description, "git_revision": git_revision(), "versions": versions()}
+        run = {"description": description, "git_revision": git_revision(), "versions": package_versions()}
         tmp = run_file.with_name("run.json.tmp")
         tmp.write_text(json.dumps(run, indent=1, sort_keys=True))
         os.replace(tmp, run_file)
@@ -543,8 +522,6 @@ def _mesostructure_description(meso) -> dict[str, Any]:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m warp_hcell.generate`` argument parser (defaults from ``DatabaseSettings``)."""
-    from homogenization.cli import common_parser, positive_float, positive_int  # noqa: PLC0415 (composition root)
-
     defaults = DatabaseSettings()
     parser = argparse.ArgumentParser(
         prog="python -m warp_hcell.generate", parents=[common_parser()],
@@ -577,7 +554,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _run(argv: Sequence[str] | None) -> int:
     from homogenization.backends import make_cell_model  # noqa: PLC0415 (composition root)
-    from homogenization.cli import UserError, check_output_path  # noqa: PLC0415
 
     from warp_hcell.mesostructure import load_mesostructure  # noqa: PLC0415
     from warp_hcell.parameters import CellDefaults, ContactLaw, DemSettings  # noqa: PLC0415
@@ -628,8 +604,6 @@ def _run(argv: Sequence[str] | None) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line entry point; bad input is one line on stderr and exit code 2."""
-    from homogenization.cli import run_main  # noqa: PLC0415 (composition root)
-
     return run_main(_run, argv)
 
 

@@ -24,7 +24,7 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
       relaxation until max free-DOF force <= force_tolerance * max(max normal force,
       force_floor), or max_substeps.
 The conversion to compression-positive quantities happens on the host
-(``homogenization.backends.dem.to_compression_positive``).
+(``warp_hcell.dem_cell.to_compression_positive``).
 """
 
 from __future__ import annotations

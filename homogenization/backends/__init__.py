@@ -2,7 +2,7 @@
 
 Backends are imported lazily, so using the analytical backend never imports Warp or torch.
 Every class takes ``(contact_law, radius, **options)`` and implements
-``homogenization.cell_model.CellModel``.
+``warp_hcell.cell_model.CellModel``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from warp_hcell.parameters import CellDefaults, ContactLaw
 
 BACKENDS: dict[str, str] = {
     "analytical": "homogenization.backends.analytical:AnalyticalCell",
-    "dem": "homogenization.backends.dem:DemCell",
+    "dem": "warp_hcell.dem_cell:DemCell",
     "ann": "homogenization.backends.ann:AnnCell",
 }
 """Backend name -> "module:Class" of its implementation."""

@@ -1,6 +1,6 @@
 """Analytical H-cell backend: the one-unknown equilibrium solve of spec section 6.
 
-``AnalyticalCell`` implements ``homogenization.cell_model.CellModel``. Per increment and
+``AnalyticalCell`` implements ``warp_hcell.cell_model.CellModel``. Per increment and
 per cell, l1 and l2 follow the imposed local strain (spec section 3); the only unknown,
 y2 = d2/2, is found such that grain 2 is in equilibrium along n:
 
@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 
 from homogenization.backends import hcell
-from homogenization.cell_model import ArrayStateMixin, CellResponse
+from warp_hcell.cell_model import ArrayStateMixin, CellResponse
 from warp_hcell.parameters import ContactLaw, check_positive
 
 

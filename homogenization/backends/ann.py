@@ -1,6 +1,6 @@
 """Meso-ANN H-cell backend (spec section 11): a trained ``CellNet`` replaces the equilibrium solve.
 
-``AnnCell`` implements ``homogenization.cell_model.CellModel``. Per macro increment, ONE
+``AnnCell`` implements ``warp_hcell.cell_model.CellModel``. Per macro increment, ONE
 batched network call over all cells maps the probe (d_eps_n, d_eps_t) and the state at the
 start of the increment (alpha, N1, N2, T1, l1, l2) to the end values of (alpha, N1, N2,
 T1). What is not learned:
@@ -45,7 +45,7 @@ import numpy as np
 import torch
 
 from homogenization.backends import hcell
-from homogenization.cell_model import ArrayStateMixin, CellResponse
+from warp_hcell.cell_model import ArrayStateMixin, CellResponse
 from training.checkpoint import CheckpointError, check_compatible, load_checkpoint
 from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, ContactLaw, check_positive
 

@@ -1,5 +1,8 @@
 """The cell-model protocol shared by the analytical, DEM and ANN backends.
 
+This module sits at the bottom of the package: ``warp_hcell``, ``training`` and
+``homogenization`` all import it, and it imports none of them.
+
 A cell model advances a batch of independent cells (one per orientation, or one per
 database probe) by per-cell strain increments given in each cell's local frame (n, t), and
 returns the Love-Weber moment S and the cell area V_cell. The homogenisation drives any
@@ -38,11 +41,15 @@ class CellResponse:
             of the driven (outer) grains (the hexagon for the H-cell).
         diagnostics: per-call scalars a backend may report (e.g. DEM ``substeps`` spent
             and ``n_unconverged`` cells); empty for closed-form backends.
+        tangent: consistent cell tangent d(S_nn, S_tt)/d(eps_n, eps_t) [N m] of the
+            increment just taken, shape (n_cells, 2, 2), compression positive; None where
+            the backend was not asked for it.
     """
 
     moment: np.ndarray
     area: np.ndarray
     diagnostics: Mapping[str, float] = field(default_factory=dict)
+    tangent: np.ndarray | None = None
 
 
 @runtime_checkable

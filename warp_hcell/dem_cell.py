@@ -21,7 +21,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from homogenization.cell_model import CellResponse
+from warp_hcell.cell_model import CellResponse
 from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
 from warp_hcell.mesostructure import Mesostructure, h_cell, polygon_area
 from warp_hcell.model import DemModel

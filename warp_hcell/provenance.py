@@ -1,0 +1,62 @@
+"""Provenance stored in every output file: package and library versions, git revision, command.
+
+``package_versions()`` reads the versions of the installed distributions (this package and
+its numerical dependencies), ``git_revision()`` the commit of the source tree when it is a
+git checkout, and ``provenance()`` combines them with the Python version and the command
+line, as flat strings ready for HDF5 or JSON attributes.
+"""
+
+from __future__ import annotations
+
+import platform
+import shlex
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+
+DISTRIBUTIONS = ("meso-hmodel", "numpy", "h5py", "warp-lang", "torch")
+"""Distributions whose versions are recorded."""
+
+
+def package_version(distribution: str) -> str:
+    """Installed version of ``distribution``, or "not installed"."""
+    try:
+        return metadata.version(distribution)
+    except metadata.PackageNotFoundError:
+        return "not installed"
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of this package and of its numerical dependencies, by distribution name."""
+    return {name: package_version(name) for name in DISTRIBUTIONS}
+
+
+def git_revision() -> str:
+    """Commit of the source tree this module was loaded from, or "unknown" outside a checkout."""
+    try:
+        result = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
+                                capture_output=True, text=True, timeout=10, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return result.stdout.strip() or "unknown"
+
+
+def command_line() -> str:
+    """The command that started this process, shell-quoted."""
+    return shlex.join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv and sys.argv[0] else ""
+
+
+def provenance() -> dict[str, str]:
+    """Code version, git revision, Python and library versions, and the command line."""
+    versions = package_versions()
+    return {
+        "code_version": versions["meso-hmodel"],
+        "git_revision": git_revision(),
+        "python_version": platform.python_version(),
+        "numpy_version": versions["numpy"],
+        "h5py_version": versions["h5py"],
+        "warp_version": versions["warp-lang"],
+        "torch_version": versions["torch"],
+        "command": command_line(),
+    }
