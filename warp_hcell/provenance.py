@@ -15,7 +15,9 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-DISTRIBUTIONS = ("meso-hmodel", "numpy", "h5py", "warp-lang", "torch")
+DISTRIBUTION = "meso-hmodel"
+"""Distribution name of this package (pyproject.toml)."""
+DISTRIBUTIONS = (DISTRIBUTION, "numpy", "h5py", "warp-lang", "torch")
 """Distributions whose versions are recorded."""
 
 
