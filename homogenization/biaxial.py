@@ -48,6 +48,7 @@ from warp_hcell.cli import (
     output_lock,
     positive_float,
     positive_int,
+    quiet_warp,
     run_main,
 )
 from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings, LoadingDefaults
@@ -264,6 +265,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     command = command_line() if argv is None else shlex.join(["hmodel", "biaxial", *argv])
     out: Path = args.out
+    if "dem" in args.backend and not args.verbose:
+        quiet_warp(args.device)
     check_output_path(out, overwrite=args.overwrite)
     check_replaceable(out)
     check_options(args)
@@ -273,10 +276,6 @@ def main(argv: Sequence[str] | None = None) -> int:
              f"(~1 % of p0 and more){'; the ANN extrapolates beyond its training probes' if 'ann' in args.backend else ''}")
     kt = getattr(args, "kt", ContactLaw.kt_over_kn * args.kn)
     law = ContactLaw(kn=args.kn, kt_over_kn=kt / args.kn, phi_g_deg=args.phi)
-    if "dem" in args.backend and not args.verbose:
-        import warp  # noqa: PLC0415 (only for the DEM)
-
-        warp.config.quiet = True
     if args.verbose:
         print(f"programme: {loading.to_dict(programme)}\ncontact law: {asdict(law)}, radius {args.radius:g} m")
 

@@ -41,6 +41,7 @@ from warp_hcell.cli import (
     common_parser,
     finite_float,
     positive_float,
+    quiet_warp,
     run_main,
 )
 from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings
@@ -186,6 +187,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     _check_out(args.out, overwrite=args.overwrite)
     d_eps = read_path(args.path)
     check_path_for_backend(args.path, d_eps, args.backend)
+    if args.backend == DEM_ONLY_BACKEND:
+        quiet_warp(args.device)
     kt = getattr(args, "kt", ContactLaw.kt_over_kn * args.kn)
     law = ContactLaw(kn=args.kn, kt_over_kn=kt / args.kn, phi_g_deg=args.phi)
     model = make_cell_model(args.backend, contact_law=law, radius=args.radius, **_backend_options(args))

@@ -126,6 +126,34 @@ def device_name(text: str) -> str:
     return name
 
 
+def quiet_warp(device: str = "cpu") -> None:
+    """Silence Warp's start-up banner (call before anything initialises Warp).
+
+    Recent Warp filters by ``config.log_level``, older versions by ``config.quiet``. On the
+    cpu, Warp is initialised here with file descriptor 2 muted, because its native library
+    prints "could not find the CUDA driver" straight to stderr on machines without a GPU;
+    Python exceptions of the initialisation still propagate. With a CUDA device Warp's
+    warnings stay visible.
+    """
+    import warp  # noqa: PLC0415 (only where the DEM runs)
+
+    warp.config.quiet = True
+    if hasattr(warp, "LOG_WARNING"):
+        warp.config.log_level = warp.LOG_WARNING
+    if device != "cpu":
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        warp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
 def common_parser() -> argparse.ArgumentParser:
     """Parent parser with the flags every entry point shares: --device, --seed, --overwrite."""
     parser = argparse.ArgumentParser(add_help=False)
