@@ -201,3 +201,30 @@ def test_killed_run_keeps_the_previous_output_and_the_next_run_cleans_up(previou
     assert snapshot(previous_run) == before
     assert cli.run_main(biaxial.main, TINY + ["--out", str(previous_run), "--overwrite"]) == 0
     assert [p.name for p in tmp_path.iterdir()] == ["run"]
+
+
+@pytest.mark.parametrize("exchange", [True, False], ids=["renameat2", "two-renames"])
+def test_output_folder_swaps_in_the_new_set(tmp_path, monkeypatch, exchange):
+    if not exchange:
+        monkeypatch.setattr(cli, "_exchange", lambda a, b: False)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.txt").write_text("old")
+    with cli.output_folder(out) as work:
+        assert not (out / "new.txt").exists()
+        (work / "new.txt").write_text("new")
+    assert [p.name for p in out.iterdir()] == ["new.txt"] and [p.name for p in tmp_path.iterdir()] == ["out"]
+    with pytest.raises(RuntimeError), cli.output_folder(out) as work:
+        (work / "half.txt").write_text("half")
+        raise RuntimeError
+    assert [p.name for p in out.iterdir()] == ["new.txt"] and [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_output_folder_restores_a_set_left_between_the_two_renames(tmp_path):
+    out = tmp_path / "out"
+    stranded = tmp_path / ".out.replaced"  # killed after renaming the old set away
+    stranded.mkdir()
+    (stranded / "run.h5").write_text("previous")
+    with pytest.raises(KeyboardInterrupt), cli.output_folder(out):
+        raise KeyboardInterrupt
+    assert (out / "run.h5").read_text() == "previous" and [p.name for p in tmp_path.iterdir()] == ["out"]

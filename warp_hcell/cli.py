@@ -214,13 +214,28 @@ def _sibling(path: Path, tag: str) -> Path:
 
 
 @contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Turn SIGTERM into KeyboardInterrupt for the body (main thread only), so that ``kill``
+    runs the same clean-up as Ctrl-C; the previous handler is restored afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextmanager
 def output_lock(path: Path) -> Iterator[None]:
     """Hold an exclusive lock on output ``path`` (file or folder) for the body.
 
     The lock is ``flock`` on the hidden file ``.NAME.lock`` next to ``path``; a second run
     on the same output raises ``UserError`` (one line) at once instead of waiting. The lock
-    file is removed on release; one left by a killed run holds no lock (the kernel released
-    it) and is taken over by the next run.
+    file is removed on release, also on Ctrl-C or SIGTERM (``sigterm_as_interrupt``); one
+    left by SIGKILL holds no lock (the kernel released it) and is taken over and removed by
+    the next run.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -242,7 +257,8 @@ def output_lock(path: Path) -> Iterator[None]:
             break
         os.close(fd)  # the previous holder removed the file while we opened it: take the new one
     try:
-        yield
+        with sigterm_as_interrupt():
+            yield
     finally:
         lock.unlink(missing_ok=True)
         os.close(fd)
@@ -269,9 +285,8 @@ def output_folder(path: Path) -> Iterator[Path]:
     Everything written into the yielded folder appears at ``path`` at once (an atomic
     directory exchange where the file system has one, else two renames), so a reader never
     sees files of two runs mixed. On failure or interruption the folder is removed and
-    ``path`` is untouched. Use inside ``output_lock(path)``: a working folder left by a
-    killed run (SIGKILL) is removed when the next run starts. SIGTERM is turned into
-    KeyboardInterrupt for the duration, so ``kill`` cleans up like Ctrl-C.
+    ``path`` is untouched. Use inside ``output_lock(path)``, which also turns SIGTERM into
+    KeyboardInterrupt: a working folder left by SIGKILL is removed when the next run starts.
     """
     path = Path(path)
     work = _sibling(path, "partial")
@@ -282,10 +297,6 @@ def output_folder(path: Path) -> Iterator[Path]:
         if stale.exists():
             shutil.rmtree(stale)
     work.mkdir(parents=True)
-    previous = signal.getsignal(signal.SIGTERM)
-    in_main_thread = threading.current_thread() is threading.main_thread()
-    if in_main_thread:
-        signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         yield work
         if not path.exists():
@@ -299,8 +310,6 @@ def output_folder(path: Path) -> Iterator[Path]:
     finally:
         if work.exists():
             shutil.rmtree(work)
-        if in_main_thread:
-            signal.signal(signal.SIGTERM, previous)
 
 
 def _raise_interrupt(signum, frame) -> None:
