@@ -51,12 +51,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, --version, unknown command
-        return int(exc.code or 0) if not isinstance(exc.code, str) else EXIT_USAGE
+        return exit_code(exc)
     module = importlib.import_module(COMMANDS[args.command][0])
     try:
         return run_main(module.main, args.args)
     except SystemExit as exc:  # argparse of the subcommand: --help (0) or bad option (2)
-        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+        return exit_code(exc)
+
+
+def exit_code(exc: SystemExit) -> int:
+    """Exit status of a SystemExit: None is success, a message (already printed) is 2."""
+    if exc.code is None:
+        return 0
+    return exc.code if isinstance(exc.code, int) else EXIT_USAGE
 
 
 if __name__ == "__main__":

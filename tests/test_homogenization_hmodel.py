@@ -57,3 +57,9 @@ def test_module_form_runs_the_same_entry_point():
                           text=True, env=env, timeout=120)
     assert done.returncode == 0 and done.stdout.strip() == f"hmodel {metadata.version('meso-hmodel')}"
     assert "warp" not in done.stderr.lower()
+
+
+def test_exit_codes_of_subcommand_system_exits():
+    assert hmodel.exit_code(SystemExit()) == 0
+    assert hmodel.exit_code(SystemExit(3)) == 3
+    assert hmodel.exit_code(SystemExit("message")) == 2
