@@ -1,9 +1,11 @@
-"""python -m homogenization.biaxial --backend analytical --alpha0 55 --p0 5.85e6 --eps-max 0.2 --increment 1e-5 --orientations 360 [--drained] [--overwrite] --out DIR
+"""hmodel biaxial --backend analytical --alpha0 55 --p0 5.85e6 --eps-max 0.2 --increment 1e-5 --orientations 360 [--drained] [--overwrite] --out DIR
 
-Biaxial test of the H-model: isotropic compression to p0 (strain increments of
---iso-increment, the last one shortened so that p lands on p0), then constant-volume
-shear (d_eps11 = +increment, d_eps22 = -increment) or, with --drained, shear at
-sigma22 = p0 (stress control), to eps1 = --eps-max counted from the end of stage 1.
+(also ``python -m homogenization.biaxial``.) Biaxial test of the H-model: isotropic
+compression to p0 (strain increments of --iso-increment, by default half the shear
+increment, the last one shortened so that p lands on p0), then constant-volume shear
+(d_eps11 = +increment, d_eps22 = -increment) or, with --drained, shear at sigma22 = p0
+(stress control), to eps1 = --eps-max counted from the end of stage 1. ``--programme FILE``
+runs any loading programme instead (JSON or TOML, docs/programmes.md).
 
 --backend takes one name or a comma list (e.g. ``analytical,dem``): every backend runs
 the same programme. One backend writes DIR/run.h5 and DIR/curve.csv; several write
@@ -12,14 +14,23 @@ all backends in the 2x2 figure (q-eps1, q-p, p-eps1 or eps_v-eps1, q/p-eps1).
 Backend-specific options go to their backend only: --mesostructure and --threads to dem,
 --model to ann, --device to dem and ann.
 
+The output folder DIR is written as a unit: everything goes to a hidden sibling folder
+that replaces DIR only when the run has finished (--overwrite), so an interrupted run
+leaves the previous output as it was. A second run on the same DIR exits at once.
+
 Sign convention: compression and contraction positive; stresses in N/m (2D). Bad input
-(unknown backend, alpha0 outside [30, 90) deg, p0 <= 0, unwritable --out, existing output
-without --overwrite) is one line on stderr and exit code 2.
+(unknown backend, alpha0 outside [30, 90) deg, p0 <= 0, an increment larger than
+--eps-max, a malformed programme, a CUDA device the machine lacks, unwritable --out,
+existing output without --overwrite, DIR busy) is one line on stderr and exit code 2.
+Increments coarser than the learning database's largest probe (1e-3) are run with a
+warning: the macro kinematics errs by ~1 % of p0 there and the ANN extrapolates.
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
+import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -33,17 +44,30 @@ from warp_hcell.cli import (
     check_output_path,
     common_parser,
     finite_float,
+    output_folder,
+    output_lock,
     positive_float,
     positive_int,
+    quiet_warp,
     run_main,
 )
-from warp_hcell.parameters import CellDefaults, ContactLaw, LoadingDefaults
+from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings, LoadingDefaults
+from warp_hcell.provenance import command_line, file_sha256
 
 FIGURE_FILE = "cambridge.png"
 BACKEND_ONLY_OPTIONS = {"mesostructure": ("dem",), "threads": ("dem",), "model": ("ann",)}
 """Backend-specific flags (argparse dest) -> the backends that take them."""
 DEVICE_BACKENDS = ("dem", "ann")
 """Backends that take --device; the analytical cell runs on the cpu."""
+ISO_TO_SHEAR_INCREMENT = LoadingDefaults.iso_increment / LoadingDefaults.increment
+"""Default --iso-increment as a fraction of --increment (5e-6 / 1e-5 = 0.5)."""
+COARSE_INCREMENT = DatabaseSettings.probe_max
+"""Strain increment [-] above which a run is warned about: the learning database's largest
+probe (the ANN extrapolates beyond it) and where the macro kinematics of every backend errs
+by ~1 % of p0 (docs/dem_homogenization.md)."""
+PROGRAMME_FLAGS = {"p0": "--p0", "eps_max": "--eps-max", "increment": "--increment",
+                   "iso_increment": "--iso-increment", "drained": "--drained"}
+"""Flags that define the built-in programme, so conflict with --programme (argparse dest -> flag)."""
 
 
 def backend_list(text: str) -> tuple[str, ...]:
@@ -65,38 +89,53 @@ def fabric_anisotropy(text: str) -> float:
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the biaxial command (defaults read from warp_hcell.parameters)."""
-    cell, load = CellDefaults(), LoadingDefaults()
+    cell, load, law = CellDefaults(), LoadingDefaults(), ContactLaw()
     parser = argparse.ArgumentParser(
-        prog="python -m homogenization.biaxial",
-        description="Isotropic compression to p0, then constant-volume (or drained) biaxial shear of the H-model.",
+        prog="hmodel biaxial",
+        description="Isotropic compression to p0, then constant-volume (or drained) biaxial shear of the H-model, "
+                    "or any loading programme file.",
         parents=[common_parser()],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("--backend", type=backend_list, default="analytical",
                         help=f"cell model, or a comma list to overlay several; choices: {', '.join(BACKENDS)}")
     parser.add_argument("--alpha0", type=alpha0_deg, default=cell.alpha0_deg, help="initial opening angle [deg], in [30, 90)")
-    parser.add_argument("--p0", type=positive_float, default=cell.p0, help="confining pressure of stage 1 [N/m], > 0")
-    parser.add_argument("--eps-max", type=positive_float, default=load.eps_max,
-                        help="axial strain at the end of the shear stage, counted from its start [-]")
-    parser.add_argument("--increment", type=positive_float, default=load.increment, help="axial strain increment of the shear stage [-]")
-    parser.add_argument("--iso-increment", type=positive_float, default=load.iso_increment,
-                        help="strain increment per component of the isotropic stage [-]")
+    loading_group = parser.add_argument_group("built-in programme (not with --programme)")
+    loading_group.add_argument("--p0", type=positive_float, default=cell.p0, help="confining pressure of stage 1 [N/m], > 0")
+    loading_group.add_argument("--eps-max", type=positive_float, default=load.eps_max,
+                               help="axial strain at the end of the shear stage, counted from its start [-]")
+    loading_group.add_argument("--increment", type=positive_float, default=load.increment,
+                               help="axial strain increment of the shear stage [-], <= --eps-max")
+    loading_group.add_argument("--iso-increment", type=positive_float, default=argparse.SUPPRESS,
+                               help=f"strain increment per component of the isotropic stage [-] "
+                                    f"(default: {ISO_TO_SHEAR_INCREMENT:g} x --increment)")
+    loading_group.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
+    parser.add_argument("--programme", type=Path, default=None,
+                        help="JSON or TOML loading programme (format of homogenization.loading.to_dict; "
+                             "docs/programmes.md, examples in homogenization/data/programmes/)")
     parser.add_argument("--orientations", type=positive_int, default=cell.n_orientations, help="number N of cell orientations")
     parser.add_argument("--fabric-anisotropy", type=fabric_anisotropy, default=0.0,
                         help="a_f of the orientation weights w = (1 + a_f cos 2(theta - b_f)) / pi; 0 = isotropic fabric")
     parser.add_argument("--fabric-direction", type=finite_float, default=0.0, help="preferred fabric direction b_f [deg]")
-    parser.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
+    parser.add_argument("--radius", type=positive_float, default=cell.radius, help="grain radius r [m]")
+    parser.add_argument("--kn", type=positive_float, default=law.kn, help="normal contact stiffness [N/m]")
+    parser.add_argument("--kt", type=positive_float, default=argparse.SUPPRESS,
+                        help=f"tangential contact stiffness [N/m] (default: {law.kt_over_kn:g} x kn)")
+    parser.add_argument("--phi", type=finite_float, default=law.phi_g_deg, help="inter-granular friction angle phi_g [deg], in [0, 90)")
     parser.add_argument("--snapshot-interval", type=positive_int, default=None,
                         help="also store per-cell observables every this many increments (None: at stage ends only)")
     parser.add_argument("--deviator", choices=plotting.DEVIATORS, default=plotting.DEVIATORS[0],
                         help="figure deviator: q = s11 - s22 or t = q/2")
     parser.add_argument("--fourth-panel", choices=plotting.FOURTH_PANELS, default=plotting.FOURTH_PANELS[0],
                         help="fourth panel of the figure: stress ratio or second-order work W2")
-    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--out", type=Path, required=True, help="output folder (replaced as a unit)")
     parser.add_argument("--mesostructure", type=Path, default=None,
                         help="TOML/JSON mesostructure file (dem only; None: the H-cell)")
     parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM (dem only; None: the backend's own default)")
     parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
+    verbosity = parser.add_mutually_exclusive_group()
+    verbosity.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary; warnings and errors only")
+    verbosity.add_argument("-v", "--verbose", action="store_true", help="also Warp's start-up banner and the resolved settings")
     return parser
 
 
@@ -126,66 +165,181 @@ def check_options(args: argparse.Namespace) -> None:
         raise UserError(f"--device applies to --backend {' or '.join(DEVICE_BACKENDS)} only (analytical runs on the cpu)")
     for name in args.backend:
         backend_class(name)  # ValueError (one line) if the backend is not built in this version
+    if args.device != "cpu" and "ann" in args.backend:
+        import torch  # noqa: PLC0415 (only when the ANN is asked for a GPU)
+
+        if not torch.cuda.is_available():
+            raise UserError(f"--device {args.device}: the installed torch has no CUDA support; use --device cpu for the ann")
+
+
+def explicit_flags(argv: Sequence[str], dests: Sequence[str]) -> set[str]:
+    """The argparse dests among ``dests`` that ``argv`` sets explicitly (not by default)."""
+    unset = object()  # not a string, so argparse does not run it through type=
+    probe = build_parser()
+    probe.set_defaults(**{dest: unset for dest in dests})
+    parsed = vars(probe.parse_args(argv))
+    return {dest for dest in dests if parsed.get(dest, unset) is not unset}
+
+
+def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[loading.Programme, dict[str, Any]]:
+    """The programme of the run: the ``--programme`` file, else the built-in biaxial test.
+
+    Returns:
+        (programme, the resolved built-in settings p0, eps_max, increment, iso_increment,
+        or the programme file name).
+
+    Raises:
+        UserError: built-in programme flags given with --programme, or an increment larger
+            than --eps-max (it would be silently cut to one increment).
+    """
+    if args.programme is not None:
+        explicit = explicit_flags(argv, tuple(PROGRAMME_FLAGS))
+        given = [flag for dest, flag in PROGRAMME_FLAGS.items() if dest in explicit]
+        if given:
+            raise UserError(f"{', '.join(given)} do not apply with --programme (the file holds the whole programme)")
+        return loading.read_programme(args.programme), {"programme_file": str(args.programme)}
+    p0, eps_max, increment = args.p0, args.eps_max, args.increment
+    if increment > eps_max:
+        raise UserError(f"--increment {increment:g} is larger than --eps-max {eps_max:g}: the shear stage would be "
+                        f"one increment of {eps_max:g}; use an increment <= {COARSE_INCREMENT:g}")
+    iso_increment = getattr(args, "iso_increment", ISO_TO_SHEAR_INCREMENT * increment)
+    if iso_increment >= loading.ISO_MAX_STRAIN:
+        raise UserError(f"--iso-increment {iso_increment:g} must be < {loading.ISO_MAX_STRAIN:g}, "
+                        f"the largest isotropic strain allowed")
+    settings = {"p0": p0, "eps_max": eps_max, "increment": increment, "iso_increment": iso_increment}
+    return loading.biaxial(p0, eps_max, increment, iso_increment=iso_increment, drained=args.drained), settings
+
+
+def coarse_steps(programme: loading.Programme) -> list[tuple[str, float]]:
+    """(label, largest strain-controlled increment [-]) of the steps coarser than ``COARSE_INCREMENT``."""
+    coarse = []
+    for step in programme:
+        largest = max((abs(t) / step.n_increments for c, t in zip(step.control, step.target) if c == "strain"), default=0.0)
+        if largest > COARSE_INCREMENT:
+            coarse.append((step.label, largest))
+    return coarse
+
+
+def warn(message: str) -> None:
+    """One warning line on stderr."""
+    print(f"hmodel biaxial: warning: {message}", file=sys.stderr)
+
+
+def check_replaceable(out: Path) -> None:
+    """UserError unless ``out`` is absent or holds only what this command writes.
+
+    --overwrite replaces the whole folder, so it must not hold anything else (``--out .``
+    with --overwrite would otherwise delete the working folder).
+    """
+    if not out.is_dir():
+        if out.exists():
+            raise UserError(f"--out {out} is a file; give a folder")
+        return
+    ours = {io.RUN_FILE, io.CURVE_FILE, FIGURE_FILE, *BACKENDS}
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in ours)
+    if foreign:
+        raise UserError(f"{out} holds files that this command did not write ({', '.join(foreign[:3])}); "
+                        f"choose another --out")
+
+
+def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, Any]:
+    """Backend settings worth recording: DEM settings and threads, ANN model path and sha256."""
+    record: dict[str, Any] = {}
+    if hasattr(model, "settings"):
+        record["dem_settings"] = asdict(model.settings)
+    if hasattr(model, "threads"):
+        record["dem_threads"] = int(model.threads)
+    if name == "ann":
+        path = getattr(model, "model_path", None) or options.get("model")
+        if path is None:
+            from homogenization.backends.ann import default_model_path  # noqa: PLC0415
+
+            path = default_model_path()
+        path = Path(path).resolve()
+        record["ann_model"] = {"path": str(path), "sha256": file_sha256(path)}
+    return record
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
+    command = command_line() if argv is None else shlex.join(["hmodel", "biaxial", *argv])
     out: Path = args.out
+    if "dem" in args.backend and not args.verbose:
+        quiet_warp(args.device)
     check_output_path(out, overwrite=args.overwrite)
+    check_replaceable(out)
     check_options(args)
-    programme = loading.biaxial(args.p0, args.eps_max, args.increment, iso_increment=args.iso_increment,
-                                drained=args.drained)
-    law = ContactLaw()
-    radius = CellDefaults.radius
+    programme, settings = build_programme(args, sys.argv[1:] if argv is None else argv)
+    for label, largest in coarse_steps(programme):
+        warn(f"step {label!r} has strain increments up to {largest:g} > {COARSE_INCREMENT:g}: coarse kinematics "
+             f"(~1 % of p0 and more){'; the ANN extrapolates beyond its training probes' if 'ann' in args.backend else ''}")
+    kt = getattr(args, "kt", ContactLaw.kt_over_kn * args.kn)
+    law = ContactLaw(kn=args.kn, kt_over_kn=kt / args.kn, phi_g_deg=args.phi)
+    if args.verbose:
+        print(f"programme: {loading.to_dict(programme)}\ncontact law: {asdict(law)}, radius {args.radius:g} m")
 
-    # build every backend first, so that a missing model file fails before any run
-    options = {name: backend_options(args, name) for name in args.backend}
-    models = {name: make_cell_model(name, contact_law=law, radius=radius, **options[name]) for name in args.backend}
-    records: dict[str, driver.Record] = {}
-    for name, model in models.items():
-        start = time.perf_counter()
-        try:
-            record = driver.run(model, programme, alpha0_deg=args.alpha0, n_orientations=args.orientations,
-                                fabric_anisotropy=args.fabric_anisotropy, fabric_direction_deg=args.fabric_direction,
-                                snapshot_interval=args.snapshot_interval or 0)
-        except driver.ControlError as exc:
-            raise UserError(f"{name}: {exc}") from None
-        elapsed = time.perf_counter() - start
-        parameters = {
-            "backend": name,
-            "backend_options": {k: str(v) if isinstance(v, Path) else v for k, v in options[name].items()
-                                if k != "mesostructure"},
-            "contact_law": asdict(law),
-            "radius": radius,
-            "alpha0_deg": args.alpha0,
-            "p0": args.p0,
-            "eps_max": args.eps_max,
-            "increment": args.increment,
-            "iso_increment": args.iso_increment,
-            "n_orientations": args.orientations,
-            "fabric_anisotropy": args.fabric_anisotropy,
-            "fabric_direction_deg": args.fabric_direction,
-            "drained": args.drained,
-            "stress_rtol": LoadingDefaults.stress_rtol,
-            "mesostructure_file": str(args.mesostructure) if name == "dem" and args.mesostructure else None,
-        }
-        folder = out if len(args.backend) == 1 else out / name
-        try:
-            run_path, curve_path = io.write_run(folder, record, parameters=parameters, seed=args.seed)
-        except OSError as exc:
-            raise UserError(f"cannot write to {folder}: {exc.strerror or exc}") from None
-        records[name] = record
-        unconverged = record.diagnostics.get("n_unconverged")
-        note = f", {int(unconverged.sum())} unconverged cell-increments" if unconverged is not None and unconverged.sum() else ""
-        print(f"{name}: {record.n_increments} increments in {elapsed:.1f} s{note} -> {run_path}, {curve_path}")
+    with output_lock(out):
+        # build every backend first, so that a missing model file fails before any run
+        options = {name: backend_options(args, name) for name in args.backend}
+        models = {name: make_cell_model(name, contact_law=law, radius=args.radius, **options[name])
+                  for name in args.backend}
+        records: dict[str, driver.Record] = {}
+        drained = plotting.is_drained({"drained": args.drained or None}, programme)
+        with output_folder(out) as work:
+            for name, model in models.items():
+                start = time.perf_counter()
+                try:
+                    record = driver.run(model, programme, alpha0_deg=args.alpha0, n_orientations=args.orientations,
+                                        fabric_anisotropy=args.fabric_anisotropy,
+                                        fabric_direction_deg=args.fabric_direction,
+                                        snapshot_interval=args.snapshot_interval or 0, progress=not args.quiet)
+                except driver.ControlError as exc:
+                    raise UserError(f"{name}: {exc}") from None
+                elapsed = time.perf_counter() - start
+                parameters = {
+                    "backend": name,
+                    "backend_options": {k: str(v) if isinstance(v, Path) else v for k, v in options[name].items()
+                                        if k != "mesostructure"},
+                    **provenance_of(name, model, options[name]),
+                    "contact_law": asdict(law),
+                    "radius": args.radius,
+                    "alpha0_deg": args.alpha0,
+                    "p0": next((s.stop_at_p for s in programme if s.stop_at_p is not None), None),
+                    **settings,
+                    "n_orientations": args.orientations,
+                    "fabric_anisotropy": args.fabric_anisotropy,
+                    "fabric_direction_deg": args.fabric_direction,
+                    "drained": drained,
+                    "stress_rtol": LoadingDefaults.stress_rtol,
+                    "mesostructure_file": str(args.mesostructure) if name == "dem" and args.mesostructure else None,
+                }
+                folder = work if len(args.backend) == 1 else work / name
+                final = out if len(args.backend) == 1 else out / name
+                try:
+                    io.write_run(folder, record, parameters=parameters, seed=args.seed, command=command)
+                except OSError as exc:
+                    raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
+                records[name] = record
+                unconverged = record.diagnostics.get("n_unconverged")
+                note = f", {int(unconverged.sum())} unconverged cell-increments" if unconverged is not None and unconverged.sum() else ""
+                if not args.quiet:
+                    print(f"{name}: {record.n_increments} increments in {elapsed:.1f} s{note} -> "
+                          f"{final / io.RUN_FILE}, {final / io.CURVE_FILE}")
 
-    kind = "drained" if args.drained else "constant-volume"
-    title = f"{kind} biaxial test, alpha0 = {args.alpha0:g} deg, p0 = {args.p0:g} N/m, N = {args.orientations}"
-    fig = plotting.make_figure(records, drained=args.drained, fourth=args.fourth_panel, deviator=args.deviator,
-                               title=title)
-    figure = plotting.save_figure(fig, out / FIGURE_FILE)
-    print(f"figure -> {figure}")
+            kind = f"programme {args.programme.name}" if args.programme else (
+                "drained biaxial test" if args.drained else "constant-volume biaxial test")
+            p0 = parameters["p0"]
+            title = (f"{kind}, alpha0 = {args.alpha0:g} deg" + (f", p0 = {p0:g} N/m" if p0 else "")
+                     + f", N = {args.orientations}")
+            fig = plotting.make_figure(records, drained=drained, fourth=args.fourth_panel, deviator=args.deviator,
+                                       title=title)
+            try:
+                plotting.save_figure(fig, work / FIGURE_FILE)
+            except OSError as exc:
+                raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
+    if not args.quiet:
+        print(f"figure -> {out / FIGURE_FILE}")
     return 0
 
 

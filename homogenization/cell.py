@@ -17,8 +17,10 @@ has no l1..T1 of its own: only the columns that the backend reports among
 ``observables()`` are written, in the order above, and with ``--positions`` every grain
 centre it reports; the cell then starts from that mesostructure and --alpha0 is unused.
 
-Bad input (missing or malformed PATH.csv, alpha0 outside [30, 90) deg, unwritable --out)
-is one line on stderr and exit code 2; an existing OUT.csv is kept unless --overwrite.
+Bad input (missing or malformed PATH.csv, alpha0 outside [30, 90) deg, unwritable --out,
+a CUDA device the machine lacks, and for the ann backend a row larger than the largest
+probe of its learning database, |d_eps| > 1e-3, where the network extrapolates) is one
+line on stderr and exit code 2; an existing OUT.csv is kept unless --overwrite.
 """
 
 from __future__ import annotations
@@ -39,9 +41,10 @@ from warp_hcell.cli import (
     common_parser,
     finite_float,
     positive_float,
+    quiet_warp,
     run_main,
 )
-from warp_hcell.parameters import CellDefaults, ContactLaw
+from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings
 
 PATH_HEADER = ("d_eps_n", "d_eps_t")
 """Columns of the strain-path file."""
@@ -49,6 +52,9 @@ COLUMNS = ("l1", "l2", "alpha_deg", "d1", "d2", "N1", "N2", "T1", "S_nn", "S_tt"
 """Columns of the output file, before the optional grain positions."""
 DEM_ONLY_BACKEND = "dem"
 """The backend that takes --mesostructure and a compute --device."""
+ANN_MAX_INCREMENT = DatabaseSettings.probe_max
+"""Largest |d_eps| [-] of one path row the ann backend accepts: the largest strain probe of
+its learning database (beyond it the network extrapolates)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -132,6 +138,20 @@ def _backend_options(args: argparse.Namespace) -> dict:
     return {}
 
 
+def check_path_for_backend(path: Path, d_eps: np.ndarray, backend: str) -> None:
+    """UserError (one line) for path rows the backend cannot do: for the ann, a row with
+    |d_eps| = sqrt(d_eps_n^2 + d_eps_t^2) above ``ANN_MAX_INCREMENT``."""
+    if backend != "ann":
+        return
+    size = np.hypot(d_eps[:, 0], d_eps[:, 1])
+    too_large = np.flatnonzero(size > ANN_MAX_INCREMENT)
+    if too_large.size:
+        row = int(too_large[0])
+        raise UserError(f"{path} line {row + 2}: |d_eps| = {size[row]:.3g} exceeds {ANN_MAX_INCREMENT:g}, the largest "
+                        f"probe the ann was trained on ({too_large.size} such rows); split them into smaller "
+                        f"increments or use --backend analytical or dem")
+
+
 def run_path(model, alpha0: float, d_eps: np.ndarray, *, positions: bool) -> tuple[list[str], np.ndarray]:
     """Drive one cell of ``model`` along ``d_eps`` from its initial state.
 
@@ -166,6 +186,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     _check_out(args.out, overwrite=args.overwrite)
     d_eps = read_path(args.path)
+    check_path_for_backend(args.path, d_eps, args.backend)
+    if args.backend == DEM_ONLY_BACKEND:
+        quiet_warp(args.device)
     kt = getattr(args, "kt", ContactLaw.kt_over_kn * args.kn)
     law = ContactLaw(kn=args.kn, kt_over_kn=kt / args.kn, phi_g_deg=args.phi)
     model = make_cell_model(args.backend, contact_law=law, radius=args.radius, **_backend_options(args))

@@ -15,8 +15,9 @@ stresses and strains, ``sign_convention``):
   (n_snapshots, n_cells): per-cell observables;
 - ``/final_state/<name>``: the backend state after the last increment;
 - root attributes: backend, alpha0_deg, V0, the volume rule, the sign convention, the
-  programme and the parameters (JSON), the seed, code version, git revision and library
-  versions.
+  programme and the parameters (JSON: with the DEM settings and threads, the ANN model's
+  path and sha256 where those backends ran), the seed, the command line, the package
+  version of the installed distribution, git revision and library versions.
 
 curve.csv: header ``stage,eps11,eps22,sigma11,sigma22,sigma12,p,q``, one row per increment,
 strains [-] and stresses [N/m], compression positive.
@@ -83,7 +84,8 @@ def _strings(values: np.ndarray) -> np.ndarray:
     return np.asarray(values, dtype=object).astype(h5py.string_dtype())
 
 
-def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], seed: int) -> Path:
+def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], seed: int,
+                 command: str | None = None) -> Path:
     """Write ``record`` to the HDF5 file ``path`` (atomically); returns ``path``.
 
     Args:
@@ -91,6 +93,7 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
         record: the run history from ``driver.run``.
         parameters: the full parameter set of the run (JSON-serialisable).
         seed: the seed of the run.
+        command: the command line to record (None: this process's own).
     """
     path = Path(path)
     with atomic_write(path) as tmp, h5py.File(tmp, "w", track_order=True) as f:
@@ -105,7 +108,7 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
         f.attrs["programme"] = json.dumps(loading.to_dict(record.programme))
         f.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True)
         f.attrs["seed"] = int(seed)
-        for key, value in provenance().items():
+        for key, value in provenance(command=command).items():
             f.attrs[key] = value
 
         hist = f.create_group("history")
@@ -141,10 +144,11 @@ def write_curve_csv(path: Path, record: Record) -> Path:
     return path
 
 
-def write_run(directory: Path, record: Record, *, parameters: Mapping[str, Any], seed: int) -> tuple[Path, Path]:
+def write_run(directory: Path, record: Record, *, parameters: Mapping[str, Any], seed: int,
+              command: str | None = None) -> tuple[Path, Path]:
     """Write ``directory/run.h5`` and ``directory/curve.csv``; returns both paths."""
     directory = Path(directory)
-    return (write_run_h5(directory / RUN_FILE, record, parameters=parameters, seed=seed),
+    return (write_run_h5(directory / RUN_FILE, record, parameters=parameters, seed=seed, command=command),
             write_curve_csv(directory / CURVE_FILE, record))
 
 

@@ -16,13 +16,18 @@ controls the two normal components in the order (11, 22), each by ``"strain"`` o
 
 Sign convention: compression and contraction positive (strains [-], stresses [N/m]).
 ``to_dict``/``from_dict`` round-trip a programme through JSON-compatible data (stored in the
-HDF5 attributes of a run).
+HDF5 attributes of a run); ``read_programme`` reads the same data from a JSON or TOML file
+(``hmodel biaxial --programme FILE``; format and examples in docs/programmes.md, example
+files in homogenization/data/programmes/).
 """
 
 from __future__ import annotations
 
+import json
 import math
+import tomllib
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any, Mapping
 
 from warp_hcell.parameters import LoadingDefaults
@@ -188,3 +193,34 @@ def from_dict(data: Mapping[str, Any]) -> Programme:
         return validate(tuple(Step(**dict(s)) for s in steps))
     except (KeyError, TypeError) as exc:
         raise ValueError(f"malformed loading programme: {exc}") from None
+
+
+PROGRAMME_SUFFIXES = (".json", ".toml")
+"""File formats of ``read_programme``, by suffix."""
+
+
+def read_programme(path: Path) -> Programme:
+    """Programme stored in the JSON or TOML file ``path`` in the format of ``to_dict``.
+
+    JSON: ``{"steps": [{"control": [...], "target": [...], "n_increments": n, "label": "..."}, ...]}``;
+    TOML: one ``[[steps]]`` table per step with the same keys. ``stop_at_p`` is optional.
+
+    Raises:
+        ValueError: one line naming the file, for a missing, unreadable or malformed file.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in PROGRAMME_SUFFIXES:
+        raise ValueError(f"{path}: a programme file ends in {' or '.join(PROGRAMME_SUFFIXES)}")
+    if not path.is_file():
+        raise ValueError(f"{path}: no such programme file")
+    try:
+        text = path.read_text()
+        data = tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read programme: {exc}") from None
+    if not isinstance(data, Mapping) or not isinstance(data.get("steps"), list):
+        raise ValueError(f"{path}: a programme needs a list of steps ('steps' array / [[steps]] tables)")
+    try:
+        return from_dict(data)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None

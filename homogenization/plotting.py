@@ -3,22 +3,31 @@
 Panels: q vs eps1; q vs p (stress path in the Cambridge plane); p vs eps1 (drained tests:
 eps_v vs eps1); q/p vs eps1 (or W2 vs eps1). The half-difference t = q/2 can replace q. eps1 and eps_v are counted from the end of the
 first (isotropic) stage, whose end point starts every curve. ``make_figure`` builds the
-figure from ``{label: Record}``; ``save_figure`` writes it atomically.
+figure from ``{label: Record}``; ``save_figure`` writes it atomically as PNG, PDF or SVG
+(by the file suffix).
+
+Command line (``hmodel plot``, ``python -m homogenization.plotting``)::
+
+    hmodel plot RUN.h5 [RUN.h5 ...] --out fig.png|fig.pdf|fig.svg [--deviator t] [--fourth-panel W2]
+
+overlays finished runs; whether the third panel shows p or eps_v is read from the files
+(``drained`` parameter, else: a stress-controlled component after the first step).
 
 Sign convention: compression and contraction positive; stresses in N/m (2D).
 """
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from homogenization import invariants
-from warp_hcell.cli import atomic_write
+from homogenization import invariants, io
+from warp_hcell.cli import UserError, atomic_write, check_output_path, run_main
 from homogenization.driver import Record
 
 FOURTH_PANELS = ("q/p", "W2")
@@ -27,6 +36,8 @@ LINE_STYLES = ("-", "--", ":", "-.")
 """Line style of the 1st, 2nd, ... run, so that coinciding backends remain distinguishable."""
 DEVIATORS = ("q", "t")
 """Deviator measure drawn: q = sigma11 - sigma22 or t = q / 2."""
+FORMATS = ("png", "pdf", "svg")
+"""Figure file formats, chosen by the file suffix."""
 
 
 @dataclass(frozen=True)
@@ -134,9 +145,82 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
     return fig
 
 
+def figure_format(path: Path) -> str:
+    """File format of figure ``path`` from its suffix; UserError (one line) if not in ``FORMATS``."""
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix not in FORMATS:
+        raise UserError(f"{path}: figure suffix must be one of {', '.join('.' + f for f in FORMATS)}")
+    return suffix
+
+
 def save_figure(fig: Figure, path: Path, *, dpi: int = 120) -> Path:
-    """Write ``fig`` as PNG to ``path`` atomically; returns ``path``."""
+    """Write ``fig`` to ``path`` atomically, as PNG, PDF or SVG by the suffix; returns ``path``."""
     path = Path(path)
+    fmt = figure_format(path)
     with atomic_write(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
+        fig.savefig(tmp, format=fmt, dpi=dpi)
     return path
+
+
+def is_drained(parameters: Mapping, programme: Sequence) -> bool:
+    """Whether a stored run is drained: its ``drained`` parameter, else a stress-controlled
+    component in any step after the first (``programme`` as ``loading.Programme``)."""
+    if "drained" in parameters and parameters["drained"] is not None:
+        return bool(parameters["drained"])
+    return any(any(step.stress_mask) for step in programme[1:])
+
+
+def run_labels(paths: Sequence[Path], backends: Sequence[str]) -> list[str]:
+    """Legend labels: the backend, followed by the run's folder where a backend appears twice."""
+    if len(set(backends)) == len(backends):
+        return list(backends)
+    labels = [f"{backend} ({Path(path).parent.name or Path(path).stem})" for path, backend in zip(paths, backends)]
+    if len(set(labels)) < len(labels):
+        labels = [f"{backend} ({path})" for path, backend in zip(paths, backends)]
+    return labels
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser of the replot command."""
+    parser = argparse.ArgumentParser(
+        prog="hmodel plot", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="Overlay finished runs (run.h5 files of hmodel biaxial) in the 2x2 biaxial figure.")
+    parser.add_argument("runs", type=Path, nargs="+", metavar="RUN.h5", help="run files to overlay")
+    parser.add_argument("--out", type=Path, required=True, help="figure file: .png, .pdf or .svg")
+    parser.add_argument("--deviator", choices=DEVIATORS, default=DEVIATORS[0], help="q = s11 - s22 or t = q/2")
+    parser.add_argument("--fourth-panel", choices=FOURTH_PANELS, default=FOURTH_PANELS[0],
+                        help="fourth panel: stress ratio or second-order work W2")
+    parser.add_argument("--title", default=None, help="figure title (default: the runs' alpha0 and p0)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing figure")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
+    args = build_parser().parse_args(argv)
+    figure_format(args.out)
+    if args.out.is_dir():
+        raise UserError(f"--out {args.out} is a folder; give a file name")
+    check_output_path(args.out, overwrite=args.overwrite)
+    stored = [io.read_run(path) for path in args.runs]
+    drained = {is_drained(run.attrs["parameters"], run.record.programme) for run in stored}
+    if len(drained) > 1:
+        raise UserError("the runs mix drained and constant-volume tests; plot each kind separately")
+    labels = run_labels(args.runs, [run.record.backend for run in stored])
+    title = args.title
+    if title is None:
+        cases = dict.fromkeys(f"alpha0 = {run.record.alpha0_deg:g} deg, p0 = {run.attrs['parameters'].get('p0', float('nan')):g} N/m"
+                              for run in stored)
+        title = "; ".join(cases)
+    fig = make_figure(dict(zip(labels, (run.record for run in stored))), drained=drained.pop(),
+                      fourth=args.fourth_panel, deviator=args.deviator, title=title)
+    try:
+        save_figure(fig, args.out)
+    except OSError as exc:
+        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+    print(f"figure -> {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_main(main))

@@ -13,7 +13,7 @@ import pytest
 
 from homogenization import biaxial, io
 from homogenization.backends import BACKENDS
-from warp_hcell.cli import run_main
+from warp_hcell.cli import cuda_device_count, run_main
 
 TINY = ["--alpha0", "55", "--p0", "5.85e6", "--eps-max", "0.05", "--increment", "5e-4", "--iso-increment", "1e-4",
         "--orientations", "24"]
@@ -114,7 +114,8 @@ def test_inconsistent_options_one_line_exit_2(tmp_path, capsys, monkeypatch):
         (["--threads", "4", "--out", str(tmp_path / "a")], "--threads applies to --backend dem only"),
         (["--model", "m.pt", "--out", str(tmp_path / "a")], "--model applies to --backend ann only"),
         (["--device", "cuda", "--out", str(tmp_path / "a")],
-         "--device applies to --backend dem or ann only (analytical runs on the cpu)"),
+         "--device applies to --backend dem or ann only (analytical runs on the cpu)" if cuda_device_count()
+         else "--device cuda: no CUDA GPU on this machine; use --device cpu"),
         (["--backend", "ghost", "--out", str(tmp_path / "a")], "backend 'ghost' is not available in this version"),
         (["--out", str(blocker / "sub")], f"cannot write to {blocker / 'sub'}: {blocker} is not a folder"),
     ]
@@ -135,7 +136,7 @@ def test_real_process_exit_code_and_help(tmp_path):
 
 
 def test_module_docstring_starts_with_the_command():
-    assert biaxial.__doc__.splitlines()[0].startswith("python -m homogenization.biaxial --backend analytical --alpha0 55")
+    assert biaxial.__doc__.splitlines()[0].startswith("hmodel biaxial --backend analytical --alpha0 55")
 
 
 def test_every_backend_is_built_before_any_run(tmp_path, capsys):

@@ -74,3 +74,57 @@ def test_drained_and_w2_panels(runs):
         plotting.make_figure(runs, deviator="s")
     with pytest.raises(ValueError, match="^nothing to plot: no runs given$"):
         plotting.make_figure({})
+
+
+# -- hmodel plot: overlay finished runs -----------------------------------------------------
+
+def _stored_run(tmp_path, name: str, record: driver.Record, drained: bool) -> str:
+    from homogenization import io
+
+    path, _ = io.write_run(tmp_path / name, record, parameters={"p0": P0, "drained": drained}, seed=0)
+    return str(path)
+
+
+@pytest.mark.parametrize("suffix, magic", [(".png", b"\x89PNG"), (".pdf", b"%PDF"), (".svg", b"<?xml")])
+def test_plot_command_overlays_runs_in_every_format(runs, tmp_path, suffix, magic, capsys):
+    from warp_hcell.cli import run_main
+
+    files = [_stored_run(tmp_path, name, record, False) for name, record in runs.items()]
+    out = tmp_path / f"overlay{suffix}"
+    assert run_main(plotting.main, [*files, "--out", str(out)]) == 0
+    assert out.read_bytes()[:len(magic)] == magic
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_plot_reads_drained_from_the_file(runs, tmp_path, monkeypatch):
+    seen = {}
+    real = plotting.make_figure
+
+    def spy(records, **kwargs):
+        seen.update(kwargs)
+        return real(records, **kwargs)
+
+    monkeypatch.setattr(plotting, "make_figure", spy)
+    drained = driver.run(make_cell_model("analytical"), loading.biaxial(P0, 0.01, 5e-4, drained=True),
+                         n_orientations=12, progress=False)
+    path = _stored_run(tmp_path, "d", drained, None)  # no drained parameter: read from the programme
+    assert plotting.main([path, "--out", str(tmp_path / "d.png")]) == 0
+    assert seen["drained"] is True
+    undrained = _stored_run(tmp_path, "u", runs["analytical"], False)
+    assert plotting.main([undrained, "--out", str(tmp_path / "u.png")]) == 0
+    assert seen["drained"] is False
+
+
+def test_plot_refuses_bad_suffix_mixed_runs_and_existing_figure(runs, tmp_path, capsys):
+    from warp_hcell.cli import run_main
+
+    undrained = _stored_run(tmp_path, "u", runs["analytical"], False)
+    drained = _stored_run(tmp_path, "d", runs["analytical"], True)
+    assert run_main(plotting.main, [undrained, "--out", str(tmp_path / "f.jpg")]) == 2
+    assert run_main(plotting.main, [undrained, drained, "--out", str(tmp_path / "f.png")]) == 2
+    existing = tmp_path / "old.png"
+    existing.write_bytes(b"keep")
+    assert run_main(plotting.main, [undrained, "--out", str(existing)]) == 2
+    assert existing.read_bytes() == b"keep"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and all(line.startswith("hmodel: error:") for line in err)

@@ -22,7 +22,6 @@ import argparse
 import copy
 import dataclasses
 import math
-import os
 import platform
 import sys
 import time
@@ -35,7 +34,7 @@ import torch
 from torch.utils.data import BatchSampler, DataLoader, RandomSampler, TensorDataset
 from tqdm import tqdm
 
-from training.checkpoint import CheckpointError, save_checkpoint
+from training.checkpoint import save_checkpoint
 from training.dataset import (
     Database,
     DataError,
@@ -48,6 +47,7 @@ from training.dataset import (
 )
 from training.network import DEFAULT_HIDDEN, CellNet
 from warp_hcell.database import OUTPUT_FEATURES
+from warp_hcell.cli import check_output_path, device_name, output_lock, run_main
 from warp_hcell.provenance import git_revision
 
 
@@ -244,7 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-test-alpha0", type=int, default=d.n_test_alpha0, help="alpha0 values held out for the test set")
     p.add_argument("--seed", type=int, default=d.seed, help="seed of the split, weights and batch order")
     p.add_argument("--threads", type=_positive(int), default=d.threads, help="torch CPU threads")
-    p.add_argument("--device", default=d.device, help="torch device (cpu, cuda)")
+    p.add_argument("--device", type=device_name, default=d.device, help="torch device (cpu, cuda)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model instead of refusing")
     return p
 
@@ -261,6 +261,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     curve = out.with_name(f"{out.stem}_learning_curve.png")
     if not args.overwrite and any(p.exists() for p in (out, out.with_suffix(".json"), curve)):
         raise DataError(f"{out} (or its .json/.png) exists; pass --overwrite to replace it")
+    if out.is_dir():
+        raise DataError(f"--out {out} is a folder; give a file name")
+    check_output_path(out, overwrite=True)  # writable, checked before training
+    with output_lock(out):
+        return _train(args, out, curve, argv)
+
+
+def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str] | None) -> int:
+    """Train, evaluate and write the model of ``main`` (holding the output lock)."""
     config = TrainConfig(hidden=args.hidden, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
                          patience=args.patience, n_test_alpha0=args.n_test_alpha0, seed=args.seed,
                          threads=args.threads, device=args.device)
@@ -298,14 +307,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def run(argv: Sequence[str] | None = None) -> int:
-    """``main`` with user errors (bad data, bad model file) as one line and exit code 2."""
-    try:
-        return main(argv)
-    except (DataError, CheckpointError, ValueError) as exc:
-        if os.environ.get("HMODEL_DEBUG"):
-            raise
-        print(f"python -m training.train: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
+    """``main`` with user errors (bad data, bad model file, busy or unwritable output) as one
+    line and exit code 2, Ctrl-C as one line and exit code 130."""
+    return run_main(main, argv)
 
 
 if __name__ == "__main__":

@@ -127,6 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "reason (alpha range, mechanism, unconverged, non-finite) as root attrs.")
     parser.add_argument("database", type=Path, help="database file written by warp_hcell.generate")
     parser.add_argument("--out", type=Path, default=None, help="write the cleaned file here; unset: clean in place")
+    parser.error = lambda message: parser.exit(2, f"{parser.prog}: error: {message}\n")  # one line, exit 2
     args = parser.parse_args(argv)
     out = args.out or args.database
     if not args.database.is_file():
@@ -137,6 +138,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         summary = clean_file(args.database, out)
     except (OSError, ValueError) as exc:
         parser.error(" ".join(str(exc).split()))
+    except KeyError as exc:
+        parser.error(f"{args.database}: not a complete learning database ({exc.args[0] if exc.args else exc})")
     print(f"{out}: {summary['n_valid']} valid, {summary['n_removed']} removed "
           + ", ".join(f"{reason} {summary[f'removed_{reason}']}" for reason in REASONS))
     return 0

@@ -6,15 +6,28 @@ Every entry point builds its parser with ``parents=[common_parser()]`` and
 body through ``run_main`` so that a ``UserError`` or ``ValueError`` (bad files, inconsistent
 options) is also one line and exit code 2, never a traceback. Set ``HMODEL_DEBUG=1`` to get
 the traceback anyway.
+
+``--device`` is checked while parsing (``device_name``): a CUDA device that this machine
+does not have is one line and exit code 2 before any work. Outputs are protected by
+``output_lock(path)`` (a second run on the same output exits 2) and written through
+``atomic_write`` (one file) or ``output_folder`` (a folder replaced as a unit).
 """
 
 from __future__ import annotations
 
 import argparse
+import ctypes
+import ctypes.util
+import errno
+import fcntl
 import math
 import os
+import re
+import shutil
+import signal
 import sys
 import tempfile
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
@@ -71,10 +84,81 @@ def alpha0_deg(text: str) -> float:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def cuda_device_count() -> int:
+    """Number of CUDA devices the driver reports (0 without a driver or GPU).
+
+    Asks the CUDA driver library directly (``cuInit``, ``cuDeviceGetCount``) so that the
+    check costs milliseconds and imports neither Warp nor torch.
+    """
+    for name in ("libcuda.so.1", "libcuda.so", ctypes.util.find_library("cuda")):
+        if not name:
+            continue
+        try:
+            lib = ctypes.CDLL(name)
+        except OSError:
+            continue
+        count = ctypes.c_int(0)
+        if lib.cuInit(0) != 0 or lib.cuDeviceGetCount(ctypes.byref(count)) != 0:
+            return 0
+        return int(count.value)
+    return 0
+
+
+def device_name(text: str) -> str:
+    """argparse type of --device: "cpu", "cuda" or "cuda:N", checked against this machine.
+
+    A malformed name is an argparse error; a CUDA device the machine does not have raises
+    ``UserError`` out of ``parse_args`` (one line, exit code 2 through ``run_main``) before
+    any heavy import or work.
+    """
+    name = text.strip().lower()
+    if name == "cpu":
+        return name
+    match = re.fullmatch(r"cuda(?::(\d+))?", name)
+    if match is None:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a device: use cpu, cuda or cuda:N")
+    index = int(match.group(1) or 0)
+    count = cuda_device_count()
+    if count == 0:
+        raise UserError(f"--device {text}: no CUDA GPU on this machine; use --device cpu")
+    if index >= count:
+        raise UserError(f"--device {text}: this machine has {count} CUDA GPU(s), cuda:0 to cuda:{count - 1}")
+    return name
+
+
+def quiet_warp(device: str = "cpu") -> None:
+    """Silence Warp's start-up banner (call before anything initialises Warp).
+
+    Recent Warp filters by ``config.log_level``, older versions by ``config.quiet``. On the
+    cpu, Warp is initialised here with file descriptor 2 muted, because its native library
+    prints "could not find the CUDA driver" straight to stderr on machines without a GPU;
+    Python exceptions of the initialisation still propagate. With a CUDA device Warp's
+    warnings stay visible.
+    """
+    import warp  # noqa: PLC0415 (only where the DEM runs)
+
+    warp.config.quiet = True
+    if hasattr(warp, "LOG_WARNING"):
+        warp.config.log_level = warp.LOG_WARNING
+    if device != "cpu":
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        warp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
 def common_parser() -> argparse.ArgumentParser:
     """Parent parser with the flags every entry point shares: --device, --seed, --overwrite."""
     parser = argparse.ArgumentParser(add_help=False)
-    parser.add_argument("--device", default="cpu", help="compute device: cpu, or cuda / cuda:N where Warp/torch see a GPU")
+    parser.add_argument("--device", type=device_name, default="cpu",
+                        help="compute device: cpu, or cuda / cuda:N where the machine has a GPU")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random choice (runs are bit-reproducible)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output instead of refusing")
     return parser
@@ -122,6 +206,114 @@ def atomic_write(path: Path) -> Iterator[Path]:
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def _sibling(path: Path, tag: str) -> Path:
+    """Hidden working name next to ``path``: ``.NAME.TAG``."""
+    return path.parent / f".{path.name}.{tag}"
+
+
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Turn SIGTERM into KeyboardInterrupt for the body (main thread only), so that ``kill``
+    runs the same clean-up as Ctrl-C; the previous handler is restored afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextmanager
+def output_lock(path: Path) -> Iterator[None]:
+    """Hold an exclusive lock on output ``path`` (file or folder) for the body.
+
+    The lock is ``flock`` on the hidden file ``.NAME.lock`` next to ``path``; a second run
+    on the same output raises ``UserError`` (one line) at once instead of waiting. The lock
+    file is removed on release, also on Ctrl-C or SIGTERM (``sigterm_as_interrupt``); one
+    left by SIGKILL holds no lock (the kernel released it) and is taken over and removed by
+    the next run.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock = _sibling(path, "lock")
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EACCES):
+                raise UserError(f"{path} is being written by another run (lock {lock}); wait for it to finish") from None
+            raise
+        try:
+            same = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the previous holder removed the file while we opened it: take the new one
+    try:
+        with sigterm_as_interrupt():
+            yield
+    finally:
+        lock.unlink(missing_ok=True)
+        os.close(fd)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap two existing paths (Linux ``renameat2(RENAME_EXCHANGE)``); False if unsupported."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    renameat2 = getattr(libc, "renameat2", None)
+    if renameat2 is None:
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    if ctypes.get_errno() in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+        return False
+    raise OSError(ctypes.get_errno(), os.strerror(ctypes.get_errno()), str(b))
+
+
+@contextmanager
+def output_folder(path: Path) -> Iterator[Path]:
+    """Yield an empty hidden folder next to ``path``; on success it replaces ``path`` as a unit.
+
+    Everything written into the yielded folder appears at ``path`` at once (an atomic
+    directory exchange where the file system has one, else two renames), so a reader never
+    sees files of two runs mixed. On failure or interruption the folder is removed and
+    ``path`` is untouched. Use inside ``output_lock(path)``, which also turns SIGTERM into
+    KeyboardInterrupt: a working folder left by SIGKILL is removed when the next run starts.
+    """
+    path = Path(path)
+    work = _sibling(path, "partial")
+    old = _sibling(path, "replaced")
+    if old.exists() and not path.exists():
+        os.rename(old, path)  # a run killed between the two renames of the fallback: restore
+    for stale in (work, old):
+        if stale.exists():
+            shutil.rmtree(stale)
+    work.mkdir(parents=True)
+    try:
+        yield work
+        if not path.exists():
+            os.rename(work, path)
+        elif _exchange(work, path):
+            shutil.rmtree(work)  # now holds the previous output
+        else:
+            os.rename(path, old)
+            os.rename(work, path)
+            shutil.rmtree(old)
+    finally:
+        if work.exists():
+            shutil.rmtree(work)
+
+
+def _raise_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
 
 
 def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[str] | None = None) -> int:

@@ -8,6 +8,7 @@ line, as flat strings ready for HDF5 or JSON attributes.
 
 from __future__ import annotations
 
+import hashlib
 import platform
 import shlex
 import subprocess
@@ -15,7 +16,9 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-DISTRIBUTIONS = ("meso-hmodel", "numpy", "h5py", "warp-lang", "torch")
+DISTRIBUTION = "meso-hmodel"
+"""Distribution name of this package (pyproject.toml)."""
+DISTRIBUTIONS = (DISTRIBUTION, "numpy", "h5py", "warp-lang", "torch")
 """Distributions whose versions are recorded."""
 
 
@@ -43,12 +46,26 @@ def git_revision() -> str:
 
 
 def command_line() -> str:
-    """The command that started this process, shell-quoted."""
-    return shlex.join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv and sys.argv[0] else ""
+    """The command that started this process, shell-quoted (``python -m MODULE ...`` for -m runs)."""
+    if not sys.argv or not sys.argv[0]:
+        return ""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    head = ["python", "-m", spec.name] if spec is not None and spec.name != "__main__" else [Path(sys.argv[0]).name]
+    return shlex.join([*head, *sys.argv[1:]])
 
 
-def provenance() -> dict[str, str]:
-    """Code version, git revision, Python and library versions, and the command line."""
+def file_sha256(path: Path) -> str:
+    """SHA-256 hex digest of the file ``path`` (read in 1 MiB blocks)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def provenance(command: str | None = None) -> dict[str, str]:
+    """Code version, git revision, Python and library versions, and the command line
+    (``command``, or this process's own when None)."""
     versions = package_versions()
     return {
         "code_version": versions["meso-hmodel"],
@@ -58,5 +75,5 @@ def provenance() -> dict[str, str]:
         "h5py_version": versions["h5py"],
         "warp_version": versions["warp-lang"],
         "torch_version": versions["torch"],
-        "command": command_line(),
+        "command": command_line() if command is None else command,
     }

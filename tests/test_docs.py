@@ -1,0 +1,46 @@
+"""README and docs are self-contained: every relative link and quoted repository path exists,
+nothing points outside the repository; licence and citation files match pyproject."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: p.name)
+def test_no_reference_outside_the_repository(page):
+    text = page.read_text()
+    assert "shared/spec" not in text and "../" not in text and "/work/" not in text
+    for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", text):
+        if target.startswith(("http://", "https://")):
+            continue
+        assert (page.parent / target).exists(), f"{page.name}: broken link {target}"
+
+
+def test_quoted_repository_paths_exist():
+    text = "\n".join(page.read_text() for page in DOCS)
+    quoted = set(re.findall(r"`((?:homogenization|warp_hcell|training|docs|benchmarks|tests)/[\w./-]+)`", text))
+    missing = sorted(path for path in quoted if not (ROOT / path.split(":")[0]).exists())
+    assert quoted and not missing
+
+
+def test_model_description_covers_the_physics():
+    model = (ROOT / "docs" / "model.md").read_text()
+    for heading in ("Geometry", "Contact law", "Equilibrium", "Love-Weber", "volume rule", "References"):
+        assert heading.lower() in model.lower()
+    numbered = [int(n) for n in re.findall(r"^## (\d+)\.", model, flags=re.M)]
+    assert numbered == list(range(1, 14))  # "spec section N" in code and docs resolves here
+
+
+def test_licence_and_citation_match_pyproject():
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["license"]["text"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")
+    citation = (ROOT / "CITATION.cff").read_text()
+    assert f"version: {project['version']}\n" in citation and "license: MIT\n" in citation
+    assert "cff-version: 1.2.0" in citation
