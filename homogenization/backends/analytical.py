@@ -17,6 +17,14 @@ by doubling steps, never past the middle of the bracket. Converged cells are fro
 cell's result does not depend on its batch. Where both contacts are open f is identically
 zero and y2 is kept. Where f > 0 even at y2 = l1/2 (alpha = 90 deg) the cell is held there.
 
+With ``with_tangent=True`` the step also returns the consistent tangent
+d(S_nn, S_tt)/d(d_eps_n, d_eps_t) of the increment, by implicit differentiation of
+f(y2; l1, l2) = 0 in the regime the solve reached (which contacts are closed, stick or slide
+of the type-1 contacts with the sign of the trial force, pathological contacts):
+dy2/dl = -(df/dl) / (df/dy2), dS/dl = dS/dl|_y2 + dS/dy2 dy2/dl, and dl_i/d(d_eps_i) = -l_i,old.
+The partial derivatives of the frozen-regime residual and moment are exact to round-off
+(complex-step differentiation of ``_frozen``, which is smooth in each regime).
+
 Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
 growing). Local frame: index 0 = n, 1 = t.
 """
@@ -115,12 +123,15 @@ class AnalyticalCell(ArrayStateMixin):
         zero = np.zeros_like(alpha)
         return AnalyticalState(l1, l2, 0.5 * D, D, alpha, zero, zero.copy(), zero.copy())
 
-    def step(self, state: AnalyticalState, d_eps_local: np.ndarray) -> tuple[AnalyticalState, CellResponse]:
+    def step(self, state: AnalyticalState, d_eps_local: np.ndarray, *,
+             with_tangent: bool = False) -> tuple[AnalyticalState, CellResponse]:
         """Advance every cell by its local strain increment; ``state`` is left untouched.
 
         Args:
             state: cells at the start of the increment.
             d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
+            with_tangent: also return the consistent tangent d(S_nn, S_tt)/d(d_eps_n, d_eps_t)
+                [N m], shape (n_cells, 2, 2), in ``CellResponse.tangent``.
 
         Returns:
             The equilibrium state at the end of the increment and its response.
@@ -132,7 +143,70 @@ class AnalyticalCell(ArrayStateMixin):
         moment, area = hcell.love_weber_moment(
             new.alpha, new.N1, new.N2, new.T1, l1, l2, kn=self.kn, diameter=self.diameter
         )
-        return new, CellResponse(moment, area, diagnostics)
+        tangent = self._tangent(state, new) if with_tangent else None
+        return new, CellResponse(moment, area, diagnostics, tangent)
+
+    def _regime(self, old: AnalyticalState, new: AnalyticalState) -> dict[str, np.ndarray]:
+        """Contact regime reached by the solve, as the masks that ``_frozen`` holds fixed."""
+        D = self.diameter
+        d_alpha = new.alpha - old.alpha
+        trial = old.T1 + self.kt * 0.5 * (old.d1 + new.d1) * d_alpha
+        cap = self.mu * new.N1
+        return {
+            "closed1": (D - new.d1 > 0.0).astype(np.float64),
+            "closed2": (D - 2.0 * new.y2 > 0.0).astype(np.float64),
+            "stick": np.abs(trial) < cap,
+            "slide_sign": np.copysign(1.0, trial),
+            "touch14": (D - new.l1 > 0.0).astype(np.float64),
+            "touch26": (D - new.l2 > 0.0).astype(np.float64),
+        }
+
+    def _frozen(self, old: AnalyticalState, regime: dict[str, np.ndarray], y2, l1, l2):
+        """Residual f and (S_nn, S_tt) as smooth functions of (y2, l1, l2) in a fixed regime.
+
+        Same expressions as ``_solve`` and ``hcell.love_weber_moment`` with every max/clip
+        replaced by the branch of ``regime``; written so that complex arguments give
+        complex-step derivatives (alpha = pi/2 - atan(u / h), h = l2/2 > 0).
+        """
+        kn, kt, mu, D = self.kn, self.kt, self.mu, self.diameter
+        u = 0.5 * l1 - y2
+        h = 0.5 * l2
+        d1 = np.sqrt(h * h + u * u)
+        c, s = u / d1, h / d1
+        alpha = 0.5 * math.pi - np.arctan(u / h)
+        N1 = kn * (D - d1) * regime["closed1"]
+        N2 = kn * (D - 2.0 * y2) * regime["closed2"]
+        trial = old.T1 + kt * 0.5 * (old.d1 + d1) * (alpha - old.alpha)
+        T1 = np.where(regime["stick"], trial, regime["slide_sign"] * mu * N1)
+        f = N2 - N1 * c - (s + self.g2) * T1
+        S_nn = 4.0 * u * (N1 * c + T1 * s) + 4.0 * N2 * y2 + kn * (D - l1) * l1 * regime["touch14"]
+        S_tt = 4.0 * h * (N1 * s - T1 * c) + 2.0 * kn * (D - l2) * l2 * regime["touch26"]
+        return f, S_nn, S_tt
+
+    def _tangent(self, old: AnalyticalState, new: AnalyticalState) -> np.ndarray:
+        """Consistent tangent d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m], shape (n_cells, 2, 2)."""
+        regime = self._regime(old, new)
+        point = (new.y2, new.l1, new.l2)
+        # complex-step partial derivatives: exact to round-off, no subtraction
+        step = 1e-30
+        partial = []
+        for k in range(3):
+            args = [np.asarray(v, dtype=np.complex128) for v in point]
+            args[k] = args[k] + 1j * step
+            partial.append(np.stack([value.imag / step for value in self._frozen(old, regime, *args)], axis=-1))
+        f_y, f_l1, f_l2 = (p[:, 0] for p in partial)
+        S_y, S_l1, S_l2 = (p[:, 1:] for p in partial)
+        # y2 held at alpha = 90 deg (no equilibrium below): y2 = l1/2; both contacts open
+        # (f identically 0): y2 kept; else implicit differentiation of f = 0.
+        at_limit = (0.5 * new.l1 - new.y2 == 0.0)
+        free = (f_y == 0.0) & ~at_limit
+        safe = np.where(at_limit | free, 1.0, f_y)
+        dy_l1 = np.where(at_limit, 0.5, np.where(free, 0.0, -f_l1 / safe))
+        dy_l2 = np.where(at_limit | free, 0.0, -f_l2 / safe)
+        dS_l1 = S_l1 + S_y * dy_l1[:, None]
+        dS_l2 = S_l2 + S_y * dy_l2[:, None]
+        # l_i = l_i,old (1 - d_eps_i)
+        return np.stack([dS_l1 * -old.l1[:, None], dS_l2 * -old.l2[:, None]], axis=-1)
 
     def _solve(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray) -> tuple[AnalyticalState, dict]:
         """Equilibrium y2 for the new lengths; returns the state and the diagnostics."""
