@@ -35,17 +35,10 @@ from skfem import Basis, BilinearForm, ElementQuad1, ElementVector, FacetBasis, 
 from skfem.helpers import dot, sym_grad
 
 from homogenization.material import HomogenisedMaterial, MaterialState
+from warp_hcell.parameters import FeDefaults
 
-WIDTH = 1.0
-"""Specimen width W [m] (the H-model has no length scale: only W/H matters)."""
-HEIGHT = 2.0
-"""Specimen height H [m]."""
 QUADRATURE_ORDER = 2
 """Integration order of the bilinear quadrilaterals: 2 x 2 Gauss points [-]."""
-NEWTON_RTOL = 1e-8
-"""Newton converges when the out-of-balance force is below this times p0 W [-]."""
-MAX_NEWTON = 25
-"""Newton iterations allowed per load step [-]."""
 
 
 class NewtonError(RuntimeError):
@@ -139,11 +132,16 @@ class BiaxialSpecimen:
     Args:
         nx, ny: elements across the width and along the height, each >= 1.
         width, height: specimen size W, H [m].
+        newton_rtol: convergence when the out-of-balance force norm <= newton_rtol * scale * W [-].
+        max_newton: Newton iterations allowed per load step.
     """
 
-    def __init__(self, nx: int, ny: int, *, width: float = WIDTH, height: float = HEIGHT) -> None:
+    def __init__(self, nx: int, ny: int, *, width: float = FeDefaults.width, height: float = FeDefaults.height,
+                 newton_rtol: float = FeDefaults.newton_rtol, max_newton: int = FeDefaults.max_newton) -> None:
         if int(nx) < 1 or int(ny) < 1:
             raise ValueError(f"element counts must be >= 1, got {nx} x {ny}")
+        self.newton_rtol = float(newton_rtol)
+        self.max_newton = int(max_newton)
         self.nx, self.ny = int(nx), int(ny)
         self.width, self.height = float(width), float(height)
         self.mesh = MeshQuad.init_tensor(np.linspace(0.0, width, nx + 1), np.linspace(0.0, height, ny + 1))
@@ -231,7 +229,7 @@ class BiaxialSpecimen:
         residuals: list[float] = []
         totals: dict[str, float] = {}
         free = np.setdiff1d(np.arange(T.shape[1]), fixed)
-        for iteration in range(MAX_NEWTON + 1):
+        for iteration in range(self.max_newton + 1):
             update = material.update(state, self.strain(u) - eps_start)
             for name, value in update.diagnostics.items():
                 totals[name] = totals.get(name, 0.0) + float(value)
@@ -239,15 +237,15 @@ class BiaxialSpecimen:
             residual = T.T @ f_int - f_ext
             norm = float(np.linalg.norm(residual[free]))
             residuals.append(norm / self.width)
-            if norm <= NEWTON_RTOL * scale * self.width:
+            if norm <= self.newton_rtol * scale * self.width:
                 return u, update, f_int, iteration, residuals, totals
-            if iteration == MAX_NEWTON:
+            if iteration == self.max_newton:
                 break
             K_r = (T.T @ K @ T).tocsr()
             du = solve(*condense(K_r, -residual, x=np.zeros(T.shape[1]), D=fixed))
             u = u + T @ du
-        raise NewtonError(f"{where}: Newton did not converge in {MAX_NEWTON} iterations "
-                          f"(out-of-balance {residuals[-1]:.3g} N/m, tolerance {NEWTON_RTOL * scale:.3g} N/m)")
+        raise NewtonError(f"{where}: Newton did not converge in {self.max_newton} iterations "
+                          f"(out-of-balance {residuals[-1]:.3g} N/m, tolerance {self.newton_rtol * scale:.3g} N/m)")
 
     def run(self, material: HomogenisedMaterial, steps: list[LoadStep], *, scale: float,
             isotropic_seed: float = 1e-6, progress=None) -> list[StepResult]:
