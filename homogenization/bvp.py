@@ -7,9 +7,9 @@ the lateral pressure and the stress of the top platen rise together to p0 in --i
 steps; stage 2: the smooth rigid top platen moves down by --increment H per step (lateral
 pressure p0) to eps1 = --eps-max, counted from the end of stage 1.
 
---imperfection F (in [0, 1); 0 = homogeneous) gives the elements whose centre lies within W/4
-of the middle of the left face (a zone of fixed size, so it does not shrink with the mesh) the
-looser opening angle alpha0 + F (90 deg - alpha0). A softening local model localises in a band
+--imperfection F (in [0, 1); 0 = homogeneous) gives the elements that touch the middle of the
+left face or whose centre lies within W/4 of it (a zone of nearly fixed size, so it does not
+shrink with the mesh) the looser opening angle alpha0 + F (90 deg - alpha0). A softening local model localises in a band
 whose width is set by the mesh: results after the peak depend on --elements.
 
 Writes DIR/curve.csv (stage,eps11,eps22,sigma11,sigma22,sigma12,p,q,iterations; 1 = axial),
@@ -114,9 +114,16 @@ def check_options(args: argparse.Namespace) -> None:
 
 
 def weak_elements(specimen: fe.BiaxialSpecimen) -> np.ndarray:
-    """Elements whose centre lies within W/4 of the middle of the left face (bool, (n_elements,))."""
+    """Elements touching the middle of the left face (0, H/2) or whose centre lies within W/4 of it.
+
+    Returns:
+        bool, shape (n_elements,); at least one element on any mesh.
+    """
     centre = specimen.element_centroids()
-    return np.hypot(centre[:, 0], centre[:, 1] - 0.5 * specimen.height) < 0.25 * specimen.width
+    corners = specimen.mesh.p[:, specimen.mesh.t]  # (2, 4, n_elements)
+    mid = 0.5 * specimen.height
+    touching = (corners[0].min(axis=0) <= 0.0) & (corners[1].min(axis=0) <= mid) & (corners[1].max(axis=0) >= mid)
+    return touching | (np.hypot(centre[:, 0], centre[:, 1] - mid) < 0.25 * specimen.width)
 
 
 def material_point_reference(model, args: argparse.Namespace) -> dict[str, np.ndarray]:

@@ -98,7 +98,7 @@ def write_h5(path: Path, specimen: BiaxialSpecimen, results: Sequence[StepResult
         mesh["points"] = specimen.mesh.p.T
         mesh["cells"] = specimen.mesh.t.T
         mesh["element_alpha0_deg"] = element_alpha0
-        mesh["gauss_points"] = specimen.basis.global_coordinates().value.reshape(2, -1).T
+        mesh["gauss_points"] = np.asarray(specimen.basis.global_coordinates()).reshape(2, -1).T
         mesh["gauss_weights"] = specimen.weights
         hist = f.create_group("history")
         hist["stage"] = np.asarray(table["stage"], dtype=object).astype(h5py.string_dtype())
