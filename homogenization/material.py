@@ -100,7 +100,7 @@ class HomogenisedMaterial:
         self.n_points = int(n_points)
         self.alpha0_deg = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (self.n_points,)).copy()
         self.G = voigt_localisation(orient)
-        self.wG = orient.weights[:, None, None] * self.G
+        self.wGT = np.ascontiguousarray((orient.weights[:, None, None] * self.G).reshape(-1, 3).T)
         self.V0 = np.zeros(self.n_points)
 
     @property
@@ -146,7 +146,10 @@ class HomogenisedMaterial:
             if response.tangent is None:
                 raise ValueError(f"cell model {getattr(self.model, 'name', self.model)!r} returned no tangent")
             C = response.tangent.reshape(self.n_points, n, 2, 2)
-            tangent = np.einsum("kai,pkab,kbj->pij", self.wG, C, self.G) / V[:, None, None]
+            # C_k G_k, then the weighted sum of G_k^T (.) over cells and components as one
+            # stacked matmul per point (per-point products: batch invariant)
+            CG = C[..., :, 0, None] * self.G[None, :, 0, None, :] + C[..., :, 1, None] * self.G[None, :, 1, None, :]
+            tangent = self.wGT @ CG.reshape(self.n_points, 2 * n, 3) / V[:, None, None]
             volume = np.zeros((self.n_points, 3))
             volume[:, 0] = 1.0 / (1.0 - d_e[:, 0])
             volume[:, 1] = 1.0 / (1.0 - d_e[:, 1])

@@ -22,8 +22,8 @@ d(S_nn, S_tt)/d(d_eps_n, d_eps_t) of the increment, by implicit differentiation 
 f(y2; l1, l2) = 0 in the regime the solve reached (which contacts are closed, stick or slide
 of the type-1 contacts with the sign of the trial force, pathological contacts):
 dy2/dl = -(df/dl) / (df/dy2), dS/dl = dS/dl|_y2 + dS/dy2 dy2/dl, and dl_i/d(d_eps_i) = -l_i,old.
-The partial derivatives of the frozen-regime residual and moment are exact to round-off
-(complex-step differentiation of ``_frozen``, which is smooth in each regime).
+The partial derivatives of the frozen-regime residual and moment are written out in
+``_partials``.
 
 Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
 growing). Local frame: index 0 = n, 1 = t.
@@ -147,7 +147,7 @@ class AnalyticalCell(ArrayStateMixin):
         return new, CellResponse(moment, area, diagnostics, tangent)
 
     def _regime(self, old: AnalyticalState, new: AnalyticalState) -> dict[str, np.ndarray]:
-        """Contact regime reached by the solve, as the masks that ``_frozen`` holds fixed."""
+        """Contact regime reached by the solve, as the masks that ``_partials`` holds fixed."""
         D = self.diameter
         d_alpha = new.alpha - old.alpha
         trial = old.T1 + self.kt * 0.5 * (old.d1 + new.d1) * d_alpha
@@ -161,41 +161,58 @@ class AnalyticalCell(ArrayStateMixin):
             "touch26": (D - new.l2 > 0.0).astype(np.float64),
         }
 
-    def _frozen(self, old: AnalyticalState, regime: dict[str, np.ndarray], y2, l1, l2):
-        """Residual f and (S_nn, S_tt) as smooth functions of (y2, l1, l2) in a fixed regime.
+    def _partials(self, old: AnalyticalState, new: AnalyticalState, regime: dict[str, np.ndarray]):
+        """Partial derivatives of f and (S_nn, S_tt) with respect to (y2, l1, l2) in a fixed regime.
 
         Same expressions as ``_solve`` and ``hcell.love_weber_moment`` with every max/clip
-        replaced by the branch of ``regime``; written so that complex arguments give
-        complex-step derivatives (alpha = pi/2 - atan(u / h), h = l2/2 > 0).
+        replaced by the branch of ``regime``. With u = l1/2 - y2, h = l2/2, d1 = |(u, h)|,
+        c = u/d1, s = h/d1, alpha = atan2(h, u): dd1 = c du + s dh, dc = s (s du - c dh)/d1,
+        ds = c (c dh - s du)/d1, dalpha = (c dh - s du)/d1.
+
+        Returns:
+            (f_x, S_x): shapes (n_cells, 3) and (n_cells, 2, 3), columns d/dy2, d/dl1, d/dl2.
         """
         kn, kt, mu, D = self.kn, self.kt, self.mu, self.diameter
-        u = 0.5 * l1 - y2
-        h = 0.5 * l2
-        d1 = np.sqrt(h * h + u * u)
-        c, s = u / d1, h / d1
-        alpha = 0.5 * math.pi - np.arctan(u / h)
-        N1 = kn * (D - d1) * regime["closed1"]
-        N2 = kn * (D - 2.0 * y2) * regime["closed2"]
-        trial = old.T1 + kt * 0.5 * (old.d1 + d1) * (alpha - old.alpha)
-        T1 = np.where(regime["stick"], trial, regime["slide_sign"] * mu * N1)
-        f = N2 - N1 * c - (s + self.g2) * T1
-        S_nn = 4.0 * u * (N1 * c + T1 * s) + 4.0 * N2 * y2 + kn * (D - l1) * l1 * regime["touch14"]
-        S_tt = 4.0 * h * (N1 * s - T1 * c) + 2.0 * kn * (D - l2) * l2 * regime["touch26"]
-        return f, S_nn, S_tt
+        y2, l1, l2 = new.y2, new.l1, new.l2
+        u, h = 0.5 * l1 - y2, 0.5 * l2
+        d1 = np.hypot(h, u)
+        c, s = (u / d1)[:, None], (h / d1)[:, None]
+        # derivatives of the primary variables along (y2, l1, l2)
+        u_x = np.array([-1.0, 0.5, 0.0])
+        h_x = np.array([0.0, 0.0, 0.5])
+        y_x = np.array([1.0, 0.0, 0.0])
+        l1_x = np.array([0.0, 1.0, 0.0])
+        l2_x = np.array([0.0, 0.0, 1.0])
+        inv_d1 = (1.0 / d1)[:, None]
+        d1_x = c * u_x + s * h_x
+        c_x = s * (s * u_x - c * h_x) * inv_d1
+        s_x = c * (c * h_x - s * u_x) * inv_d1
+        alpha_x = (c * h_x - s * u_x) * inv_d1
+        closed1, closed2 = regime["closed1"][:, None], regime["closed2"][:, None]
+        N1 = (kn * (D - d1))[:, None] * closed1
+        N1_x = -kn * closed1 * d1_x
+        N2 = (kn * (D - 2.0 * y2))[:, None] * closed2
+        N2_x = -2.0 * kn * closed2 * y_x
+        d_alpha = (new.alpha - old.alpha)[:, None]
+        trial = old.T1[:, None] + kt * 0.5 * (old.d1 + d1)[:, None] * d_alpha
+        trial_x = kt * (0.5 * d1_x * d_alpha + 0.5 * (old.d1 + d1)[:, None] * alpha_x)
+        slide = regime["slide_sign"][:, None] * mu
+        stick = regime["stick"][:, None]
+        T1 = np.where(stick, trial, slide * N1)
+        T1_x = np.where(stick, trial_x, slide * N1_x)
+        f_x = N2_x - N1_x * c - N1 * c_x - s_x * T1 - (s + self.g2) * T1_x
+        u_, h_, y_ = u[:, None], h[:, None], y2[:, None]
+        S_nn_x = (4.0 * u_x * (N1 * c + T1 * s) + 4.0 * u_ * (N1_x * c + N1 * c_x + T1_x * s + T1 * s_x)
+                  + 4.0 * (N2_x * y_ + N2 * y_x) + (kn * (D - 2.0 * l1))[:, None] * regime["touch14"][:, None] * l1_x)
+        S_tt_x = (4.0 * h_x * (N1 * s - T1 * c) + 4.0 * h_ * (N1_x * s + N1 * s_x - T1_x * c - T1 * c_x)
+                  + (2.0 * kn * (D - 2.0 * l2))[:, None] * regime["touch26"][:, None] * l2_x)
+        return f_x, np.stack([S_nn_x, S_tt_x], axis=1)
 
     def _tangent(self, old: AnalyticalState, new: AnalyticalState) -> np.ndarray:
         """Consistent tangent d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m], shape (n_cells, 2, 2)."""
-        regime = self._regime(old, new)
-        point = (new.y2, new.l1, new.l2)
-        # complex-step partial derivatives: exact to round-off, no subtraction
-        step = 1e-30
-        partial = []
-        for k in range(3):
-            args = [np.asarray(v, dtype=np.complex128) for v in point]
-            args[k] = args[k] + 1j * step
-            partial.append(np.stack([value.imag / step for value in self._frozen(old, regime, *args)], axis=-1))
-        f_y, f_l1, f_l2 = (p[:, 0] for p in partial)
-        S_y, S_l1, S_l2 = (p[:, 1:] for p in partial)
+        f_x, S_x = self._partials(old, new, self._regime(old, new))
+        f_y, f_l1, f_l2 = f_x[:, 0], f_x[:, 1], f_x[:, 2]
+        S_y, S_l1, S_l2 = S_x[:, :, 0], S_x[:, :, 1], S_x[:, :, 2]
         # y2 held at alpha = 90 deg (no equilibrium below): y2 = l1/2; both contacts open
         # (f identically 0): y2 kept; else implicit differentiation of f = 0.
         at_limit = (0.5 * new.l1 - new.y2 == 0.0)
