@@ -25,6 +25,7 @@ not the tangent.
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -84,7 +85,8 @@ class HomogenisedMaterial:
     """A batch of H-model material points, each with its own cells (see the module docstring).
 
     Args:
-        cell_model: any ``CellModel``; it must return a tangent when asked for one.
+        cell_model: any ``CellModel``; ``update(..., with_tangent=True)`` needs one whose step
+            takes ``with_tangent`` (ValueError otherwise); plain updates call ``step`` without it.
         orient: orientations and fabric weights shared by every point.
         alpha0_deg: initial opening angle [deg], scalar or shape (n_points,) (a weaker zone
             of a specimen has its own alpha0), each in [30, 90).
@@ -102,6 +104,8 @@ class HomogenisedMaterial:
         self.G = voigt_localisation(orient)
         self.wGT = np.ascontiguousarray((orient.weights[:, None, None] * self.G).reshape(-1, 3).T)
         self.V0 = np.zeros(self.n_points)
+        self.returns_tangent = "with_tangent" in inspect.signature(cell_model.step).parameters
+        """Whether the backend's step takes ``with_tangent`` (plain updates work without it)."""
 
     @property
     def n_cells(self) -> int:
@@ -133,7 +137,14 @@ class HomogenisedMaterial:
             The ``MaterialUpdate``.
         """
         d_e = np.asarray(d_e, dtype=np.float64).reshape(self.n_points, 3)
-        cells, response = self.model.step(state.cells, self.localise(d_e), with_tangent=with_tangent)
+        d_local = self.localise(d_e)
+        if with_tangent:
+            if not self.returns_tangent:
+                raise ValueError(f"cell model {getattr(self.model, 'name', self.model)!r} returns no consistent "
+                                 f"tangent (its step takes no with_tangent)")
+            cells, response = self.model.step(state.cells, d_local, with_tangent=True)
+        else:
+            cells, response = self.model.step(state.cells, d_local)
         n = self.orient.n_cells
         factor = (1.0 - d_e[:, 0]) * (1.0 - d_e[:, 1])
         J = state.J * factor

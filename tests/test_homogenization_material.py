@@ -51,9 +51,9 @@ def test_one_batched_step_call_and_purity():
     model = ElasticCell()
     original = model.step
 
-    def counting(state, d, **kw):
+    def counting(state, d, *, with_tangent=False):
         calls.append(d.shape[0])
-        return original(state, d, **kw)
+        return original(state, d, with_tangent=with_tangent)
 
     model.step = counting
     material, state, d_e = _loaded(model, n_orientations=12)
@@ -82,6 +82,20 @@ def test_stress_and_volume_rule_match_the_driver():
     np.testing.assert_allclose(stresses[:, 0], record.sigma11, rtol=1e-12)
     np.testing.assert_allclose(stresses[:, 1], record.sigma22, rtol=1e-12)
     assert state.J[0] == pytest.approx(record.J[-1], rel=1e-14)
+
+
+def test_backend_without_tangent_steps_plainly_and_refuses_tangents():
+    """A backend whose step takes no with_tangent still runs strain-controlled updates."""
+
+    class NoTangent(ElasticCell):
+        def step(self, state, d_eps_local):
+            return super().step(state, d_eps_local)
+
+    material, state, d_e = _loaded(NoTangent(), n_orientations=6)
+    assert not material.returns_tangent
+    assert material.update(state, d_e, with_tangent=False).tangent is None
+    with pytest.raises(ValueError, match="^cell model 'elastic' returns no consistent tangent"):
+        material.update(state, d_e)
 
 
 def test_points_are_independent():
