@@ -165,7 +165,8 @@ class AnalyticalCell(ArrayStateMixin):
         """Partial derivatives of f and (S_nn, S_tt) with respect to (y2, l1, l2) in a fixed regime.
 
         Same expressions as ``_solve`` and ``hcell.love_weber_moment`` with every max/clip
-        replaced by the branch of ``regime``. With u = l1/2 - y2, h = l2/2, d1 = |(u, h)|,
+        replaced by the branch of ``regime``. Everything but N2 and the pathological contacts
+        depends on (y2, l1) through u = l1/2 - y2 and on l2 through h = l2/2; with d1 = |(u, h)|,
         c = u/d1, s = h/d1, alpha = atan2(h, u): dd1 = c du + s dh, dc = s (s du - c dh)/d1,
         ds = c (c dh - s du)/d1, dalpha = (c dh - s du)/d1.
 
@@ -176,36 +177,39 @@ class AnalyticalCell(ArrayStateMixin):
         y2, l1, l2 = new.y2, new.l1, new.l2
         u, h = 0.5 * l1 - y2, 0.5 * l2
         d1 = np.hypot(h, u)
-        c, s = (u / d1)[:, None], (h / d1)[:, None]
-        # derivatives of the primary variables along (y2, l1, l2)
-        u_x = np.array([-1.0, 0.5, 0.0])
-        h_x = np.array([0.0, 0.0, 0.5])
-        y_x = np.array([1.0, 0.0, 0.0])
-        l1_x = np.array([0.0, 1.0, 0.0])
-        l2_x = np.array([0.0, 0.0, 1.0])
-        inv_d1 = (1.0 / d1)[:, None]
-        d1_x = c * u_x + s * h_x
-        c_x = s * (s * u_x - c * h_x) * inv_d1
-        s_x = c * (c * h_x - s * u_x) * inv_d1
-        alpha_x = (c * h_x - s * u_x) * inv_d1
-        closed1, closed2 = regime["closed1"][:, None], regime["closed2"][:, None]
-        N1 = (kn * (D - d1))[:, None] * closed1
-        N1_x = -kn * closed1 * d1_x
-        N2 = (kn * (D - 2.0 * y2))[:, None] * closed2
-        N2_x = -2.0 * kn * closed2 * y_x
-        d_alpha = (new.alpha - old.alpha)[:, None]
-        trial = old.T1[:, None] + kt * 0.5 * (old.d1 + d1)[:, None] * d_alpha
-        trial_x = kt * (0.5 * d1_x * d_alpha + 0.5 * (old.d1 + d1)[:, None] * alpha_x)
-        slide = regime["slide_sign"][:, None] * mu
-        stick = regime["stick"][:, None]
-        T1 = np.where(stick, trial, slide * N1)
-        T1_x = np.where(stick, trial_x, slide * N1_x)
-        f_x = N2_x - N1_x * c - N1 * c_x - s_x * T1 - (s + self.g2) * T1_x
-        u_, h_, y_ = u[:, None], h[:, None], y2[:, None]
-        S_nn_x = (4.0 * u_x * (N1 * c + T1 * s) + 4.0 * u_ * (N1_x * c + N1 * c_x + T1_x * s + T1 * s_x)
-                  + 4.0 * (N2_x * y_ + N2 * y_x) + (kn * (D - 2.0 * l1))[:, None] * regime["touch14"][:, None] * l1_x)
-        S_tt_x = (4.0 * h_x * (N1 * s - T1 * c) + 4.0 * h_ * (N1_x * s + N1 * s_x - T1_x * c - T1 * c_x)
-                  + (2.0 * kn * (D - 2.0 * l2))[:, None] * regime["touch26"][:, None] * l2_x)
+        c, s = u / d1, h / d1
+        cs_d1 = c * s / d1
+        c_u, c_h = s * s / d1, -cs_d1
+        s_u, s_h = -cs_d1, c * c / d1
+        a_u, a_h = -s / d1, c / d1
+        closed1, closed2 = regime["closed1"], regime["closed2"]
+        N1 = kn * (D - d1) * closed1
+        N1_u, N1_h = -kn * closed1 * c, -kn * closed1 * s
+        N2 = kn * (D - 2.0 * y2) * closed2
+        N2_y = -2.0 * kn * closed2
+        d_alpha = new.alpha - old.alpha
+        d1_mid = 0.5 * (old.d1 + d1)
+        stick, slide = regime["stick"], regime["slide_sign"] * mu
+        T1 = np.where(stick, old.T1 + kt * d1_mid * d_alpha, slide * N1)
+        T_u = np.where(stick, kt * (0.5 * c * d_alpha + d1_mid * a_u), slide * N1_u)
+        T_h = np.where(stick, kt * (0.5 * s * d_alpha + d1_mid * a_h), slide * N1_h)
+        sg = s + self.g2
+        f_u = -N1_u * c - N1 * c_u - s_u * T1 - sg * T_u
+        f_h = -N1_h * c - N1 * c_h - s_h * T1 - sg * T_h
+        # S_nn = 4 u A + 4 N2 y2 + kn (D - l1) l1, S_tt = 4 h B + 2 kn (D - l2) l2
+        A = N1 * c + T1 * s
+        B = N1 * s - T1 * c
+        A_u = N1_u * c + N1 * c_u + T_u * s + T1 * s_u
+        A_h = N1_h * c + N1 * c_h + T_h * s + T1 * s_h
+        B_u = N1_u * s + N1 * s_u - T_u * c - T1 * c_u
+        B_h = N1_h * s + N1 * s_h - T_h * c - T1 * c_h
+        Snn_u, Snn_h = 4.0 * (A + u * A_u), 4.0 * u * A_h
+        Stt_u, Stt_h = 4.0 * h * B_u, 4.0 * (B + h * B_h)
+        # chain rule: du/dy2 = -1, du/dl1 = dh/dl2 = 1/2
+        f_x = np.stack([N2_y - f_u, 0.5 * f_u, 0.5 * f_h], axis=-1)
+        S_nn_x = np.stack([4.0 * (N2_y * y2 + N2) - Snn_u, 0.5 * Snn_u + kn * (D - 2.0 * l1) * regime["touch14"],
+                           0.5 * Snn_h], axis=-1)
+        S_tt_x = np.stack([-Stt_u, 0.5 * Stt_u, 0.5 * Stt_h + 2.0 * kn * (D - 2.0 * l2) * regime["touch26"]], axis=-1)
         return f_x, np.stack([S_nn_x, S_tt_x], axis=1)
 
     def _tangent(self, old: AnalyticalState, new: AnalyticalState) -> np.ndarray:
