@@ -248,7 +248,7 @@ class BiaxialSpecimen:
                           f"(out-of-balance {residuals[-1]:.3g} N/m, tolerance {self.newton_rtol * scale:.3g} N/m)")
 
     def run(self, material: HomogenisedMaterial, steps: list[LoadStep], *, scale: float,
-            isotropic_seed: float = 1e-6, progress=None) -> list[StepResult]:
+            isotropic_seed: float = FeDefaults.isotropic_seed, progress=None) -> list[StepResult]:
         """Solve the load steps in order; returns one ``StepResult`` per step.
 
         Args:

@@ -123,6 +123,9 @@ class FeDefaults:
     """Newton converges when the out-of-balance force norm is below this times p0 W [-]."""
     max_newton: int = 25
     """Newton iterations allowed per load step [-]."""
+    isotropic_seed: float = 1e-6
+    """Homogeneous isotropic strain of the first Newton guess [-]: the touching, force-free
+    cells have no stiffness, a small compression closes them."""
 
 
 @dataclass(frozen=True)
