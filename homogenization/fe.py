@@ -164,7 +164,8 @@ class BiaxialSpecimen:
         self.master = keep.size
         rows = np.concatenate([keep, top_y])
         cols = np.concatenate([np.arange(keep.size), np.full(top_y.size, self.master)])
-        self.T = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, keep.size + 1))
+        self.tie = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, keep.size + 1))
+        """Sparse map u = tie @ a from the reduced unknowns a to all DOFs (rigid top platen)."""
         position = {dof: k for k, dof in enumerate(keep)}
         self.fixed = np.array([position[d] for d in nodal[1, bottom]] + [position[nodal[0, pin]]])
         self.top_y = top_y
@@ -216,34 +217,34 @@ class BiaxialSpecimen:
 
         Returns (u, material update, f_int, iterations, residual norms, diagnostics).
         """
-        T = self.T
+        tie = self.tie
         u = u_guess.copy()
         fixed = self.fixed
         if step.platen_increment is not None:
             u[self.top_y] = u_start[self.top_y[0]] - step.platen_increment * self.height
             fixed = np.append(fixed, self.master)
-        f_ext = T.T @ (step.pressure * self.unit_pressure)
+        f_ext = tie.T @ (step.pressure * self.unit_pressure)
         if step.platen_force is not None:
             f_ext[self.master] -= step.platen_force * self.width
         eps_start = self.strain(u_start)
         residuals: list[float] = []
         totals: dict[str, float] = {}
-        free = np.setdiff1d(np.arange(T.shape[1]), fixed)
+        free = np.setdiff1d(np.arange(tie.shape[1]), fixed)
         for iteration in range(self.max_newton + 1):
             update = material.update(state, self.strain(u) - eps_start)
             for name, value in update.diagnostics.items():
                 totals[name] = totals.get(name, 0.0) + float(value)
             f_int, K = self._assemble(update.stress, update.tangent)
-            residual = T.T @ f_int - f_ext
+            residual = tie.T @ f_int - f_ext
             norm = float(np.linalg.norm(residual[free]))
             residuals.append(norm / self.width)
             if norm <= self.newton_rtol * scale * self.width:
                 return u, update, f_int, iteration, residuals, totals
             if iteration == self.max_newton:
                 break
-            K_r = (T.T @ K @ T).tocsr()
-            du = solve(*condense(K_r, -residual, x=np.zeros(T.shape[1]), D=fixed))
-            u = u + T @ du
+            K_r = (tie.T @ K @ tie).tocsr()
+            du = solve(*condense(K_r, -residual, x=np.zeros(tie.shape[1]), D=fixed))
+            u = u + tie @ du
         raise NewtonError(f"{where}: Newton did not converge in {self.max_newton} iterations "
                           f"(out-of-balance {residuals[-1]:.3g} N/m, tolerance {self.newton_rtol * scale:.3g} N/m)")
 
