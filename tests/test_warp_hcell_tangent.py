@@ -1,15 +1,16 @@
 """Condensed tangent of DEM cells (any mesostructure) against central differences of the step.
 
 The DEM step is a damped dynamic relaxation; its central differences are taken with a tight
-equilibrium tolerance and slow driving so that they resolve 1e-5. Sticking contacts: the
-condensed tangent matches them to <= 1e-5 (measured <= 1e-6). Sliding contacts: after the
-last relaxation swing a sliding contact ends a hair below the Coulomb cap (|T| / mu N ~
-0.99997), by an amount that depends on the dynamics of the relaxation, so the step is not
-differentiable to 1e-5 there: its central differences move by 1e-4 to 7e-3 when the
-difference step goes from 1e-7 to 1e-9 or the driving rate from 1e-8 to 1e-9 per substep.
-There the condensed tangent is checked against the analytical cell's (implicit
-differentiation, <= 1e-5 from its own step's differences) to 1e-6 (measured 1e-10 to 1e-9),
-and against the DEM's differences only to 1e-2.
+equilibrium tolerance, slow driving, and increments whose driving substep count
+n_drive = ceil(max |d_eps| / strain_per_substep) stays the same over the difference stencil
+(max |d_eps| at half a substep, difference step a tenth of one), so that the stencil does not
+change the driving path. Sticking contacts: the condensed tangent matches them to <= 1e-5.
+Sliding contacts: a sliding contact's force depends a little on the relaxation dynamics
+(after the last swings it ends a hair below the Coulomb cap, |T| / mu N ~ 0.99997), so the
+step's own derivative differs from the quasi-static one by an amount that falls with the
+driving rate: 0.8e-4 to 1.7e-4 at 1e-8 strain per substep, 0.9e-5 to 2e-5 at 1e-9. The
+condensed tangent is the quasi-static limit: it agrees with the analytical cell's implicit
+tangent to 1e-9 in slide.
 """
 
 import numpy as np
@@ -56,18 +57,40 @@ def _sliding_cells(dem, state, new):
     return sliding.any(axis=1), after["contact"].sum(axis=1) > 0
 
 
+def _fixed_driving(d_eps, strain_per_substep):
+    """Rescale each cell's increment so that max |d_eps| sits half a substep between integers."""
+    largest = np.abs(d_eps).max(axis=1)
+    return d_eps * ((np.floor(largest / strain_per_substep) + 0.5) * strain_per_substep / largest)[:, None]
+
+
 def test_h_cell_stick_and_slide(h_cells):
     dem, state, analytical, ana_state, d_eps = h_cells
+    d_eps = _fixed_driving(d_eps, TIGHT.strain_per_substep)
     new, response = dem.step(state, d_eps, with_tangent=True)
     _, ana = analytical.step(ana_state, d_eps, with_tangent=True)
     sliding, loaded = _sliding_cells(dem, state, new)
     stick, slide = loaded & ~sliding, loaded & sliding
     assert stick.sum() >= 3 and slide.sum() >= 3
-    error = relative_error(response.tangent, fd_tangent(dem, state, d_eps, 1e-8))
+    error = relative_error(response.tangent, fd_tangent(dem, state, d_eps, 0.1 * TIGHT.strain_per_substep))
     assert error[stick].max() <= 1e-5, error
-    assert error[slide].max() <= 1e-2, error
+    assert error[slide].max() <= 3e-4, error
     agreement = relative_error(response.tangent, ana.tangent)
-    assert agreement[loaded].max() <= 1e-6, agreement
+    assert agreement[slide].max() <= 1e-8, agreement
+    assert agreement[stick].max() <= 1e-6, agreement  # the DEM and analytical states differ by ~1e-7
+
+
+def test_h_cell_slide_approaches_the_condensed_tangent_as_driving_slows(h_cells):
+    """Ten times slower driving: the step's own derivative in slide comes within 3e-5 (from ~1e-4)."""
+    slow = DemSettings(force_tolerance=1e-13, strain_per_substep=1e-9, max_substeps=10**8)
+    dem = DemCell(LAW, R, settings=slow, threads=1)
+    alpha0 = np.repeat([35.0, 40.0, 55.0, 70.0], 3)
+    state, d_eps = _sheared(dem, alpha0, alpha0.size)
+    d_eps = _fixed_driving(d_eps, slow.strain_per_substep)
+    new, response = dem.step(state, d_eps, with_tangent=True)
+    sliding, loaded = _sliding_cells(dem, state, new)
+    assert (loaded & sliding).sum() >= 3
+    error = relative_error(response.tangent, fd_tangent(dem, state, d_eps, 0.1 * slow.strain_per_substep))
+    assert error[loaded & sliding].max() <= 3e-5, error
 
 
 def test_tangent_only_when_asked(h_cells):
@@ -85,11 +108,11 @@ def test_generic_mesostructure_sticking(name):
     dem = DemCell(LAW, R, mesostructure=meso, settings=TIGHT, threads=1)
     state = dem.init_state(40.0, 3)
     state, _ = dem.step(state, np.full((3, 2), 2e-3))
-    d_eps = np.array([[1e-5, 1e-5], [2e-5, 1e-5], [1e-5, 2e-5]])
+    d_eps = _fixed_driving(np.array([[1e-5, 1e-5], [2e-5, 1e-5], [1e-5, 2e-5]]), TIGHT.strain_per_substep)
     new, response = dem.step(state, d_eps, with_tangent=True)
     sliding, loaded = _sliding_cells(dem, state, new)
     assert loaded.all() and not sliding.any()
-    error = relative_error(response.tangent, fd_tangent(dem, state, d_eps, 1e-8))
+    error = relative_error(response.tangent, fd_tangent(dem, state, d_eps, 0.1 * TIGHT.strain_per_substep))
     assert error.max() <= 1e-5, error
 
 
