@@ -6,9 +6,10 @@ n_drive = ceil(max |d_eps| / strain_per_substep) stays the same over the differe
 (max |d_eps| at half a substep, difference step a tenth of one), so that the stencil does not
 change the driving path. Sticking contacts: the condensed tangent matches them to <= 1e-5.
 Sliding contacts: a sliding contact's force depends a little on the relaxation dynamics
-(after the last swings it ends a hair below the Coulomb cap, |T| / mu N ~ 0.99997), so the
-step's own derivative differs from the quasi-static one by an amount that falls with the
-driving rate: 0.8e-4 to 1.7e-4 at 1e-8 strain per substep, 0.9e-5 to 2e-5 at 1e-9. The
+(after the last swings it ends a hair below the Coulomb cap, |T| / mu N = 0.99997 at 1e-6
+strain per substep), so the step's own derivative differs from the quasi-static one by an
+amount that falls with the driving rate: 0.8e-4 to 1.7e-4 at 1e-8 strain per substep,
+0.25e-5 to 2e-5 at 1e-9. The
 condensed tangent is the quasi-static limit: it agrees with the analytical cell's implicit
 tangent to 1e-9 in slide.
 """
