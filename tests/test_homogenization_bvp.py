@@ -108,3 +108,19 @@ def test_existing_output_is_kept(homogeneous, capsys):
     assert cli(TINY + ["--out", str(homogeneous)]) == 2
     assert capsys.readouterr().err.strip() == f"hmodel: error: {homogeneous} exists; pass --overwrite to replace it"
     assert (homogeneous / "curve.csv").read_bytes() == before
+
+
+def test_acceptance_case_4x8_72_orientations(tmp_path):
+    """Issue 13: homogeneous specimen, alpha0 = 40, p0 = 5.85e6, to 5 % at 1e-3, 72 orientations,
+    4 x 8 elements: within 0.5 % of p0 of biaxial --drained, every shear step <= 8 Newton iterations."""
+    out = tmp_path / "acceptance"
+    assert cli(["--alpha0", "40", "--p0", "5.85e6", "--eps-max", "0.05", "--increment", "1e-3",
+                "--orientations", "72", "--elements", "4,8", "--out", str(out)]) == 0
+    curve = read_curve(out / "curve.csv")
+    record = driver.run(make_cell_model("analytical"), loading.biaxial(P0, 0.05, 1e-3, drained=True),
+                        alpha0_deg=40.0, n_orientations=72, progress=False)
+    shear = curve["stage"] == "shear"
+    for name in ("q", "p", "sigma11", "sigma22"):
+        deviation = np.abs(curve[name][shear] - getattr(record, name)[record.stage == "shear"]).max()
+        assert deviation <= 5e-3 * P0, (name, deviation / P0)
+    assert curve["iterations"][shear].max() <= 8
