@@ -1,13 +1,15 @@
 """Run a loading programme on a set of oriented cells: ``run(cell_model, programme) -> Record``.
 
-The driver localises each macro strain increment to every cell (``orientation.localise``),
-advances all cells with one ``cell_model.step`` call, averages their moments to the macro
-stress sigma = sum_k w_k S_k / (V0 J) and records the history. It is the only place where
-stress-controlled components are solved: a quasi-Newton (Broyden) iteration on trial
-``step`` calls from the saved state, seeded and refreshed with a finite-difference tangent;
-trials cost one ``step`` each because steps are pure. Convergence: every controlled stress
-within ``stress_rtol`` times its |target| (times the largest |sigma| recorded so far where
-the target is zero).
+The driver runs one material point of the homogenised material
+(``homogenization.material.HomogenisedMaterial``): each macro strain increment is localised to
+every cell, all cells advance with one ``cell_model.step`` call, their moments average to the
+macro stress sigma = sum_k w_k S_k / (V0 J), and the history is recorded. It is the only place
+where stress-controlled components are solved: Newton iterations on trial updates from the
+saved state, each giving the stress and the consistent tangent of the material (one ``step``
+call with the cell tangent); the first guess of an increment comes from the tangent of the
+previous accepted increment (a linear predictor to the new target). Trials cost one ``step`` each because steps are pure. Convergence: every
+controlled stress within ``stress_rtol`` times its |target| (times the largest |sigma|
+recorded so far where the target is zero).
 
 It imports the cell-model protocol only, never a backend. Sign convention: compression
 and contraction positive; stresses [N/m], strains [-], macro shear strain always zero.
@@ -23,16 +25,11 @@ import numpy as np
 from tqdm import tqdm
 
 from homogenization import orientation as orient_mod
-from warp_hcell.cell_model import CellModel, CellResponse
 from homogenization.invariants import deviator, mean_stress
 from homogenization.loading import Programme, Step, validate
+from homogenization.material import HomogenisedMaterial, MaterialUpdate
+from warp_hcell.cell_model import CellModel
 from warp_hcell.parameters import CellDefaults, LoadingDefaults
-
-FD_FRACTION = 1e-2
-"""Finite-difference strain step as a fraction of the current strain increment [-]."""
-FD_FLOOR = 1e-9
-"""Smallest finite-difference strain step [-]."""
-
 
 class ControlError(RuntimeError):
     """A stress-controlled increment did not converge (e.g. the material cannot carry the target)."""
@@ -104,15 +101,13 @@ class Record:
 
 
 class _Runner:
-    """Mutable state of one run: current cells, J, accumulated strain, history buffers."""
+    """Mutable state of one run: the material point, accumulated strain, history buffers."""
 
-    def __init__(self, cell_model: CellModel, orient: orient_mod.Orientations, state: Any, V0: float,
-                 n_max: int, stress_rtol: float, max_iterations: int) -> None:
-        self.model = cell_model
-        self.orient = orient
-        self.state = state
-        self.V0 = V0
-        self.J = 1.0
+    def __init__(self, material: HomogenisedMaterial, n_max: int, stress_rtol: float, max_iterations: int) -> None:
+        self.material = material
+        self.model = material.model
+        self.point = material.init_state()
+        self.V0 = float(material.V0[0])
         self.eps = np.zeros(2)
         self.sigma = np.zeros(3)
         self.sigma_peak = 0.0
@@ -128,34 +123,34 @@ class _Runner:
         self.snap_stage: list[int] = []
         self.snaps: list[dict[str, np.ndarray]] = []
 
-    # -- one trial -------------------------------------------------------------------------
-    def trial(self, d_eps: np.ndarray, d_local: np.ndarray | None = None) -> tuple[Any, CellResponse, np.ndarray, float]:
-        """Step every cell by the macro increment ``d_eps`` (11, 22, 12) from the saved state."""
-        if d_local is None:
-            d_local = orient_mod.localise(self.orient, d_eps)
-        new_state, resp = self.model.step(self.state, d_local)
-        for name, value in resp.diagnostics.items():
-            self.call_totals[name] = self.call_totals.get(name, 0.0) + float(value)
-        J = self.J * orient_mod.volume_ratio_factor(d_eps)
-        sigma = orient_mod.average_moment(self.orient, resp.moment) / (self.V0 * J)
-        return new_state, resp, sigma, J
+    @property
+    def state(self) -> Any:
+        """Cell state of the last accepted increment."""
+        return self.point.cells
 
-    def accept(self, new_state: Any, resp: CellResponse, sigma: np.ndarray, J: float, d_eps: np.ndarray,
-               iterations: int, stage: int) -> None:
+    # -- one trial -------------------------------------------------------------------------
+    def trial(self, d_eps: np.ndarray, *, with_tangent: bool = False) -> MaterialUpdate:
+        """Update the material point by the macro increment ``d_eps`` (11, 22, 12) from the saved state."""
+        d_voigt = np.array([[d_eps[0], d_eps[1], 2.0 * d_eps[2]]])
+        update = self.material.update(self.point, d_voigt, with_tangent=with_tangent)
+        for name, value in update.diagnostics.items():
+            self.call_totals[name] = self.call_totals.get(name, 0.0) + float(value)
+        return update
+
+    def accept(self, update: MaterialUpdate, d_eps: np.ndarray, iterations: int, stage: int) -> None:
         k = self.k
-        self.state = new_state
-        self.J = J
+        self.point = update.state
         self.eps += d_eps[:2]
-        self.sigma = sigma
-        self.sigma_peak = max(self.sigma_peak, float(np.abs(sigma).max()))
+        self.sigma = update.stress[0]
+        self.sigma_peak = max(self.sigma_peak, float(np.abs(self.sigma).max()))
         row = self.rows[k]
         row[0], row[1] = self.eps
-        row[2:5] = sigma
-        row[5] = J
+        row[2:5] = self.sigma
+        row[5] = update.state.J[0]
         self.iterations[k] = iterations
         self.stage_index[k] = stage
         totals = {f"{name}_all_calls": value for name, value in self.call_totals.items()}
-        for name, value in (*resp.diagnostics.items(), *totals.items()):
+        for name, value in (*update.diagnostics.items(), *totals.items()):
             if name not in self.diagnostics:
                 self.diagnostics[name] = np.full(self.rows.shape[0], np.nan)
             self.diagnostics[name][k] = value
@@ -170,46 +165,44 @@ class _Runner:
         self.snaps.append({name: np.array(v) for name, v in self.model.observables(self.state).items()})
 
     # -- stress control --------------------------------------------------------------------
-    def _fd_tangent(self, d_eps: np.ndarray, sigma: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        h = max(FD_FRACTION * float(np.abs(d_eps[:2]).max()), FD_FLOOR)
-        K = np.empty((idx.size, idx.size))
-        for j, comp in enumerate(idx):
-            d = d_eps.copy()
-            d[comp] += h
-            K[:, j] = (self.trial(d)[2][idx] - sigma[idx]) / h
-        return K
+    def predict(self, d_eps: np.ndarray, idx: np.ndarray, target: np.ndarray, tangent: np.ndarray | None) -> np.ndarray:
+        """First guess of the stress-controlled increments: sigma + D d_eps = target on ``idx``,
+        D the Voigt tangent of the last accepted increment (``d_eps`` unchanged without one)."""
+        d_eps = d_eps.copy()
+        if tangent is None:
+            return d_eps
+        ctrl = np.setdiff1d(np.arange(2), idx)
+        rhs = target - self.sigma[idx] - tangent[np.ix_(idx, ctrl)] @ d_eps[ctrl]
+        try:
+            d_eps[idx] = np.linalg.solve(tangent[np.ix_(idx, idx)], rhs)
+        except np.linalg.LinAlgError:
+            pass  # singular last tangent: keep the previous increment as the guess
+        return d_eps
 
-    def solve_stress(self, d_eps: np.ndarray, idx: np.ndarray, target: np.ndarray, K: np.ndarray | None,
-                     where: str) -> tuple[Any, CellResponse, np.ndarray, float, np.ndarray, int, np.ndarray]:
+    def solve_stress(self, d_eps: np.ndarray, idx: np.ndarray, target: np.ndarray,
+                     where: str) -> tuple[MaterialUpdate, np.ndarray, int]:
         """Find the strain increments of components ``idx`` giving sigma[idx] = ``target``.
 
-        ``d_eps`` holds the strain-controlled increments and the initial guess of the others.
-        Returns the accepted trial, the solved increment, the calls spent and the tangent.
+        Newton with the material's consistent tangent. ``d_eps`` holds the strain-controlled
+        increments and the initial guess of the others. Returns the accepted trial, the solved
+        increment and the ``step`` calls spent.
         """
         d_eps = d_eps.copy()
         scale = np.abs(target)
         tol = self.rtol * np.where(scale > 0.0, scale, self.sigma_peak)
         calls = 0
-        x_prev = r_prev = None
         while True:
-            new_state, resp, sigma, J = self.trial(d_eps)
+            update = self.trial(d_eps, with_tangent=True)
             calls += 1
-            r = sigma[idx] - target
+            r = update.stress[0, idx] - target
             if np.all(np.abs(r) <= tol):
-                return new_state, resp, sigma, J, d_eps, calls, K
+                return update, d_eps, calls
             if calls >= self.max_iterations:
                 raise ControlError(f"{where}: stress control did not converge in {calls} step calls "
                                    f"(residual {float(np.abs(r).max()):.3g} N/m, tolerance {float(tol.min()):.3g} N/m)")
-            x = d_eps[idx]
-            if x_prev is not None and K is not None:
-                dx, dr = x - x_prev, r - r_prev
-                K = K + np.outer(dr - K @ dx, dx) / float(dx @ dx)
-            if K is None or (r_prev is not None and np.abs(r).max() > 0.5 * np.abs(r_prev).max()):
-                K = self._fd_tangent(d_eps, sigma, idx)
-                calls += idx.size
-            x_prev, r_prev = x.copy(), r
+            K = update.tangent[0][np.ix_(idx, idx)]
             try:
-                d_eps[idx] = x - np.linalg.solve(K, r)
+                d_eps[idx] = d_eps[idx] - np.linalg.solve(K, r)
             except np.linalg.LinAlgError:
                 raise ControlError(f"{where}: the material has no stiffness against the controlled stress "
                                    f"(singular tangent)") from None
@@ -223,10 +216,11 @@ class _Runner:
         for calls in range(1, self.max_iterations + 1):
             lam = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
             d = d_eps * lam
-            new_state, resp, sigma, J = self.trial(d)
+            update = self.trial(d)
+            sigma = update.stress[0]
             f = float(mean_stress(sigma[0], sigma[1])) - p_stop
             if abs(f) <= tol:
-                return new_state, resp, sigma, J, d, calls
+                return update, d, calls
             if f > 0.0:
                 hi, f_hi = lam, f
                 if side == 1:
@@ -248,32 +242,34 @@ class _Runner:
         d_eps[:2] = np.where(mask, 0.0, np.asarray(step.target) / n)
         sigma_start = self.sigma[:2].copy()
         target_end = np.asarray(step.target)
-        d_local = orient_mod.localise(self.orient, d_eps) if idx.size == 0 else None
         if step.stop_at_p is not None and mean_stress(self.sigma[0], self.sigma[1]) >= step.stop_at_p:
             raise ControlError(f"step {step.label!r} starts at p = {mean_stress(self.sigma[0], self.sigma[1]):.6g} N/m, "
                                f"already at or above stop_at_p = {step.stop_at_p:g} N/m")
-        K = None
+        tangent = None
         for i in range(n):
             if idx.size:
                 target = sigma_start[idx] + (target_end[idx] - sigma_start[idx]) * ((i + 1) / n)
                 where = f"step {step.label!r}, increment {i + 1}"
-                new_state, resp, sigma, J, d_eps, calls, K = self.solve_stress(d_eps, idx, target, K, where)
+                d_eps = self.predict(d_eps, idx, target, tangent)
+                update, d_eps, calls = self.solve_stress(d_eps, idx, target, where)
+                tangent = update.tangent[0]
             else:
-                new_state, resp, sigma, J = self.trial(d_eps, d_local)
+                update = self.trial(d_eps)
                 calls = 1
                 if step.stop_at_p is not None:
+                    sigma = update.stress[0]
                     p_new = 0.5 * (sigma[0] + sigma[1])
                     if p_new >= step.stop_at_p:
                         if p_new - step.stop_at_p > self.rtol * step.stop_at_p:
                             where = f"step {step.label!r}, increment {i + 1}"
-                            new_state, resp, sigma, J, d, extra = self.land_on_p(d_eps, step.stop_at_p, p_new, where)
+                            update, d, extra = self.land_on_p(d_eps, step.stop_at_p, p_new, where)
                             calls += extra
                         else:
                             d = d_eps
-                        self.accept(new_state, resp, sigma, J, d, calls, stage)
+                        self.accept(update, d, calls, stage)
                         bar.update(1)
                         return
-            self.accept(new_state, resp, sigma, J, d_eps, calls, stage)
+            self.accept(update, d_eps, calls, stage)
             bar.update(1)
             if snapshot_interval and self.k % snapshot_interval == 0:
                 self.snapshot(stage)
@@ -321,10 +317,9 @@ def run(
     if snapshot_interval < 0:
         raise ValueError(f"snapshot_interval = {snapshot_interval} must be >= 0")
     orient = orient_mod.orientations(n_orientations, anisotropy=fabric_anisotropy, direction_deg=fabric_direction_deg)
-    state = cell_model.init_state(alpha0_deg, orient.n_cells)
-    V0 = orient_mod.initial_volume(orient, cell_model.response(state).area)
-    runner = _Runner(cell_model, orient, state, V0, sum(s.n_increments for s in programme),
-                     stress_rtol, max_newton_iterations)
+    material = HomogenisedMaterial(cell_model, orient, alpha0_deg, 1)
+    runner = _Runner(material, sum(s.n_increments for s in programme), stress_rtol, max_newton_iterations)
+    V0 = runner.V0
     labels = [s.label for s in programme]
     step_seconds = np.zeros(len(programme))
     for stage, step in enumerate(programme):

@@ -17,6 +17,12 @@ reference to it, and a trial increment (stress control) is a ``step`` whose resu
 discarded. ``take`` gathers cells (with repetition) to restore saved cells or fan a state
 out into probes; ``state_to_arrays``/``state_from_arrays`` round-trip a state through
 named numpy arrays (HDF5 snapshots, resume).
+
+Tangents: ``step(state, d_eps_local, with_tangent=True)`` also returns, in
+``CellResponse.tangent``, the consistent cell tangent C = d(S_nn, S_tt)/d(eps_n, eps_t)
+[N m] of the increment just taken (the derivative of the step's result with respect to its
+own increment, in the contact regimes the step reached: stick, slide, open). A backend
+computes it only when asked, so plain calls cost nothing extra.
 """
 
 from __future__ import annotations
@@ -74,13 +80,17 @@ class CellModel(Protocol[S]):
         """
         ...
 
-    def step(self, state: S, d_eps_local: np.ndarray) -> tuple[S, CellResponse]:
+    def step(self, state: S, d_eps_local: np.ndarray, *, with_tangent: bool = False) -> tuple[S, CellResponse]:
         """Advance every cell by its own strain increment; pure (``state`` untouched).
 
         Args:
             state: cells before the increment.
             d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive:
                 l1 <- l1 (1 - d_eps_n), l2 <- l2 (1 - d_eps_t).
+            with_tangent: also return ``CellResponse.tangent``, the consistent tangent
+                d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m] of this increment, shape
+                (n_cells, 2, 2) (row = stress component, column = strain component); None
+                (and no extra work) when False.
 
         Returns:
             The new state and its meso-stress response.

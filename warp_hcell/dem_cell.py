@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import warnings
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping
 
 import numpy as np
@@ -27,6 +27,7 @@ from warp_hcell.mesostructure import Mesostructure, h_cell, polygon_area
 from warp_hcell.model import DemModel
 from warp_hcell.parameters import ContactLaw, DemSettings, check_positive
 from warp_hcell.state import DemState
+from warp_hcell.tangent import condensed_tangent, sliding_contacts
 
 _MODEL_ARRAYS = ("radius", "reference_position", "reference_cell_size")
 
@@ -116,22 +117,39 @@ class DemCell:
         model = self._model(alpha0_deg, int(n_cells))
         return DemCellState(model, model.state())
 
-    def step(self, state: DemCellState, d_eps_local: np.ndarray) -> tuple[DemCellState, CellResponse]:
+    def step(self, state: DemCellState, d_eps_local: np.ndarray, *,
+             with_tangent: bool = False) -> tuple[DemCellState, CellResponse]:
         """Advance every cell by (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
 
         Pure: ``state`` is not modified. Cells that reach max_substeps without equilibrium are
-        counted in ``diagnostics["n_unconverged"]`` and reported with a warning.
+        counted in ``diagnostics["n_unconverged"]`` and reported with a warning. With
+        ``with_tangent`` the response carries d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m] of the
+        equilibrium reached (``warp_hcell.tangent.condensed_tangent``).
         """
         model = state.model
         out = DemState.empty(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)
         self._integrator(model).step(state.dem, out, d_eps_local)
         new = DemCellState(model, out)
         response = self.response(new)
+        if with_tangent:
+            response = replace(response, tangent=self._tangent(state, new))
         if response.diagnostics["n_unconverged"]:
             warnings.warn(f"DEM: {response.diagnostics['n_unconverged']:g} of {model.n_cells} cells did not reach "
                           f"equilibrium within max_substeps = {self.settings.max_substeps}", RuntimeWarning,
                           stacklevel=2)
         return new, response
+
+    def _tangent(self, old: DemCellState, new: DemCellState) -> np.ndarray:
+        """Condensed tangent of ``new``; driven DOFs move as x_ref l_old / l_ref per unit strain."""
+        model, law = new.model, self.contact_law
+        arrays, before = new.dem.to_numpy(), old.dem.to_numpy()
+        radius, pairs, driven = model.radius.numpy(), model.meso.pairs, model.meso.driven
+        laws = dict(kn=law.kn, kt=law.kt, mu=law.mu)
+        sliding = sliding_contacts(before["position"], arrays["position"], radius, pairs, before["shear_force"], **laws)
+        l_ratio = before["cell_size"] / model.reference_cell_size.numpy()
+        drive_rate = -model.reference_position.numpy() * l_ratio[:, None, :] * driven[None]
+        return condensed_tangent(arrays["position"], radius, pairs, driven, arrays["shear_force"], sliding,
+                                 drive_rate, **laws)
 
     def response(self, state: DemCellState) -> CellResponse:
         """Love-Weber moment (compression positive) and V_cell of ``state``; diagnostics of its step."""

@@ -102,6 +102,33 @@ class LoadingDefaults:
 
 
 @dataclass(frozen=True)
+class FeDefaults:
+    """Defaults of the plane-strain biaxial boundary-value problem (``homogenization.bvp``)."""
+
+    width: float = 1.0
+    """Specimen width W [m] (the H-model has no length scale: only W/H matters)."""
+    height: float = 2.0
+    """Specimen height H [m]."""
+    elements: tuple[int, int] = (4, 8)
+    """Bilinear quadrilaterals across the width and along the height [-]."""
+    n_orientations: int = 72
+    """Cell orientations per Gauss point [-]."""
+    eps_max: float = 0.05
+    """Axial strain of the shear stage, counted from its start [-]."""
+    increment: float = 1e-3
+    """Axial strain of one shear step (top-platen displacement / H) [-]."""
+    iso_steps: int = 20
+    """Load steps of the isotropic stage [-]."""
+    newton_rtol: float = 1e-8
+    """Newton converges when the out-of-balance force norm is below this times p0 W [-]."""
+    max_newton: int = 25
+    """Newton iterations allowed per load step [-]."""
+    isotropic_seed: float = 1e-6
+    """Homogeneous isotropic strain of the first Newton guess [-]: the touching, force-free
+    cells have no stiffness, a small compression closes them."""
+
+
+@dataclass(frozen=True)
 class DemSettings:
     """Numerical settings of the meso-DEM (spec section 10)."""
 

@@ -17,6 +17,14 @@ by doubling steps, never past the middle of the bracket. Converged cells are fro
 cell's result does not depend on its batch. Where both contacts are open f is identically
 zero and y2 is kept. Where f > 0 even at y2 = l1/2 (alpha = 90 deg) the cell is held there.
 
+With ``with_tangent=True`` the step also returns the consistent tangent
+d(S_nn, S_tt)/d(d_eps_n, d_eps_t) of the increment, by implicit differentiation of
+f(y2; l1, l2) = 0 in the regime the solve reached (which contacts are closed, stick or slide
+of the type-1 contacts with the sign of the trial force, pathological contacts):
+dy2/dl = -(df/dl) / (df/dy2), dS/dl = dS/dl|_y2 + dS/dy2 dy2/dl, and dl_i/d(d_eps_i) = -l_i,old.
+The partial derivatives of the frozen-regime residual and moment are written out in
+``_partials``.
+
 Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
 growing). Local frame: index 0 = n, 1 = t.
 """
@@ -115,12 +123,15 @@ class AnalyticalCell(ArrayStateMixin):
         zero = np.zeros_like(alpha)
         return AnalyticalState(l1, l2, 0.5 * D, D, alpha, zero, zero.copy(), zero.copy())
 
-    def step(self, state: AnalyticalState, d_eps_local: np.ndarray) -> tuple[AnalyticalState, CellResponse]:
+    def step(self, state: AnalyticalState, d_eps_local: np.ndarray, *,
+             with_tangent: bool = False) -> tuple[AnalyticalState, CellResponse]:
         """Advance every cell by its local strain increment; ``state`` is left untouched.
 
         Args:
             state: cells at the start of the increment.
             d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
+            with_tangent: also return the consistent tangent d(S_nn, S_tt)/d(d_eps_n, d_eps_t)
+                [N m], shape (n_cells, 2, 2), in ``CellResponse.tangent``.
 
         Returns:
             The equilibrium state at the end of the increment and its response.
@@ -132,7 +143,91 @@ class AnalyticalCell(ArrayStateMixin):
         moment, area = hcell.love_weber_moment(
             new.alpha, new.N1, new.N2, new.T1, l1, l2, kn=self.kn, diameter=self.diameter
         )
-        return new, CellResponse(moment, area, diagnostics)
+        tangent = self._tangent(state, new) if with_tangent else None
+        return new, CellResponse(moment, area, diagnostics, tangent)
+
+    def _regime(self, old: AnalyticalState, new: AnalyticalState) -> dict[str, np.ndarray]:
+        """Contact regime reached by the solve, as the masks that ``_partials`` holds fixed."""
+        D = self.diameter
+        d_alpha = new.alpha - old.alpha
+        trial = old.T1 + self.kt * 0.5 * (old.d1 + new.d1) * d_alpha
+        cap = self.mu * new.N1
+        return {
+            "closed1": (D - new.d1 > 0.0).astype(np.float64),
+            "closed2": (D - 2.0 * new.y2 > 0.0).astype(np.float64),
+            "stick": np.abs(trial) < cap,
+            "slide_sign": np.copysign(1.0, trial),
+            "touch14": (D - new.l1 > 0.0).astype(np.float64),
+            "touch26": (D - new.l2 > 0.0).astype(np.float64),
+        }
+
+    def _partials(self, old: AnalyticalState, new: AnalyticalState, regime: dict[str, np.ndarray]):
+        """Partial derivatives of f and (S_nn, S_tt) with respect to (y2, l1, l2) in a fixed regime.
+
+        Same expressions as ``_solve`` and ``hcell.love_weber_moment`` with every max/clip
+        replaced by the branch of ``regime``. Everything but N2 and the pathological contacts
+        depends on (y2, l1) through u = l1/2 - y2 and on l2 through h = l2/2; with d1 = |(u, h)|,
+        c = u/d1, s = h/d1, alpha = atan2(h, u): dd1 = c du + s dh, dc = s (s du - c dh)/d1,
+        ds = c (c dh - s du)/d1, dalpha = (c dh - s du)/d1.
+
+        Returns:
+            (f_x, S_x): shapes (n_cells, 3) and (n_cells, 2, 3), columns d/dy2, d/dl1, d/dl2.
+        """
+        kn, kt, mu, D = self.kn, self.kt, self.mu, self.diameter
+        y2, l1, l2 = new.y2, new.l1, new.l2
+        u, h = 0.5 * l1 - y2, 0.5 * l2
+        d1 = np.hypot(h, u)
+        c, s = u / d1, h / d1
+        cs_d1 = c * s / d1
+        c_u, c_h = s * s / d1, -cs_d1
+        s_u, s_h = -cs_d1, c * c / d1
+        a_u, a_h = -s / d1, c / d1
+        closed1, closed2 = regime["closed1"], regime["closed2"]
+        N1 = kn * (D - d1) * closed1
+        N1_u, N1_h = -kn * closed1 * c, -kn * closed1 * s
+        N2 = kn * (D - 2.0 * y2) * closed2
+        N2_y = -2.0 * kn * closed2
+        d_alpha = new.alpha - old.alpha
+        d1_mid = 0.5 * (old.d1 + d1)
+        stick, slide = regime["stick"], regime["slide_sign"] * mu
+        T1 = np.where(stick, old.T1 + kt * d1_mid * d_alpha, slide * N1)
+        T_u = np.where(stick, kt * (0.5 * c * d_alpha + d1_mid * a_u), slide * N1_u)
+        T_h = np.where(stick, kt * (0.5 * s * d_alpha + d1_mid * a_h), slide * N1_h)
+        sg = s + self.g2
+        f_u = -N1_u * c - N1 * c_u - s_u * T1 - sg * T_u
+        f_h = -N1_h * c - N1 * c_h - s_h * T1 - sg * T_h
+        # S_nn = 4 u A + 4 N2 y2 + kn (D - l1) l1, S_tt = 4 h B + 2 kn (D - l2) l2
+        A = N1 * c + T1 * s
+        B = N1 * s - T1 * c
+        A_u = N1_u * c + N1 * c_u + T_u * s + T1 * s_u
+        A_h = N1_h * c + N1 * c_h + T_h * s + T1 * s_h
+        B_u = N1_u * s + N1 * s_u - T_u * c - T1 * c_u
+        B_h = N1_h * s + N1 * s_h - T_h * c - T1 * c_h
+        Snn_u, Snn_h = 4.0 * (A + u * A_u), 4.0 * u * A_h
+        Stt_u, Stt_h = 4.0 * h * B_u, 4.0 * (B + h * B_h)
+        # chain rule: du/dy2 = -1, du/dl1 = dh/dl2 = 1/2
+        f_x = np.stack([N2_y - f_u, 0.5 * f_u, 0.5 * f_h], axis=-1)
+        S_nn_x = np.stack([4.0 * (N2_y * y2 + N2) - Snn_u, 0.5 * Snn_u + kn * (D - 2.0 * l1) * regime["touch14"],
+                           0.5 * Snn_h], axis=-1)
+        S_tt_x = np.stack([-Stt_u, 0.5 * Stt_u, 0.5 * Stt_h + 2.0 * kn * (D - 2.0 * l2) * regime["touch26"]], axis=-1)
+        return f_x, np.stack([S_nn_x, S_tt_x], axis=1)
+
+    def _tangent(self, old: AnalyticalState, new: AnalyticalState) -> np.ndarray:
+        """Consistent tangent d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m], shape (n_cells, 2, 2)."""
+        f_x, S_x = self._partials(old, new, self._regime(old, new))
+        f_y, f_l1, f_l2 = f_x[:, 0], f_x[:, 1], f_x[:, 2]
+        S_y, S_l1, S_l2 = S_x[:, :, 0], S_x[:, :, 1], S_x[:, :, 2]
+        # y2 held at alpha = 90 deg (no equilibrium below): y2 = l1/2; both contacts open
+        # (f identically 0): y2 kept; else implicit differentiation of f = 0.
+        at_limit = (0.5 * new.l1 - new.y2 == 0.0)
+        free = (f_y == 0.0) & ~at_limit
+        safe = np.where(at_limit | free, 1.0, f_y)
+        dy_l1 = np.where(at_limit, 0.5, np.where(free, 0.0, -f_l1 / safe))
+        dy_l2 = np.where(at_limit | free, 0.0, -f_l2 / safe)
+        dS_l1 = S_l1 + S_y * dy_l1[:, None]
+        dS_l2 = S_l2 + S_y * dy_l2[:, None]
+        # l_i = l_i,old (1 - d_eps_i)
+        return np.stack([dS_l1 * -old.l1[:, None], dS_l2 * -old.l2[:, None]], axis=-1)
 
     def _solve(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray) -> tuple[AnalyticalState, dict]:
         """Equilibrium y2 for the new lengths; returns the state and the diagnostics."""

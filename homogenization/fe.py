@@ -1,0 +1,291 @@
+"""Plane-strain biaxial specimen of the homogenised H-model, by finite elements (scikit-fem).
+
+``BiaxialSpecimen(nx, ny)`` is a W x H rectangle of bilinear quadrilaterals (2 x 2 Gauss
+points each, every Gauss point a material point of ``homogenization.material``) between two
+smooth rigid platens: the bottom platen holds u_y = 0, the top platen moves all top nodes by
+one common u_y (a master degree of freedom), both leave u_x free (no friction); the bottom
+node nearest x = W/2 holds u_x = 0 (no rigid-body drift). The lateral faces carry the
+pressure p (traction -p n). ``run(material, programme)`` solves the programme step by step by
+Newton's method with the consistent tangent of the material: scikit-fem assembles the
+internal forces and the stiffness from the Gauss-point stresses and tangents and condenses
+the prescribed degrees of freedom; each iteration is ONE batched material update of every
+Gauss point.
+
+Programme: ``isotropic_stage(p0, n)`` ramps the lateral pressure and the force of the top
+platen together to p0 (stress control on both axes), ``shear_stage(eps, n)`` then moves the
+top platen by eps H / n per step while the lateral pressure stays.
+
+Frames and signs: x (index 0) is lateral, y (index 1) axial (the platen direction). The
+material is fed and returns compression-positive Voigt quantities in the (x, y) frame
+((eps_xx, eps_yy, gamma_xy), (sigma_xx, sigma_yy, sigma_xy)); scikit-fem works with
+tension-positive displacements gradients: eps_c = -sym grad u, sigma_t = -sigma_c, same
+tangent. Specimen averages (``StepResult``) use the biaxial convention: 1 = axial (y),
+2 = lateral (x), compression positive: eps11 = -U_top / H, eps22 = -(mean u_x on the right
+face - mean u_x on the left face) / W, sigma11 = -(force of the top platen on the specimen) / W,
+sigma22 and sigma12 = area averages of the Gauss-point sigma_xx and sigma_xy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from skfem import Basis, BilinearForm, ElementQuad1, ElementVector, FacetBasis, LinearForm, MeshQuad, condense, solve
+from skfem.helpers import dot, sym_grad
+
+from homogenization.material import HomogenisedMaterial, MaterialState
+from warp_hcell.parameters import FeDefaults
+
+QUADRATURE_ORDER = 2
+"""Integration order of the bilinear quadrilaterals: 2 x 2 Gauss points [-]."""
+
+
+class NewtonError(RuntimeError):
+    """A load step did not converge (the message names the step and the residual)."""
+
+
+@dataclass(frozen=True)
+class LoadStep:
+    """One load step: lateral pressure and either the force or the displacement of the top platen.
+
+    Attributes:
+        stage: stage label ("iso", "shear").
+        pressure: lateral pressure at the end of the step [N/m], compression positive.
+        platen_force: axial stress carried by the top platen [N/m] (force-controlled step), or None.
+        platen_increment: top-platen displacement of the step, axial strain units
+            (-delta U / H) [-], compression positive (displacement-controlled step), or None.
+    """
+
+    stage: str
+    pressure: float
+    platen_force: float | None = None
+    platen_increment: float | None = None
+
+
+def isotropic_stage(p0: float, n_steps: int) -> list[LoadStep]:
+    """Lateral pressure and platen stress ramped together to p0 [N/m] in ``n_steps`` equal steps."""
+    return [LoadStep("iso", p0 * k / n_steps, platen_force=p0 * k / n_steps) for k in range(1, n_steps + 1)]
+
+
+def shear_stage(p0: float, eps_max: float, n_steps: int) -> list[LoadStep]:
+    """Top platen moved by eps_max H in ``n_steps`` equal steps; lateral pressure p0 [N/m]."""
+    return [LoadStep("shear", p0, platen_increment=eps_max / n_steps) for _ in range(n_steps)]
+
+
+@dataclass
+class StepResult:
+    """Converged load step: specimen averages (1 = axial, 2 = lateral) and the fields.
+
+    Attributes:
+        stage: stage label.
+        eps11, eps22: axial and lateral strain of the specimen [-], compression positive.
+        sigma11, sigma22, sigma12: axial (platen), lateral and shear stress [N/m].
+        iterations: Newton iterations (linear solves) of the step.
+        residuals: out-of-balance force norm [N/m] before each iteration and at convergence.
+        displacement: nodal displacement [m], shape (n_nodes, 2), (u_x, u_y), tension-positive FE sign.
+        strain: Gauss-point strain (eps_xx, eps_yy, gamma_xy) [-], shape (n_points, 3), compression positive.
+        stress: Gauss-point stress (sigma_xx, sigma_yy, sigma_xy) [N/m], shape (n_points, 3), compression positive.
+        diagnostics: backend diagnostics summed over the step's material updates.
+    """
+
+    stage: str
+    eps11: float
+    eps22: float
+    sigma11: float
+    sigma22: float
+    sigma12: float
+    iterations: int
+    residuals: list[float]
+    displacement: np.ndarray
+    strain: np.ndarray
+    stress: np.ndarray
+    diagnostics: dict[str, float] = field(default_factory=dict)
+
+
+@BilinearForm
+def _stiffness(u, v, w):
+    """Integrand e(v)^T D e(u) with Voigt (eps_xx, eps_yy, gamma_xy) and D = w.D (3, 3, ...)."""
+    eu, ev = sym_grad(u), sym_grad(v)
+    Eu = (eu[0, 0], eu[1, 1], 2.0 * eu[0, 1])
+    Ev = (ev[0, 0], ev[1, 1], 2.0 * ev[0, 1])
+    return sum(Ev[i] * w.D[i, j] * Eu[j] for i in range(3) for j in range(3))
+
+
+@LinearForm
+def _internal(v, w):
+    """Internal virtual work sigma_t : sym grad v, sigma_t (tension positive) = w.sigma (2, 2, ...)."""
+    ev = sym_grad(v)
+    s = w.sigma
+    return s[0, 0] * ev[0, 0] + s[1, 1] * ev[1, 1] + 2.0 * s[0, 1] * ev[0, 1]
+
+
+@LinearForm
+def _outward_normal_load(v, w):
+    """Work of a unit pressure: traction -n, so  -n . v."""
+    return -dot(w.n, v)
+
+
+class BiaxialSpecimen:
+    """The meshed specimen, its boundary conditions and the Newton solver (module docstring).
+
+    Args:
+        nx, ny: elements across the width and along the height, each >= 1.
+        width, height: specimen size W, H [m].
+        newton_rtol: convergence when the out-of-balance force norm <= newton_rtol * scale * W [-].
+        max_newton: Newton iterations allowed per load step.
+    """
+
+    def __init__(self, nx: int, ny: int, *, width: float = FeDefaults.width, height: float = FeDefaults.height,
+                 newton_rtol: float = FeDefaults.newton_rtol, max_newton: int = FeDefaults.max_newton) -> None:
+        if int(nx) < 1 or int(ny) < 1:
+            raise ValueError(f"element counts must be >= 1, got {nx} x {ny}")
+        self.newton_rtol = float(newton_rtol)
+        self.max_newton = int(max_newton)
+        self.nx, self.ny = int(nx), int(ny)
+        self.width, self.height = float(width), float(height)
+        self.mesh = MeshQuad.init_tensor(np.linspace(0.0, width, nx + 1), np.linspace(0.0, height, ny + 1))
+        element = ElementVector(ElementQuad1())
+        self.basis = Basis(self.mesh, element, intorder=QUADRATURE_ORDER)
+        x, y = self.mesh.p
+        nodal = self.basis.nodal_dofs
+        self.top_nodes = np.flatnonzero(np.isclose(y, height))
+        self.left_nodes = np.flatnonzero(np.isclose(x, 0.0))
+        self.right_nodes = np.flatnonzero(np.isclose(x, width))
+        bottom = np.flatnonzero(np.isclose(y, 0.0))
+        pin = bottom[np.argmin(np.abs(x[bottom] - 0.5 * width))]
+        lateral = self.mesh.facets_satisfying(lambda p: np.isclose(p[0], 0.0) | np.isclose(p[0], width))
+        self.unit_pressure = _outward_normal_load.assemble(FacetBasis(self.mesh, element, facets=lateral,
+                                                                      intorder=QUADRATURE_ORDER))
+        # reduced unknowns: every DOF but the top u_y, which share one master DOF (the last)
+        n = self.basis.N
+        top_y = nodal[1, self.top_nodes]
+        keep = np.setdiff1d(np.arange(n), top_y)
+        self.master = keep.size
+        rows = np.concatenate([keep, top_y])
+        cols = np.concatenate([np.arange(keep.size), np.full(top_y.size, self.master)])
+        self.tie = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, keep.size + 1))
+        """Sparse map u = tie @ a from the reduced unknowns a to all DOFs (rigid top platen)."""
+        position = {dof: k for k, dof in enumerate(keep)}
+        self.fixed = np.array([position[d] for d in nodal[1, bottom]] + [position[nodal[0, pin]]])
+        self.top_y = top_y
+        self.n_points = self.mesh.nelements * self.basis.X.shape[1]
+        self.weights = self.basis.dx.reshape(-1)
+        """Gauss-point areas [m^2], shape (n_points,), point = element * n_gauss + gauss."""
+
+    # -- fields ---------------------------------------------------------------------------
+    def element_centroids(self) -> np.ndarray:
+        """Element centres [m], shape (n_elements, 2)."""
+        return self.mesh.p[:, self.mesh.t].mean(axis=1).T
+
+    def points_per_element(self) -> int:
+        """Gauss points per element."""
+        return int(self.basis.X.shape[1])
+
+    def strain(self, u: np.ndarray) -> np.ndarray:
+        """Gauss-point strain (eps_xx, eps_yy, gamma_xy) [-], shape (n_points, 3), compression positive."""
+        g = self.basis.interpolate(u).grad  # (2, 2, n_elements, n_gauss): g[i, j] = d u_i / d x_j
+        return -np.stack([g[0, 0], g[1, 1], g[0, 1] + g[1, 0]], axis=-1).reshape(-1, 3)
+
+    def _assemble(self, stress: np.ndarray, tangent: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        shape = (self.mesh.nelements, self.points_per_element())
+        s = -stress.T.reshape(3, *shape)  # tension positive
+        sigma = np.array([[s[0], s[2]], [s[2], s[1]]])
+        D = np.moveaxis(tangent.reshape(*shape, 3, 3), (2, 3), (0, 1))
+        f_int = _internal.assemble(self.basis, sigma=sigma)
+        K = _stiffness.assemble(self.basis, D=D)
+        return f_int, K
+
+    def averages(self, u: np.ndarray, f_int: np.ndarray, stress: np.ndarray) -> tuple[float, ...]:
+        """(eps11, eps22, sigma11, sigma22, sigma12) of the specimen (1 = axial, 2 = lateral)."""
+        nodal = self.basis.nodal_dofs
+        U = u[self.top_y[0]]
+        ux = u[nodal[0]]
+        eps11 = -U / self.height
+        eps22 = -(ux[self.right_nodes].mean() - ux[self.left_nodes].mean()) / self.width
+        # force of the top platen on the specimen = internal force of the master DOF (< 0 in compression)
+        sigma11 = -float(np.sum(f_int[self.top_y])) / self.width
+        area = self.weights.sum()
+        sigma22 = float(self.weights @ stress[:, 0]) / area
+        sigma12 = float(self.weights @ stress[:, 2]) / area
+        return eps11, eps22, sigma11, sigma22, sigma12
+
+    # -- solution -------------------------------------------------------------------------
+    def solve_step(self, material: HomogenisedMaterial, state: MaterialState, u_start: np.ndarray,
+                   u_guess: np.ndarray, step: LoadStep, scale: float, where: str):
+        """Newton iterations of one load step from the converged ``u_start``/``state``.
+
+        Returns (u, material update, f_int, iterations, residual norms, diagnostics).
+        """
+        tie = self.tie
+        u = u_guess.copy()
+        fixed = self.fixed
+        if step.platen_increment is not None:
+            u[self.top_y] = u_start[self.top_y[0]] - step.platen_increment * self.height
+            fixed = np.append(fixed, self.master)
+        f_ext = tie.T @ (step.pressure * self.unit_pressure)
+        if step.platen_force is not None:
+            f_ext[self.master] -= step.platen_force * self.width
+        eps_start = self.strain(u_start)
+        residuals: list[float] = []
+        totals: dict[str, float] = {}
+        free = np.setdiff1d(np.arange(tie.shape[1]), fixed)
+        for iteration in range(self.max_newton + 1):
+            update = material.update(state, self.strain(u) - eps_start)
+            for name, value in update.diagnostics.items():
+                totals[name] = totals.get(name, 0.0) + float(value)
+            f_int, K = self._assemble(update.stress, update.tangent)
+            residual = tie.T @ f_int - f_ext
+            norm = float(np.linalg.norm(residual[free]))
+            residuals.append(norm / self.width)
+            if norm <= self.newton_rtol * scale * self.width:
+                return u, update, f_int, iteration, residuals, totals
+            if iteration == self.max_newton:
+                break
+            K_r = (tie.T @ K @ tie).tocsr()
+            du = solve(*condense(K_r, -residual, x=np.zeros(tie.shape[1]), D=fixed))
+            u = u + tie @ du
+        raise NewtonError(f"{where}: Newton did not converge in {self.max_newton} iterations "
+                          f"(out-of-balance {residuals[-1]:.3g} N/m, tolerance {self.newton_rtol * scale:.3g} N/m)")
+
+    def run(self, material: HomogenisedMaterial, steps: list[LoadStep], *, scale: float,
+            isotropic_seed: float = FeDefaults.isotropic_seed, progress=None) -> list[StepResult]:
+        """Solve the load steps in order; returns one ``StepResult`` per step.
+
+        Args:
+            material: a ``HomogenisedMaterial`` with ``n_points`` = this specimen's Gauss points.
+            steps: the load steps (``isotropic_stage`` + ``shear_stage``).
+            scale: stress scale of the convergence test (p0) [N/m].
+            isotropic_seed: homogeneous isotropic strain of the first Newton guess [-] (the
+                touching, force-free cells have no stiffness; a small compression closes them).
+            progress: optional callable(step_index) called after each converged step.
+        """
+        if material.n_points != self.n_points:
+            raise ValueError(f"material has {material.n_points} points, the mesh {self.n_points} Gauss points")
+        state = material.init_state()
+        x, y = self.mesh.p
+        u = np.zeros(self.basis.N)
+        previous = np.zeros_like(u)
+        nodal = self.basis.nodal_dofs
+        results: list[StepResult] = []
+        for k, step in enumerate(steps):
+            if k == 0:
+                guess = np.zeros_like(u)
+                guess[nodal[0]] = -isotropic_seed * (x - 0.5 * self.width)
+                guess[nodal[1]] = -isotropic_seed * y
+            elif step.stage != steps[k - 1].stage and step.platen_increment is not None:
+                guess = u.copy()
+                guess[nodal[1]] -= step.platen_increment * y  # homogeneous axial compression
+            else:
+                guess = u + (u - previous)  # the last step's increment again
+            where = f"step {k + 1} ({step.stage})"
+            u_new, update, f_int, iterations, residuals, totals = self.solve_step(
+                material, state, u, guess, step, scale, where)
+            previous, u, state = u, u_new, update.state
+            eps11, eps22, sigma11, sigma22, sigma12 = self.averages(u, f_int, update.stress)
+            results.append(StepResult(step.stage, eps11, eps22, sigma11, sigma22, sigma12, iterations, residuals,
+                                      np.stack([u[nodal[0]], u[nodal[1]]], axis=1), state.strain.copy(),
+                                      update.stress.copy(), totals))
+            if progress is not None:
+                progress(k)
+        return results

@@ -1,0 +1,139 @@
+"""Condensed tangent of DEM cells (any mesostructure) against central differences of the step.
+
+The DEM step is a damped dynamic relaxation; its central differences are taken with a tight
+equilibrium tolerance, slow driving, and increments whose driving substep count
+n_drive = ceil(max |d_eps| / strain_per_substep) stays the same over the difference stencil
+(max |d_eps| at half a substep, difference step a tenth of one), so that the stencil does not
+change the driving path. Sticking contacts: the condensed tangent matches them to <= 1e-5.
+Sliding contacts: a sliding contact's force depends a little on the relaxation dynamics
+(after the last swings it ends a hair below the Coulomb cap, |T| / mu N = 0.99997 at 1e-6
+strain per substep), so the step's own derivative differs from the quasi-static one by an
+amount that falls with the driving rate: 0.8e-4 to 1.7e-4 at 1e-8 strain per substep,
+0.25e-5 to 2e-5 at 1e-9. The
+condensed tangent is the quasi-static limit: it agrees with the analytical cell's implicit
+tangent to 1e-9 in slide.
+"""
+
+import numpy as np
+import pytest
+
+from homogenization.backends.analytical import AnalyticalCell
+from tangent_fd import fd_tangent, relative_error
+from warp_hcell.dem_cell import DemCell
+from warp_hcell.mesostructure import load_mesostructure
+from warp_hcell.parameters import ContactLaw, DemSettings
+from warp_hcell.tangent import condensed_tangent, sliding_contacts
+
+LAW = ContactLaw()
+R = 0.5
+TIGHT = DemSettings(force_tolerance=1e-13, strain_per_substep=1e-8, max_substeps=10**7)
+DATA = "warp_hcell/data"
+
+
+def _sheared(model, alpha0, n_cells, iso=1e-3):
+    """Cells compressed isotropically, then sheared at constant volume in several directions."""
+    c2 = np.cos(2 * np.linspace(0, np.pi / 2, n_cells))
+    state = model.init_state(alpha0, n_cells)
+    state, _ = model.step(state, np.full((n_cells, 2), iso))
+    d_eps = np.stack([1e-3 * c2, -1e-3 * c2], axis=1)
+    for _ in range(3):
+        state, _ = model.step(state, d_eps)
+    return state, 1e-2 * d_eps
+
+
+@pytest.fixture(scope="module")
+def h_cells():
+    dem = DemCell(LAW, R, settings=TIGHT, threads=1)
+    analytical = AnalyticalCell(LAW, R)
+    alpha0 = np.repeat([35.0, 40.0, 55.0, 70.0], 3)
+    dem_state, d_eps = _sheared(dem, alpha0, alpha0.size)
+    ana_state, _ = _sheared(analytical, alpha0, alpha0.size)
+    return dem, dem_state, analytical, ana_state, d_eps
+
+
+def _sliding_cells(dem, state, new):
+    before, after = state.dem.to_numpy(), new.dem.to_numpy()
+    sliding = sliding_contacts(before["position"], after["position"], state.model.radius.numpy(),
+                               state.model.meso.pairs, before["shear_force"], kn=LAW.kn, kt=LAW.kt, mu=LAW.mu)
+    return sliding.any(axis=1), after["contact"].sum(axis=1) > 0
+
+
+def _fixed_driving(d_eps, strain_per_substep):
+    """Rescale each cell's increment so that max |d_eps| sits half a substep between integers."""
+    largest = np.abs(d_eps).max(axis=1)
+    return d_eps * ((np.floor(largest / strain_per_substep) + 0.5) * strain_per_substep / largest)[:, None]
+
+
+def test_h_cell_stick_and_slide(h_cells):
+    dem, state, analytical, ana_state, d_eps = h_cells
+    d_eps = _fixed_driving(d_eps, TIGHT.strain_per_substep)
+    new, response = dem.step(state, d_eps, with_tangent=True)
+    _, ana = analytical.step(ana_state, d_eps, with_tangent=True)
+    sliding, loaded = _sliding_cells(dem, state, new)
+    stick, slide = loaded & ~sliding, loaded & sliding
+    assert stick.sum() >= 3 and slide.sum() >= 3
+    error = relative_error(response.tangent, fd_tangent(dem, state, d_eps, 0.1 * TIGHT.strain_per_substep))
+    assert error[stick].max() <= 1e-5, error
+    assert error[slide].max() <= 3e-4, error
+    agreement = relative_error(response.tangent, ana.tangent)
+    assert agreement[slide].max() <= 1e-8, agreement
+    assert agreement[stick].max() <= 1e-6, agreement  # the DEM and analytical states differ by ~1e-7
+
+
+def test_h_cell_slide_approaches_the_condensed_tangent_as_driving_slows(h_cells):
+    """Ten times slower driving: the step's own derivative in slide comes within 3e-5 (from ~1e-4)."""
+    slow = DemSettings(force_tolerance=1e-13, strain_per_substep=1e-9, max_substeps=10**8)
+    dem = DemCell(LAW, R, settings=slow, threads=1)
+    alpha0 = np.repeat([35.0, 40.0, 55.0, 70.0], 3)
+    state, d_eps = _sheared(dem, alpha0, alpha0.size)
+    d_eps = _fixed_driving(d_eps, slow.strain_per_substep)
+    new, response = dem.step(state, d_eps, with_tangent=True)
+    sliding, loaded = _sliding_cells(dem, state, new)
+    assert (loaded & sliding).sum() >= 3
+    error = relative_error(response.tangent, fd_tangent(dem, state, d_eps, 0.1 * slow.strain_per_substep))
+    assert error[loaded & sliding].max() <= 3e-5, error
+
+
+def test_tangent_only_when_asked(h_cells):
+    dem, state, _, _, d_eps = h_cells
+    _, plain = dem.step(state, d_eps)
+    _, with_t = dem.step(state, d_eps, with_tangent=True)
+    assert plain.tangent is None
+    np.testing.assert_array_equal(plain.moment, with_t.moment)
+
+
+@pytest.mark.parametrize("name", ["h_cell_lateral_0.7D", "h_cell_fine_grain"])
+def test_generic_mesostructure_sticking(name):
+    """Unequal radii and a free fine grain (free along n and t): first increments from rest stick."""
+    meso = load_mesostructure(f"{DATA}/{name}.toml")
+    dem = DemCell(LAW, R, mesostructure=meso, settings=TIGHT, threads=1)
+    state = dem.init_state(40.0, 3)
+    state, _ = dem.step(state, np.full((3, 2), 2e-3))
+    d_eps = _fixed_driving(np.array([[1e-5, 1e-5], [2e-5, 1e-5], [1e-5, 2e-5]]), TIGHT.strain_per_substep)
+    new, response = dem.step(state, d_eps, with_tangent=True)
+    sliding, loaded = _sliding_cells(dem, state, new)
+    assert loaded.all() and not sliding.any()
+    error = relative_error(response.tangent, fd_tangent(dem, state, d_eps, 0.1 * TIGHT.strain_per_substep))
+    assert error.max() <= 1e-5, error
+
+
+def test_condensation_of_a_two_grain_chain_closed_form():
+    """Grain 0 driven along n, grain 1 free along n and held by a driven grain 2: two springs
+    in series, S_nn = F x summed over driven DOFs; compare with kn/2 series stiffness."""
+    kn, D = 2e8, 1.0
+    overlap = 1e-3
+    position = np.array([[[0.0, 0.0], [D - overlap, 0.0], [2 * (D - overlap), 0.0]]])
+    radius = np.full((1, 3), 0.5)
+    pairs = np.array([[0, 1], [1, 2]])
+    driven = np.array([[True, True], [False, True], [True, True]])
+    # driven x_n moves as -x_ref per unit eps_n about grain 0 (x_ref = current position here)
+    drive_rate = np.zeros((1, 3, 2))
+    drive_rate[0, 2, 0] = -position[0, 2, 0]
+    C = condensed_tangent(position, radius, pairs, driven, np.zeros((1, 2)), np.zeros((1, 2), bool), drive_rate,
+                          kn=kn, kt=0.5 * kn, mu=0.5)
+    # S_nn = F2 x2 with F2 = kn overlap / ... : dS_nn/d eps_n = (kn/2) x2^2 + F2 * dx2/d eps_n
+    x2 = position[0, 2, 0]
+    force = kn * overlap  # compression: each spring carries kn * overlap; F on grain 2 along +n
+    expected = 0.5 * kn * x2 * x2 - force * x2
+    np.testing.assert_allclose(C[0, 0, 0], expected, rtol=1e-12)
+    assert C[0, 1, 0] == 0.0 and C[0, 0, 1] == 0.0

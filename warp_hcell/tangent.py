@@ -1,0 +1,146 @@
+"""Consistent tangent of a quasi-static few-grain cell by static condensation (any mesostructure).
+
+``condensed_tangent`` returns C = d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m] of a batch of cells
+at equilibrium, from their grain positions, contact forces and driven-DOF mask only: nothing
+here knows the shape of a cell. Vectorised over cells (numpy), no per-cell Python loop.
+
+The maths (spec section 13), tension-positive DEM forces, local frame (n, t), pair p = (i, j),
+branch b = x_j - x_i, d = |b|, u = b / d, w = (-u_t, u_n):
+
+- The force on grain i by grain j is f = -N u + T w with N = kn (r_i + r_j - d) and T the
+  tangential spring force. Its stiffness k_p = df/db (2 x 2) is
+  kn u u^T - (N / d) w w^T - (T / d) u w^T + w dT/db, with dT/db = kt w^T for a sticking
+  contact and -sign(T) mu kn u^T for a sliding one; pairs without overlap carry nothing.
+- A contact slides in the increment when its elastic trial force exceeds the cap:
+  |T_old + kt (b_new - b_old) . w_mid| > mu N (``sliding_contacts``), as in the analytical
+  cell's return mapping. (The final |T| alone does not tell: a contact that slid all along
+  can end a hair below the cap after the last relaxation swing.)
+- The net contact force on grain g is F_g = -sum_p (e_j - e_i)_g f_p, so the stiffness of
+  all DOFs is K = dF/dx = -sum_p (e_j - e_i)(e_j - e_i)^T (x) k_p.
+- Free DOFs stay in equilibrium: K_ff dx_f = -K_fd dx_d (pseudo-inverse of K_ff, so that
+  a DOF without stiffness, e.g. a force-free grain of a mechanism, stays at rest), hence
+  dF_d = (K_dd - K_df K_ff^+ K_fd) dx_d.
+- At equilibrium the Love-Weber moment is the virial of the DOF forces,
+  S_aa = sum_g F_g,a x_g,a (compression positive: S = -sum_p f_p (x) b_p), where only driven
+  DOFs carry a force; with dx_d = B d_eps (the driven kinematics):
+  dS_aa/d d_eps_b = sum_{g driven along a} (dF_g,a/d d_eps_b x_g,a + F_g,a dx_g,a/d d_eps_b).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+def _unit_tangent(branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normal u = b / |b| and tangent w = (-u_t, u_n), each shape (..., 2)."""
+    u = branch / np.linalg.norm(branch, axis=-1)[..., None]
+    return u, np.stack([-u[..., 1], u[..., 0]], axis=-1)
+
+
+def sliding_contacts(position_old: np.ndarray, position: np.ndarray, radius: np.ndarray, pairs: np.ndarray,
+                     shear_force_old: np.ndarray, *, kn: float, kt: float, mu: float) -> np.ndarray:
+    """Contacts whose elastic trial force over the increment exceeds the Coulomb cap.
+
+    Args:
+        position_old, position: grain centres before and after the increment [m], shape
+            (n_cells, n_grains, 2).
+        radius: grain radii [m], shape (n_cells, n_grains).
+        pairs: candidate pairs (i, j), shape (n_pairs, 2).
+        shear_force_old: tangential force before the increment [N], shape (n_cells, n_pairs).
+        kn, kt: contact stiffnesses [N/m]; mu: friction coefficient [-].
+
+    Returns:
+        bool, shape (n_cells, n_pairs): overlapping pairs with |T_old + kt (b - b_old) . w_mid| > mu N.
+    """
+    i, j = pairs[:, 0], pairs[:, 1]
+    b_old = position_old[:, j] - position_old[:, i]
+    b = position[:, j] - position[:, i]
+    _, w_mid = _unit_tangent(b_old + b)
+    trial = shear_force_old + kt * np.sum((b - b_old) * w_mid, axis=-1)
+    N = kn * np.maximum(radius[:, i] + radius[:, j] - np.linalg.norm(b, axis=-1), 0.0)
+    return (N > 0.0) & (np.abs(trial) > mu * N)
+
+
+def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.ndarray, sliding: np.ndarray, *,
+                      kn: float, kt: float, mu: float) -> np.ndarray:
+    """Stiffness df/db of every pair [N/m], shape (n_cells, n_pairs, 2, 2).
+
+    Args:
+        branch: b = x_j - x_i [m], shape (n_cells, n_pairs, 2).
+        overlap: r_i + r_j - |b| [m], shape (n_cells, n_pairs); pairs with overlap <= 0
+            carry no force and no stiffness.
+        shear_force: tangential force T [N] along w = (-u_t, u_n), shape (n_cells, n_pairs).
+        sliding: True where the contact slides (T = +-mu N), shape (n_cells, n_pairs).
+        kn, kt: normal and tangential contact stiffness [N/m]; mu: friction coefficient [-].
+    """
+    d = np.linalg.norm(branch, axis=-1)
+    u, w = _unit_tangent(branch)
+    active = overlap > 0.0
+    N = kn * np.where(active, overlap, 0.0)
+    T = np.where(active, shear_force, 0.0)
+    sliding = active & sliding
+    dT = np.where(sliding[..., None], -np.copysign(mu * kn, T)[..., None] * u, kt * w)
+    uu = u[..., :, None] * u[..., None, :]
+    ww = w[..., :, None] * w[..., None, :]
+    uw = u[..., :, None] * w[..., None, :]
+    k = kn * uu - (N / d)[..., None, None] * ww - (T / d)[..., None, None] * uw + w[..., :, None] * dT[..., None, :]
+    return np.where(active[..., None, None], k, 0.0)
+
+
+def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarray, driven: np.ndarray,
+                      shear_force: np.ndarray, sliding: np.ndarray, drive_rate: np.ndarray, *, kn: float,
+                      kt: float, mu: float) -> np.ndarray:
+    """Consistent tangent of cells at quasi-static equilibrium, by static condensation.
+
+    Args:
+        position: grain centres [m], shape (n_cells, n_grains, 2), local frame (n, t).
+        radius: grain radii [m], shape (n_cells, n_grains).
+        pairs: candidate contact pairs (i, j), 0-based, shape (n_pairs, 2).
+        driven: True where DOF (grain, direction) follows the cell strain, shape (n_grains, 2).
+        shear_force: tangential spring force of each pair [N], shape (n_cells, n_pairs),
+            tension-positive DEM convention (along w = (-u_t, u_n), on grain i).
+        sliding: True where the contact slides, shape (n_cells, n_pairs) (``sliding_contacts``).
+        drive_rate: dx_g,a / d d_eps_a [m] of every driven DOF (0 elsewhere), shape
+            (n_cells, n_grains, 2); e.g. -x_ref,g,a l_a,old / l_a,ref for homothetic driving.
+        kn, kt: contact stiffnesses [N/m]; mu: friction coefficient [-].
+
+    Returns:
+        C = d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m], shape (n_cells, 2, 2), compression
+        positive; row = stress component, column = strain component.
+    """
+    position = np.asarray(position, dtype=np.float64)
+    n_cells, n_grains, _ = position.shape
+    i, j = pairs[:, 0], pairs[:, 1]
+    branch = position[:, j] - position[:, i]
+    overlap = radius[:, i] + radius[:, j] - np.linalg.norm(branch, axis=-1)
+    k = contact_stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu)
+    incidence = np.zeros((pairs.shape[0], n_grains))
+    incidence[np.arange(pairs.shape[0]), j] = 1.0
+    incidence[np.arange(pairs.shape[0]), i] = -1.0
+    K = -np.einsum("pg,ph,cpab->cgahb", incidence, incidence, k).reshape(n_cells, 2 * n_grains, 2 * n_grains)
+    # net contact force on every DOF, F = -sum_p (e_j - e_i) f_p
+    u, w = _unit_tangent(branch)
+    active = overlap > 0.0
+    f = (-kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active, shear_force, 0.0)[..., None] * w)
+    F = -np.einsum("pg,cpa->cga", incidence, f).reshape(n_cells, 2 * n_grains)
+
+    d_mask = np.asarray(driven, dtype=bool).reshape(-1)
+    fi, di = np.flatnonzero(~d_mask), np.flatnonzero(d_mask)
+    K_dd = K[:, di[:, None], di]
+    if fi.size:
+        K_ff = K[:, fi[:, None], fi]
+        K_fd = K[:, fi[:, None], di]
+        K_df = K[:, di[:, None], fi]
+        K_c = K_dd - K_df @ np.linalg.pinv(K_ff) @ K_fd
+    else:
+        K_c = K_dd
+    # driven kinematics: dx_d = B d_eps, B[dof(g, a), a] = drive_rate[g, a]
+    rate = np.asarray(drive_rate, dtype=np.float64).reshape(n_cells, 2 * n_grains)[:, di]
+    component = np.tile([0, 1], n_grains)[di]
+    B = rate[:, :, None] * (component[None, :, None] == np.arange(2)[None, None, :])
+    dF = K_c @ B  # (n_cells, n_driven, 2)
+    x = position.reshape(n_cells, 2 * n_grains)[:, di]
+    C = np.empty((n_cells, 2, 2))
+    for a in range(2):
+        on_a = component == a
+        C[:, a, :] = (np.einsum("cd,cdb->cb", x[:, on_a], dF[:, on_a]) + np.einsum("cd,cdb->cb", F[:, di][:, on_a], B[:, on_a]))
+    return C
