@@ -324,7 +324,9 @@ def run(
     step_seconds = np.zeros(len(programme))
     for stage, step in enumerate(programme):
         start = time.perf_counter()
-        with tqdm(total=step.n_increments, desc=step.label, unit="incr", disable=not progress,
+        # a step that stops on p has no known length: the bar counts increments without a total
+        total = None if step.stop_at_p is not None else step.n_increments
+        with tqdm(total=total, desc=step.label, unit="incr", disable=not progress,
                   mininterval=0.5, leave=False) as bar:
             runner.run_step(step, stage, snapshot_interval, bar)
         runner.snapshot(stage)
