@@ -287,8 +287,8 @@ def _join(first: driver.Record, second: driver.Record, programme: loading.Progra
     def cat_dict(a: dict, b: dict, n_a: int, n_b: int) -> dict:
         out = {}
         for name in dict.fromkeys([*a, *b]):
-            va = a.get(name, np.full((n_a, *np.shape(b[name])[1:]), np.nan))
-            vb = b.get(name, np.full((n_b, *np.shape(a[name])[1:]), np.nan))
+            va = a[name] if name in a else np.full((n_a, *np.shape(b[name])[1:]), np.nan)
+            vb = b[name] if name in b else np.full((n_b, *np.shape(a[name])[1:]), np.nan)
             out[name] = np.concatenate([np.asarray(va, dtype=np.result_type(va, np.float64)),
                                         np.asarray(vb, dtype=np.result_type(vb, np.float64))])
         return out
