@@ -122,11 +122,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mesostructure", type=mesostructure_list_arg, action="extend", default=None,
                         help="comma list (or repeat the flag); each item a " + MESOSTRUCTURE_HELP
                         + "; a KEY=VALUE item continues the spec before it. None: hcell")
-    parser.add_argument("--alpha0", type=float_list(alpha0_deg), default=[cell.alpha0_deg],
+    parser.add_argument("--alpha0", type=float_list(alpha0_deg), default=f"{cell.alpha0_deg:g}",
                         help="comma list of initial opening angles [deg] for specs without their own alpha0")
-    parser.add_argument("--p0", type=float_list(positive_float), default=[cell.p0],
+    parser.add_argument("--p0", type=float_list(positive_float), default=f"{cell.p0:g}",
                         help="comma list of confining pressures [N/m]")
-    parser.add_argument("--backend", type=backend_list, default=("dem",), help="comma list of cell models")
+    parser.add_argument("--backend", type=backend_list, default="dem", help="comma list of cell models")
     parser.add_argument("--eps-max", type=positive_float, default=load.eps_max,
                         help="axial strain at the end of the shear stage, counted from its start [-]")
     parser.add_argument("--increment", type=positive_float, default=load.increment, help="axial strain increment of the shear stage [-]")
