@@ -83,48 +83,69 @@ def fines_table(runs: Path, figures: Path) -> None:
     plotting.save_figure(fig, figures / "gap_fines_curves_p2e5.png")
 
 
-def instability(runs: Path, figures: Path) -> None:
+def instability_families(runs: Path) -> dict[str, tuple[Path, list[dict]]]:
+    """Family label -> (sweep folder, rows): plain cell, one fine grain for every alpha0, 0.97 of each pore."""
+    families: dict[str, tuple[Path, list[dict]]] = {}
     folder = runs / "gap_instability"
-    rows = sweep.read_summary(folder / sweep.SUMMARY_FILE)
-    print("\n| mesostructure | p0 [N/m] | alpha0 | first peak q/p0 | p/p0 at it | eps1 at it [%] | q/p at it |")
-    print("|---|---|---|---|---|---|---|")
-    fig = Figure(figsize=(12.0, 5.0), layout="constrained")
-    axes = dict(zip(sorted({r["p0"] for r in rows}), fig.subplots(1, 2)))
+    for r in sweep.read_summary(folder / sweep.SUMMARY_FILE):
+        label = "plain" if r["mesostructure"] == "hcell" else f"r_f/r = {fine_ratio(r['mesostructure']):g}"
+        families.setdefault(label, (folder, []))[1].append(r)
+    folder = runs / "gap_instability_pore97"
+    if (folder / sweep.SUMMARY_FILE).is_file():
+        families["r_f = 0.97 pore"] = (folder, sweep.read_summary(folder / sweep.SUMMARY_FILE))
+    return families
+
+
+def instability(runs: Path, figures: Path) -> None:
+    families = instability_families(runs)
+    print("\n| cell | p0 [N/m] | alpha0 | r_f / r | first peak q/p0 | p/p0 at it | eps1 at it [%] | q/p at it |")
+    print("|---|---|---|---|---|---|---|---|")
+    p0s = sorted({r["p0"] for _, rows in families.values() for r in rows})
+    fig = Figure(figsize=(14.0, 5.5), layout="constrained")
+    axes = dict(zip(p0s, fig.subplots(1, len(p0s))))
+    styles = dict(zip(families, ("-", "--", ":", "-.")))
+    markers = dict(zip(families, ("o", "s", "^", "v")))
     slopes = {}
-    for (meso, p0), style in zip(sorted({(r["mesostructure"], r["p0"]) for r in rows}), ("-", "-", "--", "--")):
-        sel = sorted((r for r in rows if r["mesostructure"] == meso and r["p0"] == p0), key=lambda r: r["alpha0"])
-        ax = axes[p0]
-        colours = sweep.plotting_colours(len(sel))
-        peaks = []
-        for colour, r in zip(colours, sel):
-            c = curve(folder, r)
-            ax.plot(c.p / p0, c.q / p0, color=colour, ls=style, lw=0.9,
-                    label=f"{meso}, alpha0 = {r['alpha0']:g}" if style == "-" or r is sel[0] else None)
-            fp = r["first_peak_q"]
-            if not math.isnan(fp):
-                peaks.append((r["p_at_first_peak"] / p0, fp / p0))
-                ax.plot(*peaks[-1], "o" if style == "-" else "s", color=colour, ms=5)
-            print(f"| {meso} | {p0:g} | {r['alpha0']:g} | {'-' if math.isnan(fp) else f'{fp / p0:.3f}'} | "
-                  + ("- | - | - |" if math.isnan(fp) else
-                     f"{r['p_at_first_peak'] / p0:.3f} | {100 * r['eps1_at_first_peak']:.2f} | "
-                     f"{fp / r['p_at_first_peak']:.3f} |"))
-        if len(peaks) >= 2:
-            p, q = np.array(peaks).T
-            slope = float(p @ q / (p @ p))
-            slopes[(meso, p0)] = (slope, float(np.abs(q - slope * p).max()), len(peaks))
-            xs = np.linspace(0.0, p.max() * 1.3, 2)
-            ax.plot(xs, slope * xs, color="k", ls=style, lw=1.2)
+    for family, (folder, rows) in families.items():
+        for p0 in p0s:
+            sel = sorted((r for r in rows if r["p0"] == p0), key=lambda r: r["alpha0"])
+            ax = axes[p0]
+            colours = sweep.plotting_colours(len(sel))
+            peaks = []
+            for colour, r in zip(colours, sel):
+                c = curve(folder, r)
+                ax.plot(c.p / p0, c.q / p0, color=colour, ls=styles[family], lw=0.8,
+                        label=f"alpha0 = {r['alpha0']:g}" if family == "plain" else None)
+                fp = r["first_peak_q"]
+                if not math.isnan(fp):
+                    point = (r["p_at_first_peak"] / p0, fp / p0)
+                    if point[0] < 1.0:
+                        peaks.append(point)
+                    ax.plot(*point, markers[family], color=colour, ms=5, mfc=colour if point[0] < 1.0 else "none")
+                print(f"| {family} | {p0:g} | {r['alpha0']:g} | {fine_ratio(r['mesostructure']):.4g} | "
+                      + ("- | - | - | - |" if math.isnan(fp) else
+                         f"{fp / p0:.3f} | {r['p_at_first_peak'] / p0:.3f} | {100 * r['eps1_at_first_peak']:.2f} | "
+                         f"{fp / r['p_at_first_peak']:.3f} |"))
+            if len(peaks) >= 2:
+                p, q = np.array(peaks).T
+                slope = float(p @ q / (p @ p))
+                slopes[(family, p0)] = (slope, float(np.abs(q - slope * p).max()), len(peaks))
+                xs = np.linspace(0.0, 1.2, 2)
+                ax.plot(xs, slope * xs, color="k", ls=styles[family], lw=1.3, label=f"{family}: q = {slope:.3f} p")
     for p0, ax in axes.items():
-        ax.set(xlabel="p/p0 [-]", ylabel="q/p0 [-]", title=f"p0 = {p0:g} N/m: stress paths, first q peaks, "
-               "instability line (circles/solid: plain, squares/dashed: fines)")
-        ax.title.set_fontsize(8)
+        ax.set(xlabel="p/p0 [-]", ylabel="q/p0 [-]", xlim=(0.0, 2.0), ylim=(0.0, 1.6),
+               title=f"p0 = {p0:g} N/m: stress paths, first q peaks (filled: p < p0), instability lines")
+        ax.title.set_fontsize(9)
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=6)
+        ax.legend(fontsize=6, ncols=2)
+    fig.suptitle("line styles / markers: " + ", ".join(f"{f} {styles[f]} {markers[f]}" for f in families), fontsize=9)
     plotting.save_figure(fig, figures / "gap_instability.png")
-    print("\n| mesostructure | p0 [N/m] | peaks | slope eta_IL of q = eta_IL p | max |q - eta_IL p| / p0 |")
+    print("\nLine q = eta_IL p through the origin, least squares over the first peaks reached with p < p0 "
+          "(contractive cells; open markers in the figure are the others):\n")
+    print("| cell | p0 [N/m] | peaks | slope eta_IL | max abs(q - eta_IL p) / p0 |")
     print("|---|---|---|---|---|")
-    for (meso, p0), (slope, scatter, n) in slopes.items():
-        print(f"| {meso} | {p0:g} | {n} | {slope:.3f} | {scatter:.3f} |")
+    for (family, p0), (slope, scatter, n) in slopes.items():
+        print(f"| {family} | {p0:g} | {n} | {slope:.3f} | {scatter:.3f} |")
 
 
 def erosion(runs: Path, figures: Path) -> None:
