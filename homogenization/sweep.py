@@ -58,7 +58,13 @@ import numpy as np
 from homogenization import driver, io, loading, plotting
 from homogenization.backends import backend_class, make_cell_model
 from homogenization.biaxial import backend_list
-from warp_hcell.builders import MESOSTRUCTURE_HELP, MesostructureSource, mesostructure_list_arg, plain_h_cell_alpha0
+from warp_hcell.builders import (
+    MESOSTRUCTURE_HELP,
+    MesostructureSource,
+    mesostructure_list_arg,
+    parse_mesostructure,
+    plain_h_cell_alpha0,
+)
 from warp_hcell.cli import (
     UserError,
     alpha0_deg,
@@ -69,7 +75,7 @@ from warp_hcell.cli import (
     positive_int,
     run_main,
 )
-from warp_hcell.mesostructure import Mesostructure, MesostructureError
+from warp_hcell.mesostructure import MesostructureError
 from warp_hcell.parameters import CellDefaults, ContactLaw, LoadingDefaults
 
 CASES_DIR = "cases"
@@ -377,8 +383,6 @@ def run_case(case: Case, out: str, seed: int) -> tuple[dict[str, Any], float]:
     prm = case.parameters
     options: dict[str, Any] = dict(prm["backend_options"]) | case.options
     if prm["mesostructure"] and _takes_mesostructure(case.backend):
-        from warp_hcell.builders import parse_mesostructure
-
         alpha0 = None if math.isnan(case.alpha0) else case.alpha0
         options["mesostructure"] = parse_mesostructure(case.source).build(alpha0)
     if "model" in options:
@@ -444,8 +448,12 @@ def run_cases(cases: Sequence[Case], out: Path, seed: int, executor: Executor | 
             done(case, lambda case=case: run_case(case, str(out), seed))
         return rows, failures
     futures = {executor.submit(run_case, case, str(out), seed): case for case in cases}
-    for future in as_completed(futures):
-        done(futures[future], future.result)
+    try:
+        for future in as_completed(futures):
+            done(futures[future], future.result)
+    except KeyboardInterrupt:
+        executor.shutdown(wait=False, cancel_futures=True)  # finished cases are on disk; rerun resumes
+        raise
     return rows, failures
 
 
@@ -554,7 +562,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         state = f"failed: {error}" if error else f"{seconds:.1f} s"
         print(f"  {case.folder}: {state}", flush=True)
 
-    workers = min(args.workers or len(os.sched_getaffinity(0)), max(len(todo), 1))
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    workers = min(args.workers or cores, max(len(todo), 1))
     start = time.perf_counter()
     if workers > 1:
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
