@@ -168,3 +168,15 @@ def test_a_foreign_non_empty_folder_is_not_touched(tmp_path, capsys):
     assert cli([*SMALL, "--out", str(out)]) == 2
     assert "exists; pass --overwrite to replace it" in capsys.readouterr().err
     assert [p.name for p in out.iterdir()] == ["keep.txt"]
+
+
+@pytest.mark.slow
+def test_study_resolution_reproduces_the_documented_table(tmp_path):
+    """docs/gap_graded.md, alpha0 = 55, p0 = 2e5, 72 orientations, 1e-4: p/p0 at 15 % = 0.123, 2.115, 18.004."""
+    out = tmp_path / "study"
+    assert cli(["--mesostructure", "hcell,hcell-fines:ratio=0.8,hcell-fines:ratio=0.9", "--alpha0", "55", "--p0", "2e5",
+                "--eps-max", "0.15", "--increment", "1e-4", "--iso-increment", "1e-4", "--orientations", "72",
+                "--workers", "2", "--out", str(out)]) == 0
+    rows = rows_by_case(out)
+    for meso, expected in (("hcell", 0.123), ("hcell-fines:ratio=0.8", 2.115), ("hcell-fines:ratio=0.9", 18.004)):
+        assert rows[(meso, "dem")]["p_at_15pct"] / P0 == pytest.approx(expected, abs=0.001)

@@ -143,3 +143,18 @@ def test_biaxial_cli_rejects_a_fine_grain_too_big_for_its_alpha0_before_running(
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "fine grain ratio 0.85 does not fit the pore" in err
     assert not out.exists()
+
+
+def test_cell_cli_runs_a_spec_like_the_file_it_describes(tmp_path):
+    from homogenization import cell
+    from warp_hcell.cli import run_main
+
+    path = tmp_path / "path.csv"
+    path.write_text("d_eps_n,d_eps_t\n" + "2e-3,-1e-3\n" * 3)
+    outs = []
+    for name, meso in (("file", str(DATA / "h_cell_lateral_0.7D.toml")), ("spec", "hcell-unequal:lateral=0.7")):
+        out = tmp_path / f"{name}.csv"
+        assert run_main(cell.main, ["--backend", "dem", "--alpha0", "55", "--mesostructure", meso, "--path", str(path),
+                                    "--positions", "--out", str(out)]) == 0
+        outs.append(out.read_text())
+    assert outs[0] == outs[1] and len(outs[0].splitlines()) == 4
