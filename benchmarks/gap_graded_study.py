@@ -23,6 +23,9 @@ from warp_hcell.builders import parse_mesostructure, pore_ratio
 
 LIQUEFACTION = 0.2
 """p/p0 at eps1 = 15 % below which a sample is said to liquefy [-]."""
+DEPARTURE = 1e-3
+"""|p - p_plain| / p0 beyond which a fines cell is said to depart from the plain cell [-]
+(eps1 = 0 for a grain already caught in the isotropic stage)."""
 
 
 def fine_ratio(text: str) -> float:
@@ -36,9 +39,9 @@ def curve(folder: Path, row: dict) -> plotting.ShearCurve:
 
 
 def fines_table(runs: Path, figures: Path) -> None:
-    print("| alpha0 | p0 [N/m] | r_f / r | r_f / pore | peak q/p0 | eps1 at peak [%] | first softening peak q/p0 "
-          "| p/p0 at 5 % | 10 % | 15 % | liquefies |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| alpha0 | p0 [N/m] | r_f / r | r_f / pore | departs from plain at eps1 [%] | peak q/p0 | eps1 at peak [%] "
+          "| first softening peak q/p0 | p/p0 at 5 % | 10 % | 15 % | min p/p0 | liquefies |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     fig = Figure(figsize=(12.0, 4.6), layout="constrained")
     ax_p, ax_q = fig.subplots(1, 2)
     for alpha0, name in ((50.0, "gap_a50"), (55.0, "gap_a55")):
@@ -46,14 +49,18 @@ def fines_table(runs: Path, figures: Path) -> None:
         for p0 in sorted({r["p0"] for r in rows}):
             sel = sorted((r for r in rows if r["p0"] == p0), key=lambda r: fine_ratio(r["mesostructure"]))
             x = []
+            plain = curve(runs / name, next(r for r in sel if r["mesostructure"] == "hcell"))
             for r in sel:
                 ratio = fine_ratio(r["mesostructure"])
                 x.append(ratio / pore_ratio(alpha0))
                 fp = r["first_peak_q"] / p0
-                print(f"| {alpha0:g} | {p0:g} | {ratio:.4g} | {x[-1]:.3f} | {r['peak_q'] / p0:.3f} | "
+                c = curve(runs / name, r)
+                apart = np.flatnonzero(np.abs(c.p - np.interp(c.eps1, plain.eps1, plain.p)) > DEPARTURE * p0)
+                departs = "-" if apart.size == 0 else f"{100 * c.eps1[apart[0]]:.2f}"
+                print(f"| {alpha0:g} | {p0:g} | {ratio:.4g} | {x[-1]:.3f} | {departs} | {r['peak_q'] / p0:.3f} | "
                       f"{100 * r['eps1_at_peak']:.2f} | {'-' if math.isnan(fp) else f'{fp:.3f}'} | "
                       f"{r['p_at_5pct'] / p0:.3f} | {r['p_at_10pct'] / p0:.3f} | {r['p_at_15pct'] / p0:.3f} | "
-                      f"{'yes' if r['p_at_15pct'] / p0 < LIQUEFACTION else 'no'} |")
+                      f"{c.p.min() / p0:.3f} | {'yes' if r['p_at_15pct'] / p0 < LIQUEFACTION else 'no'} |")
             label = f"alpha0 = {alpha0:g}, p0 = {p0:g}"
             ax_p.plot(x, [r["p_at_15pct"] / p0 for r in sel], "o-", label=label)
             ax_q.plot(x, [r["peak_q"] / p0 for r in sel], "o-", label=label)

@@ -512,10 +512,14 @@ def summary_figure(path: Path, cases: Sequence[Case], out: Path) -> Path:
 
 
 def plotting_colours(n: int) -> list:
-    """n distinct colours (viridis)."""
+    """n distinct colours: tab10 / tab20 up to 20, viridis beyond."""
     from matplotlib import colormaps
 
-    return [colormaps["viridis"](x) for x in np.linspace(0.0, 0.9, max(n, 1))]
+    if n <= 10:
+        return [colormaps["tab10"](k) for k in range(n)]
+    if n <= 20:
+        return [colormaps["tab20"](k) for k in range(n)]
+    return [colormaps["viridis"](x) for x in np.linspace(0.0, 0.9, n)]
 
 
 # -- entry point ---------------------------------------------------------------------------------
