@@ -29,6 +29,7 @@ from typing import Any, Sequence
 
 from homogenization import driver, io, loading, plotting
 from homogenization.backends import BACKENDS, backend_class, make_cell_model
+from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.cli import (
     UserError,
     alpha0_deg,
@@ -39,7 +40,6 @@ from warp_hcell.cli import (
     positive_int,
     run_main,
 )
-from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.parameters import CellDefaults, ContactLaw, LoadingDefaults
 
 FIGURE_FILE = "cambridge.png"

@@ -32,6 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from homogenization.backends import BACKENDS, make_cell_model
+from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.cli import (
     UserError,
     alpha0_deg,
@@ -42,7 +43,6 @@ from warp_hcell.cli import (
     positive_float,
     run_main,
 )
-from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.parameters import CellDefaults, ContactLaw
 
 PATH_HEADER = ("d_eps_n", "d_eps_t")
