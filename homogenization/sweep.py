@@ -12,9 +12,10 @@ Backends that take a ``mesostructure`` option (dem) run every mesostructure; the
 that cell (``builders.plain_h_cell_alpha0``); other combinations are skipped and listed.
 
 --erode-at EPS (dem): in cases whose mesostructure has grains free along n and t (fines),
-those grains are removed at eps1 = EPS (``warp_hcell.erosion``); a zero-strain increment
-(stage ``erode``) records the relaxation, then the test continues (stage ``eroded``) to
---eps-max. The macro volume carries on (V0 and J of the whole test).
+those grains are removed at eps1 = EPS (``warp_hcell.erosion``); one increment at fixed eps11
+(stage ``erode``: eps22 fixed too, or sigma22 brought back to p0 with --drained) records the
+relaxation, then the test continues (stage ``eroded``) to --eps-max. The macro volume carries
+on (V0 and J of the whole test).
 
 Output:
 - DIR/cases/<case>/{run.h5, curve.csv, cambridge.png}: the files ``biaxial`` writes, per case.
@@ -140,6 +141,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="strain increment per component of the isotropic stage [-]")
     parser.add_argument("--orientations", type=positive_int, default=cell.n_orientations, help="number N of cell orientations")
     parser.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
+    parser.add_argument("--stress-rtol", type=positive_float, default=load.stress_rtol,
+                        help="relative tolerance of stress-controlled components (--drained, landing on p0) [-]")
     parser.add_argument("--erode-at", type=erode_strain, default=None,
                         help="remove the grains free along n and t (fines) at this eps1 [-] (dem; None: no erosion)")
     parser.add_argument("--workers", type=positive_int, default=None,
@@ -225,7 +228,7 @@ def plan(args: argparse.Namespace) -> tuple[list[Case], list[str]]:
                         "alpha0_deg": None if math.isnan(case_alpha0) else case_alpha0, "p0": p0,
                         "eps_max": args.eps_max, "increment": args.increment, "iso_increment": args.iso_increment,
                         "n_orientations": args.orientations, "fabric_anisotropy": 0.0, "fabric_direction_deg": 0.0,
-                        "drained": args.drained, "stress_rtol": LoadingDefaults.stress_rtol,
+                        "drained": args.drained, "stress_rtol": args.stress_rtol,
                         "mesostructure": source.text, "mesostructure_name": meso.name,
                         "mesostructure_file": source.text if source.kind is None else None,
                         "n_grains": meso.n_grains, "erode_at": erode_at,
@@ -321,7 +324,8 @@ def _join(first: driver.Record, second: driver.Record, programme: loading.Progra
 def run_test(cell_model: Any, case: Case) -> driver.Record:
     """The biaxial test of ``case`` on ``cell_model``, with erosion where the case asks for it."""
     prm = case.parameters
-    common = dict(alpha0_deg=case.alpha0, n_orientations=prm["n_orientations"], progress=False)
+    common = dict(alpha0_deg=case.alpha0, n_orientations=prm["n_orientations"], stress_rtol=prm["stress_rtol"],
+                  progress=False)
     full = loading.biaxial(case.p0, prm["eps_max"], prm["increment"], iso_increment=prm["iso_increment"],
                            drained=prm["drained"])
     if prm["erode_at"] is None:
@@ -338,7 +342,9 @@ def run_test(cell_model: Any, case: Case) -> driver.Record:
         return loading.constant_volume_biaxial(eps, n, label=label)
 
     before = (iso, shear_step(eps_before, n_before, shear.label))
-    after = (loading.proportional_strain(0.0, 0.0, 1, label=ERODE_STAGE),
+    relax = (loading.drained_biaxial(case.p0, 0.0, 1, label=ERODE_STAGE) if prm["drained"]
+             else loading.proportional_strain(0.0, 0.0, 1, label=ERODE_STAGE))
+    after = (relax,
              shear_step(prm["eps_max"] - eps_before, shear.n_increments - n_before, ERODED_STAGE))
     first = driver.run(cell_model, before, **common)
     state = cell_model.state_from_arrays(first.final_state)
