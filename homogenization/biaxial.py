@@ -12,7 +12,9 @@ the same programme. One backend writes DIR/run.h5 and DIR/curve.csv; several wri
 DIR/<backend>/run.h5 and DIR/<backend>/curve.csv. Either way DIR/cambridge.png overlays
 all backends in the 2x2 figure (q-eps1, q-p, p-eps1 or eps_v-eps1, q/p-eps1).
 Backend-specific options go to their backend only: --mesostructure and --threads to dem,
---model to ann, --device to dem and ann.
+--model to ann, --device to dem and ann. --mesostructure takes a file or a builder spec
+(``warp_hcell.builders``, e.g. ``hcell-fines:ratio=0.76``), built at --alpha0 unless the
+spec gives its own alpha0.
 
 The output folder DIR is written as a unit: everything goes to a hidden sibling folder
 that replaces DIR only when the run has finished (--overwrite), so an interrupted run
@@ -38,6 +40,7 @@ from typing import Any, Sequence
 
 from homogenization import driver, io, loading, plotting
 from homogenization.backends import BACKENDS, backend_class, make_cell_model
+from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.cli import (
     UserError,
     alpha0_deg,
@@ -129,8 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--fourth-panel", choices=plotting.FOURTH_PANELS, default=plotting.FOURTH_PANELS[0],
                         help="fourth panel of the figure: stress ratio or second-order work W2")
     parser.add_argument("--out", type=Path, required=True, help="output folder (replaced as a unit)")
-    parser.add_argument("--mesostructure", type=Path, default=None,
-                        help="TOML/JSON mesostructure file (dem only; None: the H-cell)")
+    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
+                        help=f"dem only; None: the H-cell. {MESOSTRUCTURE_HELP}")
     parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM (dem only; None: the backend's own default)")
     parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
     verbosity = parser.add_mutually_exclusive_group()
@@ -149,9 +152,7 @@ def backend_options(args: argparse.Namespace, name: str) -> dict[str, Any]:
         if value is not None and name in takers:
             options[dest] = value
     if "mesostructure" in options:
-        from warp_hcell.mesostructure import load_mesostructure
-
-        options["mesostructure"] = load_mesostructure(options["mesostructure"])
+        options["mesostructure"] = options["mesostructure"].build(args.alpha0)
     return options
 
 
@@ -312,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "fabric_direction_deg": args.fabric_direction,
                     "drained": drained,
                     "stress_rtol": LoadingDefaults.stress_rtol,
-                    "mesostructure_file": str(args.mesostructure) if name == "dem" and args.mesostructure else None,
+                    "mesostructure": args.mesostructure.text if name == "dem" and args.mesostructure else None,
                 }
                 folder = work if len(args.backend) == 1 else work / name
                 final = out if len(args.backend) == 1 else out / name

@@ -15,7 +15,8 @@ origin) and one row per increment. Units: lengths [m], angle [deg], contact forc
 compression positive. The DEM backend with a general ``--mesostructure`` (not an H-cell)
 has no l1..T1 of its own: only the columns that the backend reports among
 ``observables()`` are written, in the order above, and with ``--positions`` every grain
-centre it reports; the cell then starts from that mesostructure and --alpha0 is unused.
+centre it reports; the cell then starts from that mesostructure (a file, or a builder spec
+of ``warp_hcell.builders`` built at its own alpha0 or else at --alpha0).
 
 Bad input (missing or malformed PATH.csv, alpha0 outside [30, 90) deg, unwritable --out,
 a CUDA device the machine lacks, and for the ann backend a row larger than the largest
@@ -33,6 +34,7 @@ from typing import Sequence
 import numpy as np
 
 from homogenization.backends import BACKENDS, make_cell_model
+from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.cli import (
     UserError,
     alpha0_deg,
@@ -75,7 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--kt", type=positive_float, default=argparse.SUPPRESS, help=f"tangential contact stiffness [N/m] (default: kt_over_kn * kn = {law.kt_over_kn:g} kn)")
     parser.add_argument("--phi", type=finite_float, default=law.phi_g_deg, help="inter-granular friction angle phi_g [deg], in [0, 90)")
     parser.add_argument("--positions", action="store_true", help="also write the grain centres x_n{i}, x_t{i} [m]")
-    parser.add_argument("--mesostructure", type=Path, default=None, help="TOML/JSON mesostructure file (dem backend only; default: the H-cell)")
+    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
+                        help=f"dem backend only; default: the H-cell. {MESOSTRUCTURE_HELP}")
     return parser
 
 
@@ -127,9 +130,7 @@ def _backend_options(args: argparse.Namespace) -> dict:
     if args.backend == DEM_ONLY_BACKEND:
         options: dict = {"device": args.device}
         if args.mesostructure is not None:
-            from warp_hcell.mesostructure import load_mesostructure
-
-            options["mesostructure"] = load_mesostructure(args.mesostructure)
+            options["mesostructure"] = args.mesostructure.build(args.alpha0)
         return options
     if args.mesostructure is not None:
         raise UserError(f"--mesostructure applies to --backend {DEM_ONLY_BACKEND} only")

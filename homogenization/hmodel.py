@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "generate": ("warp_hcell.generate", "DEM learning database of strain probes"),
     "clean": ("warp_hcell.clean", "mark pathological samples of a learning database"),
     "train": ("training.train", "train the meso-ANN on a learning database"),
+    "sweep": ("homogenization.sweep", "biaxial tests over lists of mesostructures, alpha0, p0 and backends"),
     "bvp": ("homogenization.bvp", "plane-strain biaxial specimen (finite elements) of the homogenised material"),
 }
 """Subcommand -> (module whose ``main(argv)`` runs it, one-line summary)."""

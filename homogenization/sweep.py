@@ -1,0 +1,598 @@
+"""python -m homogenization.sweep --mesostructure hcell,hcell-fines:ratio=0.76 --alpha0 50,55 --p0 2e5,5.85e6 --backend dem --eps-max 0.15 --increment 1e-4 --orientations 72 --out DIR
+
+Biaxial tests (isotropic compression to p0, then constant-volume or, with --drained,
+sigma22 = p0 shear, as ``homogenization.biaxial``) over the Cartesian product of the lists
+--mesostructure x --alpha0 x --p0 x --backend. Lists are comma separated; a mesostructure
+is a TOML/JSON file or a builder spec (``warp_hcell.builders``; a spec without alpha0 is
+built at each --alpha0, a file or a spec with alpha0 fixes its geometry and makes one case
+per p0 and backend).
+
+Backends that take a ``mesostructure`` option (dem) run every mesostructure; the others
+(analytical, ann) model the six-equal-grain H-cell only and run the mesostructures that are
+that cell (``builders.plain_h_cell_alpha0``); other combinations are skipped and listed.
+
+--erode-at EPS (dem): in cases whose mesostructure has grains free along n and t (fines),
+those grains are removed at eps1 = EPS (``warp_hcell.erosion``); one increment at fixed eps11
+(stage ``erode``: eps22 fixed too, or sigma22 brought back to p0 with --drained) records the
+relaxation, then the test continues (stage ``eroded``) to --eps-max. The macro volume carries
+on (V0 and J of the whole test).
+
+Output:
+- DIR/cases/<case>/{run.h5, curve.csv, cambridge.png}: the files ``biaxial`` writes, per case.
+- DIR/summary.csv: one row per case (``SUMMARY_COLUMNS``): stresses [N/m] and strains [-],
+  compression positive, eps1 counted from the end of the isotropic stage; peak_q is the
+  largest q of the shear stages, first_peak_q the first maximum of q after which q falls by
+  more than SOFTENING_DROP p0 (NaN if q never softens): the q peak of the instability
+  analysis; p_at_5pct.. are p at eps1 = 5, 10, 15 % (NaN beyond the run).
+- DIR/summary.png: q/p0 and p/p0 against eps1, and the (p/p0, q/p0) paths, of every case.
+- DIR/sweep.json: the options of the sweep that made DIR.
+
+Cases run in parallel in --workers processes (each case is computed alone, so the results do
+not depend on the worker count). Rerunning the command keeps finished cases (a case is
+finished when its run.h5 holds the same parameters) and runs the others; a case folder holding
+a run with other parameters is an error unless --overwrite. Bad input (unknown backend or
+key, a mesostructure that does not build, unwritable DIR) is one line on stderr and exit
+code 2, before any case runs; cases that fail while running are listed, exit code 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import hashlib
+import inspect
+import json
+import math
+import multiprocessing
+import os
+import re
+import sys
+import time
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+import numpy as np
+
+from homogenization import driver, io, loading, plotting
+from homogenization.backends import backend_class, make_cell_model
+from homogenization.biaxial import backend_list
+from warp_hcell.builders import (
+    MESOSTRUCTURE_HELP,
+    MesostructureSource,
+    mesostructure_list_arg,
+    parse_mesostructure,
+    plain_h_cell_alpha0,
+)
+from warp_hcell.cli import (
+    UserError,
+    alpha0_deg,
+    atomic_write,
+    check_output_path,
+    common_parser,
+    positive_float,
+    positive_int,
+    run_main,
+)
+from warp_hcell.mesostructure import MesostructureError
+from warp_hcell.parameters import CellDefaults, ContactLaw, LoadingDefaults
+
+CASES_DIR = "cases"
+SUMMARY_FILE = "summary.csv"
+SUMMARY_FIGURE = "summary.png"
+SWEEP_FILE = "sweep.json"
+FIGURE_FILE = "cambridge.png"
+SUMMARY_COLUMNS = (
+    "mesostructure", "backend", "alpha0", "p0", "peak_q", "eps1_at_peak", "p_at_peak", "p_end", "q_end", "eps1_end",
+    "p_at_5pct", "p_at_10pct", "p_at_15pct", "first_peak_q", "eps1_at_first_peak", "p_at_first_peak",
+    "erode_at", "n_grains", "n_unconverged", "case",
+)
+"""Columns of summary.csv, in order."""
+STRAIN_MARKS = (0.05, 0.10, 0.15)
+"""eps1 [-] of the p_at_<5|10|15>pct columns."""
+SOFTENING_DROP = 0.01
+"""Fall of q after a maximum, as a fraction of p0 [-], that makes it the first peak."""
+ERODE_STAGE, ERODED_STAGE = "erode", "eroded"
+"""Stage labels of the zero-strain removal increment and of the shear after it."""
+
+
+def float_list(check: Callable[[str], float]) -> Callable[[str], list[float]]:
+    """argparse type: comma list of values each checked by ``check`` (duplicates dropped)."""
+    def parse(text: str) -> list[float]:
+        values = [check(piece.strip()) for piece in text.split(",") if piece.strip()]
+        if not values:
+            raise argparse.ArgumentTypeError("empty list")
+        return list(dict.fromkeys(values))
+    parse.__name__ = f"{check.__name__}_list"
+    return parse
+
+
+def erode_strain(text: str) -> float:
+    """argparse type: axial strain of erosion [-], in (0, 1)."""
+    value = positive_float(text)
+    if value >= 1.0:
+        raise argparse.ArgumentTypeError(f"{text} must be < 1")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser of the sweep command (defaults read from warp_hcell.parameters)."""
+    cell, load = CellDefaults(), LoadingDefaults()
+    parser = argparse.ArgumentParser(
+        prog="python -m homogenization.sweep",
+        description="Biaxial tests over the Cartesian product of mesostructures, alpha0, p0 and backends.",
+        parents=[common_parser()],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--mesostructure", type=mesostructure_list_arg, action="extend", default=None,
+                        help="comma list (or repeat the flag); each item a " + MESOSTRUCTURE_HELP
+                        + "; a KEY=VALUE item continues the spec before it. None: hcell")
+    parser.add_argument("--alpha0", type=float_list(alpha0_deg), default=f"{cell.alpha0_deg:g}",
+                        help="comma list of initial opening angles [deg] for specs without their own alpha0")
+    parser.add_argument("--p0", type=float_list(positive_float), default=f"{cell.p0:g}",
+                        help="comma list of confining pressures [N/m]")
+    parser.add_argument("--backend", type=backend_list, default="dem", help="comma list of cell models")
+    parser.add_argument("--eps-max", type=positive_float, default=load.eps_max,
+                        help="axial strain at the end of the shear stage, counted from its start [-]")
+    parser.add_argument("--increment", type=positive_float, default=load.increment, help="axial strain increment of the shear stage [-]")
+    parser.add_argument("--iso-increment", type=positive_float, default=load.iso_increment,
+                        help="strain increment per component of the isotropic stage [-]")
+    parser.add_argument("--orientations", type=positive_int, default=cell.n_orientations, help="number N of cell orientations")
+    parser.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
+    parser.add_argument("--stress-rtol", type=positive_float, default=load.stress_rtol,
+                        help="relative tolerance of stress-controlled components (--drained, landing on p0) [-]")
+    parser.add_argument("--erode-at", type=erode_strain, default=None,
+                        help="remove the grains free along n and t (fines) at this eps1 [-] (dem; None: no erosion)")
+    parser.add_argument("--workers", type=positive_int, default=None,
+                        help="cases run at once, one process each (None: the cores available)")
+    parser.add_argument("--threads", type=positive_int, default=1, help="CPU threads of the DEM within each case")
+    parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
+    parser.add_argument("--out", type=Path, required=True, help="output folder (rerun to resume)")
+    return parser
+
+
+@dataclass(frozen=True)
+class Case:
+    """One run of the sweep; everything a worker needs (picklable, plain values).
+
+    Attributes:
+        source: mesostructure text (spec or file).
+        backend: backend name.
+        alpha0: opening angle [deg] passed to the driver (NaN for a file that is not a plain H-cell).
+        p0: confining pressure [N/m].
+        folder: case folder.
+        parameters: the run parameters written to run.h5 (JSON-compatible); their equality
+            decides whether a stored run is this case.
+        options: backend options that do not change results (threads).
+    """
+
+    source: str
+    backend: str
+    alpha0: float
+    p0: float
+    folder: str
+    parameters: dict[str, Any]
+    options: dict[str, Any]
+
+
+def _takes_mesostructure(backend: str) -> bool:
+    return "mesostructure" in inspect.signature(backend_class(backend)).parameters
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._=+-]+", "_", text).strip("_") or "case"
+
+
+def plan(args: argparse.Namespace) -> tuple[list[Case], list[str]]:
+    """Cases of the product (mesostructures built and validated) and the skipped combinations.
+
+    Raises:
+        UserError: a mesostructure that does not build, an option no case takes (one line).
+    """
+    sources: list[MesostructureSource] = args.mesostructure or mesostructure_list_arg("hcell")
+    sources = list({s.text: s for s in sources}.values())
+    law = ContactLaw()
+    takes = {name: _takes_mesostructure(name) for name in args.backend}
+    if args.model is not None and "ann" not in args.backend:
+        raise UserError("--model applies to --backend ann only")
+    cases: list[Case] = []
+    skipped: list[str] = []
+    for source in sources:
+        alphas = args.alpha0 if source.takes_alpha0 else [source.fixed_alpha0]
+        for alpha0 in alphas:
+            try:
+                meso = source.build(alpha0)
+            except MesostructureError as exc:
+                raise UserError(str(exc)) from None
+            plain = plain_h_cell_alpha0(meso)
+            erodible = bool(np.any(~meso.driven.any(axis=1)))
+            for p0 in args.p0:
+                for backend in args.backend:
+                    if not takes[backend] and plain is None:
+                        skipped.append(f"{backend} x {source.text}: {backend} models the plain H-cell only")
+                        continue
+                    erode_at = args.erode_at if erodible else None
+                    if erode_at is not None and backend != "dem":
+                        raise UserError(f"--erode-at needs --backend dem; {backend} cannot remove grains of {source.text}")
+                    if erode_at is not None and erode_at >= args.eps_max:
+                        raise UserError(f"--erode-at {erode_at:g} must be below --eps-max {args.eps_max:g}")
+                    case_alpha0 = plain[0] if plain is not None else (float("nan") if alpha0 is None else float(alpha0))
+                    radius = plain[1] if plain is not None else CellDefaults.radius
+                    parameters = {
+                        "backend": backend,
+                        "backend_options": ({"device": args.device} if backend in ("dem", "ann") else {})
+                        | ({"model": str(args.model)} if backend == "ann" and args.model else {}),
+                        "contact_law": asdict(law), "radius": radius,
+                        "alpha0_deg": None if math.isnan(case_alpha0) else case_alpha0, "p0": p0,
+                        "eps_max": args.eps_max, "increment": args.increment, "iso_increment": args.iso_increment,
+                        "n_orientations": args.orientations, "fabric_anisotropy": 0.0, "fabric_direction_deg": 0.0,
+                        "drained": args.drained, "stress_rtol": args.stress_rtol,
+                        "mesostructure": source.text, "mesostructure_name": meso.name,
+                        "mesostructure_file": source.text if source.kind is None else None,
+                        "n_grains": meso.n_grains, "erode_at": erode_at,
+                        "eroded_grains": ([int(g) + 1 for g in np.flatnonzero(~meso.driven.any(axis=1))]
+                                          if erode_at is not None else None),
+                    }
+                    name = f"{source.label}__a{case_alpha0:g}__p{p0:g}__{backend}"
+                    options = {"threads": args.threads} if backend == "dem" else {}
+                    cases.append(Case(source.text, backend, case_alpha0, p0, _slug(name), parameters, options))
+    if not cases:
+        raise UserError("no case to run: " + "; ".join(skipped))
+    _unique_folders(cases)
+    return cases, skipped
+
+
+def _unique_folders(cases: list[Case]) -> None:
+    """Give cases that share a folder name a hash of their parameters (in place)."""
+    seen: dict[str, int] = {}
+    for case in cases:
+        seen[case.folder] = seen.get(case.folder, 0) + 1
+    for k, case in enumerate(cases):
+        if seen[case.folder] > 1:
+            digest = hashlib.sha1(json.dumps(case.parameters, sort_keys=True).encode()).hexdigest()[:8]
+            cases[k] = dataclasses.replace(case, folder=f"{case.folder}__{digest}")
+
+
+# -- one case ------------------------------------------------------------------------------------
+
+class _ContinuedCell:
+    """A cell model that starts from a given state and scales V_cell so that V0 is a given volume.
+
+    The driver computes V0 from the areas of the initial state and J from the increments it
+    applies; a test continued after erosion keeps the V0 J of the first part this way (the
+    Love-Weber moments are untouched; observables report the true areas).
+    """
+
+    def __init__(self, inner: Any, state: Any, area_scale: float) -> None:
+        self.inner = inner
+        self.state = state
+        self.area_scale = float(area_scale)
+        self.name = inner.name
+
+    def init_state(self, alpha0_deg: float, n_cells: int) -> Any:
+        if n_cells != self.state.n_cells:
+            raise ValueError(f"continued state has {self.state.n_cells} cells, asked for {n_cells}")
+        return self.state
+
+    def response(self, state: Any):
+        response = self.inner.response(state)
+        return dataclasses.replace(response, area=response.area * self.area_scale)
+
+    def step(self, state: Any, d_eps_local: np.ndarray):
+        new, response = self.inner.step(state, d_eps_local)
+        return new, dataclasses.replace(response, area=response.area * self.area_scale)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+def _join(first: driver.Record, second: driver.Record, programme: loading.Programme) -> driver.Record:
+    """One record of a test run in two parts (``second`` continues ``first``)."""
+    def cat(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.concatenate([a, b])
+
+    def cat_dict(a: dict, b: dict, n_a: int, n_b: int) -> dict:
+        out = {}
+        for name in dict.fromkeys([*a, *b]):
+            va = a[name] if name in a else np.full((n_a, *np.shape(b[name])[1:]), np.nan)
+            vb = b[name] if name in b else np.full((n_b, *np.shape(a[name])[1:]), np.nan)
+            out[name] = np.concatenate([np.asarray(va, dtype=np.result_type(va, np.float64)),
+                                        np.asarray(vb, dtype=np.result_type(vb, np.float64))])
+        return out
+
+    J1 = first.J[-1]
+    eps11 = cat(first.eps11, second.eps11 + first.eps11[-1])
+    eps22 = cat(first.eps22, second.eps22 + first.eps22[-1])
+    J = cat(first.J, second.J * J1)
+    return driver.Record(
+        stage=cat(first.stage, second.stage), eps11=eps11, eps22=eps22,
+        sigma11=cat(first.sigma11, second.sigma11), sigma22=cat(first.sigma22, second.sigma22),
+        sigma12=cat(first.sigma12, second.sigma12), p=cat(first.p, second.p), q=cat(first.q, second.q),
+        J=J, volume=first.V0 * J, newton_iterations=cat(first.newton_iterations, second.newton_iterations),
+        diagnostics=cat_dict(first.diagnostics, second.diagnostics, first.n_increments, second.n_increments),
+        snapshot_increment=cat(first.snapshot_increment, second.snapshot_increment + first.n_increments),
+        snapshot_stage=cat(first.snapshot_stage, second.snapshot_stage),
+        snapshots=cat_dict(first.snapshots, second.snapshots, first.snapshot_increment.size,
+                           second.snapshot_increment.size),
+        theta_deg=first.theta_deg, weights=first.weights, V0=first.V0, alpha0_deg=first.alpha0_deg,
+        backend=first.backend, programme=programme, final_state=second.final_state,
+        step_seconds=cat(first.step_seconds, second.step_seconds))
+
+
+def run_test(cell_model: Any, case: Case) -> driver.Record:
+    """The biaxial test of ``case`` on ``cell_model``, with erosion where the case asks for it."""
+    prm = case.parameters
+    common = dict(alpha0_deg=case.alpha0, n_orientations=prm["n_orientations"], stress_rtol=prm["stress_rtol"],
+                  progress=False)
+    full = loading.biaxial(case.p0, prm["eps_max"], prm["increment"], iso_increment=prm["iso_increment"],
+                           drained=prm["drained"])
+    if prm["erode_at"] is None:
+        return driver.run(cell_model, full, **common)
+    from warp_hcell.erosion import erode_state
+
+    iso, shear = full
+    n_before = min(loading.n_increments_for(prm["erode_at"], prm["increment"]), shear.n_increments - 1)
+    eps_before = prm["eps_max"] * n_before / shear.n_increments
+
+    def shear_step(eps: float, n: int, label: str) -> loading.Step:
+        if prm["drained"]:
+            return loading.drained_biaxial(case.p0, eps, n, label=label)
+        return loading.constant_volume_biaxial(eps, n, label=label)
+
+    before = (iso, shear_step(eps_before, n_before, shear.label))
+    relax = (loading.drained_biaxial(case.p0, 0.0, 1, label=ERODE_STAGE) if prm["drained"]
+             else loading.proportional_strain(0.0, 0.0, 1, label=ERODE_STAGE))
+    after = (relax,
+             shear_step(prm["eps_max"] - eps_before, shear.n_increments - n_before, ERODED_STAGE))
+    first = driver.run(cell_model, before, **common)
+    state = cell_model.state_from_arrays(first.final_state)
+    reduced, reduced_state, _ = erode_state(cell_model, state, [g - 1 for g in prm["eroded_grains"]])
+    volume_now = float(first.weights @ reduced.response(reduced_state).area)
+    continued = _ContinuedCell(reduced, reduced_state, first.V0 * first.J[-1] / volume_now)
+    second = driver.run(continued, after, **common)
+    return _join(first, second, before + after)
+
+
+def summarise(record: driver.Record, p0: float) -> dict[str, float]:
+    """Summary numbers of the shear stages of ``record`` (see the module docstring)."""
+    curve = plotting.shear_curve(record)
+    eps1, p, q = curve.eps1[1:], curve.p[1:], curve.q[1:]
+    peak = int(np.argmax(q))
+    row = {"peak_q": q[peak], "eps1_at_peak": eps1[peak], "p_at_peak": p[peak],
+           "p_end": p[-1], "q_end": q[-1], "eps1_end": eps1[-1]}
+    for mark in STRAIN_MARKS:
+        row[f"p_at_{round(100 * mark)}pct"] = float(np.interp(mark, eps1, p)) if eps1[-1] >= mark - 1e-12 else math.nan
+    running = np.maximum.accumulate(q)
+    fallen = np.flatnonzero(q < running - SOFTENING_DROP * p0)
+    if fallen.size:
+        first = int(np.argmax(q[: fallen[0] + 1]))
+        row.update(first_peak_q=q[first], eps1_at_first_peak=eps1[first], p_at_first_peak=p[first])
+    else:
+        row.update(first_peak_q=math.nan, eps1_at_first_peak=math.nan, p_at_first_peak=math.nan)
+    unconverged = record.diagnostics.get("n_unconverged")
+    row["n_unconverged"] = float(np.nansum(unconverged)) if unconverged is not None else 0.0
+    return {k: float(v) for k, v in row.items()}
+
+
+def _summary_row(case: Case, record: driver.Record) -> dict[str, Any]:
+    prm = case.parameters
+    return {"mesostructure": case.source, "backend": case.backend, "alpha0": case.alpha0, "p0": case.p0,
+            **summarise(record, case.p0), "erode_at": prm["erode_at"] if prm["erode_at"] is not None else math.nan,
+            "n_grains": prm["n_grains"], "case": case.folder}
+
+
+def run_case(case: Case, out: str, seed: int) -> tuple[dict[str, Any], float]:
+    """Run one case, write its folder; returns (summary row, wall seconds). Runs in a worker."""
+    start = time.perf_counter()
+    prm = case.parameters
+    options: dict[str, Any] = dict(prm["backend_options"]) | case.options
+    if prm["mesostructure"] and _takes_mesostructure(case.backend):
+        alpha0 = None if math.isnan(case.alpha0) else case.alpha0
+        options["mesostructure"] = parse_mesostructure(case.source).build(alpha0)
+    if "model" in options:
+        options["model"] = Path(options["model"])
+    model = make_cell_model(case.backend, contact_law=ContactLaw(**prm["contact_law"]), radius=prm["radius"], **options)
+    record = run_test(model, case)
+    folder = Path(out) / CASES_DIR / case.folder
+    io.write_run(folder, record, parameters=prm, seed=seed)
+    kind = "drained" if prm["drained"] else "constant-volume"
+    fig = plotting.make_figure({case.backend: record}, drained=prm["drained"],
+                               title=f"{kind} biaxial, {case.source}, alpha0 = {case.alpha0:g} deg, p0 = {case.p0:g} N/m")
+    plotting.save_figure(fig, folder / FIGURE_FILE)
+    return _summary_row(case, record), time.perf_counter() - start
+
+
+def stored_row(case: Case, out: Path, *, overwrite: bool) -> dict[str, Any] | None:
+    """Summary row of a finished case (same parameters on disk), None if it must run.
+
+    Raises:
+        UserError: the folder holds a run with other parameters and not ``overwrite``.
+    """
+    folder = out / CASES_DIR / case.folder
+    run_file, curve_file = folder / io.RUN_FILE, folder / io.CURVE_FILE
+    if not (run_file.is_file() and curve_file.is_file()):
+        return None
+    try:
+        stored = io.read_run(run_file)
+    except UserError:
+        if overwrite:
+            return None
+        raise
+    if stored.attrs["parameters"] == json.loads(json.dumps(case.parameters)):
+        return _summary_row(case, stored.record)
+    if overwrite:
+        return None
+    differ = sorted(k for k in set(case.parameters) | set(stored.attrs["parameters"])
+                    if json.loads(json.dumps(case.parameters.get(k))) != stored.attrs["parameters"].get(k))
+    raise UserError(f"{folder} holds a run with other {', '.join(differ)}; pass --overwrite or choose another --out")
+
+
+def run_cases(cases: Sequence[Case], out: Path, seed: int, executor: Executor | None,
+              report: Callable[[Case, float | None, str | None], None]) -> tuple[dict[str, dict], dict[str, str]]:
+    """Run ``cases`` on ``executor`` (None: here, one after the other).
+
+    Returns:
+        (rows, failures): summary rows and error messages, keyed by case folder.
+    """
+    rows: dict[str, dict] = {}
+    failures: dict[str, str] = {}
+
+    def done(case: Case, result: Callable[[], tuple[dict, float]]) -> None:
+        try:
+            row, seconds = result()
+        except (driver.ControlError, ValueError, UserError, RuntimeError) as exc:
+            failures[case.folder] = " ".join(str(exc).split()) or type(exc).__name__
+            report(case, None, failures[case.folder])
+            return
+        rows[case.folder] = row
+        report(case, seconds, None)
+
+    if executor is None:
+        for case in cases:
+            done(case, lambda case=case: run_case(case, str(out), seed))
+        return rows, failures
+    futures = {executor.submit(run_case, case, str(out), seed): case for case in cases}
+    try:
+        for future in as_completed(futures):
+            done(futures[future], future.result)
+    except KeyboardInterrupt:
+        executor.shutdown(wait=False, cancel_futures=True)  # finished cases are on disk; rerun resumes
+        raise
+    return rows, failures
+
+
+# -- summary -------------------------------------------------------------------------------------
+
+def write_summary(path: Path, rows: Iterable[dict[str, Any]]) -> Path:
+    """summary.csv, one row per case in ``rows`` order (floats with 17 significant digits)."""
+    lines = [",".join(SUMMARY_COLUMNS)]
+    for row in rows:
+        lines.append(",".join(_cell(row[c]) for c in SUMMARY_COLUMNS))
+    with atomic_write(Path(path)) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+    return Path(path)
+
+
+def _cell(value: Any) -> str:
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else f"{value:.17g}"
+    text = str(value)
+    return f'"{text}"' if ("," in text or '"' in text) else text
+
+
+def read_summary(path: Path) -> list[dict[str, Any]]:
+    """summary.csv back as rows (numeric columns as float)."""
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    text_columns = {"mesostructure", "backend", "case"}
+    return [{k: (v if k in text_columns else float(v)) for k, v in row.items()} for row in rows]
+
+
+def summary_figure(path: Path, cases: Sequence[Case], out: Path) -> Path:
+    """summary.png: q/p0 and p/p0 against eps1 and the (p/p0, q/p0) path of every case."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(15.0, 5.2), layout="constrained")
+    ax_q, ax_p, ax_pq = fig.subplots(1, 3)
+    colours = plotting_colours(len(cases))
+    for colour, case in zip(colours, cases):
+        record = io.read_run(out / CASES_DIR / case.folder / io.RUN_FILE).record
+        c = plotting.shear_curve(record)
+        label = f"{case.source}, {case.alpha0:g}, {case.p0:g}, {case.backend}"
+        style = {"color": colour, "lw": 1.0}
+        ax_q.plot(100.0 * c.eps1, c.q / case.p0, label=label, **style)
+        ax_p.plot(100.0 * c.eps1, c.p / case.p0, **style)
+        ax_pq.plot(c.p / case.p0, c.q / case.p0, **style)
+    eps_label = r"$\varepsilon_1$ since the end of the isotropic stage [%]"
+    ax_q.set(xlabel=eps_label, ylabel=r"$q/p_0$", title="deviator")
+    ax_p.set(xlabel=eps_label, ylabel=r"$p/p_0$", title="mean stress")
+    ax_pq.set(xlabel=r"$p/p_0$", ylabel=r"$q/p_0$", title="stress path")
+    for ax in (ax_q, ax_p, ax_pq):
+        ax.grid(True, alpha=0.3)
+    fig.legend(*ax_q.get_legend_handles_labels(), loc="outside right upper", fontsize=6,
+               title="mesostructure, alpha0, p0, backend", title_fontsize=7)
+    fig.suptitle("sweep (compression positive)")
+    return plotting.save_figure(fig, path)
+
+
+def plotting_colours(n: int) -> list:
+    """n distinct colours: tab10 / tab20 up to 20, viridis beyond."""
+    from matplotlib import colormaps
+
+    if n <= 10:
+        return [colormaps["tab10"](k) for k in range(n)]
+    if n <= 20:
+        return [colormaps["tab20"](k) for k in range(n)]
+    return [colormaps["viridis"](x) for x in np.linspace(0.0, 0.9, n)]
+
+
+# -- entry point ---------------------------------------------------------------------------------
+
+def _prepare_out(out: Path, options: dict[str, Any], *, overwrite: bool) -> None:
+    """Refuse a non-empty DIR that is not a sweep folder (unless --overwrite); write sweep.json."""
+    if not (out / SWEEP_FILE).is_file():
+        check_output_path(out, overwrite=overwrite)
+    else:
+        check_output_path(out / SWEEP_FILE, overwrite=True)
+    try:
+        with atomic_write(out / SWEEP_FILE) as tmp:
+            tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
+    except OSError as exc:
+        raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
+
+
+def _quiet_worker() -> None:
+    """Worker start-up: no Warp banner or kernel-load lines in the sweep's output."""
+    import warp
+
+    warp.config.quiet = True
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
+    args = build_parser().parse_args(argv)
+    out: Path = args.out
+    if args.device != "cpu" and not {"dem", "ann"} & set(args.backend):
+        raise UserError("--device applies to --backend dem or ann only (analytical runs on the cpu)")
+    cases, skipped = plan(args)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out} is a file; give a folder")
+    rows = {case.folder: stored_row(case, out, overwrite=args.overwrite) for case in cases}
+    options = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k not in ("out", "overwrite")}
+    options["mesostructure"] = [c.source for c in cases]
+    _prepare_out(out, options, overwrite=args.overwrite)
+    for note in skipped:
+        print(f"skipped: {note}")
+    todo = [case for case in cases if rows[case.folder] is None]
+    print(f"{len(cases)} cases: {len(cases) - len(todo)} finished before, {len(todo)} to run")
+
+    def report(case: Case, seconds: float | None, error: str | None) -> None:
+        state = f"failed: {error}" if error else f"{seconds:.1f} s"
+        print(f"  {case.folder}: {state}", flush=True)
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    workers = min(args.workers or cores, max(len(todo), 1))
+    start = time.perf_counter()
+    if workers > 1:
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=_quiet_worker) as pool:
+            done, failures = run_cases(todo, out, args.seed, pool, report)
+    else:
+        done, failures = run_cases(todo, out, args.seed, None, report)
+    elapsed = time.perf_counter() - start
+    rows.update(done)
+    finished = [case for case in cases if rows.get(case.folder) is not None]
+    summary = write_summary(out / SUMMARY_FILE, (rows[case.folder] for case in finished))
+    figure = summary_figure(out / SUMMARY_FIGURE, finished, out) if finished else None
+    print(f"{len(todo)} cases run in {elapsed:.1f} s with {workers} worker(s) -> {summary}"
+          + (f", {figure}" if figure else ""))
+    if failures:
+        print(f"{len(failures)} case(s) failed: {', '.join(failures)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_main(main))
