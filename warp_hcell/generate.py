@@ -297,8 +297,8 @@ def generate(
     run = _open_sidecar(sidecar, description, discard_partial)
     physics = (contact_law, description["mesostructure"], dem_settings, str(device), int(threads))
     states_file = sidecar / "states.npz"
-    if not states_file.exists():
-        _save_npz(states_file, _explore(physics, meso, starts, settings))
+    if not states_file.exists():  # the workers are idle meanwhile: the exploration uses their threads too
+        _save_npz(states_file, _explore((*physics[:4], int(threads) * max(int(workers), 1)), meso, starts, settings))
     missing = [c for c in range(n_chunks(settings)) if not _chunk_file(sidecar, c).exists()]
     todo = missing if max_chunks is None else missing[:max_chunks]
     done = settings.samples - sum(chunk_samples(settings, c) for c in missing)
