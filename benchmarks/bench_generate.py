@@ -2,11 +2,13 @@
 
 Wall time of the database generator (``warp_hcell.generate.generate``, the code path of
 ``python -m warp_hcell.generate``) on the same mesostructure, seed and settings, run side by
-side in one process with several executions: one worker process with 2 Warp threads, and
-2 worker processes with 1 Warp thread each. Prints per execution the exploration time
-(``states.npz`` written), the total time, samples/s, the ratio to the first execution, and
-whether the database files are byte-identical (they must be). The load average is printed
-with the numbers: timings on a shared machine are noisy.
+side in one process with several executions (``warp_hcell.execution``): in process with 2
+Warp threads (``--workers 1``), a Dask LocalCluster of 1 and of 2 single-threaded workers
+(``--workers 2`` uses the latter), and the standard-library process pool of 2 workers that
+ran the chunks before Dask. Prints per execution the exploration time, the probing-and-writing
+time, the total, samples/s, the speed-up over the first execution, and whether the database
+files are byte-identical (they must be). The load average is printed with the numbers:
+timings on a shared machine are noisy.
 """
 
 from __future__ import annotations
@@ -19,21 +21,25 @@ import time
 from pathlib import Path
 
 from warp_hcell import generate
+from warp_hcell.execution import DaskExecution, InProcess, ProcessPool
 from warp_hcell.mesostructure import h_cell, load_mesostructure
 from warp_hcell.parameters import CellDefaults, DatabaseSettings
 
-EXECUTIONS = ((1, 2), (2, 1))
-"""(worker processes, Warp threads per process) of each timed run."""
+EXECUTIONS = (("in process", 2, lambda: InProcess()), ("dask, 1 worker", 1, lambda: DaskExecution(workers=1)),
+              ("dask, 2 workers", 1, lambda: DaskExecution(workers=2)), ("process pool, 2", 1, lambda: ProcessPool(2)))
+"""(label, Warp threads per process, execution factory) of each timed run."""
 
 
-def timed_run(meso, starts, settings: DatabaseSettings, out: Path, workers: int, threads: int) -> dict:
-    """Generate ``out`` from scratch; returns the exploration and probing(+writing) times [s]."""
+def timed_run(meso, starts, settings: DatabaseSettings, out: Path, make, threads: int) -> dict:
+    """Generate ``out`` from scratch; returns the exploration and probing(+writing) times [s]
+    (cluster start-up included in the exploration time)."""
     out.unlink(missing_ok=True)
     t0 = time.perf_counter()
-    generate.generate(meso, settings, out, seed=0, starts=starts, workers=workers, threads=threads,
-                      max_chunks=0, discard_partial=True)  # exploration only (checkpointed in the sidecar)
-    t1 = time.perf_counter()
-    generate.generate(meso, settings, out, seed=0, starts=starts, workers=workers, threads=threads)
+    with make() as execution:
+        generate.generate(meso, settings, out, seed=0, starts=starts, execution=execution, threads=threads,
+                          max_chunks=0, discard_partial=True)  # exploration only (checkpointed in the sidecar)
+        t1 = time.perf_counter()
+        generate.generate(meso, settings, out, seed=0, starts=starts, execution=execution, threads=threads)
     t2 = time.perf_counter()
     return {"explore": t1 - t0, "probe": t2 - t1, "total": t2 - t0, "sha256": hashlib.sha256(out.read_bytes()).hexdigest()}
 
@@ -53,15 +59,15 @@ def main() -> None:
         starts = [meso]
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.out_dir or Path(tmp)
-        results = [(w, t, timed_run(meso, starts, settings, folder / f"bench_w{w}_t{t}.h5", w, t))
-                   for w, t in EXECUTIONS]
+        results = [(label, threads, timed_run(meso, starts, settings, folder / f"bench_{i}.h5", make, threads))
+                   for i, (label, threads, make) in enumerate(EXECUTIONS)]
         print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; {meso.name}; "
               f"{args.samples} samples, {len(starts)} start cells")
-        print(f"{'workers':>7s} {'threads':>7s} {'explore [s]':>11s} {'probe+write [s]':>15s} {'total [s]':>10s} "
+        print(f"{'execution':16s} {'threads':>7s} {'explore [s]':>11s} {'probe+write [s]':>15s} {'total [s]':>10s} "
               f"{'samples/s':>10s} {'speed-up':>9s}")
         first = results[0][2]["total"]
-        for workers, threads, r in results:
-            print(f"{workers:7d} {threads:7d} {r['explore']:11.1f} {r['probe']:15.1f} {r['total']:10.1f} "
+        for label, threads, r in results:
+            print(f"{label:16s} {threads:7d} {r['explore']:11.1f} {r['probe']:15.1f} {r['total']:10.1f} "
                   f"{args.samples / r['total']:10.0f} {first / r['total']:9.2f}")
         same = all(r["sha256"] == results[0][2]["sha256"] for *_, r in results)
         print(f"databases byte-identical across executions: {same}")

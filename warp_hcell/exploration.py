@@ -132,20 +132,22 @@ class Explorer:
     """
 
     def __init__(self, cell_model, schema: StateSchema, settings: DatabaseSettings, contact_law: ContactLaw,
-                 contact_tolerance: float):
+                 contact_tolerance: float, n_starts: int = 1):
         self.cell_model = cell_model
         self.schema = schema
         self.settings = settings
         self.contact_law = contact_law
         self.contact_tolerance = contact_tolerance
-        self.stops = {rule: 0 for rule in STOP_RULES}
+        self.stops = {rule: np.zeros(n_starts, np.int64) for rule in STOP_RULES}
+        """How often each stop rule fired, per start cell."""
 
     def _free_run(self, arrays, previous: np.ndarray, length: np.ndarray) -> np.ndarray:
         free = stress_free(self.schema, arrays, self.contact_law, self.contact_tolerance)
         return np.where(free, previous + length, 0.0)
 
     def walk(self, state, increments: np.ndarray, n_steps: np.ndarray, eps_start: np.ndarray,
-             free_run_start: np.ndarray, label: str, *, sample_start: bool) -> dict[str, np.ndarray]:
+             free_run_start: np.ndarray, cell_start: np.ndarray, label: str, *,
+             sample_start: bool) -> dict[str, np.ndarray]:
         """Advance cells along their own increments, one batch per increment, sampling each state.
 
         Args:
@@ -155,6 +157,7 @@ class Explorer:
             n_steps: increments allowed per cell, shape (n_cells,) int, <= K.
             eps_start: (eps_n, eps_t) of the start states from their start cell, (n_cells, 2).
             free_run_start: force-free path length of the start states, (n_cells,).
+            cell_start: start cell (0..n_starts-1) of each walked cell, (n_cells,) int.
             label: progress-bar label.
             sample_start: also sample the start states (step 0).
 
@@ -181,7 +184,7 @@ class Explorer:
                                self.contact_tolerance)
             stop = np.zeros(active.size, dtype=bool)
             for rule, mask in masks.items():
-                self.stops[rule] += int(np.count_nonzero(mask & ~stop))
+                np.add.at(self.stops[rule], cell_start[active[mask & ~stop]], 1)
                 stop |= mask
             keep = np.flatnonzero(~stop)
             state, active, eps, free_run = cm.take(state, keep), active[keep], eps[keep], free_run[keep]
@@ -197,8 +200,13 @@ class Explorer:
         return record
 
 
+def path_stride(settings: DatabaseSettings) -> int:
+    """Path ids of start cell k are k * path_stride + (0: its isotropic path; 1, 2, ...: its legs)."""
+    return 1 + len(set(settings.precompression)) * settings.n_directions
+
+
 def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSettings, contact_law: ContactLaw,
-            contact_tolerance: float) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+            contact_tolerance: float, start_ids: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Run the exploration tree (module docstring) and return the sampled states.
 
     Args:
@@ -207,26 +215,31 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
         schema: their learning state.
         settings: generator settings.
         contact_law, contact_tolerance: the DEM's.
+        start_ids: global index of each start cell, shape (n_starts,) int; default 0, 1, ...
 
     Returns:
-        (states, stops): states with first axis n_states: the DEM arrays (prefix
-        ``DEM_PREFIX``), ``path_id`` and ``start_id`` int64, ``precompression`` [-]
-        (isotropic strain the leg started from; the current one on isotropic paths),
-        ``direction_deg`` [deg] (leg direction psi; NaN on isotropic paths), ``eps``
-        (n_states, 2) [-] summed from the start cell; path ids 0..n_starts-1 are the
-        isotropic paths, then the legs. ``stops``: how often each stop rule fired.
+        (states, stops): states with first axis n_states, ordered by start cell (then as
+        walked), so that exploring the start cells together or apart gives the same states:
+        the DEM arrays (prefix ``DEM_PREFIX``), ``path_id`` (``path_stride``) and ``start_id``
+        int64, ``precompression`` [-] (isotropic strain the leg started from; the current one
+        on isotropic paths), ``direction_deg`` [deg] (leg direction psi; NaN on isotropic
+        paths), ``eps`` (n_states, 2) [-] summed from the start cell. ``stops``: rule ->
+        how often it fired, per start cell, shape (n_starts,) int64.
     """
-    explorer = Explorer(cell_model, schema, settings, contact_law, contact_tolerance)
     n_starts = int(start_state.n_cells)
+    explorer = Explorer(cell_model, schema, settings, contact_law, contact_tolerance, n_starts)
+    start_ids = np.arange(n_starts, dtype=np.int64) if start_ids is None else np.asarray(start_ids, np.int64)
+    stride = path_stride(settings)
     levels = np.unique(np.asarray(settings.precompression, dtype=np.float64))
     iso_strain = np.union1d(levels, np.arange(0.0, levels[-1], settings.sample_spacing / math.sqrt(2.0)))
     iso_increments = np.repeat(np.diff(iso_strain)[None, :, None], 2, axis=2)
     iso = explorer.walk(start_state, np.broadcast_to(iso_increments, (n_starts, *iso_increments.shape[1:])),
                         np.full(n_starts, iso_increments.shape[1]), np.zeros((n_starts, 2)),
-                        np.zeros(n_starts), "isotropic paths", sample_start=True)
+                        np.zeros(n_starts), np.arange(n_starts), "isotropic paths", sample_start=True)
     iso_eps = iso_strain[iso.pop("step")]
-    cell = iso.pop("cell")
-    iso.update(path_id=cell, start_id=cell, precompression=iso_eps, direction_deg=np.full(iso_eps.size, np.nan))
+    cell = iso["cell"]
+    iso.update(path_id=start_ids[cell] * stride, start_id=start_ids[cell], precompression=iso_eps,
+               direction_deg=np.full(iso_eps.size, np.nan))
 
     origin = np.flatnonzero(np.isin(iso_eps, levels))
     directions = leg_directions(settings)
@@ -239,12 +252,19 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
     starts = cell_model.state_from_arrays(dem)
     increments = np.diff(arc, prepend=0.0)[None, :, None] * directions[leg_dir][:, None, :]
     legs = explorer.walk(starts, increments, steps, iso["eps"][leg_origin], iso["free_run"][leg_origin],
-                         "proportional legs", sample_start=False)
+                         iso["cell"][leg_origin], "proportional legs", sample_start=False)
     legs.pop("step")
     cell = legs.pop("cell")
     start = leg_origin[cell]
-    legs.update(path_id=n_starts + cell, start_id=iso["start_id"][start], precompression=iso_eps[start],
-                direction_deg=360.0 * leg_dir[cell] / n_dir)
+    # leg number within its start cell, in creation order (whatever the other start cells)
+    leg_start = iso["start_id"][leg_origin]
+    by_start = np.argsort(leg_start, kind="stable")
+    rank = np.empty(leg_start.size, np.int64)
+    rank[by_start] = np.arange(leg_start.size) - np.searchsorted(leg_start[by_start], leg_start[by_start])
+    legs.update(path_id=leg_start[cell] * stride + 1 + rank[cell], start_id=leg_start[cell],
+                precompression=iso_eps[start], direction_deg=360.0 * leg_dir[cell] / n_dir)
+    iso.pop("cell")
     states = {name: np.concatenate([iso[name], legs[name]]) for name in iso}
     states.pop("free_run")
-    return states, dict(explorer.stops)
+    order = np.argsort(states["start_id"], kind="stable")
+    return {name: value[order] for name, value in states.items()}, explorer.stops

@@ -6,20 +6,22 @@ in docs/database_format.md, written by ``warp_hcell.database``). The DEM
 the H-cell of ``warp_hcell.mesostructure.h_cell`` and the exploration starts from H-cells of
 several opening angles (they share one learning state).
 
-Jobs:
-1. Exploration (``warp_hcell.exploration``, deterministic): isotropic paths then proportional
-   legs in the (eps_n, eps_t) plane from every start cell; generic stop rules.
-2. Probing (``warp_hcell.probing``, seeded): each chunk of samples is a pure function of
-   (settings, mesostructure, seed, chunk index), computed as ONE DEM batch.
-3. Storage and resume (here): completed work goes to a sidecar folder ``<out>.parts``
-   (``run.json``, ``states.npz`` = the exploration checkpoint, one ``chunk_XXXXXX.npz`` per
-   chunk, each written to a temporary name and renamed), so an interrupted run resumes
-   where it stopped. When all chunks exist, the HDF5 file is written to a temporary file
-   and renamed onto ``--out``; the sidecar is then removed.
-4. Execution (here): chunks run in this process or in ``--workers`` processes; the file is
-   bit-identical for a seed whatever the workers and interruptions.
-Cleaning is an explicit step (``--clean`` here, or ``python -m warp_hcell.clean``): it marks
-unconverged and non-finite samples; mechanism and perturbed samples are kept.
+The generator's jobs, one module each:
+1. exploration (``warp_hcell.exploration``, deterministic): isotropic paths then
+   proportional legs in the (eps_n, eps_t) plane from every start cell; generic stop rules;
+2. probing (``warp_hcell.probing``, seeded): a chunk of samples is a pure function of
+   (settings, mesostructure, seed, chunk index), computed as ONE DEM batch;
+3. storage and resume (``warp_hcell.shards``): the sidecar ``<out>.parts`` keeps each explored
+   start cell, the exploration and each chunk as soon as done; an interrupted run resumes
+   where it stopped (an unreadable file is recomputed); a lock keeps a second run off the
+   same ``--out``;
+4. execution (``warp_hcell.execution``, injected): the tasks (``warp_hcell.tasks``) run in this
+   process, on a Dask LocalCluster (``--workers N``) or on a Dask scheduler
+   (``--scheduler ADDRESS``); results come back to this process, which writes them, so the
+   file is bit-identical for a seed whatever the execution, lost workers and interruptions.
+This module composes them: ``generate`` and the command line. Cleaning is an explicit step
+(``--clean`` here, or ``python -m warp_hcell.clean``): it marks unconverged and non-finite
+samples; mechanism and perturbed samples are kept.
 
 Nothing in ``warp_hcell`` imports ``homogenization`` or ``training``.
 Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
@@ -28,18 +30,14 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 from __future__ import annotations
 
 import argparse
-import functools
+import hashlib
 import json
 import math
-import os
-import shutil
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict
-from multiprocessing import get_context
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -47,13 +45,18 @@ from tqdm import tqdm
 from warp_hcell import clean as cleaning
 from warp_hcell import database
 from warp_hcell.cli import UserError, check_output_path, common_parser, positive_float, positive_int, run_main
-from warp_hcell.exploration import DEM_PREFIX, explore
-from warp_hcell.learning_state import free_coordinates, hcell_observables
+from warp_hcell.execution import InProcess, SchedulerUnreachable, make_execution
+from warp_hcell.exploration import DEM_PREFIX
+from warp_hcell.learning_state import free_coordinates
 from warp_hcell.mesostructure import (
-    Mesostructure, describe, description_sha256, from_description, h_cell, load_mesostructure, shares_state_schema)
+    Mesostructure, describe, description_sha256, h_cell, load_mesostructure, shares_state_schema)
 from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings
-from warp_hcell.probing import ProbeContext, chunk_samples, compute_chunk, n_chunks
+from warp_hcell.probing import chunk_samples, n_chunks
 from warp_hcell.provenance import provenance
+from warp_hcell.shards import DiskFull, OutputLocked, Sidecar, lock_output, sidecar_path
+from warp_hcell.tasks import ExploreInputs, Physics, ProbeInputs, explore_starts, probe_chunk
+
+__all__ = ["generate", "main", "sidecar_path", "h_cell_starts", "check_starts", "check_increments"]
 
 
 def h_cell_starts(settings: DatabaseSettings, radius: float = CellDefaults.radius) -> list[Mesostructure]:
@@ -79,125 +82,47 @@ def check_increments(settings: DatabaseSettings, dem_settings: DemSettings) -> N
                          f"at {dem_settings.strain_per_substep:g} per substep")
 
 
-# -- files: sidecar, resume, assembly ----------------------------------------------------
-def _save_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
-    """Write ``arrays`` to ``path`` atomically (temporary name, then rename)."""
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as handle:
-        np.savez(handle, **{name.replace("/", ":"): value for name, value in arrays.items()})
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
+def run_description(meso: Mesostructure, starts: Sequence[Mesostructure], settings: DatabaseSettings, seed: int,
+                    contact_law: ContactLaw, dem_settings: DemSettings) -> dict[str, Any]:
+    """What identifies a run (resuming requires the same), JSON-ready."""
+    return json.loads(json.dumps({
+        "mesostructure": describe(meso), "starts": [describe(s) for s in starts], "generator": asdict(settings),
+        "seed": int(seed), "dem_settings": asdict(dem_settings),
+        "contact_law": {"kn": contact_law.kn, "kt": contact_law.kt, "kt_over_kn": contact_law.kt_over_kn,
+                        "mu": contact_law.mu, "phi_g_deg": contact_law.phi_g_deg}}))
 
 
-def _load_npz(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path) as data:
-        return {name.replace(":", "/"): data[name] for name in data.files}
+# -- the jobs, composed ------------------------------------------------------------------------
+def _explore(execution, sidecar: Sidecar, inputs: ExploreInputs) -> dict[str, np.ndarray]:
+    """The exploration states of every start cell, checkpointed per start cell in the sidecar.
 
-
-def sidecar_path(out: Path) -> Path:
-    """Folder holding the completed work of an unfinished run writing ``out``."""
-    return out.with_name(out.name + ".parts")
-
-
-def _chunk_file(sidecar: Path, chunk: int) -> Path:
-    return sidecar / f"chunk_{chunk:06d}.npz"
-
-
-def _open_sidecar(sidecar: Path, description: Mapping[str, Any], discard_partial: bool) -> dict[str, Any]:
-    """Start or resume the run recorded in ``sidecar/run.json``; returns its record.
-
-    The record keeps the provenance of the run's start (command line left out), so a
-    resumed run writes the same attrs as an uninterrupted one.
+    In process, the missing start cells are explored as one batch (the DEM threads share
+    it); on Dask, one task per start cell. The states do not depend on the grouping.
     """
-    run_file = sidecar / "run.json"
-    if run_file.exists() and json.loads(run_file.read_text())["description"] != description:
-        if not discard_partial:
-            raise ValueError(f"{sidecar} holds an unfinished run with other options; "
-                             f"rerun it with the same options or pass --overwrite to discard it")
-        shutil.rmtree(sidecar)
-    if not run_file.exists():
-        sidecar.mkdir(parents=True, exist_ok=True)
-        record = {key: value for key, value in provenance().items() if key != "command"}
-        run = {"description": description, "provenance": record}
-        tmp = run_file.with_name("run.json.tmp")
-        tmp.write_text(json.dumps(run, indent=1, sort_keys=True))
-        os.replace(tmp, run_file)
-    return json.loads(run_file.read_text())
+    n_starts = len(inputs.starts)
+    parts = {k: sidecar.load(sidecar.file("start", k)) for k in range(n_starts)}
+    missing = [k for k, part in parts.items() if part is None]
+    groups = [tuple(missing)] if isinstance(execution, InProcess) else [(k,) for k in missing]
+    for _, states in execution.map(explore_starts, inputs, [group for group in groups if group]):
+        for k in np.unique(states["start_id"]):
+            mine = states["start_id"] == k
+            parts[int(k)] = {name: value[mine] for name, value in states.items()}
+            sidecar.save(sidecar.file("start", int(k)), parts[int(k)])
+    return {name: np.concatenate([parts[k][name] for k in range(n_starts)]) for name in parts[0]}
 
 
-# -- execution -----------------------------------------------------------------------------
-@functools.lru_cache(maxsize=1)
-def _dem_cell(contact_law: ContactLaw, meso_text: str, dem_settings: DemSettings, device: str, threads: int):
-    from warp_hcell.dem_cell import DemCell  # noqa: PLC0415 (Warp loads only where cells are stepped)
-
-    return DemCell(contact_law, CellDefaults.radius, mesostructure=from_description(meso_text),
-                   settings=dem_settings, device=device, threads=threads)
+def _chunk_check(settings: DatabaseSettings, chunk: int):
+    n = chunk_samples(settings, chunk)
+    return lambda arrays: "d_eps" in arrays and arrays["d_eps"].shape == (n, 2)
 
 
-@functools.lru_cache(maxsize=1)
-def _context(contact_law: ContactLaw, meso_text: str, dem_settings: DemSettings, device: str, threads: int,
-             states_file: str, states_version: tuple[int, int]) -> ProbeContext:
-    """The probe context of a run (built once per process; ``states_version`` = the states
-    file's (mtime_ns, size), so a rewritten file is reloaded)."""
-    meso = from_description(meso_text)
-    return ProbeContext(cell_model=_dem_cell(contact_law, meso_text, dem_settings, device, threads), meso=meso,
-                        schema=meso.schema(), states=_load_npz(Path(states_file)), contact_law=contact_law,
-                        contact_tolerance=dem_settings.contact_tolerance)
-
-
-def _run_chunk(physics: tuple, states_file: str, settings: DatabaseSettings, seed: int, chunk: int) -> int:
-    """Compute chunk ``chunk``, save it to the sidecar, return its size (any process)."""
-    stat = os.stat(states_file)
-    arrays = compute_chunk(_context(*physics, states_file, (stat.st_mtime_ns, stat.st_size)), settings, seed, chunk)
-    _save_npz(_chunk_file(Path(states_file).parent, chunk), arrays)
-    return chunk_samples(settings, chunk)
-
-
-def _compute_chunks(physics: tuple, states_file: Path, settings: DatabaseSettings, seed: int, todo: Sequence[int],
-                    workers: int, bar: tqdm) -> None:
-    """Compute chunks ``todo`` into the sidecar, in this process or in ``workers`` processes."""
-    if workers <= 1 or len(todo) <= 1:
-        for chunk in todo:
-            bar.update(_run_chunk(physics, str(states_file), settings, seed, chunk))
-        return
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as executor:
-        jobs = [executor.submit(_run_chunk, physics, str(states_file), settings, seed, chunk) for chunk in todo]
-        try:
-            for job in jobs:
-                bar.update(job.result())
-        finally:
-            for job in jobs:
-                job.cancel()
-
-
-# -- the run ---------------------------------------------------------------------------------
-def _explore(physics: tuple, meso: Mesostructure, starts: Sequence[Mesostructure],
-             settings: DatabaseSettings) -> dict[str, np.ndarray]:
-    """Exploration states (``warp_hcell.exploration.explore``) plus ``stops.<rule>`` counts and,
-    for H-cells, ``alpha0_deg`` of each state's start cell."""
-    from warp_hcell.dem_cell import DemCellState  # noqa: PLC0415
-    from warp_hcell.model import DemModel  # noqa: PLC0415
-
-    contact_law, meso_text, dem_settings, device, _ = physics
-    cell_model = _dem_cell(*physics)
-    model = DemModel.build(list(starts), len(starts), contact_law=contact_law, settings=dem_settings, device=device)
-    states, stops = explore(cell_model, DemCellState(model, model.state()), meso.schema(), settings, contact_law,
-                            dem_settings.contact_tolerance)
-    if meso.is_h_cell:
-        start_alpha = np.array([hcell_observables(s, s.position[None], np.zeros((1, s.n_pairs)),
-                                                  np.zeros((1, s.n_pairs)))["alpha_deg"][0] for s in starts])
-        states["alpha0_deg"] = start_alpha[states["start_id"]]
-    states.update({f"stops.{rule}": np.int64(count) for rule, count in stops.items()})
-    return states
-
-
-def _assemble(out: Path, sidecar: Path, meso: Mesostructure, settings: DatabaseSettings,
-              run: Mapping[str, Any], description: Mapping[str, Any], clean: bool) -> None:
-    """Write the database from the sidecar's chunks to a temporary file, rename it onto ``out``."""
-    states = _load_npz(sidecar / "states.npz")
-    stops = {name.split(".", 1)[1]: int(value) for name, value in states.items() if name.startswith("stops.")}
-    chunks = [_load_npz(_chunk_file(sidecar, c)) for c in range(n_chunks(settings))]
+def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapping[str, np.ndarray]],
+              meso: Mesostructure, settings: DatabaseSettings, run: Mapping[str, Any],
+              description: Mapping[str, Any], clean: bool) -> None:
+    """Write the database to a temporary file and rename it onto ``out``."""
+    first = np.unique(states["start_id"], return_index=True)[1]
+    stops = {name.split(".", 1)[1]: int(value[first].sum()) for name, value in states.items()
+             if name.startswith("stops.")}
     data = {name: np.concatenate([part[name] for part in chunks]) for name in chunks[0]}
     schema = meso.schema()
     data.update(database.schema_datasets(schema))
@@ -237,16 +162,6 @@ def _assemble(out: Path, sidecar: Path, meso: Mesostructure, settings: DatabaseS
     database.write_database(out, data, attrs, database.dataset_attrs(schema, meso.is_h_cell))
 
 
-def run_description(meso: Mesostructure, starts: Sequence[Mesostructure], settings: DatabaseSettings, seed: int,
-                    contact_law: ContactLaw, dem_settings: DemSettings) -> dict[str, Any]:
-    """What identifies a run (resuming requires the same), JSON-ready."""
-    return json.loads(json.dumps({
-        "mesostructure": describe(meso), "starts": [describe(s) for s in starts], "generator": asdict(settings),
-        "seed": int(seed), "dem_settings": asdict(dem_settings),
-        "contact_law": {"kn": contact_law.kn, "kt": contact_law.kt, "kt_over_kn": contact_law.kt_over_kn,
-                        "mu": contact_law.mu, "phi_g_deg": contact_law.phi_g_deg}}))
-
-
 def generate(
     meso: Mesostructure,
     settings: DatabaseSettings,
@@ -258,6 +173,7 @@ def generate(
     dem_settings: DemSettings = DemSettings(),
     device: str = "cpu",
     threads: int = 2,
+    execution=None,
     workers: int = 1,
     clean: bool = False,
     max_chunks: int | None = None,
@@ -274,10 +190,12 @@ def generate(
             None = ``[meso]``.
         contact_law, dem_settings, device: the DEM's physics and numerics.
         threads: DEM CPU threads per process (the result does not depend on it).
-        workers: processes computing chunks in parallel (the result does not depend on it).
+        execution: where the tasks run (``warp_hcell.execution``); None =
+            ``make_execution(workers)``, closed at the end (one passed in is left open).
+        workers: worker processes when ``execution`` is None (the result does not depend on it).
         clean: apply ``warp_hcell.clean`` before writing.
         max_chunks: compute at most this many new chunks, then return None without writing
-            ``out`` (the run resumes later).
+            ``out`` (the run resumes later; 0 = explore only).
         discard_partial: drop an unfinished run of other options found in the sidecar
             instead of refusing.
 
@@ -285,29 +203,54 @@ def generate(
         ``out`` once written, or None when stopped by ``max_chunks``.
 
     Raises:
-        ValueError: (one line) a start cell of another learning state, or the sidecar holds
-            an unfinished run with other options.
+        ValueError: (one line) a start cell of another learning state, an increment beyond
+            max_substeps, or the sidecar holds an unfinished run with other options.
+        OutputLocked: another run is writing ``out``.
+        DiskFull: no space left (no partial file is left in the sidecar).
     """
     starts = [meso] if starts is None else list(starts)
     check_starts(meso, starts)
     check_increments(settings, dem_settings)
     out = Path(out)
-    sidecar = sidecar_path(out)
     description = run_description(meso, starts, settings, seed, contact_law, dem_settings)
-    run = _open_sidecar(sidecar, description, discard_partial)
-    physics = (contact_law, description["mesostructure"], dem_settings, str(device), int(threads))
-    states_file = sidecar / "states.npz"
-    if not states_file.exists():  # the workers are idle meanwhile: the exploration uses their threads too
-        _save_npz(states_file, _explore((*physics[:4], int(threads) * max(int(workers), 1)), meso, starts, settings))
-    missing = [c for c in range(n_chunks(settings)) if not _chunk_file(sidecar, c).exists()]
+    physics = Physics(contact_law, description["mesostructure"], dem_settings, str(device), int(threads))
+    with lock_output(out):
+        own = execution is None
+        execution = make_execution(workers) if own else execution
+        try:
+            return _generate(execution, physics, meso, settings, out, description, seed, clean, max_chunks,
+                             discard_partial)
+        finally:
+            if own:
+                execution.close()
+
+
+def _generate(execution, physics: Physics, meso: Mesostructure, settings: DatabaseSettings, out: Path,
+              description: Mapping[str, Any], seed: int, clean: bool, max_chunks: int | None,
+              discard_partial: bool) -> Path | None:
+    sidecar = Sidecar(out)
+    run = sidecar.open(description, lambda: {k: v for k, v in provenance().items() if k != "command"},
+                       discard_partial)
+    states_file = sidecar.file("states")
+    states = sidecar.load(states_file)
+    if states is None:
+        states = _explore(execution, sidecar, ExploreInputs(physics, tuple(description["starts"]), settings))
+        sidecar.save(states_file, states)
+    chunks = {c: sidecar.load(sidecar.file("chunk", c), _chunk_check(settings, c)) for c in range(n_chunks(settings))}
+    missing = [c for c, part in chunks.items() if part is None]
     todo = missing if max_chunks is None else missing[:max_chunks]
+    token = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
+    inputs = ProbeInputs(token, physics, settings, int(seed), states)
     done = settings.samples - sum(chunk_samples(settings, c) for c in missing)
     with tqdm(total=settings.samples, initial=done, desc="probes", unit="sample", smoothing=0.1) as bar:
-        _compute_chunks(physics, states_file, settings, seed, todo, workers, bar)
+        for chunk, arrays in execution.map(probe_chunk, inputs, todo):
+            sidecar.save(sidecar.file("chunk", chunk), arrays)
+            chunks[chunk] = arrays
+            bar.update(chunk_samples(settings, chunk))
     if len(todo) < len(missing):
         return None
-    _assemble(out, sidecar, meso, settings, run, description, clean)
-    shutil.rmtree(sidecar)
+    _assemble(out, states, [chunks[c] for c in range(n_chunks(settings))], meso, settings, run, description, clean)
+    sidecar.remove()
     return out
 
 
@@ -327,7 +270,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "H-cells of several opening angles")
     parser.add_argument("--samples", type=positive_int, default=defaults.samples, help="number of samples")
     parser.add_argument("--workers", type=positive_int, default=1,
-                        help="worker processes computing chunks (the result does not depend on it)")
+                        help="worker processes of a local Dask cluster (1: in this process; the result does not "
+                             "depend on it)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="run the tasks on this Dask scheduler (e.g. tcp://host:8786) instead of locally")
     parser.add_argument("--threads", type=positive_int, default=2,
                         help="DEM CPU threads per process (the result does not depend on it)")
     parser.add_argument("--chunk-size", type=positive_int, default=defaults.chunk_size,
@@ -368,9 +314,16 @@ def _run(argv: Sequence[str] | None) -> int:
         meso = load_mesostructure(args.mesostructure)
         starts = [meso]
     start = time.perf_counter()
-    written = generate(meso, settings, args.out, seed=args.seed, starts=starts, device=args.device,
-                       threads=args.threads, workers=args.workers, clean=args.clean, max_chunks=args.max_chunks,
-                       discard_partial=args.overwrite)
+    try:
+        with make_execution(args.workers, args.scheduler) as execution:
+            written = generate(meso, settings, args.out, seed=args.seed, starts=starts, device=args.device,
+                               threads=args.threads, execution=execution, clean=args.clean,
+                               max_chunks=args.max_chunks, discard_partial=args.overwrite)
+    except (SchedulerUnreachable, OutputLocked) as exc:
+        raise UserError(str(exc)) from None
+    except DiskFull as exc:
+        raise UserError(f"no space left on the device writing {exc.filename}; free space and rerun the same "
+                        f"command to resume") from None
     elapsed = time.perf_counter() - start
     if written is None:
         print(f"stopped after --max-chunks {args.max_chunks} ({elapsed:.1f} s); rerun the same command to resume")
