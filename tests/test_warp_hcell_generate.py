@@ -2,7 +2,14 @@
 mesostructure, re-checked against the DEM, determinism, resume, the command line. About 2e3
 samples per run."""
 
+import errno
 import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -11,7 +18,7 @@ import h5py
 import numpy as np
 import pytest
 
-from warp_hcell import database, exploration, generate, probing
+from warp_hcell import database, execution, exploration, generate, probing, shards
 from warp_hcell.dem_cell import DemCell
 from warp_hcell.learning_state import evaluate, free_coordinates
 from warp_hcell.mesostructure import describe, description_sha256, h_cell, load_mesostructure
@@ -281,3 +288,119 @@ def test_cli_writes_a_database_of_a_mesostructure_file(tmp_path, capsys):
     data, attrs = database.read_database(out)
     assert attrs["seed"] == 1 and attrs["cleaned"] and attrs["kn"] == ContactLaw().kn
     assert attrs["mesostructure"] == describe(LATERAL) and data["valid"].shape == (600,)
+
+
+def error_lines(capsys) -> list[str]:
+    """The error lines on stderr (progress bars aside); fails on a traceback."""
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return [line for line in err.splitlines() if "error" in line]
+
+
+def test_corrupt_sidecar_chunk_is_recomputed(tmp_path):
+    reference, _ = run(tmp_path, "ref.h5")
+    run(tmp_path, "db.h5", max_chunks=2)
+    sidecar = generate.sidecar_path(tmp_path / "db.h5")
+    (sidecar / "chunk_000001.npz").write_bytes(b"PK\x03\x04 truncated by a full disk")
+    written, _ = run(tmp_path, "db.h5")
+    assert written.read_bytes() == reference.read_bytes()
+
+
+def test_exploration_is_checkpointed(tmp_path, monkeypatch):
+    reference, _ = run(tmp_path, "ref.h5")
+    stopped, out = run(tmp_path, "db.h5", max_chunks=0)
+    sidecar = generate.sidecar_path(out)
+    assert stopped is None and (sidecar / "states.npz").exists() and (sidecar / "start_000000.npz").exists()
+    assert not list(sidecar.glob("chunk_*.npz"))
+
+    def no_exploration(*args):
+        raise AssertionError("the exploration ran again")
+
+    monkeypatch.setattr(generate, "explore_starts", no_exploration)
+    written, _ = run(tmp_path, "db.h5")
+    assert written.read_bytes() == reference.read_bytes()
+
+
+def test_second_run_on_the_same_output_exits_2(tmp_path, capsys):
+    out = tmp_path / "db.h5"
+    with shards.lock_output(out):
+        assert exit_code(["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "100",
+                          "--out", str(out)]) == 2
+    err = error_lines(capsys)
+    assert len(err) == 1 and "another run is writing" in err[0]
+    assert not out.exists() and not generate.sidecar_path(out).exists()
+
+
+def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "db.h5"
+    real_savez = np.savez
+
+    def full_disk_at_chunk_1(handle, **arrays):
+        if Path(handle.name).name.startswith("chunk_000001"):
+            handle.write(b"half a chunk")
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_savez(handle, **arrays)
+
+    monkeypatch.setattr(shards.np, "savez", full_disk_at_chunk_1)
+    argv = ["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "1500", "--chunk-size", "500",
+            "--n-directions", "4", "--out", str(out)]
+    assert exit_code(argv) == 2
+    err = error_lines(capsys)
+    assert len(err) == 1 and "no space left on the device" in err[0] and "chunk_000001.npz" in err[0]
+    sidecar = generate.sidecar_path(out)
+    assert not out.exists() and not list(sidecar.glob("*.tmp")) and not (sidecar / "chunk_000001.npz").exists()
+    monkeypatch.setattr(shards.np, "savez", real_savez)  # space freed: the same command resumes
+    assert exit_code(argv) == 0
+    assert database.read_database(out)[1]["n_samples"] == 1500
+
+
+def test_unreachable_scheduler_exits_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(execution, "CONNECT_TIMEOUT_S", 1.0)
+    out = tmp_path / "db.h5"
+    assert exit_code(["--samples", "100", "--out", str(out), "--scheduler", f"tcp://127.0.0.1:{free_port()}"]) == 2
+    err = error_lines(capsys)
+    assert len(err) == 1 and "cannot reach the Dask scheduler at tcp://127.0.0.1:" in err[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_dask_scheduler_with_a_lost_worker_gives_the_local_file(tmp_path):
+    """A real scheduler and two workers on 127.0.0.1; one worker is killed mid-run; Dask reruns
+    its tasks and the file is byte-identical to the in-process run."""
+    settings = replace(SMALL, samples=60_000, chunk_size=1000)
+    reference, _ = run(tmp_path, "local.h5", settings=settings)
+    port = free_port()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(DATA.parents[1]), os.environ.get("PYTHONPATH", "")])}
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+                               "--port", str(port), "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)]
+    try:
+        procs += [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
+                                    "--no-nanny", "--no-dashboard", "--name", f"w{i}"], env=env,
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for i in range(2)]
+        with execution.DaskExecution(address=address, connect_timeout=30.0) as dask:
+            dask.client.wait_for_workers(2, timeout=60)
+            out = tmp_path / "dask.h5"
+            sidecar = generate.sidecar_path(out)
+            result = {}
+            worker = threading.Thread(target=lambda: result.update(out=generate.generate(
+                LATERAL, settings, out, seed=3, execution=dask, threads=1)))
+            worker.start()
+            deadline = time.monotonic() + 120
+            while len(list(sidecar.glob("chunk_*.npz"))) < 5 and time.monotonic() < deadline and worker.is_alive():
+                time.sleep(0.05)
+            done_at_kill = len(list(sidecar.glob("chunk_*.npz")))
+            procs[1].kill()
+            worker.join(timeout=300)
+        assert 5 <= done_at_kill < 60 and result["out"] == out
+        assert out.read_bytes() == reference.read_bytes()
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait()
