@@ -404,3 +404,19 @@ def test_dask_scheduler_with_a_lost_worker_gives_the_local_file(tmp_path):
         for proc in procs:
             proc.kill()
             proc.wait()
+
+
+def test_exploration_does_not_depend_on_how_start_cells_are_grouped():
+    from warp_hcell import tasks
+
+    starts = generate.h_cell_starts(SMALL)
+    physics = tasks.Physics(ContactLaw(), describe(h_cell()), DemSettings(), "cpu", 1)
+    inputs = tasks.ExploreInputs(physics, tuple(describe(s) for s in starts), SMALL)
+    together = tasks.explore_starts(inputs, (0, 1, 2))
+    apart = [tasks.explore_starts(inputs, (k,)) for k in range(3)]
+    assert set(together) == set(apart[0])
+    for name, value in together.items():
+        np.testing.assert_array_equal(value, np.concatenate([part[name] for part in apart]), err_msg=name)
+    assert np.array_equal(np.unique(together["start_id"]), [0, 1, 2])
+    stride = exploration.path_stride(SMALL)
+    assert np.all(together["path_id"] // stride == together["start_id"])
