@@ -420,3 +420,44 @@ def test_exploration_does_not_depend_on_how_start_cells_are_grouped():
     assert np.array_equal(np.unique(together["start_id"]), [0, 1, 2])
     stride = exploration.path_stride(SMALL)
     assert np.all(together["path_id"] // stride == together["start_id"])
+
+
+@pytest.mark.slow
+def test_explored_states_cover_constant_volume_homogenisation():
+    """H-cells of every orientation sheared at constant volume to eps1 = 0.3 by the DEM after
+    isotropic compression (p0 ~ 2e5 and 5.85e6 N/m), at alpha0 = 35, 40, 55 deg, stay close to
+    an explored state of the default exploration: distance in (lengths / 1 m, normal and
+    shear forces / 6e6 N) comparable to the exploration's own spacing."""
+    from warp_hcell import tasks
+
+    settings = DatabaseSettings()
+    meso = h_cell()
+    starts = generate.h_cell_starts(settings)
+    physics = tasks.Physics(ContactLaw(), describe(meso), DemSettings(), "cpu", 2)
+    inputs = tasks.ExploreInputs(physics, tuple(describe(s) for s in starts), settings)
+    states = tasks.explore_starts(inputs, tuple(range(len(starts))))
+    schema, law, tol = meso.schema(), ContactLaw(), DemSettings().contact_tolerance
+
+    def features(cell_size, position, shear_force):
+        ev = evaluate(schema, cell_size, free_coordinates(schema, position), shear_force, law, tol)
+        return np.concatenate([cell_size, ev["normal_force"] / 6e6, ev["shear_force"] / 6e6], axis=1)
+
+    explored = features(states["dem/cell_size"], states["dem/position"], states["dem/shear_force"])
+    cell = DemCell(law, 0.5, threads=2)
+    theta = np.arange(12) * np.pi / 12
+    d_eps = 2e-3 * np.stack([np.cos(2.0 * theta), -np.cos(2.0 * theta)], axis=1)
+    visited = []
+    for alpha0 in (35.0, 40.0, 55.0):
+        for eps_iso in (9e-4, 2.5e-2):
+            state, _ = cell.step(cell.init_state(alpha0, 12), np.full((12, 2), eps_iso))
+            for k in range(150):
+                state, _ = cell.step(state, d_eps)
+                if k % 6 == 5:
+                    arrays = cell.state_to_arrays(state)
+                    visited.append(features(arrays["cell_size"], arrays["position"], arrays["shear_force"]))
+    visited = np.concatenate(visited)
+    squared = (visited**2).sum(axis=1)[:, None] + (explored**2).sum(axis=1)[None, :] - 2.0 * visited @ explored.T
+    distance = np.sqrt(np.maximum(squared.min(axis=1), 0.0))
+    assert visited.shape[0] == 3 * 2 * 25 * 12
+    assert np.median(distance) < 0.02 and np.quantile(distance, 0.99) < 0.1, (np.median(distance),
+                                                                              np.quantile(distance, 0.99))
