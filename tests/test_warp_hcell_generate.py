@@ -424,10 +424,10 @@ def test_exploration_does_not_depend_on_how_start_cells_are_grouped():
 
 @pytest.mark.slow
 def test_explored_states_cover_constant_volume_homogenisation():
-    """H-cells of every orientation sheared at constant volume to eps1 = 0.3 by the DEM after
-    isotropic compression (p0 ~ 2e5 and 5.85e6 N/m), at alpha0 = 35, 40, 55 deg, stay close to
-    an explored state of the default exploration: distance in (lengths / 1 m, normal and
-    shear forces / 6e6 N) comparable to the exploration's own spacing."""
+    """H-cells of every orientation sheared at constant volume to eps1 = 0.2 by the DEM after
+    isotropic compression (p0 ~ 2e5 and 5.85e6 N/m), at alpha0 = 35, 40, 55 deg, stay as close
+    to the default exploration's states as these are to each other: nearest-neighbour
+    distances in (cell size / 1 m, normal and shear forces of the 15 pairs / 6e6 N)."""
     from warp_hcell import tasks
 
     settings = DatabaseSettings()
@@ -442,6 +442,12 @@ def test_explored_states_cover_constant_volume_homogenisation():
         ev = evaluate(schema, cell_size, free_coordinates(schema, position), shear_force, law, tol)
         return np.concatenate([cell_size, ev["normal_force"] / 6e6, ev["shear_force"] / 6e6], axis=1)
 
+    def nearest(points, cloud, exclude=None):
+        squared = (points**2).sum(axis=1)[:, None] + (cloud**2).sum(axis=1)[None, :] - 2.0 * points @ cloud.T
+        if exclude is not None:
+            squared[np.arange(points.shape[0]), exclude] = np.inf
+        return np.sqrt(np.maximum(squared.min(axis=1), 0.0))
+
     explored = features(states["dem/cell_size"], states["dem/position"], states["dem/shear_force"])
     cell = DemCell(law, 0.5, threads=2)
     theta = np.arange(12) * np.pi / 12
@@ -450,14 +456,16 @@ def test_explored_states_cover_constant_volume_homogenisation():
     for alpha0 in (35.0, 40.0, 55.0):
         for eps_iso in (9e-4, 2.5e-2):
             state, _ = cell.step(cell.init_state(alpha0, 12), np.full((12, 2), eps_iso))
-            for k in range(150):
+            for k in range(100):
                 state, _ = cell.step(state, d_eps)
-                if k % 6 == 5:
+                if k % 5 == 4:
                     arrays = cell.state_to_arrays(state)
                     visited.append(features(arrays["cell_size"], arrays["position"], arrays["shear_force"]))
     visited = np.concatenate(visited)
-    squared = (visited**2).sum(axis=1)[:, None] + (explored**2).sum(axis=1)[None, :] - 2.0 * visited @ explored.T
-    distance = np.sqrt(np.maximum(squared.min(axis=1), 0.0))
-    assert visited.shape[0] == 3 * 2 * 25 * 12
-    assert np.median(distance) < 0.02 and np.quantile(distance, 0.99) < 0.1, (np.median(distance),
-                                                                              np.quantile(distance, 0.99))
+    distance = nearest(visited, explored)
+    sample = np.random.default_rng(0).choice(explored.shape[0], 3000, replace=False)
+    spacing = nearest(explored[sample], explored, exclude=sample)
+    assert visited.shape[0] == 3 * 2 * 20 * 12
+    assert np.median(distance) <= 1.5 * np.median(spacing), (np.median(distance), np.median(spacing))
+    assert np.quantile(distance, 0.99) <= 1.5 * np.quantile(spacing, 0.99), (np.quantile(distance, 0.99),
+                                                                            np.quantile(spacing, 0.99))
