@@ -350,6 +350,16 @@ def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monk
     sidecar = generate.sidecar_path(out)
     assert not out.exists() and not list(sidecar.glob("*.tmp")) and not (sidecar / "chunk_000001.npz").exists()
     monkeypatch.setattr(shards.np, "savez", real_savez)  # space freed: the same command resumes
+
+    def full_disk_in_hdf5(*args, **kwargs):
+        raise OSError("Can't write data (file write failed: errno = 28, error message = 'No space left on device')")
+
+    monkeypatch.setattr(database, "write_database", full_disk_in_hdf5)
+    assert exit_code(argv) == 2
+    err = error_lines(capsys)
+    assert len(err) == 1 and "no space left on the device writing" in err[0] and str(out) in err[0]
+    assert len(list(sidecar.glob("chunk_*.npz"))) == 3 and not out.exists()
+    monkeypatch.undo()
     assert exit_code(argv) == 0
     assert database.read_database(out)[1]["n_samples"] == 1500
 

@@ -30,6 +30,7 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 from __future__ import annotations
 
 import argparse
+import errno
 import hashlib
 import json
 import math
@@ -159,7 +160,12 @@ def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapp
     }
     data["valid"], cleaning_attrs = cleaning.clean_samples(data) if clean else cleaning.not_cleaned(data)
     attrs.update(cleaning_attrs)
-    database.write_database(out, data, attrs, database.dataset_attrs(schema, meso.is_h_cell))
+    try:
+        database.write_database(out, data, attrs, database.dataset_attrs(schema, meso.is_h_cell))
+    except OSError as exc:  # h5py reports a full disk in its message, not always in errno
+        if exc.errno == errno.ENOSPC or "No space left" in str(exc):
+            raise DiskFull(errno.ENOSPC, "no space left on device", str(out)) from None
+        raise
 
 
 def generate(
