@@ -380,36 +380,36 @@ def free_port() -> int:
 
 
 def test_dask_scheduler_with_a_lost_worker_gives_the_local_file(tmp_path):
-    """A real scheduler and two workers on 127.0.0.1; one worker is killed mid-run; Dask reruns
-    its tasks and the file is byte-identical to the in-process run."""
-    settings = replace(SMALL, samples=60_000, chunk_size=1000)
-    reference, _ = run(tmp_path, "local.h5", settings=settings)
-    port = free_port()
+    """A real scheduler and two workers on 127.0.0.1; ``--scheduler`` generates 6e4 samples; one
+    worker is killed mid-run; Dask reruns its tasks and the file is byte-identical to the
+    in-process run of the same command."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(DATA.parents[1]), os.environ.get("PYTHONPATH", "")])}
+    command = [sys.executable, "-m", "warp_hcell.generate", "--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"),
+               "--samples", "60000", "--chunk-size", "1000", "--n-directions", "8", "--seed", "3", "--threads", "1"]
+    local = tmp_path / "local.h5"
+    subprocess.run([*command, "--out", str(local)], env=env, check=True, capture_output=True)
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
+    quiet = {"env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
     procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-                               "--port", str(port), "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL)]
+                               "--port", str(port), "--no-dashboard"], **quiet)]
     try:
         procs += [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
-                                    "--no-nanny", "--no-dashboard", "--name", f"w{i}"], env=env,
-                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for i in range(2)]
+                                    "--no-nanny", "--no-dashboard", "--name", f"w{i}"], **quiet) for i in range(2)]
         with execution.DaskExecution(address=address, connect_timeout=30.0) as dask:
             dask.client.wait_for_workers(2, timeout=60)
-            out = tmp_path / "dask.h5"
-            sidecar = generate.sidecar_path(out)
-            result = {}
-            worker = threading.Thread(target=lambda: result.update(out=generate.generate(
-                LATERAL, settings, out, seed=3, execution=dask, threads=1)))
-            worker.start()
-            deadline = time.monotonic() + 120
-            while len(list(sidecar.glob("chunk_*.npz"))) < 5 and time.monotonic() < deadline and worker.is_alive():
-                time.sleep(0.05)
-            done_at_kill = len(list(sidecar.glob("chunk_*.npz")))
-            procs[1].kill()
-            worker.join(timeout=300)
-        assert 5 <= done_at_kill < 60 and result["out"] == out
-        assert out.read_bytes() == reference.read_bytes()
+        out = tmp_path / "dask.h5"
+        sidecar = generate.sidecar_path(out)
+        client = subprocess.Popen([*command, "--out", str(out), "--scheduler", address], **quiet)
+        procs.append(client)
+        deadline = time.monotonic() + 120
+        while len(list(sidecar.glob("chunk_*.npz"))) < 5 and time.monotonic() < deadline and client.poll() is None:
+            time.sleep(0.05)
+        done_at_kill = len(list(sidecar.glob("chunk_*.npz")))
+        procs[1].kill()
+        assert client.wait(timeout=300) == 0
+        assert 5 <= done_at_kill < 60
+        assert out.read_bytes() == local.read_bytes()
     finally:
         for proc in procs:
             proc.kill()
