@@ -83,6 +83,16 @@ def check_increments(settings: DatabaseSettings, dem_settings: DemSettings) -> N
                          f"at {dem_settings.strain_per_substep:g} per substep")
 
 
+def check_device(device: str) -> None:
+    """Raise UserError (one line) unless Warp has ``device`` on this machine (the client's)."""
+    import warp as wp  # noqa: PLC0415 (Warp loads only where cells are stepped)
+
+    try:
+        wp.get_device(device)
+    except (RuntimeError, ValueError) as exc:
+        raise UserError(f"device {device!r} is not available here: {' '.join(str(exc).split())}") from None
+
+
 def run_description(meso: Mesostructure, starts: Sequence[Mesostructure], settings: DatabaseSettings, seed: int,
                     contact_law: ContactLaw, dem_settings: DemSettings) -> dict[str, Any]:
     """What identifies a run (resuming requires the same), JSON-ready."""
@@ -309,6 +319,7 @@ def _run(argv: Sequence[str] | None) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     check_output_path(args.out, overwrite=args.overwrite)
+    check_device(args.device)
     if args.out.is_dir():
         raise UserError(f"{args.out} is a folder; --out must be a file")
     if args.mesostructure is None:
