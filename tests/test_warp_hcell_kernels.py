@@ -50,7 +50,8 @@ def test_contact_law_closed_form(device, s, sliding):
     else:
         assert shear == pytest.approx(-LAW.kt * s * c * e, rel=2e-4)
     assert state["shear_force"][0, 0] == pytest.approx(shear, rel=1e-12)
-    assert state["converged"][0] == 1 and state["substeps"][0] == math.ceil(e / DemSettings().strain_per_substep)
+    # from rest the increment is driven at the refined rate; every DOF driven: no relaxation
+    assert state["converged"][0] == 1 and state["substeps"][0] == math.ceil(e / DemSettings().refined_strain_per_substep)
 
 
 def test_no_tension_and_history_reset_on_opening(device):
@@ -91,13 +92,10 @@ def test_warp_and_numpy_engines_agree(device, source):
     warp_model, numpy_model = build(device), build("cpu")
     a = _run(warp_model, warp_model.state(), increments).to_numpy()
     b = _run(numpy_model, numpy_model.state(), increments, engine="numpy").to_numpy()
-    force_scale = np.abs(b["contact_force"]).max()
-    assert force_scale > 1e4
-    np.testing.assert_allclose(a["position"], b["position"], rtol=0, atol=1e-13)
-    np.testing.assert_allclose(a["contact_force"], b["contact_force"], rtol=0, atol=1e-9 * force_scale)
-    np.testing.assert_allclose(a["shear_force"], b["shear_force"], rtol=0, atol=1e-9 * force_scale)
-    assert np.array_equal(a["contact"], b["contact"]) and np.array_equal(a["cell_size"], b["cell_size"])
-    assert np.all(np.abs(a["substeps"] - b["substeps"]) <= 1) and np.all(a["converged"] == 1)
+    assert np.abs(b["contact_force"]).max() > 1e4 and np.all(a["converged"] == 1)
+    # the same floating-point operations in the same order: bit for bit
+    for name in a:
+        assert np.array_equal(a[name], b[name]), name
 
 
 def test_unloaded_free_grains_do_not_drift(device):

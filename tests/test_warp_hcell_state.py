@@ -23,4 +23,4 @@ def test_empty_shapes(device):
     shapes = {k: v.shape for k, v in state.to_numpy().items()}
     assert shapes == {"position": (5, 7, 2), "velocity": (5, 7, 2), "shear_force": (5, 21),
                       "contact_force": (5, 21, 2), "contact": (5, 21), "cell_size": (5, 2),
-                      "substeps": (5,), "converged": (5,)}
+                      "moment": (5, 2, 2), "area": (5,), "substeps": (5,), "converged": (5,)}

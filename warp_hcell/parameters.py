@@ -107,13 +107,22 @@ class DemSettings:
 
     density: float = 2650.0
     """Grain density [kg/m^3]; disk mass per unit thickness is density * pi r^2 [kg/m]."""
-    dt_factor: float = 0.2
+    dt_factor: float = 0.4
     """Time step as a fraction of sqrt(m / kn) [-]."""
     damping: float = 0.5
     """Cundall local (non-viscous) damping coefficient [-]."""
-    strain_per_substep: float = 2.5e-7
-    """Largest cell-strain component applied per substep [-]."""
-    force_tolerance: float = 1e-6
+    strain_per_substep: float = 1e-4
+    """Largest cell-strain component applied per substep while driving [-]."""
+    refined_strain_per_substep: float = 1e-5
+    """Strain per substep for the rest of an increment once a contact of the cell has opened,
+    closed, started or stopped sliding in it (<= strain_per_substep) [-]."""
+    velocity_change: float = 0.5
+    """Largest deviation of the last substep's driven displacements from the direction of the
+    increment's, as a fraction of their size, for the strain per substep to grow rather than
+    restart from refined_strain_per_substep [-]."""
+    rate_growth: float = 2.0
+    """Largest growth of the strain per substep from one increment to the next [-]."""
+    force_tolerance: float = 1e-4
     """Quasi-static criterion: unbalanced force ratio below this value [-]."""
     max_substeps: int = 200_000
     """Substeps allowed per increment before a cell is reported unconverged [-]."""
@@ -124,7 +133,14 @@ class DemSettings:
         check_positive("density", self.density)
         check_positive("dt_factor", self.dt_factor)
         check_positive("strain_per_substep", self.strain_per_substep)
+        check_positive("refined_strain_per_substep", self.refined_strain_per_substep)
+        if self.refined_strain_per_substep > self.strain_per_substep:
+            raise ValueError(f"refined_strain_per_substep = {self.refined_strain_per_substep:g} exceeds "
+                             f"strain_per_substep = {self.strain_per_substep:g}")
         check_positive("force_tolerance", self.force_tolerance)
+        check_positive("velocity_change", self.velocity_change)
+        if not self.rate_growth >= 1.0:
+            raise ValueError(f"rate_growth = {self.rate_growth:g} must be >= 1")
         if not (0.0 <= self.damping < 1.0):
             raise ValueError(f"damping = {self.damping:g} is outside [0, 1)")
         if int(self.max_substeps) < 1:

@@ -16,7 +16,8 @@ import warp as wp
 
 _DTYPES = {
     "position": wp.vec2d, "velocity": wp.vec2d, "shear_force": wp.float64, "contact_force": wp.vec2d,
-    "contact": wp.int32, "cell_size": wp.vec2d, "substeps": wp.int32, "converged": wp.int32,
+    "contact": wp.int32, "cell_size": wp.vec2d, "moment": wp.mat22d, "area": wp.float64, "substeps": wp.int32,
+    "converged": wp.int32,
 }
 
 
@@ -33,6 +34,10 @@ class DemState:
             (n_cells, n_pairs) vec2d; zero for pairs out of contact.
         contact: 1 where the pair is in contact (gap <= tolerance), shape (n_cells, n_pairs) int32.
         cell_size: (l1, l2) [m], shape (n_cells,) vec2d.
+        moment: Love-Weber sum sum_p f_p (x) (x_j - x_i) over the pairs [N m], tension
+            positive (negative for a compressed cell), shape (n_cells,) mat22d, rows = force
+            component (n, t), columns = branch component.
+        area: V_cell, area of the polygon through the outer grains [m^2], shape (n_cells,).
         substeps: substeps spent by the step that produced this state, shape (n_cells,) int32.
         converged: 1 where that step reached quasi-static equilibrium, shape (n_cells,) int32.
     """
@@ -43,6 +48,8 @@ class DemState:
     contact_force: wp.array
     contact: wp.array
     cell_size: wp.array
+    moment: wp.array
+    area: wp.array
     substeps: wp.array
     converged: wp.array
 
@@ -56,12 +63,14 @@ class DemState:
         """Uninitialised state arrays (to be filled by a step or by ``from_numpy``)."""
         shapes = {"position": (n_cells, n_grains), "velocity": (n_cells, n_grains),
                   "shear_force": (n_cells, n_pairs), "contact_force": (n_cells, n_pairs),
-                  "contact": (n_cells, n_pairs), "cell_size": n_cells, "substeps": n_cells, "converged": n_cells}
+                  "contact": (n_cells, n_pairs), "cell_size": n_cells, "moment": n_cells, "area": n_cells,
+                  "substeps": n_cells, "converged": n_cells}
         return cls(**{k: wp.empty(shapes[k], dtype=_DTYPES[k], device=device) for k in shapes})
 
     @classmethod
     def from_numpy(cls, arrays: Mapping[str, np.ndarray], device: str) -> "DemState":
-        """State from numpy arrays named like the fields (vec2d fields with a trailing axis of 2)."""
+        """State from numpy arrays named like the fields (vec2d fields with a trailing axis of 2,
+        ``moment`` with trailing axes (2, 2))."""
         def put(name):
             host = np.ascontiguousarray(arrays[name], dtype=np.int32 if _DTYPES[name] is wp.int32 else np.float64)
             return wp.array(host, dtype=_DTYPES[name], device=device)
