@@ -92,8 +92,9 @@ def kernel_of(model: DemModel) -> wp.Kernel:
 class _RecordedLaunch:
     """A launch of cells [start, stop) whose constant arguments are packed once.
 
-    Per step only the state arrays and the increment are re-packed: packing the 32 kernel
-    arguments costs more than stepping a few hundred cells by a few substeps.
+    Per step only the state arrays are re-packed (the increment lives in a buffer of the
+    integrator): packing all 35 kernel arguments costs more than stepping a few hundred cells
+    by a few substeps.
     """
 
     def __init__(self, model: DemModel, state_in: DemState, state_out: DemState, d_eps_local: wp.array,
@@ -104,12 +105,11 @@ class _RecordedLaunch:
         self.command = wp.launch(kernel_of(model), dim=stop - start, inputs=inputs, outputs=outputs,
                                  device=model.device, record_cmd=True)
 
-    def __call__(self, state_in: DemState, state_out: DemState, d_eps_local: wp.array) -> None:
+    def __call__(self, state_in: DemState, state_out: DemState) -> None:
         command, n_inputs = self.command, self.n_inputs
         first = n_inputs - 2 - len(STATE_IN)
         for k, name in enumerate(STATE_IN):
             command.set_param_at_index(first + k, getattr(state_in, name))
-        command.set_param_at_index(n_inputs - 2, d_eps_local)
         for k, name in enumerate(STATE_OUT):
             command.set_param_at_index(n_inputs + k, getattr(state_out, name))
         command.launch()
@@ -132,6 +132,7 @@ class DemIntegrator:
         self.threads = 1 if wp.get_device(model.device).is_cuda else int(threads)
         self._pool = None if self.threads == 1 else pool or ThreadPoolExecutor(self.threads)
         self._d_eps = wp.zeros(model.n_cells, dtype=wp.vec2d, device=model.device)
+        self._d_eps_host = None if wp.get_device(model.device).is_cuda else self._d_eps.numpy()
         # more chunks than threads, so that the pool balances cells of very different substep
         # counts; no chunk below MIN_CELLS_PER_CHUNK (the thread hand-off would cost more)
         n_chunks = min(CHUNKS_PER_THREAD * self.threads, model.n_cells // MIN_CELLS_PER_CHUNK)
@@ -155,11 +156,15 @@ class DemIntegrator:
             state_out: receives the cells after the increment (same n_cells).
             d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
         """
-        self._d_eps.assign(check_increment(self.model, d_eps_local))
+        d_eps = check_increment(self.model, d_eps_local)
+        if self._d_eps_host is None:
+            self._d_eps.assign(d_eps)
+        else:
+            np.copyto(self._d_eps_host, d_eps)
         if len(self._launches) == 1:
-            self._launches[0](state_in, state_out, self._d_eps)
+            self._launches[0](state_in, state_out)
             return
-        jobs = [self._pool.submit(launch, state_in, state_out, self._d_eps) for launch in self._launches]
+        jobs = [self._pool.submit(launch, state_in, state_out) for launch in self._launches]
         for job in jobs:
             job.result()
 
@@ -225,7 +230,7 @@ class NumpyIntegrator:
         n_cells = model.n_cells
         s_base, s_span, s_now = np.zeros(n_cells), np.ones(n_cells), np.zeros(n_cells)
         k_phase, refined = np.zeros(n_cells, np.int32), np.zeros(n_cells, bool)
-        status = np.zeros(fs.shape)
+        touching = np.zeros(fs.shape)
         dx = np.zeros_like(x)
         fn = np.zeros_like(fs)
         touch = np.zeros(fs.shape, np.int32)
@@ -242,12 +247,11 @@ class NumpyIntegrator:
             du = ddx[..., 1] * u[..., 0] - ddx[..., 0] * u[..., 1]
             normal = law.kn * np.maximum(rsum[act] - dist, 0.0)
             cap = law.mu * normal
-            trial = fs[act] + law.kt * du
-            shear = np.where(on, np.clip(trial, -cap, cap), 0.0)
+            shear = np.where(on, np.clip(fs[act] + law.kt * du, -cap, cap), 0.0)
             normal = np.where(on, normal, 0.0)
-            pair_status = np.where(on, np.where((shear != trial) & (normal > 0.0), 2.0, 1.0), 0.0)
-            changed = (substeps[act, None] > 0) & (pair_status != status[act])
-            status[act] = pair_status
+            closed = np.where(on, 1.0, 0.0)
+            changed = (substeps[act, None] > 0) & (closed != touching[act])
+            touching[act] = closed
             fs[act], fn[act], touch[act] = shear, normal, on
             f_i = np.stack([-normal * u[..., 0] - shear * u[..., 1], -normal * u[..., 1] + shear * u[..., 0]], -1)
             f_i = np.where(on[..., None], f_i, 0.0)
@@ -291,7 +295,9 @@ class NumpyIntegrator:
             dx[act] = np.where(free, v_free * ha, x_drive - xa)
             x[act] = np.where(free, xa + v_free * ha, x_drive)
             v[act] = v_free
-        v = np.where(free, v, dx / h)  # driven DOFs: the velocity of their last substep
+        # driven DOFs: mean velocity over the increment's substeps
+        spent = (substeps.astype(np.float64)[:, None, None] * h)
+        v = np.where(free, v, np.where(substeps[:, None, None] > 0, ref * dscale[:, None, :] / np.where(spent > 0, spent, 1.0), 0.0))
         b = x[:, pj] - x[:, pi]
         dist = np.sqrt(b[..., 0] * b[..., 0] + b[..., 1] * b[..., 1])
         u = b / dist[..., None]

@@ -54,17 +54,15 @@ def contact_law(
         kn, kt: normal and tangential stiffness [N/m]; mu: friction coefficient [-].
 
     Returns:
-        (normal force >= 0 [N], new tangential force [N], sliding); the trial force decides
-        the sliding direction: f_s = clip(f_s + kt du, -mu f_n, +mu f_n); ``sliding`` is True
-        where the cap was applied to a contact carrying a normal force.
+        (normal force >= 0 [N], new tangential force [N]); the trial force decides the
+        sliding direction: f_s = clip(f_s + kt du, -mu f_n, +mu f_n).
     """
     zero = wp.float64(0.0)
     normal = kn * wp.where(overlap > zero, overlap, zero)
     cap = mu * normal
     trial = shear_force + kt * shear_increment
     # comparisons rather than wp.clamp/wp.max: no NaN handling on the hot path
-    shear = wp.where(trial > cap, cap, wp.where(trial < -cap, -cap, trial))
-    return normal, shear, shear != trial and normal > zero
+    return normal, wp.where(trial > cap, cap, wp.where(trial < -cap, -cap, trial))
 
 
 @wp.func
@@ -186,7 +184,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         fs = vec_p()
         rsum = vec_p()
         cut2 = vec_p()
-        status = vec_p()
+        was_closed = vec_p()
         widen = one + contact_tolerance
         for p in range(wp.static(n_pairs)):
             fs[p] = shear_force_in[c, p]
@@ -251,7 +249,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         converged = wp.int32(0)
         while True:
             # contact forces at the current positions (shear increment from the last move);
-            # changed = 1 if a pair changed status (open / sticking / sliding) since the last evaluation
+            # changed = 1 if a contact opened or closed since the last evaluation
             fmax = zero
             changed = wp.int32(0)
             for g in range(wp.static(n_grains)):
@@ -263,16 +261,16 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                 bn = xn[j] - xn[i]
                 bt = xt[j] - xt[i]
                 dist2 = bn * bn + bt * bt
-                pair_status = zero
+                closed = zero
                 if dist2 <= cut2[p]:
                     dist = wp.sqrt(dist2)
                     inv_dist = one / dist
                     un = bn * inv_dist
                     ut = bt * inv_dist
                     du = (dxt[j] - dxt[i]) * un - (dxn[j] - dxn[i]) * ut
-                    normal, shear, sliding = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
+                    normal, shear = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
                     fs[p] = shear
-                    pair_status = wp.where(sliding, wp.float64(2.0), one)
+                    closed = one
                     fin = -normal * un - shear * ut
                     fit = -normal * ut + shear * un
                     fn_g[i] = fn_g[i] + fin
@@ -282,12 +280,12 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     fmax = wp.where(normal > fmax, normal, fmax)
                 else:
                     fs[p] = zero
-                changed = wp.where(substeps > 0 and pair_status != status[p], 1, changed)
-                status[p] = pair_status
+                changed = wp.where(substeps > 0 and closed != was_closed[p], 1, changed)
+                was_closed[p] = closed
 
             if k_phase < n_phase:
-                # adaptive driving: after the first status change of the increment, the rest of
-                # the increment is driven at refined_strain_per_substep
+                # adaptive driving: once a contact has opened or closed, the rest of the
+                # increment is driven at refined_strain_per_substep
                 if changed == 1 and refined == 0:
                     refined = 1
                     n_rest = wp.int32(wp.ceil((one - s) * largest / refined_strain_per_substep))
@@ -339,11 +337,12 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
 
         for g in range(wp.static(n_grains)):
             position_out[c, g] = wp.vec2d(xn[g], xt[g])
-            # driven DOFs: the velocity of their last substep
+            # driven DOFs: their mean velocity over the increment's substeps (driving and
+            # relaxation), the memory from which the next increment sets its strain per substep
             if wp.static(drive_n[g]):
-                vn[g] = dxn[g] / h
+                vn[g] = wp.where(substeps > 0, refn[g] * dscale_n / (wp.float64(substeps) * h), zero)
             if wp.static(drive_t[g]):
-                vt[g] = dxt[g] / h
+                vt[g] = wp.where(substeps > 0, reft[g] * dscale_t / (wp.float64(substeps) * h), zero)
             velocity_out[c, g] = wp.vec2d(vn[g], vt[g])
         # Love-Weber sum (tension positive) over the pairs: sum_p f_p (x) (x_j - x_i)
         m_nn = zero

@@ -111,11 +111,12 @@ class DemSettings:
     """Time step as a fraction of sqrt(m / kn) [-]."""
     damping: float = 0.5
     """Cundall local (non-viscous) damping coefficient [-]."""
-    strain_per_substep: float = 1e-4
+    strain_per_substep: float = 2.5e-5
     """Largest cell-strain component applied per substep while driving [-]."""
-    refined_strain_per_substep: float = 1e-5
-    """Strain per substep for the rest of an increment once a contact of the cell has opened,
-    closed, started or stopped sliding in it (<= strain_per_substep) [-]."""
+    refined_strain_per_substep: float = 5e-6
+    """Strain per substep of an increment that changes the cell's path (see velocity_change),
+    and for the rest of an increment once a contact of the cell has opened or closed in it
+    (<= strain_per_substep) [-]."""
     velocity_change: float = 0.5
     """Largest deviation of the last substep's driven displacements from the direction of the
     increment's, as a fraction of their size, for the strain per substep to grow rather than
