@@ -9,10 +9,12 @@ chunking, so results are bit-identical for any ``threads``.
 ``NumpyIntegrator`` performs the same step with numpy, vectorised over cells (substeps in
 a Python loop). It is the reference for agreement tests and speed ratios.
 
-Per increment and cell: the driven DOFs follow the cell strain over
-n_drive = ceil(max|d_eps| / strain_per_substep) substeps; then substeps continue until the
+Per increment and cell: the driven DOFs follow the cell strain over ceil(max|d_eps| / rate)
+substeps, the rate adapted to the cell's state (``warp_hcell.kernels``: between
+refined_strain_per_substep and strain_per_substep); then substeps continue until the
 unbalanced force ratio (largest free-DOF force / max(largest normal force, force_floor))
-is <= force_tolerance, or max_substeps. A free grain whose net force is exactly zero is
+is <= force_tolerance, or max_substeps. The kernel also returns the Love-Weber sum and the
+outer-polygon area of each cell. A free grain whose net force is exactly zero is
 held at rest: an unloaded grain has no quasi-static reason to move, and Cundall damping
 (proportional to the force) could not stop it, so mechanism states would drift.
 Strain increments are compression positive: l <- l (1 - d_eps).
@@ -34,7 +36,8 @@ from warp_hcell.state import DemState
 CHUNKS_PER_THREAD = 4
 """CPU chunks per thread: chunks are taken by the threads as they finish (load balancing)."""
 MIN_CELLS_PER_CHUNK = 1024
-"""Smallest CPU chunk [cells]: smaller batches run in one launch on the calling thread."""
+"""Smallest CPU chunk [cells]: smaller batches run in one launch on the calling thread (at a
+few substeps per cell, the thread hand-off and a second launch cost more than they save)."""
 
 
 def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:

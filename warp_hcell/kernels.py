@@ -19,10 +19,19 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
     - free DOFs: explicit (leapfrog) integration with Cundall local damping
       (``damped_velocity``); a free grain whose net force is exactly zero is set at rest (no
       drift of unloaded grains in mechanism states);
-    - driven DOFs: x = x_ref * l(k) / l_ref with l(k) moving linearly from the old to the new
-      cell size over n_drive = ceil(max|d_eps| / strain_per_substep) substeps; then
-      relaxation until max free-DOF force <= force_tolerance * max(max normal force,
-      force_floor), or max_substeps.
+    - driven DOFs: x = x_ref * l(s) / l_ref with l(s) moving linearly from the old to the new
+      cell size, s = k / n over n = ceil(max|d_eps| / rate) driving substeps; then relaxation
+      until max free-DOF force <= force_tolerance * max(max normal force, force_floor), or
+      max_substeps;
+    - adaptive rate, from the cell's own state only (no knowledge of the mesostructure): the
+      driven DOFs' velocities in the state hold their mean velocity over the last increment
+      (driving and relaxation substeps). If the new increment, driven at strain_per_substep,
+      continues that motion (same direction within velocity_change), the rate may grow by
+      rate_growth over the last one, up to strain_per_substep: in a steady path the free
+      grains keep their velocity and need no relaxation. A new direction (the free grains
+      moving for another path: start of shear, reversal, a probe) starts again from
+      refined_strain_per_substep. Within an increment, once a contact opens or closes, the
+      rest is driven at refined_strain_per_substep.
 The conversion to compression-positive quantities happens on the host
 (``warp_hcell.dem_cell.to_compression_positive``).
 """
