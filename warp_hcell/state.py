@@ -65,9 +65,9 @@ class DemState:
     def empty(cls, n_cells: int, n_grains: int, n_pairs: int, device: str) -> "DemState":
         """Uninitialised state arrays (to be filled by a step or by ``from_numpy``).
 
-        Every step allocates one state: the fields are views into one allocation (1.5x
-        cheaper than ten, measured at 360 cells); each view keeps the block alive through
-        an attribute, so the block is freed with the last view (or numpy view of one).
+        Every step allocates one state: the fields are views into one allocation (38 instead
+        of 46 us of CPU per state of 360 cells, measured); each view keeps the block alive
+        through an attribute, so the block is freed with the last view (or numpy view of one).
         """
         shapes = {"position": (n_cells, n_grains), "velocity": (n_cells, n_grains),
                   "shear_force": (n_cells, n_pairs), "contact_force": (n_cells, n_pairs),
