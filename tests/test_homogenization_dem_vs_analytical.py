@@ -51,15 +51,14 @@ FULL_TABLE_TOLERANCE = 0.005
 
 
 def run_pair(alpha0_deg: float, p0: float, n_orientations: int, eps_max: float, *, drained: bool = False,
-             increment: float = SHEAR_INCREMENT, dem_settings: DemSettings = DemSettings()) -> dict[str, driver.Record]:
+             increment: float = SHEAR_INCREMENT) -> dict[str, driver.Record]:
     """The same biaxial programme with the analytical and the DEM backends."""
     programme = loading.biaxial(p0, eps_max, increment, iso_increment=ISO_INCREMENT, drained=drained)
     records = {}
     for name in ("analytical", "dem"):
         with warnings.catch_warnings():
             warnings.simplefilter("error", RuntimeWarning)  # an unconverged DEM cell fails the test
-            options = {"settings": dem_settings} if name == "dem" else {}
-            records[name] = driver.run(make_cell_model(name, **options), programme, alpha0_deg=alpha0_deg,
+            records[name] = driver.run(make_cell_model(name), programme, alpha0_deg=alpha0_deg,
                                        n_orientations=n_orientations, progress=False)
     return records
 
@@ -163,11 +162,7 @@ def test_dem_diagnostics_are_stored_in_run_file(ci_runs, tmp_path):
 
 def test_dem_drained_biaxial_holds_sigma22():
     alpha0, p0 = 55.0, 2e5
-    # stress control to the driver's 1e-6 of p0 over 12 cells needs the DEM's end-of-increment
-    # response smooth to that level: cells relaxed to a force ratio of 1e-6, not the default
-    # 1e-4 (enough at 360 orientations, docs/dem_stepping.md)
-    runs = run_pair(alpha0, p0, 12, 0.01, drained=True, increment=1e-3,
-                    dem_settings=DemSettings(force_tolerance=1e-6))
+    runs = run_pair(alpha0, p0, 12, 0.01, drained=True, increment=1e-3)
     check_agreement(runs, p0)
     dem = runs["dem"]
     mask, _ = shear(dem)

@@ -228,10 +228,10 @@ class NumpyIntegrator:
                            np.maximum(settings.refined_strain_per_substep, settings.rate_growth * lam * largest * inv_n_coarse))
         rate = np.where((lam > 0.0) & (off <= settings.velocity_change * lam * drive), grown,
                         settings.refined_strain_per_substep)
-        n_phase = np.where(rate < settings.strain_per_substep, np.ceil(largest / rate).astype(np.int32), n_phase)
-        inv_n_phase = 1.0 / np.maximum(n_phase, 1).astype(np.float64)
+        n_phase = np.ceil(largest / rate).astype(np.int32)
+        ds = np.where(largest > 0.0, rate / np.where(largest > 0.0, largest, 1.0), 0.0)
         n_cells = model.n_cells
-        s_base, s_span, s_now = np.zeros(n_cells), np.ones(n_cells), np.zeros(n_cells)
+        s_base, s_now = np.zeros(n_cells), np.zeros(n_cells)
         k_phase, refined = np.zeros(n_cells, np.int32), np.zeros(n_cells, bool)
         touching = np.zeros(fs.shape)
         dx = np.zeros_like(x)
@@ -271,8 +271,8 @@ class NumpyIntegrator:
                 n_rest = np.ceil((1.0 - s_now[c]) * largest[c] / settings.refined_strain_per_substep).astype(np.int32)
                 longer = n_rest > n_phase[c] - k_phase[c]
                 c, n_rest = c[longer], n_rest[longer]
-                s_base[c], s_span[c], n_phase[c], k_phase[c] = s_now[c], 1.0 - s_now[c], n_rest, 0
-                inv_n_phase[c] = 1.0 / n_rest.astype(np.float64)
+                s_base[c], n_phase[c], k_phase[c] = s_now[c], n_rest, 0
+                ds[c] = settings.refined_strain_per_substep / largest[c]
             fmax = normal.max(axis=1)
             unbalanced = np.abs(np.where(free, force, 0.0)).max(axis=(1, 2))
             done = ~driving & (unbalanced <= settings.force_tolerance * np.maximum(fmax, floor[act]))
@@ -286,7 +286,7 @@ class NumpyIntegrator:
             moving = act[driving]
             k_phase[moving] += 1
             s_now[moving] = np.where(k_phase[moving] < n_phase[moving],
-                                     s_base[moving] + s_span[moving] * (k_phase[moving] * inv_n_phase[moving]), 1.0)
+                                     np.minimum(s_base[moving] + k_phase[moving] * ds[moving], 1.0), 1.0)
             scale = scale0[act] + dscale[act] * s_now[act][:, None]
             x_drive = ref[act] * scale[:, None, :]
             va, xa, ha = v[act], x[act], h[act]

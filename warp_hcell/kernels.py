@@ -201,7 +201,9 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
             rsum[p] = r_sum
             cut2[p] = (r_sum * widen) * (r_sum * widen)
 
-        # driven coordinates follow l(s) = l_start + (l_end - l_start) s, s = s_base + s_span k / n_phase
+        # driven coordinates follow l(s) = l_start + (l_end - l_start) s, s = s_base + k ds: every
+        # driving substep moves the cell by the rate, the last one by what is left (the path
+        # of the driven DOFs then depends continuously on d_eps)
         l_ref = reference_cell_size[c]
         l_start = cell_size_in[c]
         de = d_eps_local[c]
@@ -245,11 +247,9 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         rate = refined_strain_per_substep
         if lam > zero and off <= velocity_change * lam * drive:
             rate = wp.min(strain_per_substep, wp.max(refined_strain_per_substep, rate_growth * lam * largest * inv_n_coarse))
-        if rate < strain_per_substep:
-            n_phase = wp.int32(wp.ceil(largest / rate))
-        inv_n_phase = one / wp.float64(wp.max(n_phase, 1))
+        n_phase = wp.int32(wp.ceil(largest / rate))
+        ds = wp.where(largest > zero, rate / wp.where(largest > zero, largest, one), zero)
         s_base = zero
-        s_span = one
         s = zero
         k_phase = wp.int32(0)
         refined = wp.int32(0)
@@ -300,9 +300,8 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     n_rest = wp.int32(wp.ceil((one - s) * largest / refined_strain_per_substep))
                     if n_rest > n_phase - k_phase:
                         s_base = s
-                        s_span = one - s
+                        ds = refined_strain_per_substep / largest
                         n_phase = n_rest
-                        inv_n_phase = one / wp.float64(n_phase)
                         k_phase = 0
             else:
                 unbalanced = zero
@@ -320,7 +319,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
             substeps += 1
             if k_phase < n_phase:
                 k_phase += 1
-                s = wp.where(k_phase < n_phase, s_base + s_span * (wp.float64(k_phase) * inv_n_phase), one)
+                s = wp.where(k_phase < n_phase, wp.min(s_base + wp.float64(k_phase) * ds, one), one)
             scale_n = scale_n0 + dscale_n * s
             scale_t = scale_t0 + dscale_t * s
             for g in range(wp.static(n_grains)):

@@ -123,7 +123,7 @@ class DemSettings:
     restart from refined_strain_per_substep [-]."""
     rate_growth: float = 2.0
     """Largest growth of the strain per substep from one increment to the next [-]."""
-    force_tolerance: float = 1e-4
+    force_tolerance: float = 1e-6
     """Quasi-static criterion: unbalanced force ratio below this value [-]."""
     max_substeps: int = 200_000
     """Substeps allowed per increment before a cell is reported unconverged [-]."""
