@@ -13,6 +13,9 @@ and prints, per setting:
   the DEM response is too rough for the driver's 1e-6 stress tolerance);
 - DEM wall time and its ratio to the analytical run.
 
+With --robustness, drained runs over alpha0, p0 and increment count, per setting, how often
+the driver's stress control (1e-6 of p0) converges on the DEM's response.
+
 Then the acceptance rows: DEM (``DemSettings()`` defaults) and analytical wall times side by
 side, best of --repeats alternating runs each (the machine is shared: the load average is
 printed), and the worst force error of the DEM against the committed YADE cases
@@ -44,11 +47,11 @@ YADE_DIR = ROOT / "tests" / "data" / "yade"
 ALPHA0_DEG = 55.0
 PRESSURES = (2e5, 5.85e6)
 DEFAULT = DemSettings()
-DEFAULT_NAME = "adaptive 2.5e-5/5e-6 (defaults)"
+DEFAULT_NAME = "adaptive 2.5e-5/5e-6, tol 1e-6 (defaults)"
 SETTINGS = {
     # fixed strain per substep (refined = coarse: no adaptation)
-    "fixed 2.5e-7, tol 1e-6, dt 0.2 (issue-4 defaults)": dict(
-        strain_per_substep=2.5e-7, refined_strain_per_substep=2.5e-7, force_tolerance=1e-6, dt_factor=0.2),
+    "fixed 2.5e-7, dt 0.2 (issue-4 defaults)": dict(
+        strain_per_substep=2.5e-7, refined_strain_per_substep=2.5e-7, dt_factor=0.2),
     "fixed 2.5e-6": dict(strain_per_substep=2.5e-6, refined_strain_per_substep=2.5e-6),
     "fixed 1e-5": dict(strain_per_substep=1e-5, refined_strain_per_substep=1e-5),
     "fixed 2.5e-5": dict(strain_per_substep=2.5e-5, refined_strain_per_substep=2.5e-5),
@@ -56,13 +59,16 @@ SETTINGS = {
     # adaptive: coarse / refined strain per substep
     DEFAULT_NAME: {},
     "adaptive, tol 1e-5": dict(force_tolerance=1e-5),
+    "adaptive, tol 1e-4": dict(force_tolerance=1e-4),
     "adaptive, tol 1e-3": dict(force_tolerance=1e-3),
-    "adaptive, dt 0.2": dict(dt_factor=0.2),
-    "adaptive, dt 0.6": dict(dt_factor=0.6),
-    "adaptive, damping 0.7": dict(damping=0.7),
-    "adaptive 1e-4/1e-5": dict(strain_per_substep=1e-4, refined_strain_per_substep=1e-5),
+    "adaptive, dt 0.6, damping 0.7": dict(dt_factor=0.6, damping=0.7),
+    "adaptive 5e-5/5e-6, tol 1e-4": dict(strain_per_substep=5e-5, force_tolerance=1e-4),
+    "adaptive 1e-4/1e-5, tol 1e-4": dict(strain_per_substep=1e-4, refined_strain_per_substep=1e-5, force_tolerance=1e-4),
 }
 """Name -> DemSettings overrides of the defaults (every other field: DemSettings())."""
+ROBUSTNESS = {DEFAULT_NAME: {}, "adaptive, tol 1e-5": dict(force_tolerance=1e-5),
+              "adaptive, tol 1e-4": dict(force_tolerance=1e-4)}
+"""Settings whose stress control is tried on --robustness (drained runs over alpha0, p0, increment)."""
 
 
 def programme(p0: float, drained: bool, args: argparse.Namespace) -> tuple:
@@ -157,6 +163,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2, help="CPU threads of the DEM")
     parser.add_argument("--repeats", type=int, default=3, help="alternating runs for the acceptance timings")
     parser.add_argument("--quick", action="store_true", help="acceptance rows and YADE only, no sweep")
+    parser.add_argument("--robustness", action="store_true",
+                        help="also: drained runs to 10 %% at alpha0 40/55/70, both p0, increments 1e-4 and 5e-4, "
+                             "per setting of ROBUSTNESS: how many finish (stress control converges)")
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "dem_stepping.json")
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "figures" / "dem_stepping.png")
     args = parser.parse_args()
@@ -222,10 +231,27 @@ def main() -> None:
                           f"DEM {t_dem:6.2f} s ({row['ratio']:.1f}x) | unconverged {row['unconverged']:.0f}", flush=True)
         plot(rows, args.figure)
         print(f"-> {args.figure}")
+    robustness = {}
+    if args.robustness:
+        for name, overrides in ROBUSTNESS.items():
+            model, failures, runs = dem_model(replace(DEFAULT, **overrides), args.threads), [], 0
+            for alpha0 in (40.0, 55.0, 70.0):
+                for p0 in PRESSURES:
+                    for increment in (1e-4, 5e-4):
+                        runs += 1
+                        prog = loading.biaxial(p0, 0.1, increment, iso_increment=args.iso_increment, drained=True)
+                        try:
+                            driver.run(model, prog, alpha0_deg=alpha0, n_orientations=args.orientations, progress=False)
+                        except driver.ControlError as error:
+                            failures.append(f"alpha0 {alpha0:g}, p0 {p0:g}, increment {increment:g}: {error}")
+            robustness[name] = {"runs": runs, "failures": failures}
+            print(f"ROBUSTNESS {name}: {runs - len(failures)} of {runs} drained runs finish"
+                  + "".join(f"\n   failed: {f}" for f in failures), flush=True)
     result = {"machine": {"date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                           "cpus": os.cpu_count(), "load_average_end": os.getloadavg(), "git_revision": git_revision()},
               "options": vars(args) | {"json": str(args.json), "figure": str(args.figure)},
-              "defaults": asdict(DEFAULT), "acceptance": acceptance, "yade": yade, "sweep": rows}
+              "defaults": asdict(DEFAULT), "acceptance": acceptance, "yade": yade, "sweep": rows,
+              "robustness": robustness}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1) + "\n")
     print(f"-> {args.json}")
