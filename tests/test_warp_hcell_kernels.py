@@ -108,3 +108,21 @@ def test_unloaded_free_grains_do_not_drift(device):
     free = ~model.meso.driven
     assert np.array_equal(after["position"][:, free], before["position"][:, free])
     assert np.all(after["velocity"][:, free] == 0.0) and np.all(after["converged"] == 1)
+
+
+def test_strain_per_substep_grows_along_a_path_and_restarts_on_reversal(device):
+    """Every DOF driven (no relaxation): from rest the increment is driven at the refined rate,
+    the rate then doubles per increment up to strain_per_substep, and a reversal starts again
+    from the refined rate. Each step's increment is e = 1e-4 along n."""
+    settings, e = DemSettings(), 1e-4
+    model = DemModel.build(_rhombus(0.8), 1, device=device)
+    integrator = DemIntegrator(model, threads=1)
+    state, counts = model.state(), []
+    for d in [e] * 5 + [-e]:
+        out = DemState.empty(1, 4, 4, model.device)
+        integrator.step(state, out, np.array([[d, 0.0]]))
+        counts.append(int(out.substeps.numpy()[0]))
+        state = out
+    fine, coarse = math.ceil(e / settings.refined_strain_per_substep), math.ceil(e / settings.strain_per_substep)
+    assert counts[0] == fine and counts[-1] == fine
+    assert counts[1:5] == sorted(counts[1:5], reverse=True) and counts[1] < fine and counts[4] == coarse
