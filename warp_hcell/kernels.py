@@ -20,7 +20,8 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
       (``damped_velocity``); a free grain whose net force is exactly zero is set at rest (no
       drift of unloaded grains in mechanism states);
     - driven DOFs: x = x_ref * l(s) / l_ref with l(s) moving linearly from the old to the new
-      cell size, s = k / n over n = ceil(max|d_eps| / rate) driving substeps; then relaxation
+      cell size, s = min(k rate / max|d_eps|, 1) over n = ceil(max|d_eps| / rate) driving
+      substeps (the last one shorter: the driven path is continuous in d_eps); then relaxation
       until max free-DOF force <= force_tolerance * max(max normal force, force_floor), or
       max_substeps;
     - adaptive rate, from the cell's own state only (no knowledge of the mesostructure): the
@@ -214,8 +215,9 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         scale_t0 = l_start[1] / l_ref[1]
         dscale_n = (l_end[0] - l_start[0]) / l_ref[0]
         dscale_t = (l_end[1] - l_start[1]) / l_ref[1]
-        # strain per substep from the cell's own state: the last substep's driven displacements
-        # d_last (velocities in the state) against those of this increment at the coarse rate,
+        # strain per substep from the cell's own state: the last increment's mean driven
+        # displacements per substep d_last (velocities in the state) against those of this
+        # increment at the coarse rate,
         # d_new; lam = (d_last . d_new) / (d_new . d_new). Same direction (|d_last - lam d_new|
         # <= velocity_change lam |d_new|, max norms): the rate may grow by rate_growth over the
         # last one, up to strain_per_substep; otherwise the free grains are moving for another

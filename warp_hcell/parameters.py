@@ -108,7 +108,8 @@ class DemSettings:
     density: float = 2650.0
     """Grain density [kg/m^3]; disk mass per unit thickness is density * pi r^2 [kg/m]."""
     dt_factor: float = 0.4
-    """Time step as a fraction of sqrt(m / kn) [-]."""
+    """Time step as a fraction of sqrt(m / kn) of the lightest grain [-] (quasi-static results
+    do not depend on it; 0.4 relaxes faster than 0.2, docs/dem_stepping.md)."""
     damping: float = 0.5
     """Cundall local (non-viscous) damping coefficient [-]."""
     strain_per_substep: float = 2.5e-5
@@ -118,9 +119,9 @@ class DemSettings:
     and for the rest of an increment once a contact of the cell has opened or closed in it
     (<= strain_per_substep) [-]."""
     velocity_change: float = 0.5
-    """Largest deviation of the last substep's driven displacements from the direction of the
-    increment's, as a fraction of their size, for the strain per substep to grow rather than
-    restart from refined_strain_per_substep [-]."""
+    """Largest deviation of the last increment's mean driven displacements per substep from the
+    direction of the new increment's, as a fraction of their size, for the strain per substep
+    to grow rather than restart from refined_strain_per_substep [-]."""
     rate_growth: float = 2.0
     """Largest growth of the strain per substep from one increment to the next [-]."""
     force_tolerance: float = 1e-6
