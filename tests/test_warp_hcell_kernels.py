@@ -126,3 +126,20 @@ def test_strain_per_substep_grows_along_a_path_and_restarts_on_reversal(device):
     fine, coarse = math.ceil(e / settings.refined_strain_per_substep), math.ceil(e / settings.strain_per_substep)
     assert counts[0] == fine and counts[-1] == fine
     assert counts[1:5] == sorted(counts[1:5], reverse=True) and counts[1] < fine and counts[4] == coarse
+
+
+def test_kernel_love_weber_sum_and_area_match_the_host_formulas(device):
+    """The kernel's per-cell Love-Weber sum and V_cell equal sum_p f_p (x) b_p and the shoelace
+    area computed on the host from its output forces and positions."""
+    from warp_hcell.dem_cell import love_weber_tension_positive
+    from warp_hcell.mesostructure import polygon_area
+
+    rng = np.random.default_rng(11)
+    model = DemModel.build_h_cell(rng.uniform(35.0, 80.0, 8), 8, 0.5, device=device)
+    state = _run(model, model.state(), _mixed_increments(rng, 8, 3)).to_numpy()
+    pairs = model.meso.pairs
+    branch = state["position"][:, pairs[:, 1]] - state["position"][:, pairs[:, 0]]
+    expected = love_weber_tension_positive(state["contact_force"], branch)
+    assert np.abs(expected).max() > 1e3
+    np.testing.assert_allclose(state["moment"], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    np.testing.assert_allclose(state["area"], polygon_area(state["position"], model.meso.outer), rtol=1e-14)
