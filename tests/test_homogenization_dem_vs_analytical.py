@@ -145,15 +145,18 @@ def test_dem_diagnostics_are_stored_in_run_file(ci_runs, tmp_path):
     for name in ("substeps", "max_substeps", "n_unconverged"):
         assert stored.diagnostics[name].shape == (n,), name
     np.testing.assert_array_equal(stored.diagnostics["n_unconverged"], 0.0)
-    # the driven grains follow the cell strain in n_drive = ceil(|d_eps| / strain_per_substep)
-    # substeps; in the shear stage |d_eps_n| = |d_eps_t| = delta |cos 2 theta| (spec section 3)
+    # the driven grains follow the cell strain in ceil(|d_eps| / rate) substeps, rate between
+    # refined_strain_per_substep and strain_per_substep; in the shear stage
+    # |d_eps_n| = |d_eps_t| = delta |cos 2 theta| (spec section 3)
     theta = np.arange(CI_ORIENTATIONS) * np.pi / CI_ORIENTATIONS
-    n_drive = np.ceil(SHEAR_INCREMENT * np.abs(np.cos(2.0 * theta)) / DemSettings().strain_per_substep - 1e-9)
+    largest = SHEAR_INCREMENT * np.abs(np.cos(2.0 * theta))
+    n_coarse = np.ceil(largest / DemSettings().strain_per_substep - 1e-9)
+    n_fine = np.ceil(largest / DemSettings().refined_strain_per_substep + 1e-9)
     mask, _ = shear(record)
     substeps = stored.diagnostics["substeps"][mask]
-    assert np.all(substeps >= n_drive.sum())
-    assert np.all(stored.diagnostics["max_substeps"][mask] >= n_drive.max())
-    assert np.all(substeps <= 2.0 * n_drive.sum())  # the stopping rule adds relaxation, not a second path
+    assert np.all(substeps >= n_coarse.sum())
+    assert np.all(stored.diagnostics["max_substeps"][mask] >= n_coarse.max())
+    assert np.all(substeps <= 2.0 * n_fine.sum())  # the stopping rule adds relaxation, not a second path
     assert np.all(stored.diagnostics["max_substeps"][mask] < DemSettings().max_substeps)
 
 

@@ -17,7 +17,7 @@ def _model(n_cells=3, **settings):
     (np.zeros((2, 2)), r"d_eps_local has shape \(2, 2\), expected \(3, 2\)"),
     (np.full((3, 2), np.nan), "d_eps_local contains non-finite values"),
     (np.full((3, 2), 1.0), r"strain increment 1 must be < 1 in magnitude \(l <- l \(1 - d_eps\)\)"),
-    (np.full((3, 2), 1e-3), "strain increment 0.001 is too large for max_substeps = 100 at 2.5e-07 per substep"),
+    (np.full((3, 2), 1e-3), "strain increment 0.001 is too large for max_substeps = 100 at 5e-06 per substep"),
 ])
 def test_bad_increments_are_refused(d_eps, message):
     model = _model(max_substeps=100)

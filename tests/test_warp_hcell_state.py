@@ -23,4 +23,22 @@ def test_empty_shapes(device):
     shapes = {k: v.shape for k, v in state.to_numpy().items()}
     assert shapes == {"position": (5, 7, 2), "velocity": (5, 7, 2), "shear_force": (5, 21),
                       "contact_force": (5, 21, 2), "contact": (5, 21), "cell_size": (5, 2),
-                      "substeps": (5,), "converged": (5,)}
+                      "moment": (5, 2, 2), "area": (5,), "substeps": (5,), "converged": (5,)}
+
+
+def test_empty_fields_do_not_overlap_and_outlive_the_state(device):
+    """The fields share one allocation: writing each one leaves the others intact, and a numpy
+    view keeps its memory after the state is gone."""
+    state = DemState.empty(7, 6, 15, device)
+    for k, name in enumerate(("position", "velocity", "shear_force", "contact_force", "contact", "cell_size",
+                              "moment", "area", "substeps", "converged")):
+        field = getattr(state, name)
+        field.assign(np.full(field.numpy().shape, k + 1, dtype=field.numpy().dtype))
+    arrays = state.to_numpy()
+    for k, name in enumerate(arrays):
+        assert np.all(arrays[name] == k + 1), name
+    if device == "cpu":
+        view = state.moment.numpy()
+        del state, arrays
+        DemState.empty(7, 6, 15, device).moment.fill_(0.0)
+        assert np.all(view == 7)

@@ -23,7 +23,7 @@ import numpy as np
 
 from warp_hcell.cell_model import CellResponse
 from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
-from warp_hcell.mesostructure import Mesostructure, h_cell, polygon_area
+from warp_hcell.mesostructure import Mesostructure, h_cell
 from warp_hcell.model import DemModel
 from warp_hcell.parameters import ContactLaw, DemSettings, check_positive
 from warp_hcell.state import DemState
@@ -153,14 +153,11 @@ class DemCell:
 
     def response(self, state: DemCellState) -> CellResponse:
         """Love-Weber moment (compression positive) and V_cell of ``state``; diagnostics of its step."""
-        arrays = state.dem.to_numpy()
-        pairs = state.model.meso.pairs
-        branch = arrays["position"][:, pairs[:, 1]] - arrays["position"][:, pairs[:, 0]]
-        moment = to_compression_positive(love_weber_tension_positive(arrays["contact_force"], branch))
-        substeps = arrays["substeps"]
+        dem = state.dem  # the step's Love-Weber sum and polygon area, computed in the kernel
+        substeps = dem.substeps.numpy()
         diagnostics = {"substeps": float(substeps.sum()), "max_substeps": float(substeps.max(initial=0)),
-                       "n_unconverged": float(np.count_nonzero(arrays["converged"] == 0))}
-        return CellResponse(moment=moment, area=polygon_area(arrays["position"], state.model.meso.outer),
+                       "n_unconverged": float(np.count_nonzero(dem.converged.numpy() == 0))}
+        return CellResponse(moment=to_compression_positive(dem.moment.numpy()), area=dem.area.numpy().copy(),
                             diagnostics=diagnostics)
 
     def observables(self, state: DemCellState) -> dict[str, np.ndarray]:

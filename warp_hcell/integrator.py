@@ -9,10 +9,12 @@ chunking, so results are bit-identical for any ``threads``.
 ``NumpyIntegrator`` performs the same step with numpy, vectorised over cells (substeps in
 a Python loop). It is the reference for agreement tests and speed ratios.
 
-Per increment and cell: the driven DOFs follow the cell strain over
-n_drive = ceil(max|d_eps| / strain_per_substep) substeps; then substeps continue until the
+Per increment and cell: the driven DOFs follow the cell strain over ceil(max|d_eps| / rate)
+substeps, the rate adapted to the cell's state (``warp_hcell.kernels``: between
+refined_strain_per_substep and strain_per_substep); then substeps continue until the
 unbalanced force ratio (largest free-DOF force / max(largest normal force, force_floor))
-is <= force_tolerance, or max_substeps. A free grain whose net force is exactly zero is
+is <= force_tolerance, or max_substeps. The kernel also returns the Love-Weber sum and the
+outer-polygon area of each cell. A free grain whose net force is exactly zero is
 held at rest: an unloaded grain has no quasi-static reason to move, and Cundall damping
 (proportional to the force) could not stop it, so mechanism states would drift.
 Strain increments are compression positive: l <- l (1 - d_eps).
@@ -33,8 +35,9 @@ from warp_hcell.state import DemState
 
 CHUNKS_PER_THREAD = 4
 """CPU chunks per thread: chunks are taken by the threads as they finish (load balancing)."""
-MIN_CELLS_PER_CHUNK = 128
-"""Smallest CPU chunk [cells]: smaller batches run in one launch on the calling thread."""
+MIN_CELLS_PER_CHUNK = 1024
+"""Smallest CPU chunk [cells]: smaller batches run in one launch on the calling thread (at a
+few substeps per cell, the thread hand-off and a second launch cost more than they save)."""
 
 
 def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:
@@ -51,27 +54,68 @@ def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:
     largest = float(np.abs(d_eps).max(initial=0.0))
     if largest >= 1.0:
         raise ValueError(f"strain increment {largest:g} must be < 1 in magnitude (l <- l (1 - d_eps))")
-    if math.ceil(largest / model.settings.strain_per_substep) > model.settings.max_substeps:
+    finest = model.settings.refined_strain_per_substep
+    if math.ceil(largest / finest) > model.settings.max_substeps:
         raise ValueError(f"strain increment {largest:g} is too large for max_substeps = "
-                         f"{model.settings.max_substeps} at {model.settings.strain_per_substep:g} per substep")
+                         f"{model.settings.max_substeps} at {finest:g} per substep")
     return d_eps
+
+
+STATE_IN = ("position", "velocity", "shear_force", "cell_size")
+"""State fields read by the kernel, in argument order."""
+STATE_OUT = ("position", "velocity", "shear_force", "contact_force", "contact", "cell_size", "moment", "area",
+             "substeps", "converged")
+"""State fields written by the kernel, in argument order."""
+
+
+def step_arguments(model: DemModel, state_in: DemState, state_out: DemState, d_eps_local: wp.array,
+                   start: int) -> tuple[list, list]:
+    """Kernel inputs and outputs for cells [start, start + launch dim) (whole arrays passed)."""
+    settings, law = model.settings, model.contact_law
+    inputs = [model.radius, model.inv_mass, model.reference_position, model.reference_cell_size, model.dt,
+              model.force_floor, law.kn, law.kt, law.mu, settings.damping, settings.contact_tolerance,
+              settings.strain_per_substep, settings.refined_strain_per_substep, settings.velocity_change,
+              settings.rate_growth,               settings.force_tolerance,
+              int(settings.max_substeps), *(getattr(state_in, f) for f in STATE_IN), d_eps_local, int(start)]
+    return inputs, [getattr(state_out, f) for f in STATE_OUT]
 
 
 def launch_step(model: DemModel, state_in: DemState, state_out: DemState, d_eps_local: wp.array,
                 start: int, stop: int) -> None:
     """Launch the cell-step kernel over cells [start, stop) of the batch (whole arrays passed)."""
-    settings, law = model.settings, model.contact_law
-    kernel = step_kernel(*model.meso.topology_key())
-    wp.launch(
-        kernel, dim=stop - start,
-        inputs=[model.radius, model.inv_mass, model.reference_position, model.reference_cell_size, model.dt,
-                model.force_floor, law.kn, law.kt, law.mu, settings.damping, settings.contact_tolerance,
-                settings.strain_per_substep, settings.force_tolerance, int(settings.max_substeps),
-                state_in.position, state_in.velocity, state_in.shear_force, state_in.cell_size, d_eps_local,
-                int(start)],
-        outputs=[state_out.position, state_out.velocity, state_out.shear_force, state_out.contact_force,
-                 state_out.contact, state_out.cell_size, state_out.substeps, state_out.converged],
-        device=model.device)
+    inputs, outputs = step_arguments(model, state_in, state_out, d_eps_local, start)
+    wp.launch(kernel_of(model), dim=stop - start, inputs=inputs, outputs=outputs, device=model.device)
+
+
+def kernel_of(model: DemModel) -> wp.Kernel:
+    """The compiled cell-step kernel of the model's topology."""
+    return step_kernel(*model.meso.topology_key(), tuple(int(g) for g in model.meso.outer))
+
+
+class _RecordedLaunch:
+    """A launch of cells [start, stop) whose constant arguments are packed once.
+
+    Per step only the state arrays are re-packed (the increment lives in a buffer of the
+    integrator): packing all 35 kernel arguments costs more than stepping a few hundred cells
+    by a few substeps.
+    """
+
+    def __init__(self, model: DemModel, state_in: DemState, state_out: DemState, d_eps_local: wp.array,
+                 start: int, stop: int):
+        inputs, outputs = step_arguments(model, state_in, state_out, d_eps_local, start)
+        # argument indices of what changes per step: state-in arrays and d_eps come before first_cell
+        self.n_inputs = len(inputs)
+        self.command = wp.launch(kernel_of(model), dim=stop - start, inputs=inputs, outputs=outputs,
+                                 device=model.device, record_cmd=True)
+
+    def __call__(self, state_in: DemState, state_out: DemState) -> None:
+        command, n_inputs = self.command, self.n_inputs
+        first = n_inputs - 2 - len(STATE_IN)
+        for k, name in enumerate(STATE_IN):
+            command.set_param_at_index(first + k, getattr(state_in, name))
+        for k, name in enumerate(STATE_OUT):
+            command.set_param_at_index(n_inputs + k, getattr(state_out, name))
+        command.launch()
 
 
 class DemIntegrator:
@@ -90,10 +134,22 @@ class DemIntegrator:
         self.model = model
         self.threads = 1 if wp.get_device(model.device).is_cuda else int(threads)
         self._pool = None if self.threads == 1 else pool or ThreadPoolExecutor(self.threads)
-        # compile/load the kernel here, once, rather than concurrently from the chunk threads
-        one = model.take(np.zeros(1, dtype=np.int64))
-        scratch = DemState.empty(1, model.meso.n_grains, model.meso.n_pairs, model.device)
-        launch_step(one, one.state(), scratch, wp.zeros(1, dtype=wp.vec2d, device=model.device), 0, 1)
+        self._d_eps = wp.zeros(model.n_cells, dtype=wp.vec2d, device=model.device)
+        self._d_eps_host = None if wp.get_device(model.device).is_cuda else self._d_eps.numpy()
+        # more chunks than threads, so that the pool balances cells of very different substep
+        # counts; no chunk below MIN_CELLS_PER_CHUNK (the thread hand-off would cost more)
+        n_chunks = min(CHUNKS_PER_THREAD * self.threads, model.n_cells // MIN_CELLS_PER_CHUNK)
+        if self._pool is None or n_chunks < 2:
+            self._bounds = [(0, model.n_cells)]
+        else:
+            edges = np.linspace(0, model.n_cells, n_chunks + 1).astype(int)
+            self._bounds = list(zip(edges[:-1].tolist(), edges[1:].tolist()))
+        # compile/load the kernel and pack the constant arguments here, once, rather than
+        # concurrently from the chunk threads
+        initial = model.state()
+        scratch = DemState.empty(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)
+        self._launches = [_RecordedLaunch(model, initial, scratch, self._d_eps, start, stop)
+                          for start, stop in self._bounds]
 
     def step(self, state_in: DemState, state_out: DemState, d_eps_local: np.ndarray) -> None:
         """Advance every cell by its strain increment; writes ``state_out`` only.
@@ -103,18 +159,15 @@ class DemIntegrator:
             state_out: receives the cells after the increment (same n_cells).
             d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
         """
-        model = self.model
-        d_eps = wp.array(check_increment(model, d_eps_local), dtype=wp.vec2d, device=model.device)
-        n_cells = model.n_cells
-        # more chunks than threads, so that the pool balances cells of very different substep
-        # counts; no chunk below MIN_CELLS_PER_CHUNK (the thread hand-off would cost more)
-        n_chunks = min(CHUNKS_PER_THREAD * self.threads, n_cells // MIN_CELLS_PER_CHUNK)
-        if self._pool is None or n_chunks < 2:
-            launch_step(model, state_in, state_out, d_eps, 0, n_cells)
+        d_eps = check_increment(self.model, d_eps_local)
+        if self._d_eps_host is None:
+            self._d_eps.assign(d_eps)
+        else:
+            np.copyto(self._d_eps_host, d_eps)
+        if len(self._launches) == 1:
+            self._launches[0](state_in, state_out)
             return
-        bounds = np.linspace(0, n_cells, n_chunks + 1).astype(int)
-        jobs = [self._pool.submit(launch_step, model, state_in, state_out, d_eps, start, stop)
-                for start, stop in zip(bounds[:-1], bounds[1:])]
+        jobs = [self._pool.submit(launch, state_in, state_out) for launch in self._launches]
         for job in jobs:
             job.result()
 
@@ -132,7 +185,7 @@ class NumpyIntegrator:
         self.model = model
 
     def step(self, state_in: DemState, state_out: DemState, d_eps_local: np.ndarray) -> None:
-        """Same contract as ``DemIntegrator.step``."""
+        """Same contract as ``DemIntegrator.step``; the same floating-point operations, in the same order."""
         model, law, settings = self.model, self.model.contact_law, self.model.settings
         d_eps = check_increment(model, d_eps_local)
         meso = model.meso
@@ -145,18 +198,42 @@ class NumpyIntegrator:
         h = model.dt.numpy()[:, None, None]
         floor = model.force_floor.numpy()
         rsum = radius[:, pi] + radius[:, pj]
-        cut2 = (rsum * (1.0 + settings.contact_tolerance)) ** 2
+        widen = 1.0 + settings.contact_tolerance
+        cut2 = (rsum * widen) * (rsum * widen)
         src = state_in.to_numpy()
         x = src["position"].copy()
         v = src["velocity"].copy()
         fs = src["shear_force"].copy()
         l_start = src["cell_size"]
         l_end = np.stack([l_start[:, 0] * (1.0 - d_eps[:, 0]), l_start[:, 1] * (1.0 - d_eps[:, 1])], axis=1)
-        n_drive = np.ceil(np.abs(d_eps).max(axis=1) / settings.strain_per_substep).astype(np.int32)
+        largest = np.maximum(np.abs(d_eps[:, 0]), np.abs(d_eps[:, 1]))
+        n_phase = np.ceil(largest / settings.strain_per_substep).astype(np.int32)
         scale0 = l_start / l_ref
         dscale = (l_end - l_start) / l_ref
-        inv_n_drive = 1.0 / np.maximum(n_drive, 1).astype(np.float64)
+        inv_n_coarse = 1.0 / np.maximum(n_phase, 1).astype(np.float64)
+        driven = meso.driven
+        # strain per substep from the cell's state (see the kernel): same sums, same order
+        d_new = ref * dscale[:, None, :] * inv_n_coarse[:, None, None]
+        d_last = v * h
+        dot, norm2 = np.zeros(model.n_cells), np.zeros(model.n_cells)
+        for g in range(meso.n_grains):
+            for k in range(2):
+                if driven[g, k]:
+                    dot = dot + d_last[:, g, k] * d_new[:, g, k]
+                    norm2 = norm2 + d_new[:, g, k] * d_new[:, g, k]
+        lam = np.where(norm2 > 0.0, dot / np.where(norm2 > 0.0, norm2, 1.0), 0.0)
+        off = np.where(driven, np.abs(d_last - lam[:, None, None] * d_new), 0.0).max(axis=(1, 2))
+        drive = np.where(driven, np.abs(d_new), 0.0).max(axis=(1, 2))
+        grown = np.minimum(settings.strain_per_substep,
+                           np.maximum(settings.refined_strain_per_substep, settings.rate_growth * lam * largest * inv_n_coarse))
+        rate = np.where((lam > 0.0) & (off <= settings.velocity_change * lam * drive), grown,
+                        settings.refined_strain_per_substep)
+        n_phase = np.ceil(largest / rate).astype(np.int32)
+        ds = np.where(largest > 0.0, rate / np.where(largest > 0.0, largest, 1.0), 0.0)
         n_cells = model.n_cells
+        s_base, s_now = np.zeros(n_cells), np.zeros(n_cells)
+        k_phase, refined = np.zeros(n_cells, np.int32), np.zeros(n_cells, bool)
+        touching = np.zeros(fs.shape)
         dx = np.zeros_like(x)
         fn = np.zeros_like(fs)
         touch = np.zeros(fs.shape, np.int32)
@@ -165,7 +242,7 @@ class NumpyIntegrator:
         act = np.arange(n_cells)
         while act.size:
             b = x[act][:, pj] - x[act][:, pi]
-            dist2 = b[..., 0] ** 2 + b[..., 1] ** 2
+            dist2 = b[..., 0] * b[..., 0] + b[..., 1] * b[..., 1]
             on = dist2 <= cut2[act]
             dist = np.sqrt(np.where(on, dist2, 1.0))
             u = b * (1.0 / dist)[..., None]
@@ -175,6 +252,9 @@ class NumpyIntegrator:
             cap = law.mu * normal
             shear = np.where(on, np.clip(fs[act] + law.kt * du, -cap, cap), 0.0)
             normal = np.where(on, normal, 0.0)
+            closed = np.where(on, 1.0, 0.0)
+            changed = (substeps[act, None] > 0) & (closed != touching[act])
+            touching[act] = closed
             fs[act], fn[act], touch[act] = shear, normal, on
             f_i = np.stack([-normal * u[..., 0] - shear * u[..., 1], -normal * u[..., 1] + shear * u[..., 0]], -1)
             f_i = np.where(on[..., None], f_i, 0.0)
@@ -182,19 +262,32 @@ class NumpyIntegrator:
             for p in range(meso.n_pairs):  # pair order fixed: same summation order as the kernel
                 force[:, pi[p]] += f_i[:, p]
                 force[:, pj[p]] -= f_i[:, p]
+            # adaptive driving (see the kernel)
+            driving = k_phase[act] < n_phase[act]
+            refine = driving & changed.any(axis=1) & ~refined[act]
+            if refine.any():
+                c = act[refine]
+                refined[c] = True
+                n_rest = np.ceil((1.0 - s_now[c]) * largest[c] / settings.refined_strain_per_substep).astype(np.int32)
+                longer = n_rest > n_phase[c] - k_phase[c]
+                c, n_rest = c[longer], n_rest[longer]
+                s_base[c], n_phase[c], k_phase[c] = s_now[c], n_rest, 0
+                ds[c] = settings.refined_strain_per_substep / largest[c]
             fmax = normal.max(axis=1)
             unbalanced = np.abs(np.where(free, force, 0.0)).max(axis=(1, 2))
-            checking = substeps[act] >= n_drive[act]
-            done = checking & (unbalanced <= settings.force_tolerance * np.maximum(fmax, floor[act]))
+            done = ~driving & (unbalanced <= settings.force_tolerance * np.maximum(fmax, floor[act]))
             converged[act[done]] = 1
-            stop = done | (checking & (substeps[act] >= settings.max_substeps))
+            stop = done | (~driving & (substeps[act] >= settings.max_substeps))
             keep = ~stop
-            act, force = act[keep], force[keep]
+            act, force, driving = act[keep], force[keep], driving[keep]
             if not act.size:
                 break
             substeps[act] += 1
-            s = np.where(substeps[act] < n_drive[act], substeps[act] * inv_n_drive[act], 1.0)
-            scale = scale0[act] + dscale[act] * s[:, None]
+            moving = act[driving]
+            k_phase[moving] += 1
+            s_now[moving] = np.where(k_phase[moving] < n_phase[moving],
+                                     np.minimum(s_base[moving] + k_phase[moving] * ds[moving], 1.0), 1.0)
+            scale = scale0[act] + dscale[act] * s_now[act][:, None]
             x_drive = ref[act] * scale[:, None, :]
             va, xa, ha = v[act], x[act], h[act]
             accel = force * inv_mass[act]
@@ -205,12 +298,23 @@ class NumpyIntegrator:
             dx[act] = np.where(free, v_free * ha, x_drive - xa)
             x[act] = np.where(free, xa + v_free * ha, x_drive)
             v[act] = v_free
-        v = np.where(free, v, dx / h)  # driven DOFs: the velocity of their last substep
+        # driven DOFs: mean velocity over the increment's substeps
+        spent = (substeps.astype(np.float64)[:, None, None] * h)
+        v = np.where(free, v, np.where(substeps[:, None, None] > 0, ref * dscale[:, None, :] / np.where(spent > 0, spent, 1.0), 0.0))
         b = x[:, pj] - x[:, pi]
-        u = b / np.linalg.norm(b, axis=-1, keepdims=True)
+        dist = np.sqrt(b[..., 0] * b[..., 0] + b[..., 1] * b[..., 1])
+        u = b / dist[..., None]
         contact_force = np.stack([-fn * u[..., 0] - fs * u[..., 1], -fn * u[..., 1] + fs * u[..., 0]], -1)
+        moment = np.zeros((n_cells, 2, 2))
+        for p in range(meso.n_pairs):  # same summation order as the kernel
+            moment += contact_force[:, p, :, None] * b[:, p, None, :]
+        twice_area = np.zeros(n_cells)
+        outer = meso.outer
+        for a, b_next in zip(outer, np.roll(outer, -1)):
+            twice_area = twice_area + (x[:, a, 0] * x[:, b_next, 1] - x[:, b_next, 0] * x[:, a, 1])
         out = {"position": x, "velocity": v, "shear_force": fs, "contact_force": contact_force, "contact": touch,
-               "cell_size": l_end, "substeps": substeps, "converged": converged}
+               "cell_size": l_end, "moment": moment, "area": 0.5 * np.abs(twice_area), "substeps": substeps,
+               "converged": converged}
         for name, value in out.items():
             target = getattr(state_out, name)
             target.assign(np.ascontiguousarray(value, dtype=target.numpy().dtype))

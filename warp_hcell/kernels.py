@@ -19,10 +19,20 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
     - free DOFs: explicit (leapfrog) integration with Cundall local damping
       (``damped_velocity``); a free grain whose net force is exactly zero is set at rest (no
       drift of unloaded grains in mechanism states);
-    - driven DOFs: x = x_ref * l(k) / l_ref with l(k) moving linearly from the old to the new
-      cell size over n_drive = ceil(max|d_eps| / strain_per_substep) substeps; then
-      relaxation until max free-DOF force <= force_tolerance * max(max normal force,
-      force_floor), or max_substeps.
+    - driven DOFs: x = x_ref * l(s) / l_ref with l(s) moving linearly from the old to the new
+      cell size, s = min(k rate / max|d_eps|, 1) over n = ceil(max|d_eps| / rate) driving
+      substeps (the last one shorter: the driven path is continuous in d_eps); then relaxation
+      until max free-DOF force <= force_tolerance * max(max normal force, force_floor), or
+      max_substeps;
+    - adaptive rate, from the cell's own state only (no knowledge of the mesostructure): the
+      driven DOFs' velocities in the state hold their mean velocity over the last increment
+      (driving and relaxation substeps). If the new increment, driven at strain_per_substep,
+      continues that motion (same direction within velocity_change), the rate may grow by
+      rate_growth over the last one, up to strain_per_substep: in a steady path the free
+      grains keep their velocity and need no relaxation. A new direction (the free grains
+      moving for another path: start of shear, reversal, a probe) starts again from
+      refined_strain_per_substep. Within an increment, once a contact opens or closes, the
+      rest is driven at refined_strain_per_substep.
 The conversion to compression-positive quantities happens on the host
 (``warp_hcell.dem_cell.to_compression_positive``).
 """
@@ -91,12 +101,14 @@ def damped_velocity(
 
 
 @functools.lru_cache(maxsize=None)
-def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bool], ...]) -> wp.Kernel:
+def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bool], ...],
+                outer: tuple[int, ...]) -> wp.Kernel:
     """The cell-step kernel for one topology.
 
     Args:
         pairs: candidate contact pairs (i, j), 0-based, i < j.
         driven: per grain, (driven along n, driven along t).
+        outer: ordered grain indices of the polygon whose area is V_cell.
 
     Returns:
         A kernel launched with one thread per cell of cells [first_cell, first_cell + dim)
@@ -108,6 +120,8 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
     pj = tuple(p[1] for p in pairs)
     drive_n = tuple(bool(d[0]) for d in driven)
     drive_t = tuple(bool(d[1]) for d in driven)
+    n_outer = len(outer)
+    outer_next = tuple(outer[(k + 1) % n_outer] for k in range(n_outer))
     vec_g = wp.types.vector(length=n_grains, dtype=wp.float64)
     vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
 
@@ -125,6 +139,9 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         damping: wp.float64,
         contact_tolerance: wp.float64,
         strain_per_substep: wp.float64,
+        refined_strain_per_substep: wp.float64,
+        velocity_change: wp.float64,
+        rate_growth: wp.float64,
         force_tolerance: wp.float64,
         max_substeps: wp.int32,
         position_in: wp.array2d(dtype=wp.vec2d),
@@ -140,6 +157,8 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         contact_force_out: wp.array2d(dtype=wp.vec2d),
         contact_out: wp.array2d(dtype=wp.int32),
         cell_size_out: wp.array(dtype=wp.vec2d),
+        moment_out: wp.array(dtype=wp.mat22d),
+        area_out: wp.array(dtype=wp.float64),
         substeps_out: wp.array(dtype=wp.int32),
         converged_out: wp.array(dtype=wp.int32),
     ):
@@ -175,6 +194,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         fs = vec_p()
         rsum = vec_p()
         cut2 = vec_p()
+        was_closed = vec_p()
         widen = one + contact_tolerance
         for p in range(wp.static(n_pairs)):
             fs[p] = shear_force_in[c, p]
@@ -182,23 +202,67 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
             rsum[p] = r_sum
             cut2[p] = (r_sum * widen) * (r_sum * widen)
 
-        # driven coordinates follow l(k) = l_start + (l_end - l_start) k / n_drive
+        # driven coordinates follow l(s) = l_start + (l_end - l_start) s, s = s_base + k ds: every
+        # driving substep moves the cell by the rate, the last one by what is left (the path
+        # of the driven DOFs then depends continuously on d_eps)
         l_ref = reference_cell_size[c]
         l_start = cell_size_in[c]
         de = d_eps_local[c]
         l_end = wp.vec2d(l_start[0] * (one - de[0]), l_start[1] * (one - de[1]))
-        n_drive = wp.int32(wp.ceil(wp.max(wp.abs(de[0]), wp.abs(de[1])) / strain_per_substep))
+        largest = wp.max(wp.abs(de[0]), wp.abs(de[1]))
+        n_phase = wp.int32(wp.ceil(largest / strain_per_substep))
         scale_n0 = l_start[0] / l_ref[0]
         scale_t0 = l_start[1] / l_ref[1]
         dscale_n = (l_end[0] - l_start[0]) / l_ref[0]
         dscale_t = (l_end[1] - l_start[1]) / l_ref[1]
-        inv_n_drive = one / wp.float64(wp.max(n_drive, 1))
+        # strain per substep from the cell's own state: the last increment's mean driven
+        # displacements per substep d_last (velocities in the state) against those of this
+        # increment at the coarse rate,
+        # d_new; lam = (d_last . d_new) / (d_new . d_new). Same direction (|d_last - lam d_new|
+        # <= velocity_change lam |d_new|, max norms): the rate may grow by rate_growth over the
+        # last one, up to strain_per_substep; otherwise the free grains are moving for another
+        # path and the increment starts again from refined_strain_per_substep
+        inv_n_coarse = one / wp.float64(wp.max(n_phase, 1))
+        dot = zero
+        norm2 = zero
+        for g in range(wp.static(n_grains)):
+            if wp.static(drive_n[g]):
+                d_new = refn[g] * dscale_n * inv_n_coarse
+                dot = dot + vn[g] * h * d_new
+                norm2 = norm2 + d_new * d_new
+            if wp.static(drive_t[g]):
+                d_new = reft[g] * dscale_t * inv_n_coarse
+                dot = dot + vt[g] * h * d_new
+                norm2 = norm2 + d_new * d_new
+        lam = wp.where(norm2 > zero, dot / wp.where(norm2 > zero, norm2, one), zero)
+        off = zero
+        drive = zero
+        for g in range(wp.static(n_grains)):
+            if wp.static(drive_n[g]):
+                d_new = refn[g] * dscale_n * inv_n_coarse
+                off = wp.max(off, wp.abs(vn[g] * h - lam * d_new))
+                drive = wp.max(drive, wp.abs(d_new))
+            if wp.static(drive_t[g]):
+                d_new = reft[g] * dscale_t * inv_n_coarse
+                off = wp.max(off, wp.abs(vt[g] * h - lam * d_new))
+                drive = wp.max(drive, wp.abs(d_new))
+        rate = refined_strain_per_substep
+        if lam > zero and off <= velocity_change * lam * drive:
+            rate = wp.min(strain_per_substep, wp.max(refined_strain_per_substep, rate_growth * lam * largest * inv_n_coarse))
+        n_phase = wp.int32(wp.ceil(largest / rate))
+        ds = wp.where(largest > zero, rate / wp.where(largest > zero, largest, one), zero)
+        s_base = zero
+        s = zero
+        k_phase = wp.int32(0)
+        refined = wp.int32(0)
 
         substeps = wp.int32(0)
         converged = wp.int32(0)
         while True:
-            # contact forces at the current positions (shear increment from the last move)
+            # contact forces at the current positions (shear increment from the last move);
+            # changed = 1 if a contact opened or closed since the last evaluation
             fmax = zero
+            changed = wp.int32(0)
             for g in range(wp.static(n_grains)):
                 fn_g[g] = zero
                 ft_g[g] = zero
@@ -208,6 +272,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                 bn = xn[j] - xn[i]
                 bt = xt[j] - xt[i]
                 dist2 = bn * bn + bt * bt
+                closed = zero
                 if dist2 <= cut2[p]:
                     dist = wp.sqrt(dist2)
                     inv_dist = one / dist
@@ -216,6 +281,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     du = (dxt[j] - dxt[i]) * un - (dxn[j] - dxn[i]) * ut
                     normal, shear = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
                     fs[p] = shear
+                    closed = one
                     fin = -normal * un - shear * ut
                     fit = -normal * ut + shear * un
                     fn_g[i] = fn_g[i] + fin
@@ -225,8 +291,21 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     fmax = wp.where(normal > fmax, normal, fmax)
                 else:
                     fs[p] = zero
+                changed = wp.where(substeps > 0 and closed != was_closed[p], 1, changed)
+                was_closed[p] = closed
 
-            if substeps >= n_drive:
+            if k_phase < n_phase:
+                # adaptive driving: once a contact has opened or closed, the rest of the
+                # increment is driven at refined_strain_per_substep
+                if changed == 1 and refined == 0:
+                    refined = 1
+                    n_rest = wp.int32(wp.ceil((one - s) * largest / refined_strain_per_substep))
+                    if n_rest > n_phase - k_phase:
+                        s_base = s
+                        ds = refined_strain_per_substep / largest
+                        n_phase = n_rest
+                        k_phase = 0
+            else:
                 unbalanced = zero
                 for g in range(wp.static(n_grains)):
                     if wp.static(not drive_n[g]):
@@ -240,7 +319,9 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     break
 
             substeps += 1
-            s = wp.where(substeps < n_drive, wp.float64(substeps) * inv_n_drive, one)
+            if k_phase < n_phase:
+                k_phase += 1
+                s = wp.where(k_phase < n_phase, wp.min(s_base + wp.float64(k_phase) * ds, one), one)
             scale_n = scale_n0 + dscale_n * s
             scale_t = scale_t0 + dscale_t * s
             for g in range(wp.static(n_grains)):
@@ -266,12 +347,18 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
 
         for g in range(wp.static(n_grains)):
             position_out[c, g] = wp.vec2d(xn[g], xt[g])
-            # driven DOFs: the velocity of their last substep
+            # driven DOFs: their mean velocity over the increment's substeps (driving and
+            # relaxation), the memory from which the next increment sets its strain per substep
             if wp.static(drive_n[g]):
-                vn[g] = dxn[g] / h
+                vn[g] = wp.where(substeps > 0, refn[g] * dscale_n / (wp.float64(substeps) * h), zero)
             if wp.static(drive_t[g]):
-                vt[g] = dxt[g] / h
+                vt[g] = wp.where(substeps > 0, reft[g] * dscale_t / (wp.float64(substeps) * h), zero)
             velocity_out[c, g] = wp.vec2d(vn[g], vt[g])
+        # Love-Weber sum (tension positive) over the pairs: sum_p f_p (x) (x_j - x_i)
+        m_nn = zero
+        m_nt = zero
+        m_tn = zero
+        m_tt = zero
         for p in range(wp.static(n_pairs)):
             shear_force_out[c, p] = fs[p]
             i = wp.static(pi[p])
@@ -285,8 +372,22 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
             # the last force evaluation ran at these positions: same contacts, same normal forces
             touching = dist2 <= cut2[p]
             normal = wp.where(touching, kn * wp.max(rsum[p] - dist, zero), zero)
-            contact_force_out[c, p] = wp.vec2d(-normal * un - fs[p] * ut, -normal * ut + fs[p] * un)
+            f_n = -normal * un - fs[p] * ut
+            f_t = -normal * ut + fs[p] * un
+            contact_force_out[c, p] = wp.vec2d(f_n, f_t)
             contact_out[c, p] = wp.where(touching, 1, 0)
+            m_nn = m_nn + f_n * bn
+            m_nt = m_nt + f_n * bt
+            m_tn = m_tn + f_t * bn
+            m_tt = m_tt + f_t * bt
+        moment_out[c] = wp.mat22d(m_nn, m_nt, m_tn, m_tt)
+        # V_cell: shoelace formula over the outer polygon
+        twice_area = zero
+        for k in range(wp.static(n_outer)):
+            a = wp.static(outer[k])
+            b = wp.static(outer_next[k])
+            twice_area = twice_area + (xn[a] * xt[b] - xn[b] * xt[a])
+        area_out[c] = wp.float64(0.5) * wp.abs(twice_area)
         cell_size_out[c] = l_end
         substeps_out[c] = substeps
         converged_out[c] = converged

@@ -15,7 +15,7 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from warp_hcell.mesostructure import Mesostructure, MesostructureError, h_cell, h_cell_reference
+from warp_hcell.mesostructure import Mesostructure, MesostructureError, h_cell, h_cell_reference, polygon_area
 from warp_hcell.parameters import ContactLaw, DemSettings
 from warp_hcell.state import DemState
 
@@ -137,7 +137,8 @@ class DemModel:
             "shear_force": np.zeros((n_cells, n_pairs)), "contact_force": np.zeros((n_cells, n_pairs, 2)),
             "contact": initial_contacts(position, self.radius.numpy(), self.meso.pairs,
                                         self.settings.contact_tolerance),
-            "cell_size": self.reference_cell_size.numpy(), "substeps": np.zeros(n_cells, np.int32),
+            "cell_size": self.reference_cell_size.numpy(), "moment": np.zeros((n_cells, 2, 2)),
+            "area": polygon_area(position, self.meso.outer), "substeps": np.zeros(n_cells, np.int32),
             "converged": np.ones(n_cells, np.int32)}, self.device)
 
 
