@@ -263,7 +263,7 @@ def exit_code(argv):
     (["--mesostructure", "{file}"], "not valid"),
     (["--perturbed-fraction", "2"], "perturbed_fraction = 2 is outside [0, 1]"),
     (["--backend", "analytical"], "unrecognized arguments: --backend analytical"),
-    (["--device", "cuda:7"], "device 'cuda:7' is not available here"),
+    (["--device", "cuda:7"], "--device cuda:7: no CUDA GPU on this machine"),
 ])
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, args, message):
     existing = tmp_path / "existing.h5"

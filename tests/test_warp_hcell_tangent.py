@@ -26,7 +26,7 @@ from warp_hcell.tangent import condensed_tangent, sliding_contacts
 
 LAW = ContactLaw()
 R = 0.5
-TIGHT = DemSettings(force_tolerance=1e-13, strain_per_substep=1e-8, max_substeps=10**7)
+TIGHT = DemSettings(force_tolerance=1e-13, strain_per_substep=1e-8, refined_strain_per_substep=1e-8, max_substeps=10**7)
 DATA = "warp_hcell/data"
 
 
@@ -82,7 +82,7 @@ def test_h_cell_stick_and_slide(h_cells):
 
 def test_h_cell_slide_approaches_the_condensed_tangent_as_driving_slows(h_cells):
     """Ten times slower driving: the step's own derivative in slide comes within 3e-5 (from ~1e-4)."""
-    slow = DemSettings(force_tolerance=1e-13, strain_per_substep=1e-9, max_substeps=10**8)
+    slow = DemSettings(force_tolerance=1e-13, strain_per_substep=1e-9, refined_strain_per_substep=1e-9, max_substeps=10**8)
     dem = DemCell(LAW, R, settings=slow, threads=1)
     alpha0 = np.repeat([35.0, 40.0, 55.0, 70.0], 3)
     state, d_eps = _sheared(dem, alpha0, alpha0.size)

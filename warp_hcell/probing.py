@@ -141,6 +141,7 @@ def canonical_dem_arrays(context: ProbeContext, ev: Mapping[str, np.ndarray], ce
     return {
         "position": ev["position"], "velocity": np.zeros_like(ev["position"]), "shear_force": ev["shear_force"],
         "contact_force": ev["contact_force"], "contact": ev["contact"].astype(np.int32), "cell_size": cell_size,
+        "moment": -ev["moment"], "area": ev["area"],  # the DEM state keeps the tension-positive sum
         "substeps": np.zeros(n, np.int32), "converged": np.ones(n, np.int32),
         "radius": np.broadcast_to(schema.radius, (n, schema.n_grains)),
         "reference_position": np.broadcast_to(schema.reference_position, (n, schema.n_grains, 2)),

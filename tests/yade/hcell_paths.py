@@ -419,7 +419,9 @@ def main(argv: list[str]) -> int:
     radius = CellDefaults.radius
     try:
         check_alpha0_deg(args.alpha0_deg)
-        settings = DemSettings(strain_per_substep=args.strain_per_substep, force_tolerance=args.force_tolerance)
+        settings = DemSettings(strain_per_substep=args.strain_per_substep, force_tolerance=args.force_tolerance,
+                               refined_strain_per_substep=min(args.strain_per_substep,
+                                                              DemSettings.refined_strain_per_substep))
         path = read_path(args.path)
     except (OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
