@@ -280,8 +280,8 @@ class _ContinuedCell:
         response = self.inner.response(state)
         return dataclasses.replace(response, area=response.area * self.area_scale)
 
-    def step(self, state: Any, d_eps_local: np.ndarray):
-        new, response = self.inner.step(state, d_eps_local)
+    def step(self, state: Any, d_eps_local: np.ndarray, *, with_tangent: bool = False):
+        new, response = self.inner.step(state, d_eps_local, with_tangent=with_tangent)
         return new, dataclasses.replace(response, area=response.area * self.area_scale)
 
     def __getattr__(self, name: str) -> Any:
