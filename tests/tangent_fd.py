@@ -50,7 +50,7 @@ def fd_tangent_fixed_schedule(model, state, d_eps: np.ndarray, h: float) -> np.n
     shorter (``warp_hcell.kernels``). A difference step along the largest component changes
     that last substep by h itself, and the relaxation that follows it ends in a slightly
     different sliding state: the step's slope along that component differs from the
-    quasi-static one by 0.5 to 2.6 % in slide, at any rate (docs/bvp.md, section 1). Here every
+    quasi-static one by 0.25 to 2.6 % in slide, at any rate (docs/bvp.md, section 1). Here every
     stencil point is stepped at rate * max |d_eps + dh| / max |d_eps| (strain_per_substep and
     refined_strain_per_substep both), so that the substep fractions s_k are those of
     ``d_eps`` itself: the difference quotient is the slope of the step along one fixed
