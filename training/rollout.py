@@ -1,0 +1,124 @@
+"""Rollout error of the meso-ANN along whole held-out DEM paths of single cells.
+
+A path is an isotropic precompression eps_iso followed by a proportional leg d_eps =
+delta * (a_n, a_t) per increment to |eps_n| or |eps_t| = ``eps_max``; the legs are those a
+cell of orientation theta sees in a constant-volume test (a = (cos 2 theta, -cos 2 theta)) and
+in a drained test with a dilatancy ratio of 1/2 (a = (c^2 - s^2 / 2, s^2 - c^2 / 2)).
+None of these precompressions is a training path's. The DEM cell (``warp_hcell.dem_cell``)
+gives the reference; the ANN is rolled out recurrently with ``increment`` per step. The
+error of a path is max over the path of |S_ann - S_dem| (components nn and tt) divided by
+the path's largest |S_dem| component (the path's largest force times its lever arm):
+a fraction that a model returning zeros fails with 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from training.network import MesoNet
+from warp_hcell.dem_cell import DemCell
+from warp_hcell.mesostructure import Mesostructure
+from warp_hcell.parameters import ContactLaw, DemSettings
+
+PRECOMPRESSION = (1.5e-3, 2e-2)
+"""Isotropic strains of the held-out paths [-] (p ~ 3e5 and ~ 4e6 N/m on the H-cell)."""
+ORIENTATIONS_DEG = (0.0, 30.0, 90.0)
+"""Cell orientations theta of the held-out legs [deg]."""
+EPS_MAX = 0.15
+"""Largest strain component of a leg [-]."""
+RECORD_EVERY = 5e-3
+"""Leg strain between two compared points [-]."""
+
+
+@dataclass(frozen=True)
+class Path:
+    """One held-out path: ``kind`` (constant-volume or drained), ``theta_deg``, ``eps_iso``, leg direction (2,)."""
+
+    kind: str
+    theta_deg: float
+    eps_iso: float
+    direction: np.ndarray
+
+
+def held_out_paths() -> list[Path]:
+    """The constant-volume and drained legs at ``ORIENTATIONS_DEG`` from every ``PRECOMPRESSION``."""
+    paths = []
+    for eps_iso in PRECOMPRESSION:
+        for theta in ORIENTATIONS_DEG:
+            c, s = math.cos(math.radians(theta)), math.sin(math.radians(theta))
+            paths.append(Path("constant-volume", theta, eps_iso, np.array([c * c - s * s, s * s - c * c])))
+            paths.append(Path("drained", theta, eps_iso, np.array([c * c - 0.5 * s * s, s * s - 0.5 * c * c])))
+    return paths
+
+
+def _legs(paths: list[Path]) -> tuple[np.ndarray, int]:
+    direction = np.stack([p.direction for p in paths])
+    return direction / np.abs(direction).max(axis=1, keepdims=True), int(round(EPS_MAX / RECORD_EVERY))
+
+
+def dem_reference(meso: Mesostructure, law: ContactLaw, settings: DemSettings, paths: list[Path]) -> np.ndarray:
+    """DEM moments (S_nn, S_tt) [N m] at every recorded point, shape (n_points + 1, n_paths, 2)."""
+    dem = DemCell(law, float(meso.radius.mean()), mesostructure=meso, settings=settings, threads=1)
+    state = dem.init_state(55.0, len(paths))
+    iso = np.array([[p.eps_iso, p.eps_iso] for p in paths])
+    state, response = dem.step(state, iso)
+    direction, n_points = _legs(paths)
+    out = [response.moment[:, [0, 1], [0, 1]]]
+    for _ in range(n_points):
+        state, response = dem.step(state, RECORD_EVERY * direction)
+        out.append(response.moment[:, [0, 1], [0, 1]])
+    return np.stack(out)
+
+
+def ann_rollout(net: MesoNet, reference_position: np.ndarray, reference_cell_size: np.ndarray, paths: list[Path],
+                increment: float) -> np.ndarray:
+    """ANN moments at the recorded points (as ``dem_reference``), stepping ``increment`` per step."""
+    n = len(paths)
+    free = net.schema.free_dofs.numpy()
+    size = torch.tensor(np.tile(reference_cell_size, (n, 1)), dtype=torch.float64)
+    position = torch.tensor(np.tile(reference_position[free[:, 0], free[:, 1]], (n, 1)), dtype=torch.float64)
+    shear = torch.zeros(n, net.schema.n_pairs, dtype=torch.float64)
+    iso = torch.tensor([[p.eps_iso] for p in paths], dtype=torch.float64)
+    direction, n_points = _legs(paths)
+    direction = torch.from_numpy(direction)
+    steps_per_point = max(1, int(round(RECORD_EVERY / increment)))
+    out = []
+    with torch.no_grad():
+        n_iso = int(math.ceil(float(iso.max()) / increment))
+        for _ in range(n_iso):
+            d = torch.minimum(iso, torch.full_like(iso, increment)).expand(n, 2)
+            iso = iso - d[:, :1]
+            step = net.advance(size, position, shear, d)
+            size, position, shear = step.cell_size, step.free_position, step.shear_force
+        out.append(step.moment[:, [0, 1], [0, 1]].numpy())
+        d = direction * (RECORD_EVERY / steps_per_point)
+        for _ in range(n_points):
+            for _ in range(steps_per_point):
+                step = net.advance(size, position, shear, d)
+                size, position, shear = step.cell_size, step.free_position, step.shear_force
+            out.append(step.moment[:, [0, 1], [0, 1]].numpy())
+    return np.stack(out)
+
+
+def errors(ann: np.ndarray, dem: np.ndarray) -> np.ndarray:
+    """Per path: max |S_ann - S_dem| / max |S_dem| over the path [-], shape (n_paths,)."""
+    scale = np.abs(dem).max(axis=(0, 2))
+    return np.abs(np.nan_to_num(ann, nan=np.inf) - dem).max(axis=(0, 2)) / np.where(scale > 0, scale, np.nan)
+
+
+def rollout_report(net: MesoNet, meso: Mesostructure, law: ContactLaw, settings: DemSettings,
+                   increments=(1e-4,)) -> dict:
+    """Errors of every held-out path at every increment, as a JSON-ready dict."""
+    paths = held_out_paths()
+    dem = dem_reference(meso, law, settings, paths)
+    report = {"metric": "max over the path |S_ann - S_dem| (nn, tt) / max |S_dem| of the path",
+              "eps_max": EPS_MAX, "paths": [{"kind": p.kind, "theta_deg": p.theta_deg, "eps_iso": p.eps_iso} for p in paths]}
+    for increment in increments:
+        err = errors(ann_rollout(net, meso.position, meso.cell_size, paths, increment), dem)
+        report[f"increment_{increment:g}"] = {"per_path": [float(e) for e in err], "max": float(np.max(err)),
+                                              "median": float(np.median(err))}
+    return report
