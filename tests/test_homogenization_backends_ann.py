@@ -84,10 +84,17 @@ def test_step_is_pure_and_batch_invariant_and_round_trips(cell):
 def test_diagnostics_count_the_contact_law_branches(cell):
     state, _ = _loaded(cell)
     _, response = cell.step(state, np.tile([[-3e-3, -3e-3]], (8, 1)))  # strong extension opens contacts
-    assert set(response.diagnostics) == {"n_coulomb_capped", "n_tension_clipped", "n_mechanism"}
-    assert response.diagnostics["n_tension_clipped"] == 8
-    _, quiet = cell.step(state, np.zeros((8, 2)))
-    assert quiet.diagnostics["n_tension_clipped"] == 0
+    assert set(response.diagnostics) == {"n_coulomb_capped", "n_tension_clipped", "n_mechanism", "n_relaxation_scaled"}
+    assert response.diagnostics["n_tension_clipped"] == 8 and response.diagnostics["n_relaxation_scaled"] == 0
+
+
+def test_a_zero_increment_is_a_no_op(cell):
+    """Stress control brackets the increment from zero: the state must not move at zero."""
+    state, _ = _loaded(cell)
+    new, response = cell.step(state, np.zeros((8, 2)))
+    assert all(np.array_equal(a, b) for a, b in zip(new, state))
+    np.testing.assert_array_equal(response.moment, cell.response(state).moment)
+    assert response.diagnostics["n_relaxation_scaled"] == 8
 
 
 def test_tangent_matches_central_finite_differences(cell):

@@ -180,29 +180,30 @@ class Increment:
 
 
 def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Tensor, shear_force: torch.Tensor,
-            d_eps: torch.Tensor, d_free: torch.Tensor) -> Increment:
+            d_eps: torch.Tensor, d_free: torch.Tensor, old: Contacts | None = None) -> Increment:
     """Apply a strain increment and a free-DOF displacement with the contact law (spec sections 3, 4, 12).
 
     Args:
         cell_size, free_position, shear_force: state before the increment (module docstring).
         d_eps: (d_eps_n, d_eps_t) [-], (n, 2), compression positive: l <- l (1 - d_eps).
         d_free: displacement of the free DOFs over the increment [m], (n, n_free).
+        old: ``contacts`` of the state before the increment, when already computed.
 
     Returns:
         The new state with its moment and area. The tangential force grows by kt times the
         relative displacement along the mid-increment tangent, is capped at mu f_n (new normal
         force) with the sign of the trial force, and is reset out of contact.
     """
-    x_old = positions(schema, cell_size, free_position)
+    if old is None:
+        old = contacts(schema, positions(schema, cell_size, free_position))
     new_size = cell_size * (1.0 - d_eps)
     new_free = free_position + d_free
     x_new = positions(schema, new_size, new_free)
-    old = contacts(schema, x_old)
     new = contacts(schema, x_new)
     mid = 0.5 * (old.branch + new.branch)
     mid = mid / torch.linalg.vector_norm(mid, dim=-1, keepdim=True)
     w_mid = torch.stack([-mid[..., 1], mid[..., 0]], dim=-1)
-    relative = branches(schema, x_new) - branches(schema, x_old)
+    relative = new.branch - old.branch
     trial = torch.where(old.contact, shear_force, torch.zeros_like(shear_force)) + schema.kt * torch.sum(relative * w_mid, dim=-1)
     cap = schema.mu * new.normal_force
     shear = torch.where(new.contact, torch.minimum(torch.maximum(trial, -cap), cap), torch.zeros_like(trial))

@@ -49,19 +49,31 @@ PAIR_FEATURES = ("overlap", "contact", "branch_n", "branch_t", "shear", "frictio
 """Features of each active pair."""
 COMPLIANCE_SCALE = 0.5
 """Initial and reference compliance C [1/kn]: a free grain between two contacts."""
+RELAXATION_RAMP = 1e-7
+"""Probe magnitude [-] below which ``advance`` scales the relaxation term by |d_eps| / RELAXATION_RAMP,
+so that a zero increment leaves a state unchanged (stress control brackets the increment
+from zero); 100 times below the smallest probe of the databases, so never active in a run."""
 
 
 def features(schema: CellSchema, active: torch.Tensor, cell_size: torch.Tensor, free_position: torch.Tensor,
              shear_force: torch.Tensor, d_eps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Raw features, probe magnitudes and unbalanced forces of a batch of cells.
+    """Raw features, probe magnitudes and unbalanced forces of a batch of cells (``features_and_contacts``)."""
+    return features_and_contacts(schema, active, cell_size, free_position, shear_force, d_eps)[:3]
+
+
+def features_and_contacts(schema: CellSchema, active: torch.Tensor, cell_size: torch.Tensor, free_position: torch.Tensor,
+                          shear_force: torch.Tensor, d_eps: torch.Tensor):
+    """Raw features, probe magnitudes, unbalanced forces and contacts of a batch of cells.
 
     Args:
-        schema: the mesostructure; active: bool (n_pairs,), pairs the network sees.
+        schema: the mesostructure; active: pairs the network sees, bool (n_pairs,) or their
+            indices (int64, ascending).
         cell_size (n, 2) [m], free_position (n, n_free) [m], shear_force (n, n_pairs) [N],
         d_eps (n, 2) [-]: state before the increment and the probe.
 
     Returns:
-        (features (n, n_features), m = |d_eps| (n, 1), F (n, n_free) [N]).
+        (features (n, n_features), m = |d_eps| (n, 1), F (n, n_free) [N], the
+        ``cell_physics.Contacts`` of the state).
     """
     diameter = schema.diameter
     force_scale = schema.kn * diameter
@@ -72,16 +84,19 @@ def features(schema: CellSchema, active: torch.Tensor, cell_size: torch.Tensor, 
     force = cell_physics.pair_forces(c, shear_force)
     unbalanced = cell_physics.unbalanced(schema, force, int(schema.radius.shape[0]))
     axis_length = cell_size[:, schema.free_dofs[:, 1]]
-    fs = torch.where(c.contact, shear_force, torch.zeros_like(shear_force))[:, active]
-    fn = c.normal_force[:, active]
+    index = torch.nonzero(active)[:, 0] if active.dtype == torch.bool else active
+    contact = c.contact.index_select(1, index)
+    fs = torch.where(contact, shear_force.index_select(1, index), 0.0)
+    fn = c.normal_force.index_select(1, index)
     closed = fn > 0
-    ratio = torch.where(closed, fs / (schema.mu * torch.where(closed, fn, torch.ones_like(fn))), torch.zeros_like(fn))
+    ratio = torch.where(closed, fs / (schema.mu * torch.where(closed, fn, 1.0)), 0.0)
+    normal = c.normal.index_select(1, index)
     pair = torch.stack([
-        torch.clamp(c.overlap[:, active] / diameter, min=-GAP_CLIP), c.contact[:, active].to(fn.dtype),
-        c.normal[:, active, 0], c.normal[:, active, 1], fs / force_scale, ratio], dim=2)
+        torch.clamp(c.overlap.index_select(1, index) / diameter, min=-GAP_CLIP), contact.to(fn.dtype),
+        normal[..., 0], normal[..., 1], fs / force_scale, ratio], dim=2)
     feats = torch.cat([u, cell_size / diameter, free_position / diameter, free_position / axis_length,
                        pair.reshape(pair.shape[0], -1)], dim=1)
-    return feats, m, unbalanced
+    return feats, m, unbalanced, c
 
 
 def n_features(n_free: int, n_active: int) -> int:
@@ -121,6 +136,7 @@ class MesoNet(nn.Module):
         layers.append(last)
         self.mlp = nn.Sequential(*layers)
         self.register_buffer("active", active.clone())
+        self.active_index = torch.nonzero(active)[:, 0]
         self.register_buffer("feature_mean", torch.zeros(n_in, dtype=torch.float64))
         self.register_buffer("feature_std", torch.ones(n_in, dtype=torch.float64))
         self.register_buffer("rate_mean", torch.zeros(self.n_free, dtype=torch.float64))
@@ -134,22 +150,31 @@ class MesoNet(nn.Module):
 
     def raw_features(self, cell_size, free_position, shear_force, d_eps):
         """``features`` with this network's schema and active pairs."""
-        return features(self.schema, self.active, cell_size, free_position, shear_force, d_eps)
+        return features(self.schema, self.active_index, cell_size, free_position, shear_force, d_eps)
 
-    def displacement_from_features(self, feats: torch.Tensor, m: torch.Tensor, unbalanced: torch.Tensor) -> torch.Tensor:
-        """Free-DOF displacement [m], (n, n_free), from raw features, |d_eps| and F (module docstring)."""
+    def displacement_from_features(self, feats: torch.Tensor, m: torch.Tensor, unbalanced: torch.Tensor,
+                                   relaxation: torch.Tensor | float = 1.0) -> torch.Tensor:
+        """Free-DOF displacement [m], (n, n_free), from raw features, |d_eps| and F (module docstring).
+
+        ``relaxation`` (scalar or (n, 1)) multiplies the relaxation term -C F / kn.
+        """
         out = self.mlp((feats - self.feature_mean) / self.feature_std)
         rate = out[:, :self.n_free] * self.rate_std + self.rate_mean
         eye = torch.eye(self.n_free, dtype=out.dtype, device=out.device)
         compliance = COMPLIANCE_SCALE * (eye + out[:, self.n_free:].reshape(-1, self.n_free, self.n_free))
         relax = torch.einsum("nij,nj->ni", compliance, unbalanced) / self.schema.kn
-        return self.schema.diameter * m * rate - relax
+        return self.schema.diameter * m * rate - relaxation * relax
 
     def displacement(self, cell_size, free_position, shear_force, d_eps) -> torch.Tensor:
         """Free-DOF displacement [m], (n, n_free), over the probe ``d_eps`` (n, 2) from the given state."""
         return self.displacement_from_features(*self.raw_features(cell_size, free_position, shear_force, d_eps))
 
     def advance(self, cell_size, free_position, shear_force, d_eps) -> cell_physics.Increment:
-        """One cell-increment: the network moves the free DOFs, the contact law gives the forces."""
-        d_free = self.displacement(cell_size, free_position, shear_force, d_eps)
-        return cell_physics.advance(self.schema, cell_size, free_position, shear_force, d_eps, d_free)
+        """One cell-increment: the network moves the free DOFs, the contact law gives the forces.
+
+        Below |d_eps| = ``RELAXATION_RAMP`` the relaxation is scaled down linearly to zero.
+        """
+        feats, m, unbalanced, old = features_and_contacts(self.schema, self.active_index, cell_size, free_position,
+                                                          shear_force, d_eps)
+        d_free = self.displacement_from_features(feats, m, unbalanced, torch.clamp(m / RELAXATION_RAMP, max=1.0))
+        return cell_physics.advance(self.schema, cell_size, free_position, shear_force, d_eps, d_free, old)

@@ -17,8 +17,10 @@ per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
 No equilibrium is solved and no closed form of a particular cell is used. Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
 ``n_coulomb_capped`` (a trial tangential force exceeded mu f_n), ``n_tension_clipped`` (a
-contact carrying a normal force opened: no tension) and ``n_mechanism`` (cells carrying no
-contact force after the increment).
+contact carrying a normal force opened: no tension), ``n_mechanism`` (cells carrying no
+contact force after the increment) and ``n_relaxation_scaled`` (probes smaller than
+``training.network.RELAXATION_RAMP``, whose relaxation of unbalanced forces is scaled down
+so that a zero increment is a no-op, as stress control assumes).
 
 The model records the mesostructure it was trained on (description and sha256). With
 ``mesostructure=`` the cells start from that file and its hash must equal the model's; without
@@ -38,6 +40,7 @@ import numpy as np
 import torch
 
 from training import cell_physics
+from training.network import RELAXATION_RAMP
 from training.checkpoint import CheckpointError, check_compatible, check_mesostructure, load_checkpoint
 from warp_hcell.cell_model import ArrayStateMixin, CellResponse
 from warp_hcell.learning_state import hcell_observables
@@ -106,6 +109,7 @@ class AnnCell(ArrayStateMixin):
         self.device = torch.device(device)
         self.net.to(self.device)
         self.net.schema = self.net.schema.to(self.device)
+        self.net.active_index = self.net.active_index.to(self.device)
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
 
@@ -163,6 +167,7 @@ class AnnCell(ArrayStateMixin):
             "n_coulomb_capped": float(step.capped.any(dim=1).sum()),
             "n_tension_clipped": float(step.opened.any(dim=1).sum()),
             "n_mechanism": float(np.count_nonzero(np.all(moment == 0.0, axis=(1, 2)))),
+            "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
         }
         return new, CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent)
 
