@@ -43,8 +43,8 @@ bench: venv
 
 reproduce: venv
 	mkdir -p runs
-	$(PY) -m warp_hcell.generate --samples 300000 --seed 0 --clean --out runs/db_3e5.h5 --overwrite
-	$(PY) -m training.train --data runs/db_3e5.h5 --out runs/ann.pt --hidden 64,64,64 --epochs 400 --seed 0 --threads 2 --overwrite
+	$(PY) -m warp_hcell.generate --samples 300000 --seed 0 --out runs/db_3e5.h5 --overwrite
+	$(PY) -m training.train --data runs/db_3e5.h5 --out runs/ann.pt --overwrite
 	$(BIAXIAL) --backend analytical,dem,ann --model runs/ann.pt --alpha0 55 --p0 5.85e6 $(OVERLAY) --out runs/alpha55
 	@echo "Figure: runs/alpha55/cambridge.png"
 

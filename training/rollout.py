@@ -1,9 +1,10 @@
 """Rollout error of the meso-ANN along whole held-out DEM paths of single cells.
 
 A path is an isotropic precompression eps_iso followed by a proportional leg d_eps =
-delta * (a_n, a_t) per increment to |eps_n| or |eps_t| = ``eps_max``; the legs are those a
-cell of orientation theta sees in a constant-volume test (a = (cos 2 theta, -cos 2 theta)) and
-in a drained test with a dilatancy ratio of 1/2 (a = (c^2 - s^2 / 2, s^2 - c^2 / 2)).
+delta * (a_n, a_t) per increment of a macro axial strain delta, to eps1 = ``EPS_MAX``; the
+legs are those a cell of orientation theta sees in a constant-volume test
+(a = (cos 2 theta, -cos 2 theta)) and in a drained test with a dilatancy ratio of 1/2
+(a = (c^2 - s^2 / 2, s^2 - c^2 / 2)).
 None of these precompressions is a training path's. The DEM cell (``warp_hcell.dem_cell``)
 gives the reference; the ANN is rolled out recurrently with ``increment`` per step. The
 error of a path is max over the path of |S_ann - S_dem| (components nn and tt) divided by
@@ -29,9 +30,9 @@ PRECOMPRESSION = (1.5e-3, 2e-2)
 ORIENTATIONS_DEG = (0.0, 30.0, 90.0)
 """Cell orientations theta of the held-out legs [deg]."""
 EPS_MAX = 0.15
-"""Largest strain component of a leg [-]."""
+"""Macro axial strain eps1 at the end of a leg [-]."""
 RECORD_EVERY = 5e-3
-"""Leg strain between two compared points [-]."""
+"""Macro axial strain between two compared points [-]."""
 
 
 @dataclass(frozen=True)
@@ -56,8 +57,8 @@ def held_out_paths() -> list[Path]:
 
 
 def _legs(paths: list[Path]) -> tuple[np.ndarray, int]:
-    direction = np.stack([p.direction for p in paths])
-    return direction / np.abs(direction).max(axis=1, keepdims=True), int(round(EPS_MAX / RECORD_EVERY))
+    """Cell strain per unit macro strain eps1 of every leg (n_paths, 2), and the number of recorded points."""
+    return np.stack([p.direction for p in paths]), int(round(EPS_MAX / RECORD_EVERY))
 
 
 def dem_reference(meso: Mesostructure, law: ContactLaw, settings: DemSettings, paths: list[Path]) -> np.ndarray:

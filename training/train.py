@@ -53,7 +53,7 @@ from training.dataset import (
 )
 from training.network import DEFAULT_HIDDEN, MesoNet
 from training.rollout import rollout_report
-from warp_hcell.mesostructure import Mesostructure
+from warp_hcell.mesostructure import from_description
 from warp_hcell.parameters import ContactLaw, DemSettings
 from warp_hcell.provenance import git_revision
 
@@ -82,8 +82,9 @@ class TrainConfig:
     """Fraction of the paths held out for the test set [-]."""
     seed: int = 0
     """Seed of the split, the initial weights and the batch order."""
-    threads: int = 2
-    """torch CPU threads used for training [-]."""
+    threads: int = 1
+    """torch CPU threads used for training [-] (on a shared 2-core machine two threads ran
+    30 times slower than one: OpenMP threads spin while the other core is busy)."""
     device: str = "cpu"
     """torch device of the training."""
     rollout: bool = True
@@ -217,14 +218,6 @@ def evaluate(net: MesoNet, db: Database, index: np.ndarray) -> dict[str, dict[st
     }
 
 
-def mesostructure_of(db: Database) -> Mesostructure:
-    """The database's cell (its schema group) as a ``Mesostructure`` for the DEM."""
-    s = db.schema_arrays
-    return Mesostructure(name="database schema", radius=s["radius"], position=s["reference_position"],
-                         driven=s["driven"].astype(bool), pairs=s["pairs"], outer=s["outer"],
-                         cell_size=s["reference_cell_size"])
-
-
 def _plot_learning_curve(path: Path, history: dict) -> None:
     import matplotlib.pyplot as plt
 
@@ -300,7 +293,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     result = fit(db, config, progress=True)
     metrics = {name: evaluate(result.net, db, getattr(result.split, name)) for name in ("train", "val", "test")}
     law = ContactLaw(kn=db.kn, kt_over_kn=db.kt_over_kn, phi_g_deg=db.phi_g_deg)
-    rollout = (rollout_report(result.net, mesostructure_of(db), law, DemSettings(contact_tolerance=db.contact_tolerance))
+    rollout = (rollout_report(result.net, from_description(db.mesostructure), law, DemSettings(contact_tolerance=db.contact_tolerance))
                if config.rollout else None)
     split = result.split
     metadata = {
