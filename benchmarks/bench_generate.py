@@ -1,69 +1,76 @@
-"""python benchmarks/bench_generate.py [--samples 4000] [--threads 2]
+"""python benchmarks/bench_generate.py [--samples 300000] [--mesostructure FILE] [--out-dir DIR]
 
-Samples per second of the database generator (``warp_hcell.generate``) with the DEM backend
-stepped by the Warp kernels and by the numpy engine of the same step: the same generator
-code, the same small exploration tree (3 alpha0 x 3 precompressions x 8 directions, legs
-of path length 0.05), the same seed and probes. Prints, per engine, the exploration time,
-the probing time (all probes of a chunk in one batch), samples/s of the probing and of the
-whole run, the ratios, and the largest difference between the two engines' outputs
-(they run the same algorithm; the numpy engine is the reference). The load average is
-printed with the numbers: timings on a shared machine are noisy.
+Wall time of the database generator (``warp_hcell.generate.generate``, the code path of
+``python -m warp_hcell.generate``) on the same mesostructure, seed and settings, run side by
+side in one process with several executions (``warp_hcell.execution``): in process with 2
+Warp threads (``--workers 1``), a Dask LocalCluster of 1 and of 2 single-threaded workers
+(``--workers 2`` uses the latter), and the standard-library process pool of 2 workers that
+ran the chunks before Dask. Prints per execution the exploration time, the probing-and-writing
+time, the total, samples/s, the speed-up over the first execution, and whether the database
+files are byte-identical (they must be). The load average is printed with the numbers:
+timings on a shared machine are noisy.
 """
 
 from __future__ import annotations
 
 import argparse
-import functools
+import hashlib
 import os
+import tempfile
 import time
-
-import numpy as np
+from pathlib import Path
 
 from warp_hcell import generate
-from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings
+from warp_hcell.execution import DaskExecution, InProcess, ProcessPool
+from warp_hcell.mesostructure import h_cell, load_mesostructure
+from warp_hcell.parameters import CellDefaults, DatabaseSettings
+
+EXECUTIONS = (("in process", 2, lambda: InProcess()), ("dask, 1 worker", 1, lambda: DaskExecution(workers=1)),
+              ("dask, 2 workers", 1, lambda: DaskExecution(workers=2)), ("process pool, 2", 1, lambda: ProcessPool(2)))
+"""(label, Warp threads per process, execution factory) of each timed run."""
 
 
-def run(engine: str, settings: DatabaseSettings, threads: int) -> dict:
-    """Explore and probe with one DEM engine; returns timings [s] and the samples."""
-    from warp_hcell.dem_cell import DemCell
-
-    cell = functools.partial(DemCell, ContactLaw(), CellDefaults.radius, engine=engine, threads=threads)()
-    start = time.perf_counter()
-    states = generate.explore(cell, settings)
-    explored = time.perf_counter()
-    pool = cell.state_from_arrays(generate.backend_arrays(states))
-    chunks = [generate.compute_chunk(cell, pool, states, settings, 0, c) for c in range(generate.n_chunks(settings))]
-    probed = time.perf_counter()
-    outputs = np.concatenate([chunk["outputs"] for chunk in chunks])
-    return {"explore": explored - start, "probe": probed - explored, "outputs": outputs,
-            "n_states": states["path_id"].size}
+def timed_run(meso, starts, settings: DatabaseSettings, out: Path, make, threads: int) -> dict:
+    """Generate ``out`` from scratch; returns the exploration and probing(+writing) times [s]
+    (cluster start-up included in the exploration time)."""
+    out.unlink(missing_ok=True)
+    t0 = time.perf_counter()
+    with make() as execution:
+        generate.generate(meso, settings, out, seed=0, starts=starts, execution=execution, threads=threads,
+                          max_chunks=0, discard_partial=True)  # exploration only (checkpointed in the sidecar)
+        t1 = time.perf_counter()
+        generate.generate(meso, settings, out, seed=0, starts=starts, execution=execution, threads=threads)
+    t2 = time.perf_counter()
+    return {"explore": t1 - t0, "probe": t2 - t1, "total": t2 - t0, "sha256": hashlib.sha256(out.read_bytes()).hexdigest()}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[2],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("--samples", type=int, default=4000, help="probes per engine")
-    parser.add_argument("--chunk-size", type=int, default=2000, help="probes per batch")
-    parser.add_argument("--threads", type=int, default=2, help="Warp CPU threads")
+    parser.add_argument("--samples", type=int, default=300_000, help="samples per run")
+    parser.add_argument("--mesostructure", type=Path, default=None, help="mesostructure file; unset: the H-cell")
+    parser.add_argument("--out-dir", type=Path, default=None, help="folder for the databases; unset: a temporary one")
     args = parser.parse_args()
-    settings = DatabaseSettings(samples=args.samples, chunk_size=args.chunk_size, n_alpha0=2,
-                                alpha0_focus_deg=(55.0,), precompression=(0.0, 1e-3, 1e-2), n_directions=8,
-                                sample_spacing=1e-2, leg_length=0.05, leg_refinement=1)
-    results = {engine: run(engine, settings, args.threads) for engine in ("warp", "numpy")}
-    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; {args.samples} samples, "
-          f"{results['warp']['n_states']} explored states, Warp threads = {args.threads}")
-    print(f"{'engine':8s} {'explore [s]':>12s} {'probe [s]':>10s} {'probe samples/s':>16s} {'total samples/s':>16s}")
-    for engine, r in results.items():
-        total = r["explore"] + r["probe"]
-        print(f"{engine:8s} {r['explore']:12.2f} {r['probe']:10.2f} {args.samples / r['probe']:16.0f} "
-              f"{args.samples / total:16.0f}")
-    warp, ref = results["warp"], results["numpy"]
-    print(f"speed-up warp / numpy: exploration {ref['explore'] / warp['explore']:.1f}x, "
-          f"probing {ref['probe'] / warp['probe']:.1f}x, "
-          f"total {(ref['explore'] + ref['probe']) / (warp['explore'] + warp['probe']):.1f}x")
-    scale = np.abs(ref["outputs"]).max(axis=0)
-    print(f"largest |warp - numpy| / max|numpy| over outputs (alpha, N1, N2, T1): "
-          f"{np.max(np.abs(warp['outputs'] - ref['outputs']) / scale):.2e}")
+    settings = DatabaseSettings(samples=args.samples)
+    if args.mesostructure is None:
+        meso, starts = h_cell(CellDefaults.alpha0_deg, CellDefaults.radius), generate.h_cell_starts(settings)
+    else:
+        meso = load_mesostructure(args.mesostructure)
+        starts = [meso]
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = args.out_dir or Path(tmp)
+        results = [(label, threads, timed_run(meso, starts, settings, folder / f"bench_{i}.h5", make, threads))
+                   for i, (label, threads, make) in enumerate(EXECUTIONS)]
+        print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; {meso.name}; "
+              f"{args.samples} samples, {len(starts)} start cells")
+        print(f"{'execution':16s} {'threads':>7s} {'explore [s]':>11s} {'probe+write [s]':>15s} {'total [s]':>10s} "
+              f"{'samples/s':>10s} {'speed-up':>9s}")
+        first = results[0][2]["total"]
+        for label, threads, r in results:
+            print(f"{label:16s} {threads:7d} {r['explore']:11.1f} {r['probe']:15.1f} {r['total']:10.1f} "
+                  f"{args.samples / r['total']:10.0f} {first / r['total']:9.2f}")
+        same = all(r["sha256"] == results[0][2]["sha256"] for *_, r in results)
+        print(f"databases byte-identical across executions: {same}")
 
 
 if __name__ == "__main__":

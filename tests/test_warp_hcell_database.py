@@ -1,64 +1,77 @@
-"""Tests of warp_hcell.database: column mapping, units, byte-stable writing, reading, errors."""
+"""Tests of warp_hcell.database (format version 2): schema datasets, attrs, byte-stable writing,
+reading, version and hash checks."""
+
+import json
 
 import h5py
 import numpy as np
 import pytest
 
 from warp_hcell import database
+from warp_hcell.mesostructure import describe, description_sha256, h_cell
 
 
-def fake_samples(n=5, seed=0):
+def fake_database(n=5, seed=0):
+    meso = h_cell()
+    schema = meso.schema()
     rng = np.random.default_rng(seed)
-    pre, post = rng.random((n, 13)), rng.random((n, 13))
-    samples = database.sample_arrays(rng.random((n, 2)), pre, post)
-    samples.update(path_id=np.arange(n), probe_id=np.zeros(n, np.int64), alpha0_deg=np.full(n, 55.0),
-                   state_index=np.arange(n), converged=np.ones(n, bool), valid=np.ones(n, bool))
-    states = {"observables": pre, "path_id": np.arange(n), "backend/position": rng.random((n, 6, 2))}
-    return samples, states
-
-
-def test_state_table_columns_and_flags():
-    n = 3
-    observables = {name: np.full(n, float(i)) for i, name in enumerate(database.STATE_FEATURES)}
-    observables["closed1"] = np.array([True, False, True])
-    observables["extra"] = np.zeros(n)
-    table = database.state_table(observables)
-    assert table.shape == (n, 13) and table.dtype == np.float64
-    np.testing.assert_array_equal(table[:, 0], 0.0)
-    np.testing.assert_array_equal(table[:, database.STATE_FEATURES.index("closed1")], [1.0, 0.0, 1.0])
-
-
-def test_sample_arrays_take_pre_inputs_and_post_outputs():
-    samples, _ = fake_samples()
-    col = {name: i for i, name in enumerate(database.STATE_FEATURES)}
-    np.testing.assert_array_equal(samples["inputs"][:, 2], samples["pre_state"][:, col["alpha_deg"]])
-    np.testing.assert_array_equal(samples["inputs"][:, 7], samples["pre_state"][:, col["l2"]])
-    np.testing.assert_array_equal(samples["outputs"][:, 3], samples["post_state"][:, col["T1"]])
-    assert database.INPUT_FEATURES[:2] == ("d_eps_n", "d_eps_t")
-
-
-def test_round_trip_attrs_and_units(tmp_path):
-    samples, states = fake_samples()
+    data = database.schema_datasets(schema)
+    for group in database.STATE_GROUPS:
+        for name, feature in schema.features.items():
+            data[f"{group}/{name}"] = rng.random((n, len(feature.names)))
+    data.update(d_eps=rng.random((n, 2)), mechanism=np.zeros(n, bool), perturbed=np.ones(n, bool),
+                converged=np.ones(n, bool), state_id=np.arange(n), path_id=np.arange(n), substeps=np.arange(n),
+                valid=np.ones(n, bool))
+    text = describe(meso)
     attrs = {"format": database.FORMAT, "format_version": database.FORMAT_VERSION, "seed": 7,
-             "generator": {"samples": 5}}
-    database.write_database(tmp_path / "a.h5", samples, states, attrs)
-    read, read_states, read_attrs = database.read_database(tmp_path / "a.h5")
-    for name in database.SAMPLE_DATASETS:
-        np.testing.assert_array_equal(read[name], samples[name])
-    np.testing.assert_array_equal(read_states["backend/position"], states["backend/position"])
-    assert read_attrs["seed"] == 7 and read_attrs["generator"] == '{"samples": 5}'
+             "generator": {"samples": n}, "mesostructure": text, "mesostructure_sha256": description_sha256(text)}
+    return data, attrs, database.dataset_attrs(schema, is_h_cell=False), meso
+
+
+def test_round_trip_attrs_feature_names_and_units(tmp_path):
+    data, attrs, attrs_of, meso = fake_database()
+    database.write_database(tmp_path / "a.h5", data, attrs, attrs_of)
+    read, read_attrs = database.read_database(tmp_path / "a.h5")
+    assert set(read) == set(data)
+    for name, value in data.items():
+        np.testing.assert_array_equal(read[name], value)
+    assert read_attrs["seed"] == 7 and json.loads(read_attrs["generator"]) == {"samples": 5}
+    assert describe(database.mesostructure_of(read_attrs)) == describe(meso)
     with h5py.File(tmp_path / "a.h5") as f:
-        assert list(f["inputs"].attrs["feature_names"]) == list(database.INPUT_FEATURES)
-        assert list(f["inputs"].attrs["units"]) == ["-", "-", "deg", "N", "N", "N", "m", "m"]
-        assert list(f["outputs"].attrs["units"]) == ["deg", "N", "N", "N"]
-        assert f["alpha0_deg"].attrs["units"] == "deg" and f["valid"].attrs["description"]
+        assert list(f["before/free_position"].attrs["feature_names"]) == ["x_n2", "x_n3", "x_n5", "x_n6"]
+        assert f["after/shear_force"].attrs["units"] == "N" and f["after/shear_force"].attrs["role"] == "history"
+        assert f["before/free_position"].attrs["role"] == "learned"
+        assert list(f["d_eps"].attrs["feature_names"]) == ["d_eps_n", "d_eps_t"]
+        features = json.loads(f["schema"].attrs["features"])
+        assert features["normal_force"]["role"] == "derived" and features["cell_size"]["names"] == ["l1", "l2"]
+        assert "units" in f["schema"].attrs and f["valid"].attrs["description"]
     # no timestamps: the same content gives the same bytes
-    database.write_database(tmp_path / "b.h5", samples, states, attrs)
+    database.write_database(tmp_path / "b.h5", data, attrs, attrs_of)
     assert (tmp_path / "a.h5").read_bytes() == (tmp_path / "b.h5").read_bytes()
 
 
-def test_read_rejects_other_files(tmp_path):
-    samples, states = fake_samples()
-    database.write_database(tmp_path / "old.h5", samples, states, {"format": database.FORMAT, "format_version": 0})
-    with pytest.raises(ValueError, match="is not a meso-hmodel-database file of format_version 1"):
+def test_read_rejects_other_versions_and_files(tmp_path):
+    data, attrs, attrs_of, _ = fake_database()
+    database.write_database(tmp_path / "old.h5", data, {**attrs, "format_version": 1}, attrs_of)
+    with pytest.raises(ValueError, match="is not a meso-hmodel-database file of format_version 2"):
         database.read_database(tmp_path / "old.h5")
+    (tmp_path / "text.h5").write_text("not hdf5")
+    with pytest.raises(ValueError, match="not a readable HDF5 file"):
+        database.read_database(tmp_path / "text.h5")
+
+
+def test_tampered_mesostructure_is_refused():
+    _, attrs, _, _ = fake_database()
+    attrs["mesostructure"] = attrs["mesostructure"].replace('"radius":[0.5', '"radius":[0.6')
+    with pytest.raises(ValueError, match="does not match"):
+        database.mesostructure_of(attrs)
+
+
+def test_write_is_atomic(tmp_path, monkeypatch):
+    data, attrs, attrs_of, _ = fake_database()
+    target = tmp_path / "db.h5"
+    target.write_bytes(b"precious")
+    data["bad"] = np.array([object()], dtype=object)  # h5py cannot store it: the write fails midway
+    with pytest.raises(TypeError):
+        database.write_database(target, data, attrs, attrs_of)
+    assert target.read_bytes() == b"precious" and [p.name for p in tmp_path.iterdir()] == ["db.h5"]

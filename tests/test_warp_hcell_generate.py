@@ -1,151 +1,225 @@
-"""Tests of warp_hcell.generate: exploration, probes, re-check against the backend, determinism,
-resume, the command line's errors, convergence flags. About 2e3 samples per run."""
+"""Tests of warp_hcell.generate (and its jobs exploration / probing): the generic database of any
+mesostructure, re-checked against the DEM, determinism, resume, the command line. About 2e3
+samples per run."""
 
-import functools
+import errno
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
 import warnings
+from dataclasses import replace
+from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 
-from homogenization.backends import make_cell_model
-from warp_hcell import database, generate
+from warp_hcell import database, execution, exploration, generate, probing, shards
+from warp_hcell.dem_cell import DemCell
+from warp_hcell.learning_state import evaluate, free_coordinates
+from warp_hcell.mesostructure import describe, description_sha256, h_cell, load_mesostructure
 from warp_hcell.parameters import ContactLaw, DatabaseSettings, DemSettings
 
+DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
 SMALL = DatabaseSettings(samples=2000, chunk_size=500, n_alpha0=2, alpha0_focus_deg=(55.0,),
                          precompression=(0.0, 1e-3, 1e-2), n_directions=8, sample_spacing=1e-2, leg_length=0.05,
                          leg_refinement=1)
-META = {"backend": "analytical", "kn": ContactLaw().kn, "kt": ContactLaw().kt, "phi_g_deg": 30.0, "radius": 0.5}
-ANALYTICAL = functools.partial(make_cell_model, "analytical")
+LATERAL = load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")
+FINE = replace(load_mesostructure(DATA / "h_cell_fine_grain.toml"), name="fine grain, no H-cell labels", pair_type=None)
 
 
 @pytest.fixture(autouse=True)
 def fixed_revision(monkeypatch):
-    """Colleagues commit while tests run: pin the recorded git revision so files compare by bytes."""
-    monkeypatch.setattr(generate, "git_revision", lambda: "pinned-for-tests")
+    """Colleagues commit while tests run: pin the recorded provenance so files compare by bytes."""
+    monkeypatch.setattr(generate, "provenance", lambda: {"git_revision": "pinned-for-tests"})
 
 
-def run(tmp_path, name="db.h5", *, factory=ANALYTICAL, settings=SMALL, **kwargs):
+def run(tmp_path, name="db.h5", *, meso=LATERAL, settings=SMALL, **kwargs):
     out = tmp_path / name
     kwargs.setdefault("seed", 3)
-    kwargs.setdefault("metadata_attrs", META)
-    return generate.generate(factory, settings, out, **kwargs), out
+    return generate.generate(meso, settings, out, **kwargs), out
 
 
 @pytest.fixture(scope="module")
-def dem_db(tmp_path_factory):
-    """A small DEM database, cleaned, and the backend that made it."""
-    factory = functools.partial(make_cell_model, "dem", threads=2)
-    written, out = run(tmp_path_factory.mktemp("dem"), factory=factory, clean=True,
-                       metadata_attrs={**META, "backend": "dem"})
-    return database.read_database(written), factory()
+def h_db(tmp_path_factory):
+    """A small H-cell database explored from H-cells at 30, 55 and 89 deg, cleaned."""
+    out = tmp_path_factory.mktemp("h") / "h.h5"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(generate, "provenance", lambda: {"git_revision": "pinned-for-tests"})
+        generate.generate(h_cell(), SMALL, out, seed=3, starts=generate.h_cell_starts(SMALL), clean=True)
+    return database.read_database(out)
+
+
+@pytest.fixture(scope="module")
+def fine_db(tmp_path_factory):
+    """A small database of the cell with a free fine grain in the pore (no H-cell observables used)."""
+    out = tmp_path_factory.mktemp("fine") / "fine.h5"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(generate, "provenance", lambda: {"git_revision": "pinned-for-tests"})
+        generate.generate(FINE, SMALL, out, seed=3)
+    return database.read_database(out)
 
 
 def test_leg_limits_follow_direction():
-    directions = generate.leg_directions(SMALL)
-    arc = generate.leg_arc(SMALL)
-    steps = generate.leg_steps(SMALL, directions, arc)
+    directions = exploration.leg_directions(SMALL)
+    arc = exploration.leg_arc(SMALL)
+    steps = exploration.leg_steps(SMALL, directions, arc)
     np.testing.assert_allclose(arc, [5e-3, 1.5e-2, 2.5e-2, 3.5e-2, 4.5e-2])
     # psi = 45 deg (isotropic compression) is cut by the volumetric limit, psi = 135 deg is not
     assert steps[1] == 4  # 0.035 * sqrt(2) <= 0.05 < 0.045 * sqrt(2)
     assert steps[3] == arc.size
-    cut = DatabaseSettings(leg_volumetric=0.01, leg_length=0.05, sample_spacing=1e-2, leg_refinement=0)
-    assert generate.leg_steps(cut, directions, generate.leg_arc(cut))[1] == 0
 
 
-def test_stop_rules():
-    col = {name: i for i, name in enumerate(database.STATE_FEATURES)}
-    table = np.ones((5, 13))
-    table[:, col["alpha_deg"]] = [55.0, 29.9, 90.1, 55.0, 55.0]
-    table[3, [col["closed1"], col["closed2"]]] = 0.0
-    converged = np.array([True, True, True, True, False])
-    np.testing.assert_array_equal(generate.admissible(table, converged), [True, False, False, False, False])
-    table[0, col["N1"]] = np.nan
-    assert not generate.admissible(table, converged)[0]
+def test_generic_stop_rules():
+    meso = h_cell()
+    schema = meso.schema()
+    law, tol = ContactLaw(), DemSettings().contact_tolerance
+    n = 5
+    position = np.repeat(meso.position[None], n, axis=0)
+    arrays = {"position": position, "velocity": np.zeros_like(position), "shear_force": np.zeros((n, 15)),
+              "cell_size": np.repeat(meso.cell_size[None], n, axis=0), "converged": np.array([1, 0, 1, 1, 1])}
+    arrays["position"][2, 1, 0] = np.nan
+    arrays["position"][3, 1, 0] -= 0.2 * 1.0  # grain 2 into grain 3: overlap 0.2 of r_2 + r_3
+    eps = np.zeros((n, 2))
+    eps[4] = (0.6, 0.0)
+    free_run = np.array([0.0, 0.0, 0.0, 0.0, 0.05])
+    masks = exploration.stop_masks(schema, arrays, eps, free_run, SMALL, law, tol)
+    np.testing.assert_array_equal(masks["unconverged"], [0, 1, 0, 0, 0])
+    np.testing.assert_array_equal(masks["non_finite"], [0, 0, 1, 0, 0])
+    np.testing.assert_array_equal(masks["overlap"], [0, 0, 0, 1, 0])
+    np.testing.assert_array_equal(masks["cell_strain"], [0, 0, 0, 0, 1])
+    np.testing.assert_array_equal(masks["stress_free"], [0, 0, 0, 0, 1])
+    # the touching reference cell carries no force; the overlapped one does
+    np.testing.assert_array_equal(exploration.stress_free(schema, arrays, law, tol)[[0, 3]], [True, False])
 
 
-def test_probe_distribution():
+def test_probe_and_perturbation_distributions():
     settings = DatabaseSettings(chunk_size=20_000)
-    d_eps = generate.probe_increments(settings, 0, 0, 20_000)
+    d_eps = probing.probe_increments(settings, 0, 0, 20_000)
     magnitude = np.linalg.norm(d_eps, axis=1)
     assert magnitude.min() >= 1e-6 and magnitude.max() <= 1e-3
     focus = np.mean((magnitude >= 1e-5) & (magnitude <= 1e-4))
     assert 0.6 < focus < 0.7  # half the probes, plus a third of the wide log-uniform half
-    quadrant = np.histogram(np.arctan2(d_eps[:, 1], d_eps[:, 0]), bins=4, range=(-np.pi, np.pi))[0]
-    assert quadrant.min() > 0.23 * d_eps.shape[0]
-    np.testing.assert_array_equal(d_eps, generate.probe_increments(settings, 0, 0, 20_000))
-    assert not np.array_equal(d_eps, generate.probe_increments(settings, 0, 1, 20_000))
+    np.testing.assert_array_equal(d_eps, probing.probe_increments(settings, 0, 0, 20_000))
+    assert not np.array_equal(d_eps, probing.probe_increments(settings, 0, 1, 20_000))
+    perturbed, zero, displacement = probing.perturbations(settings, 0, 0, 20_000, 4, 1.0)
+    assert 0.24 < perturbed.mean() < 0.26 and 0.28 < zero[perturbed].mean() < 0.32 and not zero[~perturbed].any()
+    assert not displacement[~perturbed].any()
+    rms = np.sqrt((displacement[perturbed] ** 2).mean(axis=1))
+    assert 5e-7 < np.median(rms) < 1e-4 and rms.max() < 5e-4 * 5
 
 
-def test_exploration_covers_homogenisation_paths():
-    states = generate.explore(ANALYTICAL(), SMALL)
-    obs = states["observables"]
-    alpha = obs[:, database.STATE_FEATURES.index("alpha_deg")]
-    assert np.all((alpha > 30.0 - 1e-9) & (alpha <= 90.0))
-    assert set(np.unique(states["alpha0_deg"])) == {30.0, 55.0, 89.0}
-    # constant-volume directions from the precompressed states are explored
-    for psi in (135.0, 315.0):
-        leg = (states["direction_deg"] == psi) & (states["precompression"] == 1e-2) & (states["alpha0_deg"] == 55.0)
+def test_exploration_is_generic_and_covers_the_shear_directions(h_db):
+    data, attrs = h_db
+    assert set(np.unique(data["states/alpha0_deg"]).round(6)) == {30.0, 55.0, 89.0}
+    for psi in (135.0, 315.0):  # constant-volume directions from the precompressed states
+        leg = ((data["states/direction_deg"] == psi) & (data["states/precompression"] == 1e-2)
+               & (np.isclose(data["states/alpha0_deg"], 55.0)))
         assert leg.sum() >= 3
-    # every leg starts from a sampled isotropic state of its alpha0
-    iso = np.isnan(states["direction_deg"])
-    np.testing.assert_array_equal(states["eps_local"][iso, 0], states["eps_local"][iso, 1])
-    assert np.all(np.isin(states["precompression"][~iso], states["precompression"][iso]))
+    iso = np.isnan(data["states/direction_deg"])
+    np.testing.assert_array_equal(data["states/eps"][iso, 0], data["states/eps"][iso, 1])
+    stops = json.loads(attrs["exploration_stops"])
+    assert set(stops) == set(exploration.STOP_RULES) and stops["stress_free"] > 0
 
 
-def test_dem_samples_recheck_against_backend(dem_db):
-    (samples, states, attrs), cell = dem_db
-    assert attrs["backend"] == "dem" and samples["inputs"].shape == (2000, 8)
-    backend = {name[len("backend/"):]: value for name, value in states.items() if name.startswith("backend/")}
-    rows = np.array([0, 17, 777, 1999])
-    index = samples["state_index"][rows]
-    restored = cell.state_from_arrays({name: value[index] for name, value in backend.items()})
-    pre = database.state_table(cell.observables(restored))
-    np.testing.assert_array_equal(pre, samples["pre_state"][rows])
-    new, _ = cell.step(restored, samples["inputs"][rows, :2])
-    np.testing.assert_array_equal(database.state_table(cell.observables(new)), samples["post_state"][rows])
+def test_file_describes_its_mesostructure_and_schema(h_db, fine_db):
+    for (data, attrs), meso in ((h_db, h_cell()), (fine_db, FINE)):
+        assert attrs["format_version"] == 2 and attrs["mesostructure"] == describe(meso)
+        assert attrs["mesostructure_sha256"] == description_sha256(describe(meso))
+        assert describe(database.mesostructure_of(attrs)) == describe(meso)
+        schema = meso.schema()
+        np.testing.assert_array_equal(data["schema/free_dofs"], schema.free_dofs)
+        n = attrs["n_samples"]
+        for group in database.STATE_GROUPS:
+            assert data[f"{group}/free_position"].shape == (n, schema.n_free)
+            assert data[f"{group}/shear_force"].shape == (n, schema.n_pairs)
+    assert FINE.schema().n_free == 6 and not fine_db[1]["is_h_cell"]
+    assert not any(name.startswith("hcell/") or name == "alpha0_deg" for name in fine_db[0])
+    assert h_db[1]["is_h_cell"] and "hcell/before_N1" in h_db[0]
 
 
-def test_sample_columns_are_consistent(dem_db):
-    (samples, states, _), _ = dem_db
-    col = {name: i for i, name in enumerate(database.STATE_FEATURES)}
-    pre, post, d_eps = samples["pre_state"], samples["post_state"], samples["inputs"][:, :2]
-    np.testing.assert_array_equal(samples["inputs"][:, 2:], pre[:, [col[n] for n in database.INPUT_FEATURES[2:]]])
-    np.testing.assert_array_equal(samples["outputs"], post[:, [col[n] for n in database.OUTPUT_FEATURES]])
-    np.testing.assert_array_equal(post[:, col["l1"]], pre[:, col["l1"]] * (1.0 - d_eps[:, 0]))
-    np.testing.assert_array_equal(samples["path_id"], states["path_id"][samples["state_index"]])
-    np.testing.assert_array_equal(samples["alpha0_deg"], states["alpha0_deg"][samples["state_index"]])
-    per_state = np.bincount(samples["state_index"])
-    assert per_state[per_state > 0].max() - per_state[per_state > 0].min() <= 1
+@pytest.mark.parametrize("which", ["h", "fine"])
+def test_samples_recheck_against_the_dem(h_db, fine_db, which):
+    """The stored before-state, the probe and the schema give the stored after-state exactly."""
+    (data, attrs), meso = (h_db, h_cell()) if which == "h" else (fine_db, FINE)
+    schema = meso.schema()
+    law, tol = ContactLaw(), DemSettings().contact_tolerance
+    perturbed = np.flatnonzero(data["perturbed"])
+    rows = np.concatenate([np.array([0, 17, 777, 1999]), perturbed[:3]])
+    context = probing.ProbeContext(DemCell(law, 0.5, mesostructure=meso), meso, schema, {}, law, tol)
+    before = evaluate(schema, data["before/cell_size"][rows], data["before/free_position"][rows],
+                      data["before/shear_force"][rows], law, tol)
+    np.testing.assert_array_equal(before["normal_force"], data["before/normal_force"][rows])
+    np.testing.assert_array_equal(before["unbalanced"], data["before/unbalanced"][rows])
+    cell = context.cell_model
+    new, response = cell.step(cell.state_from_arrays(probing.canonical_dem_arrays(
+        context, before, data["before/cell_size"][rows])), data["d_eps"][rows])
+    arrays = cell.state_to_arrays(new)
+    np.testing.assert_array_equal(free_coordinates(schema, arrays["position"]), data["after/free_position"][rows])
+    np.testing.assert_array_equal(arrays["cell_size"], data["after/cell_size"][rows])
+    # the derived after-state is the DEM's own: moment, normal forces (to rounding of x_ref l / l_ref)
+    np.testing.assert_allclose(data["after/moment"][rows].reshape(-1, 2, 2), response.moment, rtol=1e-9,
+                               atol=1e-6 * np.abs(response.moment).max())
+    np.testing.assert_array_equal(data["after/contact"][rows], arrays["contact"])
 
 
-def test_every_sample_converged_or_flagged(dem_db):
-    (samples, _, attrs), _ = dem_db
-    assert attrs["cleaned"] and attrs["n_unconverged"] == np.count_nonzero(~samples["converged"])
-    assert not np.any(samples["valid"] & ~samples["converged"])
-    assert attrs["n_valid"] == np.count_nonzero(samples["valid"]) > 1900
+def test_equilibrium_perturbed_mechanism_samples_are_kept_and_marked(h_db):
+    data, attrs = h_db
+    n = attrs["n_samples"]
+    perturbed, mechanism = data["perturbed"], data["mechanism"]
+    fmax = data["before/normal_force"].max(axis=1)
+    unbalanced = np.abs(data["before/unbalanced"]).max(axis=1)
+    loaded = fmax > 1.0
+    assert np.all(unbalanced[~perturbed & loaded] <= 1.01e-6 * fmax[~perturbed & loaded])  # relaxed states
+    assert np.median(unbalanced[perturbed & loaded] / fmax[perturbed & loaded]) > 1e-4  # unbalanced states
+    assert np.all(np.abs(data["after/unbalanced"]).max(axis=1)[data["converged"]]
+                  <= 1.01e-6 * np.maximum(data["after/normal_force"].max(axis=1), 0.2)[data["converged"]])
+    zero = np.all(data["d_eps"] == 0.0, axis=1)
+    assert zero.any() and not np.any(zero & ~perturbed) and attrs["n_zero_probes"] == zero.sum()
+    assert 0.2 * n < perturbed.sum() < 0.3 * n and attrs["n_perturbed"] == perturbed.sum()
+    assert mechanism.any() and np.all(fmax[mechanism] <= 0.2) and attrs["n_mechanism"] == mechanism.sum()
+    assert attrs["cleaned"] and not np.any(data["valid"] & ~data["converged"]) and data["valid"][mechanism].all()
+
+
+def test_hcell_observables_follow_the_generic_state(h_db):
+    data, _ = h_db
+    for group in database.STATE_GROUPS:
+        np.testing.assert_array_equal(data[f"hcell/{group}_N1"], data[f"{group}/normal_force"][:, 0])  # pair 1-2
+        np.testing.assert_array_equal(data[f"hcell/{group}_T1"], data[f"{group}/shear_force"][:, 0])
+    np.testing.assert_array_equal(data["after/cell_size"][:, 0], data["before/cell_size"][:, 0]
+                                  * (1.0 - data["d_eps"][:, 0]))
 
 
 def test_unconverged_probes_are_flagged(tmp_path):
-    strict = DemSettings(force_tolerance=1e-14, max_substeps=20_000)
-    factory = functools.partial(make_cell_model, "dem", settings=strict)
-    settings = DatabaseSettings(samples=300, chunk_size=300, n_alpha0=1, alpha0_focus_deg=(), precompression=(0.0,),
-                                n_directions=4, sample_spacing=2e-3, leg_length=6e-3)
+    strict = DemSettings(force_tolerance=1e-18, max_substeps=20_000)  # below round-off: loaded cells never converge
+    settings = DatabaseSettings(samples=300, chunk_size=300, precompression=(0.0, 1e-3), n_directions=4,
+                                sample_spacing=2e-3, leg_length=6e-3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        written, _ = run(tmp_path, factory=factory, settings=settings, clean=True)
-    samples, _, attrs = database.read_database(written)
+        written, _ = run(tmp_path, settings=settings, dem_settings=strict, clean=True)
+    data, attrs = database.read_database(written)
     assert attrs["n_unconverged"] > 0 and attrs["removed_unconverged"] == attrs["n_unconverged"]
-    assert not np.any(samples["valid"] & ~samples["converged"])
+    assert not np.any(data["valid"] & ~data["converged"])
+    assert json.loads(attrs["exploration_stops"])["unconverged"] > 0
+
+
+def test_increments_beyond_max_substeps_are_refused_before_work(tmp_path):
+    with pytest.raises(ValueError, match="needs more substeps than max_substeps"):
+        run(tmp_path, dem_settings=DemSettings(max_substeps=1000))
+    assert not generate.sidecar_path(tmp_path / "db.h5").exists()
 
 
 def test_same_seed_same_bytes_whatever_workers(tmp_path):
     first, _ = run(tmp_path, "a.h5")
-    second, _ = run(tmp_path, "b.h5", workers=2)
+    second, _ = run(tmp_path, "b.h5", workers=2, threads=1)
     assert first.read_bytes() == second.read_bytes()
     other, _ = run(tmp_path, "c.h5", seed=4)
     with h5py.File(first) as a, h5py.File(other) as c:
-        assert not np.array_equal(a["inputs"][()], c["inputs"][()])
+        assert not np.array_equal(a["d_eps"][()], c["d_eps"][()])
 
 
 def test_resume_after_interruption_gives_identical_file(tmp_path):
@@ -153,7 +227,7 @@ def test_resume_after_interruption_gives_identical_file(tmp_path):
     stopped, out = run(tmp_path, "db.h5", max_chunks=2)
     assert stopped is None and not out.exists()
     sidecar = generate.sidecar_path(out)
-    assert len(list(sidecar.glob("chunk_*.npz"))) == 2
+    assert len(list(sidecar.glob("chunk_*.npz"))) == 2 and (sidecar / "states.npz").exists()
     (sidecar / "chunk_000003.npz.tmp").write_bytes(b"killed while writing")
     written, _ = run(tmp_path, "db.h5")
     assert written.read_bytes() == reference.read_bytes()
@@ -165,7 +239,12 @@ def test_resume_refuses_other_options(tmp_path):
     with pytest.raises(ValueError, match="unfinished run with other options"):
         run(tmp_path, seed=5)
     written, _ = run(tmp_path, seed=5, discard_partial=True)
-    assert database.read_database(written)[2]["seed"] == 5
+    assert database.read_database(written)[1]["seed"] == 5
+
+
+def test_start_cells_must_share_the_learning_state(tmp_path):
+    with pytest.raises(ValueError, match="does not share the learning state"):
+        run(tmp_path, meso=h_cell(), starts=[h_cell(), LATERAL])
 
 
 def exit_code(argv):
@@ -180,15 +259,16 @@ def exit_code(argv):
     (["--samples", "-5"], "argument --samples: -5 must be >= 1"),
     (["--out", "{file}/db.h5"], "not a folder"),
     (["--out", "{existing}"], "exists; pass --overwrite to replace it"),
-    (["--backend", "dem", "--mesostructure", "{tmp}/missing.toml"], "missing.toml does not exist"),
-    (["--mesostructure", "{tmp}/missing.toml"], "--mesostructure needs --backend dem"),
-    (["--backend", "ann"], "invalid choice: 'ann'"),
+    (["--mesostructure", "{tmp}/missing.toml"], "missing.toml does not exist"),
+    (["--mesostructure", "{file}"], "not valid"),
+    (["--perturbed-fraction", "2"], "perturbed_fraction = 2 is outside [0, 1]"),
+    (["--backend", "analytical"], "unrecognized arguments: --backend analytical"),
 ])
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, args, message):
     existing = tmp_path / "existing.h5"
     existing.write_bytes(b"precious")
-    (tmp_path / "file").write_text("not a folder")
-    base = ["--samples", "100", "--backend", "analytical", "--out", str(tmp_path / "new.h5")]
+    (tmp_path / "file").write_text("not a folder = [")
+    base = ["--samples", "100", "--out", str(tmp_path / "new.h5")]
     args = [a.format(file=tmp_path / "file", existing=existing, tmp=tmp_path) for a in args]
     assert exit_code(base + args) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -199,39 +279,144 @@ def test_bad_options_exit_2_with_one_line(tmp_path, capsys, args, message):
     assert not (tmp_path / "new.h5").exists()
 
 
-def test_cli_writes_a_cleaned_database(tmp_path, capsys):
+def test_cli_writes_a_database_of_a_mesostructure_file(tmp_path, capsys):
     out = tmp_path / "cli.h5"
-    assert generate.main(["--samples", "1000", "--chunk-size", "400", "--backend", "analytical", "--n-alpha0", "2",
-                          "--n-directions", "4", "--seed", "1", "--out", str(out), "--clean"]) == 0
-    assert "1000 samples in" in capsys.readouterr().out
-    samples, _, attrs = database.read_database(out)
-    assert attrs["seed"] == 1 and attrs["cleaned"] and attrs["backend"] == "analytical"
-    assert attrs["kn"] == ContactLaw().kn and samples["valid"].shape == (1000,)
+    assert generate.main(["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "600",
+                          "--chunk-size", "300", "--n-directions", "4", "--seed", "1", "--out", str(out),
+                          "--clean"]) == 0
+    assert "600 samples in" in capsys.readouterr().out
+    data, attrs = database.read_database(out)
+    assert attrs["seed"] == 1 and attrs["cleaned"] and attrs["kn"] == ContactLaw().kn
+    assert attrs["mesostructure"] == describe(LATERAL) and data["valid"].shape == (600,)
 
 
-def test_explored_states_cover_constant_volume_homogenisation():
-    """Cells of every orientation sheared at constant volume to eps1 = 0.3 after isotropic
-    compression (p0 ~ 2e5 and 5.85e6 N/m) stay close to an explored state: distance in
-    (alpha / 60 deg, forces / 6e6 N, lengths / 1 m) comparable to the database's own spacing."""
-    cell = ANALYTICAL()
-    states = generate.explore(cell, DatabaseSettings())
-    col = [database.STATE_FEATURES.index(n) for n in ("alpha_deg", "N1", "N2", "T1", "l1", "l2")]
-    scale = np.array([60.0, 6e6, 6e6, 6e6, 1.0, 1.0])
-    explored = states["observables"][:, col] / scale
-    theta = np.arange(12) * np.pi / 12
-    d_eps = 2e-3 * np.stack([np.cos(2.0 * theta), -np.cos(2.0 * theta)], axis=1)
-    visited = []
-    for alpha0 in (35.0, 40.0, 55.0):
-        for eps_iso in (9e-4, 2.5e-2):
-            state, _ = cell.step(cell.init_state(alpha0, 12), np.full((12, 2), eps_iso))
-            for k in range(150):
-                state, _ = cell.step(state, d_eps)
-                if k % 6 == 5:
-                    obs = cell.observables(state)
-                    keep = (obs["closed1"] | obs["closed2"]) & (obs["alpha_deg"] > 30.0) & (obs["alpha_deg"] < 90.0)
-                    visited.append(database.state_table(obs)[keep][:, col] / scale)
-    visited = np.concatenate(visited)
-    squared = (visited**2).sum(axis=1)[:, None] + (explored**2).sum(axis=1)[None, :] - 2.0 * visited @ explored.T
-    distance = np.sqrt(np.maximum(squared.min(axis=1), 0.0))
-    assert visited.shape[0] > 500
-    assert np.median(distance) < 0.02 and np.quantile(distance, 0.99) < 0.1
+def error_lines(capsys) -> list[str]:
+    """The error lines on stderr (progress bars aside); fails on a traceback."""
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return [line for line in err.splitlines() if "error" in line]
+
+
+def test_corrupt_sidecar_chunk_is_recomputed(tmp_path):
+    reference, _ = run(tmp_path, "ref.h5")
+    run(tmp_path, "db.h5", max_chunks=2)
+    sidecar = generate.sidecar_path(tmp_path / "db.h5")
+    (sidecar / "chunk_000001.npz").write_bytes(b"PK\x03\x04 truncated by a full disk")
+    written, _ = run(tmp_path, "db.h5")
+    assert written.read_bytes() == reference.read_bytes()
+
+
+def test_exploration_is_checkpointed(tmp_path, monkeypatch):
+    reference, _ = run(tmp_path, "ref.h5")
+    stopped, out = run(tmp_path, "db.h5", max_chunks=0)
+    sidecar = generate.sidecar_path(out)
+    assert stopped is None and (sidecar / "states.npz").exists() and (sidecar / "start_000000.npz").exists()
+    assert not list(sidecar.glob("chunk_*.npz"))
+
+    def no_exploration(*args):
+        raise AssertionError("the exploration ran again")
+
+    monkeypatch.setattr(generate, "explore_starts", no_exploration)
+    written, _ = run(tmp_path, "db.h5")
+    assert written.read_bytes() == reference.read_bytes()
+
+
+def test_second_run_on_the_same_output_exits_2(tmp_path, capsys):
+    out = tmp_path / "db.h5"
+    with shards.lock_output(out):
+        assert exit_code(["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "100",
+                          "--out", str(out)]) == 2
+    err = error_lines(capsys)
+    assert len(err) == 1 and "another run is writing" in err[0]
+    assert not out.exists() and not generate.sidecar_path(out).exists()
+
+
+def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "db.h5"
+    real_savez = np.savez
+
+    def full_disk_at_chunk_1(handle, **arrays):
+        if Path(handle.name).name.startswith("chunk_000001"):
+            handle.write(b"half a chunk")
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_savez(handle, **arrays)
+
+    monkeypatch.setattr(shards.np, "savez", full_disk_at_chunk_1)
+    argv = ["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "1500", "--chunk-size", "500",
+            "--n-directions", "4", "--out", str(out)]
+    assert exit_code(argv) == 2
+    err = error_lines(capsys)
+    assert len(err) == 1 and "no space left on the device" in err[0] and "chunk_000001.npz" in err[0]
+    sidecar = generate.sidecar_path(out)
+    assert not out.exists() and not list(sidecar.glob("*.tmp")) and not (sidecar / "chunk_000001.npz").exists()
+    monkeypatch.setattr(shards.np, "savez", real_savez)  # space freed: the same command resumes
+    assert exit_code(argv) == 0
+    assert database.read_database(out)[1]["n_samples"] == 1500
+
+
+def test_unreachable_scheduler_exits_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(execution, "CONNECT_TIMEOUT_S", 1.0)
+    out = tmp_path / "db.h5"
+    assert exit_code(["--samples", "100", "--out", str(out), "--scheduler", f"tcp://127.0.0.1:{free_port()}"]) == 2
+    err = error_lines(capsys)
+    assert len(err) == 1 and "cannot reach the Dask scheduler at tcp://127.0.0.1:" in err[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_dask_scheduler_with_a_lost_worker_gives_the_local_file(tmp_path):
+    """A real scheduler and two workers on 127.0.0.1; one worker is killed mid-run; Dask reruns
+    its tasks and the file is byte-identical to the in-process run."""
+    settings = replace(SMALL, samples=60_000, chunk_size=1000)
+    reference, _ = run(tmp_path, "local.h5", settings=settings)
+    port = free_port()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(DATA.parents[1]), os.environ.get("PYTHONPATH", "")])}
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+                               "--port", str(port), "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)]
+    try:
+        procs += [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
+                                    "--no-nanny", "--no-dashboard", "--name", f"w{i}"], env=env,
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for i in range(2)]
+        with execution.DaskExecution(address=address, connect_timeout=30.0) as dask:
+            dask.client.wait_for_workers(2, timeout=60)
+            out = tmp_path / "dask.h5"
+            sidecar = generate.sidecar_path(out)
+            result = {}
+            worker = threading.Thread(target=lambda: result.update(out=generate.generate(
+                LATERAL, settings, out, seed=3, execution=dask, threads=1)))
+            worker.start()
+            deadline = time.monotonic() + 120
+            while len(list(sidecar.glob("chunk_*.npz"))) < 5 and time.monotonic() < deadline and worker.is_alive():
+                time.sleep(0.05)
+            done_at_kill = len(list(sidecar.glob("chunk_*.npz")))
+            procs[1].kill()
+            worker.join(timeout=300)
+        assert 5 <= done_at_kill < 60 and result["out"] == out
+        assert out.read_bytes() == reference.read_bytes()
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait()
+
+
+def test_exploration_does_not_depend_on_how_start_cells_are_grouped():
+    from warp_hcell import tasks
+
+    starts = generate.h_cell_starts(SMALL)
+    physics = tasks.Physics(ContactLaw(), describe(h_cell()), DemSettings(), "cpu", 1)
+    inputs = tasks.ExploreInputs(physics, tuple(describe(s) for s in starts), SMALL)
+    together = tasks.explore_starts(inputs, (0, 1, 2))
+    apart = [tasks.explore_starts(inputs, (k,)) for k in range(3)]
+    assert set(together) == set(apart[0])
+    for name, value in together.items():
+        np.testing.assert_array_equal(value, np.concatenate([part[name] for part in apart]), err_msg=name)
+    assert np.array_equal(np.unique(together["start_id"]), [0, 1, 2])
+    stride = exploration.path_stride(SMALL)
+    assert np.all(together["path_id"] // stride == together["start_id"])

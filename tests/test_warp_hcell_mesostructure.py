@@ -11,10 +11,14 @@ import pytest
 from warp_hcell.mesostructure import (
     Mesostructure,
     MesostructureError,
+    describe,
+    description_sha256,
+    from_description,
     h_cell,
     h_cell_reference,
     load_mesostructure,
     polygon_area,
+    shares_state_schema,
 )
 
 DATA = resources.files("warp_hcell") / "data"
@@ -146,3 +150,49 @@ def test_loader_errors(tmp_path):
 def test_h_cell_rejects_inadmissible_alpha0():
     with pytest.raises(ValueError, match=r"alpha0 = 90 deg is outside \[30, 90\) deg"):
         h_cell(90.0, 0.5)
+
+
+@pytest.mark.parametrize("name", ["h-cell", "h_cell_lateral_0.7D.toml", "h_cell_fine_grain.toml"])
+def test_description_round_trip_and_hash(name):
+    meso = h_cell(40.0) if name == "h-cell" else load_mesostructure(DATA / name)
+    text = describe(meso)
+    again = from_description(text)
+    assert describe(again) == text and json.loads(text) == json.loads(json.dumps(json.loads(text), sort_keys=True))
+    for field in ("radius", "position", "driven", "pairs", "outer", "cell_size", "pair_type"):
+        np.testing.assert_array_equal(getattr(again, field), getattr(meso, field))
+    assert again.is_h_cell == meso.is_h_cell and again.contact_tolerance == meso.contact_tolerance
+    assert len(description_sha256(text)) == 64
+    assert description_sha256(describe(h_cell(40.0 + 1e-9))) != description_sha256(describe(h_cell(40.0)))
+
+
+def test_from_description_errors_are_one_line():
+    with pytest.raises(MesostructureError, match="not JSON"):
+        from_description("{")
+    with pytest.raises(MesostructureError, match="not a mesostructure description"):
+        from_description('{"a": 1}')
+    text = json.loads(describe(h_cell()))
+    del text["outer"]
+    with pytest.raises(MesostructureError, match="missing key 'outer'"):
+        from_description(json.dumps(text))
+
+
+def test_state_schema_of_the_fine_grain_cell():
+    meso = load_mesostructure(DATA / "h_cell_fine_grain.toml")
+    schema = meso.schema()
+    # grains 2, 3, 5, 6 free along n; the fine grain 7 free along n and t
+    assert schema.free_dofs.tolist() == [[1, 0], [2, 0], [4, 0], [5, 0], [6, 0], [6, 1]]
+    assert schema.features["free_position"].names == ("x_n2", "x_n3", "x_n5", "x_n6", "x_n7", "x_t7")
+    assert schema.features["unbalanced"].names[-1] == "f_t7"
+    assert schema.features["shear_force"].names[0] == "fs_1_2" and len(schema.features["contact"].names) == 21
+    assert schema.of_role("learned") == ("free_position",)
+    assert schema.of_role("history") == ("shear_force",)
+    assert set(schema.of_role("derived")) == {"contact", "normal_force", "unbalanced", "moment", "area"}
+    assert json.loads(schema.feature_json())["moment"]["unit"] == "N m"
+    with pytest.raises(ValueError, match="role 'input'"):
+        schema.of_role("input")
+
+
+def test_h_cells_of_every_angle_share_one_learning_state():
+    assert shares_state_schema(h_cell(55.0), h_cell(30.0)) and shares_state_schema(h_cell(55.0), h_cell(89.0))
+    assert not shares_state_schema(h_cell(55.0), load_mesostructure(DATA / "h_cell_lateral_0.7D.toml"))
+    assert not shares_state_schema(h_cell(55.0, 0.5), h_cell(55.0, 0.4))

@@ -21,6 +21,7 @@ named numpy arrays (HDF5 snapshots, resume).
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Protocol, TypeVar, runtime_checkable
 
@@ -135,3 +136,87 @@ class ArrayStateMixin:
     def state_from_arrays(self, arrays: Mapping[str, Any]):
         """Inverse of ``state_to_arrays``; KeyError names a missing field."""
         return self.state_type(*(np.array(arrays[name], dtype=np.float64) for name in self.state_type._fields))
+
+
+FEATURE_ROLES = {
+    "driven": "imposed by the cell strain (l <- l (1 - d_eps))",
+    "learned": "free-DOF coordinates: a meso-ANN predicts their increment",
+    "history": "state variable carried from increment to increment (tangential spring force)",
+    "derived": "follows exactly from the other features and the contact law",
+}
+"""Roles of the features of a learning state."""
+
+
+@dataclass(frozen=True)
+class StateFeature:
+    """One per-cell array of the generic learning state.
+
+    Attributes:
+        names: column names (one per entry of the trailing axis, or one for a scalar).
+        unit: unit of every column.
+        role: one of ``FEATURE_ROLES``.
+        description: what it holds, with its sign convention.
+    """
+
+    names: tuple[str, ...]
+    unit: str
+    role: str
+    description: str
+
+
+@dataclass(frozen=True, eq=False)
+class StateSchema:
+    """The learning state of one mesostructure: what a cell state is, DOF by DOF.
+
+    A state is (cell size, free-DOF coordinates, per-pair tangential spring forces); every
+    other feature (contact flags, normal forces, unbalanced forces on the free DOFs,
+    Love-Weber moment, area) follows from it, the reference geometry below and the contact
+    law. Driven coordinates follow x = x_ref * l / l_ref. Local frame: index 0 = n, 1 = t;
+    grain labels in feature names are 1-based.
+
+    Attributes:
+        free_dofs: (grain index 0-based, axis 0 = n / 1 = t) of every free DOF, shape
+            (n_free, 2) int64, row-major order of ``driven == False``.
+        pairs: candidate contact pairs (i, j), 0-based, shape (n_pairs, 2) int64.
+        radius: grain radii [m], shape (n_grains,).
+        reference_position: reference centres [m], shape (n_grains, 2).
+        reference_cell_size: (l1_ref, l2_ref) [m], shape (2,).
+        driven: True where the DOF is driven, shape (n_grains, 2) bool.
+        outer: ordered grain indices of the outer polygon (area V_cell), shape (n_outer,).
+        features: feature name -> ``StateFeature``, in storage order.
+    """
+
+    free_dofs: np.ndarray
+    pairs: np.ndarray
+    radius: np.ndarray
+    reference_position: np.ndarray
+    reference_cell_size: np.ndarray
+    driven: np.ndarray
+    outer: np.ndarray
+    features: Mapping[str, StateFeature]
+
+    @property
+    def n_free(self) -> int:
+        """Number of free DOFs."""
+        return int(self.free_dofs.shape[0])
+
+    @property
+    def n_pairs(self) -> int:
+        """Number of candidate contact pairs."""
+        return int(self.pairs.shape[0])
+
+    @property
+    def n_grains(self) -> int:
+        """Number of grains."""
+        return int(self.radius.size)
+
+    def of_role(self, role: str) -> tuple[str, ...]:
+        """Names of the features with role ``role`` (``FEATURE_ROLES``)."""
+        if role not in FEATURE_ROLES:
+            raise ValueError(f"role {role!r} is not one of {', '.join(FEATURE_ROLES)}")
+        return tuple(name for name, feature in self.features.items() if feature.role == role)
+
+    def feature_json(self) -> str:
+        """Features as JSON text: {name: {names, unit, role, description}}."""
+        return json.dumps({name: {"names": list(f.names), "unit": f.unit, "role": f.role,
+                                  "description": f.description} for name, f in self.features.items()})

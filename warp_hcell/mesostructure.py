@@ -15,10 +15,16 @@ Exports:
         sizes for a batch of alpha0.
     ``load_mesostructure(path)``: read a TOML or JSON description (format in its docstring;
         examples in ``warp_hcell/data``).
+    ``state_schema(meso)``: the learning state of the cell (``warp_hcell.cell_model.StateSchema``).
+    ``describe(meso)`` / ``from_description(text)`` / ``description_sha256(text)``: canonical
+        JSON text of a mesostructure (stored in databases and checkpoints), its inverse, and
+        its hash.
+    ``shares_state_schema(a, b)``: True when cells of ``b`` are states of ``a``'s schema.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import tomllib
@@ -29,6 +35,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from warp_hcell.cell_model import StateFeature, StateSchema
 from warp_hcell.parameters import CellDefaults, DemSettings, check_alpha0_deg, check_positive
 
 H_TYPE1_PAIRS = ((1, 2), (1, 6), (3, 4), (4, 5))
@@ -114,6 +121,10 @@ class Mesostructure:
                 return None
             found.append(int(hit[0]))
         return found[0], found[1]
+
+    def schema(self) -> StateSchema:
+        """The learning state of this cell (``state_schema``)."""
+        return state_schema(self)
 
     def topology_key(self) -> tuple:
         """Hashable (pairs, driven) description: cells sharing it share one compiled kernel."""
@@ -292,3 +303,103 @@ def _from_mapping(data: Mapping[str, Any], *, default_name: str, contact_toleran
         if isinstance(exc, MesostructureError):
             raise
         raise MesostructureError(f"mesostructure {name!r}: malformed entry ({exc})") from None
+
+
+DESCRIPTION_FIELDS = ("radius", "position", "driven", "pairs", "outer", "cell_size", "pair_type")
+"""Array fields of a mesostructure in its JSON description (with ``name``, ``contact_tolerance``)."""
+
+
+def describe(meso: Mesostructure) -> str:
+    """Canonical JSON text of ``meso``: enough to rebuild it with ``from_description``.
+
+    Canonical: keys sorted, no whitespace (``json.dumps(sort_keys=True, separators=(",", ":"))``),
+    floats written by ``repr`` (exact round trip), indices 0-based. Equal cells give equal text.
+    """
+    data: dict[str, Any] = {"format": "meso-hmodel-mesostructure", "version": 1, "name": meso.name,
+                            "contact_tolerance": float(meso.contact_tolerance)}
+    for name in DESCRIPTION_FIELDS:
+        data[name] = np.asarray(getattr(meso, name)).tolist()
+    return json.dumps(data, sort_keys=True, separators=(",", ":"))
+
+
+def from_description(text: str) -> Mesostructure:
+    """Inverse of ``describe``.
+
+    Raises:
+        MesostructureError: not a mesostructure description, or an invalid cell (one line).
+    """
+    try:
+        data = json.loads(text)
+    except (TypeError, json.JSONDecodeError) as exc:
+        raise MesostructureError(f"mesostructure description is not JSON: {exc}") from None
+    if not isinstance(data, dict) or data.get("format") != "meso-hmodel-mesostructure":
+        raise MesostructureError("text is not a mesostructure description (format meso-hmodel-mesostructure)")
+    try:
+        return Mesostructure(
+            name=str(data["name"]), radius=np.asarray(data["radius"], np.float64),
+            position=np.asarray(data["position"], np.float64), driven=np.asarray(data["driven"], bool),
+            pairs=np.asarray(data["pairs"], np.int64).reshape(-1, 2), outer=np.asarray(data["outer"], np.int64),
+            cell_size=np.asarray(data["cell_size"], np.float64), pair_type=np.asarray(data["pair_type"], np.int8),
+            contact_tolerance=float(data["contact_tolerance"]))
+    except KeyError as exc:
+        raise MesostructureError(f"mesostructure description: missing key {exc.args[0]!r}") from None
+
+
+def description_sha256(text: str) -> str:
+    """Hex sha256 of a description text (UTF-8)."""
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def shares_state_schema(meso: Mesostructure, other: Mesostructure, rtol: float = 1e-12) -> bool:
+    """True when every cell of ``other`` is a state of ``meso``'s learning state.
+
+    Same radii, pairs, driven mask and outer polygon, and the same driven coordinates
+    relative to the cell size (x_ref / l_ref, to ``rtol``), so that x = x_ref * l / l_ref
+    places the driven DOFs identically. The H-cells of all opening angles share one schema.
+    """
+    same = (np.array_equal(meso.radius, other.radius) and np.array_equal(meso.pairs, other.pairs)
+            and np.array_equal(meso.driven, other.driven) and np.array_equal(meso.outer, other.outer))
+    if not same:
+        return False
+    mine = (meso.position / meso.cell_size)[meso.driven]
+    theirs = (other.position / other.cell_size)[other.driven]
+    return bool(np.allclose(mine, theirs, rtol=rtol, atol=rtol))
+
+
+def _pair_label(pair: np.ndarray) -> str:
+    return f"{int(pair[0]) + 1}_{int(pair[1]) + 1}"
+
+
+def state_schema(meso: Mesostructure) -> StateSchema:
+    """The learning state of ``meso`` (see ``warp_hcell.cell_model.StateSchema``).
+
+    Features (storage order): ``cell_size`` (l1, l2) [m] driven; ``free_position``
+    (``x_n3``, ``x_t7``, ...) [m] learned; ``shear_force`` (``fs_1_2``, ...) [N] history;
+    ``contact`` (``contact_1_2``, ...) derived; ``normal_force`` (``fn_1_2``, ...) [N] derived,
+    >= 0; ``unbalanced`` (``f_n3``, ...) [N] net force on each free DOF, derived;
+    ``moment`` (S_nn, S_nt, S_tn, S_tt) [N m] Love-Weber sum, compression positive, derived;
+    ``area`` [m^2] derived.
+    """
+    free_dofs = np.argwhere(~meso.driven).astype(np.int64)
+    dof_names = tuple(f"{'nt'[axis]}{grain + 1}" for grain, axis in free_dofs)
+    pair_names = tuple(_pair_label(p) for p in meso.pairs)
+    features = {
+        "cell_size": StateFeature(("l1", "l2"), "m", "driven", "cell size (l1, l2); l <- l (1 - d_eps)"),
+        "free_position": StateFeature(tuple("x_" + n for n in dof_names), "m", "learned",
+                                      "coordinates of the free DOFs in the local frame (n, t)"),
+        "shear_force": StateFeature(tuple("fs_" + n for n in pair_names), "N", "history",
+                                    "tangential spring force of each pair, on grain i along w = (-u_t, u_n), "
+                                    "u = (x_j - x_i) / |x_j - x_i|; zero out of contact"),
+        "contact": StateFeature(tuple("contact_" + n for n in pair_names), "bool", "derived",
+                                "1 where gap <= contact_tolerance (r_i + r_j)"),
+        "normal_force": StateFeature(tuple("fn_" + n for n in pair_names), "N", "derived",
+                                     "normal contact force kn max(r_i + r_j - |x_j - x_i|, 0) of pairs in contact, >= 0"),
+        "unbalanced": StateFeature(tuple("f_" + n for n in dof_names), "N", "derived",
+                                   "net contact force on each free DOF (~0 at equilibrium)"),
+        "moment": StateFeature(("S_nn", "S_nt", "S_tn", "S_tt"), "N m", "derived",
+                               "Love-Weber sum over the contacts, compression positive"),
+        "area": StateFeature(("area",), "m^2", "derived", "area V_cell of the outer polygon"),
+    }
+    return StateSchema(free_dofs=free_dofs, pairs=np.array(meso.pairs), radius=np.array(meso.radius),
+                       reference_position=np.array(meso.position), reference_cell_size=np.array(meso.cell_size),
+                       driven=np.array(meso.driven), outer=np.array(meso.outer), features=features)

@@ -146,13 +146,15 @@ class DatabaseSettings:
     chunk_size: int = 5_000
     """Probes computed as one batch; also the unit of resume and of parallel work [-]."""
     alpha0_min_deg: float = 30.0
-    """Smallest initial opening angle of the exploration grid [deg]."""
+    """Smallest opening angle of the start cells of the default (H-cell) database [deg]; the
+    H-cells of all opening angles share one learning state, so the exploration starts from
+    each (a mesostructure file gives one start cell)."""
     alpha0_max_deg: float = 89.0
-    """Largest initial opening angle of the exploration grid [deg]."""
+    """Largest opening angle of the H-cell start cells [deg]."""
     n_alpha0: int = 12
-    """Initial opening angles evenly spaced in [alpha0_min_deg, alpha0_max_deg] [-]."""
+    """H-cell start cells: opening angles evenly spaced in [alpha0_min_deg, alpha0_max_deg] [-]."""
     alpha0_focus_deg: tuple[float, ...] = (35.0, 40.0, 55.0)
-    """Initial opening angles of the homogenisation runs, added to the grid [deg]."""
+    """Opening angles of the homogenisation runs, added to the H-cell start cells [deg]."""
     precompression: tuple[float, ...] = (0.0, 1e-3, 3e-3, 1e-2, 2e-2, 3e-2)
     """Isotropic strains eps_n = eps_t from which the proportional legs start [-]
     (p ~ 2.2e8 N/m x eps: 1e-3 ~ p0 = 2e5 N/m, 2e-2 to 3e-2 ~ p0 = 5.85e6 N/m)."""
@@ -178,6 +180,24 @@ class DatabaseSettings:
     """Largest magnitude of the focus probes [-]."""
     probe_focus_fraction: float = 0.5
     """Fraction of the probes drawn in [probe_focus_min, probe_focus_max] [-]."""
+    perturbed_fraction: float = 0.25
+    """Fraction of the probes whose start state is a sampled equilibrium state with its free
+    DOFs displaced at random (the DEM relaxes it during the probe) [-]."""
+    zero_probe_fraction: float = 0.3
+    """Fraction of the perturbed probes with d_eps = 0 (relaxation alone) [-]."""
+    perturbation_min: float = 1e-6
+    """Smallest perturbation amplitude, as a fraction of the mean grain diameter D [-]."""
+    perturbation_max: float = 5e-4
+    """Largest perturbation amplitude / D [-]: half the typical overlap ~1e-3 D at p0 = 2e5 N/m
+    (a contact may open), 1/60 of it at p0 = 5.85e6 N/m. Amplitudes are log-uniform in
+    [perturbation_min, perturbation_max]; each free DOF moves by amplitude x D x N(0, 1)."""
+    stress_free_length: float = 0.02
+    """A path stops once it has carried no contact force over this path length [-]."""
+    max_overlap: float = 0.15
+    """A path stops when an overlap exceeds this fraction of r_i + r_j [-] (p0 = 5.85e6 N/m
+    gives ~0.03 on the H-cell)."""
+    max_cell_strain: float = 0.5
+    """A path stops when |eps_n| or |eps_t| summed from its start cell exceeds this [-]."""
 
     def __post_init__(self) -> None:
         if int(self.leg_refinement) < 0:
@@ -196,5 +216,10 @@ class DatabaseSettings:
         for lo, hi in (("probe_min", "probe_max"), ("probe_focus_min", "probe_focus_max")):
             if not getattr(self, lo) <= getattr(self, hi) < 1.0:
                 raise ValueError(f"{hi} = {getattr(self, hi):g} must lie in [{lo}, 1)")
-        if not 0.0 <= self.probe_focus_fraction <= 1.0:
-            raise ValueError(f"probe_focus_fraction = {self.probe_focus_fraction:g} is outside [0, 1]")
+        for name in ("probe_focus_fraction", "perturbed_fraction", "zero_probe_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} = {getattr(self, name):g} is outside [0, 1]")
+        for name in ("perturbation_min", "stress_free_length", "max_overlap", "max_cell_strain"):
+            check_positive(name, getattr(self, name))
+        if not self.perturbation_min <= self.perturbation_max < 1.0:
+            raise ValueError(f"perturbation_max = {self.perturbation_max:g} must lie in [perturbation_min, 1)")

@@ -1,0 +1,134 @@
+"""The generic learning state of a cell, evaluated with numpy: derived features, H-cell observables.
+
+A learning state (``warp_hcell.cell_model.StateSchema``) is the cell size, the free-DOF
+coordinates and the per-pair tangential spring forces. ``evaluate`` applies the contact law
+of the DEM (``warp_hcell.kernels``) at those positions with no displacement: contact flags,
+normal forces, the tangential forces after the Coulomb cap (zero out of contact), the net
+force on each free DOF, the Love-Weber moment and the area. Evaluated on a state the DEM
+produced, it reproduces the DEM's own forces; on a perturbed state it gives the unbalanced
+forces the DEM starts relaxing from.
+
+``hcell_observables`` measures alpha, d1, d2, N1, N2, T1 at the reference contacts of a
+mesostructure carrying H-cell labels (``Mesostructure.h_reference_pairs``); nothing else here
+knows the H-cell.
+
+Conventions: local frame index 0 = n, 1 = t. Forces are the DEM's: for pair (i, j),
+u = (x_j - x_i) / |x_j - x_i|, w = (-u_t, u_n), the force on grain i by grain j is
+-f_n u + f_s w (f_n >= 0). The moment is returned compression positive.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from warp_hcell.cell_model import StateSchema
+from warp_hcell.mesostructure import Mesostructure, polygon_area
+from warp_hcell.parameters import ContactLaw
+
+STATE_VARIABLES = ("cell_size", "free_position", "shear_force")
+"""The features that define a learning state; every other feature is derived from them."""
+
+
+def positions(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarray) -> np.ndarray:
+    """All grain centres [m], shape (n, n_grains, 2): driven DOFs at x_ref * l / l_ref.
+
+    Args:
+        cell_size: (l1, l2) [m], shape (n, 2).
+        free_position: free-DOF coordinates [m], shape (n, n_free), order ``schema.free_dofs``.
+    """
+    cell_size = np.asarray(cell_size, dtype=np.float64)
+    x = schema.reference_position[None] * (cell_size / schema.reference_cell_size)[:, None, :]
+    x[:, schema.free_dofs[:, 0], schema.free_dofs[:, 1]] = free_position
+    return x
+
+
+def free_coordinates(schema: StateSchema, position: np.ndarray) -> np.ndarray:
+    """The free-DOF coordinates [m] of grain centres ``position`` (n, n_grains, 2): (n, n_free)."""
+    return np.ascontiguousarray(position[:, schema.free_dofs[:, 0], schema.free_dofs[:, 1]])
+
+
+def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
+             contact_law: ContactLaw, contact_tolerance: float) -> dict[str, np.ndarray]:
+    """Contact-law evaluation of a learning state (module docstring), vectorised over cells.
+
+    Args:
+        cell_size: (n, 2) [m]; free_position: (n, n_free) [m]; shear_force: (n, n_pairs) [N].
+        contact_law: stiffnesses and friction of the DEM.
+        contact_tolerance: gap, as a fraction of r_i + r_j, that still counts as a contact [-].
+
+    Returns:
+        ``position`` (n, n_grains, 2) [m]; ``contact`` (n, n_pairs) int8; ``normal_force`` and
+        ``shear_force`` (n, n_pairs) [N]; ``contact_force`` (n, n_pairs, 2) [N] on grain i;
+        ``unbalanced`` (n, n_free) [N]; ``moment`` (n, 2, 2) [N m] compression positive;
+        ``area`` (n,) [m^2].
+    """
+    x = positions(schema, cell_size, free_position)
+    pi, pj = schema.pairs[:, 0], schema.pairs[:, 1]
+    rsum = schema.radius[pi] + schema.radius[pj]
+    widen = 1.0 + contact_tolerance
+    cut2 = (rsum * widen) * (rsum * widen)
+    b = x[:, pj] - x[:, pi]
+    dist2 = b[..., 0] * b[..., 0] + b[..., 1] * b[..., 1]
+    touching = dist2 <= cut2
+    dist = np.sqrt(dist2)
+    u = b / np.where(dist > 0.0, dist, 1.0)[..., None]
+    normal = np.where(touching, contact_law.kn * np.maximum(rsum - dist, 0.0), 0.0)
+    cap = contact_law.mu * normal
+    shear = np.where(touching, np.clip(np.asarray(shear_force, dtype=np.float64), -cap, cap), 0.0)
+    force = np.stack([-normal * u[..., 0] - shear * u[..., 1], -normal * u[..., 1] + shear * u[..., 0]], axis=-1)
+    net = np.zeros_like(x)
+    for p in range(schema.n_pairs):  # pair order fixed: the DEM's summation order
+        net[:, pi[p]] += force[:, p]
+        net[:, pj[p]] -= force[:, p]
+    moment = -np.einsum("cpa,cpb->cab", force, b)
+    return {"position": x, "contact": touching.astype(np.int8), "normal_force": normal, "shear_force": shear,
+            "contact_force": force, "unbalanced": net[:, schema.free_dofs[:, 0], schema.free_dofs[:, 1]],
+            "moment": moment, "area": polygon_area(x, schema.outer)}
+
+
+def feature_arrays(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
+                   contact_law: ContactLaw, contact_tolerance: float) -> dict[str, np.ndarray]:
+    """Every feature of ``schema.features`` (the database's per-sample datasets) of a batch.
+
+    ``shear_force`` is stored after the contact-law evaluation (capped, zero out of
+    contact), which the DEM applies first thing in a step: the stored state steps exactly
+    as the raw one. ``moment`` is flattened to (n, 4) (S_nn, S_nt, S_tn, S_tt).
+    """
+    ev = evaluate(schema, cell_size, free_position, shear_force, contact_law, contact_tolerance)
+    return {"cell_size": np.array(cell_size, dtype=np.float64), "free_position": np.array(free_position, np.float64),
+            "shear_force": ev["shear_force"], "contact": ev["contact"], "normal_force": ev["normal_force"],
+            "unbalanced": ev["unbalanced"], "moment": ev["moment"].reshape(-1, 4), "area": ev["area"]}
+
+
+HCELL_OBSERVABLES = ("alpha_deg", "d1", "d2", "N1", "N2", "T1")
+"""H-cell observables stored for reports (group ``hcell`` of the database)."""
+
+
+def hcell_observables(meso: Mesostructure, position: np.ndarray, normal_force: np.ndarray,
+                      shear_force: np.ndarray) -> dict[str, np.ndarray]:
+    """alpha [deg], d1, d2 [m], N1, N2, T1 [N] at the reference contacts 1-2 and 2-3.
+
+    Args:
+        meso: a mesostructure with H-cell labels (``meso.is_h_cell``).
+        position: (n, n_grains, 2) [m]; normal_force, shear_force: (n, n_pairs) [N].
+
+    Returns:
+        Each (n,); N compression positive, T1 > 0 resists opening (the DEM's spring force).
+    """
+    reference = meso.h_reference_pairs
+    if reference is None:
+        raise ValueError(f"mesostructure {meso.name!r} has no H-cell labels")
+    p1, p2 = reference
+    (i1, j1), (i2, j2) = meso.pairs[p1], meso.pairs[p2]
+    b1 = position[:, j1] - position[:, i1]
+    b2 = position[:, j2] - position[:, i2]
+    return {"alpha_deg": np.degrees(np.arctan2(-b1[:, 1], -b1[:, 0])), "d1": np.hypot(b1[:, 0], b1[:, 1]),
+            "d2": np.hypot(b2[:, 0], b2[:, 1]), "N1": normal_force[:, p1].copy(), "N2": normal_force[:, p2].copy(),
+            "T1": shear_force[:, p1].copy()}
+
+
+def stack_features(parts: list[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Concatenate feature dicts along the first axis."""
+    return {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
