@@ -3,7 +3,8 @@
 Contract:
 
 - ``load_database(path)`` reads a ``meso-hmodel-database`` HDF5 file of format version 2
-  (the generic DEM state before and after each probe) and keeps the converged samples.
+  (the generic DEM state before and after each probe) and keeps the converged samples
+  (and, in a cleaned file, the ``valid`` ones).
   Mechanism (stress-free) and perturbed (unbalanced) samples are kept: the network must
   learn them. Snap-through probes, whose free DOFs moved more than ``RATE_LIMIT`` D per unit
   of (probe magnitude + unbalanced force / (kn D)), are dropped and counted (a jump to
@@ -140,6 +141,7 @@ def load_database(path: str | Path) -> Database:
             before_contact = np.array(handle["before/contact"]) == 1
             d_eps = np.array(handle["d_eps"], dtype=np.float64)
             flags = {k: np.array(handle[k], dtype=bool) for k in ("perturbed", "mechanism", "converged")}
+            valid = np.array(handle["valid"], dtype=bool) if "valid" in handle else np.ones(d_eps.shape[0], bool)
             path_id = np.array(handle["path_id"], dtype=np.int64)
             kn = float(attrs["kn"])
             kt = float(attrs["kt"])
@@ -158,7 +160,7 @@ def load_database(path: str | Path) -> Database:
             raise DataError(f"{path}: before/{name} has shape {before[name].shape}, expected {shape}")
     schema = schema_from_arrays(schema_arrays, kn=kn, kt_over_kn=kt / kn, phi_g_deg=phi_g_deg,
                                 contact_tolerance=tolerance)
-    keep = flags["converged"] & np.all(np.isfinite(after_free), axis=1)
+    keep = valid & flags["converged"] & np.all(np.isfinite(after_free), axis=1)
     _, m, unbalanced = features(schema, torch.zeros(schema.n_pairs, dtype=torch.bool),
                                 *(torch.from_numpy(before[k]) for k in STATE_FIELDS), torch.from_numpy(d_eps))
     scale = schema.diameter * (m[:, 0].numpy() + np.abs(unbalanced.numpy()).max(axis=1, initial=0.0) / (kn * schema.diameter))
