@@ -8,7 +8,7 @@ printed with the numbers):
    the ANN backend, interleaved, and their ratio; for the ANN also the network call alone
    (``MesoNet.displacement``) and the step with its autograd tangent;
 2. unless ``--skip-run``: one JSON line per biaxial test (isotropic compression to p0, then
-   constant-volume, and with ``--drained`` also drained, shear to ``--eps-max``) run with the
+   constant-volume, and/or drained (``--tests``), shear to ``--eps-max``) run with the
    ANN and its reference through ``homogenization.driver``: the analytical backend for the
    H-cell, the DEM with the same file for ``--mesostructure``; max |p - p_ref| and
    |q - q_ref| over the shear stage as fractions of p0, run times, and the ANN's counts of
@@ -50,7 +50,8 @@ def main() -> None:
                         help="confining pressures of the biaxial runs [N/m]")
     parser.add_argument("--alpha0", type=float, nargs="+", default=[55.0], help="initial opening angles [deg]")
     parser.add_argument("--eps-max", type=float, default=0.2, help="eps1 at the end of the shear stage [-]")
-    parser.add_argument("--drained", action="store_true", help="also run the drained tests")
+    parser.add_argument("--tests", choices=("constant-volume", "drained", "both"), default="constant-volume",
+                        help="biaxial tests to run")
     parser.add_argument("--mesostructure", default=None,
                         help="mesostructure file: compare the ANN (--model trained on it) with the DEM")
     args = parser.parse_args()
@@ -95,7 +96,8 @@ def time_increments(args) -> None:
 def _cases(args) -> list[dict]:
     alphas = args.alpha0
     return [{"p0": p0, "increment": inc, "drained": drained, "alpha0": alpha0, "eps_max": args.eps_max}
-            for drained in ([False, True] if args.drained else [False]) for alpha0 in alphas
+            for drained in {"constant-volume": [False], "drained": [True], "both": [False, True]}[args.tests]
+            for alpha0 in alphas
             for p0 in args.p0 for inc in args.increments]
 
 
