@@ -84,8 +84,7 @@ def test_step_is_pure_and_batch_invariant_and_round_trips(cell):
 def test_diagnostics_count_the_contact_law_branches(cell):
     state, _ = _loaded(cell)
     _, response = cell.step(state, np.tile([[-3e-3, -3e-3]], (8, 1)))  # strong extension opens contacts
-    assert set(response.diagnostics) == {"n_coulomb_capped", "n_tension_clipped", "n_mechanism", "n_relaxation_scaled",
-                                       "n_grain_at_rest"}
+    assert set(response.diagnostics) == {"n_coulomb_capped", "n_tension_clipped", "n_mechanism", "n_relaxation_scaled"}
     assert response.diagnostics["n_tension_clipped"] == 8 and response.diagnostics["n_relaxation_scaled"] == 0
 
 

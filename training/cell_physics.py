@@ -167,9 +167,7 @@ class Increment:
         cell_size, free_position, shear_force: the new generic state.
         moment: compression-positive Love-Weber moment [N m], (n, 2, 2); area [m^2], (n,).
         capped: bool (n, n_pairs), the trial tangential force exceeded the Coulomb cap mu f_n;
-        opened: bool (n, n_pairs), a pair that carried a normal force lost it (no-tension branch);
-        at_rest: bool (n, n_free), free DOFs of grains out of contact held at rest (set by
-            ``training.network.MesoNet.advance``; None where not applied).
+        opened: bool (n, n_pairs), a pair that carried a normal force lost it (no-tension branch).
     """
 
     cell_size: torch.Tensor
@@ -179,19 +177,6 @@ class Increment:
     area: torch.Tensor
     capped: torch.Tensor
     opened: torch.Tensor
-    at_rest: torch.Tensor | None = None
-
-
-def untouched(schema: CellSchema, c: Contacts) -> torch.Tensor:
-    """Free DOFs whose grain has no contact (within the tolerance), bool (n, n_free).
-
-    The DEM holds such a grain at rest: it carries no force, so nothing moves it.
-    """
-    n, n_grains = c.contact.shape[0], int(schema.radius.shape[0])
-    flags = c.contact.to(torch.float64)
-    touched = torch.zeros(n, n_grains, dtype=torch.float64, device=flags.device)
-    touched = touched.index_add(1, schema.pairs[:, 0], flags).index_add(1, schema.pairs[:, 1], flags)
-    return touched[:, schema.free_dofs[:, 0]] == 0
 
 
 def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Tensor, shear_force: torch.Tensor,

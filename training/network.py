@@ -29,7 +29,6 @@ to ~1e-7 D).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Sequence
 
 import torch
@@ -173,14 +172,9 @@ class MesoNet(nn.Module):
     def advance(self, cell_size, free_position, shear_force, d_eps) -> cell_physics.Increment:
         """One cell-increment: the network moves the free DOFs, the contact law gives the forces.
 
-        Below |d_eps| = ``RELAXATION_RAMP`` the relaxation is scaled down linearly to zero. Free
-        DOFs of grains out of contact at the start stay at rest, as in the DEM (a grain hit
-        during the increment is pushed from the next one on); ``Increment.at_rest`` flags them.
+        Below |d_eps| = ``RELAXATION_RAMP`` the relaxation is scaled down linearly to zero.
         """
         feats, m, unbalanced, old = features_and_contacts(self.schema, self.active_index, cell_size, free_position,
                                                           shear_force, d_eps)
         d_free = self.displacement_from_features(feats, m, unbalanced, torch.clamp(m / RELAXATION_RAMP, max=1.0))
-        at_rest = cell_physics.untouched(self.schema, old)
-        d_free = torch.where(at_rest, 0.0, d_free)
-        step = cell_physics.advance(self.schema, cell_size, free_position, shear_force, d_eps, d_free, old)
-        return dataclasses.replace(step, at_rest=at_rest)
+        return cell_physics.advance(self.schema, cell_size, free_position, shear_force, d_eps, d_free, old)

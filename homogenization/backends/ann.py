@@ -18,8 +18,7 @@ No equilibrium is solved and no closed form of a particular cell is used. Each `
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
 ``n_coulomb_capped`` (a trial tangential force exceeded mu f_n), ``n_tension_clipped`` (a
 contact carrying a normal force opened: no tension), ``n_mechanism`` (cells carrying no
-contact force after the increment), ``n_grain_at_rest`` (cells with a free grain out of
-contact, held at rest as the DEM does instead of moved by the network) and ``n_relaxation_scaled`` (probes smaller than
+contact force after the increment) and ``n_relaxation_scaled`` (probes smaller than
 ``training.network.RELAXATION_RAMP``, whose relaxation of unbalanced forces is scaled down
 so that a zero increment is a no-op, as stress control assumes).
 
@@ -169,7 +168,6 @@ class AnnCell(ArrayStateMixin):
             "n_tension_clipped": float(step.opened.any(dim=1).sum()),
             "n_mechanism": float(np.count_nonzero(np.all(moment == 0.0, axis=(1, 2)))),
             "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
-            "n_grain_at_rest": float(step.at_rest.any(dim=1).sum()),
         }
         return new, CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent)
 
