@@ -121,7 +121,7 @@ def test_a_model_of_another_mesostructure_is_refused(model_path, lateral_model, 
     lateral = AnnCell(LAW, RADIUS, model=lateral_model, mesostructure=load_mesostructure(LATERAL))
     assert lateral.response(lateral.init_state(55.0, 2)).moment.shape == (2, 2, 2)
     with pytest.raises(CheckpointError, match="does not share"):
-        AnnCell(LAW, RADIUS, model=lateral_model).init_state(55.0, 2)
+        AnnCell(LAW, RADIUS, model=lateral_model)
     code = biaxial.run_main(biaxial.main, ["--backend", "ann", "--model", str(lateral_model), "--p0", "1e5",
                                            "--eps-max", "0.001", "--increment", "1e-4", "--orientations", "4",
                                            "--out", str(tmp_path / "run")])

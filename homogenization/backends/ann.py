@@ -104,6 +104,9 @@ class AnnCell(ArrayStateMixin):
         if mesostructure is not None:
             check_mesostructure(self.metadata, description_sha256(describe(mesostructure)), name=mesostructure.name,
                                 source=str(path))
+        elif not shares_state_schema(self.trained_on, h_cell(radius=self.radius)):
+            raise CheckpointError(f"{path}: model trained on {self.trained_on.name!r}, whose learning state the H-cell "
+                                  f"does not share; pass the model's mesostructure (--mesostructure)")
         self.mesostructure = mesostructure
         self.model_path = path
         self.device = torch.device(device)
@@ -120,11 +123,7 @@ class AnnCell(ArrayStateMixin):
             return (np.broadcast_to(self.mesostructure.position, (n_cells, *self.mesostructure.position.shape)),
                     np.broadcast_to(self.mesostructure.cell_size, (n_cells, 2)))
         alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (n_cells,))
-        position, cell_size = h_cell_reference(alpha0, self.radius)
-        if not shares_state_schema(self.trained_on, h_cell(float(alpha0[0]), self.radius)):
-            raise CheckpointError(f"{self.model_path}: model trained on {self.trained_on.name!r}, whose learning state "
-                                  f"the H-cell does not share; pass the model's mesostructure (--mesostructure)")
-        return position, cell_size
+        return h_cell_reference(alpha0, self.radius)
 
     # -- CellModel protocol ---------------------------------------------------------------
     def init_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> AnnState:
