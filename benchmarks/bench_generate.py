@@ -20,7 +20,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from warp_hcell import generate
+import numpy as np
+
+from warp_hcell import database, generate
 from warp_hcell.execution import DaskExecution, InProcess, ProcessPool
 from warp_hcell.mesostructure import h_cell, load_mesostructure
 from warp_hcell.parameters import CellDefaults, DatabaseSettings
@@ -44,6 +46,15 @@ def timed_run(meso, starts, settings: DatabaseSettings, out: Path, make, threads
     return {"explore": t1 - t0, "probe": t2 - t1, "total": t2 - t0, "sha256": hashlib.sha256(out.read_bytes()).hexdigest()}
 
 
+def differences(a: Path, b: Path) -> list[str]:
+    """Names of the root attrs and datasets whose values differ between two databases."""
+    data_a, attrs_a = database.read_database(a)
+    data_b, attrs_b = database.read_database(b)
+    names = [f"attr {k}" for k in sorted(set(attrs_a) | set(attrs_b)) if str(attrs_a.get(k)) != str(attrs_b.get(k))]
+    return names + [k for k in sorted(set(data_a) | set(data_b))
+                    if k not in data_a or k not in data_b or not np.array_equal(data_a[k], data_b[k], equal_nan=True)]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[2],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -61,6 +72,7 @@ def main() -> None:
         folder = args.out_dir or Path(tmp)
         results = [(label, threads, timed_run(meso, starts, settings, folder / f"bench_{i}.h5", make, threads))
                    for i, (label, threads, make) in enumerate(EXECUTIONS)]
+        # provenance holds the git revision: a commit during the benchmark changes the bytes (not the data)
         print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; {meso.name}; "
               f"{args.samples} samples, {len(starts)} start cells")
         print(f"{'execution':16s} {'threads':>7s} {'explore [s]':>11s} {'probe+write [s]':>15s} {'total [s]':>10s} "
@@ -71,6 +83,10 @@ def main() -> None:
                   f"{args.samples / r['total']:10.0f} {first / r['total']:9.2f}")
         same = all(r["sha256"] == results[0][2]["sha256"] for *_, r in results)
         print(f"databases byte-identical across executions: {same}")
+        if not same:
+            for i in range(1, len(results)):
+                print(f"{results[i][0]} vs {results[0][0]}: differs in "
+                      f"{differences(folder / 'bench_0.h5', folder / f'bench_{i}.h5') or 'nothing but bytes'}")
 
 
 if __name__ == "__main__":

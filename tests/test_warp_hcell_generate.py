@@ -263,6 +263,7 @@ def exit_code(argv):
     (["--mesostructure", "{file}"], "not valid"),
     (["--perturbed-fraction", "2"], "perturbed_fraction = 2 is outside [0, 1]"),
     (["--backend", "analytical"], "unrecognized arguments: --backend analytical"),
+    (["--device", "cuda:7"], "device 'cuda:7' is not available here"),
 ])
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, args, message):
     existing = tmp_path / "existing.h5"
@@ -350,6 +351,16 @@ def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monk
     sidecar = generate.sidecar_path(out)
     assert not out.exists() and not list(sidecar.glob("*.tmp")) and not (sidecar / "chunk_000001.npz").exists()
     monkeypatch.setattr(shards.np, "savez", real_savez)  # space freed: the same command resumes
+
+    def full_disk_in_hdf5(*args, **kwargs):
+        raise OSError("Can't write data (file write failed: errno = 28, error message = 'No space left on device')")
+
+    monkeypatch.setattr(database, "write_database", full_disk_in_hdf5)
+    assert exit_code(argv) == 2
+    err = error_lines(capsys)
+    assert len(err) == 1 and "no space left on the device writing" in err[0] and str(out) in err[0]
+    assert len(list(sidecar.glob("chunk_*.npz"))) == 3 and not out.exists()
+    monkeypatch.undo()
     assert exit_code(argv) == 0
     assert database.read_database(out)[1]["n_samples"] == 1500
 
@@ -370,36 +381,36 @@ def free_port() -> int:
 
 
 def test_dask_scheduler_with_a_lost_worker_gives_the_local_file(tmp_path):
-    """A real scheduler and two workers on 127.0.0.1; one worker is killed mid-run; Dask reruns
-    its tasks and the file is byte-identical to the in-process run."""
-    settings = replace(SMALL, samples=60_000, chunk_size=1000)
-    reference, _ = run(tmp_path, "local.h5", settings=settings)
-    port = free_port()
+    """A real scheduler and two workers on 127.0.0.1; ``--scheduler`` generates 6e4 samples; one
+    worker is killed mid-run; Dask reruns its tasks and the file is byte-identical to the
+    in-process run of the same command."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(DATA.parents[1]), os.environ.get("PYTHONPATH", "")])}
+    command = [sys.executable, "-m", "warp_hcell.generate", "--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"),
+               "--samples", "60000", "--chunk-size", "1000", "--n-directions", "8", "--seed", "3", "--threads", "1"]
+    local = tmp_path / "local.h5"
+    subprocess.run([*command, "--out", str(local)], env=env, check=True, capture_output=True)
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
+    quiet = {"env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
     procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-                               "--port", str(port), "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL)]
+                               "--port", str(port), "--no-dashboard"], **quiet)]
     try:
         procs += [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
-                                    "--no-nanny", "--no-dashboard", "--name", f"w{i}"], env=env,
-                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for i in range(2)]
+                                    "--no-nanny", "--no-dashboard", "--name", f"w{i}"], **quiet) for i in range(2)]
         with execution.DaskExecution(address=address, connect_timeout=30.0) as dask:
             dask.client.wait_for_workers(2, timeout=60)
-            out = tmp_path / "dask.h5"
-            sidecar = generate.sidecar_path(out)
-            result = {}
-            worker = threading.Thread(target=lambda: result.update(out=generate.generate(
-                LATERAL, settings, out, seed=3, execution=dask, threads=1)))
-            worker.start()
-            deadline = time.monotonic() + 120
-            while len(list(sidecar.glob("chunk_*.npz"))) < 5 and time.monotonic() < deadline and worker.is_alive():
-                time.sleep(0.05)
-            done_at_kill = len(list(sidecar.glob("chunk_*.npz")))
-            procs[1].kill()
-            worker.join(timeout=300)
-        assert 5 <= done_at_kill < 60 and result["out"] == out
-        assert out.read_bytes() == reference.read_bytes()
+        out = tmp_path / "dask.h5"
+        sidecar = generate.sidecar_path(out)
+        client = subprocess.Popen([*command, "--out", str(out), "--scheduler", address], **quiet)
+        procs.append(client)
+        deadline = time.monotonic() + 120
+        while len(list(sidecar.glob("chunk_*.npz"))) < 5 and time.monotonic() < deadline and client.poll() is None:
+            time.sleep(0.05)
+        done_at_kill = len(list(sidecar.glob("chunk_*.npz")))
+        procs[1].kill()
+        assert client.wait(timeout=300) == 0
+        assert 5 <= done_at_kill < 60
+        assert out.read_bytes() == local.read_bytes()
     finally:
         for proc in procs:
             proc.kill()
@@ -420,3 +431,52 @@ def test_exploration_does_not_depend_on_how_start_cells_are_grouped():
     assert np.array_equal(np.unique(together["start_id"]), [0, 1, 2])
     stride = exploration.path_stride(SMALL)
     assert np.all(together["path_id"] // stride == together["start_id"])
+
+
+@pytest.mark.slow
+def test_explored_states_cover_constant_volume_homogenisation():
+    """H-cells of every orientation sheared at constant volume to eps1 = 0.2 by the DEM after
+    isotropic compression (p0 ~ 2e5 and 5.85e6 N/m), at alpha0 = 35, 40, 55 deg, stay as close
+    to the default exploration's states as these are to each other: nearest-neighbour
+    distances in (cell size / 1 m, normal and shear forces of the 15 pairs / 6e6 N)."""
+    from warp_hcell import tasks
+
+    settings = DatabaseSettings()
+    meso = h_cell()
+    starts = generate.h_cell_starts(settings)
+    physics = tasks.Physics(ContactLaw(), describe(meso), DemSettings(), "cpu", 2)
+    inputs = tasks.ExploreInputs(physics, tuple(describe(s) for s in starts), settings)
+    states = tasks.explore_starts(inputs, tuple(range(len(starts))))
+    schema, law, tol = meso.schema(), ContactLaw(), DemSettings().contact_tolerance
+
+    def features(cell_size, position, shear_force):
+        ev = evaluate(schema, cell_size, free_coordinates(schema, position), shear_force, law, tol)
+        return np.concatenate([cell_size, ev["normal_force"] / 6e6, ev["shear_force"] / 6e6], axis=1)
+
+    def nearest(points, cloud, exclude=None):
+        squared = (points**2).sum(axis=1)[:, None] + (cloud**2).sum(axis=1)[None, :] - 2.0 * points @ cloud.T
+        if exclude is not None:
+            squared[np.arange(points.shape[0]), exclude] = np.inf
+        return np.sqrt(np.maximum(squared.min(axis=1), 0.0))
+
+    explored = features(states["dem/cell_size"], states["dem/position"], states["dem/shear_force"])
+    cell = DemCell(law, 0.5, threads=2)
+    theta = np.arange(12) * np.pi / 12
+    d_eps = 2e-3 * np.stack([np.cos(2.0 * theta), -np.cos(2.0 * theta)], axis=1)
+    visited = []
+    for alpha0 in (35.0, 40.0, 55.0):
+        for eps_iso in (9e-4, 2.5e-2):
+            state, _ = cell.step(cell.init_state(alpha0, 12), np.full((12, 2), eps_iso))
+            for k in range(100):
+                state, _ = cell.step(state, d_eps)
+                if k % 5 == 4:
+                    arrays = cell.state_to_arrays(state)
+                    visited.append(features(arrays["cell_size"], arrays["position"], arrays["shear_force"]))
+    visited = np.concatenate(visited)
+    distance = nearest(visited, explored)
+    sample = np.random.default_rng(0).choice(explored.shape[0], 3000, replace=False)
+    spacing = nearest(explored[sample], explored, exclude=sample)
+    assert visited.shape[0] == 3 * 2 * 20 * 12
+    assert np.median(distance) <= 1.5 * np.median(spacing), (np.median(distance), np.median(spacing))
+    assert np.quantile(distance, 0.99) <= 1.5 * np.quantile(spacing, 0.99), (np.quantile(distance, 0.99),
+                                                                            np.quantile(spacing, 0.99))

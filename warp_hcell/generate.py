@@ -30,6 +30,7 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 from __future__ import annotations
 
 import argparse
+import errno
 import hashlib
 import json
 import math
@@ -80,6 +81,16 @@ def check_increments(settings: DatabaseSettings, dem_settings: DemSettings) -> N
     if math.ceil(largest / dem_settings.strain_per_substep) > dem_settings.max_substeps:
         raise ValueError(f"increment {largest:g} needs more substeps than max_substeps = {dem_settings.max_substeps} "
                          f"at {dem_settings.strain_per_substep:g} per substep")
+
+
+def check_device(device: str) -> None:
+    """Raise UserError (one line) unless Warp has ``device`` on this machine (the client's)."""
+    import warp as wp  # noqa: PLC0415 (Warp loads only where cells are stepped)
+
+    try:
+        wp.get_device(device)
+    except (RuntimeError, ValueError) as exc:
+        raise UserError(f"device {device!r} is not available here: {' '.join(str(exc).split())}") from None
 
 
 def run_description(meso: Mesostructure, starts: Sequence[Mesostructure], settings: DatabaseSettings, seed: int,
@@ -159,7 +170,12 @@ def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapp
     }
     data["valid"], cleaning_attrs = cleaning.clean_samples(data) if clean else cleaning.not_cleaned(data)
     attrs.update(cleaning_attrs)
-    database.write_database(out, data, attrs, database.dataset_attrs(schema, meso.is_h_cell))
+    try:
+        database.write_database(out, data, attrs, database.dataset_attrs(schema, meso.is_h_cell))
+    except OSError as exc:  # h5py reports a full disk in its message, not always in errno
+        if exc.errno == errno.ENOSPC or "No space left" in str(exc):
+            raise DiskFull(errno.ENOSPC, "no space left on device", str(out)) from None
+        raise
 
 
 def generate(
@@ -303,6 +319,7 @@ def _run(argv: Sequence[str] | None) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     check_output_path(args.out, overwrite=args.overwrite)
+    check_device(args.device)
     if args.out.is_dir():
         raise UserError(f"{args.out} is a folder; --out must be a file")
     if args.mesostructure is None:

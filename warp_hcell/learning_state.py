@@ -19,17 +19,11 @@ u = (x_j - x_i) / |x_j - x_i|, w = (-u_t, u_n), the force on grain i by grain j 
 
 from __future__ import annotations
 
-from typing import Mapping
-
 import numpy as np
 
 from warp_hcell.cell_model import StateSchema
 from warp_hcell.mesostructure import Mesostructure, polygon_area
 from warp_hcell.parameters import ContactLaw
-
-STATE_VARIABLES = ("cell_size", "free_position", "shear_force")
-"""The features that define a learning state; every other feature is derived from them."""
-
 
 def positions(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarray) -> np.ndarray:
     """All grain centres [m], shape (n, n_grains, 2): driven DOFs at x_ref * l / l_ref.
@@ -88,20 +82,6 @@ def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarr
             "moment": moment, "area": polygon_area(x, schema.outer)}
 
 
-def feature_arrays(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
-                   contact_law: ContactLaw, contact_tolerance: float) -> dict[str, np.ndarray]:
-    """Every feature of ``schema.features`` (the database's per-sample datasets) of a batch.
-
-    ``shear_force`` is stored after the contact-law evaluation (capped, zero out of
-    contact), which the DEM applies first thing in a step: the stored state steps exactly
-    as the raw one. ``moment`` is flattened to (n, 4) (S_nn, S_nt, S_tn, S_tt).
-    """
-    ev = evaluate(schema, cell_size, free_position, shear_force, contact_law, contact_tolerance)
-    return {"cell_size": np.array(cell_size, dtype=np.float64), "free_position": np.array(free_position, np.float64),
-            "shear_force": ev["shear_force"], "contact": ev["contact"], "normal_force": ev["normal_force"],
-            "unbalanced": ev["unbalanced"], "moment": ev["moment"].reshape(-1, 4), "area": ev["area"]}
-
-
 HCELL_OBSERVABLES = ("alpha_deg", "d1", "d2", "N1", "N2", "T1")
 """H-cell observables stored for reports (group ``hcell`` of the database)."""
 
@@ -127,8 +107,3 @@ def hcell_observables(meso: Mesostructure, position: np.ndarray, normal_force: n
     return {"alpha_deg": np.degrees(np.arctan2(-b1[:, 1], -b1[:, 0])), "d1": np.hypot(b1[:, 0], b1[:, 1]),
             "d2": np.hypot(b2[:, 0], b2[:, 1]), "N1": normal_force[:, p1].copy(), "N2": normal_force[:, p2].copy(),
             "T1": shear_force[:, p1].copy()}
-
-
-def stack_features(parts: list[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """Concatenate feature dicts along the first axis."""
-    return {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}

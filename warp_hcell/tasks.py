@@ -4,9 +4,10 @@
   (``warp_hcell.exploration.explore``);
 - ``probe_chunk(inputs, c)``: the samples of chunk c (``warp_hcell.probing.compute_chunk``).
 
-The inputs (``Physics``, ``ExploreInputs``, ``ProbeInputs``) are small picklable values;
-each worker process builds its DEM cell and probe context once per run (cached by the
-run's token). A cell's DEM result does not depend on its batch, so a task's result depends
+The inputs (``Physics``, ``ExploreInputs``, ``ProbeInputs``) are picklable values, sent
+once per worker (``ProbeInputs`` carries the explored states, ~30 MB for the H-cell); each
+worker process builds its DEM cell and probe context once per run (cached by the run's
+token). A cell's DEM result does not depend on its batch, so a task's result depends
 on its inputs and index only.
 """
 
