@@ -1,7 +1,7 @@
 # make test      : create .venv, install the package (CPU torch first), run the CI test suite
 # make demo      : same set-up, then the constant-volume biaxial tests and their figures
 # make bench     : speed benchmarks (numbers quoted in README)
-# make reproduce : the whole pipeline from scratch: DEM database (3e5), training, three backends
+# make reproduce : the whole pipeline from scratch: DEM database (3e5), training (the shipped model), three backends
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -43,8 +43,8 @@ bench: venv
 
 reproduce: venv
 	mkdir -p runs
-	$(PY) -m warp_hcell.generate --samples 300000 --seed 0 --clean --out runs/db_3e5.h5 --overwrite
-	$(PY) -m training.train --data runs/db_3e5.h5 --out runs/ann.pt --hidden 64,64,64 --epochs 400 --seed 0 --threads 2 --overwrite
+	$(PY) -m warp_hcell.generate --samples 300000 --seed 0 --threads 1 --sample-spacing 2.5e-3 --perturbed-fraction 0.4 --out runs/db_3e5.h5 --overwrite
+	$(PY) -m training.train --data runs/db_3e5.h5 --out runs/ann.pt --overwrite
 	$(BIAXIAL) --backend analytical,dem,ann --model runs/ann.pt --alpha0 55 --p0 5.85e6 $(OVERLAY) --out runs/alpha55
 	@echo "Figure: runs/alpha55/cambridge.png"
 

@@ -1,21 +1,24 @@
-"""python benchmarks/bench_ann.py [--model PATH] [--cells 360] [--repeats 2000]: ANN backend speed.
+"""python benchmarks/bench_ann.py [--model PATH] [--cells 360] [--repeats 1000]: ANN vs analytical increment, side by side.
 
-Prints, on one torch thread (torch.set_num_threads(1)):
+Prints, on one torch thread and in one run (the machine is shared: the load average is
+printed with the numbers):
 
-1. the time of one network call and of one ``AnnCell.step`` for ``--cells`` cells
-   (median over ``--repeats`` increments of a constant-volume-like load);
-2. the wall time of the full constant-volume biaxial runs (alpha0 = 55 deg, isotropic
-   compression to p0 = 5.85e6 N/m and, for static liquefaction, 2e5 N/m, then eps1 to 20 %
-   in 1e-5 increments) through ``homogenization.driver`` with the ANN and with the
-   analytical backend, with the largest deviation of p and q from the analytical curve as
-   a fraction of p0, the q peaks and the final p.
-
-The machine is shared: the load average (``os.getloadavg``) is printed with the numbers.
+1. the median time of one ``step`` of ``--cells`` H-cells (alpha0 = 55 deg, after an
+   isotropic compression, constant-volume-like increments of 1e-5) for the analytical and
+   the ANN backend, interleaved, and their ratio; for the ANN also the network call alone
+   (``MesoNet.displacement``) and the step with its autograd tangent;
+2. unless ``--skip-run``: one JSON line per biaxial test (isotropic compression to p0, then
+   constant-volume, and/or drained (``--tests``), shear to ``--eps-max``) run with the
+   ANN and its reference through ``homogenization.driver``: the analytical backend for the
+   H-cell, the DEM with the same file for ``--mesostructure``; max |p - p_ref| and
+   |q - q_ref| over the shear stage as fractions of p0, run times, and the ANN's counts of
+   contact-law branches.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import time
 
@@ -25,65 +28,117 @@ import torch
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.orientation import localise, orientations
+from warp_hcell.mesostructure import load_mesostructure
 from warp_hcell.parameters import CellDefaults
 
 
-def _median_ms(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times))
+def _time(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--model", default=None, help="model state_dict (default: the shipped model)")
     parser.add_argument("--cells", type=int, default=360, help="cells (orientations) per increment")
-    parser.add_argument("--repeats", type=int, default=2000, help="timed increments")
-    parser.add_argument("--skip-run", action="store_true", help="only time single increments")
+    parser.add_argument("--repeats", type=int, default=1000, help="timed increments per backend")
+    parser.add_argument("--skip-run", action="store_true", help="only time single increments (H-cell)")
+    parser.add_argument("--increments", type=float, nargs="+", default=[1e-4, 1e-5],
+                        help="increments of the biaxial runs (isotropic and shear stages) [-]")
     parser.add_argument("--p0", type=float, nargs="+", default=[CellDefaults.p0, 2e5],
-                        help="confining pressures of the constant-volume runs [N/m]")
+                        help="confining pressures of the biaxial runs [N/m]")
+    parser.add_argument("--alpha0", type=float, nargs="+", default=[55.0], help="initial opening angles [deg]")
+    parser.add_argument("--eps-max", type=float, default=0.2, help="eps1 at the end of the shear stage [-]")
+    parser.add_argument("--tests", choices=("constant-volume", "drained", "both"), default="constant-volume",
+                        help="biaxial tests to run")
+    parser.add_argument("--mesostructure", default=None,
+                        help="mesostructure file: compare the ANN (--model trained on it) with the DEM")
     args = parser.parse_args()
-    torch.set_num_threads(1)
-    print(f"load average (1, 5, 15 min): {os.getloadavg()}; torch threads: {torch.get_num_threads()}")
-
-    cell = make_cell_model("ann", model=args.model)
-    orient = orientations(args.cells)
-    state = cell.init_state(55.0, args.cells)
-    iso = localise(orient, np.array([5e-6, 5e-6, 0.0]))
-    for _ in range(200):
-        state, _ = cell.step(state, iso)
-    d_eps = localise(orient, np.array([1e-5, -1e-5, 0.0]))
-    inputs = torch.from_numpy(np.column_stack([d_eps, np.degrees(state.alpha), state.N1, state.N2, state.T1,
-                                               state.l1, state.l2]))
-    with torch.inference_mode():
-        net_ms = _median_ms(lambda: cell.net.predict(inputs), args.repeats)
-    step_ms = _median_ms(lambda: cell.step(state, d_eps), args.repeats)
-    print(f"{args.cells} cells: network call {net_ms:.3f} ms, AnnCell.step {step_ms:.3f} ms per increment (median)")
-    if args.skip_run:
-        return
-
-    for p0 in args.p0:
-        programme = loading.biaxial(p0, 0.2, 1e-5)
-        records = {}
-        for name, model in (("analytical", make_cell_model("analytical")), ("ann", cell)):
-            start = time.perf_counter()
-            records[name] = driver.run(model, programme, alpha0_deg=55.0, n_orientations=args.cells, progress=False)
-            seconds = time.perf_counter() - start
-            print(f"p0 = {p0:g}: {name} constant-volume run ({len(records[name].p)} increments) in {seconds:.1f} s "
-                  f"({1e3 * seconds / len(records[name].p):.3f} ms per increment incl. the driver)")
-        ref, ann = records["analytical"], records["ann"]
-        a, b = ref.stage == "shear", ann.stage == "shear"
-        n = min(a.sum(), b.sum())
-        dp = np.max(np.abs(ann.p[b][:n] - ref.p[a][:n])) / p0
-        dq = np.max(np.abs(ann.q[b][:n] - ref.q[a][:n])) / p0
-        print(f"p0 = {p0:g}: shear stage max |p_ann - p_ana| / p0 = {dp:.4f}, max |q_ann - q_ana| / p0 = {dq:.4f}; "
-              f"q peak ana {ref.q[a].max():.5g}, ann {ann.q[b].max():.5g} N/m "
-              f"({100 * (ann.q[b].max() / ref.q[a].max() - 1):+.2f} %); final p ana {ref.p[a][-1]:.4g}, "
-              f"ann {ann.p[b][-1]:.4g} N/m")
+    print(f"load average (1, 5, 15 min): {os.getloadavg()}")
+    if args.mesostructure is None:
+        time_increments(args)
+    if not args.skip_run:
+        for case in _cases(args):
+            print(json.dumps(compare(case, args.model, args.mesostructure, args.cells)), flush=True)
     print(f"load average after: {os.getloadavg()}")
+
+
+def time_increments(args) -> None:
+    """Median time of one H-cell increment of the analytical and the ANN backend, interleaved."""
+    models = {"analytical": make_cell_model("analytical"), "ann": make_cell_model("ann", model=args.model, threads=1)}
+    print(f"torch threads: {torch.get_num_threads()}")
+    orient = orientations(args.cells)
+    iso = localise(orient, np.array([2e-5, 2e-5, 0.0]))
+    d_eps = localise(orient, np.array([1e-5, -1e-5, 0.0]))
+    states = {}
+    for name, model in models.items():
+        state = model.init_state(55.0, args.cells)
+        for _ in range(100):
+            state, _ = model.step(state, iso)
+        states[name] = state
+    times: dict[str, list[float]] = {"analytical": [], "ann": []}
+    for _ in range(args.repeats):
+        for name, model in models.items():
+            times[name].append(_time(lambda: model.step(states[name], d_eps)))
+    ann = models["ann"]
+    tensors = [torch.from_numpy(a) for a in states["ann"]]
+    d = torch.from_numpy(d_eps)
+    with torch.inference_mode():
+        net_ms = 1e3 * np.median([_time(lambda: ann.net.displacement(*tensors, d)) for _ in range(args.repeats)])
+    tangent_ms = 1e3 * np.median([_time(lambda: ann.step(states["ann"], d_eps, with_tangent=True)) for _ in range(100)])
+    ms = {name: 1e3 * float(np.median(t)) for name, t in times.items()}
+    print(f"{args.cells} cells, median per increment: analytical step {ms['analytical']:.3f} ms, "
+          f"ANN step {ms['ann']:.3f} ms (network call {net_ms:.3f} ms; with tangent {tangent_ms:.3f} ms); "
+          f"ratio ANN / analytical = {ms['ann'] / ms['analytical']:.2f}", flush=True)
+
+
+def _cases(args) -> list[dict]:
+    alphas = args.alpha0
+    return [{"p0": p0, "increment": inc, "drained": drained, "alpha0": alpha0, "eps_max": args.eps_max}
+            for drained in {"constant-volume": [False], "drained": [True], "both": [False, True]}[args.tests]
+            for alpha0 in alphas
+            for p0 in args.p0 for inc in args.increments]
+
+
+def _shear_stage(record):
+    """Shear-stage eps1 counted from its start [-], p and q [N/m], and p at the end of the isotropic stage."""
+    shear = record.stage != record.stage[0]
+    start = record.eps11[~shear][-1]
+    return record.eps11[shear] - start, record.p[shear], record.q[shear], record.p[~shear][-1]
+
+
+def compare(case: dict, model, mesostructure, n_cells: int) -> dict:
+    """One biaxial test with the ANN and its reference (analytical for the H-cell, DEM for a file).
+
+    Returns the case, max |p_ann - p_ref| / p0 and max |q_ann - q_ref| / p0 over the shear
+    stage (ANN interpolated at the reference's eps1), the run times and the ANN's summed
+    diagnostics (contact-law branch counts), or the error that stopped a run.
+    """
+    meso = load_mesostructure(mesostructure) if mesostructure else None
+    reference = ("dem", {"mesostructure": meso}) if meso is not None else ("analytical", {})
+    programme = loading.biaxial(case["p0"], case["eps_max"], case["increment"], iso_increment=case["increment"],
+                                drained=case["drained"])
+    out: dict = {"case": {**case, "mesostructure": str(mesostructure) if mesostructure else "h-cell (builder)",
+                          "reference": reference[0], "n_cells": n_cells}}
+    records = {}
+    for name, options in (reference, ("ann", {"model": model, "threads": 1, "mesostructure": meso})):
+        options = {k: v for k, v in options.items() if v is not None}
+        start = time.perf_counter()
+        try:
+            records[name] = driver.run(make_cell_model(name, **options), programme, alpha0_deg=case["alpha0"],
+                                       n_orientations=n_cells, progress=False)
+        except driver.ControlError as exc:
+            return {**out, "error": f"{name}: {exc}"}
+        out[f"seconds_{name}"] = round(time.perf_counter() - start, 1)
+    e_ref, p_ref, q_ref, _ = _shear_stage(records[reference[0]])
+    e_ann, p_ann, q_ann, p_iso = _shear_stage(records["ann"])
+    out["max_dp_over_p0"] = float(np.abs(np.interp(e_ref, e_ann, p_ann) - p_ref).max() / case["p0"])
+    out["max_dq_over_p0"] = float(np.abs(np.interp(e_ref, e_ann, q_ann) - q_ref).max() / case["p0"])
+    out["ann_eps1_reached"] = float(e_ann[-1])
+    out["ann_diagnostics"] = {k: float(np.nansum(v)) for k, v in records["ann"].diagnostics.items()
+                              if not k.endswith("_all_calls")}
+    return out
 
 
 if __name__ == "__main__":

@@ -11,8 +11,8 @@ runs any loading programme instead (JSON or TOML, docs/programmes.md).
 the same programme. One backend writes DIR/run.h5 and DIR/curve.csv; several write
 DIR/<backend>/run.h5 and DIR/<backend>/curve.csv. Either way DIR/cambridge.png overlays
 all backends in the 2x2 figure (q-eps1, q-p, p-eps1 or eps_v-eps1, q/p-eps1).
-Backend-specific options go to their backend only: --mesostructure and --threads to dem,
---model to ann, --device to dem and ann. --mesostructure takes a file or a builder spec
+Backend-specific options go to their backend only: --mesostructure and --threads to dem
+and ann, --model to ann, --device to dem and ann. --mesostructure takes a file or a builder spec
 (``warp_hcell.builders``, e.g. ``hcell-fines:ratio=0.76``), built at --alpha0 unless the
 spec gives its own alpha0.
 
@@ -58,7 +58,7 @@ from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings, Lo
 from warp_hcell.provenance import command_line, file_sha256
 
 FIGURE_FILE = "cambridge.png"
-BACKEND_ONLY_OPTIONS = {"mesostructure": ("dem",), "threads": ("dem",), "model": ("ann",)}
+BACKEND_ONLY_OPTIONS = {"mesostructure": ("dem", "ann"), "threads": ("dem", "ann"), "model": ("ann",)}
 """Backend-specific flags (argparse dest) -> the backends that take them."""
 DEVICE_BACKENDS = ("dem", "ann")
 """Backends that take --device; the analytical cell runs on the cpu."""
@@ -133,8 +133,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="fourth panel of the figure: stress ratio or second-order work W2")
     parser.add_argument("--out", type=Path, required=True, help="output folder (replaced as a unit)")
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
-                        help=f"dem only; None: the H-cell. {MESOSTRUCTURE_HELP}")
-    parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM (dem only; None: the backend's own default)")
+                        help=f"dem and ann (the model must be trained on it); None: the H-cell. {MESOSTRUCTURE_HELP}")
+    parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM or of torch inference (dem and ann; None: the backend's own default)")
     parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
     verbosity = parser.add_mutually_exclusive_group()
     verbosity.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary; warnings and errors only")
@@ -313,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "fabric_direction_deg": args.fabric_direction,
                     "drained": drained,
                     "stress_rtol": LoadingDefaults.stress_rtol,
-                    "mesostructure": args.mesostructure.text if name == "dem" and args.mesostructure else None,
+                    "mesostructure": args.mesostructure.text if "mesostructure" in options[name] else None,
                 }
                 folder = work if len(args.backend) == 1 else work / name
                 final = out if len(args.backend) == 1 else out / name

@@ -12,7 +12,7 @@ OUT.csv: header ``l1,l2,alpha_deg,d1,d2,N1,N2,T1,S_nn,S_tt`` (with ``--positions
 by the grain centres ``x_n1,x_t1,...,x_n6,x_t6`` [m], local frame, cell centre at the
 origin) and one row per increment. Units: lengths [m], angle [deg], contact forces [N]
 (compression positive, T1 > 0 resists opening), Love-Weber moments S_nn, S_tt [N m],
-compression positive. The DEM backend with a general ``--mesostructure`` (not an H-cell)
+compression positive. The DEM or ANN backend with a general ``--mesostructure`` (not an H-cell)
 has no l1..T1 of its own: only the columns that the backend reports among
 ``observables()`` are written, in the order above, and with ``--positions`` every grain
 centre it reports; the cell then starts from that mesostructure (a file, or a builder spec
@@ -53,7 +53,9 @@ PATH_HEADER = ("d_eps_n", "d_eps_t")
 COLUMNS = ("l1", "l2", "alpha_deg", "d1", "d2", "N1", "N2", "T1", "S_nn", "S_tt")
 """Columns of the output file, before the optional grain positions."""
 DEM_ONLY_BACKEND = "dem"
-"""The backend that takes --mesostructure and a compute --device."""
+"""The backend whose Warp start-up banner is silenced."""
+MESOSTRUCTURE_BACKENDS = ("dem", "ann")
+"""The backends that take --mesostructure and a compute --device."""
 ANN_MAX_INCREMENT = DatabaseSettings.probe_max
 """Largest |d_eps| [-] of one path row the ann backend accepts: the largest strain probe of
 its learning database (beyond it the network extrapolates)."""
@@ -78,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--phi", type=finite_float, default=law.phi_g_deg, help="inter-granular friction angle phi_g [deg], in [0, 90)")
     parser.add_argument("--positions", action="store_true", help="also write the grain centres x_n{i}, x_t{i} [m]")
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
-                        help=f"dem backend only; default: the H-cell. {MESOSTRUCTURE_HELP}")
+                        help=f"dem and ann backends (the ann model must be trained on it); default: the H-cell. {MESOSTRUCTURE_HELP}")
     return parser
 
 
@@ -126,16 +128,17 @@ def _check_out(out: Path, *, overwrite: bool) -> None:
 
 
 def _backend_options(args: argparse.Namespace) -> dict:
-    """Keyword options of the chosen backend: mesostructure and device go to the DEM only."""
-    if args.backend == DEM_ONLY_BACKEND:
+    """Keyword options of the chosen backend: mesostructure and device go to the DEM and the ANN."""
+    if args.backend in MESOSTRUCTURE_BACKENDS:
         options: dict = {"device": args.device}
         if args.mesostructure is not None:
             options["mesostructure"] = args.mesostructure.build(args.alpha0)
         return options
+    takers = " or ".join(MESOSTRUCTURE_BACKENDS)
     if args.mesostructure is not None:
-        raise UserError(f"--mesostructure applies to --backend {DEM_ONLY_BACKEND} only")
+        raise UserError(f"--mesostructure applies to --backend {takers} only")
     if args.device != "cpu":
-        raise UserError(f"--device applies to --backend {DEM_ONLY_BACKEND} only ({args.backend} runs on the cpu)")
+        raise UserError(f"--device applies to --backend {takers} only ({args.backend} runs on the cpu)")
     return {}
 
 

@@ -111,7 +111,7 @@ def test_inconsistent_options_one_line_exit_2(tmp_path, capsys, monkeypatch):
     blocker.write_text("")
     monkeypatch.setitem(BACKENDS, "ghost", "homogenization.backends.ghost:GhostCell")
     cases = [
-        (["--threads", "4", "--out", str(tmp_path / "a")], "--threads applies to --backend dem only"),
+        (["--threads", "4", "--out", str(tmp_path / "a")], "--threads applies to --backend dem or ann only"),
         (["--model", "m.pt", "--out", str(tmp_path / "a")], "--model applies to --backend ann only"),
         (["--device", "cuda", "--out", str(tmp_path / "a")],
          "--device applies to --backend dem or ann only (analytical runs on the cpu)" if cuda_device_count()
@@ -158,3 +158,16 @@ def test_analytical_and_dem_overlay_agree(tmp_path):
     # 3 digits: the DEM's adaptive stepping (docs/dem_stepping.md) agrees to ~1e-4 of p0, issue 10 asks 1e-3
     assert np.abs(a.p - d.p).max() <= 1e-3 * 2e5 and np.abs(a.q - d.q).max() <= 1e-3 * 2e5
     assert d.diagnostics["substeps"].shape == (d.n_increments,) and d.diagnostics["n_unconverged"].sum() == 0
+
+
+def test_ann_model_of_another_mesostructure_is_refused(tmp_path, capsys):
+    """The shipped model is trained on H-cells: a cell with smaller lateral grains is refused
+    before any work, in one line, exit 2."""
+    out = tmp_path / "run"
+    lateral = Path(__file__).resolve().parents[1] / "warp_hcell" / "data" / "h_cell_lateral_0.7D.toml"
+    argv = ["--backend", "ann", "--mesostructure", str(lateral), "--orientations", "12",
+            "--eps-max", "0.01", "--increment", "1e-3", "--out", str(out)]
+    assert run_main(biaxial.main, argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "model trained on mesostructure" in err[0] and "lateral grains" in err[0]
+    assert not out.exists()

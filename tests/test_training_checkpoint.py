@@ -1,4 +1,4 @@
-"""Checkpoints: state_dict + JSON round trip, and one-line errors for bad or mismatched files."""
+"""Model files: round trip, tensors only, one-line errors, contact-law and mesostructure checks."""
 
 import json
 
@@ -6,84 +6,62 @@ import numpy as np
 import pytest
 import torch
 
-from training.checkpoint import CheckpointError, check_compatible, load_checkpoint, metadata_path, save_checkpoint
-from training.network import CellNet
-
-LAW = {"kn": 2e8, "kt_over_kn": 0.5, "phi_g_deg": 30.0}
-
-
-@pytest.fixture
-def saved(tmp_path):
-    torch.manual_seed(0)
-    net = CellNet((8, 6), kn=2e8, diameter=1.0, mu=0.5)
-    net.set_normalisation(np.arange(12.0), np.full(12, 2.0), np.ones(4), np.full(4, 3.0))
-    path = tmp_path / "model.pt"
-    save_checkpoint(path, net, {"contact_law": LAW, "radius": 0.5, "metrics_r2": {"val": {"x": 0.5}}})
-    return path, net
+from dem_database import build
+from training.checkpoint import CheckpointError, check_compatible, check_mesostructure, load_checkpoint
+from training.train import main
 
 
-def test_round_trip_restores_the_same_network_and_metadata(saved):
-    path, net = saved
-    loaded, meta = load_checkpoint(path)
-    x = torch.from_numpy(np.random.default_rng(0).normal(size=(5, 8)))
-    assert torch.equal(loaded.predict(x), net.predict(x))
-    assert meta["architecture"]["hidden"] == [8, 6] and meta["metrics_r2"] == {"val": {"x": 0.5}}
-    assert meta["normalisation"]["feature_mean"] == list(np.arange(12.0))
-    assert meta["scales"] == {"kn": 2e8, "diameter": 1.0, "mu": 0.5}
-    assert sorted(p.name for p in path.parent.iterdir()) == ["model.json", "model.pt"]  # no temporary left
-    assert all(p.stat().st_mode & 0o777 == 0o644 for p in path.parent.iterdir())
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("ckpt")
+    db = build(folder / "db.h5", precompression=(0.0, 2e-3), n_directions=6, spacing=1e-2, leg_length=0.06,
+               threads=1)
+    assert main(["--data", str(db), "--out", str(folder / "m.pt"), "--epochs", "2", "--hidden", "8",
+                 "--threads", "1", "--no-rollout"]) == 0
+    return folder / "m.pt"
+
+
+def test_round_trip_restores_the_same_network(saved):
+    net, meta = load_checkpoint(saved)
+    again, _ = load_checkpoint(saved)
+    f64 = dict(dtype=torch.float64)
+    state = (torch.tensor([[2.3, 1.6]], **f64), torch.tensor([[0.5, -0.5, -0.5, 0.5]], **f64), torch.zeros(1, 15, **f64))
+    d = torch.tensor([[1e-4, -2e-4]], **f64)
+    with torch.no_grad():
+        assert torch.equal(net.displacement(*state, d), again.displacement(*state, d))
+    assert meta["format_version"] == 2 and len(meta["mesostructure_sha256"]) == 64
 
 
 def test_the_state_dict_file_holds_tensors_only(saved):
-    state = torch.load(saved[0], weights_only=True)
+    state = torch.load(saved, weights_only=True)
     assert all(isinstance(v, torch.Tensor) for v in state.values())
 
 
-def _corrupt(path, case):
-    json_path = metadata_path(path)
-    if case == "pt_missing":
-        path.unlink()
-    elif case == "json_missing":
-        json_path.unlink()
-    elif case == "pt_garbage":
-        path.write_bytes(b"\x00garbage" * 20)
-    elif case == "json_garbage":
-        json_path.write_text("{not json")
-    elif case == "json_format":
-        json_path.write_text(json.dumps({"format": "other"}))
+@pytest.mark.parametrize("case, message", [("no_pt", "no such model file"), ("bad_json", "not a valid JSON"),
+                                           ("version1", "format_version 1"), ("bad_pt", "not a readable torch")])
+def test_bad_model_files_give_one_line_errors(saved, tmp_path, case, message):
+    pt, js = tmp_path / "m.pt", tmp_path / "m.json"
+    pt.write_bytes(saved.read_bytes())
+    meta = json.loads(saved.with_suffix(".json").read_text())
+    js.write_text(json.dumps(meta))
+    if case == "no_pt":
+        pt.unlink()
+    elif case == "bad_json":
+        js.write_text("{")
+    elif case == "version1":
+        js.write_text(json.dumps({**meta, "format_version": 1}))
     else:
-        meta = json.loads(json_path.read_text())
-        if case == "hidden_mismatch":
-            meta["architecture"]["hidden"] = [8, 8, 8]
-        elif case == "activation":
-            meta["architecture"]["activation"] = "relu"
-        elif case == "scales":
-            meta["scales"]["kn"] = 1e7
-        json_path.write_text(json.dumps(meta))
+        pt.write_text("garbage")
+    with pytest.raises(CheckpointError, match=message) as info:
+        load_checkpoint(pt)
+    assert "\n" not in str(info.value)
 
 
-@pytest.mark.parametrize("case, message", [
-    ("pt_missing", "no such model file"),
-    ("json_missing", "no such model metadata file"),
-    ("pt_garbage", "not a readable torch state_dict"),
-    ("json_garbage", "not a valid JSON model metadata file"),
-    ("json_format", "not a meso-hmodel-ann metadata file"),
-    ("hidden_mismatch", "state_dict does not match the architecture in model.json (hidden = [8, 8, 8])"),
-    ("activation", "is not a 8-input tanh CellNet"),
-    ("scales", "scales in the state_dict differ from model.json"),
-])
-def test_bad_model_files_give_one_line_errors(saved, case, message):
-    path, _ = saved
-    _corrupt(path, case)
-    with pytest.raises(CheckpointError) as info:
-        load_checkpoint(path)
-    assert message in str(info.value) and "\n" not in str(info.value)
-
-
-def test_a_model_for_another_contact_law_or_radius_is_refused(saved):
-    _, meta = load_checkpoint(saved[0])
-    check_compatible(meta, radius=0.5, source="m.pt", **LAW)
-    with pytest.raises(CheckpointError, match=r"m.pt: model trained with kn = 200000000.0, this run uses kn = 1e\+07"):
-        check_compatible(meta, radius=0.5, source="m.pt", **{**LAW, "kn": 1e7})
-    with pytest.raises(CheckpointError, match="radius = 0.5, this run uses radius = 1"):
-        check_compatible(meta, radius=1.0, source="m.pt", **LAW)
+def test_another_contact_law_or_mesostructure_is_refused(saved):
+    _, meta = load_checkpoint(saved)
+    check_compatible(meta, kn=2e8, kt_over_kn=0.5, phi_g_deg=30.0, source="m")
+    with pytest.raises(CheckpointError, match="kn = 200000000.0, this run uses kn = 1e\\+08"):
+        check_compatible(meta, kn=1e8, kt_over_kn=0.5, phi_g_deg=30.0, source="m")
+    check_mesostructure(meta, meta["mesostructure_sha256"], name="same", source="m")
+    with pytest.raises(CheckpointError, match="not on 'other'"):
+        check_mesostructure(meta, "0" * 64, name="other", source="m")

@@ -1,161 +1,103 @@
-"""Database loading (one-line errors), sample selection, split by path, normalisation.
+"""Generic database reading and the exact cell physics, checked against the DEM that wrote the data.
 
-Format-only tests: the fixture writes a conforming file of random numbers (the physics
-does not matter here; training on a real generated database is in test_training_train.py).
+The small database is made in the test by the DEM (``tests/dem_database.py``): H-cells at
+alpha0 = 55 deg, sampled along proportional legs, 40 % of the states perturbed.
 """
-
-import math
 
 import h5py
 import numpy as np
 import pytest
 import torch
 
-from training.dataset import DataError, fit_normalisation, load_database, split_by_path, tensors
-from warp_hcell.database import FORMAT, INPUT_FEATURES, OUTPUT_FEATURES, STATE_FEATURES
-
-KN, RADIUS = 2e8, 0.5
-ALPHA0 = (30.0, 40.0, 55.0, 70.0, 89.0)
-PATHS_PER_ALPHA0, SAMPLES_PER_PATH = 10, 6
+from dem_database import build
+from training import cell_physics
+from training.dataset import DataError, active_pairs, load_database, split_by_path
+from warp_hcell import generate
 
 
-def _write(path, *, n_bad=0, attrs=None, drop=None, outputs_rows=None):
-    """Random conforming database: 5 alpha0 x 10 paths x 6 samples; the first n_bad samples bad."""
-    rng = np.random.default_rng(0)
-    n = len(ALPHA0) * PATHS_PER_ALPHA0 * SAMPLES_PER_PATH
-    path_id = np.repeat(np.arange(len(ALPHA0) * PATHS_PER_ALPHA0), SAMPLES_PER_PATH)
-    alpha0 = np.repeat(ALPHA0, PATHS_PER_ALPHA0 * SAMPLES_PER_PATH)
-    state = np.column_stack([rng.uniform(40, 80, n), rng.uniform(0, 1e6, (n, 2)), rng.uniform(-1e5, 1e5, n),
-                             rng.uniform(1.5, 2.0, n), rng.uniform(1.0, 1.7, n)])
-    inputs = np.column_stack([rng.normal(scale=1e-5, size=(n, 2)), state])
-    magnitude = np.hypot(inputs[:, 0], inputs[:, 1])[:, None]
-    outputs = state[:, :4] + magnitude * np.clip(rng.normal(size=(n, 4)), -3, 3) * [30.0, 1e8, 1e8, 1e8]
-    table = np.zeros((n, len(STATE_FEATURES)))
-    table[:, STATE_FEATURES.index("alpha_deg")] = 60.0
-    table[:, STATE_FEATURES.index("closed1")] = 1.0
-    valid = np.ones(n, bool)
-    converged = np.ones(n, bool)
-    if n_bad:
-        valid[0] = False
-        converged[1] = False
-        inputs[2, 3] = np.nan
-        inputs[3, :2] = 0.0
-    data = {"inputs": inputs, "outputs": outputs if outputs_rows is None else outputs[:outputs_rows],
-            "pre_state": table, "post_state": table, "path_id": path_id, "probe_id": np.zeros(n, np.int64),
-            "alpha0_deg": alpha0, "converged": converged, "valid": valid}
-    root = {"format": FORMAT, "format_version": 1, "kn": KN, "kt": 0.5 * KN, "phi_g_deg": 30.0, "radius": RADIUS,
-            **(attrs or {})}
-    with h5py.File(path, "w") as f:
-        for key, value in root.items():
-            f.attrs[key] = value
-        for name, value in data.items():
-            if name != drop:
-                dset = f.create_dataset(name, data=value)
-                if name in ("inputs", "outputs"):
-                    dset.attrs["feature_names"] = list(INPUT_FEATURES if name == "inputs" else OUTPUT_FEATURES)
-    return path
+@pytest.fixture(scope="module")
+def db_file(tmp_path_factory):
+    return build(tmp_path_factory.mktemp("db") / "small.h5", precompression=(0.0, 2e-3), n_directions=6,
+                 spacing=1e-2, leg_length=0.1, probes_per_state=2, threads=1)
 
 
-@pytest.fixture
-def db_file(tmp_path):
-    return _write(tmp_path / "db.h5", n_bad=4)
+def _state(db, group="before"):
+    with h5py.File(db, "r") as f:
+        return {k: np.array(f[group][k]) for k in f[group]}
 
 
-def test_selection_keeps_valid_converged_finite_nonzero_probes(db_file):
+def test_loading_keeps_perturbed_and_mechanism_samples(db_file):
     db = load_database(db_file)
-    assert db.n_stored == 300 and db.n_samples == 296
-    assert db.inputs.shape == (296, 8) and db.outputs.shape == (296, 4)
-    assert (db.kn, db.radius, db.diameter, db.kt_over_kn, db.phi_g_deg) == (KN, RADIUS, 1.0, 0.5, 30.0)
-    assert len(db.sha256) == 64
+    with h5py.File(db_file, "r") as f:
+        n = f.attrs["n_samples"]
+        converged = np.array(f["converged"])
+    assert db.n_samples == np.count_nonzero(converged) - db.n_jumps
+    assert db.n_stored == n
+    assert db.perturbed.any() and (~db.perturbed).any()
+    assert db.mechanism.any()
+    assert db.before["free_position"].shape == (db.n_samples, 4)
+    assert db.schema.n_pairs == 15 and db.schema.n_free == 4
 
 
-@pytest.mark.parametrize("case, message", [
-    ("missing", "no such database file"),
-    ("garbage", "not a readable HDF5 file"),
-    ("format", "format attribute is 'something-else'"),
-    ("version", "format_version 7 is not supported"),
-    ("no_kn", "root attribute 'kn' missing"),
-    ("no_outputs", "dataset 'outputs' missing"),
-    ("short_outputs", "dataset 'outputs' has 10 samples, inputs has 300"),
-])
+def test_contact_law_reproduces_the_dem_forces_and_equilibrium(db_file):
+    """Normal forces of the stored DEM states, and ~zero unbalanced force after relaxation."""
+    after = _state(db_file, "after")
+    db = load_database(db_file)
+    x = cell_physics.positions(db.schema, torch.tensor(after["cell_size"]), torch.tensor(after["free_position"]))
+    c = cell_physics.contacts(db.schema, x)
+    np.testing.assert_allclose(c.normal_force.numpy(), after["normal_force"], rtol=0, atol=1e-9 * after["normal_force"].max())
+    force = cell_physics.pair_forces(c, torch.tensor(after["shear_force"]))
+    residual = np.abs(cell_physics.unbalanced(db.schema, force, 6).numpy()).max(axis=1)
+    scale = np.maximum(after["normal_force"].max(axis=1), 2e8 * 1e-9)
+    assert np.all(residual <= 1.1e-6 * scale)  # the DEM's quasi-static tolerance
+
+
+def test_advance_with_the_dem_displacement_reproduces_the_dem_increment(db_file):
+    """Mid-increment tangent and Coulomb cap: shear forces and moment of small unperturbed probes."""
+    db = load_database(db_file)
+    after = _state(db_file, "after")
+    with h5py.File(db_file, "r") as f:
+        keep = np.array(f["converged"])
+    m = np.linalg.norm(db.d_eps, axis=1)
+    pick = np.flatnonzero(~db.perturbed & (m < 2e-5) & (m > 0))
+    assert pick.size > 5
+    state = [torch.from_numpy(db.before[k][pick]) for k in ("cell_size", "free_position", "shear_force")]
+    d_free = torch.from_numpy(db.after_free_position[pick] - db.before["free_position"][pick])
+    step = cell_physics.advance(db.schema, *state, torch.from_numpy(db.d_eps[pick]), d_free)
+    truth = after["shear_force"][keep][pick]
+    scale = after["normal_force"][keep][pick].max(axis=1, keepdims=True) + 1.0
+    assert np.abs(step.shear_force.numpy() - truth).max() / scale.max() < 1e-3
+    np.testing.assert_allclose(step.cell_size.numpy(), after["cell_size"][keep][pick], rtol=1e-14)
+
+
+def test_split_is_by_whole_paths(db_file):
+    db = load_database(db_file)
+    split = split_by_path(db, val_fraction=0.2, test_fraction=0.2, seed=0)
+    sets = [set(db.path_id[s]) for s in (split.train, split.val, split.test)]
+    assert all(sets) and not (sets[0] & sets[1] or sets[0] & sets[2] or sets[1] & sets[2])
+    assert sum(s.size for s in (split.train, split.val, split.test)) == db.n_samples
+    assert active_pairs(db, split.train).sum() >= 6  # the H-cell's six contacts
+
+
+@pytest.mark.parametrize("case, message", [("missing", "no such database file"), ("text", "not a readable HDF5"),
+                                           ("version1", "not the generic database")])
 def test_bad_files_give_one_line_errors(tmp_path, case, message):
-    path = tmp_path / "db.h5"
-    if case == "garbage":
-        path.write_bytes(b"this is not HDF5\n" * 10)
-    elif case == "format":
-        _write(path, attrs={"format": "something-else"})
-    elif case == "version":
-        _write(path, attrs={"format_version": 7})
-    elif case == "no_kn":
-        _write(path)
-        with h5py.File(path, "a") as f:
-            del f.attrs["kn"]
-    elif case == "no_outputs":
-        _write(path, drop="outputs")
-    elif case == "short_outputs":
-        _write(path, outputs_rows=10)
-    with pytest.raises(DataError) as info:
+    path = tmp_path / "bad.h5"
+    if case == "text":
+        path.write_text("hello")
+    elif case == "version1":
+        with h5py.File(path, "w") as f:
+            f.attrs.update({"format": "meso-hmodel-database", "format_version": 1})
+    with pytest.raises(DataError, match=message) as info:
         load_database(path)
-    assert message in str(info.value) and "\n" not in str(info.value)
+    assert "\n" not in str(info.value)
 
 
-def test_split_is_by_whole_paths_and_holds_out_alpha0_values(db_file):
-    db = load_database(db_file)
-    split = split_by_path(db, val_fraction=0.2, test_path_fraction=0.1, n_test_alpha0=1, seed=3)
-    sets = [set(db.path_id[i]) for i in (split.train, split.val, split.test)]
-    assert not (sets[0] & sets[1]) and not (sets[0] & sets[2]) and not (sets[1] & sets[2])
-    assert split.train.size + split.val.size + split.test.size == db.n_samples
-    (held,) = split.test_alpha0_deg
-    assert held in ALPHA0[1:-1]  # never an extreme value (no extrapolation)
-    assert np.all(np.isin(np.flatnonzero(db.alpha0_deg == held), split.test))
-    assert held not in db.alpha0_deg[split.train] and held not in db.alpha0_deg[split.val]
-    # 40 remaining paths: 4 to test, then 36 -> 7 validation + 29 training
-    assert (len(sets[2]), len(sets[1]), len(sets[0])) == (14, 7, 29)
-    again = split_by_path(db, val_fraction=0.2, test_path_fraction=0.1, n_test_alpha0=1, seed=3)
-    assert all(np.array_equal(getattr(split, k), getattr(again, k)) for k in ("train", "val", "test"))
-    other = split_by_path(db, val_fraction=0.2, test_path_fraction=0.1, n_test_alpha0=1, seed=4)
-    assert not np.array_equal(other.train, split.train)
-
-
-def test_normalisation_uses_training_statistics_and_spec_units(db_file):
-    db = load_database(db_file)
-    split = split_by_path(db, val_fraction=0.2, test_path_fraction=0.1, n_test_alpha0=1, seed=0)
-    norm = fit_normalisation(db, split.train)
-    x, y = tensors(db, split.train, norm)
-    assert torch.allclose(x.mean(0), torch.zeros(12, dtype=torch.float64), atol=1e-12)
-    # every random force is > 0: the contact flags are constant, z-scored with std 1 to 0
-    constant = torch.tensor([False] * 8 + [True, True, False, False])
-    expected_std = torch.where(constant, 0.0, 1.0).to(torch.float64)
-    assert torch.allclose(x.std(0, unbiased=False), expected_std, atol=1e-12)
-    assert np.array_equal(norm.feature_std[8:10], [1.0, 1.0])
-    assert torch.allclose(y.mean(0), torch.zeros(4, dtype=torch.float64), atol=1e-12)
-    # one sample by hand: rate = increment / |d_eps|, alpha in rad, forces in kn D
-    i = split.val[0]
-    magnitude = math.hypot(*db.inputs[i, :2])
-    expected = (db.outputs[i] - db.inputs[i, 2:6]) / magnitude
-    expected[0] = math.radians(expected[0])
-    expected[1:] /= KN * 2 * RADIUS
-    _, y_val = tensors(db, split.val[:1], norm)
-    assert np.allclose(y_val[0].numpy() * norm.rate_std + norm.rate_mean, expected, rtol=1e-12)
-    assert np.isclose(norm.feature_mean[6], np.mean(db.inputs[split.train, 6]) / (2 * RADIUS))
-
-
-def test_too_few_paths_is_a_one_line_error(tmp_path):
-    path = _write(tmp_path / "db.h5")
-    with h5py.File(path, "a") as f:
-        f["path_id"][...] = 0
-    with pytest.raises(DataError, match="too few to split"):
-        split_by_path(load_database(path), val_fraction=0.2, test_path_fraction=0.0, n_test_alpha0=0, seed=0)
-
-
-def test_snap_through_jumps_are_dropped_and_counted(tmp_path):
-    path = _write(tmp_path / "db.h5")
-    with h5py.File(path, "a") as f:
-        inputs, outputs = f["inputs"][()], f["outputs"][()]
-        magnitude = math.hypot(*inputs[5, :2])
-        outputs[5, 0] = inputs[5, 2] + math.degrees(11.0 * magnitude)  # rate 11 rad per unit strain
-        outputs[6, 1] = inputs[6, 3] + 9.0 * math.hypot(*inputs[6, :2]) * KN * 2 * RADIUS  # rate 9 kn D: kept
-        f["outputs"][...] = outputs
+def test_the_generators_database_is_read(tmp_path):
+    """The agreed format: a file written by ``python -m warp_hcell.generate`` loads and has both kinds of sample."""
+    path = tmp_path / "gen.h5"
+    assert generate.main(["--samples", "400", "--n-alpha0", "1", "--n-directions", "4", "--sample-spacing", "2e-2",
+                          "--threads", "1", "--out", str(path)]) in (0, None)
     db = load_database(path)
-    assert db.n_jumps == 1 and db.n_samples == 299
-    assert not np.any(np.all(db.inputs == inputs[5], axis=1))
+    assert db.n_samples == 400 and db.perturbed.any() and (~db.perturbed).any()
+    assert db.schema.n_free == 4 and len(db.mesostructure_sha256) == 64

@@ -1,10 +1,4 @@
-"""Training on a real (tiny) generated database: stated loss, determinism, CLI outputs and errors.
-
-The database is made inside the test by the project's generator with the analytical
-backend (the DEM reproduces it to 3-4 digits, spec section 10):
-``python -m warp_hcell.generate --backend analytical --samples 6000 --n-alpha0 4
---n-directions 8 --seed 0 --clean``.
-"""
+"""Training on a small DEM database made in the test: learned rates, determinism, CLI outputs and errors."""
 
 import json
 
@@ -12,23 +6,18 @@ import numpy as np
 import pytest
 import torch
 
+from dem_database import build
 from training.checkpoint import load_checkpoint
 from training.dataset import load_database
 from training.train import TrainConfig, evaluate, fit, main, run
-from warp_hcell import generate
 
-CONFIG = TrainConfig(epochs=25, batch_size=256, lr=1e-2, patience=25, threads=2)
-STATED_VAL_LOSS = 0.08
-"""MSE of z-scored rates reached on the tiny database after 25 epochs (measured 0.067)."""
+CONFIG = TrainConfig(hidden=(32, 32), epochs=150, batch_size=64, lr=3e-3, patience=150, threads=1, rollout=False)
 
 
 @pytest.fixture(scope="module")
 def db_path(tmp_path_factory):
-    path = tmp_path_factory.mktemp("db") / "tiny.h5"
-    argv = ["--backend", "analytical", "--samples", "6000", "--n-alpha0", "4", "--n-directions", "8",
-            "--seed", "0", "--clean", "--out", str(path)]
-    assert generate.main(argv) == 0
-    return path
+    return build(tmp_path_factory.mktemp("db") / "small.h5", precompression=(0.0, 2e-3, 1e-2), n_directions=8,
+                 spacing=1e-2, leg_length=0.1, probes_per_state=3, threads=1)
 
 
 @pytest.fixture(scope="module")
@@ -37,64 +26,42 @@ def fitted(db_path):
     return db, fit(db, CONFIG)
 
 
-def test_training_on_a_small_generated_database_reaches_the_stated_loss(fitted):
+def test_the_network_learns_the_free_dof_rates(fitted):
+    """A predictor that ignores the state (the mean rate) has R^2 = 0; the trained one does far better."""
     db, result = fitted
-    history = result.history
-    assert min(history["val_loss"]) < STATED_VAL_LOSS
-    assert history["val_loss"][history["best_epoch"] - 1] == min(history["val_loss"])
-    assert history["train_loss"][-1] < 0.5 * history["train_loss"][0]
-    metrics = evaluate(result.net, db, result.split.val)
-    assert set(metrics["increment"]) == {"d_alpha", "dN1", "dN2", "dT1"}
-    assert min(metrics["increment"].values()) > 0.7  # measured 0.81 (dT1) to 0.99 (dN1)
-    assert min(metrics["value"].values()) > 0.9999
+    r2 = evaluate(result.net, db, result.split.val)
+    assert min(r2["rate"].values()) > 0.8
+    assert min(r2["moment_increment"].values()) > 0.8
 
 
 def test_the_same_seed_gives_a_bit_identical_network(fitted):
     db, result = fitted
     again = fit(db, TrainConfig(**{**CONFIG.__dict__, "epochs": 2}))
     twice = fit(db, TrainConfig(**{**CONFIG.__dict__, "epochs": 2}))
-    for key, value in again.net.state_dict().items():
-        assert torch.equal(value, twice.net.state_dict()[key]), key
-    assert again.history["train_loss"] == twice.history["train_loss"]
+    for a, b in zip(again.net.state_dict().values(), twice.net.state_dict().values()):
+        assert torch.equal(a, b)
 
 
-def test_cli_writes_model_metadata_and_curve_and_reports_r2(db_path, tmp_path, capsys):
-    out = tmp_path / "model.pt"
-    argv = ["--data", str(db_path), "--out", str(out), "--epochs", "3", "--hidden", "8,8", "--threads", "1"]
-    assert main(argv) == 0
-    printed = capsys.readouterr().out
-    assert "R^2  val: d_alpha=" in printed and "R^2 test:" in printed and "T1=" in printed
-    net, meta = load_checkpoint(out)
+def test_cli_writes_model_metadata_with_r2_and_rollout(db_path, tmp_path, capsys):
+    out = tmp_path / "m.pt"
+    assert main(["--data", str(db_path), "--out", str(out), "--epochs", "3", "--hidden", "8,8", "--threads", "1"]) == 0
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert set(meta["metrics_r2"]["test"]) == {"rate", "relaxation", "moment_increment"}
+    assert set(meta["metrics_r2"]["test"]["rate"]) == {"x_n2", "x_n3", "x_n5", "x_n6"}
+    roll = meta["rollout"]["increment_0.0001"]
+    assert len(roll["per_path"]) == 12 and roll["max"] >= roll["median"] > 0
+    assert meta["mesostructure_sha256"] and meta["schema"]["pairs"]
+    net, _ = load_checkpoint(out)
     assert net.hidden == (8, 8)
-    assert meta["training_data"]["sha256"] == load_database(db_path).sha256
-    assert meta["contact_law"] == {"kn": 2e8, "kt_over_kn": 0.5, "phi_g_deg": 30.0} and meta["radius"] == 0.5
-    assert set(meta["metrics_r2"]) == {"train", "val", "test"}
-    assert (tmp_path / "model_learning_curve.png").stat().st_size > 1000
-    assert json.loads(out.with_suffix(".json").read_text())["config"]["hidden"] == [8, 8]
+    assert (tmp_path / "m_learning_curve.png").is_file()
+    assert "rollout error" in capsys.readouterr().out
 
 
 def test_cli_refuses_to_overwrite_and_reports_bad_data_in_one_line(db_path, tmp_path, capsys):
-    out = tmp_path / "model.pt"
-    out.write_bytes(b"keep me")
-    assert run(["--data", str(db_path), "--out", str(out), "--epochs", "1"]) == 2
-    assert out.read_bytes() == b"keep me"
-    err = capsys.readouterr().err.strip()
-    assert err.endswith("exists; pass --overwrite to replace it") and "\n" not in err
-    assert run(["--data", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "m2.pt")]) == 2
-    assert "missing.h5: no such database file" in capsys.readouterr().err
-    assert not (tmp_path / "m2.pt").exists()
-
-
-def test_bad_cli_values_exit_with_code_2(db_path, tmp_path):
-    for bad in (["--epochs", "0"], ["--hidden", "8,x"], ["--lr", "-1"]):
-        with pytest.raises(SystemExit) as info:
-            main(["--data", str(db_path), "--out", str(tmp_path / "m.pt"), *bad])
-        assert info.value.code == 2
-
-
-def test_split_of_the_fit_is_by_path(fitted):
-    db, result = fitted
-    split = result.split
-    assert not set(db.path_id[split.train]) & set(db.path_id[split.val])
-    assert not set(db.path_id[split.train]) & set(db.path_id[split.test])
-    assert np.isclose(result.normalisation.feature_mean[2], np.radians(db.inputs[split.train, 2]).mean())
+    out = tmp_path / "m.pt"
+    out.write_text("keep me")
+    assert run(["--data", str(db_path), "--out", str(out)]) == 2
+    assert out.read_text() == "keep me"
+    assert run(["--data", str(tmp_path / "none.h5"), "--out", str(tmp_path / "n.pt")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "exists" in err[0] and "no such database" in err[1]

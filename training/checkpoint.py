@@ -4,12 +4,14 @@ Contract:
 
 - ``save_checkpoint(path, net, metadata)`` writes both files atomically (a failure never
   leaves a truncated file in place of a good one). The JSON holds the architecture, the
-  normalisation statistics and scales, and whatever the caller adds (contact law, radius,
-  training-data hash, metrics, training configuration, versions).
-- ``load_checkpoint(path)`` rebuilds a ``CellNet`` from the JSON architecture and loads the
+  mesostructure schema (topology and reference geometry), the contact law, the
+  mesostructure description and its sha256, the normalisation statistics and whatever the
+  caller adds (training-data hash, metrics, configuration, versions).
+- ``load_checkpoint(path)`` rebuilds a ``MesoNet`` from the JSON and loads the
   ``state_dict`` with ``torch.load(weights_only=True)``: no pickled module is ever executed.
   A missing, corrupt or mismatched pair raises ``CheckpointError`` (one line).
-- ``check_compatible`` refuses a model trained for another contact law or grain radius.
+- ``check_compatible`` refuses a model trained for another contact law;
+  ``check_mesostructure`` one trained for another mesostructure.
 """
 
 from __future__ import annotations
@@ -21,14 +23,16 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
-from training.network import ACTIVATION, N_INPUTS, N_OUTPUTS, CellNet
+from training.dataset import SCHEMA_FIELDS, schema_from_arrays
+from training.network import ACTIVATION, MesoNet
 
 FORMAT = "meso-hmodel-ann"
 """Value of the metadata key ``format``."""
-FORMAT_VERSION = 1
-"""Supported metadata ``format_version``."""
+FORMAT_VERSION = 2
+"""Supported metadata ``format_version`` (the generic meso-ANN)."""
 
 
 class CheckpointError(ValueError):
@@ -53,16 +57,13 @@ def _replace_atomically(path: Path, write) -> None:
             os.unlink(tmp)
 
 
-def architecture(net: CellNet) -> dict[str, Any]:
-    """JSON description of ``net``'s architecture, enough to rebuild it."""
-    return {"n_inputs": N_INPUTS, "n_outputs": N_OUTPUTS, "hidden": list(net.hidden), "activation": ACTIVATION}
-
-
-def save_checkpoint(path: str | Path, net: CellNet, metadata: dict[str, Any]) -> tuple[Path, Path]:
+def save_checkpoint(path: str | Path, net: MesoNet, metadata: dict[str, Any]) -> tuple[Path, Path]:
     """Write ``net.state_dict()`` to ``path`` and metadata to ``metadata_path(path)``.
 
-    ``metadata`` is extended with the format tag, the architecture, the scales (kn [N/m],
-    diameter [m], mu [-]) and the normalisation statistics (copies of the buffers, for readers
+    ``metadata`` must hold ``schema`` (the database's schema arrays as lists),
+    ``contact_law`` (kn [N/m], kt_over_kn [-], phi_g_deg [deg]), ``contact_tolerance`` [-],
+    ``mesostructure`` and ``mesostructure_sha256``; it is extended with the format tag, the
+    architecture and the normalisation statistics (copies of the buffers, for readers
     without torch). Returns the two paths written.
     """
     path = Path(path)
@@ -70,8 +71,8 @@ def save_checkpoint(path: str | Path, net: CellNet, metadata: dict[str, Any]) ->
     meta = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
-        "architecture": architecture(net),
-        "scales": {"kn": float(net.kn), "diameter": float(net.diameter), "mu": float(net.mu)},
+        "architecture": {"hidden": list(net.hidden), "activation": ACTIVATION, "n_free": net.n_free,
+                         "active_pairs": [bool(a) for a in net.active.tolist()]},
         "normalisation": buffers,
         **metadata,
     }
@@ -94,24 +95,32 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise CheckpointError(f"{json_path}: not a {FORMAT} metadata file")
     if meta.get("format_version") != FORMAT_VERSION:
-        raise CheckpointError(f"{json_path}: format_version {meta.get('format_version')!r} is not supported (expected {FORMAT_VERSION})")
-    arch = meta.get("architecture")
-    expected = {"n_inputs": N_INPUTS, "n_outputs": N_OUTPUTS, "activation": ACTIVATION}
-    if not isinstance(arch, dict) or any(arch.get(k) != v for k, v in expected.items()) or not isinstance(arch.get("hidden"), list):
-        raise CheckpointError(f"{json_path}: architecture {arch!r} is not a {N_INPUTS}-input {ACTIVATION} CellNet")
+        raise CheckpointError(f"{json_path}: format_version {meta.get('format_version')!r} is not supported "
+                              f"(expected {FORMAT_VERSION}: the generic meso-ANN); retrain the model")
+    for key in ("architecture", "schema", "contact_law", "contact_tolerance", "mesostructure_sha256"):
+        if key not in meta:
+            raise CheckpointError(f"{json_path}: missing {key!r}")
+    arch = meta["architecture"]
+    if not isinstance(arch, dict) or arch.get("activation") != ACTIVATION or not isinstance(arch.get("hidden"), list):
+        raise CheckpointError(f"{json_path}: architecture {arch!r} is not a {ACTIVATION} MesoNet")
     return meta
 
 
-def load_checkpoint(path: str | Path) -> tuple[CellNet, dict[str, Any]]:
+def load_checkpoint(path: str | Path) -> tuple[MesoNet, dict[str, Any]]:
     """Rebuild the network saved at ``path``; returns ``(net in eval mode, metadata)``."""
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path}: no such model file")
     meta = read_metadata(path)
+    law = meta["contact_law"]
     try:
-        net = CellNet(meta["architecture"]["hidden"])
-    except (TypeError, ValueError) as exc:
-        raise CheckpointError(f"{metadata_path(path)}: {exc}") from None
+        schema_arrays = {k: np.asarray(meta["schema"][k]) for k in SCHEMA_FIELDS}
+        schema = schema_from_arrays(schema_arrays, kn=float(law["kn"]), kt_over_kn=float(law["kt_over_kn"]),
+                                    phi_g_deg=float(law["phi_g_deg"]), contact_tolerance=float(meta["contact_tolerance"]))
+        net = MesoNet(schema, torch.tensor(meta["architecture"]["active_pairs"], dtype=torch.bool),
+                      meta["architecture"]["hidden"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise CheckpointError(f"{metadata_path(path)}: cannot rebuild the network ({exc})") from None
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:  # torch raises several types (pickle, zip, runtime) for a corrupt file
@@ -121,25 +130,29 @@ def load_checkpoint(path: str | Path) -> tuple[CellNet, dict[str, Any]]:
     try:
         net.load_state_dict(state, strict=True)
     except RuntimeError:
-        raise CheckpointError(f"{path}: state_dict does not match the architecture in {metadata_path(path).name} (hidden = {meta['architecture']['hidden']})") from None
-    scales = meta.get("scales", {})
-    if not all(math.isclose(float(getattr(net, k)), float(scales.get(k, math.nan)), rel_tol=1e-12) for k in ("kn", "diameter", "mu")):
-        raise CheckpointError(f"{path}: scales in the state_dict differ from {metadata_path(path).name}")
+        raise CheckpointError(f"{path}: state_dict does not match the architecture in {metadata_path(path).name}") from None
     return net.eval(), meta
 
 
-def check_compatible(meta: dict[str, Any], *, kn: float, kt_over_kn: float, phi_g_deg: float, radius: float, source: str) -> None:
-    """Raise ``CheckpointError`` unless the model was trained with this contact law and radius.
+def check_compatible(meta: dict[str, Any], *, kn: float, kt_over_kn: float, phi_g_deg: float, source: str) -> None:
+    """Raise ``CheckpointError`` unless the model was trained with this contact law.
 
     Args:
         meta: metadata of ``load_checkpoint``; its ``contact_law`` holds ``kn`` [N/m],
-            ``kt_over_kn`` [-], ``phi_g_deg`` [deg], and ``radius`` [m] the grain radius.
+            ``kt_over_kn`` [-], ``phi_g_deg`` [deg].
         source: file name used in the message.
     """
     law = meta.get("contact_law", {})
-    trained = {"kn": law.get("kn"), "kt_over_kn": law.get("kt_over_kn"), "phi_g_deg": law.get("phi_g_deg"), "radius": meta.get("radius")}
-    wanted = {"kn": kn, "kt_over_kn": kt_over_kn, "phi_g_deg": phi_g_deg, "radius": radius}
-    for name, value in wanted.items():
-        have = trained[name]
+    for name, value in {"kn": kn, "kt_over_kn": kt_over_kn, "phi_g_deg": phi_g_deg}.items():
+        have = law.get(name)
         if not isinstance(have, (int, float)) or not math.isclose(float(have), float(value), rel_tol=1e-9):
             raise CheckpointError(f"{source}: model trained with {name} = {have}, this run uses {name} = {value:g}")
+
+
+def check_mesostructure(meta: dict[str, Any], sha256: str, *, name: str, source: str) -> None:
+    """Raise ``CheckpointError`` unless the model was trained on the mesostructure of hash ``sha256``."""
+    if meta.get("mesostructure_sha256") != sha256:
+        raise CheckpointError(
+            f"{source}: model trained on mesostructure {str(meta.get('mesostructure_sha256'))[:12]} "
+            f"({meta.get('mesostructure_name', '?')}), not on {name!r} ({sha256[:12]}); "
+            f"train a model on a database of this mesostructure")

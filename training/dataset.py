@@ -1,34 +1,28 @@
-"""Learning database (docs/database_format.md): loading, sample selection, split by path, normalisation.
+"""Generic learning database (format version 2, docs/database_format.md): loading, selection, split, normalisation.
 
 Contract:
 
-- ``load_database(path)`` reads a ``meso-hmodel-database`` HDF5 file and keeps the samples
-  that are ``valid`` (not removed by the generator's cleaning step), pass the cleaning
-  rules of ``warp_hcell.clean`` (re-applied, so an uncleaned file is cleaned the same
-  way: converged, finite, alpha in [30, 90] deg and a closed contact before and after
-  the probe) and have a non-zero probe (a zero probe has no rate to learn). It also drops
-  snap-through jumps: probes whose dimensionless rate (see below) exceeds ``RATE_LIMIT``
-  in any output, i.e. the cell jumped to another equilibrium branch within the probe (a
-  discontinuity, not a rate; 2 of 3e5 samples of the DEM database, both from one state
-  at alpha = 60 deg sliding with N2 = 0, that otherwise dominate the training MSE). Any
-  unreadable, incomplete or wrong-format file raises ``DataError`` (one line).
-- ``split_by_path`` makes disjoint training / validation / test sets of whole paths (never
-  of samples): the test set holds every path of a few held-out ``alpha0`` values plus a
-  fraction of the other paths; the remaining paths go 80 / 20 (by default) to training and
-  validation.
-- ``fit_normalisation`` computes z-score statistics on the training split only;
-  ``tensors`` returns the z-scored features and z-scored rate targets that
-  ``training.network.CellNet`` consumes.
+- ``load_database(path)`` reads a ``meso-hmodel-database`` HDF5 file of format version 2
+  (the generic DEM state before and after each probe) and keeps the converged samples
+  (and, in a cleaned file, the ``valid`` ones).
+  Mechanism (stress-free) and perturbed (unbalanced) samples are kept: the network must
+  learn them. Snap-through probes, whose free DOFs moved more than ``RATE_LIMIT`` D per unit
+  of (probe magnitude + unbalanced force / (kn D)), are dropped and counted (a jump to
+  another equilibrium branch is a discontinuity, not a rate). Any unreadable, incomplete or
+  wrong-format file raises ``DataError`` (one line).
+- ``split_by_path`` makes disjoint training / validation / test sets of whole paths.
+- ``fit_normalisation`` computes the feature and rate statistics on the training split;
+  ``tensors`` returns the raw features, probe magnitudes, unbalanced forces and targets that
+  ``training.network.MesoNet`` consumes.
 
-Normalisation (spec section 11): lengths / D, forces / (kn D), angles in radians, with kn
-and D = 2 r read from the file attributes. Targets are the increments of
-``alpha, N1, N2, T1`` divided by the probe magnitude |d_eps| (see ``training.network``).
-Sign convention: compression and contraction positive, as in the file.
+Nothing here knows a particular mesostructure: the schema group of the file gives the
+topology. Sign convention: compression positive, as in the file.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,14 +31,19 @@ import h5py
 import numpy as np
 import torch
 
+from training.cell_physics import CellSchema
 from training.network import features
-from warp_hcell.clean import pathological
-from warp_hcell.database import FORMAT, FORMAT_VERSION, INPUT_FEATURES, OUTPUT_FEATURES, STATE_FEATURES
 
-
-RATE_LIMIT = 10.0
-"""Largest |rate| accepted [-]: d_alpha [rad] or dN1, dN2, dT1 [kn D] per unit |d_eps|.
-Regular probes stay below ~1.6 (the H-cell's stiffness in these units)."""
+FORMAT = "meso-hmodel-database"
+"""Root attr ``format`` of a learning database."""
+FORMAT_VERSION = 2
+"""Supported root attr ``format_version`` (the generic database)."""
+RATE_LIMIT = 50.0
+"""Largest free-DOF displacement accepted, in D per unit of (|d_eps| + |F|max / (kn D)) [-]."""
+STATE_FIELDS = ("cell_size", "free_position", "shear_force")
+"""Per-sample datasets of the groups ``before``/``after`` that the network reads."""
+SCHEMA_FIELDS = ("free_dofs", "pairs", "radius", "reference_position", "reference_cell_size", "driven", "outer")
+"""Datasets of the group ``schema``."""
 
 
 class DataError(ValueError):
@@ -53,90 +52,73 @@ class DataError(ValueError):
 
 @dataclass(frozen=True)
 class Database:
-    """Selected samples of a learning database (first axis n_samples).
+    """Selected samples of a generic learning database (first axis n_samples).
 
     Attributes:
-        inputs: ``d_eps_n, d_eps_t, alpha_deg, N1, N2, T1, l1, l2``, shape (n, 8),
-            compression positive [-, -, deg, N, N, N, m, m].
-        outputs: POST-increment ``alpha_deg, N1, N2, T1``, shape (n, 4) [deg, N, N, N].
-        path_id: exploration path of each sample, shape (n,).
-        alpha0_deg: initial opening angle of the sample's path [deg], shape (n,).
-        kn: normal contact stiffness [N/m]; kt_over_kn [-]; phi_g_deg [deg]; radius r [m].
-        sha256: hex digest of the file bytes (the training-data hash of checkpoints).
-        source: the file path; n_stored: samples in the file before selection;
-        n_jumps: selected-but-dropped snap-through samples (|rate| > ``RATE_LIMIT``).
+        before: ``cell_size`` (n, 2) [m], ``free_position`` (n, n_free) [m], ``shear_force``
+            (n, n_pairs) [N] before the probe.
+        after_free_position: free-DOF coordinates after the probe [m], (n, n_free).
+        after_contact: contact flags after the probe, bool (n, n_pairs).
+        before_contact: contact flags before the probe, bool (n, n_pairs).
+        d_eps: probes (n, 2) [-], compression positive.
+        perturbed, mechanism: bool (n,); path_id: int (n,).
+        schema_arrays: the ``schema`` group (numpy), enough to rebuild the cell.
+        schema: the same as a ``CellSchema`` with the contact law of the file.
+        mesostructure: JSON description stored in the file; mesostructure_sha256: its hash.
+        kn [N/m], kt_over_kn [-], phi_g_deg [deg], contact_tolerance [-]: file attributes.
+        sha256: hex digest of the file bytes; source: its path; n_stored: samples in the
+            file; n_unconverged, n_jumps: samples dropped by the selection.
     """
 
-    inputs: np.ndarray
-    outputs: np.ndarray
+    before: dict
+    after_free_position: np.ndarray
+    after_contact: np.ndarray
+    before_contact: np.ndarray
+    d_eps: np.ndarray
+    perturbed: np.ndarray
+    mechanism: np.ndarray
     path_id: np.ndarray
-    alpha0_deg: np.ndarray
+    schema_arrays: dict
+    schema: CellSchema
+    mesostructure: str
+    mesostructure_sha256: str
     kn: float
     kt_over_kn: float
     phi_g_deg: float
-    radius: float
+    contact_tolerance: float
     sha256: str
     source: str
     n_stored: int
+    n_unconverged: int
     n_jumps: int
 
     @property
     def n_samples(self) -> int:
         """Number of selected samples."""
-        return int(self.inputs.shape[0])
-
-    @property
-    def diameter(self) -> float:
-        """Grain diameter D = 2 r [m]."""
-        return 2.0 * self.radius
-
-    @property
-    def mu(self) -> float:
-        """Friction coefficient tan(phi_g) [-]."""
-        return math.tan(math.radians(self.phi_g_deg))
+        return int(self.d_eps.shape[0])
 
 
 def file_sha256(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
+    """Hex sha256 of a file's bytes."""
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 22), b""):
+        for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
 
 
-def _attr_float(handle: h5py.File, name: str, path: Path) -> float:
-    if name not in handle.attrs:
-        raise DataError(f"{path}: root attribute {name!r} missing (not a complete learning database)")
-    value = float(np.asarray(handle.attrs[name]))
-    if not (math.isfinite(value) and value > 0.0):
-        raise DataError(f"{path}: root attribute {name} = {value:g} must be finite and > 0")
-    return value
-
-
-def _dataset(handle: h5py.File, name: str, shape_tail: tuple[int, ...], path: Path) -> np.ndarray:
-    if name not in handle or not isinstance(handle[name], h5py.Dataset):
-        raise DataError(f"{path}: dataset {name!r} missing")
-    data = handle[name][()]
-    if data.shape[1:] != shape_tail:
-        raise DataError(f"{path}: dataset {name!r} has shape {data.shape}, expected (n, {', '.join(map(str, shape_tail))})")
-    return data
-
-
-def _check_names(handle: h5py.File, name: str, expected: tuple[str, ...], path: Path) -> None:
-    names = handle[name].attrs.get("feature_names")
-    if names is not None:
-        names = tuple(n.decode() if isinstance(n, bytes) else str(n) for n in names)
-        if names != expected:
-            raise DataError(f"{path}: {name} columns are {list(names)}, expected {list(expected)}")
+def schema_from_arrays(arrays: dict, *, kn: float, kt_over_kn: float, phi_g_deg: float,
+                       contact_tolerance: float) -> CellSchema:
+    """``CellSchema`` of a database/checkpoint ``schema`` dict and a contact law."""
+    return CellSchema.from_arrays(
+        radius=arrays["radius"], reference_position=arrays["reference_position"],
+        reference_cell_size=arrays["reference_cell_size"], driven=arrays["driven"], pairs=arrays["pairs"],
+        outer=arrays["outer"], kn=kn, kt=kt_over_kn * kn, mu=math.tan(math.radians(phi_g_deg)),
+        contact_tolerance=contact_tolerance)
 
 
 def load_database(path: str | Path) -> Database:
-    """Read a learning database and keep its usable samples (see module docstring).
-
-    Raises:
-        DataError: missing, unreadable, wrong-format or inconsistent file, or no usable sample.
-    """
+    """Read and select the samples of a generic database (see the module docstring)."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: no such database file")
@@ -145,121 +127,115 @@ def load_database(path: str | Path) -> Database:
     except OSError:
         raise DataError(f"{path}: not a readable HDF5 file") from None
     with handle:
-        fmt = handle.attrs.get("format")
-        fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
-        if fmt != FORMAT:
-            raise DataError(f"{path}: format attribute is {fmt!r}, expected {FORMAT!r}")
-        version = int(np.asarray(handle.attrs.get("format_version", -1)))
-        if version != FORMAT_VERSION:
-            raise DataError(f"{path}: format_version {version} is not supported (expected {FORMAT_VERSION})")
-        kn = _attr_float(handle, "kn", path)
-        kt = _attr_float(handle, "kt", path)
-        radius = _attr_float(handle, "radius", path)
-        phi_g_deg = float(np.asarray(handle.attrs.get("phi_g_deg", np.nan)))
-        if not math.isfinite(phi_g_deg):
-            raise DataError(f"{path}: root attribute 'phi_g_deg' missing")
-        inputs = _dataset(handle, "inputs", (len(INPUT_FEATURES),), path).astype(np.float64)
-        outputs = _dataset(handle, "outputs", (len(OUTPUT_FEATURES),), path).astype(np.float64)
-        _check_names(handle, "inputs", INPUT_FEATURES, path)
-        _check_names(handle, "outputs", OUTPUT_FEATURES, path)
-        columns = {name: _dataset(handle, name, (len(STATE_FEATURES),), path) for name in ("pre_state", "post_state")}
-        columns.update({name: _dataset(handle, name, (), path) for name in ("path_id", "alpha0_deg", "converged", "valid")})
-    n_stored = inputs.shape[0]
-    for name, data in (("outputs", outputs), *columns.items()):
-        if data.shape[0] != n_stored:
-            raise DataError(f"{path}: dataset {name!r} has {data.shape[0]} samples, inputs has {n_stored}")
-    removed = pathological({"inputs": inputs, "outputs": outputs, **columns})
-    keep = (
-        columns["valid"].astype(bool)
-        & ~np.logical_or.reduce(list(removed.values()))
-        & np.any(inputs[:, :2] != 0.0, axis=1)
-    )
-    jumps = np.zeros_like(keep)
-    jumps[keep] = np.abs(rates(inputs[keep], outputs[keep], kn, 2.0 * radius)).max(axis=1) > RATE_LIMIT
-    keep &= ~jumps
-    if not keep.any():
-        raise DataError(f"{path}: no valid, converged sample with a non-zero probe among {n_stored}")
+        attrs = dict(handle.attrs)
+        if attrs.get("format") != FORMAT:
+            raise DataError(f"{path}: not a {FORMAT} file")
+        if int(attrs.get("format_version", -1)) != FORMAT_VERSION:
+            raise DataError(f"{path}: format_version {attrs.get('format_version')!r} is not the generic database "
+                            f"(version {FORMAT_VERSION}); regenerate it with python -m warp_hcell.generate")
+        try:
+            schema_arrays = {k: np.array(handle["schema"][k]) for k in SCHEMA_FIELDS}
+            before = {k: np.array(handle["before"][k], dtype=np.float64) for k in STATE_FIELDS}
+            after_free = np.array(handle["after/free_position"], dtype=np.float64)
+            after_contact = np.array(handle["after/contact"]) == 1
+            before_contact = np.array(handle["before/contact"]) == 1
+            d_eps = np.array(handle["d_eps"], dtype=np.float64)
+            flags = {k: np.array(handle[k], dtype=bool) for k in ("perturbed", "mechanism", "converged")}
+            valid = np.array(handle["valid"], dtype=bool) if "valid" in handle else np.ones(d_eps.shape[0], bool)
+            path_id = np.array(handle["path_id"], dtype=np.int64)
+            kn = float(attrs["kn"])
+            kt = float(attrs["kt"])
+            phi_g_deg = float(attrs["phi_g_deg"])
+            settings = json.loads(str(attrs.get("dem_settings", "{}")))
+            tolerance = float(settings.get("contact_tolerance", 1e-9))
+            text = str(attrs["mesostructure"])
+            digest = str(attrs["mesostructure_sha256"])
+        except KeyError as exc:
+            raise DataError(f"{path}: missing {exc.args[0]!r} (incomplete generic database)") from None
+    n = d_eps.shape[0]
+    n_free = schema_arrays["free_dofs"].shape[0]
+    shapes = {"cell_size": (n, 2), "free_position": (n, n_free), "shear_force": (n, schema_arrays["pairs"].shape[0])}
+    for name, shape in shapes.items():
+        if before[name].shape != shape:
+            raise DataError(f"{path}: before/{name} has shape {before[name].shape}, expected {shape}")
+    schema = schema_from_arrays(schema_arrays, kn=kn, kt_over_kn=kt / kn, phi_g_deg=phi_g_deg,
+                                contact_tolerance=tolerance)
+    keep = valid & flags["converged"] & np.all(np.isfinite(after_free), axis=1)
+    _, m, unbalanced = features(schema, torch.zeros(schema.n_pairs, dtype=torch.bool),
+                                *(torch.from_numpy(before[k]) for k in STATE_FIELDS), torch.from_numpy(d_eps))
+    scale = schema.diameter * (m[:, 0].numpy() + np.abs(unbalanced.numpy()).max(axis=1, initial=0.0) / (kn * schema.diameter))
+    moved = np.abs(after_free - before["free_position"]).max(axis=1, initial=0.0)
+    jump = keep & (moved > RATE_LIMIT * scale)
+    keep &= ~jump
     return Database(
-        inputs=inputs[keep],
-        outputs=outputs[keep],
-        path_id=columns["path_id"].astype(np.int64)[keep],
-        alpha0_deg=columns["alpha0_deg"].astype(np.float64)[keep],
-        kn=kn,
-        kt_over_kn=kt / kn,
-        phi_g_deg=phi_g_deg,
-        radius=radius,
-        sha256=file_sha256(path),
-        source=str(path),
-        n_stored=int(n_stored),
-        n_jumps=int(np.count_nonzero(jumps)),
-    )
+        before={k: v[keep] for k, v in before.items()}, after_free_position=after_free[keep],
+        after_contact=after_contact[keep], before_contact=before_contact[keep], d_eps=d_eps[keep],
+        perturbed=flags["perturbed"][keep], mechanism=flags["mechanism"][keep], path_id=path_id[keep],
+        schema_arrays=schema_arrays, schema=schema, mesostructure=text, mesostructure_sha256=digest, kn=kn,
+        kt_over_kn=kt / kn, phi_g_deg=phi_g_deg, contact_tolerance=tolerance, sha256=file_sha256(path),
+        source=str(path), n_stored=n, n_unconverged=int(np.count_nonzero(~flags["converged"])),
+        n_jumps=int(np.count_nonzero(jump)))
 
 
 @dataclass(frozen=True)
 class Split:
-    """Disjoint sample indices (into ``Database`` arrays) of whole paths.
-
-    Attributes:
-        train, val, test: int64 sample indices, each sorted.
-        test_alpha0_deg: alpha0 values [deg] whose paths are all in ``test``.
-    """
+    """Sample indices of the training, validation and test sets (disjoint by path)."""
 
     train: np.ndarray
     val: np.ndarray
     test: np.ndarray
-    test_alpha0_deg: tuple[float, ...]
 
 
-def split_by_path(
-    db: Database,
-    *,
-    val_fraction: float,
-    test_path_fraction: float,
-    n_test_alpha0: int,
-    seed: int,
-) -> Split:
-    """Split ``db`` by path into training, validation and test sets (seeded, deterministic).
-
-    Args:
-        db: selected samples.
-        val_fraction: fraction of the non-test paths used for validation [-], in (0, 1).
-        test_path_fraction: fraction of the paths (after removing held-out alpha0 values)
-            moved to the test set [-], in [0, 1).
-        n_test_alpha0: number of distinct alpha0 values held out entirely; chosen at random
-            among the interior values (never the smallest or largest, which would make the
-            test an extrapolation). Fewer if fewer interior values exist.
-        seed: seed of the random choices.
-    """
-    if not (0.0 < val_fraction < 1.0) or not (0.0 <= test_path_fraction < 1.0):
-        raise ValueError(f"val_fraction = {val_fraction:g} must be in (0, 1), test_path_fraction = {test_path_fraction:g} in [0, 1)")
+def split_by_path(db: Database, *, val_fraction: float, test_fraction: float, seed: int) -> Split:
+    """Split whole paths (never samples): ``test_fraction`` of the paths to test, then
+    ``val_fraction`` of the rest to validation, the remainder to training."""
+    paths = np.unique(db.path_id)
     rng = np.random.default_rng(seed)
-    paths, first = np.unique(db.path_id, return_index=True)
-    path_alpha0 = db.alpha0_deg[first]
-    distinct = np.unique(path_alpha0)
-    interior = distinct[1:-1]
-    held = np.sort(rng.choice(interior, size=min(n_test_alpha0, interior.size), replace=False))
-    test_paths = paths[np.isin(path_alpha0, held)]
-    rest = rng.permutation(paths[~np.isin(path_alpha0, held)])
-    n_test = int(round(test_path_fraction * rest.size))
-    test_paths = np.concatenate([test_paths, rest[:n_test]])
-    rest = rest[n_test:]
-    n_val = max(1, int(round(val_fraction * rest.size)))
-    if rest.size - n_val < 1:
-        raise DataError(f"{db.source}: {paths.size} paths are too few to split into training, validation and test sets")
-    val_paths, train_paths = rest[:n_val], rest[n_val:]
-    index = lambda chosen: np.flatnonzero(np.isin(db.path_id, chosen))  # noqa: E731
-    return Split(index(train_paths), index(val_paths), index(test_paths), tuple(float(a) for a in held))
+    order = rng.permutation(paths)
+    n_test = int(round(test_fraction * paths.size))
+    n_val = int(round(val_fraction * (paths.size - n_test)))
+    if paths.size - n_test - n_val < 1 or n_val < 1:
+        raise DataError(f"{db.source}: {paths.size} paths are too few to split into training, validation and test")
+    test, val = order[:n_test], order[n_test:n_test + n_val]
+    in_test, in_val = np.isin(db.path_id, test), np.isin(db.path_id, val)
+    return Split(np.flatnonzero(~in_test & ~in_val), np.flatnonzero(in_val), np.flatnonzero(in_test))
+
+
+@dataclass(frozen=True)
+class Tensors:
+    """Network inputs and targets of a set of samples.
+
+    Attributes:
+        features: raw features (n, n_features); magnitude |d_eps| (n, 1); unbalanced F (n, n_free) [N];
+        target: true free-DOF displacement [m], (n, n_free); scale: per-sample length
+            D (|d_eps| + |F|max / (kn D)) [m], (n, 1), the unit of the loss.
+    """
+
+    features: torch.Tensor
+    magnitude: torch.Tensor
+    unbalanced: torch.Tensor
+    target: torch.Tensor
+    scale: torch.Tensor
+
+
+def active_pairs(db: Database, index: np.ndarray) -> np.ndarray:
+    """Pairs in contact before or after some probe of ``index``, bool (n_pairs,)."""
+    return (db.before_contact[index] | db.after_contact[index]).any(axis=0)
+
+
+def tensors(db: Database, index: np.ndarray, active: np.ndarray) -> Tensors:
+    """Features and targets of samples ``index`` for a network seeing pairs ``active``."""
+    state = (torch.from_numpy(db.before[k][index]) for k in STATE_FIELDS)
+    feats, m, unbalanced = features(db.schema, torch.from_numpy(active), *state, torch.from_numpy(db.d_eps[index]))
+    diameter = db.schema.diameter
+    target = torch.from_numpy(db.after_free_position[index] - db.before["free_position"][index])
+    scale = diameter * (m + unbalanced.abs().amax(dim=1, keepdim=True) / (db.kn * diameter)) + 1e-12 * diameter
+    return Tensors(feats, m, unbalanced, target, scale)
 
 
 @dataclass(frozen=True)
 class Normalisation:
-    """z-score statistics (from the training split) in dimensionless units.
-
-    Attributes:
-        feature_mean, feature_std: of the dimensionless ``training.network.features``,
-            shape (N_FEATURES,).
-        rate_mean, rate_std: of the rates (increment / |d_eps|) of ``alpha [rad], N1, N2, T1 [kn D]``, shape (4,).
-    """
+    """Training statistics: features (n_features,), rates (n_free,) [D per unit strain]."""
 
     feature_mean: np.ndarray
     feature_std: np.ndarray
@@ -267,36 +243,17 @@ class Normalisation:
     rate_std: np.ndarray
 
 
-def rates(inputs: np.ndarray, outputs: np.ndarray, kn: float, diameter: float) -> np.ndarray:
-    """Dimensionless rates (n, 4): increments of alpha [rad] and N1, N2, T1 [kn D] over |d_eps|.
+def fit_normalisation(db: Database, data: Tensors, index: np.ndarray) -> Normalisation:
+    """z-score statistics of ``data`` (the training tensors of samples ``index``).
 
-    Args:
-        inputs: (n, 8) database inputs, non-zero probes; outputs: (n, 4) database outputs.
-        kn: normal stiffness [N/m]; diameter: grain diameter D [m].
+    Rates d_free / (D |d_eps|) come from the unperturbed samples with a non-zero probe.
+    Constant features and rates get a standard deviation of 1.
     """
-    increment = outputs - inputs[:, 2:6]
-    increment[:, 0] = np.radians(increment[:, 0])
-    increment[:, 1:] /= kn * diameter
-    return increment / np.hypot(inputs[:, 0], inputs[:, 1])[:, None]
-
-
-def dimensionless(db: Database, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Un-z-scored features (n, N_FEATURES) and rates (n, 4) of the samples ``index``."""
-    raw, _ = features(torch.from_numpy(db.inputs[index]), db.kn, db.diameter, db.mu)
-    return raw.numpy(), rates(db.inputs[index], db.outputs[index], db.kn, db.diameter)
-
-
-def fit_normalisation(db: Database, train: np.ndarray) -> Normalisation:
-    """z-score statistics of the training samples; a constant column gets std 1."""
-    raw, rate = dimensionless(db, train)
-    std = lambda x: np.where(x.std(axis=0) > 0, x.std(axis=0), 1.0)  # noqa: E731
-    return Normalisation(raw.mean(axis=0), std(raw), rate.mean(axis=0), std(rate))
-
-
-def tensors(db: Database, index: np.ndarray, norm: Normalisation) -> tuple[torch.Tensor, torch.Tensor]:
-    """z-scored features (n, N_FEATURES) and z-scored rate targets (n, 4), float64 tensors."""
-    raw, rate = dimensionless(db, index)
-    return (
-        torch.from_numpy((raw - norm.feature_mean) / norm.feature_std),
-        torch.from_numpy((rate - norm.rate_mean) / norm.rate_std),
-    )
+    feats = data.features.numpy()
+    mean, std = feats.mean(axis=0), feats.std(axis=0)
+    clean = ~db.perturbed[index] & (data.magnitude[:, 0].numpy() > 0)
+    rate = data.target.numpy()[clean] / (db.schema.diameter * data.magnitude.numpy()[clean])
+    if rate.shape[0] == 0:
+        raise DataError(f"{db.source}: no unperturbed sample with a non-zero probe in the training split")
+    r_mean, r_std = rate.mean(axis=0), rate.std(axis=0)
+    return Normalisation(mean, np.where(std > 1e-12, std, 1.0), r_mean, np.where(r_std > 1e-12, r_std, 1.0))

@@ -1,158 +1,180 @@
-"""``CellNet``: the meso-ANN of one H-cell increment (spec section 11), architecture only.
+"""``MesoNet``: the generic meso-ANN (spec section 12): where do the free DOFs of a cell go?
 
-Contract. ``CellNet.predict`` maps a batch of database-convention inputs (n, 8)
-``d_eps_n, d_eps_t, alpha_deg, N1, N2, T1, l1, l2`` (probe [-], compression positive, and
-PRE-increment state [deg, N, N, N, m, m]) to the POST-increment state (n, 4)
-``alpha_deg, N1, N2, T1`` [deg, N, N, N]. Everything is float64 (an increment of ~1e-4 deg
-on alpha ~ 55 deg would lose 3 % to float32 rounding).
+Contract. For a batch of generic cell states (``training.cell_physics``: cell size, free-DOF
+coordinates, per-pair tangential forces) and probes d_eps = (d_eps_n, d_eps_t) [-]
+(compression positive), ``MesoNet.displacement`` returns the displacement of every free DOF
+over the increment [m], shape (n, n_free):
 
-How the 8 inputs become features (the normalisation of the spec, then z-scores):
+    d_free = D * m * r(state, u)  -  C(state) @ F / kn
 
-- the probe is split into its magnitude m = |d_eps| [-] and direction
-  u = d_eps / m (u = 0 where m = 0);
-- the state is made dimensionless: alpha [rad], N1, N2, T1 / (kn D), l1, l2 / D;
-- derived features expose what switches the cell's incremental response and is a sharp
-  function of the inputs (hard for a small tanh network to resolve near zero force or at
-  the Coulomb cap): the contact flags ``closed1 = [N1 > 0]``, ``closed2 = [N2 > 0]``, the
-  friction ratio ``T1 / N1`` (0 where N1 = 0) and the sliding flag ``slip = sign(T1)`` where
-  |T1| >= mu N1 (1 - ``SLIP_TOLERANCE``) on a closed contact, else 0;
-- the 12 features ``(u_n, u_t, alpha, N1, N2, T1, l1, l2, closed1, closed2, T1/N1, slip)``
-  are z-scored with training statistics. The magnitude m is deliberately not a feature:
-  with log10(m) as a 13th feature the network fitted finite-probe effects with a wild
-  m-dependence and the constant-volume run drifted 8 % of p0 from the analytical curve
-  at 1e-4 increments (0.25 % at 1e-5); without it, 0.4 % at both.
+with m = |d_eps|, u = d_eps / m (u = 0 where m = 0), D the mean grain diameter, F the
+unbalanced contact force on the free DOFs [N] (exact, from the contact law) and kn the
+normal stiffness. Both r (free-DOF rates per unit probe magnitude, in D) and C (an
+n_free x n_free compliance in units of 1/kn) are outputs of one tanh multilayer perceptron.
+The first term is homogeneous of degree one in the probe, so a zero probe moves nothing
+but what is unbalanced; the second term is what makes a recurrent model return towards
+equilibrium: a position error e produces F ~ K e and the network, trained on perturbed
+states that the DEM relaxes, moves the DOFs back by ~ -e at the next increment.
 
-The multilayer perceptron (tanh hidden layers, linear output) returns z-scored
-dimensionless *rates* r = increment / m of ``(alpha [rad], N1, N2, T1 [kn D])``; the
-increment is m * r. The cell response is rate independent, so the increment is (to first
-order) homogeneous of degree 1 in the probe: this structure makes a zero probe give an
-exactly zero increment and lets one network serve probes spanning decades of magnitude
-with the same relative accuracy. The scales (kn, D) and z-score statistics are registered
-buffers, so they travel in the ``state_dict``.
+Features (z-scored with training statistics), for any mesostructure:
+    - the probe direction (u_n, u_t);
+    - cell size l / D; free coordinates x / D and x / l (l of the coordinate's axis);
+    - per active pair (a candidate pair in contact somewhere in the training data): the
+      overlap / D (gaps clipped at ``GAP_CLIP``), the contact flag, the branch direction
+      (u_n, u_t), the tangential force / (kn D) and the friction ratio f_s / (mu f_n)
+      (0 out of contact).
+Nothing here knows any particular cell. Everything is float64 (positions must be resolved
+to ~1e-7 D).
 """
 
 from __future__ import annotations
 
-import math
 from typing import Sequence
 
 import torch
 from torch import nn
 
-N_INPUTS = 8
-"""Physical inputs: d_eps_n, d_eps_t [-], alpha_deg [deg], N1, N2, T1 [N], l1, l2 [m]."""
-N_OUTPUTS = 4
-"""Physical outputs: alpha_deg [deg], N1, N2, T1 [N] after the increment."""
-N_FEATURES = 12
-"""Network inputs derived from the physical inputs (see the module docstring)."""
-SLIP_TOLERANCE = 1e-4
-"""Relative distance to the Coulomb cap mu N1 [-] within which a contact counts as sliding.
-The DEM's quasi-static tolerance leaves sliding contacts up to ~1e-5 below the cap; a
-contact 1e-4 below it starts sliding after ~1e-6 of strain, less than the smallest probe."""
-DEFAULT_HIDDEN: tuple[int, ...] = (8, 8, 8)
-"""Hidden layer widths of the spec (3 x 8 tanh)."""
+from training import cell_physics
+from training.cell_physics import CellSchema
+
+DEFAULT_HIDDEN: tuple[int, ...] = (64, 64, 64)
+"""Hidden layer widths of the recommended model."""
+PAPER_HIDDEN: tuple[int, ...] = (8, 8, 8)
+"""Hidden layer widths of the paper's network (spec section 11), measured for comparison."""
 ACTIVATION = "tanh"
 """Hidden activation (the output layer is linear)."""
+GAP_CLIP = 0.05
+"""Gaps larger than this fraction of D look alike to the network [-]."""
+PAIR_FEATURES = ("overlap", "contact", "branch_n", "branch_t", "shear", "friction_ratio")
+"""Features of each active pair."""
+COMPLIANCE_SCALE = 0.5
+"""Initial and reference compliance C [1/kn]: a free grain between two contacts."""
+RELAXATION_RAMP = 1e-7
+"""Probe magnitude [-] below which ``advance`` scales the relaxation term by |d_eps| / RELAXATION_RAMP,
+so that a zero increment leaves a state unchanged (stress control brackets the increment
+from zero); 100 times below the smallest probe of the databases, so never active in a run."""
 
 
-def probe_split(d_eps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Magnitude (n, 1) [-] and unit direction (n, 2) of probes d_eps (n, 2); u = 0 where m = 0."""
-    magnitude = torch.linalg.vector_norm(d_eps, dim=1, keepdim=True)
-    direction = torch.where(magnitude > 0, d_eps / torch.where(magnitude > 0, magnitude, 1.0), 0.0)
-    return magnitude, direction
+def features(schema: CellSchema, active: torch.Tensor, cell_size: torch.Tensor, free_position: torch.Tensor,
+             shear_force: torch.Tensor, d_eps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Raw features, probe magnitudes and unbalanced forces of a batch of cells (``features_and_contacts``)."""
+    return features_and_contacts(schema, active, cell_size, free_position, shear_force, d_eps)[:3]
 
 
-def dimensionless_state(state: torch.Tensor, kn: torch.Tensor | float, diameter: torch.Tensor | float) -> torch.Tensor:
-    """State (n, 6) ``alpha_deg, N1, N2, T1, l1, l2`` [deg, N, N, N, m, m] -> radians, kn D, D units."""
-    force = kn * diameter
-    return torch.cat(
-        [torch.deg2rad(state[:, :1]), state[:, 1:4] / force, state[:, 4:6] / diameter],
-        dim=1,
-    )
-
-
-def features(
-    inputs: torch.Tensor, kn: torch.Tensor | float, diameter: torch.Tensor | float, mu: torch.Tensor | float
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Un-z-scored features (n, 12) and probe magnitudes (n, 1) of physical inputs (n, 8).
-
-    ``kn`` [N/m], ``diameter`` [m] and the friction coefficient ``mu`` [-] are those of the
-    training data.
-    """
-    magnitude, direction = probe_split(inputs[:, :2])
-    state = dimensionless_state(inputs[:, 2:], kn, diameter)
-    N1, N2, T1 = state[:, 1:2], state[:, 2:3], state[:, 3:4]
-    closed1 = N1 > 0
-    ratio = torch.where(closed1, T1 / torch.where(closed1, N1, 1.0), 0.0)
-    slip = torch.where(closed1 & (torch.abs(T1) >= mu * N1 * (1.0 - SLIP_TOLERANCE)), torch.sign(T1), 0.0)
-    derived = [closed1.to(state.dtype), (N2 > 0).to(state.dtype), ratio, slip]
-    return torch.cat([direction, state, *derived], dim=1), magnitude
-
-
-class CellNet(nn.Module):
-    """Tanh multilayer perceptron with its normalisation buffers (float64).
+def features_and_contacts(schema: CellSchema, active: torch.Tensor, cell_size: torch.Tensor, free_position: torch.Tensor,
+                          shear_force: torch.Tensor, d_eps: torch.Tensor):
+    """Raw features, probe magnitudes, unbalanced forces and contacts of a batch of cells.
 
     Args:
-        hidden: widths of the hidden layers (default 3 x 8).
-        kn: normal contact stiffness of the training data [N/m] (force scale kn D).
-        diameter: grain diameter D = 2 r of the training data [m] (length scale).
-        mu: friction coefficient tan(phi_g) of the training data [-] (sliding flag).
+        schema: the mesostructure; active: pairs the network sees, bool (n_pairs,) or their
+            indices (int64, ascending).
+        cell_size (n, 2) [m], free_position (n, n_free) [m], shear_force (n, n_pairs) [N],
+        d_eps (n, 2) [-]: state before the increment and the probe.
 
-    Buffers (set with ``set_normalisation`` before training, restored by
-    ``load_state_dict``): ``feature_mean``, ``feature_std`` (12,) and ``rate_mean``,
-    ``rate_std`` (4,) in dimensionless units; ``kn`` [N/m], ``diameter`` [m], ``mu`` [-].
+    Returns:
+        (features (n, n_features), m = |d_eps| (n, 1), F (n, n_free) [N], the
+        ``cell_physics.Contacts`` of the state).
+    """
+    diameter = schema.diameter
+    force_scale = schema.kn * diameter
+    m = torch.linalg.vector_norm(d_eps, dim=1, keepdim=True)
+    u = torch.where(m > 0, d_eps / torch.where(m > 0, m, torch.ones_like(m)), torch.zeros_like(d_eps))
+    x = cell_physics.positions(schema, cell_size, free_position)
+    c = cell_physics.contacts(schema, x)
+    force = cell_physics.pair_forces(c, shear_force)
+    unbalanced = cell_physics.unbalanced(schema, force, int(schema.radius.shape[0]))
+    axis_length = cell_size[:, schema.free_dofs[:, 1]]
+    index = torch.nonzero(active)[:, 0] if active.dtype == torch.bool else active
+    contact = c.contact.index_select(1, index)
+    fs = torch.where(contact, shear_force.index_select(1, index), 0.0)
+    fn = c.normal_force.index_select(1, index)
+    closed = fn > 0
+    ratio = torch.where(closed, fs / (schema.mu * torch.where(closed, fn, 1.0)), 0.0)
+    normal = c.normal.index_select(1, index)
+    pair = torch.stack([
+        torch.clamp(c.overlap.index_select(1, index) / diameter, min=-GAP_CLIP), contact.to(fn.dtype),
+        normal[..., 0], normal[..., 1], fs / force_scale, ratio], dim=2)
+    feats = torch.cat([u, cell_size / diameter, free_position / diameter, free_position / axis_length,
+                       pair.reshape(pair.shape[0], -1)], dim=1)
+    return feats, m, unbalanced, c
+
+
+def n_features(n_free: int, n_active: int) -> int:
+    """Number of features for ``n_free`` free DOFs and ``n_active`` active pairs."""
+    return 4 + 2 * n_free + len(PAIR_FEATURES) * n_active
+
+
+class MesoNet(nn.Module):
+    """Tanh multilayer perceptron with its schema and normalisation (float64).
+
+    Args:
+        schema: the mesostructure the network is trained for.
+        active: bool (n_pairs,), candidate pairs whose features the network sees.
+        hidden: widths of the hidden layers.
+
+    Buffers (restored by ``load_state_dict``): ``active``, ``feature_mean``, ``feature_std``
+    (n_features,), ``rate_mean``, ``rate_std`` (n_free,) [D per unit strain].
     """
 
-    def __init__(self, hidden: Sequence[int] = DEFAULT_HIDDEN, *, kn: float = 1.0, diameter: float = 1.0,
-                 mu: float = 1.0) -> None:
+    def __init__(self, schema: CellSchema, active: torch.Tensor, hidden: Sequence[int] = DEFAULT_HIDDEN) -> None:
         super().__init__()
+        self.schema = schema
         self.hidden = tuple(int(h) for h in hidden)
         if not self.hidden or min(self.hidden) < 1:
             raise ValueError(f"hidden = {list(self.hidden)} must be a non-empty list of widths >= 1")
-        widths = (N_FEATURES, *self.hidden)
+        self.n_free = schema.n_free
+        active = torch.as_tensor(active, dtype=torch.bool)
+        n_in = n_features(self.n_free, int(active.sum()))
+        widths = (n_in, *self.hidden)
         layers: list[nn.Module] = []
-        for n_in, n_out in zip(widths[:-1], widths[1:]):
-            layers += [nn.Linear(n_in, n_out, dtype=torch.float64), nn.Tanh()]
-        layers.append(nn.Linear(widths[-1], N_OUTPUTS, dtype=torch.float64))
+        for a, b in zip(widths[:-1], widths[1:]):
+            layers += [nn.Linear(a, b, dtype=torch.float64), nn.Tanh()]
+        last = nn.Linear(widths[-1], self.n_free + self.n_free**2, dtype=torch.float64)
+        with torch.no_grad():
+            last.weight.mul_(0.1)
+            last.bias.zero_()
+        layers.append(last)
         self.mlp = nn.Sequential(*layers)
-        self.register_buffer("kn", torch.tensor(float(kn), dtype=torch.float64))
-        self.register_buffer("diameter", torch.tensor(float(diameter), dtype=torch.float64))
-        self.register_buffer("mu", torch.tensor(float(mu), dtype=torch.float64))
-        self.register_buffer("feature_mean", torch.zeros(N_FEATURES, dtype=torch.float64))
-        self.register_buffer("feature_std", torch.ones(N_FEATURES, dtype=torch.float64))
-        self.register_buffer("rate_mean", torch.zeros(N_OUTPUTS, dtype=torch.float64))
-        self.register_buffer("rate_std", torch.ones(N_OUTPUTS, dtype=torch.float64))
+        self.register_buffer("active", active.clone())
+        self.active_index = torch.nonzero(active)[:, 0]
+        self.register_buffer("feature_mean", torch.zeros(n_in, dtype=torch.float64))
+        self.register_buffer("feature_std", torch.ones(n_in, dtype=torch.float64))
+        self.register_buffer("rate_mean", torch.zeros(self.n_free, dtype=torch.float64))
+        self.register_buffer("rate_std", torch.ones(self.n_free, dtype=torch.float64))
 
     def set_normalisation(self, feature_mean, feature_std, rate_mean, rate_std) -> None:
-        """Copy z-score statistics (dimensionless features (12,), rates (4,)) into the buffers."""
+        """Copy z-score statistics into the buffers."""
         for name, value in (("feature_mean", feature_mean), ("feature_std", feature_std),
                             ("rate_mean", rate_mean), ("rate_std", rate_std)):
             getattr(self, name).copy_(torch.as_tensor(value, dtype=torch.float64))
 
-    def forward(self, z_features: torch.Tensor) -> torch.Tensor:
-        """z-scored features (n, 12) -> z-scored dimensionless rates (n, 4)."""
-        return self.mlp(z_features)
+    def raw_features(self, cell_size, free_position, shear_force, d_eps):
+        """``features`` with this network's schema and active pairs."""
+        return features(self.schema, self.active_index, cell_size, free_position, shear_force, d_eps)
 
-    def normalise(self, inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Physical inputs (n, 8) -> z-scored features (n, 12) and probe magnitudes m (n, 1)."""
-        raw, magnitude = features(inputs, self.kn, self.diameter, self.mu)
-        return (raw - self.feature_mean) / self.feature_std, magnitude
+    def displacement_from_features(self, feats: torch.Tensor, m: torch.Tensor, unbalanced: torch.Tensor,
+                                   relaxation: torch.Tensor | float = 1.0) -> torch.Tensor:
+        """Free-DOF displacement [m], (n, n_free), from raw features, |d_eps| and F (module docstring).
 
-    def increment(self, inputs: torch.Tensor) -> torch.Tensor:
-        """Physical inputs (n, 8) -> increments (n, 4) of ``alpha [rad], N1, N2, T1 [N]``."""
-        z, magnitude = self.normalise(inputs)
-        rate = self(z) * self.rate_std + self.rate_mean
-        scale = torch.stack([torch.ones_like(self.kn), *(3 * [self.kn * self.diameter])])
-        return magnitude * rate * scale
-
-    @torch.no_grad()
-    def predict(self, inputs: torch.Tensor) -> torch.Tensor:
-        """Physical inputs (n, 8) -> POST-increment ``alpha_deg, N1, N2, T1`` (n, 4) [deg, N].
-
-        No clipping: a negative force is returned as predicted (the caller decides, see
-        ``homogenization.backends.ann``).
+        ``relaxation`` (scalar or (n, 1)) multiplies the relaxation term -C F / kn.
         """
-        inputs = torch.as_tensor(inputs, dtype=torch.float64)
-        increment = self.increment(inputs)
-        alpha_deg = inputs[:, 2:3] + increment[:, :1] * (180.0 / math.pi)
-        return torch.cat([alpha_deg, inputs[:, 3:6] + increment[:, 1:]], dim=1)
+        out = self.mlp((feats - self.feature_mean) / self.feature_std)
+        rate = out[:, :self.n_free] * self.rate_std + self.rate_mean
+        eye = torch.eye(self.n_free, dtype=out.dtype, device=out.device)
+        compliance = COMPLIANCE_SCALE * (eye + out[:, self.n_free:].reshape(-1, self.n_free, self.n_free))
+        relax = torch.einsum("nij,nj->ni", compliance, unbalanced) / self.schema.kn
+        return self.schema.diameter * m * rate - relaxation * relax
+
+    def displacement(self, cell_size, free_position, shear_force, d_eps) -> torch.Tensor:
+        """Free-DOF displacement [m], (n, n_free), over the probe ``d_eps`` (n, 2) from the given state."""
+        return self.displacement_from_features(*self.raw_features(cell_size, free_position, shear_force, d_eps))
+
+    def advance(self, cell_size, free_position, shear_force, d_eps) -> cell_physics.Increment:
+        """One cell-increment: the network moves the free DOFs, the contact law gives the forces.
+
+        Below |d_eps| = ``RELAXATION_RAMP`` the relaxation is scaled down linearly to zero.
+        """
+        feats, m, unbalanced, old = features_and_contacts(self.schema, self.active_index, cell_size, free_position,
+                                                          shear_force, d_eps)
+        d_free = self.displacement_from_features(feats, m, unbalanced, torch.clamp(m / RELAXATION_RAMP, max=1.0))
+        return cell_physics.advance(self.schema, cell_size, free_position, shear_force, d_eps, d_free, old)

@@ -1,19 +1,22 @@
-"""python -m training.train --data db.h5 --out model.pt: train the meso-ANN on a learning database.
+"""python -m training.train --data db.h5 --out model.pt: train the generic meso-ANN on a learning database.
 
 Contract:
 
-- ``TrainConfig`` holds every training default (the CLI reads them from it).
+- ``TrainConfig`` holds every training default (the CLI reads them from it); the defaults
+  give the recommended model.
 - ``fit(db, config) -> FitResult`` splits ``db`` by path, fits the normalisation on the
-  training split, and minimises the MSE of the z-scored rate targets with Adam (learning
-  rate halved on validation plateaus), early stopping on the validation loss and restoring
-  the best epoch. Same seed and thread count -> bit-identical network.
-- ``evaluate(net, db, index)`` gives R^2 per output, on the increments and on the
-  post-increment values (physical units: alpha in deg, forces in N).
-- The CLI writes ``model.pt`` (state_dict), ``model.json`` (metadata: architecture,
-  normalisation, contact law, radius, training-data hash, split, metrics, configuration,
-  versions) and ``model_learning_curve.png``, and prints R^2 per output on the validation
-  and test sets. Bad input (missing or corrupt database, existing output without
-  ``--overwrite``) is one line on stderr and exit code 2.
+  training split and minimises, with Adam (learning rate halved on validation plateaus,
+  early stopping, best epoch restored), the mean squared error of the predicted free-DOF
+  displacement relative to each sample's scale D (|d_eps| + |F|max / (kn D)) and to the
+  rate spread of each DOF. Same seed and thread count -> bit-identical network.
+- ``evaluate(net, db, index)`` gives R^2 per learned output: the free-DOF rates
+  d x / (D |d_eps|) of the unperturbed samples, the free-DOF displacements d x / D of the
+  perturbed ones, and the resulting increments of S_nn, S_tt (contact law applied).
+- ``training.rollout.rollout_report`` gives the error along whole held-out DEM paths.
+- The CLI writes ``model.pt``, ``model.json`` (metadata: architecture, schema, contact law,
+  mesostructure and its hash, training-data hash, split, metrics, rollout errors,
+  configuration, versions) and ``model_learning_curve.png``. Bad input is one line on stderr
+  and exit code 2, checked before training starts.
 """
 
 from __future__ import annotations
@@ -31,23 +34,27 @@ from typing import Sequence
 
 import numpy as np
 import torch
-from torch.utils.data import BatchSampler, DataLoader, RandomSampler, TensorDataset
 from tqdm import tqdm
 
+from training import cell_physics
 from training.checkpoint import save_checkpoint
 from training.dataset import (
     Database,
     DataError,
     Normalisation,
     Split,
+    Tensors,
+    active_pairs,
     fit_normalisation,
     load_database,
     split_by_path,
     tensors,
 )
-from training.network import DEFAULT_HIDDEN, CellNet
-from warp_hcell.database import OUTPUT_FEATURES
+from training.network import DEFAULT_HIDDEN, MesoNet
+from training.rollout import rollout_report
 from warp_hcell.cli import check_output_path, device_name, output_lock, run_main
+from warp_hcell.mesostructure import from_description
+from warp_hcell.parameters import ContactLaw, DemSettings
 from warp_hcell.provenance import git_revision
 
 
@@ -57,30 +64,31 @@ class TrainConfig:
 
     hidden: tuple[int, ...] = DEFAULT_HIDDEN
     """Hidden layer widths [-]."""
-    epochs: int = 400
+    epochs: int = 300
     """Maximum number of epochs [-]."""
-    batch_size: int = 512
+    batch_size: int = 256
     """Samples per Adam step [-]."""
-    lr: float = 3e-3
+    lr: float = 2e-3
     """Initial Adam learning rate [-]."""
     lr_patience: int = 8
     """Epochs without validation improvement before the learning rate is halved [-]."""
     min_lr: float = 1e-5
     """Learning rate below which training stops [-]."""
-    patience: int = 30
+    patience: int = 25
     """Epochs without validation improvement before early stopping [-]."""
     val_fraction: float = 0.2
     """Fraction of the non-test paths used for validation [-]."""
-    test_path_fraction: float = 0.1
-    """Fraction of paths (outside held-out alpha0 values) held out for the test set [-]."""
-    n_test_alpha0: int = 1
-    """Number of distinct alpha0 values whose paths are all held out for the test set [-]."""
+    test_fraction: float = 0.1
+    """Fraction of the paths held out for the test set [-]."""
     seed: int = 0
     """Seed of the split, the initial weights and the batch order."""
-    threads: int = 2
-    """torch CPU threads used for training [-]."""
+    threads: int = 1
+    """torch CPU threads used for training [-] (on a shared 2-core machine two threads ran
+    30 times slower than one: OpenMP threads spin while the other core is busy)."""
     device: str = "cpu"
     """torch device of the training."""
+    rollout: bool = True
+    """Measure the rollout error along held-out DEM paths after training."""
 
     def __post_init__(self) -> None:
         for name in ("epochs", "batch_size", "lr_patience", "patience", "threads"):
@@ -98,63 +106,64 @@ class FitResult:
 
     Attributes:
         net: the network at its best validation epoch (eval mode, on the CPU).
-        history: per-epoch ``epoch``, ``train_loss``, ``val_loss`` (MSE of z-scored
-            rates [-]) and ``lr``; ``best_epoch``; ``seconds`` of training.
+        history: per-epoch ``epoch``, ``train_loss``, ``val_loss`` and ``lr``; ``best_epoch``;
+            ``seconds`` of training.
         split: the sample split used; normalisation: its training statistics.
     """
 
-    net: CellNet
+    net: MesoNet
     history: dict = field(repr=False)
     split: Split
     normalisation: Normalisation
 
 
-def _mse(net: CellNet, x: torch.Tensor, y: torch.Tensor, chunk: int = 65536) -> float:
+def _loss_terms(net: MesoNet, data: Tensors, index) -> torch.Tensor:
+    predicted = net.displacement_from_features(data.features[index], data.magnitude[index], data.unbalanced[index])
+    return ((predicted - data.target[index]) / (data.scale[index] * net.rate_std * net.schema.diameter)) ** 2
+
+
+def _mse(net: MesoNet, data: Tensors, chunk: int = 65536) -> float:
+    n = data.target.shape[0]
     with torch.no_grad():
-        total = sum(float(((net(x[i:i + chunk]) - y[i:i + chunk]) ** 2).sum()) for i in range(0, x.shape[0], chunk))
-    return total / y.numel()
+        total = sum(float(_loss_terms(net, data, slice(i, i + chunk)).sum()) for i in range(0, n, chunk))
+    return total / data.target.numel()
 
 
 def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = False) -> FitResult:
-    """Train a ``CellNet`` on ``db`` (see module docstring); deterministic for a given seed.
+    """Train a ``MesoNet`` on ``db`` (see module docstring); deterministic for a given seed.
 
     Sets torch's process-wide thread count (``config.threads``) and deterministic mode.
     """
     torch.set_num_threads(config.threads)
     torch.use_deterministic_algorithms(True)
     torch.manual_seed(config.seed)
-    split = split_by_path(db, val_fraction=config.val_fraction, test_path_fraction=config.test_path_fraction,
-                          n_test_alpha0=config.n_test_alpha0, seed=config.seed)
-    norm = fit_normalisation(db, split.train)
-    device = torch.device(config.device)
-    x_train, y_train = (t.to(device) for t in tensors(db, split.train, norm))
-    x_val, y_val = (t.to(device) for t in tensors(db, split.val, norm))
-    net = CellNet(config.hidden, kn=db.kn, diameter=db.diameter, mu=db.mu)
+    split = split_by_path(db, val_fraction=config.val_fraction, test_fraction=config.test_fraction, seed=config.seed)
+    active = active_pairs(db, split.train)
+    train, val = tensors(db, split.train, active), tensors(db, split.val, active)
+    norm = fit_normalisation(db, train, split.train)
+    net = MesoNet(db.schema, torch.from_numpy(active), config.hidden)
     net.set_normalisation(norm.feature_mean, norm.feature_std, norm.rate_mean, norm.rate_std)
-    net.to(device)
-    train_set = TensorDataset(x_train, y_train)
-    sampler = BatchSampler(RandomSampler(train_set, generator=torch.Generator().manual_seed(config.seed)),
-                           batch_size=config.batch_size, drop_last=False)
-    loader = DataLoader(train_set, sampler=sampler, batch_size=None)
     optimiser = torch.optim.Adam(net.parameters(), lr=config.lr)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=config.lr_patience)
+    generator = torch.Generator().manual_seed(config.seed)
     history: dict = {"epoch": [], "train_loss": [], "val_loss": [], "lr": []}
     best_loss, best_state, best_epoch = math.inf, copy.deepcopy(net.state_dict()), 0
     start = time.perf_counter()
+    n_train = train.target.shape[0]
     bar = tqdm(range(1, config.epochs + 1), desc="training", unit="epoch", disable=not progress)
     for epoch in bar:
         net.train()
         running = 0.0
-        for x, y in loader:
+        for batch in torch.randperm(n_train, generator=generator).split(config.batch_size):
             optimiser.zero_grad(set_to_none=True)
-            loss = torch.mean((net(x) - y) ** 2)
+            loss = torch.mean(_loss_terms(net, train, batch))
             loss.backward()
             optimiser.step()
-            running += loss.item() * x.shape[0]
+            running += loss.item() * batch.numel()
         net.eval()
-        val_loss = _mse(net, x_val, y_val)
+        val_loss = _mse(net, val)
         lr = optimiser.param_groups[0]["lr"]
-        for key, value in zip(history, (epoch, running / x_train.shape[0], val_loss, lr)):
+        for key, value in zip(history, (epoch, running / n_train, val_loss, lr)):
             history[key].append(value)
         if val_loss < best_loss:
             best_loss, best_state, best_epoch = val_loss, copy.deepcopy(net.state_dict()), epoch
@@ -165,31 +174,47 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = F
     net.load_state_dict(best_state)
     history["best_epoch"] = best_epoch
     history["seconds"] = time.perf_counter() - start
-    return FitResult(net.cpu().eval(), history, split, norm)
+    return FitResult(net.eval(), history, split, norm)
 
 
 def r2(prediction: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """Coefficient of determination per column, shape (n_columns,)."""
+    """Coefficient of determination per column, shape (n_columns,); NaN for a constant column."""
     residual = ((prediction - truth) ** 2).sum(axis=0)
     total = ((truth - truth.mean(axis=0)) ** 2).sum(axis=0)
     return 1.0 - residual / np.where(total > 0, total, np.nan)
 
 
-def evaluate(net: CellNet, db: Database, index: np.ndarray) -> dict[str, dict[str, float]]:
-    """R^2 per output on samples ``index``: ``{"increment": {...}, "value": {...}}``.
+def _finite(values: np.ndarray, names: list[str]) -> dict[str, float | None]:
+    return {n: (float(v) if np.isfinite(v) else None) for n, v in zip(names, values)}
 
-    Increments are post minus pre ``alpha_deg, N1, N2, T1`` [deg, N]; values are the
-    post-increment state. Keys of the inner dicts: ``d_alpha, dN1, dN2, dT1`` and
-    ``alpha, N1, N2, T1``.
+
+def evaluate(net: MesoNet, db: Database, index: np.ndarray) -> dict[str, dict[str, float | None]]:
+    """R^2 per learned output on samples ``index`` (see the module docstring).
+
+    Returns ``{"rate": {"x_n3": ...}, "relaxation": {...}, "moment_increment": {"S_nn": ..., "S_tt": ...}}``;
+    DOF names are ``x_{axis}{grain label}``; None where the set has no spread.
     """
-    inputs = torch.from_numpy(db.inputs[index])
-    predicted = net.predict(inputs).numpy()
-    truth = db.outputs[index]
-    pre = db.inputs[index][:, 2:6]
-    names = [name.removesuffix("_deg") for name in OUTPUT_FEATURES]
+    free = db.schema.free_dofs.numpy()
+    names = [f"x_{'nt'[a]}{g + 1}" for g, a in free]
+    state = [torch.from_numpy(db.before[k][index]) for k in ("cell_size", "free_position", "shear_force")]
+    d_eps = torch.from_numpy(db.d_eps[index])
+    with torch.no_grad():
+        predicted = net.displacement(*state, d_eps).numpy()
+        ann = cell_physics.advance(db.schema, *state, d_eps, torch.from_numpy(predicted)).moment.numpy()
+        dem = cell_physics.advance(db.schema, *state, d_eps, torch.from_numpy(
+            db.after_free_position[index] - db.before["free_position"][index])).moment.numpy()
+        x = cell_physics.positions(db.schema, state[0], state[1])
+        c = cell_physics.contacts(db.schema, x)
+        before = cell_physics.love_weber(c, cell_physics.pair_forces(c, state[2])).numpy()
+    truth = db.after_free_position[index] - db.before["free_position"][index]
+    m = np.linalg.norm(db.d_eps[index], axis=1)
+    clean = ~db.perturbed[index] & (m > 0)
+    diameter = db.schema.diameter
+    diag = (slice(None), [0, 1], [0, 1])
     return {
-        "increment": dict(zip((f"d{n}" if n != "alpha" else "d_alpha" for n in names), map(float, r2(predicted - pre, truth - pre)))),
-        "value": dict(zip(names, map(float, r2(predicted, truth)))),
+        "rate": _finite(r2(predicted[clean] / (diameter * m[clean, None]), truth[clean] / (diameter * m[clean, None])), names),
+        "relaxation": _finite(r2(predicted[~clean] / diameter, truth[~clean] / diameter), names),
+        "moment_increment": _finite(r2(ann[diag] - before[diag], dem[diag] - before[diag]), ["S_nn", "S_tt"]),
     }
 
 
@@ -201,7 +226,7 @@ def _plot_learning_curve(path: Path, history: dict) -> None:
     ax.semilogy(history["epoch"], history["val_loss"], label="validation")
     ax.axvline(history["best_epoch"], color="0.6", ls=":", label=f"best epoch {history['best_epoch']}")
     ax.set_xlabel("epoch [-]")
-    ax.set_ylabel("MSE of z-scored rates [-]")
+    ax.set_ylabel("relative MSE of free-DOF displacements [-]")
     ax.legend()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -234,24 +259,24 @@ def build_parser() -> argparse.ArgumentParser:
     d = TrainConfig()
     p = argparse.ArgumentParser(prog="python -m training.train", description=__doc__.splitlines()[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--data", type=Path, required=True, help="learning database (HDF5, docs/database_format.md)")
+    p.add_argument("--data", type=Path, required=True, help="generic learning database (HDF5, docs/database_format.md)")
     p.add_argument("--out", type=Path, required=True, help="state_dict file; metadata goes to the same stem .json")
     p.add_argument("--epochs", type=_positive(int), default=d.epochs, help="maximum epochs")
     p.add_argument("--batch-size", type=_positive(int), default=d.batch_size, help="samples per Adam step")
     p.add_argument("--lr", type=_positive(float), default=d.lr, help="initial Adam learning rate")
     p.add_argument("--patience", type=_positive(int), default=d.patience, help="early-stopping patience [epochs]")
     p.add_argument("--hidden", type=_hidden, default=",".join(map(str, d.hidden)), help="hidden layer widths, comma separated")
-    p.add_argument("--n-test-alpha0", type=int, default=d.n_test_alpha0, help="alpha0 values held out for the test set")
     p.add_argument("--seed", type=int, default=d.seed, help="seed of the split, weights and batch order")
     p.add_argument("--threads", type=_positive(int), default=d.threads, help="torch CPU threads")
     p.add_argument("--device", type=device_name, default=d.device, help="torch device (cpu, cuda)")
+    p.add_argument("--no-rollout", action="store_true", help="skip the rollout error along held-out DEM paths")
     p.add_argument("--overwrite", action="store_true", help="replace an existing model instead of refusing")
     return p
 
 
-def _format_r2(metrics: dict[str, dict[str, float]]) -> str:
-    digits = {"increment": 6, "value": 10}
-    return "  ".join(f"{k}={v:.{digits[group]}f}" for group in digits for k, v in metrics[group].items())
+def _format_r2(metrics: dict) -> str:
+    return "  ".join(f"{group}:{k}={'-' if v is None else f'{v:.5f}'}" for group, values in metrics.items()
+                     for k, v in values.items())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -271,26 +296,32 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str] | None) -> int:
     """Train, evaluate and write the model of ``main`` (holding the output lock)."""
     config = TrainConfig(hidden=args.hidden, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
-                         patience=args.patience, n_test_alpha0=args.n_test_alpha0, seed=args.seed,
-                         threads=args.threads, device=args.device)
+                         patience=args.patience, seed=args.seed, threads=args.threads, device=args.device,
+                         rollout=not args.no_rollout)
     db = load_database(args.data)
     result = fit(db, config, progress=True)
     metrics = {name: evaluate(result.net, db, getattr(result.split, name)) for name in ("train", "val", "test")}
+    law = ContactLaw(kn=db.kn, kt_over_kn=db.kt_over_kn, phi_g_deg=db.phi_g_deg)
+    rollout = (rollout_report(result.net, from_description(db.mesostructure), law, DemSettings(contact_tolerance=db.contact_tolerance))
+               if config.rollout else None)
     split = result.split
     metadata = {
         "contact_law": {"kn": db.kn, "kt_over_kn": db.kt_over_kn, "phi_g_deg": db.phi_g_deg},
-        "radius": db.radius,
-        "target": "rate = (post - pre) / |d_eps| of alpha [rad], N1, N2, T1 [kn D]; increment = |d_eps| * rate",
+        "contact_tolerance": db.contact_tolerance,
+        "schema": {k: np.asarray(v).tolist() for k, v in db.schema_arrays.items()},
+        "mesostructure": db.mesostructure,
+        "mesostructure_sha256": db.mesostructure_sha256,
+        "target": "free-DOF displacement d_free = D |d_eps| r - C F / kn (training.network)",
         "training_data": {"path": str(args.data), "sha256": db.sha256, "n_stored": db.n_stored,
-                          "n_selected": db.n_samples, "n_train": int(split.train.size), "n_val": int(split.val.size),
-                          "n_test": int(split.test.size), "test_alpha0_deg": list(split.test_alpha0_deg),
-                          "n_removed_jumps": db.n_jumps,
-                          "selection": "valid & warp_hcell.clean rules & |d_eps| > 0 & |rate| <= RATE_LIMIT"},
+                          "n_selected": db.n_samples, "n_unconverged_dropped": db.n_unconverged,
+                          "n_jumps_dropped": db.n_jumps, "n_perturbed": int(db.perturbed.sum()),
+                          "n_mechanism": int(db.mechanism.sum()), "n_train": int(split.train.size),
+                          "n_val": int(split.val.size), "n_test": int(split.test.size)},
         "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()},
         "metrics_r2": metrics,
+        "rollout": rollout,
         "history": {"best_epoch": result.history["best_epoch"], "seconds": result.history["seconds"],
-                    "epochs_run": len(result.history["epoch"]),
-                    "best_val_loss": min(result.history["val_loss"])},
+                    "epochs_run": len(result.history["epoch"]), "best_val_loss": min(result.history["val_loss"])},
         "versions": {"python": platform.python_version(), "torch": torch.__version__, "numpy": np.__version__,
                      "git_revision": git_revision()},
         "command": "python -m training.train " + " ".join(sys.argv[1:] if argv is None else argv),
@@ -299,9 +330,13 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
     _plot_learning_curve(curve, result.history)
     print(f"trained {len(result.history['epoch'])} epochs in {result.history['seconds']:.1f} s "
           f"(best epoch {result.history['best_epoch']}); samples train/val/test = "
-          f"{split.train.size}/{split.val.size}/{split.test.size}; test alpha0 held out = {list(split.test_alpha0_deg)} deg")
+          f"{split.train.size}/{split.val.size}/{split.test.size}")
     for name in ("val", "test"):
         print(f"R^2 {name:>4}: {_format_r2(metrics[name])}")
+    if rollout is not None:
+        for key, value in rollout.items():
+            if key.startswith("increment_"):
+                print(f"rollout error ({key}): max {value['max']:.4f}, median {value['median']:.4f} of the path's largest |S|")
     print(f"wrote {out}, {out.with_suffix('.json')}, {curve}")
     return 0
 

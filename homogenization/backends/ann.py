@@ -1,233 +1,211 @@
-"""Meso-ANN H-cell backend (spec section 11): a trained ``CellNet`` replaces the equilibrium solve.
+"""Generic meso-ANN backend (spec section 12): a trained ``MesoNet`` decides every cell-increment.
 
-``AnnCell`` implements ``warp_hcell.cell_model.CellModel``. Per macro increment, ONE
-batched network call over all cells maps the probe (d_eps_n, d_eps_t) and the state at the
-start of the increment (alpha, N1, N2, T1, l1, l2) to the end values of (alpha, N1, N2,
-T1). What is not learned:
+``AnnCell`` implements ``warp_hcell.cell_model.CellModel`` for ANY mesostructure the model
+was trained on. The state of a cell is the DEM's learning state: cell size (l1, l2), the
+free-DOF coordinates and the tangential spring force of every candidate pair. Per macro
+increment, ONE batched network call over all cells gives the free-DOF displacement (a rate
+per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
+``training.network``); then exact generic physics (``training.cell_physics``) follows:
 
-- l1, l2 follow the imposed strain (spec section 3): l1 <- l1 (1 - d_eps_n),
-  l2 <- l2 (1 - d_eps_t);
-- the geometry d1 = l2 / (2 sin a), d2 = l1 - 2 d1 cos a and the Love-Weber moment with
-  its pathological contacts come from ``homogenization.backends.hcell`` (spec section 7).
+- the cell size follows the imposed strain, l <- l (1 - d_eps), and the driven DOFs follow
+  the cell size (x = x_ref l / l_ref);
+- normal forces, contact flags and tangential forces come from the contact law of the DEM
+  (tangential increment along the mid-increment tangent, Coulomb cap from the trial force,
+  reset out of contact); the moment is the Love-Weber sum over the contacts and V_cell the
+  area of the polygon through the outer grains.
 
-Non-physical network outputs are mapped onto the contact law, never silently: a negative
-normal force becomes 0 (no tension, N = max(N, 0), as the contact law itself does), and
-|T1| > mu N1 is capped at mu N1 with the sign of the prediction (Coulomb, so an open
-contact carries no tangential force).
+No equilibrium is solved and no closed form of a particular cell is used. Each ``step``
+reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
+``n_coulomb_capped`` (a trial tangential force exceeded mu f_n), ``n_tension_clipped`` (a
+contact carrying a normal force opened: no tension), ``n_mechanism`` (cells carrying no
+contact force after the increment) and ``n_relaxation_scaled`` (probes smaller than
+``training.network.RELAXATION_RAMP``, whose relaxation of unbalanced forces is scaled down
+so that a zero increment is a no-op, as stress control assumes).
 
-Stress-free mechanisms are not learned (the database cleaning removes them: their alpha
-is not fixed by equilibrium) and follow spec sections 5-6 instead. When a contact opens
-so that grain 2 cannot be in equilibrium along n with the other one closed (N1 = 0, or
-N2 = 0 with alpha < 90 deg - phi_g), every force drops to 0 and the cell becomes a
-mechanism: y2 = d2/2 is kept (chosen in the range where both contacts are open or
-touching) and alpha, d1 follow l1, l2 by kinematics. The network is still called for
-these cells (one call per increment for the whole batch) and its prediction is used again
-from the increment in which the kinematics closes a contact. Where l1, l2 leave no y2
-with both contacts open, the cell stays closed and N2 is set by the equilibrium of grain
-2 along n, N2 = max(N1 cos a + T1 sin a, 0) (spec section 5).
+The model records the mesostructure it was trained on (description and sha256). With
+``mesostructure=`` the cells start from that file and its hash must equal the model's; without
+it the cells are H-cells from the builder (``init_state(alpha0_deg)``), which needs a model
+whose learning state the H-cell shares. Otherwise ``CheckpointError`` (one line; exit code 2
+in the CLIs).
 
-Each ``step`` reports in ``CellResponse.diagnostics`` how many cells were affected:
-``n_tension_clipped`` (N1 or N2 < 0 predicted), ``n_coulomb_capped``, ``n_mechanism``
-(cells in the mechanism state after the increment), ``n_equilibrium_n2`` (N2 from
-equilibrium) and ``n_alpha_outside`` (alpha outside [30, 90] deg, left as predicted).
-
-Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
-growing). Local frame: index 0 = n, 1 = t.
+Sign convention: compression and contraction positive. Local frame: index 0 = n, 1 = t.
 """
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import torch
 
-from homogenization.backends import hcell
+from training import cell_physics
+from training.network import RELAXATION_RAMP
+from training.checkpoint import CheckpointError, check_compatible, check_mesostructure, load_checkpoint
 from warp_hcell.cell_model import ArrayStateMixin, CellResponse
-from training.checkpoint import CheckpointError, check_compatible, load_checkpoint
-from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, ContactLaw, check_positive
+from warp_hcell.learning_state import hcell_observables
+from warp_hcell.mesostructure import (
+    Mesostructure, describe, description_sha256, from_description, h_cell, h_cell_reference, shares_state_schema)
+from warp_hcell.parameters import ContactLaw, check_positive
 
 DEFAULT_MODEL = "ann_default.pt"
 """File name of the model shipped in ``homogenization/data`` (with its ``.json``)."""
 
 
 def default_model_path() -> Path:
-    """Path of the shipped default model state_dict (its metadata sits next to it).
-
-    Found next to the package's modules (package data ``homogenization/data``), which works
-    for regular and editable installs alike.
-    """
+    """Path of the shipped default model state_dict (its metadata sits next to it)."""
     return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODEL
 
 
 class AnnState(NamedTuple):
-    """Batch of ANN H-cells; every field has shape (n_cells,)."""
+    """Batch of generic ANN cells (first axis n_cells)."""
 
-    alpha: np.ndarray
-    """Opening angle [rad]."""
-    N1: np.ndarray
-    """Normal force of the type-1 contacts [N], compression positive."""
-    N2: np.ndarray
-    """Normal force of the type-2 contacts [N], compression positive."""
-    T1: np.ndarray
-    """Tangential force of the type-1 contacts [N], > 0 resists opening."""
-    l1: np.ndarray
-    """Axial length, centre 1 to centre 4 [m]."""
-    l2: np.ndarray
-    """Distance between the lateral columns [m]."""
-    y2_free: np.ndarray
-    """n-coordinate of grain 2 [m] kept while the cell is a stress-free mechanism; NaN otherwise."""
-
-
-def mechanism_y2(l1: np.ndarray, l2: np.ndarray, d2: np.ndarray, diameter: float) -> np.ndarray:
-    """y2 [m] of a cell entering the mechanism state: d2 / 2 clipped to where d1, d2 >= D.
-
-    Args:
-        l1, l2: cell lengths [m], shape (n,).
-        d2: type-2 branch length of the prediction [m], shape (n,).
-        diameter: grain diameter D [m].
-
-    Returns:
-        y2 [m], shape (n,); NaN where no y2 opens both contacts (d1 >= D needs
-        y2 <= l1/2 - sqrt(D^2 - l2^2/4), d2 >= D needs y2 >= D/2).
-    """
-    y2_max = 0.5 * l1 - np.sqrt(np.maximum(diameter**2 - 0.25 * l2**2, 0.0))
-    y2_min = np.full_like(l1, 0.5 * diameter)
-    return np.where(y2_min <= y2_max, np.clip(0.5 * d2, y2_min, y2_max), np.nan)
+    cell_size: np.ndarray
+    """(l1, l2) [m], shape (n_cells, 2)."""
+    free_position: np.ndarray
+    """Free-DOF coordinates [m], shape (n_cells, n_free), in the model's ``free_dofs`` order."""
+    shear_force: np.ndarray
+    """Tangential spring force of every candidate pair [N], shape (n_cells, n_pairs) (DEM convention)."""
 
 
 class AnnCell(ArrayStateMixin):
-    """H-cell whose increment is predicted by a trained ``training.network.CellNet``.
+    """Cells whose increments are decided by a trained ``training.network.MesoNet``.
 
     Args:
         contact_law: contact stiffnesses and friction; must match the model's training data.
-        radius: grain radius r [m]; must match the model's training data.
+        radius: grain radius r [m] of the H-cells built without ``mesostructure``.
         model: path of a model state_dict (``.pt``, metadata in the ``.json`` next to it);
             None loads the default model shipped in ``homogenization/data``.
+        mesostructure: the cell every state starts from; None: H-cells from ``alpha0_deg``.
         device: torch device of the network ("cpu", "cuda", ...).
+        threads: torch CPU threads (process-wide setting, applied here) [-].
 
     Raises:
         training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
-            mismatched model file, or a model trained for another contact law or radius.
+            mismatched model file, or a model trained for another contact law or mesostructure.
     """
 
     name = "ann"
     state_type = AnnState
 
-    def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None, device: str = "cpu") -> None:
+    def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
+                 mesostructure: Mesostructure | None = None, device: str = "cpu", threads: int = 1) -> None:
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
-        self.diameter = 2.0 * self.radius
-        self.kn = contact_law.kn
-        self.mu = contact_law.mu
-        self.alpha_lock = math.radians(90.0 - contact_law.phi_g_deg)
-        """Opening angle [rad] above which a cell with N2 = 0 can be friction-locked (spec section 5)."""
+        if int(threads) < 1:
+            raise ValueError(f"threads = {threads} must be >= 1")
         path = default_model_path() if model is None else Path(model)
         if model is None and not path.is_file():
             raise CheckpointError(f"{path}: the default ANN model is not installed; pass model=PATH (--model)")
         self.net, self.metadata = load_checkpoint(path)
         check_compatible(self.metadata, kn=contact_law.kn, kt_over_kn=contact_law.kt_over_kn,
-                         phi_g_deg=contact_law.phi_g_deg, radius=self.radius, source=str(path))
+                         phi_g_deg=contact_law.phi_g_deg, source=str(path))
+        self.trained_on = from_description(self.metadata["mesostructure"])
+        if mesostructure is not None:
+            check_mesostructure(self.metadata, description_sha256(describe(mesostructure)), name=mesostructure.name,
+                                source=str(path))
+        elif not shares_state_schema(self.trained_on, h_cell(radius=self.radius)):
+            raise CheckpointError(f"{path}: model trained on {self.trained_on.name!r}, whose learning state the H-cell "
+                                  f"does not share; pass the model's mesostructure (--mesostructure)")
+        self.mesostructure = mesostructure
         self.model_path = path
         self.device = torch.device(device)
         self.net.to(self.device)
+        self.net.schema = self.net.schema.to(self.device)
+        self.net.active_index = self.net.active_index.to(self.device)
+        self.threads = int(threads)
+        torch.set_num_threads(self.threads)
 
+    # -- construction ---------------------------------------------------------------------
+    def _start_cells(self, alpha0_deg, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
+        """Reference positions (n, n_grains, 2) and cell sizes (n, 2) of the starting cells."""
+        if self.mesostructure is not None:
+            return (np.broadcast_to(self.mesostructure.position, (n_cells, *self.mesostructure.position.shape)),
+                    np.broadcast_to(self.mesostructure.cell_size, (n_cells, 2)))
+        alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (n_cells,))
+        return h_cell_reference(alpha0, self.radius)
+
+    # -- CellModel protocol ---------------------------------------------------------------
     def init_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> AnnState:
-        """Touching, force-free cells: d1 = d2 = D at opening angle alpha0.
+        """Touching, force-free cells: the mesostructure, or H-cells at ``alpha0_deg`` [deg] (scalar or (n_cells,))."""
+        position, cell_size = self._start_cells(alpha0_deg, int(n_cells))
+        free = self.net.schema.free_dofs.cpu().numpy()
+        return AnnState(np.array(cell_size, dtype=np.float64), np.array(position[:, free[:, 0], free[:, 1]]),
+                        np.zeros((int(n_cells), self.net.schema.n_pairs)))
 
-        Args:
-            alpha0_deg: initial opening angle [deg], scalar or shape (n_cells,), each in
-                [30, 90); ValueError otherwise.
-            n_cells: number of cells.
-        """
-        alpha, l1, l2 = hcell.touching_cells(alpha0_deg, n_cells, self.diameter)
-        zero = np.zeros_like(alpha)
-        return AnnState(alpha, zero, zero.copy(), zero.copy(), l1, l2, np.full_like(alpha, np.nan))
+    def _tensors(self, state: AnnState):
+        return tuple(torch.from_numpy(np.asarray(a, dtype=np.float64)).to(self.device) for a in state)
 
-    def step(self, state: AnnState, d_eps_local: np.ndarray) -> tuple[AnnState, CellResponse]:
+    def step(self, state: AnnState, d_eps_local: np.ndarray, *, with_tangent: bool = False) -> tuple[AnnState, CellResponse]:
         """Advance every cell by its local strain increment with one network call; pure.
 
         Args:
             state: cells at the start of the increment.
             d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
+            with_tangent: also return ``CellResponse.tangent`` = d(S_nn, S_tt)/d(eps_n, eps_t)
+                [N m], shape (n_cells, 2, 2), by automatic differentiation of the whole
+                increment (network and contact law).
 
         Returns:
-            The state at the end of the increment and its response (diagnostics: counts of
-            cells whose prediction was mapped onto the contact law, see the module docstring).
+            The state at the end of the increment and its response (diagnostics: module docstring).
         """
-        d_eps = np.asarray(d_eps_local, dtype=np.float64)
-        inputs = np.column_stack([d_eps, np.degrees(state.alpha), state.N1, state.N2, state.T1, state.l1, state.l2])
-        with torch.inference_mode():
-            out = self.net.predict(torch.from_numpy(inputs).to(self.device)).cpu().numpy()
-        alpha = np.radians(out[:, 0])
-        N1 = np.maximum(out[:, 1], 0.0)
-        N2 = np.maximum(out[:, 2], 0.0)
-        cap = self.mu * N1
-        T1 = np.clip(out[:, 3], -cap, cap)
-        l1 = state.l1 * (1.0 - d_eps[:, 0])
-        l2 = state.l2 * (1.0 - d_eps[:, 1])
-        alpha, N1, N2, T1, y2_free, balanced = self._mechanisms(state.y2_free, alpha, N1, N2, T1, l1, l2)
-        new = AnnState(alpha, N1, N2, T1, l1, l2, y2_free)
-        moment, area = hcell.love_weber_moment(alpha, N1, N2, T1, l1, l2, kn=self.kn, diameter=self.diameter)
-        alpha_deg = np.degrees(alpha)
+        size, free, shear = self._tensors(state)
+        d_eps = torch.as_tensor(np.asarray(d_eps_local, dtype=np.float64), device=self.device)
+        tangent = None
+        if with_tangent:
+            d_eps = d_eps.clone().requires_grad_(True)
+            step = self.net.advance(size, free, shear, d_eps)
+            rows = [torch.autograd.grad(step.moment[:, i, i].sum(), d_eps, retain_graph=i == 0)[0] for i in (0, 1)]
+            tangent = torch.stack(rows, dim=1).detach().cpu().numpy()
+        else:
+            with torch.inference_mode():
+                step = self.net.advance(size, free, shear, d_eps)
+        new = AnnState(*(t.detach().cpu().numpy() for t in (step.cell_size, step.free_position, step.shear_force)))
+        moment = step.moment.detach().cpu().numpy()
         diagnostics = {
-            "n_tension_clipped": float(np.count_nonzero((out[:, 1] < 0.0) | (out[:, 2] < 0.0))),
-            "n_coulomb_capped": float(np.count_nonzero(np.abs(out[:, 3]) > cap)),
-            "n_mechanism": float(np.count_nonzero(np.isfinite(y2_free))),
-            "n_equilibrium_n2": float(np.count_nonzero(balanced)),
-            "n_alpha_outside": float(np.count_nonzero((alpha_deg < ALPHA_MIN_DEG) | (alpha_deg > ALPHA_MAX_DEG))),
+            "n_coulomb_capped": float(step.capped.any(dim=1).sum()),
+            "n_tension_clipped": float(step.opened.any(dim=1).sum()),
+            "n_mechanism": float(np.count_nonzero(np.all(moment == 0.0, axis=(1, 2)))),
+            "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
         }
-        return new, CellResponse(moment, area, diagnostics)
+        return new, CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent)
 
-    def _mechanisms(self, y2_old, alpha, N1, N2, T1, l1, l2):
-        """Apply the mechanism rules of the module docstring to a clamped prediction.
-
-        Args:
-            y2_old: ``y2_free`` at the start of the increment [m], shape (n_cells,).
-            alpha [rad], N1, N2, T1 [N]: prediction after the contact-law mapping.
-            l1, l2: lengths at the end of the increment [m].
-
-        Returns:
-            (alpha, N1, N2, T1, y2_free, balanced): the end state and the mask of cells
-            whose N2 was set by grain-2 equilibrium; all shape (n_cells,).
-        """
-        D = self.diameter
-        was_free = np.isfinite(y2_old)
-        # a mechanism keeps y2 while the kinematics leaves both contacts open
-        d1_k, d2_k, alpha_k = hcell.branches_from_y2(l1, l2, np.where(was_free, y2_old, 0.5 * l1))
-        stays_free = was_free & (d1_k >= D) & (d2_k >= D)
-        # a cell that loses grain-2 equilibrium with a closed contact becomes a mechanism ...
-        unbalanced = ~was_free & ((N1 == 0.0) | ((N2 == 0.0) & (alpha < self.alpha_lock)))
-        _, d2 = hcell.branches_from_alpha(l1, l2, alpha)
-        y2_new = np.where(unbalanced, mechanism_y2(l1, l2, d2, D), np.nan)
-        enters = np.isfinite(y2_new)
-        # ... unless l1, l2 keep a contact closed: then grain-2 equilibrium gives N2 (spec section 5)
-        balanced = unbalanced & ~enters
-        N2 = np.where(balanced, np.maximum(N1 * np.cos(alpha) + T1 * np.sin(alpha), 0.0), N2)
-        _, _, alpha_e = hcell.branches_from_y2(l1, l2, np.where(enters, y2_new, 0.5 * l1))
-        alpha = np.where(stays_free, alpha_k, np.where(enters, alpha_e, alpha))
-        free = stays_free | enters
-        N1, N2, T1 = (np.where(free, 0.0, f) for f in (N1, N2, T1))
-        return alpha, N1, N2, T1, np.where(stays_free, y2_old, y2_new), balanced
+    def _forces(self, state: AnnState):
+        size, free, shear = self._tensors(state)
+        x = cell_physics.positions(self.net.schema, size, free)
+        c = cell_physics.contacts(self.net.schema, x)
+        force = cell_physics.pair_forces(c, shear)
+        return x, c, force
 
     def response(self, state: AnnState) -> CellResponse:
         """Meso-stress of ``state`` without advancing it."""
-        moment, area = hcell.love_weber_moment(state.alpha, state.N1, state.N2, state.T1, state.l1, state.l2,
-                                               kn=self.kn, diameter=self.diameter)
+        with torch.inference_mode():
+            x, c, force = self._forces(state)
+            moment = cell_physics.love_weber(c, force).cpu().numpy()
+            area = cell_physics.polygon_area(x, self.net.schema.outer).cpu().numpy()
         return CellResponse(moment, area)
 
     def observables(self, state: AnnState) -> dict[str, np.ndarray]:
-        """Named per-cell quantities, each shape (n_cells,).
+        """Per-cell quantities, shape (n_cells,) each.
 
-        ``l1, l2, d1, d2`` [m] (d1, d2 from l1, l2, alpha), ``alpha_deg`` [deg],
-        ``N1, N2, T1`` [N] (compression positive, T1 > 0 resists opening), ``S_nn, S_tt``
-        [N m], ``area`` [m^2], ``closed1, closed2`` (bool: the contact carries a normal
-        force) and grain centres ``x_n{i}, x_t{i}`` [m], labels i = 1..6.
+        Always ``l1, l2, area`` [m, m^2], ``S_nn, S_tt, S_nt`` [N m] (compression positive),
+        ``n_contacts`` and grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label); where the
+        mesostructure carries H-cell labels also ``d1, d2, alpha_deg, N1, N2, T1, closed1,
+        closed2`` (``warp_hcell.learning_state.hcell_observables``).
         """
+        with torch.inference_mode():
+            x, c, force = self._forces(state)
+        x = x.cpu().numpy()
         response = self.response(state)
-        d1, d2 = hcell.branches_from_alpha(state.l1, state.l2, state.alpha)
-        return hcell.observables(state.l1, state.l2, d1, d2, state.alpha, state.N1, state.N2, state.T1,
-                                 response.moment, response.area)
-
+        obs: dict[str, np.ndarray] = {
+            "l1": state.cell_size[:, 0].copy(), "l2": state.cell_size[:, 1].copy(), "area": response.area,
+            "S_nn": response.moment[:, 0, 0], "S_tt": response.moment[:, 1, 1], "S_nt": response.moment[:, 0, 1],
+            "n_contacts": c.contact.cpu().numpy().sum(axis=1),
+        }
+        meso = self.mesostructure if self.mesostructure is not None else h_cell(radius=self.radius)
+        if meso.is_h_cell:
+            obs.update(hcell_observables(meso, x, c.normal_force.cpu().numpy(), state.shear_force))
+        for g in range(x.shape[1]):
+            obs[f"x_n{g + 1}"] = x[:, g, 0].copy()
+            obs[f"x_t{g + 1}"] = x[:, g, 1].copy()
+        return obs

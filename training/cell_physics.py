@@ -1,0 +1,213 @@
+"""Exact generic cell physics in torch (float64): geometry, contact law, unbalanced forces, Love-Weber.
+
+Everything here holds for ANY few-grain mesostructure; nothing solves an equilibrium. The
+meso-ANN (``training.network``) decides where the free degrees of freedom go; this module
+turns that decision into forces and stress exactly as the DEM's contact law does
+(spec sections 4, 7, 10, 12).
+
+Generic cell state (first axis n_cells):
+    - ``cell_size`` (n, 2) [m]: (l1, l2);
+    - ``free_position`` (n, n_free) [m]: the free DOF coordinates, in the row-major order of
+      ``driven == False`` (grain, axis);
+    - ``shear_force`` (n, n_pairs) [N]: tangential spring force of each candidate pair, the
+      force on grain i along w = (-u_t, u_n) with u = (x_j - x_i) / |x_j - x_i| (DEM convention,
+      ``warp_hcell.kernels``).
+Driven coordinates follow the cell strain exactly: x = (x_ref / l_ref) * l.
+
+Conventions: local frame index 0 = n, 1 = t. The contact force on grain i of pair (i, j) is
+-f_n u + f_s w (f_n >= 0, repulsive); grain j receives the opposite. Moments returned by
+``love_weber`` are compression positive (the DEM's tension-positive sum, negated).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+@dataclass(frozen=True, eq=False)
+class CellSchema:
+    """Topology and reference geometry of a mesostructure, as tensors (float64/int64, CPU or device).
+
+    Attributes:
+        radius: grain radii [m], (n_grains,).
+        driven_fraction: x_ref / l_ref of every coordinate [-], (n_grains, 2); used for the
+            driven coordinates only.
+        driven: bool (n_grains, 2).
+        free_dofs: (grain, axis) of every free DOF, int64 (n_free, 2).
+        pairs: candidate contact pairs (i, j), int64 (n_pairs, 2).
+        outer: ordered grain indices of the polygon whose area is V_cell, int64 (n_outer,).
+        kn, kt [N/m], mu [-]: contact law; contact_tolerance [-]: a gap up to
+            contact_tolerance * (r_i + r_j) still counts as a contact (carrying zero force).
+    """
+
+    radius: torch.Tensor
+    driven_fraction: torch.Tensor
+    driven: torch.Tensor
+    free_dofs: torch.Tensor
+    pairs: torch.Tensor
+    outer: torch.Tensor
+    kn: float
+    kt: float
+    mu: float
+    contact_tolerance: float
+
+    @classmethod
+    def from_arrays(cls, *, radius, reference_position, reference_cell_size, driven, pairs, outer,
+                    kn: float, kt: float, mu: float, contact_tolerance: float) -> "CellSchema":
+        """Schema from numpy arrays (the database's ``schema`` group or a ``Mesostructure``)."""
+        driven = np.asarray(driven, dtype=bool)
+        free = np.argwhere(~driven).astype(np.int64)
+        fraction = np.asarray(reference_position, float) / np.asarray(reference_cell_size, float)[None, :]
+        as64 = lambda a: torch.as_tensor(np.array(a, dtype=np.float64))  # noqa: E731
+        return cls(radius=as64(radius), driven_fraction=as64(fraction), driven=torch.as_tensor(driven.copy()),
+                   free_dofs=torch.as_tensor(free), pairs=torch.as_tensor(np.array(pairs, dtype=np.int64)),
+                   outer=torch.as_tensor(np.array(outer, dtype=np.int64)), kn=float(kn), kt=float(kt),
+                   mu=float(mu), contact_tolerance=float(contact_tolerance))
+
+    @property
+    def n_free(self) -> int:
+        """Number of free DOFs."""
+        return int(self.free_dofs.shape[0])
+
+    @property
+    def n_pairs(self) -> int:
+        """Number of candidate pairs."""
+        return int(self.pairs.shape[0])
+
+    @property
+    def diameter(self) -> float:
+        """Length scale D [m]: the mean grain diameter."""
+        return float(2.0 * self.radius.mean())
+
+    def to(self, device: torch.device | str) -> "CellSchema":
+        """The same schema with its tensors on ``device``."""
+        moved = {k: (v.to(device) if isinstance(v, torch.Tensor) else v) for k, v in self.__dict__.items()}
+        return CellSchema(**moved)
+
+
+def positions(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Tensor) -> torch.Tensor:
+    """Grain centres [m], (n, n_grains, 2): driven coordinates from ``cell_size``, free ones given."""
+    x = schema.driven_fraction.unsqueeze(0) * cell_size.unsqueeze(1)
+    flat = x.reshape(x.shape[0], -1)
+    index = (schema.free_dofs[:, 0] * 2 + schema.free_dofs[:, 1]).unsqueeze(0).expand(x.shape[0], -1)
+    return flat.scatter(1, index, free_position).reshape(x.shape)
+
+
+def branches(schema: CellSchema, x: torch.Tensor) -> torch.Tensor:
+    """Branch vectors x_j - x_i [m] of every candidate pair, (n, n_pairs, 2)."""
+    return x[:, schema.pairs[:, 1]] - x[:, schema.pairs[:, 0]]
+
+
+@dataclass(frozen=True)
+class Contacts:
+    """Contact quantities of every candidate pair, (n, n_pairs) each unless stated.
+
+    Attributes:
+        branch: x_j - x_i [m], (n, n_pairs, 2); distance [m]; normal u and tangent w unit
+            vectors (n, n_pairs, 2); overlap r_i + r_j - distance [m] (negative = gap);
+        contact: bool, gap within the contact tolerance; normal_force f_n >= 0 [N].
+    """
+
+    branch: torch.Tensor
+    distance: torch.Tensor
+    normal: torch.Tensor
+    tangent: torch.Tensor
+    overlap: torch.Tensor
+    contact: torch.Tensor
+    normal_force: torch.Tensor
+
+
+def contacts(schema: CellSchema, x: torch.Tensor) -> Contacts:
+    """Geometry and normal forces (linear spring, no tension) of the pairs of grains at ``x``."""
+    b = branches(schema, x)
+    dist = torch.linalg.vector_norm(b, dim=-1)
+    u = b / dist.unsqueeze(-1)
+    w = torch.stack([-u[..., 1], u[..., 0]], dim=-1)
+    rsum = schema.radius[schema.pairs[:, 0]] + schema.radius[schema.pairs[:, 1]]
+    overlap = rsum - dist
+    contact = dist <= rsum * (1.0 + schema.contact_tolerance)
+    normal_force = torch.where(contact, schema.kn * torch.clamp(overlap, min=0.0), torch.zeros_like(overlap))
+    return Contacts(b, dist, u, w, overlap, contact, normal_force)
+
+
+def pair_forces(c: Contacts, shear_force: torch.Tensor) -> torch.Tensor:
+    """Force on grain i of each pair by grain j [N], (n, n_pairs, 2): -f_n u + f_s w (0 out of contact)."""
+    fs = torch.where(c.contact, shear_force, torch.zeros_like(shear_force))
+    return -c.normal_force.unsqueeze(-1) * c.normal + fs.unsqueeze(-1) * c.tangent
+
+
+def unbalanced(schema: CellSchema, force_on_i: torch.Tensor, n_grains: int) -> torch.Tensor:
+    """Net contact force on every free DOF [N], (n, n_free)."""
+    n = force_on_i.shape[0]
+    net = torch.zeros(n, n_grains, 2, dtype=force_on_i.dtype, device=force_on_i.device)
+    net = net.index_add(1, schema.pairs[:, 0], force_on_i).index_add(1, schema.pairs[:, 1], -force_on_i)
+    return net[:, schema.free_dofs[:, 0], schema.free_dofs[:, 1]]
+
+
+def love_weber(c: Contacts, force_on_i: torch.Tensor) -> torch.Tensor:
+    """Compression-positive Love-Weber moment -sum_c f_c (x) l_c [N m], (n, 2, 2)."""
+    return -torch.einsum("cpa,cpb->cab", force_on_i, c.branch)
+
+
+def polygon_area(x: torch.Tensor, outer: torch.Tensor) -> torch.Tensor:
+    """Area [m^2], (n,), of the polygon through the centres ``x[:, outer]`` (shoelace)."""
+    p = x[:, outer]
+    q = torch.roll(p, -1, dims=1)
+    return 0.5 * torch.abs(torch.sum(p[..., 0] * q[..., 1] - q[..., 0] * p[..., 1], dim=1))
+
+
+@dataclass(frozen=True)
+class Increment:
+    """Outcome of ``advance`` (first axis n_cells).
+
+    Attributes:
+        cell_size, free_position, shear_force: the new generic state.
+        moment: compression-positive Love-Weber moment [N m], (n, 2, 2); area [m^2], (n,).
+        capped: bool (n, n_pairs), the trial tangential force exceeded the Coulomb cap mu f_n;
+        opened: bool (n, n_pairs), a pair that carried a normal force lost it (no-tension branch).
+    """
+
+    cell_size: torch.Tensor
+    free_position: torch.Tensor
+    shear_force: torch.Tensor
+    moment: torch.Tensor
+    area: torch.Tensor
+    capped: torch.Tensor
+    opened: torch.Tensor
+
+
+def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Tensor, shear_force: torch.Tensor,
+            d_eps: torch.Tensor, d_free: torch.Tensor, old: Contacts | None = None) -> Increment:
+    """Apply a strain increment and a free-DOF displacement with the contact law (spec sections 3, 4, 12).
+
+    Args:
+        cell_size, free_position, shear_force: state before the increment (module docstring).
+        d_eps: (d_eps_n, d_eps_t) [-], (n, 2), compression positive: l <- l (1 - d_eps).
+        d_free: displacement of the free DOFs over the increment [m], (n, n_free).
+        old: ``contacts`` of the state before the increment, when already computed.
+
+    Returns:
+        The new state with its moment and area. The tangential force grows by kt times the
+        relative displacement along the mid-increment tangent, is capped at mu f_n (new normal
+        force) with the sign of the trial force, and is reset out of contact.
+    """
+    if old is None:
+        old = contacts(schema, positions(schema, cell_size, free_position))
+    new_size = cell_size * (1.0 - d_eps)
+    new_free = free_position + d_free
+    x_new = positions(schema, new_size, new_free)
+    new = contacts(schema, x_new)
+    mid = 0.5 * (old.branch + new.branch)
+    mid = mid / torch.linalg.vector_norm(mid, dim=-1, keepdim=True)
+    w_mid = torch.stack([-mid[..., 1], mid[..., 0]], dim=-1)
+    relative = new.branch - old.branch
+    trial = torch.where(old.contact, shear_force, torch.zeros_like(shear_force)) + schema.kt * torch.sum(relative * w_mid, dim=-1)
+    cap = schema.mu * new.normal_force
+    shear = torch.where(new.contact, torch.minimum(torch.maximum(trial, -cap), cap), torch.zeros_like(trial))
+    capped = new.contact & (torch.abs(trial) > cap)
+    opened = (old.normal_force > 0.0) & (new.normal_force == 0.0)
+    force = pair_forces(new, shear)
+    return Increment(new_size, new_free, shear, love_weber(new, force), polygon_area(x_new, schema.outer), capped, opened)
