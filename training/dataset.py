@@ -21,7 +21,6 @@ topology. Sign convention: compression positive, as in the file.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from dataclasses import dataclass
@@ -33,6 +32,7 @@ import torch
 
 from training.cell_physics import CellSchema
 from training.network import features
+from warp_hcell.provenance import file_sha256
 
 FORMAT = "meso-hmodel-database"
 """Root attr ``format`` of a learning database."""
@@ -96,15 +96,6 @@ class Database:
     def n_samples(self) -> int:
         """Number of selected samples."""
         return int(self.d_eps.shape[0])
-
-
-def file_sha256(path: Path) -> str:
-    """Hex sha256 of a file's bytes."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def schema_from_arrays(arrays: dict, *, kn: float, kt_over_kn: float, phi_g_deg: float,
