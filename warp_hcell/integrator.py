@@ -107,14 +107,23 @@ class _RecordedLaunch:
         self.n_inputs = len(inputs)
         self.command = wp.launch(kernel_of(model), dim=stop - start, inputs=inputs, outputs=outputs,
                                  device=model.device, record_cmd=True)
+        self.cpu = wp.get_device(model.device).is_cpu
 
     def __call__(self, state_in: DemState, state_out: DemState) -> None:
         command, n_inputs = self.command, self.n_inputs
         first = n_inputs - 2 - len(STATE_IN)
-        for k, name in enumerate(STATE_IN):
-            command.set_param_at_index(first + k, getattr(state_in, name))
-        for k, name in enumerate(STATE_OUT):
-            command.set_param_at_index(n_inputs + k, getattr(state_out, name))
+        if self.cpu:
+            # the arrays' own ctypes structs: no per-argument type checks and conversions
+            # (their types were checked when the launch was recorded; DemState fixes them)
+            for k, name in enumerate(STATE_IN):
+                command.set_param_at_index_from_ctype(first + k, getattr(state_in, name).__ctype__())
+            for k, name in enumerate(STATE_OUT):
+                command.set_param_at_index_from_ctype(n_inputs + k, getattr(state_out, name).__ctype__())
+        else:
+            for k, name in enumerate(STATE_IN):
+                command.set_param_at_index(first + k, getattr(state_in, name))
+            for k, name in enumerate(STATE_OUT):
+                command.set_param_at_index(n_inputs + k, getattr(state_out, name))
         command.launch()
 
 
