@@ -166,6 +166,9 @@ def main() -> None:
     parser.add_argument("--robustness", action="store_true",
                         help="also: drained runs to 10 %% at alpha0 40/55/70, both p0, increments 1e-4 and 5e-4, "
                              "per setting of ROBUSTNESS: how many finish (stress control converges)")
+    parser.add_argument("--stress-rtol", type=float, default=None,
+                        help="driver's stress tolerance of the --robustness runs [-] (default: the driver's)")
+    parser.add_argument("--robustness-only", action="store_true", help="only the --robustness runs")
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "dem_stepping.json")
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "figures" / "dem_stepping.png")
     args = parser.parse_args()
@@ -180,7 +183,7 @@ def main() -> None:
     # acceptance: constant volume, default settings, best of alternating repeats
     acceptance = []
     default_model = dem_model(DEFAULT, args.threads)
-    for p0 in PRESSURES:
+    for p0 in () if args.robustness_only else PRESSURES:
         prog = programme(p0, False, args)
         t_ana, t_dem, c_ana, c_dem = [], [], [], []
         for _ in range(args.repeats):
@@ -202,12 +205,12 @@ def main() -> None:
               f"{row['max_dp_over_p0']:.2e} max|dq|/p0 {row['max_dq_over_p0']:.2e} | substeps/cell/call "
               f"{row['substeps_per_cell_call']:.2f} | unconverged {row['unconverged']:.0f} | load {os.getloadavg()[0]:.2f}",
               flush=True)
-    yade = yade_errors(DEFAULT)
+    yade = {} if args.robustness_only else yade_errors(DEFAULT)
     print("YADE worst force error / case max force (defaults): "
           + ", ".join(f"{k} {v:.1e}" for k, v in yade.items()), flush=True)
 
     rows = []
-    if not args.quick:
+    if not (args.quick or args.robustness_only):
         for drained in (False, True):
             for p0 in PRESSURES:
                 test = f"{'drained' if drained else 'constant volume'}, p0 = {p0:g}"
@@ -232,7 +235,8 @@ def main() -> None:
         plot(rows, args.figure)
         print(f"-> {args.figure}")
     robustness = {}
-    if args.robustness:
+    if args.robustness or args.robustness_only:
+        rtol = {} if args.stress_rtol is None else {"stress_rtol": args.stress_rtol}
         for name, overrides in ROBUSTNESS.items():
             model, failures, runs = dem_model(replace(DEFAULT, **overrides), args.threads), [], 0
             for alpha0 in (40.0, 55.0, 70.0):
@@ -241,7 +245,8 @@ def main() -> None:
                         runs += 1
                         prog = loading.biaxial(p0, 0.1, increment, iso_increment=args.iso_increment, drained=True)
                         try:
-                            driver.run(model, prog, alpha0_deg=alpha0, n_orientations=args.orientations, progress=False)
+                            driver.run(model, prog, alpha0_deg=alpha0, n_orientations=args.orientations, progress=False,
+                                       **rtol)
                         except driver.ControlError as error:
                             failures.append(f"alpha0 {alpha0:g}, p0 {p0:g}, increment {increment:g}: {error}")
             robustness[name] = {"runs": runs, "failures": failures}
