@@ -161,6 +161,8 @@ def main() -> None:
     parser.add_argument("--iso-increment", type=float, default=1e-4, help="isotropic increment per component [-]")
     parser.add_argument("--eps-max", type=float, default=0.2)
     parser.add_argument("--threads", type=int, default=2, help="CPU threads of the DEM")
+    parser.add_argument("--compare-one-thread", action="store_true",
+                        help="also time the DEM on one thread in the acceptance runs (alternating)")
     parser.add_argument("--repeats", type=int, default=3, help="alternating runs for the acceptance timings")
     parser.add_argument("--quick", action="store_true", help="acceptance rows and YADE only, no sweep")
     parser.add_argument("--robustness", action="store_true",
@@ -183,9 +185,10 @@ def main() -> None:
     # acceptance: constant volume, default settings, best of alternating repeats
     acceptance = []
     default_model = dem_model(DEFAULT, args.threads)
+    one_thread = dem_model(DEFAULT, 1) if args.compare_one_thread else None
     for p0 in () if args.robustness_only else PRESSURES:
         prog = programme(p0, False, args)
-        t_ana, t_dem, c_ana, c_dem = [], [], [], []
+        t_ana, t_dem, c_ana, c_dem, t_one = [], [], [], [], []
         for _ in range(args.repeats):
             ana, t, c = timed_cpu(analytical, prog, args.orientations)
             t_ana.append(t)
@@ -193,11 +196,16 @@ def main() -> None:
             dem, t, c = timed_cpu(default_model, prog, args.orientations)
             t_dem.append(t)
             c_dem.append(c)
+            if one_thread is not None:
+                t_one.append(timed(one_thread, prog, args.orientations)[1])
         row = {"p0": p0, "time_analytical_s": min(t_ana), "time_dem_s": min(t_dem),
                "times_analytical_s": t_ana, "times_dem_s": t_dem, "cpu_analytical_s": min(c_ana),
                "cpu_dem_s": min(c_dem), **compare(ana, dem, p0, args.orientations)}
         row["ratio"] = row["time_dem_s"] / row["time_analytical_s"]
         row["cpu_ratio"] = row["cpu_dem_s"] / row["cpu_analytical_s"]
+        if t_one:
+            row.update(times_dem_one_thread_s=t_one, ratio_one_thread=min(t_one) / row["time_analytical_s"])
+            print(f"   DEM on one thread: {min(t_one):.3f} s, ratio {row['ratio_one_thread']:.2f}", flush=True)
         acceptance.append(row)
         print(f"ACCEPTANCE constant volume p0 = {p0:g}: analytical {row['time_analytical_s']:.3f} s, DEM "
               f"{row['time_dem_s']:.3f} s (best of {args.repeats}), ratio {row['ratio']:.2f} (CPU time "
