@@ -1,4 +1,4 @@
-"""python benchmarks/bench_dem_stepping.py [--orientations 360] [--repeats 3] [--quick]
+"""python benchmarks/bench_dem_stepping.py [--orientations 360] [--repeats 3] [--quick] [--compare-one-thread]
 
 Accuracy versus cost of the quasi-static DEM stepping (issue 10). For each test -- constant
 volume and drained (sigma22 = p0), alpha0 = 55 deg, p0 = 2e5 and 5.85e6 N/m, isotropic
@@ -13,8 +13,9 @@ and prints, per setting:
   the DEM response is too rough for the driver's 1e-6 stress tolerance);
 - DEM wall time and its ratio to the analytical run.
 
-With --robustness, drained runs over alpha0, p0 and increment count, per setting, how often
-the driver's stress control (1e-6 of p0) converges on the DEM's response.
+With --robustness (--robustness-only: nothing else), drained runs over alpha0, p0 and
+increment count, per setting, how often the driver's stress control (1e-6 of p0, or
+--stress-rtol) converges on the DEM's response.
 
 Then the acceptance rows: DEM (``DemSettings()`` defaults) and analytical wall times side by
 side, best of --repeats alternating runs each (the machine is shared: the load average is
