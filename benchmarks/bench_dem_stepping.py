@@ -1,4 +1,4 @@
-"""python benchmarks/bench_dem_stepping.py [--orientations 360] [--repeats 3] [--quick]
+"""python benchmarks/bench_dem_stepping.py [--orientations 360] [--repeats 3] [--quick] [--compare-one-thread]
 
 Accuracy versus cost of the quasi-static DEM stepping (issue 10). For each test -- constant
 volume and drained (sigma22 = p0), alpha0 = 55 deg, p0 = 2e5 and 5.85e6 N/m, isotropic
@@ -13,8 +13,9 @@ and prints, per setting:
   the DEM response is too rough for the driver's 1e-6 stress tolerance);
 - DEM wall time and its ratio to the analytical run.
 
-With --robustness, drained runs over alpha0, p0 and increment count, per setting, how often
-the driver's stress control (1e-6 of p0) converges on the DEM's response.
+With --robustness (--robustness-only: nothing else), drained runs over alpha0, p0 and
+increment count, per setting, how often the driver's stress control (1e-6 of p0, or
+--stress-rtol) converges on the DEM's response.
 
 Then the acceptance rows: DEM (``DemSettings()`` defaults) and analytical wall times side by
 side, best of --repeats alternating runs each (the machine is shared: the load average is
@@ -161,11 +162,16 @@ def main() -> None:
     parser.add_argument("--iso-increment", type=float, default=1e-4, help="isotropic increment per component [-]")
     parser.add_argument("--eps-max", type=float, default=0.2)
     parser.add_argument("--threads", type=int, default=2, help="CPU threads of the DEM")
+    parser.add_argument("--compare-one-thread", action="store_true",
+                        help="also time the DEM on one thread in the acceptance runs (alternating)")
     parser.add_argument("--repeats", type=int, default=3, help="alternating runs for the acceptance timings")
     parser.add_argument("--quick", action="store_true", help="acceptance rows and YADE only, no sweep")
     parser.add_argument("--robustness", action="store_true",
                         help="also: drained runs to 10 %% at alpha0 40/55/70, both p0, increments 1e-4 and 5e-4, "
                              "per setting of ROBUSTNESS: how many finish (stress control converges)")
+    parser.add_argument("--stress-rtol", type=float, default=None,
+                        help="driver's stress tolerance of the --robustness runs [-] (default: the driver's)")
+    parser.add_argument("--robustness-only", action="store_true", help="only the --robustness runs")
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "dem_stepping.json")
     parser.add_argument("--figure", type=Path, default=ROOT / "docs" / "figures" / "dem_stepping.png")
     args = parser.parse_args()
@@ -180,9 +186,10 @@ def main() -> None:
     # acceptance: constant volume, default settings, best of alternating repeats
     acceptance = []
     default_model = dem_model(DEFAULT, args.threads)
-    for p0 in PRESSURES:
+    one_thread = dem_model(DEFAULT, 1) if args.compare_one_thread else None
+    for p0 in () if args.robustness_only else PRESSURES:
         prog = programme(p0, False, args)
-        t_ana, t_dem, c_ana, c_dem = [], [], [], []
+        t_ana, t_dem, c_ana, c_dem, t_one = [], [], [], [], []
         for _ in range(args.repeats):
             ana, t, c = timed_cpu(analytical, prog, args.orientations)
             t_ana.append(t)
@@ -190,11 +197,16 @@ def main() -> None:
             dem, t, c = timed_cpu(default_model, prog, args.orientations)
             t_dem.append(t)
             c_dem.append(c)
+            if one_thread is not None:
+                t_one.append(timed(one_thread, prog, args.orientations)[1])
         row = {"p0": p0, "time_analytical_s": min(t_ana), "time_dem_s": min(t_dem),
                "times_analytical_s": t_ana, "times_dem_s": t_dem, "cpu_analytical_s": min(c_ana),
                "cpu_dem_s": min(c_dem), **compare(ana, dem, p0, args.orientations)}
         row["ratio"] = row["time_dem_s"] / row["time_analytical_s"]
         row["cpu_ratio"] = row["cpu_dem_s"] / row["cpu_analytical_s"]
+        if t_one:
+            row.update(times_dem_one_thread_s=t_one, ratio_one_thread=min(t_one) / row["time_analytical_s"])
+            print(f"   DEM on one thread: {min(t_one):.3f} s, ratio {row['ratio_one_thread']:.2f}", flush=True)
         acceptance.append(row)
         print(f"ACCEPTANCE constant volume p0 = {p0:g}: analytical {row['time_analytical_s']:.3f} s, DEM "
               f"{row['time_dem_s']:.3f} s (best of {args.repeats}), ratio {row['ratio']:.2f} (CPU time "
@@ -202,12 +214,12 @@ def main() -> None:
               f"{row['max_dp_over_p0']:.2e} max|dq|/p0 {row['max_dq_over_p0']:.2e} | substeps/cell/call "
               f"{row['substeps_per_cell_call']:.2f} | unconverged {row['unconverged']:.0f} | load {os.getloadavg()[0]:.2f}",
               flush=True)
-    yade = yade_errors(DEFAULT)
+    yade = {} if args.robustness_only else yade_errors(DEFAULT)
     print("YADE worst force error / case max force (defaults): "
           + ", ".join(f"{k} {v:.1e}" for k, v in yade.items()), flush=True)
 
     rows = []
-    if not args.quick:
+    if not (args.quick or args.robustness_only):
         for drained in (False, True):
             for p0 in PRESSURES:
                 test = f"{'drained' if drained else 'constant volume'}, p0 = {p0:g}"
@@ -232,7 +244,8 @@ def main() -> None:
         plot(rows, args.figure)
         print(f"-> {args.figure}")
     robustness = {}
-    if args.robustness:
+    if args.robustness or args.robustness_only:
+        rtol = {} if args.stress_rtol is None else {"stress_rtol": args.stress_rtol}
         for name, overrides in ROBUSTNESS.items():
             model, failures, runs = dem_model(replace(DEFAULT, **overrides), args.threads), [], 0
             for alpha0 in (40.0, 55.0, 70.0):
@@ -241,7 +254,8 @@ def main() -> None:
                         runs += 1
                         prog = loading.biaxial(p0, 0.1, increment, iso_increment=args.iso_increment, drained=True)
                         try:
-                            driver.run(model, prog, alpha0_deg=alpha0, n_orientations=args.orientations, progress=False)
+                            driver.run(model, prog, alpha0_deg=alpha0, n_orientations=args.orientations, progress=False,
+                                       **rtol)
                         except driver.ControlError as error:
                             failures.append(f"alpha0 {alpha0:g}, p0 {p0:g}, increment {increment:g}: {error}")
             robustness[name] = {"runs": runs, "failures": failures}

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
+from warp_hcell.integrator import MIN_CELLS_TO_SPLIT, DemIntegrator, NumpyIntegrator
 from warp_hcell.model import DemModel
 from warp_hcell.parameters import DemSettings
 from warp_hcell.state import DemState
@@ -45,3 +45,22 @@ def test_state_in_is_not_written_and_substeps_follow_each_increment(engine):
 def test_threads_must_be_positive():
     with pytest.raises(ValueError, match="threads = 0 must be >= 1"):
         DemIntegrator(_model(), threads=0)
+
+
+def test_small_batches_split_over_the_threads_with_the_same_cells():
+    n = MIN_CELLS_TO_SPLIT + 5
+    model = _model(n)
+    rng = np.random.default_rng(11)
+    d_eps = rng.uniform(-1e-4, 1e-4, (n, 2))
+    results = []
+    for threads in (1, 2):
+        integrator = DemIntegrator(model, threads=threads)
+        out = DemState.empty(n, 6, 15, "cpu")
+        integrator.step(model.state(), out, d_eps)
+        results.append((len(integrator._launches), out.to_numpy()))
+    (launches_1, one), (launches_2, two) = results
+    assert (launches_1, launches_2) == (1, 2)
+    for name in one:
+        assert np.array_equal(one[name], two[name]), name
+    # below the threshold: one launch on the calling thread
+    assert len(DemIntegrator(_model(MIN_CELLS_TO_SPLIT - 1), threads=2)._launches) == 1

@@ -34,10 +34,16 @@ from warp_hcell.state import DemState
 
 
 CHUNKS_PER_THREAD = 4
-"""CPU chunks per thread: chunks are taken by the threads as they finish (load balancing)."""
+"""Most CPU chunks per thread: chunks are taken by the threads as they finish (load balancing)."""
 MIN_CELLS_PER_CHUNK = 1024
-"""Smallest CPU chunk [cells]: smaller batches run in one launch on the calling thread (at a
-few substeps per cell, the thread hand-off and a second launch cost more than they save)."""
+"""Cells per chunk beyond one chunk per thread: more chunks than threads only where every chunk
+keeps this many cells (each extra chunk costs a hand-off, ~15-30 us, for balancing cells of
+very different substep counts)."""
+MIN_CELLS_TO_SPLIT = 256
+"""Smallest batch [cells] split into one chunk per thread; smaller batches run in one launch on
+the calling thread. Measured (docs/dem_stepping.md): the split costs ~30-45 us per call when
+the second core is busy and saves up to half the kernel time when it is free; at 256 cells
+and 15-40 substeps per cell the kernel takes 200-600 us."""
 
 
 def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:
@@ -107,14 +113,23 @@ class _RecordedLaunch:
         self.n_inputs = len(inputs)
         self.command = wp.launch(kernel_of(model), dim=stop - start, inputs=inputs, outputs=outputs,
                                  device=model.device, record_cmd=True)
+        self.cpu = wp.get_device(model.device).is_cpu
 
     def __call__(self, state_in: DemState, state_out: DemState) -> None:
         command, n_inputs = self.command, self.n_inputs
         first = n_inputs - 2 - len(STATE_IN)
-        for k, name in enumerate(STATE_IN):
-            command.set_param_at_index(first + k, getattr(state_in, name))
-        for k, name in enumerate(STATE_OUT):
-            command.set_param_at_index(n_inputs + k, getattr(state_out, name))
+        if self.cpu:
+            # the arrays' own ctypes structs: no per-argument type checks and conversions
+            # (their types were checked when the launch was recorded; DemState fixes them)
+            for k, name in enumerate(STATE_IN):
+                command.set_param_at_index_from_ctype(first + k, getattr(state_in, name).__ctype__())
+            for k, name in enumerate(STATE_OUT):
+                command.set_param_at_index_from_ctype(n_inputs + k, getattr(state_out, name).__ctype__())
+        else:
+            for k, name in enumerate(STATE_IN):
+                command.set_param_at_index(first + k, getattr(state_in, name))
+            for k, name in enumerate(STATE_OUT):
+                command.set_param_at_index(n_inputs + k, getattr(state_out, name))
         command.launch()
 
 
@@ -136,9 +151,12 @@ class DemIntegrator:
         self._pool = None if self.threads == 1 else pool or ThreadPoolExecutor(self.threads)
         self._d_eps = wp.zeros(model.n_cells, dtype=wp.vec2d, device=model.device)
         self._d_eps_host = None if wp.get_device(model.device).is_cuda else self._d_eps.numpy()
-        # more chunks than threads, so that the pool balances cells of very different substep
-        # counts; no chunk below MIN_CELLS_PER_CHUNK (the thread hand-off would cost more)
+        # one chunk per thread from MIN_CELLS_TO_SPLIT cells; more chunks than threads, so that
+        # the pool balances cells of very different substep counts, where each keeps
+        # MIN_CELLS_PER_CHUNK cells
         n_chunks = min(CHUNKS_PER_THREAD * self.threads, model.n_cells // MIN_CELLS_PER_CHUNK)
+        if model.n_cells >= MIN_CELLS_TO_SPLIT:
+            n_chunks = max(n_chunks, self.threads)
         if self._pool is None or n_chunks < 2:
             self._bounds = [(0, model.n_cells)]
         else:
@@ -167,7 +185,13 @@ class DemIntegrator:
         if len(self._launches) == 1:
             self._launches[0](state_in, state_out)
             return
-        jobs = [self._pool.submit(launch, state_in, state_out) for launch in self._launches]
+        if len(self._launches) <= self.threads:
+            # one chunk per thread: the calling thread runs the first (one hand-off fewer, each
+            # ~30 us or more on a loaded machine)
+            jobs = [self._pool.submit(launch, state_in, state_out) for launch in self._launches[1:]]
+            self._launches[0](state_in, state_out)
+        else:
+            jobs = [self._pool.submit(launch, state_in, state_out) for launch in self._launches]
         for job in jobs:
             job.result()
 
