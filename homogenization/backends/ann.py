@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 from training import cell_physics
+from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
 from training.checkpoint import CheckpointError, check_compatible, check_mesostructure, load_checkpoint
 from warp_hcell.cell_model import ArrayStateMixin, CellResponse
@@ -78,6 +79,8 @@ class AnnCell(ArrayStateMixin):
             None loads the default model shipped in ``homogenization/data``.
         mesostructure: the cell every state starts from; None: H-cells from ``alpha0_deg``.
         device: torch device of the network ("cpu", "cuda", ...).
+        mlp_dtype: "float32" or "float64", arithmetic of the perceptron in ``step`` without
+            tangent on CPU (``training.inference.FastAdvance``; the physics is float64).
         threads: torch CPU threads (process-wide setting, applied here) [-].
 
     Raises:
@@ -89,7 +92,8 @@ class AnnCell(ArrayStateMixin):
     state_type = AnnState
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
-                 mesostructure: Mesostructure | None = None, device: str = "cpu", threads: int = 1) -> None:
+                 mesostructure: Mesostructure | None = None, device: str = "cpu", threads: int = 1,
+                 mlp_dtype: str = "float64") -> None:
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:
@@ -115,6 +119,9 @@ class AnnCell(ArrayStateMixin):
         self.net.active_index = self.net.active_index.to(self.device)
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
+        if mlp_dtype not in ("float32", "float64"):
+            raise ValueError(f"mlp_dtype = {mlp_dtype!r} must be 'float32' or 'float64'")
+        self.fast = FastAdvance(self.net, getattr(torch, mlp_dtype)) if self.device.type == "cpu" else None
 
     # -- construction ---------------------------------------------------------------------
     def _start_cells(self, alpha0_deg, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
@@ -149,6 +156,15 @@ class AnnCell(ArrayStateMixin):
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
+        n_scaled = float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP))
+        if self.fast is not None and not with_tangent:
+            inc = self.fast(*state, d_eps_local)
+            diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
+                           "n_tension_clipped": float(np.count_nonzero(inc.opened)),
+                           "n_mechanism": float(np.count_nonzero(np.all(inc.moment == 0.0, axis=(1, 2)))),
+                           "n_relaxation_scaled": n_scaled}
+            return (AnnState(inc.cell_size, inc.free_position, inc.shear_force),
+                    CellResponse(inc.moment, inc.area, diagnostics))
         size, free, shear = self._tensors(state)
         d_eps = torch.as_tensor(np.asarray(d_eps_local, dtype=np.float64), device=self.device)
         tangent = None
@@ -166,7 +182,7 @@ class AnnCell(ArrayStateMixin):
             "n_coulomb_capped": float(step.capped.any(dim=1).sum()),
             "n_tension_clipped": float(step.opened.any(dim=1).sum()),
             "n_mechanism": float(np.count_nonzero(np.all(moment == 0.0, axis=(1, 2)))),
-            "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
+            "n_relaxation_scaled": n_scaled,
         }
         return new, CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent)
 
