@@ -14,6 +14,10 @@ per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
   reset out of contact); the moment is the Love-Weber sum over the contacts and V_cell the
   area of the polygon through the outer grains.
 
+Without tangent on CPU, ``step`` runs this increment through ``training.inference.FastAdvance``
+(the same physics compiled with numba around the network call; equal to the torch path up to
+rounding); the tangent uses the torch path and autograd.
+
 No equilibrium is solved and no closed form of a particular cell is used. Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
 ``n_coulomb_capped`` (a trial tangential force exceeded mu f_n), ``n_tension_clipped`` (a
