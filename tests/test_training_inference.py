@@ -12,6 +12,7 @@ import torch
 
 from homogenization.backends.ann import AnnCell
 from training.inference import FastAdvance
+from training.network import RELAXATION_RAMP
 from warp_hcell.parameters import ContactLaw
 
 
@@ -48,6 +49,9 @@ def test_fast_increment_equals_the_autograd_path(loaded, dtype, rtol):
         np.testing.assert_allclose(getattr(fast, name), expected, rtol=0, atol=rtol * scale, err_msg=name)
     np.testing.assert_array_equal(fast.capped, ref.capped.any(dim=1).numpy())
     np.testing.assert_array_equal(fast.opened, ref.opened.any(dim=1).numpy())
+    np.testing.assert_array_equal(fast.mechanism, np.all(ref.moment.numpy() == 0.0, axis=(1, 2)))
+    np.testing.assert_array_equal(fast.relaxation_scaled, np.linalg.norm(d, axis=1) < RELAXATION_RAMP)
+    assert fast.relaxation_scaled.sum() == 2
 
 
 def test_the_states_exercise_the_contact_law_branches(loaded):

@@ -160,13 +160,12 @@ class AnnCell(ArrayStateMixin):
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
-        n_scaled = float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP))
         if self.fast is not None and not with_tangent:
             inc = self.fast(*state, d_eps_local)
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
                            "n_tension_clipped": float(np.count_nonzero(inc.opened)),
-                           "n_mechanism": float(np.count_nonzero(np.all(inc.moment == 0.0, axis=(1, 2)))),
-                           "n_relaxation_scaled": n_scaled}
+                           "n_mechanism": float(np.count_nonzero(inc.mechanism)),
+                           "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled))}
             return (AnnState(inc.cell_size, inc.free_position, inc.shear_force),
                     CellResponse(inc.moment, inc.area, diagnostics))
         size, free, shear = self._tensors(state)
@@ -186,7 +185,7 @@ class AnnCell(ArrayStateMixin):
             "n_coulomb_capped": float(step.capped.any(dim=1).sum()),
             "n_tension_clipped": float(step.opened.any(dim=1).sum()),
             "n_mechanism": float(np.count_nonzero(np.all(moment == 0.0, axis=(1, 2)))),
-            "n_relaxation_scaled": n_scaled,
+            "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
         }
         return new, CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent)
 
