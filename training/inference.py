@@ -3,7 +3,7 @@
 ``FastAdvance`` gives the same increment as ``MesoNet.advance`` (``training.network``,
 ``training.cell_physics``) up to float rounding, for inference only (no autograd):
 
-1. ``_features`` (numba, float64, one fused loop over cells): positions, contacts, pair
+1. ``_features`` (numba, float64, loops over cells innermost so that they vectorise): positions, contacts, pair
    forces, unbalanced forces and the z-scored features of the state before the increment;
 2. the multilayer perceptron (torch, ``mlp_dtype``: float64 by default, float32 on request);
 3. ``_advance`` (numba, float64): the free-DOF displacement from the network output, the
