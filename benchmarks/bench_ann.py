@@ -97,7 +97,8 @@ def time_increments(args) -> None:
           f"ANN step {ms['ann']:.3f} ms (float32 perceptron {ms['ann_float32']:.3f} ms; torch path without tangent "
           f"{torch_ms:.3f} ms; network call {net_ms:.3f} ms; with tangent {tangent_ms:.3f} ms); "
           f"ratio ANN / analytical = {ms['ann'] / ms['analytical']:.2f} "
-          f"(float32 perceptron {ms['ann_float32'] / ms['analytical']:.2f}, torch path {torch_ms / ms['analytical']:.2f})",
+          f"(float32 perceptron {ms['ann_float32'] / ms['analytical']:.2f}, "
+          f"torch path {torch_ms / ms['analytical']:.2f})",
           flush=True)
 
 

@@ -3,8 +3,9 @@
 ``FastAdvance`` gives the same increment as ``MesoNet.advance`` (``training.network``,
 ``training.cell_physics``) up to float rounding, for inference only (no autograd):
 
-1. ``_features`` (numba, float64, loops over cells innermost so that they vectorise): positions, contacts, pair
-   forces, unbalanced forces and the z-scored features of the state before the increment;
+1. ``_features`` (numba, float64, loops over cells innermost so that they vectorise):
+   positions, contacts, pair forces, unbalanced forces and the z-scored features of the
+   state before the increment;
 2. the multilayer perceptron (torch, ``mlp_dtype``: float64 by default, float32 on request);
 3. ``_advance`` (numba, float64): the free-DOF displacement from the network output, the
    new state by the contact law, its Love-Weber moment, area and contact-law branch flags.
@@ -31,7 +32,7 @@ from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNe
 
 @numba.njit(cache=True, error_model="numpy")
 def _positions(size, free, frac, free_dofs, x):
-    """Grain centres into ``x`` (n_grains, 2, n) [m]: driven ones from ``size`` (2, n), free ones from ``free`` (n_free, n)."""
+    """Grain centres into ``x`` (n_grains, 2, n) [m]: driven from ``size`` (2, n), free from ``free`` (n_free, n)."""
     n = size.shape[1]
     for g in range(frac.shape[0]):
         for a in range(2):
@@ -102,7 +103,8 @@ def _features(size, free, shear, d_eps, frac, free_dofs, pairs, radius, active_s
         for c in range(n):
             unbalanced[k, c] = net[g, a, c]
             feats[4 + k, c] = (free[k, c] / diameter - feature_mean[4 + k]) * inv_std[4 + k]
-            feats[4 + n_free + k, c] = (free[k, c] / size[a, c] - feature_mean[4 + n_free + k]) * inv_std[4 + n_free + k]
+            r = 4 + n_free + k
+            feats[r, c] = (free[k, c] / size[a, c] - feature_mean[r]) * inv_std[r]
     for c in range(n):
         m = math.sqrt(d_eps[0, c] * d_eps[0, c] + d_eps[1, c] * d_eps[1, c])
         m_out[c] = m
@@ -131,7 +133,8 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
             m = m_in[c]
             cf = 0.0
             for j in range(n_free):
-                cf += compliance_scale * ((1.0 if j == k else 0.0) + float(out[n_free + k * n_free + j, c])) * unbalanced[j, c]
+                cij = compliance_scale * ((1.0 if j == k else 0.0) + float(out[n_free + k * n_free + j, c]))
+                cf += cij * unbalanced[j, c]
             rate = float(out[k, c]) * rate_std[k] + rate_mean[k]
             new_free[k, c] = free[k, c] + (diameter * m * rate - min(m / ramp, 1.0) * (cf / kn))
     for a in range(2):
