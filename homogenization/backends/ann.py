@@ -14,6 +14,10 @@ per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
   reset out of contact); the moment is the Love-Weber sum over the contacts and V_cell the
   area of the polygon through the outer grains.
 
+Without tangent on CPU, ``step`` runs this increment through ``training.inference.FastAdvance``
+(the same physics compiled with numba around the network call; equal to the torch path up to
+rounding); the tangent uses the torch path and autograd.
+
 No equilibrium is solved and no closed form of a particular cell is used. Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
 ``n_coulomb_capped`` (a trial tangential force exceeded mu f_n), ``n_tension_clipped`` (a
@@ -40,6 +44,7 @@ import numpy as np
 import torch
 
 from training import cell_physics
+from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
 from training.checkpoint import CheckpointError, check_compatible, check_mesostructure, load_checkpoint
 from warp_hcell.cell_model import ArrayStateMixin, CellResponse
@@ -78,6 +83,8 @@ class AnnCell(ArrayStateMixin):
             None loads the default model shipped in ``homogenization/data``.
         mesostructure: the cell every state starts from; None: H-cells from ``alpha0_deg``.
         device: torch device of the network ("cpu", "cuda", ...).
+        mlp_dtype: "float32" or "float64", arithmetic of the perceptron in ``step`` without
+            tangent on CPU (``training.inference.FastAdvance``; the physics is float64).
         threads: torch CPU threads (process-wide setting, applied here) [-].
 
     Raises:
@@ -89,7 +96,8 @@ class AnnCell(ArrayStateMixin):
     state_type = AnnState
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
-                 mesostructure: Mesostructure | None = None, device: str = "cpu", threads: int = 1) -> None:
+                 mesostructure: Mesostructure | None = None, device: str = "cpu", threads: int = 1,
+                 mlp_dtype: str = "float64") -> None:
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:
@@ -115,6 +123,9 @@ class AnnCell(ArrayStateMixin):
         self.net.active_index = self.net.active_index.to(self.device)
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
+        if mlp_dtype not in ("float32", "float64"):
+            raise ValueError(f"mlp_dtype = {mlp_dtype!r} must be 'float32' or 'float64'")
+        self.fast = FastAdvance(self.net, getattr(torch, mlp_dtype)) if self.device.type == "cpu" else None
 
     # -- construction ---------------------------------------------------------------------
     def _start_cells(self, alpha0_deg, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
@@ -149,6 +160,14 @@ class AnnCell(ArrayStateMixin):
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
+        if self.fast is not None and not with_tangent:
+            inc = self.fast(*state, d_eps_local)
+            diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
+                           "n_tension_clipped": float(np.count_nonzero(inc.opened)),
+                           "n_mechanism": float(np.count_nonzero(inc.mechanism)),
+                           "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled))}
+            return (AnnState(inc.cell_size, inc.free_position, inc.shear_force),
+                    CellResponse(inc.moment, inc.area, diagnostics))
         size, free, shear = self._tensors(state)
         d_eps = torch.as_tensor(np.asarray(d_eps_local, dtype=np.float64), device=self.device)
         tangent = None

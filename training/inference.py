@@ -1,0 +1,281 @@
+"""Fast no-autograd inference of ``MesoNet.advance``: compiled cell physics around one MLP call.
+
+``FastAdvance`` gives the same increment as ``MesoNet.advance`` (``training.network``,
+``training.cell_physics``) up to float rounding, for inference only (no autograd):
+
+1. ``_features`` (numba, float64, loops over cells innermost so that they vectorise):
+   positions, contacts, pair forces, unbalanced forces and the z-scored features of the
+   state before the increment;
+2. the multilayer perceptron (torch, ``mlp_dtype``: float64 by default, float32 on request);
+3. ``_advance`` (numba, float64): the free-DOF displacement from the network output, the
+   new state by the contact law, its Love-Weber moment, area and contact-law branch flags.
+
+The features are z-scored in float64 before the cast to ``mlp_dtype``, and the network
+output is un-normalised in float64, so float32 only rounds the perceptron's own arithmetic
+(its effect on whole runs is measured in ``docs/ann.md``). The physics stays float64
+(positions must be resolved to ~1e-7 D). The tangent (autograd) uses ``MesoNet.advance``.
+
+Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba
+import numpy as np
+import torch
+
+from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _positions(size, free, frac, free_dofs, x):
+    """Grain centres into ``x`` (n_grains, 2, n) [m]: driven from ``size`` (2, n), free from ``free`` (n_free, n)."""
+    n = size.shape[1]
+    for g in range(frac.shape[0]):
+        for a in range(2):
+            for c in range(n):
+                x[g, a, c] = frac[g, a] * size[a, c]
+    for k in range(free_dofs.shape[0]):
+        for c in range(n):
+            x[free_dofs[k, 0], free_dofs[k, 1], c] = free[k, c]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _features(size, free, shear, d_eps, frac, free_dofs, pairs, radius, active_slot, feature_mean, feature_std,
+              diameter, kn, mu, tol, gap_clip, feats, m_out, unbalanced, old_branch, old_contact, old_fn):
+    """Z-scored features, |d_eps|, unbalanced forces and the contacts of every cell before its increment.
+
+    Cells are the LAST axis of every array (the loops over cells are innermost, so that they
+    vectorise): size (2, n), free (n_free, n), shear (n_pairs, n), d_eps (2, n); outputs
+    feats (n_features, n) (any float dtype), m_out (n,), unbalanced (n_free, n) [N],
+    old_branch (n_pairs, 2, n) [m], old_contact (n_pairs, n) bool, old_fn (n_pairs, n) [N].
+    ``active_slot[p]`` is the rank of pair p among the active pairs, -1 if inactive. Feature
+    order: ``training.network.features_and_contacts``.
+    """
+    n = size.shape[1]
+    n_free = free_dofs.shape[0]
+    force_scale = kn * diameter
+    inv_std = 1.0 / feature_std
+    x = np.empty((frac.shape[0], 2, n))
+    net = np.zeros((frac.shape[0], 2, n))
+    _positions(size, free, frac, free_dofs, x)
+    base = 4 + 2 * n_free
+    for p in range(pairs.shape[0]):
+        i = pairs[p, 0]
+        j = pairs[p, 1]
+        rsum = radius[i] + radius[j]
+        reach = rsum * (1.0 + tol)
+        slot = active_slot[p]
+        k0 = base + 6 * slot
+        for c in range(n):
+            b0 = x[j, 0, c] - x[i, 0, c]
+            b1 = x[j, 1, c] - x[i, 1, c]
+            d = math.sqrt(b0 * b0 + b1 * b1)
+            u0 = b0 / d
+            u1 = b1 / d
+            touching = d <= reach
+            fn = kn * max(rsum - d, 0.0) if touching else 0.0
+            fs = shear[p, c] if touching else 0.0
+            f0 = -fn * u0 + fs * -u1
+            f1 = -fn * u1 + fs * u0
+            net[i, 0, c] += f0
+            net[i, 1, c] += f1
+            net[j, 0, c] -= f0
+            net[j, 1, c] -= f1
+            old_branch[p, 0, c] = b0
+            old_branch[p, 1, c] = b1
+            old_contact[p, c] = touching
+            old_fn[p, c] = fn
+            if slot >= 0:
+                feats[k0, c] = (max((rsum - d) / diameter, -gap_clip) - feature_mean[k0]) * inv_std[k0]
+                feats[k0 + 1, c] = ((1.0 if touching else 0.0) - feature_mean[k0 + 1]) * inv_std[k0 + 1]
+                feats[k0 + 2, c] = (u0 - feature_mean[k0 + 2]) * inv_std[k0 + 2]
+                feats[k0 + 3, c] = (u1 - feature_mean[k0 + 3]) * inv_std[k0 + 3]
+                feats[k0 + 4, c] = (fs / force_scale - feature_mean[k0 + 4]) * inv_std[k0 + 4]
+                ratio = fs / (mu * fn) if fn > 0 else 0.0
+                feats[k0 + 5, c] = (ratio - feature_mean[k0 + 5]) * inv_std[k0 + 5]
+    for k in range(n_free):
+        g = free_dofs[k, 0]
+        a = free_dofs[k, 1]
+        for c in range(n):
+            unbalanced[k, c] = net[g, a, c]
+            feats[4 + k, c] = (free[k, c] / diameter - feature_mean[4 + k]) * inv_std[4 + k]
+            r = 4 + n_free + k
+            feats[r, c] = (free[k, c] / size[a, c] - feature_mean[r]) * inv_std[r]
+    for c in range(n):
+        m = math.sqrt(d_eps[0, c] * d_eps[0, c] + d_eps[1, c] * d_eps[1, c])
+        m_out[c] = m
+        feats[0, c] = ((d_eps[0, c] / m if m > 0 else 0.0) - feature_mean[0]) * inv_std[0]
+        feats[1, c] = ((d_eps[1, c] / m if m > 0 else 0.0) - feature_mean[1]) * inv_std[1]
+        feats[2, c] = (size[0, c] / diameter - feature_mean[2]) * inv_std[2]
+        feats[3, c] = (size[1, c] / diameter - feature_mean[3]) * inv_std[3]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_contact, old_fn, frac, free_dofs,
+             pairs, radius, outer, rate_mean, rate_std, compliance_scale, diameter, kn, kt, mu, tol, ramp,
+             new_size, new_free, new_shear, moment, area, capped_any, opened_any, mechanism, ramped):
+    """Free-DOF displacement from the network output ``out`` (n_free + n_free^2, n), then the contact law.
+
+    Cells are the last axis (``_features``). Outputs: the new state new_size (2, n),
+    new_free (n_free, n), new_shear (n_pairs, n); the compression-positive moment (2, 2, n)
+    [N m], the area (n,) [m^2] and per-cell flags (bool (n,)): a trial tangential force
+    exceeded mu f_n; a pair carrying a normal force opened; the moment is zero (mechanism);
+    |d_eps| < ``ramp`` scaled the relaxation down.
+    """
+    n = size.shape[1]
+    n_free = free_dofs.shape[0]
+    for k in range(n_free):
+        for c in range(n):
+            m = m_in[c]
+            cf = 0.0
+            for j in range(n_free):
+                cij = compliance_scale * ((1.0 if j == k else 0.0) + float(out[n_free + k * n_free + j, c]))
+                cf += cij * unbalanced[j, c]
+            rate = float(out[k, c]) * rate_std[k] + rate_mean[k]
+            new_free[k, c] = free[k, c] + (diameter * m * rate - min(m / ramp, 1.0) * (cf / kn))
+    for a in range(2):
+        for c in range(n):
+            new_size[a, c] = size[a, c] * (1.0 - d_eps[a, c])
+    x = np.empty((frac.shape[0], 2, n))
+    _positions(new_size, new_free, frac, free_dofs, x)
+    moment[:, :, :] = 0.0
+    capped_any[:] = False
+    opened_any[:] = False
+    for p in range(pairs.shape[0]):
+        i = pairs[p, 0]
+        j = pairs[p, 1]
+        rsum = radius[i] + radius[j]
+        reach = rsum * (1.0 + tol)
+        for c in range(n):
+            b0 = x[j, 0, c] - x[i, 0, c]
+            b1 = x[j, 1, c] - x[i, 1, c]
+            d = math.sqrt(b0 * b0 + b1 * b1)
+            touching = d <= reach
+            fn = kn * max(rsum - d, 0.0) if touching else 0.0
+            ob0 = old_branch[p, 0, c]
+            ob1 = old_branch[p, 1, c]
+            mid0 = 0.5 * (ob0 + b0)
+            mid1 = 0.5 * (ob1 + b1)
+            norm = math.sqrt(mid0 * mid0 + mid1 * mid1)
+            trial = (shear[p, c] if old_contact[p, c] else 0.0) + kt * (
+                (b0 - ob0) * -(mid1 / norm) + (b1 - ob1) * (mid0 / norm))
+            cap = mu * fn
+            fs = min(max(trial, -cap), cap) if touching else 0.0
+            new_shear[p, c] = fs
+            capped_any[c] |= touching and abs(trial) > cap
+            opened_any[c] |= old_fn[p, c] > 0.0 and fn == 0.0
+            u0 = b0 / d
+            u1 = b1 / d
+            f0 = -fn * u0 + fs * -u1
+            f1 = -fn * u1 + fs * u0
+            moment[0, 0, c] -= f0 * b0
+            moment[0, 1, c] -= f0 * b1
+            moment[1, 0, c] -= f1 * b0
+            moment[1, 1, c] -= f1 * b1
+    n_outer = outer.shape[0]
+    for c in range(n):
+        area[c] = 0.0
+    for k in range(n_outer):
+        i = outer[k]
+        j = outer[(k + 1) % n_outer]
+        for c in range(n):
+            area[c] += x[i, 0, c] * x[j, 1, c] - x[j, 0, c] * x[i, 1, c]
+    for c in range(n):
+        area[c] = 0.5 * abs(area[c])
+        mechanism[c] = moment[0, 0, c] == 0.0 and moment[0, 1, c] == 0.0 and moment[1, 0, c] == 0.0 and \
+            moment[1, 1, c] == 0.0
+        ramped[c] = m_in[c] < ramp
+
+
+class FastIncrement(NamedTuple):
+    """Outcome of ``FastAdvance.__call__`` (numpy, first axis n_cells).
+
+    cell_size (n, 2) [m], free_position (n, n_free) [m], shear_force (n, n_pairs) [N]: the new
+    state; moment (n, 2, 2) [N m] (compression positive); area (n,) [m^2]; capped, opened:
+    bool (n,), a Coulomb cap / the no-tension branch acted on some pair of the cell;
+    mechanism: bool (n,), zero moment after the increment; relaxation_scaled: bool (n,),
+    |d_eps| < ``RELAXATION_RAMP``.
+    """
+
+    cell_size: np.ndarray
+    free_position: np.ndarray
+    shear_force: np.ndarray
+    moment: np.ndarray
+    area: np.ndarray
+    capped: np.ndarray
+    opened: np.ndarray
+    mechanism: np.ndarray
+    relaxation_scaled: np.ndarray
+
+
+class FastAdvance:
+    """``MesoNet.advance`` for inference on CPU: numba physics (float64) around one MLP call.
+
+    Args:
+        net: the trained network (its schema, active pairs, normalisation and layers are copied).
+        mlp_dtype: torch dtype of the perceptron's arithmetic (float32 or float64).
+    """
+
+    def __init__(self, net: MesoNet, mlp_dtype: torch.dtype = torch.float64) -> None:
+        schema = net.schema
+        as_np = lambda t, dtype=np.float64: np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)  # noqa: E731
+        self.frac = as_np(schema.driven_fraction)
+        self.free_dofs = as_np(schema.free_dofs, np.int64)
+        self.pairs = as_np(schema.pairs, np.int64)
+        self.radius = as_np(schema.radius)
+        self.outer = as_np(schema.outer, np.int64)
+        self.active_slot = np.full(self.pairs.shape[0], -1, dtype=np.int64)
+        self.active_slot[as_np(net.active_index, np.int64)] = np.arange(int(net.active_index.shape[0]))
+        self.feature_mean = as_np(net.feature_mean)
+        self.feature_std = as_np(net.feature_std)
+        self.rate_mean = as_np(net.rate_mean)
+        self.rate_std = as_np(net.rate_std)
+        self.diameter, self.kn, self.kt, self.mu = schema.diameter, schema.kn, schema.kt, schema.mu
+        self.tol = schema.contact_tolerance
+        self.mlp_dtype = mlp_dtype
+        linears = [layer for layer in net.mlp if isinstance(layer, torch.nn.Linear)]
+        self.layers = [(lin.weight.detach().cpu().to(mlp_dtype).contiguous(),
+                        lin.bias.detach().cpu().to(mlp_dtype).unsqueeze(1).contiguous()) for lin in linears]
+        self.np_dtype = {torch.float32: np.float32, torch.float64: np.float64}[mlp_dtype]
+
+    def _mlp(self, feats: np.ndarray) -> np.ndarray:
+        """Network output (n_outputs, n) of z-scored features (n_features, n) (cells last: W h + b)."""
+        h = torch.from_numpy(feats)
+        last = len(self.layers) - 1
+        with torch.inference_mode():
+            for k, (weight, bias) in enumerate(self.layers):
+                h = torch.addmm(bias, weight, h)
+                if k < last:
+                    h = torch.tanh_(h)
+        return h.numpy()
+
+    def __call__(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
+                 d_eps: np.ndarray) -> FastIncrement:
+        """One increment of every cell: state (n, 2), (n, n_free), (n, n_pairs) and probe (n, 2) [-]."""
+        size, free, shear, d_eps = (np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)
+                                    for a in (cell_size, free_position, shear_force, d_eps))
+        n, n_free, n_pairs = size.shape[1], self.free_dofs.shape[0], self.pairs.shape[0]
+        feats = np.empty((self.feature_mean.shape[0], n), dtype=self.np_dtype)
+        m = np.empty(n)
+        unbalanced = np.empty((n_free, n))
+        old_branch = np.empty((n_pairs, 2, n))
+        old_contact = np.empty((n_pairs, n), dtype=np.bool_)
+        old_fn = np.empty((n_pairs, n))
+        _features(size, free, shear, d_eps, self.frac, self.free_dofs, self.pairs, self.radius, self.active_slot,
+                  self.feature_mean, self.feature_std, self.diameter, self.kn, self.mu, self.tol, GAP_CLIP,
+                  feats, m, unbalanced, old_branch, old_contact, old_fn)
+        out = self._mlp(feats)
+        new_size, new_free, new_shear = np.empty_like(size), np.empty_like(free), np.empty_like(shear)
+        moment, area = np.empty((2, 2, n)), np.empty(n)
+        flags = np.empty((4, n), dtype=np.bool_)
+        _advance(size, free, shear, d_eps, out, m, unbalanced, old_branch, old_contact, old_fn, self.frac,
+                 self.free_dofs, self.pairs, self.radius, self.outer, self.rate_mean, self.rate_std,
+                 COMPLIANCE_SCALE, self.diameter, self.kn, self.kt, self.mu, self.tol, RELAXATION_RAMP,
+                 new_size, new_free, new_shear, moment, area, *flags)
+        return FastIncrement(np.ascontiguousarray(new_size.T), np.ascontiguousarray(new_free.T),
+                             np.ascontiguousarray(new_shear.T), np.ascontiguousarray(moment.transpose(2, 0, 1)),
+                             area, *flags)
