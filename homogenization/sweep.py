@@ -85,6 +85,7 @@ from warp_hcell.cli import (
     common_parser,
     positive_float,
     positive_int,
+    quiet_warp,
     run_main,
 )
 from warp_hcell.execution import SchedulerUnreachable, make_execution
@@ -498,9 +499,7 @@ CASE_ERRORS = (driver.ControlError, ValueError, UserError, RuntimeError)
 
 def case_task(_shared: Any, case: Case) -> tuple[driver.Record | None, float, str | None]:
     """``warp_hcell.execution`` task: (record, wall seconds, None), or (None, seconds, error line)."""
-    import warp  # noqa: PLC0415
-
-    warp.config.quiet = True  # no Warp banner or kernel-load lines from the workers
+    quiet_warp(case.parameters["backend_options"].get("device", "cpu"))  # no Warp banner from the workers
     start = time.perf_counter()
     try:
         record = compute_case(case)

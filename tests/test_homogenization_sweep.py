@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from homogenization import io, sweep
+from warp_hcell import execution
 from warp_hcell.cli import run_main
 from warp_hcell.mesostructure import h_cell
 
@@ -148,7 +153,6 @@ def test_changed_options_on_an_existing_sweep_are_refused(fines_sweep, capsys):
     (["--erode-at", "0.2", "--mesostructure", "hcell-fines:ratio=0.5"], "--erode-at 0.2 must be below --eps-max 0.15"),
     (["--model", "x.pt"], "--model applies to --backend ann only"),
     (["--backend", "ann", "--model", "missing.pt"], "no such model metadata file"),
-    (["--scheduler", "tcp://127.0.0.1:9"], "cannot reach the Dask scheduler at tcp://127.0.0.1:9"),
 ])
 def test_bad_input_is_one_line_and_exit_2_before_any_work(tmp_path, capsys, args, message):
     """Values argparse checks end in its usage line plus one error line; the rest is one line."""
@@ -260,3 +264,58 @@ def test_a_fines_cell_without_its_model_is_one_line_and_exit_2(fines_models, tmp
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert not out.exists()
+
+
+# -- execution: in process, local Dask cluster, remote scheduler ----------------------------------
+TINY = ["--mesostructure", "hcell,hcell-fines:ratio=0.8", "--alpha0", "50,55", "--p0", "2e5", "--eps-max", "0.03",
+        "--increment", "1e-3", "--iso-increment", "1e-3", "--orientations", "8"]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_unreachable_scheduler_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(execution, "CONNECT_TIMEOUT_S", 1.0)
+    out = tmp_path / "remote"
+    assert cli([*TINY, "--scheduler", f"tcp://127.0.0.1:{free_port()}", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot reach the Dask scheduler at tcp://127.0.0.1:" in err[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_remote_scheduler_gives_the_in_process_results(tmp_path):
+    """A real scheduler and two workers on 127.0.0.1, started in another folder (they write
+    nothing: the client writes every file); the summary and every curve are byte-identical to
+    the in-process sweep."""
+    local = tmp_path / "local"
+    assert cli([*TINY, "--workers", "1", "--out", str(local)]) == 0
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    elsewhere = tmp_path / "workers"
+    elsewhere.mkdir()
+    quiet = {"env": env, "cwd": elsewhere, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+                               "--port", str(port), "--no-dashboard"], **quiet)]
+    try:
+        procs += [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
+                                    "--no-nanny", "--no-dashboard", "--name", f"w{i}"], **quiet) for i in range(2)]
+        with execution.DaskExecution(address=address, connect_timeout=30.0) as dask:
+            dask.client.wait_for_workers(2, timeout=60)
+        remote = tmp_path / "remote"
+        assert cli([*TINY, "--scheduler", address, "--out", str(remote)]) == 0
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait()
+    assert (remote / sweep.SUMMARY_FILE).read_bytes() == (local / sweep.SUMMARY_FILE).read_bytes()
+    rows = sweep.read_summary(local / sweep.SUMMARY_FILE)
+    assert len(rows) == 4
+    for row in rows:
+        curve = Path(sweep.CASES_DIR) / row["case"] / io.CURVE_FILE
+        assert (remote / curve).read_bytes() == (local / curve).read_bytes()
+    assert [p.name for p in elsewhere.iterdir() if not p.name.startswith("dask-scratch")] == []
