@@ -194,9 +194,9 @@ def erosion(runs: Path, figures: Path) -> None:
     plotting.save_figure(fig, figures / "gap_erosion.png")
 
 
-def ann_table(runs: Path) -> None:
-    """DEM vs ANN of every (mesostructure, alpha0, p0) of runs/gap_ann/sweep run by both backends."""
-    folder = runs / "gap_ann" / "sweep"
+def ann_table(runs: Path, name: str = "sweep") -> None:
+    """DEM vs ANN of every (mesostructure, alpha0, p0) of runs/gap_ann/<name> run by both backends."""
+    folder = runs / "gap_ann" / name
     if not (folder / sweep.SUMMARY_FILE).is_file():
         print(f"(no {folder / sweep.SUMMARY_FILE}: DEM vs ANN table skipped)")
         return
