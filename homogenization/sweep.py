@@ -164,12 +164,12 @@ class ModelTable:
         self.bare: list[Path] = []
         texts = {source.text: source for source in sources}
         for choice in choices or ():
+            if not choice.path.is_file():
+                raise UserError(f"--model {choice.path}: no such model file")
             try:
                 self.sha256[choice.path] = read_metadata(choice.path)["mesostructure_sha256"]
             except CheckpointError as exc:
                 raise UserError(str(exc)) from None
-            if not choice.path.with_suffix(".pt").is_file() and not choice.path.is_file():
-                raise UserError(f"{choice.path}: no such model file")
             if choice.key is None:
                 self.bare.append(choice.path)
                 continue
@@ -200,7 +200,7 @@ class ModelTable:
                             f"pass --model {source.text}=PATH with a model trained on it")
         if not plain and self.sha256[path] != sha:
             raise UserError(f"--model {path} was trained on mesostructure {self.sha256[path][:12]}, not on "
-                            f"{source.text} ({sha[:12]})")
+                            f"{source.text} ({sha[:12]}; the hash covers the spec text: generate with the same)")
         return path
 
 

@@ -152,7 +152,7 @@ def test_changed_options_on_an_existing_sweep_are_refused(fines_sweep, capsys):
     (["--alpha0", "50,20"], "alpha0 = 20 deg is outside [30, 90) deg"),
     (["--erode-at", "0.2", "--mesostructure", "hcell-fines:ratio=0.5"], "--erode-at 0.2 must be below --eps-max 0.15"),
     (["--model", "x.pt"], "--model applies to --backend ann only"),
-    (["--backend", "ann", "--model", "missing.pt"], "no such model metadata file"),
+    (["--backend", "ann", "--model", "missing.pt"], "--model missing.pt: no such model file"),
 ])
 def test_bad_input_is_one_line_and_exit_2_before_any_work(tmp_path, capsys, args, message):
     """Values argparse checks end in its usage line plus one error line; the rest is one line."""
