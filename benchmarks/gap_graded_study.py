@@ -203,8 +203,9 @@ def ann_table(runs: Path, name: str = "sweep") -> None:
     rows = sweep.read_summary(folder / sweep.SUMMARY_FILE)
     by_case = {(r["mesostructure"], r["alpha0"], r["p0"], r["backend"]): r for r in rows}
     print("| cell | alpha0 | p0 [N/m] | max abs(dp)/p0 | max abs(dq)/p0 | p/p0 at 15 % DEM | ANN | peak q/p0 DEM | ANN "
-          "| unconverged DEM cell-increments |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "| unconverged DEM cell-increments | ANN cell-increments: tension-clipped / mechanism / Coulomb-capped "
+          "/ all |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for (meso, alpha0, p0, backend), dem in sorted(by_case.items()):
         ann = by_case.get((meso, alpha0, p0, "ann"))
         if backend != "dem" or ann is None:
@@ -214,7 +215,15 @@ def ann_table(runs: Path, name: str = "sweep") -> None:
         dq = np.abs(np.interp(c_dem.eps1, c_ann.eps1, c_ann.q) - c_dem.q).max() / p0
         print(f"| {meso} | {alpha0:g} | {p0:g} | {dp:.4f} | {dq:.4f} | {dem['p_at_15pct'] / p0:.3f} | "
               f"{ann['p_at_15pct'] / p0:.3f} | {dem['peak_q'] / p0:.3f} | {ann['peak_q'] / p0:.3f} | "
-              f"{dem['n_unconverged']:.0f} |")
+              f"{dem['n_unconverged']:.0f} | {ann_counts(folder, ann)} |")
+
+
+def ann_counts(folder: Path, row: dict) -> str:
+    """Cell-increments of an ANN case where the backend's contact rules fired (``AnnCell`` diagnostics)."""
+    record = io.read_run(folder / sweep.CASES_DIR / row["case"] / io.RUN_FILE).record
+    counts = [int(np.nansum(record.diagnostics.get(name, np.zeros(1))))
+              for name in ("n_tension_clipped", "n_mechanism", "n_coulomb_capped")]
+    return " / ".join(str(c) for c in counts) + f" / {record.n_increments * record.theta_deg.size}"
 
 
 def main() -> None:
