@@ -1,8 +1,10 @@
-"""python -m warp_hcell.generate [--mesostructure FILE] --samples 300000 --seed 0 --out runs/db.h5
+"""python -m warp_hcell.generate [--mesostructure FILE_OR_SPEC] --samples 300000 --seed 0 --out runs/db.h5
 
 Generates the generic learning database of the meso-ANN for ANY mesostructure (file format
 in docs/database_format.md, written by ``warp_hcell.database``). The DEM
-(``warp_hcell.dem_cell.DemCell``) explores and probes; without ``--mesostructure`` the cell is
+(``warp_hcell.dem_cell.DemCell``) explores and probes. ``--mesostructure`` takes a file or a
+builder spec (``warp_hcell.builders``, e.g. ``hcell-fines:alpha0=50,ratio=0.82``; the database
+records the hash of the cell it builds, name = spec text); without it the cell is
 the H-cell of ``warp_hcell.mesostructure.h_cell`` and the exploration starts from H-cells of
 several opening angles (they share one learning state).
 
