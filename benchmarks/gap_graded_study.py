@@ -1,7 +1,8 @@
 """python benchmarks/gap_graded_study.py [--runs runs] [--figures docs/figures]
 
 Tables and figures of docs/gap_graded.md from the sweep folders that the commands of that page
-write (runs/gap_a50, runs/gap_a55, runs/gap_instability, runs/gap_erode_*). Prints markdown
+write (runs/gap_a50, runs/gap_a55, runs/gap_instability, runs/gap_erode_*, runs/gap_ann/sweep
+for DEM vs ANN; a missing folder skips its table). Prints markdown
 tables: the constant-volume response against the fine-grain size ratio (peak q/p0, eps1 at
 the peak, p/p0 at 5, 10, 15 %, liquefaction = p/p0 < 0.2 at 15 %), the first q peaks of the
 instability analysis with the slope of the line through the origin fitted to them, and the
@@ -193,6 +194,38 @@ def erosion(runs: Path, figures: Path) -> None:
     plotting.save_figure(fig, figures / "gap_erosion.png")
 
 
+def ann_table(runs: Path, name: str = "sweep") -> None:
+    """DEM vs ANN of every (mesostructure, alpha0, p0) of runs/gap_ann/<name> run by both backends."""
+    folder = runs / "gap_ann" / name
+    if not (folder / sweep.SUMMARY_FILE).is_file():
+        print(f"(no {folder / sweep.SUMMARY_FILE}: DEM vs ANN table skipped)")
+        return
+    rows = sweep.read_summary(folder / sweep.SUMMARY_FILE)
+    by_case = {(r["mesostructure"], r["alpha0"], r["p0"], r["backend"]): r for r in rows}
+    print("| cell | alpha0 | p0 [N/m] | max abs(dp)/p0 | max abs(dq)/p0 | p/p0 at 15 % DEM | ANN | peak q/p0 DEM | ANN "
+          "| unconverged DEM cell-increments | ANN cell-increments: tension-clipped / mechanism / Coulomb-capped "
+          "/ all |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for (meso, alpha0, p0, backend), dem in sorted(by_case.items()):
+        ann = by_case.get((meso, alpha0, p0, "ann"))
+        if backend != "dem" or ann is None:
+            continue
+        c_dem, c_ann = curve(folder, dem), curve(folder, ann)
+        dp = np.abs(np.interp(c_dem.eps1, c_ann.eps1, c_ann.p) - c_dem.p).max() / p0
+        dq = np.abs(np.interp(c_dem.eps1, c_ann.eps1, c_ann.q) - c_dem.q).max() / p0
+        print(f"| {meso} | {alpha0:g} | {p0:g} | {dp:.4f} | {dq:.4f} | {dem['p_at_15pct'] / p0:.3f} | "
+              f"{ann['p_at_15pct'] / p0:.3f} | {dem['peak_q'] / p0:.3f} | {ann['peak_q'] / p0:.3f} | "
+              f"{dem['n_unconverged']:.0f} | {ann_counts(folder, ann)} |")
+
+
+def ann_counts(folder: Path, row: dict) -> str:
+    """Cell-increments of an ANN case where the backend's contact rules fired (``AnnCell`` diagnostics)."""
+    record = io.read_run(folder / sweep.CASES_DIR / row["case"] / io.RUN_FILE).record
+    counts = [int(np.nansum(record.diagnostics.get(name, np.zeros(1))))
+              for name in ("n_tension_clipped", "n_mechanism", "n_coulomb_capped")]
+    return " / ".join(str(c) for c in counts) + f" / {record.n_increments * record.theta_deg.size}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, default=Path("runs"))
@@ -201,6 +234,7 @@ def main() -> None:
     fines_table(args.runs, args.figures)
     instability(args.runs, args.figures)
     erosion(args.runs, args.figures)
+    ann_table(args.runs)
 
 
 if __name__ == "__main__":

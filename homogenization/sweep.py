@@ -7,9 +7,18 @@ is a TOML/JSON file or a builder spec (``warp_hcell.builders``; a spec without a
 built at each --alpha0, a file or a spec with alpha0 fixes its geometry and makes one case
 per p0 and backend).
 
-Backends that take a ``mesostructure`` option (dem) run every mesostructure; the others
-(analytical, ann) model the six-equal-grain H-cell only and run the mesostructures that are
-that cell (``builders.plain_h_cell_alpha0``); other combinations are skipped and listed.
+Backends that take a ``mesostructure`` option (dem, ann) run every mesostructure; the others
+(analytical) model the six-equal-grain H-cell only and run the mesostructures that are that
+cell (``builders.plain_h_cell_alpha0``); other combinations are skipped and listed.
+
+ANN models (--model, repeatable): a model is trained on one mesostructure and records its
+sha256 (``training.checkpoint``). ``--model MESOSTRUCTURE=PATH`` gives the model of one
+mesostructure of --mesostructure (the same text); ``--model PATH`` offers a model to every
+mesostructure and is used where its recorded mesostructure is the case's (built at the case's
+alpha0). The plain H-cell runs as H-cells of the case's alpha0 (no sha256 check, as
+``biaxial`` without --mesostructure) on its own model, else the single bare --model, else the
+installed model. A fines cell without a model, or a model of another mesostructure, is an
+error before any case runs.
 
 --erode-at EPS (dem): in cases whose mesostructure has grains free along n and t (fines),
 those grains are removed at eps1 = EPS (``warp_hcell.erosion``); one increment at fixed eps11
@@ -27,8 +36,12 @@ Output:
 - DIR/summary.png: q/p0 and p/p0 against eps1, and the (p/p0, q/p0) paths, of every case.
 - DIR/sweep.json: the options of the sweep that made DIR.
 
-Cases run in parallel in --workers processes (each case is computed alone, so the results do
-not depend on the worker count). Rerunning the command keeps finished cases (a case is
+Cases are tasks of ``warp_hcell.execution`` (as the database generator): in this process for
+one worker, a Dask LocalCluster of --workers single-threaded processes, or the Dask scheduler
+at --scheduler ADDRESS (a remote cluster; docs/distributed.md). A task computes one case and
+returns its record; this process writes every file, so the workers need no shared file system
+and the results do not depend on the execution (each case is computed alone). An unreachable
+scheduler is one line, exit code 2, nothing written. Rerunning the command keeps finished cases (a case is
 finished when its run.h5 holds the same parameters) and runs the others; a case folder holding
 a run with other parameters is an error unless --overwrite. Bad input (unknown backend or
 key, a mesostructure that does not build, unwritable DIR) is one line on stderr and exit
@@ -44,15 +57,13 @@ import hashlib
 import inspect
 import json
 import math
-import multiprocessing
 import os
 import re
 import sys
 import time
-from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -74,9 +85,11 @@ from warp_hcell.cli import (
     common_parser,
     positive_float,
     positive_int,
+    quiet_warp,
     run_main,
 )
-from warp_hcell.mesostructure import MesostructureError
+from warp_hcell.execution import SchedulerUnreachable, make_execution
+from warp_hcell.mesostructure import MesostructureError, describe, description_sha256
 from warp_hcell.parameters import CellDefaults, ContactLaw, LoadingDefaults
 
 CASES_DIR = "cases"
@@ -117,6 +130,80 @@ def erode_strain(text: str) -> float:
     return value
 
 
+@dataclass(frozen=True)
+class ModelChoice:
+    """One --model item: a model file, for one mesostructure (``key``, its text) or any (None)."""
+
+    key: str | None
+    path: Path
+
+
+def model_arg(text: str) -> ModelChoice:
+    """argparse type: ``PATH`` or ``MESOSTRUCTURE=PATH`` (split at the last ``=``)."""
+    key, sep, path = str(text).rpartition("=")
+    if not sep:
+        return ModelChoice(None, Path(text.strip()))
+    if not key.strip() or not path.strip():
+        raise argparse.ArgumentTypeError(f"{text!r} is not PATH or MESOSTRUCTURE=PATH")
+    return ModelChoice(key.strip(), Path(path.strip()))
+
+
+class ModelTable:
+    """The --model items, checked: which model file runs which ann case.
+
+    Raises (constructor and ``for_case``):
+        UserError: an unreadable model, a key that is not one of --mesostructure, a fines
+            mesostructure without a model, a model of another mesostructure (one line).
+    """
+
+    def __init__(self, choices: Sequence[ModelChoice] | None, sources: Sequence[MesostructureSource]) -> None:
+        from training.checkpoint import CheckpointError, read_metadata  # noqa: PLC0415 (torch only for ann)
+
+        self.sha256: dict[Path, str] = {}
+        self.keyed: dict[str, Path] = {}
+        self.bare: list[Path] = []
+        texts = {source.text: source for source in sources}
+        for choice in choices or ():
+            if not choice.path.is_file():
+                raise UserError(f"--model {choice.path}: no such model file")
+            try:
+                self.sha256[choice.path] = read_metadata(choice.path)["mesostructure_sha256"]
+            except CheckpointError as exc:
+                raise UserError(str(exc)) from None
+            if choice.key is None:
+                self.bare.append(choice.path)
+                continue
+            key = self._source_text(choice.key, texts)
+            if key in self.keyed and self.keyed[key] != choice.path:
+                raise UserError(f"--model gives two models for {choice.key}")
+            self.keyed[key] = choice.path
+
+    @staticmethod
+    def _source_text(key: str, texts: Mapping[str, MesostructureSource]) -> str:
+        if key in texts:
+            return key
+        for text, source in texts.items():
+            if source.kind is None and Path(key).resolve() == Path(text).resolve():
+                return text
+        raise UserError(f"--model {key}=...: {key} is not one of --mesostructure ({', '.join(texts)})")
+
+    def for_case(self, source: MesostructureSource, meso: Any, plain: bool) -> Path | None:
+        """The model file of an ann case (None: the installed model; plain H-cell only)."""
+        sha = description_sha256(describe(meso))
+        path = self.keyed.get(source.text)
+        if path is None:
+            path = next((p for p in self.bare if self.sha256[p] == sha), None)
+        if path is None and plain:
+            return self.bare[0] if len(self.bare) == 1 else None
+        if path is None:
+            raise UserError(f"no ANN model for mesostructure {source.text} ({meso.name}, sha256 {sha[:12]}); "
+                            f"pass --model {source.text}=PATH with a model trained on it")
+        if not plain and self.sha256[path] != sha:
+            raise UserError(f"--model {path} was trained on mesostructure {self.sha256[path][:12]}, not on "
+                            f"{source.text} ({sha[:12]}; the hash covers the spec text: generate with the same)")
+        return path
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the sweep command (defaults read from warp_hcell.parameters)."""
     cell, load = CellDefaults(), LoadingDefaults()
@@ -146,9 +233,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--erode-at", type=erode_strain, default=None,
                         help="remove the grains free along n and t (fines) at this eps1 [-] (dem; None: no erosion)")
     parser.add_argument("--workers", type=positive_int, default=None,
-                        help="cases run at once, one process each (None: the cores available)")
+                        help="cases run at once: worker processes of a local Dask cluster, 1: in this process "
+                             "(None: the cores available; the results do not depend on it)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="run the cases on this Dask scheduler (e.g. tcp://host:8786) instead of locally")
     parser.add_argument("--threads", type=positive_int, default=1, help="CPU threads of the DEM within each case")
-    parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
+    parser.add_argument("--model", type=model_arg, action="append", default=None, metavar="[MESOSTRUCTURE=]PATH",
+                        help="ANN model (ann only; repeat the flag): MESOSTRUCTURE=PATH for one item of "
+                             "--mesostructure, PATH for the mesostructure it was trained on (or the plain H-cell); "
+                             "None: the installed model (plain H-cell)")
     parser.add_argument("--out", type=Path, required=True, help="output folder (rerun to resume)")
     return parser
 
@@ -197,6 +290,7 @@ def plan(args: argparse.Namespace) -> tuple[list[Case], list[str]]:
     takes = {name: _takes_mesostructure(name) for name in args.backend}
     if args.model is not None and "ann" not in args.backend:
         raise UserError("--model applies to --backend ann only")
+    models = ModelTable(args.model, sources) if "ann" in args.backend else None
     cases: list[Case] = []
     skipped: list[str] = []
     for source in sources:
@@ -220,10 +314,11 @@ def plan(args: argparse.Namespace) -> tuple[list[Case], list[str]]:
                         raise UserError(f"--erode-at {erode_at:g} must be below --eps-max {args.eps_max:g}")
                     case_alpha0 = plain[0] if plain is not None else (float("nan") if alpha0 is None else float(alpha0))
                     radius = plain[1] if plain is not None else CellDefaults.radius
+                    model = models.for_case(source, meso, plain is not None) if backend == "ann" else None
                     parameters = {
                         "backend": backend,
                         "backend_options": ({"device": args.device} if backend in ("dem", "ann") else {})
-                        | ({"model": str(args.model)} if backend == "ann" and args.model else {}),
+                        | ({"model": str(model)} if model is not None else {}),
                         "contact_law": asdict(law), "radius": radius,
                         "alpha0_deg": None if math.isnan(case_alpha0) else case_alpha0, "p0": p0,
                         "eps_max": args.eps_max, "increment": args.increment, "iso_increment": args.iso_increment,
@@ -383,25 +478,46 @@ def _summary_row(case: Case, record: driver.Record) -> dict[str, Any]:
             "n_grains": prm["n_grains"], "case": case.folder}
 
 
-def run_case(case: Case, out: str, seed: int) -> tuple[dict[str, Any], float]:
-    """Run one case, write its folder; returns (summary row, wall seconds). Runs in a worker."""
-    start = time.perf_counter()
+def compute_case(case: Case) -> driver.Record:
+    """The record of one case (no file written): the task a worker runs."""
     prm = case.parameters
     options: dict[str, Any] = dict(prm["backend_options"]) | case.options
     if prm["mesostructure"] and _takes_mesostructure(case.backend):
         alpha0 = None if math.isnan(case.alpha0) else case.alpha0
-        options["mesostructure"] = parse_mesostructure(case.source).build(alpha0)
+        meso = parse_mesostructure(case.source).build(alpha0)
+        if case.backend != "ann" or plain_h_cell_alpha0(meso) is None:
+            options["mesostructure"] = meso  # the ann runs the plain H-cell from alpha0, as biaxial does
     if "model" in options:
         options["model"] = Path(options["model"])
     model = make_cell_model(case.backend, contact_law=ContactLaw(**prm["contact_law"]), radius=prm["radius"], **options)
-    record = run_test(model, case)
+    return run_test(model, case)
+
+
+CASE_ERRORS = (driver.ControlError, ValueError, UserError, RuntimeError)
+"""Exceptions that fail one case (listed at the end) instead of the sweep."""
+
+
+def case_task(_shared: Any, case: Case) -> tuple[driver.Record | None, float, str | None]:
+    """``warp_hcell.execution`` task: (record, wall seconds, None), or (None, seconds, error line)."""
+    quiet_warp(case.parameters["backend_options"].get("device", "cpu"))  # no Warp banner from the workers
+    start = time.perf_counter()
+    try:
+        record = compute_case(case)
+    except CASE_ERRORS as exc:
+        return None, time.perf_counter() - start, " ".join(str(exc).split()) or type(exc).__name__
+    return record, time.perf_counter() - start, None
+
+
+def write_case(case: Case, record: driver.Record, out: Path, seed: int) -> dict[str, Any]:
+    """Write the folder of a computed case (run.h5, curve.csv, figure); returns its summary row."""
+    prm = case.parameters
     folder = Path(out) / CASES_DIR / case.folder
     io.write_run(folder, record, parameters=prm, seed=seed)
     kind = "drained" if prm["drained"] else "constant-volume"
     fig = plotting.make_figure({case.backend: record}, drained=prm["drained"],
                                title=f"{kind} biaxial, {case.source}, alpha0 = {case.alpha0:g} deg, p0 = {case.p0:g} N/m")
     plotting.save_figure(fig, folder / FIGURE_FILE)
-    return _summary_row(case, record), time.perf_counter() - start
+    return _summary_row(case, record)
 
 
 def stored_row(case: Case, out: Path, *, overwrite: bool) -> dict[str, Any] | None:
@@ -429,37 +545,22 @@ def stored_row(case: Case, out: Path, *, overwrite: bool) -> dict[str, Any] | No
     raise UserError(f"{folder} holds a run with other {', '.join(differ)}; pass --overwrite or choose another --out")
 
 
-def run_cases(cases: Sequence[Case], out: Path, seed: int, executor: Executor | None,
+def run_cases(cases: Sequence[Case], out: Path, seed: int, execution: Any,
               report: Callable[[Case, float | None, str | None], None]) -> tuple[dict[str, dict], dict[str, str]]:
-    """Run ``cases`` on ``executor`` (None: here, one after the other).
+    """Run ``cases`` on ``execution`` (``warp_hcell.execution``); write each case as it comes back.
 
     Returns:
         (rows, failures): summary rows and error messages, keyed by case folder.
     """
     rows: dict[str, dict] = {}
     failures: dict[str, str] = {}
-
-    def done(case: Case, result: Callable[[], tuple[dict, float]]) -> None:
-        try:
-            row, seconds = result()
-        except (driver.ControlError, ValueError, UserError, RuntimeError) as exc:
-            failures[case.folder] = " ".join(str(exc).split()) or type(exc).__name__
-            report(case, None, failures[case.folder])
-            return
-        rows[case.folder] = row
+    for case, (record, seconds, error) in execution.map(case_task, None, cases):
+        if error is not None:
+            failures[case.folder] = error
+            report(case, None, error)
+            continue
+        rows[case.folder] = write_case(case, record, out, seed)
         report(case, seconds, None)
-
-    if executor is None:
-        for case in cases:
-            done(case, lambda case=case: run_case(case, str(out), seed))
-        return rows, failures
-    futures = {executor.submit(run_case, case, str(out), seed): case for case in cases}
-    try:
-        for future in as_completed(futures):
-            done(futures[future], future.result)
-    except KeyboardInterrupt:
-        executor.shutdown(wait=False, cancel_futures=True)  # finished cases are on disk; rerun resumes
-        raise
     return rows, failures
 
 
@@ -543,13 +644,6 @@ def _prepare_out(out: Path, options: dict[str, Any], *, overwrite: bool) -> None
         raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
 
 
-def _quiet_worker() -> None:
-    """Worker start-up: no Warp banner or kernel-load lines in the sweep's output."""
-    import warp
-
-    warp.config.quiet = True
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
@@ -560,33 +654,40 @@ def main(argv: Sequence[str] | None = None) -> int:
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; give a folder")
     rows = {case.folder: stored_row(case, out, overwrite=args.overwrite) for case in cases}
-    options = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k not in ("out", "overwrite")}
+    todo = [case for case in cases if rows[case.folder] is None]
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    workers = min(args.workers or cores, max(len(todo), 1))
+    try:
+        execution = make_execution(workers, args.scheduler)
+    except SchedulerUnreachable as exc:
+        raise UserError(str(exc)) from None
+    with execution:
+        return _run(args, cases, skipped, rows, todo, execution)
+
+
+def _run(args: argparse.Namespace, cases: list[Case], skipped: list[str], rows: dict[str, dict | None],
+         todo: list[Case], execution: Any) -> int:
+    out: Path = args.out
+    options = {k: v for k, v in vars(args).items() if k not in ("out", "overwrite", "scheduler")}
+    options["model"] = [f"{m.key}={m.path}" if m.key else str(m.path) for m in args.model or ()] or None
     options["mesostructure"] = [c.source for c in cases]
     _prepare_out(out, options, overwrite=args.overwrite)
     for note in skipped:
         print(f"skipped: {note}")
-    todo = [case for case in cases if rows[case.folder] is None]
     print(f"{len(cases)} cases: {len(cases) - len(todo)} finished before, {len(todo)} to run")
 
     def report(case: Case, seconds: float | None, error: str | None) -> None:
         state = f"failed: {error}" if error else f"{seconds:.1f} s"
         print(f"  {case.folder}: {state}", flush=True)
 
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    workers = min(args.workers or cores, max(len(todo), 1))
     start = time.perf_counter()
-    if workers > 1:
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=_quiet_worker) as pool:
-            done, failures = run_cases(todo, out, args.seed, pool, report)
-    else:
-        done, failures = run_cases(todo, out, args.seed, None, report)
+    done, failures = run_cases(todo, out, args.seed, execution, report)
     elapsed = time.perf_counter() - start
     rows.update(done)
     finished = [case for case in cases if rows.get(case.folder) is not None]
     summary = write_summary(out / SUMMARY_FILE, (rows[case.folder] for case in finished))
     figure = summary_figure(out / SUMMARY_FIGURE, finished, out) if finished else None
-    print(f"{len(todo)} cases run in {elapsed:.1f} s with {workers} worker(s) -> {summary}"
+    print(f"{len(todo)} cases run in {elapsed:.1f} s with {execution.n_workers} worker(s) -> {summary}"
           + (f", {figure}" if figure else ""))
     if failures:
         print(f"{len(failures)} case(s) failed: {', '.join(failures)}", file=sys.stderr)

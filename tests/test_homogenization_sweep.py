@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from homogenization import io, sweep
+from warp_hcell import execution
 from warp_hcell.cli import run_main
 from warp_hcell.mesostructure import h_cell
 
@@ -147,6 +152,7 @@ def test_changed_options_on_an_existing_sweep_are_refused(fines_sweep, capsys):
     (["--alpha0", "50,20"], "alpha0 = 20 deg is outside [30, 90) deg"),
     (["--erode-at", "0.2", "--mesostructure", "hcell-fines:ratio=0.5"], "--erode-at 0.2 must be below --eps-max 0.15"),
     (["--model", "x.pt"], "--model applies to --backend ann only"),
+    (["--backend", "ann", "--model", "missing.pt"], "--model missing.pt: no such model file"),
 ])
 def test_bad_input_is_one_line_and_exit_2_before_any_work(tmp_path, capsys, args, message):
     """Values argparse checks end in its usage line plus one error line; the rest is one line."""
@@ -196,3 +202,120 @@ def test_drained_sweep_with_erosion_holds_sigma22(tmp_path):
     assert np.abs(record.sigma22[after_iso] / P0 - 1.0).max() <= 1e-5
     assert row["eps1_end"] == pytest.approx(0.1, abs=1e-9)
     assert record.p[record.stage == "erode"][0] < record.p[record.stage == "shear"][-1]  # the grain carried load
+
+
+# -- ANN cases: one model per mesostructure ------------------------------------------------------
+ANN_FINES = ("hcell-fines:alpha0=50,ratio=0.76", "hcell-fines:alpha0=50,ratio=0.82")
+ANN_SMALL = ["--p0", "2e5", "--eps-max", "0.01", "--increment", "1e-3", "--iso-increment", "1e-3", "--orientations", "4"]
+
+
+@pytest.fixture(scope="module")
+def fines_models(tmp_path_factory):
+    """Tiny models (a few epochs on a small DEM database) of the two cells: plumbing, not physics."""
+    from dem_database import build
+    from training.train import main as train_main
+    from warp_hcell.builders import resolve_mesostructure
+
+    models = {}
+    for k, spec in enumerate(ANN_FINES):
+        folder = tmp_path_factory.mktemp(f"fines_model{k}")
+        db = build(folder / "db.h5", mesostructure=resolve_mesostructure(spec), precompression=(0.0, 2e-3),
+                   n_directions=6, spacing=1e-2, leg_length=0.04, threads=1)
+        assert train_main(["--data", str(db), "--out", str(folder / "m.pt"), "--epochs", "2", "--hidden", "8",
+                           "--threads", "1", "--no-rollout"]) == 0
+        models[spec] = folder / "m.pt"
+    return models
+
+
+def _models_used(out: Path) -> dict[str, str]:
+    return {r["mesostructure"]: io.read_run(out / sweep.CASES_DIR / r["case"] / "run.h5").attrs["parameters"]
+            ["backend_options"]["model"] for r in sweep.read_summary(out / sweep.SUMMARY_FILE) if r["backend"] == "ann"}
+
+
+def test_each_fines_cell_runs_on_the_model_of_its_mesostructure(fines_models, tmp_path):
+    """Bare --model items are matched by the mesostructure hash they record, whatever their order;
+    a MESOSTRUCTURE=PATH item names the model of one cell."""
+    first, second = (fines_models[spec] for spec in ANN_FINES)
+    out = tmp_path / "bare"
+    assert cli(["--mesostructure", ",".join(ANN_FINES), "--backend", "ann,dem", "--model", str(second),
+                "--model", str(first), *ANN_SMALL, "--out", str(out)]) == 0
+    assert _models_used(out) == {ANN_FINES[0]: str(first), ANN_FINES[1]: str(second)}
+    rows = sweep.read_summary(out / sweep.SUMMARY_FILE)
+    assert len(rows) == 4 and all(np.isfinite(r["p_end"]) and r["p_end"] > 0 for r in rows)
+    keyed = tmp_path / "keyed"
+    assert cli(["--mesostructure", ANN_FINES[1], "--backend", "ann", "--model", f"{ANN_FINES[1]}={second}",
+                *ANN_SMALL, "--out", str(keyed)]) == 0
+    assert _models_used(keyed) == {ANN_FINES[1]: str(second)}
+    assert (keyed / sweep.SUMMARY_FILE).read_text().splitlines()[1] == \
+        next(line for line in (out / sweep.SUMMARY_FILE).read_text().splitlines() if ANN_FINES[1] in line and ",ann," in line)
+
+
+@pytest.mark.parametrize("models, message", [
+    (lambda m: [str(m[ANN_FINES[0]])], f"no ANN model for mesostructure {ANN_FINES[1]}"),
+    (lambda m: [f"{ANN_FINES[1]}={m[ANN_FINES[0]]}", str(m[ANN_FINES[0]])], "was trained on mesostructure"),
+    (lambda m: [f"hcell-fines:ratio=0.5={m[ANN_FINES[0]]}"], "hcell-fines:ratio=0.5 is not one of --mesostructure"),
+])
+def test_a_fines_cell_without_its_model_is_one_line_and_exit_2(fines_models, tmp_path, capsys, models, message):
+    out = tmp_path / "bad"
+    argv = ["--mesostructure", ",".join(ANN_FINES), "--backend", "ann"]
+    for item in models(fines_models):
+        argv += ["--model", item]
+    assert cli([*argv, *ANN_SMALL, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+    assert not out.exists()
+
+
+# -- execution: in process, local Dask cluster, remote scheduler ----------------------------------
+TINY = ["--mesostructure", "hcell,hcell-fines:ratio=0.8", "--alpha0", "50,55", "--p0", "2e5", "--eps-max", "0.03",
+        "--increment", "1e-3", "--iso-increment", "1e-3", "--orientations", "8"]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_unreachable_scheduler_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(execution, "CONNECT_TIMEOUT_S", 1.0)
+    out = tmp_path / "remote"
+    assert cli([*TINY, "--scheduler", f"tcp://127.0.0.1:{free_port()}", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot reach the Dask scheduler at tcp://127.0.0.1:" in err[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_remote_scheduler_gives_the_in_process_results(tmp_path):
+    """A real scheduler and two workers on 127.0.0.1, started in another folder (they write
+    nothing: the client writes every file); the summary and every curve are byte-identical to
+    the in-process sweep."""
+    local = tmp_path / "local"
+    assert cli([*TINY, "--workers", "1", "--out", str(local)]) == 0
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    elsewhere = tmp_path / "workers"
+    elsewhere.mkdir()
+    quiet = {"env": env, "cwd": elsewhere, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+                               "--port", str(port), "--no-dashboard"], **quiet)]
+    try:
+        procs += [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
+                                    "--no-nanny", "--no-dashboard", "--name", f"w{i}"], **quiet) for i in range(2)]
+        with execution.DaskExecution(address=address, connect_timeout=30.0) as dask:
+            dask.client.wait_for_workers(2, timeout=60)
+        remote = tmp_path / "remote"
+        assert cli([*TINY, "--scheduler", address, "--out", str(remote)]) == 0
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait()
+    assert (remote / sweep.SUMMARY_FILE).read_bytes() == (local / sweep.SUMMARY_FILE).read_bytes()
+    rows = sweep.read_summary(local / sweep.SUMMARY_FILE)
+    assert len(rows) == 4
+    for row in rows:
+        curve = Path(sweep.CASES_DIR) / row["case"] / io.CURVE_FILE
+        assert (remote / curve).read_bytes() == (local / curve).read_bytes()
+    assert [p.name for p in elsewhere.iterdir() if not p.name.startswith("dask-scratch")] == []

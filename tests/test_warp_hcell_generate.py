@@ -259,7 +259,8 @@ def exit_code(argv):
     (["--samples", "-5"], "argument --samples: -5 must be >= 1"),
     (["--out", "{file}/db.h5"], "not a folder"),
     (["--out", "{existing}"], "exists; pass --overwrite to replace it"),
-    (["--mesostructure", "{tmp}/missing.toml"], "missing.toml does not exist"),
+    (["--mesostructure", "{tmp}/missing.toml"], "missing.toml' is neither a file nor a spec"),
+    (["--mesostructure", "hcell-fines:alpha0=50,ratio=0.9"], "fine grain ratio 0.9 does not fit the pore"),
     (["--mesostructure", "{file}"], "not valid"),
     (["--perturbed-fraction", "2"], "perturbed_fraction = 2 is outside [0, 1]"),
     (["--backend", "analytical"], "unrecognized arguments: --backend analytical"),
@@ -363,6 +364,20 @@ def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monk
     monkeypatch.undo()
     assert exit_code(argv) == 0
     assert database.read_database(out)[1]["n_samples"] == 1500
+
+
+def test_a_builder_spec_names_the_mesostructure_of_the_database(tmp_path):
+    """The database of a spec records the hash of the cell that the spec builds (what an ANN
+    model of it is checked against in biaxial and the sweep)."""
+    from warp_hcell.builders import resolve_mesostructure
+
+    spec = "hcell-fines:alpha0=50,ratio=0.82"
+    out = tmp_path / "db.h5"
+    assert exit_code(["--mesostructure", spec, "--samples", "200", "--chunk-size", "100", "--n-directions", "4",
+                      "--threads", "1", "--out", str(out)]) == 0
+    attrs = database.read_database(out)[1]
+    assert attrs["mesostructure_sha256"] == description_sha256(describe(resolve_mesostructure(spec)))
+    assert attrs["mesostructure_sha256"] != description_sha256(describe(resolve_mesostructure(spec.replace("0.82", "0.8"))))
 
 
 def test_unreachable_scheduler_exits_2_and_writes_nothing(tmp_path, capsys, monkeypatch):

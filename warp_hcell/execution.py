@@ -113,7 +113,8 @@ class DaskExecution:
         self._cluster = None
         if address is None:
             self._cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                                         dashboard_address=None)
+                                         dashboard_address=None, silence_logs=logging.CRITICAL)
+            # task errors still reach the client; workers' shutdown-race tracebacks do not
             self.client = Client(self._cluster)
         else:
             try:

@@ -1,8 +1,10 @@
-"""python -m warp_hcell.generate [--mesostructure FILE] --samples 300000 --seed 0 --out runs/db.h5
+"""python -m warp_hcell.generate [--mesostructure FILE_OR_SPEC] --samples 300000 --seed 0 --out runs/db.h5
 
 Generates the generic learning database of the meso-ANN for ANY mesostructure (file format
 in docs/database_format.md, written by ``warp_hcell.database``). The DEM
-(``warp_hcell.dem_cell.DemCell``) explores and probes; without ``--mesostructure`` the cell is
+(``warp_hcell.dem_cell.DemCell``) explores and probes. ``--mesostructure`` takes a file or a
+builder spec (``warp_hcell.builders``, e.g. ``hcell-fines:alpha0=50,ratio=0.82``; the database
+records the hash of the cell it builds, name = spec text); without it the cell is
 the H-cell of ``warp_hcell.mesostructure.h_cell`` and the exploration starts from H-cells of
 several opening angles (they share one learning state).
 
@@ -45,12 +47,13 @@ from tqdm import tqdm
 
 from warp_hcell import clean as cleaning
 from warp_hcell import database
+from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.cli import UserError, check_output_path, common_parser, positive_float, positive_int, run_main
 from warp_hcell.execution import InProcess, SchedulerUnreachable, make_execution
 from warp_hcell.exploration import DEM_PREFIX
 from warp_hcell.learning_state import free_coordinates
 from warp_hcell.mesostructure import (
-    Mesostructure, describe, description_sha256, h_cell, load_mesostructure, shares_state_schema)
+    Mesostructure, MesostructureError, describe, description_sha256, h_cell, shares_state_schema)
 from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings
 from warp_hcell.probing import chunk_samples, n_chunks
 from warp_hcell.provenance import provenance
@@ -272,8 +275,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "(docs/database_format.md): exploration paths, then seeded strain probes and perturbed "
                     "states of the sampled states.")
     parser.add_argument("--out", type=Path, required=True, help="database file (HDF5) to write")
-    parser.add_argument("--mesostructure", type=Path, default=None,
-                        help="mesostructure file (TOML/JSON, warp_hcell/data); unset: the H-cell, explored from "
+    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
+                        help=MESOSTRUCTURE_HELP + " (a spec without alpha0 is built at "
+                             f"{CellDefaults.alpha0_deg:g} deg); unset: the H-cell, explored from "
                              "H-cells of several opening angles")
     parser.add_argument("--samples", type=positive_int, default=defaults.samples, help="number of samples")
     parser.add_argument("--workers", type=positive_int, default=1,
@@ -316,9 +320,10 @@ def _run(argv: Sequence[str] | None) -> int:
         meso = h_cell(CellDefaults.alpha0_deg, CellDefaults.radius)
         starts = h_cell_starts(settings, CellDefaults.radius)
     else:
-        if not args.mesostructure.is_file():
-            raise UserError(f"mesostructure file {args.mesostructure} does not exist")
-        meso = load_mesostructure(args.mesostructure)
+        try:
+            meso = args.mesostructure.build()
+        except MesostructureError as exc:
+            raise UserError(str(exc)) from None
         starts = [meso]
     start = time.perf_counter()
     try:
