@@ -1,7 +1,8 @@
 # make test      : create .venv, install the package (CPU torch first), run the CI test suite
 # make demo      : same set-up, then the constant-volume biaxial tests and their figures
 # make bench     : speed benchmarks (numbers quoted in README)
-# make reproduce : the whole pipeline from scratch: DEM database (3e5), training (the shipped model), three backends
+# make reproduce : the whole pipeline from scratch: DEM database (3e5), training, three backends
+#                  (the shipped model came from a denser database: docs/ann.md)
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -40,6 +41,9 @@ bench: venv
 	$(PY) benchmarks/bench_dem_homogenization.py
 	$(PY) benchmarks/bench_generate.py
 	$(PY) benchmarks/bench_ann.py
+	$(PY) benchmarks/bench_dem_stepping.py --quick
+	$(PY) benchmarks/bench_bvp.py
+	$(PY) benchmarks/bench_sweep.py
 
 reproduce: venv
 	mkdir -p runs
