@@ -198,9 +198,9 @@ def hold_at_rest(schema: CellSchema, new_size: torch.Tensor, free_position: torc
     start (so no force) stays where it is, unless a neighbour reaches it during the increment.
     Reached = one of its pairs is within the contact tolerance at the end of the increment
     with every such grain held at rest and the other free DOFs moved by ``d_free``; a reached
-    grain keeps ``d_free`` (the DEM would push it). One pass: a grain released by this test
-    is not re-tested against the grains it may then reach (they are pushed from the next
-    increment on).
+    grain keeps ``d_free`` (the DEM would push it). Repeated until no grain is released (at
+    most n_grains passes): a released grain may reach another held one (a chain of touching
+    grains is pushed within the same increment, as in the DEM).
 
     Args:
         new_size: cell size at the end of the increment [m], (n, 2).
@@ -211,11 +211,15 @@ def hold_at_rest(schema: CellSchema, new_size: torch.Tensor, free_position: torc
         (d_free with the rows of held DOFs set to zero, held: bool (n, n_free)).
     """
     grain = schema.free_dofs[:, 0]
-    candidate = ~grains_touched(schema, old.contact)[:, grain]
+    held = ~grains_touched(schema, old.contact)[:, grain]
     with torch.no_grad():
-        trial = free_position + torch.where(candidate, torch.zeros_like(d_free), d_free)
-        reached = grains_touched(schema, contacts(schema, positions(schema, new_size, trial)).contact)[:, grain]
-    held = candidate & ~reached
+        for _ in range(int(schema.radius.shape[0])):
+            trial = free_position + torch.where(held, torch.zeros_like(d_free), d_free)
+            reached = grains_touched(schema, contacts(schema, positions(schema, new_size, trial)).contact)[:, grain]
+            still = held & ~reached
+            if torch.equal(still, held):
+                break
+            held = still
     return torch.where(held, torch.zeros_like(d_free), d_free), held
 
 

@@ -152,29 +152,32 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
     for a in range(2):
         for c in range(n):
             new_size[a, c] = size[a, c] * (1.0 - d_eps[a, c])
-    x = np.empty((n_grains, 2, n))
-    _positions(new_size, new_free, frac, free_dofs, x)
-    reached = np.zeros((n_grains, n), dtype=np.bool_)
-    for p in range(pairs.shape[0]):
-        i = pairs[p, 0]
-        j = pairs[p, 1]
-        reach = (radius[i] + radius[j]) * (1.0 + tol)
-        for c in range(n):
-            if not (touched[i, c] and touched[j, c]):
-                b0 = x[j, 0, c] - x[i, 0, c]
-                b1 = x[j, 1, c] - x[i, 1, c]
-                if math.sqrt(b0 * b0 + b1 * b1) <= reach:
-                    reached[i, c] = True
-                    reached[j, c] = True
     held = np.zeros((n_grains, n), dtype=np.bool_)
     for k in range(n_free):
-        g = free_dofs[k, 0]
         for c in range(n):
-            if not touched[g, c]:
-                if reached[g, c]:
-                    new_free[k, c] = free[k, c] + d_free[k, c]
-                else:
-                    held[g, c] = True
+            held[free_dofs[k, 0], c] = not touched[free_dofs[k, 0], c]
+    x = np.empty((n_grains, 2, n))
+    for _ in range(n_grains):
+        _positions(new_size, new_free, frac, free_dofs, x)
+        released = False
+        for p in range(pairs.shape[0]):
+            i = pairs[p, 0]
+            j = pairs[p, 1]
+            reach = (radius[i] + radius[j]) * (1.0 + tol)
+            for c in range(n):
+                if held[i, c] or held[j, c]:
+                    b0 = x[j, 0, c] - x[i, 0, c]
+                    b1 = x[j, 1, c] - x[i, 1, c]
+                    if math.sqrt(b0 * b0 + b1 * b1) <= reach:
+                        held[i, c] = False
+                        held[j, c] = False
+                        released = True
+        if not released:
+            break
+        for k in range(n_free):
+            g = free_dofs[k, 0]
+            for c in range(n):
+                new_free[k, c] = free[k, c] if held[g, c] else free[k, c] + d_free[k, c]
     for c in range(n):
         n_held[c] = 0
     for g in range(n_grains):
