@@ -84,7 +84,8 @@ def test_step_is_pure_and_batch_invariant_and_round_trips(cell):
 def test_diagnostics_count_the_contact_law_branches(cell):
     state, _ = _loaded(cell)
     _, response = cell.step(state, np.tile([[-3e-3, -3e-3]], (8, 1)))  # strong extension opens contacts
-    assert set(response.diagnostics) == {"n_coulomb_capped", "n_tension_clipped", "n_mechanism", "n_relaxation_scaled"}
+    assert set(response.diagnostics) == {"n_coulomb_capped", "n_tension_clipped", "n_mechanism", "n_relaxation_scaled",
+                                       "n_grains_held"}
     assert response.diagnostics["n_tension_clipped"] == 8 and response.diagnostics["n_relaxation_scaled"] == 0
 
 
@@ -112,6 +113,7 @@ def test_tangent_matches_central_finite_differences(cell):
     assert scale > 1e6
     np.testing.assert_allclose(response.tangent, fd, rtol=0, atol=1e-4 * scale)
     assert cell.step(state, d)[1].tangent is None
+    assert cell.step(state, d)[1].diagnostics == response.diagnostics  # compiled and autograd paths count alike
 
 
 def test_a_model_of_another_mesostructure_is_refused(model_path, lateral_model, tmp_path):

@@ -1,7 +1,9 @@
 """Fast inference path (``training.inference.FastAdvance``) against the autograd path ``MesoNet.advance``.
 
 Uses the shipped default model on loaded H-cells, including cells with capped tangential forces,
-zero and tiny probes (relaxation ramp). Tolerances are relative to the largest value of each
+zero and tiny probes (relaxation ramp); and the DEM's rest rule in both paths on fines cells
+with randomly initialised networks (whatever the network outputs, a force-free grain that
+nothing reaches does not move). Tolerances are relative to the largest value of each
 output: the tangential force, kt times a difference of nearly equal branch vectors, carries
 rounding of ~1e-11 of it in float64.
 """
@@ -11,8 +13,10 @@ import pytest
 import torch
 
 from homogenization.backends.ann import AnnCell
+from training.cell_physics import CellSchema, count_held_grains
 from training.inference import FastAdvance
-from training.network import RELAXATION_RAMP
+from training.network import RELAXATION_RAMP, MesoNet
+from warp_hcell.builders import resolve_mesostructure
 from warp_hcell.parameters import ContactLaw
 
 
@@ -52,6 +56,7 @@ def test_fast_increment_equals_the_autograd_path(loaded, dtype, rtol):
     np.testing.assert_array_equal(fast.mechanism, np.all(ref.moment.numpy() == 0.0, axis=(1, 2)))
     np.testing.assert_array_equal(fast.relaxation_scaled, np.linalg.norm(d, axis=1) < RELAXATION_RAMP)
     assert fast.relaxation_scaled.sum() == 2
+    np.testing.assert_array_equal(fast.grains_held, count_held_grains(cell.net.schema, ref.held).numpy())
 
 
 def test_the_states_exercise_the_contact_law_branches(loaded):
@@ -59,3 +64,120 @@ def test_the_states_exercise_the_contact_law_branches(loaded):
     ref = _reference(cell, state, d)
     assert ref.capped.any() and (~ref.capped.any(dim=1)).any()
     assert (np.asarray(state.shear_force) != 0).any()
+
+
+# -- the DEM's rest rule: a free grain with no force that nothing reaches does not move ------------
+
+def _random_net(ratio):
+    """A randomly initialised network on a fines cell whose outputs move every free DOF by ~1e-4 D per 1e-4."""
+    meso = resolve_mesostructure(f"hcell-fines:alpha0=50,ratio={ratio}")
+    law = ContactLaw()
+    schema = CellSchema.from_arrays(radius=meso.radius, reference_position=meso.position,
+                                    reference_cell_size=meso.cell_size, driven=meso.driven, pairs=meso.pairs,
+                                    outer=meso.outer, kn=law.kn, kt=law.kt, mu=law.mu,
+                                    contact_tolerance=meso.contact_tolerance)
+    torch.manual_seed(0)
+    net = MesoNet(schema, torch.ones(schema.n_pairs, dtype=torch.bool), hidden=(16,))
+    with torch.no_grad():
+        net.mlp[-1].bias.normal_(std=3.0)  # "whatever the network outputs": rates of a few D per unit strain
+        net.mlp[-1].weight.mul_(30.0)
+    return meso, net
+
+
+@pytest.fixture(scope="module")
+def fines_net():
+    """Fine grain of 0.6 r in the pore: ~0.1 r from every neighbour."""
+    return _random_net(0.6)
+
+
+def _fines_state(meso, net, n=6, squeeze=2e-3, seed=3):
+    """Skeleton compressed affinely by ``squeeze`` (loaded contacts), fine grain(s) where the file puts them."""
+    rng = np.random.default_rng(seed)
+    free = net.schema.free_dofs.numpy()
+    size = np.tile(meso.cell_size * (1.0 - squeeze), (n, 1))
+    position = np.tile(meso.position[free[:, 0], free[:, 1]] * (1.0 - squeeze), (n, 1))
+    shear = np.zeros((n, net.schema.n_pairs))
+    d_eps = rng.normal(scale=1e-4, size=(n, 2))
+    return size, position, shear, d_eps
+
+
+def _fine_dofs(meso, net):
+    """Free-DOF columns of the fine grain(s) (those with both axes free) and of the skeleton."""
+    free = net.schema.free_dofs.numpy()
+    fine_grains = np.flatnonzero(~meso.driven.any(axis=1))
+    fine = np.isin(free[:, 0], fine_grains)
+    return fine, ~fine
+
+
+def test_a_force_free_grain_far_from_its_neighbours_stays_at_rest_in_both_paths(fines_net):
+    meso, net = fines_net
+    fine, skeleton = _fine_dofs(meso, net)
+    assert fine.sum() == 2 and skeleton.any()
+    state = _fines_state(meso, net)
+    with torch.inference_mode():
+        ref = net.advance(*(torch.from_numpy(a) for a in state))
+        moved = net.displacement(*(torch.from_numpy(a) for a in state)).numpy()
+    assert np.abs(moved[:, fine]).min() > 1e-6 * net.schema.diameter  # the network alone would move it
+    assert np.abs(ref.moment.numpy()).max() > 0  # the skeleton is loaded
+    fast = FastAdvance(net)(*state[:3], state[3])
+    for path in (ref.free_position.numpy(), fast.free_position):
+        np.testing.assert_array_equal(path[:, fine], state[1][:, fine])
+        assert np.all(path[:, skeleton] != state[1][:, skeleton])
+    np.testing.assert_array_equal(ref.held.numpy(), np.tile(fine, (6, 1)))
+    np.testing.assert_array_equal(fast.grains_held, np.ones(6))
+    np.testing.assert_allclose(fast.moment, ref.moment.numpy(), rtol=0, atol=1e-9 * np.abs(ref.moment.numpy()).max())
+
+
+def _grain_next_to(meso, net, gap):
+    """State with the fine grain at ``gap`` [m] from the driven grain 0 along the line of centres, force-free."""
+    size, position, shear, d_eps = _fines_state(meso, net, n=2, squeeze=0.0)
+    fine, _ = _fine_dofs(meso, net)
+    g = net.schema.free_dofs.numpy()[fine][0, 0]
+    towards = meso.position[0] - meso.position[g]
+    distance = np.linalg.norm(towards)
+    target = meso.position[0] - towards / distance * (meso.radius[0] + meso.radius[g] + gap)
+    position[:, fine] = target
+    return (size, position, shear), fine
+
+
+def test_a_grain_reached_during_the_increment_is_released_in_both_paths():
+    """Grain 0 is driven along n: compression brings it onto the fine grain (released), extension not (held)."""
+    meso, net = _random_net(0.3)
+    (size, position, shear), fine = _grain_next_to(meso, net, gap=1e-4)
+    d_eps = np.array([[2e-4, 0.0], [-2e-4, 0.0]])  # grain 0 moves by ~2e-4 m towards / away from the centre
+    state = (size, position, shear, d_eps)
+    with torch.inference_mode():
+        ref = net.advance(*(torch.from_numpy(a) for a in state))
+        wanted = net.displacement(*(torch.from_numpy(a) for a in state)).numpy()
+    fast = FastAdvance(net)(size, position, shear, d_eps)
+    assert ref.held[0, fine].sum() == 0 and ref.held[1, fine].all()
+    np.testing.assert_array_equal(fast.grains_held[:1], [0])
+    assert fast.grains_held[1] >= 1
+    np.testing.assert_allclose(ref.free_position.numpy()[0, fine], position[0, fine] + wanted[0, fine], rtol=1e-14)
+    np.testing.assert_array_equal(ref.free_position.numpy()[1, fine], position[1, fine])
+    np.testing.assert_allclose(fast.free_position, ref.free_position.numpy(), rtol=1e-12)
+
+
+def test_the_tangent_of_a_held_grain_matches_central_differences(fines_net):
+    meso, net = fines_net
+    fine, _ = _fine_dofs(meso, net)
+    size, position, shear, d_eps = (torch.from_numpy(a) for a in _fines_state(meso, net))
+    d = d_eps.clone().requires_grad_(True)
+    step = net.advance(size, position, shear, d)
+    assert step.held[:, fine].all()
+    rows = [torch.autograd.grad(step.moment[:, i, i].sum(), d, retain_graph=True)[0] for i in (0, 1)]
+    tangent = torch.stack(rows, dim=1).numpy()
+    held_rows = torch.autograd.grad(step.free_position[:, fine].sum(), d, allow_unused=False)[0].numpy()
+    assert np.all(held_rows == 0.0)
+    h = 1e-8
+    fd = np.zeros_like(tangent)
+    with torch.inference_mode():
+        for j in range(2):
+            e = torch.zeros(2, dtype=torch.float64)
+            e[j] = h
+            plus, minus = net.advance(size, position, shear, d_eps + e), net.advance(size, position, shear, d_eps - e)
+            fd[:, :, j] = (plus.moment - minus.moment).numpy()[:, [0, 1], [0, 1]] / (2 * h)
+            np.testing.assert_array_equal(plus.free_position[:, fine].numpy(), minus.free_position[:, fine].numpy())
+    scale = np.abs(fd).max()
+    assert scale > 1e6
+    np.testing.assert_allclose(tangent, fd, rtol=0, atol=1e-4 * scale)

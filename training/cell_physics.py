@@ -167,7 +167,9 @@ class Increment:
         cell_size, free_position, shear_force: the new generic state.
         moment: compression-positive Love-Weber moment [N m], (n, 2, 2); area [m^2], (n,).
         capped: bool (n, n_pairs), the trial tangential force exceeded the Coulomb cap mu f_n;
-        opened: bool (n, n_pairs), a pair that carried a normal force lost it (no-tension branch).
+        opened: bool (n, n_pairs), a pair that carried a normal force lost it (no-tension branch);
+        held: bool (n, n_free), free DOFs of grains held at rest (``hold_at_rest``); None where
+            the rule was not applied.
     """
 
     cell_size: torch.Tensor
@@ -177,10 +179,60 @@ class Increment:
     area: torch.Tensor
     capped: torch.Tensor
     opened: torch.Tensor
+    held: torch.Tensor | None = None
+
+
+def grains_touched(schema: CellSchema, contact: torch.Tensor) -> torch.Tensor:
+    """Grains with at least one pair in ``contact`` (bool (n, n_pairs)), bool (n, n_grains)."""
+    flags = contact.to(torch.float64)
+    touched = torch.zeros(contact.shape[0], int(schema.radius.shape[0]), dtype=torch.float64, device=flags.device)
+    return touched.index_add(1, schema.pairs[:, 0], flags).index_add(1, schema.pairs[:, 1], flags) > 0
+
+
+def hold_at_rest(schema: CellSchema, new_size: torch.Tensor, free_position: torch.Tensor, d_free: torch.Tensor,
+                 old: Contacts) -> tuple[torch.Tensor, torch.Tensor]:
+    """The DEM's rest rule for one increment: a free grain with zero force that nothing reaches does not move.
+
+    The DEM sets a free grain whose net force is exactly zero at rest at every substep. Over
+    one increment this means: a free grain with no pair within the contact tolerance at the
+    start (so no force) stays where it is, unless a neighbour reaches it during the increment.
+    Reached = one of its pairs is within the contact tolerance at the end of the increment
+    with every such grain held at rest and the other free DOFs moved by ``d_free``; a reached
+    grain keeps ``d_free`` (the DEM would push it). Repeated until no grain is released (at
+    most n_grains passes): a released grain may reach another held one (a chain of touching
+    grains is pushed within the same increment, as in the DEM).
+
+    Args:
+        new_size: cell size at the end of the increment [m], (n, 2).
+        free_position: free DOFs at the start [m], (n, n_free); d_free: their displacement [m], (n, n_free).
+        old: ``contacts`` of the state at the start.
+
+    Returns:
+        (d_free with the rows of held DOFs set to zero, held: bool (n, n_free)).
+    """
+    grain = schema.free_dofs[:, 0]
+    held = ~grains_touched(schema, old.contact)[:, grain]
+    with torch.no_grad():
+        for _ in range(int(schema.radius.shape[0])):
+            trial = free_position + torch.where(held, torch.zeros_like(d_free), d_free)
+            reached = grains_touched(schema, contacts(schema, positions(schema, new_size, trial)).contact)[:, grain]
+            still = held & ~reached
+            if torch.equal(still, held):
+                break
+            held = still
+    return torch.where(held, torch.zeros_like(d_free), d_free), held
+
+
+def count_held_grains(schema: CellSchema, held: torch.Tensor) -> torch.Tensor:
+    """Grains held at rest per cell, int64 (n,), from the per-DOF flags ``held`` (n, n_free)."""
+    per_grain = torch.zeros(held.shape[0], int(schema.radius.shape[0]), dtype=torch.bool, device=held.device)
+    per_grain[:, schema.free_dofs[:, 0]] = held
+    return per_grain.sum(dim=1)
 
 
 def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Tensor, shear_force: torch.Tensor,
-            d_eps: torch.Tensor, d_free: torch.Tensor, old: Contacts | None = None) -> Increment:
+            d_eps: torch.Tensor, d_free: torch.Tensor, old: Contacts | None = None, *,
+            rest_rule: bool = False) -> Increment:
     """Apply a strain increment and a free-DOF displacement with the contact law (spec sections 3, 4, 12).
 
     Args:
@@ -188,6 +240,8 @@ def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Te
         d_eps: (d_eps_n, d_eps_t) [-], (n, 2), compression positive: l <- l (1 - d_eps).
         d_free: displacement of the free DOFs over the increment [m], (n, n_free).
         old: ``contacts`` of the state before the increment, when already computed.
+        rest_rule: apply ``hold_at_rest`` to ``d_free`` first (the meso-ANN does; a DEM
+            displacement already obeys it) and report the held DOFs in ``Increment.held``.
 
     Returns:
         The new state with its moment and area. The tangential force grows by kt times the
@@ -197,6 +251,9 @@ def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Te
     if old is None:
         old = contacts(schema, positions(schema, cell_size, free_position))
     new_size = cell_size * (1.0 - d_eps)
+    held = None
+    if rest_rule:
+        d_free, held = hold_at_rest(schema, new_size, free_position, d_free, old)
     new_free = free_position + d_free
     x_new = positions(schema, new_size, new_free)
     new = contacts(schema, x_new)
@@ -210,4 +267,5 @@ def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Te
     capped = new.contact & (torch.abs(trial) > cap)
     opened = (old.normal_force > 0.0) & (new.normal_force == 0.0)
     force = pair_forces(new, shear)
-    return Increment(new_size, new_free, shear, love_weber(new, force), polygon_area(x_new, schema.outer), capped, opened)
+    return Increment(new_size, new_free, shear, love_weber(new, force), polygon_area(x_new, schema.outer), capped, opened,
+                     held)

@@ -117,18 +117,29 @@ def _features(size, free, shear, d_eps, frac, free_dofs, pairs, radius, active_s
 @numba.njit(cache=True, error_model="numpy")
 def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_contact, old_fn, frac, free_dofs,
              pairs, radius, outer, rate_mean, rate_std, compliance_scale, diameter, kn, kt, mu, tol, ramp,
-             new_size, new_free, new_shear, moment, area, capped_any, opened_any, mechanism, ramped):
+             new_size, new_free, new_shear, moment, area, capped_any, opened_any, mechanism, ramped, n_held):
     """Free-DOF displacement from the network output ``out`` (n_free + n_free^2, n), then the contact law.
 
-    Cells are the last axis (``_features``). Outputs: the new state new_size (2, n),
-    new_free (n_free, n), new_shear (n_pairs, n); the compression-positive moment (2, 2, n)
-    [N m], the area (n,) [m^2] and per-cell flags (bool (n,)): a trial tangential force
-    exceeded mu f_n; a pair carrying a normal force opened; the moment is zero (mechanism);
-    |d_eps| < ``ramp`` scaled the relaxation down.
+    Cells are the last axis (``_features``). The rest rule of ``cell_physics.hold_at_rest``
+    holds free grains with no contact at the start that nothing reaches. Outputs: the new
+    state new_size (2, n), new_free (n_free, n), new_shear (n_pairs, n); the
+    compression-positive moment (2, 2, n) [N m], the area (n,) [m^2], per-cell flags
+    (bool (n,)): a trial tangential force exceeded mu f_n; a pair carrying a normal force
+    opened; the moment is zero (mechanism); |d_eps| < ``ramp`` scaled the relaxation down;
+    and n_held (n,) int64, the grains held at rest.
     """
     n = size.shape[1]
     n_free = free_dofs.shape[0]
+    n_grains = frac.shape[0]
+    touched = np.zeros((n_grains, n), dtype=np.bool_)
+    for p in range(pairs.shape[0]):
+        for c in range(n):
+            if old_contact[p, c]:
+                touched[pairs[p, 0], c] = True
+                touched[pairs[p, 1], c] = True
+    d_free = np.empty((n_free, n))
     for k in range(n_free):
+        g = free_dofs[k, 0]
         for c in range(n):
             m = m_in[c]
             cf = 0.0
@@ -136,11 +147,42 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
                 cij = compliance_scale * ((1.0 if j == k else 0.0) + float(out[n_free + k * n_free + j, c]))
                 cf += cij * unbalanced[j, c]
             rate = float(out[k, c]) * rate_std[k] + rate_mean[k]
-            new_free[k, c] = free[k, c] + (diameter * m * rate - min(m / ramp, 1.0) * (cf / kn))
+            d_free[k, c] = diameter * m * rate - min(m / ramp, 1.0) * (cf / kn)
+            new_free[k, c] = free[k, c] + d_free[k, c] if touched[g, c] else free[k, c]
     for a in range(2):
         for c in range(n):
             new_size[a, c] = size[a, c] * (1.0 - d_eps[a, c])
-    x = np.empty((frac.shape[0], 2, n))
+    held = np.zeros((n_grains, n), dtype=np.bool_)
+    for k in range(n_free):
+        for c in range(n):
+            held[free_dofs[k, 0], c] = not touched[free_dofs[k, 0], c]
+    x = np.empty((n_grains, 2, n))
+    for _ in range(n_grains):
+        _positions(new_size, new_free, frac, free_dofs, x)
+        released = False
+        for p in range(pairs.shape[0]):
+            i = pairs[p, 0]
+            j = pairs[p, 1]
+            reach = (radius[i] + radius[j]) * (1.0 + tol)
+            for c in range(n):
+                if held[i, c] or held[j, c]:
+                    b0 = x[j, 0, c] - x[i, 0, c]
+                    b1 = x[j, 1, c] - x[i, 1, c]
+                    if math.sqrt(b0 * b0 + b1 * b1) <= reach:
+                        held[i, c] = False
+                        held[j, c] = False
+                        released = True
+        if not released:
+            break
+        for k in range(n_free):
+            g = free_dofs[k, 0]
+            for c in range(n):
+                new_free[k, c] = free[k, c] if held[g, c] else free[k, c] + d_free[k, c]
+    for c in range(n):
+        n_held[c] = 0
+    for g in range(n_grains):
+        for c in range(n):
+            n_held[c] += 1 if held[g, c] else 0
     _positions(new_size, new_free, frac, free_dofs, x)
     moment[:, :, :] = 0.0
     capped_any[:] = False
@@ -198,7 +240,8 @@ class FastIncrement(NamedTuple):
     state; moment (n, 2, 2) [N m] (compression positive); area (n,) [m^2]; capped, opened:
     bool (n,), a Coulomb cap / the no-tension branch acted on some pair of the cell;
     mechanism: bool (n,), zero moment after the increment; relaxation_scaled: bool (n,),
-    |d_eps| < ``RELAXATION_RAMP``.
+    |d_eps| < ``RELAXATION_RAMP``; grains_held: int64 (n,), free grains held at rest
+    (``training.cell_physics.hold_at_rest``).
     """
 
     cell_size: np.ndarray
@@ -210,6 +253,7 @@ class FastIncrement(NamedTuple):
     opened: np.ndarray
     mechanism: np.ndarray
     relaxation_scaled: np.ndarray
+    grains_held: np.ndarray
 
 
 class FastAdvance:
@@ -272,10 +316,11 @@ class FastAdvance:
         new_size, new_free, new_shear = np.empty_like(size), np.empty_like(free), np.empty_like(shear)
         moment, area = np.empty((2, 2, n)), np.empty(n)
         flags = np.empty((4, n), dtype=np.bool_)
+        n_held = np.empty(n, dtype=np.int64)
         _advance(size, free, shear, d_eps, out, m, unbalanced, old_branch, old_contact, old_fn, self.frac,
                  self.free_dofs, self.pairs, self.radius, self.outer, self.rate_mean, self.rate_std,
                  COMPLIANCE_SCALE, self.diameter, self.kn, self.kt, self.mu, self.tol, RELAXATION_RAMP,
-                 new_size, new_free, new_shear, moment, area, *flags)
+                 new_size, new_free, new_shear, moment, area, *flags, n_held)
         return FastIncrement(np.ascontiguousarray(new_size.T), np.ascontiguousarray(new_free.T),
                              np.ascontiguousarray(new_shear.T), np.ascontiguousarray(moment.transpose(2, 0, 1)),
-                             area, *flags)
+                             area, *flags, n_held)

@@ -172,9 +172,12 @@ class MesoNet(nn.Module):
     def advance(self, cell_size, free_position, shear_force, d_eps) -> cell_physics.Increment:
         """One cell-increment: the network moves the free DOFs, the contact law gives the forces.
 
-        Below |d_eps| = ``RELAXATION_RAMP`` the relaxation is scaled down linearly to zero.
+        Below |d_eps| = ``RELAXATION_RAMP`` the relaxation is scaled down linearly to zero. The
+        DEM's rest rule holds free grains that carry no force and that nothing reaches
+        (``cell_physics.hold_at_rest``; ``Increment.held`` flags them).
         """
         feats, m, unbalanced, old = features_and_contacts(self.schema, self.active_index, cell_size, free_position,
                                                           shear_force, d_eps)
         d_free = self.displacement_from_features(feats, m, unbalanced, torch.clamp(m / RELAXATION_RAMP, max=1.0))
-        return cell_physics.advance(self.schema, cell_size, free_position, shear_force, d_eps, d_free, old)
+        return cell_physics.advance(self.schema, cell_size, free_position, shear_force, d_eps, d_free, old,
+                                    rest_rule=True)

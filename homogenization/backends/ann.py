@@ -22,9 +22,11 @@ No equilibrium is solved and no closed form of a particular cell is used. Each `
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
 ``n_coulomb_capped`` (a trial tangential force exceeded mu f_n), ``n_tension_clipped`` (a
 contact carrying a normal force opened: no tension), ``n_mechanism`` (cells carrying no
-contact force after the increment) and ``n_relaxation_scaled`` (probes smaller than
+contact force after the increment), ``n_relaxation_scaled`` (probes smaller than
 ``training.network.RELAXATION_RAMP``, whose relaxation of unbalanced forces is scaled down
-so that a zero increment is a no-op, as stress control assumes).
+so that a zero increment is a no-op, as stress control assumes) and ``n_grains_held`` (free
+grains, summed over the cells, that carried no force and that nothing reached, held at rest
+instead of moved by the network: the DEM's rest rule, ``training.cell_physics.hold_at_rest``).
 
 The model records the mesostructure it was trained on (description and sha256). With
 ``mesostructure=`` the cells start from that file and its hash must equal the model's; without
@@ -165,7 +167,8 @@ class AnnCell(ArrayStateMixin):
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
                            "n_tension_clipped": float(np.count_nonzero(inc.opened)),
                            "n_mechanism": float(np.count_nonzero(inc.mechanism)),
-                           "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled))}
+                           "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled)),
+                           "n_grains_held": float(inc.grains_held.sum())}
             return (AnnState(inc.cell_size, inc.free_position, inc.shear_force),
                     CellResponse(inc.moment, inc.area, diagnostics))
         size, free, shear = self._tensors(state)
@@ -186,6 +189,7 @@ class AnnCell(ArrayStateMixin):
             "n_tension_clipped": float(step.opened.any(dim=1).sum()),
             "n_mechanism": float(np.count_nonzero(np.all(moment == 0.0, axis=(1, 2)))),
             "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
+            "n_grains_held": float(cell_physics.count_held_grains(self.net.schema, step.held).sum()),
         }
         return new, CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent)
 
