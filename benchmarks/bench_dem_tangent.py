@@ -66,7 +66,6 @@ def tangent_probe(rate: float) -> None:
     plain = column_errors(response.tangent, fd_tangent(dem, state, d_eps, h))
     held = column_errors(response.tangent, fd_tangent_fixed_schedule(dem, state, d_eps, h))
     lead = np.abs(d_eps).argmax(axis=1)
-    rows = np.arange(n)
     print(f"condensed tangent vs central differences, {rate:g} strain per substep, h = {h:g}")
     print("cell alpha0 regime | plain: largest col, other col | held schedule: largest col, other col")
     for c in range(n):

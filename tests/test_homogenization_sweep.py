@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import socket
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +13,7 @@ from homogenization import io, sweep
 from warp_hcell import execution
 from warp_hcell.cli import run_main
 from warp_hcell.mesostructure import h_cell
+from dask_cluster import free_port, local_cluster
 
 P0 = 2e5
 SMALL = ["--p0", "2e5", "--eps-max", "0.15", "--increment", "5e-4", "--iso-increment", "5e-4", "--orientations", "36"]
@@ -271,12 +269,6 @@ TINY = ["--mesostructure", "hcell,hcell-fines:ratio=0.8", "--alpha0", "50,55", "
         "--increment", "1e-3", "--iso-increment", "1e-3", "--orientations", "8"]
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_unreachable_scheduler_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(execution, "CONNECT_TIMEOUT_S", 1.0)
     out = tmp_path / "remote"
@@ -296,22 +288,9 @@ def test_a_remote_scheduler_gives_the_in_process_results(tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
     elsewhere = tmp_path / "workers"
     elsewhere.mkdir()
-    quiet = {"env": env, "cwd": elsewhere, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
-    port = free_port()
-    address = f"tcp://127.0.0.1:{port}"
-    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-                               "--port", str(port), "--no-dashboard"], **quiet)]
-    try:
-        procs += [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
-                                    "--no-nanny", "--no-dashboard", "--name", f"w{i}"], **quiet) for i in range(2)]
-        with execution.DaskExecution(address=address, connect_timeout=30.0) as dask:
-            dask.client.wait_for_workers(2, timeout=60)
+    with local_cluster(2, env, cwd=elsewhere) as (address, _):
         remote = tmp_path / "remote"
         assert cli([*TINY, "--scheduler", address, "--out", str(remote)]) == 0
-    finally:
-        for proc in procs:
-            proc.kill()
-            proc.wait()
     assert (remote / sweep.SUMMARY_FILE).read_bytes() == (local / sweep.SUMMARY_FILE).read_bytes()
     rows = sweep.read_summary(local / sweep.SUMMARY_FILE)
     assert len(rows) == 4

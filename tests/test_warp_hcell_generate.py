@@ -5,10 +5,8 @@ samples per run."""
 import errno
 import json
 import os
-import socket
 import subprocess
 import sys
-import threading
 import time
 import warnings
 from dataclasses import replace
@@ -23,6 +21,7 @@ from warp_hcell.dem_cell import DemCell
 from warp_hcell.learning_state import evaluate, free_coordinates
 from warp_hcell.mesostructure import describe, description_sha256, h_cell, load_mesostructure
 from warp_hcell.parameters import ContactLaw, DatabaseSettings, DemSettings
+from dask_cluster import free_port, local_cluster
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
 SMALL = DatabaseSettings(samples=2000, chunk_size=500, n_alpha0=2, alpha0_focus_deg=(55.0,),
@@ -389,12 +388,6 @@ def test_unreachable_scheduler_exits_2_and_writes_nothing(tmp_path, capsys, monk
     assert list(tmp_path.iterdir()) == []
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_dask_scheduler_with_a_lost_worker_gives_the_local_file(tmp_path):
     """A real scheduler and two workers on 127.0.0.1; ``--scheduler`` generates 6e4 samples; one
     worker is killed mid-run; Dask reruns its tasks and the file is byte-identical to the
@@ -404,32 +397,23 @@ def test_dask_scheduler_with_a_lost_worker_gives_the_local_file(tmp_path):
                "--samples", "60000", "--chunk-size", "1000", "--n-directions", "8", "--seed", "3", "--threads", "1"]
     local = tmp_path / "local.h5"
     subprocess.run([*command, "--out", str(local)], env=env, check=True, capture_output=True)
-    port = free_port()
-    address = f"tcp://127.0.0.1:{port}"
     quiet = {"env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
-    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-                               "--port", str(port), "--no-dashboard"], **quiet)]
-    try:
-        procs += [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
-                                    "--no-nanny", "--no-dashboard", "--name", f"w{i}"], **quiet) for i in range(2)]
-        with execution.DaskExecution(address=address, connect_timeout=30.0) as dask:
-            dask.client.wait_for_workers(2, timeout=60)
+    with local_cluster(2, env) as (address, procs):
         out = tmp_path / "dask.h5"
         sidecar = generate.sidecar_path(out)
         client = subprocess.Popen([*command, "--out", str(out), "--scheduler", address], **quiet)
-        procs.append(client)
-        deadline = time.monotonic() + 120
-        while len(list(sidecar.glob("chunk_*.npz"))) < 5 and time.monotonic() < deadline and client.poll() is None:
-            time.sleep(0.05)
-        done_at_kill = len(list(sidecar.glob("chunk_*.npz")))
-        procs[1].kill()
-        assert client.wait(timeout=300) == 0
+        try:
+            deadline = time.monotonic() + 120
+            while len(list(sidecar.glob("chunk_*.npz"))) < 5 and time.monotonic() < deadline and client.poll() is None:
+                time.sleep(0.05)
+            done_at_kill = len(list(sidecar.glob("chunk_*.npz")))
+            procs[1].kill()
+            assert client.wait(timeout=300) == 0
+        finally:
+            client.kill()
+            client.wait()
         assert 5 <= done_at_kill < 60
         assert out.read_bytes() == local.read_bytes()
-    finally:
-        for proc in procs:
-            proc.kill()
-            proc.wait()
 
 
 def test_exploration_does_not_depend_on_how_start_cells_are_grouped():

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 from homogenization.backends import make_cell_model
-from warp_hcell.parameters import CellDefaults, ContactLaw, DemSettings
+from warp_hcell.parameters import CellDefaults, ContactLaw
 
 HERE = Path(__file__).resolve().parent
 DATA_DIR = HERE / "data" / "yade"

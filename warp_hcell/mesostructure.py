@@ -79,7 +79,6 @@ class Mesostructure:
 
     def __post_init__(self) -> None:
         radius = np.asarray(self.radius, dtype=np.float64).reshape(-1)
-        n_grains = radius.size
         position = np.asarray(self.position, dtype=np.float64)
         driven = np.asarray(self.driven)
         pairs = np.asarray(self.pairs, dtype=np.int64).reshape(-1, 2)

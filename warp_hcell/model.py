@@ -130,7 +130,7 @@ class DemModel:
 
     def state(self) -> DemState:
         """Touching, force-free initial state: grains at their reference positions, at rest."""
-        n_cells, n_grains, n_pairs = self.n_cells, self.meso.n_grains, self.meso.n_pairs
+        n_cells, n_pairs = self.n_cells, self.meso.n_pairs
         position = self.reference_position.numpy()
         return DemState.from_numpy({
             "position": position, "velocity": np.zeros_like(position),
