@@ -6,7 +6,7 @@ three constant-volume cases (alpha0 = 55 deg at p0 = 5.85e6 and 2e5 N/m, alpha0 
 the DEM backends on the same programme, and prints per case:
 
 - wall times of the analytical and the DEM run (and of the analytical run at the converged
-  increments of shared/spec/reference.md, 1e-5 / 5e-6);
+  increments of docs/model.md, "Reference response", 1e-5 / 5e-6);
 - max |p_dem - p_ana| / p0 and max |q_dem - q_ana| / p0 over every increment (same programme)
   and against the converged analytical run (interpolated at the DEM's eps1): the second
   measures what the macro increment itself costs, the same for both backends;
@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parent.parent
 CASES = {"a55_p5.85e6": (55.0, 5.85e6), "a55_p2e5": (55.0, 2e5), "a40_p5.85e6": (40.0, 5.85e6)}
 """Acceptance cases: name -> (alpha0 [deg], p0 [N/m])."""
 REFERENCE_P10 = {"a55_p5.85e6": (0.766, 0.386), "a55_p2e5": (0.191, 0.051), "a40_p5.85e6": (1.037, 0.945)}
-"""p/p0 and q/p0 at eps1 = 10 % from shared/spec/reference.md (independent implementation, N = 360)."""
+"""p/p0 and q/p0 at eps1 = 10 % from docs/model.md, "Reference response" (independent implementation, N = 360)."""
 CONVERGED = (1e-5, 5e-6)
 """Shear and isotropic increments of the reference table (converged analytical run)."""
 

@@ -1,4 +1,4 @@
-"""The 2x2 biaxial-test figure of shared/spec/conventions.md, several backends overlaid.
+"""The 2x2 biaxial-test figure, several backends overlaid.
 
 Panels: q vs eps1; q vs p (stress path in the Cambridge plane); p vs eps1 (drained tests:
 eps_v vs eps1); q/p vs eps1 (or W2 vs eps1). The half-difference t = q/2 can replace q. eps1 and eps_v are counted from the end of the

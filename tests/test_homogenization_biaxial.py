@@ -36,7 +36,7 @@ def test_constant_volume_run_ends_on_the_reference_curve(tmp_path, capsys):
     assert f"-> {out / 'run.h5'}, {out / 'curve.csv'}" in printed and f"figure -> {out / 'cambridge.png'}" in printed
     row = last_curve_row(out / "curve.csv")
     assert row["stage"] == "shear"
-    # shared/spec/reference.md, alpha0 = 55, p0 = 5.85e6, eps1 = 5 %: p/p0 = 0.937, q/p0 = 0.573
+    # docs/model.md, "Reference response", alpha0 = 55, p0 = 5.85e6, eps1 = 5 %: p/p0 = 0.937, q/p0 = 0.573
     assert float(row["p"]) / P0 == pytest.approx(0.937, abs=0.005)
     assert float(row["q"]) / P0 == pytest.approx(0.573, abs=0.005)
     stored = io.read_run(out / "run.h5")

@@ -3,7 +3,7 @@
 Both backends run the same programme through ``driver.run`` (isotropic stage to p0, then
 constant-volume or drained shear); the DEM must stay within 1 % of p0 of the analytical p
 and q at every increment, reach p0 to 1e-4, report zero unconverged cells in run.h5 and
-follow the independent reference table of shared/spec/reference.md. CI runs 36 orientations
+follow the independent reference table of docs/model.md, "Reference response". CI runs 36 orientations
 to eps1 = 10 %; the full-size comparison (360 orientations, eps1 = 20 %) is marked slow
 (``pytest -m slow tests/test_homogenization_dem_vs_analytical.py``; 5-15 s of DEM per case on
 two cores) and is also ``benchmarks/bench_dem_homogenization.py``.
@@ -34,7 +34,7 @@ ISO_INCREMENT = 1e-3
 """Isotropic strain increment per component (proportional path; the last one lands on p0)."""
 
 CASES = {
-    # (alpha0 [deg], p0 [N/m]): eps_iso, then p/p0 and q/p0 at eps1 = 5, 10, 20 % (shared/spec/reference.md)
+    # (alpha0 [deg], p0 [N/m]): eps_iso, then p/p0 and q/p0 at eps1 = 5, 10, 20 % (docs/model.md, "Reference response")
     (55.0, 5.85e6): (0.02600, (0.937, 0.766, 0.345), (0.573, 0.386, 0.089)),
     (55.0, 2e5): (0.00090, (0.443, 0.191, 0.093), (0.264, 0.051, 0.012)),
     (40.0, 5.85e6): (0.02219, (0.947, 1.037, 1.199), (0.793, 0.945, 0.902)),
@@ -47,7 +47,7 @@ CI_EPS_MAX = 0.10
 CI_TABLE_TOLERANCE = 0.01
 """Reference-table tolerance [p0] at 36 orientations (the table is computed with 360)."""
 FULL_TABLE_TOLERANCE = 0.005
-"""Reference-table tolerance [p0] at full size (shared/spec/reference.md: <= 0.5 % of p0)."""
+"""Reference-table tolerance [p0] at full size (docs/model.md, "Reference response": <= 0.5 % of p0)."""
 
 
 def run_pair(alpha0_deg: float, p0: float, n_orientations: int, eps_max: float, *, drained: bool = False,

@@ -1,4 +1,4 @@
-"""Driver: the reference table of shared/spec/reference.md, stress control, invariants of runs."""
+"""Driver: the reference table of docs/model.md, "Reference response", stress control, invariants of runs."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.loading import Step
 
-# shared/spec/reference.md (independent implementation): per row the shear-stage values.
+# docs/model.md, "Reference response" (independent implementation): per row the shear-stage values.
 # eps1 is counted from the end of the isotropic stage; "open" = fraction of cells with a
 # type-1 or type-2 contact open.
 REFERENCE = {

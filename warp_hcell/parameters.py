@@ -1,7 +1,7 @@
 """Physical constants and numerical defaults, in one place.
 
 Every default of the package and of its command-line interfaces is read from the frozen
-dataclasses below (specification: shared/spec/hmodel.md, sections 1 and 10). No default
+dataclasses below (specification: docs/model.md, sections 1 and 10). No default
 value is typed twice: CLIs build their ``default=`` from these objects.
 
 Units: SI, 2D (forces per unit length for stresses, N/m). Angles carry the suffix ``_deg``

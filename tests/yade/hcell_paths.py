@@ -1,6 +1,6 @@
 """Run: yade -n -x tests/yade/hcell_paths.py --path CASE.path.csv --alpha0-deg 55 --out PREFIX
 
-YADE reference of the six-disk H-cell (shared/spec/hmodel.md, sections 2-4 and 10) along a
+YADE reference of the six-disk H-cell (docs/model.md, sections 2-4 and 10) along a
 prescribed cell strain path. It is an independent check of the analytical and Warp DEM
 backends, so it uses only YADE's own contact law and integrator:
 

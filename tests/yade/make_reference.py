@@ -11,7 +11,7 @@ Cases (cell strain increments d_eps_n, d_eps_t [-], compression positive):
 - ``lateral_a55``, ``lateral_a40``: the same with the roles of n and t swapped (constant
   length);
 - ``cv_a55_p585_theta0``, ``cv_a55_p585_theta90``: isotropic compression to eps_iso = 0.026
-  (p0 = 5.85e6 N/m state of shared/spec/reference.md, rows of 2e-4), then constant volume
+  (p0 = 5.85e6 N/m state of docs/model.md, "Reference response", rows of 2e-4), then constant volume
   for the cell at theta = 0 (+2e-4, -2e-4) or theta = 90 deg (-2e-4, +2e-4) to 20 %;
 - ``cv_a55_p2e5_theta0``, ``cv_a55_p2e5_theta90``: the same from eps_iso = 0.0009 (p0 = 2e5
   N/m, iso rows of 1e-4).
