@@ -43,9 +43,11 @@ from homogenization.backends import BACKENDS, backend_class, make_cell_model
 from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.cli import (
     UserError,
+    add_contact_law_arguments,
     alpha0_deg,
     check_output_path,
     common_parser,
+    contact_law_from_args,
     finite_float,
     output_folder,
     output_lock,
@@ -54,7 +56,7 @@ from warp_hcell.cli import (
     quiet_warp,
     run_main,
 )
-from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings, LoadingDefaults
+from warp_hcell.parameters import CellDefaults, DatabaseSettings, LoadingDefaults
 from warp_hcell.provenance import command_line, file_sha256
 
 FIGURE_FILE = "cambridge.png"
@@ -92,7 +94,7 @@ def fabric_anisotropy(text: str) -> float:
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the biaxial command (defaults read from warp_hcell.parameters)."""
-    cell, load, law = CellDefaults(), LoadingDefaults(), ContactLaw()
+    cell, load = CellDefaults(), LoadingDefaults()
     parser = argparse.ArgumentParser(
         prog="hmodel biaxial",
         description="Isotropic compression to p0, then constant-volume (or drained) biaxial shear of the H-model, "
@@ -120,11 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--fabric-anisotropy", type=fabric_anisotropy, default=0.0,
                         help="a_f of the orientation weights w = (1 + a_f cos 2(theta - b_f)) / pi; 0 = isotropic fabric")
     parser.add_argument("--fabric-direction", type=finite_float, default=0.0, help="preferred fabric direction b_f [deg]")
-    parser.add_argument("--radius", type=positive_float, default=cell.radius, help="grain radius r [m]")
-    parser.add_argument("--kn", type=positive_float, default=law.kn, help="normal contact stiffness [N/m]")
-    parser.add_argument("--kt", type=positive_float, default=argparse.SUPPRESS,
-                        help=f"tangential contact stiffness [N/m] (default: {law.kt_over_kn:g} x kn)")
-    parser.add_argument("--phi", type=finite_float, default=law.phi_g_deg, help="inter-granular friction angle phi_g [deg], in [0, 90)")
+    add_contact_law_arguments(parser)
     parser.add_argument("--snapshot-interval", type=positive_int, default=None,
                         help="also store per-cell observables every this many increments (None: at stage ends only)")
     parser.add_argument("--deviator", choices=plotting.DEVIATORS, default=plotting.DEVIATORS[0],
@@ -275,8 +273,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for label, largest in coarse_steps(programme):
         warn(f"step {label!r} has strain increments up to {largest:g} > {COARSE_INCREMENT:g}: coarse kinematics "
              f"(~1 % of p0 and more){'; the ANN extrapolates beyond its training probes' if 'ann' in args.backend else ''}")
-    kt = getattr(args, "kt", ContactLaw.kt_over_kn * args.kn)
-    law = ContactLaw(kn=args.kn, kt_over_kn=kt / args.kn, phi_g_deg=args.phi)
+    law = contact_law_from_args(args)
     if args.verbose:
         print(f"programme: {loading.to_dict(programme)}\ncontact law: {asdict(law)}, radius {args.radius:g} m")
 

@@ -37,16 +37,16 @@ from homogenization.backends import BACKENDS, make_cell_model
 from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.cli import (
     UserError,
+    add_contact_law_arguments,
     alpha0_deg,
     atomic_write,
     check_output_path,
     common_parser,
-    finite_float,
-    positive_float,
+    contact_law_from_args,
     quiet_warp,
     run_main,
 )
-from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings
+from warp_hcell.parameters import CellDefaults, DatabaseSettings
 
 PATH_HEADER = ("d_eps_n", "d_eps_t")
 """Columns of the strain-path file."""
@@ -63,7 +63,6 @@ its learning database (beyond it the network extrapolates)."""
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the element-test command (defaults read from warp_hcell.parameters)."""
-    law = ContactLaw()
     parser = argparse.ArgumentParser(
         prog="python -m homogenization.cell",
         description="Drive one cell along a local strain path and write its state after every increment.",
@@ -74,10 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--alpha0", type=alpha0_deg, default=CellDefaults.alpha0_deg, help="initial opening angle [deg], in [30, 90)")
     parser.add_argument("--path", type=Path, required=True, help="CSV of local strain increments, header d_eps_n,d_eps_t, compression positive")
     parser.add_argument("--out", type=Path, required=True, help="output CSV, one row per increment")
-    parser.add_argument("--radius", type=positive_float, default=CellDefaults.radius, help="grain radius r [m]")
-    parser.add_argument("--kn", type=positive_float, default=law.kn, help="normal contact stiffness [N/m]")
-    parser.add_argument("--kt", type=positive_float, default=argparse.SUPPRESS, help=f"tangential contact stiffness [N/m] (default: kt_over_kn * kn = {law.kt_over_kn:g} kn)")
-    parser.add_argument("--phi", type=finite_float, default=law.phi_g_deg, help="inter-granular friction angle phi_g [deg], in [0, 90)")
+    add_contact_law_arguments(parser)
     parser.add_argument("--positions", action="store_true", help="also write the grain centres x_n{i}, x_t{i} [m]")
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
                         help=f"dem and ann backends (the ann model must be trained on it); default: the H-cell. {MESOSTRUCTURE_HELP}")
@@ -193,8 +189,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     check_path_for_backend(args.path, d_eps, args.backend)
     if args.backend == DEM_ONLY_BACKEND:
         quiet_warp(args.device)
-    kt = getattr(args, "kt", ContactLaw.kt_over_kn * args.kn)
-    law = ContactLaw(kn=args.kn, kt_over_kn=kt / args.kn, phi_g_deg=args.phi)
+    law = contact_law_from_args(args)
     model = make_cell_model(args.backend, contact_law=law, radius=args.radius, **_backend_options(args))
     columns, table = run_path(model, args.alpha0, d_eps, positions=args.positions)
     try:

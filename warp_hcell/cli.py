@@ -32,7 +32,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
-from warp_hcell.parameters import check_alpha0_deg
+from warp_hcell.parameters import CellDefaults, ContactLaw, check_alpha0_deg
 
 EXIT_USAGE = 2
 """Exit code for bad user input (argparse's own convention)."""
@@ -162,6 +162,24 @@ def common_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, help="seed of every random choice (runs are bit-reproducible)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output instead of refusing")
     return parser
+
+
+def add_contact_law_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add --radius, --kn, --kt, --phi (defaults from ``CellDefaults`` and ``ContactLaw``);
+    read them back with ``contact_law_from_args``. --kt defaults to kt_over_kn x --kn."""
+    law = ContactLaw()
+    parser.add_argument("--radius", type=positive_float, default=CellDefaults.radius, help="grain radius r [m]")
+    parser.add_argument("--kn", type=positive_float, default=law.kn, help="normal contact stiffness [N/m]")
+    parser.add_argument("--kt", type=positive_float, default=argparse.SUPPRESS,
+                        help=f"tangential contact stiffness [N/m] (default: {law.kt_over_kn:g} x kn)")
+    parser.add_argument("--phi", type=finite_float, default=law.phi_g_deg,
+                        help="inter-granular friction angle phi_g [deg], in [0, 90)")
+
+
+def contact_law_from_args(args: argparse.Namespace) -> ContactLaw:
+    """The ``ContactLaw`` of the flags added by ``add_contact_law_arguments``."""
+    kt = getattr(args, "kt", ContactLaw.kt_over_kn * args.kn)
+    return ContactLaw(kn=args.kn, kt_over_kn=kt / args.kn, phi_g_deg=args.phi)
 
 
 def check_output_path(path: Path, *, overwrite: bool) -> Path:
