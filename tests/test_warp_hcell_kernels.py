@@ -131,7 +131,7 @@ def test_strain_per_substep_grows_along_a_path_and_restarts_on_reversal(device):
 def test_kernel_love_weber_sum_and_area_match_the_host_formulas(device):
     """The kernel's per-cell Love-Weber sum and V_cell equal sum_p f_p (x) b_p and the shoelace
     area computed on the host from its output forces and positions."""
-    from warp_hcell.dem_cell import love_weber_tension_positive
+    from warp_hcell.learning_state import love_weber_tension_positive
     from warp_hcell.mesostructure import polygon_area
 
     rng = np.random.default_rng(11)

@@ -8,7 +8,7 @@ built from ``alpha0_deg``; with one, every cell starts from that mesostructure (
 ``alpha0`` argument is then ignored).
 
 Sign convention: compression and contraction positive. The DEM's tension-positive
-Love-Weber sum is converted in ``to_compression_positive`` only. V_cell is the area of the
+Love-Weber sum is converted in ``warp_hcell.learning_state.to_compression_positive`` only. V_cell is the area of the
 polygon through the centres of the outer (driven) grains: the hexagon for the H-cell.
 """
 
@@ -23,6 +23,7 @@ import numpy as np
 
 from warp_hcell.cell_model import CellResponse
 from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
+from warp_hcell.learning_state import to_compression_positive
 from warp_hcell.mesostructure import Mesostructure, h_cell
 from warp_hcell.model import DemModel
 from warp_hcell.parameters import ContactLaw, DemSettings, check_positive
@@ -43,24 +44,6 @@ class DemCellState:
     def n_cells(self) -> int:
         """Number of cells."""
         return self.model.n_cells
-
-
-def love_weber_tension_positive(contact_force: np.ndarray, branch: np.ndarray) -> np.ndarray:
-    """DEM Love-Weber sum, tension positive: sum_c f_c (x) l_c.
-
-    Args:
-        contact_force: force on grain i by grain j [N], shape (n_cells, n_pairs, 2).
-        branch: x_j - x_i [m], shape (n_cells, n_pairs, 2).
-
-    Returns:
-        (n_cells, 2, 2) [N m], local frame (n, t); negative for a compressed cell.
-    """
-    return np.einsum("cpa,cpb->cab", contact_force, branch)
-
-
-def to_compression_positive(moment_tension_positive: np.ndarray) -> np.ndarray:
-    """THE sign conversion of the DEM boundary: tension-positive -> compression-positive moment."""
-    return -moment_tension_positive
 
 
 class DemCell:

@@ -34,7 +34,7 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
       refined_strain_per_substep. Within an increment, once a contact opens or closes, the
       rest is driven at refined_strain_per_substep.
 The conversion to compression-positive quantities happens on the host
-(``warp_hcell.dem_cell.to_compression_positive``).
+(``warp_hcell.learning_state.to_compression_positive``).
 """
 
 from __future__ import annotations

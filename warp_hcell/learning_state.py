@@ -76,10 +76,28 @@ def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarr
     for p in range(schema.n_pairs):  # pair order fixed: the DEM's summation order
         net[:, pi[p]] += force[:, p]
         net[:, pj[p]] -= force[:, p]
-    moment = -np.einsum("cpa,cpb->cab", force, b)
+    moment = to_compression_positive(love_weber_tension_positive(force, b))
     return {"position": x, "contact": touching.astype(np.int8), "normal_force": normal, "shear_force": shear,
             "contact_force": force, "unbalanced": net[:, schema.free_dofs[:, 0], schema.free_dofs[:, 1]],
             "moment": moment, "area": polygon_area(x, schema.outer)}
+
+
+def love_weber_tension_positive(contact_force: np.ndarray, branch: np.ndarray) -> np.ndarray:
+    """DEM Love-Weber sum, tension positive: sum_c f_c (x) l_c.
+
+    Args:
+        contact_force: force on grain i by grain j [N], shape (n_cells, n_pairs, 2).
+        branch: x_j - x_i [m], shape (n_cells, n_pairs, 2).
+
+    Returns:
+        (n_cells, 2, 2) [N m], local frame (n, t); negative for a compressed cell.
+    """
+    return np.einsum("cpa,cpb->cab", contact_force, branch)
+
+
+def to_compression_positive(moment_tension_positive: np.ndarray) -> np.ndarray:
+    """THE sign conversion of the DEM boundary: tension-positive -> compression-positive moment."""
+    return -moment_tension_positive
 
 
 HCELL_OBSERVABLES = ("alpha_deg", "d1", "d2", "N1", "N2", "T1")

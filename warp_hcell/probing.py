@@ -32,7 +32,13 @@ import numpy as np
 
 from warp_hcell.cell_model import StateSchema
 from warp_hcell.exploration import DEM_PREFIX, force_floor
-from warp_hcell.learning_state import HCELL_OBSERVABLES, evaluate, free_coordinates, hcell_observables
+from warp_hcell.learning_state import (
+    HCELL_OBSERVABLES,
+    evaluate,
+    free_coordinates,
+    hcell_observables,
+    love_weber_tension_positive,
+)
 from warp_hcell.mesostructure import Mesostructure
 from warp_hcell.parameters import ContactLaw, DatabaseSettings
 
@@ -138,10 +144,11 @@ def canonical_dem_arrays(context: ProbeContext, ev: Mapping[str, np.ndarray], ce
     """DEM state arrays of evaluated learning states (``learning_state.evaluate``), canonical form."""
     n = cell_size.shape[0]
     schema = context.schema
+    branch = ev["position"][:, schema.pairs[:, 1]] - ev["position"][:, schema.pairs[:, 0]]
     return {
         "position": ev["position"], "velocity": np.zeros_like(ev["position"]), "shear_force": ev["shear_force"],
         "contact_force": ev["contact_force"], "contact": ev["contact"].astype(np.int32), "cell_size": cell_size,
-        "moment": -ev["moment"], "area": ev["area"],  # the DEM state keeps the tension-positive sum
+        "moment": love_weber_tension_positive(ev["contact_force"], branch), "area": ev["area"],
         "substeps": np.zeros(n, np.int32), "converged": np.ones(n, np.int32),
         "radius": np.broadcast_to(schema.radius, (n, schema.n_grains)),
         "reference_position": np.broadcast_to(schema.reference_position, (n, schema.n_grains, 2)),
