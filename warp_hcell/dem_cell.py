@@ -23,7 +23,7 @@ import numpy as np
 
 from warp_hcell.cell_model import CellResponse
 from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
-from warp_hcell.learning_state import to_compression_positive
+from warp_hcell.learning_state import hcell_observables, to_compression_positive
 from warp_hcell.mesostructure import Mesostructure, h_cell
 from warp_hcell.model import DemModel
 from warp_hcell.parameters import ContactLaw, DemSettings, check_positive
@@ -163,23 +163,11 @@ class DemCell:
             "S_nt": response.moment[:, 0, 1], "n_contacts": arrays["contact"].sum(axis=1),
             "substeps": arrays["substeps"].copy(), "converged": arrays["converged"] == 1,
         }
-        reference = meso.h_reference_pairs
-        if reference is not None:
-            p1, p2 = reference
-            (i1, j1), (i2, j2) = meso.pairs[p1], meso.pairs[p2]
-            b1 = x[:, j1] - x[:, i1]
-            b2 = x[:, j2] - x[:, i2]
-            d1 = np.hypot(b1[:, 0], b1[:, 1])
-            u1 = b1 / d1[:, None]
-            u2 = b2 / np.hypot(b2[:, 0], b2[:, 1])[:, None]
-            f1, f2 = arrays["contact_force"][:, p1], arrays["contact_force"][:, p2]
-            obs.update({
-                "d1": d1, "d2": np.hypot(b2[:, 0], b2[:, 1]),
-                "alpha_deg": np.degrees(np.arctan2(-b1[:, 1], -b1[:, 0])),
-                "N1": 0.0 - np.sum(f1 * u1, axis=1), "N2": 0.0 - np.sum(f2 * u2, axis=1),
-                "T1": arrays["shear_force"][:, p1].copy(),
-                "closed1": arrays["contact"][:, p1] == 1, "closed2": arrays["contact"][:, p2] == 1,
-            })
+        if meso.is_h_cell:
+            branch = x[:, meso.pairs[:, 1]] - x[:, meso.pairs[:, 0]]
+            unit = branch / np.hypot(branch[..., 0], branch[..., 1])[..., None]
+            normal = 0.0 - np.sum(arrays["contact_force"] * unit, axis=-1)
+            obs.update(hcell_observables(meso, x, normal, arrays["shear_force"], arrays["contact"]))
         for g in range(meso.n_grains):
             obs[f"x_n{g + 1}"] = x[:, g, 0].copy()
             obs[f"x_t{g + 1}"] = x[:, g, 1].copy()

@@ -105,15 +105,17 @@ HCELL_OBSERVABLES = ("alpha_deg", "d1", "d2", "N1", "N2", "T1")
 
 
 def hcell_observables(meso: Mesostructure, position: np.ndarray, normal_force: np.ndarray,
-                      shear_force: np.ndarray) -> dict[str, np.ndarray]:
+                      shear_force: np.ndarray, contact: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """alpha [deg], d1, d2 [m], N1, N2, T1 [N] at the reference contacts 1-2 and 2-3.
 
     Args:
         meso: a mesostructure with H-cell labels (``meso.is_h_cell``).
         position: (n, n_grains, 2) [m]; normal_force, shear_force: (n, n_pairs) [N].
+        contact: optional contact flags (n, n_pairs); with them also ``closed1, closed2``.
 
     Returns:
-        Each (n,); N compression positive, T1 > 0 resists opening (the DEM's spring force).
+        Each (n,); N compression positive, T1 > 0 resists opening (the DEM's spring force);
+        ``closed1, closed2`` bool.
     """
     reference = meso.h_reference_pairs
     if reference is None:
@@ -122,6 +124,9 @@ def hcell_observables(meso: Mesostructure, position: np.ndarray, normal_force: n
     (i1, j1), (i2, j2) = meso.pairs[p1], meso.pairs[p2]
     b1 = position[:, j1] - position[:, i1]
     b2 = position[:, j2] - position[:, i2]
-    return {"alpha_deg": np.degrees(np.arctan2(-b1[:, 1], -b1[:, 0])), "d1": np.hypot(b1[:, 0], b1[:, 1]),
-            "d2": np.hypot(b2[:, 0], b2[:, 1]), "N1": normal_force[:, p1].copy(), "N2": normal_force[:, p2].copy(),
-            "T1": shear_force[:, p1].copy()}
+    obs = {"alpha_deg": np.degrees(np.arctan2(-b1[:, 1], -b1[:, 0])), "d1": np.hypot(b1[:, 0], b1[:, 1]),
+           "d2": np.hypot(b2[:, 0], b2[:, 1]), "N1": normal_force[:, p1].copy(), "N2": normal_force[:, p2].copy(),
+           "T1": shear_force[:, p1].copy()}
+    if contact is not None:
+        obs.update(closed1=contact[:, p1] == 1, closed2=contact[:, p2] == 1)
+    return obs

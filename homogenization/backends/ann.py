@@ -227,7 +227,8 @@ class AnnCell(ArrayStateMixin):
         }
         meso = self.mesostructure if self.mesostructure is not None else h_cell(radius=self.radius)
         if meso.is_h_cell:
-            obs.update(hcell_observables(meso, x, c.normal_force.cpu().numpy(), state.shear_force))
+            obs.update(hcell_observables(meso, x, c.normal_force.cpu().numpy(), state.shear_force,
+                                         c.contact.cpu().numpy()))
         for g in range(x.shape[1]):
             obs[f"x_n{g + 1}"] = x[:, g, 0].copy()
             obs[f"x_t{g + 1}"] = x[:, g, 1].copy()
