@@ -21,6 +21,7 @@ from warp_hcell.dem_cell import DemCell
 from warp_hcell.learning_state import evaluate, free_coordinates
 from warp_hcell.mesostructure import describe, description_sha256, h_cell, load_mesostructure
 from warp_hcell.parameters import ContactLaw, DatabaseSettings, DemSettings
+from warp_hcell.cli import output_lock
 from dask_cluster import free_port, local_cluster
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
@@ -324,11 +325,11 @@ def test_exploration_is_checkpointed(tmp_path, monkeypatch):
 
 def test_second_run_on_the_same_output_exits_2(tmp_path, capsys):
     out = tmp_path / "db.h5"
-    with shards.lock_output(out):
+    with output_lock(out):
         assert exit_code(["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "100",
                           "--out", str(out)]) == 2
     err = error_lines(capsys)
-    assert len(err) == 1 and "another run is writing" in err[0]
+    assert len(err) == 1 and "is being written by another run" in err[0]
     assert not out.exists() and not generate.sidecar_path(out).exists()
 
 

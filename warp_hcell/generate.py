@@ -48,7 +48,15 @@ from tqdm import tqdm
 from warp_hcell import clean as cleaning
 from warp_hcell import database
 from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
-from warp_hcell.cli import UserError, check_output_path, common_parser, positive_float, positive_int, run_main
+from warp_hcell.cli import (
+    UserError,
+    check_output_path,
+    common_parser,
+    output_lock,
+    positive_float,
+    positive_int,
+    run_main,
+)
 from warp_hcell.execution import InProcess, SchedulerUnreachable, make_execution
 from warp_hcell.exploration import DEM_PREFIX
 from warp_hcell.learning_state import free_coordinates
@@ -57,7 +65,7 @@ from warp_hcell.mesostructure import (
 from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings
 from warp_hcell.probing import chunk_samples, n_chunks
 from warp_hcell.provenance import provenance
-from warp_hcell.shards import DiskFull, OutputLocked, Sidecar, lock_output, sidecar_path
+from warp_hcell.shards import DiskFull, Sidecar, sidecar_path
 from warp_hcell.tasks import ExploreInputs, Physics, ProbeInputs, explore_starts, probe_chunk
 
 __all__ = ["generate", "main", "sidecar_path", "h_cell_starts", "check_starts", "check_increments"]
@@ -215,7 +223,7 @@ def generate(
     Raises:
         ValueError: (one line) a start cell of another learning state, an increment beyond
             max_substeps, or the sidecar holds an unfinished run with other options.
-        OutputLocked: another run is writing ``out``.
+        UserError: another run is writing ``out`` (``warp_hcell.cli.output_lock``).
         DiskFull: no space left (no partial file is left in the sidecar).
     """
     starts = [meso] if starts is None else list(starts)
@@ -224,7 +232,7 @@ def generate(
     out = Path(out)
     description = run_description(meso, starts, settings, seed, contact_law, dem_settings)
     physics = Physics(contact_law, description["mesostructure"], dem_settings, str(device), int(threads))
-    with lock_output(out):
+    with output_lock(out):
         own = execution is None
         execution = make_execution(workers) if own else execution
         try:
@@ -331,7 +339,7 @@ def _run(argv: Sequence[str] | None) -> int:
             written = generate(meso, settings, args.out, seed=args.seed, starts=starts, device=args.device,
                                threads=args.threads, execution=execution, clean=args.clean,
                                max_chunks=args.max_chunks, discard_partial=args.overwrite)
-    except (SchedulerUnreachable, OutputLocked) as exc:
+    except SchedulerUnreachable as exc:
         raise UserError(str(exc)) from None
     except DiskFull as exc:
         raise UserError(f"no space left on the device writing {exc.filename}; free space and rerun the same "

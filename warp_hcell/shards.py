@@ -6,30 +6,24 @@ run, and the provenance of its start), one ``start_XXXXXX.npz`` per explored sta
 Every file is written to a temporary name, synced and renamed, so a killed run leaves either
 a complete file or none; a file that is unreadable anyway (disk trouble, a foreign file) is
 found by ``Sidecar.load`` and the work is redone. A full disk raises ``DiskFull`` after
-removing the temporary file. ``lock_output`` keeps a second run off the same output.
+removing the temporary file.
 """
 
 from __future__ import annotations
 
 import errno
-import fcntl
 import json
 import os
 import shutil
 import zipfile
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
 
 class DiskFull(OSError):
     """No space left while writing ``filename``; nothing partial was left behind."""
-
-
-class OutputLocked(RuntimeError):
-    """Another run holds the lock of the same output."""
 
 
 def save_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
@@ -61,30 +55,6 @@ def load_npz(path: Path) -> dict[str, np.ndarray]:
 def sidecar_path(out: Path) -> Path:
     """Folder holding the completed work of an unfinished run writing ``out``."""
     return out.with_name(out.name + ".parts")
-
-
-@contextmanager
-def lock_output(out: Path) -> Iterator[None]:
-    """Hold an exclusive lock on ``<out>.lock`` while the block runs.
-
-    Raises:
-        OutputLocked: another process holds it.
-    """
-    out.parent.mkdir(parents=True, exist_ok=True)
-    lock = out.with_name(out.name + ".lock")
-    handle = open(lock, "a+")
-    try:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise OutputLocked(f"another run is writing {out} (lock {lock})") from None
-        try:
-            yield
-        finally:
-            lock.unlink(missing_ok=True)
-            fcntl.flock(handle, fcntl.LOCK_UN)
-    finally:
-        handle.close()
 
 
 class Sidecar:
