@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +26,7 @@ import torch
 
 from training.dataset import SCHEMA_FIELDS, schema_from_arrays
 from training.network import ACTIVATION, MesoNet
+from warp_hcell.cli import atomic_write
 
 FORMAT = "meso-hmodel-ann"
 """Value of the metadata key ``format``."""
@@ -42,19 +41,6 @@ class CheckpointError(ValueError):
 def metadata_path(path: str | Path) -> Path:
     """JSON metadata file that goes with the state_dict file ``path`` (same stem, ``.json``)."""
     return Path(path).with_suffix(".json")
-
-
-def _replace_atomically(path: Path, write) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(Path(tmp))
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600 files; a model is meant to be shared
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def save_checkpoint(path: str | Path, net: MesoNet, metadata: dict[str, Any]) -> tuple[Path, Path]:
@@ -77,9 +63,11 @@ def save_checkpoint(path: str | Path, net: MesoNet, metadata: dict[str, Any]) ->
         **metadata,
     }
     state = {key: value.detach().clone() for key, value in net.state_dict().items()}
-    _replace_atomically(path, lambda tmp: torch.save(state, tmp))
+    with atomic_write(path) as tmp:
+        torch.save(state, tmp)
     json_path = metadata_path(path)
-    _replace_atomically(json_path, lambda tmp: tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n"))
+    with atomic_write(json_path) as tmp:
+        tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     return path, json_path
 
 
