@@ -27,7 +27,7 @@ from warp_hcell.learning_state import hcell_observables, to_compression_positive
 from warp_hcell.mesostructure import Mesostructure, h_cell
 from warp_hcell.model import DemModel
 from warp_hcell.parameters import ContactLaw, DemSettings, check_positive
-from warp_hcell.state import DemState
+from warp_hcell.state import DemState, StatePool
 from warp_hcell.tangent import condensed_tangent, sliding_contacts
 
 _MODEL_ARRAYS = ("radius", "reference_position", "reference_cell_size")
@@ -77,6 +77,7 @@ class DemCell:
         self.engine = engine
         self._pool = ThreadPoolExecutor(self.threads) if engine == "warp" and self.threads > 1 else None
         self._last_integrator: DemIntegrator | NumpyIntegrator | None = None
+        self._outputs: StatePool | None = None
 
     # -- construction ---------------------------------------------------------------------
     def _model(self, alpha0_deg: float | np.ndarray, n_cells: int) -> DemModel:
@@ -86,11 +87,13 @@ class DemCell:
         return DemModel.build(self.mesostructure, n_cells, **options)
 
     def _integrator(self, model: DemModel) -> DemIntegrator | NumpyIntegrator:
-        """The integrator of ``model`` (the last one is kept: trial steps reuse it)."""
+        """The integrator of ``model`` (the last one is kept with its pool of output states:
+        trial steps and the following increments reuse them)."""
         integrator = self._last_integrator
         if integrator is None or integrator.model is not model:
             integrator = (DemIntegrator(model, threads=self.threads, pool=self._pool) if self.engine == "warp"
                           else NumpyIntegrator(model))
+            self._outputs = StatePool(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)
             self._last_integrator = integrator
         return integrator
 
@@ -110,8 +113,9 @@ class DemCell:
         equilibrium reached (``warp_hcell.tangent.condensed_tangent``).
         """
         model = state.model
-        out = DemState.empty(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)
-        self._integrator(model).step(state.dem, out, d_eps_local)
+        integrator = self._integrator(model)
+        out = self._outputs.acquire()
+        integrator.step(state.dem, out, d_eps_local)
         new = DemCellState(model, out)
         response = self.response(new)
         if with_tangent:
