@@ -39,11 +39,11 @@ MIN_CELLS_PER_CHUNK = 1024
 """Cells per chunk beyond one chunk per thread: more chunks than threads only where every chunk
 keeps this many cells (each extra chunk costs a hand-off, ~15-30 us, for balancing cells of
 very different substep counts)."""
-MIN_CELLS_TO_SPLIT = 256
+MIN_CELLS_TO_SPLIT = 1024
 """Smallest batch [cells] split into one chunk per thread; smaller batches run in one launch on
-the calling thread. Measured (docs/dem_stepping.md): the split costs ~30-45 us per call when
-the second core is busy and saves up to half the kernel time when it is free; at 256 cells
-and 15-40 substeps per cell the kernel takes 200-600 us."""
+the calling thread. Measured (docs/dem_stepping.md): handing a chunk to a second thread costs
+~100 us per call (thread wake-up and GIL hand-overs), and saves at most half the kernel time
+when the second core is free; the kernel of 360 cells at 5-15 substeps takes 100-300 us."""
 
 
 def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:
