@@ -1,9 +1,11 @@
-"""DemState: numpy round trip with dtype casting, empty allocation."""
+"""DemState: numpy round trip with dtype casting, empty allocation, the pool of step outputs."""
 
 import numpy as np
 
+from warp_hcell.dem_cell import DemCell
 from warp_hcell.model import DemModel
-from warp_hcell.state import DemState
+from warp_hcell.parameters import ContactLaw
+from warp_hcell.state import DemState, StatePool
 
 
 def test_numpy_round_trip_casts_to_the_field_types(device):
@@ -42,3 +44,30 @@ def test_empty_fields_do_not_overlap_and_outlive_the_state(device):
         del state, arrays
         DemState.empty(7, 6, 15, device).moment.fill_(0.0)
         assert np.all(view == 7)
+
+
+def test_pool_reuses_only_states_nobody_refers_to():
+    pool = StatePool(4, 6, 15, "cpu", capacity=2)
+    first = pool.acquire()
+    assert pool.acquire() is not first  # still held here
+    first_id = id(first)
+    del first
+    again = pool.acquire()
+    assert id(again) == first_id  # dropped: reused
+    view = again.position.numpy()  # a numpy view of a field keeps the state out of reuse
+    del again
+    assert id(pool.acquire()) != first_id
+    del view
+    assert id(pool.acquire()) == first_id
+
+
+def test_dem_steps_never_overwrite_a_state_the_caller_keeps():
+    cell = DemCell(ContactLaw(), 0.5, threads=1)
+    state = cell.init_state(55.0, 3)
+    d_eps = np.full((3, 2), 1e-4)
+    kept = []
+    for _ in range(12):  # more steps than the pool keeps states
+        state, _ = cell.step(state, d_eps)
+        kept.append((state, state.dem.position.numpy().copy()))
+    for held, position in kept:
+        np.testing.assert_array_equal(held.dem.position.numpy(), position)
