@@ -18,6 +18,7 @@ and contraction positive; stresses [N/m], strains [-], macro shear strain always
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -30,6 +31,12 @@ from homogenization.loading import Programme, Step, validate
 from homogenization.material import HomogenisedMaterial, MaterialUpdate
 from warp_hcell.cell_model import CellModel
 from warp_hcell.parameters import CellDefaults, LoadingDefaults
+
+JUMP_WIDTH = 1e-6
+"""Bracket width, as a fraction of the increment, below which stress control takes the
+response for discontinuous at the target (``_Runner.solve_stress``) [-]: the residual still
+above the tolerance there means a slope ~1e6 times the material's own (about 20 bisections)."""
+
 
 class ControlError(RuntimeError):
     """A stress-controlled increment did not converge (e.g. the material cannot carry the target)."""
@@ -137,7 +144,10 @@ class _Runner:
             self.call_totals[name] = self.call_totals.get(name, 0.0) + float(value)
         return update
 
-    def accept(self, update: MaterialUpdate, d_eps: np.ndarray, iterations: int, stage: int) -> None:
+    def accept(self, update: MaterialUpdate, d_eps: np.ndarray, iterations: int, stage: int,
+               jump: bool | None = None) -> None:
+        """Record the trial ``update`` as the next increment; ``jump``: whether stress control
+        took the nearer side of a response jump (None where no stress was controlled)."""
         k = self.k
         self.point = update.state
         self.eps += d_eps[:2]
@@ -150,7 +160,8 @@ class _Runner:
         self.iterations[k] = iterations
         self.stage_index[k] = stage
         totals = {f"{name}_all_calls": value for name, value in self.call_totals.items()}
-        for name, value in (*update.diagnostics.items(), *totals.items()):
+        control = {} if jump is None else {"stress_control_jump": float(jump)}
+        for name, value in (*update.diagnostics.items(), *totals.items(), *control.items()):
             if name not in self.diagnostics:
                 self.diagnostics[name] = np.full(self.rows.shape[0], np.nan)
             self.diagnostics[name][k] = value
@@ -180,32 +191,63 @@ class _Runner:
         return d_eps
 
     def solve_stress(self, d_eps: np.ndarray, idx: np.ndarray, target: np.ndarray,
-                     where: str) -> tuple[MaterialUpdate, np.ndarray, int]:
+                     where: str) -> tuple[MaterialUpdate, np.ndarray, int, bool]:
         """Find the strain increments of components ``idx`` giving sigma[idx] = ``target``.
 
-        Newton with the material's consistent tangent. ``d_eps`` holds the strain-controlled
-        increments and the initial guess of the others. Returns the accepted trial, the solved
-        increment and the ``step`` calls spent.
+        Newton with the material's consistent tangent. With one controlled component the
+        Newton step is safeguarded: once two trials bracket the target (residuals of opposite
+        sign), a step that leaves the bracket, or follows a trial that did not halve the
+        residual, is replaced by the bracket's midpoint. Where the response jumps across the
+        target (a DEM cell that switches between two equilibria, e.g. a grain caught or not,
+        within a strain change of ``JUMP_WIDTH`` times the increment), no increment meets
+        the tolerance: the bracket end nearer the target is accepted and the increment is
+        flagged. ``d_eps`` holds the strain-controlled increments and the initial guess of the
+        others. Returns the accepted trial, the solved increment, the ``step`` calls spent and
+        the jump flag.
         """
         d_eps = d_eps.copy()
         scale = np.abs(target)
         tol = self.rtol * np.where(scale > 0.0, scale, self.sigma_peak)
+        size = float(np.abs(d_eps[:2]).max())
+        below = above = None  # (strain, residual, trial, increment) of the last trials under / over the target
+        last = np.inf
         calls = 0
         while True:
             update = self.trial(d_eps, with_tangent=True)
             calls += 1
             r = update.stress[0, idx] - target
             if np.all(np.abs(r) <= tol):
-                return update, d_eps, calls
+                return update, d_eps, calls, False
+            K = update.tangent[0][np.ix_(idx, idx)]
+            try:
+                step = np.linalg.solve(K, r)
+            except np.linalg.LinAlgError:
+                step = None
+            if idx.size == 1:
+                x, res = float(d_eps[idx[0]]), float(r[0])
+                if res < 0.0:
+                    below = (x, res, update, d_eps.copy())
+                else:
+                    above = (x, res, update, d_eps.copy())
+                newton = None if step is None or not np.isfinite(step[0]) else x - float(step[0])
+                if below is not None and above is not None:
+                    lo, hi = sorted((below[0], above[0]))
+                    if hi - lo <= JUMP_WIDTH * max(size, abs(lo), abs(hi)):
+                        nearer = min(below, above, key=lambda end: abs(end[1]))
+                        return nearer[2], nearer[3], calls, True
+                    if newton is None or not lo < newton < hi or abs(res) > 0.5 * last:
+                        newton = 0.5 * (lo + hi)
+                last = abs(res)
             if calls >= self.max_iterations:
                 raise ControlError(f"{where}: stress control did not converge in {calls} step calls "
                                    f"(residual {float(np.abs(r).max()):.3g} N/m, tolerance {float(tol.min()):.3g} N/m)")
-            K = update.tangent[0][np.ix_(idx, idx)]
-            try:
-                d_eps[idx] = d_eps[idx] - np.linalg.solve(K, r)
-            except np.linalg.LinAlgError:
+            if idx.size == 1 and newton is not None:
+                d_eps[idx[0]] = newton
+            elif step is None:
                 raise ControlError(f"{where}: the material has no stiffness against the controlled stress "
-                                   f"(singular tangent)") from None
+                                   f"(singular tangent)")
+            else:
+                d_eps[idx] = d_eps[idx] - step
 
     def land_on_p(self, d_eps: np.ndarray, p_stop: float, p_over: float, where: str):
         """Scale the increment ``d_eps`` by lambda in (0, 1] so that p = ``p_stop`` (Illinois)."""
@@ -251,11 +293,11 @@ class _Runner:
                 target = sigma_start[idx] + (target_end[idx] - sigma_start[idx]) * ((i + 1) / n)
                 where = f"step {step.label!r}, increment {i + 1}"
                 d_eps = self.predict(d_eps, idx, target, tangent)
-                update, d_eps, calls = self.solve_stress(d_eps, idx, target, where)
+                update, d_eps, calls, jump = self.solve_stress(d_eps, idx, target, where)
                 tangent = update.tangent[0]
             else:
                 update = self.trial(d_eps)
-                calls = 1
+                calls, jump = 1, None
                 if step.stop_at_p is not None:
                     sigma = update.stress[0]
                     p_new = 0.5 * (sigma[0] + sigma[1])
@@ -269,7 +311,7 @@ class _Runner:
                         self.accept(update, d, calls, stage)
                         bar.update(1)
                         return
-            self.accept(update, d_eps, calls, stage)
+            self.accept(update, d_eps, calls, stage, jump)
             bar.update(1)
             if snapshot_interval and self.k % snapshot_interval == 0:
                 self.snapshot(stage)
@@ -333,6 +375,11 @@ def run(
         step_seconds[stage] = time.perf_counter() - start
 
     k = runner.k
+    jumps = int(np.nansum(runner.diagnostics.get("stress_control_jump", np.zeros(0))[:k]))
+    if jumps:
+        warnings.warn(f"stress control met a jump of the response across its target at {jumps} increment(s): the "
+                      f"side nearer the target was accepted (diagnostics 'stress_control_jump')", RuntimeWarning,
+                      stacklevel=2)
     rows = runner.rows[:k]
     sigma11, sigma22 = rows[:, 2].copy(), rows[:, 3].copy()
     snap_names = runner.snaps[0].keys() if runner.snaps else ()
