@@ -190,9 +190,9 @@ def test_fine_grain_file_runs_and_reports_every_grain(device):
 
 
 def test_unconverged_cells_are_counted_and_warned():
-    cell = DemCell(LAW, 0.5, settings=DemSettings(max_substeps=45))
+    cell = DemCell(LAW, 0.5, settings=DemSettings(max_substeps=5))
     state = cell.init_state(55.0, 2)
-    with pytest.warns(RuntimeWarning, match="2 of 2 cells did not reach equilibrium within max_substeps = 45"):
+    with pytest.warns(RuntimeWarning, match="2 of 2 cells did not reach equilibrium within max_substeps = 5"):
         new, response = cell.step(state, np.full((2, 2), 1e-5))
     assert response.diagnostics["n_unconverged"] == 2
     assert not cell.observables(new)["converged"].any()

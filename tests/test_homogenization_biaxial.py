@@ -14,6 +14,7 @@ import pytest
 from homogenization import biaxial, io
 from homogenization.backends import BACKENDS
 from warp_hcell.cli import cuda_device_count, run_main
+from warp_hcell.parameters import LoadingDefaults
 
 TINY = ["--alpha0", "55", "--p0", "5.85e6", "--eps-max", "0.05", "--increment", "5e-4", "--iso-increment", "1e-4",
         "--orientations", "24"]
@@ -41,7 +42,7 @@ def test_constant_volume_run_ends_on_the_reference_curve(tmp_path, capsys):
     assert float(row["q"]) / P0 == pytest.approx(0.573, abs=0.005)
     stored = io.read_run(out / "run.h5")
     assert stored.attrs["parameters"]["alpha0_deg"] == 55.0 and stored.attrs["parameters"]["n_orientations"] == 24
-    assert stored.record.p[stored.record.stage == "iso"][-1] == pytest.approx(P0, rel=1e-6)
+    assert stored.record.p[stored.record.stage == "iso"][-1] == pytest.approx(P0, rel=LoadingDefaults.stress_rtol)
     assert (out / "cambridge.png").read_bytes()[:4] == b"\x89PNG"
 
 
@@ -50,7 +51,8 @@ def test_drained_run_holds_sigma22(tmp_path):
     assert cli(TINY + ["--drained", "--deviator", "t", "--fourth-panel", "W2", "--out", str(out)]) == 0
     stored = io.read_run(out / "run.h5").record
     shear = stored.stage == "shear"
-    assert np.abs(stored.sigma22[shear] / P0 - 1.0).max() <= 1e-6
+    # the isotropic stage lands p within the tolerance, shear moves sigma22 from there to P0
+    assert np.abs(stored.sigma22[shear] / P0 - 1.0).max() <= 2.0 * LoadingDefaults.stress_rtol
     assert stored.sigma11[shear][-1] > 1.5 * P0
 
 

@@ -13,6 +13,7 @@ from dem_database import build
 from training import cell_physics
 from training.dataset import DataError, active_pairs, load_database, split_by_path
 from warp_hcell import generate
+from warp_hcell.parameters import DemSettings
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +50,7 @@ def test_contact_law_reproduces_the_dem_forces_and_equilibrium(db_file):
     force = cell_physics.pair_forces(c, torch.tensor(after["shear_force"]))
     residual = np.abs(cell_physics.unbalanced(db.schema, force, 6).numpy()).max(axis=1)
     scale = np.maximum(after["normal_force"].max(axis=1), 2e8 * 1e-9)
-    assert np.all(residual <= 1.1e-6 * scale)  # the DEM's quasi-static tolerance
+    assert np.all(residual <= 1.1 * DemSettings().force_tolerance * scale)  # the DEM's quasi-static tolerance
 
 
 def test_advance_with_the_dem_displacement_reproduces_the_dem_increment(db_file):

@@ -9,7 +9,7 @@ from warp_hcell.builders import resolve_mesostructure
 from warp_hcell.dem_cell import DemCell
 from warp_hcell.erosion import erodible_grains, erode_arrays, erode_state, remove_grains
 from warp_hcell.mesostructure import MesostructureError, h_cell
-from warp_hcell.parameters import ContactLaw
+from warp_hcell.parameters import ContactLaw, DemSettings
 
 LAW = ContactLaw()
 
@@ -52,7 +52,9 @@ def test_erode_arrays_maps_grain_and_pair_axes():
 
 
 def test_removing_an_untouched_fine_grain_gives_the_plain_cell_back():
-    """A fine grain that never touched leaves the skeleton as the plain cell has it, step after step."""
+    """A fine grain that never touched leaves the skeleton as the plain cell has it, step after step
+    (to where relaxation stops: the light fine grain sets a smaller time step, so the two cells stop
+    relaxing at different unbalanced forces below the force tolerance)."""
     d_eps = np.array([[2e-3, -2e-3], [-2e-3, 2e-3], [1e-3, 1e-3]])
     fines = DemCell(LAW, 0.5, mesostructure=resolve_mesostructure("hcell-fines:alpha0=50,ratio=0.3"), threads=1)
     plain = DemCell(LAW, 0.5, mesostructure=h_cell(50.0), threads=1)
@@ -67,7 +69,7 @@ def test_removing_an_untouched_fine_grain_gives_the_plain_cell_back():
         s_p, r_p = plain.step(s_p, d_eps)
     scale = np.abs(r_p.moment).max()
     assert scale > 0.0
-    np.testing.assert_allclose(r_r.moment, r_p.moment, rtol=0, atol=1e-6 * scale)
+    np.testing.assert_allclose(r_r.moment, r_p.moment, rtol=0, atol=DemSettings().force_tolerance * scale)
 
 
 def test_removing_a_loaded_fine_grain_unloads_the_cell_to_the_plain_cell():

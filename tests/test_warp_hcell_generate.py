@@ -174,10 +174,11 @@ def test_equilibrium_perturbed_mechanism_samples_are_kept_and_marked(h_db):
     fmax = data["before/normal_force"].max(axis=1)
     unbalanced = np.abs(data["before/unbalanced"]).max(axis=1)
     loaded = fmax > 1.0
-    assert np.all(unbalanced[~perturbed & loaded] <= 1.01e-6 * fmax[~perturbed & loaded])  # relaxed states
+    tol = 1.01 * DemSettings().force_tolerance
+    assert np.all(unbalanced[~perturbed & loaded] <= tol * fmax[~perturbed & loaded])  # relaxed states
     assert np.median(unbalanced[perturbed & loaded] / fmax[perturbed & loaded]) > 1e-4  # unbalanced states
     assert np.all(np.abs(data["after/unbalanced"]).max(axis=1)[data["converged"]]
-                  <= 1.01e-6 * np.maximum(data["after/normal_force"].max(axis=1), 0.2)[data["converged"]])
+                  <= tol * np.maximum(data["after/normal_force"].max(axis=1), 0.2)[data["converged"]])
     zero = np.all(data["d_eps"] == 0.0, axis=1)
     assert zero.any() and not np.any(zero & ~perturbed) and attrs["n_zero_probes"] == zero.sum()
     assert 0.2 * n < perturbed.sum() < 0.3 * n and attrs["n_perturbed"] == perturbed.sum()
