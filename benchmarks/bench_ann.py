@@ -31,7 +31,7 @@ import torch
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.orientation import localise, orientations
-from warp_hcell.mesostructure import load_mesostructure
+from warp_hcell.mesostructure import h_cell, load_mesostructure
 from warp_hcell.parameters import CellDefaults
 
 
@@ -77,7 +77,7 @@ def time_increments(args) -> None:
     d_eps = localise(orient, np.array([1e-5, -1e-5, 0.0]))
     states = {}
     for name, model in models.items():
-        state = model.init_state(55.0, args.cells)
+        state = model.init_state(h_cell(55.0), args.cells)
         for _ in range(100):
             state, _ = model.step(state, iso)
         states[name] = state
@@ -124,18 +124,18 @@ def compare(case: dict, model, mesostructure, n_cells: int) -> dict:
     stage (ANN interpolated at the reference's eps1), the run times and the ANN's summed
     diagnostics (contact-law branch counts), or the error that stopped a run.
     """
-    meso = load_mesostructure(mesostructure) if mesostructure else None
-    reference = ("dem", {"mesostructure": meso}) if meso is not None else ("analytical", {})
+    meso = load_mesostructure(mesostructure) if mesostructure else h_cell(case["alpha0"])
+    reference = ("dem", {}) if mesostructure else ("analytical", {})
     programme = loading.biaxial(case["p0"], case["eps_max"], case["increment"], iso_increment=case["increment"],
                                 drained=case["drained"])
     out: dict = {"case": {**case, "mesostructure": str(mesostructure) if mesostructure else "h-cell (builder)",
                           "reference": reference[0], "n_cells": n_cells}}
     records = {}
-    for name, options in (reference, ("ann", {"model": model, "threads": 1, "mesostructure": meso})):
+    for name, options in (reference, ("ann", {"model": model, "threads": 1})):
         options = {k: v for k, v in options.items() if v is not None}
         start = time.perf_counter()
         try:
-            records[name] = driver.run(make_cell_model(name, **options), programme, alpha0_deg=case["alpha0"],
+            records[name] = driver.run(make_cell_model(name, **options), programme, mesostructure=meso,
                                        n_orientations=n_cells, progress=False)
         except driver.ControlError as exc:
             return {**out, "error": f"{name}: {exc}"}

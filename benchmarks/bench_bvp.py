@@ -20,6 +20,7 @@ from homogenization import fe, orientation
 from homogenization.backends import make_cell_model
 from homogenization.bvp import element_counts
 from homogenization.material import HomogenisedMaterial
+from warp_hcell.mesostructure import h_cell
 
 P0 = 5.85e6
 ALPHA0 = 40.0
@@ -28,8 +29,8 @@ ALPHA0 = 40.0
 def run_mesh(nx: int, ny: int, n_orientations: int, eps_max: float) -> tuple[float, int, int, int]:
     """Wall time [s], material updates, points and cells of one homogeneous run."""
     specimen = fe.BiaxialSpecimen(nx, ny)
-    material = HomogenisedMaterial(make_cell_model("analytical"), orientation.orientations(n_orientations), ALPHA0,
-                                   specimen.n_points)
+    material = HomogenisedMaterial(make_cell_model("analytical"), orientation.orientations(n_orientations),
+                                   h_cell(ALPHA0), specimen.n_points)
     n_shear = round(eps_max / 1e-3)
     steps = fe.isotropic_stage(P0, 20) + fe.shear_stage(P0, n_shear * 1e-3, n_shear)
     start = time.perf_counter()
@@ -40,8 +41,8 @@ def run_mesh(nx: int, ny: int, n_orientations: int, eps_max: float) -> tuple[flo
 
 def tangent_overhead(n_points: int, n_orientations: int, repeat: int = 5) -> tuple[float, float]:
     """Seconds per material update of ``n_points`` sheared points without and with the tangent."""
-    material = HomogenisedMaterial(make_cell_model("analytical"), orientation.orientations(n_orientations), ALPHA0,
-                                   n_points)
+    material = HomogenisedMaterial(make_cell_model("analytical"), orientation.orientations(n_orientations),
+                                   h_cell(ALPHA0), n_points)
     state = material.init_state()
     for _ in range(10):
         state = material.update(state, np.tile([2e-3, 2e-3, 0.0], (n_points, 1)), with_tangent=False).state

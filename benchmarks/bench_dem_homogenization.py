@@ -38,6 +38,7 @@ import numpy as np
 
 from homogenization import driver, loading, orientation, plotting
 from homogenization.backends import make_cell_model
+from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import DemSettings
 from warp_hcell.provenance import git_revision
 
@@ -66,7 +67,7 @@ def driving_substeps(n_orientations: int, increment: float, settings: DemSetting
 def timed_run(model, programme, alpha0_deg: float, n_orientations: int) -> tuple[driver.Record, float, float]:
     """The record, its wall time [s] and the CPU time of this process (all threads) [s]."""
     start, cpu = time.perf_counter(), time.process_time()
-    record = driver.run(model, programme, alpha0_deg=alpha0_deg, n_orientations=n_orientations, progress=False)
+    record = driver.run(model, programme, mesostructure=h_cell(alpha0_deg), n_orientations=n_orientations, progress=False)
     return record, time.perf_counter() - start, time.process_time() - cpu
 
 

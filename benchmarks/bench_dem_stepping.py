@@ -40,6 +40,7 @@ import numpy as np
 
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
+from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import ContactLaw, DemSettings
 from warp_hcell.provenance import git_revision
 
@@ -84,14 +85,14 @@ def timed(model, prog, n_orientations: int) -> tuple[driver.Record, float]:
 def timed_cpu(model, prog, n_orientations: int) -> tuple[driver.Record, float, float]:
     """The record, its wall time [s] and the CPU time of this process [s] (steadier under load)."""
     start, cpu = time.perf_counter(), time.process_time()
-    record = driver.run(model, prog, alpha0_deg=ALPHA0_DEG, n_orientations=n_orientations, progress=False)
+    record = driver.run(model, prog, mesostructure=h_cell(ALPHA0_DEG), n_orientations=n_orientations, progress=False)
     return record, time.perf_counter() - start, time.process_time() - cpu
 
 
 def dem_model(settings: DemSettings, threads: int):
     """A DEM backend whose kernel is compiled and loaded (not timed)."""
     model = make_cell_model("dem", settings=settings, threads=threads)
-    state = model.init_state(ALPHA0_DEG, 2)
+    state = model.init_state(h_cell(ALPHA0_DEG), 2)
     model.step(state, np.full((2, 2), 1e-5))
     return model
 
@@ -115,7 +116,7 @@ def yade_errors(settings: DemSettings) -> dict[str, float]:
         path = np.loadtxt(YADE_DIR / f"{name}.path.csv", delimiter=",", skiprows=1, ndmin=2)
         yade = np.genfromtxt(YADE_DIR / f"{name}.yade.csv", delimiter=",", names=True)
         alpha0 = json.loads((YADE_DIR / f"{name}.json").read_text())["alpha0_deg"]
-        state = model.init_state(alpha0, 1)
+        state = model.init_state(h_cell(alpha0), 1)
         worst = 0.0
         for row, d_eps in enumerate(path):
             state, _ = model.step(state, d_eps[None, :])
@@ -254,7 +255,7 @@ def main() -> None:
                         runs += 1
                         prog = loading.biaxial(p0, 0.1, increment, iso_increment=args.iso_increment, drained=True)
                         try:
-                            driver.run(model, prog, alpha0_deg=alpha0, n_orientations=args.orientations, progress=False,
+                            driver.run(model, prog, mesostructure=h_cell(alpha0), n_orientations=args.orientations, progress=False,
                                        **rtol)
                         except driver.ControlError as error:
                             failures.append(f"alpha0 {alpha0:g}, p0 {p0:g}, increment {increment:g}: {error}")

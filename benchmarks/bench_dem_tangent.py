@@ -30,6 +30,7 @@ from tangent_fd import fd_tangent, fd_tangent_fixed_schedule  # noqa: E402
 from homogenization import driver, loading  # noqa: E402
 from homogenization.backends import make_cell_model  # noqa: E402
 from warp_hcell.dem_cell import DemCell  # noqa: E402
+from warp_hcell.mesostructure import h_cell  # noqa: E402
 from warp_hcell.parameters import ContactLaw, DemSettings  # noqa: E402
 from warp_hcell.tangent import sliding_contacts  # noqa: E402
 
@@ -49,7 +50,7 @@ def tangent_probe(rate: float) -> None:
     alpha0 = np.repeat([35.0, 40.0, 55.0, 70.0], 3)
     n = alpha0.size
     c2 = np.cos(2 * np.linspace(0, np.pi / 2, n))
-    state = dem.init_state(alpha0, n)
+    state = dem.init_state([h_cell(a, RADIUS) for a in alpha0], n)
     state, _ = dem.step(state, np.full((n, 2), 1e-3))
     shear = np.stack([1e-3 * c2, -1e-3 * c2], axis=1)
     for _ in range(3):
@@ -101,7 +102,7 @@ def newton_contraction(orientations: int) -> None:
 
         driver._Runner.solve_stress = recording
         try:
-            record = driver.run(make_cell_model(name.split(",")[0], **options), programme, alpha0_deg=40.0,
+            record = driver.run(make_cell_model(name.split(",")[0], **options), programme, mesostructure=h_cell(40.0),
                                 n_orientations=orientations, progress=False)
         finally:
             driver._Runner.solve_stress = solve

@@ -16,6 +16,7 @@ import time
 
 from homogenization import driver, loading, orientation
 from homogenization.backends import BACKENDS, make_cell_model
+from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import CellDefaults, LoadingDefaults
 
 
@@ -28,7 +29,7 @@ class NullCell:
         self.response_ = model.response(state)
         self.arrays = model.state_to_arrays(state)
 
-    def init_state(self, alpha0_deg, n_cells):
+    def init_state(self, mesostructure, n_cells):
         return None
 
     def step(self, state, d_eps_local):
@@ -70,7 +71,7 @@ def main() -> None:
     iso = (loading.isotropic(args.p0),)
     programme = loading.biaxial(args.p0, args.eps_max, args.increment)
     n_shear = programme[1].n_increments
-    kw = dict(alpha0_deg=args.alpha0, n_orientations=args.orientations, progress=False)
+    kw = dict(mesostructure=h_cell(args.alpha0), n_orientations=args.orientations, progress=False)
 
     iso_record = driver.run(model, iso, **kw)
     # the bare backend: the same shear step calls from the post-isotropic state, no driver

@@ -11,17 +11,21 @@ runs any loading programme instead (JSON or TOML, docs/programmes.md).
 the same programme. One backend writes DIR/run.h5 and DIR/curve.csv; several write
 DIR/<backend>/run.h5 and DIR/<backend>/curve.csv. Either way DIR/cambridge.png overlays
 all backends in the 2x2 figure (q-eps1, q-p, p-eps1 or eps_v-eps1, q/p-eps1).
-Backend-specific options go to their backend only: --mesostructure and --threads to dem
-and ann, --model to ann, --device to dem and ann. --mesostructure takes a file or a builder spec
-(``warp_hcell.builders``, e.g. ``hcell-fines:ratio=0.76``), built at --alpha0 unless the
-spec gives its own alpha0.
+Every backend's cells start from one mesostructure: the H-cell of --alpha0 and --radius
+(``warp_hcell.mesostructure.h_cell``), or --mesostructure, a file or a builder spec
+(``warp_hcell.builders``, e.g. ``hcell-fines:ratio=0.76``) built at --alpha0 unless the spec
+gives its own alpha0. A backend that does not model it (the analytical backend models the
+plain H-cell only; an ANN model the mesostructure it was trained on) stops the command before
+any run. Backend-specific options go to their backend only: --threads to dem and ann, --model
+to ann, --device to dem and ann.
 
 The output folder DIR is written as a unit: everything goes to a hidden sibling folder
 that replaces DIR only when the run has finished (--overwrite), so an interrupted run
 leaves the previous output as it was. A second run on the same DIR exits at once.
 
 Sign convention: compression and contraction positive; stresses in N/m (2D). Bad input
-(unknown backend, alpha0 outside [30, 90) deg, p0 <= 0, an increment larger than
+(unknown backend, alpha0 outside [30, 90) deg, a mesostructure a backend does not model,
+p0 <= 0, an increment larger than
 --eps-max, a malformed programme, a CUDA device the machine lacks, unwritable --out,
 existing output without --overwrite, DIR busy) is one line on stderr and exit code 2.
 Increments coarser than the learning database's largest probe (1e-3) are run with a
@@ -40,7 +44,7 @@ from typing import Any, Sequence
 
 from homogenization import driver, io, loading, plotting
 from homogenization.backends import BACKENDS, backend_class, make_cell_model
-from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
+from warp_hcell.builders import MESOSTRUCTURE_HELP, h_cell_alpha0, mesostructure_arg
 from warp_hcell.cli import (
     UserError,
     add_contact_law_arguments,
@@ -56,11 +60,12 @@ from warp_hcell.cli import (
     quiet_warp,
     run_main,
 )
+from warp_hcell.mesostructure import Mesostructure, h_cell
 from warp_hcell.parameters import CellDefaults, DatabaseSettings, LoadingDefaults
 from warp_hcell.provenance import command_line, file_sha256
 
 FIGURE_FILE = "cambridge.png"
-BACKEND_ONLY_OPTIONS = {"mesostructure": ("dem", "ann"), "threads": ("dem", "ann"), "model": ("ann",)}
+BACKEND_ONLY_OPTIONS = {"threads": ("dem", "ann"), "model": ("ann",)}
 """Backend-specific flags (argparse dest) -> the backends that take them."""
 DEVICE_BACKENDS = ("dem", "ann")
 """Backends that take --device; the analytical cell runs on the cpu."""
@@ -131,7 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="fourth panel of the figure: stress ratio or second-order work W2")
     parser.add_argument("--out", type=Path, required=True, help="output folder (replaced as a unit)")
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
-                        help=f"dem and ann (the model must be trained on it); None: the H-cell. {MESOSTRUCTURE_HELP}")
+                        help=f"the cell of every backend (analytical: the plain H-cell only; ann: the model's "
+                             f"mesostructure); None: the H-cell of --alpha0 and --radius. {MESOSTRUCTURE_HELP}")
     parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM or of torch inference (dem and ann; None: the backend's own default)")
     parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
     verbosity = parser.add_mutually_exclusive_group()
@@ -149,9 +155,33 @@ def backend_options(args: argparse.Namespace, name: str) -> dict[str, Any]:
         value = getattr(args, dest)
         if value is not None and name in takers:
             options[dest] = value
-    if "mesostructure" in options:
-        options["mesostructure"] = options["mesostructure"].build(args.alpha0)
     return options
+
+
+def run_mesostructure(args: argparse.Namespace) -> Mesostructure:
+    """The cell of the run: --mesostructure built at --alpha0, else the H-cell of --alpha0 and --radius.
+
+    Raises:
+        warp_hcell.mesostructure.MesostructureError: a file or spec that does not build (one line).
+    """
+    if args.mesostructure is not None:
+        return args.mesostructure.build(args.alpha0)
+    return h_cell(args.alpha0, args.radius)
+
+
+def check_models_take(models: dict[str, Any], meso: Mesostructure) -> None:
+    """UserError (one line) unless every backend builds a cell of ``meso`` (checked before any run)."""
+    for name, model in models.items():
+        try:
+            model.init_state(meso, 1)
+        except ValueError as exc:
+            raise UserError(f"{name}: {exc}") from None
+
+
+def cell_label(meso: Mesostructure) -> str:
+    """Figure-title name of the run's cell: its alpha0 where it has H-cell labels, else its name."""
+    alpha0 = h_cell_alpha0(meso)
+    return f"alpha0 = {alpha0:g} deg" if alpha0 is not None else f"mesostructure {meso.name}"
 
 
 def check_options(args: argparse.Namespace) -> None:
@@ -277,18 +307,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.verbose:
         print(f"programme: {loading.to_dict(programme)}\ncontact law: {asdict(law)}, radius {args.radius:g} m")
 
+    meso = run_mesostructure(args)
     with output_lock(out):
-        # build every backend first, so that a missing model file fails before any run
+        # build every backend and a cell of the mesostructure first, so that a missing model
+        # file or a mesostructure a backend does not model fails before any run
         options = {name: backend_options(args, name) for name in args.backend}
         models = {name: make_cell_model(name, contact_law=law, radius=args.radius, **options[name])
                   for name in args.backend}
+        check_models_take(models, meso)
         records: dict[str, driver.Record] = {}
         drained = plotting.is_drained({"drained": args.drained or None}, programme)
         with output_folder(out) as work:
             for name, model in models.items():
                 start = time.perf_counter()
                 try:
-                    record = driver.run(model, programme, alpha0_deg=args.alpha0, n_orientations=args.orientations,
+                    record = driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,
                                         fabric_anisotropy=args.fabric_anisotropy,
                                         fabric_direction_deg=args.fabric_direction,
                                         snapshot_interval=args.snapshot_interval or 0, progress=not args.quiet)
@@ -297,12 +330,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 elapsed = time.perf_counter() - start
                 parameters = {
                     "backend": name,
-                    "backend_options": {k: str(v) if isinstance(v, Path) else v for k, v in options[name].items()
-                                        if k != "mesostructure"},
+                    "backend_options": {k: str(v) if isinstance(v, Path) else v for k, v in options[name].items()},
                     **provenance_of(name, model, options[name]),
                     "contact_law": asdict(law),
                     "radius": args.radius,
-                    "alpha0_deg": args.alpha0,
+                    "alpha0_deg": h_cell_alpha0(meso),
                     "p0": next((s.stop_at_p for s in programme if s.stop_at_p is not None), None),
                     **settings,
                     "n_orientations": args.orientations,
@@ -310,7 +342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "fabric_direction_deg": args.fabric_direction,
                     "drained": drained,
                     "stress_rtol": LoadingDefaults.stress_rtol,
-                    "mesostructure": args.mesostructure.text if "mesostructure" in options[name] else None,
+                    "mesostructure": args.mesostructure.text if args.mesostructure is not None else None,
                 }
                 folder = work if len(args.backend) == 1 else work / name
                 final = out if len(args.backend) == 1 else out / name
@@ -328,7 +360,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             kind = f"programme {args.programme.name}" if args.programme else (
                 "drained biaxial test" if args.drained else "constant-volume biaxial test")
             p0 = parameters["p0"]
-            title = (f"{kind}, alpha0 = {args.alpha0:g} deg" + (f", p0 = {p0:g} N/m" if p0 else "")
+            title = (f"{kind}, {cell_label(meso)}" + (f", p0 = {p0:g} N/m" if p0 else "")
                      + f", N = {args.orientations}")
             fig = plotting.make_figure(records, drained=drained, fourth=args.fourth_panel, deviator=args.deviator,
                                        title=title)

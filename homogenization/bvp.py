@@ -10,7 +10,10 @@ pressure p0) to eps1 = --eps-max, counted from the end of stage 1.
 --imperfection F (in [0, 1); 0 = homogeneous) gives the elements that touch the middle of the
 left face or whose centre lies within W/4 of it (a zone of nearly fixed size, so it does not
 shrink with the mesh) the looser opening angle alpha0 + F (90 deg - alpha0). A softening local model localises in a band
-whose width is set by the mesh: results after the peak depend on --elements.
+whose width is set by the mesh: results after the peak depend on --elements. The cells start
+from the H-cell of --alpha0 (``warp_hcell.mesostructure.h_cell``), or from --mesostructure (a
+file or a builder spec, built at --alpha0 unless it gives its own); the weak zone's cells are
+built at the looser angle, which needs a cell built from an opening angle.
 
 Writes DIR/curve.csv (stage,eps11,eps22,sigma11,sigma22,sigma12,p,q,iterations; 1 = axial),
 DIR/run.h5 (fields per step), DIR/vtu/step_NNNN.vtu with DIR/specimen.pvd (ParaView) and
@@ -20,7 +23,8 @@ it (the homogeneous specimen should coincide with it).
 
 Sign convention: compression and contraction positive; stresses in N/m (2D). Bad input
 (non-positive element counts, imperfection outside [0, 1), unknown backend, alpha0 outside
-[30, 90) deg, existing output without --overwrite) is one line on stderr and exit code 2.
+[30, 90) deg, a mesostructure the backend does not model, --imperfection with a cell of fixed
+geometry, existing output without --overwrite) is one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -36,8 +40,9 @@ from tqdm import tqdm
 
 from homogenization import driver, fe, fe_output, loading, orientation
 from homogenization.backends import BACKENDS, make_cell_model
-from homogenization.biaxial import BACKEND_ONLY_OPTIONS, DEVICE_BACKENDS, backend_options
+from homogenization.biaxial import BACKEND_ONLY_OPTIONS, DEVICE_BACKENDS, backend_options, cell_label, check_models_take
 from homogenization.material import HomogenisedMaterial
+from warp_hcell.builders import MESOSTRUCTURE_HELP, h_cell_alpha0, mesostructure_arg
 from warp_hcell.cli import (
     UserError,
     alpha0_deg,
@@ -48,6 +53,7 @@ from warp_hcell.cli import (
     positive_int,
     run_main,
 )
+from warp_hcell.mesostructure import Mesostructure, h_cell
 from warp_hcell.parameters import ALPHA_MAX_DEG, CellDefaults, ContactLaw, FeDefaults
 
 
@@ -100,7 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--compare", action="store_true",
                         help="also run the material point (driver, drained biaxial) and overlay it")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument("--mesostructure", type=Path, default=None, help="TOML/JSON mesostructure file (dem only)")
+    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
+                        help=f"the cell (analytical: the plain H-cell only; ann: the model's mesostructure); "
+                             f"default: the H-cell of --alpha0. {MESOSTRUCTURE_HELP}")
     parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM (dem only)")
     parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
     return parser
@@ -128,10 +136,37 @@ def weak_elements(specimen: fe.BiaxialSpecimen) -> np.ndarray:
     return touching | (np.hypot(centre[:, 0], centre[:, 1] - mid) < 0.25 * specimen.width)
 
 
-def material_point_reference(model, args: argparse.Namespace) -> dict[str, np.ndarray]:
-    """Drained biaxial material point with the same settings, from the end of its isotropic stage."""
+def element_mesostructures(args: argparse.Namespace, weak: np.ndarray) -> tuple[Mesostructure, Mesostructure | None]:
+    """The cell of the sound elements, and of the ``weak`` ones (None where no element is weak).
+
+    The weak cell is built at alpha0 + F (90 deg - alpha0) from the H-cell or from a builder spec
+    without its own alpha0.
+
+    Raises:
+        UserError: weak elements and a mesostructure of fixed geometry (a file, or a spec with alpha0).
+        warp_hcell.mesostructure.MesostructureError: a mesostructure that does not build.
+    """
+    source = args.mesostructure
+    sound = h_cell(args.alpha0, CellDefaults.radius) if source is None else source.build(args.alpha0)
+    if not weak.any():
+        return sound, None
+    if source is not None and not source.takes_alpha0:
+        raise UserError(f"--imperfection builds the weak zone's cells at a looser alpha0: --mesostructure {source} "
+                        f"fixes its geometry (use the H-cell or a builder spec without alpha0)")
+    weak_alpha0 = args.alpha0 + args.imperfection * (ALPHA_MAX_DEG - args.alpha0)
+    return sound, (h_cell(weak_alpha0, CellDefaults.radius) if source is None else source.build(weak_alpha0))
+
+
+def _alpha0_or_nan(meso: Mesostructure | None) -> float:
+    """alpha0 [deg] of a cell with H-cell labels (``h_cell_alpha0``); NaN otherwise or without a cell."""
+    alpha0 = None if meso is None else h_cell_alpha0(meso)
+    return float("nan") if alpha0 is None else alpha0
+
+
+def material_point_reference(model, meso: Mesostructure, args: argparse.Namespace) -> dict[str, np.ndarray]:
+    """Drained biaxial material point of ``meso`` with the same settings, from the end of its isotropic stage."""
     programme = loading.biaxial(args.p0, args.eps_max, args.increment, drained=True)
-    record = driver.run(model, programme, alpha0_deg=args.alpha0, n_orientations=args.orientations, progress=False)
+    record = driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations, progress=False)
     start = int(np.flatnonzero(record.stage != "shear")[-1])
     keep = slice(start, None)
     eps_v = record.eps11 + record.eps22
@@ -150,9 +185,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     nx, ny = args.elements
     specimen = fe.BiaxialSpecimen(nx, ny, newton_rtol=args.newton_rtol)
     weak = weak_elements(specimen) if args.imperfection > 0.0 else np.zeros(specimen.mesh.nelements, bool)
-    element_alpha0 = np.where(weak, args.alpha0 + args.imperfection * (ALPHA_MAX_DEG - args.alpha0), args.alpha0)
-    point_alpha0 = np.repeat(element_alpha0, specimen.points_per_element())
-    material = HomogenisedMaterial(model, orientation.orientations(args.orientations), point_alpha0, specimen.n_points)
+    sound, weak_meso = element_mesostructures(args, weak)
+    for meso in (sound, weak_meso):
+        if meso is not None:  # a mesostructure the backend does not model fails here, before the run
+            check_models_take({args.backend: model}, meso)
+    element_alpha0 = np.where(weak, _alpha0_or_nan(weak_meso), _alpha0_or_nan(sound))
+    point_meso = sound if weak_meso is None else [weak_meso if w else sound
+                                                  for w in np.repeat(weak, specimen.points_per_element())]
+    material = HomogenisedMaterial(model, orientation.orientations(args.orientations), point_meso, specimen.n_points)
     if not material.returns_tangent:
         raise UserError(f"backend {args.backend!r} returns no consistent tangent in this version")
     n_shear = loading.n_increments_for(args.eps_max, args.increment)
@@ -166,18 +206,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UserError(str(exc)) from None
     elapsed = time.perf_counter() - start
     updates = sum(r.iterations + 1 for r in results)
-    reference = material_point_reference(model, args) if args.compare else None
+    reference = material_point_reference(model, sound, args) if args.compare else None
 
     parameters = {
-        "backend": args.backend, "alpha0_deg": args.alpha0, "p0": args.p0, "eps_max": args.eps_max,
+        "backend": args.backend, "alpha0_deg": h_cell_alpha0(sound), "p0": args.p0, "eps_max": args.eps_max,
         "increment": args.increment, "iso_steps": args.iso_steps, "n_orientations": args.orientations,
         "elements": [nx, ny], "imperfection": args.imperfection, "n_weak_elements": int(weak.sum()),
         "width": specimen.width, "height": specimen.height, "newton_rtol": specimen.newton_rtol,
         "contact_law": asdict(ContactLaw()), "radius": CellDefaults.radius,
-        "mesostructure_file": str(args.mesostructure) if args.mesostructure else None,
+        "mesostructure": args.mesostructure.text if args.mesostructure is not None else None,
     }
     kind = "homogeneous" if not weak.any() else f"imperfection F = {args.imperfection:g} ({int(weak.sum())} elements)"
-    title = (f"{args.backend}, alpha0 = {args.alpha0:g} deg, p0 = {args.p0:g} N/m, N = {args.orientations}, "
+    title = (f"{args.backend}, {cell_label(sound)}, p0 = {args.p0:g} N/m, N = {args.orientations}, "
              f"{nx} x {ny} elements, {kind}")
     try:
         paths = fe_output.write_outputs(out, specimen, results, element_alpha0, parameters, args.seed, title, reference)

@@ -12,13 +12,15 @@ OUT.csv: header ``l1,l2,alpha_deg,d1,d2,N1,N2,T1,S_nn,S_tt`` (with ``--positions
 by the grain centres ``x_n1,x_t1,...,x_n6,x_t6`` [m], local frame, cell centre at the
 origin) and one row per increment. Units: lengths [m], angle [deg], contact forces [N]
 (compression positive, T1 > 0 resists opening), Love-Weber moments S_nn, S_tt [N m],
-compression positive. The DEM or ANN backend with a general ``--mesostructure`` (not an H-cell)
-has no l1..T1 of its own: only the columns that the backend reports among
-``observables()`` are written, in the order above, and with ``--positions`` every grain
-centre it reports; the cell then starts from that mesostructure (a file, or a builder spec
-of ``warp_hcell.builders`` built at its own alpha0 or else at --alpha0).
+compression positive. The cell starts from the H-cell of --alpha0 and --radius, or from
+``--mesostructure`` (a file, or a builder spec of ``warp_hcell.builders`` built at its own
+alpha0 or else at --alpha0; the analytical backend models the plain H-cell only, the ANN the
+mesostructure its model was trained on). A cell that is not an H-cell has no l1..T1 of its
+own: only the columns that the backend reports among ``observables()`` are written, in the
+order above, and with ``--positions`` every grain centre it reports.
 
-Bad input (missing or malformed PATH.csv, alpha0 outside [30, 90) deg, unwritable --out,
+Bad input (missing or malformed PATH.csv, alpha0 outside [30, 90) deg, a mesostructure the
+backend does not model, unwritable --out,
 a CUDA device the machine lacks, and for the ann backend a row larger than the largest
 probe of its learning database, |d_eps| > 1e-3, where the network extrapolates) is one
 line on stderr and exit code 2; an existing OUT.csv is kept unless --overwrite.
@@ -46,6 +48,7 @@ from warp_hcell.cli import (
     quiet_warp,
     run_main,
 )
+from warp_hcell.mesostructure import Mesostructure, h_cell
 from warp_hcell.parameters import CellDefaults, DatabaseSettings
 
 PATH_HEADER = ("d_eps_n", "d_eps_t")
@@ -54,8 +57,8 @@ COLUMNS = ("l1", "l2", "alpha_deg", "d1", "d2", "N1", "N2", "T1", "S_nn", "S_tt"
 """Columns of the output file, before the optional grain positions."""
 DEM_ONLY_BACKEND = "dem"
 """The backend whose Warp start-up banner is silenced."""
-MESOSTRUCTURE_BACKENDS = ("dem", "ann")
-"""The backends that take --mesostructure and a compute --device."""
+DEVICE_BACKENDS = ("dem", "ann")
+"""The backends that take a compute --device."""
 ANN_MAX_INCREMENT = DatabaseSettings.probe_max
 """Largest |d_eps| [-] of one path row the ann backend accepts: the largest strain probe of
 its learning database (beyond it the network extrapolates)."""
@@ -76,7 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_contact_law_arguments(parser)
     parser.add_argument("--positions", action="store_true", help="also write the grain centres x_n{i}, x_t{i} [m]")
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
-                        help=f"dem and ann backends (the ann model must be trained on it); default: the H-cell. {MESOSTRUCTURE_HELP}")
+                        help=f"the cell (analytical: the plain H-cell only; ann: the model's mesostructure); "
+                             f"default: the H-cell of --alpha0 and --radius. {MESOSTRUCTURE_HELP}")
     return parser
 
 
@@ -124,15 +128,10 @@ def _check_out(out: Path, *, overwrite: bool) -> None:
 
 
 def _backend_options(args: argparse.Namespace) -> dict:
-    """Keyword options of the chosen backend: mesostructure and device go to the DEM and the ANN."""
-    if args.backend in MESOSTRUCTURE_BACKENDS:
-        options: dict = {"device": args.device}
-        if args.mesostructure is not None:
-            options["mesostructure"] = args.mesostructure.build(args.alpha0)
-        return options
-    takers = " or ".join(MESOSTRUCTURE_BACKENDS)
-    if args.mesostructure is not None:
-        raise UserError(f"--mesostructure applies to --backend {takers} only")
+    """Keyword options of the chosen backend: the device goes to the DEM and the ANN."""
+    if args.backend in DEVICE_BACKENDS:
+        return {"device": args.device}
+    takers = " or ".join(DEVICE_BACKENDS)
     if args.device != "cpu":
         raise UserError(f"--device applies to --backend {takers} only ({args.backend} runs on the cpu)")
     return {}
@@ -152,12 +151,13 @@ def check_path_for_backend(path: Path, d_eps: np.ndarray, backend: str) -> None:
                         f"increments or use --backend analytical or dem")
 
 
-def run_path(model, alpha0: float, d_eps: np.ndarray, *, positions: bool) -> tuple[list[str], np.ndarray]:
+def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
+             positions: bool) -> tuple[list[str], np.ndarray]:
     """Drive one cell of ``model`` along ``d_eps`` from its initial state.
 
     Args:
         model: a ``warp_hcell.cell_model.CellModel``.
-        alpha0: initial opening angle [deg].
+        mesostructure: the cell it starts from.
         d_eps: local strain increments (d_eps_n, d_eps_t) [-], shape (n_increments, 2),
             compression positive.
         positions: also return the grain centres x_n{i}, x_t{i} [m].
@@ -166,7 +166,7 @@ def run_path(model, alpha0: float, d_eps: np.ndarray, *, positions: bool) -> tup
         (columns, table): the names of the observables written, and their values after
         every increment, shape (n_increments, n_columns).
     """
-    state = model.init_state(alpha0, 1)
+    state = model.init_state(mesostructure, 1)
     rows = []
     columns: list[str] | None = None
     for increment in d_eps:
@@ -190,8 +190,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.backend == DEM_ONLY_BACKEND:
         quiet_warp(args.device)
     law = contact_law_from_args(args)
+    meso = args.mesostructure.build(args.alpha0) if args.mesostructure is not None else h_cell(args.alpha0, args.radius)
     model = make_cell_model(args.backend, contact_law=law, radius=args.radius, **_backend_options(args))
-    columns, table = run_path(model, args.alpha0, d_eps, positions=args.positions)
+    columns, table = run_path(model, meso, d_eps, positions=args.positions)
     try:
         with atomic_write(args.out) as tmp:
             np.savetxt(tmp, table, fmt="%.17g", delimiter=",", header=",".join(columns), comments="")

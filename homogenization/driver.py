@@ -29,7 +29,9 @@ from homogenization import orientation as orient_mod
 from homogenization.invariants import deviator, mean_stress
 from homogenization.loading import Programme, Step, validate
 from homogenization.material import HomogenisedMaterial, MaterialUpdate
+from warp_hcell.builders import h_cell_alpha0
 from warp_hcell.cell_model import CellModel
+from warp_hcell.mesostructure import Mesostructure
 from warp_hcell.parameters import CellDefaults, LoadingDefaults
 
 JUMP_WIDTH = 1e-6
@@ -69,7 +71,8 @@ class Record:
         theta_deg: cell-axis orientations [deg], shape (n_cells,).
         weights: fabric weights [-], shape (n_cells,).
         V0: initial macro volume [m^2].
-        alpha0_deg: initial opening angle [deg].
+        alpha0_deg: initial opening angle [deg] of the mesostructure where it carries H-cell
+            labels (``warp_hcell.builders.h_cell_alpha0``); NaN otherwise.
         backend: name of the cell model.
         programme: the loading programme that was run.
         final_state: ``cell_model.state_to_arrays`` of the last state (resume, inspection).
@@ -320,11 +323,15 @@ class _Runner:
                                f"before reaching {step.stop_at_p:g} N/m; allow more strain")
 
 
+def _nan_if_none(value: float | None) -> float:
+    return float("nan") if value is None else float(value)
+
+
 def run(
     cell_model: CellModel,
     programme: Programme,
     *,
-    alpha0_deg: float = CellDefaults.alpha0_deg,
+    mesostructure: Mesostructure,
     n_orientations: int = CellDefaults.n_orientations,
     fabric_anisotropy: float = 0.0,
     fabric_direction_deg: float = 0.0,
@@ -338,7 +345,8 @@ def run(
     Args:
         cell_model: any ``CellModel`` backend.
         programme: loading steps, run in order (see ``homogenization.loading``).
-        alpha0_deg: initial opening angle of every cell [deg], in [30, 90).
+        mesostructure: the cell every orientation starts from (e.g.
+            ``warp_hcell.mesostructure.h_cell(alpha0_deg, radius)``, a builder spec or a file).
         n_orientations: number N of cell orientations theta_k = k pi / N.
         fabric_anisotropy: a_f in [0, 1) of the weights w(theta) (0 = isotropic fabric).
         fabric_direction_deg: preferred fabric direction b_f [deg].
@@ -359,7 +367,7 @@ def run(
     if snapshot_interval < 0:
         raise ValueError(f"snapshot_interval = {snapshot_interval} must be >= 0")
     orient = orient_mod.orientations(n_orientations, anisotropy=fabric_anisotropy, direction_deg=fabric_direction_deg)
-    material = HomogenisedMaterial(cell_model, orient, alpha0_deg, 1)
+    material = HomogenisedMaterial(cell_model, orient, mesostructure, 1)
     runner = _Runner(material, sum(s.n_increments for s in programme), stress_rtol, max_newton_iterations)
     V0 = runner.V0
     labels = [s.label for s in programme]
@@ -403,7 +411,7 @@ def run(
         theta_deg=np.degrees(orient.theta),
         weights=np.array(orient.weights),
         V0=V0,
-        alpha0_deg=float(alpha0_deg),
+        alpha0_deg=_nan_if_none(h_cell_alpha0(mesostructure)),
         backend=str(getattr(cell_model, "name", type(cell_model).__name__)),
         programme=programme,
         final_state={name: np.array(v) for name, v in cell_model.state_to_arrays(runner.state).items()},

@@ -1,8 +1,8 @@
 """The homogenised H-model as a material: stress and consistent tangent of a batch of material points.
 
-``HomogenisedMaterial(cell_model, orient, alpha0_deg, n_points)`` holds, for each of
+``HomogenisedMaterial(cell_model, orient, mesostructure, n_points)`` holds, for each of
 ``n_points`` material points (e.g. finite-element Gauss points), its own set of oriented cells
-(``orient``: theta_k with weights w_k). ``update(state, d_e)`` advances every point by its own
+(``orient``: theta_k with weights w_k), built from the point's mesostructure. ``update(state, d_e)`` advances every point by its own
 macro strain increment with ONE batched ``cell_model.step`` call over all points' cells and
 returns the new state, the stresses and the consistent tangents. Like ``step``, ``update``
 is pure: trial increments (Newton iterations of a stress control or of a finite-element
@@ -27,12 +27,13 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from homogenization import orientation as orient_mod
 from warp_hcell.cell_model import CellModel
+from warp_hcell.mesostructure import Mesostructure, per_cell
 
 
 @dataclass(frozen=True)
@@ -88,19 +89,21 @@ class HomogenisedMaterial:
         cell_model: any ``CellModel``; ``update(..., with_tangent=True)`` needs one whose step
             takes ``with_tangent`` (ValueError otherwise); plain updates call ``step`` without it.
         orient: orientations and fabric weights shared by every point.
-        alpha0_deg: initial opening angle [deg], scalar or shape (n_points,) (a weaker zone
-            of a specimen has its own alpha0), each in [30, 90).
+        mesostructure: the cell of every point, or a sequence of n_points, one per point (a
+            weaker zone of a specimen has its own, e.g. an H-cell of larger alpha0), all of one
+            topology; every cell of a point starts from the point's mesostructure.
         n_points: number of material points.
     """
 
-    def __init__(self, cell_model: CellModel, orient: orient_mod.Orientations, alpha0_deg: float | np.ndarray,
-                 n_points: int) -> None:
+    def __init__(self, cell_model: CellModel, orient: orient_mod.Orientations,
+                 mesostructure: Mesostructure | Sequence[Mesostructure], n_points: int) -> None:
         if int(n_points) < 1:
             raise ValueError(f"n_points = {n_points} must be >= 1")
         self.model = cell_model
         self.orient = orient
         self.n_points = int(n_points)
-        self.alpha0_deg = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (self.n_points,)).copy()
+        self.mesostructures, self.point_mesostructure = per_cell(mesostructure, self.n_points)
+        """Distinct mesostructures, and the index of each point's one, shape (n_points,)."""
         self.G = voigt_localisation(orient)
         self.wGT = np.ascontiguousarray((orient.weights[:, None, None] * self.G).reshape(-1, 3).T)
         self.V0 = np.zeros(self.n_points)
@@ -115,7 +118,11 @@ class HomogenisedMaterial:
     def init_state(self) -> MaterialState:
         """Touching, force-free cells at every point; sets V0 = sum_k w_k V_cell,k per point."""
         n = self.orient.n_cells
-        cells = self.model.init_state(np.repeat(self.alpha0_deg, n), self.n_cells)
+        if len(self.mesostructures) == 1:
+            cells = self.model.init_state(self.mesostructures[0], self.n_cells)
+        else:
+            cells = self.model.init_state([self.mesostructures[k] for k in np.repeat(self.point_mesostructure, n)],
+                                          self.n_cells)
         area = self.model.response(cells).area.reshape(self.n_points, n)
         self.V0 = area @ self.orient.weights
         zeros = np.zeros((self.n_points, 3))

@@ -7,17 +7,19 @@ is a TOML/JSON file or a builder spec (``warp_hcell.builders``; a spec without a
 built at each --alpha0, a file or a spec with alpha0 fixes its geometry and makes one case
 per p0 and backend).
 
-Backends that take a ``mesostructure`` option (dem, ann) run every mesostructure; the others
-(analytical) model the six-equal-grain H-cell only and run the mesostructures that are that
-cell (``builders.plain_h_cell_alpha0``); other combinations are skipped and listed.
+Every case's cells start from its mesostructure (``CellModel.init_state``). The dem and ann
+backends run every mesostructure; a backend whose class refuses some
+(``homogenization.backends.mesostructure_refusal``: the analytical backend models the
+six-equal-grain H-cell only, ``builders.plain_h_cell_alpha0``) skips the others, and the
+skipped combinations are listed.
 
 ANN models (--model, repeatable): a model is trained on one mesostructure and records its
 sha256 (``training.checkpoint``). ``--model MESOSTRUCTURE=PATH`` gives the model of one
 mesostructure of --mesostructure (the same text); ``--model PATH`` offers a model to every
 mesostructure and is used where its recorded mesostructure is the case's (built at the case's
-alpha0). The plain H-cell runs as H-cells of the case's alpha0 (no sha256 check, as
-``biaxial`` without --mesostructure) on its own model, else the single bare --model, else the
-installed model. A fines cell without a model, or a model of another mesostructure, is an
+alpha0). The plain H-cell runs on any model of the H-cell's learning state (no sha256 check:
+H-cell databases are explored from many alpha0, ``homogenization.backends.ann``) on its own
+model, else the single bare --model, else the installed model. A fines cell without a model, or a model of another mesostructure, is an
 error before any case runs.
 
 --erode-at EPS (dem): in cases whose mesostructure has grains free along n and t (fines),
@@ -54,7 +56,6 @@ import argparse
 import csv
 import dataclasses
 import hashlib
-import inspect
 import json
 import math
 import os
@@ -68,7 +69,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from homogenization import driver, io, loading, plotting
-from homogenization.backends import backend_class, make_cell_model
+from homogenization.backends import make_cell_model, mesostructure_refusal
 from homogenization.biaxial import backend_list
 from warp_hcell.builders import (
     MESOSTRUCTURE_HELP,
@@ -89,7 +90,7 @@ from warp_hcell.cli import (
     run_main,
 )
 from warp_hcell.execution import SchedulerUnreachable, make_execution
-from warp_hcell.mesostructure import MesostructureError, describe, description_sha256
+from warp_hcell.mesostructure import Mesostructure, MesostructureError, describe, description_sha256
 from warp_hcell.parameters import CellDefaults, ContactLaw, LoadingDefaults
 
 CASES_DIR = "cases"
@@ -270,10 +271,6 @@ class Case:
     options: dict[str, Any]
 
 
-def _takes_mesostructure(backend: str) -> bool:
-    return "mesostructure" in inspect.signature(backend_class(backend)).parameters
-
-
 def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._=+-]+", "_", text).strip("_") or "case"
 
@@ -287,7 +284,6 @@ def plan(args: argparse.Namespace) -> tuple[list[Case], list[str]]:
     sources: list[MesostructureSource] = args.mesostructure or mesostructure_list_arg("hcell")
     sources = list({s.text: s for s in sources}.values())
     law = ContactLaw()
-    takes = {name: _takes_mesostructure(name) for name in args.backend}
     if args.model is not None and "ann" not in args.backend:
         raise UserError("--model applies to --backend ann only")
     models = ModelTable(args.model, sources) if "ann" in args.backend else None
@@ -304,8 +300,9 @@ def plan(args: argparse.Namespace) -> tuple[list[Case], list[str]]:
             erodible = bool(np.any(~meso.driven.any(axis=1)))
             for p0 in args.p0:
                 for backend in args.backend:
-                    if not takes[backend] and plain is None:
-                        skipped.append(f"{backend} x {source.text}: {backend} models the plain H-cell only")
+                    refusal = mesostructure_refusal(backend, meso)
+                    if refusal is not None:
+                        skipped.append(f"{backend} x {source.text}: {refusal}")
                         continue
                     erode_at = args.erode_at if erodible else None
                     if erode_at is not None and backend != "dem":
@@ -366,7 +363,7 @@ class _ContinuedCell:
         self.area_scale = float(area_scale)
         self.name = inner.name
 
-    def init_state(self, alpha0_deg: float, n_cells: int) -> Any:
+    def init_state(self, mesostructure: Mesostructure, n_cells: int) -> Any:
         if n_cells != self.state.n_cells:
             raise ValueError(f"continued state has {self.state.n_cells} cells, asked for {n_cells}")
         return self.state
@@ -416,10 +413,10 @@ def _join(first: driver.Record, second: driver.Record, programme: loading.Progra
         step_seconds=cat(first.step_seconds, second.step_seconds))
 
 
-def run_test(cell_model: Any, case: Case) -> driver.Record:
-    """The biaxial test of ``case`` on ``cell_model``, with erosion where the case asks for it."""
+def run_test(cell_model: Any, case: Case, meso: Mesostructure) -> driver.Record:
+    """The biaxial test of ``case`` on ``cell_model`` from cells of ``meso``, with erosion where the case asks for it."""
     prm = case.parameters
-    common = dict(alpha0_deg=case.alpha0, n_orientations=prm["n_orientations"], stress_rtol=prm["stress_rtol"],
+    common = dict(mesostructure=meso, n_orientations=prm["n_orientations"], stress_rtol=prm["stress_rtol"],
                   progress=False)
     full = loading.biaxial(case.p0, prm["eps_max"], prm["increment"], iso_increment=prm["iso_increment"],
                            drained=prm["drained"])
@@ -482,15 +479,11 @@ def compute_case(case: Case) -> driver.Record:
     """The record of one case (no file written): the task a worker runs."""
     prm = case.parameters
     options: dict[str, Any] = dict(prm["backend_options"]) | case.options
-    if prm["mesostructure"] and _takes_mesostructure(case.backend):
-        alpha0 = None if math.isnan(case.alpha0) else case.alpha0
-        meso = parse_mesostructure(case.source).build(alpha0)
-        if case.backend != "ann" or plain_h_cell_alpha0(meso) is None:
-            options["mesostructure"] = meso  # the ann runs the plain H-cell from alpha0, as biaxial does
+    meso = parse_mesostructure(case.source).build(None if math.isnan(case.alpha0) else case.alpha0)
     if "model" in options:
         options["model"] = Path(options["model"])
     model = make_cell_model(case.backend, contact_law=ContactLaw(**prm["contact_law"]), radius=prm["radius"], **options)
-    return run_test(model, case)
+    return run_test(model, case, meso)
 
 
 CASE_ERRORS = (driver.ControlError, ValueError, UserError, RuntimeError)

@@ -22,7 +22,7 @@ class ElasticCell:
         self.k, self.c, self.b = stiffness, coupling, quadratic
         self.area = (2.0 * radius) ** 2
 
-    def init_state(self, alpha0_deg, n_cells: int) -> np.ndarray:
+    def init_state(self, mesostructure, n_cells: int) -> np.ndarray:
         return np.zeros((n_cells, 2))
 
     def response(self, state: np.ndarray, *, with_tangent: bool = False):

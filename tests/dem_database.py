@@ -57,7 +57,7 @@ def build(out: Path, *, mesostructure: Mesostructure | None = None, alpha0_deg=(
     probability 0.2). Every sampled state gets ``probes_per_state`` probes.
     """
     rng = np.random.default_rng(seed)
-    dem = DemCell(law, radius, mesostructure=mesostructure, settings=settings, threads=threads)
+    dem = DemCell(law, radius, settings=settings, threads=threads)
     meso = mesostructure if mesostructure is not None else h_cell(alpha0_deg[0], radius)
     schema = _schema(meso, law, settings)
     diameter = schema.diameter
@@ -65,7 +65,8 @@ def build(out: Path, *, mesostructure: Mesostructure | None = None, alpha0_deg=(
     psi = 2 * np.pi * np.arange(n_directions) / n_directions
     grid = np.array([(a, e, p) for a in alphas for e in precompression for p in psi])
     n_paths = grid.shape[0]
-    state = dem.init_state(np.nan_to_num(grid[:, 0], nan=55.0), n_paths)
+    state = dem.init_state(mesostructure if mesostructure is not None else [h_cell(a, radius) for a in grid[:, 0]],
+                           n_paths)
     state, _ = dem.step(state, np.repeat(grid[:, 1:2], 2, axis=1))
     direction = np.column_stack([np.cos(grid[:, 2]), np.sin(grid[:, 2])])
     volumetric = np.abs(direction.sum(axis=1))

@@ -13,6 +13,7 @@ import pytest
 
 from homogenization.backends import BACKENDS, make_cell_model
 from warp_hcell.cell_model import CellModel, CellResponse
+from warp_hcell.mesostructure import h_cell
 
 N_CELLS = 6
 ISOTROPIC = 2e-3
@@ -27,7 +28,7 @@ def backend(request):
 @pytest.fixture(scope="module")
 def loaded(backend):
     """Cells of several opening angles compressed isotropically, and mixed next increments."""
-    state = backend.init_state(np.linspace(40.0, 65.0, N_CELLS), N_CELLS)
+    state = backend.init_state([h_cell(a) for a in np.linspace(40.0, 65.0, N_CELLS)], N_CELLS)
     for _ in range(4):
         state, _ = backend.step(state, np.full((N_CELLS, 2), ISOTROPIC / 4))
     rng = np.random.default_rng(3)

@@ -8,6 +8,8 @@ import pytest
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell, AnalyticalState
 from warp_hcell.cell_model import CellModel
+from warp_hcell.builders import resolve_mesostructure
+from warp_hcell.mesostructure import describe, from_description, h_cell
 from warp_hcell.parameters import ContactLaw
 
 LAW = ContactLaw()
@@ -19,6 +21,11 @@ KN, KT, MU = LAW.kn, LAW.kt, LAW.mu
 @pytest.fixture
 def model():
     return AnalyticalCell(LAW, R)
+
+
+def _h_cells(alpha0, radius=R):
+    """One H-cell per opening angle [deg] (``init_state`` takes one mesostructure per cell)."""
+    return [h_cell(a, radius) for a in alpha0]
 
 
 def _drive(model, state, d_eps, n_increments):
@@ -35,7 +42,7 @@ def _mixed_states(model):
     several local directions (d_eps_n = delta cos 2 theta = -d_eps_t)."""
     alpha0 = np.repeat([35.0, 40.0, 55.0, 70.0], 5)
     c2 = np.tile(np.cos(2 * np.linspace(0, np.pi / 2, 5)), 4)
-    state = model.init_state(alpha0, alpha0.size)
+    state = model.init_state(_h_cells(alpha0), alpha0.size)
     state, _ = _drive(model, state, [5e-6, 5e-6], 200)
     state, _ = _drive(model, state, np.stack([1e-5 * c2, -1e-5 * c2], axis=1), 500)
     return state
@@ -49,7 +56,7 @@ def test_is_a_cell_model_and_in_the_registry():
 
 def test_init_state_is_touching_and_force_free(model):
     alpha0 = np.array([30.0, 40.0, 55.0, 60.0, 89.9])
-    state = model.init_state(alpha0, alpha0.size)
+    state = model.init_state(_h_cells(alpha0), alpha0.size)
     obs = model.observables(state)
     a = np.radians(alpha0)
     np.testing.assert_allclose(obs["d1"], D)
@@ -63,14 +70,28 @@ def test_init_state_is_touching_and_force_free(model):
     np.testing.assert_allclose(np.stack([obs["S_nn"], obs["S_tt"]]), 0.0, atol=1e-14 * KN * D * D)
     assert not obs["closed1"].any() and not obs["closed2"].any()
     np.testing.assert_allclose(obs["area"], 2 * D * np.sin(a) * D * (1 + np.cos(a)), rtol=1e-14)
-    scalar = model.init_state(55.0, 3)
+    scalar = model.init_state(h_cell(55.0, R), 3)
     assert scalar.l1.shape == (3,) and np.all(scalar.alpha == np.radians(55.0))
 
 
-@pytest.mark.parametrize("alpha0", [29.9, 90.0, 95.0, float("nan"), [40.0, 91.0]])
-def test_init_state_rejects_alpha0_outside_range(model, alpha0):
-    with pytest.raises(ValueError, match=r"alpha0 = .* deg is outside \[30, 90\) deg"):
-        model.init_state(alpha0, 2)
+@pytest.mark.parametrize("spec, message", [
+    ("hcell-fines:alpha0=50,ratio=0.5", "analytical models the plain H-cell only"),
+    ("hcell-unequal:alpha0=50,lateral=0.7", "analytical models the plain H-cell only"),
+    ("hcell:alpha0=50,radius=1", "radius 1 m, the analytical cell 0.5 m"),
+])
+def test_init_state_refuses_any_cell_but_its_plain_h_cell(model, spec, message):
+    meso = resolve_mesostructure(spec)
+    for cells in (meso, [h_cell(50.0, R), meso]):
+        with pytest.raises(ValueError, match=message) as info:
+            model.init_state(cells, 1 if cells is meso else 2)
+        assert "\n" not in str(info.value)
+
+
+def test_alpha0_comes_from_the_geometry_of_the_mesostructure(model):
+    """A plain H-cell read back from its description (not built here) starts at its own angle."""
+    meso = from_description(describe(h_cell(47.5, R)))
+    state = model.init_state(meso, 2)
+    assert np.all(state.alpha == np.radians(47.5))
 
 
 @pytest.mark.parametrize("alpha0, slides", [(40.0, False), (55.0, True)])
@@ -79,7 +100,7 @@ def test_first_increment_matches_the_linearised_cell(model, alpha0, slides):
     the axial shortening splits between contact 2-3 (stiffness 2 kn along n) and the type-1
     contacts (K = kn cos^2 + kt sin^2 when stuck, kn cos (cos + mu sin) when sliding)."""
     eps = 1e-7
-    state = model.init_state(alpha0, 1)
+    state = model.init_state(h_cell(alpha0, R), 1)
     state, _ = model.step(state, np.array([[eps, 0.0]]))
     c, s = math.cos(math.radians(alpha0)), math.sin(math.radians(alpha0))
     K = KN * c * (c + MU * s) if slides else KN * c * c + KT * s * s
@@ -96,7 +117,7 @@ def test_first_increment_matches_the_linearised_cell(model, alpha0, slides):
 def test_stick_slip_threshold_of_the_constant_width_compression(model):
     """T1/N1 = (kt/kn) tan(alpha) while stuck: sliding at once iff tan(alpha0) > mu kn/kt."""
     threshold = math.degrees(math.atan(MU * KN / KT))
-    state = model.init_state(np.array([threshold - 0.1, threshold + 0.1]), 2)
+    state = model.init_state(_h_cells([threshold - 0.1, threshold + 0.1]), 2)
     state, _ = _drive(model, state, [1e-6, 0.0], 5)
     ratio = state.T1 / state.N1
     assert ratio[0] < MU * (1 - 1e-4)
@@ -106,7 +127,7 @@ def test_stick_slip_threshold_of_the_constant_width_compression(model):
 def test_axial_compression_at_constant_width(model):
     """The axis shortens, alpha grows (opening), so friction resists with T1 > 0: the loose
     55-deg cell slides at T1 = +mu N1 all along, the 40-deg cell stays stuck to 5 %."""
-    state = model.init_state(np.array([55.0, 40.0]), 2)
+    state = model.init_state(_h_cells([55.0, 40.0]), 2)
     alpha_prev = state.alpha
     for _ in range(10):
         state, response = _drive(model, state, [1e-3 / 10, 0.0], 50)
@@ -139,7 +160,7 @@ def test_equilibrium_and_moment_identities(model):
 def test_extended_axis_closes_the_cell_until_it_is_stress_free(model):
     """After isotropic compression, extending the axis at constant width closes alpha:
     friction turns negative (T1 >= -mu N1), then 2-3 opens and, below 60 deg, N1 = 0 too."""
-    state = model.init_state(np.array([55.0, 40.0, 35.0]), 3)
+    state = model.init_state(_h_cells([55.0, 40.0, 35.0]), 3)
     state, _ = _drive(model, state, [1e-5, 1e-5], 200)
     assert np.all(state.N1 > 0) and np.all(state.T1 > 0)
     state, _ = _drive(model, state, [-1e-5, 0.0], 200)
@@ -154,7 +175,7 @@ def test_extended_axis_closes_the_cell_until_it_is_stress_free(model):
 
 
 def test_open_cell_keeps_y2(model):
-    state = model.init_state(np.array([40.0, 55.0, 80.0]), 3)
+    state = model.init_state(_h_cells([40.0, 55.0, 80.0]), 3)
     new, response = _drive(model, state, [-1e-4, -2e-4], 10)
     np.testing.assert_array_equal(new.y2, state.y2)
     assert np.all(response.moment == 0.0)
@@ -166,7 +187,7 @@ def test_increment_size_independence(model):
     c2 = np.tile([1.0, 0.5, -0.5, -1.0], 3)
     results = []
     for delta in (1e-5, 2e-6):
-        state = model.init_state(alpha0, alpha0.size)
+        state = model.init_state(_h_cells(alpha0), alpha0.size)
         state, _ = _drive(model, state, [delta, delta], round(1e-3 / delta))
         state, response = _drive(model, state, np.stack([delta * c2, -delta * c2], axis=1), round(0.03 / delta))
         results.append((state, response))
@@ -182,7 +203,7 @@ def test_grain_size_drops_out(model):
     """sigma/kn against strain does not depend on the radius (spec section 1)."""
     big = AnalyticalCell(LAW, 2 * R)
     d_eps = np.array([[2e-5, -1e-5], [1e-5, 1e-5]])
-    a, b = model.init_state(np.array([40.0, 55.0]), 2), big.init_state(np.array([40.0, 55.0]), 2)
+    a, b = model.init_state(_h_cells([40.0, 55.0]), 2), big.init_state(_h_cells([40.0, 55.0], 2 * R), 2)
     for _ in range(300):
         a, ra = model.step(a, d_eps)
         b, rb = big.step(b, d_eps)
@@ -250,7 +271,7 @@ def test_friction_locked_cell_whose_type2_contact_opens(model):
     """alpha > 60 deg, axis extended and width compressed from the touching state: 2-3
     opens and grain 2 hangs on friction, T1 = -N1 cot(alpha) with |T1| < mu N1. There f grows
     with y2 where the contact slides back, yet the solve needs few iterations."""
-    state = model.init_state(np.array([70.0, 80.0, 85.0]), 3)
+    state = model.init_state(_h_cells([70.0, 80.0, 85.0]), 3)
     new, response = model.step(state, np.array([[-7e-7, 3e-7]] * 3))
     assert response.diagnostics["iterations"] <= 8 and response.diagnostics["n_unconverged"] == 0
     assert np.all(new.N2 == 0.0) and np.all(new.N1 > 0.0)
@@ -262,7 +283,7 @@ def test_cell_held_at_alpha_90_when_no_equilibrium_exists_below(model):
     """alpha0 = 89.5 deg compressed along its axis: once l1 < D (grains 1-4 touch), 2-3
     pushes grain 2 past alpha = 90 deg, outside the H-model; the cell stays at the limit,
     flagged, and its moment carries the 1-4 contact."""
-    state = model.init_state(np.array([89.5, 60.0]), 2)
+    state = model.init_state(_h_cells([89.5, 60.0]), 2)
     for _ in range(20):
         state, response = model.step(state, np.array([[1e-3, 0.0], [1e-3, 0.0]]))
         assert response.diagnostics["iterations"] <= 6 and response.diagnostics["n_unconverged"] == 0

@@ -5,6 +5,7 @@ import pytest
 
 from homogenization.backends.analytical import AnalyticalCell
 from tangent_fd import fd_tangent, relative_error
+from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import ContactLaw
 
 LAW = ContactLaw()
@@ -22,7 +23,7 @@ def sheared(model):
     in five local directions: a mix of sticking, sliding and open type-1 contacts."""
     alpha0 = np.repeat([35.0, 40.0, 55.0, 70.0], 5)
     c2 = np.tile(np.cos(2 * np.linspace(0, np.pi / 2, 5)), 4)
-    state = model.init_state(alpha0, alpha0.size)
+    state = model.init_state([h_cell(a, R) for a in alpha0], alpha0.size)
     for _ in range(200):
         state, _ = model.step(state, np.full((alpha0.size, 2), 5e-6))
     d_eps = np.stack([1e-5 * c2, -1e-5 * c2], axis=1)
@@ -58,7 +59,7 @@ def test_tangent_matches_central_differences(model, sheared, regime):
 def test_tangent_of_isotropic_loading_from_rest(model):
     """First increment from the touching state (every contact sticks) and a later one."""
     alpha0 = np.array([35.0, 40.0, 55.0, 60.0, 75.0])
-    state = model.init_state(alpha0, alpha0.size)
+    state = model.init_state([h_cell(a, R) for a in alpha0], alpha0.size)
     d_eps = np.full((alpha0.size, 2), 2e-4)
     for _ in range(3):
         new, response = model.step(state, d_eps, with_tangent=True)
@@ -69,7 +70,7 @@ def test_tangent_of_isotropic_loading_from_rest(model):
 
 def test_open_cell_has_zero_tangent(model):
     """An extended cell loses all its contacts: a stress-free mechanism, zero tangent."""
-    state = model.init_state(np.array([40.0]), 1)
+    state = model.init_state(h_cell(40.0, R), 1)
     new, response = model.step(state, np.array([[-1e-2, -1e-2]]), with_tangent=True)
     assert model.observables(new)["N1"][0] == 0.0
     np.testing.assert_array_equal(response.tangent, 0.0)

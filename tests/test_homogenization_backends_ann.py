@@ -16,7 +16,8 @@ from homogenization.backends.ann import AnnCell, default_model_path
 from training.checkpoint import CheckpointError
 from training.train import main as train_main
 from warp_hcell.dem_cell import DemCell
-from warp_hcell.mesostructure import load_mesostructure
+from warp_hcell.builders import resolve_mesostructure
+from warp_hcell.mesostructure import h_cell, load_mesostructure
 from warp_hcell.parameters import ContactLaw
 
 LAW, RADIUS = ContactLaw(), 0.5
@@ -50,17 +51,18 @@ def cell(model_path):
 def _loaded(cell, n=8, seed=0):
     """A compressed state after a few increments, and the next increments, shape (n, 2)."""
     rng = np.random.default_rng(seed)
-    state = cell.init_state(55.0, n)
+    state = cell.init_state(h_cell(55.0), n)
     for _ in range(10):
         state, _ = cell.step(state, np.full((n, 2), 2e-4))
     return state, rng.normal(scale=1e-5, size=(n, 2))
 
 
 def test_initial_state_is_the_touching_force_free_cell_of_the_dem(cell):
-    state = cell.init_state(np.array([40.0, 55.0]), 2)
+    cells = [h_cell(40.0), h_cell(55.0)]
+    state = cell.init_state(cells, 2)
     response = cell.response(state)
     dem = DemCell(LAW, RADIUS)
-    reference = dem.response(dem.init_state(np.array([40.0, 55.0]), 2))
+    reference = dem.response(dem.init_state(cells, 2))
     assert np.abs(response.moment).max() < 1e-6
     np.testing.assert_allclose(response.area, reference.area, rtol=1e-14)
     obs = cell.observables(state)
@@ -116,18 +118,24 @@ def test_tangent_matches_central_finite_differences(cell):
     assert cell.step(state, d)[1].diagnostics == response.diagnostics  # compiled and autograd paths count alike
 
 
-def test_a_model_of_another_mesostructure_is_refused(model_path, lateral_model, tmp_path):
+def test_a_model_of_another_mesostructure_is_refused(model_path, lateral_model, tmp_path, capsys):
     with pytest.raises(CheckpointError, match="not on") as info:
-        AnnCell(LAW, RADIUS, model=model_path, mesostructure=load_mesostructure(LATERAL))
+        AnnCell(LAW, RADIUS, model=model_path).init_state(load_mesostructure(LATERAL), 2)
     assert "\n" not in str(info.value)
-    lateral = AnnCell(LAW, RADIUS, model=lateral_model, mesostructure=load_mesostructure(LATERAL))
-    assert lateral.response(lateral.init_state(55.0, 2)).moment.shape == (2, 2, 2)
+    lateral = AnnCell(LAW, RADIUS, model=lateral_model)
+    assert lateral.response(lateral.init_state(load_mesostructure(LATERAL), 2)).moment.shape == (2, 2, 2)
     with pytest.raises(CheckpointError, match="does not share"):
-        AnnCell(LAW, RADIUS, model=lateral_model)
-    code = biaxial.run_main(biaxial.main, ["--backend", "ann", "--model", str(lateral_model), "--p0", "1e5",
-                                           "--eps-max", "0.001", "--increment", "1e-4", "--orientations", "4",
-                                           "--out", str(tmp_path / "run")])
-    assert code == 2
+        lateral.init_state(h_cell(55.0), 2)
+    with pytest.raises(CheckpointError, match="not on"):  # one cell of another mesostructure in the batch
+        lateral.init_state([load_mesostructure(LATERAL), resolve_mesostructure("hcell-unequal:lateral=0.6")], 2)
+    common = ["--p0", "1e5", "--eps-max", "0.001", "--increment", "1e-4", "--orientations", "4"]
+    for argv in (["--backend", "ann", "--model", str(lateral_model)],
+                 ["--backend", "dem,ann", "--model", str(model_path), "--mesostructure", str(LATERAL)]):
+        capsys.readouterr()
+        code = biaxial.run_main(biaxial.main, argv + common + ["--out", str(tmp_path / "run")])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and "ann: " in err, err
+        assert not (tmp_path / "run").exists()  # refused before any backend ran
 
 
 def test_inference_runs_on_one_torch_thread_by_default(model_path):
@@ -140,7 +148,7 @@ def test_inference_runs_on_one_torch_thread_by_default(model_path):
 @pytest.mark.skipif(not default_model_path().is_file(), reason="default model not installed")
 def test_shipped_model_follows_the_analytical_cell_in_a_short_constant_volume_test():
     programme = loading.biaxial(5.85e6, 0.02, 1e-4, iso_increment=1e-4)
-    runs = {name: driver.run(make_cell_model(name), programme, alpha0_deg=55.0, n_orientations=12, progress=False)
+    runs = {name: driver.run(make_cell_model(name), programme, mesostructure=h_cell(55.0), n_orientations=12, progress=False)
             for name in ("analytical", "ann")}
     a, b = runs["analytical"], runs["ann"]
     assert a.p.shape == b.p.shape

@@ -12,11 +12,16 @@ from homogenization.backends.analytical import AnalyticalCell
 from warp_hcell.dem_cell import DemCell
 from warp_hcell.cell_model import CellModel
 from warp_hcell.integrator import MIN_CELLS_PER_CHUNK
-from warp_hcell.mesostructure import load_mesostructure
+from warp_hcell.mesostructure import h_cell, load_mesostructure
 from warp_hcell.parameters import ContactLaw, DemSettings
 
 LAW = ContactLaw()
 DATA = resources.files("warp_hcell") / "data"
+
+
+def _h_cells(alpha0):
+    """One H-cell (r = 0.5 m) per opening angle [deg]."""
+    return [h_cell(a, 0.5) for a in alpha0]
 
 
 def _constant_volume_path(n_cells: int, theta: np.ndarray, iso: float, n_iso: int, delta: float, n_shear: int):
@@ -31,7 +36,7 @@ def test_dem_matches_analytical_cell_along_constant_volume_path(device):
     theta = np.arange(8) * np.pi / 8
     n = theta.size
     dem, ana = DemCell(LAW, 0.5, device=device), AnalyticalCell(LAW, 0.5)
-    sd, sa = dem.init_state(55.0, n), ana.init_state(55.0, n)
+    sd, sa = dem.init_state(h_cell(55.0), n), ana.init_state(h_cell(55.0), n)
     worst = dict.fromkeys(("N1", "N2", "T1", "alpha_deg"), 0.0)
     force_max, slid, opened = 0.0, False, False
     for d_eps in _constant_volume_path(n, theta, 9e-4, 3, 2e-4, 80):
@@ -57,7 +62,7 @@ def test_dem_satisfies_the_cell_model_protocol_and_is_registered():
 def test_h_cell_observables_and_response(device):
     cell = DemCell(LAW, 0.5, device=device)
     alpha0 = np.array([40.0, 55.0, 70.0])
-    state = cell.init_state(alpha0, 3)
+    state = cell.init_state(_h_cells(alpha0), 3)
     initial = cell.observables(state)
     np.testing.assert_allclose(initial["alpha_deg"], alpha0, rtol=1e-13)
     np.testing.assert_allclose(initial["d1"], 1.0, rtol=1e-14)
@@ -107,23 +112,23 @@ def test_bitwise_determinism_and_batch_invariance(device):
     alpha0 = rng.uniform(32.0, 85.0, n)
     increments = _increments(rng, n)
     cells = [DemCell(LAW, 0.5, device=device, threads=t) for t in (1, 2, 3, 1)]
-    runs = [_history(cell, cell.init_state(alpha0, n), increments) for cell in cells]
+    runs = [_history(cell, cell.init_state(_h_cells(alpha0), n), increments) for cell in cells]
     for other in runs[1:]:
         _assert_same(runs[0], other)
     # a cell alone, and the batch reversed, give the same cells bit for bit
     k = MIN_CELLS_PER_CHUNK + 3
-    alone = _history(DemCell(LAW, 0.5, device=device), DemCell(LAW, 0.5, device=device).init_state(alpha0[k], 1),
+    alone = _history(DemCell(LAW, 0.5, device=device), DemCell(LAW, 0.5, device=device).init_state(h_cell(alpha0[k]), 1),
                      [d[k:k + 1] for d in increments])
     _assert_same(runs[0], alone, rows=slice(k, k + 1))
     flipped = _history(DemCell(LAW, 0.5, device=device, threads=2),
-                       DemCell(LAW, 0.5, device=device).init_state(alpha0[::-1], n), [d[::-1] for d in increments])
+                       DemCell(LAW, 0.5, device=device).init_state(_h_cells(alpha0[::-1]), n), [d[::-1] for d in increments])
     _assert_same(runs[0], flipped, rows=slice(None, None, -1))
 
 
 def test_step_is_pure_and_state_round_trips(device):
     rng = np.random.default_rng(5)
     cell = DemCell(LAW, 0.5, device=device)
-    state = cell.init_state(rng.uniform(35.0, 80.0, 5), 5)
+    state = cell.init_state(_h_cells(rng.uniform(35.0, 80.0, 5)), 5)
     state, _ = cell.step(state, np.full((5, 2), 2e-4))
     before = cell.state_to_arrays(state)
     d_eps = rng.uniform(-1e-4, 1e-4, (5, 2))
@@ -138,13 +143,25 @@ def test_step_is_pure_and_state_round_trips(device):
     _assert_same(cell.state_to_arrays(first), cell.state_to_arrays(taken), rows=index)
 
 
+def test_a_fresh_backend_restores_any_mesostructure_from_its_arrays(device):
+    """The arrays carry the topology: another DemCell rebuilds a fine-grain cell and steps it alike."""
+    meso = load_mesostructure(DATA / "h_cell_fine_grain.toml")
+    cell = DemCell(LAW, 0.5, device=device)
+    state, _ = cell.step(cell.init_state(meso, 3), np.full((3, 2), 3e-4))
+    restored = DemCell(LAW, 0.5, device=device).state_from_arrays(cell.state_to_arrays(state))
+    for name in ("pairs", "driven", "outer", "pair_type", "radius", "position", "cell_size"):
+        assert np.array_equal(getattr(restored.model.meso, name), getattr(meso, name)), name
+    d_eps = np.array([[1e-4, -1e-4], [0.0, 2e-4], [-1e-4, 0.0]])
+    _assert_same(cell.state_to_arrays(cell.step(state, d_eps)[0]), cell.state_to_arrays(cell.step(restored, d_eps)[0]))
+
+
 def test_numpy_engine_through_the_backend():
     rng = np.random.default_rng(11)
     alpha0 = rng.uniform(35.0, 80.0, 4)
     increments = _increments(rng, 4, 2)
-    a = _history(DemCell(LAW, 0.5), DemCell(LAW, 0.5).init_state(alpha0, 4), increments)
+    a = _history(DemCell(LAW, 0.5), DemCell(LAW, 0.5).init_state(_h_cells(alpha0), 4), increments)
     numpy_cell = DemCell(LAW, 0.5, engine="numpy")
-    b = _history(numpy_cell, numpy_cell.init_state(alpha0, 4), increments)
+    b = _history(numpy_cell, numpy_cell.init_state(_h_cells(alpha0), 4), increments)
     np.testing.assert_allclose(a["position"], b["position"], rtol=0, atol=1e-13)
     force_scale = np.abs(b["contact_force"]).max()
     np.testing.assert_allclose(a["contact_force"], b["contact_force"], rtol=0, atol=1e-9 * force_scale)
@@ -153,9 +170,9 @@ def test_numpy_engine_through_the_backend():
 def test_unequal_radii_free_dof_equilibrium_and_love_weber_vs_reactions(device):
     """Lateral grains 0.7 D: free DOFs balanced; S = sum_g F_g (x) x_g over the grains (boundary reactions)."""
     meso = load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")
-    cell = DemCell(LAW, 0.5, mesostructure=meso, device=device)
+    cell = DemCell(LAW, 0.5, device=device)
     n = 4
-    state = cell.init_state(0.0, n)
+    state = cell.init_state(meso, n)
     increments = [np.full((n, 2), 2e-4)] * 2 + [np.array([[1e-4, -1e-4], [-1e-4, 1e-4], [2e-4, 0.0], [0.0, 5e-5]])] * 3
     for d_eps in increments:
         state, response = cell.step(state, d_eps)
@@ -179,8 +196,8 @@ def test_unequal_radii_free_dof_equilibrium_and_love_weber_vs_reactions(device):
 
 def test_fine_grain_file_runs_and_reports_every_grain(device):
     meso = load_mesostructure(DATA / "h_cell_fine_grain.toml")
-    cell = DemCell(LAW, 0.5, mesostructure=meso, device=device)
-    state, response = cell.step(cell.init_state(0.0, 2), np.array([[4e-4, 4e-4], [-4e-4, -4e-4]]))
+    cell = DemCell(LAW, 0.5, device=device)
+    state, response = cell.step(cell.init_state(meso, 2), np.array([[4e-4, 4e-4], [-4e-4, -4e-4]]))
     obs = cell.observables(state)
     assert {f"x_n{i}" for i in range(1, 8)} <= set(obs)
     # compressed: 6 + 4 fine-grain contacts; extended: only 2-3 and 5-6 (free along n, unloaded, still touching)
@@ -191,7 +208,7 @@ def test_fine_grain_file_runs_and_reports_every_grain(device):
 
 def test_unconverged_cells_are_counted_and_warned():
     cell = DemCell(LAW, 0.5, settings=DemSettings(max_substeps=5))
-    state = cell.init_state(55.0, 2)
+    state = cell.init_state(h_cell(55.0), 2)
     with pytest.warns(RuntimeWarning, match="2 of 2 cells did not reach equilibrium within max_substeps = 5"):
         new, response = cell.step(state, np.full((2, 2), 1e-5))
     assert response.diagnostics["n_unconverged"] == 2
@@ -202,14 +219,16 @@ def test_bad_inputs_give_one_line_errors():
     with pytest.raises(ValueError, match="engine 'fast' is not one of 'warp', 'numpy'"):
         DemCell(LAW, 0.5, engine="fast")
     cell = DemCell(LAW, 0.5)
-    state = cell.init_state(55.0, 2)
+    state = cell.init_state(h_cell(55.0), 2)
     with pytest.raises(ValueError, match=r"d_eps_local has shape \(3, 2\), expected \(2, 2\)"):
         cell.step(state, np.zeros((3, 2)))
     with pytest.raises(ValueError, match="too large for max_substeps"):
         small = DemCell(LAW, 0.5, settings=DemSettings(max_substeps=1000))
-        small.step(small.init_state(55.0, 2), np.full((2, 2), 0.1))
-    with pytest.raises(ValueError, match=r"alpha0 = 95 deg is outside"):
-        cell.init_state(np.array([55.0, 95.0]), 2)
+        small.step(small.init_state(h_cell(55.0), 2), np.full((2, 2), 0.1))
+    with pytest.raises(ValueError, match="has another topology than"):
+        cell.init_state([h_cell(55.0), load_mesostructure(DATA / "h_cell_fine_grain.toml")], 2)
+    with pytest.raises(ValueError, match=r"need one mesostructure or n_cells = 3 of them, got 2"):
+        cell.init_state([h_cell(55.0)] * 2, 3)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         cell.step(state, np.zeros((2, 2)))
@@ -221,7 +240,7 @@ def test_dem_matches_analytical_to_three_digits_along_long_paths(alpha0_deg, iso
     """36 orientations, constant volume to eps1 = 10 % (spec section 10: 3-4 significant digits)."""
     theta = np.arange(36) * np.pi / 36
     dem, ana = DemCell(LAW, 0.5), AnalyticalCell(LAW, 0.5)
-    sd, sa = dem.init_state(alpha0_deg, theta.size), ana.init_state(alpha0_deg, theta.size)
+    sd, sa = dem.init_state(h_cell(alpha0_deg), theta.size), ana.init_state(h_cell(alpha0_deg), theta.size)
     worst, force_max = dict.fromkeys(("N1", "N2", "T1", "alpha_deg"), 0.0), 0.0
     for d_eps in _constant_volume_path(theta.size, theta, iso, round(iso / 1e-4), 1e-4, 1000):
         (sd, _), (sa, _) = dem.step(sd, d_eps), ana.step(sa, d_eps)

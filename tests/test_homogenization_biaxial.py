@@ -120,6 +120,11 @@ def test_inconsistent_options_one_line_exit_2(tmp_path, capsys, monkeypatch):
          else "--device cuda: no CUDA GPU on this machine; use --device cpu"),
         (["--backend", "ghost", "--out", str(tmp_path / "a")], "backend 'ghost' is not available in this version"),
         (["--out", str(blocker / "sub")], f"cannot write to {blocker / 'sub'}: {blocker} is not a folder"),
+        (["--mesostructure", "hcell-fines:ratio=0.5", "--out", str(tmp_path / "a")],
+         "analytical: analytical models the plain H-cell only (six equal touching grains); mesostructure "
+         "'hcell-fines:ratio=0.5' is not one: use --backend dem or ann"),
+        (["--mesostructure", "hcell:radius=1", "--out", str(tmp_path / "a")],
+         "analytical: mesostructure 'hcell:radius=1' has grains of radius 1 m, the analytical cell 0.5 m (--radius)"),
     ]
     for extra, message in cases:
         assert cli(TINY + extra) == 2

@@ -13,6 +13,7 @@ import pytest
 from homogenization import bvp, driver, loading
 from homogenization.backends import make_cell_model
 from warp_hcell.cli import run_main
+from warp_hcell.mesostructure import h_cell
 
 P0 = 5.85e6
 TINY = ["--alpha0", "40", "--p0", "5.85e6", "--eps-max", "0.01", "--increment", "1e-3", "--orientations", "12",
@@ -39,7 +40,7 @@ def homogeneous(tmp_path_factory):
 def test_homogeneous_specimen_follows_the_material_point(homogeneous):
     curve = read_curve(homogeneous / "curve.csv")
     record = driver.run(make_cell_model("analytical"), loading.biaxial(P0, 0.01, 1e-3, drained=True),
-                        alpha0_deg=40.0, n_orientations=12, progress=False)
+                        mesostructure=h_cell(40.0), n_orientations=12, progress=False)
     shear = curve["stage"] == "shear"
     assert shear.sum() == 10 and np.sum(record.stage == "shear") == 10
     assert curve["p"][~shear][-1] == pytest.approx(P0, rel=1e-8)
@@ -103,6 +104,18 @@ def test_bad_arguments_one_line_exit_2(tmp_path, capsys, extra, message):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.parametrize("extra, message", [
+    (["--mesostructure", "hcell-fines:ratio=0.5"], "analytical: analytical models the plain H-cell only"),
+    (["--backend", "dem", "--mesostructure", "hcell-fines:alpha0=50,ratio=0.5", "--imperfection", "0.2"],
+     "--imperfection builds the weak zone's cells at a looser alpha0"),
+])
+def test_a_mesostructure_the_run_cannot_use_is_one_line_exit_2(tmp_path, capsys, extra, message):
+    assert cli(TINY + extra + ["--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"hmodel: error: {message}") and err.count("\n") == 1, err
+    assert not (tmp_path / "x").exists()
+
+
 def test_existing_output_is_kept(homogeneous, capsys):
     before = (homogeneous / "curve.csv").read_bytes()
     assert cli(TINY + ["--out", str(homogeneous)]) == 2
@@ -118,7 +131,7 @@ def test_acceptance_case_4x8_72_orientations(tmp_path):
                 "--orientations", "72", "--elements", "4,8", "--out", str(out)]) == 0
     curve = read_curve(out / "curve.csv")
     record = driver.run(make_cell_model("analytical"), loading.biaxial(P0, 0.05, 1e-3, drained=True),
-                        alpha0_deg=40.0, n_orientations=72, progress=False)
+                        mesostructure=h_cell(40.0), n_orientations=72, progress=False)
     shear = curve["stage"] == "shear"
     for name in ("q", "p", "sigma11", "sigma22"):
         deviation = np.abs(curve[name][shear] - getattr(record, name)[record.stage == "shear"]).max()

@@ -147,8 +147,8 @@ def test_unwritable_output(tmp_path, capsys):
 def test_options_of_other_backends_and_unavailable_backends(tmp_path, capsys, monkeypatch):
     path = _compression(tmp_path, n=5)
     out = tmp_path / "out.csv"
-    code, err = _run(["--path", path, "--out", out, "--mesostructure", path], capsys)
-    assert code == 2 and err == "hmodel: error: --mesostructure applies to --backend dem or ann only\n"
+    code, err = _run(["--path", path, "--out", out, "--mesostructure", "hcell-fines:ratio=0.5"], capsys)
+    assert code == 2 and err.startswith("hmodel: error: analytical models the plain H-cell only") and err.count("\n") == 1
     code, err = _run(["--path", path, "--out", out, "--phi", 95], capsys)
     assert code == 2 and err == "hmodel: error: phi_g = 95 deg is outside [0, 90) deg\n"
     monkeypatch.setitem(BACKENDS, "future", "homogenization.backends.not_written_yet:FutureCell")

@@ -20,6 +20,7 @@ import pytest
 
 from homogenization import driver, io, loading
 from homogenization.backends import make_cell_model
+from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import DemSettings, LoadingDefaults
 
 AGREEMENT = 0.01
@@ -58,7 +59,7 @@ def run_pair(alpha0_deg: float, p0: float, n_orientations: int, eps_max: float, 
     for name in ("analytical", "dem"):
         with warnings.catch_warnings():
             warnings.simplefilter("error", RuntimeWarning)  # an unconverged DEM cell fails the test
-            records[name] = driver.run(make_cell_model(name), programme, alpha0_deg=alpha0_deg,
+            records[name] = driver.run(make_cell_model(name), programme, mesostructure=h_cell(alpha0_deg),
                                        n_orientations=n_orientations, progress=False)
     return records
 

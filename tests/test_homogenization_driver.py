@@ -9,6 +9,7 @@ from cell_doubles import ElasticCell
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.loading import Step
+from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import LoadingDefaults
 
 # docs/model.md, "Reference response" (independent implementation): per row the shear-stage values.
@@ -40,7 +41,7 @@ def reference_run(row: dict, n_orientations: int, increment: float, iso_incremen
     ]
     if eps_last > 0.2:
         programme.append(loading.constant_volume_biaxial(eps_last - 0.2, loading.n_increments_for(eps_last - 0.2, increment)))
-    return driver.run(make_cell_model("analytical"), tuple(programme), alpha0_deg=row["alpha0"],
+    return driver.run(make_cell_model("analytical"), tuple(programme), mesostructure=h_cell(row["alpha0"]),
                       n_orientations=n_orientations, progress=False)
 
 
@@ -102,7 +103,7 @@ def test_reference_table_full_resolution(name):
 def test_isotropic_stage_lands_on_p0():
     for p0 in (2e5, 5.85e6):
         record = driver.run(make_cell_model("analytical"), (loading.isotropic(p0, increment=1e-4),),
-                            alpha0_deg=55.0, n_orientations=36, stress_rtol=1e-6, progress=False)
+                            mesostructure=h_cell(55.0), n_orientations=36, stress_rtol=1e-6, progress=False)
         assert abs(record.p[-1] / p0 - 1.0) <= 1e-6
         assert record.p[-2] < p0  # only the last increment reaches p0
         assert record.newton_iterations[-1] > 1  # the crossing increment was shortened
@@ -110,7 +111,7 @@ def test_isotropic_stage_lands_on_p0():
 
 def test_isotropic_strain_gives_isotropic_stress():
     record = driver.run(make_cell_model("analytical"), (loading.isotropic(5.85e6, increment=1e-4),),
-                        alpha0_deg=40.0, n_orientations=360, progress=False)
+                        mesostructure=h_cell(40.0), n_orientations=360, progress=False)
     assert np.all(record.eps11 == record.eps22)
     assert np.abs(record.q).max() <= 1e-12 * record.p[-1]
     assert np.abs(record.sigma12).max() <= 1e-12 * record.p[-1]
@@ -119,7 +120,7 @@ def test_isotropic_strain_gives_isotropic_stress():
 def test_constant_volume_keeps_J_to_second_order():
     n, delta = 500, 2e-4
     programme = (loading.isotropic(2e5, increment=1e-4), loading.constant_volume_biaxial(n * delta, n))
-    record = driver.run(make_cell_model("analytical"), programme, alpha0_deg=55.0, n_orientations=36, progress=False)
+    record = driver.run(make_cell_model("analytical"), programme, mesostructure=h_cell(55.0), n_orientations=36, progress=False)
     shear = record.stage == "shear"
     J_iso = record.J[~shear][-1]
     drift = 1.0 - record.J[shear] / J_iso
@@ -131,7 +132,7 @@ def test_constant_volume_keeps_J_to_second_order():
 def test_drained_holds_sigma22_at_p0():
     p0 = 5.85e6
     record = driver.run(make_cell_model("analytical"), loading.biaxial(p0, 0.05, 5e-4, drained=True),
-                        alpha0_deg=55.0, n_orientations=36, progress=False)
+                        mesostructure=h_cell(55.0), n_orientations=36, progress=False)
     shear = record.stage == "shear"
     assert np.abs(record.sigma22[shear] / p0 - 1.0).max() <= LoadingDefaults.stress_rtol
     assert record.q[shear][-1] > 0.3 * p0  # the axial stress did rise
@@ -143,10 +144,10 @@ def round_trip(cell_model, n: int = 40, delta: float = 5e-4):
     """A strain-controlled run and a run that follows its sigma22 history by stress control."""
     prefix = (loading.proportional_strain(5e-3, 5e-3, 10, label="iso"),)
     strain_run = driver.run(cell_model, prefix + (loading.constant_volume_biaxial(n * delta, n),),
-                            alpha0_deg=55.0, n_orientations=24, progress=False)
+                            mesostructure=h_cell(55.0), n_orientations=24, progress=False)
     shear = strain_run.stage == "shear"
     stress_steps = tuple(Step(("strain", "stress"), (delta, s22), 1, "shear") for s22 in strain_run.sigma22[shear])
-    stress_run = driver.run(cell_model, prefix + stress_steps, alpha0_deg=55.0, n_orientations=24,
+    stress_run = driver.run(cell_model, prefix + stress_steps, mesostructure=h_cell(55.0), n_orientations=24,
                             stress_rtol=1e-11, progress=False)
     return strain_run, stress_run
 
@@ -164,7 +165,8 @@ def test_control_round_trip(cell_model):
 def test_elastic_double_closed_form_under_stress_control():
     # Isotropic fabric and isotropic strain e: sigma = k ((1 + c) e + b e^2) / J (the double's area cancels V0).
     cell = ElasticCell()
-    record = driver.run(cell, (Step(("stress", "stress"), (3e6, 3e6), 5, "iso"),), n_orientations=8, progress=False)
+    record = driver.run(cell, (Step(("stress", "stress"), (3e6, 3e6), 5, "iso"),), mesostructure=h_cell(),
+                        n_orientations=8, progress=False)
     e = record.eps11
     assert record.eps22 == pytest.approx(e, rel=1e-9)
     assert record.sigma11 == pytest.approx(np.linspace(0.6e6, 3e6, 5), rel=LoadingDefaults.stress_rtol)
@@ -176,20 +178,20 @@ def test_elastic_double_closed_form_under_stress_control():
 def test_unreachable_p0_is_an_error():
     with pytest.raises(driver.ControlError, match="before reaching 5.85e\\+06 N/m"):
         driver.run(make_cell_model("analytical"), (loading.isotropic(5.85e6, increment=1e-3, max_strain=0.005),),
-                   alpha0_deg=55.0, n_orientations=8, progress=False)
+                   mesostructure=h_cell(55.0), n_orientations=8, progress=False)
 
 
 def test_stop_at_p_already_reached_is_an_error():
     programme = (loading.isotropic(2e5, increment=1e-4), loading.isotropic(1e5, increment=1e-4, label="again"))
     with pytest.raises(driver.ControlError, match=r"^step 'again' starts at p = 200000 N/m, already at or above "):
-        driver.run(make_cell_model("analytical"), programme, alpha0_deg=55.0, n_orientations=8, progress=False)
+        driver.run(make_cell_model("analytical"), programme, mesostructure=h_cell(55.0), n_orientations=8, progress=False)
 
 
 def test_snapshots_diagnostics_and_determinism():
     programme = loading.biaxial(2e5, 0.01, 1e-3)
     cell_model = make_cell_model("analytical")
-    first = driver.run(cell_model, programme, alpha0_deg=55.0, n_orientations=12, snapshot_interval=4, progress=False)
-    again = driver.run(cell_model, programme, alpha0_deg=55.0, n_orientations=12, snapshot_interval=4, progress=False)
+    first = driver.run(cell_model, programme, mesostructure=h_cell(55.0), n_orientations=12, snapshot_interval=4, progress=False)
+    again = driver.run(cell_model, programme, mesostructure=h_cell(55.0), n_orientations=12, snapshot_interval=4, progress=False)
     n_iso = int(np.sum(first.stage == "iso"))
     expected = sorted(set(range(4, first.n_increments + 1, 4)) | {n_iso, first.n_increments})
     assert first.snapshot_increment.tolist() == expected
@@ -204,16 +206,17 @@ def test_snapshots_diagnostics_and_determinism():
 
 def test_bad_programme_is_one_line_error():
     with pytest.raises(ValueError, match="^a loading programme needs at least one step$"):
-        driver.run(ElasticCell(), (), progress=False)
+        driver.run(ElasticCell(), (), mesostructure=h_cell(), progress=False)
     with pytest.raises(ValueError, match="snapshot_interval = -1 must be >= 0"):
-        driver.run(ElasticCell(), (loading.proportional_strain(1e-3, 0.0, 2),), snapshot_interval=-1, progress=False)
+        driver.run(ElasticCell(), (loading.proportional_strain(1e-3, 0.0, 2),), mesostructure=h_cell(),
+                   snapshot_interval=-1, progress=False)
 
 
 def test_diagnostics_count_every_step_call_of_stress_controlled_increments():
     # ElasticCell reports calls = 1 per step: the per-increment sum over all calls must equal
     # the calls the driver says it spent (trial calls of Newton included), the accepted-call
     # value stays 1.
-    record = driver.run(ElasticCell(), loading.biaxial(2e6, 0.01, 1e-3, drained=True), alpha0_deg=55.0,
+    record = driver.run(ElasticCell(), loading.biaxial(2e6, 0.01, 1e-3, drained=True), mesostructure=h_cell(55.0),
                         n_orientations=12, progress=False)
     shear = record.stage == "shear"
     assert np.all(record.diagnostics["calls"] == 1.0)
@@ -226,7 +229,7 @@ def test_stress_control_newton_with_the_consistent_tangent(alpha0, p0):
     """Newton on the material tangent: the predictor's residual is removed in one correction
     (two step calls per drained increment; a tangent off by a few % would need a third)."""
     record = driver.run(make_cell_model("analytical"), loading.biaxial(p0, 0.05, 5e-4, drained=True),
-                        alpha0_deg=alpha0, n_orientations=36, progress=False)
+                        mesostructure=h_cell(alpha0), n_orientations=36, progress=False)
     calls = record.newton_iterations[record.stage == "shear"]
     assert calls.max() <= 3 and np.count_nonzero(calls == 3) <= 1
     assert np.abs(record.sigma22[record.stage == "shear"] / p0 - 1.0).max() <= LoadingDefaults.stress_rtol
@@ -251,7 +254,7 @@ def test_stress_control_accepts_the_nearer_side_of_a_response_jump_and_flags_it(
     n, final = 20, 2e6
     programme = (Step(("strain", "stress"), (0.0, final), n, "load"),)
     with pytest.warns(RuntimeWarning, match=r"jump of the response across its target at [1-9]\d* increment"):
-        record = driver.run(cell, programme, n_orientations=1, progress=False)
+        record = driver.run(cell, programme, mesostructure=h_cell(), n_orientations=1, progress=False)
     target = final * np.arange(1, n + 1) / n
     miss = np.abs(record.sigma22 - target)
     flagged = record.diagnostics["stress_control_jump"] == 1.0
@@ -263,6 +266,6 @@ def test_stress_control_accepts_the_nearer_side_of_a_response_jump_and_flags_it(
 
 
 def test_stress_control_without_a_jump_flags_nothing():
-    record = driver.run(ElasticCell(), (Step(("strain", "stress"), (1e-4, 2e6), 10, "load"),), n_orientations=4,
-                        progress=False)
+    record = driver.run(ElasticCell(), (Step(("strain", "stress"), (1e-4, 2e6), 10, "load"),), mesostructure=h_cell(),
+                        n_orientations=4, progress=False)
     assert np.all(record.diagnostics["stress_control_jump"] == 0.0)

@@ -7,6 +7,7 @@ import pytest
 
 from homogenization import driver, invariants, loading
 from homogenization.backends import make_cell_model
+from warp_hcell.mesostructure import h_cell
 
 
 def test_p_q_t_compression_positive():
@@ -25,7 +26,7 @@ def test_second_order_work_by_hand():
 
 
 def test_w2_changes_sign_at_the_q_peak():
-    record = driver.run(make_cell_model("analytical"), loading.biaxial(5.85e6, 0.08, 2e-4), alpha0_deg=55.0,
+    record = driver.run(make_cell_model("analytical"), loading.biaxial(5.85e6, 0.08, 2e-4), mesostructure=h_cell(55.0),
                         n_orientations=72, progress=False)
     shear = np.flatnonzero(record.stage == "shear")
     k = np.concatenate([[shear[0] - 1], shear])  # include the end of the isotropic stage

@@ -12,11 +12,12 @@ import pytest
 from homogenization import driver, io, loading
 from homogenization.backends import make_cell_model
 from warp_hcell.cli import UserError
+from warp_hcell.mesostructure import h_cell
 
 
 @pytest.fixture(scope="module")
 def record() -> driver.Record:
-    return driver.run(make_cell_model("analytical"), loading.biaxial(2e5, 0.01, 1e-3), alpha0_deg=55.0,
+    return driver.run(make_cell_model("analytical"), loading.biaxial(2e5, 0.01, 1e-3), mesostructure=h_cell(55.0),
                       n_orientations=12, snapshot_interval=5, progress=False)
 
 

@@ -7,12 +7,13 @@ from cell_doubles import ElasticCell
 from homogenization import orientation
 from homogenization.backends import make_cell_model
 from homogenization.material import HomogenisedMaterial
+from warp_hcell.mesostructure import h_cell
 
 
 def _loaded(model, n_orientations=24, alpha0=(40.0, 55.0, 40.0)):
     """Points compressed isotropically then sheared along different directions (shear included)."""
     orient = orientation.orientations(n_orientations)
-    material = HomogenisedMaterial(model, orient, np.array(alpha0), len(alpha0))
+    material = HomogenisedMaterial(model, orient, [h_cell(a) for a in alpha0], len(alpha0))
     state = material.init_state()
     iso = np.tile([2e-4, 2e-4, 0.0], (len(alpha0), 1))
     for _ in range(50):
@@ -70,8 +71,8 @@ def test_stress_and_volume_rule_match_the_driver():
 
     model = make_cell_model("analytical")
     programme = (loading.proportional_strain(4e-3, 4e-3, 20, label="iso"), loading.constant_volume_biaxial(0.01, 20))
-    record = driver.run(model, programme, alpha0_deg=40.0, n_orientations=36, progress=False)
-    material = HomogenisedMaterial(model, orientation.orientations(36), 40.0, 1)
+    record = driver.run(model, programme, mesostructure=h_cell(40.0), n_orientations=36, progress=False)
+    material = HomogenisedMaterial(model, orientation.orientations(36), h_cell(40.0), 1)
     state = material.init_state()
     increments = np.diff(np.stack([record.eps11, record.eps22], axis=1), axis=0, prepend=np.zeros((1, 2)))
     stresses = []
@@ -103,7 +104,7 @@ def test_points_are_independent():
     model = make_cell_model("analytical")
     material, state, d_e = _loaded(model)
     full = material.update(state, d_e)
-    single = HomogenisedMaterial(model, material.orient, 55.0, 1)
+    single = HomogenisedMaterial(model, material.orient, h_cell(55.0), 1)
     single.init_state()
     cells = model.take(state.cells, np.arange(24, 48))
     from homogenization.material import MaterialState

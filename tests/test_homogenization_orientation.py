@@ -9,6 +9,7 @@ import pytest
 
 from homogenization import orientation
 from homogenization.backends import make_cell_model
+from warp_hcell.mesostructure import h_cell
 
 
 def test_angles_and_isotropic_weights():
@@ -71,7 +72,7 @@ def test_theta_and_theta_plus_pi_give_the_same_cell():
     tensor = np.array([[d_eps[0], d_eps[2]], [d_eps[2], d_eps[1]]])
     local = orientation.localise(orient, d_eps)
     cell = make_cell_model("analytical")
-    state = cell.init_state(55.0, 6)
+    state = cell.init_state(h_cell(55.0), 6)
     _, response = cell.step(state, local)
     macro = np.zeros((2, 2))
     for k, th in enumerate(orient.theta + math.pi):

@@ -8,6 +8,7 @@ import pytest
 from cell_doubles import ElasticCell
 from homogenization import driver, loading, plotting
 from homogenization.backends import make_cell_model
+from warp_hcell.mesostructure import h_cell
 
 P0 = 2e5
 
@@ -16,9 +17,9 @@ P0 = 2e5
 def runs() -> dict[str, driver.Record]:
     programme = loading.biaxial(P0, 0.02, 5e-4)
     return {
-        "analytical": driver.run(make_cell_model("analytical"), programme, alpha0_deg=55.0, n_orientations=24,
+        "analytical": driver.run(make_cell_model("analytical"), programme, mesostructure=h_cell(55.0), n_orientations=24,
                                  progress=False),
-        "elastic": driver.run(ElasticCell(), programme, n_orientations=8, progress=False),
+        "elastic": driver.run(ElasticCell(), programme, mesostructure=h_cell(), n_orientations=8, progress=False),
     }
 
 
@@ -34,7 +35,8 @@ def test_shear_curve_counts_from_end_of_stage_one(runs):
 
 
 def test_single_stage_record_starts_at_the_initial_state():
-    record = driver.run(ElasticCell(), (loading.proportional_strain(0.01, 0.0, 4),), n_orientations=4, progress=False)
+    record = driver.run(ElasticCell(), (loading.proportional_strain(0.01, 0.0, 4),), mesostructure=h_cell(),
+                        n_orientations=4, progress=False)
     curve = plotting.shear_curve(record)
     assert curve.eps1.tolist() == pytest.approx([0.0, 0.0025, 0.005, 0.0075, 0.01])
     assert curve.p[0] == 0.0
@@ -106,7 +108,7 @@ def test_plot_reads_drained_from_the_file(runs, tmp_path, monkeypatch):
 
     monkeypatch.setattr(plotting, "make_figure", spy)
     drained = driver.run(make_cell_model("analytical"), loading.biaxial(P0, 0.01, 5e-4, drained=True),
-                         n_orientations=12, progress=False)
+                         mesostructure=h_cell(), n_orientations=12, progress=False)
     path = _stored_run(tmp_path, "d", drained, None)  # no drained parameter: read from the programme
     assert plotting.main([path, "--out", str(tmp_path / "d.png")]) == 0
     assert seen["drained"] is True

@@ -17,6 +17,7 @@ from training.cell_physics import CellSchema, count_held_grains
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP, MesoNet
 from warp_hcell.builders import resolve_mesostructure
+from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import ContactLaw
 
 
@@ -25,7 +26,7 @@ def loaded():
     cell = AnnCell(ContactLaw(), 0.5)
     rng = np.random.default_rng(1)
     n = 40
-    state = cell.init_state(rng.uniform(35.0, 65.0, n), n)
+    state = cell.init_state([h_cell(a) for a in rng.uniform(35.0, 65.0, n)], n)
     shear = np.stack([np.ones(n), -np.ones(n)], axis=1) * rng.choice([-1.0, 1.0], size=(n, 1))
     for k in range(80):
         state, _ = cell.step(state, np.full((n, 2), 4e-4) if k < 30 else 2e-4 * shear)

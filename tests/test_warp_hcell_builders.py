@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 
 from warp_hcell.builders import (
     build_h_cell,
+    h_cell_alpha0,
     mesostructure_arg,
     parse_mesostructure,
     plain_h_cell_alpha0,
@@ -86,6 +88,14 @@ def test_plain_h_cell_is_recognised_and_nothing_else():
     assert plain_h_cell_alpha0(h_cell(42.5, 1.0)) == (42.5, 1.0)
     assert plain_h_cell_alpha0(resolve_mesostructure("hcell-fines:alpha0=50,ratio=0.2")) is None
     assert plain_h_cell_alpha0(load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")) is None
+
+
+def test_h_cell_alpha0_of_any_cell_with_h_cell_labels():
+    assert h_cell_alpha0(resolve_mesostructure("hcell-fines:alpha0=50,ratio=0.2")) == 50.0
+    assert h_cell_alpha0(resolve_mesostructure("hcell-unequal:alpha0=47.25,lateral=0.7")) == 47.25
+    assert h_cell_alpha0(load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")) == pytest.approx(55.0, abs=1e-9)
+    unlabelled = replace(h_cell(50.0), pair_type=None)
+    assert h_cell_alpha0(unlabelled) is None and plain_h_cell_alpha0(unlabelled) is None
 
 
 def test_split_list_keeps_spec_keys_together():

@@ -56,14 +56,14 @@ def test_removing_an_untouched_fine_grain_gives_the_plain_cell_back():
     (to where relaxation stops: the light fine grain sets a smaller time step, so the two cells stop
     relaxing at different unbalanced forces below the force tolerance)."""
     d_eps = np.array([[2e-3, -2e-3], [-2e-3, 2e-3], [1e-3, 1e-3]])
-    fines = DemCell(LAW, 0.5, mesostructure=resolve_mesostructure("hcell-fines:alpha0=50,ratio=0.3"), threads=1)
-    plain = DemCell(LAW, 0.5, mesostructure=h_cell(50.0), threads=1)
-    s_f, s_p = fines.init_state(50.0, 3), plain.init_state(50.0, 3)
+    fines = plain = DemCell(LAW, 0.5, threads=1)
+    s_f = fines.init_state(resolve_mesostructure("hcell-fines:alpha0=50,ratio=0.3"), 3)
+    s_p = plain.init_state(h_cell(50.0), 3)
     for _ in range(3):
         s_f, _ = fines.step(s_f, d_eps)
         s_p, _ = plain.step(s_p, d_eps)
     reduced, s_r, removal = erode_state(fines, s_f)
-    assert removal.removed.tolist() == [6] and reduced.mesostructure.n_grains == 6
+    assert removal.removed.tolist() == [6] and s_r.model.meso.n_grains == 6
     for _ in range(3):
         s_r, r_r = reduced.step(s_r, d_eps)
         s_p, r_p = plain.step(s_p, d_eps)
@@ -76,9 +76,8 @@ def test_removing_a_loaded_fine_grain_unloads_the_cell_to_the_plain_cell():
     """Compressed, the caught fine grain carries load; removed, the skeleton relaxes at zero strain to the
     state of the plain cell at the same strain (its free grains slide back along n)."""
     d_eps = np.array([[4e-3, 4e-3]])
-    cell = DemCell(LAW, 0.5, mesostructure=resolve_mesostructure("hcell-fines:alpha0=50,ratio=0.8"), threads=1)
-    plain = DemCell(LAW, 0.5, mesostructure=h_cell(50.0), threads=1)
-    state, s_p = cell.init_state(50.0, 1), plain.init_state(50.0, 1)
+    cell = plain = DemCell(LAW, 0.5, threads=1)
+    state, s_p = cell.init_state(resolve_mesostructure("hcell-fines:alpha0=50,ratio=0.8"), 1), plain.init_state(h_cell(50.0), 1)
     for _ in range(10):
         state, before = cell.step(state, d_eps)
         s_p, r_p = plain.step(s_p, d_eps)

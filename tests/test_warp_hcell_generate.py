@@ -150,7 +150,7 @@ def test_samples_recheck_against_the_dem(h_db, fine_db, which):
     law, tol = ContactLaw(), DemSettings().contact_tolerance
     perturbed = np.flatnonzero(data["perturbed"])
     rows = np.concatenate([np.array([0, 17, 777, 1999]), perturbed[:3]])
-    context = probing.ProbeContext(DemCell(law, 0.5, mesostructure=meso), meso, schema, {}, law, tol)
+    context = probing.ProbeContext(DemCell(law, 0.5), meso, schema, {}, law, tol)
     before = evaluate(schema, data["before/cell_size"][rows], data["before/free_position"][rows],
                       data["before/shear_force"][rows], law, tol)
     np.testing.assert_array_equal(before["normal_force"], data["before/normal_force"][rows])
@@ -467,7 +467,7 @@ def test_explored_states_cover_constant_volume_homogenisation():
     visited = []
     for alpha0 in (35.0, 40.0, 55.0):
         for eps_iso in (9e-4, 2.5e-2):
-            state, _ = cell.step(cell.init_state(alpha0, 12), np.full((12, 2), eps_iso))
+            state, _ = cell.step(cell.init_state(h_cell(alpha0), 12), np.full((12, 2), eps_iso))
             for k in range(100):
                 state, _ = cell.step(state, d_eps)
                 if k % 5 == 4:

@@ -17,6 +17,7 @@ from warp_hcell.mesostructure import (
     h_cell,
     h_cell_reference,
     load_mesostructure,
+    per_cell,
     polygon_area,
     shares_state_schema,
 )
@@ -196,3 +197,15 @@ def test_h_cells_of_every_angle_share_one_learning_state():
     assert shares_state_schema(h_cell(55.0), h_cell(30.0)) and shares_state_schema(h_cell(55.0), h_cell(89.0))
     assert not shares_state_schema(h_cell(55.0), load_mesostructure(DATA / "h_cell_lateral_0.7D.toml"))
     assert not shares_state_schema(h_cell(55.0, 0.5), h_cell(55.0, 0.4))
+
+
+def test_per_cell_groups_cells_by_their_mesostructure_object():
+    a, b = h_cell(40.0), h_cell(55.0)
+    distinct, index = per_cell([a, b, a, a, b], 5)
+    assert distinct == (a, b) and index.tolist() == [0, 1, 0, 0, 1]
+    distinct, index = per_cell(b, 3)
+    assert distinct == (b,) and index.tolist() == [0, 0, 0]
+    with pytest.raises(ValueError, match=r"need one mesostructure or n_cells = 3 of them, got 2"):
+        per_cell([a, b], 3)
+    with pytest.raises(ValueError, match="cell 1: float is not a Mesostructure"):
+        per_cell([a, 55.0], 2)

@@ -52,5 +52,5 @@ def test_templates_must_share_one_topology():
     other = load_mesostructure(DATA / "h_cell_fine_grain.toml")
     with pytest.raises(MesostructureError, match="has another topology than"):
         DemModel.build([h_cell(55.0, 0.5), other], 2)
-    with pytest.raises(ValueError, match=r"need n_cells = 3 >= 1 mesostructures, got 2"):
+    with pytest.raises(ValueError, match=r"need one mesostructure or n_cells = 3 of them, got 2"):
         DemModel.build([h_cell(55.0, 0.5)] * 2, 3)

@@ -3,6 +3,7 @@
 import numpy as np
 
 from warp_hcell.dem_cell import DemCell
+from warp_hcell.mesostructure import h_cell
 from warp_hcell.model import DemModel
 from warp_hcell.parameters import ContactLaw
 from warp_hcell.state import DemState, StatePool
@@ -63,7 +64,7 @@ def test_pool_reuses_only_states_nobody_refers_to():
 
 def test_dem_steps_never_overwrite_a_state_the_caller_keeps():
     cell = DemCell(ContactLaw(), 0.5, threads=1)
-    state = cell.init_state(55.0, 3)
+    state = cell.init_state(h_cell(55.0), 3)
     d_eps = np.full((3, 2), 1e-4)
     kept = []
     for _ in range(12):  # more steps than the pool keeps states

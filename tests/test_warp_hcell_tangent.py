@@ -28,7 +28,7 @@ import pytest
 from homogenization.backends.analytical import AnalyticalCell
 from tangent_fd import fd_tangent, fd_tangent_fixed_schedule, relative_error
 from warp_hcell.dem_cell import DemCell
-from warp_hcell.mesostructure import load_mesostructure
+from warp_hcell.mesostructure import h_cell, load_mesostructure
 from warp_hcell.parameters import ContactLaw, DemSettings
 from warp_hcell.tangent import condensed_tangent, sliding_contacts
 
@@ -41,7 +41,7 @@ DATA = "warp_hcell/data"
 def _sheared(model, alpha0, n_cells, iso=1e-3):
     """Cells compressed isotropically, then sheared at constant volume in several directions."""
     c2 = np.cos(2 * np.linspace(0, np.pi / 2, n_cells))
-    state = model.init_state(alpha0, n_cells)
+    state = model.init_state([h_cell(a, R) for a in alpha0], n_cells)
     state, _ = model.step(state, np.full((n_cells, 2), iso))
     d_eps = np.stack([1e-3 * c2, -1e-3 * c2], axis=1)
     for _ in range(3):
@@ -124,8 +124,8 @@ def test_tangent_only_when_asked(h_cells):
 def test_generic_mesostructure_sticking(name):
     """Unequal radii and a free fine grain (free along n and t): first increments from rest stick."""
     meso = load_mesostructure(f"{DATA}/{name}.toml")
-    dem = DemCell(LAW, R, mesostructure=meso, settings=TIGHT, threads=1)
-    state = dem.init_state(40.0, 3)
+    dem = DemCell(LAW, R, settings=TIGHT, threads=1)
+    state = dem.init_state(meso, 3)
     state, _ = dem.step(state, np.full((3, 2), 2e-3))
     d_eps = _fixed_driving(np.array([[1e-5, 1e-5], [2e-5, 1e-5], [1e-5, 2e-5]]), TIGHT.strain_per_substep)
     new, response = dem.step(state, d_eps, with_tangent=True)

@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 
 from homogenization.backends import make_cell_model
+from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import CellDefaults, ContactLaw
 
 HERE = Path(__file__).resolve().parent
@@ -188,7 +189,7 @@ def run_backend(backend: str, device: str = "cpu") -> dict[str, np.ndarray]:
     for k, path in enumerate(paths):
         d_eps[: len(path), k] = path
     alpha0 = np.array([load_case(name)[2]["alpha0_deg"] for name in CASE_NAMES])
-    state = model.init_state(alpha0, len(CASE_NAMES))
+    state = model.init_state([h_cell(a, CellDefaults.radius) for a in alpha0], len(CASE_NAMES))
     keys = ("N1", "N2", "T1", "alpha_deg", "l1", "l2") + tuple(f"x_{a}{i}" for i in LABELS for a in "nt")
     record = {key: np.empty((n_rows, len(CASE_NAMES))) for key in keys}
     for row in range(n_rows):

@@ -91,8 +91,8 @@ def dem_reference(meso: Mesostructure, law: ContactLaw, settings: DemSettings, p
     Same increments matter: l <- l (1 - d_eps) compounds, so 1e-4 and 5e-3 steps reach cell
     sizes 4e-4 apart after 15 %, which is 2.5 % of a 1.5 % overlap.
     """
-    dem = DemCell(law, float(meso.radius.mean()), mesostructure=meso, settings=settings, threads=1)
-    state = [dem.init_state(55.0, len(paths))]
+    dem = DemCell(law, float(meso.radius.mean()), settings=settings, threads=1)
+    state = [dem.init_state(meso, len(paths))]
 
     def step(d_eps):
         state[0], response = dem.step(state[0], d_eps)

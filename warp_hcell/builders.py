@@ -34,7 +34,8 @@ of the pair's diameter sum), a fine grain whose centre is outside the pore (the 
 
 This module and ``warp_hcell.mesostructure.h_cell`` are the only code that knows the shape of
 these cells; everything else sees a ``Mesostructure``. ``plain_h_cell_alpha0`` tells
-whether a mesostructure is the six-equal-grain H-cell (which closed-form backends model).
+whether a mesostructure is the six-equal-grain H-cell (which closed-form backends model);
+``h_cell_alpha0`` gives the opening angle of any cell with H-cell labels (for run records).
 """
 
 from __future__ import annotations
@@ -193,6 +194,19 @@ def _inside(polygon: np.ndarray, point: np.ndarray) -> bool:
     return bool(np.all(cross > 0.0) or np.all(cross < 0.0))
 
 
+def h_cell_alpha0(meso: Mesostructure) -> float | None:
+    """Initial opening angle [deg] of a cell with H-cell labels, or None without them.
+
+    The angle between the axis n and the branch 1 -> 2 of the reference type-1 contact, in
+    the reference geometry, rounded to 1e-9 deg (so that the cell built at ``alpha0`` gives
+    back exactly ``alpha0`` for any value with at most nine decimals).
+    """
+    if not meso.is_h_cell:
+        return None
+    branch = meso.position[1] - meso.position[0]
+    return round(math.degrees(math.atan2(-branch[1], -branch[0])), 9)
+
+
 def plain_h_cell_alpha0(meso: Mesostructure) -> tuple[float, float] | None:
     """(alpha0_deg, radius) if ``meso`` is the touching six-equal-grain H-cell, else None.
 
@@ -201,9 +215,10 @@ def plain_h_cell_alpha0(meso: Mesostructure) -> tuple[float, float] | None:
     """
     if meso.n_grains != H_GRAINS or not np.allclose(meso.radius, meso.radius[0], rtol=1e-12, atol=0.0):
         return None
+    alpha0 = h_cell_alpha0(meso)
+    if alpha0 is None:
+        return None
     radius = float(meso.radius[0])
-    branch = meso.position[1] - meso.position[0]
-    alpha0 = round(math.degrees(math.atan2(-branch[1], -branch[0])), 9)
     try:
         reference = h_cell(alpha0, radius)
     except ValueError:

@@ -3,8 +3,10 @@
 This module sits at the bottom of the package: ``warp_hcell``, ``training`` and
 ``homogenization`` all import it, and it imports none of them.
 
-A cell model advances a batch of independent cells (one per orientation, or one per
-database probe) by per-cell strain increments given in each cell's local frame (n, t), and
+A cell model creates a batch of independent cells (one per orientation, or one per
+database probe) from a mesostructure (``warp_hcell.mesostructure.Mesostructure``: a builder
+such as ``h_cell(alpha0_deg, radius)`` or a spec of ``warp_hcell.builders``, or a file),
+advances them by per-cell strain increments given in each cell's local frame (n, t), and
 returns the Love-Weber moment S and the cell area V_cell. The homogenisation drives any
 cell model through this protocol without knowing which backend it is; backends know
 nothing about orientations, weights or loading programmes.
@@ -29,9 +31,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, Any, Mapping, Protocol, Sequence, TypeVar, runtime_checkable
 
 import numpy as np
+
+if TYPE_CHECKING:  # the mesostructure module imports this one
+    from warp_hcell.mesostructure import Mesostructure
 
 S = TypeVar("S")
 
@@ -64,20 +69,28 @@ class CellModel(Protocol[S]):
     """What the homogenisation needs from a cell backend.
 
     Implementations are constructed with the physical parameters (a
-    ``warp_hcell.parameters.ContactLaw``, the grain radius [m]) and keyword-only numerical
-    options; see ``homogenization.backends.make_cell_model``.
+    ``warp_hcell.parameters.ContactLaw``, the grain radius [m], which only the closed-form
+    analytical cell uses: the others take every radius from the mesostructure) and
+    keyword-only numerical options; see ``homogenization.backends.make_cell_model``. The cells
+    themselves come from a mesostructure, in ``init_state``.
     """
 
     name: str
     """Backend name as used by ``--backend``."""
 
-    def init_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> S:
-        """Touching, force-free initial cells.
+    def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> S:
+        """Touching, force-free cells built from a mesostructure.
 
         Args:
-            alpha0_deg: initial opening angle [deg], scalar or shape (n_cells,), each in
-                [30, 90).
+            mesostructure: the cell every cell of the batch starts from, or a sequence of
+                ``n_cells`` mesostructures, one per cell (e.g. material points of different
+                initial geometry), all of one topology (pairs, driven mask, outer polygon).
             n_cells: number of cells in the batch.
+
+        Raises:
+            ValueError: (one line) a mesostructure this backend does not model (the
+                analytical backend models the six-equal-grain H-cell only; an ANN model only
+                the mesostructure it was trained on), or a sequence of the wrong length.
         """
         ...
 

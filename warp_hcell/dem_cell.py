@@ -1,11 +1,12 @@
 """Meso-DEM cell backend: batched few-grain DEM cells (Warp kernels) behind the CellModel protocol.
 
-``DemCell(contact_law, radius, *, mesostructure=None, settings=DemSettings(), device="cpu",
-threads=2, engine="warp")`` advances every cell of a batch by its own strain increment with
-the quasi-static DEM of ``warp_hcell`` (one Warp thread per cell; ``engine="numpy"`` runs the
-same step with numpy, for comparisons). Without ``mesostructure`` the cells are H-cells
-built from ``alpha0_deg``; with one, every cell starts from that mesostructure (its
-``alpha0`` argument is then ignored).
+``DemCell(contact_law, radius, *, settings=DemSettings(), device="cpu", threads=2,
+engine="warp")`` advances every cell of a batch by its own strain increment with the
+quasi-static DEM of ``warp_hcell`` (one Warp thread per cell; ``engine="numpy"`` runs the
+same step with numpy, for comparisons). ``init_state(mesostructure, n_cells)`` builds the
+cells from any mesostructure, or from one per cell of one topology; the state keeps the
+topology (``DemCellState.model.meso``) and ``state_to_arrays`` writes it out, so that
+``state_from_arrays`` needs nothing else.
 
 Sign convention: compression and contraction positive. The DEM's tension-positive
 Love-Weber sum is converted in ``warp_hcell.learning_state.to_compression_positive`` only. V_cell is the area of the
@@ -17,14 +18,14 @@ from __future__ import annotations
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields, replace
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from warp_hcell.cell_model import CellResponse
 from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
 from warp_hcell.learning_state import hcell_observables, to_compression_positive
-from warp_hcell.mesostructure import Mesostructure, h_cell
+from warp_hcell.mesostructure import TOPOLOGY_ARRAYS, Mesostructure, topology_arrays
 from warp_hcell.model import DemModel
 from warp_hcell.parameters import ContactLaw, DemSettings, check_positive
 from warp_hcell.state import DemState, StatePool
@@ -51,8 +52,9 @@ class DemCell:
 
     Args:
         contact_law: stiffnesses and friction.
-        radius: grain radius r [m] of the H-cell (ignored with ``mesostructure``).
-        mesostructure: cell description; None = H-cell from ``alpha0_deg``.
+        radius: grain radius r [m]; positive, not used: every grain's radius comes from
+            the mesostructure given to ``init_state`` (the argument keeps the constructor
+            of every backend alike, ``homogenization.backends.make_cell_model``).
         settings: DEM numerical settings.
         device: Warp device ("cpu", "cuda:0").
         threads: CPU chunks launched in parallel (results do not depend on it).
@@ -61,16 +63,14 @@ class DemCell:
 
     name = "dem"
 
-    def __init__(self, contact_law: ContactLaw, radius: float, *, mesostructure: Mesostructure | None = None,
-                 settings: DemSettings = DemSettings(), device: str = "cpu", threads: int = 2,
-                 engine: str = "warp"):
+    def __init__(self, contact_law: ContactLaw, radius: float, *, settings: DemSettings = DemSettings(),
+                 device: str = "cpu", threads: int = 2, engine: str = "warp"):
         if engine not in ("warp", "numpy"):
             raise ValueError(f"engine {engine!r} is not one of 'warp', 'numpy'")
         if int(threads) < 1:
             raise ValueError(f"threads = {threads} must be >= 1")
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
-        self.mesostructure = mesostructure
         self.settings = settings
         self.device = str(device)
         self.threads = int(threads)
@@ -80,12 +80,6 @@ class DemCell:
         self._outputs: StatePool | None = None
 
     # -- construction ---------------------------------------------------------------------
-    def _model(self, alpha0_deg: float | np.ndarray, n_cells: int) -> DemModel:
-        options = dict(contact_law=self.contact_law, settings=self.settings, device=self.device)
-        if self.mesostructure is None:
-            return DemModel.build_h_cell(alpha0_deg, n_cells, self.radius, **options)
-        return DemModel.build(self.mesostructure, n_cells, **options)
-
     def _integrator(self, model: DemModel) -> DemIntegrator | NumpyIntegrator:
         """The integrator of ``model`` (the last one is kept with its pool of output states:
         trial steps and the following increments reuse them)."""
@@ -98,9 +92,10 @@ class DemCell:
         return integrator
 
     # -- CellModel protocol ---------------------------------------------------------------
-    def init_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> DemCellState:
-        """Touching, force-free cells; ``alpha0_deg`` [deg] scalar or (n_cells,)."""
-        model = self._model(alpha0_deg, int(n_cells))
+    def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> DemCellState:
+        """Touching, force-free cells of ``mesostructure`` (one, or one per cell of one topology)."""
+        model = DemModel.build(mesostructure, int(n_cells), contact_law=self.contact_law, settings=self.settings,
+                               device=self.device)
         return DemCellState(model, model.state())
 
     def step(self, state: DemCellState, d_eps_local: np.ndarray, *,
@@ -185,15 +180,20 @@ class DemCell:
         return DemCellState(model, DemState.from_numpy(arrays, model.device))
 
     def state_to_arrays(self, state: DemCellState) -> dict[str, np.ndarray]:
-        """Every state array plus the per-cell reference geometry (first axis n_cells)."""
+        """Every state array, the per-cell reference geometry and the topology (first axis n_cells)."""
         arrays = {k: np.array(v) for k, v in state.dem.to_numpy().items()}
         arrays.update({k: np.array(getattr(state.model, k).numpy()) for k in _MODEL_ARRAYS})
+        arrays.update(topology_arrays(state.model.meso, state.n_cells))
         return arrays
 
     def state_from_arrays(self, arrays: Mapping[str, Any]) -> DemCellState:
-        """Inverse of ``state_to_arrays`` (topology from this backend's mesostructure)."""
-        meso = self.mesostructure if self.mesostructure is not None else h_cell(radius=self.radius)
-        arrays = {k: np.asarray(arrays[k]) for k in (*_MODEL_ARRAYS, *(f.name for f in fields(DemState)))}
+        """Inverse of ``state_to_arrays``; the topology template is rebuilt from the first cell."""
+        arrays = {k: np.asarray(arrays[k])
+                  for k in (*_MODEL_ARRAYS, *TOPOLOGY_ARRAYS, *(f.name for f in fields(DemState)))}
+        meso = Mesostructure(name=f"{arrays['radius'].shape[1]}-grain cell from state arrays",
+                             radius=arrays["radius"][0], position=arrays["reference_position"][0],
+                             cell_size=arrays["reference_cell_size"][0],
+                             **{k: arrays[k][0] for k in TOPOLOGY_ARRAYS})
         model = DemModel.from_reference(meso, arrays["radius"], arrays["reference_position"],
                                         arrays["reference_cell_size"], contact_law=self.contact_law,
                                         settings=self.settings, device=self.device)

@@ -3,7 +3,8 @@
 ``remove_grains(meso, grains)`` returns the mesostructure without ``grains`` (0-based) and
 the index maps of the grains and pairs it keeps; ``erode_arrays(arrays, removal)`` maps a
 batch state, as given by ``DemCell.state_to_arrays`` (per-grain arrays on axis 1 of shape
-(n_cells, n_grains, ...), per-pair arrays (n_cells, n_pairs, ...), per-cell arrays kept),
+(n_cells, n_grains, ...), per-pair arrays (n_cells, n_pairs, ...), the topology replaced by
+the reduced one, per-cell arrays kept),
 onto the reduced mesostructure; ``erode_state(cell, state, grains)`` does both and returns
 the ``DemCell`` of the reduced mesostructure with its state. Nothing here knows a shape:
 any grain that is not part of the outer polygon can be removed.
@@ -26,7 +27,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from warp_hcell.dem_cell import DemCell, DemCellState
-from warp_hcell.mesostructure import Mesostructure, MesostructureError
+from warp_hcell.mesostructure import TOPOLOGY_ARRAYS, Mesostructure, MesostructureError, topology_arrays
 
 PER_GRAIN = ("position", "velocity", "radius", "reference_position")
 """State/model arrays with one entry per grain on axis 1."""
@@ -93,7 +94,9 @@ def erode_arrays(arrays: Mapping[str, Any], removal: GrainRemoval) -> dict[str, 
 
     Args:
         arrays: name -> array with first axis n_cells; names in ``PER_GRAIN`` are indexed by
-            grain on axis 1, names in ``PER_PAIR`` by pair on axis 1, the rest are per cell.
+            grain on axis 1, names in ``PER_PAIR`` by pair on axis 1, names in
+            ``warp_hcell.mesostructure.TOPOLOGY_ARRAYS`` are replaced by the reduced mesostructure's,
+            the rest are per cell.
         removal: from ``remove_grains``.
 
     Returns:
@@ -106,6 +109,8 @@ def erode_arrays(arrays: Mapping[str, Any], removal: GrainRemoval) -> dict[str, 
             out[name] = value[:, removal.grain_index].copy()
         elif name in PER_PAIR:
             out[name] = value[:, removal.pair_index].copy()
+        elif name in TOPOLOGY_ARRAYS:
+            out[name] = topology_arrays(removal.meso, value.shape[0])[name]
         else:
             out[name] = value.copy()
     return out
@@ -128,6 +133,6 @@ def erode_state(cell: DemCell, state: DemCellState,
     meso = state.model.meso
     grains = erodible_grains(meso) if grains is None else grains
     removal = remove_grains(meso, grains)
-    reduced = DemCell(cell.contact_law, cell.radius, mesostructure=removal.meso, settings=cell.settings,
-                      device=cell.device, threads=cell.threads, engine=cell.engine)
+    reduced = DemCell(cell.contact_law, cell.radius, settings=cell.settings, device=cell.device,
+                      threads=cell.threads, engine=cell.engine)
     return reduced, reduced.state_from_arrays(erode_arrays(cell.state_to_arrays(state), removal)), removal

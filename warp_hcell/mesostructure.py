@@ -20,6 +20,10 @@ Exports:
         JSON text of a mesostructure (stored in databases and checkpoints), its inverse, and
         its hash.
     ``shares_state_schema(a, b)``: True when cells of ``b`` are states of ``a``'s schema.
+    ``per_cell(mesostructure, n_cells)``: the distinct mesostructures of a batch of cells and
+        each cell's index into them (``CellModel.init_state`` takes one or one per cell).
+    ``topology_arrays(meso, n_cells)``: the topology repeated per cell, for state arrays
+        that must rebuild their cells (``warp_hcell.dem_cell.DemCell.state_from_arrays``).
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ import tomllib
 from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -363,6 +367,52 @@ def shares_state_schema(meso: Mesostructure, other: Mesostructure, rtol: float =
     mine = (meso.position / meso.cell_size)[meso.driven]
     theirs = (other.position / other.cell_size)[other.driven]
     return bool(np.allclose(mine, theirs, rtol=rtol, atol=rtol))
+
+
+def per_cell(mesostructure: Mesostructure | Sequence[Mesostructure],
+             n_cells: int) -> tuple[tuple[Mesostructure, ...], np.ndarray]:
+    """The distinct mesostructures of a batch and the index of each cell's one.
+
+    Args:
+        mesostructure: one mesostructure for every cell, or a sequence of ``n_cells``, one
+            per cell (cells that share a ``Mesostructure`` object share its entry).
+        n_cells: number of cells, >= 1.
+
+    Returns:
+        distinct: the mesostructures in order of first use (compared by identity);
+        index: int64, shape (n_cells,), cell i starts from ``distinct[index[i]]``.
+
+    Raises:
+        ValueError: fewer than one cell, or a sequence whose length is not ``n_cells``.
+    """
+    n_cells = int(n_cells)
+    if n_cells < 1:
+        raise ValueError(f"n_cells = {n_cells} must be >= 1")
+    if isinstance(mesostructure, Mesostructure):
+        return (mesostructure,), np.zeros(n_cells, dtype=np.int64)
+    cells = list(mesostructure)
+    if len(cells) != n_cells:
+        raise ValueError(f"need one mesostructure or n_cells = {n_cells} of them, got {len(cells)}")
+    slot: dict[int, int] = {}
+    distinct: list[Mesostructure] = []
+    index = np.empty(n_cells, dtype=np.int64)
+    for i, meso in enumerate(cells):
+        if not isinstance(meso, Mesostructure):
+            raise ValueError(f"cell {i}: {type(meso).__name__} is not a Mesostructure")
+        k = slot.setdefault(id(meso), len(distinct))
+        if k == len(distinct):
+            distinct.append(meso)
+        index[i] = k
+    return tuple(distinct), index
+
+
+TOPOLOGY_ARRAYS = ("pairs", "driven", "outer", "pair_type")
+"""Mesostructure fields that describe a batch's topology (``topology_arrays``)."""
+
+
+def topology_arrays(meso: Mesostructure, n_cells: int) -> dict[str, np.ndarray]:
+    """``TOPOLOGY_ARRAYS`` of ``meso`` repeated for ``n_cells`` cells: field -> (n_cells, *field shape)."""
+    return {name: np.repeat(getattr(meso, name)[None], n_cells, axis=0) for name in TOPOLOGY_ARRAYS}
 
 
 def _pair_label(pair: np.ndarray) -> str:

@@ -15,7 +15,8 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from warp_hcell.mesostructure import Mesostructure, MesostructureError, h_cell, h_cell_reference, polygon_area
+from warp_hcell.mesostructure import (
+    Mesostructure, MesostructureError, h_cell, h_cell_reference, per_cell, polygon_area)
 from warp_hcell.parameters import ContactLaw, DemSettings
 from warp_hcell.state import DemState
 
@@ -91,17 +92,16 @@ class DemModel:
                 (pairs, driven mask, outer polygon, labels); radii and positions may differ.
             n_cells: number of cells.
         """
-        templates = [meso] * n_cells if isinstance(meso, Mesostructure) else list(meso)
-        if len(templates) != n_cells or n_cells < 1:
-            raise ValueError(f"need n_cells = {n_cells} >= 1 mesostructures, got {len(templates)}")
-        first = templates[0]
+        distinct, index = per_cell(meso, n_cells)
+        first = distinct[0]
         key = (first.topology_key(), first.outer.tolist(), first.pair_type.tolist())
-        for m in templates:
+        for m in distinct:
             if (m.topology_key(), m.outer.tolist(), m.pair_type.tolist()) != key:
                 raise MesostructureError(f"mesostructure {m.name!r} has another topology than {first.name!r}")
         return cls.from_reference(
-            first, np.stack([m.radius for m in templates]), np.stack([m.position for m in templates]),
-            np.stack([m.cell_size for m in templates]), contact_law=contact_law, settings=settings, device=device)
+            first, np.stack([m.radius for m in distinct])[index], np.stack([m.position for m in distinct])[index],
+            np.stack([m.cell_size for m in distinct])[index], contact_law=contact_law, settings=settings,
+            device=device)
 
     @classmethod
     def build_h_cell(cls, alpha0_deg: float | np.ndarray, n_cells: int, radius: float, *,

@@ -39,7 +39,7 @@ from warp_hcell.learning_state import (
     hcell_observables,
     love_weber_tension_positive,
 )
-from warp_hcell.mesostructure import Mesostructure
+from warp_hcell.mesostructure import Mesostructure, topology_arrays
 from warp_hcell.parameters import ContactLaw, DatabaseSettings
 
 STATE_FEATURES = ("cell_size", "free_position", "shear_force", "contact", "normal_force", "unbalanced", "moment",
@@ -153,6 +153,7 @@ def canonical_dem_arrays(context: ProbeContext, ev: Mapping[str, np.ndarray], ce
         "radius": np.broadcast_to(schema.radius, (n, schema.n_grains)),
         "reference_position": np.broadcast_to(schema.reference_position, (n, schema.n_grains, 2)),
         "reference_cell_size": np.broadcast_to(schema.reference_cell_size, (n, 2)),
+        **topology_arrays(context.meso, n),
     }
 
 

@@ -70,9 +70,8 @@ def dem_cell(physics: Physics):
     if _CACHE.get("cell_key") != key:
         from warp_hcell.dem_cell import DemCell  # noqa: PLC0415 (Warp loads only where cells are stepped)
 
-        _CACHE.update(cell_key=key, cell=DemCell(
-            physics.contact_law, CellDefaults.radius, mesostructure=from_description(physics.mesostructure),
-            settings=physics.dem_settings, device=physics.device, threads=physics.threads))
+        _CACHE.update(cell_key=key, cell=DemCell(physics.contact_law, CellDefaults.radius, settings=physics.dem_settings,
+                                                 device=physics.device, threads=physics.threads))
     return _CACHE["cell"]
 
 

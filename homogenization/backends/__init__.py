@@ -2,7 +2,10 @@
 
 Backends are imported lazily, so using the analytical backend never imports Warp or torch.
 Every class takes ``(contact_law, radius, **options)`` and implements
-``warp_hcell.cell_model.CellModel``.
+``warp_hcell.cell_model.CellModel``: its cells are created from a mesostructure
+(``init_state(mesostructure, n_cells)``). A class that models only some mesostructures also
+has a static ``check_mesostructure(meso)`` that raises ValueError (one line) for the others,
+so that callers can leave such cases out before building the backend (``mesostructure_refusal``).
 """
 
 from __future__ import annotations
@@ -43,3 +46,20 @@ def make_cell_model(
 ):
     """Construct backend ``name`` with the given physical parameters and options."""
     return backend_class(name)(contact_law or ContactLaw(), radius, **options)
+
+
+def mesostructure_refusal(name: str, meso: Any) -> str | None:
+    """Why backend ``name`` does not model the mesostructure ``meso`` (one line), or None if it may.
+
+    Asks the class's static ``check_mesostructure`` where it has one; a backend without it
+    models any mesostructure (an ANN model still refuses, in ``init_state``, a mesostructure
+    it was not trained on).
+    """
+    check = getattr(backend_class(name), "check_mesostructure", None)
+    if check is None:
+        return None
+    try:
+        check(meso)
+    except ValueError as exc:
+        return str(exc)
+    return None

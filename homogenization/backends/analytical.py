@@ -32,12 +32,14 @@ growing). Local frame: index 0 = n, 1 = t.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
 from homogenization.backends import hcell
+from warp_hcell.builders import plain_h_cell_alpha0
 from warp_hcell.cell_model import ArrayStateMixin, CellResponse
+from warp_hcell.mesostructure import Mesostructure, per_cell
 from warp_hcell.parameters import ContactLaw, check_positive
 
 
@@ -110,14 +112,38 @@ class AnalyticalCell(ArrayStateMixin):
             raise ValueError(f"max_iterations = {max_iterations} must be >= 1")
         self.max_iterations = int(max_iterations)
 
-    def init_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> AnalyticalState:
-        """Touching, force-free cells: d1 = d2 = D at opening angle alpha0.
+    @staticmethod
+    def check_mesostructure(meso: Mesostructure) -> float:
+        """Opening angle alpha0 [deg] of ``meso`` if it is the cell this backend models.
+
+        Raises:
+            ValueError: (one line) ``meso`` is not the touching six-equal-grain H-cell of
+                ``warp_hcell.mesostructure.h_cell`` (``warp_hcell.builders.plain_h_cell_alpha0``).
+        """
+        plain = plain_h_cell_alpha0(meso)
+        if plain is None:
+            raise ValueError(f"analytical models the plain H-cell only (six equal touching grains); mesostructure "
+                             f"{meso.name!r} is not one: use --backend dem or ann")
+        return plain[0]
+
+    def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> AnalyticalState:
+        """Touching, force-free cells: d1 = d2 = D at the opening angle alpha0 of each cell's mesostructure.
 
         Args:
-            alpha0_deg: initial opening angle [deg], scalar or shape (n_cells,), each in
-                [30, 90); ValueError otherwise.
+            mesostructure: the plain H-cell (``warp_hcell.mesostructure.h_cell(alpha0_deg, radius)``
+                with this backend's radius), or a sequence of n_cells of them.
             n_cells: number of cells.
+
+        Raises:
+            ValueError: (one line) a mesostructure that is not such an H-cell
+                (``check_mesostructure``) or whose grains have another radius.
         """
+        distinct, index = per_cell(mesostructure, n_cells)
+        alpha0_deg = np.array([self.check_mesostructure(meso) for meso in distinct])[index]
+        for meso in distinct:
+            if not np.allclose(meso.radius, self.radius, rtol=1e-12, atol=0.0):
+                raise ValueError(f"mesostructure {meso.name!r} has grains of radius {meso.radius[0]:g} m, the "
+                                 f"analytical cell {self.radius:g} m (--radius)")
         alpha, l1, l2 = hcell.touching_cells(alpha0_deg, n_cells, self.diameter)
         D = np.full(alpha.shape, self.diameter)
         zero = np.zeros_like(alpha)

@@ -28,11 +28,11 @@ so that a zero increment is a no-op, as stress control assumes) and ``n_grains_h
 grains, summed over the cells, that carried no force and that nothing reached, held at rest
 instead of moved by the network: the DEM's rest rule, ``training.cell_physics.hold_at_rest``).
 
-The model records the mesostructure it was trained on (description and sha256). With
-``mesostructure=`` the cells start from that file and its hash must equal the model's; without
-it the cells are H-cells from the builder (``init_state(alpha0_deg)``), which needs a model
-whose learning state the H-cell shares. Otherwise ``CheckpointError`` (one line; exit code 2
-in the CLIs).
+The model records the mesostructure it was trained on (description and sha256).
+``init_state(mesostructure, n_cells)`` starts the cells from a mesostructure whose hash equals
+the model's, or from the plain H-cell (``warp_hcell.builders.plain_h_cell_alpha0``, any
+opening angle: H-cell databases are explored from many) when the model's learning state is
+the H-cell's. Otherwise ``CheckpointError`` (one line; exit code 2 in the CLIs).
 
 Sign convention: compression and contraction positive. Local frame: index 0 = n, 1 = t.
 """
@@ -40,7 +40,7 @@ Sign convention: compression and contraction positive. Local frame: index 0 = n,
 from __future__ import annotations
 
 from pathlib import Path
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import numpy as np
 import torch
@@ -49,10 +49,11 @@ from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
 from training.checkpoint import CheckpointError, check_compatible, check_mesostructure, load_checkpoint
+from warp_hcell.builders import plain_h_cell_alpha0
 from warp_hcell.cell_model import ArrayStateMixin, CellResponse
 from warp_hcell.learning_state import hcell_observables
 from warp_hcell.mesostructure import (
-    Mesostructure, describe, description_sha256, from_description, h_cell, h_cell_reference, shares_state_schema)
+    Mesostructure, describe, description_sha256, from_description, per_cell, shares_state_schema)
 from warp_hcell.parameters import ContactLaw, check_positive
 
 DEFAULT_MODEL = "ann_default.pt"
@@ -80,10 +81,11 @@ class AnnCell(ArrayStateMixin):
 
     Args:
         contact_law: contact stiffnesses and friction; must match the model's training data.
-        radius: grain radius r [m] of the H-cells built without ``mesostructure``.
+        radius: grain radius r [m]; positive, not used: the geometry comes from the
+            mesostructure given to ``init_state`` (the argument keeps the constructor of every
+            backend alike, ``homogenization.backends.make_cell_model``).
         model: path of a model state_dict (``.pt``, metadata in the ``.json`` next to it);
             None loads the default model shipped in ``homogenization/data``.
-        mesostructure: the cell every state starts from; None: H-cells from ``alpha0_deg``.
         device: torch device of the network ("cpu", "cuda", ...).
         mlp_dtype: "float32" or "float64", arithmetic of the perceptron in ``step`` without
             tangent on CPU (``training.inference.FastAdvance``; the physics is float64).
@@ -91,15 +93,15 @@ class AnnCell(ArrayStateMixin):
 
     Raises:
         training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
-            mismatched model file, or a model trained for another contact law or mesostructure.
+            mismatched model file, or a model trained for another contact law; ``init_state``
+            raises it for a mesostructure the model was not trained on.
     """
 
     name = "ann"
     state_type = AnnState
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
-                 mesostructure: Mesostructure | None = None, device: str = "cpu", threads: int = 1,
-                 mlp_dtype: str = "float64") -> None:
+                 device: str = "cpu", threads: int = 1, mlp_dtype: str = "float64") -> None:
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:
@@ -111,13 +113,6 @@ class AnnCell(ArrayStateMixin):
         check_compatible(self.metadata, kn=contact_law.kn, kt_over_kn=contact_law.kt_over_kn,
                          phi_g_deg=contact_law.phi_g_deg, source=str(path))
         self.trained_on = from_description(self.metadata["mesostructure"])
-        if mesostructure is not None:
-            check_mesostructure(self.metadata, description_sha256(describe(mesostructure)), name=mesostructure.name,
-                                source=str(path))
-        elif not shares_state_schema(self.trained_on, h_cell(radius=self.radius)):
-            raise CheckpointError(f"{path}: model trained on {self.trained_on.name!r}, whose learning state the H-cell "
-                                  f"does not share; pass the model's mesostructure (--mesostructure)")
-        self.mesostructure = mesostructure
         self.model_path = path
         self.device = torch.device(device)
         self.net.to(self.device)
@@ -130,18 +125,29 @@ class AnnCell(ArrayStateMixin):
         self.fast = FastAdvance(self.net, getattr(torch, mlp_dtype)) if self.device.type == "cpu" else None
 
     # -- construction ---------------------------------------------------------------------
-    def _start_cells(self, alpha0_deg, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
-        """Reference positions (n, n_grains, 2) and cell sizes (n, 2) of the starting cells."""
-        if self.mesostructure is not None:
-            return (np.broadcast_to(self.mesostructure.position, (n_cells, *self.mesostructure.position.shape)),
-                    np.broadcast_to(self.mesostructure.cell_size, (n_cells, 2)))
-        alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (n_cells,))
-        return h_cell_reference(alpha0, self.radius)
+    def check_trained_on(self, meso: Mesostructure) -> None:
+        """Raise ``CheckpointError`` (one line) unless the model may start cells from ``meso``.
+
+        Accepted: the mesostructure the model was trained on (same sha256), or the plain
+        H-cell at any opening angle when the model's learning state is the H-cell's.
+        """
+        if plain_h_cell_alpha0(meso) is not None:
+            if not shares_state_schema(self.trained_on, meso):
+                raise CheckpointError(f"{self.model_path}: model trained on {self.trained_on.name!r}, whose learning "
+                                      f"state the H-cell does not share; pass the model's mesostructure "
+                                      f"(--mesostructure)")
+            return
+        check_mesostructure(self.metadata, description_sha256(describe(meso)), name=meso.name,
+                            source=str(self.model_path))
 
     # -- CellModel protocol ---------------------------------------------------------------
-    def init_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> AnnState:
-        """Touching, force-free cells: the mesostructure, or H-cells at ``alpha0_deg`` [deg] (scalar or (n_cells,))."""
-        position, cell_size = self._start_cells(alpha0_deg, int(n_cells))
+    def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> AnnState:
+        """Touching, force-free cells of ``mesostructure`` (one, or one per cell); ``check_trained_on`` first."""
+        distinct, index = per_cell(mesostructure, n_cells)
+        for meso in distinct:
+            self.check_trained_on(meso)
+        position = np.stack([meso.position for meso in distinct])[index]
+        cell_size = np.stack([meso.cell_size for meso in distinct])[index]
         free = self.net.schema.free_dofs.cpu().numpy()
         return AnnState(np.array(cell_size, dtype=np.float64), np.array(position[:, free[:, 0], free[:, 1]]),
                         np.zeros((int(n_cells), self.net.schema.n_pairs)))
@@ -213,7 +219,7 @@ class AnnCell(ArrayStateMixin):
 
         Always ``l1, l2, area`` [m, m^2], ``S_nn, S_tt, S_nt`` [N m] (compression positive),
         ``n_contacts`` and grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label); where the
-        mesostructure carries H-cell labels also ``d1, d2, alpha_deg, N1, N2, T1, closed1,
+        model's mesostructure carries H-cell labels also ``d1, d2, alpha_deg, N1, N2, T1, closed1,
         closed2`` (``warp_hcell.learning_state.hcell_observables``).
         """
         with torch.inference_mode():
@@ -225,9 +231,8 @@ class AnnCell(ArrayStateMixin):
             "S_nn": response.moment[:, 0, 0], "S_tt": response.moment[:, 1, 1], "S_nt": response.moment[:, 0, 1],
             "n_contacts": c.contact.cpu().numpy().sum(axis=1),
         }
-        meso = self.mesostructure if self.mesostructure is not None else h_cell(radius=self.radius)
-        if meso.is_h_cell:
-            obs.update(hcell_observables(meso, x, c.normal_force.cpu().numpy(), state.shear_force,
+        if self.trained_on.is_h_cell:
+            obs.update(hcell_observables(self.trained_on, x, c.normal_force.cpu().numpy(), state.shear_force,
                                          c.contact.cpu().numpy()))
         for g in range(x.shape[1]):
             obs[f"x_n{g + 1}"] = x[:, g, 0].copy()
