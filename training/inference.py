@@ -6,14 +6,16 @@
 1. ``_features`` (numba, float64, loops over cells innermost so that they vectorise):
    positions, contacts, pair forces, unbalanced forces and the z-scored features of the
    state before the increment;
-2. the multilayer perceptron (torch, ``mlp_dtype``: float64 by default, float32 on request);
+2. the multilayer perceptron in float32 (numpy/BLAS), on fixed blocks of ``MLP_BLOCK`` cells;
 3. ``_advance`` (numba, float64): the free-DOF displacement from the network output, the
    new state by the contact law, its Love-Weber moment, area and contact-law branch flags.
 
-The features are z-scored in float64 before the cast to ``mlp_dtype``, and the network
-output is un-normalised in float64, so float32 only rounds the perceptron's own arithmetic
-(its effect on whole runs is measured in ``docs/ann.md``). The physics stays float64
-(positions must be resolved to ~1e-7 D). The tangent (autograd) uses ``MesoNet.advance``.
+The features are z-scored in float64 before the cast to float32, and the network output is
+un-normalised in float64, so float32 only rounds the perceptron's own arithmetic (its effect
+on whole runs is measured in ``docs/ann.md``). Every block of cells goes through BLAS calls
+of one shape, so a cell's result is bit-identical whatever batch it is in (the cell
+contract's batch invariance). The physics stays float64 (positions must be resolved to
+~1e-7 D). The tangent (autograd) uses ``MesoNet.advance``.
 
 Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
 """
@@ -28,6 +30,9 @@ import numpy as np
 import torch
 
 from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
+
+MLP_BLOCK = 64
+"""Cells per perceptron block: the batch is padded to a multiple of it [-]."""
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -257,14 +262,17 @@ class FastIncrement(NamedTuple):
 
 
 class FastAdvance:
-    """``MesoNet.advance`` for inference on CPU: numba physics (float64) around one MLP call.
+    """``MesoNet.advance`` for inference on CPU: numba physics (float64) around a float32 perceptron.
+
+    The perceptron runs on fixed blocks of ``MLP_BLOCK`` cells (the batch is padded to whole
+    blocks), one BLAS call of the same shape per block and layer, so that a cell's result
+    does not depend on the size of its batch or its place in it.
 
     Args:
         net: the trained network (its schema, active pairs, normalisation and layers are copied).
-        mlp_dtype: torch dtype of the perceptron's arithmetic (float32 or float64).
     """
 
-    def __init__(self, net: MesoNet, mlp_dtype: torch.dtype = torch.float64) -> None:
+    def __init__(self, net: MesoNet) -> None:
         schema = net.schema
         as_np = lambda t, dtype=np.float64: np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)  # noqa: E731
         self.frac = as_np(schema.driven_fraction)
@@ -280,22 +288,30 @@ class FastAdvance:
         self.rate_std = as_np(net.rate_std)
         self.diameter, self.kn, self.kt, self.mu = schema.diameter, schema.kn, schema.kt, schema.mu
         self.tol = schema.contact_tolerance
-        self.mlp_dtype = mlp_dtype
         linears = [layer for layer in net.mlp if isinstance(layer, torch.nn.Linear)]
-        self.layers = [(lin.weight.detach().cpu().to(mlp_dtype).contiguous(),
-                        lin.bias.detach().cpu().to(mlp_dtype).unsqueeze(1).contiguous()) for lin in linears]
-        self.np_dtype = {torch.float32: np.float32, torch.float64: np.float64}[mlp_dtype]
+        self.layers = [self._affine(as_np(lin.weight), as_np(lin.bias), lin is not linears[-1]) for lin in linears]
+
+    @staticmethod
+    def _affine(weight: np.ndarray, bias: np.ndarray, hidden: bool) -> np.ndarray:
+        """[W | b] (float32) acting on inputs that end with a row of ones; a hidden layer also passes the ones on."""
+        affine = np.concatenate([weight, bias[:, None]], axis=1)
+        if hidden:
+            affine = np.concatenate([affine, np.eye(1, affine.shape[1], affine.shape[1] - 1)])
+        return np.ascontiguousarray(affine, dtype=np.float32)
 
     def _mlp(self, feats: np.ndarray) -> np.ndarray:
-        """Network output (n_outputs, n) of z-scored features (n_features, n) (cells last: W h + b)."""
-        h = torch.from_numpy(feats)
-        last = len(self.layers) - 1
-        with torch.inference_mode():
-            for k, (weight, bias) in enumerate(self.layers):
-                h = torch.addmm(bias, weight, h)
-                if k < last:
-                    h = torch.tanh_(h)
-        return h.numpy()
+        """Network output (n_outputs, n_pad) of z-scored features (n_features + 1, n_pad) ending with a row of ones.
+
+        Cells along the columns, n_pad a multiple of ``MLP_BLOCK``: [W | b] [h; 1] per block of
+        ``MLP_BLOCK`` columns, float32; the hidden layers carry the row of ones along.
+        """
+        n_pad = feats.shape[1]
+        h = feats.reshape(feats.shape[0], n_pad // MLP_BLOCK, MLP_BLOCK).transpose(1, 0, 2)
+        for affine in self.layers[:-1]:
+            h = np.matmul(affine, h)
+            np.tanh(h[:, :-1], out=h[:, :-1])
+        out = np.matmul(self.layers[-1], h)
+        return out.transpose(1, 0, 2).reshape(out.shape[1], n_pad)
 
     def __call__(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                  d_eps: np.ndarray) -> FastIncrement:
@@ -303,7 +319,8 @@ class FastAdvance:
         size, free, shear, d_eps = (np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)
                                     for a in (cell_size, free_position, shear_force, d_eps))
         n, n_free, n_pairs = size.shape[1], self.free_dofs.shape[0], self.pairs.shape[0]
-        feats = np.empty((self.feature_mean.shape[0], n), dtype=self.np_dtype)
+        feats = np.zeros((self.feature_mean.shape[0] + 1, -(-n // MLP_BLOCK) * MLP_BLOCK), dtype=np.float32)
+        feats[-1] = 1.0
         m = np.empty(n)
         unbalanced = np.empty((n_free, n))
         old_branch = np.empty((n_pairs, 2, n))

@@ -85,8 +85,6 @@ class AnnCell(ArrayStateMixin):
             None loads the default model shipped in ``homogenization/data``.
         mesostructure: the cell every state starts from; None: H-cells from ``alpha0_deg``.
         device: torch device of the network ("cpu", "cuda", ...).
-        mlp_dtype: "float32" or "float64", arithmetic of the perceptron in ``step`` without
-            tangent on CPU (``training.inference.FastAdvance``; the physics is float64).
         threads: torch CPU threads (process-wide setting, applied here) [-].
 
     Raises:
@@ -98,8 +96,7 @@ class AnnCell(ArrayStateMixin):
     state_type = AnnState
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
-                 mesostructure: Mesostructure | None = None, device: str = "cpu", threads: int = 1,
-                 mlp_dtype: str = "float64") -> None:
+                 mesostructure: Mesostructure | None = None, device: str = "cpu", threads: int = 1) -> None:
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:
@@ -125,9 +122,7 @@ class AnnCell(ArrayStateMixin):
         self.net.active_index = self.net.active_index.to(self.device)
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
-        if mlp_dtype not in ("float32", "float64"):
-            raise ValueError(f"mlp_dtype = {mlp_dtype!r} must be 'float32' or 'float64'")
-        self.fast = FastAdvance(self.net, getattr(torch, mlp_dtype)) if self.device.type == "cpu" else None
+        self.fast = FastAdvance(self.net) if self.device.type == "cpu" else None
 
     # -- construction ---------------------------------------------------------------------
     def _start_cells(self, alpha0_deg, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
