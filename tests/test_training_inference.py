@@ -42,7 +42,7 @@ def _reference(cell, state, d):
 
 
 def test_fast_increment_equals_the_autograd_path(loaded):
-    """The float32 perceptron rounds the rates and compliances to ~1e-7; the rest is float64."""
+    """The float32 hidden layers round the rates and compliances to ~1e-7; the rest is float64."""
     cell, state, d = loaded
     ref = _reference(cell, state, d)
     fast = FastAdvance(cell.net)(*state, d)
@@ -169,7 +169,7 @@ def test_a_grain_reached_during_the_increment_is_released_in_both_paths():
     assert fast.grains_held[1] >= 1
     np.testing.assert_allclose(ref.free_position.numpy()[0, fine], position[0, fine] + wanted[0, fine], rtol=1e-14)
     np.testing.assert_array_equal(ref.free_position.numpy()[1, fine], position[1, fine])
-    # the float32 perceptron rounds the displacement it gives to ~1e-7
+    # the float32 hidden layers round the displacement the network gives to ~1e-7
     np.testing.assert_allclose(fast.free_position, ref.free_position.numpy(), rtol=0, atol=1e-6 * np.abs(wanted).max())
 
 
