@@ -274,7 +274,9 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
     n_outer = outer.shape[0]
     area[:] = 0.0
     for k in range(n_outer):
-        xi0, xi1, xj0, xj1 = x[outer[k], 0], x[outer[k], 1], x[outer[(k + 1) % n_outer], 0], x[outer[(k + 1) % n_outer], 1]
+        i = outer[k]
+        j = outer[(k + 1) % n_outer]
+        xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
         for c in range(n):
             area[c] += xi0[c] * xj1[c] - xj0[c] * xi1[c]
     for c in range(n):
