@@ -5,11 +5,11 @@ printed with the numbers):
 
 1. the median time of one ``step`` of ``--cells`` H-cells (alpha0 = 55 deg, after an
    isotropic compression, constant-volume-like increments of 1e-5) for the analytical and
-   the ANN backend (``AnnCell.step``: compiled float64 physics around a float64 perceptron),
-   interleaved, and their ratio; for the ANN also the same step with a float32 perceptron
-   (``mlp_dtype="float32"``), the torch autograd path without tangent (``MesoNet.advance``
-   under inference mode, the implementation before the compiled one), the network call
-   alone (``MesoNet.displacement``) and the step with its autograd tangent;
+   the ANN backend (``AnnCell.step``: compiled float64 physics around the perceptron, float32
+   hidden layers and a float64 output layer), interleaved, and their ratio; for the ANN also
+   the torch autograd path without tangent (``MesoNet.advance`` under inference mode, the
+   implementation before the compiled one), the network call alone
+   (``MesoNet.displacement``) and the step with its autograd tangent;
 2. unless ``--skip-run``: one JSON line per biaxial test (isotropic compression to p0, then
    constant-volume, and/or drained (``--tests``), shear to ``--eps-max``) run with the
    ANN and its reference through ``homogenization.driver``: the analytical backend for the
@@ -69,8 +69,7 @@ def main() -> None:
 
 def time_increments(args) -> None:
     """Median time of one H-cell increment of the analytical and the ANN backend, interleaved."""
-    models = {"analytical": make_cell_model("analytical"), "ann": make_cell_model("ann", model=args.model, threads=1),
-              "ann_float32": make_cell_model("ann", model=args.model, threads=1, mlp_dtype="float32")}
+    models = {"analytical": make_cell_model("analytical"), "ann": make_cell_model("ann", model=args.model, threads=1)}
     print(f"torch threads: {torch.get_num_threads()}")
     orient = orientations(args.cells)
     iso = localise(orient, np.array([2e-5, 2e-5, 0.0]))
@@ -94,11 +93,9 @@ def time_increments(args) -> None:
     tangent_ms = 1e3 * np.median([_time(lambda: ann.step(states["ann"], d_eps, with_tangent=True)) for _ in range(100)])
     ms = {name: 1e3 * float(np.median(t)) for name, t in times.items()}
     print(f"{args.cells} cells, median per increment: analytical step {ms['analytical']:.3f} ms, "
-          f"ANN step {ms['ann']:.3f} ms (float32 perceptron {ms['ann_float32']:.3f} ms; torch path without tangent "
-          f"{torch_ms:.3f} ms; network call {net_ms:.3f} ms; with tangent {tangent_ms:.3f} ms); "
-          f"ratio ANN / analytical = {ms['ann'] / ms['analytical']:.2f} "
-          f"(float32 perceptron {ms['ann_float32'] / ms['analytical']:.2f}, "
-          f"torch path {torch_ms / ms['analytical']:.2f})",
+          f"ANN step {ms['ann']:.3f} ms (torch path without tangent {torch_ms:.3f} ms; network call {net_ms:.3f} ms; "
+          f"with tangent {tangent_ms:.3f} ms); ratio ANN / analytical = {ms['ann'] / ms['analytical']:.2f} "
+          f"(torch path {torch_ms / ms['analytical']:.2f})",
           flush=True)
 
 

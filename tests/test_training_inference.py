@@ -14,7 +14,7 @@ import torch
 
 from homogenization.backends.ann import AnnCell
 from training.cell_physics import CellSchema, count_held_grains
-from training.inference import FastAdvance
+from training.inference import MLP_BLOCK, FastAdvance, FastIncrement
 from training.network import RELAXATION_RAMP, MesoNet
 from warp_hcell.builders import resolve_mesostructure
 from warp_hcell.mesostructure import h_cell
@@ -42,22 +42,36 @@ def _reference(cell, state, d):
                                 torch.from_numpy(d))
 
 
-@pytest.mark.parametrize("dtype, rtol", [(torch.float64, 1e-9), (torch.float32, 1e-6)])
-def test_fast_increment_equals_the_autograd_path(loaded, dtype, rtol):
+def test_fast_increment_equals_the_autograd_path(loaded):
+    """The float32 hidden layers round the rates and compliances to ~1e-7; the rest is float64."""
     cell, state, d = loaded
     ref = _reference(cell, state, d)
-    fast = FastAdvance(cell.net, dtype)(*state, d)
+    fast = FastAdvance(cell.net)(*state, d)
     for name in ("cell_size", "free_position", "shear_force", "moment", "area"):
         expected = getattr(ref, name).numpy()
         scale = np.abs(expected).max()
         assert scale > 0
-        np.testing.assert_allclose(getattr(fast, name), expected, rtol=0, atol=rtol * scale, err_msg=name)
+        np.testing.assert_allclose(getattr(fast, name), expected, rtol=0, atol=1e-6 * scale, err_msg=name)
     np.testing.assert_array_equal(fast.capped, ref.capped.any(dim=1).numpy())
     np.testing.assert_array_equal(fast.opened, ref.opened.any(dim=1).numpy())
     np.testing.assert_array_equal(fast.mechanism, np.all(ref.moment.numpy() == 0.0, axis=(1, 2)))
     np.testing.assert_array_equal(fast.relaxation_scaled, np.linalg.norm(d, axis=1) < RELAXATION_RAMP)
     assert fast.relaxation_scaled.sum() == 2
     np.testing.assert_array_equal(fast.grains_held, count_held_grains(cell.net.schema, ref.held).numpy())
+
+
+def test_a_cells_increment_is_bit_identical_in_any_batch_at_any_place(loaded):
+    """Batches below, at and above whole perceptron blocks, the cell first, last or inside."""
+    cell, state, d = loaded
+    fast = FastAdvance(cell.net)
+    rng = np.random.default_rng(2)
+    whole = fast(*state, d)
+    for n in (1, 7, MLP_BLOCK, MLP_BLOCK + 1, 3 * MLP_BLOCK - 5):
+        index = rng.integers(0, d.shape[0], size=n)
+        index[-1] = 5
+        part = fast(*(np.asarray(a)[index] for a in state), d[index])
+        for name in FastIncrement._fields:
+            np.testing.assert_array_equal(getattr(part, name), getattr(whole, name)[index], err_msg=f"{name}, {n} cells")
 
 
 def test_the_states_exercise_the_contact_law_branches(loaded):
@@ -126,7 +140,7 @@ def test_a_force_free_grain_far_from_its_neighbours_stays_at_rest_in_both_paths(
         assert np.all(path[:, skeleton] != state[1][:, skeleton])
     np.testing.assert_array_equal(ref.held.numpy(), np.tile(fine, (6, 1)))
     np.testing.assert_array_equal(fast.grains_held, np.ones(6))
-    np.testing.assert_allclose(fast.moment, ref.moment.numpy(), rtol=0, atol=1e-9 * np.abs(ref.moment.numpy()).max())
+    np.testing.assert_allclose(fast.moment, ref.moment.numpy(), rtol=0, atol=1e-6 * np.abs(ref.moment.numpy()).max())
 
 
 def _grain_next_to(meso, net, gap):
@@ -156,7 +170,8 @@ def test_a_grain_reached_during_the_increment_is_released_in_both_paths():
     assert fast.grains_held[1] >= 1
     np.testing.assert_allclose(ref.free_position.numpy()[0, fine], position[0, fine] + wanted[0, fine], rtol=1e-14)
     np.testing.assert_array_equal(ref.free_position.numpy()[1, fine], position[1, fine])
-    np.testing.assert_allclose(fast.free_position, ref.free_position.numpy(), rtol=1e-12)
+    # the float32 hidden layers round the displacement the network gives to ~1e-7
+    np.testing.assert_allclose(fast.free_position, ref.free_position.numpy(), rtol=0, atol=1e-6 * np.abs(wanted).max())
 
 
 def test_the_tangent_of_a_held_grain_matches_central_differences(fines_net):

@@ -6,14 +6,17 @@
 1. ``_features`` (numba, float64, loops over cells innermost so that they vectorise):
    positions, contacts, pair forces, unbalanced forces and the z-scored features of the
    state before the increment;
-2. the multilayer perceptron (torch, ``mlp_dtype``: float64 by default, float32 on request);
+2. the multilayer perceptron (numpy/BLAS; hidden layers float32, output layer float64), on
+   fixed blocks of ``MLP_BLOCK`` cells;
 3. ``_advance`` (numba, float64): the free-DOF displacement from the network output, the
    new state by the contact law, its Love-Weber moment, area and contact-law branch flags.
 
-The features are z-scored in float64 before the cast to ``mlp_dtype``, and the network
-output is un-normalised in float64, so float32 only rounds the perceptron's own arithmetic
-(its effect on whole runs is measured in ``docs/ann.md``). The physics stays float64
-(positions must be resolved to ~1e-7 D). The tangent (autograd) uses ``MesoNet.advance``.
+The features are z-scored in float64 before the cast to float32, the output layer and the
+un-normalisation are float64, so float32 only rounds the hidden layers' arithmetic (its
+effect on whole runs is measured in ``docs/ann.md``). Every block of cells goes through
+BLAS calls of one shape, so a cell's result is bit-identical whatever batch it is in (the
+cell contract's batch invariance). The physics stays float64 (positions must be resolved to
+~1e-7 D). The tangent (autograd) uses ``MesoNet.advance``.
 
 Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
 """
@@ -29,6 +32,9 @@ import torch
 
 from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
 
+MLP_BLOCK = 64
+"""Cells per perceptron block: the batch is padded to a multiple of it [-]."""
+
 
 @numba.njit(cache=True, error_model="numpy")
 def _positions(size, free, frac, free_dofs, x):
@@ -36,11 +42,21 @@ def _positions(size, free, frac, free_dofs, x):
     n = size.shape[1]
     for g in range(frac.shape[0]):
         for a in range(2):
+            row, scale, size_a = x[g, a], frac[g, a], size[a]
             for c in range(n):
-                x[g, a, c] = frac[g, a] * size[a, c]
+                row[c] = scale * size_a[c]
     for k in range(free_dofs.shape[0]):
+        row, free_k = x[free_dofs[k, 0], free_dofs[k, 1]], free[k]
         for c in range(n):
-            x[free_dofs[k, 0], free_dofs[k, 1], c] = free[k, c]
+            row[c] = free_k[c]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _z_score(values, mean, std, feats_row):
+    """``feats_row`` (n,) = (values - mean) * (1 / std): a z-scored feature of every cell."""
+    inv_std = 1.0 / std
+    for c in range(values.shape[0]):
+        feats_row[c] = (values[c] - mean) * inv_std
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -48,77 +64,107 @@ def _features(size, free, shear, d_eps, frac, free_dofs, pairs, radius, active_s
               diameter, kn, mu, tol, gap_clip, feats, m_out, unbalanced, old_branch, old_contact, old_fn):
     """Z-scored features, |d_eps|, unbalanced forces and the contacts of every cell before its increment.
 
-    Cells are the LAST axis of every array (the loops over cells are innermost, so that they
-    vectorise): size (2, n), free (n_free, n), shear (n_pairs, n), d_eps (2, n); outputs
-    feats (n_features, n) (any float dtype), m_out (n,), unbalanced (n_free, n) [N],
-    old_branch (n_pairs, 2, n) [m], old_contact (n_pairs, n) bool, old_fn (n_pairs, n) [N].
-    ``active_slot[p]`` is the rank of pair p among the active pairs, -1 if inactive. Feature
-    order: ``training.network.features_and_contacts``.
+    Cells are the LAST axis of every array: size (2, n), free (n_free, n), shear (n_pairs, n),
+    d_eps (2, n); outputs feats (n_features, n_pad >= n) (any float dtype), m_out (n,),
+    unbalanced (n_free, n) [N], old_branch (n_pairs, 2, n) [m], old_contact (n_pairs, n)
+    bool, old_fn (n_pairs, n) [N]. ``active_slot[p]`` is the rank of pair p among the active
+    pairs, -1 if inactive. Feature order: ``training.network.features_and_contacts``. Each
+    loop over cells (innermost) touches few arrays, so that the compiler vectorises it.
     """
     n = size.shape[1]
     n_free = free_dofs.shape[0]
     force_scale = kn * diameter
-    inv_std = 1.0 / feature_std
     x = np.empty((frac.shape[0], 2, n))
     net = np.zeros((frac.shape[0], 2, n))
     _positions(size, free, frac, free_dofs, x)
+    dist, u0, u1, fs, value = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     base = 4 + 2 * n_free
     for p in range(pairs.shape[0]):
         i = pairs[p, 0]
         j = pairs[p, 1]
         rsum = radius[i] + radius[j]
         reach = rsum * (1.0 + tol)
+        b0, b1, contact, fn, shear_p = old_branch[p, 0], old_branch[p, 1], old_contact[p], old_fn[p], shear[p]
+        xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
+        for c in range(n):
+            b0[c] = xj0[c] - xi0[c]
+        for c in range(n):
+            b1[c] = xj1[c] - xi1[c]
+        for c in range(n):
+            dist[c] = math.sqrt(b0[c] * b0[c] + b1[c] * b1[c])
+        for c in range(n):
+            contact[c] = dist[c] <= reach
+        for c in range(n):
+            fn[c] = kn * max(rsum - dist[c], 0.0) if contact[c] else 0.0
+        for c in range(n):
+            fs[c] = shear_p[c] if contact[c] else 0.0
+        for c in range(n):
+            u0[c] = b0[c] / dist[c]
+        for c in range(n):
+            u1[c] = b1[c] / dist[c]
+        for c in range(n):
+            value[c] = -fn[c] * u0[c] + fs[c] * -u1[c]
+        net_i, net_j = net[i, 0], net[j, 0]
+        for c in range(n):
+            net_i[c] += value[c]
+        for c in range(n):
+            net_j[c] -= value[c]
+        for c in range(n):
+            value[c] = -fn[c] * u1[c] + fs[c] * u0[c]
+        net_i, net_j = net[i, 1], net[j, 1]
+        for c in range(n):
+            net_i[c] += value[c]
+        for c in range(n):
+            net_j[c] -= value[c]
         slot = active_slot[p]
+        if slot < 0:
+            continue
         k0 = base + 6 * slot
         for c in range(n):
-            b0 = x[j, 0, c] - x[i, 0, c]
-            b1 = x[j, 1, c] - x[i, 1, c]
-            d = math.sqrt(b0 * b0 + b1 * b1)
-            u0 = b0 / d
-            u1 = b1 / d
-            touching = d <= reach
-            fn = kn * max(rsum - d, 0.0) if touching else 0.0
-            fs = shear[p, c] if touching else 0.0
-            f0 = -fn * u0 + fs * -u1
-            f1 = -fn * u1 + fs * u0
-            net[i, 0, c] += f0
-            net[i, 1, c] += f1
-            net[j, 0, c] -= f0
-            net[j, 1, c] -= f1
-            old_branch[p, 0, c] = b0
-            old_branch[p, 1, c] = b1
-            old_contact[p, c] = touching
-            old_fn[p, c] = fn
-            if slot >= 0:
-                feats[k0, c] = (max((rsum - d) / diameter, -gap_clip) - feature_mean[k0]) * inv_std[k0]
-                feats[k0 + 1, c] = ((1.0 if touching else 0.0) - feature_mean[k0 + 1]) * inv_std[k0 + 1]
-                feats[k0 + 2, c] = (u0 - feature_mean[k0 + 2]) * inv_std[k0 + 2]
-                feats[k0 + 3, c] = (u1 - feature_mean[k0 + 3]) * inv_std[k0 + 3]
-                feats[k0 + 4, c] = (fs / force_scale - feature_mean[k0 + 4]) * inv_std[k0 + 4]
-                ratio = fs / (mu * fn) if fn > 0 else 0.0
-                feats[k0 + 5, c] = (ratio - feature_mean[k0 + 5]) * inv_std[k0 + 5]
+            value[c] = max((rsum - dist[c]) / diameter, -gap_clip)
+        _z_score(value, feature_mean[k0], feature_std[k0], feats[k0])
+        for c in range(n):
+            value[c] = 1.0 if contact[c] else 0.0
+        _z_score(value, feature_mean[k0 + 1], feature_std[k0 + 1], feats[k0 + 1])
+        _z_score(u0, feature_mean[k0 + 2], feature_std[k0 + 2], feats[k0 + 2])
+        _z_score(u1, feature_mean[k0 + 3], feature_std[k0 + 3], feats[k0 + 3])
+        for c in range(n):
+            value[c] = fs[c] / force_scale
+        _z_score(value, feature_mean[k0 + 4], feature_std[k0 + 4], feats[k0 + 4])
+        for c in range(n):
+            value[c] = fs[c] / (mu * fn[c]) if fn[c] > 0 else 0.0
+        _z_score(value, feature_mean[k0 + 5], feature_std[k0 + 5], feats[k0 + 5])
     for k in range(n_free):
         g = free_dofs[k, 0]
         a = free_dofs[k, 1]
+        net_k, unbalanced_k, free_k, size_a = net[g, a], unbalanced[k], free[k], size[a]
         for c in range(n):
-            unbalanced[k, c] = net[g, a, c]
-            feats[4 + k, c] = (free[k, c] / diameter - feature_mean[4 + k]) * inv_std[4 + k]
-            r = 4 + n_free + k
-            feats[r, c] = (free[k, c] / size[a, c] - feature_mean[r]) * inv_std[r]
+            unbalanced_k[c] = net_k[c]
+        for c in range(n):
+            value[c] = free_k[c] / diameter
+        _z_score(value, feature_mean[4 + k], feature_std[4 + k], feats[4 + k])
+        for c in range(n):
+            value[c] = free_k[c] / size_a[c]
+        _z_score(value, feature_mean[4 + n_free + k], feature_std[4 + n_free + k], feats[4 + n_free + k])
+    d0, d1 = d_eps[0], d_eps[1]
     for c in range(n):
-        m = math.sqrt(d_eps[0, c] * d_eps[0, c] + d_eps[1, c] * d_eps[1, c])
-        m_out[c] = m
-        feats[0, c] = ((d_eps[0, c] / m if m > 0 else 0.0) - feature_mean[0]) * inv_std[0]
-        feats[1, c] = ((d_eps[1, c] / m if m > 0 else 0.0) - feature_mean[1]) * inv_std[1]
-        feats[2, c] = (size[0, c] / diameter - feature_mean[2]) * inv_std[2]
-        feats[3, c] = (size[1, c] / diameter - feature_mean[3]) * inv_std[3]
+        m_out[c] = math.sqrt(d0[c] * d0[c] + d1[c] * d1[c])
+    for a in range(2):
+        d_a = d_eps[a]
+        for c in range(n):
+            value[c] = d_a[c] / m_out[c] if m_out[c] > 0 else 0.0
+        _z_score(value, feature_mean[a], feature_std[a], feats[a])
+        size_a = size[a]
+        for c in range(n):
+            value[c] = size_a[c] / diameter
+        _z_score(value, feature_mean[2 + a], feature_std[2 + a], feats[2 + a])
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_contact, old_fn, frac, free_dofs,
              pairs, radius, outer, rate_mean, rate_std, compliance_scale, diameter, kn, kt, mu, tol, ramp,
              new_size, new_free, new_shear, moment, area, capped_any, opened_any, mechanism, ramped, n_held):
-    """Free-DOF displacement from the network output ``out`` (n_free + n_free^2, n), then the contact law.
+    """Free-DOF displacement from the network output ``out`` (n_free + n_free^2, n_pad >= n), then the contact law.
 
     Cells are the last axis (``_features``). The rest rule of ``cell_physics.hold_at_rest``
     holds free grains with no contact at the start that nothing reaches. Outputs: the new
@@ -133,31 +179,38 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
     n_grains = frac.shape[0]
     touched = np.zeros((n_grains, n), dtype=np.bool_)
     for p in range(pairs.shape[0]):
+        contact, touched_i, touched_j = old_contact[p], touched[pairs[p, 0]], touched[pairs[p, 1]]
         for c in range(n):
-            if old_contact[p, c]:
-                touched[pairs[p, 0], c] = True
-                touched[pairs[p, 1], c] = True
+            touched_i[c] |= contact[c]
+        for c in range(n):
+            touched_j[c] |= contact[c]
     d_free = np.empty((n_free, n))
+    cf = np.empty(n)
     for k in range(n_free):
-        g = free_dofs[k, 0]
+        cf[:] = 0.0
+        for j in range(n_free):
+            out_kj, unbalanced_j, eye = out[n_free + k * n_free + j], unbalanced[j], 1.0 if j == k else 0.0
+            for c in range(n):
+                cf[c] += compliance_scale * (eye + out_kj[c]) * unbalanced_j[c]
+        out_k, d_free_k, std, mean = out[k], d_free[k], rate_std[k], rate_mean[k]
         for c in range(n):
-            m = m_in[c]
-            cf = 0.0
-            for j in range(n_free):
-                cij = compliance_scale * ((1.0 if j == k else 0.0) + float(out[n_free + k * n_free + j, c]))
-                cf += cij * unbalanced[j, c]
-            rate = float(out[k, c]) * rate_std[k] + rate_mean[k]
-            d_free[k, c] = diameter * m * rate - min(m / ramp, 1.0) * (cf / kn)
-            new_free[k, c] = free[k, c] + d_free[k, c] if touched[g, c] else free[k, c]
+            d_free_k[c] = diameter * m_in[c] * (out_k[c] * std + mean) - min(m_in[c] / ramp, 1.0) * (cf[c] / kn)
+        touched_g, new_free_k, free_k = touched[free_dofs[k, 0]], new_free[k], free[k]
+        for c in range(n):
+            new_free_k[c] = free_k[c] + d_free_k[c] if touched_g[c] else free_k[c]
     for a in range(2):
+        new_size_a, size_a, d_eps_a = new_size[a], size[a], d_eps[a]
         for c in range(n):
-            new_size[a, c] = size[a, c] * (1.0 - d_eps[a, c])
+            new_size_a[c] = size_a[c] * (1.0 - d_eps_a[c])
     held = np.zeros((n_grains, n), dtype=np.bool_)
     for k in range(n_free):
+        held_g, touched_g = held[free_dofs[k, 0]], touched[free_dofs[k, 0]]
         for c in range(n):
-            held[free_dofs[k, 0], c] = not touched[free_dofs[k, 0], c]
+            held_g[c] = not touched_g[c]
     x = np.empty((n_grains, 2, n))
     for _ in range(n_grains):
+        if not held.any():
+            break
         _positions(new_size, new_free, frac, free_dofs, x)
         released = False
         for p in range(pairs.shape[0]):
@@ -178,11 +231,11 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
             g = free_dofs[k, 0]
             for c in range(n):
                 new_free[k, c] = free[k, c] if held[g, c] else free[k, c] + d_free[k, c]
-    for c in range(n):
-        n_held[c] = 0
+    n_held[:] = 0
     for g in range(n_grains):
+        held_g = held[g]
         for c in range(n):
-            n_held[c] += 1 if held[g, c] else 0
+            n_held[c] += 1 if held_g[c] else 0
     _positions(new_size, new_free, frac, free_dofs, x)
     moment[:, :, :] = 0.0
     capped_any[:] = False
@@ -219,13 +272,13 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
             moment[1, 0, c] -= f1 * b0
             moment[1, 1, c] -= f1 * b1
     n_outer = outer.shape[0]
-    for c in range(n):
-        area[c] = 0.0
+    area[:] = 0.0
     for k in range(n_outer):
         i = outer[k]
         j = outer[(k + 1) % n_outer]
+        xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
         for c in range(n):
-            area[c] += x[i, 0, c] * x[j, 1, c] - x[j, 0, c] * x[i, 1, c]
+            area[c] += xi0[c] * xj1[c] - xj0[c] * xi1[c]
     for c in range(n):
         area[c] = 0.5 * abs(area[c])
         mechanism[c] = moment[0, 0, c] == 0.0 and moment[0, 1, c] == 0.0 and moment[1, 0, c] == 0.0 and \
@@ -257,14 +310,17 @@ class FastIncrement(NamedTuple):
 
 
 class FastAdvance:
-    """``MesoNet.advance`` for inference on CPU: numba physics (float64) around one MLP call.
+    """``MesoNet.advance`` for inference on CPU: numba physics (float64) around the perceptron (float32 hidden layers).
+
+    The perceptron runs on fixed blocks of ``MLP_BLOCK`` cells (the batch is padded to whole
+    blocks), one BLAS call of the same shape per block and layer, so that a cell's result
+    does not depend on the size of its batch or its place in it.
 
     Args:
         net: the trained network (its schema, active pairs, normalisation and layers are copied).
-        mlp_dtype: torch dtype of the perceptron's arithmetic (float32 or float64).
     """
 
-    def __init__(self, net: MesoNet, mlp_dtype: torch.dtype = torch.float64) -> None:
+    def __init__(self, net: MesoNet) -> None:
         schema = net.schema
         as_np = lambda t, dtype=np.float64: np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)  # noqa: E731
         self.frac = as_np(schema.driven_fraction)
@@ -280,22 +336,34 @@ class FastAdvance:
         self.rate_std = as_np(net.rate_std)
         self.diameter, self.kn, self.kt, self.mu = schema.diameter, schema.kn, schema.kt, schema.mu
         self.tol = schema.contact_tolerance
-        self.mlp_dtype = mlp_dtype
         linears = [layer for layer in net.mlp if isinstance(layer, torch.nn.Linear)]
-        self.layers = [(lin.weight.detach().cpu().to(mlp_dtype).contiguous(),
-                        lin.bias.detach().cpu().to(mlp_dtype).unsqueeze(1).contiguous()) for lin in linears]
-        self.np_dtype = {torch.float32: np.float32, torch.float64: np.float64}[mlp_dtype]
+        self.layers = [self._affine(as_np(lin.weight), as_np(lin.bias), lin is not linears[-1]) for lin in linears]
+
+    @staticmethod
+    def _affine(weight: np.ndarray, bias: np.ndarray, hidden: bool) -> np.ndarray:
+        """[W | b] acting on inputs that end with a row of ones: float32 for a hidden layer, which also
+        passes the ones on; float64 for the output layer."""
+        affine = np.concatenate([weight, bias[:, None]], axis=1)
+        if not hidden:
+            return np.ascontiguousarray(affine)
+        affine = np.concatenate([affine, np.eye(1, affine.shape[1], affine.shape[1] - 1)])
+        return np.ascontiguousarray(affine, dtype=np.float32)
 
     def _mlp(self, feats: np.ndarray) -> np.ndarray:
-        """Network output (n_outputs, n) of z-scored features (n_features, n) (cells last: W h + b)."""
-        h = torch.from_numpy(feats)
-        last = len(self.layers) - 1
-        with torch.inference_mode():
-            for k, (weight, bias) in enumerate(self.layers):
-                h = torch.addmm(bias, weight, h)
-                if k < last:
-                    h = torch.tanh_(h)
-        return h.numpy()
+        """Network output (n_outputs, n_pad) of z-scored features (n_features + 1, n_pad) ending with a row of ones.
+
+        Cells along the columns, n_pad a multiple of ``MLP_BLOCK``: [W | b] [h; 1] per block of
+        ``MLP_BLOCK`` columns; the hidden layers (float32) carry the row of ones along; the
+        output layer is float64 (rounding the outputs to float32 tripled the largest error of
+        the drained test at alpha0 = 40 deg, p0 = 2e5, ``docs/ann.md``).
+        """
+        n_pad = feats.shape[1]
+        h = feats.reshape(feats.shape[0], n_pad // MLP_BLOCK, MLP_BLOCK).transpose(1, 0, 2)
+        for affine in self.layers[:-1]:
+            h = np.matmul(affine, h)
+            np.tanh(h[:, :-1], out=h[:, :-1])
+        out = np.matmul(self.layers[-1], h.astype(np.float64))
+        return out.transpose(1, 0, 2).reshape(out.shape[1], n_pad)
 
     def __call__(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                  d_eps: np.ndarray) -> FastIncrement:
@@ -303,7 +371,8 @@ class FastAdvance:
         size, free, shear, d_eps = (np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)
                                     for a in (cell_size, free_position, shear_force, d_eps))
         n, n_free, n_pairs = size.shape[1], self.free_dofs.shape[0], self.pairs.shape[0]
-        feats = np.empty((self.feature_mean.shape[0], n), dtype=self.np_dtype)
+        feats = np.zeros((self.feature_mean.shape[0] + 1, -(-n // MLP_BLOCK) * MLP_BLOCK), dtype=np.float32)
+        feats[-1] = 1.0
         m = np.empty(n)
         unbalanced = np.empty((n_free, n))
         old_branch = np.empty((n_pairs, 2, n))

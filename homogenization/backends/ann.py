@@ -87,8 +87,6 @@ class AnnCell(ArrayStateMixin):
         model: path of a model state_dict (``.pt``, metadata in the ``.json`` next to it);
             None loads the default model shipped in ``homogenization/data``.
         device: torch device of the network ("cpu", "cuda", ...).
-        mlp_dtype: "float32" or "float64", arithmetic of the perceptron in ``step`` without
-            tangent on CPU (``training.inference.FastAdvance``; the physics is float64).
         threads: torch CPU threads (process-wide setting, applied here) [-].
 
     Raises:
@@ -101,7 +99,7 @@ class AnnCell(ArrayStateMixin):
     state_type = AnnState
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
-                 device: str = "cpu", threads: int = 1, mlp_dtype: str = "float64") -> None:
+                 device: str = "cpu", threads: int = 1) -> None:
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:
@@ -120,9 +118,7 @@ class AnnCell(ArrayStateMixin):
         self.net.active_index = self.net.active_index.to(self.device)
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
-        if mlp_dtype not in ("float32", "float64"):
-            raise ValueError(f"mlp_dtype = {mlp_dtype!r} must be 'float32' or 'float64'")
-        self.fast = FastAdvance(self.net, getattr(torch, mlp_dtype)) if self.device.type == "cpu" else None
+        self.fast = FastAdvance(self.net) if self.device.type == "cpu" else None
 
     # -- construction ---------------------------------------------------------------------
     def check_trained_on(self, meso: Mesostructure) -> None:
