@@ -236,32 +236,39 @@ class NumpyIntegrator:
         dscale = (l_end - l_start) / l_ref
         inv_n_coarse = 1.0 / np.maximum(n_phase, 1).astype(np.float64)
         driven = meso.driven
-        # strain per substep from the cell's state (see the kernel): same sums, same order
+        # strain per substep and predictor from the cell's state (see the kernel): same sums, same order
         d_new = ref * dscale[:, None, :] * inv_n_coarse[:, None, None]
         d_last = v * h
-        dot, norm2 = np.zeros(model.n_cells), np.zeros(model.n_cells)
+        n_cells = model.n_cells
+        dot, norm2, dot_v, norm_v = (np.zeros(n_cells) for _ in range(4))
         for g in range(meso.n_grains):
             for k in range(2):
                 if driven[g, k]:
                     dot = dot + d_last[:, g, k] * d_new[:, g, k]
                     norm2 = norm2 + d_new[:, g, k] * d_new[:, g, k]
+                    dot_v = dot_v + v[:, g, k] * (ref[:, g, k] * dscale[:, k])
+                    norm_v = norm_v + v[:, g, k] * v[:, g, k]
         lam = np.where(norm2 > 0.0, dot / np.where(norm2 > 0.0, norm2, 1.0), 0.0)
         off = np.where(driven, np.abs(d_last - lam[:, None, None] * d_new), 0.0).max(axis=(1, 2))
         drive = np.where(driven, np.abs(d_new), 0.0).max(axis=(1, 2))
+        steady = (lam > 0.0) & (off <= settings.velocity_change * lam * drive)
         grown = np.minimum(settings.strain_per_substep,
                            np.maximum(settings.refined_strain_per_substep, settings.rate_growth * lam * largest * inv_n_coarse))
-        rate = np.where((lam > 0.0) & (off <= settings.velocity_change * lam * drive), grown,
-                        settings.refined_strain_per_substep)
+        rate = np.where(steady, grown, settings.refined_strain_per_substep)
         n_phase = np.ceil(largest / rate).astype(np.int32)
         ds = np.where(largest > 0.0, rate / np.where(largest > 0.0, largest, 1.0), 0.0)
-        n_cells = model.n_cells
+        span = np.where(steady & (norm_v > 0.0), dot_v / np.where(norm_v > 0.0, norm_v, 1.0), 0.0)
+        drift = np.where(free, span[:, None, None] * v, 0.0)
+        x_start = x.copy()
+        v = np.where(free, 0.0, v)  # free grains start at rest
         s_base, s_now = np.zeros(n_cells), np.zeros(n_cells)
         k_phase, refined = np.zeros(n_cells, np.int32), np.zeros(n_cells, bool)
-        touching = np.zeros(fs.shape)
+        last_regime = np.zeros(fs.shape)
         dx = np.zeros_like(x)
         fn = np.zeros_like(fs)
         touch = np.zeros(fs.shape, np.int32)
         substeps = np.zeros(n_cells, np.int32)
+        driving_substeps = np.zeros(n_cells, np.int32)
         converged = np.zeros(n_cells, np.int32)
         act = np.arange(n_cells)
         while act.size:
@@ -276,9 +283,9 @@ class NumpyIntegrator:
             cap = law.mu * normal
             shear = np.where(on, np.clip(fs[act] + law.kt * du, -cap, cap), 0.0)
             normal = np.where(on, normal, 0.0)
-            closed = np.where(on, 1.0, 0.0)
-            changed = (substeps[act, None] > 0) & (closed != touching[act])
-            touching[act] = closed
+            regime = np.where(on, np.where((normal > 0.0) & (np.abs(shear) >= law.mu * normal), 2.0, 1.0), 0.0)
+            changed = (substeps[act, None] > 0) & (regime != last_regime[act])
+            last_regime[act] = regime
             fs[act], fn[act], touch[act] = shear, normal, on
             f_i = np.stack([-normal * u[..., 0] - shear * u[..., 1], -normal * u[..., 1] + shear * u[..., 0]], -1)
             f_i = np.where(on[..., None], f_i, 0.0)
@@ -307,8 +314,10 @@ class NumpyIntegrator:
             if not act.size:
                 break
             substeps[act] += 1
+            s_prev = s_now[act]
             moving = act[driving]
             k_phase[moving] += 1
+            driving_substeps[moving] += 1
             s_now[moving] = np.where(k_phase[moving] < n_phase[moving],
                                      np.minimum(s_base[moving] + k_phase[moving] * ds[moving], 1.0), 1.0)
             scale = scale0[act] + dscale[act] * s_now[act][:, None]
@@ -319,12 +328,15 @@ class NumpyIntegrator:
             damped = va + ha * (accel * (1.0 - settings.damping * np.sign(power)))
             unloaded = np.all(force == 0.0, axis=2, keepdims=True)
             v_free = np.where(unloaded, 0.0, damped)
-            dx[act] = np.where(free, v_free * ha, x_drive - xa)
-            x[act] = np.where(free, xa + v_free * ha, x_drive)
+            move = v_free * ha + np.where(unloaded, 0.0, drift[act] * (s_now[act] - s_prev)[:, None, None])
+            dx[act] = np.where(free, move, x_drive - xa)
+            x[act] = np.where(free, xa + move, x_drive)
             v[act] = v_free
-        # driven DOFs: mean velocity over the increment's substeps
-        spent = (substeps.astype(np.float64)[:, None, None] * h)
-        v = np.where(free, v, np.where(substeps[:, None, None] > 0, ref * dscale[:, None, :] / np.where(spent > 0, spent, 1.0), 0.0))
+        # every grain: mean velocity over the increment's driving substeps
+        spent = driving_substeps.astype(np.float64)[:, None, None] * h
+        spent_safe = np.where(spent > 0, spent, 1.0)
+        v = np.where(driving_substeps[:, None, None] > 0,
+                     np.where(free, (x - x_start) / spent_safe, ref * dscale[:, None, :] / spent_safe), 0.0)
         b = x[:, pj] - x[:, pi]
         dist = np.sqrt(b[..., 0] * b[..., 0] + b[..., 1] * b[..., 1])
         u = b / dist[..., None]

@@ -165,6 +165,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         c = first_cell + wp.tid()
         zero = wp.float64(0.0)
         one = wp.float64(1.0)
+        two = wp.float64(2.0)
         h = dt[c]
         floor = force_floor[c]
 
@@ -179,12 +180,18 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         refn = vec_g()
         reft = vec_g()
         im = vec_g()
+        x0n = vec_g()
+        x0t = vec_g()
+        driftn = vec_g()
+        driftt = vec_g()
         for g in range(wp.static(n_grains)):
             x0 = position_in[c, g]
             v0 = velocity_in[c, g]
             r0 = reference_position[c, g]
             xn[g] = x0[0]
             xt[g] = x0[1]
+            x0n[g] = x0[0]
+            x0t[g] = x0[1]
             vn[g] = v0[0]
             vt[g] = v0[1]
             refn[g] = r0[0]
@@ -194,7 +201,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         fs = vec_p()
         rsum = vec_p()
         cut2 = vec_p()
-        was_closed = vec_p()
+        was_regime = vec_p()
         widen = one + contact_tolerance
         for p in range(wp.static(n_pairs)):
             fs[p] = shear_force_in[c, p]
@@ -215,25 +222,36 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         scale_t0 = l_start[1] / l_ref[1]
         dscale_n = (l_end[0] - l_start[0]) / l_ref[0]
         dscale_t = (l_end[1] - l_start[1]) / l_ref[1]
-        # strain per substep from the cell's own state: the last increment's mean driven
-        # displacements per substep d_last (velocities in the state) against those of this
-        # increment at the coarse rate,
-        # d_new; lam = (d_last . d_new) / (d_new . d_new). Same direction (|d_last - lam d_new|
-        # <= velocity_change lam |d_new|, max norms): the rate may grow by rate_growth over the
-        # last one, up to strain_per_substep; otherwise the free grains are moving for another
-        # path and the increment starts again from refined_strain_per_substep
+        # strain per substep and predictor from the cell's own state. The state's velocities are
+        # every grain's mean velocity over the last increment's driving substeps; for the driven
+        # DOFs, d_last = v h is the last driving rate per substep, D_new this increment's
+        # displacement and d_new = D_new / n its displacement per substep at the coarse rate.
+        # lam = (d_last . d_new) / (d_new . d_new). The new increment continues the last one when
+        # |d_last - lam d_new| <= velocity_change lam |d_new| (max norms); then
+        # - the rate may grow by rate_growth over the last one, up to strain_per_substep
+        #   (otherwise the free grains moved for another path: refined_strain_per_substep);
+        # - the free grains are predicted to move as they did, scaled like the driven ones:
+        #   by span v_last, span = (v_last . D_new) / (v_last . v_last) [s] over the driven DOFs,
+        #   in step with them (span v_last ds per unit of the driving parameter s). The damped
+        #   dynamics, started from rest, corrects what the prediction misses.
         inv_n_coarse = one / wp.float64(wp.max(n_phase, 1))
         dot = zero
         norm2 = zero
+        dot_v = zero
+        norm_v = zero
         for g in range(wp.static(n_grains)):
             if wp.static(drive_n[g]):
                 d_new = refn[g] * dscale_n * inv_n_coarse
                 dot = dot + vn[g] * h * d_new
                 norm2 = norm2 + d_new * d_new
+                dot_v = dot_v + vn[g] * (refn[g] * dscale_n)
+                norm_v = norm_v + vn[g] * vn[g]
             if wp.static(drive_t[g]):
                 d_new = reft[g] * dscale_t * inv_n_coarse
                 dot = dot + vt[g] * h * d_new
                 norm2 = norm2 + d_new * d_new
+                dot_v = dot_v + vt[g] * (reft[g] * dscale_t)
+                norm_v = norm_v + vt[g] * vt[g]
         lam = wp.where(norm2 > zero, dot / wp.where(norm2 > zero, norm2, one), zero)
         off = zero
         drive = zero
@@ -246,21 +264,33 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                 d_new = reft[g] * dscale_t * inv_n_coarse
                 off = wp.max(off, wp.abs(vt[g] * h - lam * d_new))
                 drive = wp.max(drive, wp.abs(d_new))
+        steady = lam > zero and off <= velocity_change * lam * drive
         rate = refined_strain_per_substep
-        if lam > zero and off <= velocity_change * lam * drive:
+        if steady:
             rate = wp.min(strain_per_substep, wp.max(refined_strain_per_substep, rate_growth * lam * largest * inv_n_coarse))
         n_phase = wp.int32(wp.ceil(largest / rate))
         ds = wp.where(largest > zero, rate / wp.where(largest > zero, largest, one), zero)
+        span = wp.where(steady and norm_v > zero, dot_v / wp.where(norm_v > zero, norm_v, one), zero)
+        for g in range(wp.static(n_grains)):
+            if wp.static(not drive_n[g]):
+                driftn[g] = span * vn[g]
+                vn[g] = zero
+            if wp.static(not drive_t[g]):
+                driftt[g] = span * vt[g]
+                vt[g] = zero
         s_base = zero
         s = zero
+        s_prev = zero
         k_phase = wp.int32(0)
         refined = wp.int32(0)
 
         substeps = wp.int32(0)
+        driving = wp.int32(0)
         converged = wp.int32(0)
         while True:
             # contact forces at the current positions (shear increment from the last move);
-            # changed = 1 if a contact opened or closed since the last evaluation
+            # regime of each pair: 0 open, 1 sticking, 2 sliding (force at the Coulomb cap);
+            # changed = 1 if a regime changed since the last evaluation
             fmax = zero
             changed = wp.int32(0)
             for g in range(wp.static(n_grains)):
@@ -272,7 +302,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                 bn = xn[j] - xn[i]
                 bt = xt[j] - xt[i]
                 dist2 = bn * bn + bt * bt
-                closed = zero
+                regime = zero
                 if dist2 <= cut2[p]:
                     dist = wp.sqrt(dist2)
                     inv_dist = one / dist
@@ -281,7 +311,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     du = (dxt[j] - dxt[i]) * un - (dxn[j] - dxn[i]) * ut
                     normal, shear = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
                     fs[p] = shear
-                    closed = one
+                    regime = wp.where(normal > zero and wp.abs(shear) >= mu * normal, two, one)
                     fin = -normal * un - shear * ut
                     fit = -normal * ut + shear * un
                     fn_g[i] = fn_g[i] + fin
@@ -291,12 +321,12 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     fmax = wp.where(normal > fmax, normal, fmax)
                 else:
                     fs[p] = zero
-                changed = wp.where(substeps > 0 and closed != was_closed[p], 1, changed)
-                was_closed[p] = closed
+                changed = wp.where(substeps > 0 and regime != was_regime[p], 1, changed)
+                was_regime[p] = regime
 
             if k_phase < n_phase:
-                # adaptive driving: once a contact has opened or closed, the rest of the
-                # increment is driven at refined_strain_per_substep
+                # adaptive driving: once a contact has opened, closed, started or stopped
+                # sliding, the rest of the increment is driven at refined_strain_per_substep
                 if changed == 1 and refined == 0:
                     refined = 1
                     n_rest = wp.int32(wp.ceil((one - s) * largest / refined_strain_per_substep))
@@ -319,8 +349,10 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     break
 
             substeps += 1
+            s_prev = s
             if k_phase < n_phase:
                 k_phase += 1
+                driving += 1
                 s = wp.where(k_phase < n_phase, wp.min(s_base + wp.float64(k_phase) * ds, one), one)
             scale_n = scale_n0 + dscale_n * s
             scale_t = scale_t0 + dscale_t * s
@@ -333,8 +365,9 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                 else:
                     v = wp.where(unloaded, zero, damped_velocity(fn_g[g], vn[g], im[g], h, damping))
                     vn[g] = v
-                    dxn[g] = v * h
-                    xn[g] = xn[g] + v * h
+                    move = v * h + wp.where(unloaded, zero, driftn[g] * (s - s_prev))
+                    dxn[g] = move
+                    xn[g] = xn[g] + move
                 if wp.static(drive_t[g]):
                     x_new = reft[g] * scale_t
                     dxt[g] = x_new - xt[g]
@@ -342,17 +375,22 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                 else:
                     v = wp.where(unloaded, zero, damped_velocity(ft_g[g], vt[g], im[g], h, damping))
                     vt[g] = v
-                    dxt[g] = v * h
-                    xt[g] = xt[g] + v * h
+                    move = v * h + wp.where(unloaded, zero, driftt[g] * (s - s_prev))
+                    dxt[g] = move
+                    xt[g] = xt[g] + move
 
         for g in range(wp.static(n_grains)):
             position_out[c, g] = wp.vec2d(xn[g], xt[g])
-            # driven DOFs: their mean velocity over the increment's substeps (driving and
-            # relaxation), the memory from which the next increment sets its strain per substep
+            # every grain's mean velocity over the increment's driving substeps: the memory from
+            # which the next increment sets its strain per substep and its predictor
             if wp.static(drive_n[g]):
-                vn[g] = wp.where(substeps > 0, refn[g] * dscale_n / (wp.float64(substeps) * h), zero)
+                vn[g] = wp.where(driving > 0, refn[g] * dscale_n / (wp.float64(driving) * h), zero)
+            else:
+                vn[g] = wp.where(driving > 0, (xn[g] - x0n[g]) / (wp.float64(driving) * h), zero)
             if wp.static(drive_t[g]):
-                vt[g] = wp.where(substeps > 0, reft[g] * dscale_t / (wp.float64(substeps) * h), zero)
+                vt[g] = wp.where(driving > 0, reft[g] * dscale_t / (wp.float64(driving) * h), zero)
+            else:
+                vt[g] = wp.where(driving > 0, (xt[g] - x0t[g]) / (wp.float64(driving) * h), zero)
             velocity_out[c, g] = wp.vec2d(vn[g], vt[g])
         # Love-Weber sum (tension positive) over the pairs: sum_p f_p (x) (x_j - x_i)
         m_nn = zero
