@@ -78,12 +78,33 @@ def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.n
     N = kn * np.where(active, overlap, 0.0)
     T = np.where(active, shear_force, 0.0)
     sliding = active & sliding
-    dT = np.where(sliding[..., None], -np.copysign(mu * kn, T)[..., None] * u, kt * w)
-    uu = u[..., :, None] * u[..., None, :]
-    ww = w[..., :, None] * w[..., None, :]
-    uw = u[..., :, None] * w[..., None, :]
-    k = kn * uu - (N / d)[..., None, None] * ww - (T / d)[..., None, None] * uw + w[..., :, None] * dT[..., None, :]
-    return np.where(active[..., None, None], k, 0.0)
+    # dT/db = kt w (stick) or -sign(T) mu kn u (slide): dT = a u + c w
+    a = np.where(sliding, -np.copysign(mu * kn, T), 0.0)
+    c = np.where(sliding, 0.0, kt)
+    # k = kn u u^T - (N / d) w w^T - (T / d) u w^T + w (a u + c w)^T
+    kuu, kww, kuw, kwu = np.where(active, kn, 0.0), np.where(active, c - N / d, 0.0), -T / d, np.where(active, a, 0.0)
+    k = np.empty(branch.shape[:-1] + (2, 2))
+    for r in range(2):
+        for s in range(2):
+            k[..., r, s] = (kuu * u[..., r] * u[..., s] + kww * w[..., r] * w[..., s] + kuw * u[..., r] * w[..., s]
+                            + kwu * w[..., r] * u[..., s])
+    return k
+
+
+def _incidence(pairs: np.ndarray, n_grains: int) -> np.ndarray:
+    """(e_j - e_i) of every pair (i, j), shape (n_pairs, n_grains)."""
+    incidence = np.zeros((pairs.shape[0], n_grains))
+    incidence[np.arange(pairs.shape[0]), pairs[:, 1]] = 1.0
+    incidence[np.arange(pairs.shape[0]), pairs[:, 0]] = -1.0
+    return incidence
+
+
+def _assembly(incidence: np.ndarray) -> np.ndarray:
+    """Matrix mapping the pair stiffnesses k[p, a, b] (flattened) to the DOF stiffness
+    K[(g, a), (h, b)] = -sum_p (e_j - e_i)_g (e_j - e_i)_h k[p, a, b] (flattened), shape
+    (4 n_pairs, (2 n_grains)^2): one matrix product per batch instead of an einsum."""
+    eye = np.eye(2)
+    return -np.einsum("pg,ph,ac,bd->pabgchd", incidence, incidence, eye, eye).reshape(4 * incidence.shape[0], -1)
 
 
 def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarray, driven: np.ndarray,
@@ -109,30 +130,29 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
     """
     position = np.asarray(position, dtype=np.float64)
     n_cells, n_grains, _ = position.shape
+    n_dof = 2 * n_grains
     i, j = pairs[:, 0], pairs[:, 1]
     branch = position[:, j] - position[:, i]
     overlap = radius[:, i] + radius[:, j] - np.linalg.norm(branch, axis=-1)
     k = contact_stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu)
-    incidence = np.zeros((pairs.shape[0], n_grains))
-    incidence[np.arange(pairs.shape[0]), j] = 1.0
-    incidence[np.arange(pairs.shape[0]), i] = -1.0
-    K = -np.einsum("pg,ph,cpab->cgahb", incidence, incidence, k).reshape(n_cells, 2 * n_grains, 2 * n_grains)
+    incidence = _incidence(pairs, n_grains)
+    assembly = _assembly(incidence)
+    k_flat = k.reshape(n_cells, -1)
+    d_mask = np.asarray(driven, dtype=bool).reshape(-1)
+    fi, di = np.flatnonzero(~d_mask), np.flatnonzero(d_mask)
+
+    def block(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """K[:, rows][:, :, cols], assembled directly."""
+        return (k_flat @ assembly[:, (rows[:, None] * n_dof + cols).reshape(-1)]).reshape(n_cells, rows.size, cols.size)
+
     # net contact force on every DOF, F = -sum_p (e_j - e_i) f_p
     u, w = _unit_tangent(branch)
     active = overlap > 0.0
     f = (-kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active, shear_force, 0.0)[..., None] * w)
-    F = -np.einsum("pg,cpa->cga", incidence, f).reshape(n_cells, 2 * n_grains)
+    F = -(np.swapaxes(f, 1, 2) @ incidence).transpose(0, 2, 1).reshape(n_cells, n_dof)
 
-    d_mask = np.asarray(driven, dtype=bool).reshape(-1)
-    fi, di = np.flatnonzero(~d_mask), np.flatnonzero(d_mask)
-    K_dd = K[:, di[:, None], di]
-    if fi.size:
-        K_ff = K[:, fi[:, None], fi]
-        K_fd = K[:, fi[:, None], di]
-        K_df = K[:, di[:, None], fi]
-        K_c = K_dd - K_df @ np.linalg.pinv(K_ff) @ K_fd
-    else:
-        K_c = K_dd
+    K_dd = block(di, di)
+    K_c = K_dd - block(di, fi) @ np.linalg.pinv(block(fi, fi)) @ block(fi, di) if fi.size else K_dd
     # driven kinematics: dx_d = B d_eps, B[dof(g, a), a] = drive_rate[g, a]
     rate = np.asarray(drive_rate, dtype=np.float64).reshape(n_cells, 2 * n_grains)[:, di]
     component = np.tile([0, 1], n_grains)[di]
