@@ -10,12 +10,14 @@ and prints, per setting:
 - max |p_dem - p_ana| / p0 and max |q_dem - q_ana| / p0 over every increment;
 - DEM substeps per cell and step call (trial calls of stress control included), step calls,
   unconverged cell-increments, or the error that stopped the run (stress control fails when
-  the DEM response is too rough for the driver's 1e-6 stress tolerance);
+  the DEM response is too rough for the driver's stress tolerance);
 - DEM wall time and its ratio to the analytical run.
 
 With --robustness (--robustness-only: nothing else), drained runs over alpha0, p0 and
-increment count, per setting, how often the driver's stress control (1e-6 of p0, or
---stress-rtol) converges on the DEM's response.
+increment (H-cell, 360 orientations) and of cells with a fine grain (``FINES``) count, per
+setting, how often the driver's stress control (``LoadingDefaults.stress_rtol``, or
+--stress-rtol) converges on the DEM's response, the step calls per shear increment, and how
+many increments it accepted at a jump of the response (``driver.solve_stress``).
 
 Then the acceptance rows: DEM (``DemSettings()`` defaults) and analytical wall times side by
 side, best of --repeats alternating runs each (the machine is shared: the load average is
@@ -32,6 +34,7 @@ import argparse
 import json
 import os
 import time
+import warnings
 from dataclasses import asdict, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -40,6 +43,7 @@ import numpy as np
 
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
+from warp_hcell.builders import resolve_mesostructure
 from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import ContactLaw, DemSettings
 from warp_hcell.provenance import git_revision
@@ -49,28 +53,31 @@ YADE_DIR = ROOT / "tests" / "data" / "yade"
 ALPHA0_DEG = 55.0
 PRESSURES = (2e5, 5.85e6)
 DEFAULT = DemSettings()
-DEFAULT_NAME = "adaptive 2.5e-5/5e-6, tol 1e-6 (defaults)"
+DEFAULT_NAME = "defaults: tol 1e-6, dt 0.6, damping 0.7"
 SETTINGS = {
-    # fixed strain per substep (refined = coarse: no adaptation)
-    "fixed 2.5e-7, dt 0.2 (issue-4 defaults)": dict(
-        strain_per_substep=2.5e-7, refined_strain_per_substep=2.5e-7, dt_factor=0.2),
+    "fixed 2.5e-7, dt 0.2, damping 0.5 (issue-4 rate)": dict(
+        strain_per_substep=2.5e-7, refined_strain_per_substep=2.5e-7, dt_factor=0.2, damping=0.5),
+    DEFAULT_NAME: {},
     "fixed 2.5e-6": dict(strain_per_substep=2.5e-6, refined_strain_per_substep=2.5e-6),
-    "fixed 1e-5": dict(strain_per_substep=1e-5, refined_strain_per_substep=1e-5),
     "fixed 2.5e-5": dict(strain_per_substep=2.5e-5, refined_strain_per_substep=2.5e-5),
     "fixed 1e-4": dict(strain_per_substep=1e-4, refined_strain_per_substep=1e-4),
-    # adaptive: coarse / refined strain per substep
-    DEFAULT_NAME: {},
-    "adaptive, tol 1e-5": dict(force_tolerance=1e-5),
-    "adaptive, tol 1e-4": dict(force_tolerance=1e-4),
-    "adaptive, tol 1e-3": dict(force_tolerance=1e-3),
-    "adaptive, dt 0.6, damping 0.7": dict(dt_factor=0.6, damping=0.7),
-    "adaptive 5e-5/5e-6, tol 1e-4": dict(strain_per_substep=5e-5, force_tolerance=1e-4),
-    "adaptive 1e-4/1e-5, tol 1e-4": dict(strain_per_substep=1e-4, refined_strain_per_substep=1e-5, force_tolerance=1e-4),
+    "adaptive 1e-4/5e-6": dict(strain_per_substep=1e-4),
+    "tol 1e-5": dict(force_tolerance=1e-5),
+    "tol 1e-4": dict(force_tolerance=1e-4),
+    "tol 1e-3": dict(force_tolerance=1e-3),
+    "dt 0.4, damping 0.5": dict(dt_factor=0.4, damping=0.5),
+    "dt 0.6, damping 0.6": dict(damping=0.6),
+    "dt 0.8, damping 0.7": dict(dt_factor=0.8),
+    "dt 0.9, damping 0.8": dict(dt_factor=0.9, damping=0.8),
 }
-"""Name -> DemSettings overrides of the defaults (every other field: DemSettings())."""
-ROBUSTNESS = {DEFAULT_NAME: {}, "adaptive, tol 1e-5": dict(force_tolerance=1e-5),
-              "adaptive, tol 1e-4": dict(force_tolerance=1e-4)}
+"""Name -> DemSettings overrides of the defaults (every other field: DemSettings()); the stepping
+is the kernel's (adaptive rate, predicted free grains), "fixed" rows without rate adaptation."""
+ROBUSTNESS = {DEFAULT_NAME: {}, "tol 1e-5": dict(force_tolerance=1e-5), "tol 1e-4": dict(force_tolerance=1e-4)}
 """Settings whose stress control is tried on --robustness (drained runs over alpha0, p0, increment)."""
+FINES = (("hcell-fines:alpha0=50,ratio=0.8", 1e-4), ("hcell-fines:alpha0=50,ratio=0.8", 1e-3),
+         ("hcell-fines:alpha0=50,ratio=0.7", 1e-4), ("hcell-fines:alpha0=55,ratio=0.76", 1e-4))
+"""Drained runs of cells with a fine grain (p0 = 2e5, 72 orientations) also tried on --robustness:
+mesostructure spec and shear increment."""
 
 
 def programme(p0: float, drained: bool, args: argparse.Namespace) -> tuple:
@@ -248,19 +255,28 @@ def main() -> None:
     if args.robustness or args.robustness_only:
         rtol = {} if args.stress_rtol is None else {"stress_rtol": args.stress_rtol}
         for name, overrides in ROBUSTNESS.items():
-            model, failures, runs = dem_model(replace(DEFAULT, **overrides), args.threads), [], 0
-            for alpha0 in (40.0, 55.0, 70.0):
-                for p0 in PRESSURES:
-                    for increment in (1e-4, 5e-4):
-                        runs += 1
-                        prog = loading.biaxial(p0, 0.1, increment, iso_increment=args.iso_increment, drained=True)
-                        try:
-                            driver.run(model, prog, mesostructure=h_cell(alpha0), n_orientations=args.orientations, progress=False,
-                                       **rtol)
-                        except driver.ControlError as error:
-                            failures.append(f"alpha0 {alpha0:g}, p0 {p0:g}, increment {increment:g}: {error}")
-            robustness[name] = {"runs": runs, "failures": failures}
-            print(f"ROBUSTNESS {name}: {runs - len(failures)} of {runs} drained runs finish"
+            model, failures, runs, calls, jumps = dem_model(replace(DEFAULT, **overrides), args.threads), [], 0, [], 0
+            cases = [(h_cell(alpha0), f"alpha0 {alpha0:g}", p0, increment, args.orientations)
+                     for alpha0 in (40.0, 55.0, 70.0) for p0 in PRESSURES for increment in (1e-4, 5e-4)]
+            cases += [(resolve_mesostructure(spec), spec, 2e5, increment, 72) for spec, increment in FINES]
+            for meso, label, p0, increment, n_orientations in cases:
+                runs += 1
+                prog = loading.biaxial(p0, 0.1, increment, iso_increment=args.iso_increment,
+                                       drained=True)
+                try:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", RuntimeWarning)  # jumps are counted below
+                        record = driver.run(model, prog, mesostructure=meso, n_orientations=n_orientations,
+                                            progress=False, **rtol)
+                    calls.append(float(record.newton_iterations[record.stage == "shear"].mean()))
+                    jumps += int(np.nansum(record.diagnostics.get("stress_control_jump", np.zeros(1))))
+                except driver.ControlError as error:
+                    failures.append(f"{label}, p0 {p0:g}, increment {increment:g}: {error}")
+            robustness[name] = {"runs": runs, "failures": failures, "step_calls_per_shear_increment": calls,
+                                "stress_control_jumps": jumps}
+            print(f"ROBUSTNESS {name}: {runs - len(failures)} of {runs} drained runs finish "
+                  f"({len(cases) - len(FINES)} H-cell, {len(FINES)} with a fine grain); step calls per shear increment "
+                  f"{' '.join(f'{c:.2f}' for c in calls)}; stress-control jumps accepted {jumps}"
                   + "".join(f"\n   failed: {f}" for f in failures), flush=True)
     result = {"machine": {"date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                           "cpus": os.cpu_count(), "load_average_end": os.getloadavg(), "git_revision": git_revision()},
