@@ -10,6 +10,7 @@ import pytest
 
 from homogenization import biaxial, io, loading
 from warp_hcell.cli import run_main
+from warp_hcell.parameters import LoadingDefaults
 
 PROGRAMMES = Path(biaxial.__file__).resolve().parent / "data" / "programmes"
 FAST = ["--alpha0", "55", "--orientations", "24", "-q"]
@@ -58,9 +59,10 @@ def test_stress_steps_reach_their_stress_targets(tmp_path):
     record = io.read_run(out / "run.h5").record
     for label, (s11, s22) in {"ramp": (7.5e6, 5.85e6), "unload": (5.85e6, 5.85e6)}.items():
         last = np.flatnonzero(record.stage == label)[-1]
-        assert (record.sigma11[last], record.sigma22[last]) == pytest.approx((s11, s22), rel=1e-5)
+        assert (record.sigma11[last], record.sigma22[last]) == pytest.approx((s11, s22), rel=LoadingDefaults.stress_rtol)
     drained = record.stage == "drained"
-    assert np.abs(record.sigma22[drained] / 5.85e6 - 1).max() < 1e-5
+    # the drained stage moves sigma22 from where "unload" left it (within the tolerance) to its target
+    assert np.abs(record.sigma22[drained] / 5.85e6 - 1).max() <= 2.0 * LoadingDefaults.stress_rtol
 
 
 def test_proportional_strain_path_follows_its_direction(tmp_path):
