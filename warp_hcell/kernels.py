@@ -17,22 +17,24 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
       a gap >= 0 carries zero force (and so zero shear force); out of contact the shear
       history is reset;
     - free DOFs: explicit (leapfrog) integration with Cundall local damping
-      (``damped_velocity``); a free grain whose net force is exactly zero is set at rest (no
-      drift of unloaded grains in mechanism states);
+      (``damped_velocity``), from rest at the start of each increment; a free grain whose net
+      force is exactly zero is set at rest (no drift of unloaded grains in mechanism states);
     - driven DOFs: x = x_ref * l(s) / l_ref with l(s) moving linearly from the old to the new
       cell size, s = min(k rate / max|d_eps|, 1) over n = ceil(max|d_eps| / rate) driving
       substeps (the last one shorter: the driven path is continuous in d_eps); then relaxation
       until max free-DOF force <= force_tolerance * max(max normal force, force_floor), or
       max_substeps;
-    - adaptive rate, from the cell's own state only (no knowledge of the mesostructure): the
-      driven DOFs' velocities in the state hold their mean velocity over the last increment
-      (driving and relaxation substeps). If the new increment, driven at strain_per_substep,
-      continues that motion (same direction within velocity_change), the rate may grow by
-      rate_growth over the last one, up to strain_per_substep: in a steady path the free
-      grains keep their velocity and need no relaxation. A new direction (the free grains
-      moving for another path: start of shear, reversal, a probe) starts again from
-      refined_strain_per_substep. Within an increment, once a contact opens or closes, the
-      rest is driven at refined_strain_per_substep.
+    - memory: the velocities in the state are every grain's mean velocity over the last
+      increment's driving substeps (driven DOFs: the last driving rate; free DOFs: how they
+      moved while the cell was driven, relaxation included);
+    - adaptive rate and prediction, from the cell's own state only (no knowledge of the
+      mesostructure): if the new increment, driven at strain_per_substep, continues the last
+      one (same direction within velocity_change), the rate may grow by rate_growth over the
+      last driving rate, up to strain_per_substep, and the free grains drift with the driven
+      ones by what they did in the last increment, scaled like the driven displacements. A new
+      direction (start of shear, reversal, a probe) starts again from
+      refined_strain_per_substep without prediction. Within an increment, once a contact
+      opens, closes, starts or stops sliding, the rest is driven at refined_strain_per_substep.
 The conversion to compression-positive quantities happens on the host
 (``warp_hcell.learning_state.to_compression_positive``).
 """

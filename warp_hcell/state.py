@@ -32,7 +32,10 @@ class DemState:
 
     Attributes:
         position: grain centres [m], shape (n_cells, n_grains) vec2d, (x_n, x_t).
-        velocity: grain velocities [m/s], shape (n_cells, n_grains) vec2d.
+        velocity: every grain's mean velocity over the driving substeps of the step that
+            produced this state [m/s], shape (n_cells, n_grains) vec2d: the memory from which
+            the next step sets its strain per substep and predicts its free grains
+            (``warp_hcell.kernels``); zero for a state no step produced.
         shear_force: tangential spring force of each candidate pair [N], shape
             (n_cells, n_pairs); the force on grain i along w = (-u_t, u_n).
         contact_force: force on grain i of pair (i, j) by grain j [N], shape
