@@ -2,7 +2,7 @@
 # make demo      : same set-up, then the constant-volume biaxial tests and their figures
 # make bench     : speed benchmarks (numbers quoted in README)
 # make reproduce : the whole pipeline from scratch: DEM database (3e5), training, three backends
-#                  (the shipped model came from a denser database: docs/ann.md)
+#                  (its model is the shipped one: docs/ann.md)
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
