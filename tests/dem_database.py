@@ -98,10 +98,13 @@ def build(out: Path, *, mesostructure: Mesostructure | None = None, alpha0_deg=(
     before = _generic(arrays, meso, schema)
     after = _generic(after_arrays, meso, schema)
     text = describe(meso)
+    starts = [text] if mesostructure is not None else [describe(h_cell(a, radius)) for a in alphas]
     out = Path(out)
     with h5py.File(out, "w") as f:
         f.attrs.update({"format": "meso-hmodel-database", "format_version": 2, "mesostructure": text,
-                        "mesostructure_sha256": description_sha256(text), "kn": law.kn,
+                        "mesostructure_sha256": description_sha256(text),
+                        "start_mesostructures": json.dumps(starts),
+                        "start_sha256": json.dumps([description_sha256(t) for t in starts]), "kn": law.kn,
                         "kt": law.kt, "mu": law.mu, "phi_g_deg": law.phi_g_deg, "kt_over_kn": law.kt_over_kn,
                         "seed": seed, "n_samples": n,
                         "dem_settings": json.dumps({"contact_tolerance": settings.contact_tolerance})})

@@ -26,9 +26,9 @@ DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
 LATERAL = DATA / "h_cell_lateral_0.7D.toml"
 
 
-def _train(folder: Path, mesostructure=None) -> Path:
-    db = build(folder / "db.h5", mesostructure=mesostructure, precompression=(0.0, 3e-3), n_directions=6,
-               spacing=1e-2, leg_length=0.1, probes_per_state=2, threads=1)
+def _train(folder: Path, mesostructure=None, alpha0_deg=(55.0,)) -> Path:
+    db = build(folder / "db.h5", mesostructure=mesostructure, alpha0_deg=alpha0_deg, precompression=(0.0, 3e-3),
+               n_directions=6, spacing=1e-2, leg_length=0.1, probes_per_state=2, threads=1)
     assert train_main(["--data", str(db), "--out", str(folder / "m.pt"), "--epochs", "20", "--hidden", "16,16",
                        "--threads", "1", "--no-rollout"]) == 0
     return folder / "m.pt"
@@ -37,6 +37,12 @@ def _train(folder: Path, mesostructure=None) -> Path:
 @pytest.fixture(scope="module")
 def model_path(tmp_path_factory):
     return _train(tmp_path_factory.mktemp("hcell"))
+
+
+@pytest.fixture(scope="module")
+def two_start_model(tmp_path_factory):
+    """An H-cell model whose database started from alpha0 = 40 and 55 deg."""
+    return _train(tmp_path_factory.mktemp("hcell2"), alpha0_deg=(40.0, 55.0))
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +64,8 @@ def _loaded(cell, n=8, seed=0):
     return state, rng.normal(scale=1e-5, size=(n, 2))
 
 
-def test_initial_state_is_the_touching_force_free_cell_of_the_dem(cell):
+def test_initial_state_is_the_touching_force_free_cell_of_the_dem(two_start_model):
+    cell = AnnCell(LAW, RADIUS, model=two_start_model)
     cells = [h_cell(40.0), h_cell(55.0)]
     state = cell.init_state(cells, 2)
     response = cell.response(state)
@@ -134,15 +141,20 @@ def test_tangent_matches_central_finite_differences(cell):
     assert cell.step(state, d)[1].diagnostics == response.diagnostics  # compiled and autograd paths count alike
 
 
-def test_a_model_of_another_mesostructure_is_refused(model_path, lateral_model, tmp_path, capsys):
-    with pytest.raises(CheckpointError, match="not on") as info:
+def test_a_model_of_another_mesostructure_is_refused(model_path, two_start_model, lateral_model, tmp_path, capsys):
+    with pytest.raises(CheckpointError, match="has another learning state") as info:
         AnnCell(LAW, RADIUS, model=model_path).init_state(load_mesostructure(LATERAL), 2)
     assert "\n" not in str(info.value)
     lateral = AnnCell(LAW, RADIUS, model=lateral_model)
     assert lateral.response(lateral.init_state(load_mesostructure(LATERAL), 2)).moment.shape == (2, 2, 2)
-    with pytest.raises(CheckpointError, match="does not share"):
+    with pytest.raises(CheckpointError, match="has another learning state"):
         lateral.init_state(h_cell(55.0), 2)
-    with pytest.raises(CheckpointError, match="not on"):  # one cell of another mesostructure in the batch
+    with pytest.raises(CheckpointError, match="starts outside the range"):  # H-cells beyond the database's starts
+        AnnCell(LAW, RADIUS, model=two_start_model).init_state(h_cell(60.0), 2)
+    with pytest.raises(CheckpointError, match="starts outside the range"):
+        AnnCell(LAW, RADIUS, model=model_path).init_state(h_cell(47.5), 2)  # started from 55 only
+    AnnCell(LAW, RADIUS, model=two_start_model).init_state(h_cell(47.5), 2)  # between 40 and 55: accepted
+    with pytest.raises(CheckpointError, match="another learning state"):  # one cell of another mesostructure in the batch
         lateral.init_state([load_mesostructure(LATERAL), resolve_mesostructure("hcell-unequal:lateral=0.6")], 2)
     common = ["--p0", "1e5", "--eps-max", "0.001", "--increment", "1e-4", "--orientations", "4"]
     for argv in (["--backend", "ann", "--model", str(lateral_model)],

@@ -6,8 +6,9 @@ import pytest
 import torch
 
 from dem_database import build
-from training.checkpoint import CheckpointError, check_compatible, check_mesostructure, load_checkpoint
+from training.checkpoint import CheckpointError, check_compatible, check_start_cell, load_checkpoint
 from training.train import main
+from warp_hcell.mesostructure import describe, from_description, h_cell, load_mesostructure
 
 
 @pytest.fixture(scope="module")
@@ -61,6 +62,21 @@ def test_another_contact_law_or_mesostructure_is_refused(saved):
     check_compatible(meta, kn=2e8, kt_over_kn=0.5, phi_g_deg=30.0, source="m")
     with pytest.raises(CheckpointError, match="kn = 200000000.0, this run uses kn = 1e\\+08"):
         check_compatible(meta, kn=1e8, kt_over_kn=0.5, phi_g_deg=30.0, source="m")
-    check_mesostructure(meta, meta["mesostructure_sha256"], name="same", source="m")
-    with pytest.raises(CheckpointError, match="not on 'other'"):
-        check_mesostructure(meta, "0" * 64, name="other", source="m")
+    trained = from_description(meta["mesostructure"])
+    check_start_cell(meta, trained, source="m")
+    with pytest.raises(CheckpointError, match="another learning state"):
+        check_start_cell(meta, load_mesostructure("warp_hcell/data/h_cell_lateral_0.7D.toml"), source="m")
+
+
+def test_cells_between_the_start_cells_of_the_database_are_accepted(saved):
+    """Same learning state: accepted within the range of the recorded start cells, refused outside."""
+    _, meta = load_checkpoint(saved)
+    assert meta["start_mesostructures"] == [meta["mesostructure"]]  # what the database recorded
+    r = float(from_description(meta["mesostructure"]).radius[0])
+    with pytest.raises(CheckpointError, match="outside the range"):
+        check_start_cell(meta, h_cell(47.0, r), source="m")  # one start cell: only itself
+    spanned = dict(meta, start_mesostructures=[describe(h_cell(40.0, r)), describe(h_cell(55.0, r))])
+    check_start_cell(spanned, h_cell(47.0, r), source="m")
+    for outside in (35.0, 60.0):
+        with pytest.raises(CheckpointError, match="outside the range of the cells its database was explored from"):
+            check_start_cell(spanned, h_cell(outside, r), source="m")

@@ -11,7 +11,8 @@ Contract:
   ``state_dict`` with ``torch.load(weights_only=True)``: no pickled module is ever executed.
   A missing, corrupt or mismatched pair raises ``CheckpointError`` (one line).
 - ``check_compatible`` refuses a model trained for another contact law;
-  ``check_mesostructure`` one trained for another mesostructure.
+  ``check_start_cell`` a cell the model's database was not explored from (another
+  mesostructure, or a cell of the same learning state outside the range of its start cells).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import torch
 from training.dataset import SCHEMA_FIELDS, schema_from_arrays
 from training.network import ACTIVATION, MesoNet
 from warp_hcell.cli import atomic_write
+from warp_hcell.mesostructure import Mesostructure, describe, description_sha256, from_description, shares_state_schema
 
 FORMAT = "meso-hmodel-ann"
 """Value of the metadata key ``format``."""
@@ -137,10 +139,33 @@ def check_compatible(meta: dict[str, Any], *, kn: float, kt_over_kn: float, phi_
             raise CheckpointError(f"{source}: model trained with {name} = {have}, this run uses {name} = {value:g}")
 
 
-def check_mesostructure(meta: dict[str, Any], sha256: str, *, name: str, source: str) -> None:
-    """Raise ``CheckpointError`` unless the model was trained on the mesostructure of hash ``sha256``."""
-    if meta.get("mesostructure_sha256") != sha256:
-        raise CheckpointError(
-            f"{source}: model trained on mesostructure {str(meta.get('mesostructure_sha256'))[:12]} "
-            f"({meta.get('mesostructure_name', '?')}), not on {name!r} ({sha256[:12]}); "
-            f"train a model on a database of this mesostructure")
+def _start_coordinates(meso: Mesostructure) -> np.ndarray:
+    """Cell size and free-DOF coordinates of a cell's start state [m], shape (2 + n_free,)."""
+    return np.concatenate([meso.cell_size, meso.position[~meso.driven]])
+
+
+def check_start_cell(meta: dict[str, Any], meso: Mesostructure, *, source: str) -> None:
+    """Raise ``CheckpointError`` (one line) unless the model may start cells from ``meso``.
+
+    Accepted: the mesostructure of the model's database (same sha256), or a cell of the same
+    learning state (``shares_state_schema``) whose start state -- cell size and free-DOF
+    coordinates -- lies within the range spanned by the cells the database was explored from
+    (``start_mesostructures``; the mesostructure alone for a model without them), to 1e-9 of
+    the largest grain radius. Nothing here knows the shape of a cell.
+    """
+    if description_sha256(describe(meso)) == meta.get("mesostructure_sha256"):
+        return
+    trained = from_description(meta["mesostructure"])
+    starts = [from_description(text) for text in meta.get("start_mesostructures", [meta["mesostructure"]])]
+    reason = "has another learning state (grains, pairs or driven DOFs)"
+    if shares_state_schema(trained, meso):
+        span = np.stack([_start_coordinates(start) for start in starts])
+        slack = 1e-9 * float(np.max(meso.radius))
+        inside = np.all((span.min(axis=0) - slack <= _start_coordinates(meso))
+                        & (_start_coordinates(meso) <= span.max(axis=0) + slack))
+        if inside:
+            return
+        reason = "starts outside the range of the cells its database was explored from"
+    raise CheckpointError(
+        f"{source}: model trained on mesostructure {str(meta.get('mesostructure_sha256'))[:12]} and "
+        f"{len(starts)} start cell(s); {meso.name!r} {reason}; train a model on a database of this mesostructure")

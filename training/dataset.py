@@ -65,6 +65,8 @@ class Database:
         schema_arrays: the ``schema`` group (numpy), enough to rebuild the cell.
         schema: the same as a ``CellSchema`` with the contact law of the file.
         mesostructure: JSON description stored in the file; mesostructure_sha256: its hash.
+        start_mesostructures: descriptions of the cells the exploration started from (the
+            file's ``start_mesostructures``; the mesostructure alone where the file has none).
         kn [N/m], kt_over_kn [-], phi_g_deg [deg], contact_tolerance [-]: file attributes.
         sha256: hex digest of the file bytes; source: its path; n_stored: samples in the
             file; n_unconverged, n_jumps: samples dropped by the selection.
@@ -82,6 +84,7 @@ class Database:
     schema: CellSchema
     mesostructure: str
     mesostructure_sha256: str
+    start_mesostructures: tuple[str, ...]
     kn: float
     kt_over_kn: float
     phi_g_deg: float
@@ -141,6 +144,7 @@ def load_database(path: str | Path) -> Database:
             tolerance = float(settings.get("contact_tolerance", 1e-9))
             text = str(attrs["mesostructure"])
             digest = str(attrs["mesostructure_sha256"])
+            starts = tuple(json.loads(str(attrs["start_mesostructures"]))) if "start_mesostructures" in attrs else (text,)
         except KeyError as exc:
             raise DataError(f"{path}: missing {exc.args[0]!r} (incomplete generic database)") from None
     n = d_eps.shape[0]
@@ -162,7 +166,8 @@ def load_database(path: str | Path) -> Database:
         before={k: v[keep] for k, v in before.items()}, after_free_position=after_free[keep],
         after_contact=after_contact[keep], before_contact=before_contact[keep], d_eps=d_eps[keep],
         perturbed=flags["perturbed"][keep], mechanism=flags["mechanism"][keep], path_id=path_id[keep],
-        schema_arrays=schema_arrays, schema=schema, mesostructure=text, mesostructure_sha256=digest, kn=kn,
+        schema_arrays=schema_arrays, schema=schema, mesostructure=text, mesostructure_sha256=digest,
+        start_mesostructures=starts, kn=kn,
         kt_over_kn=kt / kn, phi_g_deg=phi_g_deg, contact_tolerance=tolerance, sha256=file_sha256(path),
         source=str(path), n_stored=n, n_unconverged=int(np.count_nonzero(~flags["converged"])),
         n_jumps=int(np.count_nonzero(jump)))

@@ -311,6 +311,7 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
         "schema": {k: np.asarray(v).tolist() for k, v in db.schema_arrays.items()},
         "mesostructure": db.mesostructure,
         "mesostructure_sha256": db.mesostructure_sha256,
+        "start_mesostructures": list(db.start_mesostructures),
         "target": "free-DOF displacement d_free = D |d_eps| r - C F / kn (training.network)",
         "training_data": {"path": str(args.data), "sha256": db.sha256, "n_stored": db.n_stored,
                           "n_selected": db.n_samples, "n_unconverged_dropped": db.n_unconverged,

@@ -28,11 +28,12 @@ so that a zero increment is a no-op, as stress control assumes) and ``n_grains_h
 grains, summed over the cells, that carried no force and that nothing reached, held at rest
 instead of moved by the network: the DEM's rest rule, ``training.cell_physics.hold_at_rest``).
 
-The model records the mesostructure it was trained on (description and sha256).
-``init_state(mesostructure, n_cells)`` starts the cells from a mesostructure whose hash equals
-the model's, or from the plain H-cell (``warp_hcell.builders.plain_h_cell_alpha0``, any
-opening angle: H-cell databases are explored from many) when the model's learning state is
-the H-cell's. Otherwise ``CheckpointError`` (one line; exit code 2 in the CLIs).
+The model records the mesostructure it was trained on (description and sha256) and the cells
+its database was explored from. ``init_state(mesostructure, n_cells)`` starts the cells from
+a mesostructure whose hash equals the model's, or from a cell of the same learning state whose
+start state lies within the range of those start cells (e.g. an H-cell at an opening angle
+between the database's; ``training.checkpoint.check_start_cell``). Otherwise
+``CheckpointError`` (one line; exit code 2 in the CLIs).
 
 Sign convention: compression and contraction positive. Local frame: index 0 = n, 1 = t.
 """
@@ -48,12 +49,10 @@ import torch
 from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
-from training.checkpoint import CheckpointError, check_compatible, check_mesostructure, load_checkpoint
-from warp_hcell.builders import plain_h_cell_alpha0
+from training.checkpoint import CheckpointError, check_compatible, check_start_cell, load_checkpoint
 from warp_hcell.cell_model import ArrayStateMixin, CellResponse
 from warp_hcell.learning_state import hcell_observables
-from warp_hcell.mesostructure import (
-    Mesostructure, describe, description_sha256, from_description, per_cell, shares_state_schema)
+from warp_hcell.mesostructure import Mesostructure, from_description, per_cell
 from warp_hcell.parameters import ContactLaw, check_positive
 
 DEFAULT_MODEL = "ann_default.pt"
@@ -122,19 +121,10 @@ class AnnCell(ArrayStateMixin):
 
     # -- construction ---------------------------------------------------------------------
     def check_trained_on(self, meso: Mesostructure) -> None:
-        """Raise ``CheckpointError`` (one line) unless the model may start cells from ``meso``.
-
-        Accepted: the mesostructure the model was trained on (same sha256), or the plain
-        H-cell at any opening angle when the model's learning state is the H-cell's.
-        """
-        if plain_h_cell_alpha0(meso) is not None:
-            if not shares_state_schema(self.trained_on, meso):
-                raise CheckpointError(f"{self.model_path}: model trained on {self.trained_on.name!r}, whose learning "
-                                      f"state the H-cell does not share; pass the model's mesostructure "
-                                      f"(--mesostructure)")
-            return
-        check_mesostructure(self.metadata, description_sha256(describe(meso)), name=meso.name,
-                            source=str(self.model_path))
+        """Raise ``CheckpointError`` (one line) unless the model may start cells from ``meso``
+        (``training.checkpoint.check_start_cell``: its database's mesostructure, or a cell of
+        the same learning state within the range of the cells the database started from)."""
+        check_start_cell(self.metadata, meso, source=str(self.model_path))
 
     # -- CellModel protocol ---------------------------------------------------------------
     def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> AnnState:
