@@ -43,7 +43,7 @@ MIN_CELLS_TO_SPLIT = 1024
 """Smallest batch [cells] split into one chunk per thread; smaller batches run in one launch on
 the calling thread. Measured (docs/dem_stepping.md): handing a chunk to a second thread costs
 ~100 us per call (thread wake-up and GIL hand-overs), and saves at most half the kernel time
-when the second core is free; the kernel of 360 cells at 5-15 substeps takes 100-300 us."""
+when the second core is free; the kernel of 360 cells at 3-15 substeps takes 100-300 us."""
 
 
 def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:
