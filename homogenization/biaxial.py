@@ -53,6 +53,7 @@ from warp_hcell.cli import (
     common_parser,
     contact_law_from_args,
     finite_float,
+    fraction,
     output_folder,
     output_lock,
     positive_float,
@@ -89,14 +90,6 @@ def backend_list(text: str) -> tuple[str, ...]:
     return names
 
 
-def fabric_anisotropy(text: str) -> float:
-    """argparse type: fabric anisotropy a_f in [0, 1)."""
-    value = finite_float(text)
-    if not 0.0 <= value < 1.0:
-        raise argparse.ArgumentTypeError(f"{text} is outside [0, 1)")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the biaxial command (defaults read from warp_hcell.parameters)."""
     cell, load = CellDefaults(), LoadingDefaults()
@@ -124,7 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="JSON or TOML loading programme (format of homogenization.loading.to_dict; "
                              "docs/programmes.md, examples in homogenization/data/programmes/)")
     parser.add_argument("--orientations", type=positive_int, default=cell.n_orientations, help="number N of cell orientations")
-    parser.add_argument("--fabric-anisotropy", type=fabric_anisotropy, default=0.0,
+    parser.add_argument("--fabric-anisotropy", type=fraction, default=0.0,
                         help="a_f of the orientation weights w = (1 + a_f cos 2(theta - b_f)) / pi; 0 = isotropic fabric")
     parser.add_argument("--fabric-direction", type=finite_float, default=0.0, help="preferred fabric direction b_f [deg]")
     add_contact_law_arguments(parser)

@@ -48,7 +48,7 @@ from warp_hcell.cli import (
     alpha0_deg,
     check_output_path,
     common_parser,
-    finite_float,
+    fraction,
     positive_float,
     positive_int,
     run_main,
@@ -67,14 +67,6 @@ def element_counts(text: str) -> tuple[int, int]:
     except argparse.ArgumentTypeError as exc:
         raise argparse.ArgumentTypeError(f"element counts {text!r}: {exc}") from None
     return counts  # type: ignore[return-value]
-
-
-def imperfection(text: str) -> float:
-    """argparse type: imperfection F in [0, 1)."""
-    value = finite_float(text)
-    if not 0.0 <= value < 1.0:
-        raise argparse.ArgumentTypeError(f"{text} is outside [0, 1)")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -98,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="cell orientations per Gauss point")
     parser.add_argument("--elements", type=element_counts, default=",".join(map(str, bvp.elements)),
                         help="elements NX,NY across the width and along the height, each >= 1")
-    parser.add_argument("--imperfection", type=imperfection, default=0.0,
+    parser.add_argument("--imperfection", type=fraction, default=0.0,
                         help="F in [0, 1): weak zone at mid-height of the left face with alpha0 + F (90 - alpha0); 0 = homogeneous")
     parser.add_argument("--newton-rtol", type=positive_float, default=bvp.newton_rtol,
                         help="Newton tolerance: out-of-balance force norm / (p0 W) [-] (the DEM's own equilibrium "
