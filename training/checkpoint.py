@@ -161,9 +161,8 @@ def check_start_cell(meta: dict[str, Any], meso: Mesostructure, *, source: str) 
     if shares_state_schema(trained, meso):
         span = np.stack([_start_coordinates(start) for start in starts])
         slack = 1e-9 * float(np.max(meso.radius))
-        inside = np.all((span.min(axis=0) - slack <= _start_coordinates(meso))
-                        & (_start_coordinates(meso) <= span.max(axis=0) + slack))
-        if inside:
+        mine = _start_coordinates(meso)
+        if np.all((span.min(axis=0) - slack <= mine) & (mine <= span.max(axis=0) + slack)):
             return
         reason = "starts outside the range of the cells its database was explored from"
     raise CheckpointError(

@@ -28,6 +28,8 @@ branch b = x_j - x_i, d = |b|, u = b / d, w = (-u_t, u_n):
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 def _unit_tangent(branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -91,20 +93,22 @@ def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.n
     return k
 
 
-def _incidence(pairs: np.ndarray, n_grains: int) -> np.ndarray:
-    """(e_j - e_i) of every pair (i, j), shape (n_pairs, n_grains)."""
-    incidence = np.zeros((pairs.shape[0], n_grains))
-    incidence[np.arange(pairs.shape[0]), pairs[:, 1]] = 1.0
-    incidence[np.arange(pairs.shape[0]), pairs[:, 0]] = -1.0
-    return incidence
-
-
-def _assembly(incidence: np.ndarray) -> np.ndarray:
-    """Matrix mapping the pair stiffnesses k[p, a, b] (flattened) to the DOF stiffness
+@functools.lru_cache(maxsize=32)
+def _assembly(pairs: tuple[tuple[int, int], ...], n_grains: int) -> tuple[np.ndarray, np.ndarray]:
+    """(e_j - e_i) of every pair (i, j), shape (n_pairs, n_grains), and the matrix mapping the
+    pair stiffnesses k[p, a, b] (flattened) to the DOF stiffness
     K[(g, a), (h, b)] = -sum_p (e_j - e_i)_g (e_j - e_i)_h k[p, a, b] (flattened), shape
-    (4 n_pairs, (2 n_grains)^2): one matrix product per batch instead of an einsum."""
+    (4 n_pairs, (2 n_grains)^2): one matrix product per batch instead of an einsum. Built once
+    per topology (read-only arrays)."""
+    index = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    incidence = np.zeros((index.shape[0], n_grains))
+    incidence[np.arange(index.shape[0]), index[:, 1]] = 1.0
+    incidence[np.arange(index.shape[0]), index[:, 0]] = -1.0
     eye = np.eye(2)
-    return -np.einsum("pg,ph,ac,bd->pabgchd", incidence, incidence, eye, eye).reshape(4 * incidence.shape[0], -1)
+    assembly = -np.einsum("pg,ph,ac,bd->pabgchd", incidence, incidence, eye, eye).reshape(4 * index.shape[0], -1)
+    incidence.flags.writeable = False
+    assembly.flags.writeable = False
+    return incidence, assembly
 
 
 def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarray, driven: np.ndarray,
@@ -135,8 +139,7 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
     branch = position[:, j] - position[:, i]
     overlap = radius[:, i] + radius[:, j] - np.linalg.norm(branch, axis=-1)
     k = contact_stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu)
-    incidence = _incidence(pairs, n_grains)
-    assembly = _assembly(incidence)
+    incidence, assembly = _assembly(tuple(map(tuple, np.asarray(pairs).tolist())), n_grains)
     k_flat = k.reshape(n_cells, -1)
     d_mask = np.asarray(driven, dtype=bool).reshape(-1)
     fi, di = np.flatnonzero(~d_mask), np.flatnonzero(d_mask)
