@@ -5,8 +5,8 @@ printed with the numbers):
 
 1. the median time of one ``step`` of ``--cells`` H-cells (alpha0 = 55 deg, after an
    isotropic compression, constant-volume-like increments of 1e-5) for the analytical and
-   the ANN backend (``AnnCell.step``: compiled float64 physics around the perceptron, float32
-   hidden layers and a float64 output layer), interleaved, and their ratio; for the ANN also
+   the ANN backend (``AnnCell.step``: compiled float64 physics around the float32
+   perceptron), interleaved, and their ratio; for the ANN also
    the torch autograd path without tangent (``MesoNet.advance`` under inference mode, the
    implementation before the compiled one), the network call alone
    (``MesoNet.displacement``) and the step with its autograd tangent;

@@ -6,17 +6,20 @@
 1. ``_features`` (numba, float64, loops over cells innermost so that they vectorise):
    positions, contacts, pair forces, unbalanced forces and the z-scored features of the
    state before the increment;
-2. the multilayer perceptron (numpy/BLAS; hidden layers float32, output layer float64), on
-   fixed blocks of ``MLP_BLOCK`` cells;
+2. the multilayer perceptron (numpy/BLAS, float32), on fixed blocks of ``MLP_BLOCK`` cells;
 3. ``_advance`` (numba, float64): the free-DOF displacement from the network output, the
    new state by the contact law, its Love-Weber moment, area and contact-law branch flags.
 
-The features are z-scored in float64 before the cast to float32, the output layer and the
-un-normalisation are float64, so float32 only rounds the hidden layers' arithmetic (its
-effect on whole runs is measured in ``docs/ann.md``). Every block of cells goes through
-BLAS calls of one shape, so a cell's result is bit-identical whatever batch it is in (the
-cell contract's batch invariance). The physics stays float64 (positions must be resolved to
-~1e-7 D). The tangent (autograd) uses ``MesoNet.advance``.
+The features are computed and z-scored in float64 before the cast to float32 (the ratio
+f_s / (mu f_n), bounded by one, is divided in float32); the un-normalisation of the outputs
+and all the physics are float64 (positions must be resolved to ~1e-7 D), so float32 only
+rounds the network's arithmetic (its effect on whole runs is measured in ``docs/ann.md``).
+Every block of cells goes through BLAS calls of one shape, so a cell's result is
+bit-identical whatever batch it is in (the cell contract's batch invariance). A pair that
+no cell has within reach is skipped after a square-root-free test, which changes no bit of
+the result. The state arrays returned are transposed views of cells-last arrays, so that
+the next increment reads them without a copy. The tangent (autograd) uses
+``MesoNet.advance``.
 
 Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
 """
@@ -24,6 +27,7 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 from __future__ import annotations
 
 import math
+import threading
 from typing import NamedTuple
 
 import numba
@@ -32,7 +36,7 @@ import torch
 
 from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
 
-MLP_BLOCK = 64
+MLP_BLOCK = 128
 """Cells per perceptron block: the batch is padded to a multiple of it [-]."""
 
 
@@ -52,32 +56,43 @@ def _positions(size, free, frac, free_dofs, x):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _z_score(values, mean, std, feats_row):
-    """``feats_row`` (n,) = (values - mean) * (1 / std): a z-scored feature of every cell."""
-    inv_std = 1.0 / std
-    for c in range(values.shape[0]):
-        feats_row[c] = (values[c] - mean) * inv_std
+def _any_within(b0, b1, reach):
+    """Whether some cell's pair may be within ``reach`` [m] of branch (b0, b1) (n,) each: a test without
+    square roots whose margin (1e-9 of reach) covers their rounding, so that False means out of
+    contact in every cell exactly as ``sqrt(b0^2 + b1^2) <= reach`` would decide."""
+    bound = (reach * (1.0 + 1e-9)) ** 2
+    near = False
+    for c in range(b0.shape[0]):
+        near |= b0[c] * b0[c] + b1[c] * b1[c] <= bound
+    return near
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _features(size, free, shear, d_eps, frac, free_dofs, pairs, radius, active_slot, feature_mean, feature_std,
-              diameter, kn, mu, tol, gap_clip, feats, m_out, unbalanced, old_branch, old_contact, old_fn):
+def _features(size, free, shear, d_eps, frac, free_dofs, free_slot, pairs, radius, active_slot, feature_mean,
+              feature_std, diameter, kn, mu, tol, gap_clip, feats, m_out, unbalanced, old_branch, old_contact, old_fn):
     """Z-scored features, |d_eps|, unbalanced forces and the contacts of every cell before its increment.
 
-    Cells are the LAST axis of every array: size (2, n), free (n_free, n), shear (n_pairs, n),
-    d_eps (2, n); outputs feats (n_features, n_pad >= n) (any float dtype), m_out (n,),
+    Cells are the LAST axis of every array but the probe: size (2, n), free (n_free, n),
+    shear (n_pairs, n), d_eps (n, 2); outputs feats (n_features + 1, n_pad >= n) float32 (its columns past n are
+    zeroed and its last row is ones, the bias input of the perceptron), m_out (n,),
     unbalanced (n_free, n) [N], old_branch (n_pairs, 2, n) [m], old_contact (n_pairs, n)
     bool, old_fn (n_pairs, n) [N]. ``active_slot[p]`` is the rank of pair p among the active
-    pairs, -1 if inactive. Feature order: ``training.network.features_and_contacts``. Each
-    loop over cells (innermost) touches few arrays, so that the compiler vectorises it.
+    pairs, -1 if inactive; ``free_slot[g, a]`` the rank of DOF (g, a) among the free DOFs, -1
+    if driven. Feature order: ``training.network.features_and_contacts``; each
+    is z-scored in float64 with ``feature_mean``, ``feature_std`` before the cast. Each loop
+    over cells (innermost) writes few arrays, so that the compiler vectorises it.
     """
     n = size.shape[1]
     n_free = free_dofs.shape[0]
-    force_scale = kn * diameter
+    inv_diameter = 1.0 / diameter
+    inv_force_scale = 1.0 / (kn * diameter)
+    inv_std = 1.0 / feature_std
+    feats[:, n:] = 0.0
+    feats[-1, :] = 1.0
     x = np.empty((frac.shape[0], 2, n))
-    net = np.zeros((frac.shape[0], 2, n))
+    unbalanced[:, :] = 0.0
     _positions(size, free, frac, free_dofs, x)
-    dist, u0, u1, fs, value = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    dist, u0, u1, fs = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     base = 4 + 2 * n_free
     for p in range(pairs.shape[0]):
         i = pairs[p, 0]
@@ -88,88 +103,95 @@ def _features(size, free, shear, d_eps, frac, free_dofs, pairs, radius, active_s
         xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
         for c in range(n):
             b0[c] = xj0[c] - xi0[c]
-        for c in range(n):
             b1[c] = xj1[c] - xi1[c]
-        for c in range(n):
-            dist[c] = math.sqrt(b0[c] * b0[c] + b1[c] * b1[c])
-        for c in range(n):
-            contact[c] = dist[c] <= reach
-        for c in range(n):
-            fn[c] = kn * max(rsum - dist[c], 0.0) if contact[c] else 0.0
-        for c in range(n):
-            fs[c] = shear_p[c] if contact[c] else 0.0
-        for c in range(n):
-            u0[c] = b0[c] / dist[c]
-        for c in range(n):
-            u1[c] = b1[c] / dist[c]
-        for c in range(n):
-            value[c] = -fn[c] * u0[c] + fs[c] * -u1[c]
-        net_i, net_j = net[i, 0], net[j, 0]
-        for c in range(n):
-            net_i[c] += value[c]
-        for c in range(n):
-            net_j[c] -= value[c]
-        for c in range(n):
-            value[c] = -fn[c] * u1[c] + fs[c] * u0[c]
-        net_i, net_j = net[i, 1], net[j, 1]
-        for c in range(n):
-            net_i[c] += value[c]
-        for c in range(n):
-            net_j[c] -= value[c]
         slot = active_slot[p]
+        near = _any_within(b0, b1, reach)
+        if not near:
+            contact[:] = False
+            fn[:] = 0.0
+            fs[:] = 0.0
+            if slot < 0:
+                continue
+        for c in range(n):
+            d = math.sqrt(b0[c] * b0[c] + b1[c] * b1[c])
+            inv = 1.0 / d
+            dist[c] = d
+            u0[c] = b0[c] * inv
+            u1[c] = b1[c] * inv
+        if near:
+            for c in range(n):
+                touching = dist[c] <= reach
+                contact[c] = touching
+                fn[c] = kn * max(rsum - dist[c], 0.0) if touching else 0.0
+                fs[c] = shear_p[c] if touching else 0.0
+            for k in (free_slot[i, 0], free_slot[j, 0]):
+                if k >= 0:
+                    net_k, sign = unbalanced[k], 1.0 if k == free_slot[i, 0] else -1.0
+                    for c in range(n):
+                        net_k[c] += sign * (-fn[c] * u0[c] + fs[c] * -u1[c])
+            for k in (free_slot[i, 1], free_slot[j, 1]):
+                if k >= 0:
+                    net_k, sign = unbalanced[k], 1.0 if k == free_slot[i, 1] else -1.0
+                    for c in range(n):
+                        net_k[c] += sign * (-fn[c] * u1[c] + fs[c] * u0[c])
         if slot < 0:
             continue
-        k0 = base + 6 * slot
+        k = base + 6 * slot
+        row, mean, scale = feats[k], feature_mean[k], inv_std[k]
         for c in range(n):
-            value[c] = max((rsum - dist[c]) / diameter, -gap_clip)
-        _z_score(value, feature_mean[k0], feature_std[k0], feats[k0])
+            row[c] = (max((rsum - dist[c]) * inv_diameter, -gap_clip) - mean) * scale
+        row, mean, scale = feats[k + 1], feature_mean[k + 1], inv_std[k + 1]
         for c in range(n):
-            value[c] = 1.0 if contact[c] else 0.0
-        _z_score(value, feature_mean[k0 + 1], feature_std[k0 + 1], feats[k0 + 1])
-        _z_score(u0, feature_mean[k0 + 2], feature_std[k0 + 2], feats[k0 + 2])
-        _z_score(u1, feature_mean[k0 + 3], feature_std[k0 + 3], feats[k0 + 3])
+            row[c] = ((1.0 if contact[c] else 0.0) - mean) * scale
+        row, mean, scale = feats[k + 2], feature_mean[k + 2], inv_std[k + 2]
         for c in range(n):
-            value[c] = fs[c] / force_scale
-        _z_score(value, feature_mean[k0 + 4], feature_std[k0 + 4], feats[k0 + 4])
+            row[c] = (u0[c] - mean) * scale
+        row, mean, scale = feats[k + 3], feature_mean[k + 3], inv_std[k + 3]
         for c in range(n):
-            value[c] = fs[c] / (mu * fn[c]) if fn[c] > 0 else 0.0
-        _z_score(value, feature_mean[k0 + 5], feature_std[k0 + 5], feats[k0 + 5])
+            row[c] = (u1[c] - mean) * scale
+        row, mean, scale = feats[k + 4], feature_mean[k + 4], inv_std[k + 4]
+        for c in range(n):
+            row[c] = (fs[c] * inv_force_scale - mean) * scale
+        row, mean, scale = feats[k + 5], feature_mean[k + 5], inv_std[k + 5]
+        for c in range(n):
+            ratio = np.float32(fs[c]) / np.float32(mu * fn[c]) if fn[c] > 0 else np.float32(0.0)
+            row[c] = (ratio - mean) * scale
     for k in range(n_free):
         g = free_dofs[k, 0]
         a = free_dofs[k, 1]
-        net_k, unbalanced_k, free_k, size_a = net[g, a], unbalanced[k], free[k], size[a]
+        free_k, size_a = free[k], size[a]
+        row, mean, scale = feats[4 + k], feature_mean[4 + k], inv_std[4 + k]
         for c in range(n):
-            unbalanced_k[c] = net_k[c]
+            row[c] = (free_k[c] * inv_diameter - mean) * scale
+        row, mean, scale = feats[4 + n_free + k], feature_mean[4 + n_free + k], inv_std[4 + n_free + k]
         for c in range(n):
-            value[c] = free_k[c] / diameter
-        _z_score(value, feature_mean[4 + k], feature_std[4 + k], feats[4 + k])
-        for c in range(n):
-            value[c] = free_k[c] / size_a[c]
-        _z_score(value, feature_mean[4 + n_free + k], feature_std[4 + n_free + k], feats[4 + n_free + k])
-    d0, d1 = d_eps[0], d_eps[1]
+            row[c] = (free_k[c] / size_a[c] - mean) * scale
+    d0, d1 = d_eps[:, 0], d_eps[:, 1]
     for c in range(n):
         m_out[c] = math.sqrt(d0[c] * d0[c] + d1[c] * d1[c])
     for a in range(2):
-        d_a = d_eps[a]
+        d_a, size_a = d_eps[:, a], size[a]
+        row, mean, scale = feats[a], feature_mean[a], inv_std[a]
         for c in range(n):
-            value[c] = d_a[c] / m_out[c] if m_out[c] > 0 else 0.0
-        _z_score(value, feature_mean[a], feature_std[a], feats[a])
-        size_a = size[a]
+            row[c] = ((d_a[c] / m_out[c] if m_out[c] > 0 else 0.0) - mean) * scale
+        row, mean, scale = feats[2 + a], feature_mean[2 + a], inv_std[2 + a]
         for c in range(n):
-            value[c] = size_a[c] / diameter
-        _z_score(value, feature_mean[2 + a], feature_std[2 + a], feats[2 + a])
+            row[c] = (size_a[c] * inv_diameter - mean) * scale
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_contact, old_fn, frac, free_dofs,
              pairs, radius, outer, rate_mean, rate_std, compliance_scale, diameter, kn, kt, mu, tol, ramp,
-             new_size, new_free, new_shear, moment, area, capped_any, opened_any, mechanism, ramped, n_held):
-    """Free-DOF displacement from the network output ``out`` (n_free + n_free^2, n_pad >= n), then the contact law.
+             new_size, new_free, new_shear, moment_out, area, capped_any, opened_any, mechanism, ramped, n_held):
+    """Free-DOF displacement from the network output ``out``, then the contact law.
 
-    Cells are the last axis (``_features``). The rest rule of ``cell_physics.hold_at_rest``
+    ``out`` (n_blocks, n_free + n_free^2, block) holds cell ``c`` at ``[c // block, :, c % block]``
+    (``FastAdvance._mlp``).
+
+    Array layouts as in ``_features``. The rest rule of ``cell_physics.hold_at_rest``
     holds free grains with no contact at the start that nothing reaches. Outputs: the new
     state new_size (2, n), new_free (n_free, n), new_shear (n_pairs, n); the
-    compression-positive moment (2, 2, n) [N m], the area (n,) [m^2], per-cell flags
+    compression-positive moment_out (n, 2, 2) [N m] (cells FIRST), the area (n,) [m^2], per-cell flags
     (bool (n,)): a trial tangential force exceeded mu f_n; a pair carrying a normal force
     opened; the moment is zero (mechanism); |d_eps| < ``ramp`` scaled the relaxation down;
     and n_held (n,) int64, the grains held at rest.
@@ -177,29 +199,36 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
     n = size.shape[1]
     n_free = free_dofs.shape[0]
     n_grains = frac.shape[0]
+    moment = np.zeros((2, 2, n))
     touched = np.zeros((n_grains, n), dtype=np.bool_)
     for p in range(pairs.shape[0]):
         contact, touched_i, touched_j = old_contact[p], touched[pairs[p, 0]], touched[pairs[p, 1]]
         for c in range(n):
             touched_i[c] |= contact[c]
-        for c in range(n):
             touched_j[c] |= contact[c]
     d_free = np.empty((n_free, n))
-    cf = np.empty(n)
+    block = out.shape[2]
+    cf = np.empty(block)
+    inv_kn, inv_ramp = 1.0 / kn, 1.0 / ramp
+    for b in range(-(-n // block)):
+        lo = b * block
+        width = min(block, n - lo)
+        m_b = m_in[lo:lo + width]
+        for k in range(n_free):
+            cf[:] = 0.0
+            for j in range(n_free):
+                out_kj, unbalanced_j, eye = out[b, n_free + k * n_free + j], unbalanced[j, lo:lo + width], 1.0 if j == k else 0.0
+                for c in range(width):
+                    cf[c] += compliance_scale * (eye + out_kj[c]) * unbalanced_j[c]
+            out_k, d_free_k, std, mean = out[b, k], d_free[k, lo:lo + width], rate_std[k], rate_mean[k]
+            for c in range(width):
+                d_free_k[c] = diameter * m_b[c] * (out_k[c] * std + mean) - min(m_b[c] * inv_ramp, 1.0) * (cf[c] * inv_kn)
     for k in range(n_free):
-        cf[:] = 0.0
-        for j in range(n_free):
-            out_kj, unbalanced_j, eye = out[n_free + k * n_free + j], unbalanced[j], 1.0 if j == k else 0.0
-            for c in range(n):
-                cf[c] += compliance_scale * (eye + out_kj[c]) * unbalanced_j[c]
-        out_k, d_free_k, std, mean = out[k], d_free[k], rate_std[k], rate_mean[k]
-        for c in range(n):
-            d_free_k[c] = diameter * m_in[c] * (out_k[c] * std + mean) - min(m_in[c] / ramp, 1.0) * (cf[c] / kn)
-        touched_g, new_free_k, free_k = touched[free_dofs[k, 0]], new_free[k], free[k]
+        touched_g, new_free_k, free_k, d_free_k = touched[free_dofs[k, 0]], new_free[k], free[k], d_free[k]
         for c in range(n):
             new_free_k[c] = free_k[c] + d_free_k[c] if touched_g[c] else free_k[c]
     for a in range(2):
-        new_size_a, size_a, d_eps_a = new_size[a], size[a], d_eps[a]
+        new_size_a, size_a, d_eps_a = new_size[a], size[a], d_eps[:, a]
         for c in range(n):
             new_size_a[c] = size_a[c] * (1.0 - d_eps_a[c])
     held = np.zeros((n_grains, n), dtype=np.bool_)
@@ -237,17 +266,27 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
         for c in range(n):
             n_held[c] += 1 if held_g[c] else 0
     _positions(new_size, new_free, frac, free_dofs, x)
-    moment[:, :, :] = 0.0
     capped_any[:] = False
     opened_any[:] = False
+    b0_p, b1_p = np.empty(n), np.empty(n)
     for p in range(pairs.shape[0]):
         i = pairs[p, 0]
         j = pairs[p, 1]
         rsum = radius[i] + radius[j]
         reach = rsum * (1.0 + tol)
+        xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
         for c in range(n):
-            b0 = x[j, 0, c] - x[i, 0, c]
-            b1 = x[j, 1, c] - x[i, 1, c]
+            b0_p[c] = xj0[c] - xi0[c]
+            b1_p[c] = xj1[c] - xi1[c]
+        if not _any_within(b0_p, b1_p, reach):
+            new_shear[p, :] = 0.0
+            old_fn_p = old_fn[p]
+            for c in range(n):
+                opened_any[c] |= old_fn_p[c] > 0.0
+            continue
+        for c in range(n):
+            b0 = b0_p[c]
+            b1 = b1_p[c]
             d = math.sqrt(b0 * b0 + b1 * b1)
             touching = d <= reach
             fn = kn * max(rsum - d, 0.0) if touching else 0.0
@@ -255,16 +294,17 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
             ob1 = old_branch[p, 1, c]
             mid0 = 0.5 * (ob0 + b0)
             mid1 = 0.5 * (ob1 + b1)
-            norm = math.sqrt(mid0 * mid0 + mid1 * mid1)
+            inv_norm = 1.0 / math.sqrt(mid0 * mid0 + mid1 * mid1)
             trial = (shear[p, c] if old_contact[p, c] else 0.0) + kt * (
-                (b0 - ob0) * -(mid1 / norm) + (b1 - ob1) * (mid0 / norm))
+                (b0 - ob0) * -(mid1 * inv_norm) + (b1 - ob1) * (mid0 * inv_norm))
             cap = mu * fn
             fs = min(max(trial, -cap), cap) if touching else 0.0
             new_shear[p, c] = fs
             capped_any[c] |= touching and abs(trial) > cap
             opened_any[c] |= old_fn[p, c] > 0.0 and fn == 0.0
-            u0 = b0 / d
-            u1 = b1 / d
+            inv_d = 1.0 / d
+            u0 = b0 * inv_d
+            u1 = b1 * inv_d
             f0 = -fn * u0 + fs * -u1
             f1 = -fn * u1 + fs * u0
             moment[0, 0, c] -= f0 * b0
@@ -284,13 +324,26 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
         mechanism[c] = moment[0, 0, c] == 0.0 and moment[0, 1, c] == 0.0 and moment[1, 0, c] == 0.0 and \
             moment[1, 1, c] == 0.0
         ramped[c] = m_in[c] < ramp
+    for c in range(n):
+        for a in range(2):
+            moment_out[c, a, 0] = moment[a, 0, c]
+            moment_out[c, a, 1] = moment[a, 1, c]
+
+
+def _cells_last(values: np.ndarray) -> np.ndarray:
+    """(k, n) float64 C-contiguous transpose of per-cell ``values`` (n, k); a view where the state came
+    from ``FastAdvance`` (whose state arrays are views of cells-last arrays), a copy otherwise."""
+    values = np.asarray(values)
+    return values.T if values.dtype == np.float64 and values.T.flags.c_contiguous else np.ascontiguousarray(
+        values.T, dtype=np.float64)
 
 
 class FastIncrement(NamedTuple):
     """Outcome of ``FastAdvance.__call__`` (numpy, first axis n_cells).
 
     cell_size (n, 2) [m], free_position (n, n_free) [m], shear_force (n, n_pairs) [N]: the new
-    state; moment (n, 2, 2) [N m] (compression positive); area (n,) [m^2]; capped, opened:
+    state (transposed views of cells-last arrays, so that the next increment reads them
+    without a copy); moment (n, 2, 2) [N m] (compression positive); area (n,) [m^2]; capped, opened:
     bool (n,), a Coulomb cap / the no-tension branch acted on some pair of the cell;
     mechanism: bool (n,), zero moment after the increment; relaxation_scaled: bool (n,),
     |d_eps| < ``RELAXATION_RAMP``; grains_held: int64 (n,), free grains held at rest
@@ -309,12 +362,26 @@ class FastIncrement(NamedTuple):
     grains_held: np.ndarray
 
 
+class _Workspace(NamedTuple):
+    """Scratch arrays of one ``FastAdvance`` call (cells last, see ``_features``); ``layers``: each
+    perceptron layer's output (n_blocks, n_outputs, MLP_BLOCK) float32."""
+
+    feats: np.ndarray
+    m: np.ndarray
+    unbalanced: np.ndarray
+    old_branch: np.ndarray
+    old_contact: np.ndarray
+    old_fn: np.ndarray
+    layers: list
+
+
 class FastAdvance:
-    """``MesoNet.advance`` for inference on CPU: numba physics (float64) around the perceptron (float32 hidden layers).
+    """``MesoNet.advance`` for inference on CPU: numba physics (float64) around the perceptron (float32).
 
     The perceptron runs on fixed blocks of ``MLP_BLOCK`` cells (the batch is padded to whole
     blocks), one BLAS call of the same shape per block and layer, so that a cell's result
-    does not depend on the size of its batch or its place in it.
+    does not depend on the size of its batch or its place in it. Scratch arrays are kept per
+    thread between calls with the same number of cells; the arrays returned are new.
 
     Args:
         net: the trained network (its schema, active pairs, normalisation and layers are copied).
@@ -328,6 +395,8 @@ class FastAdvance:
         self.pairs = as_np(schema.pairs, np.int64)
         self.radius = as_np(schema.radius)
         self.outer = as_np(schema.outer, np.int64)
+        self.free_slot = np.full(self.frac.shape, -1, dtype=np.int64)
+        self.free_slot[self.free_dofs[:, 0], self.free_dofs[:, 1]] = np.arange(self.free_dofs.shape[0])
         self.active_slot = np.full(self.pairs.shape[0], -1, dtype=np.int64)
         self.active_slot[as_np(net.active_index, np.int64)] = np.arange(int(net.active_index.shape[0]))
         self.feature_mean = as_np(net.feature_mean)
@@ -338,58 +407,59 @@ class FastAdvance:
         self.tol = schema.contact_tolerance
         linears = [layer for layer in net.mlp if isinstance(layer, torch.nn.Linear)]
         self.layers = [self._affine(as_np(lin.weight), as_np(lin.bias), lin is not linears[-1]) for lin in linears]
+        self._local = threading.local()
 
     @staticmethod
     def _affine(weight: np.ndarray, bias: np.ndarray, hidden: bool) -> np.ndarray:
-        """[W | b] acting on inputs that end with a row of ones: float32 for a hidden layer, which also
-        passes the ones on; float64 for the output layer."""
+        """[W | b] (float32) acting on inputs that end with a row of ones; a hidden layer also passes the ones on."""
         affine = np.concatenate([weight, bias[:, None]], axis=1)
-        if not hidden:
-            return np.ascontiguousarray(affine)
-        affine = np.concatenate([affine, np.eye(1, affine.shape[1], affine.shape[1] - 1)])
+        if hidden:
+            affine = np.concatenate([affine, np.eye(1, affine.shape[1], affine.shape[1] - 1)])
         return np.ascontiguousarray(affine, dtype=np.float32)
 
-    def _mlp(self, feats: np.ndarray) -> np.ndarray:
-        """Network output (n_outputs, n_pad) of z-scored features (n_features + 1, n_pad) ending with a row of ones.
+    def _mlp(self, feats: np.ndarray, work: _Workspace) -> np.ndarray:
+        """Network output ``work.layers[-1]`` (n_pad / MLP_BLOCK, n_outputs, MLP_BLOCK) float32 of
+        z-scored features (n_features + 1, n_pad) float32 ending with a row of ones.
 
         Cells along the columns, n_pad a multiple of ``MLP_BLOCK``: [W | b] [h; 1] per block of
-        ``MLP_BLOCK`` columns; the hidden layers (float32) carry the row of ones along; the
-        output layer is float64 (rounding the outputs to float32 tripled the largest error of
-        the drained test at alpha0 = 40 deg, p0 = 2e5, ``docs/ann.md``).
+        ``MLP_BLOCK`` columns (every layer float32; the hidden layers carry the row of ones along).
         """
-        n_pad = feats.shape[1]
-        h = feats.reshape(feats.shape[0], n_pad // MLP_BLOCK, MLP_BLOCK).transpose(1, 0, 2)
-        for affine in self.layers[:-1]:
-            h = np.matmul(affine, h)
+        h = feats.reshape(feats.shape[0], -1, MLP_BLOCK).transpose(1, 0, 2)
+        for affine, buffer in zip(self.layers[:-1], work.layers):
+            h = np.matmul(affine, h, out=buffer)
             np.tanh(h[:, :-1], out=h[:, :-1])
-        out = np.matmul(self.layers[-1], h.astype(np.float64))
-        return out.transpose(1, 0, 2).reshape(out.shape[1], n_pad)
+        return np.matmul(self.layers[-1], h, out=work.layers[-1])
+
+    def _workspace(self, n: int) -> _Workspace:
+        """This thread's scratch arrays for ``n`` cells (kept from its previous call with as many)."""
+        work = getattr(self._local, "work", None)
+        if work is None or work.m.shape[0] != n:
+            n_free, n_pairs, n_pad = self.free_dofs.shape[0], self.pairs.shape[0], -(-n // MLP_BLOCK) * MLP_BLOCK
+            work = _Workspace(np.empty((self.feature_mean.shape[0] + 1, n_pad), dtype=np.float32), np.empty(n),
+                              np.empty((n_free, n)), np.empty((n_pairs, 2, n)), np.empty((n_pairs, n), dtype=np.bool_),
+                              np.empty((n_pairs, n)),
+                              [np.empty((n_pad // MLP_BLOCK, layer.shape[0], MLP_BLOCK), dtype=np.float32)
+                               for layer in self.layers])
+            self._local.work = work
+        return work
 
     def __call__(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                  d_eps: np.ndarray) -> FastIncrement:
         """One increment of every cell: state (n, 2), (n, n_free), (n, n_pairs) and probe (n, 2) [-]."""
-        size, free, shear, d_eps = (np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)
-                                    for a in (cell_size, free_position, shear_force, d_eps))
+        size, free, shear = (_cells_last(a) for a in (cell_size, free_position, shear_force))
+        d_eps = np.asarray(d_eps, dtype=np.float64)
         n, n_free, n_pairs = size.shape[1], self.free_dofs.shape[0], self.pairs.shape[0]
-        feats = np.zeros((self.feature_mean.shape[0] + 1, -(-n // MLP_BLOCK) * MLP_BLOCK), dtype=np.float32)
-        feats[-1] = 1.0
-        m = np.empty(n)
-        unbalanced = np.empty((n_free, n))
-        old_branch = np.empty((n_pairs, 2, n))
-        old_contact = np.empty((n_pairs, n), dtype=np.bool_)
-        old_fn = np.empty((n_pairs, n))
-        _features(size, free, shear, d_eps, self.frac, self.free_dofs, self.pairs, self.radius, self.active_slot,
-                  self.feature_mean, self.feature_std, self.diameter, self.kn, self.mu, self.tol, GAP_CLIP,
-                  feats, m, unbalanced, old_branch, old_contact, old_fn)
-        out = self._mlp(feats)
-        new_size, new_free, new_shear = np.empty_like(size), np.empty_like(free), np.empty_like(shear)
-        moment, area = np.empty((2, 2, n)), np.empty(n)
+        work = self._workspace(n)
+        _features(size, free, shear, d_eps, self.frac, self.free_dofs, self.free_slot, self.pairs, self.radius,
+                  self.active_slot, self.feature_mean, self.feature_std, self.diameter, self.kn, self.mu, self.tol,
+                  GAP_CLIP, work.feats, work.m, work.unbalanced, work.old_branch, work.old_contact, work.old_fn)
+        out = self._mlp(work.feats, work)
+        new_size, new_free, new_shear = np.empty((2, n)), np.empty((n_free, n)), np.empty((n_pairs, n))
+        moment, area = np.empty((n, 2, 2)), np.empty(n)
         flags = np.empty((4, n), dtype=np.bool_)
         n_held = np.empty(n, dtype=np.int64)
-        _advance(size, free, shear, d_eps, out, m, unbalanced, old_branch, old_contact, old_fn, self.frac,
-                 self.free_dofs, self.pairs, self.radius, self.outer, self.rate_mean, self.rate_std,
-                 COMPLIANCE_SCALE, self.diameter, self.kn, self.kt, self.mu, self.tol, RELAXATION_RAMP,
+        _advance(size, free, shear, d_eps, out, work.m, work.unbalanced, work.old_branch, work.old_contact,
+                 work.old_fn, self.frac, self.free_dofs, self.pairs, self.radius, self.outer, self.rate_mean,
+                 self.rate_std, COMPLIANCE_SCALE, self.diameter, self.kn, self.kt, self.mu, self.tol, RELAXATION_RAMP,
                  new_size, new_free, new_shear, moment, area, *flags, n_held)
-        return FastIncrement(np.ascontiguousarray(new_size.T), np.ascontiguousarray(new_free.T),
-                             np.ascontiguousarray(new_shear.T), np.ascontiguousarray(moment.transpose(2, 0, 1)),
-                             area, *flags, n_held)
+        return FastIncrement(new_size.T, new_free.T, new_shear.T, moment, area, *flags, n_held)
