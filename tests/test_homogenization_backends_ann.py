@@ -116,11 +116,12 @@ def test_a_zero_increment_is_a_no_op(cell):
 
 
 def test_tangent_matches_central_finite_differences(cell):
-    """The autograd tangent against central differences of the float64 increment it differentiates.
+    """The tangent of ``step`` against central differences of the float64 increment.
 
-    ``step`` without tangent runs float32 hidden layers, equal to this increment to ~1e-7
-    (``tests/test_training_inference.py``); its rounding, divided by h = 1e-8, would be
-    ~3e-4 of the tangent, so the differences are taken on ``MesoNet.advance``.
+    ``step`` runs a float32 network, equal to ``MesoNet.advance`` to ~1e-7
+    (``tests/test_training_inference.py``, which also checks its forward-mode tangent against
+    autograd); that rounding, divided by h = 1e-8, would be ~3e-4 of the tangent, so the
+    differences are taken on ``MesoNet.advance``.
     """
     state, d = _loaded(cell)
     _, response = cell.step(state, d, with_tangent=True)
@@ -138,7 +139,7 @@ def test_tangent_matches_central_finite_differences(cell):
     assert scale > 1e6
     np.testing.assert_allclose(response.tangent, fd, rtol=0, atol=1e-4 * scale)
     assert cell.step(state, d)[1].tangent is None
-    assert cell.step(state, d)[1].diagnostics == response.diagnostics  # compiled and autograd paths count alike
+    assert cell.step(state, d)[1].diagnostics == response.diagnostics
 
 
 def test_a_model_of_another_mesostructure_is_refused(model_path, two_start_model, lateral_model, tmp_path, capsys):

@@ -74,6 +74,37 @@ def test_a_cells_increment_is_bit_identical_in_any_batch_at_any_place(loaded):
             np.testing.assert_array_equal(getattr(part, name), getattr(whole, name)[index], err_msg=f"{name}, {n} cells")
 
 
+def _autograd_tangent(net, state, d):
+    """d(S_nn, S_tt)/d(eps_n, eps_t) (n, 2, 2) of ``MesoNet.advance`` by torch autograd."""
+    d_eps = torch.from_numpy(np.asarray(d, dtype=np.float64)).clone().requires_grad_(True)
+    step = net.advance(*(torch.from_numpy(np.asarray(a, dtype=np.float64)) for a in state), d_eps)
+    rows = [torch.autograd.grad(step.moment[:, i, i].sum(), d_eps, retain_graph=True)[0] for i in (0, 1)]
+    return torch.stack(rows, dim=1).numpy()
+
+
+def test_the_forward_mode_tangent_equals_the_autograd_tangent(loaded):
+    """Same branches (capped and sliding contacts, zero and tiny probes); the float32 network rounds."""
+    cell, state, d = loaded
+    increment, tangent = FastAdvance(cell.net).increment(*state, d, with_tangent=True)
+    expected = _autograd_tangent(cell.net, state, d)
+    scale = np.abs(expected).max()
+    assert scale > 1e8
+    np.testing.assert_allclose(tangent, expected, rtol=0, atol=1e-5 * scale)
+    assert np.abs(tangent[0]).max() > 0  # zero probe: the cell size still moves the contacts
+    fast = FastAdvance(cell.net)(*state, d)
+    for name in FastIncrement._fields:
+        np.testing.assert_array_equal(getattr(increment, name), getattr(fast, name), err_msg=name)
+
+
+def test_the_tangent_is_bit_identical_in_any_batch(loaded):
+    cell, state, d = loaded
+    fast = FastAdvance(cell.net)
+    whole = fast.increment(*state, d, with_tangent=True)[1]
+    index = np.array([5, 0, 39, 5])
+    part = fast.increment(*(np.asarray(a)[index] for a in state), d[index], with_tangent=True)[1]
+    np.testing.assert_array_equal(part, whole[index])
+
+
 def test_the_states_exercise_the_contact_law_branches(loaded):
     cell, state, d = loaded
     ref = _reference(cell, state, d)
@@ -172,6 +203,14 @@ def test_a_grain_reached_during_the_increment_is_released_in_both_paths():
     np.testing.assert_array_equal(ref.free_position.numpy()[1, fine], position[1, fine])
     # the float32 hidden layers round the displacement the network gives to ~1e-7
     np.testing.assert_allclose(fast.free_position, ref.free_position.numpy(), rtol=0, atol=1e-6 * np.abs(wanted).max())
+
+
+def test_the_forward_mode_tangent_of_held_and_moving_grains_equals_autograd(fines_net):
+    meso, net = fines_net
+    state = _fines_state(meso, net)
+    tangent = FastAdvance(net).increment(*state[:3], state[3], with_tangent=True)[1]
+    expected = _autograd_tangent(net, state[:3], state[3])
+    np.testing.assert_allclose(tangent, expected, rtol=0, atol=1e-5 * np.abs(expected).max())
 
 
 def test_the_tangent_of_a_held_grain_matches_central_differences(fines_net):

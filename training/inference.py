@@ -1,14 +1,18 @@
-"""Fast no-autograd inference of ``MesoNet.advance``: compiled cell physics around one MLP call.
+"""Fast inference of ``MesoNet.advance``: compiled cell physics around one MLP call, and its tangent.
 
 ``FastAdvance`` gives the same increment as ``MesoNet.advance`` (``training.network``,
-``training.cell_physics``) up to float rounding, for inference only (no autograd):
+``training.cell_physics``) up to float rounding, without torch:
 
 1. ``_features`` (numba, float64, loops over cells innermost so that they vectorise):
    positions, contacts, pair forces, unbalanced forces and the z-scored features of the
    state before the increment;
 2. the multilayer perceptron (numpy/BLAS, float32), on fixed blocks of ``MLP_BLOCK`` cells;
 3. ``_advance`` (numba, float64): the free-DOF displacement from the network output, the
-   new state by the contact law, its Love-Weber moment, area and contact-law branch flags.
+   new state by the contact law, its Love-Weber moment, area and contact-law branch flags;
+4. on request, the consistent tangent d(S_nn, S_tt)/d(eps_n, eps_t) by forward-mode
+   differentiation of steps 1-3 (``_probe_feature_tangent``, ``FastAdvance._mlp_tangent``,
+   ``_moment_tangent``), equal to torch autograd of ``MesoNet.advance`` up to the float32
+   rounding of the network.
 
 The features are computed and z-scored in float64 before the cast to float32 (the ratio
 f_s / (mu f_n), bounded by one, is divided in float32); the un-normalisation of the outputs
@@ -18,8 +22,7 @@ Every block of cells goes through BLAS calls of one shape, so a cell's result is
 bit-identical whatever batch it is in (the cell contract's batch invariance). A pair that
 no cell has within reach is skipped after a square-root-free test, which changes no bit of
 the result. The state arrays returned are transposed views of cells-last arrays, so that
-the next increment reads them without a copy. The tangent (autograd) uses
-``MesoNet.advance``.
+the next increment reads them without a copy.
 
 Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
 """
@@ -182,7 +185,8 @@ def _features(size, free, shear, d_eps, frac, free_dofs, free_slot, pairs, radiu
 @numba.njit(cache=True, error_model="numpy")
 def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_contact, old_fn, frac, free_dofs,
              pairs, radius, outer, rate_mean, rate_std, compliance_scale, diameter, kn, kt, mu, tol, ramp,
-             new_size, new_free, new_shear, moment_out, area, capped_any, opened_any, mechanism, ramped, n_held):
+             new_size, new_free, new_shear, moment_out, area, capped_any, opened_any, mechanism, ramped, n_held,
+             held_dof):
     """Free-DOF displacement from the network output ``out``, then the contact law.
 
     ``out`` (n_blocks, n_free + n_free^2, block) holds cell ``c`` at ``[c // block, :, c % block]``
@@ -194,7 +198,8 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
     compression-positive moment_out (n, 2, 2) [N m] (cells FIRST), the area (n,) [m^2], per-cell flags
     (bool (n,)): a trial tangential force exceeded mu f_n; a pair carrying a normal force
     opened; the moment is zero (mechanism); |d_eps| < ``ramp`` scaled the relaxation down;
-    and n_held (n,) int64, the grains held at rest.
+    and n_held (n,) int64, the grains held at rest; held_dof (n_free, n) bool, the free DOFs
+    of those grains.
     """
     n = size.shape[1]
     n_free = free_dofs.shape[0]
@@ -260,6 +265,8 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
             g = free_dofs[k, 0]
             for c in range(n):
                 new_free[k, c] = free[k, c] if held[g, c] else free[k, c] + d_free[k, c]
+    for k in range(n_free):
+        held_dof[k] = held[free_dofs[k, 0]]
     n_held[:] = 0
     for g in range(n_grains):
         held_g = held[g]
@@ -328,6 +335,119 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
         for a in range(2):
             moment_out[c, a, 0] = moment[a, 0, c]
             moment_out[c, a, 1] = moment[a, 1, c]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _probe_feature_tangent(d_eps, m, feature_std, f_dot):
+    """Derivative of the two z-scored probe-direction features with respect to d_eps.
+
+    d_eps (n, 2), m = |d_eps| (n,); output f_dot (2, n_blocks, 2, block) float32: direction j,
+    block, feature a (0, 1), cell (columns past n zeroed). d(d_a / m)/d(d_j) = (delta_aj -
+    u_a u_j) / m; zero at m = 0, like the autograd path's masked division.
+    """
+    n = m.shape[0]
+    block = f_dot.shape[3]
+    f_dot[:] = 0.0
+    for c in range(n):
+        if m[c] > 0.0:
+            u0, u1, inv_m = d_eps[c, 0] / m[c], d_eps[c, 1] / m[c], 1.0 / m[c]
+            b, i = c // block, c % block
+            f_dot[0, b, 0, i] = (1.0 - u0 * u0) * inv_m / feature_std[0]
+            f_dot[0, b, 1, i] = -u1 * u0 * inv_m / feature_std[1]
+            f_dot[1, b, 0, i] = -u0 * u1 * inv_m / feature_std[0]
+            f_dot[1, b, 1, i] = (1.0 - u1 * u1) * inv_m / feature_std[1]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _moment_tangent(size, free, d_eps, out, out_dot, m_in, unbalanced, old_branch, old_contact, frac, free_dofs,
+                    pairs, radius, rate_mean, rate_std, compliance_scale, diameter, kn, kt, mu, tol, ramp, new_size,
+                    new_free, shear, held_dof, tangent):
+    """Consistent tangent d(S_nn, S_tt)/d(eps_n, eps_t) [N m] of the increment ``_advance`` took: forward mode.
+
+    Arrays as in ``_advance`` (its inputs, its new state new_size, new_free and held_dof);
+    ``shear`` (n_pairs, n) is the tangential force before the increment; out_dot (2,
+    n_blocks, n_outputs, block) the derivative of the network output along d_eps_n, d_eps_t
+    (``FastAdvance._mlp_tangent``). Output tangent (n, 2, 2): [c, i, j] = d S_ii / d eps_j,
+    compression positive. Branch choices (contact, Coulomb cap, held grains, relaxation ramp)
+    are those of the increment, as autograd takes them; the derivative is zero where
+    ``_advance`` puts a constant.
+    """
+    n = size.shape[1]
+    n_free = free_dofs.shape[0]
+    n_grains = frac.shape[0]
+    block = out.shape[2]
+    x = np.empty((n_grains, 2, n))
+    _positions(new_size, new_free, frac, free_dofs, x)
+    x_dot = np.empty((2, n_grains, 2, n))
+    d_free_dot = np.empty((n_free, n))
+    cf, cf_dot = np.empty(n), np.empty(n)
+    tangent[:, :, :] = 0.0
+    for j in range(2):
+        for g in range(n_grains):
+            for a in range(2):
+                scale_a, size_a, row = frac[g, a], size[a], x_dot[j, g, a]
+                for c in range(n):
+                    row[c] = -scale_a * size_a[c] if a == j else 0.0
+        for k in range(n_free):
+            std, mean = rate_std[k], rate_mean[k]
+            for c in range(n):
+                b, i = c // block, c % block
+                cf[c] = 0.0
+                cf_dot[c] = 0.0
+                for q in range(n_free):
+                    cf[c] += compliance_scale * ((1.0 if q == k else 0.0) + out[b, n_free + k * n_free + q, i]) * \
+                        unbalanced[q, c]
+                    cf_dot[c] += compliance_scale * out_dot[j, b, n_free + k * n_free + q, i] * unbalanced[q, c]
+                m = m_in[c]
+                m_dot = d_eps[c, j] / m if m > 0.0 else 0.0
+                ramp_factor = min(m / ramp, 1.0)
+                ramp_dot = m_dot / ramp if m < ramp else 0.0
+                value = diameter * (m_dot * (out[b, k, i] * std + mean) + m * out_dot[j, b, k, i] * std) - (
+                    ramp_dot * cf[c] + ramp_factor * cf_dot[c]) / kn
+                d_free_dot[k, c] = 0.0 if held_dof[k, c] else value
+            x_dot[j, free_dofs[k, 0], free_dofs[k, 1]] = d_free_dot[k]
+    for p in range(pairs.shape[0]):
+        i_g = pairs[p, 0]
+        j_g = pairs[p, 1]
+        rsum = radius[i_g] + radius[j_g]
+        reach = rsum * (1.0 + tol)
+        for c in range(n):
+            b0 = x[j_g, 0, c] - x[i_g, 0, c]
+            b1 = x[j_g, 1, c] - x[i_g, 1, c]
+            d = math.sqrt(b0 * b0 + b1 * b1)
+            if d > reach:
+                continue
+            fn = kn * max(rsum - d, 0.0)
+            ob0, ob1 = old_branch[p, 0, c], old_branch[p, 1, c]
+            mid0, mid1 = 0.5 * (ob0 + b0), 0.5 * (ob1 + b1)
+            norm = math.sqrt(mid0 * mid0 + mid1 * mid1)
+            n0, n1 = mid0 / norm, mid1 / norm
+            rel0, rel1 = b0 - ob0, b1 - ob1
+            trial = (shear[p, c] if old_contact[p, c] else 0.0) + kt * (rel0 * -n1 + rel1 * n0)
+            cap = mu * fn
+            fs = min(max(trial, -cap), cap)
+            u0, u1 = b0 / d, b1 / d
+            f0 = -fn * u0 + fs * -u1
+            f1 = -fn * u1 + fs * u0
+            for j in range(2):
+                db0 = x_dot[j, j_g, 0, c] - x_dot[j, i_g, 0, c]
+                db1 = x_dot[j, j_g, 1, c] - x_dot[j, i_g, 1, c]
+                d_dot = (b0 * db0 + b1 * db1) / d
+                fn_dot = -kn * d_dot if rsum - d > 0.0 else 0.0
+                proj = n0 * 0.5 * db0 + n1 * 0.5 * db1
+                n0_dot, n1_dot = (0.5 * db0 - n0 * proj) / norm, (0.5 * db1 - n1 * proj) / norm
+                trial_dot = kt * (db0 * -n1 + db1 * n0 + rel0 * -n1_dot + rel1 * n0_dot)
+                if trial > cap:
+                    fs_dot = mu * fn_dot
+                elif trial < -cap:
+                    fs_dot = -mu * fn_dot
+                else:
+                    fs_dot = trial_dot
+                u0_dot, u1_dot = (db0 - u0 * d_dot) / d, (db1 - u1 * d_dot) / d
+                f0_dot = -fn_dot * u0 - fn * u0_dot + fs_dot * -u1 + fs * -u1_dot
+                f1_dot = -fn_dot * u1 - fn * u1_dot + fs_dot * u0 + fs * u0_dot
+                tangent[c, 0, j] -= f0_dot * b0 + f0 * db0
+                tangent[c, 1, j] -= f1_dot * b1 + f1 * db1
 
 
 def _cells_last(values: np.ndarray) -> np.ndarray:
@@ -443,9 +563,25 @@ class FastAdvance:
             self._local.work = work
         return work
 
+    def _mlp_tangent(self, work: _Workspace, f_dot: np.ndarray) -> np.ndarray:
+        """Derivative of the network output along d_eps_n and d_eps_t, (2, n_blocks, n_outputs, MLP_BLOCK)
+        float32, from that of the probe features ``f_dot`` (2, n_blocks, 2, MLP_BLOCK) (the only
+        features that depend on d_eps) and the activations ``_mlp`` left in ``work``."""
+        h_dot = f_dot
+        for index, (affine, h) in enumerate(zip(self.layers[:-1], work.layers)):
+            a_dot = np.matmul(affine[:, :2] if index == 0 else affine, h_dot)
+            h_dot = (1.0 - h * h) * a_dot  # tanh' = 1 - tanh^2; zero on the row of ones
+        return np.matmul(self.layers[-1], h_dot)
+
     def __call__(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                  d_eps: np.ndarray) -> FastIncrement:
         """One increment of every cell: state (n, 2), (n, n_free), (n, n_pairs) and probe (n, 2) [-]."""
+        return self.increment(cell_size, free_position, shear_force, d_eps)[0]
+
+    def increment(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
+                  d_eps: np.ndarray, with_tangent: bool = False) -> tuple[FastIncrement, np.ndarray | None]:
+        """``__call__``, and with ``with_tangent`` also the consistent tangent d(S_nn, S_tt)/d(eps_n, eps_t)
+        [N m], (n, 2, 2), by forward-mode differentiation of the same increment (``_moment_tangent``)."""
         size, free, shear = (_cells_last(a) for a in (cell_size, free_position, shear_force))
         d_eps = np.asarray(d_eps, dtype=np.float64)
         n, n_free, n_pairs = size.shape[1], self.free_dofs.shape[0], self.pairs.shape[0]
@@ -458,8 +594,19 @@ class FastAdvance:
         moment, area = np.empty((n, 2, 2)), np.empty(n)
         flags = np.empty((4, n), dtype=np.bool_)
         n_held = np.empty(n, dtype=np.int64)
+        held_dof = np.empty((n_free, n), dtype=np.bool_)
         _advance(size, free, shear, d_eps, out, work.m, work.unbalanced, work.old_branch, work.old_contact,
                  work.old_fn, self.frac, self.free_dofs, self.pairs, self.radius, self.outer, self.rate_mean,
                  self.rate_std, COMPLIANCE_SCALE, self.diameter, self.kn, self.kt, self.mu, self.tol, RELAXATION_RAMP,
-                 new_size, new_free, new_shear, moment, area, *flags, n_held)
-        return FastIncrement(new_size.T, new_free.T, new_shear.T, moment, area, *flags, n_held)
+                 new_size, new_free, new_shear, moment, area, *flags, n_held, held_dof)
+        tangent = None
+        if with_tangent:
+            f_dot = np.empty((2, out.shape[0], 2, MLP_BLOCK), dtype=np.float32)
+            _probe_feature_tangent(d_eps, work.m, self.feature_std, f_dot)
+            out_dot = self._mlp_tangent(work, f_dot)
+            tangent = np.empty((n, 2, 2))
+            _moment_tangent(size, free, d_eps, out, out_dot, work.m, work.unbalanced, work.old_branch,
+                            work.old_contact, self.frac, self.free_dofs, self.pairs, self.radius, self.rate_mean,
+                            self.rate_std, COMPLIANCE_SCALE, self.diameter, self.kn, self.kt, self.mu, self.tol,
+                            RELAXATION_RAMP, new_size, new_free, shear, held_dof, tangent)
+        return FastIncrement(new_size.T, new_free.T, new_shear.T, moment, area, *flags, n_held), tangent

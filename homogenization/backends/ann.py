@@ -14,9 +14,10 @@ per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
   reset out of contact); the moment is the Love-Weber sum over the contacts and V_cell the
   area of the polygon through the outer grains.
 
-Without tangent on CPU, ``step`` runs this increment through ``training.inference.FastAdvance``
-(the same physics compiled with numba around the network call; equal to the torch path up to
-rounding); the tangent uses the torch path and autograd.
+On CPU, ``step`` runs this increment through ``training.inference.FastAdvance`` (the same
+physics compiled with numba around the network call; equal to the torch path up to
+rounding), and its tangent by forward-mode differentiation in the same code; on another
+device the torch path and autograd.
 
 No equilibrium is solved and no closed form of a particular cell is used. Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
@@ -148,21 +149,22 @@ class AnnCell(ArrayStateMixin):
             state: cells at the start of the increment.
             d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
             with_tangent: also return ``CellResponse.tangent`` = d(S_nn, S_tt)/d(eps_n, eps_t)
-                [N m], shape (n_cells, 2, 2), by automatic differentiation of the whole
-                increment (network and contact law).
+                [N m], shape (n_cells, 2, 2), the derivative of the whole increment (network
+                and contact law): forward mode in the compiled path on CPU, torch autograd
+                on another device.
 
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
-        if self.fast is not None and not with_tangent:
-            inc = self.fast(*state, d_eps_local)
+        if self.fast is not None:
+            inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
                            "n_tension_clipped": float(np.count_nonzero(inc.opened)),
                            "n_mechanism": float(np.count_nonzero(inc.mechanism)),
                            "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled)),
                            "n_grains_held": float(inc.grains_held.sum())}
             return (AnnState(inc.cell_size, inc.free_position, inc.shear_force),
-                    CellResponse(inc.moment, inc.area, diagnostics))
+                    CellResponse(inc.moment, inc.area, diagnostics, tangent))
         size, free, shear = self._tensors(state)
         d_eps = torch.as_tensor(np.asarray(d_eps_local, dtype=np.float64), device=self.device)
         tangent = None
