@@ -380,7 +380,13 @@ def _moment_tangent(size, free, d_eps, out, out_dot, m_in, unbalanced, old_branc
     _positions(new_size, new_free, frac, free_dofs, x)
     x_dot = np.empty((2, n_grains, 2, n))
     d_free_dot = np.empty((n_free, n))
-    cf, cf_dot = np.empty(n), np.empty(n)
+    relax = np.zeros((n_free, n))  # C F of the increment (compliance times unbalanced force) [N]
+    for k in range(n_free):
+        for c in range(n):
+            b, i = c // block, c % block
+            for q in range(n_free):
+                relax[k, c] += compliance_scale * ((1.0 if q == k else 0.0) + out[b, n_free + k * n_free + q, i]) * \
+                    unbalanced[q, c]
     tangent[:, :, :] = 0.0
     for j in range(2):
         for g in range(n_grains):
@@ -392,18 +398,15 @@ def _moment_tangent(size, free, d_eps, out, out_dot, m_in, unbalanced, old_branc
             std, mean = rate_std[k], rate_mean[k]
             for c in range(n):
                 b, i = c // block, c % block
-                cf[c] = 0.0
-                cf_dot[c] = 0.0
+                relax_dot = 0.0
                 for q in range(n_free):
-                    cf[c] += compliance_scale * ((1.0 if q == k else 0.0) + out[b, n_free + k * n_free + q, i]) * \
-                        unbalanced[q, c]
-                    cf_dot[c] += compliance_scale * out_dot[j, b, n_free + k * n_free + q, i] * unbalanced[q, c]
+                    relax_dot += compliance_scale * out_dot[j, b, n_free + k * n_free + q, i] * unbalanced[q, c]
                 m = m_in[c]
                 m_dot = d_eps[c, j] / m if m > 0.0 else 0.0
                 ramp_factor = min(m / ramp, 1.0)
                 ramp_dot = m_dot / ramp if m < ramp else 0.0
                 value = diameter * (m_dot * (out[b, k, i] * std + mean) + m * out_dot[j, b, k, i] * std) - (
-                    ramp_dot * cf[c] + ramp_factor * cf_dot[c]) / kn
+                    ramp_dot * relax[k, c] + ramp_factor * relax_dot) / kn
                 d_free_dot[k, c] = 0.0 if held_dof[k, c] else value
             x_dot[j, free_dofs[k, 0], free_dofs[k, 1]] = d_free_dot[k]
     for p in range(pairs.shape[0]):
