@@ -74,13 +74,15 @@ def command_prog(module: str) -> str:
     return _INVOKED_AS.get() or f"python -m {module}"
 
 
-def _module_of(function: Callable) -> str:
-    """Module name of ``function``; for a module run with ``python -m``, its name, not "__main__"."""
+def _started_as(function: Callable) -> str:
+    """How this process was started to run ``function``: ``python -m MODULE``, else the script's name."""
     name = getattr(function, "__module__", None) or "__main__"
     if name == "__main__":
         spec = getattr(sys.modules.get("__main__"), "__spec__", None)
-        return spec.name if spec is not None else Path(sys.argv[0]).name
-    return name
+        if spec is None:
+            return Path(sys.argv[0]).name
+        name = spec.name
+    return f"python -m {name}"
 
 
 class _Probe(Exception):
@@ -504,7 +506,7 @@ def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[
     Python with ``argv`` says "hmodel". The verbosity ``main`` set (``set_verbosity``) ends
     with it.
     """
-    prog = _INVOKED_AS.get() or (f"python -m {_module_of(main)}" if argv is None else "hmodel")
+    prog = _INVOKED_AS.get() or (_started_as(main) if argv is None else "hmodel")
     try:
         return int(main(argv) or 0)
     except (UserError, ValueError, FileNotFoundError) as exc:
