@@ -27,7 +27,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from homogenization import invariants, io
-from warp_hcell.cli import UserError, atomic_write, check_output_path, run_main
+from warp_hcell.cli import (
+    Parser, UserError, atomic_write, check_output_path, command_prog, run_main, say, set_verbosity, verbosity_parser)
 from homogenization.driver import Record
 
 FOURTH_PANELS = ("q/p", "W2")
@@ -182,8 +183,9 @@ def run_labels(paths: Sequence[Path], backends: Sequence[str]) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the replot command."""
-    parser = argparse.ArgumentParser(
-        prog="hmodel plot", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    parser = Parser(
+        prog=command_prog("homogenization.plotting"), parents=[verbosity_parser()],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
         description="Overlay finished runs (run.h5 files of hmodel biaxial) in the 2x2 biaxial figure.")
     parser.add_argument("runs", type=Path, nargs="+", metavar="RUN.h5", help="run files to overlay")
     parser.add_argument("--out", type=Path, required=True, help="figure file: .png, .pdf or .svg")
@@ -198,6 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
+    set_verbosity(args)
     figure_format(args.out)
     if args.out.is_dir():
         raise UserError(f"--out {args.out} is a folder; give a file name")
@@ -218,7 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         save_figure(fig, args.out)
     except OSError as exc:
         raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
-    print(f"figure -> {args.out}")
+    say(f"figure -> {args.out}")
     return 0
 
 
