@@ -35,6 +35,7 @@ extensions = [
 
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 exclude_patterns = ["_build"]
+highlight_language = "text"  # literal blocks of docstrings and bare fences hold formulas and diagrams
 templates_path = ["_templates"]
 
 myst_heading_anchors = 3
@@ -48,7 +49,7 @@ autodoc_typehints = "description"
 autodoc_class_signature = "separated"
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False
-napoleon_use_ivar = True
+napoleon_use_ivar = False
 napoleon_use_rtype = False
 
 html_theme = "furo"
