@@ -1,5 +1,7 @@
 # make test      : create .venv, install the package (CPU torch first), run the CI test suite
 # make demo      : same set-up, then the constant-volume biaxial tests and their figures
+# make docs      : same set-up plus the docs extra, then the documentation site (warnings are errors)
+#                  into docs/_build/html/index.html
 # make bench     : speed benchmarks (numbers quoted in README)
 # make reproduce : the whole pipeline from scratch: DEM database (3e5), training, three backends
 #                  (its model is the shipped one: docs/ann.md)
@@ -14,7 +16,7 @@ BIAXIAL := $(PY) -m homogenization.biaxial --overwrite
 # within 0.1 % of p0 of its converged curve (docs/dem_homogenization.md).
 OVERLAY := --increment 1e-4 --iso-increment 1e-4 --orientations 360 --eps-max 0.2
 
-.PHONY: venv test demo bench reproduce clean
+.PHONY: venv test docs demo bench reproduce clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +29,16 @@ venv: $(VENV)/.installed
 
 test: venv
 	$(PY) -m pytest -q
+
+$(VENV)/.docs-installed: $(VENV)/.installed
+	$(PY) -m pip install -e '.[dev,docs]'
+	touch $@
+
+# A fresh build every time (no stale API stubs, every warning shown again); no network needed.
+docs: $(VENV)/.docs-installed
+	rm -rf docs/_build docs/_autosummary
+	$(PY) -m sphinx -b html -W --keep-going -q docs docs/_build/html
+	@echo "Site: docs/_build/html/index.html"
 
 demo: venv
 	$(BIAXIAL) --backend analytical,dem,ann --alpha0 55 --p0 5.85e6 $(OVERLAY) --out demo/alpha55
@@ -53,4 +65,4 @@ reproduce: venv
 	@echo "Figure: runs/alpha55/cambridge.png"
 
 clean:
-	rm -rf $(VENV) .warp_cache demo
+	rm -rf $(VENV) .warp_cache demo docs/_build docs/_autosummary

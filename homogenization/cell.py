@@ -22,7 +22,7 @@ order above, and with ``--positions`` every grain centre it reports.
 Bad input (missing or malformed PATH.csv, alpha0 outside [30, 90) deg, a mesostructure the
 backend does not model, unwritable --out,
 a CUDA device the machine lacks, and for the ann backend a row larger than the largest
-probe of its learning database, |d_eps| > 1e-3, where the network extrapolates) is one
+probe of its learning database, ``|d_eps|`` > 1e-3, where the network extrapolates) is one
 line on stderr and exit code 2; an existing OUT.csv is kept unless --overwrite.
 """
 
@@ -63,7 +63,7 @@ DEM_ONLY_BACKEND = "dem"
 DEVICE_BACKENDS = ("dem", "ann")
 """The backends that take a compute --device."""
 ANN_MAX_INCREMENT = DatabaseSettings.probe_max
-"""Largest |d_eps| [-] of one path row the ann backend accepts: the largest strain probe of
+"""Largest ``|d_eps|`` [-] of one path row the ann backend accepts: the largest strain probe of
 its learning database (beyond it the network extrapolates)."""
 
 
@@ -142,7 +142,7 @@ def _backend_options(args: argparse.Namespace) -> dict:
 
 def check_path_for_backend(path: Path, d_eps: np.ndarray, backend: str) -> None:
     """UserError (one line) for path rows the backend cannot do: for the ann, a row with
-    |d_eps| = sqrt(d_eps_n^2 + d_eps_t^2) above ``ANN_MAX_INCREMENT``."""
+    ``|d_eps| = sqrt(d_eps_n^2 + d_eps_t^2)`` above ``ANN_MAX_INCREMENT``."""
     if backend != "ann":
         return
     size = np.hypot(d_eps[:, 0], d_eps[:, 1])

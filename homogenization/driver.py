@@ -9,7 +9,7 @@ saved state, each giving the stress and the consistent tangent of the material (
 call with the cell tangent); the first guess of an increment comes from the last tangent
 computed (a linear predictor to the new target), and the first trial asks for no tangent.
 Trials cost one ``step`` each because steps are pure. Convergence: every controlled stress
-within ``stress_rtol`` times its |target| (times the largest |sigma| recorded so far where
+within ``stress_rtol`` times its ``|target|`` (times the largest ``|sigma|`` recorded so far where
 the target is zero).
 
 It imports the cell-model protocol only, never a backend. Sign convention: compression

@@ -8,16 +8,20 @@ returns the new state, the stresses and the consistent tangents. Like ``step``, 
 is pure: trial increments (Newton iterations of a stress control or of a finite-element
 solve) start again from the same saved state.
 
-Plane strain, Voigt form, in the macro frame (axes 1, 2):
+Plane strain, Voigt form, in the macro frame (axes 1, 2)::
+
     e = (eps11, eps22, gamma12), gamma12 = 2 eps12 [-];  sigma = (sigma11, sigma22, sigma12) [N/m].
+
 Sign convention: compression and contraction positive.
 
 Localisation (spec sections 3, 13): cell k at theta_k gets d_eps_n = P_k . d_e and
 d_eps_t = Q_k . d_e with P_k = (c^2, s^2, s c), Q_k = (s^2, c^2, -s c); shear of the cell is
 dropped. Stress: sigma = sum_k w_k R_k S_k R_k^T / V with the volume rule V = V0 J
 (``orientation.VOLUME_RULE``), J multiplied by (1 - d_eps11)(1 - d_eps22) per increment.
-Tangent: D = d sigma / d(d_e) =
+Tangent: D = d sigma / d(d_e) = ::
+
     (1/V) sum_k w_k [P_k; Q_k]^T C_k [P_k; Q_k] + sigma (x) (1/(1 - d_eps11), 1/(1 - d_eps22), 0),
+
 with C_k = d(S_nn, S_tt)/d(d_eps_n, d_eps_t) the cell tangent of the increment (the last term
 is -sigma (x) dV/d(d_e) / V). The cell moment's S_nt (zero for the H-cell) enters the stress but
 not the tangent.

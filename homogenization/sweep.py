@@ -29,6 +29,7 @@ relaxation, then the test continues (stage ``eroded``) to --eps-max. The macro v
 on (V0 and J of the whole test).
 
 Output:
+
 - DIR/cases/<case>/{run.h5, curve.csv, cambridge.png}: the files ``biaxial`` writes, per case.
 - DIR/summary.csv: one row per case (``SUMMARY_COLUMNS``): stresses [N/m] and strains [-],
   compression positive, eps1 counted from the end of the isotropic stage; peak_q is the

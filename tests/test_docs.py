@@ -1,5 +1,6 @@
 """README and docs are self-contained: every relative link and quoted repository path exists,
-nothing points outside the repository; licence and citation files match pyproject."""
+nothing points outside the repository or names a work item; every page is on the documentation
+site (make docs); licence and citation files match pyproject."""
 
 from __future__ import annotations
 
@@ -21,6 +22,30 @@ def test_no_reference_outside_the_repository(page):
         if target.startswith(("http://", "https://")):
             continue
         assert (page.parent / target).exists(), f"{page.name}: broken link {target}"
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: p.name)
+def test_no_issue_numbers(page):
+    assert not re.search(r"\bissues?[- ]?#?\d", page.read_text(), flags=re.I), page.name
+
+
+def test_every_docs_page_is_on_the_site():
+    index = (ROOT / "docs" / "index.md").read_text()
+    listed = set()
+    for block in re.findall(r"```\{toctree\}\n(.*?)```", index, flags=re.S):
+        listed.update(line.strip() for line in block.splitlines() if line.strip() and not line.startswith(":"))
+    pages = {page.stem for page in (ROOT / "docs").glob("*.md")} - {"index"}
+    assert listed == pages, f"not on the site: {sorted(pages - listed)}; listed but missing: {sorted(listed - pages)}"
+
+
+def test_readme_is_a_front_page():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) < 200
+    assert "make test" in text and "make demo" in text and "make docs" in text
+    assert re.search(r"`make test` runs \d+ tests in about \d+ minutes? on 2 cores", text)
+    for page in sorted((ROOT / "docs").glob("*.md")):
+        if page.stem not in ("index", "api"):
+            assert f"(docs/{page.name}" in text, f"README does not link {page.name}"
 
 
 def test_quoted_repository_paths_exist():

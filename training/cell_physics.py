@@ -6,12 +6,14 @@ turns that decision into forces and stress exactly as the DEM's contact law does
 (spec sections 4, 7, 10, 12).
 
 Generic cell state (first axis n_cells):
-    - ``cell_size`` (n, 2) [m]: (l1, l2);
-    - ``free_position`` (n, n_free) [m]: the free DOF coordinates, in the row-major order of
-      ``driven == False`` (grain, axis);
-    - ``shear_force`` (n, n_pairs) [N]: tangential spring force of each candidate pair, the
-      force on grain i along w = (-u_t, u_n) with u = (x_j - x_i) / |x_j - x_i| (DEM convention,
-      ``warp_hcell.kernels``).
+
+- ``cell_size`` (n, 2) [m]: (l1, l2);
+- ``free_position`` (n, n_free) [m]: the free DOF coordinates, in the row-major order of
+  ``driven == False`` (grain, axis);
+- ``shear_force`` (n, n_pairs) [N]: tangential spring force of each candidate pair, the
+  force on grain i along w = (-u_t, u_n) with ``u = (x_j - x_i) / |x_j - x_i|`` (DEM convention,
+  ``warp_hcell.kernels``).
+
 Driven coordinates follow the cell strain exactly: x = (x_ref / l_ref) * l.
 
 Conventions: local frame index 0 = n, 1 = t. The contact force on grain i of pair (i, j) is
@@ -164,8 +166,11 @@ class Increment:
     """Outcome of ``advance`` (first axis n_cells).
 
     Attributes:
-        cell_size, free_position, shear_force: the new generic state.
-        moment: compression-positive Love-Weber moment [N m], (n, 2, 2); area [m^2], (n,).
+        cell_size: the new cell size [m], (n, 2).
+        free_position: the new free DOF coordinates [m], (n, n_free).
+        shear_force: the new tangential spring forces [N], (n, n_pairs).
+        moment: compression-positive Love-Weber moment [N m], (n, 2, 2).
+        area: cell area [m^2], (n,).
         capped: bool (n, n_pairs), the trial tangential force exceeded the Coulomb cap mu f_n;
         opened: bool (n, n_pairs), a pair that carried a normal force lost it (no-tension branch);
         held: bool (n, n_free), free DOFs of grains held at rest (``hold_at_rest``); None where

@@ -39,7 +39,7 @@ FORMAT = "meso-hmodel-database"
 FORMAT_VERSION = 2
 """Supported root attr ``format_version`` (the generic database)."""
 RATE_LIMIT = 50.0
-"""Largest free-DOF displacement accepted, in D per unit of (|d_eps| + |F|max / (kn D)) [-]."""
+"""Largest free-DOF displacement accepted, in D per unit of ``(|d_eps| + |F|max / (kn D))`` [-]."""
 STATE_FIELDS = ("cell_size", "free_position", "shear_force")
 """Per-sample datasets of the groups ``before``/``after`` that the network reads."""
 SCHEMA_FIELDS = ("free_dofs", "pairs", "radius", "reference_position", "reference_cell_size", "driven", "outer")
@@ -61,15 +61,25 @@ class Database:
         after_contact: contact flags after the probe, bool (n, n_pairs).
         before_contact: contact flags before the probe, bool (n, n_pairs).
         d_eps: probes (n, 2) [-], compression positive.
-        perturbed, mechanism: bool (n,); path_id: int (n,).
+        perturbed: bool (n,).
+        mechanism: bool (n,).
+        path_id: int (n,).
         schema_arrays: the ``schema`` group (numpy), enough to rebuild the cell.
         schema: the same as a ``CellSchema`` with the contact law of the file.
-        mesostructure: JSON description stored in the file; mesostructure_sha256: its hash.
+        mesostructure: JSON description stored in the file.
+        mesostructure_sha256: its hash.
         start_mesostructures: descriptions of the cells the exploration started from (the
             file's ``start_mesostructures``; the mesostructure alone where the file has none).
-        kn [N/m], kt_over_kn [-], phi_g_deg [deg], contact_tolerance [-]: file attributes.
-        sha256: hex digest of the file bytes; source: its path; n_stored: samples in the
-            file; n_unconverged, n_jumps: samples dropped by the selection.
+        kn: normal contact stiffness, file attribute [N/m].
+        kt_over_kn: tangential over normal stiffness, file attribute [-].
+        phi_g_deg: friction angle, file attribute [deg].
+        contact_tolerance: contact gap tolerance, file attribute [-].
+        sha256: hex digest of the file bytes.
+        source: path of the file.
+        n_stored: samples in the file.
+        n_unconverged: samples dropped by the selection as unconverged.
+        n_jumps: samples dropped by the selection as jumps (a free-DOF displacement above
+            ``RATE_LIMIT`` times the sample's scale).
     """
 
     before: dict
@@ -202,9 +212,11 @@ class Tensors:
     """Network inputs and targets of a set of samples.
 
     Attributes:
-        features: raw features (n, n_features); magnitude |d_eps| (n, 1); unbalanced F (n, n_free) [N];
-        target: true free-DOF displacement [m], (n, n_free); scale: per-sample length
-            D (|d_eps| + |F|max / (kn D)) [m], (n, 1), the unit of the loss.
+        features: raw features (n, n_features).
+        magnitude: probe magnitude ``|d_eps|`` (n, 1).
+        unbalanced: unbalanced force F on the free DOFs (n, n_free) [N].
+        target: true free-DOF displacement [m], (n, n_free).
+        scale: per-sample length ``D (|d_eps| + |F|max / (kn D))`` [m], (n, 1), the unit of the loss.
     """
 
     features: torch.Tensor
@@ -242,7 +254,7 @@ class Normalisation:
 def fit_normalisation(db: Database, data: Tensors, index: np.ndarray) -> Normalisation:
     """z-score statistics of ``data`` (the training tensors of samples ``index``).
 
-    Rates d_free / (D |d_eps|) come from the unperturbed samples with a non-zero probe.
+    Rates ``d_free / (D |d_eps|)`` come from the unperturbed samples with a non-zero probe.
     Constant features and rates get a standard deviation of 1.
     """
     feats = data.features.numpy()

@@ -73,7 +73,7 @@ def _any_within(b0, b1, reach):
 @numba.njit(cache=True, error_model="numpy")
 def _features(size, free, shear, d_eps, frac, free_dofs, free_slot, pairs, radius, active_slot, feature_mean,
               feature_std, diameter, kn, mu, tol, gap_clip, feats, m_out, unbalanced, old_branch, old_contact, old_fn):
-    """Z-scored features, |d_eps|, unbalanced forces and the contacts of every cell before its increment.
+    """Z-scored features, ``|d_eps|``, unbalanced forces and the contacts of every cell before its increment.
 
     Cells are the LAST axis of every array but the probe: size (2, n), free (n_free, n),
     shear (n_pairs, n), d_eps (n, 2); outputs feats (n_features, n) float32, m_out (n,),
@@ -455,7 +455,7 @@ class FastIncrement(NamedTuple):
     without a copy); moment (n, 2, 2) [N m] (compression positive); area (n,) [m^2]; capped, opened:
     bool (n,), a Coulomb cap / the no-tension branch acted on some pair of the cell;
     mechanism: bool (n,), zero moment after the increment; relaxation_scaled: bool (n,),
-    |d_eps| < ``RELAXATION_RAMP``; grains_held: int64 (n,), free grains held at rest
+    ``|d_eps|`` < ``RELAXATION_RAMP``; grains_held: int64 (n,), free grains held at rest
     (``training.cell_physics.hold_at_rest``).
     """
 

@@ -7,7 +7,7 @@ over the increment [m], shape (n, n_free):
 
     d_free = D * m * r(state, u)  -  C(state) @ F / kn
 
-with m = |d_eps|, u = d_eps / m (u = 0 where m = 0), D the mean grain diameter, F the
+with ``m = |d_eps|``, u = d_eps / m (u = 0 where m = 0), D the mean grain diameter, F the
 unbalanced contact force on the free DOFs [N] (exact, from the contact law) and kn the
 normal stiffness. Both r (free-DOF rates per unit probe magnitude, in D) and C (an
 n_free x n_free compliance in units of 1/kn) are outputs of one tanh multilayer perceptron.
@@ -17,12 +17,14 @@ equilibrium: a position error e produces F ~ K e and the network, trained on per
 states that the DEM relaxes, moves the DOFs back by ~ -e at the next increment.
 
 Features (z-scored with training statistics), for any mesostructure:
+
     - the probe direction (u_n, u_t);
     - cell size l / D; free coordinates x / D and x / l (l of the coordinate's axis);
     - per active pair (a candidate pair in contact somewhere in the training data): the
       overlap / D (gaps clipped at ``GAP_CLIP``), the contact flag, the branch direction
       (u_n, u_t), the tangential force / (kn D) and the friction ratio f_s / (mu f_n)
       (0 out of contact).
+
 Nothing here knows any particular cell. Everything is float64 (positions must be resolved
 to ~1e-7 D).
 """
@@ -51,7 +53,7 @@ PAIR_FEATURES = ("overlap", "contact", "branch_n", "branch_t", "shear", "frictio
 COMPLIANCE_SCALE = 0.5
 """Initial and reference compliance C [1/kn]: a free grain between two contacts."""
 RELAXATION_RAMP = 1e-7
-"""Probe magnitude [-] below which ``advance`` scales the relaxation term by |d_eps| / RELAXATION_RAMP,
+"""Probe magnitude [-] below which ``advance`` scales the relaxation term by ``|d_eps| / RELAXATION_RAMP``,
 so that a zero increment leaves a state unchanged (stress control brackets the increment
 from zero); 100 times below the smallest probe of the databases, so never active in a run."""
 
@@ -69,11 +71,13 @@ def features_and_contacts(schema: CellSchema, active: torch.Tensor, cell_size: t
     Args:
         schema: the mesostructure; active: pairs the network sees, bool (n_pairs,) or their
             indices (int64, ascending).
-        cell_size (n, 2) [m], free_position (n, n_free) [m], shear_force (n, n_pairs) [N],
-        d_eps (n, 2) [-]: state before the increment and the probe.
+        cell_size: cell size before the increment [m], (n, 2).
+        free_position: free DOF coordinates before the increment [m], (n, n_free).
+        shear_force: tangential spring forces before the increment [N], (n, n_pairs).
+        d_eps: the probe [-], (n, 2).
 
     Returns:
-        (features (n, n_features), m = |d_eps| (n, 1), F (n, n_free) [N], the
+        (features (n, n_features), ``m = |d_eps|`` (n, 1), F (n, n_free) [N], the
         ``cell_physics.Contacts`` of the state).
     """
     diameter = schema.diameter
@@ -155,7 +159,7 @@ class MesoNet(nn.Module):
 
     def displacement_from_features(self, feats: torch.Tensor, m: torch.Tensor, unbalanced: torch.Tensor,
                                    relaxation: torch.Tensor | float = 1.0) -> torch.Tensor:
-        """Free-DOF displacement [m], (n, n_free), from raw features, |d_eps| and F (module docstring).
+        """Free-DOF displacement [m], (n, n_free), from raw features, ``|d_eps|`` and F (module docstring).
 
         ``relaxation`` (scalar or (n, 1)) multiplies the relaxation term -C F / kn.
         """
@@ -173,7 +177,7 @@ class MesoNet(nn.Module):
     def advance(self, cell_size, free_position, shear_force, d_eps) -> cell_physics.Increment:
         """One cell-increment: the network moves the free DOFs, the contact law gives the forces.
 
-        Below |d_eps| = ``RELAXATION_RAMP`` the relaxation is scaled down linearly to zero. The
+        Below ``|d_eps|`` = ``RELAXATION_RAMP`` the relaxation is scaled down linearly to zero. The
         DEM's rest rule holds free grains that carry no force and that nothing reaches
         (``cell_physics.hold_at_rest``; ``Increment.held`` flags them).
         """

@@ -32,7 +32,7 @@ BLOCK = 128
 """Cells per cache tile of a layer (a speed setting; results do not depend on it)."""
 
 TANH_CLIP = 9.0
-"""|x| beyond which tanh32 returns its value at +-9 (within 2e-8 of +-1, below float32's resolution)."""
+"""``|x|`` beyond which tanh32 returns its value at +-9 (within 2e-8 of +-1, below float32's resolution)."""
 
 # tanh(x) ~ x P(u) / Q(u), u = (x / 9)^2, |x| <= 9: a least-squares rational fit of relative error with
 # Lawson reweighting on 4e4 Chebyshev-spaced points of [0, 9]; max relative error 3.8e-9 in exact
@@ -122,7 +122,7 @@ def dense(weight, bias, h, out, squash):
 
 @numba.njit(cache=True, error_model="numpy")
 def scale_by_tanh_derivative(h, out_dot):
-    """out_dot *= 1 - h^2 in place (tanh' = 1 - tanh^2 at the layer's output ``h``), both (n_rows, n) float32."""
+    """``out_dot *= 1 - h^2`` in place (tanh' = 1 - tanh^2 at the layer's output ``h``), both (n_rows, n) float32."""
     for j in range(h.shape[0]):
         h_j, d_j = h[j], out_dot[j]
         for c in range(h_j.shape[0]):

@@ -7,8 +7,8 @@ legs are those a cell of orientation theta sees in a constant-volume test
 (a = (c^2 - s^2 / 2, s^2 - c^2 / 2)).
 None of these precompressions is a training path's. The DEM cell (``warp_hcell.dem_cell``),
 stepped with the same increments, gives the reference; the ANN is rolled out recurrently. The
-error of a path is max over the path of |S_ann - S_dem| (components nn and tt) divided by
-the path's largest |S_dem| component (the path's largest force times its lever arm):
+error of a path is max over the path of ``|S_ann - S_dem|`` (components nn and tt) divided by
+the path's largest ``|S_dem|`` component (the path's largest force times its lever arm):
 a fraction that a model returning zeros fails with 1.
 """
 
@@ -120,7 +120,7 @@ def ann_rollout(net: MesoNet, reference_position: np.ndarray, reference_cell_siz
 
 
 def errors(ann: np.ndarray, dem: np.ndarray) -> np.ndarray:
-    """Per path: max |S_ann - S_dem| / max |S_dem| over the path [-], shape (n_paths,)."""
+    """Per path: ``max |S_ann - S_dem| / max |S_dem|`` over the path [-], shape (n_paths,)."""
     scale = np.abs(dem).max(axis=(0, 2))
     return np.abs(np.nan_to_num(ann, nan=np.inf) - dem).max(axis=(0, 2)) / np.where(scale > 0, scale, np.nan)
 

@@ -15,7 +15,7 @@ Stop rules (generic; ``stop_masks``): a path stops, and its state is not sampled
 DEM did not converge, a value is not finite, the cell has carried no contact force over a
 path length above ``stress_free_length`` (open or force-free mechanism for long; shorter
 force-free stretches are kept: the network must learn mechanisms), an overlap exceeds
-``max_overlap`` (r_i + r_j), or |eps_n| or |eps_t| from the start cell exceeds
+``max_overlap`` (r_i + r_j), or ``|eps_n|`` or ``|eps_t|`` from the start cell exceeds
 ``max_cell_strain``. "No contact force" means every normal force <= the DEM's force floor
 kn * contact_tolerance * mean grain diameter.
 

@@ -9,6 +9,7 @@ the H-cell of ``warp_hcell.mesostructure.h_cell`` and the exploration starts fro
 several opening angles (they share one learning state).
 
 The generator's jobs, one module each:
+
 1. exploration (``warp_hcell.exploration``, deterministic): isotropic paths then
    proportional legs in the (eps_n, eps_t) plane from every start cell; generic stop rules;
 2. probing (``warp_hcell.probing``, seeded): a chunk of samples is a pure function of
@@ -21,6 +22,7 @@ The generator's jobs, one module each:
    process, on a Dask LocalCluster (``--workers N``) or on a Dask scheduler
    (``--scheduler ADDRESS``); results come back to this process, which writes them, so the
    file is bit-identical for a seed whatever the execution, lost workers and interruptions.
+
 This module composes them: ``generate`` and the command line. Cleaning is an explicit step
 (``--clean`` here, or ``python -m warp_hcell.clean``): it marks unconverged and non-finite
 samples; mechanism and perturbed samples are kept.

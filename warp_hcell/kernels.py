@@ -9,7 +9,7 @@ thread, 1e5 cells): 1.9e7 cell-substeps per CPU-second, 1.8 times the same kerne
 the pair and driven tables from arrays in rolled loops (bit-identical results).
 
 Conventions inside the kernels (tension-positive DEM quantities, local frame (n, t)):
-    - pair p = (i, j): unit normal u = (x_j - x_i) / |x_j - x_i|, tangent w = (-u_t, u_n);
+    - pair p = (i, j): unit normal ``u = (x_j - x_i) / |x_j - x_i|``, tangent w = (-u_t, u_n);
     - ``contact_force[p]`` is the force exerted ON grain i BY grain j: -f_n u + f_s w,
       with f_n >= 0 the normal (repulsive) force and f_s the tangential spring force
       (``shear_force``), which grows by kt * ((dx_j - dx_i) . w);
@@ -35,6 +35,7 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
       direction (start of shear, reversal, a probe) starts again from
       refined_strain_per_substep without prediction. Within an increment, once a contact
       opens, closes, starts or stops sliding, the rest is driven at refined_strain_per_substep.
+
 The conversion to compression-positive quantities happens on the host
 (``warp_hcell.learning_state.to_compression_positive``).
 """

@@ -13,7 +13,7 @@ mesostructure carrying H-cell labels (``Mesostructure.h_reference_pairs``); noth
 knows the H-cell.
 
 Conventions: local frame index 0 = n, 1 = t. Forces are the DEM's: for pair (i, j),
-u = (x_j - x_i) / |x_j - x_i|, w = (-u_t, u_n), the force on grain i by grain j is
+``u = (x_j - x_i) / |x_j - x_i|``, w = (-u_t, u_n), the force on grain i by grain j is
 -f_n u + f_s w (f_n >= 0). The moment is returned compression positive.
 """
 

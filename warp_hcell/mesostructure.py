@@ -7,23 +7,24 @@ homothetically: x_n = x_n,ref * l1 / l1_ref and x_t = x_t,ref * l2 / l2_ref. Fre
 coordinates are integrated by the DEM. The outer polygon (ordered grains) has area V_cell.
 
 Exports:
-    ``Mesostructure``: the description (validated on construction).
-    ``MesostructureError``: raised, with a one-line message, for invalid descriptions.
-    ``h_cell(alpha0_deg, radius)``: the six-grain H-cell of spec section 2 (the only code
-        that knows the H-cell has six grains).
-    ``h_cell_reference(alpha0_deg, radius)``: vectorised H-cell reference positions and cell
-        sizes for a batch of alpha0.
-    ``load_mesostructure(path)``: read a TOML or JSON description (format in its docstring;
-        examples in ``warp_hcell/data``).
-    ``state_schema(meso)``: the learning state of the cell (``warp_hcell.cell_model.StateSchema``).
-    ``describe(meso)`` / ``from_description(text)`` / ``description_sha256(text)``: canonical
-        JSON text of a mesostructure (stored in databases and checkpoints), its inverse, and
-        its hash.
-    ``shares_state_schema(a, b)``: True when cells of ``b`` are states of ``a``'s schema.
-    ``per_cell(mesostructure, n_cells)``: the distinct mesostructures of a batch of cells and
-        each cell's index into them (``CellModel.init_state`` takes one or one per cell).
-    ``topology_arrays(meso, n_cells)``: the topology repeated per cell, for state arrays
-        that must rebuild their cells (``warp_hcell.dem_cell.DemCell.state_from_arrays``).
+
+- ``Mesostructure``: the description (validated on construction).
+- ``MesostructureError``: raised, with a one-line message, for invalid descriptions.
+- ``h_cell(alpha0_deg, radius)``: the six-grain H-cell of spec section 2 (the only code
+  that knows the H-cell has six grains).
+- ``h_cell_reference(alpha0_deg, radius)``: vectorised H-cell reference positions and cell
+  sizes for a batch of alpha0.
+- ``load_mesostructure(path)``: read a TOML or JSON description (format in its docstring;
+  examples in ``warp_hcell/data``).
+- ``state_schema(meso)``: the learning state of the cell (``warp_hcell.cell_model.StateSchema``).
+- ``describe(meso)`` / ``from_description(text)`` / ``description_sha256(text)``: canonical
+  JSON text of a mesostructure (stored in databases and checkpoints), its inverse, and
+  its hash.
+- ``shares_state_schema(a, b)``: True when cells of ``b`` are states of ``a``'s schema.
+- ``per_cell(mesostructure, n_cells)``: the distinct mesostructures of a batch of cells and
+  each cell's index into them (``CellModel.init_state`` takes one or one per cell).
+- ``topology_arrays(meso, n_cells)``: the topology repeated per cell, for state arrays
+  that must rebuild their cells (``warp_hcell.dem_cell.DemCell.state_from_arrays``).
 """
 
 from __future__ import annotations
@@ -411,7 +412,7 @@ TOPOLOGY_ARRAYS = ("pairs", "driven", "outer", "pair_type")
 
 
 def topology_arrays(meso: Mesostructure, n_cells: int) -> dict[str, np.ndarray]:
-    """``TOPOLOGY_ARRAYS`` of ``meso`` repeated for ``n_cells`` cells: field -> (n_cells, *field shape)."""
+    """``TOPOLOGY_ARRAYS`` of ``meso`` repeated for ``n_cells`` cells: field -> ``(n_cells, *field shape)``."""
     return {name: np.repeat(getattr(meso, name)[None], n_cells, axis=0) for name in TOPOLOGY_ARRAYS}
 
 

@@ -221,11 +221,11 @@ class DatabaseSettings:
     """Largest path length of a leg [-] (constant-volume shearing to eps1 = 0.3 moves a
     cell by up to 0.3 sqrt 2)."""
     leg_volumetric: float = 0.05
-    """Largest change |d(eps_n + eps_t)| of the cell's volumetric strain along a leg [-]."""
+    """Largest change ``|d(eps_n + eps_t)|`` of the cell's volumetric strain along a leg [-]."""
     probe_min: float = 1e-6
-    """Smallest probe magnitude |d_eps| [-]."""
+    """Smallest probe magnitude ``|d_eps|`` [-]."""
     probe_max: float = 1e-3
-    """Largest probe magnitude |d_eps| [-]."""
+    """Largest probe magnitude ``|d_eps|`` [-]."""
     probe_focus_min: float = 1e-5
     """Smallest magnitude of the focus probes (the ANN's usual increments) [-]."""
     probe_focus_max: float = 1e-4
@@ -249,7 +249,7 @@ class DatabaseSettings:
     """A path stops when an overlap exceeds this fraction of r_i + r_j [-] (p0 = 5.85e6 N/m
     gives ~0.03 on the H-cell)."""
     max_cell_strain: float = 0.5
-    """A path stops when |eps_n| or |eps_t| summed from its start cell exceeds this [-]."""
+    """A path stops when ``|eps_n|`` or ``|eps_t|`` summed from its start cell exceeds this [-]."""
 
     def __post_init__(self) -> None:
         if int(self.leg_refinement) < 0:

@@ -5,15 +5,15 @@ at equilibrium, from their grain positions, contact forces and driven-DOF mask o
 here knows the shape of a cell. Vectorised over cells (numpy), no per-cell Python loop.
 
 The maths (spec section 13), tension-positive DEM forces, local frame (n, t), pair p = (i, j),
-branch b = x_j - x_i, d = |b|, u = b / d, w = (-u_t, u_n):
+branch b = x_j - x_i, ``d = |b|``, u = b / d, w = (-u_t, u_n):
 
 - The force on grain i by grain j is f = -N u + T w with N = kn (r_i + r_j - d) and T the
   tangential spring force. Its stiffness k_p = df/db (2 x 2) is
   kn u u^T - (N / d) w w^T - (T / d) u w^T + w dT/db, with dT/db = kt w^T for a sticking
   contact and -sign(T) mu kn u^T for a sliding one; pairs without overlap carry nothing.
 - A contact slides in the increment when its elastic trial force exceeds the cap:
-  |T_old + kt (b_new - b_old) . w_mid| > mu N (``sliding_contacts``), as in the analytical
-  cell's return mapping. (The final |T| alone does not tell: a contact that slid all along
+  ``|T_old + kt (b_new - b_old) . w_mid| > mu N`` (``sliding_contacts``), as in the analytical
+  cell's return mapping. (The final ``|T|`` alone does not tell: a contact that slid all along
   can end a hair below the cap after the last relaxation swing.)
 - The net contact force on grain g is F_g = -sum_p (e_j - e_i)_g f_p, so the stiffness of
   all DOFs is K = dF/dx = -sum_p (e_j - e_i)(e_j - e_i)^T (x) k_p.
@@ -33,7 +33,7 @@ import functools
 import numpy as np
 
 def _unit_tangent(branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normal u = b / |b| and tangent w = (-u_t, u_n), each shape (..., 2)."""
+    """Unit normal ``u = b / |b|`` and tangent w = (-u_t, u_n), each shape (..., 2)."""
     u = branch / np.linalg.norm(branch, axis=-1)[..., None]
     return u, np.stack([-u[..., 1], u[..., 0]], axis=-1)
 
@@ -51,7 +51,7 @@ def sliding_contacts(position_old: np.ndarray, position: np.ndarray, radius: np.
         kn, kt: contact stiffnesses [N/m]; mu: friction coefficient [-].
 
     Returns:
-        bool, shape (n_cells, n_pairs): overlapping pairs with |T_old + kt (b - b_old) . w_mid| > mu N.
+        bool, shape (n_cells, n_pairs): overlapping pairs with ``|T_old + kt (b - b_old) . w_mid| > mu N``.
     """
     i, j = pairs[:, 0], pairs[:, 1]
     b_old = position_old[:, j] - position_old[:, i]
@@ -68,7 +68,7 @@ def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.n
 
     Args:
         branch: b = x_j - x_i [m], shape (n_cells, n_pairs, 2).
-        overlap: r_i + r_j - |b| [m], shape (n_cells, n_pairs); pairs with overlap <= 0
+        overlap: ``r_i + r_j - |b|`` [m], shape (n_cells, n_pairs); pairs with overlap <= 0
             carry no force and no stiffness.
         shear_force: tangential force T [N] along w = (-u_t, u_n), shape (n_cells, n_pairs).
         sliding: True where the contact slides (T = +-mu N), shape (n_cells, n_pairs).

@@ -1,0 +1,57 @@
+"""Sphinx configuration of the meso-hmodel documentation site (``make docs``).
+
+The Markdown pages of ``docs/`` are read by MyST-Parser; the API reference is generated at
+build time from the docstrings (Google style, read by napoleon): ``api.md`` names the three
+packages and ``autosummary`` walks their modules recursively into ``docs/_autosummary/``,
+so a new or moved module needs no edit here.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from warp_hcell.cli import quiet_warp  # noqa: E402
+from warp_hcell.provenance import DISTRIBUTION, package_version  # noqa: E402
+
+quiet_warp()  # autodoc imports the DEM modules: no Warp banner in the build log
+
+project = "meso-hmodel"
+author = "The meso-hmodel contributors"
+copyright = "the meso-hmodel contributors, MIT licence"
+release = package_version(DISTRIBUTION)
+version = release
+
+extensions = [
+    "myst_parser",
+    "sphinx.ext.autodoc",
+    "sphinx.ext.autosummary",
+    "sphinx.ext.napoleon",
+    "sphinx.ext.viewcode",
+]
+
+source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
+exclude_patterns = ["_build"]
+highlight_language = "text"  # literal blocks of docstrings and bare fences hold formulas and diagrams
+templates_path = ["_templates"]
+
+myst_heading_anchors = 3
+
+autosummary_generate = True
+toc_object_entries = False
+autosummary_ignore_module_all = False
+autodoc_default_options = {"members": True, "show-inheritance": True}
+autodoc_member_order = "bysource"
+autodoc_typehints = "description"
+autodoc_class_signature = "separated"
+napoleon_google_docstring = True
+napoleon_numpy_docstring = False
+napoleon_use_ivar = False
+napoleon_use_rtype = False
+
+html_theme = "furo"
+html_title = f"meso-hmodel {release}"
+html_static_path: list[str] = []
