@@ -77,7 +77,9 @@ def apply_style(fig: Figure) -> Figure:
 
 def figure_legend(fig: Figure, handles: list[Artist], *, max_columns: int = LEGEND_COLUMNS) -> Legend:
     """The one legend of ``fig``, below its panels, in the most columns (<= ``max_columns``)
-    whose width fits the figure; entries fill the columns top to bottom."""
+    whose width fits the figure; entries fill the columns top to bottom. Handles whose label
+    starts with "_" (matplotlib's unlabelled artists) are left out."""
+    handles = [h for h in handles if not h.get_label().startswith("_")]
     renderer = FigureCanvasAgg(fig).get_renderer()
     for ncols in range(min(max_columns, len(handles)), 0, -1):
         legend = fig.legend(handles=handles, loc="outside lower center", ncols=ncols)
