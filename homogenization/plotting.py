@@ -284,9 +284,10 @@ def critical_state_lines(runs: Sequence[Run], names: Sequence[str], warn: Callab
     """M of every run (None where ``critical_state_slope`` refuses, with one ``warn`` line naming it)."""
     slopes: list[float | None] = []
     for run, name in zip(runs, names):
-        p0 = reference_pressure(run) or float(shear_curve(run.record).p[0]) or 1.0
+        curve = shear_curve(run.record)
+        p0 = reference_pressure(run) or float(curve.p[0]) or 1.0  # no p0: the mean stress the shear starts at
         try:
-            slopes.append(critical_state_slope(shear_curve(run.record), p0))
+            slopes.append(critical_state_slope(curve, p0))
         except NoCriticalState as exc:
             warn(f"{name}: no critical-state line: {exc}")
             slopes.append(None)
