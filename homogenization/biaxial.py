@@ -46,10 +46,12 @@ from homogenization import driver, io, loading, plotting
 from homogenization.backends import BACKENDS, backend_class, make_cell_model
 from warp_hcell.builders import MESOSTRUCTURE_HELP, h_cell_alpha0, mesostructure_arg
 from warp_hcell.cli import (
+    Parser,
     UserError,
     add_contact_law_arguments,
     alpha0_deg,
     check_output_path,
+    command_prog,
     common_parser,
     contact_law_from_args,
     finite_float,
@@ -60,6 +62,8 @@ from warp_hcell.cli import (
     positive_int,
     quiet_warp,
     run_main,
+    say,
+    set_verbosity,
 )
 from warp_hcell.mesostructure import Mesostructure, h_cell
 from warp_hcell.parameters import CellDefaults, DatabaseSettings, LoadingDefaults
@@ -93,8 +97,8 @@ def backend_list(text: str) -> tuple[str, ...]:
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the biaxial command (defaults read from warp_hcell.parameters)."""
     cell, load = CellDefaults(), LoadingDefaults()
-    parser = argparse.ArgumentParser(
-        prog="hmodel biaxial",
+    parser = Parser(
+        prog=command_prog("homogenization.biaxial"),
         description="Isotropic compression to p0, then constant-volume (or drained) biaxial shear of the H-model, "
                     "or any loading programme file.",
         parents=[common_parser()],
@@ -130,9 +134,6 @@ def build_parser() -> argparse.ArgumentParser:
                              f"mesostructure); None: the H-cell of --alpha0 and --radius. {MESOSTRUCTURE_HELP}")
     parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM or of torch inference (dem and ann; None: the backend's own default)")
     parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
-    verbosity = parser.add_mutually_exclusive_group()
-    verbosity.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary; warnings and errors only")
-    verbosity.add_argument("-v", "--verbose", action="store_true", help="also Warp's start-up banner and the resolved settings")
     return parser
 
 
@@ -276,6 +277,7 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
+    set_verbosity(args)
     command = command_line() if argv is None else shlex.join(["hmodel", "biaxial", *argv])
     out: Path = args.out
     if "dem" in args.backend and not args.verbose:
@@ -291,7 +293,7 @@ def main(argv: Sequence[str] | None = None) -> int:
              f"(~1 % of p0 and more){'; the ANN extrapolates beyond its training probes' if 'ann' in args.backend else ''}")
     law = contact_law_from_args(args)
     if args.verbose:
-        print(f"programme: {loading.to_dict(programme)}\ncontact law: {asdict(law)}, radius {args.radius:g} m")
+        say(f"programme: {loading.to_dict(programme)}", f"contact law: {asdict(law)}, radius {args.radius:g} m")
 
     meso = run_mesostructure(args)
     with output_lock(out):
@@ -302,6 +304,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                   for name in args.backend}
         check_models_take(models, meso)
         runs: dict[str, plotting.Run] = {}
+        written: list[str] = []  # status lines, printed once the folder is in place
         drained = plotting.is_drained({"drained": args.drained or None}, programme)
         with output_folder(out) as work:
             for name, model in models.items():
@@ -310,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     record = driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,
                                         fabric_anisotropy=args.fabric_anisotropy,
                                         fabric_direction_deg=args.fabric_direction,
-                                        snapshot_interval=args.snapshot_interval or 0, progress=not args.quiet)
+                                        snapshot_interval=args.snapshot_interval or 0)
                 except driver.ControlError as exc:
                     raise UserError(f"{name}: {exc}") from None
                 elapsed = time.perf_counter() - start
@@ -339,9 +342,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 runs[name] = plotting.Run(record, parameters)
                 unconverged = record.diagnostics.get("n_unconverged")
                 note = f", {int(unconverged.sum())} unconverged cell-increments" if unconverged is not None and unconverged.sum() else ""
-                if not args.quiet:
-                    print(f"{name}: {record.n_increments} increments in {elapsed:.1f} s{note} -> "
-                          f"{final / io.RUN_FILE}, {final / io.CURVE_FILE}")
+                written.append(f"{name}: {record.n_increments} increments in {elapsed:.1f} s{note} -> "
+                               f"{final / io.RUN_FILE}, {final / io.CURVE_FILE}")
 
             slopes = (plotting.critical_state_lines(list(runs.values()), list(runs), warn) if args.csl else None)
             fig = plotting.overlay_figure(list(runs.values()), fourth=args.fourth_panel, deviator=args.deviator,
@@ -350,8 +352,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 plotting.save_figure(fig, work / FIGURE_FILE)
             except OSError as exc:
                 raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
-    if not args.quiet:
-        print(f"figure -> {out / FIGURE_FILE}" + (f" ({plotting.csl_summary(slopes)})" if slopes is not None else ""))
+    say(*written, f"figure -> {out / FIGURE_FILE}" + (f" ({plotting.csl_summary(slopes)})" if slopes is not None else ""))
     return 0
 
 

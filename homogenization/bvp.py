@@ -36,7 +36,6 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from tqdm import tqdm
 
 from homogenization import driver, fe, fe_output, loading, orientation, run_labels
 from homogenization.backends import BACKENDS, make_cell_model
@@ -44,14 +43,20 @@ from homogenization.biaxial import BACKEND_ONLY_OPTIONS, DEVICE_BACKENDS, backen
 from homogenization.material import HomogenisedMaterial
 from warp_hcell.builders import MESOSTRUCTURE_HELP, h_cell_alpha0, mesostructure_arg
 from warp_hcell.cli import (
+    Parser,
     UserError,
     alpha0_deg,
     check_output_path,
+    command_prog,
     common_parser,
     fraction,
     positive_float,
     positive_int,
+    progress_bar,
+    quiet_warp,
     run_main,
+    say,
+    set_verbosity,
 )
 from warp_hcell.mesostructure import Mesostructure, h_cell
 from warp_hcell.parameters import ALPHA_MAX_DEG, CellDefaults, ContactLaw, FeDefaults
@@ -72,8 +77,8 @@ def element_counts(text: str) -> tuple[int, int]:
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the bvp command (defaults read from warp_hcell.parameters)."""
     cell, bvp = CellDefaults(), FeDefaults()
-    parser = argparse.ArgumentParser(
-        prog="python -m homogenization.bvp",
+    parser = Parser(
+        prog=command_prog("homogenization.bvp"),
         description="Plane-strain biaxial specimen of the homogenised H-model by finite elements.",
         parents=[common_parser()],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -169,9 +174,12 @@ def material_point_reference(model, meso: Mesostructure, args: argparse.Namespac
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
+    set_verbosity(args)
     out: Path = args.out
     check_output_path(out, overwrite=args.overwrite)
     check_options(args)
+    if args.backend == "dem" and not args.verbose:
+        quiet_warp(args.device)
     model = make_cell_model(args.backend, contact_law=ContactLaw(), radius=CellDefaults.radius,
                             **backend_options(args, args.backend))
     nx, ny = args.elements
@@ -191,7 +199,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     steps = fe.isotropic_stage(args.p0, args.iso_steps) + fe.shear_stage(args.p0, n_shear * args.increment, n_shear)
 
     start = time.perf_counter()
-    with tqdm(total=len(steps), desc="bvp", unit="step", mininterval=0.5, leave=False) as bar:
+    with progress_bar(total=len(steps), desc="bvp", unit="step", leave=False) as bar:
         try:
             results = specimen.run(material, steps, scale=args.p0, progress=lambda k: bar.update(1))
         except fe.NewtonError as exc:
@@ -215,19 +223,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
     shear_iterations = [r.iterations for r in results if r.stage == "shear"]
-    print(f"{len(results)} steps in {elapsed:.1f} s: {updates} material updates of {specimen.n_points} points "
-          f"({updates * specimen.n_points / elapsed:.3g} material-point updates/s, "
-          f"{updates * material.n_cells / elapsed:.3g} cell-steps/s); "
-          f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}")
+    say(f"{len(results)} steps in {elapsed:.1f} s: {updates} material updates of {specimen.n_points} points "
+        f"({updates * specimen.n_points / elapsed:.3g} material-point updates/s, "
+        f"{updates * material.n_cells / elapsed:.3g} cell-steps/s); "
+        f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}")
     if reference is not None and not weak.any():
         table = fe_output.curve_table(results)
         shear = np.flatnonzero(table["stage"] == "shear")
         q_fe = np.concatenate([[table["q"][shear[0] - 1]], table["q"][shear]]) if shear.size else table["q"]
         p_fe = np.concatenate([[table["p"][shear[0] - 1]], table["p"][shear]]) if shear.size else table["p"]
         if q_fe.size == reference["q"].size:
-            print(f"vs material point: max |dq|/p0 = {np.abs(q_fe - reference['q']).max() / args.p0:.3g}, "
-                  f"max |dp|/p0 = {np.abs(p_fe - reference['p']).max() / args.p0:.3g}")
-    print(" ".join(f"{kind} -> {path}" for kind, path in paths.items()))
+            say(f"vs material point: max |dq|/p0 = {np.abs(q_fe - reference['q']).max() / args.p0:.3g}, "
+                f"max |dp|/p0 = {np.abs(p_fe - reference['p']).max() / args.p0:.3g}")
+    say(" ".join(f"{kind} -> {path}" for kind, path in paths.items()))
     return 0
 
 

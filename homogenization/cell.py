@@ -38,15 +38,18 @@ import numpy as np
 from homogenization.backends import BACKENDS, make_cell_model
 from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.cli import (
+    Parser,
     UserError,
     add_contact_law_arguments,
     alpha0_deg,
     atomic_write,
     check_output_path,
+    command_prog,
     common_parser,
     contact_law_from_args,
     quiet_warp,
     run_main,
+    set_verbosity,
 )
 from warp_hcell.mesostructure import Mesostructure, h_cell
 from warp_hcell.parameters import CellDefaults, DatabaseSettings
@@ -66,8 +69,8 @@ its learning database (beyond it the network extrapolates)."""
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the element-test command (defaults read from warp_hcell.parameters)."""
-    parser = argparse.ArgumentParser(
-        prog="python -m homogenization.cell",
+    parser = Parser(
+        prog=command_prog("homogenization.cell"),
         description="Drive one cell along a local strain path and write its state after every increment.",
         parents=[common_parser()],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -184,10 +187,11 @@ def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
+    set_verbosity(args)
     _check_out(args.out, overwrite=args.overwrite)
     d_eps = read_path(args.path)
     check_path_for_backend(args.path, d_eps, args.backend)
-    if args.backend == DEM_ONLY_BACKEND:
+    if args.backend == DEM_ONLY_BACKEND and not args.verbose:
         quiet_warp(args.device)
     law = contact_law_from_args(args)
     meso = args.mesostructure.build(args.alpha0) if args.mesostructure is not None else h_cell(args.alpha0, args.radius)

@@ -32,6 +32,7 @@ from homogenization.loading import Programme, Step, validate
 from homogenization.material import HomogenisedMaterial, MaterialUpdate
 from warp_hcell.builders import h_cell_alpha0
 from warp_hcell.cell_model import CellModel
+from warp_hcell.cli import progress_bar
 from warp_hcell.mesostructure import Mesostructure
 from warp_hcell.parameters import CellDefaults, LoadingDefaults
 
@@ -285,7 +286,16 @@ class _Runner:
         raise ControlError(f"{where}: could not land p on {p_stop:g} N/m in {self.max_iterations} step calls")
 
     # -- one programme step ----------------------------------------------------------------
+    def advance(self, bar: tqdm, step: Step) -> None:
+        """Count the increment just accepted on ``bar``; a step that stops on p also shows how
+        far p is, as a percentage of stop_at_p (its length is unknown, so the bar has no total)."""
+        if step.stop_at_p is not None:
+            p = float(mean_stress(self.sigma[0], self.sigma[1]))
+            bar.set_postfix_str(f"p = {p / step.stop_at_p:.1%} of {step.stop_at_p:g} N/m", refresh=False)
+        bar.update(1)
+
     def run_step(self, step: Step, stage: int, snapshot_interval: int, bar: tqdm) -> None:
+        """Run the increments of ``step``; ``bar`` counts them (and p as a percentage of stop_at_p where the step stops on p)."""
         n = step.n_increments
         mask = np.array(step.stress_mask)
         idx = np.flatnonzero(mask)
@@ -317,10 +327,10 @@ class _Runner:
                         else:
                             d = d_eps
                         self.accept(update, d, calls, stage)
-                        bar.update(1)
+                        self.advance(bar, step)
                         return
             self.accept(update, d_eps, calls, stage, jump)
-            bar.update(1)
+            self.advance(bar, step)
             if snapshot_interval and self.k % snapshot_interval == 0:
                 self.snapshot(stage)
         if step.stop_at_p is not None:
@@ -359,7 +369,7 @@ def run(
             (0: only at the end of each stage).
         stress_rtol: relative tolerance on stress-controlled components [-].
         max_newton_iterations: ``step`` calls allowed per stress-controlled increment.
-        progress: show a tqdm progress bar per stage.
+        progress: show a progress bar per stage (``warp_hcell.cli.progress_bar``: off under -q).
 
     Returns:
         The ``Record`` of the run.
@@ -381,8 +391,7 @@ def run(
         start = time.perf_counter()
         # a step that stops on p has no known length: the bar counts increments without a total
         total = None if step.stop_at_p is not None else step.n_increments
-        with tqdm(total=total, desc=step.label, unit="incr", disable=not progress,
-                  mininterval=0.5, leave=False) as bar:
+        with progress_bar(total=total, desc=step.label, unit="incr", disable=not progress, leave=False) as bar:
             runner.run_step(step, stage, snapshot_interval, bar)
         runner.snapshot(stage)
         step_seconds[stage] = time.perf_counter() - start

@@ -1,9 +1,10 @@
 """hmodel COMMAND [options]: the one entry point of the package (console script ``hmodel``).
 
 Each subcommand is the ``main(argv)`` of one module, imported only when it is called (so
-``hmodel --version`` and ``hmodel plot`` never import Warp or torch). ``hmodel COMMAND
---help`` shows that command's options; ``python -m MODULE`` runs the same code. Adding a
-subcommand is one line in ``COMMANDS``.
+``hmodel --version`` and ``hmodel plot`` never import Warp or torch), and run under the
+name ``hmodel COMMAND`` (``warp_hcell.cli.invoked_as``: its help, usage and error lines say
+so). ``hmodel COMMAND --help`` shows that command's options; ``python -m MODULE`` runs the
+same code. Adding a subcommand is one line in ``COMMANDS``.
 
 Exit codes: 0 success, 2 bad input (one line on stderr), 130 interrupted.
 """
@@ -15,7 +16,7 @@ import importlib
 import sys
 from typing import Sequence
 
-from warp_hcell.cli import EXIT_USAGE, run_main
+from warp_hcell.cli import EXIT_USAGE, Parser, invoked_as, run_main
 from warp_hcell.provenance import DISTRIBUTION, package_version
 
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -35,7 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
     """Top-level parser: --version, the subcommand and everything after it."""
     width = max(map(len, COMMANDS))
     listing = "\n".join(f"  {name:<{width}}  {summary}" for name, (_, summary) in COMMANDS.items())
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="hmodel",
         description="H-model homogenisation of granular materials (analytical, Warp meso-DEM and meso-ANN cells).",
         epilog=f"commands:\n{listing}\n\n'hmodel COMMAND --help' shows the options of COMMAND.",
@@ -50,13 +51,17 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``hmodel`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
     try:
-        args = build_parser().parse_args(argv)
+        if not argv:
+            parser.error(f"give a COMMAND, one of: {', '.join(COMMANDS)}")
+        args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, unknown command
         return exit_code(exc)
     module = importlib.import_module(COMMANDS[args.command][0])
     try:
-        return run_main(module.main, args.args)
+        with invoked_as(f"hmodel {args.command}"):
+            return run_main(module.main, args.args)
     except SystemExit as exc:  # argparse of the subcommand: --help (0) or bad option (2)
         return exit_code(exc)
 

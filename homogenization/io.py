@@ -21,11 +21,21 @@ stresses and strains, ``sign_convention``):
 
 curve.csv: header ``stage,eps11,eps22,sigma11,sigma22,sigma12,p,q``, one row per increment,
 strains [-] and stresses [N/m], compression positive.
+
+Reproducible bytes: run.h5 holds no time (no HDF5 object timestamps, no wall time or date)
+and its objects and attributes are written in a fixed order, so two runs of the same inputs
+with the same code give byte-identical files. The one root attribute that depends on the
+invocation rather than on the inputs is ``command``, the command line as typed (it names
+the output folder); runs that differ only there differ only in its bytes. The library
+versions, ``git_revision`` and, for the dem backend, ``dem_threads`` in ``parameters``
+(the machine's default where --threads is not given) describe the code and the machine,
+not the run, and are equal on one installation.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -73,11 +83,23 @@ class StoredRun:
 
 
 def _dataset(group: h5py.Group, name: str, data: np.ndarray, units: str, description: str, signed: bool = False) -> None:
-    ds = group.create_dataset(name, data=data)
+    ds = group.create_dataset(name, data=data, track_times=False)
     ds.attrs["units"] = units
     ds.attrs["description"] = description
     if signed:
         ds.attrs["sign_convention"] = SIGN_CONVENTION
+
+
+def _new_h5(path: Path) -> h5py.File:
+    """A new HDF5 file at ``path`` that tracks the creation order of links and attributes and
+    stores no object timestamps (h5py before 3.15 gives the root group timestamps with
+    ``track_order=True``, so two runs would differ in bytes)."""
+    fcpl = h5py.h5p.create(h5py.h5p.FILE_CREATE)
+    order = h5py.h5p.CRT_ORDER_TRACKED | h5py.h5p.CRT_ORDER_INDEXED
+    fcpl.set_link_creation_order(order)
+    fcpl.set_attr_creation_order(order)
+    fcpl.set_obj_track_times(False)
+    return h5py.File(h5py.h5f.create(os.fsencode(path), h5py.h5f.ACC_TRUNC, fcpl=fcpl))
 
 
 def _strings(values: np.ndarray) -> np.ndarray:
@@ -96,7 +118,7 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
         command: the command line to record (None: this process's own).
     """
     path = Path(path)
-    with atomic_write(path) as tmp, h5py.File(tmp, "w", track_order=True) as f:
+    with atomic_write(path) as tmp, _new_h5(tmp) as f:
         f.attrs["format"] = FORMAT
         f.attrs["backend"] = record.backend
         f.attrs["alpha0_deg"] = record.alpha0_deg

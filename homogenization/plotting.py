@@ -42,7 +42,8 @@ from matplotlib.lines import Line2D
 from homogenization import invariants, io, run_labels
 from homogenization.driver import Record
 from homogenization.figure_style import GRID, LABELS, PNG_DPI, apply_style, figure_legend
-from warp_hcell.cli import UserError, atomic_write, check_output_path, run_main
+from warp_hcell.cli import (
+    Parser, UserError, atomic_write, check_output_path, command_prog, run_main, say, set_verbosity, verbosity_parser)
 
 FOURTH_PANELS = ("q/p", "W2")
 """Choices of the fourth panel."""
@@ -365,8 +366,9 @@ def add_figure_arguments(parser: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the replot command."""
-    parser = argparse.ArgumentParser(
-        prog="hmodel plot", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    parser = Parser(
+        prog=command_prog("homogenization.plotting"), parents=[verbosity_parser()],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
         description="Overlay finished runs (run.h5 files of hmodel biaxial) in the 2x2 biaxial figure. Legend labels "
                     "and title come from the runs' metadata: the parts every run shares (test, backend, "
                     "mesostructure, alpha0, p0, N) make the title, the parts that differ the legend.")
@@ -391,6 +393,7 @@ def csl_summary(slopes: Sequence[float | None]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
+    set_verbosity(args)
     figure_format(args.out)
     if args.out.is_dir():
         raise UserError(f"--out {args.out} is a folder; give a file name")
@@ -409,7 +412,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         save_figure(fig, args.out)
     except OSError as exc:
         raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
-    print(f"figure -> {args.out}" + (f" ({csl_summary(slopes)})" if slopes is not None else ""))
+    say(f"figure -> {args.out}" + (f" ({csl_summary(slopes)})" if slopes is not None else ""))
     return 0
 
 

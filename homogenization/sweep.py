@@ -81,15 +81,19 @@ from warp_hcell.builders import (
     plain_h_cell_alpha0,
 )
 from warp_hcell.cli import (
+    Parser,
     UserError,
     alpha0_deg,
     atomic_write,
     check_output_path,
+    command_prog,
     common_parser,
     positive_float,
     positive_int,
-    quiet_warp,
     run_main,
+    say,
+    set_verbosity,
+    task_setup,
 )
 from warp_hcell.execution import SchedulerUnreachable, make_execution
 from warp_hcell.mesostructure import Mesostructure, MesostructureError, describe, description_sha256
@@ -210,8 +214,8 @@ class ModelTable:
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the sweep command (defaults read from warp_hcell.parameters)."""
     cell, load = CellDefaults(), LoadingDefaults()
-    parser = argparse.ArgumentParser(
-        prog="python -m homogenization.sweep",
+    parser = Parser(
+        prog=command_prog("homogenization.sweep"),
         description="Biaxial tests over the Cartesian product of mesostructures, alpha0, p0 and backends.",
         parents=[common_parser()],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -494,7 +498,6 @@ CASE_ERRORS = (driver.ControlError, ValueError, UserError, RuntimeError)
 
 def case_task(_shared: Any, case: Case) -> tuple[driver.Record | None, float, str | None]:
     """``warp_hcell.execution`` task: (record, wall seconds, None), or (None, seconds, error line)."""
-    quiet_warp(case.parameters["backend_options"].get("device", "cpu"))  # no Warp banner from the workers
     start = time.perf_counter()
     try:
         record = compute_case(case)
@@ -645,6 +648,7 @@ def _prepare_out(out: Path, options: dict[str, Any], *, overwrite: bool) -> None
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
+    set_verbosity(args)
     out: Path = args.out
     if args.device != "cpu" and not {"dem", "ann"} & set(args.backend):
         raise UserError("--device applies to --backend dem or ann only (analytical runs on the cpu)")
@@ -656,7 +660,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     workers = min(args.workers or cores, max(len(todo), 1))
     try:
-        execution = make_execution(workers, args.scheduler)
+        execution = make_execution(workers, args.scheduler, setup=task_setup(args))
     except SchedulerUnreachable as exc:
         raise UserError(str(exc)) from None
     with execution:
@@ -666,17 +670,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _run(args: argparse.Namespace, cases: list[Case], skipped: list[str], rows: dict[str, dict | None],
          todo: list[Case], execution: Any) -> int:
     out: Path = args.out
-    options = {k: v for k, v in vars(args).items() if k not in ("out", "overwrite", "scheduler")}
+    options = {k: v for k, v in vars(args).items() if k not in ("out", "overwrite", "scheduler", "quiet", "verbose")}
     options["model"] = [f"{m.key}={m.path}" if m.key else str(m.path) for m in args.model or ()] or None
     options["mesostructure"] = [c.source for c in cases]
     _prepare_out(out, options, overwrite=args.overwrite)
-    for note in skipped:
-        print(f"skipped: {note}")
-    print(f"{len(cases)} cases: {len(cases) - len(todo)} finished before, {len(todo)} to run")
+    say(*(f"skipped: {note}" for note in skipped))
+    say(f"{len(cases)} cases: {len(cases) - len(todo)} finished before, {len(todo)} to run")
 
     def report(case: Case, seconds: float | None, error: str | None) -> None:
         state = f"failed: {error}" if error else f"{seconds:.1f} s"
-        print(f"  {case.folder}: {state}", flush=True)
+        say(f"  {case.folder}: {state}")
 
     start = time.perf_counter()
     done, failures = run_cases(todo, out, args.seed, execution, report)
@@ -685,8 +688,8 @@ def _run(args: argparse.Namespace, cases: list[Case], skipped: list[str], rows: 
     finished = [case for case in cases if rows.get(case.folder) is not None]
     summary = write_summary(out / SUMMARY_FILE, (rows[case.folder] for case in finished))
     figure = summary_figure(out / SUMMARY_FIGURE, finished, out) if finished else None
-    print(f"{len(todo)} cases run in {elapsed:.1f} s with {execution.n_workers} worker(s) -> {summary}"
-          + (f", {figure}" if figure else ""))
+    say(f"{len(todo)} cases run in {elapsed:.1f} s with {execution.n_workers} worker(s) -> {summary}"
+        + (f", {figure}" if figure else ""))
     if failures:
         print(f"{len(failures)} case(s) failed: {', '.join(failures)}", file=sys.stderr)
         return 1

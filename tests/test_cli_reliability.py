@@ -64,7 +64,7 @@ def test_cuda_without_gpu_is_one_line_in_every_cli(command, argv, previous_run, 
     start = time.perf_counter()
     assert hmodel.main([command, *argv, "--device", "cuda", "--overwrite"]) == 2
     assert time.perf_counter() - start < 5.0  # refused before any heavy work
-    assert one_error_line(capsys) == "hmodel: error: --device cuda: no CUDA GPU on this machine; use --device cpu"
+    assert one_error_line(capsys) == f"hmodel {command}: error: --device cuda: no CUDA GPU on this machine; use --device cpu"
     assert snapshot(previous_run.parent) == before
 
 
@@ -186,7 +186,7 @@ def test_interrupted_run_keeps_the_previous_output_and_leaves_nothing(sig, previ
     _wait_for(tmp_path / ".run.partial", process)
     process.send_signal(sig)
     _, err = process.communicate(timeout=60)
-    assert process.returncode == 130 and err.strip().splitlines() == ["biaxial.py: interrupted"]
+    assert process.returncode == 130 and err.strip().splitlines() == ["python -m homogenization.biaxial: interrupted"]
     assert snapshot(tmp_path) == before
 
 

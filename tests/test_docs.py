@@ -40,7 +40,7 @@ def test_model_description_covers_the_physics():
 
 def test_licence_and_citation_match_pyproject():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    assert project["license"]["text"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")
+    assert project["license"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")
     citation = (ROOT / "CITATION.cff").read_text()
     assert f"version: {project['version']}\n" in citation and "license: MIT\n" in citation
     assert "cff-version: 1.2.0" in citation

@@ -48,7 +48,7 @@ def test_unknown_command_and_bad_option_exit_2(capsys):
 def test_user_error_of_a_subcommand_is_one_line(tmp_path, capsys):
     assert hmodel.main(["plot", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "f.png")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("hmodel: error:") and "missing.h5" in err
+    assert err.count("\n") == 1 and err.startswith("hmodel plot: error:") and "missing.h5" in err
 
 
 def test_module_form_runs_the_same_entry_point():

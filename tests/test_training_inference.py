@@ -8,17 +8,25 @@ output: the tangential force, kt times a difference of nearly equal branch vecto
 rounding of ~1e-11 of it in float64.
 """
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 
 from homogenization.backends.ann import AnnCell
 from training.cell_physics import CellSchema, count_held_grains
-from training.inference import MLP_BLOCK, FastAdvance, FastIncrement
+from training.inference import FastAdvance, FastIncrement
+from training.perceptron import BLOCK as MLP_BLOCK
 from training.network import RELAXATION_RAMP, MesoNet
 from warp_hcell.builders import resolve_mesostructure
 from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import ContactLaw
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -103,6 +111,33 @@ def test_the_tangent_is_bit_identical_in_any_batch(loaded):
     index = np.array([5, 0, 39, 5])
     part = fast.increment(*(np.asarray(a)[index] for a in state), d[index], with_tangent=True)[1]
     np.testing.assert_array_equal(part, whole[index])
+
+
+NARROWER_CPUS = {
+    "SSE2 vectors, software FMA, other BLAS kernels": {"NUMBA_CPU_NAME": "generic", "OPENBLAS_CORETYPE": "Nehalem"},
+    "AVX vectors without FMA hardware": {"NUMBA_CPU_NAME": "sandybridge", "OPENBLAS_CORETYPE": "Sandybridge"},
+}
+"""Compiler settings of another CPU, emulated on this one: the increment must not change a bit."""
+
+
+@pytest.mark.parametrize("setting", list(NARROWER_CPUS))
+def test_a_cells_increment_and_tangent_do_not_depend_on_the_cpus_vector_width(loaded, setting, tmp_path):
+    """The compiled step re-run in a process compiled for narrower vectors (and other BLAS kernels):
+    every field, the tangent included, bit-identical to this process, whole batch and sub-batch."""
+    cell, state, d = loaded
+    index = np.array([5, 0, 39, 5, 17])
+    np.savez(tmp_path / "in.npz", cell_size=np.asarray(state.cell_size), free_position=np.asarray(state.free_position),
+             shear_force=np.asarray(state.shear_force), d_eps=d, index=index)
+    env = {**os.environ, **NARROWER_CPUS[setting], "PYTHONPATH": str(ROOT)}
+    subprocess.run([sys.executable, str(ROOT / "tests" / "ann_increment_worker.py"), str(tmp_path / "in.npz"),
+                    str(tmp_path / "out.npz")], env=env, check=True, cwd=ROOT)
+    other = np.load(tmp_path / "out.npz")
+    fast = FastAdvance(cell.net)
+    here = fast.increment(*state, d, with_tangent=True)
+    expected = {**{name: np.asarray(value) for name, value in here[0]._asdict().items()}, "tangent": here[1]}
+    for name, value in expected.items():
+        np.testing.assert_array_equal(other[f"whole_{name}"], value, err_msg=f"{name}, {setting}")
+        np.testing.assert_array_equal(other[f"part_{name}"], value[index], err_msg=f"{name} of a sub-batch, {setting}")
 
 
 def test_the_states_exercise_the_contact_law_branches(loaded):

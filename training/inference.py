@@ -6,7 +6,8 @@
 1. ``_features`` (numba, float64, loops over cells innermost so that they vectorise):
    positions, contacts, pair forces, unbalanced forces and the z-scored features of the
    state before the increment;
-2. the multilayer perceptron (numpy/BLAS, float32), on fixed blocks of ``MLP_BLOCK`` cells;
+2. the multilayer perceptron (``training.perceptron``: float32, one fixed sequence of fused
+   multiply-adds per cell, no BLAS);
 3. ``_advance`` (numba, float64): the free-DOF displacement from the network output, the
    new state by the contact law, its Love-Weber moment, area and contact-law branch flags;
 4. on request, the consistent tangent d(S_nn, S_tt)/d(eps_n, eps_t) by forward-mode
@@ -18,8 +19,9 @@ The features are computed and z-scored in float64 before the cast to float32 (th
 f_s / (mu f_n), bounded by one, is divided in float32); the un-normalisation of the outputs
 and all the physics are float64 (positions must be resolved to ~1e-7 D), so float32 only
 rounds the network's arithmetic (its effect on whole runs is measured in ``docs/ann.md``).
-Every block of cells goes through BLAS calls of one shape, so a cell's result is
-bit-identical whatever batch it is in (the cell contract's batch invariance). A pair that
+Every loop over cells is innermost, each cell one lane, and nothing reduces across cells,
+so a cell's result is bit-identical whatever batch it is in, wherever it sits in it and
+whatever the CPU's vector width (the cell contract's batch invariance). A pair that
 no cell has within reach is skipped after a square-root-free test, which changes no bit of
 the result. The state arrays returned are transposed views of cells-last arrays, so that
 the next increment reads them without a copy.
@@ -38,9 +40,7 @@ import numpy as np
 import torch
 
 from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
-
-MLP_BLOCK = 128
-"""Cells per perceptron block: the batch is padded to a multiple of it [-]."""
+from training.perceptron import Perceptron
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -76,8 +76,7 @@ def _features(size, free, shear, d_eps, frac, free_dofs, free_slot, pairs, radiu
     """Z-scored features, |d_eps|, unbalanced forces and the contacts of every cell before its increment.
 
     Cells are the LAST axis of every array but the probe: size (2, n), free (n_free, n),
-    shear (n_pairs, n), d_eps (n, 2); outputs feats (n_features + 1, n_pad >= n) float32 (its columns past n are
-    zeroed and its last row is ones, the bias input of the perceptron), m_out (n,),
+    shear (n_pairs, n), d_eps (n, 2); outputs feats (n_features, n) float32, m_out (n,),
     unbalanced (n_free, n) [N], old_branch (n_pairs, 2, n) [m], old_contact (n_pairs, n)
     bool, old_fn (n_pairs, n) [N]. ``active_slot[p]`` is the rank of pair p among the active
     pairs, -1 if inactive; ``free_slot[g, a]`` the rank of DOF (g, a) among the free DOFs, -1
@@ -90,8 +89,6 @@ def _features(size, free, shear, d_eps, frac, free_dofs, free_slot, pairs, radiu
     inv_diameter = 1.0 / diameter
     inv_force_scale = 1.0 / (kn * diameter)
     inv_std = 1.0 / feature_std
-    feats[:, n:] = 0.0
-    feats[-1, :] = 1.0
     x = np.empty((frac.shape[0], 2, n))
     unbalanced[:, :] = 0.0
     _positions(size, free, frac, free_dofs, x)
@@ -189,8 +186,7 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
              held_dof):
     """Free-DOF displacement from the network output ``out``, then the contact law.
 
-    ``out`` (n_blocks, n_free + n_free^2, block) holds cell ``c`` at ``[c // block, :, c % block]``
-    (``FastAdvance._mlp``).
+    ``out`` (n_free + n_free^2, n) float32 is the perceptron's output, cells last.
 
     Array layouts as in ``_features``. The rest rule of ``cell_physics.hold_at_rest``
     holds free grains with no contact at the start that nothing reaches. Outputs: the new
@@ -212,22 +208,17 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
             touched_i[c] |= contact[c]
             touched_j[c] |= contact[c]
     d_free = np.empty((n_free, n))
-    block = out.shape[2]
-    cf = np.empty(block)
+    cf = np.empty(n)
     inv_kn, inv_ramp = 1.0 / kn, 1.0 / ramp
-    for b in range(-(-n // block)):
-        lo = b * block
-        width = min(block, n - lo)
-        m_b = m_in[lo:lo + width]
-        for k in range(n_free):
-            cf[:] = 0.0
-            for j in range(n_free):
-                out_kj, unbalanced_j, eye = out[b, n_free + k * n_free + j], unbalanced[j, lo:lo + width], 1.0 if j == k else 0.0
-                for c in range(width):
-                    cf[c] += compliance_scale * (eye + out_kj[c]) * unbalanced_j[c]
-            out_k, d_free_k, std, mean = out[b, k], d_free[k, lo:lo + width], rate_std[k], rate_mean[k]
-            for c in range(width):
-                d_free_k[c] = diameter * m_b[c] * (out_k[c] * std + mean) - min(m_b[c] * inv_ramp, 1.0) * (cf[c] * inv_kn)
+    for k in range(n_free):
+        cf[:] = 0.0
+        for j in range(n_free):
+            out_kj, unbalanced_j, eye = out[n_free + k * n_free + j], unbalanced[j], 1.0 if j == k else 0.0
+            for c in range(n):
+                cf[c] += compliance_scale * (eye + out_kj[c]) * unbalanced_j[c]
+        out_k, d_free_k, std, mean = out[k], d_free[k], rate_std[k], rate_mean[k]
+        for c in range(n):
+            d_free_k[c] = diameter * m_in[c] * (out_k[c] * std + mean) - min(m_in[c] * inv_ramp, 1.0) * (cf[c] * inv_kn)
     for k in range(n_free):
         touched_g, new_free_k, free_k, d_free_k = touched[free_dofs[k, 0]], new_free[k], free[k], d_free[k]
         for c in range(n):
@@ -341,21 +332,19 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
 def _probe_feature_tangent(d_eps, m, feature_std, f_dot):
     """Derivative of the two z-scored probe-direction features with respect to d_eps.
 
-    d_eps (n, 2), m = |d_eps| (n,); output f_dot (2, n_blocks, 2, block) float32: direction j,
-    block, feature a (0, 1), cell (columns past n zeroed). d(d_a / m)/d(d_j) = (delta_aj -
-    u_a u_j) / m; zero at m = 0, like the autograd path's masked division.
+    d_eps (n, 2), m = |d_eps| (n,); output f_dot (2, 2, n) float32: direction j, feature a (0,
+    1), cell. d(d_a / m)/d(d_j) = (delta_aj - u_a u_j) / m; zero at m = 0, like the autograd
+    path's masked division.
     """
     n = m.shape[0]
-    block = f_dot.shape[3]
     f_dot[:] = 0.0
     for c in range(n):
         if m[c] > 0.0:
             u0, u1, inv_m = d_eps[c, 0] / m[c], d_eps[c, 1] / m[c], 1.0 / m[c]
-            b, i = c // block, c % block
-            f_dot[0, b, 0, i] = (1.0 - u0 * u0) * inv_m / feature_std[0]
-            f_dot[0, b, 1, i] = -u1 * u0 * inv_m / feature_std[1]
-            f_dot[1, b, 0, i] = -u0 * u1 * inv_m / feature_std[0]
-            f_dot[1, b, 1, i] = (1.0 - u1 * u1) * inv_m / feature_std[1]
+            f_dot[0, 0, c] = (1.0 - u0 * u0) * inv_m / feature_std[0]
+            f_dot[0, 1, c] = -u1 * u0 * inv_m / feature_std[1]
+            f_dot[1, 0, c] = -u0 * u1 * inv_m / feature_std[0]
+            f_dot[1, 1, c] = (1.0 - u1 * u1) * inv_m / feature_std[1]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -366,7 +355,7 @@ def _moment_tangent(size, free, d_eps, out, out_dot, m_in, unbalanced, old_branc
 
     Arrays as in ``_advance`` (its inputs, its new state new_size, new_free and held_dof);
     ``shear`` (n_pairs, n) is the tangential force before the increment; out_dot (2,
-    n_blocks, n_outputs, block) the derivative of the network output along d_eps_n, d_eps_t
+    n_outputs, n) the derivative of the network output along d_eps_n, d_eps_t
     (``FastAdvance._mlp_tangent``). Output tangent (n, 2, 2): [c, i, j] = d S_ii / d eps_j,
     compression positive. Branch choices (contact, Coulomb cap, held grains, relaxation ramp)
     are those of the increment, as autograd takes them; the derivative is zero where
@@ -375,7 +364,6 @@ def _moment_tangent(size, free, d_eps, out, out_dot, m_in, unbalanced, old_branc
     n = size.shape[1]
     n_free = free_dofs.shape[0]
     n_grains = frac.shape[0]
-    block = out.shape[2]
     x = np.empty((n_grains, 2, n))
     _positions(new_size, new_free, frac, free_dofs, x)
     x_dot = np.empty((2, n_grains, 2, n))
@@ -383,9 +371,8 @@ def _moment_tangent(size, free, d_eps, out, out_dot, m_in, unbalanced, old_branc
     relax = np.zeros((n_free, n))  # C F of the increment (compliance times unbalanced force) [N]
     for k in range(n_free):
         for c in range(n):
-            b, i = c // block, c % block
             for q in range(n_free):
-                relax[k, c] += compliance_scale * ((1.0 if q == k else 0.0) + out[b, n_free + k * n_free + q, i]) * \
+                relax[k, c] += compliance_scale * ((1.0 if q == k else 0.0) + out[n_free + k * n_free + q, c]) * \
                     unbalanced[q, c]
     tangent[:, :, :] = 0.0
     for j in range(2):
@@ -397,15 +384,14 @@ def _moment_tangent(size, free, d_eps, out, out_dot, m_in, unbalanced, old_branc
         for k in range(n_free):
             std, mean = rate_std[k], rate_mean[k]
             for c in range(n):
-                b, i = c // block, c % block
                 relax_dot = 0.0
                 for q in range(n_free):
-                    relax_dot += compliance_scale * out_dot[j, b, n_free + k * n_free + q, i] * unbalanced[q, c]
+                    relax_dot += compliance_scale * out_dot[j, n_free + k * n_free + q, c] * unbalanced[q, c]
                 m = m_in[c]
                 m_dot = d_eps[c, j] / m if m > 0.0 else 0.0
                 ramp_factor = min(m / ramp, 1.0)
                 ramp_dot = m_dot / ramp if m < ramp else 0.0
-                value = diameter * (m_dot * (out[b, k, i] * std + mean) + m * out_dot[j, b, k, i] * std) - (
+                value = diameter * (m_dot * (out[k, c] * std + mean) + m * out_dot[j, k, c] * std) - (
                     ramp_dot * relax[k, c] + ramp_factor * relax_dot) / kn
                 d_free_dot[k, c] = 0.0 if held_dof[k, c] else value
             x_dot[j, free_dofs[k, 0], free_dofs[k, 1]] = d_free_dot[k]
@@ -487,7 +473,7 @@ class FastIncrement(NamedTuple):
 
 class _Workspace(NamedTuple):
     """Scratch arrays of one ``FastAdvance`` call (cells last, see ``_features``); ``layers``: each
-    perceptron layer's output (n_blocks, n_outputs, MLP_BLOCK) float32."""
+    perceptron layer's output (width, n) float32."""
 
     feats: np.ndarray
     m: np.ndarray
@@ -501,10 +487,10 @@ class _Workspace(NamedTuple):
 class FastAdvance:
     """``MesoNet.advance`` for inference on CPU: numba physics (float64) around the perceptron (float32).
 
-    The perceptron runs on fixed blocks of ``MLP_BLOCK`` cells (the batch is padded to whole
-    blocks), one BLAS call of the same shape per block and layer, so that a cell's result
-    does not depend on the size of its batch or its place in it. Scratch arrays are kept per
-    thread between calls with the same number of cells; the arrays returned are new.
+    The perceptron is ``training.perceptron.Perceptron``: each cell's output is one fixed
+    sequence of float32 operations, so a cell's result does not depend on the size of its
+    batch, its place in it or the CPU's vector width. Scratch arrays are kept per thread
+    between calls with the same number of cells; the arrays returned are new.
 
     Args:
         net: the trained network (its schema, active pairs, normalisation and layers are copied).
@@ -528,53 +514,26 @@ class FastAdvance:
         self.rate_std = as_np(net.rate_std)
         self.diameter, self.kn, self.kt, self.mu = schema.diameter, schema.kn, schema.kt, schema.mu
         self.tol = schema.contact_tolerance
-        linears = [layer for layer in net.mlp if isinstance(layer, torch.nn.Linear)]
-        self.layers = [self._affine(as_np(lin.weight), as_np(lin.bias), lin is not linears[-1]) for lin in linears]
+        self.perceptron = Perceptron([(as_np(layer.weight), as_np(layer.bias))
+                                      for layer in net.mlp if isinstance(layer, torch.nn.Linear)])
         self._local = threading.local()
-
-    @staticmethod
-    def _affine(weight: np.ndarray, bias: np.ndarray, hidden: bool) -> np.ndarray:
-        """[W | b] (float32) acting on inputs that end with a row of ones; a hidden layer also passes the ones on."""
-        affine = np.concatenate([weight, bias[:, None]], axis=1)
-        if hidden:
-            affine = np.concatenate([affine, np.eye(1, affine.shape[1], affine.shape[1] - 1)])
-        return np.ascontiguousarray(affine, dtype=np.float32)
-
-    def _mlp(self, feats: np.ndarray, work: _Workspace) -> np.ndarray:
-        """Network output ``work.layers[-1]`` (n_pad / MLP_BLOCK, n_outputs, MLP_BLOCK) float32 of
-        z-scored features (n_features + 1, n_pad) float32 ending with a row of ones.
-
-        Cells along the columns, n_pad a multiple of ``MLP_BLOCK``: [W | b] [h; 1] per block of
-        ``MLP_BLOCK`` columns (every layer float32; the hidden layers carry the row of ones along).
-        """
-        h = feats.reshape(feats.shape[0], -1, MLP_BLOCK).transpose(1, 0, 2)
-        for affine, buffer in zip(self.layers[:-1], work.layers):
-            h = np.matmul(affine, h, out=buffer)
-            np.tanh(h[:, :-1], out=h[:, :-1])
-        return np.matmul(self.layers[-1], h, out=work.layers[-1])
 
     def _workspace(self, n: int) -> _Workspace:
         """This thread's scratch arrays for ``n`` cells (kept from its previous call with as many)."""
         work = getattr(self._local, "work", None)
         if work is None or work.m.shape[0] != n:
-            n_free, n_pairs, n_pad = self.free_dofs.shape[0], self.pairs.shape[0], -(-n // MLP_BLOCK) * MLP_BLOCK
-            work = _Workspace(np.empty((self.feature_mean.shape[0] + 1, n_pad), dtype=np.float32), np.empty(n),
+            n_free, n_pairs = self.free_dofs.shape[0], self.pairs.shape[0]
+            work = _Workspace(np.empty((self.feature_mean.shape[0], n), dtype=np.float32), np.empty(n),
                               np.empty((n_free, n)), np.empty((n_pairs, 2, n)), np.empty((n_pairs, n), dtype=np.bool_),
-                              np.empty((n_pairs, n)),
-                              [np.empty((n_pad // MLP_BLOCK, layer.shape[0], MLP_BLOCK), dtype=np.float32)
-                               for layer in self.layers])
+                              np.empty((n_pairs, n)), self.perceptron.buffers(n))
             self._local.work = work
         return work
 
     def _mlp_tangent(self, work: _Workspace, f_dot: np.ndarray) -> np.ndarray:
-        """Derivative of the network output along d_eps_n and d_eps_t, (2, n_blocks, n_outputs, MLP_BLOCK)
-        float32, from that of the probe features ``f_dot`` (2, n_blocks, 2, MLP_BLOCK) (the only
-        features that depend on d_eps) and the activations ``_mlp`` left in ``work``."""
-        h_dot = f_dot
-        for index, (affine, h) in enumerate(zip(self.layers[:-1], work.layers)):
-            a_dot = np.matmul(affine[:, :2] if index == 0 else affine, h_dot)
-            h_dot = (1.0 - h * h) * a_dot  # tanh' = 1 - tanh^2; zero on the row of ones
-        return np.matmul(self.layers[-1], h_dot)
+        """Derivative of the network output along d_eps_n and d_eps_t, (2, n_outputs, n) float32, from
+        that of the probe features ``f_dot`` (2, 2, n) (features 0 and 1, the only ones that depend on
+        d_eps) and the activations the forward pass left in ``work.layers``."""
+        return np.stack([self.perceptron.jvp(0, f_dot[j], work.layers) for j in range(2)])
 
     def __call__(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                  d_eps: np.ndarray) -> FastIncrement:
@@ -592,7 +551,7 @@ class FastAdvance:
         _features(size, free, shear, d_eps, self.frac, self.free_dofs, self.free_slot, self.pairs, self.radius,
                   self.active_slot, self.feature_mean, self.feature_std, self.diameter, self.kn, self.mu, self.tol,
                   GAP_CLIP, work.feats, work.m, work.unbalanced, work.old_branch, work.old_contact, work.old_fn)
-        out = self._mlp(work.feats, work)
+        out = self.perceptron.forward(work.feats, work.layers)
         new_size, new_free, new_shear = np.empty((2, n)), np.empty((n_free, n)), np.empty((n_pairs, n))
         moment, area = np.empty((n, 2, 2)), np.empty(n)
         flags = np.empty((4, n), dtype=np.bool_)
@@ -604,7 +563,7 @@ class FastAdvance:
                  new_size, new_free, new_shear, moment, area, *flags, n_held, held_dof)
         tangent = None
         if with_tangent:
-            f_dot = np.empty((2, out.shape[0], 2, MLP_BLOCK), dtype=np.float32)
+            f_dot = np.empty((2, 2, n), dtype=np.float32)
             _probe_feature_tangent(d_eps, work.m, self.feature_std, f_dot)
             out_dot = self._mlp_tangent(work, f_dot)
             tangent = np.empty((n, 2, 2))

@@ -34,7 +34,6 @@ from typing import Sequence
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from training import cell_physics
 from training.checkpoint import save_checkpoint
@@ -52,7 +51,9 @@ from training.dataset import (
 )
 from training.network import DEFAULT_HIDDEN, MesoNet
 from training.rollout import rollout_report
-from warp_hcell.cli import check_output_path, device_name, output_lock, run_main
+from warp_hcell.cli import (
+    Parser, check_output_path, command_prog, common_parser, output_lock, progress_bar, quiet_warp, run_main, say,
+    set_verbosity)
 from warp_hcell.mesostructure import from_description
 from warp_hcell.parameters import ContactLaw, DemSettings
 from warp_hcell.provenance import git_revision
@@ -150,7 +151,7 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = F
     best_loss, best_state, best_epoch = math.inf, copy.deepcopy(net.state_dict()), 0
     start = time.perf_counter()
     n_train = train.target.shape[0]
-    bar = tqdm(range(1, config.epochs + 1), desc="training", unit="epoch", disable=not progress)
+    bar = progress_bar(range(1, config.epochs + 1), desc="training", unit="epoch", disable=not progress)
     for epoch in bar:
         net.train()
         running = 0.0
@@ -167,7 +168,7 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = F
             history[key].append(value)
         if val_loss < best_loss:
             best_loss, best_state, best_epoch = val_loss, copy.deepcopy(net.state_dict()), epoch
-        bar.set_postfix(train=f"{history['train_loss'][-1]:.2e}", val=f"{val_loss:.2e}", lr=f"{lr:.1e}")
+        bar.set_postfix(train=f"{history['train_loss'][-1]:.2e}", val=f"{val_loss:.2e}", lr=f"{lr:.1e}", refresh=False)
         scheduler.step(val_loss)
         if epoch - best_epoch >= config.patience or optimiser.param_groups[0]["lr"] < config.min_lr:
             break
@@ -257,8 +258,9 @@ def _positive(kind):
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m training.train`` parser; defaults come from ``TrainConfig``."""
     d = TrainConfig()
-    p = argparse.ArgumentParser(prog="python -m training.train", description=__doc__.splitlines()[0],
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = Parser(prog=command_prog("training.train"), description=__doc__.splitlines()[0], parents=[common_parser()],
+               formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.set_defaults(seed=d.seed, device=d.device)
     p.add_argument("--data", type=Path, required=True, help="generic learning database (HDF5, docs/database_format.md)")
     p.add_argument("--out", type=Path, required=True, help="state_dict file; metadata goes to the same stem .json")
     p.add_argument("--epochs", type=_positive(int), default=d.epochs, help="maximum epochs")
@@ -266,11 +268,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr", type=_positive(float), default=d.lr, help="initial Adam learning rate")
     p.add_argument("--patience", type=_positive(int), default=d.patience, help="early-stopping patience [epochs]")
     p.add_argument("--hidden", type=_hidden, default=",".join(map(str, d.hidden)), help="hidden layer widths, comma separated")
-    p.add_argument("--seed", type=int, default=d.seed, help="seed of the split, weights and batch order")
     p.add_argument("--threads", type=_positive(int), default=d.threads, help="torch CPU threads")
-    p.add_argument("--device", type=device_name, default=d.device, help="torch device (cpu, cuda)")
     p.add_argument("--no-rollout", action="store_true", help="skip the rollout error along held-out DEM paths")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing model instead of refusing")
     return p
 
 
@@ -282,6 +281,7 @@ def _format_r2(metrics: dict) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code."""
     args = build_parser().parse_args(argv)
+    set_verbosity(args)
     out: Path = args.out
     curve = out.with_name(f"{out.stem}_learning_curve.png")
     if not args.overwrite and any(p.exists() for p in (out, out.with_suffix(".json"), curve)):
@@ -299,6 +299,8 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
                          patience=args.patience, seed=args.seed, threads=args.threads, device=args.device,
                          rollout=not args.no_rollout)
     db = load_database(args.data)
+    if config.rollout and not args.verbose:
+        quiet_warp()  # the rollout runs the DEM on the cpu
     result = fit(db, config, progress=True)
     metrics = {name: evaluate(result.net, db, getattr(result.split, name)) for name in ("train", "val", "test")}
     law = ContactLaw(kn=db.kn, kt_over_kn=db.kt_over_kn, phi_g_deg=db.phi_g_deg)
@@ -329,16 +331,14 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
     }
     save_checkpoint(out, result.net, metadata)
     _plot_learning_curve(curve, result.history)
-    print(f"trained {len(result.history['epoch'])} epochs in {result.history['seconds']:.1f} s "
-          f"(best epoch {result.history['best_epoch']}); samples train/val/test = "
-          f"{split.train.size}/{split.val.size}/{split.test.size}")
-    for name in ("val", "test"):
-        print(f"R^2 {name:>4}: {_format_r2(metrics[name])}")
+    say(f"trained {len(result.history['epoch'])} epochs in {result.history['seconds']:.1f} s "
+        f"(best epoch {result.history['best_epoch']}); samples train/val/test = "
+        f"{split.train.size}/{split.val.size}/{split.test.size}",
+        *(f"R^2 {name:>4}: {_format_r2(metrics[name])}" for name in ("val", "test")))
     if rollout is not None:
-        for key, value in rollout.items():
-            if key.startswith("increment_"):
-                print(f"rollout error ({key}): max {value['max']:.4f}, median {value['median']:.4f} of the path's largest |S|")
-    print(f"wrote {out}, {out.with_suffix('.json')}, {curve}")
+        say(*(f"rollout error ({key}): max {value['max']:.4f}, median {value['median']:.4f} of the path's largest |S|"
+              for key, value in rollout.items() if key.startswith("increment_")))
+    say(f"wrote {out}, {out.with_suffix('.json')}, {curve}")
     return 0
 
 

@@ -29,7 +29,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from warp_hcell import database
-from warp_hcell.cli import UserError, run_main
+from warp_hcell.cli import Parser, UserError, command_prog, run_main, say, set_verbosity, verbosity_parser
 
 REASONS = {
     "unconverged": "the DEM did not reach quasi-static equilibrium within max_substeps",
@@ -98,14 +98,15 @@ def clean_file(path: Path, out: Path) -> dict[str, Any]:
 
 
 def _run(argv: Sequence[str] | None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m warp_hcell.clean", formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    parser = Parser(
+        prog=command_prog("warp_hcell.clean"), parents=[verbosity_parser()],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
         description="Mark unconverged and non-finite samples of a learning database in `valid` (mechanism and "
                     "perturbed samples are kept) and record the counts per reason as root attrs.")
     parser.add_argument("database", type=Path, help="database file written by warp_hcell.generate")
     parser.add_argument("--out", type=Path, default=None, help="write the cleaned file here; unset: clean in place")
-    parser.error = lambda message: parser.exit(2, f"{parser.prog}: error: {message}\n")  # one line, exit 2
     args = parser.parse_args(argv)
+    set_verbosity(args)
     out = args.out or args.database
     if not args.database.is_file():
         raise UserError(f"{args.database}: no such database file")
@@ -115,8 +116,8 @@ def _run(argv: Sequence[str] | None) -> int:
         summary = clean_file(args.database, out)
     except KeyError as exc:
         raise UserError(f"{args.database}: not a complete learning database ({exc.args[0] if exc.args else exc})") from None
-    print(f"{out}: {summary['n_valid']} valid, {summary['n_removed']} removed "
-          + ", ".join(f"{reason} {summary[f'removed_{reason}']}" for reason in REASONS))
+    say(f"{out}: {summary['n_valid']} valid, {summary['n_removed']} removed "
+        + ", ".join(f"{reason} {summary[f'removed_{reason}']}" for reason in REASONS))
     return 0
 
 

@@ -1,11 +1,19 @@
-"""Shared command-line plumbing: the parent parser, argument validators, user errors.
+"""Shared command-line plumbing: the parser class, parent parsers, validators, user errors, output.
 
-Every entry point builds its parser with ``parents=[common_parser()]`` and
-``formatter_class=argparse.ArgumentDefaultsHelpFormatter``, validates values with the
-``type=`` functions below (a bad value is one line on stderr and exit code 2), and runs its
-body through ``run_main`` so that a ``UserError`` or ``ValueError`` (bad files, inconsistent
-options) is also one line and exit code 2, never a traceback. Set ``HMODEL_DEBUG=1`` to get
-the traceback anyway.
+Every entry point builds its parser as ``Parser(prog=command_prog(MODULE), parents=[...])``
+with ``common_parser()`` (or ``verbosity_parser()`` where --device, --seed and --overwrite do
+not apply) and ``formatter_class=argparse.ArgumentDefaultsHelpFormatter``, validates values
+with the ``type=`` functions below, and runs its body through ``run_main``. Every bad
+command line (unknown option, missing or malformed value, conflicting flags) is one line on
+stderr that names the flag and the fix, exit code 2 (``Parser.error``); a ``UserError`` or
+``ValueError`` of the body (bad files, inconsistent options) is also one line and exit code 2,
+never a traceback. Set ``HMODEL_DEBUG=1`` to get the traceback anyway. ``--help`` is the
+full help. The program name is the command the user typed: ``hmodel COMMAND`` under the
+``hmodel`` script (``invoked_as``), ``python -m MODULE`` otherwise.
+
+Output: -q/--quiet and -v/--verbose mean the same in every command (``set_verbosity``):
+quiet drops the progress bars (``progress_bar``) and the status lines (``say``), verbose
+lets Warp print its start-up messages, which ``quiet_warp`` otherwise silences.
 
 ``--device`` is checked while parsing (``device_name``): a CUDA device that this machine
 does not have is one line and exit code 2 before any work. Outputs are protected by
@@ -16,10 +24,13 @@ does not have is one line and exit code 2 before any work. Outputs are protected
 from __future__ import annotations
 
 import argparse
+import contextvars
 import ctypes
 import ctypes.util
+import difflib
 import errno
 import fcntl
+import functools
 import math
 import os
 import re
@@ -30,7 +41,9 @@ import tempfile
 import threading
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
+from typing import Any, Callable, Iterator, NoReturn, Sequence
+
+from tqdm import tqdm
 
 from warp_hcell.parameters import CellDefaults, ContactLaw, check_alpha0_deg
 
@@ -40,6 +53,125 @@ EXIT_USAGE = 2
 
 class UserError(Exception):
     """Bad input that the user can fix; reported as one line with exit code 2."""
+
+
+_INVOKED_AS: contextvars.ContextVar[str | None] = contextvars.ContextVar("invoked_as", default=None)
+
+
+@contextmanager
+def invoked_as(prog: str) -> Iterator[None]:
+    """Name the command ``prog`` (e.g. "hmodel train") in the help, usage and error lines of
+    the entry points run in the body (``command_prog``, ``run_main``)."""
+    token = _INVOKED_AS.set(prog)
+    try:
+        yield
+    finally:
+        _INVOKED_AS.reset(token)
+
+
+def command_prog(module: str) -> str:
+    """Program name of the entry point in ``module``: the ``invoked_as`` name, else ``python -m MODULE``."""
+    return _INVOKED_AS.get() or f"python -m {module}"
+
+
+def _started_as(function: Callable) -> str:
+    """How this process was started to run ``function``: ``python -m MODULE``, else the script's name."""
+    name = getattr(function, "__module__", None) or "__main__"
+    if name == "__main__":
+        spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+        if spec is None:
+            return Path(sys.argv[0]).name
+        name = spec.name
+    return f"python -m {name}"
+
+
+class _Probe(Exception):
+    """An error while ``Parser`` looks for unknown options (not reported)."""
+
+
+_REQUIRED = "the following arguments are required: "
+_UNKNOWN = "unrecognized arguments: "
+
+
+class Parser(argparse.ArgumentParser):
+    """ArgumentParser of every entry point: a bad command line is ONE line on stderr, exit code 2.
+
+    The line is ``PROG: error: <argparse's message>[; <the fix>]``. The message names the
+    flag; a validator's message (``type=``) or a list of choices already says what is
+    allowed, and the other kinds get a fix: the option meant (an unknown one close to a known
+    one, else ``PROG --help``), the value to add (a missing option or value), one of two
+    exclusive flags. No usage block. An unknown option is reported before missing required
+    ones (it is the likelier typo).
+    """
+
+    _argv: list[str] | None = None
+    _probing = False
+
+    def parse_known_args(self, args=None, namespace=None):
+        self._argv = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
+    def error(self, message: str) -> NoReturn:
+        if self._probing:
+            raise _Probe(message)
+        message = " ".join(message.split())
+        if message.startswith(_REQUIRED):
+            unknown = self._unknown_arguments()
+            if unknown:
+                message = _UNKNOWN + " ".join(unknown)
+        fix = self._fix(message)
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message}" + (f"; {fix}" if fix else "") + "\n")
+
+    def _unknown_arguments(self) -> list[str]:
+        """The arguments of the last parse that match nothing, found with no argument required."""
+        required = [action for action in self._actions if action.required]
+        self._probing = True
+        for action in required:
+            action.required = False
+        try:
+            return super().parse_known_args(self._argv)[1]
+        except (_Probe, UserError, ValueError):
+            return []  # a value the real parse rejects too: its own error stands
+        finally:
+            self._probing = False
+            for action in required:
+                action.required = True
+
+    def _fix(self, message: str) -> str | None:
+        """The second half of the error line: what to do about ``message`` (None: it says so itself)."""
+        see = f"see '{self.prog} --help'"
+        if message.startswith(_UNKNOWN):
+            first = message[len(_UNKNOWN):].split()[0]
+            if not first.startswith("-"):
+                return see
+            names = {option.lstrip("-"): option for option in self._option_string_actions
+                     if option.startswith("--") and option != "--help"}
+            close = difflib.get_close_matches(first.split("=")[0].lstrip("-"), names, n=1, cutoff=0.75)
+            return f"did you mean {names[close[0]]}?" if close else see
+        if message.startswith(_REQUIRED):
+            names = message.split(": ", 1)[1].split(", ")
+            return "add " + " ".join(self._usage_of(name) for name in names)
+        if message.endswith(": expected one argument"):
+            return f"give it a value: {self._usage_of(message.split()[1].rstrip(':'))}"
+        if " not allowed with argument " in message:
+            return "give only one of them"
+        if "ambiguous option: " in message:
+            return "write the option in full"
+        if ": invalid int value: " in message:
+            return "give an integer"
+        if ": invalid float value: " in message:
+            return "give a number"
+        return None
+
+    def _usage_of(self, name: str) -> str:
+        """``--flag METAVAR`` (or ``METAVAR`` of a positional) of the action argparse calls ``name``."""
+        action = self._option_string_actions.get(name.split("/")[0])
+        if action is None:
+            return name
+        if action.nargs == 0:
+            return action.option_strings[-1]
+        metavar = action.metavar or action.dest.upper()
+        return f"{action.option_strings[-1]} {metavar if isinstance(metavar, str) else ' '.join(metavar)}"
 
 
 def _float(text: str) -> float:
@@ -162,9 +294,33 @@ def quiet_warp(device: str = "cpu") -> None:
         os.close(devnull)
 
 
+def task_setup(args: argparse.Namespace) -> Callable[[], None]:
+    """Setup of a command's tasks (``warp_hcell.execution``, run in every worker): the command's
+    -q, and ``quiet_warp(args.device)`` unless -v."""
+    return functools.partial(_setup_task, getattr(args, "device", "cpu"), quiet=bool(args.quiet),
+                             verbose=bool(args.verbose))
+
+
+def _setup_task(device: str, *, quiet: bool, verbose: bool) -> None:
+    _OUTPUT.quiet = quiet
+    if not verbose:
+        quiet_warp(device)
+
+
+def verbosity_parser() -> argparse.ArgumentParser:
+    """Parent parser of -q/--quiet and -v/--verbose (exclusive; apply them with ``set_verbosity``)."""
+    parser = Parser(add_help=False)
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("-q", "--quiet", action="store_true",
+                       help="no progress bars or status lines; warnings and errors only")
+    group.add_argument("-v", "--verbose", action="store_true",
+                       help="also Warp's start-up messages (and the resolved settings, where the command has them)")
+    return parser
+
+
 def common_parser() -> argparse.ArgumentParser:
-    """Parent parser with the flags every entry point shares: --device, --seed, --overwrite."""
-    parser = argparse.ArgumentParser(add_help=False)
+    """Parent parser with the flags most entry points share: --device, --seed, --overwrite, -q, -v."""
+    parser = Parser(add_help=False, parents=[verbosity_parser()])
     parser.add_argument("--device", type=device_name, default="cpu",
                         help="compute device: cpu, or cuda / cuda:N where the machine has a GPU")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random choice (runs are bit-reproducible)")
@@ -343,8 +499,14 @@ def _raise_interrupt(signum, frame) -> None:
 
 
 def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[str] | None = None) -> int:
-    """Run ``main(argv)``; map user errors to one line on stderr and exit code 2."""
-    prog = Path(sys.argv[0]).name if argv is None else "hmodel"
+    """Run ``main(argv)``; map user errors to one line on stderr and exit code 2.
+
+    The line names the command the user typed: the ``invoked_as`` name (``hmodel COMMAND``),
+    else, for a process started as ``python -m MODULE`` (``argv`` None), that; a call from
+    Python with ``argv`` says "hmodel". The verbosity ``main`` set (``set_verbosity``) ends
+    with it.
+    """
+    prog = _INVOKED_AS.get() or (_started_as(main) if argv is None else "hmodel")
     try:
         return int(main(argv) or 0)
     except (UserError, ValueError, FileNotFoundError) as exc:
@@ -356,3 +518,71 @@ def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        _OUTPUT.quiet = False
+
+
+# -- what a command prints ---------------------------------------------------------------------
+
+PROGRESS_INTERVAL_S = 0.5
+"""Shortest time between two redraws of a progress bar on a terminal [s]."""
+PROGRESS_LOG_INTERVAL_S = 30.0
+"""Time between two progress lines where stderr is not a terminal (a log file, a pipe) [s]."""
+
+
+class _Output:
+    """What this process prints: ``quiet`` drops progress bars and status lines (-q)."""
+
+    quiet = False
+
+
+_OUTPUT = _Output()
+
+
+def set_verbosity(args: argparse.Namespace) -> None:
+    """Apply the -q/--quiet of ``args`` to ``say`` and ``progress_bar`` until ``run_main`` returns."""
+    _OUTPUT.quiet = bool(getattr(args, "quiet", False))
+
+
+def say(*lines: str) -> None:
+    """Print status lines on stdout, unless the command runs with -q."""
+    if not _OUTPUT.quiet:
+        print(*lines, sep="\n", flush=True)
+
+
+class _LogLines:
+    """Stream for tqdm where stderr is no terminal: each redraw becomes one plain line.
+
+    tqdm redraws in place, starting each drawing with a carriage return and padding it with
+    spaces; here those are dropped and every non-empty drawing ends with a newline.
+    """
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> None:
+        line = text.replace("\r", "").rstrip()
+        if line:
+            self.stream.write(line + "\n")
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def progress_bar(iterable: Any = None, *, disable: bool = False, file: Any = None, **kwargs: Any) -> tqdm:
+    """A tqdm progress bar on stderr (``file``), as every command draws them.
+
+    On a terminal it redraws in place at most every ``PROGRESS_INTERVAL_S`` (and is erased
+    at the end where ``leave=False``). Elsewhere it writes plain newline-terminated lines, no
+    carriage return: one at the start, one every ``PROGRESS_LOG_INTERVAL_S`` and the final
+    count at the end. Disabled by ``disable`` or a command's -q (``set_verbosity``).
+    ``kwargs`` go to tqdm (``total``, ``desc``, ``unit``, ...).
+    """
+    stream = sys.stderr if file is None else file
+    disable = disable or _OUTPUT.quiet
+    isatty = getattr(stream, "isatty", None)
+    if isatty is not None and isatty():
+        kwargs = {"mininterval": PROGRESS_INTERVAL_S, **kwargs}
+        return tqdm(iterable, file=stream, disable=disable, miniters=1, **kwargs)
+    kwargs.update(mininterval=PROGRESS_LOG_INTERVAL_S, maxinterval=PROGRESS_LOG_INTERVAL_S, leave=True, ascii=True)
+    return tqdm(iterable, file=_LogLines(stream), disable=disable, miniters=1, **kwargs)

@@ -12,13 +12,22 @@ task ran. ``shared`` is sent once per worker (Dask: scattered with broadcast).
   ``tcp://host:8786``; dask-jobqueue clusters on SLURM give one), or a ``LocalCluster`` of
   ``workers`` single-threaded worker processes.
 
-``make_execution(workers, scheduler)`` picks one: a scheduler address -> Dask on it; more
-than one worker -> a Dask LocalCluster; else in process.
+``make_execution(workers, scheduler, setup)`` picks one: a scheduler address -> Dask on it;
+more than one worker -> a Dask LocalCluster; else in process. ``setup()`` (optional, e.g.
+silencing Warp's start-up messages) runs in the process of every task, before the task; it
+must be picklable and cheap after its first call in a process.
+
+A LocalCluster keeps its scratch files (worker folders, locks, spilled data) in a temporary
+folder of its own (under ``TMPDIR``), removed when the execution closes: a run leaves no
+``dask-scratch-space`` behind.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
+import shutil
+import tempfile
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from typing import Any, Callable, Iterable, Iterator
@@ -31,15 +40,30 @@ class SchedulerUnreachable(ConnectionError):
     """The Dask scheduler at the given address did not answer."""
 
 
+def _after_setup(setup: Callable[[], None], fn: Callable[[Any, Any], Any], shared: Any, item: Any) -> Any:
+    """``fn(shared, item)`` after ``setup()`` (in the process that runs the task)."""
+    setup()
+    return fn(shared, item)
+
+
+def _with_setup(fn: Callable[[Any, Any], Any], setup: Callable[[], None] | None) -> Callable[[Any, Any], Any]:
+    """``fn``, or ``fn`` preceded by ``setup()`` in every task (picklable: a partial of module functions)."""
+    return fn if setup is None else functools.partial(_after_setup, setup, fn)
+
+
 class InProcess:
-    """Run the tasks in the calling process, in order."""
+    """Run the tasks in the calling process, in order (``setup`` before each)."""
 
     n_workers = 1
 
+    def __init__(self, setup: Callable[[], None] | None = None):
+        self.setup = setup
+
     def map(self, fn: Callable[[Any, Any], Any], shared: Any, items: Iterable[Any]) -> Iterator[tuple[Any, Any]]:
         """Yield ``(item, fn(shared, item))`` for every item, in order."""
+        task = _with_setup(fn, self.setup)
         for item in items:
-            yield item, fn(shared, item)
+            yield item, task(shared, item)
 
     def close(self) -> None:
         """Nothing to release."""
@@ -65,8 +89,9 @@ def _call_with_shared(fn: Callable[[Any, Any], Any], item: Any) -> Any:
 class ProcessPool:
     """Run the tasks in ``workers`` spawned local processes (module docstring)."""
 
-    def __init__(self, workers: int = 2):
+    def __init__(self, workers: int = 2, setup: Callable[[], None] | None = None):
         self.n_workers = int(workers)
+        self.setup = setup
 
     def map(self, fn: Callable[[Any, Any], Any], shared: Any, items: Iterable[Any]) -> Iterator[tuple[Any, Any]]:
         """Yield ``(item, fn(shared, item))`` as the tasks complete."""
@@ -75,7 +100,8 @@ class ProcessPool:
             return
         with ProcessPoolExecutor(self.n_workers, mp_context=get_context("spawn"), initializer=_keep_shared,
                                  initargs=(shared,)) as pool:
-            futures = {pool.submit(_call_with_shared, fn, item): item for item in items}
+            task = _with_setup(fn, self.setup)
+            futures = {pool.submit(_call_with_shared, task, item): item for item in items}
             try:
                 for future in as_completed(futures):
                     yield futures[future], future.result()
@@ -100,22 +126,34 @@ class DaskExecution:
         address: scheduler address; None = start a LocalCluster.
         workers: worker processes of the LocalCluster (one thread each).
         connect_timeout: seconds to wait for the scheduler [s]; None = ``CONNECT_TIMEOUT_S``.
+        setup: run before every task, in the worker (module docstring).
 
     Raises:
         SchedulerUnreachable: (one line) no scheduler answers at ``address``.
     """
 
-    def __init__(self, address: str | None = None, workers: int = 2, connect_timeout: float | None = None):
-        from distributed import Client, LocalCluster  # noqa: PLC0415 (optional at import time)
+    def __init__(self, address: str | None = None, workers: int = 2, connect_timeout: float | None = None,
+                 setup: Callable[[], None] | None = None):
+        import dask  # noqa: PLC0415 (optional at import time)
+        from distributed import Client, LocalCluster  # noqa: PLC0415
 
         for name in ("distributed", "tornado"):
             logging.getLogger(name).setLevel(logging.ERROR)
+        self.setup = setup
         self._cluster = None
+        self._scratch = None
         if address is None:
-            self._cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                                         dashboard_address=None, silence_logs=logging.CRITICAL)
-            # task errors still reach the client; workers' shutdown-race tracebacks do not
-            self.client = Client(self._cluster)
+            self._scratch = tempfile.mkdtemp(prefix="hmodel-dask-")
+            try:
+                # the scheduler's and the workers' scratch folders (dask's temporary-directory)
+                with dask.config.set({"temporary-directory": self._scratch}):
+                    self._cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                                                 dashboard_address=None, silence_logs=logging.CRITICAL)
+                # task errors still reach the client; workers' shutdown-race tracebacks do not
+                self.client = Client(self._cluster)
+            except BaseException:
+                self._close_cluster()
+                raise
         else:
             try:
                 timeout = CONNECT_TIMEOUT_S if connect_timeout is None else connect_timeout
@@ -137,7 +175,8 @@ class DaskExecution:
         if not items:
             return
         shared_future = self.client.scatter(shared, broadcast=True, hash=False)
-        futures = {self.client.submit(fn, shared_future, item, pure=False): item for item in items}
+        task = _with_setup(fn, self.setup)
+        futures = {self.client.submit(task, shared_future, item, pure=False): item for item in items}
         try:
             for future in as_completed(futures):
                 yield futures[future], future.result()
@@ -147,10 +186,15 @@ class DaskExecution:
             shared_future.cancel()
 
     def close(self) -> None:
-        """Disconnect; stop the LocalCluster if this execution started it."""
+        """Disconnect; stop the LocalCluster if this execution started it and remove its scratch folder."""
         self.client.close()
+        self._close_cluster()
+
+    def _close_cluster(self) -> None:
         if self._cluster is not None:
             self._cluster.close()
+        if self._scratch is not None:
+            shutil.rmtree(self._scratch, ignore_errors=True)
 
     def __enter__(self) -> "DaskExecution":
         return self
@@ -159,10 +203,12 @@ class DaskExecution:
         self.close()
 
 
-def make_execution(workers: int = 1, scheduler: str | None = None) -> InProcess | DaskExecution:
-    """Dask on ``scheduler``; else a Dask LocalCluster of ``workers`` processes; one worker: in process."""
+def make_execution(workers: int = 1, scheduler: str | None = None,
+                   setup: Callable[[], None] | None = None) -> InProcess | DaskExecution:
+    """Dask on ``scheduler``; else a Dask LocalCluster of ``workers`` processes; one worker: in
+    process. ``setup`` runs before every task, where the task runs (module docstring)."""
     if scheduler is not None:
-        return DaskExecution(address=scheduler)
+        return DaskExecution(address=scheduler, setup=setup)
     if int(workers) > 1:
-        return DaskExecution(workers=int(workers))
-    return InProcess()
+        return DaskExecution(workers=int(workers), setup=setup)
+    return InProcess(setup)

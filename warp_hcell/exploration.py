@@ -28,9 +28,9 @@ import math
 from typing import Any, Mapping
 
 import numpy as np
-from tqdm import tqdm
 
 from warp_hcell.cell_model import StateSchema
+from warp_hcell.cli import progress_bar
 from warp_hcell.learning_state import evaluate, free_coordinates
 from warp_hcell.parameters import ContactLaw, DatabaseSettings
 
@@ -169,7 +169,7 @@ class Explorer:
         active = np.arange(increments.shape[0])
         eps, free_run = np.array(eps_start, dtype=np.float64), np.array(free_run_start, dtype=np.float64)
         parts = [self._record(cm.state_to_arrays(state), active, 0, eps, free_run)] if sample_start else []
-        for k in tqdm(range(int(n_steps.max(initial=0))), desc=label, unit="increment", leave=False):
+        for k in progress_bar(range(int(n_steps.max(initial=0))), desc=label, unit="increment", leave=False):
             going = np.flatnonzero(n_steps[active] > k)
             if going.size < active.size:
                 state, active, eps, free_run = cm.take(state, going), active[going], eps[going], free_run[going]

@@ -43,19 +43,24 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-from tqdm import tqdm
 
 from warp_hcell import clean as cleaning
 from warp_hcell import database
 from warp_hcell.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.cli import (
+    Parser,
     UserError,
     check_output_path,
+    command_prog,
     common_parser,
     output_lock,
     positive_float,
     positive_int,
+    progress_bar,
     run_main,
+    say,
+    set_verbosity,
+    task_setup,
 )
 from warp_hcell.execution import InProcess, SchedulerUnreachable, make_execution
 from warp_hcell.exploration import DEM_PREFIX
@@ -260,7 +265,7 @@ def _generate(execution, physics: Physics, meso: Mesostructure, settings: Databa
     token = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
     inputs = ProbeInputs(token, physics, settings, int(seed), states)
     done = settings.samples - sum(chunk_samples(settings, c) for c in missing)
-    with tqdm(total=settings.samples, initial=done, desc="probes", unit="sample", smoothing=0.1) as bar:
+    with progress_bar(total=settings.samples, initial=done, desc="probes", unit="sample", smoothing=0.1) as bar:
         for chunk, arrays in execution.map(probe_chunk, inputs, todo):
             sidecar.save(sidecar.file("chunk", chunk), arrays)
             chunks[chunk] = arrays
@@ -276,8 +281,8 @@ def _generate(execution, physics: Physics, meso: Mesostructure, settings: Databa
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m warp_hcell.generate`` argument parser (defaults from ``DatabaseSettings``)."""
     defaults = DatabaseSettings()
-    parser = argparse.ArgumentParser(
-        prog="python -m warp_hcell.generate", parents=[common_parser()],
+    parser = Parser(
+        prog=command_prog("warp_hcell.generate"), parents=[common_parser()],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
         description="Generate the generic meso-ANN learning database of a mesostructure with the DEM "
                     "(docs/database_format.md): exploration paths, then seeded strain probes and perturbed "
@@ -315,6 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _run(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
+    set_verbosity(args)
     try:
         settings = DatabaseSettings(samples=args.samples, chunk_size=args.chunk_size,
                                     sample_spacing=args.sample_spacing, n_directions=args.n_directions,
@@ -335,7 +341,7 @@ def _run(argv: Sequence[str] | None) -> int:
         starts = [meso]
     start = time.perf_counter()
     try:
-        with make_execution(args.workers, args.scheduler) as execution:
+        with make_execution(args.workers, args.scheduler, setup=task_setup(args)) as execution:
             written = generate(meso, settings, args.out, seed=args.seed, starts=starts, device=args.device,
                                threads=args.threads, execution=execution, clean=args.clean,
                                max_chunks=args.max_chunks, discard_partial=args.overwrite)
@@ -346,9 +352,9 @@ def _run(argv: Sequence[str] | None) -> int:
                         f"command to resume") from None
     elapsed = time.perf_counter() - start
     if written is None:
-        print(f"stopped after --max-chunks {args.max_chunks} ({elapsed:.1f} s); rerun the same command to resume")
+        say(f"stopped after --max-chunks {args.max_chunks} ({elapsed:.1f} s); rerun the same command to resume")
     else:
-        print(f"{written}: {settings.samples} samples in {elapsed:.1f} s ({settings.samples / elapsed:.0f} samples/s)")
+        say(f"{written}: {settings.samples} samples in {elapsed:.1f} s ({settings.samples / elapsed:.0f} samples/s)")
     return 0
 
 

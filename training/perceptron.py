@@ -1,0 +1,182 @@
+"""The meso-ANN's perceptron for inference: float32, one fixed sequence of operations per cell.
+
+``Perceptron`` evaluates the tanh multilayer perceptron of ``training.network.MesoNet`` (and
+its forward-mode derivative) on a batch of cells laid out cells last, (n_features, n_cells),
+without BLAS. Every output of every cell is computed by the same IEEE-754 operations in the
+same order whatever the batch, the cell's place in it and the CPU's vector width:
+
+- a layer output starts from the bias and accumulates ``weight[j, k] * h[k]`` for
+  k = 0, 1, ..., n_in - 1 in that order, each term by one fused multiply-add (``_fma32``, the
+  LLVM intrinsic: one rounding, in hardware where the CPU has FMA, in software otherwise);
+- the hidden activation is ``tanh32``, a rational function evaluated with additions,
+  multiplications, FMAs and one division only (no library call whose result could depend on
+  the CPU or on vectorisation);
+- loops over cells are innermost and each cell is one lane: vectorising them (4, 8 or 16
+  lanes, or none) changes the speed, not a bit of the result. Nothing reduces across cells.
+
+BLAS kernels do not give this: their blocking and their choice of kernel depend on the CPU and on
+where a column sits in the matrix, so a cell's output moved in its last bits with its place in
+the batch.
+
+Arrays are float32, C-contiguous, cells along the last axis; the number of cells need not be
+a multiple of anything (``BLOCK`` only sets the cache tile).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba.extending import intrinsic
+
+BLOCK = 128
+"""Cells per cache tile of a layer (a speed setting; results do not depend on it)."""
+
+TANH_CLIP = 9.0
+"""|x| beyond which tanh32 returns its value at +-9 (within 2e-8 of +-1, below float32's resolution)."""
+
+# tanh(x) ~ x P(u) / Q(u), u = (x / 9)^2, |x| <= 9: a least-squares rational fit of relative error with
+# Lawson reweighting on 4e4 Chebyshev-spaced points of [0, 9]; max relative error 3.8e-9 in exact
+# arithmetic (evaluated in float32: a few units in the last place, tested against float64 tanh).
+_TANH_P = (0.9999999962374895, 11.191764063321012, 26.53681927216796, 16.968360162944737, 1.833949076767449,
+           -0.09735439987746108, 0.005943551109727441)
+_TANH_Q = (1.0, 38.191762401312445, 182.91455898929954, 226.44291470952976, 68.40611514657363)
+_P = tuple(np.float32(c) for c in _TANH_P)
+_Q = tuple(np.float32(c) for c in _TANH_Q)
+_CLIP = np.float32(TANH_CLIP)
+_INV_CLIP_SQ = np.float32(1.0 / TANH_CLIP**2)
+_ONE = np.float32(1.0)
+
+
+@intrinsic
+def _fma32(typingctx, a, b, c):
+    """a * b + c with one rounding (``llvm.fma``) for float32 scalars."""
+    def codegen(context, builder, signature, args):
+        return builder.fma(*args)
+    return numba.float32(numba.float32, numba.float32, numba.float32), codegen
+
+
+@numba.njit(inline="always", error_model="numpy")
+def tanh32(x):
+    """float32 tanh of a float32 ``x``: clip to [-9, 9], then x P(u) / Q(u) by Horner with FMAs (module docstring)."""
+    y = min(max(x, -_CLIP), _CLIP)
+    u = y * y * _INV_CLIP_SQ
+    p = _fma32(_fma32(_fma32(_fma32(_fma32(_fma32(_P[6], u, _P[5]), u, _P[4]), u, _P[3]), u, _P[2]), u, _P[1]),
+               u, _P[0])
+    q = _fma32(_fma32(_fma32(_fma32(_Q[4], u, _Q[3]), u, _Q[2]), u, _Q[1]), u, _Q[0])
+    return y * p / q
+
+
+@numba.njit(cache=True, error_model="numpy")
+def dense(weight, bias, h, out, squash):
+    """One layer: out[j, c] = act(bias[j] + sum_k weight[j, k] h[k, c]), the sum in input order by FMAs.
+
+    Args:
+        weight: (n_out, n_in) float32; bias: (n_out,) float32 (zeros for a derivative).
+        h: inputs (n_in, n) float32, cells last.
+        out: (n_out, n) float32, written (must not overlap ``h``).
+        squash: apply ``tanh32`` (hidden layer) or not (output layer, derivatives).
+
+    Cells are processed in tiles of ``BLOCK``; inside a tile two inputs and two outputs share
+    each pass over the cells (fewer loads and stores); the order of the terms of each sum is
+    k = 0, 1, ... regardless (each pass adds its two terms as fma(w1, h1, fma(w0, h0, acc))).
+    """
+    n_out, n_in = weight.shape
+    n = h.shape[1]
+    for lo in range(0, n, BLOCK):
+        hi = min(lo + BLOCK, n)
+        m = hi - lo
+        for j in range(n_out):
+            row, b = out[j][lo:hi], bias[j]
+            for c in range(m):
+                row[c] = b
+        k = 0
+        while k + 2 <= n_in:
+            h0, h1 = h[k][lo:hi], h[k + 1][lo:hi]
+            j = 0
+            while j + 2 <= n_out:
+                r0, r1 = out[j][lo:hi], out[j + 1][lo:hi]
+                a0, a1, b0, b1 = weight[j, k], weight[j, k + 1], weight[j + 1, k], weight[j + 1, k + 1]
+                for c in range(m):
+                    x0, x1 = h0[c], h1[c]
+                    r0[c] = _fma32(a1, x1, _fma32(a0, x0, r0[c]))
+                    r1[c] = _fma32(b1, x1, _fma32(b0, x0, r1[c]))
+                j += 2
+            if j < n_out:
+                r0 = out[j][lo:hi]
+                a0, a1 = weight[j, k], weight[j, k + 1]
+                for c in range(m):
+                    r0[c] = _fma32(a1, h1[c], _fma32(a0, h0[c], r0[c]))
+            k += 2
+        if k < n_in:
+            h0 = h[k][lo:hi]
+            for j in range(n_out):
+                r0, a0 = out[j][lo:hi], weight[j, k]
+                for c in range(m):
+                    r0[c] = _fma32(a0, h0[c], r0[c])
+        if squash:
+            for j in range(n_out):
+                row = out[j][lo:hi]
+                for c in range(m):
+                    row[c] = tanh32(row[c])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def scale_by_tanh_derivative(h, out_dot):
+    """out_dot *= 1 - h^2 in place (tanh' = 1 - tanh^2 at the layer's output ``h``), both (n_rows, n) float32."""
+    for j in range(h.shape[0]):
+        h_j, d_j = h[j], out_dot[j]
+        for c in range(h_j.shape[0]):
+            d_j[c] = d_j[c] * (_ONE - h_j[c] * h_j[c])
+
+
+class Perceptron:
+    """A tanh multilayer perceptron (hidden layers tanh, output layer linear) in float32, cells last.
+
+    Args:
+        weights: per layer the weight (n_out, n_in) and bias (n_out,), input layer first
+            (converted to float32 C arrays).
+    """
+
+    def __init__(self, weights: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        self.weight = [np.ascontiguousarray(w, dtype=np.float32) for w, _ in weights]
+        self.bias = [np.ascontiguousarray(b, dtype=np.float32) for _, b in weights]
+        self._zero_bias = [np.zeros_like(b) for b in self.bias]
+        self.widths = tuple(w.shape[0] for w in self.weight)
+        """Output width of every layer."""
+        self._first_columns: dict[tuple[int, int], np.ndarray] = {}
+
+    @property
+    def n_inputs(self) -> int:
+        """Number of inputs of the first layer."""
+        return int(self.weight[0].shape[1])
+
+    def buffers(self, n: int) -> list[np.ndarray]:
+        """Scratch outputs of every layer for ``n`` cells, (width, n) float32 each."""
+        return [np.empty((width, n), dtype=np.float32) for width in self.widths]
+
+    def forward(self, h: np.ndarray, layers: list[np.ndarray]) -> np.ndarray:
+        """Network output (n_outputs, n) of inputs ``h`` (n_inputs, n); ``layers`` from ``buffers(n)``
+        receive every layer's output (the hidden activations stay there for ``jvp``)."""
+        last = len(self.weight) - 1
+        for index, (weight, bias, out) in enumerate(zip(self.weight, self.bias, layers)):
+            dense(weight, bias, h, out, index < last)
+            h = out
+        return h
+
+    def jvp(self, first: int, h_dot: np.ndarray, layers: list[np.ndarray]) -> np.ndarray:
+        """Derivative of the output (n_outputs, n) along one direction, given that of the inputs
+        ``first``, ``first + 1``, ... (``h_dot`` (n_varying, n); every other input constant) and the
+        activations ``forward`` left in ``layers``."""
+        last = len(self.weight) - 1
+        for index, (weight, zero, h) in enumerate(zip(self.weight, self._zero_bias, layers)):
+            if index == 0:
+                key = (first, h_dot.shape[0])
+                if key not in self._first_columns:
+                    self._first_columns[key] = np.ascontiguousarray(weight[:, first:first + h_dot.shape[0]])
+                weight = self._first_columns[key]
+            out_dot = np.empty_like(h)
+            dense(weight, zero, h_dot, out_dot, False)
+            if index < last:
+                scale_by_tanh_derivative(h, out_dot)
+            h_dot = out_dot
+        return h_dot
