@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from homogenization import driver, loading, orientation, plotting
+from homogenization.figure_style import number
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructure import h_cell
 from warp_hcell.parameters import DemSettings
@@ -176,8 +177,8 @@ def main() -> None:
             print_row(row)
             rows.append(row)
             if not args.sweep:
-                title = (f"constant-volume biaxial, alpha0 = {alpha0:g} deg, p0 = {p0:g} N/m, N = {args.orientations}, "
-                         f"increment {increment:g}")
+                title = (f"constant-volume biaxial test, H-cell, $\\alpha_0$ = {alpha0:g}°, $p_0 = {number(p0)}$ N/m, "
+                         f"$N$ = {args.orientations}, increment ${number(increment)}$")
                 args.figures.mkdir(parents=True, exist_ok=True)
                 plotting.save_figure(plotting.make_figure(records, title=title),
                                      args.figures / f"dem_vs_analytical_{name}.png")

@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import time
 import warnings
 from dataclasses import asdict, replace
@@ -40,8 +41,10 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
-from homogenization import driver, loading
+from homogenization import driver, loading, plotting
+from homogenization.figure_style import GRID, apply_style, number
 from homogenization.backends import make_cell_model
 from warp_hcell.builders import resolve_mesostructure
 from warp_hcell.mesostructure import h_cell
@@ -135,12 +138,11 @@ def yade_errors(settings: DemSettings) -> dict[str, float]:
 
 
 def plot(rows: list[dict], path: Path) -> None:
-    import matplotlib.pyplot as plt
-
     tests = list(dict.fromkeys(r["test"] for r in rows))
     n_col = 2
     n_row = -(-len(tests) // n_col)
-    fig, axes = plt.subplots(n_row, n_col, figsize=(11, 4.2 * n_row), sharex=True, sharey=True, squeeze=False)
+    fig = Figure(figsize=(11, 4.2 * n_row), layout="constrained")
+    axes = fig.subplots(n_row, n_col, sharex=True, sharey=True, squeeze=False)
     for ax, test in zip(axes.flat, tests):
         failed = [r["name"] for r in rows if r["test"] == test and "error" in r]
         for r in (r for r in rows if r["test"] == test and "error" not in r):
@@ -152,14 +154,15 @@ def plot(rows: list[dict], path: Path) -> None:
                       zorder=3 if is_default else 2)
             ax.annotate(r["name"].split(" (")[0], (r["substeps_per_cell_call"], err), fontsize=6)
         ax.axhline(1e-3, color="k", lw=0.8, ls="--")
-        ax.set_title(test + (f" ({len(failed)} settings: stress control failed)" if failed else ""), fontsize=9)
+        name = re.sub(r"p0 = (\S+)", lambda m: f"$p_0 = {number(float(m[1]))}$ N/m", test)  # keys as in the JSON
+        ax.set_title(name + (f" ({len(failed)} settings: stress control failed)" if failed else ""), fontsize=9)
         ax.set_xlabel("DEM substeps per cell and step call")
-        ax.set_ylabel("max(|dp|, |dq|) / p0 vs analytical")
-    fig.suptitle("DEM stepping, 360 orientations, increment 1e-4: accuracy vs cost\n"
-                 "(circles: fixed strain per substep, squares: adaptive, red: defaults; dashed: 1e-3)", fontsize=10)
-    fig.tight_layout()
+        ax.set_ylabel(r"$\max(|\Delta p|, |\Delta q|)/p_0$ against the analytical cell [-]")
+        ax.grid(True, which="both", **GRID)
+    fig.suptitle("DEM stepping, 360 orientations, increment $10^{-4}$: accuracy against cost\n"
+                 "(circles: fixed strain per substep, squares: adaptive, red: defaults; dashed: $10^{-3}$)", fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    plotting.save_figure(apply_style(fig), path)
 
 
 def main() -> None:

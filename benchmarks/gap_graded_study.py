@@ -20,6 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from homogenization import io, plotting, sweep
+from homogenization.figure_style import GRID, LABELS, apply_style, figure_legend, number
 from warp_hcell.builders import parse_mesostructure, pore_ratio
 
 LIQUEFACTION = 0.2
@@ -62,18 +63,19 @@ def fines_table(runs: Path, figures: Path) -> None:
                       f"{100 * r['eps1_at_peak']:.2f} | {'-' if math.isnan(fp) else f'{fp:.3f}'} | "
                       f"{r['p_at_5pct'] / p0:.3f} | {r['p_at_10pct'] / p0:.3f} | {r['p_at_15pct'] / p0:.3f} | "
                       f"{c.p.min() / p0:.3f} | {'yes' if r['p_at_15pct'] / p0 < LIQUEFACTION else 'no'} |")
-            label = f"alpha0 = {alpha0:g}, p0 = {p0:g}"
+            label = f"$\\alpha_0$ = {alpha0:g}°, $p_0 = {number(p0)}$ N/m"
             ax_p.plot(x, [r["p_at_15pct"] / p0 for r in sel], "o-", label=label)
             ax_q.plot(x, [r["peak_q"] / p0 for r in sel], "o-", label=label)
     ax_p.axhline(LIQUEFACTION, color="0.5", ls=":", lw=1.0)
-    ax_p.set(yscale="log", xlabel="fine-grain radius / pore inscribed radius [-]", ylabel="p/p0 at eps1 = 15 % [-]",
+    ax_p.set(yscale="log", xlabel="fine-grain radius / pore inscribed radius [-]",
+             ylabel=r"$p/p_0$ at $\varepsilon_1$ = 15 % [-]",
              title="end of the constant-volume test (dotted: liquefaction)")
-    ax_q.set(yscale="log", xlabel="fine-grain radius / pore inscribed radius [-]", ylabel="peak q/p0 [-]",
-             title="largest deviator up to eps1 = 15 %")
+    ax_q.set(yscale="log", xlabel="fine-grain radius / pore inscribed radius [-]", ylabel=r"peak $q/p_0$ [-]",
+             title=r"largest deviator up to $\varepsilon_1$ = 15 %")
     for ax in (ax_p, ax_q):
-        ax.grid(True, alpha=0.3, which="both")
-        ax.legend(fontsize=8)
-    plotting.save_figure(fig, figures / "gap_fines_ratio.png")
+        ax.grid(True, which="both", **GRID)
+    figure_legend(fig, ax_p.get_lines())  # both panels draw the same cases
+    plotting.save_figure(apply_style(fig), figures / "gap_fines_ratio.png")
 
     fig = Figure(figsize=(12.0, 4.6), layout="constrained")
     axes = fig.subplots(1, 2)
@@ -83,12 +85,13 @@ def fines_table(runs: Path, figures: Path) -> None:
         colours = sweep.plotting_colours(len(rows))
         for colour, r in zip(colours, rows):
             c = curve(runs / name, r)
-            ax.plot(100 * c.eps1, c.p / p0, color=colour, label=f"r_f/r = {fine_ratio(r['mesostructure']):.4g}")
+            ax.plot(100 * c.eps1, c.p / p0, color=colour, label=f"$r_f/r$ = {fine_ratio(r['mesostructure']):.4g}")
         ax.axhline(LIQUEFACTION, color="0.5", ls=":", lw=1.0)
-        ax.set(yscale="log", xlabel="eps1 [%]", ylabel="p/p0 [-]", title=f"alpha0 = {alpha0:g} deg, p0 = {p0:g} N/m")
-        ax.grid(True, alpha=0.3, which="both")
-        ax.legend(fontsize=7)
-    plotting.save_figure(fig, figures / "gap_fines_curves_p2e5.png")
+        ax.set(yscale="log", xlabel=LABELS["eps1"], ylabel=LABELS["p/p0"],
+               title=f"$\\alpha_0$ = {alpha0:g}°, $p_0 = {number(p0)}$ N/m")
+        ax.grid(True, which="both", **GRID)
+        ax.legend(fontsize=7)  # each panel its own cells
+    plotting.save_figure(apply_style(fig), figures / "gap_fines_curves_p2e5.png")
 
 
 def instability_families(runs: Path) -> dict[str, tuple[Path, list[dict]]]:
@@ -123,7 +126,7 @@ def instability(runs: Path, figures: Path) -> None:
             for colour, r in zip(colours, sel):
                 c = curve(folder, r)
                 ax.plot(c.p / p0, c.q / p0, color=colour, ls=styles[family], lw=0.8,
-                        label=f"alpha0 = {r['alpha0']:g}" if family == "plain" else None)
+                        label=f"$\\alpha_0$ = {r['alpha0']:g}°" if family == "plain" else None)
                 fp = r["first_peak_q"]
                 if not math.isnan(fp):
                     point = (r["p_at_first_peak"] / p0, fp / p0)
@@ -139,15 +142,16 @@ def instability(runs: Path, figures: Path) -> None:
                 slope = float(p @ q / (p @ p))
                 slopes[(family, p0)] = (slope, float(np.abs(q - slope * p).max()), len(peaks))
                 xs = np.linspace(0.0, 1.2, 2)
-                ax.plot(xs, slope * xs, color="k", ls=styles[family], lw=1.3, label=f"{family}: q = {slope:.3f} p")
+                ax.plot(xs, slope * xs, color="k", ls=styles[family], lw=1.3,
+                        label=f"{family}: $q = {slope:.3f}\\,p$")
     for p0, ax in axes.items():
-        ax.set(xlabel="p/p0 [-]", ylabel="q/p0 [-]", xlim=(0.0, 2.0), ylim=(0.0, 1.6),
-               title=f"p0 = {p0:g} N/m: stress paths, first q peaks (filled: p < p0), instability lines")
+        ax.set(xlabel=LABELS["p/p0"], ylabel=LABELS["q/p0"], xlim=(0.0, 2.0), ylim=(0.0, 1.6),
+               title=f"$p_0 = {number(p0)}$ N/m: stress paths, first $q$ peaks (filled: $p < p_0$), instability lines")
         ax.title.set_fontsize(9)
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=6, ncols=2)
+        ax.grid(True, **GRID)
+        ax.legend(fontsize=6, ncols=2)  # each panel its own instability lines
     fig.suptitle("line styles / markers: " + ", ".join(f"{f} {styles[f]} {markers[f]}" for f in families), fontsize=9)
-    plotting.save_figure(fig, figures / "gap_instability.png")
+    plotting.save_figure(apply_style(fig), figures / "gap_instability.png")
     print("\nLine q = eta_IL p through the origin, least squares over the first peaks reached with p < p0 "
           "(contractive cells; open markers in the figure are the others):\n")
     print("| cell | p0 [N/m] | peaks | slope eta_IL | max abs(q - eta_IL p) / p0 |")
@@ -188,10 +192,11 @@ def erosion(runs: Path, figures: Path) -> None:
                 kept = next(r for r in reference if r["mesostructure"] == fines_text and r["p0"] == p0)
                 k = curve(runs / base, kept)
                 ax.plot(100 * k.eps1, k.p / p0, color="tab:blue", label=f"{fines_text} kept")
-            ax.set(yscale="log", xlabel="eps1 [%]", ylabel="p/p0 [-]", title=f"alpha0 = {alpha0:g} deg, p0 = {p0:g} N/m")
-            ax.grid(True, alpha=0.3, which="both")
-            ax.legend(fontsize=7)
-    plotting.save_figure(fig, figures / "gap_erosion.png")
+            ax.set(yscale="log", xlabel=LABELS["eps1"], ylabel=LABELS["p/p0"],
+                   title=f"$\\alpha_0$ = {alpha0:g}°, $p_0 = {number(p0)}$ N/m")
+            ax.grid(True, which="both", **GRID)
+            ax.legend(fontsize=7)  # each column its own fines cell
+    plotting.save_figure(apply_style(fig), figures / "gap_erosion.png")
 
 
 def ann_table(runs: Path, name: str = "sweep") -> None:

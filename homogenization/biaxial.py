@@ -127,10 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_contact_law_arguments(parser)
     parser.add_argument("--snapshot-interval", type=positive_int, default=None,
                         help="also store per-cell observables every this many increments (None: at stage ends only)")
-    parser.add_argument("--deviator", choices=plotting.DEVIATORS, default=plotting.DEVIATORS[0],
-                        help="figure deviator: q = s11 - s22 or t = q/2")
-    parser.add_argument("--fourth-panel", choices=plotting.FOURTH_PANELS, default=plotting.FOURTH_PANELS[0],
-                        help="fourth panel of the figure: stress ratio or second-order work W2")
+    plotting.add_figure_arguments(parser.add_argument_group("figure (cambridge.png)"))
     parser.add_argument("--out", type=Path, required=True, help="output folder (replaced as a unit)")
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
                         help=f"the cell of every backend (analytical: the plain H-cell only; ann: the model's "
@@ -170,12 +167,6 @@ def check_models_take(models: dict[str, Any], meso: Mesostructure) -> None:
             model.init_state(meso, 1)
         except ValueError as exc:
             raise UserError(f"{name}: {exc}") from None
-
-
-def cell_label(meso: Mesostructure) -> str:
-    """Figure-title name of the run's cell: its alpha0 where it has H-cell labels, else its name."""
-    alpha0 = h_cell_alpha0(meso)
-    return f"alpha0 = {alpha0:g} deg" if alpha0 is not None else f"mesostructure {meso.name}"
 
 
 def check_options(args: argparse.Namespace) -> None:
@@ -295,6 +286,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     check_replaceable(out)
     check_options(args)
     programme, settings = build_programme(args, sys.argv[1:] if argv is None else argv)
+    if args.normalise and not any(step.stop_at_p for step in programme):
+        raise UserError("--normalise needs p0: the programme has no stop_at_p step")
     for label, largest in coarse_steps(programme):
         warn(f"step {label!r} has strain increments up to {largest:g} > {COARSE_INCREMENT:g}: coarse kinematics "
              f"(~1 % of p0 and more){'; the ANN extrapolates beyond its training probes' if 'ann' in args.backend else ''}")
@@ -310,7 +303,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         models = {name: make_cell_model(name, contact_law=law, radius=args.radius, **options[name])
                   for name in args.backend}
         check_models_take(models, meso)
-        records: dict[str, driver.Record] = {}
+        runs: dict[str, plotting.Run] = {}
         written: list[str] = []  # status lines, printed once the folder is in place
         drained = plotting.is_drained({"drained": args.drained or None}, programme)
         with output_folder(out) as work:
@@ -346,24 +339,20 @@ def main(argv: Sequence[str] | None = None) -> int:
                     io.write_run(folder, record, parameters=parameters, seed=args.seed, command=command)
                 except OSError as exc:
                     raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
-                records[name] = record
+                runs[name] = plotting.Run(record, parameters)
                 unconverged = record.diagnostics.get("n_unconverged")
                 note = f", {int(unconverged.sum())} unconverged cell-increments" if unconverged is not None and unconverged.sum() else ""
                 written.append(f"{name}: {record.n_increments} increments in {elapsed:.1f} s{note} -> "
                                f"{final / io.RUN_FILE}, {final / io.CURVE_FILE}")
 
-            kind = f"programme {args.programme.name}" if args.programme else (
-                "drained biaxial test" if args.drained else "constant-volume biaxial test")
-            p0 = parameters["p0"]
-            title = (f"{kind}, {cell_label(meso)}" + (f", p0 = {p0:g} N/m" if p0 else "")
-                     + f", N = {args.orientations}")
-            fig = plotting.make_figure(records, drained=drained, fourth=args.fourth_panel, deviator=args.deviator,
-                                       title=title)
+            slopes = (plotting.critical_state_lines(list(runs.values()), list(runs), warn) if args.csl else None)
+            fig = plotting.overlay_figure(list(runs.values()), fourth=args.fourth_panel, deviator=args.deviator,
+                                          normalise=args.normalise, csl=slopes)
             try:
                 plotting.save_figure(fig, work / FIGURE_FILE)
             except OSError as exc:
                 raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
-    say(*written, f"figure -> {out / FIGURE_FILE}")
+    say(*written, f"figure -> {out / FIGURE_FILE}" + (f" ({plotting.csl_summary(slopes)})" if slopes is not None else ""))
     return 0
 
 

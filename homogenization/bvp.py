@@ -37,9 +37,9 @@ from typing import Sequence
 
 import numpy as np
 
-from homogenization import driver, fe, fe_output, loading, orientation
+from homogenization import driver, fe, fe_output, loading, orientation, run_labels
 from homogenization.backends import BACKENDS, make_cell_model
-from homogenization.biaxial import BACKEND_ONLY_OPTIONS, DEVICE_BACKENDS, backend_options, cell_label, check_models_take
+from homogenization.biaxial import BACKEND_ONLY_OPTIONS, DEVICE_BACKENDS, backend_options, check_models_take
 from homogenization.material import HomogenisedMaterial
 from warp_hcell.builders import MESOSTRUCTURE_HELP, h_cell_alpha0, mesostructure_arg
 from warp_hcell.cli import (
@@ -216,9 +216,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "contact_law": asdict(ContactLaw()), "radius": CellDefaults.radius,
         "mesostructure": args.mesostructure.text if args.mesostructure is not None else None,
     }
-    kind = "homogeneous" if not weak.any() else f"imperfection F = {args.imperfection:g} ({int(weak.sum())} elements)"
-    title = (f"{args.backend}, {cell_label(sound)}, p0 = {args.p0:g} N/m, N = {args.orientations}, "
-             f"{nx} x {ny} elements, {kind}")
+    kind = "homogeneous" if not weak.any() else f"imperfection F = {args.imperfection:g} in {int(weak.sum())} elements"
+    title = f"{run_labels.title(run_labels.describe(parameters))}, {nx} × {ny} elements, {kind}"
     try:
         paths = fe_output.write_outputs(out, specimen, results, element_alpha0, parameters, args.seed, title, reference)
     except OSError as exc:

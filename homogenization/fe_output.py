@@ -13,7 +13,9 @@
 - ``vtu/step_NNNN.vtu`` and ``specimen.pvd`` (ParaView collection): displacement at the
   nodes, element averages of stress, strain and the deviatoric strain
   eps_d = sqrt((eps_xx - eps_yy)^2 + gamma_xy^2), and alpha0 per element.
-- ``bvp.png``: q and eps_v against eps1, and the deformed mesh coloured by eps_d.
+- ``bvp.png``: q and eps_v against eps1 (strains in %, eps1 and eps_v counted from the end of
+  the isotropic stage), and the deformed mesh coloured by eps_d; style of
+  ``homogenization.figure_style``.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
 from homogenization.fe import BiaxialSpecimen, StepResult
+from homogenization.figure_style import GRID, LABELS, PNG_DPI, TickFormatter, apply_style
 from homogenization.orientation import VOLUME_RULE
 from warp_hcell.cli import atomic_write
 from warp_hcell.provenance import provenance
@@ -147,10 +150,11 @@ def write_vtu(folder: Path, specimen: BiaxialSpecimen, results: Sequence[StepRes
 
 def make_figure(specimen: BiaxialSpecimen, results: Sequence[StepResult], title: str,
                 reference: Mapping[str, np.ndarray] | None = None) -> Figure:
-    """q and eps_v against eps1 from the end of the isotropic stage; deformed mesh coloured by eps_d.
+    """q and eps_v [%] against eps1 [%] from the end of the isotropic stage; deformed mesh coloured by eps_d.
 
     Args:
-        reference: optional material-point curve with ``eps1, q, eps_v`` (same origin) to overlay.
+        reference: optional material-point curve with ``eps1, q, eps_v`` [-] (same origin) to
+            overlay; the one legend of the figure (first panel) then names both curves.
     """
     table = curve_table(results)
     shear = table["stage"] == "shear"
@@ -160,14 +164,14 @@ def make_figure(specimen: BiaxialSpecimen, results: Sequence[StepResult], title:
     fig = Figure(figsize=(12, 4.5), layout="constrained")
     ax_q, ax_v, ax_m = fig.subplots(1, 3, width_ratios=(1, 1, 0.8))
     keep = shear | (np.arange(len(results)) == start)
-    ax_q.plot(e1[keep], table["q"][keep], "-", label="finite elements")
-    ax_v.plot(e1[keep], ev[keep], "-", label="finite elements")
+    ax_q.plot(100.0 * e1[keep], table["q"][keep], "-", label="finite elements")
+    ax_v.plot(100.0 * e1[keep], 100.0 * ev[keep], "-", label="finite elements")
     if reference is not None:
-        ax_q.plot(reference["eps1"], reference["q"], "--", label="material point")
-        ax_v.plot(reference["eps1"], reference["eps_v"], "--", label="material point")
+        ax_q.plot(100.0 * reference["eps1"], reference["q"], "--", label="material point")
+        ax_v.plot(100.0 * reference["eps1"], 100.0 * reference["eps_v"], "--", label="material point")
         ax_q.legend()
-    ax_q.set(xlabel="eps1 (from the end of isotropic loading) [-]", ylabel="q = s11 - s22 [N/m]")
-    ax_v.set(xlabel="eps1 [-]", ylabel="eps_v, contraction positive [-]")
+    ax_q.set(xlabel=LABELS["eps1"], ylabel=LABELS["q"], title="deviator")
+    ax_v.set(xlabel=LABELS["eps1"], ylabel=LABELS["eps_v"], title="volumetric strain (contraction > 0)")
     last = results[-1]
     xy = specimen.mesh.p.T + last.displacement
     polys = xy[specimen.mesh.t.T]
@@ -177,10 +181,12 @@ def make_figure(specimen: BiaxialSpecimen, results: Sequence[StepResult], title:
     ax_m.add_collection(collection)
     ax_m.autoscale_view()
     ax_m.set_aspect("equal")
-    ax_m.set(xlabel="x [m]", ylabel="y [m]", title="deformed mesh (true scale)")
-    fig.colorbar(collection, ax=ax_m, label="deviatoric strain eps_d [-]")
-    fig.suptitle(title)
-    return fig
+    ax_m.set(xlabel=LABELS["x"], ylabel=LABELS["y"], title="deformed mesh (true scale)")
+    fig.colorbar(collection, ax=ax_m, label=LABELS["eps_d"], format=TickFormatter())
+    for ax in (ax_q, ax_v):
+        ax.grid(True, **GRID)
+    fig.suptitle(title + " (compression positive)")
+    return apply_style(fig)
 
 
 def write_outputs(directory: Path, specimen: BiaxialSpecimen, results: Sequence[StepResult],
@@ -196,6 +202,6 @@ def write_outputs(directory: Path, specimen: BiaxialSpecimen, results: Sequence[
     }
     fig = make_figure(specimen, results, title, reference)
     with atomic_write(directory / FIGURE_FILE) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
+        fig.savefig(tmp, format="png", dpi=PNG_DPI)
     paths["figure"] = directory / FIGURE_FILE
     return paths

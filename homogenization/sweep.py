@@ -68,10 +68,12 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
+from matplotlib.figure import Figure
 
-from homogenization import driver, io, loading, plotting
+from homogenization import driver, io, loading, plotting, run_labels
 from homogenization.backends import make_cell_model, mesostructure_refusal
 from homogenization.biaxial import backend_list
+from homogenization.figure_style import GRID, LABELS, apply_style, figure_legend
 from warp_hcell.builders import (
     MESOSTRUCTURE_HELP,
     MesostructureSource,
@@ -510,10 +512,7 @@ def write_case(case: Case, record: driver.Record, out: Path, seed: int) -> dict[
     prm = case.parameters
     folder = Path(out) / CASES_DIR / case.folder
     io.write_run(folder, record, parameters=prm, seed=seed)
-    kind = "drained" if prm["drained"] else "constant-volume"
-    fig = plotting.make_figure({case.backend: record}, drained=prm["drained"],
-                               title=f"{kind} biaxial, {case.source}, alpha0 = {case.alpha0:g} deg, p0 = {case.p0:g} N/m")
-    plotting.save_figure(fig, folder / FIGURE_FILE)
+    plotting.save_figure(plotting.overlay_figure([plotting.Run(record, prm)]), folder / FIGURE_FILE)
     return _summary_row(case, record)
 
 
@@ -589,30 +588,36 @@ def read_summary(path: Path) -> list[dict[str, Any]]:
 
 
 def summary_figure(path: Path, cases: Sequence[Case], out: Path) -> Path:
-    """summary.png: q/p0 and p/p0 against eps1 and the (p/p0, q/p0) path of every case."""
-    from matplotlib.figure import Figure
+    """Write summary.png (``make_summary_figure``) of ``cases`` stored under ``out``; returns ``path``."""
+    runs = [plotting.Run(io.read_run(out / CASES_DIR / case.folder / io.RUN_FILE).record, case.parameters)
+            for case in cases]
+    return plotting.save_figure(make_summary_figure(runs), path)
 
-    fig = Figure(figsize=(15.0, 5.2), layout="constrained")
+
+def make_summary_figure(runs: Sequence[plotting.Run]) -> Figure:
+    """q/p0 and p/p0 against eps1 and the (p/p0, q/p0) path of every run; title and legend from their metadata."""
+    fig = Figure(figsize=(15.0, 5.6), layout="constrained")
     ax_q, ax_p, ax_pq = fig.subplots(1, 3)
-    colours = plotting_colours(len(cases))
-    for colour, case in zip(colours, cases):
-        record = io.read_run(out / CASES_DIR / case.folder / io.RUN_FILE).record
-        c = plotting.shear_curve(record)
-        label = f"{case.source}, {case.alpha0:g}, {case.p0:g}, {case.backend}"
+    title, labels = run_labels.split_labels([plotting.describe_run(run) for run in runs])
+    handles = []
+    for colour, run, label in zip(plotting_colours(len(runs)), runs, labels):
+        c = plotting.shear_curve(run.record)
+        p0 = plotting.reference_pressure(run)
         style = {"color": colour, "lw": 1.0}
-        ax_q.plot(100.0 * c.eps1, c.q / case.p0, label=label, **style)
-        ax_p.plot(100.0 * c.eps1, c.p / case.p0, **style)
-        ax_pq.plot(c.p / case.p0, c.q / case.p0, **style)
-    eps_label = r"$\varepsilon_1$ since the end of the isotropic stage [%]"
-    ax_q.set(xlabel=eps_label, ylabel=r"$q/p_0$", title="deviator")
-    ax_p.set(xlabel=eps_label, ylabel=r"$p/p_0$", title="mean stress")
-    ax_pq.set(xlabel=r"$p/p_0$", ylabel=r"$q/p_0$", title="stress path")
+        (line,) = ax_q.plot(100.0 * c.eps1, c.q / p0, label=label or "_nolegend_", **style)
+        ax_p.plot(100.0 * c.eps1, c.p / p0, **style)
+        ax_pq.plot(c.p / p0, c.q / p0, **style)
+        if label:
+            handles.append(line)
+    ax_q.set(xlabel=LABELS["eps1"], ylabel=LABELS["q/p0"], title="deviator")
+    ax_p.set(xlabel=LABELS["eps1"], ylabel=LABELS["p/p0"], title="mean stress")
+    ax_pq.set(xlabel=LABELS["p/p0"], ylabel=LABELS["q/p0"], title="stress path")
     for ax in (ax_q, ax_p, ax_pq):
-        ax.grid(True, alpha=0.3)
-    fig.legend(*ax_q.get_legend_handles_labels(), loc="outside right upper", fontsize=6,
-               title="mesostructure, alpha0, p0, backend", title_fontsize=7)
-    fig.suptitle("sweep (compression positive)")
-    return plotting.save_figure(fig, path)
+        ax.grid(True, **GRID)
+    if handles:
+        figure_legend(fig, handles)
+    fig.suptitle(f"sweep: {title} (compression positive)" if title else "sweep (compression positive)")
+    return apply_style(fig)
 
 
 def plotting_colours(n: int) -> list:

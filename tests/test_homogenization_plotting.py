@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -50,8 +53,9 @@ def test_figure_panels_labels_and_overlay(runs, tmp_path):
     assert "p = " in axes[1].get_xlabel() and "[N/m]" in axes[1].get_xlabel()
     assert "[%]" in axes[2].get_xlabel() and "[N/m]" in axes[2].get_ylabel()
     assert "q/p" in axes[3].get_ylabel()
-    for ax in axes:
-        assert [t.get_text() for t in ax.get_legend().get_texts()] == ["analytical", "elastic"]
+    assert all(ax.get_legend() is None for ax in axes)  # one legend for the figure, not one per panel
+    assert len(fig.legends) == 1
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["analytical", "elastic"]
     x, y = axes[1].get_lines()[0].get_data()  # Cambridge plane of the analytical run
     curve = plotting.shear_curve(runs["analytical"])
     assert np.array_equal(x, curve.p) and np.array_equal(y, curve.q)
@@ -65,6 +69,11 @@ def test_half_deviator_option(runs):
     assert fig.axes[0].get_ylabel().startswith("$t = ")
     assert np.array_equal(fig.axes[1].get_lines()[0].get_ydata(), 0.5 * curve.q)
     assert fig.axes[3].get_ylabel() == "$t/p$ [-]"
+
+
+def test_single_unlabelled_run_has_no_legend(runs):
+    fig = plotting.make_figure({"": runs["analytical"]}, title="analytical")
+    assert not fig.legends and all(ax.get_legend() is None for ax in fig.axes)
 
 
 def test_drained_and_w2_panels(runs):
@@ -130,3 +139,249 @@ def test_plot_refuses_bad_suffix_mixed_runs_and_existing_figure(runs, tmp_path, 
     assert existing.read_bytes() == b"keep"
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and all(line.startswith("hmodel: error:") for line in err)
+
+
+def test_plot_command_prints_nothing_of_folders_and_reports_the_figure(runs, tmp_path, capsys):
+    files = [_stored_run(tmp_path, name, record, False) for name, record in runs.items()]
+    assert plotting.main([*files, "--out", str(tmp_path / "f.png")]) == 0
+    assert capsys.readouterr().out.strip() == f"figure -> {tmp_path / 'f.png'}"
+
+
+# -- labels and titles from the runs' metadata ----------------------------------------------
+
+def _spy_saved_figures(monkeypatch) -> list:
+    """Figures passed to ``plotting.save_figure`` from now on (they are still written)."""
+    saved = []
+    real = plotting.save_figure
+
+    def spy(fig, path, **kwargs):
+        saved.append(fig)
+        return real(fig, path, **kwargs)
+
+    monkeypatch.setattr(plotting, "save_figure", spy)
+    return saved
+
+
+def _figure_of_plot(monkeypatch, argv) -> tuple[int, object]:
+    """Run ``hmodel plot`` and return (exit code, the Figure it saved, or None)."""
+    from warp_hcell.cli import run_main
+
+    saved = _spy_saved_figures(monkeypatch)
+    code = run_main(plotting.main, argv)
+    return code, saved[-1] if saved else None
+
+
+def _legend(fig) -> list[str]:
+    assert len(fig.legends) <= 1 and all(ax.get_legend() is None for ax in fig.axes)
+    return [t.get_text() for t in fig.legends[0].get_texts()] if fig.legends else []
+
+
+@pytest.fixture(scope="module")
+def high(runs) -> driver.Record:
+    """The analytical run of ``runs`` at p0 = 5.85e6 N/m."""
+    return driver.run(make_cell_model("analytical"), loading.biaxial(5.85e6, 0.02, 5e-4), mesostructure=h_cell(55.0),
+                      n_orientations=24, progress=False)
+
+
+def _write(folder, record, **parameters) -> str:
+    from homogenization import io
+
+    path, _ = io.write_run(folder, record, parameters=parameters, seed=0)
+    return str(path)
+
+
+def test_labels_come_from_metadata_not_folders(runs, high, tmp_path, monkeypatch):
+    low = {"backend": "analytical", "alpha0_deg": 55.0, "p0": P0, "n_orientations": 24, "drained": False}
+    x = _write(tmp_path / "x", runs["analytical"], **low)
+    y = _write(tmp_path / "y", high, **(low | {"p0": 5.85e6}))
+    code, fig = _figure_of_plot(monkeypatch, [x, y, "--out", str(tmp_path / "f.png")])
+    assert code == 0
+    assert _legend(fig) == [r"$p_0 = 2\times10^{5}$ N/m", r"$p_0 = 5.85\times10^{6}$ N/m"]
+    assert fig.get_suptitle() == (r"constant-volume biaxial test, analytical, H-cell, $\alpha_0$ = 55°, $N$ = 24 "
+                                  "(compression positive)")
+    # the same files in other folders: the same labels
+    moved = [tmp_path / "deep" / "a" / "run.h5", tmp_path / "b" / "run.h5"]
+    for source, target in zip((x, y), moved):
+        target.parent.mkdir(parents=True)
+        target.write_bytes(open(source, "rb").read())
+    code, again = _figure_of_plot(monkeypatch, [*map(str, moved), "--out", str(tmp_path / "g.png")])
+    assert code == 0 and _legend(again) == _legend(fig) and again.get_suptitle() == fig.get_suptitle()
+
+
+def test_title_names_every_run_and_legend_only_what_differs(runs, high, tmp_path, monkeypatch):
+    common = {"alpha0_deg": 55.0, "n_orientations": 24, "drained": False}
+    files = [_write(tmp_path / "a", runs["analytical"], backend="analytical", p0=P0, **common),
+             _write(tmp_path / "b", runs["analytical"], backend="dem", p0=P0, **common),
+             _write(tmp_path / "c", high, backend="ann", p0=5.85e6, **common)]
+    code, fig = _figure_of_plot(monkeypatch, [*files, "--out", str(tmp_path / "f.png")])
+    assert code == 0
+    assert _legend(fig) == [r"analytical, $p_0 = 2\times10^{5}$ N/m", r"DEM, $p_0 = 2\times10^{5}$ N/m",
+                            r"ANN, $p_0 = 5.85\times10^{6}$ N/m"]
+    title = fig.get_suptitle()
+    assert "p_0" not in title and "DEM" not in title and "analytical" not in title  # they differ between runs
+    assert r"$\alpha_0$ = 55°" in title and "H-cell" in title
+
+
+def test_identical_runs_are_numbered(runs, tmp_path, monkeypatch):
+    files = [_write(tmp_path / name, runs["analytical"], backend="analytical", p0=P0) for name in ("x", "y")]
+    code, fig = _figure_of_plot(monkeypatch, [*files, "--out", str(tmp_path / "f.png")])
+    assert code == 0 and _legend(fig) == ["run 1", "run 2"]
+
+
+# -- --normalise ---------------------------------------------------------------------------
+
+def test_normalise_divides_stresses_by_each_runs_p0(runs, high):
+    low_run = plotting.Run(runs["analytical"], {"p0": P0, "drained": False})
+    high_run = plotting.Run(high, {"p0": 5.85e6, "drained": False})
+    fig = plotting.overlay_figure([low_run, high_run], normalise=True)
+    ax_q, ax_pq, ax_p, ax_ratio = fig.axes
+    assert ax_pq.get_xlabel().startswith("$p/p_0") and ax_pq.get_ylabel().startswith("$q/p_0")
+    assert ax_p.get_ylabel().startswith("$p/p_0") and ax_q.get_ylabel().startswith("$q/p_0")
+    for k, (record, p0) in enumerate(((runs["analytical"], P0), (high, 5.85e6))):
+        curve = plotting.shear_curve(record)
+        x, y = ax_pq.get_lines()[k].get_data()
+        assert np.allclose(x, curve.p / p0, rtol=1e-14) and np.allclose(y, curve.q / p0, rtol=1e-14)
+        assert np.allclose(ax_q.get_lines()[k].get_ydata(), curve.q / p0, rtol=1e-14)
+        assert np.allclose(ax_p.get_lines()[k].get_ydata(), curve.p / p0, rtol=1e-14)
+        ratio = ax_ratio.get_lines()[k].get_ydata()[1:]
+        assert np.allclose(ratio, curve.q[1:] / curve.p[1:], rtol=1e-12)  # q/p is not divided again
+    assert x[0] == pytest.approx(1.0, rel=1e-6)  # every curve starts at p = p0
+    plain = plotting.overlay_figure([low_run, high_run])
+    assert np.array_equal(plain.axes[1].get_lines()[1].get_xdata(), plotting.shear_curve(high).p)
+    assert plain.axes[1].get_xlabel().startswith("$p = ")
+
+
+def test_normalise_reads_p0_from_the_programme_and_refuses_runs_without(runs, tmp_path, monkeypatch, capsys):
+    no_p0 = _write(tmp_path / "a", runs["analytical"])  # no p0 parameter: the programme's stop_at_p
+    code, fig = _figure_of_plot(monkeypatch, [no_p0, "--normalise", "--out", str(tmp_path / "f.png")])
+    assert code == 0
+    assert fig.axes[1].get_lines()[0].get_xdata()[0] == pytest.approx(1.0, rel=1e-6)
+    record = driver.run(ElasticCell(), (loading.proportional_strain(0.01, 0.0, 4),), mesostructure=h_cell(),
+                        n_orientations=4, progress=False)
+    bare = _write(tmp_path / "b", record)
+    code, _ = _figure_of_plot(monkeypatch, [bare, "--normalise", "--out", str(tmp_path / "g.png")])
+    assert code == 2 and not (tmp_path / "g.png").exists()
+    assert capsys.readouterr().err.strip() == (f"hmodel: error: --normalise: {bare} stores no p0 "
+                                               "(no p0 parameter, no stop_at_p step)")
+
+
+# -- one legend, also for the cyclic programme ---------------------------------------------
+
+CYCLIC = Path(plotting.__file__).parent / "data" / "programmes" / "cyclic_constant_volume.toml"
+
+
+def test_cyclic_programme_figure_has_exactly_one_legend(tmp_path, monkeypatch, capsys):
+    programme = loading.read_programme(CYCLIC)
+    files = []
+    for name, model, meso in (("analytical", make_cell_model("analytical"), h_cell(55.0)),
+                              ("elastic", ElasticCell(), h_cell(55.0))):
+        record = driver.run(model, programme, mesostructure=meso, n_orientations=6, progress=False)
+        files.append(_write(tmp_path / name, record, backend=name, p0=5.85e6, programme_file=str(CYCLIC)))
+    code, fig = _figure_of_plot(monkeypatch, [*files, "--csl", "--out", str(tmp_path / "f.png")])
+    assert code == 0
+    assert len(fig.legends) == 1 and all(ax.get_legend() is None for ax in fig.axes)
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["analytical", "elastic"]
+    assert fig.get_suptitle().startswith("programme cyclic_constant_volume, H-cell")
+    captured = capsys.readouterr()
+    warnings = captured.err.strip().splitlines()
+    assert len(warnings) == 2 and all("no critical-state line: q/p is not stationary" in w for w in warnings)
+    assert "critical-state lines: 0 of 2 runs" in captured.out
+    assert len(fig.axes[1].get_lines()) == 2  # no line drawn
+
+
+# -- --csl ---------------------------------------------------------------------------------
+
+M = 0.8
+
+
+def synthetic(record: driver.Record, p_end: float, slope: float = M) -> driver.Record:
+    """``record`` with its shear-stage stresses replaced: p falls from p0 to ``p_end`` over the
+    first 60 % of the stage with q = 1.5 slope p, then stays at p_end with q = slope p_end."""
+    shear = np.flatnonzero(record.stage == "shear")
+    p, q = record.p.copy(), record.q.copy()
+    n = shear.size
+    s = np.linspace(0.0, 1.0, n)
+    p_shear = np.where(s < 0.6, P0 + (p_end - P0) * s / 0.6, p_end)
+    q_shear = np.where(s < 0.6, 1.5 * slope * p_shear, slope * p_shear)
+    p[shear], q[shear] = p_shear, q_shear
+    return dataclasses.replace(record, p=p, q=q, sigma11=p + q / 2.0, sigma22=p - q / 2.0)
+
+
+def test_csl_slope_is_fitted_to_the_end_of_the_run(runs):
+    curve = plotting.shear_curve(synthetic(runs["analytical"], 0.5 * P0))
+    assert plotting.critical_state_slope(curve, P0) == pytest.approx(M, rel=1e-12)
+    assert np.polyfit(curve.p, curve.q, 1)[0] != pytest.approx(M, rel=0.05)  # a fit over the whole run is not M
+
+
+def test_plot_csl_draws_q_equals_m_p_with_m_in_the_legend(runs, tmp_path, monkeypatch):
+    files = [_write(tmp_path / "a", synthetic(runs["analytical"], 0.5 * P0), backend="dem", p0=P0),
+             _write(tmp_path / "b", synthetic(runs["analytical"], 0.4 * P0, slope=0.6), backend="ann", p0=P0)]
+    code, fig = _figure_of_plot(monkeypatch, [*files, "--csl", "--out", str(tmp_path / "f.png")])
+    assert code == 0
+    lines = fig.axes[1].get_lines()
+    assert len(lines) == 4  # two paths, two critical-state lines
+    for line, slope in zip((lines[1], lines[3]), (M, 0.6)):
+        x, y = line.get_data()
+        assert x[0] == 0.0 and y[0] == 0.0 and y[-1] / x[-1] == pytest.approx(slope, rel=1e-12)
+    assert _legend(fig) == ["DEM; $M$ = 0.800", "ANN; $M$ = 0.600", "critical-state lines $q = M p$"]
+    code, fig = _figure_of_plot(monkeypatch, [files[0], "--csl", "--normalise", "--deviator", "t",
+                                              "--out", str(tmp_path / "g.png")])
+    x, y = fig.axes[1].get_lines()[1].get_data()
+    assert code == 0 and y[-1] / x[-1] == pytest.approx(M / 2.0, rel=1e-12)  # t = M p / 2, over p0 alike
+    assert _legend(fig) == ["critical-state line $q = M p$, $M$ = 0.800"]
+
+
+def test_csl_skips_a_liquefied_run_with_one_warning(runs, tmp_path, monkeypatch, capsys):
+    liquefied = synthetic(runs["analytical"], 0.01 * P0)
+    with pytest.raises(plotting.NoCriticalState, match="liquefied"):
+        plotting.critical_state_slope(plotting.shear_curve(liquefied), P0)
+    files = [_write(tmp_path / "a", liquefied, backend="dem", p0=P0),
+             _write(tmp_path / "b", synthetic(runs["analytical"], 0.5 * P0), backend="ann", p0=P0)]
+    code, fig = _figure_of_plot(monkeypatch, [*files, "--csl", "--out", str(tmp_path / "f.png")])
+    assert code == 0
+    captured = capsys.readouterr()
+    assert captured.err.strip() == (f"hmodel plot: warning: {files[0]}: no critical-state line: it ends at p = 0.01 p0 "
+                                    "(liquefied): fewer than half of its last 10 % of points have p > 0.05 p0")
+    assert "critical-state lines: 1 of 2 runs" in captured.out
+    assert len(fig.axes[1].get_lines()) == 3
+    assert _legend(fig) == ["DEM", "ANN; $M$ = 0.800", "critical-state lines $q = M p$"]
+
+
+# -- the figure of hmodel biaxial ------------------------------------------------------------
+
+BIAXIAL_TINY = ["--alpha0", "55", "--p0", "2e5", "--eps-max", "0.05", "--increment", "1e-3", "--orientations", "12"]
+
+
+def test_biaxial_figure_labels_normalise_and_csl(tmp_path, monkeypatch, capsys):
+    from homogenization import biaxial, io
+    from warp_hcell.cli import run_main
+
+    saved = _spy_saved_figures(monkeypatch)
+    out = tmp_path / "b"
+    argv = BIAXIAL_TINY + ["--backend", "analytical", "--normalise", "--csl", "--out", str(out)]
+    assert run_main(biaxial.main, argv) == 0
+    assert (out / "cambridge.png").is_file()
+    fig = saved[0]
+    assert fig.get_suptitle() == (r"constant-volume biaxial test, analytical, H-cell, $\alpha_0$ = 55°, "
+                                  r"$p_0 = 2\times10^{5}$ N/m, $N$ = 12 (compression positive)")
+    assert fig.axes[1].get_xlabel().startswith("$p/p_0")
+    assert fig.axes[1].get_lines()[0].get_xdata()[0] == pytest.approx(1.0, rel=1e-6)
+    curve = plotting.shear_curve(io.read_run(out / "run.h5").record)
+    slope = plotting.critical_state_slope(curve, 2e5)
+    x, y = fig.axes[1].get_lines()[1].get_data()
+    assert y[-1] / x[-1] == pytest.approx(slope, rel=1e-12)
+    assert _legend(fig) == [f"critical-state line $q = M p$, $M$ = {slope:.3f}"]
+    assert "(critical-state lines: 1 of 1 runs)" in capsys.readouterr().out
+
+
+def test_biaxial_normalise_needs_a_p0(tmp_path, capsys):
+    from homogenization import biaxial
+    from warp_hcell.cli import run_main
+
+    programme = tmp_path / "no_p0.json"
+    programme.write_text('{"steps": [{"label": "path", "control": ["strain", "strain"], "target": [0.01, 0.0], '
+                         '"n_increments": 10}]}')
+    out = tmp_path / "b"
+    assert run_main(biaxial.main, ["--programme", str(programme), "--normalise", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == "hmodel: error: --normalise needs p0: the programme has no stop_at_p step"
+    assert not out.exists()
