@@ -1,0 +1,171 @@
+"""Cell orientations in 3D: a spherical quadrature of cell axes times spins about them.
+
+A 3D cell is oriented by its axis n (a point of the unit hemisphere: n and -n are the same
+cell) and a spin psi of its lateral axes (t1, t2) about n. The orientation set is a Lebedev rule
+on the sphere (``scipy.integrate.lebedev_rule``; exact for spherical polynomials up to its
+order), of which one point of each antipodal pair is kept with twice its weight, times
+``n_spins`` equally spaced spins psi_j = j * spin_period / n_spins (spin_period = 90 deg for a
+cell with four-fold symmetry about n, 180 deg when fines or radii break it). Weights are the
+Lebedev weight over the number of spins (an isotropic fabric), summing to 1.
+
+Frames: ``frames[k]`` is the rotation R_k [-] (3, 3) whose columns are (n, t1, t2) in the macro
+frame; t1 at psi = 0 is the unit vector of e x n with e the macro axis least aligned with n
+(ties to the lower index), t2 = n x t1.
+
+Macro tensors are given by their six components in the order (11, 22, 33, 23, 13, 12) (tensor,
+not engineering, shear strains). Sign convention: compression and contraction positive.
+
+- Localisation (model hypothesis: cells take the normal strains of their axes, shear dropped):
+  d_eps_n = n . d_eps . n, d_eps_t1 = t1 . d_eps . t1, d_eps_t2 = t2 . d_eps . t2.
+- Averaging: S = sum_k w_k R_k S_k R_k^T with S_k the cell's Love-Weber moment in its frame
+  [N m]; sigma = S / V, V = V0 J, V0 = sum_k w_k V_cell,k, J = prod over increments of
+  (1 - d_eps11)(1 - d_eps22)(1 - d_eps33).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import lebedev_rule
+
+COMPONENTS = ("11", "22", "33", "23", "13", "12")
+"""Order of the six components of a macro tensor."""
+_INDEX = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
+"""(i, j) of each component."""
+LEBEDEV_ORDERS = (3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31, 35, 41, 47, 53, 59, 65, 71)
+"""Lebedev orders accepted (``scipy.integrate.lebedev_rule``), degree of exactness on the sphere."""
+VOLUME_RULE = (
+    "V = V0*J, V0 = sum_k w_k V_cell,k in the initial state, J = prod over increments of "
+    "(1 - d_eps11)(1 - d_eps22)(1 - d_eps33); V_cell = volume of the polyhedron through the centres "
+    "of the cell's outer grains (its declared triangulated faces)"
+)
+"""The 3D volume rule, stated in every output file."""
+
+
+@dataclass(frozen=True, eq=False)
+class Orientations3D:
+    """A set of N oriented cells with weights and the matrices that localise and average.
+
+    Build it with ``orientations_3d``. Arrays are read-only.
+
+    Attributes:
+        frames: rotations R_k [-], shape (N, 3, 3), columns (n, t1, t2) in the macro frame.
+        weights: w_k [-], shape (N,), summing to 1.
+        localisation: L [-], shape (3 N, 6): ``(L @ d_eps).reshape(N, 3)`` is (d_eps_n, d_eps_t1,
+            d_eps_t2) per cell for a macro increment d_eps (six components, ``COMPONENTS``).
+        averaging: A [-], shape (6, 9 N): ``A @ moment.reshape(-1)`` is the weighted macro moment
+            (six components) of per-cell moments ``moment`` of shape (N, 3, 3) in the cell frames.
+        order: Lebedev order of the axes; n_spins: spins per axis; spin_period_deg: psi period [deg].
+    """
+
+    frames: np.ndarray
+    weights: np.ndarray
+    localisation: np.ndarray
+    averaging: np.ndarray
+    order: int
+    n_spins: int
+    spin_period_deg: float
+
+    @property
+    def n_cells(self) -> int:
+        """Number of oriented cells N."""
+        return int(self.frames.shape[0])
+
+
+def hemisphere_rule(order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cell axes and weights: a Lebedev rule with one point of each antipodal pair, weights summing to 1.
+
+    Args:
+        order: Lebedev order (``LEBEDEV_ORDERS``).
+
+    Returns:
+        axes (M, 3) unit vectors, weights (M,) [-].
+    """
+    if order not in LEBEDEV_ORDERS:
+        raise ValueError(f"Lebedev order {order} is not one of {', '.join(map(str, LEBEDEV_ORDERS))}")
+    points, weights = lebedev_rule(order)
+    points = points.T
+    keep = np.zeros(points.shape[0], dtype=bool)
+    for k, x in enumerate(points):
+        first = next(v for v in x if abs(v) > 1e-12)  # the sign of the first nonzero coordinate picks one of +-x
+        keep[k] = first > 0.0
+    axes, w = points[keep], weights[keep]
+    if not np.allclose(np.sort(np.concatenate([axes, -axes]), axis=0), np.sort(points, axis=0), atol=1e-12):
+        raise ValueError(f"Lebedev order {order}: the points are not antipodal pairs")
+    return axes, w / w.sum()
+
+
+def reference_lateral(axis: np.ndarray) -> np.ndarray:
+    """t1 at psi = 0 for each axis (M, 3): unit e x n, e the macro axis least aligned with n."""
+    e = np.eye(3)[np.argmin(np.abs(axis), axis=1)]
+    t1 = np.cross(e, axis)
+    return t1 / np.linalg.norm(t1, axis=1, keepdims=True)
+
+
+def orientations_3d(order: int = 11, n_spins: int = 4, *, spin_period_deg: float = 90.0) -> Orientations3D:
+    """The orientation set of ``order`` x ``n_spins`` (module docstring).
+
+    Args:
+        order: Lebedev order of the axes (11: 25 axes on the hemisphere).
+        n_spins: spins per axis, >= 1.
+        spin_period_deg: period of the cell's spin symmetry [deg], in (0, 360].
+    """
+    n_spins = int(n_spins)
+    if n_spins < 1:
+        raise ValueError(f"n_spins = {n_spins} must be >= 1")
+    if not 0.0 < spin_period_deg <= 360.0:
+        raise ValueError(f"spin period {spin_period_deg:g} deg is outside (0, 360]")
+    axes, axis_weights = hemisphere_rule(order)
+    t1_ref = reference_lateral(axes)
+    t2_ref = np.cross(axes, t1_ref)
+    psi = np.radians(spin_period_deg) * np.arange(n_spins) / n_spins
+    c, s = np.cos(psi)[None, :, None], np.sin(psi)[None, :, None]
+    n = np.repeat(axes[:, None, :], n_spins, axis=1)
+    t1 = c * t1_ref[:, None, :] + s * t2_ref[:, None, :]
+    t2 = -s * t1_ref[:, None, :] + c * t2_ref[:, None, :]
+    frames = np.stack([n, t1, t2], axis=-1).reshape(-1, 3, 3)
+    weights = np.repeat(axis_weights / n_spins, n_spins)
+    count = frames.shape[0]
+    loc = np.empty((count, 3, 6))
+    avg = np.empty((6, count, 3, 3))
+    for m, (i, j) in enumerate(_INDEX):
+        factor = 1.0 if i == j else 2.0
+        loc[:, :, m] = factor * frames[:, i, :] * frames[:, j, :]
+        avg[m] = 0.5 * (frames[:, i, :, None] * frames[:, j, None, :] + frames[:, j, :, None] * frames[:, i, None, :])
+    avg *= weights[None, :, None, None]
+    arrays = [frames, weights, loc.reshape(3 * count, 6), avg.reshape(6, 9 * count)]
+    for a in arrays:
+        a.flags.writeable = False
+    return Orientations3D(*arrays, order=int(order), n_spins=n_spins, spin_period_deg=float(spin_period_deg))
+
+
+def localise(orient: Orientations3D, d_eps: np.ndarray) -> np.ndarray:
+    """(d_eps_n, d_eps_t1, d_eps_t2) [-] per cell, shape (N, 3), of a macro increment (six components)."""
+    return (orient.localisation @ np.asarray(d_eps, dtype=np.float64)).reshape(orient.n_cells, 3)
+
+
+def average_moment(orient: Orientations3D, moment: np.ndarray) -> np.ndarray:
+    """Weighted macro moment (six components) [N m] of per-cell moments (N, 3, 3) in the cell frames."""
+    return orient.averaging @ np.ascontiguousarray(moment, dtype=np.float64).reshape(-1)
+
+
+def initial_volume(orient: Orientations3D, volume: np.ndarray) -> float:
+    """V0 = sum_k w_k V_cell,k [m^3] from the initial cell volumes (N,) [m^3]."""
+    return float(orient.weights @ np.asarray(volume, dtype=np.float64))
+
+
+def volume_ratio_factor(d_eps: np.ndarray) -> float:
+    """Factor (1 - d_eps11)(1 - d_eps22)(1 - d_eps33) [-] by which one increment multiplies J = V / V0."""
+    return math.prod(1.0 - float(d_eps[a]) for a in range(3))
+
+
+def to_tensor(components: np.ndarray) -> np.ndarray:
+    """Symmetric 3 x 3 tensor(s) from six components (..., 6) in ``COMPONENTS`` order."""
+    components = np.asarray(components, dtype=np.float64)
+    tensor = np.empty(components.shape[:-1] + (3, 3))
+    for m, (i, j) in enumerate(_INDEX):
+        tensor[..., i, j] = components[..., m]
+        tensor[..., j, i] = components[..., m]
+    return tensor
