@@ -49,8 +49,10 @@ def test_readme_is_a_front_page():
 
 
 def test_quoted_repository_paths_exist():
+    """Every repository path the pages quote exists, but for what a build writes (docs/_build)."""
     text = "\n".join(page.read_text() for page in DOCS)
     quoted = set(re.findall(r"`((?:homogenization|warp_hcell|training|docs|benchmarks|tests)/[\w./-]+)`", text))
+    quoted = {path for path in quoted if not path.startswith("docs/_build/")}
     missing = sorted(path for path in quoted if not (ROOT / path.split(":")[0]).exists())
     assert quoted and not missing
 
@@ -60,7 +62,7 @@ def test_model_description_covers_the_physics():
     for heading in ("Geometry", "Contact law", "Equilibrium", "Love-Weber", "volume rule", "References"):
         assert heading.lower() in model.lower()
     numbered = [int(n) for n in re.findall(r"^## (\d+)\.", model, flags=re.M)]
-    assert numbered == list(range(1, 14))  # "spec section N" in code and docs resolves here
+    assert numbered == list(range(1, 15))  # "spec section N" in code and docs resolves here
 
 
 def test_licence_and_citation_match_pyproject():
