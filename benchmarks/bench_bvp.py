@@ -16,11 +16,12 @@ import time
 
 import numpy as np
 
-from homogenization import fe, orientation
+from homogenization.fe import solver as fe
+from homogenization import orientation
 from homogenization.backends import make_cell_model
-from homogenization.bvp import element_counts
+from homogenization.cli.bvp import element_counts
 from homogenization.material import HomogenisedMaterial
-from warp_hcell.mesostructure import h_cell
+from warp_hcell.mesostructures.mesostructure import h_cell
 
 P0 = 5.85e6
 ALPHA0 = 40.0

@@ -36,12 +36,12 @@ from pathlib import Path
 
 import numpy as np
 
-from homogenization import driver, loading, orientation, plotting
+from homogenization import driver, figures, loading, orientation
 from homogenization.figure_style import number
 from homogenization.backends import make_cell_model
-from warp_hcell.mesostructure import h_cell
-from warp_hcell.parameters import DemSettings
-from warp_hcell.provenance import git_revision
+from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.core.parameters import DemSettings
+from warp_hcell.core.provenance import git_revision
 
 ROOT = Path(__file__).resolve().parent.parent
 CASES = {"a55_p5.85e6": (55.0, 5.85e6), "a55_p2e5": (55.0, 2e5), "a40_p5.85e6": (40.0, 5.85e6)}
@@ -180,7 +180,7 @@ def main() -> None:
                 title = (f"constant-volume biaxial test, H-cell, $\\alpha_0$ = {alpha0:g}°, $p_0 = {number(p0)}$ N/m, "
                          f"$N$ = {args.orientations}, increment ${number(increment)}$")
                 args.figures.mkdir(parents=True, exist_ok=True)
-                plotting.save_figure(plotting.make_figure(records, title=title),
+                figures.save_figure(figures.make_figure(records, title=title),
                                      args.figures / f"dem_vs_analytical_{name}.png")
     result = {"machine": {**info, "load_average_end": [round(v, 2) for v in os.getloadavg()]},
               "settings": {"increment": args.increment if not args.sweep else increments,

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warp_hcell.cli import positive_float, positive_int
+from warp_hcell.core.cli import positive_float, positive_int
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -41,9 +41,9 @@ def _sizes(text: str) -> list[int]:
 def prepared_batch(n_cells: int, increment: float, device: str):
     """H-cells with random alpha0 in [35, 80] deg after an isotropic compression of 1e-4, and the
     timed increment (magnitude ``increment``, random direction per cell)."""
-    from warp_hcell.integrator import DemIntegrator
-    from warp_hcell.model import DemModel
-    from warp_hcell.state import DemState
+    from warp_hcell.dem.integrator import DemIntegrator
+    from warp_hcell.dem.model import DemModel
+    from warp_hcell.dem.state import DemState
 
     rng = np.random.default_rng(0)
     model = DemModel.build_h_cell(rng.uniform(35.0, 80.0, n_cells), n_cells, 0.5, device=device)
@@ -55,8 +55,8 @@ def prepared_batch(n_cells: int, increment: float, device: str):
 
 def measure(model, state, d_eps, engine: str, threads: int, repeat: int) -> tuple[float, float, float]:
     """Best wall time [s], its CPU time [s] and the mean substeps per cell of one step."""
-    from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
-    from warp_hcell.state import DemState
+    from warp_hcell.dem.integrator import DemIntegrator, NumpyIntegrator
+    from warp_hcell.dem.state import DemState
 
     integrator = DemIntegrator(model, threads=threads) if engine == "warp" else NumpyIntegrator(model)
     out = DemState.empty(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)

@@ -43,13 +43,13 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from homogenization import driver, loading, plotting
-from homogenization.figure_style import GRID, apply_style, number
+from homogenization import driver, figures, loading
+from homogenization.figure_style import apply_style, GRID, number
 from homogenization.backends import make_cell_model
-from warp_hcell.builders import resolve_mesostructure
-from warp_hcell.mesostructure import h_cell
-from warp_hcell.parameters import ContactLaw, DemSettings
-from warp_hcell.provenance import git_revision
+from warp_hcell.mesostructures.builders import resolve_mesostructure
+from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.core.provenance import git_revision
 
 ROOT = Path(__file__).resolve().parent.parent
 YADE_DIR = ROOT / "tests" / "data" / "yade"
@@ -162,7 +162,7 @@ def plot(rows: list[dict], path: Path) -> None:
     fig.suptitle("DEM stepping, 360 orientations, increment $10^{-4}$: accuracy against cost\n"
                  "(circles: fixed strain per substep, squares: adaptive, red: defaults; dashed: $10^{-3}$)", fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)
-    plotting.save_figure(apply_style(fig), path)
+    figures.save_figure(apply_style(fig), path)
 
 
 def main() -> None:

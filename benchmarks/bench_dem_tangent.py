@@ -29,10 +29,10 @@ from tangent_fd import fd_tangent, fd_tangent_fixed_schedule  # noqa: E402
 
 from homogenization import driver, loading  # noqa: E402
 from homogenization.backends import make_cell_model  # noqa: E402
-from warp_hcell.dem_cell import DemCell  # noqa: E402
-from warp_hcell.mesostructure import h_cell  # noqa: E402
-from warp_hcell.parameters import ContactLaw, DemSettings  # noqa: E402
-from warp_hcell.tangent import sliding_contacts  # noqa: E402
+from warp_hcell.dem.cell import DemCell  # noqa: E402
+from warp_hcell.mesostructures.mesostructure import h_cell  # noqa: E402
+from warp_hcell.core.parameters import ContactLaw, DemSettings  # noqa: E402
+from warp_hcell.dem.tangent import sliding_contacts  # noqa: E402
 
 LAW = ContactLaw()
 RADIUS = 0.5

@@ -1,8 +1,8 @@
 """python benchmarks/bench_generate.py [--samples 300000] [--mesostructure FILE] [--out-dir DIR]
 
-Wall time of the database generator (``warp_hcell.generate.generate``, the code path of
+Wall time of the database generator (``warp_hcell.database.generate.generate``, the code path of
 ``python -m warp_hcell.generate``) on the same mesostructure, seed and settings, run side by
-side in one process with several executions (``warp_hcell.execution``): in process with 2
+side in one process with several executions (``warp_hcell.core.execution``): in process with 2
 Warp threads (``--workers 1``), a Dask LocalCluster of 1 and of 2 single-threaded workers
 (``--workers 2`` uses the latter), and the standard-library process pool of 2 workers that
 ran the chunks before Dask. Prints per execution the exploration time, the probing-and-writing
@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from warp_hcell import database, generate
-from warp_hcell.execution import DaskExecution, InProcess, ProcessPool
-from warp_hcell.mesostructure import h_cell, load_mesostructure
-from warp_hcell.parameters import CellDefaults, DatabaseSettings
+from warp_hcell.database import format as database, generate
+from warp_hcell.core.execution import DaskExecution, InProcess, ProcessPool
+from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure
+from warp_hcell.core.parameters import CellDefaults, DatabaseSettings
 
 EXECUTIONS = (("in process", 2, lambda: InProcess()), ("dask, 1 worker", 1, lambda: DaskExecution(workers=1)),
               ("dask, 2 workers", 1, lambda: DaskExecution(workers=2)), ("process pool, 2", 1, lambda: ProcessPool(2)))

@@ -16,8 +16,8 @@ import time
 
 from homogenization import driver, loading, orientation
 from homogenization.backends import BACKENDS, make_cell_model
-from warp_hcell.mesostructure import h_cell
-from warp_hcell.parameters import CellDefaults, LoadingDefaults
+from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 
 
 class NullCell:

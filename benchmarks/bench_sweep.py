@@ -1,7 +1,7 @@
 """python benchmarks/bench_sweep.py [--orientations 72] [--increment 1e-4] [--eps-max 0.15] [--out runs/bench_sweep]
 
 Wall time of a 16-case DEM sweep (4 mesostructures x alpha0 50, 55 x p0 2e5, 5.85e6; issue 12)
-run with 2 workers (a Dask LocalCluster, ``warp_hcell.execution``) and with 1 worker (in
+run with 2 workers (a Dask LocalCluster, ``warp_hcell.core.execution``) and with 1 worker (in
 process), one after the other: prints, per run, the wall time (cluster start-up included), the
 CPU time of the sweep's processes, the load average before it, and the ratio of the two wall
 times; checks that both summaries are byte-identical. The machine may be shared:

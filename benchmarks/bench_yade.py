@@ -50,7 +50,7 @@ def worker(n_cells: int, seconds: float) -> dict:
     from hcell_paths import HCellScene
     from yade import O
 
-    from warp_hcell.parameters import CellDefaults, ContactLaw, DemSettings
+    from warp_hcell.core.parameters import CellDefaults, ContactLaw, DemSettings
 
     start = time.perf_counter()
     scene = HCellScene(CellDefaults.alpha0_deg, n_cells, ContactLaw(), CellDefaults.radius, DemSettings())

@@ -19,9 +19,10 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from homogenization import io, plotting, sweep
-from homogenization.figure_style import GRID, LABELS, apply_style, figure_legend, number
-from warp_hcell.builders import parse_mesostructure, pore_ratio
+from homogenization import figures, io
+from homogenization.cli import sweep
+from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS, number
+from warp_hcell.mesostructures.builders import parse_mesostructure, pore_ratio
 
 LIQUEFACTION = 0.2
 """p/p0 at eps1 = 15 % below which a sample is said to liquefy [-]."""
@@ -36,8 +37,8 @@ def fine_ratio(text: str) -> float:
     return float(sum(ratio))
 
 
-def curve(folder: Path, row: dict) -> plotting.ShearCurve:
-    return plotting.shear_curve(io.read_run(folder / sweep.CASES_DIR / row["case"] / io.RUN_FILE).record)
+def curve(folder: Path, row: dict) -> figures.ShearCurve:
+    return figures.shear_curve(io.read_run(folder / sweep.CASES_DIR / row["case"] / io.RUN_FILE).record)
 
 
 def fines_table(runs: Path, figures: Path) -> None:
@@ -75,7 +76,7 @@ def fines_table(runs: Path, figures: Path) -> None:
     for ax in (ax_p, ax_q):
         ax.grid(True, which="both", **GRID)
     figure_legend(fig, ax_p.get_lines())  # both panels draw the same cases
-    plotting.save_figure(apply_style(fig), figures / "gap_fines_ratio.png")
+    figures.save_figure(apply_style(fig), figures / "gap_fines_ratio.png")
 
     fig = Figure(figsize=(12.0, 4.6), layout="constrained")
     axes = fig.subplots(1, 2)
@@ -91,7 +92,7 @@ def fines_table(runs: Path, figures: Path) -> None:
                title=f"$\\alpha_0$ = {alpha0:g}°, $p_0 = {number(p0)}$ N/m")
         ax.grid(True, which="both", **GRID)
         ax.legend(fontsize=7)  # each panel its own cells
-    plotting.save_figure(apply_style(fig), figures / "gap_fines_curves_p2e5.png")
+    figures.save_figure(apply_style(fig), figures / "gap_fines_curves_p2e5.png")
 
 
 def instability_families(runs: Path) -> dict[str, tuple[Path, list[dict]]]:
@@ -151,7 +152,7 @@ def instability(runs: Path, figures: Path) -> None:
         ax.grid(True, **GRID)
         ax.legend(fontsize=6, ncols=2)  # each panel its own instability lines
     fig.suptitle("line styles / markers: " + ", ".join(f"{f} {styles[f]} {markers[f]}" for f in families), fontsize=9)
-    plotting.save_figure(apply_style(fig), figures / "gap_instability.png")
+    figures.save_figure(apply_style(fig), figures / "gap_instability.png")
     print("\nLine q = eta_IL p through the origin, least squares over the first peaks reached with p < p0 "
           "(contractive cells; open markers in the figure are the others):\n")
     print("| cell | p0 [N/m] | peaks | slope eta_IL | max abs(q - eta_IL p) / p0 |")
@@ -186,7 +187,7 @@ def erosion(runs: Path, figures: Path) -> None:
                 kept = next(r for r in reference if r["mesostructure"] == fines_text and r["p0"] == p0)
                 print(f"| {alpha0:g} | {p0:g} | {fine_ratio(fines_text):g} | {eps} | {before:.3f} | {after:.3f} | "
                       f"{row['p_at_15pct'] / p0:.3f} | {plain['p_at_15pct'] / p0:.3f} | {kept['p_at_15pct'] / p0:.3f} |")
-                e = plotting.shear_curve(record)
+                e = figures.shear_curve(record)
                 ax.plot(100 * e.eps1, e.p / p0, ls=ls, color="tab:red", label=f"fines removed at {eps} %")
             if fines_text is not None:
                 kept = next(r for r in reference if r["mesostructure"] == fines_text and r["p0"] == p0)
@@ -196,7 +197,7 @@ def erosion(runs: Path, figures: Path) -> None:
                    title=f"$\\alpha_0$ = {alpha0:g}°, $p_0 = {number(p0)}$ N/m")
             ax.grid(True, which="both", **GRID)
             ax.legend(fontsize=7)  # each column its own fines cell
-    plotting.save_figure(apply_style(fig), figures / "gap_erosion.png")
+    figures.save_figure(apply_style(fig), figures / "gap_erosion.png")
 
 
 def ann_table(runs: Path, name: str = "sweep") -> None:

@@ -14,8 +14,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from warp_hcell.cli import quiet_warp  # noqa: E402
-from warp_hcell.provenance import DISTRIBUTION, package_version  # noqa: E402
+from warp_hcell.core.cli import quiet_warp  # noqa: E402
+from warp_hcell.core.provenance import DISTRIBUTION, package_version  # noqa: E402
 
 quiet_warp()  # autodoc imports the DEM modules: no Warp banner in the build log
 

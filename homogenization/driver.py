@@ -30,11 +30,11 @@ from homogenization import orientation as orient_mod
 from homogenization.invariants import deviator, mean_stress
 from homogenization.loading import Programme, Step, validate
 from homogenization.material import HomogenisedMaterial, MaterialUpdate
-from warp_hcell.builders import h_cell_alpha0
-from warp_hcell.cell_model import CellModel
-from warp_hcell.cli import progress_bar
-from warp_hcell.mesostructure import Mesostructure
-from warp_hcell.parameters import CellDefaults, LoadingDefaults
+from warp_hcell.mesostructures.builders import h_cell_alpha0
+from warp_hcell.core.contract import CellModel
+from warp_hcell.core.cli import progress_bar
+from warp_hcell.mesostructures.mesostructure import Mesostructure
+from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 
 JUMP_WIDTH = 1e-6
 """Bracket width, as a fraction of the increment, below which stress control takes the
@@ -74,7 +74,7 @@ class Record:
         weights: fabric weights [-], shape (n_cells,).
         V0: initial macro volume [m^2].
         alpha0_deg: initial opening angle [deg] of the mesostructure where it carries H-cell
-            labels (``warp_hcell.builders.h_cell_alpha0``); NaN otherwise.
+            labels (``warp_hcell.mesostructures.builders.h_cell_alpha0``); NaN otherwise.
         backend: name of the cell model.
         programme: the loading programme that was run.
         final_state: ``cell_model.state_to_arrays`` of the last state (resume, inspection).
@@ -361,7 +361,7 @@ def run(
         cell_model: any ``CellModel`` backend.
         programme: loading steps, run in order (see ``homogenization.loading``).
         mesostructure: the cell every orientation starts from (e.g.
-            ``warp_hcell.mesostructure.h_cell(alpha0_deg, radius)``, a builder spec or a file).
+            ``warp_hcell.mesostructures.mesostructure.h_cell(alpha0_deg, radius)``, a builder spec or a file).
         n_orientations: number N of cell orientations theta_k = k pi / N.
         fabric_anisotropy: a_f in [0, 1) of the weights w(theta) (0 = isotropic fabric).
         fabric_direction_deg: preferred fabric direction b_f [deg].
@@ -369,7 +369,7 @@ def run(
             (0: only at the end of each stage).
         stress_rtol: relative tolerance on stress-controlled components [-].
         max_newton_iterations: ``step`` calls allowed per stress-controlled increment.
-        progress: show a progress bar per stage (``warp_hcell.cli.progress_bar``: off under -q).
+        progress: show a progress bar per stage (``warp_hcell.core.cli.progress_bar``: off under -q).
 
     Returns:
         The ``Record`` of the run.

@@ -44,8 +44,8 @@ import h5py
 import numpy as np
 
 from homogenization import loading
-from warp_hcell.cli import UserError, atomic_write
-from warp_hcell.provenance import provenance
+from warp_hcell.core.cli import atomic_write, UserError
+from warp_hcell.core.provenance import provenance
 from homogenization.driver import Record
 from homogenization.orientation import VOLUME_RULE
 

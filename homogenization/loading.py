@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from warp_hcell.parameters import LoadingDefaults
+from warp_hcell.core.parameters import LoadingDefaults
 
 CONTROLS = ("strain", "stress")
 """Allowed control kinds of a component."""

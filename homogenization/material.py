@@ -36,8 +36,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from homogenization import orientation as orient_mod
-from warp_hcell.cell_model import CellModel
-from warp_hcell.mesostructure import Mesostructure, per_cell
+from warp_hcell.core.contract import CellModel
+from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell
 
 
 @dataclass(frozen=True)

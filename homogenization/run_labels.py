@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from homogenization.figure_style import number
-from warp_hcell.builders import parse_mesostructure
-from warp_hcell.mesostructure import MesostructureError
+from warp_hcell.mesostructures.builders import parse_mesostructure
+from warp_hcell.mesostructures.mesostructure import MesostructureError
 
 BACKEND_NAMES = {"analytical": "analytical", "dem": "DEM", "ann": "ANN"}
 """Display names of the backends (others are shown as registered)."""

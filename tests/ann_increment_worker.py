@@ -13,7 +13,7 @@ import numpy as np
 
 from homogenization.backends.ann import AnnCell
 from training.inference import FastAdvance
-from warp_hcell.parameters import ContactLaw
+from warp_hcell.core.parameters import ContactLaw
 
 
 def evaluate(fast: FastAdvance, state: tuple[np.ndarray, ...], d_eps: np.ndarray) -> dict[str, np.ndarray]:

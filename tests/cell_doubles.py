@@ -26,7 +26,7 @@ class ElasticCell:
         return np.zeros((n_cells, 2))
 
     def response(self, state: np.ndarray, *, with_tangent: bool = False):
-        from warp_hcell.cell_model import CellResponse
+        from warp_hcell.core.contract import CellResponse
 
         en, et = state[:, 0], state[:, 1]
         kv = self.k * self.area

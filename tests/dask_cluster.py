@@ -15,7 +15,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Mapping
 
-from warp_hcell import execution
+from warp_hcell.core import execution
 
 
 def free_port() -> int:

@@ -16,9 +16,9 @@ import numpy as np
 import torch
 
 from training import cell_physics
-from warp_hcell.dem_cell import DemCell
-from warp_hcell.mesostructure import Mesostructure, describe, description_sha256, h_cell
-from warp_hcell.parameters import ContactLaw, DemSettings
+from warp_hcell.dem.cell import DemCell
+from warp_hcell.mesostructures.mesostructure import describe, description_sha256, h_cell, Mesostructure
+from warp_hcell.core.parameters import ContactLaw, DemSettings
 
 
 def _schema(meso: Mesostructure, law: ContactLaw, settings: DemSettings) -> cell_physics.CellSchema:

@@ -16,7 +16,7 @@ def fd_tangent(model, state, d_eps: np.ndarray, h: float) -> np.ndarray:
     """d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m] by central differences of ``model.step``.
 
     Args:
-        model: a ``warp_hcell.cell_model.CellModel``.
+        model: a ``warp_hcell.core.contract.CellModel``.
         state: cells at the start of the increment.
         d_eps: the increment (d_eps_n, d_eps_t) [-], shape (n_cells, 2).
         h: difference step [-].
@@ -47,7 +47,7 @@ def fd_tangent_fixed_schedule(model, state, d_eps: np.ndarray, h: float) -> np.n
 
     The DEM drives the cell at ``rate`` = strain per substep along its largest strain
     component, s_k = k rate / max |d_eps| for k < n = ceil(max |d_eps| / rate), the last substep
-    shorter (``warp_hcell.kernels``). A difference step along the largest component changes
+    shorter (``warp_hcell.dem.kernels``). A difference step along the largest component changes
     that last substep by h itself, and the relaxation that follows it ends in a slightly
     different sliding state: the step's slope along that component differs from the
     quasi-static one by 0.25 to 2.6 % in slide, at any rate (docs/bvp.md, section 1). Here every
@@ -60,7 +60,7 @@ def fd_tangent_fixed_schedule(model, state, d_eps: np.ndarray, h: float) -> np.n
     no tie between |d_eps_n| and |d_eps_t| within the stencil (a kink of max |d_eps|).
 
     Args:
-        model: a ``warp_hcell.dem_cell.DemCell``.
+        model: a ``warp_hcell.dem.cell.DemCell``.
         state: cells at the start of the increment (``DemCellState``).
         d_eps: the increment (d_eps_n, d_eps_t) [-], shape (n_cells, 2).
         h: difference step [-].

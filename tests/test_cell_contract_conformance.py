@@ -1,4 +1,4 @@
-"""Conformance of every registered backend to the cell contract (warp_hcell.cell_model).
+"""Conformance of every registered backend to the cell contract (warp_hcell.core.contract).
 
 One suite, parametrised over ``homogenization.backends.BACKENDS``, so that a backend added to
 the registry is checked by the same rules as the others: it is a ``CellModel``; ``step`` is
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from homogenization.backends import BACKENDS, make_cell_model
-from warp_hcell.cell_model import CellModel, CellResponse
-from warp_hcell.mesostructure import h_cell
+from warp_hcell.core.contract import CellModel, CellResponse
+from warp_hcell.mesostructures.mesostructure import h_cell
 
 N_CELLS = 6
 ISOTROPIC = 2e-3

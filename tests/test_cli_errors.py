@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from homogenization import hmodel
-from warp_hcell import cli
+from homogenization.cli import hmodel
+from warp_hcell.core import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 HMODEL = Path(sys.executable).with_name("hmodel")

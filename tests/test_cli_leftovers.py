@@ -11,8 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from homogenization import biaxial, plotting
-from warp_hcell import cli
+from homogenization.cli import biaxial
+from homogenization import figures
+from warp_hcell.core import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--alpha0", "55", "--eps-max", "0.002", "--increment", "5e-4", "--orientations", "12"]
@@ -35,7 +36,7 @@ def test_sweep_leaves_nothing_in_tmpdir_nor_beside_its_output(tmp_path):
 
 
 def test_a_dask_cluster_keeps_its_scratch_in_its_own_folder_and_removes_it(tmp_path, monkeypatch):
-    from warp_hcell.execution import DaskExecution
+    from warp_hcell.core.execution import DaskExecution
 
     monkeypatch.setenv("TMPDIR", str(tmp_path))
     monkeypatch.setattr("tempfile.tempdir", None)  # read TMPDIR again
@@ -56,7 +57,7 @@ def test_no_status_line_when_the_output_fails_after_the_run_file(existing, tmp_p
     def disk_full(fig, path):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
-    monkeypatch.setattr(plotting, "save_figure", disk_full)
+    monkeypatch.setattr(figures, "save_figure", disk_full)
     assert cli.run_main(biaxial.main, [*TINY, "--overwrite", "--out", str(out)]) == 2
     captured = capsys.readouterr()
     assert "->" not in captured.out and "No space left on device" in captured.err

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from warp_hcell import cli
+from warp_hcell.core import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 LATERAL = ROOT / "warp_hcell" / "data" / "h_cell_lateral_0.7D.toml"

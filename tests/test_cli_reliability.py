@@ -18,9 +18,10 @@ from pathlib import Path
 import h5py
 import pytest
 
-from homogenization import biaxial, cell, hmodel
+from homogenization.cli import biaxial, cell, hmodel
 from training import train
-from warp_hcell import cli, clean, database
+from warp_hcell.core import cli
+from warp_hcell.database import clean, format as database
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--alpha0", "55", "--eps-max", "0.01", "--increment", "5e-4", "--orientations", "12", "-q"]

@@ -7,8 +7,9 @@ import time
 
 import h5py
 
-from homogenization import biaxial, io
-from warp_hcell import cli
+from homogenization.cli import biaxial
+from homogenization import io
+from warp_hcell.core import cli
 
 TINY = ["--alpha0", "55", "--eps-max", "0.002", "--increment", "5e-4", "--orientations", "12", "-q"]
 

@@ -7,10 +7,10 @@ import pytest
 
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell, AnalyticalState
-from warp_hcell.cell_model import CellModel
-from warp_hcell.builders import resolve_mesostructure
-from warp_hcell.mesostructure import describe, from_description, h_cell
-from warp_hcell.parameters import ContactLaw
+from warp_hcell.core.contract import CellModel
+from warp_hcell.mesostructures.builders import resolve_mesostructure
+from warp_hcell.mesostructures.mesostructure import describe, from_description, h_cell
+from warp_hcell.core.parameters import ContactLaw
 
 LAW = ContactLaw()
 R = 0.5

@@ -11,15 +11,16 @@ import pytest
 import torch
 
 from dem_database import build
-from homogenization import biaxial, driver, loading
+from homogenization.cli import biaxial
+from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.backends.ann import AnnCell, default_model_path
 from training.checkpoint import CheckpointError
 from training.train import main as train_main
-from warp_hcell.dem_cell import DemCell
-from warp_hcell.builders import resolve_mesostructure
-from warp_hcell.mesostructure import h_cell, load_mesostructure
-from warp_hcell.parameters import ContactLaw
+from warp_hcell.dem.cell import DemCell
+from warp_hcell.mesostructures.builders import resolve_mesostructure
+from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure
+from warp_hcell.core.parameters import ContactLaw
 
 LAW, RADIUS = ContactLaw(), 0.5
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"

@@ -9,11 +9,11 @@ import pytest
 
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell
-from warp_hcell.dem_cell import DemCell
-from warp_hcell.cell_model import CellModel
-from warp_hcell.integrator import MIN_CELLS_PER_CHUNK
-from warp_hcell.mesostructure import h_cell, load_mesostructure
-from warp_hcell.parameters import ContactLaw, DemSettings
+from warp_hcell.dem.cell import DemCell
+from warp_hcell.core.contract import CellModel
+from warp_hcell.dem.integrator import MIN_CELLS_PER_CHUNK
+from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure
+from warp_hcell.core.parameters import ContactLaw, DemSettings
 
 LAW = ContactLaw()
 DATA = resources.files("warp_hcell") / "data"

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from homogenization.backends import hcell
+from warp_hcell.mesostructures import hcell
 
 D = 1.0
 RNG = np.random.default_rng(20260101)

@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization import biaxial, io
+from homogenization.cli import biaxial
+from homogenization import io
 from homogenization.backends import BACKENDS
-from warp_hcell.cli import cuda_device_count, run_main
-from warp_hcell.parameters import LoadingDefaults
+from warp_hcell.core.cli import cuda_device_count, run_main
+from warp_hcell.core.parameters import LoadingDefaults
 
 TINY = ["--alpha0", "55", "--p0", "5.85e6", "--eps-max", "0.05", "--increment", "5e-4", "--iso-increment", "1e-4",
         "--orientations", "24"]

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization import cell
+from homogenization.cli import cell
 from homogenization.backends import BACKENDS
-from warp_hcell.cli import run_main
-from warp_hcell.parameters import ContactLaw
+from warp_hcell.core.cli import run_main
+from warp_hcell.core.parameters import ContactLaw
 
 MU = ContactLaw().mu
 HEADER = "l1,l2,alpha_deg,d1,d2,N1,N2,T1,S_nn,S_tt"

@@ -20,8 +20,8 @@ import pytest
 
 from homogenization import driver, io, loading
 from homogenization.backends import make_cell_model
-from warp_hcell.mesostructure import h_cell
-from warp_hcell.parameters import DemSettings, LoadingDefaults
+from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.core.parameters import DemSettings, LoadingDefaults
 
 AGREEMENT = 0.01
 """Issue 4: |p_dem - p_ana| and |q_dem - q_ana| below this fraction of p0 at every increment."""

@@ -8,11 +8,13 @@ import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from cell_doubles import ElasticCell
-from homogenization import bvp, driver, fe_output, figure_style, loading, plotting, sweep
+from homogenization.cli import bvp, sweep
+from homogenization import driver, figure_style, figures, loading
+from homogenization.fe import output as fe_output
 from homogenization.backends import make_cell_model
 from homogenization.figure_style import TickFormatter
-from warp_hcell.cli import run_main
-from warp_hcell.mesostructure import h_cell
+from warp_hcell.core.cli import run_main
+from warp_hcell.mesostructures.mesostructure import h_cell
 
 
 @pytest.fixture(scope="module")
@@ -56,14 +58,14 @@ def bvp_figure(tmp_path_factory):
 
 
 def test_biaxial_figures_use_the_shared_formatter(records):
-    runs = [plotting.Run(record, {"p0": p0, "drained": False}) for p0, record in records.items()]
-    for fig in (plotting.make_figure({"a": records[2e5]}), plotting.make_figure({"a": records[2e5]}, fourth="W2"),
-                plotting.overlay_figure(runs), plotting.overlay_figure(runs, normalise=True)):
+    runs = [figures.Run(record, {"p0": p0, "drained": False}) for p0, record in records.items()]
+    for fig in (figures.make_figure({"a": records[2e5]}), figures.make_figure({"a": records[2e5]}, fourth="W2"),
+                figures.overlay_figure(runs), figures.overlay_figure(runs, normalise=True)):
         linear_axes_use_the_shared_formatter(fig)
 
 
 def test_sweep_summary_figure_uses_the_shared_style(records):
-    runs = [plotting.Run(record, {"p0": p0, "backend": "analytical", "mesostructure": "hcell", "alpha0_deg": 55.0})
+    runs = [figures.Run(record, {"p0": p0, "backend": "analytical", "mesostructure": "hcell", "alpha0_deg": 55.0})
             for p0, record in records.items()]
     fig = sweep.make_summary_figure(runs)
     linear_axes_use_the_shared_formatter(fig)
@@ -72,7 +74,7 @@ def test_sweep_summary_figure_uses_the_shared_style(records):
                                                                    r"$p_0 = 5.85\times10^{6}$ N/m"]
     assert fig.get_suptitle().startswith(r"sweep: constant-volume biaxial test, analytical, H-cell, $\alpha_0$ = 55°")
     x, y = fig.axes[2].get_lines()[1].get_data()
-    curve = plotting.shear_curve(records[5.85e6])
+    curve = figures.shear_curve(records[5.85e6])
     assert np.allclose(x, curve.p / 5.85e6) and np.allclose(y, curve.q / 5.85e6)
 
 
@@ -91,7 +93,7 @@ def test_bvp_figure_uses_the_shared_formatter_and_mathtext_labels(bvp_figure):
 
 @pytest.mark.parametrize("p0, power", [(2e5, "10^{5}"), (5.85e6, "10^{6}")])
 def test_stress_ticks_carry_a_mathtext_power_of_ten_at_every_p0(records, p0, power):
-    fig = plotting.make_figure({"": records[p0]})
+    fig = figures.make_figure({"": records[p0]})
     FigureCanvasAgg(fig).draw()
     ax_q = fig.axes[0]
     assert power in ax_q.yaxis.get_offset_text().get_text() and r"\times" in ax_q.yaxis.get_offset_text().get_text()
@@ -129,5 +131,5 @@ def test_number_is_mathtext(value, text):
 def test_elastic_double_figure_has_a_shared_legend():
     record = driver.run(ElasticCell(), loading.biaxial(2e5, 0.01, 1e-3), mesostructure=h_cell(), n_orientations=4,
                         progress=False)
-    fig = plotting.make_figure({"one": record, "two": record})
+    fig = figures.make_figure({"one": record, "two": record})
     assert len(fig.legends) == 1 and [t.get_text() for t in fig.legends[0].get_texts()] == ["one", "two"]

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from homogenization import hmodel
+from homogenization.cli import hmodel
 
 ROOT = Path(__file__).resolve().parents[1]
 

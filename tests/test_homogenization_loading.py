@@ -8,7 +8,7 @@ import pytest
 
 from homogenization import loading
 from homogenization.loading import Step
-from warp_hcell.parameters import LoadingDefaults
+from warp_hcell.core.parameters import LoadingDefaults
 
 
 def test_constant_volume_and_drained_constructors():

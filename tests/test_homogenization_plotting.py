@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from cell_doubles import ElasticCell
-from homogenization import driver, loading, plotting
+from homogenization import driver, figures, loading
+from homogenization.cli import plot
 from homogenization.backends import make_cell_model
-from warp_hcell.mesostructure import h_cell
+from warp_hcell.mesostructures.mesostructure import h_cell
 
 P0 = 2e5
 
@@ -28,7 +29,7 @@ def runs() -> dict[str, driver.Record]:
 
 def test_shear_curve_counts_from_end_of_stage_one(runs):
     record = runs["analytical"]
-    curve = plotting.shear_curve(record)
+    curve = figures.shear_curve(record)
     n_shear = int(np.sum(record.stage == "shear"))
     assert curve.eps1.shape == (n_shear + 1,) and curve.w2.shape == (n_shear,)
     assert curve.eps1[0] == 0.0 and curve.eps1[-1] == pytest.approx(0.02)
@@ -40,13 +41,13 @@ def test_shear_curve_counts_from_end_of_stage_one(runs):
 def test_single_stage_record_starts_at_the_initial_state():
     record = driver.run(ElasticCell(), (loading.proportional_strain(0.01, 0.0, 4),), mesostructure=h_cell(),
                         n_orientations=4, progress=False)
-    curve = plotting.shear_curve(record)
+    curve = figures.shear_curve(record)
     assert curve.eps1.tolist() == pytest.approx([0.0, 0.0025, 0.005, 0.0075, 0.01])
     assert curve.p[0] == 0.0
 
 
 def test_figure_panels_labels_and_overlay(runs, tmp_path):
-    fig = plotting.make_figure(runs, title="test")
+    fig = figures.make_figure(runs, title="test")
     axes = fig.axes
     assert len(axes) == 4
     assert "[N/m]" in axes[0].get_ylabel() and "q" in axes[0].get_ylabel()
@@ -57,34 +58,34 @@ def test_figure_panels_labels_and_overlay(runs, tmp_path):
     assert len(fig.legends) == 1
     assert [t.get_text() for t in fig.legends[0].get_texts()] == ["analytical", "elastic"]
     x, y = axes[1].get_lines()[0].get_data()  # Cambridge plane of the analytical run
-    curve = plotting.shear_curve(runs["analytical"])
+    curve = figures.shear_curve(runs["analytical"])
     assert np.array_equal(x, curve.p) and np.array_equal(y, curve.q)
-    path = plotting.save_figure(fig, tmp_path / "cambridge.png")
+    path = figures.save_figure(fig, tmp_path / "cambridge.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_half_deviator_option(runs):
-    fig = plotting.make_figure(runs, deviator="t")
-    curve = plotting.shear_curve(runs["analytical"])
+    fig = figures.make_figure(runs, deviator="t")
+    curve = figures.shear_curve(runs["analytical"])
     assert fig.axes[0].get_ylabel().startswith("$t = ")
     assert np.array_equal(fig.axes[1].get_lines()[0].get_ydata(), 0.5 * curve.q)
     assert fig.axes[3].get_ylabel() == "$t/p$ [-]"
 
 
 def test_single_unlabelled_run_has_no_legend(runs):
-    fig = plotting.make_figure({"": runs["analytical"]}, title="analytical")
+    fig = figures.make_figure({"": runs["analytical"]}, title="analytical")
     assert not fig.legends and all(ax.get_legend() is None for ax in fig.axes)
 
 
 def test_drained_and_w2_panels(runs):
-    fig = plotting.make_figure(runs, drained=True, fourth="W2")
+    fig = figures.make_figure(runs, drained=True, fourth="W2")
     assert "varepsilon_v" in fig.axes[2].get_ylabel() and "W_2" in fig.axes[3].get_ylabel()
     with pytest.raises(ValueError, match=r"^fourth panel 'x' is not one of \('q/p', 'W2'\)$"):
-        plotting.make_figure(runs, fourth="x")
+        figures.make_figure(runs, fourth="x")
     with pytest.raises(ValueError, match=r"^deviator 's' is not one of \('q', 't'\)$"):
-        plotting.make_figure(runs, deviator="s")
+        figures.make_figure(runs, deviator="s")
     with pytest.raises(ValueError, match="^nothing to plot: no runs given$"):
-        plotting.make_figure({})
+        figures.make_figure({})
 
 
 # -- hmodel plot: overlay finished runs -----------------------------------------------------
@@ -98,44 +99,44 @@ def _stored_run(tmp_path, name: str, record: driver.Record, drained: bool) -> st
 
 @pytest.mark.parametrize("suffix, magic", [(".png", b"\x89PNG"), (".pdf", b"%PDF"), (".svg", b"<?xml")])
 def test_plot_command_overlays_runs_in_every_format(runs, tmp_path, suffix, magic, capsys):
-    from warp_hcell.cli import run_main
+    from warp_hcell.core.cli import run_main
 
     files = [_stored_run(tmp_path, name, record, False) for name, record in runs.items()]
     out = tmp_path / f"overlay{suffix}"
-    assert run_main(plotting.main, [*files, "--out", str(out)]) == 0
+    assert run_main(plot.main, [*files, "--out", str(out)]) == 0
     assert out.read_bytes()[:len(magic)] == magic
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
 def test_plot_reads_drained_from_the_file(runs, tmp_path, monkeypatch):
     seen = {}
-    real = plotting.make_figure
+    real = figures.make_figure
 
     def spy(records, **kwargs):
         seen.update(kwargs)
         return real(records, **kwargs)
 
-    monkeypatch.setattr(plotting, "make_figure", spy)
+    monkeypatch.setattr(figures, "make_figure", spy)
     drained = driver.run(make_cell_model("analytical"), loading.biaxial(P0, 0.01, 5e-4, drained=True),
                          mesostructure=h_cell(), n_orientations=12, progress=False)
     path = _stored_run(tmp_path, "d", drained, None)  # no drained parameter: read from the programme
-    assert plotting.main([path, "--out", str(tmp_path / "d.png")]) == 0
+    assert plot.main([path, "--out", str(tmp_path / "d.png")]) == 0
     assert seen["drained"] is True
     undrained = _stored_run(tmp_path, "u", runs["analytical"], False)
-    assert plotting.main([undrained, "--out", str(tmp_path / "u.png")]) == 0
+    assert plot.main([undrained, "--out", str(tmp_path / "u.png")]) == 0
     assert seen["drained"] is False
 
 
 def test_plot_refuses_bad_suffix_mixed_runs_and_existing_figure(runs, tmp_path, capsys):
-    from warp_hcell.cli import run_main
+    from warp_hcell.core.cli import run_main
 
     undrained = _stored_run(tmp_path, "u", runs["analytical"], False)
     drained = _stored_run(tmp_path, "d", runs["analytical"], True)
-    assert run_main(plotting.main, [undrained, "--out", str(tmp_path / "f.jpg")]) == 2
-    assert run_main(plotting.main, [undrained, drained, "--out", str(tmp_path / "f.png")]) == 2
+    assert run_main(plot.main, [undrained, "--out", str(tmp_path / "f.jpg")]) == 2
+    assert run_main(plot.main, [undrained, drained, "--out", str(tmp_path / "f.png")]) == 2
     existing = tmp_path / "old.png"
     existing.write_bytes(b"keep")
-    assert run_main(plotting.main, [undrained, "--out", str(existing)]) == 2
+    assert run_main(plot.main, [undrained, "--out", str(existing)]) == 2
     assert existing.read_bytes() == b"keep"
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and all(line.startswith("hmodel: error:") for line in err)
@@ -143,31 +144,31 @@ def test_plot_refuses_bad_suffix_mixed_runs_and_existing_figure(runs, tmp_path, 
 
 def test_plot_command_prints_nothing_of_folders_and_reports_the_figure(runs, tmp_path, capsys):
     files = [_stored_run(tmp_path, name, record, False) for name, record in runs.items()]
-    assert plotting.main([*files, "--out", str(tmp_path / "f.png")]) == 0
+    assert plot.main([*files, "--out", str(tmp_path / "f.png")]) == 0
     assert capsys.readouterr().out.strip() == f"figure -> {tmp_path / 'f.png'}"
 
 
 # -- labels and titles from the runs' metadata ----------------------------------------------
 
 def _spy_saved_figures(monkeypatch) -> list:
-    """Figures passed to ``plotting.save_figure`` from now on (they are still written)."""
+    """Figures passed to ``figures.save_figure`` from now on (they are still written)."""
     saved = []
-    real = plotting.save_figure
+    real = figures.save_figure
 
     def spy(fig, path, **kwargs):
         saved.append(fig)
         return real(fig, path, **kwargs)
 
-    monkeypatch.setattr(plotting, "save_figure", spy)
+    monkeypatch.setattr(figures, "save_figure", spy)
     return saved
 
 
 def _figure_of_plot(monkeypatch, argv) -> tuple[int, object]:
     """Run ``hmodel plot`` and return (exit code, the Figure it saved, or None)."""
-    from warp_hcell.cli import run_main
+    from warp_hcell.core.cli import run_main
 
     saved = _spy_saved_figures(monkeypatch)
-    code = run_main(plotting.main, argv)
+    code = run_main(plot.main, argv)
     return code, saved[-1] if saved else None
 
 
@@ -231,14 +232,14 @@ def test_identical_runs_are_numbered(runs, tmp_path, monkeypatch):
 # -- --normalise ---------------------------------------------------------------------------
 
 def test_normalise_divides_stresses_by_each_runs_p0(runs, high):
-    low_run = plotting.Run(runs["analytical"], {"p0": P0, "drained": False})
-    high_run = plotting.Run(high, {"p0": 5.85e6, "drained": False})
-    fig = plotting.overlay_figure([low_run, high_run], normalise=True)
+    low_run = figures.Run(runs["analytical"], {"p0": P0, "drained": False})
+    high_run = figures.Run(high, {"p0": 5.85e6, "drained": False})
+    fig = figures.overlay_figure([low_run, high_run], normalise=True)
     ax_q, ax_pq, ax_p, ax_ratio = fig.axes
     assert ax_pq.get_xlabel().startswith("$p/p_0") and ax_pq.get_ylabel().startswith("$q/p_0")
     assert ax_p.get_ylabel().startswith("$p/p_0") and ax_q.get_ylabel().startswith("$q/p_0")
     for k, (record, p0) in enumerate(((runs["analytical"], P0), (high, 5.85e6))):
-        curve = plotting.shear_curve(record)
+        curve = figures.shear_curve(record)
         x, y = ax_pq.get_lines()[k].get_data()
         assert np.allclose(x, curve.p / p0, rtol=1e-14) and np.allclose(y, curve.q / p0, rtol=1e-14)
         assert np.allclose(ax_q.get_lines()[k].get_ydata(), curve.q / p0, rtol=1e-14)
@@ -246,8 +247,8 @@ def test_normalise_divides_stresses_by_each_runs_p0(runs, high):
         ratio = ax_ratio.get_lines()[k].get_ydata()[1:]
         assert np.allclose(ratio, curve.q[1:] / curve.p[1:], rtol=1e-12)  # q/p is not divided again
     assert x[0] == pytest.approx(1.0, rel=1e-6)  # every curve starts at p = p0
-    plain = plotting.overlay_figure([low_run, high_run])
-    assert np.array_equal(plain.axes[1].get_lines()[1].get_xdata(), plotting.shear_curve(high).p)
+    plain = figures.overlay_figure([low_run, high_run])
+    assert np.array_equal(plain.axes[1].get_lines()[1].get_xdata(), figures.shear_curve(high).p)
     assert plain.axes[1].get_xlabel().startswith("$p = ")
 
 
@@ -267,7 +268,7 @@ def test_normalise_reads_p0_from_the_programme_and_refuses_runs_without(runs, tm
 
 # -- one legend, also for the cyclic programme ---------------------------------------------
 
-CYCLIC = Path(plotting.__file__).parent / "data" / "programmes" / "cyclic_constant_volume.toml"
+CYCLIC = Path(figures.__file__).parent / "data" / "programmes" / "cyclic_constant_volume.toml"
 
 
 def test_cyclic_programme_figure_has_exactly_one_legend(tmp_path, monkeypatch, capsys):
@@ -308,8 +309,8 @@ def synthetic(record: driver.Record, p_end: float, slope: float = M) -> driver.R
 
 
 def test_csl_slope_is_fitted_to_the_end_of_the_run(runs):
-    curve = plotting.shear_curve(synthetic(runs["analytical"], 0.5 * P0))
-    assert plotting.critical_state_slope(curve, P0) == pytest.approx(M, rel=1e-12)
+    curve = figures.shear_curve(synthetic(runs["analytical"], 0.5 * P0))
+    assert figures.critical_state_slope(curve, P0) == pytest.approx(M, rel=1e-12)
     assert np.polyfit(curve.p, curve.q, 1)[0] != pytest.approx(M, rel=0.05)  # a fit over the whole run is not M
 
 
@@ -333,8 +334,8 @@ def test_plot_csl_draws_q_equals_m_p_with_m_in_the_legend(runs, tmp_path, monkey
 
 def test_csl_skips_a_liquefied_run_with_one_warning(runs, tmp_path, monkeypatch, capsys):
     liquefied = synthetic(runs["analytical"], 0.01 * P0)
-    with pytest.raises(plotting.NoCriticalState, match="liquefied"):
-        plotting.critical_state_slope(plotting.shear_curve(liquefied), P0)
+    with pytest.raises(figures.NoCriticalState, match="liquefied"):
+        figures.critical_state_slope(figures.shear_curve(liquefied), P0)
     files = [_write(tmp_path / "a", liquefied, backend="dem", p0=P0),
              _write(tmp_path / "b", synthetic(runs["analytical"], 0.5 * P0), backend="ann", p0=P0)]
     code, fig = _figure_of_plot(monkeypatch, [*files, "--csl", "--out", str(tmp_path / "f.png")])
@@ -353,8 +354,9 @@ BIAXIAL_TINY = ["--alpha0", "55", "--p0", "2e5", "--eps-max", "0.05", "--increme
 
 
 def test_biaxial_figure_labels_normalise_and_csl(tmp_path, monkeypatch, capsys):
-    from homogenization import biaxial, io
-    from warp_hcell.cli import run_main
+    from homogenization.cli import biaxial
+    from homogenization import io
+    from warp_hcell.core.cli import run_main
 
     saved = _spy_saved_figures(monkeypatch)
     out = tmp_path / "b"
@@ -366,8 +368,8 @@ def test_biaxial_figure_labels_normalise_and_csl(tmp_path, monkeypatch, capsys):
                                   r"$p_0 = 2\times10^{5}$ N/m, $N$ = 12 (compression positive)")
     assert fig.axes[1].get_xlabel().startswith("$p/p_0")
     assert fig.axes[1].get_lines()[0].get_xdata()[0] == pytest.approx(1.0, rel=1e-6)
-    curve = plotting.shear_curve(io.read_run(out / "run.h5").record)
-    slope = plotting.critical_state_slope(curve, 2e5)
+    curve = figures.shear_curve(io.read_run(out / "run.h5").record)
+    slope = figures.critical_state_slope(curve, 2e5)
     x, y = fig.axes[1].get_lines()[1].get_data()
     assert y[-1] / x[-1] == pytest.approx(slope, rel=1e-12)
     assert _legend(fig) == [f"critical-state line $q = M p$, $M$ = {slope:.3f}"]
@@ -375,8 +377,8 @@ def test_biaxial_figure_labels_normalise_and_csl(tmp_path, monkeypatch, capsys):
 
 
 def test_biaxial_normalise_needs_a_p0(tmp_path, capsys):
-    from homogenization import biaxial
-    from warp_hcell.cli import run_main
+    from homogenization.cli import biaxial
+    from warp_hcell.core.cli import run_main
 
     programme = tmp_path / "no_p0.json"
     programme.write_text('{"steps": [{"label": "path", "control": ["strain", "strain"], "target": [0.01, 0.0], '

@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization import biaxial, io, loading
-from warp_hcell.cli import run_main
-from warp_hcell.parameters import LoadingDefaults
+from homogenization.cli import biaxial
+from homogenization import io, loading
+from warp_hcell.core.cli import run_main
+from warp_hcell.core.parameters import LoadingDefaults
 
-PROGRAMMES = Path(biaxial.__file__).resolve().parent / "data" / "programmes"
+PROGRAMMES = Path(biaxial.__file__).resolve().parents[1] / "data" / "programmes"
 FAST = ["--alpha0", "55", "--orientations", "24", "-q"]
 
 
@@ -23,7 +24,7 @@ def cli(argv: list[str]) -> int:
 def test_shipped_programmes_are_valid_and_documented():
     files = sorted(PROGRAMMES.iterdir())
     assert {f.suffix for f in files} == {".json", ".toml"}
-    docs = (Path(biaxial.__file__).resolve().parents[1] / "docs" / "programmes.md").read_text()
+    docs = (Path(biaxial.__file__).resolve().parents[2] / "docs" / "programmes.md").read_text()
     for path in files:
         programme = loading.read_programme(path)
         assert programme[0].stop_at_p == 5.85e6

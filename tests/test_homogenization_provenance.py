@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization import biaxial, io
-from warp_hcell.cli import run_main
-from warp_hcell.parameters import DemSettings
-from warp_hcell.provenance import command_line, file_sha256
+from homogenization.cli import biaxial
+from homogenization import io
+from warp_hcell.core.cli import run_main
+from warp_hcell.core.parameters import DemSettings
+from warp_hcell.core.provenance import command_line, file_sha256
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--alpha0", "55", "--eps-max", "0.005", "--increment", "5e-4", "--orientations", "12", "-q"]
@@ -92,7 +93,7 @@ def test_warp_banner_only_with_verbose(tmp_path):
 
 
 def test_command_line_names_the_module_of_a_python_m_run():
-    code = "from warp_hcell.provenance import command_line; print(command_line())"
+    code = "from warp_hcell.core.provenance import command_line; print(command_line())"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     done = subprocess.run([sys.executable, "-c", code, "--flag", "a b"], capture_output=True, text=True, env=env)
     assert done.stdout.strip() == "-c --flag 'a b'"

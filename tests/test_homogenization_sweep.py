@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization import io, sweep
-from warp_hcell import execution
-from warp_hcell.cli import run_main
-from warp_hcell.mesostructure import h_cell
-from warp_hcell.parameters import LoadingDefaults
+from homogenization import io
+from homogenization.cli import sweep
+from warp_hcell.core import execution
+from warp_hcell.core.cli import run_main
+from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.core.parameters import LoadingDefaults
 from dask_cluster import free_port, local_cluster
 
 P0 = 2e5
@@ -214,7 +215,7 @@ def fines_models(tmp_path_factory):
     """Tiny models (a few epochs on a small DEM database) of the two cells: plumbing, not physics."""
     from dem_database import build
     from training.train import main as train_main
-    from warp_hcell.builders import resolve_mesostructure
+    from warp_hcell.mesostructures.builders import resolve_mesostructure
 
     models = {}
     for k, spec in enumerate(ANN_FINES):

@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from dem_database import build
-from training.checkpoint import CheckpointError, check_compatible, check_start_cell, load_checkpoint
+from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
 from training.train import main
-from warp_hcell.mesostructure import describe, from_description, h_cell, load_mesostructure
+from warp_hcell.mesostructures.mesostructure import describe, from_description, h_cell, load_mesostructure
 
 
 @pytest.fixture(scope="module")

@@ -11,9 +11,9 @@ import torch
 
 from dem_database import build
 from training import cell_physics
-from training.dataset import DataError, active_pairs, load_database, split_by_path
-from warp_hcell import generate
-from warp_hcell.parameters import DemSettings
+from training.dataset import active_pairs, DataError, load_database, split_by_path
+from warp_hcell.database import generate
+from warp_hcell.core.parameters import DemSettings
 
 
 @pytest.fixture(scope="module")

@@ -21,10 +21,10 @@ from homogenization.backends.ann import AnnCell
 from training.cell_physics import CellSchema, count_held_grains
 from training.inference import FastAdvance, FastIncrement
 from training.perceptron import BLOCK as MLP_BLOCK
-from training.network import RELAXATION_RAMP, MesoNet
-from warp_hcell.builders import resolve_mesostructure
-from warp_hcell.mesostructure import h_cell
-from warp_hcell.parameters import ContactLaw
+from training.network import MesoNet, RELAXATION_RAMP
+from warp_hcell.mesostructures.builders import resolve_mesostructure
+from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.core.parameters import ContactLaw
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from warp_hcell.builders import (
+from warp_hcell.mesostructures.builders import (
     build_h_cell,
     h_cell_alpha0,
     mesostructure_arg,
@@ -20,8 +20,8 @@ from warp_hcell.builders import (
     resolve_mesostructure,
     split_mesostructure_list,
 )
-from warp_hcell.mesostructure import MesostructureError, h_cell, load_mesostructure
-from warp_hcell.model import initial_contacts
+from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure, MesostructureError
+from warp_hcell.dem.model import initial_contacts
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
 
@@ -144,8 +144,8 @@ def test_files_and_specs_parse_to_sources():
 
 
 def test_biaxial_cli_rejects_a_fine_grain_too_big_for_its_alpha0_before_running(tmp_path, capsys):
-    from homogenization import biaxial
-    from warp_hcell.cli import run_main
+    from homogenization.cli import biaxial
+    from warp_hcell.core.cli import run_main
 
     out = tmp_path / "run"
     code = run_main(biaxial.main, ["--backend", "dem", "--alpha0", "50", "--mesostructure", "hcell-fines:ratio=0.85",
@@ -156,8 +156,8 @@ def test_biaxial_cli_rejects_a_fine_grain_too_big_for_its_alpha0_before_running(
 
 
 def test_cell_cli_runs_a_spec_like_the_file_it_describes(tmp_path):
-    from homogenization import cell
-    from warp_hcell.cli import run_main
+    from homogenization.cli import cell
+    from warp_hcell.core.cli import run_main
 
     path = tmp_path / "path.csv"
     path.write_text("d_eps_n,d_eps_t\n" + "2e-3,-1e-3\n" * 3)

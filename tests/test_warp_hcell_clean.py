@@ -6,7 +6,7 @@ import json
 import numpy as np
 
 from test_warp_hcell_database import fake_database
-from warp_hcell import clean, database
+from warp_hcell.database import clean, format as database
 
 
 def pathological():

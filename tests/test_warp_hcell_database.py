@@ -1,4 +1,4 @@
-"""Tests of warp_hcell.database (format version 2): schema datasets, attrs, byte-stable writing,
+"""Tests of warp_hcell.database.format (format version 2): schema datasets, attrs, byte-stable writing,
 reading, version and hash checks."""
 
 import json
@@ -7,8 +7,8 @@ import h5py
 import numpy as np
 import pytest
 
-from warp_hcell import database
-from warp_hcell.mesostructure import describe, description_sha256, h_cell
+from warp_hcell.database import format as database
+from warp_hcell.mesostructures.mesostructure import describe, description_sha256, h_cell
 
 
 def fake_database(n=5, seed=0):

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from warp_hcell.builders import resolve_mesostructure
-from warp_hcell.dem_cell import DemCell
-from warp_hcell.erosion import erodible_grains, erode_arrays, erode_state, remove_grains
-from warp_hcell.mesostructure import MesostructureError, h_cell
-from warp_hcell.parameters import ContactLaw, DemSettings
+from warp_hcell.mesostructures.builders import resolve_mesostructure
+from warp_hcell.dem.cell import DemCell
+from warp_hcell.dem.erosion import erode_arrays, erode_state, erodible_grains, remove_grains
+from warp_hcell.mesostructures.mesostructure import h_cell, MesostructureError
+from warp_hcell.core.parameters import ContactLaw, DemSettings
 
 LAW = ContactLaw()
 

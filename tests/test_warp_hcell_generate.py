@@ -16,12 +16,13 @@ import h5py
 import numpy as np
 import pytest
 
-from warp_hcell import database, execution, exploration, generate, probing, shards
-from warp_hcell.dem_cell import DemCell
-from warp_hcell.learning_state import evaluate, free_coordinates
-from warp_hcell.mesostructure import describe, description_sha256, h_cell, load_mesostructure
-from warp_hcell.parameters import ContactLaw, DatabaseSettings, DemSettings
-from warp_hcell.cli import output_lock
+from warp_hcell.database import exploration, format as database, generate, probing, shards
+from warp_hcell.core import execution
+from warp_hcell.dem.cell import DemCell
+from warp_hcell.database.learning_state import evaluate, free_coordinates
+from warp_hcell.mesostructures.mesostructure import describe, description_sha256, h_cell, load_mesostructure
+from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
+from warp_hcell.core.cli import output_lock
 from dask_cluster import free_port, local_cluster
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
@@ -370,7 +371,7 @@ def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monk
 def test_a_builder_spec_names_the_mesostructure_of_the_database(tmp_path):
     """The database of a spec records the hash of the cell that the spec builds (what an ANN
     model of it is checked against in biaxial and the sweep)."""
-    from warp_hcell.builders import resolve_mesostructure
+    from warp_hcell.mesostructures.builders import resolve_mesostructure
 
     spec = "hcell-fines:alpha0=50,ratio=0.82"
     out = tmp_path / "db.h5"
@@ -419,7 +420,7 @@ def test_dask_scheduler_with_a_lost_worker_gives_the_local_file(tmp_path):
 
 
 def test_exploration_does_not_depend_on_how_start_cells_are_grouped():
-    from warp_hcell import tasks
+    from warp_hcell.database import tasks
 
     starts = generate.h_cell_starts(SMALL)
     physics = tasks.Physics(ContactLaw(), describe(h_cell()), DemSettings(), "cpu", 1)
@@ -440,7 +441,7 @@ def test_explored_states_cover_constant_volume_homogenisation():
     isotropic compression (p0 ~ 2e5 and 5.85e6 N/m), at alpha0 = 35, 40, 55 deg, stay as close
     to the default exploration's states as these are to each other: nearest-neighbour
     distances in (cell size / 1 m, normal and shear forces of the 15 pairs / 6e6 N)."""
-    from warp_hcell import tasks
+    from warp_hcell.database import tasks
 
     settings = DatabaseSettings()
     meso = h_cell()

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from warp_hcell.integrator import MIN_CELLS_TO_SPLIT, DemIntegrator, NumpyIntegrator
-from warp_hcell.model import DemModel
-from warp_hcell.parameters import DemSettings
-from warp_hcell.state import DemState
+from warp_hcell.dem.integrator import DemIntegrator, MIN_CELLS_TO_SPLIT, NumpyIntegrator
+from warp_hcell.dem.model import DemModel
+from warp_hcell.core.parameters import DemSettings
+from warp_hcell.dem.state import DemState
 
 
 def _model(n_cells=3, **settings):

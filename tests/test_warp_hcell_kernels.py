@@ -6,11 +6,11 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
-from warp_hcell.mesostructure import Mesostructure, load_mesostructure
-from warp_hcell.model import DemModel
-from warp_hcell.parameters import ContactLaw, DemSettings
-from warp_hcell.state import DemState
+from warp_hcell.dem.integrator import DemIntegrator, NumpyIntegrator
+from warp_hcell.mesostructures.mesostructure import load_mesostructure, Mesostructure
+from warp_hcell.dem.model import DemModel
+from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.dem.state import DemState
 
 LAW = ContactLaw()
 
@@ -131,8 +131,8 @@ def test_strain_per_substep_grows_along_a_path_and_restarts_on_reversal(device):
 def test_kernel_love_weber_sum_and_area_match_the_host_formulas(device):
     """The kernel's per-cell Love-Weber sum and V_cell equal sum_p f_p (x) b_p and the shoelace
     area computed on the host from its output forces and positions."""
-    from warp_hcell.learning_state import love_weber_tension_positive
-    from warp_hcell.mesostructure import polygon_area
+    from warp_hcell.database.learning_state import love_weber_tension_positive
+    from warp_hcell.mesostructures.mesostructure import polygon_area
 
     rng = np.random.default_rng(11)
     model = DemModel.build_h_cell(rng.uniform(35.0, 80.0, 8), 8, 0.5, device=device)

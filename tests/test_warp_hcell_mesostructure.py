@@ -8,7 +8,7 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from warp_hcell.mesostructure import (
+from warp_hcell.mesostructures.mesostructure import (
     Mesostructure,
     MesostructureError,
     describe,

@@ -6,9 +6,9 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from warp_hcell.mesostructure import MesostructureError, h_cell, load_mesostructure
-from warp_hcell.model import DemModel
-from warp_hcell.parameters import ContactLaw, DemSettings
+from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure, MesostructureError
+from warp_hcell.dem.model import DemModel
+from warp_hcell.core.parameters import ContactLaw, DemSettings
 
 DATA = resources.files("warp_hcell") / "data"
 

@@ -2,11 +2,11 @@
 
 import numpy as np
 
-from warp_hcell.dem_cell import DemCell
-from warp_hcell.mesostructure import h_cell
-from warp_hcell.model import DemModel
-from warp_hcell.parameters import ContactLaw
-from warp_hcell.state import DemState, StatePool
+from warp_hcell.dem.cell import DemCell
+from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.dem.model import DemModel
+from warp_hcell.core.parameters import ContactLaw
+from warp_hcell.dem.state import DemState, StatePool
 
 
 def test_numpy_round_trip_casts_to_the_field_types(device):

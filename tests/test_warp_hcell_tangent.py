@@ -2,7 +2,7 @@
 
 The DEM step is a damped dynamic relaxation driven at a fixed strain per substep along the
 largest strain component: substep k reaches s_k = k rate / max |d_eps| of the increment, the
-last one is shorter (``warp_hcell.kernels``). Its differences are taken with a tight
+last one is shorter (``warp_hcell.dem.kernels``). Its differences are taken with a tight
 equilibrium tolerance, slow driving (strain_per_substep = refined_strain_per_substep, so no
 adaptive rate decision), max |d_eps| half a substep from an integer count and no tie between
 |d_eps_n| and |d_eps_t| (max |d_eps| has a kink there: the probe increment is the next
@@ -27,10 +27,10 @@ import pytest
 
 from homogenization.backends.analytical import AnalyticalCell
 from tangent_fd import fd_tangent, fd_tangent_fixed_schedule, relative_error
-from warp_hcell.dem_cell import DemCell
-from warp_hcell.mesostructure import h_cell, load_mesostructure
-from warp_hcell.parameters import ContactLaw, DemSettings
-from warp_hcell.tangent import condensed_tangent, sliding_contacts
+from warp_hcell.dem.cell import DemCell
+from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure
+from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.dem.tangent import condensed_tangent, sliding_contacts
 
 LAW = ContactLaw()
 R = 0.5

@@ -29,8 +29,8 @@ import numpy as np
 import pytest
 
 from homogenization.backends import make_cell_model
-from warp_hcell.mesostructure import h_cell
-from warp_hcell.parameters import CellDefaults, ContactLaw
+from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.core.parameters import CellDefaults, ContactLaw
 
 HERE = Path(__file__).resolve().parent
 DATA_DIR = HERE / "data" / "yade"
@@ -241,7 +241,7 @@ def test_analytical_cell_reproduces_yade(name):
 def test_dem_cell_reproduces_yade(name, device):
     """The Warp DEM backend, one increment per row, matches YADE (forces and positions)."""
     pytest.importorskip("warp")
-    pytest.importorskip("warp_hcell.dem_cell")
+    pytest.importorskip("warp_hcell.dem.cell")
     check_backend_against_yade(run_backend("dem", device), name)
 
 

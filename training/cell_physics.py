@@ -12,7 +12,7 @@ Generic cell state (first axis n_cells):
   ``driven == False`` (grain, axis);
 - ``shear_force`` (n, n_pairs) [N]: tangential spring force of each candidate pair, the
   force on grain i along w = (-u_t, u_n) with ``u = (x_j - x_i) / |x_j - x_i|`` (DEM convention,
-  ``warp_hcell.kernels``).
+  ``warp_hcell.dem.kernels``).
 
 Driven coordinates follow the cell strain exactly: x = (x_ref / l_ref) * l.
 

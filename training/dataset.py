@@ -32,7 +32,7 @@ import torch
 
 from training.cell_physics import CellSchema
 from training.network import features
-from warp_hcell.provenance import file_sha256
+from warp_hcell.core.provenance import file_sha256
 
 FORMAT = "meso-hmodel-database"
 """Root attr ``format`` of a learning database."""

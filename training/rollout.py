@@ -5,7 +5,7 @@ delta * (a_n, a_t) per increment of a macro axial strain delta, to eps1 = ``EPS_
 legs are those a cell of orientation theta sees in a constant-volume test
 (a = (cos 2 theta, -cos 2 theta)) and in a drained test with a dilatancy ratio of 1/2
 (a = (c^2 - s^2 / 2, s^2 - c^2 / 2)).
-None of these precompressions is a training path's. The DEM cell (``warp_hcell.dem_cell``),
+None of these precompressions is a training path's. The DEM cell (``warp_hcell.dem.cell``),
 stepped with the same increments, gives the reference; the ANN is rolled out recurrently. The
 error of a path is max over the path of ``|S_ann - S_dem|`` (components nn and tt) divided by
 the path's largest ``|S_dem|`` component (the path's largest force times its lever arm):
@@ -21,9 +21,9 @@ import numpy as np
 import torch
 
 from training.network import MesoNet
-from warp_hcell.dem_cell import DemCell
-from warp_hcell.mesostructure import Mesostructure
-from warp_hcell.parameters import ContactLaw, DemSettings
+from warp_hcell.dem.cell import DemCell
+from warp_hcell.mesostructures.mesostructure import Mesostructure
+from warp_hcell.core.parameters import ContactLaw, DemSettings
 
 PRECOMPRESSION = (1.5e-3, 2e-2)
 """Isotropic strains of the held-out paths [-] (p ~ 3e5 and ~ 4e6 N/m on the H-cell)."""

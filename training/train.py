@@ -51,12 +51,12 @@ from training.dataset import (
 )
 from training.network import DEFAULT_HIDDEN, MesoNet
 from training.rollout import rollout_report
-from warp_hcell.cli import (
+from warp_hcell.core.cli import (
     Parser, check_output_path, command_prog, common_parser, output_lock, progress_bar, quiet_warp, run_main, say,
     set_verbosity)
-from warp_hcell.mesostructure import from_description
-from warp_hcell.parameters import ContactLaw, DemSettings
-from warp_hcell.provenance import git_revision
+from warp_hcell.mesostructures.mesostructure import from_description
+from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.core.provenance import git_revision
 
 
 @dataclass(frozen=True)

@@ -1,130 +1,13 @@
 """python -m warp_hcell.clean DB.h5 [--out CLEAN.h5]
 
-The cleaning step of the learning database: marks samples the network must not learn from
-in ``valid`` and records what it removed. Nothing is deleted: a removed sample stays in the
-file with ``valid = False``, so the step can be audited and undone. Mechanism (stress-free)
-and perturbed samples are kept: the network must learn them.
-
-A sample is removed for each of these reasons (``REASONS``; a sample may have several):
-
-- ``unconverged``: the DEM did not reach quasi-static equilibrium within max_substeps
-  (``converged`` False);
-- ``non_finite``: a non-finite value in ``d_eps`` or in a state before or after the probe.
-
-Root attrs written: ``cleaned`` (bool), ``n_valid``, ``removed_<reason>`` (count per
-reason), ``n_removed`` (samples with at least one reason) and ``cleaning`` (JSON: rules and
-counts). Without cleaning (``not_cleaned``) every sample is valid and ``cleaned`` is False.
-The command rewrites the file atomically (temporary file, then rename): an interrupted run
-leaves the original intact.
+The command is ``warp_hcell.database.clean``; this module is its ``python -m`` entry point.
 """
 
-from __future__ import annotations
-
-import argparse
-import json
 import sys
-from pathlib import Path
-from typing import Any, Mapping, Sequence
 
-import numpy as np
+from warp_hcell.database.clean import main
 
-from warp_hcell import database
-from warp_hcell.cli import Parser, UserError, command_prog, run_main, say, set_verbosity, verbosity_parser
-
-REASONS = {
-    "unconverged": "the DEM did not reach quasi-static equilibrium within max_substeps",
-    "non_finite": "non-finite value in d_eps or in the state before or after the probe",
-}
-"""Cleaning reasons and their rules."""
-
-
-def pathological(data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Per-reason masks of the samples to remove.
-
-    Args:
-        data: database datasets keyed by HDF5 path (at least ``converged``, ``d_eps`` and the
-            groups ``before``/``after``).
-
-    Returns:
-        ``REASONS`` key -> bool array (n_samples,), True = remove.
-    """
-    finite = np.isfinite(data["d_eps"]).all(axis=1)
-    for name, value in data.items():
-        if name.split("/")[0] in database.STATE_GROUPS:
-            value = np.asarray(value)
-            finite &= np.isfinite(value.reshape(value.shape[0], -1)).all(axis=1)
-    return {"unconverged": ~np.asarray(data["converged"], dtype=bool), "non_finite": ~finite}
-
-
-def _attrs(valid: np.ndarray, masks: Mapping[str, np.ndarray] | None) -> dict[str, Any]:
-    removed = {reason: int(np.count_nonzero(mask)) for reason, mask in (masks or {}).items()}
-    attrs: dict[str, Any] = {"cleaned": masks is not None, "n_valid": int(np.count_nonzero(valid)),
-                             "n_removed": int(valid.size - np.count_nonzero(valid))}
-    attrs.update({f"removed_{reason}": count for reason, count in removed.items()})
-    attrs["cleaning"] = json.dumps({"applied": masks is not None, "rules": REASONS if masks is not None else {},
-                                    "removed": removed}, sort_keys=True)
-    return attrs
-
-
-def clean_samples(data: Mapping[str, np.ndarray]) -> tuple[np.ndarray, dict[str, Any]]:
-    """Apply the cleaning rules.
-
-    Returns:
-        (valid (n_samples,) bool, root attrs describing what was removed).
-    """
-    masks = pathological(data)
-    valid = ~np.logical_or.reduce(list(masks.values()))
-    return valid, _attrs(valid, masks)
-
-
-def not_cleaned(data: Mapping[str, np.ndarray]) -> tuple[np.ndarray, dict[str, Any]]:
-    """Every sample valid, and the attrs saying that no cleaning was applied."""
-    valid = np.ones(np.shape(data["converged"])[0], dtype=bool)
-    return valid, _attrs(valid, None)
-
-
-def clean_file(path: Path, out: Path) -> dict[str, Any]:
-    """Clean database ``path`` and write it to ``out`` (may equal ``path``) atomically.
-
-    Returns:
-        The cleaning attrs written.
-    """
-    data, attrs = database.read_database(path)
-    attrs_of = database.read_attrs_of(path)
-    data["valid"], cleaning_attrs = clean_samples(data)
-    attrs.update(cleaning_attrs)
-    database.write_database(Path(out), data, attrs, attrs_of)
-    return cleaning_attrs
-
-
-def _run(argv: Sequence[str] | None) -> int:
-    parser = Parser(
-        prog=command_prog("warp_hcell.clean"), parents=[verbosity_parser()],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-        description="Mark unconverged and non-finite samples of a learning database in `valid` (mechanism and "
-                    "perturbed samples are kept) and record the counts per reason as root attrs.")
-    parser.add_argument("database", type=Path, help="database file written by warp_hcell.generate")
-    parser.add_argument("--out", type=Path, default=None, help="write the cleaned file here; unset: clean in place")
-    args = parser.parse_args(argv)
-    set_verbosity(args)
-    out = args.out or args.database
-    if not args.database.is_file():
-        raise UserError(f"{args.database}: no such database file")
-    if args.out is not None and args.out.exists():
-        raise UserError(f"{args.out} exists; remove it or clean in place")
-    try:
-        summary = clean_file(args.database, out)
-    except KeyError as exc:
-        raise UserError(f"{args.database}: not a complete learning database ({exc.args[0] if exc.args else exc})") from None
-    say(f"{out}: {summary['n_valid']} valid, {summary['n_removed']} removed "
-        + ", ".join(f"{reason} {summary[f'removed_{reason}']}" for reason in REASONS))
-    return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: clean a database file (see the module docstring); bad input exits 2."""
-    return run_main(_run, argv)
-
+__all__ = ["main"]
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -2,7 +2,7 @@
 
 Backends are imported lazily, so using the analytical backend never imports Warp or torch.
 Every class takes ``(contact_law, radius, **options)`` and implements
-``warp_hcell.cell_model.CellModel``: its cells are created from a mesostructure
+``warp_hcell.core.contract.CellModel``: its cells are created from a mesostructure
 (``init_state(mesostructure, n_cells)``). A class that models only some mesostructures also
 has a static ``check_mesostructure(meso)`` that raises ValueError (one line) for the others,
 so that callers can leave such cases out before building the backend (``mesostructure_refusal``).
@@ -13,11 +13,11 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from warp_hcell.parameters import CellDefaults, ContactLaw
+from warp_hcell.core.parameters import CellDefaults, ContactLaw
 
 BACKENDS: dict[str, str] = {
     "analytical": "homogenization.backends.analytical:AnalyticalCell",
-    "dem": "warp_hcell.dem_cell:DemCell",
+    "dem": "homogenization.backends.dem:DemCell",
     "ann": "homogenization.backends.ann:AnnCell",
 }
 """Backend name -> "module:Class" of its implementation."""

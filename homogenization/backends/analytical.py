@@ -1,6 +1,6 @@
 """Analytical H-cell backend: the one-unknown equilibrium solve of spec section 6.
 
-``AnalyticalCell`` implements ``warp_hcell.cell_model.CellModel``. Per increment and
+``AnalyticalCell`` implements ``warp_hcell.core.contract.CellModel``. Per increment and
 per cell, l1 and l2 follow the imposed local strain (spec section 3); the only unknown,
 y2 = d2/2, is found such that grain 2 is in equilibrium along n:
 
@@ -36,11 +36,11 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from homogenization.backends import hcell
-from warp_hcell.builders import plain_h_cell_alpha0
-from warp_hcell.cell_model import ArrayStateMixin, CellResponse
-from warp_hcell.mesostructure import Mesostructure, per_cell
-from warp_hcell.parameters import ContactLaw, check_positive
+from warp_hcell.mesostructures import hcell
+from warp_hcell.mesostructures.builders import plain_h_cell_alpha0
+from warp_hcell.core.contract import ArrayStateMixin, CellResponse
+from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell
+from warp_hcell.core.parameters import check_positive, ContactLaw
 
 
 class AnalyticalState(NamedTuple):
@@ -72,7 +72,7 @@ class AnalyticalCell(ArrayStateMixin):
     """Closed-form H-cell (spec sections 2-7), vectorised over cells.
 
     Args:
-        contact_law: contact stiffnesses and friction (``warp_hcell.parameters.ContactLaw``).
+        contact_law: contact stiffnesses and friction (``warp_hcell.core.parameters.ContactLaw``).
         radius: grain radius r [m].
         g2: coefficient of the published "G2" variant of the equilibrium (spec section 5),
             N2 = N1 cos a + T1 sin a + g2 T1 [-]. 0 (the default) is the consistent model.
@@ -118,7 +118,7 @@ class AnalyticalCell(ArrayStateMixin):
 
         Raises:
             ValueError: (one line) ``meso`` is not the touching six-equal-grain H-cell of
-                ``warp_hcell.mesostructure.h_cell`` (``warp_hcell.builders.plain_h_cell_alpha0``).
+                ``warp_hcell.mesostructures.mesostructure.h_cell`` (``warp_hcell.mesostructures.builders.plain_h_cell_alpha0``).
         """
         plain = plain_h_cell_alpha0(meso)
         if plain is None:
@@ -130,7 +130,7 @@ class AnalyticalCell(ArrayStateMixin):
         """Touching, force-free cells: d1 = d2 = D at the opening angle alpha0 of each cell's mesostructure.
 
         Args:
-            mesostructure: the plain H-cell (``warp_hcell.mesostructure.h_cell(alpha0_deg, radius)``
+            mesostructure: the plain H-cell (``warp_hcell.mesostructures.mesostructure.h_cell(alpha0_deg, radius)``
                 with this backend's radius), or a sequence of n_cells of them.
             n_cells: number of cells.
 

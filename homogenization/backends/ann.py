@@ -1,6 +1,6 @@
 """Generic meso-ANN backend (spec section 12): a trained ``MesoNet`` decides every cell-increment.
 
-``AnnCell`` implements ``warp_hcell.cell_model.CellModel`` for ANY mesostructure the model
+``AnnCell`` implements ``warp_hcell.core.contract.CellModel`` for ANY mesostructure the model
 was trained on. The state of a cell is the DEM's learning state: cell size (l1, l2), the
 free-DOF coordinates and the tangential spring force of every candidate pair. Per macro
 increment, ONE batched network call over all cells gives the free-DOF displacement (a rate
@@ -50,11 +50,11 @@ import torch
 from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
-from training.checkpoint import CheckpointError, check_compatible, check_start_cell, load_checkpoint
-from warp_hcell.cell_model import ArrayStateMixin, CellResponse
-from warp_hcell.learning_state import hcell_observables
-from warp_hcell.mesostructure import Mesostructure, from_description, per_cell
-from warp_hcell.parameters import ContactLaw, check_positive
+from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
+from warp_hcell.core.contract import ArrayStateMixin, CellResponse
+from warp_hcell.database.learning_state import hcell_observables
+from warp_hcell.mesostructures.mesostructure import from_description, Mesostructure, per_cell
+from warp_hcell.core.parameters import check_positive, ContactLaw
 
 DEFAULT_MODEL = "ann_default.pt"
 """File name of the model shipped in ``homogenization/data`` (with its ``.json``)."""
@@ -208,7 +208,7 @@ class AnnCell(ArrayStateMixin):
         Always ``l1, l2, area`` [m, m^2], ``S_nn, S_tt, S_nt`` [N m] (compression positive),
         ``n_contacts`` and grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label); where the
         model's mesostructure carries H-cell labels also ``d1, d2, alpha_deg, N1, N2, T1, closed1,
-        closed2`` (``warp_hcell.learning_state.hcell_observables``).
+        closed2`` (``warp_hcell.database.learning_state.hcell_observables``).
         """
         with torch.inference_mode():
             x, c, force = self._forces(state)

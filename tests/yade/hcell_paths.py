@@ -66,7 +66,7 @@ REPO_ROOT = Path(inspect.currentframe().f_code.co_filename).resolve().parents[2]
 if str(REPO_ROOT) not in sys.path:
     sys.path.insert(0, str(REPO_ROOT))
 
-from warp_hcell.parameters import CellDefaults, ContactLaw, DemSettings, check_alpha0_deg  # noqa: E402
+from warp_hcell.core.parameters import CellDefaults, ContactLaw, DemSettings, check_alpha0_deg  # noqa: E402
 
 import yade  # noqa: E402
 from yade import O  # noqa: E402

@@ -35,7 +35,7 @@ from skfem import Basis, BilinearForm, ElementQuad1, ElementVector, FacetBasis, 
 from skfem.helpers import dot, sym_grad
 
 from homogenization.material import HomogenisedMaterial, MaterialState
-from warp_hcell.parameters import FeDefaults
+from warp_hcell.core.parameters import FeDefaults
 
 QUADRATURE_ORDER = 2
 """Integration order of the bilinear quadrilaterals: 2 x 2 Gauss points [-]."""

@@ -30,17 +30,17 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from warp_hcell.cell_model import StateSchema
-from warp_hcell.exploration import DEM_PREFIX, force_floor
-from warp_hcell.learning_state import (
+from warp_hcell.core.contract import StateSchema
+from warp_hcell.database.exploration import DEM_PREFIX, force_floor
+from warp_hcell.database.learning_state import (
     HCELL_OBSERVABLES,
     evaluate,
     free_coordinates,
     hcell_observables,
     love_weber_tension_positive,
 )
-from warp_hcell.mesostructure import Mesostructure, topology_arrays
-from warp_hcell.parameters import ContactLaw, DatabaseSettings
+from warp_hcell.mesostructures.mesostructure import Mesostructure, topology_arrays
+from warp_hcell.core.parameters import ContactLaw, DatabaseSettings
 
 STATE_FEATURES = ("cell_size", "free_position", "shear_force", "contact", "normal_force", "unbalanced", "moment",
                   "area")
@@ -112,10 +112,10 @@ class ProbeContext:
     """Everything a chunk needs besides (settings, seed, chunk index).
 
     Attributes:
-        cell_model: a ``warp_hcell.dem_cell.DemCell`` of ``meso``.
+        cell_model: a ``warp_hcell.dem.cell.DemCell`` of ``meso``.
         meso: the mesostructure (schema reference; H-cell observables when labelled).
         schema: ``meso.schema()``.
-        states: the exploration's sampled states (``warp_hcell.exploration.explore``).
+        states: the exploration's sampled states (``warp_hcell.database.exploration.explore``).
         contact_law, contact_tolerance: the DEM's.
     """
 

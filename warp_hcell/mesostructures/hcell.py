@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from warp_hcell.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, check_alpha0_deg
+from warp_hcell.core.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, check_alpha0_deg
 
 N_GRAINS = 6
 """Number of grains of the H-cell [-]."""

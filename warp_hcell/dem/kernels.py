@@ -37,7 +37,7 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
       opens, closes, starts or stops sliding, the rest is driven at refined_strain_per_substep.
 
 The conversion to compression-positive quantities happens on the host
-(``warp_hcell.learning_state.to_compression_positive``).
+(``warp_hcell.database.learning_state.to_compression_positive``).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Exploration tree of the database generator: the cell states that the probes start from.
 
 Deterministic (no randomness). From each start cell (a batch of cells sharing one learning
-state, ``warp_hcell.mesostructure.shares_state_schema``), one isotropic path compresses the
+state, ``warp_hcell.mesostructures.mesostructure.shares_state_schema``), one isotropic path compresses the
 cell (d_eps_n = d_eps_t) through the precompression levels; from the state at each level,
 proportional legs leave in ``n_directions`` directions psi of the (eps_n, eps_t) plane (all
 directions: cells close, open, slide and lose contacts). A leg runs until its path length
@@ -29,10 +29,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from warp_hcell.cell_model import StateSchema
-from warp_hcell.cli import progress_bar
-from warp_hcell.learning_state import evaluate, free_coordinates
-from warp_hcell.parameters import ContactLaw, DatabaseSettings
+from warp_hcell.core.contract import StateSchema
+from warp_hcell.core.cli import progress_bar
+from warp_hcell.database.learning_state import evaluate, free_coordinates
+from warp_hcell.core.parameters import ContactLaw, DatabaseSettings
 
 DEM_PREFIX = "dem/"
 """Prefix of the DEM state arrays (``DemCell.state_to_arrays``) among the sampled-state arrays."""
@@ -124,7 +124,7 @@ class Explorer:
     """Walks batches of DEM cells along their paths (module docstring).
 
     Args:
-        cell_model: a ``warp_hcell.dem_cell.DemCell`` (any object with ``step``, ``take``,
+        cell_model: a ``warp_hcell.dem.cell.DemCell`` (any object with ``step``, ``take``,
             ``state_to_arrays``).
         schema: the learning state of the cells.
         settings: generator settings.

@@ -1,8 +1,8 @@
 """The generic learning state of a cell, evaluated with numpy: derived features, H-cell observables.
 
-A learning state (``warp_hcell.cell_model.StateSchema``) is the cell size, the free-DOF
+A learning state (``warp_hcell.core.contract.StateSchema``) is the cell size, the free-DOF
 coordinates and the per-pair tangential spring forces. ``evaluate`` applies the contact law
-of the DEM (``warp_hcell.kernels``) at those positions with no displacement: contact flags,
+of the DEM (``warp_hcell.dem.kernels``) at those positions with no displacement: contact flags,
 normal forces, the tangential forces after the Coulomb cap (zero out of contact), the net
 force on each free DOF, the Love-Weber moment and the area. Evaluated on a state the DEM
 produced, it reproduces the DEM's own forces; on a perturbed state it gives the unbalanced
@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from warp_hcell.cell_model import StateSchema
-from warp_hcell.mesostructure import Mesostructure, polygon_area
-from warp_hcell.parameters import ContactLaw
+from warp_hcell.core.contract import StateSchema
+from warp_hcell.mesostructures.mesostructure import Mesostructure, polygon_area
+from warp_hcell.core.parameters import ContactLaw
 
 def positions(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarray) -> np.ndarray:
     """All grain centres [m], shape (n, n_grains, 2): driven DOFs at x_ref * l / l_ref.

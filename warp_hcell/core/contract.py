@@ -4,8 +4,8 @@ This module sits at the bottom of the package: ``warp_hcell``, ``training`` and
 ``homogenization`` all import it, and it imports none of them.
 
 A cell model creates a batch of independent cells (one per orientation, or one per
-database probe) from a mesostructure (``warp_hcell.mesostructure.Mesostructure``: a builder
-such as ``h_cell(alpha0_deg, radius)`` or a spec of ``warp_hcell.builders``, or a file),
+database probe) from a mesostructure (``warp_hcell.mesostructures.mesostructure.Mesostructure``: a builder
+such as ``h_cell(alpha0_deg, radius)`` or a spec of ``warp_hcell.mesostructures.builders``, or a file),
 advances them by per-cell strain increments given in each cell's local frame (n, t), and
 returns the Love-Weber moment S and the cell area V_cell. The homogenisation drives any
 cell model through this protocol without knowing which backend it is; backends know
@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Protocol, Sequence, TypeVar, run
 import numpy as np
 
 if TYPE_CHECKING:  # the mesostructure module imports this one
-    from warp_hcell.mesostructure import Mesostructure
+    from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 S = TypeVar("S")
 
@@ -69,7 +69,7 @@ class CellModel(Protocol[S]):
     """What the homogenisation needs from a cell backend.
 
     Implementations are constructed with the physical parameters (a
-    ``warp_hcell.parameters.ContactLaw``, the grain radius [m], which only the closed-form
+    ``warp_hcell.core.parameters.ContactLaw``, the grain radius [m], which only the closed-form
     analytical cell uses: the others take every radius from the mesostructure) and
     keyword-only numerical options; see ``homogenization.backends.make_cell_model``. The cells
     themselves come from a mesostructure, in ``init_state``.

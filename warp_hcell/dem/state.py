@@ -2,7 +2,7 @@
 
 Everything that evolves lives here; every parameter lives in ``DemModel``. Frame: local
 (n, t), component 0 = n. Forces are the DEM's tension-positive contact forces (see
-``warp_hcell.kernels``); the last step's per-cell substep count and convergence flag are kept
+``warp_hcell.dem.kernels``); the last step's per-cell substep count and convergence flag are kept
 with the state they produced.
 """
 
@@ -35,7 +35,7 @@ class DemState:
         velocity: every grain's mean velocity over the driving substeps of the step that
             produced this state [m/s], shape (n_cells, n_grains) vec2d: the memory from which
             the next step sets its strain per substep and predicts its free grains
-            (``warp_hcell.kernels``); zero for a state no step produced.
+            (``warp_hcell.dem.kernels``); zero for a state no step produced.
         shear_force: tangential spring force of each candidate pair [N], shape
             (n_cells, n_pairs); the force on grain i along w = (-u_t, u_n).
         contact_force: force on grain i of pair (i, j) by grain j [N], shape

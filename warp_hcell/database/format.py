@@ -3,7 +3,7 @@
 This module is the single place that knows the HDF5 layout shared by the generator
 (``warp_hcell.generate``), the cleaning step (``warp_hcell.clean``) and the training
 pipeline. One file holds the probes of ONE mesostructure (its description and hash are root
-attributes); its learning state (``warp_hcell.cell_model.StateSchema``) is the group
+attributes); its learning state (``warp_hcell.core.contract.StateSchema``) is the group
 ``schema``; every sample is a state ``before`` and ``after`` one strain probe ``d_eps``.
 
 Sign convention: compression and contraction positive (probe strains, normal forces,
@@ -21,10 +21,10 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
-from warp_hcell.cell_model import StateSchema
-from warp_hcell.cli import atomic_write
-from warp_hcell.learning_state import HCELL_OBSERVABLES
-from warp_hcell.mesostructure import Mesostructure, description_sha256, from_description
+from warp_hcell.core.contract import StateSchema
+from warp_hcell.core.cli import atomic_write
+from warp_hcell.database.learning_state import HCELL_OBSERVABLES
+from warp_hcell.mesostructures.mesostructure import description_sha256, from_description, Mesostructure
 
 FORMAT = "meso-hmodel-database"
 """Value of the root attr ``format``."""

@@ -30,11 +30,11 @@ import numpy as np
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
-from homogenization.fe import BiaxialSpecimen, StepResult
-from homogenization.figure_style import GRID, LABELS, PNG_DPI, TickFormatter, apply_style
+from homogenization.fe.solver import BiaxialSpecimen, StepResult
+from homogenization.figure_style import apply_style, GRID, LABELS, PNG_DPI, TickFormatter
 from homogenization.orientation import VOLUME_RULE
-from warp_hcell.cli import atomic_write
-from warp_hcell.provenance import provenance
+from warp_hcell.core.cli import atomic_write
+from warp_hcell.core.provenance import provenance
 
 CURVE_FILE = "curve.csv"
 RUN_FILE = "run.h5"

@@ -15,10 +15,10 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from warp_hcell.mesostructure import (
+from warp_hcell.mesostructures.mesostructure import (
     Mesostructure, MesostructureError, h_cell, h_cell_reference, per_cell, polygon_area)
-from warp_hcell.parameters import ContactLaw, DemSettings
-from warp_hcell.state import DemState
+from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.dem.state import DemState
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,7 +1,7 @@
 """Parametric mesostructures: H-cells with unequal grains and fine grains in the pore, and specs.
 
 A mesostructure is named on the command line (``--mesostructure``) and in Python either by
-a file (TOML/JSON, ``warp_hcell.mesostructure.load_mesostructure``) or by a *builder spec*:
+a file (TOML/JSON, ``warp_hcell.mesostructures.mesostructure.load_mesostructure``) or by a *builder spec*:
 
     SPEC   := KIND [":" KEY "=" VALUE ("," KEY "=" VALUE)*]
     KIND   := "hcell" | "hcell-unequal" | "hcell-fines"
@@ -32,7 +32,7 @@ grains that overlap by more than the contact tolerance (``DemSettings.contact_to
 of the pair's diameter sum), a fine grain whose centre is outside the pore (the hexagon
 1-2-3-4-5-6). ``pore_ratio`` gives the largest fine grain that fits at a position.
 
-This module and ``warp_hcell.mesostructure.h_cell`` are the only code that knows the shape of
+This module and ``warp_hcell.mesostructures.mesostructure.h_cell`` are the only code that knows the shape of
 these cells; everything else sees a ``Mesostructure``. ``plain_h_cell_alpha0`` tells
 whether a mesostructure is the six-equal-grain H-cell (which closed-form backends model);
 ``h_cell_alpha0`` gives the opening angle of any cell with H-cell labels (for run records).
@@ -49,7 +49,7 @@ from typing import Mapping
 
 import numpy as np
 
-from warp_hcell.mesostructure import (
+from warp_hcell.mesostructures.mesostructure import (
     H_TYPE1_PAIRS,
     H_TYPE2_PAIRS,
     Mesostructure,
@@ -58,7 +58,7 @@ from warp_hcell.mesostructure import (
     h_cell_reference,
     load_mesostructure,
 )
-from warp_hcell.parameters import CellDefaults, DemSettings, check_alpha0_deg
+from warp_hcell.core.parameters import CellDefaults, check_alpha0_deg, DemSettings
 
 KINDS = ("hcell", "hcell-unequal", "hcell-fines")
 """Builder names accepted as the KIND of a spec."""

@@ -16,7 +16,7 @@ Exports:
   sizes for a batch of alpha0.
 - ``load_mesostructure(path)``: read a TOML or JSON description (format in its docstring;
   examples in ``warp_hcell/data``).
-- ``state_schema(meso)``: the learning state of the cell (``warp_hcell.cell_model.StateSchema``).
+- ``state_schema(meso)``: the learning state of the cell (``warp_hcell.core.contract.StateSchema``).
 - ``describe(meso)`` / ``from_description(text)`` / ``description_sha256(text)``: canonical
   JSON text of a mesostructure (stored in databases and checkpoints), its inverse, and
   its hash.
@@ -24,7 +24,7 @@ Exports:
 - ``per_cell(mesostructure, n_cells)``: the distinct mesostructures of a batch of cells and
   each cell's index into them (``CellModel.init_state`` takes one or one per cell).
 - ``topology_arrays(meso, n_cells)``: the topology repeated per cell, for state arrays
-  that must rebuild their cells (``warp_hcell.dem_cell.DemCell.state_from_arrays``).
+  that must rebuild their cells (``warp_hcell.dem.cell.DemCell.state_from_arrays``).
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from warp_hcell.cell_model import StateFeature, StateSchema
-from warp_hcell.parameters import CellDefaults, DemSettings, check_alpha0_deg, check_positive
+from warp_hcell.core.contract import StateFeature, StateSchema
+from warp_hcell.core.parameters import CellDefaults, check_alpha0_deg, check_positive, DemSettings
 
 H_TYPE1_PAIRS = ((1, 2), (1, 6), (3, 4), (4, 5))
 """Type-1 contacts of the H-cell as (label, label), labels 1..6 of spec section 2."""
@@ -421,7 +421,7 @@ def _pair_label(pair: np.ndarray) -> str:
 
 
 def state_schema(meso: Mesostructure) -> StateSchema:
-    """The learning state of ``meso`` (see ``warp_hcell.cell_model.StateSchema``).
+    """The learning state of ``meso`` (see ``warp_hcell.core.contract.StateSchema``).
 
     Features (storage order): ``cell_size`` (l1, l2) [m] driven; ``free_position``
     (``x_n3``, ``x_t7``, ...) [m] learned; ``shear_force`` (``fs_1_2``, ...) [N] history;

@@ -26,8 +26,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from warp_hcell.dem_cell import DemCell, DemCellState
-from warp_hcell.mesostructure import TOPOLOGY_ARRAYS, Mesostructure, MesostructureError, topology_arrays
+from warp_hcell.dem.cell import DemCell, DemCellState
+from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, TOPOLOGY_ARRAYS, topology_arrays
 
 PER_GRAIN = ("position", "velocity", "radius", "reference_position")
 """State/model arrays with one entry per grain on axis 1."""
@@ -95,7 +95,7 @@ def erode_arrays(arrays: Mapping[str, Any], removal: GrainRemoval) -> dict[str, 
     Args:
         arrays: name -> array with first axis n_cells; names in ``PER_GRAIN`` are indexed by
             grain on axis 1, names in ``PER_PAIR`` by pair on axis 1, names in
-            ``warp_hcell.mesostructure.TOPOLOGY_ARRAYS`` are replaced by the reduced mesostructure's,
+            ``warp_hcell.mesostructures.mesostructure.TOPOLOGY_ARRAYS`` are replaced by the reduced mesostructure's,
             the rest are per cell.
         removal: from ``remove_grains``.
 
@@ -121,7 +121,7 @@ def erode_state(cell: DemCell, state: DemCellState,
     """Remove ``grains`` (0-based; default ``erodible_grains``) from every cell of a DEM batch.
 
     Args:
-        cell: the ``warp_hcell.dem_cell.DemCell`` that produced ``state``.
+        cell: the ``warp_hcell.dem.cell.DemCell`` that produced ``state``.
         state: its ``DemCellState``.
         grains: grains to remove; None = the grains with no driven DOF.
 

@@ -9,7 +9,7 @@ topology (``DemCellState.model.meso``) and ``state_to_arrays`` writes it out, so
 ``state_from_arrays`` needs nothing else.
 
 Sign convention: compression and contraction positive. The DEM's tension-positive
-Love-Weber sum is converted in ``warp_hcell.learning_state.to_compression_positive`` only. V_cell is the area of the
+Love-Weber sum is converted in ``warp_hcell.database.learning_state.to_compression_positive`` only. V_cell is the area of the
 polygon through the centres of the outer (driven) grains: the hexagon for the H-cell.
 """
 
@@ -22,14 +22,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from warp_hcell.cell_model import CellResponse
-from warp_hcell.integrator import DemIntegrator, NumpyIntegrator
-from warp_hcell.learning_state import hcell_observables, to_compression_positive
-from warp_hcell.mesostructure import TOPOLOGY_ARRAYS, Mesostructure, topology_arrays
-from warp_hcell.model import DemModel
-from warp_hcell.parameters import ContactLaw, DemSettings, check_positive
-from warp_hcell.state import DemState, StatePool
-from warp_hcell.tangent import condensed_tangent, sliding_contacts
+from warp_hcell.core.contract import CellResponse
+from warp_hcell.dem.integrator import DemIntegrator, NumpyIntegrator
+from warp_hcell.database.learning_state import hcell_observables, to_compression_positive
+from warp_hcell.mesostructures.mesostructure import Mesostructure, TOPOLOGY_ARRAYS, topology_arrays
+from warp_hcell.dem.model import DemModel
+from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings
+from warp_hcell.dem.state import DemState, StatePool
+from warp_hcell.dem.tangent import condensed_tangent, sliding_contacts
 
 _MODEL_ARRAYS = ("radius", "reference_position", "reference_cell_size")
 
@@ -105,7 +105,7 @@ class DemCell:
         Pure: ``state`` is not modified. Cells that reach max_substeps without equilibrium are
         counted in ``diagnostics["n_unconverged"]`` and reported with a warning. With
         ``with_tangent`` the response carries d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m] of the
-        equilibrium reached (``warp_hcell.tangent.condensed_tangent``).
+        equilibrium reached (``warp_hcell.dem.tangent.condensed_tangent``).
         """
         model = state.model
         integrator = self._integrator(model)

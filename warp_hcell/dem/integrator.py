@@ -1,7 +1,7 @@
 """Advance a batch of DEM cells by one strain increment each: Warp and numpy engines.
 
 ``DemIntegrator.step(state_in, state_out, d_eps_local)`` launches the cell-step kernel
-(``warp_hcell.kernels``); ``launch_step`` is the only code that knows its argument order. On
+(``warp_hcell.dem.kernels``); ``launch_step`` is the only code that knows its argument order. On
 the CPU the batch is split into contiguous chunks launched from ``threads`` Python threads
 (Warp CPU launches release the GIL); every cell is computed by the same code whatever the
 chunking, so results are bit-identical for any ``threads``.
@@ -10,7 +10,7 @@ chunking, so results are bit-identical for any ``threads``.
 a Python loop). It is the reference for agreement tests and speed ratios.
 
 Per increment and cell: the driven DOFs follow the cell strain over ceil(max|d_eps| / rate)
-substeps, the rate adapted to the cell's state (``warp_hcell.kernels``: between
+substeps, the rate adapted to the cell's state (``warp_hcell.dem.kernels``: between
 refined_strain_per_substep and strain_per_substep); then substeps continue until the
 unbalanced force ratio (largest free-DOF force / max(largest normal force, force_floor))
 is <= force_tolerance, or max_substeps. The kernel also returns the Love-Weber sum and the
@@ -28,9 +28,9 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import warp as wp
 
-from warp_hcell.kernels import step_kernel
-from warp_hcell.model import DemModel
-from warp_hcell.state import DemState
+from warp_hcell.dem.kernels import step_kernel
+from warp_hcell.dem.model import DemModel
+from warp_hcell.dem.state import DemState
 
 
 CHUNKS_PER_THREAD = 4

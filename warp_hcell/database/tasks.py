@@ -1,8 +1,8 @@
-"""The generator's tasks: pure functions of their inputs, run by any execution (``warp_hcell.execution``).
+"""The generator's tasks: pure functions of their inputs, run by any execution (``warp_hcell.core.execution``).
 
 - ``explore_starts(inputs, group)``: the exploration trees of the start cells ``group``
-  (``warp_hcell.exploration.explore``);
-- ``probe_chunk(inputs, c)``: the samples of chunk c (``warp_hcell.probing.compute_chunk``).
+  (``warp_hcell.database.exploration.explore``);
+- ``probe_chunk(inputs, c)``: the samples of chunk c (``warp_hcell.database.probing.compute_chunk``).
 
 The inputs (``Physics``, ``ExploreInputs``, ``ProbeInputs``) are picklable values, sent
 once per worker (``ProbeInputs`` carries the explored states, ~30 MB for the H-cell); each
@@ -18,11 +18,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from warp_hcell.exploration import explore
-from warp_hcell.learning_state import hcell_observables
-from warp_hcell.mesostructure import from_description
-from warp_hcell.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings
-from warp_hcell.probing import ProbeContext, compute_chunk
+from warp_hcell.database.exploration import explore
+from warp_hcell.database.learning_state import hcell_observables
+from warp_hcell.mesostructures.mesostructure import from_description
+from warp_hcell.core.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings
+from warp_hcell.database.probing import compute_chunk, ProbeContext
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ class ProbeInputs:
 
     Attributes:
         token: identifies the run (workers cache their probe context by it).
-        states: the exploration states (``warp_hcell.exploration.explore``).
+        states: the exploration states (``warp_hcell.database.exploration.explore``).
     """
 
     token: str
@@ -68,7 +68,7 @@ def dem_cell(physics: Physics):
     """The DEM cell of ``physics``, built once per process."""
     key = ("cell", physics)
     if _CACHE.get("cell_key") != key:
-        from warp_hcell.dem_cell import DemCell  # noqa: PLC0415 (Warp loads only where cells are stepped)
+        from warp_hcell.dem.cell import DemCell  # noqa: PLC0415 (Warp loads only where cells are stepped)
 
         _CACHE.update(cell_key=key, cell=DemCell(physics.contact_law, CellDefaults.radius, settings=physics.dem_settings,
                                                  device=physics.device, threads=physics.threads))
@@ -80,8 +80,8 @@ def explore_starts(inputs: ExploreInputs, group: tuple[int, ...]) -> dict[str, n
     states do not depend on the grouping), with ``alpha0_deg`` for H-cells and the stop-rule
     counts ``stops.<rule>`` of each state's start cell (int64, per state: the arrays split by
     start cell)."""
-    from warp_hcell.dem_cell import DemCellState  # noqa: PLC0415
-    from warp_hcell.model import DemModel  # noqa: PLC0415
+    from warp_hcell.dem.cell import DemCellState  # noqa: PLC0415
+    from warp_hcell.dem.model import DemModel  # noqa: PLC0415
 
     physics = inputs.physics
     meso = from_description(physics.mesostructure)

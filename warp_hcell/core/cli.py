@@ -45,7 +45,7 @@ from typing import Any, Callable, Iterator, NoReturn, Sequence
 
 from tqdm import tqdm
 
-from warp_hcell.parameters import CellDefaults, ContactLaw, check_alpha0_deg
+from warp_hcell.core.parameters import CellDefaults, check_alpha0_deg, ContactLaw
 
 EXIT_USAGE = 2
 """Exit code for bad user input (argparse's own convention)."""
@@ -75,14 +75,13 @@ def command_prog(module: str) -> str:
 
 
 def _started_as(function: Callable) -> str:
-    """How this process was started to run ``function``: ``python -m MODULE``, else the script's name."""
+    """How this process was started to run ``function``: ``python -m MODULE`` with the module the
+    user typed (an entry point over ``function``'s module), else the script's name."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is not None and spec.name != "__main__":
+        return f"python -m {spec.name}"
     name = getattr(function, "__module__", None) or "__main__"
-    if name == "__main__":
-        spec = getattr(sys.modules.get("__main__"), "__spec__", None)
-        if spec is None:
-            return Path(sys.argv[0]).name
-        name = spec.name
-    return f"python -m {name}"
+    return Path(sys.argv[0]).name if name == "__main__" else f"python -m {name}"
 
 
 class _Probe(Exception):
@@ -295,7 +294,7 @@ def quiet_warp(device: str = "cpu") -> None:
 
 
 def task_setup(args: argparse.Namespace) -> Callable[[], None]:
-    """Setup of a command's tasks (``warp_hcell.execution``, run in every worker): the command's
+    """Setup of a command's tasks (``warp_hcell.core.execution``, run in every worker): the command's
     -q, and ``quiet_warp(args.device)`` unless -v."""
     return functools.partial(_setup_task, getattr(args, "device", "cpu"), quiet=bool(args.quiet),
                              verbose=bool(args.verbose))

@@ -1,0 +1,244 @@
+"""python -m homogenization.bvp --backend analytical --alpha0 40 --p0 5.85e6 --eps-max 0.05 --increment 1e-3 --orientations 72 --elements 4,8 [--imperfection F] --out DIR
+
+Plane-strain biaxial specimen of the homogenised H-model by finite elements
+(``homogenization.fe.solver``, scikit-fem): every Gauss point is a material point with its own
+cells (``homogenization.material``), all stepped in one batch per Newton iteration. Stage 1:
+the lateral pressure and the stress of the top platen rise together to p0 in --iso-steps
+steps; stage 2: the smooth rigid top platen moves down by --increment H per step (lateral
+pressure p0) to eps1 = --eps-max, counted from the end of stage 1.
+
+--imperfection F (in [0, 1); 0 = homogeneous) gives the elements that touch the middle of the
+left face or whose centre lies within W/4 of it (a zone of nearly fixed size, so it does not
+shrink with the mesh) the looser opening angle alpha0 + F (90 deg - alpha0). A softening local model localises in a band
+whose width is set by the mesh: results after the peak depend on --elements. The cells start
+from the H-cell of --alpha0 (``warp_hcell.mesostructures.mesostructure.h_cell``), or from --mesostructure (a
+file or a builder spec, built at --alpha0 unless it gives its own); the weak zone's cells are
+built at the looser angle, which needs a cell built from an opening angle.
+
+Writes DIR/curve.csv (stage,eps11,eps22,sigma11,sigma22,sigma12,p,q,iterations; 1 = axial),
+DIR/run.h5 (fields per step), DIR/vtu/step_NNNN.vtu with DIR/specimen.pvd (ParaView) and
+DIR/bvp.png (see ``homogenization.fe.output``). --compare also runs the material point of
+``homogenization.driver`` on the drained biaxial programme with the same settings and overlays
+it (the homogeneous specimen should coincide with it).
+
+Sign convention: compression and contraction positive; stresses in N/m (2D). Bad input
+(non-positive element counts, imperfection outside [0, 1), unknown backend, alpha0 outside
+[30, 90) deg, a mesostructure the backend does not model, --imperfection with a cell of fixed
+geometry, existing output without --overwrite) is one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from homogenization import driver, loading, orientation, run_labels
+from homogenization.fe import output as fe_output, solver as fe
+from homogenization.backends import BACKENDS, make_cell_model
+from homogenization.cli.biaxial import BACKEND_ONLY_OPTIONS, backend_options, check_models_take, DEVICE_BACKENDS
+from homogenization.material import HomogenisedMaterial
+from warp_hcell.mesostructures.builders import h_cell_alpha0, mesostructure_arg, MESOSTRUCTURE_HELP
+from warp_hcell.core.cli import (
+    Parser,
+    UserError,
+    alpha0_deg,
+    check_output_path,
+    command_prog,
+    common_parser,
+    fraction,
+    positive_float,
+    positive_int,
+    progress_bar,
+    quiet_warp,
+    run_main,
+    say,
+    set_verbosity,
+)
+from warp_hcell.mesostructures.mesostructure import h_cell, Mesostructure
+from warp_hcell.core.parameters import ALPHA_MAX_DEG, CellDefaults, ContactLaw, FeDefaults
+
+
+def element_counts(text: str) -> tuple[int, int]:
+    """argparse type: "NX,NY", two integers >= 1."""
+    parts = text.split(",")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"{text!r} is not NX,NY")
+    try:
+        counts = tuple(positive_int(part.strip()) for part in parts)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"element counts {text!r}: {exc}") from None
+    return counts  # type: ignore[return-value]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser of the bvp command (defaults read from warp_hcell.core.parameters)."""
+    cell, bvp = CellDefaults(), FeDefaults()
+    parser = Parser(
+        prog=command_prog("homogenization.bvp"),
+        description="Plane-strain biaxial specimen of the homogenised H-model by finite elements.",
+        parents=[common_parser()],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--backend", choices=tuple(BACKENDS), default="analytical", help="cell model")
+    parser.add_argument("--alpha0", type=alpha0_deg, default=cell.alpha0_deg, help="initial opening angle [deg], in [30, 90)")
+    parser.add_argument("--p0", type=positive_float, default=cell.p0, help="confining pressure [N/m], > 0")
+    parser.add_argument("--eps-max", type=positive_float, default=bvp.eps_max,
+                        help="axial strain at the end of the shear stage, counted from its start [-]")
+    parser.add_argument("--increment", type=positive_float, default=bvp.increment,
+                        help="axial strain of one shear step (platen displacement / H) [-]")
+    parser.add_argument("--iso-steps", type=positive_int, default=bvp.iso_steps, help="load steps of the isotropic stage")
+    parser.add_argument("--orientations", type=positive_int, default=bvp.n_orientations,
+                        help="cell orientations per Gauss point")
+    parser.add_argument("--elements", type=element_counts, default=",".join(map(str, bvp.elements)),
+                        help="elements NX,NY across the width and along the height, each >= 1")
+    parser.add_argument("--imperfection", type=fraction, default=0.0,
+                        help="F in [0, 1): weak zone at mid-height of the left face with alpha0 + F (90 - alpha0); 0 = homogeneous")
+    parser.add_argument("--newton-rtol", type=positive_float, default=bvp.newton_rtol,
+                        help="Newton tolerance: out-of-balance force norm / (p0 W) [-] (the DEM's own equilibrium "
+                             "tolerance limits it: use ~1e-5 with --backend dem)")
+    parser.add_argument("--compare", action="store_true",
+                        help="also run the material point (driver, drained biaxial) and overlay it")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
+                        help=f"the cell (analytical: the plain H-cell only; ann: the model's mesostructure); "
+                             f"default: the H-cell of --alpha0. {MESOSTRUCTURE_HELP}")
+    parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM (dem only)")
+    parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
+    return parser
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """One-line UserError for flags the chosen backend does not take."""
+    for dest, takers in BACKEND_ONLY_OPTIONS.items():
+        if getattr(args, dest) is not None and args.backend not in takers:
+            raise UserError(f"--{dest.replace('_', '-')} applies to --backend {' or '.join(takers)} only")
+    if args.device != "cpu" and args.backend not in DEVICE_BACKENDS:
+        raise UserError(f"--device applies to --backend {' or '.join(DEVICE_BACKENDS)} only (analytical runs on the cpu)")
+
+
+def weak_elements(specimen: fe.BiaxialSpecimen) -> np.ndarray:
+    """Elements touching the middle of the left face (0, H/2) or whose centre lies within W/4 of it.
+
+    Returns:
+        bool, shape (n_elements,); at least one element on any mesh.
+    """
+    centre = specimen.element_centroids()
+    corners = specimen.mesh.p[:, specimen.mesh.t]  # (2, 4, n_elements)
+    mid = 0.5 * specimen.height
+    touching = (corners[0].min(axis=0) <= 0.0) & (corners[1].min(axis=0) <= mid) & (corners[1].max(axis=0) >= mid)
+    return touching | (np.hypot(centre[:, 0], centre[:, 1] - mid) < 0.25 * specimen.width)
+
+
+def element_mesostructures(args: argparse.Namespace, weak: np.ndarray) -> tuple[Mesostructure, Mesostructure | None]:
+    """The cell of the sound elements, and of the ``weak`` ones (None where no element is weak).
+
+    The weak cell is built at alpha0 + F (90 deg - alpha0) from the H-cell or from a builder spec
+    without its own alpha0.
+
+    Raises:
+        UserError: weak elements and a mesostructure of fixed geometry (a file, or a spec with alpha0).
+        warp_hcell.mesostructures.mesostructure.MesostructureError: a mesostructure that does not build.
+    """
+    source = args.mesostructure
+    sound = h_cell(args.alpha0, CellDefaults.radius) if source is None else source.build(args.alpha0)
+    if not weak.any():
+        return sound, None
+    if source is not None and not source.takes_alpha0:
+        raise UserError(f"--imperfection builds the weak zone's cells at a looser alpha0: --mesostructure {source} "
+                        f"fixes its geometry (use the H-cell or a builder spec without alpha0)")
+    weak_alpha0 = args.alpha0 + args.imperfection * (ALPHA_MAX_DEG - args.alpha0)
+    return sound, (h_cell(weak_alpha0, CellDefaults.radius) if source is None else source.build(weak_alpha0))
+
+
+def _alpha0_or_nan(meso: Mesostructure | None) -> float:
+    """alpha0 [deg] of a cell with H-cell labels (``h_cell_alpha0``); NaN otherwise or without a cell."""
+    alpha0 = None if meso is None else h_cell_alpha0(meso)
+    return float("nan") if alpha0 is None else alpha0
+
+
+def material_point_reference(model, meso: Mesostructure, args: argparse.Namespace) -> dict[str, np.ndarray]:
+    """Drained biaxial material point of ``meso`` with the same settings, from the end of its isotropic stage."""
+    programme = loading.biaxial(args.p0, args.eps_max, args.increment, drained=True)
+    record = driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations, progress=False)
+    start = int(np.flatnonzero(record.stage != "shear")[-1])
+    keep = slice(start, None)
+    eps_v = record.eps11 + record.eps22
+    return {"eps1": record.eps11[keep] - record.eps11[start], "q": record.q[keep], "p": record.p[keep],
+            "eps_v": eps_v[keep] - eps_v[start]}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
+    args = build_parser().parse_args(argv)
+    set_verbosity(args)
+    out: Path = args.out
+    check_output_path(out, overwrite=args.overwrite)
+    check_options(args)
+    if args.backend == "dem" and not args.verbose:
+        quiet_warp(args.device)
+    model = make_cell_model(args.backend, contact_law=ContactLaw(), radius=CellDefaults.radius,
+                            **backend_options(args, args.backend))
+    nx, ny = args.elements
+    specimen = fe.BiaxialSpecimen(nx, ny, newton_rtol=args.newton_rtol)
+    weak = weak_elements(specimen) if args.imperfection > 0.0 else np.zeros(specimen.mesh.nelements, bool)
+    sound, weak_meso = element_mesostructures(args, weak)
+    for meso in (sound, weak_meso):
+        if meso is not None:  # a mesostructure the backend does not model fails here, before the run
+            check_models_take({args.backend: model}, meso)
+    element_alpha0 = np.where(weak, _alpha0_or_nan(weak_meso), _alpha0_or_nan(sound))
+    point_meso = sound if weak_meso is None else [weak_meso if w else sound
+                                                  for w in np.repeat(weak, specimen.points_per_element())]
+    material = HomogenisedMaterial(model, orientation.orientations(args.orientations), point_meso, specimen.n_points)
+    if not material.returns_tangent:
+        raise UserError(f"backend {args.backend!r} returns no consistent tangent in this version")
+    n_shear = loading.n_increments_for(args.eps_max, args.increment)
+    steps = fe.isotropic_stage(args.p0, args.iso_steps) + fe.shear_stage(args.p0, n_shear * args.increment, n_shear)
+
+    start = time.perf_counter()
+    with progress_bar(total=len(steps), desc="bvp", unit="step", leave=False) as bar:
+        try:
+            results = specimen.run(material, steps, scale=args.p0, progress=lambda k: bar.update(1))
+        except fe.NewtonError as exc:
+            raise UserError(str(exc)) from None
+    elapsed = time.perf_counter() - start
+    updates = sum(r.iterations + 1 for r in results)
+    reference = material_point_reference(model, sound, args) if args.compare else None
+
+    parameters = {
+        "backend": args.backend, "alpha0_deg": h_cell_alpha0(sound), "p0": args.p0, "eps_max": args.eps_max,
+        "increment": args.increment, "iso_steps": args.iso_steps, "n_orientations": args.orientations,
+        "elements": [nx, ny], "imperfection": args.imperfection, "n_weak_elements": int(weak.sum()),
+        "width": specimen.width, "height": specimen.height, "newton_rtol": specimen.newton_rtol,
+        "contact_law": asdict(ContactLaw()), "radius": CellDefaults.radius,
+        "mesostructure": args.mesostructure.text if args.mesostructure is not None else None,
+    }
+    kind = "homogeneous" if not weak.any() else f"imperfection F = {args.imperfection:g} in {int(weak.sum())} elements"
+    title = f"{run_labels.title(run_labels.describe(parameters))}, {nx} × {ny} elements, {kind}"
+    try:
+        paths = fe_output.write_outputs(out, specimen, results, element_alpha0, parameters, args.seed, title, reference)
+    except OSError as exc:
+        raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
+    shear_iterations = [r.iterations for r in results if r.stage == "shear"]
+    say(f"{len(results)} steps in {elapsed:.1f} s: {updates} material updates of {specimen.n_points} points "
+        f"({updates * specimen.n_points / elapsed:.3g} material-point updates/s, "
+        f"{updates * material.n_cells / elapsed:.3g} cell-steps/s); "
+        f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}")
+    if reference is not None and not weak.any():
+        table = fe_output.curve_table(results)
+        shear = np.flatnonzero(table["stage"] == "shear")
+        q_fe = np.concatenate([[table["q"][shear[0] - 1]], table["q"][shear]]) if shear.size else table["q"]
+        p_fe = np.concatenate([[table["p"][shear[0] - 1]], table["p"][shear]]) if shear.size else table["p"]
+        if q_fe.size == reference["q"].size:
+            say(f"vs material point: max |dq|/p0 = {np.abs(q_fe - reference['q']).max() / args.p0:.3g}, "
+                f"max |dp|/p0 = {np.abs(p_fe - reference['p']).max() / args.p0:.3g}")
+    say(" ".join(f"{kind} -> {path}" for kind, path in paths.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_main(main))

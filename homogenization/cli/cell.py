@@ -1,0 +1,209 @@
+"""python -m homogenization.cell --backend analytical --alpha0 55 --path PATH.csv --out OUT.csv
+
+Element test of ONE cell: starting from its touching, force-free initial state, the cell
+is driven along the local strain increments of PATH.csv and its state after every
+increment is written to OUT.csv.
+
+PATH.csv: a header line ``d_eps_n,d_eps_t`` then one row per increment: the local strain
+increments along the cell axis n and the lateral direction t [-], compression positive
+(l1 <- l1 (1 - d_eps_n), l2 <- l2 (1 - d_eps_t)).
+
+OUT.csv: header ``l1,l2,alpha_deg,d1,d2,N1,N2,T1,S_nn,S_tt`` (with ``--positions`` followed
+by the grain centres ``x_n1,x_t1,...,x_n6,x_t6`` [m], local frame, cell centre at the
+origin) and one row per increment. Units: lengths [m], angle [deg], contact forces [N]
+(compression positive, T1 > 0 resists opening), Love-Weber moments S_nn, S_tt [N m],
+compression positive. The cell starts from the H-cell of --alpha0 and --radius, or from
+``--mesostructure`` (a file, or a builder spec of ``warp_hcell.mesostructures.builders`` built at its own
+alpha0 or else at --alpha0; the analytical backend models the plain H-cell only, the ANN the
+mesostructure its model was trained on). A cell that is not an H-cell has no l1..T1 of its
+own: only the columns that the backend reports among ``observables()`` are written, in the
+order above, and with ``--positions`` every grain centre it reports.
+
+Bad input (missing or malformed PATH.csv, alpha0 outside [30, 90) deg, a mesostructure the
+backend does not model, unwritable --out,
+a CUDA device the machine lacks, and for the ann backend a row larger than the largest
+probe of its learning database, ``|d_eps|`` > 1e-3, where the network extrapolates) is one
+line on stderr and exit code 2; an existing OUT.csv is kept unless --overwrite.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from homogenization.backends import BACKENDS, make_cell_model
+from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
+from warp_hcell.core.cli import (
+    Parser,
+    UserError,
+    add_contact_law_arguments,
+    alpha0_deg,
+    atomic_write,
+    check_output_path,
+    command_prog,
+    common_parser,
+    contact_law_from_args,
+    quiet_warp,
+    run_main,
+    set_verbosity,
+)
+from warp_hcell.mesostructures.mesostructure import h_cell, Mesostructure
+from warp_hcell.core.parameters import CellDefaults, DatabaseSettings
+
+PATH_HEADER = ("d_eps_n", "d_eps_t")
+"""Columns of the strain-path file."""
+COLUMNS = ("l1", "l2", "alpha_deg", "d1", "d2", "N1", "N2", "T1", "S_nn", "S_tt")
+"""Columns of the output file, before the optional grain positions."""
+DEM_ONLY_BACKEND = "dem"
+"""The backend whose Warp start-up banner is silenced."""
+DEVICE_BACKENDS = ("dem", "ann")
+"""The backends that take a compute --device."""
+ANN_MAX_INCREMENT = DatabaseSettings.probe_max
+"""Largest ``|d_eps|`` [-] of one path row the ann backend accepts: the largest strain probe of
+its learning database (beyond it the network extrapolates)."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser of the element-test command (defaults read from warp_hcell.core.parameters)."""
+    parser = Parser(
+        prog=command_prog("homogenization.cell"),
+        description="Drive one cell along a local strain path and write its state after every increment.",
+        parents=[common_parser()],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--backend", choices=tuple(BACKENDS), default="analytical", help="cell model")
+    parser.add_argument("--alpha0", type=alpha0_deg, default=CellDefaults.alpha0_deg, help="initial opening angle [deg], in [30, 90)")
+    parser.add_argument("--path", type=Path, required=True, help="CSV of local strain increments, header d_eps_n,d_eps_t, compression positive")
+    parser.add_argument("--out", type=Path, required=True, help="output CSV, one row per increment")
+    add_contact_law_arguments(parser)
+    parser.add_argument("--positions", action="store_true", help="also write the grain centres x_n{i}, x_t{i} [m]")
+    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
+                        help=f"the cell (analytical: the plain H-cell only; ann: the model's mesostructure); "
+                             f"default: the H-cell of --alpha0 and --radius. {MESOSTRUCTURE_HELP}")
+    return parser
+
+
+def read_path(path: Path) -> np.ndarray:
+    """Read a strain-path CSV; UserError (one line) for anything malformed.
+
+    Args:
+        path: file with the header ``d_eps_n,d_eps_t`` and one row per increment.
+
+    Returns:
+        Local strain increments (d_eps_n, d_eps_t) [-], shape (n_increments, 2),
+        compression positive, each finite and in (-1, 1).
+    """
+    if not path.is_file():
+        raise UserError(f"path file {path} does not exist")
+    try:
+        lines = path.read_text().rstrip().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"cannot read path file {path}: {exc}") from None
+    header = tuple(name.strip() for name in lines[0].split(",")) if lines else ()
+    if header != PATH_HEADER:
+        raise UserError(f"{path}: header must be '{','.join(PATH_HEADER)}', got {lines[0] if lines else ''!r}")
+    if len(lines) == 1:
+        raise UserError(f"{path}: no increments after the header")
+    rows = []
+    for number, line in enumerate(lines[1:], start=2):
+        fields = line.split(",")
+        try:
+            values = [float(field) for field in fields]
+        except ValueError:
+            values = []
+        if len(values) != 2:
+            raise UserError(f"{path} line {number}: expected two numbers d_eps_n,d_eps_t, got {line!r}")
+        if not all(math.isfinite(value) and abs(value) < 1.0 for value in values):
+            raise UserError(f"{path} line {number}: increments must be finite and in (-1, 1), got {line!r}")
+        rows.append(values)
+    return np.array(rows, dtype=np.float64)
+
+
+def _check_out(out: Path, *, overwrite: bool) -> None:
+    """check_output_path, plus: --out names a file and its nearest existing parent is a folder."""
+    if out.is_dir():
+        raise UserError(f"--out {out} is a folder; give a file name")
+    check_output_path(out, overwrite=overwrite)
+
+
+def _backend_options(args: argparse.Namespace) -> dict:
+    """Keyword options of the chosen backend: the device goes to the DEM and the ANN."""
+    if args.backend in DEVICE_BACKENDS:
+        return {"device": args.device}
+    takers = " or ".join(DEVICE_BACKENDS)
+    if args.device != "cpu":
+        raise UserError(f"--device applies to --backend {takers} only ({args.backend} runs on the cpu)")
+    return {}
+
+
+def check_path_for_backend(path: Path, d_eps: np.ndarray, backend: str) -> None:
+    """UserError (one line) for path rows the backend cannot do: for the ann, a row with
+    ``|d_eps| = sqrt(d_eps_n^2 + d_eps_t^2)`` above ``ANN_MAX_INCREMENT``."""
+    if backend != "ann":
+        return
+    size = np.hypot(d_eps[:, 0], d_eps[:, 1])
+    too_large = np.flatnonzero(size > ANN_MAX_INCREMENT)
+    if too_large.size:
+        row = int(too_large[0])
+        raise UserError(f"{path} line {row + 2}: |d_eps| = {size[row]:.3g} exceeds {ANN_MAX_INCREMENT:g}, the largest "
+                        f"probe the ann was trained on ({too_large.size} such rows); split them into smaller "
+                        f"increments or use --backend analytical or dem")
+
+
+def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
+             positions: bool) -> tuple[list[str], np.ndarray]:
+    """Drive one cell of ``model`` along ``d_eps`` from its initial state.
+
+    Args:
+        model: a ``warp_hcell.core.contract.CellModel``.
+        mesostructure: the cell it starts from.
+        d_eps: local strain increments (d_eps_n, d_eps_t) [-], shape (n_increments, 2),
+            compression positive.
+        positions: also return the grain centres x_n{i}, x_t{i} [m].
+
+    Returns:
+        (columns, table): the names of the observables written, and their values after
+        every increment, shape (n_increments, n_columns).
+    """
+    state = model.init_state(mesostructure, 1)
+    rows = []
+    columns: list[str] | None = None
+    for increment in d_eps:
+        state, _ = model.step(state, increment[None, :])
+        observed = model.observables(state)
+        if columns is None:
+            columns = [name for name in COLUMNS if name in observed]
+            if positions:
+                labels = sorted({int(name[3:]) for name in observed if name.startswith("x_n") and name[3:].isdigit()})
+                columns += [f"x_{axis}{label}" for label in labels for axis in "nt"]
+        rows.append([float(observed[name][0]) for name in columns])
+    return columns, np.array(rows, dtype=np.float64)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
+    args = build_parser().parse_args(argv)
+    set_verbosity(args)
+    _check_out(args.out, overwrite=args.overwrite)
+    d_eps = read_path(args.path)
+    check_path_for_backend(args.path, d_eps, args.backend)
+    if args.backend == DEM_ONLY_BACKEND and not args.verbose:
+        quiet_warp(args.device)
+    law = contact_law_from_args(args)
+    meso = args.mesostructure.build(args.alpha0) if args.mesostructure is not None else h_cell(args.alpha0, args.radius)
+    model = make_cell_model(args.backend, contact_law=law, radius=args.radius, **_backend_options(args))
+    columns, table = run_path(model, meso, d_eps, positions=args.positions)
+    try:
+        with atomic_write(args.out) as tmp:
+            np.savetxt(tmp, table, fmt="%.17g", delimiter=",", header=",".join(columns), comments="")
+    except OSError as exc:
+        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_main(main))

@@ -1,0 +1,342 @@
+"""The 2x2 biaxial-test figure, several runs overlaid.
+
+Panels: q vs eps1; q vs p (stress path in the Cambridge plane); p vs eps1 (drained tests:
+eps_v vs eps1); q/p vs eps1 (or W2 vs eps1). The half-difference t = q/2 can replace q, and
+stresses can be drawn over each run's p0. eps1 and eps_v are counted from the end of the
+first (isotropic) stage, whose end point starts every curve. ``make_figure`` builds the
+figure from ``{label: Record}``; ``overlay_figure`` from stored runs, with the title and
+legend labels made from their metadata (``run_labels``); ``save_figure`` writes it
+atomically as PNG, PDF or SVG (by the file suffix). One legend per figure, below the panels.
+Tick format and axis labels: ``figure_style``.
+
+Critical-state line (``--csl``): q = M p, M by least squares through the origin over the
+last 10 % of the shear-stage points with p > 0.05 p0 (``critical_state_slope``). A run
+that ends near the origin (static liquefaction: fewer than half of those points left) or
+whose q/p is not stationary there (range > 0.1: reversed or cyclic loading) gets no line
+and a one-line warning; the command reports how many runs got one.
+
+The command ``hmodel plot`` is ``homogenization.cli.plot``.
+
+Sign convention: compression and contraction positive; stresses in N/m (2D).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from homogenization import invariants, io, run_labels
+from homogenization.driver import Record
+from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS, PNG_DPI
+from warp_hcell.core.cli import UserError, atomic_write
+
+FOURTH_PANELS = ("q/p", "W2")
+"""Choices of the fourth panel."""
+LINE_STYLES = ("-", "--", ":", "-.")
+"""Line style of the 1st, 2nd, ... run, so that coinciding backends remain distinguishable."""
+DEVIATORS = ("q", "t")
+"""Deviator measure drawn: q = sigma11 - sigma22 or t = q / 2."""
+FORMATS = ("png", "pdf", "svg")
+"""Figure file formats, chosen by the file suffix."""
+CSL_TAIL = 0.1
+"""Fraction of the shear-stage points, at its end, that the critical-state line is fitted to."""
+CSL_MIN_POINTS = 3
+"""Fewest points the critical-state fit looks at (short runs)."""
+CSL_MIN_P = 0.05
+"""Points with p <= CSL_MIN_P p0 are left out of the critical-state fit [-]."""
+CSL_MAX_SPREAD = 0.1
+"""Largest range max(q/p) - min(q/p) over the fitted points for the end to count as a critical state [-]."""
+CSL_LINE_STYLE = (0, (6, 2, 1, 2))
+"""Dash pattern of critical-state lines (apart from the run line styles)."""
+CSL_LABEL = "critical-state line $q = M p$"
+"""Legend text of the critical-state lines."""
+CSL_RULE = (f"q = M p, M by least squares through the origin over the last {100 * CSL_TAIL:g} % of the shear-stage "
+            f"points with p > {CSL_MIN_P:g} p0; a run ending near the origin (fewer than half of those points "
+            f"left: static liquefaction) or whose q/p ranges over more than {CSL_MAX_SPREAD:g} there (reversed or "
+            f"cyclic loading) gets no line and a one-line warning")
+"""The critical-state rule, as in --help and docs/programmes.md."""
+
+
+@dataclass(frozen=True)
+class ShearCurve:
+    """Shear-stage curves of a record, starting at the end of its first stage.
+
+    Attributes:
+        eps1: axial strain eps11 counted from the end of stage 1 [-], shape (m + 1,).
+        eps_v: volumetric strain eps11 + eps22 counted from the end of stage 1 [-], shape
+            (m + 1,), contraction positive.
+        p: mean stress [N/m], shape (m + 1,).
+        q: deviator sigma11 - sigma22 [N/m], shape (m + 1,).
+        w2: second-order work of each increment [N/m], shape (m,).
+    """
+
+    eps1: np.ndarray
+    eps_v: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    w2: np.ndarray
+
+
+def shear_curve(record: Record) -> ShearCurve:
+    """Curves after the first stage of ``record`` (its whole history if it has one stage).
+
+    The first point is the state at the end of stage 1 (the force-free initial state if the
+    record has a single stage).
+    """
+    first = record.stage[0] if record.n_increments else ""
+    n_first = int(np.argmax(record.stage != first)) if np.any(record.stage != first) else 0
+    start = n_first - 1  # index of the last increment of stage 1, -1 for the initial state
+
+    def tail(values: np.ndarray) -> np.ndarray:
+        head = values[start] if start >= 0 else 0.0
+        return np.concatenate([[head], values[n_first:]])
+
+    e11, e22 = tail(record.eps11), tail(record.eps22)
+    s11, s22, s12 = tail(record.sigma11), tail(record.sigma22), tail(record.sigma12)
+    return ShearCurve(
+        eps1=e11 - e11[0],
+        eps_v=invariants.volumetric_strain(e11, e22) - (e11[0] + e22[0]),
+        p=invariants.mean_stress(s11, s22),
+        q=invariants.deviator(s11, s22),
+        w2=invariants.second_order_work(s11, s22, s12, e11, e22),
+    )
+
+
+def _stress_label(name: str, normalised: bool) -> str:
+    return LABELS[f"{name}/p0" if normalised else name]
+
+
+def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: str = "q/p", deviator: str = "q",
+                title: str | None = None, normalise: Mapping[str, float] | None = None,
+                csl: Mapping[str, float] | None = None) -> Figure:
+    """2x2 figure of the shear stage of every run in ``runs`` (label -> record), overlaid.
+
+    One legend for the whole figure, below the panels, listing the runs with a non-empty label
+    (with the slope M of their critical-state line) and the critical-state line style; none if
+    there is nothing to list.
+
+    Args:
+        runs: curves to draw, keyed by legend label ("" for no legend entry).
+        drained: third panel shows eps_v vs eps1 instead of p vs eps1.
+        fourth: "q/p" or "W2" for the fourth panel.
+        deviator: "q" (sigma11 - sigma22) or "t" (half of it) on the deviator axes.
+        title: figure title.
+        normalise: p0 [N/m] of every label: stresses (and W2) are drawn divided by it.
+        csl: slope M of the critical-state line q = M p to draw in the Cambridge plane, by label
+            (labels without one get no line); in the t axes the line is t = M p / 2.
+    """
+    if fourth not in FOURTH_PANELS:
+        raise ValueError(f"fourth panel {fourth!r} is not one of {FOURTH_PANELS}")
+    if deviator not in DEVIATORS:
+        raise ValueError(f"deviator {deviator!r} is not one of {DEVIATORS}")
+    factor = 1.0 if deviator == "q" else 0.5
+    if not runs:
+        raise ValueError("nothing to plot: no runs given")
+    if normalise is not None:
+        missing = [label for label in runs if not normalise.get(label)]
+        if missing:
+            raise ValueError(f"no p0 to normalise the run {missing[0]!r} by")
+    normalised = normalise is not None
+    csl = csl or {}
+    fig = Figure(figsize=(11.0, 8.5), layout="constrained")
+    (ax_q, ax_pq), (ax_3, ax_4) = fig.subplots(2, 2)
+    handles = []
+    for i, (label, record) in enumerate(runs.items()):
+        c = shear_curve(record)
+        scale = 1.0 / normalise[label] if normalised else 1.0
+        p, q = scale * c.p, scale * factor * c.q
+        pct = 100.0 * c.eps1
+        style = {"label": label or "_nolegend_", "linestyle": LINE_STYLES[i % len(LINE_STYLES)]}
+        (line,) = ax_q.plot(pct, q, **style)
+        style["color"] = line.get_color()
+        ax_pq.plot(p, q, **style)
+        if drained:
+            ax_3.plot(pct, 100.0 * c.eps_v, **style)
+        else:
+            ax_3.plot(pct, p, **style)
+        if fourth == "W2":
+            ax_4.plot(0.5 * (pct[1:] + pct[:-1]), scale * c.w2, **style)
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ax_4.plot(pct, np.where(c.p > 0.0, factor * c.q / c.p, np.nan), **style)
+        if label in csl:
+            slope = csl[label]
+            p_end = float(np.nanmax(p)) if p.size else 0.0
+            (csl_line,) = ax_pq.plot([0.0, p_end], [0.0, factor * slope * p_end], color=style["color"], lw=1.0,
+                                     linestyle=CSL_LINE_STYLE)
+            if label:
+                line.set_label(f"{label}; $M$ = {slope:.3f}")
+            else:
+                csl_line.set_label(f"{CSL_LABEL}, $M$ = {slope:.3f}")
+                handles.append(csl_line)
+        if label:
+            handles.append(line)
+    deviator_label = _stress_label(deviator, normalised)
+    p_label = _stress_label("p", normalised)
+    ax_q.set(xlabel=LABELS["eps1"], ylabel=deviator_label, title="deviator")
+    ax_pq.set(xlabel=p_label, ylabel=deviator_label, title="stress path (Cambridge plane)")
+    if drained:
+        ax_3.set(xlabel=LABELS["eps1"], ylabel=LABELS["eps_v"], title="volumetric strain (contraction > 0)")
+    else:
+        ax_3.set(xlabel=LABELS["eps1"], ylabel=p_label, title="mean stress")
+    if fourth == "W2":
+        ax_4.set(xlabel=LABELS["eps1"], ylabel=_stress_label("W2", normalised), title="second-order work")
+        ax_4.axhline(0.0, color="0.6", lw=0.8)
+    else:
+        ax_4.set(xlabel=LABELS["eps1"], ylabel=LABELS[f"{deviator}/p"], title="stress ratio")
+    for ax in (ax_q, ax_pq, ax_3, ax_4):
+        ax.grid(True, **GRID)
+    if csl and any(runs):
+        handles.append(Line2D([], [], color="k", lw=1.0, linestyle=CSL_LINE_STYLE,
+                              label="critical-state lines $q = M p$"))
+    if handles:
+        figure_legend(fig, handles)
+    if title:
+        fig.suptitle(title + " (compression positive)")
+    return apply_style(fig)
+
+
+@dataclass(frozen=True)
+class Run:
+    """A finished run to draw: its record and the ``parameters`` it stores (run.h5 attribute)."""
+
+    record: Record
+    parameters: Mapping[str, Any]
+
+
+def reference_pressure(run: Run) -> float | None:
+    """p0 of ``run`` [N/m]: its ``p0`` parameter, else the first ``stop_at_p`` of its programme, else None."""
+    p0 = run.parameters.get("p0")
+    if p0:
+        return float(p0)
+    return next((float(step.stop_at_p) for step in run.record.programme if step.stop_at_p), None)
+
+
+def run_drained(run: Run) -> bool:
+    """Whether ``run`` is a drained test (``is_drained`` of its parameters and programme)."""
+    return is_drained(run.parameters, run.record.programme)
+
+
+def programme_name(run: Run) -> str:
+    """What the run is: "programme <file stem>", "drained biaxial test" or "constant-volume biaxial test"."""
+    programme_file = run.parameters.get("programme_file")
+    if programme_file:
+        return f"programme {Path(programme_file).stem}"
+    return "drained biaxial test" if run_drained(run) else "constant-volume biaxial test"
+
+
+def describe_run(run: Run) -> dict[str, str]:
+    """``run_labels.describe`` of a run, with the backend, alpha0 and N of its record as fall-backs."""
+    record = run.record
+    return run_labels.describe(run.parameters, test=programme_name(run), backend=record.backend,
+                               alpha0_deg=record.alpha0_deg, n_orientations=record.theta_deg.size)
+
+
+class NoCriticalState(ValueError):
+    """A run whose end gives no critical-state line (the message, one line, says why)."""
+
+
+def critical_state_slope(curve: ShearCurve, p0: float) -> float:
+    """Slope M of the critical-state line q = M p fitted to the end of a shear curve.
+
+    Rule: least squares through the origin, M = sum(p q) / sum(p^2), over the last ``CSL_TAIL``
+    of the shear-stage points (at least ``CSL_MIN_POINTS``) that have p > ``CSL_MIN_P`` p0.
+
+    Raises:
+        NoCriticalState: fewer than half of those points have p > CSL_MIN_P p0 (a run that
+            ends near the origin: static liquefaction), or q/p ranges over more than
+            ``CSL_MAX_SPREAD`` among them (not stationary: reversed or cyclic loading), or
+            the curve has no shear stage.
+    """
+    p, q = curve.p[1:], curve.q[1:]
+    if p.size == 0:
+        raise NoCriticalState("no shear stage")
+    n_tail = min(p.size, max(CSL_MIN_POINTS, math.ceil(CSL_TAIL * p.size)))
+    p, q = p[-n_tail:], q[-n_tail:]
+    keep = p > CSL_MIN_P * p0
+    if 2 * int(keep.sum()) < n_tail:
+        raise NoCriticalState(f"it ends at p = {curve.p[-1] / p0:.3g} p0 (liquefied): fewer than half of its last "
+                              f"{100 * CSL_TAIL:g} % of points have p > {CSL_MIN_P:g} p0")
+    p, q = p[keep], q[keep]
+    ratio = q / p
+    if ratio.max() - ratio.min() > CSL_MAX_SPREAD:
+        raise NoCriticalState(f"q/p is not stationary over its last {100 * CSL_TAIL:g} % of points (from "
+                              f"{ratio[0]:.3g} to {ratio[-1]:.3g}, range {ratio.max() - ratio.min():.3g} > "
+                              f"{CSL_MAX_SPREAD:g}: reversed or cyclic loading)")
+    return float(p @ q / (p @ p))
+
+
+def critical_state_lines(runs: Sequence[Run], names: Sequence[str], warn: Callable[[str], None]) -> list[float | None]:
+    """M of every run (None where ``critical_state_slope`` refuses, with one ``warn`` line naming it)."""
+    slopes: list[float | None] = []
+    for run, name in zip(runs, names):
+        curve = shear_curve(run.record)
+        p0 = reference_pressure(run) or float(curve.p[0]) or 1.0  # no p0: the mean stress the shear starts at
+        try:
+            slopes.append(critical_state_slope(curve, p0))
+        except NoCriticalState as exc:
+            warn(f"{name}: no critical-state line: {exc}")
+            slopes.append(None)
+    return slopes
+
+
+def overlay_figure(runs: Sequence[Run], *, fourth: str = "q/p", deviator: str = "q", normalise: bool = False,
+                   csl: Sequence[float | None] | None = None, title: str | None = None) -> Figure:
+    """The 2x2 figure of stored runs, labelled from their metadata (``run_labels.split_labels``).
+
+    The parts every run shares make the title (unless ``title`` is given), the parts that
+    differ the legend labels; whether the third panel shows eps_v is read from the runs.
+
+    Args:
+        runs: runs to overlay, all drained or all not.
+        fourth, deviator: as ``make_figure``.
+        normalise: divide stresses by each run's p0 (``reference_pressure``).
+        csl: slope M of each run's critical-state line (None: no line), e.g. from
+            ``critical_state_lines``.
+        title: replaces the title made from the shared parts.
+
+    Raises:
+        ValueError: no runs, drained and undrained runs mixed, or ``normalise`` with a run without p0.
+    """
+    if not runs:
+        raise ValueError("nothing to plot: no runs given")
+    drained = {run_drained(run) for run in runs}
+    if len(drained) > 1:
+        raise ValueError("the runs mix drained and constant-volume tests")
+    common, labels = run_labels.split_labels([describe_run(run) for run in runs])
+    p0 = dict(zip(labels, (reference_pressure(run) for run in runs)))
+    slopes = {label: m for label, m in zip(labels, csl) if m is not None} if csl is not None else None
+    return make_figure(dict(zip(labels, (run.record for run in runs))), drained=drained.pop(), fourth=fourth,
+                       deviator=deviator, title=common if title is None else title,
+                       normalise=p0 if normalise else None, csl=slopes)
+
+
+def figure_format(path: Path) -> str:
+    """File format of figure ``path`` from its suffix; UserError (one line) if not in ``FORMATS``."""
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix not in FORMATS:
+        raise UserError(f"{path}: figure suffix must be one of {', '.join('.' + f for f in FORMATS)}")
+    return suffix
+
+
+def save_figure(fig: Figure, path: Path, *, dpi: int = PNG_DPI) -> Path:
+    """Write ``fig`` to ``path`` atomically, as PNG, PDF or SVG by the suffix; returns ``path``."""
+    path = Path(path)
+    fmt = figure_format(path)
+    with atomic_write(path) as tmp:
+        fig.savefig(tmp, format=fmt, dpi=dpi)
+    return path
+
+
+def is_drained(parameters: Mapping, programme: Sequence) -> bool:
+    """Whether a stored run is drained: its ``drained`` parameter, else a stress-controlled
+    component in any step after the first (``programme`` as ``loading.Programme``)."""
+    if "drained" in parameters and parameters["drained"] is not None:
+        return bool(parameters["drained"])
+    return any(any(step.stress_mask) for step in programme[1:])

@@ -1,0 +1,369 @@
+"""python -m warp_hcell.generate [--mesostructure FILE_OR_SPEC] --samples 300000 --seed 0 --out runs/db.h5
+
+Generates the generic learning database of the meso-ANN for ANY mesostructure (file format
+in docs/database_format.md, written by ``warp_hcell.database.format``). The DEM
+(``warp_hcell.dem.cell.DemCell``) explores and probes. ``--mesostructure`` takes a file or a
+builder spec (``warp_hcell.mesostructures.builders``, e.g. ``hcell-fines:alpha0=50,ratio=0.82``; the database
+records the hash of the cell it builds, name = spec text); without it the cell is
+the H-cell of ``warp_hcell.mesostructures.mesostructure.h_cell`` and the exploration starts from H-cells of
+several opening angles (they share one learning state).
+
+The generator's jobs, one module each:
+
+1. exploration (``warp_hcell.database.exploration``, deterministic): isotropic paths then
+   proportional legs in the (eps_n, eps_t) plane from every start cell; generic stop rules;
+2. probing (``warp_hcell.database.probing``, seeded): a chunk of samples is a pure function of
+   (settings, mesostructure, seed, chunk index), computed as ONE DEM batch;
+3. storage and resume (``warp_hcell.database.shards``): the sidecar ``<out>.parts`` keeps each explored
+   start cell, the exploration and each chunk as soon as done; an interrupted run resumes
+   where it stopped (an unreadable file is recomputed); a lock keeps a second run off the
+   same ``--out``;
+4. execution (``warp_hcell.core.execution``, injected): the tasks (``warp_hcell.database.tasks``) run in this
+   process, on a Dask LocalCluster (``--workers N``) or on a Dask scheduler
+   (``--scheduler ADDRESS``); results come back to this process, which writes them, so the
+   file is bit-identical for a seed whatever the execution, lost workers and interruptions.
+
+This module composes them: ``generate`` and the command line. Cleaning is an explicit step
+(``--clean`` here, or ``python -m warp_hcell.clean``): it marks unconverged and non-finite
+samples; mechanism and perturbed samples are kept.
+
+Nothing in ``warp_hcell`` imports ``homogenization`` or ``training``.
+Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import hashlib
+import json
+import math
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from warp_hcell.database import clean as cleaning
+from warp_hcell.database import format as database
+from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
+from warp_hcell.core.cli import (
+    Parser,
+    UserError,
+    check_output_path,
+    command_prog,
+    common_parser,
+    output_lock,
+    positive_float,
+    positive_int,
+    progress_bar,
+    run_main,
+    say,
+    set_verbosity,
+    task_setup,
+)
+from warp_hcell.core.execution import InProcess, make_execution, SchedulerUnreachable
+from warp_hcell.database.exploration import DEM_PREFIX
+from warp_hcell.database.learning_state import free_coordinates
+from warp_hcell.mesostructures.mesostructure import (
+    Mesostructure, MesostructureError, describe, description_sha256, h_cell, shares_state_schema)
+from warp_hcell.core.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings
+from warp_hcell.database.probing import chunk_samples, n_chunks
+from warp_hcell.core.provenance import provenance
+from warp_hcell.database.shards import DiskFull, Sidecar, sidecar_path
+from warp_hcell.database.tasks import explore_starts, ExploreInputs, Physics, probe_chunk, ProbeInputs
+
+__all__ = ["generate", "main", "sidecar_path", "h_cell_starts", "check_starts", "check_increments"]
+
+
+def h_cell_starts(settings: DatabaseSettings, radius: float = CellDefaults.radius) -> list[Mesostructure]:
+    """H-cells at the opening angles of the settings (even grid plus focus angles), sorted."""
+    grid = np.linspace(settings.alpha0_min_deg, settings.alpha0_max_deg, settings.n_alpha0)
+    angles = np.unique(np.concatenate([grid, np.asarray(settings.alpha0_focus_deg, dtype=np.float64)]))
+    return [h_cell(float(a), radius) for a in angles]
+
+
+def check_starts(meso: Mesostructure, starts: Sequence[Mesostructure]) -> None:
+    """Raise ValueError (one line) unless every start cell is a state of ``meso``'s schema."""
+    for start in starts:
+        if not shares_state_schema(meso, start):
+            raise ValueError(f"start cell {start.name!r} does not share the learning state of {meso.name!r}")
+
+
+def check_increments(settings: DatabaseSettings, dem_settings: DemSettings) -> None:
+    """Raise ValueError (one line) when an exploration increment or a probe needs more DEM
+    substeps than ``max_substeps`` allows."""
+    largest = max(settings.sample_spacing, settings.probe_max)
+    finest = dem_settings.refined_strain_per_substep
+    if math.ceil(largest / finest) > dem_settings.max_substeps:
+        raise ValueError(f"increment {largest:g} needs more substeps than max_substeps = {dem_settings.max_substeps} "
+                         f"at {finest:g} per substep")
+
+
+def run_description(meso: Mesostructure, starts: Sequence[Mesostructure], settings: DatabaseSettings, seed: int,
+                    contact_law: ContactLaw, dem_settings: DemSettings) -> dict[str, Any]:
+    """What identifies a run (resuming requires the same), JSON-ready."""
+    return json.loads(json.dumps({
+        "mesostructure": describe(meso), "starts": [describe(s) for s in starts], "generator": asdict(settings),
+        "seed": int(seed), "dem_settings": asdict(dem_settings),
+        "contact_law": {"kn": contact_law.kn, "kt": contact_law.kt, "kt_over_kn": contact_law.kt_over_kn,
+                        "mu": contact_law.mu, "phi_g_deg": contact_law.phi_g_deg}}))
+
+
+# -- the jobs, composed ------------------------------------------------------------------------
+def _explore(execution, sidecar: Sidecar, inputs: ExploreInputs) -> dict[str, np.ndarray]:
+    """The exploration states of every start cell, checkpointed per start cell in the sidecar.
+
+    In process, the missing start cells are explored as one batch (the DEM threads share
+    it); on Dask, one task per start cell. The states do not depend on the grouping.
+    """
+    n_starts = len(inputs.starts)
+    parts = {k: sidecar.load(sidecar.file("start", k)) for k in range(n_starts)}
+    missing = [k for k, part in parts.items() if part is None]
+    groups = [tuple(missing)] if isinstance(execution, InProcess) else [(k,) for k in missing]
+    for _, states in execution.map(explore_starts, inputs, [group for group in groups if group]):
+        for k in np.unique(states["start_id"]):
+            mine = states["start_id"] == k
+            parts[int(k)] = {name: value[mine] for name, value in states.items()}
+            sidecar.save(sidecar.file("start", int(k)), parts[int(k)])
+    return {name: np.concatenate([parts[k][name] for k in range(n_starts)]) for name in parts[0]}
+
+
+def _chunk_check(settings: DatabaseSettings, chunk: int):
+    n = chunk_samples(settings, chunk)
+    return lambda arrays: "d_eps" in arrays and arrays["d_eps"].shape == (n, 2)
+
+
+def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapping[str, np.ndarray]],
+              meso: Mesostructure, settings: DatabaseSettings, run: Mapping[str, Any],
+              description: Mapping[str, Any], clean: bool) -> None:
+    """Write the database to a temporary file and rename it onto ``out``."""
+    first = np.unique(states["start_id"], return_index=True)[1]
+    stops = {name.split(".", 1)[1]: int(value[first].sum()) for name, value in states.items()
+             if name.startswith("stops.")}
+    data = {name: np.concatenate([part[name] for part in chunks]) for name in chunks[0]}
+    schema = meso.schema()
+    data.update(database.schema_datasets(schema))
+    position = states[DEM_PREFIX + "position"]
+    data.update({"states/cell_size": states[DEM_PREFIX + "cell_size"],
+                 "states/free_position": free_coordinates(schema, position),
+                 "states/shear_force": states[DEM_PREFIX + "shear_force"]})
+    for name in ("path_id", "start_id", "precompression", "direction_deg", "eps", "alpha0_deg"):
+        if name in states:
+            data[f"states/{name}"] = states[name]
+    meso_text = description["mesostructure"]
+    attrs = {
+        "format": database.FORMAT,
+        "format_version": database.FORMAT_VERSION,
+        "sign_convention": database.SIGN_CONVENTION,
+        "mesostructure": meso_text,
+        "mesostructure_sha256": description_sha256(meso_text),
+        "is_h_cell": bool(meso.is_h_cell),
+        "start_mesostructures": json.dumps(description["starts"]),
+        "start_sha256": json.dumps([description_sha256(text) for text in description["starts"]]),
+        **description["contact_law"],
+        "dem_settings": description["dem_settings"],
+        "seed": int(description["seed"]),
+        "generator": description["generator"],
+        "provenance": run["provenance"],
+        "n_samples": int(settings.samples),
+        "n_states": int(states["path_id"].size),
+        "n_paths": int(np.unique(states["path_id"]).size),
+        "n_unconverged": int(np.count_nonzero(~data["converged"])),
+        "n_mechanism": int(np.count_nonzero(data["mechanism"])),
+        "n_perturbed": int(np.count_nonzero(data["perturbed"])),
+        "n_zero_probes": int(np.count_nonzero(np.all(data["d_eps"] == 0.0, axis=1))),
+        "exploration_stops": stops,
+    }
+    data["valid"], cleaning_attrs = cleaning.clean_samples(data) if clean else cleaning.not_cleaned(data)
+    attrs.update(cleaning_attrs)
+    try:
+        database.write_database(out, data, attrs, database.dataset_attrs(schema, meso.is_h_cell))
+    except OSError as exc:  # h5py reports a full disk in its message, not always in errno
+        if exc.errno == errno.ENOSPC or "No space left" in str(exc):
+            raise DiskFull(errno.ENOSPC, "no space left on device", str(out)) from None
+        raise
+
+
+def generate(
+    meso: Mesostructure,
+    settings: DatabaseSettings,
+    out: Path,
+    *,
+    seed: int,
+    starts: Sequence[Mesostructure] | None = None,
+    contact_law: ContactLaw = ContactLaw(),
+    dem_settings: DemSettings = DemSettings(),
+    device: str = "cpu",
+    threads: int = 2,
+    execution=None,
+    workers: int = 1,
+    clean: bool = False,
+    max_chunks: int | None = None,
+    discard_partial: bool = False,
+) -> Path | None:
+    """Generate (or resume) the database of ``meso`` and write it to ``out``.
+
+    Args:
+        meso: the mesostructure (its learning state is the database's schema).
+        settings: generator settings.
+        out: database file to write (replaced atomically at the end).
+        seed: seed of the probes, perturbations and state order.
+        starts: start cells of the exploration, each sharing ``meso``'s learning state;
+            None = ``[meso]``.
+        contact_law, dem_settings, device: the DEM's physics and numerics.
+        threads: DEM CPU threads per process (the result does not depend on it).
+        execution: where the tasks run (``warp_hcell.core.execution``); None =
+            ``make_execution(workers)``, closed at the end (one passed in is left open).
+        workers: worker processes when ``execution`` is None (the result does not depend on it).
+        clean: apply ``warp_hcell.clean`` before writing.
+        max_chunks: compute at most this many new chunks, then return None without writing
+            ``out`` (the run resumes later; 0 = explore only).
+        discard_partial: drop an unfinished run of other options found in the sidecar
+            instead of refusing.
+
+    Returns:
+        ``out`` once written, or None when stopped by ``max_chunks``.
+
+    Raises:
+        ValueError: (one line) a start cell of another learning state, an increment beyond
+            max_substeps, or the sidecar holds an unfinished run with other options.
+        UserError: another run is writing ``out`` (``warp_hcell.core.cli.output_lock``).
+        DiskFull: no space left (no partial file is left in the sidecar).
+    """
+    starts = [meso] if starts is None else list(starts)
+    check_starts(meso, starts)
+    check_increments(settings, dem_settings)
+    out = Path(out)
+    description = run_description(meso, starts, settings, seed, contact_law, dem_settings)
+    physics = Physics(contact_law, description["mesostructure"], dem_settings, str(device), int(threads))
+    with output_lock(out):
+        own = execution is None
+        execution = make_execution(workers) if own else execution
+        try:
+            return _generate(execution, physics, meso, settings, out, description, seed, clean, max_chunks,
+                             discard_partial)
+        finally:
+            if own:
+                execution.close()
+
+
+def _generate(execution, physics: Physics, meso: Mesostructure, settings: DatabaseSettings, out: Path,
+              description: Mapping[str, Any], seed: int, clean: bool, max_chunks: int | None,
+              discard_partial: bool) -> Path | None:
+    sidecar = Sidecar(out)
+    run = sidecar.open(description, lambda: {k: v for k, v in provenance().items() if k != "command"},
+                       discard_partial)
+    states_file = sidecar.file("states")
+    states = sidecar.load(states_file)
+    if states is None:
+        states = _explore(execution, sidecar, ExploreInputs(physics, tuple(description["starts"]), settings))
+        sidecar.save(states_file, states)
+    chunks = {c: sidecar.load(sidecar.file("chunk", c), _chunk_check(settings, c)) for c in range(n_chunks(settings))}
+    missing = [c for c, part in chunks.items() if part is None]
+    todo = missing if max_chunks is None else missing[:max_chunks]
+    token = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
+    inputs = ProbeInputs(token, physics, settings, int(seed), states)
+    done = settings.samples - sum(chunk_samples(settings, c) for c in missing)
+    with progress_bar(total=settings.samples, initial=done, desc="probes", unit="sample", smoothing=0.1) as bar:
+        for chunk, arrays in execution.map(probe_chunk, inputs, todo):
+            sidecar.save(sidecar.file("chunk", chunk), arrays)
+            chunks[chunk] = arrays
+            bar.update(chunk_samples(settings, chunk))
+    if len(todo) < len(missing):
+        return None
+    _assemble(out, states, [chunks[c] for c in range(n_chunks(settings))], meso, settings, run, description, clean)
+    sidecar.remove()
+    return out
+
+
+# -- command line ------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    """The ``python -m warp_hcell.generate`` argument parser (defaults from ``DatabaseSettings``)."""
+    defaults = DatabaseSettings()
+    parser = Parser(
+        prog=command_prog("warp_hcell.generate"), parents=[common_parser()],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="Generate the generic meso-ANN learning database of a mesostructure with the DEM "
+                    "(docs/database_format.md): exploration paths, then seeded strain probes and perturbed "
+                    "states of the sampled states.")
+    parser.add_argument("--out", type=Path, required=True, help="database file (HDF5) to write")
+    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
+                        help=MESOSTRUCTURE_HELP + " (a spec without alpha0 is built at "
+                             f"{CellDefaults.alpha0_deg:g} deg); unset: the H-cell, explored from "
+                             "H-cells of several opening angles")
+    parser.add_argument("--samples", type=positive_int, default=defaults.samples, help="number of samples")
+    parser.add_argument("--workers", type=positive_int, default=1,
+                        help="worker processes of a local Dask cluster (1: in this process; the result does not "
+                             "depend on it)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="run the tasks on this Dask scheduler (e.g. tcp://host:8786) instead of locally")
+    parser.add_argument("--threads", type=positive_int, default=2,
+                        help="DEM CPU threads per process (the result does not depend on it)")
+    parser.add_argument("--chunk-size", type=positive_int, default=defaults.chunk_size,
+                        help="probes per batch (unit of resume and of parallel work)")
+    parser.add_argument("--max-chunks", type=positive_int, default=None,
+                        help="compute at most this many chunks, then stop (rerun to resume)")
+    parser.add_argument("--sample-spacing", type=positive_float, default=defaults.sample_spacing,
+                        help="path length between sampled states along the exploration paths [-]")
+    parser.add_argument("--n-directions", type=positive_int, default=defaults.n_directions,
+                        help="proportional-leg directions in the (eps_n, eps_t) plane")
+    parser.add_argument("--n-alpha0", type=positive_int, default=defaults.n_alpha0,
+                        help="default H-cell only: start cells at opening angles evenly spaced in [30, 89] deg "
+                             "(plus 35, 40, 55)")
+    parser.add_argument("--perturbed-fraction", type=float, default=defaults.perturbed_fraction,
+                        help="fraction of probes starting from a perturbed (unbalanced) state")
+    parser.add_argument("--clean", action="store_true",
+                        help="apply the cleaning step (warp_hcell.clean: unconverged, non-finite) to `valid`")
+    return parser
+
+
+def _run(argv: Sequence[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    set_verbosity(args)
+    try:
+        settings = DatabaseSettings(samples=args.samples, chunk_size=args.chunk_size,
+                                    sample_spacing=args.sample_spacing, n_directions=args.n_directions,
+                                    n_alpha0=args.n_alpha0, perturbed_fraction=args.perturbed_fraction)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    check_output_path(args.out, overwrite=args.overwrite)
+    if args.out.is_dir():
+        raise UserError(f"{args.out} is a folder; --out must be a file")
+    if args.mesostructure is None:
+        meso = h_cell(CellDefaults.alpha0_deg, CellDefaults.radius)
+        starts = h_cell_starts(settings, CellDefaults.radius)
+    else:
+        try:
+            meso = args.mesostructure.build()
+        except MesostructureError as exc:
+            raise UserError(str(exc)) from None
+        starts = [meso]
+    start = time.perf_counter()
+    try:
+        with make_execution(args.workers, args.scheduler, setup=task_setup(args)) as execution:
+            written = generate(meso, settings, args.out, seed=args.seed, starts=starts, device=args.device,
+                               threads=args.threads, execution=execution, clean=args.clean,
+                               max_chunks=args.max_chunks, discard_partial=args.overwrite)
+    except SchedulerUnreachable as exc:
+        raise UserError(str(exc)) from None
+    except DiskFull as exc:
+        raise UserError(f"no space left on the device writing {exc.filename}; free space and rerun the same "
+                        f"command to resume") from None
+    elapsed = time.perf_counter() - start
+    if written is None:
+        say(f"stopped after --max-chunks {args.max_chunks} ({elapsed:.1f} s); rerun the same command to resume")
+    else:
+        say(f"{written}: {settings.samples} samples in {elapsed:.1f} s ({settings.samples / elapsed:.0f} samples/s)")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line entry point; bad input is one line on stderr and exit code 2."""
+    return run_main(_run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
