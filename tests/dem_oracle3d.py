@@ -1,4 +1,4 @@
-"""Numpy engine of the 3D cell step (``warp_hcell.kernels3d``): the reference the Warp kernel must equal bit for bit.
+"""Numpy engine of the 3D cell step (``warp_hcell.dem.kernels3d``): the reference the Warp kernel must equal bit for bit.
 
 Vectorised over cells, substeps in a Python loop; the same floating-point operations in the same
 order as the kernel (sums over grains, axes and pairs in index order; Warp's dot, length and cross

@@ -33,10 +33,10 @@ from typing import Any, Mapping, NamedTuple
 
 import numpy as np
 
-from homogenization.backends import hcell
+from warp_hcell.mesostructures import hcell
 from homogenization.backends.analytical import AnalyticalCell, AnalyticalState
-from warp_hcell.cell_model import CellResponse
-from warp_hcell.parameters import ContactLaw
+from warp_hcell.core.contract import CellResponse
+from warp_hcell.core.parameters import ContactLaw
 
 PLANE_B_GRAINS = (1, 2, 4, 5)
 """Indices (0-based) in a planar H-cell of the lateral grains that become grains 7, 8, 9, 10 of plane B."""

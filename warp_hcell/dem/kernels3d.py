@@ -1,6 +1,6 @@
 """Warp code of the 3D meso-DEM: the batched cell-step kernel for cells of spheres (float64).
 
-The 3D counterpart of ``warp_hcell.kernels`` (same stepping, same conventions), one thread
+The 3D counterpart of ``warp_hcell.dem.kernels`` (same stepping, same conventions), one thread
 per cell with the whole increment inside the kernel and the cell in fixed-size local
 matrices; kernels are generated per topology (candidate pairs, driven DOF mask and outer
 faces are compile-time constants, loops unrolled).
@@ -36,7 +36,7 @@ import functools
 
 import warp as wp
 
-from warp_hcell.kernels import damped_velocity
+from warp_hcell.dem.kernels import damped_velocity
 
 wp.set_module_options({"enable_backward": False})
 
@@ -171,7 +171,7 @@ def step_kernel_3d(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool,
         scale0 = wp.vec3d(l_start[0] / l_ref[0], l_start[1] / l_ref[1], l_start[2] / l_ref[2])
         dscale = wp.vec3d((l_end[0] - l_start[0]) / l_ref[0], (l_end[1] - l_start[1]) / l_ref[1],
                           (l_end[2] - l_start[2]) / l_ref[2])
-        # rate and predictor from the cell's own state (warp_hcell.kernels for the reasoning)
+        # rate and predictor from the cell's own state (warp_hcell.dem.kernels for the reasoning)
         inv_n_coarse = one / wp.float64(wp.max(n_phase, 1))
         dot = zero
         norm2 = zero
