@@ -48,7 +48,7 @@ def _same_arrays(a, b):
 
 def test_is_a_cell_model_with_its_registry_name(backend):
     assert isinstance(backend, CellModel)
-    assert BACKENDS[backend.name].endswith(type(backend).__name__)
+    assert BACKENDS[backend.name][2].endswith(type(backend).__name__)
 
 
 def test_response_shapes_and_signs(backend, loaded):

@@ -15,19 +15,23 @@ from typing import Any
 
 from warp_hcell.core.parameters import CellDefaults, ContactLaw
 
-BACKENDS: dict[str, str] = {
-    "analytical": "homogenization.backends.analytical:AnalyticalCell",
-    "dem": "homogenization.backends.dem:DemCell",
-    "ann": "homogenization.backends.ann:AnnCell",
+BACKENDS: dict[str, dict[int, str]] = {
+    "analytical": {2: "homogenization.backends.analytical:AnalyticalCell",
+                   3: "homogenization.backends.analytical3d:Analytical3DCell"},
+    "dem": {2: "homogenization.backends.dem:DemCell"},
+    "ann": {2: "homogenization.backends.ann:AnnCell"},
 }
-"""Backend name -> "module:Class" of its implementation."""
+"""Backend name -> spatial dimension of the cells (2 or 3) -> "module:Class" of its implementation."""
 
 
-def backend_class(name: str) -> type:
-    """Return the class implementing backend ``name``; ValueError (one line) if unknown."""
+def backend_class(name: str, dim: int = 2) -> type:
+    """Return the class implementing backend ``name`` for cells of dimension ``dim``; ValueError (one line)
+    if unknown or not available in that dimension."""
     if name not in BACKENDS:
         raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
-    module_name, class_name = BACKENDS[name].split(":")
+    if dim not in BACKENDS[name]:
+        raise ValueError(f"backend {name!r} does not model {dim}D cells")
+    module_name, class_name = BACKENDS[name][dim].split(":")
     try:
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
@@ -42,10 +46,12 @@ def make_cell_model(
     *,
     contact_law: ContactLaw | None = None,
     radius: float = CellDefaults.radius,
+    dim: int = 2,
     **options: Any,
 ):
-    """Construct backend ``name`` with the given physical parameters and options."""
-    return backend_class(name)(contact_law or ContactLaw(), radius, **options)
+    """Construct backend ``name`` for cells of dimension ``dim`` (the mesostructure's ``dim``) with the given
+    physical parameters and options."""
+    return backend_class(name, dim)(contact_law or ContactLaw(), radius, **options)
 
 
 def mesostructure_refusal(name: str, meso: Any) -> str | None:
@@ -55,7 +61,11 @@ def mesostructure_refusal(name: str, meso: Any) -> str | None:
     models any mesostructure (an ANN model still refuses, in ``init_state``, a mesostructure
     it was not trained on).
     """
-    check = getattr(backend_class(name), "check_mesostructure", None)
+    try:
+        cls = backend_class(name, getattr(meso, "dim", 2))
+    except ValueError as exc:
+        return str(exc)
+    check = getattr(cls, "check_mesostructure", None)
     if check is None:
         return None
     try:

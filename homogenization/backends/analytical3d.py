@@ -29,43 +29,21 @@ Sign convention: compression and contraction positive. Local frame index 0 = n, 
 
 from __future__ import annotations
 
-from typing import Any, Mapping, NamedTuple
+from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from warp_hcell.mesostructures import hcell
 from homogenization.backends.analytical import AnalyticalCell, AnalyticalState
 from warp_hcell.core.contract import CellResponse
 from warp_hcell.core.parameters import ContactLaw
+from warp_hcell.mesostructures import hcell
+from warp_hcell.mesostructures.builders import plain_h_cell_3d_alpha0
+from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell, polyhedron_volume
 
 PLANE_B_GRAINS = (1, 2, 4, 5)
 """Indices (0-based) in a planar H-cell of the lateral grains that become grains 7, 8, 9, 10 of plane B."""
-_TOP_RING = (5, 9, 1, 6)
-"""Lateral grains (0-based) at n > 0 in the order of their azimuth about n: 6, 10, 2, 7."""
-_BOTTOM_RING = (4, 8, 2, 7)
-"""Lateral grains at n < 0 under them: 5, 9, 3, 8."""
-
-
-def hcell3d_faces() -> tuple[tuple[int, int, int], ...]:
-    """Outer triangles of the ten-sphere H-cell (0-based grains), oriented outwards: four around grain 1,
-    four around grain 4, eight on the band between the two rings of lateral grains."""
-    faces = []
-    for k in range(4):
-        top, top_next = _TOP_RING[k], _TOP_RING[(k + 1) % 4]
-        bottom, bottom_next = _BOTTOM_RING[k], _BOTTOM_RING[(k + 1) % 4]
-        faces += [(0, top, top_next), (3, bottom_next, bottom), (top, bottom, bottom_next), (top, bottom_next, top_next)]
-    return tuple(faces)
-
-
-HCELL3D_FACES = hcell3d_faces()
+HCELL3D_FACES = hcell.h_cell_3d_faces()
 """Outer faces of the ten-sphere H-cell."""
-
-
-def polyhedron_volume(position: np.ndarray, faces: tuple[tuple[int, int, int], ...]) -> np.ndarray:
-    """Volume [m^3] of the closed triangulated surface ``faces`` through ``position`` (..., n_grains, 3)."""
-    face = np.asarray(faces)
-    a, b, c = position[..., face[:, 0], :], position[..., face[:, 1], :], position[..., face[:, 2], :]
-    return np.abs(np.einsum("...fi,...fi->...", a, np.cross(b, c))) / 6.0
 
 
 def hcell3d_positions(plane_a: np.ndarray, plane_b: np.ndarray) -> np.ndarray:
@@ -98,12 +76,42 @@ class Analytical3DCell:
 
     name = "analytical"
     dim = 3
+    """Spatial dimension of the cells."""
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, tolerance: float = 1e-10,
                  max_iterations: int = 60) -> None:
         self.plane = AnalyticalCell(contact_law, radius, tolerance=tolerance, max_iterations=max_iterations)
         self.kn = self.plane.kn
         self.diameter = self.plane.diameter
+
+    @staticmethod
+    def check_mesostructure(meso: Mesostructure) -> float:
+        """Opening angle alpha0 [deg] of ``meso`` if it is the cell this backend models.
+
+        Raises:
+            ValueError: (one line) ``meso`` is not the touching ten-equal-sphere cell of orthogonal planes
+                (``warp_hcell.mesostructures.builders.plain_h_cell_3d_alpha0``).
+        """
+        plain = plain_h_cell_3d_alpha0(meso)
+        if plain is None:
+            raise ValueError(f"analytical models the plain ten-sphere H-cell only in 3D (equal touching spheres, planes "
+                             f"90 deg apart); mesostructure {meso.name!r} is not one: use --backend dem or ann")
+        return plain[0]
+
+    def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> Analytical3DState:
+        """Touching, force-free cells at the opening angle of each cell's mesostructure (``check_mesostructure``).
+
+        Raises:
+            ValueError: (one line) a mesostructure that is not the plain ten-sphere cell, or whose spheres
+                have another radius than this backend's.
+        """
+        distinct, index = per_cell(mesostructure, n_cells)
+        alpha0_deg = np.array([self.check_mesostructure(meso) for meso in distinct])[index]
+        for meso in distinct:
+            if not np.allclose(meso.radius, self.plane.radius, rtol=1e-12, atol=0.0):
+                raise ValueError(f"mesostructure {meso.name!r} has spheres of radius {meso.radius[0]:g} m, the "
+                                 f"analytical cell {self.plane.radius:g} m (--radius)")
+        return self.touching_state(alpha0_deg, n_cells)
 
     def touching_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> Analytical3DState:
         """Touching, force-free cells at opening angle(s) ``alpha0_deg`` [deg] (scalar or (n_cells,))."""

@@ -59,18 +59,22 @@ from warp_hcell.mesostructures.mesostructure import (
     load_mesostructure,
 )
 from warp_hcell.core.parameters import CellDefaults, check_alpha0_deg, DemSettings
+from warp_hcell.mesostructures import hcell
 
-KINDS = ("hcell", "hcell-unequal", "hcell-fines")
+KINDS = ("hcell", "hcell-unequal", "hcell-fines", "hcell3d", "hcell3d-fines")
 """Builder names accepted as the KIND of a spec."""
 KEYS = {
     "hcell": ("alpha0", "radius", "lateral"),
     "hcell-unequal": ("alpha0", "radius", "lateral"),
     "hcell-fines": ("alpha0", "radius", "lateral", "ratio", "n", "t"),
+    "hcell3d": ("alpha0", "radius", "lateral", "plane"),
+    "hcell3d-fines": ("alpha0", "radius", "lateral", "plane", "ratio", "n", "t1", "t2"),
 }
 """Keys each kind accepts."""
-REQUIRED = {"hcell": (), "hcell-unequal": ("lateral",), "hcell-fines": ("ratio",)}
+REQUIRED = {"hcell": (), "hcell-unequal": ("lateral",), "hcell-fines": ("ratio",), "hcell3d": (),
+            "hcell3d-fines": ("ratio",)}
 """Keys each kind needs."""
-LIST_KEYS = ("ratio", "n", "t")
+LIST_KEYS = ("ratio", "n", "t", "t1", "t2")
 """Keys whose value is a "/"-separated list (one value per fine grain)."""
 H_GRAINS = 6
 """Grains of the H-cell skeleton (labels 1..6); fine grains follow."""
@@ -177,6 +181,106 @@ def build_h_cell(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: float =
                          pair_type=np.array([labels.get(p, 0) for p in pairs]))
 
 
+def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: float = CellDefaults.radius,
+                    lateral: float = 1.0, plane_angle_deg: float = 90.0, fines: tuple[float, ...] = (),
+                    fine_offsets: tuple[tuple[float, float, float], ...] | None = None,
+                    name: str | None = None) -> Mesostructure:
+    """Ten-sphere H-cell (docs/model.md section 14) with free fine grains in the pore.
+
+    Args:
+        alpha0_deg: opening angle [deg]; equal spheres in planes 90 deg apart need >= 45 deg (below,
+            the lateral grains of the two planes overlap).
+        radius: radius r of the axial grains 1 and 4 [m].
+        lateral: radius of the eight lateral grains over r [-].
+        plane_angle_deg: angle between plane A (grains 1-6, (n, t1)) and plane B (grains 1, 4,
+            7-10) about n [deg], in (0, 180); 90 is the orthogonal cell.
+        fines: radius of each fine grain over r [-]; zeros are left out.
+        fine_offsets: (n, t1, t2) offset of each fine grain from the pore centre in units of r [-]
+            (default: the centre).
+        name: mesostructure name (default: describes the parameters).
+
+    Returns:
+        Grains 1, 4 driven along n, t1, t2; grains 2, 3, 5, 6, 7, 8, 9, 10 driven along t1 and t2
+        (homothetically with l2, l3) and free along n; fine grains free along every axis; every
+        pair a candidate; type-1/type-2 labels on the skeleton; outer surface: the sixteen
+        triangles of ``hcell.h_cell_3d_faces``.
+
+    Raises:
+        MesostructureError: bad parameter, a fine grain outside the pore or overlapping grains (one line).
+    """
+    label = name or "3D " + _default_name(alpha0_deg, lateral, fines)
+    for key, value in (("radius", radius), ("lateral", lateral)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise MesostructureError(f"mesostructure {label!r}: {key} = {value:g} must be finite and > 0")
+    if not (math.isfinite(plane_angle_deg) and 0.0 < plane_angle_deg < 180.0):
+        raise MesostructureError(f"mesostructure {label!r}: plane = {plane_angle_deg:g} deg is outside (0, 180)")
+    try:
+        radii, position, cell_size = hcell.h_cell_3d_skeleton(alpha0_deg, radius, lateral, plane_angle_deg)
+    except ValueError as exc:
+        raise MesostructureError(f"mesostructure {label!r}: {exc}") from None
+    lateral_gap = min(np.linalg.norm(position[a] - position[b]) - radii[a] - radii[b]
+                      for a, b in ((1, 6), (1, 9), (5, 6), (5, 9)))
+    if lateral_gap < -DemSettings.contact_tolerance * 2.0 * radii[1]:
+        raise MesostructureError(f"mesostructure {label!r}: at alpha0 = {alpha0_deg:g} deg the lateral grains of the two "
+                                 f"planes overlap; this cell needs a larger alpha0, a plane angle nearer 90 deg or "
+                                 f"smaller lateral grains")
+    faces = hcell.h_cell_3d_faces()
+    offsets = [(0.0, 0.0, 0.0)] * len(fines) if fine_offsets is None else list(fine_offsets)
+    if len(offsets) != len(fines):
+        raise MesostructureError(f"mesostructure {label!r}: {len(fines)} fine grains but {len(offsets)} positions")
+    fine_radius, fine_position = [], []
+    for k, (ratio, offset) in enumerate(zip(fines, offsets)):
+        if not (math.isfinite(ratio) and ratio >= 0.0) or not all(math.isfinite(v) for v in offset):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain {k + 1} needs a finite ratio >= 0 and a "
+                                     f"finite position")
+        if ratio == 0.0:
+            continue
+        centre = np.asarray(offset, dtype=np.float64) * radius
+        a, b, c = (position[faces[:, m]] for m in range(3))
+        if not np.all(np.einsum("fi,fi->f", np.cross(b - a, c - a), centre - a) < 0.0):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain at {tuple(offset)} (units of r) is outside "
+                                     f"the pore (the cell's outer surface)")
+        room = float(np.min(np.linalg.norm(position - centre, axis=1) - radii)) / radius
+        if ratio > room * (1.0 + DemSettings.contact_tolerance):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain ratio {ratio:g} does not fit the pore at "
+                                     f"{tuple(offset)}: the largest is {room:.6g}")
+        fine_radius.append(min(ratio, room) * radius)
+        fine_position.append(centre)
+    n_fines = len(fine_radius)
+    driven = np.array([[True] * 3] + [[False, True, True]] * 2 + [[True] * 3] + [[False, True, True]] * 6
+                      + [[False] * 3] * n_fines)
+    pairs = list(combinations(range(hcell.H3_GRAINS + n_fines), 2))
+    labels = ({(a - 1, b - 1): 1 for a, b in hcell.H3_TYPE1_PAIRS}
+              | {tuple(sorted((a - 1, b - 1))): 2 for a, b in hcell.H3_TYPE2_PAIRS})
+    return Mesostructure(name=label, radius=np.concatenate([radii, fine_radius]),
+                         position=np.concatenate([position, np.reshape(fine_position, (n_fines, 3))]), driven=driven,
+                         pairs=np.array(pairs, dtype=np.int64), outer=faces, cell_size=cell_size,
+                         pair_type=np.array([labels.get(p, 0) for p in pairs]))
+
+
+def plain_h_cell_3d_alpha0(meso: Mesostructure) -> tuple[float, float] | None:
+    """(alpha0_deg, radius) if ``meso`` is the touching ten-equal-sphere cell of orthogonal planes, else None.
+
+    The closed-form 3D backend models exactly this cell; compared to 1e-9 of the radius like
+    ``plain_h_cell_alpha0``.
+    """
+    if meso.dim != 3 or meso.n_grains != hcell.H3_GRAINS or not np.allclose(meso.radius, meso.radius[0], rtol=1e-12,
+                                                                             atol=0.0):
+        return None
+    branch = meso.position[1] - meso.position[0]
+    alpha0 = round(math.degrees(math.atan2(-branch[1], -branch[0])), 9)
+    radius = float(meso.radius[0])
+    try:
+        reference = build_h_cell_3d(alpha0, radius=radius)
+    except (ValueError, MesostructureError):
+        return None
+    same = (np.allclose(meso.position, reference.position, rtol=0.0, atol=1e-9 * radius)
+            and np.allclose(meso.cell_size, reference.cell_size, rtol=0.0, atol=1e-9 * radius)
+            and np.array_equal(meso.driven, reference.driven) and np.array_equal(meso.outer, reference.outer)
+            and np.array_equal(meso.pairs, reference.pairs) and np.array_equal(meso.pair_type, reference.pair_type))
+    return (alpha0, radius) if same else None
+
+
 def _default_name(alpha0_deg: float, lateral: float, fines: tuple[float, ...]) -> str:
     parts = [f"h-cell alpha0={float(alpha0_deg):g} deg"]
     if lateral != 1.0:
@@ -272,13 +376,17 @@ class MesostructureSource:
         alpha0 = opts.get("alpha0", CellDefaults.alpha0_deg if alpha0_deg is None else alpha0_deg)
         fines = tuple(opts.get("ratio", ()))  # type: ignore[arg-type]
         n_fines = len(fines)
+        spatial = self.kind.startswith("hcell3d")
         offsets = None
         if n_fines:
-            dn, dt = (_per_grain(self.text, key, opts.get(key, (0.0,)), n_fines) for key in ("n", "t"))
-            offsets = tuple(zip(dn, dt))
-        return build_h_cell(float(alpha0), radius=float(opts.get("radius", CellDefaults.radius)),  # type: ignore[arg-type]
-                            lateral=float(opts.get("lateral", 1.0)), fines=fines,  # type: ignore[arg-type]
-                            fine_offsets=offsets, name=self.text)
+            axes = ("n", "t1", "t2") if spatial else ("n", "t")
+            offsets = tuple(zip(*(_per_grain(self.text, key, opts.get(key, (0.0,)), n_fines) for key in axes)))
+        size = {"radius": float(opts.get("radius", CellDefaults.radius)),  # type: ignore[arg-type]
+                "lateral": float(opts.get("lateral", 1.0))}  # type: ignore[arg-type]
+        if spatial:
+            return build_h_cell_3d(float(alpha0), **size, plane_angle_deg=float(opts.get("plane", 90.0)),  # type: ignore[arg-type]
+                                   fines=fines, fine_offsets=offsets, name=self.text)
+        return build_h_cell(float(alpha0), **size, fines=fines, fine_offsets=offsets, name=self.text)
 
     def __str__(self) -> str:
         return self.text
@@ -379,7 +487,8 @@ def mesostructure_list_arg(text: str) -> list[MesostructureSource]:
 
 MESOSTRUCTURE_HELP = (
     "mesostructure: a TOML/JSON file, or a builder spec KIND[:KEY=VALUE,...] with KIND hcell | hcell-unequal | "
-    "hcell-fines and keys alpha0 (deg; default: --alpha0), radius (r of grains 1, 4 [m]), lateral (radius of "
-    "grains 2, 3, 5, 6 / r), ratio (fine-grain radius / r, 'a/b' for several), n, t (fine-grain offset from the "
-    "pore centre / r); e.g. hcell-fines:alpha0=50,ratio=0.76 or hcell-unequal:lateral=0.7")
+    "hcell-fines (2D) or hcell3d | hcell3d-fines (3D, ten spheres) and keys alpha0 (deg; default: --alpha0), "
+    "radius (r of grains 1, 4 [m]), lateral (radius of the lateral grains / r), plane (3D: angle between the two "
+    "planes, deg), ratio (fine-grain radius / r, 'a/b' for several), n, t (2D) or n, t1, t2 (3D) (fine-grain "
+    "offset from the pore centre / r); e.g. hcell-fines:alpha0=50,ratio=0.76 or hcell3d:alpha0=55")
 """--help text shared by every command that takes --mesostructure."""

@@ -241,3 +241,52 @@ def touching_cells(alpha0_deg: float | np.ndarray, n_cells: int, diameter: float
     D = np.full(alpha.shape, float(diameter))
     l1, l2 = lengths(D, D, alpha)
     return alpha, l1, l2
+
+
+# -- the ten-sphere cell (3D, docs/model.md section 14) --------------------------------------
+
+H3_TYPE1_PAIRS = ((1, 2), (1, 6), (3, 4), (4, 5), (1, 7), (1, 10), (4, 8), (4, 9))
+"""Type-1 (axial-lateral) contacts of the ten-sphere cell, labels 1..10."""
+H3_TYPE2_PAIRS = ((2, 3), (5, 6), (7, 8), (9, 10))
+"""Type-2 contacts (parallel to n) of the ten-sphere cell."""
+H3_GRAINS = 10
+"""Grains of the ten-sphere skeleton; fine grains follow."""
+_TOP_RING = (5, 9, 1, 6)
+"""Lateral grains (0-based) at n > 0 in the order of their azimuth about n: 6, 10, 2, 7."""
+_BOTTOM_RING = (4, 8, 2, 7)
+"""The lateral grains at n < 0 under them: 5, 9, 3, 8."""
+
+
+def h_cell_3d_faces() -> np.ndarray:
+    """Outer triangles (16, 3) of the ten-sphere cell (0-based grains), oriented outwards: four around
+    grain 1, four around grain 4, eight on the band between the two rings of lateral grains."""
+    faces = []
+    for k in range(4):
+        top, top_next = _TOP_RING[k], _TOP_RING[(k + 1) % 4]
+        bottom, bottom_next = _BOTTOM_RING[k], _BOTTOM_RING[(k + 1) % 4]
+        faces += [(0, top, top_next), (3, bottom_next, bottom), (top, bottom, bottom_next), (top, bottom_next, top_next)]
+    return np.array(faces, dtype=np.int64)
+
+
+def h_cell_3d_skeleton(alpha0_deg: float, radius: float, lateral: float = 1.0,
+                       plane_angle_deg: float = 90.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Touching ten-sphere cell: radii (10,), centres (10, 3) [m] in (n, t1, t2) about the pore centre, cell size (3,).
+
+    Plane A (grains 1-6) lies in (n, t1); plane B (grains 1, 4, 7-10) is plane A turned about n by
+    ``plane_angle_deg`` (90: the plane (n, t2)). Lateral grains have radius ``lateral * radius``; every
+    contact of the two hexagons touches (d1 = r (1 + lateral), d2 = 2 r lateral). Cell size: l1 along n,
+    and the extents 2 max |x_t1|, 2 max |x_t2| of the lateral grains.
+    """
+    alpha = np.radians(check_alpha0_deg(alpha0_deg))
+    beta = np.radians(plane_angle_deg)
+    r_lat = lateral * radius
+    d1, d2 = radius + r_lat, 2.0 * r_lat
+    top, side = d2 / 2.0 + d1 * np.cos(alpha), d1 * np.sin(alpha)
+    c, s = side * np.cos(beta), side * np.sin(beta)
+    half = d2 / 2.0
+    position = np.array([[top, 0.0, 0.0], [half, -side, 0.0], [-half, -side, 0.0], [-top, 0.0, 0.0],
+                         [-half, side, 0.0], [half, side, 0.0],
+                         [half, -c, -s], [-half, -c, -s], [-half, c, s], [half, c, s]])
+    radii = np.array([radius, r_lat, r_lat, radius] + [r_lat] * 6)
+    cell_size = np.array([2.0 * top, 2.0 * np.abs(position[:, 1]).max(), 2.0 * np.abs(position[:, 2]).max()])
+    return radii, position, cell_size

@@ -49,6 +49,10 @@ H_TYPE2_PAIRS = ((2, 3), (5, 6))
 """Type-2 contacts of the H-cell (parallel to n)."""
 
 
+AXIS_NAMES = {2: ("n", "t"), 3: ("n", "t1", "t2")}
+"""Names of the local axes of a planar and of a spatial cell."""
+
+
 class MesostructureError(ValueError):
     """An invalid mesostructure description; the message is one line."""
 
@@ -57,16 +61,21 @@ class MesostructureError(ValueError):
 class Mesostructure:
     """One cell made of a few disks, in the local frame (index 0 = n, index 1 = t).
 
+    A cell is planar (dim = 2, disks, frame (n, t)) or spatial (dim = 3, spheres, frame
+    (n, t1, t2)); the dimension is the number of position columns.
+
     Attributes:
         name: short description.
         radius: grain radii [m], shape (n_grains,), > 0. Grain label = index + 1.
-        position: reference centre positions [m], shape (n_grains, 2), (x_n, x_t).
+        position: reference centre positions [m], shape (n_grains, dim), (x_n, x_t) or
+            (x_n, x_t1, x_t2).
         driven: True where the DOF (grain, direction) is driven by the cell strain,
-            shape (n_grains, 2) bool; False = free (integrated by the DEM).
+            shape (n_grains, dim) bool; False = free (integrated by the DEM).
         pairs: candidate contact pairs (i, j), i < j, 0-based, shape (n_pairs, 2).
-        outer: ordered 0-based grain indices of the outer polygon whose area is V_cell,
-            shape (n_outer,).
-        cell_size: reference cell size (l1_ref, l2_ref) [m], shape (2,).
+        outer: the outer boundary whose measure is V_cell: in 2D the ordered 0-based grain
+            indices of a polygon, shape (n_outer,); in 3D the triangles of a closed surface
+            through grain centres, oriented outwards, shape (n_faces, 3).
+        cell_size: reference cell size (l1_ref, l2_ref[, l3_ref]) [m], shape (dim,).
         pair_type: H-cell label of each pair, shape (n_pairs,): 1 = type-1, 2 = type-2,
             0 = unlabelled. All zeros for a mesostructure without H-cell labels.
     """
@@ -87,7 +96,8 @@ class Mesostructure:
         position = np.asarray(self.position, dtype=np.float64)
         driven = np.asarray(self.driven)
         pairs = np.asarray(self.pairs, dtype=np.int64).reshape(-1, 2)
-        outer = np.asarray(self.outer, dtype=np.int64).reshape(-1)
+        outer = np.asarray(self.outer, dtype=np.int64)
+        outer = outer.reshape(-1, 3) if position.ndim == 2 and position.shape[-1] == 3 else outer.reshape(-1)
         cell_size = np.asarray(self.cell_size, dtype=np.float64).reshape(-1)
         pair_type = (np.zeros(pairs.shape[0], np.int8) if self.pair_type is None
                      else np.asarray(self.pair_type, dtype=np.int8).reshape(-1))
@@ -104,6 +114,11 @@ class Mesostructure:
     def n_grains(self) -> int:
         """Number of grains."""
         return int(self.radius.size)
+
+    @property
+    def dim(self) -> int:
+        """Spatial dimension: 2 (disks) or 3 (spheres)."""
+        return int(self.position.shape[1])
 
     @property
     def n_pairs(self) -> int:
@@ -150,6 +165,21 @@ def polygon_area(position: np.ndarray, outer: np.ndarray) -> np.ndarray:
     return 0.5 * np.abs(np.sum(p[..., 0] * q[..., 1] - q[..., 0] * p[..., 1], axis=-1))
 
 
+def polyhedron_volume(position: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Volume [m^3] enclosed by the triangles ``faces`` (n_faces, 3) through ``position`` (..., n_grains, 3).
+
+    |sum over faces of x_a . (x_b x x_c)| / 6 (divergence theorem; the faces must close the surface).
+    """
+    face = np.asarray(faces)
+    a, b, c = position[..., face[:, 0], :], position[..., face[:, 1], :], position[..., face[:, 2], :]
+    return np.abs(np.einsum("...fi,...fi->...", a, np.cross(b, c))) / 6.0
+
+
+def cell_measure(position: np.ndarray, outer: np.ndarray) -> np.ndarray:
+    """V_cell of cells: polygon area in 2D (``outer`` (n_outer,)), polyhedron volume in 3D (``outer`` (n_faces, 3))."""
+    return polyhedron_volume(position, outer) if np.ndim(outer) == 2 else polygon_area(position, outer)
+
+
 def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_type, tolerance) -> None:
     n_grains = radius.size
     if n_grains < 2:
@@ -158,12 +188,15 @@ def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_type
     if bad.size:
         raise MesostructureError(
             f"mesostructure {name!r}: grain {bad[0] + 1} has radius {radius[bad[0]]:g}; radii must be finite and > 0")
-    if position.shape != (n_grains, 2) or not np.all(np.isfinite(position)):
-        raise MesostructureError(f"mesostructure {name!r}: positions must be finite, shape ({n_grains}, 2)")
-    if driven.shape != (n_grains, 2) or driven.dtype != bool:
-        raise MesostructureError(f"mesostructure {name!r}: driven flags must be booleans, shape ({n_grains}, 2)")
-    if cell_size.shape != (2,) or not np.all(np.isfinite(cell_size) & (cell_size > 0.0)):
-        raise MesostructureError(f"mesostructure {name!r}: cell_size must be two finite values > 0")
+    dim = position.shape[-1] if position.ndim == 2 else 0
+    if dim not in (2, 3) or position.shape[0] != n_grains or not np.all(np.isfinite(position)):
+        raise MesostructureError(f"mesostructure {name!r}: positions must be finite, shape ({n_grains}, 2) or "
+                                 f"({n_grains}, 3)")
+    if driven.shape != (n_grains, dim) or driven.dtype != bool:
+        raise MesostructureError(f"mesostructure {name!r}: driven flags must be booleans, shape ({n_grains}, {dim})")
+    if cell_size.shape != (dim,) or not np.all(np.isfinite(cell_size) & (cell_size > 0.0)):
+        raise MesostructureError(f"mesostructure {name!r}: cell_size must be {('', '', 'two', 'three')[dim]} finite "
+                                 f"values > 0")
     if pairs.shape[0] == 0:
         raise MesostructureError(f"mesostructure {name!r}: no candidate contact pairs")
     if pairs.min() < 0 or pairs.max() >= n_grains or np.any(pairs[:, 0] >= pairs[:, 1]):
@@ -172,16 +205,23 @@ def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_type
         raise MesostructureError(f"mesostructure {name!r}: duplicate contact pairs")
     if pair_type.shape != (pairs.shape[0],) or not np.all(np.isin(pair_type, (0, 1, 2))):
         raise MesostructureError(f"mesostructure {name!r}: pair types must be 0, 1 or 2, one per pair")
-    if outer.size < 3 or len(set(outer.tolist())) != outer.size or outer.min() < 0 or outer.max() >= n_grains:
-        raise MesostructureError(f"mesostructure {name!r}: outer polygon needs >= 3 distinct grains in 1..{n_grains}")
-    undriven = [int(g) + 1 for g in outer if not driven[g].any()]
+    if dim == 2:
+        if outer.size < 3 or len(set(outer.tolist())) != outer.size or outer.min() < 0 or outer.max() >= n_grains:
+            raise MesostructureError(f"mesostructure {name!r}: outer polygon needs >= 3 distinct grains in 1..{n_grains}")
+    elif (outer.shape[0] < 4 or outer.min() < 0 or outer.max() >= n_grains
+          or any(len(set(face)) != 3 for face in outer.tolist())):
+        raise MesostructureError(f"mesostructure {name!r}: outer surface needs >= 4 triangles of distinct grains in "
+                                 f"1..{n_grains}")
+    undriven = [int(g) + 1 for g in np.unique(outer) if not driven[g].any()]
     if undriven:
         raise MesostructureError(
             f"mesostructure {name!r}: outer grain {undriven[0]} has no driven DOF; outer grains follow the cell strain")
-    if not driven[:, 0].any() or not driven[:, 1].any():
-        raise MesostructureError(f"mesostructure {name!r}: needs at least one DOF driven along n and one along t")
-    if not polygon_area(position, outer) > 0.0:
-        raise MesostructureError(f"mesostructure {name!r}: outer polygon has zero area")
+    axes = AXIS_NAMES[dim]
+    for axis in range(dim):
+        if not driven[:, axis].any():
+            raise MesostructureError(f"mesostructure {name!r}: needs at least one DOF driven along {axes[axis]}")
+    if not cell_measure(position, outer) > 0.0:
+        raise MesostructureError(f"mesostructure {name!r}: the outer {'polygon has zero area' if dim == 2 else 'surface encloses no volume'}")
     for i, j in combinations(range(n_grains), 2):
         gap = math.dist(position[i], position[j]) - radius[i] - radius[j]
         if gap < -tolerance * (radius[i] + radius[j]):
@@ -270,6 +310,10 @@ def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettin
         position = [x_n, x_t]
         driven = [true, false]              # (along n, along t)
 
+    A 3D cell (spheres) gives three coordinates per grain, position = [x_n, x_t1, x_t2] and
+    driven = [n, t1, t2], a cell_size of three lengths, and ``outer`` as the triangles of the
+    closed surface whose volume is V_cell, oriented outwards: outer = [[1, 6, 10], ...].
+
     Raises:
         MesostructureError: unreadable file or invalid description (one-line message).
     """
@@ -291,13 +335,16 @@ def _from_mapping(data: Mapping[str, Any], *, default_name: str, contact_toleran
         radius = [float(g["radius"]) for g in grains]
         position = [[float(v) for v in g["position"]] for g in grains]
         driven = [list(g["driven"]) for g in grains]
-        if not all(isinstance(v, bool) and len(d) == 2 for d in driven for v in d):
-            raise MesostructureError(f"mesostructure {name!r}: each grain needs driven = [bool, bool] (n, t)")
+        dim = len(position[0]) if position else 2
+        if not all(isinstance(v, bool) and len(d) == dim for d in driven for v in d):
+            axes = AXIS_NAMES.get(dim, AXIS_NAMES[2])
+            raise MesostructureError(f"mesostructure {name!r}: each grain needs driven = [{', '.join(['bool'] * len(axes))}] "
+                                     f"({', '.join(axes)})")
         to_index = lambda labels: [[int(a) - 1 for a in p] for p in labels]  # noqa: E731
         pairs = data.get("pairs")
         return _with_labels(
             name=name, radius=radius, position=position, driven=driven,
-            outer=[int(g) - 1 for g in data["outer"]], cell_size=[float(v) for v in data["cell_size"]],
+            outer=np.asarray(data["outer"], dtype=np.int64) - 1, cell_size=[float(v) for v in data["cell_size"]],
             pairs=None if pairs is None else to_index(pairs),
             type1=[tuple(p) for p in data.get("type1", ())], type2=[tuple(p) for p in data.get("type2", ())],
             contact_tolerance=contact_tolerance)
@@ -431,7 +478,7 @@ def state_schema(meso: Mesostructure) -> StateSchema:
     ``area`` [m^2] derived.
     """
     free_dofs = np.argwhere(~meso.driven).astype(np.int64)
-    dof_names = tuple(f"{'nt'[axis]}{grain + 1}" for grain, axis in free_dofs)
+    dof_names = tuple(f"{AXIS_NAMES[meso.dim][axis]}{grain + 1}" for grain, axis in free_dofs)
     pair_names = tuple(_pair_label(p) for p in meso.pairs)
     features = {
         "cell_size": StateFeature(("l1", "l2"), "m", "driven", "cell size (l1, l2); l <- l (1 - d_eps)"),

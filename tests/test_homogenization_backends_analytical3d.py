@@ -1,0 +1,87 @@
+"""Closed-form ten-sphere cell: two planar H-cells sharing their axial grains (docs/model.md section 14)."""
+
+import numpy as np
+import pytest
+
+from homogenization.backends import make_cell_model
+from homogenization.backends.analytical3d import Analytical3DCell
+from warp_hcell.core.parameters import ContactLaw
+from warp_hcell.mesostructures.builders import resolve_mesostructure
+from warp_hcell.mesostructures.mesostructure import cell_measure
+
+
+@pytest.fixture(scope="module")
+def cells():
+    return make_cell_model("analytical", dim=3), make_cell_model("analytical")
+
+
+def _path(rng, n_cells):
+    """Isotropic loading, then random proportional legs with a reversal (sticking, sliding, opening)."""
+    iso = [np.full((n_cells, 3), 2e-4)] * 20
+    direction = rng.normal(size=(n_cells, 3))
+    return iso + [3e-4 * direction] * 30 + [-3e-4 * direction] * 30
+
+
+def test_each_plane_is_the_planar_cell_and_the_axial_contact_counts_once(cells):
+    cell3, cell2 = cells
+    rng = np.random.default_rng(0)
+    n = 12
+    alpha0 = np.round(rng.uniform(46.0, 70.0, n), 6)
+    state3 = cell3.init_state([resolve_mesostructure(f"hcell3d:alpha0={float(a)!r}") for a in alpha0], n)
+    meso2 = [resolve_mesostructure(f"hcell:alpha0={float(a)!r}") for a in alpha0]
+    plane_a, plane_b = cell2.init_state(meso2, n), cell2.init_state(meso2, n)
+    for d in _path(rng, n):
+        state3, r3 = cell3.step(state3, d)
+        plane_a, ra = cell2.step(plane_a, d[:, [0, 1]])
+        plane_b, rb = cell2.step(plane_b, d[:, [0, 2]])
+        axial = 2e8 * np.maximum(1.0 - plane_a.l1, 0.0) * plane_a.l1
+        np.testing.assert_array_equal(r3.moment[:, 0, 0], ra.moment[:, 0, 0] + rb.moment[:, 0, 0] - axial)
+        np.testing.assert_array_equal(r3.moment[:, 1, 1], ra.moment[:, 1, 1])
+        np.testing.assert_array_equal(r3.moment[:, 2, 2], rb.moment[:, 1, 1])
+        assert np.all(r3.moment[:, [0, 0, 1], [1, 2, 2]] == 0.0)
+    assert (ra.moment[:, 0, 0] != rb.moment[:, 0, 0]).all()  # the planes were driven differently
+
+
+def test_the_tangent_equals_central_differences(cells):
+    cell3, _ = cells
+    rng = np.random.default_rng(1)
+    n = 8
+    state = cell3.touching_state(rng.uniform(46.0, 70.0, n), n)
+    for d in _path(rng, n)[:35]:
+        state, _ = cell3.step(state, d)
+    d = 1e-5 * rng.normal(size=(n, 3))
+    _, response = cell3.step(state, d, with_tangent=True)
+    h = 1e-9
+    fd = np.zeros((n, 3, 3))
+    for j in range(3):
+        plus, minus = d.copy(), d.copy()
+        plus[:, j] += h
+        minus[:, j] -= h
+        diag = lambda dd: np.diagonal(cell3.step(state, dd)[1].moment, axis1=1, axis2=2)  # noqa: E731
+        fd[:, :, j] = (diag(plus) - diag(minus)) / (2 * h)
+    scale = np.abs(fd).max(axis=(1, 2), keepdims=True)
+    assert np.abs(response.tangent - fd).max() / scale.min() < 1e-5
+
+
+def test_volume_and_initial_state_follow_the_mesostructure(cells):
+    cell3, _ = cells
+    meso = resolve_mesostructure("hcell3d:alpha0=61")
+    state = cell3.init_state(meso, 3)
+    np.testing.assert_allclose(cell3.volume(state), cell_measure(meso.position, meso.outer), rtol=1e-14)
+    np.testing.assert_allclose(cell3.positions(state)[0], meso.position, atol=1e-15)
+    with pytest.raises(ValueError, match="plain ten-sphere H-cell"):
+        cell3.init_state(resolve_mesostructure("hcell3d:alpha0=61,plane=80"), 3)
+    with pytest.raises(ValueError, match="radius"):
+        Analytical3DCell(ContactLaw(), 0.25).init_state(meso, 1)
+
+
+def test_cells_whose_planes_meet_are_counted(cells):
+    """Lateral compression of both planes from 46 deg closes the gap between the planes' lateral grains."""
+    cell3, _ = cells
+    state = cell3.touching_state(46.0, 1)
+    counts = []
+    for _ in range(120):
+        state, response = cell3.step(state, np.array([[0.0, 2e-4, 2e-4]]))
+        counts.append(response.diagnostics["n_cross_plane"])
+    assert counts[0] == 0 and counts[-1] == 1
+    assert 0.25 * (state.a.l2[0] ** 2 + state.b.l2[0] ** 2) + (state.a.y2[0] - state.b.y2[0]) ** 2 < 1.0
