@@ -18,7 +18,7 @@ from warp_hcell.core.parameters import CellDefaults, ContactLaw
 BACKENDS: dict[str, dict[int, str]] = {
     "analytical": {2: "homogenization.backends.analytical:AnalyticalCell",
                    3: "homogenization.backends.analytical3d:Analytical3DCell"},
-    "dem": {2: "homogenization.backends.dem:DemCell"},
+    "dem": {2: "homogenization.backends.dem:DemCell", 3: "homogenization.backends.dem:DemCell"},
     "ann": {2: "homogenization.backends.ann:AnnCell"},
 }
 """Backend name -> spatial dimension of the cells (2 or 3) -> "module:Class" of its implementation."""

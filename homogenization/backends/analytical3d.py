@@ -185,7 +185,8 @@ class Analytical3DCell:
     def observables(self, state: Analytical3DState) -> dict[str, np.ndarray]:
         """Per-cell quantities (n_cells,): ``l1, l2, l3`` [m], the planar observables of each plane with
         suffix ``_a`` / ``_b`` (``alpha_deg``, ``d1``, ``d2``, ``N1``, ``N2``, ``T1``, ``closed1``,
-        ``closed2``), ``S_nn, S_t1t1, S_t2t2`` [N m], ``volume`` [m^3], ``cross_plane`` (bool)."""
+        ``closed2``), ``S_nn, S_t1t1, S_t2t2`` [N m], ``volume`` [m^3], ``cross_plane`` (bool) and the grain
+        centres ``x_n{i}, x_t1{i}, x_t2{i}`` [m] (i = 1-based label, cell centre at the origin)."""
         response = self.response(state)
         out: dict[str, np.ndarray] = {"l1": state.a.l1, "l2": state.a.l2, "l3": state.b.l2}
         for suffix, plane in (("a", state.a), ("b", state.b)):
@@ -194,6 +195,10 @@ class Analytical3DCell:
                 out[f"{key}_{suffix}"] = planar[key]
         out.update(S_nn=response.moment[:, 0, 0], S_t1t1=response.moment[:, 1, 1], S_t2t2=response.moment[:, 2, 2],
                    volume=response.area, cross_plane=self.cross_plane_contact(state))
+        x = self.positions(state)
+        for g in range(x.shape[1]):
+            for axis, name in enumerate(("n", "t1", "t2")):
+                out[f"x_{name}{g + 1}"] = x[:, g, axis]
         return out
 
     def take(self, state: Analytical3DState, index: np.ndarray) -> Analytical3DState:

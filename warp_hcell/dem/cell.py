@@ -87,7 +87,8 @@ class DemCell:
         if integrator is None or integrator.model is not model:
             integrator = (DemIntegrator(model, threads=self.threads, pool=self._pool) if self.engine == "warp"
                           else NumpyIntegrator(model))
-            self._outputs = StatePool(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)
+            self._outputs = StatePool(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device,
+                                      dim=model.meso.dim)
             self._last_integrator = integrator
         return integrator
 
@@ -100,7 +101,7 @@ class DemCell:
 
     def step(self, state: DemCellState, d_eps_local: np.ndarray, *,
              with_tangent: bool = False) -> tuple[DemCellState, CellResponse]:
-        """Advance every cell by (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
+        """Advance every cell by (d_eps_n, d_eps_t[, d_eps_t2]) [-], shape (n_cells, dim), compression positive.
 
         Pure: ``state`` is not modified. Cells that reach max_substeps without equilibrium are
         counted in ``diagnostics["n_unconverged"]`` and reported with a warning. With
@@ -114,6 +115,8 @@ class DemCell:
         new = DemCellState(model, out)
         response = self.response(new)
         if with_tangent:
+            if model.meso.dim != 2:
+                raise ValueError("the DEM backend gives tangents of planar cells only")
             response = replace(response, tangent=self._tangent(state, new))
         if response.diagnostics["n_unconverged"]:
             warnings.warn(f"DEM: {response.diagnostics['n_unconverged']:g} of {model.n_cells} cells did not reach "
@@ -147,7 +150,9 @@ class DemCell:
 
         Always: ``l1, l2, area`` [m, m^2], ``S_nn, S_tt, S_nt`` [N m] (compression positive),
         ``n_contacts`` (closed contacts), ``substeps`` and ``converged`` of the last step, and
-        grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label). H-cells also give ``d1, d2``
+        grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label). 3D cells give ``l1, l2, l3``,
+        ``area`` (the volume [m^3]), ``S_nn, S_t1t1, S_t2t2, S_nt1, S_nt2, S_t1t2`` and
+        ``x_n{i}, x_t1{i}, x_t2{i}`` instead, with the same counts. Planar H-cells also give ``d1, d2``
         [m], ``alpha_deg`` [deg], ``N1, N2, T1`` [N] (T1 > 0 resists opening) and ``closed1,
         closed2`` (bool), measured at the reference contacts 1-2 and 2-3 (equal to the other
         type-1 / type-2 contacts by symmetry).
@@ -156,6 +161,8 @@ class DemCell:
         meso = state.model.meso
         response = self.response(state)
         x = arrays["position"]
+        if meso.dim == 3:
+            return _observables_3d(arrays, response)
         obs: dict[str, np.ndarray] = {
             "l1": arrays["cell_size"][:, 0].copy(), "l2": arrays["cell_size"][:, 1].copy(),
             "area": response.area, "S_nn": response.moment[:, 0, 0], "S_tt": response.moment[:, 1, 1],
@@ -198,3 +205,18 @@ class DemCell:
                                         arrays["reference_cell_size"], contact_law=self.contact_law,
                                         settings=self.settings, device=self.device)
         return DemCellState(model, DemState.from_numpy(arrays, self.device))
+
+
+def _observables_3d(arrays: Mapping[str, np.ndarray], response: CellResponse) -> dict[str, np.ndarray]:
+    """``DemCell.observables`` of spatial cells (its docstring)."""
+    moment = response.moment
+    obs = {"l1": arrays["cell_size"][:, 0].copy(), "l2": arrays["cell_size"][:, 1].copy(),
+           "l3": arrays["cell_size"][:, 2].copy(), "area": response.area, "S_nn": moment[:, 0, 0],
+           "S_t1t1": moment[:, 1, 1], "S_t2t2": moment[:, 2, 2], "S_nt1": moment[:, 0, 1], "S_nt2": moment[:, 0, 2],
+           "S_t1t2": moment[:, 1, 2], "n_contacts": arrays["contact"].sum(axis=1),
+           "substeps": arrays["substeps"].copy(), "converged": arrays["converged"] == 1}
+    x = arrays["position"]
+    for g in range(x.shape[1]):
+        for axis, name in enumerate(("n", "t1", "t2")):
+            obs[f"x_{name}{g + 1}"] = x[:, g, axis].copy()
+    return obs

@@ -29,6 +29,7 @@ import numpy as np
 import warp as wp
 
 from warp_hcell.dem.kernels import step_kernel
+from warp_hcell.dem.kernels3d import step_kernel_3d
 from warp_hcell.dem.model import DemModel
 from warp_hcell.dem.state import DemState
 
@@ -47,14 +48,15 @@ when the second core is free; the kernel of 360 cells at 3-15 substeps takes 100
 
 
 def check_increment(model: DemModel, d_eps_local: np.ndarray) -> np.ndarray:
-    """Validate a strain increment: finite, shape (n_cells, 2), within max_substeps.
+    """Validate a strain increment: finite, shape (n_cells, dim), within max_substeps.
 
     Returns:
         ``d_eps_local`` as a C-contiguous float64 array.
     """
     d_eps = np.ascontiguousarray(d_eps_local, dtype=np.float64)
-    if d_eps.shape != (model.n_cells, 2):
-        raise ValueError(f"d_eps_local has shape {d_eps.shape}, expected ({model.n_cells}, 2)")
+    dim = model.meso.dim
+    if d_eps.shape != (model.n_cells, dim):
+        raise ValueError(f"d_eps_local has shape {d_eps.shape}, expected ({model.n_cells}, {dim})")
     if not np.all(np.isfinite(d_eps)):
         raise ValueError("d_eps_local contains non-finite values")
     largest = float(np.abs(d_eps).max(initial=0.0))
@@ -95,6 +97,8 @@ def launch_step(model: DemModel, state_in: DemState, state_out: DemState, d_eps_
 
 def kernel_of(model: DemModel) -> wp.Kernel:
     """The compiled cell-step kernel of the model's topology."""
+    if model.meso.dim == 3:
+        return step_kernel_3d(*model.meso.topology_key(), tuple(map(tuple, model.meso.outer.tolist())))
     return step_kernel(*model.meso.topology_key(), tuple(int(g) for g in model.meso.outer))
 
 
@@ -149,7 +153,7 @@ class DemIntegrator:
         self.model = model
         self.threads = 1 if wp.get_device(model.device).is_cuda else int(threads)
         self._pool = None if self.threads == 1 else pool or ThreadPoolExecutor(self.threads)
-        self._d_eps = wp.zeros(model.n_cells, dtype=wp.vec2d, device=model.device)
+        self._d_eps = wp.zeros(model.n_cells, dtype=wp.vec2d if model.meso.dim == 2 else wp.vec3d, device=model.device)
         self._d_eps_host = None if wp.get_device(model.device).is_cuda else self._d_eps.numpy()
         # one chunk per thread from MIN_CELLS_TO_SPLIT cells; more chunks than threads, so that
         # the pool balances cells of very different substep counts, where each keeps
@@ -165,7 +169,7 @@ class DemIntegrator:
         # compile/load the kernel and pack the constant arguments here, once, rather than
         # concurrently from the chunk threads
         initial = model.state()
-        scratch = DemState.empty(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)
+        scratch = DemState.empty(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device, model.meso.dim)
         self._launches = [_RecordedLaunch(model, initial, scratch, self._d_eps, start, stop)
                           for start, stop in self._bounds]
 
@@ -175,7 +179,7 @@ class DemIntegrator:
         Args:
             state_in: cells before the increment (not modified).
             state_out: receives the cells after the increment (same n_cells).
-            d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
+            d_eps_local: (d_eps_n, d_eps_t[, d_eps_t2]) [-], shape (n_cells, dim), compression positive.
         """
         d_eps = check_increment(self.model, d_eps_local)
         if self._d_eps_host is None:
@@ -206,6 +210,8 @@ class NumpyIntegrator:
     def __init__(self, model: DemModel):
         if wp.get_device(model.device).is_cuda:
             raise ValueError("the numpy DEM engine runs on the CPU only; use device='cpu'")
+        if model.meso.dim != 2:
+            raise ValueError("the numpy DEM engine steps planar cells; 3D cells run on the Warp engine")
         self.model = model
 
     def step(self, state_in: DemState, state_out: DemState, d_eps_local: np.ndarray) -> None:

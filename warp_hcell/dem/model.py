@@ -16,7 +16,7 @@ import numpy as np
 import warp as wp
 
 from warp_hcell.mesostructures.mesostructure import (
-    Mesostructure, MesostructureError, h_cell, h_cell_reference, per_cell, polygon_area)
+    Mesostructure, MesostructureError, cell_measure, h_cell, h_cell_reference, per_cell)
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.dem.state import DemState
 
@@ -65,20 +65,23 @@ class DemModel:
         Args:
             meso: topology template.
             radius: (n_cells, n_grains) [m].
-            reference_position: (n_cells, n_grains, 2) [m].
-            reference_cell_size: (n_cells, 2) [m].
+            reference_position: (n_cells, n_grains, dim) [m].
+            reference_cell_size: (n_cells, dim) [m].
+
+        A grain's mass is density pi r^2 (a disk per unit thickness) in 2D, density 4/3 pi r^3 in 3D.
         """
         radius = np.ascontiguousarray(radius, dtype=np.float64)
-        mass = settings.density * math.pi * radius**2
+        mass = settings.density * (math.pi * radius**2 if meso.dim == 2 else 4.0 / 3.0 * math.pi * radius**3)
         dt = settings.dt_factor * np.sqrt(mass.min(axis=1) / contact_law.kn)
         floor = contact_law.kn * settings.contact_tolerance * 2.0 * radius.mean(axis=1)
 
         def put(a, dtype):
             return wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=dtype, device=device)
 
+        vector = wp.vec2d if meso.dim == 2 else wp.vec3d
         return cls(meso=meso, device=str(device), radius=put(radius, wp.float64), inv_mass=put(1.0 / mass, wp.float64),
-                   reference_position=put(reference_position, wp.vec2d),
-                   reference_cell_size=put(reference_cell_size, wp.vec2d), dt=put(dt, wp.float64),
+                   reference_position=put(reference_position, vector),
+                   reference_cell_size=put(reference_cell_size, vector), dt=put(dt, wp.float64),
                    force_floor=put(floor, wp.float64), contact_law=contact_law, settings=settings)
 
     @classmethod
@@ -130,15 +133,16 @@ class DemModel:
 
     def state(self) -> DemState:
         """Touching, force-free initial state: grains at their reference positions, at rest."""
-        n_cells, n_pairs = self.n_cells, self.meso.n_pairs
+        n_cells, n_pairs, dim = self.n_cells, self.meso.n_pairs, self.meso.dim
         position = self.reference_position.numpy()
         return DemState.from_numpy({
             "position": position, "velocity": np.zeros_like(position),
-            "shear_force": np.zeros((n_cells, n_pairs)), "contact_force": np.zeros((n_cells, n_pairs, 2)),
+            "shear_force": np.zeros((n_cells, n_pairs) if dim == 2 else (n_cells, n_pairs, dim)),
+            "contact_force": np.zeros((n_cells, n_pairs, dim)),
             "contact": initial_contacts(position, self.radius.numpy(), self.meso.pairs,
                                         self.settings.contact_tolerance),
-            "cell_size": self.reference_cell_size.numpy(), "moment": np.zeros((n_cells, 2, 2)),
-            "area": polygon_area(position, self.meso.outer), "substeps": np.zeros(n_cells, np.int32),
+            "cell_size": self.reference_cell_size.numpy(), "moment": np.zeros((n_cells, dim, dim)),
+            "area": cell_measure(position, self.meso.outer), "substeps": np.zeros(n_cells, np.int32),
             "converged": np.ones(n_cells, np.int32)}, self.device)
 
 

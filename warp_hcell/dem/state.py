@@ -20,32 +20,41 @@ import warp as wp
 _ALIGN = 64
 """Byte alignment of each field inside the allocation of ``DemState.empty``."""
 _DTYPES = {
-    "position": wp.vec2d, "velocity": wp.vec2d, "shear_force": wp.float64, "contact_force": wp.vec2d,
-    "contact": wp.int32, "cell_size": wp.vec2d, "moment": wp.mat22d, "area": wp.float64, "substeps": wp.int32,
-    "converged": wp.int32,
+    2: {"position": wp.vec2d, "velocity": wp.vec2d, "shear_force": wp.float64, "contact_force": wp.vec2d,
+        "contact": wp.int32, "cell_size": wp.vec2d, "moment": wp.mat22d, "area": wp.float64, "substeps": wp.int32,
+        "converged": wp.int32},
+    3: {"position": wp.vec3d, "velocity": wp.vec3d, "shear_force": wp.vec3d, "contact_force": wp.vec3d,
+        "contact": wp.int32, "cell_size": wp.vec3d, "moment": wp.mat33d, "area": wp.float64, "substeps": wp.int32,
+        "converged": wp.int32},
 }
+"""Warp dtype of every field, for planar (2) and spatial (3) cells."""
 
 
 @dataclass(frozen=True, eq=False)
 class DemState:
     """Arrays of one batch state.
 
+    Planar cells (dim 2) hold vec2d/mat22d fields, spatial cells (dim 3) vec3d/mat33d ones;
+    ``vecd`` below is the vector of the cell's dimension, frame (n, t) or (n, t1, t2).
+
     Attributes:
-        position: grain centres [m], shape (n_cells, n_grains) vec2d, (x_n, x_t).
+        position: grain centres [m], shape (n_cells, n_grains) vecd.
         velocity: every grain's mean velocity over the driving substeps of the step that
-            produced this state [m/s], shape (n_cells, n_grains) vec2d: the memory from which
+            produced this state [m/s], shape (n_cells, n_grains) vecd: the memory from which
             the next step sets its strain per substep and predicts its free grains
             (``warp_hcell.dem.kernels``); zero for a state no step produced.
-        shear_force: tangential spring force of each candidate pair [N], shape
-            (n_cells, n_pairs); the force on grain i along w = (-u_t, u_n).
+        shear_force: tangential spring force of each candidate pair [N] on grain i: in 2D a
+            scalar along w = (-u_t, u_n), shape (n_cells, n_pairs); in 3D a vector in the
+            contact's tangent plane, shape (n_cells, n_pairs) vec3d.
         contact_force: force on grain i of pair (i, j) by grain j [N], shape
-            (n_cells, n_pairs) vec2d; zero for pairs out of contact.
+            (n_cells, n_pairs) vecd; zero for pairs out of contact.
         contact: 1 where the pair is in contact (gap <= tolerance), shape (n_cells, n_pairs) int32.
-        cell_size: (l1, l2) [m], shape (n_cells,) vec2d.
+        cell_size: (l1, l2[, l3]) [m], shape (n_cells,) vecd.
         moment: Love-Weber sum sum_p f_p (x) (x_j - x_i) over the pairs [N m], tension
-            positive (negative for a compressed cell), shape (n_cells,) mat22d, rows = force
-            component (n, t), columns = branch component.
-        area: V_cell, area of the polygon through the outer grains [m^2], shape (n_cells,).
+            positive (negative for a compressed cell), shape (n_cells,) mat22d or mat33d, rows =
+            force component, columns = branch component.
+        area: V_cell [m^2 in 2D, m^3 in 3D]: area of the polygon, volume of the closed surface,
+            through the outer grains, shape (n_cells,).
         substeps: substeps spent by the step that produced this state, shape (n_cells,) int32.
         converged: 1 where that step reached quasi-static equilibrium, shape (n_cells,) int32.
     """
@@ -66,8 +75,13 @@ class DemState:
         """Number of cells."""
         return int(self.cell_size.shape[0])
 
+    @property
+    def dim(self) -> int:
+        """Spatial dimension of the cells (2 or 3)."""
+        return 3 if self.position.dtype is wp.vec3d else 2
+
     @classmethod
-    def empty(cls, n_cells: int, n_grains: int, n_pairs: int, device: str) -> "DemState":
+    def empty(cls, n_cells: int, n_grains: int, n_pairs: int, device: str, dim: int = 2) -> "DemState":
         """Uninitialised state arrays (to be filled by a step or by ``from_numpy``).
 
         Every step allocates one state: the fields are views into one allocation (38 instead
@@ -78,26 +92,29 @@ class DemState:
                   "shear_force": (n_cells, n_pairs), "contact_force": (n_cells, n_pairs),
                   "contact": (n_cells, n_pairs), "cell_size": (n_cells,), "moment": (n_cells,), "area": (n_cells,),
                   "substeps": (n_cells,), "converged": (n_cells,)}
+        dtypes = _DTYPES[dim]
         offsets, total = {}, 0
         for name, shape in shapes.items():
             offsets[name] = total
-            size = math.prod(shape) * wp.types.type_size_in_bytes(_DTYPES[name])
+            size = math.prod(shape) * wp.types.type_size_in_bytes(dtypes[name])
             total += -(-size // _ALIGN) * _ALIGN
         block = wp.empty(max(total, 1), dtype=wp.uint8, device=device)
         fields_ = {}
         for name, shape in shapes.items():
-            view = wp.array(ptr=block.ptr + offsets[name], dtype=_DTYPES[name], shape=shape, device=device)
+            view = wp.array(ptr=block.ptr + offsets[name], dtype=dtypes[name], shape=shape, device=device)
             view.memory_block = block
             fields_[name] = view
         return cls(**fields_)
 
     @classmethod
     def from_numpy(cls, arrays: Mapping[str, np.ndarray], device: str) -> "DemState":
-        """State from numpy arrays named like the fields (vec2d fields with a trailing axis of 2,
-        ``moment`` with trailing axes (2, 2))."""
+        """State from numpy arrays named like the fields (vector fields with a trailing axis of the
+        dimension, ``moment`` with trailing axes (dim, dim)); the dimension is that of ``position``."""
+        dtypes = _DTYPES[int(np.shape(arrays["position"])[-1])]
+
         def put(name):
-            host = np.ascontiguousarray(arrays[name], dtype=np.int32 if _DTYPES[name] is wp.int32 else np.float64)
-            return wp.array(host, dtype=_DTYPES[name], device=device)
+            host = np.ascontiguousarray(arrays[name], dtype=np.int32 if dtypes[name] is wp.int32 else np.float64)
+            return wp.array(host, dtype=dtypes[name], device=device)
 
         return cls(**{f.name: put(f.name) for f in fields(cls)})
 
@@ -122,12 +139,12 @@ class StatePool:
     Each thread has its own pool: no state is checked and handed out by two threads at once.
 
     Args:
-        n_cells, n_grains, n_pairs: batch dimensions; device: Warp device.
+        n_cells, n_grains, n_pairs: batch dimensions; device: Warp device; dim: of the cells (2 or 3).
         capacity: most states kept per thread.
     """
 
-    def __init__(self, n_cells: int, n_grains: int, n_pairs: int, device: str, capacity: int = 8):
-        self._shape = (int(n_cells), int(n_grains), int(n_pairs), device)
+    def __init__(self, n_cells: int, n_grains: int, n_pairs: int, device: str, capacity: int = 8, dim: int = 2):
+        self._shape = (int(n_cells), int(n_grains), int(n_pairs), device, int(dim))
         self._capacity = int(capacity)
         self._local = threading.local()
 
