@@ -18,21 +18,23 @@ def fd_tangent(model, state, d_eps: np.ndarray, h: float) -> np.ndarray:
     Args:
         model: a ``warp_hcell.core.contract.CellModel``.
         state: cells at the start of the increment.
-        d_eps: the increment (d_eps_n, d_eps_t) [-], shape (n_cells, 2).
+        d_eps: the increment [-], shape (n_cells, dim) ((d_eps_n, d_eps_t) in 2D).
         h: difference step [-].
 
     Returns:
-        Shape (n_cells, 2, 2): [:, a, b] = d S_aa / d d_eps_b.
+        Shape (n_cells, dim, dim): [:, a, b] = d S_aa / d d_eps_b.
     """
     d_eps = np.asarray(d_eps, dtype=np.float64)
-    out = np.empty((d_eps.shape[0], 2, 2))
-    for b in range(2):
+    dim = d_eps.shape[1]
+    diagonal = np.arange(dim)
+    out = np.empty((d_eps.shape[0], dim, dim))
+    for b in range(dim):
         plus, minus = d_eps.copy(), d_eps.copy()
         plus[:, b] += h
         minus[:, b] -= h
         s_plus = model.step(state, plus)[1].moment
         s_minus = model.step(state, minus)[1].moment
-        out[:, :, b] = (s_plus[:, [0, 1], [0, 1]] - s_minus[:, [0, 1], [0, 1]]) / (2.0 * h)
+        out[:, :, b] = (s_plus[:, diagonal, diagonal] - s_minus[:, diagonal, diagonal]) / (2.0 * h)
     return out
 
 
@@ -57,40 +59,42 @@ def fd_tangent_fixed_schedule(model, state, d_eps: np.ndarray, h: float) -> np.n
     discretised path, the quantity the condensed tangent describes.
 
     Requires both rates of the model's settings to be equal (no adaptive rate decision), and
-    no tie between |d_eps_n| and |d_eps_t| within the stencil (a kink of max |d_eps|).
+    no tie of the largest |d_eps| component with another within the stencil (a kink of max |d_eps|).
 
     Args:
         model: a ``warp_hcell.dem.cell.DemCell``.
         state: cells at the start of the increment (``DemCellState``).
-        d_eps: the increment (d_eps_n, d_eps_t) [-], shape (n_cells, 2).
+        d_eps: the increment [-], shape (n_cells, dim).
         h: difference step [-].
 
     Returns:
-        Shape (n_cells, 2, 2): [:, a, b] = d S_aa / d d_eps_b [N m].
+        Shape (n_cells, dim, dim): [:, a, b] = d S_aa / d d_eps_b [N m].
     """
     settings = state.model.settings
     if settings.refined_strain_per_substep != settings.strain_per_substep:
         raise ValueError("fd_tangent_fixed_schedule needs refined_strain_per_substep == strain_per_substep")
     d_eps = np.asarray(d_eps, dtype=np.float64)
-    magnitude = np.abs(d_eps)
-    if np.any(np.abs(magnitude[:, 0] - magnitude[:, 1]) <= 2.0 * h):
-        raise ValueError("|d_eps_n| and |d_eps_t| tie within the difference stencil")
-    largest = magnitude.max(axis=1)
-    out = np.empty((d_eps.shape[0], 2, 2))
-    for b in range(2):
+    dim = d_eps.shape[1]
+    diagonal = np.arange(dim)
+    magnitude = np.sort(np.abs(d_eps), axis=1)
+    if np.any(magnitude[:, -1] - magnitude[:, -2] <= 2.0 * h):
+        raise ValueError("the largest |d_eps| component ties with another within the difference stencil")
+    largest = magnitude[:, -1]
+    out = np.empty((d_eps.shape[0], dim, dim))
+    for b in range(dim):
         moments = []
         for sign in (1.0, -1.0):
             point = d_eps.copy()
             point[:, b] += sign * h
             stretch = np.abs(point).max(axis=1) / largest
-            moment = np.empty((d_eps.shape[0], 2))
+            moment = np.empty((d_eps.shape[0], dim))
             for factor in np.unique(stretch):
                 cells = np.flatnonzero(stretch == factor)
                 rate = settings.strain_per_substep * factor
                 group = model.take(state, cells)
                 held = replace(group.model, settings=replace(settings, strain_per_substep=rate,
                                                               refined_strain_per_substep=rate))
-                moment[cells] = model.step(replace(group, model=held), point[cells])[1].moment[:, [0, 1], [0, 1]]
+                moment[cells] = model.step(replace(group, model=held), point[cells])[1].moment[:, diagonal, diagonal]
             moments.append(moment)
         out[:, :, b] = (moments[0] - moments[1]) / (2.0 * h)
     return out

@@ -29,7 +29,7 @@ from warp_hcell.mesostructures.mesostructure import Mesostructure, TOPOLOGY_ARRA
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings
 from warp_hcell.dem.state import DemState, StatePool
-from warp_hcell.dem.tangent import condensed_tangent, sliding_contacts
+from warp_hcell.dem.tangent import condensed_tangent, sliding_contacts, sliding_contacts_3d
 
 _MODEL_ARRAYS = ("radius", "reference_position", "reference_cell_size")
 
@@ -115,8 +115,6 @@ class DemCell:
         new = DemCellState(model, out)
         response = self.response(new)
         if with_tangent:
-            if model.meso.dim != 2:
-                raise ValueError("the DEM backend gives tangents of planar cells only")
             response = replace(response, tangent=self._tangent(state, new))
         if response.diagnostics["n_unconverged"]:
             warnings.warn(f"DEM: {response.diagnostics['n_unconverged']:g} of {model.n_cells} cells did not reach "
@@ -130,7 +128,8 @@ class DemCell:
         arrays, before = new.dem.to_numpy(), old.dem.to_numpy()
         radius, pairs, driven = model.radius.numpy(), model.meso.pairs, model.meso.driven
         laws = dict(kn=law.kn, kt=law.kt, mu=law.mu)
-        sliding = sliding_contacts(before["position"], arrays["position"], radius, pairs, before["shear_force"], **laws)
+        slides = sliding_contacts if model.meso.dim == 2 else sliding_contacts_3d
+        sliding = slides(before["position"], arrays["position"], radius, pairs, before["shear_force"], **laws)
         l_ratio = before["cell_size"] / model.reference_cell_size.numpy()
         drive_rate = -model.reference_position.numpy() * l_ratio[:, None, :] * driven[None]
         return condensed_tangent(arrays["position"], radius, pairs, driven, arrays["shear_force"], sliding,

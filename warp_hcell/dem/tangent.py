@@ -24,6 +24,12 @@ branch b = x_j - x_i, ``d = |b|``, u = b / d, w = (-u_t, u_n):
   S_aa = sum_g F_g,a x_g,a (compression positive: S = -sum_p f_p (x) b_p), where only driven
   DOFs carry a force; with dx_d = B d_eps (the driven kinematics):
   dS_aa/d d_eps_b = sum_{g driven along a} (dF_g,a/d d_eps_b x_g,a + F_g,a dx_g,a/d d_eps_b).
+
+Spatial cells (3D, frame (n, t1, t2)): the tangential force T is a vector in the tangent plane,
+P = I - u u^T its projector, and k_p = kn u u^T - (N / d) P - u T^T / d + dT/db with
+dT/db = kt P (stick) or -mu kn t u^T + kt (P - t t^T) (slide, t = T / |T|: the force keeps
+its magnitude mu N and turns with the trial force in the plane); the -u T^T / d term is the
+spring turning with the contact. In 2D (P = w w^T) these are the expressions above.
 """
 
 from __future__ import annotations
@@ -93,19 +99,61 @@ def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.n
     return k
 
 
+def sliding_contacts_3d(position_old: np.ndarray, position: np.ndarray, radius: np.ndarray, pairs: np.ndarray,
+                        shear_force_old: np.ndarray, *, kn: float, kt: float, mu: float) -> np.ndarray:
+    """``sliding_contacts`` of spatial cells: the old spring (n_cells, n_pairs, 3) carried into the
+    mid-increment tangent plane (projected, rescaled to its magnitude) plus kt times the tangential
+    relative displacement; True where that trial exceeds mu N."""
+    i, j = pairs[:, 0], pairs[:, 1]
+    b_old = position_old[:, j] - position_old[:, i]
+    b = position[:, j] - position[:, i]
+    mid = b_old + b
+    u = mid / np.linalg.norm(mid, axis=-1, keepdims=True)
+    projected = shear_force_old - np.sum(shear_force_old * u, axis=-1, keepdims=True) * u
+    before, after = np.linalg.norm(shear_force_old, axis=-1), np.linalg.norm(projected, axis=-1)
+    carried = projected * np.where(after > 0.0, before / np.where(after > 0.0, after, 1.0), 0.0)[..., None]
+    step = b - b_old
+    trial = carried + kt * (step - np.sum(step * u, axis=-1, keepdims=True) * u)
+    N = kn * np.maximum(radius[:, i] + radius[:, j] - np.linalg.norm(b, axis=-1), 0.0)
+    return (N > 0.0) & (np.linalg.norm(trial, axis=-1) > mu * N)
+
+
+def contact_stiffness_3d(branch: np.ndarray, overlap: np.ndarray, shear_force: np.ndarray, sliding: np.ndarray, *,
+                         kn: float, kt: float, mu: float) -> np.ndarray:
+    """``contact_stiffness`` of spatial cells, shape (n_cells, n_pairs, 3, 3) (module docstring).
+
+    ``shear_force`` is the tangential force vector on grain i, shape (n_cells, n_pairs, 3).
+    """
+    d = np.linalg.norm(branch, axis=-1)
+    u = branch / d[..., None]
+    active = overlap > 0.0
+    N = kn * np.where(active, overlap, 0.0)
+    T = np.where(active[..., None], shear_force, 0.0)
+    size = np.linalg.norm(T, axis=-1)
+    t = T / np.where(size > 0.0, size, 1.0)[..., None]
+    eye = np.eye(3)
+    uu = u[..., :, None] * u[..., None, :]
+    P = eye - uu
+    slide = (active & sliding)[..., None, None]
+    dT = np.where(slide, -mu * kn * t[..., :, None] * u[..., None, :] + kt * (P - t[..., :, None] * t[..., None, :]),
+                  kt * P)
+    k = kn * uu - (N / d)[..., None, None] * P - u[..., :, None] * T[..., None, :] / d[..., None, None] + dT
+    return np.where(active[..., None, None], k, 0.0)
+
+
 @functools.lru_cache(maxsize=32)
-def _assembly(pairs: tuple[tuple[int, int], ...], n_grains: int) -> tuple[np.ndarray, np.ndarray]:
+def _assembly(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """(e_j - e_i) of every pair (i, j), shape (n_pairs, n_grains), and the matrix mapping the
     pair stiffnesses k[p, a, b] (flattened) to the DOF stiffness
     K[(g, a), (h, b)] = -sum_p (e_j - e_i)_g (e_j - e_i)_h k[p, a, b] (flattened), shape
-    (4 n_pairs, (2 n_grains)^2): one matrix product per batch instead of an einsum. Built once
+    (dim^2 n_pairs, (dim n_grains)^2): one matrix product per batch instead of an einsum. Built once
     per topology (read-only arrays)."""
     index = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     incidence = np.zeros((index.shape[0], n_grains))
     incidence[np.arange(index.shape[0]), index[:, 1]] = 1.0
     incidence[np.arange(index.shape[0]), index[:, 0]] = -1.0
-    eye = np.eye(2)
-    assembly = -np.einsum("pg,ph,ac,bd->pabgchd", incidence, incidence, eye, eye).reshape(4 * index.shape[0], -1)
+    eye = np.eye(dim)
+    assembly = -np.einsum("pg,ph,ac,bd->pabgchd", incidence, incidence, eye, eye).reshape(dim * dim * index.shape[0], -1)
     incidence.flags.writeable = False
     assembly.flags.writeable = False
     return incidence, assembly
@@ -117,29 +165,31 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
     """Consistent tangent of cells at quasi-static equilibrium, by static condensation.
 
     Args:
-        position: grain centres [m], shape (n_cells, n_grains, 2), local frame (n, t).
+        position: grain centres [m], shape (n_cells, n_grains, dim), local frame (n, t) or (n, t1, t2).
         radius: grain radii [m], shape (n_cells, n_grains).
         pairs: candidate contact pairs (i, j), 0-based, shape (n_pairs, 2).
-        driven: True where DOF (grain, direction) follows the cell strain, shape (n_grains, 2).
-        shear_force: tangential spring force of each pair [N], shape (n_cells, n_pairs),
-            tension-positive DEM convention (along w = (-u_t, u_n), on grain i).
+        driven: True where DOF (grain, direction) follows the cell strain, shape (n_grains, dim).
+        shear_force: tangential spring force of each pair [N], tension-positive DEM convention,
+            on grain i: shape (n_cells, n_pairs) along w = (-u_t, u_n) in 2D, (n_cells, n_pairs, 3)
+            vectors in 3D.
         sliding: True where the contact slides, shape (n_cells, n_pairs) (``sliding_contacts``).
         drive_rate: dx_g,a / d d_eps_a [m] of every driven DOF (0 elsewhere), shape
-            (n_cells, n_grains, 2); e.g. -x_ref,g,a l_a,old / l_a,ref for homothetic driving.
+            (n_cells, n_grains, dim); e.g. -x_ref,g,a l_a,old / l_a,ref for homothetic driving.
         kn, kt: contact stiffnesses [N/m]; mu: friction coefficient [-].
 
     Returns:
-        C = d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m], shape (n_cells, 2, 2), compression
-        positive; row = stress component, column = strain component.
+        C = d(S_aa)/d(d_eps_b) [N m], shape (n_cells, dim, dim) (2D: (S_nn, S_tt) by (d_eps_n,
+        d_eps_t)), compression positive; row = stress component, column = strain component.
     """
     position = np.asarray(position, dtype=np.float64)
-    n_cells, n_grains, _ = position.shape
-    n_dof = 2 * n_grains
+    n_cells, n_grains, dim = position.shape
+    n_dof = dim * n_grains
     i, j = pairs[:, 0], pairs[:, 1]
     branch = position[:, j] - position[:, i]
     overlap = radius[:, i] + radius[:, j] - np.linalg.norm(branch, axis=-1)
-    k = contact_stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu)
-    incidence, assembly = _assembly(tuple(map(tuple, np.asarray(pairs).tolist())), n_grains)
+    stiffness = contact_stiffness if dim == 2 else contact_stiffness_3d
+    k = stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu)
+    incidence, assembly = _assembly(tuple(map(tuple, np.asarray(pairs).tolist())), n_grains, dim)
     k_flat = k.reshape(n_cells, -1)
     d_mask = np.asarray(driven, dtype=bool).reshape(-1)
     fi, di = np.flatnonzero(~d_mask), np.flatnonzero(d_mask)
@@ -149,21 +199,25 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
         return (k_flat @ assembly[:, (rows[:, None] * n_dof + cols).reshape(-1)]).reshape(n_cells, rows.size, cols.size)
 
     # net contact force on every DOF, F = -sum_p (e_j - e_i) f_p
-    u, w = _unit_tangent(branch)
     active = overlap > 0.0
-    f = (-kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active, shear_force, 0.0)[..., None] * w)
+    if dim == 2:
+        u, w = _unit_tangent(branch)
+        f = (-kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active, shear_force, 0.0)[..., None] * w)
+    else:
+        u = branch / np.linalg.norm(branch, axis=-1, keepdims=True)
+        f = -kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active[..., None], shear_force, 0.0)
     F = -(np.swapaxes(f, 1, 2) @ incidence).transpose(0, 2, 1).reshape(n_cells, n_dof)
 
     K_dd = block(di, di)
     K_c = K_dd - block(di, fi) @ np.linalg.pinv(block(fi, fi)) @ block(fi, di) if fi.size else K_dd
     # driven kinematics: dx_d = B d_eps, B[dof(g, a), a] = drive_rate[g, a]
-    rate = np.asarray(drive_rate, dtype=np.float64).reshape(n_cells, 2 * n_grains)[:, di]
-    component = np.tile([0, 1], n_grains)[di]
-    B = rate[:, :, None] * (component[None, :, None] == np.arange(2)[None, None, :])
-    dF = K_c @ B  # (n_cells, n_driven, 2)
-    x = position.reshape(n_cells, 2 * n_grains)[:, di]
-    C = np.empty((n_cells, 2, 2))
-    for a in range(2):
+    rate = np.asarray(drive_rate, dtype=np.float64).reshape(n_cells, n_dof)[:, di]
+    component = np.tile(np.arange(dim), n_grains)[di]
+    B = rate[:, :, None] * (component[None, :, None] == np.arange(dim)[None, None, :])
+    dF = K_c @ B  # (n_cells, n_driven, dim)
+    x = position.reshape(n_cells, n_dof)[:, di]
+    C = np.empty((n_cells, dim, dim))
+    for a in range(dim):
         on_a = component == a
         C[:, a, :] = (np.einsum("cd,cdb->cb", x[:, on_a], dF[:, on_a]) + np.einsum("cd,cdb->cb", F[:, di][:, on_a], B[:, on_a]))
     return C
