@@ -34,7 +34,8 @@ from matplotlib.lines import Line2D
 from homogenization import invariants, io, run_labels
 from homogenization.driver import Record
 from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS, PNG_DPI
-from warp_hcell.core.cli import UserError, atomic_write
+from warp_hcell.core.cli import UserError
+from warp_hcell.core.files import atomic_write
 
 FOURTH_PANELS = ("q/p", "W2")
 """Choices of the fourth panel."""

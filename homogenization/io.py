@@ -1,6 +1,6 @@
 """Run files: ``DIR/run.h5`` (everything) and ``DIR/curve.csv`` (the macro curve).
 
-``write_run(directory, record, ...)`` writes both through ``cli.atomic_write`` so that a
+``write_run(directory, record, ...)`` writes both through ``files.atomic_write`` so that a
 failed run never destroys older output; ``read_run(path)`` reads ``run.h5`` back into a
 ``driver.Record`` and raises ``cli.UserError`` (one line) for missing or corrupt files.
 
@@ -44,7 +44,8 @@ import h5py
 import numpy as np
 
 from homogenization import loading
-from warp_hcell.core.cli import atomic_write, UserError
+from warp_hcell.core.cli import UserError
+from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 from homogenization.driver import Record
 from homogenization.orientation import VOLUME_RULE

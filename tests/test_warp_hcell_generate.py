@@ -20,9 +20,9 @@ from warp_hcell.database import exploration, format as database, generate, probi
 from warp_hcell.core import execution
 from warp_hcell.dem.cell import DemCell
 from warp_hcell.database.learning_state import evaluate, free_coordinates
-from warp_hcell.mesostructures.mesostructure import describe, description_sha256, h_cell, load_mesostructure
+from warp_hcell.mesostructures.mesostructure import describe, description_sha256, from_description, h_cell, load_mesostructure
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
-from warp_hcell.core.cli import output_lock
+from warp_hcell.core.files import output_lock
 from dask_cluster import free_port, local_cluster
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
@@ -131,7 +131,7 @@ def test_file_describes_its_mesostructure_and_schema(h_db, fine_db):
     for (data, attrs), meso in ((h_db, h_cell()), (fine_db, FINE)):
         assert attrs["format_version"] == 2 and attrs["mesostructure"] == describe(meso)
         assert attrs["mesostructure_sha256"] == description_sha256(describe(meso))
-        assert describe(database.mesostructure_of(attrs)) == describe(meso)
+        assert describe(from_description(attrs["mesostructure"])) == describe(meso)
         schema = meso.schema()
         np.testing.assert_array_equal(data["schema/free_dofs"], schema.free_dofs)
         n = attrs["n_samples"]

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from warp_hcell.dem.integrator import DemIntegrator, MIN_CELLS_TO_SPLIT, NumpyIntegrator
+from dem_oracle import NumpyIntegrator
+from warp_hcell.dem.integrator import DemIntegrator, MIN_CELLS_TO_SPLIT
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import DemSettings
 from warp_hcell.dem.state import DemState

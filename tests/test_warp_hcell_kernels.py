@@ -6,7 +6,8 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from warp_hcell.dem.integrator import DemIntegrator, NumpyIntegrator
+from dem_oracle import NumpyIntegrator
+from warp_hcell.dem.integrator import DemIntegrator
 from warp_hcell.mesostructures.mesostructure import load_mesostructure, Mesostructure
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import ContactLaw, DemSettings

@@ -27,7 +27,7 @@ import torch
 
 from training.dataset import SCHEMA_FIELDS, schema_from_arrays
 from training.network import ACTIVATION, MesoNet
-from warp_hcell.core.cli import atomic_write
+from warp_hcell.core.files import atomic_write
 from warp_hcell.mesostructures.mesostructure import describe, description_sha256, from_description, Mesostructure, shares_state_schema
 
 FORMAT = "meso-hmodel-ann"

@@ -51,14 +51,11 @@ from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
     alpha0_deg,
-    check_output_path,
     command_prog,
     common_parser,
     contact_law_from_args,
     finite_float,
     fraction,
-    output_folder,
-    output_lock,
     positive_float,
     positive_int,
     quiet_warp,
@@ -66,6 +63,7 @@ from warp_hcell.core.cli import (
     say,
     set_verbosity,
 )
+from warp_hcell.core.files import check_output_path, output_folder, output_lock
 from warp_hcell.mesostructures.mesostructure import h_cell, Mesostructure
 from warp_hcell.core.parameters import CellDefaults, DatabaseSettings, LoadingDefaults
 from warp_hcell.core.provenance import command_line, file_sha256

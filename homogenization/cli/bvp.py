@@ -47,7 +47,6 @@ from warp_hcell.core.cli import (
     Parser,
     UserError,
     alpha0_deg,
-    check_output_path,
     command_prog,
     common_parser,
     fraction,
@@ -59,6 +58,7 @@ from warp_hcell.core.cli import (
     say,
     set_verbosity,
 )
+from warp_hcell.core.files import check_output_path
 from warp_hcell.mesostructures.mesostructure import h_cell, Mesostructure
 from warp_hcell.core.parameters import ALPHA_MAX_DEG, CellDefaults, ContactLaw, FeDefaults
 

@@ -85,8 +85,6 @@ from warp_hcell.core.cli import (
     Parser,
     UserError,
     alpha0_deg,
-    atomic_write,
-    check_output_path,
     command_prog,
     common_parser,
     positive_float,
@@ -96,6 +94,7 @@ from warp_hcell.core.cli import (
     set_verbosity,
     task_setup,
 )
+from warp_hcell.core.files import atomic_write, check_output_path
 from warp_hcell.core.execution import make_execution, SchedulerUnreachable
 from warp_hcell.mesostructures.mesostructure import describe, description_sha256, Mesostructure, MesostructureError
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, LoadingDefaults

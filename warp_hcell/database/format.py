@@ -22,9 +22,8 @@ import h5py
 import numpy as np
 
 from warp_hcell.core.contract import StateSchema
-from warp_hcell.core.cli import atomic_write
+from warp_hcell.core.files import atomic_write
 from warp_hcell.database.learning_state import HCELL_OBSERVABLES
-from warp_hcell.mesostructures.mesostructure import description_sha256, from_description, Mesostructure
 
 FORMAT = "meso-hmodel-database"
 """Value of the root attr ``format``."""
@@ -55,9 +54,6 @@ SAMPLE_DATASETS = {
 HCELL_GROUP = "hcell"
 """Group of H-cell observables (only when the mesostructure carries H-cell labels): for
 reports, never used by training or the ANN backend."""
-STATES_GROUP = "states"
-"""Group of the sampled exploration states (first axis n_states): their learning state
-(``cell_size``, ``free_position``, ``shear_force``) and path description."""
 SCHEMA_GROUP = "schema"
 """Group of the learning state of the mesostructure (same for every sample)."""
 SCHEMA_DATASETS = ("free_dofs", "pairs", "radius", "reference_position", "reference_cell_size", "driven", "outer")
@@ -158,15 +154,3 @@ def read_attrs_of(path: Path) -> dict[str, dict[str, Any]]:
         f.visititems(lambda name, item: out.__setitem__(name, dict(item.attrs)) if item.attrs else None)
     return out
 
-
-def mesostructure_of(attrs: Mapping[str, Any]) -> Mesostructure:
-    """The mesostructure of a database (root attrs), its hash checked.
-
-    Raises:
-        ValueError: (one line) the stored hash does not match the stored description.
-    """
-    text = attrs["mesostructure"]
-    text = text.decode() if isinstance(text, bytes) else str(text)
-    if description_sha256(text) != attrs["mesostructure_sha256"]:
-        raise ValueError("database mesostructure_sha256 does not match its mesostructure description")
-    return from_description(text)

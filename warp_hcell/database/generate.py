@@ -52,10 +52,8 @@ from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_
 from warp_hcell.core.cli import (
     Parser,
     UserError,
-    check_output_path,
     command_prog,
     common_parser,
-    output_lock,
     positive_float,
     positive_int,
     progress_bar,
@@ -64,6 +62,7 @@ from warp_hcell.core.cli import (
     set_verbosity,
     task_setup,
 )
+from warp_hcell.core.files import check_output_path, output_lock
 from warp_hcell.core.execution import InProcess, make_execution, SchedulerUnreachable
 from warp_hcell.database.exploration import DEM_PREFIX
 from warp_hcell.database.learning_state import free_coordinates
@@ -230,7 +229,7 @@ def generate(
     Raises:
         ValueError: (one line) a start cell of another learning state, an increment beyond
             max_substeps, or the sidecar holds an unfinished run with other options.
-        UserError: another run is writing ``out`` (``warp_hcell.core.cli.output_lock``).
+        UserError: another run is writing ``out`` (``warp_hcell.core.files.output_lock``).
         DiskFull: no space left (no partial file is left in the sidecar).
     """
     starts = [meso] if starts is None else list(starts)

@@ -1,9 +1,8 @@
 """Meso-DEM cell backend: batched few-grain DEM cells (Warp kernels) behind the CellModel protocol.
 
-``DemCell(contact_law, radius, *, settings=DemSettings(), device="cpu", threads=2,
-engine="warp")`` advances every cell of a batch by its own strain increment with the
-quasi-static DEM of ``warp_hcell`` (one Warp thread per cell; ``engine="numpy"`` runs the
-same step with numpy, for comparisons). ``init_state(mesostructure, n_cells)`` builds the
+``DemCell(contact_law, radius, *, settings=DemSettings(), device="cpu", threads=2)``
+advances every cell of a batch by its own strain increment with the quasi-static DEM of
+``warp_hcell.dem`` (one Warp thread per cell). ``init_state(mesostructure, n_cells)`` builds the
 cells from any mesostructure, or from one per cell of one topology; the state keeps the
 topology (``DemCellState.model.meso``) and ``state_to_arrays`` writes it out, so that
 ``state_from_arrays`` needs nothing else.
@@ -23,7 +22,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from warp_hcell.core.contract import CellResponse
-from warp_hcell.dem.integrator import DemIntegrator, NumpyIntegrator
+from warp_hcell.dem.integrator import DemIntegrator
 from warp_hcell.database.learning_state import hcell_observables, to_compression_positive
 from warp_hcell.mesostructures.mesostructure import Mesostructure, TOPOLOGY_ARRAYS, topology_arrays
 from warp_hcell.dem.model import DemModel
@@ -58,15 +57,12 @@ class DemCell:
         settings: DEM numerical settings.
         device: Warp device ("cpu", "cuda:0").
         threads: CPU chunks launched in parallel (results do not depend on it).
-        engine: "warp" (kernels) or "numpy" (same step in numpy, CPU only).
     """
 
     name = "dem"
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, settings: DemSettings = DemSettings(),
-                 device: str = "cpu", threads: int = 2, engine: str = "warp"):
-        if engine not in ("warp", "numpy"):
-            raise ValueError(f"engine {engine!r} is not one of 'warp', 'numpy'")
+                 device: str = "cpu", threads: int = 2):
         if int(threads) < 1:
             raise ValueError(f"threads = {threads} must be >= 1")
         self.contact_law = contact_law
@@ -74,19 +70,17 @@ class DemCell:
         self.settings = settings
         self.device = str(device)
         self.threads = int(threads)
-        self.engine = engine
-        self._pool = ThreadPoolExecutor(self.threads) if engine == "warp" and self.threads > 1 else None
-        self._last_integrator: DemIntegrator | NumpyIntegrator | None = None
+        self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        self._last_integrator: DemIntegrator | None = None
         self._outputs: StatePool | None = None
 
     # -- construction ---------------------------------------------------------------------
-    def _integrator(self, model: DemModel) -> DemIntegrator | NumpyIntegrator:
+    def _integrator(self, model: DemModel) -> DemIntegrator:
         """The integrator of ``model`` (the last one is kept with its pool of output states:
         trial steps and the following increments reuse them)."""
         integrator = self._last_integrator
         if integrator is None or integrator.model is not model:
-            integrator = (DemIntegrator(model, threads=self.threads, pool=self._pool) if self.engine == "warp"
-                          else NumpyIntegrator(model))
+            integrator = DemIntegrator(model, threads=self.threads, pool=self._pool)
             self._outputs = StatePool(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)
             self._last_integrator = integrator
         return integrator

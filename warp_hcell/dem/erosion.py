@@ -127,12 +127,12 @@ def erode_state(cell: DemCell, state: DemCellState,
 
     Returns:
         (reduced_cell, reduced_state, removal): a ``DemCell`` of the reduced mesostructure
-        (same contact law, settings, device, engine, threads), the mapped state, and the
+        (same contact law, settings, device, threads), the mapped state, and the
         ``GrainRemoval``.
     """
     meso = state.model.meso
     grains = erodible_grains(meso) if grains is None else grains
     removal = remove_grains(meso, grains)
     reduced = DemCell(cell.contact_law, cell.radius, settings=cell.settings, device=cell.device,
-                      threads=cell.threads, engine=cell.engine)
+                      threads=cell.threads)
     return reduced, reduced.state_from_arrays(erode_arrays(cell.state_to_arrays(state), removal)), removal

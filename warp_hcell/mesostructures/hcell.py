@@ -43,23 +43,6 @@ def lengths(d1: np.ndarray, d2: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarr
     return d2 + 2.0 * d1 * np.cos(alpha), 2.0 * d1 * np.sin(alpha)
 
 
-def branches_from_y2(
-    l1: np.ndarray, l2: np.ndarray, y2: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Branch lengths and opening angle from the cell lengths and y2 (spec section 3).
-
-    Args:
-        l1, l2: cell lengths [m], shape (n_cells,).
-        y2: n-coordinate of grain 2, d2/2 [m], shape (n_cells,), in (0, l1/2].
-
-    Returns:
-        (d1 [m], d2 [m], alpha [rad]), each shape (n_cells,).
-    """
-    u = 0.5 * l1 - y2
-    h = 0.5 * l2
-    return np.hypot(h, u), 2.0 * y2, np.arctan2(h, u)
-
-
 def branches_from_alpha(
     l1: np.ndarray, l2: np.ndarray, alpha: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -109,20 +92,6 @@ def grain_positions(l1: np.ndarray, l2: np.ndarray, y2: np.ndarray) -> np.ndarra
     x_n = np.stack([hn, y2, -y2, -hn, -y2, y2], axis=-1)
     x_t = np.stack([zero, -ht, -ht, zero, ht, ht], axis=-1)
     return np.stack([x_n, x_t], axis=-1)
-
-
-def grain_positions_from_alpha(l1: np.ndarray, l2: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """Centres of the six grains from (l1, l2, alpha); see ``grain_positions``.
-
-    Args:
-        l1, l2: cell lengths [m], shape (n_cells,).
-        alpha: opening angle [rad], shape (n_cells,), in (0, pi/2].
-
-    Returns:
-        Positions [m], shape (n_cells, 6, 2), index 0 = x_n, 1 = x_t.
-    """
-    _, d2 = branches_from_alpha(l1, l2, alpha)
-    return grain_positions(l1, l2, 0.5 * d2)
 
 
 def love_weber_moment(
