@@ -26,7 +26,8 @@ import numpy as np
 
 from warp_hcell.database import format as database, generate
 from warp_hcell.core.execution import DaskExecution, InProcess
-from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import CellDefaults, DatabaseSettings
 
 

@@ -236,7 +236,7 @@ def describe_run(run: Run) -> dict[str, str]:
     """``run_labels.describe`` of a run, with the backend, alpha0 and N of its record as fall-backs."""
     record = run.record
     return run_labels.describe(run.parameters, test=programme_name(run), backend=record.backend,
-                               alpha0_deg=record.alpha0_deg, n_orientations=record.theta_deg.size)
+                               alpha0_deg=record.parameters.get("alpha0_deg"), n_orientations=record.theta_deg.size)
 
 
 class NoCriticalState(ValueError):

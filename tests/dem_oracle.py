@@ -14,6 +14,7 @@ import warp as wp
 from warp_hcell.dem.integrator import check_increment
 from warp_hcell.dem.model import DemModel
 from warp_hcell.dem.state import DemState
+from warp_hcell.mesostructures import hcell
 
 
 class NumpyIntegrator:
@@ -174,3 +175,14 @@ class NumpyIntegrator:
         for name, value in out.items():
             target = getattr(state_out, name)
             target.assign(np.ascontiguousarray(value, dtype=target.numpy().dtype))
+
+
+def h_cell_model(alpha0_deg, n_cells: int, radius: float, **options) -> DemModel:
+    """A ``DemModel`` of H-cells with per-cell opening angles [deg] (scalar or (n_cells,)),
+    vectorised (``hcell.reference``): no ``Mesostructure`` per cell. ``options`` go to
+    ``DemModel.from_reference`` (contact_law, settings, device)."""
+    alpha0_deg = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (n_cells,))
+    position, cell_size = hcell.reference(alpha0_deg, radius)
+    template = hcell.h_cell(float(alpha0_deg[0]), radius)
+    return DemModel.from_reference(template, np.broadcast_to(template.radius, (n_cells, template.n_grains)),
+                                   position, cell_size, **options)

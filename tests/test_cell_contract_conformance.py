@@ -13,7 +13,7 @@ import pytest
 
 from homogenization.backends import BACKENDS, make_cell_model
 from warp_hcell.core.contract import CellModel, CellResponse
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 
 N_CELLS = 6
 ISOTROPIC = 2e-3

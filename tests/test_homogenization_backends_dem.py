@@ -13,7 +13,8 @@ from homogenization.backends.analytical import AnalyticalCell
 from warp_hcell.dem.cell import DemCell
 from warp_hcell.core.contract import CellModel
 from warp_hcell.dem.integrator import MIN_CELLS_PER_CHUNK
-from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.dem.state import DemState
 
@@ -151,7 +152,7 @@ def test_a_fresh_backend_restores_any_mesostructure_from_its_arrays(device):
     cell = DemCell(LAW, 0.5, device=device)
     state, _ = cell.step(cell.init_state(meso, 3), np.full((3, 2), 3e-4))
     restored = DemCell(LAW, 0.5, device=device).state_from_arrays(cell.state_to_arrays(state))
-    for name in ("pairs", "driven", "outer", "pair_type", "radius", "position", "cell_size"):
+    for name in ("pairs", "driven", "outer", "pair_label", "radius", "position", "cell_size"):
         assert np.array_equal(getattr(restored.model.meso, name), getattr(meso, name)), name
     d_eps = np.array([[1e-4, -1e-4], [0.0, 2e-4], [-1e-4, 0.0]])
     _assert_same(cell.state_to_arrays(cell.step(state, d_eps)[0]), cell.state_to_arrays(cell.step(restored, d_eps)[0]))

@@ -7,7 +7,7 @@ import pytest
 
 from homogenization import driver, invariants, loading
 from homogenization.backends import make_cell_model
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 
 
 def test_p_q_t_compression_positive():

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from warp_hcell.database import format as database
-from warp_hcell.mesostructures.mesostructure import describe, description_sha256, from_description, h_cell
+from warp_hcell.mesostructures.files import describe, description_sha256, from_description
+from warp_hcell.mesostructures.hcell import h_cell
 
 
 def fake_database(n=5, seed=0):
@@ -25,7 +26,7 @@ def fake_database(n=5, seed=0):
     text = describe(meso)
     attrs = {"format": database.FORMAT, "format_version": database.FORMAT_VERSION, "seed": 7,
              "generator": {"samples": n}, "mesostructure": text, "mesostructure_sha256": description_sha256(text)}
-    return data, attrs, database.dataset_attrs(schema, is_h_cell=False), meso
+    return data, attrs, database.dataset_attrs(schema, meso), meso
 
 
 def test_round_trip_attrs_feature_names_and_units(tmp_path):

@@ -62,7 +62,7 @@ from warp_hcell.core.cli import (
     set_verbosity,
 )
 from warp_hcell.core.files import check_output_path, output_lock
-from warp_hcell.mesostructures.mesostructure import from_description
+from warp_hcell.mesostructures.files import from_description
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.core.provenance import git_revision
 

@@ -50,7 +50,8 @@ from warp_hcell.core.cli import (
     set_verbosity,
 )
 from warp_hcell.core.files import atomic_write, check_output_path
-from warp_hcell.mesostructures.mesostructure import h_cell, Mesostructure
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.mesostructure import Mesostructure
 from warp_hcell.core.parameters import CellDefaults, DatabaseSettings
 
 PATH_HEADER = ("d_eps_n", "d_eps_t")

@@ -8,7 +8,7 @@ topology (``DemCellState.model.meso``) and ``state_to_arrays`` writes it out, so
 ``state_from_arrays`` needs nothing else.
 
 Sign convention: compression and contraction positive. The DEM's tension-positive
-Love-Weber sum is converted in ``warp_hcell.database.learning_state.to_compression_positive`` only. V_cell is the area of the
+Love-Weber sum is converted in ``warp_hcell.dem.love_weber.to_compression_positive`` only. V_cell is the area of the
 polygon through the centres of the outer (driven) grains: the hexagon for the H-cell.
 """
 
@@ -23,8 +23,15 @@ import numpy as np
 
 from warp_hcell.core.contract import CellResponse
 from warp_hcell.dem.integrator import DemIntegrator
-from warp_hcell.database.learning_state import hcell_observables, to_compression_positive
-from warp_hcell.mesostructures.mesostructure import Mesostructure, TOPOLOGY_ARRAYS, topology_arrays
+from warp_hcell.dem.love_weber import to_compression_positive
+from warp_hcell.mesostructures.files import with_declarations
+from warp_hcell.mesostructures.mesostructure import (
+    TOPOLOGY_ARRAYS,
+    TOPOLOGY_FIELDS,
+    Mesostructure,
+    evaluate_observables,
+    topology_arrays,
+)
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings
 from warp_hcell.dem.state import DemState, StatePool
@@ -141,10 +148,8 @@ class DemCell:
 
         Always: ``l1, l2, area`` [m, m^2], ``S_nn, S_tt, S_nt`` [N m] (compression positive),
         ``n_contacts`` (closed contacts), ``substeps`` and ``converged`` of the last step, and
-        grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label). H-cells also give ``d1, d2``
-        [m], ``alpha_deg`` [deg], ``N1, N2, T1`` [N] (T1 > 0 resists opening) and ``closed1,
-        closed2`` (bool), measured at the reference contacts 1-2 and 2-3 (equal to the other
-        type-1 / type-2 contacts by symmetry).
+        grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label); then the observables the
+        mesostructure declares (``Mesostructure.observables``).
         """
         arrays = state.dem.to_numpy()
         meso = state.model.meso
@@ -156,11 +161,11 @@ class DemCell:
             "S_nt": response.moment[:, 0, 1], "n_contacts": arrays["contact"].sum(axis=1),
             "substeps": arrays["substeps"].copy(), "converged": arrays["converged"] == 1,
         }
-        if meso.is_h_cell:
+        if meso.observables:
             branch = x[:, meso.pairs[:, 1]] - x[:, meso.pairs[:, 0]]
             unit = branch / np.hypot(branch[..., 0], branch[..., 1])[..., None]
             normal = 0.0 - np.sum(arrays["contact_force"] * unit, axis=-1)
-            obs.update(hcell_observables(meso, x, normal, arrays["shear_force"], arrays["contact"]))
+            obs.update(evaluate_observables(meso, x, normal, arrays["shear_force"], arrays["contact"]))
         for g in range(meso.n_grains):
             obs[f"x_n{g + 1}"] = x[:, g, 0].copy()
             obs[f"x_t{g + 1}"] = x[:, g, 1].copy()
@@ -184,10 +189,10 @@ class DemCell:
         """Inverse of ``state_to_arrays``; the topology template is rebuilt from the first cell."""
         arrays = {k: np.asarray(arrays[k])
                   for k in (*_MODEL_ARRAYS, *TOPOLOGY_ARRAYS, *(f.name for f in fields(DemState)))}
-        meso = Mesostructure(name=f"{arrays['radius'].shape[1]}-grain cell from state arrays",
-                             radius=arrays["radius"][0], position=arrays["reference_position"][0],
-                             cell_size=arrays["reference_cell_size"][0],
-                             **{k: arrays[k][0] for k in TOPOLOGY_ARRAYS})
+        meso = with_declarations(Mesostructure(
+            name=f"{arrays['radius'].shape[1]}-grain cell from state arrays", radius=arrays["radius"][0],
+            position=arrays["reference_position"][0], cell_size=arrays["reference_cell_size"][0],
+            **{field: arrays[name][0] for name, field in TOPOLOGY_FIELDS.items()}))
         model = DemModel.from_reference(meso, arrays["radius"], arrays["reference_position"],
                                         arrays["reference_cell_size"], contact_law=self.contact_law,
                                         settings=self.settings, device=self.device)
