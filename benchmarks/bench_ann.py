@@ -31,7 +31,8 @@ import torch
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.orientation import localise, orientations
-from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import CellDefaults
 
 

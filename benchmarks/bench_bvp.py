@@ -21,7 +21,7 @@ from homogenization import orientation
 from homogenization.backends import make_cell_model
 from homogenization.cli.bvp import element_counts
 from homogenization.material import HomogenisedMaterial
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 
 P0 = 5.85e6
 ALPHA0 = 40.0

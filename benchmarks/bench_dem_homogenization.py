@@ -39,7 +39,7 @@ import numpy as np
 from homogenization import driver, figures, loading, orientation
 from homogenization.figure_style import number
 from homogenization.backends import make_cell_model
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import DemSettings
 from warp_hcell.core.provenance import git_revision
 

@@ -1,7 +1,7 @@
 """python benchmarks/bench_dem_kernel.py [--sizes 1e3,1e4,1e5,3e5] [--increment 1e-5]
 
 Throughput of the meso-DEM cell step (H-cells), in cell-substeps per second: the Warp kernel
-on 1 and 2 CPU threads and the numpy engine of the same step, side by side, plus YADE if
+on 1 and 2 CPU threads and the numpy oracle of the same step (``tests/dem_oracle.py``), side by side, plus YADE if
 ``benchmarks/results/yade_throughput.json`` exists (key ``cell_substeps_per_s``).
 
 Each size: cells with random alpha0 in [35, 80] deg are compressed isotropically (not
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -55,8 +56,11 @@ def prepared_batch(n_cells: int, increment: float, device: str):
 
 def measure(model, state, d_eps, engine: str, threads: int, repeat: int) -> tuple[float, float, float]:
     """Best wall time [s], its CPU time [s] and the mean substeps per cell of one step."""
-    from warp_hcell.dem.integrator import DemIntegrator, NumpyIntegrator
+    from warp_hcell.dem.integrator import DemIntegrator
     from warp_hcell.dem.state import DemState
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from dem_oracle import NumpyIntegrator  # the numpy oracle of the kernel, kept with the tests
 
     integrator = DemIntegrator(model, threads=threads) if engine == "warp" else NumpyIntegrator(model)
     out = DemState.empty(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)

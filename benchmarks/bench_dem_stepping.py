@@ -47,7 +47,7 @@ from homogenization import driver, figures, loading
 from homogenization.figure_style import apply_style, GRID, number
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.builders import resolve_mesostructure
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.core.provenance import git_revision
 

@@ -30,7 +30,7 @@ from tangent_fd import fd_tangent, fd_tangent_fixed_schedule  # noqa: E402
 from homogenization import driver, loading  # noqa: E402
 from homogenization.backends import make_cell_model  # noqa: E402
 from warp_hcell.dem.cell import DemCell  # noqa: E402
-from warp_hcell.mesostructures.mesostructure import h_cell  # noqa: E402
+from warp_hcell.mesostructures.hcell import h_cell  # noqa: E402
 from warp_hcell.core.parameters import ContactLaw, DemSettings  # noqa: E402
 from warp_hcell.dem.tangent import sliding_contacts  # noqa: E402
 

@@ -18,14 +18,57 @@ import hashlib
 import os
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 
 from warp_hcell.database import format as database, generate
-from warp_hcell.core.execution import DaskExecution, InProcess, ProcessPool
-from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure
+from warp_hcell.core.execution import DaskExecution, InProcess
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import CellDefaults, DatabaseSettings
+
+
+_SHARED: dict = {}
+
+
+def _keep_shared(shared) -> None:
+    _SHARED["value"] = shared
+
+
+def _call_with_shared(fn, item):
+    return fn(_SHARED["value"], item)
+
+
+class ProcessPool:
+    """The standard-library process pool that ran the chunks before Dask: ``workers`` spawned
+    processes per ``map``, ``shared`` passed once per process (an execution of
+    ``warp_hcell.core.execution``'s interface, kept here for the comparison)."""
+
+    def __init__(self, workers: int = 2):
+        self.n_workers = int(workers)
+
+    def map(self, fn, shared, items):
+        """Yield ``(item, fn(shared, item))`` as the tasks complete."""
+        items = list(items)
+        if not items:
+            return
+        with ProcessPoolExecutor(self.n_workers, mp_context=get_context("spawn"), initializer=_keep_shared,
+                                 initargs=(shared,)) as pool:
+            futures = {pool.submit(_call_with_shared, fn, item): item for item in items}
+            for future in as_completed(futures):
+                yield futures[future], future.result()
+
+    def close(self) -> None:
+        """Nothing to release (pools live for one ``map``)."""
+
+    def __enter__(self) -> "ProcessPool":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 EXECUTIONS = (("in process", 2, lambda: InProcess()), ("dask, 1 worker", 1, lambda: DaskExecution(workers=1)),
               ("dask, 2 workers", 1, lambda: DaskExecution(workers=2)), ("process pool, 2", 1, lambda: ProcessPool(2)))

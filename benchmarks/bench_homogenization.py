@@ -16,7 +16,7 @@ import time
 
 from homogenization import driver, loading, orientation
 from homogenization.backends import BACKENDS, make_cell_model
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 
 

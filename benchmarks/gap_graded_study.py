@@ -22,7 +22,8 @@ from matplotlib.figure import Figure
 from homogenization import figures, io
 from homogenization.cli import sweep
 from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS, number
-from warp_hcell.mesostructures.builders import parse_mesostructure, pore_ratio
+from warp_hcell.mesostructures.builders import parse_mesostructure
+from warp_hcell.mesostructures.hcell import pore_ratio
 
 LIQUEFACTION = 0.2
 """p/p0 at eps1 = 15 % below which a sample is said to liquefy [-]."""

@@ -30,7 +30,6 @@ from homogenization import orientation as orient_mod
 from homogenization.invariants import deviator, mean_stress
 from homogenization.loading import Programme, Step, validate
 from homogenization.material import HomogenisedMaterial, MaterialUpdate
-from warp_hcell.mesostructures.builders import h_cell_alpha0
 from warp_hcell.core.contract import CellModel
 from warp_hcell.core.cli import progress_bar
 from warp_hcell.mesostructures.mesostructure import Mesostructure
@@ -73,8 +72,8 @@ class Record:
         theta_deg: cell-axis orientations [deg], shape (n_cells,).
         weights: fabric weights [-], shape (n_cells,).
         V0: initial macro volume [m^2].
-        alpha0_deg: initial opening angle [deg] of the mesostructure where it carries H-cell
-            labels (``warp_hcell.mesostructures.builders.h_cell_alpha0``); NaN otherwise.
+        parameters: the named parameters of the mesostructure (``Mesostructure.parameters``,
+            e.g. ``alpha0_deg`` [deg]), copied without knowing what they are.
         backend: name of the cell model.
         programme: the loading programme that was run.
         final_state: ``cell_model.state_to_arrays`` of the last state (resume, inspection).
@@ -100,7 +99,7 @@ class Record:
     theta_deg: np.ndarray
     weights: np.ndarray
     V0: float
-    alpha0_deg: float
+    parameters: dict[str, float]
     backend: str
     programme: Programme
     final_state: dict[str, np.ndarray] = field(default_factory=dict)
@@ -338,10 +337,6 @@ class _Runner:
                                f"before reaching {step.stop_at_p:g} N/m; allow more strain")
 
 
-def _nan_if_none(value: float | None) -> float:
-    return float("nan") if value is None else float(value)
-
-
 def run(
     cell_model: CellModel,
     programme: Programme,
@@ -361,7 +356,7 @@ def run(
         cell_model: any ``CellModel`` backend.
         programme: loading steps, run in order (see ``homogenization.loading``).
         mesostructure: the cell every orientation starts from (e.g.
-            ``warp_hcell.mesostructures.mesostructure.h_cell(alpha0_deg, radius)``, a builder spec or a file).
+            ``warp_hcell.mesostructures.hcell.h_cell(alpha0_deg, radius)``, a builder spec or a file).
         n_orientations: number N of cell orientations theta_k = k pi / N.
         fabric_anisotropy: a_f in [0, 1) of the weights w(theta) (0 = isotropic fabric).
         fabric_direction_deg: preferred fabric direction b_f [deg].
@@ -425,7 +420,7 @@ def run(
         theta_deg=np.degrees(orient.theta),
         weights=np.array(orient.weights),
         V0=V0,
-        alpha0_deg=_nan_if_none(h_cell_alpha0(mesostructure)),
+        parameters=dict(mesostructure.parameters),
         backend=str(getattr(cell_model, "name", type(cell_model).__name__)),
         programme=programme,
         final_state={name: np.array(v) for name, v in cell_model.state_to_arrays(runner.state).items()},

@@ -34,7 +34,8 @@ from matplotlib.lines import Line2D
 from homogenization import invariants, io, run_labels
 from homogenization.driver import Record
 from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS, PNG_DPI
-from warp_hcell.core.cli import UserError, atomic_write
+from warp_hcell.core.cli import UserError
+from warp_hcell.core.files import atomic_write
 
 FOURTH_PANELS = ("q/p", "W2")
 """Choices of the fourth panel."""
@@ -235,7 +236,7 @@ def describe_run(run: Run) -> dict[str, str]:
     """``run_labels.describe`` of a run, with the backend, alpha0 and N of its record as fall-backs."""
     record = run.record
     return run_labels.describe(run.parameters, test=programme_name(run), backend=record.backend,
-                               alpha0_deg=record.alpha0_deg, n_orientations=record.theta_deg.size)
+                               alpha0_deg=record.parameters.get("alpha0_deg"), n_orientations=record.theta_deg.size)
 
 
 class NoCriticalState(ValueError):

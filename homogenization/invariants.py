@@ -1,8 +1,7 @@
 """2D stress invariants and the second-order work (spec section 9).
 
 p = (sigma11 + sigma22) / 2 (mean stress), q = sigma11 - sigma22 (deviator; q > 0 when the
-11 direction is the more compressed one), t = q / 2 (half-difference, offered as an option),
-W2 = d_sigma : d_eps (second-order work per increment).
+11 direction is the more compressed one), W2 = d_sigma : d_eps (second-order work per increment).
 
 Sign convention: compression and contraction positive. Stresses in N/m (2D), strains [-].
 All functions accept scalars or arrays of equal shape and work elementwise.
@@ -21,11 +20,6 @@ def mean_stress(sigma11, sigma22):
 def deviator(sigma11, sigma22):
     """q = sigma11 - sigma22 [N/m], positive when sigma11 is the larger compression."""
     return np.asarray(sigma11) - np.asarray(sigma22)
-
-
-def half_deviator(sigma11, sigma22):
-    """t = (sigma11 - sigma22) / 2 [N/m], the radius of Mohr's circle when sigma12 = 0."""
-    return 0.5 * deviator(sigma11, sigma22)
 
 
 def volumetric_strain(eps11, eps22):

@@ -1,6 +1,6 @@
 """Run files: ``DIR/run.h5`` (everything) and ``DIR/curve.csv`` (the macro curve).
 
-``write_run(directory, record, ...)`` writes both through ``cli.atomic_write`` so that a
+``write_run(directory, record, ...)`` writes both through ``files.atomic_write`` so that a
 failed run never destroys older output; ``read_run(path)`` reads ``run.h5`` back into a
 ``driver.Record`` and raises ``cli.UserError`` (one line) for missing or corrupt files.
 
@@ -14,7 +14,8 @@ stresses and strains, ``sign_convention``):
 - ``/snapshots/{increment, stage}`` (n_snapshots,) and ``/snapshots/cells/<name>``
   (n_snapshots, n_cells): per-cell observables;
 - ``/final_state/<name>``: the backend state after the last increment;
-- root attributes: backend, alpha0_deg, V0, the volume rule, the sign convention, the
+- root attributes: backend, the mesostructure's parameters (``cell_parameters`` lists their
+  names, e.g. alpha0_deg), V0, the volume rule, the sign convention, the
   programme and the parameters (JSON: with the DEM settings and threads, the ANN model's
   path and sha256 where those backends ran), the seed, the command line, the package
   version of the installed distribution, git revision and library versions.
@@ -44,7 +45,8 @@ import h5py
 import numpy as np
 
 from homogenization import loading
-from warp_hcell.core.cli import atomic_write, UserError
+from warp_hcell.core.cli import UserError
+from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 from homogenization.driver import Record
 from homogenization.orientation import VOLUME_RULE
@@ -121,7 +123,9 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
     with atomic_write(path) as tmp, _new_h5(tmp) as f:
         f.attrs["format"] = FORMAT
         f.attrs["backend"] = record.backend
-        f.attrs["alpha0_deg"] = record.alpha0_deg
+        f.attrs["cell_parameters"] = json.dumps(list(record.parameters))
+        for name, value in record.parameters.items():
+            f.attrs[name] = float(value)
         f.attrs["V0"] = record.V0
         f.attrs["V0_units"] = "m^2"
         f.attrs["volume_rule"] = VOLUME_RULE
@@ -178,6 +182,15 @@ def _decode(values: np.ndarray) -> np.ndarray:
     return np.array([v.decode() if isinstance(v, bytes) else str(v) for v in values])
 
 
+def _cell_parameters(attrs: Mapping[str, Any]) -> dict[str, float]:
+    """The mesostructure's parameters of a run file: those ``cell_parameters`` names; a file without
+    that list holds the one root attribute ``alpha0_deg`` (NaN for a cell that has none)."""
+    if "cell_parameters" in attrs:
+        return {name: float(attrs[name]) for name in json.loads(attrs["cell_parameters"])}
+    value = float(attrs.get("alpha0_deg", float("nan")))
+    return {} if value != value else {"alpha0_deg": value}
+
+
 def read_run(path: Path) -> StoredRun:
     """Read a run file written by ``write_run_h5``.
 
@@ -205,7 +218,7 @@ def read_run(path: Path) -> StoredRun:
                 theta_deg=f["orientations/theta_deg"][()],
                 weights=f["orientations/weights"][()],
                 V0=float(attrs["V0"]),
-                alpha0_deg=float(attrs["alpha0_deg"]),
+                parameters=_cell_parameters(attrs),
                 backend=str(attrs["backend"]),
                 programme=loading.from_dict(attrs["programme"]),
                 final_state={name: ds[()] for name, ds in f["final_state"].items()},

@@ -17,7 +17,9 @@ import torch
 
 from training import cell_physics
 from warp_hcell.dem.cell import DemCell
-from warp_hcell.mesostructures.mesostructure import describe, description_sha256, h_cell, Mesostructure
+from warp_hcell.mesostructures.files import describe, description_sha256
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.mesostructure import Mesostructure
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 
 

@@ -1,99 +1,75 @@
-"""Conformance of every registered backend to the cell contract (warp_hcell.core.contract).
+"""Conformance of every registered backend and every builder to the cell contract.
 
-One suite, parametrised over ``homogenization.backends.BACKENDS``, so that a backend added to
-the registry is checked by the same rules as the others: it is a ``CellModel``; ``step`` is
-pure (the input state is untouched) and deterministic; ``take`` and the array round trip
-restore cells exactly; a cell's result does not depend on the batch it is stepped in; the
-response has the documented shapes, a positive area and a moment, symmetric to 1e-4 of its
-largest component, whose diagonal is compressive after isotropic compression.
+``warp_hcell.core.checks.check_cell_model`` (purity, take and the array round trip, batch
+invariance, tangent against central differences, response shapes and signs, observables)
+runs over every backend of ``homogenization.backends.BACKENDS`` times every builder kind of
+``warp_hcell.mesostructures.builders`` and the shipped mesostructure files, where the backend
+models the cell (the analytical backend: the plain H-cell; the shipped ANN model: the H-cell's
+learning state). A backend added to the registry, or a builder added to the specs, is checked
+by the same rules. The check itself must catch a backend that breaks them.
 """
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from homogenization.backends import BACKENDS, make_cell_model
-from warp_hcell.core.contract import CellModel, CellResponse
-from warp_hcell.mesostructures.mesostructure import h_cell
+from cell_doubles import ElasticCell
+from homogenization.backends import BACKENDS, make_cell_model, mesostructure_refusal
+from warp_hcell.core.checks import check_cell_model
+from warp_hcell.mesostructures.builders import KINDS, resolve_mesostructure
+from warp_hcell.mesostructures.files import load_mesostructure
+from warp_hcell.mesostructures.hcell import h_cell
 
-N_CELLS = 6
-ISOTROPIC = 2e-3
-"""Isotropic precompression of the test cells [-] (p ~ 4e5 N/m): every contact closed."""
-
-
-@pytest.fixture(scope="module", params=sorted(BACKENDS))
-def backend(request):
-    return make_cell_model(request.param)
-
-
-@pytest.fixture(scope="module")
-def loaded(backend):
-    """Cells of several opening angles compressed isotropically, and mixed next increments."""
-    state = backend.init_state([h_cell(a) for a in np.linspace(40.0, 65.0, N_CELLS)], N_CELLS)
-    for _ in range(4):
-        state, _ = backend.step(state, np.full((N_CELLS, 2), ISOTROPIC / 4))
-    rng = np.random.default_rng(3)
-    d_eps = rng.normal(scale=2e-5, size=(N_CELLS, 2))
-    return state, d_eps
+DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
+SPECS = {"hcell": "hcell:alpha0=50", "hcell-unequal": "hcell-unequal:lateral=0.7",
+         "hcell-fines": "hcell-fines:alpha0=50,ratio=0.76", "hcell3d": "hcell3d:alpha0=55",
+         "hcell3d-fines": "hcell3d-fines:alpha0=55,ratio=0.5,n=0.2"}
+"""One spec per builder kind."""
+CELLS = [*SPECS.values(), *sorted(p.name for p in DATA.glob("*.toml"))]
+OPTIONS = {"dem": {"threads": 1}, "ann": {}, "analytical": {}}
 
 
-def _arrays(backend, state):
-    return {name: np.array(value) for name, value in backend.state_to_arrays(state).items()}
+def test_every_builder_kind_is_checked():
+    assert set(SPECS) == set(KINDS)
 
 
-def _same_arrays(a, b):
-    assert a.keys() == b.keys()
-    for name in a:
-        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+@pytest.mark.parametrize("name", sorted(BACKENDS))
+@pytest.mark.parametrize("cell", CELLS)
+def test_backend_honours_the_contract(name, cell):
+    meso = load_mesostructure(DATA / cell) if cell.endswith(".toml") else resolve_mesostructure(cell)
+    if mesostructure_refusal(name, meso) is not None:
+        pytest.skip(f"{name} does not model {cell}")
+    backend = make_cell_model(name, dim=meso.dim, **OPTIONS.get(name, {}))
+    if backend.name == "ann":
+        try:
+            backend.check_trained_on(meso)
+        except ValueError:
+            pytest.skip(f"the shipped model is not trained on {cell}")
+    check_cell_model(backend, meso)
+    assert BACKENDS[backend.name][meso.dim].endswith(type(backend).__name__)
 
 
-def test_is_a_cell_model_with_its_registry_name(backend):
-    assert isinstance(backend, CellModel)
-    assert BACKENDS[backend.name][2].endswith(type(backend).__name__)
+class _ImpureCell(ElasticCell):
+    """Writes into its input state: the check must refuse it."""
+
+    def step(self, state, d_eps_local, *, with_tangent=False):
+        state += d_eps_local
+        return state.copy(), self.response(state, with_tangent=with_tangent)
 
 
-def test_response_shapes_and_signs(backend, loaded):
-    state, _ = loaded
-    response = backend.response(state)
-    assert isinstance(response, CellResponse)
-    assert response.moment.shape == (N_CELLS, 2, 2) and response.area.shape == (N_CELLS,)
-    assert np.all(response.area > 0.0)
-    # S is symmetric for a cell in moment equilibrium; the meso-ANN's cells are in equilibrium
-    # only to its learned accuracy (measured asymmetry 4e-5 of max |S| in this state)
-    np.testing.assert_allclose(response.moment[:, 0, 1], response.moment[:, 1, 0], atol=1e-4 * np.abs(response.moment).max())
-    assert np.all(response.moment[:, 0, 0] > 0.0) and np.all(response.moment[:, 1, 1] > 0.0)
+class _WrongTangentCell(ElasticCell):
+    def response(self, state, *, with_tangent=False):
+        out = super().response(state, with_tangent=with_tangent)
+        if out.tangent is not None:
+            out.tangent[:] *= 1.5
+        return out
 
 
-def test_step_is_pure_and_deterministic(backend, loaded):
-    state, d_eps = loaded
-    before = _arrays(backend, state)
-    d_eps_copy = d_eps.copy()
-    first_state, first = backend.step(state, d_eps)
-    second_state, second = backend.step(state, d_eps)
-    _same_arrays(_arrays(backend, state), before)
-    np.testing.assert_array_equal(d_eps, d_eps_copy)
-    np.testing.assert_array_equal(first.moment, second.moment)
-    _same_arrays(_arrays(backend, first_state), _arrays(backend, second_state))
-    assert not np.array_equal(first.moment, backend.response(state).moment), "the increment changed nothing"
-
-
-def test_array_round_trip_restores_the_cells(backend, loaded):
-    state, d_eps = loaded
-    restored = backend.state_from_arrays(backend.state_to_arrays(state))
-    _same_arrays(_arrays(backend, restored), _arrays(backend, state))
-    np.testing.assert_array_equal(backend.step(restored, d_eps)[1].moment, backend.step(state, d_eps)[1].moment)
-
-
-def test_take_gathers_cells_with_repetition(backend, loaded):
-    state, d_eps = loaded
-    index = np.array([4, 0, 4, 2])
-    taken = backend.take(state, index)
-    _same_arrays(_arrays(backend, taken), {k: v[index] for k, v in _arrays(backend, state).items()})
-    np.testing.assert_array_equal(backend.step(taken, d_eps[index])[1].moment, backend.step(state, d_eps)[1].moment[index])
-
-
-def test_a_cells_result_does_not_depend_on_its_batch(backend, loaded):
-    state, d_eps = loaded
-    whole = backend.step(state, d_eps)[1].moment
-    for i in (0, N_CELLS - 1):
-        alone = backend.step(backend.take(state, np.array([i])), d_eps[i:i + 1])[1].moment
-        np.testing.assert_array_equal(alone[0], whole[i])
+def test_the_check_passes_a_conforming_double_and_catches_breaches():
+    check_cell_model(ElasticCell(), h_cell())
+    with pytest.raises(AssertionError, match="untouched"):
+        check_cell_model(_ImpureCell(), h_cell())
+    with pytest.raises(AssertionError, match="tangent vs central differences"):
+        check_cell_model(_WrongTangentCell(), h_cell())
+    assert np.isfinite(ElasticCell().k)

@@ -20,7 +20,7 @@ import pytest
 
 from homogenization.cli import biaxial, cell, hmodel
 from training import train
-from warp_hcell.core import cli
+from warp_hcell.core import cli, files
 from warp_hcell.database import clean, format as database
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -140,11 +140,11 @@ def test_train_ctrl_c_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypat
 
 def test_second_run_on_a_busy_output_exits_2(previous_run, tmp_path, capsys):
     before = snapshot(tmp_path)
-    with cli.output_lock(previous_run):
+    with files.output_lock(previous_run):
         assert cli.run_main(biaxial.main, TINY + ["--out", str(previous_run), "--overwrite"]) == 2
         assert "is being written by another run" in one_error_line(capsys)
         model = tmp_path / "model.pt"
-        with cli.output_lock(model):
+        with files.output_lock(model):
             assert train.run(["--data", "db.h5", "--out", str(model)]) == 2
             assert "is being written by another run" in one_error_line(capsys)
     assert snapshot(tmp_path) == before  # the lock files went with the locks
@@ -205,15 +205,15 @@ def test_killed_run_keeps_the_previous_output_and_the_next_run_cleans_up(previou
 @pytest.mark.parametrize("exchange", [True, False], ids=["renameat2", "two-renames"])
 def test_output_folder_swaps_in_the_new_set(tmp_path, monkeypatch, exchange):
     if not exchange:
-        monkeypatch.setattr(cli, "_exchange", lambda a, b: False)
+        monkeypatch.setattr(files, "_exchange", lambda a, b: False)
     out = tmp_path / "out"
     out.mkdir()
     (out / "old.txt").write_text("old")
-    with cli.output_folder(out) as work:
+    with files.output_folder(out) as work:
         assert not (out / "new.txt").exists()
         (work / "new.txt").write_text("new")
     assert [p.name for p in out.iterdir()] == ["new.txt"] and [p.name for p in tmp_path.iterdir()] == ["out"]
-    with pytest.raises(RuntimeError), cli.output_folder(out) as work:
+    with pytest.raises(RuntimeError), files.output_folder(out) as work:
         (work / "half.txt").write_text("half")
         raise RuntimeError
     assert [p.name for p in out.iterdir()] == ["new.txt"] and [p.name for p in tmp_path.iterdir()] == ["out"]
@@ -224,6 +224,6 @@ def test_output_folder_restores_a_set_left_between_the_two_renames(tmp_path):
     stranded = tmp_path / ".out.replaced"  # killed after renaming the old set away
     stranded.mkdir()
     (stranded / "run.h5").write_text("previous")
-    with pytest.raises(KeyboardInterrupt), cli.output_folder(out):
+    with pytest.raises(KeyboardInterrupt), files.output_folder(out):
         raise KeyboardInterrupt
     assert (out / "run.h5").read_text() == "previous" and [p.name for p in tmp_path.iterdir()] == ["out"]

@@ -9,7 +9,8 @@ from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell, AnalyticalState
 from warp_hcell.core.contract import CellModel
 from warp_hcell.mesostructures.builders import resolve_mesostructure
-from warp_hcell.mesostructures.mesostructure import describe, from_description, h_cell
+from warp_hcell.mesostructures.files import describe, from_description
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import ContactLaw
 
 LAW = ContactLaw()

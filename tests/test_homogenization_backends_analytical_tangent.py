@@ -5,7 +5,7 @@ import pytest
 
 from homogenization.backends.analytical import AnalyticalCell
 from tangent_fd import fd_tangent, relative_error
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import ContactLaw
 
 LAW = ContactLaw()

@@ -19,7 +19,8 @@ from training.checkpoint import CheckpointError
 from training.train import main as train_main
 from warp_hcell.dem.cell import DemCell
 from warp_hcell.mesostructures.builders import resolve_mesostructure
-from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import ContactLaw
 
 LAW, RADIUS = ContactLaw(), 0.5

@@ -52,14 +52,11 @@ def test_positions_follow_the_spec_table_and_the_length_definitions():
     np.testing.assert_allclose(pos, _spec_positions(d1, d2, alpha), atol=1e-14)
     np.testing.assert_allclose(pos[:, 0, 0] - pos[:, 3, 0], l1, rtol=1e-14)  # centre 1 to centre 4
     np.testing.assert_allclose(pos[:, 5, 1] - pos[:, 1, 1], l2, rtol=1e-14)  # between the columns
-    np.testing.assert_allclose(hcell.grain_positions_from_alpha(l1, l2, alpha), pos, atol=1e-14)
 
 
-def test_branches_round_trip_from_y2_and_from_alpha():
+def test_branches_round_trip_from_alpha():
     d1, d2, alpha = _random_branches()
     l1, l2 = hcell.lengths(d1, d2, alpha)
-    r1, r2, ra = hcell.branches_from_y2(l1, l2, d2 / 2)
-    np.testing.assert_allclose(np.stack([r1, r2, ra]), np.stack([d1, d2, alpha]), rtol=1e-13)
     s1, s2 = hcell.branches_from_alpha(l1, l2, alpha)
     np.testing.assert_allclose(np.stack([s1, s2]), np.stack([d1, d2]), rtol=1e-13)
 

@@ -14,7 +14,7 @@ from homogenization.cli import bvp
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from warp_hcell.core.cli import run_main
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 
 P0 = 5.85e6
 TINY = ["--alpha0", "40", "--p0", "5.85e6", "--eps-max", "0.01", "--increment", "1e-3", "--orientations", "12",

@@ -20,7 +20,7 @@ import pytest
 
 from homogenization import driver, io, loading
 from homogenization.backends import make_cell_model
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import DemSettings, LoadingDefaults
 
 AGREEMENT = 0.01

@@ -11,7 +11,7 @@ from cell_doubles import ElasticCell
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.loading import Step
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import LoadingDefaults
 
 # docs/model.md, "Reference response" (independent implementation): per row the shear-stage values.

@@ -14,7 +14,7 @@ from homogenization.fe import output as fe_output
 from homogenization.backends import make_cell_model
 from homogenization.figure_style import TickFormatter
 from warp_hcell.core.cli import run_main
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 
 
 @pytest.fixture(scope="module")

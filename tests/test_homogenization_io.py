@@ -12,7 +12,7 @@ import pytest
 from homogenization import driver, io, loading
 from homogenization.backends import make_cell_model
 from warp_hcell.core.cli import UserError
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from cell_doubles import ElasticCell
 from homogenization import orientation
 from homogenization.backends import make_cell_model
 from homogenization.material import HomogenisedMaterial
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 
 
 def _loaded(model, n_orientations=24, alpha0=(40.0, 55.0, 40.0)):

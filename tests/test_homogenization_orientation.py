@@ -9,7 +9,7 @@ import pytest
 
 from homogenization import orientation
 from homogenization.backends import make_cell_model
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 
 
 def test_angles_and_isotropic_weights():

@@ -12,7 +12,7 @@ from cell_doubles import ElasticCell
 from homogenization import driver, figures, loading
 from homogenization.cli import plot
 from homogenization.backends import make_cell_model
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 
 P0 = 2e5
 

@@ -13,7 +13,7 @@ from homogenization import io
 from homogenization.cli import sweep
 from warp_hcell.core import execution
 from warp_hcell.core.cli import run_main
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import LoadingDefaults
 from dask_cluster import free_port, local_cluster
 

@@ -8,7 +8,8 @@ import torch
 from dem_database import build
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
 from training.train import main
-from warp_hcell.mesostructures.mesostructure import describe, from_description, h_cell, load_mesostructure
+from warp_hcell.mesostructures.files import describe, from_description, load_mesostructure
+from warp_hcell.mesostructures.hcell import h_cell
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,7 @@ from training.inference import FastAdvance, FastIncrement
 from training.perceptron import BLOCK as MLP_BLOCK
 from training.network import MesoNet, RELAXATION_RAMP
 from warp_hcell.mesostructures.builders import resolve_mesostructure
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import ContactLaw
 
 ROOT = Path(__file__).resolve().parents[1]

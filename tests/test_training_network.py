@@ -6,7 +6,7 @@ import torch
 
 from training.cell_physics import CellSchema
 from training.network import MesoNet, n_features
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 
 
 @pytest.fixture(scope="module")

@@ -10,17 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from warp_hcell.mesostructures.hcell import build_h_cell, plain_alpha0 as plain_h_cell_alpha0, pore_ratio
 from warp_hcell.mesostructures.builders import (
-    build_h_cell,
-    h_cell_alpha0,
     mesostructure_arg,
     parse_mesostructure,
-    plain_h_cell_alpha0,
-    pore_ratio,
     resolve_mesostructure,
     split_mesostructure_list,
 )
-from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure, MesostructureError
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.files import describe, from_description, load_mesostructure
+from warp_hcell.mesostructures.mesostructure import MesostructureError
 from warp_hcell.dem.model import initial_contacts
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
@@ -32,8 +31,8 @@ def assert_same_geometry(a, b, atol=1e-12):
     np.testing.assert_allclose(a.cell_size, b.cell_size, rtol=0, atol=atol)
     assert a.driven.tolist() == b.driven.tolist()
     assert a.outer.tolist() == b.outer.tolist()
-    assert dict(zip(map(tuple, a.pairs.tolist()), a.pair_type.tolist())) == \
-        dict(zip(map(tuple, b.pairs.tolist()), b.pair_type.tolist()))
+    assert dict(zip(map(tuple, a.pairs.tolist()), a.pair_label.tolist())) == \
+        dict(zip(map(tuple, b.pairs.tolist()), b.pair_label.tolist()))
 
 
 def test_unequal_spec_is_the_shipped_lateral_file():
@@ -90,12 +89,19 @@ def test_plain_h_cell_is_recognised_and_nothing_else():
     assert plain_h_cell_alpha0(load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")) is None
 
 
-def test_h_cell_alpha0_of_any_cell_with_h_cell_labels():
-    assert h_cell_alpha0(resolve_mesostructure("hcell-fines:alpha0=50,ratio=0.2")) == 50.0
-    assert h_cell_alpha0(resolve_mesostructure("hcell-unequal:alpha0=47.25,lateral=0.7")) == 47.25
-    assert h_cell_alpha0(load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")) == pytest.approx(55.0, abs=1e-9)
-    unlabelled = replace(h_cell(50.0), pair_type=None)
-    assert h_cell_alpha0(unlabelled) is None and plain_h_cell_alpha0(unlabelled) is None
+def test_every_cell_with_h_cell_labels_declares_alpha0_and_the_observables():
+    def alpha0(meso):
+        return meso.parameters.get("alpha0_deg")
+
+    assert alpha0(resolve_mesostructure("hcell-fines:alpha0=50,ratio=0.2")) == 50.0
+    assert alpha0(resolve_mesostructure("hcell-unequal:alpha0=47.25,lateral=0.7")) == 47.25
+    assert alpha0(load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")) == pytest.approx(55.0, abs=1e-9)
+    assert [o.name for o in h_cell(50.0).observables] == ["alpha_deg", "d1", "d2", "N1", "N2", "T1", "closed1",
+                                                          "closed2"]
+    unlabelled = replace(h_cell(50.0), pair_label=None, observables=(), parameters={})
+    assert alpha0(unlabelled) is None and plain_h_cell_alpha0(unlabelled) is None
+    assert alpha0(from_description(describe(unlabelled))) is None
+    assert from_description(describe(h_cell(50.0))).parameters == {"alpha0_deg": 50.0}
 
 
 def test_split_list_keeps_spec_keys_together():

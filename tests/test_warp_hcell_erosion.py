@@ -8,7 +8,8 @@ import pytest
 from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.dem.cell import DemCell
 from warp_hcell.dem.erosion import erode_arrays, erode_state, erodible_grains, remove_grains
-from warp_hcell.mesostructures.mesostructure import h_cell, MesostructureError
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.mesostructure import MesostructureError
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 
 LAW = ContactLaw()
@@ -22,10 +23,10 @@ def test_remove_grains_keeps_the_other_pairs_and_labels():
     kept = meso.pairs[removal.pair_index]
     assert not np.any(kept == 7) and removal.meso.n_pairs == 21
     np.testing.assert_array_equal(removal.meso.pairs, kept)
-    np.testing.assert_array_equal(removal.meso.pair_type, meso.pair_type[removal.pair_index])
+    np.testing.assert_array_equal(removal.meso.pair_label, meso.pair_label[removal.pair_index])
     both = remove_grains(meso, erodible_grains(meso)).meso
     np.testing.assert_array_equal(both.position, h_cell(50.0).position)
-    assert both.is_h_cell
+    assert both.observables == meso.observables and both.parameters == meso.parameters
 
 
 def test_removing_an_outer_grain_or_nothing_is_an_error():

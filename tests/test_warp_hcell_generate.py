@@ -20,17 +20,20 @@ from warp_hcell.database import exploration, format as database, generate, probi
 from warp_hcell.core import execution
 from warp_hcell.dem.cell import DemCell
 from warp_hcell.database.learning_state import evaluate, free_coordinates
-from warp_hcell.mesostructures.mesostructure import describe, description_sha256, h_cell, load_mesostructure
+from warp_hcell.mesostructures.files import describe, description_sha256, from_description, load_mesostructure
+from warp_hcell.mesostructures.hcell import StartCells, h_cell
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
-from warp_hcell.core.cli import output_lock
+from warp_hcell.core.files import output_lock
 from dask_cluster import free_port, local_cluster
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
-SMALL = DatabaseSettings(samples=2000, chunk_size=500, n_alpha0=2, alpha0_focus_deg=(55.0,),
+STARTS = StartCells(n_alpha0=2, alpha0_focus_deg=(55.0,))
+SMALL = DatabaseSettings(samples=2000, chunk_size=500,
                          precompression=(0.0, 1e-3, 1e-2), n_directions=8, sample_spacing=1e-2, leg_length=0.05,
                          leg_refinement=1)
 LATERAL = load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")
-FINE = replace(load_mesostructure(DATA / "h_cell_fine_grain.toml"), name="fine grain, no H-cell labels", pair_type=None)
+FINE = replace(load_mesostructure(DATA / "h_cell_fine_grain.toml"), name="fine grain, no H-cell labels",
+               pair_label=None, observables=(), parameters={})
 
 
 @pytest.fixture(autouse=True)
@@ -51,7 +54,7 @@ def h_db(tmp_path_factory):
     out = tmp_path_factory.mktemp("h") / "h.h5"
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(generate, "provenance", lambda: {"git_revision": "pinned-for-tests"})
-        generate.generate(h_cell(), SMALL, out, seed=3, starts=generate.h_cell_starts(SMALL), clean=True)
+        generate.generate(h_cell(), SMALL, out, seed=3, starts=STARTS.build(), clean=True)
     return database.read_database(out)
 
 
@@ -131,16 +134,16 @@ def test_file_describes_its_mesostructure_and_schema(h_db, fine_db):
     for (data, attrs), meso in ((h_db, h_cell()), (fine_db, FINE)):
         assert attrs["format_version"] == 2 and attrs["mesostructure"] == describe(meso)
         assert attrs["mesostructure_sha256"] == description_sha256(describe(meso))
-        assert describe(database.mesostructure_of(attrs)) == describe(meso)
+        assert describe(from_description(attrs["mesostructure"])) == describe(meso)
         schema = meso.schema()
         np.testing.assert_array_equal(data["schema/free_dofs"], schema.free_dofs)
         n = attrs["n_samples"]
         for group in database.STATE_GROUPS:
             assert data[f"{group}/free_position"].shape == (n, schema.n_free)
             assert data[f"{group}/shear_force"].shape == (n, schema.n_pairs)
-    assert FINE.schema().n_free == 6 and not fine_db[1]["is_h_cell"]
+    assert FINE.schema().n_free == 6 and not FINE.observables and not FINE.parameters
     assert not any(name.startswith("hcell/") or name == "alpha0_deg" for name in fine_db[0])
-    assert h_db[1]["is_h_cell"] and "hcell/before_N1" in h_db[0]
+    assert "hcell/before_N1" in h_db[0] and "alpha0_deg" in h_db[0] and "hcell/before_closed1" not in h_db[0]
 
 
 @pytest.mark.parametrize("which", ["h", "fine"])
@@ -422,7 +425,7 @@ def test_dask_scheduler_with_a_lost_worker_gives_the_local_file(tmp_path):
 def test_exploration_does_not_depend_on_how_start_cells_are_grouped():
     from warp_hcell.database import tasks
 
-    starts = generate.h_cell_starts(SMALL)
+    starts = STARTS.build()
     physics = tasks.Physics(ContactLaw(), describe(h_cell()), DemSettings(), "cpu", 1)
     inputs = tasks.ExploreInputs(physics, tuple(describe(s) for s in starts), SMALL)
     together = tasks.explore_starts(inputs, (0, 1, 2))
@@ -445,7 +448,7 @@ def test_explored_states_cover_constant_volume_homogenisation():
 
     settings = DatabaseSettings()
     meso = h_cell()
-    starts = generate.h_cell_starts(settings)
+    starts = StartCells().build()
     physics = tasks.Physics(ContactLaw(), describe(meso), DemSettings(), "cpu", 2)
     inputs = tasks.ExploreInputs(physics, tuple(describe(s) for s in starts), settings)
     states = tasks.explore_starts(inputs, tuple(range(len(starts))))

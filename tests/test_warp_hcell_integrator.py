@@ -3,14 +3,15 @@
 import numpy as np
 import pytest
 
-from warp_hcell.dem.integrator import DemIntegrator, MIN_CELLS_TO_SPLIT, NumpyIntegrator
+from dem_oracle import NumpyIntegrator, h_cell_model
+from warp_hcell.dem.integrator import DemIntegrator, MIN_CELLS_TO_SPLIT
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import DemSettings
 from warp_hcell.dem.state import DemState
 
 
 def _model(n_cells=3, **settings):
-    return DemModel.build_h_cell(np.linspace(40.0, 70.0, n_cells), n_cells, 0.5, settings=DemSettings(**settings))
+    return h_cell_model(np.linspace(40.0, 70.0, n_cells), n_cells, 0.5, settings=DemSettings(**settings))
 
 
 @pytest.mark.parametrize("d_eps, message", [

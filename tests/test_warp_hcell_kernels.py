@@ -6,8 +6,10 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from warp_hcell.dem.integrator import DemIntegrator, NumpyIntegrator
-from warp_hcell.mesostructures.mesostructure import load_mesostructure, Mesostructure
+from dem_oracle import NumpyIntegrator, h_cell_model
+from warp_hcell.dem.integrator import DemIntegrator
+from warp_hcell.mesostructures.files import load_mesostructure
+from warp_hcell.mesostructures.mesostructure import Mesostructure
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.dem.state import DemState
@@ -63,9 +65,9 @@ def test_no_tension_and_history_reset_on_opening(device):
 
 def test_touching_grains_are_contacts_from_the_start(device):
     """Exactly touching H-cell: six zero-force contacts; the smallest compression loads all of them."""
-    model = DemModel.build_h_cell(55.0, 1, 0.5, device=device)
+    model = h_cell_model(55.0, 1, 0.5, device=device)
     initial = model.state().to_numpy()
-    labelled = model.meso.pair_type > 0
+    labelled = model.meso.pair_label > 0
     assert np.all(initial["contact"][0, labelled] == 1) and np.all(initial["contact"][0, ~labelled] == 0)
     state = _run(model, model.state(), [(1e-7, 1e-7)]).to_numpy()
     normal = np.linalg.norm(state["contact_force"][0], axis=1)
@@ -86,7 +88,7 @@ def test_warp_and_numpy_engines_agree(device, source):
     n_cells = 12
     meso = None if source == "h_cell" else load_mesostructure(resources.files("warp_hcell") / "data" / source)
     alpha0 = rng.uniform(32.0, 85.0, n_cells)
-    build = (lambda dev: DemModel.build_h_cell(alpha0, n_cells, 0.5, device=dev)) if meso is None else (
+    build = (lambda dev: h_cell_model(alpha0, n_cells, 0.5, device=dev)) if meso is None else (
         lambda dev: DemModel.build(meso, n_cells, device=dev))
     increments = _mixed_increments(rng, n_cells, 4)
     warp_model, numpy_model = build(device), build("cpu")
@@ -100,7 +102,7 @@ def test_warp_and_numpy_engines_agree(device, source):
 
 def test_unloaded_free_grains_do_not_drift(device):
     """Open H-cells (mechanism state): free coordinates stay put and velocities are zero."""
-    model = DemModel.build_h_cell(np.array([45.0, 55.0, 70.0]), 3, 0.5, device=device)
+    model = h_cell_model(np.array([45.0, 55.0, 70.0]), 3, 0.5, device=device)
     state = _run(model, model.state(), [(2e-4, 2e-4), (-6e-4, -6e-4)])
     before = state.to_numpy()
     assert np.all(before["contact_force"] == 0.0)
@@ -135,7 +137,7 @@ def test_kernel_love_weber_sum_and_area_match_the_host_formulas(device):
     from warp_hcell.mesostructures.mesostructure import polygon_area
 
     rng = np.random.default_rng(11)
-    model = DemModel.build_h_cell(rng.uniform(35.0, 80.0, 8), 8, 0.5, device=device)
+    model = h_cell_model(rng.uniform(35.0, 80.0, 8), 8, 0.5, device=device)
     state = _run(model, model.state(), _mixed_increments(rng, 8, 3)).to_numpy()
     pairs = model.meso.pairs
     branch = state["position"][:, pairs[:, 1]] - state["position"][:, pairs[:, 0]]

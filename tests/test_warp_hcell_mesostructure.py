@@ -11,16 +11,12 @@ import pytest
 from warp_hcell.mesostructures.mesostructure import (
     Mesostructure,
     MesostructureError,
-    describe,
-    description_sha256,
-    from_description,
-    h_cell,
-    h_cell_reference,
-    load_mesostructure,
     per_cell,
     polygon_area,
     shares_state_schema,
 )
+from warp_hcell.mesostructures.files import describe, description_sha256, from_description, load_mesostructure
+from warp_hcell.mesostructures.hcell import h_cell, reference as h_cell_reference
 
 DATA = resources.files("warp_hcell") / "data"
 
@@ -45,12 +41,12 @@ def test_h_cell_matches_spec_geometry(alpha0_deg):
 def test_h_cell_labels_and_candidate_pairs():
     meso = h_cell(55.0, 0.5)
     assert meso.n_grains == 6 and meso.n_pairs == 15
-    labelled = {(int(i) + 1, int(j) + 1): int(k) for (i, j), k in zip(meso.pairs, meso.pair_type) if k}
+    labelled = {(int(i) + 1, int(j) + 1): int(k) for (i, j), k in zip(meso.pairs, meso.pair_label) if k}
     assert labelled == {(1, 2): 1, (1, 6): 1, (3, 4): 1, (4, 5): 1, (2, 3): 2, (5, 6): 2}
-    p12, p23 = meso.h_reference_pairs
+    p12, p23 = meso.pair_index(0, 1), meso.pair_index(1, 2)
     assert meso.pairs[p12].tolist() == [0, 1] and meso.pairs[p23].tolist() == [1, 2]
     # the six labelled contacts are touching: d1 = d2 = D
-    i, j = meso.pairs[meso.pair_type > 0].T
+    i, j = meso.pairs[meso.pair_label > 0].T
     np.testing.assert_allclose(np.linalg.norm(meso.position[j] - meso.position[i], axis=1), 1.0, rtol=1e-15)
 
 
@@ -64,9 +60,9 @@ def test_vectorised_reference_matches_builder():
 
 def test_shipped_lateral_file_is_a_touching_h_cell():
     meso = load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")
-    assert meso.is_h_cell and meso.n_grains == 6
+    assert meso.parameters and meso.observables and meso.n_grains == 6
     np.testing.assert_array_equal(meso.radius, [0.5, 0.35, 0.35, 0.5, 0.35, 0.35])
-    i, j = meso.pairs[meso.pair_type > 0].T
+    i, j = meso.pairs[meso.pair_label > 0].T
     gap = np.linalg.norm(meso.position[j] - meso.position[i], axis=1) - meso.radius[i] - meso.radius[j]
     np.testing.assert_allclose(gap, 0.0, atol=1e-12)
     a = math.radians(55.0)
@@ -87,7 +83,7 @@ def test_json_and_toml_describe_the_same_cell(tmp_path):
     path = tmp_path / "cell.json"
     path.write_text(json.dumps(tomllib.loads(source.read_text())))
     a, b = load_mesostructure(source), load_mesostructure(path)
-    for name in ("radius", "position", "driven", "pairs", "outer", "cell_size", "pair_type"):
+    for name in ("radius", "position", "driven", "pairs", "outer", "cell_size", "pair_label"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
 
 
@@ -122,7 +118,7 @@ def test_invalid_descriptions_give_one_line_errors(changes, message):
 
 def test_overlap_within_tolerance_is_accepted():
     meso = _square(position=[[0.5 - 1e-12, 0.5], [-0.5, 0.5], [-0.5, -0.5], [0.5, -0.5]])
-    assert meso.n_pairs == 4 and not meso.is_h_cell
+    assert meso.n_pairs == 4 and not meso.observables and not meso.parameters
 
 
 def test_loader_errors(tmp_path):
@@ -159,9 +155,9 @@ def test_description_round_trip_and_hash(name):
     text = describe(meso)
     again = from_description(text)
     assert describe(again) == text and json.loads(text) == json.loads(json.dumps(json.loads(text), sort_keys=True))
-    for field in ("radius", "position", "driven", "pairs", "outer", "cell_size", "pair_type"):
+    for field in ("radius", "position", "driven", "pairs", "outer", "cell_size", "pair_label"):
         np.testing.assert_array_equal(getattr(again, field), getattr(meso, field))
-    assert again.is_h_cell == meso.is_h_cell and again.contact_tolerance == meso.contact_tolerance
+    assert again.observables == meso.observables and again.parameters == meso.parameters and again.contact_tolerance == meso.contact_tolerance
     assert len(description_sha256(text)) == 64
     assert description_sha256(describe(h_cell(40.0 + 1e-9))) != description_sha256(describe(h_cell(40.0)))
 

@@ -5,14 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from warp_hcell.mesostructures.builders import build_h_cell_3d, plain_h_cell_3d_alpha0, resolve_mesostructure
-from warp_hcell.mesostructures.mesostructure import (
-    MesostructureError,
-    cell_measure,
-    describe,
-    from_description,
-    load_mesostructure,
-)
+from warp_hcell.mesostructures.builders import resolve_mesostructure
+from warp_hcell.mesostructures.files import describe, from_description, load_mesostructure
+from warp_hcell.mesostructures.hcell import build_h_cell_3d
+from warp_hcell.mesostructures.hcell import plain_alpha0_3d as plain_h_cell_3d_alpha0
+from warp_hcell.mesostructures.mesostructure import MesostructureError, cell_measure
 
 
 @pytest.mark.parametrize("alpha0", [46.0, 55.0, 80.0])
@@ -21,7 +18,7 @@ def test_every_labelled_contact_touches_and_nothing_else_does(alpha0):
     assert meso.dim == 3 and meso.n_grains == 10 and meso.n_pairs == 45
     branch = meso.position[meso.pairs[:, 1]] - meso.position[meso.pairs[:, 0]]
     gap = np.linalg.norm(branch, axis=1) - meso.radius[meso.pairs].sum(axis=1)
-    labelled = meso.pair_type > 0
+    labelled = meso.pair_label > 0
     assert labelled.sum() == 12
     np.testing.assert_allclose(gap[labelled], 0.0, atol=1e-12)
     assert np.all(gap[~labelled] > 1e-3)
@@ -68,7 +65,7 @@ def test_the_plain_cell_is_recognised_and_variants_are_not():
 def test_description_round_trip_and_file(tmp_path):
     meso = build_h_cell_3d(60.0, plane_angle_deg=80.0)
     again = from_description(describe(meso))
-    for name in ("radius", "position", "driven", "pairs", "outer", "cell_size", "pair_type"):
+    for name in ("radius", "position", "driven", "pairs", "outer", "cell_size", "pair_label"):
         assert np.array_equal(getattr(again, name), getattr(meso, name))
     grains = "\n".join(f"[[grains]]\nradius = {float(r)!r}\nposition = {list(map(float, x))}\n"
                        f"driven = {[bool(v) for v in d]}".replace("True", "true").replace("False", "false")

@@ -6,7 +6,10 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure, MesostructureError
+from dem_oracle import h_cell_model
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.files import load_mesostructure
+from warp_hcell.mesostructures.mesostructure import MesostructureError
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 
@@ -16,7 +19,7 @@ DATA = resources.files("warp_hcell") / "data"
 def test_per_cell_templates_equal_the_vectorised_h_cell_batch(device):
     alphas = [35.0, 55.0, 80.0]
     stacked = DemModel.build([h_cell(a, 0.5) for a in alphas], 3, device=device)
-    batch = DemModel.build_h_cell(np.array(alphas), 3, 0.5, device=device)
+    batch = h_cell_model(np.array(alphas), 3, 0.5, device=device)
     for name in ("radius", "inv_mass", "reference_position", "reference_cell_size", "dt", "force_floor"):
         assert np.array_equal(getattr(stacked, name).numpy(), getattr(batch, name).numpy()), name
 
@@ -38,11 +41,11 @@ def test_replicated_model_and_initial_state():
     assert model.n_cells == 4
     assert np.array_equal(state["position"], np.broadcast_to(h_cell(55.0, 0.5).position, (4, 6, 2)))
     assert np.all(state["velocity"] == 0.0) and np.all(state["shear_force"] == 0.0)
-    assert np.array_equal(state["contact"][0], (model.meso.pair_type > 0).astype(np.int32))
+    assert np.array_equal(state["contact"][0], (model.meso.pair_label > 0).astype(np.int32))
 
 
 def test_take_gathers_cells_with_repetition():
-    model = DemModel.build_h_cell(np.array([35.0, 55.0, 80.0]), 3, 0.5)
+    model = h_cell_model(np.array([35.0, 55.0, 80.0]), 3, 0.5)
     taken = model.take(np.array([2, 2, 0]))
     assert np.array_equal(taken.reference_position.numpy(), model.reference_position.numpy()[[2, 2, 0]])
     assert taken.meso is model.meso and taken.n_cells == 3

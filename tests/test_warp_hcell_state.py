@@ -2,15 +2,16 @@
 
 import numpy as np
 
+from dem_oracle import h_cell_model
 from warp_hcell.dem.cell import DemCell
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.dem.state import DemState, StatePool
 
 
 def test_numpy_round_trip_casts_to_the_field_types(device):
-    arrays = DemModel.build_h_cell(55.0, 2, 0.5).state().to_numpy()
+    arrays = h_cell_model(55.0, 2, 0.5).state().to_numpy()
     arrays["contact"] = arrays["contact"].astype(np.int64)  # e.g. read back from HDF5
     arrays["position"] = arrays["position"].astype(np.float32).astype(np.float64)
     state = DemState.from_numpy(arrays, device)

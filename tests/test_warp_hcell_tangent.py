@@ -28,7 +28,8 @@ import pytest
 from homogenization.backends.analytical import AnalyticalCell
 from tangent_fd import fd_tangent, fd_tangent_fixed_schedule, relative_error
 from warp_hcell.dem.cell import DemCell
-from warp_hcell.mesostructures.mesostructure import h_cell, load_mesostructure
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.dem.tangent import condensed_tangent, sliding_contacts
 

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 from homogenization.backends import make_cell_model
-from warp_hcell.mesostructures.mesostructure import h_cell
+from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import CellDefaults, ContactLaw
 
 HERE = Path(__file__).resolve().parent

@@ -27,8 +27,9 @@ import torch
 
 from training.dataset import SCHEMA_FIELDS, schema_from_arrays
 from training.network import ACTIVATION, MesoNet
-from warp_hcell.core.cli import atomic_write
-from warp_hcell.mesostructures.mesostructure import describe, description_sha256, from_description, Mesostructure, shares_state_schema
+from warp_hcell.core.files import atomic_write
+from warp_hcell.mesostructures.files import describe, description_sha256, from_description
+from warp_hcell.mesostructures.mesostructure import Mesostructure, shares_state_schema
 
 FORMAT = "meso-hmodel-ann"
 """Value of the metadata key ``format``."""

@@ -52,9 +52,17 @@ from training.dataset import (
 from training.network import DEFAULT_HIDDEN, MesoNet
 from training.rollout import rollout_report
 from warp_hcell.core.cli import (
-    Parser, check_output_path, command_prog, common_parser, output_lock, progress_bar, quiet_warp, run_main, say,
-    set_verbosity)
-from warp_hcell.mesostructures.mesostructure import from_description
+    Parser,
+    command_prog,
+    common_parser,
+    progress_bar,
+    quiet_warp,
+    run_main,
+    say,
+    set_verbosity,
+)
+from warp_hcell.core.files import check_output_path, output_lock
+from warp_hcell.mesostructures.files import from_description
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.core.provenance import git_revision
 

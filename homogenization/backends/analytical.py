@@ -37,7 +37,6 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from warp_hcell.mesostructures import hcell
-from warp_hcell.mesostructures.builders import plain_h_cell_alpha0
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell
 from warp_hcell.core.parameters import check_positive, ContactLaw
@@ -118,9 +117,9 @@ class AnalyticalCell(ArrayStateMixin):
 
         Raises:
             ValueError: (one line) ``meso`` is not the touching six-equal-grain H-cell of
-                ``warp_hcell.mesostructures.mesostructure.h_cell`` (``warp_hcell.mesostructures.builders.plain_h_cell_alpha0``).
+                ``warp_hcell.mesostructures.hcell.h_cell`` (``hcell.plain_alpha0``).
         """
-        plain = plain_h_cell_alpha0(meso)
+        plain = hcell.plain_alpha0(meso)
         if plain is None:
             raise ValueError(f"analytical models the plain H-cell only (six equal touching grains); mesostructure "
                              f"{meso.name!r} is not one: use --backend dem or ann")
@@ -130,7 +129,7 @@ class AnalyticalCell(ArrayStateMixin):
         """Touching, force-free cells: d1 = d2 = D at the opening angle alpha0 of each cell's mesostructure.
 
         Args:
-            mesostructure: the plain H-cell (``warp_hcell.mesostructures.mesostructure.h_cell(alpha0_deg, radius)``
+            mesostructure: the plain H-cell (``warp_hcell.mesostructures.hcell.h_cell(alpha0_deg, radius)``
                 with this backend's radius), or a sequence of n_cells of them.
             n_cells: number of cells.
 
@@ -347,6 +346,6 @@ class AnalyticalCell(ArrayStateMixin):
         ``x_n{i}, x_t{i}`` [m] for labels i = 1..6 (cell centre at the origin).
         """
         response = self.response(state)
-        return hcell.observables(state.l1, state.l2, state.d1, 2.0 * state.y2, state.alpha, state.N1, state.N2,
+        return hcell.closed_form_observables(state.l1, state.l2, state.d1, 2.0 * state.y2, state.alpha, state.N1, state.N2,
                                  state.T1, response.moment, response.area)
 

@@ -37,7 +37,7 @@ from homogenization.backends.analytical import AnalyticalCell, AnalyticalState
 from warp_hcell.core.contract import CellResponse
 from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures import hcell
-from warp_hcell.mesostructures.builders import plain_h_cell_3d_alpha0
+from warp_hcell.mesostructures.hcell import plain_alpha0_3d
 from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell, polyhedron_volume
 
 PLANE_B_GRAINS = (1, 2, 4, 5)
@@ -90,9 +90,9 @@ class Analytical3DCell:
 
         Raises:
             ValueError: (one line) ``meso`` is not the touching ten-equal-sphere cell of orthogonal planes
-                (``warp_hcell.mesostructures.builders.plain_h_cell_3d_alpha0``).
+                (``warp_hcell.mesostructures.hcell.plain_alpha0_3d``).
         """
-        plain = plain_h_cell_3d_alpha0(meso)
+        plain = plain_alpha0_3d(meso)
         if plain is None:
             raise ValueError(f"analytical models the plain ten-sphere H-cell only in 3D (equal touching spheres, planes "
                              f"90 deg apart); mesostructure {meso.name!r} is not one: use --backend dem or ann")

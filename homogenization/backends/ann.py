@@ -52,8 +52,8 @@ from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
-from warp_hcell.database.learning_state import hcell_observables
-from warp_hcell.mesostructures.mesostructure import from_description, Mesostructure, per_cell
+from warp_hcell.mesostructures.files import from_description
+from warp_hcell.mesostructures.mesostructure import evaluate_observables, Mesostructure, per_cell
 from warp_hcell.core.parameters import check_positive, ContactLaw
 
 DEFAULT_MODEL = "ann_default.pt"
@@ -206,9 +206,8 @@ class AnnCell(ArrayStateMixin):
         """Per-cell quantities, shape (n_cells,) each.
 
         Always ``l1, l2, area`` [m, m^2], ``S_nn, S_tt, S_nt`` [N m] (compression positive),
-        ``n_contacts`` and grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label); where the
-        model's mesostructure carries H-cell labels also ``d1, d2, alpha_deg, N1, N2, T1, closed1,
-        closed2`` (``warp_hcell.database.learning_state.hcell_observables``).
+        ``n_contacts`` and grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label), and the
+        observables the model's mesostructure declares (``Mesostructure.observables``).
         """
         with torch.inference_mode():
             x, c, force = self._forces(state)
@@ -219,8 +218,8 @@ class AnnCell(ArrayStateMixin):
             "S_nn": response.moment[:, 0, 0], "S_tt": response.moment[:, 1, 1], "S_nt": response.moment[:, 0, 1],
             "n_contacts": c.contact.cpu().numpy().sum(axis=1),
         }
-        if self.trained_on.is_h_cell:
-            obs.update(hcell_observables(self.trained_on, x, c.normal_force.cpu().numpy(), state.shear_force,
+        if self.trained_on.observables:
+            obs.update(evaluate_observables(self.trained_on, x, c.normal_force.cpu().numpy(), state.shear_force,
                                          c.contact.cpu().numpy()))
         for g in range(x.shape[1]):
             obs[f"x_n{g + 1}"] = x[:, g, 0].copy()

@@ -12,7 +12,7 @@ the same programme. One backend writes DIR/run.h5 and DIR/curve.csv; several wri
 DIR/<backend>/run.h5 and DIR/<backend>/curve.csv. Either way DIR/cambridge.png overlays
 all backends in the 2x2 figure (q-eps1, q-p, p-eps1 or eps_v-eps1, q/p-eps1).
 Every backend's cells start from one mesostructure: the H-cell of --alpha0 and --radius
-(``warp_hcell.mesostructures.mesostructure.h_cell``), or --mesostructure, a file or a builder spec
+(``warp_hcell.mesostructures.hcell.h_cell``), or --mesostructure, a file or a builder spec
 (``warp_hcell.mesostructures.builders``, e.g. ``hcell-fines:ratio=0.76``) built at --alpha0 unless the spec
 gives its own alpha0. A backend that does not model it (the analytical backend models the
 plain H-cell only; an ANN model the mesostructure it was trained on) stops the command before
@@ -45,20 +45,17 @@ from typing import Any, Sequence
 from homogenization import driver, figures, io, loading
 from homogenization.cli import plot
 from homogenization.backends import backend_class, BACKENDS, make_cell_model
-from warp_hcell.mesostructures.builders import h_cell_alpha0, mesostructure_arg, MESOSTRUCTURE_HELP
+from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.core.cli import (
     Parser,
     UserError,
     add_contact_law_arguments,
     alpha0_deg,
-    check_output_path,
     command_prog,
     common_parser,
     contact_law_from_args,
     finite_float,
     fraction,
-    output_folder,
-    output_lock,
     positive_float,
     positive_int,
     quiet_warp,
@@ -66,7 +63,9 @@ from warp_hcell.core.cli import (
     say,
     set_verbosity,
 )
-from warp_hcell.mesostructures.mesostructure import h_cell, Mesostructure
+from warp_hcell.core.files import check_output_path, output_folder, output_lock
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.mesostructure import Mesostructure
 from warp_hcell.core.parameters import CellDefaults, DatabaseSettings, LoadingDefaults
 from warp_hcell.core.provenance import command_line, file_sha256
 
@@ -324,7 +323,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     **provenance_of(name, model, options[name]),
                     "contact_law": asdict(law),
                     "radius": args.radius,
-                    "alpha0_deg": h_cell_alpha0(meso),
+                    "alpha0_deg": meso.parameters.get("alpha0_deg"),
                     "p0": next((s.stop_at_p for s in programme if s.stop_at_p is not None), None),
                     **settings,
                     "n_orientations": args.orientations,

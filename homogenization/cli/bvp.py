@@ -11,7 +11,7 @@ pressure p0) to eps1 = --eps-max, counted from the end of stage 1.
 left face or whose centre lies within W/4 of it (a zone of nearly fixed size, so it does not
 shrink with the mesh) the looser opening angle alpha0 + F (90 deg - alpha0). A softening local model localises in a band
 whose width is set by the mesh: results after the peak depend on --elements. The cells start
-from the H-cell of --alpha0 (``warp_hcell.mesostructures.mesostructure.h_cell``), or from --mesostructure (a
+from the H-cell of --alpha0 (``warp_hcell.mesostructures.hcell.h_cell``), or from --mesostructure (a
 file or a builder spec, built at --alpha0 unless it gives its own); the weak zone's cells are
 built at the looser angle, which needs a cell built from an opening angle.
 
@@ -42,12 +42,11 @@ from homogenization.fe import output as fe_output, solver as fe
 from homogenization.backends import BACKENDS, make_cell_model
 from homogenization.cli.biaxial import BACKEND_ONLY_OPTIONS, backend_options, check_models_take, DEVICE_BACKENDS
 from homogenization.material import HomogenisedMaterial
-from warp_hcell.mesostructures.builders import h_cell_alpha0, mesostructure_arg, MESOSTRUCTURE_HELP
+from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.core.cli import (
     Parser,
     UserError,
     alpha0_deg,
-    check_output_path,
     command_prog,
     common_parser,
     fraction,
@@ -59,7 +58,9 @@ from warp_hcell.core.cli import (
     say,
     set_verbosity,
 )
-from warp_hcell.mesostructures.mesostructure import h_cell, Mesostructure
+from warp_hcell.core.files import check_output_path
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.mesostructure import Mesostructure
 from warp_hcell.core.parameters import ALPHA_MAX_DEG, CellDefaults, ContactLaw, FeDefaults
 
 
@@ -156,8 +157,8 @@ def element_mesostructures(args: argparse.Namespace, weak: np.ndarray) -> tuple[
 
 
 def _alpha0_or_nan(meso: Mesostructure | None) -> float:
-    """alpha0 [deg] of a cell with H-cell labels (``h_cell_alpha0``); NaN otherwise or without a cell."""
-    alpha0 = None if meso is None else h_cell_alpha0(meso)
+    """The parameter alpha0_deg [deg] of a cell (``Mesostructure.parameters``); NaN for a cell without it or no cell."""
+    alpha0 = None if meso is None else meso.parameters.get("alpha0_deg")
     return float("nan") if alpha0 is None else alpha0
 
 
@@ -210,7 +211,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     reference = material_point_reference(model, sound, args) if args.compare else None
 
     parameters = {
-        "backend": args.backend, "alpha0_deg": h_cell_alpha0(sound), "p0": args.p0, "eps_max": args.eps_max,
+        "backend": args.backend, "alpha0_deg": sound.parameters.get("alpha0_deg"), "p0": args.p0, "eps_max": args.eps_max,
         "increment": args.increment, "iso_steps": args.iso_steps, "n_orientations": args.orientations,
         "elements": [nx, ny], "imperfection": args.imperfection, "n_weak_elements": int(weak.sum()),
         "width": specimen.width, "height": specimen.height, "newton_rtol": specimen.newton_rtol,

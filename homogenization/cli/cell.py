@@ -42,8 +42,6 @@ from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
     alpha0_deg,
-    atomic_write,
-    check_output_path,
     command_prog,
     common_parser,
     contact_law_from_args,
@@ -51,7 +49,9 @@ from warp_hcell.core.cli import (
     run_main,
     set_verbosity,
 )
-from warp_hcell.mesostructures.mesostructure import h_cell, Mesostructure
+from warp_hcell.core.files import atomic_write, check_output_path
+from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.mesostructure import Mesostructure
 from warp_hcell.core.parameters import CellDefaults, DatabaseSettings
 
 PATH_HEADER = ("d_eps_n", "d_eps_t")

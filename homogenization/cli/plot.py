@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Sequence
 
 from homogenization import figures, io
-from warp_hcell.core.cli import Parser, UserError, check_output_path, command_prog, run_main, say, set_verbosity, verbosity_parser
+from warp_hcell.core.cli import Parser, UserError, command_prog, run_main, say, set_verbosity, verbosity_parser
+from warp_hcell.core.files import check_output_path
 
 
 def add_figure_arguments(parser: argparse.ArgumentParser) -> None:

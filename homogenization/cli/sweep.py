@@ -10,7 +10,7 @@ per p0 and backend).
 Every case's cells start from its mesostructure (``CellModel.init_state``). The dem and ann
 backends run every mesostructure; a backend whose class refuses some
 (``homogenization.backends.mesostructure_refusal``: the analytical backend models the
-six-equal-grain H-cell only, ``builders.plain_h_cell_alpha0``) skips the others, and the
+six-equal-grain H-cell only) skips the others, and the
 skipped combinations are listed.
 
 ANN models (--model, repeatable): a model is trained on one mesostructure and records its
@@ -71,22 +71,19 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from homogenization import driver, figures, io, loading, run_labels
-from homogenization.backends import make_cell_model, mesostructure_refusal
+from homogenization.backends import backend_class, make_cell_model, mesostructure_refusal
 from homogenization.cli.biaxial import backend_list
 from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS
 from warp_hcell.mesostructures.builders import (
     MESOSTRUCTURE_HELP,
-    MesostructureSource,
     mesostructure_list_arg,
+    MesostructureSource,
     parse_mesostructure,
-    plain_h_cell_alpha0,
 )
 from warp_hcell.core.cli import (
     Parser,
     UserError,
     alpha0_deg,
-    atomic_write,
-    check_output_path,
     command_prog,
     common_parser,
     positive_float,
@@ -96,8 +93,10 @@ from warp_hcell.core.cli import (
     set_verbosity,
     task_setup,
 )
+from warp_hcell.core.files import atomic_write, check_output_path
 from warp_hcell.core.execution import make_execution, SchedulerUnreachable
-from warp_hcell.mesostructures.mesostructure import describe, description_sha256, Mesostructure, MesostructureError
+from warp_hcell.mesostructures.files import describe, description_sha256
+from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, LoadingDefaults
 
 CASES_DIR = "cases"
@@ -303,7 +302,7 @@ def plan(args: argparse.Namespace) -> tuple[list[Case], list[str]]:
                 meso = source.build(alpha0)
             except MesostructureError as exc:
                 raise UserError(str(exc)) from None
-            plain = plain_h_cell_alpha0(meso)
+            plain = _closed_form_cell(meso)
             erodible = bool(np.any(~meso.driven.any(axis=1)))
             for p0 in args.p0:
                 for backend in args.backend:
@@ -341,6 +340,13 @@ def plan(args: argparse.Namespace) -> tuple[list[Case], list[str]]:
         raise UserError("no case to run: " + "; ".join(skipped))
     _unique_folders(cases)
     return cases, skipped
+
+
+def _closed_form_cell(meso: Mesostructure) -> tuple[float, float] | None:
+    """(alpha0 [deg], grain radius [m]) of a cell the analytical backend models, else None."""
+    if mesostructure_refusal("analytical", meso) is not None:
+        return None
+    return backend_class("analytical").check_mesostructure(meso), float(meso.radius[0])
 
 
 def _unique_folders(cases: list[Case]) -> None:
@@ -415,7 +421,7 @@ def _join(first: driver.Record, second: driver.Record, programme: loading.Progra
         snapshot_stage=cat(first.snapshot_stage, second.snapshot_stage),
         snapshots=cat_dict(first.snapshots, second.snapshots, first.snapshot_increment.size,
                            second.snapshot_increment.size),
-        theta_deg=first.theta_deg, weights=first.weights, V0=first.V0, alpha0_deg=first.alpha0_deg,
+        theta_deg=first.theta_deg, weights=first.weights, V0=first.V0, parameters=first.parameters,
         backend=first.backend, programme=programme, final_state=second.final_state,
         step_seconds=cat(first.step_seconds, second.step_seconds))
 

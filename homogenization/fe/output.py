@@ -33,7 +33,7 @@ from matplotlib.figure import Figure
 from homogenization.fe.solver import BiaxialSpecimen, StepResult
 from homogenization.figure_style import apply_style, GRID, LABELS, PNG_DPI, TickFormatter
 from homogenization.orientation import VOLUME_RULE
-from warp_hcell.core.cli import atomic_write
+from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 
 CURVE_FILE = "curve.csv"

@@ -1,7 +1,7 @@
 """The cell-model protocol shared by the analytical, DEM and ANN backends.
 
-This module sits at the bottom of the package: ``warp_hcell``, ``training`` and
-``homogenization`` all import it, and it imports none of them.
+This module sits at the bottom of the package (``warp_hcell.core``): ``warp_hcell``,
+``training`` and ``homogenization`` all import it, and it imports none of them.
 
 A cell model creates a batch of independent cells (one per orientation, or one per
 database probe) from a mesostructure (``warp_hcell.mesostructures.mesostructure.Mesostructure``: a builder
@@ -31,13 +31,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Mapping, Protocol, Sequence, TypeVar, runtime_checkable
+from typing import Any, Mapping, Protocol, Sequence, TypeVar, runtime_checkable
 
 import numpy as np
 
-if TYPE_CHECKING:  # the mesostructure module imports this one
-    from warp_hcell.mesostructures.mesostructure import Mesostructure
-
+Mesostructure = Any
+"""A ``warp_hcell.mesostructures.mesostructure.Mesostructure`` (that layer sits above this one)."""
 S = TypeVar("S")
 
 

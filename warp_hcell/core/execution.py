@@ -6,8 +6,6 @@ depend on where, in which order or how often (lost workers: Dask reruns their ta
 task ran. ``shared`` is sent once per worker (Dask: scattered with broadcast).
 
 - ``InProcess``: the calling process, one task after the other.
-- ``ProcessPool``: ``workers`` local processes of the standard library (spawned per ``map``;
-  ``shared`` passed once per process): the pre-Dask execution, kept for the benchmark.
 - ``DaskExecution``: a ``distributed`` cluster: an existing scheduler (``address``, e.g.
   ``tcp://host:8786``; dask-jobqueue clusters on SLURM give one), or a ``LocalCluster`` of
   ``workers`` single-threaded worker processes.
@@ -28,8 +26,6 @@ import functools
 import logging
 import shutil
 import tempfile
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_context
 from typing import Any, Callable, Iterable, Iterator
 
 CONNECT_TIMEOUT_S = 10.0
@@ -69,50 +65,6 @@ class InProcess:
         """Nothing to release."""
 
     def __enter__(self) -> "InProcess":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-_SHARED: dict[str, Any] = {}
-
-
-def _keep_shared(shared: Any) -> None:
-    _SHARED["value"] = shared
-
-
-def _call_with_shared(fn: Callable[[Any, Any], Any], item: Any) -> Any:
-    return fn(_SHARED["value"], item)
-
-
-class ProcessPool:
-    """Run the tasks in ``workers`` spawned local processes (module docstring)."""
-
-    def __init__(self, workers: int = 2, setup: Callable[[], None] | None = None):
-        self.n_workers = int(workers)
-        self.setup = setup
-
-    def map(self, fn: Callable[[Any, Any], Any], shared: Any, items: Iterable[Any]) -> Iterator[tuple[Any, Any]]:
-        """Yield ``(item, fn(shared, item))`` as the tasks complete."""
-        items = list(items)
-        if not items:
-            return
-        with ProcessPoolExecutor(self.n_workers, mp_context=get_context("spawn"), initializer=_keep_shared,
-                                 initargs=(shared,)) as pool:
-            task = _with_setup(fn, self.setup)
-            futures = {pool.submit(_call_with_shared, task, item): item for item in items}
-            try:
-                for future in as_completed(futures):
-                    yield futures[future], future.result()
-            finally:
-                for future in futures:
-                    future.cancel()
-
-    def close(self) -> None:
-        """Nothing to release (pools live for one ``map``)."""
-
-    def __enter__(self) -> "ProcessPool":
         return self
 
     def __exit__(self, *exc) -> None:

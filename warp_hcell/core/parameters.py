@@ -197,16 +197,6 @@ class DatabaseSettings:
     """Number of samples (one strain probe of one sampled state each) [-]."""
     chunk_size: int = 5_000
     """Probes computed as one batch; also the unit of resume and of parallel work [-]."""
-    alpha0_min_deg: float = 30.0
-    """Smallest opening angle of the start cells of the default (H-cell) database [deg]; the
-    H-cells of all opening angles share one learning state, so the exploration starts from
-    each (a mesostructure file gives one start cell)."""
-    alpha0_max_deg: float = 89.0
-    """Largest opening angle of the H-cell start cells [deg]."""
-    n_alpha0: int = 12
-    """H-cell start cells: opening angles evenly spaced in [alpha0_min_deg, alpha0_max_deg] [-]."""
-    alpha0_focus_deg: tuple[float, ...] = (35.0, 40.0, 55.0)
-    """Opening angles of the homogenisation runs, added to the H-cell start cells [deg]."""
     precompression: tuple[float, ...] = (0.0, 1e-3, 3e-3, 1e-2, 2e-2, 3e-2)
     """Isotropic strains eps_n = eps_t from which the proportional legs start [-]
     (p ~ 2.2e8 N/m x eps: 1e-3 ~ p0 = 2e5 N/m, 2e-2 to 3e-2 ~ p0 = 5.85e6 N/m)."""
@@ -254,15 +244,11 @@ class DatabaseSettings:
     def __post_init__(self) -> None:
         if int(self.leg_refinement) < 0:
             raise ValueError(f"leg_refinement = {self.leg_refinement} must be >= 0")
-        for name in ("samples", "chunk_size", "n_alpha0", "n_directions"):
+        for name in ("samples", "chunk_size", "n_directions"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} = {getattr(self, name)} must be >= 1")
         for name in ("sample_spacing", "leg_length", "leg_volumetric", "probe_min", "probe_focus_min"):
             check_positive(name, getattr(self, name))
-        for value in (self.alpha0_min_deg, self.alpha0_max_deg, *self.alpha0_focus_deg):
-            check_alpha0_deg(value)
-        if self.alpha0_min_deg > self.alpha0_max_deg:
-            raise ValueError(f"alpha0_min_deg = {self.alpha0_min_deg:g} exceeds alpha0_max_deg = {self.alpha0_max_deg:g}")
         if not self.precompression or min(self.precompression) < 0.0 or not all(map(math.isfinite, self.precompression)):
             raise ValueError(f"precompression = {self.precompression} needs finite strains >= 0")
         for lo, hi in (("probe_min", "probe_max"), ("probe_focus_min", "probe_focus_max")):

@@ -22,9 +22,8 @@ import h5py
 import numpy as np
 
 from warp_hcell.core.contract import StateSchema
-from warp_hcell.core.cli import atomic_write
-from warp_hcell.database.learning_state import HCELL_OBSERVABLES
-from warp_hcell.mesostructures.mesostructure import description_sha256, from_description, Mesostructure
+from warp_hcell.core.files import atomic_write
+from warp_hcell.mesostructures.mesostructure import OBSERVABLE_KINDS, Mesostructure, PairObservable
 
 FORMAT = "meso-hmodel-database"
 """Value of the root attr ``format``."""
@@ -52,12 +51,10 @@ SAMPLE_DATASETS = {
     "valid": ("bool", "False for samples removed by the cleaning step (see 'cleaning' attrs)"),
 }
 """Root per-sample datasets (first axis n_samples): unit and description."""
-HCELL_GROUP = "hcell"
-"""Group of H-cell observables (only when the mesostructure carries H-cell labels): for
-reports, never used by training or the ANN backend."""
-STATES_GROUP = "states"
-"""Group of the sampled exploration states (first axis n_states): their learning state
-(``cell_size``, ``free_position``, ``shear_force``) and path description."""
+OBSERVABLES_GROUP = "hcell"
+"""Group of the observables the mesostructure declares (``Mesostructure.observables``, the
+forces and geometry ones; e.g. the H-cell's alpha_deg, d1, d2, N1, N2, T1), before and after
+each probe: for reports, never used by training or the ANN backend."""
 SCHEMA_GROUP = "schema"
 """Group of the learning state of the mesostructure (same for every sample)."""
 SCHEMA_DATASETS = ("free_dofs", "pairs", "radius", "reference_position", "reference_cell_size", "driven", "outer")
@@ -69,8 +66,8 @@ def schema_datasets(schema: StateSchema) -> dict[str, np.ndarray]:
     return {f"{SCHEMA_GROUP}/{name}": np.asarray(getattr(schema, name)) for name in SCHEMA_DATASETS}
 
 
-def dataset_attrs(schema: StateSchema, is_h_cell: bool) -> dict[str, dict[str, Any]]:
-    """Attributes (``feature_names``, ``units``, ``description``) of every dataset of a database."""
+def dataset_attrs(schema: StateSchema, meso: Mesostructure) -> dict[str, dict[str, Any]]:
+    """Attributes (``feature_names``, ``units``, ``description``) of every dataset of a database of ``meso``."""
     attrs: dict[str, dict[str, Any]] = {}
     for group in STATE_GROUPS:
         for name, feature in schema.features.items():
@@ -82,13 +79,17 @@ def dataset_attrs(schema: StateSchema, is_h_cell: bool) -> dict[str, dict[str, A
     attrs[SCHEMA_GROUP] = {"features": schema.feature_json(),
                            "feature_names": json.dumps({k: list(f.names) for k, f in schema.features.items()}),
                            "units": json.dumps({k: f.unit for k, f in schema.features.items()})}
-    if is_h_cell:
-        attrs["alpha0_deg"] = {"units": "deg", "description": "opening angle of the start cell of the path"}
-        units = {"alpha_deg": "deg", "d1": "m", "d2": "m", "N1": "N", "N2": "N", "T1": "N"}
+    for name in meso.parameters:
+        attrs[name] = {"description": f"parameter {name} of the start cell of the path"}
+    for observable in stored_observables(meso):
         for group in STATE_GROUPS:
-            for name in HCELL_OBSERVABLES:
-                attrs[f"{HCELL_GROUP}/{group}_{name}"] = {"units": units[name]}
+            attrs[f"{OBSERVABLES_GROUP}/{group}_{observable.name}"] = {"units": OBSERVABLE_KINDS[observable.kind][0]}
     return attrs
+
+
+def stored_observables(meso: Mesostructure) -> tuple[PairObservable, ...]:
+    """The declared observables stored in the group ``OBSERVABLES_GROUP``: all but the contact flags."""
+    return tuple(o for o in meso.observables if o.kind != "contact")
 
 
 def _attr(value: Any) -> Any:
@@ -158,15 +159,3 @@ def read_attrs_of(path: Path) -> dict[str, dict[str, Any]]:
         f.visititems(lambda name, item: out.__setitem__(name, dict(item.attrs)) if item.attrs else None)
     return out
 
-
-def mesostructure_of(attrs: Mapping[str, Any]) -> Mesostructure:
-    """The mesostructure of a database (root attrs), its hash checked.
-
-    Raises:
-        ValueError: (one line) the stored hash does not match the stored description.
-    """
-    text = attrs["mesostructure"]
-    text = text.decode() if isinstance(text, bytes) else str(text)
-    if description_sha256(text) != attrs["mesostructure_sha256"]:
-        raise ValueError("database mesostructure_sha256 does not match its mesostructure description")
-    return from_description(text)

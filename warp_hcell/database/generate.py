@@ -5,8 +5,8 @@ in docs/database_format.md, written by ``warp_hcell.database.format``). The DEM
 (``warp_hcell.dem.cell.DemCell``) explores and probes. ``--mesostructure`` takes a file or a
 builder spec (``warp_hcell.mesostructures.builders``, e.g. ``hcell-fines:alpha0=50,ratio=0.82``; the database
 records the hash of the cell it builds, name = spec text); without it the cell is
-the H-cell of ``warp_hcell.mesostructures.mesostructure.h_cell`` and the exploration starts from H-cells of
-several opening angles (they share one learning state).
+the H-cell of ``warp_hcell.mesostructures.hcell.h_cell`` and the exploration starts from H-cells of
+several opening angles (``hcell.StartCells``: they share one learning state).
 
 The generator's jobs, one module each:
 
@@ -52,10 +52,8 @@ from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_
 from warp_hcell.core.cli import (
     Parser,
     UserError,
-    check_output_path,
     command_prog,
     common_parser,
-    output_lock,
     positive_float,
     positive_int,
     progress_bar,
@@ -64,25 +62,20 @@ from warp_hcell.core.cli import (
     set_verbosity,
     task_setup,
 )
+from warp_hcell.core.files import check_output_path, output_lock
 from warp_hcell.core.execution import InProcess, make_execution, SchedulerUnreachable
 from warp_hcell.database.exploration import DEM_PREFIX
 from warp_hcell.database.learning_state import free_coordinates
-from warp_hcell.mesostructures.mesostructure import (
-    Mesostructure, MesostructureError, describe, description_sha256, h_cell, shares_state_schema)
+from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, shares_state_schema
+from warp_hcell.mesostructures.files import describe, description_sha256
+from warp_hcell.mesostructures.hcell import StartCells, h_cell
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings
 from warp_hcell.database.probing import chunk_samples, n_chunks
 from warp_hcell.core.provenance import provenance
 from warp_hcell.database.shards import DiskFull, Sidecar, sidecar_path
 from warp_hcell.database.tasks import explore_starts, ExploreInputs, Physics, probe_chunk, ProbeInputs
 
-__all__ = ["generate", "main", "sidecar_path", "h_cell_starts", "check_starts", "check_increments"]
-
-
-def h_cell_starts(settings: DatabaseSettings, radius: float = CellDefaults.radius) -> list[Mesostructure]:
-    """H-cells at the opening angles of the settings (even grid plus focus angles), sorted."""
-    grid = np.linspace(settings.alpha0_min_deg, settings.alpha0_max_deg, settings.n_alpha0)
-    angles = np.unique(np.concatenate([grid, np.asarray(settings.alpha0_focus_deg, dtype=np.float64)]))
-    return [h_cell(float(a), radius) for a in angles]
+__all__ = ["generate", "main", "sidecar_path", "check_starts", "check_increments"]
 
 
 def check_starts(meso: Mesostructure, starts: Sequence[Mesostructure]) -> None:
@@ -150,7 +143,7 @@ def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapp
     data.update({"states/cell_size": states[DEM_PREFIX + "cell_size"],
                  "states/free_position": free_coordinates(schema, position),
                  "states/shear_force": states[DEM_PREFIX + "shear_force"]})
-    for name in ("path_id", "start_id", "precompression", "direction_deg", "eps", "alpha0_deg"):
+    for name in ("path_id", "start_id", "precompression", "direction_deg", "eps", *meso.parameters):
         if name in states:
             data[f"states/{name}"] = states[name]
     meso_text = description["mesostructure"]
@@ -160,7 +153,6 @@ def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapp
         "sign_convention": database.SIGN_CONVENTION,
         "mesostructure": meso_text,
         "mesostructure_sha256": description_sha256(meso_text),
-        "is_h_cell": bool(meso.is_h_cell),
         "start_mesostructures": json.dumps(description["starts"]),
         "start_sha256": json.dumps([description_sha256(text) for text in description["starts"]]),
         **description["contact_law"],
@@ -180,7 +172,7 @@ def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapp
     data["valid"], cleaning_attrs = cleaning.clean_samples(data) if clean else cleaning.not_cleaned(data)
     attrs.update(cleaning_attrs)
     try:
-        database.write_database(out, data, attrs, database.dataset_attrs(schema, meso.is_h_cell))
+        database.write_database(out, data, attrs, database.dataset_attrs(schema, meso))
     except OSError as exc:  # h5py reports a full disk in its message, not always in errno
         if exc.errno == errno.ENOSPC or "No space left" in str(exc):
             raise DiskFull(errno.ENOSPC, "no space left on device", str(out)) from None
@@ -230,7 +222,7 @@ def generate(
     Raises:
         ValueError: (one line) a start cell of another learning state, an increment beyond
             max_substeps, or the sidecar holds an unfinished run with other options.
-        UserError: another run is writing ``out`` (``warp_hcell.core.cli.output_lock``).
+        UserError: another run is writing ``out`` (``warp_hcell.core.files.output_lock``).
         DiskFull: no space left (no partial file is left in the sidecar).
     """
     starts = [meso] if starts is None else list(starts)
@@ -310,7 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="path length between sampled states along the exploration paths [-]")
     parser.add_argument("--n-directions", type=positive_int, default=defaults.n_directions,
                         help="proportional-leg directions in the (eps_n, eps_t) plane")
-    parser.add_argument("--n-alpha0", type=positive_int, default=defaults.n_alpha0,
+    parser.add_argument("--n-alpha0", type=positive_int, default=StartCells.n_alpha0,
                         help="default H-cell only: start cells at opening angles evenly spaced in [30, 89] deg "
                              "(plus 35, 40, 55)")
     parser.add_argument("--perturbed-fraction", type=float, default=defaults.perturbed_fraction,
@@ -326,7 +318,7 @@ def _run(argv: Sequence[str] | None) -> int:
     try:
         settings = DatabaseSettings(samples=args.samples, chunk_size=args.chunk_size,
                                     sample_spacing=args.sample_spacing, n_directions=args.n_directions,
-                                    n_alpha0=args.n_alpha0, perturbed_fraction=args.perturbed_fraction)
+                                    perturbed_fraction=args.perturbed_fraction)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     check_output_path(args.out, overwrite=args.overwrite)
@@ -334,7 +326,7 @@ def _run(argv: Sequence[str] | None) -> int:
         raise UserError(f"{args.out} is a folder; --out must be a file")
     if args.mesostructure is None:
         meso = h_cell(CellDefaults.alpha0_deg, CellDefaults.radius)
-        starts = h_cell_starts(settings, CellDefaults.radius)
+        starts = StartCells(n_alpha0=args.n_alpha0).build(CellDefaults.radius)
     else:
         try:
             meso = args.mesostructure.build()

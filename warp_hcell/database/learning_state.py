@@ -1,4 +1,4 @@
-"""The generic learning state of a cell, evaluated with numpy: derived features, H-cell observables.
+"""The generic learning state of a cell, evaluated with numpy: the derived features.
 
 A learning state (``warp_hcell.core.contract.StateSchema``) is the cell size, the free-DOF
 coordinates and the per-pair tangential spring forces. ``evaluate`` applies the contact law
@@ -7,10 +7,6 @@ normal forces, the tangential forces after the Coulomb cap (zero out of contact)
 force on each free DOF, the Love-Weber moment and the area. Evaluated on a state the DEM
 produced, it reproduces the DEM's own forces; on a perturbed state it gives the unbalanced
 forces the DEM starts relaxing from.
-
-``hcell_observables`` measures alpha, d1, d2, N1, N2, T1 at the reference contacts of a
-mesostructure carrying H-cell labels (``Mesostructure.h_reference_pairs``); nothing else here
-knows the H-cell.
 
 Conventions: local frame index 0 = n, 1 = t. Forces are the DEM's: for pair (i, j),
 ``u = (x_j - x_i) / |x_j - x_i|``, w = (-u_t, u_n), the force on grain i by grain j is
@@ -22,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from warp_hcell.core.contract import StateSchema
-from warp_hcell.mesostructures.mesostructure import Mesostructure, polygon_area
+from warp_hcell.dem.love_weber import love_weber_tension_positive, to_compression_positive
+from warp_hcell.mesostructures.mesostructure import polygon_area
 from warp_hcell.core.parameters import ContactLaw
 
 def positions(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarray) -> np.ndarray:
@@ -80,53 +77,3 @@ def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarr
     return {"position": x, "contact": touching.astype(np.int8), "normal_force": normal, "shear_force": shear,
             "contact_force": force, "unbalanced": net[:, schema.free_dofs[:, 0], schema.free_dofs[:, 1]],
             "moment": moment, "area": polygon_area(x, schema.outer)}
-
-
-def love_weber_tension_positive(contact_force: np.ndarray, branch: np.ndarray) -> np.ndarray:
-    """DEM Love-Weber sum, tension positive: sum_c f_c (x) l_c.
-
-    Args:
-        contact_force: force on grain i by grain j [N], shape (n_cells, n_pairs, 2).
-        branch: x_j - x_i [m], shape (n_cells, n_pairs, 2).
-
-    Returns:
-        (n_cells, 2, 2) [N m], local frame (n, t); negative for a compressed cell.
-    """
-    return np.einsum("cpa,cpb->cab", contact_force, branch)
-
-
-def to_compression_positive(moment_tension_positive: np.ndarray) -> np.ndarray:
-    """THE sign conversion of the DEM boundary: tension-positive -> compression-positive moment."""
-    return -moment_tension_positive
-
-
-HCELL_OBSERVABLES = ("alpha_deg", "d1", "d2", "N1", "N2", "T1")
-"""H-cell observables stored for reports (group ``hcell`` of the database)."""
-
-
-def hcell_observables(meso: Mesostructure, position: np.ndarray, normal_force: np.ndarray,
-                      shear_force: np.ndarray, contact: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """alpha [deg], d1, d2 [m], N1, N2, T1 [N] at the reference contacts 1-2 and 2-3.
-
-    Args:
-        meso: a mesostructure with H-cell labels (``meso.is_h_cell``).
-        position: (n, n_grains, 2) [m]; normal_force, shear_force: (n, n_pairs) [N].
-        contact: optional contact flags (n, n_pairs); with them also ``closed1, closed2``.
-
-    Returns:
-        Each (n,); N compression positive, T1 > 0 resists opening (the DEM's spring force);
-        ``closed1, closed2`` bool.
-    """
-    reference = meso.h_reference_pairs
-    if reference is None:
-        raise ValueError(f"mesostructure {meso.name!r} has no H-cell labels")
-    p1, p2 = reference
-    (i1, j1), (i2, j2) = meso.pairs[p1], meso.pairs[p2]
-    b1 = position[:, j1] - position[:, i1]
-    b2 = position[:, j2] - position[:, i2]
-    obs = {"alpha_deg": np.degrees(np.arctan2(-b1[:, 1], -b1[:, 0])), "d1": np.hypot(b1[:, 0], b1[:, 1]),
-           "d2": np.hypot(b2[:, 0], b2[:, 1]), "N1": normal_force[:, p1].copy(), "N2": normal_force[:, p2].copy(),
-           "T1": shear_force[:, p1].copy()}
-    if contact is not None:
-        obs.update(closed1=contact[:, p1] == 1, closed2=contact[:, p2] == 1)
-    return obs

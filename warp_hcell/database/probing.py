@@ -32,14 +32,10 @@ import numpy as np
 
 from warp_hcell.core.contract import StateSchema
 from warp_hcell.database.exploration import DEM_PREFIX, force_floor
-from warp_hcell.database.learning_state import (
-    HCELL_OBSERVABLES,
-    evaluate,
-    free_coordinates,
-    hcell_observables,
-    love_weber_tension_positive,
-)
-from warp_hcell.mesostructures.mesostructure import Mesostructure, topology_arrays
+from warp_hcell.database.format import OBSERVABLES_GROUP
+from warp_hcell.database.learning_state import evaluate, free_coordinates
+from warp_hcell.dem.love_weber import love_weber_tension_positive
+from warp_hcell.mesostructures.mesostructure import Mesostructure, evaluate_observables, topology_arrays
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings
 
 STATE_FEATURES = ("cell_size", "free_position", "shear_force", "contact", "normal_force", "unbalanced", "moment",
@@ -113,7 +109,7 @@ class ProbeContext:
 
     Attributes:
         cell_model: a ``warp_hcell.dem.cell.DemCell`` of ``meso``.
-        meso: the mesostructure (schema reference; H-cell observables when labelled).
+        meso: the mesostructure (schema reference, declared observables and parameters).
         schema: ``meso.schema()``.
         states: the exploration's sampled states (``warp_hcell.database.exploration.explore``).
         contact_law, contact_tolerance: the DEM's.
@@ -164,8 +160,8 @@ def compute_chunk(context: ProbeContext, settings: DatabaseSettings, seed: int, 
         Flat arrays, first axis the chunk's samples: ``before/<feature>``, ``after/<feature>``
         (``STATE_FEATURES``), ``d_eps`` (n, 2), ``mechanism``, ``perturbed``, ``converged``
         (bool), ``state_id``, ``path_id`` (int64), ``substeps`` (int64, DEM substeps of the
-        probe), and for H-cells ``hcell/before_<obs>``, ``hcell/after_<obs>``
-        (``HCELL_OBSERVABLES``) and ``alpha0_deg``.
+        probe), the declared observables ``<group>/before_<name>``, ``<group>/after_<name>``
+        (``format.stored_observables``) and the start cell's parameters (``Mesostructure.parameters``).
     """
     schema, law, tol = context.schema, context.contact_law, context.contact_tolerance
     start, stop = chunk_bounds(settings, chunk)
@@ -197,9 +193,9 @@ def compute_chunk(context: ProbeContext, settings: DatabaseSettings, seed: int, 
         "path_id": states["path_id"][index].astype(np.int64),
         "substeps": dem["substeps"].astype(np.int64),
     })
-    if context.meso.is_h_cell:
-        for name, ev in (("before", before), ("after", after)):
-            obs = hcell_observables(context.meso, ev["position"], ev["normal_force"], ev["shear_force"])
-            out.update({f"hcell/{name}_{key}": obs[key] for key in HCELL_OBSERVABLES})
-        out["alpha0_deg"] = states["alpha0_deg"][index]
+    for name, ev in (("before", before), ("after", after)):
+        obs = evaluate_observables(context.meso, ev["position"], ev["normal_force"], ev["shear_force"])
+        out.update({f"{OBSERVABLES_GROUP}/{name}_{key}": value for key, value in obs.items()})
+    for name in context.meso.parameters:
+        out[name] = states[name][index]
     return out

@@ -19,8 +19,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from warp_hcell.database.exploration import explore
-from warp_hcell.database.learning_state import hcell_observables
-from warp_hcell.mesostructures.mesostructure import from_description
+from warp_hcell.mesostructures.files import from_description
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings
 from warp_hcell.database.probing import compute_chunk, ProbeContext
 
@@ -77,7 +76,7 @@ def dem_cell(physics: Physics):
 
 def explore_starts(inputs: ExploreInputs, group: tuple[int, ...]) -> dict[str, np.ndarray]:
     """Exploration states of the start cells ``group`` explored as one batch (``explore``: the
-    states do not depend on the grouping), with ``alpha0_deg`` for H-cells and the stop-rule
+    states do not depend on the grouping), with the start cell's parameters (e.g. ``alpha0_deg``) and the stop-rule
     counts ``stops.<rule>`` of each state's start cell (int64, per state: the arrays split by
     start cell)."""
     from warp_hcell.dem.cell import DemCellState  # noqa: PLC0415
@@ -90,10 +89,9 @@ def explore_starts(inputs: ExploreInputs, group: tuple[int, ...]) -> dict[str, n
                            device=physics.device)
     states, stops = explore(dem_cell(physics), DemCellState(model, model.state()), meso.schema(), inputs.settings,
                             physics.contact_law, physics.dem_settings.contact_tolerance, np.asarray(group))
-    if meso.is_h_cell:
-        zero = np.zeros((1, meso.n_pairs))
-        alpha0 = {k: hcell_observables(s, s.position[None], zero, zero)["alpha_deg"][0] for k, s in zip(group, starts)}
-        states["alpha0_deg"] = np.array([alpha0[k] for k in states["start_id"]], dtype=np.float64)
+    for name in meso.parameters:
+        value = {k: s.parameters[name] for k, s in zip(group, starts)}
+        states[name] = np.array([value[k] for k in states["start_id"]], dtype=np.float64)
     index = np.searchsorted(np.asarray(group), states["start_id"])
     states.update({f"stops.{rule}": count[index] for rule, count in stops.items()})
     return states

@@ -1,15 +1,14 @@
 """Meso-DEM cell backend: batched few-grain DEM cells (Warp kernels) behind the CellModel protocol.
 
-``DemCell(contact_law, radius, *, settings=DemSettings(), device="cpu", threads=2,
-engine="warp")`` advances every cell of a batch by its own strain increment with the
-quasi-static DEM of ``warp_hcell`` (one Warp thread per cell; ``engine="numpy"`` runs the
-same step with numpy, for comparisons). ``init_state(mesostructure, n_cells)`` builds the
+``DemCell(contact_law, radius, *, settings=DemSettings(), device="cpu", threads=2)``
+advances every cell of a batch by its own strain increment with the quasi-static DEM of
+``warp_hcell.dem`` (one Warp thread per cell). ``init_state(mesostructure, n_cells)`` builds the
 cells from any mesostructure, or from one per cell of one topology; the state keeps the
 topology (``DemCellState.model.meso``) and ``state_to_arrays`` writes it out, so that
 ``state_from_arrays`` needs nothing else.
 
 Sign convention: compression and contraction positive. The DEM's tension-positive
-Love-Weber sum is converted in ``warp_hcell.database.learning_state.to_compression_positive`` only. V_cell is the area of the
+Love-Weber sum is converted in ``warp_hcell.dem.love_weber.to_compression_positive`` only. V_cell is the area of the
 polygon through the centres of the outer (driven) grains: the hexagon for the H-cell.
 """
 
@@ -23,9 +22,16 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from warp_hcell.core.contract import CellResponse
-from warp_hcell.dem.integrator import DemIntegrator, NumpyIntegrator
-from warp_hcell.database.learning_state import hcell_observables, to_compression_positive
-from warp_hcell.mesostructures.mesostructure import Mesostructure, TOPOLOGY_ARRAYS, topology_arrays
+from warp_hcell.dem.integrator import DemIntegrator
+from warp_hcell.dem.love_weber import to_compression_positive
+from warp_hcell.mesostructures.files import with_declarations
+from warp_hcell.mesostructures.mesostructure import (
+    TOPOLOGY_ARRAYS,
+    TOPOLOGY_FIELDS,
+    Mesostructure,
+    evaluate_observables,
+    topology_arrays,
+)
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings
 from warp_hcell.dem.state import DemState, StatePool
@@ -58,15 +64,12 @@ class DemCell:
         settings: DEM numerical settings.
         device: Warp device ("cpu", "cuda:0").
         threads: CPU chunks launched in parallel (results do not depend on it).
-        engine: "warp" (kernels) or "numpy" (same step in numpy, CPU only).
     """
 
     name = "dem"
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, settings: DemSettings = DemSettings(),
-                 device: str = "cpu", threads: int = 2, engine: str = "warp"):
-        if engine not in ("warp", "numpy"):
-            raise ValueError(f"engine {engine!r} is not one of 'warp', 'numpy'")
+                 device: str = "cpu", threads: int = 2):
         if int(threads) < 1:
             raise ValueError(f"threads = {threads} must be >= 1")
         self.contact_law = contact_law
@@ -74,19 +77,17 @@ class DemCell:
         self.settings = settings
         self.device = str(device)
         self.threads = int(threads)
-        self.engine = engine
-        self._pool = ThreadPoolExecutor(self.threads) if engine == "warp" and self.threads > 1 else None
-        self._last_integrator: DemIntegrator | NumpyIntegrator | None = None
+        self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        self._last_integrator: DemIntegrator | None = None
         self._outputs: StatePool | None = None
 
     # -- construction ---------------------------------------------------------------------
-    def _integrator(self, model: DemModel) -> DemIntegrator | NumpyIntegrator:
+    def _integrator(self, model: DemModel) -> DemIntegrator:
         """The integrator of ``model`` (the last one is kept with its pool of output states:
         trial steps and the following increments reuse them)."""
         integrator = self._last_integrator
         if integrator is None or integrator.model is not model:
-            integrator = (DemIntegrator(model, threads=self.threads, pool=self._pool) if self.engine == "warp"
-                          else NumpyIntegrator(model))
+            integrator = DemIntegrator(model, threads=self.threads, pool=self._pool)
             self._outputs = StatePool(model.n_cells, model.meso.n_grains, model.meso.n_pairs, model.device,
                                       dim=model.meso.dim)
             self._last_integrator = integrator
@@ -149,12 +150,10 @@ class DemCell:
 
         Always: ``l1, l2, area`` [m, m^2], ``S_nn, S_tt, S_nt`` [N m] (compression positive),
         ``n_contacts`` (closed contacts), ``substeps`` and ``converged`` of the last step, and
-        grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label). 3D cells give ``l1, l2, l3``,
+        grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label); then the observables the
+        mesostructure declares (``Mesostructure.observables``). 3D cells give ``l1, l2, l3``,
         ``area`` (the volume [m^3]), ``S_nn, S_t1t1, S_t2t2, S_nt1, S_nt2, S_t1t2`` and
-        ``x_n{i}, x_t1{i}, x_t2{i}`` instead, with the same counts. Planar H-cells also give ``d1, d2``
-        [m], ``alpha_deg`` [deg], ``N1, N2, T1`` [N] (T1 > 0 resists opening) and ``closed1,
-        closed2`` (bool), measured at the reference contacts 1-2 and 2-3 (equal to the other
-        type-1 / type-2 contacts by symmetry).
+        ``x_n{i}, x_t1{i}, x_t2{i}`` instead, with the same counts.
         """
         arrays = state.dem.to_numpy()
         meso = state.model.meso
@@ -168,11 +167,11 @@ class DemCell:
             "S_nt": response.moment[:, 0, 1], "n_contacts": arrays["contact"].sum(axis=1),
             "substeps": arrays["substeps"].copy(), "converged": arrays["converged"] == 1,
         }
-        if meso.is_h_cell:
+        if meso.observables:
             branch = x[:, meso.pairs[:, 1]] - x[:, meso.pairs[:, 0]]
             unit = branch / np.hypot(branch[..., 0], branch[..., 1])[..., None]
             normal = 0.0 - np.sum(arrays["contact_force"] * unit, axis=-1)
-            obs.update(hcell_observables(meso, x, normal, arrays["shear_force"], arrays["contact"]))
+            obs.update(evaluate_observables(meso, x, normal, arrays["shear_force"], arrays["contact"]))
         for g in range(meso.n_grains):
             obs[f"x_n{g + 1}"] = x[:, g, 0].copy()
             obs[f"x_t{g + 1}"] = x[:, g, 1].copy()
@@ -196,10 +195,10 @@ class DemCell:
         """Inverse of ``state_to_arrays``; the topology template is rebuilt from the first cell."""
         arrays = {k: np.asarray(arrays[k])
                   for k in (*_MODEL_ARRAYS, *TOPOLOGY_ARRAYS, *(f.name for f in fields(DemState)))}
-        meso = Mesostructure(name=f"{arrays['radius'].shape[1]}-grain cell from state arrays",
-                             radius=arrays["radius"][0], position=arrays["reference_position"][0],
-                             cell_size=arrays["reference_cell_size"][0],
-                             **{k: arrays[k][0] for k in TOPOLOGY_ARRAYS})
+        meso = with_declarations(Mesostructure(
+            name=f"{arrays['radius'].shape[1]}-grain cell from state arrays", radius=arrays["radius"][0],
+            position=arrays["reference_position"][0], cell_size=arrays["reference_cell_size"][0],
+            **{field: arrays[name][0] for name, field in TOPOLOGY_FIELDS.items()}))
         model = DemModel.from_reference(meso, arrays["radius"], arrays["reference_position"],
                                         arrays["reference_cell_size"], contact_law=self.contact_law,
                                         settings=self.settings, device=self.device)

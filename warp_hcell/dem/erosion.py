@@ -21,7 +21,7 @@ n and t: fines loose in the pore).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -60,8 +60,9 @@ def erodible_grains(meso: Mesostructure) -> np.ndarray:
 def remove_grains(meso: Mesostructure, grains: Sequence[int]) -> GrainRemoval:
     """``meso`` without ``grains`` (0-based indices).
 
-    Pairs with a removed grain are dropped; the others are renumbered (their H-cell labels
-    kept); the outer polygon is renumbered.
+    Pairs with a removed grain are dropped; the others are renumbered (their labels kept);
+    the outer polygon and the declared observables are renumbered (those of a removed grain
+    dropped); the parameters are kept.
 
     Raises:
         MesostructureError: no grain given, an index out of range, or a grain of the outer
@@ -82,10 +83,13 @@ def remove_grains(meso: Mesostructure, grains: Sequence[int]) -> GrainRemoval:
     new_index[keep] = np.arange(keep.size)
     pair_keep = np.flatnonzero(np.all(new_index[meso.pairs] >= 0, axis=1))
     labels = "+".join(str(g + 1) for g in removed.tolist())
+    observables = tuple(replace(o, grains=(int(new_index[o.grains[0]]), int(new_index[o.grains[1]])))
+                        for o in meso.observables if np.all(new_index[list(o.grains)] >= 0))
     reduced = Mesostructure(
         name=f"{meso.name} without grain {labels}", radius=meso.radius[keep], position=meso.position[keep],
         driven=meso.driven[keep], pairs=new_index[meso.pairs[pair_keep]], outer=new_index[meso.outer],
-        cell_size=meso.cell_size, pair_type=meso.pair_type[pair_keep], contact_tolerance=meso.contact_tolerance)
+        cell_size=meso.cell_size, pair_label=meso.pair_label[pair_keep], observables=observables,
+        parameters=meso.parameters, contact_tolerance=meso.contact_tolerance)
     return GrainRemoval(reduced, removed, keep, pair_keep)
 
 
@@ -127,12 +131,12 @@ def erode_state(cell: DemCell, state: DemCellState,
 
     Returns:
         (reduced_cell, reduced_state, removal): a ``DemCell`` of the reduced mesostructure
-        (same contact law, settings, device, engine, threads), the mapped state, and the
+        (same contact law, settings, device, threads), the mapped state, and the
         ``GrainRemoval``.
     """
     meso = state.model.meso
     grains = erodible_grains(meso) if grains is None else grains
     removal = remove_grains(meso, grains)
     reduced = DemCell(cell.contact_law, cell.radius, settings=cell.settings, device=cell.device,
-                      threads=cell.threads, engine=cell.engine)
+                      threads=cell.threads)
     return reduced, reduced.state_from_arrays(erode_arrays(cell.state_to_arrays(state), removal)), removal

@@ -1,7 +1,7 @@
 """Immutable DEM model of a batch of cells: per-cell reference geometry, masses, constants.
 
 ``DemModel.build`` replicates one mesostructure (or stacks one per cell, same topology);
-``DemModel.build_h_cell`` builds H-cells from per-cell alpha0. A model is never modified:
+``DemModel.from_reference`` takes per-cell reference arrays. A model is never modified:
 ``take`` and ``from_reference`` return new models. ``model.state()`` gives the touching,
 force-free initial state.
 """
@@ -15,8 +15,7 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from warp_hcell.mesostructures.mesostructure import (
-    Mesostructure, MesostructureError, cell_measure, h_cell, h_cell_reference, per_cell)
+from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, cell_measure, per_cell
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.dem.state import DemState
 
@@ -26,7 +25,7 @@ class DemModel:
     """Device arrays and constants of a batch of cells sharing one topology.
 
     Attributes:
-        meso: topology template (pairs, driven mask, outer polygon, labels).
+        meso: topology template (pairs, driven mask, outer polygon, pair labels).
         device: Warp device name.
         radius: grain radii [m], shape (n_cells, n_grains).
         inv_mass: 1 / (density pi r^2) [1/kg] per grain, shape (n_cells, n_grains).
@@ -92,36 +91,19 @@ class DemModel:
 
         Args:
             meso: a template, or a sequence of n_cells mesostructures with the same topology
-                (pairs, driven mask, outer polygon, labels); radii and positions may differ.
+                (pairs, driven mask, outer polygon, pair labels); radii and positions may differ.
             n_cells: number of cells.
         """
         distinct, index = per_cell(meso, n_cells)
         first = distinct[0]
-        key = (first.topology_key(), first.outer.tolist(), first.pair_type.tolist())
+        key = (first.topology_key(), first.outer.tolist(), first.pair_label.tolist())
         for m in distinct:
-            if (m.topology_key(), m.outer.tolist(), m.pair_type.tolist()) != key:
+            if (m.topology_key(), m.outer.tolist(), m.pair_label.tolist()) != key:
                 raise MesostructureError(f"mesostructure {m.name!r} has another topology than {first.name!r}")
         return cls.from_reference(
             first, np.stack([m.radius for m in distinct])[index], np.stack([m.position for m in distinct])[index],
             np.stack([m.cell_size for m in distinct])[index], contact_law=contact_law, settings=settings,
             device=device)
-
-    @classmethod
-    def build_h_cell(cls, alpha0_deg: float | np.ndarray, n_cells: int, radius: float, *,
-                     contact_law: ContactLaw = ContactLaw(), settings: DemSettings = DemSettings(),
-                     device: str = "cpu") -> "DemModel":
-        """H-cells with per-cell opening angles (vectorised).
-
-        Args:
-            alpha0_deg: initial opening angle [deg], scalar or shape (n_cells,), in [30, 90).
-            n_cells: number of cells.
-            radius: grain radius [m].
-        """
-        alpha0_deg = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (n_cells,))
-        position, cell_size = h_cell_reference(alpha0_deg, radius)
-        template = h_cell(float(alpha0_deg[0]), radius)
-        return cls.from_reference(template, np.broadcast_to(template.radius, (n_cells, template.n_grains)),
-                                  position, cell_size, contact_law=contact_law, settings=settings, device=device)
 
     def take(self, index: np.ndarray) -> "DemModel":
         """Model of cells ``index`` (int array, repetition allowed)."""

@@ -1,31 +1,338 @@
-"""Closed-form geometry and meso-stress of the symmetric H-cell (spec sections 2, 3, 7).
+"""The H-cell, the only code that knows it: geometry, builders, labels, declared observables, closed forms.
 
-Shared by the analytical and the ANN backends. Every function is vectorised over cells:
-arguments are arrays of shape (n_cells,) (or scalars that broadcast) and nothing is
-looped over in Python.
-
-Local cell frame: index 0 = n (cell axis), index 1 = t (lateral direction). Grain labels
-1..6 as in spec section 2 (array index = label - 1)::
+The H-cell of spec section 2 is six disks around a pore; its family adds unequal lateral
+grains and free fine grains in the pore (``build_h_cell``). Grain labels 1..6 (array
+index = label - 1), local frame index 0 = n (cell axis), 1 = t (lateral direction)::
 
           1              1 = (n:  l1/2, t: 0)
        2     6           2 = (n:  y2,   t: -l2/2)    6 = (n:  y2, t: +l2/2)
        3     5           3 = (n: -y2,   t: -l2/2)    5 = (n: -y2, t: +l2/2)
           4              4 = (n: -l1/2, t: 0)
 
-with y2 = d2/2, l1 = d2 + 2 d1 cos(alpha) and l2 = 2 d1 sin(alpha). Angles in radians.
+with y2 = d2/2, l1 = d2 + 2 d1 cos(alpha) and l2 = 2 d1 sin(alpha). Angles in radians
+inside, ``_deg`` in degrees.
+
+Exports:
+
+- ``h_cell(alpha0_deg, radius)``: the six-equal-grain H-cell, touching and force-free;
+  ``build_h_cell(...)``: the family (``lateral``, ``fines``); ``reference``: vectorised
+  reference positions and cell sizes; ``skeleton``; ``pore_ratio``.
+- Labels: pairs 1-2, 1-6, 3-4, 4-5 are type-1 contacts, 2-3 and 5-6 type-2 (``TYPE1_PAIRS``,
+  ``TYPE2_PAIRS``), stored as ``Mesostructure.pair_label`` 1 / 2. A cell with labels on
+  the reference contacts 1-2 (type 1) and 2-3 (type 2) declares the observables
+  ``OBSERVABLES`` (alpha_deg, d1, d2, N1, N2, T1, closed1, closed2) and the parameter
+  ``alpha0_deg`` (``declare``; files with labels are handed here by
+  ``warp_hcell.mesostructures.files``); ``plain_alpha0(meso)`` tells whether a cell is the
+  plain six-equal-grain H-cell that the closed forms model.
+- Start cells of the default learning database (``StartCells``, ``start_cells``).
+- Closed forms of the symmetric H-cell (spec sections 2, 3, 7), vectorised over cells
+  (arrays of shape (n_cells,) or scalars that broadcast): ``lengths``,
+  ``branches_from_alpha``, ``cell_area``, ``grain_positions``, ``love_weber_moment``,
+  ``closed_form_observables``, ``touching_cells``; the analytical backend models exactly
+  this cell with them.
+
 Sign convention: compression positive (contact forces N1, N2 > 0 push grains apart, the
-Love-Weber moment of a compressed cell is positive); T1 > 0 resists opening (alpha
-growing).
+Love-Weber moment of a compressed cell is positive); T1 > 0 resists opening (alpha growing).
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, replace
+from itertools import combinations
+from typing import Any, Mapping, Sequence
+
 import numpy as np
 
-from warp_hcell.core.parameters import ALPHA_MAX_DEG, ALPHA_MIN_DEG, check_alpha0_deg
+from warp_hcell.core.parameters import (
+    ALPHA_MAX_DEG,
+    ALPHA_MIN_DEG,
+    CellDefaults,
+    DemSettings,
+    check_alpha0_deg,
+    check_positive,
+)
+from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, PairObservable
 
 N_GRAINS = 6
-"""Number of grains of the H-cell [-]."""
+"""Grains of the H-cell skeleton (labels 1..6); fine grains follow."""
+TYPE1_PAIRS = ((1, 2), (1, 6), (3, 4), (4, 5))
+"""Type-1 contacts as (label, label), labels 1..6 of spec section 2; ``pair_label`` 1."""
+TYPE2_PAIRS = ((2, 3), (5, 6))
+"""Type-2 contacts (parallel to n); ``pair_label`` 2."""
+DRIVEN = ((True, True), (False, True), (False, True), (True, True), (False, True), (False, True))
+"""Driven DOFs of grains 1..6: 1 and 4 along n and t, the lateral grains along t only."""
+OBSERVABLES = (
+    PairObservable("alpha_deg", "branch_angle", (1, 0)),
+    PairObservable("d1", "branch_length", (0, 1)),
+    PairObservable("d2", "branch_length", (1, 2)),
+    PairObservable("N1", "normal_force", (0, 1)),
+    PairObservable("N2", "normal_force", (1, 2)),
+    PairObservable("T1", "shear_force", (0, 1)),
+    PairObservable("closed1", "contact", (0, 1)),
+    PairObservable("closed2", "contact", (1, 2)),
+)
+"""What a labelled cell declares, at the reference contacts 1-2 (type 1) and 2-3 (type 2), equal
+to the other type-1 / type-2 contacts by symmetry: the opening angle alpha (from n to the
+branch 2 -> 1) [deg], the branch lengths d1, d2 [m], the normal forces N1, N2 [N]
+(compression positive), the tangential force T1 [N] (> 0 resists opening) and the contact flags."""
+
+
+def _labels(name: str, pairs: Sequence[tuple[int, int]], type1, type2) -> np.ndarray:
+    """``pair_label`` of ``pairs`` (0-based) from type-1 / type-2 pairs given by 1-based labels."""
+    labels = {tuple(sorted((int(a) - 1, int(b) - 1))): 1 for a, b in type1}
+    labels.update({tuple(sorted((int(a) - 1, int(b) - 1))): 2 for a, b in type2})
+    unknown = set(labels) - {tuple(p) for p in pairs}
+    if unknown:
+        a, b = sorted(unknown)[0]
+        raise MesostructureError(f"mesostructure {name!r}: labelled pair {a + 1}-{b + 1} is not a candidate pair")
+    return np.array([labels.get(tuple(p), 0) for p in pairs], dtype=np.int8)
+
+
+def file_labels(name: str, pairs: Sequence[tuple[int, int]], data: Mapping[str, Any]) -> np.ndarray:
+    """``pair_label`` of a mesostructure file's pairs (0-based) from its optional ``type1`` and
+    ``type2`` lists of 1-based label pairs (``warp_hcell.mesostructures.files.load_mesostructure``)."""
+    return _labels(name, pairs, [tuple(p) for p in data.get("type1", ())], [tuple(p) for p in data.get("type2", ())])
+
+
+def _reference_labelled(meso: Mesostructure) -> bool:
+    """True when the reference contacts 1-2 and 2-3 carry the type-1 and type-2 labels."""
+    try:
+        return (meso.pair_label[meso.pair_index(0, 1)] == 1) and (meso.pair_label[meso.pair_index(1, 2)] == 2)
+    except ValueError:
+        return False
+
+
+def declare(meso: Mesostructure) -> Mesostructure:
+    """``meso`` with ``OBSERVABLES`` and the parameter ``alpha0_deg`` where its reference contacts
+    are labelled, else unchanged.
+
+    ``alpha0_deg`` is the angle between the axis n and the branch 2 -> 1 in the reference
+    geometry, rounded to 1e-9 deg (the cell built at ``alpha0`` gives back exactly ``alpha0``
+    for any value with at most nine decimals).
+    """
+    if meso.dim != 2 or not _reference_labelled(meso):
+        return meso
+    branch = meso.position[0] - meso.position[1]
+    alpha0 = round(math.degrees(math.atan2(branch[1], branch[0])), 9)
+    return replace(meso, observables=OBSERVABLES, parameters={**meso.parameters, "alpha0_deg": alpha0})
+
+
+def reference(alpha0_deg: float | np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Touching H-cell reference positions and cell sizes for a batch of opening angles.
+
+    Args:
+        alpha0_deg: initial opening angles [deg], scalar or shape (n_cells,), each in [30, 90).
+        radius: grain radius r [m] (all six grains equal, D = 2 r).
+
+    Returns:
+        position: (n_cells, 6, 2) [m], (x_n, x_t) of grains 1..6 with d1 = d2 = D;
+        cell_size: (n_cells, 2) [m], (l1, l2) = (D + 2 D cos a, 2 D sin a).
+    """
+    alpha0_deg = np.atleast_1d(np.asarray(alpha0_deg, dtype=np.float64))
+    for value in np.unique(alpha0_deg):
+        check_alpha0_deg(value)
+    diameter = 2.0 * check_positive("radius", radius)
+    alpha = np.radians(alpha0_deg)
+    top = diameter / 2.0 + diameter * np.cos(alpha)
+    side = diameter * np.sin(alpha)
+    half = np.full_like(alpha, diameter / 2.0)
+    zero = np.zeros_like(alpha)
+    x_n = np.stack([top, half, -half, -top, -half, half], axis=1)
+    x_t = np.stack([zero, -side, -side, zero, side, side], axis=1)
+    cell_size = np.stack([2.0 * top, 2.0 * side], axis=1)
+    return np.stack([x_n, x_t], axis=2), cell_size
+
+
+def h_cell(alpha0_deg: float = CellDefaults.alpha0_deg, radius: float = CellDefaults.radius) -> Mesostructure:
+    """The six-grain H-cell of spec section 2, touching and force-free.
+
+    Grains 1 and 4 are driven along n and t (x_t = 0); grains 2, 3, 5, 6 are driven along t
+    and free along n. All 15 pairs are candidates; type-1 and type-2 contacts are labelled.
+    The outer polygon is the hexagon 1-2-3-4-5-6.
+
+    Args:
+        alpha0_deg: initial opening angle [deg], in [30, 90).
+        radius: grain radius r [m].
+    """
+    position, cell_size = reference(alpha0_deg, radius)
+    name = f"h-cell alpha0={float(alpha0_deg):g} deg"
+    pairs = list(combinations(range(N_GRAINS), 2))
+    return declare(Mesostructure(name=name, radius=np.full(N_GRAINS, float(radius)), position=position[0],
+                                 driven=np.array(DRIVEN), pairs=np.array(pairs, dtype=np.int64),
+                                 outer=np.arange(N_GRAINS), cell_size=cell_size[0],
+                                 pair_label=_labels(name, pairs, TYPE1_PAIRS, TYPE2_PAIRS)))
+
+
+def skeleton(alpha0_deg: float, radius: float, lateral: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Touching H-cell whose lateral grains have radius ``lateral * radius``.
+
+    Args:
+        alpha0_deg: opening angle [deg], in [30, 90).
+        radius: radius r of grains 1 and 4 [m].
+        lateral: radius of grains 2, 3, 5, 6 over r [-], > 0.
+
+    Returns:
+        radius (6,) [m], position (6, 2) [m] as (x_n, x_t) with the pore centre at the
+        origin, cell_size (l1, l2) [m] = (d2 + 2 d1 cos a, 2 d1 sin a).
+    """
+    alpha = math.radians(check_alpha0_deg(alpha0_deg))
+    r_lat = lateral * radius
+    if lateral == 1.0:  # the same floating-point values as h_cell
+        position, cell_size = reference(alpha0_deg, radius)
+        return np.full(N_GRAINS, float(radius)), position[0], cell_size[0]
+    d1, d2 = radius + r_lat, 2.0 * r_lat
+    top, side = d2 / 2.0 + d1 * math.cos(alpha), d1 * math.sin(alpha)
+    position = np.array([[top, 0.0], [d2 / 2, -side], [-d2 / 2, -side],
+                         [-top, 0.0], [-d2 / 2, side], [d2 / 2, side]])
+    radii = np.array([radius, r_lat, r_lat, radius, r_lat, r_lat])
+    return radii, position, np.array([2.0 * top, 2.0 * side])
+
+
+def pore_ratio(alpha0_deg: float, *, lateral: float = 1.0, n: float = 0.0, t: float = 0.0) -> float:
+    """Largest fine-grain radius over r that fits at offset (n, t) r from the pore centre [-].
+
+    It is the inscribed radius of the pore at that point: min over grains 1..6 of
+    (distance to the grain centre - its radius), over r. At the pore centre of the equal-grain
+    H-cell: sqrt(1/4 + sin^2 a) 2 - 1 (0.830 at alpha0 = 50 deg, 0.920 at 55 deg).
+    """
+    radii, position, _ = skeleton(alpha0_deg, 1.0, lateral)
+    gap = np.hypot(position[:, 0] - n, position[:, 1] - t) - radii
+    return float(gap.min())
+
+
+def build_h_cell(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: float = CellDefaults.radius,
+                 lateral: float = 1.0, fines: tuple[float, ...] = (),
+                 fine_offsets: tuple[tuple[float, float], ...] | None = None, name: str | None = None) -> Mesostructure:
+    """H-cell with lateral grains ``lateral * radius`` and free fine grains in the pore.
+
+    Args:
+        alpha0_deg: opening angle [deg], in [30, 90).
+        radius: radius r of grains 1 and 4 [m], > 0.
+        lateral: radius of grains 2, 3, 5, 6 over r [-], > 0.
+        fines: radius of each fine grain over r [-], >= 0; zeros are left out.
+        fine_offsets: (n, t) offset of each fine grain from the pore centre, in units of r
+            [-], one per entry of ``fines`` (default: the pore centre).
+        name: mesostructure name (default: describes the parameters).
+
+    Returns:
+        Grains 1..6 as in spec section 2 (1, 4 driven along n and t; 2, 3, 5, 6 driven along
+        t, free along n), then the fine grains (free along n and t); every pair is a
+        candidate contact; type-1/type-2 labels on the skeleton; outer polygon = hexagon.
+
+    Raises:
+        MesostructureError: bad parameter, a fine grain outside the pore, or overlapping
+            grains (one line).
+    """
+    label = name or _default_name(alpha0_deg, lateral, fines)
+    for key, value in (("radius", radius), ("lateral", lateral)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise MesostructureError(f"mesostructure {label!r}: {key} = {value:g} must be finite and > 0")
+    try:
+        radii, position, cell_size = skeleton(alpha0_deg, radius, lateral)
+    except ValueError as exc:
+        raise MesostructureError(f"mesostructure {label!r}: {exc}") from None
+    offsets = [(0.0, 0.0)] * len(fines) if fine_offsets is None else list(fine_offsets)
+    if len(offsets) != len(fines):
+        raise MesostructureError(f"mesostructure {label!r}: {len(fines)} fine grains but {len(offsets)} positions")
+    hexagon = position[[0, 1, 2, 3, 4, 5]]
+    fine_radius, fine_position = [], []
+    for k, (ratio, (dn, dt)) in enumerate(zip(fines, offsets)):
+        if not (math.isfinite(ratio) and ratio >= 0.0) or not (math.isfinite(dn) and math.isfinite(dt)):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain {k + 1} needs a finite ratio >= 0 "
+                                     f"and a finite position, got ratio={ratio:g}, n={dn:g}, t={dt:g}")
+        if ratio == 0.0:
+            continue
+        centre = np.array([dn, dt]) * radius
+        if not _inside(hexagon, centre):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain at n={dn:g}, t={dt:g} (units of r) "
+                                     f"is outside the pore (hexagon 1-2-3-4-5-6)")
+        room = pore_ratio(alpha0_deg, lateral=lateral, n=dn, t=dt)
+        if ratio > room * (1.0 + DemSettings.contact_tolerance):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain ratio {ratio:g} does not fit the pore at "
+                                     f"n={dn:g}, t={dt:g}: the largest is {room:.6g} (alpha0 = {alpha0_deg:g} deg)")
+        fine_radius.append(min(ratio, room) * radius)
+        fine_position.append(centre)
+    n_fines = len(fine_radius)
+    all_radius = np.concatenate([radii, fine_radius])
+    all_position = np.concatenate([position, np.reshape(fine_position, (n_fines, 2))])
+    driven = np.array([[True, True]] + [[False, True]] * 2 + [[True, True]] + [[False, True]] * 2
+                      + [[False, False]] * n_fines)
+    pairs = list(combinations(range(N_GRAINS + n_fines), 2))
+    return declare(Mesostructure(name=label, radius=all_radius, position=all_position, driven=driven,
+                                 pairs=np.array(pairs, dtype=np.int64), outer=np.arange(N_GRAINS), cell_size=cell_size,
+                                 pair_label=_labels(label, pairs, TYPE1_PAIRS, TYPE2_PAIRS)))
+
+
+def _default_name(alpha0_deg: float, lateral: float, fines: tuple[float, ...]) -> str:
+    parts = [f"h-cell alpha0={float(alpha0_deg):g} deg"]
+    if lateral != 1.0:
+        parts.append(f"lateral/r={lateral:g}")
+    if any(f > 0.0 for f in fines):
+        parts.append("fines r_f/r=" + "/".join(f"{f:g}" for f in fines))
+    return ", ".join(parts)
+
+
+def _inside(polygon: np.ndarray, point: np.ndarray) -> bool:
+    """True if ``point`` lies strictly inside the convex ``polygon`` (ordered vertices)."""
+    edge = np.roll(polygon, -1, axis=0) - polygon
+    rel = point - polygon
+    cross = edge[:, 0] * rel[:, 1] - edge[:, 1] * rel[:, 0]
+    return bool(np.all(cross > 0.0) or np.all(cross < 0.0))
+
+
+def plain_alpha0(meso: Mesostructure) -> tuple[float, float] | None:
+    """(alpha0_deg, radius) if ``meso`` is the touching six-equal-grain H-cell, else None.
+
+    The closed-form backends model exactly this cell; the comparison is to 1e-9 of the
+    grain radius on positions, cell size, driven flags, pairs, labels and outer polygon.
+    """
+    if meso.n_grains != N_GRAINS or not np.allclose(meso.radius, meso.radius[0], rtol=1e-12, atol=0.0):
+        return None
+    alpha0 = meso.parameters.get("alpha0_deg")
+    if alpha0 is None:
+        return None
+    radius = float(meso.radius[0])
+    try:
+        reference = h_cell(alpha0, radius)
+    except ValueError:
+        return None
+    same = (np.allclose(meso.position, reference.position, rtol=0.0, atol=1e-9 * radius)
+            and np.allclose(meso.cell_size, reference.cell_size, rtol=0.0, atol=1e-9 * radius)
+            and np.array_equal(meso.driven, reference.driven) and np.array_equal(meso.outer, reference.outer)
+            and {tuple(p): t for p, t in zip(meso.pairs.tolist(), meso.pair_label.tolist())}
+            == {tuple(p): t for p, t in zip(reference.pairs.tolist(), reference.pair_label.tolist())})
+    return (alpha0, radius) if same else None
+
+
+@dataclass(frozen=True)
+class StartCells:
+    """Start cells of the default (H-cell) learning database: the H-cells of all opening angles
+    share one learning state, so the exploration starts from several
+    (``warp_hcell.database.generate``; a mesostructure file or spec gives one start cell)."""
+
+    alpha0_min_deg: float = 30.0
+    """Smallest opening angle of the start cells [deg]."""
+    alpha0_max_deg: float = 89.0
+    """Largest opening angle of the start cells [deg]."""
+    n_alpha0: int = 12
+    """Opening angles evenly spaced in [alpha0_min_deg, alpha0_max_deg] [-]."""
+    alpha0_focus_deg: tuple[float, ...] = (35.0, 40.0, 55.0)
+    """Opening angles of the homogenisation runs, added to the even grid [deg]."""
+
+    def __post_init__(self) -> None:
+        if int(self.n_alpha0) < 1:
+            raise ValueError(f"n_alpha0 = {self.n_alpha0} must be >= 1")
+        for value in (self.alpha0_min_deg, self.alpha0_max_deg, *self.alpha0_focus_deg):
+            check_alpha0_deg(value)
+        if self.alpha0_min_deg > self.alpha0_max_deg:
+            raise ValueError(f"alpha0_min_deg = {self.alpha0_min_deg:g} exceeds alpha0_max_deg = {self.alpha0_max_deg:g}")
+
+    def build(self, radius: float = CellDefaults.radius) -> list[Mesostructure]:
+        """The H-cells at the opening angles (even grid plus focus angles), sorted."""
+        grid = np.linspace(self.alpha0_min_deg, self.alpha0_max_deg, self.n_alpha0)
+        angles = np.unique(np.concatenate([grid, np.asarray(self.alpha0_focus_deg, dtype=np.float64)]))
+        return [h_cell(float(a), radius) for a in angles]
 
 
 def lengths(d1: np.ndarray, d2: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -41,23 +348,6 @@ def lengths(d1: np.ndarray, d2: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarr
         columns, each shape (n_cells,).
     """
     return d2 + 2.0 * d1 * np.cos(alpha), 2.0 * d1 * np.sin(alpha)
-
-
-def branches_from_y2(
-    l1: np.ndarray, l2: np.ndarray, y2: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Branch lengths and opening angle from the cell lengths and y2 (spec section 3).
-
-    Args:
-        l1, l2: cell lengths [m], shape (n_cells,).
-        y2: n-coordinate of grain 2, d2/2 [m], shape (n_cells,), in (0, l1/2].
-
-    Returns:
-        (d1 [m], d2 [m], alpha [rad]), each shape (n_cells,).
-    """
-    u = 0.5 * l1 - y2
-    h = 0.5 * l2
-    return np.hypot(h, u), 2.0 * y2, np.arctan2(h, u)
 
 
 def branches_from_alpha(
@@ -111,20 +401,6 @@ def grain_positions(l1: np.ndarray, l2: np.ndarray, y2: np.ndarray) -> np.ndarra
     return np.stack([x_n, x_t], axis=-1)
 
 
-def grain_positions_from_alpha(l1: np.ndarray, l2: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """Centres of the six grains from (l1, l2, alpha); see ``grain_positions``.
-
-    Args:
-        l1, l2: cell lengths [m], shape (n_cells,).
-        alpha: opening angle [rad], shape (n_cells,), in (0, pi/2].
-
-    Returns:
-        Positions [m], shape (n_cells, 6, 2), index 0 = x_n, 1 = x_t.
-    """
-    _, d2 = branches_from_alpha(l1, l2, alpha)
-    return grain_positions(l1, l2, 0.5 * d2)
-
-
 def love_weber_moment(
     alpha: np.ndarray,
     N1: np.ndarray,
@@ -171,7 +447,7 @@ def love_weber_moment(
     return moment, cell_area(l1, l2, d2)
 
 
-def observables(
+def closed_form_observables(
     l1: np.ndarray,
     l2: np.ndarray,
     d1: np.ndarray,
@@ -290,3 +566,103 @@ def h_cell_3d_skeleton(alpha0_deg: float, radius: float, lateral: float = 1.0,
     radii = np.array([radius, r_lat, r_lat, radius] + [r_lat] * 6)
     cell_size = np.array([2.0 * top, 2.0 * np.abs(position[:, 1]).max(), 2.0 * np.abs(position[:, 2]).max()])
     return radii, position, cell_size
+
+
+def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: float = CellDefaults.radius,
+                    lateral: float = 1.0, plane_angle_deg: float = 90.0, fines: tuple[float, ...] = (),
+                    fine_offsets: tuple[tuple[float, float, float], ...] | None = None,
+                    name: str | None = None) -> Mesostructure:
+    """Ten-sphere H-cell (docs/model.md section 14) with free fine grains in the pore.
+
+    Args:
+        alpha0_deg: opening angle [deg]; equal spheres in planes 90 deg apart need >= 45 deg (below,
+            the lateral grains of the two planes overlap).
+        radius: radius r of the axial grains 1 and 4 [m].
+        lateral: radius of the eight lateral grains over r [-].
+        plane_angle_deg: angle between plane A (grains 1-6, (n, t1)) and plane B (grains 1, 4,
+            7-10) about n [deg], in (0, 180); 90 is the orthogonal cell.
+        fines: radius of each fine grain over r [-]; zeros are left out.
+        fine_offsets: (n, t1, t2) offset of each fine grain from the pore centre in units of r [-]
+            (default: the centre).
+        name: mesostructure name (default: describes the parameters).
+
+    Returns:
+        Grains 1, 4 driven along n, t1, t2; grains 2, 3, 5, 6, 7, 8, 9, 10 driven along t1 and t2
+        (homothetically with l2, l3) and free along n; fine grains free along every axis; every
+        pair a candidate; type-1 / type-2 labels on the skeleton; the parameter ``alpha0_deg``;
+        outer surface: the sixteen triangles of ``h_cell_3d_faces``.
+
+    Raises:
+        MesostructureError: bad parameter, a fine grain outside the pore or overlapping grains (one line).
+    """
+    label = name or "3D " + _default_name(alpha0_deg, lateral, fines)
+    for key, value in (("radius", radius), ("lateral", lateral)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise MesostructureError(f"mesostructure {label!r}: {key} = {value:g} must be finite and > 0")
+    if not (math.isfinite(plane_angle_deg) and 0.0 < plane_angle_deg < 180.0):
+        raise MesostructureError(f"mesostructure {label!r}: plane = {plane_angle_deg:g} deg is outside (0, 180)")
+    try:
+        radii, position, cell_size = h_cell_3d_skeleton(alpha0_deg, radius, lateral, plane_angle_deg)
+    except ValueError as exc:
+        raise MesostructureError(f"mesostructure {label!r}: {exc}") from None
+    lateral_gap = min(np.linalg.norm(position[a] - position[b]) - radii[a] - radii[b]
+                      for a, b in ((1, 6), (1, 9), (5, 6), (5, 9)))
+    if lateral_gap < -DemSettings.contact_tolerance * 2.0 * radii[1]:
+        raise MesostructureError(f"mesostructure {label!r}: at alpha0 = {alpha0_deg:g} deg the lateral grains of the two "
+                                 f"planes overlap; this cell needs a larger alpha0, a plane angle nearer 90 deg or "
+                                 f"smaller lateral grains")
+    faces = h_cell_3d_faces()
+    offsets = [(0.0, 0.0, 0.0)] * len(fines) if fine_offsets is None else list(fine_offsets)
+    if len(offsets) != len(fines):
+        raise MesostructureError(f"mesostructure {label!r}: {len(fines)} fine grains but {len(offsets)} positions")
+    fine_radius, fine_position = [], []
+    for k, (ratio, offset) in enumerate(zip(fines, offsets)):
+        if not (math.isfinite(ratio) and ratio >= 0.0) or not all(math.isfinite(v) for v in offset):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain {k + 1} needs a finite ratio >= 0 and a "
+                                     f"finite position")
+        if ratio == 0.0:
+            continue
+        centre = np.asarray(offset, dtype=np.float64) * radius
+        a, b, c = (position[faces[:, m]] for m in range(3))
+        if not np.all(np.einsum("fi,fi->f", np.cross(b - a, c - a), centre - a) < 0.0):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain at {tuple(offset)} (units of r) is outside "
+                                     f"the pore (the cell's outer surface)")
+        room = float(np.min(np.linalg.norm(position - centre, axis=1) - radii)) / radius
+        if ratio > room * (1.0 + DemSettings.contact_tolerance):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain ratio {ratio:g} does not fit the pore at "
+                                     f"{tuple(offset)}: the largest is {room:.6g}")
+        fine_radius.append(min(ratio, room) * radius)
+        fine_position.append(centre)
+    n_fines = len(fine_radius)
+    driven = np.array([[True] * 3] + [[False, True, True]] * 2 + [[True] * 3] + [[False, True, True]] * 6
+                      + [[False] * 3] * n_fines)
+    pairs = list(combinations(range(H3_GRAINS + n_fines), 2))
+    return Mesostructure(name=label, radius=np.concatenate([radii, fine_radius]),
+                         position=np.concatenate([position, np.reshape(fine_position, (n_fines, 3))]), driven=driven,
+                         pairs=np.array(pairs, dtype=np.int64), outer=faces, cell_size=cell_size,
+                         pair_label=_labels(label, pairs, H3_TYPE1_PAIRS, H3_TYPE2_PAIRS),
+                         parameters={"alpha0_deg": float(alpha0_deg)})
+
+
+def plain_alpha0_3d(meso: Mesostructure) -> tuple[float, float] | None:
+    """(alpha0_deg, radius) if ``meso`` is the touching ten-equal-sphere cell of orthogonal planes, else None.
+
+    The closed-form 3D backend models exactly this cell; compared to 1e-9 of the radius like
+    ``plain_alpha0``.
+    """
+    if meso.dim != 3 or meso.n_grains != H3_GRAINS or not np.allclose(meso.radius, meso.radius[0], rtol=1e-12,
+                                                                      atol=0.0):
+        return None
+    alpha0 = meso.parameters.get("alpha0_deg")
+    if alpha0 is None:
+        return None
+    radius = float(meso.radius[0])
+    try:
+        reference = build_h_cell_3d(alpha0, radius=radius)
+    except (ValueError, MesostructureError):
+        return None
+    same = (np.allclose(meso.position, reference.position, rtol=0.0, atol=1e-9 * radius)
+            and np.allclose(meso.cell_size, reference.cell_size, rtol=0.0, atol=1e-9 * radius)
+            and np.array_equal(meso.driven, reference.driven) and np.array_equal(meso.outer, reference.outer)
+            and np.array_equal(meso.pairs, reference.pairs) and np.array_equal(meso.pair_label, reference.pair_label))
+    return (alpha0, radius) if same else None

@@ -8,45 +8,60 @@ coordinates are integrated by the DEM. The outer polygon (ordered grains) has ar
 
 Exports:
 
-- ``Mesostructure``: the description (validated on construction).
+- ``Mesostructure``: the description (validated on construction), with the observables
+  (``PairObservable``, ``OBSERVABLE_KINDS``) and parameters the cell declares;
+  ``evaluate_observables`` evaluates them on a batch of cells.
 - ``MesostructureError``: raised, with a one-line message, for invalid descriptions.
-- ``h_cell(alpha0_deg, radius)``: the six-grain H-cell of spec section 2 (the only code
-  that knows the H-cell has six grains).
-- ``h_cell_reference(alpha0_deg, radius)``: vectorised H-cell reference positions and cell
-  sizes for a batch of alpha0.
-- ``load_mesostructure(path)``: read a TOML or JSON description (format in its docstring;
-  examples in ``warp_hcell/data``).
 - ``state_schema(meso)``: the learning state of the cell (``warp_hcell.core.contract.StateSchema``).
-- ``describe(meso)`` / ``from_description(text)`` / ``description_sha256(text)``: canonical
-  JSON text of a mesostructure (stored in databases and checkpoints), its inverse, and
-  its hash.
 - ``shares_state_schema(a, b)``: True when cells of ``b`` are states of ``a``'s schema.
 - ``per_cell(mesostructure, n_cells)``: the distinct mesostructures of a batch of cells and
   each cell's index into them (``CellModel.init_state`` takes one or one per cell).
 - ``topology_arrays(meso, n_cells)``: the topology repeated per cell, for state arrays
   that must rebuild their cells (``warp_hcell.dem.cell.DemCell.state_from_arrays``).
+
+Files and descriptions: ``warp_hcell.mesostructures.files``; builders: ``warp_hcell.mesostructures.hcell``
+and the specs of ``warp_hcell.mesostructures.builders``.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
-import tomllib
 from dataclasses import dataclass, field
 from itertools import combinations
-from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from warp_hcell.core.contract import StateFeature, StateSchema
-from warp_hcell.core.parameters import CellDefaults, check_alpha0_deg, check_positive, DemSettings
+from warp_hcell.core.parameters import DemSettings
 
-H_TYPE1_PAIRS = ((1, 2), (1, 6), (3, 4), (4, 5))
-"""Type-1 contacts of the H-cell as (label, label), labels 1..6 of spec section 2."""
-H_TYPE2_PAIRS = ((2, 3), (5, 6))
-"""Type-2 contacts of the H-cell (parallel to n)."""
+OBSERVABLE_KINDS = {
+    "branch_angle": ("deg", "angle of the branch x_b - x_a from the cell axis n, atan2(t, n)"),
+    "branch_length": ("m", "length |x_b - x_a| of the branch"),
+    "normal_force": ("N", "normal force of the pair {a, b}, compression positive (>= 0)"),
+    "shear_force": ("N", "tangential spring force of the pair {a, b}: the force on the grain of lower index along "
+                         "w = (-u_t, u_n), u the unit branch from it to the other (the same for (a, b) swapped)"),
+    "contact": ("bool", "the pair {a, b} is in contact"),
+}
+"""Kinds of ``PairObservable``: unit and definition (local frame, index 0 = n, 1 = t)."""
+
+
+@dataclass(frozen=True)
+class PairObservable:
+    """A named per-cell quantity that a mesostructure declares: one kind measured on one pair.
+
+    Attributes:
+        name: the observable's name (e.g. ``N1``), unique in its mesostructure.
+        kind: one of ``OBSERVABLE_KINDS``.
+        grains: (a, b), 0-based grain indices; the kinds of branches measure x_b - x_a, the
+            others the candidate pair {a, b}.
+    """
+
+    name: str
+    kind: str
+    grains: tuple[int, int]
+LABEL_KEY = "pair_type"
+"""Name of ``Mesostructure.pair_label`` in descriptions, files and state arrays."""
 
 
 AXIS_NAMES = {2: ("n", "t"), 3: ("n", "t1", "t2")}
@@ -59,10 +74,10 @@ class MesostructureError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class Mesostructure:
-    """One cell made of a few disks, in the local frame (index 0 = n, index 1 = t).
+    """One cell made of a few disks (2D) or spheres (3D), in the local frame (index 0 = n, the cell axis).
 
-    A cell is planar (dim = 2, disks, frame (n, t)) or spatial (dim = 3, spheres, frame
-    (n, t1, t2)); the dimension is the number of position columns.
+    A cell is planar (dim = 2, frame (n, t)) or spatial (dim = 3, frame (n, t1, t2)); the
+    dimension is the number of position columns.
 
     Attributes:
         name: short description.
@@ -76,8 +91,13 @@ class Mesostructure:
             indices of a polygon, shape (n_outer,); in 3D the triangles of a closed surface
             through grain centres, oriented outwards, shape (n_faces, 3).
         cell_size: reference cell size (l1_ref, l2_ref[, l3_ref]) [m], shape (dim,).
-        pair_type: H-cell label of each pair, shape (n_pairs,): 1 = type-1, 2 = type-2,
-            0 = unlabelled. All zeros for a mesostructure without H-cell labels.
+        pair_label: label of each pair set by the builder or file that made the cell, shape
+            (n_pairs,) int8, 0 = none; only that builder reads it (descriptions, files and
+            state arrays carry it, ``warp_hcell.mesostructures.files`` hands it back).
+        observables: the named per-cell quantities the cell declares (``PairObservable``);
+            backends, the database and run records evaluate them without knowing the cell.
+        parameters: named scalars of the cell (e.g. ``alpha0_deg`` [deg]) that run records
+            copy without knowing what they are.
     """
 
     name: str
@@ -87,7 +107,9 @@ class Mesostructure:
     pairs: np.ndarray
     outer: np.ndarray
     cell_size: np.ndarray
-    pair_type: np.ndarray = field(default=None)  # type: ignore[assignment]
+    pair_label: np.ndarray = field(default=None)  # type: ignore[assignment]
+    observables: tuple[PairObservable, ...] = ()
+    parameters: Mapping[str, float] = field(default_factory=dict)
     contact_tolerance: float = DemSettings.contact_tolerance
     """Allowed overlap, as a fraction of the pair's mean diameter, when validating [-]."""
 
@@ -99,13 +121,18 @@ class Mesostructure:
         outer = np.asarray(self.outer, dtype=np.int64)
         outer = outer.reshape(-1, 3) if position.ndim == 2 and position.shape[-1] == 3 else outer.reshape(-1)
         cell_size = np.asarray(self.cell_size, dtype=np.float64).reshape(-1)
-        pair_type = (np.zeros(pairs.shape[0], np.int8) if self.pair_type is None
-                     else np.asarray(self.pair_type, dtype=np.int8).reshape(-1))
-        _validate(self.name, radius, position, driven, pairs, outer, cell_size, pair_type,
+        pair_label = (np.zeros(pairs.shape[0], np.int8) if self.pair_label is None
+                      else np.asarray(self.pair_label, dtype=np.int8).reshape(-1))
+        _validate(self.name, radius, position, driven, pairs, outer, cell_size, pair_label,
                   self.contact_tolerance)
+        observables = tuple(self.observables)
+        _validate_observables(self.name, observables, pairs, radius.size)
+        parameters = {str(k): float(v) for k, v in dict(self.parameters).items()}
+        object.__setattr__(self, "observables", observables)
+        object.__setattr__(self, "parameters", parameters)
         for name, value in (("radius", radius), ("position", position), ("driven", driven.astype(bool)),
                             ("pairs", pairs), ("outer", outer), ("cell_size", cell_size),
-                            ("pair_type", pair_type)):
+                            ("pair_label", pair_label)):
             value = np.array(value)
             value.setflags(write=False)
             object.__setattr__(self, name, value)
@@ -116,30 +143,22 @@ class Mesostructure:
         return int(self.radius.size)
 
     @property
-    def dim(self) -> int:
-        """Spatial dimension: 2 (disks) or 3 (spheres)."""
-        return int(self.position.shape[1])
-
-    @property
     def n_pairs(self) -> int:
         """Number of candidate contact pairs."""
         return int(self.pairs.shape[0])
 
     @property
-    def is_h_cell(self) -> bool:
-        """True when the H-cell labels (type-1 contact 1-2, type-2 contact 2-3) are attached."""
-        return self.h_reference_pairs is not None
+    def dim(self) -> int:
+        """Spatial dimension: 2 (disks) or 3 (spheres)."""
+        return int(self.position.shape[1])
 
-    @property
-    def h_reference_pairs(self) -> tuple[int, int] | None:
-        """Pair indices of the reference contacts 1-2 (type 1) and 2-3 (type 2), or None."""
-        found = []
-        for (i, j), kind in (((0, 1), 1), ((1, 2), 2)):
-            hit = np.flatnonzero((self.pairs[:, 0] == i) & (self.pairs[:, 1] == j) & (self.pair_type == kind))
-            if hit.size != 1:
-                return None
-            found.append(int(hit[0]))
-        return found[0], found[1]
+    def pair_index(self, a: int, b: int) -> int:
+        """Index of the candidate pair {a, b} (0-based grains); ValueError if it is none."""
+        i, j = sorted((int(a), int(b)))
+        hit = np.flatnonzero((self.pairs[:, 0] == i) & (self.pairs[:, 1] == j))
+        if hit.size != 1:
+            raise ValueError(f"mesostructure {self.name!r}: grains {i + 1} and {j + 1} are not a candidate pair")
+        return int(hit[0])
 
     def schema(self) -> StateSchema:
         """The learning state of this cell (``state_schema``)."""
@@ -180,7 +199,24 @@ def cell_measure(position: np.ndarray, outer: np.ndarray) -> np.ndarray:
     return polyhedron_volume(position, outer) if np.ndim(outer) == 2 else polygon_area(position, outer)
 
 
-def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_type, tolerance) -> None:
+def _validate_observables(name, observables, pairs, n_grains) -> None:
+    names = [o.name for o in observables]
+    if len(set(names)) != len(names):
+        raise MesostructureError(f"mesostructure {name!r}: observable names must be unique, got {names}")
+    candidates = set(map(tuple, pairs.tolist()))
+    for o in observables:
+        a, b = o.grains
+        if o.kind not in OBSERVABLE_KINDS:
+            raise MesostructureError(f"mesostructure {name!r}: observable {o.name!r} has kind {o.kind!r}, not one of "
+                                     f"{', '.join(OBSERVABLE_KINDS)}")
+        if not (0 <= a < n_grains and 0 <= b < n_grains and a != b):
+            raise MesostructureError(f"mesostructure {name!r}: observable {o.name!r} needs two grains in 1..{n_grains}")
+        if not o.kind.startswith("branch") and tuple(sorted((a, b))) not in candidates:
+            raise MesostructureError(f"mesostructure {name!r}: observable {o.name!r} needs the candidate pair "
+                                     f"{min(a, b) + 1}-{max(a, b) + 1}")
+
+
+def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_label, tolerance) -> None:
     n_grains = radius.size
     if n_grains < 2:
         raise MesostructureError(f"mesostructure {name!r}: needs at least 2 grains, got {n_grains}")
@@ -203,8 +239,8 @@ def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_type
         raise MesostructureError(f"mesostructure {name!r}: pairs must be (i, j) with 1 <= i < j <= {n_grains}")
     if len(set(map(tuple, pairs.tolist()))) != pairs.shape[0]:
         raise MesostructureError(f"mesostructure {name!r}: duplicate contact pairs")
-    if pair_type.shape != (pairs.shape[0],) or not np.all(np.isin(pair_type, (0, 1, 2))):
-        raise MesostructureError(f"mesostructure {name!r}: pair types must be 0, 1 or 2, one per pair")
+    if pair_label.shape != (pairs.shape[0],):
+        raise MesostructureError(f"mesostructure {name!r}: pair labels must be one per pair")
     if dim == 2:
         if outer.size < 3 or len(set(outer.tolist())) != outer.size or outer.min() < 0 or outer.max() >= n_grains:
             raise MesostructureError(f"mesostructure {name!r}: outer polygon needs >= 3 distinct grains in 1..{n_grains}")
@@ -216,189 +252,21 @@ def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_type
     if undriven:
         raise MesostructureError(
             f"mesostructure {name!r}: outer grain {undriven[0]} has no driven DOF; outer grains follow the cell strain")
-    axes = AXIS_NAMES[dim]
+    if dim == 2 and not (driven[:, 0].any() and driven[:, 1].any()):
+        raise MesostructureError(f"mesostructure {name!r}: needs at least one DOF driven along n and one along t")
     for axis in range(dim):
         if not driven[:, axis].any():
-            raise MesostructureError(f"mesostructure {name!r}: needs at least one DOF driven along {axes[axis]}")
+            raise MesostructureError(f"mesostructure {name!r}: needs at least one DOF driven along "
+                                     f"{AXIS_NAMES[dim][axis]}")
     if not cell_measure(position, outer) > 0.0:
-        raise MesostructureError(f"mesostructure {name!r}: the outer {'polygon has zero area' if dim == 2 else 'surface encloses no volume'}")
+        raise MesostructureError(f"mesostructure {name!r}: the outer "
+                                 f"{'polygon has zero area' if dim == 2 else 'surface encloses no volume'}")
     for i, j in combinations(range(n_grains), 2):
         gap = math.dist(position[i], position[j]) - radius[i] - radius[j]
         if gap < -tolerance * (radius[i] + radius[j]):
             raise MesostructureError(
                 f"mesostructure {name!r}: grains {i + 1} and {j + 1} overlap by {-gap:.3g} m "
                 f"(more than the contact tolerance)")
-
-
-def h_cell_reference(alpha0_deg: float | np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Touching H-cell reference positions and cell sizes for a batch of opening angles.
-
-    Args:
-        alpha0_deg: initial opening angles [deg], scalar or shape (n_cells,), each in [30, 90).
-        radius: grain radius r [m] (all six grains equal, D = 2 r).
-
-    Returns:
-        position: (n_cells, 6, 2) [m], (x_n, x_t) of grains 1..6 with d1 = d2 = D;
-        cell_size: (n_cells, 2) [m], (l1, l2) = (D + 2 D cos a, 2 D sin a).
-    """
-    alpha0_deg = np.atleast_1d(np.asarray(alpha0_deg, dtype=np.float64))
-    for value in np.unique(alpha0_deg):
-        check_alpha0_deg(value)
-    diameter = 2.0 * check_positive("radius", radius)
-    alpha = np.radians(alpha0_deg)
-    top = diameter / 2.0 + diameter * np.cos(alpha)
-    side = diameter * np.sin(alpha)
-    half = np.full_like(alpha, diameter / 2.0)
-    zero = np.zeros_like(alpha)
-    x_n = np.stack([top, half, -half, -top, -half, half], axis=1)
-    x_t = np.stack([zero, -side, -side, zero, side, side], axis=1)
-    cell_size = np.stack([2.0 * top, 2.0 * side], axis=1)
-    return np.stack([x_n, x_t], axis=2), cell_size
-
-
-def h_cell(alpha0_deg: float = CellDefaults.alpha0_deg, radius: float = CellDefaults.radius) -> Mesostructure:
-    """The six-grain H-cell of spec section 2, touching and force-free.
-
-    Grains 1 and 4 are driven along n and t (x_t = 0); grains 2, 3, 5, 6 are driven along t
-    and free along n. All 15 pairs are candidates; type-1 and type-2 contacts are labelled.
-    The outer polygon is the hexagon 1-2-3-4-5-6.
-
-    Args:
-        alpha0_deg: initial opening angle [deg], in [30, 90).
-        radius: grain radius r [m].
-    """
-    position, cell_size = h_cell_reference(alpha0_deg, radius)
-    driven = np.array([[True, True]] + [[False, True]] * 2 + [[True, True]] + [[False, True]] * 2)
-    return _with_labels(
-        name=f"h-cell alpha0={float(alpha0_deg):g} deg",
-        radius=np.full(6, float(radius)), position=position[0], driven=driven,
-        outer=np.arange(6), cell_size=cell_size[0],
-        type1=H_TYPE1_PAIRS, type2=H_TYPE2_PAIRS)
-
-
-def _with_labels(*, name, radius, position, driven, outer, cell_size, type1, type2, pairs=None,
-                 contact_tolerance=DemSettings.contact_tolerance) -> Mesostructure:
-    """Build a Mesostructure with all pairs (unless given) and type-1/type-2 labels (1-based)."""
-    n_grains = len(radius)
-    pairs = list(combinations(range(n_grains), 2)) if pairs is None else [tuple(sorted(p)) for p in pairs]
-    labels = {tuple(sorted((a - 1, b - 1))): 1 for a, b in type1}
-    labels.update({tuple(sorted((a - 1, b - 1))): 2 for a, b in type2})
-    unknown = set(labels) - set(pairs)
-    if unknown:
-        a, b = sorted(unknown)[0]
-        raise MesostructureError(f"mesostructure {name!r}: labelled pair {a + 1}-{b + 1} is not a candidate pair")
-    pair_type = [labels.get(p, 0) for p in pairs]
-    return Mesostructure(name=name, radius=np.asarray(radius, float), position=np.asarray(position, float),
-                         driven=np.asarray(driven), pairs=np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
-                         outer=np.asarray(outer), cell_size=np.asarray(cell_size, float),
-                         pair_type=np.asarray(pair_type), contact_tolerance=contact_tolerance)
-
-
-def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettings.contact_tolerance) -> Mesostructure:
-    """Read a mesostructure from a TOML (``.toml``) or JSON (``.json``) file.
-
-    Format (labels are 1-based, coordinates (n, t) in metres)::
-
-        name = "h-cell, lateral grains 0.7 D"
-        cell_size = [l1_ref, l2_ref]
-        outer = [1, 2, 3, 4, 5, 6]          # ordered around the polygon whose area is V_cell
-        pairs = [[1, 2], ...]               # optional; default: all pairs
-        type1 = [[1, 2], [1, 6], ...]       # optional H-cell labels (enable N1, N2, T1, alpha)
-        type2 = [[2, 3], [5, 6]]
-        [[grains]]                          # one table per grain, in label order
-        radius = 0.5
-        position = [x_n, x_t]
-        driven = [true, false]              # (along n, along t)
-
-    A 3D cell (spheres) gives three coordinates per grain, position = [x_n, x_t1, x_t2] and
-    driven = [n, t1, t2], a cell_size of three lengths, and ``outer`` as the triangles of the
-    closed surface whose volume is V_cell, oriented outwards: outer = [[1, 6, 10], ...].
-
-    Raises:
-        MesostructureError: unreadable file or invalid description (one-line message).
-    """
-    path = Path(path)
-    try:
-        text = path.read_text()
-        data = tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MesostructureError(f"cannot read mesostructure file {path}: {exc.strerror or exc}") from None
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-        raise MesostructureError(f"mesostructure file {path} is not valid {path.suffix[1:].upper()}: {exc}") from None
-    return _from_mapping(data, default_name=path.stem, contact_tolerance=contact_tolerance)
-
-
-def _from_mapping(data: Mapping[str, Any], *, default_name: str, contact_tolerance: float) -> Mesostructure:
-    name = str(data.get("name", default_name))
-    try:
-        grains = data["grains"]
-        radius = [float(g["radius"]) for g in grains]
-        position = [[float(v) for v in g["position"]] for g in grains]
-        driven = [list(g["driven"]) for g in grains]
-        dim = len(position[0]) if position else 2
-        if not all(isinstance(v, bool) and len(d) == dim for d in driven for v in d):
-            axes = AXIS_NAMES.get(dim, AXIS_NAMES[2])
-            raise MesostructureError(f"mesostructure {name!r}: each grain needs driven = [{', '.join(['bool'] * len(axes))}] "
-                                     f"({', '.join(axes)})")
-        to_index = lambda labels: [[int(a) - 1 for a in p] for p in labels]  # noqa: E731
-        pairs = data.get("pairs")
-        return _with_labels(
-            name=name, radius=radius, position=position, driven=driven,
-            outer=np.asarray(data["outer"], dtype=np.int64) - 1, cell_size=[float(v) for v in data["cell_size"]],
-            pairs=None if pairs is None else to_index(pairs),
-            type1=[tuple(p) for p in data.get("type1", ())], type2=[tuple(p) for p in data.get("type2", ())],
-            contact_tolerance=contact_tolerance)
-    except KeyError as exc:
-        raise MesostructureError(f"mesostructure {name!r}: missing key {exc.args[0]!r}") from None
-    except (TypeError, ValueError) as exc:
-        if isinstance(exc, MesostructureError):
-            raise
-        raise MesostructureError(f"mesostructure {name!r}: malformed entry ({exc})") from None
-
-
-DESCRIPTION_FIELDS = ("radius", "position", "driven", "pairs", "outer", "cell_size", "pair_type")
-"""Array fields of a mesostructure in its JSON description (with ``name``, ``contact_tolerance``)."""
-
-
-def describe(meso: Mesostructure) -> str:
-    """Canonical JSON text of ``meso``: enough to rebuild it with ``from_description``.
-
-    Canonical: keys sorted, no whitespace (``json.dumps(sort_keys=True, separators=(",", ":"))``),
-    floats written by ``repr`` (exact round trip), indices 0-based. Equal cells give equal text.
-    """
-    data: dict[str, Any] = {"format": "meso-hmodel-mesostructure", "version": 1, "name": meso.name,
-                            "contact_tolerance": float(meso.contact_tolerance)}
-    for name in DESCRIPTION_FIELDS:
-        data[name] = np.asarray(getattr(meso, name)).tolist()
-    return json.dumps(data, sort_keys=True, separators=(",", ":"))
-
-
-def from_description(text: str) -> Mesostructure:
-    """Inverse of ``describe``.
-
-    Raises:
-        MesostructureError: not a mesostructure description, or an invalid cell (one line).
-    """
-    try:
-        data = json.loads(text)
-    except (TypeError, json.JSONDecodeError) as exc:
-        raise MesostructureError(f"mesostructure description is not JSON: {exc}") from None
-    if not isinstance(data, dict) or data.get("format") != "meso-hmodel-mesostructure":
-        raise MesostructureError("text is not a mesostructure description (format meso-hmodel-mesostructure)")
-    try:
-        return Mesostructure(
-            name=str(data["name"]), radius=np.asarray(data["radius"], np.float64),
-            position=np.asarray(data["position"], np.float64), driven=np.asarray(data["driven"], bool),
-            pairs=np.asarray(data["pairs"], np.int64).reshape(-1, 2), outer=np.asarray(data["outer"], np.int64),
-            cell_size=np.asarray(data["cell_size"], np.float64), pair_type=np.asarray(data["pair_type"], np.int8),
-            contact_tolerance=float(data["contact_tolerance"]))
-    except KeyError as exc:
-        raise MesostructureError(f"mesostructure description: missing key {exc.args[0]!r}") from None
-
-
-def description_sha256(text: str) -> str:
-    """Hex sha256 of a description text (UTF-8)."""
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def shares_state_schema(meso: Mesostructure, other: Mesostructure, rtol: float = 1e-12) -> bool:
@@ -454,13 +322,45 @@ def per_cell(mesostructure: Mesostructure | Sequence[Mesostructure],
     return tuple(distinct), index
 
 
-TOPOLOGY_ARRAYS = ("pairs", "driven", "outer", "pair_type")
-"""Mesostructure fields that describe a batch's topology (``topology_arrays``)."""
+TOPOLOGY_FIELDS = {"pairs": "pairs", "driven": "driven", "outer": "outer", LABEL_KEY: "pair_label"}
+"""Array name -> Mesostructure field of the arrays that describe a batch's topology (``topology_arrays``)."""
+TOPOLOGY_ARRAYS = tuple(TOPOLOGY_FIELDS)
+"""Names of the topology arrays."""
 
 
 def topology_arrays(meso: Mesostructure, n_cells: int) -> dict[str, np.ndarray]:
-    """``TOPOLOGY_ARRAYS`` of ``meso`` repeated for ``n_cells`` cells: field -> ``(n_cells, *field shape)``."""
-    return {name: np.repeat(getattr(meso, name)[None], n_cells, axis=0) for name in TOPOLOGY_ARRAYS}
+    """The topology of ``meso`` repeated for ``n_cells`` cells: array name -> ``(n_cells, *field shape)``."""
+    return {name: np.repeat(getattr(meso, field)[None], n_cells, axis=0) for name, field in TOPOLOGY_FIELDS.items()}
+
+
+def evaluate_observables(meso: Mesostructure, position: np.ndarray, normal_force: np.ndarray, shear_force: np.ndarray,
+                         contact: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The observables ``meso`` declares, evaluated on a batch of its cells (``OBSERVABLE_KINDS``).
+
+    Args:
+        position: grain centres [m], shape (n, n_grains, 2).
+        normal_force: normal force of every pair [N], shape (n, n_pairs), compression positive.
+        shear_force: tangential spring force of every pair [N], shape (n, n_pairs), the DEM's
+            convention (on the pair's first grain along w = (-u_t, u_n)).
+        contact: contact flags (n, n_pairs); None leaves the ``contact`` observables out.
+
+    Returns:
+        name -> values, shape (n,) each (bool for contact flags).
+    """
+    out: dict[str, np.ndarray] = {}
+    for o in meso.observables:
+        a, b = o.grains
+        if o.kind in ("branch_angle", "branch_length"):
+            branch = position[:, b] - position[:, a]
+            out[o.name] = (np.degrees(np.arctan2(branch[:, 1], branch[:, 0])) if o.kind == "branch_angle"
+                           else np.hypot(branch[:, 0], branch[:, 1]))
+        elif o.kind == "contact":
+            if contact is not None:
+                out[o.name] = np.asarray(contact)[:, meso.pair_index(a, b)] == 1
+        else:
+            values = normal_force if o.kind == "normal_force" else shear_force
+            out[o.name] = np.array(np.asarray(values)[:, meso.pair_index(a, b)])
+    return out
 
 
 def _pair_label(pair: np.ndarray) -> str:

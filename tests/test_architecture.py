@@ -1,0 +1,132 @@
+"""The layout's rules, read from the source: imports point down the layers, and only the H-cell's
+builder knows the H-cell.
+
+Layers, lowest first: ``warp_hcell.core`` <- ``warp_hcell.mesostructures`` <- ``warp_hcell.dem``
+<- ``warp_hcell.database`` (the entry points ``warp_hcell.generate``/``clean`` above them) <-
+``training`` <- ``homogenization``. A module may import its own layer and the layers below;
+every import counts, function-local ones included (docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYERS = ("warp_hcell.core", "warp_hcell.mesostructures", "warp_hcell.dem", "warp_hcell.database", "warp_hcell",
+          "training", "homogenization")
+"""Lowest first; ``warp_hcell`` alone is its entry points (generate, clean)."""
+HCELL_MODULE = "warp_hcell/mesostructures/hcell.py"
+HCELL_TOKENS = ("is_h_cell", "h_reference_pairs", "pair_type", "H_TYPE1_PAIRS", "H_TYPE2_PAIRS", "TYPE1_PAIRS",
+                "TYPE2_PAIRS", "H_GRAINS", "h_cell_alpha0", "plain_h_cell_alpha0", "hcell_observables",
+                "HCELL_OBSERVABLES", "h_cell_reference", "h_cell_skeleton", "h_cell_starts", "type1", "type2")
+"""Names of the H-cell's labels and geometry: identifiers and string constants outside its builder."""
+FORMAT_KEYS = {("warp_hcell/mesostructures/mesostructure.py", "pair_type")}
+"""(module, token) where a token is a file-format name, not code that knows the cell."""
+MODULES = sorted(p for package in ("warp_hcell", "training", "homogenization") for p in (ROOT / package).rglob("*.py"))
+
+
+def _name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _layer(module: str) -> int:
+    for rank in range(len(LAYERS) - 1, -1, -1):
+        layer = LAYERS[rank]
+        if module == layer or module.startswith(layer + "."):
+            if layer == "warp_hcell" and module.split(".")[1:2] and f"warp_hcell.{module.split('.')[1]}" in LAYERS:
+                continue
+            return rank
+    raise AssertionError(f"{module} is in no layer")
+
+
+def _imports(path: Path) -> list[tuple[int, str]]:
+    tree = ast.parse(path.read_text())
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            assert not node.level, f"{path}: relative import (the package imports by absolute names)"
+            base = node.module or ""
+            found += [(node.lineno, base)] + [(node.lineno, f"{base}.{a.name}") for a in node.names]
+    return [(line, name) for line, name in found if name.split(".")[0] in ("warp_hcell", "training", "homogenization")]
+
+
+def _is_module(name: str) -> bool:
+    path = ROOT / Path(*name.split("."))
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_imports_go_down_the_layers(path):
+    mine = _layer(_name(path))
+    upward = [f"line {line}: {name}" for line, name in _imports(path) if _is_module(name) and _layer(name) > mine]
+    assert not upward, f"{_name(path)} ({LAYERS[mine]}) imports a higher layer: {upward}"
+
+
+def test_the_core_imports_nothing_else_of_the_package():
+    for path in (ROOT / "warp_hcell" / "core").rglob("*.py"):
+        other = [name for _, name in _imports(path) if _is_module(name) and not name.startswith("warp_hcell.core")]
+        assert not other, f"{path.name} imports {other}"
+
+
+def _tokens(path: Path) -> set[tuple[int, str]]:
+    """Identifiers and non-docstring string constants of a module, with their line."""
+    tree = ast.parse(path.read_text())
+    docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                  if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                  and node.body and isinstance(node.body[0], ast.Expr) and isinstance(node.body[0].value, ast.Constant)}
+    out = set()
+    for node in ast.walk(tree):
+        words: list[str] = []
+        if isinstance(node, ast.Name):
+            words = [node.id]
+        elif isinstance(node, ast.Attribute):
+            words = [node.attr]
+        elif isinstance(node, (ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef)):
+            words = [node.name]
+        elif isinstance(node, ast.arg):
+            words = [node.arg]
+        elif isinstance(node, ast.keyword) and node.arg:
+            words = [node.arg]
+        elif isinstance(node, ast.alias):
+            words = [node.name.split(".")[-1], node.asname or ""]
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+            words = re.findall(r"\w+", node.value)
+        out.update((getattr(node, "lineno", 0), w) for w in words if w)
+    return out
+
+
+@pytest.mark.parametrize("path", [p for p in MODULES if p.relative_to(ROOT).as_posix() != HCELL_MODULE],
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_only_the_h_cell_builder_knows_the_h_cell(path):
+    relative = path.relative_to(ROOT).as_posix()
+    found = sorted((line, token) for line, token in _tokens(path) if token in HCELL_TOKENS
+                   and (relative, token) not in FORMAT_KEYS)
+    assert not found, f"{relative} names the H-cell's labels or geometry: {found}"
+
+
+def test_the_token_check_sees_what_it_looks_for(tmp_path):
+    source = tmp_path / "probe.py"
+    source.write_text('"""is_h_cell in a docstring is prose."""\nx = meso.is_h_cell\ny = {"type1": 1}\n')
+    tokens = {token for _, token in _tokens(source)}
+    assert {"is_h_cell", "type1"} <= tokens
+    source.write_text('"""is_h_cell in a docstring is prose."""\n')
+    assert "is_h_cell" not in {token for _, token in _tokens(source)}
+
+
+def test_the_import_walk_sees_local_imports_and_ranks_the_layers(tmp_path):
+    probe = ROOT / "warp_hcell" / "dem" / "cell.py"
+    assert any(name.startswith("warp_hcell.core") for _, name in _imports(probe))
+    source = tmp_path / "probe.py"
+    source.write_text("def f():\n    from homogenization.driver import run\n")
+    assert (2, "homogenization.driver") in _imports(source)
+    order = [_layer(m) for m in ("warp_hcell.core.cli", "warp_hcell.mesostructures.hcell", "warp_hcell.dem.cell",
+                                 "warp_hcell.database.format", "warp_hcell.generate", "training.train",
+                                 "homogenization.driver")]
+    assert order == sorted(order) and len(set(order)) == len(order)

@@ -1,0 +1,177 @@
+"""Output files and folders that a failed or concurrent run never leaves half written.
+
+- ``check_output_path(path, overwrite=...)``: refuse existing output, check the folder is
+  writable, before any work;
+- ``atomic_write(path)``: a temporary file renamed onto ``path`` on success;
+- ``output_lock(path)``: an exclusive lock, so that a second run on the same output exits at
+  once (``UserError``); SIGTERM runs the same clean-up as Ctrl-C inside it;
+- ``output_folder(path)``: a hidden working folder that replaces ``path`` as a unit.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import fcntl
+import os
+import shutil
+import signal
+import tempfile
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+from warp_hcell.core.cli import UserError
+
+
+def check_output_path(path: Path, *, overwrite: bool) -> Path:
+    """Refuse to overwrite an existing file or a non-empty folder unless ``overwrite``.
+
+    Also checks that the nearest existing parent folder is writable, so a run fails before
+    computing rather than after. Returns ``path``.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        if path.is_file() or (path.is_dir() and any(path.iterdir())):
+            raise UserError(f"{path} exists; pass --overwrite to replace it")
+    parent = path if path.is_dir() else path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise UserError(f"cannot write to {path}: {parent} is not a folder")
+    if not os.access(parent, os.W_OK):
+        raise UserError(f"cannot write to {parent}")
+    return path
+
+
+@contextmanager
+def atomic_write(path: Path) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; rename it onto ``path`` only on success.
+
+    An interrupted or failed run therefore never leaves a truncated file in place of a good
+    one. The file gets the usual permissions (0666 less the umask), not mkstemp's 0600.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    umask = os.umask(0)
+    os.umask(umask)
+    try:
+        yield tmp_path
+        if tmp_path.exists():
+            os.chmod(tmp_path, 0o666 & ~umask)
+        os.replace(tmp_path, path)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def _sibling(path: Path, tag: str) -> Path:
+    """Hidden working name next to ``path``: ``.NAME.TAG``."""
+    return path.parent / f".{path.name}.{tag}"
+
+
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Turn SIGTERM into KeyboardInterrupt for the body (main thread only), so that ``kill``
+    runs the same clean-up as Ctrl-C; the previous handler is restored afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextmanager
+def output_lock(path: Path) -> Iterator[None]:
+    """Hold an exclusive lock on output ``path`` (file or folder) for the body.
+
+    The lock is ``flock`` on the hidden file ``.NAME.lock`` next to ``path``; a second run
+    on the same output raises ``UserError`` (one line) at once instead of waiting. The lock
+    file is removed on release, also on Ctrl-C or SIGTERM (``sigterm_as_interrupt``); one
+    left by SIGKILL holds no lock (the kernel released it) and is taken over and removed by
+    the next run.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock = _sibling(path, "lock")
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EACCES):
+                raise UserError(f"{path} is being written by another run (lock {lock}); wait for it to finish") from None
+            raise
+        try:
+            same = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the previous holder removed the file while we opened it: take the new one
+    try:
+        with sigterm_as_interrupt():
+            yield
+    finally:
+        lock.unlink(missing_ok=True)
+        os.close(fd)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap two existing paths (Linux ``renameat2(RENAME_EXCHANGE)``); False if unsupported."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    renameat2 = getattr(libc, "renameat2", None)
+    if renameat2 is None:
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    if ctypes.get_errno() in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+        return False
+    raise OSError(ctypes.get_errno(), os.strerror(ctypes.get_errno()), str(b))
+
+
+@contextmanager
+def output_folder(path: Path) -> Iterator[Path]:
+    """Yield an empty hidden folder next to ``path``; on success it replaces ``path`` as a unit.
+
+    Everything written into the yielded folder appears at ``path`` at once (an atomic
+    directory exchange where the file system has one, else two renames), so a reader never
+    sees files of two runs mixed. On failure or interruption the folder is removed and
+    ``path`` is untouched. Use inside ``output_lock(path)``, which also turns SIGTERM into
+    KeyboardInterrupt: a working folder left by SIGKILL is removed when the next run starts.
+    """
+    path = Path(path)
+    work = _sibling(path, "partial")
+    old = _sibling(path, "replaced")
+    if old.exists() and not path.exists():
+        os.rename(old, path)  # a run killed between the two renames of the fallback: restore
+    for stale in (work, old):
+        if stale.exists():
+            shutil.rmtree(stale)
+    work.mkdir(parents=True)
+    try:
+        yield work
+        if not path.exists():
+            os.rename(work, path)
+        elif _exchange(work, path):
+            shutil.rmtree(work)  # now holds the previous output
+        else:
+            os.rename(path, old)
+            os.rename(work, path)
+            shutil.rmtree(old)
+    finally:
+        if work.exists():
+            shutil.rmtree(work)
+
+
+def _raise_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt

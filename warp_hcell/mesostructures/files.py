@@ -1,0 +1,138 @@
+"""Mesostructures from files, descriptions and state arrays; the labels they carry declare the rest.
+
+- ``load_mesostructure(path)``: a TOML or JSON description (format in its docstring;
+  examples in ``warp_hcell/data``);
+- ``describe(meso)`` / ``from_description(text)`` / ``description_sha256(text)``: canonical
+  JSON text of a mesostructure (stored in databases and checkpoints), its inverse, and its hash;
+- ``with_declarations(meso)``: ``meso`` with the observables and parameters its pair labels
+  declare. Files, descriptions and state arrays carry labels only; the builder that defines
+  them (``warp_hcell.mesostructures.hcell``) declares what they mean.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tomllib
+from itertools import combinations
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from warp_hcell.core.parameters import DemSettings
+from warp_hcell.mesostructures import hcell
+from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, LABEL_KEY, Mesostructure, MesostructureError
+
+
+def with_declarations(meso: Mesostructure) -> Mesostructure:
+    """``meso`` with the observables and parameters that its pair labels declare (``hcell.declare``)."""
+    return hcell.declare(meso)
+
+
+def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettings.contact_tolerance) -> Mesostructure:
+    """Read a mesostructure from a TOML (``.toml``) or JSON (``.json``) file.
+
+    Format (labels are 1-based, coordinates (n, t) in metres)::
+
+        name = "h-cell, lateral grains 0.7 D"
+        cell_size = [l1_ref, l2_ref]
+        outer = [1, 2, 3, 4, 5, 6]          # ordered around the polygon whose area is V_cell
+        pairs = [[1, 2], ...]               # optional; default: all pairs
+        type1 = [[1, 2], [1, 6], ...]       # optional H-cell labels (``hcell.file_labels``:
+        type2 = [[2, 3], [5, 6]]            #   the cell then declares alpha_deg, N1, N2, T1, ...)
+        [[grains]]                          # one table per grain, in label order
+        radius = 0.5
+        position = [x_n, x_t]
+        driven = [true, false]              # (along n, along t)
+
+    A 3D cell (spheres) gives three coordinates per grain, position = [x_n, x_t1, x_t2] and
+    driven = [n, t1, t2], a cell_size of three lengths, and ``outer`` as the triangles of the
+    closed surface whose volume is V_cell, oriented outwards: outer = [[1, 6, 10], ...].
+
+    Raises:
+        MesostructureError: unreadable file or invalid description (one-line message).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+        data = tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MesostructureError(f"cannot read mesostructure file {path}: {exc.strerror or exc}") from None
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+        raise MesostructureError(f"mesostructure file {path} is not valid {path.suffix[1:].upper()}: {exc}") from None
+    return _from_mapping(data, default_name=path.stem, contact_tolerance=contact_tolerance)
+
+
+def _from_mapping(data: Mapping[str, Any], *, default_name: str, contact_tolerance: float) -> Mesostructure:
+    name = str(data.get("name", default_name))
+    try:
+        grains = data["grains"]
+        radius = [float(g["radius"]) for g in grains]
+        position = [[float(v) for v in g["position"]] for g in grains]
+        driven = [list(g["driven"]) for g in grains]
+        axes = AXIS_NAMES.get(len(position[0]) if position else 2, AXIS_NAMES[2])
+        if not all(isinstance(v, bool) and len(d) == len(axes) for d in driven for v in d):
+            raise MesostructureError(f"mesostructure {name!r}: each grain needs driven = "
+                                     f"[{', '.join(['bool'] * len(axes))}] ({', '.join(axes)})")
+        to_index = lambda labels: [[int(a) - 1 for a in p] for p in labels]  # noqa: E731
+        pairs = data.get("pairs")
+        pairs = list(combinations(range(len(radius)), 2)) if pairs is None else [tuple(sorted(p)) for p in to_index(pairs)]
+        meso = Mesostructure(name=name, radius=np.asarray(radius, float), position=np.asarray(position, float),
+                             driven=np.asarray(driven), pairs=np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+                             outer=np.asarray(data["outer"], dtype=np.int64) - 1,
+                             cell_size=np.asarray([float(v) for v in data["cell_size"]], float),
+                             pair_label=hcell.file_labels(name, pairs, data), contact_tolerance=contact_tolerance)
+        return with_declarations(meso)
+    except KeyError as exc:
+        raise MesostructureError(f"mesostructure {name!r}: missing key {exc.args[0]!r}") from None
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, MesostructureError):
+            raise
+        raise MesostructureError(f"mesostructure {name!r}: malformed entry ({exc})") from None
+
+
+DESCRIPTION_FIELDS = {"radius": "radius", "position": "position", "driven": "driven", "pairs": "pairs", "outer": "outer",
+                      "cell_size": "cell_size", LABEL_KEY: "pair_label"}
+"""Key -> Mesostructure field of the arrays of a JSON description (with ``name``, ``contact_tolerance``)."""
+
+
+def describe(meso: Mesostructure) -> str:
+    """Canonical JSON text of ``meso``: enough to rebuild it with ``from_description``.
+
+    Canonical: keys sorted, no whitespace (``json.dumps(sort_keys=True, separators=(",", ":"))``),
+    floats written by ``repr`` (exact round trip), indices 0-based. Equal cells give equal text.
+    """
+    data: dict[str, Any] = {"format": "meso-hmodel-mesostructure", "version": 1, "name": meso.name,
+                            "contact_tolerance": float(meso.contact_tolerance)}
+    for key, name in DESCRIPTION_FIELDS.items():
+        data[key] = np.asarray(getattr(meso, name)).tolist()
+    return json.dumps(data, sort_keys=True, separators=(",", ":"))
+
+
+def from_description(text: str) -> Mesostructure:
+    """Inverse of ``describe`` (the labels declare the observables and parameters, ``with_declarations``).
+
+    Raises:
+        MesostructureError: not a mesostructure description, or an invalid cell (one line).
+    """
+    try:
+        data = json.loads(text)
+    except (TypeError, json.JSONDecodeError) as exc:
+        raise MesostructureError(f"mesostructure description is not JSON: {exc}") from None
+    if not isinstance(data, dict) or data.get("format") != "meso-hmodel-mesostructure":
+        raise MesostructureError("text is not a mesostructure description (format meso-hmodel-mesostructure)")
+    try:
+        return with_declarations(Mesostructure(
+            name=str(data["name"]), radius=np.asarray(data["radius"], np.float64),
+            position=np.asarray(data["position"], np.float64), driven=np.asarray(data["driven"], bool),
+            pairs=np.asarray(data["pairs"], np.int64).reshape(-1, 2), outer=np.asarray(data["outer"], np.int64),
+            cell_size=np.asarray(data["cell_size"], np.float64), pair_label=np.asarray(data[LABEL_KEY], np.int8),
+            contact_tolerance=float(data["contact_tolerance"])))
+    except KeyError as exc:
+        raise MesostructureError(f"mesostructure description: missing key {exc.args[0]!r}") from None
+
+
+def description_sha256(text: str) -> str:
+    """Hex sha256 of a description text (UTF-8)."""
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
