@@ -95,9 +95,9 @@ def step(arrays: dict, d_eps: np.ndarray, *, pairs: np.ndarray, driven: np.ndarr
         du = rel - _dot(rel, u)[..., None] * u
         old = fs[act]
         projected = old - _dot(old, u)[..., None] * u
-        before, after = np.sqrt(_dot(old, old)), np.sqrt(_dot(projected, projected))
-        carried = np.where((after > 0.0)[..., None], projected * (before / np.where(after > 0.0, after, 1.0))[..., None],
-                           projected)
+        before2, after2 = _dot(old, old), _dot(projected, projected)
+        carried = np.where((after2 > 0.0)[..., None],
+                           projected * np.sqrt(before2 / np.where(after2 > 0.0, after2, 1.0))[..., None], projected)
         overlap = rsum[act] - dist
         normal = law.kn * np.where(overlap > 0.0, overlap, 0.0)
         trial = carried + law.kt * du
@@ -106,7 +106,7 @@ def step(arrays: dict, d_eps: np.ndarray, *, pairs: np.ndarray, driven: np.ndarr
         shear = np.where((size > cap)[..., None], trial * (cap / np.where(size > 0.0, size, 1.0))[..., None], trial)
         shear = np.where(on[..., None], shear, 0.0)
         normal = np.where(on, normal, 0.0)
-        regime = np.where(on, np.where((normal > 0.0) & (np.sqrt(_dot(shear, shear)) >= law.mu * normal), 2.0, 1.0), 0.0)
+        regime = np.where(on, np.where((normal > 0.0) & (size >= cap), 2.0, 1.0), 0.0)
         changed = (substeps[act, None] > 0) & (regime != last_regime[act])
         last_regime[act] = regime
         fs[act] = shear

@@ -47,20 +47,13 @@ DIM = 3
 @wp.func
 def carried_spring(shear_force: wp.vec3d, normal: wp.vec3d):
     """The tangential spring carried into the tangent plane of ``normal`` (unit): projected, then
-    rescaled to its former magnitude (zero stays zero)."""
+    rescaled to its former magnitude, by sqrt(|before|^2 / |after|^2) (zero stays zero)."""
     zero = wp.float64(0.0)
     projected = shear_force - wp.dot(shear_force, normal) * normal
-    before = wp.length(shear_force)
-    after = wp.length(projected)
-    return wp.where(after > zero, projected * (before / wp.where(after > zero, after, wp.float64(1.0))), projected)
-
-
-@wp.func
-def capped_spring(trial: wp.vec3d, normal_force: wp.float64, mu: wp.float64):
-    """Coulomb cap: ``trial`` scaled to magnitude mu f_n if it is larger (direction of the trial force)."""
-    cap = mu * normal_force
-    size = wp.length(trial)
-    return wp.where(size > cap, trial * (cap / wp.where(size > wp.float64(0.0), size, wp.float64(1.0))), trial)
+    before2 = wp.dot(shear_force, shear_force)
+    after2 = wp.dot(projected, projected)
+    return wp.where(after2 > zero, projected * wp.sqrt(before2 / wp.where(after2 > zero, after2, wp.float64(1.0))),
+                    projected)
 
 
 @functools.lru_cache(maxsize=None)
@@ -236,10 +229,14 @@ def step_kernel_3d(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool,
                     carried = carried_spring(wp.vec3d(fs[p, 0], fs[p, 1], fs[p, 2]), u)
                     overlap = rsum[p] - dist
                     normal = kn * wp.where(overlap > zero, overlap, zero)
-                    shear = capped_spring(carried + kt * du, normal, mu)
+                    # Coulomb cap along the trial force; sliding where the trial reaches the cap
+                    trial = carried + kt * du
+                    cap = mu * normal
+                    size = wp.length(trial)
+                    shear = wp.where(size > cap, trial * (cap / wp.where(size > zero, size, one)), trial)
                     for a in range(wp.static(DIM)):
                         fs[p, a] = shear[a]
-                    regime = wp.where(normal > zero and wp.length(shear) >= mu * normal, two, one)
+                    regime = wp.where(normal > zero and size >= cap, two, one)
                     force = shear - normal * u
                     for a in range(wp.static(DIM)):
                         f[i, a] = f[i, a] + force[a]
