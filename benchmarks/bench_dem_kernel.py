@@ -43,11 +43,13 @@ def prepared_batch(n_cells: int, increment: float, device: str):
     """H-cells with random alpha0 in [35, 80] deg after an isotropic compression of 1e-4, and the
     timed increment (magnitude ``increment``, random direction per cell)."""
     from warp_hcell.dem.integrator import DemIntegrator
-    from warp_hcell.dem.model import DemModel
     from warp_hcell.dem.state import DemState
 
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from dem_oracle import h_cell_model  # vectorised H-cells: no Mesostructure per cell
+
     rng = np.random.default_rng(0)
-    model = DemModel.build_h_cell(rng.uniform(35.0, 80.0, n_cells), n_cells, 0.5, device=device)
+    model = h_cell_model(rng.uniform(35.0, 80.0, n_cells), n_cells, 0.5, device=device)
     state = DemState.empty(n_cells, model.meso.n_grains, model.meso.n_pairs, model.device)
     DemIntegrator(model, threads=2).step(model.state(), state, np.full((n_cells, 2), 1e-4))
     angle = rng.uniform(0.0, 2.0 * np.pi, n_cells)

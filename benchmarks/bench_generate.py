@@ -26,7 +26,7 @@ import numpy as np
 
 from warp_hcell.database import format as database, generate
 from warp_hcell.core.execution import DaskExecution, InProcess
-from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.hcell import StartCells, h_cell
 from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import CellDefaults, DatabaseSettings
 
@@ -107,7 +107,7 @@ def main() -> None:
     args = parser.parse_args()
     settings = DatabaseSettings(samples=args.samples)
     if args.mesostructure is None:
-        meso, starts = h_cell(CellDefaults.alpha0_deg, CellDefaults.radius), generate.h_cell_starts(settings)
+        meso, starts = h_cell(CellDefaults.alpha0_deg, CellDefaults.radius), StartCells().build()
     else:
         meso = load_mesostructure(args.mesostructure)
         starts = [meso]

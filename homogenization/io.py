@@ -123,9 +123,9 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
     with atomic_write(path) as tmp, _new_h5(tmp) as f:
         f.attrs["format"] = FORMAT
         f.attrs["backend"] = record.backend
-        f.attrs["cell_parameters"] = json.dumps(list(record.parameters))
         for name, value in record.parameters.items():
             f.attrs[name] = float(value)
+        f.attrs["cell_parameters"] = json.dumps(list(record.parameters))
         f.attrs["V0"] = record.V0
         f.attrs["V0_units"] = "m^2"
         f.attrs["volume_rule"] = VOLUME_RULE

@@ -44,8 +44,8 @@ from typing import Any, Sequence
 
 from homogenization import driver, figures, io, loading
 from homogenization.cli import plot
+from homogenization.cli.options import add_cell_arguments
 from homogenization.backends import backend_class, BACKENDS, make_cell_model
-from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.core.cli import (
     Parser,
     UserError,
@@ -129,11 +129,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="also store per-cell observables every this many increments (None: at stage ends only)")
     plot.add_figure_arguments(parser.add_argument_group("figure (cambridge.png)"))
     parser.add_argument("--out", type=Path, required=True, help="output folder (replaced as a unit)")
-    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
-                        help=f"the cell of every backend (analytical: the plain H-cell only; ann: the model's "
-                             f"mesostructure); None: the H-cell of --alpha0 and --radius. {MESOSTRUCTURE_HELP}")
-    parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM or of torch inference (dem and ann; None: the backend's own default)")
-    parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
+    add_cell_arguments(parser, "the cell of every backend (analytical: the plain H-cell only; ann: the model's "
+                               "mesostructure); None: the H-cell of --alpha0 and --radius.",
+                       "CPU threads of the DEM or of torch inference (dem and ann; None: the backend's own default)")
     return parser
 
 

@@ -39,16 +39,12 @@ import numpy as np
 
 from homogenization import driver, loading, orientation, run_labels
 from homogenization.fe import output as fe_output, solver as fe
-from homogenization.backends import BACKENDS, make_cell_model
+from homogenization.cli.options import add_alpha0_argument, add_backend_argument, add_cell_arguments, command_parser
+from homogenization.backends import make_cell_model
 from homogenization.cli.biaxial import BACKEND_ONLY_OPTIONS, backend_options, check_models_take, DEVICE_BACKENDS
 from homogenization.material import HomogenisedMaterial
-from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 from warp_hcell.core.cli import (
-    Parser,
     UserError,
-    alpha0_deg,
-    command_prog,
-    common_parser,
     fraction,
     positive_float,
     positive_int,
@@ -79,14 +75,10 @@ def element_counts(text: str) -> tuple[int, int]:
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the bvp command (defaults read from warp_hcell.core.parameters)."""
     cell, bvp = CellDefaults(), FeDefaults()
-    parser = Parser(
-        prog=command_prog("homogenization.bvp"),
-        description="Plane-strain biaxial specimen of the homogenised H-model by finite elements.",
-        parents=[common_parser()],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    parser.add_argument("--backend", choices=tuple(BACKENDS), default="analytical", help="cell model")
-    parser.add_argument("--alpha0", type=alpha0_deg, default=cell.alpha0_deg, help="initial opening angle [deg], in [30, 90)")
+    parser = command_parser("homogenization.bvp", "Plane-strain biaxial specimen of the homogenised H-model by finite "
+                                                  "elements.")
+    add_backend_argument(parser)
+    add_alpha0_argument(parser)
     parser.add_argument("--p0", type=positive_float, default=cell.p0, help="confining pressure [N/m], > 0")
     parser.add_argument("--eps-max", type=positive_float, default=bvp.eps_max,
                         help="axial strain at the end of the shear stage, counted from its start [-]")
@@ -105,11 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--compare", action="store_true",
                         help="also run the material point (driver, drained biaxial) and overlay it")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
-                        help=f"the cell (analytical: the plain H-cell only; ann: the model's mesostructure); "
-                             f"default: the H-cell of --alpha0. {MESOSTRUCTURE_HELP}")
-    parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM (dem only)")
-    parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
+    add_cell_arguments(parser, "the cell (analytical: the plain H-cell only; ann: the model's mesostructure); "
+                               "default: the H-cell of --alpha0.", "CPU threads of the DEM (dem only)")
     return parser
 
 

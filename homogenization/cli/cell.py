@@ -35,15 +35,12 @@ from typing import Sequence
 
 import numpy as np
 
-from homogenization.backends import BACKENDS, make_cell_model
+from homogenization.cli.options import add_alpha0_argument, add_backend_argument, command_parser
+from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
 from warp_hcell.core.cli import (
-    Parser,
     UserError,
     add_contact_law_arguments,
-    alpha0_deg,
-    command_prog,
-    common_parser,
     contact_law_from_args,
     quiet_warp,
     run_main,
@@ -52,7 +49,7 @@ from warp_hcell.core.cli import (
 from warp_hcell.core.files import atomic_write, check_output_path
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.mesostructures.mesostructure import Mesostructure
-from warp_hcell.core.parameters import CellDefaults, DatabaseSettings
+from warp_hcell.core.parameters import DatabaseSettings
 
 PATH_HEADER = ("d_eps_n", "d_eps_t")
 """Columns of the strain-path file."""
@@ -69,14 +66,10 @@ its learning database (beyond it the network extrapolates)."""
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the element-test command (defaults read from warp_hcell.core.parameters)."""
-    parser = Parser(
-        prog=command_prog("homogenization.cell"),
-        description="Drive one cell along a local strain path and write its state after every increment.",
-        parents=[common_parser()],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    parser.add_argument("--backend", choices=tuple(BACKENDS), default="analytical", help="cell model")
-    parser.add_argument("--alpha0", type=alpha0_deg, default=CellDefaults.alpha0_deg, help="initial opening angle [deg], in [30, 90)")
+    parser = command_parser("homogenization.cell", "Drive one cell along a local strain path and write its state "
+                                                   "after every increment.")
+    add_backend_argument(parser)
+    add_alpha0_argument(parser)
     parser.add_argument("--path", type=Path, required=True, help="CSV of local strain increments, header d_eps_n,d_eps_t, compression positive")
     parser.add_argument("--out", type=Path, required=True, help="output CSV, one row per increment")
     add_contact_law_arguments(parser)

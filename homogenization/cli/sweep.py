@@ -71,6 +71,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from homogenization import driver, figures, io, loading, run_labels
+from homogenization.cli.options import command_parser
 from homogenization.backends import backend_class, make_cell_model, mesostructure_refusal
 from homogenization.cli.biaxial import backend_list
 from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS
@@ -81,11 +82,8 @@ from warp_hcell.mesostructures.builders import (
     parse_mesostructure,
 )
 from warp_hcell.core.cli import (
-    Parser,
     UserError,
     alpha0_deg,
-    command_prog,
-    common_parser,
     positive_float,
     positive_int,
     run_main,
@@ -164,7 +162,7 @@ class ModelTable:
     """
 
     def __init__(self, choices: Sequence[ModelChoice] | None, sources: Sequence[MesostructureSource]) -> None:
-        from training.checkpoint import CheckpointError, read_metadata  # noqa: PLC0415 (torch only for ann)
+        from training.checkpoint import CheckpointError, read_metadata  # noqa: PLC0415 torch only for ann
 
         self.sha256: dict[Path, str] = {}
         self.keyed: dict[str, Path] = {}
@@ -214,12 +212,8 @@ class ModelTable:
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the sweep command (defaults read from warp_hcell.core.parameters)."""
     cell, load = CellDefaults(), LoadingDefaults()
-    parser = Parser(
-        prog=command_prog("homogenization.sweep"),
-        description="Biaxial tests over the Cartesian product of mesostructures, alpha0, p0 and backends.",
-        parents=[common_parser()],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
+    parser = command_parser("homogenization.sweep", "Biaxial tests over the Cartesian product of mesostructures, "
+                                                    "alpha0, p0 and backends.")
     parser.add_argument("--mesostructure", type=mesostructure_list_arg, action="extend", default=None,
                         help="comma list (or repeat the flag); each item a " + MESOSTRUCTURE_HELP
                         + "; a KEY=VALUE item continues the spec before it. None: hcell")
