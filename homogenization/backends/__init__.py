@@ -21,7 +21,8 @@ BACKENDS: dict[str, dict[int, str]] = {
     "dem": {2: "homogenization.backends.dem:DemCell", 3: "homogenization.backends.dem:DemCell"},
     "ann": {2: "homogenization.backends.ann:AnnCell"},
 }
-"""Backend name -> spatial dimension of the cells (2 or 3) -> "module:Class" of its implementation."""
+"""Backend name -> spatial dimension of the cells (2 or 3) -> "module:Class" of its implementation (a plain
+"module:Class" registers a backend of planar cells)."""
 
 
 def backend_class(name: str, dim: int = 2) -> type:
@@ -29,9 +30,10 @@ def backend_class(name: str, dim: int = 2) -> type:
     if unknown or not available in that dimension."""
     if name not in BACKENDS:
         raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
-    if dim not in BACKENDS[name]:
+    by_dim = BACKENDS[name] if isinstance(BACKENDS[name], dict) else {2: BACKENDS[name]}
+    if dim not in by_dim:
         raise ValueError(f"backend {name!r} does not model {dim}D cells")
-    module_name, class_name = BACKENDS[name][dim].split(":")
+    module_name, class_name = by_dim[dim].split(":")
     try:
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
