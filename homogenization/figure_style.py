@@ -31,7 +31,7 @@ GRID = {"alpha": 0.3}
 LEGEND_COLUMNS = 3
 """Most columns of a figure legend."""
 POWER_LIMITS = (-3, 4)
-"""Tick labels use a common factor 10^n outside 10^-3 <= |x| < 10^4 (``ScalarFormatter.set_powerlimits``)."""
+"""Tick labels use a common factor 10^n outside ``10^-3 <= abs(x) < 10^4`` (``ScalarFormatter.set_powerlimits``)."""
 
 LABELS = {
     "eps1": r"$\varepsilon_1$ since the end of stage 1 [%]",
@@ -92,7 +92,7 @@ def figure_legend(fig: Figure, handles: list[Artist], *, max_columns: int = LEGE
 def number(value: float, digits: int = 3) -> str:
     """``value`` as mathtext without the dollars: ``2\\times10^{5}``, ``10^{-4}``, ``0.623``, ``360``.
 
-    Up to ``digits`` significant digits; a power of ten outside 10^-2 <= |value| < 10^4.
+    Up to ``digits`` significant digits; a power of ten outside ``10^-2 <= abs(value) < 10^4``.
     """
     if value == 0.0 or not math.isfinite(value):
         return f"{value:g}"

@@ -6,7 +6,7 @@ matrices; kernels are generated per topology (candidate pairs, driven DOF mask a
 faces are compile-time constants, loops unrolled).
 
 Conventions inside the kernel (tension-positive DEM quantities, local frame (n, t1, t2)):
-    - pair p = (i, j): unit normal u = (x_j - x_i) / |x_j - x_i|;
+    - pair p = (i, j): unit normal u = (x_j - x_i) / norm(x_j - x_i);
     - ``shear_force[p]`` is the tangential spring force ON grain i, a vector in the contact's
       tangent plane; ``contact_force[p]`` = -f_n u + f_s is the force on grain i by grain j,
       f_n >= 0 the normal (repulsive) force;
@@ -27,7 +27,7 @@ Conventions inside the kernel (tension-positive DEM quantities, local frame (n, 
     - adaptive rate, prediction of the free grains and refinement on regime changes (a contact
       opening, closing, starting or stopping sliding) exactly as in the 2D kernel;
     - cell volume: the polyhedron of the outer faces (triangles of grain centres, oriented
-      outwards), V = |sum_f x_a . (x_b x x_c)| / 6.
+      outwards), V = abs(sum_f x_a . (x_b x x_c)) / 6.
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ branch b = x_j - x_i, ``d = |b|``, u = b / d, w = (-u_t, u_n):
 
 Spatial cells (3D, frame (n, t1, t2)): the tangential force T is a vector in the tangent plane,
 P = I - u u^T its projector, and k_p = kn u u^T - (N / d) P - u T^T / d + dT/db with
-dT/db = kt P (stick) or -mu kn t u^T + kt (P - t t^T) (slide, t = T / |T|: the force keeps
+dT/db = kt P (stick) or -mu kn t u^T + kt (P - t t^T) (slide, t = T / norm(T): the force keeps
 its magnitude mu N and turns with the trial force in the plane); the -u T^T / d term is the
 spring turning with the contact. In 2D (P = w w^T) these are the expressions above.
 """

@@ -551,7 +551,7 @@ def h_cell_3d_skeleton(alpha0_deg: float, radius: float, lateral: float = 1.0,
     Plane A (grains 1-6) lies in (n, t1); plane B (grains 1, 4, 7-10) is plane A turned about n by
     ``plane_angle_deg`` (90: the plane (n, t2)). Lateral grains have radius ``lateral * radius``; every
     contact of the two hexagons touches (d1 = r (1 + lateral), d2 = 2 r lateral). Cell size: l1 along n,
-    and the extents 2 max |x_t1|, 2 max |x_t2| of the lateral grains.
+    and the extents 2 max abs(x_t1), 2 max abs(x_t2) of the lateral grains.
     """
     alpha = np.radians(check_alpha0_deg(alpha0_deg))
     beta = np.radians(plane_angle_deg)

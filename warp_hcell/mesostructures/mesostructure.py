@@ -187,7 +187,7 @@ def polygon_area(position: np.ndarray, outer: np.ndarray) -> np.ndarray:
 def polyhedron_volume(position: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Volume [m^3] enclosed by the triangles ``faces`` (n_faces, 3) through ``position`` (..., n_grains, 3).
 
-    |sum over faces of x_a . (x_b x x_c)| / 6 (divergence theorem; the faces must close the surface).
+    abs(sum over faces of x_a . (x_b x x_c)) / 6 (divergence theorem; the faces must close the surface).
     """
     face = np.asarray(faces)
     a, b, c = position[..., face[:, 0], :], position[..., face[:, 1], :], position[..., face[:, 2], :]
