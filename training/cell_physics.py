@@ -122,6 +122,17 @@ class Contacts:
     normal_force: torch.Tensor
 
 
+def normal_force(overlap: torch.Tensor, kn: float) -> torch.Tensor:
+    """Normal (repulsive) force kn max(overlap, 0) [N], never tension (``warp_hcell.core.contact``)."""
+    return kn * torch.clamp(overlap, min=0.0)
+
+
+def coulomb_cap(trial: torch.Tensor, normal: torch.Tensor, mu: float) -> torch.Tensor:
+    """The trial tangential force [N] capped at mu f_n with its own sign: clip(trial, -mu f_n, mu f_n)."""
+    cap = mu * normal
+    return torch.minimum(torch.maximum(trial, -cap), cap)
+
+
 def contacts(schema: CellSchema, x: torch.Tensor) -> Contacts:
     """Geometry and normal forces (linear spring, no tension) of the pairs of grains at ``x``."""
     b = branches(schema, x)
@@ -131,8 +142,8 @@ def contacts(schema: CellSchema, x: torch.Tensor) -> Contacts:
     rsum = schema.radius[schema.pairs[:, 0]] + schema.radius[schema.pairs[:, 1]]
     overlap = rsum - dist
     contact = dist <= rsum * (1.0 + schema.contact_tolerance)
-    normal_force = torch.where(contact, schema.kn * torch.clamp(overlap, min=0.0), torch.zeros_like(overlap))
-    return Contacts(b, dist, u, w, overlap, contact, normal_force)
+    return Contacts(b, dist, u, w, overlap, contact,
+                    torch.where(contact, normal_force(overlap, schema.kn), torch.zeros_like(overlap)))
 
 
 def pair_forces(c: Contacts, shear_force: torch.Tensor) -> torch.Tensor:
@@ -267,9 +278,8 @@ def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Te
     w_mid = torch.stack([-mid[..., 1], mid[..., 0]], dim=-1)
     relative = new.branch - old.branch
     trial = torch.where(old.contact, shear_force, torch.zeros_like(shear_force)) + schema.kt * torch.sum(relative * w_mid, dim=-1)
-    cap = schema.mu * new.normal_force
-    shear = torch.where(new.contact, torch.minimum(torch.maximum(trial, -cap), cap), torch.zeros_like(trial))
-    capped = new.contact & (torch.abs(trial) > cap)
+    shear = torch.where(new.contact, coulomb_cap(trial, new.normal_force, schema.mu), torch.zeros_like(trial))
+    capped = new.contact & (torch.abs(trial) > schema.mu * new.normal_force)
     opened = (old.normal_force > 0.0) & (new.normal_force == 0.0)
     force = pair_forces(new, shear)
     return Increment(new_size, new_free, shear, love_weber(new, force), polygon_area(x_new, schema.outer), capped, opened,

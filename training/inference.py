@@ -41,6 +41,10 @@ import torch
 
 from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
 from training.perceptron import Perceptron
+from warp_hcell.core.contact import coulomb_cap, normal_force
+
+_normal_force = numba.njit(cache=True, error_model="numpy")(normal_force)
+_coulomb_cap = numba.njit(cache=True, error_model="numpy")(coulomb_cap)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -122,7 +126,7 @@ def _features(size, free, shear, d_eps, frac, free_dofs, free_slot, pairs, radiu
             for c in range(n):
                 touching = dist[c] <= reach
                 contact[c] = touching
-                fn[c] = kn * max(rsum - dist[c], 0.0) if touching else 0.0
+                fn[c] = _normal_force(rsum - dist[c], kn) if touching else 0.0
                 fs[c] = shear_p[c] if touching else 0.0
             for k in (free_slot[i, 0], free_slot[j, 0]):
                 if k >= 0:
@@ -287,7 +291,7 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
             b1 = b1_p[c]
             d = math.sqrt(b0 * b0 + b1 * b1)
             touching = d <= reach
-            fn = kn * max(rsum - d, 0.0) if touching else 0.0
+            fn = _normal_force(rsum - d, kn) if touching else 0.0
             ob0 = old_branch[p, 0, c]
             ob1 = old_branch[p, 1, c]
             mid0 = 0.5 * (ob0 + b0)
@@ -295,10 +299,9 @@ def _advance(size, free, shear, d_eps, out, m_in, unbalanced, old_branch, old_co
             inv_norm = 1.0 / math.sqrt(mid0 * mid0 + mid1 * mid1)
             trial = (shear[p, c] if old_contact[p, c] else 0.0) + kt * (
                 (b0 - ob0) * -(mid1 * inv_norm) + (b1 - ob1) * (mid0 * inv_norm))
-            cap = mu * fn
-            fs = min(max(trial, -cap), cap) if touching else 0.0
+            fs = _coulomb_cap(trial, fn, mu) if touching else 0.0
             new_shear[p, c] = fs
-            capped_any[c] |= touching and abs(trial) > cap
+            capped_any[c] |= touching and abs(trial) > mu * fn
             opened_any[c] |= old_fn[p, c] > 0.0 and fn == 0.0
             inv_d = 1.0 / d
             u0 = b0 * inv_d
@@ -406,15 +409,15 @@ def _moment_tangent(size, free, d_eps, out, out_dot, m_in, unbalanced, old_branc
             d = math.sqrt(b0 * b0 + b1 * b1)
             if d > reach:
                 continue
-            fn = kn * max(rsum - d, 0.0)
+            fn = _normal_force(rsum - d, kn)
             ob0, ob1 = old_branch[p, 0, c], old_branch[p, 1, c]
             mid0, mid1 = 0.5 * (ob0 + b0), 0.5 * (ob1 + b1)
             norm = math.sqrt(mid0 * mid0 + mid1 * mid1)
             n0, n1 = mid0 / norm, mid1 / norm
             rel0, rel1 = b0 - ob0, b1 - ob1
             trial = (shear[p, c] if old_contact[p, c] else 0.0) + kt * (rel0 * -n1 + rel1 * n0)
+            fs = _coulomb_cap(trial, fn, mu)
             cap = mu * fn
-            fs = min(max(trial, -cap), cap)
             u0, u1 = b0 / d, b1 / d
             f0 = -fn * u0 + fs * -u1
             f1 = -fn * u1 + fs * u0

@@ -2,7 +2,7 @@
 
 A learning state (``warp_hcell.core.contract.StateSchema``) is the cell size, the free-DOF
 coordinates and the per-pair tangential spring forces. ``evaluate`` applies the contact law
-of the DEM (``warp_hcell.dem.kernels``) at those positions with no displacement: contact flags,
+of the DEM (``warp_hcell.core.contact``) at those positions with no displacement: contact flags,
 normal forces, the tangential forces after the Coulomb cap (zero out of contact), the net
 force on each free DOF, the Love-Weber moment and the area. Evaluated on a state the DEM
 produced, it reproduces the DEM's own forces; on a perturbed state it gives the unbalanced
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from warp_hcell.core.contact import coulomb_cap, normal_force
 from warp_hcell.core.contract import StateSchema
 from warp_hcell.dem.love_weber import love_weber_tension_positive, to_compression_positive
 from warp_hcell.mesostructures.mesostructure import polygon_area
@@ -65,9 +66,8 @@ def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarr
     touching = dist2 <= cut2
     dist = np.sqrt(dist2)
     u = b / np.where(dist > 0.0, dist, 1.0)[..., None]
-    normal = np.where(touching, contact_law.kn * np.maximum(rsum - dist, 0.0), 0.0)
-    cap = contact_law.mu * normal
-    shear = np.where(touching, np.clip(np.asarray(shear_force, dtype=np.float64), -cap, cap), 0.0)
+    normal = np.where(touching, normal_force(rsum - dist, contact_law.kn), 0.0)
+    shear = np.where(touching, coulomb_cap(np.asarray(shear_force, dtype=np.float64), normal, contact_law.mu), 0.0)
     force = np.stack([-normal * u[..., 0] - shear * u[..., 1], -normal * u[..., 1] + shear * u[..., 0]], axis=-1)
     net = np.zeros_like(x)
     for p in range(schema.n_pairs):  # pair order fixed: the DEM's summation order

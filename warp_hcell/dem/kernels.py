@@ -1,4 +1,5 @@
-"""All Warp code of the meso-DEM: the contact law and the batched cell-step kernel (float64).
+"""Warp code of the planar meso-DEM: the batched cell-step kernel (float64); the contact law is
+``warp_hcell.dem.contact``.
 
 One thread advances one cell through a whole strain increment: the substep loop runs
 inside the kernel and the cell (positions, velocities, displacements, shear forces) lives in
@@ -46,36 +47,9 @@ import functools
 
 import warp as wp
 
+from warp_hcell.dem.contact import contact_law, contact_regime, normal_force
+
 wp.set_module_options({"enable_backward": False})
-
-
-@wp.func
-def contact_law(
-    overlap: wp.float64,
-    shear_increment: wp.float64,
-    shear_force: wp.float64,
-    kn: wp.float64,
-    kt: wp.float64,
-    mu: wp.float64,
-):
-    """Linear normal spring without tension, incremental tangential spring with Coulomb cap.
-
-    Args:
-        overlap: r_i + r_j - |x_j - x_i| [m] (negative = gap within the contact tolerance).
-        shear_increment: tangential relative displacement of the substep [m].
-        shear_force: tangential force before the substep [N].
-        kn, kt: normal and tangential stiffness [N/m]; mu: friction coefficient [-].
-
-    Returns:
-        (normal force >= 0 [N], new tangential force [N]); the trial force decides the
-        sliding direction: f_s = clip(f_s + kt du, -mu f_n, +mu f_n).
-    """
-    zero = wp.float64(0.0)
-    normal = kn * wp.where(overlap > zero, overlap, zero)
-    cap = mu * normal
-    trial = shear_force + kt * shear_increment
-    # comparisons rather than wp.clamp/wp.max: no NaN handling on the hot path
-    return normal, wp.where(trial > cap, cap, wp.where(trial < -cap, -cap, trial))
 
 
 @wp.func
@@ -168,7 +142,6 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         c = first_cell + wp.tid()
         zero = wp.float64(0.0)
         one = wp.float64(1.0)
-        two = wp.float64(2.0)
         h = dt[c]
         floor = force_floor[c]
 
@@ -314,7 +287,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
                     du = (dxt[j] - dxt[i]) * un - (dxn[j] - dxn[i]) * ut
                     normal, shear = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
                     fs[p] = shear
-                    regime = wp.where(normal > zero and wp.abs(shear) >= mu * normal, two, one)
+                    regime = contact_regime(normal, wp.abs(shear), mu * normal)
                     fin = -normal * un - shear * ut
                     fit = -normal * ut + shear * un
                     fn_g[i] = fn_g[i] + fin
@@ -412,7 +385,7 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
             ut = bt / dist
             # the last force evaluation ran at these positions: same contacts, same normal forces
             touching = dist2 <= cut2[p]
-            normal = wp.where(touching, kn * wp.max(rsum[p] - dist, zero), zero)
+            normal = wp.where(touching, normal_force(rsum[p] - dist, kn), zero)
             f_n = -normal * un - fs[p] * ut
             f_t = -normal * ut + fs[p] * un
             contact_force_out[c, p] = wp.vec2d(f_n, f_t)

@@ -36,24 +36,13 @@ import functools
 
 import warp as wp
 
+from warp_hcell.dem.contact import carried_spring, contact_law_3d, normal_force
 from warp_hcell.dem.kernels import damped_velocity
 
 wp.set_module_options({"enable_backward": False})
 
 DIM = 3
 """Spatial dimension of the cells this module steps."""
-
-
-@wp.func
-def carried_spring(shear_force: wp.vec3d, normal: wp.vec3d):
-    """The tangential spring carried into the tangent plane of ``normal`` (unit): projected, then
-    rescaled to its former magnitude, by sqrt(|before|^2 / |after|^2) (zero stays zero)."""
-    zero = wp.float64(0.0)
-    projected = shear_force - wp.dot(shear_force, normal) * normal
-    before2 = wp.dot(shear_force, shear_force)
-    after2 = wp.dot(projected, projected)
-    return wp.where(after2 > zero, projected * wp.sqrt(before2 / wp.where(after2 > zero, after2, wp.float64(1.0))),
-                    projected)
 
 
 @functools.lru_cache(maxsize=None)
@@ -119,7 +108,6 @@ def step_kernel_3d(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool,
         c = first_cell + wp.tid()
         zero = wp.float64(0.0)
         one = wp.float64(1.0)
-        two = wp.float64(2.0)
         h = dt[c]
         floor = force_floor[c]
 
@@ -227,16 +215,9 @@ def step_kernel_3d(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool,
                     rel = wp.vec3d(dx[j, 0] - dx[i, 0], dx[j, 1] - dx[i, 1], dx[j, 2] - dx[i, 2])
                     du = rel - wp.dot(rel, u) * u
                     carried = carried_spring(wp.vec3d(fs[p, 0], fs[p, 1], fs[p, 2]), u)
-                    overlap = rsum[p] - dist
-                    normal = kn * wp.where(overlap > zero, overlap, zero)
-                    # Coulomb cap along the trial force; sliding where the trial reaches the cap
-                    trial = carried + kt * du
-                    cap = mu * normal
-                    size = wp.length(trial)
-                    shear = wp.where(size > cap, trial * (cap / wp.where(size > zero, size, one)), trial)
+                    normal, shear, regime = contact_law_3d(rsum[p] - dist, du, carried, kn, kt, mu)
                     for a in range(wp.static(DIM)):
                         fs[p, a] = shear[a]
-                    regime = wp.where(normal > zero and size >= cap, two, one)
                     force = shear - normal * u
                     for a in range(wp.static(DIM)):
                         f[i, a] = f[i, a] + force[a]
@@ -308,7 +289,7 @@ def step_kernel_3d(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool,
             dist = wp.sqrt(dist2)
             u = b / dist
             touching = dist2 <= cut2[p]
-            normal = wp.where(touching, kn * wp.max(rsum[p] - dist, zero), zero)
+            normal = wp.where(touching, normal_force(rsum[p] - dist, kn), zero)
             force = shear - normal * u
             contact_force_out[c, p] = force
             contact_out[c, p] = wp.where(touching, 1, 0)

@@ -38,6 +38,9 @@ import functools
 
 import numpy as np
 
+from warp_hcell.core.contact import normal_force
+
+
 def _unit_tangent(branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit normal ``u = b / |b|`` and tangent w = (-u_t, u_n), each shape (..., 2)."""
     u = branch / np.linalg.norm(branch, axis=-1)[..., None]
@@ -64,7 +67,7 @@ def sliding_contacts(position_old: np.ndarray, position: np.ndarray, radius: np.
     b = position[:, j] - position[:, i]
     _, w_mid = _unit_tangent(b_old + b)
     trial = shear_force_old + kt * np.sum((b - b_old) * w_mid, axis=-1)
-    N = kn * np.maximum(radius[:, i] + radius[:, j] - np.linalg.norm(b, axis=-1), 0.0)
+    N = normal_force(radius[:, i] + radius[:, j] - np.linalg.norm(b, axis=-1), kn)
     return (N > 0.0) & (np.abs(trial) > mu * N)
 
 
@@ -83,7 +86,7 @@ def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.n
     d = np.linalg.norm(branch, axis=-1)
     u, w = _unit_tangent(branch)
     active = overlap > 0.0
-    N = kn * np.where(active, overlap, 0.0)
+    N = normal_force(overlap, kn)
     T = np.where(active, shear_force, 0.0)
     sliding = active & sliding
     # dT/db = kt w (stick) or -sign(T) mu kn u (slide): dT = a u + c w
@@ -114,7 +117,7 @@ def sliding_contacts_3d(position_old: np.ndarray, position: np.ndarray, radius: 
     carried = projected * np.where(after > 0.0, before / np.where(after > 0.0, after, 1.0), 0.0)[..., None]
     step = b - b_old
     trial = carried + kt * (step - np.sum(step * u, axis=-1, keepdims=True) * u)
-    N = kn * np.maximum(radius[:, i] + radius[:, j] - np.linalg.norm(b, axis=-1), 0.0)
+    N = normal_force(radius[:, i] + radius[:, j] - np.linalg.norm(b, axis=-1), kn)
     return (N > 0.0) & (np.linalg.norm(trial, axis=-1) > mu * N)
 
 
@@ -127,7 +130,7 @@ def contact_stiffness_3d(branch: np.ndarray, overlap: np.ndarray, shear_force: n
     d = np.linalg.norm(branch, axis=-1)
     u = branch / d[..., None]
     active = overlap > 0.0
-    N = kn * np.where(active, overlap, 0.0)
+    N = normal_force(overlap, kn)
     T = np.where(active[..., None], shear_force, 0.0)
     size = np.linalg.norm(T, axis=-1)
     t = T / np.where(size > 0.0, size, 1.0)[..., None]
