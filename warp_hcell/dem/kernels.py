@@ -3,7 +3,8 @@
 
 One thread advances one cell through a whole strain increment: the substep loop runs
 inside the kernel and the cell (positions, velocities, displacements, shear forces) lives in
-fixed-size local vectors. Kernels are generated per topology (candidate pairs and driven
+fixed-size local matrices; the pieces shared with the 3D kernel are ``warp_hcell.dem.stepping``,
+the pair pieces of the plane are below. Kernels are generated per topology (candidate pairs and driven
 DOF mask are compile-time constants), so every grain/pair index is static and the loops are
 unrolled; ``step_kernel`` caches one kernel per topology. Measured on the H-cell (CPU, one
 thread, 1e5 cells): 1.9e7 cell-substeps per CPU-second, 1.8 times the same kernel reading
@@ -18,7 +19,7 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
       a gap >= 0 carries zero force (and so zero shear force); out of contact the shear
       history is reset;
     - free DOFs: explicit (leapfrog) integration with Cundall local damping
-      (``damped_velocity``), from rest at the start of each increment; a free grain whose net
+      (``warp_hcell.dem.stepping.damped_velocity``), from rest at the start of each increment; a free grain whose net
       force is exactly zero is set at rest (no drift of unloaded grains in mechanism states);
     - driven DOFs: x = x_ref * l(s) / l_ref with l(s) moving linearly from the old to the new
       cell size, s = min(k rate / max|d_eps|, 1) over n = ceil(max|d_eps| / rate) driving
@@ -41,40 +42,146 @@ The conversion to compression-positive quantities happens on the host
 (``warp_hcell.database.learning_state.to_compression_positive``).
 """
 
-from __future__ import annotations
-
 import functools
 
 import warp as wp
 
 from warp_hcell.dem.contact import contact_law, contact_regime, normal_force
+from warp_hcell.dem.stepping import (driving_path, grain_io, grain_matrix, grain_motion, mask_code,
+                                     rate_and_prediction, refined_schedule)
 
 wp.set_module_options({"enable_backward": False})
 
 
-@wp.func
-def damped_velocity(
-    force: wp.float64,
-    velocity: wp.float64,
-    inv_mass: wp.float64,
-    dt: wp.float64,
-    damping: wp.float64,
-):
-    """Leapfrog velocity update of one free DOF with Cundall local (non-viscous) damping.
+@functools.lru_cache(maxsize=None)
+def pair_pieces(pairs: tuple[tuple[int, int], ...], n_grains: int) -> tuple[wp.Function, wp.Function, wp.Function]:
+    """(``setup``, ``forces``, ``output``): the planar pairs (i, j) of one topology.
 
-    Args:
-        force: net force on the DOF [N]; velocity: v(t - dt/2) [m/s]; inv_mass [1/kg];
-        dt: time step [s]; damping: Cundall coefficient [-].
-
-    Returns:
-        v(t + dt/2) = v + dt f/m (1 - damping sign(f v(t))), v(t) estimated as v + dt/2 f/m.
+    - ``setup(radius, shear_force_in, c, contact_tolerance)``: (f_s, r_i + r_j, squared reach);
+    - ``forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)``: the contact forces at
+      the grain centres x with the shear increment from the last move dx: (net force per grain,
+      new f_s, regime per pair (0 open, 1 sticking, 2 sliding), largest normal force, 1 if a
+      regime changed since the last evaluation);
+    - ``output(x, fs, rsum, cut2, kn, shear_force_out, contact_force_out, contact_out, c)``: writes
+      the pairs' state and forces (the last force evaluation ran at these positions: same
+      contacts, same normal forces) and returns the Love-Weber sum (tension positive)
+      sum_p f_p (x) (x_j - x_i).
     """
-    zero = wp.float64(0.0)
-    one = wp.float64(1.0)
-    accel = force * inv_mass
-    power = force * (velocity + wp.float64(0.5) * dt * accel)
-    sign = wp.where(power > zero, one, wp.where(power < zero, -one, zero))
-    return velocity + dt * (accel * (one - damping * sign))
+    n_pairs = len(pairs)
+    pi = tuple(p[0] for p in pairs)
+    pj = tuple(p[1] for p in pairs)
+    mat = grain_matrix(n_grains, 2)
+    vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
+    code = mask_code(pairs)
+
+    @wp.func
+    def setup(radius: wp.array2d(dtype=wp.float64), shear_force_in: wp.array2d(dtype=wp.float64), c: wp.int32,
+              contact_tolerance: wp.float64):
+        wp.static(code)
+        fs = vec_p()
+        rsum = vec_p()
+        cut2 = vec_p()
+        widen = wp.float64(1.0) + contact_tolerance
+        for p in range(wp.static(n_pairs)):
+            fs[p] = shear_force_in[c, p]
+            r_sum = radius[c, wp.static(pi[p])] + radius[c, wp.static(pj[p])]
+            rsum[p] = r_sum
+            cut2[p] = (r_sum * widen) * (r_sum * widen)
+        return fs, rsum, cut2
+
+    @wp.func
+    def forces(x: mat, dx: mat, fs: vec_p, rsum: vec_p, cut2: vec_p, was_regime: vec_p, substeps: wp.int32,
+               kn: wp.float64, kt: wp.float64, mu: wp.float64):
+        wp.static(code)
+        zero = wp.float64(0.0)
+        one = wp.float64(1.0)
+        f = mat()
+        shear_new = vec_p()
+        regime_new = vec_p()
+        fmax = zero
+        changed = wp.int32(0)
+        for p in range(wp.static(n_pairs)):
+            i = wp.static(pi[p])
+            j = wp.static(pj[p])
+            bn = x[j, 0] - x[i, 0]
+            bt = x[j, 1] - x[i, 1]
+            dist2 = bn * bn + bt * bt
+            regime = zero
+            shear = zero
+            if dist2 <= cut2[p]:
+                dist = wp.sqrt(dist2)
+                inv_dist = one / dist
+                un = bn * inv_dist
+                ut = bt * inv_dist
+                du = (dx[j, 1] - dx[i, 1]) * un - (dx[j, 0] - dx[i, 0]) * ut
+                normal, shear = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
+                regime = contact_regime(normal, wp.abs(shear), mu * normal)
+                fin = -normal * un - shear * ut
+                fit = -normal * ut + shear * un
+                f[i, 0] = f[i, 0] + fin
+                f[i, 1] = f[i, 1] + fit
+                f[j, 0] = f[j, 0] - fin
+                f[j, 1] = f[j, 1] - fit
+                fmax = wp.where(normal > fmax, normal, fmax)
+            shear_new[p] = shear
+            changed = wp.where(substeps > 0 and regime != was_regime[p], 1, changed)
+            regime_new[p] = regime
+        return f, shear_new, regime_new, fmax, changed
+
+    @wp.func
+    def output(x: mat, fs: vec_p, rsum: vec_p, cut2: vec_p, kn: wp.float64,
+               shear_force_out: wp.array2d(dtype=wp.float64), contact_force_out: wp.array2d(dtype=wp.vec2d),
+               contact_out: wp.array2d(dtype=wp.int32), c: wp.int32):
+        wp.static(code)
+        zero = wp.float64(0.0)
+        m_nn = zero
+        m_nt = zero
+        m_tn = zero
+        m_tt = zero
+        for p in range(wp.static(n_pairs)):
+            shear_force_out[c, p] = fs[p]
+            i = wp.static(pi[p])
+            j = wp.static(pj[p])
+            bn = x[j, 0] - x[i, 0]
+            bt = x[j, 1] - x[i, 1]
+            dist2 = bn * bn + bt * bt
+            dist = wp.sqrt(dist2)
+            un = bn / dist
+            ut = bt / dist
+            touching = dist2 <= cut2[p]
+            normal = wp.where(touching, normal_force(rsum[p] - dist, kn), zero)
+            f_n = -normal * un - fs[p] * ut
+            f_t = -normal * ut + fs[p] * un
+            contact_force_out[c, p] = wp.vec2d(f_n, f_t)
+            contact_out[c, p] = wp.where(touching, 1, 0)
+            m_nn = m_nn + f_n * bn
+            m_nt = m_nt + f_n * bt
+            m_tn = m_tn + f_t * bn
+            m_tt = m_tt + f_t * bt
+        return wp.mat22d(m_nn, m_nt, m_tn, m_tt)
+
+    return setup, forces, output
+
+
+@functools.lru_cache(maxsize=None)
+def polygon_area(outer: tuple[int, ...], n_grains: int) -> wp.Function:
+    """``area(x)``: V_cell [m^2], the shoelace formula over the outer polygon of grain centres."""
+    n_outer = len(outer)
+    outer_next = tuple(outer[(k + 1) % n_outer] for k in range(n_outer))
+    mat = grain_matrix(n_grains, 2)
+    code = mask_code((outer,))
+
+    @wp.func
+    def area(x: mat):
+        wp.static(code)
+        twice_area = wp.float64(0.0)
+        for k in range(wp.static(n_outer)):
+            a = wp.static(outer[k])
+            b = wp.static(outer_next[k])
+            twice_area = twice_area + (x[a, 0] * x[b, 1] - x[b, 0] * x[a, 1])
+        return wp.float64(0.5) * wp.abs(twice_area)
+
+    return area
 
 
 @functools.lru_cache(maxsize=None)
@@ -91,16 +198,16 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         A kernel launched with one thread per cell of cells [first_cell, first_cell + dim)
         (see ``integrator.launch_step``).
     """
-    n_grains = len(driven)
-    n_pairs = len(pairs)
-    pi = tuple(p[0] for p in pairs)
-    pj = tuple(p[1] for p in pairs)
-    drive_n = tuple(bool(d[0]) for d in driven)
-    drive_t = tuple(bool(d[1]) for d in driven)
-    n_outer = len(outer)
-    outer_next = tuple(outer[(k + 1) % n_outer] for k in range(n_outer))
-    vec_g = wp.types.vector(length=n_grains, dtype=wp.float64)
-    vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
+    drive = tuple(tuple(bool(v) for v in d) for d in driven)
+    n_grains = len(drive)
+    load, store = grain_io(n_grains, 2)
+    setup, forces, output = pair_pieces(pairs, n_grains)
+    path = driving_path(2)
+    predict = rate_and_prediction(drive)
+    unbalanced, move, memory = grain_motion(drive)
+    area = polygon_area(outer, n_grains)
+    mat_g = grain_matrix(n_grains, 2)
+    vec_p = wp.types.vector(length=len(pairs), dtype=wp.float64)
 
     @wp.kernel(module="unique", module_options={"enable_backward": False, "max_unroll": 4096, "fuse_fp": False})
     def dem_step(
@@ -140,268 +247,47 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
         converged_out: wp.array(dtype=wp.int32),
     ):
         c = first_cell + wp.tid()
-        zero = wp.float64(0.0)
-        one = wp.float64(1.0)
         h = dt[c]
         floor = force_floor[c]
-
-        xn = vec_g()
-        xt = vec_g()
-        vn = vec_g()
-        vt = vec_g()
-        dxn = vec_g()
-        dxt = vec_g()
-        fn_g = vec_g()
-        ft_g = vec_g()
-        refn = vec_g()
-        reft = vec_g()
-        im = vec_g()
-        x0n = vec_g()
-        x0t = vec_g()
-        driftn = vec_g()
-        driftt = vec_g()
-        for g in range(wp.static(n_grains)):
-            x0 = position_in[c, g]
-            v0 = velocity_in[c, g]
-            r0 = reference_position[c, g]
-            xn[g] = x0[0]
-            xt[g] = x0[1]
-            x0n[g] = x0[0]
-            x0t[g] = x0[1]
-            vn[g] = v0[0]
-            vt[g] = v0[1]
-            refn[g] = r0[0]
-            reft[g] = r0[1]
-            im[g] = inv_mass[c, g]
-
-        fs = vec_p()
-        rsum = vec_p()
-        cut2 = vec_p()
+        x, v, ref, im = load(position_in, velocity_in, reference_position, inv_mass, c)
+        x0 = x
+        dx = mat_g()
+        fs, rsum, cut2 = setup(radius, shear_force_in, c, contact_tolerance)
         was_regime = vec_p()
-        widen = one + contact_tolerance
-        for p in range(wp.static(n_pairs)):
-            fs[p] = shear_force_in[c, p]
-            r_sum = radius[c, wp.static(pi[p])] + radius[c, wp.static(pj[p])]
-            rsum[p] = r_sum
-            cut2[p] = (r_sum * widen) * (r_sum * widen)
-
-        # driven coordinates follow l(s) = l_start + (l_end - l_start) s, s = s_base + k ds: every
-        # driving substep moves the cell by the rate, the last one by what is left (the path
-        # of the driven DOFs then depends continuously on d_eps)
-        l_ref = reference_cell_size[c]
-        l_start = cell_size_in[c]
-        de = d_eps_local[c]
-        l_end = wp.vec2d(l_start[0] * (one - de[0]), l_start[1] * (one - de[1]))
-        largest = wp.max(wp.abs(de[0]), wp.abs(de[1]))
-        n_phase = wp.int32(wp.ceil(largest / strain_per_substep))
-        scale_n0 = l_start[0] / l_ref[0]
-        scale_t0 = l_start[1] / l_ref[1]
-        dscale_n = (l_end[0] - l_start[0]) / l_ref[0]
-        dscale_t = (l_end[1] - l_start[1]) / l_ref[1]
-        # strain per substep and predictor from the cell's own state. The state's velocities are
-        # every grain's mean velocity over the last increment's driving substeps; for the driven
-        # DOFs, d_last = v h is the last driving rate per substep, D_new this increment's
-        # displacement and d_new = D_new / n its displacement per substep at the coarse rate.
-        # lam = (d_last . d_new) / (d_new . d_new). The new increment continues the last one when
-        # |d_last - lam d_new| <= velocity_change lam |d_new| (max norms); then
-        # - the rate may grow by rate_growth over the last one, up to strain_per_substep
-        #   (otherwise the free grains moved for another path: refined_strain_per_substep);
-        # - the free grains are predicted to move as they did, scaled like the driven ones:
-        #   by span v_last, span = (v_last . D_new) / (v_last . v_last) [s] over the driven DOFs,
-        #   in step with them (span v_last ds per unit of the driving parameter s). The damped
-        #   dynamics, started from rest, corrects what the prediction misses.
-        inv_n_coarse = one / wp.float64(wp.max(n_phase, 1))
-        dot = zero
-        norm2 = zero
-        dot_v = zero
-        norm_v = zero
-        for g in range(wp.static(n_grains)):
-            if wp.static(drive_n[g]):
-                d_new = refn[g] * dscale_n * inv_n_coarse
-                dot = dot + vn[g] * h * d_new
-                norm2 = norm2 + d_new * d_new
-                dot_v = dot_v + vn[g] * (refn[g] * dscale_n)
-                norm_v = norm_v + vn[g] * vn[g]
-            if wp.static(drive_t[g]):
-                d_new = reft[g] * dscale_t * inv_n_coarse
-                dot = dot + vt[g] * h * d_new
-                norm2 = norm2 + d_new * d_new
-                dot_v = dot_v + vt[g] * (reft[g] * dscale_t)
-                norm_v = norm_v + vt[g] * vt[g]
-        lam = wp.where(norm2 > zero, dot / wp.where(norm2 > zero, norm2, one), zero)
-        off = zero
-        drive = zero
-        for g in range(wp.static(n_grains)):
-            if wp.static(drive_n[g]):
-                d_new = refn[g] * dscale_n * inv_n_coarse
-                off = wp.max(off, wp.abs(vn[g] * h - lam * d_new))
-                drive = wp.max(drive, wp.abs(d_new))
-            if wp.static(drive_t[g]):
-                d_new = reft[g] * dscale_t * inv_n_coarse
-                off = wp.max(off, wp.abs(vt[g] * h - lam * d_new))
-                drive = wp.max(drive, wp.abs(d_new))
-        steady = lam > zero and off <= velocity_change * lam * drive
-        rate = refined_strain_per_substep
-        if steady:
-            rate = wp.min(strain_per_substep, wp.max(refined_strain_per_substep, rate_growth * lam * largest * inv_n_coarse))
-        n_phase = wp.int32(wp.ceil(largest / rate))
-        ds = wp.where(largest > zero, rate / wp.where(largest > zero, largest, one), zero)
-        span = wp.where(steady and norm_v > zero, dot_v / wp.where(norm_v > zero, norm_v, one), zero)
-        for g in range(wp.static(n_grains)):
-            if wp.static(not drive_n[g]):
-                driftn[g] = span * vn[g]
-                vn[g] = zero
-            if wp.static(not drive_t[g]):
-                driftt[g] = span * vt[g]
-                vt[g] = zero
-        s_base = zero
-        s = zero
-        s_prev = zero
+        l_end, largest, scale0, dscale = path(cell_size_in[c], reference_cell_size[c], d_eps_local[c])
+        v, drift, n_phase, ds = predict(v, ref, dscale, h, largest, strain_per_substep, refined_strain_per_substep,
+                                        velocity_change, rate_growth)
+        s_base = wp.float64(0.0)
+        s = wp.float64(0.0)
+        s_prev = wp.float64(0.0)
         k_phase = wp.int32(0)
         refined = wp.int32(0)
-
         substeps = wp.int32(0)
         driving = wp.int32(0)
         converged = wp.int32(0)
         while True:
-            # contact forces at the current positions (shear increment from the last move);
-            # regime of each pair: 0 open, 1 sticking, 2 sliding (force at the Coulomb cap);
-            # changed = 1 if a regime changed since the last evaluation
-            fmax = zero
-            changed = wp.int32(0)
-            for g in range(wp.static(n_grains)):
-                fn_g[g] = zero
-                ft_g[g] = zero
-            for p in range(wp.static(n_pairs)):
-                i = wp.static(pi[p])
-                j = wp.static(pj[p])
-                bn = xn[j] - xn[i]
-                bt = xt[j] - xt[i]
-                dist2 = bn * bn + bt * bt
-                regime = zero
-                if dist2 <= cut2[p]:
-                    dist = wp.sqrt(dist2)
-                    inv_dist = one / dist
-                    un = bn * inv_dist
-                    ut = bt * inv_dist
-                    du = (dxt[j] - dxt[i]) * un - (dxn[j] - dxn[i]) * ut
-                    normal, shear = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
-                    fs[p] = shear
-                    regime = contact_regime(normal, wp.abs(shear), mu * normal)
-                    fin = -normal * un - shear * ut
-                    fit = -normal * ut + shear * un
-                    fn_g[i] = fn_g[i] + fin
-                    ft_g[i] = ft_g[i] + fit
-                    fn_g[j] = fn_g[j] - fin
-                    ft_g[j] = ft_g[j] - fit
-                    fmax = wp.where(normal > fmax, normal, fmax)
-                else:
-                    fs[p] = zero
-                changed = wp.where(substeps > 0 and regime != was_regime[p], 1, changed)
-                was_regime[p] = regime
-
+            f, fs, was_regime, fmax, changed = forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)
             if k_phase < n_phase:
-                # adaptive driving: once a contact has opened, closed, started or stopped
-                # sliding, the rest of the increment is driven at refined_strain_per_substep
-                if changed == 1 and refined == 0:
-                    refined = 1
-                    n_rest = wp.int32(wp.ceil((one - s) * largest / refined_strain_per_substep))
-                    if n_rest > n_phase - k_phase:
-                        s_base = s
-                        ds = refined_strain_per_substep / largest
-                        n_phase = n_rest
-                        k_phase = 0
+                refined, s_base, ds, n_phase, k_phase = refined_schedule(changed, refined, s, s_base, ds, n_phase,
+                                                                         k_phase, largest, refined_strain_per_substep)
             else:
-                unbalanced = zero
-                for g in range(wp.static(n_grains)):
-                    if wp.static(not drive_n[g]):
-                        unbalanced = wp.where(wp.abs(fn_g[g]) > unbalanced, wp.abs(fn_g[g]), unbalanced)
-                    if wp.static(not drive_t[g]):
-                        unbalanced = wp.where(wp.abs(ft_g[g]) > unbalanced, wp.abs(ft_g[g]), unbalanced)
-                if unbalanced <= force_tolerance * wp.where(fmax > floor, fmax, floor):
+                if unbalanced(f) <= force_tolerance * wp.where(fmax > floor, fmax, floor):
                     converged = 1
                     break
                 if substeps >= max_substeps:
                     break
-
             substeps += 1
             s_prev = s
             if k_phase < n_phase:
                 k_phase += 1
                 driving += 1
-                s = wp.where(k_phase < n_phase, wp.min(s_base + wp.float64(k_phase) * ds, one), one)
-            scale_n = scale_n0 + dscale_n * s
-            scale_t = scale_t0 + dscale_t * s
-            for g in range(wp.static(n_grains)):
-                unloaded = fn_g[g] == zero and ft_g[g] == zero
-                if wp.static(drive_n[g]):
-                    x_new = refn[g] * scale_n
-                    dxn[g] = x_new - xn[g]
-                    xn[g] = x_new
-                else:
-                    v = wp.where(unloaded, zero, damped_velocity(fn_g[g], vn[g], im[g], h, damping))
-                    vn[g] = v
-                    move = v * h + wp.where(unloaded, zero, driftn[g] * (s - s_prev))
-                    dxn[g] = move
-                    xn[g] = xn[g] + move
-                if wp.static(drive_t[g]):
-                    x_new = reft[g] * scale_t
-                    dxt[g] = x_new - xt[g]
-                    xt[g] = x_new
-                else:
-                    v = wp.where(unloaded, zero, damped_velocity(ft_g[g], vt[g], im[g], h, damping))
-                    vt[g] = v
-                    move = v * h + wp.where(unloaded, zero, driftt[g] * (s - s_prev))
-                    dxt[g] = move
-                    xt[g] = xt[g] + move
-
-        for g in range(wp.static(n_grains)):
-            position_out[c, g] = wp.vec2d(xn[g], xt[g])
-            # every grain's mean velocity over the increment's driving substeps: the memory from
-            # which the next increment sets its strain per substep and its predictor
-            if wp.static(drive_n[g]):
-                vn[g] = wp.where(driving > 0, refn[g] * dscale_n / (wp.float64(driving) * h), zero)
-            else:
-                vn[g] = wp.where(driving > 0, (xn[g] - x0n[g]) / (wp.float64(driving) * h), zero)
-            if wp.static(drive_t[g]):
-                vt[g] = wp.where(driving > 0, reft[g] * dscale_t / (wp.float64(driving) * h), zero)
-            else:
-                vt[g] = wp.where(driving > 0, (xt[g] - x0t[g]) / (wp.float64(driving) * h), zero)
-            velocity_out[c, g] = wp.vec2d(vn[g], vt[g])
-        # Love-Weber sum (tension positive) over the pairs: sum_p f_p (x) (x_j - x_i)
-        m_nn = zero
-        m_nt = zero
-        m_tn = zero
-        m_tt = zero
-        for p in range(wp.static(n_pairs)):
-            shear_force_out[c, p] = fs[p]
-            i = wp.static(pi[p])
-            j = wp.static(pj[p])
-            bn = xn[j] - xn[i]
-            bt = xt[j] - xt[i]
-            dist2 = bn * bn + bt * bt
-            dist = wp.sqrt(dist2)
-            un = bn / dist
-            ut = bt / dist
-            # the last force evaluation ran at these positions: same contacts, same normal forces
-            touching = dist2 <= cut2[p]
-            normal = wp.where(touching, normal_force(rsum[p] - dist, kn), zero)
-            f_n = -normal * un - fs[p] * ut
-            f_t = -normal * ut + fs[p] * un
-            contact_force_out[c, p] = wp.vec2d(f_n, f_t)
-            contact_out[c, p] = wp.where(touching, 1, 0)
-            m_nn = m_nn + f_n * bn
-            m_nt = m_nt + f_n * bt
-            m_tn = m_tn + f_t * bn
-            m_tt = m_tt + f_t * bt
-        moment_out[c] = wp.mat22d(m_nn, m_nt, m_tn, m_tt)
-        # V_cell: shoelace formula over the outer polygon
-        twice_area = zero
-        for k in range(wp.static(n_outer)):
-            a = wp.static(outer[k])
-            b = wp.static(outer_next[k])
-            twice_area = twice_area + (xn[a] * xt[b] - xn[b] * xt[a])
-        area_out[c] = wp.float64(0.5) * wp.abs(twice_area)
+                s = wp.where(k_phase < n_phase, wp.min(s_base + wp.float64(k_phase) * ds, wp.float64(1.0)),
+                             wp.float64(1.0))
+            x, v, dx = move(x, v, f, drift, ref, scale0, dscale, s, s_prev, im, h, damping)
+        store(x, position_out, c)
+        store(memory(x, x0, ref, dscale, driving, h), velocity_out, c)
+        moment_out[c] = output(x, fs, rsum, cut2, kn, shear_force_out, contact_force_out, contact_out, c)
+        area_out[c] = area(x)
         cell_size_out[c] = l_end
         substeps_out[c] = substeps
         converged_out[c] = converged

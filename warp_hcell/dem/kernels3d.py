@@ -3,7 +3,8 @@
 The 3D counterpart of ``warp_hcell.dem.kernels`` (same stepping, same conventions), one thread
 per cell with the whole increment inside the kernel and the cell in fixed-size local
 matrices; kernels are generated per topology (candidate pairs, driven DOF mask and outer
-faces are compile-time constants, loops unrolled).
+faces are compile-time constants, loops unrolled). The stepping is the 2D kernel's
+(``warp_hcell.dem.stepping``); the pairs and the volume are below.
 
 Conventions inside the kernel (tension-positive DEM quantities, local frame (n, t1, t2)):
     - pair p = (i, j): unit normal u = (x_j - x_i) / norm(x_j - x_i);
@@ -30,19 +31,129 @@ Conventions inside the kernel (tension-positive DEM quantities, local frame (n, 
       outwards), V = abs(sum_f x_a . (x_b x x_c)) / 6.
 """
 
-from __future__ import annotations
-
 import functools
 
 import warp as wp
 
 from warp_hcell.dem.contact import carried_spring, contact_law_3d, normal_force
-from warp_hcell.dem.kernels import damped_velocity
+from warp_hcell.dem.stepping import (driving_path, grain_io, grain_matrix, grain_motion, mask_code,
+                                     rate_and_prediction, refined_schedule)
 
 wp.set_module_options({"enable_backward": False})
 
 DIM = 3
 """Spatial dimension of the cells this module steps."""
+
+
+@functools.lru_cache(maxsize=None)
+def pair_pieces_3d(pairs: tuple[tuple[int, int], ...], n_grains: int) -> tuple[wp.Function, wp.Function, wp.Function]:
+    """(``setup``, ``forces``, ``output``) of the spatial pairs, as ``kernels.pair_pieces`` in the plane;
+    the shear force of a pair is a vector (a row of an (n_pairs, 3) matrix)."""
+    n_pairs = len(pairs)
+    pi = tuple(p[0] for p in pairs)
+    pj = tuple(p[1] for p in pairs)
+    mat = grain_matrix(n_grains, DIM)
+    mat_p = grain_matrix(n_pairs, DIM)
+    vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
+    code = mask_code(pairs)
+
+    @wp.func
+    def setup(radius: wp.array2d(dtype=wp.float64), shear_force_in: wp.array2d(dtype=wp.vec3d), c: wp.int32,
+              contact_tolerance: wp.float64):
+        wp.static(code)
+        fs = mat_p()
+        rsum = vec_p()
+        cut2 = vec_p()
+        widen = wp.float64(1.0) + contact_tolerance
+        for p in range(wp.static(n_pairs)):
+            s0 = shear_force_in[c, p]
+            for a in range(wp.static(DIM)):
+                fs[p, a] = s0[a]
+            r_sum = radius[c, wp.static(pi[p])] + radius[c, wp.static(pj[p])]
+            rsum[p] = r_sum
+            cut2[p] = (r_sum * widen) * (r_sum * widen)
+        return fs, rsum, cut2
+
+    @wp.func
+    def forces(x: mat, dx: mat, fs: mat_p, rsum: vec_p, cut2: vec_p, was_regime: vec_p, substeps: wp.int32,
+               kn: wp.float64, kt: wp.float64, mu: wp.float64):
+        wp.static(code)
+        zero = wp.float64(0.0)
+        f = mat()
+        shear_new = mat_p()
+        regime_new = vec_p()
+        fmax = zero
+        changed = wp.int32(0)
+        for p in range(wp.static(n_pairs)):
+            i = wp.static(pi[p])
+            j = wp.static(pj[p])
+            b = wp.vec3d(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2])
+            dist2 = wp.dot(b, b)
+            regime = zero
+            if dist2 <= cut2[p]:
+                dist = wp.sqrt(dist2)
+                u = b * (wp.float64(1.0) / dist)
+                rel = wp.vec3d(dx[j, 0] - dx[i, 0], dx[j, 1] - dx[i, 1], dx[j, 2] - dx[i, 2])
+                du = rel - wp.dot(rel, u) * u
+                carried = carried_spring(wp.vec3d(fs[p, 0], fs[p, 1], fs[p, 2]), u)
+                normal, shear, regime = contact_law_3d(rsum[p] - dist, du, carried, kn, kt, mu)
+                force = shear - normal * u
+                for a in range(wp.static(DIM)):
+                    shear_new[p, a] = shear[a]
+                    f[i, a] = f[i, a] + force[a]
+                    f[j, a] = f[j, a] - force[a]
+                fmax = wp.where(normal > fmax, normal, fmax)
+            changed = wp.where(substeps > 0 and regime != was_regime[p], 1, changed)
+            regime_new[p] = regime
+        return f, shear_new, regime_new, fmax, changed
+
+    @wp.func
+    def output(x: mat, fs: mat_p, rsum: vec_p, cut2: vec_p, kn: wp.float64,
+               shear_force_out: wp.array2d(dtype=wp.vec3d), contact_force_out: wp.array2d(dtype=wp.vec3d),
+               contact_out: wp.array2d(dtype=wp.int32), c: wp.int32):
+        wp.static(code)
+        moment = wp.mat33d()
+        for p in range(wp.static(n_pairs)):
+            i = wp.static(pi[p])
+            j = wp.static(pj[p])
+            shear = wp.vec3d(fs[p, 0], fs[p, 1], fs[p, 2])
+            shear_force_out[c, p] = shear
+            b = wp.vec3d(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2])
+            dist2 = wp.dot(b, b)
+            dist = wp.sqrt(dist2)
+            u = b / dist
+            touching = dist2 <= cut2[p]
+            normal = wp.where(touching, normal_force(rsum[p] - dist, kn), wp.float64(0.0))
+            force = shear - normal * u
+            contact_force_out[c, p] = force
+            contact_out[c, p] = wp.where(touching, 1, 0)
+            moment = moment + wp.outer(force, b)
+        return moment
+
+    return setup, forces, output
+
+
+@functools.lru_cache(maxsize=None)
+def polyhedron_volume(faces: tuple[tuple[int, int, int], ...], n_grains: int) -> wp.Function:
+    """``volume(x)``: V_cell [m^3] of the outer faces, abs(sum_f x_a . (x_b x x_c)) / 6."""
+    mat = grain_matrix(n_grains, DIM)
+    code = mask_code(faces)
+
+    @wp.func
+    def volume(x: mat):
+        wp.static(code)
+        six_volume = wp.float64(0.0)
+        for k in range(wp.static(len(faces))):
+            fa = wp.static(faces[k][0])
+            fb = wp.static(faces[k][1])
+            fc = wp.static(faces[k][2])
+            xa = wp.vec3d(x[fa, 0], x[fa, 1], x[fa, 2])
+            xb = wp.vec3d(x[fb, 0], x[fb, 1], x[fb, 2])
+            xc = wp.vec3d(x[fc, 0], x[fc, 1], x[fc, 2])
+            six_volume = six_volume + wp.dot(xa, wp.cross(xb, xc))
+        return wp.abs(six_volume) / wp.float64(6.0)
+
+    return volume
 
 
 @functools.lru_cache(maxsize=None)
@@ -58,15 +169,16 @@ def step_kernel_3d(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool,
     Returns:
         A kernel launched with one thread per cell of cells [first_cell, first_cell + dim).
     """
-    n_grains = len(driven)
-    n_pairs = len(pairs)
-    pi = tuple(p[0] for p in pairs)
-    pj = tuple(p[1] for p in pairs)
     drive = tuple(tuple(bool(v) for v in d) for d in driven)
-    mat_g = wp.types.matrix(shape=(n_grains, DIM), dtype=wp.float64)
-    mat_p = wp.types.matrix(shape=(n_pairs, DIM), dtype=wp.float64)
-    vec_g = wp.types.vector(length=n_grains, dtype=wp.float64)
-    vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
+    n_grains = len(drive)
+    load, store = grain_io(n_grains, DIM)
+    setup, forces, output = pair_pieces_3d(pairs, n_grains)
+    path = driving_path(DIM)
+    predict = rate_and_prediction(drive)
+    unbalanced, move, memory = grain_motion(drive)
+    volume = polyhedron_volume(faces, n_grains)
+    mat_g = grain_matrix(n_grains, DIM)
+    vec_p = wp.types.vector(length=len(pairs), dtype=wp.float64)
 
     @wp.kernel(module="unique", module_options={"enable_backward": False, "max_unroll": 8192, "fuse_fp": False})
     def dem_step_3d(
@@ -106,205 +218,47 @@ def step_kernel_3d(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool,
         converged_out: wp.array(dtype=wp.int32),
     ):
         c = first_cell + wp.tid()
-        zero = wp.float64(0.0)
-        one = wp.float64(1.0)
         h = dt[c]
         floor = force_floor[c]
-
-        x = mat_g()
-        v = mat_g()
+        x, v, ref, im = load(position_in, velocity_in, reference_position, inv_mass, c)
+        x0 = x
         dx = mat_g()
-        f = mat_g()
-        ref = mat_g()
-        x0 = mat_g()
-        drift = mat_g()
-        im = vec_g()
-        for g in range(wp.static(n_grains)):
-            p0 = position_in[c, g]
-            q0 = velocity_in[c, g]
-            r0 = reference_position[c, g]
-            for a in range(wp.static(DIM)):
-                x[g, a] = p0[a]
-                x0[g, a] = p0[a]
-                v[g, a] = q0[a]
-                ref[g, a] = r0[a]
-            im[g] = inv_mass[c, g]
-
-        fs = mat_p()
-        rsum = vec_p()
-        cut2 = vec_p()
+        fs, rsum, cut2 = setup(radius, shear_force_in, c, contact_tolerance)
         was_regime = vec_p()
-        widen = one + contact_tolerance
-        for p in range(wp.static(n_pairs)):
-            s0 = shear_force_in[c, p]
-            for a in range(wp.static(DIM)):
-                fs[p, a] = s0[a]
-            r_sum = radius[c, wp.static(pi[p])] + radius[c, wp.static(pj[p])]
-            rsum[p] = r_sum
-            cut2[p] = (r_sum * widen) * (r_sum * widen)
-
-        l_ref = reference_cell_size[c]
-        l_start = cell_size_in[c]
-        de = d_eps_local[c]
-        l_end = wp.vec3d(l_start[0] * (one - de[0]), l_start[1] * (one - de[1]), l_start[2] * (one - de[2]))
-        largest = wp.max(wp.max(wp.abs(de[0]), wp.abs(de[1])), wp.abs(de[2]))
-        n_phase = wp.int32(wp.ceil(largest / strain_per_substep))
-        scale0 = wp.vec3d(l_start[0] / l_ref[0], l_start[1] / l_ref[1], l_start[2] / l_ref[2])
-        dscale = wp.vec3d((l_end[0] - l_start[0]) / l_ref[0], (l_end[1] - l_start[1]) / l_ref[1],
-                          (l_end[2] - l_start[2]) / l_ref[2])
-        # rate and predictor from the cell's own state (warp_hcell.dem.kernels for the reasoning)
-        inv_n_coarse = one / wp.float64(wp.max(n_phase, 1))
-        dot = zero
-        norm2 = zero
-        dot_v = zero
-        norm_v = zero
-        for g in range(wp.static(n_grains)):
-            for a in range(wp.static(DIM)):
-                if wp.static(drive[g][a]):
-                    d_new = ref[g, a] * dscale[a] * inv_n_coarse
-                    dot = dot + v[g, a] * h * d_new
-                    norm2 = norm2 + d_new * d_new
-                    dot_v = dot_v + v[g, a] * (ref[g, a] * dscale[a])
-                    norm_v = norm_v + v[g, a] * v[g, a]
-        lam = wp.where(norm2 > zero, dot / wp.where(norm2 > zero, norm2, one), zero)
-        off = zero
-        driving_size = zero
-        for g in range(wp.static(n_grains)):
-            for a in range(wp.static(DIM)):
-                if wp.static(drive[g][a]):
-                    d_new = ref[g, a] * dscale[a] * inv_n_coarse
-                    off = wp.max(off, wp.abs(v[g, a] * h - lam * d_new))
-                    driving_size = wp.max(driving_size, wp.abs(d_new))
-        steady = lam > zero and off <= velocity_change * lam * driving_size
-        rate = refined_strain_per_substep
-        if steady:
-            rate = wp.min(strain_per_substep, wp.max(refined_strain_per_substep, rate_growth * lam * largest * inv_n_coarse))
-        n_phase = wp.int32(wp.ceil(largest / rate))
-        ds = wp.where(largest > zero, rate / wp.where(largest > zero, largest, one), zero)
-        span = wp.where(steady and norm_v > zero, dot_v / wp.where(norm_v > zero, norm_v, one), zero)
-        for g in range(wp.static(n_grains)):
-            for a in range(wp.static(DIM)):
-                if wp.static(not drive[g][a]):
-                    drift[g, a] = span * v[g, a]
-                    v[g, a] = zero
-        s_base = zero
-        s = zero
-        s_prev = zero
+        l_end, largest, scale0, dscale = path(cell_size_in[c], reference_cell_size[c], d_eps_local[c])
+        v, drift, n_phase, ds = predict(v, ref, dscale, h, largest, strain_per_substep, refined_strain_per_substep,
+                                        velocity_change, rate_growth)
+        s_base = wp.float64(0.0)
+        s = wp.float64(0.0)
+        s_prev = wp.float64(0.0)
         k_phase = wp.int32(0)
         refined = wp.int32(0)
-
         substeps = wp.int32(0)
         driving = wp.int32(0)
         converged = wp.int32(0)
         while True:
-            # contact forces at the current positions; regime 0 open, 1 sticking, 2 sliding
-            fmax = zero
-            changed = wp.int32(0)
-            for g in range(wp.static(n_grains)):
-                for a in range(wp.static(DIM)):
-                    f[g, a] = zero
-            for p in range(wp.static(n_pairs)):
-                i = wp.static(pi[p])
-                j = wp.static(pj[p])
-                b = wp.vec3d(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2])
-                dist2 = wp.dot(b, b)
-                regime = zero
-                if dist2 <= cut2[p]:
-                    dist = wp.sqrt(dist2)
-                    u = b * (one / dist)
-                    rel = wp.vec3d(dx[j, 0] - dx[i, 0], dx[j, 1] - dx[i, 1], dx[j, 2] - dx[i, 2])
-                    du = rel - wp.dot(rel, u) * u
-                    carried = carried_spring(wp.vec3d(fs[p, 0], fs[p, 1], fs[p, 2]), u)
-                    normal, shear, regime = contact_law_3d(rsum[p] - dist, du, carried, kn, kt, mu)
-                    for a in range(wp.static(DIM)):
-                        fs[p, a] = shear[a]
-                    force = shear - normal * u
-                    for a in range(wp.static(DIM)):
-                        f[i, a] = f[i, a] + force[a]
-                        f[j, a] = f[j, a] - force[a]
-                    fmax = wp.where(normal > fmax, normal, fmax)
-                else:
-                    for a in range(wp.static(DIM)):
-                        fs[p, a] = zero
-                changed = wp.where(substeps > 0 and regime != was_regime[p], 1, changed)
-                was_regime[p] = regime
-
+            f, fs, was_regime, fmax, changed = forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)
             if k_phase < n_phase:
-                if changed == 1 and refined == 0:
-                    refined = 1
-                    n_rest = wp.int32(wp.ceil((one - s) * largest / refined_strain_per_substep))
-                    if n_rest > n_phase - k_phase:
-                        s_base = s
-                        ds = refined_strain_per_substep / largest
-                        n_phase = n_rest
-                        k_phase = 0
+                refined, s_base, ds, n_phase, k_phase = refined_schedule(changed, refined, s, s_base, ds, n_phase,
+                                                                         k_phase, largest, refined_strain_per_substep)
             else:
-                unbalanced = zero
-                for g in range(wp.static(n_grains)):
-                    for a in range(wp.static(DIM)):
-                        if wp.static(not drive[g][a]):
-                            unbalanced = wp.where(wp.abs(f[g, a]) > unbalanced, wp.abs(f[g, a]), unbalanced)
-                if unbalanced <= force_tolerance * wp.where(fmax > floor, fmax, floor):
+                if unbalanced(f) <= force_tolerance * wp.where(fmax > floor, fmax, floor):
                     converged = 1
                     break
                 if substeps >= max_substeps:
                     break
-
             substeps += 1
             s_prev = s
             if k_phase < n_phase:
                 k_phase += 1
                 driving += 1
-                s = wp.where(k_phase < n_phase, wp.min(s_base + wp.float64(k_phase) * ds, one), one)
-            for g in range(wp.static(n_grains)):
-                unloaded = f[g, 0] == zero and f[g, 1] == zero and f[g, 2] == zero
-                for a in range(wp.static(DIM)):
-                    if wp.static(drive[g][a]):
-                        x_new = ref[g, a] * (scale0[a] + dscale[a] * s)
-                        dx[g, a] = x_new - x[g, a]
-                        x[g, a] = x_new
-                    else:
-                        vel = wp.where(unloaded, zero, damped_velocity(f[g, a], v[g, a], im[g], h, damping))
-                        v[g, a] = vel
-                        move = vel * h + wp.where(unloaded, zero, drift[g, a] * (s - s_prev))
-                        dx[g, a] = move
-                        x[g, a] = x[g, a] + move
-
-        for g in range(wp.static(n_grains)):
-            position_out[c, g] = wp.vec3d(x[g, 0], x[g, 1], x[g, 2])
-            for a in range(wp.static(DIM)):
-                if wp.static(drive[g][a]):
-                    v[g, a] = wp.where(driving > 0, ref[g, a] * dscale[a] / (wp.float64(driving) * h), zero)
-                else:
-                    v[g, a] = wp.where(driving > 0, (x[g, a] - x0[g, a]) / (wp.float64(driving) * h), zero)
-            velocity_out[c, g] = wp.vec3d(v[g, 0], v[g, 1], v[g, 2])
-        moment = wp.mat33d()
-        for p in range(wp.static(n_pairs)):
-            i = wp.static(pi[p])
-            j = wp.static(pj[p])
-            shear = wp.vec3d(fs[p, 0], fs[p, 1], fs[p, 2])
-            shear_force_out[c, p] = shear
-            b = wp.vec3d(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2])
-            dist2 = wp.dot(b, b)
-            dist = wp.sqrt(dist2)
-            u = b / dist
-            touching = dist2 <= cut2[p]
-            normal = wp.where(touching, normal_force(rsum[p] - dist, kn), zero)
-            force = shear - normal * u
-            contact_force_out[c, p] = force
-            contact_out[c, p] = wp.where(touching, 1, 0)
-            moment = moment + wp.outer(force, b)
-        moment_out[c] = moment
-        six_volume = zero
-        for k in range(wp.static(len(faces))):
-            fa = wp.static(faces[k][0])
-            fb = wp.static(faces[k][1])
-            fc = wp.static(faces[k][2])
-            xa = wp.vec3d(x[fa, 0], x[fa, 1], x[fa, 2])
-            xb = wp.vec3d(x[fb, 0], x[fb, 1], x[fb, 2])
-            xc = wp.vec3d(x[fc, 0], x[fc, 1], x[fc, 2])
-            six_volume = six_volume + wp.dot(xa, wp.cross(xb, xc))
-        volume_out[c] = wp.abs(six_volume) / wp.float64(6.0)
+                s = wp.where(k_phase < n_phase, wp.min(s_base + wp.float64(k_phase) * ds, wp.float64(1.0)),
+                             wp.float64(1.0))
+            x, v, dx = move(x, v, f, drift, ref, scale0, dscale, s, s_prev, im, h, damping)
+        store(x, position_out, c)
+        store(memory(x, x0, ref, dscale, driving, h), velocity_out, c)
+        moment_out[c] = output(x, fs, rsum, cut2, kn, shear_force_out, contact_force_out, contact_out, c)
+        volume_out[c] = volume(x)
         cell_size_out[c] = l_end
         substeps_out[c] = substeps
         converged_out[c] = converged

@@ -1,0 +1,293 @@
+"""The pieces of the cell-step kernels that hold in any dimension (Warp, float64).
+
+The planar (``warp_hcell.dem.kernels``) and spatial (``warp_hcell.dem.kernels3d``) kernels
+hold a cell in fixed-size local matrices, one row a grain, one column an axis ((n, t) or
+(n, t1, t2)), and step it with the functions below, each with one job: the driving path of
+the increment, the adaptive rate with the prediction of the free grains, the refinement on a
+regime change, the convergence measure, the leapfrog move and the velocity memory (the
+conventions are in ``warp_hcell.dem.kernels``). Functions return new local matrices; none
+changes its arguments.
+
+What depends on which DOFs are driven is generated per mask ``drive`` (per grain, per axis,
+True where driven), loops unrolled. Each generated function carries its mask as a static
+constant (``mask_code``): Warp hashes the static expressions that depend on a loop variable
+only when it generates the code, so without it two masks of the same size would share one
+compiled module.
+"""
+
+import functools
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+
+@functools.lru_cache(maxsize=None)
+def grain_matrix(n_grains: int, dim: int) -> type:
+    """The local matrix type of a cell's grains, shape (n_grains, dim), float64."""
+    return wp.types.matrix(shape=(n_grains, dim), dtype=wp.float64)
+
+
+@functools.lru_cache(maxsize=None)
+def grain_vector(n_grains: int) -> type:
+    """The local vector type of one value per grain, float64."""
+    return wp.types.vector(length=n_grains, dtype=wp.float64)
+
+
+def cell_vector(dim: int) -> type:
+    """The vector type of a cell size or strain increment: ``wp.vec2d`` or ``wp.vec3d``."""
+    return wp.vec2d if dim == 2 else wp.vec3d
+
+
+def mask_code(*tables: tuple[tuple[int, ...], ...]):
+    """Tables of ints (a drive mask, candidate pairs) as one Warp int32 vector constant, their sizes first."""
+    flat = [len(t) for t in tables] + [int(v) for t in tables for row in t for v in row]
+    return wp.types.vector(length=len(flat), dtype=wp.int32)(*flat)
+
+
+@wp.func
+def damped_velocity(
+    force: wp.float64,
+    velocity: wp.float64,
+    inv_mass: wp.float64,
+    dt: wp.float64,
+    damping: wp.float64,
+):
+    """Leapfrog velocity update of one free DOF with Cundall local (non-viscous) damping.
+
+    Args:
+        force: net force on the DOF [N]; velocity: v(t - dt/2) [m/s]; inv_mass [1/kg];
+        dt: time step [s]; damping: Cundall coefficient [-].
+
+    Returns:
+        v(t + dt/2) = v + dt f/m (1 - damping sign(f v(t))), v(t) estimated as v + dt/2 f/m.
+    """
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    accel = force * inv_mass
+    power = force * (velocity + wp.float64(0.5) * dt * accel)
+    sign = wp.where(power > zero, one, wp.where(power < zero, -one, zero))
+    return velocity + dt * (accel * (one - damping * sign))
+
+
+@wp.func
+def refined_schedule(changed: wp.int32, refined: wp.int32, s: wp.float64, s_base: wp.float64, ds: wp.float64,
+                     n_phase: wp.int32, k_phase: wp.int32, largest: wp.float64, refined_strain_per_substep: wp.float64):
+    """The driving schedule after a substep: once a contact has opened, closed, started or stopped
+    sliding (``changed`` = 1), the rest of the increment is driven at refined_strain_per_substep.
+
+    Returns:
+        (refined, s_base, ds, n_phase, k_phase): s = s_base + k_phase ds over n_phase substeps.
+    """
+    if changed == 1 and refined == 0:
+        refined = wp.int32(1)
+        n_rest = wp.int32(wp.ceil((wp.float64(1.0) - s) * largest / refined_strain_per_substep))
+        if n_rest > n_phase - k_phase:
+            s_base = s
+            ds = refined_strain_per_substep / largest
+            n_phase = n_rest
+            k_phase = wp.int32(0)
+    return refined, s_base, ds, n_phase, k_phase
+
+
+@functools.lru_cache(maxsize=None)
+def driving_path(dim: int) -> wp.Function:
+    """``path(l_start, l_ref, d_eps)``: the cell's sizes over the increment, l(s) = l_start + (l_end - l_start) s.
+
+    Returns (l_end [m], largest = max abs(d_eps) [-], x/x_ref at s = 0 and its change over the increment).
+    """
+    vec = cell_vector(dim)
+
+    @wp.func
+    def path(l_start: vec, l_ref: vec, de: vec):
+        one = wp.float64(1.0)
+        l_end = vec()
+        scale0 = vec()
+        dscale = vec()
+        largest = wp.abs(de[0])
+        for a in range(wp.static(dim)):
+            l_end[a] = l_start[a] * (one - de[a])
+            if wp.static(a > 0):
+                largest = wp.max(largest, wp.abs(de[a]))
+        for a in range(wp.static(dim)):
+            scale0[a] = l_start[a] / l_ref[a]
+            dscale[a] = (l_end[a] - l_start[a]) / l_ref[a]
+        return l_end, largest, scale0, dscale
+
+    return path
+
+
+@functools.lru_cache(maxsize=None)
+def rate_and_prediction(drive: tuple[tuple[bool, ...], ...]) -> wp.Function:
+    """``predict(v, ref, dscale, h, largest, ...)``: the strain per substep and the free grains' drift.
+
+    From the cell's own state: its velocities are every grain's mean velocity over the last
+    increment's driving substeps; for the driven DOFs d_last = v h is the last driving rate per
+    substep and d_new = D_new / n this increment's displacement per substep at the coarse rate,
+    lam = (d_last . d_new) / (d_new . d_new). The new increment continues the last one when
+    max abs(d_last - lam d_new) <= velocity_change lam max abs(d_new); then the rate may grow by
+    rate_growth over the last one, up to strain_per_substep (else refined_strain_per_substep),
+    and the free grains drift as they moved, scaled like the driven ones: by span v_last,
+    span = (v_last . D_new) / (v_last . v_last) [s] over the driven DOFs.
+
+    Returns (velocities with the free DOFs at rest, drift [m/s], driving substeps, ds).
+    """
+    n_grains, dim = len(drive), len(drive[0])
+    mat = grain_matrix(n_grains, dim)
+    vec = cell_vector(dim)
+    code = mask_code(drive)
+
+    @wp.func
+    def predict(v: mat, ref: mat, dscale: vec, h: wp.float64, largest: wp.float64, strain_per_substep: wp.float64,
+                refined_strain_per_substep: wp.float64, velocity_change: wp.float64, rate_growth: wp.float64):
+        wp.static(code)
+        zero = wp.float64(0.0)
+        one = wp.float64(1.0)
+        inv_n_coarse = one / wp.float64(wp.max(wp.int32(wp.ceil(largest / strain_per_substep)), 1))
+        dot = zero
+        norm2 = zero
+        dot_v = zero
+        norm_v = zero
+        for g in range(wp.static(n_grains)):
+            for a in range(wp.static(dim)):
+                if wp.static(drive[g][a]):
+                    d_new = ref[g, a] * dscale[a] * inv_n_coarse
+                    dot = dot + v[g, a] * h * d_new
+                    norm2 = norm2 + d_new * d_new
+                    dot_v = dot_v + v[g, a] * (ref[g, a] * dscale[a])
+                    norm_v = norm_v + v[g, a] * v[g, a]
+        lam = wp.where(norm2 > zero, dot / wp.where(norm2 > zero, norm2, one), zero)
+        off = zero
+        driving_size = zero
+        for g in range(wp.static(n_grains)):
+            for a in range(wp.static(dim)):
+                if wp.static(drive[g][a]):
+                    d_new = ref[g, a] * dscale[a] * inv_n_coarse
+                    off = wp.max(off, wp.abs(v[g, a] * h - lam * d_new))
+                    driving_size = wp.max(driving_size, wp.abs(d_new))
+        steady = lam > zero and off <= velocity_change * lam * driving_size
+        rate = refined_strain_per_substep
+        if steady:
+            rate = wp.min(strain_per_substep, wp.max(refined_strain_per_substep, rate_growth * lam * largest * inv_n_coarse))
+        n_phase = wp.int32(wp.ceil(largest / rate))
+        ds = wp.where(largest > zero, rate / wp.where(largest > zero, largest, one), zero)
+        span = wp.where(steady and norm_v > zero, dot_v / wp.where(norm_v > zero, norm_v, one), zero)
+        rest = mat()
+        drift = mat()
+        for g in range(wp.static(n_grains)):
+            for a in range(wp.static(dim)):
+                if wp.static(drive[g][a]):
+                    rest[g, a] = v[g, a]
+                else:
+                    drift[g, a] = span * v[g, a]
+        return rest, drift, n_phase, ds
+
+    return predict
+
+
+@functools.lru_cache(maxsize=None)
+def grain_motion(drive: tuple[tuple[bool, ...], ...]) -> tuple[wp.Function, wp.Function, wp.Function]:
+    """(``unbalanced(f)``, ``move(...)``, ``memory(...)``) of the mask ``drive``.
+
+    - ``unbalanced(f)``: the largest net force on a free DOF [N];
+    - ``move(x, v, f, drift, ref, scale0, dscale, s, s_prev, inv_mass, h, damping)``: one
+      substep, (x, v, dx): driven DOFs to x_ref (scale0 + dscale s), free ones by leapfrog with
+      Cundall damping plus the drift over (s - s_prev); a free grain whose net force is exactly
+      zero is held at rest;
+    - ``memory(x, x0, ref, dscale, driving, h)``: every DOF's mean velocity over the increment's
+      driving substeps (driven: the driving rate; free: how it moved while the cell was driven,
+      relaxation included), zero without driving.
+    """
+    n_grains, dim = len(drive), len(drive[0])
+    mat = grain_matrix(n_grains, dim)
+    vec = cell_vector(dim)
+    vec_g = grain_vector(n_grains)
+    code = mask_code(drive)
+
+    @wp.func
+    def unbalanced(f: mat):
+        wp.static(code)
+        largest = wp.float64(0.0)
+        for g in range(wp.static(n_grains)):
+            for a in range(wp.static(dim)):
+                if wp.static(not drive[g][a]):
+                    largest = wp.where(wp.abs(f[g, a]) > largest, wp.abs(f[g, a]), largest)
+        return largest
+
+    @wp.func
+    def move(x: mat, v: mat, f: mat, drift: mat, ref: mat, scale0: vec, dscale: vec, s: wp.float64,
+             s_prev: wp.float64, inv_mass: vec_g, h: wp.float64, damping: wp.float64):
+        wp.static(code)
+        zero = wp.float64(0.0)
+        x_new = mat()
+        v_new = mat()
+        dx = mat()
+        for g in range(wp.static(n_grains)):
+            unloaded = f[g, 0] == zero
+            for a in range(wp.static(dim)):
+                if wp.static(a > 0):
+                    unloaded = unloaded and f[g, a] == zero
+            for a in range(wp.static(dim)):
+                if wp.static(drive[g][a]):
+                    x_new[g, a] = ref[g, a] * (scale0[a] + dscale[a] * s)
+                    dx[g, a] = x_new[g, a] - x[g, a]
+                    v_new[g, a] = v[g, a]
+                else:
+                    vel = wp.where(unloaded, zero, damped_velocity(f[g, a], v[g, a], inv_mass[g], h, damping))
+                    v_new[g, a] = vel
+                    step = vel * h + wp.where(unloaded, zero, drift[g, a] * (s - s_prev))
+                    dx[g, a] = step
+                    x_new[g, a] = x[g, a] + step
+        return x_new, v_new, dx
+
+    @wp.func
+    def memory(x: mat, x0: mat, ref: mat, dscale: vec, driving: wp.int32, h: wp.float64):
+        wp.static(code)
+        zero = wp.float64(0.0)
+        v = mat()
+        for g in range(wp.static(n_grains)):
+            for a in range(wp.static(dim)):
+                if wp.static(drive[g][a]):
+                    v[g, a] = wp.where(driving > 0, ref[g, a] * dscale[a] / (wp.float64(driving) * h), zero)
+                else:
+                    v[g, a] = wp.where(driving > 0, (x[g, a] - x0[g, a]) / (wp.float64(driving) * h), zero)
+        return v
+
+    return unbalanced, move, memory
+
+
+@functools.lru_cache(maxsize=None)
+def grain_io(n_grains: int, dim: int) -> tuple[wp.Function, wp.Function]:
+    """(``load(position, velocity, reference_position, inv_mass, c)``, ``store(rows, out, c)``):
+    a cell's per-grain arrays into local matrices (x, v, x_ref, 1/m) and one matrix back out."""
+    mat = grain_matrix(n_grains, dim)
+    vec = cell_vector(dim)
+    vec_g = grain_vector(n_grains)
+
+    @wp.func
+    def load(position: wp.array2d(dtype=vec), velocity: wp.array2d(dtype=vec),
+             reference_position: wp.array2d(dtype=vec), inv_mass: wp.array2d(dtype=wp.float64), c: wp.int32):
+        x = mat()
+        v = mat()
+        ref = mat()
+        im = vec_g()
+        for g in range(wp.static(n_grains)):
+            p0 = position[c, g]
+            q0 = velocity[c, g]
+            r0 = reference_position[c, g]
+            for a in range(wp.static(dim)):
+                x[g, a] = p0[a]
+                v[g, a] = q0[a]
+                ref[g, a] = r0[a]
+            im[g] = inv_mass[c, g]
+        return x, v, ref, im
+
+    @wp.func
+    def store(rows: mat, out: wp.array2d(dtype=vec), c: wp.int32):
+        for g in range(wp.static(n_grains)):
+            row = vec()
+            for a in range(wp.static(dim)):
+                row[a] = rows[g, a]
+            out[c, g] = row
+
+    return load, store
