@@ -130,3 +130,27 @@ def test_the_import_walk_sees_local_imports_and_ranks_the_layers(tmp_path):
                                  "warp_hcell.database.format", "warp_hcell.generate", "training.train",
                                  "homogenization.driver")]
     assert order == sorted(order) and len(set(order)) == len(order)
+
+
+MAX_FUNCTION_LINES = 120
+"""Longest function of the package, its docstring and nested definitions included [lines]."""
+
+
+def _long_functions(path: Path, limit: int = MAX_FUNCTION_LINES) -> list[str]:
+    """``name (lines)`` of every function or method of ``path`` longer than ``limit`` lines."""
+    return [f"{node.name} at line {node.lineno} ({node.end_lineno - node.lineno + 1} lines)"
+            for node in ast.walk(ast.parse(path.read_text()))
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > limit]
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_function_is_longer_than_the_limit(path):
+    long = _long_functions(path)
+    assert not long, f"{path.relative_to(ROOT)}: split {long} into functions with one job each"
+
+
+def test_the_length_check_counts_nested_definitions_and_methods(tmp_path):
+    source = tmp_path / "probe.py"
+    source.write_text("class A:\n    def f(self):\n        def g():\n" + "            x = 1\n" * 4 + "        return g\n")
+    assert _long_functions(source, limit=6) == ["f at line 2 (7 lines)"]
+    assert _long_functions(source, limit=4) == ["f at line 2 (7 lines)", "g at line 3 (5 lines)"]

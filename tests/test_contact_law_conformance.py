@@ -16,7 +16,7 @@ import torch
 import warp as wp
 
 from homogenization.backends.analytical import AnalyticalCell
-from training import cell_physics, inference
+from training import cell_physics, fast_cells
 from warp_hcell.core import contact
 from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.dem import contact as warp_contact
@@ -76,8 +76,8 @@ def test_numpy(contacts):
 @numba.njit
 def _numba_law(overlap, old, increment, kn, kt, mu, normal, shear):
     for k in range(overlap.shape[0]):
-        normal[k] = inference._normal_force(overlap[k], kn)
-        shear[k] = inference._coulomb_cap(old[k] + kt * increment[k], normal[k], mu)
+        normal[k] = fast_cells.normal_force(overlap[k], kn)
+        shear[k] = fast_cells.coulomb_cap(old[k] + kt * increment[k], normal[k], mu)
 
 
 def test_numba_copies_that_the_meso_ann_inference_calls(contacts):

@@ -22,7 +22,7 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
       (``warp_hcell.dem.stepping.damped_velocity``), from rest at the start of each increment; a free grain whose net
       force is exactly zero is set at rest (no drift of unloaded grains in mechanism states);
     - driven DOFs: x = x_ref * l(s) / l_ref with l(s) moving linearly from the old to the new
-      cell size, s = min(k rate / max|d_eps|, 1) over n = ceil(max|d_eps| / rate) driving
+      cell size, s = min(k rate / max abs(d_eps), 1) over n = ceil(max abs(d_eps) / rate) driving
       substeps (the last one shorter: the driven path is continuous in d_eps); then relaxation
       until max free-DOF force <= force_tolerance * max(max normal force, force_floor), or
       max_substeps;

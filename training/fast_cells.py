@@ -1,0 +1,122 @@
+"""The data of the compiled meso-ANN increment (numba): cell tables, physics, and the shared geometry.
+
+Every array is cells LAST (one cell a vector lane, nothing reduced across cells), so that a
+cell's result is bit-identical whatever batch it is in and whatever the CPU's vector width.
+State layouts: size (2, n) [m], free (n_free, n) [m], shear (n_pairs, n) [N]; the probe
+d_eps (n, 2) [-]. Sign convention: compression and contraction positive; local frame index
+0 = n, 1 = t. The numba kernels take these tuples instead of long lists of arguments.
+"""
+
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from warp_hcell.core.contact import coulomb_cap as _coulomb_cap
+from warp_hcell.core.contact import normal_force as _normal_force
+
+normal_force = numba.njit(cache=True, error_model="numpy")(_normal_force)
+"""``warp_hcell.core.contact.normal_force`` compiled for the kernels (scalars)."""
+coulomb_cap = numba.njit(cache=True, error_model="numpy")(_coulomb_cap)
+"""``warp_hcell.core.contact.coulomb_cap`` compiled for the kernels (scalars)."""
+
+
+class CellTables(NamedTuple):
+    """The mesostructure's topology: frac = x_ref / l_ref (n_grains, 2) [-]; free_dofs (n_free, 2)
+    (grain, axis); free_slot (n_grains, 2), the rank of DOF (g, a) among the free DOFs, -1 if driven;
+    pairs (n_pairs, 2); radius (n_grains,) [m]; outer (n_outer,) polygon of the area; active_slot
+    (n_pairs,), the rank of pair p among the network's active pairs, -1 if inactive."""
+
+    frac: np.ndarray
+    free_dofs: np.ndarray
+    free_slot: np.ndarray
+    pairs: np.ndarray
+    radius: np.ndarray
+    outer: np.ndarray
+    active_slot: np.ndarray
+
+
+class Physics(NamedTuple):
+    """Contact law and scales: diameter D [m], kn, kt [N/m], mu [-], contact tolerance tol [-], the
+    gap clip of the features [D], the compliance scale of the relaxation term and the relaxation ramp
+    [-] (``training.network``)."""
+
+    diameter: float
+    kn: float
+    kt: float
+    mu: float
+    tol: float
+    gap_clip: float
+    compliance_scale: float
+    ramp: float
+
+
+class Normalisation(NamedTuple):
+    """The network's z-scores: feature_mean, feature_std (n_features,); rate_mean, rate_std (n_free,)
+    [D per unit strain]."""
+
+    feature_mean: np.ndarray
+    feature_std: np.ndarray
+    rate_mean: np.ndarray
+    rate_std: np.ndarray
+
+
+class Before(NamedTuple):
+    """What ``fast_features.features`` leaves of the state before the increment: feats (n_features, n)
+    float32, m = norm(d_eps) (n,), unbalanced (n_free, n) [N], old_branch (n_pairs, 2, n) [m],
+    old_contact (n_pairs, n) bool, old_fn (n_pairs, n) [N]."""
+
+    feats: np.ndarray
+    m: np.ndarray
+    unbalanced: np.ndarray
+    old_branch: np.ndarray
+    old_contact: np.ndarray
+    old_fn: np.ndarray
+
+
+class Advanced(NamedTuple):
+    """What ``fast_increment.advance`` writes: the new state new_size (2, n), new_free (n_free, n),
+    new_shear (n_pairs, n); the compression-positive moment (n, 2, 2) [N m] (cells FIRST), the area
+    (n,) [m^2]; per-cell flags (bool (n,)): capped (a trial tangential force exceeded mu f_n), opened
+    (a pair carrying a normal force opened), mechanism (zero moment), ramped (norm(d_eps) < ramp
+    scaled the relaxation down); n_held (n,) int64, the grains held at rest; held_dof (n_free, n)
+    bool, the free DOFs of those grains."""
+
+    new_size: np.ndarray
+    new_free: np.ndarray
+    new_shear: np.ndarray
+    moment: np.ndarray
+    area: np.ndarray
+    capped: np.ndarray
+    opened: np.ndarray
+    mechanism: np.ndarray
+    ramped: np.ndarray
+    n_held: np.ndarray
+    held_dof: np.ndarray
+
+
+@numba.njit(cache=True, error_model="numpy")
+def grain_positions(size, free, frac, free_dofs, x):
+    """Grain centres into ``x`` (n_grains, 2, n) [m]: driven from ``size`` (2, n), free from ``free`` (n_free, n)."""
+    n = size.shape[1]
+    for g in range(frac.shape[0]):
+        for a in range(2):
+            row, scale, size_a = x[g, a], frac[g, a], size[a]
+            for c in range(n):
+                row[c] = scale * size_a[c]
+    for k in range(free_dofs.shape[0]):
+        row, free_k = x[free_dofs[k, 0], free_dofs[k, 1]], free[k]
+        for c in range(n):
+            row[c] = free_k[c]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def any_within(b0, b1, reach):
+    """Whether some cell's pair may be within ``reach`` [m] of branch (b0, b1) (n,) each: a test without
+    square roots whose margin (1e-9 of reach) covers their rounding, so that False means out of
+    contact in every cell exactly as ``sqrt(b0^2 + b1^2) <= reach`` would decide."""
+    bound = (reach * (1.0 + 1e-9)) ** 2
+    near = False
+    for c in range(b0.shape[0]):
+        near |= b0[c] * b0[c] + b1[c] * b1[c] <= bound
+    return near

@@ -1,0 +1,124 @@
+"""The features of the meso-ANN's input, compiled (numba, float64): the state before the increment.
+
+Positions, contacts, pair forces, unbalanced forces and the z-scored features of every cell,
+exactly as ``training.network`` computes them with torch; the features are z-scored in
+float64 before the cast to float32 (the ratio f_s / (mu f_n), bounded by one, is divided in
+float32). A pair that no cell has within reach is skipped after a square-root-free test, which
+changes no bit of the result. Layouts: ``training.fast_cells``.
+"""
+
+import math
+
+import numba
+import numpy as np
+
+from training.fast_cells import any_within, grain_positions, normal_force
+
+
+@numba.njit(cache=True, error_model="numpy")
+def features(size, free, shear, d_eps, cells, law, scaling, before):
+    """Z-scored features, norm(d_eps), unbalanced forces and the contacts of every cell before its increment.
+
+    Layouts and tables: ``training.fast_cells``; the outputs are the arrays of ``before``.
+    Feature order: ``training.network.features_and_contacts``; each
+    is z-scored in float64 with ``feature_mean``, ``feature_std`` before the cast. Each loop
+    over cells (innermost) writes few arrays, so that the compiler vectorises it.
+    """
+    frac, free_dofs, free_slot, pairs, radius = cells.frac, cells.free_dofs, cells.free_slot, cells.pairs, cells.radius
+    active_slot, diameter, kn, mu, tol, gap_clip = cells.active_slot, law.diameter, law.kn, law.mu, law.tol, law.gap_clip
+    feature_mean, feature_std = scaling.feature_mean, scaling.feature_std
+    feats, m_out, unbalanced, old_branch, old_contact, old_fn = (before.feats, before.m, before.unbalanced,
+                                                               before.old_branch, before.old_contact, before.old_fn)
+    n = size.shape[1]
+    n_free = free_dofs.shape[0]
+    inv_diameter = 1.0 / diameter
+    inv_force_scale = 1.0 / (kn * diameter)
+    inv_std = 1.0 / feature_std
+    x = np.empty((frac.shape[0], 2, n))
+    unbalanced[:, :] = 0.0
+    grain_positions(size, free, frac, free_dofs, x)
+    dist, u0, u1, fs = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    base = 4 + 2 * n_free
+    for p in range(pairs.shape[0]):
+        i = pairs[p, 0]
+        j = pairs[p, 1]
+        rsum = radius[i] + radius[j]
+        reach = rsum * (1.0 + tol)
+        b0, b1, contact, fn, shear_p = old_branch[p, 0], old_branch[p, 1], old_contact[p], old_fn[p], shear[p]
+        xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
+        for c in range(n):
+            b0[c] = xj0[c] - xi0[c]
+            b1[c] = xj1[c] - xi1[c]
+        slot = active_slot[p]
+        near = any_within(b0, b1, reach)
+        if not near:
+            contact[:] = False
+            fn[:] = 0.0
+            fs[:] = 0.0
+            if slot < 0:
+                continue
+        for c in range(n):
+            d = math.sqrt(b0[c] * b0[c] + b1[c] * b1[c])
+            inv = 1.0 / d
+            dist[c] = d
+            u0[c] = b0[c] * inv
+            u1[c] = b1[c] * inv
+        if near:
+            for c in range(n):
+                touching = dist[c] <= reach
+                contact[c] = touching
+                fn[c] = normal_force(rsum - dist[c], kn) if touching else 0.0
+                fs[c] = shear_p[c] if touching else 0.0
+            for k in (free_slot[i, 0], free_slot[j, 0]):
+                if k >= 0:
+                    net_k, sign = unbalanced[k], 1.0 if k == free_slot[i, 0] else -1.0
+                    for c in range(n):
+                        net_k[c] += sign * (-fn[c] * u0[c] + fs[c] * -u1[c])
+            for k in (free_slot[i, 1], free_slot[j, 1]):
+                if k >= 0:
+                    net_k, sign = unbalanced[k], 1.0 if k == free_slot[i, 1] else -1.0
+                    for c in range(n):
+                        net_k[c] += sign * (-fn[c] * u1[c] + fs[c] * u0[c])
+        if slot < 0:
+            continue
+        k = base + 6 * slot
+        row, mean, scale = feats[k], feature_mean[k], inv_std[k]
+        for c in range(n):
+            row[c] = (max((rsum - dist[c]) * inv_diameter, -gap_clip) - mean) * scale
+        row, mean, scale = feats[k + 1], feature_mean[k + 1], inv_std[k + 1]
+        for c in range(n):
+            row[c] = ((1.0 if contact[c] else 0.0) - mean) * scale
+        row, mean, scale = feats[k + 2], feature_mean[k + 2], inv_std[k + 2]
+        for c in range(n):
+            row[c] = (u0[c] - mean) * scale
+        row, mean, scale = feats[k + 3], feature_mean[k + 3], inv_std[k + 3]
+        for c in range(n):
+            row[c] = (u1[c] - mean) * scale
+        row, mean, scale = feats[k + 4], feature_mean[k + 4], inv_std[k + 4]
+        for c in range(n):
+            row[c] = (fs[c] * inv_force_scale - mean) * scale
+        row, mean, scale = feats[k + 5], feature_mean[k + 5], inv_std[k + 5]
+        for c in range(n):
+            ratio = np.float32(fs[c]) / np.float32(mu * fn[c]) if fn[c] > 0 else np.float32(0.0)
+            row[c] = (ratio - mean) * scale
+    for k in range(n_free):
+        g = free_dofs[k, 0]
+        a = free_dofs[k, 1]
+        free_k, size_a = free[k], size[a]
+        row, mean, scale = feats[4 + k], feature_mean[4 + k], inv_std[4 + k]
+        for c in range(n):
+            row[c] = (free_k[c] * inv_diameter - mean) * scale
+        row, mean, scale = feats[4 + n_free + k], feature_mean[4 + n_free + k], inv_std[4 + n_free + k]
+        for c in range(n):
+            row[c] = (free_k[c] / size_a[c] - mean) * scale
+    d0, d1 = d_eps[:, 0], d_eps[:, 1]
+    for c in range(n):
+        m_out[c] = math.sqrt(d0[c] * d0[c] + d1[c] * d1[c])
+    for a in range(2):
+        d_a, size_a = d_eps[:, a], size[a]
+        row, mean, scale = feats[a], feature_mean[a], inv_std[a]
+        for c in range(n):
+            row[c] = ((d_a[c] / m_out[c] if m_out[c] > 0 else 0.0) - mean) * scale
+        row, mean, scale = feats[2 + a], feature_mean[2 + a], inv_std[2 + a]
+        for c in range(n):
+            row[c] = (size_a[c] * inv_diameter - mean) * scale

@@ -1,0 +1,197 @@
+"""The meso-ANN's increment, compiled (numba, float64): from the network output to the new state.
+
+``advance`` composes the steps, each one job: the free-DOF displacement from the network output
+(``free_displacement``), the DEM's rest rule (``hold_at_rest``, as
+``training.cell_physics.hold_at_rest``), the contact law at the new positions
+(``contact_pass``, ``warp_hcell.core.contact``), and the area and flags (``area_and_flags``).
+Layouts: ``training.fast_cells``; ``out`` (n_free + n_free^2, n) float32 is the perceptron's
+output, cells last.
+"""
+
+import math
+
+import numba
+import numpy as np
+
+from training.fast_cells import any_within, coulomb_cap, grain_positions, normal_force
+
+
+@numba.njit(cache=True, error_model="numpy")
+def free_displacement(out, m_in, unbalanced, scaling, law):
+    """The free-DOF displacement (n_free, n) [m] the network asks for: the un-normalised rate times
+    D norm(d_eps), minus the ramped relaxation C F / kn (C = compliance_scale (I + out's matrix))."""
+    n = m_in.shape[0]
+    n_free = unbalanced.shape[0]
+    rate_mean, rate_std = scaling.rate_mean, scaling.rate_std
+    compliance_scale, diameter, kn, ramp = law.compliance_scale, law.diameter, law.kn, law.ramp
+    d_free = np.empty((n_free, n))
+    cf = np.empty(n)
+    inv_kn, inv_ramp = 1.0 / kn, 1.0 / ramp
+    for k in range(n_free):
+        cf[:] = 0.0
+        for j in range(n_free):
+            out_kj, unbalanced_j, eye = out[n_free + k * n_free + j], unbalanced[j], 1.0 if j == k else 0.0
+            for c in range(n):
+                cf[c] += compliance_scale * (eye + out_kj[c]) * unbalanced_j[c]
+        out_k, d_free_k, std, mean = out[k], d_free[k], rate_std[k], rate_mean[k]
+        for c in range(n):
+            d_free_k[c] = diameter * m_in[c] * (out_k[c] * std + mean) - min(m_in[c] * inv_ramp, 1.0) * (cf[c] * inv_kn)
+    return d_free
+
+
+@numba.njit(cache=True, error_model="numpy")
+def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, new_free, n_held, held_dof):
+    """The new cell size and free positions with the rest rule; returns the new grain centres (n_grains, 2, n).
+
+    A free grain with no contact at the start stays where it is unless a neighbour reaches it
+    (repeated until no grain is released: a chain of touching grains is pushed in one increment).
+    Writes new_size (2, n), new_free (n_free, n), held_dof (n_free, n) and n_held (n,).
+    """
+    n = size.shape[1]
+    frac, free_dofs, pairs, radius = cells.frac, cells.free_dofs, cells.pairs, cells.radius
+    n_free = free_dofs.shape[0]
+    n_grains = frac.shape[0]
+    touched = np.zeros((n_grains, n), dtype=np.bool_)
+    for p in range(pairs.shape[0]):
+        contact, touched_i, touched_j = old_contact[p], touched[pairs[p, 0]], touched[pairs[p, 1]]
+        for c in range(n):
+            touched_i[c] |= contact[c]
+            touched_j[c] |= contact[c]
+    for k in range(n_free):
+        touched_g, new_free_k, free_k, d_free_k = touched[free_dofs[k, 0]], new_free[k], free[k], d_free[k]
+        for c in range(n):
+            new_free_k[c] = free_k[c] + d_free_k[c] if touched_g[c] else free_k[c]
+    for a in range(2):
+        new_size_a, size_a, d_eps_a = new_size[a], size[a], d_eps[:, a]
+        for c in range(n):
+            new_size_a[c] = size_a[c] * (1.0 - d_eps_a[c])
+    held = np.zeros((n_grains, n), dtype=np.bool_)
+    for k in range(n_free):
+        held_g, touched_g = held[free_dofs[k, 0]], touched[free_dofs[k, 0]]
+        for c in range(n):
+            held_g[c] = not touched_g[c]
+    x = np.empty((n_grains, 2, n))
+    for _ in range(n_grains):
+        if not held.any():
+            break
+        grain_positions(new_size, new_free, frac, free_dofs, x)
+        released = False
+        for p in range(pairs.shape[0]):
+            i = pairs[p, 0]
+            j = pairs[p, 1]
+            reach = (radius[i] + radius[j]) * (1.0 + tol)
+            for c in range(n):
+                if held[i, c] or held[j, c]:
+                    b0 = x[j, 0, c] - x[i, 0, c]
+                    b1 = x[j, 1, c] - x[i, 1, c]
+                    if math.sqrt(b0 * b0 + b1 * b1) <= reach:
+                        held[i, c] = False
+                        held[j, c] = False
+                        released = True
+        if not released:
+            break
+        for k in range(n_free):
+            g = free_dofs[k, 0]
+            for c in range(n):
+                new_free[k, c] = free[k, c] if held[g, c] else free[k, c] + d_free[k, c]
+    for k in range(n_free):
+        held_dof[k] = held[free_dofs[k, 0]]
+    n_held[:] = 0
+    for g in range(n_grains):
+        held_g = held[g]
+        for c in range(n):
+            n_held[c] += 1 if held_g[c] else 0
+    grain_positions(new_size, new_free, frac, free_dofs, x)
+    return x
+
+
+@numba.njit(cache=True, error_model="numpy")
+def contact_pass(x, shear, before, cells, law, new_shear, capped_any, opened_any):
+    """The contact law at the new grain centres x: writes new_shear (n_pairs, n) and the flags
+    capped_any, opened_any (n,); returns the compression-positive moment (2, 2, n) [N m]."""
+    n = x.shape[2]
+    pairs, radius = cells.pairs, cells.radius
+    kn, kt, mu, tol = law.kn, law.kt, law.mu, law.tol
+    old_branch, old_contact, old_fn = before.old_branch, before.old_contact, before.old_fn
+    moment = np.zeros((2, 2, n))
+    capped_any[:] = False
+    opened_any[:] = False
+    b0_p, b1_p = np.empty(n), np.empty(n)
+    for p in range(pairs.shape[0]):
+        i = pairs[p, 0]
+        j = pairs[p, 1]
+        rsum = radius[i] + radius[j]
+        reach = rsum * (1.0 + tol)
+        xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
+        for c in range(n):
+            b0_p[c] = xj0[c] - xi0[c]
+            b1_p[c] = xj1[c] - xi1[c]
+        if not any_within(b0_p, b1_p, reach):
+            new_shear[p, :] = 0.0
+            old_fn_p = old_fn[p]
+            for c in range(n):
+                opened_any[c] |= old_fn_p[c] > 0.0
+            continue
+        for c in range(n):
+            b0 = b0_p[c]
+            b1 = b1_p[c]
+            d = math.sqrt(b0 * b0 + b1 * b1)
+            touching = d <= reach
+            fn = normal_force(rsum - d, kn) if touching else 0.0
+            ob0 = old_branch[p, 0, c]
+            ob1 = old_branch[p, 1, c]
+            mid0 = 0.5 * (ob0 + b0)
+            mid1 = 0.5 * (ob1 + b1)
+            inv_norm = 1.0 / math.sqrt(mid0 * mid0 + mid1 * mid1)
+            trial = (shear[p, c] if old_contact[p, c] else 0.0) + kt * (
+                (b0 - ob0) * -(mid1 * inv_norm) + (b1 - ob1) * (mid0 * inv_norm))
+            fs = coulomb_cap(trial, fn, mu) if touching else 0.0
+            new_shear[p, c] = fs
+            capped_any[c] |= touching and abs(trial) > mu * fn
+            opened_any[c] |= old_fn[p, c] > 0.0 and fn == 0.0
+            inv_d = 1.0 / d
+            u0 = b0 * inv_d
+            u1 = b1 * inv_d
+            f0 = -fn * u0 + fs * -u1
+            f1 = -fn * u1 + fs * u0
+            moment[0, 0, c] -= f0 * b0
+            moment[0, 1, c] -= f0 * b1
+            moment[1, 0, c] -= f1 * b0
+            moment[1, 1, c] -= f1 * b1
+    return moment
+
+
+@numba.njit(cache=True, error_model="numpy")
+def area_and_flags(x, moment, m_in, outer, ramp, area, mechanism, ramped, moment_out):
+    """The area (n,) [m^2] of the outer polygon, the mechanism and ramp flags (n,), and the moment
+    copied cells first into moment_out (n, 2, 2)."""
+    n = x.shape[2]
+    n_outer = outer.shape[0]
+    area[:] = 0.0
+    for k in range(n_outer):
+        i = outer[k]
+        j = outer[(k + 1) % n_outer]
+        xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
+        for c in range(n):
+            area[c] += xi0[c] * xj1[c] - xj0[c] * xi1[c]
+    for c in range(n):
+        area[c] = 0.5 * abs(area[c])
+        mechanism[c] = moment[0, 0, c] == 0.0 and moment[0, 1, c] == 0.0 and moment[1, 0, c] == 0.0 and \
+            moment[1, 1, c] == 0.0
+        ramped[c] = m_in[c] < ramp
+    for c in range(n):
+        for a in range(2):
+            moment_out[c, a, 0] = moment[a, 0, c]
+            moment_out[c, a, 1] = moment[a, 1, c]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def advance(size, free, shear, d_eps, out, cells, law, scaling, before, result):
+    """Free-DOF displacement from the network output ``out``, then the contact law: fills ``result``
+    (``training.fast_cells.Advanced``) from the state before the increment and ``before``."""
+    d_free = free_displacement(out, before.m, before.unbalanced, scaling, law)
+    x = hold_at_rest(size, free, d_eps, d_free, before.old_contact, cells, law.tol, result.new_size, result.new_free,
+                     result.n_held, result.held_dof)
+    moment = contact_pass(x, shear, before, cells, law, result.new_shear, result.capped, result.opened)
+    area_and_flags(x, moment, before.m, cells.outer, law.ramp, result.area, result.mechanism, result.ramped,
+                   result.moment)
