@@ -47,8 +47,7 @@ import functools
 import warp as wp
 
 from warp_hcell.dem.contact import contact_law, contact_regime, normal_force
-from warp_hcell.dem.stepping import (driving_path, grain_io, grain_matrix, grain_motion, mask_code,
-                                     rate_and_prediction, refined_schedule)
+from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code
 
 wp.set_module_options({"enable_backward": False})
 
@@ -200,96 +199,4 @@ def step_kernel(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bo
     """
     drive = tuple(tuple(bool(v) for v in d) for d in driven)
     n_grains = len(drive)
-    load, store = grain_io(n_grains, 2)
-    setup, forces, output = pair_pieces(pairs, n_grains)
-    path = driving_path(2)
-    predict = rate_and_prediction(drive)
-    unbalanced, move, memory = grain_motion(drive)
-    area = polygon_area(outer, n_grains)
-    mat_g = grain_matrix(n_grains, 2)
-    vec_p = wp.types.vector(length=len(pairs), dtype=wp.float64)
-
-    @wp.kernel(module="unique", module_options={"enable_backward": False, "max_unroll": 4096, "fuse_fp": False})
-    def dem_step(
-        radius: wp.array2d(dtype=wp.float64),
-        inv_mass: wp.array2d(dtype=wp.float64),
-        reference_position: wp.array2d(dtype=wp.vec2d),
-        reference_cell_size: wp.array(dtype=wp.vec2d),
-        dt: wp.array(dtype=wp.float64),
-        force_floor: wp.array(dtype=wp.float64),
-        kn: wp.float64,
-        kt: wp.float64,
-        mu: wp.float64,
-        damping: wp.float64,
-        contact_tolerance: wp.float64,
-        strain_per_substep: wp.float64,
-        refined_strain_per_substep: wp.float64,
-        velocity_change: wp.float64,
-        rate_growth: wp.float64,
-        force_tolerance: wp.float64,
-        max_substeps: wp.int32,
-        position_in: wp.array2d(dtype=wp.vec2d),
-        velocity_in: wp.array2d(dtype=wp.vec2d),
-        shear_force_in: wp.array2d(dtype=wp.float64),
-        cell_size_in: wp.array(dtype=wp.vec2d),
-        d_eps_local: wp.array(dtype=wp.vec2d),
-        first_cell: wp.int32,
-        # outputs
-        position_out: wp.array2d(dtype=wp.vec2d),
-        velocity_out: wp.array2d(dtype=wp.vec2d),
-        shear_force_out: wp.array2d(dtype=wp.float64),
-        contact_force_out: wp.array2d(dtype=wp.vec2d),
-        contact_out: wp.array2d(dtype=wp.int32),
-        cell_size_out: wp.array(dtype=wp.vec2d),
-        moment_out: wp.array(dtype=wp.mat22d),
-        area_out: wp.array(dtype=wp.float64),
-        substeps_out: wp.array(dtype=wp.int32),
-        converged_out: wp.array(dtype=wp.int32),
-    ):
-        c = first_cell + wp.tid()
-        h = dt[c]
-        floor = force_floor[c]
-        x, v, ref, im = load(position_in, velocity_in, reference_position, inv_mass, c)
-        x0 = x
-        dx = mat_g()
-        fs, rsum, cut2 = setup(radius, shear_force_in, c, contact_tolerance)
-        was_regime = vec_p()
-        l_end, largest, scale0, dscale = path(cell_size_in[c], reference_cell_size[c], d_eps_local[c])
-        v, drift, n_phase, ds = predict(v, ref, dscale, h, largest, strain_per_substep, refined_strain_per_substep,
-                                        velocity_change, rate_growth)
-        s_base = wp.float64(0.0)
-        s = wp.float64(0.0)
-        s_prev = wp.float64(0.0)
-        k_phase = wp.int32(0)
-        refined = wp.int32(0)
-        substeps = wp.int32(0)
-        driving = wp.int32(0)
-        converged = wp.int32(0)
-        while True:
-            f, fs, was_regime, fmax, changed = forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)
-            if k_phase < n_phase:
-                refined, s_base, ds, n_phase, k_phase = refined_schedule(changed, refined, s, s_base, ds, n_phase,
-                                                                         k_phase, largest, refined_strain_per_substep)
-            else:
-                if unbalanced(f) <= force_tolerance * wp.where(fmax > floor, fmax, floor):
-                    converged = 1
-                    break
-                if substeps >= max_substeps:
-                    break
-            substeps += 1
-            s_prev = s
-            if k_phase < n_phase:
-                k_phase += 1
-                driving += 1
-                s = wp.where(k_phase < n_phase, wp.min(s_base + wp.float64(k_phase) * ds, wp.float64(1.0)),
-                             wp.float64(1.0))
-            x, v, dx = move(x, v, f, drift, ref, scale0, dscale, s, s_prev, im, h, damping)
-        store(x, position_out, c)
-        store(memory(x, x0, ref, dscale, driving, h), velocity_out, c)
-        moment_out[c] = output(x, fs, rsum, cut2, kn, shear_force_out, contact_force_out, contact_out, c)
-        area_out[c] = area(x)
-        cell_size_out[c] = l_end
-        substeps_out[c] = substeps
-        converged_out[c] = converged
-
-    return dem_step
+    return cell_step_kernel(drive, len(pairs), pair_pieces(pairs, n_grains), polygon_area(outer, n_grains), 4096)

@@ -291,3 +291,99 @@ def grain_io(n_grains: int, dim: int) -> tuple[wp.Function, wp.Function]:
             out[c, g] = row
 
     return load, store
+
+
+def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
+                     pairs: tuple[wp.Function, wp.Function, wp.Function], measure: wp.Function,
+                     max_unroll: int) -> wp.Kernel:
+    """The cell-step kernel of one topology, in the plane or in space (``len(drive[0])``).
+
+    Args:
+        drive: per grain, per axis, True where driven.
+        n_pairs: number of candidate pairs.
+        pairs: the dimension's pair functions (``setup``, ``forces``, ``output``):
+            ``warp_hcell.dem.kernels.pair_pieces`` or ``warp_hcell.dem.kernels3d.pair_pieces_3d``.
+        measure: V_cell of the grain centres (the outer polygon's area, the polyhedron's volume).
+        max_unroll: Warp's limit of unrolled loop iterations for this kernel.
+
+    Returns:
+        A kernel launched with one thread per cell of cells [first_cell, first_cell + dim)
+        (``warp_hcell.dem.integrator.launch_step``: the argument order).
+    """
+    n_grains, dim = len(drive), len(drive[0])
+    vec = cell_vector(dim)
+    moment_type = wp.mat22d if dim == 2 else wp.mat33d
+    shear_type = wp.float64 if dim == 2 else wp.vec3d
+    load, store = grain_io(n_grains, dim)
+    setup, forces, output = pairs
+    path = driving_path(dim)
+    predict = rate_and_prediction(drive)
+    unbalanced, move, memory = grain_motion(drive)
+    mat_g = grain_matrix(n_grains, dim)
+    vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
+
+    @wp.kernel(module="unique", module_options={"enable_backward": False, "max_unroll": max_unroll, "fuse_fp": False})
+    def dem_step(
+        radius: wp.array2d(dtype=wp.float64), inv_mass: wp.array2d(dtype=wp.float64),
+        reference_position: wp.array2d(dtype=vec), reference_cell_size: wp.array(dtype=vec),
+        dt: wp.array(dtype=wp.float64), force_floor: wp.array(dtype=wp.float64),
+        kn: wp.float64, kt: wp.float64, mu: wp.float64, damping: wp.float64, contact_tolerance: wp.float64,
+        strain_per_substep: wp.float64, refined_strain_per_substep: wp.float64, velocity_change: wp.float64,
+        rate_growth: wp.float64, force_tolerance: wp.float64, max_substeps: wp.int32,
+        position_in: wp.array2d(dtype=vec), velocity_in: wp.array2d(dtype=vec),
+        shear_force_in: wp.array2d(dtype=shear_type), cell_size_in: wp.array(dtype=vec),
+        d_eps_local: wp.array(dtype=vec), first_cell: wp.int32,
+        # outputs
+        position_out: wp.array2d(dtype=vec), velocity_out: wp.array2d(dtype=vec),
+        shear_force_out: wp.array2d(dtype=shear_type), contact_force_out: wp.array2d(dtype=vec),
+        contact_out: wp.array2d(dtype=wp.int32), cell_size_out: wp.array(dtype=vec),
+        moment_out: wp.array(dtype=moment_type), measure_out: wp.array(dtype=wp.float64),
+        substeps_out: wp.array(dtype=wp.int32), converged_out: wp.array(dtype=wp.int32),
+    ):
+        c = first_cell + wp.tid()
+        h = dt[c]
+        floor = force_floor[c]
+        x, v, ref, im = load(position_in, velocity_in, reference_position, inv_mass, c)
+        x0 = x
+        dx = mat_g()
+        fs, rsum, cut2 = setup(radius, shear_force_in, c, contact_tolerance)
+        was_regime = vec_p()
+        l_end, largest, scale0, dscale = path(cell_size_in[c], reference_cell_size[c], d_eps_local[c])
+        v, drift, n_phase, ds = predict(v, ref, dscale, h, largest, strain_per_substep, refined_strain_per_substep,
+                                        velocity_change, rate_growth)
+        s_base = wp.float64(0.0)
+        s = wp.float64(0.0)
+        s_prev = wp.float64(0.0)
+        k_phase = wp.int32(0)
+        refined = wp.int32(0)
+        substeps = wp.int32(0)
+        driving = wp.int32(0)
+        converged = wp.int32(0)
+        while True:
+            f, fs, was_regime, fmax, changed = forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)
+            if k_phase < n_phase:
+                refined, s_base, ds, n_phase, k_phase = refined_schedule(changed, refined, s, s_base, ds, n_phase,
+                                                                         k_phase, largest, refined_strain_per_substep)
+            else:
+                if unbalanced(f) <= force_tolerance * wp.where(fmax > floor, fmax, floor):
+                    converged = 1
+                    break
+                if substeps >= max_substeps:
+                    break
+            substeps += 1
+            s_prev = s
+            if k_phase < n_phase:
+                k_phase += 1
+                driving += 1
+                s = wp.where(k_phase < n_phase, wp.min(s_base + wp.float64(k_phase) * ds, wp.float64(1.0)),
+                             wp.float64(1.0))
+            x, v, dx = move(x, v, f, drift, ref, scale0, dscale, s, s_prev, im, h, damping)
+        store(x, position_out, c)
+        store(memory(x, x0, ref, dscale, driving, h), velocity_out, c)
+        moment_out[c] = output(x, fs, rsum, cut2, kn, shear_force_out, contact_force_out, contact_out, c)
+        measure_out[c] = measure(x)
+        cell_size_out[c] = l_end
+        substeps_out[c] = substeps
+        converged_out[c] = converged
+
+    return dem_step
