@@ -47,7 +47,7 @@ import functools
 import warp as wp
 
 from warp_hcell.dem.contact import contact_law, contact_regime, normal_force
-from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code
+from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code, pair_setup
 
 wp.set_module_options({"enable_backward": False})
 
@@ -56,7 +56,7 @@ wp.set_module_options({"enable_backward": False})
 def pair_pieces(pairs: tuple[tuple[int, int], ...], n_grains: int) -> tuple[wp.Function, wp.Function, wp.Function]:
     """(``setup``, ``forces``, ``output``): the planar pairs (i, j) of one topology.
 
-    - ``setup(radius, shear_force_in, c, contact_tolerance)``: (f_s, r_i + r_j, squared reach);
+    - ``setup``: ``warp_hcell.dem.stepping.pair_setup``;
     - ``forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)``: the contact forces at
       the grain centres x with the shear increment from the last move dx: (net force per grain,
       new f_s, regime per pair (0 open, 1 sticking, 2 sliding), largest normal force, 1 if a
@@ -73,20 +73,7 @@ def pair_pieces(pairs: tuple[tuple[int, int], ...], n_grains: int) -> tuple[wp.F
     vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
     code = mask_code(pairs)
 
-    @wp.func
-    def setup(radius: wp.array2d(dtype=wp.float64), shear_force_in: wp.array2d(dtype=wp.float64), c: wp.int32,
-              contact_tolerance: wp.float64):
-        wp.static(code)
-        fs = vec_p()
-        rsum = vec_p()
-        cut2 = vec_p()
-        widen = wp.float64(1.0) + contact_tolerance
-        for p in range(wp.static(n_pairs)):
-            fs[p] = shear_force_in[c, p]
-            r_sum = radius[c, wp.static(pi[p])] + radius[c, wp.static(pj[p])]
-            rsum[p] = r_sum
-            cut2[p] = (r_sum * widen) * (r_sum * widen)
-        return fs, rsum, cut2
+    setup = pair_setup(pairs, 2)
 
     @wp.func
     def forces(x: mat, dx: mat, fs: vec_p, rsum: vec_p, cut2: vec_p, was_regime: vec_p, substeps: wp.int32,

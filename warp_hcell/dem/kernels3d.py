@@ -36,7 +36,7 @@ import functools
 import warp as wp
 
 from warp_hcell.dem.contact import carried_spring, contact_law_3d, normal_force
-from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code
+from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code, pair_setup
 
 wp.set_module_options({"enable_backward": False})
 
@@ -56,22 +56,7 @@ def pair_pieces_3d(pairs: tuple[tuple[int, int], ...], n_grains: int) -> tuple[w
     vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
     code = mask_code(pairs)
 
-    @wp.func
-    def setup(radius: wp.array2d(dtype=wp.float64), shear_force_in: wp.array2d(dtype=wp.vec3d), c: wp.int32,
-              contact_tolerance: wp.float64):
-        wp.static(code)
-        fs = mat_p()
-        rsum = vec_p()
-        cut2 = vec_p()
-        widen = wp.float64(1.0) + contact_tolerance
-        for p in range(wp.static(n_pairs)):
-            s0 = shear_force_in[c, p]
-            for a in range(wp.static(DIM)):
-                fs[p, a] = s0[a]
-            r_sum = radius[c, wp.static(pi[p])] + radius[c, wp.static(pj[p])]
-            rsum[p] = r_sum
-            cut2[p] = (r_sum * widen) * (r_sum * widen)
-        return fs, rsum, cut2
+    setup = pair_setup(pairs, DIM)
 
     @wp.func
     def forces(x: mat, dx: mat, fs: mat_p, rsum: vec_p, cut2: vec_p, was_regime: vec_p, substeps: wp.int32,
