@@ -21,6 +21,7 @@ from warp_hcell.core.provenance import DISTRIBUTION, package_version
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "biaxial": ("homogenization.biaxial", "isotropic compression to p0, then biaxial shear or a --programme file"),
+    "triaxial": ("homogenization.triaxial", "isotropic compression to p0, then a 3D triaxial test or a --programme file"),
     "cell": ("homogenization.cell", "element test of one cell along a local strain path"),
     "plot": ("homogenization.plotting", "overlay finished runs (run.h5) in the 2x2 biaxial figure"),
     "generate": ("warp_hcell.generate", "DEM learning database of strain probes"),
