@@ -19,7 +19,8 @@ The command ``hmodel plot`` is ``homogenization.cli.plot``.
 
 Triaxial (3D) runs: ``triaxial_figure`` draws three panels side by side, the stress path (p, q),
 the deviator (eps_a, q) and the volumetric strain (eps_a, eps_v), with eps_a = eps11 (axis 1
-axial) and eps_v = eps11 + eps22 + eps33 counted from the end of the first (isotropic) stage,
+axial) and eps_v = 1 - V/V1 counted from the end of the first (isotropic) stage (V1 its volume;
+zero on an isochoric path, where the small-strain sum eps11 + eps22 + eps33 is not),
 p = tr(sigma) / 3 and q = sqrt(3 J2) in Pa (``hmodel triaxial`` writes it as triaxial.png).
 
 Sign convention: compression and contraction positive; stresses in N/m (2D), Pa (3D).
@@ -116,7 +117,7 @@ def shear_curve(record: Record) -> ShearCurve:
 
 TRIAXIAL_LABELS = {
     "eps_a": r"$\varepsilon_a = \varepsilon_{11}$ since the end of stage 1 [%]",
-    "eps_v": r"$\varepsilon_v = \varepsilon_{11} + \varepsilon_{22} + \varepsilon_{33}$ since the end of stage 1 [%]",
+    "eps_v": r"$\varepsilon_v = 1 - V/V_1$ since the end of stage 1 [%]",
     "p": r"$p = \mathrm{tr}\,\sigma / 3$ [Pa]",
     "q": r"$q = \sqrt{3 J_2}$ [Pa]",
 }
@@ -129,7 +130,7 @@ class TriaxialCurve:
 
     Attributes:
         eps_a: axial strain eps11 since the end of stage 1 [-], shape (m + 1,).
-        eps_v: eps11 + eps22 + eps33 since the end of stage 1 [-], shape (m + 1,), contraction positive.
+        eps_v: 1 - V/V1 since the end of stage 1 (volume V1) [-], shape (m + 1,), contraction positive.
         p: tr(sigma) / 3 [Pa], shape (m + 1,).
         q: sqrt(3 J2) [Pa], shape (m + 1,).
     """
@@ -153,8 +154,8 @@ def triaxial_curve(record: Record) -> TriaxialCurve:
         return np.concatenate([[head], values[n_first:]])
 
     e11 = tail(record.eps11)
-    ev = tail(invariants.volumetric_strain_3d(record.eps11, record.eps22, record.eps33))
-    return TriaxialCurve(eps_a=e11 - e11[0], eps_v=ev - ev[0], p=tail(record.p), q=tail(record.q))
+    J = np.concatenate([[record.J[start] if start >= 0 else 1.0], record.J[n_first:]])
+    return TriaxialCurve(eps_a=e11 - e11[0], eps_v=1.0 - J / J[0], p=tail(record.p), q=tail(record.q))
 
 
 def triaxial_figure(runs: Mapping[str, Record], *, title: str | None = None) -> Figure:

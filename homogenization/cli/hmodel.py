@@ -21,7 +21,6 @@ from warp_hcell.core.provenance import DISTRIBUTION, package_version
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "biaxial": ("homogenization.biaxial", "isotropic compression to p0, then biaxial shear or a --programme file"),
-    "triaxial": ("homogenization.triaxial", "isotropic compression to p0, then a 3D triaxial test or a --programme file"),
     "cell": ("homogenization.cell", "element test of one cell along a local strain path"),
     "plot": ("homogenization.plotting", "overlay finished runs (run.h5) in the 2x2 biaxial figure"),
     "generate": ("warp_hcell.generate", "DEM learning database of strain probes"),
@@ -29,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("training.train", "train the meso-ANN on a learning database"),
     "sweep": ("homogenization.sweep", "biaxial tests over lists of mesostructures, alpha0, p0 and backends"),
     "bvp": ("homogenization.bvp", "plane-strain biaxial specimen (finite elements) of the homogenised material"),
+    "triaxial": ("homogenization.triaxial", "isotropic compression to p0, then a 3D triaxial test or a --programme file"),
 }
 """Subcommand -> (its ``python -m`` module, whose ``main(argv)`` runs it, one-line summary)."""
 
