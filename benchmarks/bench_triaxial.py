@@ -6,8 +6,10 @@ written as one JSON line per row:
 - ``accuracy``: DEM vs the 3D closed form (``analytical``), undrained and drained triaxial
   compression, loose (alpha0 = 55 deg) and dense (``--dense``, 47 deg: equal spheres need
   alpha0 > 45 deg in 3D) cells, p0 = 2e5 and 5.85e6 Pa: the largest difference of sigma11,
-  sigma22, sigma33, p and q along the path over p0 (target <= 1e-3), with the cross-plane contacts the
-  closed form counted (``n_cross_plane``) and the unconverged DEM cell-increments;
+  sigma22, sigma33, p and q along the path over p0 (target <= 1e-3), over the whole path and up to
+  the first cross-plane contact (where the closed form stops holding: lateral grains of the two
+  planes touch, ``n_cross_plane``; the axial strain of the shear stage there is printed), with the
+  cell-increments that had such contacts and the unconverged DEM cell-increments;
 - ``quadrature``: the closed form at ``--order`` x ``--spins`` against twice the cells (twice the
   spins) and the next finer axis rule: the largest difference of the curves over p0 (target <= 0.5 %);
 - ``timing``: the wall time of the same triaxial test (loose, p0 = 2e5, undrained and drained) with
@@ -50,10 +52,25 @@ def run(backend: str, alpha0: float, p0: float, test: str, args, *, order: int |
     return record, time.perf_counter() - start
 
 
-def largest_difference(a, b) -> float:
-    """Largest difference of the compared curves [Pa], increment by increment."""
-    n = min(a.n_increments, b.n_increments)
+def largest_difference(a, b, n: int | None = None) -> float:
+    """Largest difference of the compared curves [Pa] over the first ``n`` increments (None: all)."""
+    n = min(a.n_increments, b.n_increments) if n is None else n
+    if n == 0:
+        return 0.0
     return max(float(np.abs(getattr(a, name)[:n] - getattr(b, name)[:n]).max()) for name in COMPARED)
+
+
+def first_cross_plane(record) -> int:
+    """Increments before the first with a cross-plane contact in the closed form (all if none)."""
+    cross = record.diagnostics.get("n_cross_plane")
+    hits = np.flatnonzero(np.nan_to_num(cross) > 0) if cross is not None else np.zeros(0, dtype=int)
+    return int(hits[0]) if hits.size else record.n_increments
+
+
+def shear_strain_at(record, k: int) -> float:
+    """Axial strain [-] of the shear stage after increment ``k`` (NaN when k is past the end)."""
+    start = int(np.flatnonzero(record.stage == record.stage[0])[-1])
+    return float(record.eps11[k] - record.eps11[start]) if k < record.n_increments else float("nan")
 
 
 def count(record, name: str) -> int:
@@ -62,18 +79,23 @@ def count(record, name: str) -> int:
 
 
 def accuracy(args) -> None:
-    print(f"{'alpha0':>6} {'p0 [Pa]':>9} {'test':>9} {'max diff / p0':>14} {'cross-plane':>11} {'unconverged':>11}")
+    print(f"{'alpha0':>6} {'p0 [Pa]':>9} {'test':>9} {'max diff / p0':>14} {'before contact':>14} "
+          f"{'first contact eps_a':>19} {'cross-plane':>11} {'unconverged':>11}")
     for alpha0 in (args.loose, args.dense):
         for p0 in (2e5, 5.85e6):
             for test in ("undrained", "drained"):
                 closed, _ = run("analytical", alpha0, p0, test, args)
                 dem, _ = run("dem", alpha0, p0, test, args)
+                valid = first_cross_plane(closed)
                 row = {"part": "accuracy", "alpha0_deg": alpha0, "p0": p0, "test": test,
                        "max_diff_over_p0": largest_difference(closed, dem) / p0,
+                       "max_diff_before_contact_over_p0": largest_difference(closed, dem, valid) / p0,
+                       "first_contact_shear_strain": shear_strain_at(closed, valid),
                        "n_increments": [closed.n_increments, dem.n_increments],
                        "cross_plane_cell_increments": count(closed, "n_cross_plane"),
                        "dem_unconverged": count(dem, "n_unconverged")}
                 print(f"{alpha0:6g} {p0:9.3g} {test:>9} {row['max_diff_over_p0']:14.3g} "
+                      f"{row['max_diff_before_contact_over_p0']:14.3g} {row['first_contact_shear_strain']:19.4g} "
                       f"{row['cross_plane_cell_increments']:11d} {row['dem_unconverged']:11d}", flush=True)
                 print(json.dumps(row))
 
