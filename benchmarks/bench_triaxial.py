@@ -90,12 +90,13 @@ def accuracy(args) -> None:
                 row = {"part": "accuracy", "alpha0_deg": alpha0, "p0": p0, "test": test,
                        "max_diff_over_p0": largest_difference(closed, dem) / p0,
                        "max_diff_before_contact_over_p0": largest_difference(closed, dem, valid) / p0,
-                       "first_contact_shear_strain": shear_strain_at(closed, valid),
+                       "first_contact_shear_strain": (None if valid == closed.n_increments
+                                                      else shear_strain_at(closed, valid)),
                        "n_increments": [closed.n_increments, dem.n_increments],
                        "cross_plane_cell_increments": count(closed, "n_cross_plane"),
                        "dem_unconverged": count(dem, "n_unconverged")}
                 print(f"{alpha0:6g} {p0:9.3g} {test:>9} {row['max_diff_over_p0']:14.3g} "
-                      f"{row['max_diff_before_contact_over_p0']:14.3g} {row['first_contact_shear_strain']:19.4g} "
+                      f"{row['max_diff_before_contact_over_p0']:14.3g} {shear_strain_at(closed, valid):19.4g} "
                       f"{row['cross_plane_cell_increments']:11d} {row['dem_unconverged']:11d}", flush=True)
                 print(json.dumps(row))
 
