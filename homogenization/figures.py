@@ -367,7 +367,8 @@ def critical_state_lines(runs: Sequence[Run], names: Sequence[str], warn: Callab
 
 def overlay_figure(runs: Sequence[Run], *, fourth: str = "q/p", deviator: str = "q", normalise: bool = False,
                    csl: Sequence[float | None] | None = None, title: str | None = None) -> Figure:
-    """The 2x2 figure of stored runs, labelled from their metadata (``run_labels.split_labels``).
+    """The 2x2 figure of stored runs, labelled from their metadata (``run_labels.split_labels``);
+    3D runs get the three panels of ``triaxial_figure`` instead (fourth, deviator, normalise and csl unused).
 
     The parts every run shares make the title (unless ``title`` is given), the parts that
     differ the legend labels; whether the third panel shows eps_v is read from the runs.
@@ -385,6 +386,12 @@ def overlay_figure(runs: Sequence[Run], *, fourth: str = "q/p", deviator: str = 
     """
     if not runs:
         raise ValueError("nothing to plot: no runs given")
+    dims = {run.record.dim for run in runs}
+    if dims == {3}:
+        common, labels = run_labels.split_labels([describe_run(run) for run in runs])
+        return triaxial_figure(dict(zip(labels, (run.record for run in runs))), title=common if title is None else title)
+    if len(dims) > 1:
+        raise ValueError("the runs mix planar (biaxial) and 3D (triaxial) runs; plot each kind separately")
     drained = {run_drained(run) for run in runs}
     if len(drained) > 1:
         raise ValueError("the runs mix drained and constant-volume tests")

@@ -13,9 +13,16 @@ from homogenization.cli import hmodel, triaxial
 FAST = ["--order", "3", "--spins", "1", "--eps-max", "1e-3", "--increment", "2e-4", "--p0", "2e5", "-q"]
 
 
-def test_undrained_run_writes_the_3d_curve_run_file_and_figure(tmp_path):
-    out = tmp_path / "tx"
+@pytest.fixture(scope="module")
+def undrained(tmp_path_factory):
+    """Output folder of one short undrained run (shared by the tests that read it)."""
+    out = tmp_path_factory.mktemp("triaxial") / "tx"
     assert hmodel.main(["triaxial", "--mesostructure", "hcell3d:alpha0=55", "--undrained", *FAST, "--out", str(out)]) == 0
+    return out
+
+
+def test_undrained_run_writes_the_3d_curve_run_file_and_figure(undrained):
+    out = undrained
     lines = (out / io.CURVE_FILE).read_text().splitlines()
     assert lines[0] == "stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q"
     stages = {line.split(",")[0] for line in lines[1:]}
@@ -61,3 +68,16 @@ def test_existing_output_is_kept_without_overwrite(tmp_path, capsys):
     assert hmodel.main(["triaxial", *FAST, "--out", str(out)]) == 2
     assert len(capsys.readouterr().err.splitlines()) == 1
     assert (out / io.CURVE_FILE).read_text() == "old\n"
+
+
+def test_hmodel_plot_draws_3d_runs_in_the_triaxial_panels_and_refuses_a_mix(undrained, tmp_path, capsys):
+    out = undrained
+    figure = tmp_path / "again.png"
+    assert hmodel.main(["plot", str(out / io.RUN_FILE), "--out", str(figure), "-q"]) == 0
+    assert figure.stat().st_size > 0
+    planar = tmp_path / "bx"
+    assert hmodel.main(["biaxial", "--orientations", "6", "--eps-max", "1e-3", "--increment", "2e-4", "-q",
+                        "--out", str(planar)]) == 0
+    capsys.readouterr()
+    assert hmodel.main(["plot", str(out / io.RUN_FILE), str(planar / io.RUN_FILE), "--out", str(tmp_path / "m.png")]) == 2
+    assert "mix planar (biaxial) and 3D (triaxial) runs" in capsys.readouterr().err
