@@ -17,7 +17,13 @@ and a one-line warning; the command reports how many runs got one.
 
 The command ``hmodel plot`` is ``homogenization.cli.plot``.
 
-Sign convention: compression and contraction positive; stresses in N/m (2D).
+Triaxial (3D) runs: ``triaxial_figure`` draws three panels side by side, the stress path (p, q),
+the deviator (eps_a, q) and the volumetric strain (eps_a, eps_v), with eps_a = eps11 (axis 1
+axial) and eps_v = 1 - V/V1 counted from the end of the first (isotropic) stage (V1 its volume;
+zero on an isochoric path, where the small-strain sum eps11 + eps22 + eps33 is not),
+p = tr(sigma) / 3 and q = sqrt(3 J2) in Pa (``hmodel triaxial`` writes it as triaxial.png).
+
+Sign convention: compression and contraction positive; stresses in N/m (2D), Pa (3D).
 """
 
 from __future__ import annotations
@@ -107,6 +113,78 @@ def shear_curve(record: Record) -> ShearCurve:
         q=invariants.deviator(s11, s22),
         w2=invariants.second_order_work(s11, s22, s12, e11, e22),
     )
+
+
+TRIAXIAL_LABELS = {
+    "eps_a": r"$\varepsilon_a = \varepsilon_{11}$ since the end of stage 1 [%]",
+    "eps_v": r"$\varepsilon_v = 1 - V/V_1$ since the end of stage 1 [%]",
+    "p": r"$p = \mathrm{tr}\,\sigma / 3$ [Pa]",
+    "q": r"$q = \sqrt{3 J_2}$ [Pa]",
+}
+"""Axis labels of the triaxial figure (mathtext); strains in %, stresses in Pa."""
+
+
+@dataclass(frozen=True)
+class TriaxialCurve:
+    """Curves of a 3D record after its first stage, starting at the end of it.
+
+    Attributes:
+        eps_a: axial strain eps11 since the end of stage 1 [-], shape (m + 1,).
+        eps_v: 1 - V/V1 since the end of stage 1 (volume V1) [-], shape (m + 1,), contraction positive.
+        p: tr(sigma) / 3 [Pa], shape (m + 1,).
+        q: sqrt(3 J2) [Pa], shape (m + 1,).
+    """
+
+    eps_a: np.ndarray
+    eps_v: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+
+
+def triaxial_curve(record: Record) -> TriaxialCurve:
+    """``TriaxialCurve`` of a 3D ``record`` (ValueError for a planar one); its stored p and q."""
+    if record.dim != 3:
+        raise ValueError("a triaxial figure needs a 3D run (eps33 and sigma33)")
+    first = record.stage[0] if record.n_increments else ""
+    n_first = int(np.argmax(record.stage != first)) if np.any(record.stage != first) else 0
+    start = n_first - 1
+
+    def tail(values: np.ndarray) -> np.ndarray:
+        head = values[start] if start >= 0 else 0.0
+        return np.concatenate([[head], values[n_first:]])
+
+    e11 = tail(record.eps11)
+    J = np.concatenate([[record.J[start] if start >= 0 else 1.0], record.J[n_first:]])
+    return TriaxialCurve(eps_a=e11 - e11[0], eps_v=1.0 - J / J[0], p=tail(record.p), q=tail(record.q))
+
+
+def triaxial_figure(runs: Mapping[str, Record], *, title: str | None = None) -> Figure:
+    """Three panels of the shear stage of every 3D run in ``runs`` (label -> record), overlaid:
+    (p, q), (eps_a, q), (eps_a, eps_v) (module docstring); one legend below the panels."""
+    if not runs:
+        raise ValueError("nothing to plot: no runs given")
+    fig = Figure(figsize=(14.0, 4.8), layout="constrained")
+    ax_pq, ax_q, ax_v = fig.subplots(1, 3)
+    handles = []
+    for i, (label, record) in enumerate(runs.items()):
+        c = triaxial_curve(record)
+        style = {"label": label or "_nolegend_", "linestyle": LINE_STYLES[i % len(LINE_STYLES)]}
+        (line,) = ax_pq.plot(c.p, c.q, **style)
+        style["color"] = line.get_color()
+        ax_q.plot(100.0 * c.eps_a, c.q, **style)
+        ax_v.plot(100.0 * c.eps_a, 100.0 * c.eps_v, **style)
+        if label:
+            handles.append(line)
+    ax_pq.set(xlabel=TRIAXIAL_LABELS["p"], ylabel=TRIAXIAL_LABELS["q"], title="stress path")
+    ax_q.set(xlabel=TRIAXIAL_LABELS["eps_a"], ylabel=TRIAXIAL_LABELS["q"], title="deviator")
+    ax_v.set(xlabel=TRIAXIAL_LABELS["eps_a"], ylabel=TRIAXIAL_LABELS["eps_v"], title="volumetric strain (contraction > 0)")
+    for ax in (ax_pq, ax_q, ax_v):
+        ax.grid(True, **GRID)
+    if handles:
+        figure_legend(fig, handles)
+    if title:
+        fig.suptitle(title + " (compression positive)")
+    return apply_style(fig)
 
 
 def _stress_label(name: str, normalised: bool) -> str:
@@ -289,7 +367,8 @@ def critical_state_lines(runs: Sequence[Run], names: Sequence[str], warn: Callab
 
 def overlay_figure(runs: Sequence[Run], *, fourth: str = "q/p", deviator: str = "q", normalise: bool = False,
                    csl: Sequence[float | None] | None = None, title: str | None = None) -> Figure:
-    """The 2x2 figure of stored runs, labelled from their metadata (``run_labels.split_labels``).
+    """The 2x2 figure of stored runs, labelled from their metadata (``run_labels.split_labels``);
+    3D runs get the three panels of ``triaxial_figure`` instead (fourth, deviator, normalise and csl unused).
 
     The parts every run shares make the title (unless ``title`` is given), the parts that
     differ the legend labels; whether the third panel shows eps_v is read from the runs.
@@ -307,6 +386,12 @@ def overlay_figure(runs: Sequence[Run], *, fourth: str = "q/p", deviator: str = 
     """
     if not runs:
         raise ValueError("nothing to plot: no runs given")
+    dims = {run.record.dim for run in runs}
+    if dims == {3}:
+        common, labels = run_labels.split_labels([describe_run(run) for run in runs])
+        return triaxial_figure(dict(zip(labels, (run.record for run in runs))), title=common if title is None else title)
+    if len(dims) > 1:
+        raise ValueError("the runs mix planar (biaxial) and 3D (triaxial) runs; plot each kind separately")
     drained = {run_drained(run) for run in runs}
     if len(drained) > 1:
         raise ValueError("the runs mix drained and constant-volume tests")

@@ -23,6 +23,12 @@ stresses and strains, ``sign_convention``):
 curve.csv: header ``stage,eps11,eps22,sigma11,sigma22,sigma12,p,q``, one row per increment,
 strains [-] and stresses [N/m], compression positive.
 
+3D (triaxial) runs (``Record.dim == 3``): ``/history`` also holds ``eps33, sigma33, sigma23,
+sigma13`` (stresses in Pa, p = tr(sigma) / 3, q = sqrt(3 J2), volume in m^3), ``/orientations``
+also ``frames`` (n_cells, 3, 3) and theta_deg is the angle between each cell axis and axis 1;
+the root attributes give the 3D volume rule and units. Their curve.csv has the header
+``stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q`` (axis 1 axial).
+
 Reproducible bytes: run.h5 holds no time (no HDF5 object timestamps, no wall time or date)
 and its objects and attributes are written in a fixed order, so two runs of the same inputs
 with the same code give byte-identical files. The one root attribute that depends on the
@@ -50,6 +56,7 @@ from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 from homogenization.driver import Record
 from homogenization.orientation import VOLUME_RULE
+from homogenization.orientation3d import VOLUME_RULE as VOLUME_RULE_3D
 
 RUN_FILE = "run.h5"
 CURVE_FILE = "curve.csv"
@@ -72,6 +79,25 @@ _HISTORY = {
     "newton_iterations": ("1", "cell-model step calls spent on the increment"),
 }
 _SIGNED = {"eps11", "eps22", "sigma11", "sigma22", "sigma12", "p", "q"}
+CURVE_COLUMNS_3D = ("stage", "eps11", "eps22", "eps33", "sigma11", "sigma22", "sigma33", "p", "q")
+"""Columns of a 3D run's curve.csv, in order."""
+_HISTORY_3D = {
+    "eps11": ("1", "macro strain, sum of the applied increments (axis 1 axial)"),
+    "eps22": ("1", "macro strain, sum of the applied increments"),
+    "eps33": ("1", "macro strain, sum of the applied increments"),
+    "sigma11": ("Pa", "macro stress sum_k w_k (R_k S_k R_k^T)_11 / V"),
+    "sigma22": ("Pa", "macro stress sum_k w_k (R_k S_k R_k^T)_22 / V"),
+    "sigma33": ("Pa", "macro stress sum_k w_k (R_k S_k R_k^T)_33 / V"),
+    "sigma23": ("Pa", "macro shear stress sum_k w_k (R_k S_k R_k^T)_23 / V"),
+    "sigma13": ("Pa", "macro shear stress sum_k w_k (R_k S_k R_k^T)_13 / V"),
+    "sigma12": ("Pa", "macro shear stress sum_k w_k (R_k S_k R_k^T)_12 / V"),
+    "p": ("Pa", "mean stress tr(sigma) / 3"),
+    "q": ("Pa", "deviator sqrt(3 J2)"),
+    "J": ("1", "volume ratio V / V0"),
+    "volume": ("m^3", "macro volume V = V0 J"),
+    "newton_iterations": ("1", "cell-model step calls spent on the increment"),
+}
+_SIGNED_3D = _SIGNED | {"eps33", "sigma33", "sigma23", "sigma13"}
 
 
 @dataclass(frozen=True)
@@ -120,6 +146,9 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
         command: the command line to record (None: this process's own).
     """
     path = Path(path)
+    spatial = record.dim == 3
+    history = _HISTORY_3D if spatial else _HISTORY
+    signed = _SIGNED_3D if spatial else _SIGNED
     with atomic_write(path) as tmp, _new_h5(tmp) as f:
         f.attrs["format"] = FORMAT
         f.attrs["backend"] = record.backend
@@ -127,10 +156,10 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
             f.attrs[name] = float(value)
         f.attrs["cell_parameters"] = json.dumps(list(record.parameters))
         f.attrs["V0"] = record.V0
-        f.attrs["V0_units"] = "m^2"
-        f.attrs["volume_rule"] = VOLUME_RULE
+        f.attrs["V0_units"] = "m^3" if spatial else "m^2"
+        f.attrs["volume_rule"] = VOLUME_RULE_3D if spatial else VOLUME_RULE
         f.attrs["sign_convention"] = SIGN_CONVENTION
-        f.attrs["stress_units"] = "N/m (2D: force per unit length)"
+        f.attrs["stress_units"] = "Pa (3D)" if spatial else "N/m (2D: force per unit length)"
         f.attrs["programme"] = json.dumps(loading.to_dict(record.programme))
         f.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True)
         f.attrs["seed"] = int(seed)
@@ -139,14 +168,19 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
 
         hist = f.create_group("history")
         _dataset(hist, "stage", _strings(record.stage), "", "stage label of the increment")
-        for name, (units, description) in _HISTORY.items():
-            _dataset(hist, name, getattr(record, name), units, description, name in _SIGNED)
+        for name, (units, description) in history.items():
+            _dataset(hist, name, getattr(record, name), units, description, name in signed)
         diag = f.create_group("diagnostics")
         for name, values in record.diagnostics.items():
             _dataset(diag, name, values, "", "backend diagnostic of the accepted step call")
         orient = f.create_group("orientations")
-        _dataset(orient, "theta_deg", record.theta_deg, "deg", "cell-axis angle theta_k = k 180 / N")
+        if spatial:
+            _dataset(orient, "theta_deg", record.theta_deg, "deg", "angle between the cell axis n_k and axis 1")
+        else:
+            _dataset(orient, "theta_deg", record.theta_deg, "deg", "cell-axis angle theta_k = k 180 / N")
         _dataset(orient, "weights", record.weights, "1", "fabric weight w_k")
+        if spatial:
+            _dataset(orient, "frames", record.frames, "1", "cell frame R_k, columns (n, t1, t2) in the macro frame")
         snaps = f.create_group("snapshots")
         _dataset(snaps, "increment", record.snapshot_increment, "1", "completed increments at the snapshot")
         _dataset(snaps, "stage", _strings(record.snapshot_stage), "", "stage label at the snapshot")
@@ -162,8 +196,9 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
 def write_curve_csv(path: Path, record: Record) -> Path:
     """Write the macro curve of ``record`` to ``path`` (atomically); returns ``path``."""
     path = Path(path)
-    columns = np.stack([getattr(record, name) for name in CURVE_COLUMNS[1:]], axis=1)
-    lines = [",".join(CURVE_COLUMNS)]
+    names = CURVE_COLUMNS_3D if record.dim == 3 else CURVE_COLUMNS
+    columns = np.stack([getattr(record, name) for name in names[1:]], axis=1)
+    lines = [",".join(names)]
     lines += [f"{stage}," + ",".join(f"{v:.17g}" for v in row) for stage, row in zip(record.stage, columns.tolist())]
     with atomic_write(path) as tmp:
         tmp.write_text("\n".join(lines) + "\n")
@@ -208,9 +243,12 @@ def read_run(path: Path) -> StoredRun:
             attrs["programme"] = json.loads(attrs["programme"])
             attrs["parameters"] = json.loads(attrs["parameters"])
             hist, snaps = f["history"], f["snapshots"]
+            spatial = "eps33" in hist
+            extra = {"frames": f["orientations/frames"][()]} if spatial else {}
             record = Record(
                 stage=_decode(hist["stage"][()]),
-                **{name: hist[name][()] for name in _HISTORY},
+                **{name: hist[name][()] for name in (_HISTORY_3D if spatial else _HISTORY)},
+                **extra,
                 diagnostics={name: ds[()] for name, ds in f["diagnostics"].items()},
                 snapshot_increment=snaps["increment"][()],
                 snapshot_stage=_decode(snaps["stage"][()]),

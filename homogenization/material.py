@@ -25,6 +25,15 @@ Tangent: D = d sigma / d(d_e) = ::
 with C_k = d(S_nn, S_tt)/d(d_eps_n, d_eps_t) the cell tangent of the increment (the last term
 is -sigma (x) dV/d(d_e) / V). The cell moment's S_nt (zero for the H-cell) enters the stress but
 not the tangent.
+
+In 3D (``HomogenisedMaterial3D``, cells of dimension 3 oriented by
+``homogenization.orientation3d``) the macro tensors have six components (11, 22, 33, 23, 13, 12)
+(tensor shear strains, not engineering ones) [-] and [Pa]; cell k with frame R_k = (n, t1, t2) gets
+(d_eps_n, d_eps_t1, d_eps_t2) = L_k d_e (normal strains along its axes, shear dropped), and
+sigma = sum_k w_k R_k S_k R_k^T / V, V = V0 J, J multiplied by (1 - d_eps11)(1 - d_eps22)(1 - d_eps33)
+per increment. Tangent: D = (1/V) sum_k w_k A_k C_k L_k + sigma (x) (1/(1 - d_eps_aa), a = 1..3; 0, 0, 0),
+A_k [6 x 3] the macro components of R_k e_a e_a R_k^T and C_k = d(S_nn, S_t1t1, S_t2t2)/d(d_eps_n,
+d_eps_t1, d_eps_t2) the cell tangent (off-diagonal moments enter the stress, not the tangent).
 """
 
 from __future__ import annotations
@@ -36,6 +45,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from homogenization import orientation as orient_mod
+from homogenization import orientation3d
 from warp_hcell.core.contract import CellModel
 from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell
 
@@ -98,6 +108,9 @@ class HomogenisedMaterial:
             topology; every cell of a point starts from the point's mesostructure.
         n_points: number of material points.
     """
+
+    dim = 2
+    """Spatial dimension: plane strain, three Voigt components."""
 
     def __init__(self, cell_model: CellModel, orient: orient_mod.Orientations,
                  mesostructure: Mesostructure | Sequence[Mesostructure], n_points: int) -> None:
@@ -175,6 +188,99 @@ class HomogenisedMaterial:
             volume = np.zeros((self.n_points, 3))
             volume[:, 0] = 1.0 / (1.0 - d_e[:, 0])
             volume[:, 1] = 1.0 / (1.0 - d_e[:, 1])
+            tangent += stress[:, :, None] * volume[:, None, :]
+        new = MaterialState(cells, J, state.strain + d_e, stress)
+        return MaterialUpdate(new, stress, tangent, dict(response.diagnostics))
+
+
+class HomogenisedMaterial3D:
+    """A batch of 3D H-model material points (module docstring), the counterpart of ``HomogenisedMaterial``.
+
+    Args:
+        cell_model: a ``CellModel`` of cells of dimension 3 (local strains (n_cells, 3), moments
+            (n_cells, 3, 3), volume in ``response.area``).
+        orient: ``orientation3d.Orientations3D`` shared by every point.
+        mesostructure: the cell of every point (dimension 3), or one per point.
+        n_points: number of material points.
+    """
+
+    dim = 3
+    """Spatial dimension: six tensor components."""
+
+    def __init__(self, cell_model: CellModel, orient: orientation3d.Orientations3D,
+                 mesostructure: Mesostructure | Sequence[Mesostructure], n_points: int) -> None:
+        if int(n_points) < 1:
+            raise ValueError(f"n_points = {n_points} must be >= 1")
+        self.model = cell_model
+        self.orient = orient
+        self.n_points = int(n_points)
+        self.mesostructures, self.point_mesostructure = per_cell(mesostructure, self.n_points)
+        for meso in self.mesostructures:
+            if getattr(meso, "dim", 2) != 3:
+                raise ValueError(f"mesostructure {meso.name!r} is a planar cell; a 3D material needs cells of dimension 3")
+        n = orient.n_cells
+        self.L = orient.localisation.reshape(n, 3, 6)
+        """L_k [-], shape (N, 3, 6)."""
+        self.A = np.ascontiguousarray(np.diagonal(orient.averaging.reshape(6, n, 3, 3), axis1=2, axis2=3))
+        """w_k A_k [-], shape (6, N, 3): macro components of w_k R_k e_a e_a R_k^T."""
+        self.V0 = np.zeros(self.n_points)
+        self.returns_tangent = "with_tangent" in inspect.signature(cell_model.step).parameters
+
+    @property
+    def n_cells(self) -> int:
+        """Cells stepped per update: n_points * n_orientations."""
+        return self.n_points * self.orient.n_cells
+
+    def init_state(self) -> MaterialState:
+        """Touching, force-free cells at every point; sets V0 = sum_k w_k V_cell,k [m^3] per point."""
+        n = self.orient.n_cells
+        if len(self.mesostructures) == 1:
+            cells = self.model.init_state(self.mesostructures[0], self.n_cells)
+        else:
+            cells = self.model.init_state([self.mesostructures[k] for k in np.repeat(self.point_mesostructure, n)],
+                                          self.n_cells)
+        volume = self.model.response(cells).area.reshape(self.n_points, n)
+        self.V0 = volume @ self.orient.weights
+        zeros = np.zeros((self.n_points, 6))
+        return MaterialState(cells, np.ones(self.n_points), zeros, zeros.copy())
+
+    def localise(self, d_e: np.ndarray) -> np.ndarray:
+        """Per-cell (d_eps_n, d_eps_t1, d_eps_t2) [-], shape (n_cells, 3), of increments d_e (n_points, 6)."""
+        return np.einsum("kai,pi->pka", self.L, d_e).reshape(self.n_cells, 3)
+
+    def update(self, state: MaterialState, d_e: np.ndarray, *, with_tangent: bool = True) -> MaterialUpdate:
+        """Advance every point by its macro strain increment (one batched cell step); pure.
+
+        Args:
+            state: the material state at the start of the increment.
+            d_e: (d_eps11, d_eps22, d_eps33, d_eps23, d_eps13, d_eps12) [-], shape (n_points, 6),
+                tensor shear components, compression positive.
+            with_tangent: also return the consistent tangent d sigma / d(d_e) [Pa], (n_points, 6, 6).
+        """
+        d_e = np.asarray(d_e, dtype=np.float64).reshape(self.n_points, 6)
+        d_local = self.localise(d_e)
+        if with_tangent:
+            if not self.returns_tangent:
+                raise ValueError(f"cell model {getattr(self.model, 'name', self.model)!r} returns no consistent "
+                                 f"tangent (its step takes no with_tangent)")
+            cells, response = self.model.step(state.cells, d_local, with_tangent=True)
+        else:
+            cells, response = self.model.step(state.cells, d_local)
+        n = self.orient.n_cells
+        J = state.J * ((1.0 - d_e[:, 0]) * (1.0 - d_e[:, 1]) * (1.0 - d_e[:, 2]))
+        V = self.V0 * J
+        moment = np.ascontiguousarray(response.moment).reshape(self.n_points, 9 * n)
+        # einsum without BLAS: a point's stress does not depend on the batch, bit for bit
+        stress = np.einsum("pm,im->pi", moment, self.orient.averaging) / V[:, None]
+        tangent = None
+        if with_tangent:
+            if response.tangent is None:
+                raise ValueError(f"cell model {getattr(self.model, 'name', self.model)!r} returned no tangent")
+            C = np.asarray(response.tangent).reshape(self.n_points, n, 3, 3)
+            CL = np.einsum("pkab,kbj->pkaj", C, self.L)
+            tangent = np.einsum("ika,pkaj->pij", self.A, CL) / V[:, None, None]
+            volume = np.zeros((self.n_points, 6))
+            volume[:, :3] = 1.0 / (1.0 - d_e[:, :3])
             tangent += stress[:, :, None] * volume[:, None, :]
         new = MaterialState(cells, J, state.strain + d_e, stress)
         return MaterialUpdate(new, stress, tangent, dict(response.diagnostics))

@@ -1,0 +1,162 @@
+"""python benchmarks/bench_triaxial.py [--part accuracy,quadrature,timing] [--eps-max 0.15] [--increment 1e-4]
+
+Acceptance of the 3D homogenisation (docs/triaxial.md), three parts, each printed as a table and
+written as one JSON line per row:
+
+- ``accuracy``: DEM vs the 3D closed form (``analytical``), undrained and drained triaxial
+  compression, loose (alpha0 = 55 deg) and dense (``--dense``, 47 deg: equal spheres need
+  alpha0 > 45 deg in 3D) cells, p0 = 2e5 and 5.85e6 Pa: the largest difference of sigma11,
+  sigma22, sigma33, p and q along the path over p0 (target <= 1e-3), over the whole path and up to
+  the first cross-plane contact (where the closed form stops holding: lateral grains of the two
+  planes touch, ``n_cross_plane``; the axial strain of the shear stage there is printed), with the
+  cell-increments that had such contacts and the unconverged DEM cell-increments;
+- ``quadrature``: the closed form at ``--order`` x ``--spins`` against twice the cells (twice the
+  spins) and the next finer axis rule: the largest difference of the curves over p0 (target <= 0.5 %);
+- ``timing``: the wall time of the same triaxial test (loose, p0 = 2e5, undrained and drained) with
+  the DEM and with the closed form, side by side, and their ratio (target <= 3).
+
+Strains [-], stresses [Pa], compression positive. The machine load is printed with the timings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+import warnings
+
+import numpy as np
+
+from warp_hcell.core.cli import Parser, positive_float, positive_int
+
+PARTS = ("accuracy", "quadrature", "timing")
+COMPARED = ("sigma11", "sigma22", "sigma33", "p", "q")
+
+
+def run(backend: str, alpha0: float, p0: float, test: str, args, *, order: int | None = None,
+        spins: int | None = None):
+    """(record, wall time [s]) of one triaxial test; DEM warnings counted, not raised."""
+    from homogenization import driver, loading
+    from homogenization.backends import make_cell_model
+    from warp_hcell.mesostructures.builders import mesostructure_arg
+
+    meso = mesostructure_arg(f"hcell3d:alpha0={alpha0:g}").build(alpha0)
+    programme = loading.triaxial(p0, args.eps_max, args.increment, test=test, iso_increment=0.5 * args.increment)
+    model = make_cell_model(backend, dim=3, **({"threads": args.threads} if backend == "dem" and args.threads else {}))
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        record = driver.run(model, programme, mesostructure=meso, lebedev_order=order or args.order,
+                            n_spins=spins or args.spins, progress=False)
+    return record, time.perf_counter() - start
+
+
+def largest_difference(a, b, n: int | None = None) -> float:
+    """Largest difference of the compared curves [Pa] over the first ``n`` increments (None: all)."""
+    n = min(a.n_increments, b.n_increments) if n is None else n
+    if n == 0:
+        return 0.0
+    return max(float(np.abs(getattr(a, name)[:n] - getattr(b, name)[:n]).max()) for name in COMPARED)
+
+
+def first_cross_plane(record) -> int:
+    """Increments before the first with a cross-plane contact in the closed form (all if none)."""
+    cross = record.diagnostics.get("n_cross_plane")
+    hits = np.flatnonzero(np.nan_to_num(cross) > 0) if cross is not None else np.zeros(0, dtype=int)
+    return int(hits[0]) if hits.size else record.n_increments
+
+
+def shear_strain_at(record, k: int) -> float:
+    """Axial strain [-] of the shear stage after increment ``k`` (NaN when k is past the end)."""
+    start = int(np.flatnonzero(record.stage == record.stage[0])[-1])
+    return float(record.eps11[k] - record.eps11[start]) if k < record.n_increments else float("nan")
+
+
+def count(record, name: str) -> int:
+    values = record.diagnostics.get(name)
+    return 0 if values is None else int(np.nansum(values))
+
+
+def accuracy(args) -> None:
+    print(f"{'alpha0':>6} {'p0 [Pa]':>9} {'test':>9} {'max diff / p0':>14} {'before contact':>14} "
+          f"{'first contact eps_a':>19} {'cross-plane':>11} {'unconverged':>11}")
+    for alpha0 in (args.loose, args.dense):
+        for p0 in (2e5, 5.85e6):
+            for test in ("undrained", "drained"):
+                closed, _ = run("analytical", alpha0, p0, test, args)
+                dem, _ = run("dem", alpha0, p0, test, args)
+                valid = first_cross_plane(closed)
+                row = {"part": "accuracy", "alpha0_deg": alpha0, "p0": p0, "test": test,
+                       "max_diff_over_p0": largest_difference(closed, dem) / p0,
+                       "max_diff_before_contact_over_p0": largest_difference(closed, dem, valid) / p0,
+                       "first_contact_shear_strain": (None if valid == closed.n_increments
+                                                      else shear_strain_at(closed, valid)),
+                       "n_increments": [closed.n_increments, dem.n_increments],
+                       "cross_plane_cell_increments": count(closed, "n_cross_plane"),
+                       "dem_unconverged": count(dem, "n_unconverged")}
+                print(f"{alpha0:6g} {p0:9.3g} {test:>9} {row['max_diff_over_p0']:14.3g} "
+                      f"{row['max_diff_before_contact_over_p0']:14.3g} {shear_strain_at(closed, valid):19.4g} "
+                      f"{row['cross_plane_cell_increments']:11d} {row['dem_unconverged']:11d}", flush=True)
+                print(json.dumps(row))
+
+
+def quadrature(args) -> None:
+    from homogenization.orientation3d import LEBEDEV_ORDERS
+
+    finer = LEBEDEV_ORDERS[LEBEDEV_ORDERS.index(args.order) + 2]
+    print(f"{'alpha0':>6} {'p0 [Pa]':>9} {'test':>9} {'refinement':>22} {'cells':>11} {'max diff / p0':>14}")
+    for alpha0 in (args.loose, args.dense):
+        for p0 in (2e5, 5.85e6):
+            for test in ("undrained", "drained"):
+                base, _ = run("analytical", alpha0, p0, test, args)
+                for label, order, spins in ((f"spins {args.spins} -> {2 * args.spins}", args.order, 2 * args.spins),
+                                            (f"order {args.order} -> {finer}", finer, args.spins)):
+                    fine, _ = run("analytical", alpha0, p0, test, args, order=order, spins=spins)
+                    row = {"part": "quadrature", "alpha0_deg": alpha0, "p0": p0, "test": test, "refinement": label,
+                           "cells": [base.weights.size, fine.weights.size],
+                           "max_diff_over_p0": largest_difference(base, fine) / p0}
+                    print(f"{alpha0:6g} {p0:9.3g} {test:>9} {label:>22} {base.weights.size:>5}->{fine.weights.size:<5} "
+                          f"{row['max_diff_over_p0']:14.3g}", flush=True)
+                    print(json.dumps(row))
+
+
+def timing(args) -> None:
+    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    run("dem", args.loose, 2e5, "undrained", args, order=3, spins=1)  # Warp start-up and kernel load, not timed
+    print(f"{'test':>9} {'cells':>5} {'increments':>10} {'analytical [s]':>14} {'dem [s]':>9} {'dem / analytical':>16}")
+    for test in ("undrained", "drained"):
+        closed, t_closed = run("analytical", args.loose, 2e5, test, args)
+        dem, t_dem = run("dem", args.loose, 2e5, test, args)
+        row = {"part": "timing", "test": test, "cells": int(closed.weights.size), "n_increments": closed.n_increments,
+               "analytical_s": t_closed, "dem_s": t_dem, "ratio": t_dem / t_closed,
+               "step_calls": [int(closed.newton_iterations.sum()), int(dem.newton_iterations.sum())],
+               "load_average": os.getloadavg()[0]}
+        print(f"{test:>9} {row['cells']:5d} {row['n_increments']:10d} {t_closed:14.2f} {t_dem:9.2f} {row['ratio']:16.2f}",
+              flush=True)
+        print(json.dumps(row))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = Parser(description=__doc__.splitlines()[2])
+    parser.add_argument("--part", default=",".join(PARTS), help=f"comma list of {', '.join(PARTS)}")
+    parser.add_argument("--eps-max", type=positive_float, default=0.15, help="axial strain of the shear stage [-]")
+    parser.add_argument("--increment", type=positive_float, default=1e-4, help="axial strain increment [-]")
+    parser.add_argument("--order", type=positive_int, default=11, help="Lebedev order of the cell axes")
+    parser.add_argument("--spins", type=positive_int, default=4, help="spins per axis")
+    parser.add_argument("--loose", type=positive_float, default=55.0, help="alpha0 of the loose cell [deg]")
+    parser.add_argument("--dense", type=positive_float, default=47.0, help="alpha0 of the dense cell [deg], > 45")
+    parser.add_argument("--threads", type=positive_int, default=None, help="DEM threads (None: its default)")
+    args = parser.parse_args(argv)
+    parts = [part.strip() for part in args.part.split(",")]
+    unknown = [part for part in parts if part not in PARTS]
+    if unknown:
+        parser.error(f"--part {unknown[0]!r} is not one of {', '.join(PARTS)}")
+    for part in parts:
+        print(f"== {part}")
+        {"accuracy": accuracy, "quadrature": quadrature, "timing": timing}[part](args)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,299 @@
+"""hmodel triaxial --backend analytical,dem --mesostructure hcell3d:alpha0=55 --p0 2e5 --undrained --eps-max 0.15 --increment 1e-4 --out DIR
+
+(also ``python -m homogenization.triaxial``.) Triaxial tests of the 3D H-model (ten-sphere cells
+oriented by a Lebedev rule on the hemisphere times spins about each axis,
+``homogenization.orientation3d``): isotropic compression to p0 (three equal strain increments of
+--iso-increment, by default half the shear increment, the last one shortened so that p lands on
+p0), then one shear stage (axis 1 axial, --eps-max of axial strain in increments of --increment):
+
+- ``--undrained`` (the default): isochoric compression, (1 - d_eps1)(1 - d_eps2)^2 = 1, d_eps2 = d_eps3;
+- ``--drained``: compression at sigma2 = sigma3 = p0; ``--extension``: extension at sigma2 = sigma3 = p0;
+- ``--constant-p``: compression at p = p0, sigma2 = sigma3;
+- ``--true B``: true triaxial compression at p = p0 and b = (sigma2 - sigma3)/(sigma1 - sigma3) = B;
+- ``--cyclic N``: N undrained cycles of axial strain amplitude --eps-max.
+
+``--programme FILE`` runs any loading programme of three-component steps instead (JSON or TOML,
+docs/programmes.md). Outputs as ``hmodel biaxial``: one backend writes DIR/run.h5 and
+DIR/curve.csv (header ``stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q``, stages iso and
+shear), several DIR/<backend>/...; DIR/triaxial.png overlays every backend in the (p, q),
+(eps_a, q) and (eps_a, eps_v) panels. The output folder is replaced as a unit (--overwrite).
+
+Sign convention: compression and contraction positive; stresses in Pa. Bad input (unknown
+backend, the ann backend (no 3D meso-ANN model yet), a planar mesostructure, p0 <= 0, an
+increment larger than --eps-max, a programme of planar steps, existing output without
+--overwrite) is one line on stderr and exit code 2, before any run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Sequence
+
+from homogenization import driver, figures, io, loading
+from homogenization.backends import BACKENDS, make_cell_model
+from homogenization.cli.biaxial import (
+    backend_list,
+    backend_options,
+    check_models_take,
+    check_options,
+    provenance_of,
+)
+from homogenization.cli.options import add_alpha0_argument, add_cell_arguments, command_parser
+from homogenization.orientation3d import LEBEDEV_ORDERS
+from warp_hcell.core.cli import (
+    UserError,
+    add_contact_law_arguments,
+    contact_law_from_args,
+    positive_float,
+    positive_int,
+    quiet_warp,
+    run_main,
+    say,
+    set_verbosity,
+)
+from warp_hcell.core.files import check_output_path, output_folder, output_lock
+from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
+from warp_hcell.core.provenance import command_line
+from warp_hcell.mesostructures.builders import mesostructure_arg
+from warp_hcell.mesostructures.hcell import plain_alpha0_3d
+from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+FIGURE_FILE = "triaxial.png"
+DEFAULT_MESOSTRUCTURE = "hcell3d"
+"""Builder spec of the cell when --mesostructure is not given (built at --alpha0)."""
+TESTS = {"undrained": "--undrained", "drained": "--drained", "extension": "--extension",
+         "constant_p": "--constant-p", "true": "--true", "cyclic": "--cyclic"}
+"""Shear stage (``loading.TRIAXIAL_TESTS``) -> its flag."""
+PROGRAMME_FLAGS = {"p0": "--p0", "eps_max": "--eps-max", "increment": "--increment",
+                   "iso_increment": "--iso-increment", **{name: flag for name, flag in TESTS.items()}}
+"""Flags of the built-in programme, which conflict with --programme (argparse dest -> flag)."""
+SPIN_PERIOD_SYMMETRIC = 90.0
+"""Spin period [deg] of the plain ten-sphere cell (four-fold symmetric about its axis)."""
+SPIN_PERIOD_OTHER = 180.0
+"""Spin period [deg] of any other 3D cell (fines or radii break the four-fold symmetry)."""
+
+
+def lebedev_order(text: str) -> int:
+    """argparse type: one of ``orientation3d.LEBEDEV_ORDERS``."""
+    try:
+        order = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid order {text!r}: give an integer") from None
+    if order not in LEBEDEV_ORDERS:
+        raise argparse.ArgumentTypeError(f"Lebedev order {order} is not one of {', '.join(map(str, LEBEDEV_ORDERS))}")
+    return order
+
+
+def b_ratio(text: str) -> float:
+    """argparse type: b in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid b {text!r}: give a number in [0, 1]") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"b = {value:g} must be in [0, 1]")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser of the triaxial command."""
+    cell, load = CellDefaults(), LoadingDefaults()
+    parser = command_parser("homogenization.triaxial", "Isotropic compression to p0, then a triaxial test of the 3D "
+                                                       "H-model (undrained, drained, extension, constant p, true "
+                                                       "triaxial, cyclic), or any 3D loading programme file.")
+    parser.add_argument("--backend", type=backend_list, default=("analytical",),
+                        help=f"cell model, or a comma list to overlay several; choices: {', '.join(BACKENDS)} "
+                             f"(ann: no 3D model yet)")
+    add_alpha0_argument(parser)
+    group = parser.add_argument_group("built-in programme (not with --programme)")
+    group.add_argument("--p0", type=positive_float, default=cell.p0, help="confining pressure of stage 1 [Pa], > 0")
+    group.add_argument("--eps-max", type=positive_float, default=0.15,
+                       help="axial strain (amplitude of --cyclic) of the shear stage, counted from its start [-]")
+    group.add_argument("--increment", type=positive_float, default=1e-4,
+                       help="axial strain increment of the shear stage [-], <= --eps-max")
+    group.add_argument("--iso-increment", type=positive_float, default=argparse.SUPPRESS,
+                       help=f"strain increment per component of the isotropic stage [-] (default: "
+                            f"{load.iso_increment / load.increment:g} x --increment)")
+    tests = group.add_mutually_exclusive_group()
+    tests.add_argument("--undrained", action="store_true", help="isochoric compression (the default test)")
+    tests.add_argument("--drained", action="store_true", help="compression at sigma2 = sigma3 = p0")
+    tests.add_argument("--extension", action="store_true", help="extension at sigma2 = sigma3 = p0")
+    tests.add_argument("--constant-p", action="store_true", help="compression at p = p0, sigma2 = sigma3")
+    tests.add_argument("--true", type=b_ratio, default=None, metavar="B",
+                       help="true triaxial compression at p = p0 and b = (s2 - s3)/(s1 - s3) = B in [0, 1]")
+    tests.add_argument("--cyclic", type=positive_int, default=None, metavar="N",
+                       help="N undrained cycles of axial strain amplitude --eps-max")
+    parser.add_argument("--programme", type=Path, default=None,
+                        help="JSON or TOML loading programme of three-component steps (docs/programmes.md)")
+    parser.add_argument("--order", type=lebedev_order, default=driver.LEBEDEV_ORDER,
+                        help="Lebedev order of the cell axes (11: 25 axes on the hemisphere)")
+    parser.add_argument("--spins", type=positive_int, default=driver.N_SPINS, help="spins of each cell about its axis")
+    add_contact_law_arguments(parser)
+    parser.add_argument("--out", type=Path, required=True, help="output folder (replaced as a unit)")
+    add_cell_arguments(parser, f"the 3D cell of every backend (analytical: the plain ten-sphere cell only); "
+                               f"None: {DEFAULT_MESOSTRUCTURE} at --alpha0 and --radius.",
+                       "CPU threads of the DEM (None: its own default)")
+    return parser
+
+
+def chosen_test(args: argparse.Namespace) -> str:
+    """The shear stage the flags ask for (``loading.TRIAXIAL_TESTS``); undrained by default."""
+    if args.true is not None:
+        return "true"
+    if args.cyclic is not None:
+        return "cyclic"
+    return next((name for name in ("drained", "extension", "constant_p") if getattr(args, name)), "undrained")
+
+
+def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[loading.Programme, dict[str, Any]]:
+    """The programme of the run (the --programme file or the built-in test) and its settings; UserError
+    (one line) for conflicting flags, an increment above --eps-max or a file of planar steps."""
+    if args.programme is not None:
+        given = [flag for dest, flag in PROGRAMME_FLAGS.items() if dest in explicit_flags_3d(argv)]
+        if given:
+            raise UserError(f"{', '.join(given)} do not apply with --programme (the file holds the whole programme)")
+        programme = loading.read_programme(args.programme)
+        if loading.dimension(programme) != 3:
+            raise UserError(f"{args.programme}: its steps control two components (a biaxial programme); "
+                            f"hmodel triaxial takes steps of three (11, 22, 33)")
+        return programme, {"programme_file": str(args.programme)}
+    if args.increment > args.eps_max:
+        raise UserError(f"--increment {args.increment:g} is larger than --eps-max {args.eps_max:g}")
+    iso_increment = getattr(args, "iso_increment", LoadingDefaults.iso_increment / LoadingDefaults.increment * args.increment)
+    if iso_increment >= loading.ISO_MAX_STRAIN:
+        raise UserError(f"--iso-increment {iso_increment:g} must be < {loading.ISO_MAX_STRAIN:g}, "
+                        f"the largest isotropic strain allowed")
+    test = chosen_test(args)
+    b = args.true if args.true is not None else 0.5
+    cycles = args.cyclic or 1
+    settings = {"p0": args.p0, "eps_max": args.eps_max, "increment": args.increment, "iso_increment": iso_increment,
+                "test": test, **({"b": b} if test == "true" else {}), **({"cycles": cycles} if test == "cyclic" else {})}
+    programme = loading.triaxial(args.p0, args.eps_max, args.increment, test=test, iso_increment=iso_increment,
+                                 b=b, cycles=cycles)
+    return programme, settings
+
+
+def explicit_flags_3d(argv: Sequence[str]) -> set[str]:
+    """The argparse dests of ``PROGRAMME_FLAGS`` that ``argv`` sets explicitly (not by default)."""
+    unset = object()  # not a string, so argparse does not run it through type=
+    probe = build_parser()
+    probe.set_defaults(**{dest: unset for dest in PROGRAMME_FLAGS})
+    parsed = vars(probe.parse_args(argv))
+    return {dest for dest in PROGRAMME_FLAGS if parsed.get(dest, unset) not in (unset, False, None)}
+
+
+def run_mesostructure(args: argparse.Namespace) -> Mesostructure:
+    """The 3D cell of the run: --mesostructure (or ``DEFAULT_MESOSTRUCTURE``) built at --alpha0; UserError
+    (one line) for a planar cell."""
+    spec = args.mesostructure if args.mesostructure is not None else mesostructure_arg(
+        f"{DEFAULT_MESOSTRUCTURE}:radius={args.radius!r}")
+    meso = spec.build(args.alpha0)
+    if meso.dim != 3:
+        raise UserError(f"--mesostructure {spec.text}: a planar cell; hmodel triaxial needs a 3D cell "
+                        f"(e.g. hcell3d:alpha0=55 or hcell3d-fines:ratio=0.5)")
+    return meso
+
+
+def check_backends(names: Sequence[str]) -> None:
+    """UserError (one line) for a backend without 3D cells (the ann: no 3D meso-ANN model yet)."""
+    for name in names:
+        if name == "ann":
+            raise UserError("--backend ann: no 3D meso-ANN model yet; use analytical or dem")
+        if 3 not in BACKENDS[name]:
+            raise UserError(f"--backend {name}: does not model 3D cells")
+
+
+def check_replaceable(out: Path) -> None:
+    """UserError unless ``out`` is absent or holds only what this command writes."""
+    if not out.is_dir():
+        if out.exists():
+            raise UserError(f"--out {out} is a file; give a folder")
+        return
+    ours = {io.RUN_FILE, io.CURVE_FILE, FIGURE_FILE, *BACKENDS}
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in ours)
+    if foreign:
+        raise UserError(f"{out} holds files that this command did not write ({', '.join(foreign[:3])}); "
+                        f"choose another --out")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
+    args = build_parser().parse_args(argv)
+    set_verbosity(args)
+    command = command_line() if argv is None else shlex.join(["hmodel", "triaxial", *argv])
+    out: Path = args.out
+    check_backends(args.backend)
+    if "dem" in args.backend and not args.verbose:
+        quiet_warp(args.device)
+    check_output_path(out, overwrite=args.overwrite)
+    check_replaceable(out)
+    check_options(args)
+    programme, settings = build_programme(args, sys.argv[1:] if argv is None else argv)
+    law = contact_law_from_args(args)
+    meso = run_mesostructure(args)
+    spin_period = SPIN_PERIOD_SYMMETRIC if plain_alpha0_3d(meso) is not None else SPIN_PERIOD_OTHER
+    if args.verbose:
+        say(f"programme: {loading.to_dict(programme)}", f"contact law: {asdict(law)}, radius {args.radius:g} m")
+    with output_lock(out):
+        options = {name: backend_options(args, name) for name in args.backend}
+        models = {name: make_cell_model(name, contact_law=law, radius=args.radius, dim=3, **options[name])
+                  for name in args.backend}
+        check_models_take(models, meso)
+        runs: dict[str, Any] = {}
+        written: list[str] = []
+        with output_folder(out) as work:
+            for name, model in models.items():
+                start = time.perf_counter()
+                try:
+                    record = driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
+                                        n_spins=args.spins, spin_period_deg=spin_period)
+                except driver.ControlError as exc:
+                    raise UserError(f"{name}: {exc}") from None
+                elapsed = time.perf_counter() - start
+                parameters = {
+                    "backend": name,
+                    "backend_options": {k: str(v) if isinstance(v, Path) else v for k, v in options[name].items()},
+                    **provenance_of(name, model, options[name]),
+                    "contact_law": asdict(law),
+                    "radius": args.radius,
+                    "alpha0_deg": meso.parameters.get("alpha0_deg"),
+                    **settings,
+                    "lebedev_order": args.order,
+                    "n_spins": args.spins,
+                    "spin_period_deg": spin_period,
+                    "n_orientations": record.weights.size,
+                    "stress_rtol": LoadingDefaults.stress_rtol,
+                    "mesostructure": args.mesostructure.text if args.mesostructure is not None else DEFAULT_MESOSTRUCTURE,
+                }
+                folder = work if len(args.backend) == 1 else work / name
+                final = out if len(args.backend) == 1 else out / name
+                try:
+                    io.write_run(folder, record, parameters=parameters, seed=args.seed, command=command)
+                except OSError as exc:
+                    raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
+                runs[name] = record
+                unconverged = record.diagnostics.get("n_unconverged")
+                note = (f", {int(unconverged.sum())} unconverged cell-increments"
+                        if unconverged is not None and unconverged.sum() else "")
+                cross = record.diagnostics.get("n_cross_plane")
+                if cross is not None and cross.sum():
+                    note += f", cross-plane contacts outside the closed form in {int(cross.sum())} cell-increments"
+                written.append(f"{name}: {record.n_increments} increments in {elapsed:.1f} s{note} -> "
+                               f"{final / io.RUN_FILE}, {final / io.CURVE_FILE}")
+            title = f"{meso.name}, p0 = {args.p0:g} Pa, {settings.get('test', 'programme')}"
+            fig = figures.triaxial_figure(runs, title=title)
+            try:
+                figures.save_figure(fig, work / FIGURE_FILE)
+            except OSError as exc:
+                raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
+    say(*written, f"figure -> {out / FIGURE_FILE}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_main(main))

@@ -1,0 +1,14 @@
+"""python -m homogenization.triaxial ... (``hmodel triaxial``)
+
+The command is ``homogenization.cli.triaxial``; this module is its ``python -m`` entry point.
+"""
+
+import sys
+
+from homogenization.cli.triaxial import main
+from warp_hcell.core.cli import run_main
+
+__all__ = ["main"]
+
+if __name__ == "__main__":
+    sys.exit(run_main(main))
