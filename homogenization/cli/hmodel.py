@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("training.train", "train the meso-ANN on a learning database"),
     "sweep": ("homogenization.sweep", "biaxial tests over lists of mesostructures, alpha0, p0 and backends"),
     "bvp": ("homogenization.bvp", "plane-strain biaxial specimen (finite elements) of the homogenised material"),
+    "calibrate": ("homogenization.calibrate", "Bayesian calibration of the micro-parameters on measured curves"),
 }
 """Subcommand -> (its ``python -m`` module, whose ``main(argv)`` runs it, one-line summary)."""
 
