@@ -144,10 +144,8 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
     mean = np.array([summary[n]["mean"] for n in prior.names])
     mean_curves = [{c: v[0] for c, v in curves.items()} for curves in log_post.curves(mean[None, :])]
     confirm = confirm_with_dem(tests, log_post, mean, args) if args.confirm == "dem" else None
-    try:
-        tau = [float(t) for t in sampler.get_autocorr_time(tol=0)]
-    except Exception:  # noqa: BLE001 (emcee raises for chains too short to estimate tau)
-        tau = None
+    with np.errstate(invalid="ignore", divide="ignore"):  # a walker that never moved has a zero autocovariance
+        tau = [float(t) if np.isfinite(t) else None for t in sampler.get_autocorr_time(tol=0)]
     record = provenance()
     run = {
         "identifiability": note,

@@ -233,7 +233,7 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
         sampler.random_state = np.random.RandomState(args.seed).get_state()
         start = bayes.initial_walkers(log_post, prior, args.walkers, rng)
     else:
-        start = None
+        start = backend.get_last_sample()  # positions, log posterior and random state of the last step
         say(f"{chain}: resuming after {done} of {args.steps} steps")
     seconds = time.perf_counter()
     remaining = max(0, args.steps - done)
