@@ -12,7 +12,7 @@ import pytest
 
 from homogenization import driver, loading
 from homogenization.backends.analytical import AnalyticalCell
-from homogenization.calibration import bayes
+from homogenization.calibration import bayes, report
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import ForwardSettings, simulate
 from homogenization.cli import calibrate, hmodel
@@ -177,31 +177,54 @@ def tiny_run(tmp_path: Path, out: str, steps: int, *extra: str) -> int:
                                      str(tmp_path / out), *extra])
 
 
-def test_resume_continues_the_chain_exactly(tmp_path):
+@pytest.fixture
+def chain_only(monkeypatch):
+    """The chain without the figures and summaries (checked once, in test_outputs_of_a_tiny_run)."""
+    monkeypatch.setattr(report, "write_outputs", lambda *args: {})
+    monkeypatch.setattr(report, "summary_lines", lambda result: [])
+
+
+def read_chain(path: Path) -> np.ndarray:
+    with h5py.File(path / "chain.h5", "r") as fh:
+        return fh["mcmc/chain"][()]
+
+
+def test_resume_continues_the_chain_exactly(tmp_path, chain_only):
     assert tiny_run(tmp_path, "whole", 4) == 0
     assert tiny_run(tmp_path, "split", 2) == 0
+    assert read_chain(tmp_path / "split").shape == (2, 4, 2)
     assert tiny_run(tmp_path, "split", 4) == 0  # resumes after 2 steps
-    chains = []
-    for out in ("whole", "split"):
-        with h5py.File(tmp_path / out / "chain.h5", "r") as fh:
-            chains.append(fh["mcmc/chain"][()])
-    assert chains[0].shape == (4, 4, 2)
-    np.testing.assert_array_equal(chains[0], chains[1])
-    posterior = json.loads((tmp_path / "whole" / "posterior.json").read_text())
-    assert set(posterior) == {"phi_g", "alpha0"}
-    lo, hi = posterior["phi_g"]["ci95"]
-    assert lo <= posterior["phi_g"]["median"] <= hi
-    with h5py.File(tmp_path / "whole" / "posterior.h5", "r") as fh:
-        assert fh["samples/alpha0"].attrs["units"] == "deg" and "git_revision" in fh.attrs
-    for name in ("corner.png", "fits.png", "run.json"):
-        assert (tmp_path / "whole" / name).stat().st_size > 0
+    whole = read_chain(tmp_path / "whole")
+    assert whole.shape == (4, 4, 2) and np.ptp(whole[:, :, 0]) > 0.0
+    np.testing.assert_array_equal(whole, read_chain(tmp_path / "split"))
 
 
-def test_other_settings_on_an_existing_chain_need_overwrite(tmp_path, capsys):
+def test_other_settings_on_an_existing_chain_need_overwrite(tmp_path, capsys, chain_only):
     assert tiny_run(tmp_path, "run", 2) == 0
+    first = read_chain(tmp_path / "run")
     assert tiny_run(tmp_path, "run", 2, "--seed", "1") == 2
     assert "--overwrite" in capsys.readouterr().err
+    np.testing.assert_array_equal(read_chain(tmp_path / "run"), first)
     assert tiny_run(tmp_path, "run", 2, "--seed", "1", "--overwrite") == 0
+    assert not np.array_equal(read_chain(tmp_path / "run"), first)
     (tmp_path / "run" / "notes.txt").write_text("mine")
     assert tiny_run(tmp_path, "run", 2, "--overwrite") == 2
     assert (tmp_path / "run" / "notes.txt").read_text() == "mine"
+
+
+def test_outputs_of_a_tiny_run(tmp_path):
+    assert tiny_run(tmp_path, "run", 3) == 0
+    out = tmp_path / "run"
+    posterior = json.loads((out / "posterior.json").read_text())
+    assert set(posterior) == {"phi_g", "alpha0"}
+    for entry in posterior.values():
+        lo, hi = entry["ci95"]
+        assert lo <= entry["median"] <= hi and lo <= entry["mean"] <= hi
+    with h5py.File(out / "posterior.h5", "r") as fh:
+        assert fh["samples/alpha0"].attrs["units"] == "deg" and "git_revision" in fh.attrs
+        samples = fh["samples/phi_g"][()]
+    assert posterior["phi_g"]["median"] == pytest.approx(float(np.median(samples)))
+    run = json.loads((out / "run.json").read_text())
+    assert run["sampler"]["steps"] == 3 and run["identifiability"] and run["provenance"]["command"]
+    for name in ("corner.png", "fits.png"):
+        assert (out / name).read_bytes()[:4] == b"\x89PNG"

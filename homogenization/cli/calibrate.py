@@ -37,7 +37,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from homogenization.backends import BACKENDS
-from homogenization.calibration import bayes, report
+from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import PARAMETERS, ForwardSettings
 from warp_hcell.core.cli import (
@@ -55,12 +55,12 @@ from warp_hcell.core.cli import (
     say,
     set_verbosity,
 )
-from warp_hcell.core.provenance import file_sha256, provenance
+from warp_hcell.core.provenance import file_sha256
 
 CHAIN_FILE = "chain.h5"
 OUTPUT_FILES = (CHAIN_FILE, "posterior.h5", "posterior.json", "corner.png", "fits.png", "run.json")
 """Everything this command writes into DIR."""
-FORWARD = ForwardSettings(stress_rtol=1e-4, n_orientations=18)
+FORWARD = ForwardSettings(n_orientations=36, increment=2e-3, iso_increment=2e-3, stress_rtol=1e-4)
 """Defaults of the forward model: coarse but measured against the fine setting (docs/calibration.md)."""
 
 
@@ -196,6 +196,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     check_out(args.out, args.overwrite)
     config = configuration(args, tests, prior, settings)
     started = time.perf_counter()
+    from homogenization.calibration import report  # noqa: PLC0415 (matplotlib: only once the input is good)
+
     result = run_calibration(args, tests, prior, settings, config)
     say(*report.summary_lines(result), f"{args.out}: done in {time.perf_counter() - started:.0f} s")
     return 0
@@ -206,6 +208,8 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
     """Sample (resuming chain.h5 where it matches ``config``), then write every output."""
     import emcee  # noqa: PLC0415 (only when a calibration runs)
     import h5py  # noqa: PLC0415
+
+    from homogenization.calibration import report  # noqa: PLC0415
 
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
