@@ -60,6 +60,28 @@ def discretisation_error(truth: dict[str, float], noise: float) -> None:
         print(f"  {name}: max abs(coarse - fine) = {errors}  (coarse run {t_coarse:.2f} s for one set)")
 
 
+def joint_region(truth: dict[str, float], run: dict, names: list[str]) -> None:
+    """Whether the truth lies in the joint 95 % region: 2 (log L(MAP) - log L(truth)) against the
+    chi-square quantile of as many degrees of freedom as parameters (Wilks)."""
+    from scipy.stats import chi2  # noqa: PLC0415
+
+    settings = run["config"]["forward"]
+    forward = ForwardSettings(n_orientations=settings["n_orientations"], increment=settings["increment"],
+                              iso_increment=settings["iso_increment"], stress_rtol=settings["stress_rtol"],
+                              fixed=settings["fixed"])
+    tests = [read_test(DATA / name) for name in TESTS]
+    best = run["maximum_a_posteriori"]
+    params = {n: np.array([truth[n], best[n]]) for n in names}
+    curves = []
+    for test in tests:
+        c = simulate(test, params, forward)
+        curves.append({k: c.channel(k) for k in ("q", "p", "eps_v")})
+    ll = bayes.log_likelihood(tests, curves, run["forward_model"]["noise"])
+    statistic, limit = 2.0 * (ll[1] - ll[0]), chi2.ppf(0.95, len(names))
+    print(f"  joint 95 % region: 2 (log L(MAP) - log L(truth)) = {statistic:.2f}, chi2 95 % quantile "
+          f"({len(names)} dof) {limit:.2f}: truth {'inside' if statistic <= limit else 'OUTSIDE'}")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--params", default="phi_g,kn,kt_over_kn,alpha0")
@@ -107,6 +129,7 @@ def main() -> int:
         print(f"  {name}: truth {t:.4g}, mean {p['mean']:.4g}, ci95 [{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}], "
               f"error {shown} (allowed {tol:g}{' deg' if kind == 'deg' else ''}), truth in ci95: {inside}, "
               f"constrained: {constrained} -> {verdict}")
+    joint_region(truth, run, names)
     for line in run["identifiability"]:
         print(f"  {line}")
     for which, values in run["misfit_rms_over_sigma"].items():

@@ -21,6 +21,7 @@ from homogenization.calibration.data import Measurement
 from homogenization.calibration.forward import simulate
 from homogenization.figure_style import GRID, LABELS, apply_style, figure_legend
 from homogenization.figures import save_figure
+from warp_hcell.core.cli import quiet_warp
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 
@@ -32,15 +33,24 @@ SCALE = {"q": 1.0, "p": 1.0, "eps_v": 100.0}
 """Plot scale of each channel (eps_v in %)."""
 
 
-def retained_samples(sampler, burn: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """Post-burn-in samples (n, n_params) in sampled coordinates, their log posterior (n,), and the
-    number of steps discarded."""
+STUCK_LOG_POSTERIOR = 20.0
+"""A walker whose mean log posterior over the retained steps is this far below the median walker's
+is stuck in a negligible mode (its density there is below exp(-20) of the bulk's) and left out of
+the posterior; ``run.json`` counts them [-]."""
+
+
+def retained_samples(sampler, burn: float) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Post-burn-in samples (n, n_params) in sampled coordinates of the walkers that are not stuck
+    (``STUCK_LOG_POSTERIOR``), their log posterior (n,), the steps discarded and the walkers left out."""
     n_steps = sampler.backend.iteration
     discard = min(int(burn * n_steps), n_steps - 1)
-    chain = sampler.get_chain(discard=discard, flat=True)
-    lp = sampler.get_log_prob(discard=discard, flat=True)
+    chain = sampler.get_chain(discard=discard)
+    lp = sampler.get_log_prob(discard=discard)
+    walker_mean = np.mean(lp, axis=0)
+    keep = walker_mean >= np.median(walker_mean) - STUCK_LOG_POSTERIOR
+    chain, lp = chain[:, keep].reshape(-1, chain.shape[2]), lp[:, keep].reshape(-1)
     thin = max(1, math.ceil(chain.shape[0] / MAX_SAMPLES))
-    return chain[::thin], lp[::thin], discard
+    return chain[::thin], lp[::thin], discard, int(np.count_nonzero(~keep))
 
 
 def write_json(path: Path, data: Any) -> None:
@@ -122,6 +132,8 @@ def misfit(tests: Sequence[Measurement], curves: Sequence[Mapping[str, np.ndarra
 def confirm_with_dem(tests: Sequence[Measurement], log_post: bayes.Posterior, mean: np.ndarray,
                      args: argparse.Namespace) -> list[dict[str, np.ndarray]]:
     """Curves of the DEM backend at the posterior mean (one run per test)."""
+    if not args.verbose:
+        quiet_warp(args.device)
     options = {"device": args.device, **({"threads": args.threads} if args.threads is not None else {})}
     settings = replace(log_post.settings, backend="dem", n_orientations=args.confirm_orientations,
                        backend_options=options)
@@ -137,12 +149,14 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
                   config: Mapping[str, Any]) -> dict[str, Any]:
     """Write posterior.h5, posterior.json, corner.png, fits.png and run.json; returns run.json's content."""
     prior, tests = log_post.prior, log_post.tests
-    samples, lp, discard = retained_samples(sampler, args.burn)
+    samples, lp, discard, stuck = retained_samples(sampler, args.burn)
     summary = bayes.summarise(samples, prior)
     corr = bayes.correlations(samples, prior)
     note = bayes.identifiability_note(summary, corr)
     mean = np.array([summary[n]["mean"] for n in prior.names])
-    mean_curves = [{c: v[0] for c, v in curves.items()} for curves in log_post.curves(mean[None, :])]
+    best = prior.to_values(samples[np.argmax(lp)])
+    both = log_post.curves(np.stack([mean, best]))
+    mean_curves, best_curves = ([{c: v[k] for c, v in curves.items()} for curves in both] for k in (0, 1))
     confirm = confirm_with_dem(tests, log_post, mean, args) if args.confirm == "dem" else None
     with np.errstate(invalid="ignore", divide="ignore"):  # a walker that never moved has a zero autocovariance
         tau = [float(t) if np.isfinite(t) else None for t in sampler.get_autocorr_time(tol=0)]
@@ -152,7 +166,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
         "correlations": corr,
         "sampler": {
             "library": "emcee", "walkers": args.walkers, "steps": int(sampler.backend.iteration),
-            "discarded": discard, "retained_samples": int(samples.shape[0]),
+            "discarded": discard, "retained_samples": int(samples.shape[0]), "stuck_walkers_left_out": stuck,
             "acceptance_fraction": float(np.mean(sampler.acceptance_fraction)),
             "autocorr_steps": tau, "seconds_this_run": seconds,
         },
@@ -160,7 +174,9 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
             "settings": config["forward"], "noise": args.noise,
             "evaluations": log_post.n_calls, "failed": log_post.n_failed, "fallbacks": log_post.n_fallback,
         },
+        "maximum_a_posteriori": {n: float(v) for n, v in zip(prior.names, best)},
         "misfit_rms_over_sigma": {"forward_at_mean": misfit(tests, mean_curves, args.noise),
+                                  "forward_at_maximum_a_posteriori": misfit(tests, best_curves, args.noise),
                                   **({"dem_at_mean": misfit(tests, confirm, args.noise)} if confirm else {})},
         "config": config,
         "provenance": record,
@@ -185,6 +201,7 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
         lines.append(f"rms misfit / sigma, {which}: " + ", ".join(f"{k} {v:.2f}" for k, v in values.items()))
     sampler = result["sampler"]
     lines.append(f"sampler: {sampler['steps']} steps x {sampler['walkers']} walkers, acceptance "
-                 f"{sampler['acceptance_fraction']:.2f}, forward fallbacks {result['forward_model']['fallbacks']}, "
+                 f"{sampler['acceptance_fraction']:.2f}, stuck walkers left out {sampler['stuck_walkers_left_out']}, "
+                 f"forward fallbacks {result['forward_model']['fallbacks']}, "
                  f"failed sets {result['forward_model']['failed']}")
     return lines
