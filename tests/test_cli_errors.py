@@ -26,6 +26,7 @@ BAD_VALUES = {
     "train": (["--data", "db.h5", "--epochs", "0", "--out", "m.pt"], "argument --epochs: 0 must be > 0"),
     "sweep": (["--p0", "2e5,-1", "--out", "o"], "argument --p0:"),
     "bvp": (["--elements", "3", "--out", "o"], "argument --elements: '3' is not NX,NY"),
+    "calibrate": (["--data", "a.csv", "--params", "phi_g,mu", "--out", "o"], "argument --params: unknown parameter 'mu'"),
 }
 """Subcommand -> (argv with one malformed value, the start of the message that names its flag)."""
 
