@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import h5py
@@ -228,3 +229,19 @@ def test_outputs_of_a_tiny_run(tmp_path):
     assert run["sampler"]["steps"] == 3 and run["identifiability"] and run["provenance"]["command"]
     for name in ("corner.png", "fits.png"):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("drained", [False, True])
+def test_dem_forward_one_set_at_a_time_agrees_with_the_batched_analytical(tmp_path, drained):
+    """The DEM path (each set its own backend, through the driver) against the batched closed form."""
+    from warp_hcell.core.cli import quiet_warp
+
+    quiet_warp()
+    test = Measurement("t", tmp_path / "t.csv", drained, 3e6, np.linspace(0.003, 0.012, 4), {})
+    params = {"phi_g": np.array([27.0, 20.0]), "kn": np.array([3e8, 5e8])}
+    coarse = ForwardSettings(n_orientations=4, increment=3e-3, iso_increment=2e-3)
+    dem = simulate(test, params, replace(coarse, backend="dem", backend_options={"threads": 1}))
+    analytical = simulate(test, params, coarse)
+    for c in ("q", "p"):
+        np.testing.assert_allclose(dem.channel(c), analytical.channel(c), rtol=0, atol=2e-4 * 3e6)
+    np.testing.assert_allclose(dem.eps_v, analytical.eps_v, rtol=0, atol=1e-6)
