@@ -74,9 +74,10 @@ class Curves:
     """Model curves of n parameter sets at a test's eps1 values, each shape (n, n_data).
 
     ``q``, ``p`` [N/m], ``eps_v`` [-]; NaN for a point whose isotropic stage does not reach p0
-    within ``homogenization.loading.ISO_MAX_STRAIN`` (too soft); ``n_fallback``: points whose isotropic landing or drained
-    Newton did not meet ``stress_rtol`` (their last iterate is used) or whose backend reported
-    unconverged cells, shape (n,).
+    within ``homogenization.loading.ISO_MAX_STRAIN`` (too soft); ``n_fallback``: per point, the
+    isotropic landings and drained Newton iterations that did not meet ``stress_rtol`` (their last
+    iterate is used), or (dem/ann, one set at a time) 1 where the backend reported unconverged
+    cells, shape (n,).
     """
 
     q: np.ndarray
@@ -134,7 +135,6 @@ class _Population:
         self.state = self.material.init_state()
         self.n = n
         self.n_orientations = settings.n_orientations
-        self.unconverged = np.zeros(n, dtype=bool)
 
     def trial(self, d_e: np.ndarray, with_tangent: bool = False):
         return self.material.update(self.state, d_e, with_tangent=with_tangent)
@@ -198,8 +198,10 @@ def _row(state: MaterialState, strain0: np.ndarray) -> np.ndarray:
 
 def _land(pop: _Population, crossing: np.ndarray, d_iso: np.ndarray, over, p0: float, rtol: float,
           max_iterations: int) -> np.ndarray:
-    """Shorten the crossing increment of the points of ``crossing`` so that p = p0 (Illinois); returns
-    1 where the tolerance was not met (the last iterate is taken), else 0."""
+    """Shorten the crossing increment of the points of ``crossing`` so that p = p0 (Illinois).
+
+    ``over`` is the trial update of the whole increment ``d_iso`` (n, 3). Returns, per point, 1
+    where the tolerance was not met (the last iterate is taken), else 0."""
     p_old = pop.state.stress[:, :2].mean(axis=1)
     p_over = over.stress[:, :2].mean(axis=1)
     lo, f_lo = np.zeros(pop.n), p_old - p0
