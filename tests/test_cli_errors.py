@@ -27,6 +27,7 @@ BAD_VALUES = {
     "sweep": (["--p0", "2e5,-1", "--out", "o"], "argument --p0:"),
     "bvp": (["--elements", "3", "--out", "o"], "argument --elements: '3' is not NX,NY"),
     "triaxial": (["--order", "4", "--out", "o"], "argument --order: Lebedev order 4 is not one of"),
+    "calibrate": (["--data", "a.csv", "--params", "phi_g,mu", "--out", "o"], "argument --params: unknown parameter 'mu'"),
 }
 """Subcommand -> (argv with one malformed value, the start of the message that names its flag)."""
 

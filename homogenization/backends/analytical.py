@@ -106,10 +106,56 @@ class AnalyticalCell(ArrayStateMixin):
         self.kn = contact_law.kn
         self.kt = contact_law.kt
         self.mu = contact_law.mu
-        self.f_tolerance = check_positive("tolerance", tolerance) * self.kn * self.radius
+        self.tolerance = check_positive("tolerance", tolerance)
+        self.f_tolerance = self.tolerance * self.kn * self.radius
         if int(max_iterations) < 1:
             raise ValueError(f"max_iterations = {max_iterations} must be >= 1")
         self.max_iterations = int(max_iterations)
+        self.cell_alpha0_deg: np.ndarray | None = None
+        """Per-cell initial opening angles [deg] of ``with_cell_laws``; None: the mesostructure's."""
+
+    @classmethod
+    def with_cell_laws(cls, kn: np.ndarray, kt_over_kn: np.ndarray, phi_g_deg: np.ndarray, radius: float,
+                       alpha0_deg: np.ndarray | None = None, **options) -> AnalyticalCell:
+        """A backend whose cell i has its own contact law: a population of parameter sets as one batch.
+
+        Args:
+            kn: normal contact stiffness [N/m] of each cell, shape (n_cells,), > 0.
+            kt_over_kn: tangential to normal stiffness ratio [-], shape (n_cells,), > 0.
+            phi_g_deg: inter-granular friction angle [deg], shape (n_cells,), in [0, 90).
+            radius: grain radius r [m], shared by every cell.
+            alpha0_deg: initial opening angle of each cell [deg], shape (n_cells,), in [30, 90);
+                ``init_state`` then starts cell i at alpha0_deg[i] and the mesostructure it is
+                given (a plain H-cell of any alpha0) fixes only the topology and the radius.
+                None: the mesostructure's alpha0.
+            options: ``g2``, ``tolerance``, ``max_iterations`` as for the constructor.
+
+        Every batch it steps must have these n_cells, in this order (the arrays broadcast
+        against the cells); ``contact_law`` is None. A cell gives the same result as a
+        one-cell backend built from the same values.
+
+        Raises:
+            ValueError: (one line) a value outside the ranges of ``ContactLaw``.
+        """
+        kn, ratio, phi = np.broadcast_arrays(*(np.array(v, dtype=np.float64, ndmin=1)
+                                               for v in (kn, kt_over_kn, phi_g_deg)))
+        for name, values in (("kn", kn), ("kt_over_kn", ratio)):
+            bad = ~(np.isfinite(values) & (values > 0.0))
+            if bad.any():
+                check_positive(name, values[bad][0])
+        bad = ~((phi >= 0.0) & (phi < 90.0))
+        if bad.any():
+            raise ValueError(f"phi_g = {phi[bad][0]:g} deg is outside [0, 90) deg")
+        model = cls(ContactLaw(), radius, **options)
+        model.contact_law = None
+        model.kn = kn.copy()
+        model.kt = ratio * kn
+        model.mu = np.tan(np.radians(phi))
+        model.f_tolerance = model.tolerance * model.kn * model.radius
+        if alpha0_deg is not None:
+            model.cell_alpha0_deg = np.array(alpha0_deg, dtype=np.float64, ndmin=1)
+            hcell.touching_cells(model.cell_alpha0_deg, model.cell_alpha0_deg.size, model.diameter)  # range check
+        return model
 
     @staticmethod
     def check_mesostructure(meso: Mesostructure) -> float:
@@ -139,6 +185,8 @@ class AnalyticalCell(ArrayStateMixin):
         """
         distinct, index = per_cell(mesostructure, n_cells)
         alpha0_deg = np.array([self.check_mesostructure(meso) for meso in distinct])[index]
+        if self.cell_alpha0_deg is not None:
+            alpha0_deg = np.broadcast_to(self.cell_alpha0_deg, (int(n_cells),))
         for meso in distinct:
             if not np.allclose(meso.radius, self.radius, rtol=1e-12, atol=0.0):
                 raise ValueError(f"mesostructure {meso.name!r} has grains of radius {meso.radius[0]:g} m, the "

@@ -29,6 +29,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sweep": ("homogenization.sweep", "biaxial tests over lists of mesostructures, alpha0, p0 and backends"),
     "bvp": ("homogenization.bvp", "plane-strain biaxial specimen (finite elements) of the homogenised material"),
     "triaxial": ("homogenization.triaxial", "isotropic compression to p0, then a 3D triaxial test or a --programme file"),
+    "calibrate": ("homogenization.calibrate", "Bayesian calibration of the micro-parameters on measured curves"),
 }
 """Subcommand -> (its ``python -m`` module, whose ``main(argv)`` runs it, one-line summary)."""
 

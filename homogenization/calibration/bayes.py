@@ -1,0 +1,250 @@
+"""Prior, likelihood and posterior sampling of a calibration (emcee).
+
+Sampled coordinates: each calibrated parameter in the units of the CLI flags (phi_g and
+alpha0 [deg], kt_over_kn [-]) or, for a log-scaled prior (kn by default), its log10. The prior
+is uniform in those coordinates between the bounds of ``Prior``.
+
+Likelihood: independent Gaussian errors. A channel c (q, p or eps_v) of a test has the
+standard deviation sigma_c = noise * max(abs(observed_c)), the same for all its points::
+
+    log L = sum_tests sum_c sum_i [ -0.5 ((model_ci - observed_ci) / sigma_c)^2 - log(sigma_c) - 0.5 log(2 pi) ]
+
+A parameter set whose forward model fails (NaN, e.g. p0 not reached) has log L = -inf.
+
+Sampler: emcee's affine-invariant ensemble (``vectorize=True``: the whole population of
+walkers is one call of the forward model, one batch of cells), its chain in emcee's HDF5
+backend so that a run resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from homogenization.calibration.data import CHANNELS, Measurement
+from homogenization.calibration.forward import ForwardSettings, simulate
+
+DEFAULT_BOUNDS: dict[str, tuple[float, float, bool]] = {
+    "phi_g": (10.0, 45.0, False),
+    "kn": (5e7, 5e9, True),
+    "kt_over_kn": (0.1, 1.5, False),
+    "alpha0": (35.0, 85.0, False),
+}
+"""Default prior of each parameter: (low, high, log-uniform?) in CLI units (deg, N/m, -, deg)."""
+UNITS = {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg"}
+"""Unit of each parameter in posterior.json and the figures."""
+CONTRACTION_CONSTRAINED = 0.5
+"""A parameter counts as constrained by the data where its posterior standard deviation is below
+this fraction of its prior's (in the sampled coordinate) [-]."""
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Independent uniform priors of the calibrated parameters.
+
+    Attributes:
+        names: calibrated parameters, in sampling order.
+        low, high: bounds in CLI units, shape (n_params,).
+        log: whether the parameter is sampled as log10 (log-uniform prior), shape (n_params,).
+    """
+
+    names: tuple[str, ...]
+    low: np.ndarray
+    high: np.ndarray
+    log: np.ndarray
+
+    @property
+    def lo_coord(self) -> np.ndarray:
+        """Lower bounds in sampled coordinates."""
+        return np.where(self.log, np.log10(self.low), self.low)
+
+    @property
+    def hi_coord(self) -> np.ndarray:
+        """Upper bounds in sampled coordinates."""
+        return np.where(self.log, np.log10(self.high), self.high)
+
+    def to_values(self, x: np.ndarray) -> np.ndarray:
+        """Sampled coordinates (..., n_params) -> CLI units."""
+        return np.where(self.log, 10.0 ** x, x)
+
+    def to_coord(self, values: np.ndarray) -> np.ndarray:
+        """CLI units (..., n_params) -> sampled coordinates."""
+        return np.where(self.log, np.log10(values), values)
+
+    def log_prob(self, x: np.ndarray) -> np.ndarray:
+        """log prior density of sampled coordinates x, shape (n, n_params) -> (n,); -inf outside."""
+        inside = np.all((x >= self.lo_coord) & (x <= self.hi_coord), axis=1)
+        return np.where(inside, -float(np.sum(np.log(self.hi_coord - self.lo_coord))), -np.inf)
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """n draws in sampled coordinates, shape (n, n_params)."""
+        return rng.uniform(self.lo_coord, self.hi_coord, size=(n, len(self.names)))
+
+    def to_dict(self) -> dict[str, dict[str, float | bool]]:
+        """JSON form (the --prior FILE format)."""
+        return {name: {"low": float(lo), "high": float(hi), "log": bool(lg)}
+                for name, lo, hi, lg in zip(self.names, self.low, self.high, self.log)}
+
+
+def make_prior(names: Sequence[str], path: Path | None = None) -> Prior:
+    """The prior of ``names``: ``DEFAULT_BOUNDS``, overridden by the JSON file ``path``.
+
+    File: ``{"phi_g": [20, 40], "kn": {"low": 1e8, "high": 1e9, "log": true}}``; a list keeps the
+    parameter's default scale. Parameters not calibrated may not appear.
+
+    Raises:
+        ValueError: one line naming the file for a missing, malformed or inconsistent prior.
+    """
+    bounds = {name: DEFAULT_BOUNDS[name] for name in names}
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"{path}: no such prior file")
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{path}: cannot read the prior: {exc}") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: the prior is a JSON object, parameter -> [low, high] or {{low, high, log}}")
+        for name, spec in data.items():
+            if name not in bounds:
+                raise ValueError(f"{path}: {name!r} is not a calibrated parameter (--params {','.join(names)})")
+            log = bounds[name][2]
+            if isinstance(spec, dict):
+                log = spec.get("log", log)
+                spec = [spec.get("low"), spec.get("high")]
+            if (not isinstance(spec, list) or len(spec) != 2 or not all(isinstance(v, (int, float)) for v in spec)
+                    or not isinstance(log, bool)):
+                raise ValueError(f"{path}: prior of {name!r} must be [low, high] or {{\"low\", \"high\", \"log\"}}")
+            lo, hi = float(spec[0]), float(spec[1])
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) or (log and lo <= 0.0):
+                raise ValueError(f"{path}: prior of {name!r} needs finite low < high (and low > 0 if log)")
+            bounds[name] = (lo, hi, log)
+    return Prior(tuple(names), np.array([bounds[n][0] for n in names]), np.array([bounds[n][1] for n in names]),
+                 np.array([bounds[n][2] for n in names]))
+
+
+def channel_sigma(test: Measurement, noise: float) -> dict[str, float]:
+    """Standard deviation of each measured channel of ``test``: noise x its largest abs value."""
+    return {c: noise * float(np.max(np.abs(v))) for c, v in test.observed.items()}
+
+
+def log_likelihood(tests: Sequence[Measurement], curves: Sequence[Mapping[str, np.ndarray]], noise: float) -> np.ndarray:
+    """Gaussian log-likelihood (module docstring) of n model curves per test, shape (n,).
+
+    Args:
+        tests: the measurements.
+        curves: per test, channel -> model values at the test's eps1, shape (n, n_data).
+        noise: measurement error as a fraction of each channel's largest abs value [-].
+    """
+    total = None
+    for test, model in zip(tests, curves):
+        for c, sigma in channel_sigma(test, noise).items():
+            r = (np.asarray(model[c]) - test.observed[c]) / sigma
+            term = -0.5 * np.sum(r * r, axis=1) - r.shape[1] * (math.log(sigma) + 0.5 * math.log(2.0 * math.pi))
+            total = term if total is None else total + term
+    return np.where(np.isfinite(total), total, -np.inf)
+
+
+class Posterior:
+    """log posterior of sampled coordinates, vectorised: the callable emcee samples.
+
+    One call runs the forward model of every test on the whole population at once.
+    ``n_fallback`` counts the forward-model fallbacks fired (``forward.Curves.n_fallback``),
+    ``n_failed`` the parameter sets whose forward model failed (log L = -inf), ``n_calls`` the
+    parameter sets evaluated inside the prior.
+    """
+
+    def __init__(self, tests: Sequence[Measurement], prior: Prior, settings: ForwardSettings, noise: float) -> None:
+        self.tests = tuple(tests)
+        self.prior = prior
+        self.settings = settings
+        self.noise = float(noise)
+        self.n_fallback = 0
+        self.n_failed = 0
+        self.n_calls = 0
+
+    def curves(self, values: np.ndarray) -> list[dict[str, np.ndarray]]:
+        """Model curves of parameter sets in CLI units, shape (n, n_params): per test, channel -> (n, n_data)."""
+        params = {name: values[:, i] for i, name in enumerate(self.prior.names)}
+        out = []
+        for test in self.tests:
+            c = simulate(test, params, self.settings)
+            self.n_fallback += int(c.n_fallback.sum())
+            out.append({name: c.channel(name) for name in CHANNELS})
+        return out
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        x = np.atleast_2d(x)
+        lp = self.prior.log_prob(x)
+        inside = np.isfinite(lp)
+        out = np.full(x.shape[0], -np.inf)
+        if inside.any():
+            values = self.prior.to_values(x[inside])
+            ll = log_likelihood(self.tests, self.curves(values), self.noise)
+            self.n_calls += int(inside.sum())
+            self.n_failed += int(np.count_nonzero(~np.isfinite(ll)))
+            out[inside] = lp[inside] + ll
+        return out
+
+
+def initial_walkers(log_post: Callable[[np.ndarray], np.ndarray], prior: Prior, n_walkers: int,
+                    rng: np.random.Generator, oversample: int = 8) -> np.ndarray:
+    """Starting ensemble: the ``n_walkers`` best of ``oversample`` x n_walkers prior draws (one batch)."""
+    draws = prior.sample(rng, oversample * n_walkers)
+    lp = log_post(draws)
+    return draws[np.argsort(-lp, kind="stable")[:n_walkers]]
+
+
+def summarise(samples: np.ndarray, prior: Prior) -> dict[str, dict[str, float | list[float] | str | bool]]:
+    """posterior.json entries: mean, median, ci95 (2.5 and 97.5 % quantiles) in CLI units, and
+    the contraction sd_post / sd_prior in the sampled coordinate (``constrained`` below
+    ``CONTRACTION_CONSTRAINED``).
+
+    Args:
+        samples: posterior draws in sampled coordinates, shape (n_samples, n_params).
+    """
+    values = prior.to_values(samples)
+    prior_sd = (prior.hi_coord - prior.lo_coord) / math.sqrt(12.0)
+    out = {}
+    for i, name in enumerate(prior.names):
+        v = values[:, i]
+        contraction = float(np.std(samples[:, i]) / prior_sd[i])
+        out[name] = {
+            "mean": float(np.mean(v)),
+            "median": float(np.median(v)),
+            "ci95": [float(np.quantile(v, 0.025)), float(np.quantile(v, 0.975))],
+            "unit": UNITS[name],
+            "contraction": contraction,
+            "constrained": contraction < CONTRACTION_CONSTRAINED,
+        }
+    return out
+
+
+def correlations(samples: np.ndarray, prior: Prior) -> dict[str, float]:
+    """Posterior correlation of every pair of parameters (sampled coordinates), "a:b" -> r."""
+    r = np.corrcoef(samples, rowvar=False) if samples.shape[1] > 1 else np.ones((1, 1))
+    names = prior.names
+    return {f"{names[i]}:{names[j]}": float(r[i, j]) for i in range(len(names)) for j in range(i + 1, len(names))}
+
+
+def identifiability_note(summary: Mapping[str, Mapping], corr: Mapping[str, float]) -> list[str]:
+    """Plain sentences: which parameters the data constrain, which not, and strong trade-offs."""
+    lines = []
+    for name, s in summary.items():
+        if s["constrained"]:
+            lines.append(f"{name}: constrained (posterior sd = {s['contraction']:.2f} x prior sd)")
+        else:
+            lines.append(f"{name}: NOT constrained by these data (posterior sd = {s['contraction']:.2f} x prior sd); "
+                         f"its interval mostly reflects the prior")
+    for pair, r in corr.items():
+        if abs(r) > 0.8:
+            a, b = pair.split(":")
+            lines.append(f"{a} and {b} trade off (correlation {r:+.2f}): the data fix a combination of them")
+    return lines
+

@@ -1,0 +1,134 @@
+"""Measured curves of a calibration: one CSV per test.
+
+Format (units of the package's curve.csv: stresses [N/m] in 2D, strains [-], compression and
+contraction positive)::
+
+    # test = undrained          (or drained: sigma22 held at p0)
+    # p0 = 5.85e6               (confining pressure of the isotropic stage [N/m], > 0)
+    eps1,q,p
+    0.001,8.1e5,5.7e6
+    ...
+
+Comment lines start with ``#``; ``key = value`` comments give the test; other comments are
+ignored. The header names ``eps1`` (axial strain counted from the end of the isotropic stage,
+> 0 and increasing) and at least one of ``q`` (sigma11 - sigma22), ``p`` ((sigma11 + sigma22) / 2)
+and ``eps_v`` (eps11 + eps22 from the end of the isotropic stage). Every value is a finite number.
+``read_test`` raises ValueError with one line naming the file and the line for anything else.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+CHANNELS = ("q", "p", "eps_v")
+"""Measured quantities a test may hold: q, p [N/m], eps_v [-]."""
+TESTS = ("undrained", "drained")
+"""Measurement kinds: constant-volume or drained (sigma22 = p0) biaxial shear after isotropic compression."""
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One measured curve.
+
+    Attributes:
+        name: file name without the folder (labels of outputs).
+        path: the CSV file.
+        drained: drained (sigma22 = p0) rather than constant-volume shear.
+        p0: confining pressure [N/m].
+        eps1: axial strain [-], shape (n_data,), > 0, increasing.
+        observed: channel name -> measured values, shape (n_data,), for the channels of the file.
+    """
+
+    name: str
+    path: Path
+    drained: bool
+    p0: float
+    eps1: np.ndarray
+    observed: dict[str, np.ndarray]
+
+    @property
+    def kind(self) -> str:
+        """"drained" or "undrained"."""
+        return TESTS[int(self.drained)]
+
+
+def read_test(path: Path) -> Measurement:
+    """The test of the CSV file ``path`` (format in the module docstring).
+
+    Raises:
+        ValueError: one line naming the file (and the line) for a missing, unreadable or malformed file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such data file")
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read: {exc}") from None
+    meta: dict[str, str] = {}
+    header: list[str] | None = None
+    rows: list[list[float]] = []
+    for number, raw in enumerate(lines, start=1):
+        line = raw.strip()
+        if not line:
+            continue
+        if line.startswith("#"):
+            key, sep, value = line[1:].partition("=")
+            if sep:
+                meta[key.strip().lower()] = value.strip()
+            continue
+        cells = [c.strip() for c in line.split(",")]
+        if header is None:
+            header = cells
+            _check_header(path, number, header)
+            continue
+        if len(cells) != len(header):
+            raise ValueError(f"{path}, line {number}: {len(cells)} values, the header has {len(header)}")
+        try:
+            values = [float(c) for c in cells]
+        except ValueError:
+            raise ValueError(f"{path}, line {number}: not a number in {line!r}") from None
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"{path}, line {number}: values must be finite")
+        rows.append(values)
+    if header is None:
+        raise ValueError(f"{path}: no header line (eps1 and any of {', '.join(CHANNELS)})")
+    if len(rows) < 2:
+        raise ValueError(f"{path}: needs at least 2 data rows, has {len(rows)}")
+    kind = meta.get("test")
+    if kind not in TESTS:
+        raise ValueError(f"{path}: give the test in a comment line '# test = undrained' or '# test = drained'"
+                         + (f" (got {kind!r})" if kind is not None else ""))
+    if "p0" not in meta:
+        raise ValueError(f"{path}: give the confining pressure in a comment line '# p0 = 2e5' [N/m]")
+    try:
+        p0 = float(meta["p0"])
+    except ValueError:
+        raise ValueError(f"{path}: p0 = {meta['p0']!r} is not a number") from None
+    if not (math.isfinite(p0) and p0 > 0.0):
+        raise ValueError(f"{path}: p0 = {p0:g} must be finite and > 0 [N/m]")
+    table = np.array(rows)
+    columns = {name: table[:, i].copy() for i, name in enumerate(header)}
+    eps1 = columns.pop("eps1")
+    if not (eps1[0] > 0.0 and np.all(np.diff(eps1) > 0.0)):
+        raise ValueError(f"{path}: eps1 must be > 0 and increasing (counted from the end of the isotropic stage)")
+    if eps1[-1] >= 0.5:
+        raise ValueError(f"{path}: eps1 reaches {eps1[-1]:g}; strains are fractions, not percent")
+    return Measurement(path.name, path, kind == "drained", p0, eps1, columns)
+
+
+def _check_header(path: Path, number: int, header: list[str]) -> None:
+    if "eps1" not in header:
+        raise ValueError(f"{path}, line {number}: the header needs an eps1 column, got {','.join(header)}")
+    unknown = [name for name in header if name != "eps1" and name not in CHANNELS]
+    if unknown:
+        raise ValueError(f"{path}, line {number}: unknown column {unknown[0]!r}; columns are eps1 and any of "
+                         f"{', '.join(CHANNELS)}")
+    if len(set(header)) != len(header):
+        raise ValueError(f"{path}, line {number}: a column appears twice in the header")
+    if len(header) < 2:
+        raise ValueError(f"{path}, line {number}: the header needs at least one of {', '.join(CHANNELS)} besides eps1")

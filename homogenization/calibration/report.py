@@ -1,0 +1,207 @@
+"""Outputs of a calibration: posterior samples and summary, figures, DEM confirmation, provenance.
+
+Every file is written atomically (``warp_hcell.core.files.atomic_write``). Units: parameters in
+the CLI flags' units (phi_g, alpha0 [deg], kn [N/m], kt_over_kn [-]); curves in N/m and [-].
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from homogenization.calibration import bayes
+from homogenization.calibration.data import Measurement
+from homogenization.calibration.forward import simulate
+from homogenization.figure_style import GRID, LABELS, apply_style, figure_legend
+from homogenization.figures import save_figure
+from warp_hcell.core.cli import quiet_warp
+from warp_hcell.core.files import atomic_write
+from warp_hcell.core.provenance import provenance
+
+BAND_DRAWS = 100
+"""Posterior draws whose curves make the 95 % band of fits.png [-]."""
+MAX_SAMPLES = 20000
+"""Most retained samples written to posterior.h5 (the chain is thinned evenly beyond) [-]."""
+SCALE = {"q": 1.0, "p": 1.0, "eps_v": 100.0}
+"""Plot scale of each channel (eps_v in %)."""
+
+
+STUCK_LOG_POSTERIOR = 20.0
+"""A walker whose mean log posterior over the retained steps is this far below the median walker's
+is stuck in a negligible mode (its density there is below exp(-20) of the bulk's) and left out of
+the posterior; ``run.json`` counts them [-]."""
+
+
+def retained_samples(sampler, burn: float) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Post-burn-in samples (n, n_params) in sampled coordinates of the walkers that are not stuck
+    (``STUCK_LOG_POSTERIOR``), their log posterior (n,), the steps discarded and the walkers left out."""
+    n_steps = sampler.backend.iteration
+    discard = min(int(burn * n_steps), n_steps - 1)
+    chain = sampler.get_chain(discard=discard)
+    lp = sampler.get_log_prob(discard=discard)
+    walker_mean = np.mean(lp, axis=0)
+    keep = walker_mean >= np.median(walker_mean) - STUCK_LOG_POSTERIOR
+    chain, lp = chain[:, keep].reshape(-1, chain.shape[2]), lp[:, keep].reshape(-1)
+    thin = max(1, math.ceil(chain.shape[0] / MAX_SAMPLES))
+    return chain[::thin], lp[::thin], discard, int(np.count_nonzero(~keep))
+
+
+def write_json(path: Path, data: Any) -> None:
+    with atomic_write(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
+
+
+def write_samples(path: Path, samples: np.ndarray, lp: np.ndarray, prior: bayes.Prior, attrs: Mapping[str, str]) -> None:
+    """posterior.h5: /samples/<name> in CLI units and /log_posterior, shape (n,); provenance as attributes."""
+    import h5py  # noqa: PLC0415
+
+    values = prior.to_values(samples)
+    with atomic_write(path) as tmp:
+        with h5py.File(tmp, "w") as fh:
+            group = fh.create_group("samples")
+            for i, name in enumerate(prior.names):
+                ds = group.create_dataset(name, data=values[:, i])
+                ds.attrs["units"] = bayes.UNITS[name]
+            fh.create_dataset("log_posterior", data=lp)
+            for key, value in attrs.items():
+                fh.attrs[key] = value
+
+
+def corner_figure(samples: np.ndarray, prior: bayes.Prior) -> Figure:
+    """Corner plot of the posterior in CLI units (log10 kn where its prior is log-uniform)."""
+    import corner  # noqa: PLC0415
+
+    labels = [f"log10 {n} [{bayes.UNITS[n]}]" if lg else f"{n} [{bayes.UNITS[n]}]"
+              for n, lg in zip(prior.names, prior.log)]
+    k = len(prior.names)
+    fig = Figure(figsize=(2.2 * k + 1, 2.2 * k + 1))
+    corner.corner(samples, labels=labels, quantiles=[0.025, 0.5, 0.975], show_titles=True, fig=fig)
+    return fig
+
+
+def fit_figure(tests: Sequence[Measurement], log_post: bayes.Posterior, samples: np.ndarray,
+               mean_curves: Sequence[Mapping[str, np.ndarray]], confirm: Sequence[Mapping[str, np.ndarray]] | None,
+               rng: np.random.Generator) -> Figure:
+    """Measured points (+- sigma), posterior median and 95 % band of the forward model, DEM at the mean."""
+    draws = samples[rng.choice(samples.shape[0], size=min(BAND_DRAWS, samples.shape[0]), replace=False)]
+    band = log_post.curves(log_post.prior.to_values(draws))
+    n_cols = max(len(t.observed) for t in tests)
+    fig = Figure(figsize=(4.5 * n_cols, 3.6 * len(tests) + 0.8), layout="constrained")
+    axes = fig.subplots(len(tests), n_cols, squeeze=False)
+    handles = []
+    for row, (test, curves) in enumerate(zip(tests, band)):
+        sigma = bayes.channel_sigma(test, log_post.noise)
+        x = 100.0 * test.eps1
+        for col, (c, observed) in enumerate(test.observed.items()):
+            ax = axes[row, col]
+            s = SCALE[c]
+            lo, med, hi = np.nanquantile(curves[c], [0.025, 0.5, 0.975], axis=0)
+            h_band = ax.fill_between(x, s * lo, s * hi, color="C0", alpha=0.3, label="posterior 95 % band")
+            (h_med,) = ax.plot(x, s * med, color="C0", label=f"posterior median ({log_post.settings.backend})")
+            h_data = ax.errorbar(x, s * observed, yerr=s * sigma[c], fmt="o", ms=3, color="k", label="data (+- sigma)")
+            handles_row = [h_data, h_band, h_med]
+            if confirm is not None:
+                (h_dem,) = ax.plot(x, s * confirm[row][c], "--", color="C3", label="DEM at the posterior mean")
+                handles_row.append(h_dem)
+            ax.set(xlabel=LABELS["eps1"], ylabel=LABELS[c], title=f"{test.name} ({test.kind}, p0 = {test.p0:g} N/m)")
+            ax.grid(**GRID)
+            handles = handles or handles_row
+        for col in range(len(test.observed), n_cols):
+            axes[row, col].set_visible(False)
+    figure_legend(fig, handles)
+    return apply_style(fig)
+
+
+def misfit(tests: Sequence[Measurement], curves: Sequence[Mapping[str, np.ndarray]], noise: float) -> dict[str, float]:
+    """Root-mean-square residual over sigma of each test and channel ("test:channel" -> value)."""
+    out = {}
+    for test, model in zip(tests, curves):
+        for c, sigma in bayes.channel_sigma(test, noise).items():
+            r = (np.asarray(model[c]).reshape(-1) - test.observed[c]) / sigma
+            out[f"{test.name}:{c}"] = float(np.sqrt(np.mean(r * r)))
+    return out
+
+
+def confirm_with_dem(tests: Sequence[Measurement], log_post: bayes.Posterior, mean: np.ndarray,
+                     args: argparse.Namespace) -> list[dict[str, np.ndarray]]:
+    """Curves of the DEM backend at the posterior mean (one run per test)."""
+    if not args.verbose:
+        quiet_warp(args.device)
+    options = {"device": args.device, **({"threads": args.threads} if args.threads is not None else {})}
+    settings = replace(log_post.settings, backend="dem", n_orientations=args.confirm_orientations,
+                       backend_options=options)
+    params = {name: mean[i:i + 1] for i, name in enumerate(log_post.prior.names)}
+    out = []
+    for test in tests:
+        c = simulate(test, params, settings)
+        out.append({name: c.channel(name)[0] for name in test.observed})
+    return out
+
+
+def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.Namespace, seconds: float,
+                  config: Mapping[str, Any]) -> dict[str, Any]:
+    """Write posterior.h5, posterior.json, corner.png, fits.png and run.json; returns run.json's content."""
+    prior, tests = log_post.prior, log_post.tests
+    samples, lp, discard, stuck = retained_samples(sampler, args.burn)
+    summary = bayes.summarise(samples, prior)
+    corr = bayes.correlations(samples, prior)
+    note = bayes.identifiability_note(summary, corr)
+    mean = np.array([summary[n]["mean"] for n in prior.names])
+    best = prior.to_values(samples[np.argmax(lp)])
+    both = log_post.curves(np.stack([mean, best]))
+    mean_curves, best_curves = ([{c: v[k] for c, v in curves.items()} for curves in both] for k in (0, 1))
+    confirm = confirm_with_dem(tests, log_post, mean, args) if args.confirm == "dem" else None
+    with np.errstate(invalid="ignore", divide="ignore"):  # a walker that never moved has a zero autocovariance
+        tau = [float(t) if np.isfinite(t) else None for t in sampler.get_autocorr_time(tol=0)]
+    record = provenance()
+    run = {
+        "identifiability": note,
+        "correlations": corr,
+        "sampler": {
+            "library": "emcee", "walkers": args.walkers, "steps": int(sampler.backend.iteration),
+            "discarded": discard, "retained_samples": int(samples.shape[0]), "stuck_walkers_left_out": stuck,
+            "acceptance_fraction": float(np.mean(sampler.acceptance_fraction)),
+            "autocorr_steps": tau, "seconds_this_run": seconds,
+        },
+        "forward_model": {
+            "settings": config["forward"], "noise": args.noise,
+            "evaluations": log_post.n_calls, "failed": log_post.n_failed, "fallbacks": log_post.n_fallback,
+        },
+        "maximum_a_posteriori": {n: float(v) for n, v in zip(prior.names, best)},
+        "misfit_rms_over_sigma": {"forward_at_mean": misfit(tests, mean_curves, args.noise),
+                                  "forward_at_maximum_a_posteriori": misfit(tests, best_curves, args.noise),
+                                  **({"dem_at_mean": misfit(tests, confirm, args.noise)} if confirm else {})},
+        "config": config,
+        "provenance": record,
+    }
+    write_samples(out / "posterior.h5", samples, lp, prior, record)
+    write_json(out / "posterior.json", {n: {k: summary[n][k] for k in ("mean", "median", "ci95")} for n in prior.names})
+    save_figure(corner_figure(samples, prior), out / "corner.png")
+    save_figure(fit_figure(tests, log_post, samples, mean_curves, confirm, np.random.default_rng(args.seed)),
+                out / "fits.png")
+    write_json(out / "run.json", {"posterior": summary, **run})
+    return {"posterior": summary, **run}
+
+
+def summary_lines(result: Mapping[str, Any]) -> list[str]:
+    """Status lines: one per parameter, then the identifiability note and the misfits."""
+    lines = []
+    for name, s in result["posterior"].items():
+        lo, hi = s["ci95"]
+        lines.append(f"{name}: mean {s['mean']:.4g}, median {s['median']:.4g}, 95 % [{lo:.4g}, {hi:.4g}] {s['unit']}")
+    lines += result["identifiability"]
+    for which, values in result["misfit_rms_over_sigma"].items():
+        lines.append(f"rms misfit / sigma, {which}: " + ", ".join(f"{k} {v:.2f}" for k, v in values.items()))
+    sampler = result["sampler"]
+    lines.append(f"sampler: {sampler['steps']} steps x {sampler['walkers']} walkers, acceptance "
+                 f"{sampler['acceptance_fraction']:.2f}, stuck walkers left out {sampler['stuck_walkers_left_out']}, "
+                 f"forward fallbacks {result['forward_model']['fallbacks']}, "
+                 f"failed sets {result['forward_model']['failed']}")
+    return lines

@@ -1,0 +1,248 @@
+"""hmodel calibrate --data a.csv [--data b.csv] --backend analytical --params phi_g,kn,kt_over_kn,alpha0 [--prior FILE] --out DIR
+
+(also ``python -m homogenization.calibrate``.) Bayesian calibration of the H-model's
+micro-parameters on measured biaxial curves (format: ``homogenization.calibration.data``;
+worked example: docs/calibration.md). Every --data test is fitted jointly; the parameters not
+in --params keep the values of --phi, --kn, --kt and --alpha0.
+
+The posterior is sampled with emcee's affine-invariant ensemble: every step runs the forward
+model of the whole population of walkers as one batch of cells (analytical backend:
+per-cell contact laws and alpha0; dem: one parameter set after the other; ann: alpha0 only,
+the ANN being trained on one contact law). At the end the DEM runs once at the posterior
+mean (--confirm dem) and its misfit is reported next to the forward model's.
+
+DIR receives: chain.h5 (emcee's HDF5 backend: the whole chain, resumable), posterior.h5
+(the retained samples in CLI units and their log posterior), posterior.json (mean, median,
+ci95 per parameter in the CLI flags' units: degrees for phi_g and alpha0, N/m for kn),
+corner.png, fits.png (data, posterior median and 95 % band, DEM at the mean),
+run.json (identifiability note, correlations, sampler and forward-model diagnostics,
+provenance). A second run with the same settings resumes the chain up to --steps (a larger
+--steps extends it); other settings need --overwrite, which restarts the chain.
+
+Bad input (a missing or malformed data or prior file, an unknown parameter, a parameter the
+backend cannot vary, a folder holding other files) is one line on stderr and exit code 2,
+before any run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from homogenization.backends import BACKENDS
+from homogenization.calibration import bayes
+from homogenization.calibration.data import Measurement, read_test
+from homogenization.calibration.forward import PARAMETERS, ForwardSettings
+from warp_hcell.core.cli import (
+    Parser,
+    UserError,
+    add_contact_law_arguments,
+    alpha0_deg,
+    command_prog,
+    common_parser,
+    contact_law_from_args,
+    fraction,
+    positive_float,
+    positive_int,
+    progress_bar,
+    say,
+    set_verbosity,
+)
+from warp_hcell.core.provenance import file_sha256
+
+CHAIN_FILE = "chain.h5"
+OUTPUT_FILES = (CHAIN_FILE, "posterior.h5", "posterior.json", "corner.png", "fits.png", "run.json")
+"""Everything this command writes into DIR."""
+FORWARD = ForwardSettings(n_orientations=36, increment=2e-3, iso_increment=2e-3, stress_rtol=1e-4)
+"""Defaults of the forward model: coarse but measured against the fine setting (docs/calibration.md)."""
+
+
+def parameter_list(text: str) -> tuple[str, ...]:
+    """argparse type: comma list of ``PARAMETERS`` (duplicates dropped, order kept)."""
+    names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
+    if not names:
+        raise argparse.ArgumentTypeError(f"give at least one of {','.join(PARAMETERS)}")
+    for name in names:
+        if name not in PARAMETERS:
+            raise argparse.ArgumentTypeError(f"unknown parameter {name!r}; choose from {','.join(PARAMETERS)}")
+    return names
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser of the calibrate command."""
+    parser = Parser(
+        prog=command_prog("homogenization.calibrate"),
+        description="Bayesian calibration of the H-model's micro-parameters on measured biaxial curves.",
+        parents=[common_parser()],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--data", type=Path, action="append", required=True,
+                        help="measured curve (CSV: '# test = undrained|drained', '# p0 = ...', header eps1 and any of "
+                             "q, p, eps_v); repeat for a joint fit")
+    parser.add_argument("--backend", choices=tuple(BACKENDS), default="analytical", help="forward model")
+    parser.add_argument("--params", type=parameter_list, required=True,
+                        help=f"parameters to calibrate, comma list of {','.join(PARAMETERS)}")
+    parser.add_argument("--prior", type=Path, default=None,
+                        help="JSON prior: parameter -> [low, high] or {low, high, log} (default bounds: "
+                             + ", ".join(f"{k} [{lo:g}, {hi:g}]{' log' if lg else ''}"
+                                         for k, (lo, hi, lg) in bayes.DEFAULT_BOUNDS.items()) + ")")
+    parser.add_argument("--out", type=Path, required=True, help="output folder (resumed if it holds this calibration)")
+    parser.add_argument("--alpha0", type=alpha0_deg, default=FORWARD.fixed["alpha0"],
+                        help="alpha0 [deg] where not calibrated")
+    add_contact_law_arguments(parser)
+    sampler = parser.add_argument_group("sampler")
+    sampler.add_argument("--walkers", type=positive_int, default=32, help="ensemble size (>= 2 x number of parameters)")
+    sampler.add_argument("--steps", type=positive_int, default=600, help="ensemble steps in total (resume extends)")
+    sampler.add_argument("--burn", type=fraction, default=0.5, help="fraction of the steps discarded as burn-in")
+    sampler.add_argument("--noise", type=positive_float, default=0.02,
+                         help="measurement error sd as a fraction of each channel's largest abs value")
+    forward = parser.add_argument_group("forward model")
+    forward.add_argument("--orientations", type=positive_int, default=FORWARD.n_orientations, help="cell orientations")
+    forward.add_argument("--increment", type=positive_float, default=FORWARD.increment, help="shear strain increment [-]")
+    forward.add_argument("--iso-increment", type=positive_float, default=FORWARD.iso_increment,
+                         help="isotropic strain increment per component [-]")
+    forward.add_argument("--stress-rtol", type=positive_float, default=FORWARD.stress_rtol,
+                         help="relative tolerance of p = p0 and drained sigma22 = p0 [-]")
+    forward.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM (dem, --confirm)")
+    parser.add_argument("--confirm", choices=("dem", "none"), default="dem",
+                        help="run the DEM once at the posterior mean and report its misfit")
+    parser.add_argument("--confirm-orientations", type=positive_int, default=36, help="orientations of the DEM check")
+    return parser
+
+
+def read_tests(paths: Sequence[Path]) -> list[Measurement]:
+    """Every data file, parsed before any run; UserError (one line) on the first bad one."""
+    tests = []
+    for path in paths:
+        try:
+            tests.append(read_test(path))
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+    names = [t.name for t in tests]
+    if len(set(names)) != len(names):
+        raise UserError(f"two --data files share the name {next(n for n in names if names.count(n) > 1)!r}")
+    return tests
+
+
+def check_out(out: Path, overwrite: bool) -> None:
+    """UserError unless ``out`` is absent or holds only this command's files."""
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise UserError(f"--out {out} is a file; give a folder")
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in OUTPUT_FILES
+                     and not (p.name.startswith(".") and p.name.endswith(".tmp")))
+    if foreign:
+        raise UserError(f"{out} holds files that this command did not write ({', '.join(foreign[:3])}); "
+                        f"choose another --out")
+
+
+def configuration(args: argparse.Namespace, tests: Sequence[Measurement], prior: bayes.Prior,
+                  settings: ForwardSettings) -> dict[str, Any]:
+    """What defines the chain: a resumed run must match it."""
+    return {
+        "data": {t.name: file_sha256(t.path) for t in tests},
+        "params": list(prior.names),
+        "prior": prior.to_dict(),
+        "noise": args.noise,
+        "walkers": args.walkers,
+        "seed": args.seed,
+        "forward": {**asdict(settings), "fixed": dict(settings.fixed), "backend_options": {}},
+    }
+
+
+def forward_settings(args: argparse.Namespace) -> ForwardSettings:
+    law = contact_law_from_args(args)
+    fixed = {"phi_g": law.phi_g_deg, "kn": law.kn, "kt_over_kn": law.kt_over_kn, "alpha0": args.alpha0}
+    options: dict[str, Any] = {}
+    if args.backend in ("dem", "ann"):
+        options["device"] = args.device
+    if args.threads is not None and args.backend in ("dem", "ann"):
+        options["threads"] = args.threads
+    return ForwardSettings(backend=args.backend, n_orientations=args.orientations, increment=args.increment,
+                           iso_increment=args.iso_increment, radius=args.radius, stress_rtol=args.stress_rtol,
+                           fixed=fixed, backend_options=options)
+
+
+def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
+    if args.backend == "ann" and set(args.params) - {"alpha0"}:
+        raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
+    if args.walkers < 2 * len(args.params):
+        raise UserError(f"--walkers {args.walkers} must be >= 2 x the {len(args.params)} parameters")
+    if args.increment > min(float(t.eps1.max()) for t in tests):
+        raise UserError(f"--increment {args.increment:g} is larger than the strain range of a data file")
+    if args.iso_increment >= 0.1:
+        raise UserError(f"--iso-increment {args.iso_increment:g} must be < 0.1")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
+    args = build_parser().parse_args(argv)
+    set_verbosity(args)
+    tests = read_tests(args.data)
+    check_args(args, tests)
+    try:
+        prior = bayes.make_prior(args.params, args.prior)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    settings = forward_settings(args)
+    check_out(args.out, args.overwrite)
+    config = configuration(args, tests, prior, settings)
+    started = time.perf_counter()
+    from homogenization.calibration import report  # noqa: PLC0415 (matplotlib: only once the input is good)
+
+    result = run_calibration(args, tests, prior, settings, config)
+    say(*report.summary_lines(result), f"{args.out}: done in {time.perf_counter() - started:.0f} s")
+    return 0
+
+
+def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prior: bayes.Prior,
+                    settings: ForwardSettings, config: dict[str, Any]) -> dict[str, Any]:
+    """Sample (resuming chain.h5 where it matches ``config``), then write every output."""
+    import emcee  # noqa: PLC0415 (only when a calibration runs)
+    import h5py  # noqa: PLC0415
+
+    from homogenization.calibration import report  # noqa: PLC0415
+
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    chain = out / CHAIN_FILE
+    config_json = json.dumps(config, sort_keys=True)
+    if chain.exists():
+        with h5py.File(chain, "r") as fh:
+            stored = fh.attrs.get("calibration_config")
+        # no stored settings: a start interrupted before its first step, restarted
+        if stored is not None and stored != config_json and not args.overwrite:
+            raise UserError(f"{chain} holds a calibration with other settings (data, parameters, prior, walkers, "
+                            f"seed or forward model); add --overwrite to restart it")
+        if stored != config_json or args.overwrite:
+            chain.unlink()
+    log_post = bayes.Posterior(tests, prior, settings, args.noise)
+    backend = emcee.backends.HDFBackend(str(chain))
+    done = backend.iteration if chain.exists() else 0
+    n_dim = len(prior.names)
+    sampler = emcee.EnsembleSampler(args.walkers, n_dim, log_post, vectorize=True, backend=backend)
+    if done == 0:
+        backend.reset(args.walkers, n_dim)
+        with h5py.File(chain, "a") as fh:
+            fh.attrs["calibration_config"] = config_json
+        rng = np.random.default_rng(args.seed)
+        sampler.random_state = np.random.RandomState(args.seed).get_state()
+        start = bayes.initial_walkers(log_post, prior, args.walkers, rng)
+    else:
+        start = backend.get_last_sample()  # positions, log posterior and random state of the last step
+        say(f"{chain}: resuming after {done} of {args.steps} steps")
+    seconds = time.perf_counter()
+    remaining = max(0, args.steps - done)
+    if remaining:
+        with progress_bar(total=remaining, desc="calibrate", unit="step") as bar:
+            for _ in sampler.sample(start, iterations=remaining):
+                bar.update(1)
+    seconds = time.perf_counter() - seconds
+    return report.write_outputs(out, sampler, log_post, args, seconds, config)

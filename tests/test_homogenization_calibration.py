@@ -1,0 +1,247 @@
+"""hmodel calibrate: data files, likelihood, batched forward model, per-cell analytical laws, resume."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from homogenization import driver, loading
+from homogenization.backends.analytical import AnalyticalCell
+from homogenization.calibration import bayes, report
+from homogenization.calibration.data import Measurement, read_test
+from homogenization.calibration.forward import ForwardSettings, simulate
+from homogenization.cli import calibrate, hmodel
+from warp_hcell.core.cli import run_main
+from warp_hcell.core.parameters import ContactLaw
+from warp_hcell.mesostructures.hcell import h_cell
+
+DATA = Path(__file__).parent / "data" / "calibration"
+GOOD = "# test = undrained\n# p0 = 5.85e6\neps1,q,p\n0.002,4e5,5.6e6\n0.004,9e5,5.7e6\n0.006,1.3e6,5.8e6\n"
+
+
+def write(tmp_path: Path, text: str, name: str = "a.csv") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_read_test_parses_comments_header_and_values(tmp_path):
+    test = read_test(write(tmp_path, GOOD.replace("# p0", "# a free comment\n# p0")))
+    assert not test.drained and test.p0 == 5.85e6
+    np.testing.assert_array_equal(test.eps1, [0.002, 0.004, 0.006])
+    assert sorted(test.observed) == ["p", "q"]
+    np.testing.assert_array_equal(test.observed["q"], [4e5, 9e5, 1.3e6])
+
+
+def test_shipped_synthetic_files_parse():
+    tests = [read_test(DATA / name) for name in ("undrained.csv", "drained.csv")]
+    assert [t.kind for t in tests] == ["undrained", "drained"]
+    assert set(tests[1].observed) == {"q", "eps_v"}
+
+
+BAD = {
+    "no test": (GOOD.replace("# test = undrained\n", ""), "'# test = undrained'"),
+    "unknown test": (GOOD.replace("undrained", "cyclic"), "'cyclic'"),
+    "no p0": (GOOD.replace("# p0 = 5.85e6\n", ""), "p0"),
+    "negative p0": (GOOD.replace("5.85e6", "-1"), "must be finite and > 0"),
+    "no eps1": (GOOD.replace("eps1,q,p", "e1,q,p"), "eps1 column"),
+    "unknown column": (GOOD.replace("eps1,q,p", "eps1,q,tau"), "unknown column 'tau'"),
+    "short row": (GOOD.replace("0.004,9e5,5.7e6", "0.004,9e5"), "line 5"),
+    "not a number": (GOOD.replace("9e5", "abc"), "not a number"),
+    "nan": (GOOD.replace("9e5", "nan"), "finite"),
+    "decreasing eps1": (GOOD.replace("0.006", "0.001"), "increasing"),
+    "percent": (GOOD.replace("0.006", "6.0"), "percent"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_data_file_is_one_line_and_exit_2_before_any_run(tmp_path, capsys, case):
+    text, expected = BAD[case]
+    out = tmp_path / "out"
+    code = run_main(calibrate.main, ["--data", str(write(tmp_path, GOOD, "good.csv")),
+                                     "--data", str(write(tmp_path, text)), "--params", "phi_g", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and "a.csv" in err and expected in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--params", "phi_g,mu"], "unknown parameter 'mu'"),
+    (["--params", "phi_g", "--data", "missing.csv"], "no such data file"),
+    (["--params", "phi_g", "--prior", "missing.json"], "no such prior file"),
+    (["--params", "kn", "--backend", "ann"], "alpha0 only"),
+    (["--params", "phi_g,kn,alpha0", "--walkers", "4"], "--walkers 4"),
+])
+def test_bad_options_exit_2(tmp_path, capsys, argv, expected):
+    good = write(tmp_path, GOOD, "good.csv")
+    code = hmodel.main(["calibrate", "--data", str(good), "--out", str(tmp_path / "out"), *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and expected in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_prior_file_bounds_and_errors(tmp_path):
+    path = write(tmp_path, json.dumps({"phi_g": [20, 40], "kn": {"low": 1e8, "high": 1e9}}), "prior.json")
+    prior = bayes.make_prior(("phi_g", "kn"), path)
+    np.testing.assert_array_equal(prior.low, [20.0, 1e8])
+    assert list(prior.log) == [False, True]
+    # uniform density in the sampled coordinates: 1 / (20 deg x 1 decade)
+    assert prior.log_prob(np.array([[30.0, 8.5]]))[0] == pytest.approx(-math.log(20.0))
+    assert prior.log_prob(np.array([[41.0, 8.5]]))[0] == -np.inf
+    for bad in ({"alpha0": [40, 50]}, {"phi_g": [40, 20]}, {"phi_g": "wide"}):
+        with pytest.raises(ValueError, match="prior.json"):
+            bayes.make_prior(("phi_g", "kn"), write(tmp_path, json.dumps(bad), "prior.json"))
+
+
+def test_log_likelihood_hand_value(tmp_path):
+    test = Measurement("t", tmp_path / "t.csv", False, 1.0, np.array([0.01, 0.02]), {"q": np.array([1.0, -2.0])})
+    # sigma = 0.1 x 2 = 0.2; residuals (1.5 - 1) / 0.2 = 2.5 and 0
+    value = bayes.log_likelihood([test], [{"q": np.array([[1.5, -2.0]])}], 0.1)
+    assert value[0] == pytest.approx(-0.5 * 6.25 - 2.0 * (math.log(0.2) + 0.5 * math.log(2.0 * math.pi)), rel=1e-14)
+    nan = bayes.log_likelihood([test], [{"q": np.array([[np.nan, -2.0]])}], 0.1)
+    assert nan[0] == -np.inf
+
+
+PARAMS = {"phi_g": np.array([27.0, 20.0, 33.0]), "kn": np.array([3e8, 5e8, 2e8]),
+          "kt_over_kn": np.array([0.6, 0.4, 0.8]), "alpha0": np.array([58.0, 50.0, 64.0])}
+SETTINGS = ForwardSettings(n_orientations=8, increment=2e-3, iso_increment=1e-3)
+EPS1 = np.linspace(0.003, 0.03, 7)
+
+
+@pytest.mark.parametrize("drained", [False, True])
+def test_batched_forward_equals_one_at_a_time(tmp_path, drained):
+    """Equal to round-off: HomogenisedMaterial's V0 (area @ weights, a BLAS product) differs by an ulp
+    with the number of points; everything else is per point."""
+    test = Measurement("t", tmp_path / "t.csv", drained, 3e6, EPS1, {})
+    batch = simulate(test, PARAMS, SETTINGS)
+    for i in range(3):
+        one = simulate(test, {k: v[i:i + 1] for k, v in PARAMS.items()}, SETTINGS)
+        for c in ("q", "p", "eps_v"):
+            np.testing.assert_allclose(batch.channel(c)[i], one.channel(c)[0], rtol=1e-12, atol=1e-15)
+    assert not batch.n_fallback.any()
+
+
+@pytest.mark.parametrize("drained", [False, True])
+def test_batched_forward_matches_the_driver(tmp_path, drained):
+    """The population runner against homogenization.driver.run of each set on its own backend."""
+    test = Measurement("t", tmp_path / "t.csv", drained, 3e6, EPS1, {})
+    batch = simulate(test, PARAMS, SETTINGS)
+    n_shear = round(EPS1[-1] / SETTINGS.increment)
+    programme = loading.biaxial(3e6, n_shear * SETTINGS.increment, SETTINGS.increment,
+                                iso_increment=SETTINGS.iso_increment, drained=drained)
+    for i in range(3):
+        law = ContactLaw(kn=PARAMS["kn"][i], kt_over_kn=PARAMS["kt_over_kn"][i], phi_g_deg=PARAMS["phi_g"][i])
+        record = driver.run(AnalyticalCell(law, 0.5), programme, mesostructure=h_cell(PARAMS["alpha0"][i], 0.5),
+                            n_orientations=SETTINGS.n_orientations, progress=False)
+        start = np.flatnonzero(record.stage == "shear")[0] - 1
+        e1 = record.eps11[start:] - record.eps11[start]
+        tol = 1e-9 if not drained else 2e-4  # drained: both solve sigma22 = p0 to 1e-5 of p0, by other iterates
+        np.testing.assert_allclose(batch.q[i], np.interp(EPS1, e1, record.q[start:]), rtol=0, atol=tol * 3e6)
+        np.testing.assert_allclose(batch.p[i], np.interp(EPS1, e1, record.p[start:]), rtol=0, atol=tol * 3e6)
+
+
+def test_analytical_cell_laws_equal_scalar_backends():
+    laws = [ContactLaw(kn=3e8, kt_over_kn=0.6, phi_g_deg=27.0), ContactLaw(kn=1e8, kt_over_kn=1.2, phi_g_deg=15.0)]
+    alpha0 = np.array([58.0, 45.0])
+    batch = AnalyticalCell.with_cell_laws([w.kn for w in laws], [w.kt_over_kn for w in laws],
+                                          [w.phi_g_deg for w in laws], 0.5, alpha0_deg=alpha0)
+    state = batch.init_state(h_cell(55.0, 0.5), 2)
+    singles = [AnalyticalCell(w, 0.5) for w in laws]
+    one = [m.init_state(h_cell(a, 0.5), 1) for m, a in zip(singles, alpha0)]
+    d = np.array([[2e-3, 1e-3], [2e-3, -1e-3]])
+    for k in range(12):
+        step = d[0] if k < 6 else d[1]
+        state, response = batch.step(state, np.tile(step, (2, 1)), with_tangent=True)
+        for i, m in enumerate(singles):
+            one[i], r = m.step(one[i], step[None, :], with_tangent=True)
+            np.testing.assert_allclose(response.moment[i], r.moment[0], rtol=1e-12, atol=1e-9)
+            np.testing.assert_allclose(response.tangent[i], r.tangent[0], rtol=1e-10, atol=1e-3)
+    with pytest.raises(ValueError, match="phi_g = 95"):
+        AnalyticalCell.with_cell_laws([1e8], [0.5], [95.0], 0.5)
+    with pytest.raises(ValueError, match="alpha0 = 95"):
+        AnalyticalCell.with_cell_laws([1e8], [0.5], [30.0], 0.5, alpha0_deg=[95.0])
+
+
+def tiny_run(tmp_path: Path, out: str, steps: int, *extra: str) -> int:
+    data = write(tmp_path, "# test = undrained\n# p0 = 3e6\neps1,q\n0.004,1.1e6\n0.008,1.8e6\n0.012,2.2e6\n",
+                 "u.csv")
+    return run_main(calibrate.main, ["--data", str(data), "--params", "phi_g,alpha0", "--walkers", "4",
+                                     "--steps", str(steps), "--orientations", "4", "--increment", "4e-3",
+                                     "--iso-increment", "2e-3", "--confirm", "none", "-q", "--out",
+                                     str(tmp_path / out), *extra])
+
+
+@pytest.fixture
+def chain_only(monkeypatch):
+    """The chain without the figures and summaries (checked once, in test_outputs_of_a_tiny_run)."""
+    monkeypatch.setattr(report, "write_outputs", lambda *args: {})
+    monkeypatch.setattr(report, "summary_lines", lambda result: [])
+
+
+def read_chain(path: Path) -> np.ndarray:
+    with h5py.File(path / "chain.h5", "r") as fh:
+        return fh["mcmc/chain"][()]
+
+
+def test_resume_continues_the_chain_exactly(tmp_path, chain_only):
+    assert tiny_run(tmp_path, "whole", 4) == 0
+    assert tiny_run(tmp_path, "split", 2) == 0
+    assert read_chain(tmp_path / "split").shape == (2, 4, 2)
+    assert tiny_run(tmp_path, "split", 4) == 0  # resumes after 2 steps
+    whole = read_chain(tmp_path / "whole")
+    assert whole.shape == (4, 4, 2) and np.ptp(whole[:, :, 0]) > 0.0
+    np.testing.assert_array_equal(whole, read_chain(tmp_path / "split"))
+
+
+def test_other_settings_on_an_existing_chain_need_overwrite(tmp_path, capsys, chain_only):
+    assert tiny_run(tmp_path, "run", 2) == 0
+    first = read_chain(tmp_path / "run")
+    assert tiny_run(tmp_path, "run", 2, "--seed", "1") == 2
+    assert "--overwrite" in capsys.readouterr().err
+    np.testing.assert_array_equal(read_chain(tmp_path / "run"), first)
+    assert tiny_run(tmp_path, "run", 2, "--seed", "1", "--overwrite") == 0
+    assert not np.array_equal(read_chain(tmp_path / "run"), first)
+    (tmp_path / "run" / "notes.txt").write_text("mine")
+    assert tiny_run(tmp_path, "run", 2, "--overwrite") == 2
+    assert (tmp_path / "run" / "notes.txt").read_text() == "mine"
+
+
+def test_outputs_of_a_tiny_run(tmp_path):
+    assert tiny_run(tmp_path, "run", 3) == 0
+    out = tmp_path / "run"
+    posterior = json.loads((out / "posterior.json").read_text())
+    assert set(posterior) == {"phi_g", "alpha0"}
+    for entry in posterior.values():
+        lo, hi = entry["ci95"]
+        assert lo <= entry["median"] <= hi and lo <= entry["mean"] <= hi
+    with h5py.File(out / "posterior.h5", "r") as fh:
+        assert fh["samples/alpha0"].attrs["units"] == "deg" and "git_revision" in fh.attrs
+        samples = fh["samples/phi_g"][()]
+    assert posterior["phi_g"]["median"] == pytest.approx(float(np.median(samples)))
+    run = json.loads((out / "run.json").read_text())
+    assert run["sampler"]["steps"] == 3 and run["identifiability"] and run["provenance"]["command"]
+    for name in ("corner.png", "fits.png"):
+        assert (out / name).read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("drained", [False, True])
+def test_dem_forward_one_set_at_a_time_agrees_with_the_batched_analytical(tmp_path, drained):
+    """The DEM path (each set its own backend, through the driver) against the batched closed form."""
+    from warp_hcell.core.cli import quiet_warp
+
+    quiet_warp()
+    test = Measurement("t", tmp_path / "t.csv", drained, 3e6, np.linspace(0.003, 0.012, 4), {})
+    params = {"phi_g": np.array([27.0, 20.0]), "kn": np.array([3e8, 5e8])}
+    coarse = ForwardSettings(n_orientations=4, increment=3e-3, iso_increment=2e-3)
+    dem = simulate(test, params, replace(coarse, backend="dem", backend_options={"threads": 1}))
+    analytical = simulate(test, params, coarse)
+    for c in ("q", "p"):
+        np.testing.assert_allclose(dem.channel(c), analytical.channel(c), rtol=0, atol=2e-4 * 3e6)
+    np.testing.assert_allclose(dem.eps_v, analytical.eps_v, rtol=0, atol=1e-6)
