@@ -10,8 +10,10 @@ written as one JSON line per row:
   the first cross-plane contact (where the closed form stops holding: lateral grains of the two
   planes touch, ``n_cross_plane``; the axial strain of the shear stage there is printed), with the
   cell-increments that had such contacts and the unconverged DEM cell-increments;
-- ``quadrature``: the closed form at ``--order`` x ``--spins`` against twice the cells (twice the
-  spins) and the next finer axis rule: the largest difference of the curves over p0 (target <= 0.5 %);
+- ``quadrature``: the closed form on each rule of ``--rules`` (ORDERxSPINS) against twice the
+  cells (twice the spins) and against the fine ``--reference`` rule: the largest difference of the
+  curves over p0 (the target: doubling moves the curves by <= 0.5 % of p0) and over the path's
+  scale max(p0, largest p of the reference);
 - ``timing``: the wall time of the same triaxial test (loose, p0 = 2e5, undrained and drained) with
   the DEM and with the closed form, side by side, and their ratio (target <= 3).
 
@@ -28,6 +30,7 @@ import warnings
 
 import numpy as np
 
+from homogenization.orientation3d import LEBEDEV_ORDERS
 from warp_hcell.core.cli import Parser, positive_float, positive_int
 
 PARTS = ("accuracy", "quadrature", "timing")
@@ -101,23 +104,35 @@ def accuracy(args) -> None:
                 print(json.dumps(row))
 
 
-def quadrature(args) -> None:
-    from homogenization.orientation3d import LEBEDEV_ORDERS
+def rule(text: str) -> tuple[int, int]:
+    """(order, spins) of a rule written ORDERxSPINS, e.g. ``23x8``."""
+    order, _, spins = text.partition("x")
+    return int(order), int(spins)
 
-    finer = LEBEDEV_ORDERS[LEBEDEV_ORDERS.index(args.order) + 2]
-    print(f"{'alpha0':>6} {'p0 [Pa]':>9} {'test':>9} {'refinement':>22} {'cells':>11} {'max diff / p0':>14}")
+
+def quadrature(args) -> None:
+    reference_rule = rule(args.reference)
+    rules = [rule(text) for text in args.rules.split(",")]
+    print(f"{'alpha0':>6} {'p0 [Pa]':>9} {'test':>9} {'rule':>6} {'cells':>6} {'x2 spins / p0':>13} "
+          f"{'vs reference / p0':>17} {'/ scale':>8} {'wall [s]':>8}")
     for alpha0 in (args.loose, args.dense):
         for p0 in (2e5, 5.85e6):
             for test in ("undrained", "drained"):
-                base, _ = run("analytical", alpha0, p0, test, args)
-                for label, order, spins in ((f"spins {args.spins} -> {2 * args.spins}", args.order, 2 * args.spins),
-                                            (f"order {args.order} -> {finer}", finer, args.spins)):
-                    fine, _ = run("analytical", alpha0, p0, test, args, order=order, spins=spins)
-                    row = {"part": "quadrature", "alpha0_deg": alpha0, "p0": p0, "test": test, "refinement": label,
-                           "cells": [base.weights.size, fine.weights.size],
-                           "max_diff_over_p0": largest_difference(base, fine) / p0}
-                    print(f"{alpha0:6g} {p0:9.3g} {test:>9} {label:>22} {base.weights.size:>5}->{fine.weights.size:<5} "
-                          f"{row['max_diff_over_p0']:14.3g}", flush=True)
+                reference, _ = run("analytical", alpha0, p0, test, args, order=reference_rule[0], spins=reference_rule[1])
+                scale = max(p0, float(reference.p.max()))
+                for order, spins in rules:
+                    base, wall = run("analytical", alpha0, p0, test, args, order=order, spins=spins)
+                    doubled, _ = run("analytical", alpha0, p0, test, args, order=order, spins=2 * spins)
+                    to_reference = largest_difference(base, reference)
+                    row = {"part": "quadrature", "alpha0_deg": alpha0, "p0": p0, "test": test, "rule": [order, spins],
+                           "cells": int(base.weights.size), "reference": list(reference_rule),
+                           "reference_cells": int(reference.weights.size),
+                           "doubled_spins_over_p0": largest_difference(base, doubled) / p0,
+                           "to_reference_over_p0": to_reference / p0, "to_reference_over_scale": to_reference / scale,
+                           "wall_s": wall}
+                    print(f"{alpha0:6g} {p0:9.3g} {test:>9} {order:>3}x{spins:<2} {row['cells']:6d} "
+                          f"{row['doubled_spins_over_p0']:13.3g} {row['to_reference_over_p0']:17.3g} "
+                          f"{row['to_reference_over_scale']:8.3g} {wall:8.1f}", flush=True)
                     print(json.dumps(row))
 
 
@@ -142,12 +157,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--part", default=",".join(PARTS), help=f"comma list of {', '.join(PARTS)}")
     parser.add_argument("--eps-max", type=positive_float, default=0.15, help="axial strain of the shear stage [-]")
     parser.add_argument("--increment", type=positive_float, default=1e-4, help="axial strain increment [-]")
-    parser.add_argument("--order", type=positive_int, default=11, help="Lebedev order of the cell axes")
-    parser.add_argument("--spins", type=positive_int, default=4, help="spins per axis")
+    parser.add_argument("--order", type=positive_int, default=11,
+                        help="Lebedev order of the cell axes (accuracy, timing: cell by cell, any rule compares)")
+    parser.add_argument("--spins", type=positive_int, default=4, help="spins per axis (accuracy, timing)")
+    parser.add_argument("--rules", default="11x4,23x8,35x16", help="quadrature part: comma list of ORDERxSPINS rules")
+    parser.add_argument("--reference", default="71x32", help="quadrature part: the fine ORDERxSPINS rule")
     parser.add_argument("--loose", type=positive_float, default=55.0, help="alpha0 of the loose cell [deg]")
     parser.add_argument("--dense", type=positive_float, default=47.0, help="alpha0 of the dense cell [deg], > 45")
     parser.add_argument("--threads", type=positive_int, default=None, help="DEM threads (None: its default)")
     args = parser.parse_args(argv)
+    for text in [*args.rules.split(","), args.reference]:
+        try:
+            order, spins = rule(text)
+        except ValueError:
+            parser.error(f"rule {text!r} is not ORDERxSPINS, e.g. 23x8")
+        if order not in LEBEDEV_ORDERS or spins < 1:
+            parser.error(f"rule {text!r}: order must be one of {', '.join(map(str, LEBEDEV_ORDERS))}, spins >= 1")
     parts = [part.strip() for part in args.part.split(",")]
     unknown = [part for part in parts if part not in PARTS]
     if unknown:

@@ -131,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--programme", type=Path, default=None,
                         help="JSON or TOML loading programme of three-component steps (docs/programmes.md)")
     parser.add_argument("--order", type=lebedev_order, default=driver.LEBEDEV_ORDER,
-                        help="Lebedev order of the cell axes (11: 25 axes on the hemisphere)")
+                        help="Lebedev order of the cell axes (35: 217 axes on the hemisphere; docs/triaxial.md, Quadrature)")
     parser.add_argument("--spins", type=positive_int, default=driver.N_SPINS, help="spins of each cell about its axis")
     add_contact_law_arguments(parser)
     parser.add_argument("--out", type=Path, required=True, help="output folder (replaced as a unit)")
