@@ -307,9 +307,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         options = {name: backend_options(args, name) for name in args.backend}
         models = {name: make_cell_model(name, contact_law=law, radius=args.radius, **options[name])
                   for name in args.backend}
+        check_models_take(models, meso)
         for model in models.values():
             refuse_uncertified(model, args)
-        check_models_take(models, meso)
         runs: dict[str, figures.Run] = {}
         written: list[str] = []  # status lines, printed once the folder is in place
         drained = figures.is_drained({"drained": args.drained or None}, programme)

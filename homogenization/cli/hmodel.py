@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "generate": ("warp_hcell.generate", "DEM learning database of strain probes"),
     "clean": ("warp_hcell.clean", "mark pathological samples of a learning database"),
     "train": ("training.train", "train the meso-ANN on a learning database"),
+    "certify": ("homogenization.certificate", "measure a meso-ANN model against the DEM: its certificate"),
     "sweep": ("homogenization.sweep", "biaxial tests over lists of mesostructures, alpha0, p0 and backends"),
     "bvp": ("homogenization.bvp", "plane-strain biaxial specimen (finite elements) of the homogenised material"),
     "triaxial": ("homogenization.triaxial", "isotropic compression to p0, then a 3D triaxial test or a --programme file"),

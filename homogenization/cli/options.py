@@ -62,6 +62,19 @@ def refuse_uncertified(model: object, args: argparse.Namespace) -> None:
         raise UserError(f"ann: {problem}; pass --uncertified-ok to run it anyway")
 
 
+def refuse_uncertified_file(path: Path | None, args: argparse.Namespace) -> None:
+    """``refuse_uncertified`` for a model file not built here (e.g. built by sweep workers):
+    ``path`` None is the installed model; a missing file is left to the backend to report."""
+    from homogenization.backends.ann import certificate_problem, default_model_path  # noqa: PLC0415 (torch)
+    from training.checkpoint import read_metadata  # noqa: PLC0415
+
+    path = default_model_path() if path is None else Path(path)
+    if path.is_file() and not getattr(args, "uncertified_ok", False):
+        problem = certificate_problem(read_metadata(path), path)
+        if problem is not None:
+            raise UserError(f"ann: {problem}; pass --uncertified-ok to run it anyway")
+
+
 def certificate_note(model: object) -> str:
     """Summary text of an ANN backend's certificate ('' for other backends)."""
     if not hasattr(model, "certificate_problem"):
