@@ -1,4 +1,4 @@
-"""python -m homogenization.certificate --model M.pt [--mesostructure SPEC] [--write] [--json FILE]
+"""python -m homogenization.certificate --model M.pt [--mesostructure SPEC] [--write] [--out FILE]
 
 The certificate of a meso-ANN model: the model against the DEM of its own mesostructure on
 homogenised tests its database did not see (docs/certificate.md).
@@ -24,7 +24,7 @@ The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_te
 ``tests`` (name, kind, sense, p0, dp, dq, scale [N/m]), ``rollout``, ``coverage``, the settings,
 ``model_sha256`` (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the
 tree differs), ``seconds``. ``--write`` stores it in the model's JSON under ``"certificate"``
-(the ANN backend then checks it); the command prints one line per test and the verdict, and
+(the ANN backend then checks it), ``--out`` writes it to a JSON file; the command prints one line per test and the verdict, and
 exits 0 whether the model passes or not (a failed certificate is a result, recorded as such).
 Bad input (missing model, a mesostructure the model does not take) is one line and exit 2.
 
@@ -209,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
                         help="the cell of the tests (None: the model's own mesostructure)")
     parser.add_argument("--write", action="store_true", help="store the certificate in the model's JSON")
-    parser.add_argument("--json", type=Path, default=None, help="also write the certificate to this file")
+    parser.add_argument("--out", type=Path, default=None, help="also write the certificate to this JSON file")
     parser.add_argument("--orientations", type=positive_int, default=N_ORIENTATIONS, help="cell orientations per test")
     parser.add_argument("--eps-max", type=positive_float, default=EPS_MAX, help="axial strain of each shear stage [-]")
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
@@ -233,8 +233,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv is not None:
         cert["command"] = shlex.join(["python", "-m", "homogenization.certificate", *argv])
     say(*summary_lines(cert))
-    if args.json is not None:
-        with atomic_write(args.json) as tmp:
+    if args.out is not None:
+        with atomic_write(args.out) as tmp:
             tmp.write_text(json.dumps(cert, indent=2, sort_keys=True) + "\n")
     if args.write:
         say(f"certificate -> {write_certificate(args.model, cert)}")
