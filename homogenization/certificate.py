@@ -1,4 +1,4 @@
-"""python -m homogenization.certificate --model M.pt [--mesostructure SPEC] [--write] [--out FILE]
+"""python -m homogenization.certificate --model M.pt [--mesostructure SPEC] [--data DB.h5] [--write] [--out FILE]
 
 The certificate of a meso-ANN model: the model against the DEM of its own mesostructure on
 homogenised tests its database did not see (docs/certificate.md).
@@ -27,7 +27,8 @@ not follow the programme, e.g. a drained increment without convergence), ``rollo
 tree differs), ``seconds``. ``--write`` stores it in the model's JSON under ``"certificate"``
 (the ANN backend then checks it), ``--out`` writes it to a JSON file; the command prints one line per test and the verdict, and
 exits 0 whether the model passes or not (a failed certificate is a result, recorded as such).
-Bad input (missing model, a mesostructure the model does not take) is one line and exit 2.
+``--data DB.h5`` first (re)builds the model's out-of-distribution index from its database
+(``training.ood.index_for_model``), for a model trained before the index existed. Bad input (missing model, a mesostructure the model does not take) is one line and exit 2.
 
 Sign convention: compression and contraction positive; stresses in N/m.
 """
@@ -47,8 +48,9 @@ import numpy as np
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.cli.options import command_parser
-from training.checkpoint import metadata_path, read_metadata
-from training.ood import state_features
+from training.checkpoint import load_checkpoint, metadata_path, read_metadata
+from training.dataset import load_database
+from training.ood import index_for_model, index_path, state_features
 from training.rollout import rollout_report
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.cli import UserError, positive_float, positive_int, quiet_warp, run_main, say, set_verbosity
@@ -214,6 +216,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--model", type=Path, required=True, help="the model (.pt, its .json beside it)")
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
                         help="the cell of the tests (None: the model's own mesostructure)")
+    parser.add_argument("--data", type=Path, default=None,
+                        help="first (re)build the model's out-of-distribution index from this learning database")
     parser.add_argument("--write", action="store_true", help="store the certificate in the model's JSON")
     parser.add_argument("--out", type=Path, default=None, help="also write the certificate to this JSON file")
     parser.add_argument("--orientations", type=positive_int, default=N_ORIENTATIONS, help="cell orientations per test")
@@ -231,6 +235,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.verbose:
         quiet_warp()
     meso = args.mesostructure.build(None) if args.mesostructure is not None else None
+    if args.data is not None:
+        net, meta = load_checkpoint(args.model)
+        index = index_for_model(net, meta["config"], load_database(args.data))
+        say(f"out-of-distribution index: {index.points.shape[0]} states, threshold {index.threshold:.4g} -> "
+            f"{index.save(index_path(args.model))}")
     try:
         cert = certify(args.model, mesostructure=meso, eps_max=args.eps_max, n_orientations=args.orientations,
                        rollout=not args.no_rollout)

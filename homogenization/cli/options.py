@@ -82,5 +82,7 @@ def certificate_note(model: object) -> str:
     cert = model.certificate
     if model.certificate_problem is None:
         return f", certificate passed (worst {100 * cert['worst']:.3g} % of the scale)"
-    worst = f", worst {100 * cert['worst']:.3g} %" if isinstance(cert, dict) and "worst" in cert else ""
-    return f", UNCERTIFIED ({model.certificate_problem.split(': ', 1)[-1]}{worst}; --uncertified-ok)"
+    problem = model.certificate_problem
+    worst = (f", worst {100 * cert['worst']:.3g} %" if isinstance(cert, dict) and "worst" in cert and "worst" not in problem
+             else "")
+    return f", UNCERTIFIED ({problem.split(': ', 1)[-1]}{worst}; --uncertified-ok)"
