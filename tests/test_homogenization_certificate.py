@@ -147,3 +147,19 @@ def test_hmodel_train_certifies_and_a_model_of_a_tiny_database_fails_and_is_refu
     assert cert["model_sha256"] == file_sha256(model) and len(cert["tests"]) == 4 * len(certificate.PRESSURES) + 1
     assert run_main(biaxial.main, [*RUN, "--model", str(model), "--out", str(tmp_path / "run")]) == 2
     assert "failed its certificate" in _one_error(capsys)
+
+
+def test_bvp_refuses_a_failed_model_and_its_run_records_the_certificate(tmp_path, short_certificate, capsys):
+    from homogenization.cli import bvp
+
+    model = _copy_shipped(tmp_path / "f")
+    _write(model, short_certificate | {"passed": False, "worst": 0.05, "worst_test": "x"})
+    argv = ["--backend", "ann", "--model", str(model), "--alpha0", "40", "--p0", "5.85e6", "--eps-max", "0.002",
+            "--increment", "1e-3", "--orientations", "4", "--elements", "1,1"]
+    assert run_main(bvp.main, [*argv, "--out", str(tmp_path / "no")]) == 2
+    assert "failed its certificate" in _one_error(capsys) and not (tmp_path / "no").exists()
+    assert run_main(bvp.main, [*argv, "--uncertified-ok", "--out", str(tmp_path / "yes")]) == 0
+    assert "UNCERTIFIED (the model failed its certificate" in capsys.readouterr().out
+    with h5py.File(tmp_path / "yes" / "run.h5") as f:
+        stored = json.loads(f.attrs["parameters"])["ann_certificate"]
+    assert stored["certified"] is False and stored["worst"] == 0.05

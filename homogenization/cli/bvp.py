@@ -210,6 +210,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "contact_law": asdict(ContactLaw()), "radius": CellDefaults.radius,
         "mesostructure": args.mesostructure.text if args.mesostructure is not None else None,
     }
+    if hasattr(model, "certificate_problem"):
+        parameters["ann_certificate"] = {"certified": model.certificate_problem is None,
+                                         "worst": (model.certificate or {}).get("worst"),
+                                         "problem": model.certificate_problem}
     kind = "homogeneous" if not weak.any() else f"imperfection F = {args.imperfection:g} in {int(weak.sum())} elements"
     title = f"{run_labels.title(run_labels.describe(parameters))}, {nx} × {ny} elements, {kind}"
     try:
