@@ -96,8 +96,9 @@ def test_step_is_pure_and_batch_invariant_and_round_trips(cell):
 def test_diagnostics_count_the_contact_law_branches(cell):
     state, _ = _loaded(cell)
     _, response = cell.step(state, np.tile([[-3e-3, -3e-3]], (8, 1)))  # strong extension opens contacts
+    ood_counts = {"n_ood", "n_ood_checked"} if cell.ood is not None else set()  # with an index (training.ood)
     assert set(response.diagnostics) == {"n_coulomb_capped", "n_tension_clipped", "n_mechanism", "n_relaxation_scaled",
-                                       "n_grains_held"}
+                                       "n_grains_held"} | ood_counts
     assert response.diagnostics["n_tension_clipped"] == 8 and response.diagnostics["n_relaxation_scaled"] == 0
 
 

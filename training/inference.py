@@ -134,6 +134,11 @@ class FastAdvance:
         d_eps) and the activations the forward pass left in ``work.layers``."""
         return np.stack([self.perceptron.jvp(0, f_dot[j], work.layers) for j in range(2)])
 
+    def last_features(self) -> np.ndarray:
+        """The z-scored float32 features of the states before this thread's last ``increment``,
+        (n_features, n) cells last (a view of the scratch array: read it before the next call)."""
+        return self._local.work.before.feats
+
     def __call__(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                  d_eps: np.ndarray) -> FastIncrement:
         """One increment of every cell: state (n, 2), (n, n_free), (n, n_pairs) and probe (n, 2) [-]."""

@@ -50,6 +50,7 @@ from training.dataset import (
     tensors,
 )
 from training.network import DEFAULT_HIDDEN, MesoNet
+from training.ood import index_for_model, index_path
 from training.rollout import rollout_report
 from warp_hcell.core.cli import (
     Parser,
@@ -338,6 +339,7 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
         "command": "python -m training.train " + " ".join(sys.argv[1:] if argv is None else argv),
     }
     save_checkpoint(out, result.net, metadata)
+    ood_file = index_for_model(result.net, metadata["config"], db).save(index_path(out))
     _plot_learning_curve(curve, result.history)
     say(f"trained {len(result.history['epoch'])} epochs in {result.history['seconds']:.1f} s "
         f"(best epoch {result.history['best_epoch']}); samples train/val/test = "
@@ -346,7 +348,9 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
     if rollout is not None:
         say(*(f"rollout error ({key}): max {value['max']:.4f}, median {value['median']:.4f} of the path's largest |S|"
               for key, value in rollout.items() if key.startswith("increment_")))
-    say(f"wrote {out}, {out.with_suffix('.json')}, {curve}")
+    say(f"wrote {out}, {out.with_suffix('.json')}, {curve}, {ood_file} (out-of-distribution index)",
+        f"the model is UNCERTIFIED: the ANN backend refuses it until it passes "
+        f"python -m homogenization.certificate --model {out} --write (docs/certificate.md)")
     return 0
 
 

@@ -36,13 +36,30 @@ start state lies within the range of those start cells (e.g. an H-cell at an ope
 between the database's; ``training.checkpoint.check_start_cell``). Otherwise
 ``CheckpointError`` (one line; exit code 2 in the CLIs).
 
+Certificate (``homogenization.certificate``, docs/certificate.md): ``certificate`` is the
+model JSON's ``"certificate"`` entry (None if absent) and ``certificate_problem`` one line
+saying why the model may not be used (uncertified, failed, or certified for another ``.pt``:
+its ``model_sha256`` differs from the file's), None for a model that passed. The class only
+reports it; the commands refuse such a model unless ``--uncertified-ok``
+(``homogenization.cli.options.refuse_uncertified``).
+
+Out of distribution (``training.ood``): with the index file beside the model
+(``training.ood.index_path``), every ``ood_interval``-th distinct start state of ``step`` is
+checked: its cells' z-scored state features (those the step computes anyway) are compared
+with the indexed database states. ``diagnostics`` then hold ``n_ood_checked`` (cells checked
+at this increment: n_cells or 0) and ``n_ood`` (those beyond the index's threshold); the
+fraction of a checked increment is their ratio. Once the cumulative fraction exceeds
+``training.ood.WARN_FRACTION`` one ``RuntimeWarning`` says so. Without an index file the two
+counts are absent and ``ood`` is None.
+
 Sign convention: compression and contraction positive. Local frame: index 0 = n, 1 = t.
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
-from typing import NamedTuple, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 import torch
@@ -51,6 +68,8 @@ from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
+from training.ood import index_path, load_index, OodError, OodIndex, PROBE_COLUMNS, state_features, WARN_FRACTION
+from warp_hcell.core.provenance import file_sha256
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.files import from_description
 from warp_hcell.mesostructures.mesostructure import evaluate_observables, Mesostructure, per_cell
@@ -60,9 +79,30 @@ DEFAULT_MODEL = "ann_default.pt"
 """File name of the model shipped in ``homogenization/data`` (with its ``.json``)."""
 
 
+OOD_INTERVAL = 500
+"""Distinct start states of ``AnnCell.step`` between two out-of-distribution checks: one check
+of 360 cells costs ~1.8 ms, so every 500th increment adds ~4 us to a ~100 us step
+(docs/certificate.md)."""
+
+
 def default_model_path() -> Path:
     """Path of the shipped default model state_dict (its metadata sits next to it)."""
     return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODEL
+
+
+def certificate_problem(metadata: dict[str, Any], path: Path) -> str | None:
+    """Why model ``path`` (JSON ``metadata``) may not be used, in one line, or None if its
+    certificate passed and was measured on this very ``.pt`` (same sha256)."""
+    cert = metadata.get("certificate")
+    if not isinstance(cert, dict):
+        return (f"{path}: the model is uncertified (certify it: python -m homogenization.certificate "
+                f"--model {path} --write)")
+    if cert.get("model_sha256") != file_sha256(path):
+        return f"{path}: its certificate was measured on another model file (sha256 differs); certify it again"
+    if not cert.get("passed"):
+        return (f"{path}: the model failed its certificate (worst {100 * float(cert['worst']):.3g} % of the scale "
+                f"in test {cert.get('worst_test')!r}, target {100 * float(cert['target']):.3g} %)")
+    return None
 
 
 class AnnState(NamedTuple):
@@ -88,6 +128,8 @@ class AnnCell(ArrayStateMixin):
             None loads the default model shipped in ``homogenization/data``.
         device: torch device of the network ("cpu", "cuda", ...).
         threads: torch CPU threads (process-wide setting, applied here) [-].
+        ood_interval: distinct start states between two out-of-distribution checks (module
+            docstring), >= 1.
 
     Raises:
         training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
@@ -99,7 +141,7 @@ class AnnCell(ArrayStateMixin):
     state_type = AnnState
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
-                 device: str = "cpu", threads: int = 1) -> None:
+                 device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL) -> None:
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:
@@ -119,6 +161,58 @@ class AnnCell(ArrayStateMixin):
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
         self.fast = FastAdvance(self.net) if self.device.type == "cpu" else None
+        self.certificate: dict[str, Any] | None = self.metadata.get("certificate")
+        self.certificate_problem = certificate_problem(self.metadata, path)
+        if int(ood_interval) < 1:
+            raise ValueError(f"ood_interval = {ood_interval} must be >= 1")
+        self.ood_interval = int(ood_interval)
+        ood_file = index_path(path)
+        self.ood: OodIndex | None = None
+        if ood_file.is_file():
+            try:
+                self.ood = load_index(ood_file, self.net)
+            except OodError as exc:
+                warnings.warn(f"ann: {exc}; out-of-distribution checks are off", RuntimeWarning, stacklevel=2)
+        self.ood_counts = np.zeros(2, dtype=np.int64)
+        """Cumulative (cells beyond the threshold, cells checked) over this object's checks."""
+        self._ood_last_state: object = None
+        self._ood_states = 0
+        self._ood_result: tuple[float, float] | None = None
+        self._ood_warned = False
+
+    def _ood_due(self, state: AnnState) -> bool | None:
+        """None without an index; else whether to check this call's start state: every
+        ``ood_interval``-th distinct one, once (trials from the same state reuse its counts)."""
+        if self.ood is None:
+            return None
+        if state is not self._ood_last_state:
+            self._ood_last_state = state
+            self._ood_states += 1
+            self._ood_result = None
+        return self._ood_result is None and (self._ood_states - 1) % self.ood_interval == 0
+
+    def _ood_check(self, state: AnnState, features: np.ndarray | None) -> tuple[float, float]:
+        """(n_ood, n_checked) of the cells of ``state``; ``features``: their z-scored state
+        features (n, n_state_features), or None to compute them."""
+        if features is None:
+            features = state_features(self.net, *state)
+        n_out = int(np.count_nonzero(self.ood.outside(features)))
+        self.ood_counts += (n_out, features.shape[0])
+        if not self._ood_warned and self.ood_counts[0] > WARN_FRACTION * self.ood_counts[1]:
+            self._ood_warned = True
+            warnings.warn(f"ann: {self.ood_counts[0]} of {self.ood_counts[1]} checked cell-increments lie beyond the "
+                          f"out-of-distribution threshold of {self.model_path.name} (> {WARN_FRACTION:.0%}): the "
+                          f"network extrapolates (diagnostics n_ood, n_ood_checked)", RuntimeWarning, stacklevel=4)
+        return float(n_out), float(features.shape[0])
+
+    def _ood_diagnostics(self, due: bool | None, state: AnnState, features: np.ndarray | None) -> dict[str, float]:
+        """``n_ood``, ``n_ood_checked`` of this call (zeros where its state is not checked); {} without an index."""
+        if due is None:
+            return {}
+        if due:
+            self._ood_result = self._ood_check(state, features)
+        n_out, n_checked = self._ood_result or (0.0, 0.0)
+        return {"n_ood": n_out, "n_ood_checked": n_checked}
 
     # -- construction ---------------------------------------------------------------------
     def check_trained_on(self, meso: Mesostructure) -> None:
@@ -156,13 +250,16 @@ class AnnCell(ArrayStateMixin):
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
+        due = self._ood_due(state)
         if self.fast is not None:
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
+            features = self.fast.last_features()[PROBE_COLUMNS:].T if due else None
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
                            "n_tension_clipped": float(np.count_nonzero(inc.opened)),
                            "n_mechanism": float(np.count_nonzero(inc.mechanism)),
                            "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled)),
-                           "n_grains_held": float(inc.grains_held.sum())}
+                           "n_grains_held": float(inc.grains_held.sum()),
+                           **self._ood_diagnostics(due, state, features)}
             return (AnnState(inc.cell_size, inc.free_position, inc.shear_force),
                     CellResponse(inc.moment, inc.area, diagnostics, tangent))
         size, free, shear = self._tensors(state)
@@ -184,6 +281,7 @@ class AnnCell(ArrayStateMixin):
             "n_mechanism": float(np.count_nonzero(np.all(moment == 0.0, axis=(1, 2)))),
             "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
             "n_grains_held": float(cell_physics.count_held_grains(self.net.schema, step.held).sum()),
+            **self._ood_diagnostics(due, state, None),
         }
         return new, CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent)
 

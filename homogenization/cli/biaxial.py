@@ -44,7 +44,7 @@ from typing import Any, Sequence
 
 from homogenization import driver, figures, io, loading
 from homogenization.cli import plot
-from homogenization.cli.options import add_cell_arguments
+from homogenization.cli.options import add_cell_arguments, add_uncertified_argument, certificate_note, refuse_uncertified
 from homogenization.backends import backend_class, BACKENDS, make_cell_model
 from warp_hcell.core.cli import (
     Parser,
@@ -132,6 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_cell_arguments(parser, "the cell of every backend (analytical: the plain H-cell only; ann: the model's "
                                "mesostructure); None: the H-cell of --alpha0 and --radius.",
                        "CPU threads of the DEM or of torch inference (dem and ann; None: the backend's own default)")
+    add_uncertified_argument(parser)
     return parser
 
 
@@ -268,7 +269,13 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
 
             path = default_model_path()
         path = Path(path).resolve()
-        record["ann_model"] = {"path": str(path), "sha256": file_sha256(path)}
+        record["ann_model"] = {"path": str(path), "sha256": file_sha256(path),
+                               "certificate_worst": (model.certificate or {}).get("worst"),
+                               "certified": model.certificate_problem is None,
+                               "certificate_problem": model.certificate_problem}
+        if model.ood is not None:
+            record["ann_model"]["ood"] = {"checked": int(model.ood_counts[1]), "outside": int(model.ood_counts[0]),
+                                          "threshold": model.ood.threshold}
     return record
 
 
@@ -301,6 +308,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         models = {name: make_cell_model(name, contact_law=law, radius=args.radius, **options[name])
                   for name in args.backend}
         check_models_take(models, meso)
+        for model in models.values():
+            refuse_uncertified(model, args)
         runs: dict[str, figures.Run] = {}
         written: list[str] = []  # status lines, printed once the folder is in place
         drained = figures.is_drained({"drained": args.drained or None}, programme)
@@ -340,6 +349,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 runs[name] = figures.Run(record, parameters)
                 unconverged = record.diagnostics.get("n_unconverged")
                 note = f", {int(unconverged.sum())} unconverged cell-increments" if unconverged is not None and unconverged.sum() else ""
+                note += certificate_note(model)
+                if getattr(model, "ood", None) is not None:
+                    note += f", out of distribution {int(model.ood_counts[0])} of {int(model.ood_counts[1])} checked cell-increments"
                 written.append(f"{name}: {record.n_increments} increments in {elapsed:.1f} s{note} -> "
                                f"{final / io.RUN_FILE}, {final / io.CURVE_FILE}")
 

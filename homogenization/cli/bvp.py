@@ -39,7 +39,8 @@ import numpy as np
 
 from homogenization import driver, loading, orientation, run_labels
 from homogenization.fe import output as fe_output, solver as fe
-from homogenization.cli.options import add_alpha0_argument, add_backend_argument, add_cell_arguments, command_parser
+from homogenization.cli.options import (add_alpha0_argument, add_backend_argument, add_cell_arguments,
+                                        add_uncertified_argument, certificate_note, command_parser, refuse_uncertified)
 from homogenization.backends import make_cell_model
 from homogenization.cli.biaxial import BACKEND_ONLY_OPTIONS, backend_options, check_models_take, DEVICE_BACKENDS
 from homogenization.material import HomogenisedMaterial
@@ -99,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     add_cell_arguments(parser, "the cell (analytical: the plain H-cell only; ann: the model's mesostructure); "
                                "default: the H-cell of --alpha0.", "CPU threads of the DEM (dem only)")
+    add_uncertified_argument(parser)
     return parser
 
 
@@ -173,6 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         quiet_warp(args.device)
     model = make_cell_model(args.backend, contact_law=ContactLaw(), radius=CellDefaults.radius,
                             **backend_options(args, args.backend))
+    refuse_uncertified(model, args)
     nx, ny = args.elements
     specimen = fe.BiaxialSpecimen(nx, ny, newton_rtol=args.newton_rtol)
     weak = weak_elements(specimen) if args.imperfection > 0.0 else np.zeros(specimen.mesh.nelements, bool)
@@ -207,6 +210,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "contact_law": asdict(ContactLaw()), "radius": CellDefaults.radius,
         "mesostructure": args.mesostructure.text if args.mesostructure is not None else None,
     }
+    if hasattr(model, "certificate_problem"):
+        parameters["ann_certificate"] = {"certified": model.certificate_problem is None,
+                                         "worst": (model.certificate or {}).get("worst"),
+                                         "problem": model.certificate_problem}
     kind = "homogeneous" if not weak.any() else f"imperfection F = {args.imperfection:g} in {int(weak.sum())} elements"
     title = f"{run_labels.title(run_labels.describe(parameters))}, {nx} × {ny} elements, {kind}"
     try:
@@ -214,7 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
     shear_iterations = [r.iterations for r in results if r.stage == "shear"]
-    say(f"{len(results)} steps in {elapsed:.1f} s: {updates} material updates of {specimen.n_points} points "
+    say(f"{len(results)} steps in {elapsed:.1f} s{certificate_note(model)}: {updates} material updates of {specimen.n_points} points "
         f"({updates * specimen.n_points / elapsed:.3g} material-point updates/s, "
         f"{updates * material.n_cells / elapsed:.3g} cell-steps/s); "
         f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}")

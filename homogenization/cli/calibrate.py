@@ -39,6 +39,7 @@ from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import PARAMETERS, ForwardSettings
+from homogenization.cli.options import add_uncertified_argument, refuse_uncertified_file
 from warp_hcell.core.cli import (
     Parser,
     UserError,
@@ -113,6 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--confirm", choices=("dem", "none"), default="dem",
                         help="run the DEM once at the posterior mean and report its misfit")
     parser.add_argument("--confirm-orientations", type=positive_int, default=36, help="orientations of the DEM check")
+    add_uncertified_argument(parser)
     return parser
 
 
@@ -173,6 +175,8 @@ def forward_settings(args: argparse.Namespace) -> ForwardSettings:
 def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
+    if args.backend == "ann":
+        refuse_uncertified_file(None, args)
     if args.walkers < 2 * len(args.params):
         raise UserError(f"--walkers {args.walkers} must be >= 2 x the {len(args.params)} parameters")
     if args.increment > min(float(t.eps1.max()) for t in tests):

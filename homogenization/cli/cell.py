@@ -35,7 +35,7 @@ from typing import Sequence
 
 import numpy as np
 
-from homogenization.cli.options import add_alpha0_argument, add_backend_argument, command_parser
+from homogenization.cli.options import add_alpha0_argument, add_backend_argument, add_uncertified_argument, command_parser, refuse_uncertified
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
 from warp_hcell.core.cli import (
@@ -77,6 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
                         help=f"the cell (analytical: the plain H-cell only; ann: the model's mesostructure); "
                              f"default: the H-cell of --alpha0 and --radius. {MESOSTRUCTURE_HELP}")
+    add_uncertified_argument(parser)
     return parser
 
 
@@ -189,6 +190,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     law = contact_law_from_args(args)
     meso = args.mesostructure.build(args.alpha0) if args.mesostructure is not None else h_cell(args.alpha0, args.radius)
     model = make_cell_model(args.backend, contact_law=law, radius=args.radius, **_backend_options(args))
+    refuse_uncertified(model, args)
     columns, table = run_path(model, meso, d_eps, positions=args.positions)
     try:
         with atomic_write(args.out) as tmp:

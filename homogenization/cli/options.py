@@ -6,7 +6,10 @@
 - ``add_backend_argument(parser)``: --backend, one of the registry's names;
 - ``add_alpha0_argument(parser)``: --alpha0 [deg], the opening angle of builder specs;
 - ``add_cell_arguments(parser, cell_help, threads_help)``: --mesostructure (a file or a
-  builder spec), --threads and --model (the backend-specific options).
+  builder spec), --threads and --model (the backend-specific options);
+- ``add_uncertified_argument(parser)`` and ``refuse_uncertified(model, args)``: --uncertified-ok,
+  and the refusal (one line, exit 2) of an ANN model without a passed certificate of its own
+  ``.pt`` (docs/certificate.md); ``certificate_note(model)`` is the line a run summary prints.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import argparse
 from pathlib import Path
 
 from homogenization.backends import BACKENDS
-from warp_hcell.core.cli import Parser, alpha0_deg, command_prog, common_parser, positive_int
+from warp_hcell.core.cli import Parser, UserError, alpha0_deg, command_prog, common_parser, positive_int
 from warp_hcell.core.parameters import CellDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 
@@ -42,3 +45,44 @@ def add_cell_arguments(parser: argparse.ArgumentParser, cell_help: str, threads_
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None, help=f"{cell_help} {MESOSTRUCTURE_HELP}")
     parser.add_argument("--threads", type=positive_int, default=None, help=threads_help)
     parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
+
+
+def add_uncertified_argument(parser: argparse.ArgumentParser) -> None:
+    """--uncertified-ok: run an ANN model that is uncertified, failed its certificate, or whose
+    certificate was measured on another file."""
+    parser.add_argument("--uncertified-ok", action="store_true",
+                        help="ann: run a model without a passed certificate of this very file (docs/certificate.md)")
+
+
+def refuse_uncertified(model: object, args: argparse.Namespace) -> None:
+    """UserError (one line) if ``model`` is an ANN backend whose ``certificate_problem`` is set
+    and the user did not pass --uncertified-ok; other backends pass."""
+    problem = getattr(model, "certificate_problem", None)
+    if problem is not None and not getattr(args, "uncertified_ok", False):
+        raise UserError(f"ann: {problem}; pass --uncertified-ok to run it anyway")
+
+
+def refuse_uncertified_file(path: Path | None, args: argparse.Namespace) -> None:
+    """``refuse_uncertified`` for a model file not built here (e.g. built by sweep workers):
+    ``path`` None is the installed model; a missing file is left to the backend to report."""
+    from homogenization.backends.ann import certificate_problem, default_model_path  # noqa: PLC0415 (torch)
+    from training.checkpoint import read_metadata  # noqa: PLC0415
+
+    path = default_model_path() if path is None else Path(path)
+    if path.is_file() and not getattr(args, "uncertified_ok", False):
+        problem = certificate_problem(read_metadata(path), path)
+        if problem is not None:
+            raise UserError(f"ann: {problem}; pass --uncertified-ok to run it anyway")
+
+
+def certificate_note(model: object) -> str:
+    """Summary text of an ANN backend's certificate ('' for other backends)."""
+    if not hasattr(model, "certificate_problem"):
+        return ""
+    cert = model.certificate
+    if model.certificate_problem is None:
+        return f", certificate passed (worst {100 * cert['worst']:.3g} % of the scale)"
+    problem = model.certificate_problem
+    worst = (f", worst {100 * cert['worst']:.3g} %" if isinstance(cert, dict) and "worst" in cert and "worst" not in problem
+             else "")
+    return f", UNCERTIFIED ({problem.split(': ', 1)[-1]}{worst}; --uncertified-ok)"

@@ -70,7 +70,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from homogenization import driver, figures, io, run_labels
-from homogenization.cli.options import command_parser
+from homogenization.cli.options import add_uncertified_argument, command_parser, refuse_uncertified_file
 from homogenization.cli.biaxial import backend_list
 from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS
 from homogenization.sweep_case import case_task, summarise
@@ -174,6 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "--mesostructure, PATH for the mesostructure it was trained on (or the plain H-cell); "
                              "None: the installed model (plain H-cell)")
     parser.add_argument("--out", type=Path, required=True, help="output folder (rerun to resume)")
+    add_uncertified_argument(parser)
     return parser
 
 
@@ -357,6 +358,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.device != "cpu" and not {"dem", "ann"} & set(args.backend):
         raise UserError("--device applies to --backend dem or ann only (analytical runs on the cpu)")
     cases, skipped = plan(args)
+    for model in {case.parameters["backend_options"].get("model") for case in cases if case.backend == "ann"}:
+        refuse_uncertified_file(model, args)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; give a folder")
     rows = {case.folder: stored_row(case, out, overwrite=args.overwrite) for case in cases}

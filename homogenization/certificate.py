@@ -1,0 +1,260 @@
+"""python -m homogenization.certificate --model M.pt [--mesostructure SPEC] [--data DB.h5] [--write] [--out FILE]
+
+The certificate of a meso-ANN model: the model against the DEM of its own mesostructure on
+homogenised tests its database did not see (docs/certificate.md).
+
+Tests (``tests_of``; constants below): isotropic compression to p0 (increments ``INCREMENT``),
+then constant-volume and drained (sigma22 = p0) biaxial shear in compression (eps11 > 0) and
+extension (eps11 < 0) to ``EPS_MAX``, at every pressure of ``PRESSURES``, and one reversal:
+constant-volume shear at ``PRESSURES[0]`` to +EPS_MAX / 2, then back to -EPS_MAX / 2. Each test
+runs ``N_ORIENTATIONS`` cells through ``homogenization.driver.run`` with the ANN and with the
+DEM (``homogenization.backends``) from the same mesostructure. Figures per test, over the shear
+stages (the isotropic stages may differ by one increment, as p lands on p0): ``dp`` = max
+abs(p_ann - p_dem) / scale, ``dq`` likewise, scale = max(p0, largest DEM p of the test). The
+certificate passes when the worst of them is <= ``TARGET``.
+
+Also reported, not part of ``worst``: the single-cell rollouts of ``training.rollout`` (held-out
+constant-volume and drained legs, each error a fraction of that path's own largest moment: one
+cell's grain engaging at another strain weighs there what 360 averaged cells do not), and the
+``coverage``: the fraction of the DEM cell states visited by the tests (every
+``COVERAGE_EVERY``-th increment, all cells) within the out-of-distribution threshold of the
+model's index (``training.ood``; None without one).
+
+The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_test``, ``passed``,
+``tests`` (name, kind, sense, p0, dp, dq, scale [N/m]; inf and an ``error`` where the ANN could
+not follow the programme, e.g. a drained increment without convergence), ``rollout``, ``coverage``, the settings,
+``model_sha256`` (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the
+tree differs), ``seconds``. ``--write`` stores it in the model's JSON under ``"certificate"``
+(the ANN backend then checks it), ``--out`` writes it to a JSON file; the command prints one line per test and the verdict, and
+exits 0 whether the model passes or not (a failed certificate is a result, recorded as such).
+``--data DB.h5`` first (re)builds the model's out-of-distribution index from its database
+(``training.ood.index_for_model``), for a model trained before the index existed. Bad input (missing model, a mesostructure the model does not take) is one line and exit 2.
+
+Sign convention: compression and contraction positive; stresses in N/m.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shlex
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from homogenization import driver, loading
+from homogenization.backends import make_cell_model
+from homogenization.cli.options import command_parser
+from training.checkpoint import load_checkpoint, metadata_path, read_metadata
+from training.dataset import load_database
+from training.ood import index_for_model, index_path, state_features
+from training.rollout import rollout_report
+from warp_hcell.core.files import atomic_write
+from warp_hcell.core.cli import UserError, positive_float, positive_int, quiet_warp, run_main, say, set_verbosity
+from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.core.provenance import file_sha256, git_revision
+from warp_hcell.mesostructures.builders import mesostructure_arg
+from warp_hcell.mesostructures.files import from_description
+from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+TARGET = 0.02
+"""Largest dp or dq allowed, as a fraction of max(p0, largest DEM p) [-]."""
+PRESSURES = (2e5, 1e6)
+"""Confining pressures p0 of the tests [N/m]."""
+EPS_MAX = 0.10
+"""Axial strain of each shear stage, counted from its start [-] (the reversal: +EPS_MAX / 2, then back by EPS_MAX)."""
+INCREMENT = 1e-4
+"""Strain increment of every stage [-] (isotropic: per component)."""
+N_ORIENTATIONS = 24
+"""Cell orientations of every homogenised test."""
+COVERAGE_EVERY = 50
+"""Increments between two DEM states sampled for the coverage."""
+
+
+def tests_of(pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
+             increment: float = INCREMENT) -> list[tuple[dict[str, Any], loading.Programme]]:
+    """(description, programme) of every test: kind, sense, p0 [N/m] and name."""
+    tests = []
+    n = loading.n_increments_for(eps_max, increment)
+    for p0 in pressures:
+        for kind in ("constant-volume", "drained"):
+            for sense, sign in (("compression", 1.0), ("extension", -1.0)):
+                shear = (loading.drained_biaxial(p0, sign * eps_max, n) if kind == "drained"
+                         else loading.constant_volume_biaxial(sign * eps_max, n))
+                tests.append(({"name": f"{kind} {sense} p0={p0:g}", "kind": kind, "sense": sense, "p0": p0},
+                              (loading.isotropic(p0, increment=increment), shear)))
+    p0, half = pressures[0], loading.n_increments_for(eps_max / 2, increment)
+    tests.append(({"name": f"constant-volume reversal p0={p0:g}", "kind": "constant-volume", "sense": "reversal", "p0": p0},
+                  (loading.isotropic(p0, increment=increment),
+                   loading.constant_volume_biaxial(eps_max / 2, half, label="shear"),
+                   loading.constant_volume_biaxial(-eps_max, 2 * half, label="reverse"))))
+    return tests
+
+
+class _Sampler:
+    """A cell model that passes every call to ``model`` and keeps, every ``every``-th distinct
+    start state, the learning state (cell size, free coordinates, shear forces) of its cells."""
+
+    def __init__(self, model: Any, free_dofs: np.ndarray, every: int) -> None:
+        self.model, self.free_dofs, self.every = model, free_dofs, every
+        self.name = model.name
+        self.samples: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._last: object = None
+        self._count = 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.model, name)
+
+    def step(self, state: Any, d_eps: np.ndarray, *, with_tangent: bool = False):
+        if state is not self._last:
+            self._last = state
+            if self._count % self.every == 0:
+                arrays = self.model.state_to_arrays(state)
+                position = np.asarray(arrays["position"])
+                self.samples.append((np.asarray(arrays["cell_size"]), position[:, self.free_dofs[:, 0], self.free_dofs[:, 1]],
+                                     np.asarray(arrays["shear_force"])))
+            self._count += 1
+        return self.model.step(state, d_eps, with_tangent=with_tangent)
+
+
+def _shear_rows(record: driver.Record) -> np.ndarray:
+    return record.stage != record.programme[0].label
+
+
+def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pressures: Sequence[float] = PRESSURES,
+            eps_max: float = EPS_MAX, increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
+            target: float = TARGET, rollout: bool = True, threads: int = 1) -> dict[str, Any]:
+    """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
+    model's own (its JSON's ``mesostructure``).
+
+    Raises:
+        ValueError (CheckpointError, one line): unusable model, or a mesostructure it does not take.
+        homogenization.driver.ControlError: a stress-controlled increment of the DEM did not converge
+            (where the ANN's does not, that test fails with dp = dq = inf and its ``error``).
+    """
+    start = time.perf_counter()
+    model_path = Path(model_path)
+    meta = read_metadata(model_path)
+    law = ContactLaw(**meta["contact_law"])
+    ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads)
+    meso = mesostructure if mesostructure is not None else from_description(meta["mesostructure"])
+    ann.check_trained_on(meso)
+    settings = DemSettings(contact_tolerance=float(meta["contact_tolerance"]))
+    dem = make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()), settings=settings, threads=threads)
+    free = ann.net.schema.free_dofs.cpu().numpy()
+    sampler = _Sampler(dem, free, COVERAGE_EVERY)
+    results = []
+    for info, programme in tests_of(pressures, eps_max, increment):
+        d = driver.run(sampler, programme, mesostructure=meso, n_orientations=n_orientations, progress=False)
+        scale = max(float(info["p0"]), float(np.max(d.p)))
+        try:
+            a = driver.run(ann, programme, mesostructure=meso, n_orientations=n_orientations, progress=False)
+        except driver.ControlError as exc:  # the ANN cannot follow the programme: the test fails
+            results.append({**info, "dp": math.inf, "dq": math.inf, "scale": scale, "error": " ".join(str(exc).split())})
+            continue
+        ra, rd = _shear_rows(a), _shear_rows(d)
+        if ra.sum() != rd.sum():
+            raise ValueError(f"test {info['name']!r}: the ANN and the DEM recorded different shear lengths")
+        dp, dq = (float(np.nan_to_num(np.abs(x[ra] - y[rd]), nan=math.inf).max()) / scale for x, y in ((a.p, d.p), (a.q, d.q)))
+        results.append({**info, "dp": dp, "dq": dq, "scale": scale})
+    worst = max(results, key=lambda t: max(t["dp"], t["dq"]))
+    coverage = None
+    if ann.ood is not None and sampler.samples:
+        states = [np.concatenate(parts) for parts in zip(*sampler.samples)]
+        inside = ~ann.ood.outside(state_features(ann.net, *states))
+        coverage = {"fraction_within": float(inside.mean()), "n_states": int(inside.size),
+                    "threshold": ann.ood.threshold, "every_increments": COVERAGE_EVERY}
+    report = (rollout_report(ann.net, meso, law, settings, increments=(increment,)) if rollout else None)
+    return {
+        "target": target,
+        "worst": max(worst["dp"], worst["dq"]),
+        "worst_test": worst["name"],
+        "passed": bool(max(worst["dp"], worst["dq"]) <= target),
+        "metric": "max over the shear stages of abs(p_ann - p_dem) and abs(q_ann - q_dem) / max(p0, largest DEM p)",
+        "tests": results,
+        "rollout": report,
+        "coverage": coverage,
+        "settings": {"pressures": list(pressures), "eps_max": eps_max, "increment": increment,
+                     "n_orientations": n_orientations, "mesostructure": meso.name},
+        "model_sha256": file_sha256(model_path),
+        "revision": git_revision(),
+        "seconds": time.perf_counter() - start,
+    }
+
+
+def write_certificate(model_path: Path, certificate: dict[str, Any]) -> Path:
+    """Store ``certificate`` in the model's JSON under ``"certificate"`` (atomically); returns the JSON path."""
+    path = metadata_path(model_path)
+    meta = json.loads(path.read_text())
+    meta["certificate"] = certificate
+    with atomic_write(path) as tmp:
+        tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    return path
+
+
+def summary_lines(cert: dict[str, Any]) -> list[str]:
+    """One line per test, then the verdict."""
+    lines = [f"{t['name']:<40} dp {100 * t['dp']:.3f} %  dq {100 * t['dq']:.3f} %" for t in cert["tests"]]
+    if cert["rollout"] is not None:
+        inc = next(v for k, v in cert["rollout"].items() if k.startswith("increment_"))
+        lines.append(f"rollout (single cells, reported only): max {inc['max']:.4f}, median {inc['median']:.4f}")
+    if cert["coverage"] is not None:
+        lines.append(f"coverage: {100 * cert['coverage']['fraction_within']:.2f} % of {cert['coverage']['n_states']} "
+                     f"DEM states within the out-of-distribution threshold")
+    lines.append(f"{'PASSED' if cert['passed'] else 'FAILED'}: worst {100 * cert['worst']:.3f} % ({cert['worst_test']}), "
+                 f"target {100 * cert['target']:.3g} %, {cert['seconds']:.1f} s")
+    return lines
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser of the certificate command."""
+    parser = command_parser("homogenization.certificate", "Measure a meso-ANN model against the DEM of its "
+                            "mesostructure (docs/certificate.md).")
+    parser.add_argument("--model", type=Path, required=True, help="the model (.pt, its .json beside it)")
+    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
+                        help="the cell of the tests (None: the model's own mesostructure)")
+    parser.add_argument("--data", type=Path, default=None,
+                        help="first (re)build the model's out-of-distribution index from this learning database")
+    parser.add_argument("--write", action="store_true", help="store the certificate in the model's JSON")
+    parser.add_argument("--out", type=Path, default=None, help="also write the certificate to this JSON file")
+    parser.add_argument("--orientations", type=positive_int, default=N_ORIENTATIONS, help="cell orientations per test")
+    parser.add_argument("--eps-max", type=positive_float, default=EPS_MAX, help="axial strain of each shear stage [-]")
+    parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (bad input: one line, 2)."""
+    args = build_parser().parse_args(argv)
+    set_verbosity(args)
+    if not args.model.is_file():
+        raise UserError(f"--model {args.model}: no such model file")
+    if not args.verbose:
+        quiet_warp()
+    meso = args.mesostructure.build(None) if args.mesostructure is not None else None
+    if args.data is not None:
+        net, meta = load_checkpoint(args.model)
+        index = index_for_model(net, meta["config"], load_database(args.data))
+        say(f"out-of-distribution index: {index.points.shape[0]} states, threshold {index.threshold:.4g} -> "
+            f"{index.save(index_path(args.model))}")
+    try:
+        cert = certify(args.model, mesostructure=meso, eps_max=args.eps_max, n_orientations=args.orientations,
+                       rollout=not args.no_rollout)
+    except driver.ControlError as exc:
+        raise UserError(f"a test did not converge: {exc}") from None
+    if argv is not None:
+        cert["command"] = shlex.join(["python", "-m", "homogenization.certificate", *argv])
+    say(*summary_lines(cert))
+    if args.out is not None:
+        with atomic_write(args.out) as tmp:
+            tmp.write_text(json.dumps(cert, indent=2, sort_keys=True) + "\n")
+    if args.write:
+        say(f"certificate -> {write_certificate(args.model, cert)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_main(main))

@@ -1,0 +1,165 @@
+"""The meso-ANN certificate (homogenization.certificate) and the refusal of models without a passed one."""
+
+import json
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from homogenization import certificate
+from homogenization.backends.ann import default_model_path
+from homogenization.cli import biaxial
+from warp_hcell.core.cli import run_main
+from warp_hcell.core.provenance import file_sha256
+
+pytestmark = pytest.mark.skipif(not default_model_path().is_file(), reason="default model not installed")
+
+SHORT = {"pressures": (2e5,), "eps_max": 0.02, "n_orientations": 6, "rollout": False}
+"""A reduced certificate (the constants are the full one): one pressure, 2 % strain, 6 orientations."""
+RUN = ["--backend", "ann", "--p0", "2e5", "--eps-max", "0.002", "--increment", "1e-4", "--orientations", "4"]
+
+
+def _copy_shipped(folder: Path) -> Path:
+    folder.mkdir()
+    source = default_model_path()
+    for suffix in (".pt", ".json"):
+        shutil.copy(source.with_suffix(suffix), folder / f"m{suffix}")
+    shutil.copy(source.with_name(f"{source.stem}_ood.npz"), folder / "m_ood.npz")
+    return folder / "m.pt"
+
+
+def _perturb(model: Path, shift: float) -> None:
+    """Shift the network's mean free-DOF rate by ``shift`` of its spread (scaling the rates by 1.5
+    instead is repaired by the learned relaxation: the model still passes)."""
+    state = torch.load(model, weights_only=True)
+    state["rate_mean"] = state["rate_mean"] + shift * state["rate_std"]
+    torch.save(state, model)
+
+
+@pytest.fixture(scope="module")
+def shipped_copy(tmp_path_factory):
+    return _copy_shipped(tmp_path_factory.mktemp("cert") / "shipped")
+
+
+@pytest.fixture(scope="module")
+def short_certificate(shipped_copy):
+    return certificate.certify(shipped_copy, **SHORT)
+
+
+def test_the_shipped_model_passes_the_short_certificate(short_certificate, shipped_copy):
+    cert = short_certificate
+    assert [t["name"] for t in cert["tests"]] == [
+        "constant-volume compression p0=200000", "constant-volume extension p0=200000",
+        "drained compression p0=200000", "drained extension p0=200000", "constant-volume reversal p0=200000"]
+    figures = np.array([[t["dp"], t["dq"]] for t in cert["tests"]])
+    assert np.all(figures > 0) and np.all(figures < 0.01)  # measured 0.06-0.19 % (docs/certificate.md)
+    assert cert["passed"] and cert["worst"] == figures.max()
+    assert cert["model_sha256"] == file_sha256(shipped_copy)
+    assert all(t["scale"] >= t["p0"] for t in cert["tests"])
+    assert cert["coverage"]["fraction_within"] > 0.95 and cert["coverage"]["n_states"] > 0
+
+
+def test_a_perturbed_model_fails_the_certificate(tmp_path):
+    model = _copy_shipped(tmp_path / "bad")
+    _perturb(model, 2.0)
+    cert = certificate.certify(model, **SHORT)
+    assert not cert["passed"] and cert["worst"] > certificate.TARGET
+
+
+def _write(model: Path, cert: dict) -> None:
+    certificate.write_certificate(model, cert)
+    assert json.loads(model.with_suffix(".json").read_text())["certificate"]["model_sha256"] == cert["model_sha256"]
+
+
+def _one_error(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_a_certified_model_runs_and_the_summary_and_run_say_so(tmp_path, short_certificate, capsys):
+    model = _copy_shipped(tmp_path / "ok")
+    _write(model, short_certificate)
+    out = tmp_path / "run"
+    assert run_main(biaxial.main, [*RUN, "--model", str(model), "--out", str(out)]) == 0
+    assert "certificate passed (worst" in capsys.readouterr().out
+    with h5py.File(out / "run.h5") as f:
+        ann = json.loads(f.attrs["parameters"])["ann_model"]
+    assert ann["certified"] and ann["certificate_worst"] == short_certificate["worst"]
+
+
+def test_uncertified_failed_and_mismatched_models_are_refused_unless_asked(tmp_path, short_certificate, capsys):
+    model = _copy_shipped(tmp_path / "m")
+    meta = json.loads(model.with_suffix(".json").read_text())
+    meta.pop("certificate", None)
+    model.with_suffix(".json").write_text(json.dumps(meta))
+    out = tmp_path / "run"
+    assert run_main(biaxial.main, [*RUN, "--model", str(model), "--out", str(out)]) == 2
+    assert "the model is uncertified" in _one_error(capsys) and not out.exists()
+
+    _write(model, short_certificate | {"passed": False, "worst": 0.05, "worst_test": "x"})
+    assert run_main(biaxial.main, [*RUN, "--model", str(model), "--out", str(out)]) == 2
+    assert "failed its certificate (worst 5 %" in _one_error(capsys) and not out.exists()
+
+    _write(model, short_certificate)
+    _perturb(model, 1e-9)  # another file, the same behaviour to the eye
+    assert run_main(biaxial.main, [*RUN, "--model", str(model), "--out", str(out)]) == 2
+    line = _one_error(capsys)
+    assert "measured on another model file" in line and "--uncertified-ok" in line and not out.exists()
+
+    assert run_main(biaxial.main, [*RUN, "--model", str(model), "--uncertified-ok", "--out", str(out)]) == 0
+    assert "UNCERTIFIED (its certificate was measured on another model file" in capsys.readouterr().out
+    with h5py.File(out / "run.h5") as f:
+        ann = json.loads(f.attrs["parameters"])["ann_model"]
+    assert not ann["certified"] and "another model file" in ann["certificate_problem"]
+
+
+def test_certificate_command_writes_into_the_model_json(tmp_path, capsys):
+    model = _copy_shipped(tmp_path / "w")
+    argv = ["--model", str(model), "--orientations", "4", "--eps-max", "0.005", "--no-rollout", "--write"]
+    assert run_main(certificate.main, argv) == 0
+    printed = capsys.readouterr().out
+    stored = json.loads(model.with_suffix(".json").read_text())["certificate"]
+    assert stored["model_sha256"] == file_sha256(model) and len(stored["tests"]) == 4 * len(certificate.PRESSURES) + 1
+    assert ("PASSED" if stored["passed"] else "FAILED") in printed
+    assert run_main(certificate.main, ["--model", str(tmp_path / "none.pt")]) == 2
+    assert "no such model file" in _one_error(capsys)
+
+
+def test_hmodel_train_certifies_and_a_model_of_a_tiny_database_fails_and_is_refused(tmp_path, capsys):
+    """A few epochs on a small database (the issue's model known to fail): `hmodel train` writes
+    it with its failed certificate; the backend refuses it in one line."""
+    from dem_database import build
+    from homogenization.cli import hmodel
+    from warp_hcell.mesostructures.hcell import h_cell
+
+    db = build(tmp_path / "db.h5", mesostructure=h_cell(55.0), precompression=(0.0, 2e-3), n_directions=6,
+               spacing=1e-2, leg_length=0.04, threads=1)
+    model = tmp_path / "m.pt"
+    assert hmodel.main(["train", "--data", str(db), "--out", str(model), "--epochs", "2", "--hidden", "8",
+                        "--threads", "1", "--no-rollout"]) == 0
+    printed = capsys.readouterr().out
+    cert = json.loads(model.with_suffix(".json").read_text())["certificate"]
+    assert "FAILED" in printed and not cert["passed"] and cert["worst"] > certificate.TARGET
+    assert cert["model_sha256"] == file_sha256(model) and len(cert["tests"]) == 4 * len(certificate.PRESSURES) + 1
+    assert run_main(biaxial.main, [*RUN, "--model", str(model), "--out", str(tmp_path / "run")]) == 2
+    assert "failed its certificate" in _one_error(capsys)
+
+
+def test_bvp_refuses_a_failed_model_and_its_run_records_the_certificate(tmp_path, short_certificate, capsys):
+    from homogenization.cli import bvp
+
+    model = _copy_shipped(tmp_path / "f")
+    _write(model, short_certificate | {"passed": False, "worst": 0.05, "worst_test": "x"})
+    argv = ["--backend", "ann", "--model", str(model), "--alpha0", "40", "--p0", "5.85e6", "--eps-max", "0.002",
+            "--increment", "1e-3", "--orientations", "4", "--elements", "1,1"]
+    assert run_main(bvp.main, [*argv, "--out", str(tmp_path / "no")]) == 2
+    assert "failed its certificate" in _one_error(capsys) and not (tmp_path / "no").exists()
+    assert run_main(bvp.main, [*argv, "--uncertified-ok", "--out", str(tmp_path / "yes")]) == 0
+    assert "UNCERTIFIED (the model failed its certificate" in capsys.readouterr().out
+    with h5py.File(tmp_path / "yes" / "run.h5") as f:
+        stored = json.loads(f.attrs["parameters"])["ann_certificate"]
+    assert stored["certified"] is False and stored["worst"] == 0.05

@@ -1,0 +1,199 @@
+"""Out-of-distribution distance of cell states from a model's learning database.
+
+A cell state (cell size, free-DOF coordinates, tangential spring forces) is mapped to the
+network's own input features without the probe direction (``state_features``: the features of
+``training.network.features_and_contacts`` after their first two columns, z-scored with the
+network's training statistics, so one unit is one standard deviation of that feature in the
+training data). ``OodIndex`` holds a subsample of database states in that space in a
+``scipy.spatial.cKDTree``; a state whose Euclidean distance to its nearest indexed state exceeds
+``threshold`` is out of distribution.
+
+Threshold: the ``QUANTILE`` (99.9 %) quantile of the nearest-neighbour distances of held-out
+database states (the test split, paths the index did not draw from) to the index. By
+construction about 0.1 % of states like the database's are flagged, so a run whose fraction of
+flagged cell-increments is much larger (``WARN_FRACTION``) visits states the network was not
+trained near (docs/certificate.md).
+
+File format (``index_path(model)``: ``<model stem>_ood.npz`` beside the ``.pt``, numpy npz):
+``points`` float64 (n_points, n_state_features), the indexed z-scored states; ``threshold``
+float64 scalar (z units); ``quantile`` float64 scalar; ``n_database`` int64 scalar (states it was
+drawn from); ``database_sha256`` str scalar; ``n_features`` int64 scalar (columns of
+``points``); ``normalisation_sha256`` str scalar (``normalisation_digest`` of the model the
+points were z-scored with: an index is only read with that model).
+
+``python -m training.ood --model M.pt --data DB.h5`` builds the index of a trained model from
+its database (the split of its JSON's ``config``; ``training.train`` writes it at the end of
+training).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import argparse
+import hashlib
+import sys
+from typing import Sequence
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from training.dataset import STATE_FIELDS, Database
+from training.network import MesoNet
+
+N_POINTS = 2000
+"""Database states drawn into the index."""
+QUANTILE = 0.999
+"""Quantile of the held-out states' nearest-neighbour distances that sets the threshold [-]."""
+WARN_FRACTION = 0.05
+"""Fraction of checked cell-increments beyond the threshold above which a run is warned [-]."""
+PROBE_COLUMNS = 2
+"""Leading feature columns that describe the probe direction, not the state (left out)."""
+
+
+class OodError(ValueError):
+    """An index file that cannot be used with its model (one line naming the file)."""
+
+
+def index_path(model: str | Path) -> Path:
+    """The index file that goes with model ``model`` (``<stem>_ood.npz`` beside it)."""
+    model = Path(model)
+    return model.with_name(f"{model.stem}_ood.npz")
+
+
+def normalisation_digest(net: MesoNet) -> str:
+    """sha256 of the network's feature normalisation (mean then std, float64 bytes)."""
+    digest = hashlib.sha256()
+    for name in ("feature_mean", "feature_std"):
+        digest.update(getattr(net, name).detach().cpu().numpy().astype(np.float64).tobytes())
+    return digest.hexdigest()
+
+
+def state_features(net: MesoNet, cell_size: np.ndarray, free_position: np.ndarray,
+                   shear_force: np.ndarray) -> np.ndarray:
+    """z-scored state features of cells, shape (n, n_state_features) [-].
+
+    Args:
+        cell_size: (n, 2) [m]; free_position: (n, n_free) [m]; shear_force: (n, n_pairs) [N]
+            (DEM convention), all in the network's schema order.
+    """
+    t = [torch.as_tensor(np.asarray(a, dtype=np.float64)) for a in (cell_size, free_position, shear_force)]
+    device = net.feature_mean.device
+    t = [a.to(device) for a in t]
+    with torch.inference_mode():
+        feats = net.raw_features(*t, torch.zeros(t[0].shape[0], 2, dtype=torch.float64, device=device))[0]
+        z = (feats - net.feature_mean) / net.feature_std
+    return np.ascontiguousarray(z[:, PROBE_COLUMNS:].cpu().numpy())
+
+
+def database_features(net: MesoNet, db: Database, index: np.ndarray) -> np.ndarray:
+    """``state_features`` of the states before the probes of samples ``index``."""
+    return state_features(net, *(db.before[k][index] for k in STATE_FIELDS))
+
+
+@dataclass
+class OodIndex:
+    """Indexed database states and the out-of-distribution threshold (module docstring)."""
+
+    points: np.ndarray
+    threshold: float
+    quantile: float
+    n_database: int
+    database_sha256: str
+    normalisation_sha256: str
+
+    def __post_init__(self) -> None:
+        self.tree = cKDTree(self.points)
+
+    def distance(self, features: np.ndarray) -> np.ndarray:
+        """Nearest-neighbour distance [z units] of each row of ``features``, shape (n,)."""
+        return self.tree.query(features, k=1)[0]
+
+    def outside(self, features: np.ndarray) -> np.ndarray:
+        """True where a state lies beyond ``threshold``, shape (n,) bool."""
+        return self.distance(features) > self.threshold
+
+    def save(self, path: str | Path) -> Path:
+        """Write the index file (format: module docstring); returns the path."""
+        path = Path(path)
+        with open(path, "wb") as f:
+            np.savez(f, points=self.points, threshold=np.float64(self.threshold), quantile=np.float64(self.quantile),
+                     n_database=np.int64(self.n_database), database_sha256=np.str_(self.database_sha256),
+                     n_features=np.int64(self.points.shape[1]),
+                     normalisation_sha256=np.str_(self.normalisation_sha256))
+        return path
+
+
+def build_index(net: MesoNet, db: Database, indexed: np.ndarray, held_out: np.ndarray, *,
+                n_points: int = N_POINTS, quantile: float = QUANTILE, seed: int = 0) -> OodIndex:
+    """Index ``n_points`` unperturbed states drawn from samples ``indexed``; threshold from ``held_out``.
+
+    Perturbed samples (states the DEM relaxes, not states of a path) are left out of both.
+    """
+    rng = np.random.default_rng(seed)
+    indexed = indexed[~db.perturbed[indexed]]
+    held_out = held_out[~db.perturbed[held_out]]
+    if indexed.size == 0 or held_out.size == 0:
+        raise OodError(f"{db.source}: no unperturbed state to index or to set the threshold from")
+    chosen = np.sort(rng.choice(indexed, size=min(n_points, indexed.size), replace=False))
+    index = OodIndex(database_features(net, db, chosen), 0.0, quantile, int(db.n_samples), db.sha256,
+                     normalisation_digest(net))
+    distance = index.distance(database_features(net, db, held_out))
+    index.threshold = float(np.quantile(distance, quantile))
+    return index
+
+
+def load_index(path: str | Path, net: MesoNet) -> OodIndex:
+    """Read an index file written by ``OodIndex.save`` for ``net``; ``OodError`` (one line) if
+    unreadable or built with another network's normalisation."""
+    path = Path(path)
+    keys = ("points", "threshold", "quantile", "n_database", "database_sha256", "n_features", "normalisation_sha256")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            data = {k: f[k] for k in keys}
+    except (OSError, KeyError, ValueError):
+        raise OodError(f"{path}: not a readable out-of-distribution index file") from None
+    if str(data["normalisation_sha256"]) != normalisation_digest(net) or data["points"].ndim != 2:
+        raise OodError(f"{path}: an index built for another model (its normalisation differs); rebuild it: "
+                       f"python -m training.ood --model MODEL --data DATABASE")
+    return OodIndex(np.asarray(data["points"], dtype=np.float64), float(data["threshold"]), float(data["quantile"]),
+                    int(data["n_database"]), str(data["database_sha256"]), str(data["normalisation_sha256"]))
+
+
+def index_for_model(net: MesoNet, config: dict, db: Database) -> OodIndex:
+    """The index of a model trained on ``db`` with training ``config`` (its split: indexed
+    states from the training paths, the threshold from the test paths)."""
+    from training.dataset import split_by_path  # noqa: PLC0415
+
+    split = split_by_path(db, val_fraction=config["val_fraction"], test_fraction=config["test_fraction"],
+                          seed=config["seed"])
+    return build_index(net, db, split.train, split.test, seed=config["seed"])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m training.ood --model M.pt --data DB.h5``: write the model's index file."""
+    from training.checkpoint import load_checkpoint  # noqa: PLC0415
+    from training.dataset import load_database  # noqa: PLC0415
+    from warp_hcell.core.cli import say  # noqa: PLC0415
+
+    parser = argparse.ArgumentParser(prog="python -m training.ood", description=main.__doc__)
+    parser.add_argument("--model", type=Path, required=True, help="trained model (.pt, JSON beside it)")
+    parser.add_argument("--data", type=Path, required=True, help="the learning database it was trained on")
+    args = parser.parse_args(argv)
+    net, meta = load_checkpoint(args.model)
+    db = load_database(args.data)
+    index = index_for_model(net, meta["config"], db)
+    out = index.save(index_path(args.model))
+    say(f"{index.points.shape[0]} states indexed, threshold {index.threshold:.4g} (quantile {index.quantile:g} of "
+        f"held-out states) -> {out}")
+    if db.sha256 != meta.get("training_data", {}).get("sha256"):
+        say(f"note: {args.data} is not the database the model's JSON names (sha256 differs)")
+    return 0
+
+
+if __name__ == "__main__":
+    from warp_hcell.core.cli import run_main  # noqa: PLC0415
+
+    sys.exit(run_main(main))
