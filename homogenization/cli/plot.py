@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Sequence
 
 from homogenization import figures, io
-from warp_hcell.core.cli import Parser, UserError, command_prog, run_main, say, set_verbosity, verbosity_parser
+from warp_hcell.core.cli import Parser, UserError, command_prog, run_main, say, set_verbosity, verbosity_parser, writing_to
 from warp_hcell.core.files import check_output_path
 
 
@@ -76,10 +76,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     slopes = figures.critical_state_lines(runs, [str(path) for path in args.runs], warn) if args.csl else None
     fig = figures.overlay_figure(runs, fourth=args.fourth_panel, deviator=args.deviator, normalise=args.normalise,
                          csl=slopes, title=args.title)
-    try:
+    with writing_to(args.out):
         figures.save_figure(fig, args.out)
-    except OSError as exc:
-        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
     say(f"figure -> {args.out}" + (f" ({csl_summary(slopes)})" if slopes is not None else ""))
     return 0
 

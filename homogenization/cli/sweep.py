@@ -60,7 +60,6 @@ import csv
 import json
 import math
 import os
-import re
 import sys
 import time
 from pathlib import Path
@@ -71,7 +70,7 @@ from matplotlib.figure import Figure
 
 from homogenization import driver, figures, io, run_labels
 from homogenization.cli.options import command_parser
-from homogenization.cli.biaxial import backend_list
+from homogenization.cli.run_files import backend_list
 from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS
 from homogenization.sweep_case import case_task, summarise
 from homogenization.sweep_plan import Case, ModelChoice, plan
@@ -88,6 +87,7 @@ from warp_hcell.core.cli import (
     say,
     set_verbosity,
     task_setup,
+    writing_to,
 )
 from warp_hcell.core.files import atomic_write, check_output_path
 from warp_hcell.core.execution import make_execution, SchedulerUnreachable
@@ -342,11 +342,8 @@ def _prepare_out(out: Path, options: dict[str, Any], *, overwrite: bool) -> None
         check_output_path(out, overwrite=overwrite)
     else:
         check_output_path(out / SWEEP_FILE, overwrite=True)
-    try:
-        with atomic_write(out / SWEEP_FILE) as tmp:
-            tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
-    except OSError as exc:
-        raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
+    with writing_to(out), atomic_write(out / SWEEP_FILE) as tmp:
+        tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -17,7 +17,7 @@ lets Warp print its start-up messages, which ``quiet_warp`` otherwise silences.
 
 ``--device`` is checked while parsing (``device_name``): a CUDA device that this machine
 does not have is one line and exit code 2 before any work. Output files and folders:
-``warp_hcell.core.files``.
+``warp_hcell.core.files``; ``writing_to(path)`` makes a failed write one line.
 """
 
 from __future__ import annotations
@@ -46,6 +46,15 @@ EXIT_USAGE = 2
 
 class UserError(Exception):
     """Bad input that the user can fix; reported as one line with exit code 2."""
+
+
+@contextmanager
+def writing_to(path: Path) -> Iterator[None]:
+    """Turn an ``OSError`` of the body into the one-line ``UserError`` "cannot write to PATH: why"."""
+    try:
+        yield
+    except OSError as exc:
+        raise UserError(f"cannot write to {path}: {exc.strerror or exc}") from None
 
 
 _INVOKED_AS: contextvars.ContextVar[str | None] = contextvars.ContextVar("invoked_as", default=None)
