@@ -71,7 +71,7 @@ from matplotlib.figure import Figure
 from homogenization import driver, figures, io, run_labels
 from homogenization.cli.options import command_parser
 from homogenization.cli.run_files import backend_list
-from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS
+from homogenization.figure_style import LABELS
 from homogenization.sweep_case import case_task, summarise
 from homogenization.sweep_plan import Case, ModelChoice, plan
 from warp_hcell.mesostructures.builders import (
@@ -299,28 +299,17 @@ def summary_figure(path: Path, cases: Sequence[Case], out: Path) -> Path:
 
 def make_summary_figure(runs: Sequence[figures.Run]) -> Figure:
     """q/p0 and p/p0 against eps1 and the (p/p0, q/p0) path of every run; title and legend from their metadata."""
-    fig = Figure(figsize=(15.0, 5.6), layout="constrained")
-    ax_q, ax_p, ax_pq = fig.subplots(1, 3)
     title, labels = run_labels.split_labels([figures.describe_run(run) for run in runs])
-    handles = []
+    curves = []
     for colour, run, label in zip(plotting_colours(len(runs)), runs, labels):
         c = figures.shear_curve(run.record)
         p0 = figures.reference_pressure(run)
-        style = {"color": colour, "lw": 1.0}
-        (line,) = ax_q.plot(100.0 * c.eps1, c.q / p0, label=label or "_nolegend_", **style)
-        ax_p.plot(100.0 * c.eps1, c.p / p0, **style)
-        ax_pq.plot(c.p / p0, c.q / p0, **style)
-        if label:
-            handles.append(line)
-    ax_q.set(xlabel=LABELS["eps1"], ylabel=LABELS["q/p0"], title="deviator")
-    ax_p.set(xlabel=LABELS["eps1"], ylabel=LABELS["p/p0"], title="mean stress")
-    ax_pq.set(xlabel=LABELS["p/p0"], ylabel=LABELS["q/p0"], title="stress path")
-    for ax in (ax_q, ax_p, ax_pq):
-        ax.grid(True, **GRID)
-    if handles:
-        figure_legend(fig, handles)
-    fig.suptitle(f"sweep: {title} (compression positive)" if title else "sweep (compression positive)")
-    return apply_style(fig)
+        curves.append((label, {"color": colour, "lw": 1.0},
+                       ((100.0 * c.eps1, c.q / p0), (100.0 * c.eps1, c.p / p0), (c.p / p0, c.q / p0))))
+    panels = ((LABELS["eps1"], LABELS["q/p0"], "deviator"), (LABELS["eps1"], LABELS["p/p0"], "mean stress"),
+              (LABELS["p/p0"], LABELS["q/p0"], "stress path"))
+    return figures.panel_figure(curves, panels, figsize=(15.0, 5.6),
+                                title=f"sweep: {title} (compression positive)" if title else "sweep (compression positive)")
 
 
 def plotting_colours(n: int) -> list:
