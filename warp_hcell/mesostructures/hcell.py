@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from itertools import combinations
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -287,17 +287,27 @@ def plain_alpha0(meso: Mesostructure) -> tuple[float, float] | None:
     The closed-form backends model exactly this cell; the comparison is to 1e-9 of the
     grain radius on positions, cell size, driven flags, pairs, labels and outer polygon.
     """
-    if meso.n_grains != N_GRAINS or not np.allclose(meso.radius, meso.radius[0], rtol=1e-12, atol=0.0):
+    return _plain(meso, N_GRAINS, h_cell)
+
+
+def _plain(meso: Mesostructure, n_grains: int, build: Callable[[float, float], Mesostructure]
+           ) -> tuple[float, float] | None:
+    """(alpha0_deg, radius [m]) if ``meso`` has ``n_grains`` equal grains and is the cell that
+    ``build(alpha0_deg, radius)`` builds at its declared alpha0: the same dimension, positions
+    and cell size to 1e-9 of the radius, driven flags, outer polygon and labelled pairs (in any
+    order); else None (also where ``build`` refuses the angle)."""
+    if meso.n_grains != n_grains or not np.allclose(meso.radius, meso.radius[0], rtol=1e-12, atol=0.0):
         return None
     alpha0 = meso.parameters.get("alpha0_deg")
     if alpha0 is None:
         return None
     radius = float(meso.radius[0])
     try:
-        reference = h_cell(alpha0, radius)
+        reference = build(alpha0, radius)
     except ValueError:
         return None
-    same = (np.allclose(meso.position, reference.position, rtol=0.0, atol=1e-9 * radius)
+    same = (meso.dim == reference.dim
+            and np.allclose(meso.position, reference.position, rtol=0.0, atol=1e-9 * radius)
             and np.allclose(meso.cell_size, reference.cell_size, rtol=0.0, atol=1e-9 * radius)
             and np.array_equal(meso.driven, reference.driven) and np.array_equal(meso.outer, reference.outer)
             and {tuple(p): t for p, t in zip(meso.pairs.tolist(), meso.pair_label.tolist())}
@@ -650,19 +660,4 @@ def plain_alpha0_3d(meso: Mesostructure) -> tuple[float, float] | None:
     The closed-form 3D backend models exactly this cell; compared to 1e-9 of the radius like
     ``plain_alpha0``.
     """
-    if meso.dim != 3 or meso.n_grains != H3_GRAINS or not np.allclose(meso.radius, meso.radius[0], rtol=1e-12,
-                                                                      atol=0.0):
-        return None
-    alpha0 = meso.parameters.get("alpha0_deg")
-    if alpha0 is None:
-        return None
-    radius = float(meso.radius[0])
-    try:
-        reference = build_h_cell_3d(alpha0, radius=radius)
-    except (ValueError, MesostructureError):
-        return None
-    same = (np.allclose(meso.position, reference.position, rtol=0.0, atol=1e-9 * radius)
-            and np.allclose(meso.cell_size, reference.cell_size, rtol=0.0, atol=1e-9 * radius)
-            and np.array_equal(meso.driven, reference.driven) and np.array_equal(meso.outer, reference.outer)
-            and np.array_equal(meso.pairs, reference.pairs) and np.array_equal(meso.pair_label, reference.pair_label))
-    return (alpha0, radius) if same else None
+    return _plain(meso, H3_GRAINS, lambda alpha0, radius: build_h_cell_3d(alpha0, radius=radius))
