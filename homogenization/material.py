@@ -118,7 +118,7 @@ class _HomogenisedMaterialBase:
     dim: int
     n_voigt: int
 
-    def __init__(self, cell_model: CellModel, orient: Any,
+    def __init__(self, cell_model: CellModel, orient: orient_mod.OrientationSet,
                  mesostructure: Mesostructure | Sequence[Mesostructure], n_points: int) -> None:
         if int(n_points) < 1:
             raise ValueError(f"n_points = {n_points} must be >= 1")
@@ -137,7 +137,7 @@ class _HomogenisedMaterialBase:
         self.returns_tangent = "with_tangent" in inspect.signature(cell_model.step).parameters
         """Whether the backend's step takes ``with_tangent`` (plain updates work without it)."""
 
-    def _localisation(self, orient: Any) -> np.ndarray:
+    def _localisation(self, orient: orient_mod.OrientationSet) -> np.ndarray:
         raise NotImplementedError
 
     def _cell_tangent_average(self, C: np.ndarray) -> np.ndarray:
