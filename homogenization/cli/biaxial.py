@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
@@ -45,16 +44,8 @@ from typing import Any, Sequence
 from homogenization import driver, figures, loading
 from homogenization.cli import plot
 from homogenization.cli.options import add_alpha0_argument, add_cell_arguments, command_parser
-from homogenization.cli.run_files import (
-    backend_list,
-    backend_options,
-    backend_parameters,
-    check_models_take,
-    check_run,
-    explicit_flags,
-    write_backend_run,
-)
-from homogenization.backends import BACKENDS, make_cell_model
+from homogenization.cli.run_files import backend_list, build_models, check_run, explicit_flags, run_backends
+from homogenization.backends import BACKENDS
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -196,29 +187,18 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     meso = run_mesostructure(args)
     with output_lock(out):
-        # build every backend and a cell of the mesostructure first, so that a missing model
-        # file or a mesostructure a backend does not model fails before any run
-        options = {name: backend_options(args, name) for name in args.backend}
-        models = {name: make_cell_model(name, contact_law=law, radius=args.radius, **options[name])
-                  for name in args.backend}
-        check_models_take(models, meso)
-        runs: dict[str, figures.Run] = {}
-        written: list[str] = []  # status lines, printed once the folder is in place
+        models, options = build_models(args, law, meso)
         drained = figures.is_drained({"drained": args.drained or None}, programme)
+        p0 = next((s.stop_at_p for s in programme if s.stop_at_p is not None), None)
         with output_folder(out) as work:
-            for name, model in models.items():
-                start = time.perf_counter()
-                try:
-                    record = driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,
-                                        fabric_anisotropy=args.fabric_anisotropy,
-                                        fabric_direction_deg=args.fabric_direction,
-                                        snapshot_interval=args.snapshot_interval or 0)
-                except driver.ControlError as exc:
-                    raise UserError(f"{name}: {exc}") from None
-                elapsed = time.perf_counter() - start
-                parameters = {
-                    **backend_parameters(name, model, options[name], law, args.radius, meso),
-                    "p0": next((s.stop_at_p for s in programme if s.stop_at_p is not None), None),
+            records, stored, written = run_backends(
+                args, models, options, law, meso,
+                run=lambda model: driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,
+                                             fabric_anisotropy=args.fabric_anisotropy,
+                                             fabric_direction_deg=args.fabric_direction,
+                                             snapshot_interval=args.snapshot_interval or 0),
+                parameters=lambda record: {
+                    "p0": p0,
                     **settings,
                     "n_orientations": args.orientations,
                     "fabric_anisotropy": args.fabric_anisotropy,
@@ -226,11 +206,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "drained": drained,
                     "stress_rtol": LoadingDefaults.stress_rtol,
                     "mesostructure": args.mesostructure.text if args.mesostructure is not None else None,
-                }
-                written.append(write_backend_run(work, out, name, record, parameters, several=len(args.backend) > 1,
-                                                 seed=args.seed, command=command, elapsed=elapsed))
-                runs[name] = figures.Run(record, parameters)
-
+                },
+                work=work, command=command)
+            runs = {name: figures.Run(record, stored[name]) for name, record in records.items()}
             slopes = (figures.critical_state_lines(list(runs.values()), list(runs), warn) if args.csl else None)
             fig = figures.overlay_figure(list(runs.values()), fourth=args.fourth_panel, deviator=args.deviator,
                                           normalise=args.normalise, csl=slopes)

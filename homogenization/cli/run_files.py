@@ -9,18 +9,21 @@ folder, the parameters and the status line of each backend's run.
 - ``check_replaceable(out, figure_file)``: DIR holds nothing but what the command writes;
 - ``backend_parameters(...)``: the first entries of a run's stored parameters (backend, its
   options and provenance, contact law, radius, alpha0);
-- ``write_backend_run(...)``: run.h5 and curve.csv of one backend, and its status line.
+- ``write_backend_run(...)``: run.h5 and curve.csv of one backend, and its status line;
+- ``build_models(...)`` and ``run_backends(...)``: every backend built and checked before any
+  run, then run, stored and reported one after the other.
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
-from homogenization import io
-from homogenization.backends import backend_class, BACKENDS
+from homogenization import driver, io
+from homogenization.backends import backend_class, BACKENDS, make_cell_model
 from homogenization.driver import Record
 from warp_hcell.core.cli import quiet_warp, UserError, writing_to
 from warp_hcell.core.files import check_output_path
@@ -182,3 +185,53 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
     if cross is not None and cross.sum():
         note += f", cross-plane contacts outside the closed form in {int(cross.sum())} cell-increments"
     return f"{name}: {record.n_increments} increments in {elapsed:.1f} s{note} -> {final / io.RUN_FILE}, {final / io.CURVE_FILE}"
+
+
+def build_models(args: argparse.Namespace, law: ContactLaw, meso: Mesostructure,
+                 **model_options: Any) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """(model, options) of every --backend, by name; each built with ``law``, --radius,
+    ``model_options`` and its own flags, and checked to build a cell of ``meso``, so that a
+    missing model file or a mesostructure a backend does not model fails before any run."""
+    options = {name: backend_options(args, name) for name in args.backend}
+    models = {name: make_cell_model(name, contact_law=law, radius=args.radius, **model_options, **options[name])
+              for name in args.backend}
+    check_models_take(models, meso)
+    return models, options
+
+
+def run_backends(args: argparse.Namespace, models: dict[str, Any], options: dict[str, dict[str, Any]],
+                 law: ContactLaw, meso: Mesostructure, run: Callable[[Any], Record],
+                 parameters: Callable[[Record], dict[str, Any]], *, work: Path, command: str
+                 ) -> tuple[dict[str, Record], dict[str, dict[str, Any]], list[str]]:
+    """Run every backend, one after the other, and write its run files into ``work``.
+
+    Args:
+        args: the command's arguments (--backend, --radius, --seed, --out).
+        models, options: from ``build_models``.
+        law, meso: the contact law and the cell of the run.
+        run: ``run(model)`` -> the backend's ``driver.Record``.
+        parameters: the command's stored parameters of a record, after ``backend_parameters``.
+        work: the folder being written (``output_folder``); command: the command line stored.
+
+    Returns:
+        (records, stored parameters, status lines), by backend name.
+
+    Raises:
+        UserError: a ``driver.ControlError`` of a backend (one line naming it), or a folder
+            that cannot be written.
+    """
+    records: dict[str, Record] = {}
+    stored: dict[str, dict[str, Any]] = {}
+    written: list[str] = []
+    for name, model in models.items():
+        start = time.perf_counter()
+        try:
+            record = run(model)
+        except driver.ControlError as exc:
+            raise UserError(f"{name}: {exc}") from None
+        elapsed = time.perf_counter() - start
+        stored[name] = {**backend_parameters(name, model, options[name], law, args.radius, meso), **parameters(record)}
+        written.append(write_backend_run(work, args.out, name, record, stored[name], several=len(models) > 1,
+                                         seed=args.seed, command=command, elapsed=elapsed))
+        records[name] = record
+    return records, stored, written

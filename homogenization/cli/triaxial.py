@@ -29,23 +29,14 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
 from homogenization import driver, figures, loading
-from homogenization.backends import BACKENDS, make_cell_model
+from homogenization.backends import BACKENDS
 from homogenization.cli.options import add_alpha0_argument, add_cell_arguments, command_parser
-from homogenization.cli.run_files import (
-    backend_list,
-    backend_options,
-    backend_parameters,
-    check_models_take,
-    check_run,
-    explicit_flags,
-    write_backend_run,
-)
+from homogenization.cli.run_files import backend_list, build_models, check_run, explicit_flags, run_backends
 from homogenization.orientation3d import LEBEDEV_ORDERS
 from warp_hcell.core.cli import (
     UserError,
@@ -211,23 +202,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.verbose:
         say(f"programme: {loading.to_dict(programme)}", f"contact law: {asdict(law)}, radius {args.radius:g} m")
     with output_lock(out):
-        options = {name: backend_options(args, name) for name in args.backend}
-        models = {name: make_cell_model(name, contact_law=law, radius=args.radius, dim=3, **options[name])
-                  for name in args.backend}
-        check_models_take(models, meso)
-        runs: dict[str, Any] = {}
-        written: list[str] = []
+        models, options = build_models(args, law, meso, dim=3)
         with output_folder(out) as work:
-            for name, model in models.items():
-                start = time.perf_counter()
-                try:
-                    record = driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
-                                        n_spins=args.spins, spin_period_deg=spin_period)
-                except driver.ControlError as exc:
-                    raise UserError(f"{name}: {exc}") from None
-                elapsed = time.perf_counter() - start
-                parameters = {
-                    **backend_parameters(name, model, options[name], law, args.radius, meso),
+            runs, _, written = run_backends(
+                args, models, options, law, meso,
+                run=lambda model: driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
+                                             n_spins=args.spins, spin_period_deg=spin_period),
+                parameters=lambda record: {
                     **settings,
                     "lebedev_order": args.order,
                     "n_spins": args.spins,
@@ -235,10 +216,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "n_orientations": record.weights.size,
                     "stress_rtol": LoadingDefaults.stress_rtol,
                     "mesostructure": args.mesostructure.text if args.mesostructure is not None else DEFAULT_MESOSTRUCTURE,
-                }
-                written.append(write_backend_run(work, out, name, record, parameters, several=len(args.backend) > 1,
-                                                 seed=args.seed, command=command, elapsed=elapsed))
-                runs[name] = record
+                },
+                work=work, command=command)
             title = f"{meso.name}, p0 = {args.p0:g} Pa, {settings.get('test', 'programme')}"
             fig = figures.triaxial_figure(runs, title=title)
             with writing_to(out):
