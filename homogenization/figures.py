@@ -37,7 +37,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from homogenization import invariants, io, run_labels
+from homogenization import invariants, run_labels
 from homogenization.driver import Record
 from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS, PNG_DPI
 from warp_hcell.core.cli import UserError
@@ -163,27 +163,48 @@ def triaxial_figure(runs: Mapping[str, Record], *, title: str | None = None) -> 
     (p, q), (eps_a, q), (eps_a, eps_v) (module docstring); one legend below the panels."""
     if not runs:
         raise ValueError("nothing to plot: no runs given")
-    fig = Figure(figsize=(14.0, 4.8), layout="constrained")
-    ax_pq, ax_q, ax_v = fig.subplots(1, 3)
-    handles = []
+    curves = []
     for i, (label, record) in enumerate(runs.items()):
         c = triaxial_curve(record)
-        style = {"label": label or "_nolegend_", "linestyle": LINE_STYLES[i % len(LINE_STYLES)]}
-        (line,) = ax_pq.plot(c.p, c.q, **style)
+        curves.append((label, {"linestyle": LINE_STYLES[i % len(LINE_STYLES)]},
+                       ((c.p, c.q), (100.0 * c.eps_a, c.q), (100.0 * c.eps_a, 100.0 * c.eps_v))))
+    panels = ((TRIAXIAL_LABELS["p"], TRIAXIAL_LABELS["q"], "stress path"),
+              (TRIAXIAL_LABELS["eps_a"], TRIAXIAL_LABELS["q"], "deviator"),
+              (TRIAXIAL_LABELS["eps_a"], TRIAXIAL_LABELS["eps_v"], "volumetric strain (contraction > 0)"))
+    return panel_figure(curves, panels, figsize=(14.0, 4.8),
+                        title=title + " (compression positive)" if title else None)
+
+
+def panel_figure(curves: Sequence[tuple[str | None, Mapping[str, Any], Sequence[tuple[np.ndarray, np.ndarray]]]],
+                 panels: Sequence[tuple[str, str, str]], *, figsize: tuple[float, float],
+                 title: str | None = None) -> Figure:
+    """Panels side by side, every curve drawn in each; one legend below them.
+
+    Args:
+        curves: (label, line style, one (x, y) per panel) per curve; a curve keeps the colour
+            of its first panel in the others; an empty or None label leaves it out of the legend.
+        panels: (x label, y label, title) per panel.
+        figsize: the figure's size [in].
+        title: the figure's title (None: none).
+    """
+    fig = Figure(figsize=figsize, layout="constrained")
+    axes = fig.subplots(1, len(panels))
+    handles = []
+    for label, line_style, xy in curves:
+        style = dict(line_style)
+        (line,) = axes[0].plot(*xy[0], label=label or "_nolegend_", **style)
         style["color"] = line.get_color()
-        ax_q.plot(100.0 * c.eps_a, c.q, **style)
-        ax_v.plot(100.0 * c.eps_a, 100.0 * c.eps_v, **style)
+        for ax, (x, y) in zip(axes[1:], xy[1:]):
+            ax.plot(x, y, **style)
         if label:
             handles.append(line)
-    ax_pq.set(xlabel=TRIAXIAL_LABELS["p"], ylabel=TRIAXIAL_LABELS["q"], title="stress path")
-    ax_q.set(xlabel=TRIAXIAL_LABELS["eps_a"], ylabel=TRIAXIAL_LABELS["q"], title="deviator")
-    ax_v.set(xlabel=TRIAXIAL_LABELS["eps_a"], ylabel=TRIAXIAL_LABELS["eps_v"], title="volumetric strain (contraction > 0)")
-    for ax in (ax_pq, ax_q, ax_v):
+    for ax, (xlabel, ylabel, panel_title) in zip(axes, panels):
+        ax.set(xlabel=xlabel, ylabel=ylabel, title=panel_title)
         ax.grid(True, **GRID)
     if handles:
         figure_legend(fig, handles)
     if title:
-        fig.suptitle(title + " (compression positive)")
+        fig.suptitle(title)
     return apply_style(fig)
 
 

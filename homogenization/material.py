@@ -96,23 +96,29 @@ def voigt_localisation(orient: orient_mod.Orientations) -> np.ndarray:
     return G
 
 
-class HomogenisedMaterial:
-    """A batch of H-model material points, each with its own cells (see the module docstring).
+class _HomogenisedMaterialBase:
+    """What a batch of material points does in either dimension (the module docstring).
+
+    A subclass sets ``dim``, the number ``n_voigt`` of macro components, the localisation
+    ``self.L`` [-], shape (N, dim, n_voigt), in ``_localisation`` and the averaged cell
+    tangent in ``_cell_tangent_average``.
 
     Args:
-        cell_model: any ``CellModel``; ``update(..., with_tangent=True)`` needs one whose step
-            takes ``with_tangent`` (ValueError otherwise); plain updates call ``step`` without it.
+        cell_model: any ``CellModel`` of cells of dimension ``dim``; ``update(...,
+            with_tangent=True)`` needs one whose step takes ``with_tangent`` (ValueError
+            otherwise); plain updates call ``step`` without it.
         orient: orientations and fabric weights shared by every point.
         mesostructure: the cell of every point, or a sequence of n_points, one per point (a
             weaker zone of a specimen has its own, e.g. an H-cell of larger alpha0), all of one
-            topology; every cell of a point starts from the point's mesostructure.
+            topology and of dimension ``dim``; every cell of a point starts from the point's
+            mesostructure.
         n_points: number of material points.
     """
 
-    dim = 2
-    """Spatial dimension: plane strain, three Voigt components."""
+    dim: int
+    n_voigt: int
 
-    def __init__(self, cell_model: CellModel, orient: orient_mod.Orientations,
+    def __init__(self, cell_model: CellModel, orient: orient_mod.OrientationSet,
                  mesostructure: Mesostructure | Sequence[Mesostructure], n_points: int) -> None:
         if int(n_points) < 1:
             raise ValueError(f"n_points = {n_points} must be >= 1")
@@ -121,11 +127,21 @@ class HomogenisedMaterial:
         self.n_points = int(n_points)
         self.mesostructures, self.point_mesostructure = per_cell(mesostructure, self.n_points)
         """Distinct mesostructures, and the index of each point's one, shape (n_points,)."""
-        self.G = voigt_localisation(orient)
-        self.wGT = np.ascontiguousarray((orient.weights[:, None, None] * self.G).reshape(-1, 3).T)
+        for meso in self.mesostructures:
+            if getattr(meso, "dim", 2) != self.dim:
+                raise ValueError(f"mesostructure {meso.name!r} has dimension {getattr(meso, 'dim', 2)}; "
+                                 f"a material of dimension {self.dim} needs cells of dimension {self.dim}")
+        self.L = self._localisation(orient)
+        """L_k [-], shape (N, dim, n_voigt): the cell's normal strains = L_k @ d_e."""
         self.V0 = np.zeros(self.n_points)
         self.returns_tangent = "with_tangent" in inspect.signature(cell_model.step).parameters
         """Whether the backend's step takes ``with_tangent`` (plain updates work without it)."""
+
+    def _localisation(self, orient: orient_mod.OrientationSet) -> np.ndarray:
+        raise NotImplementedError
+
+    def _cell_tangent_average(self, C: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
 
     @property
     def n_cells(self) -> int:
@@ -140,27 +156,30 @@ class HomogenisedMaterial:
         else:
             cells = self.model.init_state([self.mesostructures[k] for k in np.repeat(self.point_mesostructure, n)],
                                           self.n_cells)
-        area = self.model.response(cells).area.reshape(self.n_points, n)
-        self.V0 = area @ self.orient.weights
-        zeros = np.zeros((self.n_points, 3))
+        volume = self.model.response(cells).area.reshape(self.n_points, n)
+        self.V0 = volume @ self.orient.weights
+        zeros = np.zeros((self.n_points, self.n_voigt))
         return MaterialState(cells, np.ones(self.n_points), zeros, zeros.copy())
 
     def localise(self, d_e: np.ndarray) -> np.ndarray:
-        """Per-cell (d_eps_n, d_eps_t) [-], shape (n_cells, 2), of Voigt increments d_e (n_points, 3)."""
-        return np.einsum("kai,pi->pka", self.G, d_e).reshape(self.n_cells, 2)
+        """Per-cell normal strains along the cell's axes [-], shape (n_cells, dim), of d_e (n_points, n_voigt)."""
+        return np.einsum("kai,pi->pka", self.L, d_e).reshape(self.n_cells, self.dim)
 
     def update(self, state: MaterialState, d_e: np.ndarray, *, with_tangent: bool = True) -> MaterialUpdate:
         """Advance every point by its macro strain increment (one batched cell step); pure.
 
         Args:
             state: the material state at the start of the increment.
-            d_e: (d_eps11, d_eps22, d_gamma12) [-], shape (n_points, 3), compression positive.
-            with_tangent: also return the consistent tangent.
+            d_e: macro strain increments [-], shape (n_points, n_voigt), compression positive
+                (2D: (d_eps11, d_eps22, d_gamma12); 3D: (d_eps11, d_eps22, d_eps33, d_eps23,
+                d_eps13, d_eps12), tensor shear components).
+            with_tangent: also return the consistent tangent d sigma / d(d_e), shape
+                (n_points, n_voigt, n_voigt).
 
         Returns:
             The ``MaterialUpdate``.
         """
-        d_e = np.asarray(d_e, dtype=np.float64).reshape(self.n_points, 3)
+        d_e = np.asarray(d_e, dtype=np.float64).reshape(self.n_points, self.n_voigt)
         d_local = self.localise(d_e)
         if with_tangent:
             if not self.returns_tangent:
@@ -170,117 +189,71 @@ class HomogenisedMaterial:
         else:
             cells, response = self.model.step(state.cells, d_local)
         n = self.orient.n_cells
-        factor = (1.0 - d_e[:, 0]) * (1.0 - d_e[:, 1])
+        factor = 1.0 - d_e[:, 0]
+        for a in range(1, self.dim):
+            factor = factor * (1.0 - d_e[:, a])
         J = state.J * factor
         V = self.V0 * J
-        moment = np.ascontiguousarray(response.moment).reshape(self.n_points, 4 * n)
+        moment = np.ascontiguousarray(response.moment).reshape(self.n_points, self.dim * self.dim * n)
         # einsum without BLAS: a point's stress does not depend on the batch, bit for bit
         stress = np.einsum("pm,im->pi", moment, self.orient.averaging) / V[:, None]
         tangent = None
         if with_tangent:
             if response.tangent is None:
                 raise ValueError(f"cell model {getattr(self.model, 'name', self.model)!r} returned no tangent")
-            C = response.tangent.reshape(self.n_points, n, 2, 2)
-            # C_k G_k, then the weighted sum of G_k^T (.) over cells and components as one
-            # stacked matmul per point (per-point products: batch invariant)
-            CG = C[..., :, 0, None] * self.G[None, :, 0, None, :] + C[..., :, 1, None] * self.G[None, :, 1, None, :]
-            tangent = self.wGT @ CG.reshape(self.n_points, 2 * n, 3) / V[:, None, None]
-            volume = np.zeros((self.n_points, 3))
-            volume[:, 0] = 1.0 / (1.0 - d_e[:, 0])
-            volume[:, 1] = 1.0 / (1.0 - d_e[:, 1])
+            C = np.asarray(response.tangent).reshape(self.n_points, n, self.dim, self.dim)
+            tangent = self._cell_tangent_average(C) / V[:, None, None]
+            volume = np.zeros((self.n_points, self.n_voigt))
+            volume[:, :self.dim] = 1.0 / (1.0 - d_e[:, :self.dim])
             tangent += stress[:, :, None] * volume[:, None, :]
         new = MaterialState(cells, J, state.strain + d_e, stress)
         return MaterialUpdate(new, stress, tangent, dict(response.diagnostics))
 
 
-class HomogenisedMaterial3D:
-    """A batch of 3D H-model material points (module docstring), the counterpart of ``HomogenisedMaterial``.
+class HomogenisedMaterial(_HomogenisedMaterialBase):
+    """A batch of plane-strain H-model material points (module docstring); Voigt components.
 
-    Args:
-        cell_model: a ``CellModel`` of cells of dimension 3 (local strains (n_cells, 3), moments
-            (n_cells, 3, 3), volume in ``response.area``).
-        orient: ``orientation3d.Orientations3D`` shared by every point.
-        mesostructure: the cell of every point (dimension 3), or one per point.
-        n_points: number of material points.
+    Args: those of ``_HomogenisedMaterialBase``, with ``orient`` an ``orientation.Orientations``.
+    """
+
+    dim = 2
+    """Spatial dimension: plane strain, three Voigt components."""
+    n_voigt = 3
+
+    def _localisation(self, orient: orient_mod.Orientations) -> np.ndarray:
+        G = voigt_localisation(orient)
+        self.wGT = np.ascontiguousarray((orient.weights[:, None, None] * G).reshape(-1, 3).T)
+        """w_k G_k^T stacked over cells and components [-], shape (3, 2 N)."""
+        return G
+
+    def _cell_tangent_average(self, C: np.ndarray) -> np.ndarray:
+        """sum_k w_k G_k^T C_k G_k [N/m], shape (n_points, 3, 3), of C (n_points, N, 2, 2)."""
+        G = self.L
+        # C_k G_k, then the weighted sum of G_k^T (.) over cells and components as one
+        # stacked matmul per point (per-point products: batch invariant)
+        CG = C[..., :, 0, None] * G[None, :, 0, None, :] + C[..., :, 1, None] * G[None, :, 1, None, :]
+        return self.wGT @ CG.reshape(self.n_points, 2 * self.orient.n_cells, 3)
+
+
+class HomogenisedMaterial3D(_HomogenisedMaterialBase):
+    """A batch of 3D H-model material points (module docstring); six tensor components.
+
+    Args: those of ``_HomogenisedMaterialBase``, with ``orient`` an
+    ``orientation3d.Orientations3D`` and cells of dimension 3 (local strains (n_cells, 3),
+    moments (n_cells, 3, 3), volume [m^3] in ``response.area``).
     """
 
     dim = 3
     """Spatial dimension: six tensor components."""
+    n_voigt = 6
 
-    def __init__(self, cell_model: CellModel, orient: orientation3d.Orientations3D,
-                 mesostructure: Mesostructure | Sequence[Mesostructure], n_points: int) -> None:
-        if int(n_points) < 1:
-            raise ValueError(f"n_points = {n_points} must be >= 1")
-        self.model = cell_model
-        self.orient = orient
-        self.n_points = int(n_points)
-        self.mesostructures, self.point_mesostructure = per_cell(mesostructure, self.n_points)
-        for meso in self.mesostructures:
-            if getattr(meso, "dim", 2) != 3:
-                raise ValueError(f"mesostructure {meso.name!r} is a planar cell; a 3D material needs cells of dimension 3")
+    def _localisation(self, orient: orientation3d.Orientations3D) -> np.ndarray:
         n = orient.n_cells
-        self.L = orient.localisation.reshape(n, 3, 6)
-        """L_k [-], shape (N, 3, 6)."""
         self.A = np.ascontiguousarray(np.diagonal(orient.averaging.reshape(6, n, 3, 3), axis1=2, axis2=3))
         """w_k A_k [-], shape (6, N, 3): macro components of w_k R_k e_a e_a R_k^T."""
-        self.V0 = np.zeros(self.n_points)
-        self.returns_tangent = "with_tangent" in inspect.signature(cell_model.step).parameters
+        return orient.localisation.reshape(n, 3, 6)
 
-    @property
-    def n_cells(self) -> int:
-        """Cells stepped per update: n_points * n_orientations."""
-        return self.n_points * self.orient.n_cells
-
-    def init_state(self) -> MaterialState:
-        """Touching, force-free cells at every point; sets V0 = sum_k w_k V_cell,k [m^3] per point."""
-        n = self.orient.n_cells
-        if len(self.mesostructures) == 1:
-            cells = self.model.init_state(self.mesostructures[0], self.n_cells)
-        else:
-            cells = self.model.init_state([self.mesostructures[k] for k in np.repeat(self.point_mesostructure, n)],
-                                          self.n_cells)
-        volume = self.model.response(cells).area.reshape(self.n_points, n)
-        self.V0 = volume @ self.orient.weights
-        zeros = np.zeros((self.n_points, 6))
-        return MaterialState(cells, np.ones(self.n_points), zeros, zeros.copy())
-
-    def localise(self, d_e: np.ndarray) -> np.ndarray:
-        """Per-cell (d_eps_n, d_eps_t1, d_eps_t2) [-], shape (n_cells, 3), of increments d_e (n_points, 6)."""
-        return np.einsum("kai,pi->pka", self.L, d_e).reshape(self.n_cells, 3)
-
-    def update(self, state: MaterialState, d_e: np.ndarray, *, with_tangent: bool = True) -> MaterialUpdate:
-        """Advance every point by its macro strain increment (one batched cell step); pure.
-
-        Args:
-            state: the material state at the start of the increment.
-            d_e: (d_eps11, d_eps22, d_eps33, d_eps23, d_eps13, d_eps12) [-], shape (n_points, 6),
-                tensor shear components, compression positive.
-            with_tangent: also return the consistent tangent d sigma / d(d_e) [Pa], (n_points, 6, 6).
-        """
-        d_e = np.asarray(d_e, dtype=np.float64).reshape(self.n_points, 6)
-        d_local = self.localise(d_e)
-        if with_tangent:
-            if not self.returns_tangent:
-                raise ValueError(f"cell model {getattr(self.model, 'name', self.model)!r} returns no consistent "
-                                 f"tangent (its step takes no with_tangent)")
-            cells, response = self.model.step(state.cells, d_local, with_tangent=True)
-        else:
-            cells, response = self.model.step(state.cells, d_local)
-        n = self.orient.n_cells
-        J = state.J * ((1.0 - d_e[:, 0]) * (1.0 - d_e[:, 1]) * (1.0 - d_e[:, 2]))
-        V = self.V0 * J
-        moment = np.ascontiguousarray(response.moment).reshape(self.n_points, 9 * n)
-        # einsum without BLAS: a point's stress does not depend on the batch, bit for bit
-        stress = np.einsum("pm,im->pi", moment, self.orient.averaging) / V[:, None]
-        tangent = None
-        if with_tangent:
-            if response.tangent is None:
-                raise ValueError(f"cell model {getattr(self.model, 'name', self.model)!r} returned no tangent")
-            C = np.asarray(response.tangent).reshape(self.n_points, n, 3, 3)
-            CL = np.einsum("pkab,kbj->pkaj", C, self.L)
-            tangent = np.einsum("ika,pkaj->pij", self.A, CL) / V[:, None, None]
-            volume = np.zeros((self.n_points, 6))
-            volume[:, :3] = 1.0 / (1.0 - d_e[:, :3])
-            tangent += stress[:, :, None] * volume[:, None, :]
-        new = MaterialState(cells, J, state.strain + d_e, stress)
-        return MaterialUpdate(new, stress, tangent, dict(response.diagnostics))
+    def _cell_tangent_average(self, C: np.ndarray) -> np.ndarray:
+        """sum_k w_k A_k C_k L_k [Pa], shape (n_points, 6, 6), of C (n_points, N, 3, 3)."""
+        CL = np.einsum("pkab,kbj->pkaj", C, self.L)
+        return np.einsum("ika,pkaj->pij", self.A, CL)

@@ -27,8 +27,31 @@ VOLUME_RULE = (
 
 
 @dataclass(frozen=True, eq=False)
-class Orientations:
-    """A set of N cell orientations with fabric weights, plus precomputed rotation factors.
+class OrientationSet:
+    """N oriented cells with their weights and the matrices that localise and average, in
+    either dimension (``Orientations`` in the plane, ``orientation3d.Orientations3D``).
+
+    Attributes:
+        weights: w_k [-], shape (N,), summing to 1.
+        localisation: L [-], shape (dim N, n_c) with n_c = 3 (2D) or 6 (3D) macro components:
+            ``(L @ d_eps).reshape(N, dim)`` are the normal strains along each cell's axes.
+        averaging: A [-], shape (n_c, dim^2 N): ``A @ moment.reshape(-1)`` is the weighted macro
+            moment of per-cell moments ``moment`` (N, dim, dim) in the cell frames.
+    """
+
+    weights: np.ndarray
+    localisation: np.ndarray
+    averaging: np.ndarray
+
+    @property
+    def n_cells(self) -> int:
+        """Number of oriented cells N."""
+        return int(self.weights.shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class Orientations(OrientationSet):
+    """A set of N cell orientations in the plane with fabric weights (``OrientationSet``).
 
     Build it with ``orientations``. Arrays are read-only.
 
@@ -44,14 +67,6 @@ class Orientations:
     """
 
     theta: np.ndarray
-    weights: np.ndarray
-    localisation: np.ndarray
-    averaging: np.ndarray
-
-    @property
-    def n_cells(self) -> int:
-        """Number of orientations N (one cell each)."""
-        return int(self.theta.shape[0])
 
 
 def fabric_weights(theta: np.ndarray, anisotropy: float = 0.0, direction_deg: float = 0.0) -> np.ndarray:
@@ -99,47 +114,50 @@ def orientations(n_orientations: int, *, anisotropy: float = 0.0, direction_deg:
     avg[2] = np.stack([sc, 0.5 * (cc - ss), 0.5 * (cc - ss), -sc], axis=1).reshape(n, 2, 2)
     avg *= w[None, :, None, None]
 
-    arrays = [theta, w, loc.reshape(2 * n, 3), avg.reshape(3, 4 * n)]
-    for a in arrays:
+    arrays = {"theta": theta, "weights": w, "localisation": loc.reshape(2 * n, 3), "averaging": avg.reshape(3, 4 * n)}
+    for a in arrays.values():
         a.flags.writeable = False
-    return Orientations(*arrays)
+    return Orientations(**arrays)
 
 
-def localise(orient: Orientations, d_eps: np.ndarray) -> np.ndarray:
+def localise(orient: OrientationSet, d_eps: np.ndarray) -> np.ndarray:
     """Per-cell local strain increments of a macro strain increment (spec section 3).
 
     Args:
-        orient: the orientation set.
-        d_eps: macro increment (d_eps11, d_eps22, d_eps12) [-], shape (3,), compression
-            positive (tensor shear component).
+        orient: the orientation set (either dimension).
+        d_eps: macro increment [-], compression positive, tensor shear components:
+            (d_eps11, d_eps22, d_eps12), shape (3,), in 2D; the six ``orientation3d.COMPONENTS``
+            in 3D.
 
     Returns:
-        (d_eps_n, d_eps_t) [-], shape (N, 2), compression positive; the shear n.d_eps.t is
-        dropped (model hypothesis).
+        The normal strains along each cell's axes [-], shape (N, dim) ((d_eps_n, d_eps_t) in
+        2D), compression positive; the shears are dropped (model hypothesis).
     """
-    return (orient.localisation @ np.asarray(d_eps, dtype=np.float64)).reshape(orient.n_cells, 2)
+    return (orient.localisation @ np.asarray(d_eps, dtype=np.float64)).reshape(orient.n_cells, -1)
 
 
-def average_moment(orient: Orientations, moment: np.ndarray) -> np.ndarray:
+def average_moment(orient: OrientationSet, moment: np.ndarray) -> np.ndarray:
     """Weighted sum of per-cell moments rotated to the macro frame (spec sections 7-8).
 
     Args:
-        orient: the orientation set.
-        moment: Love-Weber moments S in each cell's (n, t) frame [N m], shape (N, 2, 2),
+        orient: the orientation set (either dimension).
+        moment: Love-Weber moments S in each cell's frame [N m], shape (N, dim, dim),
             compression positive.
 
     Returns:
-        (S11, S22, S12) [N m], shape (3,), compression positive; divide by the macro volume
-        V [m^2] to get sigma [N/m].
+        The macro moment [N m], shape (3,) (S11, S22, S12) in 2D, (6,) in 3D, compression
+        positive; divide by the macro volume V [m^2 or m^3] to get sigma.
     """
     return orient.averaging @ np.ascontiguousarray(moment, dtype=np.float64).reshape(-1)
 
 
-def initial_volume(orient: Orientations, area: np.ndarray) -> float:
-    """V0 = sum_k w_k V_cell,k [m^2] from the initial cell areas ``area`` [m^2], shape (N,)."""
-    return float(orient.weights @ np.asarray(area, dtype=np.float64))
+def initial_volume(orient: OrientationSet, volume: np.ndarray) -> float:
+    """V0 = sum_k w_k V_cell,k [m^2 or m^3] from the initial cell areas or volumes, shape (N,)."""
+    return float(orient.weights @ np.asarray(volume, dtype=np.float64))
 
 
 def volume_ratio_factor(d_eps: np.ndarray) -> float:
-    """Factor (1 - d_eps11)(1 - d_eps22) [-] by which one increment multiplies J = V / V0."""
-    return (1.0 - float(d_eps[0])) * (1.0 - float(d_eps[1]))
+    """Factor prod_a (1 - d_eps_aa) [-] by which one increment multiplies J = V / V0: over
+    (11, 22) for the three components of a 2D increment, (11, 22, 33) for the six of a 3D one."""
+    dim = 2 if len(d_eps) == 3 else 3
+    return math.prod(1.0 - float(d_eps[a]) for a in range(dim))

@@ -24,11 +24,18 @@ not engineering, shear strains). Sign convention: compression and contraction po
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.integrate import lebedev_rule
+
+from homogenization.orientation import (  # noqa: F401 (localise, average_moment and the volume rule of both dimensions)
+    average_moment,
+    initial_volume,
+    localise,
+    OrientationSet,
+    volume_ratio_factor,
+)
 
 COMPONENTS = ("11", "22", "33", "23", "13", "12")
 """Order of the six components of a macro tensor."""
@@ -45,8 +52,9 @@ VOLUME_RULE = (
 
 
 @dataclass(frozen=True, eq=False)
-class Orientations3D:
-    """A set of N oriented cells with weights and the matrices that localise and average.
+class Orientations3D(OrientationSet):
+    """A set of N oriented cells with weights and the matrices that localise and average
+    (``orientation.OrientationSet``).
 
     Build it with ``orientations_3d``. Arrays are read-only.
 
@@ -61,17 +69,9 @@ class Orientations3D:
     """
 
     frames: np.ndarray
-    weights: np.ndarray
-    localisation: np.ndarray
-    averaging: np.ndarray
     order: int
     n_spins: int
     spin_period_deg: float
-
-    @property
-    def n_cells(self) -> int:
-        """Number of oriented cells N."""
-        return int(self.frames.shape[0])
 
 
 def hemisphere_rule(order: int) -> tuple[np.ndarray, np.ndarray]:
@@ -135,30 +135,11 @@ def orientations_3d(order: int = 11, n_spins: int = 4, *, spin_period_deg: float
         loc[:, :, m] = factor * frames[:, i, :] * frames[:, j, :]
         avg[m] = 0.5 * (frames[:, i, :, None] * frames[:, j, None, :] + frames[:, j, :, None] * frames[:, i, None, :])
     avg *= weights[None, :, None, None]
-    arrays = [frames, weights, loc.reshape(3 * count, 6), avg.reshape(6, 9 * count)]
-    for a in arrays:
+    arrays = {"frames": frames, "weights": weights, "localisation": loc.reshape(3 * count, 6),
+              "averaging": avg.reshape(6, 9 * count)}
+    for a in arrays.values():
         a.flags.writeable = False
-    return Orientations3D(*arrays, order=int(order), n_spins=n_spins, spin_period_deg=float(spin_period_deg))
-
-
-def localise(orient: Orientations3D, d_eps: np.ndarray) -> np.ndarray:
-    """(d_eps_n, d_eps_t1, d_eps_t2) [-] per cell, shape (N, 3), of a macro increment (six components)."""
-    return (orient.localisation @ np.asarray(d_eps, dtype=np.float64)).reshape(orient.n_cells, 3)
-
-
-def average_moment(orient: Orientations3D, moment: np.ndarray) -> np.ndarray:
-    """Weighted macro moment (six components) [N m] of per-cell moments (N, 3, 3) in the cell frames."""
-    return orient.averaging @ np.ascontiguousarray(moment, dtype=np.float64).reshape(-1)
-
-
-def initial_volume(orient: Orientations3D, volume: np.ndarray) -> float:
-    """V0 = sum_k w_k V_cell,k [m^3] from the initial cell volumes (N,) [m^3]."""
-    return float(orient.weights @ np.asarray(volume, dtype=np.float64))
-
-
-def volume_ratio_factor(d_eps: np.ndarray) -> float:
-    """Factor (1 - d_eps11)(1 - d_eps22)(1 - d_eps33) [-] by which one increment multiplies J = V / V0."""
-    return math.prod(1.0 - float(d_eps[a]) for a in range(3))
+    return Orientations3D(**arrays, order=int(order), n_spins=n_spins, spin_period_deg=float(spin_period_deg))
 
 
 def to_tensor(components: np.ndarray) -> np.ndarray:

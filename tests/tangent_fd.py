@@ -1,8 +1,9 @@
 """Central finite differences of a cell model's step with respect to its own increment.
 
-The reference against which every backend's consistent tangent is checked: ``fd_tangent``
-uses nothing of the backend but ``step`` itself; ``fd_tangent_fixed_schedule`` (DEM cells)
-also holds the DEM's driving schedule over the stencil.
+The reference against which every backend's consistent tangent is checked:
+``warp_hcell.core.checks.central_difference_tangent`` uses nothing of the backend but ``step``
+itself; ``fd_tangent_fixed_schedule`` (DEM cells) also holds the DEM's driving schedule over
+the stencil.
 """
 
 from __future__ import annotations
@@ -10,32 +11,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-
-
-def fd_tangent(model, state, d_eps: np.ndarray, h: float) -> np.ndarray:
-    """d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m] by central differences of ``model.step``.
-
-    Args:
-        model: a ``warp_hcell.core.contract.CellModel``.
-        state: cells at the start of the increment.
-        d_eps: the increment [-], shape (n_cells, dim) ((d_eps_n, d_eps_t) in 2D).
-        h: difference step [-].
-
-    Returns:
-        Shape (n_cells, dim, dim): [:, a, b] = d S_aa / d d_eps_b.
-    """
-    d_eps = np.asarray(d_eps, dtype=np.float64)
-    dim = d_eps.shape[1]
-    diagonal = np.arange(dim)
-    out = np.empty((d_eps.shape[0], dim, dim))
-    for b in range(dim):
-        plus, minus = d_eps.copy(), d_eps.copy()
-        plus[:, b] += h
-        minus[:, b] -= h
-        s_plus = model.step(state, plus)[1].moment
-        s_minus = model.step(state, minus)[1].moment
-        out[:, :, b] = (s_plus[:, diagonal, diagonal] - s_minus[:, diagonal, diagonal]) / (2.0 * h)
-    return out
 
 
 def relative_error(tangent: np.ndarray, reference: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_checks import assert_usage_error
 
 from homogenization.cli import biaxial
 from homogenization import io
@@ -102,11 +103,7 @@ def test_comma_list_overlays_backends(tmp_path, monkeypatch, capsys):
     (["--fabric-anisotropy", "1"], "argument --fabric-anisotropy: 1 is outside [0, 1)"),
 ])
 def test_bad_arguments_one_line_exit_2(tmp_path, capsys, extra, message):
-    with pytest.raises(SystemExit) as info:
-        cli(TINY + extra + ["--out", str(tmp_path / "x")])
-    assert info.value.code == 2
-    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(f"error: {message}")
-    assert not (tmp_path / "x").exists()
+    assert_usage_error(capsys, cli, TINY + extra + ["--out", str(tmp_path / "x")], message, tmp_path / "x")
 
 
 def test_inconsistent_options_one_line_exit_2(tmp_path, capsys, monkeypatch):

@@ -9,6 +9,7 @@ import h5py
 import meshio
 import numpy as np
 import pytest
+from cli_checks import assert_usage_error
 
 from homogenization.cli import bvp
 from homogenization import driver, loading
@@ -98,11 +99,7 @@ def test_imperfection_weakens_the_specimen(homogeneous, tmp_path):
     (["--backend", "fem"], "argument --backend: invalid choice: 'fem' (choose from 'analytical', 'dem', 'ann')"),
 ])
 def test_bad_arguments_one_line_exit_2(tmp_path, capsys, extra, message):
-    with pytest.raises(SystemExit) as info:
-        cli(TINY + extra + ["--out", str(tmp_path / "x")])
-    assert info.value.code == 2
-    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(f"error: {message}")
-    assert not (tmp_path / "x").exists()
+    assert_usage_error(capsys, cli, TINY + extra + ["--out", str(tmp_path / "x")], message, tmp_path / "x")
 
 
 @pytest.mark.parametrize("extra, message", [

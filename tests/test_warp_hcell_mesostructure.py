@@ -121,24 +121,22 @@ def test_overlap_within_tolerance_is_accepted():
     assert meso.n_pairs == 4 and not meso.observables and not meso.parameters
 
 
-def test_loader_errors(tmp_path):
+@pytest.mark.parametrize("old, new, match", [
+    ("outer = [", "outer = [[", "is not valid TOML"),
+    ("cell_size", "cellsize", "missing key 'cell_size'"),
+    ("radius = 0.35", "radius = 0.45", "grains 1 and 2 overlap by 0.1 m"),
+    ("driven = [false, true]", 'driven = ["no", true]', r"each grain needs driven = \[bool, bool\]"),
+])
+def test_loader_errors(tmp_path, old, new, match):
     text = (DATA / "h_cell_lateral_0.7D.toml").read_text()
-    bad_syntax = tmp_path / "bad.toml"
-    bad_syntax.write_text(text.replace("outer = [", "outer = [[", 1))
-    with pytest.raises(MesostructureError, match="is not valid TOML"):
-        load_mesostructure(bad_syntax)
-    missing = tmp_path / "missing.toml"
-    missing.write_text(text.replace("cell_size", "cellsize", 1))
-    with pytest.raises(MesostructureError, match="missing key 'cell_size'"):
-        load_mesostructure(missing)
-    overlap = tmp_path / "overlap.toml"
-    overlap.write_text(text.replace("radius = 0.35", "radius = 0.45", 1))
-    with pytest.raises(MesostructureError, match="grains 1 and 2 overlap by 0.1 m"):
-        load_mesostructure(overlap)
-    flags = tmp_path / "flags.toml"
-    flags.write_text(text.replace("driven = [false, true]", 'driven = ["no", true]', 1))
-    with pytest.raises(MesostructureError, match=r"each grain needs driven = \[bool, bool\]"):
-        load_mesostructure(flags)
+    assert old in text
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace(old, new, 1))
+    with pytest.raises(MesostructureError, match=match):
+        load_mesostructure(bad)
+
+
+def test_loader_error_of_a_missing_file(tmp_path):
     with pytest.raises(MesostructureError, match="cannot read mesostructure file"):
         load_mesostructure(tmp_path / "absent.toml")
     assert issubclass(MesostructureError, ValueError)

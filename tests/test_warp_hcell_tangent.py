@@ -8,7 +8,7 @@ adaptive rate decision), max |d_eps| half a substep from an integer count and no
 |d_eps_n| and |d_eps_t| (max |d_eps| has a kink there: the probe increment is the next
 constant-volume increment with its t component 1.1 times larger).
 
-Sticking contacts: the step's own central differences (``fd_tangent``) match the condensed
+Sticking contacts: the step's own central differences (``central_difference_tangent``) match the condensed
 tangent to <= 1e-5. Sliding contacts depend on the size of every driving substep: a
 difference step along the largest component changes the last driving substep by the step
 itself, and the step's slope along that component differs from the quasi-static one by 0.25
@@ -26,7 +26,8 @@ import numpy as np
 import pytest
 
 from homogenization.backends.analytical import AnalyticalCell
-from tangent_fd import fd_tangent, fd_tangent_fixed_schedule, relative_error
+from tangent_fd import fd_tangent_fixed_schedule, relative_error
+from warp_hcell.core.checks import central_difference_tangent
 from warp_hcell.dem.cell import DemCell
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.mesostructures.files import load_mesostructure
@@ -87,7 +88,7 @@ def test_h_cell_stick_and_slide(h_cells):
     stick, slide = loaded & ~sliding, loaded & sliding
     assert stick.sum() >= 3 and slide.sum() >= 3
     h = 0.1 * TIGHT.strain_per_substep
-    error = relative_error(response.tangent, fd_tangent(dem, state, d_eps, h))
+    error = relative_error(response.tangent, central_difference_tangent(dem, state, d_eps, h))
     assert error[stick].max() <= 1e-5, error
     held = relative_error(response.tangent, fd_tangent_fixed_schedule(dem, state, d_eps, h))
     assert held[stick].max() <= 1e-5, held
@@ -132,7 +133,7 @@ def test_generic_mesostructure_sticking(name):
     new, response = dem.step(state, d_eps, with_tangent=True)
     sliding, loaded = _sliding_cells(dem, state, new)
     assert loaded.all() and not sliding.any()
-    error = relative_error(response.tangent, fd_tangent(dem, state, d_eps, 0.1 * TIGHT.strain_per_substep))
+    error = relative_error(response.tangent, central_difference_tangent(dem, state, d_eps, 0.1 * TIGHT.strain_per_substep))
     assert error.max() <= 1e-5, error
 
 

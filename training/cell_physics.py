@@ -28,9 +28,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from warp_hcell.core.contract import SchemaCounts
+
 
 @dataclass(frozen=True, eq=False)
-class CellSchema:
+class CellSchema(SchemaCounts):
     """Topology and reference geometry of a mesostructure, as tensors (float64/int64, CPU or device).
 
     Attributes:
@@ -68,16 +70,6 @@ class CellSchema:
                    free_dofs=torch.as_tensor(free), pairs=torch.as_tensor(np.array(pairs, dtype=np.int64)),
                    outer=torch.as_tensor(np.array(outer, dtype=np.int64)), kn=float(kn), kt=float(kt),
                    mu=float(mu), contact_tolerance=float(contact_tolerance))
-
-    @property
-    def n_free(self) -> int:
-        """Number of free DOFs."""
-        return int(self.free_dofs.shape[0])
-
-    @property
-    def n_pairs(self) -> int:
-        """Number of candidate pairs."""
-        return int(self.pairs.shape[0])
 
     @property
     def diameter(self) -> float:

@@ -32,7 +32,7 @@ growing). Local frame: index 0 = n, 1 = t.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -65,6 +65,36 @@ class AnalyticalState(NamedTuple):
     """Normal force of the type-2 contacts [N], compression positive."""
     T1: np.ndarray
     """Tangential force of the type-1 contacts [N], > 0 resists opening."""
+
+
+def plain_cell_alpha0(meso: Mesostructure, plain_alpha0: Callable[[Mesostructure], tuple[float, ...] | None],
+                      models: str) -> float:
+    """Opening angle alpha0 [deg] of ``meso`` as ``plain_alpha0`` (``hcell.plain_alpha0`` or
+    ``hcell.plain_alpha0_3d``) reads it; ValueError (one line, naming what the backend
+    ``models``) where it reads none."""
+    plain = plain_alpha0(meso)
+    if plain is None:
+        raise ValueError(f"analytical models {models}; mesostructure {meso.name!r} is not one: use --backend dem or ann")
+    return plain[0]
+
+
+def cell_alpha0(mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int,
+                check: Callable[[Mesostructure], float], radius: float, grains: str) -> np.ndarray:
+    """Opening angle alpha0 [deg] of each of ``n_cells`` cells, shape (n_cells,), from one
+    mesostructure or one per cell.
+
+    Raises:
+        ValueError: (one line) a mesostructure that ``check`` (the backend's
+            ``check_mesostructure``, which returns alpha0) refuses, or whose ``grains`` have
+            another radius than the backend's ``radius`` [m].
+    """
+    distinct, index = per_cell(mesostructure, n_cells)
+    alpha0_deg = np.array([check(meso) for meso in distinct])[index]
+    for meso in distinct:
+        if not np.allclose(meso.radius, radius, rtol=1e-12, atol=0.0):
+            raise ValueError(f"mesostructure {meso.name!r} has {grains} of radius {meso.radius[0]:g} m, the "
+                             f"analytical cell {radius:g} m (--radius)")
+    return alpha0_deg
 
 
 class AnalyticalCell(ArrayStateMixin):
@@ -165,11 +195,7 @@ class AnalyticalCell(ArrayStateMixin):
             ValueError: (one line) ``meso`` is not the touching six-equal-grain H-cell of
                 ``warp_hcell.mesostructures.hcell.h_cell`` (``hcell.plain_alpha0``).
         """
-        plain = hcell.plain_alpha0(meso)
-        if plain is None:
-            raise ValueError(f"analytical models the plain H-cell only (six equal touching grains); mesostructure "
-                             f"{meso.name!r} is not one: use --backend dem or ann")
-        return plain[0]
+        return plain_cell_alpha0(meso, hcell.plain_alpha0, "the plain H-cell only (six equal touching grains)")
 
     def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> AnalyticalState:
         """Touching, force-free cells: d1 = d2 = D at the opening angle alpha0 of each cell's mesostructure.
@@ -183,14 +209,13 @@ class AnalyticalCell(ArrayStateMixin):
             ValueError: (one line) a mesostructure that is not such an H-cell
                 (``check_mesostructure``) or whose grains have another radius.
         """
-        distinct, index = per_cell(mesostructure, n_cells)
-        alpha0_deg = np.array([self.check_mesostructure(meso) for meso in distinct])[index]
+        alpha0_deg = cell_alpha0(mesostructure, n_cells, self.check_mesostructure, self.radius, "grains")
         if self.cell_alpha0_deg is not None:
             alpha0_deg = np.broadcast_to(self.cell_alpha0_deg, (int(n_cells),))
-        for meso in distinct:
-            if not np.allclose(meso.radius, self.radius, rtol=1e-12, atol=0.0):
-                raise ValueError(f"mesostructure {meso.name!r} has grains of radius {meso.radius[0]:g} m, the "
-                                 f"analytical cell {self.radius:g} m (--radius)")
+        return self.touching_state(alpha0_deg, n_cells)
+
+    def touching_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> AnalyticalState:
+        """Touching, force-free cells at opening angle(s) ``alpha0_deg`` [deg] (scalar or (n_cells,))."""
         alpha, l1, l2 = hcell.touching_cells(alpha0_deg, n_cells, self.diameter)
         D = np.full(alpha.shape, self.diameter)
         zero = np.zeros_like(alpha)

@@ -33,12 +33,12 @@ from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from homogenization.backends.analytical import AnalyticalCell, AnalyticalState
+from homogenization.backends.analytical import AnalyticalCell, AnalyticalState, cell_alpha0, plain_cell_alpha0
 from warp_hcell.core.contract import CellResponse
 from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures import hcell
 from warp_hcell.mesostructures.hcell import plain_alpha0_3d
-from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell, polyhedron_volume
+from warp_hcell.mesostructures.mesostructure import Mesostructure, polyhedron_volume
 
 PLANE_B_GRAINS = (1, 2, 4, 5)
 """Indices (0-based) in a planar H-cell of the lateral grains that become grains 7, 8, 9, 10 of plane B."""
@@ -92,11 +92,8 @@ class Analytical3DCell:
             ValueError: (one line) ``meso`` is not the touching ten-equal-sphere cell of orthogonal planes
                 (``warp_hcell.mesostructures.hcell.plain_alpha0_3d``).
         """
-        plain = plain_alpha0_3d(meso)
-        if plain is None:
-            raise ValueError(f"analytical models the plain ten-sphere H-cell only in 3D (equal touching spheres, planes "
-                             f"90 deg apart); mesostructure {meso.name!r} is not one: use --backend dem or ann")
-        return plain[0]
+        return plain_cell_alpha0(meso, plain_alpha0_3d, "the plain ten-sphere H-cell only in 3D (equal touching "
+                                                        "spheres, planes 90 deg apart)")
 
     def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> Analytical3DState:
         """Touching, force-free cells at the opening angle of each cell's mesostructure (``check_mesostructure``).
@@ -105,22 +102,12 @@ class Analytical3DCell:
             ValueError: (one line) a mesostructure that is not the plain ten-sphere cell, or whose spheres
                 have another radius than this backend's.
         """
-        distinct, index = per_cell(mesostructure, n_cells)
-        alpha0_deg = np.array([self.check_mesostructure(meso) for meso in distinct])[index]
-        for meso in distinct:
-            if not np.allclose(meso.radius, self.plane.radius, rtol=1e-12, atol=0.0):
-                raise ValueError(f"mesostructure {meso.name!r} has spheres of radius {meso.radius[0]:g} m, the "
-                                 f"analytical cell {self.plane.radius:g} m (--radius)")
+        alpha0_deg = cell_alpha0(mesostructure, n_cells, self.check_mesostructure, self.plane.radius, "spheres")
         return self.touching_state(alpha0_deg, n_cells)
 
     def touching_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> Analytical3DState:
         """Touching, force-free cells at opening angle(s) ``alpha0_deg`` [deg] (scalar or (n_cells,))."""
-        alpha, l1, l2 = hcell.touching_cells(alpha0_deg, n_cells, self.diameter)
-        D = np.full(alpha.shape, self.diameter)
-        zero = np.zeros_like(alpha)
-        planes = [AnalyticalState(l1.copy(), l2.copy(), 0.5 * D, D.copy(), alpha.copy(), zero.copy(), zero.copy(),
-                                  zero.copy()) for _ in range(2)]
-        return Analytical3DState(*planes)
+        return Analytical3DState(*(self.plane.touching_state(alpha0_deg, n_cells) for _ in range(2)))
 
     def _pathological_axial(self, l1: np.ndarray) -> np.ndarray:
         """kn <D - l1> l1 [N m]: the contact 1-4 that both planar cells add to S_nn."""

@@ -42,7 +42,7 @@ from homogenization.fe import output as fe_output, solver as fe
 from homogenization.cli.options import (add_alpha0_argument, add_backend_argument, add_cell_arguments,
                                         add_uncertified_argument, certificate_note, command_parser, refuse_uncertified)
 from homogenization.backends import make_cell_model
-from homogenization.cli.biaxial import BACKEND_ONLY_OPTIONS, backend_options, check_models_take, DEVICE_BACKENDS
+from homogenization.cli.run_files import backend_options, check_models_take, check_options
 from homogenization.material import HomogenisedMaterial
 from warp_hcell.core.cli import (
     UserError,
@@ -54,6 +54,7 @@ from warp_hcell.core.cli import (
     run_main,
     say,
     set_verbosity,
+    writing_to,
 )
 from warp_hcell.core.files import check_output_path
 from warp_hcell.mesostructures.hcell import h_cell
@@ -102,15 +103,6 @@ def build_parser() -> argparse.ArgumentParser:
                                "default: the H-cell of --alpha0.", "CPU threads of the DEM (dem only)")
     add_uncertified_argument(parser)
     return parser
-
-
-def check_options(args: argparse.Namespace) -> None:
-    """One-line UserError for flags the chosen backend does not take."""
-    for dest, takers in BACKEND_ONLY_OPTIONS.items():
-        if getattr(args, dest) is not None and args.backend not in takers:
-            raise UserError(f"--{dest.replace('_', '-')} applies to --backend {' or '.join(takers)} only")
-    if args.device != "cpu" and args.backend not in DEVICE_BACKENDS:
-        raise UserError(f"--device applies to --backend {' or '.join(DEVICE_BACKENDS)} only (analytical runs on the cpu)")
 
 
 def weak_elements(specimen: fe.BiaxialSpecimen) -> np.ndarray:
@@ -170,7 +162,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     set_verbosity(args)
     out: Path = args.out
     check_output_path(out, overwrite=args.overwrite)
-    check_options(args)
+    check_options(args, (args.backend,))
     if args.backend == "dem" and not args.verbose:
         quiet_warp(args.device)
     model = make_cell_model(args.backend, contact_law=ContactLaw(), radius=CellDefaults.radius,
@@ -216,10 +208,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                          "problem": model.certificate_problem}
     kind = "homogeneous" if not weak.any() else f"imperfection F = {args.imperfection:g} in {int(weak.sum())} elements"
     title = f"{run_labels.title(run_labels.describe(parameters))}, {nx} × {ny} elements, {kind}"
-    try:
+    with writing_to(out):
         paths = fe_output.write_outputs(out, specimen, results, element_alpha0, parameters, args.seed, title, reference)
-    except OSError as exc:
-        raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
     shear_iterations = [r.iterations for r in results if r.stage == "shear"]
     say(f"{len(results)} steps in {elapsed:.1f} s{certificate_note(model)}: {updates} material updates of {specimen.n_points} points "
         f"({updates * specimen.n_points / elapsed:.3g} material-point updates/s, "

@@ -39,14 +39,11 @@ from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import PARAMETERS, ForwardSettings
-from homogenization.cli.options import add_uncertified_argument, refuse_uncertified_file
+from homogenization.cli.options import add_uncertified_argument, command_parser, refuse_uncertified_file
 from warp_hcell.core.cli import (
-    Parser,
     UserError,
     add_contact_law_arguments,
     alpha0_deg,
-    command_prog,
-    common_parser,
     contact_law_from_args,
     fraction,
     positive_float,
@@ -77,12 +74,8 @@ def parameter_list(text: str) -> tuple[str, ...]:
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the calibrate command."""
-    parser = Parser(
-        prog=command_prog("homogenization.calibrate"),
-        description="Bayesian calibration of the H-model's micro-parameters on measured biaxial curves.",
-        parents=[common_parser()],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
+    parser = command_parser("homogenization.calibrate",
+                            "Bayesian calibration of the H-model's micro-parameters on measured biaxial curves.")
     parser.add_argument("--data", type=Path, action="append", required=True,
                         help="measured curve (CSV: '# test = undrained|drained', '# p0 = ...', header eps1 and any of "
                              "q, p, eps_v); repeat for a joint fit")

@@ -36,6 +36,7 @@ from typing import Sequence
 import numpy as np
 
 from homogenization.cli.options import add_alpha0_argument, add_backend_argument, add_uncertified_argument, command_parser, refuse_uncertified
+from homogenization.cli.run_files import DEVICE_BACKENDS
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
 from warp_hcell.core.cli import (
@@ -45,6 +46,7 @@ from warp_hcell.core.cli import (
     quiet_warp,
     run_main,
     set_verbosity,
+    writing_to,
 )
 from warp_hcell.core.files import atomic_write, check_output_path
 from warp_hcell.mesostructures.hcell import h_cell
@@ -57,8 +59,6 @@ COLUMNS = ("l1", "l2", "alpha_deg", "d1", "d2", "N1", "N2", "T1", "S_nn", "S_tt"
 """Columns of the output file, before the optional grain positions."""
 DEM_ONLY_BACKEND = "dem"
 """The backend whose Warp start-up banner is silenced."""
-DEVICE_BACKENDS = ("dem", "ann")
-"""The backends that take a compute --device."""
 ANN_MAX_INCREMENT = DatabaseSettings.probe_max
 """Largest ``|d_eps|`` [-] of one path row the ann backend accepts: the largest strain probe of
 its learning database (beyond it the network extrapolates)."""
@@ -192,11 +192,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     model = make_cell_model(args.backend, contact_law=law, radius=args.radius, **_backend_options(args))
     refuse_uncertified(model, args)
     columns, table = run_path(model, meso, d_eps, positions=args.positions)
-    try:
-        with atomic_write(args.out) as tmp:
-            np.savetxt(tmp, table, fmt="%.17g", delimiter=",", header=",".join(columns), comments="")
-    except OSError as exc:
-        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+    with writing_to(args.out), atomic_write(args.out) as tmp:
+        np.savetxt(tmp, table, fmt="%.17g", delimiter=",", header=",".join(columns), comments="")
     return 0
 
 

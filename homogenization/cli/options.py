@@ -1,8 +1,7 @@
 """Options shared by the commands of ``homogenization.cli``: the parser, the cell and the backend.
 
 - ``command_parser(module, description)``: the parser of a command, named as the user typed
-  it, with the flags every command shares (``warp_hcell.core.cli.common_parser``) and its
-  defaults shown;
+  it, with the flags every command shares and its defaults shown (``warp_hcell.core.cli``);
 - ``add_backend_argument(parser)``: --backend, one of the registry's names;
 - ``add_alpha0_argument(parser)``: --alpha0 [deg], the opening angle of builder specs;
 - ``add_cell_arguments(parser, cell_help, threads_help)``: --mesostructure (a file or a
@@ -18,15 +17,9 @@ import argparse
 from pathlib import Path
 
 from homogenization.backends import BACKENDS
-from warp_hcell.core.cli import Parser, UserError, alpha0_deg, command_prog, common_parser, positive_int
+from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_int  # noqa: F401 (command_parser: the commands import it from here)
 from warp_hcell.core.parameters import CellDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
-
-
-def command_parser(module: str, description: str) -> argparse.ArgumentParser:
-    """Parser of the command ``python -m MODULE`` (``hmodel COMMAND``), with the common flags."""
-    return Parser(prog=command_prog(module), description=description, parents=[common_parser()],
-                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
 
 
 def add_backend_argument(parser: argparse.ArgumentParser) -> None:

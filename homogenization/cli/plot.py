@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Sequence
 
 from homogenization import figures, io
-from warp_hcell.core.cli import Parser, UserError, command_prog, run_main, say, set_verbosity, verbosity_parser
+from warp_hcell.core.cli import command_parser, run_main, say, set_verbosity, UserError, writing_to
 from warp_hcell.core.files import check_output_path
 
 
@@ -34,12 +34,12 @@ def add_figure_arguments(parser: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the replot command."""
-    parser = Parser(
-        prog=command_prog("homogenization.plotting"), parents=[verbosity_parser()],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-        description="Overlay finished runs (run.h5 files of hmodel biaxial) in the 2x2 biaxial figure. Legend labels "
-                    "and title come from the runs' metadata: the parts every run shares (test, backend, "
-                    "mesostructure, alpha0, p0, N) make the title, the parts that differ the legend.")
+    parser = command_parser(
+        "homogenization.plotting",
+        "Overlay finished runs (run.h5 files of hmodel biaxial) in the 2x2 biaxial figure. Legend labels "
+        "and title come from the runs' metadata: the parts every run shares (test, backend, "
+        "mesostructure, alpha0, p0, N) make the title, the parts that differ the legend.",
+        device=False)
     parser.add_argument("runs", type=Path, nargs="+", metavar="RUN.h5", help="run files to overlay")
     parser.add_argument("--out", type=Path, required=True, help="figure file: .png, .pdf or .svg")
     add_figure_arguments(parser)
@@ -76,10 +76,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     slopes = figures.critical_state_lines(runs, [str(path) for path in args.runs], warn) if args.csl else None
     fig = figures.overlay_figure(runs, fourth=args.fourth_panel, deviator=args.deviator, normalise=args.normalise,
                          csl=slopes, title=args.title)
-    try:
+    with writing_to(args.out):
         figures.save_figure(fig, args.out)
-    except OSError as exc:
-        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
     say(f"figure -> {args.out}" + (f" ({csl_summary(slopes)})" if slopes is not None else ""))
     return 0
 

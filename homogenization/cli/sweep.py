@@ -60,7 +60,6 @@ import csv
 import json
 import math
 import os
-import re
 import sys
 import time
 from pathlib import Path
@@ -71,8 +70,8 @@ from matplotlib.figure import Figure
 
 from homogenization import driver, figures, io, run_labels
 from homogenization.cli.options import add_uncertified_argument, command_parser, refuse_uncertified_file
-from homogenization.cli.biaxial import backend_list
-from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS
+from homogenization.cli.run_files import backend_list
+from homogenization.figure_style import LABELS
 from homogenization.sweep_case import case_task, summarise
 from homogenization.sweep_plan import Case, ModelChoice, plan
 from warp_hcell.mesostructures.builders import (
@@ -88,6 +87,7 @@ from warp_hcell.core.cli import (
     say,
     set_verbosity,
     task_setup,
+    writing_to,
 )
 from warp_hcell.core.files import atomic_write, check_output_path
 from warp_hcell.core.execution import make_execution, SchedulerUnreachable
@@ -300,28 +300,17 @@ def summary_figure(path: Path, cases: Sequence[Case], out: Path) -> Path:
 
 def make_summary_figure(runs: Sequence[figures.Run]) -> Figure:
     """q/p0 and p/p0 against eps1 and the (p/p0, q/p0) path of every run; title and legend from their metadata."""
-    fig = Figure(figsize=(15.0, 5.6), layout="constrained")
-    ax_q, ax_p, ax_pq = fig.subplots(1, 3)
     title, labels = run_labels.split_labels([figures.describe_run(run) for run in runs])
-    handles = []
+    curves = []
     for colour, run, label in zip(plotting_colours(len(runs)), runs, labels):
         c = figures.shear_curve(run.record)
         p0 = figures.reference_pressure(run)
-        style = {"color": colour, "lw": 1.0}
-        (line,) = ax_q.plot(100.0 * c.eps1, c.q / p0, label=label or "_nolegend_", **style)
-        ax_p.plot(100.0 * c.eps1, c.p / p0, **style)
-        ax_pq.plot(c.p / p0, c.q / p0, **style)
-        if label:
-            handles.append(line)
-    ax_q.set(xlabel=LABELS["eps1"], ylabel=LABELS["q/p0"], title="deviator")
-    ax_p.set(xlabel=LABELS["eps1"], ylabel=LABELS["p/p0"], title="mean stress")
-    ax_pq.set(xlabel=LABELS["p/p0"], ylabel=LABELS["q/p0"], title="stress path")
-    for ax in (ax_q, ax_p, ax_pq):
-        ax.grid(True, **GRID)
-    if handles:
-        figure_legend(fig, handles)
-    fig.suptitle(f"sweep: {title} (compression positive)" if title else "sweep (compression positive)")
-    return apply_style(fig)
+        curves.append((label, {"color": colour, "lw": 1.0},
+                       ((100.0 * c.eps1, c.q / p0), (100.0 * c.eps1, c.p / p0), (c.p / p0, c.q / p0))))
+    panels = ((LABELS["eps1"], LABELS["q/p0"], "deviator"), (LABELS["eps1"], LABELS["p/p0"], "mean stress"),
+              (LABELS["p/p0"], LABELS["q/p0"], "stress path"))
+    return figures.panel_figure(curves, panels, figsize=(15.0, 5.6),
+                                title=f"sweep: {title} (compression positive)" if title else "sweep (compression positive)")
 
 
 def plotting_colours(n: int) -> list:
@@ -343,11 +332,8 @@ def _prepare_out(out: Path, options: dict[str, Any], *, overwrite: bool) -> None
         check_output_path(out, overwrite=overwrite)
     else:
         check_output_path(out / SWEEP_FILE, overwrite=True)
-    try:
-        with atomic_write(out / SWEEP_FILE) as tmp:
-            tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
-    except OSError as exc:
-        raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
+    with writing_to(out), atomic_write(out / SWEEP_FILE) as tmp:
+        tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

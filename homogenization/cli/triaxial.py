@@ -29,34 +29,28 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
-from homogenization import driver, figures, io, loading
-from homogenization.backends import BACKENDS, make_cell_model
-from homogenization.cli.biaxial import (
-    backend_list,
-    backend_options,
-    check_models_take,
-    check_options,
-    provenance_of,
-)
+from homogenization import driver, figures, loading
+from homogenization.backends import BACKENDS
 from homogenization.cli.options import add_alpha0_argument, add_cell_arguments, command_parser
+from homogenization.cli.run_files import backend_list, build_models, check_run, explicit_flags, run_backends
 from homogenization.orientation3d import LEBEDEV_ORDERS
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
     contact_law_from_args,
+    finite_float,
     positive_float,
     positive_int,
-    quiet_warp,
     run_main,
     say,
     set_verbosity,
+    writing_to,
 )
-from warp_hcell.core.files import check_output_path, output_folder, output_lock
+from warp_hcell.core.files import output_folder, output_lock
 from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 from warp_hcell.core.provenance import command_line
 from warp_hcell.mesostructures.builders import mesostructure_arg
@@ -80,10 +74,7 @@ SPIN_PERIOD_OTHER = 180.0
 
 def lebedev_order(text: str) -> int:
     """argparse type: one of ``orientation3d.LEBEDEV_ORDERS``."""
-    try:
-        order = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid order {text!r}: give an integer") from None
+    order = positive_int(text)
     if order not in LEBEDEV_ORDERS:
         raise argparse.ArgumentTypeError(f"Lebedev order {order} is not one of {', '.join(map(str, LEBEDEV_ORDERS))}")
     return order
@@ -91,10 +82,7 @@ def lebedev_order(text: str) -> int:
 
 def b_ratio(text: str) -> float:
     """argparse type: b in [0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid b {text!r}: give a number in [0, 1]") from None
+    value = finite_float(text)
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"b = {value:g} must be in [0, 1]")
     return value
@@ -154,7 +142,7 @@ def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[load
     """The programme of the run (the --programme file or the built-in test) and its settings; UserError
     (one line) for conflicting flags, an increment above --eps-max or a file of planar steps."""
     if args.programme is not None:
-        given = [flag for dest, flag in PROGRAMME_FLAGS.items() if dest in explicit_flags_3d(argv)]
+        given = [flag for dest, flag in PROGRAMME_FLAGS.items() if dest in explicit_flags(build_parser(), argv, tuple(PROGRAMME_FLAGS))]
         if given:
             raise UserError(f"{', '.join(given)} do not apply with --programme (the file holds the whole programme)")
         programme = loading.read_programme(args.programme)
@@ -178,15 +166,6 @@ def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[load
     return programme, settings
 
 
-def explicit_flags_3d(argv: Sequence[str]) -> set[str]:
-    """The argparse dests of ``PROGRAMME_FLAGS`` that ``argv`` sets explicitly (not by default)."""
-    unset = object()  # not a string, so argparse does not run it through type=
-    probe = build_parser()
-    probe.set_defaults(**{dest: unset for dest in PROGRAMME_FLAGS})
-    parsed = vars(probe.parse_args(argv))
-    return {dest for dest in PROGRAMME_FLAGS if parsed.get(dest, unset) not in (unset, False, None)}
-
-
 def run_mesostructure(args: argparse.Namespace) -> Mesostructure:
     """The 3D cell of the run: --mesostructure (or ``DEFAULT_MESOSTRUCTURE``) built at --alpha0; UserError
     (one line) for a planar cell."""
@@ -208,19 +187,6 @@ def check_backends(names: Sequence[str]) -> None:
             raise UserError(f"--backend {name}: does not model 3D cells")
 
 
-def check_replaceable(out: Path) -> None:
-    """UserError unless ``out`` is absent or holds only what this command writes."""
-    if not out.is_dir():
-        if out.exists():
-            raise UserError(f"--out {out} is a file; give a folder")
-        return
-    ours = {io.RUN_FILE, io.CURVE_FILE, FIGURE_FILE, *BACKENDS}
-    foreign = sorted(p.name for p in out.iterdir() if p.name not in ours)
-    if foreign:
-        raise UserError(f"{out} holds files that this command did not write ({', '.join(foreign[:3])}); "
-                        f"choose another --out")
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
@@ -228,11 +194,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = command_line() if argv is None else shlex.join(["hmodel", "triaxial", *argv])
     out: Path = args.out
     check_backends(args.backend)
-    if "dem" in args.backend and not args.verbose:
-        quiet_warp(args.device)
-    check_output_path(out, overwrite=args.overwrite)
-    check_replaceable(out)
-    check_options(args)
+    check_run(args, FIGURE_FILE)
     programme, settings = build_programme(args, sys.argv[1:] if argv is None else argv)
     law = contact_law_from_args(args)
     meso = run_mesostructure(args)
@@ -240,28 +202,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.verbose:
         say(f"programme: {loading.to_dict(programme)}", f"contact law: {asdict(law)}, radius {args.radius:g} m")
     with output_lock(out):
-        options = {name: backend_options(args, name) for name in args.backend}
-        models = {name: make_cell_model(name, contact_law=law, radius=args.radius, dim=3, **options[name])
-                  for name in args.backend}
-        check_models_take(models, meso)
-        runs: dict[str, Any] = {}
-        written: list[str] = []
+        models, options = build_models(args, law, meso, dim=3)
         with output_folder(out) as work:
-            for name, model in models.items():
-                start = time.perf_counter()
-                try:
-                    record = driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
-                                        n_spins=args.spins, spin_period_deg=spin_period)
-                except driver.ControlError as exc:
-                    raise UserError(f"{name}: {exc}") from None
-                elapsed = time.perf_counter() - start
-                parameters = {
-                    "backend": name,
-                    "backend_options": {k: str(v) if isinstance(v, Path) else v for k, v in options[name].items()},
-                    **provenance_of(name, model, options[name]),
-                    "contact_law": asdict(law),
-                    "radius": args.radius,
-                    "alpha0_deg": meso.parameters.get("alpha0_deg"),
+            runs, _, written = run_backends(
+                args, models, options, law, meso,
+                run=lambda model: driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
+                                             n_spins=args.spins, spin_period_deg=spin_period),
+                parameters=lambda record: {
                     **settings,
                     "lebedev_order": args.order,
                     "n_spins": args.spins,
@@ -269,28 +216,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "n_orientations": record.weights.size,
                     "stress_rtol": LoadingDefaults.stress_rtol,
                     "mesostructure": args.mesostructure.text if args.mesostructure is not None else DEFAULT_MESOSTRUCTURE,
-                }
-                folder = work if len(args.backend) == 1 else work / name
-                final = out if len(args.backend) == 1 else out / name
-                try:
-                    io.write_run(folder, record, parameters=parameters, seed=args.seed, command=command)
-                except OSError as exc:
-                    raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
-                runs[name] = record
-                unconverged = record.diagnostics.get("n_unconverged")
-                note = (f", {int(unconverged.sum())} unconverged cell-increments"
-                        if unconverged is not None and unconverged.sum() else "")
-                cross = record.diagnostics.get("n_cross_plane")
-                if cross is not None and cross.sum():
-                    note += f", cross-plane contacts outside the closed form in {int(cross.sum())} cell-increments"
-                written.append(f"{name}: {record.n_increments} increments in {elapsed:.1f} s{note} -> "
-                               f"{final / io.RUN_FILE}, {final / io.CURVE_FILE}")
+                },
+                work=work, command=command)
             title = f"{meso.name}, p0 = {args.p0:g} Pa, {settings.get('test', 'programme')}"
             fig = figures.triaxial_figure(runs, title=title)
-            try:
+            with writing_to(out):
                 figures.save_figure(fig, work / FIGURE_FILE)
-            except OSError as exc:
-                raise UserError(f"cannot write to {out}: {exc.strerror or exc}") from None
     say(*written, f"figure -> {out / FIGURE_FILE}")
     return 0
 

@@ -45,7 +45,8 @@ def _same(a: dict[str, np.ndarray], b: dict[str, np.ndarray], what: str) -> None
 
 def central_difference_tangent(model, state, d_eps: np.ndarray, h: float) -> np.ndarray:
     """d(S_aa)/d(d_eps_b) [N m] by central differences of ``model.step``, (n_cells, dim, dim) for increments
-    ``d_eps`` of shape (n_cells, dim) ((S_nn, S_tt) by (d_eps_n, d_eps_t) in 2D)."""
+    ``d_eps`` of shape (n_cells, dim) ((S_nn, S_tt) by (d_eps_n, d_eps_t) in 2D), difference step ``h`` [-]."""
+    d_eps = np.asarray(d_eps, dtype=np.float64)
     dim = d_eps.shape[1]
     diagonal = np.arange(dim)
     out = np.empty((d_eps.shape[0], dim, dim))

@@ -1,8 +1,8 @@
 """Shared command-line plumbing: the parser class, parent parsers, validators, user errors, output.
 
-Every entry point builds its parser as ``Parser(prog=command_prog(MODULE), parents=[...])``
-with ``common_parser()`` (or ``verbosity_parser()`` where --device, --seed and --overwrite do
-not apply) and ``formatter_class=argparse.ArgumentDefaultsHelpFormatter``, validates values
+Every entry point builds its parser with ``command_parser(MODULE, description)``: a ``Parser``
+named ``command_prog(MODULE)``, with ``common_parser()`` (or ``verbosity_parser()`` where
+--device, --seed and --overwrite do not apply) and its defaults shown, validates values
 with the ``type=`` functions below, and runs its body through ``run_main``. Every bad
 command line (unknown option, missing or malformed value, conflicting flags) is one line on
 stderr that names the flag and the fix, exit code 2 (``Parser.error``); a ``UserError`` or
@@ -17,7 +17,7 @@ lets Warp print its start-up messages, which ``quiet_warp`` otherwise silences.
 
 ``--device`` is checked while parsing (``device_name``): a CUDA device that this machine
 does not have is one line and exit code 2 before any work. Output files and folders:
-``warp_hcell.core.files``.
+``warp_hcell.core.files``; ``writing_to(path)`` makes a failed write one line.
 """
 
 from __future__ import annotations
@@ -46,6 +46,15 @@ EXIT_USAGE = 2
 
 class UserError(Exception):
     """Bad input that the user can fix; reported as one line with exit code 2."""
+
+
+@contextmanager
+def writing_to(path: Path) -> Iterator[None]:
+    """Turn an ``OSError`` of the body into the one-line ``UserError`` "cannot write to PATH: why"."""
+    try:
+        yield
+    except OSError as exc:
+        raise UserError(f"cannot write to {path}: {exc.strerror or exc}") from None
 
 
 _INVOKED_AS: contextvars.ContextVar[str | None] = contextvars.ContextVar("invoked_as", default=None)
@@ -297,6 +306,16 @@ def _setup_task(device: str, *, quiet: bool, verbose: bool) -> None:
     _OUTPUT.quiet = quiet
     if not verbose:
         quiet_warp(device)
+
+
+def command_parser(module: str, description: str, *, device: bool = True) -> argparse.ArgumentParser:
+    """Parser of the command ``python -m MODULE`` (``hmodel COMMAND``), named as the user typed it
+    (``command_prog``), with its defaults shown and the flags every command shares:
+    ``common_parser`` (--device, --seed, --overwrite and the verbosity), or with ``device``
+    False ``verbosity_parser`` only."""
+    parent = common_parser() if device else verbosity_parser()
+    return Parser(prog=command_prog(module), description=description, parents=[parent],
+                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
 
 
 def verbosity_parser() -> argparse.ArgumentParser:

@@ -160,6 +160,35 @@ class ArrayStateMixin:
         return self.state_type(*(np.array(arrays[name], dtype=np.float64) for name in self.state_type._fields))
 
 
+class CellCounts:
+    """``n_grains`` and ``n_pairs`` of a cell description with ``radius`` (n_grains,) and
+    ``pairs`` (n_pairs, 2), numpy arrays or torch tensors."""
+
+    radius: Any
+    pairs: Any
+
+    @property
+    def n_grains(self) -> int:
+        """Number of grains."""
+        return int(self.radius.shape[0])
+
+    @property
+    def n_pairs(self) -> int:
+        """Number of candidate contact pairs."""
+        return int(self.pairs.shape[0])
+
+
+class SchemaCounts(CellCounts):
+    """``CellCounts`` and ``n_free`` of a schema with ``free_dofs`` (n_free, 2): (grain, axis)."""
+
+    free_dofs: Any
+
+    @property
+    def n_free(self) -> int:
+        """Number of free DOFs."""
+        return int(self.free_dofs.shape[0])
+
+
 FEATURE_ROLES = {
     "driven": "imposed by the cell strain (l <- l (1 - d_eps))",
     "learned": "free-DOF coordinates: a meso-ANN predicts their increment",
@@ -187,7 +216,7 @@ class StateFeature:
 
 
 @dataclass(frozen=True, eq=False)
-class StateSchema:
+class StateSchema(SchemaCounts):
     """The learning state of one mesostructure: what a cell state is, DOF by DOF.
 
     A state is (cell size, free-DOF coordinates, per-pair tangential spring forces); every
@@ -216,21 +245,6 @@ class StateSchema:
     driven: np.ndarray
     outer: np.ndarray
     features: Mapping[str, StateFeature]
-
-    @property
-    def n_free(self) -> int:
-        """Number of free DOFs."""
-        return int(self.free_dofs.shape[0])
-
-    @property
-    def n_pairs(self) -> int:
-        """Number of candidate contact pairs."""
-        return int(self.pairs.shape[0])
-
-    @property
-    def n_grains(self) -> int:
-        """Number of grains."""
-        return int(self.radius.size)
 
     def of_role(self, role: str) -> tuple[str, ...]:
         """Names of the features with role ``role`` (``FEATURE_ROLES``)."""

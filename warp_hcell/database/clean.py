@@ -20,7 +20,6 @@ leaves the original intact.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -29,7 +28,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from warp_hcell.database import format as database
-from warp_hcell.core.cli import command_prog, Parser, run_main, say, set_verbosity, UserError, verbosity_parser
+from warp_hcell.core.cli import command_parser, run_main, say, set_verbosity, UserError
 
 REASONS = {
     "unconverged": "the DEM did not reach quasi-static equilibrium within max_substeps",
@@ -98,11 +97,11 @@ def clean_file(path: Path, out: Path) -> dict[str, Any]:
 
 
 def _run(argv: Sequence[str] | None) -> int:
-    parser = Parser(
-        prog=command_prog("warp_hcell.clean"), parents=[verbosity_parser()],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-        description="Mark unconverged and non-finite samples of a learning database in `valid` (mechanism and "
-                    "perturbed samples are kept) and record the counts per reason as root attrs.")
+    parser = command_parser(
+        "warp_hcell.clean",
+        "Mark unconverged and non-finite samples of a learning database in `valid` (mechanism and "
+        "perturbed samples are kept) and record the counts per reason as root attrs.",
+        device=False)
     parser.add_argument("database", type=Path, help="database file written by warp_hcell.generate")
     parser.add_argument("--out", type=Path, default=None, help="write the cleaned file here; unset: clean in place")
     args = parser.parse_args(argv)

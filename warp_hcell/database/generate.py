@@ -50,10 +50,8 @@ from warp_hcell.database import clean as cleaning
 from warp_hcell.database import format as database
 from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
 from warp_hcell.core.cli import (
-    Parser,
     UserError,
-    command_prog,
-    common_parser,
+    command_parser,
     positive_float,
     positive_int,
     progress_bar,
@@ -275,12 +273,11 @@ def _generate(execution, physics: Physics, meso: Mesostructure, settings: Databa
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m warp_hcell.generate`` argument parser (defaults from ``DatabaseSettings``)."""
     defaults = DatabaseSettings()
-    parser = Parser(
-        prog=command_prog("warp_hcell.generate"), parents=[common_parser()],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-        description="Generate the generic meso-ANN learning database of a mesostructure with the DEM "
-                    "(docs/database_format.md): exploration paths, then seeded strain probes and perturbed "
-                    "states of the sampled states.")
+    parser = command_parser(
+        "warp_hcell.generate",
+        "Generate the generic meso-ANN learning database of a mesostructure with the DEM "
+        "(docs/database_format.md): exploration paths, then seeded strain probes and perturbed states of "
+        "the sampled states.")
     parser.add_argument("--out", type=Path, required=True, help="database file (HDF5) to write")
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
                         help=MESOSTRUCTURE_HELP + " (a spec without alpha0 is built at "

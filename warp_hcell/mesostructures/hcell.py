@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from itertools import combinations
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -236,32 +236,62 @@ def build_h_cell(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: float =
     if len(offsets) != len(fines):
         raise MesostructureError(f"mesostructure {label!r}: {len(fines)} fine grains but {len(offsets)} positions")
     hexagon = position[[0, 1, 2, 3, 4, 5]]
-    fine_radius, fine_position = [], []
-    for k, (ratio, (dn, dt)) in enumerate(zip(fines, offsets)):
-        if not (math.isfinite(ratio) and ratio >= 0.0) or not (math.isfinite(dn) and math.isfinite(dt)):
-            raise MesostructureError(f"mesostructure {label!r}: fine grain {k + 1} needs a finite ratio >= 0 "
-                                     f"and a finite position, got ratio={ratio:g}, n={dn:g}, t={dt:g}")
-        if ratio == 0.0:
-            continue
-        centre = np.array([dn, dt]) * radius
-        if not _inside(hexagon, centre):
-            raise MesostructureError(f"mesostructure {label!r}: fine grain at n={dn:g}, t={dt:g} (units of r) "
-                                     f"is outside the pore (hexagon 1-2-3-4-5-6)")
-        room = pore_ratio(alpha0_deg, lateral=lateral, n=dn, t=dt)
-        if ratio > room * (1.0 + DemSettings.contact_tolerance):
-            raise MesostructureError(f"mesostructure {label!r}: fine grain ratio {ratio:g} does not fit the pore at "
-                                     f"n={dn:g}, t={dt:g}: the largest is {room:.6g} (alpha0 = {alpha0_deg:g} deg)")
-        fine_radius.append(min(ratio, room) * radius)
-        fine_position.append(centre)
-    n_fines = len(fine_radius)
+    fine_radius, fine_position = _place_fines(
+        label, fines, offsets, radius, 2, inside=lambda centre: _inside(hexagon, centre),
+        room=lambda offset: pore_ratio(alpha0_deg, lateral=lateral, n=offset[0], t=offset[1]),
+        where=lambda offset: f"n={offset[0]:g}, t={offset[1]:g}", pore="the pore (hexagon 1-2-3-4-5-6)",
+        note=f" (alpha0 = {alpha0_deg:g} deg)")
+    n_fines = fine_radius.size
     all_radius = np.concatenate([radii, fine_radius])
-    all_position = np.concatenate([position, np.reshape(fine_position, (n_fines, 2))])
+    all_position = np.concatenate([position, fine_position])
     driven = np.array([[True, True]] + [[False, True]] * 2 + [[True, True]] + [[False, True]] * 2
                       + [[False, False]] * n_fines)
     pairs = list(combinations(range(N_GRAINS + n_fines), 2))
     return declare(Mesostructure(name=label, radius=all_radius, position=all_position, driven=driven,
                                  pairs=np.array(pairs, dtype=np.int64), outer=np.arange(N_GRAINS), cell_size=cell_size,
                                  pair_label=_labels(label, pairs, TYPE1_PAIRS, TYPE2_PAIRS)))
+
+
+def _place_fines(label: str, fines: Sequence[float], offsets: Sequence[Sequence[float]], radius: float,
+                 position_dim: int, *,
+                 inside: Callable[[np.ndarray], bool], room: Callable[[Sequence[float]], float],
+                 where: Callable[[Sequence[float]], str], pore: str, note: str) -> tuple[np.ndarray, np.ndarray]:
+    """Radii [m], shape (n_fines,), and centres [m], shape (n_fines, dim), of the fine grains of
+    an H-cell's pore (zero ratios left out).
+
+    Args:
+        label: the mesostructure's name, for the messages.
+        fines: radius of each fine grain over r [-].
+        offsets: position of each from the pore centre in units of r [-], one per fine grain.
+        radius: r [m].
+        position_dim: the dimension of the cell (2 or 3).
+        inside: whether a centre [m] lies inside the pore.
+        room: the largest ratio [-] that fits at an offset.
+        where: an offset as the messages write it; pore: the pore, named; note: appended to
+            the message of a grain that does not fit.
+
+    Raises:
+        MesostructureError: a ratio or offset not finite, a grain outside the pore or larger
+            than its room (beyond the contact tolerance; within it, it is shrunk to the room).
+    """
+    fine_radius, fine_position = [], []
+    for k, (ratio, offset) in enumerate(zip(fines, offsets)):
+        if not (math.isfinite(ratio) and ratio >= 0.0) or not all(math.isfinite(v) for v in offset):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain {k + 1} needs a finite ratio >= 0 "
+                                     f"and a finite position, got ratio={ratio:g} at {where(offset)}")
+        if ratio == 0.0:
+            continue
+        centre = np.asarray(offset, dtype=np.float64) * radius
+        if not inside(centre):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain at {where(offset)} (units of r) "
+                                     f"is outside {pore}")
+        largest = room(offset)
+        if ratio > largest * (1.0 + DemSettings.contact_tolerance):
+            raise MesostructureError(f"mesostructure {label!r}: fine grain ratio {ratio:g} does not fit the pore at "
+                                     f"{where(offset)}: the largest is {largest:.6g}{note}")
+        fine_radius.append(min(ratio, largest) * radius)
+        fine_position.append(centre)
+    return np.array(fine_radius, dtype=np.float64), np.reshape(fine_position, (len(fine_radius), position_dim))
 
 
 def _default_name(alpha0_deg: float, lateral: float, fines: tuple[float, ...]) -> str:
@@ -287,17 +317,27 @@ def plain_alpha0(meso: Mesostructure) -> tuple[float, float] | None:
     The closed-form backends model exactly this cell; the comparison is to 1e-9 of the
     grain radius on positions, cell size, driven flags, pairs, labels and outer polygon.
     """
-    if meso.n_grains != N_GRAINS or not np.allclose(meso.radius, meso.radius[0], rtol=1e-12, atol=0.0):
+    return _plain(meso, N_GRAINS, h_cell)
+
+
+def _plain(meso: Mesostructure, n_grains: int, build: Callable[[float, float], Mesostructure]
+           ) -> tuple[float, float] | None:
+    """(alpha0_deg, radius [m]) if ``meso`` has ``n_grains`` equal grains and is the cell that
+    ``build(alpha0_deg, radius)`` builds at its declared alpha0: the same dimension, positions
+    and cell size to 1e-9 of the radius, driven flags, outer polygon and labelled pairs (in any
+    order); else None (also where ``build`` refuses the angle)."""
+    if meso.n_grains != n_grains or not np.allclose(meso.radius, meso.radius[0], rtol=1e-12, atol=0.0):
         return None
     alpha0 = meso.parameters.get("alpha0_deg")
     if alpha0 is None:
         return None
     radius = float(meso.radius[0])
     try:
-        reference = h_cell(alpha0, radius)
+        reference = build(alpha0, radius)
     except ValueError:
         return None
-    same = (np.allclose(meso.position, reference.position, rtol=0.0, atol=1e-9 * radius)
+    same = (meso.dim == reference.dim
+            and np.allclose(meso.position, reference.position, rtol=0.0, atol=1e-9 * radius)
             and np.allclose(meso.cell_size, reference.cell_size, rtol=0.0, atol=1e-9 * radius)
             and np.array_equal(meso.driven, reference.driven) and np.array_equal(meso.outer, reference.outer)
             and {tuple(p): t for p, t in zip(meso.pairs.tolist(), meso.pair_label.tolist())}
@@ -615,30 +655,19 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
     offsets = [(0.0, 0.0, 0.0)] * len(fines) if fine_offsets is None else list(fine_offsets)
     if len(offsets) != len(fines):
         raise MesostructureError(f"mesostructure {label!r}: {len(fines)} fine grains but {len(offsets)} positions")
-    fine_radius, fine_position = [], []
-    for k, (ratio, offset) in enumerate(zip(fines, offsets)):
-        if not (math.isfinite(ratio) and ratio >= 0.0) or not all(math.isfinite(v) for v in offset):
-            raise MesostructureError(f"mesostructure {label!r}: fine grain {k + 1} needs a finite ratio >= 0 and a "
-                                     f"finite position")
-        if ratio == 0.0:
-            continue
-        centre = np.asarray(offset, dtype=np.float64) * radius
-        a, b, c = (position[faces[:, m]] for m in range(3))
-        if not np.all(np.einsum("fi,fi->f", np.cross(b - a, c - a), centre - a) < 0.0):
-            raise MesostructureError(f"mesostructure {label!r}: fine grain at {tuple(offset)} (units of r) is outside "
-                                     f"the pore (the cell's outer surface)")
-        room = float(np.min(np.linalg.norm(position - centre, axis=1) - radii)) / radius
-        if ratio > room * (1.0 + DemSettings.contact_tolerance):
-            raise MesostructureError(f"mesostructure {label!r}: fine grain ratio {ratio:g} does not fit the pore at "
-                                     f"{tuple(offset)}: the largest is {room:.6g}")
-        fine_radius.append(min(ratio, room) * radius)
-        fine_position.append(centre)
-    n_fines = len(fine_radius)
+    a, b, c = (position[faces[:, m]] for m in range(3))
+    fine_radius, fine_position = _place_fines(
+        label, fines, offsets, radius, 3,
+        inside=lambda centre: bool(np.all(np.einsum("fi,fi->f", np.cross(b - a, c - a), centre - a) < 0.0)),
+        room=lambda offset: float(np.min(np.linalg.norm(position - np.asarray(offset) * radius, axis=1)
+                                         - radii)) / radius,
+        where=lambda offset: f"{tuple(offset)}", pore="the pore (the cell's outer surface)", note="")
+    n_fines = fine_radius.size
     driven = np.array([[True] * 3] + [[False, True, True]] * 2 + [[True] * 3] + [[False, True, True]] * 6
                       + [[False] * 3] * n_fines)
     pairs = list(combinations(range(H3_GRAINS + n_fines), 2))
     return Mesostructure(name=label, radius=np.concatenate([radii, fine_radius]),
-                         position=np.concatenate([position, np.reshape(fine_position, (n_fines, 3))]), driven=driven,
+                         position=np.concatenate([position, fine_position]), driven=driven,
                          pairs=np.array(pairs, dtype=np.int64), outer=faces, cell_size=cell_size,
                          pair_label=_labels(label, pairs, H3_TYPE1_PAIRS, H3_TYPE2_PAIRS),
                          parameters={"alpha0_deg": float(alpha0_deg)})
@@ -650,19 +679,4 @@ def plain_alpha0_3d(meso: Mesostructure) -> tuple[float, float] | None:
     The closed-form 3D backend models exactly this cell; compared to 1e-9 of the radius like
     ``plain_alpha0``.
     """
-    if meso.dim != 3 or meso.n_grains != H3_GRAINS or not np.allclose(meso.radius, meso.radius[0], rtol=1e-12,
-                                                                      atol=0.0):
-        return None
-    alpha0 = meso.parameters.get("alpha0_deg")
-    if alpha0 is None:
-        return None
-    radius = float(meso.radius[0])
-    try:
-        reference = build_h_cell_3d(alpha0, radius=radius)
-    except (ValueError, MesostructureError):
-        return None
-    same = (np.allclose(meso.position, reference.position, rtol=0.0, atol=1e-9 * radius)
-            and np.allclose(meso.cell_size, reference.cell_size, rtol=0.0, atol=1e-9 * radius)
-            and np.array_equal(meso.driven, reference.driven) and np.array_equal(meso.outer, reference.outer)
-            and np.array_equal(meso.pairs, reference.pairs) and np.array_equal(meso.pair_label, reference.pair_label))
-    return (alpha0, radius) if same else None
+    return _plain(meso, H3_GRAINS, lambda alpha0, radius: build_h_cell_3d(alpha0, radius=radius))

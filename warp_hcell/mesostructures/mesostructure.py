@@ -32,7 +32,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from warp_hcell.core.contract import StateFeature, StateSchema
+from warp_hcell.core.contract import CellCounts, StateFeature, StateSchema
 from warp_hcell.core.parameters import DemSettings
 
 OBSERVABLE_KINDS = {
@@ -73,7 +73,7 @@ class MesostructureError(ValueError):
 
 
 @dataclass(frozen=True, eq=False)
-class Mesostructure:
+class Mesostructure(CellCounts):
     """One cell made of a few disks (2D) or spheres (3D), in the local frame (index 0 = n, the cell axis).
 
     A cell is planar (dim = 2, frame (n, t)) or spatial (dim = 3, frame (n, t1, t2)); the
@@ -136,16 +136,6 @@ class Mesostructure:
             value = np.array(value)
             value.setflags(write=False)
             object.__setattr__(self, name, value)
-
-    @property
-    def n_grains(self) -> int:
-        """Number of grains."""
-        return int(self.radius.size)
-
-    @property
-    def n_pairs(self) -> int:
-        """Number of candidate contact pairs."""
-        return int(self.pairs.shape[0])
 
     @property
     def dim(self) -> int:

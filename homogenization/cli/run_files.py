@@ -1,0 +1,258 @@
+"""What the commands that run backends share: the backend flags, the flags given, the output
+folder, the parameters and the status line of each backend's run.
+
+- ``backend_list``, ``backend_options``, ``check_options``, ``check_models_take``: the
+  --backend list and the flags that go to some backends only (``BACKEND_ONLY_OPTIONS``,
+  ``DEVICE_BACKENDS``);
+- ``check_run(args, figure_file)``: what a run command checks before any work;
+- ``explicit_flags(parser, argv, dests)``: the flags of a built-in programme that the user set;
+- ``check_replaceable(out, figure_file)``: DIR holds nothing but what the command writes;
+- ``backend_parameters(...)``: the first entries of a run's stored parameters (backend, its
+  options and provenance, contact law, radius, alpha0);
+- ``write_backend_run(...)``: run.h5 and curve.csv of one backend, and its status line;
+- ``build_models(...)`` and ``run_backends(...)``: every backend built and checked before any
+  run (an ANN model without a passed certificate refused unless --uncertified-ok), then run,
+  stored and reported one after the other.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from homogenization import driver, io
+from homogenization.backends import backend_class, BACKENDS, make_cell_model
+from homogenization.cli.options import certificate_note, refuse_uncertified
+from homogenization.driver import Record
+from warp_hcell.core.cli import quiet_warp, UserError, writing_to
+from warp_hcell.core.files import check_output_path
+from warp_hcell.core.parameters import ContactLaw
+from warp_hcell.core.provenance import file_sha256
+from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+
+BACKEND_ONLY_OPTIONS = {"threads": ("dem", "ann"), "model": ("ann",)}
+"""Backend-specific flags (argparse dest) -> the backends that take them."""
+DEVICE_BACKENDS = ("dem", "ann")
+"""Backends that take --device; the analytical cell runs on the cpu."""
+
+
+def backend_list(text: str) -> tuple[str, ...]:
+    """argparse type: comma list of registered backend names (duplicates dropped, order kept)."""
+    names = tuple(dict.fromkeys(name.strip() for name in text.split(",")))
+    for name in names:
+        if name not in BACKENDS:
+            raise argparse.ArgumentTypeError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+    return names
+
+
+def backend_options(args: argparse.Namespace, name: str) -> dict[str, Any]:
+    """Keyword options for backend ``name``: only the flags it takes and the user set."""
+    options: dict[str, Any] = {}
+    if name in DEVICE_BACKENDS:
+        options["device"] = args.device
+    for dest, takers in BACKEND_ONLY_OPTIONS.items():
+        value = getattr(args, dest)
+        if value is not None and name in takers:
+            options[dest] = value
+    return options
+
+
+def check_models_take(models: dict[str, Any], meso: Mesostructure) -> None:
+    """UserError (one line) unless every backend builds a cell of ``meso`` (checked before any run)."""
+    for name, model in models.items():
+        try:
+            model.init_state(meso, 1)
+        except ValueError as exc:
+            raise UserError(f"{name}: {exc}") from None
+
+
+def check_options(args: argparse.Namespace, backends: Sequence[str] | None = None) -> None:
+    """One-line UserError for flags that no chosen backend takes; fail early on unbuilt backends.
+
+    ``backends``: the chosen backend names (None: ``args.backend``, a ``backend_list``).
+    """
+    backends = tuple(args.backend if backends is None else backends)
+    for dest, takers in BACKEND_ONLY_OPTIONS.items():
+        if getattr(args, dest) is not None and not set(takers) & set(backends):
+            flag = "--" + dest.replace("_", "-")
+            raise UserError(f"{flag} applies to --backend {' or '.join(takers)} only")
+    if args.device != "cpu" and not set(DEVICE_BACKENDS) & set(backends):
+        raise UserError(f"--device applies to --backend {' or '.join(DEVICE_BACKENDS)} only (analytical runs on the cpu)")
+    for name in backends:
+        backend_class(name)  # ValueError (one line) if the backend is not built in this version
+    if args.device != "cpu" and "ann" in backends:
+        import torch  # noqa: PLC0415 (only when the ANN is asked for a GPU)
+
+        if not torch.cuda.is_available():
+            raise UserError(f"--device {args.device}: the installed torch has no CUDA support; use --device cpu for the ann")
+
+
+def check_run(args: argparse.Namespace, figure_file: str) -> None:
+    """What a run command checks before any work: --out (``check_output_path``,
+    ``check_replaceable``) and the backend-only flags (``check_options``); Warp's start-up
+    lines are silenced where the DEM runs and --verbose is not given."""
+    if "dem" in args.backend and not args.verbose:
+        quiet_warp(args.device)
+    check_output_path(args.out, overwrite=args.overwrite)
+    check_replaceable(args.out, figure_file)
+    check_options(args)
+
+
+def explicit_flags(parser: argparse.ArgumentParser, argv: Sequence[str], dests: Sequence[str]) -> set[str]:
+    """The argparse dests among ``dests`` that ``argv`` sets explicitly (not by default).
+
+    ``parser`` is a fresh parser of the command (its defaults are replaced here).
+    """
+    unset = object()  # not a string, so argparse does not run it through type=
+    parser.set_defaults(**{dest: unset for dest in dests})
+    parsed = vars(parser.parse_args(argv))
+    return {dest for dest in dests if parsed.get(dest, unset) is not unset}
+
+
+def check_replaceable(out: Path, figure_file: str) -> None:
+    """UserError unless ``out`` is absent or holds only what a run command writes.
+
+    A run command writes run.h5, curve.csv, ``figure_file`` and one folder per backend;
+    --overwrite replaces the whole folder, so it must not hold anything else (``--out .``
+    with --overwrite would otherwise delete the working folder).
+    """
+    if not out.is_dir():
+        if out.exists():
+            raise UserError(f"--out {out} is a file; give a folder")
+        return
+    ours = {io.RUN_FILE, io.CURVE_FILE, figure_file, *BACKENDS}
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in ours)
+    if foreign:
+        raise UserError(f"{out} holds files that this command did not write ({', '.join(foreign[:3])}); "
+                        f"choose another --out")
+
+
+def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, Any]:
+    """Backend settings worth recording: DEM settings and threads; the ANN's model path and
+    sha256, its certificate (worst figure, certified, the problem where not) and its
+    out-of-distribution counts (cell-increments checked and outside the threshold)."""
+    record: dict[str, Any] = {}
+    if hasattr(model, "settings"):
+        record["dem_settings"] = asdict(model.settings)
+    if hasattr(model, "threads"):
+        record["dem_threads"] = int(model.threads)
+    if name == "ann":
+        path = getattr(model, "model_path", None) or options.get("model")
+        if path is None:
+            from homogenization.backends.ann import default_model_path  # noqa: PLC0415
+
+            path = default_model_path()
+        path = Path(path).resolve()
+        record["ann_model"] = {"path": str(path), "sha256": file_sha256(path),
+                               "certificate_worst": (model.certificate or {}).get("worst"),
+                               "certified": model.certificate_problem is None,
+                               "certificate_problem": model.certificate_problem}
+        if model.ood is not None:
+            record["ann_model"]["ood"] = {"checked": int(model.ood_counts[1]), "outside": int(model.ood_counts[0]),
+                                          "threshold": model.ood.threshold}
+    return record
+
+
+def backend_parameters(name: str, model: Any, options: dict[str, Any], law: ContactLaw, radius: float,
+                       meso: Mesostructure) -> dict[str, Any]:
+    """The stored parameters every run starts with, in this order: backend, backend_options
+    (paths as text), the backend's provenance, contact_law, radius [m], alpha0_deg (None for a
+    cell that declares none)."""
+    return {
+        "backend": name,
+        "backend_options": {k: str(v) if isinstance(v, Path) else v for k, v in options.items()},
+        **provenance_of(name, model, options),
+        "contact_law": asdict(law),
+        "radius": radius,
+        "alpha0_deg": meso.parameters.get("alpha0_deg"),
+    }
+
+
+def write_backend_run(work: Path, out: Path, name: str, record: Record, parameters: dict[str, Any], *,
+                      several: bool, seed: int, command: str, elapsed: float, note: str = "") -> str:
+    """Write run.h5 and curve.csv of backend ``name`` into ``work`` (``work/name`` when
+    ``several``); returns its status line, with the final paths under ``out``.
+
+    The line counts the cell-increments the backend reports unconverged
+    (``diagnostics["n_unconverged"]``) and those with contacts outside the closed form
+    (``diagnostics["n_cross_plane"]``), where there are any, then ``note`` (the backend's own).
+
+    Raises:
+        UserError: the folder cannot be written (one line).
+    """
+    folder = work / name if several else work
+    final = out / name if several else out
+    with writing_to(out):
+        io.write_run(folder, record, parameters=parameters, seed=seed, command=command)
+    unconverged = record.diagnostics.get("n_unconverged")
+    counts = (f", {int(unconverged.sum())} unconverged cell-increments"
+              if unconverged is not None and unconverged.sum() else "")
+    cross = record.diagnostics.get("n_cross_plane")
+    if cross is not None and cross.sum():
+        counts += f", cross-plane contacts outside the closed form in {int(cross.sum())} cell-increments"
+    return f"{name}: {record.n_increments} increments in {elapsed:.1f} s{counts}{note} -> {final / io.RUN_FILE}, {final / io.CURVE_FILE}"
+
+
+def backend_note(model: Any) -> str:
+    """A backend's own part of its status line: the ANN's certificate and out-of-distribution counts."""
+    note = certificate_note(model)
+    if getattr(model, "ood", None) is not None:
+        note += f", out of distribution {int(model.ood_counts[0])} of {int(model.ood_counts[1])} checked cell-increments"
+    return note
+
+
+def build_models(args: argparse.Namespace, law: ContactLaw, meso: Mesostructure,
+                 **model_options: Any) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """(model, options) of every --backend, by name; each built with ``law``, --radius,
+    ``model_options`` and its own flags, and checked to build a cell of ``meso``, so that a
+    missing model file or a mesostructure a backend does not model fails before any run."""
+    options = {name: backend_options(args, name) for name in args.backend}
+    models = {name: make_cell_model(name, contact_law=law, radius=args.radius, **model_options, **options[name])
+              for name in args.backend}
+    check_models_take(models, meso)
+    for model in models.values():
+        refuse_uncertified(model, args)
+    return models, options
+
+
+def run_backends(args: argparse.Namespace, models: dict[str, Any], options: dict[str, dict[str, Any]],
+                 law: ContactLaw, meso: Mesostructure, run: Callable[[Any], Record],
+                 parameters: Callable[[Record], dict[str, Any]], *, work: Path, command: str
+                 ) -> tuple[dict[str, Record], dict[str, dict[str, Any]], list[str]]:
+    """Run every backend, one after the other, and write its run files into ``work``.
+
+    Args:
+        args: the command's arguments (--backend, --radius, --seed, --out).
+        models, options: from ``build_models``.
+        law, meso: the contact law and the cell of the run.
+        run: ``run(model)`` -> the backend's ``driver.Record``.
+        parameters: the command's stored parameters of a record, after ``backend_parameters``.
+        work: the folder being written (``output_folder``); command: the command line stored.
+
+    Returns:
+        (records, stored parameters, status lines), by backend name.
+
+    Raises:
+        UserError: a ``driver.ControlError`` of a backend (one line naming it), or a folder
+            that cannot be written.
+    """
+    records: dict[str, Record] = {}
+    stored: dict[str, dict[str, Any]] = {}
+    written: list[str] = []
+    for name, model in models.items():
+        start = time.perf_counter()
+        try:
+            record = run(model)
+        except driver.ControlError as exc:
+            raise UserError(f"{name}: {exc}") from None
+        elapsed = time.perf_counter() - start
+        stored[name] = {**backend_parameters(name, model, options[name], law, args.radius, meso), **parameters(record)}
+        written.append(write_backend_run(work, args.out, name, record, stored[name], several=len(models) > 1,
+                                         seed=args.seed, command=command, elapsed=elapsed,
+                                         note=backend_note(model)))
+        records[name] = record
+    return records, stored, written
