@@ -143,7 +143,7 @@ def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapp
     data.update({"states/cell_size": states[DEM_PREFIX + "cell_size"],
                  "states/free_position": free_coordinates(schema, position),
                  "states/shear_force": states[DEM_PREFIX + "shear_force"]})
-    for name in ("path_id", "start_id", "precompression", "direction_deg", "eps", *meso.parameters):
+    for name in ("path_id", "start_id", "precompression", "direction_deg", "turn_deg", "eps", *meso.parameters):
         if name in states:
             data[f"states/{name}"] = states[name]
     meso_text = description["mesostructure"]
