@@ -130,6 +130,44 @@ def test_exploration_is_generic_and_covers_the_shear_directions(h_db):
     assert set(stops) == {*exploration.STOP_RULES, exploration.TURN_NOT_REACHED} and stops["stress_free"] > 0
 
 
+def test_exploration_turns_legs_back(h_db):
+    """Branches leave a state of their leg and strain back against it: the increment's
+    component along the leg direction changes sign once, at the turn."""
+    data, _ = h_db
+    eps, path, turn = data["states/eps"], data["states/path_id"], data["states/turn_deg"]
+    branch_paths = np.unique(path[~np.isnan(turn)])
+    assert branch_paths.size >= 30
+    first_increment = SMALL.sample_spacing / 2 ** SMALL.leg_refinement
+    sign_changes = []
+    for pid in branch_paths:
+        mine = np.flatnonzero(path == pid)
+        psi, pc = data["states/direction_deg"][mine[0]], data["states/precompression"][mine[0]]
+        u = np.array([np.cos(np.radians(psi)), np.sin(np.radians(psi))])
+        leg = np.flatnonzero((data["states/start_id"] == data["states/start_id"][mine[0]])
+                             & (data["states/precompression"] == pc) & (data["states/direction_deg"] == psi)
+                             & np.isnan(turn))
+        distance = np.linalg.norm(eps[leg] - eps[mine[0]], axis=1)
+        turn_state = leg[np.argmin(distance)]
+        assert distance.min() == pytest.approx(first_increment, rel=1e-9)  # one increment from a leg state
+        walked = np.concatenate([eps[leg[leg <= turn_state]], eps[mine]])
+        along = np.diff(walked - pc, axis=0) @ u
+        sign_changes.append(np.count_nonzero(np.diff(np.sign(along)) != 0))
+        assert (walked[-1] - pc) @ u < (eps[turn_state] - pc) @ u
+    assert np.all(np.array(sign_changes) == 1)
+    negated = np.unique(path[turn == 180.0])
+    assert 0.3 < negated.size / branch_paths.size < 0.7  # reversal_negated_fraction = 0.5
+    assert np.all(np.abs(turn[~np.isnan(turn)]) >= SMALL.reversal_min_angle_deg)
+
+
+def test_same_seed_same_datasets_whatever_threads(tmp_path):
+    one, _ = run(tmp_path, "one.h5", threads=1)
+    two, _ = run(tmp_path, "two.h5", threads=2, workers=2)
+    (a, _), (b, _) = database.read_database(one), database.read_database(two)
+    assert set(a) == set(b) and "states/turn_deg" in a
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+
+
 def test_file_describes_its_mesostructure_and_schema(h_db, fine_db):
     for (data, attrs), meso in ((h_db, h_cell()), (fine_db, FINE)):
         assert attrs["format_version"] == 2 and attrs["mesostructure"] == describe(meso)

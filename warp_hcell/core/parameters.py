@@ -248,7 +248,7 @@ class DatabaseSettings:
     way) and runs like a leg (same increments, path length and volumetric limits); 0 = none."""
     reversal_arc: tuple[float, float] = (0.01, 0.2)
     """Range of the leg's path length at the turn [-]; the turn is one of the leg's sampled
-    states in it (at least one: the first increment after low), drawn uniformly (constant-volume shear to eps1 = 5 % moves a cell by up to
+    states in it (if none: the first after low, else the leg's last), drawn uniformly (constant-volume shear to eps1 = 5 % moves a cell by up to
     0.05 sqrt 2 = 0.07)."""
     reversal_negated_fraction: float = 0.5
     """Fraction of the branches whose direction is the leg's negated [-]; the others turn by an
@@ -263,8 +263,8 @@ class DatabaseSettings:
         if int(self.reversal_legs) < 0:
             raise ValueError(f"reversal_legs = {self.reversal_legs} must be >= 0")
         lo, hi = self.reversal_arc
-        if not (0.0 < lo <= hi and lo <= self.leg_length):
-            raise ValueError(f"reversal_arc = {self.reversal_arc} must satisfy 0 < low <= high, low <= leg_length")
+        if not 0.0 < lo <= hi:
+            raise ValueError(f"reversal_arc = {self.reversal_arc} must satisfy 0 < low <= high")
         if not 90.0 < self.reversal_min_angle_deg <= 180.0:
             raise ValueError(f"reversal_min_angle_deg = {self.reversal_min_angle_deg:g} must lie in (90, 180]")
         if not 0.0 <= self.reversal_negated_fraction <= 1.0:
