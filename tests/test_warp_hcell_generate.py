@@ -306,6 +306,7 @@ def exit_code(argv):
     (["--mesostructure", "hcell-fines:alpha0=50,ratio=0.9"], "fine grain ratio 0.9 does not fit the pore"),
     (["--mesostructure", "{file}"], "not valid"),
     (["--perturbed-fraction", "2"], "perturbed_fraction = 2 is outside [0, 1]"),
+    (["--reversal-legs", "-1"], "reversal_legs = -1 must be >= 0"),
     (["--backend", "analytical"], "unrecognized arguments: --backend analytical"),
     (["--device", "cuda:7"], "--device cuda:7: no CUDA GPU on this machine"),
 ])
