@@ -3,7 +3,7 @@
 # make docs      : same set-up plus the docs extra, then the documentation site (warnings are errors)
 #                  into docs/_build/html/index.html
 # make bench     : speed benchmarks (numbers quoted in README)
-# make reproduce : the whole pipeline from scratch: DEM database (3e5), training, three backends
+# make reproduce : the whole pipeline from scratch: DEM database (6e5), training, three backends
 #                  (its model is the shipped one: docs/ann.md)
 PYTHON ?= python3
 VENV := .venv
@@ -64,8 +64,8 @@ bench: venv
 
 reproduce: venv
 	mkdir -p runs
-	$(PY) -m warp_hcell.generate --samples 300000 --seed 0 --threads 1 --sample-spacing 2.5e-3 --perturbed-fraction 0.4 --out runs/db_3e5.h5 --overwrite
-	$(PY) -m training.train --data runs/db_3e5.h5 --out runs/ann.pt --overwrite
+	$(PY) -m warp_hcell.generate --samples 600000 --seed 0 --threads 1 --sample-spacing 2.5e-3 --perturbed-fraction 0.4 --out runs/db_6e5.h5 --overwrite
+	$(PY) -m training.train --data runs/db_6e5.h5 --out runs/ann.pt --overwrite
 	$(PY) -m homogenization.certificate --model runs/ann.pt --write
 	$(BIAXIAL) --backend analytical,dem,ann --model runs/ann.pt $(DEMO_ANN) --alpha0 55 --p0 5.85e6 $(OVERLAY) --out runs/alpha55
 	@echo "Figure: runs/alpha55/cambridge.png"

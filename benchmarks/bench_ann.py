@@ -11,7 +11,9 @@ printed with the numbers):
    implementation before the compiled one), the network call alone
    (``MesoNet.displacement``) and the step with its autograd tangent;
 2. unless ``--skip-run``: one JSON line per biaxial test (isotropic compression to p0, then
-   constant-volume, and/or drained (``--tests``), shear to ``--eps-max``) run with the
+   constant-volume, and/or drained (``--tests``), shear to ``--eps-max``; ``reversal``:
+   constant volume to eps1 = +``--reversal-strain``, then back to -``--reversal-strain``,
+   compared increment by increment) run with the
    ANN and its reference through ``homogenization.driver``: the analytical backend for the
    H-cell, the DEM with the same file for ``--mesostructure``; max |p - p_ref| and
    |q - q_ref| over the shear stage as fractions of p0, run times, and the ANN's counts of
@@ -54,8 +56,10 @@ def main() -> None:
                         help="confining pressures of the biaxial runs [N/m]")
     parser.add_argument("--alpha0", type=float, nargs="+", default=[55.0], help="initial opening angles [deg]")
     parser.add_argument("--eps-max", type=float, default=0.2, help="eps1 at the end of the shear stage [-]")
-    parser.add_argument("--tests", choices=("constant-volume", "drained", "both"), default="constant-volume",
-                        help="biaxial tests to run")
+    parser.add_argument("--tests", choices=("constant-volume", "drained", "both", "reversal"),
+                        default="constant-volume", help="biaxial tests to run")
+    parser.add_argument("--reversal-strain", type=float, default=0.05,
+                        help="reversal test: eps1 of the turn, then back to minus it [-]")
     parser.add_argument("--mesostructure", default=None,
                         help="mesostructure file: compare the ANN (--model trained on it) with the DEM")
     args = parser.parse_args()
@@ -102,10 +106,25 @@ def time_increments(args) -> None:
 
 def _cases(args) -> list[dict]:
     alphas = args.alpha0
+    if args.tests == "reversal":
+        return [{"p0": p0, "increment": inc, "reversal": args.reversal_strain, "alpha0": alpha0}
+                for alpha0 in args.alpha0 for p0 in args.p0 for inc in args.increments]
     return [{"p0": p0, "increment": inc, "drained": drained, "alpha0": alpha0, "eps_max": args.eps_max}
             for drained in {"constant-volume": [False], "drained": [True], "both": [False, True]}[args.tests]
             for alpha0 in alphas
             for p0 in args.p0 for inc in args.increments]
+
+
+def reversal_programme(p0: float, turn: float, increment: float) -> loading.Programme:
+    """Isotropic compression to p0, constant volume to eps1 = +turn, then back to eps1 = -turn.
+
+    Args:
+        p0: confining pressure [N/m]; turn: eps1 of the turn [-], > 0 (compression
+            positive); increment: strain increment of every stage [-].
+    """
+    n = loading.n_increments_for(turn, increment)
+    return (loading.isotropic(p0, increment=increment), loading.constant_volume_biaxial(turn, n, label="load"),
+            loading.proportional_strain(-2.0 * turn, 2.0 * turn, 2 * n, label="unload"))
 
 
 def _shear_stage(record):
@@ -124,8 +143,11 @@ def compare(case: dict, model, mesostructure, n_cells: int) -> dict:
     """
     meso = load_mesostructure(mesostructure) if mesostructure else h_cell(case["alpha0"])
     reference = ("dem", {}) if mesostructure else ("analytical", {})
-    programme = loading.biaxial(case["p0"], case["eps_max"], case["increment"], iso_increment=case["increment"],
-                                drained=case["drained"])
+    if "reversal" in case:
+        programme = reversal_programme(case["p0"], case["reversal"], case["increment"])
+    else:
+        programme = loading.biaxial(case["p0"], case["eps_max"], case["increment"], iso_increment=case["increment"],
+                                    drained=case["drained"])
     out: dict = {"case": {**case, "mesostructure": str(mesostructure) if mesostructure else "h-cell (builder)",
                           "reference": reference[0], "n_cells": n_cells}}
     records = {}
@@ -140,8 +162,14 @@ def compare(case: dict, model, mesostructure, n_cells: int) -> dict:
         out[f"seconds_{name}"] = round(time.perf_counter() - start, 1)
     e_ref, p_ref, q_ref, _ = _shear_stage(records[reference[0]])
     e_ann, p_ann, q_ann, p_iso = _shear_stage(records["ann"])
-    out["max_dp_over_p0"] = float(np.abs(np.interp(e_ref, e_ann, p_ann) - p_ref).max() / case["p0"])
-    out["max_dq_over_p0"] = float(np.abs(np.interp(e_ref, e_ann, q_ann) - q_ref).max() / case["p0"])
+    if "reversal" in case:  # eps1 goes back: same strain-controlled increments, compared one by one
+        n = min(e_ref.size, e_ann.size)
+        out["max_dp_over_p0"] = float(np.abs(p_ann[:n] - p_ref[:n]).max() / case["p0"])
+        out["max_dq_over_p0"] = float(np.abs(q_ann[:n] - q_ref[:n]).max() / case["p0"])
+        out["increments_compared"] = int(n)
+    else:
+        out["max_dp_over_p0"] = float(np.abs(np.interp(e_ref, e_ann, p_ann) - p_ref).max() / case["p0"])
+        out["max_dq_over_p0"] = float(np.abs(np.interp(e_ref, e_ann, q_ann) - q_ref).max() / case["p0"])
     out["ann_eps1_reached"] = float(e_ann[-1])
     out["ann_diagnostics"] = {k: float(np.nansum(v)) for k, v in records["ann"].diagnostics.items()
                               if not k.endswith("_all_calls")}

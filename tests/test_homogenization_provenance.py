@@ -4,7 +4,9 @@ model path and sha256; and the settings biaxial resolves (contact law, iso incre
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
+import shutil
 import subprocess
 import sys
 from dataclasses import asdict
@@ -17,6 +19,7 @@ import pytest
 from homogenization.cli import biaxial
 from homogenization import io
 from warp_hcell.core.cli import run_main
+from warp_hcell.core import provenance
 from warp_hcell.core.parameters import DemSettings
 from warp_hcell.core.provenance import command_line, file_sha256
 
@@ -98,3 +101,22 @@ def test_command_line_names_the_module_of_a_python_m_run():
     done = subprocess.run([sys.executable, "-c", code, "--flag", "a b"], capture_output=True, text=True, env=env)
     assert done.stdout.strip() == "-c --flag 'a b'"
     assert command_line()  # the pytest process has one
+
+
+def test_git_revision_marks_a_tree_with_changed_tracked_files_dirty(tmp_path):
+    def git(*args):
+        return subprocess.run(["git", "-C", str(tmp_path), *args], capture_output=True, text=True, check=True).stdout
+
+    shutil.copy(provenance.__file__, tmp_path / "provenance.py")
+    git("init", "-q")
+    git("add", "provenance.py")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "one")
+    spec = importlib.util.spec_from_file_location("provenance_copy", tmp_path / "provenance.py")
+    copy = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(copy)
+    head = git("rev-parse", "HEAD").strip()
+    (tmp_path / "untracked.txt").write_text("not part of the tree\n")
+    assert copy.git_revision() == head
+    with open(tmp_path / "provenance.py", "a") as fh:
+        fh.write("# changed\n")
+    assert copy.git_revision() == head + "-dirty"

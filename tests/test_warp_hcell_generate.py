@@ -30,7 +30,7 @@ DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
 STARTS = StartCells(n_alpha0=2, alpha0_focus_deg=(55.0,))
 SMALL = DatabaseSettings(samples=2000, chunk_size=500,
                          precompression=(0.0, 1e-3, 1e-2), n_directions=8, sample_spacing=1e-2, leg_length=0.05,
-                         leg_refinement=1)
+                         leg_volumetric=0.05, leg_refinement=1)
 LATERAL = load_mesostructure(DATA / "h_cell_lateral_0.7D.toml")
 FINE = replace(load_mesostructure(DATA / "h_cell_fine_grain.toml"), name="fine grain, no H-cell labels",
                pair_label=None, observables=(), parameters={})
@@ -127,7 +127,45 @@ def test_exploration_is_generic_and_covers_the_shear_directions(h_db):
     iso = np.isnan(data["states/direction_deg"])
     np.testing.assert_array_equal(data["states/eps"][iso, 0], data["states/eps"][iso, 1])
     stops = json.loads(attrs["exploration_stops"])
-    assert set(stops) == set(exploration.STOP_RULES) and stops["stress_free"] > 0
+    assert set(stops) == {*exploration.STOP_RULES, exploration.TURN_NOT_REACHED} and stops["stress_free"] > 0
+
+
+def test_exploration_turns_legs_back(h_db):
+    """Branches leave a state of their leg and strain back against it: the increment's
+    component along the leg direction changes sign once, at the turn."""
+    data, _ = h_db
+    eps, path, turn = data["states/eps"], data["states/path_id"], data["states/turn_deg"]
+    branch_paths = np.unique(path[~np.isnan(turn)])
+    assert branch_paths.size >= 30
+    first_increment = SMALL.sample_spacing / 2 ** SMALL.leg_refinement
+    sign_changes = []
+    for pid in branch_paths:
+        mine = np.flatnonzero(path == pid)
+        psi, pc = data["states/direction_deg"][mine[0]], data["states/precompression"][mine[0]]
+        u = np.array([np.cos(np.radians(psi)), np.sin(np.radians(psi))])
+        leg = np.flatnonzero((data["states/start_id"] == data["states/start_id"][mine[0]])
+                             & (data["states/precompression"] == pc) & (data["states/direction_deg"] == psi)
+                             & np.isnan(turn))
+        distance = np.linalg.norm(eps[leg] - eps[mine[0]], axis=1)
+        turn_state = leg[np.argmin(distance)]
+        assert distance.min() == pytest.approx(first_increment, rel=1e-9)  # one increment from a leg state
+        walked = np.concatenate([eps[leg[leg <= turn_state]], eps[mine]])
+        along = np.diff(walked - pc, axis=0) @ u
+        sign_changes.append(np.count_nonzero(np.diff(np.sign(along)) != 0))
+        assert (walked[-1] - pc) @ u < (eps[turn_state] - pc) @ u
+    assert np.all(np.array(sign_changes) == 1)
+    negated = np.unique(path[turn == 180.0])
+    assert 0.3 < negated.size / branch_paths.size < 0.7  # reversal_negated_fraction = 0.5
+    assert np.all(np.abs(turn[~np.isnan(turn)]) >= SMALL.reversal_min_angle_deg)
+
+
+def test_same_seed_same_datasets_whatever_threads(tmp_path):
+    one, _ = run(tmp_path, "one.h5", threads=1)
+    two, _ = run(tmp_path, "two.h5", threads=2, workers=2)
+    (a, _), (b, _) = database.read_database(one), database.read_database(two)
+    assert set(a) == set(b) and "states/turn_deg" in a
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
 
 
 def test_file_describes_its_mesostructure_and_schema(h_db, fine_db):
@@ -268,6 +306,7 @@ def exit_code(argv):
     (["--mesostructure", "hcell-fines:alpha0=50,ratio=0.9"], "fine grain ratio 0.9 does not fit the pore"),
     (["--mesostructure", "{file}"], "not valid"),
     (["--perturbed-fraction", "2"], "perturbed_fraction = 2 is outside [0, 1]"),
+    (["--reversal-legs", "-1"], "reversal_legs = -1 must be >= 0"),
     (["--backend", "analytical"], "unrecognized arguments: --backend analytical"),
     (["--device", "cuda:7"], "--device cuda:7: no CUDA GPU on this machine"),
 ])

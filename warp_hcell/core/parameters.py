@@ -210,8 +210,10 @@ class DatabaseSettings:
     leg_length: float = 0.45
     """Largest path length of a leg [-] (constant-volume shearing to eps1 = 0.3 moves a
     cell by up to 0.3 sqrt 2)."""
-    leg_volumetric: float = 0.05
-    """Largest change ``|d(eps_n + eps_t)|`` of the cell's volumetric strain along a leg [-]."""
+    leg_volumetric: float = 0.08
+    """Largest change ``|d(eps_n + eps_t)|`` of the cell's volumetric strain along a leg [-]
+    (drained biaxial shear of H-cells to eps1 = 0.2 changes it by up to 0.069: alpha0 = 40 deg,
+    p0 = 2e5 N/m; every cell of a biaxial test shares the macroscopic volumetric strain)."""
     probe_min: float = 1e-6
     """Smallest probe magnitude ``|d_eps|`` [-]."""
     probe_max: float = 1e-3
@@ -240,10 +242,33 @@ class DatabaseSettings:
     gives ~0.03 on the H-cell)."""
     max_cell_strain: float = 0.5
     """A path stops when ``|eps_n|`` or ``|eps_t|`` summed from its start cell exceeds this [-]."""
+    reversal_legs: int = 1
+    """Turning branches per proportional leg [-]: each leaves one of the leg's sampled states
+    (the turn) in a direction turned back from the leg's (unloading, then loading the other
+    way) and runs like a leg (same increments, path length and volumetric limits); 0 = none."""
+    reversal_arc: tuple[float, float] = (0.01, 0.2)
+    """Range of the leg's path length at the turn [-]; the turn is one of the leg's sampled
+    states in it (if none: the first after low, else the leg's last), drawn uniformly (constant-volume shear to eps1 = 5 % moves a cell by up to
+    0.05 sqrt 2 = 0.07)."""
+    reversal_negated_fraction: float = 0.5
+    """Fraction of the branches whose direction is the leg's negated [-]; the others turn by an
+    angle drawn uniformly in [reversal_min_angle_deg, 180] deg, either sense."""
+    reversal_min_angle_deg: float = 100.0
+    """Smallest turn of the branches that are not negated [deg], in (90, 180]: every branch
+    strains back against its leg."""
 
     def __post_init__(self) -> None:
         if int(self.leg_refinement) < 0:
             raise ValueError(f"leg_refinement = {self.leg_refinement} must be >= 0")
+        if int(self.reversal_legs) < 0:
+            raise ValueError(f"reversal_legs = {self.reversal_legs} must be >= 0")
+        lo, hi = self.reversal_arc
+        if not 0.0 < lo <= hi:
+            raise ValueError(f"reversal_arc = {self.reversal_arc} must satisfy 0 < low <= high")
+        if not 90.0 < self.reversal_min_angle_deg <= 180.0:
+            raise ValueError(f"reversal_min_angle_deg = {self.reversal_min_angle_deg:g} must lie in (90, 180]")
+        if not 0.0 <= self.reversal_negated_fraction <= 1.0:
+            raise ValueError(f"reversal_negated_fraction = {self.reversal_negated_fraction:g} is outside [0, 1]")
         for name in ("samples", "chunk_size", "n_directions"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} = {getattr(self, name)} must be >= 1")

@@ -36,13 +36,20 @@ def package_versions() -> dict[str, str]:
 
 
 def git_revision() -> str:
-    """Commit of the source tree this module was loaded from, or "unknown" outside a checkout."""
+    """Commit of the source tree this module was loaded from, with "-dirty" appended when a
+    tracked file differs from it (untracked files do not count), or "unknown" outside a checkout."""
+    here = Path(__file__).resolve().parent
     try:
-        result = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
-                                capture_output=True, text=True, timeout=10, check=True)
+        result = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=10,
+                                check=True)
+        changed = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                                 capture_output=True, text=True, timeout=30, check=True)
     except (OSError, subprocess.SubprocessError):
         return "unknown"
-    return result.stdout.strip() or "unknown"
+    revision = result.stdout.strip()
+    if not revision:
+        return "unknown"
+    return revision + "-dirty" if changed.stdout.strip() else revision
 
 
 def command_line() -> str:

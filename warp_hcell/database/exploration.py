@@ -1,6 +1,6 @@
 """Exploration tree of the database generator: the cell states that the probes start from.
 
-Deterministic (no randomness). From each start cell (a batch of cells sharing one learning
+Deterministic (fixed draws, below). From each start cell (a batch of cells sharing one learning
 state, ``warp_hcell.mesostructures.mesostructure.shares_state_schema``), one isotropic path compresses the
 cell (d_eps_n = d_eps_t) through the precompression levels; from the state at each level,
 proportional legs leave in ``n_directions`` directions psi of the (eps_n, eps_t) plane (all
@@ -10,6 +10,18 @@ active paths advance as ONE batch per increment and every state reached is sampl
 increment is ``sample_spacing`` (path length), except at the start of a leg where it starts
 at sample_spacing / 2**leg_refinement and doubles (finer sampling after the change of
 direction, where the response changes fastest).
+
+Turning branches (``reversal_legs`` per leg, ``turn_branches``): each leaves one of its leg's
+sampled states (the turn, at a path length drawn in ``reversal_arc``) in the leg's direction
+turned by an angle > 90 deg (negated for a fraction ``reversal_negated_fraction``, else turned
+by an angle drawn in [``reversal_min_angle_deg``, 180] deg, either sense), so the cell unloads
+and then loads the other way, as in a homogenised test whose loading reverses. A branch runs
+like a leg (the same refined increments, up to ``leg_length``; its volumetric limit counts from
+its leg's start) and is a path of its own. The draws are pseudo-random but fixed: a generator
+seeded with (``TURN_STREAM``, start id) draws them for every (precompression level, direction,
+branch) of its start cell, so they depend neither on the generator's seed nor on how start
+cells are grouped. A branch whose leg stopped before its turn is not walked (counted:
+``turn_not_reached`` among the stop counts).
 
 Stop rules (generic; ``stop_masks``): a path stops, and its state is not sampled, when the
 DEM did not converge, a value is not finite, the cell has carried no contact force over a
@@ -44,6 +56,10 @@ STOP_RULES = {
     "cell_strain": "|eps_n| or |eps_t| from the start cell > max_cell_strain",
 }
 """Stop rules of the exploration and what they test."""
+TURN_NOT_REACHED = "turn_not_reached"
+"""Stop-count key of the turning branches not walked because their leg stopped before the turn."""
+TURN_STREAM = 0x7475726E
+"""First word of the seed of the turning branches' draws (then the start id)."""
 
 
 def leg_directions(settings: DatabaseSettings) -> np.ndarray:
@@ -75,6 +91,45 @@ def leg_steps(settings: DatabaseSettings, directions: np.ndarray, arc: np.ndarra
     volumetric = np.abs(directions.sum(axis=1))
     reach = settings.leg_volumetric / np.maximum(volumetric, 1e-300) * (1.0 + 1e-12)
     return np.searchsorted(arc, reach, side="right").astype(np.int64)
+
+
+def turn_draws(settings: DatabaseSettings, start_id: int, n_levels: int) -> tuple[np.ndarray, np.ndarray]:
+    """Turns of the branches of one start cell (module docstring), each shape
+    (n_levels, n_directions, reversal_legs): the leg's increments done at the turn (int64, >= 1;
+    the state after them is the turn) and the angle [rad] from the leg's direction to the
+    branch's, counter-clockwise in the (eps_n, eps_t) plane (pi: negated)."""
+    rng = np.random.default_rng([TURN_STREAM, int(start_id)])
+    arc = leg_arc(settings)
+    lo, hi = settings.reversal_arc
+    candidates = np.flatnonzero((arc >= lo * (1.0 - 1e-12)) & (arc <= hi * (1.0 + 1e-12)))
+    if not candidates.size:
+        candidates = np.array([min(int(np.searchsorted(arc, lo * (1.0 - 1e-12))), arc.size - 1)])
+    shape = (n_levels, settings.n_directions, settings.reversal_legs)
+    steps = candidates[rng.integers(0, candidates.size, size=shape)] + 1
+    negated = rng.random(shape) < settings.reversal_negated_fraction
+    turn = rng.uniform(math.radians(settings.reversal_min_angle_deg), math.pi, size=shape)
+    sense = np.where(rng.random(shape) < 0.5, -1.0, 1.0)
+    return steps.astype(np.int64), np.where(negated, math.pi, sense * turn)
+
+
+def turned(directions: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Unit directions (n, 2) turned counter-clockwise by ``angle`` [rad] (n,); pi gives exactly -direction."""
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.stack([c * directions[:, 0] - s * directions[:, 1], s * directions[:, 0] + c * directions[:, 1]], axis=1)
+    return np.where((angle == math.pi)[:, None], -directions, out)
+
+
+def volumetric_steps(settings: DatabaseSettings, volumetric_start: np.ndarray, increments: np.ndarray) -> np.ndarray:
+    """Increments of each path before its volumetric change from the leg's start exceeds
+    ``leg_volumetric``, shape (n,) int64.
+
+    Args:
+        volumetric_start: eps_n + eps_t at the path's start minus at its leg's start [-], (n,).
+        increments: (d_eps_n, d_eps_t) of each increment, shape (n, K, 2).
+    """
+    change = volumetric_start[:, None] + np.cumsum(increments.sum(axis=2), axis=1)
+    within = np.abs(change) <= settings.leg_volumetric * (1.0 + 1e-12)
+    return np.where(within.all(axis=1), within.shape[1], np.argmin(within, axis=1)).astype(np.int64)
 
 
 def force_floor(schema: StateSchema, contact_law: ContactLaw, contact_tolerance: float) -> float:
@@ -138,8 +193,8 @@ class Explorer:
         self.settings = settings
         self.contact_law = contact_law
         self.contact_tolerance = contact_tolerance
-        self.stops = {rule: np.zeros(n_starts, np.int64) for rule in STOP_RULES}
-        """How often each stop rule fired, per start cell."""
+        self.stops = {rule: np.zeros(n_starts, np.int64) for rule in (*STOP_RULES, TURN_NOT_REACHED)}
+        """How often each stop rule fired, and how many branches were not walked, per start cell."""
 
     def _free_run(self, arrays, previous: np.ndarray, length: np.ndarray) -> np.ndarray:
         free = stress_free(self.schema, arrays, self.contact_law, self.contact_tolerance)
@@ -201,8 +256,9 @@ class Explorer:
 
 
 def path_stride(settings: DatabaseSettings) -> int:
-    """Path ids of start cell k are k * path_stride + (0: its isotropic path; 1, 2, ...: its legs)."""
-    return 1 + len(set(settings.precompression)) * settings.n_directions
+    """Path ids of start cell k are k * path_stride + (0: its isotropic path; 1, 2, ...: its
+    legs; after the n_levels * n_directions legs: the branches, reversal_legs per leg in leg order)."""
+    return 1 + len(set(settings.precompression)) * settings.n_directions * (1 + settings.reversal_legs)
 
 
 def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSettings, contact_law: ContactLaw,
@@ -223,8 +279,10 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
         the DEM arrays (prefix ``DEM_PREFIX``), ``path_id`` (``path_stride``) and ``start_id``
         int64, ``precompression`` [-] (isotropic strain the leg started from; the current one
         on isotropic paths), ``direction_deg`` [deg] (leg direction psi; NaN on isotropic
-        paths), ``eps`` (n_states, 2) [-] summed from the start cell. ``stops``: rule ->
-        how often it fired, per start cell, shape (n_starts,) int64.
+        paths; the leg's on its branches), ``turn_deg`` [deg] (a branch's turn from its
+        leg's direction, counter-clockwise, 180 = negated; NaN elsewhere), ``eps`` (n_states, 2)
+        [-] summed from the start cell. ``stops``: rule (and ``TURN_NOT_REACHED``) -> how
+        often it fired, per start cell, shape (n_starts,) int64.
     """
     n_starts = int(start_state.n_cells)
     explorer = Explorer(cell_model, schema, settings, contact_law, contact_tolerance, n_starts)
@@ -253,18 +311,88 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
     increments = np.diff(arc, prepend=0.0)[None, :, None] * directions[leg_dir][:, None, :]
     legs = explorer.walk(starts, increments, steps, iso["eps"][leg_origin], iso["free_run"][leg_origin],
                          iso["cell"][leg_origin], "proportional legs", sample_start=False)
-    legs.pop("step")
-    cell = legs.pop("cell")
-    start = leg_origin[cell]
     # leg number within its start cell, in creation order (whatever the other start cells)
     leg_start = iso["start_id"][leg_origin]
     by_start = np.argsort(leg_start, kind="stable")
     rank = np.empty(leg_start.size, np.int64)
     rank[by_start] = np.arange(leg_start.size) - np.searchsorted(leg_start[by_start], leg_start[by_start])
+    leg_level = np.searchsorted(levels, iso_eps[leg_origin])
+    branches = turn_branches(explorer, cell_model, legs, directions, leg_dir, leg_level, leg_start, leg_origin,
+                             iso, iso_eps, arc, levels.size)
+    step, cell = legs.pop("step"), legs.pop("cell")
+    start = leg_origin[cell]
     legs.update(path_id=leg_start[cell] * stride + 1 + rank[cell], start_id=leg_start[cell],
-                precompression=iso_eps[start], direction_deg=360.0 * leg_dir[cell] / n_dir)
+                precompression=iso_eps[start], direction_deg=360.0 * leg_dir[cell] / n_dir,
+                turn_deg=np.full(cell.size, np.nan))
+    if branches is not None:
+        leg, branch, angle = branches.pop("leg"), branches.pop("branch"), branches.pop("angle")
+        branches.update(path_id=leg_start[leg] * stride + 1 + levels.size * n_dir
+                        + rank[leg] * settings.reversal_legs + branch, start_id=leg_start[leg],
+                        precompression=iso_eps[leg_origin[leg]], direction_deg=360.0 * leg_dir[leg] / n_dir,
+                        turn_deg=np.degrees(angle))
     iso.pop("cell")
-    states = {name: np.concatenate([iso[name], legs[name]]) for name in iso}
+    iso["turn_deg"] = np.full(iso_eps.size, np.nan)
+    parts = [iso, legs] if branches is None else [iso, legs, branches]
+    states = {name: np.concatenate([part[name] for part in parts]) for name in iso}
     states.pop("free_run")
     order = np.argsort(states["start_id"], kind="stable")
     return {name: value[order] for name, value in states.items()}, explorer.stops
+
+
+def turn_branches(explorer: Explorer, cell_model, legs: Mapping[str, np.ndarray], directions: np.ndarray,
+                  leg_dir: np.ndarray, leg_level: np.ndarray, leg_start: np.ndarray, leg_origin: np.ndarray,
+                  iso: Mapping[str, np.ndarray], iso_eps: np.ndarray, arc: np.ndarray,
+                  n_levels: int) -> dict[str, np.ndarray] | None:
+    """Walk the turning branches of the walked legs (module docstring); None without branches.
+
+    Args:
+        explorer: the exploration's walker (its stop counts get ``TURN_NOT_REACHED``).
+        legs: ``Explorer.walk`` output of the legs (``cell`` = leg index, ``step``).
+        directions: unit leg directions, (n_directions, 2); leg_dir, leg_level, leg_start,
+            leg_origin: per leg, its direction index, precompression level index, start id
+            and isotropic state (index into ``iso``), each (n_legs,) int.
+        iso: the isotropic paths' states (``cell``: local start cell); iso_eps: their
+            isotropic strain [-]; arc: ``leg_arc``; n_levels: precompression levels.
+
+    Returns:
+        The branch states as walked (``Explorer.walk``: DEM arrays, ``eps``, ``free_run``),
+        with ``leg`` (parent leg index), ``branch`` (0..reversal_legs-1) int64 and ``angle``
+        [rad] per state.
+    """
+    settings = explorer.settings
+    n_rev = settings.reversal_legs
+    if not n_rev or not leg_dir.size:
+        return None
+    steps = np.empty((leg_dir.size, n_rev), np.int64)
+    angle = np.empty((leg_dir.size, n_rev))
+    for start_id in np.unique(leg_start):
+        mine = leg_start == start_id
+        turn_step, turn_angle = turn_draws(settings, int(start_id), n_levels)
+        steps[mine] = turn_step[leg_level[mine], leg_dir[mine]]
+        angle[mine] = turn_angle[leg_level[mine], leg_dir[mine]]
+    leg = np.repeat(np.arange(leg_dir.size), n_rev)
+    branch = np.tile(np.arange(n_rev), leg_dir.size)
+    steps, angle = steps.ravel(), angle.ravel()
+    key = legs["cell"] * (arc.size + 1) + legs["step"]
+    order = np.argsort(key, kind="stable")
+    want = leg * (arc.size + 1) + steps
+    at = np.minimum(np.searchsorted(key[order], want), key.size - 1)
+    reached = key[order][at] == want
+    np.add.at(explorer.stops[TURN_NOT_REACHED], iso["cell"][leg_origin[leg[~reached]]], 1)
+    leg, branch, angle, row = leg[reached], branch[reached], angle[reached], order[at[reached]]
+    if not leg.size:
+        return None
+    dem = {name[len(DEM_PREFIX):]: value[row] for name, value in legs.items() if name.startswith(DEM_PREFIX)}
+    new_direction = turned(directions[leg_dir[leg]], angle)
+    increments = np.diff(arc, prepend=0.0)[None, :, None] * new_direction[:, None, :]
+    eps = legs["eps"][row]
+    volumetric = eps.sum(axis=1) - 2.0 * iso_eps[leg_origin[leg]]
+    n_steps = volumetric_steps(settings, volumetric, increments)
+    if not n_steps.any():
+        return None
+    walked = explorer.walk(cell_model.state_from_arrays(dem), increments, n_steps, eps, legs["free_run"][row],
+                           iso["cell"][leg_origin[leg]], "turning branches", sample_start=False)
+    walked.pop("step")
+    index = walked.pop("cell")
+    walked.update(leg=leg[index], branch=branch[index], angle=angle[index])
+    return walked

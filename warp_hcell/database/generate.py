@@ -141,7 +141,7 @@ def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapp
     data.update({"states/cell_size": states[DEM_PREFIX + "cell_size"],
                  "states/free_position": free_coordinates(schema, position),
                  "states/shear_force": states[DEM_PREFIX + "shear_force"]})
-    for name in ("path_id", "start_id", "precompression", "direction_deg", "eps", *meso.parameters):
+    for name in ("path_id", "start_id", "precompression", "direction_deg", "turn_deg", "eps", *meso.parameters):
         if name in states:
             data[f"states/{name}"] = states[name]
     meso_text = description["mesostructure"]
@@ -304,6 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "(plus 35, 40, 55)")
     parser.add_argument("--perturbed-fraction", type=float, default=defaults.perturbed_fraction,
                         help="fraction of probes starting from a perturbed (unbalanced) state")
+    parser.add_argument("--reversal-legs", type=int, default=defaults.reversal_legs,
+                        help="turning branches per proportional leg (unloading / reloading states; 0 = none)")
     parser.add_argument("--clean", action="store_true",
                         help="apply the cleaning step (warp_hcell.clean: unconverged, non-finite) to `valid`")
     return parser
@@ -315,7 +317,7 @@ def _run(argv: Sequence[str] | None) -> int:
     try:
         settings = DatabaseSettings(samples=args.samples, chunk_size=args.chunk_size,
                                     sample_spacing=args.sample_spacing, n_directions=args.n_directions,
-                                    perturbed_fraction=args.perturbed_fraction)
+                                    perturbed_fraction=args.perturbed_fraction, reversal_legs=args.reversal_legs)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     check_output_path(args.out, overwrite=args.overwrite)
