@@ -50,8 +50,9 @@ above the tolerance there means a slope ~1e6 times the material's own (about 20 
 
 LEBEDEV_ORDER = 35
 """Default Lebedev order of the 3D cell axes (``orientation3d``: 217 axes on the hemisphere).
-With ``N_SPINS`` (3472 cells) the closed form's triaxial curves lie within 0.6 % of p0 of a
-27680-cell rule at p0 = 2e5 Pa where the stresses stay near p0 (docs/triaxial.md, Quadrature)."""
+With ``N_SPINS`` (3472 cells) the closed form's triaxial curves lie within 0.33 % of p0 of a
+27680-cell rule at p0 = 5.85e6 Pa, within 0.13 % of the path's largest p (3.7 % of p0) where an
+undrained sample at 2e5 Pa dilates to about 22 p0 (docs/triaxial.md, Quadrature)."""
 N_SPINS = 16
 """Default spins per 3D cell axis (psi = j * 90 deg / 16, j = 0 .. 15, over the 90 deg period)."""
 
