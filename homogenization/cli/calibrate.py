@@ -1,8 +1,8 @@
 """hmodel calibrate --data a.csv [--data b.csv] --backend analytical --params phi_g,kn,kt_over_kn,alpha0 [--prior FILE] --out DIR
 
 (also ``python -m homogenization.calibrate``.) Bayesian calibration of the H-model's
-micro-parameters on measured biaxial curves (format: ``homogenization.calibration.data``;
-worked example: docs/calibration.md). Every --data test is fitted jointly; the parameters not
+micro-parameters on measured biaxial (2D) or triaxial (3D) curves (format:
+``homogenization.calibration.data``; worked example: docs/calibration.md). Every --data test is fitted jointly; the parameters not
 in --params keep the values of --phi, --kn, --kt and --alpha0.
 
 The posterior is sampled with emcee's affine-invariant ensemble: every step runs the forward
@@ -78,13 +78,13 @@ def build_parser() -> argparse.ArgumentParser:
     """Parser of the calibrate command."""
     parser = Parser(
         prog=command_prog("homogenization.calibrate"),
-        description="Bayesian calibration of the H-model's micro-parameters on measured biaxial curves.",
+        description="Bayesian calibration of the H-model's micro-parameters on measured biaxial or triaxial curves.",
         parents=[common_parser()],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("--data", type=Path, action="append", required=True,
-                        help="measured curve (CSV: '# test = undrained|drained', '# p0 = ...', header eps1 and any of "
-                             "q, p, eps_v); repeat for a joint fit")
+                        help="measured curve (CSV: '# test = undrained|drained|triaxial_undrained|triaxial_drained', "
+                             "'# p0 = ...', header eps1 and any of q, p, eps_v); repeat for a joint fit")
     parser.add_argument("--backend", choices=tuple(BACKENDS), default="analytical", help="forward model")
     parser.add_argument("--params", type=parameter_list, required=True,
                         help=f"parameters to calibrate, comma list of {','.join(PARAMETERS)}")
@@ -173,6 +173,8 @@ def forward_settings(args: argparse.Namespace) -> ForwardSettings:
 def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
+    if args.backend == "ann" and any(t.dim == 3 for t in tests):
+        raise UserError("--backend ann has no 3D model: triaxial data need --backend analytical or dem")
     if args.walkers < 2 * len(args.params):
         raise UserError(f"--walkers {args.walkers} must be >= 2 x the {len(args.params)} parameters")
     if args.increment > min(float(t.eps1.max()) for t in tests):
