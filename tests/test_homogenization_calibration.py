@@ -339,3 +339,10 @@ def test_triaxial_data_with_the_ann_backend_exit_2(tmp_path, capsys):
                         "--out", str(tmp_path / "out")])
     assert code == 2 and "no 3D model" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_triaxial_data_need_an_alpha0_prior_above_45_deg(tmp_path, capsys):
+    data = write(tmp_path, GOOD.replace("= undrained", "= triaxial_undrained"))
+    code = hmodel.main(["calibrate", "--data", str(data), "--params", "phi_g,alpha0", "--out", str(tmp_path / "out")])
+    assert code == 2 and "alpha0 >= 45" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

@@ -193,6 +193,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         prior = bayes.make_prior(args.params, args.prior)
     except ValueError as exc:
         raise UserError(str(exc)) from None
+    if any(t.dim == 3 for t in tests) and "alpha0" in prior.names and prior.low[prior.names.index("alpha0")] < 45.0:
+        raise UserError("triaxial data: the ten-sphere cell needs alpha0 >= 45 deg (below, its two planes overlap); "
+                        "give a prior such as {\"alpha0\": [45, 85]} (--prior FILE)")
     settings = forward_settings(args)
     check_out(args.out, args.overwrite)
     config = configuration(args, tests, prior, settings)
