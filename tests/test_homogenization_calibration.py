@@ -1,4 +1,5 @@
-"""hmodel calibrate: data files, likelihood, batched forward model (2D and triaxial), per-cell analytical laws, resume."""
+"""hmodel calibrate: data files, likelihood, batched forward model (2D and triaxial), per-cell analytical laws,
+resume."""
 
 from __future__ import annotations
 

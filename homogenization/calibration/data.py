@@ -17,7 +17,8 @@ Comment lines start with ``#``; ``key = value`` comments give the test; other co
 ignored. The header names ``eps1`` (axial strain counted from the end of the isotropic stage,
 > 0 and increasing) and at least one of ``q`` (sigma11 - sigma22; 3D: sqrt(3 J2), which is
 sigma11 - sigma33 where sigma22 = sigma33), ``p`` ((sigma11 + sigma22) / 2; 3D: tr(sigma) / 3)
-and ``eps_v`` (eps11 + eps22, 3D: eps11 + eps22 + eps33, from the end of the isotropic stage). Every value is a finite number.
+and ``eps_v`` (eps11 + eps22, 3D: eps11 + eps22 + eps33, from the end of the isotropic stage).
+Every value is a finite number.
 ``read_test`` raises ValueError with one line naming the file and the line for anything else.
 """
 

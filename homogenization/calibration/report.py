@@ -32,7 +32,8 @@ MAX_SAMPLES = 20000
 SCALE = {"q": 1.0, "p": 1.0, "eps_v": 100.0}
 """Plot scale of each channel (eps_v in %)."""
 LABELS_3D = {"q": r"$q = \sqrt{3 J_2}$ [Pa]", "p": r"$p = \mathrm{tr}\,\sigma / 3$ [Pa]",
-             "eps_v": r"$\varepsilon_v = \varepsilon_{11} + \varepsilon_{22} + \varepsilon_{33}$ since the end of stage 1 [%]"}
+             "eps_v": r"$\varepsilon_v = \varepsilon_{11} + \varepsilon_{22} + \varepsilon_{33}$"
+                      " since the end of stage 1 [%]"}
 """Axis labels of the channels of a triaxial test (``LABELS`` holds the 2D ones)."""
 
 

@@ -2,8 +2,8 @@
 
 (also ``python -m homogenization.calibrate``.) Bayesian calibration of the H-model's
 micro-parameters on measured biaxial (2D) or triaxial (3D) curves (format:
-``homogenization.calibration.data``; worked example: docs/calibration.md). Every --data test is fitted jointly; the parameters not
-in --params keep the values of --phi, --kn, --kt and --alpha0.
+``homogenization.calibration.data``; worked example: docs/calibration.md). Every --data test is
+fitted jointly; the parameters not in --params keep the values of --phi, --kn, --kt and --alpha0.
 
 The posterior is sampled with emcee's affine-invariant ensemble: every step runs the forward
 model of the whole population of walkers as one batch of cells (analytical backend:
