@@ -1,4 +1,5 @@
-"""hmodel calibrate: data files, likelihood, batched forward model, per-cell analytical laws, resume."""
+"""hmodel calibrate: data files, likelihood, batched forward model (2D and triaxial), per-cell analytical laws,
+resume."""
 
 from __future__ import annotations
 
@@ -13,13 +14,14 @@ import pytest
 
 from homogenization import driver, loading
 from homogenization.backends.analytical import AnalyticalCell
+from homogenization.backends.analytical3d import Analytical3DCell
 from homogenization.calibration import bayes, report
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import ForwardSettings, simulate
 from homogenization.cli import calibrate, hmodel
 from warp_hcell.core.cli import run_main
 from warp_hcell.core.parameters import ContactLaw
-from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.hcell import build_h_cell_3d, h_cell
 
 DATA = Path(__file__).parent / "data" / "calibration"
 GOOD = "# test = undrained\n# p0 = 5.85e6\neps1,q,p\n0.002,4e5,5.6e6\n0.004,9e5,5.7e6\n0.006,1.3e6,5.8e6\n"
@@ -245,3 +247,103 @@ def test_dem_forward_one_set_at_a_time_agrees_with_the_batched_analytical(tmp_pa
     for c in ("q", "p"):
         np.testing.assert_allclose(dem.channel(c), analytical.channel(c), rtol=0, atol=2e-4 * 3e6)
     np.testing.assert_allclose(dem.eps_v, analytical.eps_v, rtol=0, atol=1e-6)
+
+
+def test_triaxial_data_kinds_parse(tmp_path):
+    for kind, drained in (("triaxial_undrained", False), ("triaxial_drained", True)):
+        test = read_test(write(tmp_path, GOOD.replace("= undrained", f"= {kind}")))
+        assert (test.dim, test.drained, test.kind) == (3, drained, kind)
+    assert read_test(write(tmp_path, GOOD)).dim == 2
+
+
+def test_analytical3d_cell_laws_equal_scalar_backends():
+    laws = [ContactLaw(kn=3e8, kt_over_kn=0.6, phi_g_deg=27.0), ContactLaw(kn=1e8, kt_over_kn=1.2, phi_g_deg=15.0)]
+    alpha0 = np.array([58.0, 50.0])
+    batch = Analytical3DCell.with_cell_laws([w.kn for w in laws], [w.kt_over_kn for w in laws],
+                                            [w.phi_g_deg for w in laws], 0.5, alpha0_deg=alpha0)
+    state = batch.init_state(build_h_cell_3d(55.0, radius=0.5), 2)
+    singles = [Analytical3DCell(w, 0.5) for w in laws]
+    one = [m.init_state(build_h_cell_3d(a, radius=0.5), 1) for m, a in zip(singles, alpha0)]
+    d = np.array([[2e-3, 1e-3, 1e-3], [2e-3, -1e-3, -5e-4]])
+    for k in range(12):
+        step = d[0] if k < 6 else d[1]
+        state, response = batch.step(state, np.tile(step, (2, 1)), with_tangent=True)
+        for i, m in enumerate(singles):
+            one[i], r = m.step(one[i], step[None, :], with_tangent=True)
+            np.testing.assert_allclose(response.moment[i], r.moment[0], rtol=1e-12, atol=1e-9)
+            np.testing.assert_allclose(response.tangent[i], r.tangent[0], rtol=1e-10, atol=1e-3)
+    assert response.moment[0, 0, 0] > 0.0 and response.moment[0, 0, 0] != response.moment[1, 0, 0]
+
+
+SETTINGS_3D = ForwardSettings(lebedev_order=5, n_spins=2, increment=2e-3, iso_increment=1e-3)
+
+
+@pytest.mark.parametrize("drained", [False, True])
+def test_batched_triaxial_forward_matches_the_driver(tmp_path, drained):
+    """The 3D population runner against homogenization.driver.run of loading.triaxial, each set on its own
+    Analytical3DCell (q = sqrt(3 J2), p = tr(sigma) / 3, eps_v = eps11 + eps22 + eps33)."""
+    test = Measurement("t", tmp_path / "t.csv", drained, 2e6, EPS1, {}, 3)
+    batch = simulate(test, PARAMS, SETTINGS_3D)
+    n_shear = round(EPS1[-1] / SETTINGS_3D.increment)
+    programme = loading.triaxial(2e6, n_shear * SETTINGS_3D.increment, SETTINGS_3D.increment,
+                                 test="drained" if drained else "undrained", iso_increment=SETTINGS_3D.iso_increment)
+    for i in range(3):
+        law = ContactLaw(kn=PARAMS["kn"][i], kt_over_kn=PARAMS["kt_over_kn"][i], phi_g_deg=PARAMS["phi_g"][i])
+        record = driver.run(Analytical3DCell(law, 0.5), programme,
+                            mesostructure=build_h_cell_3d(PARAMS["alpha0"][i], radius=0.5), lebedev_order=5,
+                            n_spins=2, progress=False)
+        start = np.flatnonzero(record.stage == "shear")[0] - 1
+        e1 = record.eps11[start:] - record.eps11[start]
+        ev = (record.eps11 + record.eps22 + record.eps33)[start:]
+        tol = 1e-9 if not drained else 2e-4  # drained: both solve the lateral stresses = p0 to 1e-5 of p0
+        np.testing.assert_allclose(batch.q[i], np.interp(EPS1, e1, record.q[start:]), rtol=0, atol=tol * 2e6)
+        np.testing.assert_allclose(batch.p[i], np.interp(EPS1, e1, record.p[start:]), rtol=0, atol=tol * 2e6)
+        np.testing.assert_allclose(batch.eps_v[i], np.interp(EPS1, e1, ev - ev[0]), rtol=0, atol=tol * 1e-2)
+        if drained:
+            assert batch.p[i, -1] > 2e6 * 1.05  # sigma11 rises, the lateral stresses stay at p0
+        else:  # isochoric: the volume is kept, the summed strain increments only to second order in d
+            assert np.all(np.abs(batch.eps_v[i]) <= SETTINGS_3D.increment * EPS1)
+    assert not batch.n_fallback.any()
+
+
+def test_triaxial_likelihood_peaks_at_the_truth_of_synthetic_3d_data(tmp_path):
+    """Synthetic 3D data (the closed form at a truth, 1 % seeded noise): the log posterior along phi_g
+    is largest at the grid value nearest the truth, and a CLI run on the same file writes its posterior."""
+    truth = {"phi_g": np.array([24.0]), "kn": np.array([3e8]), "kt_over_kn": np.array([0.6]),
+             "alpha0": np.array([60.0])}
+    eps1 = np.linspace(0.004, 0.02, 5)
+    template = Measurement("t", tmp_path / "t.csv", False, 2e6, eps1, {}, 3)
+    clean = simulate(template, truth, SETTINGS_3D)
+    rng = np.random.default_rng(3)
+    q = clean.q[0] * (1.0 + 0.01 * rng.standard_normal(eps1.size))
+    p = clean.p[0] * (1.0 + 0.01 * rng.standard_normal(eps1.size))
+    rows = "\n".join(f"{e:.6g},{a:.9g},{b:.9g}" for e, a, b in zip(eps1, q, p))
+    path = write(tmp_path, f"# test = triaxial_undrained\n# p0 = 2e6\neps1,q,p\n{rows}\n", "tri.csv")
+    test = read_test(path)
+    fixed = {k: float(v[0]) for k, v in truth.items()}
+    settings = replace(SETTINGS_3D, fixed=fixed)
+    log_post = bayes.Posterior([test], bayes.make_prior(("phi_g",)), settings, 0.01)
+    grid = np.arange(18.0, 30.5, 1.0)
+    assert grid[np.argmax(log_post(grid[:, None]))] == 24.0
+    out = tmp_path / "run"
+    code = run_main(calibrate.main, ["--data", str(path), "--params", "phi_g", "--walkers", "4", "--steps", "3",
+                                     "--noise", "0.01", "--alpha0", "60", "--phi", "24", "--confirm", "none", "-q",
+                                     "--out", str(out)])
+    assert code == 0
+    posterior = json.loads((out / "posterior.json").read_text())
+    assert 10.0 <= posterior["phi_g"]["mean"] <= 45.0
+
+
+def test_triaxial_data_with_the_ann_backend_exit_2(tmp_path, capsys):
+    data = write(tmp_path, GOOD.replace("= undrained", "= triaxial_undrained"))
+    code = hmodel.main(["calibrate", "--data", str(data), "--params", "alpha0", "--backend", "ann",
+                        "--out", str(tmp_path / "out")])
+    assert code == 2 and "no 3D model" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_triaxial_data_need_an_alpha0_prior_above_45_deg(tmp_path, capsys):
+    data = write(tmp_path, GOOD.replace("= undrained", "= triaxial_undrained"))
+    code = hmodel.main(["calibrate", "--data", str(data), "--params", "phi_g,alpha0", "--out", str(tmp_path / "out")])
+    assert code == 2 and "alpha0 >= 45" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

@@ -84,6 +84,24 @@ class Analytical3DCell:
         self.kn = self.plane.kn
         self.diameter = self.plane.diameter
 
+    @classmethod
+    def with_cell_laws(cls, kn: np.ndarray, kt_over_kn: np.ndarray, phi_g_deg: np.ndarray, radius: float,
+                       alpha0_deg: np.ndarray | None = None, **options) -> Analytical3DCell:
+        """A backend whose cell i has its own contact law and opening angle (a population of
+        parameter sets as one batch), as ``AnalyticalCell.with_cell_laws``: both planes of cell i
+        use its kn [N/m], kt_over_kn [-] and phi_g_deg [deg] (shape (n_cells,)) and start at its
+        alpha0_deg [deg] (shape (n_cells,); None: the mesostructure's). Every batch it steps must
+        have these n_cells, in this order.
+
+        Raises:
+            ValueError: (one line) a value outside the ranges of ``ContactLaw`` or of the 3D cell.
+        """
+        model = cls(ContactLaw(), radius, **options)
+        model.plane = AnalyticalCell.with_cell_laws(kn, kt_over_kn, phi_g_deg, radius, alpha0_deg=alpha0_deg,
+                                                    **options)
+        model.kn = model.plane.kn
+        return model
+
     @staticmethod
     def check_mesostructure(meso: Mesostructure) -> float:
         """Opening angle alpha0 [deg] of ``meso`` if it is the cell this backend models.
@@ -96,13 +114,16 @@ class Analytical3DCell:
                                                         "spheres, planes 90 deg apart)")
 
     def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> Analytical3DState:
-        """Touching, force-free cells at the opening angle of each cell's mesostructure (``check_mesostructure``).
+        """Touching, force-free cells at the opening angle of each cell's mesostructure (``check_mesostructure``),
+        or at the per-cell angles of ``with_cell_laws``.
 
         Raises:
             ValueError: (one line) a mesostructure that is not the plain ten-sphere cell, or whose spheres
                 have another radius than this backend's.
         """
         alpha0_deg = cell_alpha0(mesostructure, n_cells, self.check_mesostructure, self.plane.radius, "spheres")
+        if self.plane.cell_alpha0_deg is not None:
+            alpha0_deg = np.broadcast_to(self.plane.cell_alpha0_deg, (int(n_cells),))
         return self.touching_state(alpha0_deg, n_cells)
 
     def touching_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> Analytical3DState:

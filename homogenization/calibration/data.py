@@ -1,7 +1,7 @@
 """Measured curves of a calibration: one CSV per test.
 
-Format (units of the package's curve.csv: stresses [N/m] in 2D, strains [-], compression and
-contraction positive)::
+Format (units of the package's curve.csv: stresses [N/m] in 2D, [Pa] in 3D, strains [-],
+compression and contraction positive)::
 
     # test = undrained          (or drained: sigma22 held at p0)
     # p0 = 5.85e6               (confining pressure of the isotropic stage [N/m], > 0)
@@ -9,10 +9,16 @@ contraction positive)::
     0.001,8.1e5,5.7e6
     ...
 
+Tests: ``undrained`` (constant-volume biaxial: d_eps22 = -d_eps11) and ``drained`` (biaxial,
+sigma22 = p0), 2D; ``triaxial_undrained`` (isochoric: d_eps22 = d_eps33, volume kept) and
+``triaxial_drained`` (sigma22 = sigma33 = p0), 3D, p0 [Pa].
+
 Comment lines start with ``#``; ``key = value`` comments give the test; other comments are
 ignored. The header names ``eps1`` (axial strain counted from the end of the isotropic stage,
-> 0 and increasing) and at least one of ``q`` (sigma11 - sigma22), ``p`` ((sigma11 + sigma22) / 2)
-and ``eps_v`` (eps11 + eps22 from the end of the isotropic stage). Every value is a finite number.
+> 0 and increasing) and at least one of ``q`` (sigma11 - sigma22; 3D: sqrt(3 J2), which is
+sigma11 - sigma33 where sigma22 = sigma33), ``p`` ((sigma11 + sigma22) / 2; 3D: tr(sigma) / 3)
+and ``eps_v`` (eps11 + eps22, 3D: eps11 + eps22 + eps33, from the end of the isotropic stage).
+Every value is a finite number.
 ``read_test`` raises ValueError with one line naming the file and the line for anything else.
 """
 
@@ -25,9 +31,9 @@ from pathlib import Path
 import numpy as np
 
 CHANNELS = ("q", "p", "eps_v")
-"""Measured quantities a test may hold: q, p [N/m], eps_v [-]."""
-TESTS = ("undrained", "drained")
-"""Measurement kinds: constant-volume or drained (sigma22 = p0) biaxial shear after isotropic compression."""
+"""Measured quantities a test may hold: q, p [N/m in 2D, Pa in 3D], eps_v [-]."""
+TESTS = ("undrained", "drained", "triaxial_undrained", "triaxial_drained")
+"""Measurement kinds: constant-volume or drained biaxial (2D) and triaxial (3D) shear after isotropic compression."""
 
 
 @dataclass(frozen=True)
@@ -37,10 +43,11 @@ class Measurement:
     Attributes:
         name: file name without the folder (labels of outputs).
         path: the CSV file.
-        drained: drained (sigma22 = p0) rather than constant-volume shear.
-        p0: confining pressure [N/m].
+        drained: drained (lateral stresses held at p0) rather than constant-volume shear.
+        p0: confining pressure [N/m in 2D, Pa in 3D].
         eps1: axial strain [-], shape (n_data,), > 0, increasing.
         observed: channel name -> measured values, shape (n_data,), for the channels of the file.
+        dim: 2 (biaxial) or 3 (triaxial).
     """
 
     name: str
@@ -49,11 +56,12 @@ class Measurement:
     p0: float
     eps1: np.ndarray
     observed: dict[str, np.ndarray]
+    dim: int = 2
 
     @property
     def kind(self) -> str:
-        """"drained" or "undrained"."""
-        return TESTS[int(self.drained)]
+        """One of ``TESTS``."""
+        return TESTS[int(self.drained) + 2 * (self.dim == 3)]
 
 
 def read_test(path: Path) -> Measurement:
@@ -101,16 +109,16 @@ def read_test(path: Path) -> Measurement:
         raise ValueError(f"{path}: needs at least 2 data rows, has {len(rows)}")
     kind = meta.get("test")
     if kind not in TESTS:
-        raise ValueError(f"{path}: give the test in a comment line '# test = undrained' or '# test = drained'"
+        raise ValueError(f"{path}: give the test in a comment line '# test = undrained' (or {', '.join(TESTS[1:])})"
                          + (f" (got {kind!r})" if kind is not None else ""))
     if "p0" not in meta:
-        raise ValueError(f"{path}: give the confining pressure in a comment line '# p0 = 2e5' [N/m]")
+        raise ValueError(f"{path}: give the confining pressure in a comment line '# p0 = 2e5' [N/m in 2D, Pa in 3D]")
     try:
         p0 = float(meta["p0"])
     except ValueError:
         raise ValueError(f"{path}: p0 = {meta['p0']!r} is not a number") from None
     if not (math.isfinite(p0) and p0 > 0.0):
-        raise ValueError(f"{path}: p0 = {p0:g} must be finite and > 0 [N/m]")
+        raise ValueError(f"{path}: p0 = {p0:g} must be finite and > 0")
     table = np.array(rows)
     columns = {name: table[:, i].copy() for i, name in enumerate(header)}
     eps1 = columns.pop("eps1")
@@ -118,7 +126,8 @@ def read_test(path: Path) -> Measurement:
         raise ValueError(f"{path}: eps1 must be > 0 and increasing (counted from the end of the isotropic stage)")
     if eps1[-1] >= 0.5:
         raise ValueError(f"{path}: eps1 reaches {eps1[-1]:g}; strains are fractions, not percent")
-    return Measurement(path.name, path, kind == "drained", p0, eps1, columns)
+    return Measurement(path.name, path, kind.endswith("_drained") or kind == "drained", p0, eps1, columns,
+                       3 if kind.startswith("triaxial") else 2)
 
 
 def _check_header(path: Path, number: int, header: list[str]) -> None:

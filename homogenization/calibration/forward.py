@@ -1,22 +1,24 @@
-"""Forward model of a calibration: the biaxial curves of a whole population of parameter sets.
+"""Forward model of a calibration: the biaxial or triaxial curves of a whole population of parameter sets.
 
 ``simulate(test, params, settings)`` runs the test (isotropic compression to p0, then
 constant-volume or drained shear) for n parameter sets at once and returns the model's q, p
 and eps_v at the measured eps1 values. With the analytical backend the n sets are ONE
-``HomogenisedMaterial`` of n material points, each with its own cells
-(``AnalyticalCell.with_cell_laws``: per-cell kn, kt/kn, phi_g and alpha0), so every increment
-is one batched ``step`` over n x n_orientations cells. Other backends take one contact law
+``HomogenisedMaterial`` (2D) or ``HomogenisedMaterial3D`` (triaxial tests) of n material
+points, each with its own cells (``AnalyticalCell.with_cell_laws`` /
+``Analytical3DCell.with_cell_laws``: per-cell kn, kt/kn, phi_g and alpha0), so every increment
+is one batched ``step`` over n x (cells per point) cells. Other backends take one contact law
 per model: their sets run one after the other through ``homogenization.driver.run``.
 
-Stages, per point, as in ``homogenization.loading.biaxial``: equal strain increments of
-``iso_increment`` on 11 and 22 until p reaches p0, the increment that crosses it shortened
-(regula falsi on its scale) so that p lands on p0; then ``increment`` steps of eps11, with
-d_eps22 = -d_eps11 (undrained) or d_eps22 solved by Newton so that sigma22 = p0 (drained).
-A point is advanced only while its stage lasts (the others keep their state), so a point's
-curve does not depend on the population it runs in.
+Stages, per point, as in ``homogenization.loading.biaxial`` / ``loading.triaxial``: equal strain
+increments of ``iso_increment`` on every normal component until p reaches p0, the increment
+that crosses it shortened (regula falsi on its scale) so that p lands on p0; then ``increment``
+steps of eps11 with the lateral strains constant-volume (2D: d_eps22 = -d_eps11; 3D:
+``loading.isochoric``, d_eps22 = d_eps33) or solved by Newton so that every lateral stress is p0
+(drained). A point is advanced only while its stage lasts (the others keep their state), so a
+point's curve does not depend on the population it runs in.
 
-Units: stresses [N/m] (2D), strains [-], compression and contraction positive; eps1 and eps_v
-are counted from the end of the isotropic stage.
+Units: stresses [N/m] (2D) or [Pa] (3D), strains [-], compression and contraction positive;
+eps1 and eps_v are counted from the end of the isotropic stage. 3D: q = sqrt(3 J2), p = tr(sigma) / 3.
 """
 
 from __future__ import annotations
@@ -27,13 +29,15 @@ from typing import Mapping
 
 import numpy as np
 
-from homogenization import driver, loading, orientation as orient_mod
+from homogenization import driver, loading, orientation as orient_mod, orientation3d
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell
+from homogenization.backends.analytical3d import Analytical3DCell
 from homogenization.calibration.data import Measurement
-from homogenization.material import HomogenisedMaterial, MaterialState
+from homogenization.invariants import deviator_3d, mean_stress_3d
+from homogenization.material import HomogenisedMaterial, HomogenisedMaterial3D, MaterialState
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, LoadingDefaults
-from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.hcell import build_h_cell_3d, h_cell
 
 PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0")
 """Names of the calibratable parameters, in the units of the CLI flags: phi_g [deg], kn [N/m],
@@ -46,7 +50,8 @@ class ForwardSettings:
 
     Attributes:
         backend: "analytical" (batched), "dem" or "ann" (one parameter set at a time).
-        n_orientations: cell orientations per material point [-].
+        n_orientations: cell orientations per material point of a 2D test [-].
+        lebedev_order, n_spins: cell orientations of a triaxial test (``orientation3d.orientations_3d``).
         increment: axial strain increment of the shear stage [-].
         iso_increment: strain increment per component of the isotropic stage [-].
         radius: grain radius [m].
@@ -58,6 +63,8 @@ class ForwardSettings:
 
     backend: str = "analytical"
     n_orientations: int = 36
+    lebedev_order: int = driver.LEBEDEV_ORDER
+    n_spins: int = driver.N_SPINS
     increment: float = 1e-3
     iso_increment: float = 5e-4
     radius: float = CellDefaults.radius
@@ -73,7 +80,7 @@ class ForwardSettings:
 class Curves:
     """Model curves of n parameter sets at a test's eps1 values, each shape (n, n_data).
 
-    ``q``, ``p`` [N/m], ``eps_v`` [-]; NaN for a point whose isotropic stage does not reach p0
+    ``q``, ``p`` [N/m in 2D, Pa in 3D], ``eps_v`` [-]; NaN for a point whose isotropic stage does not reach p0
     within ``homogenization.loading.ISO_MAX_STRAIN`` (too soft); ``n_fallback``: per point, the
     isotropic landings and drained Newton iterations that did not meet ``stress_rtol`` (their last
     iterate is used), or (dem/ann, one set at a time) 1 where the backend reported unconverged
@@ -122,19 +129,33 @@ def _sample(eps1_model: np.ndarray, values: np.ndarray, eps1: np.ndarray) -> np.
 
 
 class _Population:
-    """Material points of a population with per-point cells; advances a subset of points at a time."""
+    """Material points of a population with per-point cells, in 2D (Voigt 11, 22, 12) or 3D
+    (11, 22, 33, 23, 13, 12); advances a subset of points at a time."""
 
-    def __init__(self, full: dict[str, np.ndarray], settings: ForwardSettings) -> None:
-        orient = orient_mod.orientations(settings.n_orientations)
+    def __init__(self, full: dict[str, np.ndarray], settings: ForwardSettings, dim: int) -> None:
         n = full["kn"].size
-        per_cell = {name: np.repeat(values, settings.n_orientations) for name, values in full.items()}
-        model = AnalyticalCell.with_cell_laws(per_cell["kn"], per_cell["kt_over_kn"], per_cell["phi_g"],
-                                              settings.radius, alpha0_deg=per_cell["alpha0"])
+        if dim == 2:
+            orient = orient_mod.orientations(settings.n_orientations)
+            cell_class, material_class, meso = AnalyticalCell, HomogenisedMaterial, h_cell(CellDefaults.alpha0_deg,
+                                                                                           settings.radius)
+        else:
+            orient = orientation3d.orientations_3d(settings.lebedev_order, settings.n_spins)
+            cell_class, material_class = Analytical3DCell, HomogenisedMaterial3D
+            meso = build_h_cell_3d(CellDefaults.alpha0_deg, radius=settings.radius)
+        self.n_orientations = int(np.size(orient.weights))
+        per_cell = {name: np.repeat(values, self.n_orientations) for name, values in full.items()}
+        model = cell_class.with_cell_laws(per_cell["kn"], per_cell["kt_over_kn"], per_cell["phi_g"],
+                                          settings.radius, alpha0_deg=per_cell["alpha0"])
         self.model = model
-        self.material = HomogenisedMaterial(model, orient, h_cell(CellDefaults.alpha0_deg, settings.radius), n)
+        self.material = material_class(model, orient, meso, n)
         self.state = self.material.init_state()
         self.n = n
-        self.n_orientations = settings.n_orientations
+        self.dim = dim
+        self.n_components = 3 if dim == 2 else 6
+
+    def p(self, stress: np.ndarray) -> np.ndarray:
+        """Mean normal stress of stresses (n, n_components) [N/m or Pa]."""
+        return stress[:, :self.dim].mean(axis=1)
 
     def trial(self, d_e: np.ndarray, with_tangent: bool = False):
         return self.material.update(self.state, d_e, with_tangent=with_tangent)
@@ -152,17 +173,18 @@ class _Population:
 
 
 def _simulate_batched(test: Measurement, full: dict[str, np.ndarray], settings: ForwardSettings) -> Curves:
-    pop = _Population(full, settings)
+    pop = _Population(full, settings, test.dim)
     n = pop.n
     p0, rtol = test.p0, settings.stress_rtol
     fallback = np.zeros(n, dtype=np.int64)
     # isotropic stage
     iso = settings.iso_increment
-    d_iso = np.tile([iso, iso, 0.0], (n, 1))
+    d_iso = np.zeros((n, pop.n_components))
+    d_iso[:, :pop.dim] = iso
     active = np.ones(n, dtype=bool)
     for _ in range(loading.n_increments_for(loading.ISO_MAX_STRAIN, iso)):
         update = pop.trial(d_iso)
-        p_new = update.stress[:, :2].mean(axis=1)
+        p_new = pop.p(update.stress)
         crossing = active & (p_new >= p0)
         pop.accept(update, active & ~crossing)
         if crossing.any():
@@ -177,12 +199,15 @@ def _simulate_batched(test: Measurement, full: dict[str, np.ndarray], settings: 
     rows = np.empty((n_shear + 1, 3, n))  # q, p, eps_v
     rows[0] = _row(pop.state, strain0)
     tangent = None
+    undrained = np.zeros((n, pop.n_components))
+    undrained[:, 0] = inc
+    undrained[:, 1:pop.dim] = -inc if pop.dim == 2 else 1.0 - 1.0 / math.sqrt(1.0 - inc)  # loading.isochoric
     for k in range(n_shear):
         if test.drained:
             tangent, fails = _drained_increment(pop, inc, p0, rtol, settings.max_newton, tangent)
             fallback += fails
         else:
-            pop.accept(pop.trial(np.tile([inc, -inc, 0.0], (n, 1))), np.ones(n, dtype=bool))
+            pop.accept(pop.trial(undrained), np.ones(n, dtype=bool))
         rows[k + 1] = _row(pop.state, strain0)
     eps1_model = inc * np.arange(n_shear + 1)
     rows[:, :, failed] = np.nan
@@ -191,9 +216,12 @@ def _simulate_batched(test: Measurement, full: dict[str, np.ndarray], settings: 
 
 
 def _row(state: MaterialState, strain0: np.ndarray) -> np.ndarray:
+    """q, p, eps_v of every point, shape (3, n)."""
     s = state.stress
     eps = state.strain - strain0
-    return np.stack([s[:, 0] - s[:, 1], 0.5 * (s[:, 0] + s[:, 1]), eps[:, 0] + eps[:, 1]])
+    if s.shape[1] == 3:
+        return np.stack([s[:, 0] - s[:, 1], 0.5 * (s[:, 0] + s[:, 1]), eps[:, 0] + eps[:, 1]])
+    return np.stack([deviator_3d(*s.T), mean_stress_3d(s[:, 0], s[:, 1], s[:, 2]), eps[:, :3].sum(axis=1)])
 
 
 def _land(pop: _Population, crossing: np.ndarray, d_iso: np.ndarray, over, p0: float, rtol: float,
@@ -202,8 +230,8 @@ def _land(pop: _Population, crossing: np.ndarray, d_iso: np.ndarray, over, p0: f
 
     ``over`` is the trial update of the whole increment ``d_iso`` (n, 3). Returns, per point, 1
     where the tolerance was not met (the last iterate is taken), else 0."""
-    p_old = pop.state.stress[:, :2].mean(axis=1)
-    p_over = over.stress[:, :2].mean(axis=1)
+    p_old = pop.p(pop.state.stress)
+    p_over = pop.p(over.stress)
     lo, f_lo = np.zeros(pop.n), p_old - p0
     hi, f_hi = np.ones(pop.n), p_over - p0
     side = np.zeros(pop.n)
@@ -214,7 +242,7 @@ def _land(pop: _Population, crossing: np.ndarray, d_iso: np.ndarray, over, p0: f
             return np.zeros(pop.n, dtype=np.int64)
         lam = np.where(todo, (lo * f_hi - hi * f_lo) / np.where(todo, f_hi - f_lo, 1.0), 1.0)
         update = pop.trial(d_iso * lam[:, None])
-        f = update.stress[:, :2].mean(axis=1) - p0
+        f = pop.p(update.stress) - p0
         done = todo & (np.abs(f) <= rtol * p0)
         pop.accept(update, done)
         above = todo & ~done & (f > 0.0)
@@ -229,32 +257,46 @@ def _land(pop: _Population, crossing: np.ndarray, d_iso: np.ndarray, over, p0: f
     return todo.astype(np.int64)
 
 
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """x of a x = b per point, a (n, k, k), b (n, k), k = 1 or 2, by Cramer's rule: a singular a
+    gives inf or NaN (that point's Newton then fails its tolerance) rather than an exception."""
+    if a.shape[1] == 1:
+        return b / a[:, :, 0]
+    det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+    return np.stack([b[:, 0] * a[:, 1, 1] - b[:, 1] * a[:, 0, 1], a[:, 0, 0] * b[:, 1] - a[:, 1, 0] * b[:, 0]],
+                    axis=1) / det[:, None]
+
+
 def _drained_increment(pop: _Population, inc: float, p0: float, rtol: float, max_iterations: int,
                        tangent: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """One drained increment of every point: d_eps11 = inc, d_eps22 by Newton on sigma22 = p0.
+    """One drained increment of every point: d_eps11 = inc, the k = dim - 1 lateral strain
+    increments by Newton on sigma_lateral = p0 (sigma22; 3D: sigma22 and sigma33).
 
-    Returns the last tangent d sigma22 / d(d_eps11, d_eps22) of each point, shape (n, 2), and 1
-    where Newton did not meet the tolerance (the last iterate is taken)."""
-    n = pop.n
-    sigma22 = pop.state.stress[:, 1]
-    d = np.zeros((n, 3))
+    Returns the last tangent d sigma_lateral / d(d_eps11, d_eps_lateral) of each point, shape
+    (n, k, 1 + k), and 1 where Newton did not meet the tolerance (the last iterate is taken)."""
+    n, lat = pop.n, np.arange(1, pop.dim)
+    k = lat.size
+    columns = np.concatenate([[0], lat])
+    d = np.zeros((n, pop.n_components))
     d[:, 0] = inc
     if tangent is None:
-        d[:, 1] = -inc
+        d[:, lat] = -inc / k
     else:
-        d[:, 1] = (p0 - sigma22 - tangent[:, 0] * inc) / tangent[:, 1]
+        d[:, lat] = _solve(tangent[:, :, 1:], p0 - pop.state.stress[:, lat] - tangent[:, :, 0] * inc)
     todo = np.ones(n, dtype=bool)
-    tangent = np.zeros((n, 2)) if tangent is None else tangent.copy()
+    tangent = np.zeros((n, k, 1 + k)) if tangent is None else tangent.copy()
     for _ in range(max_iterations):
         update = pop.trial(d, with_tangent=True)
-        r = update.stress[:, 1] - p0
-        tangent = np.where(todo[:, None], update.tangent[:, 1, :2], tangent)
-        done = todo & (np.abs(r) <= rtol * p0)
+        r = update.stress[:, lat] - p0
+        tangent = np.where(todo[:, None, None], update.tangent[:, lat][:, :, columns], tangent)
+        done = todo & np.all(np.abs(r) <= rtol * p0, axis=1)
         pop.accept(update, done)
         todo &= ~done
         if not todo.any():
             return tangent, np.zeros(n, dtype=np.int64)
-        d[:, 1] = np.where(todo, d[:, 1] - r / np.where(todo, tangent[:, 1], 1.0), d[:, 1])
+        identity = np.broadcast_to(np.eye(k), tangent[:, :, 1:].shape)
+        step = _solve(np.where(todo[:, None, None], tangent[:, :, 1:], identity), r)
+        d[:, lat] = np.where(todo[:, None], d[:, lat] - step, d[:, lat])
     pop.accept(update, todo)
     return tangent, todo.astype(np.int64)
 
@@ -264,21 +306,30 @@ def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], setting
     out = np.empty((3, n, test.eps1.size))
     fallback = np.zeros(n, dtype=np.int64)
     n_shear = _n_shear(test, settings)
-    programme = loading.biaxial(test.p0, n_shear * settings.increment, settings.increment,
-                                iso_increment=settings.iso_increment, drained=test.drained)
+    if test.dim == 2:
+        programme = loading.biaxial(test.p0, n_shear * settings.increment, settings.increment,
+                                    iso_increment=settings.iso_increment, drained=test.drained)
+    else:
+        programme = loading.triaxial(test.p0, n_shear * settings.increment, settings.increment,
+                                     test="drained" if test.drained else "undrained",
+                                     iso_increment=settings.iso_increment)
     for i in range(n):
         law = ContactLaw(kn=float(full["kn"][i]), kt_over_kn=float(full["kt_over_kn"][i]),
                          phi_g_deg=float(full["phi_g"][i]))
-        model = make_cell_model(settings.backend, contact_law=law, radius=settings.radius,
+        model = make_cell_model(settings.backend, contact_law=law, radius=settings.radius, dim=test.dim,
                                 **dict(settings.backend_options))
-        record = driver.run(model, programme, mesostructure=h_cell(float(full["alpha0"][i]), settings.radius),
-                            n_orientations=settings.n_orientations, stress_rtol=settings.stress_rtol,
-                            max_newton_iterations=settings.max_newton, progress=False)
+        alpha0 = float(full["alpha0"][i])
+        meso = (h_cell(alpha0, settings.radius) if test.dim == 2
+                else build_h_cell_3d(alpha0, radius=settings.radius))
+        record = driver.run(model, programme, mesostructure=meso, n_orientations=settings.n_orientations,
+                            stress_rtol=settings.stress_rtol, max_newton_iterations=settings.max_newton,
+                            progress=False, lebedev_order=settings.lebedev_order, n_spins=settings.n_spins)
         shear = record.stage == programme[1].label
         start = np.flatnonzero(shear)[0] - 1
-        e11, e22 = record.eps11[start:], record.eps22[start:]
+        volumetric = record.eps11 + record.eps22 + (record.eps33 if test.dim == 3 else 0.0)
+        e11 = record.eps11[start:]
         eps1_model = e11 - e11[0]
-        values = np.stack([record.q[start:], record.p[start:], (e11 + e22) - (e11[0] + e22[0])])
+        values = np.stack([record.q[start:], record.p[start:], volumetric[start:] - volumetric[start]])
         for c in range(3):
             out[c, i] = np.interp(test.eps1, eps1_model, values[c])
         fallback[i] = int(np.nansum(record.diagnostics.get("n_unconverged", np.zeros(1))) > 0)

@@ -31,6 +31,10 @@ MAX_SAMPLES = 20000
 """Most retained samples written to posterior.h5 (the chain is thinned evenly beyond) [-]."""
 SCALE = {"q": 1.0, "p": 1.0, "eps_v": 100.0}
 """Plot scale of each channel (eps_v in %)."""
+LABELS_3D = {"q": r"$q = \sqrt{3 J_2}$ [Pa]", "p": r"$p = \mathrm{tr}\,\sigma / 3$ [Pa]",
+             "eps_v": r"$\varepsilon_v = \varepsilon_{11} + \varepsilon_{22} + \varepsilon_{33}$"
+                      " since the end of stage 1 [%]"}
+"""Axis labels of the channels of a triaxial test (``LABELS`` holds the 2D ones)."""
 
 
 STUCK_LOG_POSTERIOR = 20.0
@@ -110,7 +114,7 @@ def fit_figure(tests: Sequence[Measurement], log_post: bayes.Posterior, samples:
             if confirm is not None:
                 (h_dem,) = ax.plot(x, s * confirm[row][c], "--", color="C3", label="DEM at the posterior mean")
                 handles_row.append(h_dem)
-            ax.set(xlabel=LABELS["eps1"], ylabel=LABELS[c], title=f"{test.name} ({test.kind}, p0 = {test.p0:g} N/m)")
+            ax.set(xlabel=LABELS["eps1"], ylabel=(LABELS_3D if test.dim == 3 else LABELS)[c], title=f"{test.name} ({test.kind}, p0 = {test.p0:g} N/m)")
             ax.grid(**GRID)
             handles = handles or handles_row
         for col in range(len(test.observed), n_cols):

@@ -1,9 +1,9 @@
 """hmodel calibrate --data a.csv [--data b.csv] --backend analytical --params phi_g,kn,kt_over_kn,alpha0 [--prior FILE] --out DIR
 
 (also ``python -m homogenization.calibrate``.) Bayesian calibration of the H-model's
-micro-parameters on measured biaxial curves (format: ``homogenization.calibration.data``;
-worked example: docs/calibration.md). Every --data test is fitted jointly; the parameters not
-in --params keep the values of --phi, --kn, --kt and --alpha0.
+micro-parameters on measured biaxial (2D) or triaxial (3D) curves (format:
+``homogenization.calibration.data``; worked example: docs/calibration.md). Every --data test is
+fitted jointly; the parameters not in --params keep the values of --phi, --kn, --kt and --alpha0.
 
 The posterior is sampled with emcee's affine-invariant ensemble: every step runs the forward
 model of the whole population of walkers as one batch of cells (analytical backend:
@@ -57,8 +57,8 @@ from warp_hcell.core.provenance import file_sha256
 CHAIN_FILE = "chain.h5"
 OUTPUT_FILES = (CHAIN_FILE, "posterior.h5", "posterior.json", "corner.png", "fits.png", "run.json")
 """Everything this command writes into DIR."""
-FORWARD = ForwardSettings(n_orientations=36, increment=2e-3, iso_increment=2e-3, stress_rtol=1e-4)
-"""Defaults of the forward model: coarse but measured against the fine setting (docs/calibration.md)."""
+FORWARD = ForwardSettings(n_orientations=36, increment=1e-3, iso_increment=1e-3, stress_rtol=1e-5)
+"""Defaults of the forward model: coarse, its bias measured against the fine setting (docs/calibration.md)."""
 
 
 def parameter_list(text: str) -> tuple[str, ...]:
@@ -75,10 +75,10 @@ def parameter_list(text: str) -> tuple[str, ...]:
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the calibrate command."""
     parser = command_parser("homogenization.calibrate",
-                            "Bayesian calibration of the H-model's micro-parameters on measured biaxial curves.")
+                            "Bayesian calibration of the H-model's micro-parameters on measured biaxial or triaxial curves.")
     parser.add_argument("--data", type=Path, action="append", required=True,
-                        help="measured curve (CSV: '# test = undrained|drained', '# p0 = ...', header eps1 and any of "
-                             "q, p, eps_v); repeat for a joint fit")
+                        help="measured curve (CSV: '# test = undrained|drained|triaxial_undrained|triaxial_drained', "
+                             "'# p0 = ...', header eps1 and any of q, p, eps_v); repeat for a joint fit")
     parser.add_argument("--backend", choices=tuple(BACKENDS), default="analytical", help="forward model")
     parser.add_argument("--params", type=parameter_list, required=True,
                         help=f"parameters to calibrate, comma list of {','.join(PARAMETERS)}")
@@ -168,6 +168,8 @@ def forward_settings(args: argparse.Namespace) -> ForwardSettings:
 def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
+    if args.backend == "ann" and any(t.dim == 3 for t in tests):
+        raise UserError("--backend ann has no 3D model: triaxial data need --backend analytical or dem")
     if args.backend == "ann":
         refuse_uncertified_file(None, args)
     if args.walkers < 2 * len(args.params):
@@ -188,6 +190,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         prior = bayes.make_prior(args.params, args.prior)
     except ValueError as exc:
         raise UserError(str(exc)) from None
+    if any(t.dim == 3 for t in tests) and "alpha0" in prior.names and prior.low[prior.names.index("alpha0")] < 45.0:
+        raise UserError("triaxial data: the ten-sphere cell needs alpha0 >= 45 deg (below, its two planes overlap); "
+                        "give a prior such as {\"alpha0\": [45, 85]} (--prior FILE)")
     settings = forward_settings(args)
     check_out(args.out, args.overwrite)
     config = configuration(args, tests, prior, settings)
