@@ -148,6 +148,20 @@ def test_batched_forward_matches_the_driver(tmp_path, drained):
         np.testing.assert_allclose(batch.q[i], np.interp(EPS1, e1, record.q[start:]), rtol=0, atol=tol * 3e6)
         np.testing.assert_allclose(batch.p[i], np.interp(EPS1, e1, record.p[start:]), rtol=0, atol=tol * 3e6)
 
+def step_alongside(batch, state, singles, one, d):
+    """Twelve increments (six of d[0], six of d[1]) of the two-cell batch and of each cell's own
+    single-law backend; every moment and tangent of the batch must equal its single's. Returns the
+    batch's last response."""
+    for k in range(12):
+        step = d[0] if k < 6 else d[1]
+        state, response = batch.step(state, np.tile(step, (2, 1)), with_tangent=True)
+        for i, m in enumerate(singles):
+            one[i], r = m.step(one[i], step[None, :], with_tangent=True)
+            np.testing.assert_allclose(response.moment[i], r.moment[0], rtol=1e-12, atol=1e-9)
+            np.testing.assert_allclose(response.tangent[i], r.tangent[0], rtol=1e-10, atol=1e-3)
+    return response
+
+
 
 def test_analytical_cell_laws_equal_scalar_backends():
     laws = [ContactLaw(kn=3e8, kt_over_kn=0.6, phi_g_deg=27.0), ContactLaw(kn=1e8, kt_over_kn=1.2, phi_g_deg=15.0)]
@@ -158,13 +172,7 @@ def test_analytical_cell_laws_equal_scalar_backends():
     singles = [AnalyticalCell(w, 0.5) for w in laws]
     one = [m.init_state(h_cell(a, 0.5), 1) for m, a in zip(singles, alpha0)]
     d = np.array([[2e-3, 1e-3], [2e-3, -1e-3]])
-    for k in range(12):
-        step = d[0] if k < 6 else d[1]
-        state, response = batch.step(state, np.tile(step, (2, 1)), with_tangent=True)
-        for i, m in enumerate(singles):
-            one[i], r = m.step(one[i], step[None, :], with_tangent=True)
-            np.testing.assert_allclose(response.moment[i], r.moment[0], rtol=1e-12, atol=1e-9)
-            np.testing.assert_allclose(response.tangent[i], r.tangent[0], rtol=1e-10, atol=1e-3)
+    response = step_alongside(batch, state, singles, one, d)
     with pytest.raises(ValueError, match="phi_g = 95"):
         AnalyticalCell.with_cell_laws([1e8], [0.5], [95.0], 0.5)
     with pytest.raises(ValueError, match="alpha0 = 95"):
@@ -265,13 +273,7 @@ def test_analytical3d_cell_laws_equal_scalar_backends():
     singles = [Analytical3DCell(w, 0.5) for w in laws]
     one = [m.init_state(build_h_cell_3d(a, radius=0.5), 1) for m, a in zip(singles, alpha0)]
     d = np.array([[2e-3, 1e-3, 1e-3], [2e-3, -1e-3, -5e-4]])
-    for k in range(12):
-        step = d[0] if k < 6 else d[1]
-        state, response = batch.step(state, np.tile(step, (2, 1)), with_tangent=True)
-        for i, m in enumerate(singles):
-            one[i], r = m.step(one[i], step[None, :], with_tangent=True)
-            np.testing.assert_allclose(response.moment[i], r.moment[0], rtol=1e-12, atol=1e-9)
-            np.testing.assert_allclose(response.tangent[i], r.tangent[0], rtol=1e-10, atol=1e-3)
+    response = step_alongside(batch, state, singles, one, d)
     assert response.moment[0, 0, 0] > 0.0 and response.moment[0, 0, 0] != response.moment[1, 0, 0]
 
 
