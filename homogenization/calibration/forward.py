@@ -51,7 +51,10 @@ class ForwardSettings:
     Attributes:
         backend: "analytical" (batched), "dem" or "ann" (one parameter set at a time).
         n_orientations: cell orientations per material point of a 2D test [-].
-        lebedev_order, n_spins: cell orientations of a triaxial test (``orientation3d.orientations_3d``).
+        lebedev_order, n_spins: cell orientations of a triaxial test (``orientation3d.orientations_3d``);
+            11 x 4 = 100 cells, coarser than ``hmodel triaxial``'s default (as 36 orientations are in
+            2D) so that a population of parameter sets runs in minutes; its quadrature error is in
+            docs/triaxial.md (Quadrature).
         increment: axial strain increment of the shear stage [-].
         iso_increment: strain increment per component of the isotropic stage [-].
         radius: grain radius [m].
@@ -63,8 +66,8 @@ class ForwardSettings:
 
     backend: str = "analytical"
     n_orientations: int = 36
-    lebedev_order: int = driver.LEBEDEV_ORDER
-    n_spins: int = driver.N_SPINS
+    lebedev_order: int = 11
+    n_spins: int = 4
     increment: float = 1e-3
     iso_increment: float = 5e-4
     radius: float = CellDefaults.radius
