@@ -55,9 +55,10 @@ class _Compiled:
     """A numba kernel called through the machine code compiled for the argument types of its first call.
 
     Numba's dispatcher types every argument at each call, a NamedTuple field by field in Python
-    (~3 us for the tables ``features`` and ``advance`` take, of a ~80 us step). ``FastAdvance``
-    passes each argument with one fixed type (arrays of fixed dtype and rank, C-contiguous;
-    scalars), so the entry point of the first call's signature serves every later call.
+    (~3-5 us for the tables ``features``, ``advance`` and ``moment_tangent`` take, of a ~80 us
+    step). ``FastAdvance`` passes each argument with one fixed type (arrays of fixed dtype and
+    rank, C-contiguous; scalars), so the entry point of the first call's signature serves every
+    later call.
     """
 
     def __init__(self, kernel) -> None:
@@ -135,6 +136,7 @@ class FastAdvance:
                                       for layer in net.mlp if isinstance(layer, torch.nn.Linear)])
         self._local = threading.local()
         self._features, self._advance = _Compiled(features), _Compiled(advance)
+        self._tangent = _Compiled(moment_tangent)
 
     def _workspace(self, n: int) -> _Workspace:
         """This thread's scratch arrays for ``n`` cells (kept from its previous call with as many)."""
@@ -186,7 +188,7 @@ class FastAdvance:
             f_dot = np.empty((2, 2, n), dtype=np.float32)
             probe_feature_tangent(d_eps, work.before.m, self.scaling.feature_std, f_dot)
             tangent = np.empty((n, 2, 2))
-            moment_tangent(size, free, shear, d_eps, out, self._mlp_tangent(work, f_dot), self.cells, self.law,
+            self._tangent(size, free, shear, d_eps, out, self._mlp_tangent(work, f_dot), self.cells, self.law,
                            self.scaling, work.before, result, tangent)
         return FastIncrement(result.new_size.T, result.new_free.T, result.new_shear.T, result.moment, result.area,
                              *flags, result.n_held), tangent
