@@ -82,6 +82,27 @@ def test_a_cells_increment_is_bit_identical_in_any_batch_at_any_place(loaded):
             np.testing.assert_array_equal(getattr(part, name), getattr(whole, name)[index], err_msg=f"{name}, {n} cells")
 
 
+def test_later_calls_with_other_array_types_give_the_same_increment(loaded):
+    """The kernels run the machine code of the first call's argument types: later inputs that are
+    read-only, strided or float32 are converted to those types, and wrong shapes are refused."""
+    cell, state, d = loaded
+    fast = FastAdvance(cell.net)
+    first = fast(*state, d)
+    frozen = [np.array(a) for a in state]
+    for a in frozen:
+        a.flags.writeable = False
+    strided = np.empty((d.shape[0], 4))
+    strided[:, ::2] = d
+    again = fast(*frozen, strided[:, ::2])
+    for name in FastIncrement._fields:
+        np.testing.assert_array_equal(getattr(again, name), getattr(first, name), err_msg=name)
+    single = fast(*(np.asarray(a, dtype=np.float32) for a in state), d)
+    wanted = FastAdvance(cell.net)(*(np.asarray(a, dtype=np.float32).astype(np.float64) for a in state), d)
+    np.testing.assert_array_equal(single.moment, wanted.moment)
+    with pytest.raises(ValueError, match="state shapes"):
+        fast(state[0], state[1][:, :-1], state[2], d)
+
+
 def _autograd_tangent(net, state, d):
     """d(S_nn, S_tt)/d(eps_n, eps_t) (n, 2, 2) of ``MesoNet.advance`` by torch autograd."""
     d_eps = torch.from_numpy(np.asarray(d, dtype=np.float64)).clone().requires_grad_(True)

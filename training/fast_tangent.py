@@ -4,7 +4,9 @@ d(S_nn, S_tt)/d(eps_n, eps_t) of the increment ``training.fast_increment.advance
 forward-mode differentiation of the features (``probe_feature_tangent``), of the network
 (``training.perceptron.Perceptron.jvp``, in ``training.inference``) and of the increment
 (``moment_tangent``); equal to torch autograd of ``MesoNet.advance`` up to the float32 rounding of
-the network. Layouts: ``training.fast_cells``.
+the network. A pair that no cell has within reach is skipped after the square-root-free test
+of ``training.fast_cells.any_within`` (its contribution is zero in every cell; no bit changes).
+Layouts: ``training.fast_cells``.
 """
 
 import math
@@ -12,7 +14,7 @@ import math
 import numba
 import numpy as np
 
-from training.fast_cells import coulomb_cap, grain_positions, normal_force
+from training.fast_cells import any_within, coulomb_cap, grain_positions, normal_force
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -86,14 +88,21 @@ def moment_tangent(size, free, shear, d_eps, out, out_dot, cells, law, scaling, 
                     ramp_dot * relax[k, c] + ramp_factor * relax_dot) / kn
                 d_free_dot[k, c] = 0.0 if held_dof[k, c] else value
             x_dot[j, free_dofs[k, 0], free_dofs[k, 1]] = d_free_dot[k]
+    b0_p, b1_p = np.empty(n), np.empty(n)
     for p in range(pairs.shape[0]):
         i_g = pairs[p, 0]
         j_g = pairs[p, 1]
         rsum = radius[i_g] + radius[j_g]
         reach = rsum * (1.0 + tol)
+        xi0, xi1, xj0, xj1 = x[i_g, 0], x[i_g, 1], x[j_g, 0], x[j_g, 1]
         for c in range(n):
-            b0 = x[j_g, 0, c] - x[i_g, 0, c]
-            b1 = x[j_g, 1, c] - x[i_g, 1, c]
+            b0_p[c] = xj0[c] - xi0[c]
+            b1_p[c] = xj1[c] - xi1[c]
+        if not any_within(b0_p, b1_p, reach):
+            continue
+        for c in range(n):
+            b0 = b0_p[c]
+            b1 = b1_p[c]
             d = math.sqrt(b0 * b0 + b1 * b1)
             if d > reach:
                 continue

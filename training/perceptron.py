@@ -28,7 +28,7 @@ import numba
 import numpy as np
 from numba.extending import intrinsic
 
-BLOCK = 128
+BLOCK = 512
 """Cells per cache tile of a layer (a speed setting; results do not depend on it)."""
 
 TANH_CLIP = 9.0
@@ -66,6 +66,48 @@ def tanh32(x):
     return y * p / q
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _dot8(w, x, acc):
+    """acc + w[0] x[0] + w[1] x[1] + ... + w[7] x[7], the terms added in that order, each by one FMA
+    (``w``, ``x``: tuples of 8 float32; ``acc`` float32)."""
+    return _fma32(w[7], x[7], _fma32(w[6], x[6], _fma32(w[5], x[5], _fma32(w[4], x[4], _fma32(
+        w[3], x[3], _fma32(w[2], x[2], _fma32(w[1], x[1], _fma32(w[0], x[0], acc))))))))
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _eight(weight, j, k):
+    """weight[j, k], ..., weight[j, k + 7] as a tuple (kept in registers by the pass over the cells)."""
+    return (weight[j, k], weight[j, k + 1], weight[j, k + 2], weight[j, k + 3], weight[j, k + 4], weight[j, k + 5],
+            weight[j, k + 6], weight[j, k + 7])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _accumulate8(weight, h, out, k, lo, hi):
+    """out[j, c] += weight[j, k] h[k, c] + ... + weight[j, k + 7] h[k + 7, c] for every output j and
+    the cells lo <= c < hi, the eight terms in input order by FMAs (``_dot8``); three outputs share
+    each pass over the cells, so that each input is loaded once per three outputs and each output
+    once per eight inputs. Shapes as in ``dense``."""
+    m = hi - lo
+    h0, h1, h2, h3 = h[k, lo:hi], h[k + 1, lo:hi], h[k + 2, lo:hi], h[k + 3, lo:hi]
+    h4, h5, h6, h7 = h[k + 4, lo:hi], h[k + 5, lo:hi], h[k + 6, lo:hi], h[k + 7, lo:hi]
+    n_out = weight.shape[0]
+    j = 0
+    while j + 3 <= n_out:
+        r0, r1, r2 = out[j, lo:hi], out[j + 1, lo:hi], out[j + 2, lo:hi]
+        w0, w1, w2 = _eight(weight, j, k), _eight(weight, j + 1, k), _eight(weight, j + 2, k)
+        for c in range(m):
+            x = (h0[c], h1[c], h2[c], h3[c], h4[c], h5[c], h6[c], h7[c])
+            r0[c] = _dot8(w0, x, r0[c])
+            r1[c] = _dot8(w1, x, r1[c])
+            r2[c] = _dot8(w2, x, r2[c])
+        j += 3
+    while j < n_out:
+        r0, w0 = out[j, lo:hi], _eight(weight, j, k)
+        for c in range(m):
+            r0[c] = _dot8(w0, (h0[c], h1[c], h2[c], h3[c], h4[c], h5[c], h6[c], h7[c]), r0[c])
+        j += 1
+
+
 @numba.njit(cache=True, error_model="numpy")
 def dense(weight, bias, h, out, squash):
     """One layer: out[j, c] = act(bias[j] + sum_k weight[j, k] h[k, c]), the sum in input order by FMAs.
@@ -76,47 +118,31 @@ def dense(weight, bias, h, out, squash):
         out: (n_out, n) float32, written (must not overlap ``h``).
         squash: apply ``tanh32`` (hidden layer) or not (output layer, derivatives).
 
-    Cells are processed in tiles of ``BLOCK``; inside a tile two inputs and two outputs share
-    each pass over the cells (fewer loads and stores); the order of the terms of each sum is
-    k = 0, 1, ... regardless (each pass adds its two terms as fma(w1, h1, fma(w0, h0, acc))).
+    Cells are processed in tiles of ``BLOCK``; inside a tile the inputs are taken eight at a
+    time (``_accumulate8``), the last n_in mod 8 one at a time; the order of the terms of each
+    sum is k = 0, 1, ... regardless.
     """
     n_out, n_in = weight.shape
     n = h.shape[1]
     for lo in range(0, n, BLOCK):
         hi = min(lo + BLOCK, n)
-        m = hi - lo
         for j in range(n_out):
-            row, b = out[j][lo:hi], bias[j]
-            for c in range(m):
-                row[c] = b
+            out[j, lo:hi] = bias[j]
         k = 0
-        while k + 2 <= n_in:
-            h0, h1 = h[k][lo:hi], h[k + 1][lo:hi]
-            j = 0
-            while j + 2 <= n_out:
-                r0, r1 = out[j][lo:hi], out[j + 1][lo:hi]
-                a0, a1, b0, b1 = weight[j, k], weight[j, k + 1], weight[j + 1, k], weight[j + 1, k + 1]
-                for c in range(m):
-                    x0, x1 = h0[c], h1[c]
-                    r0[c] = _fma32(a1, x1, _fma32(a0, x0, r0[c]))
-                    r1[c] = _fma32(b1, x1, _fma32(b0, x0, r1[c]))
-                j += 2
-            if j < n_out:
-                r0 = out[j][lo:hi]
-                a0, a1 = weight[j, k], weight[j, k + 1]
-                for c in range(m):
-                    r0[c] = _fma32(a1, h1[c], _fma32(a0, h0[c], r0[c]))
-            k += 2
-        if k < n_in:
-            h0 = h[k][lo:hi]
+        while k + 8 <= n_in:
+            _accumulate8(weight, h, out, k, lo, hi)
+            k += 8
+        while k < n_in:
+            h0 = h[k, lo:hi]
             for j in range(n_out):
-                r0, a0 = out[j][lo:hi], weight[j, k]
-                for c in range(m):
+                r0, a0 = out[j, lo:hi], weight[j, k]
+                for c in range(hi - lo):
                     r0[c] = _fma32(a0, h0[c], r0[c])
+            k += 1
         if squash:
             for j in range(n_out):
-                row = out[j][lo:hi]
-                for c in range(m):
+                row = out[j, lo:hi]
+                for c in range(hi - lo):
                     row[c] = tanh32(row[c])
 
 

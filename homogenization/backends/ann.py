@@ -81,7 +81,7 @@ DEFAULT_MODEL = "ann_default.pt"
 
 OOD_INTERVAL = 500
 """Distinct start states of ``AnnCell.step`` between two out-of-distribution checks: one check
-of 360 cells costs ~1.8 ms, so every 500th increment adds ~4 us to a ~100 us step
+of 360 cells costs ~0.8-1.8 ms, so every 500th increment adds ~2-4 us to a ~80 us step
 (docs/certificate.md)."""
 
 
