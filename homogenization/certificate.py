@@ -96,12 +96,16 @@ def tests_of(pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
 
 class _Sampler:
     """A cell model that passes every call to ``model`` and keeps, every ``every``-th distinct
-    start state, the learning state (cell size, free coordinates, shear forces) of its cells."""
+    start state of the current test (``test``, set by the caller), the DEM state arrays
+    (``cell_size``, ``position``, ``shear_force``) of its cells; every ``COVERAGE_EVERY``-th
+    one is also kept for the coverage."""
 
-    def __init__(self, model: Any, free_dofs: np.ndarray, every: int) -> None:
-        self.model, self.free_dofs, self.every = model, free_dofs, every
+    def __init__(self, model: Any, every: int) -> None:
+        self.model, self.every = model, every
         self.name = model.name
-        self.samples: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.test = 0
+        self.coverage: list[dict[str, np.ndarray]] = []
+        self.states: dict[int, list[dict[str, np.ndarray]]] = {}
         self._last: object = None
         self._count = 0
 
@@ -111,11 +115,14 @@ class _Sampler:
     def step(self, state: Any, d_eps: np.ndarray, *, with_tangent: bool = False):
         if state is not self._last:
             self._last = state
-            if self._count % self.every == 0:
+            keep, cover = self._count % self.every == 0, self._count % COVERAGE_EVERY == 0
+            if keep or cover:
                 arrays = self.model.state_to_arrays(state)
-                position = np.asarray(arrays["position"])
-                self.samples.append((np.asarray(arrays["cell_size"]), position[:, self.free_dofs[:, 0], self.free_dofs[:, 1]],
-                                     np.asarray(arrays["shear_force"])))
+                kept = {name: np.array(arrays[name]) for name in ("cell_size", "position", "shear_force")}
+                if keep:
+                    self.states.setdefault(self.test, []).append(kept)
+                if cover:
+                    self.coverage.append(kept)
             self._count += 1
         return self.model.step(state, d_eps, with_tangent=with_tangent)
 
@@ -126,9 +133,17 @@ def _shear_rows(record: driver.Record) -> np.ndarray:
 
 def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pressures: Sequence[float] = PRESSURES,
             eps_max: float = EPS_MAX, increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
-            target: float = TARGET, rollout: bool = True, threads: int = 1) -> dict[str, Any]:
+            target: float = TARGET, rollout: bool = True, threads: int = 1,
+            dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY
+            ) -> dict[str, Any]:
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
     model's own (its JSON's ``mesostructure``).
+
+    ``dem_states``, when given, receives per test name the DEM cell states met along that test
+    every ``state_every`` increments (all cells): ``cell_size`` (n, 2) [m], ``position``
+    (n, n_grains, 2) [m], ``shear_force`` (n, n_pairs) [N] (``DemCell.state_to_arrays``, local frame),
+    and ``cell`` (n,) int64, a distinct id per (test, orientation): the active-learning rounds
+    (``homogenization.active``) probe these states.
 
     Raises:
         ValueError (CheckpointError, one line): unusable model, or a mesostructure it does not take.
@@ -145,9 +160,10 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     settings = DemSettings(contact_tolerance=float(meta["contact_tolerance"]))
     dem = make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()), settings=settings, threads=threads)
     free = ann.net.schema.free_dofs.cpu().numpy()
-    sampler = _Sampler(dem, free, COVERAGE_EVERY)
+    sampler = _Sampler(dem, int(state_every))
     results = []
-    for info, programme in tests_of(pressures, eps_max, increment):
+    for k, (info, programme) in enumerate(tests_of(pressures, eps_max, increment)):
+        sampler.test = k
         d = driver.run(sampler, programme, mesostructure=meso, n_orientations=n_orientations, progress=False)
         scale = max(float(info["p0"]), float(np.max(d.p)))
         try:
@@ -161,10 +177,16 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
         dp, dq = (float(np.nan_to_num(np.abs(x[ra] - y[rd]), nan=math.inf).max()) / scale for x, y in ((a.p, d.p), (a.q, d.q)))
         results.append({**info, "dp": dp, "dq": dq, "scale": scale})
     worst = max(results, key=lambda t: max(t["dp"], t["dq"]))
+    if dem_states is not None:
+        for k, parts in sampler.states.items():
+            merged = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
+            cells = np.concatenate([np.arange(part["cell_size"].shape[0]) for part in parts])
+            dem_states[results[k]["name"]] = {**merged, "cell": k * n_orientations + cells}
     coverage = None
-    if ann.ood is not None and sampler.samples:
-        states = [np.concatenate(parts) for parts in zip(*sampler.samples)]
-        inside = ~ann.ood.outside(state_features(ann.net, *states))
+    if ann.ood is not None and sampler.coverage:
+        size, position, shear = (np.concatenate([part[name] for part in sampler.coverage])
+                                 for name in ("cell_size", "position", "shear_force"))
+        inside = ~ann.ood.outside(state_features(ann.net, size, position[:, free[:, 0], free[:, 1]], shear))
         coverage = {"fraction_within": float(inside.mean()), "n_states": int(inside.size),
                     "threshold": ann.ood.threshold, "every_increments": COVERAGE_EVERY}
     report = (rollout_report(ann.net, meso, law, settings, increments=(increment,)) if rollout else None)
