@@ -184,14 +184,21 @@ def _certify(model: Path, options: Mapping[str, Any], settings: ActiveSettings
     return cert, states
 
 
+def _current(cert: Mapping[str, Any] | None, model: Path, options: Mapping[str, Any]) -> bool:
+    """Whether ``cert`` was measured on this model file with the certificate ``options``."""
+    if not cert or cert.get("model_sha256") != file_sha256(model):
+        return False
+    wanted = {"pressures": list(options.get("pressures", certificate.PRESSURES)),
+              "eps_max": options.get("eps_max", certificate.EPS_MAX),
+              "n_orientations": options.get("n_orientations", certificate.N_ORIENTATIONS)}
+    return all(cert["settings"].get(k) == v for k, v in wanted.items()) and cert["target"] == options.get(
+        "target", certificate.TARGET)
+
+
 def _record(model: Path, rounds: list[dict[str, Any]], cert: Mapping[str, Any]) -> None:
     """Store the certificate and the rounds in the model's JSON."""
     certificate.write_certificate(model, dict(cert))
-    path = metadata_path(model)
-    meta = json.loads(path.read_text())
-    meta["active_learning"] = rounds
-    with atomic_write(path) as tmp:
-        tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    _write_rounds(model, rounds)
 
 
 def round_line(entry: Mapping[str, Any]) -> str:
@@ -219,14 +226,18 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
     """
     start = time.perf_counter()
     options = dict(certify_options or {})
-    previous = json.loads(metadata_path(model).read_text()).get("active_learning") or []
+    meta = json.loads(metadata_path(model).read_text())
     stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
-    rounds = [r for r in previous if r["round"] <= len(stored)]
-    t0 = time.perf_counter()
-    if json.loads(metadata_path(model).read_text())["training_data"]["sha256"] != file_sha256(db):
-        _train(db, model, train_args)  # a round was appended, its training did not finish
-    cert, states = _certify(model, options, settings)
+    rounds = [r for r in meta.get("active_learning") or [] if r["round"] <= len(stored)]
     added_total = sum(r["samples"] for r in stored)
+    if meta["training_data"]["sha256"] != file_sha256(db):
+        train_model(db, model, train_args, rounds)  # a round was appended, its training did not finish
+    elif _current(meta.get("certificate"), model, options) and rounds and rounds[-1]["round"] == len(stored) and (
+            meta["certificate"]["passed"] or len(stored) >= settings.rounds or added_total >= settings.max_samples):
+        log(round_line(rounds[-1]) + " (done before)")
+        return rounds
+    t0 = time.perf_counter()
+    cert, states = _certify(model, options, settings)
     if not rounds or rounds[-1]["round"] != len(stored):
         rounds.append({"round": len(stored), "samples_added": stored[-1]["samples"] if stored else 0,
                        "samples_total": _n_samples(db), "worst": cert["worst"], "worst_test": cert["worst_test"],
@@ -251,7 +262,7 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
         entry = append_samples(db, samples, picked, {"tests": names, "seed": round_seed(seed, k)})
         stored.append(entry)
         added_total += entry["samples"]
-        _train(db, model, train_args)
+        train_model(db, model, train_args, rounds)
         cert, states = _certify(model, options, settings)
         rounds.append({"round": k, "samples_added": entry["samples"], "samples_total": _n_samples(db),
                        "tests": names, "worst": cert["worst"], "worst_test": cert["worst_test"],
@@ -261,11 +272,22 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
     return rounds
 
 
-def _train(db: Path, model: Path, train_args: Sequence[str]) -> None:
-    """Train ``model`` on ``db`` from scratch (``training.train``, options ``train_args``)."""
+def train_model(db: Path, model: Path, train_args: Sequence[str], rounds: list[dict[str, Any]]) -> None:
+    """Train ``model`` on ``db`` from scratch (``training.train``, options ``train_args``); its
+    JSON keeps the ``rounds`` so far (an interrupted loop resumes with them)."""
     code = training_train.main(["--data", str(db), "--out", str(model), "--overwrite", *train_args])
     if code:
         raise RuntimeError(f"training exited {code}")
+    _write_rounds(model, rounds)
+
+
+def _write_rounds(model: Path, rounds: list[dict[str, Any]]) -> None:
+    """Store ``rounds`` in the model's JSON under ``active_learning`` (atomically)."""
+    path = metadata_path(model)
+    meta = json.loads(path.read_text())
+    meta["active_learning"] = rounds
+    with atomic_write(path) as tmp:
+        tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
 
 
 def _attrs(db: Path) -> dict[str, Any]:

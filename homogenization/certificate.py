@@ -217,6 +217,46 @@ def write_certificate(model_path: Path, certificate: dict[str, Any]) -> Path:
     return path
 
 
+def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, threads: int = 1) -> Path:
+    """Figure ``out`` (PNG, written atomically) of p and q [N/m] against eps11 [-] of the ANN and the
+    DEM on the certificate's worst test (``cert["worst_test"]``, rerun with ``cert["settings"]``)."""
+    from matplotlib.figure import Figure  # noqa: PLC0415 (matplotlib only where a figure is drawn)
+
+    from homogenization.figure_style import apply_style, figure_legend, PNG_DPI  # noqa: PLC0415
+
+    settings = cert["settings"]
+    info, programme = next((i, prog) for i, prog in tests_of(settings["pressures"], settings["eps_max"],
+                                                             settings["increment"]) if i["name"] == cert["worst_test"])
+    meta = read_metadata(model_path)
+    law = ContactLaw(**meta["contact_law"])
+    meso = from_description(meta["mesostructure"])
+    models = {"DEM": make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()),
+                                     settings=DemSettings(contact_tolerance=float(meta["contact_tolerance"])),
+                                     threads=threads),
+              "ANN": make_cell_model("ann", contact_law=law, model=model_path, threads=threads)}
+    fig = Figure(figsize=(8.0, 3.6), layout="constrained")
+    axes = fig.subplots(1, 2)
+    handles = []
+    for (label, model), style in zip(models.items(), ({"color": "k"}, {"color": "C3", "linestyle": "--"})):
+        try:
+            record = driver.run(model, programme, mesostructure=meso, n_orientations=settings["n_orientations"],
+                                progress=False)
+        except driver.ControlError:  # the ANN cannot follow the programme: the DEM alone is drawn
+            continue
+        rows = _shear_rows(record)
+        for ax, values in zip(axes, (record.p, record.q)):
+            (line,) = ax.plot(record.eps11[rows], values[rows], label=label, **style)
+        handles.append(line)
+    for ax, name in zip(axes, ("p [N/m]", "q [N/m]")):
+        ax.set(xlabel="eps11 [-]", ylabel=name)
+    missing = "" if len(handles) == len(models) else " (the ANN could not follow the programme)"
+    fig.suptitle(f"{info['name']}: worst {100 * cert['worst']:.3g} % of the scale{missing}")
+    figure_legend(fig, handles)
+    with atomic_write(Path(out)) as tmp:
+        apply_style(fig).savefig(tmp, dpi=PNG_DPI, format="png")
+    return Path(out)
+
+
 def summary_lines(cert: dict[str, Any]) -> list[str]:
     """One line per test, then the verdict."""
     lines = [f"{t['name']:<40} dp {100 * t['dp']:.3f} %  dq {100 * t['dq']:.3f} %" for t in cert["tests"]]

@@ -10,6 +10,7 @@ import pytest
 from homogenization import active, certificate
 from training import train as training_train
 from training.dataset import load_database
+from warp_hcell.core.provenance import file_sha256
 from warp_hcell.mesostructures.hcell import h_cell
 
 SHORT = {"pressures": (2e5,), "eps_max": 0.02, "n_orientations": 6, "rollout": False}
@@ -56,3 +57,32 @@ def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, cap
     assert stored[0]["samples"] == 3000 and stored[0]["tests"] == second["tests"]
     assert first["worst_test"] in second["tests"]
     assert new_paths.min() > old_paths.max() and state_id.max() < group_rows
+
+
+LEARN = ["--mesostructure", "hcell:alpha0=55", "--samples", "2000", "--rounds", "1", "--samples-per-round", "1000",
+         "--epochs", "5", "--hidden", "16", "--orientations", "4", "--eps-max", "0.01", "--no-rollout", "--threads", "1"]
+
+
+def test_hmodel_learn_writes_every_stage_resumes_and_refuses_other_options(tmp_path, capsys):
+    from homogenization.cli import hmodel
+
+    out = tmp_path / "run"
+    assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == 0
+    first = capsys.readouterr().out
+    assert "active round 0:" in first and "done before" not in first
+    meta = json.loads((out / "ann.json").read_text())
+    rounds = meta["active_learning"]
+    assert rounds[0]["samples_total"] == 2000 and meta["certificate"]["model_sha256"] == file_sha256(out / "ann.pt")
+    with h5py.File(out / "db.h5") as f:
+        n_stored = f["d_eps"].shape[0]
+        added = int(np.count_nonzero(f["source_round"][()] > 0)) if "source_round" in f else 0
+    assert n_stored == 2000 + added == rounds[-1]["samples_total"]
+    assert added == (1000 if len(rounds) == 2 else 0) and (len(rounds) == 2) != rounds[0]["passed"]
+    assert (out / "certificate.png").stat().st_size > 10_000
+    sha = (out / "ann.pt").read_bytes()
+    assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == 0
+    second = capsys.readouterr().out
+    assert second.count("(done before)") == 4 and (out / "ann.pt").read_bytes() == sha
+    assert hmodel.main(["learn", *LEARN, "--samples", "3000", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "holds a learn run with other options" in err[0] and (out / "db.h5").is_file()
