@@ -29,6 +29,7 @@ from typing import Sequence
 from homogenization import active, certificate
 from homogenization.cli.options import command_parser
 from training.checkpoint import metadata_path
+from training import train as training_train
 from training.network import DEFAULT_HIDDEN
 from warp_hcell.core.cli import positive_float, positive_int, quiet_warp, say, set_verbosity, UserError
 from warp_hcell.core.files import atomic_write, output_lock
@@ -56,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="samples added over all rounds at most")
     parser.add_argument("--max-seconds", type=positive_float, default=budget.max_seconds,
                         help="wall time [s] after which no new round starts")
-    parser.add_argument("--hidden", default=",".join(map(str, DEFAULT_HIDDEN)), help="hidden widths of the network")
+    parser.add_argument("--hidden", type=training_train.hidden_widths, default=DEFAULT_HIDDEN,
+                        help="hidden widths of the network, comma separated")
     parser.add_argument("--epochs", type=positive_int, default=None, help="maximum training epochs (training's default)")
     parser.add_argument("--orientations", type=positive_int, default=certificate.N_ORIENTATIONS,
                         help="cell orientations per certificate test")
@@ -70,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _options(args: argparse.Namespace, meso) -> dict:
     """What identifies a run (``learn.json``): a second call must give the same."""
     return {"mesostructure": args.mesostructure.text, "mesostructure_sha256": description_sha256(describe(meso)),
-            "samples": args.samples, "seed": args.seed, "hidden": args.hidden, "epochs": args.epochs,
+            "samples": args.samples, "seed": args.seed, "hidden": list(args.hidden), "epochs": args.epochs,
             "orientations": args.orientations, "eps_max": args.eps_max, "rollout": not args.no_rollout}
 
 
@@ -86,6 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, MesostructureError) as exc:
         raise UserError(str(exc)) from None
     out: Path = args.out
+    train_args = _train_args(args)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; give a folder")
     record, options = out / "learn.json", _options(args, meso)
@@ -100,7 +103,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with output_lock(out / "learn"):
         with atomic_write(record) as tmp:
             tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
-        return _learn(args, out, meso, settings, budget)
+        return _learn(args, out, meso, settings, budget, train_args)
 
 
 def _database_complete(path: Path) -> bool:
@@ -111,17 +114,21 @@ def _database_complete(path: Path) -> bool:
     return True
 
 
+def _train_args(args: argparse.Namespace) -> list[str]:
+    """The ``training.train`` options of the run besides --data and --out."""
+    return ["--hidden", ",".join(map(str, args.hidden)), "--threads", str(args.threads), "--seed", str(args.seed),
+            *(["--epochs", str(args.epochs)] if args.epochs else []),
+            *(["--no-rollout"] if args.no_rollout else []), *(["-q"] if args.quiet else [])]
+
+
 def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings,
-           budget: active.ActiveSettings) -> int:
+           budget: active.ActiveSettings, train_args: list[str]) -> int:
     db, model, figure = out / "db.h5", out / "ann.pt", out / "certificate.png"
     if _database_complete(db):
         say(f"database: {db} (done before)")
     else:
         generate(meso, settings, db, seed=args.seed, device=args.device, threads=args.threads, discard_partial=True)
         say(f"database: {db}, {settings.samples} samples")
-    train_args = ["--hidden", args.hidden, "--threads", str(args.threads), "--seed", str(args.seed),
-                  *(["--epochs", str(args.epochs)] if args.epochs else []),
-                  *(["--no-rollout"] if args.no_rollout else []), *(["-q"] if args.quiet else [])]
     meta = metadata_path(model)
     if meta.is_file() and model.is_file() and json.loads(meta.read_text())["training_data"]["sha256"] == file_sha256(db):
         say(f"model: {model} (done before)")
