@@ -69,8 +69,9 @@ class ActiveSettings:
 
     def __post_init__(self) -> None:
         for name in ("rounds", "samples_per_round", "max_samples", "state_every"):
-            if int(getattr(self, name)) < (0 if name == "rounds" else 1):
-                raise ValueError(f"{name} = {getattr(self, name)} is out of range")
+            least = 0 if name == "rounds" else 1
+            if int(getattr(self, name)) < least:
+                raise ValueError(f"{name} = {getattr(self, name)} must be >= {least}")
         if not self.max_seconds > 0.0:
             raise ValueError(f"max_seconds = {self.max_seconds:g} must be > 0")
 
@@ -177,10 +178,10 @@ def append_samples(path: Path, samples: Mapping[str, np.ndarray], states: Mappin
     return entry
 
 
-def _certify(model: Path, options: Mapping[str, Any], settings: ActiveSettings
+def _certify(model: Path, options: Mapping[str, Any], settings: ActiveSettings, threads: int
              ) -> tuple[dict[str, Any], dict[str, dict[str, np.ndarray]]]:
     states: dict[str, dict[str, np.ndarray]] = {}
-    cert = certificate.certify(model, dem_states=states, state_every=settings.state_every, **options)
+    cert = certificate.certify(model, dem_states=states, state_every=settings.state_every, threads=threads, **options)
     return cert, states
 
 
@@ -221,7 +222,7 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
         train_args: ``training.train`` options besides --data/--out (e.g. ["--hidden", "8"]).
         certify_options: ``certificate.certify`` keywords (pressures, eps_max, n_orientations, rollout, target).
         seed: seed of the rounds' probes (``round_seed``).
-        threads: DEM threads of the probes.
+        threads: DEM and ANN threads of the certificate and the probes.
         log: receives one line per round.
     """
     start = time.perf_counter()
@@ -237,7 +238,7 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
         log(round_line(rounds[-1]) + " (done before)")
         return rounds
     t0 = time.perf_counter()
-    cert, states = _certify(model, options, settings)
+    cert, states = _certify(model, options, settings, threads)
     if not rounds or rounds[-1]["round"] != len(stored):
         rounds.append({"round": len(stored), "samples_added": stored[-1]["samples"] if stored else 0,
                        "samples_total": _n_samples(db), "worst": cert["worst"], "worst_test": cert["worst_test"],
@@ -263,7 +264,7 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
         stored.append(entry)
         added_total += entry["samples"]
         train_model(db, model, train_args, rounds)
-        cert, states = _certify(model, options, settings)
+        cert, states = _certify(model, options, settings, threads)
         rounds.append({"round": k, "samples_added": entry["samples"], "samples_total": _n_samples(db),
                        "tests": names, "worst": cert["worst"], "worst_test": cert["worst_test"],
                        "passed": cert["passed"], "seconds": time.perf_counter() - t0})

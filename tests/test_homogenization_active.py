@@ -86,3 +86,11 @@ def test_hmodel_learn_writes_every_stage_resumes_and_refuses_other_options(tmp_p
     assert hmodel.main(["learn", *LEARN, "--samples", "3000", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "holds a learn run with other options" in err[0] and (out / "db.h5").is_file()
+    assert hmodel.main(["learn", *LEARN, "--out", str(tmp_path)]) == 2
+    assert "holds files that are not a learn run" in capsys.readouterr().err
+
+    (out / "ann.json").unlink()  # an interrupted training: that stage and those after it run again
+    assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == 0
+    third = capsys.readouterr().out
+    assert f"database: {out / 'db.h5'} (done before)" in third and "model: " not in third
+    assert json.loads((out / "ann.json").read_text())["certificate"]["model_sha256"] == file_sha256(out / "ann.pt")

@@ -13,7 +13,8 @@ skipped when its output is complete (a second call continues; an interrupted sta
 4. ``DIR/certificate.png``: p and q of the ANN and the DEM on the certificate's worst test.
 
 ``DIR/learn.json`` records the options of the run: a second call with other options is refused
-(one line, exit 2) unless --overwrite, which starts again. Exit 0 whether the final model
+(one line, exit 2) unless --overwrite, which starts the folder again (a folder with other files
+and no ``learn.json`` is refused). Exit 0 whether the final model
 passes its certificate or not (the verdict is printed and stored in ``ann.json``).
 """
 
@@ -92,15 +93,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; give a folder")
     record, options = out / "learn.json", _options(args, meso)
-    if record.is_file() and json.loads(record.read_text()) != options:
-        if not args.overwrite:
-            raise UserError(f"{out} holds a learn run with other options; rerun it with the same options or pass "
-                            f"--overwrite to start again")
-        shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
     if not args.verbose:
         quiet_warp()
-    with output_lock(out / "learn"):
+    with output_lock(out):
+        if out.is_dir() and any(out.iterdir()) and not record.is_file():
+            raise UserError(f"--out {out} holds files that are not a learn run; give a new or empty folder")
+        if record.is_file() and (args.overwrite or json.loads(record.read_text()) != options):
+            if not args.overwrite:
+                raise UserError(f"{out} holds a learn run with other options; rerun it with the same options or "
+                                f"pass --overwrite to start again")
+            shutil.rmtree(out)
+        out.mkdir(parents=True, exist_ok=True)
         with atomic_write(record) as tmp:
             tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
         return _learn(args, out, meso, settings, budget, train_args)
