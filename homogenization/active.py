@@ -132,7 +132,8 @@ def append_samples(path: Path, samples: Mapping[str, np.ndarray], states: Mappin
     The per-sample datasets of the file grow (a dataset the file lacks is not added); the new
     samples get ``source_round`` = the round, ``path_id`` offset past every path of the file,
     ``state_id`` = their row in the group ``active_states``, and ``valid`` from the cleaning rules
-    when the file was cleaned (all True otherwise).
+    when the file was cleaned (all True otherwise; ``n_valid`` follows). The file is read whole
+    into memory.
 
     Raises:
         ValueError: (one line) ``samples`` lacks a per-sample dataset of the file.
@@ -171,6 +172,8 @@ def append_samples(path: Path, samples: Mapping[str, np.ndarray], states: Mappin
     rounds.append(entry)
     attrs.update(active_learning=json.dumps(rounds), n_samples=int(n_old + n_new),
                  n_active_samples=int(sum(r["samples"] for r in rounds)))
+    if "n_valid" in attrs and "valid" in data:
+        attrs["n_valid"] = int(np.count_nonzero(data["valid"]))
     attrs_of["source_round"] = {"units": "-", "description": "0: the generator; k: active-learning round k"}
     attrs_of[ACTIVE_GROUP] = {"description": "start states of the active-learning probes (state_id of samples "
                                              "with source_round > 0)"}

@@ -27,6 +27,8 @@ not follow the programme, e.g. a drained increment without convergence), ``rollo
 tree differs), ``seconds``. ``--write`` stores it in the model's JSON under ``"certificate"``
 (the ANN backend then checks it), ``--out`` writes it to a JSON file; the command prints one line per test and the verdict, and
 exits 0 whether the model passes or not (a failed certificate is a result, recorded as such).
+``certify(dem_states=...)`` also hands back the DEM cell states met along each test (the
+active-learning rounds of ``homogenization.active`` probe those of the failing tests).
 ``--data DB.h5`` first (re)builds the model's out-of-distribution index from its database
 (``training.ood.index_for_model``), for a model trained before the index existed. Bad input (missing model, a mesostructure the model does not take) is one line and exit 2.
 

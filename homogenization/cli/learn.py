@@ -120,6 +120,7 @@ def _database_complete(path: Path) -> bool:
 def _train_args(args: argparse.Namespace) -> list[str]:
     """The ``training.train`` options of the run besides --data and --out."""
     return ["--hidden", ",".join(map(str, args.hidden)), "--threads", str(args.threads), "--seed", str(args.seed),
+            "--device", args.device,
             *(["--epochs", str(args.epochs)] if args.epochs else []),
             *(["--no-rollout"] if args.no_rollout else []), *(["-q"] if args.quiet else [])]
 
