@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
 from pathlib import Path
 from typing import Sequence
 
@@ -38,6 +37,7 @@ from warp_hcell.core.parameters import DatabaseSettings
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.database import format as database
 from warp_hcell.database.generate import generate
+from warp_hcell.database.shards import DiskFull
 from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
 from warp_hcell.mesostructures.files import describe, description_sha256
 from warp_hcell.mesostructures.mesostructure import MesostructureError
@@ -131,7 +131,12 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
     if _database_complete(db):
         say(f"database: {db} (done before)")
     else:
-        generate(meso, settings, db, seed=args.seed, device=args.device, threads=args.threads, discard_partial=True)
+        try:
+            generate(meso, settings, db, seed=args.seed, device=args.device, threads=args.threads,
+                     discard_partial=True)
+        except DiskFull as exc:
+            raise UserError(f"no space left on the device writing {exc.filename}; free space and rerun the same "
+                            f"command to resume") from None
         say(f"database: {db}, {settings.samples} samples")
     meta = metadata_path(model)
     if meta.is_file() and model.is_file() and json.loads(meta.read_text())["training_data"]["sha256"] == file_sha256(db):
