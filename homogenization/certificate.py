@@ -27,6 +27,8 @@ not follow the programme, e.g. a drained increment without convergence), ``rollo
 tree differs), ``seconds``. ``--write`` stores it in the model's JSON under ``"certificate"``
 (the ANN backend then checks it), ``--out`` writes it to a JSON file; the command prints one line per test and the verdict, and
 exits 0 whether the model passes or not (a failed certificate is a result, recorded as such).
+``certify(dem_states=...)`` also hands back the DEM cell states met along each test (the
+active-learning rounds of ``homogenization.active`` probe those of the failing tests).
 ``--data DB.h5`` first (re)builds the model's out-of-distribution index from its database
 (``training.ood.index_for_model``), for a model trained before the index existed. Bad input (missing model, a mesostructure the model does not take) is one line and exit 2.
 
@@ -96,12 +98,16 @@ def tests_of(pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
 
 class _Sampler:
     """A cell model that passes every call to ``model`` and keeps, every ``every``-th distinct
-    start state, the learning state (cell size, free coordinates, shear forces) of its cells."""
+    start state of the current test (``test``, set by the caller), the DEM state arrays
+    (``cell_size``, ``position``, ``shear_force``) of its cells; every ``COVERAGE_EVERY``-th
+    one is also kept for the coverage."""
 
-    def __init__(self, model: Any, free_dofs: np.ndarray, every: int) -> None:
-        self.model, self.free_dofs, self.every = model, free_dofs, every
+    def __init__(self, model: Any, every: int) -> None:
+        self.model, self.every = model, every
         self.name = model.name
-        self.samples: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.test = 0
+        self.coverage: list[dict[str, np.ndarray]] = []
+        self.states: dict[int, list[dict[str, np.ndarray]]] = {}
         self._last: object = None
         self._count = 0
 
@@ -111,11 +117,14 @@ class _Sampler:
     def step(self, state: Any, d_eps: np.ndarray, *, with_tangent: bool = False):
         if state is not self._last:
             self._last = state
-            if self._count % self.every == 0:
+            keep, cover = self._count % self.every == 0, self._count % COVERAGE_EVERY == 0
+            if keep or cover:
                 arrays = self.model.state_to_arrays(state)
-                position = np.asarray(arrays["position"])
-                self.samples.append((np.asarray(arrays["cell_size"]), position[:, self.free_dofs[:, 0], self.free_dofs[:, 1]],
-                                     np.asarray(arrays["shear_force"])))
+                kept = {name: np.array(arrays[name]) for name in ("cell_size", "position", "shear_force")}
+                if keep:
+                    self.states.setdefault(self.test, []).append(kept)
+                if cover:
+                    self.coverage.append(kept)
             self._count += 1
         return self.model.step(state, d_eps, with_tangent=with_tangent)
 
@@ -126,9 +135,17 @@ def _shear_rows(record: driver.Record) -> np.ndarray:
 
 def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pressures: Sequence[float] = PRESSURES,
             eps_max: float = EPS_MAX, increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
-            target: float = TARGET, rollout: bool = True, threads: int = 1) -> dict[str, Any]:
+            target: float = TARGET, rollout: bool = True, threads: int = 1,
+            dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY
+            ) -> dict[str, Any]:
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
     model's own (its JSON's ``mesostructure``).
+
+    ``dem_states``, when given, receives per test name the DEM cell states met along that test
+    every ``state_every`` increments (all cells): ``cell_size`` (n, 2) [m], ``position``
+    (n, n_grains, 2) [m], ``shear_force`` (n, n_pairs) [N] (``DemCell.state_to_arrays``, local frame),
+    and ``cell`` (n,) int64, a distinct id per (test, orientation): the active-learning rounds
+    (``homogenization.active``) probe these states.
 
     Raises:
         ValueError (CheckpointError, one line): unusable model, or a mesostructure it does not take.
@@ -145,9 +162,10 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     settings = DemSettings(contact_tolerance=float(meta["contact_tolerance"]))
     dem = make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()), settings=settings, threads=threads)
     free = ann.net.schema.free_dofs.cpu().numpy()
-    sampler = _Sampler(dem, free, COVERAGE_EVERY)
+    sampler = _Sampler(dem, int(state_every))
     results = []
-    for info, programme in tests_of(pressures, eps_max, increment):
+    for k, (info, programme) in enumerate(tests_of(pressures, eps_max, increment)):
+        sampler.test = k
         d = driver.run(sampler, programme, mesostructure=meso, n_orientations=n_orientations, progress=False)
         scale = max(float(info["p0"]), float(np.max(d.p)))
         try:
@@ -161,10 +179,16 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
         dp, dq = (float(np.nan_to_num(np.abs(x[ra] - y[rd]), nan=math.inf).max()) / scale for x, y in ((a.p, d.p), (a.q, d.q)))
         results.append({**info, "dp": dp, "dq": dq, "scale": scale})
     worst = max(results, key=lambda t: max(t["dp"], t["dq"]))
+    if dem_states is not None:
+        for k, parts in sampler.states.items():
+            merged = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
+            cells = np.concatenate([np.arange(part["cell_size"].shape[0]) for part in parts])
+            dem_states[results[k]["name"]] = {**merged, "cell": k * n_orientations + cells}
     coverage = None
-    if ann.ood is not None and sampler.samples:
-        states = [np.concatenate(parts) for parts in zip(*sampler.samples)]
-        inside = ~ann.ood.outside(state_features(ann.net, *states))
+    if ann.ood is not None and sampler.coverage:
+        size, position, shear = (np.concatenate([part[name] for part in sampler.coverage])
+                                 for name in ("cell_size", "position", "shear_force"))
+        inside = ~ann.ood.outside(state_features(ann.net, size, position[:, free[:, 0], free[:, 1]], shear))
         coverage = {"fraction_within": float(inside.mean()), "n_states": int(inside.size),
                     "threshold": ann.ood.threshold, "every_increments": COVERAGE_EVERY}
     report = (rollout_report(ann.net, meso, law, settings, increments=(increment,)) if rollout else None)
@@ -193,6 +217,46 @@ def write_certificate(model_path: Path, certificate: dict[str, Any]) -> Path:
     with atomic_write(path) as tmp:
         tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     return path
+
+
+def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, threads: int = 1) -> Path:
+    """Figure ``out`` (PNG, written atomically) of p and q [N/m] against eps11 [-] of the ANN and the
+    DEM on the certificate's worst test (``cert["worst_test"]``, rerun with ``cert["settings"]``)."""
+    from matplotlib.figure import Figure  # noqa: PLC0415 (matplotlib only where a figure is drawn)
+
+    from homogenization.figure_style import apply_style, figure_legend, PNG_DPI  # noqa: PLC0415
+
+    settings = cert["settings"]
+    info, programme = next((i, prog) for i, prog in tests_of(settings["pressures"], settings["eps_max"],
+                                                             settings["increment"]) if i["name"] == cert["worst_test"])
+    meta = read_metadata(model_path)
+    law = ContactLaw(**meta["contact_law"])
+    meso = from_description(meta["mesostructure"])
+    models = {"DEM": make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()),
+                                     settings=DemSettings(contact_tolerance=float(meta["contact_tolerance"])),
+                                     threads=threads),
+              "ANN": make_cell_model("ann", contact_law=law, model=model_path, threads=threads)}
+    fig = Figure(figsize=(8.0, 3.6), layout="constrained")
+    axes = fig.subplots(1, 2)
+    handles = []
+    for (label, model), style in zip(models.items(), ({"color": "k"}, {"color": "C3", "linestyle": "--"})):
+        try:
+            record = driver.run(model, programme, mesostructure=meso, n_orientations=settings["n_orientations"],
+                                progress=False)
+        except driver.ControlError:  # the ANN cannot follow the programme: the DEM alone is drawn
+            continue
+        rows = _shear_rows(record)
+        for ax, values in zip(axes, (record.p, record.q)):
+            (line,) = ax.plot(record.eps11[rows], values[rows], label=label, **style)
+        handles.append(line)
+    for ax, name in zip(axes, ("p [N/m]", "q [N/m]")):
+        ax.set(xlabel="eps11 [-]", ylabel=name)
+    missing = "" if len(handles) == len(models) else " (the ANN could not follow the programme)"
+    fig.suptitle(f"{info['name']}: worst {100 * cert['worst']:.3g} % of the scale{missing}")
+    figure_legend(fig, handles)
+    with atomic_write(Path(out)) as tmp:
+        apply_style(fig).savefig(tmp, dpi=PNG_DPI, format="png")
+    return Path(out)
 
 
 def summary_lines(cert: dict[str, Any]) -> list[str]:

@@ -29,6 +29,7 @@ BAD_VALUES = {
     "triaxial": (["--order", "4", "--out", "o"], "argument --order: Lebedev order 4 is not one of"),
     "calibrate": (["--data", "a.csv", "--params", "phi_g,mu", "--out", "o"], "argument --params: unknown parameter 'mu'"),
     "certify": (["--model", "m.pt", "--orientations", "0", "--out", "c.json"], "argument --orientations: 0 must be >= 1"),
+    "learn": (["--mesostructure", "hcell", "--samples", "0", "--out", "d"], "argument --samples: 0 must be >= 1"),
 }
 """Subcommand -> (argv with one malformed value, the start of the message that names its flag)."""
 

@@ -242,7 +242,8 @@ def _plot_learning_curve(path: Path, history: dict) -> None:
     plt.close(fig)
 
 
-def _hidden(text: str) -> tuple[int, ...]:
+def hidden_widths(text: str) -> tuple[int, ...]:
+    """argparse type of --hidden: comma-separated widths >= 1, e.g. "40,40" -> (40, 40)."""
     try:
         widths = tuple(int(w) for w in text.split(","))
     except ValueError:
@@ -276,7 +277,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=_positive(int), default=d.batch_size, help="samples per Adam step")
     p.add_argument("--lr", type=_positive(float), default=d.lr, help="initial Adam learning rate")
     p.add_argument("--patience", type=_positive(int), default=d.patience, help="early-stopping patience [epochs]")
-    p.add_argument("--hidden", type=_hidden, default=",".join(map(str, d.hidden)), help="hidden layer widths, comma separated")
+    p.add_argument("--hidden", type=hidden_widths, default=",".join(map(str, d.hidden)), help="hidden layer widths, comma separated")
     p.add_argument("--threads", type=_positive(int), default=d.threads, help="torch CPU threads")
     p.add_argument("--no-rollout", action="store_true", help="skip the rollout error along held-out DEM paths")
     return p

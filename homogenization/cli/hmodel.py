@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "clean": ("warp_hcell.clean", "mark pathological samples of a learning database"),
     "train": ("homogenization.train", "train the meso-ANN on a learning database, then certify it (--no-certify)"),
     "certify": ("homogenization.certificate", "measure a meso-ANN model against the DEM: its certificate"),
+    "learn": ("homogenization.learn", "database, meso-ANN, certificate and active-learning rounds of a mesostructure"),
     "sweep": ("homogenization.sweep", "biaxial tests over lists of mesostructures, alpha0, p0 and backends"),
     "bvp": ("homogenization.bvp", "plane-strain biaxial specimen (finite elements) of the homogenised material"),
     "triaxial": ("homogenization.triaxial", "isotropic compression to p0, then a 3D triaxial test or a --programme file"),

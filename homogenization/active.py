@@ -1,0 +1,304 @@
+"""Active learning of the meso-ANN: the DEM states where the certificate fails become new samples.
+
+One round: the certificate (``homogenization.certificate.certify``) runs the DEM
+along its homogenised tests and keeps the DEM cell states met every ``state_every`` increments
+(all orientations). The states of the tests that fail (max(dp, dq) > target) are probed as the
+generator probes them (``warp_hcell.database.probing.compute_chunk``: the database's own
+``DatabaseSettings``, so the same probe sizes, perturbed neighbours and zero probes), and the
+samples are appended to the database (``append_samples``; layout in docs/database_format.md,
+"Active-learning samples"): the per-sample datasets grow, ``source_round`` says which round a
+sample comes from (0: the generator), the probed start states go to the group ``active_states``,
+and the root attr ``active_learning`` lists the rounds. Each (test, orientation) of a round is a
+path of its own (new ``path_id``), so training's split by path keeps a test's states together.
+
+The loop (``learn``): train (``training.train``; from scratch each round: training has no warm
+start), certify, and while the certificate fails and the budget (``ActiveSettings``: rounds,
+samples, seconds) is not spent, add a round and retrain. Every round is printed (samples added,
+certificate worst, seconds) and stored in the model's JSON under ``active_learning``.
+
+Layering: this module joins ``training`` and the DEM of ``warp_hcell``; neither imports it.
+Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import h5py
+import numpy as np
+
+from homogenization import certificate
+from training import train as training_train
+from training.checkpoint import metadata_path
+from warp_hcell.core.files import atomic_write
+from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
+from warp_hcell.core.provenance import file_sha256
+from warp_hcell.database import clean as cleaning
+from warp_hcell.database import format as database
+from warp_hcell.database.exploration import DEM_PREFIX
+from warp_hcell.database.learning_state import free_coordinates
+from warp_hcell.database.probing import compute_chunk, n_chunks, ProbeContext
+from warp_hcell.mesostructures.files import from_description
+from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+ACTIVE_STREAM = 0x61637476
+"""First word of the seed of a round's probes (then the run's seed and the round)."""
+ACTIVE_GROUP = "active_states"
+"""Group of the database holding the start states of the active-learning probes."""
+
+
+@dataclass(frozen=True)
+class ActiveSettings:
+    """Budget and sampling of the active-learning loop (the single home of their defaults)."""
+
+    rounds: int = 3
+    """Rounds at most (each: probe, append, retrain, certify) [-]."""
+    samples_per_round: int = 20_000
+    """Samples added per round [-] (spread evenly over the states of the failing tests)."""
+    max_samples: int = 100_000
+    """Samples added over all rounds at most [-]."""
+    max_seconds: float = 4 * 3600.0
+    """Wall time [s] after which no new round starts."""
+    state_every: int = 10
+    """Increments between two DEM states kept along a certificate test [-]."""
+
+    def __post_init__(self) -> None:
+        for name in ("rounds", "samples_per_round", "max_samples", "state_every"):
+            least = 0 if name == "rounds" else 1
+            if int(getattr(self, name)) < least:
+                raise ValueError(f"{name} = {getattr(self, name)} must be >= {least}")
+        if not self.max_seconds > 0.0:
+            raise ValueError(f"max_seconds = {self.max_seconds:g} must be > 0")
+
+
+def failing_states(cert: Mapping[str, Any], dem_states: Mapping[str, Mapping[str, np.ndarray]]
+                   ) -> tuple[dict[str, np.ndarray], list[str]]:
+    """The DEM states of the certificate's failing tests (max(dp, dq) > target), concatenated, and
+    those tests' names. States: ``cell_size`` (n, 2) [m], ``position`` (n, n_grains, 2) [m],
+    ``shear_force`` (n, n_pairs) [N], ``cell`` (n,) int64 (one id per test and orientation)."""
+    names = [t["name"] for t in cert["tests"] if max(t["dp"], t["dq"]) > cert["target"] and t["name"] in dem_states]
+    if not names:
+        return {}, []
+    keys = ("cell_size", "position", "shear_force", "cell")
+    return {k: np.concatenate([dem_states[name][k] for name in names]) for k in keys}, names
+
+
+def round_seed(seed: int, round_index: int) -> int:
+    """Seed of the probes of round ``round_index`` (independent of the generator's streams)."""
+    return int(np.random.SeedSequence([ACTIVE_STREAM, int(seed), int(round_index)]).generate_state(1, np.uint64)[0])
+
+
+def _physics(attrs: Mapping[str, Any]) -> tuple[ContactLaw, DemSettings, DatabaseSettings]:
+    law = ContactLaw(kn=float(attrs["kn"]), kt_over_kn=float(attrs["kt"]) / float(attrs["kn"]),
+                     phi_g_deg=float(attrs["phi_g_deg"]))
+    fields = {f.name for f in dataclasses.fields(DemSettings)}
+    dem = DemSettings(**{k: v for k, v in json.loads(str(attrs.get("dem_settings", "{}"))).items() if k in fields})
+    generator = json.loads(str(attrs["generator"])) if "generator" in attrs else {}
+    fields = {f.name for f in dataclasses.fields(DatabaseSettings)}
+    generator = {k: (tuple(v) if isinstance(v, list) else v) for k, v in generator.items() if k in fields}
+    return law, dem, DatabaseSettings(**generator)
+
+
+def probe_states(meso: Mesostructure, states: Mapping[str, np.ndarray], n_samples: int, seed: int,
+                 attrs: Mapping[str, Any], threads: int = 1) -> dict[str, np.ndarray]:
+    """``n_samples`` probes of the DEM ``states`` (``failing_states``), as the generator probes
+    (the database's ``generator`` settings, its contact law and DEM settings from ``attrs``);
+    ``path_id`` is the state's ``cell``. Returns ``compute_chunk``'s arrays, all chunks concatenated."""
+    from warp_hcell.dem.cell import DemCell  # noqa: PLC0415 (Warp loads only where cells are stepped)
+
+    law, dem_settings, generator = _physics(attrs)
+    settings = dataclasses.replace(generator, samples=int(n_samples))
+    n = states["cell_size"].shape[0]
+    context = ProbeContext(
+        cell_model=DemCell(law, float(meso.radius.mean()), settings=dem_settings, threads=threads), meso=meso,
+        schema=meso.schema(), contact_law=law, contact_tolerance=dem_settings.contact_tolerance,
+        states={DEM_PREFIX + "cell_size": states["cell_size"], DEM_PREFIX + "position": states["position"],
+                DEM_PREFIX + "shear_force": states["shear_force"], "path_id": states["cell"],
+                **{name: np.full(n, value) for name, value in meso.parameters.items()}})
+    chunks = [compute_chunk(context, settings, seed, c) for c in range(n_chunks(settings))]
+    return {name: np.concatenate([chunk[name] for chunk in chunks]) for name in chunks[0]}
+
+
+def append_samples(path: Path, samples: Mapping[str, np.ndarray], states: Mapping[str, np.ndarray],
+                   record: Mapping[str, Any]) -> dict[str, Any]:
+    """Append one round's ``samples`` (``probe_states``) and their start ``states`` to database
+    ``path`` (rewritten atomically); returns the round's record as stored in ``active_learning``.
+
+    The per-sample datasets of the file grow (a dataset the file lacks is not added); the new
+    samples get ``source_round`` = the round, ``path_id`` offset past every path of the file,
+    ``state_id`` = their row in the group ``active_states``, and ``valid`` from the cleaning rules
+    when the file was cleaned (all True otherwise; ``n_valid`` follows). The file is read whole
+    into memory.
+
+    Raises:
+        ValueError: (one line) ``samples`` lacks a per-sample dataset of the file.
+    """
+    data, attrs = database.read_database(path)
+    attrs_of = database.read_attrs_of(path)
+    n_old = data["d_eps"].shape[0]
+    rounds = json.loads(str(attrs.get("active_learning", "[]")))
+    k = len(rounds) + 1
+    per_sample = [name for name, value in data.items() if value.shape[:1] == (n_old,)
+                  and not name.startswith(("states/", database.SCHEMA_GROUP + "/", ACTIVE_GROUP + "/"))]
+    new = {name: np.asarray(value) for name, value in samples.items()}
+    n_new = new["d_eps"].shape[0]
+    path_base = int(data["path_id"].max(initial=-1)) + 1
+    state_base = data[f"{ACTIVE_GROUP}/round"].size if f"{ACTIVE_GROUP}/round" in data else 0
+    new["path_id"] = new["path_id"] + path_base
+    new["state_id"] = new["state_id"] + state_base
+    new["source_round"] = np.full(n_new, k, np.int64)
+    data.setdefault("source_round", np.zeros(n_old, np.int64))
+    if "valid" in data:
+        new["valid"] = (cleaning.clean_samples(new)[0] if bool(attrs.get("cleaned", False))
+                        else np.ones(n_new, bool))
+    missing = sorted(set(per_sample) - set(new))
+    if missing:
+        raise ValueError(f"{path}: the new samples lack {', '.join(missing)}")
+    for name in {*per_sample, "source_round"}:
+        data[name] = np.concatenate([data[name], new[name].astype(data[name].dtype)])
+    schema = from_description(str(attrs["mesostructure"])).schema()
+    added = {"cell_size": states["cell_size"], "free_position": free_coordinates(schema, states["position"]),
+             "shear_force": states["shear_force"], "path_id": states["cell"] + path_base,
+             "round": np.full(states["cell"].size, k, np.int64)}
+    for name, value in added.items():
+        key = f"{ACTIVE_GROUP}/{name}"
+        data[key] = np.concatenate([data[key], value]) if key in data else np.asarray(value)
+    entry = {"round": k, "samples": int(n_new), "states": int(states["cell"].size), **record}
+    rounds.append(entry)
+    attrs.update(active_learning=json.dumps(rounds), n_samples=int(n_old + n_new),
+                 n_active_samples=int(sum(r["samples"] for r in rounds)))
+    if "n_valid" in attrs and "valid" in data:
+        attrs["n_valid"] = int(np.count_nonzero(data["valid"]))
+    attrs_of["source_round"] = {"units": "-", "description": "0: the generator; k: active-learning round k"}
+    attrs_of[ACTIVE_GROUP] = {"description": "start states of the active-learning probes (state_id of samples "
+                                             "with source_round > 0)"}
+    database.write_database(path, data, attrs, attrs_of)
+    return entry
+
+
+def _certify(model: Path, options: Mapping[str, Any], settings: ActiveSettings, threads: int
+             ) -> tuple[dict[str, Any], dict[str, dict[str, np.ndarray]]]:
+    states: dict[str, dict[str, np.ndarray]] = {}
+    cert = certificate.certify(model, dem_states=states, state_every=settings.state_every, threads=threads, **options)
+    return cert, states
+
+
+def _current(cert: Mapping[str, Any] | None, model: Path, options: Mapping[str, Any]) -> bool:
+    """Whether ``cert`` was measured on this model file with the certificate ``options``."""
+    if not cert or cert.get("model_sha256") != file_sha256(model):
+        return False
+    wanted = {"pressures": list(options.get("pressures", certificate.PRESSURES)),
+              "eps_max": options.get("eps_max", certificate.EPS_MAX),
+              "n_orientations": options.get("n_orientations", certificate.N_ORIENTATIONS)}
+    return all(cert["settings"].get(k) == v for k, v in wanted.items()) and cert["target"] == options.get(
+        "target", certificate.TARGET)
+
+
+def _record(model: Path, rounds: list[dict[str, Any]], cert: Mapping[str, Any]) -> None:
+    """Store the certificate and the rounds in the model's JSON."""
+    certificate.write_certificate(model, dict(cert))
+    _write_rounds(model, rounds)
+
+
+def round_line(entry: Mapping[str, Any]) -> str:
+    """One line of a round's report."""
+    return (f"active round {entry['round']}: +{entry['samples_added']} samples ({entry['samples_total']} in all), "
+            f"certificate worst {100 * entry['worst']:.3f} % ({entry['worst_test']}), "
+            f"{'PASSED' if entry['passed'] else 'FAILED'}, {entry['seconds']:.1f} s")
+
+
+def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveSettings = ActiveSettings(),
+          certify_options: Mapping[str, Any] | None = None, seed: int = 0, threads: int = 1,
+          log: Callable[..., None] = print) -> list[dict[str, Any]]:
+    """Certify ``model`` (trained on ``db``) and run active rounds until it passes or the budget
+    of ``settings`` is spent; returns the rounds (round 0: the model as given), also stored in
+    the model's JSON under ``active_learning``.
+
+    Args:
+        db: the model's database; the rounds append to it (``append_samples``).
+        model: the ``.pt`` (its JSON beside it), retrained in place each round.
+        train_args: ``training.train`` options besides --data/--out (e.g. ["--hidden", "8"]).
+        certify_options: ``certificate.certify`` keywords (pressures, eps_max, n_orientations, rollout, target).
+        seed: seed of the rounds' probes (``round_seed``).
+        threads: DEM and ANN threads of the certificate and the probes.
+        log: receives one line per round.
+    """
+    start = time.perf_counter()
+    options = dict(certify_options or {})
+    meta = json.loads(metadata_path(model).read_text())
+    stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
+    rounds = [r for r in meta.get("active_learning") or [] if r["round"] <= len(stored)]
+    added_total = sum(r["samples"] for r in stored)
+    if meta["training_data"]["sha256"] != file_sha256(db):
+        train_model(db, model, train_args, rounds)  # a round was appended, its training did not finish
+    elif _current(meta.get("certificate"), model, options) and rounds and rounds[-1]["round"] == len(stored) and (
+            meta["certificate"]["passed"] or len(stored) >= settings.rounds or added_total >= settings.max_samples):
+        log(round_line(rounds[-1]) + " (done before)")
+        return rounds
+    t0 = time.perf_counter()
+    cert, states = _certify(model, options, settings, threads)
+    if not rounds or rounds[-1]["round"] != len(stored):
+        rounds.append({"round": len(stored), "samples_added": stored[-1]["samples"] if stored else 0,
+                       "samples_total": _n_samples(db), "worst": cert["worst"], "worst_test": cert["worst_test"],
+                       "passed": cert["passed"], "seconds": time.perf_counter() - t0})
+        log(round_line(rounds[-1]))
+    _record(model, rounds, cert)
+    meso = from_description(str(_attrs(db)["mesostructure"]))
+    while not cert["passed"]:
+        k = len(stored) + 1
+        n = min(settings.samples_per_round, settings.max_samples - added_total)
+        if k > settings.rounds or n <= 0 or time.perf_counter() - start > settings.max_seconds:
+            log(f"active learning stops: budget spent (rounds {k - 1}/{settings.rounds}, samples "
+                f"{added_total}/{settings.max_samples}, {time.perf_counter() - start:.0f}/{settings.max_seconds:g} s)")
+            break
+        t0 = time.perf_counter()
+        picked, names = failing_states(cert, states)
+        if not names:
+            log("active learning stops: the failing tests left no DEM states (the DEM did not run them)")
+            break
+        attrs = _attrs(db)
+        samples = probe_states(meso, picked, n, round_seed(seed, k), attrs, threads)
+        entry = append_samples(db, samples, picked, {"tests": names, "seed": round_seed(seed, k)})
+        stored.append(entry)
+        added_total += entry["samples"]
+        train_model(db, model, train_args, rounds)
+        cert, states = _certify(model, options, settings, threads)
+        rounds.append({"round": k, "samples_added": entry["samples"], "samples_total": _n_samples(db),
+                       "tests": names, "worst": cert["worst"], "worst_test": cert["worst_test"],
+                       "passed": cert["passed"], "seconds": time.perf_counter() - t0})
+        log(round_line(rounds[-1]))
+        _record(model, rounds, cert)
+    return rounds
+
+
+def train_model(db: Path, model: Path, train_args: Sequence[str], rounds: list[dict[str, Any]]) -> None:
+    """Train ``model`` on ``db`` from scratch (``training.train``, options ``train_args``); its
+    JSON keeps the ``rounds`` so far (an interrupted loop resumes with them)."""
+    code = training_train.main(["--data", str(db), "--out", str(model), "--overwrite", *train_args])
+    if code:
+        raise RuntimeError(f"training exited {code}")
+    _write_rounds(model, rounds)
+
+
+def _write_rounds(model: Path, rounds: list[dict[str, Any]]) -> None:
+    """Store ``rounds`` in the model's JSON under ``active_learning`` (atomically)."""
+    path = metadata_path(model)
+    meta = json.loads(path.read_text())
+    meta["active_learning"] = rounds
+    with atomic_write(path) as tmp:
+        tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+
+
+def _attrs(db: Path) -> dict[str, Any]:
+    with h5py.File(db, "r") as f:
+        return dict(f.attrs)
+
+
+def _n_samples(db: Path) -> int:
+    with h5py.File(db, "r") as f:
+        return int(f["d_eps"].shape[0])

@@ -1,0 +1,159 @@
+"""hmodel learn --mesostructure FILE|SPEC --out DIR [--samples N] [--rounds R] [--seed S]
+
+(also ``python -m homogenization.learn``.) The whole pipeline of one mesostructure, each stage
+skipped when its output is complete (a second call continues; an interrupted stage restarts):
+
+1. ``DIR/db.h5``: the learning database (``warp_hcell.database.generate``; resumes from its
+   sidecar ``DIR/db.h5.parts``);
+2. ``DIR/ann.pt``, ``DIR/ann.json``: the meso-ANN (``training.train``), skipped when the JSON's
+   training data is the current ``db.h5``;
+3. the certificate and the active-learning rounds (``homogenization.active.learn``): while the
+   certificate fails and the budget (``ActiveSettings``) is left, the DEM states of the failing
+   tests are probed, appended to ``db.h5`` and the model is retrained from scratch;
+4. ``DIR/certificate.png``: p and q of the ANN and the DEM on the certificate's worst test.
+
+``DIR/learn.json`` records the options of the run: a second call with other options is refused
+(one line, exit 2) unless --overwrite, which starts the folder again (a folder with other files
+and no ``learn.json`` is refused). Exit 0 whether the final model
+passes its certificate or not (the verdict is printed and stored in ``ann.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+from typing import Sequence
+
+from homogenization import active, certificate
+from homogenization.cli.options import command_parser
+from training.checkpoint import metadata_path
+from training import train as training_train
+from training.network import DEFAULT_HIDDEN
+from warp_hcell.core.cli import positive_float, positive_int, quiet_warp, say, set_verbosity, UserError
+from warp_hcell.core.files import atomic_write, output_lock
+from warp_hcell.core.parameters import DatabaseSettings
+from warp_hcell.core.provenance import file_sha256
+from warp_hcell.database import format as database
+from warp_hcell.database.generate import generate
+from warp_hcell.database.shards import DiskFull
+from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
+from warp_hcell.mesostructures.files import describe, description_sha256
+from warp_hcell.mesostructures.mesostructure import MesostructureError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser of ``hmodel learn`` (budget defaults from ``ActiveSettings``, database from ``DatabaseSettings``)."""
+    budget, db = active.ActiveSettings(), DatabaseSettings()
+    parser = command_parser("homogenization.learn", "Database, meso-ANN, certificate and active-learning rounds "
+                            "of one mesostructure (docs/certificate.md).")
+    parser.add_argument("--mesostructure", type=mesostructure_arg, required=True, help=MESOSTRUCTURE_HELP)
+    parser.add_argument("--out", type=Path, required=True, help="folder of db.h5, ann.pt/.json, certificate.png")
+    parser.add_argument("--samples", type=positive_int, default=db.samples, help="samples of the generated database")
+    parser.add_argument("--rounds", type=int, default=budget.rounds, help="active-learning rounds at most (0: none)")
+    parser.add_argument("--samples-per-round", type=positive_int, default=budget.samples_per_round,
+                        help="samples added per round")
+    parser.add_argument("--max-samples", type=positive_int, default=budget.max_samples,
+                        help="samples added over all rounds at most")
+    parser.add_argument("--max-seconds", type=positive_float, default=budget.max_seconds,
+                        help="wall time [s] after which no new round starts")
+    parser.add_argument("--hidden", type=training_train.hidden_widths, default=DEFAULT_HIDDEN,
+                        help="hidden widths of the network, comma separated")
+    parser.add_argument("--epochs", type=positive_int, default=None, help="maximum training epochs (training's default)")
+    parser.add_argument("--orientations", type=positive_int, default=certificate.N_ORIENTATIONS,
+                        help="cell orientations per certificate test")
+    parser.add_argument("--eps-max", type=positive_float, default=certificate.EPS_MAX,
+                        help="axial strain of each certificate shear stage [-]")
+    parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
+    parser.add_argument("--threads", type=positive_int, default=1, help="DEM and torch CPU threads")
+    return parser
+
+
+def _options(args: argparse.Namespace, meso) -> dict:
+    """What identifies a run (``learn.json``): a second call must give the same."""
+    return {"mesostructure": args.mesostructure.text, "mesostructure_sha256": description_sha256(describe(meso)),
+            "samples": args.samples, "seed": args.seed, "hidden": list(args.hidden), "epochs": args.epochs,
+            "orientations": args.orientations, "eps_max": args.eps_max, "rollout": not args.no_rollout}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (bad input: one line, 2, before any work)."""
+    args = build_parser().parse_args(argv)
+    set_verbosity(args)
+    try:
+        budget = active.ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
+                                       max_samples=args.max_samples, max_seconds=args.max_seconds)
+        settings = DatabaseSettings(samples=args.samples)
+        meso = args.mesostructure.build()
+    except (ValueError, MesostructureError) as exc:
+        raise UserError(str(exc)) from None
+    out: Path = args.out
+    train_args = _train_args(args)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out} is a file; give a folder")
+    record, options = out / "learn.json", _options(args, meso)
+    if not args.verbose:
+        quiet_warp()
+    with output_lock(out):
+        if out.is_dir() and any(out.iterdir()) and not record.is_file():
+            raise UserError(f"--out {out} holds files that are not a learn run; give a new or empty folder")
+        if record.is_file() and (args.overwrite or json.loads(record.read_text()) != options):
+            if not args.overwrite:
+                raise UserError(f"{out} holds a learn run with other options; rerun it with the same options or "
+                                f"pass --overwrite to start again")
+            shutil.rmtree(out)
+        out.mkdir(parents=True, exist_ok=True)
+        with atomic_write(record) as tmp:
+            tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
+        return _learn(args, out, meso, settings, budget, train_args)
+
+
+def _database_complete(path: Path) -> bool:
+    try:
+        database.check_database(path)
+    except ValueError:
+        return False
+    return True
+
+
+def _train_args(args: argparse.Namespace) -> list[str]:
+    """The ``training.train`` options of the run besides --data and --out."""
+    return ["--hidden", ",".join(map(str, args.hidden)), "--threads", str(args.threads), "--seed", str(args.seed),
+            "--device", args.device,
+            *(["--epochs", str(args.epochs)] if args.epochs else []),
+            *(["--no-rollout"] if args.no_rollout else []), *(["-q"] if args.quiet else [])]
+
+
+def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings,
+           budget: active.ActiveSettings, train_args: list[str]) -> int:
+    db, model, figure = out / "db.h5", out / "ann.pt", out / "certificate.png"
+    if _database_complete(db):
+        say(f"database: {db} (done before)")
+    else:
+        try:
+            generate(meso, settings, db, seed=args.seed, device=args.device, threads=args.threads,
+                     discard_partial=True)
+        except DiskFull as exc:
+            raise UserError(f"no space left on the device writing {exc.filename}; free space and rerun the same "
+                            f"command to resume") from None
+        say(f"database: {db}, {settings.samples} samples")
+    meta = metadata_path(model)
+    if meta.is_file() and model.is_file() and json.loads(meta.read_text())["training_data"]["sha256"] == file_sha256(db):
+        say(f"model: {model} (done before)")
+    else:
+        active.train_model(db, model, train_args, [])
+    rounds = active.learn(db, model, train_args, settings=budget, seed=args.seed, threads=args.threads, log=say,
+                          certify_options={"n_orientations": args.orientations, "eps_max": args.eps_max,
+                                           "rollout": not args.no_rollout})
+    cert = json.loads(meta.read_text())["certificate"]
+    stamp = out / "certificate.png.sha256"
+    if figure.is_file() and stamp.is_file() and stamp.read_text().strip() == cert["model_sha256"]:
+        say(f"figure: {figure} (done before)")
+    else:
+        certificate.plot_worst_test(model, cert, figure, threads=args.threads)
+        stamp.write_text(cert["model_sha256"] + "\n")
+        say(f"figure: {figure}")
+    say(*certificate.summary_lines(cert),
+        f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples in {db}")
+    return 0
