@@ -8,6 +8,7 @@ import torch
 from dem_database import build
 from training.checkpoint import load_checkpoint
 from training.dataset import load_database
+from training.network import n_features
 from training.train import TrainConfig, evaluate, fit, main, run
 
 CONFIG = TrainConfig(hidden=(32, 32), epochs=150, batch_size=64, lr=3e-3, patience=150, threads=1, rollout=False)
@@ -55,6 +56,17 @@ def test_cli_writes_model_metadata_with_r2_and_rollout(db_path, tmp_path, capsys
     assert (tmp_path / "m_learning_curve.png").is_file()
     assert "rollout error" in capsys.readouterr().out
 
+
+
+def test_cli_load_features_option_reaches_the_saved_network(db_path, tmp_path):
+    out = tmp_path / "m.pt"
+    assert main(["--data", str(db_path), "--out", str(out), "--epochs", "2", "--hidden", "8", "--threads", "1",
+                 "--no-rollout", "--load-features"]) == 0
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["architecture"]["load_features"] is True and meta["config"]["load_features"] is True
+    net, _ = load_checkpoint(out)
+    n_active = int(net.active.sum())
+    assert net.load_features and net.mlp[0].in_features == n_features(net.n_free, n_active) + n_active
 
 def test_cli_refuses_to_overwrite_and_reports_bad_data_in_one_line(db_path, tmp_path, capsys):
     out = tmp_path / "m.pt"

@@ -74,6 +74,8 @@ class TrainConfig:
 
     hidden: tuple[int, ...] = DEFAULT_HIDDEN
     """Hidden layer widths [-]."""
+    load_features: bool = False
+    """Give the network the load fraction f_n / max f_n of every active pair (``training.network``)."""
     epochs: int = 300
     """Maximum number of epochs [-]."""
     batch_size: int = 256
@@ -149,9 +151,9 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = F
     torch.manual_seed(config.seed)
     split = split_by_path(db, val_fraction=config.val_fraction, test_fraction=config.test_fraction, seed=config.seed)
     active = active_pairs(db, split.train)
-    train, val = tensors(db, split.train, active), tensors(db, split.val, active)
+    train, val = (tensors(db, index, active, config.load_features) for index in (split.train, split.val))
     norm = fit_normalisation(db, train, split.train)
-    net = MesoNet(db.schema, torch.from_numpy(active), config.hidden)
+    net = MesoNet(db.schema, torch.from_numpy(active), config.hidden, config.load_features)
     net.set_normalisation(norm.feature_mean, norm.feature_std, norm.rate_mean, norm.rate_std)
     optimiser = torch.optim.Adam(net.parameters(), lr=config.lr)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=config.lr_patience)
@@ -277,6 +279,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr", type=_positive(float), default=d.lr, help="initial Adam learning rate")
     p.add_argument("--patience", type=_positive(int), default=d.patience, help="early-stopping patience [epochs]")
     p.add_argument("--hidden", type=_hidden, default=",".join(map(str, d.hidden)), help="hidden layer widths, comma separated")
+    p.add_argument("--load-features", action="store_true",
+                   help="give the network the load fraction f_n / max f_n of every active pair")
     p.add_argument("--threads", type=_positive(int), default=d.threads, help="torch CPU threads")
     p.add_argument("--no-rollout", action="store_true", help="skip the rollout error along held-out DEM paths")
     return p
@@ -304,7 +308,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str] | None) -> int:
     """Train, evaluate and write the model of ``main`` (holding the output lock)."""
-    config = TrainConfig(hidden=args.hidden, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+    config = TrainConfig(hidden=args.hidden, load_features=args.load_features, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
                          patience=args.patience, seed=args.seed, threads=args.threads, device=args.device,
                          rollout=not args.no_rollout)
     db = load_database(args.data)
