@@ -8,7 +8,9 @@ Contract:
   training split and minimises, with Adam (learning rate halved on validation plateaus,
   early stopping, best epoch restored), the mean squared error of the predicted free-DOF
   displacement relative to each sample's scale ``D (|d_eps| + |F|max / (kn D))`` and to the
-  rate spread of each DOF. Same seed and thread count -> bit-identical network.
+  rate spread of each DOF (in the training loss, the samples that ``sliding_light`` flags
+  are weighted by ``TrainConfig.sliding_weight``). Same seed and thread count -> bit-identical
+  network.
 - ``evaluate(net, db, index)`` gives R^2 per learned output: the free-DOF rates
   ``d x / (D |d_eps|)`` of the unperturbed samples, the free-DOF displacements d x / D of the
   perturbed ones, and the resulting increments of S_nn, S_tt (contact law applied).
