@@ -8,6 +8,7 @@ output: the tangential force, kt times a difference of nearly equal branch vecto
 rounding of ~1e-11 of it in float64.
 """
 
+import json
 import os
 import subprocess
 import sys
@@ -292,3 +293,36 @@ def test_the_tangent_of_a_held_grain_matches_central_differences(fines_net):
     scale = np.abs(fd).max()
     assert scale > 1e6
     np.testing.assert_allclose(tangent, fd, rtol=0, atol=1e-4 * scale)
+
+
+def test_the_compiled_load_features_equal_the_torch_ones(loaded, tmp_path):
+    """A network with ``load_features``: the compiled features and increment match the torch path,
+    and the option survives a checkpoint."""
+    cell, state, d = loaded
+    torch.manual_seed(2)
+    net = MesoNet(cell.net.schema, cell.net.active, hidden=(16,), load_features=True)
+    n_base = cell.net.feature_mean.shape[0]
+    rng = np.random.default_rng(4)
+    net.set_normalisation(rng.normal(scale=0.1, size=n_base + int(net.active.sum())),
+                          rng.uniform(0.5, 2.0, size=n_base + int(net.active.sum())), cell.net.rate_mean,
+                          cell.net.rate_std)
+    tensors = [torch.from_numpy(np.asarray(a, dtype=np.float64)) for a in state]
+    with torch.inference_mode():
+        raw = net.raw_features(*tensors, torch.from_numpy(d))[0]
+        expected = ((raw - net.feature_mean) / net.feature_std).numpy()
+        ref = net.advance(*tensors, torch.from_numpy(d))
+    fraction = raw[:, n_base:].numpy()
+    assert np.all((fraction >= 0) & (fraction <= 1)) and np.any((fraction > 0.01) & (fraction < 0.5))
+    fast = FastAdvance(net)
+    step = fast(*state, d)
+    np.testing.assert_allclose(fast.last_features().T, expected, rtol=1e-6, atol=1e-6)
+    scale = np.abs(ref.moment.numpy()).max()
+    np.testing.assert_allclose(step.moment, ref.moment.numpy(), rtol=0, atol=1e-5 * scale)
+    from training.checkpoint import load_checkpoint, save_checkpoint
+    meta = json.loads((ROOT / "homogenization/data/ann_default.json").read_text())
+    keep = ("schema", "contact_law", "contact_tolerance", "mesostructure", "mesostructure_sha256")
+    save_checkpoint(tmp_path / "m.pt", net, {k: meta[k] for k in keep})
+    again, _ = load_checkpoint(tmp_path / "m.pt")
+    assert again.load_features
+    with torch.inference_mode():
+        torch.testing.assert_close(again.raw_features(*tensors, torch.from_numpy(d))[0], raw, rtol=0, atol=0)

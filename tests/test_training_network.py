@@ -74,3 +74,27 @@ def test_a_cells_prediction_does_not_depend_on_its_batch(net):
 def test_bad_hidden_widths_are_refused(net, hidden):
     with pytest.raises(ValueError, match="hidden"):
         MesoNet(net[0].schema, net[0].active, hidden)
+
+
+def test_load_features_are_each_pairs_normal_force_over_the_cells_largest(net):
+    model, meso = net
+    plain = MesoNet(model.schema, model.active, (8,), load_features=True)
+    size, free, shear = _state(meso, squeeze=2e-4)
+    size, free, shear = (t[:2].clone() for t in (size, free, shear))
+    size[1] *= 1.01  # the second cell is dilated: no pair carries a force
+    free[1] *= 1.01
+    d = torch.full((2, 2), 1e-4)
+    base = model.raw_features(size, free, shear, d)[0]
+    feats = plain.raw_features(size, free, shear, d)[0]
+    assert feats.shape == (2, n_features(4, 6, True)) == (2, n_features(4, 6) + 6)
+    torch.testing.assert_close(feats[:, :base.shape[1]], base, rtol=0, atol=0)
+    x = torch.tensor(meso.position).repeat(2, 1, 1)
+    x[:, ~torch.tensor(meso.driven)] = free.reshape(2, -1)
+    x[:, torch.tensor(meso.driven)] = (torch.tensor(meso.position / meso.cell_size)[None] * size[:, None, :])[
+        :, torch.tensor(meso.driven)]
+    pairs = torch.tensor(meso.pairs)
+    overlap = 2 * torch.tensor(meso.radius)[pairs[:, 0]] - torch.linalg.vector_norm(x[:, pairs[:, 1]] - x[:, pairs[:, 0]], dim=2)
+    fn = torch.clamp(overlap, min=0)[0]
+    assert int((fn > 0).sum()) >= 2
+    torch.testing.assert_close(feats[0, base.shape[1]:], fn[:6] / fn.max(), rtol=1e-9, atol=0)
+    torch.testing.assert_close(feats[1, base.shape[1]:], torch.zeros(6, dtype=torch.float64), rtol=0, atol=0)

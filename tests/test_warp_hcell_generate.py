@@ -307,6 +307,7 @@ def exit_code(argv):
     (["--mesostructure", "{file}"], "not valid"),
     (["--perturbed-fraction", "2"], "perturbed_fraction = 2 is outside [0, 1]"),
     (["--reversal-legs", "-1"], "reversal_legs = -1 must be >= 0"),
+    (["--precompression", "0", "-0.001"], "needs finite strains >= 0"),
     (["--backend", "analytical"], "unrecognized arguments: --backend analytical"),
     (["--device", "cuda:7"], "--device cuda:7: no CUDA GPU on this machine"),
 ])
@@ -329,11 +330,12 @@ def test_cli_writes_a_database_of_a_mesostructure_file(tmp_path, capsys):
     out = tmp_path / "cli.h5"
     assert generate.main(["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "600",
                           "--chunk-size", "300", "--n-directions", "4", "--seed", "1", "--out", str(out),
-                          "--clean"]) == 0
+                          "--clean", "--precompression", "0", "2e-3"]) == 0
     assert "600 samples in" in capsys.readouterr().out
     data, attrs = database.read_database(out)
     assert attrs["seed"] == 1 and attrs["cleaned"] and attrs["kn"] == ContactLaw().kn
     assert attrs["mesostructure"] == describe(LATERAL) and data["valid"].shape == (600,)
+    assert set(np.unique(data["states/precompression"])) == {0.0, 2e-3}
 
 
 def error_lines(capsys) -> list[str]:

@@ -61,7 +61,8 @@ def save_checkpoint(path: str | Path, net: MesoNet, metadata: dict[str, Any]) ->
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "architecture": {"hidden": list(net.hidden), "activation": ACTIVATION, "n_free": net.n_free,
-                         "active_pairs": [bool(a) for a in net.active.tolist()]},
+                         "active_pairs": [bool(a) for a in net.active.tolist()],
+                         "load_features": net.load_features},
         "normalisation": buffers,
         **metadata,
     }
@@ -109,7 +110,7 @@ def load_checkpoint(path: str | Path) -> tuple[MesoNet, dict[str, Any]]:
         schema = schema_from_arrays(schema_arrays, kn=float(law["kn"]), kt_over_kn=float(law["kt_over_kn"]),
                                     phi_g_deg=float(law["phi_g_deg"]), contact_tolerance=float(meta["contact_tolerance"]))
         net = MesoNet(schema, torch.tensor(meta["architecture"]["active_pairs"], dtype=torch.bool),
-                      meta["architecture"]["hidden"])
+                      meta["architecture"]["hidden"], bool(meta["architecture"].get("load_features", False)))
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise CheckpointError(f"{metadata_path(path)}: cannot rebuild the network ({exc})") from None
     try:

@@ -231,10 +231,12 @@ def active_pairs(db: Database, index: np.ndarray) -> np.ndarray:
     return (db.before_contact[index] | db.after_contact[index]).any(axis=0)
 
 
-def tensors(db: Database, index: np.ndarray, active: np.ndarray) -> Tensors:
-    """Features and targets of samples ``index`` for a network seeing pairs ``active``."""
+def tensors(db: Database, index: np.ndarray, active: np.ndarray, load_features: bool = False) -> Tensors:
+    """Features and targets of samples ``index`` for a network seeing pairs ``active`` (and, with
+    ``load_features``, their load fractions: ``training.network``)."""
     state = (torch.from_numpy(db.before[k][index]) for k in STATE_FIELDS)
-    feats, m, unbalanced = features(db.schema, torch.from_numpy(active), *state, torch.from_numpy(db.d_eps[index]))
+    feats, m, unbalanced = features(db.schema, torch.from_numpy(active), *state, torch.from_numpy(db.d_eps[index]),
+                                    load_features)
     diameter = db.schema.diameter
     target = torch.from_numpy(db.after_free_position[index] - db.before["free_position"][index])
     scale = diameter * (m + unbalanced.abs().amax(dim=1, keepdim=True) / (db.kn * diameter)) + 1e-12 * diameter

@@ -20,7 +20,8 @@ def features(size, free, shear, d_eps, cells, law, scaling, before):
     """Z-scored features, norm(d_eps), unbalanced forces and the contacts of every cell before its increment.
 
     Layouts and tables: ``training.fast_cells``; the outputs are the arrays of ``before``.
-    Feature order: ``training.network.features_and_contacts``; each
+    Feature order: ``training.network.features_and_contacts``; the load fractions of the active
+    pairs are written where ``before.feats`` has a row for them (a network with ``load_features``); each
     is z-scored in float64 with ``feature_mean``, ``feature_std`` before the cast. Each loop
     over cells (innermost) writes few arrays, so that the compiler vectorises it.
     """
@@ -101,6 +102,24 @@ def features(size, free, shear, d_eps, cells, law, scaling, before):
         for c in range(n):
             ratio = np.float32(fs[c]) / np.float32(mu * fn[c]) if fn[c] > 0 else np.float32(0.0)
             row[c] = (ratio - mean) * scale
+    n_active = 0
+    for p in range(pairs.shape[0]):
+        n_active = max(n_active, active_slot[p] + 1)
+    load_base = base + 6 * n_active
+    if feats.shape[0] > load_base:
+        largest = np.zeros(n)
+        for p in range(pairs.shape[0]):
+            fn = old_fn[p]
+            for c in range(n):
+                largest[c] = max(largest[c], fn[c])
+        for p in range(pairs.shape[0]):
+            slot = active_slot[p]
+            if slot < 0:
+                continue
+            fn = old_fn[p]
+            row, mean, scale = feats[load_base + slot], feature_mean[load_base + slot], inv_std[load_base + slot]
+            for c in range(n):
+                row[c] = ((fn[c] / largest[c] if largest[c] > 0 else 0.0) - mean) * scale
     for k in range(n_free):
         g = free_dofs[k, 0]
         a = free_dofs[k, 1]

@@ -23,7 +23,13 @@ Features (z-scored with training statistics), for any mesostructure:
     - per active pair (a candidate pair in contact somewhere in the training data): the
       overlap / D (gaps clipped at ``GAP_CLIP``), the contact flag, the branch direction
       (u_n, u_t), the tangential force / (kn D) and the friction ratio f_s / (mu f_n)
-      (0 out of contact).
+      (0 out of contact);
+    - optionally (``load_features``), after all of these, per active pair the load fraction
+      f_n / max f_n, the pair's normal force over the largest normal force of the cell's
+      pairs (0 in a cell carrying none). The overlap / D feature is scaled by the training
+      spread of the overlaps, which the high-pressure states set (~0.03 D), so a barely
+      loaded contact at low pressure (overlap ~1e-5 D) looks like one just touching; its
+      load fraction is of order 0.1 at any pressure.
 
 Nothing here knows any particular cell. Everything is float64 (positions must be resolved
 to ~1e-7 D).
@@ -59,13 +65,14 @@ from zero); 100 times below the smallest probe of the databases, so never active
 
 
 def features(schema: CellSchema, active: torch.Tensor, cell_size: torch.Tensor, free_position: torch.Tensor,
-             shear_force: torch.Tensor, d_eps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+             shear_force: torch.Tensor, d_eps: torch.Tensor, load_features: bool = False,
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Raw features, probe magnitudes and unbalanced forces of a batch of cells (``features_and_contacts``)."""
-    return features_and_contacts(schema, active, cell_size, free_position, shear_force, d_eps)[:3]
+    return features_and_contacts(schema, active, cell_size, free_position, shear_force, d_eps, load_features)[:3]
 
 
 def features_and_contacts(schema: CellSchema, active: torch.Tensor, cell_size: torch.Tensor, free_position: torch.Tensor,
-                          shear_force: torch.Tensor, d_eps: torch.Tensor):
+                          shear_force: torch.Tensor, d_eps: torch.Tensor, load_features: bool = False):
     """Raw features, probe magnitudes, unbalanced forces and contacts of a batch of cells.
 
     Args:
@@ -75,6 +82,7 @@ def features_and_contacts(schema: CellSchema, active: torch.Tensor, cell_size: t
         free_position: free DOF coordinates before the increment [m], (n, n_free).
         shear_force: tangential spring forces before the increment [N], (n, n_pairs).
         d_eps: the probe [-], (n, 2).
+        load_features: append the load fraction of every active pair (module docstring).
 
     Returns:
         (features (n, n_features), ``m = |d_eps|`` (n, 1), F (n, n_free) [N], the
@@ -101,12 +109,16 @@ def features_and_contacts(schema: CellSchema, active: torch.Tensor, cell_size: t
         normal[..., 0], normal[..., 1], fs / force_scale, ratio], dim=2)
     feats = torch.cat([u, cell_size / diameter, free_position / diameter, free_position / axis_length,
                        pair.reshape(pair.shape[0], -1)], dim=1)
+    if load_features:
+        largest = c.normal_force.amax(dim=1, keepdim=True)
+        loaded = largest > 0
+        feats = torch.cat([feats, torch.where(loaded, fn / torch.where(loaded, largest, 1.0), 0.0)], dim=1)
     return feats, m, unbalanced, c
 
 
-def n_features(n_free: int, n_active: int) -> int:
-    """Number of features for ``n_free`` free DOFs and ``n_active`` active pairs."""
-    return 4 + 2 * n_free + len(PAIR_FEATURES) * n_active
+def n_features(n_free: int, n_active: int, load_features: bool = False) -> int:
+    """Number of features for ``n_free`` free DOFs and ``n_active`` active pairs (and their load fractions)."""
+    return 4 + 2 * n_free + (len(PAIR_FEATURES) + int(load_features)) * n_active
 
 
 class MesoNet(nn.Module):
@@ -116,20 +128,23 @@ class MesoNet(nn.Module):
         schema: the mesostructure the network is trained for.
         active: bool (n_pairs,), candidate pairs whose features the network sees.
         hidden: widths of the hidden layers.
+        load_features: whether the inputs end with the load fraction of every active pair.
 
     Buffers (restored by ``load_state_dict``): ``active``, ``feature_mean``, ``feature_std``
     (n_features,), ``rate_mean``, ``rate_std`` (n_free,) [D per unit strain].
     """
 
-    def __init__(self, schema: CellSchema, active: torch.Tensor, hidden: Sequence[int] = DEFAULT_HIDDEN) -> None:
+    def __init__(self, schema: CellSchema, active: torch.Tensor, hidden: Sequence[int] = DEFAULT_HIDDEN,
+                 load_features: bool = False) -> None:
         super().__init__()
         self.schema = schema
         self.hidden = tuple(int(h) for h in hidden)
         if not self.hidden or min(self.hidden) < 1:
             raise ValueError(f"hidden = {list(self.hidden)} must be a non-empty list of widths >= 1")
         self.n_free = schema.n_free
+        self.load_features = bool(load_features)
         active = torch.as_tensor(active, dtype=torch.bool)
-        n_in = n_features(self.n_free, int(active.sum()))
+        n_in = n_features(self.n_free, int(active.sum()), self.load_features)
         widths = (n_in, *self.hidden)
         layers: list[nn.Module] = []
         for a, b in zip(widths[:-1], widths[1:]):
@@ -155,7 +170,8 @@ class MesoNet(nn.Module):
 
     def raw_features(self, cell_size, free_position, shear_force, d_eps):
         """``features`` with this network's schema and active pairs."""
-        return features(self.schema, self.active_index, cell_size, free_position, shear_force, d_eps)
+        return features(self.schema, self.active_index, cell_size, free_position, shear_force, d_eps,
+                        self.load_features)
 
     def displacement_from_features(self, feats: torch.Tensor, m: torch.Tensor, unbalanced: torch.Tensor,
                                    relaxation: torch.Tensor | float = 1.0) -> torch.Tensor:
@@ -182,7 +198,7 @@ class MesoNet(nn.Module):
         (``cell_physics.hold_at_rest``; ``Increment.held`` flags them).
         """
         feats, m, unbalanced, old = features_and_contacts(self.schema, self.active_index, cell_size, free_position,
-                                                          shear_force, d_eps)
+                                                          shear_force, d_eps, self.load_features)
         d_free = self.displacement_from_features(feats, m, unbalanced, torch.clamp(m / RELAXATION_RAMP, max=1.0))
         return cell_physics.advance(self.schema, cell_size, free_position, shear_force, d_eps, d_free, old,
                                     rest_rule=True)

@@ -8,7 +8,9 @@ Contract:
   training split and minimises, with Adam (learning rate halved on validation plateaus,
   early stopping, best epoch restored), the mean squared error of the predicted free-DOF
   displacement relative to each sample's scale ``D (|d_eps| + |F|max / (kn D))`` and to the
-  rate spread of each DOF. Same seed and thread count -> bit-identical network.
+  rate spread of each DOF (in the training loss, the samples that ``sliding_light`` flags
+  are weighted by ``TrainConfig.sliding_weight``). Same seed and thread count -> bit-identical
+  network.
 - ``evaluate(net, db, index)`` gives R^2 per learned output: the free-DOF rates
   ``d x / (D |d_eps|)`` of the unperturbed samples, the free-DOF displacements d x / D of the
   perturbed ones, and the resulting increments of S_nn, S_tt (contact law applied).
@@ -49,7 +51,7 @@ from training.dataset import (
     split_by_path,
     tensors,
 )
-from training.network import DEFAULT_HIDDEN, MesoNet
+from training.network import DEFAULT_HIDDEN, PAIR_FEATURES, MesoNet
 from training.ood import index_for_model, index_path
 from training.rollout import rollout_report
 from warp_hcell.core.cli import (
@@ -74,6 +76,12 @@ class TrainConfig:
 
     hidden: tuple[int, ...] = DEFAULT_HIDDEN
     """Hidden layer widths [-]."""
+    load_features: bool = False
+    """Give the network the load fraction f_n / max f_n of every active pair (``training.network``)."""
+    sliding_weight: float = 1.0
+    """Loss weight [-] of the training samples in which a contact slides (f_s = +-mu f_n) while
+    another carries less than ``LIGHT_FRACTION`` of the cell's largest normal force (``sliding_light``);
+    the other samples and the validation loss have weight 1."""
     epochs: int = 300
     """Maximum number of epochs [-]."""
     batch_size: int = 256
@@ -104,6 +112,8 @@ class TrainConfig:
         for name in ("epochs", "batch_size", "lr_patience", "patience", "threads"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} = {getattr(self, name)} must be >= 1")
+        if not (math.isfinite(self.sliding_weight) and self.sliding_weight > 0.0):
+            raise ValueError(f"sliding_weight = {self.sliding_weight:g} must be finite and > 0")
         if not (math.isfinite(self.lr) and self.lr > 0.0):
             raise ValueError(f"lr = {self.lr:g} must be finite and > 0")
         if not self.hidden or min(self.hidden) < 1:
@@ -125,6 +135,25 @@ class FitResult:
     history: dict = field(repr=False)
     split: Split
     normalisation: Normalisation
+
+
+LIGHT_FRACTION = 0.15
+"""Load fraction f_n / max f_n below which a closed contact counts as light in ``sliding_light`` [-]."""
+
+
+def sliding_light(net: MesoNet, data: Tensors) -> torch.Tensor:
+    """bool (n,): samples where an active pair slides (abs(f_s) = mu f_n to 1e-6) while another active
+    pair carries a normal force above 0 and below ``LIGHT_FRACTION`` of the largest one, from the raw
+    features of ``data`` (``training.network.features_and_contacts`` layout)."""
+    n_active = int(net.active.sum())
+    base = 4 + 2 * net.n_free
+    pair = data.features[:, base:base + len(PAIR_FEATURES) * n_active].reshape(-1, n_active, len(PAIR_FEATURES))
+    closed = pair[..., PAIR_FEATURES.index("contact")] > 0.5
+    fn = torch.where(closed, torch.clamp(pair[..., PAIR_FEATURES.index("overlap")], min=0.0), 0.0)
+    largest = fn.amax(dim=1, keepdim=True)
+    light = (fn > 0) & (fn < LIGHT_FRACTION * largest)
+    sliding = closed & ((pair[..., PAIR_FEATURES.index("friction_ratio")].abs() - 1.0).abs() < 1e-6)
+    return sliding.any(dim=1) & light.any(dim=1)
 
 
 def _loss_terms(net: MesoNet, data: Tensors, index) -> torch.Tensor:
@@ -149,10 +178,11 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = F
     torch.manual_seed(config.seed)
     split = split_by_path(db, val_fraction=config.val_fraction, test_fraction=config.test_fraction, seed=config.seed)
     active = active_pairs(db, split.train)
-    train, val = tensors(db, split.train, active), tensors(db, split.val, active)
+    train, val = (tensors(db, index, active, config.load_features) for index in (split.train, split.val))
     norm = fit_normalisation(db, train, split.train)
-    net = MesoNet(db.schema, torch.from_numpy(active), config.hidden)
+    net = MesoNet(db.schema, torch.from_numpy(active), config.hidden, config.load_features)
     net.set_normalisation(norm.feature_mean, norm.feature_std, norm.rate_mean, norm.rate_std)
+    weight = torch.where(sliding_light(net, train), config.sliding_weight, 1.0)[:, None]
     optimiser = torch.optim.Adam(net.parameters(), lr=config.lr)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=config.lr_patience)
     generator = torch.Generator().manual_seed(config.seed)
@@ -166,7 +196,7 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = F
         running = 0.0
         for batch in torch.randperm(n_train, generator=generator).split(config.batch_size):
             optimiser.zero_grad(set_to_none=True)
-            loss = torch.mean(_loss_terms(net, train, batch))
+            loss = torch.mean(weight[batch] * _loss_terms(net, train, batch))
             loss.backward()
             optimiser.step()
             running += loss.item() * batch.numel()
@@ -278,6 +308,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr", type=_positive(float), default=d.lr, help="initial Adam learning rate")
     p.add_argument("--patience", type=_positive(int), default=d.patience, help="early-stopping patience [epochs]")
     p.add_argument("--hidden", type=hidden_widths, default=",".join(map(str, d.hidden)), help="hidden layer widths, comma separated")
+    p.add_argument("--load-features", action="store_true",
+                   help="give the network the load fraction f_n / max f_n of every active pair")
+    p.add_argument("--sliding-weight", type=_positive(float), default=d.sliding_weight,
+                   help="loss weight of samples with a sliding contact beside a lightly loaded one")
     p.add_argument("--threads", type=_positive(int), default=d.threads, help="torch CPU threads")
     p.add_argument("--no-rollout", action="store_true", help="skip the rollout error along held-out DEM paths")
     return p
@@ -305,7 +339,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str] | None) -> int:
     """Train, evaluate and write the model of ``main`` (holding the output lock)."""
-    config = TrainConfig(hidden=args.hidden, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+    config = TrainConfig(hidden=args.hidden, load_features=args.load_features, sliding_weight=args.sliding_weight, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
                          patience=args.patience, seed=args.seed, threads=args.threads, device=args.device,
                          rollout=not args.no_rollout)
     db = load_database(args.data)

@@ -52,6 +52,7 @@ from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_
 from warp_hcell.core.cli import (
     UserError,
     command_parser,
+    finite_float,
     positive_float,
     positive_int,
     progress_bar,
@@ -306,6 +307,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="fraction of probes starting from a perturbed (unbalanced) state")
     parser.add_argument("--reversal-legs", type=int, default=defaults.reversal_legs,
                         help="turning branches per proportional leg (unloading / reloading states; 0 = none)")
+    parser.add_argument("--precompression", type=finite_float, nargs="+", default=list(defaults.precompression),
+                        metavar="EPS", help="isotropic strains [-] from which the proportional legs start")
     parser.add_argument("--clean", action="store_true",
                         help="apply the cleaning step (warp_hcell.clean: unconverged, non-finite) to `valid`")
     return parser
@@ -317,7 +320,8 @@ def _run(argv: Sequence[str] | None) -> int:
     try:
         settings = DatabaseSettings(samples=args.samples, chunk_size=args.chunk_size,
                                     sample_spacing=args.sample_spacing, n_directions=args.n_directions,
-                                    perturbed_fraction=args.perturbed_fraction, reversal_legs=args.reversal_legs)
+                                    perturbed_fraction=args.perturbed_fraction, reversal_legs=args.reversal_legs,
+                                    precompression=tuple(args.precompression))
     except ValueError as exc:
         raise UserError(str(exc)) from None
     check_output_path(args.out, overwrite=args.overwrite)
