@@ -16,6 +16,33 @@ from training.fast_cells import any_within, grain_positions, normal_force
 
 
 @numba.njit(cache=True, error_model="numpy")
+def load_fractions(old_fn, active_slot, base, feats, feature_mean, inv_std):
+    """Z-scored load fraction f_n / max f_n of each active pair (0 in a force-free cell), written
+    into the rows of ``feats`` after the ``base + 6 n_active`` pair features, where the network
+    has them (``load_features``); nothing otherwise. ``old_fn`` (n_pairs, n) [N]."""
+    n = old_fn.shape[1]
+    n_active = 0
+    for p in range(active_slot.shape[0]):
+        n_active = max(n_active, active_slot[p] + 1)
+    load_base = base + 6 * n_active
+    if feats.shape[0] <= load_base:
+        return
+    largest = np.zeros(n)
+    for p in range(old_fn.shape[0]):
+        fn = old_fn[p]
+        for c in range(n):
+            largest[c] = max(largest[c], fn[c])
+    for p in range(old_fn.shape[0]):
+        slot = active_slot[p]
+        if slot < 0:
+            continue
+        fn = old_fn[p]
+        row, mean, scale = feats[load_base + slot], feature_mean[load_base + slot], inv_std[load_base + slot]
+        for c in range(n):
+            row[c] = ((fn[c] / largest[c] if largest[c] > 0 else 0.0) - mean) * scale
+
+
+@numba.njit(cache=True, error_model="numpy")
 def features(size, free, shear, d_eps, cells, law, scaling, before):
     """Z-scored features, norm(d_eps), unbalanced forces and the contacts of every cell before its increment.
 
@@ -102,24 +129,7 @@ def features(size, free, shear, d_eps, cells, law, scaling, before):
         for c in range(n):
             ratio = np.float32(fs[c]) / np.float32(mu * fn[c]) if fn[c] > 0 else np.float32(0.0)
             row[c] = (ratio - mean) * scale
-    n_active = 0
-    for p in range(pairs.shape[0]):
-        n_active = max(n_active, active_slot[p] + 1)
-    load_base = base + 6 * n_active
-    if feats.shape[0] > load_base:
-        largest = np.zeros(n)
-        for p in range(pairs.shape[0]):
-            fn = old_fn[p]
-            for c in range(n):
-                largest[c] = max(largest[c], fn[c])
-        for p in range(pairs.shape[0]):
-            slot = active_slot[p]
-            if slot < 0:
-                continue
-            fn = old_fn[p]
-            row, mean, scale = feats[load_base + slot], feature_mean[load_base + slot], inv_std[load_base + slot]
-            for c in range(n):
-                row[c] = ((fn[c] / largest[c] if largest[c] > 0 else 0.0) - mean) * scale
+    load_fractions(old_fn, active_slot, base, feats, feature_mean, inv_std)
     for k in range(n_free):
         g = free_dofs[k, 0]
         a = free_dofs[k, 1]
