@@ -148,12 +148,13 @@ def rate_and_prediction(drive: tuple[tuple[bool, ...], ...]) -> wp.Function:
         norm2 = zero
         dot_v = zero
         norm_v = zero
+        d_new = mat()
         for g in range(wp.static(n_grains)):
             for a in range(wp.static(dim)):
                 if wp.static(drive[g][a]):
-                    d_new = ref[g, a] * dscale[a] * inv_n_coarse
-                    dot = dot + v[g, a] * h * d_new
-                    norm2 = norm2 + d_new * d_new
+                    d_new[g, a] = ref[g, a] * dscale[a] * inv_n_coarse
+                    dot = dot + v[g, a] * h * d_new[g, a]
+                    norm2 = norm2 + d_new[g, a] * d_new[g, a]
                     dot_v = dot_v + v[g, a] * (ref[g, a] * dscale[a])
                     norm_v = norm_v + v[g, a] * v[g, a]
         lam = wp.where(norm2 > zero, dot / wp.where(norm2 > zero, norm2, one), zero)
@@ -162,9 +163,8 @@ def rate_and_prediction(drive: tuple[tuple[bool, ...], ...]) -> wp.Function:
         for g in range(wp.static(n_grains)):
             for a in range(wp.static(dim)):
                 if wp.static(drive[g][a]):
-                    d_new = ref[g, a] * dscale[a] * inv_n_coarse
-                    off = wp.max(off, wp.abs(v[g, a] * h - lam * d_new))
-                    driving_size = wp.max(driving_size, wp.abs(d_new))
+                    off = wp.max(off, wp.abs(v[g, a] * h - lam * d_new[g, a]))
+                    driving_size = wp.max(driving_size, wp.abs(d_new[g, a]))
         steady = lam > zero and off <= velocity_change * lam * driving_size
         rate = refined_strain_per_substep
         if steady:
