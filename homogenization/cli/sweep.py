@@ -70,7 +70,7 @@ from matplotlib.figure import Figure
 
 from homogenization import driver, figures, io, run_labels
 from homogenization.cli.options import add_uncertified_argument, command_parser, refuse_uncertified_file
-from homogenization.cli.run_files import backend_list
+from homogenization.cli.options import backend_list
 from homogenization.figure_style import LABELS
 from homogenization.sweep_case import case_task, summarise
 from homogenization.sweep_plan import Case, ModelChoice, plan
