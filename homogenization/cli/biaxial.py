@@ -47,6 +47,7 @@ from homogenization.cli.options import (
     add_alpha0_argument,
     add_backend_list_argument,
     add_cell_arguments,
+    add_orientations_argument,
     add_programme_arguments,
     add_uncertified_argument,
     command_parser,
@@ -94,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--programme", type=Path, default=None,
                         help="JSON or TOML loading programme (format of homogenization.loading.to_dict; "
                              "docs/programmes.md, examples in homogenization/data/programmes/)")
-    parser.add_argument("--orientations", type=positive_int, default=cell.n_orientations, help="number N of cell orientations")
+    add_orientations_argument(parser, cell.n_orientations)
     parser.add_argument("--fabric-anisotropy", type=fraction, default=0.0,
                         help="a_f of the orientation weights w = (1 + a_f cos 2(theta - b_f)) / pi; 0 = isotropic fabric")
     parser.add_argument("--fabric-direction", type=finite_float, default=0.0, help="preferred fabric direction b_f [deg]")

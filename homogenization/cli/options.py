@@ -9,6 +9,8 @@
 - ``add_alpha0_argument(parser)``: --alpha0 [deg], the opening angle of builder specs;
 - ``add_cell_arguments(parser, cell_help, threads_help)``: --mesostructure (a file or a
   builder spec), --threads and --model (the backend-specific options);
+- ``add_orientations_argument(parser, default, help_text)`` and ``add_threads_argument(parser,
+  help_text, default)``: --orientations and --threads, the flags of that name of every command;
 - ``add_uncertified_argument(parser)`` and ``refuse_uncertified(model, args)``: --uncertified-ok,
   and the refusal (one line, exit 2) of an ANN model without a passed certificate of its own
   ``.pt`` (docs/certificate.md); ``certificate_note(model)`` is the line a run summary prints.
@@ -75,10 +77,21 @@ def add_alpha0_argument(parser: argparse.ArgumentParser) -> None:
                         help="initial opening angle [deg], in [30, 90)")
 
 
+def add_orientations_argument(parser: argparse.ArgumentParser, default: int,
+                              help_text: str = "number N of cell orientations") -> None:
+    """--orientations: the number N of cell orientations [-], a positive int (default ``default``)."""
+    parser.add_argument("--orientations", type=positive_int, default=default, help=help_text)
+
+
+def add_threads_argument(parser: argparse.ArgumentParser, help_text: str, default: int | None = None) -> None:
+    """--threads: CPU threads, a positive int (default ``default``; None: the backend's own)."""
+    parser.add_argument("--threads", type=positive_int, default=default, help=help_text)
+
+
 def add_cell_arguments(parser: argparse.ArgumentParser, cell_help: str, threads_help: str) -> None:
     """--mesostructure (``cell_help`` then the spec grammar), --threads and --model."""
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None, help=f"{cell_help} {MESOSTRUCTURE_HELP}")
-    parser.add_argument("--threads", type=positive_int, default=None, help=threads_help)
+    add_threads_argument(parser, threads_help)
     parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
 
 
