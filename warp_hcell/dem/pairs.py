@@ -24,17 +24,9 @@ import functools
 import warp as wp
 
 from warp_hcell.dem.contact import normal_force
-from warp_hcell.dem.stepping import cell_vector, grain_matrix, mask_code
+from warp_hcell.dem.stepping import cell_vector, grain_matrix, mask_code, spring_types
 
 wp.set_module_options({"enable_backward": False})
-
-
-def spring_types(n_pairs: int, dim: int) -> tuple[type, type]:
-    """(the local type of a cell's springs, the type of one pair's spring): (n_pairs,) vector and
-    float64 in the plane, (n_pairs, 3) matrix and ``wp.vec3d`` in space."""
-    if dim == 2:
-        return wp.types.vector(length=n_pairs, dtype=wp.float64), wp.float64
-    return grain_matrix(n_pairs, dim), cell_vector(dim)
 
 
 @functools.lru_cache(maxsize=None)

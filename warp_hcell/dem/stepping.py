@@ -39,6 +39,14 @@ def cell_vector(dim: int) -> type:
     return wp.vec2d if dim == 2 else wp.vec3d
 
 
+def spring_types(n_pairs: int, dim: int) -> tuple[type, type]:
+    """(the local type of a cell's tangential springs, the type of one pair's spring): an
+    (n_pairs,) vector and float64 in the plane, an (n_pairs, 3) matrix and ``wp.vec3d`` in space."""
+    if dim == 2:
+        return wp.types.vector(length=n_pairs, dtype=wp.float64), wp.float64
+    return grain_matrix(n_pairs, dim), cell_vector(dim)
+
+
 def mask_code(*tables: tuple[tuple[int, ...], ...]):
     """Tables of ints (a drive mask, candidate pairs) as one Warp int32 vector constant, their sizes first."""
     flat = [len(t) for t in tables] + [int(v) for t in tables for row in t for v in row]
@@ -314,7 +322,7 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
     n_grains, dim = len(drive), len(drive[0])
     vec = cell_vector(dim)
     moment_type = wp.mat22d if dim == 2 else wp.mat33d
-    shear_type = wp.float64 if dim == 2 else wp.vec3d
+    shear_type = spring_types(n_pairs, dim)[1]
     load, store = grain_io(n_grains, dim)
     setup, forces, output = pairs
     path = driving_path(dim)
