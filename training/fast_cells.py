@@ -120,3 +120,19 @@ def any_within(b0, b1, reach):
     for c in range(b0.shape[0]):
         near |= b0[c] * b0[c] + b1[c] * b1[c] <= bound
     return near
+
+
+@numba.njit(cache=True, error_model="numpy")
+def pair_branch(x, pairs, radius, tol, p, b0, b1):
+    """Pair p = (i, j) at the grain centres x (n_grains, 2, n) [m]: writes its branch x_j - x_i
+    into b0, b1 (n,) [m] and returns (i, j, r_i + r_j [m], reach (r_i + r_j)(1 + tol) [m],
+    whether some cell may be within reach (``any_within``))."""
+    i = pairs[p, 0]
+    j = pairs[p, 1]
+    rsum = radius[i] + radius[j]
+    reach = rsum * (1.0 + tol)
+    xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
+    for c in range(b0.shape[0]):
+        b0[c] = xj0[c] - xi0[c]
+        b1[c] = xj1[c] - xi1[c]
+    return i, j, rsum, reach, any_within(b0, b1, reach)

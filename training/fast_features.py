@@ -12,7 +12,7 @@ import math
 import numba
 import numpy as np
 
-from training.fast_cells import any_within, grain_positions, normal_force
+from training.fast_cells import grain_positions, normal_force, pair_branch
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -68,17 +68,9 @@ def features(size, free, shear, d_eps, cells, law, scaling, before):
     dist, u0, u1, fs = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     base = 4 + 2 * n_free
     for p in range(pairs.shape[0]):
-        i = pairs[p, 0]
-        j = pairs[p, 1]
-        rsum = radius[i] + radius[j]
-        reach = rsum * (1.0 + tol)
         b0, b1, contact, fn, shear_p = old_branch[p, 0], old_branch[p, 1], old_contact[p], old_fn[p], shear[p]
-        xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
-        for c in range(n):
-            b0[c] = xj0[c] - xi0[c]
-            b1[c] = xj1[c] - xi1[c]
+        i, j, rsum, reach, near = pair_branch(x, pairs, radius, tol, p, b0, b1)
         slot = active_slot[p]
-        near = any_within(b0, b1, reach)
         if not near:
             contact[:] = False
             fn[:] = 0.0

@@ -13,7 +13,7 @@ import math
 import numba
 import numpy as np
 
-from training.fast_cells import any_within, coulomb_cap, grain_positions, normal_force
+from training.fast_cells import coulomb_cap, grain_positions, normal_force, pair_branch
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -118,15 +118,8 @@ def contact_pass(x, shear, before, cells, law, new_shear, capped_any, opened_any
     opened_any[:] = False
     b0_p, b1_p = np.empty(n), np.empty(n)
     for p in range(pairs.shape[0]):
-        i = pairs[p, 0]
-        j = pairs[p, 1]
-        rsum = radius[i] + radius[j]
-        reach = rsum * (1.0 + tol)
-        xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
-        for c in range(n):
-            b0_p[c] = xj0[c] - xi0[c]
-            b1_p[c] = xj1[c] - xi1[c]
-        if not any_within(b0_p, b1_p, reach):
+        _, _, rsum, reach, near = pair_branch(x, pairs, radius, tol, p, b0_p, b1_p)
+        if not near:
             new_shear[p, :] = 0.0
             old_fn_p = old_fn[p]
             for c in range(n):

@@ -5,7 +5,7 @@ forward-mode differentiation of the features (``probe_feature_tangent``), of the
 (``training.perceptron.Perceptron.jvp``, in ``training.inference``) and of the increment
 (``moment_tangent``); equal to torch autograd of ``MesoNet.advance`` up to the float32 rounding of
 the network. A pair that no cell has within reach is skipped after the square-root-free test
-of ``training.fast_cells.any_within`` (its contribution is zero in every cell; no bit changes).
+of ``training.fast_cells.pair_branch`` (its contribution is zero in every cell; no bit changes).
 Layouts: ``training.fast_cells``.
 """
 
@@ -14,7 +14,7 @@ import math
 import numba
 import numpy as np
 
-from training.fast_cells import any_within, coulomb_cap, grain_positions, normal_force
+from training.fast_cells import coulomb_cap, grain_positions, normal_force, pair_branch
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -90,15 +90,8 @@ def moment_tangent(size, free, shear, d_eps, out, out_dot, cells, law, scaling, 
             x_dot[j, free_dofs[k, 0], free_dofs[k, 1]] = d_free_dot[k]
     b0_p, b1_p = np.empty(n), np.empty(n)
     for p in range(pairs.shape[0]):
-        i_g = pairs[p, 0]
-        j_g = pairs[p, 1]
-        rsum = radius[i_g] + radius[j_g]
-        reach = rsum * (1.0 + tol)
-        xi0, xi1, xj0, xj1 = x[i_g, 0], x[i_g, 1], x[j_g, 0], x[j_g, 1]
-        for c in range(n):
-            b0_p[c] = xj0[c] - xi0[c]
-            b1_p[c] = xj1[c] - xi1[c]
-        if not any_within(b0_p, b1_p, reach):
+        i_g, j_g, rsum, reach, near = pair_branch(x, pairs, radius, tol, p, b0_p, b1_p)
+        if not near:
             continue
         for c in range(n):
             b0 = b0_p[c]

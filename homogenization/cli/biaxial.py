@@ -43,16 +43,22 @@ from typing import Any, Sequence
 
 from homogenization import driver, figures, loading
 from homogenization.cli import plot
-from homogenization.cli.options import add_alpha0_argument, add_cell_arguments, add_uncertified_argument, command_parser
-from homogenization.cli.run_files import backend_list, build_models, check_run, explicit_flags, run_backends
-from homogenization.backends import BACKENDS
+from homogenization.cli.options import (
+    add_alpha0_argument,
+    add_backend_list_argument,
+    add_cell_arguments,
+    add_orientations_argument,
+    add_programme_arguments,
+    add_uncertified_argument,
+    command_parser,
+)
+from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, run_backends, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
     contact_law_from_args,
     finite_float,
     fraction,
-    positive_float,
     positive_int,
     run_main,
     say,
@@ -66,8 +72,6 @@ from warp_hcell.core.parameters import CellDefaults, DatabaseSettings, LoadingDe
 from warp_hcell.core.provenance import command_line
 
 FIGURE_FILE = "cambridge.png"
-ISO_TO_SHEAR_INCREMENT = LoadingDefaults.iso_increment / LoadingDefaults.increment
-"""Default --iso-increment as a fraction of --increment (5e-6 / 1e-5 = 0.5)."""
 COARSE_INCREMENT = DatabaseSettings.probe_max
 """Strain increment [-] above which a run is warned about: the learning database's largest
 probe (the ANN extrapolates beyond it) and where the macro kinematics of every backend errs
@@ -82,23 +86,16 @@ def build_parser() -> argparse.ArgumentParser:
     cell, load = CellDefaults(), LoadingDefaults()
     parser = command_parser("homogenization.biaxial", "Isotropic compression to p0, then constant-volume (or drained) "
                                                       "biaxial shear of the H-model, or any loading programme file.")
-    parser.add_argument("--backend", type=backend_list, default="analytical",
-                        help=f"cell model, or a comma list to overlay several; choices: {', '.join(BACKENDS)}")
+    add_backend_list_argument(parser, "analytical")
     add_alpha0_argument(parser)
-    loading_group = parser.add_argument_group("built-in programme (not with --programme)")
-    loading_group.add_argument("--p0", type=positive_float, default=cell.p0, help="confining pressure of stage 1 [N/m], > 0")
-    loading_group.add_argument("--eps-max", type=positive_float, default=load.eps_max,
-                               help="axial strain at the end of the shear stage, counted from its start [-]")
-    loading_group.add_argument("--increment", type=positive_float, default=load.increment,
-                               help="axial strain increment of the shear stage [-], <= --eps-max")
-    loading_group.add_argument("--iso-increment", type=positive_float, default=argparse.SUPPRESS,
-                               help=f"strain increment per component of the isotropic stage [-] "
-                                    f"(default: {ISO_TO_SHEAR_INCREMENT:g} x --increment)")
+    loading_group = add_programme_arguments(
+        parser, stress_unit="N/m", eps_max=load.eps_max, increment=load.increment,
+        eps_max_help="axial strain at the end of the shear stage, counted from its start [-]")
     loading_group.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
     parser.add_argument("--programme", type=Path, default=None,
                         help="JSON or TOML loading programme (format of homogenization.loading.to_dict; "
                              "docs/programmes.md, examples in homogenization/data/programmes/)")
-    parser.add_argument("--orientations", type=positive_int, default=cell.n_orientations, help="number N of cell orientations")
+    add_orientations_argument(parser, cell.n_orientations)
     parser.add_argument("--fabric-anisotropy", type=fraction, default=0.0,
                         help="a_f of the orientation weights w = (1 + a_f cos 2(theta - b_f)) / pi; 0 = isotropic fabric")
     parser.add_argument("--fabric-direction", type=finite_float, default=0.0, help="preferred fabric direction b_f [deg]")
@@ -137,19 +134,11 @@ def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[load
             than --eps-max (it would be silently cut to one increment).
     """
     if args.programme is not None:
-        explicit = explicit_flags(build_parser(), argv, tuple(PROGRAMME_FLAGS))
-        given = [flag for dest, flag in PROGRAMME_FLAGS.items() if dest in explicit]
-        if given:
-            raise UserError(f"{', '.join(given)} do not apply with --programme (the file holds the whole programme)")
+        refuse_programme_flags(build_parser(), argv, PROGRAMME_FLAGS)
         return loading.read_programme(args.programme), {"programme_file": str(args.programme)}
     p0, eps_max, increment = args.p0, args.eps_max, args.increment
-    if increment > eps_max:
-        raise UserError(f"--increment {increment:g} is larger than --eps-max {eps_max:g}: the shear stage would be "
-                        f"one increment of {eps_max:g}; use an increment <= {COARSE_INCREMENT:g}")
-    iso_increment = getattr(args, "iso_increment", ISO_TO_SHEAR_INCREMENT * increment)
-    if iso_increment >= loading.ISO_MAX_STRAIN:
-        raise UserError(f"--iso-increment {iso_increment:g} must be < {loading.ISO_MAX_STRAIN:g}, "
-                        f"the largest isotropic strain allowed")
+    iso_increment = shear_iso_increment(args, f": the shear stage would be one increment of {eps_max:g}; "
+                                              f"use an increment <= {COARSE_INCREMENT:g}")
     settings = {"p0": p0, "eps_max": eps_max, "increment": increment, "iso_increment": iso_increment}
     return loading.biaxial(p0, eps_max, increment, iso_increment=iso_increment, drained=args.drained), settings
 

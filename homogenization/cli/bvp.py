@@ -40,7 +40,8 @@ import numpy as np
 from homogenization import driver, loading, orientation, run_labels
 from homogenization.fe import output as fe_output, solver as fe
 from homogenization.cli.options import (add_alpha0_argument, add_backend_argument, add_cell_arguments,
-                                        add_uncertified_argument, certificate_note, command_parser, refuse_uncertified)
+                                        add_orientations_argument, add_uncertified_argument, certificate_note,
+                                        command_parser, refuse_uncertified)
 from homogenization.backends import make_cell_model
 from homogenization.cli.run_files import backend_options, check_models_take, check_options
 from homogenization.material import HomogenisedMaterial
@@ -87,8 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--increment", type=positive_float, default=bvp.increment,
                         help="axial strain of one shear step (platen displacement / H) [-]")
     parser.add_argument("--iso-steps", type=positive_int, default=bvp.iso_steps, help="load steps of the isotropic stage")
-    parser.add_argument("--orientations", type=positive_int, default=bvp.n_orientations,
-                        help="cell orientations per Gauss point")
+    add_orientations_argument(parser, bvp.n_orientations, "cell orientations per Gauss point")
     parser.add_argument("--elements", type=element_counts, default=",".join(map(str, bvp.elements)),
                         help="elements NX,NY across the width and along the height, each >= 1")
     parser.add_argument("--imperfection", type=fraction, default=0.0,

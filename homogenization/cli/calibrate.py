@@ -39,7 +39,13 @@ from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import PARAMETERS, ForwardSettings
-from homogenization.cli.options import add_uncertified_argument, command_parser, refuse_uncertified_file
+from homogenization.cli.options import (
+    add_orientations_argument,
+    add_threads_argument,
+    add_uncertified_argument,
+    command_parser,
+    refuse_uncertified_file,
+)
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -97,13 +103,13 @@ def build_parser() -> argparse.ArgumentParser:
     sampler.add_argument("--noise", type=positive_float, default=0.02,
                          help="measurement error sd as a fraction of each channel's largest abs value")
     forward = parser.add_argument_group("forward model")
-    forward.add_argument("--orientations", type=positive_int, default=FORWARD.n_orientations, help="cell orientations")
+    add_orientations_argument(forward, FORWARD.n_orientations, "cell orientations")
     forward.add_argument("--increment", type=positive_float, default=FORWARD.increment, help="shear strain increment [-]")
     forward.add_argument("--iso-increment", type=positive_float, default=FORWARD.iso_increment,
                          help="isotropic strain increment per component [-]")
     forward.add_argument("--stress-rtol", type=positive_float, default=FORWARD.stress_rtol,
                          help="relative tolerance of p = p0 and drained sigma22 = p0 [-]")
-    forward.add_argument("--threads", type=positive_int, default=None, help="CPU threads of the DEM (dem, --confirm)")
+    add_threads_argument(forward, "CPU threads of the DEM (dem, --confirm)")
     parser.add_argument("--confirm", choices=("dem", "none"), default="dem",
                         help="run the DEM once at the posterior mean and report its misfit")
     parser.add_argument("--confirm-orientations", type=positive_int, default=36, help="orientations of the DEM check")

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Sequence
 
 from homogenization import active, certificate
-from homogenization.cli.options import command_parser
+from homogenization.cli.options import add_orientations_argument, add_threads_argument, command_parser
 from training.checkpoint import metadata_path
 from training import train as training_train
 from training.network import DEFAULT_HIDDEN
@@ -61,12 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--hidden", type=training_train.hidden_widths, default=DEFAULT_HIDDEN,
                         help="hidden widths of the network, comma separated")
     parser.add_argument("--epochs", type=positive_int, default=None, help="maximum training epochs (training's default)")
-    parser.add_argument("--orientations", type=positive_int, default=certificate.N_ORIENTATIONS,
-                        help="cell orientations per certificate test")
+    add_orientations_argument(parser, certificate.N_ORIENTATIONS, "cell orientations per certificate test")
     parser.add_argument("--eps-max", type=positive_float, default=certificate.EPS_MAX,
                         help="axial strain of each certificate shear stage [-]")
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
-    parser.add_argument("--threads", type=positive_int, default=1, help="DEM and torch CPU threads")
+    add_threads_argument(parser, "DEM and torch CPU threads", 1)
     return parser
 
 

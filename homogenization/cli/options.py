@@ -2,10 +2,15 @@
 
 - ``command_parser(module, description)``: the parser of a command, named as the user typed
   it, with the flags every command shares and its defaults shown (``warp_hcell.core.cli``);
-- ``add_backend_argument(parser)``: --backend, one of the registry's names;
+- ``backend_list`` and ``add_backend_argument(parser)``: --backend, one of the registry's names;
+  ``add_backend_list_argument(parser, default, note)``: a comma list of them, overlaid;
+- ``add_programme_arguments(parser, ...)``: the group of a built-in programme (--p0, --eps-max,
+  --increment, --iso-increment), not with --programme;
 - ``add_alpha0_argument(parser)``: --alpha0 [deg], the opening angle of builder specs;
 - ``add_cell_arguments(parser, cell_help, threads_help)``: --mesostructure (a file or a
   builder spec), --threads and --model (the backend-specific options);
+- ``add_orientations_argument(parser, default, help_text)`` and ``add_threads_argument(parser,
+  help_text, default)``: --orientations and --threads, the flags of that name of every command;
 - ``add_uncertified_argument(parser)`` and ``refuse_uncertified(model, args)``: --uncertified-ok,
   and the refusal (one line, exit 2) of an ANN model without a passed certificate of its own
   ``.pt`` (docs/certificate.md); ``certificate_note(model)`` is the line a run summary prints.
@@ -17,14 +22,53 @@ import argparse
 from pathlib import Path
 
 from homogenization.backends import BACKENDS
-from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_int  # noqa: F401 (command_parser: the commands import it from here)
-from warp_hcell.core.parameters import CellDefaults
+from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
+from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
+
+ISO_TO_SHEAR_INCREMENT = LoadingDefaults.iso_increment / LoadingDefaults.increment
+"""Default --iso-increment as a fraction of --increment (5e-6 / 1e-5 = 0.5)."""
+
+
+def backend_list(text: str) -> tuple[str, ...]:
+    """argparse type: comma list of registered backend names (duplicates dropped, order kept)."""
+    names = tuple(dict.fromkeys(name.strip() for name in text.split(",")))
+    for name in names:
+        if name not in BACKENDS:
+            raise argparse.ArgumentTypeError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+    return names
 
 
 def add_backend_argument(parser: argparse.ArgumentParser) -> None:
     """--backend, one cell model of ``homogenization.backends.BACKENDS`` (default analytical)."""
     parser.add_argument("--backend", choices=tuple(BACKENDS), default="analytical", help="cell model")
+
+
+def add_backend_list_argument(parser: argparse.ArgumentParser, default: str | tuple[str, ...], note: str = "") -> None:
+    """--backend, a ``backend_list`` whose runs are overlaid; ``note`` ends its help."""
+    parser.add_argument("--backend", type=backend_list, default=default,
+                        help=f"cell model, or a comma list to overlay several; choices: {', '.join(BACKENDS)}{note}")
+
+
+def add_programme_arguments(parser: argparse.ArgumentParser, *, stress_unit: str, eps_max: float, eps_max_help: str,
+                            increment: float) -> argparse._ArgumentGroup:
+    """The group "built-in programme (not with --programme)": --p0 [``stress_unit``], --eps-max
+    (default ``eps_max``), --increment (default ``increment``) and --iso-increment (default: not
+    set, read as ``ISO_TO_SHEAR_INCREMENT`` x --increment by ``run_files.shear_iso_increment``).
+
+    Returns:
+        The group, for the command's own flags of the built-in programme.
+    """
+    group = parser.add_argument_group("built-in programme (not with --programme)")
+    group.add_argument("--p0", type=positive_float, default=CellDefaults.p0,
+                       help=f"confining pressure of stage 1 [{stress_unit}], > 0")
+    group.add_argument("--eps-max", type=positive_float, default=eps_max, help=eps_max_help)
+    group.add_argument("--increment", type=positive_float, default=increment,
+                       help="axial strain increment of the shear stage [-], <= --eps-max")
+    group.add_argument("--iso-increment", type=positive_float, default=argparse.SUPPRESS,
+                       help=f"strain increment per component of the isotropic stage [-] "
+                            f"(default: {ISO_TO_SHEAR_INCREMENT:g} x --increment)")
+    return group
 
 
 def add_alpha0_argument(parser: argparse.ArgumentParser) -> None:
@@ -33,10 +77,21 @@ def add_alpha0_argument(parser: argparse.ArgumentParser) -> None:
                         help="initial opening angle [deg], in [30, 90)")
 
 
+def add_orientations_argument(parser: argparse.ArgumentParser, default: int,
+                              help_text: str = "number N of cell orientations") -> None:
+    """--orientations: the number N of cell orientations [-], a positive int (default ``default``)."""
+    parser.add_argument("--orientations", type=positive_int, default=default, help=help_text)
+
+
+def add_threads_argument(parser: argparse.ArgumentParser, help_text: str, default: int | None = None) -> None:
+    """--threads: CPU threads, a positive int (default ``default``; None: the backend's own)."""
+    parser.add_argument("--threads", type=positive_int, default=default, help=help_text)
+
+
 def add_cell_arguments(parser: argparse.ArgumentParser, cell_help: str, threads_help: str) -> None:
     """--mesostructure (``cell_help`` then the spec grammar), --threads and --model."""
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None, help=f"{cell_help} {MESOSTRUCTURE_HELP}")
-    parser.add_argument("--threads", type=positive_int, default=None, help=threads_help)
+    add_threads_argument(parser, threads_help)
     parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
 
 

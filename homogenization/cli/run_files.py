@@ -1,11 +1,13 @@
 """What the commands that run backends share: the backend flags, the flags given, the output
 folder, the parameters and the status line of each backend's run.
 
-- ``backend_list``, ``backend_options``, ``check_options``, ``check_models_take``: the
-  --backend list and the flags that go to some backends only (``BACKEND_ONLY_OPTIONS``,
-  ``DEVICE_BACKENDS``);
+- ``backend_options``, ``check_options``, ``check_models_take``: the flags that go to some
+  backends only (``BACKEND_ONLY_OPTIONS``, ``DEVICE_BACKENDS``) and the backends' cells;
 - ``check_run(args, figure_file)``: what a run command checks before any work;
 - ``explicit_flags(parser, argv, dests)``: the flags of a built-in programme that the user set;
+  ``refuse_programme_flags(parser, argv, flags)``: none of them with --programme;
+  ``shear_iso_increment(args, hint)``: the built-in programme's increments checked, and its
+  isotropic increment (``options.add_programme_arguments``);
 - ``check_replaceable(out, figure_file)``: DIR holds nothing but what the command writes;
 - ``backend_parameters(...)``: the first entries of a run's stored parameters (backend, its
   options and provenance, contact law, radius, alpha0);
@@ -25,7 +27,8 @@ from typing import Any, Callable, Sequence
 
 from homogenization import driver, io
 from homogenization.backends import backend_class, BACKENDS, make_cell_model
-from homogenization.cli.options import certificate_note, refuse_uncertified
+from homogenization import loading
+from homogenization.cli.options import ISO_TO_SHEAR_INCREMENT, certificate_note, refuse_uncertified
 from homogenization.driver import Record
 from warp_hcell.core.cli import quiet_warp, UserError, writing_to
 from warp_hcell.core.files import check_output_path
@@ -38,15 +41,6 @@ BACKEND_ONLY_OPTIONS = {"threads": ("dem", "ann"), "model": ("ann",)}
 """Backend-specific flags (argparse dest) -> the backends that take them."""
 DEVICE_BACKENDS = ("dem", "ann")
 """Backends that take --device; the analytical cell runs on the cpu."""
-
-
-def backend_list(text: str) -> tuple[str, ...]:
-    """argparse type: comma list of registered backend names (duplicates dropped, order kept)."""
-    names = tuple(dict.fromkeys(name.strip() for name in text.split(",")))
-    for name in names:
-        if name not in BACKENDS:
-            raise argparse.ArgumentTypeError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
-    return names
 
 
 def backend_options(args: argparse.Namespace, name: str) -> dict[str, Any]:
@@ -111,6 +105,33 @@ def explicit_flags(parser: argparse.ArgumentParser, argv: Sequence[str], dests: 
     parser.set_defaults(**{dest: unset for dest in dests})
     parsed = vars(parser.parse_args(argv))
     return {dest for dest in dests if parsed.get(dest, unset) is not unset}
+
+
+def refuse_programme_flags(parser: argparse.ArgumentParser, argv: Sequence[str], flags: dict[str, str]) -> None:
+    """UserError (one line) naming the flags of the built-in programme (``flags``: argparse dest ->
+    flag) that ``argv`` sets along with --programme; ``parser`` is a fresh parser of the command."""
+    explicit = explicit_flags(parser, argv, tuple(flags))
+    given = [flag for dest, flag in flags.items() if dest in explicit]
+    if given:
+        raise UserError(f"{', '.join(given)} do not apply with --programme (the file holds the whole programme)")
+
+
+def shear_iso_increment(args: argparse.Namespace, hint: str = "") -> float:
+    """The isotropic strain increment [-] of a built-in programme (``options.add_programme_arguments``):
+    --iso-increment, else ``ISO_TO_SHEAR_INCREMENT`` x --increment.
+
+    Raises:
+        UserError: --increment larger than --eps-max (``hint`` ends the line: the shear stage
+            would be one increment), or an isotropic increment of at least
+            ``loading.ISO_MAX_STRAIN``.
+    """
+    if args.increment > args.eps_max:
+        raise UserError(f"--increment {args.increment:g} is larger than --eps-max {args.eps_max:g}{hint}")
+    iso_increment = getattr(args, "iso_increment", ISO_TO_SHEAR_INCREMENT * args.increment)
+    if iso_increment >= loading.ISO_MAX_STRAIN:
+        raise UserError(f"--iso-increment {iso_increment:g} must be < {loading.ISO_MAX_STRAIN:g}, "
+                        f"the largest isotropic strain allowed")
+    return iso_increment
 
 
 def check_replaceable(out: Path, figure_file: str) -> None:

@@ -69,8 +69,14 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from homogenization import driver, figures, io, run_labels
-from homogenization.cli.options import add_uncertified_argument, command_parser, refuse_uncertified_file
-from homogenization.cli.run_files import backend_list
+from homogenization.cli.options import (
+    add_orientations_argument,
+    add_threads_argument,
+    add_uncertified_argument,
+    backend_list,
+    command_parser,
+    refuse_uncertified_file,
+)
 from homogenization.figure_style import LABELS
 from homogenization.sweep_case import case_task, summarise
 from homogenization.sweep_plan import Case, ModelChoice, plan
@@ -157,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--increment", type=positive_float, default=load.increment, help="axial strain increment of the shear stage [-]")
     parser.add_argument("--iso-increment", type=positive_float, default=load.iso_increment,
                         help="strain increment per component of the isotropic stage [-]")
-    parser.add_argument("--orientations", type=positive_int, default=cell.n_orientations, help="number N of cell orientations")
+    add_orientations_argument(parser, cell.n_orientations)
     parser.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
     parser.add_argument("--stress-rtol", type=positive_float, default=load.stress_rtol,
                         help="relative tolerance of stress-controlled components (--drained, landing on p0) [-]")
@@ -168,7 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "(None: the cores available; the results do not depend on it)")
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
                         help="run the cases on this Dask scheduler (e.g. tcp://host:8786) instead of locally")
-    parser.add_argument("--threads", type=positive_int, default=1, help="CPU threads of the DEM within each case")
+    add_threads_argument(parser, "CPU threads of the DEM within each case", 1)
     parser.add_argument("--model", type=model_arg, action="append", default=None, metavar="[MESOSTRUCTURE=]PATH",
                         help="ANN model (ann only; repeat the flag): MESOSTRUCTURE=PATH for one item of "
                              "--mesostructure, PATH for the mesostructure it was trained on (or the plain H-cell); "

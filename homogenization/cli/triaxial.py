@@ -35,15 +35,14 @@ from typing import Any, Sequence
 
 from homogenization import driver, figures, loading
 from homogenization.backends import BACKENDS
-from homogenization.cli.options import add_alpha0_argument, add_cell_arguments, command_parser
-from homogenization.cli.run_files import backend_list, build_models, check_run, explicit_flags, run_backends
+from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_programme_arguments, command_parser
+from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, run_backends, shear_iso_increment
 from homogenization.orientation3d import LEBEDEV_ORDERS
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
     contact_law_from_args,
     finite_float,
-    positive_float,
     positive_int,
     run_main,
     say,
@@ -51,7 +50,7 @@ from warp_hcell.core.cli import (
     writing_to,
 )
 from warp_hcell.core.files import output_folder, output_lock
-from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
+from warp_hcell.core.parameters import LoadingDefaults
 from warp_hcell.core.provenance import command_line
 from warp_hcell.mesostructures.builders import mesostructure_arg
 from warp_hcell.mesostructures.hcell import plain_alpha0_3d
@@ -90,23 +89,14 @@ def b_ratio(text: str) -> float:
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the triaxial command."""
-    cell, load = CellDefaults(), LoadingDefaults()
     parser = command_parser("homogenization.triaxial", "Isotropic compression to p0, then a triaxial test of the 3D "
                                                        "H-model (undrained, drained, extension, constant p, true "
                                                        "triaxial, cyclic), or any 3D loading programme file.")
-    parser.add_argument("--backend", type=backend_list, default=("analytical",),
-                        help=f"cell model, or a comma list to overlay several; choices: {', '.join(BACKENDS)} "
-                             f"(ann: no 3D model yet)")
+    add_backend_list_argument(parser, ("analytical",), " (ann: no 3D model yet)")
     add_alpha0_argument(parser)
-    group = parser.add_argument_group("built-in programme (not with --programme)")
-    group.add_argument("--p0", type=positive_float, default=cell.p0, help="confining pressure of stage 1 [Pa], > 0")
-    group.add_argument("--eps-max", type=positive_float, default=0.15,
-                       help="axial strain (amplitude of --cyclic) of the shear stage, counted from its start [-]")
-    group.add_argument("--increment", type=positive_float, default=1e-4,
-                       help="axial strain increment of the shear stage [-], <= --eps-max")
-    group.add_argument("--iso-increment", type=positive_float, default=argparse.SUPPRESS,
-                       help=f"strain increment per component of the isotropic stage [-] (default: "
-                            f"{load.iso_increment / load.increment:g} x --increment)")
+    group = add_programme_arguments(
+        parser, stress_unit="Pa", eps_max=0.15, increment=1e-4,
+        eps_max_help="axial strain (amplitude of --cyclic) of the shear stage, counted from its start [-]")
     tests = group.add_mutually_exclusive_group()
     tests.add_argument("--undrained", action="store_true", help="isochoric compression (the default test)")
     tests.add_argument("--drained", action="store_true", help="compression at sigma2 = sigma3 = p0")
@@ -142,20 +132,13 @@ def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[load
     """The programme of the run (the --programme file or the built-in test) and its settings; UserError
     (one line) for conflicting flags, an increment above --eps-max or a file of planar steps."""
     if args.programme is not None:
-        given = [flag for dest, flag in PROGRAMME_FLAGS.items() if dest in explicit_flags(build_parser(), argv, tuple(PROGRAMME_FLAGS))]
-        if given:
-            raise UserError(f"{', '.join(given)} do not apply with --programme (the file holds the whole programme)")
+        refuse_programme_flags(build_parser(), argv, PROGRAMME_FLAGS)
         programme = loading.read_programme(args.programme)
         if loading.dimension(programme) != 3:
             raise UserError(f"{args.programme}: its steps control two components (a biaxial programme); "
                             f"hmodel triaxial takes steps of three (11, 22, 33)")
         return programme, {"programme_file": str(args.programme)}
-    if args.increment > args.eps_max:
-        raise UserError(f"--increment {args.increment:g} is larger than --eps-max {args.eps_max:g}")
-    iso_increment = getattr(args, "iso_increment", LoadingDefaults.iso_increment / LoadingDefaults.increment * args.increment)
-    if iso_increment >= loading.ISO_MAX_STRAIN:
-        raise UserError(f"--iso-increment {iso_increment:g} must be < {loading.ISO_MAX_STRAIN:g}, "
-                        f"the largest isotropic strain allowed")
+    iso_increment = shear_iso_increment(args)
     test = chosen_test(args)
     b = args.true if args.true is not None else 0.5
     cycles = args.cyclic or 1

@@ -25,6 +25,7 @@ import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -74,11 +75,20 @@ CASES: dict[str, Case] = {
 
 
 def write_path(path: np.ndarray, file: Path) -> None:
-    """Write ``path`` (n_increments, 2) as CSV with header ``d_eps_n,d_eps_t``."""
+    """Write ``path`` (n_increments, 2 or 3) as CSV with header ``d_eps_n,d_eps_t`` (plane) or
+    ``d_eps_n,d_eps_t1,d_eps_t2`` (space), every value exactly (``repr``, no negative zero)."""
     with open(file, "w") as handle:
-        handle.write("d_eps_n,d_eps_t\n")
-        for d_n, d_t in path:
-            handle.write(f"{float(d_n) + 0.0!r},{float(d_t) + 0.0!r}\n")
+        handle.write(("d_eps_n,d_eps_t" if path.shape[1] == 2 else "d_eps_n,d_eps_t1,d_eps_t2") + "\n")
+        for row in path:
+            handle.write(",".join(repr(float(v) + 0.0) for v in row) + "\n")
+
+
+def run_yade(command: list[str], out_dir: Path, prefix: Path) -> Path:
+    """Run the YADE ``command`` in ``out_dir``; RuntimeError unless it wrote ``<prefix>.yade.csv``."""
+    subprocess.run(command, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=out_dir)
+    if not Path(f"{prefix}.yade.csv").is_file():
+        raise RuntimeError(f"yade wrote no {prefix}.yade.csv")
+    return prefix
 
 
 def generate(name: str, out_dir: Path, yade: str = "yade") -> Path:
@@ -90,27 +100,28 @@ def generate(name: str, out_dir: Path, yade: str = "yade") -> Path:
     prefix = out_dir / name
     command = [yade, "-j1", "-n", "-x", str(SCRIPT), "--path", str(path_file)]
     command += ["--alpha0-deg", f"{case.alpha0_deg:g}", "--out", str(prefix)]
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=out_dir)
-    if not Path(f"{prefix}.yade.csv").is_file():
-        raise RuntimeError(f"yade wrote no {prefix}.yade.csv")
-    return prefix
+    return run_yade(command, out_dir, prefix)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit code."""
-    parser = argparse.ArgumentParser(
-        description="Regenerate the YADE reference cases of the six-disk H-cell.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    parser.add_argument("--out", type=Path, default=DATA_DIR, help="output folder")
-    parser.add_argument("--case", choices=sorted(CASES), action="append", help="case to run (repeatable; default all)")
+def regenerate(argv: list[str] | None, description: str, data_dir: Path, cases: dict,
+               generate_case: Callable[[str, Path], Path]) -> int:
+    """The command of a reference generator: --out (default ``data_dir``) and --case (names of
+    ``cases``, default all) through ``generate_case(name, out_dir)``; exit code 2 without yade."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("--out", type=Path, default=data_dir, help="output folder")
+    parser.add_argument("--case", choices=sorted(cases), action="append", help="case to run (repeatable; default all)")
     args = parser.parse_args(argv)
     if shutil.which("yade") is None:
         print("error: yade is not on PATH", file=sys.stderr)
         return 2
-    for name in args.case or CASES:
-        print(generate(name, args.out))
+    for name in args.case or cases:
+        print(generate_case(name, args.out))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code."""
+    return regenerate(argv, "Regenerate the YADE reference cases of the six-disk H-cell.", DATA_DIR, CASES, generate)
 
 
 if __name__ == "__main__":

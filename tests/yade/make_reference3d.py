@@ -20,16 +20,16 @@ The YADE settings are the slow, accurate ones of the 2D reference (dt = 0.2 sqrt
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import shutil
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from make_reference import regenerate, run_yade, write_path  # noqa: E402 (tests/yade is not a package)
 
 HERE = Path(__file__).resolve().parent
 DATA_DIR = HERE.parent / "data" / "yade3d"
@@ -100,10 +100,7 @@ def write_case(name: str, out_dir: Path) -> Path:
     prefix = out_dir / name
     Path(f"{prefix}.cell.json").write_text(json.dumps(ten_sphere_cell(case.alpha0_deg)) + "\n")
     Path(f"{prefix}.settings.json").write_text(json.dumps({"contact_law": CONTACT_LAW, "dem": YADE_SETTINGS}) + "\n")
-    with open(f"{prefix}.path.csv", "w") as handle:
-        handle.write("d_eps_n,d_eps_t1,d_eps_t2\n")
-        for row in case.path():
-            handle.write(",".join(repr(float(v) + 0.0) for v in row) + "\n")
+    write_path(case.path(), Path(f"{prefix}.path.csv"))
     return prefix
 
 
@@ -112,25 +109,12 @@ def generate(name: str, out_dir: Path, yade: str = "yade") -> Path:
     prefix = write_case(name, out_dir)
     command = [yade, "-j1", "-n", "-x", str(SCRIPT), "--cell", f"{prefix}.cell.json", "--path", f"{prefix}.path.csv",
                "--settings", f"{prefix}.settings.json", "--out", str(prefix)]
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=out_dir)
-    if not Path(f"{prefix}.yade.csv").is_file():
-        raise RuntimeError(f"yade wrote no {prefix}.yade.csv")
-    return prefix
+    return run_yade(command, out_dir, prefix)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code."""
-    parser = argparse.ArgumentParser(description="Regenerate the YADE reference cases of the ten-sphere H-cell.",
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("--out", type=Path, default=DATA_DIR, help="output folder")
-    parser.add_argument("--case", choices=sorted(CASES), action="append", help="case to run (repeatable; default all)")
-    args = parser.parse_args(argv)
-    if shutil.which("yade") is None:
-        print("error: yade is not on PATH", file=sys.stderr)
-        return 2
-    for name in args.case or CASES:
-        print(generate(name, args.out))
-    return 0
+    return regenerate(argv, "Regenerate the YADE reference cases of the ten-sphere H-cell.", DATA_DIR, CASES, generate)
 
 
 if __name__ == "__main__":

@@ -3,12 +3,13 @@
 
 One thread advances one cell through a whole strain increment: the substep loop runs
 inside the kernel and the cell (positions, velocities, displacements, shear forces) lives in
-fixed-size local matrices; the pieces shared with the 3D kernel are ``warp_hcell.dem.stepping``,
-the pair pieces of the plane are below. Kernels are generated per topology (candidate pairs and driven
-DOF mask are compile-time constants), so every grain/pair index is static and the loops are
-unrolled; ``step_kernel`` caches one kernel per topology. Measured on the H-cell (CPU, one
-thread, 1e5 cells): 1.9e7 cell-substeps per CPU-second, 1.8 times the same kernel reading
-the pair and driven tables from arrays in rolled loops (bit-identical results).
+fixed-size local matrices; the pieces shared with the 3D kernel are ``warp_hcell.dem.stepping``
+and the pair loops ``warp_hcell.dem.pairs``; the law of one planar pair and the cell area are
+below. Kernels are generated per topology (candidate pairs and driven DOF mask are
+compile-time constants), so every grain/pair index is static and the loops are unrolled;
+``step_kernel`` caches one kernel per topology. Measured on the H-cell (CPU, one thread, 1e5
+cells): 1.9e7 cell-substeps per CPU-second, 1.8 times the same kernel reading the pair and
+driven tables from arrays in rolled loops (bit-identical results).
 
 Conventions inside the kernels (tension-positive DEM quantities, local frame (n, t)):
     - pair p = (i, j): unit normal ``u = (x_j - x_i) / |x_j - x_i|``, tangent w = (-u_t, u_n);
@@ -46,107 +47,34 @@ import functools
 
 import warp as wp
 
-from warp_hcell.dem.contact import contact_law, contact_regime, normal_force
-from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code, pair_setup
+from warp_hcell.dem.contact import contact_law, contact_regime
+from warp_hcell.dem.pairs import pair_loops
+from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code
 
 wp.set_module_options({"enable_backward": False})
 
 
+@wp.func
+def planar_contact(u: wp.vec2d, rel: wp.vec2d, overlap: wp.float64, spring: wp.float64, kn: wp.float64,
+                   kt: wp.float64, mu: wp.float64):
+    """One planar pair within reach (``warp_hcell.dem.pairs``): the spring f_s grows by kt times
+    du = rel . w, w = (-u_t, u_n); returns (f_n [N], new f_s [N], regime: 1 sticking, 2 sliding)."""
+    du = rel[1] * u[0] - rel[0] * u[1]
+    normal, shear = contact_law(overlap, du, spring, kn, kt, mu)
+    return normal, shear, contact_regime(normal, wp.abs(shear), mu * normal)
+
+
+@wp.func
+def planar_pair_force(u: wp.vec2d, normal: wp.float64, spring: wp.float64):
+    """The force on grain i by grain j [N]: -f_n u + f_s w, w = (-u_t, u_n)."""
+    return wp.vec2d(-normal * u[0] - spring * u[1], -normal * u[1] + spring * u[0])
+
+
 @functools.lru_cache(maxsize=None)
 def pair_pieces(pairs: tuple[tuple[int, int], ...], n_grains: int) -> tuple[wp.Function, wp.Function, wp.Function]:
-    """(``setup``, ``forces``, ``output``): the planar pairs (i, j) of one topology.
-
-    - ``setup``: ``warp_hcell.dem.stepping.pair_setup``;
-    - ``forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)``: the contact forces at
-      the grain centres x with the shear increment from the last move dx: (net force per grain,
-      new f_s, regime per pair (0 open, 1 sticking, 2 sliding), largest normal force, 1 if a
-      regime changed since the last evaluation);
-    - ``output(x, fs, rsum, cut2, kn, shear_force_out, contact_force_out, contact_out, c)``: writes
-      the pairs' state and forces (the last force evaluation ran at these positions: same
-      contacts, same normal forces) and returns the Love-Weber sum (tension positive)
-      sum_p f_p (x) (x_j - x_i).
-    """
-    n_pairs = len(pairs)
-    pi = tuple(p[0] for p in pairs)
-    pj = tuple(p[1] for p in pairs)
-    mat = grain_matrix(n_grains, 2)
-    vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
-    code = mask_code(pairs)
-
-    setup = pair_setup(pairs, 2)
-
-    @wp.func
-    def forces(x: mat, dx: mat, fs: vec_p, rsum: vec_p, cut2: vec_p, was_regime: vec_p, substeps: wp.int32,
-               kn: wp.float64, kt: wp.float64, mu: wp.float64):
-        wp.static(code)
-        zero = wp.float64(0.0)
-        one = wp.float64(1.0)
-        f = mat()
-        shear_new = vec_p()
-        regime_new = vec_p()
-        fmax = zero
-        changed = wp.int32(0)
-        for p in range(wp.static(n_pairs)):
-            i = wp.static(pi[p])
-            j = wp.static(pj[p])
-            bn = x[j, 0] - x[i, 0]
-            bt = x[j, 1] - x[i, 1]
-            dist2 = bn * bn + bt * bt
-            regime = zero
-            shear = zero
-            if dist2 <= cut2[p]:
-                dist = wp.sqrt(dist2)
-                inv_dist = one / dist
-                un = bn * inv_dist
-                ut = bt * inv_dist
-                du = (dx[j, 1] - dx[i, 1]) * un - (dx[j, 0] - dx[i, 0]) * ut
-                normal, shear = contact_law(rsum[p] - dist, du, fs[p], kn, kt, mu)
-                regime = contact_regime(normal, wp.abs(shear), mu * normal)
-                fin = -normal * un - shear * ut
-                fit = -normal * ut + shear * un
-                f[i, 0] = f[i, 0] + fin
-                f[i, 1] = f[i, 1] + fit
-                f[j, 0] = f[j, 0] - fin
-                f[j, 1] = f[j, 1] - fit
-                fmax = wp.where(normal > fmax, normal, fmax)
-            shear_new[p] = shear
-            changed = wp.where(substeps > 0 and regime != was_regime[p], 1, changed)
-            regime_new[p] = regime
-        return f, shear_new, regime_new, fmax, changed
-
-    @wp.func
-    def output(x: mat, fs: vec_p, rsum: vec_p, cut2: vec_p, kn: wp.float64,
-               shear_force_out: wp.array2d(dtype=wp.float64), contact_force_out: wp.array2d(dtype=wp.vec2d),
-               contact_out: wp.array2d(dtype=wp.int32), c: wp.int32):
-        wp.static(code)
-        zero = wp.float64(0.0)
-        m_nn = zero
-        m_nt = zero
-        m_tn = zero
-        m_tt = zero
-        for p in range(wp.static(n_pairs)):
-            shear_force_out[c, p] = fs[p]
-            i = wp.static(pi[p])
-            j = wp.static(pj[p])
-            bn = x[j, 0] - x[i, 0]
-            bt = x[j, 1] - x[i, 1]
-            dist2 = bn * bn + bt * bt
-            dist = wp.sqrt(dist2)
-            un = bn / dist
-            ut = bt / dist
-            touching = dist2 <= cut2[p]
-            normal = wp.where(touching, normal_force(rsum[p] - dist, kn), zero)
-            f_n = -normal * un - fs[p] * ut
-            f_t = -normal * ut + fs[p] * un
-            contact_force_out[c, p] = wp.vec2d(f_n, f_t)
-            contact_out[c, p] = wp.where(touching, 1, 0)
-            m_nn = m_nn + f_n * bn
-            m_nt = m_nt + f_n * bt
-            m_tn = m_tn + f_t * bn
-            m_tt = m_tt + f_t * bt
-        return wp.mat22d(m_nn, m_nt, m_tn, m_tt)
-
-    return setup, forces, output
+    """(``setup``, ``forces``, ``output``) of the planar pairs (i, j) of one topology
+    (``warp_hcell.dem.pairs.pair_loops``); a pair's spring is one value, f_s."""
+    return pair_loops(pairs, n_grains, 2, planar_contact, planar_pair_force)
 
 
 @functools.lru_cache(maxsize=None)

@@ -3,8 +3,9 @@
 The 3D counterpart of ``warp_hcell.dem.kernels`` (same stepping, same conventions), one thread
 per cell with the whole increment inside the kernel and the cell in fixed-size local
 matrices; kernels are generated per topology (candidate pairs, driven DOF mask and outer
-faces are compile-time constants, loops unrolled). The stepping is the 2D kernel's
-(``warp_hcell.dem.stepping``); the pairs and the volume are below.
+faces are compile-time constants, loops unrolled). The stepping (``warp_hcell.dem.stepping``)
+and the pair loops (``warp_hcell.dem.pairs``) are the 2D kernel's; the law of one spatial pair
+and the volume are below.
 
 Conventions inside the kernel (tension-positive DEM quantities, local frame (n, t1, t2)):
     - pair p = (i, j): unit normal u = (x_j - x_i) / norm(x_j - x_i);
@@ -35,8 +36,9 @@ import functools
 
 import warp as wp
 
-from warp_hcell.dem.contact import carried_spring, contact_law_3d, normal_force
-from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code, pair_setup
+from warp_hcell.dem.contact import carried_spring, contact_law_3d
+from warp_hcell.dem.pairs import pair_loops
+from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code
 
 wp.set_module_options({"enable_backward": False})
 
@@ -44,77 +46,27 @@ DIM = 3
 """Spatial dimension of the cells this module steps."""
 
 
+@wp.func
+def spatial_contact(u: wp.vec3d, rel: wp.vec3d, overlap: wp.float64, spring: wp.vec3d, kn: wp.float64,
+                    kt: wp.float64, mu: wp.float64):
+    """One spatial pair within reach (``warp_hcell.dem.pairs``): the spring carried into the tangent
+    plane of u, then grown by kt times the tangential part of rel; returns (f_n [N], new spring
+    vector [N], regime: 1 sticking, 2 sliding)."""
+    du = rel - wp.dot(rel, u) * u
+    return contact_law_3d(overlap, du, carried_spring(spring, u), kn, kt, mu)
+
+
+@wp.func
+def spatial_pair_force(u: wp.vec3d, normal: wp.float64, spring: wp.vec3d):
+    """The force on grain i by grain j [N]: -f_n u + f_s."""
+    return spring - normal * u
+
+
 @functools.lru_cache(maxsize=None)
 def pair_pieces_3d(pairs: tuple[tuple[int, int], ...], n_grains: int) -> tuple[wp.Function, wp.Function, wp.Function]:
-    """(``setup``, ``forces``, ``output``) of the spatial pairs, as ``kernels.pair_pieces`` in the plane;
-    the shear force of a pair is a vector (a row of an (n_pairs, 3) matrix)."""
-    n_pairs = len(pairs)
-    pi = tuple(p[0] for p in pairs)
-    pj = tuple(p[1] for p in pairs)
-    mat = grain_matrix(n_grains, DIM)
-    mat_p = grain_matrix(n_pairs, DIM)
-    vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
-    code = mask_code(pairs)
-
-    setup = pair_setup(pairs, DIM)
-
-    @wp.func
-    def forces(x: mat, dx: mat, fs: mat_p, rsum: vec_p, cut2: vec_p, was_regime: vec_p, substeps: wp.int32,
-               kn: wp.float64, kt: wp.float64, mu: wp.float64):
-        wp.static(code)
-        zero = wp.float64(0.0)
-        f = mat()
-        shear_new = mat_p()
-        regime_new = vec_p()
-        fmax = zero
-        changed = wp.int32(0)
-        for p in range(wp.static(n_pairs)):
-            i = wp.static(pi[p])
-            j = wp.static(pj[p])
-            b = wp.vec3d(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2])
-            dist2 = wp.dot(b, b)
-            regime = zero
-            if dist2 <= cut2[p]:
-                dist = wp.sqrt(dist2)
-                u = b * (wp.float64(1.0) / dist)
-                rel = wp.vec3d(dx[j, 0] - dx[i, 0], dx[j, 1] - dx[i, 1], dx[j, 2] - dx[i, 2])
-                du = rel - wp.dot(rel, u) * u
-                carried = carried_spring(wp.vec3d(fs[p, 0], fs[p, 1], fs[p, 2]), u)
-                normal, shear, regime = contact_law_3d(rsum[p] - dist, du, carried, kn, kt, mu)
-                force = shear - normal * u
-                for a in range(wp.static(DIM)):
-                    shear_new[p, a] = shear[a]
-                    f[i, a] = f[i, a] + force[a]
-                    f[j, a] = f[j, a] - force[a]
-                fmax = wp.where(normal > fmax, normal, fmax)
-            changed = wp.where(substeps > 0 and regime != was_regime[p], 1, changed)
-            regime_new[p] = regime
-        return f, shear_new, regime_new, fmax, changed
-
-    @wp.func
-    def output(x: mat, fs: mat_p, rsum: vec_p, cut2: vec_p, kn: wp.float64,
-               shear_force_out: wp.array2d(dtype=wp.vec3d), contact_force_out: wp.array2d(dtype=wp.vec3d),
-               contact_out: wp.array2d(dtype=wp.int32), c: wp.int32):
-        wp.static(code)
-        moment = wp.mat33d()
-        for p in range(wp.static(n_pairs)):
-            i = wp.static(pi[p])
-            j = wp.static(pj[p])
-            shear = wp.vec3d(fs[p, 0], fs[p, 1], fs[p, 2])
-            shear_force_out[c, p] = shear
-            b = wp.vec3d(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2])
-            dist2 = wp.dot(b, b)
-            dist = wp.sqrt(dist2)
-            u = b / dist
-            touching = dist2 <= cut2[p]
-            normal = wp.where(touching, normal_force(rsum[p] - dist, kn), wp.float64(0.0))
-            force = shear - normal * u
-            contact_force_out[c, p] = force
-            contact_out[c, p] = wp.where(touching, 1, 0)
-            moment = moment + wp.outer(force, b)
-        return moment
-
-    return setup, forces, output
+    """(``setup``, ``forces``, ``output``) of the spatial pairs (i, j) of one topology
+    (``warp_hcell.dem.pairs.pair_loops``); a pair's spring is a vector (a row of an (n_pairs, 3) matrix)."""
+    return pair_loops(pairs, n_grains, DIM, spatial_contact, spatial_pair_force)
 
 
 @functools.lru_cache(maxsize=None)

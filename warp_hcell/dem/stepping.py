@@ -5,8 +5,8 @@ hold a cell in fixed-size local matrices, one row a grain, one column an axis ((
 (n, t1, t2)), and step it with the functions below, each with one job: the driving path of
 the increment, the adaptive rate with the prediction of the free grains, the refinement on a
 regime change, the convergence measure, the leapfrog move and the velocity memory (the
-conventions are in ``warp_hcell.dem.kernels``). Functions return new local matrices; none
-changes its arguments.
+conventions are in ``warp_hcell.dem.kernels``; the pair loops are ``warp_hcell.dem.pairs``).
+Functions return new local matrices; none changes its arguments.
 
 What depends on which DOFs are driven is generated per mask ``drive`` (per grain, per axis,
 True where driven), loops unrolled. Each generated function carries its mask as a static
@@ -37,6 +37,14 @@ def grain_vector(n_grains: int) -> type:
 def cell_vector(dim: int) -> type:
     """The vector type of a cell size or strain increment: ``wp.vec2d`` or ``wp.vec3d``."""
     return wp.vec2d if dim == 2 else wp.vec3d
+
+
+def spring_types(n_pairs: int, dim: int) -> tuple[type, type]:
+    """(the local type of a cell's tangential springs, the type of one pair's spring): an
+    (n_pairs,) vector and float64 in the plane, an (n_pairs, 3) matrix and ``wp.vec3d`` in space."""
+    if dim == 2:
+        return wp.types.vector(length=n_pairs, dtype=wp.float64), wp.float64
+    return grain_matrix(n_pairs, dim), cell_vector(dim)
 
 
 def mask_code(*tables: tuple[tuple[int, ...], ...]):
@@ -148,12 +156,13 @@ def rate_and_prediction(drive: tuple[tuple[bool, ...], ...]) -> wp.Function:
         norm2 = zero
         dot_v = zero
         norm_v = zero
+        d_new = mat()
         for g in range(wp.static(n_grains)):
             for a in range(wp.static(dim)):
                 if wp.static(drive[g][a]):
-                    d_new = ref[g, a] * dscale[a] * inv_n_coarse
-                    dot = dot + v[g, a] * h * d_new
-                    norm2 = norm2 + d_new * d_new
+                    d_new[g, a] = ref[g, a] * dscale[a] * inv_n_coarse
+                    dot = dot + v[g, a] * h * d_new[g, a]
+                    norm2 = norm2 + d_new[g, a] * d_new[g, a]
                     dot_v = dot_v + v[g, a] * (ref[g, a] * dscale[a])
                     norm_v = norm_v + v[g, a] * v[g, a]
         lam = wp.where(norm2 > zero, dot / wp.where(norm2 > zero, norm2, one), zero)
@@ -162,9 +171,8 @@ def rate_and_prediction(drive: tuple[tuple[bool, ...], ...]) -> wp.Function:
         for g in range(wp.static(n_grains)):
             for a in range(wp.static(dim)):
                 if wp.static(drive[g][a]):
-                    d_new = ref[g, a] * dscale[a] * inv_n_coarse
-                    off = wp.max(off, wp.abs(v[g, a] * h - lam * d_new))
-                    driving_size = wp.max(driving_size, wp.abs(d_new))
+                    off = wp.max(off, wp.abs(v[g, a] * h - lam * d_new[g, a]))
+                    driving_size = wp.max(driving_size, wp.abs(d_new[g, a]))
         steady = lam > zero and off <= velocity_change * lam * driving_size
         rate = refined_strain_per_substep
         if steady:
@@ -293,45 +301,6 @@ def grain_io(n_grains: int, dim: int) -> tuple[wp.Function, wp.Function]:
     return load, store
 
 
-
-@functools.lru_cache(maxsize=None)
-def pair_setup(pairs: tuple[tuple[int, int], ...], dim: int) -> wp.Function:
-    """``setup(radius, shear_force_in, c, contact_tolerance)``: a cell's pairs (i, j) before the
-    increment: (tangential springs [N], r_i + r_j [m], squared reach ((r_i + r_j)(1 + tolerance))^2).
-
-    The springs are one value per pair in the plane, a row of an (n_pairs, 3) matrix in space.
-    """
-    n_pairs = len(pairs)
-    pi = tuple(p[0] for p in pairs)
-    pj = tuple(p[1] for p in pairs)
-    vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
-    springs = vec_p if dim == 2 else grain_matrix(n_pairs, dim)
-    spring_in = wp.float64 if dim == 2 else cell_vector(dim)
-    code = mask_code(pairs)
-
-    @wp.func
-    def setup(radius: wp.array2d(dtype=wp.float64), shear_force_in: wp.array2d(dtype=spring_in), c: wp.int32,
-              contact_tolerance: wp.float64):
-        wp.static(code)
-        fs = springs()
-        rsum = vec_p()
-        cut2 = vec_p()
-        widen = wp.float64(1.0) + contact_tolerance
-        for p in range(wp.static(n_pairs)):
-            if wp.static(dim == 2):
-                fs[p] = shear_force_in[c, p]
-            else:
-                s0 = shear_force_in[c, p]
-                for a in range(wp.static(dim)):
-                    fs[p, a] = s0[a]
-            r_sum = radius[c, wp.static(pi[p])] + radius[c, wp.static(pj[p])]
-            rsum[p] = r_sum
-            cut2[p] = (r_sum * widen) * (r_sum * widen)
-        return fs, rsum, cut2
-
-    return setup
-
-
 def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
                      pairs: tuple[wp.Function, wp.Function, wp.Function], measure: wp.Function,
                      max_unroll: int) -> wp.Kernel:
@@ -340,8 +309,9 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
     Args:
         drive: per grain, per axis, True where driven.
         n_pairs: number of candidate pairs.
-        pairs: the dimension's pair functions (``setup``, ``forces``, ``output``):
-            ``warp_hcell.dem.kernels.pair_pieces`` or ``warp_hcell.dem.kernels3d.pair_pieces_3d``.
+        pairs: the pair functions (``setup``, ``forces``, ``output``) of ``warp_hcell.dem.pairs.pair_pieces``
+            with the dimension's law of one pair (``warp_hcell.dem.kernels.pair_pieces``,
+            ``warp_hcell.dem.kernels3d.pair_pieces_3d``).
         measure: V_cell of the grain centres (the outer polygon's area, the polyhedron's volume).
         max_unroll: Warp's limit of unrolled loop iterations for this kernel.
 
@@ -352,7 +322,7 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
     n_grains, dim = len(drive), len(drive[0])
     vec = cell_vector(dim)
     moment_type = wp.mat22d if dim == 2 else wp.mat33d
-    shear_type = wp.float64 if dim == 2 else wp.vec3d
+    shear_type = spring_types(n_pairs, dim)[1]
     load, store = grain_io(n_grains, dim)
     setup, forces, output = pairs
     path = driving_path(dim)
