@@ -202,7 +202,7 @@ def _current(cert: Mapping[str, Any] | None, model: Path, options: Mapping[str, 
 def _record(model: Path, rounds: list[dict[str, Any]], cert: Mapping[str, Any]) -> None:
     """Store the certificate and the rounds in the model's JSON."""
     certificate.write_certificate(model, dict(cert))
-    _write_rounds(model, rounds)
+    write_rounds(model, rounds)
 
 
 def round_line(entry: Mapping[str, Any]) -> str:
@@ -282,10 +282,10 @@ def train_model(db: Path, model: Path, train_args: Sequence[str], rounds: list[d
     code = training_train.main(["--data", str(db), "--out", str(model), "--overwrite", *train_args])
     if code:
         raise RuntimeError(f"training exited {code}")
-    _write_rounds(model, rounds)
+    write_rounds(model, rounds)
 
 
-def _write_rounds(model: Path, rounds: list[dict[str, Any]]) -> None:
+def write_rounds(model: Path, rounds: list[dict[str, Any]]) -> None:
     """Store ``rounds`` in the model's JSON under ``active_learning`` (atomically)."""
     path = metadata_path(model)
     meta = json.loads(path.read_text())

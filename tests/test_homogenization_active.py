@@ -2,6 +2,7 @@
 short certificate; one round adds the DEM states of the failing tests and repairs it."""
 
 import json
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -94,3 +95,87 @@ def test_hmodel_learn_writes_every_stage_resumes_and_refuses_other_options(tmp_p
     third = capsys.readouterr().out
     assert f"database: {out / 'db.h5'} (done before)" in third and "model: " not in third
     assert json.loads((out / "ann.json").read_text())["certificate"]["model_sha256"] == file_sha256(out / "ann.pt")
+
+
+TRAIN_CLI = [*TRAIN[:-1], "--orientations", "6", "--eps-max", "0.02", "--rounds", "1", "--samples-per-round", "3000"]
+"""``hmodel train`` with the training of TRAIN, a short certificate (both pressures) and one round."""
+
+
+def _source_counts(db) -> list[int]:
+    with h5py.File(db) as f:
+        return np.bincount(f["source_round"][()]).tolist() if "source_round" in f else [f["d_eps"].shape[0]]
+
+
+def test_hmodel_train_enriches_its_database_and_an_interrupted_run_continues(tmp_path, monkeypatch, capsys):
+    from dem_database import build
+    from homogenization.cli import hmodel
+
+    db = build(tmp_path / "db.h5", mesostructure=h_cell(55.0), precompression=(0.0, 2e-3), n_directions=6,
+               spacing=1e-2, leg_length=0.04, threads=1)
+    n_before = load_database(db).n_stored
+    model = tmp_path / "m.pt"
+    argv = ["train", "--data", str(db), "--out", str(model), *TRAIN_CLI]
+
+    def interrupted(*_args, **_kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(active, "train_model", interrupted)  # the retraining after the round's append
+    assert hmodel.main(argv) == 130  # Ctrl-C: one line, exit 130
+    first = capsys.readouterr().out
+    assert f"active learning adds its samples to {db}" in first and "active round 0:" in first
+    assert _source_counts(db) == [n_before, 3000]  # the round's samples are in, the model is not retrained
+    assert json.loads(model.with_suffix(".json").read_text())["training_data"]["sha256"] != file_sha256(db)
+
+    monkeypatch.undo()
+    assert hmodel.main(argv) == 0
+    second = capsys.readouterr().out
+    assert "an earlier run of these options, continued" in second and "active round 1: +3000 samples" in second
+    assert _source_counts(db) == [n_before, 3000]  # continued: no second append of round 1
+    meta = json.loads(model.with_suffix(".json").read_text())
+    assert meta["training_data"]["sha256"] == file_sha256(db) and meta["certificate"]["model_sha256"] == file_sha256(model)
+    assert [r["round"] for r in meta["active_learning"]] == [0, 1]
+    first_round, second_round = meta["active_learning"]
+    assert not first_round["passed"] and second_round["worst"] < first_round["worst"]
+
+    weights = model.read_bytes()
+    assert hmodel.main(argv) == 0  # a finished run: nothing is added or retrained
+    assert "(done before)" in capsys.readouterr().out and model.read_bytes() == weights
+    assert _source_counts(db) == [n_before, 3000]
+
+
+def test_hmodel_train_enriches_a_copy_where_the_database_is_not_writable(tmp_path, monkeypatch, capsys):
+    from dem_database import build
+    from homogenization.cli import hmodel, train as train_cli
+
+    db = build(tmp_path / "db.h5", mesostructure=h_cell(55.0), precompression=(0.0, 2e-3), n_directions=6,
+               spacing=1e-2, leg_length=0.04, threads=1)
+    sha = file_sha256(db)
+    args = train_cli.build_parser().parse_args(["--data", str(db), "--out", str(tmp_path / "m.pt")])
+    assert train_cli.enriched_path(args) == db
+    real_access = train_cli.os.access
+    monkeypatch.setattr(train_cli.os, "access", lambda path, mode: Path(path) != db and real_access(path, mode))
+    assert train_cli.enriched_path(args) == tmp_path / "m_db.h5"
+    monkeypatch.undo()
+
+    model = tmp_path / "c" / "m.pt"
+    argv = ["train", "--data", str(db), "--out", str(model), *TRAIN_CLI, "--max-samples", "1000", "--enrich-copy"]
+    assert hmodel.main(argv) == 0
+    printed = capsys.readouterr().out
+    copy = model.with_name("m_db.h5")
+    assert f"adds its samples to {copy} (a copy of {db}: --enrich-copy)" in printed
+    assert file_sha256(db) == sha and _source_counts(copy)[1:] == [1000]  # --max-samples caps the round
+    meta = json.loads(model.with_suffix(".json").read_text())
+    assert Path(meta["training_data"]["path"]) == copy and meta["training_data"]["sha256"] == file_sha256(copy)
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "m_db.h5").write_text("keep")
+    assert hmodel.main([*argv[:4], str(tmp_path / "d" / "m.pt"), *argv[5:]]) == 2  # never replaces an output
+    assert "exists; pass --overwrite" in capsys.readouterr().err and (tmp_path / "d" / "m_db.h5").read_text() == "keep"
+
+
+def test_hmodel_train_refuses_a_bad_budget_before_training(tmp_path, capsys):
+    from homogenization.cli import hmodel
+
+    assert hmodel.main(["train", "--data", str(tmp_path / "none.h5"), "--out", str(tmp_path / "m.pt"),
+                        "--rounds", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "rounds = -1 must be >= 0" in err[0] and not (tmp_path / "m.pt").exists()

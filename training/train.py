@@ -317,6 +317,18 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def config_of(args: argparse.Namespace) -> TrainConfig:
+    """The ``TrainConfig`` of parsed ``build_parser`` flags."""
+    return TrainConfig(hidden=args.hidden, load_features=args.load_features, sliding_weight=args.sliding_weight,
+                       epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, patience=args.patience,
+                       seed=args.seed, threads=args.threads, device=args.device, rollout=not args.no_rollout)
+
+
+def config_record(config: TrainConfig) -> dict:
+    """``config`` as the model's JSON stores it (``"config"``: tuples as lists)."""
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
+
+
 def _format_r2(metrics: dict) -> str:
     return "  ".join(f"{group}:{k}={'-' if v is None else f'{v:.5f}'}" for group, values in metrics.items()
                      for k, v in values.items())
@@ -339,9 +351,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str] | None) -> int:
     """Train, evaluate and write the model of ``main`` (holding the output lock)."""
-    config = TrainConfig(hidden=args.hidden, load_features=args.load_features, sliding_weight=args.sliding_weight, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
-                         patience=args.patience, seed=args.seed, threads=args.threads, device=args.device,
-                         rollout=not args.no_rollout)
+    config = config_of(args)
     db = load_database(args.data)
     if config.rollout and not args.verbose:
         quiet_warp()  # the rollout runs the DEM on the cpu
@@ -364,7 +374,7 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
                           "n_jumps_dropped": db.n_jumps, "n_perturbed": int(db.perturbed.sum()),
                           "n_mechanism": int(db.mechanism.sum()), "n_train": int(split.train.size),
                           "n_val": int(split.val.size), "n_test": int(split.test.size)},
-        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()},
+        "config": config_record(config),
         "metrics_r2": metrics,
         "rollout": rollout,
         "history": {"best_epoch": result.history["best_epoch"], "seconds": result.history["seconds"],
