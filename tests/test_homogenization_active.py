@@ -179,3 +179,32 @@ def test_hmodel_train_refuses_a_bad_budget_before_training(tmp_path, capsys):
                         "--rounds", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "rounds = -1 must be >= 0" in err[0] and not (tmp_path / "m.pt").exists()
+
+
+def test_multiply_adds_and_the_ladder_rule(tiny):
+    _, model = tiny  # TRAIN: --hidden 16, one layer of 16
+    assert active.multiply_adds((40, 40), 66, 20) == 66 * 40 + 40 * 40 + 40 * 20
+    assert active.WIDTH_LADDER[0] == (40, 40)  # the training default is the ladder's foot
+    slow, fast = [{"worst": 0.5}, {"worst": 0.4}], [{"worst": 0.5}, {"worst": 0.1}]
+    assert active.next_widths(slow[:1], model) == (16,)  # round 0 alone: samples first
+    assert active.next_widths(fast, model) == (16,)  # the round gained 5x: same network
+    assert active.next_widths(slow, model) == active.WIDTH_LADDER[0]  # gained 1.25x: the next rung
+
+
+def test_rounds_record_their_network_and_a_round_that_gains_little_widens_the_next(tiny, monkeypatch, capsys):
+    """With a warm start and a target no model meets, round 1 starts from round 0's weights; a
+    gain threshold no round meets makes round 2 train the ladder's next rung (from random weights:
+    another architecture), and every round records its widths."""
+    db, model = tiny
+    monkeypatch.setattr(active, "WIDEN_BELOW_GAIN", 1e9)
+    rounds = active.learn(db, model, TRAIN, settings=active.ActiveSettings(rounds=2, samples_per_round=1000,
+                                                                           warm_start=True),
+                          certify_options={**SHORT, "target": 1e-9})
+    assert [r["hidden"] for r in rounds] == [[16], [16], list(active.WIDTH_LADDER[0])]
+    assert [r["warm_start"] for r in rounds] == [None, True, False]
+    assert "(training 40x40, " in capsys.readouterr().out
+    meta = json.loads(model.with_suffix(".json").read_text())
+    assert meta["architecture"]["hidden"] == list(active.WIDTH_LADDER[0])
+    assert "hidden widths [16], not [40, 40]" in meta["history"]["warm_start"]["reason"]
+    with h5py.File(db) as f:
+        assert [r["hidden"] for r in json.loads(f.attrs["active_learning"])] == [[16], list(active.WIDTH_LADDER[0])]

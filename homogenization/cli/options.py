@@ -10,7 +10,7 @@
   and the refusal (one line, exit 2) of an ANN model without a passed certificate of its own
   ``.pt`` (docs/certificate.md); ``certificate_note(model)`` is the line a run summary prints;
 - ``add_active_arguments(parser)``: the budget of the active-learning rounds (--rounds,
-  --samples-per-round, --max-samples, --max-seconds; defaults from
+  --samples-per-round, --max-samples, --max-seconds, --warm-start, --widen; defaults from
   ``homogenization.active.ActiveSettings``) and the certificate's --orientations and --eps-max,
   read back with ``active_settings(args)`` and ``certify_options(args)`` (``hmodel learn`` and
   ``hmodel train``).
@@ -100,6 +100,10 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
                         help="samples added over all rounds at most")
     parser.add_argument("--max-seconds", type=positive_float, default=budget.max_seconds,
                         help="wall time [s] after which no new round starts")
+    parser.add_argument("--warm-start", action=argparse.BooleanOptionalAction, default=budget.warm_start,
+                        help="retrain each round from the previous round's weights")
+    parser.add_argument("--widen", action=argparse.BooleanOptionalAction, default=budget.widen,
+                        help="let a round that gained little give the next a wider network (WIDTH_LADDER)")
     parser.add_argument("--orientations", type=positive_int, default=certificate.N_ORIENTATIONS,
                         help="cell orientations per certificate test")
     parser.add_argument("--eps-max", type=positive_float, default=certificate.EPS_MAX,
@@ -112,7 +116,8 @@ def active_settings(args: argparse.Namespace):
 
     try:
         return active.ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
-                                     max_samples=args.max_samples, max_seconds=args.max_seconds)
+                                     max_samples=args.max_samples, max_seconds=args.max_seconds,
+                                     warm_start=args.warm_start, widen=args.widen)
     except ValueError as exc:
         raise UserError(str(exc)) from None
 

@@ -44,6 +44,8 @@ from warp_hcell.core.files import atomic_write, output_lock
 
 ENRICHED_SUFFIX = "_db.h5"
 """Name ending of the enriched copy of the database beside the model (``enriched_path``)."""
+ROUND_SET = ("hidden", "init_from")
+"""Training options that the active-learning rounds set themselves (wider network, warm start)."""
 OWN_FLAGS = ("data", "out", "overwrite", "help")
 """Destinations of the training parser that ``training_argv`` leaves out (the command passes them itself)."""
 
@@ -66,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def training_argv(args: argparse.Namespace) -> list[str]:
     """The ``training.train`` options of parsed ``args`` besides --data, --out and --overwrite, as
-    a command line (each option of the training parser with its parsed value)."""
+    a command line (each option of the training parser with its parsed value; unset ones left out)."""
     argv: list[str] = []
     for action in training_train.build_parser()._actions:
         if not action.option_strings or action.dest in OWN_FLAGS:
@@ -74,7 +76,7 @@ def training_argv(args: argparse.Namespace) -> list[str]:
         value, flag = getattr(args, action.dest), max(action.option_strings, key=len)
         if action.nargs == 0:
             argv += [flag] if value else []
-        else:
+        elif value is not None:
             argv += [flag, ",".join(map(str, value)) if isinstance(value, tuple) else str(value)]
     return argv
 
@@ -90,15 +92,21 @@ def enriched_path(args: argparse.Namespace) -> Path:
 
 def _continues(args: argparse.Namespace, database: Path) -> bool:
     """Whether ``args.out`` is the model of an earlier run of this command with these options:
-    its JSON records active-learning rounds (none yet, too), the training configuration of
-    ``args``, and training data --data or ``database``."""
+    its JSON records active-learning rounds (none yet, too), training data --data or
+    ``database``, and the training configuration of ``args``, but for what the rounds set
+    (``ROUND_SET``: the hidden widths are those of its round 0)."""
     meta_file = metadata_path(args.out)
     if args.overwrite or not (args.out.is_file() and meta_file.is_file()):
         return False
     meta = json.loads(meta_file.read_text())
     trained_on = Path(meta["training_data"]["path"]).resolve()
-    return ("active_learning" in meta and trained_on in (args.data.resolve(), database.resolve())
-            and meta["config"] == training_train.config_record(training_train.config_of(args)))
+    rounds = meta.get("active_learning")
+    if rounds is None or trained_on not in (args.data.resolve(), database.resolve()):
+        return False
+    first_hidden = rounds[0]["hidden"] if rounds and "hidden" in rounds[0] else meta["config"]["hidden"]
+    ours = training_train.config_record(training_train.config_of(args))
+    return first_hidden == ours["hidden"] and all(meta["config"].get(k) == v for k, v in ours.items()
+                                                  if k not in ROUND_SET)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
