@@ -208,3 +208,31 @@ def test_rounds_record_their_network_and_a_round_that_gains_little_widens_the_ne
     assert "hidden widths [16], not [40, 40]" in meta["history"]["warm_start"]["reason"]
     with h5py.File(db) as f:
         assert [r["hidden"] for r in json.loads(f.attrs["active_learning"])] == [[16], list(active.WIDTH_LADDER[0])]
+
+
+def test_an_earlier_run_is_recognised_by_its_rounds_data_and_options_not_by_what_rounds_set(tmp_path):
+    """``hmodel train`` continues a model whose JSON lists rounds, trained on --data (or its copy)
+    with the same options; the widths and --init-from that the rounds set do not count (round 0's
+    widths do), and a model without rounds (plain ``training.train``) is not an earlier run."""
+    from homogenization.cli import train as train_cli
+
+    db, model = tmp_path / "db.h5", tmp_path / "m.pt"
+    db.write_bytes(b"")
+    model.write_bytes(b"")
+    args = train_cli.build_parser().parse_args(["--data", str(db), "--out", str(model)])
+    config = training_train.config_record(training_train.config_of(args))
+    meta = {"training_data": {"path": str(db)}, "config": {**config, "hidden": [48, 48], "init_from": str(model)},
+            "active_learning": [{"round": 0, "hidden": config["hidden"]}]}
+
+    def continues(database=db, **changes) -> bool:
+        model.with_suffix(".json").write_text(json.dumps({k: v for k, v in {**meta, **changes}.items() if v is not None}))
+        return train_cli._continues(args, database)
+
+    assert continues()
+    copy = tmp_path / "m_db.h5"
+    assert continues(copy, training_data={"path": str(copy)})  # retrained on the copy beside the model
+    assert continues(copy)  # the copy is made, its first round not yet retrained
+    assert not continues(active_learning=[{"round": 0, "hidden": [16]}])
+    assert not continues(active_learning=None)
+    assert not continues(config={**meta["config"], "lr": 1e-4})
+    assert not continues(training_data={"path": str(tmp_path / "other.h5")})
