@@ -1,4 +1,4 @@
-"""python benchmarks/bench_ann.py [--model PATH] [--cells 360] [--repeats 1000]: ANN vs analytical increment, side by side.
+"""python benchmarks/bench_ann.py [--model PATH] [--cells 360] [--repeats 1000] [--widths W ...]: ANN vs analytical increment, side by side.
 
 Prints, on one torch thread and in one run (the machine is shared: the load average is
 printed with the numbers):
@@ -9,7 +9,9 @@ printed with the numbers):
    perceptron), interleaved, and their ratio; for the ANN also
    the torch autograd path without tangent (``MesoNet.advance`` under inference mode, the
    implementation before the compiled one), the network call alone
-   (``MesoNet.displacement``) and the step with its autograd tangent;
+   (``MesoNet.displacement``) and the step with its autograd tangent; with ``--widths``, in
+   the same interleaved loop, the step of networks of other hidden widths (the model's inputs,
+   random weights: the cost of a width, ``homogenization.active.WIDTH_LADDER``);
 2. unless ``--skip-run``: one JSON line per biaxial test (isotropic compression to p0, then
    constant-volume, and/or drained (``--tests``), shear to ``--eps-max``; ``reversal``:
    constant volume to eps1 = +``--reversal-strain``, then back to -``--reversal-strain``,
@@ -27,12 +29,18 @@ import json
 import os
 import time
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import torch
 
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.orientation import localise, orientations
+from training.checkpoint import load_checkpoint, save_checkpoint
+from training.network import MesoNet
+from training.train import hidden_widths
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import CellDefaults
@@ -62,6 +70,9 @@ def main() -> None:
                         help="reversal test: eps1 of the turn, then back to minus it [-]")
     parser.add_argument("--mesostructure", default=None,
                         help="mesostructure file: compare the ANN (--model trained on it) with the DEM")
+    parser.add_argument("--widths", nargs="+", type=hidden_widths, default=[],
+                        help="also time networks of these hidden widths (e.g. 48,48 40,40,40): --model's inputs, "
+                             "normalisation and schema, random weights (timing only: the active-learning ladder)")
     args = parser.parse_args()
     print(f"load average (1, 5, 15 min): {os.getloadavg()}")
     if args.mesostructure is None:
@@ -75,6 +86,10 @@ def main() -> None:
 def time_increments(args) -> None:
     """Median time of one H-cell increment of the analytical and the ANN backend, interleaved."""
     models = {"analytical": make_cell_model("analytical"), "ann": make_cell_model("ann", model=args.model, threads=1)}
+    scratch = tempfile.TemporaryDirectory()
+    for widths in args.widths:
+        models[f"ann {'x'.join(map(str, widths))}"] = make_cell_model(
+            "ann", model=_random_model(models["ann"].model_path, widths, Path(scratch.name)), threads=1)
     print(f"torch threads: {torch.get_num_threads()}")
     orient = orientations(args.cells)
     iso = localise(orient, np.array([2e-5, 2e-5, 0.0]))
@@ -102,6 +117,21 @@ def time_increments(args) -> None:
           f"with tangent {tangent_ms:.3f} ms); ratio ANN / analytical = {ms['ann'] / ms['analytical']:.2f} "
           f"(torch path {torch_ms / ms['analytical']:.2f})",
           flush=True)
+    for name in list(models)[2:]:
+        print(f"{name}: step {ms[name]:.3f} ms, ratio / analytical = {ms[name] / ms['analytical']:.2f}", flush=True)
+    scratch.cleanup()
+
+
+def _random_model(model: Path, widths: tuple[int, ...], folder: Path) -> Path:
+    """A model file of hidden ``widths`` with ``model``'s schema, active pairs and normalisation
+    and random weights (seed 0), for timing."""
+    net, meta = load_checkpoint(model)
+    torch.manual_seed(0)
+    wide = MesoNet(net.schema, net.active, widths, net.load_features)
+    wide.set_normalisation(net.feature_mean, net.feature_std, net.rate_mean, net.rate_std)
+    path = folder / f"{'x'.join(map(str, widths))}.pt"
+    save_checkpoint(path, wide, {k: v for k, v in meta.items() if k not in ("architecture", "normalisation")})
+    return path
 
 
 def _cases(args) -> list[dict]:

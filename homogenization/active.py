@@ -11,9 +11,10 @@ sample comes from (0: the generator), the probed start states go to the group ``
 and the root attr ``active_learning`` lists the rounds. Each (test, orientation) of a round is a
 path of its own (new ``path_id``), so training's split by path keeps a test's states together.
 
-The loop (``learn``): train (``training.train``; from scratch each round: training has no warm
-start), certify, and while the certificate fails and the budget (``ActiveSettings``: rounds,
-samples, seconds) is not spent, add a round and retrain. Every round is printed (samples added,
+The loop (``learn``): train (``training.train``; from random weights, or with
+``ActiveSettings.warm_start`` from the previous round's, ``--init-from``), certify, and while the
+certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds) is not spent,
+add a round and retrain. Every round is printed (samples added,
 certificate worst, seconds) and stored in the model's JSON under ``active_learning``.
 
 Layering: this module joins ``training`` and the DEM of ``warp_hcell``; neither imports it.
@@ -35,6 +36,7 @@ import numpy as np
 from homogenization import certificate
 from training import train as training_train
 from training.checkpoint import metadata_path
+from training.network import n_features
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
 from warp_hcell.core.provenance import file_sha256
@@ -52,6 +54,16 @@ ACTIVE_GROUP = "active_states"
 """Group of the database holding the start states of the active-learning probes."""
 
 
+WIDTH_LADDER: tuple[tuple[int, ...], ...] = ((40, 40), (48, 48))
+"""Hidden widths a round may move to, cheapest first: those whose step of 360 H-cells was
+measured no slower than the analytical step, the inference-speed bound of docs/ann.md (Speed),
+with ``benchmarks/bench_ann.py --widths`` (docs/certificate.md, "Network size"; 3 x 40 and
+2 x 56 exceeded it)."""
+WIDEN_BELOW_GAIN = 2.0
+"""A round whose certificate worst fell by less than this factor [-] from the round before
+gives the next round the next rung of ``WIDTH_LADDER`` (samples alone stopped helping)."""
+
+
 @dataclass(frozen=True)
 class ActiveSettings:
     """Budget and sampling of the active-learning loop (the single home of their defaults)."""
@@ -66,6 +78,12 @@ class ActiveSettings:
     """Wall time [s] after which no new round starts."""
     state_every: int = 10
     """Increments between two DEM states kept along a certificate test [-]."""
+    warm_start: bool = False
+    """Retrain each round from the previous round's weights (``training.train --init-from``)
+    instead of random weights (docs/certificate.md, "Warm start": measured no better)."""
+    widen: bool = True
+    """Let a round train a wider network (``next_widths``: the next rung of ``WIDTH_LADDER``)
+    when the round before it gained less than ``WIDEN_BELOW_GAIN``."""
 
     def __post_init__(self) -> None:
         for name in ("rounds", "samples_per_round", "max_samples", "state_every"):
@@ -202,14 +220,17 @@ def _current(cert: Mapping[str, Any] | None, model: Path, options: Mapping[str, 
 def _record(model: Path, rounds: list[dict[str, Any]], cert: Mapping[str, Any]) -> None:
     """Store the certificate and the rounds in the model's JSON."""
     certificate.write_certificate(model, dict(cert))
-    _write_rounds(model, rounds)
+    write_rounds(model, rounds)
 
 
 def round_line(entry: Mapping[str, Any]) -> str:
     """One line of a round's report."""
     return (f"active round {entry['round']}: +{entry['samples_added']} samples ({entry['samples_total']} in all), "
             f"certificate worst {100 * entry['worst']:.3f} % ({entry['worst_test']}), "
-            f"{'PASSED' if entry['passed'] else 'FAILED'}, {entry['seconds']:.1f} s")
+            f"{'PASSED' if entry['passed'] else 'FAILED'}, {entry['seconds']:.1f} s"
+            + (f" (training {'x'.join(map(str, entry['hidden']))}, {entry['epochs']} epochs"
+               f"{', warm start' if entry.get('warm_start') else ''})"
+               if "epochs" in entry else ""))
 
 
 def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveSettings = ActiveSettings(),
@@ -234,8 +255,9 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
     stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
     rounds = [r for r in meta.get("active_learning") or [] if r["round"] <= len(stored)]
     added_total = sum(r["samples"] for r in stored)
-    if meta["training_data"]["sha256"] != file_sha256(db):
-        train_model(db, model, train_args, rounds)  # a round was appended, its training did not finish
+    if meta["training_data"]["sha256"] != file_sha256(db):  # appended, not yet retrained
+        widths = tuple(stored[-1].get("hidden") or meta["architecture"]["hidden"])
+        train_model(db, model, _round_args(train_args, model, settings, widths), rounds)
     elif _current(meta.get("certificate"), model, options) and rounds and rounds[-1]["round"] == len(stored) and (
             meta["certificate"]["passed"] or len(stored) >= settings.rounds or added_total >= settings.max_samples):
         log(round_line(rounds[-1]) + " (done before)")
@@ -245,7 +267,7 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
     if not rounds or rounds[-1]["round"] != len(stored):
         rounds.append({"round": len(stored), "samples_added": stored[-1]["samples"] if stored else 0,
                        "samples_total": _n_samples(db), "worst": cert["worst"], "worst_test": cert["worst_test"],
-                       "passed": cert["passed"], "seconds": time.perf_counter() - t0})
+                       "passed": cert["passed"], "seconds": time.perf_counter() - t0, **training_record(model)})
         log(round_line(rounds[-1]))
     _record(model, rounds, cert)
     meso = from_description(str(_attrs(db)["mesostructure"]))
@@ -263,17 +285,61 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
             break
         attrs = _attrs(db)
         samples = probe_states(meso, picked, n, round_seed(seed, k), attrs, threads)
-        entry = append_samples(db, samples, picked, {"tests": names, "seed": round_seed(seed, k)})
+        widths = next_widths(rounds, model) if settings.widen else _architecture(model)[0]
+        entry = append_samples(db, samples, picked, {"tests": names, "seed": round_seed(seed, k),
+                                                     "hidden": list(widths)})
         stored.append(entry)
         added_total += entry["samples"]
-        train_model(db, model, train_args, rounds)
+        train_model(db, model, _round_args(train_args, model, settings, widths), rounds)
         cert, states = _certify(model, options, settings, threads)
         rounds.append({"round": k, "samples_added": entry["samples"], "samples_total": _n_samples(db),
                        "tests": names, "worst": cert["worst"], "worst_test": cert["worst_test"],
-                       "passed": cert["passed"], "seconds": time.perf_counter() - t0})
+                       "passed": cert["passed"], "seconds": time.perf_counter() - t0, **training_record(model)})
         log(round_line(rounds[-1]))
         _record(model, rounds, cert)
     return rounds
+
+
+def _round_args(train_args: Sequence[str], model: Path, settings: ActiveSettings, widths: Sequence[int]) -> list[str]:
+    """The training options of a round: ``train_args``, then its hidden ``widths`` and, with a
+    warm start, --init-from the model itself (the last of a repeated option counts)."""
+    return [*train_args, "--hidden", ",".join(map(str, widths)),
+            *(["--init-from", str(model)] if settings.warm_start else [])]
+
+
+def _architecture(model: Path) -> tuple[tuple[int, ...], int, int]:
+    """(hidden widths, inputs, outputs) of ``model`` (its JSON)."""
+    arch = json.loads(metadata_path(model).read_text())["architecture"]
+    n_free = int(arch["n_free"])
+    n_in = n_features(n_free, sum(arch["active_pairs"]), bool(arch.get("load_features", False)))
+    return tuple(arch["hidden"]), n_in, n_free + n_free**2
+
+
+def multiply_adds(widths: Sequence[int], n_in: int, n_out: int) -> int:
+    """Multiply-adds of one cell through a perceptron of hidden ``widths`` [-] (its cost per cell-step)."""
+    sizes = (n_in, *widths, n_out)
+    return sum(a * b for a, b in zip(sizes[:-1], sizes[1:]))
+
+
+def next_widths(rounds: Sequence[Mapping[str, Any]], model: Path) -> tuple[int, ...]:
+    """Hidden widths of the next round's network: ``model``'s, or, where the last round's
+    certificate worst fell by less than ``WIDEN_BELOW_GAIN`` from the round before it (two
+    rounds known), the first rung of ``WIDTH_LADDER`` that costs more multiply-adds than
+    ``model``'s network (none left: ``model``'s)."""
+    widths, n_in, n_out = _architecture(model)
+    if len(rounds) < 2 or rounds[-1]["worst"] * WIDEN_BELOW_GAIN <= rounds[-2]["worst"]:
+        return widths
+    cost = multiply_adds(widths, n_in, n_out)
+    return next((rung for rung in WIDTH_LADDER if multiply_adds(rung, n_in, n_out) > cost), widths)
+
+
+def training_record(model: Path) -> dict[str, Any]:
+    """What a round stores of its training (the model's JSON): ``hidden`` widths, ``epochs`` run,
+    ``train_seconds``, ``warm_start`` (whether it started from the previous weights; None: not asked)."""
+    meta = json.loads(metadata_path(model).read_text())
+    warm = meta["history"].get("warm_start")
+    return {"hidden": list(meta["architecture"]["hidden"]), "epochs": meta["history"]["epochs_run"],
+            "train_seconds": meta["history"]["seconds"], "warm_start": None if warm is None else bool(warm["used"])}
 
 
 def train_model(db: Path, model: Path, train_args: Sequence[str], rounds: list[dict[str, Any]]) -> None:
@@ -282,10 +348,10 @@ def train_model(db: Path, model: Path, train_args: Sequence[str], rounds: list[d
     code = training_train.main(["--data", str(db), "--out", str(model), "--overwrite", *train_args])
     if code:
         raise RuntimeError(f"training exited {code}")
-    _write_rounds(model, rounds)
+    write_rounds(model, rounds)
 
 
-def _write_rounds(model: Path, rounds: list[dict[str, Any]]) -> None:
+def write_rounds(model: Path, rounds: list[dict[str, Any]]) -> None:
     """Store ``rounds`` in the model's JSON under ``active_learning`` (atomically)."""
     path = metadata_path(model)
     meta = json.loads(path.read_text())

@@ -50,6 +50,7 @@ class ModelTable:
         self.sha256: dict[Path, str] = {}
         self.keyed: dict[str, Path] = {}
         self.bare: list[Path] = []
+        self._records: dict[Path | None, dict[str, Any]] = {}
         texts = {source.text: source for source in sources}
         for choice in choices or ():
             if not choice.path.is_file():
@@ -90,6 +91,16 @@ class ModelTable:
             raise UserError(f"--model {path} was trained on mesostructure {self.sha256[path][:12]}, not on "
                             f"{source.text} ({sha[:12]}; the hash covers the spec text: generate with the same)")
         return path
+
+    def record(self, path: Path | None) -> dict[str, Any]:
+        """What the run files of an ann case record of its model ``path`` (None: the installed
+        model): ``homogenization.backends.ann.model_record`` (sha256, certificate worst,
+        certified, the problem), computed once per file."""
+        from homogenization.backends.ann import model_record  # noqa: PLC0415 torch only for ann
+
+        if path not in self._records:
+            self._records[path] = model_record(path)
+        return self._records[path]
 
 
 @dataclass(frozen=True)
@@ -162,6 +173,7 @@ def plan(args: Any) -> tuple[list[Case], list[str]]:
                     case_alpha0 = plain[0] if plain is not None else (float("nan") if alpha0 is None else float(alpha0))
                     radius = plain[1] if plain is not None else CellDefaults.radius
                     model = models.for_case(source, meso, plain is not None) if backend == "ann" else None
+                    ann = {"ann_model": models.record(model)} if backend == "ann" else {}
                     parameters = {
                         "backend": backend,
                         "backend_options": ({"device": args.device} if backend in ("dem", "ann") else {})
@@ -176,6 +188,7 @@ def plan(args: Any) -> tuple[list[Case], list[str]]:
                         "n_grains": meso.n_grains, "erode_at": erode_at,
                         "eroded_grains": ([int(g) + 1 for g in np.flatnonzero(~meso.driven.any(axis=1))]
                                           if erode_at is not None else None),
+                        **ann,
                     }
                     name = f"{source.label}__a{case_alpha0:g}__p{p0:g}__{backend}"
                     options = {"threads": args.threads} if backend == "dem" else {}

@@ -2,6 +2,7 @@
 short certificate; one round adds the DEM states of the failing tests and repairs it."""
 
 import json
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -94,3 +95,144 @@ def test_hmodel_learn_writes_every_stage_resumes_and_refuses_other_options(tmp_p
     third = capsys.readouterr().out
     assert f"database: {out / 'db.h5'} (done before)" in third and "model: " not in third
     assert json.loads((out / "ann.json").read_text())["certificate"]["model_sha256"] == file_sha256(out / "ann.pt")
+
+
+TRAIN_CLI = [*TRAIN[:-1], "--orientations", "6", "--eps-max", "0.02", "--rounds", "1", "--samples-per-round", "3000"]
+"""``hmodel train`` with the training of TRAIN, a short certificate (both pressures) and one round."""
+
+
+def _source_counts(db) -> list[int]:
+    with h5py.File(db) as f:
+        return np.bincount(f["source_round"][()]).tolist() if "source_round" in f else [f["d_eps"].shape[0]]
+
+
+def test_hmodel_train_enriches_its_database_and_an_interrupted_run_continues(tmp_path, monkeypatch, capsys):
+    from dem_database import build
+    from homogenization.cli import hmodel
+
+    db = build(tmp_path / "db.h5", mesostructure=h_cell(55.0), precompression=(0.0, 2e-3), n_directions=6,
+               spacing=1e-2, leg_length=0.04, threads=1)
+    n_before = load_database(db).n_stored
+    model = tmp_path / "m.pt"
+    argv = ["train", "--data", str(db), "--out", str(model), *TRAIN_CLI]
+
+    def interrupted(*_args, **_kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(active, "train_model", interrupted)  # the retraining after the round's append
+    assert hmodel.main(argv) == 130  # Ctrl-C: one line, exit 130
+    first = capsys.readouterr().out
+    assert f"active learning adds its samples to {db}" in first and "active round 0:" in first
+    assert _source_counts(db) == [n_before, 3000]  # the round's samples are in, the model is not retrained
+    assert json.loads(model.with_suffix(".json").read_text())["training_data"]["sha256"] != file_sha256(db)
+
+    monkeypatch.undo()
+    assert hmodel.main(argv) == 0
+    second = capsys.readouterr().out
+    assert "an earlier run of these options, continued" in second and "active round 1: +3000 samples" in second
+    assert _source_counts(db) == [n_before, 3000]  # continued: no second append of round 1
+    meta = json.loads(model.with_suffix(".json").read_text())
+    assert meta["training_data"]["sha256"] == file_sha256(db) and meta["certificate"]["model_sha256"] == file_sha256(model)
+    assert [r["round"] for r in meta["active_learning"]] == [0, 1]
+    first_round, second_round = meta["active_learning"]
+    assert not first_round["passed"] and second_round["worst"] < first_round["worst"]
+
+    weights = model.read_bytes()
+    assert hmodel.main(argv) == 0  # a finished run: nothing is added or retrained
+    assert "(done before)" in capsys.readouterr().out and model.read_bytes() == weights
+    assert _source_counts(db) == [n_before, 3000]
+
+
+def test_hmodel_train_enriches_a_copy_where_the_database_is_not_writable(tmp_path, monkeypatch, capsys):
+    from dem_database import build
+    from homogenization.cli import hmodel, train as train_cli
+
+    db = build(tmp_path / "db.h5", mesostructure=h_cell(55.0), precompression=(0.0, 2e-3), n_directions=6,
+               spacing=1e-2, leg_length=0.04, threads=1)
+    sha = file_sha256(db)
+    args = train_cli.build_parser().parse_args(["--data", str(db), "--out", str(tmp_path / "m.pt")])
+    assert train_cli.enriched_path(args) == db
+    real_access = train_cli.os.access
+    monkeypatch.setattr(train_cli.os, "access", lambda path, mode: Path(path) != db and real_access(path, mode))
+    assert train_cli.enriched_path(args) == tmp_path / "m_db.h5"
+    monkeypatch.undo()
+
+    model = tmp_path / "c" / "m.pt"
+    argv = ["train", "--data", str(db), "--out", str(model), *TRAIN_CLI, "--max-samples", "1000", "--enrich-copy"]
+    assert hmodel.main(argv) == 0
+    printed = capsys.readouterr().out
+    copy = model.with_name("m_db.h5")
+    assert f"adds its samples to {copy} (a copy of {db}: --enrich-copy)" in printed
+    assert file_sha256(db) == sha and _source_counts(copy)[1:] == [1000]  # --max-samples caps the round
+    meta = json.loads(model.with_suffix(".json").read_text())
+    assert Path(meta["training_data"]["path"]) == copy and meta["training_data"]["sha256"] == file_sha256(copy)
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "m_db.h5").write_text("keep")
+    assert hmodel.main([*argv[:4], str(tmp_path / "d" / "m.pt"), *argv[5:]]) == 2  # never replaces an output
+    assert "exists; pass --overwrite" in capsys.readouterr().err and (tmp_path / "d" / "m_db.h5").read_text() == "keep"
+
+
+def test_hmodel_train_refuses_a_bad_budget_before_training(tmp_path, capsys):
+    from homogenization.cli import hmodel
+
+    assert hmodel.main(["train", "--data", str(tmp_path / "none.h5"), "--out", str(tmp_path / "m.pt"),
+                        "--rounds", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "rounds = -1 must be >= 0" in err[0] and not (tmp_path / "m.pt").exists()
+
+
+def test_multiply_adds_and_the_ladder_rule(tiny):
+    _, model = tiny  # TRAIN: --hidden 16, one layer of 16
+    assert active.multiply_adds((40, 40), 66, 20) == 66 * 40 + 40 * 40 + 40 * 20
+    assert active.WIDTH_LADDER[0] == (40, 40)  # the training default is the ladder's foot
+    slow, fast = [{"worst": 0.5}, {"worst": 0.4}], [{"worst": 0.5}, {"worst": 0.1}]
+    assert active.next_widths(slow[:1], model) == (16,)  # round 0 alone: samples first
+    assert active.next_widths(fast, model) == (16,)  # the round gained 5x: same network
+    assert active.next_widths(slow, model) == active.WIDTH_LADDER[0]  # gained 1.25x: the next rung
+
+
+def test_rounds_record_their_network_and_a_round_that_gains_little_widens_the_next(tiny, monkeypatch, capsys):
+    """With a warm start and a target no model meets, round 1 starts from round 0's weights; a
+    gain threshold no round meets makes round 2 train the ladder's next rung (from random weights:
+    another architecture), and every round records its widths."""
+    db, model = tiny
+    monkeypatch.setattr(active, "WIDEN_BELOW_GAIN", 1e9)
+    rounds = active.learn(db, model, TRAIN, settings=active.ActiveSettings(rounds=2, samples_per_round=1000,
+                                                                           warm_start=True),
+                          certify_options={**SHORT, "target": 1e-9})
+    assert [r["hidden"] for r in rounds] == [[16], [16], list(active.WIDTH_LADDER[0])]
+    assert [r["warm_start"] for r in rounds] == [None, True, False]
+    assert "(training 40x40, " in capsys.readouterr().out
+    meta = json.loads(model.with_suffix(".json").read_text())
+    assert meta["architecture"]["hidden"] == list(active.WIDTH_LADDER[0])
+    assert "hidden widths [16], not [40, 40]" in meta["history"]["warm_start"]["reason"]
+    with h5py.File(db) as f:
+        assert [r["hidden"] for r in json.loads(f.attrs["active_learning"])] == [[16], list(active.WIDTH_LADDER[0])]
+
+
+def test_an_earlier_run_is_recognised_by_its_rounds_data_and_options_not_by_what_rounds_set(tmp_path):
+    """``hmodel train`` continues a model whose JSON lists rounds, trained on --data (or its copy)
+    with the same options; the widths and --init-from that the rounds set do not count (round 0's
+    widths do), and a model without rounds (plain ``training.train``) is not an earlier run."""
+    from homogenization.cli import train as train_cli
+
+    db, model = tmp_path / "db.h5", tmp_path / "m.pt"
+    db.write_bytes(b"")
+    model.write_bytes(b"")
+    args = train_cli.build_parser().parse_args(["--data", str(db), "--out", str(model)])
+    config = training_train.config_record(training_train.config_of(args))
+    meta = {"training_data": {"path": str(db)}, "config": {**config, "hidden": [48, 48], "init_from": str(model)},
+            "active_learning": [{"round": 0, "hidden": config["hidden"]}]}
+
+    def continues(database=db, **changes) -> bool:
+        model.with_suffix(".json").write_text(json.dumps({k: v for k, v in {**meta, **changes}.items() if v is not None}))
+        return train_cli._continues(args, database)
+
+    assert continues()
+    copy = tmp_path / "m_db.h5"
+    assert continues(copy, training_data={"path": str(copy)})  # retrained on the copy beside the model
+    assert continues(copy)  # the copy is made, its first round not yet retrained
+    assert not continues(active_learning=[{"round": 0, "hidden": [16]}])
+    assert not continues(active_learning=None)
+    assert not continues(config={**meta["config"], "lr": 1e-4})
+    assert not continues(training_data={"path": str(tmp_path / "other.h5")})

@@ -349,3 +349,24 @@ def test_triaxial_data_need_an_alpha0_prior_above_45_deg(tmp_path, capsys):
     code = hmodel.main(["calibrate", "--data", str(data), "--params", "phi_g,alpha0", "--out", str(tmp_path / "out")])
     assert code == 2 and "alpha0 >= 45" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_an_ann_calibration_records_the_models_certificate_in_run_json(tmp_path):
+    """As biaxial's run.h5 does (``ann_model``): the installed model's sha256, its certificate's
+    worst figure and verdict, read from its own JSON (the shipped model fails its certificate)."""
+    from homogenization.backends.ann import certificate_problem, default_model_path
+    from training.checkpoint import read_metadata
+    from warp_hcell.core.provenance import file_sha256
+
+    data = write(tmp_path, "# test = undrained\n# p0 = 3e6\neps1,q\n0.004,1.1e6\n0.008,1.8e6\n", "u.csv")
+    assert run_main(calibrate.main, ["--data", str(data), "--params", "alpha0", "--backend", "ann", "--uncertified-ok",
+                                     "--walkers", "2", "--steps", "2", "--orientations", "4", "--increment", "4e-3",
+                                     "--iso-increment", "2e-3", "--confirm", "none", "-q",
+                                     "--out", str(tmp_path / "run")]) == 0
+    stored = json.loads((tmp_path / "run" / "run.json").read_text())["forward_model"]["ann_model"]
+    path = default_model_path()
+    meta = read_metadata(path)
+    assert stored["sha256"] == file_sha256(path) and stored["path"] == str(path.resolve())
+    assert stored["certificate_worst"] == meta["certificate"]["worst"] > 0
+    assert stored["certified"] is (certificate_problem(meta, path) is None)
+    assert stored["certificate_problem"] == certificate_problem(meta, path)

@@ -130,8 +130,8 @@ def test_certificate_command_writes_into_the_model_json(tmp_path, capsys):
 
 
 def test_hmodel_train_certifies_and_a_model_of_a_tiny_database_fails_and_is_refused(tmp_path, capsys):
-    """A few epochs on a small database (the issue's model known to fail): `hmodel train` writes
-    it with its failed certificate; the backend refuses it in one line."""
+    """A few epochs on a small database (the issue's model known to fail): `hmodel train --no-enrich`
+    writes it with its failed certificate; the backend refuses it in one line."""
     from dem_database import build
     from homogenization.cli import hmodel
     from warp_hcell.mesostructures.hcell import h_cell
@@ -140,9 +140,11 @@ def test_hmodel_train_certifies_and_a_model_of_a_tiny_database_fails_and_is_refu
                spacing=1e-2, leg_length=0.04, threads=1)
     model = tmp_path / "m.pt"
     assert hmodel.main(["train", "--data", str(db), "--out", str(model), "--epochs", "2", "--hidden", "8",
-                        "--threads", "1", "--no-rollout"]) == 0
+                        "--threads", "1", "--no-rollout", "--no-enrich"]) == 0
     printed = capsys.readouterr().out
-    cert = json.loads(model.with_suffix(".json").read_text())["certificate"]
+    meta = json.loads(model.with_suffix(".json").read_text())
+    cert = meta["certificate"]
+    assert "active round" not in printed and "active_learning" not in meta  # --no-enrich: certify only
     assert "FAILED" in printed and not cert["passed"] and cert["worst"] > certificate.TARGET
     assert cert["model_sha256"] == file_sha256(model) and len(cert["tests"]) == 3 * len(certificate.PRESSURES) + 1
     assert run_main(biaxial.main, [*RUN, "--model", str(model), "--out", str(tmp_path / "run")]) == 2

@@ -301,3 +301,30 @@ def test_a_remote_scheduler_gives_the_in_process_results(tmp_path):
         curve = Path(sweep.CASES_DIR) / row["case"] / io.CURVE_FILE
         assert (remote / curve).read_bytes() == (local / curve).read_bytes()
     assert [p.name for p in elsewhere.iterdir() if not p.name.startswith("dask-scratch")] == []
+
+
+def test_an_ann_case_records_its_models_certificate_in_run_h5(fines_models, tmp_path):
+    """As biaxial does (parameters' ``ann_model``): sha256, certificate worst, certified, the
+    problem; a certified copy of the model records its passed certificate (and a case folder of
+    the uncertified model is then another run: refused without --overwrite)."""
+    from homogenization import certificate as certification
+    from warp_hcell.core.provenance import file_sha256
+
+    spec = ANN_FINES[0]
+    model = tmp_path / "m.pt"
+    shutil.copy(fines_models[spec], model)
+    shutil.copy(fines_models[spec].with_suffix(".json"), model.with_suffix(".json"))
+    argv = ["--mesostructure", spec, "--backend", "ann", "--model", str(model), *ANN_SMALL]
+    out = tmp_path / "s"
+    assert cli([*argv, "--uncertified-ok", "--out", str(out)]) == 0
+    (row,) = sweep.read_summary(out / sweep.SUMMARY_FILE)
+    stored = io.read_run(out / sweep.CASES_DIR / row["case"] / "run.h5").attrs["parameters"]["ann_model"]
+    assert stored["sha256"] == file_sha256(model) and stored["certified"] is False
+    assert stored["certificate_worst"] is None and "uncertified" in stored["certificate_problem"]
+    certification.write_certificate(model, {"model_sha256": file_sha256(model), "passed": True, "worst": 0.0123,
+                                            "worst_test": "x", "target": 0.02})
+    assert cli([*argv, "--out", str(tmp_path / "c")]) == 0
+    (row,) = sweep.read_summary(tmp_path / "c" / sweep.SUMMARY_FILE)
+    stored = io.read_run(tmp_path / "c" / sweep.CASES_DIR / row["case"] / "run.h5").attrs["parameters"]["ann_model"]
+    assert stored["certified"] is True and stored["certificate_worst"] == 0.0123 and stored["certificate_problem"] is None
+    assert cli([*argv, "--out", str(out)]) == 2

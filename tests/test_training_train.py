@@ -104,3 +104,74 @@ def test_cli_refuses_to_overwrite_and_reports_bad_data_in_one_line(db_path, tmp_
     assert run(["--data", str(tmp_path / "none.h5"), "--out", str(tmp_path / "n.pt")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "exists" in err[0] and "no such database" in err[1]
+
+
+def test_reexpressed_weights_compute_the_same_function_in_another_normalisation(fitted):
+    """Warm start: the start model's layers re-expressed in the new training split's feature scaling
+    give the same displacements (to round-off), where copying them unchanged does not."""
+    from training.network import MesoNet
+    from training.train import reexpress
+
+    db, result = fitted
+    old = result.net
+    new = MesoNet(db.schema, old.active, old.hidden)
+    new.set_normalisation(old.feature_mean * 0.7 + 0.3, old.feature_std * 1.9, old.rate_mean - 0.2, old.rate_std * 0.6)
+    state = [torch.from_numpy(db.before[k][:500]) for k in ("cell_size", "free_position", "shear_force")]
+    d_eps = torch.from_numpy(db.d_eps[:500])
+    with torch.no_grad():
+        reference = old.displacement(*state, d_eps)
+        new.mlp.load_state_dict(old.mlp.state_dict())
+        copied = new.displacement(*state, d_eps)
+        new.mlp.load_state_dict(reexpress(old, new))
+        warm = new.displacement(*state, d_eps)
+    scale = reference.abs().max()
+    assert (copied - reference).abs().max() > 1e-2 * scale
+    assert (warm - reference).abs().max() < 1e-10 * scale
+
+
+def test_warm_start_begins_at_the_start_model_and_is_declined_for_another_architecture(db_path, tmp_path, capsys):
+    start = tmp_path / "start.pt"
+    argv = ["--data", str(db_path), "--epochs", "3", "--hidden", "8,8", "--threads", "1", "--no-rollout"]
+    assert main([*argv, "--out", str(start)]) == 0
+    previous, _ = load_checkpoint(start)
+    db = load_database(db_path)
+    frozen = fit(db, TrainConfig(hidden=(8, 8), epochs=1, lr=1e-300, threads=1, rollout=False, init_from=str(start)))
+    assert frozen.history["warm_start"] == {"from": str(start), "used": True, "reason": None}
+    state = [torch.from_numpy(db.before[k]) for k in ("cell_size", "free_position", "shear_force")]
+    with torch.no_grad():
+        a, b = (net.displacement(*state, torch.from_numpy(db.d_eps)) for net in (previous, frozen.net))
+    assert (a - b).abs().max() < 1e-10 * a.abs().max()  # a learning rate of 1e-300 keeps the start model
+    capsys.readouterr()
+    assert main([*argv, "--hidden", "9,8", "--init-from", str(start), "--out", str(tmp_path / "w.pt")]) == 0
+    meta = json.loads((tmp_path / "w.json").read_text())
+    assert meta["history"]["warm_start"]["used"] is False and "hidden widths [8, 8]" in meta["history"]["warm_start"]["reason"]
+    assert meta["config"]["init_from"] == str(start)
+    assert f"warm start from {start} declined: hidden widths [8, 8]" in capsys.readouterr().out
+    assert run([*argv, "--init-from", str(tmp_path / "none.pt"), "--out", str(tmp_path / "x.pt")]) == 2
+    assert "--init-from" in capsys.readouterr().err and not (tmp_path / "x.pt").exists()
+
+
+def test_a_split_by_round_keeps_every_earlier_path_in_its_set(db_path):
+    """Appending a round's paths moves no earlier path to another set (a warm start never
+    validates on its start model's training paths); without rounds it is the usual split."""
+    import dataclasses
+
+    import numpy as np
+
+    from training.dataset import split_by_path
+
+    db = load_database(db_path)
+    options = {"val_fraction": 0.2, "test_fraction": 0.1, "seed": 3}
+    plain, by_round = split_by_path(db, **options), split_by_path(db, **options, by_round=True)
+    for name in ("train", "val", "test"):
+        np.testing.assert_array_equal(getattr(plain, name), getattr(by_round, name))
+    n = db.path_id.size
+    grown = dataclasses.replace(db, path_id=np.concatenate([db.path_id, db.path_id.max() + 1 + np.arange(n) // 10]),
+                                source_round=np.concatenate([db.source_round, np.ones(n, np.int64)]))
+    after = split_by_path(grown, **options, by_round=True)
+    for name in ("train", "val", "test"):
+        kept = getattr(after, name)
+        np.testing.assert_array_equal(kept[kept < n], getattr(plain, name))
+        assert np.any(kept >= n)  # the round's paths are split too
+    moved = split_by_path(grown, **options)
+    assert not np.array_equal(moved.val[moved.val < n], plain.val)  # one permutation of all paths moves them

@@ -64,6 +64,9 @@ class Database:
         perturbed: bool (n,).
         mechanism: bool (n,).
         path_id: int (n,).
+        source_round: int (n,), the active-learning round of each sample (the file's
+            ``source_round``: 0 the generator, k round k; zeros where the file has none).
+        row: int (n,), each sample's row in the file (appends keep the rows before them).
         schema_arrays: the ``schema`` group (numpy), enough to rebuild the cell.
         schema: the same as a ``CellSchema`` with the contact law of the file.
         mesostructure: JSON description stored in the file.
@@ -90,6 +93,8 @@ class Database:
     perturbed: np.ndarray
     mechanism: np.ndarray
     path_id: np.ndarray
+    source_round: np.ndarray
+    row: np.ndarray
     schema_arrays: dict
     schema: CellSchema
     mesostructure: str
@@ -147,6 +152,8 @@ def load_database(path: str | Path) -> Database:
             flags = {k: np.array(handle[k], dtype=bool) for k in ("perturbed", "mechanism", "converged")}
             valid = np.array(handle["valid"], dtype=bool) if "valid" in handle else np.ones(d_eps.shape[0], bool)
             path_id = np.array(handle["path_id"], dtype=np.int64)
+            source_round = (np.array(handle["source_round"], dtype=np.int64) if "source_round" in handle
+                            else np.zeros(d_eps.shape[0], np.int64))
             kn = float(attrs["kn"])
             kt = float(attrs["kt"])
             phi_g_deg = float(attrs["phi_g_deg"])
@@ -176,6 +183,7 @@ def load_database(path: str | Path) -> Database:
         before={k: v[keep] for k, v in before.items()}, after_free_position=after_free[keep],
         after_contact=after_contact[keep], before_contact=before_contact[keep], d_eps=d_eps[keep],
         perturbed=flags["perturbed"][keep], mechanism=flags["mechanism"][keep], path_id=path_id[keep],
+        source_round=source_round[keep], row=np.flatnonzero(keep),
         schema_arrays=schema_arrays, schema=schema, mesostructure=text, mesostructure_sha256=digest,
         start_mesostructures=starts, kn=kn,
         kt_over_kn=kt / kn, phi_g_deg=phi_g_deg, contact_tolerance=tolerance, sha256=file_sha256(path),
@@ -192,19 +200,41 @@ class Split:
     test: np.ndarray
 
 
-def split_by_path(db: Database, *, val_fraction: float, test_fraction: float, seed: int) -> Split:
+def split_by_path(db: Database, *, val_fraction: float, test_fraction: float, seed: int,
+                  by_round: bool = False) -> Split:
     """Split whole paths (never samples): ``test_fraction`` of the paths to test, then
-    ``val_fraction`` of the rest to validation, the remainder to training."""
-    paths = np.unique(db.path_id)
-    rng = np.random.default_rng(seed)
+    ``val_fraction`` of the rest to validation, the remainder to training.
+
+    ``by_round``: the paths of each ``source_round`` are split on their own (round 0 as the
+    whole file is split without it, round k with the seed [seed, k]; a round with too few paths
+    for a test or validation path goes to training), so appending a round moves no earlier
+    path to another set: a warm start (``training.train``, ``TrainConfig.init_from``) then never
+    validates on paths its start model was trained on. Without ``by_round`` all paths are
+    drawn in one permutation.
+    """
+    if not by_round:
+        test, val = _held_out(np.unique(db.path_id), val_fraction, test_fraction, np.random.default_rng(seed), db.source)
+    else:
+        parts = [_held_out(np.unique(db.path_id[db.source_round == k]), val_fraction, test_fraction,
+                           np.random.default_rng(seed if k == 0 else [seed, int(k)]), db.source, strict=k == 0)
+                 for k in np.unique(db.source_round)]
+        test, val = (np.concatenate([part[i] for part in parts]) for i in (0, 1))
+    in_test, in_val = np.isin(db.path_id, test), np.isin(db.path_id, val)
+    return Split(np.flatnonzero(~in_test & ~in_val), np.flatnonzero(in_val), np.flatnonzero(in_test))
+
+
+def _held_out(paths: np.ndarray, val_fraction: float, test_fraction: float, rng: np.random.Generator, source: str,
+              strict: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(test, validation) path ids drawn from ``paths``; ``strict``: DataError where no path is
+    left for training or validation."""
     order = rng.permutation(paths)
     n_test = int(round(test_fraction * paths.size))
     n_val = int(round(val_fraction * (paths.size - n_test)))
     if paths.size - n_test - n_val < 1 or n_val < 1:
-        raise DataError(f"{db.source}: {paths.size} paths are too few to split into training, validation and test")
-    test, val = order[:n_test], order[n_test:n_test + n_val]
-    in_test, in_val = np.isin(db.path_id, test), np.isin(db.path_id, val)
-    return Split(np.flatnonzero(~in_test & ~in_val), np.flatnonzero(in_val), np.flatnonzero(in_test))
+        if strict:
+            raise DataError(f"{source}: {paths.size} paths are too few to split into training, validation and test")
+        return order[:0], order[:0]
+    return order[:n_test], order[n_test:n_test + n_val]
 
 
 @dataclass(frozen=True)

@@ -168,7 +168,7 @@ def index_for_model(net: MesoNet, config: dict, db: Database) -> OodIndex:
     from training.dataset import split_by_path  # noqa: PLC0415
 
     split = split_by_path(db, val_fraction=config["val_fraction"], test_fraction=config["test_fraction"],
-                          seed=config["seed"])
+                          seed=config["seed"], by_round=config.get("init_from") is not None)
     return build_index(net, db, split.train, split.test, seed=config["seed"])
 
 

@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from training import cell_physics
-from training.checkpoint import save_checkpoint
+from training.checkpoint import load_checkpoint, save_checkpoint
 from training.dataset import (
     Database,
     DataError,
@@ -107,6 +107,9 @@ class TrainConfig:
     """torch device of the training."""
     rollout: bool = True
     """Measure the rollout error along held-out DEM paths after training."""
+    init_from: str | None = None
+    """Model (.pt) whose weights start the training (warm start), None: random weights
+    (``warm_start``). Also splits the database by round (``split_by_path(by_round=True)``)."""
 
     def __post_init__(self) -> None:
         for name in ("epochs", "batch_size", "lr_patience", "patience", "threads"):
@@ -176,12 +179,14 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = F
     torch.set_num_threads(config.threads)
     torch.use_deterministic_algorithms(True)
     torch.manual_seed(config.seed)
-    split = split_by_path(db, val_fraction=config.val_fraction, test_fraction=config.test_fraction, seed=config.seed)
+    split = split_by_path(db, val_fraction=config.val_fraction, test_fraction=config.test_fraction, seed=config.seed,
+                          by_round=config.init_from is not None)
     active = active_pairs(db, split.train)
     train, val = (tensors(db, index, active, config.load_features) for index in (split.train, split.val))
     norm = fit_normalisation(db, train, split.train)
     net = MesoNet(db.schema, torch.from_numpy(active), config.hidden, config.load_features)
     net.set_normalisation(norm.feature_mean, norm.feature_std, norm.rate_mean, norm.rate_std)
+    warm = warm_start(net, db, config.init_from) if config.init_from is not None else None
     weight = torch.where(sliding_light(net, train), config.sliding_weight, 1.0)[:, None]
     optimiser = torch.optim.Adam(net.parameters(), lr=config.lr)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=config.lr_patience)
@@ -214,7 +219,56 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: bool = F
     net.load_state_dict(best_state)
     history["best_epoch"] = best_epoch
     history["seconds"] = time.perf_counter() - start
+    history["warm_start"] = warm
     return FitResult(net.eval(), history, split, norm)
+
+
+def warm_start(net: MesoNet, db: Database, path: str) -> dict:
+    """Start ``net`` (random weights, normalisation of its training split set) from the weights
+    of model ``path``; returns ``{"from": path, "used": bool, "reason": str | None}``.
+
+    The feature scaling is the new training split's (recomputed, as for a model trained from
+    scratch: the out-of-distribution index and the backend z-score with the network's own
+    statistics), and the start model's first and last layers are re-expressed in it
+    (``reexpress``), so that ``net`` starts as the very function of the start model. Declined
+    (``used`` False, random weights kept, ``reason`` says why) where the start model has another
+    mesostructure, hidden widths, load features or active pairs, or where its split cannot be
+    kept: a model trained without a warm start on a database that already held active-learning
+    rounds was split in one permutation, whose validation and test paths the split by round
+    (``split_by_path``) would partly train on.
+    """
+    previous, meta = load_checkpoint(path)
+    before = db.row < int(meta["training_data"]["n_stored"])
+    checks = (
+        (meta["mesostructure_sha256"] == db.mesostructure_sha256, "another mesostructure"),
+        (previous.hidden == net.hidden, f"hidden widths {list(previous.hidden)}, not {list(net.hidden)}"),
+        (previous.load_features == net.load_features, "another load-features setting"),
+        (torch.equal(previous.active, net.active), "other active pairs (the new samples touch other pairs)"),
+        (meta["config"].get("init_from") is not None or not np.any(db.source_round[before] > 0),
+         "its split cannot be kept (trained from scratch on a database with active-learning rounds)"),
+    )
+    reason = next((why for ok, why in checks if not ok), None)
+    if reason is None:
+        net.mlp.load_state_dict(reexpress(previous, net))
+    return {"from": str(path), "used": reason is None, "reason": reason}
+
+
+def reexpress(previous: MesoNet, net: MesoNet) -> dict[str, torch.Tensor]:
+    """``previous.mlp``'s weights in ``net``'s normalisation (same architecture): with
+    z = (x - m) / s the first layer W z_old + b = W diag(s_new / s_old) z_new + W (m_new - m_old) / s_old + b,
+    and the rate rows of the last layer (rate = out * rate_std + rate_mean) are scaled by
+    rate_std_old / rate_std_new and shifted by (rate_mean_old - rate_mean_new) / rate_std_new;
+    the compliance rows are unscaled. Returns a state_dict for ``net.mlp``."""
+    state = {k: v.detach().clone() for k, v in previous.mlp.state_dict().items()}
+    linear = [name for name, module in previous.mlp.named_children() if isinstance(module, torch.nn.Linear)]
+    first, last, n = linear[0], linear[-1], net.n_free
+    w = state[f"{first}.weight"]
+    state[f"{first}.bias"] = state[f"{first}.bias"] + w @ ((net.feature_mean - previous.feature_mean) / previous.feature_std)
+    state[f"{first}.weight"] = w * (net.feature_std / previous.feature_std)[None, :]
+    ratio = previous.rate_std / net.rate_std
+    state[f"{last}.weight"][:n] *= ratio[:, None]
+    state[f"{last}.bias"][:n] = state[f"{last}.bias"][:n] * ratio + (previous.rate_mean - net.rate_mean) / net.rate_std
+    return state
 
 
 def r2(prediction: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -314,7 +368,29 @@ def build_parser() -> argparse.ArgumentParser:
                    help="loss weight of samples with a sliding contact beside a lightly loaded one")
     p.add_argument("--threads", type=_positive(int), default=d.threads, help="torch CPU threads")
     p.add_argument("--no-rollout", action="store_true", help="skip the rollout error along held-out DEM paths")
+    p.add_argument("--init-from", type=Path, default=None,
+                   help="warm start: begin from this model's weights (same architecture; the database split by round)")
     return p
+
+
+def config_of(args: argparse.Namespace) -> TrainConfig:
+    """The ``TrainConfig`` of parsed ``build_parser`` flags."""
+    return TrainConfig(hidden=args.hidden, load_features=args.load_features, sliding_weight=args.sliding_weight,
+                       epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, patience=args.patience,
+                       seed=args.seed, threads=args.threads, device=args.device, rollout=not args.no_rollout,
+                       init_from=None if args.init_from is None else str(args.init_from))
+
+
+def config_record(config: TrainConfig) -> dict:
+    """``config`` as the model's JSON stores it (``"config"``: tuples as lists)."""
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
+
+
+def _warm_line(warm: dict) -> str:
+    """The summary line of a warm start."""
+    if warm["used"]:
+        return f"warm start from {warm['from']} (feature scaling recomputed, weights re-expressed in it)"
+    return f"warm start from {warm['from']} declined: {warm['reason']}; trained from random weights"
 
 
 def _format_r2(metrics: dict) -> str:
@@ -332,6 +408,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise DataError(f"{out} (or its .json/.png) exists; pass --overwrite to replace it")
     if out.is_dir():
         raise DataError(f"--out {out} is a folder; give a file name")
+    if args.init_from is not None and not args.init_from.is_file():
+        raise DataError(f"--init-from {args.init_from}: no such model file")
     check_output_path(out, overwrite=True)  # writable, checked before training
     with output_lock(out):
         return _train(args, out, curve, argv)
@@ -339,9 +417,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str] | None) -> int:
     """Train, evaluate and write the model of ``main`` (holding the output lock)."""
-    config = TrainConfig(hidden=args.hidden, load_features=args.load_features, sliding_weight=args.sliding_weight, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
-                         patience=args.patience, seed=args.seed, threads=args.threads, device=args.device,
-                         rollout=not args.no_rollout)
+    config = config_of(args)
     db = load_database(args.data)
     if config.rollout and not args.verbose:
         quiet_warp()  # the rollout runs the DEM on the cpu
@@ -364,11 +440,12 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
                           "n_jumps_dropped": db.n_jumps, "n_perturbed": int(db.perturbed.sum()),
                           "n_mechanism": int(db.mechanism.sum()), "n_train": int(split.train.size),
                           "n_val": int(split.val.size), "n_test": int(split.test.size)},
-        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()},
+        "config": config_record(config),
         "metrics_r2": metrics,
         "rollout": rollout,
         "history": {"best_epoch": result.history["best_epoch"], "seconds": result.history["seconds"],
-                    "epochs_run": len(result.history["epoch"]), "best_val_loss": min(result.history["val_loss"])},
+                    "epochs_run": len(result.history["epoch"]), "best_val_loss": min(result.history["val_loss"]),
+                    "warm_start": result.history["warm_start"]},
         "versions": {"python": platform.python_version(), "torch": torch.__version__, "numpy": np.__version__,
                      "git_revision": git_revision()},
         "command": "python -m training.train " + " ".join(sys.argv[1:] if argv is None else argv),
@@ -379,7 +456,8 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
     say(f"trained {len(result.history['epoch'])} epochs in {result.history['seconds']:.1f} s "
         f"(best epoch {result.history['best_epoch']}); samples train/val/test = "
         f"{split.train.size}/{split.val.size}/{split.test.size}",
-        *(f"R^2 {name:>4}: {_format_r2(metrics[name])}" for name in ("val", "test")))
+        *(f"R^2 {name:>4}: {_format_r2(metrics[name])}" for name in ("val", "test")),
+        *([] if result.history["warm_start"] is None else [_warm_line(result.history["warm_start"])]))
     if rollout is not None:
         say(*(f"rollout error ({key}): max {value['max']:.4f}, median {value['median']:.4f} of the path's largest |S|"
               for key, value in rollout.items() if key.startswith("increment_")))

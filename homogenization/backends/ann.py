@@ -105,6 +105,24 @@ def certificate_problem(metadata: dict[str, Any], path: Path) -> str | None:
     return None
 
 
+def model_record(path: Path | None, metadata: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What a run file records of ANN model ``path`` (None: the installed model): ``path``
+    (resolved), ``sha256`` of the ``.pt``, ``certificate_worst`` (the certificate's worst figure,
+    a fraction of the scale; None uncertified), ``certified`` (``certificate_problem`` is None)
+    and ``certificate_problem`` (its line, or None). ``metadata``: the model's JSON, read from
+    beside ``path`` when None."""
+    path = (default_model_path() if path is None else Path(path)).resolve()
+    if metadata is None:
+        from training.checkpoint import read_metadata  # noqa: PLC0415
+
+        metadata = read_metadata(path)
+    problem = certificate_problem(metadata, path)
+    cert = metadata.get("certificate")
+    return {"path": str(path), "sha256": file_sha256(path),
+            "certificate_worst": cert.get("worst") if isinstance(cert, dict) else None,
+            "certified": problem is None, "certificate_problem": problem}
+
+
 class AnnState(NamedTuple):
     """Batch of generic ANN cells (first axis n_cells)."""
 

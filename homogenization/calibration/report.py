@@ -177,6 +177,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
         "forward_model": {
             "settings": config["forward"], "noise": args.noise,
             "evaluations": log_post.n_calls, "failed": log_post.n_failed, "fallbacks": log_post.n_fallback,
+            **_ann_model(config["forward"]["backend"]),
         },
         "maximum_a_posteriori": {n: float(v) for n, v in zip(prior.names, best)},
         "misfit_rms_over_sigma": {"forward_at_mean": misfit(tests, mean_curves, args.noise),
@@ -192,6 +193,16 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
                 out / "fits.png")
     write_json(out / "run.json", {"posterior": summary, **run})
     return {"posterior": summary, **run}
+
+
+def _ann_model(backend: str) -> dict[str, Any]:
+    """``{"ann_model": ...}``, the installed model's record (sha256, certificate worst, certified,
+    the problem; ``homogenization.backends.ann.model_record``), for the ann backend; else {}."""
+    if backend != "ann":
+        return {}
+    from homogenization.backends.ann import model_record  # noqa: PLC0415 (torch: ann only)
+
+    return {"ann_model": model_record(None)}
 
 
 def summary_lines(result: Mapping[str, Any]) -> list[str]:

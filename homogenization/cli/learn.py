@@ -27,11 +27,11 @@ from pathlib import Path
 from typing import Sequence
 
 from homogenization import active, certificate
-from homogenization.cli.options import add_orientations_argument, add_threads_argument, command_parser
+from homogenization.cli.options import active_settings, add_active_arguments, add_threads_argument, certify_options, command_parser
 from training.checkpoint import metadata_path
 from training import train as training_train
 from training.network import DEFAULT_HIDDEN
-from warp_hcell.core.cli import positive_float, positive_int, quiet_warp, say, set_verbosity, UserError
+from warp_hcell.core.cli import positive_int, quiet_warp, say, set_verbosity, UserError
 from warp_hcell.core.files import atomic_write, output_lock
 from warp_hcell.core.parameters import DatabaseSettings
 from warp_hcell.core.provenance import file_sha256
@@ -44,26 +44,17 @@ from warp_hcell.mesostructures.mesostructure import MesostructureError
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Parser of ``hmodel learn`` (budget defaults from ``ActiveSettings``, database from ``DatabaseSettings``)."""
-    budget, db = active.ActiveSettings(), DatabaseSettings()
+    """Parser of ``hmodel learn`` (budget and certificate flags ``add_active_arguments``, database from ``DatabaseSettings``)."""
+    db = DatabaseSettings()
     parser = command_parser("homogenization.learn", "Database, meso-ANN, certificate and active-learning rounds "
                             "of one mesostructure (docs/certificate.md).")
     parser.add_argument("--mesostructure", type=mesostructure_arg, required=True, help=MESOSTRUCTURE_HELP)
     parser.add_argument("--out", type=Path, required=True, help="folder of db.h5, ann.pt/.json, certificate.png")
     parser.add_argument("--samples", type=positive_int, default=db.samples, help="samples of the generated database")
-    parser.add_argument("--rounds", type=int, default=budget.rounds, help="active-learning rounds at most (0: none)")
-    parser.add_argument("--samples-per-round", type=positive_int, default=budget.samples_per_round,
-                        help="samples added per round")
-    parser.add_argument("--max-samples", type=positive_int, default=budget.max_samples,
-                        help="samples added over all rounds at most")
-    parser.add_argument("--max-seconds", type=positive_float, default=budget.max_seconds,
-                        help="wall time [s] after which no new round starts")
     parser.add_argument("--hidden", type=training_train.hidden_widths, default=DEFAULT_HIDDEN,
                         help="hidden widths of the network, comma separated")
     parser.add_argument("--epochs", type=positive_int, default=None, help="maximum training epochs (training's default)")
-    add_orientations_argument(parser, certificate.N_ORIENTATIONS, "cell orientations per certificate test")
-    parser.add_argument("--eps-max", type=positive_float, default=certificate.EPS_MAX,
-                        help="axial strain of each certificate shear stage [-]")
+    add_active_arguments(parser)
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
     add_threads_argument(parser, "DEM and torch CPU threads", 1)
     return parser
@@ -80,9 +71,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (bad input: one line, 2, before any work)."""
     args = build_parser().parse_args(argv)
     set_verbosity(args)
+    budget = active_settings(args)
     try:
-        budget = active.ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
-                                       max_samples=args.max_samples, max_seconds=args.max_seconds)
         settings = DatabaseSettings(samples=args.samples)
         meso = args.mesostructure.build()
     except (ValueError, MesostructureError) as exc:
@@ -143,8 +133,7 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
     else:
         active.train_model(db, model, train_args, [])
     rounds = active.learn(db, model, train_args, settings=budget, seed=args.seed, threads=args.threads, log=say,
-                          certify_options={"n_orientations": args.orientations, "eps_max": args.eps_max,
-                                           "rollout": not args.no_rollout})
+                          certify_options=certify_options(args))
     cert = json.loads(meta.read_text())["certificate"]
     stamp = out / "certificate.png.sha256"
     if figure.is_file() and stamp.is_file() and stamp.read_text().strip() == cert["model_sha256"]:

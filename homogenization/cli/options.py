@@ -13,13 +13,19 @@
   help_text, default)``: --orientations and --threads, the flags of that name of every command;
 - ``add_uncertified_argument(parser)`` and ``refuse_uncertified(model, args)``: --uncertified-ok,
   and the refusal (one line, exit 2) of an ANN model without a passed certificate of its own
-  ``.pt`` (docs/certificate.md); ``certificate_note(model)`` is the line a run summary prints.
+  ``.pt`` (docs/certificate.md); ``certificate_note(model)`` is the line a run summary prints;
+- ``add_active_arguments(parser)``: the budget of the active-learning rounds (--rounds,
+  --samples-per-round, --max-samples, --max-seconds, --warm-start, --widen; defaults from
+  ``homogenization.active.ActiveSettings``) and the certificate's --orientations and --eps-max,
+  read back with ``active_settings(args)`` and ``certify_options(args)`` (``hmodel learn`` and
+  ``hmodel train``).
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from homogenization.backends import BACKENDS
 from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
@@ -134,3 +140,42 @@ def certificate_note(model: object) -> str:
     worst = (f", worst {100 * cert['worst']:.3g} %" if isinstance(cert, dict) and "worst" in cert and "worst" not in problem
              else "")
     return f", UNCERTIFIED ({problem.split(': ', 1)[-1]}{worst}; --uncertified-ok)"
+
+
+def add_active_arguments(parser: argparse.ArgumentParser) -> None:
+    """The budget of the active-learning rounds (defaults ``ActiveSettings``) and the
+    certificate's --orientations and --eps-max (defaults ``homogenization.certificate``)."""
+    from homogenization import active, certificate  # noqa: PLC0415 (torch: only the commands that learn)
+
+    budget = active.ActiveSettings()
+    parser.add_argument("--rounds", type=int, default=budget.rounds, help="active-learning rounds at most (0: none)")
+    parser.add_argument("--samples-per-round", type=positive_int, default=budget.samples_per_round,
+                        help="samples added per round")
+    parser.add_argument("--max-samples", type=positive_int, default=budget.max_samples,
+                        help="samples added over all rounds at most")
+    parser.add_argument("--max-seconds", type=positive_float, default=budget.max_seconds,
+                        help="wall time [s] after which no new round starts")
+    parser.add_argument("--warm-start", action=argparse.BooleanOptionalAction, default=budget.warm_start,
+                        help="retrain each round from the previous round's weights")
+    parser.add_argument("--widen", action=argparse.BooleanOptionalAction, default=budget.widen,
+                        help="let a round that gained little give the next a wider network (WIDTH_LADDER)")
+    add_orientations_argument(parser, certificate.N_ORIENTATIONS, "cell orientations per certificate test")
+    parser.add_argument("--eps-max", type=positive_float, default=certificate.EPS_MAX,
+                        help="axial strain of each certificate shear stage [-]")
+
+
+def active_settings(args: argparse.Namespace):
+    """The ``ActiveSettings`` of the flags of ``add_active_arguments`` (UserError, one line, if invalid)."""
+    from homogenization import active  # noqa: PLC0415
+
+    try:
+        return active.ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
+                                     max_samples=args.max_samples, max_seconds=args.max_seconds,
+                                     warm_start=args.warm_start, widen=args.widen)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+
+
+def certify_options(args: argparse.Namespace) -> dict[str, Any]:
+    """``certificate.certify`` keywords of the flags of ``add_active_arguments`` and --no-rollout."""
+    return {"n_orientations": args.orientations, "eps_max": args.eps_max, "rollout": not args.no_rollout}

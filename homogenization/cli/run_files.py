@@ -33,7 +33,6 @@ from homogenization.driver import Record
 from warp_hcell.core.cli import quiet_warp, UserError, writing_to
 from warp_hcell.core.files import check_output_path
 from warp_hcell.core.parameters import ContactLaw
-from warp_hcell.core.provenance import file_sha256
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 
@@ -162,16 +161,9 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
     if hasattr(model, "threads"):
         record["dem_threads"] = int(model.threads)
     if name == "ann":
-        path = getattr(model, "model_path", None) or options.get("model")
-        if path is None:
-            from homogenization.backends.ann import default_model_path  # noqa: PLC0415
+        from homogenization.backends.ann import model_record  # noqa: PLC0415
 
-            path = default_model_path()
-        path = Path(path).resolve()
-        record["ann_model"] = {"path": str(path), "sha256": file_sha256(path),
-                               "certificate_worst": (model.certificate or {}).get("worst"),
-                               "certified": model.certificate_problem is None,
-                               "certificate_problem": model.certificate_problem}
+        record["ann_model"] = model_record(getattr(model, "model_path", None) or options.get("model"), model.metadata)
         if model.ood is not None:
             record["ann_model"]["ood"] = {"checked": int(model.ood_counts[1]), "outside": int(model.ood_counts[0]),
                                           "threshold": model.ood.threshold}

@@ -1,11 +1,24 @@
-"""hmodel train --data db.h5 --out model.pt [--no-certify] [training options]
+"""hmodel train --data db.h5 --out model.pt [--no-enrich | --no-certify] [budget flags] [training options]
 
 (also ``python -m homogenization.train``.) Trains the meso-ANN (``training.train``, the same
-options and output), then, unless --no-certify, measures the model against the DEM of its
-mesostructure (``homogenization.certificate``, docs/certificate.md) and writes the certificate
-into the model's JSON, so that the ANN backend accepts a model that passed. A model that fails
-is written all the same, with its failed certificate (exit 0: a failed certificate is a
-result; the backend then refuses the model unless --uncertified-ok).
+options and output), then measures the model against the DEM of its mesostructure
+(``homogenization.certificate``, docs/certificate.md) and writes the certificate into the
+model's JSON, so that the ANN backend accepts a model that passed. When the certificate fails,
+the active-learning rounds of ``homogenization.active`` follow (the budget flags and defaults
+of ``hmodel learn``, ``homogenization.cli.options.add_active_arguments``): the DEM states of the
+failing tests are probed, their samples appended to the database, the model retrained and
+certified again, one line per round. The samples go into --data itself, or, where that file
+or its folder is not writable or with --enrich-copy, into a copy of it beside the model
+(``MODEL_db.h5``, ``enriched_path``); the output says which.
+
+Resumable: a second call with the same options on a model whose JSON records active-learning
+rounds (an interrupted or finished run of this command) continues that run instead of training
+again (``active.learn``: the database's appends are atomic and list the rounds, so no round is
+added twice); without such a record an existing model is refused unless --overwrite.
+
+--no-enrich (or --rounds 0) certifies only; --no-certify leaves the model uncertified. A model
+that fails is written all the same, with its failed certificate (exit 0: a failed certificate
+is a result; the backend then refuses the model unless --uncertified-ok).
 
 Training lives in ``training/``, which never imports ``homogenization``, where the driver and
 the DEM backend of the certificate are; this command joins the two. ``python -m
@@ -15,30 +28,122 @@ training.train`` alone leaves the model uncertified and says how to certify it.
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import shutil
 import sys
+from pathlib import Path
 from typing import Sequence
 
-from homogenization import certificate
+from homogenization import active, certificate
+from homogenization.cli.options import active_settings, add_active_arguments, certify_options
 from training import train as training_train
-from warp_hcell.core.cli import command_prog, say
+from training.checkpoint import metadata_path
+from warp_hcell.core.cli import UserError, command_prog, quiet_warp, say, set_verbosity
+from warp_hcell.core.files import atomic_write, output_lock
+
+ENRICHED_SUFFIX = "_db.h5"
+"""Name ending of the enriched copy of the database beside the model (``enriched_path``)."""
+ROUND_SET = ("hidden", "init_from")
+"""Training options that the active-learning rounds set themselves (wider network, warm start)."""
+OWN_FLAGS = ("data", "out", "overwrite", "help")
+"""Destinations of the training parser that ``training_argv`` leaves out (the command passes them itself)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The training parser (``training.train.build_parser``) plus --no-certify."""
+    """The training parser (``training.train.build_parser``) plus --no-certify, --no-enrich,
+    --enrich-copy and the active-learning flags (``add_active_arguments``)."""
     parser = training_train.build_parser()
     parser.prog = command_prog("homogenization.train")
     parser.add_argument("--no-certify", action="store_true",
                         help="leave the model uncertified (the ANN backend refuses it without --uncertified-ok)")
+    parser.add_argument("--no-enrich", action="store_true",
+                        help="certify only, no active-learning rounds when the certificate fails (as --rounds 0)")
+    parser.add_argument("--enrich-copy", action="store_true",
+                        help=f"add the rounds' samples to a copy of --data beside the model (MODEL{ENRICHED_SUFFIX}), "
+                             "not to --data (the default where --data and its folder are writable)")
+    add_active_arguments(parser)
     return parser
+
+
+def training_argv(args: argparse.Namespace) -> list[str]:
+    """The ``training.train`` options of parsed ``args`` besides --data, --out and --overwrite, as
+    a command line (each option of the training parser with its parsed value; unset ones left out)."""
+    argv: list[str] = []
+    for action in training_train.build_parser()._actions:
+        if not action.option_strings or action.dest in OWN_FLAGS:
+            continue
+        value, flag = getattr(args, action.dest), max(action.option_strings, key=len)
+        if action.nargs == 0:
+            argv += [flag] if value else []
+        elif value is not None:
+            argv += [flag, ",".join(map(str, value)) if isinstance(value, tuple) else str(value)]
+    return argv
+
+
+def enriched_path(args: argparse.Namespace) -> Path:
+    """The database the rounds append to: --data, or ``MODEL_db.h5`` beside the model where
+    --data or its folder is not writable (the append rewrites the file atomically beside
+    itself) or --enrich-copy is given."""
+    data: Path = args.data
+    writable = os.access(data, os.W_OK) and os.access(data.parent, os.W_OK)
+    return data if writable and not args.enrich_copy else args.out.with_name(args.out.stem + ENRICHED_SUFFIX)
+
+
+def _continues(args: argparse.Namespace, database: Path) -> bool:
+    """Whether ``args.out`` is the model of an earlier run of this command with these options:
+    its JSON records active-learning rounds (none yet, too), training data --data or
+    ``database``, and the training configuration of ``args``, but for what the rounds set
+    (``ROUND_SET``: the hidden widths are those of its round 0)."""
+    meta_file = metadata_path(args.out)
+    if args.overwrite or not (args.out.is_file() and meta_file.is_file()):
+        return False
+    meta = json.loads(meta_file.read_text())
+    trained_on = Path(meta["training_data"]["path"]).resolve()
+    rounds = meta.get("active_learning")
+    if rounds is None or trained_on not in (args.data.resolve(), database.resolve()):
+        return False
+    first_hidden = rounds[0]["hidden"] if rounds and "hidden" in rounds[0] else meta["config"]["hidden"]
+    ours = training_train.config_record(training_train.config_of(args))
+    return first_hidden == ours["hidden"] and all(meta["config"].get(k) == v for k, v in ours.items()
+                                                  if k not in ROUND_SET)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (bad input: one line, 2, before any training)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
-    code = training_train.main([a for a in argv if a != "--no-certify"])
-    if code or args.no_certify:
-        return code
-    cert = certificate.certify(args.out)
-    say(*certificate.summary_lines(cert), f"certificate -> {certificate.write_certificate(args.out, cert)}")
+    set_verbosity(args)
+    budget = active_settings(args)
+    enrich = not (args.no_certify or args.no_enrich or budget.rounds == 0)
+    train_args = training_argv(args)
+    database = enriched_path(args) if enrich else args.data
+    resumed = enrich and _continues(args, database)
+    if not (args.verbose or args.no_certify):
+        quiet_warp()  # the certificate runs the DEM on the cpu
+    if resumed:
+        say(f"{args.out}: an earlier run of these options, continued")
+    else:
+        if database != args.data and database.exists() and not args.overwrite:
+            raise UserError(f"{database} exists; pass --overwrite to replace it")
+        code = training_train.main(["--data", str(args.data), "--out", str(args.out),
+                                    *(["--overwrite"] if args.overwrite else []), *train_args])
+        if code or args.no_certify:
+            return code
+        if not enrich:
+            cert = certificate.certify(args.out, **certify_options(args))
+            say(*certificate.summary_lines(cert), f"certificate -> {certificate.write_certificate(args.out, cert)}")
+            return 0
+        active.write_rounds(args.out, [])
+    if database != args.data and not (resumed and database.is_file()):
+        with atomic_write(database) as tmp:
+            shutil.copyfile(args.data, tmp)
+    say(f"active learning adds its samples to {database}" + ("" if database == args.data else
+        f" (a copy of {args.data}: {'--enrich-copy' if args.enrich_copy else 'that file or its folder is not writable'})"))
+    with output_lock(database):
+        rounds = active.learn(database, args.out, train_args, settings=budget, certify_options=certify_options(args),
+                              seed=args.seed, threads=args.threads, log=say)
+    cert = json.loads(metadata_path(args.out).read_text())["certificate"]
+    say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples "
+        f"in {database}; certificate -> {metadata_path(args.out)}")
     return 0
