@@ -6,15 +6,19 @@ seed and a few epochs of training on it must stay bit for bit what they were.
 """
 
 import hashlib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from warp_hcell.database import format as database, generate
+from warp_hcell.database import exploration, format as database, generate, probing
+from warp_hcell.database.learning_state import evaluate, free_coordinates
+from warp_hcell.dem.cell import DemCell
+from warp_hcell.mesostructures.builders import mesostructure_arg
 from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.mesostructures.hcell import StartCells, h_cell
-from warp_hcell.core.parameters import DatabaseSettings
+from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
 TINY = DatabaseSettings(samples=300, chunk_size=150, precompression=(0.0, 1e-3), n_directions=6,
@@ -70,3 +74,102 @@ def test_2d_training_unchanged(tmp_path):
         h.update(name.encode())
         h.update(value.detach().cpu().numpy().tobytes())
     assert h.hexdigest() == WEIGHTS_DIGEST
+
+
+SPATIAL = mesostructure_arg("hcell3d:alpha0=55").build()
+TINY_3D = DatabaseSettings(samples=400, chunk_size=200, precompression=(0.0, 1e-3), n_directions=12,
+                           sample_spacing=1e-2, leg_length=0.03, leg_volumetric=0.05, leg_refinement=1)
+
+
+@pytest.fixture(scope="module")
+def spatial_db(tmp_path_factory):
+    """A tiny database of the ten-sphere H-cell (hcell3d, alpha0 = 55 deg)."""
+    out = tmp_path_factory.mktemp("h3") / "h3.h5"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(generate, "provenance", lambda: {"git_revision": "pinned"})
+        generate.generate(SPATIAL, TINY_3D, out, seed=4, threads=1)
+    return database.read_database(out)
+
+
+def test_spatial_leg_directions_are_unit_and_spread():
+    directions = exploration.leg_directions(TINY_3D, 3)
+    assert directions.shape == (12, 3)
+    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0, rtol=1e-14)
+    # nearly even on the sphere: every direction has a neighbour within 75 deg, none closer than 40 deg
+    cosines = directions @ directions.T - 2.0 * np.eye(12)
+    nearest = np.degrees(np.arccos(cosines.max(axis=1)))
+    assert nearest.max() < 75.0 and nearest.min() > 40.0
+    assert abs(directions.mean(axis=0)).max() < 0.05
+
+
+def test_spatial_turns_keep_their_angle():
+    directions = exploration.leg_directions(TINY_3D, 3)
+    steps, angle, plane = exploration.turn_draws(replace(TINY_3D, reversal_legs=2), 0, 2, 3)
+    assert plane.shape == (2, 12, 2, 3) and steps.shape == angle.shape == (2, 12, 2)
+    leg = np.tile(directions, (4, 1))
+    turn = angle.transpose(0, 2, 1).reshape(-1)
+    out = exploration.turned(leg, turn, plane.transpose(0, 2, 1, 3).reshape(-1, 3))
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, rtol=1e-13)
+    np.testing.assert_allclose(np.arccos(np.clip(np.sum(out * leg, axis=1), -1, 1)), np.abs(turn), atol=1e-7)
+    planar_steps, planar_angle, none = exploration.turn_draws(replace(TINY_3D, reversal_legs=2), 0, 2, 2)
+    assert none is None
+    np.testing.assert_array_equal(planar_angle, angle)  # the planar draws come first
+    np.testing.assert_array_equal(planar_steps, steps)
+
+
+def test_spatial_probes_are_isotropic():
+    d_eps = probing.probe_increments(TINY_3D, 1, 0, 20000, 3)
+    magnitude = np.linalg.norm(d_eps, axis=1)
+    assert TINY_3D.probe_min * (1 - 1e-12) <= magnitude.min() and magnitude.max() <= TINY_3D.probe_max * (1 + 1e-12)
+    unit = d_eps / magnitude[:, None]
+    assert abs(unit.mean(axis=0)).max() < 0.03
+    np.testing.assert_allclose((unit**2).mean(axis=0), 1.0 / 3.0, atol=0.02)
+
+
+def test_spatial_database_layout(spatial_db):
+    data, attrs = spatial_db
+    n = TINY_3D.samples
+    assert data["d_eps"].shape == (n, 3) and data["before/cell_size"].shape == (n, 3)
+    assert data["before/shear_force"].shape == (n, SPATIAL.n_pairs, 3)
+    assert data["after/moment"].shape == (n, 9)
+    assert data["states/eps"].shape[1] == 3
+    assert attrs["n_unconverged"] == 0
+    # legs left the isotropic axis in every direction of the Fibonacci set
+    legs = np.isfinite(data["states/direction_deg"])
+    assert np.unique(data["states/direction_deg"][legs]).size == TINY_3D.n_directions
+
+
+def test_spatial_samples_recheck_against_the_dem(spatial_db):
+    """The stored 3D before-state, the probe and the schema give the stored after-state exactly."""
+    data, _ = spatial_db
+    schema = SPATIAL.schema()
+    law, tol = ContactLaw(), DemSettings().contact_tolerance
+    rows = np.concatenate([np.array([0, 17, 233, 399]), np.flatnonzero(data["perturbed"])[:3]])
+    context = probing.ProbeContext(DemCell(law, 0.5, threads=1), SPATIAL, schema, {}, law, tol)
+    before = evaluate(schema, data["before/cell_size"][rows], data["before/free_position"][rows],
+                      data["before/shear_force"][rows], law, tol)
+    np.testing.assert_array_equal(before["normal_force"], data["before/normal_force"][rows])
+    np.testing.assert_array_equal(before["unbalanced"], data["before/unbalanced"][rows])
+    cell = context.cell_model
+    new, response = cell.step(cell.state_from_arrays(probing.canonical_dem_arrays(
+        context, before, data["before/cell_size"][rows])), data["d_eps"][rows])
+    arrays = cell.state_to_arrays(new)
+    np.testing.assert_array_equal(free_coordinates(schema, arrays["position"]), data["after/free_position"][rows])
+    np.testing.assert_array_equal(arrays["cell_size"], data["after/cell_size"][rows])
+    np.testing.assert_allclose(data["after/moment"][rows].reshape(-1, 3, 3), response.moment, rtol=1e-9,
+                               atol=1e-6 * np.abs(response.moment).max())
+    np.testing.assert_array_equal(data["after/contact"][rows], arrays["contact"])
+    # the learning state's forces are the DEM's own on a DEM state (unperturbed rows)
+    plain = ~data["perturbed"][rows]
+    np.testing.assert_allclose(data["after/unbalanced"][rows][plain], 0.0,
+                               atol=1e-6 * data["after/normal_force"][rows].max())
+
+
+def test_spatial_cli(tmp_path):
+    out = tmp_path / "x.h5"
+    code = generate.main(["--mesostructure", "hcell3d:alpha0=55", "--samples", "60", "--chunk-size", "30",
+                          "--precompression", "0", "1e-3", "--n-directions", "6", "--sample-spacing", "1e-2",
+                          "--threads", "1", "--out", str(out), "--quiet"])
+    assert code == 0
+    data, attrs = database.read_database(out)
+    assert data["d_eps"].shape == (60, 3) and attrs["n_samples"] == 60
