@@ -11,13 +11,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from warp_hcell.database import exploration, format as database, generate, probing
-from warp_hcell.database.learning_state import evaluate, free_coordinates
+from warp_hcell.database.learning_state import evaluate, free_coordinates, positions
 from warp_hcell.dem.cell import DemCell
 from warp_hcell.mesostructures.builders import mesostructure_arg
 from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.mesostructures.hcell import StartCells, h_cell
+from warp_hcell.mesostructures.mesostructure import cell_measure
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
@@ -82,13 +84,29 @@ TINY_3D = DatabaseSettings(samples=400, chunk_size=200, precompression=(0.0, 1e-
 
 
 @pytest.fixture(scope="module")
-def spatial_db(tmp_path_factory):
-    """A tiny database of the ten-sphere H-cell (hcell3d, alpha0 = 55 deg)."""
+def spatial_path(tmp_path_factory):
+    """A tiny database file of the ten-sphere H-cell (hcell3d, alpha0 = 55 deg)."""
     out = tmp_path_factory.mktemp("h3") / "h3.h5"
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(generate, "provenance", lambda: {"git_revision": "pinned"})
         generate.generate(SPATIAL, TINY_3D, out, seed=4, threads=1)
-    return database.read_database(out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def spatial_db(spatial_path):
+    return database.read_database(spatial_path)
+
+
+@pytest.fixture(scope="module")
+def spatial_model(spatial_path, tmp_path_factory):
+    """A small 3D meso-ANN trained on ``spatial_path`` by the training command (no rollout: planar)."""
+    from training import train
+
+    out = tmp_path_factory.mktemp("m3") / "m3.pt"
+    assert train.main(["--data", str(spatial_path), "--out", str(out), "--epochs", "8", "--hidden", "12",
+                       "--no-rollout", "--quiet"]) == 0
+    return out
 
 
 def test_spatial_leg_directions_are_unit_and_spread():
@@ -100,6 +118,9 @@ def test_spatial_leg_directions_are_unit_and_spread():
     nearest = np.degrees(np.arccos(cosines.max(axis=1)))
     assert nearest.max() < 75.0 and nearest.min() > 40.0
     assert abs(directions.mean(axis=0)).max() < 0.05
+    # the latitude about the isotropic axis is the volumetric part: the set reaches the isochoric plane
+    volumetric = directions.sum(axis=1) / np.sqrt(3.0)
+    np.testing.assert_allclose(np.sort(volumetric)[::-1], 1.0 - (2.0 * np.arange(12) + 1.0) / 12, atol=1e-14)
 
 
 def test_spatial_turns_keep_their_angle():
@@ -173,3 +194,86 @@ def test_spatial_cli(tmp_path):
     assert code == 0
     data, attrs = database.read_database(out)
     assert data["d_eps"].shape == (60, 3) and attrs["n_samples"] == 60
+
+
+def test_spatial_contact_law_in_torch_follows_the_dem(spatial_path, spatial_db):
+    """The torch cell physics, moved by the DEM's own free-DOF displacement, gives the DEM's after-state."""
+    from training import cell_physics
+    from training.dataset import load_database
+
+    db = load_database(spatial_path)
+    data, _ = spatial_db
+    assert db.schema.dim == 3 and db.n_samples == TINY_3D.samples  # nothing dropped
+    state = [torch.from_numpy(db.before[k]) for k in ("cell_size", "free_position", "shear_force")]
+    moved = torch.from_numpy(db.after_free_position - db.before["free_position"])
+    inc = cell_physics.advance(db.schema, *state, torch.from_numpy(db.d_eps), moved)
+    moment = data["after/moment"].reshape(-1, 3, 3)
+    scale = np.abs(moment).max()
+    error = np.abs(inc.moment.numpy() - moment).max(axis=(1, 2)) / scale
+    assert error.max() < 2e-3 and np.median(error) < 1e-7
+    np.testing.assert_allclose(inc.area.numpy(), data["after/area"], rtol=1e-13)
+    fn = data["after/normal_force"]
+    assert np.abs(inc.shear_force.numpy() - data["after/shear_force"]).max() < 5e-3 * fn.max()
+    new = cell_physics.contacts(db.schema, cell_physics.positions(db.schema, inc.cell_size, inc.free_position))
+    size = torch.linalg.vector_norm(inc.shear_force, dim=-1)
+    assert bool(torch.all(size <= db.schema.mu * new.normal_force * (1.0 + 1e-9)))
+    assert bool(torch.all(size[~new.contact] == 0.0)) and float(size.max()) > 0.0
+
+
+def test_spatial_features_have_the_documented_layout(spatial_path):
+    from training.dataset import active_pairs, load_database, tensors
+    from training.network import PAIR_FEATURES_3D, n_features
+
+    db = load_database(spatial_path)
+    index = np.arange(db.n_samples)
+    active = active_pairs(db, index)
+    data = tensors(db, index, active)
+    n_active, n_free = int(active.sum()), db.schema.n_free
+    assert data.features.shape == (db.n_samples, n_features(n_free, n_active, dim=3))
+    assert data.features.shape[1] == 6 + 2 * n_free + 9 * n_active
+    pair = data.features[:, 6 + 2 * n_free:].reshape(db.n_samples, n_active, len(PAIR_FEATURES_3D))
+    ratio = pair[..., PAIR_FEATURES_3D.index("friction_ratio")]
+    assert float(ratio.min()) >= 0.0 and float(ratio.max()) <= 1.0 + 1e-9
+    branch = pair[..., 2:5]
+    np.testing.assert_allclose(torch.linalg.vector_norm(branch, dim=-1).numpy(), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(torch.linalg.vector_norm(data.features[:, :3], dim=1).numpy()[data.magnitude[:, 0] > 0],
+                               1.0, rtol=1e-12)
+
+
+def test_spatial_model_drives_3d_cells(spatial_model):
+    from homogenization.backends import make_cell_model
+    from training.checkpoint import CheckpointError
+
+    cell = make_cell_model("ann", dim=3, model=spatial_model)
+    assert cell.fast is None and cell.dim == 3  # the compiled path is planar: torch
+    state = cell.init_state(SPATIAL, 4)
+    assert state.shear_force.shape == (4, SPATIAL.n_pairs, 3)
+    np.testing.assert_allclose(cell.response(state).moment, 0.0, atol=1e-6)  # touching: rounding overlaps only
+    d_eps = np.full((4, 3), 5e-4)
+    d_eps[1:, 1] = 1e-4
+    new, response = cell.step(state, d_eps, with_tangent=True)
+    assert response.moment.shape == (4, 3, 3) and response.tangent.shape == (4, 3, 3)
+    assert np.all(np.diagonal(response.moment, axis1=1, axis2=2) > 0.0)  # compressed cells push back
+    x = positions(SPATIAL.schema(), new.cell_size, new.free_position)
+    np.testing.assert_allclose(response.area, cell_measure(x, SPATIAL.outer), rtol=1e-13)  # the numpy volume
+    h = 1e-7
+    bumped = d_eps.copy()
+    bumped[:, 0] += h
+    numeric = (cell.step(state, bumped)[1].moment[:, 0, 0] - response.moment[:, 0, 0]) / h
+    np.testing.assert_allclose(response.tangent[:, 0, 0], numeric, rtol=1e-3)
+    obs = cell.observables(new)
+    assert {"l1", "l2", "l3", "area", "S_nn", "S_t2t2", "S_t1t2", "n_contacts", "x_n1", "x_t210"} <= set(obs)
+    with pytest.raises(CheckpointError, match="another learning state"):
+        cell.init_state(h_cell(), 1)
+
+
+def test_triaxial_runs_a_3d_model(spatial_model, tmp_path, capsys):
+    from homogenization import hmodel
+
+    argv = ["triaxial", "--backend", "analytical,ann", "--model", str(spatial_model), "--mesostructure", "hcell3d:alpha0=55",
+            "--p0", "2e5", "--eps-max", "2e-3", "--increment", "1e-3", "--order", "3", "--spins", "1", "--quiet"]
+    assert hmodel.main([*argv, "--out", str(tmp_path / "refused")]) == 2
+    assert "uncertified" in capsys.readouterr().err and not (tmp_path / "refused").exists()
+    assert hmodel.main([*argv, "--uncertified-ok", "--out", str(tmp_path / "run")]) == 0
+    header = (tmp_path / "run" / "ann" / "curve.csv").read_text().splitlines()
+    assert header[0] == "stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q" and len(header) > 3

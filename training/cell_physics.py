@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from warp_hcell.core.contact import CAP_SLACK
 from warp_hcell.core.contract import SchemaCounts
 
 
@@ -203,11 +204,11 @@ def carried_spring(shear_force: torch.Tensor, normal: torch.Tensor) -> torch.Ten
 
 
 def coulomb_cap_vector(trial: torch.Tensor, normal: torch.Tensor, mu: float) -> torch.Tensor:
-    """Spatial trial springs (..., 3) scaled down to mu f_n (f_n: ``normal`` (...)) where longer,
-    along their own direction (the 3D DEM's cap)."""
+    """Spatial trial springs (..., 3) scaled down to mu f_n (f_n: ``normal`` (...)) along their own
+    direction where longer by more than ``warp_hcell.core.contact.CAP_SLACK`` (the 3D DEM's cap)."""
     size = torch.linalg.vector_norm(trial, dim=-1)
     cap = mu * normal
-    scale = torch.where(size > cap, cap / torch.where(size > 0, size, 1.0), 1.0)
+    scale = torch.where(size > cap * (1.0 + CAP_SLACK), cap / torch.where(size > 0, size, 1.0), 1.0)
     return trial * scale.unsqueeze(-1)
 
 

@@ -70,8 +70,12 @@ def leg_directions(settings: DatabaseSettings, dim: int = 2) -> np.ndarray:
     """Unit directions of the legs in the local strain space, shape (n, dim).
 
     dim = 2: (d_eps_n, d_eps_t) = (cos psi_k, sin psi_k), psi_k = 2 pi k / n. dim = 3: the
-    spherical Fibonacci set, d_eps_n = z_k = 1 - (2 k + 1) / n and (d_eps_t1, d_eps_t2) =
-    sqrt(1 - z_k^2) (cos phi_k, sin phi_k), phi_k = k pi (3 - sqrt 5) (nearly even on the sphere).
+    spherical Fibonacci set (nearly even on the sphere) about the isotropic axis
+    e_v = (1, 1, 1) / sqrt 3: z_k e_v + sqrt(1 - z_k^2) (cos phi_k e_1 + sin phi_k e_2) with
+    z_k = 1 - (2 k + 1) / n, phi_k = k pi (3 - sqrt 5), e_1 = (2, -1, -1) / sqrt 6 and
+    e_2 = (0, 1, -1) / sqrt 2, so that its latitude z_k is the volumetric part of the
+    direction: its rings near z = 0 are the isochoric directions every cell of an undrained
+    test follows (as psi = 135 and 315 deg in 2D).
     """
     k = np.arange(settings.n_directions)
     if dim == 2:
@@ -79,7 +83,8 @@ def leg_directions(settings: DatabaseSettings, dim: int = 2) -> np.ndarray:
         return np.stack([np.cos(psi), np.sin(psi)], axis=1)
     z = 1.0 - (2.0 * k + 1.0) / settings.n_directions
     ring, phi = np.sqrt(1.0 - z * z), k * np.pi * (3.0 - math.sqrt(5.0))
-    return np.stack([z, ring * np.cos(phi), ring * np.sin(phi)], axis=1)
+    frame = np.array([[2.0, -1.0, -1.0], [0.0, 1.0, -1.0], [1.0, 1.0, 1.0]]) / np.sqrt([[6.0], [2.0], [3.0]])
+    return np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axis=1) @ frame
 
 
 def path_length(d_eps: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from warp_hcell.core.contact import coulomb_cap, normal_force
+from warp_hcell.core.contact import CAP_SLACK, coulomb_cap, normal_force
 from warp_hcell.core.contract import StateSchema
 from warp_hcell.dem.love_weber import love_weber_tension_positive, to_compression_positive
 from warp_hcell.mesostructures.mesostructure import cell_measure
@@ -54,11 +54,12 @@ def _planar_forces(shear_force: np.ndarray, normal: np.ndarray, u: np.ndarray, t
 def _spatial_forces(shear_force: np.ndarray, normal: np.ndarray, u: np.ndarray, touching: np.ndarray,
                     mu: float) -> tuple[np.ndarray, np.ndarray]:
     """(capped spring vectors (n, n_pairs, 3), forces on grain i (n, n_pairs, 3)) of spatial pairs:
-    the spring is scaled down to mu f_n where longer (the 3D DEM's cap, ``warp_hcell.dem.contact``)."""
+    the spring is scaled down to mu f_n where longer by more than ``CAP_SLACK`` (the 3D DEM's cap,
+    ``warp_hcell.dem.contact``, made idempotent)."""
     trial = np.asarray(shear_force, dtype=np.float64)
     size = np.sqrt(np.sum(trial * trial, axis=-1))
     cap = mu * normal
-    scale = np.where(size > cap, cap / np.where(size > 0.0, size, 1.0), 1.0)
+    scale = np.where(size > cap * (1.0 + CAP_SLACK), cap / np.where(size > 0.0, size, 1.0), 1.0)
     shear = np.where(touching[..., None], trial * scale[..., None], 0.0)
     return shear, shear - normal[..., None] * u
 
