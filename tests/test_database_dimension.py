@@ -244,7 +244,10 @@ def test_spatial_model_drives_3d_cells(spatial_model):
     from homogenization.backends import make_cell_model
     from training.checkpoint import CheckpointError
 
+    from homogenization.backends.ann import AnnCell3D
+
     cell = make_cell_model("ann", dim=3, model=spatial_model)
+    assert isinstance(cell, AnnCell3D) and cell.default_dim == 3
     assert cell.fast is None and cell.dim == 3  # the compiled path is planar: torch
     state = cell.init_state(SPATIAL, 4)
     assert state.shear_force.shape == (4, SPATIAL.n_pairs, 3)

@@ -78,7 +78,9 @@ from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, evaluate_observa
 from warp_hcell.core.parameters import check_positive, ContactLaw
 
 DEFAULT_MODEL = "ann_default.pt"
-"""File name of the model shipped in ``homogenization/data`` (with its ``.json``)."""
+"""File name of the planar model shipped in ``homogenization/data`` (with its ``.json``)."""
+DEFAULT_MODELS = {2: DEFAULT_MODEL, 3: "ann3d_default.pt"}
+"""File names of the models shipped (or to be shipped) in ``homogenization/data``, by cell dimension."""
 
 
 OOD_INTERVAL = 500
@@ -87,9 +89,9 @@ of 360 cells costs ~0.8-1.8 ms, so every 500th increment adds ~2-4 us to a ~80 u
 (docs/certificate.md)."""
 
 
-def default_model_path() -> Path:
-    """Path of the shipped default model state_dict (its metadata sits next to it)."""
-    return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODEL
+def default_model_path(dim: int = 2) -> Path:
+    """Path of the shipped default model state_dict of cells of dimension ``dim`` (its metadata sits next to it)."""
+    return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODELS[dim]
 
 
 def certificate_problem(metadata: dict[str, Any], path: Path) -> str | None:
@@ -128,7 +130,8 @@ class AnnCell(ArrayStateMixin):
             mesostructure given to ``init_state`` (the argument keeps the constructor of every
             backend alike, ``homogenization.backends.make_cell_model``).
         model: path of a model state_dict (``.pt``, metadata in the ``.json`` next to it);
-            None loads the default model shipped in ``homogenization/data``.
+            None loads the default model shipped in ``homogenization/data`` for cells of
+            ``default_dim`` (``AnnCell3D``: the 3D one).
         device: torch device of the network ("cpu", "cuda", ...).
         threads: torch CPU threads (process-wide setting, applied here) [-].
         ood_interval: distinct start states between two out-of-distribution checks (module
@@ -142,6 +145,8 @@ class AnnCell(ArrayStateMixin):
 
     name = "ann"
     state_type = AnnState
+    default_dim = 2
+    """Dimension of the cells whose shipped model ``model=None`` loads."""
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
                  device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL) -> None:
@@ -149,9 +154,10 @@ class AnnCell(ArrayStateMixin):
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:
             raise ValueError(f"threads = {threads} must be >= 1")
-        path = default_model_path() if model is None else Path(model)
+        path = default_model_path(self.default_dim) if model is None else Path(model)
         if model is None and not path.is_file():
-            raise CheckpointError(f"{path}: the default ANN model is not installed; pass model=PATH (--model)")
+            raise CheckpointError(f"{path}: the default {self.default_dim}D ANN model is not installed; pass "
+                                  f"model=PATH (--model)")
         self.net, self.metadata = load_checkpoint(path)
         check_compatible(self.metadata, kn=contact_law.kn, kt_over_kn=contact_law.kt_over_kn,
                          phi_g_deg=contact_law.phi_g_deg, source=str(path))
@@ -333,3 +339,10 @@ class AnnCell(ArrayStateMixin):
             for k, axis in enumerate(axes):
                 obs[f"x_{axis}{g + 1}"] = x[:, g, k].copy()
         return obs
+
+
+class AnnCell3D(AnnCell):
+    """``AnnCell`` whose ``model=None`` is the shipped model of spatial cells (``DEFAULT_MODELS[3]``):
+    the backend ``ann`` of 3D runs (``homogenization.backends.BACKENDS``)."""
+
+    default_dim = 3

@@ -181,12 +181,15 @@ def run_mesostructure(args: argparse.Namespace) -> Mesostructure:
 
 
 def check_backends(names: Sequence[str], model: Path | None) -> None:
-    """UserError (one line) for a backend without 3D cells, or the ann without ``model`` (--model:
-    no 3D meso-ANN model is shipped)."""
+    """UserError (one line) for a backend without 3D cells, or the ann without ``model`` (--model) where
+    no 3D meso-ANN model is installed."""
     for name in names:
         if name == "ann" and model is None:
-            raise UserError("--backend ann: no 3D meso-ANN model is shipped; pass --model M.pt, a model trained on "
-                            "a 3D database (docs/triaxial.md, 3D meso-ANN)")
+            from homogenization.backends.ann import default_model_path  # noqa: PLC0415 (torch)
+
+            if not default_model_path(3).is_file():
+                raise UserError("--backend ann: no 3D meso-ANN model is shipped; pass --model M.pt, a model trained "
+                                "on a 3D database (docs/triaxial.md, 3D meso-ANN)")
         if 3 not in BACKENDS[name]:
             raise UserError(f"--backend {name}: does not model 3D cells")
 
