@@ -19,8 +19,8 @@ shear), several DIR/<backend>/...; DIR/triaxial.png overlays every backend in th
 (eps_a, q) and (eps_a, eps_v) panels. The output folder is replaced as a unit (--overwrite).
 
 Sign convention: compression and contraction positive; stresses in Pa. Bad input (unknown
-backend, the ann backend without --model (no 3D meso-ANN model is shipped) or with an uncertified
-model without --uncertified-ok (the certificate is planar), a planar mesostructure, p0 <= 0, an
+backend, the ann backend without --uncertified-ok (the certificate is planar: no 3D model is
+certified), a planar mesostructure, p0 <= 0, an
 increment larger than --eps-max, a programme of planar steps, existing output without
 --overwrite) is one line on stderr and exit code 2, before any run.
 """
@@ -97,7 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                        "triaxial, cyclic), or any 3D loading programme file.")
     parser.add_argument("--backend", type=backend_list, default=("analytical",),
                         help=f"cell model, or a comma list to overlay several; choices: {', '.join(BACKENDS)} "
-                             f"(ann: with --model, a model trained on a 3D database)")
+                             f"(ann: the shipped 3D model of the loose cell, or --model)")
     add_alpha0_argument(parser)
     group = parser.add_argument_group("built-in programme (not with --programme)")
     group.add_argument("--p0", type=positive_float, default=cell.p0, help="confining pressure of stage 1 [Pa], > 0")
