@@ -79,6 +79,7 @@ def test_2d_training_unchanged(tmp_path):
 
 
 SPATIAL = mesostructure_arg("hcell3d:alpha0=55").build()
+FINES_3D = mesostructure_arg("hcell3d-fines:alpha0=55,ratio=0.5").build()
 TINY_3D = DatabaseSettings(samples=400, chunk_size=200, precompression=(0.0, 1e-3), n_directions=12,
                            sample_spacing=1e-2, leg_length=0.03, leg_volumetric=0.05, leg_refinement=1)
 
@@ -160,13 +161,25 @@ def test_spatial_database_layout(spatial_db):
     assert np.unique(data["states/direction_deg"][legs]).size == TINY_3D.n_directions
 
 
-def test_spatial_samples_recheck_against_the_dem(spatial_db):
+@pytest.fixture(scope="module")
+def fines_db(tmp_path_factory):
+    """A tiny database of the ten-sphere cell with a free fine grain in the pore (hcell3d-fines)."""
+    out = tmp_path_factory.mktemp("f3") / "f3.h5"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(generate, "provenance", lambda: {"git_revision": "pinned"})
+        generate.generate(FINES_3D, TINY_3D, out, seed=4, threads=1)
+    return database.read_database(out)
+
+
+@pytest.mark.parametrize("which", ["h", "fines"])
+def test_spatial_samples_recheck_against_the_dem(spatial_db, fines_db, which):
     """The stored 3D before-state, the probe and the schema give the stored after-state exactly."""
-    data, _ = spatial_db
-    schema = SPATIAL.schema()
+    (data, _), meso = (spatial_db, SPATIAL) if which == "h" else (fines_db, FINES_3D)
+    assert data["before/free_position"].shape[1] == meso.schema().n_free == (8 if which == "h" else 11)
+    schema = meso.schema()
     law, tol = ContactLaw(), DemSettings().contact_tolerance
     rows = np.concatenate([np.array([0, 17, 233, 399]), np.flatnonzero(data["perturbed"])[:3]])
-    context = probing.ProbeContext(DemCell(law, 0.5, threads=1), SPATIAL, schema, {}, law, tol)
+    context = probing.ProbeContext(DemCell(law, 0.5, threads=1), meso, schema, {}, law, tol)
     before = evaluate(schema, data["before/cell_size"][rows], data["before/free_position"][rows],
                       data["before/shear_force"][rows], law, tol)
     np.testing.assert_array_equal(before["normal_force"], data["before/normal_force"][rows])
