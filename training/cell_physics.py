@@ -77,11 +77,6 @@ class CellSchema(SchemaCounts):
                    mu=float(mu), contact_tolerance=float(contact_tolerance))
 
     @property
-    def dim(self) -> int:
-        """Spatial dimension of the cell: 2 or 3."""
-        return int(self.driven.shape[1])
-
-    @property
     def diameter(self) -> float:
         """Length scale D [m]: the mean grain diameter."""
         return float(2.0 * self.radius.mean())

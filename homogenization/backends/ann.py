@@ -240,9 +240,8 @@ class AnnCell(ArrayStateMixin):
         position = np.stack([meso.position for meso in distinct])[index]
         cell_size = np.stack([meso.cell_size for meso in distinct])[index]
         free = self.net.schema.free_dofs.cpu().numpy()
-        shear_shape = (self.net.schema.n_pairs,) if self.dim == 2 else (self.net.schema.n_pairs, self.dim)
         return AnnState(np.array(cell_size, dtype=np.float64), np.array(position[:, free[:, 0], free[:, 1]]),
-                        np.zeros((int(n_cells), *shear_shape)))
+                        np.zeros((int(n_cells), *self.net.schema.shear_shape)))
 
     def _tensors(self, state: AnnState):
         return tuple(torch.from_numpy(np.asarray(a, dtype=np.float64)).to(self.device) for a in state)

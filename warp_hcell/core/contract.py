@@ -179,9 +179,23 @@ class CellCounts:
 
 
 class SchemaCounts(CellCounts):
-    """``CellCounts`` and ``n_free`` of a schema with ``free_dofs`` (n_free, 2): (grain, axis)."""
+    """``CellCounts``, ``n_free``, ``dim`` and ``shear_shape`` of a schema with ``free_dofs``
+    (n_free, 2): (grain, axis) and ``driven`` (n_grains, dim)."""
 
     free_dofs: Any
+    driven: Any
+
+    @property
+    def dim(self) -> int:
+        """Spatial dimension of the cell: 2 (frame (n, t)) or 3 (frame (n, t1, t2))."""
+        return int(self.driven.shape[1])
+
+    @property
+    def shear_shape(self) -> tuple[int, ...]:
+        """Shape of one cell's tangential spring forces: (n_pairs,) in 2D (a scalar along
+        w = (-u_t, u_n) per pair), (n_pairs, 3) in 3D (a vector in the contact's tangent plane,
+        local frame components, as the 3D DEM keeps it)."""
+        return (self.n_pairs,) if self.dim == 2 else (self.n_pairs, self.dim)
 
     @property
     def n_free(self) -> int:
@@ -247,18 +261,6 @@ class StateSchema(SchemaCounts):
     driven: np.ndarray
     outer: np.ndarray
     features: Mapping[str, StateFeature]
-
-    @property
-    def dim(self) -> int:
-        """Spatial dimension of the cell: 2 (frame (n, t)) or 3 (frame (n, t1, t2))."""
-        return int(self.reference_position.shape[1])
-
-    @property
-    def shear_shape(self) -> tuple[int, ...]:
-        """Shape of one cell's tangential spring forces: (n_pairs,) in 2D (a scalar along
-        w = (-u_t, u_n) per pair), (n_pairs, 3) in 3D (a vector in the contact's tangent plane,
-        local frame components, as the 3D DEM keeps it)."""
-        return (self.n_pairs,) if self.dim == 2 else (self.n_pairs, self.dim)
 
     def of_role(self, role: str) -> tuple[str, ...]:
         """Names of the features with role ``role`` (``FEATURE_ROLES``)."""
