@@ -70,7 +70,7 @@ from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
-from training.ood import index_path, load_index, OodError, OodIndex, PROBE_COLUMNS, state_features, WARN_FRACTION
+from training.ood import index_path, load_index, OodError, OodIndex, probe_columns, state_features, WARN_FRACTION
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.files import from_description
@@ -263,7 +263,7 @@ class AnnCell(ArrayStateMixin):
         due = self._ood_due(state)
         if self.fast is not None:
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
-            features = self.fast.last_features()[PROBE_COLUMNS:].T if due else None
+            features = self.fast.last_features()[probe_columns(self.net):].T if due else None
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
                            "n_tension_clipped": float(np.count_nonzero(inc.opened)),
                            "n_mechanism": float(np.count_nonzero(inc.mechanism)),
