@@ -1,6 +1,6 @@
-"""python benchmarks/bench_triaxial.py [--part accuracy,quadrature,timing] [--eps-max 0.15] [--increment 1e-4]
+"""python benchmarks/bench_triaxial.py [--part accuracy,quadrature,timing,ann] [--model M.pt] [--eps-max 0.15] [--increment 1e-4]
 
-Acceptance of the 3D homogenisation (docs/triaxial.md), three parts, each printed as a table and
+Acceptance of the 3D homogenisation (docs/triaxial.md), four parts, each printed as a table and
 written as one JSON line per row:
 
 - ``accuracy``: DEM vs the 3D closed form (``analytical``), undrained and drained triaxial
@@ -15,7 +15,12 @@ written as one JSON line per row:
   curves over p0 (the target: doubling moves the curves by <= 0.5 % of p0) and over the path's
   scale max(p0, largest p of the reference);
 - ``timing``: the wall time of the same triaxial test (loose, p0 = 2e5, undrained and drained) with
-  the DEM and with the closed form, side by side, and their ratio (target <= 3).
+  the DEM and with the closed form, side by side, and their ratio (target <= 3);
+- ``ann`` (only with ``--model``, a 3D meso-ANN): the model against the closed form, undrained
+  triaxial compression of the loose cell at p0 = 2e5 and 5.85e6 Pa, the largest difference of the
+  shear-stage curves over p0 (target <= 1 %) and over the path's scale max(p0, largest p), the
+  isotropic strain at p0 of both, and the wall time of
+  both runs side by side with the time per step call (the 3D ANN runs the torch path).
 
 Strains [-], stresses [Pa], compression positive. The machine load is printed with the timings.
 """
@@ -33,20 +38,23 @@ import numpy as np
 from homogenization.orientation3d import LEBEDEV_ORDERS
 from warp_hcell.core.cli import Parser, positive_float, positive_int
 
-PARTS = ("accuracy", "quadrature", "timing")
+PARTS = ("accuracy", "quadrature", "timing", "ann")
 COMPARED = ("sigma11", "sigma22", "sigma33", "p", "q")
 
 
 def run(backend: str, alpha0: float, p0: float, test: str, args, *, order: int | None = None,
         spins: int | None = None):
-    """(record, wall time [s]) of one triaxial test; DEM warnings counted, not raised."""
+    """(record, wall time [s]) of one triaxial test; DEM and ANN warnings counted, not raised."""
     from homogenization import driver, loading
     from homogenization.backends import make_cell_model
     from warp_hcell.mesostructures.builders import mesostructure_arg
 
     meso = mesostructure_arg(f"hcell3d:alpha0={alpha0:g}").build(alpha0)
     programme = loading.triaxial(p0, args.eps_max, args.increment, test=test, iso_increment=0.5 * args.increment)
-    model = make_cell_model(backend, dim=3, **({"threads": args.threads} if backend == "dem" and args.threads else {}))
+    options = {"threads": args.threads} if backend == "dem" and args.threads else {}
+    if backend == "ann":
+        options["model"] = args.model
+    model = make_cell_model(backend, dim=3, **options)
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -152,6 +160,43 @@ def timing(args) -> None:
         print(json.dumps(row))
 
 
+def shear_difference(a, b) -> float:
+    """Largest difference of the compared curves [Pa] over the shear stages of two records, increment by
+    increment from the end of the isotropic stage (whose increment count follows each backend's response)."""
+    curves = []
+    for record in (a, b):
+        shear = record.stage != record.stage[0]
+        curves.append({name: getattr(record, name)[shear] for name in COMPARED})
+    n = min(curves[0]["p"].size, curves[1]["p"].size)
+    return max(float(np.abs(curves[0][name][:n] - curves[1][name][:n]).max()) for name in COMPARED)
+
+
+def ann(args) -> None:
+    if args.model is None:
+        print("no --model: part skipped")
+        return
+    print(f"model {args.model}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    print(f"{'p0 [Pa]':>9} {'test':>9} {'cells':>5} {'max diff / p0':>13} {'/ scale':>8} {'analytical [s]':>14} "
+          f"{'ann [s]':>8} {'ann / analytical':>16} {'ms per step call (analytical, ann)':>34}")
+    for p0 in (2e5, 5.85e6):
+        closed, t_closed = run("analytical", args.loose, p0, "undrained", args)
+        net, t_net = run("ann", args.loose, p0, "undrained", args)
+        calls = [int(closed.newton_iterations.sum()), int(net.newton_iterations.sum())]
+        difference = shear_difference(closed, net)
+        row = {"part": "ann", "model": str(args.model), "alpha0_deg": args.loose, "p0": p0, "test": "undrained",
+               "cells": int(closed.weights.size), "n_increments": [closed.n_increments, net.n_increments],
+               "max_diff_over_p0": difference / p0,
+               "iso_strain_at_p0": [float(r.eps11[r.stage == r.stage[0]][-1]) for r in (closed, net)], "max_diff_over_scale": difference / max(p0, float(closed.p.max())),
+               "analytical_s": t_closed, "ann_s": t_net, "ratio": t_net / t_closed, "step_calls": calls,
+               "ms_per_step_call": [1e3 * t_closed / calls[0], 1e3 * t_net / calls[1]],
+               "n_ood": count(net, "n_ood"), "n_ood_checked": count(net, "n_ood_checked"),
+               "load_average": os.getloadavg()[0]}
+        print(f"{p0:9.3g} {'undrained':>9} {row['cells']:5d} {row['max_diff_over_p0']:13.3g} "
+              f"{row['max_diff_over_scale']:8.3g} {t_closed:14.2f} {t_net:8.2f} {row['ratio']:16.2f} "
+              f"{row['ms_per_step_call'][0]:16.3f}, {row['ms_per_step_call'][1]:.3f}", flush=True)
+        print(json.dumps(row))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = Parser(description=__doc__.splitlines()[2])
     parser.add_argument("--part", default=",".join(PARTS), help=f"comma list of {', '.join(PARTS)}")
@@ -165,6 +210,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--loose", type=positive_float, default=55.0, help="alpha0 of the loose cell [deg]")
     parser.add_argument("--dense", type=positive_float, default=47.0, help="alpha0 of the dense cell [deg], > 45")
     parser.add_argument("--threads", type=positive_int, default=None, help="DEM threads (None: its default)")
+    parser.add_argument("--model", default=None, help="ann part: a 3D meso-ANN model (.pt)")
     args = parser.parse_args(argv)
     for text in [*args.rules.split(","), args.reference]:
         try:
@@ -179,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--part {unknown[0]!r} is not one of {', '.join(PARTS)}")
     for part in parts:
         print(f"== {part}")
-        {"accuracy": accuracy, "quadrature": quadrature, "timing": timing}[part](args)
+        {"accuracy": accuracy, "quadrature": quadrature, "timing": timing, "ann": ann}[part](args)
     return 0
 
 

@@ -5,20 +5,23 @@ meso-ANN (``training.network``) decides where the free degrees of freedom go; th
 turns that decision into forces and stress exactly as the DEM's contact law does
 (spec sections 4, 7, 10, 12).
 
-Generic cell state (first axis n_cells):
+Generic cell state (first axis n_cells), for planar (dim = 2) and spatial (dim = 3) cells:
 
-- ``cell_size`` (n, 2) [m]: (l1, l2);
+- ``cell_size`` (n, dim) [m]: (l1, l2[, l3]);
 - ``free_position`` (n, n_free) [m]: the free DOF coordinates, in the row-major order of
   ``driven == False`` (grain, axis);
-- ``shear_force`` (n, n_pairs) [N]: tangential spring force of each candidate pair, the
-  force on grain i along w = (-u_t, u_n) with ``u = (x_j - x_i) / |x_j - x_i|`` (DEM convention,
-  ``warp_hcell.dem.kernels``).
+- ``shear_force`` [N]: tangential spring force of each candidate pair, the DEM's convention
+  (``warp_hcell.dem.kernels``, ``warp_hcell.dem.kernels3d``): in 2D (n, n_pairs), the force on
+  grain i along w = (-u_t, u_n) with ``u = (x_j - x_i) / |x_j - x_i|``; in 3D (n, n_pairs, 3),
+  the force vector on grain i in the contact's tangent plane.
 
 Driven coordinates follow the cell strain exactly: x = (x_ref / l_ref) * l.
 
-Conventions: local frame index 0 = n, 1 = t. The contact force on grain i of pair (i, j) is
--f_n u + f_s w (f_n >= 0, repulsive); grain j receives the opposite. Moments returned by
-``love_weber`` are compression positive (the DEM's tension-positive sum, negated).
+Conventions: local frame index 0 = n, 1 = t (3D: 1 = t1, 2 = t2). The contact force on grain
+i of pair (i, j) is -f_n u + f_s w in 2D, -f_n u + f_s in 3D (f_n >= 0, repulsive); grain j
+receives the opposite. Moments returned by ``love_weber`` are compression positive (the
+DEM's tension-positive sum, negated). V_cell is the polygon area in 2D, the polyhedron volume
+of the outer triangles in 3D (``cell_measure``).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from warp_hcell.core.contact import CAP_SLACK
 from warp_hcell.core.contract import SchemaCounts
 
 
@@ -37,12 +41,13 @@ class CellSchema(SchemaCounts):
 
     Attributes:
         radius: grain radii [m], (n_grains,).
-        driven_fraction: x_ref / l_ref of every coordinate [-], (n_grains, 2); used for the
+        driven_fraction: x_ref / l_ref of every coordinate [-], (n_grains, dim); used for the
             driven coordinates only.
-        driven: bool (n_grains, 2).
+        driven: bool (n_grains, dim).
         free_dofs: (grain, axis) of every free DOF, int64 (n_free, 2).
         pairs: candidate contact pairs (i, j), int64 (n_pairs, 2).
-        outer: ordered grain indices of the polygon whose area is V_cell, int64 (n_outer,).
+        outer: ordered grain indices of the polygon whose area is V_cell, int64 (n_outer,); in
+            3D the outer triangles of the polyhedron whose volume is V_cell, int64 (n_faces, 3).
         kn, kt [N/m], mu [-]: contact law; contact_tolerance [-]: a gap up to
             contact_tolerance * (r_i + r_j) still counts as a contact (carrying zero force).
     """
@@ -83,15 +88,15 @@ class CellSchema(SchemaCounts):
 
 
 def positions(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Tensor) -> torch.Tensor:
-    """Grain centres [m], (n, n_grains, 2): driven coordinates from ``cell_size``, free ones given."""
+    """Grain centres [m], (n, n_grains, dim): driven coordinates from ``cell_size``, free ones given."""
     x = schema.driven_fraction.unsqueeze(0) * cell_size.unsqueeze(1)
     flat = x.reshape(x.shape[0], -1)
-    index = (schema.free_dofs[:, 0] * 2 + schema.free_dofs[:, 1]).unsqueeze(0).expand(x.shape[0], -1)
+    index = (schema.free_dofs[:, 0] * schema.dim + schema.free_dofs[:, 1]).unsqueeze(0).expand(x.shape[0], -1)
     return flat.scatter(1, index, free_position).reshape(x.shape)
 
 
 def branches(schema: CellSchema, x: torch.Tensor) -> torch.Tensor:
-    """Branch vectors x_j - x_i [m] of every candidate pair, (n, n_pairs, 2)."""
+    """Branch vectors x_j - x_i [m] of every candidate pair, (n, n_pairs, dim)."""
     return x[:, schema.pairs[:, 1]] - x[:, schema.pairs[:, 0]]
 
 
@@ -100,15 +105,16 @@ class Contacts:
     """Contact quantities of every candidate pair, (n, n_pairs) each unless stated.
 
     Attributes:
-        branch: x_j - x_i [m], (n, n_pairs, 2); distance [m]; normal u and tangent w unit
-            vectors (n, n_pairs, 2); overlap r_i + r_j - distance [m] (negative = gap);
+        branch: x_j - x_i [m], (n, n_pairs, dim); distance [m]; normal u and, in 2D, tangent w
+            unit vectors (n, n_pairs, dim) (3D: ``tangent`` is None, the spring is a vector);
+            overlap r_i + r_j - distance [m] (negative = gap);
         contact: bool, gap within the contact tolerance; normal_force f_n >= 0 [N].
     """
 
     branch: torch.Tensor
     distance: torch.Tensor
     normal: torch.Tensor
-    tangent: torch.Tensor
+    tangent: torch.Tensor | None
     overlap: torch.Tensor
     contact: torch.Tensor
     normal_force: torch.Tensor
@@ -130,7 +136,7 @@ def contacts(schema: CellSchema, x: torch.Tensor) -> Contacts:
     b = branches(schema, x)
     dist = torch.linalg.vector_norm(b, dim=-1)
     u = b / dist.unsqueeze(-1)
-    w = torch.stack([-u[..., 1], u[..., 0]], dim=-1)
+    w = torch.stack([-u[..., 1], u[..., 0]], dim=-1) if schema.dim == 2 else None
     rsum = schema.radius[schema.pairs[:, 0]] + schema.radius[schema.pairs[:, 1]]
     overlap = rsum - dist
     contact = dist <= rsum * (1.0 + schema.contact_tolerance)
@@ -139,7 +145,11 @@ def contacts(schema: CellSchema, x: torch.Tensor) -> Contacts:
 
 
 def pair_forces(c: Contacts, shear_force: torch.Tensor) -> torch.Tensor:
-    """Force on grain i of each pair by grain j [N], (n, n_pairs, 2): -f_n u + f_s w (0 out of contact)."""
+    """Force on grain i of each pair by grain j [N], (n, n_pairs, dim): -f_n u + f_s w in 2D,
+    -f_n u + f_s in 3D (0 out of contact)."""
+    if c.tangent is None:
+        fs = torch.where(c.contact.unsqueeze(-1), shear_force, torch.zeros_like(shear_force))
+        return -c.normal_force.unsqueeze(-1) * c.normal + fs
     fs = torch.where(c.contact, shear_force, torch.zeros_like(shear_force))
     return -c.normal_force.unsqueeze(-1) * c.normal + fs.unsqueeze(-1) * c.tangent
 
@@ -147,13 +157,13 @@ def pair_forces(c: Contacts, shear_force: torch.Tensor) -> torch.Tensor:
 def unbalanced(schema: CellSchema, force_on_i: torch.Tensor, n_grains: int) -> torch.Tensor:
     """Net contact force on every free DOF [N], (n, n_free)."""
     n = force_on_i.shape[0]
-    net = torch.zeros(n, n_grains, 2, dtype=force_on_i.dtype, device=force_on_i.device)
+    net = torch.zeros(n, n_grains, force_on_i.shape[-1], dtype=force_on_i.dtype, device=force_on_i.device)
     net = net.index_add(1, schema.pairs[:, 0], force_on_i).index_add(1, schema.pairs[:, 1], -force_on_i)
     return net[:, schema.free_dofs[:, 0], schema.free_dofs[:, 1]]
 
 
 def love_weber(c: Contacts, force_on_i: torch.Tensor) -> torch.Tensor:
-    """Compression-positive Love-Weber moment -sum_c f_c (x) l_c [N m], (n, 2, 2)."""
+    """Compression-positive Love-Weber moment -sum_c f_c (x) l_c [N m], (n, dim, dim)."""
     return -torch.einsum("cpa,cpb->cab", force_on_i, c.branch)
 
 
@@ -164,16 +174,49 @@ def polygon_area(x: torch.Tensor, outer: torch.Tensor) -> torch.Tensor:
     return 0.5 * torch.abs(torch.sum(p[..., 0] * q[..., 1] - q[..., 0] * p[..., 1], dim=1))
 
 
+def polyhedron_volume(x: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Volume [m^3], (n,), enclosed by the triangles ``faces`` (n_faces, 3) through ``x`` (n, n_grains, 3):
+    abs(sum_f x_a . (x_b x x_c)) / 6."""
+    a, b, c = x[:, faces[:, 0]], x[:, faces[:, 1]], x[:, faces[:, 2]]
+    return torch.abs(torch.sum(a * torch.linalg.cross(b, c), dim=(1, 2))) / 6.0
+
+
+def cell_measure(x: torch.Tensor, outer: torch.Tensor) -> torch.Tensor:
+    """V_cell [m^2 or m^3], (n,): ``polygon_area`` for a polygon ``outer`` (n_outer,), ``polyhedron_volume``
+    for triangles (n_faces, 3)."""
+    return polygon_area(x, outer) if outer.dim() == 1 else polyhedron_volume(x, outer)
+
+
+def carried_spring(shear_force: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
+    """Spatial springs (..., 3) carried into the tangent plane of the unit ``normal`` (..., 3):
+    projected, then rescaled to their former magnitude (zero stays zero), as the 3D DEM does
+    (``warp_hcell.dem.contact.carried_spring``)."""
+    projected = shear_force - torch.sum(shear_force * normal, dim=-1, keepdim=True) * normal
+    before2 = torch.sum(shear_force * shear_force, dim=-1, keepdim=True)
+    after2 = torch.sum(projected * projected, dim=-1, keepdim=True)
+    positive = after2 > 0
+    return torch.where(positive, projected * torch.sqrt(before2 / torch.where(positive, after2, 1.0)), projected)
+
+
+def coulomb_cap_vector(trial: torch.Tensor, normal: torch.Tensor, mu: float) -> torch.Tensor:
+    """Spatial trial springs (..., 3) scaled down to mu f_n (f_n: ``normal`` (...)) along their own
+    direction where longer by more than ``warp_hcell.core.contact.CAP_SLACK`` (the 3D DEM's cap)."""
+    size = torch.linalg.vector_norm(trial, dim=-1)
+    cap = mu * normal
+    scale = torch.where(size > cap * (1.0 + CAP_SLACK), cap / torch.where(size > 0, size, 1.0), 1.0)
+    return trial * scale.unsqueeze(-1)
+
+
 @dataclass(frozen=True)
 class Increment:
     """Outcome of ``advance`` (first axis n_cells).
 
     Attributes:
-        cell_size: the new cell size [m], (n, 2).
+        cell_size: the new cell size [m], (n, dim).
         free_position: the new free DOF coordinates [m], (n, n_free).
-        shear_force: the new tangential spring forces [N], (n, n_pairs).
-        moment: compression-positive Love-Weber moment [N m], (n, 2, 2).
-        area: cell area [m^2], (n,).
+        shear_force: the new tangential spring forces [N], (n, n_pairs) (3D: (n, n_pairs, 3)).
+        moment: compression-positive Love-Weber moment [N m], (n, dim, dim).
+        area: V_cell [m^2] (3D: [m^3]), (n,).
         capped: bool (n, n_pairs), the trial tangential force exceeded the Coulomb cap mu f_n;
         opened: bool (n, n_pairs), a pair that carried a normal force lost it (no-tension branch);
         held: bool (n, n_free), free DOFs of grains held at rest (``hold_at_rest``); None where
@@ -211,7 +254,7 @@ def hold_at_rest(schema: CellSchema, new_size: torch.Tensor, free_position: torc
     grains is pushed within the same increment, as in the DEM).
 
     Args:
-        new_size: cell size at the end of the increment [m], (n, 2).
+        new_size: cell size at the end of the increment [m], (n, dim).
         free_position: free DOFs at the start [m], (n, n_free); d_free: their displacement [m], (n, n_free).
         old: ``contacts`` of the state at the start.
 
@@ -245,7 +288,7 @@ def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Te
 
     Args:
         cell_size, free_position, shear_force: state before the increment (module docstring).
-        d_eps: (d_eps_n, d_eps_t) [-], (n, 2), compression positive: l <- l (1 - d_eps).
+        d_eps: local strain increment [-], (n, dim), compression positive: l <- l (1 - d_eps).
         d_free: displacement of the free DOFs over the increment [m], (n, n_free).
         old: ``contacts`` of the state before the increment, when already computed.
         rest_rule: apply ``hold_at_rest`` to ``d_free`` first (the meso-ANN does; a DEM
@@ -254,7 +297,10 @@ def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Te
     Returns:
         The new state with its moment and area. The tangential force grows by kt times the
         relative displacement along the mid-increment tangent, is capped at mu f_n (new normal
-        force) with the sign of the trial force, and is reset out of contact.
+        force) with the sign of the trial force, and is reset out of contact. In 3D the spring
+        is first carried into the new tangent plane (``carried_spring``), grows by kt times the
+        relative displacement normal to the mid-increment normal, and is capped along its own
+        direction (``coulomb_cap_vector``).
     """
     if old is None:
         old = contacts(schema, positions(schema, cell_size, free_position))
@@ -267,12 +313,21 @@ def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Te
     new = contacts(schema, x_new)
     mid = 0.5 * (old.branch + new.branch)
     mid = mid / torch.linalg.vector_norm(mid, dim=-1, keepdim=True)
-    w_mid = torch.stack([-mid[..., 1], mid[..., 0]], dim=-1)
     relative = new.branch - old.branch
-    trial = torch.where(old.contact, shear_force, torch.zeros_like(shear_force)) + schema.kt * torch.sum(relative * w_mid, dim=-1)
-    shear = torch.where(new.contact, coulomb_cap(trial, new.normal_force, schema.mu), torch.zeros_like(trial))
-    capped = new.contact & (torch.abs(trial) > schema.mu * new.normal_force)
+    if schema.dim == 2:
+        w_mid = torch.stack([-mid[..., 1], mid[..., 0]], dim=-1)
+        trial = torch.where(old.contact, shear_force, torch.zeros_like(shear_force)) + schema.kt * torch.sum(relative * w_mid, dim=-1)
+        shear = torch.where(new.contact, coulomb_cap(trial, new.normal_force, schema.mu), torch.zeros_like(trial))
+        capped = new.contact & (torch.abs(trial) > schema.mu * new.normal_force)
+    else:
+        carried = torch.where(old.contact.unsqueeze(-1), carried_spring(shear_force, new.normal),
+                              torch.zeros_like(shear_force))
+        slip = relative - torch.sum(relative * mid, dim=-1, keepdim=True) * mid
+        trial = carried + schema.kt * slip
+        shear = torch.where(new.contact.unsqueeze(-1), coulomb_cap_vector(trial, new.normal_force, schema.mu),
+                            torch.zeros_like(trial))
+        capped = new.contact & (torch.linalg.vector_norm(trial, dim=-1) > schema.mu * new.normal_force)
     opened = (old.normal_force > 0.0) & (new.normal_force == 0.0)
     force = pair_forces(new, shear)
-    return Increment(new_size, new_free, shear, love_weber(new, force), polygon_area(x_new, schema.outer), capped, opened,
-                     held)
+    return Increment(new_size, new_free, shear, love_weber(new, force), cell_measure(x_new, schema.outer), capped,
+                     opened, held)

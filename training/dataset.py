@@ -55,12 +55,12 @@ class Database:
     """Selected samples of a generic learning database (first axis n_samples).
 
     Attributes:
-        before: ``cell_size`` (n, 2) [m], ``free_position`` (n, n_free) [m], ``shear_force``
-            (n, n_pairs) [N] before the probe.
+        before: ``cell_size`` (n, dim) [m], ``free_position`` (n, n_free) [m], ``shear_force``
+            (n, n_pairs) [N] (3D: (n, n_pairs, 3)) before the probe.
         after_free_position: free-DOF coordinates after the probe [m], (n, n_free).
         after_contact: contact flags after the probe, bool (n, n_pairs).
         before_contact: contact flags before the probe, bool (n, n_pairs).
-        d_eps: probes (n, 2) [-], compression positive.
+        d_eps: probes (n, dim) [-], compression positive.
         perturbed: bool (n,).
         mechanism: bool (n,).
         path_id: int (n,).
@@ -166,10 +166,14 @@ def load_database(path: str | Path) -> Database:
             raise DataError(f"{path}: missing {exc.args[0]!r} (incomplete generic database)") from None
     n = d_eps.shape[0]
     n_free = schema_arrays["free_dofs"].shape[0]
-    shapes = {"cell_size": (n, 2), "free_position": (n, n_free), "shear_force": (n, schema_arrays["pairs"].shape[0])}
+    dim = schema_arrays["driven"].shape[1]
+    n_pairs = schema_arrays["pairs"].shape[0]
+    stored = {"before/" + name: value for name, value in before.items()} | {"d_eps": d_eps}
+    shapes = {"before/cell_size": (n, dim), "before/free_position": (n, n_free),
+              "before/shear_force": (n, n_pairs) if dim == 2 else (n, n_pairs, dim), "d_eps": (n, dim)}
     for name, shape in shapes.items():
-        if before[name].shape != shape:
-            raise DataError(f"{path}: before/{name} has shape {before[name].shape}, expected {shape}")
+        if stored[name].shape != shape:
+            raise DataError(f"{path}: {name} has shape {stored[name].shape}, expected {shape}")
     schema = schema_from_arrays(schema_arrays, kn=kn, kt_over_kn=kt / kn, phi_g_deg=phi_g_deg,
                                 contact_tolerance=tolerance)
     keep = valid & flags["converged"] & np.all(np.isfinite(after_free), axis=1)

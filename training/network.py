@@ -2,8 +2,8 @@
 
 Contract. For a batch of generic cell states (``training.cell_physics``: cell size, free-DOF
 coordinates, per-pair tangential forces) and probes d_eps = (d_eps_n, d_eps_t) [-]
-(compression positive), ``MesoNet.displacement`` returns the displacement of every free DOF
-over the increment [m], shape (n, n_free):
+(3D: (d_eps_n, d_eps_t1, d_eps_t2); compression positive), ``MesoNet.displacement`` returns
+the displacement of every free DOF over the increment [m], shape (n, n_free):
 
     d_free = D * m * r(state, u)  -  C(state) @ F / kn
 
@@ -18,12 +18,13 @@ states that the DEM relaxes, moves the DOFs back by ~ -e at the next increment.
 
 Features (z-scored with training statistics), for any mesostructure:
 
-    - the probe direction (u_n, u_t);
+    - the probe direction (u_n, u_t) (3D: (u_n, u_t1, u_t2));
     - cell size l / D; free coordinates x / D and x / l (l of the coordinate's axis);
     - per active pair (a candidate pair in contact somewhere in the training data): the
       overlap / D (gaps clipped at ``GAP_CLIP``), the contact flag, the branch direction
       (u_n, u_t), the tangential force / (kn D) and the friction ratio f_s / (mu f_n)
-      (0 out of contact);
+      (0 out of contact); in 3D the branch direction and the spring vector have three
+      components each and the friction ratio is |f_s| / (mu f_n) (``pair_features``);
     - optionally (``load_features``), after all of these, per active pair the load fraction
       f_n / max f_n, the pair's normal force over the largest normal force of the cell's
       pairs (0 in a cell carrying none). The overlap / D feature is scaled by the training
@@ -31,8 +32,8 @@ Features (z-scored with training statistics), for any mesostructure:
       loaded contact at low pressure (overlap ~1e-5 D) looks like one just touching; its
       load fraction is of order 0.1 at any pressure.
 
-Nothing here knows any particular cell. Everything is float64 (positions must be resolved
-to ~1e-7 D).
+Nothing here knows any particular cell; the dimension is the schema's. Everything is float64
+(positions must be resolved to ~1e-7 D).
 """
 
 from __future__ import annotations
@@ -55,7 +56,15 @@ ACTIVATION = "tanh"
 GAP_CLIP = 0.05
 """Gaps larger than this fraction of D look alike to the network [-]."""
 PAIR_FEATURES = ("overlap", "contact", "branch_n", "branch_t", "shear", "friction_ratio")
-"""Features of each active pair."""
+"""Features of each active pair of a planar cell."""
+PAIR_FEATURES_3D = ("overlap", "contact", "branch_n", "branch_t1", "branch_t2", "shear_n", "shear_t1", "shear_t2",
+                    "friction_ratio")
+"""Features of each active pair of a spatial cell."""
+
+
+def pair_features(dim: int) -> tuple[str, ...]:
+    """Names of the features of each active pair of a cell of dimension ``dim``, in input order."""
+    return PAIR_FEATURES if dim == 2 else PAIR_FEATURES_3D
 COMPLIANCE_SCALE = 0.5
 """Initial and reference compliance C [1/kn]: a free grain between two contacts."""
 RELAXATION_RAMP = 1e-7
@@ -78,10 +87,11 @@ def features_and_contacts(schema: CellSchema, active: torch.Tensor, cell_size: t
     Args:
         schema: the mesostructure; active: pairs the network sees, bool (n_pairs,) or their
             indices (int64, ascending).
-        cell_size: cell size before the increment [m], (n, 2).
+        cell_size: cell size before the increment [m], (n, dim).
         free_position: free DOF coordinates before the increment [m], (n, n_free).
-        shear_force: tangential spring forces before the increment [N], (n, n_pairs).
-        d_eps: the probe [-], (n, 2).
+        shear_force: tangential spring forces before the increment [N], (n, n_pairs)
+            (3D: (n, n_pairs, 3)).
+        d_eps: the probe [-], (n, dim).
         load_features: append the load fraction of every active pair (module docstring).
 
     Returns:
@@ -99,14 +109,21 @@ def features_and_contacts(schema: CellSchema, active: torch.Tensor, cell_size: t
     axis_length = cell_size[:, schema.free_dofs[:, 1]]
     index = torch.nonzero(active)[:, 0] if active.dtype == torch.bool else active
     contact = c.contact.index_select(1, index)
-    fs = torch.where(contact, shear_force.index_select(1, index), 0.0)
     fn = c.normal_force.index_select(1, index)
     closed = fn > 0
-    ratio = torch.where(closed, fs / (schema.mu * torch.where(closed, fn, 1.0)), 0.0)
     normal = c.normal.index_select(1, index)
-    pair = torch.stack([
-        torch.clamp(c.overlap.index_select(1, index) / diameter, min=-GAP_CLIP), contact.to(fn.dtype),
-        normal[..., 0], normal[..., 1], fs / force_scale, ratio], dim=2)
+    overlap = torch.clamp(c.overlap.index_select(1, index) / diameter, min=-GAP_CLIP)
+    if schema.dim == 2:
+        fs = torch.where(contact, shear_force.index_select(1, index), 0.0)
+        ratio = torch.where(closed, fs / (schema.mu * torch.where(closed, fn, 1.0)), 0.0)
+        pair = torch.stack([overlap, contact.to(fn.dtype), normal[..., 0], normal[..., 1], fs / force_scale, ratio],
+                           dim=2)
+    else:
+        fs = torch.where(contact.unsqueeze(-1), shear_force.index_select(1, index), 0.0)
+        size = torch.linalg.vector_norm(fs, dim=-1)
+        ratio = torch.where(closed, size / (schema.mu * torch.where(closed, fn, 1.0)), 0.0)
+        pair = torch.cat([overlap.unsqueeze(-1), contact.to(fn.dtype).unsqueeze(-1), normal, fs / force_scale,
+                          ratio.unsqueeze(-1)], dim=2)
     feats = torch.cat([u, cell_size / diameter, free_position / diameter, free_position / axis_length,
                        pair.reshape(pair.shape[0], -1)], dim=1)
     if load_features:
@@ -116,9 +133,10 @@ def features_and_contacts(schema: CellSchema, active: torch.Tensor, cell_size: t
     return feats, m, unbalanced, c
 
 
-def n_features(n_free: int, n_active: int, load_features: bool = False) -> int:
-    """Number of features for ``n_free`` free DOFs and ``n_active`` active pairs (and their load fractions)."""
-    return 4 + 2 * n_free + (len(PAIR_FEATURES) + int(load_features)) * n_active
+def n_features(n_free: int, n_active: int, load_features: bool = False, dim: int = 2) -> int:
+    """Number of features for ``n_free`` free DOFs and ``n_active`` active pairs (and their load
+    fractions) of a cell of dimension ``dim``."""
+    return 2 * dim + 2 * n_free + (len(pair_features(dim)) + int(load_features)) * n_active
 
 
 class MesoNet(nn.Module):
@@ -144,7 +162,7 @@ class MesoNet(nn.Module):
         self.n_free = schema.n_free
         self.load_features = bool(load_features)
         active = torch.as_tensor(active, dtype=torch.bool)
-        n_in = n_features(self.n_free, int(active.sum()), self.load_features)
+        n_in = n_features(self.n_free, int(active.sum()), self.load_features, schema.dim)
         widths = (n_in, *self.hidden)
         layers: list[nn.Module] = []
         for a, b in zip(widths[:-1], widths[1:]):
@@ -187,7 +205,7 @@ class MesoNet(nn.Module):
         return self.schema.diameter * m * rate - relaxation * relax
 
     def displacement(self, cell_size, free_position, shear_force, d_eps) -> torch.Tensor:
-        """Free-DOF displacement [m], (n, n_free), over the probe ``d_eps`` (n, 2) from the given state."""
+        """Free-DOF displacement [m], (n, n_free), over the probe ``d_eps`` (n, dim) from the given state."""
         return self.displacement_from_features(*self.raw_features(cell_size, free_position, shear_force, d_eps))
 
     def advance(self, cell_size, free_position, shear_force, d_eps) -> cell_physics.Increment:

@@ -50,7 +50,13 @@ QUANTILE = 0.999
 WARN_FRACTION = 0.05
 """Fraction of checked cell-increments beyond the threshold above which a run is warned [-]."""
 PROBE_COLUMNS = 2
-"""Leading feature columns that describe the probe direction, not the state (left out)."""
+"""Leading feature columns that describe the probe direction of a planar cell, not the state
+(left out); a spatial cell has three (``probe_columns``)."""
+
+
+def probe_columns(net: MesoNet) -> int:
+    """Leading feature columns of ``net`` that describe the probe direction: one per local axis."""
+    return net.schema.dim
 
 
 class OodError(ValueError):
@@ -76,16 +82,17 @@ def state_features(net: MesoNet, cell_size: np.ndarray, free_position: np.ndarra
     """z-scored state features of cells, shape (n, n_state_features) [-].
 
     Args:
-        cell_size: (n, 2) [m]; free_position: (n, n_free) [m]; shear_force: (n, n_pairs) [N]
-            (DEM convention), all in the network's schema order.
+        cell_size: (n, dim) [m]; free_position: (n, n_free) [m]; shear_force: (n, n_pairs)
+            (3D: (n, n_pairs, 3)) [N] (DEM convention), all in the network's schema order.
     """
     t = [torch.as_tensor(np.asarray(a, dtype=np.float64)) for a in (cell_size, free_position, shear_force)]
     device = net.feature_mean.device
     t = [a.to(device) for a in t]
     with torch.inference_mode():
-        feats = net.raw_features(*t, torch.zeros(t[0].shape[0], 2, dtype=torch.float64, device=device))[0]
+        probe = torch.zeros(t[0].shape[0], net.schema.dim, dtype=torch.float64, device=device)
+        feats = net.raw_features(*t, probe)[0]
         z = (feats - net.feature_mean) / net.feature_std
-    return np.ascontiguousarray(z[:, PROBE_COLUMNS:].cpu().numpy())
+    return np.ascontiguousarray(z[:, probe_columns(net):].cpu().numpy())
 
 
 def database_features(net: MesoNet, db: Database, index: np.ndarray) -> np.ndarray:

@@ -51,7 +51,7 @@ from training.dataset import (
     split_by_path,
     tensors,
 )
-from training.network import DEFAULT_HIDDEN, PAIR_FEATURES, MesoNet
+from training.network import DEFAULT_HIDDEN, MesoNet, pair_features
 from training.ood import index_for_model, index_path
 from training.rollout import rollout_report
 from warp_hcell.core.cli import (
@@ -66,6 +66,7 @@ from warp_hcell.core.cli import (
 )
 from warp_hcell.core.files import check_output_path, output_lock
 from warp_hcell.mesostructures.files import from_description
+from warp_hcell.mesostructures.mesostructure import AXIS_NAMES
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.core.provenance import git_revision
 
@@ -149,13 +150,14 @@ def sliding_light(net: MesoNet, data: Tensors) -> torch.Tensor:
     pair carries a normal force above 0 and below ``LIGHT_FRACTION`` of the largest one, from the raw
     features of ``data`` (``training.network.features_and_contacts`` layout)."""
     n_active = int(net.active.sum())
-    base = 4 + 2 * net.n_free
-    pair = data.features[:, base:base + len(PAIR_FEATURES) * n_active].reshape(-1, n_active, len(PAIR_FEATURES))
-    closed = pair[..., PAIR_FEATURES.index("contact")] > 0.5
-    fn = torch.where(closed, torch.clamp(pair[..., PAIR_FEATURES.index("overlap")], min=0.0), 0.0)
+    names = pair_features(net.schema.dim)
+    base = 2 * net.schema.dim + 2 * net.n_free
+    pair = data.features[:, base:base + len(names) * n_active].reshape(-1, n_active, len(names))
+    closed = pair[..., names.index("contact")] > 0.5
+    fn = torch.where(closed, torch.clamp(pair[..., names.index("overlap")], min=0.0), 0.0)
     largest = fn.amax(dim=1, keepdim=True)
     light = (fn > 0) & (fn < LIGHT_FRACTION * largest)
-    sliding = closed & ((pair[..., PAIR_FEATURES.index("friction_ratio")].abs() - 1.0).abs() < 1e-6)
+    sliding = closed & ((pair[..., names.index("friction_ratio")].abs() - 1.0).abs() < 1e-6)
     return sliding.any(dim=1) & light.any(dim=1)
 
 
@@ -285,11 +287,12 @@ def _finite(values: np.ndarray, names: list[str]) -> dict[str, float | None]:
 def evaluate(net: MesoNet, db: Database, index: np.ndarray) -> dict[str, dict[str, float | None]]:
     """R^2 per learned output on samples ``index`` (see the module docstring).
 
-    Returns ``{"rate": {"x_n3": ...}, "relaxation": {...}, "moment_increment": {"S_nn": ..., "S_tt": ...}}``;
-    DOF names are ``x_{axis}{grain label}``; None where the set has no spread.
+    Returns ``{"rate": {"x_n3": ...}, "relaxation": {...}, "moment_increment": {"S_nn": ..., "S_tt": ...}}``
+    (3D: ``S_nn, S_t1t1, S_t2t2``); DOF names are ``x_{axis}{grain label}``; None where the set has no spread.
     """
     free = db.schema.free_dofs.numpy()
-    names = [f"x_{'nt'[a]}{g + 1}" for g, a in free]
+    axes = AXIS_NAMES[db.schema.dim]
+    names = [f"x_{axes[a]}{g + 1}" for g, a in free]
     state = [torch.from_numpy(db.before[k][index]) for k in ("cell_size", "free_position", "shear_force")]
     d_eps = torch.from_numpy(db.d_eps[index])
     with torch.no_grad():
@@ -304,11 +307,13 @@ def evaluate(net: MesoNet, db: Database, index: np.ndarray) -> dict[str, dict[st
     m = np.linalg.norm(db.d_eps[index], axis=1)
     clean = ~db.perturbed[index] & (m > 0)
     diameter = db.schema.diameter
-    diag = (slice(None), [0, 1], [0, 1])
+    diagonal = list(range(db.schema.dim))
+    diag = (slice(None), diagonal, diagonal)
     return {
         "rate": _finite(r2(predicted[clean] / (diameter * m[clean, None]), truth[clean] / (diameter * m[clean, None])), names),
         "relaxation": _finite(r2(predicted[~clean] / diameter, truth[~clean] / diameter), names),
-        "moment_increment": _finite(r2(ann[diag] - before[diag], dem[diag] - before[diag]), ["S_nn", "S_tt"]),
+        "moment_increment": _finite(r2(ann[diag] - before[diag], dem[diag] - before[diag]),
+                                    [f"S_{a}{a}" for a in axes]),
     }
 
 
@@ -419,6 +424,9 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
     """Train, evaluate and write the model of ``main`` (holding the output lock)."""
     config = config_of(args)
     db = load_database(args.data)
+    if config.rollout and db.schema.dim != 2:
+        raise DataError(f"{args.data}: a {db.schema.dim}D database; the rollout's held-out paths are planar "
+                        f"(training.rollout): pass --no-rollout")
     if config.rollout and not args.verbose:
         quiet_warp()  # the rollout runs the DEM on the cpu
     result = fit(db, config, progress=True)

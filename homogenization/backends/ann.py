@@ -1,8 +1,9 @@
 """Generic meso-ANN backend (spec section 12): a trained ``MesoNet`` decides every cell-increment.
 
 ``AnnCell`` implements ``warp_hcell.core.contract.CellModel`` for ANY mesostructure the model
-was trained on. The state of a cell is the DEM's learning state: cell size (l1, l2), the
-free-DOF coordinates and the tangential spring force of every candidate pair. Per macro
+was trained on, planar or spatial (the dimension is the model's schema's). The state of a cell
+is the DEM's learning state: cell size (l1, l2[, l3]), the free-DOF coordinates and the
+tangential spring force of every candidate pair (a vector per pair in 3D). Per macro
 increment, ONE batched network call over all cells gives the free-DOF displacement (a rate
 per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
 ``training.network``); then exact generic physics (``training.cell_physics``) follows:
@@ -12,12 +13,12 @@ per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
 - normal forces, contact flags and tangential forces come from the contact law of the DEM
   (tangential increment along the mid-increment tangent, Coulomb cap from the trial force,
   reset out of contact); the moment is the Love-Weber sum over the contacts and V_cell the
-  area of the polygon through the outer grains.
+  area of the polygon through the outer grains (the volume of the outer polyhedron in 3D).
 
-On CPU, ``step`` runs this increment through ``training.inference.FastAdvance`` (the same
-physics compiled with numba around the network call; equal to the torch path up to
+On CPU, ``step`` runs a planar cell's increment through ``training.inference.FastAdvance`` (the
+same physics compiled with numba around the network call; equal to the torch path up to
 rounding), and its tangent by forward-mode differentiation in the same code; on another
-device the torch path and autograd.
+device, and for spatial cells (the compiled path is planar), the torch path and autograd.
 
 No equilibrium is solved and no closed form of a particular cell is used. Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
@@ -52,7 +53,8 @@ fraction of a checked increment is their ratio. Once the cumulative fraction exc
 ``training.ood.WARN_FRACTION`` one ``RuntimeWarning`` says so. Without an index file the two
 counts are absent and ``ood`` is None.
 
-Sign convention: compression and contraction positive. Local frame: index 0 = n, 1 = t.
+Sign convention: compression and contraction positive. Local frame: index 0 = n, 1 = t
+(3D: 1 = t1, 2 = t2).
 """
 
 from __future__ import annotations
@@ -68,15 +70,17 @@ from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
-from training.ood import index_path, load_index, OodError, OodIndex, PROBE_COLUMNS, state_features, WARN_FRACTION
+from training.ood import index_path, load_index, OodError, OodIndex, probe_columns, state_features, WARN_FRACTION
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.files import from_description
-from warp_hcell.mesostructures.mesostructure import evaluate_observables, Mesostructure, per_cell
+from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, evaluate_observables, Mesostructure, per_cell
 from warp_hcell.core.parameters import check_positive, ContactLaw
 
 DEFAULT_MODEL = "ann_default.pt"
-"""File name of the model shipped in ``homogenization/data`` (with its ``.json``)."""
+"""File name of the planar model shipped in ``homogenization/data`` (with its ``.json``)."""
+DEFAULT_MODELS = {2: DEFAULT_MODEL, 3: "ann3d_default.pt"}
+"""File names of the models shipped (or to be shipped) in ``homogenization/data``, by cell dimension."""
 
 
 OOD_INTERVAL = 500
@@ -85,9 +89,9 @@ of 360 cells costs ~0.8-1.8 ms, so every 500th increment adds ~2-4 us to a ~80 u
 (docs/certificate.md)."""
 
 
-def default_model_path() -> Path:
-    """Path of the shipped default model state_dict (its metadata sits next to it)."""
-    return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODEL
+def default_model_path(dim: int = 2) -> Path:
+    """Path of the shipped default model state_dict of cells of dimension ``dim`` (its metadata sits next to it)."""
+    return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODELS[dim]
 
 
 def certificate_problem(metadata: dict[str, Any], path: Path) -> str | None:
@@ -127,11 +131,12 @@ class AnnState(NamedTuple):
     """Batch of generic ANN cells (first axis n_cells)."""
 
     cell_size: np.ndarray
-    """(l1, l2) [m], shape (n_cells, 2)."""
+    """(l1, l2[, l3]) [m], shape (n_cells, dim)."""
     free_position: np.ndarray
     """Free-DOF coordinates [m], shape (n_cells, n_free), in the model's ``free_dofs`` order."""
     shear_force: np.ndarray
-    """Tangential spring force of every candidate pair [N], shape (n_cells, n_pairs) (DEM convention)."""
+    """Tangential spring force of every candidate pair [N], shape (n_cells, n_pairs) (3D:
+    (n_cells, n_pairs, 3)), DEM convention."""
 
 
 class AnnCell(ArrayStateMixin):
@@ -143,7 +148,8 @@ class AnnCell(ArrayStateMixin):
             mesostructure given to ``init_state`` (the argument keeps the constructor of every
             backend alike, ``homogenization.backends.make_cell_model``).
         model: path of a model state_dict (``.pt``, metadata in the ``.json`` next to it);
-            None loads the default model shipped in ``homogenization/data``.
+            None loads the default model shipped in ``homogenization/data`` for cells of
+            ``default_dim`` (``AnnCell3D``: the 3D one).
         device: torch device of the network ("cpu", "cuda", ...).
         threads: torch CPU threads (process-wide setting, applied here) [-].
         ood_interval: distinct start states between two out-of-distribution checks (module
@@ -157,6 +163,8 @@ class AnnCell(ArrayStateMixin):
 
     name = "ann"
     state_type = AnnState
+    default_dim = 2
+    """Dimension of the cells whose shipped model ``model=None`` loads."""
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
                  device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL) -> None:
@@ -164,9 +172,10 @@ class AnnCell(ArrayStateMixin):
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:
             raise ValueError(f"threads = {threads} must be >= 1")
-        path = default_model_path() if model is None else Path(model)
+        path = default_model_path(self.default_dim) if model is None else Path(model)
         if model is None and not path.is_file():
-            raise CheckpointError(f"{path}: the default ANN model is not installed; pass model=PATH (--model)")
+            raise CheckpointError(f"{path}: the default {self.default_dim}D ANN model is not installed; pass "
+                                  f"model=PATH (--model)")
         self.net, self.metadata = load_checkpoint(path)
         check_compatible(self.metadata, kn=contact_law.kn, kt_over_kn=contact_law.kt_over_kn,
                          phi_g_deg=contact_law.phi_g_deg, source=str(path))
@@ -178,7 +187,8 @@ class AnnCell(ArrayStateMixin):
         self.net.active_index = self.net.active_index.to(self.device)
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
-        self.fast = FastAdvance(self.net) if self.device.type == "cpu" else None
+        self.dim = self.net.schema.dim
+        self.fast = FastAdvance(self.net) if self.device.type == "cpu" and self.dim == 2 else None
         self.certificate: dict[str, Any] | None = self.metadata.get("certificate")
         self.certificate_problem = certificate_problem(self.metadata, path)
         if int(ood_interval) < 1:
@@ -249,7 +259,7 @@ class AnnCell(ArrayStateMixin):
         cell_size = np.stack([meso.cell_size for meso in distinct])[index]
         free = self.net.schema.free_dofs.cpu().numpy()
         return AnnState(np.array(cell_size, dtype=np.float64), np.array(position[:, free[:, 0], free[:, 1]]),
-                        np.zeros((int(n_cells), self.net.schema.n_pairs)))
+                        np.zeros((int(n_cells), *self.net.schema.shear_shape)))
 
     def _tensors(self, state: AnnState):
         return tuple(torch.from_numpy(np.asarray(a, dtype=np.float64)).to(self.device) for a in state)
@@ -259,11 +269,11 @@ class AnnCell(ArrayStateMixin):
 
         Args:
             state: cells at the start of the increment.
-            d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
-            with_tangent: also return ``CellResponse.tangent`` = d(S_nn, S_tt)/d(eps_n, eps_t)
-                [N m], shape (n_cells, 2, 2), the derivative of the whole increment (network
+            d_eps_local: local strain increment [-], shape (n_cells, dim), compression positive.
+            with_tangent: also return ``CellResponse.tangent`` = d(S_nn, S_tt[, S_t2t2])/d(d_eps)
+                [N m], shape (n_cells, dim, dim), the derivative of the whole increment (network
                 and contact law): forward mode in the compiled path on CPU, torch autograd
-                on another device.
+                otherwise.
 
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
@@ -271,7 +281,7 @@ class AnnCell(ArrayStateMixin):
         due = self._ood_due(state)
         if self.fast is not None:
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
-            features = self.fast.last_features()[PROBE_COLUMNS:].T if due else None
+            features = self.fast.last_features()[probe_columns(self.net):].T if due else None
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
                            "n_tension_clipped": float(np.count_nonzero(inc.opened)),
                            "n_mechanism": float(np.count_nonzero(inc.mechanism)),
@@ -286,7 +296,8 @@ class AnnCell(ArrayStateMixin):
         if with_tangent:
             d_eps = d_eps.clone().requires_grad_(True)
             step = self.net.advance(size, free, shear, d_eps)
-            rows = [torch.autograd.grad(step.moment[:, i, i].sum(), d_eps, retain_graph=i == 0)[0] for i in (0, 1)]
+            rows = [torch.autograd.grad(step.moment[:, i, i].sum(), d_eps, retain_graph=i < self.dim - 1)[0]
+                    for i in range(self.dim)]
             tangent = torch.stack(rows, dim=1).detach().cpu().numpy()
         else:
             with torch.inference_mode():
@@ -315,7 +326,7 @@ class AnnCell(ArrayStateMixin):
         with torch.inference_mode():
             x, c, force = self._forces(state)
             moment = cell_physics.love_weber(c, force).cpu().numpy()
-            area = cell_physics.polygon_area(x, self.net.schema.outer).cpu().numpy()
+            area = cell_physics.cell_measure(x, self.net.schema.outer).cpu().numpy()
         return CellResponse(moment, area)
 
     def observables(self, state: AnnState) -> dict[str, np.ndarray]:
@@ -323,21 +334,32 @@ class AnnCell(ArrayStateMixin):
 
         Always ``l1, l2, area`` [m, m^2], ``S_nn, S_tt, S_nt`` [N m] (compression positive),
         ``n_contacts`` and grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label), and the
-        observables the model's mesostructure declares (``Mesostructure.observables``).
+        observables the model's mesostructure declares (``Mesostructure.observables``). A
+        spatial cell gives, as the DEM backend, ``l1, l2, l3``, ``area`` (the volume [m^3]),
+        ``S_nn, S_t1t1, S_t2t2, S_nt1, S_nt2, S_t1t2`` and ``x_n{i}, x_t1{i}, x_t2{i}`` instead.
         """
         with torch.inference_mode():
             x, c, force = self._forces(state)
         x = x.cpu().numpy()
         response = self.response(state)
-        obs: dict[str, np.ndarray] = {
-            "l1": state.cell_size[:, 0].copy(), "l2": state.cell_size[:, 1].copy(), "area": response.area,
-            "S_nn": response.moment[:, 0, 0], "S_tt": response.moment[:, 1, 1], "S_nt": response.moment[:, 0, 1],
-            "n_contacts": c.contact.cpu().numpy().sum(axis=1),
-        }
+        axes = AXIS_NAMES[self.dim]
+        obs: dict[str, np.ndarray] = {f"l{k + 1}": state.cell_size[:, k].copy() for k in range(self.dim)}
+        obs["area"] = response.area
+        for a, b in ((0, 0), *((k, k) for k in range(1, self.dim)), *((a, b) for a in range(self.dim)
+                                                                       for b in range(a + 1, self.dim))):
+            obs[f"S_{axes[a]}{axes[b]}"] = response.moment[:, a, b]
+        obs["n_contacts"] = c.contact.cpu().numpy().sum(axis=1)
         if self.trained_on.observables:
             obs.update(evaluate_observables(self.trained_on, x, c.normal_force.cpu().numpy(), state.shear_force,
                                          c.contact.cpu().numpy()))
         for g in range(x.shape[1]):
-            obs[f"x_n{g + 1}"] = x[:, g, 0].copy()
-            obs[f"x_t{g + 1}"] = x[:, g, 1].copy()
+            for k, axis in enumerate(axes):
+                obs[f"x_{axis}{g + 1}"] = x[:, g, k].copy()
         return obs
+
+
+class AnnCell3D(AnnCell):
+    """``AnnCell`` whose ``model=None`` is the shipped model of spatial cells (``DEFAULT_MODELS[3]``):
+    the backend ``ann`` of 3D runs (``homogenization.backends.BACKENDS``)."""
+
+    default_dim = 3

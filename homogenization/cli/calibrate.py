@@ -175,7 +175,8 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
     if args.backend == "ann" and any(t.dim == 3 for t in tests):
-        raise UserError("--backend ann has no 3D model: triaxial data need --backend analytical or dem")
+        raise UserError("--backend ann has no 3D model of a range of opening angles (the shipped one is trained at "
+                        "alpha0 = 55 deg only): triaxial data need --backend analytical or dem")
     if args.backend == "ann":
         refuse_uncertified_file(None, args)
     if args.walkers < 2 * len(args.params):

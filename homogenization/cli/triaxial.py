@@ -19,7 +19,8 @@ shear), several DIR/<backend>/...; DIR/triaxial.png overlays every backend in th
 (eps_a, q) and (eps_a, eps_v) panels. The output folder is replaced as a unit (--overwrite).
 
 Sign convention: compression and contraction positive; stresses in Pa. Bad input (unknown
-backend, the ann backend (no 3D meso-ANN model yet), a planar mesostructure, p0 <= 0, an
+backend, the ann backend without --uncertified-ok (the certificate is planar: no 3D model is
+certified), a planar mesostructure, p0 <= 0, an
 increment larger than --eps-max, a programme of planar steps, existing output without
 --overwrite) is one line on stderr and exit code 2, before any run.
 """
@@ -35,7 +36,7 @@ from typing import Any, Sequence
 
 from homogenization import driver, figures, loading
 from homogenization.backends import BACKENDS
-from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_programme_arguments, command_parser
+from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_programme_arguments, add_uncertified_argument, command_parser
 from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, run_backends, shear_iso_increment
 from homogenization.orientation3d import LEBEDEV_ORDERS
 from warp_hcell.core.cli import (
@@ -92,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = command_parser("homogenization.triaxial", "Isotropic compression to p0, then a triaxial test of the 3D "
                                                        "H-model (undrained, drained, extension, constant p, true "
                                                        "triaxial, cyclic), or any 3D loading programme file.")
-    add_backend_list_argument(parser, ("analytical",), " (ann: no 3D model yet)")
+    add_backend_list_argument(parser, ("analytical",), " (ann: the shipped 3D model of the loose cell, or --model)")
     add_alpha0_argument(parser)
     group = add_programme_arguments(
         parser, stress_unit="Pa", eps_max=0.15, increment=1e-4,
@@ -116,6 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_cell_arguments(parser, f"the 3D cell of every backend (analytical: the plain ten-sphere cell only); "
                                f"None: {DEFAULT_MESOSTRUCTURE} at --alpha0 and --radius.",
                        "CPU threads of the DEM (None: its own default)")
+    add_uncertified_argument(parser)
     return parser
 
 
@@ -161,11 +163,16 @@ def run_mesostructure(args: argparse.Namespace) -> Mesostructure:
     return meso
 
 
-def check_backends(names: Sequence[str]) -> None:
-    """UserError (one line) for a backend without 3D cells (the ann: no 3D meso-ANN model yet)."""
+def check_backends(names: Sequence[str], model: Path | None) -> None:
+    """UserError (one line) for a backend without 3D cells, or the ann without ``model`` (--model) where
+    no 3D meso-ANN model is installed."""
     for name in names:
-        if name == "ann":
-            raise UserError("--backend ann: no 3D meso-ANN model yet; use analytical or dem")
+        if name == "ann" and model is None:
+            from homogenization.backends.ann import default_model_path  # noqa: PLC0415 (torch)
+
+            if not default_model_path(3).is_file():
+                raise UserError("--backend ann: no 3D meso-ANN model is shipped; pass --model M.pt, a model trained "
+                                "on a 3D database (docs/triaxial.md, 3D meso-ANN)")
         if 3 not in BACKENDS[name]:
             raise UserError(f"--backend {name}: does not model 3D cells")
 
@@ -176,7 +183,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     set_verbosity(args)
     command = command_line() if argv is None else shlex.join(["hmodel", "triaxial", *argv])
     out: Path = args.out
-    check_backends(args.backend)
+    check_backends(args.backend, args.model)
     check_run(args, FIGURE_FILE)
     programme, settings = build_programme(args, sys.argv[1:] if argv is None else argv)
     law = contact_law_from_args(args)

@@ -20,6 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
+CAP_SLACK = 1e-12
+"""Relative excess of a spatial spring over mu f_n that the vector cap leaves alone [-]: the 3D cap
+rescales the spring to mu f_n (to rounding), so a capped spring is capped again only if it grew;
+re-evaluating a capped state then gives the same forces bit for bit."""
 OPEN, STICK, SLIDE = 0, 1, 2
 """Contact regimes: out of contact, sticking, sliding (tangential force at the Coulomb cap)."""
 

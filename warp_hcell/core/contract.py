@@ -179,9 +179,23 @@ class CellCounts:
 
 
 class SchemaCounts(CellCounts):
-    """``CellCounts`` and ``n_free`` of a schema with ``free_dofs`` (n_free, 2): (grain, axis)."""
+    """``CellCounts``, ``n_free``, ``dim`` and ``shear_shape`` of a schema with ``free_dofs``
+    (n_free, 2): (grain, axis) and ``driven`` (n_grains, dim)."""
 
     free_dofs: Any
+    driven: Any
+
+    @property
+    def dim(self) -> int:
+        """Spatial dimension of the cell: 2 (frame (n, t)) or 3 (frame (n, t1, t2))."""
+        return int(self.driven.shape[1])
+
+    @property
+    def shear_shape(self) -> tuple[int, ...]:
+        """Shape of one cell's tangential spring forces: (n_pairs,) in 2D (a scalar along
+        w = (-u_t, u_n) per pair), (n_pairs, 3) in 3D (a vector in the contact's tangent plane,
+        local frame components, as the 3D DEM keeps it)."""
+        return (self.n_pairs,) if self.dim == 2 else (self.n_pairs, self.dim)
 
     @property
     def n_free(self) -> int:
@@ -222,18 +236,20 @@ class StateSchema(SchemaCounts):
     A state is (cell size, free-DOF coordinates, per-pair tangential spring forces); every
     other feature (contact flags, normal forces, unbalanced forces on the free DOFs,
     Love-Weber moment, area) follows from it, the reference geometry below and the contact
-    law. Driven coordinates follow x = x_ref * l / l_ref. Local frame: index 0 = n, 1 = t;
-    grain labels in feature names are 1-based.
+    law. Driven coordinates follow x = x_ref * l / l_ref. Local frame: index 0 = n, 1 = t
+    (2D) or 1 = t1, 2 = t2 (3D, ``dim`` = 3: shapes below with 3 in place of 2, the spring
+    forces per pair a vector, ``shear_shape``); grain labels in feature names are 1-based.
 
     Attributes:
-        free_dofs: (grain index 0-based, axis 0 = n / 1 = t) of every free DOF, shape
+        free_dofs: (grain index 0-based, axis 0 = n / 1 = t (/ 2 = t2)) of every free DOF, shape
             (n_free, 2) int64, row-major order of ``driven == False``.
         pairs: candidate contact pairs (i, j), 0-based, shape (n_pairs, 2) int64.
         radius: grain radii [m], shape (n_grains,).
-        reference_position: reference centres [m], shape (n_grains, 2).
-        reference_cell_size: (l1_ref, l2_ref) [m], shape (2,).
-        driven: True where the DOF is driven, shape (n_grains, 2) bool.
-        outer: ordered grain indices of the outer polygon (area V_cell), shape (n_outer,).
+        reference_position: reference centres [m], shape (n_grains, dim).
+        reference_cell_size: (l1_ref, l2_ref[, l3_ref]) [m], shape (dim,).
+        driven: True where the DOF is driven, shape (n_grains, dim) bool.
+        outer: ordered grain indices of the outer polygon (area V_cell), shape (n_outer,);
+            in 3D the outer triangles (volume V_cell), shape (n_faces, 3).
         features: feature name -> ``StateFeature``, in storage order.
     """
 

@@ -2,9 +2,11 @@
 
 Deterministic (fixed draws, below). From each start cell (a batch of cells sharing one learning
 state, ``warp_hcell.mesostructures.mesostructure.shares_state_schema``), one isotropic path compresses the
-cell (d_eps_n = d_eps_t) through the precompression levels; from the state at each level,
-proportional legs leave in ``n_directions`` directions psi of the (eps_n, eps_t) plane (all
-directions: cells close, open, slide and lose contacts). A leg runs until its path length
+cell (every local strain component equal) through the precompression levels; from the state at
+each level, proportional legs leave in ``n_directions`` directions of the local strain space
+(all directions: cells close, open, slide and lose contacts): angles psi of the (eps_n, eps_t)
+plane for a planar cell, the points of a spherical Fibonacci set in (eps_n, eps_t1, eps_t2)
+for a spatial one (``leg_directions``). The dimension is the schema's (``StateSchema.dim``). A leg runs until its path length
 reaches ``leg_length`` or its volumetric strain change reaches ``leg_volumetric``. All
 active paths advance as ONE batch per increment and every state reached is sampled. The
 increment is ``sample_spacing`` (path length), except at the start of a leg where it starts
@@ -14,7 +16,8 @@ direction, where the response changes fastest).
 Turning branches (``reversal_legs`` per leg, ``turn_branches``): each leaves one of its leg's
 sampled states (the turn, at a path length drawn in ``reversal_arc``) in the leg's direction
 turned by an angle > 90 deg (negated for a fraction ``reversal_negated_fraction``, else turned
-by an angle drawn in [``reversal_min_angle_deg``, 180] deg, either sense), so the cell unloads
+by an angle drawn in [``reversal_min_angle_deg``, 180] deg, either sense; in 3D in a plane
+through the leg's direction drawn uniformly), so the cell unloads
 and then loads the other way, as in a homogenised test whose loading reverses. A branch runs
 like a leg (the same refined increments, up to ``leg_length``; its volumetric limit counts from
 its leg's start) and is a path of its own. The draws are pseudo-random but fixed: a generator
@@ -27,11 +30,12 @@ Stop rules (generic; ``stop_masks``): a path stops, and its state is not sampled
 DEM did not converge, a value is not finite, the cell has carried no contact force over a
 path length above ``stress_free_length`` (open or force-free mechanism for long; shorter
 force-free stretches are kept: the network must learn mechanisms), an overlap exceeds
-``max_overlap`` (r_i + r_j), or ``|eps_n|`` or ``|eps_t|`` from the start cell exceeds
-``max_cell_strain``. "No contact force" means every normal force <= the DEM's force floor
+``max_overlap`` (r_i + r_j), or a local strain component from the start cell exceeds
+``max_cell_strain``. A path length is the Euclidean norm of the local strain increments. "No contact force" means every normal force <= the DEM's force floor
 kn * contact_tolerance * mean grain diameter.
 
-Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
+Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t
+(3D: 1 = t1, 2 = t2). Arrays of strains have ``dim`` columns.
 """
 
 from __future__ import annotations
@@ -53,7 +57,7 @@ STOP_RULES = {
     "non_finite": "a non-finite value in the state",
     "stress_free": "no contact force over a path length > stress_free_length",
     "overlap": "an overlap > max_overlap (r_i + r_j)",
-    "cell_strain": "|eps_n| or |eps_t| from the start cell > max_cell_strain",
+    "cell_strain": "a local strain component from the start cell (|eps_n|, |eps_t|, ...) > max_cell_strain",
 }
 """Stop rules of the exploration and what they test."""
 TURN_NOT_REACHED = "turn_not_reached"
@@ -62,10 +66,30 @@ TURN_STREAM = 0x7475726E
 """First word of the seed of the turning branches' draws (then the start id)."""
 
 
-def leg_directions(settings: DatabaseSettings) -> np.ndarray:
-    """Unit directions (d_eps_n, d_eps_t) of the legs, psi_k = 2 pi k / n, shape (n, 2)."""
-    psi = 2.0 * np.pi * np.arange(settings.n_directions) / settings.n_directions
-    return np.stack([np.cos(psi), np.sin(psi)], axis=1)
+def leg_directions(settings: DatabaseSettings, dim: int = 2) -> np.ndarray:
+    """Unit directions of the legs in the local strain space, shape (n, dim).
+
+    dim = 2: (d_eps_n, d_eps_t) = (cos psi_k, sin psi_k), psi_k = 2 pi k / n. dim = 3: the
+    spherical Fibonacci set (nearly even on the sphere) about the isotropic axis
+    e_v = (1, 1, 1) / sqrt 3: z_k e_v + sqrt(1 - z_k^2) (cos phi_k e_1 + sin phi_k e_2) with
+    z_k = 1 - (2 k + 1) / n, phi_k = k pi (3 - sqrt 5), e_1 = (2, -1, -1) / sqrt 6 and
+    e_2 = (0, 1, -1) / sqrt 2, so that its latitude z_k is the volumetric part of the
+    direction: its rings near z = 0 are the isochoric directions every cell of an undrained
+    test follows (as psi = 135 and 315 deg in 2D).
+    """
+    k = np.arange(settings.n_directions)
+    if dim == 2:
+        psi = 2.0 * np.pi * k / settings.n_directions
+        return np.stack([np.cos(psi), np.sin(psi)], axis=1)
+    z = 1.0 - (2.0 * k + 1.0) / settings.n_directions
+    ring, phi = np.sqrt(1.0 - z * z), k * np.pi * (3.0 - math.sqrt(5.0))
+    frame = np.array([[2.0, -1.0, -1.0], [0.0, 1.0, -1.0], [1.0, 1.0, 1.0]]) / np.sqrt([[6.0], [2.0], [3.0]])
+    return np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axis=1) @ frame
+
+
+def path_length(d_eps: np.ndarray) -> np.ndarray:
+    """Euclidean norm of local strain increments (n, dim), shape (n,) (``np.hypot`` of the columns)."""
+    return np.hypot.reduce(d_eps, axis=1)
 
 
 def leg_arc(settings: DatabaseSettings) -> np.ndarray:
@@ -85,7 +109,7 @@ def leg_steps(settings: DatabaseSettings, directions: np.ndarray, arc: np.ndarra
     """Increments of each leg allowed by the path-length and volumetric limits, shape (n,) int64.
 
     Args:
-        directions: unit leg directions (d_eps_n, d_eps_t), shape (n, 2).
+        directions: unit leg directions, shape (n, dim).
         arc: ``leg_arc`` of the settings, shape (K,).
     """
     volumetric = np.abs(directions.sum(axis=1))
@@ -93,11 +117,14 @@ def leg_steps(settings: DatabaseSettings, directions: np.ndarray, arc: np.ndarra
     return np.searchsorted(arc, reach, side="right").astype(np.int64)
 
 
-def turn_draws(settings: DatabaseSettings, start_id: int, n_levels: int) -> tuple[np.ndarray, np.ndarray]:
+def turn_draws(settings: DatabaseSettings, start_id: int, n_levels: int,
+               dim: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Turns of the branches of one start cell (module docstring), each shape
     (n_levels, n_directions, reversal_legs): the leg's increments done at the turn (int64, >= 1;
-    the state after them is the turn) and the angle [rad] from the leg's direction to the
-    branch's, counter-clockwise in the (eps_n, eps_t) plane (pi: negated)."""
+    the state after them is the turn), the angle [rad] from the leg's direction to the
+    branch's (counter-clockwise in the (eps_n, eps_t) plane; pi: negated) and, for dim = 3,
+    a standard normal vector per branch, shape (..., 3), that picks the plane of the turn
+    (``turned``); None for dim = 2. The planar draws come first, so they do not depend on dim."""
     rng = np.random.default_rng([TURN_STREAM, int(start_id)])
     arc = leg_arc(settings)
     lo, hi = settings.reversal_arc
@@ -109,13 +136,24 @@ def turn_draws(settings: DatabaseSettings, start_id: int, n_levels: int) -> tupl
     negated = rng.random(shape) < settings.reversal_negated_fraction
     turn = rng.uniform(math.radians(settings.reversal_min_angle_deg), math.pi, size=shape)
     sense = np.where(rng.random(shape) < 0.5, -1.0, 1.0)
-    return steps.astype(np.int64), np.where(negated, math.pi, sense * turn)
+    plane = None if dim == 2 else rng.standard_normal((*shape, dim))
+    return steps.astype(np.int64), np.where(negated, math.pi, sense * turn), plane
 
 
-def turned(directions: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Unit directions (n, 2) turned counter-clockwise by ``angle`` [rad] (n,); pi gives exactly -direction."""
+def turned(directions: np.ndarray, angle: np.ndarray, plane: np.ndarray | None = None) -> np.ndarray:
+    """Unit directions (n, dim) turned by ``angle`` [rad] (n,); pi gives exactly -direction.
+
+    dim = 2 (``plane`` None): counter-clockwise in the (eps_n, eps_t) plane. dim = 3: towards
+    the part of ``plane`` (n, 3) normal to the direction (the turn's plane; ``turn_draws``).
+    """
     c, s = np.cos(angle), np.sin(angle)
-    out = np.stack([c * directions[:, 0] - s * directions[:, 1], s * directions[:, 0] + c * directions[:, 1]], axis=1)
+    if plane is None:
+        out = np.stack([c * directions[:, 0] - s * directions[:, 1], s * directions[:, 0] + c * directions[:, 1]],
+                       axis=1)
+    else:
+        normal = plane - np.sum(plane * directions, axis=1, keepdims=True) * directions
+        normal = normal / np.linalg.norm(normal, axis=1, keepdims=True)
+        out = c[:, None] * directions + s[:, None] * normal
     return np.where((angle == math.pi)[:, None], -directions, out)
 
 
@@ -124,8 +162,8 @@ def volumetric_steps(settings: DatabaseSettings, volumetric_start: np.ndarray, i
     ``leg_volumetric``, shape (n,) int64.
 
     Args:
-        volumetric_start: eps_n + eps_t at the path's start minus at its leg's start [-], (n,).
-        increments: (d_eps_n, d_eps_t) of each increment, shape (n, K, 2).
+        volumetric_start: sum of the local strains at the path's start minus at its leg's start [-], (n,).
+        increments: local strain increments, shape (n, K, dim).
     """
     change = volumetric_start[:, None] + np.cumsum(increments.sum(axis=2), axis=1)
     within = np.abs(change) <= settings.leg_volumetric * (1.0 + 1e-12)
@@ -144,7 +182,7 @@ def stop_masks(schema: StateSchema, arrays: Mapping[str, np.ndarray], eps: np.nd
 
     Args:
         arrays: DEM state arrays (``DemCell.state_to_arrays``), first axis n.
-        eps: (eps_n, eps_t) summed from the start cell [-], shape (n, 2).
+        eps: local strains summed from the start cell [-], shape (n, dim).
         stress_free_run: path length over which the cell has carried no contact force,
             this state included [-], shape (n,).
     """
@@ -207,10 +245,10 @@ class Explorer:
 
         Args:
             state: the start states, n_cells cells (admissible: start cells or sampled states).
-            increments: (d_eps_n, d_eps_t) [-] of increment k of cell i, shape (n_cells, K, 2)
+            increments: local strains [-] of increment k of cell i, shape (n_cells, K, dim)
                 (a broadcast view is fine), compression positive.
             n_steps: increments allowed per cell, shape (n_cells,) int, <= K.
-            eps_start: (eps_n, eps_t) of the start states from their start cell, (n_cells, 2).
+            eps_start: local strains of the start states from their start cell, (n_cells, dim).
             free_run_start: force-free path length of the start states, (n_cells,).
             cell_start: start cell (0..n_starts-1) of each walked cell, (n_cells,) int.
             label: progress-bar label.
@@ -218,7 +256,7 @@ class Explorer:
 
         Returns:
             The sampled states: ``cell`` (walk index) and ``step`` (increments done) int64,
-            ``eps`` (n, 2), ``free_run`` (n,), and the DEM arrays prefixed ``DEM_PREFIX``.
+            ``eps`` (n, dim), ``free_run`` (n,), and the DEM arrays prefixed ``DEM_PREFIX``.
         """
         cm = self.cell_model
         active = np.arange(increments.shape[0])
@@ -234,7 +272,7 @@ class Explorer:
             state, _ = cm.step(state, d_eps)
             arrays = cm.state_to_arrays(state)
             eps = eps + d_eps
-            free_run = self._free_run(arrays, free_run, np.hypot(d_eps[:, 0], d_eps[:, 1]))
+            free_run = self._free_run(arrays, free_run, path_length(d_eps))
             masks = stop_masks(self.schema, arrays, eps, free_run, self.settings, self.contact_law,
                                self.contact_tolerance)
             stop = np.zeros(active.size, dtype=bool)
@@ -280,8 +318,9 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
         int64, ``precompression`` [-] (isotropic strain the leg started from; the current one
         on isotropic paths), ``direction_deg`` [deg] (leg direction psi; NaN on isotropic
         paths; the leg's on its branches), ``turn_deg`` [deg] (a branch's turn from its
-        leg's direction, counter-clockwise, 180 = negated; NaN elsewhere), ``eps`` (n_states, 2)
-        [-] summed from the start cell. ``stops``: rule (and ``TURN_NOT_REACHED``) -> how
+        leg's direction, counter-clockwise, 180 = negated; NaN elsewhere), ``eps`` (n_states, dim)
+        [-] summed from the start cell (for a spatial cell ``direction_deg`` = 360 k / n_directions
+        labels direction k of ``leg_directions``). ``stops``: rule (and ``TURN_NOT_REACHED``) -> how
         often it fired, per start cell, shape (n_starts,) int64.
     """
     n_starts = int(start_state.n_cells)
@@ -290,9 +329,10 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
     stride = path_stride(settings)
     levels = np.unique(np.asarray(settings.precompression, dtype=np.float64))
     iso_strain = np.union1d(levels, np.arange(0.0, levels[-1], settings.sample_spacing / math.sqrt(2.0)))
-    iso_increments = np.repeat(np.diff(iso_strain)[None, :, None], 2, axis=2)
+    dim = schema.dim
+    iso_increments = np.repeat(np.diff(iso_strain)[None, :, None], dim, axis=2)
     iso = explorer.walk(start_state, np.broadcast_to(iso_increments, (n_starts, *iso_increments.shape[1:])),
-                        np.full(n_starts, iso_increments.shape[1]), np.zeros((n_starts, 2)),
+                        np.full(n_starts, iso_increments.shape[1]), np.zeros((n_starts, dim)),
                         np.zeros(n_starts), np.arange(n_starts), "isotropic paths", sample_start=True)
     iso_eps = iso_strain[iso.pop("step")]
     cell = iso["cell"]
@@ -300,7 +340,7 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
                direction_deg=np.full(iso_eps.size, np.nan))
 
     origin = np.flatnonzero(np.isin(iso_eps, levels))
-    directions = leg_directions(settings)
+    directions = leg_directions(settings, dim)
     n_dir = directions.shape[0]
     leg_origin = np.repeat(origin, n_dir)
     leg_dir = np.tile(np.arange(n_dir), origin.size)
@@ -348,7 +388,7 @@ def turn_branches(explorer: Explorer, cell_model, legs: Mapping[str, np.ndarray]
     Args:
         explorer: the exploration's walker (its stop counts get ``TURN_NOT_REACHED``).
         legs: ``Explorer.walk`` output of the legs (``cell`` = leg index, ``step``).
-        directions: unit leg directions, (n_directions, 2); leg_dir, leg_level, leg_start,
+        directions: unit leg directions, (n_directions, dim); leg_dir, leg_level, leg_start,
             leg_origin: per leg, its direction index, precompression level index, start id
             and isotropic state (index into ``iso``), each (n_legs,) int.
         iso: the isotropic paths' states (``cell``: local start cell); iso_eps: their
@@ -363,16 +403,21 @@ def turn_branches(explorer: Explorer, cell_model, legs: Mapping[str, np.ndarray]
     n_rev = settings.reversal_legs
     if not n_rev or not leg_dir.size:
         return None
+    dim = directions.shape[1]
     steps = np.empty((leg_dir.size, n_rev), np.int64)
     angle = np.empty((leg_dir.size, n_rev))
+    plane = None if dim == 2 else np.empty((leg_dir.size, n_rev, dim))
     for start_id in np.unique(leg_start):
         mine = leg_start == start_id
-        turn_step, turn_angle = turn_draws(settings, int(start_id), n_levels)
+        turn_step, turn_angle, turn_plane = turn_draws(settings, int(start_id), n_levels, dim)
         steps[mine] = turn_step[leg_level[mine], leg_dir[mine]]
         angle[mine] = turn_angle[leg_level[mine], leg_dir[mine]]
+        if plane is not None:
+            plane[mine] = turn_plane[leg_level[mine], leg_dir[mine]]
     leg = np.repeat(np.arange(leg_dir.size), n_rev)
     branch = np.tile(np.arange(n_rev), leg_dir.size)
     steps, angle = steps.ravel(), angle.ravel()
+    plane = None if plane is None else plane.reshape(-1, dim)
     key = legs["cell"] * (arc.size + 1) + legs["step"]
     order = np.argsort(key, kind="stable")
     want = leg * (arc.size + 1) + steps
@@ -380,13 +425,14 @@ def turn_branches(explorer: Explorer, cell_model, legs: Mapping[str, np.ndarray]
     reached = key[order][at] == want
     np.add.at(explorer.stops[TURN_NOT_REACHED], iso["cell"][leg_origin[leg[~reached]]], 1)
     leg, branch, angle, row = leg[reached], branch[reached], angle[reached], order[at[reached]]
+    plane = None if plane is None else plane[reached]
     if not leg.size:
         return None
     dem = {name[len(DEM_PREFIX):]: value[row] for name, value in legs.items() if name.startswith(DEM_PREFIX)}
-    new_direction = turned(directions[leg_dir[leg]], angle)
+    new_direction = turned(directions[leg_dir[leg]], angle, plane)
     increments = np.diff(arc, prepend=0.0)[None, :, None] * new_direction[:, None, :]
     eps = legs["eps"][row]
-    volumetric = eps.sum(axis=1) - 2.0 * iso_eps[leg_origin[leg]]
+    volumetric = eps.sum(axis=1) - dim * iso_eps[leg_origin[leg]]
     n_steps = volumetric_steps(settings, volumetric, increments)
     if not n_steps.any():
         return None

@@ -23,7 +23,7 @@ import numpy as np
 
 from warp_hcell.core.contract import StateSchema
 from warp_hcell.core.files import atomic_write
-from warp_hcell.mesostructures.mesostructure import OBSERVABLE_KINDS, Mesostructure, PairObservable
+from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, OBSERVABLE_KINDS, Mesostructure, PairObservable
 
 FORMAT = "meso-hmodel-database"
 """Value of the root attr ``format``."""
@@ -75,7 +75,7 @@ def dataset_attrs(schema: StateSchema, meso: Mesostructure) -> dict[str, dict[st
                                         "role": feature.role, "description": feature.description}
     for name, (unit, description) in SAMPLE_DATASETS.items():
         attrs[name] = {"units": unit, "description": description}
-    attrs["d_eps"]["feature_names"] = ["d_eps_n", "d_eps_t"]
+    attrs["d_eps"]["feature_names"] = ["d_eps_" + axis for axis in AXIS_NAMES[meso.dim]]
     attrs[SCHEMA_GROUP] = {"features": schema.feature_json(),
                            "feature_names": json.dumps({k: list(f.names) for k, f in schema.features.items()}),
                            "units": json.dumps({k: f.unit for k, f in schema.features.items()})}

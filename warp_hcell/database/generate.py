@@ -11,7 +11,8 @@ several opening angles (``hcell.StartCells``: they share one learning state).
 The generator's jobs, one module each:
 
 1. exploration (``warp_hcell.database.exploration``, deterministic): isotropic paths then
-   proportional legs in the (eps_n, eps_t) plane from every start cell; generic stop rules;
+   proportional legs in the local strain space ((eps_n, eps_t), or (eps_n, eps_t1, eps_t2) for a
+   spatial cell such as ``hcell3d``) from every start cell; generic stop rules;
 2. probing (``warp_hcell.database.probing``, seeded): a chunk of samples is a pure function of
    (settings, mesostructure, seed, chunk index), computed as ONE DEM batch;
 3. storage and resume (``warp_hcell.database.shards``): the sidecar ``<out>.parts`` keeps each explored
@@ -28,7 +29,8 @@ This module composes them: ``generate`` and the command line. Cleaning is an exp
 samples; mechanism and perturbed samples are kept.
 
 Nothing in ``warp_hcell`` imports ``homogenization`` or ``training``.
-Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
+Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t
+(3D: 1 = t1, 2 = t2).
 """
 
 from __future__ import annotations
@@ -123,9 +125,9 @@ def _explore(execution, sidecar: Sidecar, inputs: ExploreInputs) -> dict[str, np
     return {name: np.concatenate([parts[k][name] for k in range(n_starts)]) for name in parts[0]}
 
 
-def _chunk_check(settings: DatabaseSettings, chunk: int):
+def _chunk_check(settings: DatabaseSettings, chunk: int, dim: int):
     n = chunk_samples(settings, chunk)
-    return lambda arrays: "d_eps" in arrays and arrays["d_eps"].shape == (n, 2)
+    return lambda arrays: "d_eps" in arrays and arrays["d_eps"].shape == (n, dim)
 
 
 def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapping[str, np.ndarray]],
@@ -252,7 +254,8 @@ def _generate(execution, physics: Physics, meso: Mesostructure, settings: Databa
     if states is None:
         states = _explore(execution, sidecar, ExploreInputs(physics, tuple(description["starts"]), settings))
         sidecar.save(states_file, states)
-    chunks = {c: sidecar.load(sidecar.file("chunk", c), _chunk_check(settings, c)) for c in range(n_chunks(settings))}
+    chunks = {c: sidecar.load(sidecar.file("chunk", c), _chunk_check(settings, c, meso.dim))
+              for c in range(n_chunks(settings))}
     missing = [c for c, part in chunks.items() if part is None]
     todo = missing if max_chunks is None else missing[:max_chunks]
     token = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
@@ -299,7 +302,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--sample-spacing", type=positive_float, default=defaults.sample_spacing,
                         help="path length between sampled states along the exploration paths [-]")
     parser.add_argument("--n-directions", type=positive_int, default=defaults.n_directions,
-                        help="proportional-leg directions in the (eps_n, eps_t) plane")
+                        help="proportional-leg directions in the local strain space ((eps_n, eps_t) plane; "
+                             "a spherical Fibonacci set for a 3D cell)")
     parser.add_argument("--n-alpha0", type=positive_int, default=StartCells.n_alpha0,
                         help="default H-cell only: start cells at opening angles evenly spaced in [30, 89] deg "
                              "(plus 35, 40, 55)")

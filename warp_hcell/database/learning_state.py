@@ -8,26 +8,28 @@ force on each free DOF, the Love-Weber moment and the area. Evaluated on a state
 produced, it reproduces the DEM's own forces; on a perturbed state it gives the unbalanced
 forces the DEM starts relaxing from.
 
-Conventions: local frame index 0 = n, 1 = t. Forces are the DEM's: for pair (i, j),
-``u = (x_j - x_i) / |x_j - x_i|``, w = (-u_t, u_n), the force on grain i by grain j is
--f_n u + f_s w (f_n >= 0). The moment is returned compression positive.
+Conventions: local frame index 0 = n, 1 = t (2D) or 1 = t1, 2 = t2 (3D). Forces are the
+DEM's: for pair (i, j), ``u = (x_j - x_i) / |x_j - x_i|``; in 2D w = (-u_t, u_n) and the force
+on grain i by grain j is -f_n u + f_s w (f_n >= 0); in 3D the spring is a vector f_s in the
+tangent plane and the force is -f_n u + f_s, capped at mu f_n along its own direction. The
+moment is returned compression positive; ``area`` is V_cell (the volume of a spatial cell).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from warp_hcell.core.contact import coulomb_cap, normal_force
+from warp_hcell.core.contact import CAP_SLACK, coulomb_cap, normal_force
 from warp_hcell.core.contract import StateSchema
 from warp_hcell.dem.love_weber import love_weber_tension_positive, to_compression_positive
-from warp_hcell.mesostructures.mesostructure import polygon_area
+from warp_hcell.mesostructures.mesostructure import cell_measure
 from warp_hcell.core.parameters import ContactLaw
 
 def positions(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarray) -> np.ndarray:
-    """All grain centres [m], shape (n, n_grains, 2): driven DOFs at x_ref * l / l_ref.
+    """All grain centres [m], shape (n, n_grains, dim): driven DOFs at x_ref * l / l_ref.
 
     Args:
-        cell_size: (l1, l2) [m], shape (n, 2).
+        cell_size: (l1, l2[, l3]) [m], shape (n, dim).
         free_position: free-DOF coordinates [m], shape (n, n_free), order ``schema.free_dofs``.
     """
     cell_size = np.asarray(cell_size, dtype=np.float64)
@@ -37,8 +39,29 @@ def positions(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndar
 
 
 def free_coordinates(schema: StateSchema, position: np.ndarray) -> np.ndarray:
-    """The free-DOF coordinates [m] of grain centres ``position`` (n, n_grains, 2): (n, n_free)."""
+    """The free-DOF coordinates [m] of grain centres ``position`` (n, n_grains, dim): (n, n_free)."""
     return np.ascontiguousarray(position[:, schema.free_dofs[:, 0], schema.free_dofs[:, 1]])
+
+
+def _planar_forces(shear_force: np.ndarray, normal: np.ndarray, u: np.ndarray, touching: np.ndarray,
+                   mu: float) -> tuple[np.ndarray, np.ndarray]:
+    """(capped spring forces (n, n_pairs), forces on grain i (n, n_pairs, 2)) of planar pairs."""
+    shear = np.where(touching, coulomb_cap(np.asarray(shear_force, dtype=np.float64), normal, mu), 0.0)
+    force = np.stack([-normal * u[..., 0] - shear * u[..., 1], -normal * u[..., 1] + shear * u[..., 0]], axis=-1)
+    return shear, force
+
+
+def _spatial_forces(shear_force: np.ndarray, normal: np.ndarray, u: np.ndarray, touching: np.ndarray,
+                    mu: float) -> tuple[np.ndarray, np.ndarray]:
+    """(capped spring vectors (n, n_pairs, 3), forces on grain i (n, n_pairs, 3)) of spatial pairs:
+    the spring is scaled down to mu f_n where longer by more than ``CAP_SLACK`` (the 3D DEM's cap,
+    ``warp_hcell.dem.contact``, made idempotent)."""
+    trial = np.asarray(shear_force, dtype=np.float64)
+    size = np.sqrt(np.sum(trial * trial, axis=-1))
+    cap = mu * normal
+    scale = np.where(size > cap * (1.0 + CAP_SLACK), cap / np.where(size > 0.0, size, 1.0), 1.0)
+    shear = np.where(touching[..., None], trial * scale[..., None], 0.0)
+    return shear, shear - normal[..., None] * u
 
 
 def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
@@ -46,15 +69,15 @@ def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarr
     """Contact-law evaluation of a learning state (module docstring), vectorised over cells.
 
     Args:
-        cell_size: (n, 2) [m]; free_position: (n, n_free) [m]; shear_force: (n, n_pairs) [N].
+        cell_size: (n, dim) [m]; free_position: (n, n_free) [m]; shear_force: (n, *schema.shear_shape) [N].
         contact_law: stiffnesses and friction of the DEM.
         contact_tolerance: gap, as a fraction of r_i + r_j, that still counts as a contact [-].
 
     Returns:
-        ``position`` (n, n_grains, 2) [m]; ``contact`` (n, n_pairs) int8; ``normal_force`` and
-        ``shear_force`` (n, n_pairs) [N]; ``contact_force`` (n, n_pairs, 2) [N] on grain i;
-        ``unbalanced`` (n, n_free) [N]; ``moment`` (n, 2, 2) [N m] compression positive;
-        ``area`` (n,) [m^2].
+        ``position`` (n, n_grains, dim) [m]; ``contact`` (n, n_pairs) int8; ``normal_force``
+        (n, n_pairs) and ``shear_force`` (n, *shear_shape) [N]; ``contact_force``
+        (n, n_pairs, dim) [N] on grain i; ``unbalanced`` (n, n_free) [N]; ``moment``
+        (n, dim, dim) [N m] compression positive; ``area`` (n,) [m^2] (3D: volume [m^3]).
     """
     x = positions(schema, cell_size, free_position)
     pi, pj = schema.pairs[:, 0], schema.pairs[:, 1]
@@ -63,12 +86,14 @@ def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarr
     cut2 = (rsum * widen) * (rsum * widen)
     b = x[:, pj] - x[:, pi]
     dist2 = b[..., 0] * b[..., 0] + b[..., 1] * b[..., 1]
+    for axis in range(2, schema.dim):
+        dist2 = dist2 + b[..., axis] * b[..., axis]
     touching = dist2 <= cut2
     dist = np.sqrt(dist2)
     u = b / np.where(dist > 0.0, dist, 1.0)[..., None]
     normal = np.where(touching, normal_force(rsum - dist, contact_law.kn), 0.0)
-    shear = np.where(touching, coulomb_cap(np.asarray(shear_force, dtype=np.float64), normal, contact_law.mu), 0.0)
-    force = np.stack([-normal * u[..., 0] - shear * u[..., 1], -normal * u[..., 1] + shear * u[..., 0]], axis=-1)
+    pair_forces = _planar_forces if schema.dim == 2 else _spatial_forces
+    shear, force = pair_forces(shear_force, normal, u, touching, contact_law.mu)
     net = np.zeros_like(x)
     for p in range(schema.n_pairs):  # pair order fixed: the DEM's summation order
         net[:, pi[p]] += force[:, p]
@@ -76,4 +101,4 @@ def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarr
     moment = to_compression_positive(love_weber_tension_positive(force, b))
     return {"position": x, "contact": touching.astype(np.int8), "normal_force": normal, "shear_force": shear,
             "contact_force": force, "unbalanced": net[:, schema.free_dofs[:, 0], schema.free_dofs[:, 1]],
-            "moment": moment, "area": polygon_area(x, schema.outer)}
+            "moment": moment, "area": cell_measure(x, schema.outer)}

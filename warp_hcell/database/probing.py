@@ -2,7 +2,8 @@
 
 Sample i probes the sampled state ``order[i % n_states]`` (``order`` a seeded permutation,
 so each state gets the same number of probes to within one) with an increment of uniform
-direction in the (d_eps_n, d_eps_t) plane and a log-uniform magnitude: with probability
+direction in the local strain space ((d_eps_n, d_eps_t) in 2D, (d_eps_n, d_eps_t1, d_eps_t2) in
+3D: the schema's ``dim``) and a log-uniform magnitude: with probability
 ``probe_focus_fraction`` in [probe_focus_min, probe_focus_max] (the increments the ANN is
 mostly used with), otherwise in [probe_min, probe_max]. With probability
 ``perturbed_fraction`` the start state is perturbed: each free DOF moves by
@@ -19,7 +20,8 @@ therefore determines the DEM's "after" state exactly (with the probe and the sch
 from streams (1, c) and (2, c) of the seed only, and a DEM cell's result does not depend on
 its batch, so a database is bit-identical for a seed whatever the execution.
 
-Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
+Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t
+(3D: 1 = t1, 2 = t2).
 """
 
 from __future__ import annotations
@@ -70,20 +72,24 @@ def n_chunks(settings: DatabaseSettings) -> int:
     return -(-settings.samples // settings.chunk_size)
 
 
-def probe_increments(settings: DatabaseSettings, seed: int, chunk: int, n: int) -> np.ndarray:
-    """Probes (d_eps_n, d_eps_t) [-] of chunk ``chunk`` before zeroing, shape (n, 2).
+def probe_increments(settings: DatabaseSettings, seed: int, chunk: int, n: int, dim: int = 2) -> np.ndarray:
+    """Probes [-] of chunk ``chunk`` before zeroing, shape (n, dim): (d_eps_n, d_eps_t[, d_eps_t2]).
 
-    Direction uniform in [0, 2 pi); magnitude (Euclidean norm) log-uniform in
+    Direction uniform: an angle in [0, 2 pi) in 2D, a normalised standard normal vector in 3D
+    (drawn after the magnitudes); magnitude (Euclidean norm) log-uniform in
     [probe_focus_min, probe_focus_max] with probability ``probe_focus_fraction``, else in
     [probe_min, probe_max]. Drawn from stream (1, chunk) of ``seed`` only.
     """
     gen = rng(seed, 1, chunk)
-    angle = gen.uniform(0.0, 2.0 * np.pi, n)
+    angle = gen.uniform(0.0, 2.0 * np.pi, n) if dim == 2 else None
     focus = gen.random(n) < settings.probe_focus_fraction
     lo = np.where(focus, settings.probe_focus_min, settings.probe_min)
     hi = np.where(focus, settings.probe_focus_max, settings.probe_max)
     magnitude = np.exp(np.log(lo) + gen.random(n) * (np.log(hi) - np.log(lo)))
-    return magnitude[:, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    if angle is not None:
+        return magnitude[:, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    direction = gen.standard_normal((n, dim))
+    return magnitude[:, None] * direction / np.linalg.norm(direction, axis=1, keepdims=True)
 
 
 def perturbations(settings: DatabaseSettings, seed: int, chunk: int, n: int, n_free: int,
@@ -132,7 +138,8 @@ def _features(ev: Mapping[str, np.ndarray], cell_size: np.ndarray, free_position
               prefix: str) -> dict[str, np.ndarray]:
     values = {"cell_size": np.array(cell_size, dtype=np.float64), "free_position": free_position,
               "shear_force": ev["shear_force"], "contact": ev["contact"], "normal_force": ev["normal_force"],
-              "unbalanced": ev["unbalanced"], "moment": ev["moment"].reshape(-1, 4), "area": ev["area"]}
+              "unbalanced": ev["unbalanced"], "moment": ev["moment"].reshape(ev["moment"].shape[0], -1),
+              "area": ev["area"]}
     return {prefix + name: values[name] for name in STATE_FEATURES}
 
 
@@ -147,8 +154,8 @@ def canonical_dem_arrays(context: ProbeContext, ev: Mapping[str, np.ndarray], ce
         "moment": love_weber_tension_positive(ev["contact_force"], branch), "area": ev["area"],
         "substeps": np.zeros(n, np.int32), "converged": np.ones(n, np.int32),
         "radius": np.broadcast_to(schema.radius, (n, schema.n_grains)),
-        "reference_position": np.broadcast_to(schema.reference_position, (n, schema.n_grains, 2)),
-        "reference_cell_size": np.broadcast_to(schema.reference_cell_size, (n, 2)),
+        "reference_position": np.broadcast_to(schema.reference_position, (n, schema.n_grains, schema.dim)),
+        "reference_cell_size": np.broadcast_to(schema.reference_cell_size, (n, schema.dim)),
         **topology_arrays(context.meso, n),
     }
 
@@ -158,7 +165,7 @@ def compute_chunk(context: ProbeContext, settings: DatabaseSettings, seed: int, 
 
     Returns:
         Flat arrays, first axis the chunk's samples: ``before/<feature>``, ``after/<feature>``
-        (``STATE_FEATURES``), ``d_eps`` (n, 2), ``mechanism``, ``perturbed``, ``converged``
+        (``STATE_FEATURES``), ``d_eps`` (n, dim), ``mechanism``, ``perturbed``, ``converged``
         (bool), ``state_id``, ``path_id`` (int64), ``substeps`` (int64, DEM substeps of the
         probe), the declared observables ``<group>/before_<name>``, ``<group>/after_<name>``
         (``format.stored_observables``) and the start cell's parameters (``Mesostructure.parameters``).
@@ -168,7 +175,7 @@ def compute_chunk(context: ProbeContext, settings: DatabaseSettings, seed: int, 
     sample = np.arange(start, stop)
     n = sample.size
     index = state_order(seed, context.n_states)[sample % context.n_states]
-    d_eps = probe_increments(settings, seed, chunk, n)
+    d_eps = probe_increments(settings, seed, chunk, n, schema.dim)
     perturbed, zero_probe, displacement = perturbations(settings, seed, chunk, n, schema.n_free,
                                                         2.0 * float(schema.radius.mean()))
     d_eps[zero_probe] = 0.0

@@ -365,27 +365,38 @@ def state_schema(meso: Mesostructure) -> StateSchema:
     ``contact`` (``contact_1_2``, ...) derived; ``normal_force`` (``fn_1_2``, ...) [N] derived,
     >= 0; ``unbalanced`` (``f_n3``, ...) [N] net force on each free DOF, derived;
     ``moment`` (S_nn, S_nt, S_tn, S_tt) [N m] Love-Weber sum, compression positive, derived;
-    ``area`` [m^2] derived.
+    ``area`` [m^2] derived. A spatial cell has (l1, l2, l3), axes n, t1, t2 in the DOF names,
+    a spring force vector per pair (``fs_1_2`` of shape (3,): components n, t1, t2), the nine
+    components of the moment (row-major, S_nn, S_nt1, ...) and the volume [m^3] as ``area``.
     """
+    axes = AXIS_NAMES[meso.dim]
     free_dofs = np.argwhere(~meso.driven).astype(np.int64)
-    dof_names = tuple(f"{AXIS_NAMES[meso.dim][axis]}{grain + 1}" for grain, axis in free_dofs)
+    dof_names = tuple(f"{axes[axis]}{grain + 1}" for grain, axis in free_dofs)
     pair_names = tuple(_pair_label(p) for p in meso.pairs)
+    sizes = tuple(f"l{k + 1}" for k in range(meso.dim))
+    frame = ", ".join(axes)
+    if meso.dim == 2:
+        shear = ("tangential spring force of each pair, on grain i along w = (-u_t, u_n), "
+                 "u = (x_j - x_i) / |x_j - x_i|; zero out of contact")
+        measure = ("area", "m^2", "area V_cell of the outer polygon")
+    else:
+        shear = ("tangential spring force vector of each pair on grain i, components (n, t1, t2), in the "
+                 "contact's tangent plane (normal u = (x_j - x_i) / |x_j - x_i|); zero out of contact")
+        measure = ("area", "m^3", "volume V_cell of the outer polyhedron")
     features = {
-        "cell_size": StateFeature(("l1", "l2"), "m", "driven", "cell size (l1, l2); l <- l (1 - d_eps)"),
+        "cell_size": StateFeature(sizes, "m", "driven", f"cell size ({', '.join(sizes)}); l <- l (1 - d_eps)"),
         "free_position": StateFeature(tuple("x_" + n for n in dof_names), "m", "learned",
-                                      "coordinates of the free DOFs in the local frame (n, t)"),
-        "shear_force": StateFeature(tuple("fs_" + n for n in pair_names), "N", "history",
-                                    "tangential spring force of each pair, on grain i along w = (-u_t, u_n), "
-                                    "u = (x_j - x_i) / |x_j - x_i|; zero out of contact"),
+                                      f"coordinates of the free DOFs in the local frame ({frame})"),
+        "shear_force": StateFeature(tuple("fs_" + n for n in pair_names), "N", "history", shear),
         "contact": StateFeature(tuple("contact_" + n for n in pair_names), "bool", "derived",
                                 "1 where gap <= contact_tolerance (r_i + r_j)"),
         "normal_force": StateFeature(tuple("fn_" + n for n in pair_names), "N", "derived",
                                      "normal contact force kn max(r_i + r_j - |x_j - x_i|, 0) of pairs in contact, >= 0"),
         "unbalanced": StateFeature(tuple("f_" + n for n in dof_names), "N", "derived",
                                    "net contact force on each free DOF (~0 at equilibrium)"),
-        "moment": StateFeature(("S_nn", "S_nt", "S_tn", "S_tt"), "N m", "derived",
+        "moment": StateFeature(tuple(f"S_{a}{b}" for a in axes for b in axes), "N m", "derived",
                                "Love-Weber sum over the contacts, compression positive"),
-        "area": StateFeature(("area",), "m^2", "derived", "area V_cell of the outer polygon"),
+        measure[0]: StateFeature((measure[0],), measure[1], "derived", measure[2]),
     }
     return StateSchema(free_dofs=free_dofs, pairs=np.array(meso.pairs), radius=np.array(meso.radius),
                        reference_position=np.array(meso.position), reference_cell_size=np.array(meso.cell_size),
