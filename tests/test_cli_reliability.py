@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import h5py
 import pytest
@@ -126,7 +127,8 @@ def test_train_checks_out_before_reading_the_data(tmp_path, capsys):
 
 
 def test_train_ctrl_c_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(train, "load_database", lambda path: object())
+    planar_database = SimpleNamespace(schema=SimpleNamespace(dim=2))
+    monkeypatch.setattr(train, "load_database", lambda path: planar_database)
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
