@@ -66,7 +66,7 @@ def test_no_status_line_when_the_output_fails_after_the_run_file(existing, tmp_p
 
 def test_status_lines_follow_the_swap(tmp_path, capsys):
     out = tmp_path / "run"
-    assert cli.run_main(biaxial.main, [*TINY, "--backend", "analytical,ann", "--uncertified-ok", "--out", str(out)]) == 0
+    assert cli.run_main(biaxial.main, [*TINY, "--backend", "analytical,ann", "--out", str(out)]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert [line.split(":")[0] for line in lines] == ["analytical", "ann", "figure -> " + str(out / "cambridge.png")]
     for line in lines[:2]:

@@ -184,3 +184,24 @@ def test_shipped_model_follows_the_analytical_cell_in_a_short_constant_volume_te
     assert a.p.shape == b.p.shape
     assert np.abs(b.p - a.p).max() <= 0.01 * 5.85e6
     assert np.abs(b.q - a.q).max() <= 0.01 * 5.85e6
+
+
+@pytest.mark.skipif(not default_model_path().is_file(), reason="default model not installed")
+@pytest.mark.parametrize("p0", [2e5, 3e5])
+def test_shipped_model_follows_the_analytical_cell_through_a_constant_volume_reversal(p0):
+    """+5 % then -5 % at constant volume, increments 1e-4 (the test the model missed by 7 % of p0
+    before the active-learning rounds of `make reproduce`; p0 = 3e5 is a pressure the rounds never
+    probed). Measured with 72 cells: 0.39 / 0.93 % (2e5), 0.25 / 0.61 % (3e5) of p0 (docs/ann.md);
+    the DEM follows the analytical cell here to 0.02 % of p0."""
+    n = loading.n_increments_for(0.05, 1e-4)
+    programme = (loading.isotropic(p0, increment=1e-4), loading.constant_volume_biaxial(0.05, n, label="shear"),
+                 loading.constant_volume_biaxial(-0.1, 2 * n, label="reverse"))
+    runs = {name: driver.run(make_cell_model(name), programme, mesostructure=h_cell(55.0), n_orientations=24,
+                             progress=False) for name in ("analytical", "ann")}
+    shear = {name: r.stage != r.stage[0] for name, r in runs.items()}
+    p = {name: r.p[shear[name]] for name, r in runs.items()}
+    q = {name: r.q[shear[name]] for name, r in runs.items()}
+    assert p["ann"].size == p["analytical"].size == 3 * n
+    assert np.abs(p["ann"] - p["analytical"]).max() <= 0.02 * p0
+    assert np.abs(q["ann"] - q["analytical"]).max() <= 0.02 * p0
+    assert np.ptp(q["analytical"]) > 0.5 * p0  # the reversal swings q through the test

@@ -55,7 +55,7 @@ def test_the_shipped_model_passes_the_short_certificate(short_certificate, shipp
         "constant-volume compression p0=200000",
         "drained compression p0=200000", "drained extension p0=200000", "constant-volume reversal p0=200000"]
     figures = np.array([[t["dp"], t["dq"]] for t in cert["tests"]])
-    assert np.all(figures > 0) and np.all(figures < 0.01)  # measured 0.06-0.19 % (docs/certificate.md)
+    assert np.all(figures > 0) and np.all(figures < 0.01)  # measured 0.06-0.30 % against the DEM
     assert cert["passed"] and cert["worst"] == figures.max()
     assert cert["model_sha256"] == file_sha256(shipped_copy)
     assert all(t["scale"] >= t["p0"] for t in cert["tests"])
