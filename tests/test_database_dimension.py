@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 import torch
 
+from database_recheck import recheck_against_the_dem
 from warp_hcell.database import exploration, format as database, generate, probing
-from warp_hcell.database.learning_state import evaluate, free_coordinates, positions
-from warp_hcell.dem.cell import DemCell
+from warp_hcell.database.learning_state import positions
 from warp_hcell.mesostructures.builders import mesostructure_arg
 from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.mesostructures.hcell import StartCells, h_cell
 from warp_hcell.mesostructures.mesostructure import cell_measure
-from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
+from warp_hcell.core.parameters import DatabaseSettings
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
 TINY = DatabaseSettings(samples=300, chunk_size=150, precompression=(0.0, 1e-3), n_directions=6,
@@ -84,14 +84,18 @@ TINY_3D = DatabaseSettings(samples=400, chunk_size=200, precompression=(0.0, 1e-
                            sample_spacing=1e-2, leg_length=0.03, leg_volumetric=0.05, leg_refinement=1)
 
 
+
+def tiny_database(out, meso):
+    """Write the ``TINY_3D`` database of ``meso`` (seed 4, one thread, pinned revision) to ``out``."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(generate, "provenance", lambda: {"git_revision": "pinned"})
+        generate.generate(meso, TINY_3D, out, seed=4, threads=1)
+    return out
+
 @pytest.fixture(scope="module")
 def spatial_path(tmp_path_factory):
     """A tiny database file of the ten-sphere H-cell (hcell3d, alpha0 = 55 deg)."""
-    out = tmp_path_factory.mktemp("h3") / "h3.h5"
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(generate, "provenance", lambda: {"git_revision": "pinned"})
-        generate.generate(SPATIAL, TINY_3D, out, seed=4, threads=1)
-    return out
+    return tiny_database(tmp_path_factory.mktemp("h3") / "h3.h5", SPATIAL)
 
 
 @pytest.fixture(scope="module")
@@ -164,11 +168,7 @@ def test_spatial_database_layout(spatial_db):
 @pytest.fixture(scope="module")
 def fines_db(tmp_path_factory):
     """A tiny database of the ten-sphere cell with a free fine grain in the pore (hcell3d-fines)."""
-    out = tmp_path_factory.mktemp("f3") / "f3.h5"
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(generate, "provenance", lambda: {"git_revision": "pinned"})
-        generate.generate(FINES_3D, TINY_3D, out, seed=4, threads=1)
-    return database.read_database(out)
+    return database.read_database(tiny_database(tmp_path_factory.mktemp("f3") / "f3.h5", FINES_3D))
 
 
 @pytest.mark.parametrize("which", ["h", "fines"])
@@ -176,23 +176,8 @@ def test_spatial_samples_recheck_against_the_dem(spatial_db, fines_db, which):
     """The stored 3D before-state, the probe and the schema give the stored after-state exactly."""
     (data, _), meso = (spatial_db, SPATIAL) if which == "h" else (fines_db, FINES_3D)
     assert data["before/free_position"].shape[1] == meso.schema().n_free == (8 if which == "h" else 11)
-    schema = meso.schema()
-    law, tol = ContactLaw(), DemSettings().contact_tolerance
     rows = np.concatenate([np.array([0, 17, 233, 399]), np.flatnonzero(data["perturbed"])[:3]])
-    context = probing.ProbeContext(DemCell(law, 0.5, threads=1), meso, schema, {}, law, tol)
-    before = evaluate(schema, data["before/cell_size"][rows], data["before/free_position"][rows],
-                      data["before/shear_force"][rows], law, tol)
-    np.testing.assert_array_equal(before["normal_force"], data["before/normal_force"][rows])
-    np.testing.assert_array_equal(before["unbalanced"], data["before/unbalanced"][rows])
-    cell = context.cell_model
-    new, response = cell.step(cell.state_from_arrays(probing.canonical_dem_arrays(
-        context, before, data["before/cell_size"][rows])), data["d_eps"][rows])
-    arrays = cell.state_to_arrays(new)
-    np.testing.assert_array_equal(free_coordinates(schema, arrays["position"]), data["after/free_position"][rows])
-    np.testing.assert_array_equal(arrays["cell_size"], data["after/cell_size"][rows])
-    np.testing.assert_allclose(data["after/moment"][rows].reshape(-1, 3, 3), response.moment, rtol=1e-9,
-                               atol=1e-6 * np.abs(response.moment).max())
-    np.testing.assert_array_equal(data["after/contact"][rows], arrays["contact"])
+    recheck_against_the_dem(data, meso, rows, threads=1)
     # the learning state's forces are the DEM's own on a DEM state (unperturbed rows)
     plain = ~data["perturbed"][rows]
     np.testing.assert_allclose(data["after/unbalanced"][rows][plain], 0.0,

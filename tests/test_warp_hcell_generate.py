@@ -24,6 +24,7 @@ from warp_hcell.mesostructures.files import describe, description_sha256, from_d
 from warp_hcell.mesostructures.hcell import StartCells, h_cell
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
 from warp_hcell.core.files import output_lock
+from database_recheck import recheck_against_the_dem
 from dask_cluster import free_port, local_cluster
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
@@ -188,25 +189,8 @@ def test_file_describes_its_mesostructure_and_schema(h_db, fine_db):
 def test_samples_recheck_against_the_dem(h_db, fine_db, which):
     """The stored before-state, the probe and the schema give the stored after-state exactly."""
     (data, attrs), meso = (h_db, h_cell()) if which == "h" else (fine_db, FINE)
-    schema = meso.schema()
-    law, tol = ContactLaw(), DemSettings().contact_tolerance
-    perturbed = np.flatnonzero(data["perturbed"])
-    rows = np.concatenate([np.array([0, 17, 777, 1999]), perturbed[:3]])
-    context = probing.ProbeContext(DemCell(law, 0.5), meso, schema, {}, law, tol)
-    before = evaluate(schema, data["before/cell_size"][rows], data["before/free_position"][rows],
-                      data["before/shear_force"][rows], law, tol)
-    np.testing.assert_array_equal(before["normal_force"], data["before/normal_force"][rows])
-    np.testing.assert_array_equal(before["unbalanced"], data["before/unbalanced"][rows])
-    cell = context.cell_model
-    new, response = cell.step(cell.state_from_arrays(probing.canonical_dem_arrays(
-        context, before, data["before/cell_size"][rows])), data["d_eps"][rows])
-    arrays = cell.state_to_arrays(new)
-    np.testing.assert_array_equal(free_coordinates(schema, arrays["position"]), data["after/free_position"][rows])
-    np.testing.assert_array_equal(arrays["cell_size"], data["after/cell_size"][rows])
-    # the derived after-state is the DEM's own: moment, normal forces (to rounding of x_ref l / l_ref)
-    np.testing.assert_allclose(data["after/moment"][rows].reshape(-1, 2, 2), response.moment, rtol=1e-9,
-                               atol=1e-6 * np.abs(response.moment).max())
-    np.testing.assert_array_equal(data["after/contact"][rows], arrays["contact"])
+    rows = np.concatenate([np.array([0, 17, 777, 1999]), np.flatnonzero(data["perturbed"])[:3]])
+    recheck_against_the_dem(data, meso, rows)
 
 
 def test_equilibrium_perturbed_mechanism_samples_are_kept_and_marked(h_db):
