@@ -22,9 +22,9 @@ Features (z-scored with training statistics), for any mesostructure:
     - cell size l / D; free coordinates x / D and x / l (l of the coordinate's axis);
     - per active pair (a candidate pair in contact somewhere in the training data): the
       overlap / D (gaps clipped at ``GAP_CLIP``), the contact flag, the branch direction
-      (u_n, u_t), the tangential force / (kn D) and the friction ratio f_s / (mu f_n)
+      (u_n, u_t), the tangential force / (kn D) and the friction ratio ``f_s / (mu f_n)``
       (0 out of contact); in 3D the branch direction and the spring vector have three
-      components each and the friction ratio is |f_s| / (mu f_n) (``pair_features``);
+      components each and the friction ratio is ``|f_s| / (mu f_n)`` (``pair_features``);
     - optionally (``load_features``), after all of these, per active pair the load fraction
       f_n / max f_n, the pair's normal force over the largest normal force of the cell's
       pairs (0 in a cell carrying none). The overlap / D feature is scaled by the training

@@ -69,13 +69,13 @@ def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarr
     """Contact-law evaluation of a learning state (module docstring), vectorised over cells.
 
     Args:
-        cell_size: (n, dim) [m]; free_position: (n, n_free) [m]; shear_force: (n, *schema.shear_shape) [N].
+        cell_size: (n, dim) [m]; free_position: (n, n_free) [m]; shear_force: (n, ``*schema.shear_shape``) [N].
         contact_law: stiffnesses and friction of the DEM.
         contact_tolerance: gap, as a fraction of r_i + r_j, that still counts as a contact [-].
 
     Returns:
         ``position`` (n, n_grains, dim) [m]; ``contact`` (n, n_pairs) int8; ``normal_force``
-        (n, n_pairs) and ``shear_force`` (n, *shear_shape) [N]; ``contact_force``
+        (n, n_pairs) and ``shear_force`` (n, ``*shear_shape``) [N]; ``contact_force``
         (n, n_pairs, dim) [N] on grain i; ``unbalanced`` (n, n_free) [N]; ``moment``
         (n, dim, dim) [N m] compression positive; ``area`` (n,) [m^2] (3D: volume [m^3]).
     """
