@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from dem_database import build
-from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
+from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint, save_checkpoint
 from training.train import main
 from warp_hcell.mesostructures.files import describe, from_description, load_mesostructure
 from warp_hcell.mesostructures.hcell import h_cell
@@ -32,6 +32,15 @@ def test_round_trip_restores_the_same_network(saved):
         assert torch.equal(net.displacement(*state, d), again.displacement(*state, d))
     assert meta["format_version"] == 2 and len(meta["mesostructure_sha256"]) == 64
 
+
+
+def test_saving_the_same_network_twice_gives_the_same_bytes(saved, tmp_path):
+    """The model file depends on the network and its metadata only (not on the temporary name
+    of the atomic write): a rerun of a reproducible training gives a byte-identical .pt."""
+    net, meta = load_checkpoint(saved)
+    first, _ = save_checkpoint(tmp_path / "a" / "m.pt", net, meta)
+    second, _ = save_checkpoint(tmp_path / "b" / "m.pt", net, meta)
+    assert first.read_bytes() == second.read_bytes()
 
 def test_the_state_dict_file_holds_tensors_only(saved):
     state = torch.load(saved, weights_only=True)

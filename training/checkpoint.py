@@ -67,8 +67,8 @@ def save_checkpoint(path: str | Path, net: MesoNet, metadata: dict[str, Any]) ->
         **metadata,
     }
     state = {key: value.detach().clone() for key, value in net.state_dict().items()}
-    with atomic_write(path) as tmp:
-        torch.save(state, tmp)
+    with atomic_write(path) as tmp, open(tmp, "wb") as handle:
+        torch.save(state, handle)  # a file object: the archive's record names do not carry the temporary name
     json_path = metadata_path(path)
     with atomic_write(json_path) as tmp:
         tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
