@@ -17,14 +17,6 @@ BIAXIAL := $(PY) -m homogenization.biaxial --overwrite
 # within 0.1 % of p0 of its converged curve (docs/dem_homogenization.md).
 OVERLAY := --increment 1e-4 --iso-increment 1e-4 --orientations 360 --eps-max 0.2
 
-# Active-learning rounds of `make reproduce` (homogenization.active.learn, docs/certificate.md):
-# the make-reproduce database and model, at most 3 rounds of 20,000 probes of the DEM states of
-# the failing certificate tests, retrained from scratch each round at the same width (no widening:
-# the shipped model was made so), until the certificate passes.
-ROUNDS := from pathlib import Path; from homogenization import active; \
-	active.learn(Path('runs/db_6e5.h5'), Path('runs/ann.pt'), ['--threads', '1'], seed=0, threads=1, \
-	settings=active.ActiveSettings(rounds=3, samples_per_round=20000, max_samples=60000, widen=False))
-
 .PHONY: venv test docs demo bench reproduce clean
 
 $(VENV)/.installed: pyproject.toml
@@ -66,11 +58,13 @@ bench: venv
 	$(PY) benchmarks/bench_bvp.py
 	$(PY) benchmarks/bench_sweep.py
 
+# hmodel train: training, certificate and active-learning rounds (at most 3 x 20,000 probes of
+# the failing tests' DEM states, retrained from scratch at 2 x 40: --no-widen, as the shipped
+# model was made; docs/certificate.md).
 reproduce: venv
 	mkdir -p runs
 	$(PY) -m warp_hcell.generate --samples 600000 --seed 0 --threads 1 --sample-spacing 2.5e-3 --perturbed-fraction 0.4 --out runs/db_6e5.h5 --overwrite
-	$(PY) -m training.train --data runs/db_6e5.h5 --out runs/ann.pt --overwrite
-	$(PY) -c "$(ROUNDS)"
+	$(PY) -m homogenization.train --data runs/db_6e5.h5 --out runs/ann.pt --overwrite --no-widen
 	$(BIAXIAL) --backend analytical,dem,ann --model runs/ann.pt --alpha0 55 --p0 5.85e6 $(OVERLAY) --out runs/alpha55
 	@echo "Figure: runs/alpha55/cambridge.png"
 
