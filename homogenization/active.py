@@ -97,8 +97,9 @@ class ActiveSettings:
 def failing_states(cert: Mapping[str, Any], dem_states: Mapping[str, Mapping[str, np.ndarray]]
                    ) -> tuple[dict[str, np.ndarray], list[str]]:
     """The DEM states of the certificate's failing tests (max(dp, dq) > target), concatenated, and
-    those tests' names. States: ``cell_size`` (n, 2) [m], ``position`` (n, n_grains, 2) [m],
-    ``shear_force`` (n, n_pairs) [N], ``cell`` (n,) int64 (one id per test and orientation)."""
+    those tests' names. States: ``cell_size`` (n, dim) [m], ``position`` (n, n_grains, dim) [m],
+    ``shear_force`` (n, n_pairs) [N] (3D: (n, n_pairs, 3)), ``cell`` (n,) int64 (one id per test and
+    orientation)."""
     names = [t["name"] for t in cert["tests"] if max(t["dp"], t["dq"]) > cert["target"] and t["name"] in dem_states]
     if not names:
         return {}, []
@@ -210,9 +211,10 @@ def _current(cert: Mapping[str, Any] | None, model: Path, options: Mapping[str, 
     """Whether ``cert`` was measured on this model file with the certificate ``options``."""
     if not cert or cert.get("model_sha256") != file_sha256(model):
         return False
-    wanted = {"pressures": list(options.get("pressures", certificate.PRESSURES)),
-              "eps_max": options.get("eps_max", certificate.EPS_MAX),
-              "n_orientations": options.get("n_orientations", certificate.N_ORIENTATIONS)}
+    dim = from_description(json.loads(metadata_path(model).read_text())["mesostructure"]).dim
+    keys = ("pressures", "eps_max", "n_orientations", "spatial_rule")
+    wanted = certificate.requested_settings(dim, **{k: options[k] for k in keys if k in options})
+    wanted.pop("increment")
     return all(cert["settings"].get(k) == v for k, v in wanted.items()) and cert["target"] == options.get(
         "target", certificate.TARGET)
 
@@ -244,7 +246,8 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
         db: the model's database; the rounds append to it (``append_samples``).
         model: the ``.pt`` (its JSON beside it), retrained in place each round.
         train_args: ``training.train`` options besides --data/--out (e.g. ["--hidden", "8"]).
-        certify_options: ``certificate.certify`` keywords (pressures, eps_max, n_orientations, rollout, target).
+        certify_options: ``certificate.certify`` keywords (pressures, eps_max, n_orientations, spatial_rule,
+            rollout, target).
         seed: seed of the rounds' probes (``round_seed``).
         threads: DEM and ANN threads of the certificate and the probes.
         log: receives one line per round.

@@ -3,13 +3,17 @@
 The certificate of a meso-ANN model: the model against the DEM of its own mesostructure on
 homogenised tests its database did not see (docs/certificate.md).
 
-Tests (``tests_of``; constants below): isotropic compression to p0 (increments ``INCREMENT``),
-then constant-volume and drained (sigma22 = p0) biaxial shear in compression (eps11 > 0) and
-extension (eps11 < 0; constant volume only for an odd number of orientations, ``tests_of``) to
-``EPS_MAX``, at every pressure of ``PRESSURES``, and one reversal:
-constant-volume shear at ``PRESSURES[0]`` to +EPS_MAX / 2, then back to -EPS_MAX / 2. Each test
-runs ``N_ORIENTATIONS`` cells through ``homogenization.driver.run`` with the ANN and with the
-DEM (``homogenization.backends``) from the same mesostructure. Figures per test, over the shear
+Tests (``tests_of``; constants below), by the cell's dimension. A planar cell: isotropic
+compression to p0 (increments ``INCREMENT``), then constant-volume and drained (sigma22 = p0)
+biaxial shear in compression (eps11 > 0) and extension (eps11 < 0; constant volume only for an
+odd number of orientations, ``tests_of``) to ``EPS_MAX``, at every pressure of ``PRESSURES``,
+and one reversal: constant-volume shear at ``PRESSURES[0]`` to +EPS_MAX / 2, then back to
+-EPS_MAX / 2, on ``N_ORIENTATIONS`` cells. A spatial cell: the triaxial counterparts (axis 1
+axial, ``loading.triaxial_shear``): undrained (isochoric) and drained (sigma22 = sigma33 = p0)
+compression and extension at every pressure, and the undrained reversal, on the Lebedev rule
+times spins ``SPATIAL_RULE`` over the cell's spin period (``Mesostructure.spin_period_deg``).
+Each test runs through ``homogenization.driver.run`` with the ANN and with the DEM
+(``homogenization.backends``) from the same mesostructure. Figures per test, over the shear
 stages (the isotropic stages may differ by one increment, as p lands on p0): ``dp`` = max
 abs(p_ann - p_dem) / scale, ``dq`` likewise, scale = max(p0, largest DEM p of the test). The
 certificate passes when the worst of them is <= ``TARGET``.
@@ -50,7 +54,7 @@ import numpy as np
 
 from homogenization import driver, loading
 from homogenization.backends import make_cell_model
-from homogenization.cli.options import command_parser
+from homogenization.cli.options import add_spatial_rule_arguments, command_parser
 from training.checkpoint import load_checkpoint, metadata_path, read_metadata
 from training.dataset import load_database
 from training.ood import index_for_model, index_path, state_features
@@ -72,22 +76,29 @@ EPS_MAX = 0.10
 INCREMENT = 1e-4
 """Strain increment of every stage [-] (isotropic: per component)."""
 N_ORIENTATIONS = 24
-"""Cell orientations of every homogenised test."""
+"""Cell orientations of every homogenised test of a planar cell."""
+SPATIAL_RULE = (11, 4)
+"""(Lebedev order, spins) of every homogenised test of a spatial cell: 25 axes x 4 spins = 100
+cells (the test compares two backends cell by cell, so a coarse rule serves; docs/triaxial.md)."""
 COVERAGE_EVERY = 50
 """Increments between two DEM states sampled for the coverage."""
 
 
 def tests_of(pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
-             increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS
+             increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS, dim: int = 2
              ) -> list[tuple[dict[str, Any], loading.Programme]]:
-    """(description, programme) of every test: kind, sense, p0 [N/m] and name.
+    """(description, programme) of every test of a cell of dimension ``dim``: kind, sense, p0
+    [N/m in 2D, Pa in 3D] and name.
 
-    Constant-volume extension is constant-volume compression turned by 90 deg; an even number
-    of orientations evenly spaced over 180 deg (isotropic fabric) is its own image under that
-    turn, so the two give the same curves to round-off (the shipped model's figures agree to 3e-7
-    of themselves) and extension is run only for an odd
-    ``n_orientations``. Drained extension differs (sigma22 is held) and is always run.
+    Planar: constant-volume extension is constant-volume compression turned by 90 deg; an even
+    number of orientations evenly spaced over 180 deg (isotropic fabric) is its own image under
+    that turn, so the two give the same curves to round-off (the shipped model's figures agree
+    to 3e-7 of themselves) and extension is run only for an odd ``n_orientations``. Drained
+    extension differs (sigma22 is held) and is always run. Spatial (``dim`` 3): axisymmetric
+    extension is no turn of compression, so undrained and drained tests run in both senses.
     """
+    if dim == 3:
+        return _spatial_tests(pressures, eps_max, increment)
     tests = []
     n = loading.n_increments_for(eps_max, increment)
     for p0 in pressures:
@@ -106,6 +117,47 @@ def tests_of(pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
                    loading.constant_volume_biaxial(eps_max / 2, half, label="shear"),
                    loading.constant_volume_biaxial(-eps_max, 2 * half, label="reverse"))))
     return tests
+
+
+def _spatial_tests(pressures: Sequence[float], eps_max: float, increment: float
+                   ) -> list[tuple[dict[str, Any], loading.Programme]]:
+    """The triaxial tests of a spatial cell (``tests_of``)."""
+    tests = []
+    n = loading.n_increments_for(eps_max, increment)
+    for p0 in pressures:
+        iso = loading.isotropic(p0, increment=increment, dim=3)
+        shears = {("undrained", "compression"): loading.isochoric(eps_max, n),
+                  ("undrained", "extension"): loading.isochoric(-eps_max, n),
+                  ("drained", "compression"): loading.triaxial_shear("drained", p0, eps_max, n)[0],
+                  ("drained", "extension"): loading.triaxial_shear("extension", p0, eps_max, n)[0]}
+        for (kind, sense), shear in shears.items():
+            tests.append(({"name": f"{kind} {sense} p0={p0:g}", "kind": kind, "sense": sense, "p0": p0}, (iso, shear)))
+    p0, half = pressures[0], loading.n_increments_for(eps_max / 2, increment)
+    tests.append(({"name": f"undrained reversal p0={p0:g}", "kind": "undrained", "sense": "reversal", "p0": p0},
+                  (loading.isotropic(p0, increment=increment, dim=3),
+                   loading.isochoric(eps_max / 2, half, label="shear"),
+                   loading.isochoric(-eps_max, 2 * half, label="reverse"))))
+    return tests
+
+
+def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
+                       increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
+                       spatial_rule: Sequence[int] = SPATIAL_RULE) -> dict[str, Any]:
+    """The ``settings`` a certificate of cells of dimension ``dim`` records for these options
+    (planar: ``n_orientations``; spatial: ``spatial_rule`` as [order, spins])."""
+    settings = {"pressures": [float(p) for p in pressures], "eps_max": float(eps_max), "increment": float(increment)}
+    if dim == 3:
+        return {**settings, "spatial_rule": [int(k) for k in spatial_rule]}
+    return {**settings, "n_orientations": int(n_orientations)}
+
+
+def run_test(model: Any, programme: loading.Programme, meso: Mesostructure, settings: dict[str, Any]) -> driver.Record:
+    """``programme`` on cells of ``model`` from ``meso``, oriented as ``settings`` say
+    (``requested_settings``: planar ``n_orientations``, spatial ``spatial_rule``)."""
+    if meso.dim == 3:
+        order, spins = settings["spatial_rule"]
+        return driver.run(model, programme, mesostructure=meso, lebedev_order=order, n_spins=spins, progress=False)
+    return driver.run(model, programme, mesostructure=meso, n_orientations=settings["n_orientations"], progress=False)
 
 
 class _Sampler:
@@ -147,17 +199,17 @@ def _shear_rows(record: driver.Record) -> np.ndarray:
 
 def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pressures: Sequence[float] = PRESSURES,
             eps_max: float = EPS_MAX, increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
-            target: float = TARGET, rollout: bool = True, threads: int = 1,
+            spatial_rule: Sequence[int] = SPATIAL_RULE, target: float = TARGET, rollout: bool = True, threads: int = 1,
             dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY
             ) -> dict[str, Any]:
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
     model's own (its JSON's ``mesostructure``).
 
     ``dem_states``, when given, receives per test name the DEM cell states met along that test
-    every ``state_every`` increments (all cells): ``cell_size`` (n, 2) [m], ``position``
-    (n, n_grains, 2) [m], ``shear_force`` (n, n_pairs) [N] (``DemCell.state_to_arrays``, local frame),
-    and ``cell`` (n,) int64, a distinct id per (test, orientation): the active-learning rounds
-    (``homogenization.active``) probe these states.
+    every ``state_every`` increments (all cells): ``cell_size`` (n, dim) [m], ``position``
+    (n, n_grains, dim) [m], ``shear_force`` (n, n_pairs) [N] (3D: (n, n_pairs, 3);
+    ``DemCell.state_to_arrays``, local frame), and ``cell`` (n,) int64, a distinct id per (test,
+    orientation): the active-learning rounds (``homogenization.active``) probe these states.
 
     Raises:
         ValueError (CheckpointError, one line): unusable model, or a mesostructure it does not take.
@@ -175,13 +227,17 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     dem = make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()), settings=settings, threads=threads)
     free = ann.net.schema.free_dofs.cpu().numpy()
     sampler = _Sampler(dem, int(state_every))
+    requested = requested_settings(meso.dim, pressures=pressures, eps_max=eps_max, increment=increment,
+                                   n_orientations=n_orientations, spatial_rule=spatial_rule)
     results = []
-    for k, (info, programme) in enumerate(tests_of(pressures, eps_max, increment, n_orientations)):
+    n_cells = 0
+    for k, (info, programme) in enumerate(tests_of(pressures, eps_max, increment, n_orientations, meso.dim)):
         sampler.test = k
-        d = driver.run(sampler, programme, mesostructure=meso, n_orientations=n_orientations, progress=False)
+        d = run_test(sampler, programme, meso, requested)
+        n_cells = d.weights.size
         scale = max(float(info["p0"]), float(np.max(d.p)))
         try:
-            a = driver.run(ann, programme, mesostructure=meso, n_orientations=n_orientations, progress=False)
+            a = run_test(ann, programme, meso, requested)
         except driver.ControlError as exc:  # the ANN cannot follow the programme: the test fails
             results.append({**info, "dp": math.inf, "dq": math.inf, "scale": scale, "error": " ".join(str(exc).split())})
             continue
@@ -195,7 +251,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
         for k, parts in sampler.states.items():
             merged = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
             cells = np.concatenate([np.arange(part["cell_size"].shape[0]) for part in parts])
-            dem_states[results[k]["name"]] = {**merged, "cell": k * n_orientations + cells}
+            dem_states[results[k]["name"]] = {**merged, "cell": k * n_cells + cells}
     coverage = None
     if ann.ood is not None and sampler.coverage:
         size, position, shear = (np.concatenate([part[name] for part in sampler.coverage])
@@ -213,8 +269,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
         "tests": results,
         "rollout": report,
         "coverage": coverage,
-        "settings": {"pressures": list(pressures), "eps_max": eps_max, "increment": increment,
-                     "n_orientations": n_orientations, "mesostructure": meso.name},
+        "settings": {**requested, "mesostructure": meso.name, "n_cells": n_cells},
         "model_sha256": file_sha256(model_path),
         "revision": git_revision(),
         "seconds": time.perf_counter() - start,
@@ -239,11 +294,12 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
     from homogenization.figure_style import apply_style, figure_legend, PNG_DPI  # noqa: PLC0415
 
     settings = cert["settings"]
-    info, programme = next((i, prog) for i, prog in tests_of(settings["pressures"], settings["eps_max"],
-                                                             settings["increment"], settings["n_orientations"]) if i["name"] == cert["worst_test"])
     meta = read_metadata(model_path)
     law = ContactLaw(**meta["contact_law"])
     meso = from_description(meta["mesostructure"])
+    info, programme = next((i, prog) for i, prog in tests_of(settings["pressures"], settings["eps_max"],
+                                                             settings["increment"], settings.get("n_orientations", 0),
+                                                             meso.dim) if i["name"] == cert["worst_test"])
     models = {"DEM": make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()),
                                      settings=DemSettings(contact_tolerance=float(meta["contact_tolerance"])),
                                      threads=threads),
@@ -253,8 +309,7 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
     handles = []
     for (label, model), style in zip(models.items(), ({"color": "k"}, {"color": "C3", "linestyle": "--"})):
         try:
-            record = driver.run(model, programme, mesostructure=meso, n_orientations=settings["n_orientations"],
-                                progress=False)
+            record = run_test(model, programme, meso, settings)
         except driver.ControlError:  # the ANN cannot follow the programme: the DEM alone is drawn
             continue
         rows = _shear_rows(record)
@@ -296,7 +351,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="first (re)build the model's out-of-distribution index from this learning database")
     parser.add_argument("--write", action="store_true", help="store the certificate in the model's JSON")
     parser.add_argument("--out", type=Path, default=None, help="also write the certificate to this JSON file")
-    parser.add_argument("--orientations", type=positive_int, default=N_ORIENTATIONS, help="cell orientations per test")
+    parser.add_argument("--orientations", type=positive_int, default=N_ORIENTATIONS,
+                        help="cell orientations per test (planar cells)")
+    add_spatial_rule_arguments(parser, *SPATIAL_RULE, " per test")
     parser.add_argument("--eps-max", type=positive_float, default=EPS_MAX, help="axial strain of each shear stage [-]")
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
     return parser
@@ -318,7 +375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{index.save(index_path(args.model))}")
     try:
         cert = certify(args.model, mesostructure=meso, eps_max=args.eps_max, n_orientations=args.orientations,
-                       rollout=not args.no_rollout)
+                       spatial_rule=(args.order, args.spins), rollout=not args.no_rollout)
     except driver.ControlError as exc:
         raise UserError(f"a test did not converge: {exc}") from None
     if argv is not None:

@@ -467,7 +467,7 @@ def run(
     progress: bool = True,
     lebedev_order: int = LEBEDEV_ORDER,
     n_spins: int = N_SPINS,
-    spin_period_deg: float = 90.0,
+    spin_period_deg: float | None = None,
 ) -> Record:
     """Run ``programme`` on ``n_orientations`` cells of ``cell_model`` and record the history.
 
@@ -486,7 +486,8 @@ def run(
         progress: show a progress bar per stage (``warp_hcell.core.cli.progress_bar``: off under -q).
         lebedev_order, n_spins, spin_period_deg: the orientations of a 3D programme (steps of three
             components, cells of dimension 3; ``orientation3d.orientations_3d``), which ignores
-            ``n_orientations`` and takes an isotropic fabric only.
+            ``n_orientations`` and takes an isotropic fabric only; ``spin_period_deg`` None: the
+            cell's own (``Mesostructure.spin_period_deg``).
 
     Returns:
         The ``Record`` of the run.
@@ -509,7 +510,8 @@ def run(
     else:
         if fabric_anisotropy:
             raise ValueError("an anisotropic fabric is not available in 3D yet (fabric_anisotropy must be 0)")
-        orient = orientation3d.orientations_3d(lebedev_order, n_spins, spin_period_deg=spin_period_deg)
+        period = mesostructure.spin_period_deg() if spin_period_deg is None else spin_period_deg
+        orient = orientation3d.orientations_3d(lebedev_order, n_spins, spin_period_deg=period)
         material = HomogenisedMaterial3D(cell_model, orient, mesostructure, 1)
     runner = _Runner(material, sum(s.n_increments for s in programme), stress_rtol, max_newton_iterations)
     V0 = runner.V0

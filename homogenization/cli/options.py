@@ -11,12 +11,15 @@
   builder spec), --threads and --model (the backend-specific options);
 - ``add_orientations_argument(parser, default, help_text)`` and ``add_threads_argument(parser,
   help_text, default)``: --orientations and --threads, the flags of that name of every command;
+  ``add_spatial_rule_arguments(parser, order, spins)``: --order and --spins, the orientations of
+  3D cells (``lebedev_order`` checks the order);
 - ``add_uncertified_argument(parser)`` and ``refuse_uncertified(model, args)``: --uncertified-ok,
   and the refusal (one line, exit 2) of an ANN model without a passed certificate of its own
   ``.pt`` (docs/certificate.md); ``certificate_note(model)`` is the line a run summary prints;
 - ``add_active_arguments(parser)``: the budget of the active-learning rounds (--rounds,
   --samples-per-round, --max-samples, --max-seconds, --warm-start, --widen; defaults from
-  ``homogenization.active.ActiveSettings``) and the certificate's --orientations and --eps-max,
+  ``homogenization.active.ActiveSettings``) and the certificate's --orientations (planar cells),
+  --order and --spins (spatial cells) and --eps-max,
   read back with ``active_settings(args)`` and ``certify_options(args)`` (``hmodel learn`` and
   ``hmodel train``).
 """
@@ -89,6 +92,24 @@ def add_orientations_argument(parser: argparse.ArgumentParser, default: int,
     parser.add_argument("--orientations", type=positive_int, default=default, help=help_text)
 
 
+def lebedev_order(text: str) -> int:
+    """argparse type: one of ``orientation3d.LEBEDEV_ORDERS``."""
+    from homogenization.orientation3d import LEBEDEV_ORDERS  # noqa: PLC0415 (scipy: only the commands of 3D cells)
+
+    order = positive_int(text)
+    if order not in LEBEDEV_ORDERS:
+        raise argparse.ArgumentTypeError(f"Lebedev order {order} is not one of {', '.join(map(str, LEBEDEV_ORDERS))}")
+    return order
+
+
+def add_spatial_rule_arguments(parser: argparse.ArgumentParser, order: int, spins: int, what: str = "") -> None:
+    """--order and --spins: the orientations of 3D cells, a Lebedev rule on the hemisphere of that
+    order times that many spins about each axis (defaults ``order``, ``spins``)."""
+    parser.add_argument("--order", type=lebedev_order, default=order,
+                        help=f"Lebedev order of the cell axes of 3D cells{what}")
+    parser.add_argument("--spins", type=positive_int, default=spins, help=f"spins of each 3D cell about its axis{what}")
+
+
 def add_threads_argument(parser: argparse.ArgumentParser, help_text: str, default: int | None = None) -> None:
     """--threads: CPU threads, a positive int (default ``default``; None: the backend's own)."""
     parser.add_argument("--threads", type=positive_int, default=default, help=help_text)
@@ -159,7 +180,8 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
                         help="retrain each round from the previous round's weights")
     parser.add_argument("--widen", action=argparse.BooleanOptionalAction, default=budget.widen,
                         help="let a round that gained little give the next a wider network (WIDTH_LADDER)")
-    add_orientations_argument(parser, certificate.N_ORIENTATIONS, "cell orientations per certificate test")
+    add_orientations_argument(parser, certificate.N_ORIENTATIONS, "cell orientations per certificate test (planar cells)")
+    add_spatial_rule_arguments(parser, *certificate.SPATIAL_RULE, " in the certificate's tests")
     parser.add_argument("--eps-max", type=positive_float, default=certificate.EPS_MAX,
                         help="axial strain of each certificate shear stage [-]")
 
@@ -178,4 +200,5 @@ def active_settings(args: argparse.Namespace):
 
 def certify_options(args: argparse.Namespace) -> dict[str, Any]:
     """``certificate.certify`` keywords of the flags of ``add_active_arguments`` and --no-rollout."""
-    return {"n_orientations": args.orientations, "eps_max": args.eps_max, "rollout": not args.no_rollout}
+    return {"n_orientations": args.orientations, "spatial_rule": (args.order, args.spins), "eps_max": args.eps_max,
+            "rollout": not args.no_rollout}

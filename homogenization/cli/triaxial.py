@@ -19,8 +19,8 @@ shear), several DIR/<backend>/...; DIR/triaxial.png overlays every backend in th
 (eps_a, q) and (eps_a, eps_v) panels. The output folder is replaced as a unit (--overwrite).
 
 Sign convention: compression and contraction positive; stresses in Pa. Bad input (unknown
-backend, the ann backend without --uncertified-ok (the certificate is planar: no 3D model is
-certified), a planar mesostructure, p0 <= 0, an
+backend, the ann backend with a model that has no passed certificate of its own file, unless
+--uncertified-ok, a planar mesostructure, p0 <= 0, an
 increment larger than --eps-max, a programme of planar steps, existing output without
 --overwrite) is one line on stderr and exit code 2, before any run.
 """
@@ -36,9 +36,8 @@ from typing import Any, Sequence
 
 from homogenization import driver, figures, loading
 from homogenization.backends import BACKENDS
-from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_programme_arguments, add_uncertified_argument, command_parser
+from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_programme_arguments, add_uncertified_argument, command_parser, lebedev_order
 from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, run_backends, shear_iso_increment
-from homogenization.orientation3d import LEBEDEV_ORDERS
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -54,7 +53,6 @@ from warp_hcell.core.files import output_folder, output_lock
 from warp_hcell.core.parameters import LoadingDefaults
 from warp_hcell.core.provenance import command_line
 from warp_hcell.mesostructures.builders import mesostructure_arg
-from warp_hcell.mesostructures.hcell import plain_alpha0_3d
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 FIGURE_FILE = "triaxial.png"
@@ -66,18 +64,6 @@ TESTS = {"undrained": "--undrained", "drained": "--drained", "extension": "--ext
 PROGRAMME_FLAGS = {"p0": "--p0", "eps_max": "--eps-max", "increment": "--increment",
                    "iso_increment": "--iso-increment", **{name: flag for name, flag in TESTS.items()}}
 """Flags of the built-in programme, which conflict with --programme (argparse dest -> flag)."""
-SPIN_PERIOD_SYMMETRIC = 90.0
-"""Spin period [deg] of the plain ten-sphere cell (four-fold symmetric about its axis)."""
-SPIN_PERIOD_OTHER = 180.0
-"""Spin period [deg] of any other 3D cell (fines or radii break the four-fold symmetry)."""
-
-
-def lebedev_order(text: str) -> int:
-    """argparse type: one of ``orientation3d.LEBEDEV_ORDERS``."""
-    order = positive_int(text)
-    if order not in LEBEDEV_ORDERS:
-        raise argparse.ArgumentTypeError(f"Lebedev order {order} is not one of {', '.join(map(str, LEBEDEV_ORDERS))}")
-    return order
 
 
 def b_ratio(text: str) -> float:
@@ -188,7 +174,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     programme, settings = build_programme(args, sys.argv[1:] if argv is None else argv)
     law = contact_law_from_args(args)
     meso = run_mesostructure(args)
-    spin_period = SPIN_PERIOD_SYMMETRIC if plain_alpha0_3d(meso) is not None else SPIN_PERIOD_OTHER
+    spin_period = meso.spin_period_deg()
     if args.verbose:
         say(f"programme: {loading.to_dict(programme)}", f"contact law: {asdict(law)}, radius {args.radius:g} m")
     with output_lock(out):

@@ -66,6 +66,8 @@ LABEL_KEY = "pair_type"
 
 AXIS_NAMES = {2: ("n", "t"), 3: ("n", "t1", "t2")}
 """Names of the local axes of a planar and of a spatial cell."""
+SPIN_TURNS_DEG = (90.0, 180.0, 360.0)
+"""Turns about the cell axis n tried, in order, by ``Mesostructure.spin_period_deg`` [deg]."""
 
 
 class MesostructureError(ValueError):
@@ -149,6 +151,35 @@ class Mesostructure(CellCounts):
         if hit.size != 1:
             raise ValueError(f"mesostructure {self.name!r}: grains {i + 1} and {j + 1} are not a candidate pair")
         return int(hit[0])
+
+    def spin_period_deg(self, rtol: float = 1e-9) -> float:
+        """Period [deg] of a spatial cell's response in its spin about n: the first turn of
+        ``SPIN_TURNS_DEG`` that maps the cell onto itself.
+
+        A turn by psi about n moves (x_n, x_t1, x_t2) to (x_n, c x_t1 - s x_t2, s x_t1 + c x_t2);
+        it maps the cell onto itself when every grain lands on a grain of the same radius
+        (centres within ``rtol`` of the largest radius) whose driven directions are the turned
+        ones, and the cell size is unchanged by the turn (l2 = l3 for a quarter turn). The
+        ten-sphere H-cell has 90 deg; a cell whose fines or radii break the four-fold symmetry
+        180 deg or 360 deg. ValueError for a planar cell.
+        """
+        if self.dim != 3:
+            raise ValueError(f"mesostructure {self.name!r}: a spin about n is defined for spatial cells only")
+        tol = rtol * float(self.radius.max())
+        for turn in SPIN_TURNS_DEG[:-1]:
+            quarter = turn == 90.0
+            lateral = [2, 1] if quarter else [1, 2]
+            if quarter and abs(self.cell_size[1] - self.cell_size[2]) > tol:
+                continue
+            turned = (np.stack([self.position[:, 0], -self.position[:, 2], self.position[:, 1]], axis=1) if quarter
+                      else self.position * np.array([1.0, -1.0, -1.0]))
+            driven = self.driven[:, [0, *lateral]]
+            distance = np.linalg.norm(turned[:, None, :] - self.position[None, :, :], axis=-1)
+            match = ((distance <= tol) & (self.radius[:, None] == self.radius[None, :])
+                     & np.all(driven[:, None, :] == self.driven[None, :, :], axis=-1))
+            if np.all(match.sum(axis=1) == 1) and np.all(match.sum(axis=0) == 1):
+                return turn
+        return SPIN_TURNS_DEG[-1]
 
     def schema(self) -> StateSchema:
         """The learning state of this cell (``state_schema``)."""
