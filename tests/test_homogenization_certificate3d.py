@@ -93,6 +93,16 @@ def _copy(folder: Path) -> Path:
 
 
 @needs_model
+def test_the_shipped_3d_model_carries_a_passed_certificate_of_its_file():
+    meta = json.loads(SHIPPED_3D.with_suffix(".json").read_text())
+    cert = meta["certificate"]
+    assert cert["passed"] and cert["model_sha256"] == file_sha256(SHIPPED_3D)
+    assert cert["settings"]["spatial_rule"] == list(certificate.SPATIAL_RULE)
+    assert len(cert["tests"]) == 4 * len(certificate.PRESSURES) + 1 and cert["worst"] <= certificate.TARGET
+    assert not cert["revision"].endswith("-dirty")
+
+
+@needs_model
 def test_the_shipped_3d_model_passes_a_short_certificate_and_a_perturbed_one_fails(tmp_path):
     model = _copy(tmp_path / "shipped")
     cert = certificate.certify(model, **SHORT)

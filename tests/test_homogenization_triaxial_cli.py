@@ -41,7 +41,6 @@ def test_undrained_run_writes_the_3d_curve_run_file_and_figure(undrained):
 
 
 @pytest.mark.parametrize("argv, expected", [
-    (["--backend", "ann"], "ann3d_default.pt: the model is uncertified"),
     (["--mesostructure", "hcell:alpha0=55"], "--mesostructure hcell:alpha0=55: a planar cell"),
     (["--eps-max", "1e-3", "--increment", "1e-2"], "--increment 0.01 is larger than --eps-max 0.001"),
     (["--programme", "PLANAR", "--p0", "1e5"], "--p0 do not apply with --programme"),
