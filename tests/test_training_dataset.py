@@ -102,3 +102,27 @@ def test_the_generators_database_is_read(tmp_path):
     db = load_database(path)
     assert db.n_samples == 400 and db.perturbed.any() and (~db.perturbed).any()
     assert db.schema.n_free == 4 and len(db.mesostructure_sha256) == 64
+
+
+def test_a_rate_moved_by_round_off_only_is_degenerate_and_weighs_like_a_constant_one(db_file):
+    """A free DOF held by symmetry (a fine grain on the cell axis) moves by round-off under the cell
+    strain; its spread would weigh its errors by 1 / round-off^2 in the loss. Rates spread below
+    RATE_STD_DEGENERATE of the largest get a standard deviation of 1, as an exactly constant one does."""
+    from training.dataset import fit_normalisation, RATE_STD_DEGENERATE, tensors
+
+    db = load_database(db_file)
+    index = split_by_path(db, val_fraction=0.2, test_fraction=0.0, seed=0).train
+    data = tensors(db, index, active_pairs(db, index))
+    honest = fit_normalisation(db, data, index)
+    assert honest.degenerate_rates == () and np.all(honest.rate_std < 1.0)  # the H-cell: no degenerate DOF
+
+    rng = np.random.default_rng(0)
+    target = data.target.clone()
+    scale = db.schema.diameter * data.magnitude[:, 0]
+    target[:, 1] = scale * torch.from_numpy(1e-5 * rng.standard_normal(target.shape[0]))  # round-off only
+    target[:, 2] = 0.0                                                                       # exactly constant
+    faked = fit_normalisation(db, type(data)(data.features, data.magnitude, data.unbalanced, target, data.scale), index)
+    assert faked.degenerate_rates == (1,)
+    assert faked.rate_std[1] == faked.rate_std[2] == 1.0
+    np.testing.assert_array_equal(faked.rate_std[[0, 3]], honest.rate_std[[0, 3]])
+    assert 1e-5 < RATE_STD_DEGENERATE * honest.rate_std.max()

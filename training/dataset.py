@@ -277,21 +277,33 @@ def tensors(db: Database, index: np.ndarray, active: np.ndarray, load_features: 
     return Tensors(feats, m, unbalanced, target, scale)
 
 
+RATE_STD_DEGENERATE = 1e-2
+"""A free DOF whose rate standard deviation over the unperturbed samples is at most this fraction
+of the largest free DOF's [-] is degenerate: it moves by round-off only under the cell strain
+(e.g. a fine grain held on the cell axis by symmetry: 3.5e-5 - 7e-4 of the largest in the
+ten-sphere cell with a centred fine grain) and gets a standard deviation of 1, as a rate that is
+exactly constant does; its own spread would weigh its errors by the inverse square of round-off
+in the loss."""
+
+
 @dataclass(frozen=True)
 class Normalisation:
-    """Training statistics: features (n_features,), rates (n_free,) [D per unit strain]."""
+    """Training statistics: features (n_features,), rates (n_free,) [D per unit strain], and the
+    free DOFs whose rate was degenerate (``RATE_STD_DEGENERATE``: standard deviation set to 1)."""
 
     feature_mean: np.ndarray
     feature_std: np.ndarray
     rate_mean: np.ndarray
     rate_std: np.ndarray
+    degenerate_rates: tuple[int, ...] = ()
 
 
 def fit_normalisation(db: Database, data: Tensors, index: np.ndarray) -> Normalisation:
     """z-score statistics of ``data`` (the training tensors of samples ``index``).
 
     Rates ``d_free / (D |d_eps|)`` come from the unperturbed samples with a non-zero probe.
-    Constant features and rates get a standard deviation of 1.
+    Constant features, and rates that are constant or degenerate (``RATE_STD_DEGENERATE``), get a
+    standard deviation of 1.
     """
     feats = data.features.numpy()
     mean, std = feats.mean(axis=0), feats.std(axis=0)
@@ -300,4 +312,6 @@ def fit_normalisation(db: Database, data: Tensors, index: np.ndarray) -> Normali
     if rate.shape[0] == 0:
         raise DataError(f"{db.source}: no unperturbed sample with a non-zero probe in the training split")
     r_mean, r_std = rate.mean(axis=0), rate.std(axis=0)
-    return Normalisation(mean, np.where(std > 1e-12, std, 1.0), r_mean, np.where(r_std > 1e-12, r_std, 1.0))
+    degenerate = r_std <= max(1e-12, RATE_STD_DEGENERATE * float(r_std.max()))
+    return Normalisation(mean, np.where(std > 1e-12, std, 1.0), r_mean, np.where(degenerate, 1.0, r_std),
+                         tuple(int(k) for k in np.flatnonzero(degenerate & (r_std > 1e-12))))

@@ -398,6 +398,12 @@ def _warm_line(warm: dict) -> str:
     return f"warm start from {warm['from']} declined: {warm['reason']}; trained from random weights"
 
 
+def _dof_name(db: Database, k: int) -> str:
+    """Name of free DOF ``k``: 1-based grain and local axis (e.g. ``x_t1 of grain 11``)."""
+    grain, axis = (int(v) for v in db.schema.free_dofs[k])
+    return f"x_{AXIS_NAMES[db.schema.dim][axis]} of grain {grain + 1}"
+
+
 def _format_r2(metrics: dict) -> str:
     return "  ".join(f"{group}:{k}={'-' if v is None else f'{v:.5f}'}" for group, values in metrics.items()
                      for k, v in values.items())
@@ -424,9 +430,6 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
     """Train, evaluate and write the model of ``main`` (holding the output lock)."""
     config = config_of(args)
     db = load_database(args.data)
-    if config.rollout and db.schema.dim != 2:
-        raise DataError(f"{args.data}: a {db.schema.dim}D database; the rollout's held-out paths are planar "
-                        f"(training.rollout): pass --no-rollout")
     if config.rollout and not args.verbose:
         quiet_warp()  # the rollout runs the DEM on the cpu
     result = fit(db, config, progress=True)
@@ -447,7 +450,8 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
                           "n_selected": db.n_samples, "n_unconverged_dropped": db.n_unconverged,
                           "n_jumps_dropped": db.n_jumps, "n_perturbed": int(db.perturbed.sum()),
                           "n_mechanism": int(db.mechanism.sum()), "n_train": int(split.train.size),
-                          "n_val": int(split.val.size), "n_test": int(split.test.size)},
+                          "n_val": int(split.val.size), "n_test": int(split.test.size),
+                          "degenerate_rates": [_dof_name(db, k) for k in result.normalisation.degenerate_rates]},
         "config": config_record(config),
         "metrics_r2": metrics,
         "rollout": rollout,
@@ -465,7 +469,9 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
         f"(best epoch {result.history['best_epoch']}); samples train/val/test = "
         f"{split.train.size}/{split.val.size}/{split.test.size}",
         *(f"R^2 {name:>4}: {_format_r2(metrics[name])}" for name in ("val", "test")),
-        *([] if result.history["warm_start"] is None else [_warm_line(result.history["warm_start"])]))
+        *([] if result.history["warm_start"] is None else [_warm_line(result.history["warm_start"])]),
+        *([f"degenerate rates (moved by round-off only; standard deviation set to 1): "
+           f"{', '.join(metadata['training_data']['degenerate_rates'])}"] if result.normalisation.degenerate_rates else []))
     if rollout is not None:
         say(*(f"rollout error ({key}): max {value['max']:.4f}, median {value['median']:.4f} of the path's largest |S|"
               for key, value in rollout.items() if key.startswith("increment_")))
