@@ -10,10 +10,11 @@ written as one JSON line per row:
   the first cross-plane contact (where the closed form stops holding: lateral grains of the two
   planes touch, ``n_cross_plane``; the axial strain of the shear stage there is printed), with the
   cell-increments that had such contacts and the unconverged DEM cell-increments;
-- ``quadrature``: the closed form on each rule of ``--rules`` (ORDERxSPINS) against twice the
-  cells (twice the spins) and against the fine ``--reference`` rule: the largest difference of the
-  curves over p0 (the target: doubling moves the curves by <= 0.5 % of p0) and over the path's
-  scale max(p0, largest p of the reference);
+- ``quadrature``: the closed form on each rule of ``--rules`` (ORDERxSPINS) against about twice
+  the cells in each of the two ways (twice the spins; the first Lebedev order with at least twice
+  the axes, ``doubled_axes_order``) and against the fine ``--reference`` rule: the largest
+  difference of the curves over p0 (the target: doubling moves the curves by <= 0.5 % of p0) and
+  over the path's scale max(p0, largest p of the reference);
 - ``timing``: the wall time of the same triaxial test (loose, p0 = 2e5, undrained and drained) with
   the DEM and with the closed form, side by side, and their ratio (target <= 3);
 - ``ann`` (only with ``--model``, a 3D meso-ANN): the model against the closed form, undrained
@@ -118,11 +119,20 @@ def rule(text: str) -> tuple[int, int]:
     return int(order), int(spins)
 
 
+def doubled_axes_order(order: int) -> int:
+    """The first Lebedev order with at least twice the hemisphere axes of ``order`` (``order`` itself
+    at the end of the list)."""
+    from homogenization.orientation3d import hemisphere_rule
+
+    axes = hemisphere_rule(order)[0].shape[0]
+    return next((o for o in LEBEDEV_ORDERS if o > order and hemisphere_rule(o)[0].shape[0] >= 2 * axes), order)
+
+
 def quadrature(args) -> None:
     reference_rule = rule(args.reference)
     rules = [rule(text) for text in args.rules.split(",")]
     print(f"{'alpha0':>6} {'p0 [Pa]':>9} {'test':>9} {'rule':>6} {'cells':>6} {'x2 spins / p0':>13} "
-          f"{'vs reference / p0':>17} {'/ scale':>8} {'wall [s]':>8}")
+          f"{'x2 axes / p0':>12} {'vs reference / p0':>17} {'/ scale':>8} {'wall [s]':>8}")
     for alpha0 in (args.loose, args.dense):
         for p0 in (2e5, 5.85e6):
             for test in ("undrained", "drained"):
@@ -131,16 +141,21 @@ def quadrature(args) -> None:
                 for order, spins in rules:
                     base, wall = run("analytical", alpha0, p0, test, args, order=order, spins=spins)
                     doubled, _ = run("analytical", alpha0, p0, test, args, order=order, spins=2 * spins)
+                    finer = doubled_axes_order(order)
+                    more_axes, _ = run("analytical", alpha0, p0, test, args, order=finer, spins=spins)
                     to_reference = largest_difference(base, reference)
                     row = {"part": "quadrature", "alpha0_deg": alpha0, "p0": p0, "test": test, "rule": [order, spins],
                            "cells": int(base.weights.size), "reference": list(reference_rule),
                            "reference_cells": int(reference.weights.size),
                            "doubled_spins_over_p0": largest_difference(base, doubled) / p0,
+                           "doubled_axes_order": finer, "doubled_axes_cells": int(more_axes.weights.size),
+                           "doubled_axes_over_p0": largest_difference(base, more_axes) / p0,
                            "to_reference_over_p0": to_reference / p0, "to_reference_over_scale": to_reference / scale,
-                           "wall_s": wall}
+                           "staggered": True, "wall_s": wall}
                     print(f"{alpha0:6g} {p0:9.3g} {test:>9} {order:>3}x{spins:<2} {row['cells']:6d} "
-                          f"{row['doubled_spins_over_p0']:13.3g} {row['to_reference_over_p0']:17.3g} "
-                          f"{row['to_reference_over_scale']:8.3g} {wall:8.1f}", flush=True)
+                          f"{row['doubled_spins_over_p0']:13.3g} {row['doubled_axes_over_p0']:12.3g} "
+                          f"{row['to_reference_over_p0']:17.3g} {row['to_reference_over_scale']:8.3g} {wall:8.1f}",
+                          flush=True)
                     print(json.dumps(row))
 
 

@@ -87,3 +87,20 @@ def test_cells_that_respond_along_their_axes_give_an_isotropic_material(order, n
 
 def test_volume_ratio_factor_multiplies_the_three_normal_stretches():
     assert volume_ratio_factor(np.array([0.1, -0.2, 0.3, 9.0, 9.0, 9.0])) == pytest.approx(0.9 * 1.2 * 0.7)
+
+
+def test_staggered_spins_sample_distinct_phases_and_keep_each_axis_equally_spaced():
+    """Staggering (the default) gives every axis its own spin phase, frac(k g) of a spin step; each
+    axis keeps n equally spaced spins over the period, so the isotropy of the rule is kept."""
+    from homogenization.orientation3d import SPIN_STAGGER
+
+    aligned, staggered = orientations_3d(11, 4, staggered=False), orientations_3d(11, 4)
+    assert staggered.staggered and not aligned.staggered
+    np.testing.assert_array_equal(aligned.frames[:, :, 0], staggered.frames[:, :, 0])  # the same axes
+    np.testing.assert_array_equal(aligned.weights, staggered.weights)
+    step = np.radians(90.0) / 4
+    a, b = aligned.frames.reshape(25, 4, 3, 3), staggered.frames.reshape(25, 4, 3, 3)
+    psi = np.arctan2(np.einsum("ksi,ksi->ks", b[..., 1], a[:, :1, :, 2]), np.einsum("ksi,ksi->ks", b[..., 1], a[:, :1, :, 1]))
+    expected = step * (np.arange(4)[None, :] + ((np.arange(25) * SPIN_STAGGER) % 1.0)[:, None])
+    np.testing.assert_allclose(psi, expected, atol=1e-12)
+    assert np.unique(np.round(psi[:, 0] / step, 9)).size == 25  # 25 distinct phases, not one

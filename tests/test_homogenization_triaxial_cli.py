@@ -17,7 +17,8 @@ FAST = ["--order", "3", "--spins", "1", "--eps-max", "1e-3", "--increment", "2e-
 def undrained(tmp_path_factory):
     """Output folder of one short undrained run (shared by the tests that read it)."""
     out = tmp_path_factory.mktemp("triaxial") / "tx"
-    assert hmodel.main(["triaxial", "--mesostructure", "hcell3d:alpha0=55", "--undrained", *FAST, "--out", str(out)]) == 0
+    assert hmodel.main(["triaxial", "--mesostructure", "hcell3d:alpha0=55", "--undrained", *FAST, "--aligned-spins",
+                        "--out", str(out)]) == 0
     return out
 
 
@@ -30,12 +31,13 @@ def test_undrained_run_writes_the_3d_curve_run_file_and_figure(undrained):
     rows = np.array([[float(v) for v in line.split(",")[1:]] for line in lines[1:]])
     e11, e22, e33, s11, s22, s33, p, q = rows.T
     np.testing.assert_allclose(p, (s11 + s22 + s33) / 3.0, rtol=1e-12)
-    np.testing.assert_allclose(q, np.abs(s11 - s22), rtol=1e-6, atol=1e-6 * p.max())  # s22 = s33 by symmetry
+    np.testing.assert_allclose(q, np.abs(s11 - s22), rtol=1e-6, atol=1e-6 * p.max())  # s22 = s33: aligned spins
     stored = io.read_run(out / io.RUN_FILE)
     record = stored.record
     assert record.dim == 3 and record.frames.shape == (record.weights.size, 3, 3)
     np.testing.assert_array_equal(record.eps33, e33)
     assert stored.attrs["V0_units"] == "m^3" and stored.attrs["parameters"]["test"] == "undrained"
+    assert stored.attrs["parameters"]["staggered_spins"] is False
     assert json.loads(json.dumps(stored.attrs["programme"]))["steps"][1]["control"] == ["strain"] * 3
     assert (out / triaxial.FIGURE_FILE).stat().st_size > 0
 

@@ -98,6 +98,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--order", type=lebedev_order, default=driver.LEBEDEV_ORDER,
                         help="Lebedev order of the cell axes (35: 217 axes on the hemisphere; docs/triaxial.md, Quadrature)")
     parser.add_argument("--spins", type=positive_int, default=driver.N_SPINS, help="spins of each cell about its axis")
+    parser.add_argument("--aligned-spins", action="store_true",
+                        help="give every axis the same spins (exact cube symmetry of the rule: sigma22 = sigma33 on "
+                             "axisymmetric paths) instead of staggering them (faster convergence; docs/triaxial.md)")
     add_contact_law_arguments(parser)
     parser.add_argument("--out", type=Path, required=True, help="output folder (replaced as a unit)")
     add_cell_arguments(parser, f"the 3D cell of every backend (analytical: the plain ten-sphere cell only); "
@@ -183,12 +186,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             runs, _, written = run_backends(
                 args, models, options, law, meso,
                 run=lambda model: driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
-                                             n_spins=args.spins, spin_period_deg=spin_period),
+                                             n_spins=args.spins, spin_period_deg=spin_period,
+                                             staggered_spins=not args.aligned_spins),
                 parameters=lambda record: {
                     **settings,
                     "lebedev_order": args.order,
                     "n_spins": args.spins,
                     "spin_period_deg": spin_period,
+                    "staggered_spins": not args.aligned_spins,
                     "n_orientations": record.weights.size,
                     "stress_rtol": LoadingDefaults.stress_rtol,
                     "mesostructure": args.mesostructure.text if args.mesostructure is not None else DEFAULT_MESOSTRUCTURE,
