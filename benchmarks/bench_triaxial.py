@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import time
 import warnings
@@ -129,24 +130,25 @@ def doubled_axes_order(order: int) -> int:
 
 
 def quadrature(args) -> None:
-    reference_rule = rule(args.reference)
+    reference_rule = None if args.reference == "none" else rule(args.reference)
     rules = [rule(text) for text in args.rules.split(",")]
     print(f"{'alpha0':>6} {'p0 [Pa]':>9} {'test':>9} {'rule':>6} {'cells':>6} {'x2 spins / p0':>13} "
           f"{'x2 axes / p0':>12} {'vs reference / p0':>17} {'/ scale':>8} {'wall [s]':>8}")
     for alpha0 in (args.loose, args.dense):
         for p0 in (2e5, 5.85e6):
             for test in ("undrained", "drained"):
-                reference, _ = run("analytical", alpha0, p0, test, args, order=reference_rule[0], spins=reference_rule[1])
-                scale = max(p0, float(reference.p.max()))
+                reference = (None if reference_rule is None else
+                             run("analytical", alpha0, p0, test, args, order=reference_rule[0], spins=reference_rule[1])[0])
                 for order, spins in rules:
                     base, wall = run("analytical", alpha0, p0, test, args, order=order, spins=spins)
                     doubled, _ = run("analytical", alpha0, p0, test, args, order=order, spins=2 * spins)
                     finer = doubled_axes_order(order)
                     more_axes, _ = run("analytical", alpha0, p0, test, args, order=finer, spins=spins)
-                    to_reference = largest_difference(base, reference)
+                    scale = max(p0, float((base if reference is None else reference).p.max()))
+                    to_reference = math.nan if reference is None else largest_difference(base, reference)
                     row = {"part": "quadrature", "alpha0_deg": alpha0, "p0": p0, "test": test, "rule": [order, spins],
-                           "cells": int(base.weights.size), "reference": list(reference_rule),
-                           "reference_cells": int(reference.weights.size),
+                           "cells": int(base.weights.size), "reference": None if reference is None else list(reference_rule),
+                           "reference_cells": None if reference is None else int(reference.weights.size),
                            "doubled_spins_over_p0": largest_difference(base, doubled) / p0,
                            "doubled_axes_order": finer, "doubled_axes_cells": int(more_axes.weights.size),
                            "doubled_axes_over_p0": largest_difference(base, more_axes) / p0,
@@ -221,13 +223,14 @@ def main(argv: list[str] | None = None) -> int:
                         help="Lebedev order of the cell axes (accuracy, timing: cell by cell, any rule compares)")
     parser.add_argument("--spins", type=positive_int, default=4, help="spins per axis (accuracy, timing)")
     parser.add_argument("--rules", default="11x4,23x8,35x16", help="quadrature part: comma list of ORDERxSPINS rules")
-    parser.add_argument("--reference", default="71x32", help="quadrature part: the fine ORDERxSPINS rule")
+    parser.add_argument("--reference", default="71x32",
+                        help="quadrature part: the fine ORDERxSPINS rule, or none (doubling only)")
     parser.add_argument("--loose", type=positive_float, default=55.0, help="alpha0 of the loose cell [deg]")
     parser.add_argument("--dense", type=positive_float, default=47.0, help="alpha0 of the dense cell [deg], > 45")
     parser.add_argument("--threads", type=positive_int, default=None, help="DEM threads (None: its default)")
     parser.add_argument("--model", default=None, help="ann part: a 3D meso-ANN model (.pt)")
     args = parser.parse_args(argv)
-    for text in [*args.rules.split(","), args.reference]:
+    for text in [*args.rules.split(","), *([] if args.reference == "none" else [args.reference])]:
         try:
             order, spins = rule(text)
         except ValueError:

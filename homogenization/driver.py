@@ -48,11 +48,12 @@ JUMP_WIDTH = 1e-6
 response for discontinuous at the target (``_Runner.solve_stress``) [-]: the residual still
 above the tolerance there means a slope ~1e6 times the material's own (about 20 bisections)."""
 
-LEBEDEV_ORDER = 47
-"""Default Lebedev order of the 3D cell axes (``orientation3d``: 385 axes on the hemisphere).
-With ``N_SPINS`` staggered spins (6160 cells) doubling the spins or the axes moves the closed
-form's triaxial curves by less than 0.5 % of p0, also where an undrained sample at 2e5 Pa
-dilates to about 22 p0 (docs/triaxial.md, Quadrature; order 35 missed there by 1.7 %)."""
+LEBEDEV_ORDER = 53
+"""Default Lebedev order of the 3D cell axes (``orientation3d``: 487 axes on the hemisphere).
+With ``N_SPINS`` staggered spins (7792 cells) doubling the spins moves the closed form's
+triaxial curves by at most 0.08 % of p0 and doubling the axes (order 77) by at most 0.46 %,
+also where undrained samples at 2e5 Pa dilate to 20-30 p0 (docs/triaxial.md, Quadrature;
+orders 35 and 47 missed there by up to 3.3 % and 1.1 %)."""
 N_SPINS = 16
 """Default spins per 3D cell axis, equally spaced over the cell's spin period and staggered from
 axis to axis (``orientation3d``)."""
@@ -454,6 +455,15 @@ class _Runner:
                                f"before reaching {step.stop_at_p:g} {self.unit}; allow more strain")
 
 
+def _orientations_3d(mesostructure: Mesostructure, fabric_anisotropy: float, order: int, n_spins: int,
+                     spin_period_deg: float | None, staggered: bool) -> orientation3d.Orientations3D:
+    """The orientation set of a 3D run (``run``); ValueError for an anisotropic fabric."""
+    if fabric_anisotropy:
+        raise ValueError("an anisotropic fabric is not available in 3D yet (fabric_anisotropy must be 0)")
+    period = mesostructure.spin_period_deg() if spin_period_deg is None else spin_period_deg
+    return orientation3d.orientations_3d(order, n_spins, spin_period_deg=period, staggered=staggered)
+
+
 def run(
     cell_model: CellModel,
     programme: Programme,
@@ -511,11 +521,8 @@ def run(
         orient = orient_mod.orientations(n_orientations, anisotropy=fabric_anisotropy, direction_deg=fabric_direction_deg)
         material = HomogenisedMaterial(cell_model, orient, mesostructure, 1)
     else:
-        if fabric_anisotropy:
-            raise ValueError("an anisotropic fabric is not available in 3D yet (fabric_anisotropy must be 0)")
-        period = mesostructure.spin_period_deg() if spin_period_deg is None else spin_period_deg
-        orient = orientation3d.orientations_3d(lebedev_order, n_spins, spin_period_deg=period,
-                                               staggered=staggered_spins)
+        orient = _orientations_3d(mesostructure, fabric_anisotropy, lebedev_order, n_spins, spin_period_deg,
+                                  staggered_spins)
         material = HomogenisedMaterial3D(cell_model, orient, mesostructure, 1)
     runner = _Runner(material, sum(s.n_increments for s in programme), stress_rtol, max_newton_iterations)
     V0 = runner.V0

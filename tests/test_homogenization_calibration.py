@@ -293,7 +293,7 @@ def test_batched_triaxial_forward_matches_the_driver(tmp_path, drained):
         law = ContactLaw(kn=PARAMS["kn"][i], kt_over_kn=PARAMS["kt_over_kn"][i], phi_g_deg=PARAMS["phi_g"][i])
         record = driver.run(Analytical3DCell(law, 0.5), programme,
                             mesostructure=build_h_cell_3d(PARAMS["alpha0"][i], radius=0.5), lebedev_order=5,
-                            n_spins=2, progress=False)
+                            n_spins=2, staggered_spins=SETTINGS_3D.staggered_spins, progress=False)
         start = np.flatnonzero(record.stage == "shear")[0] - 1
         e1 = record.eps11[start:] - record.eps11[start]
         ev = (record.eps11 + record.eps22 + record.eps33)[start:]

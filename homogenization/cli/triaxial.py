@@ -96,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--programme", type=Path, default=None,
                         help="JSON or TOML loading programme of three-component steps (docs/programmes.md)")
     parser.add_argument("--order", type=lebedev_order, default=driver.LEBEDEV_ORDER,
-                        help="Lebedev order of the cell axes (35: 217 axes on the hemisphere; docs/triaxial.md, Quadrature)")
+                        help="Lebedev order of the cell axes (53: 487 axes on the hemisphere; docs/triaxial.md, Quadrature)")
     parser.add_argument("--spins", type=positive_int, default=driver.N_SPINS, help="spins of each cell about its axis")
     parser.add_argument("--aligned-spins", action="store_true",
                         help="give every axis the same spins (exact cube symmetry of the rule: sigma22 = sigma33 on "
