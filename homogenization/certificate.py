@@ -144,10 +144,11 @@ def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_
                        increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
                        spatial_rule: Sequence[int] = SPATIAL_RULE) -> dict[str, Any]:
     """The ``settings`` a certificate of cells of dimension ``dim`` records for these options
-    (planar: ``n_orientations``; spatial: ``spatial_rule`` as [order, spins])."""
+    (planar: ``n_orientations``; spatial: ``spatial_rule`` as [order, spins], with the spins
+    staggered from axis to axis, ``staggered_spins``: ``homogenization.orientation3d``)."""
     settings = {"pressures": [float(p) for p in pressures], "eps_max": float(eps_max), "increment": float(increment)}
     if dim == 3:
-        return {**settings, "spatial_rule": [int(k) for k in spatial_rule]}
+        return {**settings, "spatial_rule": [int(k) for k in spatial_rule], "staggered_spins": True}
     return {**settings, "n_orientations": int(n_orientations)}
 
 
@@ -156,7 +157,8 @@ def run_test(model: Any, programme: loading.Programme, meso: Mesostructure, sett
     (``requested_settings``: planar ``n_orientations``, spatial ``spatial_rule``)."""
     if meso.dim == 3:
         order, spins = settings["spatial_rule"]
-        return driver.run(model, programme, mesostructure=meso, lebedev_order=order, n_spins=spins, progress=False)
+        return driver.run(model, programme, mesostructure=meso, lebedev_order=order, n_spins=spins,
+                          staggered_spins=settings["staggered_spins"], progress=False)
     return driver.run(model, programme, mesostructure=meso, n_orientations=settings["n_orientations"], progress=False)
 
 

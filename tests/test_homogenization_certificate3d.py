@@ -97,7 +97,7 @@ def test_the_shipped_3d_model_carries_a_passed_certificate_of_its_file():
     meta = json.loads(SHIPPED_3D.with_suffix(".json").read_text())
     cert = meta["certificate"]
     assert cert["passed"] and cert["model_sha256"] == file_sha256(SHIPPED_3D)
-    assert cert["settings"]["spatial_rule"] == list(certificate.SPATIAL_RULE)
+    assert cert["settings"]["spatial_rule"] == list(certificate.SPATIAL_RULE) and cert["settings"]["staggered_spins"]
     assert len(cert["tests"]) == 4 * len(certificate.PRESSURES) + 1 and cert["worst"] <= certificate.TARGET
     assert not cert["revision"].endswith("-dirty")
 

@@ -10,7 +10,7 @@ planar cell, a = (c^2 + b s^2, s^2 + b c^2, b) for a spatial one (t1 in the plan
 -1/4 in 3D.
 None of these precompressions is a training path's. The DEM cell (``warp_hcell.dem.cell``),
 stepped with the same increments, gives the reference; the ANN is rolled out recurrently. The
-error of a path is max over the path of ``|S_ann - S_dem|`` (components nn and tt) divided by
+error of a path is max over the path of ``|S_ann - S_dem|`` (the diagonal components) divided by
 the path's largest ``|S_dem|`` component (the path's largest force times its lever arm):
 a fraction that a model returning zeros fails with 1.
 """
