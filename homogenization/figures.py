@@ -323,11 +323,20 @@ def run_drained(run: Run) -> bool:
     return is_drained(run.parameters, run.record.programme)
 
 
+TRIAXIAL_NAMES = {"undrained": "undrained triaxial compression", "drained": "drained triaxial compression",
+                  "extension": "drained triaxial extension", "constant_p": "triaxial compression at constant p",
+                  "true": "true triaxial compression", "cyclic": "cyclic undrained triaxial test"}
+"""What a 3D run is, by the ``test`` parameter that ``hmodel triaxial`` stores (``loading.TRIAXIAL_TESTS``)."""
+
+
 def programme_name(run: Run) -> str:
-    """What the run is: "programme <file stem>", "drained biaxial test" or "constant-volume biaxial test"."""
+    """What the run is: "programme <file stem>"; a 3D run's triaxial test (``TRIAXIAL_NAMES``); else
+    "drained biaxial test" or "constant-volume biaxial test"."""
     programme_file = run.parameters.get("programme_file")
     if programme_file:
         return f"programme {Path(programme_file).stem}"
+    if run.record.dim == 3:
+        return TRIAXIAL_NAMES.get(str(run.parameters.get("test")), "triaxial test")
     return "drained biaxial test" if run_drained(run) else "constant-volume biaxial test"
 
 
@@ -335,7 +344,8 @@ def describe_run(run: Run) -> dict[str, str]:
     """``run_labels.describe`` of a run, with the backend, alpha0 and N of its record as fall-backs."""
     record = run.record
     return run_labels.describe(run.parameters, test=programme_name(run), backend=record.backend,
-                               alpha0_deg=record.parameters.get("alpha0_deg"), n_orientations=record.theta_deg.size)
+                               alpha0_deg=record.parameters.get("alpha0_deg"), n_orientations=record.theta_deg.size,
+                               dim=record.dim)
 
 
 class NoCriticalState(ValueError):

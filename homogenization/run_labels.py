@@ -62,7 +62,7 @@ def _given(parameters: Mapping[str, Any], key: str, fallback: Any) -> Any:
 
 
 def describe(parameters: Mapping[str, Any], *, test: str = "", backend: str | None = None,
-             alpha0_deg: float | None = None, n_orientations: int | None = None) -> dict[str, str]:
+             alpha0_deg: float | None = None, n_orientations: int | None = None, dim: int = 2) -> dict[str, str]:
     """Parts of text (``KEYS`` -> text, "" where it does not apply) describing one run.
 
     Args:
@@ -71,6 +71,7 @@ def describe(parameters: Mapping[str, Any], *, test: str = "", backend: str | No
             ``fabric_anisotropy``, ``increment`` [-], ``contact_law``, ``radius`` [m]).
         test: what the run is, e.g. "constant-volume biaxial test".
         backend, alpha0_deg, n_orientations: used where ``parameters`` lacks the key.
+        dim: the run's dimension: stresses (p0) in N/m for 2, Pa for 3.
     """
     backend = _given(parameters, "backend", backend)
     alpha0 = _given(parameters, "alpha0_deg", alpha0_deg)
@@ -86,7 +87,7 @@ def describe(parameters: Mapping[str, Any], *, test: str = "", backend: str | No
         "backend": BACKEND_NAMES.get(backend, str(backend)) if backend else "",
         "mesostructure": mesostructure_name(parameters.get("mesostructure")),
         "alpha0": f"$\\alpha_0$ = {alpha0:g}°" if alpha0 is not None and math.isfinite(alpha0) else "",
-        "p0": f"$p_0 = {number(p0)}$ N/m" if p0 else "",
+        "p0": f"$p_0 = {number(p0)}$ {'Pa' if dim == 3 else 'N/m'}" if p0 else "",
         "n_orientations": f"$N$ = {int(n)}" if n else "",
         "erosion": f"fines removed at $\\varepsilon_1$ = {100 * erode_at:g} %" if erode_at is not None else "",
         "fabric": f"$a_f$ = {fabric:g}" if fabric else "",

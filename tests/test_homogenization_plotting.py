@@ -387,3 +387,17 @@ def test_biaxial_normalise_needs_a_p0(tmp_path, capsys):
     assert run_main(biaxial.main, ["--programme", str(programme), "--normalise", "--out", str(out)]) == 2
     assert capsys.readouterr().err.strip() == "hmodel: error: --normalise needs p0: the programme has no stop_at_p step"
     assert not out.exists()
+
+
+def test_a_triaxial_run_is_named_by_its_test_and_its_stresses_in_pa(tmp_path, monkeypatch):
+    """hmodel plot of a 3D run: the title names the triaxial test it stores, p0 in Pa (not a biaxial test in N/m)."""
+    from warp_hcell.mesostructures.builders import mesostructure_arg
+
+    record = driver.run(make_cell_model("analytical", dim=3), loading.triaxial(2e5, 2e-3, 5e-4, test="drained"),
+                        mesostructure=mesostructure_arg("hcell3d:alpha0=55").build(55.0), lebedev_order=3, n_spins=1,
+                        progress=False)
+    path = _write(tmp_path / "t", record, backend="analytical", alpha0_deg=55.0, p0=2e5, test="drained")
+    code, fig = _figure_of_plot(monkeypatch, [path, "--out", str(tmp_path / "t.png")])
+    assert code == 0
+    assert fig.get_suptitle().startswith(r"drained triaxial compression, analytical, ")
+    assert r"$p_0 = 2\times10^{5}$ Pa" in fig.get_suptitle() and "N/m" not in fig.get_suptitle()
