@@ -71,3 +71,13 @@ def test_licence_and_citation_match_pyproject():
     citation = (ROOT / "CITATION.cff").read_text()
     assert f"version: {project['version']}\n" in citation and "license: MIT\n" in citation
     assert "cff-version: 1.2.0" in citation
+
+
+def test_quoted_tests_exist():
+    """Every test a page names (``tests/FILE.py::test_name``, as in the benchmarks page's "What CI
+    checks") is defined in that file, so that a renamed test cannot leave a claim unchecked."""
+    text = "\n".join(page.read_text() for page in DOCS)
+    named = set(re.findall(r"`(tests/[\w./-]+\.py)::(test_\w+)`", text))
+    missing = [f"{path}::{name}" for path, name in sorted(named)
+               if not re.search(rf"^def {name}\(", (ROOT / path).read_text(), re.M)]
+    assert named and not missing, missing

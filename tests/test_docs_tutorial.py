@@ -19,6 +19,10 @@ BLOCK = re.compile(r"^(?:<!-- not run: (?P<reason>[^\n]*?) -->\n)?```(?P<lang>\w
 RUNNABLE = ("bash", "python")
 FIGURES = ("runs/tutorial/cambridge.png", "runs/tutorial/three_backends.png")
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+AGREEMENT = {"dem": (5e-5, 5e-4), "ann": (1.7e-3, 3e-3)}
+"""Largest |dp|/p0, |dq|/p0 the tutorial's comparison may print (72 orientations to 10 % at 1e-4,
+p0 = 2e5); measured 1.2e-5 / 2.1e-4 (DEM) and 8.5e-4 / 1.5e-3 (ANN), docs/benchmarks.md "What CI
+checks"; the README's 360-orientation figures: 1.2e-5 / 2.1e-4 and 0.039 % / 0.152 %."""
 
 
 def tutorial_blocks() -> list[tuple[str, str, str | None]]:
@@ -54,6 +58,8 @@ def test_tutorial_blocks_run_and_draw_the_figures(tmp_path):
         path = tmp_path / figure
         assert path.is_file() and path.read_bytes().startswith(PNG_SIGNATURE), figure
     comparison = next(text for text in outputs if "against analytical" in text)
-    printed = dict(re.findall(r"(dem|ann): max \|dp\|/p0 = (\S+),", comparison))
-    assert set(printed) == {"dem", "ann"}
-    assert all(float(value) < 0.01 for value in printed.values()), comparison  # "on top of each other"
+    printed = {backend: (float(dp), float(dq)) for backend, dp, dq in
+               re.findall(r"(dem|ann): max \|dp\|/p0 = (\S+), max \|dq\|/p0 = (\S+) against", comparison)}
+    assert set(printed) == set(AGREEMENT), comparison
+    for backend, (dp, dq) in printed.items():
+        assert dp <= AGREEMENT[backend][0] and dq <= AGREEMENT[backend][1], comparison

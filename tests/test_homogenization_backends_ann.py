@@ -182,8 +182,8 @@ def test_shipped_model_follows_the_analytical_cell_in_a_short_constant_volume_te
             for name in ("analytical", "ann")}
     a, b = runs["analytical"], runs["ann"]
     assert a.p.shape == b.p.shape
-    assert np.abs(b.p - a.p).max() <= 0.01 * 5.85e6
-    assert np.abs(b.q - a.q).max() <= 0.01 * 5.85e6
+    assert np.abs(b.p - a.p).max() <= 1e-4 * 5.85e6  # measured 1.2e-5 / 1.2e-5 (docs/benchmarks.md "What CI checks")
+    assert np.abs(b.q - a.q).max() <= 1e-4 * 5.85e6
 
 
 @pytest.mark.skipif(not default_model_path().is_file(), reason="default model not installed")
@@ -202,6 +202,6 @@ def test_shipped_model_follows_the_analytical_cell_through_a_constant_volume_rev
     p = {name: r.p[shear[name]] for name, r in runs.items()}
     q = {name: r.q[shear[name]] for name, r in runs.items()}
     assert p["ann"].size == p["analytical"].size == 3 * n
-    assert np.abs(p["ann"] - p["analytical"]).max() <= 0.02 * p0
+    assert np.abs(p["ann"] - p["analytical"]).max() <= 0.01 * p0
     assert np.abs(q["ann"] - q["analytical"]).max() <= 0.02 * p0
     assert np.ptp(q["analytical"]) > 0.5 * p0  # the reversal swings q through the test

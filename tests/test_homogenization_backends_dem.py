@@ -52,9 +52,11 @@ def test_dem_matches_analytical_cell_along_constant_volume_path(device):
         opened |= bool(np.any(~oa["closed1"] & ~oa["closed2"]))
         assert np.array_equal(od["closed1"], oa["closed1"]) and np.array_equal(od["closed2"], oa["closed2"])
     assert slid and opened and force_max > 1e5
+    # docs/model.md section 10: 3-4 significant digits; measured 1.1e-4, 4.0e-4, 5.7e-4 of the
+    # largest force and 1.5e-5 deg (docs/benchmarks.md "What CI checks")
     for name in ("N1", "N2", "T1"):
-        assert worst[name] <= 5e-3 * force_max, name
-    assert worst["alpha_deg"] <= 0.01
+        assert worst[name] <= 1.5e-3 * force_max, (name, worst[name] / force_max)
+    assert worst["alpha_deg"] <= 1e-4
 
 
 def test_dem_satisfies_the_cell_model_protocol_and_is_registered():

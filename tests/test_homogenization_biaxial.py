@@ -160,8 +160,8 @@ def test_analytical_and_dem_overlay_agree(tmp_path):
     assert cli(argv) == 0
     a, d = (io.read_run(out / name / "run.h5").record for name in ("analytical", "dem"))
     assert np.array_equal(a.stage, d.stage)
-    # 3 digits: the DEM's adaptive stepping (docs/dem_stepping.md) agrees to ~1e-4 of p0, issue 10 asks 1e-3
-    assert np.abs(a.p - d.p).max() <= 1e-3 * 2e5 and np.abs(a.q - d.q).max() <= 1e-3 * 2e5
+    # the README's DEM figure at 2e5 is 2.1e-4 of p0; this short run measures 2.2e-5 / 3.1e-4 (p / q)
+    assert np.abs(a.p - d.p).max() <= 6e-4 * 2e5 and np.abs(a.q - d.q).max() <= 6e-4 * 2e5
     assert d.diagnostics["substeps"].shape == (d.n_increments,) and d.diagnostics["n_unconverged"].sum() == 0
 
 

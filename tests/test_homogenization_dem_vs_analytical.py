@@ -1,12 +1,14 @@
-"""Issue 4 acceptance: the meso-DEM homogenisation reproduces the analytical H-model.
+"""The meso-DEM homogenisation reproduces the analytical H-model at the README's settings.
 
 Both backends run the same programme through ``driver.run`` (isotropic stage to p0, then
-constant-volume or drained shear); the DEM must stay within 1 % of p0 of the analytical p
-and q at every increment, reach p0 to 1e-4, report zero unconverged cells in run.h5 and
-follow the independent reference table of docs/model.md, "Reference response". CI runs 36 orientations
-to eps1 = 10 %; the full-size comparison (360 orientations, eps1 = 20 %) is marked slow
-(``pytest -m slow tests/test_homogenization_dem_vs_analytical.py``; 5-15 s of DEM per case on
-two cores) and is also ``benchmarks/bench_dem_homogenization.py``.
+constant-volume or drained shear): 360 orientations, constant volume to eps1 = 20 %,
+increments 1e-4 (shear and isotropic), the default DEM stepping, which is the run
+``benchmarks/bench_dem_stepping.py`` times and the README's Results table quotes (DEM within
+2.1e-4 of p0 of the analytical backend at p0 = 2e5 N/m, 1.4e-6 at 5.85e6 N/m). The DEM must
+stay within ``AGREEMENT`` of the analytical p and q at every increment (about twice the
+measured figure, docs/benchmarks.md "What CI checks"), reach p0 to 1e-4, report zero
+unconverged cells in run.h5 and follow the independent reference table of docs/model.md,
+"Reference response". The whole comparison takes a few seconds.
 
 Sign convention: compression positive; stresses [N/m], strains [-].
 """
@@ -23,16 +25,15 @@ from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import DemSettings, LoadingDefaults
 
-AGREEMENT = 0.01
-"""Issue 4: |p_dem - p_ana| and |q_dem - q_ana| below this fraction of p0 at every increment."""
 ISO_RTOL = 1e-4
-"""Issue 4: relative error of p after the isotropic stage with the DEM."""
+"""Relative error of p after the isotropic stage with the DEM."""
 
-SHEAR_INCREMENT = 5e-4
-"""Shear increment of the acceptance runs (docs/dem_homogenization.md: the DEM cost does
-not depend on it; the macro-increment error of both backends grows linearly with it)."""
-ISO_INCREMENT = 1e-3
+SHEAR_INCREMENT = 1e-4
+"""Shear increment of the comparison runs (the README's; the DEM cost hardly depends on it)."""
+ISO_INCREMENT = 1e-4
 """Isotropic strain increment per component (proportional path; the last one lands on p0)."""
+N_ORIENTATIONS = 360
+EPS_MAX = 0.20
 
 CASES = {
     # (alpha0 [deg], p0 [N/m]): eps_iso, then p/p0 and q/p0 at eps1 = 5, 10, 20 % (docs/model.md, "Reference response")
@@ -40,21 +41,28 @@ CASES = {
     (55.0, 2e5): (0.00090, (0.443, 0.191, 0.093), (0.264, 0.051, 0.012)),
     (40.0, 5.85e6): (0.02219, (0.947, 1.037, 1.199), (0.793, 0.945, 0.902)),
 }
+AGREEMENT = {
+    # largest |p_dem - p_ana| and |q_dem - q_ana| allowed at any increment [p0]; measured 2026-12-03
+    # (max of dp, dq): 1.44e-6, 2.1e-4 (the README's 1.4e-6 and 2.1e-4) and 1.95e-6
+    (55.0, 5.85e6): 3e-6,
+    (55.0, 2e5): 4e-4,
+    (40.0, 5.85e6): 4e-6,
+}
 TABLE_EPS1 = (0.05, 0.10, 0.20)
 CASE_IDS = [f"alpha{a:g}-p{p:g}" for a, p in CASES]
 
-CI_ORIENTATIONS = 36
-CI_EPS_MAX = 0.10
-CI_TABLE_TOLERANCE = 0.01
-"""Reference-table tolerance [p0] at 36 orientations (the table is computed with 360)."""
-FULL_TABLE_TOLERANCE = 0.005
-"""Reference-table tolerance [p0] at full size (docs/model.md, "Reference response": <= 0.5 % of p0)."""
+TABLE_TOLERANCE = 0.005
+"""Reference-table tolerance [p0] (docs/model.md, "Reference response": <= 0.5 % of p0)."""
+
+DRAINED_AGREEMENT = 1e-3
+"""Largest |dp|, |dq| [p0] of the short drained run (12 orientations to 1 % at 1e-3; measured
+2.3e-4 / 4.6e-4, docs/benchmarks.md "What CI checks")."""
 
 
 def run_pair(alpha0_deg: float, p0: float, n_orientations: int, eps_max: float, *, drained: bool = False,
-             increment: float = SHEAR_INCREMENT) -> dict[str, driver.Record]:
+             increment: float = SHEAR_INCREMENT, iso_increment: float = ISO_INCREMENT) -> dict[str, driver.Record]:
     """The same biaxial programme with the analytical and the DEM backends."""
-    programme = loading.biaxial(p0, eps_max, increment, iso_increment=ISO_INCREMENT, drained=drained)
+    programme = loading.biaxial(p0, eps_max, increment, iso_increment=iso_increment, drained=drained)
     records = {}
     for name in ("analytical", "dem"):
         with warnings.catch_warnings():
@@ -70,14 +78,14 @@ def shear(record: driver.Record) -> tuple[np.ndarray, np.ndarray]:
     return mask, record.eps11[mask] - record.eps11[record.stage == "iso"][-1]
 
 
-def check_agreement(runs: dict[str, driver.Record], p0: float) -> None:
+def check_agreement(runs: dict[str, driver.Record], p0: float, tolerance: float) -> None:
     ana, dem = runs["analytical"], runs["dem"]
     assert dem.n_increments == ana.n_increments
     np.testing.assert_array_equal(dem.stage, ana.stage)
     dp = np.abs(dem.p - ana.p) / p0
     dq = np.abs(dem.q - ana.q) / p0
-    assert dp.max() < AGREEMENT, f"max |dp|/p0 = {dp.max():.3g} at increment {dp.argmax()}"
-    assert dq.max() < AGREEMENT, f"max |dq|/p0 = {dq.max():.3g} at increment {dq.argmax()}"
+    assert dp.max() <= tolerance, f"max |dp|/p0 = {dp.max():.3g} at increment {dp.argmax()}"
+    assert dq.max() <= tolerance, f"max |dq|/p0 = {dq.max():.3g} at increment {dq.argmax()}"
 
 
 def check_table(runs: dict[str, driver.Record], case: tuple[float, float], eps_max: float, tolerance: float) -> None:
@@ -108,20 +116,21 @@ def check_isotropic_stage(runs: dict[str, driver.Record], p0: float) -> None:
 
 @pytest.fixture(scope="module")
 def ci_runs() -> dict[tuple[float, float], dict[str, driver.Record]]:
-    return {case: run_pair(*case, CI_ORIENTATIONS, CI_EPS_MAX) for case in CASES}
+    return {case: run_pair(*case, N_ORIENTATIONS, EPS_MAX) for case in CASES}
 
 
 @pytest.mark.parametrize("case", list(CASES), ids=CASE_IDS)
 def test_dem_matches_analytical_at_every_increment(ci_runs, case):
     runs = ci_runs[case]
-    check_agreement(runs, case[1])
+    check_agreement(runs, case[1], AGREEMENT[case])
+    np.testing.assert_array_equal(runs["dem"].diagnostics["n_unconverged"], 0.0)
     # a real shear response was compared, not two zero curves
     assert runs["analytical"].q.max() > 0.2 * case[1]
 
 
 @pytest.mark.parametrize("case", list(CASES), ids=CASE_IDS)
 def test_dem_follows_the_reference_table(ci_runs, case):
-    check_table(ci_runs[case], case, CI_EPS_MAX, CI_TABLE_TOLERANCE)
+    check_table(ci_runs[case], case, EPS_MAX, TABLE_TOLERANCE)
 
 
 @pytest.mark.parametrize("case", list(CASES), ids=CASE_IDS)
@@ -136,10 +145,14 @@ def test_dem_static_liquefaction_at_low_pressure(ci_runs):
     assert dem.q[mask].max() > 0.5 * 2e5  # after a peak: liquefaction, not a soft start
 
 
-def test_dem_diagnostics_are_stored_in_run_file(ci_runs, tmp_path):
-    """Per increment: substeps (at least the driving ones of the rule), their max, unconverged = 0."""
-    alpha0, p0 = 55.0, 2e5
-    record = ci_runs[(alpha0, p0)]["dem"]
+def test_dem_diagnostics_are_stored_in_run_file(tmp_path):
+    """Per increment: substeps (at least the driving ones of the rule), their max, unconverged = 0.
+
+    On its own short run (36 orientations to 10 % at 5e-4): there every shear increment's substeps
+    stay below twice the refined driving count; at 1e-4 the first shear increment after the
+    isotropic stage relaxes for longer than that."""
+    alpha0, p0, n_orientations, increment = 55.0, 2e5, 36, 5e-4
+    record = run_pair(alpha0, p0, n_orientations, 0.10, increment=increment, iso_increment=1e-3)["dem"]
     io.write_run(tmp_path, record, parameters={"backend": "dem"}, seed=0)
     stored = io.read_run(tmp_path / io.RUN_FILE).record
     n = record.n_increments
@@ -149,8 +162,8 @@ def test_dem_diagnostics_are_stored_in_run_file(ci_runs, tmp_path):
     # the driven grains follow the cell strain in ceil(|d_eps| / rate) substeps, rate between
     # refined_strain_per_substep and strain_per_substep; in the shear stage
     # |d_eps_n| = |d_eps_t| = delta |cos 2 theta| (spec section 3)
-    theta = np.arange(CI_ORIENTATIONS) * np.pi / CI_ORIENTATIONS
-    largest = SHEAR_INCREMENT * np.abs(np.cos(2.0 * theta))
+    theta = np.arange(n_orientations) * np.pi / n_orientations
+    largest = increment * np.abs(np.cos(2.0 * theta))
     n_coarse = np.ceil(largest / DemSettings().strain_per_substep - 1e-9)
     n_fine = np.ceil(largest / DemSettings().refined_strain_per_substep + 1e-9)
     mask, _ = shear(record)
@@ -163,8 +176,8 @@ def test_dem_diagnostics_are_stored_in_run_file(ci_runs, tmp_path):
 
 def test_dem_drained_biaxial_holds_sigma22():
     alpha0, p0 = 55.0, 2e5
-    runs = run_pair(alpha0, p0, 12, 0.01, drained=True, increment=1e-3)
-    check_agreement(runs, p0)
+    runs = run_pair(alpha0, p0, 12, 0.01, drained=True, increment=1e-3, iso_increment=1e-3)
+    check_agreement(runs, p0, DRAINED_AGREEMENT)
     dem = runs["dem"]
     mask, _ = shear(dem)
     assert mask.sum() == 10
@@ -175,16 +188,3 @@ def test_dem_drained_biaxial_holds_sigma22():
     eps_v = dem.eps11 + dem.eps22
     assert abs(eps_v[mask][-1] - eps_v[~mask][-1]) > 1e-4  # the volume changed: not a constant-volume run
 
-
-@pytest.mark.slow
-@pytest.mark.parametrize("case", list(CASES), ids=CASE_IDS)
-def test_full_size_dem_matches_analytical(case):
-    """360 orientations to eps1 = 20 %: 1 % at every increment, reference table, p0, diagnostics."""
-    runs = run_pair(*case, 360, 0.20)
-    check_agreement(runs, case[1])
-    check_table(runs, case, 0.20, FULL_TABLE_TOLERANCE)
-    check_isotropic_stage(runs, case[1])
-    np.testing.assert_array_equal(runs["dem"].diagnostics["n_unconverged"], 0.0)
-    if case == (55.0, 2e5):
-        mask, eps1 = shear(runs["dem"])
-        assert np.interp(0.10, eps1, runs["dem"].p[mask]) < 0.2 * case[1]

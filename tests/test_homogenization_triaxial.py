@@ -1,5 +1,6 @@
 """3D homogenisation and the triaxial tests: invariants by hand, programmes, the 3D material's
-tangent by finite differences, the laboratory paths' controlled quantities, DEM vs closed form."""
+tangent by finite differences, the laboratory paths' controlled quantities, DEM vs closed form to
+eps_a = 15 %."""
 
 from __future__ import annotations
 
@@ -26,10 +27,10 @@ def cell(alpha0: float = 55.0):
 
 def run(test: str, *, backend: str = "analytical", alpha0: float = 55.0, eps_max: float = 4e-3,
         increment: float = 2e-4, order: int = 5, spins: int = 2, staggered: bool = False,
-        **options) -> driver.Record:
+        p0: float = P0, iso_increment: float = 1e-4, **options) -> driver.Record:
     """A triaxial test on a small rule; aligned spins by default, so that axisymmetric paths keep
     sigma22 = sigma33 and zero shear stresses to round-off (the cube symmetry of the rule)."""
-    programme = loading.triaxial(P0, eps_max, increment, test=test, iso_increment=1e-4, **options)
+    programme = loading.triaxial(p0, eps_max, increment, test=test, iso_increment=iso_increment, **options)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # an unconverged DEM cell or a stress-control jump fails the test
         return driver.run(make_cell_model(backend, dim=3), programme, mesostructure=cell(alpha0),
@@ -176,15 +177,52 @@ def test_cyclic_undrained_returns_to_zero_axial_strain():
     assert record.sigma11[shear].max() > P0 > record.sigma11[shear].min()
 
 
-def test_dem_matches_the_closed_form_undrained_and_drained():
-    """Acceptance in small: within 1e-3 of p0 along the path (the full matrix: benchmarks/bench_triaxial.py)."""
-    for test in ("undrained", "drained"):
-        analytical = run(test, order=3, spins=1, eps_max=2e-3)
-        dem = run(test, backend="dem", order=3, spins=1, eps_max=2e-3)
-        assert dem.n_increments == analytical.n_increments
-        for name in ("sigma11", "sigma22", "sigma33", "p", "q"):
-            diff = np.abs(getattr(dem, name) - getattr(analytical, name)).max()
-            assert diff <= 1e-3 * P0, (test, name, diff / P0)
+DEM_VS_CLOSED_FORM = {
+    # (alpha0 [deg], p0 [Pa], test): largest |DEM - closed form| of sigma11, sigma22, sigma33, p, q
+    # allowed before the closed form's first cross-plane contact [p0]. Measured 2026-12-03 on this
+    # short run (docs/benchmarks.md "What CI checks"): 1.8e-4, 1.4e-4, 3.4e-6, 1.6e-5 (loose cell),
+    # 2.0e-4, 2.8e-4, 8.6e-6, 1.4e-5 (dense cell); docs/triaxial.md, 100 cells at 1e-4: 1.1e-4,
+    # 9.4e-5, 1.0e-6, 1.9e-5 and 3.6e-4, 3.6e-4, 9.6e-6, 1.4e-5.
+    (55.0, 2e5, "undrained"): 4e-4,
+    (55.0, 2e5, "drained"): 3e-4,
+    (55.0, 5.85e6, "undrained"): 7e-6,
+    (55.0, 5.85e6, "drained"): 4e-5,
+    (47.0, 2e5, "undrained"): 5e-4,
+    (47.0, 2e5, "drained"): 6e-4,
+    (47.0, 5.85e6, "undrained"): 2e-5,
+    (47.0, 5.85e6, "drained"): 3e-5,
+}
+FIRST_CONTACT_AT_LEAST = 0.07
+"""Axial strain of the shear stage [-] the comparison reaches at least before a cross-plane contact
+(docs/triaxial.md: the earliest, 7.4 %, in the dense cell's drained test at 5.85e6 Pa)."""
+
+
+@pytest.mark.parametrize("alpha0, p0, test", list(DEM_VS_CLOSED_FORM),
+                         ids=[f"alpha{a:g}-p{p:g}-{t}" for a, p, t in DEM_VS_CLOSED_FORM])
+def test_dem_matches_the_closed_form_to_15_percent(alpha0, p0, test):
+    """The matrix of docs/triaxial.md ("DEM vs the closed form", 100 cells at 1e-4 to 15 %) on a
+    short run: Lebedev order 5 x 2 staggered spins (14 cells), increments 1e-3 (isotropic 5e-4), to
+    eps_a = 15 %, compared increment by increment up to the closed form's first cross-plane contact
+    (lateral grains of the two planes touching, which the closed form leaves out)."""
+    options = dict(alpha0=alpha0, p0=p0, order=5, spins=2, staggered=True, eps_max=0.15, increment=1e-3,
+                   iso_increment=5e-4)
+    analytical = run(test, **options)
+    dem = run(test, backend="dem", **options)
+    assert dem.n_increments == analytical.n_increments
+    np.testing.assert_array_equal(dem.stage, analytical.stage)
+    cross = np.nan_to_num(analytical.diagnostics["n_cross_plane"])
+    hits = np.flatnonzero(cross > 0)
+    n = int(hits[0]) if hits.size else analytical.n_increments
+    start = np.flatnonzero(analytical.stage == "iso")[-1]
+    reached = analytical.eps11[n - 1] - analytical.eps11[start]
+    assert reached >= FIRST_CONTACT_AT_LEAST, reached
+    if alpha0 == 55.0:
+        assert not hits.size and reached == pytest.approx(0.15, rel=1e-9)  # the loose cell's planes never meet
+    for name in ("sigma11", "sigma22", "sigma33", "p", "q"):
+        diff = np.abs(getattr(dem, name)[:n] - getattr(analytical, name)[:n]).max() / p0
+        assert diff <= DEM_VS_CLOSED_FORM[(alpha0, p0, test)], (name, diff)
+    assert np.nansum(dem.diagnostics["n_unconverged"]) == 0
+    assert analytical.q[n - 1] > 0.5 * p0  # a sheared state was compared, not the isotropic one
 
 
 def test_a_planar_cell_is_refused_for_a_3d_programme():
