@@ -31,7 +31,10 @@ REFERENCE = {
                     p_ratio={0.05: 1.004, 0.10: 1.250, 0.20: 1.906}, q_ratio={}, open20=0.44),
 }
 TOLERANCE = 0.005
-"""Allowed deviation from the reference table, as a fraction of p0."""
+"""Allowed deviation from the reference table at full resolution, as a fraction of p0 (the criterion)."""
+REDUCED_TOLERANCE = {"55-high": 0.002, "55-low": 0.0035, "40-high": 0.002, "35-high": 0.001}
+"""Allowed deviation at CI's reduced resolution (120 orientations, 2e-4) [fraction of p0]: about twice
+the figures docs/benchmarks.md gives for that row (0.09 / 0.17 / 0.08 / 0.04 %)."""
 
 
 def reference_run(row: dict, n_orientations: int, increment: float, iso_increment: float) -> driver.Record:
@@ -77,11 +80,12 @@ def reference_deviations(row: dict, record: driver.Record) -> dict[str, float]:
     return dev
 
 
-def check_reference(name: str, n_orientations: int, increment: float, iso_increment: float) -> None:
+def check_reference(name: str, n_orientations: int, increment: float, iso_increment: float,
+                    tolerance: float = TOLERANCE) -> None:
     row = REFERENCE[name]
     dev = reference_deviations(row, reference_run(row, n_orientations, increment, iso_increment))
     stress = {k: v for k, v in dev.items() if not k.startswith(("eps", "open"))}
-    assert max(abs(v) for v in stress.values()) <= TOLERANCE, stress
+    assert max(abs(v) for v in stress.values()) <= tolerance, stress
     # the reference stops its isotropic stage at the first multiple of 5e-6 with p >= p0
     # and prints 5 decimals; this driver lands on p0 exactly.
     assert -1e-5 - 1e-6 <= dev["eps_iso"] <= 5e-6 + 1e-6, dev["eps_iso"]
@@ -92,8 +96,7 @@ def check_reference(name: str, n_orientations: int, increment: float, iso_increm
 
 @pytest.mark.parametrize("name", list(REFERENCE))
 def test_reference_table_reduced_resolution(name):
-    # 120 orientations and 2e-4 shear increments: verified within 0.2 % of p0 everywhere.
-    check_reference(name, n_orientations=120, increment=2e-4, iso_increment=1e-4)
+    check_reference(name, n_orientations=120, increment=2e-4, iso_increment=1e-4, tolerance=REDUCED_TOLERANCE[name])
 
 
 @pytest.mark.slow
