@@ -132,7 +132,7 @@ def step_cells(arrays: dict, d_eps: np.ndarray, *, pairs: np.ndarray, driven: np
     off = np.where(driven, np.abs(v * h - lam[:, None, None] * d_new), 0.0).max(axis=(1, 2))
     driving_size = np.where(driven, np.abs(d_new), 0.0).max(axis=(1, 2))
     steady = (lam > 0.0) & (off <= settings.velocity_change * lam * driving_size)
-    grown = np.minimum(settings.strain_per_substep, np.maximum(settings.refined_strain_per_substep,
+    grown = np.minimum(settings.strain_per_substep, np.maximum(settings.closing_rate,
                                                                settings.rate_growth * lam * largest * inv_n_coarse))
     rate = np.where(steady, grown, settings.refined_strain_per_substep)
     n_phase = np.ceil(largest / rate).astype(np.int32)
@@ -142,7 +142,8 @@ def step_cells(arrays: dict, d_eps: np.ndarray, *, pairs: np.ndarray, driven: np
     x_start = x.copy()
     v = np.where(free, 0.0, v)
     s_base, s_now = np.zeros(n_cells), np.zeros(n_cells)
-    k_phase, refined = np.zeros(n_cells, np.int32), np.zeros(n_cells, bool)
+    k_phase, refined = np.zeros(n_cells, np.int32), np.zeros(n_cells, np.int32)
+    closures = np.zeros(n_cells, bool)
     last_regime = np.zeros((n_cells, n_pairs))
     dx = np.zeros_like(x)
     substeps = np.zeros(n_cells, np.int32)
@@ -158,6 +159,8 @@ def step_cells(arrays: dict, d_eps: np.ndarray, *, pairs: np.ndarray, driven: np
         rel = dx[act][:, pj] - dx[act][:, pi]
         shear, normal, regime, f_i = pair_law(fs[act], rsum[act] - dist, u, rel, on, law)
         changed = (substeps[act, None] > 0) & (regime != last_regime[act])
+        closed = (changed & (last_regime[act] == 0.0)).any(axis=1)
+        closures[act] |= closed
         last_regime[act] = regime
         fs[act] = shear
         force = np.zeros((act.size, n_grains, dim))
@@ -165,15 +168,17 @@ def step_cells(arrays: dict, d_eps: np.ndarray, *, pairs: np.ndarray, driven: np
             force[:, pi[p]] += f_i[:, p]
             force[:, pj[p]] -= f_i[:, p]
         driving = k_phase[act] < n_phase[act]
-        refine = driving & changed.any(axis=1) & ~refined[act]
+        level = np.where(closed, 2, np.where(changed.any(axis=1), 1, 0))
+        refine = driving & (level > refined[act])
         if refine.any():
             c = act[refine]
-            refined[c] = True
-            n_rest = np.ceil((1.0 - s_now[c]) * largest[c] / settings.refined_strain_per_substep).astype(np.int32)
+            refined[c] = level[refine]
+            rate = np.where(refined[c] == 2, settings.closing_rate, settings.refined_strain_per_substep)
+            n_rest = np.ceil((1.0 - s_now[c]) * largest[c] / rate).astype(np.int32)
             longer = n_rest > n_phase[c] - k_phase[c]
-            c, n_rest = c[longer], n_rest[longer]
+            c, n_rest, rate = c[longer], n_rest[longer], rate[longer]
             s_base[c], n_phase[c], k_phase[c] = s_now[c], n_rest, 0
-            ds[c] = settings.refined_strain_per_substep / largest[c]
+            ds[c] = rate / largest[c]
         fmax = normal.max(axis=1, initial=0.0)
         unbalanced = np.abs(np.where(free, force, 0.0)).max(axis=(1, 2))
         done = ~driving & (unbalanced <= settings.force_tolerance * np.maximum(fmax, floor[act]))
@@ -203,8 +208,10 @@ def step_cells(arrays: dict, d_eps: np.ndarray, *, pairs: np.ndarray, driven: np
         v[act] = np.where(free, v_free, va)
     spent = driving_substeps.astype(np.float64)[:, None, None] * h
     spent_safe = np.where(spent > 0, spent, 1.0)
+    closing = closures[:, None, None]
+    v_driven = np.where(closing, ref * dscale[:, None, :] * ds[:, None, None] / h, ref * dscale[:, None, :] / spent_safe)
     v = np.where(driving_substeps[:, None, None] > 0,
-                 np.where(free, (x - x_start) / spent_safe, ref * dscale[:, None, :] / spent_safe), 0.0)
+                 np.where(free, np.where(closing, 0.0, (x - x_start) / spent_safe), v_driven), 0.0)
     b = x[:, pj] - x[:, pi]
     dist2 = inner(b, b)
     dist = np.sqrt(dist2)

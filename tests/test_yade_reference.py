@@ -11,6 +11,13 @@ Three kinds of check:
   n coordinate of grains 2, 3, 5, 6 (YADE's grains coast at the velocity they had when the
   last contact opened, the analytical cell keeps y2), so only the driven coordinates are
   compared there;
+- the ``reclose_`` cases (alpha0 = 60 deg = 90 - phi_g: every contact opens, the type-1
+  contacts close again onto a friction-locked wedge that collapses when alpha passes 60 deg):
+  the DEM within ``RECLOSE_RTOL`` of the case's largest force on every row outside a window of
+  one row either side of YADE's snap-through row, and collapsing within that window (which row
+  alpha passes 60 deg in is decided by ~1e-3 of the force); the closed form, which counts the
+  rotation of the closing increment before the touch in the spring, within
+  ``CLOSED_FORM_RECLOSE_RTOL`` outside the window;
 - behind the ``yade`` marker (needs ``yade`` on PATH): regenerating every case reproduces
   the committed outputs.
 """
@@ -43,6 +50,16 @@ POSITION_TOL = 1e-6 * DIAMETER
 ALPHA_TOL_DEG = 1e-4
 """Backend opening angle where the cell carries force [deg]."""
 LABELS = range(1, 7)
+RECLOSE_RTOL = 5e-3
+"""DEM contact forces on the ``reclose_`` cases outside the snap-through window, as a fraction of
+the case's largest force [-] (measured 1.0e-4 at theta = 22.5 deg, 1.8e-3 at 40 deg; before the
+closing rate: 0.38 and 0.62, docs/dem_stepping.md)."""
+CLOSED_FORM_RECLOSE_RTOL = 2e-2
+"""Closed-form contact forces on the ``reclose_`` cases outside the snap-through window [-]
+(measured 1.03e-2 at theta = 22.5 deg, 6.9e-3 at 40 deg)."""
+SNAP_DEG = 0.05
+"""A row whose alpha changes by more than this [deg] is a snap-through row (the largest change
+of any other row of the ``reclose_`` cases is 0.028 deg)."""
 
 
 def _load_make_reference():
@@ -56,6 +73,10 @@ def _load_make_reference():
 
 MAKE_REFERENCE = _load_make_reference()
 CASE_NAMES = tuple(MAKE_REFERENCE.CASES)
+RECLOSE_NAMES = tuple(name for name in CASE_NAMES if name.startswith("reclose_"))
+"""Cases with a snap-through (checked by their own tolerances)."""
+STRICT_NAMES = tuple(name for name in CASE_NAMES if name not in RECLOSE_NAMES)
+"""Cases every backend follows to ``FORCE_RTOL`` on every row."""
 
 
 @functools.cache
@@ -231,18 +252,82 @@ def check_backend_against_yade(record: dict[str, np.ndarray], name: str) -> None
     assert not failures, f"{name}: " + "; ".join(failures)
 
 
-@pytest.mark.parametrize("name", CASE_NAMES)
+@pytest.mark.parametrize("name", STRICT_NAMES)
 def test_analytical_cell_reproduces_yade(name):
     """AnalyticalCell, one increment per row, matches YADE to 3-4 significant digits."""
     check_backend_against_yade(run_backend("analytical"), name)
 
 
-@pytest.mark.parametrize("name", CASE_NAMES)
+@pytest.mark.parametrize("name", STRICT_NAMES)
 def test_dem_cell_reproduces_yade(name, device):
     """The Warp DEM backend, one increment per row, matches YADE (forces and positions)."""
     pytest.importorskip("warp")
     pytest.importorskip("warp_hcell.dem.cell")
     check_backend_against_yade(run_backend("dem", device), name)
+
+
+# --- contacts that close again and a wedge that collapses (alpha0 = 60 deg) ----------------
+
+
+def _snap_jumps(alpha_deg: np.ndarray, alpha0_deg: float) -> np.ndarray:
+    """Rows where alpha changes by more than ``SNAP_DEG`` (a wedge collapsing), bool (n,)."""
+    return np.abs(np.diff(np.concatenate([[alpha0_deg], alpha_deg]))) > SNAP_DEG
+
+
+def _snap_rows(yade: dict[str, np.ndarray], alpha0_deg: float) -> np.ndarray:
+    """The snap-through window: YADE's snap-through rows and one row either side, bool (n,)."""
+    jump = _snap_jumps(yade["alpha_deg"], alpha0_deg)
+    return jump | np.concatenate([[False], jump[:-1]]) | np.concatenate([jump[1:], [False]])
+
+
+def _force_error(record: dict[str, np.ndarray], name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(largest |N1|, |N2|, |T1| error per row over the case's largest force, snap-through window) of case ``name``."""
+    column = CASE_NAMES.index(name)
+    _, yade, meta = load_case(name)
+    n = len(yade["N1"])
+    error = np.max([np.abs(record[key][:n, column] - yade[key]) for key in ("N1", "N2", "T1")], axis=0)
+    return error / _force_scale(yade), _snap_rows(yade, meta["alpha0_deg"])
+
+
+@pytest.mark.parametrize("name", RECLOSE_NAMES)
+def test_reclose_cases_open_close_again_and_collapse(name):
+    """Every contact opens, the type-1 contacts close again onto a locked wedge (N2 = 0, alpha > 60
+    deg, sticking below the cap), which collapses once, onto the type-2 contacts."""
+    _, yade, meta = load_case(name)
+    assert meta["alpha0_deg"] == 60.0 and meta["free_grains_without_force"].startswith("held at rest")
+    loaded = _loaded(yade)
+    open_rows = np.flatnonzero(~loaded)
+    assert open_rows.size > 10, name
+    after = np.arange(len(loaded)) > open_rows[-1]
+    wedge = after & (yade["N1"] > 0.0) & (yade["N2"] == 0.0)
+    assert wedge.sum() > 10, name
+    assert np.all(yade["alpha_deg"][wedge] > 60.0)
+    assert np.all(np.abs(yade["T1"][wedge]) < LAW.mu * yade["N1"][wedge])
+    jumps = np.flatnonzero(np.abs(np.diff(np.concatenate([[60.0], yade["alpha_deg"]]))) > SNAP_DEG)
+    assert len(jumps) == 1 and jumps[0] > open_rows[-1], f"{name}: snap-through rows {jumps}"
+    assert yade["alpha_deg"][jumps[0]] < 60.0 and np.all(yade["N2"][jumps[0]:] > 0.0)
+
+
+@pytest.mark.parametrize("name", RECLOSE_NAMES)
+def test_dem_follows_yade_through_reclosure_and_collapse(name, device):
+    """The DEM keeps the spring of a contact that closes again and collapses the wedge within a row of YADE's."""
+    pytest.importorskip("warp")
+    record = run_backend("dem", device)
+    error, snap = _force_error(record, name)
+    outside = np.where(snap, 0.0, error)
+    assert outside.max() <= RECLOSE_RTOL, f"{name}: {_first_failure(outside, RECLOSE_RTOL)}"
+    alpha = record["alpha_deg"][: len(error), CASE_NAMES.index(name)]
+    collapses = np.flatnonzero(_snap_jumps(alpha, load_case(name)[2]["alpha0_deg"]))
+    assert len(collapses) == 1 and snap[collapses[0]], f"{name}: DEM collapses at rows {collapses}"
+
+
+@pytest.mark.parametrize("name", RECLOSE_NAMES)
+def test_closed_form_near_yade_through_reclosure(name):
+    """The closed form outside YADE's snap-through rows (its known error: the rotation of the
+    closing increment before the touch is counted in the spring)."""
+    error, snap = _force_error(run_backend("analytical"), name)
+    outside = np.where(snap, 0.0, error)
+    assert outside.max() <= CLOSED_FORM_RECLOSE_RTOL, f"{name}: {_first_failure(outside, CLOSED_FORM_RECLOSE_RTOL)}"
 
 
 # --- regeneration (needs yade) ------------------------------------------------------------

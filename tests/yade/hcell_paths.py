@@ -13,6 +13,9 @@ backends, so it uses only YADE's own contact law and integrator:
 - rotations blocked, no gravity, NewtonIntegrator with Cundall local damping,
   dt = dt_factor sqrt(m / kn) with the disk mass m = density pi r^2.
 
+The law and the numerical settings are written out below (``Law``, ``Settings``, ``RADIUS``):
+the script imports nothing from the package it checks.
+
 Cell frame -> YADE axes: n (cell axis) = YADE x, t (lateral) = YADE y. Grains 1 and 4 are
 driven along n and t, grains 2, 3, 5, 6 along t and free along n (spec section 3). A driven
 coordinate follows the cell strain affinely (x_n = x_n_ref l1 / l1_ref,
@@ -40,7 +43,11 @@ at the origin); and ``PREFIX.json`` with every parameter, the YADE version and r
 ``l1, l2`` are the imposed lengths; the positions are those the recorded forces were
 computed from (before the last relaxation substep). Where every contact is open the cell
 is a stress-free mechanism: its free grains keep, undamped, the velocity they had when the
-last contact opened, so their n coordinates there are not fixed by statics.
+last contact opened, so their n coordinates there are not fixed by statics. With
+``--rest-unloaded`` a free grain that the last step left without force is stopped instead (its
+n velocity set to zero before each step), as the closed form keeps y2 (docs/model.md, section
+6): a path that closes contacts again after opening them all then starts the new contacts from
+a defined state.
 Exit code 2 with a one-line message for bad input.
 
 Also imported (inside YADE) by benchmarks/bench_yade.py, which builds many cells with
@@ -51,26 +58,18 @@ from __future__ import annotations
 
 import argparse
 import csv
-import inspect
 import json
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-# ``yade -x`` runs this file with YADE's own globals (``__file__`` is YADE's launcher), so
-# the location comes from the code object.
-REPO_ROOT = Path(inspect.currentframe().f_code.co_filename).resolve().parents[2]
-if str(REPO_ROOT) not in sys.path:
-    sys.path.insert(0, str(REPO_ROOT))
-
-from warp_hcell.core.parameters import CellDefaults, ContactLaw, DemSettings, check_alpha0_deg  # noqa: E402
-
-import yade  # noqa: E402
-from yade import O  # noqa: E402
-from yade.wrapper import (  # noqa: E402
+import yade
+from yade import O
+from yade.wrapper import (
     Bo1_Sphere_Aabb,
     ForceResetter,
     FrictMat,
@@ -81,8 +80,8 @@ from yade.wrapper import (  # noqa: E402
     Law2_ScGeom_FrictPhys_CundallStrack,
     NewtonIntegrator,
 )
-from yade.utils import sphere  # noqa: E402
-from yade.minieigenHP import Vector3  # noqa: E402
+from yade.utils import sphere
+from yade.minieigenHP import Vector3
 
 N_GRAINS = 6
 TYPE1_PAIRS = ((1, 2), (1, 6), (4, 3), (4, 5))
@@ -95,6 +94,58 @@ HEADER = ("l1", "l2", "alpha_deg", "d1", "d2", "N1", "N2", "T1", "S_nn", "S_tt")
     f"x_{axis}{label}" for label in range(1, N_GRAINS + 1) for axis in ("n", "t")
 )
 """Columns of the output CSV."""
+
+
+ALPHA0_RANGE_DEG = (30.0, 90.0)
+"""Opening angles [deg] the cell exists for (lateral grains 2-6 meet at 30, axial grains 1-4 at 90)."""
+
+
+@dataclass(frozen=True)
+class Law:
+    """The contact law of the reference cases (docs/model.md, section 1), written out here so that
+    the reference does not depend on the package it checks."""
+
+    kn: float = 2e8
+    """Normal stiffness [N/m]."""
+    kt_over_kn: float = 0.5
+    """Tangential over normal stiffness [-]."""
+    phi_g_deg: float = 30.0
+    """Inter-granular friction angle [deg]."""
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Numerical settings of the reference runs (those every committed case was run with)."""
+
+    density: float = 2650.0
+    """Grain density [kg/m^3]."""
+    dt_factor: float = 0.2
+    """Time step over sqrt(m / kn) [-]."""
+    damping: float = 0.5
+    """Cundall local damping [-]."""
+    strain_per_substep: float = 2.5e-7
+    """Largest cell-strain component per driving substep [-]."""
+    force_tolerance: float = 1e-6
+    """Free-DOF unbalanced force ratio that ends a relaxation [-]."""
+    max_substeps: int = 200_000
+    """Relaxation substeps allowed per row [-]."""
+    contact_tolerance: float = 1e-9
+    """Gap, as a fraction of D, up to which a pair is detected as a contact [-]."""
+
+
+RADIUS = 0.5
+"""Grain radius r [m] (docs/model.md, section 1)."""
+DEFAULT_ALPHA0_DEG = 55.0
+"""Default initial opening angle [deg]."""
+
+
+def check_alpha0_deg(alpha0_deg: float) -> float:
+    """``alpha0_deg`` as float if within ``ALPHA0_RANGE_DEG`` (upper end excluded); ValueError otherwise."""
+    value = float(alpha0_deg)
+    low, high = ALPHA0_RANGE_DEG
+    if not (low <= value < high):
+        raise ValueError(f"alpha0 = {value:g} deg is outside [{low:g}, {high:g}) deg")
+    return value
 
 
 def reference_positions(alpha0: float, radius: float) -> np.ndarray:
@@ -156,10 +207,12 @@ class HCellScene:
         self,
         alpha0_deg: float,
         n_cells: int,
-        law: ContactLaw,
+        law: Law,
         radius: float,
-        settings: DemSettings,
+        settings: Settings,
+        rest_unloaded: bool = False,
     ) -> None:
+        self.rest_unloaded = rest_unloaded
         self.law = law
         self.radius = radius
         self.settings = settings
@@ -253,9 +306,22 @@ class HCellScene:
         """Apply one path row (d_eps_n, d_eps_t) [-] through velocities; return the substeps spent."""
         n_sub = self.start_row(d_eps)
         for _ in range(n_sub):
+            self.stop_unloaded()
             O.step()
         self.finish_row()
         return n_sub
+
+    def stop_unloaded(self) -> None:
+        """With ``rest_unloaded``: set the n velocity of every free grain that the last step left
+        without force to zero (a grain nothing pushes has no quasi-static reason to move)."""
+        if not self.rest_unloaded:
+            return
+        bodies = O.bodies
+        for body_id in self._free:
+            force = O.forces.f(int(body_id))
+            if force[0] == 0.0 and force[1] == 0.0:
+                state = bodies[int(body_id)].state
+                state.vel = Vector3(0.0, state.vel[1], 0.0)
 
     def unbalanced(self) -> float:
         """Mean |F_n| on the free grains / mean |f| of the contacts carrying force [-]; 0 if none."""
@@ -281,6 +347,7 @@ class HCellScene:
         """
         for n in range(1, self.settings.max_substeps + 1):
             before = self.positions()
+            self.stop_unloaded()
             O.step()
             ratio = self.unbalanced()
             if ratio < self.settings.force_tolerance:
@@ -361,9 +428,10 @@ class HCellScene:
         ] + [float(v) for v in pos.ravel()]
 
 
-def run_path(path: np.ndarray, alpha0_deg: float, law: ContactLaw, radius: float, settings: DemSettings):
+def run_path(path: np.ndarray, alpha0_deg: float, law: Law, radius: float, settings: Settings,
+             rest_unloaded: bool = False):
     """Run one cell along ``path`` (n_increments, 2); return (rows, totals dict)."""
-    scene = HCellScene(alpha0_deg, 1, law, radius, settings)
+    scene = HCellScene(alpha0_deg, 1, law, radius, settings, rest_unloaded)
     rows, drive_steps, relax_steps, worst, n_capped = [], 0, 0, 0.0, 0
     stiffness = None
     start = time.perf_counter()
@@ -391,14 +459,14 @@ def run_path(path: np.ndarray, alpha0_deg: float, law: ContactLaw, radius: float
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     """Command line of the script (arguments after the script name; a lone ``--`` is ignored)."""
-    settings = DemSettings()
+    settings = Settings()
     parser = argparse.ArgumentParser(
         prog="yade -n -x tests/yade/hcell_paths.py",
         description="YADE six-disk H-cell along a cell strain path (reference cases).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("--path", type=Path, required=True, help="CSV with header d_eps_n,d_eps_t")
-    parser.add_argument("--alpha0-deg", type=float, default=CellDefaults.alpha0_deg, help="initial opening angle [deg]")
+    parser.add_argument("--alpha0-deg", type=float, default=DEFAULT_ALPHA0_DEG, help="initial opening angle [deg]")
     parser.add_argument("--out", type=Path, required=True, help="output prefix: writes PREFIX.yade.csv, PREFIX.json")
     parser.add_argument(
         "--strain-per-substep",
@@ -409,24 +477,31 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument(
         "--force-tolerance", type=float, default=settings.force_tolerance, help="free-DOF unbalanced force ratio [-]"
     )
+    parser.add_argument(
+        "--rest-unloaded",
+        action="store_true",
+        help="hold free grains without force at rest (n velocity zero) instead of letting them coast",
+    )
     return parser.parse_args([a for a in argv if a != "--"])
 
 
 def main(argv: list[str]) -> int:
     """Entry point; returns the exit code."""
     args = parse_args(argv)
-    law = ContactLaw()
-    radius = CellDefaults.radius
+    law = Law()
+    radius = RADIUS
     try:
         check_alpha0_deg(args.alpha0_deg)
-        settings = DemSettings(strain_per_substep=args.strain_per_substep, force_tolerance=args.force_tolerance,
-                               refined_strain_per_substep=min(args.strain_per_substep,
-                                                              DemSettings.refined_strain_per_substep))
+        for name in ("strain_per_substep", "force_tolerance"):
+            value = getattr(args, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"--{name.replace('_', '-')} = {value:g} must be finite and > 0")
+        settings = Settings(strain_per_substep=args.strain_per_substep, force_tolerance=args.force_tolerance)
         path = read_path(args.path)
     except (OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    rows, totals = run_path(path, args.alpha0_deg, law, radius, settings)
+    rows, totals = run_path(path, args.alpha0_deg, law, radius, settings, args.rest_unloaded)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with open(f"{args.out}.yade.csv", "w", newline="") as handle:
         handle.write(",".join(HEADER) + "\n")
@@ -450,6 +525,7 @@ def main(argv: list[str]) -> int:
         "force_tolerance": settings.force_tolerance,
         "max_substeps_per_relaxation": settings.max_substeps,
         "contact_tolerance": settings.contact_tolerance,
+        **({"free_grains_without_force": "held at rest (--rest-unloaded)"} if args.rest_unloaded else {}),
         "frame": "cell n = YADE x, cell t = YADE y; outputs in (n, t), cell centre at the origin",
         "sign_convention": "compression and contraction positive; T1 > 0 resists opening",
         "unbalanced_ratio": "mean |F_n| on grains 2,3,5,6 / mean |f| of contacts carrying force",

@@ -15,11 +15,20 @@ Cases (cell strain increments d_eps_n, d_eps_t [-], compression positive):
   for the cell at theta = 0 (+2e-4, -2e-4) or theta = 90 deg (-2e-4, +2e-4) to 20 %;
 - ``cv_a55_p2e5_theta0``, ``cv_a55_p2e5_theta90``: the same from eps_iso = 0.0009 (p0 = 2e5
   N/m, iso rows of 1e-4).
+- ``reclose_a60_theta22``, ``reclose_a60_theta40``: a shear reversal after full opening at
+  alpha0 = 60 deg = 90 - phi_g: isotropic rows of 1e-4 to 0.0009 (p0 ~ 2e5 N/m), then the cell
+  at theta = 22.5 or 40 deg of the constant-volume biaxial test eps1 = +5 %, then -10 %, in
+  macro rows of 5e-4 (cell rows (+-5e-4 cos 2 theta, -+5e-4 cos 2 theta)). Every contact opens
+  on loading, the type-1 contacts close again on the reversal onto a friction-locked wedge
+  (alpha just above 60 deg), which collapses when alpha passes 60 deg. Free grains without
+  force are held at rest (``--rest-unloaded``), so that the open rows keep y2 as the closed form
+  does and the contacts close again from a defined state.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import shutil
 import subprocess
 import sys
@@ -42,6 +51,8 @@ class Case:
     """Initial opening angle [deg]."""
     segments: tuple[tuple[float, float, int], ...]
     """Path as (d_eps_n, d_eps_t, n_rows) segments [-], compression positive."""
+    rest_unloaded: bool = False
+    """Hold free grains without force at rest (hcell_paths.py ``--rest-unloaded``)."""
 
     def path(self) -> np.ndarray:
         """Strain increments [-], shape (n_increments, 2), columns (d_eps_n, d_eps_t)."""
@@ -61,6 +72,14 @@ def _constant_volume(eps_iso: float, iso_row: float, sign: float) -> Case:
     return Case(55.0, ((iso_row, iso_row, n_iso), (sign * 2e-4, -sign * 2e-4, 1000)))
 
 
+def _reversal_after_opening(theta_deg: float) -> Case:
+    """alpha0 = 60 deg: isotropic rows of 1e-4 to 0.0009, then the cell at ``theta_deg`` of the
+    constant-volume test eps1 = +5 % then -10 % in macro rows of 5e-4 (d_eps_n = d_eps11 cos^2 +
+    d_eps22 sin^2 = d_eps11 cos 2 theta)."""
+    row = 5e-4 * math.cos(math.radians(2.0 * theta_deg))
+    return Case(60.0, ((1e-4, 1e-4, 9), (row, -row, 100), (-row, row, 200)), rest_unloaded=True)
+
+
 CASES: dict[str, Case] = {
     "axial_a55": _load_unload(0, 55.0),
     "axial_a40": _load_unload(0, 40.0),
@@ -70,6 +89,8 @@ CASES: dict[str, Case] = {
     "cv_a55_p585_theta90": _constant_volume(0.026, 2e-4, -1.0),
     "cv_a55_p2e5_theta0": _constant_volume(0.0009, 1e-4, +1.0),
     "cv_a55_p2e5_theta90": _constant_volume(0.0009, 1e-4, -1.0),
+    "reclose_a60_theta22": _reversal_after_opening(22.5),
+    "reclose_a60_theta40": _reversal_after_opening(40.0),
 }
 """Reference cases by name."""
 
@@ -100,6 +121,7 @@ def generate(name: str, out_dir: Path, yade: str = "yade") -> Path:
     prefix = out_dir / name
     command = [yade, "-j1", "-n", "-x", str(SCRIPT), "--path", str(path_file)]
     command += ["--alpha0-deg", f"{case.alpha0_deg:g}", "--out", str(prefix)]
+    command += ["--rest-unloaded"] if case.rest_unloaded else []
     return run_yade(command, out_dir, prefix)
 
 

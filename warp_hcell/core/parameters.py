@@ -149,6 +149,12 @@ class DemSettings:
     """Strain per substep of an increment that changes the cell's path (see velocity_change),
     and for the rest of an increment once a contact of the cell has opened, closed, started or
     stopped sliding in it (<= strain_per_substep) [-]."""
+    closing_strain_per_substep: float = 5e-7
+    """Strain per substep for the rest of an increment once a contact of the cell has closed in it,
+    capped at refined_strain_per_substep (``closing_rate``) [-]: the free grains a new contact pushes start from rest,
+    and while they lag behind the driving a contact that quasi-statically sticks near the
+    Coulomb cap slides and loses spring; the loss grows with this rate (docs/dem_stepping.md,
+    "Contacts that close again")."""
     velocity_change: float = 0.5
     """Largest deviation of the last increment's driven displacements per driving substep from
     the direction of the new increment's, as a fraction of their size, for the increment to
@@ -173,6 +179,7 @@ class DemSettings:
         if self.refined_strain_per_substep > self.strain_per_substep:
             raise ValueError(f"refined_strain_per_substep = {self.refined_strain_per_substep:g} exceeds "
                              f"strain_per_substep = {self.strain_per_substep:g}")
+        check_positive("closing_strain_per_substep", self.closing_strain_per_substep)
         check_positive("force_tolerance", self.force_tolerance)
         check_positive("velocity_change", self.velocity_change)
         if not self.rate_growth >= 1.0:
@@ -183,6 +190,12 @@ class DemSettings:
             raise ValueError(f"max_substeps = {self.max_substeps} must be >= 1")
         if not (0.0 <= self.contact_tolerance < 1e-3):
             raise ValueError(f"contact_tolerance = {self.contact_tolerance:g} is outside [0, 1e-3)")
+
+    @property
+    def closing_rate(self) -> float:
+        """The strain per substep after a contact closes: closing_strain_per_substep, at most
+        refined_strain_per_substep [-] (settings that drive at one fine rate keep it)."""
+        return min(self.closing_strain_per_substep, self.refined_strain_per_substep)
 
 
 @dataclass(frozen=True)

@@ -79,7 +79,8 @@ def step_arguments(model: DemModel, state_in: DemState, state_out: DemState, d_e
     settings, law = model.settings, model.contact_law
     inputs = [model.radius, model.inv_mass, model.reference_position, model.reference_cell_size, model.dt,
               model.force_floor, law.kn, law.kt, law.mu, settings.damping, settings.contact_tolerance,
-              settings.strain_per_substep, settings.refined_strain_per_substep, settings.velocity_change,
+              settings.strain_per_substep, settings.refined_strain_per_substep,
+              settings.closing_rate, settings.velocity_change,
               settings.rate_growth,               settings.force_tolerance,
               int(settings.max_substeps), *(getattr(state_in, f) for f in STATE_IN), d_eps_local, int(start)]
     return inputs, [getattr(state_out, f) for f in STATE_OUT]

@@ -37,7 +37,10 @@ Conventions inside the kernels (tension-positive DEM quantities, local frame (n,
       ones by what they did in the last increment, scaled like the driven displacements. A new
       direction (start of shear, reversal, a probe) starts again from
       refined_strain_per_substep without prediction. Within an increment, once a contact
-      opens, closes, starts or stops sliding, the rest is driven at refined_strain_per_substep.
+      opens, closes, starts or stops sliding, the rest is driven at refined_strain_per_substep;
+      once a contact closes, at closing_strain_per_substep, and the next increment grows its rate
+      from there with the free grains unpredicted (docs/dem_stepping.md, "Contacts that close
+      again").
 
 The conversion to compression-positive quantities happens on the host
 (``warp_hcell.database.learning_state.to_compression_positive``).

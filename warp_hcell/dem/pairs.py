@@ -72,7 +72,8 @@ def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, cont
     - ``forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)``: the contact forces at
       the grain centres x with the shear increment from the last move dx: (net force per grain,
       new springs, regime per pair (0 open, 1 sticking, 2 sliding), largest normal force, 1 if a
-      regime changed since the last evaluation);
+      regime changed since the last evaluation, 1 if a pair came within reach since the last
+      evaluation);
     - ``output(x, fs, rsum, cut2, kn, shear_force_out, contact_force_out, contact_out, c)``: writes
       the pairs' state and forces (the last force evaluation ran at these positions: same
       contacts, same normal forces) and returns the Love-Weber sum (tension positive)
@@ -98,6 +99,7 @@ def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, cont
         regime_new = vec_p()
         fmax = zero
         changed = wp.int32(0)
+        closed = wp.int32(0)
         for p in range(wp.static(n_pairs)):
             i = wp.static(pi[p])
             j = wp.static(pj[p])
@@ -115,8 +117,9 @@ def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, cont
                     f[j, a] = f[j, a] - force[a]
                 fmax = wp.where(normal > fmax, normal, fmax)
             changed = wp.where(substeps > 0 and regime != was_regime[p], 1, changed)
+            closed = wp.where(substeps > 0 and regime != zero and was_regime[p] == zero, 1, closed)
             regime_new[p] = regime
-        return f, shear_new, regime_new, fmax, changed
+        return f, shear_new, regime_new, fmax, changed, closed
 
     @wp.func
     def output(x: mat, fs: springs, rsum: vec_p, cut2: vec_p, kn: wp.float64,

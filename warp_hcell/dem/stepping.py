@@ -79,20 +79,30 @@ def damped_velocity(
 
 
 @wp.func
-def refined_schedule(changed: wp.int32, refined: wp.int32, s: wp.float64, s_base: wp.float64, ds: wp.float64,
-                     n_phase: wp.int32, k_phase: wp.int32, largest: wp.float64, refined_strain_per_substep: wp.float64):
+def refined_schedule(changed: wp.int32, closed: wp.int32, refined: wp.int32, s: wp.float64, s_base: wp.float64,
+                     ds: wp.float64, n_phase: wp.int32, k_phase: wp.int32, largest: wp.float64,
+                     refined_strain_per_substep: wp.float64, closing_strain_per_substep: wp.float64):
     """The driving schedule after a substep: once a contact has opened, closed, started or stopped
-    sliding (``changed`` = 1), the rest of the increment is driven at refined_strain_per_substep.
+    sliding (``changed`` = 1), the rest of the increment is driven at refined_strain_per_substep;
+    once a contact has closed (``closed`` = 1), at closing_strain_per_substep. ``refined`` is the
+    level reached: 0 none, 1 refined, 2 closing.
+
+    A contact closes with no force and its spring at zero, and the free grains it touches are
+    at rest: while they lag behind the driving, a closing contact whose quasi-static state
+    sticks near the Coulomb cap (a wedge near alpha = 90 deg - phi_g) slides and loses spring
+    it never regains. The slip grows with the strain per substep (docs/dem_stepping.md).
 
     Returns:
         (refined, s_base, ds, n_phase, k_phase): s = s_base + k_phase ds over n_phase substeps.
     """
-    if changed == 1 and refined == 0:
-        refined = wp.int32(1)
-        n_rest = wp.int32(wp.ceil((wp.float64(1.0) - s) * largest / refined_strain_per_substep))
+    level = wp.where(closed == 1, wp.int32(2), wp.where(changed == 1, wp.int32(1), wp.int32(0)))
+    if level > refined:
+        refined = level
+        rate = wp.where(level == 2, closing_strain_per_substep, refined_strain_per_substep)
+        n_rest = wp.int32(wp.ceil((wp.float64(1.0) - s) * largest / rate))
         if n_rest > n_phase - k_phase:
             s_base = s
-            ds = refined_strain_per_substep / largest
+            ds = rate / largest
             n_phase = n_rest
             k_phase = wp.int32(0)
     return refined, s_base, ds, n_phase, k_phase
@@ -134,7 +144,8 @@ def rate_and_prediction(drive: tuple[tuple[bool, ...], ...]) -> wp.Function:
     substep and d_new = D_new / n this increment's displacement per substep at the coarse rate,
     lam = (d_last . d_new) / (d_new . d_new). The new increment continues the last one when
     max abs(d_last - lam d_new) <= velocity_change lam max abs(d_new); then the rate may grow by
-    rate_growth over the last one, up to strain_per_substep (else refined_strain_per_substep),
+    rate_growth over the last one, up to strain_per_substep (else refined_strain_per_substep;
+    after an increment driven at closing_strain_per_substep it grows from there),
     and the free grains drift as they moved, scaled like the driven ones: by span v_last,
     span = (v_last . D_new) / (v_last . v_last) [s] over the driven DOFs.
 
@@ -147,7 +158,8 @@ def rate_and_prediction(drive: tuple[tuple[bool, ...], ...]) -> wp.Function:
 
     @wp.func
     def predict(v: mat, ref: mat, dscale: vec, h: wp.float64, largest: wp.float64, strain_per_substep: wp.float64,
-                refined_strain_per_substep: wp.float64, velocity_change: wp.float64, rate_growth: wp.float64):
+                refined_strain_per_substep: wp.float64, closing_strain_per_substep: wp.float64,
+                velocity_change: wp.float64, rate_growth: wp.float64):
         wp.static(code)
         zero = wp.float64(0.0)
         one = wp.float64(1.0)
@@ -176,7 +188,7 @@ def rate_and_prediction(drive: tuple[tuple[bool, ...], ...]) -> wp.Function:
         steady = lam > zero and off <= velocity_change * lam * driving_size
         rate = refined_strain_per_substep
         if steady:
-            rate = wp.min(strain_per_substep, wp.max(refined_strain_per_substep, rate_growth * lam * largest * inv_n_coarse))
+            rate = wp.min(strain_per_substep, wp.max(closing_strain_per_substep, rate_growth * lam * largest * inv_n_coarse))
         n_phase = wp.int32(wp.ceil(largest / rate))
         ds = wp.where(largest > zero, rate / wp.where(largest > zero, largest, one), zero)
         span = wp.where(steady and norm_v > zero, dot_v / wp.where(norm_v > zero, norm_v, one), zero)
@@ -202,9 +214,14 @@ def grain_motion(drive: tuple[tuple[bool, ...], ...]) -> tuple[wp.Function, wp.F
       substep, (x, v, dx): driven DOFs to x_ref (scale0 + dscale s), free ones by leapfrog with
       Cundall damping plus the drift over (s - s_prev); a free grain whose net force is exactly
       zero is held at rest;
-    - ``memory(x, x0, ref, dscale, driving, h)``: every DOF's mean velocity over the increment's
-      driving substeps (driven: the driving rate; free: how it moved while the cell was driven,
-      relaxation included), zero without driving.
+    - ``memory(x, x0, ref, dscale, driving, h, closed, ds)``: every DOF's mean velocity over the
+      increment's driving substeps (driven: the driving rate; free: how it moved while the cell
+      was driven, relaxation included), zero without driving. Where a contact closed in the
+      increment (``closed`` = 1) the driven DOFs keep the rate of the last driving substep
+      (ds, a fraction of the increment), so that the next increment grows from the closing rate,
+      and the free DOFs' is zero: they moved in another contact state (a snap-through ending on
+      a new contact), and predicting the next increment from that motion would push them,
+      against the springs, where the new state does not go.
     """
     n_grains, dim = len(drive), len(drive[0])
     mat = grain_matrix(n_grains, dim)
@@ -249,16 +266,20 @@ def grain_motion(drive: tuple[tuple[bool, ...], ...]) -> tuple[wp.Function, wp.F
         return x_new, v_new, dx
 
     @wp.func
-    def memory(x: mat, x0: mat, ref: mat, dscale: vec, driving: wp.int32, h: wp.float64):
+    def memory(x: mat, x0: mat, ref: mat, dscale: vec, driving: wp.int32, h: wp.float64, closed: wp.int32,
+               ds: wp.float64):
         wp.static(code)
         zero = wp.float64(0.0)
         v = mat()
         for g in range(wp.static(n_grains)):
             for a in range(wp.static(dim)):
                 if wp.static(drive[g][a]):
-                    v[g, a] = wp.where(driving > 0, ref[g, a] * dscale[a] / (wp.float64(driving) * h), zero)
+                    v[g, a] = wp.where(driving > 0,
+                                       wp.where(closed == 0, ref[g, a] * dscale[a] / (wp.float64(driving) * h),
+                                                ref[g, a] * dscale[a] * ds / h), zero)
                 else:
-                    v[g, a] = wp.where(driving > 0, (x[g, a] - x0[g, a]) / (wp.float64(driving) * h), zero)
+                    v[g, a] = wp.where(driving > 0 and closed == 0,
+                                       (x[g, a] - x0[g, a]) / (wp.float64(wp.max(driving, 1)) * h), zero)
         return v
 
     return unbalanced, move, memory
@@ -337,7 +358,8 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
         reference_position: wp.array2d(dtype=vec), reference_cell_size: wp.array(dtype=vec),
         dt: wp.array(dtype=wp.float64), force_floor: wp.array(dtype=wp.float64),
         kn: wp.float64, kt: wp.float64, mu: wp.float64, damping: wp.float64, contact_tolerance: wp.float64,
-        strain_per_substep: wp.float64, refined_strain_per_substep: wp.float64, velocity_change: wp.float64,
+        strain_per_substep: wp.float64, refined_strain_per_substep: wp.float64,
+        closing_strain_per_substep: wp.float64, velocity_change: wp.float64,
         rate_growth: wp.float64, force_tolerance: wp.float64, max_substeps: wp.int32,
         position_in: wp.array2d(dtype=vec), velocity_in: wp.array2d(dtype=vec),
         shear_force_in: wp.array2d(dtype=shear_type), cell_size_in: wp.array(dtype=vec),
@@ -359,7 +381,7 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
         was_regime = vec_p()
         l_end, largest, scale0, dscale = path(cell_size_in[c], reference_cell_size[c], d_eps_local[c])
         v, drift, n_phase, ds = predict(v, ref, dscale, h, largest, strain_per_substep, refined_strain_per_substep,
-                                        velocity_change, rate_growth)
+                                        closing_strain_per_substep, velocity_change, rate_growth)
         s_base = wp.float64(0.0)
         s = wp.float64(0.0)
         s_prev = wp.float64(0.0)
@@ -368,11 +390,15 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
         substeps = wp.int32(0)
         driving = wp.int32(0)
         converged = wp.int32(0)
+        closures = wp.int32(0)
         while True:
-            f, fs, was_regime, fmax, changed = forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)
+            f, fs, was_regime, fmax, changed, closed = forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)
+            closures = wp.max(closures, closed)
             if k_phase < n_phase:
-                refined, s_base, ds, n_phase, k_phase = refined_schedule(changed, refined, s, s_base, ds, n_phase,
-                                                                         k_phase, largest, refined_strain_per_substep)
+                refined, s_base, ds, n_phase, k_phase = refined_schedule(changed, closed, refined, s, s_base, ds,
+                                                                         n_phase, k_phase, largest,
+                                                                         refined_strain_per_substep,
+                                                                         closing_strain_per_substep)
             else:
                 if unbalanced(f) <= force_tolerance * wp.where(fmax > floor, fmax, floor):
                     converged = 1
@@ -388,7 +414,7 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
                              wp.float64(1.0))
             x, v, dx = move(x, v, f, drift, ref, scale0, dscale, s, s_prev, im, h, damping)
         store(x, position_out, c)
-        store(memory(x, x0, ref, dscale, driving, h), velocity_out, c)
+        store(memory(x, x0, ref, dscale, driving, h, closures, ds), velocity_out, c)
         moment_out[c] = output(x, fs, rsum, cut2, kn, shear_force_out, contact_force_out, contact_out, c)
         measure_out[c] = measure(x)
         cell_size_out[c] = l_end
