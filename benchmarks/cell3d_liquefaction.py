@@ -13,7 +13,7 @@ isotropic compression to p0 and an isochoric triaxial compression, with its own 
   whether an imposed ratio r opens (|r| > |r_mech|) or loads (|r| < |r_mech|) a plane.
 
 Usage: python benchmarks/cell3d_liquefaction.py [--alpha0 55,65,75] [--kind hcell3d,hcell3d-volumetric]
-       [--order 11] [--spins 4] [--p0 2e5] [--increment 1e-3] [--eps-max 0.15]
+       [--order 11] [--spins 4] [--p0 2e5] [--increment 1e-3] [--eps-max 0.15] [--phi-g 30]
 Units: stresses in Pa, strains [-], compression positive.
 """
 
@@ -38,12 +38,12 @@ def mean_pressure(orient, moment: np.ndarray, volume: float) -> float:
 
 
 def run_path(spec: str, alpha0: float, *, order: int, spins: int, p0: float, increment: float, eps_max: float,
-             probes: tuple[float, ...] = (0.02, 0.05, 0.10, 0.15)) -> dict:
+             phi_g_deg: float = ContactLaw.phi_g_deg, probes: tuple[float, ...] = (0.02, 0.05, 0.10, 0.15)) -> dict:
     """Isotropic compression to p0 (strain steps, the last bisected to 1e-6 of p0), then isochoric triaxial
     compression to ``eps_max``; returns the curve and the states at ``probes`` [-]."""
     meso = resolve_mesostructure(spec, alpha0)
     orient = orientations_3d(order, spins, spin_period_deg=meso.spin_period_deg(), kinematics=cell_kinematics(meso))
-    cell = Analytical3DCell(ContactLaw(), CellDefaults.radius)
+    cell = Analytical3DCell(ContactLaw(phi_g_deg=phi_g_deg), CellDefaults.radius)
     state = cell.init_state(meso, orient.n_cells)
     v0 = initial_volume(orient, cell.response(state).area)
     j = 1.0
@@ -94,7 +94,7 @@ def mechanism_ratio(alpha_deg: np.ndarray) -> np.ndarray:
 
 def report(spec: str, alpha0: float, out: dict, p0: float) -> None:
     curve, orient, local = out["curve"], out["orient"], out["local"]
-    print(f"\n== {spec} alpha0 = {alpha0:g} deg, {orient.n_cells} cells")
+    print(f"\n== {spec} alpha0 = {alpha0:g} deg, phi_g = {math.degrees(math.atan(out['cell'].plane.mu)):g} deg, {orient.n_cells} cells")
     for eps in (0.005, 0.01, 0.02, 0.05, 0.10, 0.15):
         k = np.argmin(np.abs(curve[:, 0] - eps))
         if abs(curve[k, 0] - eps) < 1e-9 + 0.5 * (curve[1, 0] - curve[0, 0]):
@@ -152,12 +152,13 @@ def main() -> None:
     parser.add_argument("--p0", type=float, default=2e5)
     parser.add_argument("--increment", type=float, default=1e-3)
     parser.add_argument("--eps-max", type=float, default=0.15)
+    parser.add_argument("--phi-g", type=float, default=ContactLaw.phi_g_deg, help="inter-granular friction angle [deg]")
     args = parser.parse_args()
     first = True
     for spec in args.kind.split(","):
         for alpha0 in (float(a) for a in args.alpha0.split(",")):
             out = run_path(spec, alpha0, order=args.order, spins=args.spins, p0=args.p0,
-                           increment=args.increment, eps_max=args.eps_max)
+                           increment=args.increment, eps_max=args.eps_max, phi_g_deg=args.phi_g)
             if first:
                 plane_strains(out)
                 first = False
