@@ -82,3 +82,11 @@ def test_dem_runs_the_cell_and_follows_the_closed_form_into_liquefaction():
     _, dem = shear_p(run(spec, "dem", **options))
     assert closed[-1] < 0.9  # the path reaches the softening branch (measured 0.765 p0 at 4 %)
     assert np.abs(dem - closed).max() < 1.5e-4  # of p0; measured 3.1e-5 (criterion of the 3D backends: 1e-3)
+
+
+def test_the_shipped_meso_ann_is_not_certified_for_these_kinematics():
+    model = make_cell_model("ann", dim=3)
+    model.init_state(resolve_mesostructure("hcell3d:alpha0=55"), 1)
+    assert model.certificate_problem is None  # the cell and the kinematics its certificate was measured on
+    model.init_state(resolve_mesostructure("hcell3d-axisym:alpha0=55"), 1)  # same grains, same start state
+    assert "projected kinematics" in model.certificate_problem
