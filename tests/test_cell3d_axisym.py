@@ -5,7 +5,10 @@ that does not liquefy (docs/triaxial.md, Static liquefaction in 3D)."""
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -90,3 +93,14 @@ def test_the_shipped_meso_ann_is_not_certified_for_these_kinematics():
     assert model.certificate_problem is None  # the cell and the kinematics its certificate was measured on
     model.init_state(resolve_mesostructure("hcell3d-axisym:alpha0=55"), 1)  # same grains, same start state
     assert "projected kinematics" in model.certificate_problem
+
+
+def test_the_yade_cases_of_the_cell_follow_its_kinematics():
+    """tests/yade/make_reference3d.py writes the axisym cases' cell strains without the package."""
+    spec = importlib.util.spec_from_file_location("make_reference3d", Path(__file__).parent / "yade" / "make_reference3d.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    for step in ((2e-4, -1e-4, -1e-4), (-1e-4, 2e-4, -1e-4), (3e-4, -5e-5, 1e-4)):
+        np.testing.assert_allclose(module.axisymmetric(step), AXISYMMETRIC_MAP @ np.array(step), rtol=0, atol=1e-19)
+    assert {"axisym3d_a54_axial", "axisym3d_a54_normal"} <= set(module.CASES)
