@@ -50,8 +50,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import lebedev_rule
 
-from warp_hcell.mesostructures.hcell import AXISYMMETRIC_KINEMATICS
-
 from homogenization.orientation import (  # noqa: F401 (localise, average_moment and the volume rule of both dimensions)
     average_moment,
     initial_volume,
@@ -59,6 +57,8 @@ from homogenization.orientation import (  # noqa: F401 (localise, average_moment
     OrientationSet,
     volume_ratio_factor,
 )
+from warp_hcell.mesostructures.hcell import AXISYMMETRIC_KINEMATICS
+from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 COMPONENTS = ("11", "22", "33", "23", "13", "12")
 """Order of the six components of a macro tensor."""
@@ -83,7 +83,7 @@ AXISYMMETRIC_MAP = np.array([[5.0, 0.5, 0.5], [-1.0, 3.5, 3.5], [-1.0, 3.5, 3.5]
 kinematics (module docstring)."""
 
 
-def cell_kinematics(mesostructure) -> str:
+def cell_kinematics(mesostructure: Mesostructure) -> str:
     """The kinematics (``KINEMATICS``) a 3D mesostructure declares: "axisymmetric" where its parameter
     ``hcell.AXISYMMETRIC_KINEMATICS`` is nonzero (``hcell3d-axisym``), else "projected"."""
     return "axisymmetric" if mesostructure.parameters.get(AXISYMMETRIC_KINEMATICS, 0.0) else "projected"
