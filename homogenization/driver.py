@@ -461,7 +461,8 @@ def _orientations_3d(mesostructure: Mesostructure, fabric_anisotropy: float, ord
     if fabric_anisotropy:
         raise ValueError("an anisotropic fabric is not available in 3D yet (fabric_anisotropy must be 0)")
     period = mesostructure.spin_period_deg() if spin_period_deg is None else spin_period_deg
-    return orientation3d.orientations_3d(order, n_spins, spin_period_deg=period, staggered=staggered)
+    return orientation3d.orientations_3d(order, n_spins, spin_period_deg=period, staggered=staggered,
+                                         kinematics=orientation3d.cell_kinematics(mesostructure))
 
 
 def run(

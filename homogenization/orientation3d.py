@@ -31,6 +31,16 @@ not engineering, shear strains). Sign convention: compression and contraction po
 - Averaging: S = sum_k w_k R_k S_k R_k^T with S_k the cell's Love-Weber moment in its frame
   [N m]; sigma = S / V, V = V0 J, V0 = sum_k w_k V_cell,k, J = prod over increments of
   (1 - d_eps11)(1 - d_eps22)(1 - d_eps33).
+
+Kinematics (``KINEMATICS``): ``"projected"`` (the default) drives each cell axis by the normal
+strain above. ``"axisymmetric"`` (the cell kind ``hcell3d-axisym``, docs/model.md section 14)
+drives the cell by its axisymmetric part only, lat = (d_eps_t1 + d_eps_t2) / 2, mapped so that
+each plane (n, t1), (n, t2) of the cell keeps the cell's axisymmetric deviator d_eps_n - lat and
+takes two thirds of the cell's volumetric strain d_eps_n + 2 lat as its area strain (what a
+homothetic strain gives a plane): d_eps_n' = d_eps_n - c, d_eps_t1' = d_eps_t2' = lat - c with
+c = (d_eps_n - lat) / 6 (``AXISYMMETRIC_MAP``). An isotropic increment drives the cell exactly
+as the projected kinematics do; on an isochoric path every plane of every cell is isochoric,
+as every 2D cell is on a constant-volume path. The averaging is the Love-Weber sum above in both.
 """
 
 from __future__ import annotations
@@ -47,6 +57,8 @@ from homogenization.orientation import (  # noqa: F401 (localise, average_moment
     OrientationSet,
     volume_ratio_factor,
 )
+from warp_hcell.mesostructures.hcell import AXISYMMETRIC_KINEMATICS
+from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 COMPONENTS = ("11", "22", "33", "23", "13", "12")
 """Order of the six components of a macro tensor."""
@@ -64,6 +76,17 @@ VOLUME_RULE = (
     "of the cell's outer grains (its declared triangulated faces)"
 )
 """The 3D volume rule, stated in every output file."""
+KINEMATICS = ("projected", "axisymmetric")
+"""Ways a macro increment drives the axes of a 3D cell (module docstring)."""
+AXISYMMETRIC_MAP = np.array([[5.0, 0.5, 0.5], [-1.0, 3.5, 3.5], [-1.0, 3.5, 3.5]]) / 6.0
+"""(d_eps_n', d_eps_t1', d_eps_t2') = AXISYMMETRIC_MAP @ (d_eps_n, d_eps_t1, d_eps_t2) [-] of the axisymmetric
+kinematics (module docstring)."""
+
+
+def cell_kinematics(mesostructure: Mesostructure) -> str:
+    """The kinematics (``KINEMATICS``) a 3D mesostructure declares: "axisymmetric" where its parameter
+    ``hcell.AXISYMMETRIC_KINEMATICS`` is nonzero (``hcell3d-axisym``), else "projected"."""
+    return "axisymmetric" if mesostructure.parameters.get(AXISYMMETRIC_KINEMATICS, 0.0) else "projected"
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,7 +104,8 @@ class Orientations3D(OrientationSet):
         averaging: A [-], shape (6, 9 N): ``A @ moment.reshape(-1)`` is the weighted macro moment
             (six components) of per-cell moments ``moment`` of shape (N, 3, 3) in the cell frames.
         order: Lebedev order of the axes; n_spins: spins per axis; spin_period_deg: psi period [deg];
-            staggered: whether the spins are staggered from axis to axis (``SPIN_STAGGER``).
+            staggered: whether the spins are staggered from axis to axis (``SPIN_STAGGER``);
+            kinematics: how an increment drives the cell axes (``KINEMATICS``).
     """
 
     frames: np.ndarray
@@ -89,6 +113,7 @@ class Orientations3D(OrientationSet):
     n_spins: int
     spin_period_deg: float
     staggered: bool = True
+    kinematics: str = "projected"
 
 
 def hemisphere_rule(order: int) -> tuple[np.ndarray, np.ndarray]:
@@ -122,7 +147,7 @@ def reference_lateral(axis: np.ndarray) -> np.ndarray:
 
 
 def orientations_3d(order: int = 11, n_spins: int = 4, *, spin_period_deg: float = 90.0,
-                    staggered: bool = True) -> Orientations3D:
+                    staggered: bool = True, kinematics: str = "projected") -> Orientations3D:
     """The orientation set of ``order`` x ``n_spins`` (module docstring).
 
     Args:
@@ -131,12 +156,15 @@ def orientations_3d(order: int = 11, n_spins: int = 4, *, spin_period_deg: float
         spin_period_deg: period of the cell's spin symmetry [deg], in (0, 360].
         staggered: stagger the spins from axis to axis (``SPIN_STAGGER``); False: every axis has
             the spins psi_j = j * spin_period / n_spins.
+        kinematics: "projected" or "axisymmetric" (``KINEMATICS``, module docstring).
     """
     n_spins = int(n_spins)
     if n_spins < 1:
         raise ValueError(f"n_spins = {n_spins} must be >= 1")
     if not 0.0 < spin_period_deg <= 360.0:
         raise ValueError(f"spin period {spin_period_deg:g} deg is outside (0, 360]")
+    if kinematics not in KINEMATICS:
+        raise ValueError(f"kinematics {kinematics!r} is not one of {', '.join(KINEMATICS)}")
     axes, axis_weights = hemisphere_rule(order)
     t1_ref = reference_lateral(axes)
     t2_ref = np.cross(axes, t1_ref)
@@ -156,12 +184,14 @@ def orientations_3d(order: int = 11, n_spins: int = 4, *, spin_period_deg: float
         loc[:, :, m] = factor * frames[:, i, :] * frames[:, j, :]
         avg[m] = 0.5 * (frames[:, i, :, None] * frames[:, j, None, :] + frames[:, j, :, None] * frames[:, i, None, :])
     avg *= weights[None, :, None, None]
+    if kinematics == "axisymmetric":
+        loc = np.einsum("ab,kbm->kam", AXISYMMETRIC_MAP, loc)
     arrays = {"frames": frames, "weights": weights, "localisation": loc.reshape(3 * count, 6),
               "averaging": avg.reshape(6, 9 * count)}
     for a in arrays.values():
         a.flags.writeable = False
     return Orientations3D(**arrays, order=int(order), n_spins=n_spins, spin_period_deg=float(spin_period_deg),
-                          staggered=bool(staggered))
+                          staggered=bool(staggered), kinematics=kinematics)
 
 
 def to_tensor(components: np.ndarray) -> np.ndarray:

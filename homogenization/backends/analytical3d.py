@@ -21,6 +21,11 @@ holding: a lateral grain of plane A and one of plane B are sqrt((y2A - y2B)^2 + 
 alpha = 45 deg at the touching state). Such a contact is outside the closed form: ``step``
 counts the cells in ``diagnostics["n_cross_plane"]`` (the DEM models it).
 
+Kinematics: ``step`` takes the cell-axis strains as given. The cell kind ``hcell3d-axisym`` has the same
+grains and is modelled here unchanged; its axisymmetric kinematics are applied where the macro
+increment is localised (``homogenization.orientation3d``, ``AXISYMMETRIC_MAP``), so both planes then
+receive the same lateral strain.
+
 Cell volume: the polyhedron through the ten centres (``polyhedron_volume`` over
 ``HCELL3D_FACES``), the 3D counterpart of the planar cell's hexagon.
 

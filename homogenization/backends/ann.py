@@ -66,6 +66,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 import torch
 
+from homogenization.orientation3d import cell_kinematics
 from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
@@ -246,8 +247,14 @@ class AnnCell(ArrayStateMixin):
     def check_trained_on(self, meso: Mesostructure) -> None:
         """Raise ``CheckpointError`` (one line) unless the model may start cells from ``meso``
         (``training.checkpoint.check_start_cell``: its database's mesostructure, or a cell of
-        the same learning state within the range of the cells the database started from)."""
+        the same learning state within the range of the cells the database started from). A 3D cell whose
+        kinematics are not the projected ones (``orientation3d.cell_kinematics``) leaves the certificate,
+        whose tests drove the cells with the projected kinematics: ``certificate_problem`` says so."""
         check_start_cell(self.metadata, meso, source=str(self.model_path))
+        kinematics = cell_kinematics(meso) if meso.dim == 3 else "projected"
+        if kinematics != "projected" and self.certificate_problem is None:
+            self.certificate_problem = (f"{self.model_path}: its certificate drove the cells with the projected kinematics, "
+                                        f"{meso.name!r} declares the {kinematics} kinematics")
 
     # -- CellModel protocol ---------------------------------------------------------------
     def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> AnnState:

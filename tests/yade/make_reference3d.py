@@ -14,6 +14,11 @@ unless said):
   the two planes take different y2;
 - ``cv3d_a55``: isotropic rows of 1e-4 to 0.1 %, then isochoric rows d_eps_n = 2e-4,
   d_eps_t1 = d_eps_t2 = 1 - 1/sqrt(1 - 2e-4) to 10 %.
+- ``axisym3d_a54_axial``, ``axisym3d_a54_normal``: the loose ``hcell3d-axisym`` cell (same spheres) on
+  the undrained triaxial path: isotropic rows of 1e-4 to 0.1 %, then the isochoric rows of the
+  macro axial strain 2e-4 as the axisymmetric kinematics hand them to a cell whose axis lies along
+  the loading axis (175 rows: its contacts open from the 162nd) or normal to it with t1 along it
+  (400 rows); ``axisymmetric`` is the mapping of ``homogenization.orientation3d.AXISYMMETRIC_MAP``.
 The YADE settings are the slow, accurate ones of the 2D reference (dt = 0.2 sqrt(m/kn), damping
 0.5, 2.5e-7 strain per substep, unbalanced ratio 1e-6).
 """
@@ -83,12 +88,24 @@ def _isochoric(d_axial: float) -> tuple[float, float, float]:
     return (d_axial, lateral, lateral)
 
 
+def axisymmetric(step: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Cell strains of the axisymmetric kinematics: with lat = (t1 + t2)/2 and c = (n - lat)/6,
+    (n - c, lat - c, lat - c) [-]."""
+    n, t1, t2 = step
+    lat = 0.5 * (t1 + t2)
+    c = (n - lat) / 6.0
+    return (n - c, lat - c, lat - c)
+
+
+_LATERAL = 1.0 - 1.0 / math.sqrt(1.0 - 2e-4)
 CASES: dict[str, Case] = {
     "axial3d_a55": _load_unload(0, 55.0),
     "axial3d_a50": _load_unload(0, 50.0),
     "lateral3d_a55": _load_unload(1, 55.0),
     "lateral3d_a50": _load_unload(1, 50.0),
     "cv3d_a55": Case(55.0, (((1e-4, 1e-4, 1e-4), 10), (_isochoric(2e-4), 500))),
+    "axisym3d_a54_axial": Case(54.0, (((1e-4, 1e-4, 1e-4), 10), (axisymmetric(_isochoric(2e-4)), 175))),
+    "axisym3d_a54_normal": Case(54.0, (((1e-4, 1e-4, 1e-4), 10), (axisymmetric((_LATERAL, 2e-4, _LATERAL)), 400))),
 }
 """Reference cases by name."""
 

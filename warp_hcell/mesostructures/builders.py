@@ -4,7 +4,7 @@ A mesostructure is named on the command line (``--mesostructure``) and in Python
 a file (TOML/JSON, ``warp_hcell.mesostructures.files.load_mesostructure``) or by a *builder spec*:
 
     SPEC   := KIND [":" KEY "=" VALUE ("," KEY "=" VALUE)*]
-    KIND   := "hcell" | "hcell-unequal" | "hcell-fines" | "hcell3d" | "hcell3d-fines"
+    KIND   := "hcell" | "hcell-unequal" | "hcell-fines" | "hcell3d" | "hcell3d-fines" | "hcell3d-axisym"
 
 Keys (all optional unless marked):
 
@@ -24,8 +24,9 @@ Keys (all optional unless marked):
 Examples: ``hcell``, ``hcell-unequal:alpha0=55,lateral=0.7``,
 ``hcell-fines:alpha0=50,ratio=0.76``, ``hcell-fines:ratio=0.3/0.3,n=0.4/-0.4``; in 3D
 ``hcell3d:alpha0=55`` (the ten-sphere cell; ``plane=DEG``: angle between its two planes, 90 by
-default) and ``hcell3d-fines:ratio=0.5,n=0.1`` (offsets ``n``, ``t1``, ``t2``; docs/model.md
-section 14).
+default), ``hcell3d-fines:ratio=0.5,n=0.1`` (offsets ``n``, ``t1``, ``t2``; docs/model.md
+section 14) and ``hcell3d-axisym:alpha0=54`` (the same ten spheres driven by the axisymmetric part of
+the cell strain, the 3D cell that liquefies; docs/model.md section 14).
 Anything that is not a spec is read as a file path (write ``./hcell`` for a file of that
 name). In a comma list of mesostructures (the sweep), a piece ``KEY=VALUE`` without ``:``
 continues the spec before it (``split_mesostructure_list``).
@@ -52,7 +53,7 @@ from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.mesostructures.hcell import build_h_cell, build_h_cell_3d
 from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError
 
-KINDS = ("hcell", "hcell-unequal", "hcell-fines", "hcell3d", "hcell3d-fines")
+KINDS = ("hcell", "hcell-unequal", "hcell-fines", "hcell3d", "hcell3d-fines", "hcell3d-axisym")
 """Builder names accepted as the KIND of a spec."""
 KEYS = {
     "hcell": ("alpha0", "radius", "lateral"),
@@ -60,10 +61,11 @@ KEYS = {
     "hcell-fines": ("alpha0", "radius", "lateral", "ratio", "n", "t"),
     "hcell3d": ("alpha0", "radius", "lateral", "plane"),
     "hcell3d-fines": ("alpha0", "radius", "lateral", "plane", "ratio", "n", "t1", "t2"),
+    "hcell3d-axisym": ("alpha0", "radius", "lateral", "plane"),
 }
 """Keys each kind accepts."""
 REQUIRED = {"hcell": (), "hcell-unequal": ("lateral",), "hcell-fines": ("ratio",), "hcell3d": (),
-            "hcell3d-fines": ("ratio",)}
+            "hcell3d-fines": ("ratio",), "hcell3d-axisym": ()}
 """Keys each kind needs."""
 LIST_KEYS = ("ratio", "n", "t", "t1", "t2")
 """Keys whose value is a "/"-separated list (one value per fine grain)."""
@@ -117,7 +119,8 @@ class MesostructureSource:
                 "lateral": float(opts.get("lateral", 1.0))}  # type: ignore[arg-type]
         if spatial:
             return build_h_cell_3d(float(alpha0), **size, plane_angle_deg=float(opts.get("plane", 90.0)),  # type: ignore[arg-type]
-                                   fines=fines, fine_offsets=offsets, name=self.text)
+                                   fines=fines, fine_offsets=offsets, name=self.text,
+                                   axisymmetric=self.kind == "hcell3d-axisym")
         return build_h_cell(float(alpha0), **size, fines=fines, fine_offsets=offsets, name=self.text)
 
     def __str__(self) -> str:
@@ -219,7 +222,7 @@ def mesostructure_list_arg(text: str) -> list[MesostructureSource]:
 
 MESOSTRUCTURE_HELP = (
     "mesostructure: a TOML/JSON file, or a builder spec KIND[:KEY=VALUE,...] with KIND hcell | hcell-unequal | "
-    "hcell-fines (2D) or hcell3d | hcell3d-fines (3D, ten spheres) and keys alpha0 (deg; default: --alpha0), "
+    "hcell-fines (2D) or hcell3d | hcell3d-fines | hcell3d-axisym (3D, ten spheres) and keys alpha0 (deg; default: --alpha0), "
     "radius (r of grains 1, 4 [m]), lateral (radius of the lateral grains / r), plane (3D: angle between the two "
     "planes, deg), ratio (fine-grain radius / r, 'a/b' for several), n, t (2D) or n, t1, t2 (3D) (fine-grain "
     "offset from the pore centre / r); e.g. hcell-fines:alpha0=50,ratio=0.76 or hcell3d:alpha0=55")

@@ -567,6 +567,9 @@ H3_TYPE2_PAIRS = ((2, 3), (5, 6), (7, 8), (9, 10))
 """Type-2 contacts (parallel to n) of the ten-sphere cell."""
 H3_GRAINS = 10
 """Grains of the ten-sphere skeleton; fine grains follow."""
+AXISYMMETRIC_KINEMATICS = "axisymmetric_kinematics"
+"""Parameter of a 3D cell (``Mesostructure.parameters``): nonzero where the macro strain drives the cell by
+its axisymmetric part (``homogenization.orientation3d``, kinematics "axisymmetric"; the kind ``hcell3d-axisym``)."""
 _TOP_RING = (5, 9, 1, 6)
 """Lateral grains (0-based) at n > 0 in the order of their azimuth about n: 6, 10, 2, 7."""
 _BOTTOM_RING = (4, 8, 2, 7)
@@ -611,7 +614,7 @@ def h_cell_3d_skeleton(alpha0_deg: float, radius: float, lateral: float = 1.0,
 def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: float = CellDefaults.radius,
                     lateral: float = 1.0, plane_angle_deg: float = 90.0, fines: tuple[float, ...] = (),
                     fine_offsets: tuple[tuple[float, float, float], ...] | None = None,
-                    name: str | None = None) -> Mesostructure:
+                    name: str | None = None, axisymmetric: bool = False) -> Mesostructure:
     """Ten-sphere H-cell (docs/model.md section 14) with free fine grains in the pore.
 
     Args:
@@ -625,12 +628,16 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
         fine_offsets: (n, t1, t2) offset of each fine grain from the pore centre in units of r [-]
             (default: the centre).
         name: mesostructure name (default: describes the parameters).
+        axisymmetric: declare the axisymmetric kinematics (parameter ``AXISYMMETRIC_KINEMATICS`` = 1;
+            the kind ``hcell3d-axisym``): the same grains, driven by the axisymmetric part of the cell
+            strain (``homogenization.orientation3d``). False: the projected kinematics.
 
     Returns:
         Grains 1, 4 driven along n, t1, t2; grains 2, 3, 5, 6, 7, 8, 9, 10 driven along t1 and t2
         (homothetically with l2, l3) and free along n; fine grains free along every axis; every
-        pair a candidate; type-1 / type-2 labels on the skeleton; the parameter ``alpha0_deg``;
-        outer surface: the sixteen triangles of ``h_cell_3d_faces``.
+        pair a candidate; type-1 / type-2 labels on the skeleton; the parameter ``alpha0_deg``
+        (and ``AXISYMMETRIC_KINEMATICS`` where asked); outer surface: the sixteen triangles of
+        ``h_cell_3d_faces``.
 
     Raises:
         MesostructureError: bad parameter, a fine grain outside the pore or overlapping grains (one line).
@@ -670,7 +677,8 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
                          position=np.concatenate([position, fine_position]), driven=driven,
                          pairs=np.array(pairs, dtype=np.int64), outer=faces, cell_size=cell_size,
                          pair_label=_labels(label, pairs, H3_TYPE1_PAIRS, H3_TYPE2_PAIRS),
-                         parameters={"alpha0_deg": float(alpha0_deg)})
+                         parameters={"alpha0_deg": float(alpha0_deg),
+                                     **({AXISYMMETRIC_KINEMATICS: 1.0} if axisymmetric else {})})
 
 
 def plain_alpha0_3d(meso: Mesostructure) -> tuple[float, float] | None:
