@@ -288,6 +288,16 @@ def test_calibrate_ctrl_c_is_one_line_and_the_chain_resumes(tmp_path, capsys, mo
     assert not list(tmp_path.glob(".*"))
 
 
+def test_calibrate_on_a_chain_killed_while_written_is_one_line(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / calibrate.CHAIN_FILE).write_bytes(b"\x89HDF\r\n half a file")
+    assert hmodel.main(calibrate_argv(tmp_path, out, 2)) == 2
+    assert one_error_line(capsys).endswith("chain.h5 is unreadable (a run killed while writing it?); add --overwrite "
+                                           "to restart the chain")
+    assert (out / calibrate.CHAIN_FILE).read_bytes() == b"\x89HDF\r\n half a file"
+
+
 def test_second_calibration_on_a_busy_folder_exits_2(tmp_path, capsys):
     out = tmp_path / "run"
     with files.output_lock(out):
