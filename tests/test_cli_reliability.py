@@ -252,7 +252,8 @@ def test_calibrate_out_under_a_file_is_one_line(tmp_path, capsys):
     blocker = tmp_path / "blocker"
     blocker.write_text("mine")
     assert hmodel.main(calibrate_argv(tmp_path, blocker / "out", 2)) == 2
-    assert one_error_line(capsys) == f"hmodel calibrate: error: cannot write to {blocker / 'out'}: {blocker} is not a folder"
+    assert one_error_line(capsys) == (f"hmodel calibrate: error: cannot write to {blocker / 'out'}: {blocker} "
+                                      f"is not a folder")
     assert blocker.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["blocker", "u.csv"]
 
 

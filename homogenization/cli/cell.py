@@ -60,11 +60,12 @@ from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, Mesostructure
 from warp_hcell.core.parameters import DatabaseSettings
 
-PATH_HEADERS = {len(AXIS_NAMES[dim]): tuple(f"d_eps_{axis}" for axis in AXIS_NAMES[dim]) for dim in (2, 3)}
-"""Columns of the strain-path file of a planar (2) and of a 3D cell (3): d_eps_n,d_eps_t and d_eps_n,d_eps_t1,d_eps_t2."""
+PATH_HEADERS = {dim: tuple(f"d_eps_{axis}" for axis in AXIS_NAMES[dim]) for dim in (2, 3)}
+"""Columns of the strain-path file by the cell's dimension: d_eps_n,d_eps_t (2), d_eps_n,d_eps_t1,d_eps_t2 (3)."""
 COLUMNS = ("l1", "l2", "alpha_deg", "d1", "d2", "N1", "N2", "T1", "S_nn", "S_tt")
 """Columns of the output file of a planar cell, before the optional grain positions."""
-COLUMNS_3D = ("l1", "l2", "l3", *(f"{name}_{plane}" for plane in "ab" for name in ("alpha_deg", "d1", "d2", "N1", "N2", "T1")),
+COLUMNS_3D = ("l1", "l2", "l3",
+              *(f"{name}_{plane}" for plane in "ab" for name in ("alpha_deg", "d1", "d2", "N1", "N2", "T1")),
               "S_nn", "S_t1t1", "S_t2t2")
 """Columns of the output file of a 3D cell, before the optional grain positions."""
 DEFAULT_3D_CELL = "hcell3d"
