@@ -30,12 +30,13 @@ format and examples in docs/programmes.md, example files in homogenization/data/
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import tomllib
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from warp_hcell.core.parameters import LoadingDefaults
 
@@ -315,10 +316,39 @@ def to_dict(programme: Programme) -> dict[str, Any]:
     return {"steps": [_step_dict(s) for s in validate(programme)]}
 
 
-def from_dict(data: Mapping[str, Any]) -> Programme:
-    """Programme described by ``data`` (as made by ``to_dict``); ValueError if malformed."""
+PROGRAMME_KEYS = ("steps",)
+"""Keys of a programme description (``to_dict``)."""
+STEP_KEYS = tuple(f.name for f in fields(Step))
+"""Keys of one step: the fields of ``Step``."""
+
+
+class UnknownKey(ValueError):
+    """A key of a programme description that nothing reads; the message is one line and names it."""
+
+
+def _check_keys(keys: Any, where: str, expected: Sequence[str]) -> None:
+    for key in keys:
+        if key not in expected:
+            close = difflib.get_close_matches(str(key), expected, n=1, cutoff=0.75)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise UnknownKey(f"unknown key {key!r} {where}{hint}; expected one of: {', '.join(expected)}")
+
+
+def from_dict(data: Mapping[str, Any], source: str | None = None) -> Programme:
+    """Programme described by ``data`` (as made by ``to_dict``); ValueError (one line) if malformed.
+
+    A key that nothing reads (not in ``PROGRAMME_KEYS`` or ``STEP_KEYS``) is refused with its name
+    and where it is (``UnknownKey``; ``source``, e.g. the file, ends the place), so that a
+    misspelt key is never silently ignored.
+    """
+    of = f" of {source}" if source else ""
     try:
+        _check_keys(data, f"at the top level{of}", PROGRAMME_KEYS)
         steps = data["steps"]
+        for number, step in enumerate(steps, start=1):
+            if not isinstance(step, Mapping):
+                raise ValueError(f"step {number} is not a table of keys ({', '.join(STEP_KEYS)})")
+            _check_keys(step, f"in step {number}{of}", STEP_KEYS)
         return validate(tuple(Step(**dict(s)) for s in steps))
     except (KeyError, TypeError) as exc:
         raise ValueError(f"malformed loading programme: {exc}") from None
@@ -335,7 +365,8 @@ def read_programme(path: Path) -> Programme:
     TOML: one ``[[steps]]`` table per step with the same keys. ``stop_at_p`` is optional.
 
     Raises:
-        ValueError: one line naming the file, for a missing, unreadable or malformed file.
+        ValueError: one line naming the file, for a missing, unreadable or malformed file, or
+            one with a key that nothing reads (``UnknownKey``).
     """
     path = Path(path)
     if path.suffix.lower() not in PROGRAMME_SUFFIXES:
@@ -350,6 +381,8 @@ def read_programme(path: Path) -> Programme:
     if not isinstance(data, Mapping) or not isinstance(data.get("steps"), list):
         raise ValueError(f"{path}: a programme needs a list of steps ('steps' array / [[steps]] tables)")
     try:
-        return from_dict(data)
+        return from_dict(data, source=str(path))
+    except UnknownKey:
+        raise
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None

@@ -1,9 +1,11 @@
 """Honest failures of every CLI: each bad case is exit 2 and one line on stderr, leaves the
 existing output byte-identical and no stray files next to it.
 
-Cases (issue 11): --device cuda without a GPU (every CLI), increments a backend cannot do,
-an ANN path row of -0.9, clean on a file without outputs, train with an unwritable --out and
-Ctrl-C, a second run on a busy output, and a biaxial run killed while writing.
+Cases: --device cuda without a GPU (every CLI), increments a backend cannot do, an ANN path
+row of -0.9, clean on a file without outputs, train with an unwritable --out and Ctrl-C, a
+second run on a busy output, a biaxial run killed while writing; calibrate with --out under a
+file, Ctrl-C in its sampler (one line, the chain resumes) and its lock; the temporary file of
+a final write killed by SIGKILL, removed by the next run.
 """
 
 from __future__ import annotations
@@ -17,12 +19,14 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import h5py
+import numpy as np
 import pytest
 
-from homogenization.cli import biaxial, cell, hmodel
+from homogenization.calibration import bayes
+from homogenization.cli import biaxial, calibrate, cell, hmodel
 from training import train
 from warp_hcell.core import cli, files
-from warp_hcell.database import clean, format as database
+from warp_hcell.database import clean, format as database, generate
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--alpha0", "55", "--eps-max", "0.01", "--increment", "5e-4", "--orientations", "12", "-q"]
@@ -229,3 +233,110 @@ def test_output_folder_restores_a_set_left_between_the_two_renames(tmp_path):
     with pytest.raises(KeyboardInterrupt), files.output_folder(out):
         raise KeyboardInterrupt
     assert (out / "run.h5").read_text() == "previous" and [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+# -- calibrate ---------------------------------------------------------------------------------
+CALIBRATION_DATA = "# test = undrained\n# p0 = 3e6\neps1,q\n0.004,1.1e6\n0.008,1.8e6\n0.012,2.2e6\n"
+
+
+def calibrate_argv(tmp_path: Path, out: Path, steps: int) -> list[str]:
+    data = tmp_path / "u.csv"
+    if not data.exists():
+        data.write_text(CALIBRATION_DATA)
+    return ["calibrate", "--data", str(data), "--params", "phi_g,alpha0", "--walkers", "4", "--steps", str(steps),
+            "--orientations", "4", "--increment", "4e-3", "--iso-increment", "2e-3", "--confirm", "none", "-q",
+            "--out", str(out)]
+
+
+def test_calibrate_out_under_a_file_is_one_line(tmp_path, capsys):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("mine")
+    assert hmodel.main(calibrate_argv(tmp_path, blocker / "out", 2)) == 2
+    assert one_error_line(capsys) == (f"hmodel calibrate: error: cannot write to {blocker / 'out'}: {blocker} "
+                                      f"is not a folder")
+    assert blocker.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["blocker", "u.csv"]
+
+
+def read_chain(out: Path) -> np.ndarray:
+    with h5py.File(out / calibrate.CHAIN_FILE, "r") as fh:
+        return fh["mcmc/chain"][()]
+
+
+def test_calibrate_ctrl_c_is_one_line_and_the_chain_resumes(tmp_path, capsys, monkeypatch):
+    assert hmodel.main(calibrate_argv(tmp_path, tmp_path / "whole", 4)) == 0
+    capsys.readouterr()
+    calls = {"n": 0}
+    real = bayes.Posterior.__call__
+
+    def interrupted_at_the_sixth_call(self, x):
+        calls["n"] += 1
+        if calls["n"] == 6:  # during the sampler's third step (the first call places the walkers)
+            raise KeyboardInterrupt
+        return real(self, x)
+
+    monkeypatch.setattr(bayes.Posterior, "__call__", interrupted_at_the_sixth_call)
+    out = tmp_path / "split"
+    assert hmodel.main(calibrate_argv(tmp_path, out, 4)) == 130
+    captured = capsys.readouterr()
+    assert captured.err.strip().splitlines() == ["hmodel calibrate: interrupted"] and "emcee" not in captured.out
+    with h5py.File(out / calibrate.CHAIN_FILE, "r") as fh:
+        done = int(fh["mcmc"].attrs["iteration"])
+    assert sorted(p.name for p in out.iterdir()) == ["chain.h5"] and 0 < done < 4
+    np.testing.assert_array_equal(read_chain(out)[:done], read_chain(tmp_path / "whole")[:done])
+    monkeypatch.undo()
+    assert hmodel.main(calibrate_argv(tmp_path, out, 4)) == 0  # the same command resumes
+    np.testing.assert_array_equal(read_chain(out), read_chain(tmp_path / "whole"))
+    assert not list(tmp_path.glob(".*"))
+
+
+def test_calibrate_on_a_chain_killed_while_written_is_one_line(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / calibrate.CHAIN_FILE).write_bytes(b"\x89HDF\r\n half a file")
+    assert hmodel.main(calibrate_argv(tmp_path, out, 2)) == 2
+    assert one_error_line(capsys).endswith("chain.h5 is unreadable (a run killed while writing it?); add --overwrite "
+                                           "to restart the chain")
+    assert (out / calibrate.CHAIN_FILE).read_bytes() == b"\x89HDF\r\n half a file"
+
+
+def test_second_calibration_on_a_busy_folder_exits_2(tmp_path, capsys):
+    out = tmp_path / "run"
+    with files.output_lock(out):
+        assert hmodel.main(calibrate_argv(tmp_path, out, 2)) == 2
+        assert "is being written by another run" in one_error_line(capsys)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["u.csv"]
+
+
+# -- temporaries of a killed final write ------------------------------------------------------------
+def kill_while_writing(path: Path) -> Path:
+    """Run a process that SIGKILLs itself inside ``atomic_write(path)``; returns the temporary it left."""
+    code = ("import os, signal, sys\nfrom pathlib import Path\nfrom warp_hcell.core.files import atomic_write\n"
+            "with atomic_write(Path(sys.argv[1])) as tmp:\n    tmp.write_bytes(bytes(4096))\n"
+            "    os.kill(os.getpid(), signal.SIGKILL)\n")
+    done = subprocess.run([sys.executable, "-c", code, str(path)], env={**os.environ, "PYTHONPATH": str(ROOT)},
+                          capture_output=True, timeout=120)
+    assert done.returncode == -signal.SIGKILL
+    (left,) = path.parent.glob(f".{path.name}.*.tmp")
+    return left
+
+
+def test_the_temporary_of_a_killed_final_write_is_removed_by_the_next_run(tmp_path):
+    out = tmp_path / "db.h5"
+    left = kill_while_writing(out)
+    other = tmp_path / ".db.h5.x.abcdefgh.tmp"  # another output's temporary, and a file of the user
+    other.write_text("not ours")
+    (tmp_path / "notes.tmp").write_text("mine")
+    argv = ["--mesostructure", str(ROOT / "warp_hcell" / "data" / "h_cell_lateral_0.7D.toml"), "--samples", "100",
+            "--chunk-size", "100", "--n-directions", "4", "--threads", "1", "-q", "--out", str(out)]
+    assert generate.main(argv) == 0
+    assert not left.exists() and other.read_text() == "not ours" and (tmp_path / "notes.tmp").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".db.h5.x.abcdefgh.tmp", "db.h5", "notes.tmp"]
+
+
+def test_the_lock_of_a_folder_removes_the_temporaries_of_its_files(tmp_path):
+    out = tmp_path / "calibration"
+    out.mkdir()
+    left = kill_while_writing(out / "posterior.h5")
+    (out / "chain.h5").write_text("kept")
+    with files.output_lock(out):
+        assert not left.exists() and (out / "chain.h5").read_text() == "kept"

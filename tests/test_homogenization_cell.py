@@ -89,7 +89,8 @@ def test_kt_defaults_to_kt_over_kn_times_kn(tmp_path, capsys):
     "rows, header, message",
     [
         ([], "d_eps_n,d_eps_t", ": no increments after the header"),
-        (["1e-5,0"], "d_eps_t,d_eps_n", ": header must be 'd_eps_n,d_eps_t', got 'd_eps_t,d_eps_n'"),
+        (["1e-5,0"], "d_eps_t,d_eps_n", ": header must be 'd_eps_n,d_eps_t' (a planar cell) or "
+                                         "'d_eps_n,d_eps_t1,d_eps_t2' (a 3D cell), got 'd_eps_t,d_eps_n'"),
         (["1e-5,0", "", "1e-5,0"], "d_eps_n,d_eps_t", " line 3: expected two numbers d_eps_n,d_eps_t, got ''"),
         (["1e-5,0,0"], "d_eps_n,d_eps_t", " line 2: expected two numbers d_eps_n,d_eps_t, got '1e-5,0,0'"),
         (["1e-5,abc"], "d_eps_n,d_eps_t", " line 2: expected two numbers d_eps_n,d_eps_t, got '1e-5,abc'"),

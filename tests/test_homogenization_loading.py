@@ -68,8 +68,10 @@ def test_programme_validation():
         loading.validate(())
     with pytest.raises(ValueError, match="^programme items must be Step, got dict$"):
         loading.validate(({"label": "x"},))
-    with pytest.raises(ValueError, match="^malformed loading programme"):
+    with pytest.raises(ValueError, match="^unknown key 'stages' at the top level; expected one of: steps$"):
         loading.from_dict({"stages": []})
+    with pytest.raises(ValueError, match="^malformed loading programme"):
+        loading.from_dict({})
     with pytest.raises(ValueError, match=r"^p0 = 0 must be finite and > 0$"):
         loading.biaxial(0.0, 0.2, 1e-5)
     with pytest.raises(ValueError, match=r"^increment = 0 must be finite and > 0$"):

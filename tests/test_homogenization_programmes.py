@@ -83,7 +83,7 @@ def test_proportional_strain_path_follows_its_direction(tmp_path):
     (json.dumps({"steps": [{"control": ["strain", "oops"], "target": [0, 0], "n_increments": 1, "label": "a"}]}),
      ".json", "control must be two of"),
     (json.dumps({"steps": [{"control": ["strain", "strain"], "target": [0.1, 0], "n_increments": 1, "label": "a",
-                            "colour": 3}]}), ".json", "malformed loading programme"),
+                            "colour": 3}]}), ".json", "unknown key 'colour' in step 1 of"),
     ("{}", ".yaml", "a programme file ends in .json or .toml"),
 ])
 def test_bad_programme_file_one_line_exit_2(tmp_path, capsys, content, suffix, message):

@@ -68,10 +68,15 @@ class AnalyticalState(NamedTuple):
 
 
 def plain_cell_alpha0(meso: Mesostructure, plain_alpha0: Callable[[Mesostructure], tuple[float, ...] | None],
-                      models: str) -> float:
+                      models: str, dim: int) -> float:
     """Opening angle alpha0 [deg] of ``meso`` as ``plain_alpha0`` (``hcell.plain_alpha0`` or
-    ``hcell.plain_alpha0_3d``) reads it; ValueError (one line, naming what the backend
-    ``models``) where it reads none."""
+    ``hcell.plain_alpha0_3d``) reads it; ValueError (one line) for a cell of another dimension
+    than the backend's ``dim`` (saying which backend to build), or naming what the backend
+    ``models`` where ``plain_alpha0`` reads none."""
+    if meso.dim != dim:
+        raise ValueError(f"mesostructure {meso.name!r} is a {meso.dim}D cell and this analytical backend models "
+                         f"{dim}D cells: build the backend with make_cell_model('analytical', dim={meso.dim}) "
+                         f"(dim = the mesostructure's dim)")
     plain = plain_alpha0(meso)
     if plain is None:
         raise ValueError(f"analytical models {models}; mesostructure {meso.name!r} is not one: use --backend dem or ann")
@@ -195,7 +200,7 @@ class AnalyticalCell(ArrayStateMixin):
             ValueError: (one line) ``meso`` is not the touching six-equal-grain H-cell of
                 ``warp_hcell.mesostructures.hcell.h_cell`` (``hcell.plain_alpha0``).
         """
-        return plain_cell_alpha0(meso, hcell.plain_alpha0, "the plain H-cell only (six equal touching grains)")
+        return plain_cell_alpha0(meso, hcell.plain_alpha0, "the plain H-cell only (six equal touching grains)", 2)
 
     def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> AnalyticalState:
         """Touching, force-free cells: d1 = d2 = D at the opening angle alpha0 of each cell's mesostructure.

@@ -116,7 +116,7 @@ class Analytical3DCell:
                 (``warp_hcell.mesostructures.hcell.plain_alpha0_3d``).
         """
         return plain_cell_alpha0(meso, plain_alpha0_3d, "the plain ten-sphere H-cell only in 3D (equal touching "
-                                                        "spheres, planes 90 deg apart)")
+                                                        "spheres, planes 90 deg apart)", 3)
 
     def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> Analytical3DState:
         """Touching, force-free cells at the opening angle of each cell's mesostructure (``check_mesostructure``),

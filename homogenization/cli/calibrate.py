@@ -20,8 +20,10 @@ provenance). A second run with the same settings resumes the chain up to --steps
 --steps extends it); other settings need --overwrite, which restarts the chain.
 
 Bad input (a missing or malformed data or prior file, an unknown parameter, a parameter the
-backend cannot vary, a folder holding other files) is one line on stderr and exit code 2,
-before any run.
+backend cannot vary, a folder holding other files, an --out under a file or in an unwritable
+folder, a folder that another calibration is writing: ``output_lock``) is one line on stderr
+and exit code 2, before any run. Ctrl-C or ``kill`` is one line and exit code 130; chain.h5
+keeps every finished step, and the same command resumes from there.
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ from warp_hcell.core.cli import (
     say,
     set_verbosity,
 )
+from warp_hcell.core.files import check_output_path, output_lock, temporary_of
 from warp_hcell.core.provenance import file_sha256
 
 CHAIN_FILE = "chain.h5"
@@ -132,13 +135,14 @@ def read_tests(paths: Sequence[Path]) -> list[Measurement]:
 
 
 def check_out(out: Path, overwrite: bool) -> None:
-    """UserError unless ``out`` is absent or holds only this command's files."""
+    """UserError (one line) unless ``out`` is a folder that can be created or written and that holds
+    only this command's files (and temporaries of its atomic writes)."""
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out} is a file; give a folder")
+    check_output_path(out, overwrite=True)  # its nearest existing parent is a writable folder
     if not out.exists():
         return
-    if not out.is_dir():
-        raise UserError(f"--out {out} is a file; give a folder")
-    foreign = sorted(p.name for p in out.iterdir() if p.name not in OUTPUT_FILES
-                     and not (p.name.startswith(".") and p.name.endswith(".tmp")))
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in OUTPUT_FILES and temporary_of(p) is None)
     if foreign:
         raise UserError(f"{out} holds files that this command did not write ({', '.join(foreign[:3])}); "
                         f"choose another --out")
@@ -206,7 +210,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     from homogenization.calibration import report  # noqa: PLC0415 (matplotlib: only once the input is good)
 
-    result = run_calibration(args, tests, prior, settings, config)
+    with output_lock(args.out):
+        result = run_calibration(args, tests, prior, settings, config)
     say(*report.summary_lines(result), f"{args.out}: done in {time.perf_counter() - started:.0f} s")
     return 0
 
@@ -224,8 +229,12 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
     chain = out / CHAIN_FILE
     config_json = json.dumps(config, sort_keys=True)
     if chain.exists():
-        with h5py.File(chain, "r") as fh:
-            stored = fh.attrs.get("calibration_config")
+        try:
+            with h5py.File(chain, "r") as fh:
+                stored = fh.attrs.get("calibration_config")
+        except OSError:
+            raise UserError(f"{chain} is unreadable (a run killed while writing it?); add --overwrite to restart "
+                            f"the chain") from None
         # no stored settings: a start interrupted before its first step, restarted
         if stored is not None and stored != config_json and not args.overwrite:
             raise UserError(f"{chain} holds a calibration with other settings (data, parameters, prior, walkers, "
@@ -237,6 +246,9 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
     done = backend.iteration if chain.exists() else 0
     n_dim = len(prior.names)
     sampler = emcee.EnsembleSampler(args.walkers, n_dim, log_post, vectorize=True, backend=backend)
+    # emcee's wrapper of log_post prints a traceback of any exception, Ctrl-C included, before
+    # passing it on; run_main reports it in one line instead (the chain keeps every finished step)
+    sampler.log_prob_fn = log_post
     if done == 0:
         backend.reset(args.walkers, n_dim)
         with h5py.File(chain, "a") as fh:

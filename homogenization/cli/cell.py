@@ -6,21 +6,28 @@ increment is written to OUT.csv.
 
 PATH.csv: a header line ``d_eps_n,d_eps_t`` then one row per increment: the local strain
 increments along the cell axis n and the lateral direction t [-], compression positive
-(l1 <- l1 (1 - d_eps_n), l2 <- l2 (1 - d_eps_t)).
+(l1 <- l1 (1 - d_eps_n), l2 <- l2 (1 - d_eps_t)). A 3D cell (e.g. ``--mesostructure
+hcell3d:alpha0=55``, the ten-sphere H-cell) takes the header ``d_eps_n,d_eps_t1,d_eps_t2``, the
+increments along n and the two lateral axes t1, t2 (l3 <- l3 (1 - d_eps_t2)).
 
 OUT.csv: header ``l1,l2,alpha_deg,d1,d2,N1,N2,T1,S_nn,S_tt`` (with ``--positions`` followed
 by the grain centres ``x_n1,x_t1,...,x_n6,x_t6`` [m], local frame, cell centre at the
 origin) and one row per increment. Units: lengths [m], angle [deg], contact forces [N]
 (compression positive, T1 > 0 resists opening), Love-Weber moments S_nn, S_tt [N m],
-compression positive. The cell starts from the H-cell of --alpha0 and --radius, or from
-``--mesostructure`` (a file, or a builder spec of ``warp_hcell.mesostructures.builders`` built at its own
-alpha0 or else at --alpha0; the analytical backend models the plain H-cell only, the ANN the
-mesostructure its model was trained on). A cell that is not an H-cell has no l1..T1 of its
-own: only the columns that the backend reports among ``observables()`` are written, in the
-order above, and with ``--positions`` every grain centre it reports.
+compression positive. A 3D cell: ``COLUMNS_3D``, l1, l2, l3, the planar observables of its
+planes A (n, t1) and B (n, t2) with suffix ``_a`` / ``_b`` where the backend reports them (the
+analytical one), S_nn, S_t1t1, S_t2t2 [N m], then ``x_n1,x_t11,x_t21,...`` with --positions.
+The cell starts from the H-cell of --alpha0 and --radius (the ten-sphere H-cell ``hcell3d``
+for a three-column path), or from ``--mesostructure`` (a file, or a builder spec of
+``warp_hcell.mesostructures.builders`` built at its own alpha0 or else at --alpha0; the
+analytical backend models the plain H-cells only, the ANN the mesostructure its model was
+trained on); the path's columns must match the cell's dimension. A cell that is not an H-cell
+has no l1..T1 of its own: only the columns that the backend reports among ``observables()``
+are written, in the order above, and with ``--positions`` every grain centre it reports.
 
-Bad input (missing or malformed PATH.csv, alpha0 outside [30, 90) deg, a mesostructure the
-backend does not model, unwritable --out,
+Bad input (missing or malformed PATH.csv, a path of two columns for a 3D cell or of three for
+a planar one, alpha0 outside [30, 90) deg, a mesostructure the backend does not model,
+unwritable --out, a second run on the same --out: ``output_lock``,
 a CUDA device the machine lacks, and for the ann backend a row larger than the largest
 probe of its learning database, ``|d_eps|`` > 1e-3, where the network extrapolates) is one
 line on stderr and exit code 2; an existing OUT.csv is kept unless --overwrite.
@@ -48,15 +55,21 @@ from warp_hcell.core.cli import (
     set_verbosity,
     writing_to,
 )
-from warp_hcell.core.files import atomic_write, check_output_path
+from warp_hcell.core.files import atomic_write, check_output_path, output_lock
 from warp_hcell.mesostructures.hcell import h_cell
-from warp_hcell.mesostructures.mesostructure import Mesostructure
+from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, Mesostructure
 from warp_hcell.core.parameters import DatabaseSettings
 
-PATH_HEADER = ("d_eps_n", "d_eps_t")
-"""Columns of the strain-path file."""
+PATH_HEADERS = {dim: tuple(f"d_eps_{axis}" for axis in AXIS_NAMES[dim]) for dim in (2, 3)}
+"""Columns of the strain-path file by the cell's dimension: d_eps_n,d_eps_t (2), d_eps_n,d_eps_t1,d_eps_t2 (3)."""
 COLUMNS = ("l1", "l2", "alpha_deg", "d1", "d2", "N1", "N2", "T1", "S_nn", "S_tt")
-"""Columns of the output file, before the optional grain positions."""
+"""Columns of the output file of a planar cell, before the optional grain positions."""
+COLUMNS_3D = ("l1", "l2", "l3",
+              *(f"{name}_{plane}" for plane in "ab" for name in ("alpha_deg", "d1", "d2", "N1", "N2", "T1")),
+              "S_nn", "S_t1t1", "S_t2t2")
+"""Columns of the output file of a 3D cell, before the optional grain positions."""
+DEFAULT_3D_CELL = "hcell3d"
+"""Builder spec of the cell of a three-column path without --mesostructure (built at --alpha0, --radius)."""
 DEM_ONLY_BACKEND = "dem"
 """The backend whose Warp start-up banner is silenced."""
 ANN_MAX_INCREMENT = DatabaseSettings.probe_max
@@ -70,13 +83,17 @@ def build_parser() -> argparse.ArgumentParser:
                                                    "after every increment.")
     add_backend_argument(parser)
     add_alpha0_argument(parser)
-    parser.add_argument("--path", type=Path, required=True, help="CSV of local strain increments, header d_eps_n,d_eps_t, compression positive")
+    parser.add_argument("--path", type=Path, required=True,
+                        help="CSV of local strain increments, header d_eps_n,d_eps_t (a 3D cell: d_eps_n,d_eps_t1,"
+                             "d_eps_t2), compression positive")
     parser.add_argument("--out", type=Path, required=True, help="output CSV, one row per increment")
     add_contact_law_arguments(parser)
-    parser.add_argument("--positions", action="store_true", help="also write the grain centres x_n{i}, x_t{i} [m]")
+    parser.add_argument("--positions", action="store_true",
+                        help="also write the grain centres x_n{i}, x_t{i} [m] (3D: x_n{i}, x_t1{i}, x_t2{i})")
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
-                        help=f"the cell (analytical: the plain H-cell only; ann: the model's mesostructure); "
-                             f"default: the H-cell of --alpha0 and --radius. {MESOSTRUCTURE_HELP}")
+                        help=f"the cell (analytical: the plain H-cells only; ann: the model's mesostructure); "
+                             f"default: the H-cell of --alpha0 and --radius ({DEFAULT_3D_CELL} for a path of three "
+                             f"columns). {MESOSTRUCTURE_HELP}")
     add_uncertified_argument(parser)
     return parser
 
@@ -85,11 +102,12 @@ def read_path(path: Path) -> np.ndarray:
     """Read a strain-path CSV; UserError (one line) for anything malformed.
 
     Args:
-        path: file with the header ``d_eps_n,d_eps_t`` and one row per increment.
+        path: file with the header ``d_eps_n,d_eps_t`` (a 3D cell: ``d_eps_n,d_eps_t1,d_eps_t2``,
+            ``PATH_HEADERS``) and one row per increment.
 
     Returns:
-        Local strain increments (d_eps_n, d_eps_t) [-], shape (n_increments, 2),
-        compression positive, each finite and in (-1, 1).
+        Local strain increments (d_eps_n, d_eps_t) [-], shape (n_increments, 2), or (d_eps_n,
+        d_eps_t1, d_eps_t2), shape (n_increments, 3); compression positive, each finite and in (-1, 1).
     """
     if not path.is_file():
         raise UserError(f"path file {path} does not exist")
@@ -98,8 +116,10 @@ def read_path(path: Path) -> np.ndarray:
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(f"cannot read path file {path}: {exc}") from None
     header = tuple(name.strip() for name in lines[0].split(",")) if lines else ()
-    if header != PATH_HEADER:
-        raise UserError(f"{path}: header must be '{','.join(PATH_HEADER)}', got {lines[0] if lines else ''!r}")
+    if header not in PATH_HEADERS.values():
+        raise UserError(f"{path}: header must be '{','.join(PATH_HEADERS[2])}' (a planar cell) or "
+                        f"'{','.join(PATH_HEADERS[3])}' (a 3D cell), got {lines[0] if lines else ''!r}")
+    count = {2: "two", 3: "three"}[len(header)]
     if len(lines) == 1:
         raise UserError(f"{path}: no increments after the header")
     rows = []
@@ -109,8 +129,8 @@ def read_path(path: Path) -> np.ndarray:
             values = [float(field) for field in fields]
         except ValueError:
             values = []
-        if len(values) != 2:
-            raise UserError(f"{path} line {number}: expected two numbers d_eps_n,d_eps_t, got {line!r}")
+        if len(values) != len(header):
+            raise UserError(f"{path} line {number}: expected {count} numbers {','.join(header)}, got {line!r}")
         if not all(math.isfinite(value) and abs(value) < 1.0 for value in values):
             raise UserError(f"{path} line {number}: increments must be finite and in (-1, 1), got {line!r}")
         rows.append(values)
@@ -136,10 +156,10 @@ def _backend_options(args: argparse.Namespace) -> dict:
 
 def check_path_for_backend(path: Path, d_eps: np.ndarray, backend: str) -> None:
     """UserError (one line) for path rows the backend cannot do: for the ann, a row with
-    ``|d_eps| = sqrt(d_eps_n^2 + d_eps_t^2)`` above ``ANN_MAX_INCREMENT``."""
+    ``|d_eps| = sqrt(d_eps_n^2 + d_eps_t^2)`` (3D: of the three components) above ``ANN_MAX_INCREMENT``."""
     if backend != "ann":
         return
-    size = np.hypot(d_eps[:, 0], d_eps[:, 1])
+    size = np.linalg.norm(d_eps, axis=1)
     too_large = np.flatnonzero(size > ANN_MAX_INCREMENT)
     if too_large.size:
         row = int(too_large[0])
@@ -155,9 +175,9 @@ def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
     Args:
         model: a ``warp_hcell.core.contract.CellModel``.
         mesostructure: the cell it starts from.
-        d_eps: local strain increments (d_eps_n, d_eps_t) [-], shape (n_increments, 2),
-            compression positive.
-        positions: also return the grain centres x_n{i}, x_t{i} [m].
+        d_eps: local strain increments (d_eps_n, d_eps_t) [-], shape (n_increments, 2), or of a 3D
+            cell (d_eps_n, d_eps_t1, d_eps_t2), shape (n_increments, 3); compression positive.
+        positions: also return the grain centres x_n{i}, x_t{i} [m] (3D: x_n{i}, x_t1{i}, x_t2{i}).
 
     Returns:
         (columns, table): the names of the observables written, and their values after
@@ -166,16 +186,32 @@ def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
     state = model.init_state(mesostructure, 1)
     rows = []
     columns: list[str] | None = None
+    wanted = COLUMNS_3D if mesostructure.dim == 3 else COLUMNS
     for increment in d_eps:
         state, _ = model.step(state, increment[None, :])
         observed = model.observables(state)
         if columns is None:
-            columns = [name for name in COLUMNS if name in observed]
+            columns = [name for name in wanted if name in observed]
             if positions:
                 labels = sorted({int(name[3:]) for name in observed if name.startswith("x_n") and name[3:].isdigit()})
-                columns += [f"x_{axis}{label}" for label in labels for axis in "nt"]
+                columns += [f"x_{axis}{label}" for label in labels for axis in AXIS_NAMES[mesostructure.dim]]
         rows.append([float(observed[name][0]) for name in columns])
     return columns, np.array(rows, dtype=np.float64)
+
+
+def path_cell(args: argparse.Namespace, dim: int) -> Mesostructure:
+    """The cell of the element test: --mesostructure, else the H-cell of the path's dimension ``dim``
+    (2: ``h_cell``, 3: ``DEFAULT_3D_CELL``) at --alpha0 and --radius; UserError (one line) where the
+    path's columns do not match the cell's dimension."""
+    if args.mesostructure is None and dim == 2:
+        return h_cell(args.alpha0, args.radius)
+    spec = args.mesostructure or mesostructure_arg(f"{DEFAULT_3D_CELL}:radius={args.radius!r}")
+    meso = spec.build(args.alpha0)
+    if meso.dim != dim:
+        raise UserError(f"{args.path}: a path of {len(PATH_HEADERS[dim])} columns ({','.join(PATH_HEADERS[dim])}) "
+                        f"but --mesostructure {spec.text} is a {'3D' if meso.dim == 3 else 'planar'} cell, whose "
+                        f"path has the header {','.join(PATH_HEADERS[meso.dim])}")
+    return meso
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -184,16 +220,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     set_verbosity(args)
     _check_out(args.out, overwrite=args.overwrite)
     d_eps = read_path(args.path)
+    meso = path_cell(args, d_eps.shape[1])
     check_path_for_backend(args.path, d_eps, args.backend)
     if args.backend == DEM_ONLY_BACKEND and not args.verbose:
         quiet_warp(args.device)
     law = contact_law_from_args(args)
-    meso = args.mesostructure.build(args.alpha0) if args.mesostructure is not None else h_cell(args.alpha0, args.radius)
-    model = make_cell_model(args.backend, contact_law=law, radius=args.radius, **_backend_options(args))
+    model = make_cell_model(args.backend, contact_law=law, radius=args.radius, dim=meso.dim, **_backend_options(args))
     refuse_uncertified(model, args)
-    columns, table = run_path(model, meso, d_eps, positions=args.positions)
-    with writing_to(args.out), atomic_write(args.out) as tmp:
-        np.savetxt(tmp, table, fmt="%.17g", delimiter=",", header=",".join(columns), comments="")
+    with output_lock(args.out):
+        columns, table = run_path(model, meso, d_eps, positions=args.positions)
+        with writing_to(args.out), atomic_write(args.out) as tmp:
+            np.savetxt(tmp, table, fmt="%.17g", delimiter=",", header=",".join(columns), comments="")
     return 0
 
 

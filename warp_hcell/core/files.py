@@ -4,7 +4,8 @@
   writable, before any work;
 - ``atomic_write(path)``: a temporary file renamed onto ``path`` on success;
 - ``output_lock(path)``: an exclusive lock, so that a second run on the same output exits at
-  once (``UserError``); SIGTERM runs the same clean-up as Ctrl-C inside it;
+  once (``UserError``); SIGTERM runs the same clean-up as Ctrl-C inside it; taking it removes
+  the temporary files that a killed run's ``atomic_write`` left (``remove_stale_temporaries``);
 - ``output_folder(path)``: a hidden working folder that replaces ``path`` as a unit.
 """
 
@@ -14,6 +15,7 @@ import ctypes
 import errno
 import fcntl
 import os
+import re
 import shutil
 import signal
 import tempfile
@@ -45,16 +47,31 @@ def check_output_path(path: Path, *, overwrite: bool) -> Path:
     return path
 
 
+TEMPORARY_SUFFIX = ".tmp"
+"""Suffix of the temporary files of ``atomic_write``."""
+_TEMPORARY_NAME = re.compile(r"\.(?P<name>.+)\.[a-z0-9_]{8}" + re.escape(TEMPORARY_SUFFIX))
+"""Name of a temporary file of ``atomic_write``: ``.NAME.`` then mkstemp's eight characters."""
+
+
+def temporary_of(candidate: Path) -> str | None:
+    """The file name NAME whose ``atomic_write`` temporary ``candidate`` is, or None if it is not one."""
+    match = _TEMPORARY_NAME.fullmatch(Path(candidate).name)
+    return None if match is None else match.group("name")
+
+
 @contextmanager
 def atomic_write(path: Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` only on success.
 
     An interrupted or failed run therefore never leaves a truncated file in place of a good
-    one. The file gets the usual permissions (0666 less the umask), not mkstemp's 0600.
+    one. The file gets the usual permissions (0666 less the umask), not mkstemp's 0600. Its
+    name is ``.NAME.XXXXXXXX.tmp`` (eight random characters, so that concurrent writers never
+    share one); the one a SIGKILL leaves behind is removed by the next run that takes
+    ``output_lock`` on ``path`` or on its folder (``remove_stale_temporaries``).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMPORARY_SUFFIX, dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     umask = os.umask(0)
@@ -67,6 +84,20 @@ def atomic_write(path: Path) -> Iterator[Path]:
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def remove_stale_temporaries(path: Path) -> list[Path]:
+    """Remove what a killed ``atomic_write`` left of output ``path``: its temporaries next to it
+    and, for a folder, those of the files in it. Call only while holding ``output_lock(path)``
+    (every writer of ``path`` holds it, so no live run owns them). Returns the files removed."""
+    path = Path(path)
+    stale = [p for p in path.parent.iterdir() if temporary_of(p) == path.name]
+    if path.is_dir():
+        stale += [p for p in path.iterdir() if temporary_of(p) is not None]
+    stale = [p for p in stale if p.is_file()]
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return stale
 
 
 def _sibling(path: Path, tag: str) -> Path:
@@ -96,7 +127,8 @@ def output_lock(path: Path) -> Iterator[None]:
     on the same output raises ``UserError`` (one line) at once instead of waiting. The lock
     file is removed on release, also on Ctrl-C or SIGTERM (``sigterm_as_interrupt``); one
     left by SIGKILL holds no lock (the kernel released it) and is taken over and removed by
-    the next run.
+    the next run, together with the temporary files of that run's interrupted atomic writes
+    to ``path`` (``remove_stale_temporaries``).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -118,6 +150,7 @@ def output_lock(path: Path) -> Iterator[None]:
             break
         os.close(fd)  # the previous holder removed the file while we opened it: take the new one
     try:
+        remove_stale_temporaries(path)
         with sigterm_as_interrupt():
             yield
     finally:

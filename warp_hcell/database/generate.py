@@ -18,7 +18,8 @@ The generator's jobs, one module each:
 3. storage and resume (``warp_hcell.database.shards``): the sidecar ``<out>.parts`` keeps each explored
    start cell, the exploration and each chunk as soon as done; an interrupted run resumes
    where it stopped (an unreadable file is recomputed); a lock keeps a second run off the
-   same ``--out``;
+   same ``--out``, and taking it removes the hidden temporary file of a final write that a
+   SIGKILL interrupted (``warp_hcell.core.files.remove_stale_temporaries``);
 4. execution (``warp_hcell.core.execution``, injected): the tasks (``warp_hcell.database.tasks``) run in this
    process, on a Dask LocalCluster (``--workers N``) or on a Dask scheduler
    (``--scheduler ADDRESS``); results come back to this process, which writes them, so the

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import json
 import tomllib
@@ -46,12 +47,14 @@ def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettin
         position = [x_n, x_t]
         driven = [true, false]              # (along n, along t)
 
-    A 3D cell (spheres) gives three coordinates per grain, position = [x_n, x_t1, x_t2] and
-    driven = [n, t1, t2], a cell_size of three lengths, and ``outer`` as the triangles of the
-    closed surface whose volume is V_cell, oriented outwards: outer = [[1, 6, 10], ...].
+    No other key is read: any other key, at the top level or in a grain, is refused with its
+    name (``check_keys``). A 3D cell (spheres) gives three coordinates per grain, position =
+    [x_n, x_t1, x_t2] and driven = [n, t1, t2], a cell_size of three lengths, and ``outer`` as
+    the triangles of the closed surface whose volume is V_cell, oriented outwards:
+    outer = [[1, 6, 10], ...].
 
     Raises:
-        MesostructureError: unreadable file or invalid description (one-line message).
+        MesostructureError: unreadable file, unknown key or invalid description (one-line message).
     """
     path = Path(path)
     try:
@@ -61,7 +64,42 @@ def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettin
         raise MesostructureError(f"cannot read mesostructure file {path}: {exc.strerror or exc}") from None
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         raise MesostructureError(f"mesostructure file {path} is not valid {path.suffix[1:].upper()}: {exc}") from None
+    check_keys(data, path)
     return _from_mapping(data, default_name=path.stem, contact_tolerance=contact_tolerance)
+
+
+FILE_KEYS = ("name", "cell_size", "outer", "pairs", "type1", "type2", "grains")
+"""Keys of a mesostructure file (``type1``, ``type2``: the H-cell labels read by ``hcell.file_labels``)."""
+GRAIN_KEYS = ("radius", "position", "driven")
+"""Keys of one grain of a mesostructure file."""
+
+
+def unknown_key_message(key: str, where: str, path: str | Path, expected: tuple[str, ...]) -> str:
+    """One line naming an unknown ``key`` found ``where`` in the file ``path``, the closest
+    expected key and all of ``expected``."""
+    close = difflib.get_close_matches(key, expected, n=1, cutoff=0.75)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"unknown key {key!r} {where} of {path}{hint}; expected one of: {', '.join(expected)}"
+
+
+def check_keys(data: Any, path: str | Path) -> None:
+    """MesostructureError (one line) for a key of a mesostructure file that nothing reads: at the
+    top level (``FILE_KEYS``) or in a grain (``GRAIN_KEYS``), so that a misspelt key is never
+    silently ignored."""
+    if not isinstance(data, Mapping):
+        raise MesostructureError(f"mesostructure file {path}: expected a table of keys ({', '.join(FILE_KEYS)})")
+    for key in data:
+        if key not in FILE_KEYS:
+            raise MesostructureError(unknown_key_message(key, "at the top level", path, FILE_KEYS))
+    grains = data.get("grains")
+    for label, grain in enumerate(grains if isinstance(grains, list) else [], start=1):
+        if not isinstance(grain, Mapping):
+            raise MesostructureError(f"mesostructure file {path}: grain {label} is not a table of "
+                                     f"{', '.join(GRAIN_KEYS)}")
+        for key in grain:
+            if key not in GRAIN_KEYS:
+                raise MesostructureError(unknown_key_message(key, f"in grain {label}",
+                                                             path, GRAIN_KEYS))
 
 
 def _from_mapping(data: Mapping[str, Any], *, default_name: str, contact_tolerance: float) -> Mesostructure:

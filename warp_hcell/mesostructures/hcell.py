@@ -104,18 +104,20 @@ def _reference_labelled(meso: Mesostructure) -> bool:
 
 
 def declare(meso: Mesostructure) -> Mesostructure:
-    """``meso`` with ``OBSERVABLES`` and the parameter ``alpha0_deg`` where its reference contacts
-    are labelled, else unchanged.
+    """``meso`` with the parameter ``alpha0_deg`` where its reference contacts are labelled, and
+    in 2D ``OBSERVABLES``; else unchanged.
 
     ``alpha0_deg`` is the angle between the axis n and the branch 2 -> 1 in the reference
-    geometry, rounded to 1e-9 deg (the cell built at ``alpha0`` gives back exactly ``alpha0``
-    for any value with at most nine decimals).
+    geometry (a 3D cell: in plane A, (n, t1)), rounded to 1e-9 deg (the cell built at
+    ``alpha0`` gives back exactly ``alpha0`` for any value with at most nine decimals).
     """
-    if meso.dim != 2 or not _reference_labelled(meso):
+    if meso.dim not in (2, 3) or not _reference_labelled(meso):
         return meso
     branch = meso.position[0] - meso.position[1]
-    alpha0 = round(math.degrees(math.atan2(branch[1], branch[0])), 9)
-    return replace(meso, observables=OBSERVABLES, parameters={**meso.parameters, "alpha0_deg": alpha0})
+    lateral = branch[1] if meso.dim == 2 else math.hypot(*branch[1:])
+    alpha0 = round(math.degrees(math.atan2(lateral, branch[0])), 9)
+    observables = OBSERVABLES if meso.dim == 2 else meso.observables
+    return replace(meso, observables=observables, parameters={**meso.parameters, "alpha0_deg": alpha0})
 
 
 def reference(alpha0_deg: float | np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:

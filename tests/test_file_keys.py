@@ -1,0 +1,129 @@
+"""A key that nothing reads in a mesostructure or programme file is refused with its name: one
+line, exit code 2, before any run, the existing output untouched (a misspelt ``pairs`` or a
+per-grain ``friction`` was silently ignored)."""
+
+from __future__ import annotations
+
+import json
+import time
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from homogenization import loading
+from homogenization.cli import biaxial, triaxial
+from warp_hcell.core import cli
+from warp_hcell.mesostructures.files import load_mesostructure
+from warp_hcell.mesostructures.mesostructure import MesostructureError
+
+ROOT = Path(__file__).resolve().parents[1]
+CELL = ROOT / "warp_hcell" / "data" / "h_cell_fine_grain.toml"
+PROGRAMMES = ROOT / "homogenization" / "data" / "programmes"
+TINY = ["--alpha0", "55", "--eps-max", "0.002", "--increment", "5e-4", "--orientations", "12", "-q"]
+
+
+def edited(tmp_path: Path, source: Path, old: str, new: str, name: str) -> Path:
+    text = source.read_text()
+    assert old in text
+    path = tmp_path / name
+    path.write_text(text.replace(old, new, 1))
+    return path
+
+
+MESO_CASES = {
+    "pair": ('type1 = [[1, 2]', 'pair = [[1, 2], [2, 3]]\ntype1 = [[1, 2]',
+             "unknown key 'pair' at the top level of {path} (did you mean 'pairs'?); expected one of: name, cell_size, "
+             "outer, pairs, type1, type2, grains"),
+    "typ1": ("type1 =", "typ1 =", "unknown key 'typ1' at the top level of {path} (did you mean 'type1'?)"),
+    "friction": ("radius = 0.5\nposition = [-0.5,", "radius = 0.5\nfriction = 0.3\nposition = [-0.5,",
+                 "unknown key 'friction' in grain 3 of {path}; expected one of: radius, position, driven"),
+}
+
+
+@pytest.mark.parametrize("case", list(MESO_CASES))
+def test_an_unknown_key_of_a_mesostructure_file_is_named(case, tmp_path):
+    old, new, message = MESO_CASES[case]
+    path = edited(tmp_path, CELL, old, new, f"{case}.toml")
+    with pytest.raises(MesostructureError) as info:
+        load_mesostructure(path)
+    assert message.format(path=path) in str(info.value)
+    as_json = tmp_path / f"{case}.json"  # the same in JSON
+    as_json.write_text(json.dumps(tomllib.loads(path.read_text())))
+    with pytest.raises(MesostructureError, match=f"unknown key '{case}'"):
+        load_mesostructure(as_json)
+
+
+def test_the_shipped_files_have_no_unknown_key():
+    for path in sorted((ROOT / "warp_hcell" / "data").glob("*.toml")):
+        load_mesostructure(path)
+    for path in sorted(PROGRAMMES.iterdir()):
+        loading.read_programme(path)
+
+
+@pytest.fixture
+def previous_run(tmp_path) -> Path:
+    out = tmp_path / "run"
+    assert cli.run_main(biaxial.main, TINY + ["--out", str(out)]) == 0
+    return out
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def one_error_line(capsys) -> str:
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in captured.err, captured.err
+    return lines[0]
+
+
+def test_biaxial_refuses_a_mesostructure_file_with_an_unknown_key_before_any_run(previous_run, tmp_path, capsys):
+    path = edited(tmp_path, CELL, "type1 =", "typ1 =", "typ1.toml")
+    before = snapshot(tmp_path)
+    start = time.perf_counter()
+    code = cli.run_main(biaxial.main, ["--backend", "dem", "--mesostructure", str(path), *TINY, "--overwrite",
+                                       "--out", str(previous_run)])
+    assert code == 2 and time.perf_counter() - start < 10.0
+    assert one_error_line(capsys).startswith(f"hmodel: error: unknown key 'typ1' at the top level of {path}")
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("source, old, new, message", [
+    ("cyclic_constant_volume.toml", "stop_at_p =", "stop_at =",
+     "unknown key 'stop_at' in step 1 of {path} (did you mean 'stop_at_p'?); expected one of: control, target, "
+     "n_increments, label, stop_at_p, coupling"),
+    ("proportional_strain.json", '"steps": [', '"step": 1, "steps": [',
+     "unknown key 'step' at the top level of {path} (did you mean 'steps'?); expected one of: steps"),
+    ("stress_steps.toml", "n_increments =", "n_increment =", "unknown key 'n_increment' in step 1 of {path}"),
+])
+def test_an_unknown_key_of_a_programme_file_is_named(source, old, new, message, previous_run, tmp_path, capsys):
+    path = edited(tmp_path, PROGRAMMES / source, old, new, "bad" + Path(source).suffix)
+    with pytest.raises(loading.UnknownKey) as info:
+        loading.read_programme(path)
+    assert message.format(path=path) in str(info.value)
+    before = snapshot(tmp_path)
+    code = cli.run_main(biaxial.main, ["--programme", str(path), "--orientations", "12", "-q", "--overwrite",
+                                       "--out", str(previous_run)])
+    assert code == 2 and one_error_line(capsys).startswith("hmodel: error: " + message.format(path=path))
+    assert snapshot(tmp_path) == before
+
+
+def test_triaxial_names_an_unknown_key_of_its_programme(tmp_path, capsys):
+    steps = {"steps": [{"label": "iso", "control": ["strain"] * 3, "target": [0.01] * 3, "n_increments": 10,
+                        "stop_at_p": 2e5, "couplng": [0, 0, 0]}]}
+    path = tmp_path / "tri.json"
+    path.write_text(json.dumps(steps))
+    assert cli.run_main(triaxial.main, ["--programme", str(path), "-q", "--out", str(tmp_path / "out")]) == 2
+    assert one_error_line(capsys).startswith(f"hmodel: error: unknown key 'couplng' in step 1 of {path} "
+                                             f"(did you mean 'coupling'?)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tri.json"]
+
+
+def test_a_stored_programme_keeps_reading_back():
+    programme = loading.triaxial(2e5, 0.01, 1e-3, test="true", iso_increment=5e-4, b=0.5)
+    assert loading.from_dict(loading.to_dict(programme)) == programme
+    with pytest.raises(loading.UnknownKey, match="unknown key 'extra' in step 2;"):
+        loading.from_dict({"steps": [*loading.to_dict(programme)["steps"][:1],
+                                     {**loading.to_dict(programme)["steps"][1], "extra": 1}]})
