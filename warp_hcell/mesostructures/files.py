@@ -15,6 +15,7 @@ import difflib
 import hashlib
 import json
 import tomllib
+from dataclasses import replace
 from itertools import combinations
 from pathlib import Path
 from typing import Any, Mapping
@@ -47,6 +48,8 @@ def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettin
         position = [x_n, x_t]
         driven = [true, false]              # (along n, along t)
 
+    A 3D cell may add ``kinematics = "axisymmetric"`` (``KINEMATICS``; default "projected"): the
+    macro strain drives it by its axisymmetric part (the kind ``hcell3d-axisym``).
     No other key is read: any other key, at the top level or in a grain, is refused with its
     name (``check_keys``). A 3D cell (spheres) gives three coordinates per grain, position =
     [x_n, x_t1, x_t2] and driven = [n, t1, t2], a cell_size of three lengths, and ``outer`` as
@@ -68,10 +71,24 @@ def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettin
     return _from_mapping(data, default_name=path.stem, contact_tolerance=contact_tolerance)
 
 
-FILE_KEYS = ("name", "cell_size", "outer", "pairs", "type1", "type2", "grains")
+FILE_KEYS = ("name", "cell_size", "outer", "pairs", "type1", "type2", "grains", "kinematics")
 """Keys of a mesostructure file (``type1``, ``type2``: the H-cell labels read by ``hcell.file_labels``)."""
 GRAIN_KEYS = ("radius", "position", "driven")
 """Keys of one grain of a mesostructure file."""
+KINEMATICS = ("projected", "axisymmetric")
+"""Values of the ``kinematics`` key of a 3D cell's file or description: how the macro strain drives the
+cell (homogenization.orientation3d); "axisymmetric" sets the parameter ``hcell.AXISYMMETRIC_KINEMATICS``."""
+
+
+def _with_kinematics(meso: Mesostructure, kinematics: Any, where: str) -> Mesostructure:
+    """``meso`` with the parameter of the ``kinematics`` read from a file or description ``where``."""
+    if kinematics is None or kinematics == "projected":
+        return meso
+    if kinematics != "axisymmetric":
+        raise MesostructureError(f"{where}: kinematics = {kinematics!r} is not one of {', '.join(KINEMATICS)}")
+    if meso.dim != 3:
+        raise MesostructureError(f"{where}: kinematics = 'axisymmetric' needs a 3D cell")
+    return replace(meso, parameters={**meso.parameters, hcell.AXISYMMETRIC_KINEMATICS: 1.0})
 
 
 def unknown_key_message(key: str, where: str, path: str | Path, expected: tuple[str, ...]) -> str:
@@ -121,7 +138,7 @@ def _from_mapping(data: Mapping[str, Any], *, default_name: str, contact_toleran
                              outer=np.asarray(data["outer"], dtype=np.int64) - 1,
                              cell_size=np.asarray([float(v) for v in data["cell_size"]], float),
                              pair_label=hcell.file_labels(name, pairs, data), contact_tolerance=contact_tolerance)
-        return with_declarations(meso)
+        return _with_kinematics(with_declarations(meso), data.get("kinematics"), f"mesostructure {name!r}")
     except KeyError as exc:
         raise MesostructureError(f"mesostructure {name!r}: missing key {exc.args[0]!r}") from None
     except (TypeError, ValueError) as exc:
@@ -145,6 +162,8 @@ def describe(meso: Mesostructure) -> str:
                             "contact_tolerance": float(meso.contact_tolerance)}
     for key, name in DESCRIPTION_FIELDS.items():
         data[key] = np.asarray(getattr(meso, name)).tolist()
+    if meso.parameters.get(hcell.AXISYMMETRIC_KINEMATICS, 0.0):
+        data["kinematics"] = "axisymmetric"  # only then: descriptions of other cells keep their text
     return json.dumps(data, sort_keys=True, separators=(",", ":"))
 
 
@@ -161,12 +180,12 @@ def from_description(text: str) -> Mesostructure:
     if not isinstance(data, dict) or data.get("format") != "meso-hmodel-mesostructure":
         raise MesostructureError("text is not a mesostructure description (format meso-hmodel-mesostructure)")
     try:
-        return with_declarations(Mesostructure(
+        return _with_kinematics(with_declarations(Mesostructure(
             name=str(data["name"]), radius=np.asarray(data["radius"], np.float64),
             position=np.asarray(data["position"], np.float64), driven=np.asarray(data["driven"], bool),
             pairs=np.asarray(data["pairs"], np.int64).reshape(-1, 2), outer=np.asarray(data["outer"], np.int64),
             cell_size=np.asarray(data["cell_size"], np.float64), pair_label=np.asarray(data[LABEL_KEY], np.int8),
-            contact_tolerance=float(data["contact_tolerance"])))
+            contact_tolerance=float(data["contact_tolerance"]))), data.get("kinematics"), "mesostructure description")
     except KeyError as exc:
         raise MesostructureError(f"mesostructure description: missing key {exc.args[0]!r}") from None
 
