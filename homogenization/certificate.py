@@ -25,17 +25,28 @@ cell's grain engaging at another strain weighs there what 360 averaged cells do 
 ``COVERAGE_EVERY``-th increment, all cells) within the out-of-distribution threshold of the
 model's index (``training.ood``; None without one).
 
-The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_test``, ``passed``,
+The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_test``,
 ``tests`` (name, kind, sense, p0, dp, dq, scale [N/m]; inf and an ``error`` where the ANN could
-not follow the programme, e.g. a drained increment without convergence), ``rollout``, ``coverage``, the settings,
-``model_sha256`` (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the
-tree differs), ``seconds``. ``--write`` stores it in the model's JSON under ``"certificate"``
-(the ANN backend then checks it), ``--out`` writes it to a JSON file; the command prints one line per test and the verdict, and
-exits 0 whether the model passes or not (a failed certificate is a result, recorded as such).
+not follow the programme, e.g. a drained increment without convergence), ``rollout``,
+``coverage``, the settings, ``cell_parameters`` (the cell's, e.g. alpha0_deg), ``model_sha256``
+(of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the tree differs),
+``seconds``, and the verdict (``homogenization.envelope``): ``within_target`` (worst <=
+target), ``below_minimum`` (where the settings are weaker than the minimum certificate
+``MINIMUM``, whose values the constants above take), ``verdict`` ("passed", "failed", "weak")
+and ``passed`` (within the target AND the minimum met), and ``envelope`` (what the tests
+covered: pressures, axial strain, test kinds, cell; the ANN backend warns when a run leaves
+it). ``--write`` stores it in the model's JSON under ``"certificate"`` (the ANN backend then
+checks it), ``--out`` writes it to a JSON file (an existing one only with --overwrite); the
+command prints one line per test, the verdict and the envelope, and exits with the verdict:
+0 passed, ``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the target but below the
+minimum (the certificate is recorded in every case).
 ``certify(dem_states=...)`` also hands back the DEM cell states met along each test (the
 active-learning rounds of ``homogenization.active`` probe those of the failing tests).
 ``--data DB.h5`` first (re)builds the model's out-of-distribution index from its database
-(``training.ood.index_for_model``), for a model trained before the index existed. Bad input (missing model, a mesostructure the model does not take) is one line and exit 2.
+(``training.ood.index_for_model``), for a model trained before the index existed. Bad input (missing model or JSON, a
+mesostructure the model does not take, --out a folder, an existing file without --overwrite
+or in a folder that cannot be written, --write on a JSON that cannot be written, --data not a
+database) is one line and exit 2, before any test.
 
 Sign convention: compression and contraction positive; stresses in N/m.
 """
