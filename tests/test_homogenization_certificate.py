@@ -150,8 +150,9 @@ def test_the_envelope_names_every_way_out():
     reversal = (loading.isotropic(2e5), loading.constant_volume_biaxial(0.08, 80),
                 loading.constant_volume_biaxial(-0.16, 160))
     assert outside(envelope, reversal) == []  # +8 %, then back to -8 %: within +-10 % of the shear start
-    assert outside(envelope, inside, mesostructure="h-cell alpha0=40 deg") == [
-        "cell 'h-cell alpha0=40 deg' (certified: 'h-cell alpha0=55 deg')"]
+    assert outside(envelope, inside, mesostructure="h-cell alpha0=40 deg", cell_parameters={"alpha0_deg": 40.0}) == [
+        "cell 'h-cell alpha0=40 deg': alpha0_deg = 40 (certified: 55)"]
+    assert outside(envelope, inside, mesostructure="hcell:alpha0=55", cell_parameters={"alpha0_deg": 55.0}) == []
     no_p0 = (loading.constant_volume_biaxial(0.01, 10),)
     assert "before any isotropic compression" in outside(envelope, no_p0)[0]
 
