@@ -99,7 +99,7 @@ EXIT_WEAK = 4
 """Exit code of those commands when the certificate is within the target but below ``MINIMUM`` (not passed)."""
 EXIT_CODES_HELP = ("exit codes: 0 the certificate passed; 2 bad input (one line, before any work); 3 the certificate "
                    "failed (worst > target); 4 within the target but below the minimum certificate "
-                   "(homogenization.envelope.MINIMUM), so not passed; 130 interrupted (docs/usage.md, Error handling)")
+                   "(homogenization.envelope.MINIMUM), so not passed; 130 interrupted (docs/usage.md, Failures and existing output)")
 """The --help epilog of the commands that end with a certificate (certify, train, learn)."""
 COVERAGE_EVERY = 50
 """Increments between two DEM states sampled for the coverage."""
