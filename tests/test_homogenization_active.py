@@ -184,6 +184,23 @@ def test_hmodel_train_refuses_a_bad_budget_before_training(tmp_path, capsys):
     assert len(err) == 1 and "rounds = -1 must be >= 0" in err[0] and not (tmp_path / "m.pt").exists()
 
 
+def test_hmodel_learn_refuses_an_out_below_a_file_in_one_line_before_any_work(tmp_path, capsys):
+    """Was a FileExistsError traceback from the output lock; the file is left as it was."""
+    from homogenization.cli import hmodel
+
+    (tmp_path / "file").write_text("keep")
+    assert hmodel.main(["learn", *LEARN, "--out", str(tmp_path / "file" / "run")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not a folder" in err[0] and (tmp_path / "file").read_text() == "keep"
+    assert "exit codes: 0 the certificate passed" in " ".join(hmodel_help(hmodel, "learn", capsys).split())
+    assert "3 the certificate failed" in " ".join(hmodel_help(hmodel, "train", capsys).split())
+
+
+def hmodel_help(hmodel, command: str, capsys) -> str:
+    assert hmodel.main([command, "--help"]) == 0
+    return capsys.readouterr().out
+
+
 def test_multiply_adds_and_the_ladder_rule(tiny):
     _, model = tiny  # TRAIN: --hidden 16, one layer of 16
     assert active.multiply_adds((40, 40), 66, 20) == 66 * 40 + 40 * 40 + 40 * 20
