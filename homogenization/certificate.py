@@ -16,7 +16,8 @@ Each test runs through ``homogenization.driver.run`` with the ANN and with the D
 (``homogenization.backends``) from the same mesostructure. Figures per test, over the shear
 stages (the isotropic stages may differ by one increment, as p lands on p0): ``dp`` = max
 abs(p_ann - p_dem) / scale, ``dq`` likewise, scale = max(p0, largest DEM p of the test). The
-certificate passes when the worst of them is <= ``TARGET``.
+certificate passes when the worst of them is <= ``TARGET`` and its settings meet the minimum certificate
+(``homogenization.envelope.MINIMUM``; the constants below are that minimum).
 
 Also reported, not part of ``worst``: the single-cell rollouts of ``training.rollout`` (held-out
 constant-volume and drained legs, each error a fraction of that path's own largest moment: one
