@@ -14,7 +14,9 @@ path of its own (new ``path_id``), so training's split by path keeps a test's st
 The loop (``learn``): train (``training.train``; from random weights, or with
 ``ActiveSettings.warm_start`` from the previous round's, ``--init-from``), certify, and while the
 certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds) is not spent,
-add a round and retrain. Every round is printed (samples added,
+add a round and retrain (a certificate within its target but below the minimum certificate,
+``homogenization.envelope.MINIMUM``, is not passed, and no round can mend it: the loop stops).
+Every round is printed (samples added,
 certificate worst, seconds) and stored in the model's JSON under ``active_learning``.
 
 Layering: this module joins ``training`` and the DEM of ``warp_hcell``; neither imports it.
@@ -34,6 +36,7 @@ import h5py
 import numpy as np
 
 from homogenization import certificate
+from homogenization.envelope import verdict
 from training import train as training_train
 from training.checkpoint import metadata_path
 from training.network import n_features
@@ -229,7 +232,7 @@ def round_line(entry: Mapping[str, Any]) -> str:
     """One line of a round's report."""
     return (f"active round {entry['round']}: +{entry['samples_added']} samples ({entry['samples_total']} in all), "
             f"certificate worst {100 * entry['worst']:.3f} % ({entry['worst_test']}), "
-            f"{'PASSED' if entry['passed'] else 'FAILED'}, {entry['seconds']:.1f} s"
+            f"{entry.get('verdict', 'passed' if entry['passed'] else 'failed').upper()}, {entry['seconds']:.1f} s"
             + (f" (training {'x'.join(map(str, entry['hidden']))}, {entry['epochs']} epochs"
                f"{', warm start' if entry.get('warm_start') else ''})"
                if "epochs" in entry else ""))
@@ -262,7 +265,7 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
         widths = tuple(stored[-1].get("hidden") or meta["architecture"]["hidden"])
         train_model(db, model, _round_args(train_args, model, settings, widths), rounds)
     elif _current(meta.get("certificate"), model, options) and rounds and rounds[-1]["round"] == len(stored) and (
-            meta["certificate"]["passed"] or len(stored) >= settings.rounds or added_total >= settings.max_samples):
+            verdict(meta["certificate"]) != "failed" or len(stored) >= settings.rounds or added_total >= settings.max_samples):
         log(round_line(rounds[-1]) + " (done before)")
         return rounds
     t0 = time.perf_counter()
@@ -270,11 +273,12 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
     if not rounds or rounds[-1]["round"] != len(stored):
         rounds.append({"round": len(stored), "samples_added": stored[-1]["samples"] if stored else 0,
                        "samples_total": _n_samples(db), "worst": cert["worst"], "worst_test": cert["worst_test"],
-                       "passed": cert["passed"], "seconds": time.perf_counter() - t0, **training_record(model)})
+                       "passed": cert["passed"], "verdict": cert["verdict"], "seconds": time.perf_counter() - t0,
+                       **training_record(model)})
         log(round_line(rounds[-1]))
     _record(model, rounds, cert)
     meso = from_description(str(_attrs(db)["mesostructure"]))
-    while not cert["passed"]:
+    while cert["verdict"] == "failed":  # a weak certificate (below the minimum) is no matter of samples
         k = len(stored) + 1
         n = min(settings.samples_per_round, settings.max_samples - added_total)
         if k > settings.rounds or n <= 0 or time.perf_counter() - start > settings.max_seconds:
@@ -297,7 +301,8 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
         cert, states = _certify(model, options, settings, threads)
         rounds.append({"round": k, "samples_added": entry["samples"], "samples_total": _n_samples(db),
                        "tests": names, "worst": cert["worst"], "worst_test": cert["worst_test"],
-                       "passed": cert["passed"], "seconds": time.perf_counter() - t0, **training_record(model)})
+                       "passed": cert["passed"], "verdict": cert["verdict"], "seconds": time.perf_counter() - t0,
+                       **training_record(model)})
         log(round_line(rounds[-1]))
         _record(model, rounds, cert)
     return rounds

@@ -16,7 +16,8 @@ Each test runs through ``homogenization.driver.run`` with the ANN and with the D
 (``homogenization.backends``) from the same mesostructure. Figures per test, over the shear
 stages (the isotropic stages may differ by one increment, as p lands on p0): ``dp`` = max
 abs(p_ann - p_dem) / scale, ``dq`` likewise, scale = max(p0, largest DEM p of the test). The
-certificate passes when the worst of them is <= ``TARGET``.
+certificate passes when the worst of them is <= ``TARGET`` and its settings meet the minimum certificate
+(``homogenization.envelope.MINIMUM``; the constants below are that minimum).
 
 Also reported, not part of ``worst``: the single-cell rollouts of ``training.rollout`` (held-out
 constant-volume and drained legs, each error a fraction of that path's own largest moment: one
@@ -25,17 +26,28 @@ cell's grain engaging at another strain weighs there what 360 averaged cells do 
 ``COVERAGE_EVERY``-th increment, all cells) within the out-of-distribution threshold of the
 model's index (``training.ood``; None without one).
 
-The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_test``, ``passed``,
+The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_test``,
 ``tests`` (name, kind, sense, p0, dp, dq, scale [N/m]; inf and an ``error`` where the ANN could
-not follow the programme, e.g. a drained increment without convergence), ``rollout``, ``coverage``, the settings,
-``model_sha256`` (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the
-tree differs), ``seconds``. ``--write`` stores it in the model's JSON under ``"certificate"``
-(the ANN backend then checks it), ``--out`` writes it to a JSON file; the command prints one line per test and the verdict, and
-exits 0 whether the model passes or not (a failed certificate is a result, recorded as such).
+not follow the programme, e.g. a drained increment without convergence), ``rollout``,
+``coverage``, the settings, ``cell_parameters`` (the cell's, e.g. alpha0_deg), ``model_sha256``
+(of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the tree differs),
+``seconds``, and the verdict (``homogenization.envelope``): ``within_target`` (worst <=
+target), ``below_minimum`` (where the settings are weaker than the minimum certificate
+``MINIMUM``, whose values the constants above take), ``verdict`` ("passed", "failed", "weak")
+and ``passed`` (within the target AND the minimum met), and ``envelope`` (what the tests
+covered: pressures, axial strain, test kinds, cell; the ANN backend warns when a run leaves
+it). ``--write`` stores it in the model's JSON under ``"certificate"`` (the ANN backend then
+checks it), ``--out`` writes it to a JSON file (an existing one only with --overwrite); the
+command prints one line per test, the verdict and the envelope, and exits with the verdict:
+0 passed, ``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the target but below the
+minimum (the certificate is recorded in every case).
 ``certify(dem_states=...)`` also hands back the DEM cell states met along each test (the
 active-learning rounds of ``homogenization.active`` probe those of the failing tests).
 ``--data DB.h5`` first (re)builds the model's out-of-distribution index from its database
-(``training.ood.index_for_model``), for a model trained before the index existed. Bad input (missing model, a mesostructure the model does not take) is one line and exit 2.
+(``training.ood.index_for_model``), for a model trained before the index existed. Bad input (missing model or JSON, a
+mesostructure the model does not take, --out a folder, an existing file without --overwrite
+or in a folder that cannot be written, --write on a JSON that cannot be written, --data not a
+database) is one line and exit 2, before any test.
 
 Sign convention: compression and contraction positive; stresses in N/m.
 """
@@ -45,6 +57,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shlex
 import time
 from pathlib import Path
@@ -53,33 +66,42 @@ from typing import Any, Sequence
 import numpy as np
 
 from homogenization import driver, loading
+from homogenization.envelope import dimension_of, envelope_of, MINIMUM, shortfalls, verdict
 from homogenization.backends import make_cell_model
 from homogenization.cli.options import add_spatial_rule_arguments, command_parser
 from training.checkpoint import load_checkpoint, metadata_path, read_metadata
 from training.dataset import load_database
 from training.ood import index_for_model, index_path, state_features
 from training.rollout import rollout_report
-from warp_hcell.core.files import atomic_write
-from warp_hcell.core.cli import UserError, positive_float, positive_int, quiet_warp, run_main, say, set_verbosity
+from warp_hcell.core.files import atomic_write, check_output_path
+from warp_hcell.core.cli import UserError, positive_float, positive_int, quiet_warp, run_main, say, set_verbosity, writing_to
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.core.provenance import file_sha256, git_revision
 from warp_hcell.mesostructures.builders import mesostructure_arg
 from warp_hcell.mesostructures.files import from_description
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
-TARGET = 0.02
+TARGET = MINIMUM.target
 """Largest dp or dq allowed, as a fraction of max(p0, largest DEM p) [-]."""
-PRESSURES = (2e5, 1e6)
+PRESSURES = MINIMUM.pressures
 """Confining pressures p0 of the tests [N/m]."""
-EPS_MAX = 0.10
+EPS_MAX = MINIMUM.eps_max
 """Axial strain of each shear stage, counted from its start [-] (the reversal: +EPS_MAX / 2, then back by EPS_MAX)."""
-INCREMENT = 1e-4
+INCREMENT = MINIMUM.increment
 """Strain increment of every stage [-] (isotropic: per component)."""
-N_ORIENTATIONS = 24
+N_ORIENTATIONS = MINIMUM.n_orientations
 """Cell orientations of every homogenised test of a planar cell."""
-SPATIAL_RULE = (11, 4)
+SPATIAL_RULE = MINIMUM.spatial_rule
 """(Lebedev order, spins) of every homogenised test of a spatial cell: 25 axes x 4 spins = 100
 cells (the test compares two backends cell by cell, so a coarse rule serves; docs/triaxial.md)."""
+EXIT_FAILED = 3
+"""Exit code of ``certify``, ``train`` and ``learn`` when the certificate failed (worst > target)."""
+EXIT_WEAK = 4
+"""Exit code of those commands when the certificate is within the target but below ``MINIMUM`` (not passed)."""
+EXIT_CODES_HELP = ("exit codes: 0 the certificate passed; 2 bad input (one line, before any work); 3 the certificate "
+                   "failed (worst > target); 4 within the target but below the minimum certificate "
+                   "(homogenization.envelope.MINIMUM), so not passed; 130 interrupted (docs/usage.md, Failures and existing output)")
+"""The --help epilog of the commands that end with a certificate (certify, train, learn)."""
 COVERAGE_EVERY = 50
 """Increments between two DEM states sampled for the coverage."""
 
@@ -262,20 +284,27 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
         coverage = {"fraction_within": float(inside.mean()), "n_states": int(inside.size),
                     "threshold": ann.ood.threshold, "every_increments": COVERAGE_EVERY}
     report = (rollout_report(ann.net, meso, law, settings, increments=(increment,)) if rollout else None)
-    return {
+    worst_figure = max(worst["dp"], worst["dq"])
+    cert = {
         "target": target,
-        "worst": max(worst["dp"], worst["dq"]),
+        "worst": worst_figure,
         "worst_test": worst["name"],
-        "passed": bool(max(worst["dp"], worst["dq"]) <= target),
         "metric": "max over the shear stages of abs(p_ann - p_dem) and abs(q_ann - q_dem) / max(p0, largest DEM p)",
         "tests": results,
         "rollout": report,
         "coverage": coverage,
         "settings": {**requested, "mesostructure": meso.name, "n_cells": n_cells},
+        "cell_parameters": {k: float(v) for k, v in meso.parameters.items()},
         "model_sha256": file_sha256(model_path),
         "revision": git_revision(),
         "seconds": time.perf_counter() - start,
     }
+    cert["within_target"] = bool(worst_figure <= target)
+    cert["below_minimum"] = shortfalls(cert, meso.dim)
+    cert["verdict"] = verdict(cert)
+    cert["passed"] = cert["verdict"] == "passed"
+    cert["envelope"] = envelope_of(cert)
+    return cert
 
 
 def write_certificate(model_path: Path, certificate: dict[str, Any]) -> Path:
@@ -337,9 +366,25 @@ def summary_lines(cert: dict[str, Any]) -> list[str]:
     if cert["coverage"] is not None:
         lines.append(f"coverage: {100 * cert['coverage']['fraction_within']:.2f} % of {cert['coverage']['n_states']} "
                      f"DEM states within the out-of-distribution threshold")
-    lines.append(f"{'PASSED' if cert['passed'] else 'FAILED'}: worst {100 * cert['worst']:.3f} % ({cert['worst_test']}), "
-                 f"target {100 * cert['target']:.3g} %, {cert['seconds']:.1f} s")
+    result = verdict(cert)
+    figures = (f"worst {100 * cert['worst']:.3f} % ({cert['worst_test']}), target {100 * cert['target']:.3g} %, "
+               f"{cert['seconds']:.1f} s")
+    if result == "weak":
+        lines.append(f"NOT PASSED (weak): {figures}, but the certificate is below the minimum: "
+                     f"{'; '.join(shortfalls(cert, dimension_of(cert)))}")
+    else:
+        lines.append(f"{result.upper()}: {figures}")
+    envelope = envelope_of(cert)
+    if envelope["pressures"] is not None:
+        lines.append(f"envelope: p0 {envelope['pressures'][0]:g} to {envelope['pressures'][1]:g}, axial strain within "
+                     f"+-{envelope['eps_max']:g}, {', '.join(envelope['kinds'])} tests, cell {envelope['mesostructure']!r}")
     return lines
+
+
+def exit_code(cert: dict[str, Any]) -> int:
+    """Exit code of a command whose result is certificate ``cert``: 0 passed, ``EXIT_FAILED`` (3)
+    failed, ``EXIT_WEAK`` (4) within the target but below the minimum certificate."""
+    return {"passed": 0, "failed": EXIT_FAILED, "weak": EXIT_WEAK}[verdict(cert)]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -358,23 +403,50 @@ def build_parser() -> argparse.ArgumentParser:
     add_spatial_rule_arguments(parser, *SPATIAL_RULE, " per test")
     parser.add_argument("--eps-max", type=positive_float, default=EPS_MAX, help="axial strain of each shear stage [-]")
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
+    parser.epilog = EXIT_CODES_HELP
     return parser
 
 
+def check_writable(args: argparse.Namespace) -> None:
+    """UserError (one line) before any work: --out an existing file without --overwrite, a folder, or
+    in a folder that cannot be written; --write with a model JSON or folder that cannot be written;
+    --data not a file."""
+    if args.out is not None:
+        if args.out.is_dir():
+            raise UserError(f"--out {args.out} is a folder; give a JSON file name")
+        check_output_path(args.out, overwrite=args.overwrite)
+    if args.write:
+        meta = metadata_path(args.model)
+        if not meta.is_file():
+            raise UserError(f"--model {args.model}: no {meta.name} beside it (the model's JSON)")
+        if not (os.access(meta, os.W_OK) and os.access(meta.parent, os.W_OK)):
+            raise UserError(f"--write: cannot write to {meta} (or its folder)")
+    if args.data is not None and not args.data.is_file():
+        raise UserError(f"--data {args.data}: no such database file")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (bad input: one line, 2)."""
+    """Entry point; returns the exit code: 0 passed, 2 bad input (one line, before any test),
+    ``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the target but below the minimum."""
     args = build_parser().parse_args(argv)
     set_verbosity(args)
     if not args.model.is_file():
         raise UserError(f"--model {args.model}: no such model file")
+    check_writable(args)
+    read_metadata(args.model)  # CheckpointError (one line) for a missing or unreadable JSON
     if not args.verbose:
         quiet_warp()
     meso = args.mesostructure.build(None) if args.mesostructure is not None else None
     if args.data is not None:
         net, meta = load_checkpoint(args.model)
-        index = index_for_model(net, meta["config"], load_database(args.data))
-        say(f"out-of-distribution index: {index.points.shape[0]} states, threshold {index.threshold:.4g} -> "
-            f"{index.save(index_path(args.model))}")
+        try:
+            database = load_database(args.data)
+        except (OSError, KeyError) as exc:
+            raise UserError(f"--data {args.data}: not a learning database ({exc})") from None
+        index = index_for_model(net, meta["config"], database)
+        with writing_to(index_path(args.model)):
+            say(f"out-of-distribution index: {index.points.shape[0]} states, threshold {index.threshold:.4g} -> "
+                f"{index.save(index_path(args.model))}")
     try:
         cert = certify(args.model, mesostructure=meso, eps_max=args.eps_max, n_orientations=args.orientations,
                        spatial_rule=(args.order, args.spins), rollout=not args.no_rollout)
@@ -384,11 +456,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         cert["command"] = shlex.join(["python", "-m", "homogenization.certificate", *argv])
     say(*summary_lines(cert))
     if args.out is not None:
-        with atomic_write(args.out) as tmp:
+        with writing_to(args.out), atomic_write(args.out) as tmp:
             tmp.write_text(json.dumps(cert, indent=2, sort_keys=True) + "\n")
     if args.write:
-        say(f"certificate -> {write_certificate(args.model, cert)}")
-    return 0
+        with writing_to(metadata_path(args.model)):
+            say(f"certificate -> {write_certificate(args.model, cert)}")
+    return exit_code(cert)
 
 
 if __name__ == "__main__":

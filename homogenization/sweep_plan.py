@@ -3,7 +3,8 @@
 ``plan`` builds and validates every mesostructure of the Cartesian product --mesostructure x
 --alpha0 x --p0 x --backend, skips the combinations a backend refuses
 (``homogenization.backends.mesostructure_refusal``), picks each ann case's model
-(``ModelTable``) and gives every case its folder and the run parameters whose equality decides
+(``ModelTable``; an ann case records where it leaves its model's certificate envelope,
+``ann_model.outside_envelope``) and gives every case its folder and the run parameters whose equality decides
 whether a stored run is that case. Bad input is a ``UserError`` (one line) before any case runs.
 """
 
@@ -20,6 +21,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from homogenization import loading
 from homogenization.backends import backend_class, mesostructure_refusal
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.parameters import CellDefaults, ContactLaw
@@ -51,6 +53,7 @@ class ModelTable:
         self.keyed: dict[str, Path] = {}
         self.bare: list[Path] = []
         self._records: dict[Path | None, dict[str, Any]] = {}
+        self._envelopes: dict[Path | None, dict[str, Any] | None] = {}
         texts = {source.text: source for source in sources}
         for choice in choices or ():
             if not choice.path.is_file():
@@ -101,6 +104,22 @@ class ModelTable:
         if path not in self._records:
             self._records[path] = model_record(path)
         return self._records[path]
+
+    def outside_envelope(self, path: Path | None, programme: Any, meso: Mesostructure) -> list[str] | None:
+        """Where ``programme`` on cells of ``meso`` leaves the certificate envelope of model ``path``
+        (None: the installed model): ``homogenization.envelope.outside``'s phrases, empty inside;
+        None for a model without a certificate."""
+        from homogenization.backends.ann import default_model_path  # noqa: PLC0415 torch only for ann
+        from homogenization.envelope import envelope_of, outside  # noqa: PLC0415
+        from training.checkpoint import read_metadata  # noqa: PLC0415
+
+        if path not in self._envelopes:
+            cert = read_metadata(default_model_path() if path is None else path).get("certificate")
+            self._envelopes[path] = envelope_of(cert) if isinstance(cert, dict) else None
+        envelope = self._envelopes[path]
+        if envelope is None:
+            return None
+        return outside(envelope, programme, mesostructure=meso.name, cell_parameters=meso.parameters)
 
 
 @dataclass(frozen=True)
@@ -173,7 +192,11 @@ def plan(args: Any) -> tuple[list[Case], list[str]]:
                     case_alpha0 = plain[0] if plain is not None else (float("nan") if alpha0 is None else float(alpha0))
                     radius = plain[1] if plain is not None else CellDefaults.radius
                     model = models.for_case(source, meso, plain is not None) if backend == "ann" else None
-                    ann = {"ann_model": models.record(model)} if backend == "ann" else {}
+                    ann = {}
+                    if backend == "ann":
+                        programme = loading.biaxial(p0, args.eps_max, args.increment, drained=args.drained)
+                        ann = {"ann_model": {**models.record(model),
+                                             "outside_envelope": models.outside_envelope(model, programme, meso)}}
                     parameters = {
                         "backend": backend,
                         "backend_options": ({"device": args.device} if backend in ("dem", "ann") else {})

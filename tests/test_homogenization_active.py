@@ -68,7 +68,7 @@ def test_hmodel_learn_writes_every_stage_resumes_and_refuses_other_options(tmp_p
     from homogenization.cli import hmodel
 
     out = tmp_path / "run"
-    assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == 0
+    code = hmodel.main(["learn", *LEARN, "--out", str(out)])
     first = capsys.readouterr().out
     assert "active round 0:" in first and "done before" not in first
     meta = json.loads((out / "ann.json").read_text())
@@ -78,10 +78,12 @@ def test_hmodel_learn_writes_every_stage_resumes_and_refuses_other_options(tmp_p
         n_stored = f["d_eps"].shape[0]
         added = int(np.count_nonzero(f["source_round"][()] > 0)) if "source_round" in f else 0
     assert n_stored == 2000 + added == rounds[-1]["samples_total"]
-    assert added == (1000 if len(rounds) == 2 else 0) and (len(rounds) == 2) != rounds[0]["passed"]
+    assert added == (1000 if len(rounds) == 2 else 0) and (len(rounds) == 2) == (rounds[0]["verdict"] == "failed")
+    # the short certificate (4 orientations, 1 %, no rollouts) is below the minimum: never passed
+    assert code == certificate.exit_code(meta["certificate"]) in (certificate.EXIT_FAILED, certificate.EXIT_WEAK)
     assert (out / "certificate.png").stat().st_size > 10_000
     sha = (out / "ann.pt").read_bytes()
-    assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == 0
+    assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == code
     second = capsys.readouterr().out
     assert second.count("(done before)") == 4 and (out / "ann.pt").read_bytes() == sha
     assert hmodel.main(["learn", *LEARN, "--samples", "3000", "--out", str(out)]) == 2
@@ -91,7 +93,7 @@ def test_hmodel_learn_writes_every_stage_resumes_and_refuses_other_options(tmp_p
     assert "holds files that are not a learn run" in capsys.readouterr().err
 
     (out / "ann.json").unlink()  # an interrupted training: that stage and those after it run again
-    assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == 0
+    assert hmodel.main(["learn", *LEARN, "--out", str(out)]) in (certificate.EXIT_FAILED, certificate.EXIT_WEAK)
     third = capsys.readouterr().out
     assert f"database: {out / 'db.h5'} (done before)" in third and "model: " not in third
     assert json.loads((out / "ann.json").read_text())["certificate"]["model_sha256"] == file_sha256(out / "ann.pt")
@@ -127,7 +129,7 @@ def test_hmodel_train_enriches_its_database_and_an_interrupted_run_continues(tmp
     assert json.loads(model.with_suffix(".json").read_text())["training_data"]["sha256"] != file_sha256(db)
 
     monkeypatch.undo()
-    assert hmodel.main(argv) == 0
+    code = hmodel.main(argv)
     second = capsys.readouterr().out
     assert "an earlier run of these options, continued" in second and "active round 1: +3000 samples" in second
     assert _source_counts(db) == [n_before, 3000]  # continued: no second append of round 1
@@ -135,10 +137,11 @@ def test_hmodel_train_enriches_its_database_and_an_interrupted_run_continues(tmp
     assert meta["training_data"]["sha256"] == file_sha256(db) and meta["certificate"]["model_sha256"] == file_sha256(model)
     assert [r["round"] for r in meta["active_learning"]] == [0, 1]
     first_round, second_round = meta["active_learning"]
-    assert not first_round["passed"] and second_round["worst"] < first_round["worst"]
+    assert first_round["verdict"] == "failed" and second_round["worst"] < first_round["worst"]
+    assert code == certificate.exit_code(meta["certificate"]) != 0  # a short certificate is never passed
 
     weights = model.read_bytes()
-    assert hmodel.main(argv) == 0  # a finished run: nothing is added or retrained
+    assert hmodel.main(argv) == code  # a finished run: nothing is added or retrained
     assert "(done before)" in capsys.readouterr().out and model.read_bytes() == weights
     assert _source_counts(db) == [n_before, 3000]
 
@@ -159,7 +162,7 @@ def test_hmodel_train_enriches_a_copy_where_the_database_is_not_writable(tmp_pat
 
     model = tmp_path / "c" / "m.pt"
     argv = ["train", "--data", str(db), "--out", str(model), *TRAIN_CLI, "--max-samples", "1000", "--enrich-copy"]
-    assert hmodel.main(argv) == 0
+    assert hmodel.main(argv) in (certificate.EXIT_FAILED, certificate.EXIT_WEAK)  # a short certificate
     printed = capsys.readouterr().out
     copy = model.with_name("m_db.h5")
     assert f"adds its samples to {copy} (a copy of {db}: --enrich-copy)" in printed
@@ -179,6 +182,23 @@ def test_hmodel_train_refuses_a_bad_budget_before_training(tmp_path, capsys):
                         "--rounds", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "rounds = -1 must be >= 0" in err[0] and not (tmp_path / "m.pt").exists()
+
+
+def test_hmodel_learn_refuses_an_out_below_a_file_in_one_line_before_any_work(tmp_path, capsys):
+    """Was a FileExistsError traceback from the output lock; the file is left as it was."""
+    from homogenization.cli import hmodel
+
+    (tmp_path / "file").write_text("keep")
+    assert hmodel.main(["learn", *LEARN, "--out", str(tmp_path / "file" / "run")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not a folder" in err[0] and (tmp_path / "file").read_text() == "keep"
+    assert "exit codes: 0 the certificate passed" in " ".join(hmodel_help(hmodel, "learn", capsys).split())
+    assert "3 the certificate failed" in " ".join(hmodel_help(hmodel, "train", capsys).split())
+
+
+def hmodel_help(hmodel, command: str, capsys) -> str:
+    assert hmodel.main([command, "--help"]) == 0
+    return capsys.readouterr().out
 
 
 def test_multiply_adds_and_the_ladder_rule(tiny):

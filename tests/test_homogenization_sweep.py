@@ -307,7 +307,10 @@ def test_an_ann_case_records_its_models_certificate_in_run_h5(fines_models, tmp_
     """As biaxial does (parameters' ``ann_model``): sha256, certificate worst, certified, the
     problem; a certified copy of the model records its passed certificate (and a case folder of
     the uncertified model is then another run: refused without --overwrite)."""
+    import json
+
     from homogenization import certificate as certification
+    from homogenization.backends.ann import default_model_path
     from warp_hcell.core.provenance import file_sha256
 
     spec = ANN_FINES[0]
@@ -321,7 +324,8 @@ def test_an_ann_case_records_its_models_certificate_in_run_h5(fines_models, tmp_
     stored = io.read_run(out / sweep.CASES_DIR / row["case"] / "run.h5").attrs["parameters"]["ann_model"]
     assert stored["sha256"] == file_sha256(model) and stored["certified"] is False
     assert stored["certificate_worst"] is None and "uncertified" in stored["certificate_problem"]
-    certification.write_certificate(model, {"model_sha256": file_sha256(model), "passed": True, "worst": 0.0123,
+    full = json.loads(default_model_path().with_suffix(".json").read_text())["certificate"]  # meets the minimum
+    certification.write_certificate(model, {**full, "model_sha256": file_sha256(model), "passed": True, "worst": 0.0123,
                                             "worst_test": "x", "target": 0.02})
     assert cli([*argv, "--out", str(tmp_path / "c")]) == 0
     (row,) = sweep.read_summary(tmp_path / "c" / sweep.SUMMARY_FILE)

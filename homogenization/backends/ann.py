@@ -40,9 +40,12 @@ between the database's; ``training.checkpoint.check_start_cell``). Otherwise
 Certificate (``homogenization.certificate``, docs/certificate.md): ``certificate`` is the
 model JSON's ``"certificate"`` entry (None if absent) and ``certificate_problem`` one line
 saying why the model may not be used (uncertified, failed, or certified for another ``.pt``:
-its ``model_sha256`` differs from the file's), None for a model that passed. The class only
-reports it; the commands refuse such a model unless ``--uncertified-ok``
-(``homogenization.cli.options.refuse_uncertified``).
+its ``model_sha256`` differs from the file's, or a certificate below the minimum of
+``homogenization.envelope.MINIMUM``), None for a model that passed. The class only reports it;
+the commands refuse such a model unless ``--uncertified-ok``
+(``homogenization.cli.options.refuse_uncertified``). ``envelope`` is what the certificate
+covers (pressures, axial strain, test kinds, cell) and ``envelope_exits(programme, meso)``
+says where a run leaves it; the run commands warn once and record it in run.h5.
 
 Out of distribution (``training.ood``): with the index file beside the model
 (``training.ood.index_path``), every ``ood_interval``-th distinct start state of ``step`` is
@@ -66,6 +69,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 import torch
 
+from homogenization import envelope
 from homogenization.orientation3d import cell_kinematics
 from training import cell_physics
 from training.inference import FastAdvance
@@ -97,16 +101,22 @@ def default_model_path(dim: int = 2) -> Path:
 
 def certificate_problem(metadata: dict[str, Any], path: Path) -> str | None:
     """Why model ``path`` (JSON ``metadata``) may not be used, in one line, or None if its
-    certificate passed and was measured on this very ``.pt`` (same sha256)."""
+    certificate was measured on this very ``.pt`` (same sha256), is within its target and meets
+    the minimum certificate (``homogenization.envelope.MINIMUM``: pressures, strain,
+    orientations, rollouts, tests), read from its recorded settings, not from its ``passed`` flag."""
     cert = metadata.get("certificate")
     if not isinstance(cert, dict):
         return (f"{path}: the model is uncertified (certify it: python -m homogenization.certificate "
                 f"--model {path} --write)")
     if cert.get("model_sha256") != file_sha256(path):
         return f"{path}: its certificate was measured on another model file (sha256 differs); certify it again"
-    if not cert.get("passed"):
+    result = envelope.verdict(cert)
+    if result == "failed" or (result == "passed" and cert.get("passed") is False):
         return (f"{path}: the model failed its certificate (worst {100 * float(cert['worst']):.3g} % of the scale "
                 f"in test {cert.get('worst_test')!r}, target {100 * float(cert['target']):.3g} %)")
+    if result == "weak":
+        return (f"{path}: its certificate is below the minimum certificate "
+                f"({'; '.join(envelope.shortfalls(cert, envelope.dimension_of(cert)))}); certify it with the defaults")
     return None
 
 
@@ -242,6 +252,20 @@ class AnnCell(ArrayStateMixin):
             self._ood_result = self._ood_check(state, features)
         n_out, n_checked = self._ood_result or (0.0, 0.0)
         return {"n_ood": n_out, "n_ood_checked": n_checked}
+
+    @property
+    def envelope(self) -> dict[str, Any] | None:
+        """The certificate's envelope (``homogenization.envelope.envelope_of``); None uncertified."""
+        return envelope.envelope_of(self.certificate) if isinstance(self.certificate, dict) else None
+
+    def envelope_exits(self, programme: Sequence[Any], meso: Mesostructure) -> list[str] | None:
+        """Where ``programme`` (``homogenization.loading``) run on cells of ``meso`` leaves the
+        certificate's envelope, one phrase each (``homogenization.envelope.outside``; empty:
+        inside); None for an uncertified model (no envelope)."""
+        if self.envelope is None:
+            return None
+        return envelope.outside(self.envelope, tuple(programme), mesostructure=meso.name,
+                                cell_parameters=meso.parameters, unit="Pa" if self.dim == 3 else "N/m")
 
     # -- construction ---------------------------------------------------------------------
     def check_trained_on(self, meso: Mesostructure) -> None:

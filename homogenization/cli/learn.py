@@ -14,8 +14,9 @@ skipped when its output is complete (a second call continues; an interrupted sta
 
 ``DIR/learn.json`` records the options of the run: a second call with other options is refused
 (one line, exit 2) unless --overwrite, which starts the folder again (a folder with other files
-and no ``learn.json`` is refused). Exit 0 whether the final model
-passes its certificate or not (the verdict is printed and stored in ``ann.json``).
+and no ``learn.json`` is refused). The exit code is the final certificate's verdict
+(``certificate.exit_code``: 0 passed, 3 failed, 4 below the minimum certificate; bad input 2),
+also printed and stored in ``ann.json``.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from training.checkpoint import metadata_path
 from training import train as training_train
 from training.network import DEFAULT_HIDDEN
 from warp_hcell.core.cli import positive_int, quiet_warp, say, set_verbosity, UserError
-from warp_hcell.core.files import atomic_write, output_lock
+from warp_hcell.core.files import atomic_write, check_output_path, output_lock
 from warp_hcell.core.parameters import DatabaseSettings
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.database import format as database
@@ -57,6 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_active_arguments(parser)
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
     add_threads_argument(parser, "DEM and torch CPU threads", 1)
+    parser.epilog = certificate.EXIT_CODES_HELP
     return parser
 
 
@@ -68,7 +70,8 @@ def _options(args: argparse.Namespace, meso) -> dict:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (bad input: one line, 2, before any work)."""
+    """Entry point; returns the exit code (bad input: one line, 2, before any work; then the
+    certificate's verdict, ``certificate.exit_code``)."""
     args = build_parser().parse_args(argv)
     set_verbosity(args)
     budget = active_settings(args)
@@ -81,6 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     train_args = _train_args(args)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; give a folder")
+    check_output_path(out, overwrite=True)  # the nearest existing folder above --out can be written
     record, options = out / "learn.json", _options(args, meso)
     if not args.verbose:
         quiet_warp()
@@ -144,4 +148,4 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
         say(f"figure: {figure}")
     say(*certificate.summary_lines(cert),
         f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples in {db}")
-    return 0
+    return certificate.exit_code(cert)

@@ -14,12 +14,14 @@ folder, the parameters and the status line of each backend's run.
 - ``write_backend_run(...)``: run.h5 and curve.csv of one backend, and its status line;
 - ``build_models(...)`` and ``run_backends(...)``: every backend built and checked before any
   run (an ANN model without a passed certificate refused unless --uncertified-ok), then run,
-  stored and reported one after the other.
+  stored and reported one after the other; ``envelope_note``: where an ANN run left its
+  certificate's envelope (one warning, the status line, run.h5's ``ann_model.outside_envelope``).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -30,6 +32,7 @@ from homogenization.backends import backend_class, BACKENDS, make_cell_model
 from homogenization import loading
 from homogenization.cli.options import ISO_TO_SHEAR_INCREMENT, certificate_note, refuse_uncertified
 from homogenization.driver import Record
+from homogenization.envelope import summary as envelope_summary
 from warp_hcell.core.cli import quiet_warp, UserError, writing_to
 from warp_hcell.core.files import check_output_path
 from warp_hcell.core.parameters import ContactLaw
@@ -218,6 +221,19 @@ def backend_note(model: Any) -> str:
     return note
 
 
+def envelope_note(model: Any, record: Record, meso: Mesostructure, stored: dict[str, Any]) -> str:
+    """The ANN run's envelope check (``AnnCell.envelope_exits``): stored in ``stored`` (the run's
+    ``ann_model`` parameters: ``envelope``, ``outside_envelope``, a list of phrases, empty inside,
+    None uncertified); where the run left the envelope, one warning line on stderr, and the
+    status line's note."""
+    exits = model.envelope_exits(record.programme, meso)
+    stored["envelope"], stored["outside_envelope"] = model.envelope, exits
+    if not exits:
+        return ""
+    print(f"warning: ann: the run is {envelope_summary(exits)}", file=sys.stderr)
+    return ", OUTSIDE its certificate's envelope (warning above)"
+
+
 def build_models(args: argparse.Namespace, law: ContactLaw, meso: Mesostructure,
                  **model_options: Any) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
     """(model, options) of every --backend, by name; each built with ``law``, --radius,
@@ -264,8 +280,10 @@ def run_backends(args: argparse.Namespace, models: dict[str, Any], options: dict
             raise UserError(f"{name}: {exc}") from None
         elapsed = time.perf_counter() - start
         stored[name] = {**backend_parameters(name, model, options[name], law, args.radius, meso), **parameters(record)}
+        note = backend_note(model)
+        if name == "ann":
+            note += envelope_note(model, record, meso, stored[name]["ann_model"])
         written.append(write_backend_run(work, args.out, name, record, stored[name], several=len(models) > 1,
-                                         seed=args.seed, command=command, elapsed=elapsed,
-                                         note=backend_note(model)))
+                                         seed=args.seed, command=command, elapsed=elapsed, note=note))
         records[name] = record
     return records, stored, written

@@ -342,6 +342,18 @@ def _prepare_out(out: Path, options: dict[str, Any], *, overwrite: bool) -> None
         tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
 
 
+def warn_outside_envelope(cases: Sequence[Case]) -> int:
+    """One warning line on stderr where ann cases leave their model's certificate envelope
+    (``ann_model.outside_envelope``, stored in each case's run.h5); returns how many do."""
+    outside = [case for case in cases if case.backend == "ann" and case.parameters["ann_model"]["outside_envelope"]]
+    if outside:
+        phrases = dict.fromkeys(p for case in outside for p in case.parameters["ann_model"]["outside_envelope"])
+        n_ann = sum(case.backend == "ann" for case in cases)
+        print(f"warning: ann: {len(outside)} of {n_ann} ann case(s) run outside their model's certificate envelope: "
+              f"{'; '.join(phrases)} (each case's run.h5: ann_model.outside_envelope)", file=sys.stderr)
+    return len(outside)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
@@ -352,6 +364,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     cases, skipped = plan(args)
     for model in {case.parameters["backend_options"].get("model") for case in cases if case.backend == "ann"}:
         refuse_uncertified_file(model, args)
+    warn_outside_envelope(cases)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; give a folder")
     rows = {case.folder: stored_row(case, out, overwrite=args.overwrite) for case in cases}

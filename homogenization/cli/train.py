@@ -17,8 +17,9 @@ again (``active.learn``: the database's appends are atomic and list the rounds, 
 added twice); without such a record an existing model is refused unless --overwrite.
 
 --no-enrich (or --rounds 0) certifies only; --no-certify leaves the model uncertified. A model
-that fails is written all the same, with its failed certificate (exit 0: a failed certificate
-is a result; the backend then refuses the model unless --uncertified-ok).
+that fails is written all the same, with its failed certificate; the exit code says the verdict
+(``certificate.exit_code``: 0 passed, 3 failed, 4 below the minimum certificate; 2 bad input),
+and the backend refuses a model that did not pass unless --uncertified-ok.
 
 Training lives in ``training/``, which never imports ``homogenization``, where the driver and
 the DEM backend of the certificate are; this command joins the two. ``python -m
@@ -63,6 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"add the rounds' samples to a copy of --data beside the model (MODEL{ENRICHED_SUFFIX}), "
                              "not to --data (the default where --data and its folder are writable)")
     add_active_arguments(parser)
+    parser.epilog = certificate.EXIT_CODES_HELP + "; with --no-certify: 0 once trained"
     return parser
 
 
@@ -110,7 +112,8 @@ def _continues(args: argparse.Namespace, database: Path) -> bool:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (bad input: one line, 2, before any training)."""
+    """Entry point; returns the exit code (bad input: one line, 2, before any training; then the
+    certificate's verdict, ``certificate.exit_code``)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     set_verbosity(args)
@@ -133,7 +136,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not enrich:
             cert = certificate.certify(args.out, **certify_options(args))
             say(*certificate.summary_lines(cert), f"certificate -> {certificate.write_certificate(args.out, cert)}")
-            return 0
+            return certificate.exit_code(cert)
         active.write_rounds(args.out, [])
     if database != args.data and not (resumed and database.is_file()):
         with atomic_write(database) as tmp:
@@ -146,4 +149,4 @@ def main(argv: Sequence[str] | None = None) -> int:
     cert = json.loads(metadata_path(args.out).read_text())["certificate"]
     say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples "
         f"in {database}; certificate -> {metadata_path(args.out)}")
-    return 0
+    return certificate.exit_code(cert)

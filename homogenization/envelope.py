@@ -1,0 +1,216 @@
+"""What a meso-ANN certificate must cover, and what it covers: the minimum certificate and the envelope.
+
+- ``MINIMUM`` (a frozen ``MinimumCertificate``): the weakest certificate that counts as passed,
+  for planar and spatial cells alike (pressures, axial strain, increment, target, planar
+  orientations, spatial rule, rollouts, and the tests every certificate must hold). The
+  defaults of ``homogenization.certificate`` are this minimum.
+- ``shortfalls(cert, dim)``: where a certificate is weaker than ``MINIMUM`` (one phrase each;
+  empty: it meets the minimum). Read from the certificate's recorded ``settings``, ``tests``
+  and ``rollout``, never from its ``passed`` flag.
+- ``envelope_of(cert)``: what a certificate covers: ``pressures`` [lowest, highest] p0 of its
+  tests [N/m in 2D, Pa in 3D], ``eps_max`` (largest axial strain of a shear stage counted
+  from its start, either sense [-]), ``kinds`` (the test kinds, ``step_kind``), ``senses``,
+  ``increment`` [-], ``mesostructure`` (name) and ``cell_parameters`` (e.g. ``alpha0_deg``).
+  Derived from the recorded ``settings`` and ``tests`` (a certificate written before the
+  envelope was recorded has the same information).
+- ``outside(envelope, programme, meso)``: where a run leaves the envelope, one phrase each.
+
+Sign convention: compression and contraction positive; axial strain eps11 > 0 in compression.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+from homogenization import loading
+
+PRESSURE_RTOL = 1e-9
+"""Relative tolerance of pressure and strain comparisons (round-off of recorded numbers) [-]."""
+
+
+@dataclass(frozen=True)
+class MinimumCertificate:
+    """The weakest certificate that counts as passed (docs/certificate.md, "The minimum certificate")."""
+
+    pressures: tuple[float, ...] = (2e5, 1e6)
+    """Confining pressures p0 every certificate tests [N/m in 2D, Pa in 3D]."""
+    eps_max: float = 0.10
+    """Least axial strain of each shear stage [-]."""
+    increment: float = 1e-4
+    """Largest strain increment of the tests [-]."""
+    target: float = 0.02
+    """Largest target a passing certificate may set: dp, dq as fractions of the scale [-]."""
+    n_orientations: int = 24
+    """Least cell orientations of every test of a planar cell [-]."""
+    spatial_rule: tuple[int, int] = (11, 4)
+    """Least (Lebedev order, spins) of every test of a spatial cell."""
+    rollout: bool = True
+    """Whether the single-cell rollouts must have been run (``training.rollout``)."""
+    planar_tests: tuple[tuple[str, str], ...] = (("constant-volume", "compression"), ("drained", "compression"),
+                                                  ("drained", "extension"), ("constant-volume", "reversal"))
+    """(kind, sense) of the tests every certificate of a planar cell holds (at every pressure, the
+    reversal at the lowest; constant-volume extension equals compression turned by 90 deg for
+    the even orientation sets, ``certificate.tests_of``, so it is not required)."""
+    spatial_tests: tuple[tuple[str, str], ...] = (("undrained", "compression"), ("undrained", "extension"),
+                                                   ("drained", "compression"), ("drained", "extension"),
+                                                   ("undrained", "reversal"))
+    """(kind, sense) of the tests every certificate of a spatial cell holds."""
+
+    def tests(self, dim: int) -> tuple[tuple[str, str], ...]:
+        """The required (kind, sense) of the tests of cells of dimension ``dim``."""
+        return self.spatial_tests if dim == 3 else self.planar_tests
+
+
+MINIMUM = MinimumCertificate()
+"""The minimum certificate of the package (the defaults of ``homogenization.certificate``)."""
+
+
+def _covers(value: float, least: float) -> bool:
+    return value >= least * (1.0 - PRESSURE_RTOL)
+
+
+def shortfalls(cert: Mapping[str, Any], dim: int, minimum: MinimumCertificate = MINIMUM) -> list[str]:
+    """Where certificate ``cert`` of cells of dimension ``dim`` is weaker than ``minimum``: one
+    phrase each (e.g. "2 orientations (minimum 24)"); empty when it meets the minimum."""
+    settings = cert.get("settings") or {}
+    missing: list[str] = []
+    pressures = sorted(float(p) for p in settings.get("pressures", ()))
+    if not all(any(math.isclose(p, q, rel_tol=PRESSURE_RTOL) for p in pressures) for q in minimum.pressures):
+        missing.append(f"pressures {', '.join(f'{p:g}' for p in pressures) or 'none'} "
+                       f"(minimum: {', '.join(f'{p:g}' for p in minimum.pressures)})")
+    eps_max = float(settings.get("eps_max", 0.0))
+    if not _covers(eps_max, minimum.eps_max):
+        missing.append(f"eps_max {eps_max:g} (minimum {minimum.eps_max:g})")
+    increment = float(settings.get("increment", math.inf))
+    if increment > minimum.increment * (1.0 + PRESSURE_RTOL):
+        missing.append(f"increment {increment:g} (maximum {minimum.increment:g})")
+    target = float(cert.get("target", math.inf))
+    if target > minimum.target * (1.0 + PRESSURE_RTOL):
+        missing.append(f"target {100 * target:g} % (maximum {100 * minimum.target:g} %)")
+    if dim == 3:
+        order, spins = (settings.get("spatial_rule") or (0, 0))
+        if order < minimum.spatial_rule[0] or spins < minimum.spatial_rule[1]:
+            missing.append(f"spatial rule order {order} x {spins} spins (minimum {minimum.spatial_rule[0]} x "
+                           f"{minimum.spatial_rule[1]})")
+    else:
+        n = int(settings.get("n_orientations", 0))
+        if n < minimum.n_orientations:
+            missing.append(f"{n} orientations (minimum {minimum.n_orientations})")
+    if minimum.rollout and not cert.get("rollout"):
+        missing.append("no rollouts (the minimum runs them)")
+    held = {(t.get("kind"), t.get("sense")) for t in cert.get("tests", ())}
+    absent = [f"{kind} {sense}" for kind, sense in minimum.tests(dim) if (kind, sense) not in held]
+    if absent:
+        missing.append(f"no {', '.join(absent)} test")
+    return missing
+
+
+def dimension_of(cert: Mapping[str, Any]) -> int:
+    """Cell dimension of certificate ``cert``: 3 where its settings hold a ``spatial_rule``, else 2."""
+    return 3 if "spatial_rule" in (cert.get("settings") or {}) else 2
+
+
+def verdict(cert: Mapping[str, Any]) -> str:
+    """"passed" (worst <= target and the minimum met), "failed" (worst > target, or a test the
+    ANN could not follow) or "weak" (within the target, below ``MINIMUM``: not passed); read
+    from the certificate's figures and settings, not from its ``passed`` flag."""
+    worst, target = float(cert.get("worst", math.inf)), float(cert.get("target", 0.0))
+    if not worst <= target:
+        return "failed"
+    return "weak" if shortfalls(cert, dimension_of(cert)) else "passed"
+
+
+def envelope_of(cert: Mapping[str, Any]) -> dict[str, Any]:
+    """The envelope of certificate ``cert`` (module docstring): its ``envelope`` entry where it
+    records one, else derived from its ``settings`` and ``tests``."""
+    if isinstance(cert.get("envelope"), Mapping):
+        return dict(cert["envelope"])
+    settings = cert.get("settings") or {}
+    tests = cert.get("tests") or ()
+    p0 = [float(t["p0"]) for t in tests] or [float(p) for p in settings.get("pressures", ())]
+    return {
+        "pressures": [min(p0), max(p0)] if p0 else None,
+        "eps_max": float(settings["eps_max"]) if "eps_max" in settings else None,
+        "increment": float(settings["increment"]) if "increment" in settings else None,
+        "kinds": sorted({str(t["kind"]) for t in tests}),
+        "senses": sorted({str(t["sense"]) for t in tests}),
+        "mesostructure": settings.get("mesostructure"),
+        "cell_parameters": dict(cert.get("cell_parameters") or settings.get("cell_parameters") or {}),
+    }
+
+
+def step_kind(step: loading.Step, p0: float | None) -> str:
+    """Kind of a shear step as the certificate names its tests: "constant-volume" (planar, d_eps22
+    = -d_eps11), "undrained" (spatial isochoric, ``loading.isochoric``), "drained" (axial strain,
+    the lateral stresses held at ``p0``, no coupling), else "other"."""
+    rtol = 1e-9
+    if all(c == "strain" for c in step.control):
+        d = step.target[0] / step.n_increments
+        if step.dim == 2 and math.isclose(step.target[1], -step.target[0], rel_tol=rtol, abs_tol=1e-15):
+            return "constant-volume"
+        lateral = 1.0 - 1.0 / math.sqrt(1.0 - d) if d < 1.0 else math.nan
+        if step.dim == 3 and all(math.isclose(t / step.n_increments, lateral, rel_tol=1e-6, abs_tol=1e-15)
+                                 for t in step.target[1:]):
+            return "undrained"
+        return "other"
+    if (step.control[0] == "strain" and all(c == "stress" for c in step.control[1:]) and step.coupling is None
+            and p0 is not None and all(math.isclose(t, p0, rel_tol=rtol) for t in step.target[1:])):
+        return "drained"
+    return "other"
+
+
+def outside(envelope: Mapping[str, Any], programme: loading.Programme, *, mesostructure: str | None = None,
+            cell_parameters: Mapping[str, float] | None = None, unit: str = "N/m") -> list[str]:
+    """Where ``programme`` (run on the cell named ``mesostructure`` with ``cell_parameters``)
+    leaves ``envelope`` (``envelope_of``): one phrase each, empty inside.
+
+    Checked: every isotropic stage's p0 (``stop_at_p``) within the certified pressures (a
+    programme without one: not a certified test); the kind of every other step among the
+    certified kinds (``step_kind``); the axial strain eps11 counted from the end of each
+    isotropic stage within +-eps_max; the cell's parameters where given (e.g. ``alpha0_deg``; names are not
+    compared: a builder spec and a file name the same cell differently, and the backend's own
+    ``check_start_cell`` bounds the learning state). ``unit``: stress unit of the phrases."""
+    exits: list[str] = []
+    low, high = envelope.get("pressures") or (None, None)
+    p0 = None
+    strain, largest = 0.0, 0.0
+    kinds: list[str] = []
+    started = False
+    for step in programme:
+        if step.stop_at_p is not None:
+            p0 = step.stop_at_p
+            if low is not None and p0 < low * (1.0 - PRESSURE_RTOL):
+                exits.append(f"p0 = {p0:g} {unit} below the lowest certified pressure {low:g} {unit}")
+            elif high is not None and p0 > high * (1.0 + PRESSURE_RTOL):
+                exits.append(f"p0 = {p0:g} {unit} above the highest certified pressure {high:g} {unit}")
+            started, strain = True, 0.0
+            continue
+        if not started:
+            exits.append(f"step {step.label!r} comes before any isotropic compression to p0 (every certified test "
+                         f"starts with one)")
+            started = True
+        kind = step_kind(step, p0)
+        if kind not in envelope.get("kinds", ()) and kind not in kinds:
+            kinds.append(kind)
+        if step.control[0] == "strain":
+            strain += step.target[0]
+            largest = max(largest, abs(strain))
+    if kinds:
+        certified = ", ".join(envelope.get("kinds", ())) or "none"
+        exits.append(f"test kind {', '.join(kinds)} not certified (certified: {certified})")
+    eps_max = envelope.get("eps_max")
+    if eps_max is not None and largest > eps_max * (1.0 + 1e-6):
+        exits.append(f"axial strain {largest:g} beyond the certified {eps_max:g}")
+    for key, value in (envelope.get("cell_parameters") or {}).items() if cell_parameters is not None else ():
+        given = cell_parameters.get(key)
+        if given is None or not math.isclose(float(given), float(value), rel_tol=1e-9):
+            shown = "none" if given is None else f"{float(given):g}"
+            exits.append(f"cell {mesostructure!r}: {key} = {shown} (certified: {float(value):g})")
+    return exits
+
+
+def summary(exits: Sequence[str]) -> str:
+    """One line of ``outside``'s phrases ('' inside the envelope)."""
+    return "" if not exits else "outside its certificate's envelope: " + "; ".join(exits)

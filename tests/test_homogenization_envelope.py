@@ -1,0 +1,75 @@
+"""The minimum certificate and the envelope (homogenization.envelope) without running a test."""
+
+import json
+
+import pytest
+
+from homogenization import envelope, loading
+from homogenization.backends.ann import default_model_path
+
+SHIPPED = json.loads(default_model_path().with_suffix(".json").read_text())["certificate"] \
+    if default_model_path().is_file() else None
+
+
+def test_the_certificate_defaults_are_the_minimum_and_meet_it():
+    from homogenization import certificate
+
+    assert (certificate.PRESSURES, certificate.EPS_MAX, certificate.INCREMENT, certificate.TARGET,
+            certificate.N_ORIENTATIONS, certificate.SPATIAL_RULE) == (
+        envelope.MINIMUM.pressures, envelope.MINIMUM.eps_max, envelope.MINIMUM.increment, envelope.MINIMUM.target,
+        envelope.MINIMUM.n_orientations, envelope.MINIMUM.spatial_rule)
+    for dim in (2, 3):
+        tests = [{"kind": info["kind"], "sense": info["sense"]} for info, _ in certificate.tests_of(dim=dim)]
+        settings = certificate.requested_settings(dim)
+        cert = {"settings": settings, "tests": tests, "rollout": {"x": 1}, "target": certificate.TARGET}
+        assert envelope.shortfalls(cert, dim) == []
+        weaker = {**cert, "settings": {**settings, "pressures": [2e5]}, "rollout": None}
+        assert envelope.shortfalls(weaker, dim) == ["pressures 200000 (minimum: 200000, 1e+06)",
+                                                    "no rollouts (the minimum runs them)"]
+
+
+def test_a_weak_certificate_within_its_target_is_not_passed_whatever_its_flag():
+    cert = {"settings": {"pressures": [2e5, 1e6], "eps_max": 0.1, "increment": 1e-4, "n_orientations": 2},
+            "tests": [{"kind": k, "sense": s} for k, s in envelope.MINIMUM.planar_tests],
+            "rollout": {"x": 1}, "target": 0.02, "worst": 0.001, "passed": True}
+    assert envelope.verdict(cert) == "weak" and envelope.dimension_of(cert) == 2
+    assert envelope.shortfalls(cert, 2) == ["2 orientations (minimum 24)"]
+    assert envelope.verdict({**cert, "worst": 0.03}) == "failed"
+    loose = {**cert, "target": 0.5, "settings": {**cert["settings"], "n_orientations": 24}}
+    assert envelope.verdict(loose) == "weak" and envelope.shortfalls(loose, 2) == ["target 50 % (maximum 2 %)"]
+    assert envelope.verdict({**cert, "settings": {**cert["settings"], "n_orientations": 24}}) == "passed"
+    spatial = {**cert, "settings": {**cert["settings"], "spatial_rule": [5, 2]}}
+    assert envelope.dimension_of(spatial) == 3
+    assert "spatial rule order 5 x 2 spins (minimum 11 x 4)" in envelope.shortfalls(spatial, 3)
+
+
+def test_step_kinds_of_the_triaxial_programmes():
+    iso = loading.isotropic(2e5, dim=3)
+    kinds = {test: [envelope.step_kind(step, 2e5) for step in loading.triaxial_shear(test, 2e5, 0.1, 100)]
+             for test in loading.TRIAXIAL_TESTS}
+    assert kinds == {"undrained": ["undrained"], "drained": ["drained"], "extension": ["drained"],
+                     "constant_p": ["other"], "true": ["other"], "cyclic": ["undrained"] * 5}
+    assert envelope.step_kind(iso, None) == "other"  # outside() never asks: the isotropic stage sets p0
+    env = {"pressures": [2e5, 1e6], "eps_max": 0.1, "kinds": ["drained", "undrained"]}
+    cyclic = loading.triaxial(2e5, 0.1, 1e-3, test="cyclic")
+    assert envelope.outside(env, cyclic, unit="Pa") == []
+    assert envelope.outside(env, loading.triaxial(3e6, 0.15, 1e-3, test="constant_p"), unit="Pa") == [
+        "p0 = 3e+06 Pa above the highest certified pressure 1e+06 Pa",
+        "test kind other not certified (certified: drained, undrained)",
+        "axial strain 0.15 beyond the certified 0.1"]
+
+
+@pytest.mark.skipif(SHIPPED is None, reason="default model not installed")
+def test_a_sweep_plans_which_ann_cases_leave_the_envelope_and_warns_once(tmp_path, capsys):
+    from homogenization.cli import sweep
+    from homogenization.sweep_plan import plan
+
+    args = sweep.build_parser().parse_args(["--backend", "ann,analytical", "--p0", "5e4,2e5", "--eps-max", "0.05",
+                                            "--out", str(tmp_path / "s")])
+    cases, _ = plan(args)
+    ann = {case.p0: case.parameters["ann_model"]["outside_envelope"] for case in cases if case.backend == "ann"}
+    assert ann == {5e4: ["p0 = 50000 N/m below the lowest certified pressure 200000 N/m"], 2e5: []}
+    assert sweep.warn_outside_envelope(cases) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["warning: ann: 1 of 2 ann case(s) run outside their model's certificate envelope: p0 = 50000 N/m "
+                   "below the lowest certified pressure 200000 N/m (each case's run.h5: ann_model.outside_envelope)"]
