@@ -20,7 +20,7 @@ _ATAN2 = np.frompyfunc(math.atan2, 2, 1)
 
 
 def exp(x: np.ndarray | float) -> np.ndarray:
-    """e**x element by element, float64, the shape of ``x``."""
+    """exp(x), e to the power x, element by element, float64, the shape of ``x``."""
     return np.asarray(_EXP(x), dtype=np.float64)
 
 

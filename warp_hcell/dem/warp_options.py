@@ -13,8 +13,8 @@ FMA. Pinned here instead:
   library's ``fma`` where the target lacks the instruction), so their bits do not move either.
 
 Every DEM Warp module sets these with ``wp.set_module_options(MODULE_OPTIONS)``; kernels built
-in their own module (``module="unique"``) pass them as ``module_options``. The kernels use +, -,
-*, / and sqrt only, which IEEE-754 rounds correctly, so the same compiled code gives the same
+in their own module (``module="unique"``) pass them as ``module_options``. The kernels use ``+ - * /``
+and sqrt only, which IEEE-754 rounds correctly, so the same compiled code gives the same
 bits whatever the CPU's vector width. The cost in speed is measured by
 ``benchmarks/bench_dem_target.py`` (docs/determinism.md).
 """
