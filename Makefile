@@ -3,6 +3,8 @@
 # make docs      : same set-up plus the docs extra, then the documentation site (warnings are errors)
 #                  into docs/_build/html/index.html
 # make bench     : speed benchmarks (numbers quoted in README)
+# make determinism: the tests marked determinism under every CPU-feature setting of numpy, OpenBLAS,
+#                  torch and numba (docs/determinism.md)
 # make reproduce : the whole pipeline from scratch: DEM database (6e5), training, active-learning
 #                  rounds on the certificate's failing tests (docs/certificate.md), three backends
 #                  (its model is the shipped one: docs/ann.md)
@@ -17,7 +19,7 @@ BIAXIAL := $(PY) -m homogenization.biaxial --overwrite
 # within 0.1 % of p0 of its converged curve (docs/dem_homogenization.md).
 OVERLAY := --increment 1e-4 --iso-increment 1e-4 --orientations 360 --eps-max 0.2
 
-.PHONY: venv test docs demo bench reproduce clean
+.PHONY: venv test determinism docs demo bench reproduce clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,6 +32,9 @@ venv: $(VENV)/.installed
 
 test: venv
 	$(PY) -m pytest -q
+
+determinism: venv
+	$(PY) tests/determinism_settings.py
 
 $(VENV)/.docs-installed: $(VENV)/.installed
 	$(PY) -m pip install -e '.[dev,docs]'

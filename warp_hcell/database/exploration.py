@@ -83,8 +83,9 @@ def leg_directions(settings: DatabaseSettings, dim: int = 2) -> np.ndarray:
         return np.stack([np.cos(psi), np.sin(psi)], axis=1)
     z = 1.0 - (2.0 * k + 1.0) / settings.n_directions
     ring, phi = np.sqrt(1.0 - z * z), k * np.pi * (3.0 - math.sqrt(5.0))
-    frame = np.array([[2.0, -1.0, -1.0], [0.0, 1.0, -1.0], [1.0, 1.0, 1.0]]) / np.sqrt([[6.0], [2.0], [3.0]])
-    return np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axis=1) @ frame
+    e_1, e_2, e_v = np.array([[2.0, -1.0, -1.0], [0.0, 1.0, -1.0], [1.0, 1.0, 1.0]]) / np.sqrt([[6.0], [2.0], [3.0]])
+    # term by term, not a matrix product: BLAS picks its kernel (FMA or not) by CPU
+    return (ring * np.cos(phi))[:, None] * e_1 + (ring * np.sin(phi))[:, None] * e_2 + z[:, None] * e_v
 
 
 def path_length(d_eps: np.ndarray) -> np.ndarray:

@@ -26,12 +26,14 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
 
+from warp_hcell.core import libm
 from warp_hcell.core.contract import StateSchema
 from warp_hcell.database.exploration import DEM_PREFIX, force_floor
 from warp_hcell.database.format import OBSERVABLES_GROUP
@@ -85,7 +87,7 @@ def probe_increments(settings: DatabaseSettings, seed: int, chunk: int, n: int, 
     focus = gen.random(n) < settings.probe_focus_fraction
     lo = np.where(focus, settings.probe_focus_min, settings.probe_min)
     hi = np.where(focus, settings.probe_focus_max, settings.probe_max)
-    magnitude = np.exp(np.log(lo) + gen.random(n) * (np.log(hi) - np.log(lo)))
+    magnitude = libm.exp(libm.log(lo) + gen.random(n) * (libm.log(hi) - libm.log(lo)))
     if angle is not None:
         return magnitude[:, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
     direction = gen.standard_normal((n, dim))
@@ -103,8 +105,8 @@ def perturbations(settings: DatabaseSettings, seed: int, chunk: int, n: int, n_f
     gen = rng(seed, 2, chunk)
     perturbed = gen.random(n) < settings.perturbed_fraction
     zero_probe = perturbed & (gen.random(n) < settings.zero_probe_fraction)
-    lo, hi = np.log(settings.perturbation_min), np.log(settings.perturbation_max)
-    amplitude = np.exp(lo + gen.random(n) * (hi - lo)) * diameter
+    lo, hi = math.log(settings.perturbation_min), math.log(settings.perturbation_max)
+    amplitude = libm.exp(lo + gen.random(n) * (hi - lo)) * diameter
     direction = gen.standard_normal((n, n_free))
     return perturbed, zero_probe, np.where(perturbed[:, None], amplitude[:, None] * direction, 0.0)
 

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+from warp_hcell.dem.warp_options import MODULE_OPTIONS
+
+wp.set_module_options(MODULE_OPTIONS)
 
 
 @wp.func

@@ -53,8 +53,9 @@ import warp as wp
 from warp_hcell.dem.contact import contact_law, contact_regime
 from warp_hcell.dem.pairs import pair_loops
 from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code
+from warp_hcell.dem.warp_options import MODULE_OPTIONS
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options(MODULE_OPTIONS)
 
 
 @wp.func

@@ -39,8 +39,9 @@ import warp as wp
 from warp_hcell.dem.contact import carried_spring, contact_law_3d
 from warp_hcell.dem.pairs import pair_loops
 from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code
+from warp_hcell.dem.warp_options import MODULE_OPTIONS
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options(MODULE_OPTIONS)
 
 DIM = 3
 """Spatial dimension of the cells this module steps."""

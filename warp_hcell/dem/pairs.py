@@ -25,8 +25,9 @@ import warp as wp
 
 from warp_hcell.dem.contact import normal_force
 from warp_hcell.dem.stepping import cell_vector, grain_matrix, mask_code, spring_types
+from warp_hcell.dem.warp_options import MODULE_OPTIONS
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options(MODULE_OPTIONS)
 
 
 @functools.lru_cache(maxsize=None)

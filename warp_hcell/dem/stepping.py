@@ -19,7 +19,9 @@ import functools
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+from warp_hcell.dem.warp_options import MODULE_OPTIONS
+
+wp.set_module_options(MODULE_OPTIONS)
 
 
 @functools.lru_cache(maxsize=None)
@@ -352,7 +354,7 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
     mat_g = grain_matrix(n_grains, dim)
     vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
 
-    @wp.kernel(module="unique", module_options={"enable_backward": False, "max_unroll": max_unroll, "fuse_fp": False})
+    @wp.kernel(module="unique", module_options={**MODULE_OPTIONS, "max_unroll": max_unroll})
     def dem_step(
         radius: wp.array2d(dtype=wp.float64), inv_mass: wp.array2d(dtype=wp.float64),
         reference_position: wp.array2d(dtype=vec), reference_cell_size: wp.array(dtype=vec),

@@ -32,6 +32,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from warp_hcell.core import libm
 from warp_hcell.core.contract import CellCounts, StateFeature, StateSchema
 from warp_hcell.core.parameters import DemSettings
 
@@ -373,7 +374,7 @@ def evaluate_observables(meso: Mesostructure, position: np.ndarray, normal_force
         a, b = o.grains
         if o.kind in ("branch_angle", "branch_length"):
             branch = position[:, b] - position[:, a]
-            out[o.name] = (np.degrees(np.arctan2(branch[:, 1], branch[:, 0])) if o.kind == "branch_angle"
+            out[o.name] = (np.degrees(libm.atan2(branch[:, 1], branch[:, 0])) if o.kind == "branch_angle"
                            else np.hypot(branch[:, 0], branch[:, 1]))
         elif o.kind == "contact":
             if contact is not None:

@@ -1,0 +1,88 @@
+"""``make determinism``: the tests marked ``determinism`` under every CPU-feature setting, one pytest each.
+
+numpy, OpenBLAS, torch (ATen, MKL, oneDNN) and numba pick their kernels by CPU; these variables
+make them pick those of another CPU, so that one machine checks what an AVX2 or an AVX-512
+machine would compute (docs/determinism.md). Settings that need AVX-512 run only where the CPU
+has it. Prints one line per setting and the total time; exit status 1 if any setting failed.
+
+    python tests/determinism_settings.py [pytest arguments, e.g. -x]
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+NUMPY_AVX2 = "X86_V4 AVX512_ICL AVX512_SPR"
+"""numpy's dispatch groups above AVX2 (numpy >= 2.4 names the x86-64 levels X86_V3, X86_V4)."""
+NUMPY_BASELINE = "X86_V3 " + NUMPY_AVX2
+"""Every numpy dispatch group above its baseline (SSE4.2)."""
+SETTINGS: list[tuple[dict[str, str], bool]] = [
+    ({}, False),
+    ({"NPY_DISABLE_CPU_FEATURES": NUMPY_AVX2}, False),
+    ({"NPY_DISABLE_CPU_FEATURES": NUMPY_BASELINE}, False),
+    ({"OPENBLAS_CORETYPE": "Sandybridge"}, False),
+    ({"OPENBLAS_CORETYPE": "Haswell"}, False),
+    ({"OPENBLAS_CORETYPE": "SkylakeX"}, True),
+    ({"ATEN_CPU_CAPABILITY": "default"}, False),
+    ({"ATEN_CPU_CAPABILITY": "avx2"}, False),
+    ({"ATEN_CPU_CAPABILITY": "avx512"}, True),
+    ({"MKL_CBWR": "COMPATIBLE"}, False),
+    ({"MKL_CBWR": "AVX2"}, False),
+    ({"MKL_CBWR": "AVX512"}, True),
+    ({"DNNL_MAX_CPU_ISA": "SSE41"}, False),
+    ({"DNNL_MAX_CPU_ISA": "AVX2"}, False),
+    ({"DNNL_MAX_CPU_ISA": "AVX512_CORE"}, True),
+    ({"NUMBA_CPU_NAME": "generic"}, False),
+    ({"NUMBA_CPU_NAME": "haswell"}, False),
+    ({"NUMBA_CPU_NAME": "skylake-avx512"}, True),
+    ({"NPY_DISABLE_CPU_FEATURES": NUMPY_BASELINE, "OPENBLAS_CORETYPE": "Sandybridge", "ATEN_CPU_CAPABILITY": "default",
+      "MKL_CBWR": "COMPATIBLE", "DNNL_MAX_CPU_ISA": "SSE41", "NUMBA_CPU_NAME": "generic"}, False),
+]
+"""(environment variables, needs AVX-512): the host as it is, then one library at a time at each
+level, then every library at its lowest level together."""
+
+
+def has_avx512() -> bool:
+    """Whether this CPU has AVX-512 F (Linux: /proc/cpuinfo; elsewhere assumed not)."""
+    try:
+        return " avx512f " in f" {Path('/proc/cpuinfo').read_text()} ".replace("\n", " ")
+    except OSError:
+        return False
+
+
+def marked_files() -> list[str]:
+    """The test files that hold tests marked ``determinism`` (collecting only these keeps each run short)."""
+    return sorted(str(p.relative_to(ROOT)) for p in (ROOT / "tests").glob("test_*.py")
+                  if "pytest.mark.determinism" in p.read_text())
+
+
+def main(argv: list[str]) -> int:
+    avx512 = has_avx512()
+    files = marked_files()
+    failed, start = [], time.perf_counter()
+    for variables, needs_avx512 in SETTINGS:
+        label = " ".join(f"{k}={v!r}" for k, v in variables.items()) or "host CPU as it is"
+        if needs_avx512 and not avx512:
+            print(f"skipped (no AVX-512): {label}", flush=True)
+            continue
+        t0 = time.perf_counter()
+        result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-m", "determinism",
+                                 *argv, *files], cwd=ROOT, env={**os.environ, **variables}, capture_output=True, text=True)
+        summary = (result.stdout.strip().splitlines() or ["(no output)"])[-1]
+        print(f"{'ok    ' if result.returncode == 0 else 'FAILED'} {time.perf_counter() - t0:5.0f} s  {label}: {summary}",
+              flush=True)
+        if result.returncode != 0:
+            failed.append(label)
+            print(result.stdout[-4000:] + result.stderr[-2000:], flush=True)
+    print(f"determinism: {len(failed)} of the settings failed in {time.perf_counter() - start:.0f} s"
+          + (": " + "; ".join(failed) if failed else ""))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
