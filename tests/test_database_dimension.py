@@ -28,13 +28,13 @@ from warp_hcell.mesostructures.mesostructure import cell_measure
 from warp_hcell.core.parameters import DatabaseSettings
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
-H_CELL_DIGEST = "65dd720c48a2ed1701567ecc76bbb0a02a773e5cd7a2b41ba6ab9b7facd04295"
+H_CELL_DIGEST = "73bc49200a1c48f73972b768727774bd6bf8b23e0de55af63b78657a8fcde3b7"
 """sha256 (``array_digest``) of the arrays of the H-cell database of ``h_cell_database`` (54 datasets)."""
-FINE_DIGEST = "b6e41d7e163bc6590426f0236a56555f058c9183b5492fa44aca1b6790c0f172"
+FINE_DIGEST = "4e3bd85e3a16e69ff78da12e94be19c565f996604ae734da44f5fff2827ccda5"
 """The same for the cell with a fine grain (``h_cell_fine_grain.toml``)."""
-SPATIAL_DIGEST = "5f11095af653a1f3241a6f3afdf64c02258932f6f3c0639822ca88fd0256308b"
+SPATIAL_DIGEST = "80170264c61f356fa3b11c21b65fa1b04d26a1b4cd969c9d5da09d28d73a2034"
 """The same for the ``TINY_3D`` database of the ten-sphere H-cell (``spatial_path``)."""
-FINES_3D_DIGEST = "d406af16f6a56c76913c10754d69fd72ef4c959d0501a0ee49ee7c084fdd9be9"
+FINES_3D_DIGEST = "912f22473b904f85869188f9d55e8e84e0389903658d13e7504a9d4fce3f51c6"
 """The same for the ten-sphere cell with a free fine grain (``fines_db``)."""
 
 
