@@ -4,6 +4,11 @@ The Markdown pages of ``docs/`` are read by MyST-Parser; the API reference is ge
 build time from the docstrings (Google style, read by napoleon): ``api.md`` names the three
 packages and ``autosummary`` walks their modules recursively into ``docs/_autosummary/``,
 so a new or moved module needs no edit here.
+
+Equations: MyST's ``dollarmath`` (``$...$`` inline, ``$$...$$`` display) and ``amsmath``
+(``\begin{aligned}`` and the like) turn them into math nodes, which ``sphinx.ext.mathjax``
+writes as ``\(...\)`` / ``\[...\]`` for MathJax; the browser loads MathJax from its CDN
+when the page is viewed, so building the site needs no network.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
     "sphinx.ext.autosummary",
+    "sphinx.ext.mathjax",
     "sphinx.ext.napoleon",
     "sphinx.ext.viewcode",
 ]
@@ -39,6 +45,7 @@ highlight_language = "text"  # literal blocks of docstrings and bare fences hold
 templates_path = ["_templates"]
 
 myst_heading_anchors = 3
+myst_enable_extensions = ["dollarmath", "amsmath"]
 
 autosummary_generate = True
 toc_object_entries = False
