@@ -1,4 +1,4 @@
-"""Sphinx configuration of the meso-hmodel documentation site (``make docs``).
+r"""Sphinx configuration of the meso-hmodel documentation site (``make docs``).
 
 The Markdown pages of ``docs/`` are read by MyST-Parser; the API reference is generated at
 build time from the docstrings (Google style, read by napoleon): ``api.md`` names the three
