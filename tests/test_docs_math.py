@@ -45,3 +45,31 @@ def test_planar_model_equations_are_math_not_ascii_blocks():
     assert not ascii_blocks  # indented "    N2 = N1 cos(alpha) ..." blocks are gone
     prose = " ".join(c.content for t in tokens if t.type == "inline" for c in (t.children or []) if c.type == "text")
     assert not re.search(r"\b(alpha|sigma|eps|phi_g|kn|N1|T1|S_nn)\d*\b\s*=", prose)  # no ASCII formula in the text
+
+
+def _conf_module():
+    """docs/conf.py as a module (it imports sphinx: skipped without the docs extra)."""
+    pytest.importorskip("sphinx.ext.napoleon")
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_conf", ROOT / "docs" / "conf.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("what", ["data", "attribute", "property"])
+def test_api_reference_reads_a_constants_docstring_as_prose_not_as_its_type(what):
+    """A first-line colon in a constant's docstring is prose: no "Type" field made of its first words."""
+    from types import SimpleNamespace
+
+    from sphinx.ext.napoleon import Config
+
+    conf = _conf_module()
+    app = SimpleNamespace(config=Config(**{k: v for k, v in vars(conf).items() if k.startswith("napoleon_")}))
+    lines = ["Deviator measure drawn: q = sigma11 - sigma22 or t = q / 2."]
+    conf._napoleon_without_inline_types(app, what, "homogenization.figures.DEVIATORS", ("q", "t"), None, lines)
+    assert lines == ["Deviator measure drawn: q = sigma11 - sigma22 or t = q / 2."]
+    sections = ["Run of a test.", "", "Args:", "    x: length [m]."]
+    conf._napoleon_without_inline_types(app, "function", "f", None, None, sections)
+    assert ":param x: length [m]." in sections  # other docstrings: napoleon as before
