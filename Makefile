@@ -2,6 +2,9 @@
 # make demo      : same set-up, then the constant-volume biaxial tests and their figures
 # make docs      : same set-up plus the docs extra, then the documentation site (warnings are errors)
 #                  into docs/_build/html/index.html
+# make figures   : same set-up, then redraws the docs' figures that hmodel commands draw (the three
+#                  backends overlaid, the two triaxial tests) into docs/figures/; the benchmark
+#                  scripts draw the others (docs/benchmarks.md)
 # make bench     : speed benchmarks (numbers quoted in README)
 # make determinism: the tests marked determinism under every CPU-feature setting of numpy, OpenBLAS,
 #                  torch and numba (docs/determinism.md)
@@ -19,7 +22,7 @@ BIAXIAL := $(PY) -m homogenization.biaxial --overwrite
 # within 0.1 % of p0 of its converged curve (docs/dem_homogenization.md).
 OVERLAY := --increment 1e-4 --iso-increment 1e-4 --orientations 360 --eps-max 0.2
 
-.PHONY: venv test determinism docs demo bench reproduce clean
+.PHONY: venv test determinism docs demo figures bench reproduce clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -52,6 +55,20 @@ demo: venv
 	$(BIAXIAL) --backend analytical --alpha0 40 --p0 5.85e6 --out demo/alpha40
 	@echo "Figures (q-eps1, Cambridge plane q-p, p-eps1, q/p-eps1):"
 	@ls -1 demo/*/cambridge.png
+
+FIGURES := runs/figures
+TRIAXIAL := $(PY) -m homogenization.triaxial --overwrite --backend analytical,dem --p0 2e5 --eps-max 0.15 \
+	--increment 1e-4 --order 11 --spins 4
+
+figures: venv
+	$(BIAXIAL) --backend analytical,dem,ann --alpha0 55 --p0 5.85e6 $(OVERLAY) --out $(FIGURES)/a55_p5.85e6
+	$(BIAXIAL) --backend analytical,dem,ann --alpha0 55 --p0 2e5 $(OVERLAY) --out $(FIGURES)/a55_p2e5
+	$(TRIAXIAL) --mesostructure hcell3d:alpha0=55 --undrained --out $(FIGURES)/tx55
+	$(TRIAXIAL) --mesostructure hcell3d:alpha0=47 --drained --out $(FIGURES)/tx47
+	cp $(FIGURES)/a55_p5.85e6/cambridge.png docs/figures/three_backends_a55_p5.85e6.png
+	cp $(FIGURES)/a55_p2e5/cambridge.png docs/figures/three_backends_a55_p2e5.png
+	cp $(FIGURES)/tx55/triaxial.png docs/figures/triaxial_a55_p2e5_undrained.png
+	cp $(FIGURES)/tx47/triaxial.png docs/figures/triaxial_a47_p2e5_drained.png
 
 bench: venv
 	$(PY) benchmarks/bench_homogenization.py

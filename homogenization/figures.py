@@ -10,10 +10,12 @@ atomically as PNG, PDF or SVG (by the file suffix). One legend per figure, below
 Tick format and axis labels: ``figure_style``.
 
 Critical-state line (``--csl``): q = M p, M by least squares through the origin over the
-last 10 % of the shear-stage points with p > 0.05 p0 (``critical_state_slope``). A run
-that ends near the origin (static liquefaction: fewer than half of those points left) or
-whose q/p is not stationary there (range > 0.1: reversed or cyclic loading) gets no line
-and a one-line warning; the command reports how many runs got one.
+last 10 % of the shear-stage points with p > 0.05 p0 (``critical_state``), drawn only where the
+run has reached a critical state there: p, q and eps_v steady over that span (least-squares
+rates against eps1: abs(dp/deps1)/p <= 0.1, abs(dq/deps1)/p <= 0.1, abs(deps_v/deps1) <= 0.01),
+q/p stationary (range <= 0.1) and the run not ended near the origin (static liquefaction).
+Any other run gets no line and a one-line warning naming the rate that failed; the command
+reports M with the measured rates of every run that got a line.
 
 The command ``hmodel plot`` is ``homogenization.cli.plot``.
 
@@ -22,6 +24,10 @@ the deviator (eps_a, q) and the volumetric strain (eps_a, eps_v), with eps_a = e
 axial) and eps_v = 1 - V/V1 counted from the end of the first (isotropic) stage (V1 its volume;
 zero on an isochoric path, where the small-strain sum eps11 + eps22 + eps33 is not),
 p = tr(sigma) / 3 and q = sqrt(3 J2) in Pa (``hmodel triaxial`` writes it as triaxial.png).
+
+Volumetric-strain panels (triaxial, drained biaxial): a run whose eps_v is round-off only
+(abs(eps_v) <= ``ROUND_OFF`` max abs(eps1), an isochoric test) is drawn at exactly 0; a panel of
+such runs only gets fixed limits and the note "eps_v held at 0", never an axis of 1e-11 %.
 
 Sign convention: compression and contraction positive; stresses in N/m (2D), Pa (3D).
 """
@@ -39,7 +45,7 @@ from matplotlib.lines import Line2D
 
 from homogenization import invariants, run_labels
 from homogenization.driver import Record
-from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS, PNG_DPI
+from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS, number, PNG_DPI
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.files import atomic_write
 
@@ -51,6 +57,11 @@ DEVIATORS = ("q", "t")
 """Deviator measure drawn: q = sigma11 - sigma22 or t = q / 2."""
 FORMATS = ("png", "pdf", "svg")
 """Figure file formats, chosen by the file suffix."""
+ROUND_OFF = 1e-9
+"""A volumetric-strain curve whose largest abs(eps_v) is at most ROUND_OFF times its largest abs(eps1) holds
+only round-off (an isochoric test): it is drawn at exactly 0 and its panel says so (``held_at_zero``) [-]."""
+HELD_AT_ZERO_LIMITS = (-1.0, 1.0)
+"""y limits [%] of a volumetric-strain panel whose every curve is held at 0 (no axis scaled to round-off)."""
 CSL_TAIL = 0.1
 """Fraction of the shear-stage points, at its end, that the critical-state line is fitted to."""
 CSL_MIN_POINTS = 3
@@ -59,14 +70,23 @@ CSL_MIN_P = 0.05
 """Points with p <= CSL_MIN_P p0 are left out of the critical-state fit [-]."""
 CSL_MAX_SPREAD = 0.1
 """Largest range max(q/p) - min(q/p) over the fitted points for the end to count as a critical state [-]."""
+CSL_MAX_P_RATE = 0.1
+"""Largest abs(dp/deps1) / p over the fitted points for a critical state [-]: p moves by at most 0.1 % of
+itself per 1 % of axial strain."""
+CSL_MAX_Q_RATE = 0.1
+"""Largest abs(dq/deps1) / p over the fitted points for a critical state [-]."""
+CSL_MAX_V_RATE = 0.01
+"""Largest abs(deps_v/deps1) over the fitted points for a critical state [-] (volume steady)."""
 CSL_LINE_STYLE = (0, (6, 2, 1, 2))
 """Dash pattern of critical-state lines (apart from the run line styles)."""
 CSL_LABEL = "critical-state line $q = M p$"
 """Legend text of the critical-state lines."""
 CSL_RULE = (f"q = M p, M by least squares through the origin over the last {100 * CSL_TAIL:g} % of the shear-stage "
-            f"points with p > {CSL_MIN_P:g} p0; a run ending near the origin (fewer than half of those points "
-            f"left: static liquefaction) or whose q/p ranges over more than {CSL_MAX_SPREAD:g} there (reversed or "
-            f"cyclic loading) gets no line and a one-line warning")
+            f"points with p > {CSL_MIN_P:g} p0, drawn only where the run reached a critical state there: "
+            f"least-squares rates against eps1 of abs(dp/deps1)/p <= {CSL_MAX_P_RATE:g}, "
+            f"abs(dq/deps1)/p <= {CSL_MAX_Q_RATE:g} and abs(deps_v/deps1) <= {CSL_MAX_V_RATE:g}, q/p ranging over "
+            f"at most {CSL_MAX_SPREAD:g}, fewer than half of those points near the origin (static liquefaction); "
+            f"any other run gets no line and a one-line warning")
 """The critical-state rule, as in --help and docs/programmes.md."""
 
 
@@ -158,21 +178,42 @@ def triaxial_curve(record: Record) -> TriaxialCurve:
     return TriaxialCurve(eps_a=e11 - e11[0], eps_v=1.0 - J / J[0], p=tail(record.p), q=tail(record.q))
 
 
+def held_at_zero(eps1: np.ndarray, eps_v: np.ndarray) -> bool:
+    """Whether ``eps_v`` holds only round-off next to ``eps1`` (same unit): max abs(eps_v) <= ``ROUND_OFF`` max abs(eps1)."""
+    return float(np.max(np.abs(eps_v), initial=0.0)) <= ROUND_OFF * float(np.max(np.abs(eps1), initial=0.0))
+
+
+def volume_drawn(eps1: np.ndarray, eps_v: np.ndarray) -> np.ndarray:
+    """``eps_v`` as drawn: exact zeros where it is round-off only (``held_at_zero``), else itself."""
+    return np.zeros_like(eps_v) if held_at_zero(eps1, eps_v) else eps_v
+
+
+def mark_held_at_zero(ax) -> None:
+    """Fixed limits ``HELD_AT_ZERO_LIMITS`` and a note on a volumetric-strain panel whose every curve is held at 0."""
+    ax.set_ylim(*HELD_AT_ZERO_LIMITS)
+    ax.text(0.5, 0.6, f"$\\varepsilon_v$ held at 0\n(isochoric: round-off only, below ${number(ROUND_OFF)}$ "
+                      f"of the axial strain)", transform=ax.transAxes, ha="center", va="bottom", fontsize="small",
+            color="0.3")
+
+
 def triaxial_figure(runs: Mapping[str, Record], *, title: str | None = None) -> Figure:
     """Three panels of the shear stage of every 3D run in ``runs`` (label -> record), overlaid:
     (p, q), (eps_a, q), (eps_a, eps_v) (module docstring); one legend below the panels."""
     if not runs:
         raise ValueError("nothing to plot: no runs given")
-    curves = []
+    curves, held = [], []
     for i, (label, record) in enumerate(runs.items()):
         c = triaxial_curve(record)
+        held.append(held_at_zero(c.eps_a, c.eps_v))
         curves.append((label, {"linestyle": LINE_STYLES[i % len(LINE_STYLES)]},
-                       ((c.p, c.q), (100.0 * c.eps_a, c.q), (100.0 * c.eps_a, 100.0 * c.eps_v))))
+                       ((c.p, c.q), (100.0 * c.eps_a, c.q), (100.0 * c.eps_a, 100.0 * volume_drawn(c.eps_a, c.eps_v)))))
     panels = ((TRIAXIAL_LABELS["p"], TRIAXIAL_LABELS["q"], "stress path"),
               (TRIAXIAL_LABELS["eps_a"], TRIAXIAL_LABELS["q"], "deviator"),
               (TRIAXIAL_LABELS["eps_a"], TRIAXIAL_LABELS["eps_v"], "volumetric strain (contraction > 0)"))
-    return panel_figure(curves, panels, figsize=(14.0, 4.8),
-                        title=title + " (compression positive)" if title else None)
+    fig = panel_figure(curves, panels, figsize=(14.0, 4.8), title=title + " (compression positive)" if title else None)
+    if all(held):
+        mark_held_at_zero(fig.axes[2])
+    return fig
 
 
 def panel_figure(curves: Sequence[tuple[str | None, Mapping[str, Any], Sequence[tuple[np.ndarray, np.ndarray]]]],
@@ -246,7 +287,7 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
     csl = csl or {}
     fig = Figure(figsize=(11.0, 8.5), layout="constrained")
     (ax_q, ax_pq), (ax_3, ax_4) = fig.subplots(2, 2)
-    handles = []
+    handles, held = [], []
     for i, (label, record) in enumerate(runs.items()):
         c = shear_curve(record)
         scale = 1.0 / normalise[label] if normalised else 1.0
@@ -257,7 +298,8 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
         style["color"] = line.get_color()
         ax_pq.plot(p, q, **style)
         if drained:
-            ax_3.plot(pct, 100.0 * c.eps_v, **style)
+            held.append(held_at_zero(c.eps1, c.eps_v))
+            ax_3.plot(pct, 100.0 * volume_drawn(c.eps1, c.eps_v), **style)
         else:
             ax_3.plot(pct, p, **style)
         if fourth == "W2":
@@ -283,6 +325,8 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
     ax_pq.set(xlabel=p_label, ylabel=deviator_label, title="stress path (Cambridge plane)")
     if drained:
         ax_3.set(xlabel=LABELS["eps1"], ylabel=LABELS["eps_v"], title="volumetric strain (contraction > 0)")
+        if all(held):
+            mark_held_at_zero(ax_3)
     else:
         ax_3.set(xlabel=LABELS["eps1"], ylabel=p_label, title="mean stress")
     if fourth == "W2":
@@ -352,47 +396,110 @@ class NoCriticalState(ValueError):
     """A run whose end gives no critical-state line (the message, one line, says why)."""
 
 
-def critical_state_slope(curve: ShearCurve, p0: float) -> float:
-    """Slope M of the critical-state line q = M p fitted to the end of a shear curve.
+@dataclass(frozen=True)
+class CriticalState:
+    """The critical state a run reached, and the measured rates that qualify it (``critical_state``).
 
-    Rule: least squares through the origin, M = sum(p q) / sum(p^2), over the last ``CSL_TAIL``
-    of the shear-stage points (at least ``CSL_MIN_POINTS``) that have p > ``CSL_MIN_P`` p0.
+    Attributes:
+        slope: M of q = M p [-].
+        eps1_span: first and last eps1 of the fitted points [-].
+        p_rate: abs(dp/deps1) / p over them (least-squares slope over the mean p) [-].
+        q_rate: abs(dq/deps1) / p over them [-].
+        v_rate: abs(deps_v/deps1) over them [-].
+    """
+
+    slope: float
+    eps1_span: tuple[float, float]
+    p_rate: float
+    q_rate: float
+    v_rate: float
+
+    def describe(self) -> str:
+        """One line: M, the span and the rates against their limits."""
+        lo, hi = self.eps1_span
+        return (f"M = {self.slope:.3f} at a critical state over eps1 = {100 * lo:.3g}-{100 * hi:.3g} %: "
+                f"|dp/deps1|/p = {self.p_rate:.2g}, |dq/deps1|/p = {self.q_rate:.2g}, "
+                f"|deps_v/deps1| = {self.v_rate:.2g} (limits {CSL_MAX_P_RATE:g}, {CSL_MAX_Q_RATE:g}, "
+                f"{CSL_MAX_V_RATE:g})")
+
+
+def _rate(x: np.ndarray, y: np.ndarray) -> float:
+    """Least-squares slope dy/dx of the points (x, y)."""
+    dx = x - x.mean()
+    return float(dx @ (y - y.mean()) / (dx @ dx))
+
+
+def critical_state(curve: ShearCurve, p0: float) -> CriticalState:
+    """The critical state at the end of a shear curve, with M of its line q = M p.
+
+    Rule (``CSL_RULE``): the last ``CSL_TAIL`` of the shear-stage points (at least
+    ``CSL_MIN_POINTS``) that have p > ``CSL_MIN_P`` p0; there p, q and eps_v must be steady
+    (least-squares rates against eps1 within ``CSL_MAX_P_RATE``, ``CSL_MAX_Q_RATE`` and
+    ``CSL_MAX_V_RATE``); M = sum(p q) / sum(p^2) by least squares through the origin.
 
     Raises:
         NoCriticalState: fewer than half of those points have p > CSL_MIN_P p0 (a run that
-            ends near the origin: static liquefaction), or q/p ranges over more than
-            ``CSL_MAX_SPREAD`` among them (not stationary: reversed or cyclic loading), or
-            the curve has no shear stage.
+            ends near the origin: static liquefaction), q/p ranges over more than
+            ``CSL_MAX_SPREAD`` among them (reversed or cyclic loading), a rate exceeds its
+            limit (p, q or the volume still changing), or the curve has no shear stage.
     """
-    p, q = curve.p[1:], curve.q[1:]
+    p, q, e1, ev = curve.p[1:], curve.q[1:], curve.eps1[1:], curve.eps_v[1:]
     if p.size == 0:
         raise NoCriticalState("no shear stage")
     n_tail = min(p.size, max(CSL_MIN_POINTS, math.ceil(CSL_TAIL * p.size)))
-    p, q = p[-n_tail:], q[-n_tail:]
+    p, q, e1, ev = p[-n_tail:], q[-n_tail:], e1[-n_tail:], ev[-n_tail:]
     keep = p > CSL_MIN_P * p0
     if 2 * int(keep.sum()) < n_tail:
         raise NoCriticalState(f"it ends at p = {curve.p[-1] / p0:.3g} p0 (liquefied): fewer than half of its last "
                               f"{100 * CSL_TAIL:g} % of points have p > {CSL_MIN_P:g} p0")
-    p, q = p[keep], q[keep]
+    p, q, e1, ev = p[keep], q[keep], e1[keep], ev[keep]
     ratio = q / p
     if ratio.max() - ratio.min() > CSL_MAX_SPREAD:
         raise NoCriticalState(f"q/p is not stationary over its last {100 * CSL_TAIL:g} % of points (from "
                               f"{ratio[0]:.3g} to {ratio[-1]:.3g}, range {ratio.max() - ratio.min():.3g} > "
                               f"{CSL_MAX_SPREAD:g}: reversed or cyclic loading)")
-    return float(p @ q / (p @ p))
+    if p.size < 2 or e1.max() == e1.min():
+        raise NoCriticalState("its last points span no axial strain: no rates to check")
+    p_mean = float(p.mean())
+    dp, dq, dv = _rate(e1, p) / p_mean, _rate(e1, q) / p_mean, _rate(e1, ev)
+    state = CriticalState(slope=float(p @ q / (p @ p)), eps1_span=(float(e1.min()), float(e1.max())),
+                          p_rate=abs(dp), q_rate=abs(dq), v_rate=abs(dv))
+    failed = [f"{name} = {value:.2g} > {limit:g}" for name, value, limit in
+              (("|dp/deps1|/p", state.p_rate, CSL_MAX_P_RATE), ("|dq/deps1|/p", state.q_rate, CSL_MAX_Q_RATE),
+               ("|deps_v/deps1|", state.v_rate, CSL_MAX_V_RATE)) if value > limit]
+    if failed:
+        trends = [f"{what} still {'rising' if rate > 0 else 'falling'}" for what, rate, limit in
+                  (("p", dp, CSL_MAX_P_RATE), ("q", dq, CSL_MAX_Q_RATE)) if abs(rate) > limit]
+        if state.v_rate > CSL_MAX_V_RATE:
+            trends.append(f"volume still {'contracting' if dv > 0 else 'dilating'}")
+        lo, hi = state.eps1_span
+        raise NoCriticalState(f"no critical state reached over eps1 = {100 * lo:.3g}-{100 * hi:.3g} % "
+                              f"({', '.join(trends)}: {', '.join(failed)}); q/p there is {ratio[-1]:.3g}")
+    return state
 
 
-def critical_state_lines(runs: Sequence[Run], names: Sequence[str], warn: Callable[[str], None]) -> list[float | None]:
-    """M of every run (None where ``critical_state_slope`` refuses, with one ``warn`` line naming it)."""
+def critical_state_slope(curve: ShearCurve, p0: float) -> float:
+    """M of ``critical_state(curve, p0)`` (NoCriticalState where the run reached none)."""
+    return critical_state(curve, p0).slope
+
+
+def critical_state_lines(runs: Sequence[Run], names: Sequence[str], warn: Callable[[str], None],
+                         report: Callable[[str], None] | None = None) -> list[float | None]:
+    """M of every run (None where ``critical_state`` refuses, with one ``warn`` line naming it);
+    ``report`` (if given) gets one line per run with a line: M and the rates that qualify it."""
     slopes: list[float | None] = []
     for run, name in zip(runs, names):
         curve = shear_curve(run.record)
         p0 = reference_pressure(run) or float(curve.p[0]) or 1.0  # no p0: the mean stress the shear starts at
         try:
-            slopes.append(critical_state_slope(curve, p0))
+            state = critical_state(curve, p0)
         except NoCriticalState as exc:
             warn(f"{name}: no critical-state line: {exc}")
             slopes.append(None)
+            continue
+        if report is not None:
+            report(f"{name}: {state.describe()}")
+        slopes.append(state.slope)
     return slopes
 
 

@@ -348,12 +348,98 @@ def test_csl_skips_a_liquefied_run_with_one_warning(runs, tmp_path, monkeypatch,
     assert _legend(fig) == ["DEM", "ANN; $M$ = 0.800", "critical-state lines $q = M p$"]
 
 
+def test_csl_is_drawn_with_its_rates_where_the_run_reached_a_steady_state(runs, tmp_path, monkeypatch, capsys):
+    """The synthetic run holds p, q and the volume steady over its last 40 %: a line, M and the rates reported."""
+    steady = _write(tmp_path / "a", synthetic(runs["analytical"], 0.5 * P0), backend="dem", p0=P0)
+    state = figures.critical_state(figures.shear_curve(synthetic(runs["analytical"], 0.5 * P0)), P0)
+    assert state.slope == pytest.approx(M, rel=1e-12)
+    assert state.p_rate <= 1e-9 and state.q_rate <= 1e-9 and state.v_rate <= 1e-12
+    assert state.eps1_span[1] == pytest.approx(0.02) and state.eps1_span[0] == pytest.approx(0.018, abs=6e-4)
+    code, fig = _figure_of_plot(monkeypatch, [steady, "--csl", "--out", str(tmp_path / "f.png")])
+    assert code == 0 and len(fig.axes[1].get_lines()) == 2
+    out = capsys.readouterr().out
+    assert f"{steady}: M = 0.800 at a critical state over eps1 = " in out
+    assert "|dp/deps1|/p = " in out and "(limits 0.1, 0.1, 0.01)" in out
+
+
+def _loose_undrained(eps_max: float) -> driver.Record:
+    return driver.run(make_cell_model("analytical"), loading.biaxial(P0, eps_max, 1e-3), mesostructure=h_cell(55.0),
+                      n_orientations=360, progress=False)
+
+
+def test_csl_refuses_the_loose_cell_while_p_still_falls(tmp_path, monkeypatch, capsys):
+    """alpha0 = 55 deg at 2e5 N/m to 20 %: p/p0 still falls (about 6 % of p per 1 % of eps1) at the end,
+    q/p is stationary within 0.1 and p > 0.05 p0: the old rule drew M = 0.14 there; now no line."""
+    record = _loose_undrained(0.2)
+    curve = figures.shear_curve(record)
+    assert 0.05 < curve.p[-1] / P0 < 0.15  # not near the origin, so only the rates can refuse it
+    with pytest.raises(figures.NoCriticalState, match=r"p still falling.*: \|dp/deps1\|/p = [0-9.]+ > 0.1"):
+        figures.critical_state(curve, P0)
+    path = _write(tmp_path / "a", record, backend="analytical", p0=P0)
+    code, fig = _figure_of_plot(monkeypatch, [path, "--csl", "--out", str(tmp_path / "f.png")])
+    assert code == 0 and len(fig.axes[1].get_lines()) == 1
+    captured = capsys.readouterr()
+    assert "critical-state lines: 0 of 1 runs" in captured.out
+    assert len(captured.err.strip().splitlines()) == 1 and "no critical state reached over eps1 = 18.1-20 %" in captured.err
+
+
+def test_csl_refuses_a_drained_run_whose_volume_still_changes(runs):
+    """A dense drained run at 5.85e6 N/m to 30 %: q/p is stationary (the old rule drew M = 0.66), eps_v is not."""
+    record = driver.run(make_cell_model("analytical"), loading.biaxial(5.85e6, 0.3, 2e-3, drained=True),
+                        mesostructure=h_cell(40.0), n_orientations=24, progress=False)
+    curve = figures.shear_curve(record)
+    with pytest.raises(figures.NoCriticalState, match=r"volume still dilating.*\|deps_v/deps1\| = [0-9.]+ > 0.01"):
+        figures.critical_state(curve, 5.85e6)
+
+
+# -- volumetric strain held at 0 ---------------------------------------------------------------
+
+def _triaxial(test: str) -> driver.Record:
+    from warp_hcell.mesostructures.builders import mesostructure_arg
+
+    return driver.run(make_cell_model("analytical", dim=3), loading.triaxial(2e5, 2e-2, 1e-4, test=test),
+                      mesostructure=mesostructure_arg("hcell3d:alpha0=55").build(55.0), lebedev_order=3, n_spins=1,
+                      progress=False)
+
+
+def test_undrained_volume_panel_is_held_at_zero_not_scaled_to_round_off():
+    undrained = _triaxial("undrained")
+    curve = figures.triaxial_curve(undrained)
+    assert 0.0 < np.abs(curve.eps_v).max() < 1e-12  # round-off of 1 - J/J1, not zero
+    fig = figures.triaxial_figure({"u": undrained})
+    ax = fig.axes[2]
+    assert np.array_equal(ax.get_lines()[0].get_ydata(), np.zeros(curve.eps_v.size))
+    assert ax.get_ylim() == figures.HELD_AT_ZERO_LIMITS
+    assert any("held at 0" in t.get_text() for t in ax.texts)
+    fig.canvas.draw()  # tick labels: plain numbers of order 1 %, no factor 10^-11
+    labels = [t.get_text() for t in ax.get_yticklabels()] + [ax.yaxis.get_offset_text().get_text()]
+    assert not any("10^{-" in label for label in labels)
+
+
+def test_drained_volume_panel_keeps_its_curve_and_a_mixed_panel_is_not_marked():
+    drained, undrained = _triaxial("drained"), _triaxial("undrained")
+    curve = figures.triaxial_curve(drained)
+    assert np.abs(curve.eps_v).max() > 1e-4
+    fig = figures.triaxial_figure({"d": drained, "u": undrained})
+    ax = fig.axes[2]
+    assert np.allclose(ax.get_lines()[0].get_ydata(), 100.0 * curve.eps_v, rtol=0, atol=1e-14)
+    assert np.array_equal(ax.get_lines()[1].get_ydata(), np.zeros(curve.eps_v.size))
+    assert not ax.texts and ax.get_ylim() != figures.HELD_AT_ZERO_LIMITS
+
+
+def test_held_at_zero_threshold():
+    eps1 = np.linspace(0.0, 0.15, 16)
+    assert figures.held_at_zero(eps1, np.full(16, 1e-10 * 0.15))
+    assert not figures.held_at_zero(eps1, np.full(16, 1e-8 * 0.15))
+
+
 # -- the figure of hmodel biaxial ------------------------------------------------------------
 
 BIAXIAL_TINY = ["--alpha0", "55", "--p0", "2e5", "--eps-max", "0.05", "--increment", "1e-3", "--orientations", "12"]
 
 
 def test_biaxial_figure_labels_normalise_and_csl(tmp_path, monkeypatch, capsys):
+    """The loose cell at 2e5 N/m, 5 % of shear: p still falls, so --csl draws no line and says why."""
     from homogenization.cli import biaxial
     from homogenization import io
     from warp_hcell.core.cli import run_main
@@ -369,11 +455,13 @@ def test_biaxial_figure_labels_normalise_and_csl(tmp_path, monkeypatch, capsys):
     assert fig.axes[1].get_xlabel().startswith("$p/p_0")
     assert fig.axes[1].get_lines()[0].get_xdata()[0] == pytest.approx(1.0, rel=1e-6)
     curve = figures.shear_curve(io.read_run(out / "run.h5").record)
-    slope = figures.critical_state_slope(curve, 2e5)
-    x, y = fig.axes[1].get_lines()[1].get_data()
-    assert y[-1] / x[-1] == pytest.approx(slope, rel=1e-12)
-    assert _legend(fig) == [f"critical-state line $q = M p$, $M$ = {slope:.3f}"]
-    assert "(critical-state lines: 1 of 1 runs)" in capsys.readouterr().out
+    with pytest.raises(figures.NoCriticalState, match="p still falling"):
+        figures.critical_state(curve, 2e5)
+    assert len(fig.axes[1].get_lines()) == 1 and _legend(fig) == []
+    captured = capsys.readouterr()
+    assert "(critical-state lines: 0 of 1 runs)" in captured.out
+    (warning,) = [line for line in captured.err.splitlines() if "warning" in line]  # the rest: progress bars
+    assert warning.startswith("hmodel biaxial: warning: analytical: no critical-state line: no critical state reached")
 
 
 def test_biaxial_normalise_needs_a_p0(tmp_path, capsys):

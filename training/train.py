@@ -55,6 +55,7 @@ from training.network import DEFAULT_HIDDEN, MesoNet, pair_features
 from training.ood import index_for_model, index_path
 from training.rollout import rollout_report
 from warp_hcell.core.cli import (
+    DefaultsHelpFormatter,
     Parser,
     command_prog,
     common_parser,
@@ -358,7 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``python -m training.train`` parser; defaults come from ``TrainConfig``."""
     d = TrainConfig()
     p = Parser(prog=command_prog("training.train"), description=__doc__.splitlines()[0], parents=[common_parser()],
-               formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+               formatter_class=DefaultsHelpFormatter)
     p.set_defaults(seed=d.seed, device=d.device)
     p.add_argument("--data", type=Path, required=True, help="generic learning database (HDF5, docs/database_format.md)")
     p.add_argument("--out", type=Path, required=True, help="state_dict file; metadata goes to the same stem .json")

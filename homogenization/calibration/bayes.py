@@ -157,7 +157,9 @@ class Posterior:
     One call runs the forward model of every test on the whole population at once.
     ``n_fallback`` counts the forward-model fallbacks fired (``forward.Curves.n_fallback``),
     ``n_failed`` the parameter sets whose forward model failed (log L = -inf), ``n_calls`` the
-    parameter sets evaluated inside the prior.
+    parameter sets evaluated inside the prior, ``n_float_errors`` the numpy operations of the
+    forward model that overflowed, divided by zero or gave NaN (a drained Newton iteration that
+    diverges for an extreme parameter set): counted, not printed as RuntimeWarnings.
     """
 
     def __init__(self, tests: Sequence[Measurement], prior: Prior, settings: ForwardSettings, noise: float) -> None:
@@ -168,13 +170,18 @@ class Posterior:
         self.n_fallback = 0
         self.n_failed = 0
         self.n_calls = 0
+        self.n_float_errors = 0
+
+    def _count_float_error(self, kind: str, flag: int) -> None:
+        self.n_float_errors += 1
 
     def curves(self, values: np.ndarray) -> list[dict[str, np.ndarray]]:
         """Model curves of parameter sets in CLI units, shape (n, n_params): per test, channel -> (n, n_data)."""
         params = {name: values[:, i] for i, name in enumerate(self.prior.names)}
         out = []
         for test in self.tests:
-            c = simulate(test, params, self.settings)
+            with np.errstate(all="call", call=self._count_float_error):
+                c = simulate(test, params, self.settings)
             self.n_fallback += int(c.n_fallback.sum())
             out.append({name: c.channel(name) for name in CHANNELS})
         return out

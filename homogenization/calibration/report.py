@@ -177,6 +177,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
         "forward_model": {
             "settings": config["forward"], "noise": args.noise,
             "evaluations": log_post.n_calls, "failed": log_post.n_failed, "fallbacks": log_post.n_fallback,
+            "floating_point_errors": log_post.n_float_errors,
             **_ann_model(config["forward"]["backend"]),
         },
         "maximum_a_posteriori": {n: float(v) for n, v in zip(prior.names, best)},
@@ -214,9 +215,15 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
     lines += result["identifiability"]
     for which, values in result["misfit_rms_over_sigma"].items():
         lines.append(f"rms misfit / sigma, {which}: " + ", ".join(f"{k} {v:.2f}" for k, v in values.items()))
-    sampler = result["sampler"]
+    sampler, forward = result["sampler"], result["forward_model"]
     lines.append(f"sampler: {sampler['steps']} steps x {sampler['walkers']} walkers, acceptance "
                  f"{sampler['acceptance_fraction']:.2f}, stuck walkers left out {sampler['stuck_walkers_left_out']}, "
-                 f"forward fallbacks {result['forward_model']['fallbacks']}, "
-                 f"failed sets {result['forward_model']['failed']}")
+                 f"forward fallbacks {forward['fallbacks']}, failed sets {forward['failed']}, "
+                 f"floating-point errors {forward.get('floating_point_errors', 0)} (overflow or NaN of diverging sets, "
+                 f"not printed)")
+    stuck = sampler["stuck_walkers_left_out"]
+    if stuck:
+        lines.append(f"{stuck} of {sampler['walkers']} walkers stayed where the posterior is below exp(-"
+                     f"{STUCK_LOG_POSTERIOR:g}) of the other walkers' and are left out of it; if that is many, rerun "
+                     f"with a --prior narrowed around the posterior above or with more --walkers")
     return lines

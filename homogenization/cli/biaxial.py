@@ -199,7 +199,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 },
                 work=work, command=command)
             runs = {name: figures.Run(record, stored[name]) for name, record in records.items()}
-            slopes = (figures.critical_state_lines(list(runs.values()), list(runs), warn) if args.csl else None)
+            slopes = (figures.critical_state_lines(list(runs.values()), list(runs), warn, report=say)
+                      if args.csl else None)
             fig = figures.overlay_figure(list(runs.values()), fourth=args.fourth_panel, deviator=args.deviator,
                                           normalise=args.normalise, csl=slopes)
             with writing_to(out):

@@ -54,7 +54,7 @@ def warn(message: str) -> None:
 
 
 def csl_summary(slopes: Sequence[float | None]) -> str:
-    """ "critical-state lines: k of n runs" (the others were warned about)."""
+    """ "critical-state lines: k of n runs" (the others were warned about: no critical state reached)."""
     return f"critical-state lines: {sum(m is not None for m in slopes)} of {len(slopes)} runs"
 
 
@@ -73,7 +73,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         missing = [path for path, run in zip(args.runs, runs) if figures.reference_pressure(run) is None]
         if missing:
             raise UserError(f"--normalise: {missing[0]} stores no p0 (no p0 parameter, no stop_at_p step)")
-    slopes = figures.critical_state_lines(runs, [str(path) for path in args.runs], warn) if args.csl else None
+    slopes = (figures.critical_state_lines(runs, [str(path) for path in args.runs], warn, report=say)
+              if args.csl else None)
     fig = figures.overlay_figure(runs, fourth=args.fourth_panel, deviator=args.deviator, normalise=args.normalise,
                          csl=slopes, title=args.title)
     with writing_to(args.out):

@@ -308,6 +308,16 @@ def _setup_task(device: str, *, quiet: bool, verbose: bool) -> None:
         quiet_warp(device)
 
 
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Help that shows each flag's default, but not where there is none: a required flag, or a
+    default of None (the flag's help says what leaving it out does)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.required or action.default is None:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def command_parser(module: str, description: str, *, device: bool = True) -> argparse.ArgumentParser:
     """Parser of the command ``python -m MODULE`` (``hmodel COMMAND``), named as the user typed it
     (``command_prog``), with its defaults shown and the flags every command shares:
@@ -315,7 +325,7 @@ def command_parser(module: str, description: str, *, device: bool = True) -> arg
     False ``verbosity_parser`` only."""
     parent = common_parser() if device else verbosity_parser()
     return Parser(prog=command_prog(module), description=description, parents=[parent],
-                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                  formatter_class=DefaultsHelpFormatter)
 
 
 def verbosity_parser() -> argparse.ArgumentParser:

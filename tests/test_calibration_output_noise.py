@@ -1,0 +1,53 @@
+"""Calibration output: floating-point errors of diverging forward runs are counted, not printed;
+stuck walkers come with advice."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from homogenization.calibration import bayes, report
+from homogenization.calibration.data import Measurement
+from homogenization.calibration.forward import ForwardSettings, simulate
+
+
+def test_forward_float_errors_are_counted_not_warned():
+    """A drained triaxial test of an extreme parameter set (alpha0 = 72 deg, kt/kn = 0.14): its 2 x 2
+    Newton iteration diverges and numpy overflows; the posterior counts those operations and no
+    RuntimeWarning escapes (the forward model alone does warn)."""
+    names = ("phi_g", "kn", "kt_over_kn", "alpha0")
+    prior = bayes.make_prior(names)
+    eps1 = np.linspace(0.002, 0.01, 5)
+    test = Measurement("x.csv", Path("x.csv"), True, 2e5, eps1, {"q": 1e5 * eps1}, dim=3)
+    posterior = bayes.Posterior([test], prior, ForwardSettings(lebedev_order=5, n_spins=2), noise=0.02)
+    values = np.array([[38.464, 2.5929e9, 0.14, 72.422], [19.443, 3.7078e9, 0.858, 60.347]])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        simulate(test, dict(zip(names, values.T)), posterior.settings)  # the forward model alone warns
+    assert [w for w in caught if issubclass(w.category, RuntimeWarning)]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        posterior(prior.to_coord(values))
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert posterior.n_float_errors > 0
+
+
+def _result(stuck: int, float_errors: int) -> dict:
+    return {
+        "posterior": {"phi_g": {"mean": 25.0, "median": 25.0, "ci95": [24.0, 26.0], "unit": "deg"}},
+        "identifiability": [],
+        "misfit_rms_over_sigma": {},
+        "sampler": {"steps": 500, "walkers": 32, "acceptance_fraction": 0.39, "stuck_walkers_left_out": stuck},
+        "forward_model": {"fallbacks": 28, "failed": 2, "floating_point_errors": float_errors},
+    }
+
+
+def test_summary_reports_float_errors_and_advises_on_stuck_walkers():
+    lines = report.summary_lines(_result(6, 41))
+    assert "forward fallbacks 28, failed sets 2, floating-point errors 41" in lines[-2]
+    assert lines[-1].startswith("6 of 32 walkers stayed where the posterior is below exp(-20)")
+    assert "--prior" in lines[-1] and "--walkers" in lines[-1]
+    quiet = report.summary_lines(_result(0, 0))
+    assert quiet[-1].startswith("sampler: ") and "floating-point errors 0" in quiet[-1]
