@@ -71,8 +71,8 @@ def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettin
     return _from_mapping(data, default_name=path.stem, contact_tolerance=contact_tolerance)
 
 
-FILE_KEYS = ("name", "cell_size", "outer", "pairs", "type1", "type2", "grains", "kinematics")
-"""Keys of a mesostructure file (``type1``, ``type2``: the H-cell labels read by ``hcell.file_labels``)."""
+FILE_KEYS = ("name", "cell_size", "outer", "pairs", *hcell.FILE_LABEL_KEYS, "grains", "kinematics")
+"""Keys of a mesostructure file (``hcell.FILE_LABEL_KEYS``: the H-cell labels read by ``hcell.file_labels``)."""
 GRAIN_KEYS = ("radius", "position", "driven")
 """Keys of one grain of a mesostructure file."""
 KINEMATICS = ("projected", "axisymmetric")

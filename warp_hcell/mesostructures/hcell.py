@@ -89,10 +89,16 @@ def _labels(name: str, pairs: Sequence[tuple[int, int]], type1, type2) -> np.nda
     return np.array([labels.get(tuple(p), 0) for p in pairs], dtype=np.int8)
 
 
+FILE_LABEL_KEYS = ("type1", "type2")
+"""Keys of a mesostructure file that hold the H-cell's labels (lists of 1-based label pairs)."""
+
+
 def file_labels(name: str, pairs: Sequence[tuple[int, int]], data: Mapping[str, Any]) -> np.ndarray:
     """``pair_label`` of a mesostructure file's pairs (0-based) from its optional ``type1`` and
-    ``type2`` lists of 1-based label pairs (``warp_hcell.mesostructures.files.load_mesostructure``)."""
-    return _labels(name, pairs, [tuple(p) for p in data.get("type1", ())], [tuple(p) for p in data.get("type2", ())])
+    ``type2`` lists of 1-based label pairs (``FILE_LABEL_KEYS``;
+    ``warp_hcell.mesostructures.files.load_mesostructure``)."""
+    type1, type2 = ([tuple(p) for p in data.get(key, ())] for key in FILE_LABEL_KEYS)
+    return _labels(name, pairs, type1, type2)
 
 
 def _reference_labelled(meso: Mesostructure) -> bool:
