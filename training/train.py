@@ -478,7 +478,7 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
               for key, value in rollout.items() if key.startswith("increment_")))
     say(f"wrote {out}, {out.with_suffix('.json')}, {curve}, {ood_file} (out-of-distribution index)",
         f"the model is UNCERTIFIED: the ANN backend refuses it until it passes "
-        f"python -m homogenization.certificate --model {out} --write (docs/certificate.md)")
+        f"python -m homogenization.certify --model {out} --write (docs/certificate.md)")
     return 0
 
 

@@ -28,7 +28,8 @@ from pathlib import Path
 from typing import Sequence
 
 from homogenization import active, certificate
-from homogenization.cli.options import active_settings, add_active_arguments, add_threads_argument, certify_options, command_parser
+from homogenization.cli.options import (active_settings, add_active_arguments, add_threads_argument, certify_options,
+                                        command_parser, EXIT_CODES_HELP)
 from training.checkpoint import metadata_path
 from training import train as training_train
 from training.network import DEFAULT_HIDDEN
@@ -58,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_active_arguments(parser)
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
     add_threads_argument(parser, "DEM and torch CPU threads", 1)
-    parser.epilog = certificate.EXIT_CODES_HELP
+    parser.epilog = EXIT_CODES_HELP
     return parser
 
 

@@ -16,6 +16,7 @@
 - ``add_uncertified_argument(parser)`` and ``refuse_uncertified(model, args)``: --uncertified-ok,
   and the refusal (one line, exit 2) of an ANN model without a passed certificate of its own
   ``.pt`` (docs/certificate.md); ``certificate_note(model)`` is the line a run summary prints;
+- ``EXIT_CODES_HELP``: the --help epilog of the commands that end with a certificate;
 - ``add_active_arguments(parser)``: the budget of the active-learning rounds (--rounds,
   --samples-per-round, --max-samples, --max-seconds, --warm-start, --widen; defaults from
   ``homogenization.active.ActiveSettings``) and the certificate's --orientations (planar cells),
@@ -35,6 +36,11 @@ from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_
 from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 
+EXIT_CODES_HELP = ("exit codes: 0 the certificate passed; 2 bad input (one line, before any work); 3 the certificate "
+                   "failed (worst > target); 4 within the target but below the minimum certificate "
+                   "(homogenization.envelope.MINIMUM), so not passed; 130 interrupted (docs/usage.md, Failures and existing output)")
+"""The --help epilog of the commands that end with a certificate (certify, train, learn;
+``homogenization.certificate.exit_code``)."""
 ISO_TO_SHEAR_INCREMENT = LoadingDefaults.iso_increment / LoadingDefaults.increment
 """Default --iso-increment as a fraction of --increment (5e-6 / 1e-5 = 0.5)."""
 

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Sequence
 
 from homogenization import active, certificate
-from homogenization.cli.options import active_settings, add_active_arguments, certify_options
+from homogenization.cli.options import active_settings, add_active_arguments, certify_options, EXIT_CODES_HELP
 from training import train as training_train
 from training.checkpoint import metadata_path
 from warp_hcell.core.cli import UserError, command_prog, quiet_warp, say, set_verbosity
@@ -64,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"add the rounds' samples to a copy of --data beside the model (MODEL{ENRICHED_SUFFIX}), "
                              "not to --data (the default where --data and its folder are writable)")
     add_active_arguments(parser)
-    parser.epilog = certificate.EXIT_CODES_HELP + "; with --no-certify: 0 once trained"
+    parser.epilog = EXIT_CODES_HELP + "; with --no-certify: 0 once trained"
     return parser
 
 
