@@ -27,19 +27,14 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from homogenization import active, certificate
+from homogenization.active_settings import ActiveSettings
 from homogenization.cli.options import (active_settings, add_active_arguments, add_threads_argument, certify_options,
                                         command_parser, EXIT_CODES_HELP)
-from training.checkpoint import metadata_path
-from training import train as training_train
-from training.network import DEFAULT_HIDDEN
+from training.config import DEFAULT_HIDDEN, hidden_widths
 from warp_hcell.core.cli import positive_int, quiet_warp, say, set_verbosity, UserError
 from warp_hcell.core.files import atomic_write, check_output_path, output_lock
 from warp_hcell.core.parameters import DatabaseSettings
 from warp_hcell.core.provenance import file_sha256
-from warp_hcell.database import format as database
-from warp_hcell.database.generate import generate
-from warp_hcell.database.shards import DiskFull
 from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
 from warp_hcell.mesostructures.files import describe, description_sha256
 from warp_hcell.mesostructures.mesostructure import MesostructureError
@@ -53,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mesostructure", type=mesostructure_arg, required=True, help=MESOSTRUCTURE_HELP)
     parser.add_argument("--out", type=Path, required=True, help="folder of db.h5, ann.pt/.json, certificate.png")
     parser.add_argument("--samples", type=positive_int, default=db.samples, help="samples of the generated database")
-    parser.add_argument("--hidden", type=training_train.hidden_widths, default=DEFAULT_HIDDEN,
+    parser.add_argument("--hidden", type=hidden_widths, default=DEFAULT_HIDDEN,
                         help="hidden widths of the network, comma separated")
     parser.add_argument("--epochs", type=positive_int, default=None, help="maximum training epochs (training's default)")
     add_active_arguments(parser)
@@ -104,6 +99,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _database_complete(path: Path) -> bool:
+    from warp_hcell.database import format as database  # noqa: PLC0415 (h5py: only when the command runs)
+
     try:
         database.check_database(path)
     except ValueError:
@@ -120,7 +117,12 @@ def _train_args(args: argparse.Namespace) -> list[str]:
 
 
 def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings,
-           budget: active.ActiveSettings, train_args: list[str]) -> int:
+           budget: ActiveSettings, train_args: list[str]) -> int:
+    from homogenization import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from training.checkpoint import metadata_path  # noqa: PLC0415
+    from warp_hcell.database.generate import generate  # noqa: PLC0415
+    from warp_hcell.database.shards import DiskFull  # noqa: PLC0415
+
     db, model, figure = out / "db.h5", out / "ann.pt", out / "certificate.png"
     if _database_complete(db):
         say(f"database: {db} (done before)")

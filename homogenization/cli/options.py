@@ -19,7 +19,7 @@
 - ``EXIT_CODES_HELP``: the --help epilog of the commands that end with a certificate;
 - ``add_active_arguments(parser)``: the budget of the active-learning rounds (--rounds,
   --samples-per-round, --max-samples, --max-seconds, --warm-start, --widen; defaults from
-  ``homogenization.active.ActiveSettings``) and the certificate's --orientations (planar cells),
+  ``homogenization.active_settings.ActiveSettings``) and the certificate's --orientations (planar cells),
   --order and --spins (spatial cells) and --eps-max,
   read back with ``active_settings(args)`` and ``certify_options(args)`` (``hmodel learn`` and
   ``hmodel train``).
@@ -31,7 +31,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from homogenization.active_settings import ActiveSettings
 from homogenization.backends import BACKENDS
+from homogenization.envelope import MINIMUM
 from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
 from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
@@ -171,10 +173,9 @@ def certificate_note(model: object) -> str:
 
 def add_active_arguments(parser: argparse.ArgumentParser) -> None:
     """The budget of the active-learning rounds (defaults ``ActiveSettings``) and the
-    certificate's --orientations and --eps-max (defaults ``homogenization.certificate``)."""
-    from homogenization import active, certificate  # noqa: PLC0415 (torch: only the commands that learn)
-
-    budget = active.ActiveSettings()
+    certificate's --orientations, --order, --spins and --eps-max (defaults: the minimum
+    certificate, ``homogenization.envelope.MINIMUM``, the defaults of ``homogenization.certificate``)."""
+    budget = ActiveSettings()
     parser.add_argument("--rounds", type=int, default=budget.rounds, help="active-learning rounds at most (0: none)")
     parser.add_argument("--samples-per-round", type=positive_int, default=budget.samples_per_round,
                         help="samples added per round")
@@ -186,18 +187,16 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
                         help="retrain each round from the previous round's weights")
     parser.add_argument("--widen", action=argparse.BooleanOptionalAction, default=budget.widen,
                         help="let a round that gained little give the next a wider network (WIDTH_LADDER)")
-    add_orientations_argument(parser, certificate.N_ORIENTATIONS, "cell orientations per certificate test (planar cells)")
-    add_spatial_rule_arguments(parser, *certificate.SPATIAL_RULE, " in the certificate's tests")
-    parser.add_argument("--eps-max", type=positive_float, default=certificate.EPS_MAX,
+    add_orientations_argument(parser, MINIMUM.n_orientations, "cell orientations per certificate test (planar cells)")
+    add_spatial_rule_arguments(parser, *MINIMUM.spatial_rule, " in the certificate's tests")
+    parser.add_argument("--eps-max", type=positive_float, default=MINIMUM.eps_max,
                         help="axial strain of each certificate shear stage [-]")
 
 
-def active_settings(args: argparse.Namespace):
+def active_settings(args: argparse.Namespace) -> ActiveSettings:
     """The ``ActiveSettings`` of the flags of ``add_active_arguments`` (UserError, one line, if invalid)."""
-    from homogenization import active  # noqa: PLC0415
-
     try:
-        return active.ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
+        return ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
                                      max_samples=args.max_samples, max_seconds=args.max_seconds,
                                      warm_start=args.warm_start, widen=args.widen)
     except ValueError as exc:

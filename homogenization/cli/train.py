@@ -36,10 +36,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from homogenization import active, certificate
 from homogenization.cli.options import active_settings, add_active_arguments, certify_options, EXIT_CODES_HELP
-from training import train as training_train
-from training.checkpoint import metadata_path
+from training import config as training_config
 from warp_hcell.core.cli import UserError, command_prog, quiet_warp, say, set_verbosity
 from warp_hcell.core.files import atomic_write, output_lock
 
@@ -52,9 +50,9 @@ OWN_FLAGS = ("data", "out", "overwrite", "help")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The training parser (``training.train.build_parser``) plus --no-certify, --no-enrich,
+    """The training parser (``training.config.build_parser``) plus --no-certify, --no-enrich,
     --enrich-copy and the active-learning flags (``add_active_arguments``)."""
-    parser = training_train.build_parser()
+    parser = training_config.build_parser()
     parser.prog = command_prog("homogenization.train")
     parser.add_argument("--no-certify", action="store_true",
                         help="leave the model uncertified (the ANN backend refuses it without --uncertified-ok)")
@@ -72,7 +70,7 @@ def training_argv(args: argparse.Namespace) -> list[str]:
     """The ``training.train`` options of parsed ``args`` besides --data, --out and --overwrite, as
     a command line (each option of the training parser with its parsed value; unset ones left out)."""
     argv: list[str] = []
-    for action in training_train.build_parser()._actions:
+    for action in training_config.build_parser()._actions:
         if not action.option_strings or action.dest in OWN_FLAGS:
             continue
         value, flag = getattr(args, action.dest), max(action.option_strings, key=len)
@@ -97,6 +95,8 @@ def _continues(args: argparse.Namespace, database: Path) -> bool:
     its JSON records active-learning rounds (none yet, too), training data --data or
     ``database``, and the training configuration of ``args``, but for what the rounds set
     (``ROUND_SET``: the hidden widths are those of its round 0)."""
+    from training.checkpoint import metadata_path  # noqa: PLC0415 (torch: only when the command runs)
+
     meta_file = metadata_path(args.out)
     if args.overwrite or not (args.out.is_file() and meta_file.is_file()):
         return False
@@ -106,7 +106,7 @@ def _continues(args: argparse.Namespace, database: Path) -> bool:
     if rounds is None or trained_on not in (args.data.resolve(), database.resolve()):
         return False
     first_hidden = rounds[0]["hidden"] if rounds and "hidden" in rounds[0] else meta["config"]["hidden"]
-    ours = training_train.config_record(training_train.config_of(args))
+    ours = training_config.config_record(training_config.config_of(args))
     return first_hidden == ours["hidden"] and all(meta["config"].get(k) == v for k, v in ours.items()
                                                   if k not in ROUND_SET)
 
@@ -118,6 +118,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     set_verbosity(args)
     budget = active_settings(args)
+    from homogenization import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from training import train as training_train  # noqa: PLC0415
+    from training.checkpoint import metadata_path  # noqa: PLC0415
+
     enrich = not (args.no_certify or args.no_enrich or budget.rounds == 0)
     train_args = training_argv(args)
     database = enriched_path(args) if enrich else args.data
