@@ -53,8 +53,6 @@ from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 ACTIVE_STREAM = 0x61637476
 """First word of the seed of a round's probes (then the run's seed and the round)."""
-ACTIVE_GROUP = "active_states"
-"""Group of the database holding the start states of the active-learning probes."""
 
 
 WIDTH_LADDER: tuple[tuple[int, ...], ...] = ((40, 40), (48, 48))
@@ -118,59 +116,18 @@ def probe_states(meso: Mesostructure, states: Mapping[str, np.ndarray], n_sample
 
 def append_samples(path: Path, samples: Mapping[str, np.ndarray], states: Mapping[str, np.ndarray],
                    record: Mapping[str, Any]) -> dict[str, Any]:
-    """Append one round's ``samples`` (``probe_states``) and their start ``states`` to database
-    ``path`` (rewritten atomically); returns the round's record as stored in ``active_learning``.
-
-    The per-sample datasets of the file grow (a dataset the file lacks is not added); the new
-    samples get ``source_round`` = the round, ``path_id`` offset past every path of the file,
-    ``state_id`` = their row in the group ``active_states``, and ``valid`` from the cleaning rules
-    when the file was cleaned (all True otherwise; ``n_valid`` follows). The file is read whole
-    into memory.
+    """Append one round's ``samples`` (``probe_states``) and their start ``states``
+    (``failing_states``) to database ``path`` (``warp_hcell.database.format.append_round``, with
+    the free coordinates of the file's mesostructure and the cleaning rules of
+    ``warp_hcell.database.clean``); returns the round's record as stored in ``active_learning``.
 
     Raises:
         ValueError: (one line) ``samples`` lacks a per-sample dataset of the file.
     """
-    data, attrs = database.read_database(path)
-    attrs_of = database.read_attrs_of(path)
-    n_old = data["d_eps"].shape[0]
-    rounds = json.loads(str(attrs.get("active_learning", "[]")))
-    k = len(rounds) + 1
-    per_sample = [name for name, value in data.items() if value.shape[:1] == (n_old,)
-                  and not name.startswith(("states/", database.SCHEMA_GROUP + "/", ACTIVE_GROUP + "/"))]
-    new = {name: np.asarray(value) for name, value in samples.items()}
-    n_new = new["d_eps"].shape[0]
-    path_base = int(data["path_id"].max(initial=-1)) + 1
-    state_base = data[f"{ACTIVE_GROUP}/round"].size if f"{ACTIVE_GROUP}/round" in data else 0
-    new["path_id"] = new["path_id"] + path_base
-    new["state_id"] = new["state_id"] + state_base
-    new["source_round"] = np.full(n_new, k, np.int64)
-    data.setdefault("source_round", np.zeros(n_old, np.int64))
-    if "valid" in data:
-        new["valid"] = (cleaning.clean_samples(new)[0] if bool(attrs.get("cleaned", False))
-                        else np.ones(n_new, bool))
-    missing = sorted(set(per_sample) - set(new))
-    if missing:
-        raise ValueError(f"{path}: the new samples lack {', '.join(missing)}")
-    for name in {*per_sample, "source_round"}:
-        data[name] = np.concatenate([data[name], new[name].astype(data[name].dtype)])
-    schema = from_description(str(attrs["mesostructure"])).schema()
-    added = {"cell_size": states["cell_size"], "free_position": free_coordinates(schema, states["position"]),
-             "shear_force": states["shear_force"], "path_id": states["cell"] + path_base,
-             "round": np.full(states["cell"].size, k, np.int64)}
-    for name, value in added.items():
-        key = f"{ACTIVE_GROUP}/{name}"
-        data[key] = np.concatenate([data[key], value]) if key in data else np.asarray(value)
-    entry = {"round": k, "samples": int(n_new), "states": int(states["cell"].size), **record}
-    rounds.append(entry)
-    attrs.update(active_learning=json.dumps(rounds), n_samples=int(n_old + n_new),
-                 n_active_samples=int(sum(r["samples"] for r in rounds)))
-    if "n_valid" in attrs and "valid" in data:
-        attrs["n_valid"] = int(np.count_nonzero(data["valid"]))
-    attrs_of["source_round"] = {"units": "-", "description": "0: the generator; k: active-learning round k"}
-    attrs_of[ACTIVE_GROUP] = {"description": "start states of the active-learning probes (state_id of samples "
-                                             "with source_round > 0)"}
-    database.write_database(path, data, attrs, attrs_of)
-    return entry
+    schema = from_description(str(_attrs(path)["mesostructure"])).schema()
+    start = {"cell_size": states["cell_size"], "free_position": free_coordinates(schema, states["position"]),
+             "shear_force": states["shear_force"], "path_id": states["cell"]}
+    return database.append_round(path, samples, start, record, clean=lambda new: cleaning.clean_samples(new)[0])
 
 
 def _certify(model: Path, options: Mapping[str, Any], settings: ActiveSettings, threads: int

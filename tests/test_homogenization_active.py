@@ -12,6 +12,7 @@ from homogenization import active, certificate
 from training import train as training_train
 from training.dataset import load_database
 from warp_hcell.core.provenance import file_sha256
+from warp_hcell.database.format import ACTIVE_GROUP
 from warp_hcell.mesostructures.hcell import h_cell
 
 SHORT = {"pressures": (2e5,), "eps_max": 0.02, "n_orientations": 6, "rollout": False}
@@ -50,7 +51,7 @@ def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, cap
     with h5py.File(db) as f:
         source = f["source_round"][()]
         stored = json.loads(f.attrs["active_learning"])
-        group_rows = f[f"{active.ACTIVE_GROUP}/round"].size
+        group_rows = f[f"{ACTIVE_GROUP}/round"].size
         new_paths = f["path_id"][source == 1]
         old_paths = f["path_id"][source == 0]
         state_id = f["state_id"][source == 1]

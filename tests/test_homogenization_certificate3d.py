@@ -146,6 +146,7 @@ def test_a_round_of_active_learning_probes_the_3d_states_of_the_failing_tests(tm
     from homogenization import active
     from test_database_dimension import SPATIAL, tiny_database
     from training import train as training_train
+    from warp_hcell.database.format import ACTIVE_GROUP
 
     db = tiny_database(tmp_path / "db.h5", SPATIAL)
     model = tmp_path / "m.pt"
@@ -160,5 +161,5 @@ def test_a_round_of_active_learning_probes_the_3d_states_of_the_failing_tests(tm
     assert cert["settings"]["spatial_rule"] == [3, 1] and cert["settings"]["n_cells"] == 3
     with h5py.File(db) as f:
         assert np.count_nonzero(f["source_round"][()] == 1) == 400
-        assert f[f"{active.ACTIVE_GROUP}/cell_size"].shape[1] == 3
-        assert f[f"{active.ACTIVE_GROUP}/shear_force"].shape[1:] == (SPATIAL.n_pairs, 3)
+        assert f[f"{ACTIVE_GROUP}/cell_size"].shape[1] == 3
+        assert f[f"{ACTIVE_GROUP}/shear_force"].shape[1:] == (SPATIAL.n_pairs, 3)
