@@ -11,8 +11,9 @@ sample comes from (0: the generator), the probed start states go to the group ``
 and the root attr ``active_learning`` lists the rounds. Each (test, orientation) of a round is a
 path of its own (new ``path_id``), so training's split by path keeps a test's states together.
 
-The loop (``learn``): train (``training.train``; from random weights, or with
-``ActiveSettings.warm_start`` from the previous round's, ``--init-from``), certify, and while the
+The loop (``learn``): train (``training.train.train_and_save`` with a ``TrainConfig``; from
+random weights, or with ``ActiveSettings.warm_start`` from the previous round's,
+``TrainConfig.init_from``), certify, and while the
 certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds) is not spent,
 add a round and retrain (a certificate within its target but below the minimum certificate,
 ``homogenization.envelope.MINIMUM``, is not passed, and no round can mend it: the loop stops).
@@ -39,6 +40,7 @@ from homogenization.active_settings import ActiveSettings
 from homogenization.envelope import verdict
 from training import train as training_train
 from training.checkpoint import metadata_path
+from training.config import TrainConfig
 from training.network import n_features
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
@@ -165,7 +167,7 @@ def round_line(entry: Mapping[str, Any]) -> str:
                if "epochs" in entry else ""))
 
 
-def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveSettings = ActiveSettings(),
+def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
           certify_options: Mapping[str, Any] | None = None, seed: int = 0, threads: int = 1,
           log: Callable[..., None] = print) -> list[dict[str, Any]]:
     """Certify ``model`` (trained on ``db``) and run active rounds until it passes or the budget
@@ -175,7 +177,8 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
     Args:
         db: the model's database; the rounds append to it (``append_samples``).
         model: the ``.pt`` (its JSON beside it), retrained in place each round.
-        train_args: ``training.train`` options besides --data/--out (e.g. ["--hidden", "8"]).
+        config: the training settings (``training.config.TrainConfig``); each round sets its widths
+            and, with ``settings.warm_start``, its start weights (``round_config``).
         certify_options: ``certificate.certify`` keywords (pressures, eps_max, n_orientations, spatial_rule,
             rollout, target).
         seed: seed of the rounds' probes (``round_seed``).
@@ -190,7 +193,7 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
     added_total = sum(r["samples"] for r in stored)
     if meta["training_data"]["sha256"] != file_sha256(db):  # appended, not yet retrained
         widths = tuple(stored[-1].get("hidden") or meta["architecture"]["hidden"])
-        train_model(db, model, _round_args(train_args, model, settings, widths), rounds)
+        train_model(db, model, round_config(config, model, settings, widths), rounds)
     elif _current(meta.get("certificate"), model, options) and rounds and rounds[-1]["round"] == len(stored) and (
             verdict(meta["certificate"]) != "failed" or len(stored) >= settings.rounds or added_total >= settings.max_samples):
         log(round_line(rounds[-1]) + " (done before)")
@@ -224,7 +227,7 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
                                                      "hidden": list(widths)})
         stored.append(entry)
         added_total += entry["samples"]
-        train_model(db, model, _round_args(train_args, model, settings, widths), rounds)
+        train_model(db, model, round_config(config, model, settings, widths), rounds)
         cert, states = _certify(model, options, settings, threads)
         rounds.append({"round": k, "samples_added": entry["samples"], "samples_total": _n_samples(db),
                        "tests": names, "worst": cert["worst"], "worst_test": cert["worst_test"],
@@ -235,11 +238,11 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
     return rounds
 
 
-def _round_args(train_args: Sequence[str], model: Path, settings: ActiveSettings, widths: Sequence[int]) -> list[str]:
-    """The training options of a round: ``train_args``, then its hidden ``widths`` and, with a
-    warm start, --init-from the model itself (the last of a repeated option counts)."""
-    return [*train_args, "--hidden", ",".join(map(str, widths)),
-            *(["--init-from", str(model)] if settings.warm_start else [])]
+def round_config(config: TrainConfig, model: Path, settings: ActiveSettings, widths: Sequence[int]) -> TrainConfig:
+    """The training settings of a round: ``config`` with its hidden ``widths`` and, with a warm
+    start, the model itself as the start weights (``init_from``)."""
+    return dataclasses.replace(config, hidden=tuple(int(w) for w in widths),
+                               **({"init_from": str(model)} if settings.warm_start else {}))
 
 
 def _architecture(model: Path) -> tuple[tuple[int, ...], int, int]:
@@ -277,12 +280,11 @@ def training_record(model: Path) -> dict[str, Any]:
             "train_seconds": meta["history"]["seconds"], "warm_start": None if warm is None else bool(warm["used"])}
 
 
-def train_model(db: Path, model: Path, train_args: Sequence[str], rounds: list[dict[str, Any]]) -> None:
-    """Train ``model`` on ``db`` from scratch (``training.train``, options ``train_args``); its
-    JSON keeps the ``rounds`` so far (an interrupted loop resumes with them)."""
-    code = training_train.main(["--data", str(db), "--out", str(model), "--overwrite", *train_args])
-    if code:
-        raise RuntimeError(f"training exited {code}")
+def train_model(db: Path, model: Path, config: TrainConfig, rounds: list[dict[str, Any]]) -> None:
+    """Train ``model`` on ``db`` from scratch (``training.train.train_and_save``, settings
+    ``config``, the model overwritten); its JSON keeps the ``rounds`` so far (an interrupted loop
+    resumes with them)."""
+    training_train.train_and_save(db, model, config, overwrite=True)
     write_rounds(model, rounds)
 
 

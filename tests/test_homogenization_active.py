@@ -10,6 +10,7 @@ import pytest
 
 from homogenization import active, certificate
 from training import train as training_train
+from training.config import TrainConfig
 from training.dataset import load_database
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.database.format import ACTIVE_GROUP
@@ -18,6 +19,8 @@ from warp_hcell.mesostructures.hcell import h_cell
 SHORT = {"pressures": (2e5,), "eps_max": 0.02, "n_orientations": 6, "rollout": False}
 """The reduced certificate of tests/test_homogenization_certificate.py."""
 TRAIN = ["--epochs", "30", "--hidden", "16", "--threads", "1", "--no-rollout", "-q"]
+TRAIN_CONFIG = TrainConfig(epochs=30, hidden=(16,), threads=1, rollout=False)
+"""``TRAIN`` as the training settings that ``active.learn`` takes."""
 
 
 @pytest.fixture()
@@ -35,7 +38,7 @@ def tiny(tmp_path):
 def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, capsys):
     db, model = tiny
     n_before = load_database(db).n_stored
-    rounds = active.learn(db, model, TRAIN, settings=active.ActiveSettings(rounds=1, samples_per_round=3000),
+    rounds = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=1, samples_per_round=3000),
                           certify_options=SHORT)
     printed = capsys.readouterr().out
     assert [r["round"] for r in rounds] == [0, 1] and "active round 1: +3000 samples" in printed
@@ -218,7 +221,7 @@ def test_rounds_record_their_network_and_a_round_that_gains_little_widens_the_ne
     another architecture), and every round records its widths."""
     db, model = tiny
     monkeypatch.setattr(active, "WIDEN_BELOW_GAIN", 1e9)
-    rounds = active.learn(db, model, TRAIN, settings=active.ActiveSettings(rounds=2, samples_per_round=1000,
+    rounds = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=2, samples_per_round=1000,
                                                                            warm_start=True),
                           certify_options={**SHORT, "target": 1e-9})
     assert [r["hidden"] for r in rounds] == [[16], [16], list(active.WIDTH_LADDER[0])]

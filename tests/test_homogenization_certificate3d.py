@@ -146,6 +146,7 @@ def test_a_round_of_active_learning_probes_the_3d_states_of_the_failing_tests(tm
     from homogenization import active
     from test_database_dimension import SPATIAL, tiny_database
     from training import train as training_train
+    from training.config import TrainConfig
     from warp_hcell.database.format import ACTIVE_GROUP
 
     db = tiny_database(tmp_path / "db.h5", SPATIAL)
@@ -153,7 +154,8 @@ def test_a_round_of_active_learning_probes_the_3d_states_of_the_failing_tests(tm
     args = ["--epochs", "8", "--hidden", "12", "--threads", "1", "--no-rollout", "-q"]
     assert training_train.main(["--data", str(db), "--out", str(model), *args]) == 0
     short = {"pressures": (2e5,), "eps_max": 0.01, "spatial_rule": (3, 1), "rollout": False, "target": 1e-6}
-    rounds = active.learn(db, model, args, settings=active.ActiveSettings(rounds=1, samples_per_round=400),
+    config = TrainConfig(epochs=8, hidden=(12,), threads=1, rollout=False)
+    rounds = active.learn(db, model, config, settings=active.ActiveSettings(rounds=1, samples_per_round=400),
                           certify_options=short, log=lambda *lines: None)
     assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["samples_added"] == 400
     assert set(rounds[1]["tests"]) <= {info["name"] for info, _ in certificate.tests_of((2e5,), 0.01, dim=3)}

@@ -23,10 +23,10 @@ Contract:
 
 from __future__ import annotations
 
-import argparse
 import copy
 import math
 import platform
+import shlex
 import sys
 import time
 from dataclasses import dataclass, field
@@ -297,24 +297,41 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code."""
     args = build_parser().parse_args(argv)
     set_verbosity(args)
-    out: Path = args.out
+    train_and_save(args.data, args.out, config_of(args), overwrite=args.overwrite, verbose=args.verbose,
+                   command="python -m training.train " + " ".join(sys.argv[1:] if argv is None else argv))
+    return 0
+
+
+def train_and_save(data: Path, out: Path, config: TrainConfig = TrainConfig(), *, overwrite: bool = False,
+                   verbose: bool = False, command: str | None = None) -> Path:
+    """Train a model on database ``data`` with ``config`` and write ``out`` (the state_dict), its
+    ``.json`` (metadata), its learning curve and its out-of-distribution index (module docstring);
+    returns ``out``. ``command`` is recorded in the JSON (None: this process's command line);
+    ``verbose`` keeps Warp's start-up lines.
+
+    Raises:
+        DataError (one line, before any training): ``out`` (or its .json/.png) exists without
+            ``overwrite``, is a folder or cannot be written; ``config.init_from`` is no file; ``data``
+            is no learning database.
+    """
+    out = Path(out)
     curve = out.with_name(f"{out.stem}_learning_curve.png")
-    if not args.overwrite and any(p.exists() for p in (out, out.with_suffix(".json"), curve)):
+    if not overwrite and any(p.exists() for p in (out, out.with_suffix(".json"), curve)):
         raise DataError(f"{out} (or its .json/.png) exists; pass --overwrite to replace it")
     if out.is_dir():
         raise DataError(f"--out {out} is a folder; give a file name")
-    if args.init_from is not None and not args.init_from.is_file():
-        raise DataError(f"--init-from {args.init_from}: no such model file")
+    if config.init_from is not None and not Path(config.init_from).is_file():
+        raise DataError(f"--init-from {config.init_from}: no such model file")
     check_output_path(out, overwrite=True)  # writable, checked before training
     with output_lock(out):
-        return _train(args, out, curve, argv)
+        _train(Path(data), out, curve, config, verbose, shlex.join(sys.argv) if command is None else command)
+    return out
 
 
-def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str] | None) -> int:
-    """Train, evaluate and write the model of ``main`` (holding the output lock)."""
-    config = config_of(args)
-    db = load_database(args.data)
-    if config.rollout and not args.verbose:
+def _train(data: Path, out: Path, curve: Path, config: TrainConfig, verbose: bool, command: str) -> None:
+    """Train, evaluate and write the model of ``train_and_save`` (holding the output lock)."""
+    db = load_database(data)
+    if config.rollout and not verbose:
         quiet_warp()  # the rollout runs the DEM on the cpu
     result = fit(db, config, progress=True)
     metrics = {name: evaluate(result.net, db, getattr(result.split, name)) for name in ("train", "val", "test")}
@@ -330,7 +347,7 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
         "mesostructure_sha256": db.mesostructure_sha256,
         "start_mesostructures": list(db.start_mesostructures),
         "target": "free-DOF displacement d_free = D |d_eps| r - C F / kn (training.network)",
-        "training_data": {"path": str(args.data), "sha256": db.sha256, "n_stored": db.n_stored,
+        "training_data": {"path": str(data), "sha256": db.sha256, "n_stored": db.n_stored,
                           "n_selected": db.n_samples, "n_unconverged_dropped": db.n_unconverged,
                           "n_jumps_dropped": db.n_jumps, "n_perturbed": int(db.perturbed.sum()),
                           "n_mechanism": int(db.mechanism.sum()), "n_train": int(split.train.size),
@@ -344,7 +361,7 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
                     "warm_start": result.history["warm_start"]},
         "versions": {"python": platform.python_version(), "torch": torch.__version__, "numpy": np.__version__,
                      "git_revision": git_revision()},
-        "command": "python -m training.train " + " ".join(sys.argv[1:] if argv is None else argv),
+        "command": command,
     }
     save_checkpoint(out, result.net, metadata)
     ood_file = index_for_model(result.net, metadata["config"], db).save(index_path(out))
@@ -362,7 +379,6 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
     say(f"wrote {out}, {out.with_suffix('.json')}, {curve}, {ood_file} (out-of-distribution index)",
         f"the model is UNCERTIFIED: the ANN backend refuses it until it passes "
         f"python -m homogenization.certify --model {out} --write (docs/certificate.md)")
-    return 0
 
 
 def run(argv: Sequence[str] | None = None) -> int:

@@ -30,7 +30,7 @@ from typing import Sequence
 from homogenization.active_settings import ActiveSettings
 from homogenization.cli.options import (active_settings, add_active_arguments, add_threads_argument, certify_options,
                                         command_parser, EXIT_CODES_HELP)
-from training.config import DEFAULT_HIDDEN, hidden_widths
+from training.config import DEFAULT_HIDDEN, hidden_widths, TrainConfig
 from warp_hcell.core.cli import positive_int, quiet_warp, say, set_verbosity, UserError
 from warp_hcell.core.files import atomic_write, check_output_path, output_lock
 from warp_hcell.core.parameters import DatabaseSettings
@@ -77,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, MesostructureError) as exc:
         raise UserError(str(exc)) from None
     out: Path = args.out
-    train_args = _train_args(args)
+    config = _train_config(args)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; give a folder")
     check_output_path(out, overwrite=True)  # the nearest existing folder above --out can be written
@@ -95,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out.mkdir(parents=True, exist_ok=True)
         with atomic_write(record) as tmp:
             tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
-        return _learn(args, out, meso, settings, budget, train_args)
+        return _learn(args, out, meso, settings, budget, config)
 
 
 def _database_complete(path: Path) -> bool:
@@ -108,16 +108,15 @@ def _database_complete(path: Path) -> bool:
     return True
 
 
-def _train_args(args: argparse.Namespace) -> list[str]:
-    """The ``training.train`` options of the run besides --data and --out."""
-    return ["--hidden", ",".join(map(str, args.hidden)), "--threads", str(args.threads), "--seed", str(args.seed),
-            "--device", args.device,
-            *(["--epochs", str(args.epochs)] if args.epochs else []),
-            *(["--no-rollout"] if args.no_rollout else []), *(["-q"] if args.quiet else [])]
+def _train_config(args: argparse.Namespace) -> TrainConfig:
+    """The training settings of the run (training's defaults but for --hidden, --threads, --seed,
+    --device, --epochs and --no-rollout)."""
+    return TrainConfig(hidden=tuple(args.hidden), threads=args.threads, seed=args.seed, device=args.device,
+                       rollout=not args.no_rollout, **({"epochs": args.epochs} if args.epochs else {}))
 
 
 def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings,
-           budget: ActiveSettings, train_args: list[str]) -> int:
+           budget: ActiveSettings, config: TrainConfig) -> int:
     from homogenization import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from training.checkpoint import metadata_path  # noqa: PLC0415
     from warp_hcell.database.generate import generate  # noqa: PLC0415
@@ -138,8 +137,8 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
     if meta.is_file() and model.is_file() and json.loads(meta.read_text())["training_data"]["sha256"] == file_sha256(db):
         say(f"model: {model} (done before)")
     else:
-        active.train_model(db, model, train_args, [])
-    rounds = active.learn(db, model, train_args, settings=budget, seed=args.seed, threads=args.threads, log=say,
+        active.train_model(db, model, config, [])
+    rounds = active.learn(db, model, config, settings=budget, seed=args.seed, threads=args.threads, log=say,
                           certify_options=certify_options(args))
     cert = json.loads(meta.read_text())["certificate"]
     stamp = out / "certificate.png.sha256"

@@ -45,8 +45,6 @@ ENRICHED_SUFFIX = "_db.h5"
 """Name ending of the enriched copy of the database beside the model (``enriched_path``)."""
 ROUND_SET = ("hidden", "init_from")
 """Training options that the active-learning rounds set themselves (wider network, warm start)."""
-OWN_FLAGS = ("data", "out", "overwrite", "help")
-"""Destinations of the training parser that ``training_argv`` leaves out (the command passes them itself)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -64,21 +62,6 @@ def build_parser() -> argparse.ArgumentParser:
     add_active_arguments(parser)
     parser.epilog = EXIT_CODES_HELP + "; with --no-certify: 0 once trained"
     return parser
-
-
-def training_argv(args: argparse.Namespace) -> list[str]:
-    """The ``training.train`` options of parsed ``args`` besides --data, --out and --overwrite, as
-    a command line (each option of the training parser with its parsed value; unset ones left out)."""
-    argv: list[str] = []
-    for action in training_config.build_parser()._actions:
-        if not action.option_strings or action.dest in OWN_FLAGS:
-            continue
-        value, flag = getattr(args, action.dest), max(action.option_strings, key=len)
-        if action.nargs == 0:
-            argv += [flag] if value else []
-        elif value is not None:
-            argv += [flag, ",".join(map(str, value)) if isinstance(value, tuple) else str(value)]
-    return argv
 
 
 def enriched_path(args: argparse.Namespace) -> Path:
@@ -123,7 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from training.checkpoint import metadata_path  # noqa: PLC0415
 
     enrich = not (args.no_certify or args.no_enrich or budget.rounds == 0)
-    train_args = training_argv(args)
+    config = training_config.config_of(args)
     database = enriched_path(args) if enrich else args.data
     resumed = enrich and _continues(args, database)
     if not (args.verbose or args.no_certify):
@@ -133,10 +116,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         if database != args.data and database.exists() and not args.overwrite:
             raise UserError(f"{database} exists; pass --overwrite to replace it")
-        code = training_train.main(["--data", str(args.data), "--out", str(args.out),
-                                    *(["--overwrite"] if args.overwrite else []), *train_args])
-        if code or args.no_certify:
-            return code
+        training_train.train_and_save(args.data, args.out, config, overwrite=args.overwrite, verbose=args.verbose)
+        if args.no_certify:
+            return 0
         if not enrich:
             cert = certificate.certify(args.out, **certify_options(args))
             say(*certificate.summary_lines(cert), f"certificate -> {certificate.write_certificate(args.out, cert)}")
@@ -148,7 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     say(f"active learning adds its samples to {database}" + ("" if database == args.data else
         f" (a copy of {args.data}: {'--enrich-copy' if args.enrich_copy else 'that file or its folder is not writable'})"))
     with output_lock(database):
-        rounds = active.learn(database, args.out, train_args, settings=budget, certify_options=certify_options(args),
+        rounds = active.learn(database, args.out, config, settings=budget, certify_options=certify_options(args),
                               seed=args.seed, threads=args.threads, log=say)
     cert = json.loads(metadata_path(args.out).read_text())["certificate"]
     say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples "
