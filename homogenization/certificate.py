@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -369,3 +370,9 @@ def exit_code(cert: dict[str, Any]) -> int:
     """Exit code of a command whose result is certificate ``cert``: 0 passed, ``EXIT_FAILED`` (3)
     failed, ``EXIT_WEAK`` (4) within the target but below the minimum certificate."""
     return {"passed": 0, "failed": EXIT_FAILED, "weak": EXIT_WEAK}[verdict(cert)]
+
+
+if __name__ == "__main__":  # the command is in the command layer; an old command line gets one line, not silence
+    print("python -m homogenization.certificate: this is the library; the command is hmodel certify "
+          "(python -m homogenization.certify)", file=sys.stderr)
+    raise SystemExit(2)
