@@ -36,7 +36,7 @@ import h5py
 import numpy as np
 
 from homogenization import certificate
-from homogenization.active_settings import ActiveSettings
+from homogenization.learning_settings import ActiveSettings, CertificateSettings
 from homogenization.envelope import verdict
 from training import train as training_train
 from training.checkpoint import metadata_path
@@ -132,23 +132,23 @@ def append_samples(path: Path, samples: Mapping[str, np.ndarray], states: Mappin
     return database.append_round(path, samples, start, record, clean=lambda new: cleaning.clean_samples(new)[0])
 
 
-def _certify(model: Path, options: Mapping[str, Any], settings: ActiveSettings, threads: int
+def _certify(model: Path, measured: CertificateSettings, settings: ActiveSettings, threads: int
              ) -> tuple[dict[str, Any], dict[str, dict[str, np.ndarray]]]:
     states: dict[str, dict[str, np.ndarray]] = {}
-    cert = certificate.certify(model, dem_states=states, state_every=settings.state_every, threads=threads, **options)
+    cert = certificate.certify(model, dem_states=states, state_every=settings.state_every, threads=threads,
+                               **measured.keywords())
     return cert, states
 
 
-def _current(cert: Mapping[str, Any] | None, model: Path, options: Mapping[str, Any]) -> bool:
-    """Whether ``cert`` was measured on this model file with the certificate ``options``."""
+def _current(cert: Mapping[str, Any] | None, model: Path, measured: CertificateSettings) -> bool:
+    """Whether ``cert`` was measured on this model file with the certificate settings ``measured``."""
     if not cert or cert.get("model_sha256") != file_sha256(model):
         return False
     dim = from_description(json.loads(metadata_path(model).read_text())["mesostructure"]).dim
-    keys = ("pressures", "eps_max", "n_orientations", "spatial_rule")
-    wanted = certificate.requested_settings(dim, **{k: options[k] for k in keys if k in options})
+    wanted = certificate.requested_settings(dim, pressures=measured.pressures, eps_max=measured.eps_max,
+                                            n_orientations=measured.n_orientations, spatial_rule=measured.spatial_rule)
     wanted.pop("increment")
-    return all(cert["settings"].get(k) == v for k, v in wanted.items()) and cert["target"] == options.get(
-        "target", certificate.TARGET)
+    return all(cert["settings"].get(k) == v for k, v in wanted.items()) and cert["target"] == measured.target
 
 
 def _record(model: Path, rounds: list[dict[str, Any]], cert: Mapping[str, Any]) -> None:
@@ -168,7 +168,7 @@ def round_line(entry: Mapping[str, Any]) -> str:
 
 
 def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
-          certify_options: Mapping[str, Any] | None = None, seed: int = 0, threads: int = 1,
+          certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
           log: Callable[..., None] = print) -> list[dict[str, Any]]:
     """Certify ``model`` (trained on ``db``) and run active rounds until it passes or the budget
     of ``settings`` is spent; returns the rounds (round 0: the model as given), also stored in
@@ -179,14 +179,12 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         model: the ``.pt`` (its JSON beside it), retrained in place each round.
         config: the training settings (``training.config.TrainConfig``); each round sets its widths
             and, with ``settings.warm_start``, its start weights (``round_config``).
-        certify_options: ``certificate.certify`` keywords (pressures, eps_max, n_orientations, spatial_rule,
-            rollout, target).
+        certify_settings: what each round's certificate measures (``CertificateSettings``).
         seed: seed of the rounds' probes (``round_seed``).
         threads: DEM and ANN threads of the certificate and the probes.
         log: receives one line per round.
     """
     start = time.perf_counter()
-    options = dict(certify_options or {})
     meta = json.loads(metadata_path(model).read_text())
     stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
     rounds = [r for r in meta.get("active_learning") or [] if r["round"] <= len(stored)]
@@ -194,12 +192,12 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
     if meta["training_data"]["sha256"] != file_sha256(db):  # appended, not yet retrained
         widths = tuple(stored[-1].get("hidden") or meta["architecture"]["hidden"])
         train_model(db, model, round_config(config, model, settings, widths), rounds)
-    elif _current(meta.get("certificate"), model, options) and rounds and rounds[-1]["round"] == len(stored) and (
+    elif _current(meta.get("certificate"), model, certify_settings) and rounds and rounds[-1]["round"] == len(stored) and (
             verdict(meta["certificate"]) != "failed" or len(stored) >= settings.rounds or added_total >= settings.max_samples):
         log(round_line(rounds[-1]) + " (done before)")
         return rounds
     t0 = time.perf_counter()
-    cert, states = _certify(model, options, settings, threads)
+    cert, states = _certify(model, certify_settings, settings, threads)
     if not rounds or rounds[-1]["round"] != len(stored):
         rounds.append({"round": len(stored), "samples_added": stored[-1]["samples"] if stored else 0,
                        "samples_total": _n_samples(db), "worst": cert["worst"], "worst_test": cert["worst_test"],
@@ -228,7 +226,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         stored.append(entry)
         added_total += entry["samples"]
         train_model(db, model, round_config(config, model, settings, widths), rounds)
-        cert, states = _certify(model, options, settings, threads)
+        cert, states = _certify(model, certify_settings, settings, threads)
         rounds.append({"round": k, "samples_added": entry["samples"], "samples_total": _n_samples(db),
                        "tests": names, "worst": cert["worst"], "worst_test": cert["worst_test"],
                        "passed": cert["passed"], "verdict": cert["verdict"], "seconds": time.perf_counter() - t0,

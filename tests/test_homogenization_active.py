@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from homogenization import active, certificate
+from homogenization.learning_settings import CertificateSettings
 from training import train as training_train
 from training.config import TrainConfig
 from training.dataset import load_database
@@ -39,7 +40,7 @@ def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, cap
     db, model = tiny
     n_before = load_database(db).n_stored
     rounds = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=1, samples_per_round=3000),
-                          certify_options=SHORT)
+                          certify_settings=CertificateSettings(**SHORT))
     printed = capsys.readouterr().out
     assert [r["round"] for r in rounds] == [0, 1] and "active round 1: +3000 samples" in printed
     first, second = rounds
@@ -223,7 +224,7 @@ def test_rounds_record_their_network_and_a_round_that_gains_little_widens_the_ne
     monkeypatch.setattr(active, "WIDEN_BELOW_GAIN", 1e9)
     rounds = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=2, samples_per_round=1000,
                                                                            warm_start=True),
-                          certify_options={**SHORT, "target": 1e-9})
+                          certify_settings=CertificateSettings(**SHORT, target=1e-9))
     assert [r["hidden"] for r in rounds] == [[16], [16], list(active.WIDTH_LADDER[0])]
     assert [r["warm_start"] for r in rounds] == [None, True, False]
     assert "(training 40x40, " in capsys.readouterr().out

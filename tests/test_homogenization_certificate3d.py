@@ -144,6 +144,7 @@ def test_a_round_of_active_learning_probes_the_3d_states_of_the_failing_tests(tm
     import h5py
 
     from homogenization import active
+    from homogenization.learning_settings import CertificateSettings
     from test_database_dimension import SPATIAL, tiny_database
     from training import train as training_train
     from training.config import TrainConfig
@@ -156,7 +157,7 @@ def test_a_round_of_active_learning_probes_the_3d_states_of_the_failing_tests(tm
     short = {"pressures": (2e5,), "eps_max": 0.01, "spatial_rule": (3, 1), "rollout": False, "target": 1e-6}
     config = TrainConfig(epochs=8, hidden=(12,), threads=1, rollout=False)
     rounds = active.learn(db, model, config, settings=active.ActiveSettings(rounds=1, samples_per_round=400),
-                          certify_options=short, log=lambda *lines: None)
+                          certify_settings=CertificateSettings(**short), log=lambda *lines: None)
     assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["samples_added"] == 400
     assert set(rounds[1]["tests"]) <= {info["name"] for info, _ in certificate.tests_of((2e5,), 0.01, dim=3)}
     cert = json.loads(model.with_suffix(".json").read_text())["certificate"]

@@ -27,8 +27,8 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from homogenization.active_settings import ActiveSettings
-from homogenization.cli.options import (active_settings, add_active_arguments, add_threads_argument, certify_options,
+from homogenization.learning_settings import ActiveSettings
+from homogenization.cli.options import (active_settings, add_active_arguments, add_threads_argument, certificate_settings,
                                         command_parser, EXIT_CODES_HELP)
 from training.config import DEFAULT_HIDDEN, hidden_widths, TrainConfig
 from warp_hcell.core.cli import positive_int, quiet_warp, say, set_verbosity, UserError
@@ -139,7 +139,7 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
     else:
         active.train_model(db, model, config, [])
     rounds = active.learn(db, model, config, settings=budget, seed=args.seed, threads=args.threads, log=say,
-                          certify_options=certify_options(args))
+                          certify_settings=certificate_settings(args))
     cert = json.loads(meta.read_text())["certificate"]
     stamp = out / "certificate.png.sha256"
     if figure.is_file() and stamp.is_file() and stamp.read_text().strip() == cert["model_sha256"]:

@@ -19,9 +19,9 @@
 - ``EXIT_CODES_HELP``: the --help epilog of the commands that end with a certificate;
 - ``add_active_arguments(parser)``: the budget of the active-learning rounds (--rounds,
   --samples-per-round, --max-samples, --max-seconds, --warm-start, --widen; defaults from
-  ``homogenization.active_settings.ActiveSettings``) and the certificate's --orientations (planar cells),
+  ``homogenization.learning_settings.ActiveSettings``) and the certificate's --orientations (planar cells),
   --order and --spins (spatial cells) and --eps-max,
-  read back with ``active_settings(args)`` and ``certify_options(args)`` (``hmodel learn`` and
+  read back with ``active_settings(args)`` and ``certificate_settings(args)`` (``hmodel learn`` and
   ``hmodel train``).
 """
 
@@ -29,9 +29,8 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
-from homogenization.active_settings import ActiveSettings
+from homogenization.learning_settings import ActiveSettings, CertificateSettings
 from homogenization.backends import BACKENDS
 from homogenization.envelope import MINIMUM
 from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
@@ -203,7 +202,7 @@ def active_settings(args: argparse.Namespace) -> ActiveSettings:
         raise UserError(str(exc)) from None
 
 
-def certify_options(args: argparse.Namespace) -> dict[str, Any]:
-    """``certificate.certify`` keywords of the flags of ``add_active_arguments`` and --no-rollout."""
-    return {"n_orientations": args.orientations, "spatial_rule": (args.order, args.spins), "eps_max": args.eps_max,
-            "rollout": not args.no_rollout}
+def certificate_settings(args: argparse.Namespace) -> CertificateSettings:
+    """The ``CertificateSettings`` of the flags of ``add_active_arguments`` and --no-rollout."""
+    return CertificateSettings(n_orientations=args.orientations, spatial_rule=(args.order, args.spins),
+                               eps_max=args.eps_max, rollout=not args.no_rollout)

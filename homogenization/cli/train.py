@@ -36,7 +36,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from homogenization.cli.options import active_settings, add_active_arguments, certify_options, EXIT_CODES_HELP
+from homogenization.cli.options import active_settings, add_active_arguments, certificate_settings, EXIT_CODES_HELP
 from training import config as training_config
 from warp_hcell.core.cli import UserError, command_prog, quiet_warp, say, set_verbosity
 from warp_hcell.core.files import atomic_write, output_lock
@@ -120,7 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.no_certify:
             return 0
         if not enrich:
-            cert = certificate.certify(args.out, **certify_options(args))
+            cert = certificate.certify(args.out, **certificate_settings(args).keywords())
             say(*certificate.summary_lines(cert), f"certificate -> {certificate.write_certificate(args.out, cert)}")
             return certificate.exit_code(cert)
         active.write_rounds(args.out, [])
@@ -130,7 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     say(f"active learning adds its samples to {database}" + ("" if database == args.data else
         f" (a copy of {args.data}: {'--enrich-copy' if args.enrich_copy else 'that file or its folder is not writable'})"))
     with output_lock(database):
-        rounds = active.learn(database, args.out, config, settings=budget, certify_options=certify_options(args),
+        rounds = active.learn(database, args.out, config, settings=budget, certify_settings=certificate_settings(args),
                               seed=args.seed, threads=args.threads, log=say)
     cert = json.loads(metadata_path(args.out).read_text())["certificate"]
     say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples "
