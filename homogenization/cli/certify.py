@@ -12,8 +12,8 @@ database (``training.ood.index_for_model``), for a model trained before the inde
 Bad input (missing model or JSON, a mesostructure the model does not take, --out a folder, an
 existing file without --overwrite or in a folder that cannot be written, --write on a JSON that
 cannot be written, --data not a database) is one line and exit 2, before any test. The parser
-reads its defaults from ``homogenization.envelope.MINIMUM`` (the certificate's defaults), so
-that --help imports neither torch nor Warp.
+reads its defaults from ``homogenization.learning_settings.CertificateSettings`` (the minimum
+certificate), so that --help imports neither torch nor Warp.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ import shlex
 from pathlib import Path
 from typing import Sequence
 
-from homogenization.cli.options import add_spatial_rule_arguments, command_parser, EXIT_CODES_HELP
-from homogenization.envelope import MINIMUM
+from homogenization.cli.options import add_spatial_rule_arguments, certificate_settings, command_parser, EXIT_CODES_HELP
+from homogenization.learning_settings import CertificateSettings
 from warp_hcell.core.cli import positive_float, positive_int, quiet_warp, say, set_verbosity, UserError, writing_to
 from warp_hcell.core.files import atomic_write, check_output_path
 from warp_hcell.mesostructures.builders import mesostructure_arg
@@ -37,6 +37,7 @@ PROG = "homogenization.certify"
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the certificate command."""
+    measured = CertificateSettings()
     parser = command_parser(PROG, "Measure a meso-ANN model against the DEM of its mesostructure (docs/certificate.md).")
     parser.add_argument("--model", type=Path, required=True, help="the model (.pt, its .json beside it)")
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
@@ -45,10 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="first (re)build the model's out-of-distribution index from this learning database")
     parser.add_argument("--write", action="store_true", help="store the certificate in the model's JSON")
     parser.add_argument("--out", type=Path, default=None, help="also write the certificate to this JSON file")
-    parser.add_argument("--orientations", type=positive_int, default=MINIMUM.n_orientations,
+    parser.add_argument("--orientations", type=positive_int, default=measured.n_orientations,
                         help="cell orientations per test (planar cells)")
-    add_spatial_rule_arguments(parser, *MINIMUM.spatial_rule, " per test")
-    parser.add_argument("--eps-max", type=positive_float, default=MINIMUM.eps_max,
+    add_spatial_rule_arguments(parser, *measured.spatial_rule, " per test")
+    parser.add_argument("--eps-max", type=positive_float, default=measured.eps_max,
                         help="axial strain of each shear stage [-]")
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
     parser.epilog = EXIT_CODES_HELP
@@ -110,8 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.data is not None:
         rebuild_index(args.model, args.data)
     try:
-        cert = certificate.certify(args.model, mesostructure=meso, eps_max=args.eps_max, n_orientations=args.orientations,
-                                   spatial_rule=(args.order, args.spins), rollout=not args.no_rollout)
+        cert = certificate.certify(args.model, mesostructure=meso, **certificate_settings(args).keywords())
     except driver.ControlError as exc:
         raise UserError(f"a test did not converge: {exc}") from None
     if argv is not None:

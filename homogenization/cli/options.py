@@ -30,9 +30,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from homogenization.learning_settings import ActiveSettings, CertificateSettings
 from homogenization.backends import BACKENDS
-from homogenization.envelope import MINIMUM
+from homogenization.learning_settings import ActiveSettings, CertificateSettings
 from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
 from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
@@ -172,9 +171,9 @@ def certificate_note(model: object) -> str:
 
 def add_active_arguments(parser: argparse.ArgumentParser) -> None:
     """The budget of the active-learning rounds (defaults ``ActiveSettings``) and the
-    certificate's --orientations, --order, --spins and --eps-max (defaults: the minimum
-    certificate, ``homogenization.envelope.MINIMUM``, the defaults of ``homogenization.certificate``)."""
-    budget = ActiveSettings()
+    certificate's --orientations, --order, --spins and --eps-max (defaults ``CertificateSettings``:
+    the minimum certificate)."""
+    budget, measured = ActiveSettings(), CertificateSettings()
     parser.add_argument("--rounds", type=int, default=budget.rounds, help="active-learning rounds at most (0: none)")
     parser.add_argument("--samples-per-round", type=positive_int, default=budget.samples_per_round,
                         help="samples added per round")
@@ -186,9 +185,9 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
                         help="retrain each round from the previous round's weights")
     parser.add_argument("--widen", action=argparse.BooleanOptionalAction, default=budget.widen,
                         help="let a round that gained little give the next a wider network (WIDTH_LADDER)")
-    add_orientations_argument(parser, MINIMUM.n_orientations, "cell orientations per certificate test (planar cells)")
-    add_spatial_rule_arguments(parser, *MINIMUM.spatial_rule, " in the certificate's tests")
-    parser.add_argument("--eps-max", type=positive_float, default=MINIMUM.eps_max,
+    add_orientations_argument(parser, measured.n_orientations, "cell orientations per certificate test (planar cells)")
+    add_spatial_rule_arguments(parser, *measured.spatial_rule, " in the certificate's tests")
+    parser.add_argument("--eps-max", type=positive_float, default=measured.eps_max,
                         help="axial strain of each certificate shear stage [-]")
 
 
@@ -196,8 +195,8 @@ def active_settings(args: argparse.Namespace) -> ActiveSettings:
     """The ``ActiveSettings`` of the flags of ``add_active_arguments`` (UserError, one line, if invalid)."""
     try:
         return ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
-                                     max_samples=args.max_samples, max_seconds=args.max_seconds,
-                                     warm_start=args.warm_start, widen=args.widen)
+                              max_samples=args.max_samples, max_seconds=args.max_seconds,
+                              warm_start=args.warm_start, widen=args.widen)
     except ValueError as exc:
         raise UserError(str(exc)) from None
 
