@@ -40,7 +40,7 @@ from homogenization.backends import make_cell_model
 from homogenization.orientation import localise, orientations
 from training.checkpoint import load_checkpoint, save_checkpoint
 from training.network import MesoNet
-from training.train import hidden_widths
+from training.config import hidden_widths
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import CellDefaults

@@ -11,8 +11,9 @@ sample comes from (0: the generator), the probed start states go to the group ``
 and the root attr ``active_learning`` lists the rounds. Each (test, orientation) of a round is a
 path of its own (new ``path_id``), so training's split by path keeps a test's states together.
 
-The loop (``learn``): train (``training.train``; from random weights, or with
-``ActiveSettings.warm_start`` from the previous round's, ``--init-from``), certify, and while the
+The loop (``learn``): train (``training.train.train_and_save`` with a ``TrainConfig``; from
+random weights, or with ``ActiveSettings.warm_start`` from the previous round's,
+``TrainConfig.init_from``), certify, and while the
 certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds) is not spent,
 add a round and retrain (a certificate within its target but below the minimum certificate,
 ``homogenization.envelope.MINIMUM``, is not passed, and no round can mend it: the loop stops).
@@ -28,7 +29,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -36,9 +36,11 @@ import h5py
 import numpy as np
 
 from homogenization import certificate
+from homogenization.learning_settings import ActiveSettings, CertificateSettings
 from homogenization.envelope import verdict
 from training import train as training_train
 from training.checkpoint import metadata_path
+from training.config import TrainConfig
 from training.network import n_features
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
@@ -53,8 +55,6 @@ from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 ACTIVE_STREAM = 0x61637476
 """First word of the seed of a round's probes (then the run's seed and the round)."""
-ACTIVE_GROUP = "active_states"
-"""Group of the database holding the start states of the active-learning probes."""
 
 
 WIDTH_LADDER: tuple[tuple[int, ...], ...] = ((40, 40), (48, 48))
@@ -65,36 +65,6 @@ with ``benchmarks/bench_ann.py --widths`` (docs/certificate.md, "Network size"; 
 WIDEN_BELOW_GAIN = 2.0
 """A round whose certificate worst fell by less than this factor [-] from the round before
 gives the next round the next rung of ``WIDTH_LADDER`` (samples alone stopped helping)."""
-
-
-@dataclass(frozen=True)
-class ActiveSettings:
-    """Budget and sampling of the active-learning loop (the single home of their defaults)."""
-
-    rounds: int = 3
-    """Rounds at most (each: probe, append, retrain, certify) [-]."""
-    samples_per_round: int = 20_000
-    """Samples added per round [-] (spread evenly over the states of the failing tests)."""
-    max_samples: int = 100_000
-    """Samples added over all rounds at most [-]."""
-    max_seconds: float = 4 * 3600.0
-    """Wall time [s] after which no new round starts."""
-    state_every: int = 10
-    """Increments between two DEM states kept along a certificate test [-]."""
-    warm_start: bool = False
-    """Retrain each round from the previous round's weights (``training.train --init-from``)
-    instead of random weights (docs/certificate.md, "Warm start": measured no better)."""
-    widen: bool = True
-    """Let a round train a wider network (``next_widths``: the next rung of ``WIDTH_LADDER``)
-    when the round before it gained less than ``WIDEN_BELOW_GAIN``."""
-
-    def __post_init__(self) -> None:
-        for name in ("rounds", "samples_per_round", "max_samples", "state_every"):
-            least = 0 if name == "rounds" else 1
-            if int(getattr(self, name)) < least:
-                raise ValueError(f"{name} = {getattr(self, name)} must be >= {least}")
-        if not self.max_seconds > 0.0:
-            raise ValueError(f"max_seconds = {self.max_seconds:g} must be > 0")
 
 
 def failing_states(cert: Mapping[str, Any], dem_states: Mapping[str, Mapping[str, np.ndarray]]
@@ -148,78 +118,37 @@ def probe_states(meso: Mesostructure, states: Mapping[str, np.ndarray], n_sample
 
 def append_samples(path: Path, samples: Mapping[str, np.ndarray], states: Mapping[str, np.ndarray],
                    record: Mapping[str, Any]) -> dict[str, Any]:
-    """Append one round's ``samples`` (``probe_states``) and their start ``states`` to database
-    ``path`` (rewritten atomically); returns the round's record as stored in ``active_learning``.
-
-    The per-sample datasets of the file grow (a dataset the file lacks is not added); the new
-    samples get ``source_round`` = the round, ``path_id`` offset past every path of the file,
-    ``state_id`` = their row in the group ``active_states``, and ``valid`` from the cleaning rules
-    when the file was cleaned (all True otherwise; ``n_valid`` follows). The file is read whole
-    into memory.
+    """Append one round's ``samples`` (``probe_states``) and their start ``states``
+    (``failing_states``) to database ``path`` (``warp_hcell.database.format.append_round``, with
+    the free coordinates of the file's mesostructure and the cleaning rules of
+    ``warp_hcell.database.clean``); returns the round's record as stored in ``active_learning``.
 
     Raises:
         ValueError: (one line) ``samples`` lacks a per-sample dataset of the file.
     """
-    data, attrs = database.read_database(path)
-    attrs_of = database.read_attrs_of(path)
-    n_old = data["d_eps"].shape[0]
-    rounds = json.loads(str(attrs.get("active_learning", "[]")))
-    k = len(rounds) + 1
-    per_sample = [name for name, value in data.items() if value.shape[:1] == (n_old,)
-                  and not name.startswith(("states/", database.SCHEMA_GROUP + "/", ACTIVE_GROUP + "/"))]
-    new = {name: np.asarray(value) for name, value in samples.items()}
-    n_new = new["d_eps"].shape[0]
-    path_base = int(data["path_id"].max(initial=-1)) + 1
-    state_base = data[f"{ACTIVE_GROUP}/round"].size if f"{ACTIVE_GROUP}/round" in data else 0
-    new["path_id"] = new["path_id"] + path_base
-    new["state_id"] = new["state_id"] + state_base
-    new["source_round"] = np.full(n_new, k, np.int64)
-    data.setdefault("source_round", np.zeros(n_old, np.int64))
-    if "valid" in data:
-        new["valid"] = (cleaning.clean_samples(new)[0] if bool(attrs.get("cleaned", False))
-                        else np.ones(n_new, bool))
-    missing = sorted(set(per_sample) - set(new))
-    if missing:
-        raise ValueError(f"{path}: the new samples lack {', '.join(missing)}")
-    for name in {*per_sample, "source_round"}:
-        data[name] = np.concatenate([data[name], new[name].astype(data[name].dtype)])
-    schema = from_description(str(attrs["mesostructure"])).schema()
-    added = {"cell_size": states["cell_size"], "free_position": free_coordinates(schema, states["position"]),
-             "shear_force": states["shear_force"], "path_id": states["cell"] + path_base,
-             "round": np.full(states["cell"].size, k, np.int64)}
-    for name, value in added.items():
-        key = f"{ACTIVE_GROUP}/{name}"
-        data[key] = np.concatenate([data[key], value]) if key in data else np.asarray(value)
-    entry = {"round": k, "samples": int(n_new), "states": int(states["cell"].size), **record}
-    rounds.append(entry)
-    attrs.update(active_learning=json.dumps(rounds), n_samples=int(n_old + n_new),
-                 n_active_samples=int(sum(r["samples"] for r in rounds)))
-    if "n_valid" in attrs and "valid" in data:
-        attrs["n_valid"] = int(np.count_nonzero(data["valid"]))
-    attrs_of["source_round"] = {"units": "-", "description": "0: the generator; k: active-learning round k"}
-    attrs_of[ACTIVE_GROUP] = {"description": "start states of the active-learning probes (state_id of samples "
-                                             "with source_round > 0)"}
-    database.write_database(path, data, attrs, attrs_of)
-    return entry
+    schema = from_description(str(_attrs(path)["mesostructure"])).schema()
+    start = {"cell_size": states["cell_size"], "free_position": free_coordinates(schema, states["position"]),
+             "shear_force": states["shear_force"], "path_id": states["cell"]}
+    return database.append_round(path, samples, start, record, clean=lambda new: cleaning.clean_samples(new)[0])
 
 
-def _certify(model: Path, options: Mapping[str, Any], settings: ActiveSettings, threads: int
+def _certify(model: Path, measured: CertificateSettings, settings: ActiveSettings, threads: int
              ) -> tuple[dict[str, Any], dict[str, dict[str, np.ndarray]]]:
     states: dict[str, dict[str, np.ndarray]] = {}
-    cert = certificate.certify(model, dem_states=states, state_every=settings.state_every, threads=threads, **options)
+    cert = certificate.certify(model, dem_states=states, state_every=settings.state_every, threads=threads,
+                               **measured.keywords())
     return cert, states
 
 
-def _current(cert: Mapping[str, Any] | None, model: Path, options: Mapping[str, Any]) -> bool:
-    """Whether ``cert`` was measured on this model file with the certificate ``options``."""
+def _current(cert: Mapping[str, Any] | None, model: Path, measured: CertificateSettings) -> bool:
+    """Whether ``cert`` was measured on this model file with the certificate settings ``measured``."""
     if not cert or cert.get("model_sha256") != file_sha256(model):
         return False
     dim = from_description(json.loads(metadata_path(model).read_text())["mesostructure"]).dim
-    keys = ("pressures", "eps_max", "n_orientations", "spatial_rule")
-    wanted = certificate.requested_settings(dim, **{k: options[k] for k in keys if k in options})
+    wanted = certificate.requested_settings(dim, pressures=measured.pressures, eps_max=measured.eps_max,
+                                            n_orientations=measured.n_orientations, spatial_rule=measured.spatial_rule)
     wanted.pop("increment")
-    return all(cert["settings"].get(k) == v for k, v in wanted.items()) and cert["target"] == options.get(
-        "target", certificate.TARGET)
+    return all(cert["settings"].get(k) == v for k, v in wanted.items()) and cert["target"] == measured.target
 
 
 def _record(model: Path, rounds: list[dict[str, Any]], cert: Mapping[str, Any]) -> None:
@@ -238,8 +167,8 @@ def round_line(entry: Mapping[str, Any]) -> str:
                if "epochs" in entry else ""))
 
 
-def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveSettings = ActiveSettings(),
-          certify_options: Mapping[str, Any] | None = None, seed: int = 0, threads: int = 1,
+def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
+          certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
           log: Callable[..., None] = print) -> list[dict[str, Any]]:
     """Certify ``model`` (trained on ``db``) and run active rounds until it passes or the budget
     of ``settings`` is spent; returns the rounds (round 0: the model as given), also stored in
@@ -248,28 +177,27 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
     Args:
         db: the model's database; the rounds append to it (``append_samples``).
         model: the ``.pt`` (its JSON beside it), retrained in place each round.
-        train_args: ``training.train`` options besides --data/--out (e.g. ["--hidden", "8"]).
-        certify_options: ``certificate.certify`` keywords (pressures, eps_max, n_orientations, spatial_rule,
-            rollout, target).
+        config: the training settings (``training.config.TrainConfig``); each round sets its widths
+            and, with ``settings.warm_start``, its start weights (``round_config``).
+        certify_settings: what each round's certificate measures (``CertificateSettings``).
         seed: seed of the rounds' probes (``round_seed``).
         threads: DEM and ANN threads of the certificate and the probes.
         log: receives one line per round.
     """
     start = time.perf_counter()
-    options = dict(certify_options or {})
     meta = json.loads(metadata_path(model).read_text())
     stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
     rounds = [r for r in meta.get("active_learning") or [] if r["round"] <= len(stored)]
     added_total = sum(r["samples"] for r in stored)
     if meta["training_data"]["sha256"] != file_sha256(db):  # appended, not yet retrained
         widths = tuple(stored[-1].get("hidden") or meta["architecture"]["hidden"])
-        train_model(db, model, _round_args(train_args, model, settings, widths), rounds)
-    elif _current(meta.get("certificate"), model, options) and rounds and rounds[-1]["round"] == len(stored) and (
+        train_model(db, model, round_config(config, model, settings, widths), rounds)
+    elif _current(meta.get("certificate"), model, certify_settings) and rounds and rounds[-1]["round"] == len(stored) and (
             verdict(meta["certificate"]) != "failed" or len(stored) >= settings.rounds or added_total >= settings.max_samples):
         log(round_line(rounds[-1]) + " (done before)")
         return rounds
     t0 = time.perf_counter()
-    cert, states = _certify(model, options, settings, threads)
+    cert, states = _certify(model, certify_settings, settings, threads)
     if not rounds or rounds[-1]["round"] != len(stored):
         rounds.append({"round": len(stored), "samples_added": stored[-1]["samples"] if stored else 0,
                        "samples_total": _n_samples(db), "worst": cert["worst"], "worst_test": cert["worst_test"],
@@ -297,8 +225,8 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
                                                      "hidden": list(widths)})
         stored.append(entry)
         added_total += entry["samples"]
-        train_model(db, model, _round_args(train_args, model, settings, widths), rounds)
-        cert, states = _certify(model, options, settings, threads)
+        train_model(db, model, round_config(config, model, settings, widths), rounds)
+        cert, states = _certify(model, certify_settings, settings, threads)
         rounds.append({"round": k, "samples_added": entry["samples"], "samples_total": _n_samples(db),
                        "tests": names, "worst": cert["worst"], "worst_test": cert["worst_test"],
                        "passed": cert["passed"], "verdict": cert["verdict"], "seconds": time.perf_counter() - t0,
@@ -308,11 +236,11 @@ def learn(db: Path, model: Path, train_args: Sequence[str], *, settings: ActiveS
     return rounds
 
 
-def _round_args(train_args: Sequence[str], model: Path, settings: ActiveSettings, widths: Sequence[int]) -> list[str]:
-    """The training options of a round: ``train_args``, then its hidden ``widths`` and, with a
-    warm start, --init-from the model itself (the last of a repeated option counts)."""
-    return [*train_args, "--hidden", ",".join(map(str, widths)),
-            *(["--init-from", str(model)] if settings.warm_start else [])]
+def round_config(config: TrainConfig, model: Path, settings: ActiveSettings, widths: Sequence[int]) -> TrainConfig:
+    """The training settings of a round: ``config`` with its hidden ``widths`` and, with a warm
+    start, the model itself as the start weights (``init_from``)."""
+    return dataclasses.replace(config, hidden=tuple(int(w) for w in widths),
+                               **({"init_from": str(model)} if settings.warm_start else {}))
 
 
 def _architecture(model: Path) -> tuple[tuple[int, ...], int, int]:
@@ -350,12 +278,11 @@ def training_record(model: Path) -> dict[str, Any]:
             "train_seconds": meta["history"]["seconds"], "warm_start": None if warm is None else bool(warm["used"])}
 
 
-def train_model(db: Path, model: Path, train_args: Sequence[str], rounds: list[dict[str, Any]]) -> None:
-    """Train ``model`` on ``db`` from scratch (``training.train``, options ``train_args``); its
-    JSON keeps the ``rounds`` so far (an interrupted loop resumes with them)."""
-    code = training_train.main(["--data", str(db), "--out", str(model), "--overwrite", *train_args])
-    if code:
-        raise RuntimeError(f"training exited {code}")
+def train_model(db: Path, model: Path, config: TrainConfig, rounds: list[dict[str, Any]]) -> None:
+    """Train ``model`` on ``db`` from scratch (``training.train.train_and_save``, settings
+    ``config``, the model overwritten); its JSON keeps the ``rounds`` so far (an interrupted loop
+    resumes with them)."""
+    training_train.train_and_save(db, model, config, overwrite=True)
     write_rounds(model, rounds)
 
 

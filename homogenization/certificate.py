@@ -1,6 +1,5 @@
-"""python -m homogenization.certificate --model M.pt [--mesostructure SPEC] [--data DB.h5] [--write] [--out FILE]
-
-The certificate of a meso-ANN model: the model against the DEM of its own mesostructure on
+"""The certificate of a meso-ANN model: measure it against the DEM (the library of ``hmodel certify``).
+The model against the DEM of its own mesostructure on
 homogenised tests its database did not see (docs/certificate.md).
 
 Tests (``tests_of``; constants below), by the cell's dimension. A planar cell: isotropic
@@ -36,29 +35,23 @@ target), ``below_minimum`` (where the settings are weaker than the minimum certi
 ``MINIMUM``, whose values the constants above take), ``verdict`` ("passed", "failed", "weak")
 and ``passed`` (within the target AND the minimum met), and ``envelope`` (what the tests
 covered: pressures, axial strain, test kinds, cell; the ANN backend warns when a run leaves
-it). ``--write`` stores it in the model's JSON under ``"certificate"`` (the ANN backend then
-checks it), ``--out`` writes it to a JSON file (an existing one only with --overwrite); the
-command prints one line per test, the verdict and the envelope, and exits with the verdict:
-0 passed, ``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the target but below the
-minimum (the certificate is recorded in every case).
+it). ``write_certificate`` stores it in the model's JSON under ``"certificate"`` (the ANN
+backend then checks it), ``summary_lines`` are what the commands print (one line per test,
+the verdict and the envelope) and ``exit_code`` the verdict as their exit code: 0 passed,
+``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the target but below the minimum.
 ``certify(dem_states=...)`` also hands back the DEM cell states met along each test (the
 active-learning rounds of ``homogenization.active`` probe those of the failing tests).
-``--data DB.h5`` first (re)builds the model's out-of-distribution index from its database
-(``training.ood.index_for_model``), for a model trained before the index existed. Bad input (missing model or JSON, a
-mesostructure the model does not take, --out a folder, an existing file without --overwrite
-or in a folder that cannot be written, --write on a JSON that cannot be written, --data not a
-database) is one line and exit 2, before any test.
+The command (its flags, its checks of bad input, --data, --write, --out) is
+``homogenization.cli.certify`` (``hmodel certify``, ``python -m homogenization.certify``).
 
 Sign convention: compression and contraction positive; stresses in N/m.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import os
-import shlex
+import sys
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -68,16 +61,12 @@ import numpy as np
 from homogenization import driver, loading
 from homogenization.envelope import dimension_of, envelope_of, MINIMUM, shortfalls, verdict
 from homogenization.backends import make_cell_model
-from homogenization.cli.options import add_spatial_rule_arguments, command_parser
-from training.checkpoint import load_checkpoint, metadata_path, read_metadata
-from training.dataset import load_database
-from training.ood import index_for_model, index_path, state_features
+from training.checkpoint import metadata_path, read_metadata
+from training.ood import state_features
 from training.rollout import rollout_report
-from warp_hcell.core.files import atomic_write, check_output_path
-from warp_hcell.core.cli import UserError, positive_float, positive_int, quiet_warp, run_main, say, set_verbosity, writing_to
+from warp_hcell.core.files import atomic_write
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.core.provenance import file_sha256, git_revision
-from warp_hcell.mesostructures.builders import mesostructure_arg
 from warp_hcell.mesostructures.files import from_description
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
@@ -98,10 +87,6 @@ EXIT_FAILED = 3
 """Exit code of ``certify``, ``train`` and ``learn`` when the certificate failed (worst > target)."""
 EXIT_WEAK = 4
 """Exit code of those commands when the certificate is within the target but below ``MINIMUM`` (not passed)."""
-EXIT_CODES_HELP = ("exit codes: 0 the certificate passed; 2 bad input (one line, before any work); 3 the certificate "
-                   "failed (worst > target); 4 within the target but below the minimum certificate "
-                   "(homogenization.envelope.MINIMUM), so not passed; 130 interrupted (docs/usage.md, Failures and existing output)")
-"""The --help epilog of the commands that end with a certificate (certify, train, learn)."""
 COVERAGE_EVERY = 50
 """Increments between two DEM states sampled for the coverage."""
 
@@ -387,82 +372,7 @@ def exit_code(cert: dict[str, Any]) -> int:
     return {"passed": 0, "failed": EXIT_FAILED, "weak": EXIT_WEAK}[verdict(cert)]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Parser of the certificate command."""
-    parser = command_parser("homogenization.certificate", "Measure a meso-ANN model against the DEM of its "
-                            "mesostructure (docs/certificate.md).")
-    parser.add_argument("--model", type=Path, required=True, help="the model (.pt, its .json beside it)")
-    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
-                        help="the cell of the tests (None: the model's own mesostructure)")
-    parser.add_argument("--data", type=Path, default=None,
-                        help="first (re)build the model's out-of-distribution index from this learning database")
-    parser.add_argument("--write", action="store_true", help="store the certificate in the model's JSON")
-    parser.add_argument("--out", type=Path, default=None, help="also write the certificate to this JSON file")
-    parser.add_argument("--orientations", type=positive_int, default=N_ORIENTATIONS,
-                        help="cell orientations per test (planar cells)")
-    add_spatial_rule_arguments(parser, *SPATIAL_RULE, " per test")
-    parser.add_argument("--eps-max", type=positive_float, default=EPS_MAX, help="axial strain of each shear stage [-]")
-    parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
-    parser.epilog = EXIT_CODES_HELP
-    return parser
-
-
-def check_writable(args: argparse.Namespace) -> None:
-    """UserError (one line) before any work: --out an existing file without --overwrite, a folder, or
-    in a folder that cannot be written; --write with a model JSON or folder that cannot be written;
-    --data not a file."""
-    if args.out is not None:
-        if args.out.is_dir():
-            raise UserError(f"--out {args.out} is a folder; give a JSON file name")
-        check_output_path(args.out, overwrite=args.overwrite)
-    if args.write:
-        meta = metadata_path(args.model)
-        if not meta.is_file():
-            raise UserError(f"--model {args.model}: no {meta.name} beside it (the model's JSON)")
-        if not (os.access(meta, os.W_OK) and os.access(meta.parent, os.W_OK)):
-            raise UserError(f"--write: cannot write to {meta} (or its folder)")
-    if args.data is not None and not args.data.is_file():
-        raise UserError(f"--data {args.data}: no such database file")
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code: 0 passed, 2 bad input (one line, before any test),
-    ``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the target but below the minimum."""
-    args = build_parser().parse_args(argv)
-    set_verbosity(args)
-    if not args.model.is_file():
-        raise UserError(f"--model {args.model}: no such model file")
-    check_writable(args)
-    read_metadata(args.model)  # CheckpointError (one line) for a missing or unreadable JSON
-    if not args.verbose:
-        quiet_warp()
-    meso = args.mesostructure.build(None) if args.mesostructure is not None else None
-    if args.data is not None:
-        net, meta = load_checkpoint(args.model)
-        try:
-            database = load_database(args.data)
-        except (OSError, KeyError) as exc:
-            raise UserError(f"--data {args.data}: not a learning database ({exc})") from None
-        index = index_for_model(net, meta["config"], database)
-        with writing_to(index_path(args.model)):
-            say(f"out-of-distribution index: {index.points.shape[0]} states, threshold {index.threshold:.4g} -> "
-                f"{index.save(index_path(args.model))}")
-    try:
-        cert = certify(args.model, mesostructure=meso, eps_max=args.eps_max, n_orientations=args.orientations,
-                       spatial_rule=(args.order, args.spins), rollout=not args.no_rollout)
-    except driver.ControlError as exc:
-        raise UserError(f"a test did not converge: {exc}") from None
-    if argv is not None:
-        cert["command"] = shlex.join(["python", "-m", "homogenization.certificate", *argv])
-    say(*summary_lines(cert))
-    if args.out is not None:
-        with writing_to(args.out), atomic_write(args.out) as tmp:
-            tmp.write_text(json.dumps(cert, indent=2, sort_keys=True) + "\n")
-    if args.write:
-        with writing_to(metadata_path(args.model)):
-            say(f"certificate -> {write_certificate(args.model, cert)}")
-    return exit_code(cert)
-
-
-if __name__ == "__main__":
-    raise SystemExit(run_main(main))
+if __name__ == "__main__":  # the command is in the command layer; an old command line gets one line, not silence
+    print("python -m homogenization.certificate: this is the library; the command is hmodel certify "
+          "(python -m homogenization.certify)", file=sys.stderr)
+    raise SystemExit(2)

@@ -48,7 +48,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import lebedev_rule
 
 from homogenization.orientation import (  # noqa: F401 (localise, average_moment and the volume rule of both dimensions)
     average_moment,
@@ -125,6 +124,8 @@ def hemisphere_rule(order: int) -> tuple[np.ndarray, np.ndarray]:
     Returns:
         axes (M, 3) unit vectors, weights (M,) [-].
     """
+    from scipy.integrate import lebedev_rule  # noqa: PLC0415 (scipy: only where a 3D rule is built)
+
     if order not in LEBEDEV_ORDERS:
         raise ValueError(f"Lebedev order {order} is not one of {', '.join(map(str, LEBEDEV_ORDERS))}")
     points, weights = lebedev_rule(order)

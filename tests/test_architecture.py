@@ -75,6 +75,74 @@ def test_the_core_imports_nothing_else_of_the_package():
         assert not other, f"{path.name} imports {other}"
 
 
+
+def _graph(paths) -> dict[str, set[str]]:
+    """Module -> the package's modules it imports (every import, function-local ones included)."""
+    names = {_name(path) for path in paths}
+    return {_name(path): {name for _, name in _imports(path) if name in names and name != _name(path)} for path in paths}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module of ``graph`` (iterative Tarjan): its import circles."""
+    order: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found = []
+    for root in sorted(graph):
+        if root in order:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        order[root] = low[root] = len(order)
+        stack.append(root)
+        while work:
+            node, targets = work[-1]
+            target = next(targets, None)
+            if target is None:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == order[node]:
+                    component = stack[stack.index(node):]
+                    del stack[stack.index(node):]
+                    if len(component) > 1:
+                        found.append(sorted(component))
+            elif target not in order:
+                order[target] = low[target] = len(order)
+                stack.append(target)
+                work.append((target, iter(sorted(graph[target]))))
+            elif target in stack:
+                low[node] = min(low[node], order[target])
+    return found
+
+
+def test_no_import_circle_among_the_package_modules():
+    circles = _cycles(_graph(MODULES))
+    assert not circles, f"import circles (each a set of modules that import one another): {circles}"
+
+
+def test_the_circle_check_finds_a_circle_through_a_local_import(tmp_path):
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set(), "c": {"a", "b"}}) == []
+    source = tmp_path / "probe.py"
+    source.write_text("def f():\n    from homogenization.active import learn\n")
+    assert (2, "homogenization.active") in _imports(source)
+
+
+def _defines_something(path: Path) -> bool:
+    return any(isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) for node in ast.walk(ast.parse(path.read_text())))
+
+
+@pytest.mark.parametrize("path", [p for p in MODULES if _name(p).startswith("homogenization.")
+                                  and not _name(p).startswith("homogenization.cli")],
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_only_the_python_m_entries_import_the_command_layer(path):
+    """A module of ``homogenization`` outside ``cli/`` that imports ``homogenization.cli`` is a
+    ``python -m`` entry: it defines no function or class, it only starts a command."""
+    commands = sorted({name for _, name in _imports(path) if name.startswith("homogenization.cli")})
+    assert not commands or not _defines_something(path), (
+        f"{_name(path)} is a library module and imports the command layer {commands}")
+
+
 def _tokens(path: Path) -> set[tuple[int, str]]:
     """Identifiers and non-docstring string constants of a module, with their line."""
     tree = ast.parse(path.read_text())

@@ -9,14 +9,19 @@ import numpy as np
 import pytest
 
 from homogenization import active, certificate
+from homogenization.learning_settings import CertificateSettings
 from training import train as training_train
+from training.config import TrainConfig
 from training.dataset import load_database
 from warp_hcell.core.provenance import file_sha256
+from warp_hcell.database.format import ACTIVE_GROUP
 from warp_hcell.mesostructures.hcell import h_cell
 
 SHORT = {"pressures": (2e5,), "eps_max": 0.02, "n_orientations": 6, "rollout": False}
 """The reduced certificate of tests/test_homogenization_certificate.py."""
 TRAIN = ["--epochs", "30", "--hidden", "16", "--threads", "1", "--no-rollout", "-q"]
+TRAIN_CONFIG = TrainConfig(epochs=30, hidden=(16,), threads=1, rollout=False)
+"""``TRAIN`` as the training settings that ``active.learn`` takes."""
 
 
 @pytest.fixture()
@@ -34,8 +39,8 @@ def tiny(tmp_path):
 def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, capsys):
     db, model = tiny
     n_before = load_database(db).n_stored
-    rounds = active.learn(db, model, TRAIN, settings=active.ActiveSettings(rounds=1, samples_per_round=3000),
-                          certify_options=SHORT)
+    rounds = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=1, samples_per_round=3000),
+                          certify_settings=CertificateSettings(**SHORT))
     printed = capsys.readouterr().out
     assert [r["round"] for r in rounds] == [0, 1] and "active round 1: +3000 samples" in printed
     first, second = rounds
@@ -50,7 +55,7 @@ def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, cap
     with h5py.File(db) as f:
         source = f["source_round"][()]
         stored = json.loads(f.attrs["active_learning"])
-        group_rows = f[f"{active.ACTIVE_GROUP}/round"].size
+        group_rows = f[f"{ACTIVE_GROUP}/round"].size
         new_paths = f["path_id"][source == 1]
         old_paths = f["path_id"][source == 0]
         state_id = f["state_id"][source == 1]
@@ -217,9 +222,9 @@ def test_rounds_record_their_network_and_a_round_that_gains_little_widens_the_ne
     another architecture), and every round records its widths."""
     db, model = tiny
     monkeypatch.setattr(active, "WIDEN_BELOW_GAIN", 1e9)
-    rounds = active.learn(db, model, TRAIN, settings=active.ActiveSettings(rounds=2, samples_per_round=1000,
+    rounds = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=2, samples_per_round=1000,
                                                                            warm_start=True),
-                          certify_options={**SHORT, "target": 1e-9})
+                          certify_settings=CertificateSettings(**SHORT, target=1e-9))
     assert [r["hidden"] for r in rounds] == [[16], [16], list(active.WIDTH_LADDER[0])]
     assert [r["warm_start"] for r in rounds] == [None, True, False]
     assert "(training 40x40, " in capsys.readouterr().out

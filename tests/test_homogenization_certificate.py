@@ -11,7 +11,7 @@ import torch
 
 from homogenization import certificate
 from homogenization.backends.ann import default_model_path
-from homogenization.cli import biaxial
+from homogenization.cli import biaxial, certify
 from warp_hcell.core.cli import run_main
 from warp_hcell.core.provenance import file_sha256
 
@@ -190,7 +190,7 @@ def test_a_weakened_certificate_of_a_perturbed_model_is_not_passed_and_the_backe
     model = _copy_shipped(tmp_path / "w")
     _perturb(model, 4.0)
     argv = ["--model", str(model), "--orientations", "2", "--eps-max", "0.0005", "--no-rollout", "--write"]
-    assert run_main(certificate.main, argv) == certificate.EXIT_WEAK
+    assert run_main(certify.main, argv) == certificate.EXIT_WEAK
     printed = capsys.readouterr().out
     stored = json.loads(model.with_suffix(".json").read_text())["certificate"]
     assert stored["model_sha256"] == file_sha256(model) and len(stored["tests"]) == 3 * len(certificate.PRESSURES) + 1
@@ -220,10 +220,10 @@ def test_certify_refuses_bad_input_before_any_test(tmp_path, capsys):
              ("--model", str(tmp_path / "none.pt")): "no such model file"}
     for extra, message in cases.items():
         argv = [*fast, *extra] if extra[0] != "--model" else [*extra, *fast[2:]]
-        assert run_main(certificate.main, argv) == 2, extra
+        assert run_main(certify.main, argv) == 2, extra
         assert message in _one_error(capsys), extra
     assert (tmp_path / "kept.json").read_text() == "keep"
-    assert "exit codes: 0" in certificate.build_parser().format_help()
+    assert "exit codes: 0" in certify.build_parser().format_help()
 
 
 def test_certify_of_a_failing_model_exits_3(tmp_path, capsys):
@@ -231,7 +231,7 @@ def test_certify_of_a_failing_model_exits_3(tmp_path, capsys):
     _perturb(model, 2.0)
     argv = ["--model", str(model), "--orientations", "6", "--eps-max", "0.02", "--no-rollout", "--out",
             str(tmp_path / "c.json")]
-    assert run_main(certificate.main, argv) == certificate.EXIT_FAILED
+    assert run_main(certify.main, argv) == certificate.EXIT_FAILED
     assert "FAILED: worst" in capsys.readouterr().out
     cert = json.loads((tmp_path / "c.json").read_text())
     assert cert["verdict"] == "failed" and not cert["passed"] and cert["worst"] > certificate.TARGET

@@ -144,21 +144,25 @@ def test_a_round_of_active_learning_probes_the_3d_states_of_the_failing_tests(tm
     import h5py
 
     from homogenization import active
+    from homogenization.learning_settings import CertificateSettings
     from test_database_dimension import SPATIAL, tiny_database
     from training import train as training_train
+    from training.config import TrainConfig
+    from warp_hcell.database.format import ACTIVE_GROUP
 
     db = tiny_database(tmp_path / "db.h5", SPATIAL)
     model = tmp_path / "m.pt"
     args = ["--epochs", "8", "--hidden", "12", "--threads", "1", "--no-rollout", "-q"]
     assert training_train.main(["--data", str(db), "--out", str(model), *args]) == 0
     short = {"pressures": (2e5,), "eps_max": 0.01, "spatial_rule": (3, 1), "rollout": False, "target": 1e-6}
-    rounds = active.learn(db, model, args, settings=active.ActiveSettings(rounds=1, samples_per_round=400),
-                          certify_options=short, log=lambda *lines: None)
+    config = TrainConfig(epochs=8, hidden=(12,), threads=1, rollout=False)
+    rounds = active.learn(db, model, config, settings=active.ActiveSettings(rounds=1, samples_per_round=400),
+                          certify_settings=CertificateSettings(**short), log=lambda *lines: None)
     assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["samples_added"] == 400
     assert set(rounds[1]["tests"]) <= {info["name"] for info, _ in certificate.tests_of((2e5,), 0.01, dim=3)}
     cert = json.loads(model.with_suffix(".json").read_text())["certificate"]
     assert cert["settings"]["spatial_rule"] == [3, 1] and cert["settings"]["n_cells"] == 3
     with h5py.File(db) as f:
         assert np.count_nonzero(f["source_round"][()] == 1) == 400
-        assert f[f"{active.ACTIVE_GROUP}/cell_size"].shape[1] == 3
-        assert f[f"{active.ACTIVE_GROUP}/shear_force"].shape[1:] == (SPATIAL.n_pairs, 3)
+        assert f[f"{ACTIVE_GROUP}/cell_size"].shape[1] == 3
+        assert f[f"{ACTIVE_GROUP}/shear_force"].shape[1:] == (SPATIAL.n_pairs, 3)

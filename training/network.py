@@ -45,10 +45,8 @@ from torch import nn
 
 from training import cell_physics
 from training.cell_physics import CellSchema
+from training.config import DEFAULT_HIDDEN
 
-DEFAULT_HIDDEN: tuple[int, ...] = (40, 40)
-"""Hidden layer widths of the recommended model (the narrowest tried that meets every target of
-the H-cell acceptance table, `docs/ann.md`; its inference is no slower than the analytical cell)."""
 PAPER_HIDDEN: tuple[int, ...] = (8, 8, 8)
 """Hidden layer widths of the paper's network (spec section 11), measured for comparison."""
 ACTIVATION = "tanh"

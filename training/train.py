@@ -2,7 +2,7 @@
 
 Contract:
 
-- ``TrainConfig`` holds every training default (the CLI reads them from it); the defaults
+- ``TrainConfig`` (``training.config``, light) holds every training default (the CLI reads them from it); the defaults
   give the recommended model.
 - ``fit(db, config) -> FitResult`` splits ``db`` by path, fits the normalisation on the
   training split and minimises, with Adam (learning rate halved on validation plateaus,
@@ -23,11 +23,10 @@ Contract:
 
 from __future__ import annotations
 
-import argparse
 import copy
-import dataclasses
 import math
 import platform
+import shlex
 import sys
 import time
 from dataclasses import dataclass, field
@@ -51,14 +50,11 @@ from training.dataset import (
     split_by_path,
     tensors,
 )
-from training.network import DEFAULT_HIDDEN, MesoNet, pair_features
+from training.config import build_parser, config_of, config_record, TrainConfig
+from training.network import MesoNet, pair_features
 from training.ood import index_for_model, index_path
 from training.rollout import rollout_report
 from warp_hcell.core.cli import (
-    DefaultsHelpFormatter,
-    Parser,
-    command_prog,
-    common_parser,
     progress_bar,
     quiet_warp,
     run_main,
@@ -70,59 +66,6 @@ from warp_hcell.mesostructures.files import from_description
 from warp_hcell.mesostructures.mesostructure import AXIS_NAMES
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.core.provenance import git_revision
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Training hyperparameters and split settings (the single home of their defaults)."""
-
-    hidden: tuple[int, ...] = DEFAULT_HIDDEN
-    """Hidden layer widths [-]."""
-    load_features: bool = False
-    """Give the network the load fraction f_n / max f_n of every active pair (``training.network``)."""
-    sliding_weight: float = 1.0
-    """Loss weight [-] of the training samples in which a contact slides (f_s = +-mu f_n) while
-    another carries less than ``LIGHT_FRACTION`` of the cell's largest normal force (``sliding_light``);
-    the other samples and the validation loss have weight 1."""
-    epochs: int = 300
-    """Maximum number of epochs [-]."""
-    batch_size: int = 256
-    """Samples per Adam step [-]."""
-    lr: float = 2e-3
-    """Initial Adam learning rate [-]."""
-    lr_patience: int = 8
-    """Epochs without validation improvement before the learning rate is halved [-]."""
-    min_lr: float = 1e-5
-    """Learning rate below which training stops [-]."""
-    patience: int = 25
-    """Epochs without validation improvement before early stopping [-]."""
-    val_fraction: float = 0.2
-    """Fraction of the non-test paths used for validation [-]."""
-    test_fraction: float = 0.1
-    """Fraction of the paths held out for the test set [-]."""
-    seed: int = 0
-    """Seed of the split, the initial weights and the batch order."""
-    threads: int = 1
-    """torch CPU threads used for training [-] (on a shared 2-core machine two threads ran
-    30 times slower than one: OpenMP threads spin while the other core is busy)."""
-    device: str = "cpu"
-    """torch device of the training."""
-    rollout: bool = True
-    """Measure the rollout error along held-out DEM paths after training."""
-    init_from: str | None = None
-    """Model (.pt) whose weights start the training (warm start), None: random weights
-    (``warm_start``). Also splits the database by round (``split_by_path(by_round=True)``)."""
-
-    def __post_init__(self) -> None:
-        for name in ("epochs", "batch_size", "lr_patience", "patience", "threads"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} = {getattr(self, name)} must be >= 1")
-        if not (math.isfinite(self.sliding_weight) and self.sliding_weight > 0.0):
-            raise ValueError(f"sliding_weight = {self.sliding_weight:g} must be finite and > 0")
-        if not (math.isfinite(self.lr) and self.lr > 0.0):
-            raise ValueError(f"lr = {self.lr:g} must be finite and > 0")
-        if not self.hidden or min(self.hidden) < 1:
-            raise ValueError(f"hidden = {list(self.hidden)} must be a non-empty list of widths >= 1")
 
 
 @dataclass(frozen=True)
@@ -332,66 +275,6 @@ def _plot_learning_curve(path: Path, history: dict) -> None:
     plt.close(fig)
 
 
-def hidden_widths(text: str) -> tuple[int, ...]:
-    """argparse type of --hidden: comma-separated widths >= 1, e.g. "40,40" -> (40, 40)."""
-    try:
-        widths = tuple(int(w) for w in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from None
-    if not widths or min(widths) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: widths must be >= 1")
-    return widths
-
-
-def _positive(kind):
-    def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a {kind.__name__}") from None
-        if not value > 0 or not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"{text} must be > 0")
-        return value
-    return parse
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The ``python -m training.train`` parser; defaults come from ``TrainConfig``."""
-    d = TrainConfig()
-    p = Parser(prog=command_prog("training.train"), description=__doc__.splitlines()[0], parents=[common_parser()],
-               formatter_class=DefaultsHelpFormatter)
-    p.set_defaults(seed=d.seed, device=d.device)
-    p.add_argument("--data", type=Path, required=True, help="generic learning database (HDF5, docs/database_format.md)")
-    p.add_argument("--out", type=Path, required=True, help="state_dict file; metadata goes to the same stem .json")
-    p.add_argument("--epochs", type=_positive(int), default=d.epochs, help="maximum epochs")
-    p.add_argument("--batch-size", type=_positive(int), default=d.batch_size, help="samples per Adam step")
-    p.add_argument("--lr", type=_positive(float), default=d.lr, help="initial Adam learning rate")
-    p.add_argument("--patience", type=_positive(int), default=d.patience, help="early-stopping patience [epochs]")
-    p.add_argument("--hidden", type=hidden_widths, default=",".join(map(str, d.hidden)), help="hidden layer widths, comma separated")
-    p.add_argument("--load-features", action="store_true",
-                   help="give the network the load fraction f_n / max f_n of every active pair")
-    p.add_argument("--sliding-weight", type=_positive(float), default=d.sliding_weight,
-                   help="loss weight of samples with a sliding contact beside a lightly loaded one")
-    p.add_argument("--threads", type=_positive(int), default=d.threads, help="torch CPU threads")
-    p.add_argument("--no-rollout", action="store_true", help="skip the rollout error along held-out DEM paths")
-    p.add_argument("--init-from", type=Path, default=None,
-                   help="warm start: begin from this model's weights (same architecture; the database split by round)")
-    return p
-
-
-def config_of(args: argparse.Namespace) -> TrainConfig:
-    """The ``TrainConfig`` of parsed ``build_parser`` flags."""
-    return TrainConfig(hidden=args.hidden, load_features=args.load_features, sliding_weight=args.sliding_weight,
-                       epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, patience=args.patience,
-                       seed=args.seed, threads=args.threads, device=args.device, rollout=not args.no_rollout,
-                       init_from=None if args.init_from is None else str(args.init_from))
-
-
-def config_record(config: TrainConfig) -> dict:
-    """``config`` as the model's JSON stores it (``"config"``: tuples as lists)."""
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
-
-
 def _warm_line(warm: dict) -> str:
     """The summary line of a warm start."""
     if warm["used"]:
@@ -414,24 +297,41 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code."""
     args = build_parser().parse_args(argv)
     set_verbosity(args)
-    out: Path = args.out
+    train_and_save(args.data, args.out, config_of(args), overwrite=args.overwrite, verbose=args.verbose,
+                   command="python -m training.train " + " ".join(sys.argv[1:] if argv is None else argv))
+    return 0
+
+
+def train_and_save(data: Path, out: Path, config: TrainConfig = TrainConfig(), *, overwrite: bool = False,
+                   verbose: bool = False, command: str | None = None) -> Path:
+    """Train a model on database ``data`` with ``config`` and write ``out`` (the state_dict), its
+    ``.json`` (metadata), its learning curve and its out-of-distribution index (module docstring);
+    returns ``out``. ``command`` is recorded in the JSON (None: this process's command line);
+    ``verbose`` keeps Warp's start-up lines.
+
+    Raises:
+        DataError (one line, before any training): ``out`` (or its .json/.png) exists without
+            ``overwrite``, is a folder or cannot be written; ``config.init_from`` is no file; ``data``
+            is no learning database.
+    """
+    out = Path(out)
     curve = out.with_name(f"{out.stem}_learning_curve.png")
-    if not args.overwrite and any(p.exists() for p in (out, out.with_suffix(".json"), curve)):
+    if not overwrite and any(p.exists() for p in (out, out.with_suffix(".json"), curve)):
         raise DataError(f"{out} (or its .json/.png) exists; pass --overwrite to replace it")
     if out.is_dir():
         raise DataError(f"--out {out} is a folder; give a file name")
-    if args.init_from is not None and not args.init_from.is_file():
-        raise DataError(f"--init-from {args.init_from}: no such model file")
+    if config.init_from is not None and not Path(config.init_from).is_file():
+        raise DataError(f"--init-from {config.init_from}: no such model file")
     check_output_path(out, overwrite=True)  # writable, checked before training
     with output_lock(out):
-        return _train(args, out, curve, argv)
+        _train(Path(data), out, curve, config, verbose, shlex.join(sys.argv) if command is None else command)
+    return out
 
 
-def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str] | None) -> int:
-    """Train, evaluate and write the model of ``main`` (holding the output lock)."""
-    config = config_of(args)
-    db = load_database(args.data)
-    if config.rollout and not args.verbose:
+def _train(data: Path, out: Path, curve: Path, config: TrainConfig, verbose: bool, command: str) -> None:
+    """Train, evaluate and write the model of ``train_and_save`` (holding the output lock)."""
+    db = load_database(data)
+    if config.rollout and not verbose:
         quiet_warp()  # the rollout runs the DEM on the cpu
     result = fit(db, config, progress=True)
     metrics = {name: evaluate(result.net, db, getattr(result.split, name)) for name in ("train", "val", "test")}
@@ -447,7 +347,7 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
         "mesostructure_sha256": db.mesostructure_sha256,
         "start_mesostructures": list(db.start_mesostructures),
         "target": "free-DOF displacement d_free = D |d_eps| r - C F / kn (training.network)",
-        "training_data": {"path": str(args.data), "sha256": db.sha256, "n_stored": db.n_stored,
+        "training_data": {"path": str(data), "sha256": db.sha256, "n_stored": db.n_stored,
                           "n_selected": db.n_samples, "n_unconverged_dropped": db.n_unconverged,
                           "n_jumps_dropped": db.n_jumps, "n_perturbed": int(db.perturbed.sum()),
                           "n_mechanism": int(db.mechanism.sum()), "n_train": int(split.train.size),
@@ -461,7 +361,7 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
                     "warm_start": result.history["warm_start"]},
         "versions": {"python": platform.python_version(), "torch": torch.__version__, "numpy": np.__version__,
                      "git_revision": git_revision()},
-        "command": "python -m training.train " + " ".join(sys.argv[1:] if argv is None else argv),
+        "command": command,
     }
     save_checkpoint(out, result.net, metadata)
     ood_file = index_for_model(result.net, metadata["config"], db).save(index_path(out))
@@ -478,8 +378,7 @@ def _train(args: argparse.Namespace, out: Path, curve: Path, argv: Sequence[str]
               for key, value in rollout.items() if key.startswith("increment_")))
     say(f"wrote {out}, {out.with_suffix('.json')}, {curve}, {ood_file} (out-of-distribution index)",
         f"the model is UNCERTIFIED: the ANN backend refuses it until it passes "
-        f"python -m homogenization.certificate --model {out} --write (docs/certificate.md)")
-    return 0
+        f"python -m homogenization.certify --model {out} --write (docs/certificate.md)")
 
 
 def run(argv: Sequence[str] | None = None) -> int:

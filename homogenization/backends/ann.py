@@ -106,7 +106,7 @@ def certificate_problem(metadata: dict[str, Any], path: Path) -> str | None:
     orientations, rollouts, tests), read from its recorded settings, not from its ``passed`` flag."""
     cert = metadata.get("certificate")
     if not isinstance(cert, dict):
-        return (f"{path}: the model is uncertified (certify it: python -m homogenization.certificate "
+        return (f"{path}: the model is uncertified (certify it: python -m homogenization.certify "
                 f"--model {path} --write)")
     if cert.get("model_sha256") != file_sha256(path):
         return f"{path}: its certificate was measured on another model file (sha256 differs); certify it again"

@@ -33,12 +33,11 @@ import argparse
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Sequence
+from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
-from homogenization import driver, loading, orientation, run_labels
-from homogenization.fe import output as fe_output, solver as fe
+from homogenization import driver, loading, orientation
 from homogenization.cli.options import (add_alpha0_argument, add_backend_argument, add_cell_arguments,
                                         add_orientations_argument, add_uncertified_argument, certificate_note,
                                         command_parser, refuse_uncertified)
@@ -60,6 +59,9 @@ from warp_hcell.core.cli import (
 from warp_hcell.core.files import check_output_path
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+if TYPE_CHECKING:
+    from homogenization.fe import solver as fe
 from warp_hcell.core.parameters import ALPHA_MAX_DEG, CellDefaults, ContactLaw, FeDefaults
 
 
@@ -160,6 +162,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
     set_verbosity(args)
+    from homogenization import run_labels  # noqa: PLC0415 (matplotlib: only when the command runs)
+    from homogenization.fe import output as fe_output, solver as fe  # noqa: PLC0415 (scikit-fem)
+
     out: Path = args.out
     check_output_path(out, overwrite=args.overwrite)
     check_options(args, (args.backend,))

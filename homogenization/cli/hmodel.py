@@ -28,7 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "generate": ("warp_hcell.generate", "DEM learning database of strain probes"),
     "clean": ("warp_hcell.clean", "mark pathological samples of a learning database"),
     "train": ("homogenization.train", "train the meso-ANN on a learning database, then certify it (--no-certify)"),
-    "certify": ("homogenization.certificate", "measure a meso-ANN model against the DEM: its certificate"),
+    "certify": ("homogenization.certify", "measure a meso-ANN model against the DEM: its certificate"),
     "learn": ("homogenization.learn", "database, meso-ANN, certificate and active-learning rounds of a mesostructure"),
     "sweep": ("homogenization.sweep", "biaxial tests over lists of mesostructures, alpha0, p0 and backends"),
     "bvp": ("homogenization.bvp", "plane-strain biaxial specimen (finite elements) of the homogenised material"),

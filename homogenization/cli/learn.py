@@ -27,18 +27,14 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from homogenization import active, certificate
-from homogenization.cli.options import active_settings, add_active_arguments, add_threads_argument, certify_options, command_parser
-from training.checkpoint import metadata_path
-from training import train as training_train
-from training.network import DEFAULT_HIDDEN
+from homogenization.learning_settings import ActiveSettings
+from homogenization.cli.options import (active_settings, add_active_arguments, add_threads_argument, certificate_settings,
+                                        command_parser, EXIT_CODES_HELP)
+from training.config import DEFAULT_HIDDEN, hidden_widths, TrainConfig
 from warp_hcell.core.cli import positive_int, quiet_warp, say, set_verbosity, UserError
 from warp_hcell.core.files import atomic_write, check_output_path, output_lock
 from warp_hcell.core.parameters import DatabaseSettings
 from warp_hcell.core.provenance import file_sha256
-from warp_hcell.database import format as database
-from warp_hcell.database.generate import generate
-from warp_hcell.database.shards import DiskFull
 from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
 from warp_hcell.mesostructures.files import describe, description_sha256
 from warp_hcell.mesostructures.mesostructure import MesostructureError
@@ -52,13 +48,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mesostructure", type=mesostructure_arg, required=True, help=MESOSTRUCTURE_HELP)
     parser.add_argument("--out", type=Path, required=True, help="folder of db.h5, ann.pt/.json, certificate.png")
     parser.add_argument("--samples", type=positive_int, default=db.samples, help="samples of the generated database")
-    parser.add_argument("--hidden", type=training_train.hidden_widths, default=DEFAULT_HIDDEN,
+    parser.add_argument("--hidden", type=hidden_widths, default=DEFAULT_HIDDEN,
                         help="hidden widths of the network, comma separated")
     parser.add_argument("--epochs", type=positive_int, default=None, help="maximum training epochs (training's default)")
     add_active_arguments(parser)
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
     add_threads_argument(parser, "DEM and torch CPU threads", 1)
-    parser.epilog = certificate.EXIT_CODES_HELP
+    parser.epilog = EXIT_CODES_HELP
     return parser
 
 
@@ -81,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, MesostructureError) as exc:
         raise UserError(str(exc)) from None
     out: Path = args.out
-    train_args = _train_args(args)
+    config = _train_config(args)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; give a folder")
     check_output_path(out, overwrite=True)  # the nearest existing folder above --out can be written
@@ -99,10 +95,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         out.mkdir(parents=True, exist_ok=True)
         with atomic_write(record) as tmp:
             tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
-        return _learn(args, out, meso, settings, budget, train_args)
+        return _learn(args, out, meso, settings, budget, config)
 
 
 def _database_complete(path: Path) -> bool:
+    from warp_hcell.database import format as database  # noqa: PLC0415 (h5py: only when the command runs)
+
     try:
         database.check_database(path)
     except ValueError:
@@ -110,16 +108,20 @@ def _database_complete(path: Path) -> bool:
     return True
 
 
-def _train_args(args: argparse.Namespace) -> list[str]:
-    """The ``training.train`` options of the run besides --data and --out."""
-    return ["--hidden", ",".join(map(str, args.hidden)), "--threads", str(args.threads), "--seed", str(args.seed),
-            "--device", args.device,
-            *(["--epochs", str(args.epochs)] if args.epochs else []),
-            *(["--no-rollout"] if args.no_rollout else []), *(["-q"] if args.quiet else [])]
+def _train_config(args: argparse.Namespace) -> TrainConfig:
+    """The training settings of the run (training's defaults but for --hidden, --threads, --seed,
+    --device, --epochs and --no-rollout)."""
+    return TrainConfig(hidden=tuple(args.hidden), threads=args.threads, seed=args.seed, device=args.device,
+                       rollout=not args.no_rollout, **({"epochs": args.epochs} if args.epochs else {}))
 
 
 def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings,
-           budget: active.ActiveSettings, train_args: list[str]) -> int:
+           budget: ActiveSettings, config: TrainConfig) -> int:
+    from homogenization import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from training.checkpoint import metadata_path  # noqa: PLC0415
+    from warp_hcell.database.generate import generate  # noqa: PLC0415
+    from warp_hcell.database.shards import DiskFull  # noqa: PLC0415
+
     db, model, figure = out / "db.h5", out / "ann.pt", out / "certificate.png"
     if _database_complete(db):
         say(f"database: {db} (done before)")
@@ -135,9 +137,9 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
     if meta.is_file() and model.is_file() and json.loads(meta.read_text())["training_data"]["sha256"] == file_sha256(db):
         say(f"model: {model} (done before)")
     else:
-        active.train_model(db, model, train_args, [])
-    rounds = active.learn(db, model, train_args, settings=budget, seed=args.seed, threads=args.threads, log=say,
-                          certify_options=certify_options(args))
+        active.train_model(db, model, config, [])
+    rounds = active.learn(db, model, config, settings=budget, seed=args.seed, threads=args.threads, log=say,
+                          certify_settings=certificate_settings(args))
     cert = json.loads(meta.read_text())["certificate"]
     stamp = out / "certificate.png.sha256"
     if figure.is_file() and stamp.is_file() and stamp.read_text().strip() == cert["model_sha256"]:

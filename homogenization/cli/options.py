@@ -16,11 +16,12 @@
 - ``add_uncertified_argument(parser)`` and ``refuse_uncertified(model, args)``: --uncertified-ok,
   and the refusal (one line, exit 2) of an ANN model without a passed certificate of its own
   ``.pt`` (docs/certificate.md); ``certificate_note(model)`` is the line a run summary prints;
+- ``EXIT_CODES_HELP``: the --help epilog of the commands that end with a certificate;
 - ``add_active_arguments(parser)``: the budget of the active-learning rounds (--rounds,
   --samples-per-round, --max-samples, --max-seconds, --warm-start, --widen; defaults from
-  ``homogenization.active.ActiveSettings``) and the certificate's --orientations (planar cells),
+  ``homogenization.learning_settings.ActiveSettings``) and the certificate's --orientations (planar cells),
   --order and --spins (spatial cells) and --eps-max,
-  read back with ``active_settings(args)`` and ``certify_options(args)`` (``hmodel learn`` and
+  read back with ``active_settings(args)`` and ``certificate_settings(args)`` (``hmodel learn`` and
   ``hmodel train``).
 """
 
@@ -28,13 +29,18 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
 from homogenization.backends import BACKENDS
+from homogenization.learning_settings import ActiveSettings, CertificateSettings
 from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
 from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 
+EXIT_CODES_HELP = ("exit codes: 0 the certificate passed; 2 bad input (one line, before any work); 3 the certificate "
+                   "failed (worst > target); 4 within the target but below the minimum certificate "
+                   "(homogenization.envelope.MINIMUM), so not passed; 130 interrupted (docs/usage.md, Failures and existing output)")
+"""The --help epilog of the commands that end with a certificate (certify, train, learn;
+``homogenization.certificate.exit_code``)."""
 ISO_TO_SHEAR_INCREMENT = LoadingDefaults.iso_increment / LoadingDefaults.increment
 """Default --iso-increment as a fraction of --increment (5e-6 / 1e-5 = 0.5)."""
 
@@ -165,10 +171,9 @@ def certificate_note(model: object) -> str:
 
 def add_active_arguments(parser: argparse.ArgumentParser) -> None:
     """The budget of the active-learning rounds (defaults ``ActiveSettings``) and the
-    certificate's --orientations and --eps-max (defaults ``homogenization.certificate``)."""
-    from homogenization import active, certificate  # noqa: PLC0415 (torch: only the commands that learn)
-
-    budget = active.ActiveSettings()
+    certificate's --orientations, --order, --spins and --eps-max (defaults ``CertificateSettings``:
+    the minimum certificate)."""
+    budget, measured = ActiveSettings(), CertificateSettings()
     parser.add_argument("--rounds", type=int, default=budget.rounds, help="active-learning rounds at most (0: none)")
     parser.add_argument("--samples-per-round", type=positive_int, default=budget.samples_per_round,
                         help="samples added per round")
@@ -180,25 +185,23 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
                         help="retrain each round from the previous round's weights")
     parser.add_argument("--widen", action=argparse.BooleanOptionalAction, default=budget.widen,
                         help="let a round that gained little give the next a wider network (WIDTH_LADDER)")
-    add_orientations_argument(parser, certificate.N_ORIENTATIONS, "cell orientations per certificate test (planar cells)")
-    add_spatial_rule_arguments(parser, *certificate.SPATIAL_RULE, " in the certificate's tests")
-    parser.add_argument("--eps-max", type=positive_float, default=certificate.EPS_MAX,
+    add_orientations_argument(parser, measured.n_orientations, "cell orientations per certificate test (planar cells)")
+    add_spatial_rule_arguments(parser, *measured.spatial_rule, " in the certificate's tests")
+    parser.add_argument("--eps-max", type=positive_float, default=measured.eps_max,
                         help="axial strain of each certificate shear stage [-]")
 
 
-def active_settings(args: argparse.Namespace):
+def active_settings(args: argparse.Namespace) -> ActiveSettings:
     """The ``ActiveSettings`` of the flags of ``add_active_arguments`` (UserError, one line, if invalid)."""
-    from homogenization import active  # noqa: PLC0415
-
     try:
-        return active.ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
-                                     max_samples=args.max_samples, max_seconds=args.max_seconds,
-                                     warm_start=args.warm_start, widen=args.widen)
+        return ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
+                              max_samples=args.max_samples, max_seconds=args.max_seconds,
+                              warm_start=args.warm_start, widen=args.widen)
     except ValueError as exc:
         raise UserError(str(exc)) from None
 
 
-def certify_options(args: argparse.Namespace) -> dict[str, Any]:
-    """``certificate.certify`` keywords of the flags of ``add_active_arguments`` and --no-rollout."""
-    return {"n_orientations": args.orientations, "spatial_rule": (args.order, args.spins), "eps_max": args.eps_max,
-            "rollout": not args.no_rollout}
+def certificate_settings(args: argparse.Namespace) -> CertificateSettings:
+    """The ``CertificateSettings`` of the flags of ``add_active_arguments`` and --no-rollout."""
+    return CertificateSettings(n_orientations=args.orientations, spatial_rule=(args.order, args.spins),
+                               eps_max=args.eps_max, rollout=not args.no_rollout)

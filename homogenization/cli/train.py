@@ -36,10 +36,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from homogenization import active, certificate
-from homogenization.cli.options import active_settings, add_active_arguments, certify_options
-from training import train as training_train
-from training.checkpoint import metadata_path
+from homogenization.cli.options import active_settings, add_active_arguments, certificate_settings, EXIT_CODES_HELP
+from training import config as training_config
 from warp_hcell.core.cli import UserError, command_prog, quiet_warp, say, set_verbosity
 from warp_hcell.core.files import atomic_write, output_lock
 
@@ -47,14 +45,12 @@ ENRICHED_SUFFIX = "_db.h5"
 """Name ending of the enriched copy of the database beside the model (``enriched_path``)."""
 ROUND_SET = ("hidden", "init_from")
 """Training options that the active-learning rounds set themselves (wider network, warm start)."""
-OWN_FLAGS = ("data", "out", "overwrite", "help")
-"""Destinations of the training parser that ``training_argv`` leaves out (the command passes them itself)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The training parser (``training.train.build_parser``) plus --no-certify, --no-enrich,
+    """The training parser (``training.config.build_parser``) plus --no-certify, --no-enrich,
     --enrich-copy and the active-learning flags (``add_active_arguments``)."""
-    parser = training_train.build_parser()
+    parser = training_config.build_parser()
     parser.prog = command_prog("homogenization.train")
     parser.add_argument("--no-certify", action="store_true",
                         help="leave the model uncertified (the ANN backend refuses it without --uncertified-ok)")
@@ -64,23 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"add the rounds' samples to a copy of --data beside the model (MODEL{ENRICHED_SUFFIX}), "
                              "not to --data (the default where --data and its folder are writable)")
     add_active_arguments(parser)
-    parser.epilog = certificate.EXIT_CODES_HELP + "; with --no-certify: 0 once trained"
+    parser.epilog = EXIT_CODES_HELP + "; with --no-certify: 0 once trained"
     return parser
-
-
-def training_argv(args: argparse.Namespace) -> list[str]:
-    """The ``training.train`` options of parsed ``args`` besides --data, --out and --overwrite, as
-    a command line (each option of the training parser with its parsed value; unset ones left out)."""
-    argv: list[str] = []
-    for action in training_train.build_parser()._actions:
-        if not action.option_strings or action.dest in OWN_FLAGS:
-            continue
-        value, flag = getattr(args, action.dest), max(action.option_strings, key=len)
-        if action.nargs == 0:
-            argv += [flag] if value else []
-        elif value is not None:
-            argv += [flag, ",".join(map(str, value)) if isinstance(value, tuple) else str(value)]
-    return argv
 
 
 def enriched_path(args: argparse.Namespace) -> Path:
@@ -97,6 +78,8 @@ def _continues(args: argparse.Namespace, database: Path) -> bool:
     its JSON records active-learning rounds (none yet, too), training data --data or
     ``database``, and the training configuration of ``args``, but for what the rounds set
     (``ROUND_SET``: the hidden widths are those of its round 0)."""
+    from training.checkpoint import metadata_path  # noqa: PLC0415 (torch: only when the command runs)
+
     meta_file = metadata_path(args.out)
     if args.overwrite or not (args.out.is_file() and meta_file.is_file()):
         return False
@@ -106,7 +89,7 @@ def _continues(args: argparse.Namespace, database: Path) -> bool:
     if rounds is None or trained_on not in (args.data.resolve(), database.resolve()):
         return False
     first_hidden = rounds[0]["hidden"] if rounds and "hidden" in rounds[0] else meta["config"]["hidden"]
-    ours = training_train.config_record(training_train.config_of(args))
+    ours = training_config.config_record(training_config.config_of(args))
     return first_hidden == ours["hidden"] and all(meta["config"].get(k) == v for k, v in ours.items()
                                                   if k not in ROUND_SET)
 
@@ -118,8 +101,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     set_verbosity(args)
     budget = active_settings(args)
+    from homogenization import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from training import train as training_train  # noqa: PLC0415
+    from training.checkpoint import metadata_path  # noqa: PLC0415
+
     enrich = not (args.no_certify or args.no_enrich or budget.rounds == 0)
-    train_args = training_argv(args)
+    config = training_config.config_of(args)
     database = enriched_path(args) if enrich else args.data
     resumed = enrich and _continues(args, database)
     if not (args.verbose or args.no_certify):
@@ -129,12 +116,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         if database != args.data and database.exists() and not args.overwrite:
             raise UserError(f"{database} exists; pass --overwrite to replace it")
-        code = training_train.main(["--data", str(args.data), "--out", str(args.out),
-                                    *(["--overwrite"] if args.overwrite else []), *train_args])
-        if code or args.no_certify:
-            return code
+        training_train.train_and_save(args.data, args.out, config, overwrite=args.overwrite, verbose=args.verbose)
+        if args.no_certify:
+            return 0
         if not enrich:
-            cert = certificate.certify(args.out, **certify_options(args))
+            cert = certificate.certify(args.out, **certificate_settings(args).keywords())
             say(*certificate.summary_lines(cert), f"certificate -> {certificate.write_certificate(args.out, cert)}")
             return certificate.exit_code(cert)
         active.write_rounds(args.out, [])
@@ -144,7 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     say(f"active learning adds its samples to {database}" + ("" if database == args.data else
         f" (a copy of {args.data}: {'--enrich-copy' if args.enrich_copy else 'that file or its folder is not writable'})"))
     with output_lock(database):
-        rounds = active.learn(database, args.out, train_args, settings=budget, certify_options=certify_options(args),
+        rounds = active.learn(database, args.out, config, settings=budget, certify_settings=certificate_settings(args),
                               seed=args.seed, threads=args.threads, log=say)
     cert = json.loads(metadata_path(args.out).read_text())["certificate"]
     say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples "

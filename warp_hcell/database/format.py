@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import h5py
 import numpy as np
@@ -57,6 +57,8 @@ forces and geometry ones; e.g. the H-cell's alpha_deg, d1, d2, N1, N2, T1), befo
 each probe: for reports, never used by training or the ANN backend."""
 SCHEMA_GROUP = "schema"
 """Group of the learning state of the mesostructure (same for every sample)."""
+ACTIVE_GROUP = "active_states"
+"""Group of the start states of the active-learning probes (``append_round``)."""
 SCHEMA_DATASETS = ("free_dofs", "pairs", "radius", "reference_position", "reference_cell_size", "driven", "outer")
 """Datasets of the group ``schema`` (``StateSchema`` attributes)."""
 
@@ -159,3 +161,67 @@ def read_attrs_of(path: Path) -> dict[str, dict[str, Any]]:
         f.visititems(lambda name, item: out.__setitem__(name, dict(item.attrs)) if item.attrs else None)
     return out
 
+
+
+def append_round(path: Path, samples: Mapping[str, np.ndarray], states: Mapping[str, np.ndarray],
+                 record: Mapping[str, Any], clean: Callable[[Mapping[str, np.ndarray]], np.ndarray]) -> dict[str, Any]:
+    """Append one active-learning round's ``samples`` and their start ``states`` to database
+    ``path`` (rewritten atomically, ``write_database``; docs/database_format.md, "Active-learning
+    samples"); returns the round's record as stored in the root attr ``active_learning``.
+
+    The per-sample datasets of the file grow (a dataset the file lacks is not added); the new
+    samples get ``source_round`` = the round k (the rounds listed so far + 1; 0: the generator),
+    ``path_id`` offset past every path of the file, ``state_id`` = their row in the group
+    ``ACTIVE_GROUP``, and ``valid`` = ``clean(samples)`` (the cleaning rules' mask,
+    ``warp_hcell.database.clean``) when the file was cleaned (all True otherwise; ``n_valid``
+    follows). The file is read whole into memory.
+
+    Args:
+        samples: the probes' arrays (``warp_hcell.database.probing.compute_chunk``), first axis the sample.
+        states: the probed start states: ``cell_size`` (n, dim) [m], ``free_position`` (n, n_free) [m],
+            ``shear_force`` (n, n_pairs) [N] (3D: (n, n_pairs, 3)) and ``path_id`` (n,) int64, one
+            path per (test, orientation), numbered from 0 within the round.
+        record: what else the round's entry of ``active_learning`` holds (tests, seed, widths).
+
+    Raises:
+        ValueError: (one line) ``samples`` lacks a per-sample dataset of the file.
+    """
+    data, attrs = read_database(path)
+    attrs_of = read_attrs_of(path)
+    n_old = data["d_eps"].shape[0]
+    rounds = json.loads(str(attrs.get("active_learning", "[]")))
+    k = len(rounds) + 1
+    per_sample = [name for name, value in data.items() if value.shape[:1] == (n_old,)
+                  and not name.startswith(("states/", SCHEMA_GROUP + "/", ACTIVE_GROUP + "/"))]
+    new = {name: np.asarray(value) for name, value in samples.items()}
+    n_new = new["d_eps"].shape[0]
+    path_base = int(data["path_id"].max(initial=-1)) + 1
+    state_base = data[f"{ACTIVE_GROUP}/round"].size if f"{ACTIVE_GROUP}/round" in data else 0
+    new["path_id"] = new["path_id"] + path_base
+    new["state_id"] = new["state_id"] + state_base
+    new["source_round"] = np.full(n_new, k, np.int64)
+    data.setdefault("source_round", np.zeros(n_old, np.int64))
+    if "valid" in data:
+        new["valid"] = clean(new) if bool(attrs.get("cleaned", False)) else np.ones(n_new, bool)
+    missing = sorted(set(per_sample) - set(new))
+    if missing:
+        raise ValueError(f"{path}: the new samples lack {', '.join(missing)}")
+    for name in {*per_sample, "source_round"}:
+        data[name] = np.concatenate([data[name], new[name].astype(data[name].dtype)])
+    n_states = states["path_id"].size
+    added = {**{name: states[name] for name in ("cell_size", "free_position", "shear_force")},
+             "path_id": states["path_id"] + path_base, "round": np.full(n_states, k, np.int64)}
+    for name, value in added.items():
+        key = f"{ACTIVE_GROUP}/{name}"
+        data[key] = np.concatenate([data[key], value]) if key in data else np.asarray(value)
+    entry = {"round": k, "samples": int(n_new), "states": int(n_states), **record}
+    rounds.append(entry)
+    attrs.update(active_learning=json.dumps(rounds), n_samples=int(n_old + n_new),
+                 n_active_samples=int(sum(r["samples"] for r in rounds)))
+    if "n_valid" in attrs and "valid" in data:
+        attrs["n_valid"] = int(np.count_nonzero(data["valid"]))
+    attrs_of["source_round"] = {"units": "-", "description": "0: the generator; k: active-learning round k"}
+    attrs_of[ACTIVE_GROUP] = {"description": "start states of the active-learning probes (state_id of samples "
+                                             "with source_round > 0)"}
+    write_database(path, data, attrs, attrs_of)
+    return entry

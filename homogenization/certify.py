@@ -1,0 +1,15 @@
+"""python -m homogenization.certify ... (``hmodel certify``)
+
+The command is ``homogenization.cli.certify``; this module is its ``python -m`` entry point
+(the library is ``homogenization.certificate``).
+"""
+
+import sys
+
+from homogenization.cli.certify import main
+from warp_hcell.core.cli import run_main
+
+__all__ = ["main"]
+
+if __name__ == "__main__":
+    sys.exit(run_main(main))

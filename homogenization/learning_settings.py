@@ -1,0 +1,72 @@
+"""The settings of the learning loop, apart from the loop itself: the certificate's
+(``CertificateSettings``, measured by ``homogenization.certificate.certify``) and the budget and
+sampling of the active-learning rounds (``ActiveSettings``, run by ``homogenization.active``);
+the single home of their defaults.
+
+Light on purpose: the commands read these defaults for their flags (``hmodel certify``, ``hmodel
+train``, ``hmodel learn``, ``homogenization.cli.options.add_active_arguments``) without
+importing torch or Warp.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from homogenization.envelope import MINIMUM
+
+
+@dataclass(frozen=True)
+class CertificateSettings:
+    """What a certificate measures (``homogenization.certificate.certify``); the defaults are the
+    minimum certificate (``homogenization.envelope.MINIMUM``)."""
+
+    pressures: tuple[float, ...] = MINIMUM.pressures
+    """Confining pressures p0 of the tests [N/m in 2D, Pa in 3D]."""
+    eps_max: float = MINIMUM.eps_max
+    """Axial strain of each shear stage, counted from its start [-]."""
+    increment: float = MINIMUM.increment
+    """Strain increment of every stage [-]."""
+    n_orientations: int = MINIMUM.n_orientations
+    """Cell orientations of every test of a planar cell [-]."""
+    spatial_rule: tuple[int, int] = MINIMUM.spatial_rule
+    """(Lebedev order, spins) of every test of a spatial cell."""
+    target: float = MINIMUM.target
+    """Largest dp or dq allowed, as a fraction of max(p0, largest DEM p) [-]."""
+    rollout: bool = True
+    """Also run the single-cell rollouts (reported, not part of the verdict)."""
+
+    def keywords(self) -> dict[str, Any]:
+        """The settings as keywords of ``homogenization.certificate.certify``."""
+        return {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+
+
+@dataclass(frozen=True)
+class ActiveSettings:
+    """Budget and sampling of the active-learning loop (the single home of their defaults)."""
+
+    rounds: int = 3
+    """Rounds at most (each: probe, append, retrain, certify) [-]."""
+    samples_per_round: int = 20_000
+    """Samples added per round [-] (spread evenly over the states of the failing tests)."""
+    max_samples: int = 100_000
+    """Samples added over all rounds at most [-]."""
+    max_seconds: float = 4 * 3600.0
+    """Wall time [s] after which no new round starts."""
+    state_every: int = 10
+    """Increments between two DEM states kept along a certificate test [-]."""
+    warm_start: bool = False
+    """Retrain each round from the previous round's weights (``training.train --init-from``)
+    instead of random weights (docs/certificate.md, "Warm start": measured no better)."""
+    widen: bool = True
+    """Let a round train a wider network (``homogenization.active.next_widths``: the next rung of ``WIDTH_LADDER``)
+    when the round before it gained less than ``homogenization.active.WIDEN_BELOW_GAIN``."""
+
+    def __post_init__(self) -> None:
+        for name in ("rounds", "samples_per_round", "max_samples", "state_every"):
+            least = 0 if name == "rounds" else 1
+            if int(getattr(self, name)) < least:
+                raise ValueError(f"{name} = {getattr(self, name)} must be >= {least}")
+        if not self.max_seconds > 0.0:
+            raise ValueError(f"max_seconds = {self.max_seconds:g} must be > 0")
