@@ -193,6 +193,7 @@ def chain_only(monkeypatch):
     """The chain without the figures and summaries (checked once, in test_outputs_of_a_tiny_run)."""
     monkeypatch.setattr(report, "write_outputs", lambda *args: {})
     monkeypatch.setattr(report, "summary_lines", lambda result: [])
+    monkeypatch.setattr(report, "chain_warning", lambda result: None)
 
 
 def read_chain(path: Path) -> np.ndarray:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -213,6 +214,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     with output_lock(args.out):
         result = run_calibration(args, tests, prior, settings, config)
     say(*report.summary_lines(result), f"{args.out}: done in {time.perf_counter() - started:.0f} s")
+    warning = report.chain_warning(result)
+    if warning:
+        print(f"hmodel calibrate: {warning}", file=sys.stderr)
     return 0
 
 
