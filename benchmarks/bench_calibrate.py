@@ -111,7 +111,7 @@ def replayed_noise(truth: dict[str, float]) -> None:
                   f"likelihood sigma / drawn sigma {bayes.channel_sigma(test, NOISE)[c] / sigma:.3f}")
 
 
-LOG = np.array([bayes.DEFAULT_BOUNDS[n][2] for n in PARAMETERS])
+LOG = np.array([bayes.DEFAULT_BOUNDS[2][n][2] for n in PARAMETERS])
 """Parameters fitted as log10 (as sampled)."""
 
 
