@@ -81,8 +81,9 @@ def warning_line(diag: dict[str, Any], steps_total: int, burn: float) -> str | N
         return (f"warning: the chain's autocorrelation time cannot be estimated ({diag['steps_retained']} retained "
                 f"steps; a parameter never moved): its intervals are not to be trusted; run more --steps")
     worst = max(finite)
-    need = math.ceil(diag["rule_steps_per_tau"] * worst / max(1.0 - burn, 1e-9))
+    need = math.ceil(diag["rule_steps_per_tau"] * max(worst, 1.0) / max(1.0 - burn, 1e-9))
+    tau_text = f"largest tau {worst:.1f} steps" if worst >= 1.0 else "tau below one step: too few steps to estimate it"
     return (f"warning: the chain is short: {diag['steps_retained']} retained steps = {diag['steps_per_tau']:.1f} "
-            f"autocorrelation times (largest tau {worst:.1f} steps), under the {diag['rule_steps_per_tau']:g} that "
+            f"autocorrelation times ({tau_text}), under the {diag['rule_steps_per_tau']:g} that "
             f"make tau and the 95 % intervals trustworthy; rerun the same command with --steps {max(need, steps_total + 1)} "
             f"or more (it resumes the chain); tau itself grows as the chain does")

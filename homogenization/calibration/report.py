@@ -173,6 +173,8 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
     confirm = confirm_with_dem(tests, log_post, mean, args) if args.confirm == "dem" else None
     record = provenance()
     run = {
+        "data_dimensions": sorted({t.dim for t in tests}),
+        "tests": [{"name": t.name, "kind": t.kind, "p0": t.p0, "dim": t.dim} for t in tests],
         "identifiability": note,
         "correlations": corr,
         "sampler": {
