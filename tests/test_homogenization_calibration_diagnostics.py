@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from homogenization.calibration import diagnostics
+from homogenization.calibration import diagnostics, report
 from tests.test_homogenization_calibration import tiny_run
 
 
@@ -59,7 +59,10 @@ def test_a_short_calibration_warns_and_writes_its_diagnostics(tmp_path, capsys):
     assert tiny_run(tmp_path, "run", 12) == 0
     err = capsys.readouterr().err
     assert "warning: the chain is short" in err and "--steps" in err and len(err.strip().splitlines()) == 1
-    sampler = json.loads((tmp_path / "run" / "run.json").read_text())["sampler"]
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    sampler = run["sampler"]
+    line = next(x for x in report.summary_lines(run) if x.startswith("autocorrelation time"))
+    assert f"of {sampler['autocorrelation']['samples']} samples" in line and "phi_g" in line
     auto = sampler["autocorrelation"]
     assert auto["short"] and auto["steps_retained"] == 6
     assert auto["samples"] == (4 - sampler["stuck_walkers_left_out"]) * 6 == sampler["retained_samples"]

@@ -225,16 +225,18 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
     for which, values in result["misfit_rms_over_sigma"].items():
         lines.append(f"rms misfit / sigma, {which}: " + ", ".join(f"{k} {v:.2f}" for k, v in values.items()))
     sampler, forward = result["sampler"], result["forward_model"]
+    auto = sampler.get("autocorrelation")  # absent from a result made without a chain
+    if auto is not None:
+        lines.append("autocorrelation time [steps] / effective samples: " + ", ".join(
+            f"{n} {_number(t, '.1f')} / {_number(auto['effective_samples'][n], '.0f')}"
+            for n, t in auto["tau_steps"].items())
+            + f" (of {auto['samples']} samples, {auto['steps_retained']} retained steps = "
+            f"{_number(auto['steps_per_tau'], '.1f')} x the largest tau)")
     lines.append(f"sampler: {sampler['steps']} steps x {sampler['walkers']} walkers, acceptance "
                  f"{sampler['acceptance_fraction']:.2f}, stuck walkers left out {sampler['stuck_walkers_left_out']}, "
                  f"forward fallbacks {forward['fallbacks']}, failed sets {forward['failed']}, "
                  f"floating-point errors {forward.get('floating_point_errors', 0)} (overflow or NaN of diverging sets, "
                  f"not printed)")
-    auto = sampler["autocorrelation"]
-    lines.append("autocorrelation time [steps] / effective samples: " + ", ".join(
-        f"{n} {_number(t, '.1f')} / {_number(auto['effective_samples'][n], '.0f')}" for n, t in auto["tau_steps"].items())
-        + f" (of {auto['samples']} samples, {auto['steps_retained']} retained steps = "
-        f"{_number(auto['steps_per_tau'], '.1f')} x the largest tau)")
     stuck = sampler["stuck_walkers_left_out"]
     if stuck:
         lines.append(f"{stuck} of {sampler['walkers']} walkers stayed where the posterior is below exp(-"
@@ -246,6 +248,8 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
 def chain_warning(result: Mapping[str, Any]) -> str | None:
     """The one warning line of a chain too short for its autocorrelation time (``diagnostics.warning_line``)."""
     sampler = result["sampler"]
+    if "autocorrelation" not in sampler:
+        return None
     return diagnostics.warning_line(sampler["autocorrelation"], sampler["steps"], sampler["burn"])
 
 
