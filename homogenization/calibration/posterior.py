@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -169,7 +169,7 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
     n = int(next(iter(params.values())).size)
     with_mean = {name: np.append(params[name], post.mean[name]) for name in PARAMETERS}
     with np.errstate(all="ignore"):  # a diverging set gives NaN, left out of the quantiles and counted
-        curves = simulate(test, with_mean, replace(post.forward))
+        curves = simulate(test, with_mean, post.forward)
     ok = np.all(np.isfinite(curves.q[:n]) & np.isfinite(curves.p[:n]) & np.isfinite(curves.eps_v[:n]), axis=1)
     out: dict[str, Any] = {"eps1": eps1, "dim": dim, "n_sets": n, "n_failed": int(np.count_nonzero(~ok)),
                            "n_fallback": int(curves.n_fallback.sum())}

@@ -23,6 +23,7 @@ import numpy as np
 
 from homogenization.cli.run_files import explicit_flags
 from warp_hcell.core.cli import UserError
+from warp_hcell.core.parameters import check_alpha0_deg
 
 BAND_FILE = "posterior_band.csv"
 """The band of --posterior-band, written beside run.h5 (columns ``posterior.band_columns``)."""
@@ -75,10 +76,8 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
         raise UserError(f"{', '.join(given)} conflict with --posterior, which sets phi_g, kn, kt/kn, alpha0 and the "
                         f"radius of the plain H-cell it was calibrated on; drop them or --posterior")
     law = post.contact_law
+    alpha0 = post.mean["alpha0"]
     try:
-        alpha0 = post.mean["alpha0"]
-        from warp_hcell.core.parameters import check_alpha0_deg  # noqa: PLC0415
-
         check_alpha0_deg(alpha0)
     except ValueError as exc:
         raise UserError(f"--posterior {post.path}: {exc}") from None
