@@ -122,7 +122,7 @@ def fit_figure(tests: Sequence[Measurement], log_post: bayes.Posterior, samples:
             if confirm is not None:
                 (h_dem,) = ax.plot(x, s * confirm[row][c], "--", color="C3", label="DEM at the posterior mean")
                 handles_row.append(h_dem)
-            ax.set(xlabel=LABELS["eps1"], ylabel=(LABELS_3D if test.dim == 3 else LABELS)[c], title=f"{test.name} ({test.kind}, p0 = {test.p0:g} N/m)")
+            ax.set(xlabel=LABELS["eps1"], ylabel=(LABELS_3D if test.dim == 3 else LABELS)[c], title=f"{test.name} ({test.kind}, p0 = {test.p0:g} {'Pa' if test.dim == 3 else 'N/m'})")
             ax.grid(**GRID)
             handles = handles or handles_row
         for col in range(len(test.observed), n_cols):
