@@ -111,7 +111,7 @@ def replayed_noise(truth: dict[str, float]) -> None:
                   f"likelihood sigma / drawn sigma {bayes.channel_sigma(test, NOISE)[c] / sigma:.3f}")
 
 
-LOG = np.array([bayes.DEFAULT_BOUNDS[n][2] for n in PARAMETERS])
+LOG = np.array([bayes.DEFAULT_BOUNDS[2][n][2] for n in PARAMETERS])
 """Parameters fitted as log10 (as sampled)."""
 
 
@@ -331,7 +331,9 @@ def main() -> int:
     for which, values in run["misfit_rms_over_sigma"].items():
         print(f"  rms misfit / sigma, {which}: " + ", ".join(f"{k} {v:.2f}" for k, v in values.items()))
     s = run["sampler"]
-    print(f"  acceptance {s['acceptance_fraction']:.2f}, autocorrelation {s['autocorr_steps']} steps, "
+    auto = s["autocorrelation"]
+    print(f"  acceptance {s['acceptance_fraction']:.2f}, autocorrelation {auto['tau_steps']} steps, "
+          f"effective samples {auto['effective_samples']} of {auto['samples']}, "
           f"forward evaluations {run['forward_model']['evaluations']}, fallbacks {run['forward_model']['fallbacks']}, "
           f"failed {run['forward_model']['failed']}")
     return 0 if ok and wall <= BUDGET_S else 1

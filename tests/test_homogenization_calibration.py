@@ -193,6 +193,7 @@ def chain_only(monkeypatch):
     """The chain without the figures and summaries (checked once, in test_outputs_of_a_tiny_run)."""
     monkeypatch.setattr(report, "write_outputs", lambda *args: {})
     monkeypatch.setattr(report, "summary_lines", lambda result: [])
+    monkeypatch.setattr(report, "chain_warning", lambda result: None)
 
 
 def read_chain(path: Path) -> np.ndarray:
@@ -360,9 +361,16 @@ def test_triaxial_data_with_the_ann_backend_exit_2(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-def test_triaxial_data_need_an_alpha0_prior_above_45_deg(tmp_path, capsys):
+def test_triaxial_data_get_a_default_prior_of_the_ten_sphere_cell(tmp_path, capsys):
+    """alpha0 from 45 deg by default (the ten-sphere cell's planes overlap below); a prior file reaching
+    below is refused before any run."""
+    prior = bayes.make_prior(("alpha0", "kn", "phi_g"), dim=3)
+    assert prior.low.tolist() == [45.0, 1e6, 10.0] and prior.log.tolist() == [False, True, False]
+    assert bayes.make_prior(("alpha0",), dim=2).low.tolist() == [35.0]
     data = write(tmp_path, GOOD.replace("= undrained", "= triaxial_undrained"))
-    code = hmodel.main(["calibrate", "--data", str(data), "--params", "phi_g,alpha0", "--out", str(tmp_path / "out")])
+    low = write(tmp_path, json.dumps({"alpha0": [40, 85]}), "prior.json")
+    code = hmodel.main(["calibrate", "--data", str(data), "--params", "phi_g,alpha0", "--prior", str(low),
+                        "--out", str(tmp_path / "out")])
     assert code == 2 and "alpha0 >= 45" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 

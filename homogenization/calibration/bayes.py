@@ -28,14 +28,11 @@ import numpy as np
 
 from homogenization.calibration.data import CHANNELS, Measurement
 from homogenization.calibration.forward import ForwardSettings, simulate
+from warp_hcell.core.parameters import ALPHA_MIN_3D_DEG, PRIOR_BOUNDS_2D, PRIOR_BOUNDS_3D
 
-DEFAULT_BOUNDS: dict[str, tuple[float, float, bool]] = {
-    "phi_g": (10.0, 45.0, False),
-    "kn": (5e7, 5e9, True),
-    "kt_over_kn": (0.1, 1.5, False),
-    "alpha0": (35.0, 85.0, False),
-}
-"""Default prior of each parameter: (low, high, log-uniform?) in CLI units (deg, N/m, -, deg)."""
+DEFAULT_BOUNDS = {2: PRIOR_BOUNDS_2D, 3: PRIOR_BOUNDS_3D}
+"""Default prior of each parameter by the dimension of the data (3 where any test is triaxial):
+(low, high, log-uniform?) in CLI units (deg, N/m, -, deg); ``warp_hcell.core.parameters``."""
 UNITS = {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg"}
 """Unit of each parameter in posterior.json and the figures."""
 CONTRACTION_CONSTRAINED = 0.5
@@ -91,16 +88,20 @@ class Prior:
                 for name, lo, hi, lg in zip(self.names, self.low, self.high, self.log)}
 
 
-def make_prior(names: Sequence[str], path: Path | None = None) -> Prior:
-    """The prior of ``names``: ``DEFAULT_BOUNDS``, overridden by the JSON file ``path``.
+def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2) -> Prior:
+    """The prior of ``names``: ``DEFAULT_BOUNDS[dim]``, overridden by the JSON file ``path``.
 
     File: ``{"phi_g": [20, 40], "kn": {"low": 1e8, "high": 1e9, "log": true}}``; a list keeps the
     parameter's default scale. Parameters not calibrated may not appear.
 
+    Args:
+        dim: 3 where any test is triaxial (the ten-sphere cell: alpha0 >= ``ALPHA_MIN_3D_DEG``), else 2.
+
     Raises:
-        ValueError: one line naming the file for a missing, malformed or inconsistent prior.
+        ValueError: one line naming the file for a missing, malformed or inconsistent prior, or
+            (dim 3) an alpha0 prior reaching below ``ALPHA_MIN_3D_DEG``.
     """
-    bounds = {name: DEFAULT_BOUNDS[name] for name in names}
+    bounds = {name: DEFAULT_BOUNDS[dim][name] for name in names}
     if path is not None:
         path = Path(path)
         if not path.is_file():
@@ -125,6 +126,9 @@ def make_prior(names: Sequence[str], path: Path | None = None) -> Prior:
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) or (log and lo <= 0.0):
                 raise ValueError(f"{path}: prior of {name!r} needs finite low < high (and low > 0 if log)")
             bounds[name] = (lo, hi, log)
+    if dim == 3 and "alpha0" in bounds and bounds["alpha0"][0] < ALPHA_MIN_3D_DEG:
+        raise ValueError(f"{path}: triaxial data: the ten-sphere cell needs alpha0 >= {ALPHA_MIN_3D_DEG:g} deg "
+                         f"(below, its two planes overlap); give alpha0 a prior such as [{ALPHA_MIN_3D_DEG:g}, 85]")
     return Prior(tuple(names), np.array([bounds[n][0] for n in names]), np.array([bounds[n][1] for n in names]),
                  np.array([bounds[n][2] for n in names]))
 

@@ -282,7 +282,11 @@ def _drained_increment(pop: _Population, inc: float, p0: float, rtol: float, max
     increments by Newton on sigma_lateral = p0 (sigma22; 3D: sigma22 and sigma33).
 
     Returns the last tangent d sigma_lateral / d(d_eps11, d_eps_lateral) of each point, shape
-    (n, k, 1 + k), and 1 where Newton did not meet the tolerance (the last iterate is taken)."""
+    (n, k, 1 + k), and 1 where Newton did not meet the tolerance (the last iterate is taken).
+    A point whose residual is not finite (its iteration overflowed, or its state is NaN from an
+    earlier increment) stops iterating at once and takes that iterate: every later iterate
+    would be NaN too, so its curve is the same, without max_iterations population updates per
+    increment for the rest of the stage."""
     n, lat = pop.n, np.arange(1, pop.dim)
     k = lat.size
     columns = np.concatenate([[0], lat])
@@ -293,21 +297,24 @@ def _drained_increment(pop: _Population, inc: float, p0: float, rtol: float, max
     else:
         d[:, lat] = _solve(tangent[:, :, 1:], p0 - pop.state.stress[:, lat] - tangent[:, :, 0] * inc)
     todo = np.ones(n, dtype=bool)
+    gave_up = np.zeros(n, dtype=bool)
     tangent = np.zeros((n, k, 1 + k)) if tangent is None else tangent.copy()
     for _ in range(max_iterations):
         update = pop.trial(d, with_tangent=True)
         r = update.stress[:, lat] - p0
         tangent = np.where(todo[:, None, None], update.tangent[:, lat][:, :, columns], tangent)
         done = todo & np.all(np.abs(r) <= rtol * p0, axis=1)
-        pop.accept(update, done)
-        todo &= ~done
+        lost = todo & ~np.all(np.isfinite(r), axis=1)
+        pop.accept(update, done | lost)
+        gave_up |= lost
+        todo &= ~(done | lost)
         if not todo.any():
-            return tangent, np.zeros(n, dtype=np.int64)
+            return tangent, gave_up.astype(np.int64)
         identity = np.broadcast_to(np.eye(k), tangent[:, :, 1:].shape)
         step = _solve(np.where(todo[:, None, None], tangent[:, :, 1:], identity), r)
         d[:, lat] = np.where(todo[:, None], d[:, lat] - step, d[:, lat])
     pop.accept(update, todo)
-    return tangent, todo.astype(np.int64)
+    return tangent, (todo | gave_up).astype(np.int64)
 
 
 def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], settings: ForwardSettings) -> Curves:

@@ -16,7 +16,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-from homogenization.calibration import bayes
+from homogenization.calibration import bayes, diagnostics
 from homogenization.calibration.data import Measurement
 from homogenization.calibration.forward import simulate
 from homogenization.figure_style import GRID, LABELS, apply_style, figure_legend
@@ -43,18 +43,26 @@ is stuck in a negligible mode (its density there is below exp(-20) of the bulk's
 the posterior; ``run.json`` counts them [-]."""
 
 
-def retained_samples(sampler, burn: float) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """Post-burn-in samples (n, n_params) in sampled coordinates of the walkers that are not stuck
-    (``STUCK_LOG_POSTERIOR``), their log posterior (n,), the steps discarded and the walkers left out."""
+def retained_chain(sampler, burn: float) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Post-burn-in positions of the walkers that are not stuck (``STUCK_LOG_POSTERIOR``), shape
+    (n_steps, n_kept, n_params) in sampled coordinates, their log posterior (n_steps, n_kept), the
+    steps discarded and the walkers left out."""
     n_steps = sampler.backend.iteration
     discard = min(int(burn * n_steps), n_steps - 1)
     chain = sampler.get_chain(discard=discard)
     lp = sampler.get_log_prob(discard=discard)
     walker_mean = np.mean(lp, axis=0)
     keep = walker_mean >= np.median(walker_mean) - STUCK_LOG_POSTERIOR
-    chain, lp = chain[:, keep].reshape(-1, chain.shape[2]), lp[:, keep].reshape(-1)
+    return chain[:, keep], lp[:, keep], discard, int(np.count_nonzero(~keep))
+
+
+def retained_samples(sampler, burn: float) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """``retained_chain`` flattened to samples (n, n_params) and their log posterior (n,), thinned
+    evenly to at most ``MAX_SAMPLES``; the steps discarded and the walkers left out."""
+    chain, lp, discard, stuck = retained_chain(sampler, burn)
+    chain, lp = chain.reshape(-1, chain.shape[2]), lp.reshape(-1)
     thin = max(1, math.ceil(chain.shape[0] / MAX_SAMPLES))
-    return chain[::thin], lp[::thin], discard, int(np.count_nonzero(~keep))
+    return chain[::thin], lp[::thin], discard, stuck
 
 
 def write_json(path: Path, data: Any) -> None:
@@ -114,7 +122,7 @@ def fit_figure(tests: Sequence[Measurement], log_post: bayes.Posterior, samples:
             if confirm is not None:
                 (h_dem,) = ax.plot(x, s * confirm[row][c], "--", color="C3", label="DEM at the posterior mean")
                 handles_row.append(h_dem)
-            ax.set(xlabel=LABELS["eps1"], ylabel=(LABELS_3D if test.dim == 3 else LABELS)[c], title=f"{test.name} ({test.kind}, p0 = {test.p0:g} N/m)")
+            ax.set(xlabel=LABELS["eps1"], ylabel=(LABELS_3D if test.dim == 3 else LABELS)[c], title=f"{test.name} ({test.kind}, p0 = {test.p0:g} {'Pa' if test.dim == 3 else 'N/m'})")
             ax.grid(**GRID)
             handles = handles or handles_row
         for col in range(len(test.observed), n_cols):
@@ -154,6 +162,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
     """Write posterior.h5, posterior.json, corner.png, fits.png and run.json; returns run.json's content."""
     prior, tests = log_post.prior, log_post.tests
     samples, lp, discard, stuck = retained_samples(sampler, args.burn)
+    autocorrelation = diagnostics.chain_diagnostics(retained_chain(sampler, args.burn)[0], prior.names)
     summary = bayes.summarise(samples, prior)
     corr = bayes.correlations(samples, prior)
     note = bayes.identifiability_note(summary, corr)
@@ -162,17 +171,17 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
     both = log_post.curves(np.stack([mean, best]))
     mean_curves, best_curves = ([{c: v[k] for c, v in curves.items()} for curves in both] for k in (0, 1))
     confirm = confirm_with_dem(tests, log_post, mean, args) if args.confirm == "dem" else None
-    with np.errstate(invalid="ignore", divide="ignore"):  # a walker that never moved has a zero autocovariance
-        tau = [float(t) if np.isfinite(t) else None for t in sampler.get_autocorr_time(tol=0)]
     record = provenance()
     run = {
+        "data_dimensions": sorted({t.dim for t in tests}),
+        "tests": [{"name": t.name, "kind": t.kind, "p0": t.p0, "dim": t.dim} for t in tests],
         "identifiability": note,
         "correlations": corr,
         "sampler": {
             "library": "emcee", "walkers": args.walkers, "steps": int(sampler.backend.iteration),
-            "discarded": discard, "retained_samples": int(samples.shape[0]), "stuck_walkers_left_out": stuck,
+            "burn": args.burn, "discarded": discard, "retained_samples": int(samples.shape[0]), "stuck_walkers_left_out": stuck,
             "acceptance_fraction": float(np.mean(sampler.acceptance_fraction)),
-            "autocorr_steps": tau, "seconds_this_run": seconds,
+            "autocorrelation": autocorrelation, "seconds_this_run": seconds,
         },
         "forward_model": {
             "settings": config["forward"], "noise": args.noise,
@@ -216,6 +225,13 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
     for which, values in result["misfit_rms_over_sigma"].items():
         lines.append(f"rms misfit / sigma, {which}: " + ", ".join(f"{k} {v:.2f}" for k, v in values.items()))
     sampler, forward = result["sampler"], result["forward_model"]
+    auto = sampler.get("autocorrelation")  # absent from a result made without a chain
+    if auto is not None:
+        lines.append("autocorrelation time [steps] / effective samples: " + ", ".join(
+            f"{n} {_number(t, '.1f')} / {_number(auto['effective_samples'][n], '.0f')}"
+            for n, t in auto["tau_steps"].items())
+            + f" (of {auto['samples']} samples, {auto['steps_retained']} retained steps = "
+            f"{_number(auto['steps_per_tau'], '.1f')} x the largest tau)")
     lines.append(f"sampler: {sampler['steps']} steps x {sampler['walkers']} walkers, acceptance "
                  f"{sampler['acceptance_fraction']:.2f}, stuck walkers left out {sampler['stuck_walkers_left_out']}, "
                  f"forward fallbacks {forward['fallbacks']}, failed sets {forward['failed']}, "
@@ -227,3 +243,16 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
                      f"{STUCK_LOG_POSTERIOR:g}) of the other walkers' and are left out of it; if that is many, rerun "
                      f"with a --prior narrowed around the posterior above or with more --walkers")
     return lines
+
+
+def chain_warning(result: Mapping[str, Any]) -> str | None:
+    """The one warning line of a chain too short for its autocorrelation time (``diagnostics.warning_line``)."""
+    sampler = result["sampler"]
+    if "autocorrelation" not in sampler:
+        return None
+    return diagnostics.warning_line(sampler["autocorrelation"], sampler["steps"], sampler["burn"])
+
+
+def _number(value: float | None, spec: str) -> str:
+    """``value`` formatted by ``spec``, or "n/a" for None (a parameter that never moved)."""
+    return "n/a" if value is None else format(value, spec)

@@ -7,6 +7,11 @@ increment, the last one shortened so that p lands on p0), then constant-volume s
 (stress control), to eps1 = --eps-max counted from the end of stage 1. ``--programme FILE``
 runs any loading programme instead (JSON or TOML, docs/programmes.md).
 
+``--posterior DIR/posterior.json`` (of ``hmodel calibrate`` on biaxial data) runs at its
+posterior mean instead of --phi, --kn, --kt, --alpha0 and --radius, recorded in run.h5;
+``--posterior-band N`` adds the 95 % band of N posterior draws (DIR/posterior_band.csv, shaded
+in the figure; ``homogenization.cli.posterior_flags``).
+
 --backend takes one name or a comma list (e.g. ``analytical,dem``): every backend runs
 the same programme. One backend writes DIR/run.h5 and DIR/curve.csv; several write
 DIR/<backend>/run.h5 and DIR/<backend>/curve.csv. Either way DIR/cambridge.png overlays
@@ -42,12 +47,13 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from homogenization import driver, figures, loading
-from homogenization.cli import plot
+from homogenization.cli import plot, posterior_flags
 from homogenization.cli.options import (
     add_alpha0_argument,
     add_backend_list_argument,
     add_cell_arguments,
     add_orientations_argument,
+    add_posterior_arguments,
     add_programme_arguments,
     add_uncertified_argument,
     command_parser,
@@ -108,6 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
                                "mesostructure); None: the H-cell of --alpha0 and --radius.",
                        "CPU threads of the DEM or of torch inference (dem and ann; None: the backend's own default)")
     add_uncertified_argument(parser)
+    add_posterior_arguments(parser)
     return parser
 
 
@@ -164,8 +171,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     set_verbosity(args)
     command = command_line() if argv is None else shlex.join(["hmodel", "biaxial", *argv])
     out: Path = args.out
-    check_run(args, FIGURE_FILE)
-    programme, settings = build_programme(args, sys.argv[1:] if argv is None else argv)
+    argv_given = sys.argv[1:] if argv is None else argv
+    calibrated = posterior_flags.apply_posterior(args, argv_given, build_parser(), dim=2)
+    check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE)
+    programme, settings = build_programme(args, argv_given)
+    posterior_flags.check_band_test(calibrated, settings, "--fabric-anisotropy" if args.fabric_anisotropy else "")
     if args.normalise and not any(step.stop_at_p for step in programme):
         raise UserError("--normalise needs p0: the programme has no stop_at_p step")
     for label, largest in coarse_steps(programme):
@@ -196,16 +206,26 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "drained": drained,
                     "stress_rtol": LoadingDefaults.stress_rtol,
                     "mesostructure": args.mesostructure.text if args.mesostructure is not None else None,
+                    **posterior_flags.run_record(calibrated),
                 },
                 work=work, command=command)
+            posterior_flags.compute_band(calibrated, dim=2, drained=args.drained, p0=args.p0, eps_max=args.eps_max)
+            with writing_to(out):
+                band_line = posterior_flags.write_band(calibrated, work)
             runs = {name: figures.Run(record, stored[name]) for name, record in records.items()}
             slopes = (figures.critical_state_lines(list(runs.values()), list(runs), warn, report=say)
                       if args.csl else None)
             fig = figures.overlay_figure(list(runs.values()), fourth=args.fourth_panel, deviator=args.deviator,
                                           normalise=args.normalise, csl=slopes)
+            scale = 1.0 / args.p0 if args.normalise else 1.0
+            posterior_flags.shade(fig, calibrated, (
+                (0, "q", scale * (0.5 if args.deviator == "t" else 1.0)),
+                (2, "eps_v", 100.0) if drained else (2, "p", scale)))
             with writing_to(out):
                 figures.save_figure(fig, work / FIGURE_FILE)
-    say(*written, f"figure -> {out / FIGURE_FILE}" + (f" ({plot.csl_summary(slopes)})" if slopes is not None else ""))
+    say(*written, *([band_line.replace(posterior_flags.BAND_FILE, str(out / posterior_flags.BAND_FILE))]
+                    if band_line else []),
+        f"figure -> {out / FIGURE_FILE}" + (f" ({plot.csl_summary(slopes)})" if slopes is not None else ""))
     return 0
 
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -81,6 +82,11 @@ def parameter_list(text: str) -> tuple[str, ...]:
     return names
 
 
+def prior_text(bounds: dict[str, tuple[float, float, bool]]) -> str:
+    """Help text of default prior bounds: "phi_g [10, 45], kn [5e+07, 5e+09] log, ..."."""
+    return ", ".join(f"{k} [{lo:g}, {hi:g}]{' log' if lg else ''}" for k, (lo, hi, lg) in bounds.items())
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Parser of the calibrate command."""
     parser = command_parser("homogenization.calibrate",
@@ -92,9 +98,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--params", type=parameter_list, required=True,
                         help=f"parameters to calibrate, comma list of {','.join(PARAMETERS)}")
     parser.add_argument("--prior", type=Path, default=None,
-                        help="JSON prior: parameter -> [low, high] or {low, high, log} (default bounds: "
-                             + ", ".join(f"{k} [{lo:g}, {hi:g}]{' log' if lg else ''}"
-                                         for k, (lo, hi, lg) in bayes.DEFAULT_BOUNDS.items()) + ")")
+                        help="JSON prior: parameter -> [low, high] or {low, high, log} (default bounds, biaxial data: "
+                             + prior_text(bayes.DEFAULT_BOUNDS[2]) + "; with triaxial data: "
+                             + prior_text(bayes.DEFAULT_BOUNDS[3]) + ")")
     parser.add_argument("--out", type=Path, required=True, help="output folder (resumed if it holds this calibration)")
     parser.add_argument("--alpha0", type=alpha0_deg, default=FORWARD.fixed["alpha0"],
                         help="alpha0 [deg] where not calibrated")
@@ -198,12 +204,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     tests = read_tests(args.data)
     check_args(args, tests)
     try:
-        prior = bayes.make_prior(args.params, args.prior)
+        prior = bayes.make_prior(args.params, args.prior, dim=max(t.dim for t in tests))
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    if any(t.dim == 3 for t in tests) and "alpha0" in prior.names and prior.low[prior.names.index("alpha0")] < 45.0:
-        raise UserError("triaxial data: the ten-sphere cell needs alpha0 >= 45 deg (below, its two planes overlap); "
-                        "give a prior such as {\"alpha0\": [45, 85]} (--prior FILE)")
     settings = forward_settings(args)
     check_out(args.out, args.overwrite)
     config = configuration(args, tests, prior, settings)
@@ -213,6 +216,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     with output_lock(args.out):
         result = run_calibration(args, tests, prior, settings, config)
     say(*report.summary_lines(result), f"{args.out}: done in {time.perf_counter() - started:.0f} s")
+    warning = report.chain_warning(result)
+    if warning:
+        print(f"hmodel calibrate: {warning}", file=sys.stderr)
     return 0
 
 

@@ -17,6 +17,8 @@
   and the refusal (one line, exit 2) of an ANN model without a passed certificate of its own
   ``.pt`` (docs/certificate.md); ``certificate_note(model)`` is the line a run summary prints;
 - ``EXIT_CODES_HELP``: the --help epilog of the commands that end with a certificate;
+- ``add_posterior_arguments(parser)``: --posterior (run at a calibration's posterior mean) and
+  --posterior-band N (the 95 % band of N posterior draws), applied by ``homogenization.cli.posterior_flags``;
 - ``add_active_arguments(parser)``: the budget of the active-learning rounds (--rounds,
   --samples-per-round, --max-samples, --max-seconds, --warm-start, --widen; defaults from
   ``homogenization.learning_settings.ActiveSettings``) and the certificate's --orientations (planar cells),
@@ -167,6 +169,20 @@ def certificate_note(model: object) -> str:
     worst = (f", worst {100 * cert['worst']:.3g} %" if isinstance(cert, dict) and "worst" in cert and "worst" not in problem
              else "")
     return f", UNCERTIFIED ({problem.split(': ', 1)[-1]}{worst}; --uncertified-ok)"
+
+
+def add_posterior_arguments(parser: argparse.ArgumentParser) -> None:
+    """The group "calibrated micro-parameters": --posterior (posterior.json of ``hmodel calibrate``,
+    or its folder) and --posterior-band N (a positive int; None: no band)."""
+    group = parser.add_argument_group("calibrated micro-parameters")
+    group.add_argument("--posterior", type=Path, default=None,
+                       help="posterior.json of hmodel calibrate (or its folder): run at the posterior mean of its "
+                            "parameters (phi_g, kn, kt/kn, alpha0, radius; not with --phi, --kn, --kt, --alpha0, "
+                            "--radius, --mesostructure)")
+    group.add_argument("--posterior-band", type=positive_int, default=None, metavar="N",
+                       help="also draw N parameter sets from the posterior's samples and write the 95 %% band of q, "
+                            "p and eps_v over eps1 (posterior_band.csv, in the figure); built-in drained or "
+                            "undrained tests only")
 
 
 def add_active_arguments(parser: argparse.ArgumentParser) -> None:

@@ -87,14 +87,15 @@ def check_options(args: argparse.Namespace, backends: Sequence[str] | None = Non
             raise UserError(f"--device {args.device}: the installed torch has no CUDA support; use --device cpu for the ann")
 
 
-def check_run(args: argparse.Namespace, figure_file: str) -> None:
+def check_run(args: argparse.Namespace, figure_file: str, *extra_files: str) -> None:
     """What a run command checks before any work: --out (``check_output_path``,
-    ``check_replaceable``) and the backend-only flags (``check_options``); Warp's start-up
-    lines are silenced where the DEM runs and --verbose is not given."""
+    ``check_replaceable``; ``extra_files``: other files the command writes there) and the
+    backend-only flags (``check_options``); Warp's start-up lines are silenced where the DEM runs
+    and --verbose is not given."""
     if "dem" in args.backend and not args.verbose:
         quiet_warp(args.device)
     check_output_path(args.out, overwrite=args.overwrite)
-    check_replaceable(args.out, figure_file)
+    check_replaceable(args.out, figure_file, *extra_files)
     check_options(args)
 
 
@@ -136,10 +137,10 @@ def shear_iso_increment(args: argparse.Namespace, hint: str = "") -> float:
     return iso_increment
 
 
-def check_replaceable(out: Path, figure_file: str) -> None:
+def check_replaceable(out: Path, figure_file: str, *extra_files: str) -> None:
     """UserError unless ``out`` is absent or holds only what a run command writes.
 
-    A run command writes run.h5, curve.csv, ``figure_file`` and one folder per backend;
+    A run command writes run.h5, curve.csv, ``figure_file``, ``extra_files`` and one folder per backend;
     --overwrite replaces the whole folder, so it must not hold anything else (``--out .``
     with --overwrite would otherwise delete the working folder).
     """
@@ -147,7 +148,7 @@ def check_replaceable(out: Path, figure_file: str) -> None:
         if out.exists():
             raise UserError(f"--out {out} is a file; give a folder")
         return
-    ours = {io.RUN_FILE, io.CURVE_FILE, figure_file, *BACKENDS}
+    ours = {io.RUN_FILE, io.CURVE_FILE, figure_file, *extra_files, *BACKENDS}
     foreign = sorted(p.name for p in out.iterdir() if p.name not in ours)
     if foreign:
         raise UserError(f"{out} holds files that this command did not write ({', '.join(foreign[:3])}); "

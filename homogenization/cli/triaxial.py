@@ -12,6 +12,11 @@ p0), then one shear stage (axis 1 axial, --eps-max of axial strain in increments
 - ``--true B``: true triaxial compression at p = p0 and b = (sigma2 - sigma3)/(sigma1 - sigma3) = B;
 - ``--cyclic N``: N undrained cycles of axial strain amplitude --eps-max.
 
+``--posterior DIR/posterior.json`` (of ``hmodel calibrate`` on triaxial data) runs at its
+posterior mean instead of --phi, --kn, --kt, --alpha0 and --radius, and records the posterior
+in run.h5 (parameters ``posterior``); ``--posterior-band N`` adds the 95 % band of N posterior
+draws (DIR/posterior_band.csv, shaded in the figure; ``homogenization.cli.posterior_flags``).
+
 ``--programme FILE`` runs any loading programme of three-component steps instead (JSON or TOML,
 docs/programmes.md). Outputs as ``hmodel biaxial``: one backend writes DIR/run.h5 and
 DIR/curve.csv (header ``stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q``, stages iso and
@@ -36,7 +41,8 @@ from typing import Any, Sequence
 
 from homogenization import driver, figures, loading
 from homogenization.backends import BACKENDS
-from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_programme_arguments, add_uncertified_argument, command_parser, lebedev_order
+from homogenization.cli import posterior_flags
+from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, command_parser, lebedev_order
 from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, run_backends, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
@@ -107,6 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
                                f"None: {DEFAULT_MESOSTRUCTURE} at --alpha0 and --radius.",
                        "CPU threads of the DEM (None: its own default)")
     add_uncertified_argument(parser)
+    add_posterior_arguments(parser)
     return parser
 
 
@@ -172,9 +179,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     set_verbosity(args)
     command = command_line() if argv is None else shlex.join(["hmodel", "triaxial", *argv])
     out: Path = args.out
+    argv_given = sys.argv[1:] if argv is None else argv
     check_backends(args.backend, args.model)
-    check_run(args, FIGURE_FILE)
-    programme, settings = build_programme(args, sys.argv[1:] if argv is None else argv)
+    calibrated = posterior_flags.apply_posterior(args, argv_given, build_parser(), dim=3)
+    check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE)
+    programme, settings = build_programme(args, argv_given)
+    posterior_flags.check_band_test(calibrated, settings, "")
     law = contact_law_from_args(args)
     meso = run_mesostructure(args)
     spin_period = meso.spin_period_deg()
@@ -197,13 +207,21 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "n_orientations": record.weights.size,
                     "stress_rtol": LoadingDefaults.stress_rtol,
                     "mesostructure": args.mesostructure.text if args.mesostructure is not None else DEFAULT_MESOSTRUCTURE,
+                    **posterior_flags.run_record(calibrated),
                 },
                 work=work, command=command)
+            posterior_flags.compute_band(calibrated, dim=3, drained=settings.get("test") == "drained", p0=args.p0,
+                                         eps_max=args.eps_max)
+            with writing_to(out):
+                band_line = posterior_flags.write_band(calibrated, work)
             title = f"{meso.name}, p0 = {args.p0:g} Pa, {settings.get('test', 'programme')}"
             fig = figures.triaxial_figure(runs, title=title)
+            posterior_flags.shade(fig, calibrated, ((1, "q", 1.0), (2, "eps_v", 100.0)))
             with writing_to(out):
                 figures.save_figure(fig, work / FIGURE_FILE)
-    say(*written, f"figure -> {out / FIGURE_FILE}")
+    say(*written, *([band_line.replace(posterior_flags.BAND_FILE, str(out / posterior_flags.BAND_FILE))]
+                    if band_line else []),
+        f"figure -> {out / FIGURE_FILE}")
     return 0
 
 

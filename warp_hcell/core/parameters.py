@@ -19,6 +19,31 @@ ALPHA_MIN_DEG = 30.0
 ALPHA_MAX_DEG = 90.0
 """Opening angle [deg] at which grains 1-4 touch; initial states need alpha0 < 90."""
 
+ALPHA_MIN_3D_DEG = 45.0
+"""Smallest opening angle [deg] of the ten-sphere cell of equal spheres in orthogonal planes:
+below, the lateral grains of its two planes overlap."""
+
+PRIOR_BOUNDS_2D: dict[str, tuple[float, float, bool]] = {
+    "phi_g": (10.0, 45.0, False),
+    "kn": (5e7, 5e9, True),
+    "kt_over_kn": (0.1, 1.5, False),
+    "alpha0": (35.0, 85.0, False),
+}
+"""Default prior of ``hmodel calibrate`` on biaxial (2D) data, per micro-parameter: (low, high,
+log-uniform?) in the CLI flags' units (phi_g, alpha0 [deg], kn [N/m], kt_over_kn [-]); uniform in
+the value, or in its log10 where log-uniform. kn spans 8.5 to 850 x the default p0 of 5.85e6 N/m."""
+PRIOR_BOUNDS_3D: dict[str, tuple[float, float, bool]] = {
+    "phi_g": (10.0, 45.0, False),
+    "kn": (1e6, 1e10, True),
+    "kt_over_kn": (0.1, 1.5, False),
+    "alpha0": (ALPHA_MIN_3D_DEG, 85.0, False),
+}
+"""Default prior of ``hmodel calibrate`` on triaxial (3D) data (and on 2D and 3D data fitted
+together), as ``PRIOR_BOUNDS_2D``: alpha0 from ``ALPHA_MIN_3D_DEG``, which the ten-sphere cell
+needs; kn from 1e6 to 1e10 N/m, which at laboratory pressures (p0 = 5e4 to 1e6 Pa, grain radius
+0.5 m) spans peak stress ratios q/p0 from below 1 to above 10 (the closed form at phi_g = 30 deg,
+alpha0 = 60 deg, drained at 1e5 Pa: q_peak / p0 = 0.9, 2.6, 5.1, 12.3 at kn = 1e6, 1e7, 1e8, 1e9)."""
+
 
 def check_alpha0_deg(alpha0_deg: float) -> float:
     """Return ``alpha0_deg`` as float if it lies in [30, 90) deg, else raise ValueError (one line)."""

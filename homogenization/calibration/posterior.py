@@ -1,0 +1,200 @@
+"""A calibration's posterior read back, to run the H-model at it: ``hmodel triaxial --posterior`` and
+``hmodel biaxial --posterior``.
+
+``read_posterior(path)`` reads what ``hmodel calibrate`` wrote into its folder: posterior.json
+(mean, median, ci95 of each calibrated parameter in the CLI flags' units: phi_g and alpha0 [deg],
+kn [N/m], kt_over_kn [-]), run.json beside it (the values of the parameters not calibrated, the
+grain radius, the forward model's settings and the dimension of the data) and posterior.h5 (the
+retained samples, ``/samples/<name>``). ``band(...)`` runs the batched closed form
+(``forward.simulate``) for parameter sets drawn from those samples and returns the 2.5 and 97.5 %
+quantiles of q, p and eps_v over eps1.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from homogenization.calibration.data import Measurement
+from homogenization.calibration.forward import PARAMETERS, ForwardSettings, simulate
+from warp_hcell.core.parameters import ContactLaw
+
+POSTERIOR_FILE = "posterior.json"
+SAMPLES_FILE = "posterior.h5"
+RUN_FILE = "run.json"
+BAND_POINTS = 200
+"""Most eps1 values at which the band is tabulated [-]."""
+BAND_QUANTILES = (0.025, 0.975)
+"""Quantiles of the band [-]: a 95 % band."""
+KINDS = {2: "biaxial (2D)", 3: "triaxial (3D)"}
+
+
+@dataclass(frozen=True)
+class CalibratedPosterior:
+    """A calibration's posterior, read back.
+
+    Attributes:
+        path: the posterior.json read.
+        sha256: its sha256 (recorded in run.h5).
+        dims: the dimensions of the calibration's data (2: biaxial, 3: triaxial), sorted.
+        calibrated: the calibrated parameters, in posterior.json's order.
+        mean: every parameter of ``PARAMETERS`` at the posterior mean (calibrated) or at the
+            calibration's fixed value (not calibrated), CLI units.
+        radius: the grain radius of the calibration [m].
+        forward: the calibration's forward-model settings (the band runs with them).
+    """
+
+    path: Path
+    sha256: str
+    dims: tuple[int, ...]
+    calibrated: tuple[str, ...]
+    mean: dict[str, float]
+    radius: float
+    forward: ForwardSettings
+
+    @property
+    def contact_law(self) -> ContactLaw:
+        """The contact law at the posterior mean."""
+        return ContactLaw(kn=self.mean["kn"], kt_over_kn=self.mean["kt_over_kn"], phi_g_deg=self.mean["phi_g"])
+
+    def record(self) -> dict[str, Any]:
+        """What run.h5 stores of the posterior (its ``parameters`` attribute, key ``posterior``)."""
+        return {"file": str(self.path.resolve()), "sha256": self.sha256, "statistic": "mean",
+                "calibrated": list(self.calibrated), "values": dict(self.mean),
+                "units": {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg"}}
+
+
+def _read_json(path: Path, what: str) -> Any:
+    if not path.is_file():
+        raise ValueError(f"--posterior {path}: no such file" if what == "posterior" else
+                         f"--posterior: no {path.name} beside it in {path.parent} (the folder of an hmodel calibrate run)")
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"--posterior: cannot read {path}: {exc}") from None
+
+
+def read_posterior(path: Path) -> CalibratedPosterior:
+    """The posterior of ``path`` (posterior.json, or the folder holding it) and its run.json.
+
+    Raises:
+        ValueError: one line for a missing or malformed file, a parameter not in ``PARAMETERS``,
+            or a run.json without the calibration's dimension, fixed values or radius.
+    """
+    from warp_hcell.core.provenance import file_sha256  # noqa: PLC0415
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / POSTERIOR_FILE
+    data = _read_json(path, "posterior")
+    if not isinstance(data, dict) or not data:
+        raise ValueError(f"--posterior {path}: not a posterior.json of hmodel calibrate (parameter -> mean, median, ci95)")
+    mean: dict[str, float] = {}
+    for name, entry in data.items():
+        if name not in PARAMETERS:
+            raise ValueError(f"--posterior {path}: {name!r} is not a parameter these commands can set "
+                             f"({', '.join(PARAMETERS)})")
+        value = entry.get("mean") if isinstance(entry, dict) else None
+        if not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ValueError(f"--posterior {path}: {name!r} has no finite mean")
+        mean[name] = float(value)
+    run = _read_json(path.parent / RUN_FILE, "run")
+    try:
+        forward_json = run["config"]["forward"]
+        dims = tuple(sorted({int(d) for d in run["data_dimensions"]}))
+        fixed = {name: float(forward_json["fixed"][name]) for name in PARAMETERS}
+        radius = float(forward_json["radius"])
+        fields = {k: v for k, v in forward_json.items() if k in ForwardSettings.__dataclass_fields__}
+        forward = ForwardSettings(**{**fields, "fixed": fixed, "backend": "analytical", "backend_options": {}})
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"--posterior: {path.parent / RUN_FILE} lacks {exc} (written by an older hmodel calibrate? "
+                         f"rerun the same calibrate command on {path.parent} to rewrite it)") from None
+    return CalibratedPosterior(path=path, sha256=file_sha256(path), dims=dims, calibrated=tuple(mean),
+                               mean={name: mean.get(name, fixed[name]) for name in PARAMETERS}, radius=radius,
+                               forward=forward)
+
+
+def draw_samples(post: CalibratedPosterior, n: int, seed: int) -> dict[str, np.ndarray]:
+    """``n`` parameter sets drawn without replacement from posterior.h5's samples (seeded): every
+    parameter of ``PARAMETERS`` as shape (n,), the uncalibrated ones at their fixed values.
+
+    Raises:
+        ValueError: a missing or malformed posterior.h5, or fewer samples than ``n`` (one line).
+    """
+    import h5py  # noqa: PLC0415
+
+    path = post.path.parent / SAMPLES_FILE
+    if not path.is_file():
+        raise ValueError(f"--posterior-band: no {SAMPLES_FILE} beside {post.path}")
+    try:
+        with h5py.File(path, "r") as fh:
+            samples = {name: np.asarray(fh[f"samples/{name}"][()], dtype=np.float64) for name in post.calibrated}
+    except (OSError, KeyError) as exc:
+        raise ValueError(f"--posterior-band: cannot read the samples of {path}: {exc}") from None
+    size = min(v.size for v in samples.values())
+    if size < n:
+        raise ValueError(f"--posterior-band {n}: {path} holds {size} samples; ask for at most that many")
+    pick = np.random.default_rng(seed).choice(size, size=n, replace=False)
+    return {name: samples[name][pick] if name in samples else np.full(n, post.mean[name]) for name in PARAMETERS}
+
+
+def band_grid(eps_max: float, increment: float) -> np.ndarray:
+    """eps1 values of the band: multiples of ``increment`` up to ``eps_max``, at most ``BAND_POINTS`` of them."""
+    n = max(1, math.floor(eps_max / increment + 1e-9))
+    steps = np.unique(np.round(np.linspace(1, n, min(n, BAND_POINTS))).astype(int))
+    return steps * increment
+
+
+def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: int, drained: bool, p0: float,
+         eps_max: float) -> dict[str, np.ndarray]:
+    """The posterior band of a built-in test (isotropic compression to ``p0``, then drained or
+    constant-volume shear to ``eps_max``) by the calibration's forward model (``post.forward``), all
+    sets in one batch.
+
+    Returns:
+        ``eps1`` (k,), ``<channel>_lo`` / ``_median`` / ``_hi`` for q, p [N/m or Pa] and eps_v [-]
+        (eps_v = sum of the normal strains since the end of stage 1, contraction positive), each
+        shape (k,), quantiles over the sets whose curve is finite; ``dim``; ``<channel>_forward_at_mean``
+        (the forward model at the posterior mean, to compare with the command's own run), ``n_sets``,
+        ``n_failed`` (sets whose isotropic stage did not reach p0) and ``n_fallback`` (the forward
+        model's fallbacks).
+    """
+    eps1 = band_grid(eps_max, post.forward.increment)
+    test = Measurement("band", post.path, drained, p0, eps1, {}, dim)
+    n = int(next(iter(params.values())).size)
+    with_mean = {name: np.append(params[name], post.mean[name]) for name in PARAMETERS}
+    with np.errstate(all="ignore"):  # a diverging set gives NaN, left out of the quantiles and counted
+        curves = simulate(test, with_mean, post.forward)
+    ok = np.all(np.isfinite(curves.q[:n]) & np.isfinite(curves.p[:n]) & np.isfinite(curves.eps_v[:n]), axis=1)
+    out: dict[str, Any] = {"eps1": eps1, "dim": dim, "n_sets": n, "n_failed": int(np.count_nonzero(~ok)),
+                           "n_fallback": int(curves.n_fallback.sum())}
+    for c in ("q", "p", "eps_v"):
+        values = curves.channel(c)
+        lo, med, hi = (np.quantile(values[:n][ok], q, axis=0) if ok.any() else np.full(eps1.size, np.nan)
+                       for q in (BAND_QUANTILES[0], 0.5, BAND_QUANTILES[1]))
+        out[f"{c}_lo"], out[f"{c}_median"], out[f"{c}_hi"] = lo, med, hi
+        out[f"{c}_forward_at_mean"] = values[n]
+    return out
+
+
+def band_columns() -> list[str]:
+    """Columns of the band's CSV (``write_band_csv``)."""
+    return ["eps1"] + [f"{c}_{s}" for c in ("q", "p", "eps_v") for s in ("lo", "median", "hi", "forward_at_mean")]
+
+
+def write_band_csv(path: Path, result: Mapping[str, Any], header: Mapping[str, Any]) -> None:
+    """``result`` of ``band`` as CSV (atomically), ``# key = value`` comment lines first."""
+    from warp_hcell.core.files import atomic_write  # noqa: PLC0415
+
+    columns = band_columns()
+    lines = [f"# {k} = {v}" for k, v in header.items()]
+    lines.append(",".join(columns))
+    table = np.stack([result[c] for c in columns], axis=1)
+    lines += [",".join(f"{v:.10g}" for v in row) for row in table.tolist()]
+    with atomic_write(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")

@@ -1,0 +1,175 @@
+"""--posterior and --posterior-band of ``hmodel triaxial`` and ``hmodel biaxial``
+(``options.add_posterior_arguments``).
+
+- ``apply_posterior(args, argv, parser, dim)``: before any work, reads the posterior
+  (``homogenization.calibration.posterior``), refuses (one line, exit 2) a posterior of the other
+  dimension, one whose parameters the chosen backends cannot set (the ann runs its model's own
+  contact law and cell), and the flags it replaces given explicitly; then sets --phi, --kn, --kt,
+  --alpha0 and --radius to the posterior mean (uncalibrated parameters: the calibration's fixed
+  values), and draws the band's parameter sets (--posterior-band N);
+- ``run_record(...)``: what run.h5 stores of it;
+- ``write_band(...)``: the band by the calibration's forward model, its CSV beside run.h5, and
+  its shading in the command's figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from homogenization.cli.run_files import explicit_flags
+from warp_hcell.core.cli import UserError
+from warp_hcell.core.parameters import check_alpha0_deg
+
+BAND_FILE = "posterior_band.csv"
+"""The band of --posterior-band, written beside run.h5 (columns ``posterior.band_columns``)."""
+REPLACED_FLAGS = {"phi": "--phi", "kn": "--kn", "kt": "--kt", "alpha0": "--alpha0", "radius": "--radius",
+                  "mesostructure": "--mesostructure"}
+"""Flags that --posterior sets (or whose cell the calibration did not use): argparse dest -> flag."""
+
+
+@dataclass
+class PosteriorRun:
+    """The posterior of a run and, with --posterior-band, its draws (every parameter, shape (N,))."""
+
+    posterior: Any
+    draws: dict[str, np.ndarray] | None
+    seed: int
+    band: dict[str, Any] | None = None
+
+
+def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argparse.ArgumentParser,
+                    dim: int) -> PosteriorRun | None:
+    """Read --posterior and set the contact law, alpha0 and radius flags to its mean; None without it.
+
+    Args:
+        args: the parsed flags (changed in place).
+        argv: the command line, to find the flags given explicitly.
+        parser: a fresh parser of the command.
+        dim: 2 (biaxial) or 3 (triaxial).
+
+    Raises:
+        UserError: one line, before any work (module docstring).
+    """
+    if args.posterior is None:
+        if args.posterior_band is not None:
+            raise UserError("--posterior-band needs --posterior (the calibration whose samples it draws)")
+        return None
+    from homogenization.calibration import posterior as post_mod  # noqa: PLC0415 (h5py, the forward model)
+
+    try:
+        post = post_mod.read_posterior(args.posterior)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    if dim not in post.dims:
+        raise UserError(f"--posterior {post.path}: calibrated on {' and '.join(post_mod.KINDS[d] for d in post.dims)} "
+                        f"data; this command runs {post_mod.KINDS[dim]} cells: give a posterior of {post_mod.KINDS[dim]} data")
+    if "ann" in args.backend:
+        raise UserError("--posterior with --backend ann: the ANN runs its model's own contact law and cell, not the "
+                        "posterior's; use analytical or dem")
+    given = [flag for dest, flag in REPLACED_FLAGS.items() if dest in explicit_flags(parser, argv, tuple(REPLACED_FLAGS))]
+    if given:
+        raise UserError(f"{', '.join(given)} conflict with --posterior, which sets phi_g, kn, kt/kn, alpha0 and the "
+                        f"radius of the plain H-cell it was calibrated on; drop them or --posterior")
+    law = post.contact_law
+    alpha0 = post.mean["alpha0"]
+    try:
+        check_alpha0_deg(alpha0)
+    except ValueError as exc:
+        raise UserError(f"--posterior {post.path}: {exc}") from None
+    args.phi, args.kn, args.kt, args.alpha0, args.radius = law.phi_g_deg, law.kn, law.kt, alpha0, post.radius
+    draws = None
+    if args.posterior_band is not None:
+        try:
+            draws = post_mod.draw_samples(post, args.posterior_band, args.seed)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+    return PosteriorRun(post, draws, args.seed)
+
+
+def check_band_test(run: PosteriorRun | None, settings: Mapping[str, Any], what: str) -> None:
+    """UserError (one line) where --posterior-band is asked of a run that is not a built-in drained or
+    undrained test (``settings``: the command's resolved programme settings); ``what`` names the
+    command's other settings the band cannot follow (e.g. "--fabric-anisotropy"), "" if none."""
+    if run is None or run.draws is None:
+        return
+    if "programme_file" in settings or settings.get("test", "undrained") not in ("undrained", "drained") or what:
+        raise UserError(f"--posterior-band runs the built-in drained or undrained test only"
+                        f"{' (not with ' + what + ')' if what else ''}; drop --posterior-band or the other test")
+
+
+def run_record(run: PosteriorRun | None) -> dict[str, Any]:
+    """``{"posterior": ...}`` for run.h5's parameters (``CalibratedPosterior.record`` and the band's
+    draws, seed, file and forward model); {} without --posterior."""
+    if run is None:
+        return {}
+    from dataclasses import asdict  # noqa: PLC0415
+
+    record = run.posterior.record()
+    if run.draws is not None:
+        record["band"] = {"draws": int(next(iter(run.draws.values())).size), "seed": run.seed, "file": BAND_FILE,
+                          "quantiles": [0.025, 0.975],
+                          "forward_model": {**asdict(run.posterior.forward), "fixed": dict(run.posterior.forward.fixed)}}
+    return {"posterior": record}
+
+
+def compute_band(run: PosteriorRun | None, *, dim: int, drained: bool, p0: float, eps_max: float) -> None:
+    """The band of ``run`` (``posterior.band``), kept in ``run.band``; nothing without --posterior-band."""
+    if run is None or run.draws is None:
+        return
+    from homogenization.calibration.posterior import band  # noqa: PLC0415
+
+    run.band = band(run.posterior, run.draws, dim=dim, drained=drained, p0=p0, eps_max=eps_max)
+
+
+def write_band(run: PosteriorRun | None, work: Path) -> str | None:
+    """posterior_band.csv into ``work`` (the folder being written); its status line, or None."""
+    if run is None or run.band is None:
+        return None
+    from homogenization.calibration.posterior import write_band_csv  # noqa: PLC0415
+
+    b, f = run.band, run.posterior.forward
+    rule = (f"Lebedev order {f.lebedev_order} x {f.n_spins} spins" if b["dim"] == 3 else
+            f"{f.n_orientations} orientations")
+    write_band_csv(work / BAND_FILE, b, {
+        "posterior": run.posterior.path.resolve(), "draws": b["n_sets"], "seed": run.seed,
+        "failed_draws": b["n_failed"], "forward_fallbacks": b["n_fallback"],
+        "forward_model": f"closed form of the calibration: {rule}, increment {f.increment:g}, "
+                         f"iso increment {f.iso_increment:g}, stress rtol {f.stress_rtol:g}",
+        "columns": "q, p [N/m in 2D, Pa in 3D]; eps_v = sum of the normal strains since the end of stage 1 [-]; "
+                   "lo, hi: 2.5 and 97.5 % quantiles over the draws; forward_at_mean: the same forward model at "
+                   "the posterior mean",
+    })
+    return (f"posterior band: {b['n_sets']} draws ({b['n_failed']} failed, {b['n_fallback']} forward fallbacks), "
+            f"calibration's forward model ({rule}) -> {BAND_FILE}")
+
+
+def shade(fig, run: PosteriorRun | None, panels: Sequence[tuple[int, str, float]]) -> None:
+    """Shade the band in ``fig``'s panels and add it to the figure's legend.
+
+    Args:
+        panels: (axes index, channel, scale) per panel whose x axis is eps1 in % and whose y axis
+            shows ``scale`` x the channel (e.g. 100 for eps_v in %).
+    """
+    if run is None or run.band is None:
+        return
+    from homogenization.figure_style import figure_legend  # noqa: PLC0415
+
+    b = run.band
+    x = 100.0 * b["eps1"]
+    patch = None
+    for index, channel, scale in panels:
+        ax = fig.axes[index]
+        patch = ax.fill_between(x, scale * b[f"{channel}_lo"], scale * b[f"{channel}_hi"], color="0.5", alpha=0.3,
+                                lw=0, label=f"posterior 95 % band ({b['n_sets']} draws, calibration's forward model)")
+    handles = []
+    for legend in list(fig.legends):
+        for handle, text in zip(legend.legend_handles, legend.get_texts()):
+            handle.set_label(text.get_text())
+            handles.append(handle)
+        legend.remove()
+    figure_legend(fig, handles + [patch])
