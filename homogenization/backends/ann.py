@@ -15,10 +15,10 @@ per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
   reset out of contact); the moment is the Love-Weber sum over the contacts and V_cell the
   area of the polygon through the outer grains (the volume of the outer polyhedron in 3D).
 
-On CPU, ``step`` runs a planar cell's increment through ``training.inference.FastAdvance`` (the
-same physics compiled with numba around the network call; equal to the torch path up to
-rounding), and its tangent by forward-mode differentiation in the same code; on another
-device, and for spatial cells (the compiled path is planar), the torch path and autograd.
+On CPU, ``step`` runs a cell's increment through ``training.inference.FastAdvance`` (the same
+physics compiled with numba around the network call; equal to the torch path up to rounding),
+and a planar cell's tangent by forward-mode differentiation in the same code; a spatial cell's
+tangent, and everything on another device, through the torch path and autograd.
 
 No equilibrium is solved and no closed form of a particular cell is used. Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
@@ -199,7 +199,7 @@ class AnnCell(ArrayStateMixin):
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
         self.dim = self.net.schema.dim
-        self.fast = FastAdvance(self.net) if self.device.type == "cpu" and self.dim == 2 else None
+        self.fast = FastAdvance(self.net) if self.device.type == "cpu" else None
         self.certificate: dict[str, Any] | None = self.metadata.get("certificate")
         self.certificate_problem = certificate_problem(self.metadata, path)
         if int(ood_interval) < 1:
@@ -303,14 +303,14 @@ class AnnCell(ArrayStateMixin):
             d_eps_local: local strain increment [-], shape (n_cells, dim), compression positive.
             with_tangent: also return ``CellResponse.tangent`` = d(S_nn, S_tt[, S_t2t2])/d(d_eps)
                 [N m], shape (n_cells, dim, dim), the derivative of the whole increment (network
-                and contact law): forward mode in the compiled path on CPU, torch autograd
-                otherwise.
+                and contact law): forward mode in the compiled path for planar cells on CPU,
+                torch autograd otherwise.
 
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
         due = self._ood_due(state)
-        if self.fast is not None:
+        if self.fast is not None and not (with_tangent and self.dim == 3):
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
             features = self.fast.last_features()[probe_columns(self.net):].T if due else None
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
