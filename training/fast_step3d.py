@@ -257,10 +257,17 @@ def volume_and_flags(x, moment, m_in, faces, ramp, volume, mechanism, ramped, mo
 
 @numba.njit(cache=True, error_model="numpy")
 def advance3d(size, free, shear, d_eps, out, cells, law, scaling, before, result):
-    """Free-DOF displacement from the network output ``out`` (n_free + n_free^2, n) float32, the rest
-    rule, then the spatial contact law: fills ``result`` (``training.fast_cells.Advanced``, new_size
-    (3, n), new_shear (n_pairs, 3, n), moment (n, 3, 3))."""
-    d_free = free_displacement(out, before.m, before.unbalanced, scaling, law)
+    """Free-DOF displacement from the network output ``out`` (n_free + n_free^2, n) float32, then
+    ``physics3d``: fills ``result`` (``training.fast_cells.Advanced``, new_size (3, n), new_shear
+    (n_pairs, 3, n), moment (n, 3, 3))."""
+    physics3d(size, free, shear, d_eps, free_displacement(out, before.m, before.unbalanced, scaling, law), cells, law,
+              before, result)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def physics3d(size, free, shear, d_eps, d_free, cells, law, before, result):
+    """Given the free-DOF displacement d_free (n_free, n) [m]: the rest rule, the spatial contact law,
+    the volume and the flags into ``result`` (``advance3d``)."""
     x = hold_at_rest(size, free, d_eps, d_free, before.old_contact, cells, law.tol, result.new_size, result.new_free,
                      result.n_held, result.held_dof)
     moment = contact_pass3(x, shear, before, cells, law, result.new_shear, result.capped, result.opened)
