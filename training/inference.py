@@ -15,6 +15,10 @@
    differentiation of steps 1-3 (``training.fast_tangent``, ``Perceptron.jvp``), equal to
    torch autograd of ``MesoNet.advance`` up to the float32 rounding of the network.
 
+Spatial cells (a schema of dimension 3) take ``training.fast_step3d`` for steps 1 and 3 (the
+spring a vector in the tangent plane, V_cell a volume) around the same perceptron; their
+tangent is not compiled.
+
 The un-normalisation of the outputs and all the physics are float64 (positions must be
 resolved to ~1e-7 D), so float32 only rounds the network's arithmetic (its effect on whole
 runs is measured in ``docs/ann.md``). Every loop over cells is innermost, each cell one lane,
@@ -24,7 +28,8 @@ invariance). The compiled kernels take the tables of ``training.fast_cells``. Th
 returned are transposed views of cells-last arrays, so that the next increment reads them
 without a copy.
 
-Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
+Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t (3D: 1 = t1,
+2 = t2).
 """
 
 from __future__ import annotations
