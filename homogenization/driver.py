@@ -485,6 +485,28 @@ def _orientations_3d(mesostructure: Mesostructure, fabric_anisotropy: float, ord
                                          kinematics=orientation3d.cell_kinematics(mesostructure))
 
 
+def _run_stages(runner: _Runner, programme: Programme, mesostructure: Any, snapshot_interval: int,
+                progress: bool) -> np.ndarray:
+    """Run every step of ``programme`` in turn; returns the wall time of each [s]. A ``ControlError``
+    leaves with the cell model's diagnosis appended (``_Runner.control_diagnosis``), where it has one."""
+    step_seconds = np.zeros(len(programme))
+    for stage, step in enumerate(programme):
+        start = time.perf_counter()
+        # a step that stops on p has no known length: the bar counts increments without a total
+        total = None if step.stop_at_p is not None else step.n_increments
+        with progress_bar(total=total, desc=step.label, unit="incr", disable=not progress, leave=False) as bar:
+            try:
+                runner.run_step(step, stage, snapshot_interval, bar)
+            except ControlError as exc:
+                diagnosis = runner.control_diagnosis(programme, mesostructure)
+                if diagnosis is None:
+                    raise
+                raise ControlError(f"{exc}; {diagnosis}") from None
+        runner.snapshot(stage)
+        step_seconds[stage] = time.perf_counter() - start
+    return step_seconds
+
+
 def run(
     cell_model: CellModel,
     programme: Programme,
@@ -548,21 +570,7 @@ def run(
     runner = _Runner(material, sum(s.n_increments for s in programme), stress_rtol, max_newton_iterations)
     V0 = runner.V0
     labels = [s.label for s in programme]
-    step_seconds = np.zeros(len(programme))
-    for stage, step in enumerate(programme):
-        start = time.perf_counter()
-        # a step that stops on p has no known length: the bar counts increments without a total
-        total = None if step.stop_at_p is not None else step.n_increments
-        with progress_bar(total=total, desc=step.label, unit="incr", disable=not progress, leave=False) as bar:
-            try:
-                runner.run_step(step, stage, snapshot_interval, bar)
-            except ControlError as exc:
-                diagnosis = runner.control_diagnosis(programme, mesostructure)
-                if diagnosis is None:
-                    raise
-                raise ControlError(f"{exc}; {diagnosis}") from None
-        runner.snapshot(stage)
-        step_seconds[stage] = time.perf_counter() - start
+    step_seconds = _run_stages(runner, programme, mesostructure, snapshot_interval, progress)
 
     k = runner.k
     jumps = int(np.nansum(runner.diagnostics.get("stress_control_jump", np.zeros(0))[:k]))
