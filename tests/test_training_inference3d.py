@@ -173,3 +173,16 @@ def test_a_short_undrained_triaxial_run_follows_the_torch_path():
     for name in ("sigma11", "sigma22", "sigma33", "p", "q"):
         np.testing.assert_allclose(getattr(runs[0], name), getattr(runs[1], name), rtol=0, atol=4e-8 * 2e5,
                                    err_msg=name)
+
+
+@needs_model
+def test_the_compiled_features_are_the_torch_features(loaded):
+    """The z-scored features the compiled step leaves (which the out-of-distribution check reads) are the
+    torch path's, load fractions included, to float32 rounding."""
+    cell, state, d = loaded
+    cell.fast(*state, d)
+    with torch.inference_mode():
+        raw = cell.net.raw_features(*(torch.from_numpy(np.asarray(a)) for a in state), torch.from_numpy(d))[0]
+        expected = ((raw - cell.net.feature_mean) / cell.net.feature_std).numpy()
+    assert cell.net.load_features and expected.shape[1] == cell.fast.last_features().shape[0]
+    np.testing.assert_allclose(cell.fast.last_features().T, expected, rtol=1e-6, atol=1e-6)
