@@ -1,6 +1,6 @@
-"""python benchmarks/bench_triaxial.py [--part accuracy,quadrature,timing,ann] [--model M.pt] [--eps-max 0.15] [--increment 1e-4]
+"""python benchmarks/bench_triaxial.py [--part accuracy,quadrature,timing,ann,ann3d-step] [--model M.pt] [--eps-max 0.15] [--increment 1e-4]
 
-Acceptance of the 3D homogenisation (docs/triaxial.md), four parts, each printed as a table and
+Acceptance of the 3D homogenisation (docs/triaxial.md), five parts, each printed as a table and
 written as one JSON line per row:
 
 - ``accuracy``: DEM vs the 3D closed form (``analytical``), undrained and drained triaxial
@@ -21,7 +21,12 @@ written as one JSON line per row:
   triaxial compression of the loose cell at p0 = 2e5 and 5.85e6 Pa, the largest difference of the
   shear-stage curves over p0 (target <= 1 %) and over the path's scale max(p0, largest p), the
   isotropic strain at p0 of both, and the wall time of
-  both runs side by side with the time per step call (the 3D ANN runs the torch path).
+  both runs side by side with the time per step call;
+- ``ann3d-step``: one step call of the 3D meso-ANN (the shipped model, or ``--model``) against one of
+  the closed form on the cells of the default rule (``--step-rule``, 53x16: 7792 cells), each from a
+  state compressed isotropically to about p0 = 2e5 Pa and sheared to 1 % axial strain (undrained
+  increments, not equilibrated: the same local increments for both), the two backends timed in turn
+  ``--repeats`` times; the medians and their ratio (target <= 1), and the torch path's median.
 
 Strains [-], stresses [Pa], compression positive. The machine load is printed with the timings.
 """
@@ -40,7 +45,7 @@ import numpy as np
 from homogenization.orientation3d import LEBEDEV_ORDERS
 from warp_hcell.core.cli import Parser, positive_float, positive_int
 
-PARTS = ("accuracy", "quadrature", "timing", "ann")
+PARTS = ("accuracy", "quadrature", "timing", "ann", "ann3d-step")
 COMPARED = ("sigma11", "sigma22", "sigma33", "p", "q")
 
 
@@ -214,6 +219,53 @@ def ann(args) -> None:
         print(json.dumps(row))
 
 
+def ann3d_step(args) -> None:
+    from homogenization.backends import make_cell_model
+    from homogenization.orientation3d import orientations_3d
+    from warp_hcell.mesostructures.builders import mesostructure_arg
+
+    order, spins = rule(args.step_rule)
+    frames = orientations_3d(order, spins)
+    n = frames.weights.size
+    localise = lambda eps: (frames.localisation @ eps).reshape(n, 3)  # noqa: E731
+    meso = mesostructure_arg(f"hcell3d:alpha0={args.loose:g}").build(args.loose)
+    options = {} if args.model is None else {"model": args.model}
+    models = {"analytical": make_cell_model("analytical", dim=3), "ann": make_cell_model("ann", dim=3, **options)}
+    iso, shear = localise(np.array([3e-4, 3e-4, 3e-4, 0, 0, 0])), localise(np.array([1e-4, -5e-5, -5e-5, 0, 0, 0]))
+    states = {}
+    for name, model in models.items():
+        state = model.init_state(meso, n)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            for k in range(110):
+                state, response = model.step(state, iso if k < 10 else shear)
+        states[name] = state
+    ann = models["ann"]
+    times: dict[str, list[float]] = {name: [] for name in models}
+    for _ in range(args.repeats):
+        for name, model in models.items():
+            start = time.perf_counter()
+            model.step(states[name], shear)
+            times[name].append(time.perf_counter() - start)
+    fast, ann.fast = ann.fast, None
+    torch_s = [0.0] * max(3, args.repeats // 10)
+    for k in range(len(torch_s)):
+        start = time.perf_counter()
+        ann.step(states["ann"], shear)
+        torch_s[k] = time.perf_counter() - start
+    ann.fast = fast
+    ms = {name: 1e3 * float(np.median(t)) for name, t in times.items()}
+    row = {"part": "ann3d-step", "model": str(ann.model_path), "rule": args.step_rule, "cells": n,
+           "repeats": args.repeats, "analytical_ms": ms["analytical"], "ann_ms": ms["ann"],
+           "ratio": ms["ann"] / ms["analytical"], "torch_path_ms": 1e3 * float(np.median(torch_s)),
+           "contacts_per_cell": float(np.count_nonzero(np.any(states["ann"].shear_force != 0, axis=2)) / n),
+           "load_average": os.getloadavg()[0]}
+    print(f"{n} cells ({args.step_rule}), median step call over {args.repeats} interleaved repeats: analytical "
+          f"{ms['analytical']:.2f} ms, ANN (compiled) {ms['ann']:.2f} ms, ratio ANN / analytical {row['ratio']:.2f}; "
+          f"ANN torch path {row['torch_path_ms']:.1f} ms; load average {row['load_average']:.2f}", flush=True)
+    print(json.dumps(row))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = Parser(description=__doc__.splitlines()[2])
     parser.add_argument("--part", default=",".join(PARTS), help=f"comma list of {', '.join(PARTS)}")
@@ -228,9 +280,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--loose", type=positive_float, default=55.0, help="alpha0 of the loose cell [deg]")
     parser.add_argument("--dense", type=positive_float, default=47.0, help="alpha0 of the dense cell [deg], > 45")
     parser.add_argument("--threads", type=positive_int, default=None, help="DEM threads (None: its default)")
-    parser.add_argument("--model", default=None, help="ann part: a 3D meso-ANN model (.pt)")
+    parser.add_argument("--model", default=None, help="ann, ann3d-step parts: a 3D meso-ANN model (.pt)")
+    parser.add_argument("--step-rule", default="53x16", help="ann3d-step part: the ORDERxSPINS rule of the cells")
+    parser.add_argument("--repeats", type=positive_int, default=50, help="ann3d-step part: timed step calls per backend")
     args = parser.parse_args(argv)
-    for text in [*args.rules.split(","), *([] if args.reference == "none" else [args.reference])]:
+    for text in [*args.rules.split(","), args.step_rule, *([] if args.reference == "none" else [args.reference])]:
         try:
             order, spins = rule(text)
         except ValueError:
@@ -243,7 +297,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--part {unknown[0]!r} is not one of {', '.join(PARTS)}")
     for part in parts:
         print(f"== {part}")
-        {"accuracy": accuracy, "quadrature": quadrature, "timing": timing, "ann": ann}[part](args)
+        {"accuracy": accuracy, "quadrature": quadrature, "timing": timing, "ann": ann, "ann3d-step": ann3d_step}[part](args)
     return 0
 
 

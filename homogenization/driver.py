@@ -28,7 +28,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -164,6 +164,8 @@ class _Runner:
         self.sigma_peak = 0.0
         self.rtol = stress_rtol
         self.max_iterations = max_iterations
+        self.last_trial: np.ndarray | None = None
+        """The macro increment of the last ``trial`` with a finite increment (None before the first)."""
         self.k = 0
         # 2D: eps11, eps22, sigma11, sigma22, sigma12, J; 3D: eps11..33, sigma (six components), J
         self.rows = np.empty((n_max, self.dim + n_stress + 1))
@@ -199,14 +201,32 @@ class _Runner:
         return tangent - self.coupling[:, None] * tangent[0][None, :]
 
     # -- one trial -------------------------------------------------------------------------
+    def voigt(self, d_eps: np.ndarray) -> np.ndarray:
+        """The material's increment (1, n_voigt) of the macro increment ``d_eps``: 2D (11, 22, 12) ->
+        (11, 22, 2 x 12), 3D the six tensor components as they are."""
+        if self.dim == 2:
+            return np.array([[d_eps[0], d_eps[1], 2.0 * d_eps[2]]])
+        return np.asarray(d_eps, dtype=np.float64)[None, :]
+
+    def control_diagnosis(self, programme: Sequence[Step], mesostructure: Any) -> str | None:
+        """The cell model's one-line diagnosis of a failed stress control (its ``control_diagnosis``,
+        e.g. ``homogenization.backends.ann.AnnCell``) at the last trial from the last accepted state;
+        None where the model has none or no trial was made."""
+        diagnose = getattr(self.model, "control_diagnosis", None)
+        if diagnose is None or self.last_trial is None:
+            return None
+        orient = self.material.orient
+        axes = (orient.frames[:, :, 0] if self.dim == 3
+                else np.stack([np.cos(orient.theta), np.sin(orient.theta)], axis=1))
+        return diagnose(self.point.cells, self.material.localise(self.voigt(self.last_trial)), axes, programme,
+                        mesostructure)
+
     def trial(self, d_eps: np.ndarray, *, with_tangent: bool = False) -> MaterialUpdate:
         """Update the material point by the macro increment ``d_eps`` from the saved state: 2D (11, 22, 12),
         3D the six tensor components (11, 22, 33, 23, 13, 12)."""
-        if self.dim == 2:
-            d_voigt = np.array([[d_eps[0], d_eps[1], 2.0 * d_eps[2]]])
-        else:
-            d_voigt = d_eps[None, :]
-        update = self.material.update(self.point, d_voigt, with_tangent=with_tangent)
+        update = self.material.update(self.point, self.voigt(d_eps), with_tangent=with_tangent)
+        if np.all(np.isfinite(d_eps)):
+            self.last_trial = np.array(d_eps, dtype=np.float64)
         for name, value in update.diagnostics.items():
             self.call_totals[name] = self.call_totals.get(name, 0.0) + float(value)
         return update
@@ -465,6 +485,28 @@ def _orientations_3d(mesostructure: Mesostructure, fabric_anisotropy: float, ord
                                          kinematics=orientation3d.cell_kinematics(mesostructure))
 
 
+def _run_stages(runner: _Runner, programme: Programme, mesostructure: Any, snapshot_interval: int,
+                progress: bool) -> np.ndarray:
+    """Run every step of ``programme`` in turn; returns the wall time of each [s]. A ``ControlError``
+    leaves with the cell model's diagnosis appended (``_Runner.control_diagnosis``), where it has one."""
+    step_seconds = np.zeros(len(programme))
+    for stage, step in enumerate(programme):
+        start = time.perf_counter()
+        # a step that stops on p has no known length: the bar counts increments without a total
+        total = None if step.stop_at_p is not None else step.n_increments
+        with progress_bar(total=total, desc=step.label, unit="incr", disable=not progress, leave=False) as bar:
+            try:
+                runner.run_step(step, stage, snapshot_interval, bar)
+            except ControlError as exc:
+                diagnosis = runner.control_diagnosis(programme, mesostructure)
+                if diagnosis is None:
+                    raise
+                raise ControlError(f"{exc}; {diagnosis}") from None
+        runner.snapshot(stage)
+        step_seconds[stage] = time.perf_counter() - start
+    return step_seconds
+
+
 def run(
     cell_model: CellModel,
     programme: Programme,
@@ -528,15 +570,7 @@ def run(
     runner = _Runner(material, sum(s.n_increments for s in programme), stress_rtol, max_newton_iterations)
     V0 = runner.V0
     labels = [s.label for s in programme]
-    step_seconds = np.zeros(len(programme))
-    for stage, step in enumerate(programme):
-        start = time.perf_counter()
-        # a step that stops on p has no known length: the bar counts increments without a total
-        total = None if step.stop_at_p is not None else step.n_increments
-        with progress_bar(total=total, desc=step.label, unit="incr", disable=not progress, leave=False) as bar:
-            runner.run_step(step, stage, snapshot_interval, bar)
-        runner.snapshot(stage)
-        step_seconds[stage] = time.perf_counter() - start
+    step_seconds = _run_stages(runner, programme, mesostructure, snapshot_interval, progress)
 
     k = runner.k
     jumps = int(np.nansum(runner.diagnostics.get("stress_control_jump", np.zeros(0))[:k]))

@@ -1,4 +1,4 @@
-"""The compiled meso-ANN increment (``training.inference.FastAdvance``) is the same bits on any x86-64 CPU.
+"""The compiled meso-ANN increment (``training.inference.FastAdvance``, planar and spatial cells) is the same bits on any x86-64 CPU.
 
 Its physics is numba float64 with +, -, *, / and sqrt only (no fastmath, no FMA contraction)
 and its perceptron one fixed sequence of float32 fused multiply-adds per cell, whatever the
@@ -18,21 +18,25 @@ from training.cell_physics import CellSchema
 from training.inference import FastAdvance
 from training.network import MesoNet
 from warp_hcell.core.parameters import ContactLaw
+from warp_hcell.mesostructures.builders import mesostructure_arg
 from warp_hcell.mesostructures.hcell import h_cell
 
 INCREMENTS_DIGEST = "747a802a412ed89911b174d511a0e8665187a782a343a3af089a52378b60c490"
 """sha256 of every output and tangent of ``_increments`` (``_digest``)."""
+INCREMENTS_3D_DIGEST = "0f05993588870be19c18f4cd9d8ca9137aedb9fe15358f3dc8c0bd6012b91971"
+"""sha256 of every output of ``_increments_3d`` (``_digest``)."""
 
 
-def _network() -> MesoNet:
-    """The H-cell (alpha0 = 55 deg) network, 16 hidden units, weights and normalisation from numpy's
-    generator (seed 7) at sizes that move the free grains by ~1e-4 D per 1e-4 of strain."""
-    meso, law = h_cell(55.0), ContactLaw()
+def _network(meso=None, load_features: bool = False) -> MesoNet:
+    """The network of ``meso`` (None: the H-cell, alpha0 = 55 deg), 16 hidden units, weights and
+    normalisation from numpy's generator (seed 7) at sizes that move the free grains by ~1e-4 D per
+    1e-4 of strain."""
+    meso, law = h_cell(55.0) if meso is None else meso, ContactLaw()
     schema = CellSchema.from_arrays(radius=meso.radius, reference_position=meso.position,
                                     reference_cell_size=meso.cell_size, driven=meso.driven, pairs=meso.pairs,
                                     outer=meso.outer, kn=law.kn, kt=law.kt, mu=law.mu,
                                     contact_tolerance=meso.contact_tolerance)
-    net = MesoNet(schema, torch.ones(schema.n_pairs, dtype=torch.bool), hidden=(16,))
+    net = MesoNet(schema, torch.ones(schema.n_pairs, dtype=torch.bool), hidden=(16,), load_features=load_features)
     rng = np.random.default_rng(7)
     with torch.no_grad():
         for layer in net.mlp:
@@ -69,6 +73,28 @@ def _increments(n_cells: int = 64, n_steps: int = 12) -> list[np.ndarray]:
     return out
 
 
+def _increments_3d(n_cells: int = 64, n_steps: int = 12) -> list[np.ndarray]:
+    """Every output of ``n_steps`` chained compiled increments of ``n_cells`` compressed ten-sphere cells
+    (a network with load fractions; the spatial step has no compiled tangent)."""
+    meso = mesostructure_arg("hcell3d:alpha0=55").build(55.0)
+    net = _network(meso, load_features=True)
+    fast = FastAdvance(net)
+    free = net.schema.free_dofs.numpy()
+    rng = np.random.default_rng(11)
+    squeeze = rng.uniform(5e-4, 3e-3, (n_cells, 1))
+    size = meso.cell_size * (1.0 - squeeze)
+    position = meso.position[free[:, 0], free[:, 1]] * (1.0 - squeeze)
+    shear = np.zeros((n_cells, net.schema.n_pairs, 3))
+    out = []
+    for _ in range(n_steps):
+        d_eps = rng.normal(scale=1e-4, size=(n_cells, 3))
+        d_eps[0] = 0.0
+        step = fast(size, position, shear, d_eps)
+        out += [np.array(getattr(step, name)) for name in step._fields]
+        size, position, shear = step.cell_size, step.free_position, step.shear_force
+    return out
+
+
 def _digest(arrays: list[np.ndarray]) -> str:
     h = hashlib.sha256()
     for a in arrays:
@@ -83,3 +109,11 @@ def test_compiled_increments_are_the_same_bits_on_any_cpu():
     moment = arrays[3]
     assert np.isfinite(moment).all() and np.abs(moment).max() > 0.0  # loaded cells, not a trivial path
     assert _digest(arrays) == INCREMENTS_DIGEST
+
+
+@pytest.mark.determinism
+def test_compiled_spatial_increments_are_the_same_bits_on_any_cpu():
+    arrays = _increments_3d()
+    moment, shear = arrays[3], arrays[2]
+    assert np.isfinite(moment).all() and np.abs(moment).max() > 0.0 and np.abs(shear).max() > 0.0
+    assert _digest(arrays) == INCREMENTS_3D_DIGEST

@@ -97,10 +97,11 @@ class Advanced(NamedTuple):
 
 @numba.njit(cache=True, error_model="numpy")
 def grain_positions(size, free, frac, free_dofs, x):
-    """Grain centres into ``x`` (n_grains, 2, n) [m]: driven from ``size`` (2, n), free from ``free`` (n_free, n)."""
+    """Grain centres into ``x`` (n_grains, dim, n) [m]: driven from ``size`` (dim, n), free from ``free``
+    (n_free, n); dim = 2 or 3 (``frac.shape[1]``)."""
     n = size.shape[1]
     for g in range(frac.shape[0]):
-        for a in range(2):
+        for a in range(frac.shape[1]):
             row, scale, size_a = x[g, a], frac[g, a], size[a]
             for c in range(n):
                 row[c] = scale * size_a[c]

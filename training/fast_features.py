@@ -16,15 +16,16 @@ from training.fast_cells import grain_positions, normal_force, pair_branch
 
 
 @numba.njit(cache=True, error_model="numpy")
-def load_fractions(old_fn, active_slot, base, feats, feature_mean, inv_std):
+def load_fractions(old_fn, active_slot, base, per_pair, feats, feature_mean, inv_std):
     """Z-scored load fraction f_n / max f_n of each active pair (0 in a force-free cell), written
-    into the rows of ``feats`` after the ``base + 6 n_active`` pair features, where the network
-    has them (``load_features``); nothing otherwise. ``old_fn`` (n_pairs, n) [N]."""
+    into the rows of ``feats`` after the ``base + per_pair n_active`` pair features (``per_pair`` = 6
+    in a planar cell, 9 in a spatial one), where the network has them (``load_features``); nothing
+    otherwise. ``old_fn`` (n_pairs, n) [N]."""
     n = old_fn.shape[1]
     n_active = 0
     for p in range(active_slot.shape[0]):
         n_active = max(n_active, active_slot[p] + 1)
-    load_base = base + 6 * n_active
+    load_base = base + per_pair * n_active
     if feats.shape[0] <= load_base:
         return
     largest = np.zeros(n)
@@ -121,7 +122,7 @@ def features(size, free, shear, d_eps, cells, law, scaling, before):
         for c in range(n):
             ratio = np.float32(fs[c]) / np.float32(mu * fn[c]) if fn[c] > 0 else np.float32(0.0)
             row[c] = (ratio - mean) * scale
-    load_fractions(old_fn, active_slot, base, feats, feature_mean, inv_std)
+    load_fractions(old_fn, active_slot, base, 6, feats, feature_mean, inv_std)
     for k in range(n_free):
         g = free_dofs[k, 0]
         a = free_dofs[k, 1]

@@ -41,16 +41,17 @@ def free_displacement(out, m_in, unbalanced, scaling, law):
 
 @numba.njit(cache=True, error_model="numpy")
 def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, new_free, n_held, held_dof):
-    """The new cell size and free positions with the rest rule; returns the new grain centres (n_grains, 2, n).
+    """The new cell size and free positions with the rest rule; returns the new grain centres (n_grains, dim, n).
 
     A free grain with no contact at the start stays where it is unless a neighbour reaches it
     (repeated until no grain is released: a chain of touching grains is pushed in one increment).
-    Writes new_size (2, n), new_free (n_free, n), held_dof (n_free, n) and n_held (n,).
+    Writes new_size (dim, n), new_free (n_free, n), held_dof (n_free, n) and n_held (n,); dim = 2
+    or 3 (planar or spatial cells, ``cells.frac.shape[1]``).
     """
     n = size.shape[1]
     frac, free_dofs, pairs, radius = cells.frac, cells.free_dofs, cells.pairs, cells.radius
     n_free = free_dofs.shape[0]
-    n_grains = frac.shape[0]
+    n_grains, dim = frac.shape
     touched = np.zeros((n_grains, n), dtype=np.bool_)
     for p in range(pairs.shape[0]):
         contact, touched_i, touched_j = old_contact[p], touched[pairs[p, 0]], touched[pairs[p, 1]]
@@ -61,7 +62,7 @@ def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, n
         touched_g, new_free_k, free_k, d_free_k = touched[free_dofs[k, 0]], new_free[k], free[k], d_free[k]
         for c in range(n):
             new_free_k[c] = free_k[c] + d_free_k[c] if touched_g[c] else free_k[c]
-    for a in range(2):
+    for a in range(dim):
         new_size_a, size_a, d_eps_a = new_size[a], size[a], d_eps[:, a]
         for c in range(n):
             new_size_a[c] = size_a[c] * (1.0 - d_eps_a[c])
@@ -70,7 +71,7 @@ def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, n
         held_g, touched_g = held[free_dofs[k, 0]], touched[free_dofs[k, 0]]
         for c in range(n):
             held_g[c] = not touched_g[c]
-    x = np.empty((n_grains, 2, n))
+    x = np.empty((n_grains, dim, n))
     for _ in range(n_grains):
         if not held.any():
             break
@@ -84,7 +85,11 @@ def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, n
                 if held[i, c] or held[j, c]:
                     b0 = x[j, 0, c] - x[i, 0, c]
                     b1 = x[j, 1, c] - x[i, 1, c]
-                    if math.sqrt(b0 * b0 + b1 * b1) <= reach:
+                    square = b0 * b0 + b1 * b1
+                    if dim == 3:
+                        b2 = x[j, 2, c] - x[i, 2, c]
+                        square = square + b2 * b2
+                    if math.sqrt(square) <= reach:
                         held[i, c] = False
                         held[j, c] = False
                         released = True

@@ -15,6 +15,10 @@
    differentiation of steps 1-3 (``training.fast_tangent``, ``Perceptron.jvp``), equal to
    torch autograd of ``MesoNet.advance`` up to the float32 rounding of the network.
 
+Spatial cells (a schema of dimension 3) take ``training.fast_step3d`` for steps 1 and 3 (the
+spring a vector in the tangent plane, V_cell a volume) around the same perceptron; their
+tangent is not compiled.
+
 The un-normalisation of the outputs and all the physics are float64 (positions must be
 resolved to ~1e-7 D), so float32 only rounds the network's arithmetic (its effect on whole
 runs is measured in ``docs/ann.md``). Every loop over cells is innermost, each cell one lane,
@@ -24,7 +28,8 @@ invariance). The compiled kernels take the tables of ``training.fast_cells``. Th
 returned are transposed views of cells-last arrays, so that the next increment reads them
 without a copy.
 
-Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
+Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t (3D: 1 = t1,
+2 = t2).
 """
 
 from __future__ import annotations
@@ -38,17 +43,19 @@ import torch
 from training.fast_cells import Advanced, Before, CellTables, Normalisation, Physics
 from training.fast_features import features
 from training.fast_increment import advance
+from training.fast_step3d import advance3d, features3d
 from training.fast_tangent import moment_tangent, probe_feature_tangent
 from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
 from training.perceptron import Perceptron
 
 
 def _cells_last(values: np.ndarray) -> np.ndarray:
-    """(k, n) float64 C-contiguous transpose of per-cell ``values`` (n, k); a view where the state came
-    from ``FastAdvance`` (whose state arrays are views of cells-last arrays), a copy otherwise."""
-    values = np.asarray(values)
-    return values.T if values.dtype == np.float64 and values.T.flags.c_contiguous else np.ascontiguousarray(
-        values.T, dtype=np.float64)
+    """(k, n) or (k, 3, n) float64 C-contiguous per-cell ``values`` (n, k) or (n, k, 3) with the cell axis
+    moved last; a view where the state came from ``FastAdvance`` (whose state arrays are views of
+    cells-last arrays), a copy otherwise."""
+    moved = np.moveaxis(np.asarray(values), 0, -1)
+    return moved if moved.dtype == np.float64 and moved.flags.c_contiguous else np.ascontiguousarray(
+        moved, dtype=np.float64)
 
 
 class _Compiled:
@@ -74,9 +81,10 @@ class _Compiled:
 class FastIncrement(NamedTuple):
     """Outcome of ``FastAdvance.__call__`` (numpy, first axis n_cells).
 
-    cell_size (n, 2) [m], free_position (n, n_free) [m], shear_force (n, n_pairs) [N]: the new
-    state (transposed views of cells-last arrays, so that the next increment reads them
-    without a copy); moment (n, 2, 2) [N m] (compression positive); area (n,) [m^2]; capped, opened:
+    cell_size (n, dim) [m], free_position (n, n_free) [m], shear_force (n, n_pairs) [N] (spatial cells:
+    (n, n_pairs, 3)): the new state (transposed views of cells-last arrays, so that the next increment
+    reads them without a copy); moment (n, dim, dim) [N m] (compression positive); area (n,) [m^2]
+    (spatial cells: the volume [m^3]); capped, opened:
     bool (n,), a Coulomb cap / the no-tension branch acted on some pair of the cell;
     mechanism: bool (n,), zero moment after the increment; relaxation_scaled: bool (n,),
     norm(d_eps) < ``RELAXATION_RAMP``; grains_held: int64 (n,), free grains held at rest
@@ -111,6 +119,10 @@ class FastAdvance:
     batch, its place in it or the CPU's vector width. Scratch arrays are kept per thread
     between calls with the same number of cells; the arrays returned are new.
 
+    Planar and spatial cells (the schema's dimension): a spatial cell runs ``training.fast_step3d``
+    around the same perceptron; its tangent is not compiled (``increment`` refuses
+    ``with_tangent``; the backend takes it from torch autograd).
+
     Args:
         net: the trained network (its schema, active pairs, normalisation and layers are copied).
     """
@@ -135,7 +147,9 @@ class FastAdvance:
         self.perceptron = Perceptron([(as_np(layer.weight), as_np(layer.bias))
                                       for layer in net.mlp if isinstance(layer, torch.nn.Linear)])
         self._local = threading.local()
-        self._features, self._advance = _Compiled(features), _Compiled(advance)
+        self.dim = int(frac.shape[1])
+        self._features = _Compiled(features if self.dim == 2 else features3d)
+        self._advance = _Compiled(advance if self.dim == 2 else advance3d)
         self._tangent = _Compiled(moment_tangent)
 
     def _workspace(self, n: int) -> _Workspace:
@@ -144,7 +158,8 @@ class FastAdvance:
         if work is None or work.before.m.shape[0] != n:
             n_free, n_pairs = self.cells.free_dofs.shape[0], self.cells.pairs.shape[0]
             before = Before(np.empty((self.scaling.feature_mean.shape[0], n), dtype=np.float32), np.empty(n),
-                            np.empty((n_free, n)), np.empty((n_pairs, 2, n)), np.empty((n_pairs, n), dtype=np.bool_),
+                            np.empty((n_free, n)), np.empty((n_pairs, self.dim, n)),
+                            np.empty((n_pairs, n), dtype=np.bool_),
                             np.empty((n_pairs, n)))
             work = _Workspace(before, self.perceptron.buffers(n))
             self._local.work = work
@@ -163,24 +178,31 @@ class FastAdvance:
 
     def __call__(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                  d_eps: np.ndarray) -> FastIncrement:
-        """One increment of every cell: state (n, 2), (n, n_free), (n, n_pairs) and probe (n, 2) [-]."""
+        """One increment of every cell: state (n, dim), (n, n_free), (n, n_pairs) (spatial: (n, n_pairs, 3))
+        and probe (n, dim) [-]."""
         return self.increment(cell_size, free_position, shear_force, d_eps)[0]
 
     def increment(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                   d_eps: np.ndarray, with_tangent: bool = False) -> tuple[FastIncrement, np.ndarray | None]:
         """``__call__``, and with ``with_tangent`` also the consistent tangent d(S_nn, S_tt)/d(eps_n, eps_t)
-        [N m], (n, 2, 2), by forward-mode differentiation of the same increment (``training.fast_tangent``)."""
+        [N m], (n, 2, 2), by forward-mode differentiation of the same increment (``training.fast_tangent``;
+        planar cells only: ValueError for a spatial one)."""
+        dim = self.dim
+        if with_tangent and dim != 2:
+            raise ValueError("the compiled tangent is planar; take the tangent of a spatial cell from torch autograd")
         size, free, shear = (_cells_last(a) for a in (cell_size, free_position, shear_force))
         d_eps = np.ascontiguousarray(d_eps, dtype=np.float64)
-        n, n_free, n_pairs = size.shape[1], self.cells.free_dofs.shape[0], self.cells.pairs.shape[0]
-        if size.shape != (2, n) or free.shape != (n_free, n) or shear.shape != (n_pairs, n) or d_eps.shape != (n, 2):
+        n, n_free, n_pairs = size.shape[-1], self.cells.free_dofs.shape[0], self.cells.pairs.shape[0]
+        shear_shape = (n_pairs, n) if dim == 2 else (n_pairs, 3, n)
+        if size.shape != (dim, n) or free.shape != (n_free, n) or shear.shape != shear_shape or d_eps.shape != (n, dim):
             raise ValueError(f"state shapes {cell_size.shape}, {free_position.shape}, {shear_force.shape} and d_eps "
-                             f"{d_eps.shape}: expected (n, 2), (n, {n_free}), (n, {n_pairs}), (n, 2)")
+                             f"{d_eps.shape}: expected (n, {dim}), (n, {n_free}), (n, {n_pairs}{'' if dim == 2 else ', 3'}),"
+                             f" (n, {dim})")
         work = self._workspace(n)
         self._features(size, free, shear, d_eps, self.cells, self.law, self.scaling, work.before)
         out = self.perceptron.forward(work.before.feats, work.layers)
         flags = np.empty((4, n), dtype=np.bool_)
-        result = Advanced(np.empty((2, n)), np.empty((n_free, n)), np.empty((n_pairs, n)), np.empty((n, 2, 2)),
+        result = Advanced(np.empty((dim, n)), np.empty((n_free, n)), np.empty(shear_shape), np.empty((n, dim, dim)),
                           np.empty(n), *flags, np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=np.bool_))
         self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
         tangent = None
@@ -190,5 +212,5 @@ class FastAdvance:
             tangent = np.empty((n, 2, 2))
             self._tangent(size, free, shear, d_eps, out, self._mlp_tangent(work, f_dot), self.cells, self.law,
                            self.scaling, work.before, result, tangent)
-        return FastIncrement(result.new_size.T, result.new_free.T, result.new_shear.T, result.moment, result.area,
-                             *flags, result.n_held), tangent
+        return FastIncrement(result.new_size.T, result.new_free.T, np.moveaxis(result.new_shear, -1, 0), result.moment,
+                             result.area, *flags, result.n_held), tangent

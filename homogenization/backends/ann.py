@@ -15,10 +15,10 @@ per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
   reset out of contact); the moment is the Love-Weber sum over the contacts and V_cell the
   area of the polygon through the outer grains (the volume of the outer polyhedron in 3D).
 
-On CPU, ``step`` runs a planar cell's increment through ``training.inference.FastAdvance`` (the
-same physics compiled with numba around the network call; equal to the torch path up to
-rounding), and its tangent by forward-mode differentiation in the same code; on another
-device, and for spatial cells (the compiled path is planar), the torch path and autograd.
+On CPU, ``step`` runs a cell's increment through ``training.inference.FastAdvance`` (the same
+physics compiled with numba around the network call; equal to the torch path up to rounding),
+and a planar cell's tangent by forward-mode differentiation in the same code; a spatial cell's
+tangent, and everything on another device, through the torch path and autograd.
 
 No equilibrium is solved and no closed form of a particular cell is used. Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
@@ -92,6 +92,13 @@ OOD_INTERVAL = 500
 """Distinct start states of ``AnnCell.step`` between two out-of-distribution checks: one check
 of 360 cells costs ~0.8-1.8 ms, so every 500th increment adds ~2-4 us to a ~80 us step
 (docs/certificate.md)."""
+
+
+TANGENT_MISS = 0.5
+"""Relative miss of a cell's tangent against its secant over the second half of an increment beyond
+which ``AnnCell.failed_cells`` counts the tangent as off the step [-]."""
+DIAGNOSED_CELLS = 5
+"""Failed cells named in the one-line diagnosis of a failed stress control (the rest are counted)."""
 
 
 def default_model_path(dim: int = 2) -> Path:
@@ -199,7 +206,7 @@ class AnnCell(ArrayStateMixin):
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
         self.dim = self.net.schema.dim
-        self.fast = FastAdvance(self.net) if self.device.type == "cpu" and self.dim == 2 else None
+        self.fast = FastAdvance(self.net) if self.device.type == "cpu" else None
         self.certificate: dict[str, Any] | None = self.metadata.get("certificate")
         self.certificate_problem = certificate_problem(self.metadata, path)
         if int(ood_interval) < 1:
@@ -303,14 +310,14 @@ class AnnCell(ArrayStateMixin):
             d_eps_local: local strain increment [-], shape (n_cells, dim), compression positive.
             with_tangent: also return ``CellResponse.tangent`` = d(S_nn, S_tt[, S_t2t2])/d(d_eps)
                 [N m], shape (n_cells, dim, dim), the derivative of the whole increment (network
-                and contact law): forward mode in the compiled path on CPU, torch autograd
-                otherwise.
+                and contact law): forward mode in the compiled path for planar cells on CPU,
+                torch autograd otherwise.
 
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
         due = self._ood_due(state)
-        if self.fast is not None:
+        if self.fast is not None and not (with_tangent and self.dim == 3):
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
             features = self.fast.last_features()[probe_columns(self.net):].T if due else None
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
@@ -344,6 +351,56 @@ class AnnCell(ArrayStateMixin):
             **self._ood_diagnostics(due, state, None),
         }
         return new, CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent)
+
+    def failed_cells(self, state: AnnState, d_eps_local: np.ndarray) -> dict[str, np.ndarray]:
+        """The cells whose step or tangent fails over the increment ``d_eps_local`` (n, dim) from ``state``.
+
+        Returns bool arrays (n,): ``step`` (a non-finite moment after the increment), ``tangent`` (a
+        non-finite tangent) and ``off`` (the tangent at the end of the increment misses the change of
+        the diagonal moments over its second half, S(d) - S(d / 2), by more than ``TANGENT_MISS`` of the
+        larger of the two and by more than 1e-6 of the cell's largest moment: a contact opening,
+        closing or starting to slide inside the increment, where Newton's method meets a kink)."""
+        d = np.asarray(d_eps_local, dtype=np.float64)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            _, full = self.step(state, d, with_tangent=True)
+            _, half = self.step(state, 0.5 * d)
+            diagonal = lambda m: np.diagonal(np.asarray(m), axis1=1, axis2=2)  # noqa: E731
+            secant = diagonal(full.moment) - diagonal(half.moment)
+            predicted = 0.5 * np.einsum("nab,nb->na", np.asarray(full.tangent), d)
+            scale = np.abs(np.asarray(full.moment)).max(axis=(1, 2))
+            miss = np.abs(secant - predicted)
+            off = np.any((miss > TANGENT_MISS * np.maximum(np.abs(secant), np.abs(predicted)))
+                         & (miss > 1e-6 * scale[:, None]), axis=1)
+        step = ~np.isfinite(np.asarray(full.moment)).all(axis=(1, 2)) | ~np.isfinite(np.asarray(half.moment)).all(axis=(1, 2))
+        tangent = ~np.isfinite(np.asarray(full.tangent)).all(axis=(1, 2))
+        return {"step": step, "tangent": tangent & ~step, "off": off & ~step & ~tangent}
+
+    def control_diagnosis(self, state: AnnState, d_eps_local: np.ndarray, directions: np.ndarray,
+                          programme: Sequence[Any], meso: Mesostructure) -> str:
+        """One line on a stress-controlled increment that failed (``homogenization.driver``): how many
+        cells, which (indices and cell axes ``directions`` (n, dim), unit vectors in the macro frame),
+        failed their step or tangent over the last trial (``failed_cells``), whether the model is
+        certified and whether the run lies inside its certificate's envelope."""
+        failed = self.failed_cells(state, d_eps_local)
+        n = np.asarray(d_eps_local).shape[0]
+        parts = []
+        for key, what in (("step", "non-finite step"), ("tangent", "non-finite tangent"),
+                          ("off", f"tangent off the step by > {TANGENT_MISS:.0%}")):
+            index = np.flatnonzero(failed[key])
+            if index.size:
+                shown = ", ".join(f"{k} (n = ({', '.join(f'{v:.2f}' for v in directions[k])}))"
+                                  for k in index[:DIAGNOSED_CELLS])
+                parts.append(f"{what} in {index.size} of {n} cells: {shown}{', ...' if index.size > DIAGNOSED_CELLS else ''}")
+        cells = "; ".join(parts) if parts else f"no cell of {n} failed its step or tangent over the last trial"
+        if self.certificate_problem is not None:
+            verdict = f"model not certified ({self.certificate_problem.split(': ', 1)[-1]})"
+        else:
+            verdict = f"model certified (worst {100 * float(self.certificate['worst']):.3g} %)"
+        exits = self.envelope_exits(programme, meso)
+        where = ("no envelope" if exits is None else "run inside its envelope" if not exits
+                 else f"run outside its envelope ({'; '.join(exits)})")
+        return f"ANN diagnosis: {cells}; {verdict}, {where}"
 
     def _forces(self, state: AnnState):
         size, free, shear = self._tensors(state)

@@ -1,0 +1,275 @@
+"""The meso-ANN increment of spatial cells, compiled (numba, float64): features before, state after.
+
+The spatial counterpart of ``training.fast_features`` and ``training.fast_increment``, the same
+physics as ``training.cell_physics`` with dim = 3 (``advance``): the spring of every pair is a
+vector in its tangent plane, carried into the new tangent plane (projected and rescaled to its
+length), grown by kt times the relative displacement normal to the mid-increment branch and
+capped at mu f_n along its own direction where longer by more than ``CAP_SLACK``; V_cell is the
+volume of the outer triangles. The dimension-free steps are shared with the planar kernels:
+grain positions (``fast_cells.grain_positions``), the load fractions, the free-DOF displacement
+and the rest rule (``fast_increment``).
+
+Layouts (cells LAST, one cell a vector lane, nothing reduced across cells): size (3, n) [m],
+free (n_free, n) [m], shear (n_pairs, 3, n) [N]; d_eps (n, 3) [-]; ``before.old_branch``
+(n_pairs, 3, n). Tables: ``training.fast_cells`` (``CellTables.outer`` holds the faces
+(n_faces, 3)). Unit vectors are branch / length (a division, as the torch path), and a pair no
+cell has within reach is skipped after a square-root-free test (``any_within3``), which changes
+no bit. Sign convention: compression and contraction positive; local frame 0 = n, 1 = t1, 2 = t2.
+"""
+
+import math
+
+import numba
+import numpy as np
+
+from training.fast_cells import grain_positions, normal_force
+from training.fast_features import load_fractions
+from training.fast_increment import free_displacement, hold_at_rest
+from warp_hcell.core.contact import CAP_SLACK
+
+PAIR_WIDTH = 9
+"""Features per active pair of a spatial cell (``training.network.PAIR_FEATURES_3D``)."""
+
+
+@numba.njit(cache=True, error_model="numpy")
+def any_within3(b0, b1, b2, reach):
+    """Whether some cell's branch (b0, b1, b2) (n,) each may be within ``reach`` [m]; the margin (1e-9
+    of reach) covers the rounding of the square-root-free test (``fast_cells.any_within``)."""
+    bound = (reach * (1.0 + 1e-9)) ** 2
+    near = False
+    for c in range(b0.shape[0]):
+        near |= b0[c] * b0[c] + b1[c] * b1[c] + b2[c] * b2[c] <= bound
+    return near
+
+
+@numba.njit(cache=True, error_model="numpy")
+def pair_branch3(x, pairs, radius, tol, p, b0, b1, b2):
+    """Pair p = (i, j) at the grain centres x (n_grains, 3, n) [m]: writes its branch x_j - x_i into
+    b0, b1, b2 (n,) [m] and returns (i, j, r_i + r_j [m], reach (r_i + r_j)(1 + tol) [m], whether some
+    cell may be within reach)."""
+    i = pairs[p, 0]
+    j = pairs[p, 1]
+    rsum = radius[i] + radius[j]
+    reach = rsum * (1.0 + tol)
+    for c in range(b0.shape[0]):
+        b0[c] = x[j, 0, c] - x[i, 0, c]
+        b1[c] = x[j, 1, c] - x[i, 1, c]
+        b2[c] = x[j, 2, c] - x[i, 2, c]
+    return i, j, rsum, reach, any_within3(b0, b1, b2, reach)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _zscore(row, values, mean, inv_std):
+    """row (n,) float32 = (values - mean) * inv_std, in float64 before the cast."""
+    for c in range(row.shape[0]):
+        row[c] = (values[c] - mean) * inv_std
+
+
+@numba.njit(cache=True, error_model="numpy")
+def features3d(size, free, shear, d_eps, cells, law, scaling, before):
+    """Z-scored features, norm(d_eps), unbalanced forces and contacts of every spatial cell before its increment.
+
+    Feature order: ``training.network.features_and_contacts`` (probe direction (3), l / D (3), free
+    coordinates / D and / l, per active pair overlap / D, contact flag, branch direction (3), spring
+    / (kn D) (3) and |f_s| / (mu f_n), then the load fractions where ``before.feats`` has rows for
+    them); every feature z-scored in float64 before the cast to float32.
+    """
+    frac, free_dofs, free_slot, pairs, radius = cells.frac, cells.free_dofs, cells.free_slot, cells.pairs, cells.radius
+    active_slot, diameter, kn, mu, tol, gap_clip = cells.active_slot, law.diameter, law.kn, law.mu, law.tol, law.gap_clip
+    feature_mean, inv_std = scaling.feature_mean, 1.0 / scaling.feature_std
+    feats, m_out, unbalanced, old_branch, old_contact, old_fn = (before.feats, before.m, before.unbalanced,
+                                                               before.old_branch, before.old_contact, before.old_fn)
+    n = size.shape[1]
+    n_free = free_dofs.shape[0]
+    force_scale = kn * diameter
+    x = np.empty((frac.shape[0], 3, n))
+    unbalanced[:, :] = 0.0
+    grain_positions(size, free, frac, free_dofs, x)
+    dist, u, fs, value = np.empty(n), np.empty((3, n)), np.empty((3, n)), np.empty(n)
+    base = 6 + 2 * n_free
+    for p in range(pairs.shape[0]):
+        b, contact, fn = old_branch[p], old_contact[p], old_fn[p]
+        i, j, rsum, reach, near = pair_branch3(x, pairs, radius, tol, p, b[0], b[1], b[2])
+        slot = active_slot[p]
+        if not near:
+            contact[:] = False
+            fn[:] = 0.0
+            fs[:, :] = 0.0
+            if slot < 0:
+                continue
+        for c in range(n):
+            dist[c] = math.sqrt(b[0, c] * b[0, c] + b[1, c] * b[1, c] + b[2, c] * b[2, c])
+        for a in range(3):
+            u_a, b_a = u[a], b[a]
+            for c in range(n):
+                u_a[c] = b_a[c] / dist[c]
+        if near:
+            for c in range(n):
+                touching = dist[c] <= reach
+                contact[c] = touching
+                fn[c] = normal_force(rsum - dist[c], kn) if touching else 0.0
+            for a in range(3):
+                fs_a, shear_a, u_a = fs[a], shear[p, a], u[a]
+                for c in range(n):
+                    fs_a[c] = shear_a[c] if contact[c] else 0.0
+                for k in (free_slot[i, a], free_slot[j, a]):
+                    if k >= 0:
+                        net_k, sign = unbalanced[k], 1.0 if k == free_slot[i, a] else -1.0
+                        for c in range(n):
+                            net_k[c] += sign * (-fn[c] * u_a[c] + fs_a[c])
+        if slot < 0:
+            continue
+        k = base + PAIR_WIDTH * slot
+        for c in range(n):
+            value[c] = max((rsum - dist[c]) / diameter, -gap_clip)
+        _zscore(feats[k], value, feature_mean[k], inv_std[k])
+        for c in range(n):
+            value[c] = 1.0 if contact[c] else 0.0
+        _zscore(feats[k + 1], value, feature_mean[k + 1], inv_std[k + 1])
+        for a in range(3):
+            _zscore(feats[k + 2 + a], u[a], feature_mean[k + 2 + a], inv_std[k + 2 + a])
+        for a in range(3):
+            fs_a = fs[a]
+            for c in range(n):
+                value[c] = fs_a[c] / force_scale
+            _zscore(feats[k + 5 + a], value, feature_mean[k + 5 + a], inv_std[k + 5 + a])
+        for c in range(n):
+            size_c = math.sqrt(fs[0, c] * fs[0, c] + fs[1, c] * fs[1, c] + fs[2, c] * fs[2, c])
+            value[c] = size_c / (mu * fn[c]) if fn[c] > 0 else 0.0
+        _zscore(feats[k + 8], value, feature_mean[k + 8], inv_std[k + 8])
+    load_fractions(old_fn, active_slot, base, PAIR_WIDTH, feats, feature_mean, inv_std)
+    for k in range(n_free):
+        free_k, size_a = free[k], size[free_dofs[k, 1]]
+        for c in range(n):
+            value[c] = free_k[c] / diameter
+        _zscore(feats[6 + k], value, feature_mean[6 + k], inv_std[6 + k])
+        for c in range(n):
+            value[c] = free_k[c] / size_a[c]
+        _zscore(feats[6 + n_free + k], value, feature_mean[6 + n_free + k], inv_std[6 + n_free + k])
+    for c in range(n):
+        m_out[c] = math.sqrt(d_eps[c, 0] * d_eps[c, 0] + d_eps[c, 1] * d_eps[c, 1] + d_eps[c, 2] * d_eps[c, 2])
+    for a in range(3):
+        for c in range(n):
+            value[c] = d_eps[c, a] / m_out[c] if m_out[c] > 0 else 0.0
+        _zscore(feats[a], value, feature_mean[a], inv_std[a])
+        size_a = size[a]
+        for c in range(n):
+            value[c] = size_a[c] / diameter
+        _zscore(feats[3 + a], value, feature_mean[3 + a], inv_std[3 + a])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def contact_pass3(x, shear, before, cells, law, new_shear, capped_any, opened_any):
+    """The spatial contact law at the new grain centres x (n_grains, 3, n): writes new_shear (n_pairs, 3,
+    n) and the flags capped_any, opened_any (n,); returns the compression-positive moment (3, 3, n) [N m]."""
+    n = x.shape[2]
+    pairs, radius = cells.pairs, cells.radius
+    kn, kt, mu, tol = law.kn, law.kt, law.mu, law.tol
+    old_branch, old_contact, old_fn = before.old_branch, before.old_contact, before.old_fn
+    moment = np.zeros((3, 3, n))
+    capped_any[:] = False
+    opened_any[:] = False
+    b = np.empty((3, n))
+    slack = 1.0 + CAP_SLACK
+    for p in range(pairs.shape[0]):
+        _, _, rsum, reach, near = pair_branch3(x, pairs, radius, tol, p, b[0], b[1], b[2])
+        if not near:
+            new_shear[p, :, :] = 0.0
+            old_fn_p = old_fn[p]
+            for c in range(n):
+                opened_any[c] |= old_fn_p[c] > 0.0
+            continue
+        for c in range(n):
+            b0, b1, b2 = b[0, c], b[1, c], b[2, c]
+            d = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+            touching = d <= reach
+            fn = normal_force(rsum - d, kn) if touching else 0.0
+            u0, u1, u2 = b0 / d, b1 / d, b2 / d
+            ob0, ob1, ob2 = old_branch[p, 0, c], old_branch[p, 1, c], old_branch[p, 2, c]
+            mid0, mid1, mid2 = 0.5 * (ob0 + b0), 0.5 * (ob1 + b1), 0.5 * (ob2 + b2)
+            mid_norm = math.sqrt(mid0 * mid0 + mid1 * mid1 + mid2 * mid2)
+            mid0, mid1, mid2 = mid0 / mid_norm, mid1 / mid_norm, mid2 / mid_norm
+            r0, r1, r2 = b0 - ob0, b1 - ob1, b2 - ob2
+            s0, s1, s2 = 0.0, 0.0, 0.0
+            if old_contact[p, c]:
+                s0, s1, s2 = shear[p, 0, c], shear[p, 1, c], shear[p, 2, c]
+                along = s0 * u0 + s1 * u1 + s2 * u2
+                q0, q1, q2 = s0 - along * u0, s1 - along * u1, s2 - along * u2
+                before2 = s0 * s0 + s1 * s1 + s2 * s2
+                after2 = q0 * q0 + q1 * q1 + q2 * q2
+                if after2 > 0:
+                    ratio = math.sqrt(before2 / after2)
+                    q0, q1, q2 = q0 * ratio, q1 * ratio, q2 * ratio
+                s0, s1, s2 = q0, q1, q2
+            along = r0 * mid0 + r1 * mid1 + r2 * mid2
+            t0 = s0 + kt * (r0 - along * mid0)
+            t1 = s1 + kt * (r1 - along * mid1)
+            t2 = s2 + kt * (r2 - along * mid2)
+            trial = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+            cap = mu * fn
+            f0, f1, f2 = 0.0, 0.0, 0.0
+            if touching:
+                scale = cap / (trial if trial > 0 else 1.0) if trial > cap * slack else 1.0
+                f0, f1, f2 = t0 * scale, t1 * scale, t2 * scale
+            new_shear[p, 0, c] = f0
+            new_shear[p, 1, c] = f1
+            new_shear[p, 2, c] = f2
+            capped_any[c] |= touching and trial > cap
+            opened_any[c] |= old_fn[p, c] > 0.0 and fn == 0.0
+            g0, g1, g2 = -fn * u0 + f0, -fn * u1 + f1, -fn * u2 + f2
+            moment[0, 0, c] -= g0 * b0
+            moment[0, 1, c] -= g0 * b1
+            moment[0, 2, c] -= g0 * b2
+            moment[1, 0, c] -= g1 * b0
+            moment[1, 1, c] -= g1 * b1
+            moment[1, 2, c] -= g1 * b2
+            moment[2, 0, c] -= g2 * b0
+            moment[2, 1, c] -= g2 * b1
+            moment[2, 2, c] -= g2 * b2
+    return moment
+
+
+@numba.njit(cache=True, error_model="numpy")
+def volume_and_flags(x, moment, m_in, faces, ramp, volume, mechanism, ramped, moment_out):
+    """The volume (n,) [m^3] enclosed by the triangles ``faces`` (n_faces, 3), abs(sum_f a . (b x c)) / 6,
+    the mechanism and ramp flags (n,), and the moment copied cells first into moment_out (n, 3, 3)."""
+    n = x.shape[2]
+    volume[:] = 0.0
+    for f in range(faces.shape[0]):
+        xa, xb, xc = x[faces[f, 0]], x[faces[f, 1]], x[faces[f, 2]]
+        for c in range(n):
+            volume[c] += (xa[0, c] * (xb[1, c] * xc[2, c] - xb[2, c] * xc[1, c])
+                          + xa[1, c] * (xb[2, c] * xc[0, c] - xb[0, c] * xc[2, c])
+                          + xa[2, c] * (xb[0, c] * xc[1, c] - xb[1, c] * xc[0, c]))
+    for c in range(n):
+        volume[c] = abs(volume[c]) / 6.0
+        zero = True
+        for a in range(3):
+            for e in range(3):
+                zero = zero and moment[a, e, c] == 0.0
+        mechanism[c] = zero
+        ramped[c] = m_in[c] < ramp
+    for c in range(n):
+        for a in range(3):
+            for e in range(3):
+                moment_out[c, a, e] = moment[a, e, c]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def advance3d(size, free, shear, d_eps, out, cells, law, scaling, before, result):
+    """Free-DOF displacement from the network output ``out`` (n_free + n_free^2, n) float32, then
+    ``physics3d``: fills ``result`` (``training.fast_cells.Advanced``, new_size (3, n), new_shear
+    (n_pairs, 3, n), moment (n, 3, 3))."""
+    physics3d(size, free, shear, d_eps, free_displacement(out, before.m, before.unbalanced, scaling, law), cells, law,
+              before, result)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def physics3d(size, free, shear, d_eps, d_free, cells, law, before, result):
+    """Given the free-DOF displacement d_free (n_free, n) [m]: the rest rule, the spatial contact law,
+    the volume and the flags into ``result`` (``advance3d``)."""
+    x = hold_at_rest(size, free, d_eps, d_free, before.old_contact, cells, law.tol, result.new_size, result.new_free,
+                     result.n_held, result.held_dof)
+    moment = contact_pass3(x, shear, before, cells, law, result.new_shear, result.capped, result.opened)
+    volume_and_flags(x, moment, before.m, cells.outer, law.ramp, result.area, result.mechanism, result.ramped,
+                     result.moment)
