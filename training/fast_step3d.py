@@ -71,7 +71,7 @@ def features3d(size, free, shear, d_eps, cells, law, scaling, before):
 
     Feature order: ``training.network.features_and_contacts`` (probe direction (3), l / D (3), free
     coordinates / D and / l, per active pair overlap / D, contact flag, branch direction (3), spring
-    / (kn D) (3) and |f_s| / (mu f_n), then the load fractions where ``before.feats`` has rows for
+    / (kn D) (3) and ``abs(f_s) / (mu f_n)``, then the load fractions where ``before.feats`` has rows for
     them); every feature z-scored in float64 before the cast to float32.
     """
     frac, free_dofs, free_slot, pairs, radius = cells.frac, cells.free_dofs, cells.free_slot, cells.pairs, cells.radius
