@@ -311,11 +311,12 @@ def test_shipped_models_follow_the_cell_dimension(tmp_path, capsys):
 def test_shipped_3d_model_follows_the_closed_form():
     """Acceptance in small (docs/triaxial.md, 3D meso-ANN: the full runs): undrained triaxial compression
     of the loose cell to eps_a = 1 % (the largest miss of the full run lies at 0.6 %), 100 cells
-    (Lebedev order 11 x 4 spins), within 1 % of p0 of the closed form along the shear stage."""
+    (Lebedev order 11 x 4 spins), along the shear stage within 0.5 % of p0 of the closed form at 2e5 Pa and
+    2e-5 at 5.85e6 Pa (docs: 0.28 % and 0.0030 % on the full runs; this short run measures 0.24 % and 4e-6)."""
     from homogenization import driver, loading
     from homogenization.backends import make_cell_model
 
-    for p0 in (2e5, 5.85e6):
+    for p0, tolerance in ((2e5, 5e-3), (5.85e6, 2e-5)):
         programme = loading.triaxial(p0, 0.01, 1e-4, test="undrained", iso_increment=5e-5)
         runs = [driver.run(make_cell_model(name, dim=3), programme, mesostructure=SPATIAL, lebedev_order=11,
                            n_spins=4, progress=False) for name in ("analytical", "ann")]
@@ -323,5 +324,5 @@ def test_shipped_3d_model_follows_the_closed_form():
         assert shear[0].sum() == shear[1].sum() == 100
         for name in ("sigma11", "sigma22", "sigma33", "p", "q"):
             closed, net = (getattr(record, name)[mask] for record, mask in zip(runs, shear))
-            assert np.abs(net - closed).max() < 0.01 * p0, (p0, name)
+            assert np.abs(net - closed).max() < tolerance * p0, (p0, name)
         assert runs[0].q[shear[0]].max() > 0.25 * p0  # a path that loads the cells, not a trivial one

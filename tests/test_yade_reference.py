@@ -6,7 +6,8 @@ Three kinds of check:
   (spec sections 2-7), so a corrupted or inconsistent file fails here;
 - the analytical and Warp DEM backends driven through the CellModel protocol row by row
   along each case's path: contact forces within 1e-3 of the case's largest force, and
-  positions within 1e-6 D and alpha within 1e-4 deg wherever the YADE cell carries force.
+  positions within 1e-6 D and alpha within 1e-4 deg wherever the YADE cell carries force (the
+  closed form within 1e-4, 1e-7 D and 5e-6 deg: ``ANALYTICAL_TOLERANCES``).
   Where every contact is open the cell is a stress-free mechanism: statics does not fix the
   n coordinate of grains 2, 3, 5, 6 (YADE's grains coast at the velocity they had when the
   last contact opened, the analytical cell keeps y2), so only the driven coordinates are
@@ -44,11 +45,15 @@ DATA_DIR = HERE / "data" / "yade"
 LAW = ContactLaw()
 DIAMETER = 2.0 * CellDefaults.radius
 FORCE_RTOL = 1e-3
-"""Backend contact forces: tolerance as a fraction of the case's largest force [-]."""
+"""DEM contact forces: tolerance as a fraction of the case's largest force [-] (docs/benchmarks.md:
+measured 3.4e-4 at worst)."""
 POSITION_TOL = 1e-6 * DIAMETER
-"""Backend grain positions where the cell carries force [m]."""
+"""DEM grain positions where the cell carries force [m] (measured 1.9e-7 D)."""
 ALPHA_TOL_DEG = 1e-4
-"""Backend opening angle where the cell carries force [deg]."""
+"""DEM opening angle where the cell carries force [deg] (measured 9.1e-6 deg)."""
+ANALYTICAL_TOLERANCES = (1e-4, 1e-7 * DIAMETER, 5e-6)
+"""The closed form's force [-], position [m] and alpha [deg] tolerances: about 2-3 times what
+docs/benchmarks.md gives for it (4.6e-5 of the largest force, 3.6e-8 D, 1.7e-6 deg)."""
 LABELS = range(1, 7)
 RECLOSE_RTOL = 5e-3
 """DEM contact forces on the ``reclose_`` cases outside the snap-through window, as a fraction of
@@ -221,8 +226,11 @@ def run_backend(backend: str, device: str = "cpu") -> dict[str, np.ndarray]:
     return record
 
 
-def check_backend_against_yade(record: dict[str, np.ndarray], name: str) -> None:
-    """Assert the tolerances of the module docstring for case ``name``; messages name row and size."""
+def check_backend_against_yade(record: dict[str, np.ndarray], name: str,
+                               tolerances: tuple[float, float, float] = (FORCE_RTOL, POSITION_TOL, ALPHA_TOL_DEG)) -> None:
+    """Assert ``tolerances`` (force as a fraction of the case's largest force, position [m], alpha [deg];
+    default: the DEM's, module docstring) for case ``name``; messages name row and size."""
+    force_rtol, position_tol, alpha_tol_deg = tolerances
     column = CASE_NAMES.index(name)
     _, yade, _ = load_case(name)
     n = len(yade["N1"])
@@ -231,31 +239,31 @@ def check_backend_against_yade(record: dict[str, np.ndarray], name: str) -> None
     failures = []
     for key in ("N1", "N2", "T1"):
         error = np.abs(got[key] - yade[key])
-        if error.max() > FORCE_RTOL * scale:
-            failures.append(f"{key} (tolerance {FORCE_RTOL * scale:.3e} N): {_first_failure(error, FORCE_RTOL * scale)}")
+        if error.max() > force_rtol * scale:
+            failures.append(f"{key} (tolerance {force_rtol * scale:.3e} N): {_first_failure(error, force_rtol * scale)}")
     for key in ("l1", "l2"):
         error = np.abs(got[key] - yade[key])
         if error.max() > 1e-10 * DIAMETER:
             failures.append(f"{key}: {_first_failure(error, 1e-10 * DIAMETER)}")
     loaded = _loaded(yade)
     alpha_error = np.where(loaded, np.abs(got["alpha_deg"] - yade["alpha_deg"]), 0.0)
-    if alpha_error.max() > ALPHA_TOL_DEG:
-        failures.append(f"alpha_deg: {_first_failure(alpha_error, ALPHA_TOL_DEG)}")
+    if alpha_error.max() > alpha_tol_deg:
+        failures.append(f"alpha_deg: {_first_failure(alpha_error, alpha_tol_deg)}")
     for i in LABELS:
         for axis in "nt":
             key = f"x_{axis}{i}"
             error = np.abs(got[key] - yade[key])
             if axis == "n" and i not in (1, 4):
                 error = np.where(loaded, error, 0.0)
-            if error.max() > POSITION_TOL:
-                failures.append(f"{key} (tolerance {POSITION_TOL:.1e} m): {_first_failure(error, POSITION_TOL)}")
+            if error.max() > position_tol:
+                failures.append(f"{key} (tolerance {position_tol:.1e} m): {_first_failure(error, position_tol)}")
     assert not failures, f"{name}: " + "; ".join(failures)
 
 
 @pytest.mark.parametrize("name", STRICT_NAMES)
 def test_analytical_cell_reproduces_yade(name):
     """AnalyticalCell, one increment per row, matches YADE to 3-4 significant digits."""
-    check_backend_against_yade(run_backend("analytical"), name)
+    check_backend_against_yade(run_backend("analytical"), name, ANALYTICAL_TOLERANCES)
 
 
 @pytest.mark.parametrize("name", STRICT_NAMES)
