@@ -1,4 +1,4 @@
-"""YADE reference cases of the six-disk H-cell (tests/data/yade, issue 3 item 4).
+"""YADE reference cases of the six-disk H-cell (tests/data/yade).
 
 Three kinds of check:
 - the committed YADE files themselves: imposed lengths, geometry from the positions,
