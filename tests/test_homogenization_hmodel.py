@@ -63,3 +63,14 @@ def test_exit_codes_of_subcommand_system_exits():
     assert hmodel.exit_code(SystemExit()) == 0
     assert hmodel.exit_code(SystemExit(3)) == 3
     assert hmodel.exit_code(SystemExit("message")) == 2
+
+
+def test_ctrl_c_while_a_command_loads_is_one_line(monkeypatch, capsys):
+    """Ctrl-C before the command's own handler is in place (its modules still loading): one line, exit 130."""
+    def interrupted(name):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(hmodel.importlib, "import_module", interrupted)
+    assert hmodel.main(["calibrate", "--help"]) == 130
+    err = capsys.readouterr().err
+    assert err == "hmodel calibrate: interrupted\n"

@@ -18,7 +18,7 @@ import importlib
 import sys
 from typing import Sequence
 
-from warp_hcell.core.cli import EXIT_USAGE, invoked_as, Parser, run_main
+from warp_hcell.core.cli import EXIT_INTERRUPTED, EXIT_USAGE, invoked_as, Parser, run_main
 from warp_hcell.core.provenance import DISTRIBUTION, package_version
 
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -64,7 +64,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, unknown command
         return exit_code(exc)
-    module = importlib.import_module(COMMANDS[args.command][0])
+    try:
+        module = importlib.import_module(COMMANDS[args.command][0])
+    except KeyboardInterrupt:  # Ctrl-C while the command's modules load
+        print(f"hmodel {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     try:
         with invoked_as(f"hmodel {args.command}"):
             return run_main(module.main, args.args)

@@ -42,6 +42,8 @@ from warp_hcell.core.parameters import CellDefaults, check_alpha0_deg, ContactLa
 
 EXIT_USAGE = 2
 """Exit code for bad user input (argparse's own convention)."""
+EXIT_INTERRUPTED = 130
+"""Exit code of a command stopped by Ctrl-C or ``kill`` (128 + SIGINT, the shells' convention)."""
 
 
 class UserError(Exception):
@@ -386,7 +388,7 @@ def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[
         return EXIT_USAGE
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     finally:
         _OUTPUT.quiet = False
 
