@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 import torch
 
+from fast_vs_torch import assert_fast_matches_torch
 from homogenization.backends.ann import AnnCell3D, default_model_path
 from training import cell_physics
 from training.fast_cells import Advanced, Before
 from training.fast_step3d import features3d, physics3d
 from training.inference import _cells_last
-from training.network import RELAXATION_RAMP
 from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.builders import mesostructure_arg
 
@@ -71,17 +71,7 @@ def test_the_compiled_increment_equals_the_torch_path(loaded):
     cell, state, d = loaded
     fast = cell.fast(*state, d)
     ref = _reference(cell, state, d)
-    for name in STATE_FIELDS:
-        expected = getattr(ref, name).numpy()
-        scale = np.abs(expected).max()
-        assert scale > 0
-        np.testing.assert_allclose(getattr(fast, name), expected, rtol=0, atol=1e-7 * scale, err_msg=name)
-    np.testing.assert_array_equal(fast.capped, ref.capped.any(dim=1).numpy())
-    np.testing.assert_array_equal(fast.opened, ref.opened.any(dim=1).numpy())
-    np.testing.assert_array_equal(fast.mechanism, np.all(ref.moment.numpy() == 0.0, axis=(1, 2)))
-    np.testing.assert_array_equal(fast.relaxation_scaled, np.linalg.norm(d, axis=1) < RELAXATION_RAMP)
-    assert fast.relaxation_scaled.sum() == 2
-    np.testing.assert_array_equal(fast.grains_held, cell_physics.count_held_grains(cell.net.schema, ref.held).numpy())
+    assert_fast_matches_torch(fast, ref, cell.net, d, STATE_FIELDS, 1e-7)
 
 
 @needs_model
