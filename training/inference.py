@@ -41,9 +41,10 @@ import numpy as np
 import torch
 
 from training.fast_cells import Advanced, Before, CellTables, Normalisation, Physics
+from training.fast_equilibrium3d import correct3d
 from training.fast_features import features
-from training.fast_increment import advance
-from training.fast_step3d import advance3d, features3d
+from training.fast_increment import advance, free_displacement
+from training.fast_step3d import advance3d, features3d, physics3d
 from training.fast_tangent import moment_tangent, probe_feature_tangent
 from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
 from training.perceptron import Perceptron
@@ -88,7 +89,11 @@ class FastIncrement(NamedTuple):
     bool (n,), a Coulomb cap / the no-tension branch acted on some pair of the cell;
     mechanism: bool (n,), zero moment after the increment; relaxation_scaled: bool (n,),
     norm(d_eps) < ``RELAXATION_RAMP``; grains_held: int64 (n,), free grains held at rest
-    (``training.cell_physics.hold_at_rest``).
+    (``training.cell_physics.hold_at_rest``); with equilibrium corrections (``FastAdvance(corrections=K)``,
+    spatial cells) also force_ratio (2, n), the largest unbalanced free-DOF force over the largest normal
+    force at the network's displacement and after the corrections (0 where not evaluated: no normal force,
+    or a probe below the relaxation ramp), and corrections: int64 (n,), the Newton steps taken; None
+    without.
     """
 
     cell_size: np.ndarray
@@ -101,6 +106,8 @@ class FastIncrement(NamedTuple):
     mechanism: np.ndarray
     relaxation_scaled: np.ndarray
     grains_held: np.ndarray
+    force_ratio: np.ndarray | None = None
+    corrections: np.ndarray | None = None
 
 
 class _Workspace(NamedTuple):
@@ -123,11 +130,18 @@ class FastAdvance:
     around the same perceptron; its tangent is not compiled (``increment`` refuses
     ``with_tangent``; the backend takes it from torch autograd).
 
+    With ``corrections`` K > 0 (spatial cells only), the network's free-DOF displacement is the
+    first guess of up to K exact Newton steps on the balance of the free DOFs
+    (``training.fast_equilibrium3d.correct3d``), taken in a cell while its force ratio exceeds
+    ``tolerance``; ``FastIncrement.force_ratio`` and ``corrections`` count them.
+
     Args:
         net: the trained network (its schema, active pairs, normalisation and layers are copied).
+        corrections: the most Newton steps per cell-increment (0: the network alone, unchanged).
+        tolerance: the force ratio below which a cell is not corrected [-].
     """
 
-    def __init__(self, net: MesoNet) -> None:
+    def __init__(self, net: MesoNet, corrections: int = 0, tolerance: float = 1e-6) -> None:
         schema = net.schema
         as_np = lambda t, dtype=np.float64: np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)  # noqa: E731
         frac = as_np(schema.driven_fraction)
@@ -151,6 +165,15 @@ class FastAdvance:
         self._features = _Compiled(features if self.dim == 2 else features3d)
         self._advance = _Compiled(advance if self.dim == 2 else advance3d)
         self._tangent = _Compiled(moment_tangent)
+        if int(corrections) < 0 or (int(corrections) > 0 and self.dim != 3):
+            raise ValueError(f"corrections = {corrections}: equilibrium corrections are >= 0 and for spatial cells only")
+        if not tolerance > 0:
+            raise ValueError(f"tolerance = {tolerance} must be > 0")
+        self.corrections = int(corrections)
+        self.tolerance = float(tolerance)
+        self._displacement = _Compiled(free_displacement)
+        self._correct = _Compiled(correct3d)
+        self._physics = _Compiled(physics3d)
 
     def _workspace(self, n: int) -> _Workspace:
         """This thread's scratch arrays for ``n`` cells (kept from its previous call with as many)."""
@@ -204,7 +227,15 @@ class FastAdvance:
         flags = np.empty((4, n), dtype=np.bool_)
         result = Advanced(np.empty((dim, n)), np.empty((n_free, n)), np.empty(shear_shape), np.empty((n, dim, dim)),
                           np.empty(n), *flags, np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=np.bool_))
-        self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
+        ratios = steps = None
+        if self.corrections:
+            d_free = self._displacement(out, work.before.m, work.before.unbalanced, self.scaling, self.law)
+            ratios, steps = np.empty((2, n)), np.empty(n, dtype=np.int64)
+            self._correct(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, self.corrections,
+                          self.tolerance, ratios, steps)
+            self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, result)
+        else:
+            self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
         tangent = None
         if with_tangent:
             f_dot = np.empty((2, 2, n), dtype=np.float32)
@@ -213,4 +244,4 @@ class FastAdvance:
             self._tangent(size, free, shear, d_eps, out, self._mlp_tangent(work, f_dot), self.cells, self.law,
                            self.scaling, work.before, result, tangent)
         return FastIncrement(result.new_size.T, result.new_free.T, np.moveaxis(result.new_shear, -1, 0), result.moment,
-                             result.area, *flags, result.n_held), tangent
+                             result.area, *flags, result.n_held, ratios, steps), tangent
