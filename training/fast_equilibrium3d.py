@@ -36,6 +36,7 @@ import numba
 import numpy as np
 
 from training.fast_cells import grain_positions, normal_force
+from training.fast_increment import hold_at_rest
 from training.fast_step3d import pair_branch3
 from warp_hcell.core.contact import CAP_SLACK
 
@@ -216,6 +217,10 @@ def solve_small(a, rhs, out):
 def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, ratios, corrections):
     """Newton corrections of the free-DOF displacement ``d_free`` (n_free, n) [m], in place (module docstring).
 
+    The DEM's rest rule (``fast_increment.hold_at_rest``) is applied to the first guess (the held DOFs'
+    displacement set to zero) before the first step, so that a grain's own predicted motion never
+    puts it in contact; a held grain that no contact reaches has a zero row and stays held.
+
     Args:
         size (3, n), free (n_free, n), shear (n_pairs, 3, n), d_eps (n, 3): the state and probe;
         before: ``training.fast_cells.Before`` of the state (``fast_step3d.features3d``);
@@ -230,10 +235,14 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
     n_free = free_dofs.shape[0]
     kn = law.kn
     new_size = np.empty((3, n))
-    for a in range(3):
-        for c in range(n):
-            new_size[a, c] = size[a, c] * (1.0 - d_eps[c, a])
     position = np.empty((n_free, n))
+    held_dof = np.empty((n_free, n), dtype=np.bool_)
+    hold_at_rest(size, free, d_eps, d_free, before.old_contact, cells, law.tol, new_size, position,
+                 np.empty(n, dtype=np.int64), held_dof)
+    for k in range(n_free):
+        for c in range(n):
+            if held_dof[k, c]:
+                d_free[k, c] = 0.0
     x = np.empty((frac.shape[0], 3, n))
     residual = np.empty((n_free, n))
     jacobian = np.empty((n_free, n_free, n))

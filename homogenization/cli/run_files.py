@@ -39,8 +39,8 @@ from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 
-BACKEND_ONLY_OPTIONS = {"threads": ("dem", "ann"), "model": ("ann",)}
-"""Backend-specific flags (argparse dest) -> the backends that take them."""
+BACKEND_ONLY_OPTIONS = {"threads": ("dem", "ann"), "model": ("ann",), "equilibrium_corrections": ("ann",)}
+"""Backend-specific flags (argparse dest) -> the backends that take them (a command may lack some of them)."""
 DEVICE_BACKENDS = ("dem", "ann")
 """Backends that take --device; the analytical cell runs on the cpu."""
 
@@ -51,7 +51,7 @@ def backend_options(args: argparse.Namespace, name: str) -> dict[str, Any]:
     if name in DEVICE_BACKENDS:
         options["device"] = args.device
     for dest, takers in BACKEND_ONLY_OPTIONS.items():
-        value = getattr(args, dest)
+        value = getattr(args, dest, None)
         if value is not None and name in takers:
             options[dest] = value
     return options
@@ -73,7 +73,7 @@ def check_options(args: argparse.Namespace, backends: Sequence[str] | None = Non
     """
     backends = tuple(args.backend if backends is None else backends)
     for dest, takers in BACKEND_ONLY_OPTIONS.items():
-        if getattr(args, dest) is not None and not set(takers) & set(backends):
+        if getattr(args, dest, None) is not None and not set(takers) & set(backends):
             flag = "--" + dest.replace("_", "-")
             raise UserError(f"{flag} applies to --backend {' or '.join(takers)} only")
     if args.device != "cpu" and not set(DEVICE_BACKENDS) & set(backends):

@@ -112,6 +112,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_cell_arguments(parser, f"the 3D cell of every backend (analytical: the plain ten-sphere cell only); "
                                f"None: {DEFAULT_MESOSTRUCTURE} at --alpha0 and --radius.",
                        "CPU threads of the DEM (None: its own default)")
+    parser.add_argument("--equilibrium-corrections", type=positive_int, default=None, metavar="K",
+                        help="ann only: after the network's step, up to K exact Newton steps on the balance of the free "
+                             "grains with the exact contact law, in cells whose force ratio exceeds the DEM's tolerance "
+                             "(a hybrid surrogate, recorded in run.h5 and counted per increment; docs/ann.md)")
     add_uncertified_argument(parser)
     add_posterior_arguments(parser)
     return parser
