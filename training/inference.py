@@ -139,9 +139,14 @@ class FastAdvance:
         net: the trained network (its schema, active pairs, normalisation and layers are copied).
         corrections: the most Newton steps per cell-increment (0: the network alone, unchanged).
         tolerance: the force ratio below which a cell is not corrected [-].
+        guess: the first guess of the corrections: ``"network"``; or, to measure what the network
+            adds, ``"still"`` (the free DOFs do not move) or ``"affine"`` (they follow the cell's strain,
+            x <- x (1 - d_eps) along their axis); the network is still evaluated (same cost).
     """
 
-    def __init__(self, net: MesoNet, corrections: int = 0, tolerance: float = 1e-6) -> None:
+    GUESSES = ("network", "still", "affine")
+
+    def __init__(self, net: MesoNet, corrections: int = 0, tolerance: float = 1e-6, guess: str = "network") -> None:
         schema = net.schema
         as_np = lambda t, dtype=np.float64: np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)  # noqa: E731
         frac = as_np(schema.driven_fraction)
@@ -169,7 +174,11 @@ class FastAdvance:
             raise ValueError(f"corrections = {corrections}: equilibrium corrections are >= 0 and for spatial cells only")
         if not tolerance > 0:
             raise ValueError(f"tolerance = {tolerance} must be > 0")
+        if guess not in self.GUESSES or (guess != "network" and not corrections):
+            raise ValueError(f"guess = {guess!r}: one of {', '.join(self.GUESSES)}, another than the network's with "
+                             f"corrections only")
         self.corrections = int(corrections)
+        self.guess = guess
         self.tolerance = float(tolerance)
         self._displacement = _Compiled(free_displacement)
         self._correct = _Compiled(correct3d)
@@ -230,6 +239,10 @@ class FastAdvance:
         ratios = steps = None
         if self.corrections:
             d_free = self._displacement(out, work.before.m, work.before.unbalanced, self.scaling, self.law)
+            if self.guess == "still":
+                d_free[:] = 0.0
+            elif self.guess == "affine":
+                d_free[:] = -free * d_eps.T[self.cells.free_dofs[:, 1]]
             ratios, steps = np.empty((2, n)), np.empty(n, dtype=np.int64)
             self._correct(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, self.corrections,
                           self.tolerance, ratios, steps)

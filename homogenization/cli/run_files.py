@@ -27,6 +27,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+import numpy as np
+
 from homogenization import driver, io
 from homogenization.backends import backend_class, BACKENDS, make_cell_model
 from homogenization import loading
@@ -196,7 +198,9 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
 
     The line counts the cell-increments the backend reports unconverged
     (``diagnostics["n_unconverged"]``) and those with contacts outside the closed form
-    (``diagnostics["n_cross_plane"]``), where there are any, then ``note`` (the backend's own).
+    (``diagnostics["n_cross_plane"]``), where there are any, the ANN's equilibrium corrections
+    (``n_corrections`` Newton steps in ``n_corrected`` cell-increments) where it took them, then
+    ``note`` (the backend's own).
 
     Raises:
         UserError: the folder cannot be written (one line).
@@ -211,6 +215,10 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
     cross = record.diagnostics.get("n_cross_plane")
     if cross is not None and cross.sum():
         counts += f", cross-plane contacts outside the closed form in {int(cross.sum())} cell-increments"
+    corrected = record.diagnostics.get("n_corrected")
+    if corrected is not None:
+        counts += (f", equilibrium corrections: {int(np.nansum(record.diagnostics['n_corrections']))} Newton steps in "
+                   f"{int(np.nansum(corrected))} cell-increments")
     return f"{name}: {record.n_increments} increments in {elapsed:.1f} s{counts}{note} -> {final / io.RUN_FILE}, {final / io.CURVE_FILE}"
 
 
