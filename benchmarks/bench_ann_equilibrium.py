@@ -5,7 +5,8 @@ The 3D meso-ANN alone against the ANN followed by K exact equilibrium correction
 one cell, all on the same rule of cells, printed side by side in one run:
 
 - the largest difference from the DEM of sigma11, sigma22, sigma33, p and q along the shear stage,
-  over p0 and over the path's scale max(p0, largest DEM p), and where it is;
+  over p0 and over the path's scale max(p0, largest DEM p), and where it is (a run whose stress
+  control fails is reported as stopped, with the driver's line);
 - the corrections' counts over the run: cell-increments corrected, Newton steps, cell-increments
   left above the DEM's force tolerance (unconverged), the largest force ratio of the network's
   guess;
@@ -97,6 +98,7 @@ def main(argv=None) -> int:
 
     from homogenization.backends import make_cell_model
     from homogenization.backends.ann import AnnCell3D
+    from homogenization.driver import ControlError
     from training.inference import FastAdvance
     from warp_hcell.core.parameters import ContactLaw
     from warp_hcell.mesostructures.builders import mesostructure_arg
@@ -117,7 +119,13 @@ def main(argv=None) -> int:
             ann = AnnCell3D(ContactLaw(), 0.5, model=args.model, equilibrium_corrections=k)
             if guess != "network":
                 ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess)
-            record, wall = run(ann, meso, args)
+            try:
+                record, wall = run(ann, meso, args)
+            except ControlError as exc:
+                rows.append({"variant": f"{guess} + {k}" if k else "network alone", "guess": guess, "corrections": k,
+                             "stopped": str(exc)})
+                print(f"{rows[-1]['variant']}: stopped: {exc}")
+                continue
             worst, scale, where, curve = difference(record, dem, args.p0)
             rows.append({"variant": f"{guess} + {k}" if k else "network alone", "guess": guess, "corrections": k,
                          "wall_s": wall, "diff_p0": worst / args.p0, "diff_scale": worst / scale, "scale_pa": scale,
@@ -131,6 +139,9 @@ def main(argv=None) -> int:
           f"{'unconv.':>8} {'guess ratio':>11} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
     closed_s = next((r["wall_s"] for r in rows if r["variant"] == "closed form"), None)
     for row in rows:
+        if "stopped" in row:
+            print(f"{row['variant']:>16} stopped (stress control; line above)")
+            continue
         cells = (f"{100 * row['diff_p0']:8.3g}% {100 * row['diff_scale']:9.3g}%" if "diff_p0" in row else f"{'':>9} {'':>10}")
         extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} {row['unconverged']:8.0f} "
                  f"{row['network_ratio_max']:11.2g}" if "corrected" in row else f" {'':>8} {'':>10} {'':>10} {'':>8} {'':>11}")
