@@ -1,4 +1,4 @@
-"""python benchmarks/bench_ann_equilibrium.py --model M.pt --mesostructure SPEC [--p0 2e5] [--test undrained] [--corrections 0,1,3] [--guesses network,still]
+"""python benchmarks/bench_ann_equilibrium.py --model M.pt --mesostructure SPEC [--p0 2e5] [--test undrained] [--corrections 0,1,3] [--guesses network,still] [--part test|step]
 
 The 3D meso-ANN alone against the ANN followed by K exact equilibrium corrections
 (``AnnCell(equilibrium_corrections=K)``, docs/ann.md) and against the DEM, on one triaxial test of
@@ -12,6 +12,12 @@ one cell, all on the same rule of cells, printed side by side in one run:
   guess;
 - the wall time of each run and its ratio to the DEM's (and to the closed form's, with
   ``--closed-form``, for the plain ten-sphere cell only), per increment.
+
+``--part step``: one step call on the cells of ``--step-rule`` (default 53x16: 7792 cells) of the
+DEM, the ANN alone and the ANN with each K (and the closed form with ``--closed-form``), each from its
+own state after the same local increments (10 isotropic of 3e-4, 100 undrained of 1e-4 along the
+cell axis, so that the fine grain of a fines cell is caught), timed in turn ``--repeats`` times; the
+medians and their ratios.
 
 ``--guesses`` adds rows whose corrections start from another first guess than the network's
 (``training.inference.FastAdvance``'s ``guess``: ``still``, the free grains do not move; ``affine``,
@@ -76,6 +82,52 @@ def largest(record, key: str) -> float:
     return float(np.nanmax(values)) if values is not None else float("nan")
 
 
+def step_part(args, meso, corrections) -> None:
+    """Median time of one step call per backend on the cells of ``--step-rule``, side by side."""
+    from homogenization.backends import make_cell_model
+    from homogenization.backends.ann import AnnCell3D
+    from homogenization.orientation3d import orientations_3d
+    from warp_hcell.core.parameters import ContactLaw
+
+    order, spins = (int(v) for v in args.step_rule.split("x"))
+    n = orientations_3d(order, spins).weights.size
+    models = {"dem": make_cell_model("dem", dim=3, threads=1)}
+    if args.closed_form:
+        models["closed form"] = make_cell_model("analytical", dim=3)
+    for k in corrections:
+        models["network alone" if k == 0 else f"network + {k}"] = AnnCell3D(ContactLaw(), 0.5, model=args.model,
+                                                                            equilibrium_corrections=k)
+    iso, shear = np.full((n, 3), 3e-4), np.tile([1e-4, -5e-5, -5e-5], (n, 1))
+    states, counts = {}, {}
+    for name, model in models.items():
+        state = model.init_state(meso, n)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            for k in range(110):
+                state, response = model.step(state, iso if k < 10 else shear)
+        states[name] = state
+        counts[name] = {key: response.diagnostics.get(key) for key in ("n_corrected", "n_corrections", "n_unconverged")}
+    times = {name: [] for name in models}
+    for _ in range(args.repeats):
+        for name, model in models.items():
+            start = time.perf_counter()
+            model.step(states[name], shear)
+            times[name].append(time.perf_counter() - start)
+    ms = {name: 1e3 * float(np.median(t)) for name, t in times.items()}
+    base = ms.get("closed form", ms["dem"])
+    print(f"one step call, {n} cells ({args.step_rule}), median of {args.repeats}; load {os.getloadavg()[0]:.1f}")
+    print(f"{'backend':>16} {'ms':>8} {'/ DEM':>6} {'/ closed':>8}  last increment's counts")
+    for name in models:
+        print(f"{name:>16} {ms[name]:8.1f} {ms[name] / ms['dem']:6.2f} "
+              f"{ms[name] / base if 'closed form' in ms else float('nan'):8.2f}  "
+              f"{ {k: v for k, v in counts[name].items() if v is not None} }")
+    if args.json:
+        with open(args.json, "a", encoding="utf-8") as out:
+            out.write(json.dumps({"part": "step", "mesostructure": args.mesostructure, "model": args.model,
+                                  "rule": args.step_rule, "cells": n, "repeats": args.repeats, "ms": ms,
+                                  "load_average": os.getloadavg()[0]}) + "\n")
+
+
 def main(argv=None) -> int:
     parser = Parser(description=__doc__.split("\n\n")[1], formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", required=True, help="a 3D meso-ANN model (.pt)")
@@ -89,6 +141,9 @@ def main(argv=None) -> int:
     parser.add_argument("--corrections", default="0,1,3", help="comma-separated K (0: the network alone)")
     parser.add_argument("--guesses", default="network", help="comma-separated first guesses (network, still, affine)")
     parser.add_argument("--closed-form", action="store_true", help="also time the closed form (plain ten-sphere cell)")
+    parser.add_argument("--part", choices=("test", "step"), default="test")
+    parser.add_argument("--step-rule", default="53x16", help="step part: ORDERxSPINS of the cells")
+    parser.add_argument("--repeats", type=positive_int, default=20, help="step part: timed calls per backend")
     parser.add_argument("--json", default=None, help="append the rows as JSON lines to this file")
     args = parser.parse_args(argv)
     corrections = [int(k) for k in args.corrections.split(",")]
@@ -104,6 +159,9 @@ def main(argv=None) -> int:
     from warp_hcell.mesostructures.builders import mesostructure_arg
 
     meso = mesostructure_arg(args.mesostructure).build(None)
+    if args.part == "step":
+        step_part(args, meso, corrections)
+        return 0
     print(f"{args.mesostructure}, {args.test}, p0 = {args.p0:g} Pa, to {args.eps_max:g} at {args.increment:g}, rule "
           f"{args.order} x {args.spins}; load {os.getloadavg()[0]:.1f}")
     dem, dem_s = run(make_cell_model("dem", dim=3, threads=1), meso, args)

@@ -90,7 +90,7 @@ def test_one_pairs_jacobian_is_the_finite_difference_of_its_force(case):
     u_old = ob / np.linalg.norm(ob)
     s = np.cross(u_old, rng.standard_normal(3))
     s *= {"sticking": 1e3, "carried": 5e4, "capped": 3e5, "no_history": 0.0}[case] / np.linalg.norm(s)
-    g, dg, work = np.empty(3), np.empty((3, 3)), np.empty((6, 3, 3))
+    g, dg, work = np.empty(3), np.empty((3, 3)), np.empty((8, 3, 3))
 
     def force(branch):
         out = np.empty(3)

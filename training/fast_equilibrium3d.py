@@ -35,10 +35,17 @@ import math
 import numba
 import numpy as np
 
-from training.fast_cells import grain_positions, normal_force
+from training.fast_cells import grain_positions
 from training.fast_increment import hold_at_rest
 from training.fast_step3d import pair_branch3
 from warp_hcell.core.contact import CAP_SLACK
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def normal_force(overlap, kn):
+    """kn max(overlap, 0) [N] of a scalar overlap [m] (``warp_hcell.core.contact.normal_force``, without
+    the array function's cost per call)."""
+    return kn * (overlap if overlap > 0.0 else 0.0)
+
 
 REGULARISATION = 1e-9
 """Diagonal stiffness added to -J in every Newton step, as a fraction of kn [-]."""
@@ -53,20 +60,55 @@ def _mat3(a, b, out):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g, dg, work):
+def _force_only(b, ob, s, was_contact, d, fn, u0, u1, u2, kt, mu, slack, g):
+    """The force g (3,) of ``pair_force_jacobian`` of a touching pair without its Jacobian (the same
+    operations as ``training.fast_step3d.contact_pass3``); returns True."""
+    mid0, mid1, mid2 = 0.5 * (ob[0] + b[0]), 0.5 * (ob[1] + b[1]), 0.5 * (ob[2] + b[2])
+    mid_norm = math.sqrt(mid0 * mid0 + mid1 * mid1 + mid2 * mid2)
+    mid0, mid1, mid2 = mid0 / mid_norm, mid1 / mid_norm, mid2 / mid_norm
+    r0, r1, r2 = b[0] - ob[0], b[1] - ob[1], b[2] - ob[2]
+    s0, s1, s2 = 0.0, 0.0, 0.0
+    if was_contact:
+        s0, s1, s2 = s[0], s[1], s[2]
+        along = s0 * u0 + s1 * u1 + s2 * u2
+        q0, q1, q2 = s0 - along * u0, s1 - along * u1, s2 - along * u2
+        before2 = s0 * s0 + s1 * s1 + s2 * s2
+        after2 = q0 * q0 + q1 * q1 + q2 * q2
+        if after2 > 0:
+            ratio = math.sqrt(before2 / after2)
+            q0, q1, q2 = q0 * ratio, q1 * ratio, q2 * ratio
+        s0, s1, s2 = q0, q1, q2
+    along = r0 * mid0 + r1 * mid1 + r2 * mid2
+    t0 = s0 + kt * (r0 - along * mid0)
+    t1 = s1 + kt * (r1 - along * mid1)
+    t2 = s2 + kt * (r2 - along * mid2)
+    trial = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    cap = mu * fn
+    scale = cap / (trial if trial > 0 else 1.0) if trial > cap * slack else 1.0
+    g[0] = -fn * u0 + t0 * scale
+    g[1] = -fn * u1 + t1 * scale
+    g[2] = -fn * u2 + t2 * scale
+    return True
+
+
+@numba.njit(cache=True, error_model="numpy")
+def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g, dg, work, with_jacobian=True):
     """Force g (3,) [N] on grain i of one pair of one cell by the spatial contact law and dg = dg/db (3, 3)
     [N/m] (module docstring); b, ob: the new and old branch x_j - x_i (3,) [m]; s: the old spring (3,) [N],
-    kept where ``was_contact``; work: scratch (6, 3, 3). Returns whether the pair touches (g and dg are
-    zero otherwise)."""
-    g[:] = 0.0
-    dg[:, :] = 0.0
+    kept where ``was_contact``; work: scratch (8, 3, 3). Returns whether the pair touches (g and dg are
+    zero otherwise); without ``with_jacobian`` only g (dg left zero)."""
     d = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
     if not d <= reach:
+        g[0], g[1], g[2] = 0.0, 0.0, 0.0
+        if with_jacobian:
+            dg[:, :] = 0.0
         return False
-    du, dm, dsc, dslip, tmp, df = work[0], work[1], work[2], work[3], work[4], work[5]
     overlap = rsum - d
     fn = normal_force(overlap, kn)
     u0, u1, u2 = b[0] / d, b[1] / d, b[2] / d
+    if not with_jacobian:
+        return _force_only(b, ob, s, was_contact, d, fn, u0, u1, u2, kt, mu, slack, g)
+    du, dm, dsc, dslip, tmp, df, dq, dt = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
     u = (u0, u1, u2)
     normal_slope = kn if overlap > 0.0 else 0.0
     mid0, mid1, mid2 = 0.5 * (ob[0] + b[0]), 0.5 * (ob[1] + b[1]), 0.5 * (ob[2] + b[2])
@@ -87,7 +129,8 @@ def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g
         for a in range(3):
             for e in range(3):
                 tmp[a, e] = -(u[a] * s[e] + (along if a == e else 0.0))
-        _mat3(tmp, du, dsc)  # dq/db
+        _mat3(tmp, du, dq)
+        dsc[:, :] = dq
         if after2 > 0:
             ratio = math.sqrt(before2 / after2)
             qn = math.sqrt(after2)
@@ -96,7 +139,7 @@ def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g
             for a in range(3):
                 for e in range(3):
                     tmp[a, e] = ratio * ((1.0 if a == e else 0.0) - qh[a] * qh[e])
-            _mat3(tmp, dsc.copy(), dsc)
+            _mat3(tmp, dq, dsc)
         else:
             sc0, sc1, sc2 = q0, q1, q2
     r0, r1, r2 = b[0] - ob[0], b[1] - ob[1], b[2] - ob[2]
@@ -111,7 +154,8 @@ def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g
     t2 = sc2 + kt * (r2 - along_r * m[2])
     for a in range(3):
         for e in range(3):
-            df[a, e] = dsc[a, e] + kt * dslip[a, e]  # dt/db
+            dt[a, e] = dsc[a, e] + kt * dslip[a, e]
+            df[a, e] = dt[a, e]
     trial = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
     cap = mu * fn
     f0, f1, f2 = t0, t1, t2
@@ -122,7 +166,7 @@ def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g
         for a in range(3):
             for e in range(3):
                 tmp[a, e] = scale * ((1.0 if a == e else 0.0) - th[a] * th[e])
-        _mat3(tmp, df.copy(), df)
+        _mat3(tmp, dt, df)
         for a in range(3):
             for e in range(3):
                 df[a, e] -= mu * normal_slope * th[a] * u[e]
@@ -134,10 +178,12 @@ def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g
 
 
 @numba.njit(cache=True, error_model="numpy")
-def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, residual, jacobian, fn_max):
+def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, residual, jacobian, fn_max,
+                       with_jacobian=True):
     """Net contact force on the free DOFs ``residual`` (n_free, n) [N], its Jacobian ``jacobian`` (n_free,
     n_free, n) [N/m] with respect to the free coordinates and the largest normal force ``fn_max`` (n,) [N]
-    of the cells flagged ``active`` (n,) bool (the others are left at zero), at the grain centres x
+    of the cells flagged ``active`` (n,) bool (the others are left at zero; without ``with_jacobian`` the
+    Jacobian is left at zero too), at the grain centres x
     (n_grains, 3, n) after the increment; shear (n_pairs, 3, n) and old_branch, old_contact: the state
     before it."""
     n = x.shape[2]
@@ -149,7 +195,7 @@ def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, re
     fn_max[:] = 0.0
     bb = np.empty((3, n))
     b, ob, s, g, dg = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty((3, 3))
-    work = np.empty((6, 3, 3))
+    work = np.empty((8, 3, 3))
     slots = np.empty(6, dtype=np.int64)
     signs = np.empty(6)
     for p in range(pairs.shape[0]):
@@ -159,14 +205,16 @@ def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, re
         for a in range(3):
             slots[a], signs[a] = free_slot[i, a], 1.0
             slots[3 + a], signs[3 + a] = free_slot[j, a], -1.0
+        bound = (reach * (1.0 + 1e-9)) ** 2
         for c in range(n):
-            if not active[c]:
-                continue
+            if not active[c] or bb[0, c] * bb[0, c] + bb[1, c] * bb[1, c] + bb[2, c] * bb[2, c] > bound:
+                continue  # out of reach (the margin covers the rounding of the square-root-free test)
             for a in range(3):
                 b[a] = bb[a, c]
                 ob[a] = old_branch[p, a, c]
                 s[a] = shear[p, a, c]
-            if not pair_force_jacobian(b, ob, s, old_contact[p, c], rsum, reach, kn, kt, mu, slack, g, dg, work):
+            if not pair_force_jacobian(b, ob, s, old_contact[p, c], rsum, reach, kn, kt, mu, slack, g, dg, work,
+                                       with_jacobian):
                 continue
             fn_max[c] = max(fn_max[c], normal_force(rsum - math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]), kn))
             for r_ in range(6):
@@ -174,6 +222,8 @@ def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, re
                 if k < 0:
                     continue
                 residual[k, c] += signs[r_] * g[r_ % 3]
+                if not with_jacobian:
+                    continue
                 for q_ in range(6):
                     col = slots[q_]
                     if col >= 0:
@@ -252,14 +302,16 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
         active[c] = before.m[c] >= law.ramp
         corrections[c] = 0
     a_c, rhs, delta = np.empty((n_free, n_free)), np.empty(n_free), np.empty(n_free)
+    stepping = np.zeros(n, dtype=np.bool_)
     for step in range(iterations + 1):
         for k in range(n_free):
             for c in range(n):
                 position[k, c] = free[k, c] + d_free[k, c]
         grain_positions(new_size, position, frac, free_dofs, x)
         residual_jacobian3(x, shear, before.old_branch, before.old_contact, cells, law, active, residual, jacobian,
-                           fn_max)
+                           fn_max, False)
         for c in range(n):
+            stepping[c] = False
             if not active[c]:
                 if step == 0:
                     ratios[0, c] = 0.0
@@ -272,8 +324,14 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
             if step == 0:
                 ratios[0, c] = ratio
             ratios[1, c] = ratio
-            if ratio <= tolerance or step == iterations:
-                active[c] = False
+            stepping[c] = ratio > tolerance and step < iterations
+        if not stepping.any():
+            break
+        residual_jacobian3(x, shear, before.old_branch, before.old_contact, cells, law, stepping, residual, jacobian,
+                           fn_max, True)
+        for c in range(n):
+            active[c] = stepping[c]
+            if not stepping[c]:
                 continue
             for k in range(n_free):
                 rhs[k] = residual[k, c]
