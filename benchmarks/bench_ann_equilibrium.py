@@ -139,6 +139,8 @@ def main(argv=None) -> int:
     parser.add_argument("--order", type=positive_int, default=11, help="Lebedev order of the cell axes")
     parser.add_argument("--spins", type=positive_int, default=4, help="spins per axis")
     parser.add_argument("--corrections", default="0,1,3", help="comma-separated K (0: the network alone)")
+    parser.add_argument("--tolerances", default="1e-6", help="comma-separated force ratios above which a cell is "
+                        "corrected (1e-6: the DEM's)")
     parser.add_argument("--guesses", default="network", help="comma-separated first guesses (network, still, affine)")
     parser.add_argument("--closed-form", action="store_true", help="also time the closed form (plain ten-sphere cell)")
     parser.add_argument("--part", choices=("test", "step"), default="test")
@@ -147,6 +149,7 @@ def main(argv=None) -> int:
     parser.add_argument("--json", default=None, help="append the rows as JSON lines to this file")
     args = parser.parse_args(argv)
     corrections = [int(k) for k in args.corrections.split(",")]
+    tolerances = [float(t) for t in args.tolerances.split(",")]
     guesses = args.guesses.split(",")
     if any(g != "network" for g in guesses) and args.test != "undrained":
         parser.error("--guesses other than network need --test undrained (stress control starts from the network)")
@@ -170,40 +173,41 @@ def main(argv=None) -> int:
         closed, closed_s = run(make_cell_model("analytical", dim=3), meso, args)
         worst, scale, _, _ = difference(closed, dem, args.p0)
         rows.append({"variant": "closed form", "wall_s": closed_s, "diff_p0": worst / args.p0, "diff_scale": worst / scale})
-    for guess in guesses:
-        for k in corrections:
-            if guess != "network" and k == 0:
-                continue
-            ann = AnnCell3D(ContactLaw(), 0.5, model=args.model, equilibrium_corrections=k)
-            if guess != "network":
-                ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess)
-            try:
-                record, wall = run(ann, meso, args)
-            except ControlError as exc:
-                rows.append({"variant": f"{guess} + {k}" if k else "network alone", "guess": guess, "corrections": k,
-                             "stopped": str(exc)})
-                print(f"{rows[-1]['variant']}: stopped: {exc}")
-                continue
-            worst, scale, where, curve = difference(record, dem, args.p0)
-            rows.append({"variant": f"{guess} + {k}" if k else "network alone", "guess": guess, "corrections": k,
-                         "wall_s": wall, "diff_p0": worst / args.p0, "diff_scale": worst / scale, "scale_pa": scale,
-                         "at_eps_a": where, "curve": curve, "increments": record.n_increments,
-                         "corrected": total(record, "n_corrected"), "newton_steps": total(record, "n_corrections"),
-                         "unconverged": total(record, "n_unconverged"),
-                         "network_ratio_max": largest(record, "force_ratio_network_max"),
-                         "ratio_max": largest(record, "force_ratio_max"),
-                         "cell_increments": record.n_increments * int(np.asarray(record.weights).size)})
-    print(f"{'variant':>16} {'diff/p0':>9} {'diff/scale':>10} {'at eps_a':>8} {'corrected':>10} {'Newton':>10} "
+    variants = [(guess, k, tol) for guess in guesses for k in corrections
+                for tol in (tolerances if k else tolerances[:1]) if guess == "network" or k]
+    for guess, k, tol in variants:
+        name = "network alone" if not k else f"{guess} + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
+        ann = AnnCell3D(ContactLaw(), 0.5, model=args.model, equilibrium_corrections=k,
+                        equilibrium_tolerance=tol if k else None)
+        if guess != "network":
+            ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess)
+        try:
+            record, wall = run(ann, meso, args)
+        except ControlError as exc:
+            rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol,
+                         "stopped": str(exc)})
+            print(f"{rows[-1]['variant']}: stopped: {exc}")
+            continue
+        worst, scale, where, curve = difference(record, dem, args.p0)
+        rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol if k else None,
+                     "wall_s": wall, "diff_p0": worst / args.p0, "diff_scale": worst / scale, "scale_pa": scale,
+                     "at_eps_a": where, "curve": curve, "increments": record.n_increments,
+                     "corrected": total(record, "n_corrected"), "newton_steps": total(record, "n_corrections"),
+                     "unconverged": total(record, "n_unconverged"),
+                     "network_ratio_max": largest(record, "force_ratio_network_max"),
+                     "ratio_max": largest(record, "force_ratio_max"),
+                     "cell_increments": record.n_increments * int(np.asarray(record.weights).size)})
+    print(f"{'variant':>22} {'diff/p0':>9} {'diff/scale':>10} {'at eps_a':>8} {'corrected':>10} {'Newton':>10} "
           f"{'unconv.':>8} {'guess ratio':>11} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
     closed_s = next((r["wall_s"] for r in rows if r["variant"] == "closed form"), None)
     for row in rows:
         if "stopped" in row:
-            print(f"{row['variant']:>16} stopped (stress control; line above)")
+            print(f"{row['variant']:>22} stopped (stress control; line above)")
             continue
         cells = (f"{100 * row['diff_p0']:8.3g}% {100 * row['diff_scale']:9.3g}%" if "diff_p0" in row else f"{'':>9} {'':>10}")
         extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} {row['unconverged']:8.0f} "
                  f"{row['network_ratio_max']:11.2g}" if "corrected" in row else f" {'':>8} {'':>10} {'':>10} {'':>8} {'':>11}")
-        print(f"{row['variant']:>16} {cells}{extra} {row['wall_s']:7.1f} {row['wall_s'] / dem_s:6.2f}"
+        print(f"{row['variant']:>22} {cells}{extra} {row['wall_s']:7.1f} {row['wall_s'] / dem_s:6.2f}"
               + (f" {row['wall_s'] / closed_s:8.2f}" if closed_s else ""))
     if args.json:
         with open(args.json, "a", encoding="utf-8") as out:

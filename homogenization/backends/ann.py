@@ -24,8 +24,8 @@ No equilibrium is solved and no closed form of a particular cell is used, unless
 ``equilibrium_corrections=K`` (spatial cells) takes the network's free-DOF displacement as the
 first guess of up to K exact Newton steps on the balance of the free DOFs with the exact contact
 law (``training.fast_equilibrium3d``, ``training.equilibrium``), in the cells whose force ratio
-(largest unbalanced free-DOF force over the largest normal force) exceeds the DEM's
-``force_tolerance``. That hybrid is another surrogate than the network alone: its diagnostics
+(largest unbalanced free-DOF force over the largest normal force) exceeds
+``equilibrium_tolerance`` (default: the DEM's ``force_tolerance``). That hybrid is another surrogate than the network alone: its diagnostics
 add ``n_corrected`` (cells corrected), ``n_corrections`` (Newton steps), ``n_unconverged``
 (cells still above the tolerance after them), ``force_ratio_network_max`` and
 ``force_ratio_max`` (the largest force ratio before and after), and the model's certificate,
@@ -185,6 +185,8 @@ class AnnCell(ArrayStateMixin):
         equilibrium_corrections: the most exact Newton steps on the free DOFs' balance after the
             network's step, per cell-increment (module docstring); 0: the network alone. Spatial
             models only (ValueError for a planar one).
+        equilibrium_tolerance: the force ratio above which a cell is corrected [-] (None: the DEM's
+            ``DemSettings.force_tolerance``).
 
     Raises:
         training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
@@ -199,7 +201,7 @@ class AnnCell(ArrayStateMixin):
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
                  device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL,
-                 equilibrium_corrections: int = 0) -> None:
+                 equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None) -> None:
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:
@@ -224,7 +226,9 @@ class AnnCell(ArrayStateMixin):
             raise ValueError(f"equilibrium corrections = {equilibrium_corrections}: a count >= 0, and > 0 for a "
                              f"spatial model only ({path.name} is {self.dim}D)")
         self.equilibrium_corrections = int(equilibrium_corrections)
-        self.force_tolerance = DemSettings().force_tolerance
+        self.force_tolerance = DemSettings().force_tolerance if equilibrium_tolerance is None else float(equilibrium_tolerance)
+        if not self.force_tolerance > 0:
+            raise ValueError(f"equilibrium tolerance = {equilibrium_tolerance} must be > 0")
         self.fast = (FastAdvance(self.net, self.equilibrium_corrections, self.force_tolerance)
                      if self.device.type == "cpu" else None)
         self.certificate: dict[str, Any] | None = self.metadata.get("certificate")

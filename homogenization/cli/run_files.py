@@ -41,7 +41,8 @@ from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 
-BACKEND_ONLY_OPTIONS = {"threads": ("dem", "ann"), "model": ("ann",), "equilibrium_corrections": ("ann",)}
+BACKEND_ONLY_OPTIONS = {"threads": ("dem", "ann"), "model": ("ann",), "equilibrium_corrections": ("ann",),
+                        "equilibrium_tolerance": ("ann",)}
 """Backend-specific flags (argparse dest) -> the backends that take them (a command may lack some of them)."""
 DEVICE_BACKENDS = ("dem", "ann")
 """Backends that take --device; the analytical cell runs on the cpu."""
@@ -78,6 +79,8 @@ def check_options(args: argparse.Namespace, backends: Sequence[str] | None = Non
         if getattr(args, dest, None) is not None and not set(takers) & set(backends):
             flag = "--" + dest.replace("_", "-")
             raise UserError(f"{flag} applies to --backend {' or '.join(takers)} only")
+    if getattr(args, "equilibrium_tolerance", None) is not None and getattr(args, "equilibrium_corrections", None) is None:
+        raise UserError("--equilibrium-tolerance applies with --equilibrium-corrections only")
     if args.device != "cpu" and not set(DEVICE_BACKENDS) & set(backends):
         raise UserError(f"--device applies to --backend {' or '.join(DEVICE_BACKENDS)} only (analytical runs on the cpu)")
     for name in backends:
@@ -173,7 +176,8 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
         record["ann_model"] = model_record(getattr(model, "model_path", None) or options.get("model"), model.metadata)
         corrections = getattr(model, "equilibrium_corrections", 0)
         if corrections:
-            record["ann_model"].update(equilibrium_corrections=corrections, certified=False,
+            record["ann_model"].update(equilibrium_corrections=corrections, equilibrium_tolerance=model.force_tolerance,
+                                       certified=False,
                                        certificate_problem=model.certificate_problem)
         if model.ood is not None:
             record["ann_model"]["ood"] = {"checked": int(model.ood_counts[1]), "outside": int(model.ood_counts[0]),

@@ -49,6 +49,7 @@ from warp_hcell.core.cli import (
     add_contact_law_arguments,
     contact_law_from_args,
     finite_float,
+    positive_float,
     positive_int,
     run_main,
     say,
@@ -116,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="ann only: after the network's step, up to K exact Newton steps on the balance of the free "
                              "grains with the exact contact law, in cells whose force ratio exceeds the DEM's tolerance "
                              "(a hybrid surrogate, recorded in run.h5 and counted per increment; docs/ann.md)")
+    parser.add_argument("--equilibrium-tolerance", type=positive_float, default=None, metavar="R",
+                        help="ann with --equilibrium-corrections: the force ratio above which a cell is corrected "
+                             "(None: the DEM's force tolerance, 1e-6)")
     add_uncertified_argument(parser)
     add_posterior_arguments(parser)
     return parser
