@@ -82,7 +82,7 @@ def largest(record, key: str) -> float:
     return float(np.nanmax(values)) if values is not None else float("nan")
 
 
-def step_part(args, meso, corrections) -> None:
+def step_part(args, meso, corrections, tolerances) -> None:
     """Median time of one step call per backend on the cells of ``--step-rule``, side by side."""
     from homogenization.backends import make_cell_model
     from homogenization.backends.ann import AnnCell3D
@@ -95,8 +95,10 @@ def step_part(args, meso, corrections) -> None:
     if args.closed_form:
         models["closed form"] = make_cell_model("analytical", dim=3)
     for k in corrections:
-        models["network alone" if k == 0 else f"network + {k}"] = AnnCell3D(ContactLaw(), 0.5, model=args.model,
-                                                                            equilibrium_corrections=k)
+        for tol in tolerances if k else tolerances[:1]:
+            name = "network alone" if not k else f"network + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
+            models[name] = AnnCell3D(ContactLaw(), 0.5, model=args.model, equilibrium_corrections=k,
+                                     equilibrium_tolerance=tol if k else None)
     iso, shear = np.full((n, 3), 3e-4), np.tile([1e-4, -5e-5, -5e-5], (n, 1))
     states, counts = {}, {}
     for name, model in models.items():
@@ -116,9 +118,9 @@ def step_part(args, meso, corrections) -> None:
     ms = {name: 1e3 * float(np.median(t)) for name, t in times.items()}
     base = ms.get("closed form", ms["dem"])
     print(f"one step call, {n} cells ({args.step_rule}), median of {args.repeats}; load {os.getloadavg()[0]:.1f}")
-    print(f"{'backend':>16} {'ms':>8} {'/ DEM':>6} {'/ closed':>8}  last increment's counts")
+    print(f"{'backend':>22} {'ms':>8} {'/ DEM':>6} {'/ closed':>8}  last increment's counts")
     for name in models:
-        print(f"{name:>16} {ms[name]:8.1f} {ms[name] / ms['dem']:6.2f} "
+        print(f"{name:>22} {ms[name]:8.1f} {ms[name] / ms['dem']:6.2f} "
               f"{ms[name] / base if 'closed form' in ms else float('nan'):8.2f}  "
               f"{ {k: v for k, v in counts[name].items() if v is not None} }")
     if args.json:
@@ -163,7 +165,7 @@ def main(argv=None) -> int:
 
     meso = mesostructure_arg(args.mesostructure).build(None)
     if args.part == "step":
-        step_part(args, meso, corrections)
+        step_part(args, meso, corrections, tolerances)
         return 0
     print(f"{args.mesostructure}, {args.test}, p0 = {args.p0:g} Pa, to {args.eps_max:g} at {args.increment:g}, rule "
           f"{args.order} x {args.spins}; load {os.getloadavg()[0]:.1f}")

@@ -25,7 +25,7 @@ from homogenization.backends.ann import AnnCell, AnnCell3D, default_model_path
 from training import cell_physics
 from training.equilibrium import balance
 from training.fast_cells import grain_positions
-from training.fast_equilibrium3d import pair_force_jacobian, residual_jacobian3
+from training.fast_equilibrium3d import pair_force_jacobian, residual3, residual_jacobian3
 from training.inference import _cells_last, FastAdvance
 from warp_hcell.core.contact import CAP_SLACK
 from warp_hcell.core.parameters import ContactLaw
@@ -77,6 +77,9 @@ def test_the_compiled_residual_and_jacobian_are_torch_autograd_of_the_contact_la
     assert np.abs(residual.T - ref.detach().numpy()).max() <= 5e-14 * fn_max.max()  # the unbalance cancels pair forces
     assert np.abs(np.moveaxis(jacobian, -1, 0) - ref_jac.numpy()).max() <= 1e-15 * np.abs(jacobian).max()
     assert np.array_equal(fn_max, ref_fn.detach().numpy())
+    alone, alone_fn = np.empty((n_free, n)), np.empty(n)
+    residual3(x, _cells_last(shear), work.before.old_branch, work.before.old_contact, fast.cells, fast.law, alone, alone_fn)
+    assert np.array_equal(alone, residual) and np.array_equal(alone_fn, fn_max)  # the residual pass without Jacobian
 
 
 @pytest.mark.parametrize("case", ["sticking", "carried", "capped", "no_history"])
