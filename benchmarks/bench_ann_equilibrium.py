@@ -15,8 +15,8 @@ one cell, all on the same rule of cells, printed side by side in one run:
 
 ``--part step``: one step call on the cells of ``--step-rule`` (default 53x16: 7792 cells) of the
 DEM, the ANN alone and the ANN with each K (and the closed form with ``--closed-form``), each from its
-own state after the same local increments (10 isotropic of 3e-4, 100 undrained of 1e-4 along the
-cell axis, so that the fine grain of a fines cell is caught), timed in turn ``--repeats`` times; the
+own state after the same local increments (10 isotropic of 3e-4, then ``--step-shear`` undrained of
+1e-4 along the cell axis: 300 catch the fine grain of ``hcell3d-fines:alpha0=55,ratio=0.9``), timed in turn ``--repeats`` times; the
 medians and their ratios.
 
 ``--guesses`` adds rows whose corrections start from another first guess than the network's
@@ -105,7 +105,7 @@ def step_part(args, meso, corrections, tolerances) -> None:
         state = model.init_state(meso, n)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            for k in range(110):
+            for k in range(10 + args.step_shear):
                 state, response = model.step(state, iso if k < 10 else shear)
         states[name] = state
         counts[name] = {key: response.diagnostics.get(key) for key in ("n_corrected", "n_corrections", "n_unconverged")}
@@ -148,6 +148,8 @@ def main(argv=None) -> int:
     parser.add_argument("--part", choices=("test", "step"), default="test")
     parser.add_argument("--step-rule", default="53x16", help="step part: ORDERxSPINS of the cells")
     parser.add_argument("--repeats", type=positive_int, default=20, help="step part: timed calls per backend")
+    parser.add_argument("--step-shear", type=positive_int, default=100,
+                        help="step part: undrained increments of 1e-4 before the timed call")
     parser.add_argument("--json", default=None, help="append the rows as JSON lines to this file")
     args = parser.parse_args(argv)
     corrections = [int(k) for k in args.corrections.split(",")]
