@@ -111,17 +111,20 @@ def test_one_pairs_jacobian_is_the_finite_difference_of_its_force(case):
 @needs_model
 def test_corrections_bring_every_cell_to_the_dem_tolerance_and_are_counted(sheared):
     cell, _, state, d_eps = sheared
-    alone = cell.fast(*state, d_eps)
-    corrected = FastAdvance(cell.net, 3, 1e-6)(*state, d_eps)
-    assert alone.force_ratio is None and alone.corrections is None
-    assert (corrected.force_ratio[0] > 1e-6).all()  # the network alone leaves every cell off balance here
-    assert (corrected.force_ratio[1] <= 1e-6).all()
-    assert ((corrected.corrections >= 1) & (corrected.corrections <= 3)).all()
-    still = FastAdvance(cell.net, 3, 1e-6, guess="still")(*state, d_eps)
-    assert (still.force_ratio[0] > corrected.force_ratio[0]).all()
-    assert (still.force_ratio[1] <= 1e-6).all()
-    none = FastAdvance(cell.net, 3, 1e-6)(*state, np.zeros_like(d_eps))
-    assert np.array_equal(none.corrections, np.zeros(d_eps.shape[0], dtype=np.int64))  # a zero increment stays a no-op
+
+    def corrected(fast, d):
+        return fast(*state, d), fast.last_corrections()
+
+    assert corrected(cell.fast, d_eps)[1] is None
+    _, (ratio, steps) = corrected(FastAdvance(cell.net, 3, 1e-6), d_eps)
+    assert (ratio[0] > 1e-6).all()  # the network alone leaves every cell off balance here
+    assert (ratio[1] <= 1e-6).all()
+    assert ((steps >= 1) & (steps <= 3)).all()
+    _, (still_ratio, _) = corrected(FastAdvance(cell.net, 3, 1e-6, guess="still"), d_eps)
+    assert (still_ratio[0] > ratio[0]).all()
+    assert (still_ratio[1] <= 1e-6).all()
+    none, (_, none_steps) = corrected(FastAdvance(cell.net, 3, 1e-6), np.zeros_like(d_eps))
+    assert np.array_equal(none_steps, np.zeros(d_eps.shape[0], dtype=np.int64))  # a zero increment stays a no-op
     assert np.array_equal(none.free_position, np.asarray(state.free_position))
 
 

@@ -89,11 +89,7 @@ class FastIncrement(NamedTuple):
     bool (n,), a Coulomb cap / the no-tension branch acted on some pair of the cell;
     mechanism: bool (n,), zero moment after the increment; relaxation_scaled: bool (n,),
     norm(d_eps) < ``RELAXATION_RAMP``; grains_held: int64 (n,), free grains held at rest
-    (``training.cell_physics.hold_at_rest``); with equilibrium corrections (``FastAdvance(corrections=K)``,
-    spatial cells) also force_ratio (2, n), the largest unbalanced free-DOF force over the largest normal
-    force at the network's displacement and after the corrections (0 where not evaluated: no normal force,
-    or a probe below the relaxation ramp), and corrections: int64 (n,), the Newton steps taken; None
-    without.
+    (``training.cell_physics.hold_at_rest``).
     """
 
     cell_size: np.ndarray
@@ -106,8 +102,16 @@ class FastIncrement(NamedTuple):
     mechanism: np.ndarray
     relaxation_scaled: np.ndarray
     grains_held: np.ndarray
-    force_ratio: np.ndarray | None = None
-    corrections: np.ndarray | None = None
+
+
+class Corrections(NamedTuple):
+    """The equilibrium corrections of one ``FastAdvance`` call (``FastAdvance(corrections=K)``, spatial cells):
+    force_ratio (2, n), the largest unbalanced free-DOF force over the largest normal force at the first
+    guess and after the corrections (0 where not evaluated: no normal force, or a probe below the
+    relaxation ramp), and steps: int64 (n,), the Newton steps taken."""
+
+    force_ratio: np.ndarray
+    steps: np.ndarray
 
 
 class _Workspace(NamedTuple):
@@ -133,7 +137,7 @@ class FastAdvance:
     With ``corrections`` K > 0 (spatial cells only), the network's free-DOF displacement is the
     first guess of up to K exact Newton steps on the balance of the free DOFs
     (``training.fast_equilibrium3d.correct3d``), taken in a cell while its force ratio exceeds
-    ``tolerance``; ``FastIncrement.force_ratio`` and ``corrections`` count them.
+    ``tolerance``; ``last_corrections`` counts them.
 
     Args:
         net: the trained network (its schema, active pairs, normalisation and layers are copied).
@@ -208,6 +212,10 @@ class FastAdvance:
         (n_features, n) cells last (a view of the scratch array: read it before the next call)."""
         return self._local.work.before.feats
 
+    def last_corrections(self) -> Corrections | None:
+        """The equilibrium corrections of this thread's last ``increment`` (None without corrections)."""
+        return getattr(self._local, "corrections", None)
+
     def __call__(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                  d_eps: np.ndarray) -> FastIncrement:
         """One increment of every cell: state (n, dim), (n, n_free), (n, n_pairs) (spatial: (n, n_pairs, 3))
@@ -236,7 +244,7 @@ class FastAdvance:
         flags = np.empty((4, n), dtype=np.bool_)
         result = Advanced(np.empty((dim, n)), np.empty((n_free, n)), np.empty(shear_shape), np.empty((n, dim, dim)),
                           np.empty(n), *flags, np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=np.bool_))
-        ratios = steps = None
+        self._local.corrections = None
         if self.corrections:
             d_free = self._displacement(out, work.before.m, work.before.unbalanced, self.scaling, self.law)
             if self.guess == "still":
@@ -247,6 +255,7 @@ class FastAdvance:
             self._correct(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, self.corrections,
                           self.tolerance, ratios, steps)
             self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, result)
+            self._local.corrections = Corrections(ratios, steps)
         else:
             self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
         tangent = None
@@ -257,4 +266,4 @@ class FastAdvance:
             self._tangent(size, free, shear, d_eps, out, self._mlp_tangent(work, f_dot), self.cells, self.law,
                            self.scaling, work.before, result, tangent)
         return FastIncrement(result.new_size.T, result.new_free.T, np.moveaxis(result.new_shear, -1, 0), result.moment,
-                             result.area, *flags, result.n_held, ratios, steps), tangent
+                             result.area, *flags, result.n_held), tangent

@@ -352,7 +352,7 @@ class AnnCell(ArrayStateMixin):
                            "n_mechanism": float(np.count_nonzero(inc.mechanism)),
                            "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled)),
                            "n_grains_held": float(inc.grains_held.sum()),
-                           **self._correction_diagnostics(inc.force_ratio, inc.corrections),
+                           **self._correction_diagnostics(*(self.fast.last_corrections() or (None, None))),
                            **self._ood_diagnostics(due, state, features)}
             return (AnnState(inc.cell_size, inc.free_position, inc.shear_force),
                     CellResponse(inc.moment, inc.area, diagnostics, tangent))
