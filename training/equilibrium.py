@@ -7,7 +7,7 @@ is applied to it (``cell_physics.hold_at_rest``), then up to ``iterations`` Newt
 balance of the free DOFs, R(d) = net contact force on the free DOFs after the increment by the
 exact contact law (``cell_physics.advance``), J = dR/dd by autograd (one backward pass per free
 DOF, all cells at once), each step solving (J - REGULARISATION kn I) delta = -R, in the cells
-whose force ratio max |R| / max f_n exceeds ``tolerance`` and whose probe is at least
+whose force ratio max abs(R) / max f_n exceeds ``tolerance`` and whose probe is at least
 ``RELAXATION_RAMP``.
 
 Derivative: where ``d_eps`` requires grad, the corrected displacement carries the derivative of the

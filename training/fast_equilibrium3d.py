@@ -12,19 +12,21 @@ relative displacement normal to the mid-increment branch and capped at mu f_n, a
 A Newton step solves (J - REGULARISATION kn I) delta = -R per cell (Gaussian elimination with
 partial pivoting): the small diagonal term leaves a free DOF that no contact touches (a zero row of
 J and a zero residual) where it is, and bounds the step along a mechanism (a sliding contact). A
-cell is corrected only while its force ratio, max |R| over its largest normal force (the DEM's
+cell is corrected only while its force ratio, max abs(R) over its largest normal force (the DEM's
 criterion, ``DemSettings.force_tolerance``), exceeds ``tolerance``, and only when its probe is at
 least ``Physics.ramp`` (a zero increment stays a no-op, as stress control assumes).
 
-Jacobian of the force g on grain i of a touching pair with branch b = x_j - x_i (d = |b|, u = b / d,
-P = I - u u^T; overlap > 0 for the normal terms):
+Jacobian of the force g on grain i of a touching pair with branch b = x_j - x_i (d = norm(b),
+u = b / d, P = I - u u^T; overlap > 0 for the normal terms; a^ = a / norm(a))::
 
-- normal: d(-f_n u)/db = kn u u^T - (f_n / d) P;
-- carried spring s_c = |s| q / |q|, q = s - (s.u) u: ds_c/db = (|s| / |q|) (I - q^ q^^T) (-(u s^T + (s.u) I) P / d);
-- slip r - (r.m) m, r = b - b_old, m the unit mid-increment branch, dm/db = (I - m m^T) / |b_old + b|:
-  I - m m^T - (m r^T + (r.m) I) dm/db;
-- Coulomb cap of the trial t = s_c + kt slip where |t| > mu f_n (1 + CAP_SLACK): f = mu f_n t / |t|,
-  df/db = (mu f_n / |t|) (I - t^ t^^T) dt/db - mu kn t^ u^T.
+    normal:          d(-f_n u)/db = kn u u^T - (f_n / d) P
+    carried spring:  s_c = norm(s) q / norm(q), q = s - (s.u) u,
+                     ds_c/db = (norm(s) / norm(q)) (I - q^ q^^T) (-(u s^T + (s.u) I) P / d)
+    slip:            r - (r.m) m, r = b - b_old, m the unit mid-increment branch,
+                     dm/db = (I - m m^T) / norm(b_old + b),
+                     d(slip)/db = I - m m^T - (m r^T + (r.m) I) dm/db
+    Coulomb cap:     where norm(t) > mu f_n (1 + CAP_SLACK), t = s_c + kt slip:
+                     f = mu f_n t^,  df/db = (mu f_n / norm(t)) (I - t^ t^^T) dt/db - mu kn t^ u^T
 
 Layouts: ``training.fast_cells`` (cells last, one cell a vector lane; every cell's arithmetic is its
 own, so a cell's result does not depend on its batch). Sign convention: compression positive.
