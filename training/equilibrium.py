@@ -12,8 +12,9 @@ whose force ratio max abs(R) / max f_n exceeds ``tolerance`` and whose probe is 
 
 Derivative: where ``d_eps`` requires grad, the corrected displacement carries the derivative of the
 equilibrium, -J^-1 dR/d(d_eps) at the last iterate (one more linearisation, whose value is added
-and subtracted so that the displacement's value is the iterate's); a cell left below the ramp keeps
-the network's derivative.
+and subtracted so that the displacement's value is the iterate's) in the cells that took a step; a
+cell that took none (its guess within the tolerance, or its probe below the ramp) keeps the network's
+displacement and its derivative: the tangent is the derivative of the step taken.
 """
 
 from __future__ import annotations
@@ -90,13 +91,13 @@ def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps
         d[active] = d[active] + delta.squeeze(-1)
         steps[active] += 1
     if d_eps.requires_grad:
-        ramped = probe >= RELAXATION_RAMP
+        corrected = steps > 0
         with torch.enable_grad():
             r_eps, _ = balance(schema, *state, d_eps, d, old)
         _, _, jac = _jacobian(schema, state, d_eps, d, old)
         delta = torch.linalg.solve(-jac + REGULARISATION * schema.kn * eye, r_eps.unsqueeze(-1)).squeeze(-1)
         implicit = d + (delta - delta.detach())
-        d = torch.where(ramped.unsqueeze(-1), implicit, d_net)
+        d = torch.where(corrected.unsqueeze(-1), implicit, d_net)
     else:
         d = torch.where((probe >= RELAXATION_RAMP).unsqueeze(-1), d, d_net)
     inc = cell_physics.advance(schema, cell_size, free_position, shear_force, d_eps, d, old, rest_rule=True)
