@@ -98,6 +98,8 @@ def test_the_ann_runs_only_the_kinematics_its_certificate_drove(tmp_path, certif
 
 
 def test_triaxial_refuses_an_ann_certified_on_the_other_kinematics(tmp_path, capsys):
+    import h5py
+
     from homogenization import hmodel
 
     model = certified_copy(tmp_path, "axisymmetric")
@@ -109,3 +111,9 @@ def test_triaxial_refuses_an_ann_certified_on_the_other_kinematics(tmp_path, cap
     assert not (tmp_path / "projected" / "run.h5").exists()
     assert hmodel.main([*argv, "--mesostructure", "hcell3d-axisym:alpha0=55", "--out", str(tmp_path / "axisym")]) == 0
     assert "certificate passed (worst" in capsys.readouterr().out
+    # run anyway: the run file says uncertified, and why, where the model file alone would say certified
+    assert hmodel.main([*argv, "--mesostructure", "hcell3d:alpha0=55", "--uncertified-ok",
+                        "--out", str(tmp_path / "anyway")]) == 0
+    with h5py.File(tmp_path / "anyway" / "run.h5", "r") as f:
+        record = json.loads(f.attrs["parameters"])["ann_model"]
+    assert record["certified"] is False and "axisymmetric kinematics" in record["certificate_problem"]
