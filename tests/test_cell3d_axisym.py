@@ -80,15 +80,15 @@ def test_loose_cell_liquefies_and_dense_cell_dilates_in_undrained_triaxial_compr
     assert p[-1] > 5.0  # projected kinematics, same grains: no liquefaction (measured 9.5 at 5 %)
 
 
-@pytest.mark.parametrize("alpha0", [LOOSE, DENSE])
-def test_dem_follows_the_closed_form_to_15_percent_on_the_loose_and_the_dense_cell(alpha0):
+@pytest.mark.parametrize(("alpha0", "p_tolerance"), [(LOOSE, 1e-4), (DENSE, 2e-4)])
+def test_dem_follows_the_closed_form_to_15_percent_on_the_loose_and_the_dense_cell(alpha0, p_tolerance):
     """The acceptance of the cell (docs/triaxial.md, DEM against the closed form) on 25 cells at increment 1e-3:
     no lateral grains of the two planes meet (the closed form's count), and the DEM is within 1e-3 of p0."""
     spec = f"hcell3d-axisym:alpha0={alpha0:g}"
     closed, dem = run(spec), run(spec, "dem")
     shear = closed.stage == "shear"
     assert np.max(closed.diagnostics["n_cross_plane"]) == 0
-    assert np.abs(dem.p - closed.p)[shear].max() < 2.5e-4 * P0  # measured 2.5e-5 (loose), 5.8e-5 (dense)
+    assert np.abs(dem.p - closed.p)[shear].max() < p_tolerance * P0  # measured 2.5e-5 (loose), 5.8e-5 (dense)
     assert np.abs(dem.q - closed.q)[shear].max() < 1e-3 * P0  # measured 3.3e-4, 6.9e-4
 
 
@@ -103,7 +103,7 @@ def test_the_closed_form_counts_the_cells_where_it_stops_holding():
     eps, _ = shear_p(closed)
     assert cross.max() > 0 and 0.05 < eps[first] < 0.12  # measured 4 cells of 25 from 8.9 %, 12 at 15 %
     gap = np.abs(dem.p - closed.p)[shear] / P0
-    assert gap[:first].max() < 2.5e-4 and gap[-1] > 1.0  # measured 3.7e-5 before, 9.5 p0 at 15 %
+    assert gap[:first].max() < 1.5e-4 and gap[-1] > 1.0  # measured 3.7e-5 before, 9.5 p0 at 15 %
 
 
 def test_the_shipped_meso_ann_is_not_certified_for_these_kinematics():
