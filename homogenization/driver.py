@@ -146,7 +146,7 @@ def run(
     solver = StressControl(points, replace(STRICT, rtol=stress_rtol, max_iterations=max_newton_iterations))
     history = History(sum(s.n_increments for s in programme), 1, dim)
     try:
-        step_seconds, _ = run_stages(solver, programme, history, snapshot_interval=snapshot_interval,
+        step_seconds, _, _ = run_stages(solver, programme, history, snapshot_interval=snapshot_interval,
                                      progress=lambda plan: _bar(plan, progress))
     except ControlError as exc:
         raise _diagnosed(exc, points, programme, mesostructure) from None

@@ -42,10 +42,10 @@ def orientation_set(mesostructure: Mesostructure, *, n_orientations: int, fabric
 
 
 def material_points(cell_model: CellModel, mesostructure: Mesostructure, n_points: int,
-                    **orientations: Any) -> MaterialPoints:
-    """``n_points`` touching, force-free material points of ``mesostructure`` cells oriented by
-    ``orientation_set(mesostructure, **orientations)``."""
-    orient = orientation_set(mesostructure, **orientations)
+                    orient: orient_mod.OrientationSet | None = None, **orientations: Any) -> MaterialPoints:
+    """``n_points`` touching, force-free material points of ``mesostructure`` cells oriented by ``orient``
+    (None: ``orientation_set(mesostructure, **orientations)``)."""
+    orient = orientation_set(mesostructure, **orientations) if orient is None else orient
     cls = HomogenisedMaterial if getattr(mesostructure, "dim", 2) == 2 else HomogenisedMaterial3D
     return MaterialPoints(cls(cell_model, orient, mesostructure, n_points))
 

@@ -28,9 +28,10 @@ Progress = Callable[[Plan, MaterialPoints], None]
 
 
 def run_stage(solver: StressControl, plan: Plan, history: History, stage: int, *, snapshot_interval: int = 0,
-              progress: Progress | None = None) -> np.ndarray:
-    """Run the increments of ``plan`` on ``solver.points``; returns per point 1 where the stage fell back
-    (an unconverged iterate taken, or, stopping on p, the stop not reached) under a non-strict policy.
+              progress: Progress | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Run the increments of ``plan`` on ``solver.points``; returns per point the increments where an
+    unconverged iterate was taken, and whether a stage that stops on p ended before reaching it (both under
+    a non-strict policy only; a strict one raises).
 
     Raises:
         ControlError: (strict policy) a stress-controlled increment or landing did not converge, or a stage
@@ -68,19 +69,19 @@ def run_stage(solver: StressControl, plan: Plan, history: History, stage: int, *
         if progress is not None:
             progress(plan, points)
         if plan.stop_at_p is not None and not moving.any():
-            return fallback
+            return fallback, moving
         if snapshot_interval and history.k % snapshot_interval == 0:
             history.snapshot(points, stage)
     if plan.stop_at_p is not None:
         if solver.policy.strict:
             raise ControlError(f"step {plan.label!r} ended at p = {float(points.mean(points.stress)[0]):.6g} "
                                f"{points.unit} before reaching {plan.stop_at_p:g} {points.unit}; allow more strain")
-        fallback += moving
-    return fallback
+        return fallback, moving
+    return fallback, np.zeros(points.n, dtype=bool)
 
 
 def run(solver: StressControl, stages: Iterable[Step | Plan], history: History, *, snapshot_interval: int = 0,
-        progress: Callable[[Plan], ContextManager[Progress]] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        progress: Callable[[Plan], ContextManager[Progress]] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Run ``stages`` in turn on ``solver.points`` from their present state; a ``Step`` of a programme
     becomes its ``Plan`` from the stresses at its start. A snapshot closes every stage.
 
@@ -93,20 +94,24 @@ def run(solver: StressControl, stages: Iterable[Step | Plan], history: History, 
             (e.g. a progress bar, closed at the stage's end).
 
     Returns:
-        The wall time of each stage [s], shape (n_stages,), and per point the fallbacks of ``run_stage``.
+        The wall time of each stage [s], shape (n_stages,), and per point the fallbacks of ``run_stage`` (summed)
+        and whether a stage that stops on p left it short of its stop.
     """
     points = solver.points
     stages = tuple(stages)
     seconds = np.zeros(len(stages))
     fallback = np.zeros(points.n, dtype=np.int64)
+    unreached = np.zeros(points.n, dtype=bool)
     for stage, item in enumerate(stages):
         start = time.perf_counter()
         if isinstance(item, Step) and item.dim != points.dim:
             raise ValueError(f"step {item.label!r} controls {item.dim} components; the cells are {points.dim}D")
         plan = Plan.from_step(item, points.stress, points.n_voigt) if isinstance(item, Step) else item
         with nullcontext() if progress is None else progress(plan) as callback:
-            fallback += run_stage(solver, plan, history, stage, snapshot_interval=snapshot_interval,
-                                  progress=callback)
+            missed, short = run_stage(solver, plan, history, stage, snapshot_interval=snapshot_interval,
+                                      progress=callback)
+        fallback += missed
+        unreached |= short
         history.snapshot(points, stage)
         seconds[stage] = time.perf_counter() - start
-    return seconds, fallback
+    return seconds, fallback, unreached
