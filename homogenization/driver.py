@@ -26,7 +26,7 @@ from __future__ import annotations
 import contextlib
 import warnings
 from dataclasses import replace
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 
@@ -102,6 +102,7 @@ def run(
     n_spins: int = N_SPINS,
     spin_period_deg: float | None = None,
     staggered_spins: bool = True,
+    before_stage: Mapping[int, Callable[[MaterialPoints], None]] | None = None,
 ) -> Record:
     """Run ``programme`` on ``n_orientations`` cells of ``cell_model`` and record the history.
 
@@ -123,6 +124,8 @@ def run(
             ``n_orientations`` and takes an isotropic fabric only; ``spin_period_deg`` None: the
             cell's own (``Mesostructure.spin_period_deg``); ``staggered_spins`` False: every axis
             has the same spins (``orientation3d.orientations_3d``, which says what that keeps).
+        before_stage: step index -> what to do to the material point before that step (e.g. erode its
+            cells: ``homogenization.sweep_case``); the run and its record go on from the changed state.
 
     Returns:
         The ``Record`` of the run.
@@ -147,7 +150,7 @@ def run(
     history = History(sum(s.n_increments for s in programme), 1, dim)
     try:
         step_seconds, _, _ = run_stages(solver, programme, history, snapshot_interval=snapshot_interval,
-                                     progress=lambda plan: _bar(plan, progress))
+                                     progress=lambda plan: _bar(plan, progress), before_stage=before_stage)
     except ControlError as exc:
         raise _diagnosed(exc, points, programme, mesostructure) from None
     k = history.k
@@ -166,7 +169,6 @@ def to_record(history: History, points: MaterialPoints, programme: Programme, st
     k, dim, orient = history.k, points.dim, points.material.orient
     rows = history.rows[:k, 0]
     V0 = float(points.material.V0[0])
-    snap_names = history.snaps[0].keys() if history.snaps else ()
     label_array = np.array([s.label for s in programme])
     if dim == 2:
         sigma11, sigma22 = rows[:, 2].copy(), rows[:, 3].copy()
@@ -196,7 +198,7 @@ def to_record(history: History, points: MaterialPoints, programme: Programme, st
         diagnostics={name: v[:k].copy() for name, v in history.diagnostics.items()},
         snapshot_increment=np.array(history.snap_k, dtype=np.int64),
         snapshot_stage=label_array[np.array(history.snap_stage, dtype=np.int64)],
-        snapshots={name: np.stack([s[name] for s in history.snaps]) for name in snap_names},
+        snapshots=_snapshots(history.snaps),
         theta_deg=theta_deg,
         weights=np.array(orient.weights),
         V0=V0,
@@ -207,3 +209,18 @@ def to_record(history: History, points: MaterialPoints, programme: Programme, st
         step_seconds=step_seconds,
         **spatial,
     )
+
+
+def _snapshots(snaps: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Per-cell observables of the snapshots, name -> shape (m, n_cells). Where the cells changed during the
+    run (an erosion) and so their observables, every name is float with NaN in the snapshots without it."""
+    names = list(dict.fromkeys(name for snap in snaps for name in snap))
+    if all(len(snap) == len(names) for snap in snaps):
+        return {name: np.stack([snap[name] for snap in snaps]) for name in names}
+    out = {}
+    for name in names:
+        like = next(snap[name] for snap in snaps if name in snap)
+        dtype = np.result_type(like, np.float64)
+        out[name] = np.stack([snap[name].astype(dtype) if name in snap else np.full(like.shape, np.nan)
+                              for snap in snaps])
+    return out

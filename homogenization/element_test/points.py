@@ -14,6 +14,7 @@ shape (n_points, n_voigt) [-]; stresses [N/m] (2D) or [Pa] (3D); compression pos
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 import numpy as np
@@ -116,6 +117,14 @@ class MaterialPoints:
         cells = self.model.state_from_arrays({k: np.where(cells_mask, new_arrays[k], old_arrays[k]) for k in old_arrays})
         return MaterialState(cells, np.where(mask, new.J, old.J), np.where(mask[:, None], new.strain, old.strain),
                              np.where(mask[:, None], new.stress, old.stress))
+
+    def replace_cells(self, cell_model: CellModel, cells: Any) -> None:
+        """Go on with other cells at every point (e.g. ``warp_hcell.dem.erosion.erode_state``'s reduced cells):
+        ``cell_model`` and its state ``cells`` of the same orientations; J, strain and stress stay, so the
+        macro volume V0 J carries on."""
+        self.material.model = self.model = cell_model
+        self.material.returns_tangent = "with_tangent" in inspect.signature(cell_model.step).parameters
+        self.state = MaterialState(cells, self.state.J, self.state.strain, self.state.stress)
 
     def axes(self) -> np.ndarray:
         """Each cell's axis n in the macro frame, shape (n_cells, dim)."""

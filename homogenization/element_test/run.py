@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from contextlib import nullcontext
-from typing import Callable, ContextManager, Iterable
+from typing import Callable, ContextManager, Iterable, Mapping
 
 import numpy as np
 
@@ -81,7 +81,9 @@ def run_stage(solver: StressControl, plan: Plan, history: History, stage: int, *
 
 
 def run(solver: StressControl, stages: Iterable[Step | Plan], history: History, *, snapshot_interval: int = 0,
-        progress: Callable[[Plan], ContextManager[Progress]] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        progress: Callable[[Plan], ContextManager[Progress]] | None = None,
+        before_stage: Mapping[int, Callable[[MaterialPoints], None]] | None = None,
+        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Run ``stages`` in turn on ``solver.points`` from their present state; a ``Step`` of a programme
     becomes its ``Plan`` from the stresses at its start. A snapshot closes every stage.
 
@@ -92,6 +94,8 @@ def run(solver: StressControl, stages: Iterable[Step | Plan], history: History, 
         snapshot_interval: also snapshot every this many increments (0: at stage ends only).
         progress: ``progress(plan)`` -> a context that gives the per-increment callback of that stage
             (e.g. a progress bar, closed at the stage's end).
+        before_stage: stage index -> what to do to the points before that stage (e.g. erode their cells,
+            ``MaterialPoints.replace_cells``); the run goes on from the changed state.
 
     Returns:
         The wall time of each stage [s], shape (n_stages,), and per point the fallbacks of ``run_stage`` (summed)
@@ -104,6 +108,8 @@ def run(solver: StressControl, stages: Iterable[Step | Plan], history: History, 
     unreached = np.zeros(points.n, dtype=bool)
     for stage, item in enumerate(stages):
         start = time.perf_counter()
+        if before_stage and stage in before_stage:
+            before_stage[stage](points)
         if isinstance(item, Step) and item.dim != points.dim:
             raise ValueError(f"step {item.label!r} controls {item.dim} components; the cells are {points.dim}D")
         plan = Plan.from_step(item, points.stress, points.n_voigt) if isinstance(item, Step) else item
