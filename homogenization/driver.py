@@ -65,7 +65,7 @@ def _bar(plan: Plan, progress: bool) -> contextlib.AbstractContextManager:
         total = None if plan.stop_at_p is not None else plan.n_increments
         with progress_bar(total=total, desc=plan.label, unit="incr", disable=not progress, leave=False) as shown:
             def advance(_plan: Plan, points: MaterialPoints) -> None:
-                if plan.stop_at_p is not None:
+                if plan.stop_at_p is not None and not shown.disable:
                     p = float(points.mean(points.stress)[0])
                     shown.set_postfix_str(f"p = {p / plan.stop_at_p:.1%} of {plan.stop_at_p:g} {points.unit}",
                                           refresh=False)

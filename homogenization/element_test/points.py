@@ -99,14 +99,13 @@ class MaterialPoints:
 
     def accept(self, update: MaterialUpdate, mask: np.ndarray | None = None) -> None:
         """Take the trial ``update`` for the points of ``mask`` (n,) (None: every point); the others keep theirs."""
-        if mask is not None and not mask.any():
-            return
+        peak = np.maximum(self.peak, np.abs(update.stress).max(axis=1))
         if mask is None or mask.all():
-            self.state = update.state
-            mask = np.ones(self.n, dtype=bool)
+            self.state, self.peak = update.state, peak
+        elif mask.any():
+            self.state, self.peak = self._merged(update.state, mask), np.where(mask, peak, self.peak)
         else:
-            self.state = self._merged(update.state, mask)
-        self.peak = np.where(mask, np.maximum(self.peak, np.abs(update.stress).max(axis=1)), self.peak)
+            return
         self.accepted_diagnostics = update.diagnostics
 
     def _merged(self, new: MaterialState, mask: np.ndarray) -> MaterialState:

@@ -138,14 +138,19 @@ class History:
         row[:, -1] = state.J
         self.iterations[k] = calls
         self.stage_index[k] = stage
-        totals = {f"{name}_all_calls": value for name, value in points.call_totals.items()}
-        control = {} if jump is None else {"stress_control_jump": float(np.any(jump))}
-        for name, value in (*points.accepted_diagnostics.items(), *totals.items(), *control.items()):
-            if name not in self.diagnostics:
-                self.diagnostics[name] = np.full(self.rows.shape[0], np.nan)
-            self.diagnostics[name][k] = value
+        for name, value in points.accepted_diagnostics.items():
+            self._diagnostic(name, k, value)
+        for name, value in points.call_totals.items():
+            self._diagnostic(f"{name}_all_calls", k, value)
+        if jump is not None:
+            self._diagnostic("stress_control_jump", k, float(np.any(jump)))
         points.call_totals = {}
         self.k = k + 1
+
+    def _diagnostic(self, name: str, k: int, value: float) -> None:
+        if name not in self.diagnostics:
+            self.diagnostics[name] = np.full(self.rows.shape[0], np.nan)
+        self.diagnostics[name][k] = value
 
     def snapshot(self, points: Any, stage: int) -> None:
         """Keep the per-cell observables of ``points`` now (once per increment; nothing unless ``observe``)."""

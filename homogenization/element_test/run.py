@@ -46,7 +46,7 @@ def run_stage(solver: StressControl, plan: Plan, history: History, stage: int, *
     d, tangent = plan.increment.copy(), None
     moving = np.ones(points.n, dtype=bool)
     for i in range(plan.n_increments):
-        where = f"step {plan.label!r}, increment {i + 1}"
+        where = _Where(plan.label, i + 1)
         jump = None
         if plan.idx.size:
             target = plan.target(i)
@@ -58,8 +58,10 @@ def run_stage(solver: StressControl, plan: Plan, history: History, stage: int, *
             calls = 1
             if plan.stop_at_p is not None:
                 crossing = moving & (points.mean(update.stress) >= plan.stop_at_p)
-                points.accept(update, moving & ~crossing)
-                if crossing.any():
+                if not crossing.any():
+                    points.accept(update, None if points.n == 1 else moving)
+                else:
+                    points.accept(update, moving & ~crossing)
                     extra, missed = solver.land_on_p(d, crossing, update, plan.stop_at_p, where)
                     calls, fallback = calls + extra, fallback + missed
                 moving &= ~crossing
@@ -78,6 +80,16 @@ def run_stage(solver: StressControl, plan: Plan, history: History, stage: int, *
                                f"{points.unit} before reaching {plan.stop_at_p:g} {points.unit}; allow more strain")
         return fallback, moving
     return fallback, np.zeros(points.n, dtype=bool)
+
+
+class _Where:
+    """``step 'label', increment i``, written only where an error names it."""
+
+    def __init__(self, label: str, increment: int) -> None:
+        self.label, self.increment = label, increment
+
+    def __format__(self, spec: str) -> str:
+        return f"step {self.label!r}, increment {self.increment}"
 
 
 def run(solver: StressControl, stages: Iterable[Step | Plan], history: History, *, snapshot_interval: int = 0,
