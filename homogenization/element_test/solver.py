@@ -138,7 +138,8 @@ class StressControl:
             d[:, idx] = solved
         return d
 
-    def land_on_p(self, d: np.ndarray, crossing: np.ndarray, over, p_stop: float, where: str) -> tuple[int, np.ndarray]:
+    def land_on_p(self, d: np.ndarray, crossing: np.ndarray, over, p_stop: float,
+                  where: object) -> tuple[int, np.ndarray]:
         """Shorten the increment ``d`` of the points of ``crossing``, whose trial ``over`` went past
         ``p_stop``, by lambda in (0, 1] so that p = ``p_stop`` (Illinois), and accept them.
 
@@ -176,11 +177,11 @@ class StressControl:
         return calls, todo.astype(np.int64)
 
     def solve(self, d: np.ndarray, plan: Plan, target: np.ndarray, tangent: np.ndarray | None,
-              where: str) -> Solved:
+              where: object) -> Solved:
         """Find the increments of the components ``plan.idx`` that give the controlled stresses ``target``
         (n, k) at every point, starting from the guess ``d`` (n, n_voigt; its strain-controlled components
         are the increment's), and accept each point's solution (module docstring). ``tangent``: the last
-        tangent of each point (None: none yet).
+        tangent of each point (None: none yet); ``where``: names the increment in an error.
 
         Raises:
             ControlError: (``STRICT``) a point did not converge, or its tangent is singular.
