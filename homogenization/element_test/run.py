@@ -1,4 +1,4 @@
-"""Run a loading programme on material points from their present state: ``run(points, plans, solver, history)``.
+"""Run a loading programme on material points from their present state: ``run(solver, stages, history)``.
 
 Each stage (``programme.Plan``) advances every point by its increments: strain-controlled components
 as given, stress-controlled ones solved by the stress-control solver (``solver.StressControl``), and a
