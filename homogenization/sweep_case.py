@@ -1,4 +1,4 @@
-"""One case of a sweep: its biaxial test, with the erosion restart where it asks for one, and its summary numbers.
+"""One case of a sweep: its biaxial test, with the removal of the fines where it asks for one, and its summary numbers.
 
 ``case_task`` is the task the workers of ``warp_hcell.core.execution`` run (``compute_case``:
 no file written); ``run_test`` runs the test on a cell model, one run that removes the fines
