@@ -25,7 +25,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from tangent_fd import fd_tangent, fd_tangent_fixed_schedule  # noqa: E402
+from tangent_fd import fd_tangent_fixed_schedule  # noqa: E402
+from warp_hcell.core.checks import central_difference_tangent  # noqa: E402
 
 from homogenization import driver, loading  # noqa: E402
 from homogenization.element_test.solver import StressControl  # noqa: E402
@@ -65,7 +66,7 @@ def tangent_probe(rate: float) -> None:
                                state.model.meso.pairs, before["shear_force"], kn=LAW.kn, kt=LAW.kt,
                                mu=LAW.mu).any(axis=1)
     h = 0.1 * rate
-    plain = column_errors(response.tangent, fd_tangent(dem, state, d_eps, h))
+    plain = column_errors(response.tangent, central_difference_tangent(dem, state, d_eps, h))
     held = column_errors(response.tangent, fd_tangent_fixed_schedule(dem, state, d_eps, h))
     lead = np.abs(d_eps).argmax(axis=1)
     print(f"condensed tangent vs central differences, {rate:g} strain per substep, h = {h:g}")
