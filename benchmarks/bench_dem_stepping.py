@@ -17,7 +17,7 @@ With --robustness (--robustness-only: nothing else), drained runs over alpha0, p
 increment (H-cell, 360 orientations) and of cells with a fine grain (``FINES``) count, per
 setting, how often the driver's stress control (``LoadingDefaults.stress_rtol``, or
 --stress-rtol) converges on the DEM's response, the step calls per shear increment, and how
-many increments it accepted at a jump of the response (``driver.solve_stress``).
+many increments it accepted at a jump of the response (``element_test.solver.StressControl.solve``).
 
 Then the acceptance rows: DEM (``DemSettings()`` defaults) and analytical wall times side by
 side, best of --repeats alternating runs each (the machine is shared: the load average is

@@ -25,9 +25,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from tangent_fd import fd_tangent, fd_tangent_fixed_schedule  # noqa: E402
+from tangent_fd import fd_tangent_fixed_schedule  # noqa: E402
+from warp_hcell.core.checks import central_difference_tangent  # noqa: E402
 
 from homogenization import driver, loading  # noqa: E402
+from homogenization.element_test.solver import StressControl  # noqa: E402
 from homogenization.backends import make_cell_model  # noqa: E402
 from warp_hcell.dem.cell import DemCell  # noqa: E402
 from warp_hcell.mesostructures.hcell import h_cell  # noqa: E402
@@ -64,7 +66,7 @@ def tangent_probe(rate: float) -> None:
                                state.model.meso.pairs, before["shear_force"], kn=LAW.kn, kt=LAW.kt,
                                mu=LAW.mu).any(axis=1)
     h = 0.1 * rate
-    plain = column_errors(response.tangent, fd_tangent(dem, state, d_eps, h))
+    plain = column_errors(response.tangent, central_difference_tangent(dem, state, d_eps, h))
     held = column_errors(response.tangent, fd_tangent_fixed_schedule(dem, state, d_eps, h))
     lead = np.abs(d_eps).argmax(axis=1)
     print(f"condensed tangent vs central differences, {rate:g} strain per substep, h = {h:g}")
@@ -78,34 +80,35 @@ def newton_contraction(orientations: int) -> None:
     """Residual ratios of the driver's stress-control iterations (drained shear)."""
     p0 = 2e5
     programme = loading.biaxial(p0, 0.05, 1e-3, iso_increment=1e-4, drained=True)
-    solve = driver._Runner.solve_stress
+    solve = StressControl.solve
     print(f"drained biaxial, alpha0 = 40 deg, p0 = {p0:g}, {orientations} orientations, increment 1e-3")
     for name, options in (("analytical", {}), ("dem", {}), ("dem, force tolerance 1e-10",
                                                          {"settings": DemSettings(force_tolerance=1e-10)})):
         histories: list[list[float]] = []
 
-        def recording(runner, d_eps, idx, target, where):
+        def recording(solver, d, plan, target, tangent, where):
             residuals: list[float] = []
-            trial = runner.trial
+            points = solver.points
+            trial = points.trial
 
-            def tracked(d, with_tangent=False):
-                update = trial(d, with_tangent=with_tangent)
-                residuals.append(float(np.abs(update.stress[0, idx] - target).max()) / p0)
+            def tracked(d_e, with_tangent=False):
+                update = trial(d_e, with_tangent=with_tangent)
+                residuals.append(float(np.abs(plan.controlled(update.stress) - target).max()) / p0)
                 return update
 
-            runner.trial = tracked
+            points.trial = tracked
             try:
-                return solve(runner, d_eps, idx, target, where)
+                return solve(solver, d, plan, target, tangent, where)
             finally:
-                del runner.trial
+                del points.trial
                 histories.append(residuals)
 
-        driver._Runner.solve_stress = recording
+        StressControl.solve = recording
         try:
             record = driver.run(make_cell_model(name.split(",")[0], **options), programme, mesostructure=h_cell(40.0),
                                 n_orientations=orientations, progress=False)
         finally:
-            driver._Runner.solve_stress = solve
+            StressControl.solve = solve
         shear = histories[-int((record.stage == "shear").sum()):]
         calls = np.array([len(h) for h in shear])
         ratios = np.array([h[k + 1] / h[k] for h in shear for k in range(len(h) - 1) if h[k] > 0])

@@ -46,6 +46,7 @@ as every 2D cell is on a constant-volume path. The averaging is the Love-Weber s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 
@@ -82,10 +83,16 @@ AXISYMMETRIC_MAP = np.array([[5.0, 0.5, 0.5], [-1.0, 3.5, 3.5], [-1.0, 3.5, 3.5]
 kinematics (module docstring)."""
 
 
+def kinematics_of(parameters: Mapping[str, float]) -> str:
+    """The kinematics (``KINEMATICS``) that a 3D cell's ``parameters`` declare (a mesostructure's, or the
+    ``cell_parameters`` a certificate recorded): "axisymmetric" where ``hcell.AXISYMMETRIC_KINEMATICS``
+    is nonzero (``hcell3d-axisym``), else "projected"."""
+    return "axisymmetric" if parameters.get(AXISYMMETRIC_KINEMATICS, 0.0) else "projected"
+
+
 def cell_kinematics(mesostructure: Mesostructure) -> str:
-    """The kinematics (``KINEMATICS``) a 3D mesostructure declares: "axisymmetric" where its parameter
-    ``hcell.AXISYMMETRIC_KINEMATICS`` is nonzero (``hcell3d-axisym``), else "projected"."""
-    return "axisymmetric" if mesostructure.parameters.get(AXISYMMETRIC_KINEMATICS, 0.0) else "projected"
+    """The kinematics (``KINEMATICS``) a 3D mesostructure declares (``kinematics_of`` its parameters)."""
+    return kinematics_of(mesostructure.parameters)
 
 
 @dataclass(frozen=True, eq=False)

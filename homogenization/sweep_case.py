@@ -1,15 +1,15 @@
-"""One case of a sweep: its biaxial test, with the erosion restart where it asks for one, and its summary numbers.
+"""One case of a sweep: its biaxial test, with the removal of the fines where it asks for one, and its summary numbers.
 
 ``case_task`` is the task the workers of ``warp_hcell.core.execution`` run (``compute_case``:
-no file written); ``run_test`` runs the test on a cell model, in two parts around the removal
-of the fines (``warp_hcell.dem.erosion``) when the case erodes; ``summarise`` gives the numbers
+no file written); ``run_test`` runs the test on a cell model, one run that removes the fines
+(``warp_hcell.dem.erosion``) from its cells between the first shear and the erosion step when
+the case erodes (the macro volume V0 J carries on); ``summarise`` gives the numbers
 of summary.csv (``homogenization.cli.sweep``). Stresses [N/m] and strains [-], compression
 positive.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from pathlib import Path
@@ -19,6 +19,7 @@ import numpy as np
 
 from homogenization import driver, figures, loading
 from homogenization.backends import make_cell_model
+from homogenization.element_test.points import MaterialPoints
 from homogenization.sweep_plan import Case
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.parameters import ContactLaw
@@ -31,68 +32,6 @@ SOFTENING_DROP = 0.01
 """Fall of q after a maximum, as a fraction of p0 [-], that makes it the first peak."""
 ERODE_STAGE, ERODED_STAGE = "erode", "eroded"
 """Stage labels of the zero-strain removal increment and of the shear after it."""
-class _ContinuedCell:
-    """A cell model that starts from a given state and scales V_cell so that V0 is a given volume.
-
-    The driver computes V0 from the areas of the initial state and J from the increments it
-    applies; a test continued after erosion keeps the V0 J of the first part this way (the
-    Love-Weber moments are untouched; observables report the true areas).
-    """
-
-    def __init__(self, inner: Any, state: Any, area_scale: float) -> None:
-        self.inner = inner
-        self.state = state
-        self.area_scale = float(area_scale)
-        self.name = inner.name
-
-    def init_state(self, mesostructure: Mesostructure, n_cells: int) -> Any:
-        if n_cells != self.state.n_cells:
-            raise ValueError(f"continued state has {self.state.n_cells} cells, asked for {n_cells}")
-        return self.state
-
-    def response(self, state: Any):
-        response = self.inner.response(state)
-        return dataclasses.replace(response, area=response.area * self.area_scale)
-
-    def step(self, state: Any, d_eps_local: np.ndarray, *, with_tangent: bool = False):
-        new, response = self.inner.step(state, d_eps_local, with_tangent=with_tangent)
-        return new, dataclasses.replace(response, area=response.area * self.area_scale)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
-
-
-def _join(first: driver.Record, second: driver.Record, programme: loading.Programme) -> driver.Record:
-    """One record of a test run in two parts (``second`` continues ``first``)."""
-    def cat(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return np.concatenate([a, b])
-
-    def cat_dict(a: dict, b: dict, n_a: int, n_b: int) -> dict:
-        out = {}
-        for name in dict.fromkeys([*a, *b]):
-            va = a[name] if name in a else np.full((n_a, *np.shape(b[name])[1:]), np.nan)
-            vb = b[name] if name in b else np.full((n_b, *np.shape(a[name])[1:]), np.nan)
-            out[name] = np.concatenate([np.asarray(va, dtype=np.result_type(va, np.float64)),
-                                        np.asarray(vb, dtype=np.result_type(vb, np.float64))])
-        return out
-
-    J1 = first.J[-1]
-    eps11 = cat(first.eps11, second.eps11 + first.eps11[-1])
-    eps22 = cat(first.eps22, second.eps22 + first.eps22[-1])
-    J = cat(first.J, second.J * J1)
-    return driver.Record(
-        stage=cat(first.stage, second.stage), eps11=eps11, eps22=eps22,
-        sigma11=cat(first.sigma11, second.sigma11), sigma22=cat(first.sigma22, second.sigma22),
-        sigma12=cat(first.sigma12, second.sigma12), p=cat(first.p, second.p), q=cat(first.q, second.q),
-        J=J, volume=first.V0 * J, newton_iterations=cat(first.newton_iterations, second.newton_iterations),
-        diagnostics=cat_dict(first.diagnostics, second.diagnostics, first.n_increments, second.n_increments),
-        snapshot_increment=cat(first.snapshot_increment, second.snapshot_increment + first.n_increments),
-        snapshot_stage=cat(first.snapshot_stage, second.snapshot_stage),
-        snapshots=cat_dict(first.snapshots, second.snapshots, first.snapshot_increment.size,
-                           second.snapshot_increment.size),
-        theta_deg=first.theta_deg, weights=first.weights, V0=first.V0, parameters=first.parameters,
-        backend=first.backend, programme=programme, final_state=second.final_state,
-        step_seconds=cat(first.step_seconds, second.step_seconds))
 
 
 def run_test(cell_model: Any, case: Case, meso: Mesostructure) -> driver.Record:
@@ -120,13 +59,12 @@ def run_test(cell_model: Any, case: Case, meso: Mesostructure) -> driver.Record:
              else loading.proportional_strain(0.0, 0.0, 1, label=ERODE_STAGE))
     after = (relax,
              shear_step(prm["eps_max"] - eps_before, shear.n_increments - n_before, ERODED_STAGE))
-    first = driver.run(cell_model, before, **common)
-    state = cell_model.state_from_arrays(first.final_state)
-    reduced, reduced_state, _ = erode_state(cell_model, state, [g - 1 for g in prm["eroded_grains"]])
-    volume_now = float(first.weights @ reduced.response(reduced_state).area)
-    continued = _ContinuedCell(reduced, reduced_state, first.V0 * first.J[-1] / volume_now)
-    second = driver.run(continued, after, **common)
-    return _join(first, second, before + after)
+
+    def erode(points: MaterialPoints) -> None:
+        reduced, cells, _ = erode_state(points.model, points.state.cells, [g - 1 for g in prm["eroded_grains"]])
+        points.replace_cells(reduced, cells)
+
+    return driver.run(cell_model, before + after, before_stage={len(before): erode}, **common)
 
 
 def summarise(record: driver.Record, p0: float) -> dict[str, float]:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from homogenization.calibration import forward
+from homogenization.element_test.points import MaterialPoints
 from homogenization.calibration.data import Measurement
 from homogenization.calibration.forward import ForwardSettings, simulate
 
@@ -19,13 +20,13 @@ SANE = [19.443, 3.7078e8, 0.858, 60.347]
 
 def run(monkeypatch, rows) -> tuple[forward.Curves, int]:
     calls = [0]
-    trial = forward._Population.trial
+    trial = MaterialPoints.trial
 
     def counted(self, *args, **kwargs):
         calls[0] += 1
         return trial(self, *args, **kwargs)
 
-    monkeypatch.setattr(forward._Population, "trial", counted)
+    monkeypatch.setattr(MaterialPoints, "trial", counted)
     test = Measurement("x.csv", Path("x.csv"), True, 2e5, np.linspace(0.002, 0.01, 5), {}, dim=3)
     with np.errstate(all="ignore"):
         curves = simulate(test, dict(zip(NAMES, np.array(rows, dtype=float).T)),

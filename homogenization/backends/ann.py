@@ -25,11 +25,12 @@ No equilibrium is solved and no closed form of a particular cell is used, unless
 first guess of up to K exact Newton steps on the balance of the free DOFs with the exact contact
 law (``training.fast_equilibrium3d``, ``training.equilibrium``), in the cells whose force ratio
 (largest unbalanced free-DOF force over the largest normal force) exceeds
-``equilibrium_tolerance`` (default: the DEM's ``force_tolerance``). That hybrid is another surrogate than the network alone: its diagnostics
-add ``n_corrected`` (cells corrected), ``n_corrections`` (Newton steps), ``n_unconverged``
-(cells still above the tolerance after them), ``force_ratio_network_max`` and
-``force_ratio_max`` (the largest force ratio before and after), and the model's certificate,
-measured on the network alone, does not cover it (``certificate_problem`` says so). Each ``step``
+``equilibrium_tolerance`` (default: the DEM's ``force_tolerance``). That hybrid is another
+surrogate than the network alone: its diagnostics add ``n_corrected`` (cells corrected),
+``n_corrections`` (Newton steps), ``n_unconverged`` (cells still above the tolerance after them),
+``force_ratio_network_max`` and ``force_ratio_max`` (the largest force ratio before and after),
+and the model's certificate, measured on the network alone, does not cover it
+(``certificate_problem`` says so). Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
 ``n_coulomb_capped`` (a trial tangential force exceeded mu f_n), ``n_tension_clipped`` (a
 contact carrying a normal force opened: no tension), ``n_mechanism`` (cells carrying no
@@ -79,7 +80,7 @@ import numpy as np
 import torch
 
 from homogenization import envelope
-from homogenization.orientation3d import cell_kinematics
+from homogenization.orientation3d import cell_kinematics, kinematics_of
 from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
@@ -306,13 +307,21 @@ class AnnCell(ArrayStateMixin):
         """Raise ``CheckpointError`` (one line) unless the model may start cells from ``meso``
         (``training.checkpoint.check_start_cell``: its database's mesostructure, or a cell of
         the same learning state within the range of the cells the database started from). A 3D cell whose
-        kinematics are not the projected ones (``orientation3d.cell_kinematics``) leaves the certificate,
-        whose tests drove the cells with the projected kinematics: ``certificate_problem`` says so."""
+        kinematics (``orientation3d.cell_kinematics``) are not those the certificate's tests drove their
+        cells with (``certified_kinematics``) leaves the certificate: ``certificate_problem`` says so."""
         check_start_cell(self.metadata, meso, source=str(self.model_path))
-        kinematics = cell_kinematics(meso) if meso.dim == 3 else "projected"
-        if kinematics != "projected" and self.certificate_problem is None:
-            self.certificate_problem = (f"{self.model_path}: its certificate drove the cells with the projected kinematics, "
-                                        f"{meso.name!r} declares the {kinematics} kinematics")
+        if meso.dim != 3 or self.certificate_problem is not None:
+            return
+        kinematics, certified = cell_kinematics(meso), self.certified_kinematics
+        if kinematics != certified:
+            self.certificate_problem = (f"{self.model_path}: its certificate drove the cells with the {certified} "
+                                        f"kinematics, {meso.name!r} declares the {kinematics} kinematics")
+
+    @property
+    def certified_kinematics(self) -> str:
+        """The kinematics (``orientation3d.KINEMATICS``) of the cells of the certificate's tests, read from the
+        cell parameters it recorded (``orientation3d.kinematics_of``; a certificate that records none: "projected")."""
+        return kinematics_of(self.envelope["cell_parameters"] if self.envelope is not None else {})
 
     # -- CellModel protocol ---------------------------------------------------------------
     def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> AnnState:

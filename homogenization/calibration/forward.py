@@ -6,8 +6,11 @@ and eps_v at the measured eps1 values. With the analytical backend the n sets ar
 ``HomogenisedMaterial`` (2D) or ``HomogenisedMaterial3D`` (triaxial tests) of n material
 points, each with its own cells (``AnalyticalCell.with_cell_laws`` /
 ``Analytical3DCell.with_cell_laws``: per-cell kn, kt/kn, phi_g and alpha0), so every increment
-is one batched ``step`` over n x (cells per point) cells. Other backends take one contact law
-per model: their sets run one after the other through ``homogenization.driver.run``.
+is one batched ``step`` over n x (cells per point) cells, run by the element-test engine
+(``homogenization.element_test``: the population's stages as plans, its one stress-control solver
+under the ``POPULATION`` policy). Other backends take one contact law per model: their sets run
+one after the other through ``homogenization.driver.run``. Both orient the cells as the driver
+does (``element_test.points.orientation_set``).
 
 Stages, per point, as in ``homogenization.loading.biaxial`` / ``loading.triaxial``: equal strain
 increments of ``iso_increment`` on every normal component until p reaches p0, the increment
@@ -24,18 +27,22 @@ eps1 and eps_v are counted from the end of the isotropic stage. 3D: q = sqrt(3 J
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
 
-from homogenization import driver, loading, orientation as orient_mod, orientation3d
+from homogenization import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell
 from homogenization.backends.analytical3d import Analytical3DCell
 from homogenization.calibration.data import Measurement
+from homogenization.element_test.points import MaterialPoints, material_points, orientation_set
+from homogenization.element_test.programme import Plan
+from homogenization.element_test.record import History
+from homogenization.element_test.run import run
+from homogenization.element_test.solver import POPULATION, StressControl
 from homogenization.invariants import deviator_3d, mean_stress_3d
-from homogenization.material import HomogenisedMaterial, HomogenisedMaterial3D, MaterialState
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, LoadingDefaults
 from warp_hcell.mesostructures.hcell import build_h_cell_3d, h_cell
 
@@ -136,185 +143,62 @@ def _sample(eps1_model: np.ndarray, values: np.ndarray, eps1: np.ndarray) -> np.
     return values[:, j] * (1.0 - w) + values[:, j + 1] * w
 
 
-class _Population:
-    """Material points of a population with per-point cells, in 2D (Voigt 11, 22, 12) or 3D
-    (11, 22, 33, 23, 13, 12); advances a subset of points at a time."""
+def _population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int) -> MaterialPoints:
+    """One material point per parameter set, each with its own cells (per-cell kn, kt/kn, phi_g and alpha0),
+    oriented as the driver orients the H-cell (``element_test.points.orientation_set``)."""
+    n = full["kn"].size
+    if dim == 2:
+        cell_class, meso = AnalyticalCell, h_cell(CellDefaults.alpha0_deg, settings.radius)
+    else:
+        cell_class, meso = Analytical3DCell, build_h_cell_3d(CellDefaults.alpha0_deg, radius=settings.radius)
+    orient = orientation_set(meso, n_orientations=settings.n_orientations, lebedev_order=settings.lebedev_order,
+                             n_spins=settings.n_spins, staggered_spins=settings.staggered_spins)
+    per_cell = {name: np.repeat(values, orient.n_cells) for name, values in full.items()}
+    model = cell_class.with_cell_laws(per_cell["kn"], per_cell["kt_over_kn"], per_cell["phi_g"], settings.radius,
+                                      alpha0_deg=per_cell["alpha0"])
+    return material_points(model, meso, n, orient)
 
-    def __init__(self, full: dict[str, np.ndarray], settings: ForwardSettings, dim: int) -> None:
-        n = full["kn"].size
-        if dim == 2:
-            orient = orient_mod.orientations(settings.n_orientations)
-            cell_class, material_class, meso = AnalyticalCell, HomogenisedMaterial, h_cell(CellDefaults.alpha0_deg,
-                                                                                           settings.radius)
-        else:
-            orient = orientation3d.orientations_3d(settings.lebedev_order, settings.n_spins,
-                                                   staggered=settings.staggered_spins)
-            cell_class, material_class = Analytical3DCell, HomogenisedMaterial3D
-            meso = build_h_cell_3d(CellDefaults.alpha0_deg, radius=settings.radius)
-        self.n_orientations = int(np.size(orient.weights))
-        per_cell = {name: np.repeat(values, self.n_orientations) for name, values in full.items()}
-        model = cell_class.with_cell_laws(per_cell["kn"], per_cell["kt_over_kn"], per_cell["phi_g"],
-                                          settings.radius, alpha0_deg=per_cell["alpha0"])
-        self.model = model
-        self.material = material_class(model, orient, meso, n)
-        self.state = self.material.init_state()
-        self.n = n
-        self.dim = dim
-        self.n_components = 3 if dim == 2 else 6
 
-    def p(self, stress: np.ndarray) -> np.ndarray:
-        """Mean normal stress of stresses (n, n_components) [N/m or Pa]."""
-        return stress[:, :self.dim].mean(axis=1)
-
-    def trial(self, d_e: np.ndarray, with_tangent: bool = False):
-        return self.material.update(self.state, d_e, with_tangent=with_tangent)
-
-    def accept(self, update, mask: np.ndarray) -> None:
-        """Take ``update`` for the points of ``mask`` (n,), keep the others."""
-        old, new = self.state, update.state
-        cells_mask = np.repeat(mask, self.n_orientations)
-        old_arrays = self.model.state_to_arrays(old.cells)
-        new_arrays = self.model.state_to_arrays(new.cells)
-        cells = self.model.state_from_arrays(
-            {k: np.where(cells_mask, new_arrays[k], old_arrays[k]) for k in old_arrays})
-        self.state = MaterialState(cells, np.where(mask, new.J, old.J), np.where(mask[:, None], new.strain, old.strain),
-                                   np.where(mask[:, None], new.stress, old.stress))
+def _stages(test: Measurement, settings: ForwardSettings, points: MaterialPoints) -> tuple[Plan, Plan]:
+    """The isotropic stage to p0 and the shear stage of ``test`` as plans of the population (module docstring)."""
+    n, dim, p0, inc = points.n, points.dim, test.p0, settings.increment
+    none, lateral = np.zeros(0, dtype=np.int64), np.arange(1, dim)
+    iso = np.zeros((n, points.n_voigt))
+    iso[:, :dim] = settings.iso_increment
+    n_iso = loading.n_increments_for(loading.ISO_MAX_STRAIN, settings.iso_increment)
+    isotropic = Plan("iso", n_iso, iso, none, np.zeros((n, 0)), np.zeros((n, 0)), stop_at_p=p0)
+    shear = np.zeros((n, points.n_voigt))
+    shear[:, 0] = inc
+    if test.drained:
+        shear[:, lateral] = -inc / lateral.size
+        held = np.full((n, lateral.size), p0)
+        return isotropic, Plan("shear", _n_shear(test, settings), shear, lateral, held, held, held=True)
+    shear[:, lateral] = -inc if dim == 2 else 1.0 - 1.0 / math.sqrt(1.0 - inc)  # loading.isochoric
+    return isotropic, Plan("shear", _n_shear(test, settings), shear, none, np.zeros((n, 0)), np.zeros((n, 0)))
 
 
 def _simulate_batched(test: Measurement, full: dict[str, np.ndarray], settings: ForwardSettings) -> Curves:
-    pop = _Population(full, settings, test.dim)
-    n = pop.n
-    p0, rtol = test.p0, settings.stress_rtol
-    fallback = np.zeros(n, dtype=np.int64)
-    # isotropic stage
-    iso = settings.iso_increment
-    d_iso = np.zeros((n, pop.n_components))
-    d_iso[:, :pop.dim] = iso
-    active = np.ones(n, dtype=bool)
-    for _ in range(loading.n_increments_for(loading.ISO_MAX_STRAIN, iso)):
-        update = pop.trial(d_iso)
-        p_new = pop.p(update.stress)
-        crossing = active & (p_new >= p0)
-        pop.accept(update, active & ~crossing)
-        if crossing.any():
-            fallback += _land(pop, crossing, d_iso, update, p0, rtol, settings.max_newton)
-        active &= ~crossing
-        if not active.any():
-            break
-    failed = active
-    strain0 = pop.state.strain.copy()
-    n_shear = _n_shear(test, settings)
-    inc = settings.increment
-    rows = np.empty((n_shear + 1, 3, n))  # q, p, eps_v
-    rows[0] = _row(pop.state, strain0)
-    tangent = None
-    undrained = np.zeros((n, pop.n_components))
-    undrained[:, 0] = inc
-    undrained[:, 1:pop.dim] = -inc if pop.dim == 2 else 1.0 - 1.0 / math.sqrt(1.0 - inc)  # loading.isochoric
-    for k in range(n_shear):
-        if test.drained:
-            tangent, fails = _drained_increment(pop, inc, p0, rtol, settings.max_newton, tangent)
-            fallback += fails
-        else:
-            pop.accept(pop.trial(undrained), np.ones(n, dtype=bool))
-        rows[k + 1] = _row(pop.state, strain0)
-    eps1_model = inc * np.arange(n_shear + 1)
+    points = _population(full, settings, test.dim)
+    stages = _stages(test, settings, points)
+    history = History(sum(plan.n_increments for plan in stages), points.n, points.dim, observe=False)
+    solver = StressControl(points, replace(POPULATION, rtol=settings.stress_rtol, max_iterations=settings.max_newton))
+    _, fallback, failed = run(solver, stages, history)
+    shear = history.stage_index[:history.k] == 1
+    start = int(np.flatnonzero(shear)[0]) - 1
+    rows = np.stack([_row(history.rows[k], history.rows[start], points.dim) for k in range(start, history.k)])
     rows[:, :, failed] = np.nan
+    eps1_model = settings.increment * np.arange(rows.shape[0])
     q, p, eps_v = (_sample(eps1_model, rows[:, i].T, test.eps1) for i in range(3))
     return Curves(q, p, eps_v, fallback)
 
 
-def _row(state: MaterialState, strain0: np.ndarray) -> np.ndarray:
-    """q, p, eps_v of every point, shape (3, n)."""
-    s = state.stress
-    eps = state.strain - strain0
-    if s.shape[1] == 3:
+def _row(row: np.ndarray, start: np.ndarray, dim: int) -> np.ndarray:
+    """q, p, eps_v of every point of a history row (n, dim + n_stress + 1), strains counted from ``start``, shape (3, n)."""
+    eps = row[:, :dim] - start[:, :dim]
+    s = row[:, dim:-1]
+    if dim == 2:
         return np.stack([s[:, 0] - s[:, 1], 0.5 * (s[:, 0] + s[:, 1]), eps[:, 0] + eps[:, 1]])
-    return np.stack([deviator_3d(*s.T), mean_stress_3d(s[:, 0], s[:, 1], s[:, 2]), eps[:, :3].sum(axis=1)])
-
-
-def _land(pop: _Population, crossing: np.ndarray, d_iso: np.ndarray, over, p0: float, rtol: float,
-          max_iterations: int) -> np.ndarray:
-    """Shorten the crossing increment of the points of ``crossing`` so that p = p0 (Illinois).
-
-    ``over`` is the trial update of the whole increment ``d_iso`` (n, 3). Returns, per point, 1
-    where the tolerance was not met (the last iterate is taken), else 0."""
-    p_old = pop.p(pop.state.stress)
-    p_over = pop.p(over.stress)
-    lo, f_lo = np.zeros(pop.n), p_old - p0
-    hi, f_hi = np.ones(pop.n), p_over - p0
-    side = np.zeros(pop.n)
-    todo = crossing & (p_over - p0 > rtol * p0)
-    pop.accept(over, crossing & ~todo)
-    for _ in range(max_iterations):
-        if not todo.any():
-            return np.zeros(pop.n, dtype=np.int64)
-        lam = np.where(todo, (lo * f_hi - hi * f_lo) / np.where(todo, f_hi - f_lo, 1.0), 1.0)
-        update = pop.trial(d_iso * lam[:, None])
-        f = pop.p(update.stress) - p0
-        done = todo & (np.abs(f) <= rtol * p0)
-        pop.accept(update, done)
-        above = todo & ~done & (f > 0.0)
-        below = todo & ~done & (f <= 0.0)
-        f_lo = np.where(above & (side == 1), 0.5 * f_lo, f_lo)
-        f_hi = np.where(below & (side == -1), 0.5 * f_hi, f_hi)
-        hi, f_hi = np.where(above, lam, hi), np.where(above, f, f_hi)
-        lo, f_lo = np.where(below, lam, lo), np.where(below, f, f_lo)
-        side = np.where(above, 1.0, np.where(below, -1.0, side))
-        todo &= ~done
-    pop.accept(update, todo)
-    return todo.astype(np.int64)
-
-
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """x of a x = b per point, a (n, k, k), b (n, k), k = 1 or 2, by Cramer's rule: a singular a
-    gives inf or NaN (that point's Newton then fails its tolerance) rather than an exception."""
-    if a.shape[1] == 1:
-        return b / a[:, :, 0]
-    det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
-    return np.stack([b[:, 0] * a[:, 1, 1] - b[:, 1] * a[:, 0, 1], a[:, 0, 0] * b[:, 1] - a[:, 1, 0] * b[:, 0]],
-                    axis=1) / det[:, None]
-
-
-def _drained_increment(pop: _Population, inc: float, p0: float, rtol: float, max_iterations: int,
-                       tangent: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """One drained increment of every point: d_eps11 = inc, the k = dim - 1 lateral strain
-    increments by Newton on sigma_lateral = p0 (sigma22; 3D: sigma22 and sigma33).
-
-    Returns the last tangent d sigma_lateral / d(d_eps11, d_eps_lateral) of each point, shape
-    (n, k, 1 + k), and 1 where Newton did not meet the tolerance (the last iterate is taken).
-    A point whose residual is not finite (its iteration overflowed, or its state is NaN from an
-    earlier increment) stops iterating at once and takes that iterate: every later iterate
-    would be NaN too, so its curve is the same, without max_iterations population updates per
-    increment for the rest of the stage."""
-    n, lat = pop.n, np.arange(1, pop.dim)
-    k = lat.size
-    columns = np.concatenate([[0], lat])
-    d = np.zeros((n, pop.n_components))
-    d[:, 0] = inc
-    if tangent is None:
-        d[:, lat] = -inc / k
-    else:
-        d[:, lat] = _solve(tangent[:, :, 1:], p0 - pop.state.stress[:, lat] - tangent[:, :, 0] * inc)
-    todo = np.ones(n, dtype=bool)
-    gave_up = np.zeros(n, dtype=bool)
-    tangent = np.zeros((n, k, 1 + k)) if tangent is None else tangent.copy()
-    for _ in range(max_iterations):
-        update = pop.trial(d, with_tangent=True)
-        r = update.stress[:, lat] - p0
-        tangent = np.where(todo[:, None, None], update.tangent[:, lat][:, :, columns], tangent)
-        done = todo & np.all(np.abs(r) <= rtol * p0, axis=1)
-        lost = todo & ~np.all(np.isfinite(r), axis=1)
-        pop.accept(update, done | lost)
-        gave_up |= lost
-        todo &= ~(done | lost)
-        if not todo.any():
-            return tangent, gave_up.astype(np.int64)
-        identity = np.broadcast_to(np.eye(k), tangent[:, :, 1:].shape)
-        step = _solve(np.where(todo[:, None, None], tangent[:, :, 1:], identity), r)
-        d[:, lat] = np.where(todo[:, None], d[:, lat] - step, d[:, lat])
-    pop.accept(update, todo)
-    return tangent, (todo | gave_up).astype(np.int64)
+    return np.stack([deviator_3d(*s.T), mean_stress_3d(s[:, 0], s[:, 1], s[:, 2]), eps.sum(axis=1)])
 
 
 def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], settings: ForwardSettings) -> Curves:

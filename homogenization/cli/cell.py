@@ -8,7 +8,9 @@ PATH.csv: a header line ``d_eps_n,d_eps_t`` then one row per increment: the loca
 increments along the cell axis n and the lateral direction t [-], compression positive
 (l1 <- l1 (1 - d_eps_n), l2 <- l2 (1 - d_eps_t)). A 3D cell (e.g. ``--mesostructure
 hcell3d:alpha0=55``, the ten-sphere H-cell) takes the header ``d_eps_n,d_eps_t1,d_eps_t2``, the
-increments along n and the two lateral axes t1, t2 (l3 <- l3 (1 - d_eps_t2)).
+increments along n and the two lateral axes t1, t2 (l3 <- l3 (1 - d_eps_t2)), as given for every
+3D kind: the axisymmetric kinematics of ``hcell3d-axisym`` map a macro strain to the cell's axes
+(``homogenization.orientation3d``) and play no part here.
 
 OUT.csv: header ``l1,l2,alpha_deg,d1,d2,N1,N2,T1,S_nn,S_tt`` (with ``--positions`` followed
 by the grain centres ``x_n1,x_t1,...,x_n6,x_t6`` [m], local frame, cell centre at the

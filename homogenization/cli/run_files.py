@@ -162,9 +162,10 @@ def check_replaceable(out: Path, figure_file: str, *extra_files: str) -> None:
 
 def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, Any]:
     """Backend settings worth recording: DEM settings and threads; the ANN's model path and
-    sha256, its certificate (worst figure, certified, the problem where not; a model run with
-    equilibrium corrections records their number and is not covered by a certificate of the network
-    alone) and its out-of-distribution counts (cell-increments checked and outside the threshold)."""
+    sha256, its certificate (worst figure, certified, the problem where not: of the file, or of the
+    run's cells, ``AnnCell.certificate_problem``; a model run with equilibrium corrections records
+    their number and tolerance, and no certificate of the network alone covers it) and its
+    out-of-distribution counts (cell-increments checked and outside the threshold)."""
     record: dict[str, Any] = {}
     if hasattr(model, "settings"):
         record["dem_settings"] = asdict(model.settings)
@@ -174,11 +175,11 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
         from homogenization.backends.ann import model_record  # noqa: PLC0415
 
         record["ann_model"] = model_record(getattr(model, "model_path", None) or options.get("model"), model.metadata)
+        if model.certificate_problem is not None:  # also the run's own cells, e.g. kinematics the certificate did not drive
+            record["ann_model"].update(certified=False, certificate_problem=model.certificate_problem)
         corrections = getattr(model, "equilibrium_corrections", 0)
         if corrections:
-            record["ann_model"].update(equilibrium_corrections=corrections, equilibrium_tolerance=model.force_tolerance,
-                                       certified=False,
-                                       certificate_problem=model.certificate_problem)
+            record["ann_model"].update(equilibrium_corrections=corrections, equilibrium_tolerance=model.force_tolerance)
         if model.ood is not None:
             record["ann_model"]["ood"] = {"checked": int(model.ood_counts[1]), "outside": int(model.ood_counts[0]),
                                           "threshold": model.ood.threshold}

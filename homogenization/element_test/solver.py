@@ -1,0 +1,303 @@
+"""The stress-control solver of the element test, batched over material points (and so over parameter sets).
+
+``StressControl(points, policy)`` solves, for n material points at once, the strain increments of the
+stress-controlled components of an increment (``solve``: Newton on the material's consistent
+tangent) and the scale of a strain increment that lands p on a stop value (``land_on_p``: Illinois).
+Every trial is one batched ``step`` from the saved state (steps are pure); a point is accepted as
+soon as it meets its tolerance, the others iterate on, so a point's result does not depend on its
+batch. Convergence: every controlled stress within ``rtol`` times its |target| (times the largest
+|sigma| the point has carried where the target is zero); a landing within ``rtol`` times the stop.
+
+``Policy`` says how the iterations spend step calls and what a failure does:
+
+- ``STRICT`` (a recorded run, ``homogenization.driver``): the first trial of an increment reuses the
+  last tangent (a DEM tangent costs ~10 step calls), later ones compute their own; with several
+  controlled components of a 3D step, trials between fresh tangents take Broyden's rank-one update
+  (a fresh one only where the last trial did not halve the residual); with one controlled component
+  the Newton step is safeguarded by bisection once two trials bracket the target, and where the
+  response jumps across the target (within ``JUMP_WIDTH`` of the increment) the nearer side is
+  accepted and flagged; linear systems by LAPACK; a point that does not converge raises ``ControlError``.
+- ``POPULATION`` (a calibration's parameter sets, ``homogenization.calibration.forward``): a fresh
+  tangent every trial, systems of one or two components by Cramer's rule (a singular tangent gives a
+  non-finite step instead of an exception), and a point that does not converge in ``max_iterations``
+  trials, or whose residual is not finite, takes its last iterate and is counted (``fallback``).
+
+Increments are Voigt rows (n, n_voigt) [-]; stresses [N/m] (2D) or [Pa] (3D); compression positive.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from homogenization.element_test.points import MaterialPoints
+from homogenization.element_test.programme import Plan
+from warp_hcell.core.parameters import LoadingDefaults
+
+JUMP_WIDTH = 1e-6
+"""Bracket width, as a fraction of the increment, below which stress control takes the
+response for discontinuous at the target (``StressControl.solve``) [-]: the residual still
+above the tolerance there means a slope ~1e6 times the material's own (about 20 bisections)."""
+
+
+class ControlError(RuntimeError):
+    """A stress-controlled increment did not converge (e.g. the material cannot carry the target)."""
+
+
+@dataclass(frozen=True)
+class Policy:
+    """How stress control iterates (module docstring).
+
+    Attributes:
+        rtol: relative tolerance of controlled stresses and of a landing on p [-].
+        max_iterations: trials allowed per increment (per landing).
+        strict: raise ``ControlError`` where a point does not converge; else take its last iterate and count it.
+        reuse_tangent: the first trial of an increment reuses the last tangent instead of computing one.
+        secant: Broyden updates between fresh tangents where a 3D step controls several components.
+        bracket: bisection safeguard and jump detection where one component is controlled.
+        cramer: linear systems by Cramer's rule (non-finite where singular) instead of LAPACK.
+    """
+
+    rtol: float = LoadingDefaults.stress_rtol
+    max_iterations: int = LoadingDefaults.max_newton_iterations
+    strict: bool = True
+    reuse_tangent: bool = True
+    secant: bool = True
+    bracket: bool = True
+    cramer: bool = False
+
+
+STRICT = Policy()
+"""The policy of a recorded run (``homogenization.driver.run``)."""
+POPULATION = Policy(strict=False, reuse_tangent=False, secant=False, bracket=False, cramer=True)
+"""The policy of a calibration's population of parameter sets."""
+
+
+def cramer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """x of a x = b per point, a (n, k, k), b (n, k), k = 1 or 2, by Cramer's rule: a singular a gives inf or
+    NaN rather than an exception."""
+    if a.shape[1] == 1:
+        return b / a[:, :, 0]
+    det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+    return np.stack([b[:, 0] * a[:, 1, 1] - b[:, 1] * a[:, 0, 1], a[:, 0, 0] * b[:, 1] - a[:, 1, 0] * b[:, 0]],
+                    axis=1) / det[:, None]
+
+
+@dataclass
+class Solved:
+    """What ``StressControl.solve`` leaves besides the accepted points.
+
+    Attributes:
+        increment: each point's accepted increment (n, n_voigt) [-], the next increment's first guess.
+        calls: trials (batched step calls) spent.
+        jump: per point, whether the nearer side of a response jump was accepted, shape (n,).
+        fallback: per point, 1 where the last iterate was taken unconverged (``POPULATION``), shape (n,).
+        tangent: the last tangent of each point (n, m, n_voigt), for the next increment's predictor.
+    """
+
+    increment: np.ndarray
+    calls: int
+    jump: np.ndarray
+    fallback: np.ndarray
+    tangent: np.ndarray | None
+
+
+class StressControl:
+    """The stress-control solver of ``points`` under ``policy`` (module docstring)."""
+
+    def __init__(self, points: MaterialPoints, policy: Policy = STRICT) -> None:
+        self.points = points
+        self.policy = policy
+
+    def with_policy(self, **changes: object) -> StressControl:
+        """This solver with some of its policy's fields changed."""
+        return StressControl(self.points, replace(self.policy, **changes))
+
+    def _linear(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """x of a x = b per point (a (n, k, k), b (n, k)); None where LAPACK finds a singular a."""
+        if self.policy.cramer:
+            return cramer(a, b)
+        try:
+            return np.linalg.solve(a, b[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            return None
+
+    def predict(self, d: np.ndarray, plan: Plan, target: np.ndarray, tangent: np.ndarray | None) -> np.ndarray:
+        """First guess of the stress-controlled increments: sigma + D d = target on ``plan.idx``, D the last
+        tangent (``d`` unchanged without one, or where D is singular)."""
+        d = d.copy()
+        if tangent is None:
+            return d
+        idx = plan.idx
+        T = plan.controlled_tangent(tangent)
+        ctrl = np.setdiff1d(np.arange(self.points.dim), idx)
+        known = np.einsum("pkc,pc->pk", T[:, idx][:, :, ctrl], d[:, ctrl])
+        solved = self._linear(T[:, idx][:, :, idx], target - plan.controlled(self.points.stress) - known)
+        if solved is not None:
+            d[:, idx] = solved
+        return d
+
+    def land_on_p(self, d: np.ndarray, crossing: np.ndarray, over, p_stop: float,
+                  where: object) -> tuple[int, np.ndarray]:
+        """Shorten the increment ``d`` of the points of ``crossing``, whose trial ``over`` went past
+        ``p_stop``, by lambda in (0, 1] so that p = ``p_stop`` (Illinois), and accept them.
+
+        Returns the trials spent and, per point, 1 where the tolerance was not met (``POPULATION``: the last
+        iterate is taken)."""
+        points, rtol = self.points, self.policy.rtol
+        p_over = points.mean(over.stress)
+        lo, f_lo = np.zeros(points.n), points.mean(points.stress) - p_stop
+        hi, f_hi = np.ones(points.n), p_over - p_stop
+        side = np.zeros(points.n)
+        todo = crossing & (p_over - p_stop > rtol * p_stop)
+        points.accept(over, crossing & ~todo)
+        calls = 0
+        for _ in range(self.policy.max_iterations):
+            if not todo.any():
+                return calls, np.zeros(points.n, dtype=np.int64)
+            lam = np.where(todo, (lo * f_hi - hi * f_lo) / np.where(todo, f_hi - f_lo, 1.0), 1.0)
+            update = points.trial(d * lam[:, None])
+            calls += 1
+            f = points.mean(update.stress) - p_stop
+            done = todo & (np.abs(f) <= rtol * p_stop)
+            points.accept(update, done)
+            above = todo & ~done & (f > 0.0)
+            below = todo & ~done & (f <= 0.0)
+            f_lo = np.where(above & (side == 1), 0.5 * f_lo, f_lo)
+            f_hi = np.where(below & (side == -1), 0.5 * f_hi, f_hi)
+            hi, f_hi = np.where(above, lam, hi), np.where(above, f, f_hi)
+            lo, f_lo = np.where(below, lam, lo), np.where(below, f, f_lo)
+            side = np.where(above, 1.0, np.where(below, -1.0, side))
+            todo &= ~done
+        if todo.any() and self.policy.strict:
+            raise ControlError(f"{where}: could not land p on {p_stop:g} {points.unit} in "
+                               f"{self.policy.max_iterations} step calls")
+        points.accept(update, todo)
+        return calls, todo.astype(np.int64)
+
+    def solve(self, d: np.ndarray, plan: Plan, target: np.ndarray, tangent: np.ndarray | None,
+              where: object) -> Solved:
+        """Find the increments of the components ``plan.idx`` that give the controlled stresses ``target``
+        (n, k) at every point, starting from the guess ``d`` (n, n_voigt; its strain-controlled components
+        are the increment's), and accept each point's solution (module docstring). ``tangent``: the last
+        tangent of each point (None: none yet); ``where``: names the increment in an error.
+
+        Raises:
+            ControlError: (``STRICT``) a point did not converge, or its tangent is singular.
+        """
+        points, policy, idx = self.points, self.policy, plan.idx
+        n = points.n
+        d = d.copy()
+        scale = np.abs(target)
+        tol = policy.rtol * np.where(scale > 0.0, scale, points.peak[:, None])
+        secant = policy.secant and points.dim == 3 and idx.size > 1
+        bracket = _Bracket(n, d, points.dim, int(idx[0])) if policy.bracket and idx.size == 1 else None
+        T = None if tangent is None else tangent.copy()
+        fresh = T is None or not policy.reuse_tangent
+        previous = (np.zeros_like(d), plan.controlled(points.stress))
+        todo = np.ones(n, dtype=bool)
+        jump, fallback = np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64)
+        last = np.full(n, np.inf)
+        calls = 0
+        while True:
+            update = points.trial(d, with_tangent=fresh)
+            calls += 1
+            g = plan.controlled(update.stress)
+            if update.tangent is not None:
+                T = update.tangent.copy() if T is None else np.where(todo[:, None, None], update.tangent, T)
+            elif secant:
+                _broyden(T, plan, d - previous[0], g - previous[1], todo)
+            r = g - target
+            done = todo & np.all(np.abs(r) <= tol, axis=1)
+            lost = todo & ~np.all(np.isfinite(r), axis=1) if not policy.strict else np.zeros(n, dtype=bool)
+            points.accept(update, done | lost)
+            fallback += lost
+            todo &= ~(done | lost)
+            if not todo.any():
+                return Solved(d, calls, jump, fallback, T)
+            step = self._linear(np.where(todo[:, None, None], plan.controlled_tangent(T)[:, idx][:, :, idx],
+                                         np.eye(idx.size)), r)
+            newton = None
+            if bracket is not None:
+                newton = bracket.update(d, r, step, update, todo, last, calls)
+                jumped = bracket.jumped
+                for trial, trial_d, mask in bracket.nearer_trials(jumped):
+                    points.accept(trial, mask)
+                    d[mask] = trial_d[mask]
+                jump |= jumped
+                todo &= ~jumped
+                if not todo.any():
+                    return Solved(d, calls, jump, fallback, T)
+            residual = np.abs(r).max(axis=1)
+            if calls >= policy.max_iterations:
+                if policy.strict:
+                    raise ControlError(f"{where}: stress control did not converge in {calls} step calls (residual "
+                                       f"{float(residual[todo].max()):.3g} {points.unit}, tolerance "
+                                       f"{float(tol[todo].min()):.3g} {points.unit})")
+                points.accept(update, todo)
+                return Solved(d, calls, jump, fallback + todo, T)
+            fresh = (update.tangent is None and bool(np.any(residual[todo] > 0.5 * last[todo]))) if secant else True
+            last = np.where(todo, residual, last)
+            previous = (d.copy(), g)
+            if newton is not None and np.all(np.isfinite(newton[todo])):
+                d[:, idx[0]] = np.where(todo, newton, d[:, idx[0]])
+            elif step is None:
+                raise ControlError(f"{where}: the material has no stiffness against the controlled stress "
+                                   f"(singular tangent)")
+            else:
+                d[:, idx] = np.where(todo[:, None], d[:, idx] - step, d[:, idx])
+
+
+def _broyden(T: np.ndarray, plan: Plan, dx: np.ndarray, dg: np.ndarray, todo: np.ndarray) -> None:
+    """Broyden's rank-one update, in place, of the rows ``plan.idx`` of the tangents ``T`` of the points of
+    ``todo``, from a step ``dx`` (n, n_voigt) that changed the controlled stresses by ``dg`` (n, k)."""
+    idx = plan.idx
+    Tc = plan.controlled_tangent(T)[:, idx]
+    for p in np.flatnonzero(todo):
+        T[p, idx] += np.outer(dg[p] - Tc[p] @ dx[p], dx[p]) / float(dx[p] @ dx[p])
+
+
+class _Bracket:
+    """The bisection safeguard of one controlled component, per point (``StressControl.solve``): the last
+    trials below and above the target, and the trials themselves, for accepting the nearer side of a jump."""
+
+    def __init__(self, n: int, d: np.ndarray, dim: int, column: int) -> None:
+        self.column = column
+        """The controlled component."""
+        self.size = np.abs(d[:, :dim]).max(axis=1)
+        self.x = np.full((2, n), np.nan)
+        """Increments of the last trial below (row 0) and above (row 1) the target, per point."""
+        self.res = np.full((2, n), np.nan)
+        self.trial = np.full((2, n), -1, dtype=np.int64)
+        self.trials: list = []
+        self.jumped = np.zeros(n, dtype=bool)
+
+    def update(self, d: np.ndarray, r: np.ndarray, step: np.ndarray | None, update, todo: np.ndarray,
+               last: np.ndarray, calls: int) -> np.ndarray:
+        """Record the trial (increments ``d``, residuals ``r`` (n, 1)) and return the next increment of the
+        component per point: Newton's, or the bracket's midpoint where Newton leaves the bracket or the
+        last trial did not halve the residual; sets ``jumped`` where the bracket is narrower than ``JUMP_WIDTH``."""
+        x, res = d[:, self.column], r[:, 0]
+        self.trials.append((update, d.copy()))
+        side = np.where(res < 0.0, 0, 1)
+        for s in (0, 1):
+            mark = todo & (side == s)
+            self.x[s] = np.where(mark, x, self.x[s])
+            self.res[s] = np.where(mark, res, self.res[s])
+            self.trial[s] = np.where(mark, calls - 1, self.trial[s])
+        newton = np.full(x.shape, np.nan) if step is None else x - step[:, 0]
+        newton = np.where(np.isfinite(newton), newton, np.nan)
+        both = todo & (self.trial >= 0).all(axis=0)
+        lo, hi = np.minimum(self.x[0], self.x[1]), np.maximum(self.x[0], self.x[1])
+        width = JUMP_WIDTH * np.maximum(np.maximum(self.size, np.abs(lo)), np.abs(hi))
+        self.jumped = both & (hi - lo <= width)
+        outside = np.isnan(newton) | ~((lo < newton) & (newton < hi)) | (np.abs(res) > 0.5 * last)
+        return np.where(both & ~self.jumped & outside, 0.5 * (lo + hi), newton)
+
+    def nearer_trials(self, jumped: np.ndarray):
+        """(trial update, its increments, mask) of the side nearer the target of every point of ``jumped``."""
+        side = np.where(np.abs(self.res[0]) <= np.abs(self.res[1]), 0, 1)
+        chosen = np.where(side == 0, self.trial[0], self.trial[1])
+        for t in np.unique(chosen[jumped]):
+            yield (*self.trials[t], jumped & (chosen == t))
