@@ -10,6 +10,7 @@ of 1e-8 m); corrected compiled and torch steps within 3.6e-15 of the largest mom
 4.9e-9 of the largest entry (steps of 1e-7). The tolerances are about 5 times these.
 """
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -126,6 +127,32 @@ def test_corrections_bring_every_cell_to_the_dem_tolerance_and_are_counted(shear
     none, (_, none_steps) = corrected(FastAdvance(cell.net, 3, 1e-6), np.zeros_like(d_eps))
     assert np.array_equal(none_steps, np.zeros(d_eps.shape[0], dtype=np.int64))  # a zero increment stays a no-op
     assert np.array_equal(none.free_position, np.asarray(state.free_position))
+
+
+OTHER_CPUS = {"SSE2 vectors, software FMA": "generic", "AVX vectors without FMA hardware": "sandybridge"}
+"""``NUMBA_CPU_NAME`` of another CPU, emulated on this one: the corrected increment must not change a bit."""
+
+
+@needs_model
+def test_a_cells_corrected_increment_is_bit_identical_in_any_batch_and_on_other_cpus(sheared, tmp_path):
+    cell, _, state, d_eps = sheared
+    d_eps = d_eps * (1.0 + 0.3 * np.random.default_rng(2).standard_normal((d_eps.shape[0], 1)))
+    fast = FastAdvance(cell.net, 2, 1e-6)
+    whole = {**fast(*state, d_eps)._asdict(), **fast.last_corrections()._asdict()}
+    index = np.array([5, 0, 29, 5, 17])
+    part = {**fast(*(np.asarray(a)[index] for a in state), d_eps[index])._asdict(), **fast.last_corrections()._asdict()}
+    for name, value in part.items():
+        np.testing.assert_array_equal(np.asarray(value), np.asarray(whole[name])[..., index] if name == "force_ratio"
+                                      else np.asarray(whole[name])[index], err_msg=name)
+    np.savez(tmp_path / "in.npz", cell_size=np.asarray(state.cell_size), free_position=np.asarray(state.free_position),
+             shear_force=np.asarray(state.shear_force), d_eps=d_eps, index=index)
+    for setting, cpu in OTHER_CPUS.items():
+        subprocess.run([sys.executable, str(ROOT / "tests" / "ann3d_increment_worker.py"), str(tmp_path / "in.npz"),
+                        str(tmp_path / "out.npz"), "2"], env={**os.environ, "NUMBA_CPU_NAME": cpu, "PYTHONPATH": str(ROOT)},
+                       check=True, cwd=ROOT)
+        other = np.load(tmp_path / "out.npz")
+        for name, value in whole.items():
+            np.testing.assert_array_equal(other[f"whole_{name}"], np.asarray(value), err_msg=f"{name}, {setting}")
 
 
 @needs_model
