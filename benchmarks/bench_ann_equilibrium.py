@@ -59,16 +59,22 @@ def run(model, meso, args):
 
 def difference(record, reference, p0: float) -> tuple[float, float, float, str]:
     """(largest difference of the shear-stage curves [Pa], the path's scale [Pa], axial strain of the
-    shear stage where it is [-], the curve) of ``record`` against ``reference``."""
-    shear = reference.stage == reference.stage[-1]
-    start = float(reference.eps11[np.flatnonzero(~shear)[-1]]) if (~shear).any() else 0.0
-    n = min(record.n_increments, reference.n_increments)
+    shear stage where it is [-], the curve) of ``record`` against ``reference``, increment by increment
+    from the start of each one's shear stage (the isotropic stage lands on p0 in as many increments
+    as each backend needs)."""
+    def shear_stage(r):
+        rows = np.flatnonzero(r.stage == r.stage[-1])
+        return rows, float(r.eps11[rows[0] - 1]) if rows[0] > 0 else 0.0
+
+    mine, _ = shear_stage(record)
+    theirs, start = shear_stage(reference)
+    n = min(mine.size, theirs.size)
     worst, where, name = 0.0, 0.0, ""
     for curve in COMPARED:
-        diff = np.abs(getattr(record, curve)[:n] - getattr(reference, curve)[:n]) * shear[:n]
+        diff = np.abs(getattr(record, curve)[mine[:n]] - getattr(reference, curve)[theirs[:n]])
         k = int(np.argmax(diff))
         if diff[k] > worst:
-            worst, where, name = float(diff[k]), float(reference.eps11[k]) - start, curve
+            worst, where, name = float(diff[k]), float(reference.eps11[theirs[k]]) - start, curve
     return worst, max(p0, float(np.abs(reference.p).max())), where, name
 
 
@@ -172,7 +178,7 @@ def main(argv=None) -> int:
     print(f"{args.mesostructure}, {args.test}, p0 = {args.p0:g} Pa, to {args.eps_max:g} at {args.increment:g}, rule "
           f"{args.order} x {args.spins}; load {os.getloadavg()[0]:.1f}")
     dem, dem_s = run(make_cell_model("dem", dim=3, threads=1), meso, args)
-    rows = [{"variant": "dem", "wall_s": dem_s}]
+    rows = [{"variant": "dem", "wall_s": dem_s, "increments": dem.n_increments}]
     if args.closed_form:
         closed, closed_s = run(make_cell_model("analytical", dim=3), meso, args)
         worst, scale, _, _ = difference(closed, dem, args.p0)
