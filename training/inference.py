@@ -48,6 +48,7 @@ from training.fast_step3d import advance3d, features3d, physics3d
 from training.fast_tangent import moment_tangent, probe_feature_tangent
 from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
 from training.perceptron import Perceptron
+from warp_hcell.core.parameters import DemSettings
 
 
 def _cells_last(values: np.ndarray) -> np.ndarray:
@@ -142,7 +143,8 @@ class FastAdvance:
     Args:
         net: the trained network (its schema, active pairs, normalisation and layers are copied).
         corrections: the most Newton steps per cell-increment (0: the network alone, unchanged).
-        tolerance: the force ratio below which a cell is not corrected [-].
+        tolerance: the force ratio below which a cell is not corrected [-] (None: the DEM's
+            ``DemSettings.force_tolerance``).
         guess: the first guess of the corrections: ``"network"``; or, to measure what the network
             adds, ``"still"`` (the free DOFs do not move) or ``"affine"`` (they follow the cell's strain,
             x <- x (1 - d_eps) along their axis); the network is still evaluated (same cost).
@@ -150,7 +152,8 @@ class FastAdvance:
 
     GUESSES = ("network", "still", "affine")
 
-    def __init__(self, net: MesoNet, corrections: int = 0, tolerance: float = 1e-6, guess: str = "network") -> None:
+    def __init__(self, net: MesoNet, corrections: int = 0, tolerance: float | None = None,
+                 guess: str = "network") -> None:
         schema = net.schema
         as_np = lambda t, dtype=np.float64: np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)  # noqa: E731
         frac = as_np(schema.driven_fraction)
@@ -176,6 +179,7 @@ class FastAdvance:
         self._tangent = _Compiled(moment_tangent)
         if int(corrections) < 0 or (int(corrections) > 0 and self.dim != 3):
             raise ValueError(f"corrections = {corrections}: equilibrium corrections are >= 0 and for spatial cells only")
+        tolerance = DemSettings().force_tolerance if tolerance is None else tolerance
         if not tolerance > 0:
             raise ValueError(f"tolerance = {tolerance} must be > 0")
         if guess not in self.GUESSES or (guess != "network" and not corrections):
