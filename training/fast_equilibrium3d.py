@@ -62,54 +62,19 @@ def _mat3(a, b, out):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _force_only(b, ob, s, was_contact, d, fn, u0, u1, u2, kt, mu, slack, g):
-    """The force g (3,) of ``pair_force_jacobian`` of a touching pair without its Jacobian (the same
-    operations as ``training.fast_step3d.contact_pass3``); returns True."""
-    mid0, mid1, mid2 = 0.5 * (ob[0] + b[0]), 0.5 * (ob[1] + b[1]), 0.5 * (ob[2] + b[2])
-    mid_norm = math.sqrt(mid0 * mid0 + mid1 * mid1 + mid2 * mid2)
-    mid0, mid1, mid2 = mid0 / mid_norm, mid1 / mid_norm, mid2 / mid_norm
-    r0, r1, r2 = b[0] - ob[0], b[1] - ob[1], b[2] - ob[2]
-    s0, s1, s2 = 0.0, 0.0, 0.0
-    if was_contact:
-        s0, s1, s2 = s[0], s[1], s[2]
-        along = s0 * u0 + s1 * u1 + s2 * u2
-        q0, q1, q2 = s0 - along * u0, s1 - along * u1, s2 - along * u2
-        before2 = s0 * s0 + s1 * s1 + s2 * s2
-        after2 = q0 * q0 + q1 * q1 + q2 * q2
-        if after2 > 0:
-            ratio = math.sqrt(before2 / after2)
-            q0, q1, q2 = q0 * ratio, q1 * ratio, q2 * ratio
-        s0, s1, s2 = q0, q1, q2
-    along = r0 * mid0 + r1 * mid1 + r2 * mid2
-    t0 = s0 + kt * (r0 - along * mid0)
-    t1 = s1 + kt * (r1 - along * mid1)
-    t2 = s2 + kt * (r2 - along * mid2)
-    trial = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-    cap = mu * fn
-    scale = cap / (trial if trial > 0 else 1.0) if trial > cap * slack else 1.0
-    g[0] = -fn * u0 + t0 * scale
-    g[1] = -fn * u1 + t1 * scale
-    g[2] = -fn * u2 + t2 * scale
-    return True
-
-
-@numba.njit(cache=True, error_model="numpy")
-def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g, dg, work, with_jacobian=True):
+def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g, dg, work):
     """Force g (3,) [N] on grain i of one pair of one cell by the spatial contact law and dg = dg/db (3, 3)
     [N/m] (module docstring); b, ob: the new and old branch x_j - x_i (3,) [m]; s: the old spring (3,) [N],
     kept where ``was_contact``; work: scratch (8, 3, 3). Returns whether the pair touches (g and dg are
-    zero otherwise); without ``with_jacobian`` only g (dg left zero)."""
+    zero otherwise)."""
     d = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
     if not d <= reach:
         g[0], g[1], g[2] = 0.0, 0.0, 0.0
-        if with_jacobian:
-            dg[:, :] = 0.0
+        dg[:, :] = 0.0
         return False
     overlap = rsum - d
     fn = normal_force(overlap, kn)
     u0, u1, u2 = b[0] / d, b[1] / d, b[2] / d
-    if not with_jacobian:
-        return _force_only(b, ob, s, was_contact, d, fn, u0, u1, u2, kt, mu, slack, g)
     du, dm, dsc, dslip, tmp, df, dq, dt = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
     u = (u0, u1, u2)
     normal_slope = kn if overlap > 0.0 else 0.0
@@ -248,12 +213,10 @@ def residual3(x, shear, old_branch, old_contact, cells, law, residual, fn_max):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, residual, jacobian, fn_max,
-                       with_jacobian=True):
+def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, residual, jacobian, fn_max):
     """Net contact force on the free DOFs ``residual`` (n_free, n) [N], its Jacobian ``jacobian`` (n_free,
     n_free, n) [N/m] with respect to the free coordinates and the largest normal force ``fn_max`` (n,) [N]
-    of the cells flagged ``active`` (n,) bool (the others are left at zero; without ``with_jacobian`` the
-    Jacobian is left at zero too), at the grain centres x
+    of the cells flagged ``active`` (n,) bool (the others are left at zero), at the grain centres x
     (n_grains, 3, n) after the increment; shear (n_pairs, 3, n) and old_branch, old_contact: the state
     before it."""
     n = x.shape[2]
@@ -283,8 +246,7 @@ def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, re
                 b[a] = bb[a, c]
                 ob[a] = old_branch[p, a, c]
                 s[a] = shear[p, a, c]
-            if not pair_force_jacobian(b, ob, s, old_contact[p, c], rsum, reach, kn, kt, mu, slack, g, dg, work,
-                                       with_jacobian):
+            if not pair_force_jacobian(b, ob, s, old_contact[p, c], rsum, reach, kn, kt, mu, slack, g, dg, work):
                 continue
             fn_max[c] = max(fn_max[c], normal_force(rsum - math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]), kn))
             for r_ in range(6):
@@ -292,8 +254,6 @@ def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, re
                 if k < 0:
                     continue
                 residual[k, c] += signs[r_] * g[r_ % 3]
-                if not with_jacobian:
-                    continue
                 for q_ in range(6):
                     col = slots[q_]
                     if col >= 0:
@@ -397,7 +357,7 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
         if not stepping.any():
             break
         residual_jacobian3(x, shear, before.old_branch, before.old_contact, cells, law, stepping, residual, jacobian,
-                           fn_max, True)
+                           fn_max)
         for c in range(n):
             active[c] = stepping[c]
             if not stepping[c]:
