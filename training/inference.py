@@ -41,12 +41,14 @@ import numpy as np
 import torch
 
 from training.fast_cells import Advanced, Before, CellTables, Normalisation, Physics
+from training.fast_equilibrium3d import correct3d
 from training.fast_features import features
-from training.fast_increment import advance
-from training.fast_step3d import advance3d, features3d
+from training.fast_increment import advance, free_displacement
+from training.fast_step3d import advance3d, features3d, physics3d
 from training.fast_tangent import moment_tangent, probe_feature_tangent
 from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
 from training.perceptron import Perceptron
+from warp_hcell.core.parameters import DemSettings
 
 
 def _cells_last(values: np.ndarray) -> np.ndarray:
@@ -103,6 +105,16 @@ class FastIncrement(NamedTuple):
     grains_held: np.ndarray
 
 
+class Corrections(NamedTuple):
+    """The equilibrium corrections of one ``FastAdvance`` call (``FastAdvance(corrections=K)``, spatial cells):
+    force_ratio (2, n), the largest unbalanced free-DOF force over the largest normal force at the first
+    guess and after the corrections (0 where not evaluated: no normal force, or a probe below the
+    relaxation ramp), and steps: int64 (n,), the Newton steps taken."""
+
+    force_ratio: np.ndarray
+    steps: np.ndarray
+
+
 class _Workspace(NamedTuple):
     """Scratch arrays of one ``FastAdvance`` call: ``before`` (``training.fast_cells.Before``, cells
     last) and ``layers``, each perceptron layer's output (width, n) float32."""
@@ -123,11 +135,25 @@ class FastAdvance:
     around the same perceptron; its tangent is not compiled (``increment`` refuses
     ``with_tangent``; the backend takes it from torch autograd).
 
+    With ``corrections`` K > 0 (spatial cells only), the network's free-DOF displacement is the
+    first guess of up to K exact Newton steps on the balance of the free DOFs
+    (``training.fast_equilibrium3d.correct3d``), taken in a cell while its force ratio exceeds
+    ``tolerance``; ``last_corrections`` counts them.
+
     Args:
         net: the trained network (its schema, active pairs, normalisation and layers are copied).
+        corrections: the most Newton steps per cell-increment (0: the network alone, unchanged).
+        tolerance: the force ratio below which a cell is not corrected [-] (None: the DEM's
+            ``DemSettings.force_tolerance``).
+        guess: the first guess of the corrections: ``"network"``; or, to measure what the network
+            adds, ``"still"`` (the free DOFs do not move) or ``"affine"`` (they follow the cell's strain,
+            x <- x (1 - d_eps) along their axis); the network is still evaluated (same cost).
     """
 
-    def __init__(self, net: MesoNet) -> None:
+    GUESSES = ("network", "still", "affine")
+
+    def __init__(self, net: MesoNet, corrections: int = 0, tolerance: float | None = None,
+                 guess: str = "network") -> None:
         schema = net.schema
         as_np = lambda t, dtype=np.float64: np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)  # noqa: E731
         frac = as_np(schema.driven_fraction)
@@ -151,6 +177,20 @@ class FastAdvance:
         self._features = _Compiled(features if self.dim == 2 else features3d)
         self._advance = _Compiled(advance if self.dim == 2 else advance3d)
         self._tangent = _Compiled(moment_tangent)
+        if int(corrections) < 0 or (int(corrections) > 0 and self.dim != 3):
+            raise ValueError(f"corrections = {corrections}: equilibrium corrections are >= 0 and for spatial cells only")
+        tolerance = DemSettings().force_tolerance if tolerance is None else tolerance
+        if not tolerance > 0:
+            raise ValueError(f"tolerance = {tolerance} must be > 0")
+        if guess not in self.GUESSES or (guess != "network" and not corrections):
+            raise ValueError(f"guess = {guess!r}: one of {', '.join(self.GUESSES)}, another than the network's with "
+                             f"corrections only")
+        self.corrections = int(corrections)
+        self.guess = guess
+        self.tolerance = float(tolerance)
+        self._displacement = _Compiled(free_displacement)
+        self._correct = _Compiled(correct3d)
+        self._physics = _Compiled(physics3d)
 
     def _workspace(self, n: int) -> _Workspace:
         """This thread's scratch arrays for ``n`` cells (kept from its previous call with as many)."""
@@ -175,6 +215,10 @@ class FastAdvance:
         """The z-scored float32 features of the states before this thread's last ``increment``,
         (n_features, n) cells last (a view of the scratch array: read it before the next call)."""
         return self._local.work.before.feats
+
+    def last_corrections(self) -> Corrections | None:
+        """The equilibrium corrections of this thread's last ``increment`` (None without corrections)."""
+        return getattr(self._local, "corrections", None)
 
     def __call__(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                  d_eps: np.ndarray) -> FastIncrement:
@@ -204,7 +248,20 @@ class FastAdvance:
         flags = np.empty((4, n), dtype=np.bool_)
         result = Advanced(np.empty((dim, n)), np.empty((n_free, n)), np.empty(shear_shape), np.empty((n, dim, dim)),
                           np.empty(n), *flags, np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=np.bool_))
-        self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
+        self._local.corrections = None
+        if self.corrections:
+            d_free = self._displacement(out, work.before.m, work.before.unbalanced, self.scaling, self.law)
+            if self.guess == "still":
+                d_free[:] = 0.0
+            elif self.guess == "affine":
+                d_free[:] = -free * d_eps.T[self.cells.free_dofs[:, 1]]
+            ratios, steps = np.empty((2, n)), np.empty(n, dtype=np.int64)
+            self._correct(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, self.corrections,
+                          self.tolerance, ratios, steps)
+            self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, result)
+            self._local.corrections = Corrections(ratios, steps)
+        else:
+            self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
         tangent = None
         if with_tangent:
             f_dot = np.empty((2, 2, n), dtype=np.float32)

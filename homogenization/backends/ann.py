@@ -20,7 +20,17 @@ physics compiled with numba around the network call; equal to the torch path up 
 and a planar cell's tangent by forward-mode differentiation in the same code; a spatial cell's
 tangent, and everything on another device, through the torch path and autograd.
 
-No equilibrium is solved and no closed form of a particular cell is used. Each ``step``
+No equilibrium is solved and no closed form of a particular cell is used, unless asked:
+``equilibrium_corrections=K`` (spatial cells) takes the network's free-DOF displacement as the
+first guess of up to K exact Newton steps on the balance of the free DOFs with the exact contact
+law (``training.fast_equilibrium3d``, ``training.equilibrium``), in the cells whose force ratio
+(largest unbalanced free-DOF force over the largest normal force) exceeds
+``equilibrium_tolerance`` (default: the DEM's ``force_tolerance``). That hybrid is another
+surrogate than the network alone: its diagnostics add ``n_corrected`` (cells corrected),
+``n_corrections`` (Newton steps), ``n_unconverged`` (cells still above the tolerance after them),
+``force_ratio_network_max`` and ``force_ratio_max`` (the largest force ratio before and after),
+and the model's certificate, measured on the network alone, does not cover it
+(``certificate_problem`` says so). Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
 ``n_coulomb_capped`` (a trial tangential force exceeded mu f_n), ``n_tension_clipped`` (a
 contact carrying a normal force opened: no tension), ``n_mechanism`` (cells carrying no
@@ -74,13 +84,14 @@ from homogenization.orientation3d import cell_kinematics, kinematics_of
 from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
+from training.equilibrium import corrected_advance
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
 from training.ood import index_path, load_index, OodError, OodIndex, probe_columns, state_features, WARN_FRACTION
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.files import from_description
 from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, evaluate_observables, Mesostructure, per_cell
-from warp_hcell.core.parameters import check_positive, ContactLaw
+from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings
 
 DEFAULT_MODEL = "ann_default.pt"
 """File name of the planar model shipped in ``homogenization/data`` (with its ``.json``)."""
@@ -172,6 +183,11 @@ class AnnCell(ArrayStateMixin):
         threads: torch CPU threads (process-wide setting, applied here) [-].
         ood_interval: distinct start states between two out-of-distribution checks (module
             docstring), >= 1.
+        equilibrium_corrections: the most exact Newton steps on the free DOFs' balance after the
+            network's step, per cell-increment (module docstring); 0: the network alone. Spatial
+            models only (ValueError for a planar one).
+        equilibrium_tolerance: the force ratio above which a cell is corrected [-] (None: the DEM's
+            ``DemSettings.force_tolerance``).
 
     Raises:
         training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
@@ -185,7 +201,8 @@ class AnnCell(ArrayStateMixin):
     """Dimension of the cells whose shipped model ``model=None`` loads."""
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
-                 device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL) -> None:
+                 device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL,
+                 equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None) -> None:
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:
@@ -206,9 +223,20 @@ class AnnCell(ArrayStateMixin):
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
         self.dim = self.net.schema.dim
-        self.fast = FastAdvance(self.net) if self.device.type == "cpu" else None
+        if int(equilibrium_corrections) < 0 or (int(equilibrium_corrections) > 0 and self.dim != 3):
+            raise ValueError(f"equilibrium corrections = {equilibrium_corrections}: a count >= 0, and > 0 for a "
+                             f"spatial model only ({path.name} is {self.dim}D)")
+        self.equilibrium_corrections = int(equilibrium_corrections)
+        self.force_tolerance = DemSettings().force_tolerance if equilibrium_tolerance is None else float(equilibrium_tolerance)
+        if not self.force_tolerance > 0:
+            raise ValueError(f"equilibrium tolerance = {equilibrium_tolerance} must be > 0")
+        self.fast = (FastAdvance(self.net, self.equilibrium_corrections, self.force_tolerance)
+                     if self.device.type == "cpu" else None)
         self.certificate: dict[str, Any] | None = self.metadata.get("certificate")
         self.certificate_problem = certificate_problem(self.metadata, path)
+        if self.equilibrium_corrections and self.certificate_problem is None:
+            self.certificate_problem = (f"{path}: its certificate measured the network alone, not the network with "
+                                        f"{self.equilibrium_corrections} equilibrium corrections")
         if int(ood_interval) < 1:
             raise ValueError(f"ood_interval = {ood_interval} must be >= 1")
         self.ood_interval = int(ood_interval)
@@ -333,21 +361,23 @@ class AnnCell(ArrayStateMixin):
                            "n_mechanism": float(np.count_nonzero(inc.mechanism)),
                            "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled)),
                            "n_grains_held": float(inc.grains_held.sum()),
+                           **self._correction_diagnostics(*(self.fast.last_corrections() or (None, None))),
                            **self._ood_diagnostics(due, state, features)}
             return (AnnState(inc.cell_size, inc.free_position, inc.shear_force),
                     CellResponse(inc.moment, inc.area, diagnostics, tangent))
         size, free, shear = self._tensors(state)
         d_eps = torch.as_tensor(np.asarray(d_eps_local, dtype=np.float64), device=self.device)
         tangent = None
+        counts: tuple = (None, None)
         if with_tangent:
             d_eps = d_eps.clone().requires_grad_(True)
-            step = self.net.advance(size, free, shear, d_eps)
+            step, counts = self._advance(size, free, shear, d_eps)
             rows = [torch.autograd.grad(step.moment[:, i, i].sum(), d_eps, retain_graph=i < self.dim - 1)[0]
                     for i in range(self.dim)]
             tangent = torch.stack(rows, dim=1).detach().cpu().numpy()
         else:
-            with torch.inference_mode():
-                step = self.net.advance(size, free, shear, d_eps)
+            with torch.inference_mode() if not self.equilibrium_corrections else torch.no_grad():
+                step, counts = self._advance(size, free, shear, d_eps)
         new = AnnState(*(t.detach().cpu().numpy() for t in (step.cell_size, step.free_position, step.shear_force)))
         moment = step.moment.detach().cpu().numpy()
         diagnostics = {
@@ -356,9 +386,27 @@ class AnnCell(ArrayStateMixin):
             "n_mechanism": float(np.count_nonzero(np.all(moment == 0.0, axis=(1, 2)))),
             "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
             "n_grains_held": float(cell_physics.count_held_grains(self.net.schema, step.held).sum()),
+            **self._correction_diagnostics(*(None if c is None else c.detach().cpu().numpy() for c in counts)),
             **self._ood_diagnostics(due, state, None),
         }
         return new, CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent)
+
+    def _advance(self, size, free, shear, d_eps):
+        """The torch increment (``MesoNet.advance``, or ``training.equilibrium.corrected_advance`` with
+        equilibrium corrections) and its (force ratios, corrections) (None, None without)."""
+        if not self.equilibrium_corrections:
+            return self.net.advance(size, free, shear, d_eps), (None, None)
+        out = corrected_advance(self.net, size, free, shear, d_eps, self.equilibrium_corrections, self.force_tolerance)
+        return out.increment, (out.force_ratio, out.corrections)
+
+    def _correction_diagnostics(self, force_ratio: np.ndarray | None, corrections: np.ndarray | None) -> dict[str, float]:
+        """The counts of the equilibrium corrections of one step (module docstring); {} without them."""
+        if force_ratio is None:
+            return {}
+        return {"n_corrected": float(np.count_nonzero(corrections)), "n_corrections": float(corrections.sum()),
+                "n_unconverged": float(np.count_nonzero(force_ratio[1] > self.force_tolerance)),
+                "force_ratio_network_max": float(force_ratio[0].max(initial=0.0)),
+                "force_ratio_max": float(force_ratio[1].max(initial=0.0))}
 
     def failed_cells(self, state: AnnState, d_eps_local: np.ndarray) -> dict[str, np.ndarray]:
         """The cells whose step or tangent fails over the increment ``d_eps_local`` (n, dim) from ``state``.

@@ -27,6 +27,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+import numpy as np
+
 from homogenization import driver, io
 from homogenization.backends import backend_class, BACKENDS, make_cell_model
 from homogenization import loading
@@ -39,8 +41,9 @@ from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 
-BACKEND_ONLY_OPTIONS = {"threads": ("dem", "ann"), "model": ("ann",)}
-"""Backend-specific flags (argparse dest) -> the backends that take them."""
+BACKEND_ONLY_OPTIONS = {"threads": ("dem", "ann"), "model": ("ann",), "equilibrium_corrections": ("ann",),
+                        "equilibrium_tolerance": ("ann",)}
+"""Backend-specific flags (argparse dest) -> the backends that take them (a command may lack some of them)."""
 DEVICE_BACKENDS = ("dem", "ann")
 """Backends that take --device; the analytical cell runs on the cpu."""
 
@@ -51,7 +54,7 @@ def backend_options(args: argparse.Namespace, name: str) -> dict[str, Any]:
     if name in DEVICE_BACKENDS:
         options["device"] = args.device
     for dest, takers in BACKEND_ONLY_OPTIONS.items():
-        value = getattr(args, dest)
+        value = getattr(args, dest, None)
         if value is not None and name in takers:
             options[dest] = value
     return options
@@ -73,9 +76,11 @@ def check_options(args: argparse.Namespace, backends: Sequence[str] | None = Non
     """
     backends = tuple(args.backend if backends is None else backends)
     for dest, takers in BACKEND_ONLY_OPTIONS.items():
-        if getattr(args, dest) is not None and not set(takers) & set(backends):
+        if getattr(args, dest, None) is not None and not set(takers) & set(backends):
             flag = "--" + dest.replace("_", "-")
             raise UserError(f"{flag} applies to --backend {' or '.join(takers)} only")
+    if getattr(args, "equilibrium_tolerance", None) is not None and getattr(args, "equilibrium_corrections", None) is None:
+        raise UserError("--equilibrium-tolerance applies with --equilibrium-corrections only")
     if args.device != "cpu" and not set(DEVICE_BACKENDS) & set(backends):
         raise UserError(f"--device applies to --backend {' or '.join(DEVICE_BACKENDS)} only (analytical runs on the cpu)")
     for name in backends:
@@ -158,8 +163,9 @@ def check_replaceable(out: Path, figure_file: str, *extra_files: str) -> None:
 def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, Any]:
     """Backend settings worth recording: DEM settings and threads; the ANN's model path and
     sha256, its certificate (worst figure, certified, the problem where not: of the file, or of the
-    run's cells, ``AnnCell.certificate_problem``) and its out-of-distribution counts (cell-increments
-    checked and outside the threshold)."""
+    run's cells, ``AnnCell.certificate_problem``; a model run with equilibrium corrections records
+    their number and tolerance, and no certificate of the network alone covers it) and its
+    out-of-distribution counts (cell-increments checked and outside the threshold)."""
     record: dict[str, Any] = {}
     if hasattr(model, "settings"):
         record["dem_settings"] = asdict(model.settings)
@@ -171,6 +177,9 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
         record["ann_model"] = model_record(getattr(model, "model_path", None) or options.get("model"), model.metadata)
         if model.certificate_problem is not None:  # also the run's own cells, e.g. kinematics the certificate did not drive
             record["ann_model"].update(certified=False, certificate_problem=model.certificate_problem)
+        corrections = getattr(model, "equilibrium_corrections", 0)
+        if corrections:
+            record["ann_model"].update(equilibrium_corrections=corrections, equilibrium_tolerance=model.force_tolerance)
         if model.ood is not None:
             record["ann_model"]["ood"] = {"checked": int(model.ood_counts[1]), "outside": int(model.ood_counts[0]),
                                           "threshold": model.ood.threshold}
@@ -199,7 +208,9 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
 
     The line counts the cell-increments the backend reports unconverged
     (``diagnostics["n_unconverged"]``) and those with contacts outside the closed form
-    (``diagnostics["n_cross_plane"]``), where there are any, then ``note`` (the backend's own).
+    (``diagnostics["n_cross_plane"]``), where there are any, the ANN's equilibrium corrections
+    (``n_corrections`` Newton steps in ``n_corrected`` cell-increments) where it took them, then
+    ``note`` (the backend's own).
 
     Raises:
         UserError: the folder cannot be written (one line).
@@ -214,6 +225,10 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
     cross = record.diagnostics.get("n_cross_plane")
     if cross is not None and cross.sum():
         counts += f", cross-plane contacts outside the closed form in {int(cross.sum())} cell-increments"
+    corrected = record.diagnostics.get("n_corrected")
+    if corrected is not None:
+        counts += (f", equilibrium corrections: {int(np.nansum(record.diagnostics['n_corrections']))} Newton steps in "
+                   f"{int(np.nansum(corrected))} cell-increments")
     return f"{name}: {record.n_increments} increments in {elapsed:.1f} s{counts}{note} -> {final / io.RUN_FILE}, {final / io.CURVE_FILE}"
 
 

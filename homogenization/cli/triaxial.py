@@ -49,6 +49,7 @@ from warp_hcell.core.cli import (
     add_contact_law_arguments,
     contact_law_from_args,
     finite_float,
+    positive_float,
     positive_int,
     run_main,
     say,
@@ -112,6 +113,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_cell_arguments(parser, f"the 3D cell of every backend (analytical: the plain ten-sphere cell only); "
                                f"None: {DEFAULT_MESOSTRUCTURE} at --alpha0 and --radius.",
                        "CPU threads of the DEM (None: its own default)")
+    parser.add_argument("--equilibrium-corrections", type=positive_int, default=None, metavar="K",
+                        help="ann only: after the network's step, up to K exact Newton steps on the balance of the free "
+                             "grains with the exact contact law, in cells whose force ratio exceeds the DEM's tolerance "
+                             "(a hybrid surrogate, recorded in run.h5 and counted per increment; docs/ann.md)")
+    parser.add_argument("--equilibrium-tolerance", type=positive_float, default=None, metavar="R",
+                        help="ann with --equilibrium-corrections: the force ratio above which a cell is corrected "
+                             "(None: the DEM's force tolerance, 1e-6)")
     add_uncertified_argument(parser)
     add_posterior_arguments(parser)
     return parser

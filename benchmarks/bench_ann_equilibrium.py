@@ -1,0 +1,232 @@
+"""python benchmarks/bench_ann_equilibrium.py --model M.pt --mesostructure SPEC [--p0 2e5] [--test undrained] [--corrections 0,1,3] [--guesses network,still] [--part test|step]
+
+The 3D meso-ANN alone against the ANN followed by K exact equilibrium corrections
+(``AnnCell(equilibrium_corrections=K)``, docs/ann.md) and against the DEM, on one triaxial test of
+one cell, all on the same rule of cells, printed side by side in one run:
+
+- the largest difference from the DEM of sigma11, sigma22, sigma33, p and q along the shear stage,
+  over p0 and over the path's scale max(p0, largest DEM p), and where it is (a run whose stress
+  control fails is reported as stopped, with the driver's line);
+- the corrections' counts over the run: cell-increments corrected, Newton steps, cell-increments
+  left above the DEM's force tolerance (unconverged), the largest force ratio of the network's
+  guess;
+- the wall time of each run and its ratio to the DEM's (and to the closed form's, with
+  ``--closed-form``, for the plain ten-sphere cell only), per increment.
+
+``--part step``: one step call on the cells of ``--step-rule`` (default 53x16: 7792 cells) of the
+DEM, the ANN alone and the ANN with each K (and the closed form with ``--closed-form``), each from its
+own state after the same local increments (10 isotropic of 3e-4, then ``--step-shear`` undrained of
+1e-4 along the cell axis: 300 catch the fine grain of ``hcell3d-fines:alpha0=55,ratio=0.9``), timed in turn ``--repeats`` times; the
+medians and their ratios.
+
+``--guesses`` adds rows whose corrections start from another first guess than the network's
+(``training.inference.FastAdvance``'s ``guess``: ``still``, the free grains do not move; ``affine``,
+they follow the cell's strain), to measure what the network adds to the Newton steps (the network
+is still evaluated, so the cost is the same). These rows need a strain-controlled shear stage
+(``--test undrained``): stress control takes its tangent from the torch path, which starts from the
+network. Strains [-], stresses [Pa], compression positive. Rows are also written as JSON lines
+(``--json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+import warnings
+
+import numpy as np
+
+from warp_hcell.core.cli import Parser, positive_float, positive_int
+
+COMPARED = ("sigma11", "sigma22", "sigma33", "p", "q")
+
+
+def run(model, meso, args):
+    """(record, wall time [s]) of the test on ``model``'s cells; warnings counted, not raised."""
+    from homogenization import driver, loading
+
+    programme = loading.triaxial(args.p0, args.eps_max, args.increment, test=args.test,
+                                 iso_increment=0.5 * args.increment)
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        record = driver.run(model, programme, mesostructure=meso, lebedev_order=args.order, n_spins=args.spins,
+                            progress=False)
+    return record, time.perf_counter() - start
+
+
+def difference(record, reference, p0: float) -> tuple[float, float, float, str]:
+    """(largest difference of the shear-stage curves [Pa], the path's scale [Pa], axial strain of the
+    shear stage where it is [-], the curve) of ``record`` against ``reference``, increment by increment
+    from the start of each one's shear stage (the isotropic stage lands on p0 in as many increments
+    as each backend needs)."""
+    def shear_stage(r):
+        rows = np.flatnonzero(r.stage == r.stage[-1])
+        return rows, float(r.eps11[rows[0] - 1]) if rows[0] > 0 else 0.0
+
+    mine, _ = shear_stage(record)
+    theirs, start = shear_stage(reference)
+    n = min(mine.size, theirs.size)
+    worst, where, name = 0.0, 0.0, ""
+    for curve in COMPARED:
+        diff = np.abs(getattr(record, curve)[mine[:n]] - getattr(reference, curve)[theirs[:n]])
+        k = int(np.argmax(diff))
+        if diff[k] > worst:
+            worst, where, name = float(diff[k]), float(reference.eps11[theirs[k]]) - start, curve
+    return worst, max(p0, float(np.abs(reference.p).max())), where, name
+
+
+def total(record, key: str) -> float:
+    values = record.diagnostics.get(key)
+    return float(np.nansum(values)) if values is not None else float("nan")
+
+
+def largest(record, key: str) -> float:
+    values = record.diagnostics.get(key)
+    return float(np.nanmax(values)) if values is not None else float("nan")
+
+
+def step_part(args, meso, corrections, tolerances) -> None:
+    """Median time of one step call per backend on the cells of ``--step-rule``, side by side."""
+    from homogenization.backends import make_cell_model
+    from homogenization.backends.ann import AnnCell3D
+    from homogenization.orientation3d import orientations_3d
+    from warp_hcell.core.parameters import ContactLaw
+
+    order, spins = (int(v) for v in args.step_rule.split("x"))
+    n = orientations_3d(order, spins).weights.size
+    models = {"dem": make_cell_model("dem", dim=3, threads=1)}
+    if args.closed_form:
+        models["closed form"] = make_cell_model("analytical", dim=3)
+    for k in corrections:
+        for tol in tolerances if k else tolerances[:1]:
+            name = "network alone" if not k else f"network + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
+            models[name] = AnnCell3D(ContactLaw(), 0.5, model=args.model, equilibrium_corrections=k,
+                                     equilibrium_tolerance=tol if k else None)
+    iso, shear = np.full((n, 3), 3e-4), np.tile([1e-4, -5e-5, -5e-5], (n, 1))
+    states, counts = {}, {}
+    for name, model in models.items():
+        state = model.init_state(meso, n)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            for k in range(10 + args.step_shear):
+                state, response = model.step(state, iso if k < 10 else shear)
+        states[name] = state
+        counts[name] = {key: response.diagnostics.get(key) for key in ("n_corrected", "n_corrections", "n_unconverged")}
+    times = {name: [] for name in models}
+    for _ in range(args.repeats):
+        for name, model in models.items():
+            start = time.perf_counter()
+            model.step(states[name], shear)
+            times[name].append(time.perf_counter() - start)
+    ms = {name: 1e3 * float(np.median(t)) for name, t in times.items()}
+    base = ms.get("closed form", ms["dem"])
+    print(f"one step call, {n} cells ({args.step_rule}), median of {args.repeats}; load {os.getloadavg()[0]:.1f}")
+    print(f"{'backend':>22} {'ms':>8} {'/ DEM':>6} {'/ closed':>8}  last increment's counts")
+    for name in models:
+        print(f"{name:>22} {ms[name]:8.1f} {ms[name] / ms['dem']:6.2f} "
+              f"{ms[name] / base if 'closed form' in ms else float('nan'):8.2f}  "
+              f"{ {k: v for k, v in counts[name].items() if v is not None} }")
+    if args.json:
+        with open(args.json, "a", encoding="utf-8") as out:
+            out.write(json.dumps({"part": "step", "mesostructure": args.mesostructure, "model": args.model,
+                                  "rule": args.step_rule, "cells": n, "repeats": args.repeats, "ms": ms,
+                                  "load_average": os.getloadavg()[0]}) + "\n")
+
+
+def main(argv=None) -> int:
+    parser = Parser(description=__doc__.split("\n\n")[1], formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", required=True, help="a 3D meso-ANN model (.pt)")
+    parser.add_argument("--mesostructure", required=True, help="the cell (a builder spec or a file)")
+    parser.add_argument("--p0", type=positive_float, default=2e5, help="isotropic pressure [Pa]")
+    parser.add_argument("--test", choices=("undrained", "drained"), default="undrained")
+    parser.add_argument("--eps-max", type=positive_float, default=0.15, help="axial strain of the shear stage [-]")
+    parser.add_argument("--increment", type=positive_float, default=1e-4, help="shear increment [-]")
+    parser.add_argument("--order", type=positive_int, default=11, help="Lebedev order of the cell axes")
+    parser.add_argument("--spins", type=positive_int, default=4, help="spins per axis")
+    parser.add_argument("--corrections", default="0,1,3", help="comma-separated K (0: the network alone)")
+    parser.add_argument("--tolerances", default="1e-6", help="comma-separated force ratios above which a cell is "
+                        "corrected (1e-6: the DEM's)")
+    parser.add_argument("--guesses", default="network", help="comma-separated first guesses (network, still, affine)")
+    parser.add_argument("--closed-form", action="store_true", help="also time the closed form (plain ten-sphere cell)")
+    parser.add_argument("--part", choices=("test", "step"), default="test")
+    parser.add_argument("--step-rule", default="53x16", help="step part: ORDERxSPINS of the cells")
+    parser.add_argument("--repeats", type=positive_int, default=20, help="step part: timed calls per backend")
+    parser.add_argument("--step-shear", type=positive_int, default=100,
+                        help="step part: undrained increments of 1e-4 before the timed call")
+    parser.add_argument("--json", default=None, help="append the rows as JSON lines to this file")
+    args = parser.parse_args(argv)
+    corrections = [int(k) for k in args.corrections.split(",")]
+    tolerances = [float(t) for t in args.tolerances.split(",")]
+    guesses = args.guesses.split(",")
+    if any(g != "network" for g in guesses) and args.test != "undrained":
+        parser.error("--guesses other than network need --test undrained (stress control starts from the network)")
+
+    from homogenization.backends import make_cell_model
+    from homogenization.backends.ann import AnnCell3D
+    from homogenization.driver import ControlError
+    from training.inference import FastAdvance
+    from warp_hcell.core.parameters import ContactLaw
+    from warp_hcell.mesostructures.builders import mesostructure_arg
+
+    meso = mesostructure_arg(args.mesostructure).build(None)
+    if args.part == "step":
+        step_part(args, meso, corrections, tolerances)
+        return 0
+    print(f"{args.mesostructure}, {args.test}, p0 = {args.p0:g} Pa, to {args.eps_max:g} at {args.increment:g}, rule "
+          f"{args.order} x {args.spins}; load {os.getloadavg()[0]:.1f}")
+    dem, dem_s = run(make_cell_model("dem", dim=3, threads=1), meso, args)
+    rows = [{"variant": "dem", "wall_s": dem_s, "increments": dem.n_increments}]
+    if args.closed_form:
+        closed, closed_s = run(make_cell_model("analytical", dim=3), meso, args)
+        worst, scale, _, _ = difference(closed, dem, args.p0)
+        rows.append({"variant": "closed form", "wall_s": closed_s, "diff_p0": worst / args.p0, "diff_scale": worst / scale})
+    variants = [(guess, k, tol) for guess in guesses for k in corrections
+                for tol in (tolerances if k else tolerances[:1]) if guess == "network" or k]
+    for guess, k, tol in variants:
+        name = "network alone" if not k else f"{guess} + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
+        ann = AnnCell3D(ContactLaw(), 0.5, model=args.model, equilibrium_corrections=k,
+                        equilibrium_tolerance=tol if k else None)
+        if guess != "network":
+            ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess)
+        try:
+            record, wall = run(ann, meso, args)
+        except ControlError as exc:
+            rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol,
+                         "stopped": str(exc)})
+            print(f"{rows[-1]['variant']}: stopped: {exc}")
+            continue
+        worst, scale, where, curve = difference(record, dem, args.p0)
+        rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol if k else None,
+                     "wall_s": wall, "diff_p0": worst / args.p0, "diff_scale": worst / scale, "scale_pa": scale,
+                     "at_eps_a": where, "curve": curve, "increments": record.n_increments,
+                     "corrected": total(record, "n_corrected"), "newton_steps": total(record, "n_corrections"),
+                     "unconverged": total(record, "n_unconverged"),
+                     "network_ratio_max": largest(record, "force_ratio_network_max"),
+                     "ratio_max": largest(record, "force_ratio_max"),
+                     "cell_increments": record.n_increments * int(np.asarray(record.weights).size)})
+    print(f"{'variant':>22} {'diff/p0':>9} {'diff/scale':>10} {'at eps_a':>8} {'corrected':>10} {'Newton':>10} "
+          f"{'unconv.':>8} {'guess ratio':>11} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
+    closed_s = next((r["wall_s"] for r in rows if r["variant"] == "closed form"), None)
+    for row in rows:
+        if "stopped" in row:
+            print(f"{row['variant']:>22} stopped (stress control; line above)")
+            continue
+        cells = (f"{100 * row['diff_p0']:8.3g}% {100 * row['diff_scale']:9.3g}%" if "diff_p0" in row else f"{'':>9} {'':>10}")
+        extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} {row['unconverged']:8.0f} "
+                 f"{row['network_ratio_max']:11.2g}" if "corrected" in row else f" {'':>8} {'':>10} {'':>10} {'':>8} {'':>11}")
+        print(f"{row['variant']:>22} {cells}{extra} {row['wall_s']:7.1f} {row['wall_s'] / dem_s:6.2f}"
+              + (f" {row['wall_s'] / closed_s:8.2f}" if closed_s else ""))
+    if args.json:
+        with open(args.json, "a", encoding="utf-8") as out:
+            for row in rows:
+                out.write(json.dumps({"mesostructure": args.mesostructure, "model": args.model, "p0": args.p0,
+                                      "test": args.test, "increment": args.increment, "eps_max": args.eps_max,
+                                      "rule": f"{args.order}x{args.spins}", **row}) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
