@@ -58,7 +58,7 @@ class MaterialPoints:
     Attributes:
         material: the ``HomogenisedMaterial`` or ``HomogenisedMaterial3D`` of n points.
         state: ``MaterialState`` of the last accepted increment.
-        peak: per point, the largest |sigma| component accepted so far [N/m or Pa], shape (n,).
+        peak: per point, the largest abs(sigma) component accepted so far [N/m or Pa], shape (n,).
         call_totals: each backend diagnostic summed over the trials since the last recorded increment.
         accepted_diagnostics: the backend diagnostics of the last accepted trial.
         last_trial: the macro increment (n, n_voigt) of the last trial with finite increments (None before).

@@ -34,8 +34,9 @@ def run_stage(solver: StressControl, plan: Plan, history: History, stage: int, *
     a non-strict policy only; a strict one raises).
 
     Raises:
-        ControlError: (strict policy) a stress-controlled increment or landing did not converge, or a stage
-            that stops on p starts at or above it or ends before reaching it.
+        homogenization.element_test.solver.ControlError: (strict policy) a stress-controlled
+            increment or landing did not converge, or a stage that stops on p starts at or above it
+            or ends before reaching it.
     """
     points = solver.points
     fallback = np.zeros(points.n, dtype=np.int64)

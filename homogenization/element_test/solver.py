@@ -5,8 +5,8 @@ stress-controlled components of an increment (``solve``: Newton on the material'
 tangent) and the scale of a strain increment that lands p on a stop value (``land_on_p``: Illinois).
 Every trial is one batched ``step`` from the saved state (steps are pure); a point is accepted as
 soon as it meets its tolerance, the others iterate on, so a point's result does not depend on its
-batch. Convergence: every controlled stress within ``rtol`` times its |target| (times the largest
-|sigma| the point has carried where the target is zero); a landing within ``rtol`` times the stop.
+batch. Convergence: every controlled stress within ``rtol`` times abs(target) (times the largest
+abs(sigma) the point has carried where the target is zero); a landing within ``rtol`` times the stop.
 
 ``Policy`` says how the iterations spend step calls and what a failure does:
 
