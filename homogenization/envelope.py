@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
-from homogenization import loading
+from homogenization.element_test import loading
 
 PRESSURE_RTOL = 1e-9
 """Relative tolerance of pressure and strain comparisons (round-off of recorded numbers) [-]."""

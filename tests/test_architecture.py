@@ -192,11 +192,11 @@ def test_the_import_walk_sees_local_imports_and_ranks_the_layers(tmp_path):
     probe = ROOT / "warp_hcell" / "dem" / "cell.py"
     assert any(name.startswith("warp_hcell.core") for _, name in _imports(probe))
     source = tmp_path / "probe.py"
-    source.write_text("def f():\n    from homogenization.driver import run\n")
-    assert (2, "homogenization.driver") in _imports(source)
+    source.write_text("def f():\n    from homogenization.element_test.driver import run\n")
+    assert (2, "homogenization.element_test.driver") in _imports(source)
     order = [_layer(m) for m in ("warp_hcell.core.cli", "warp_hcell.mesostructures.hcell", "warp_hcell.dem.cell",
                                  "warp_hcell.database.format", "warp_hcell.generate", "training.train",
-                                 "homogenization.driver")]
+                                 "homogenization.element_test.driver")]
     assert order == sorted(order) and len(set(order)) == len(order)
 
 

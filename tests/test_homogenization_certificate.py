@@ -136,7 +136,7 @@ def test_a_run_below_the_envelope_warns_once_and_run_h5_records_it(tmp_path, cap
 
 
 def test_the_envelope_names_every_way_out():
-    from homogenization import loading
+    from homogenization.element_test import loading
     from homogenization.envelope import outside
 
     envelope = {"pressures": [2e5, 1e6], "eps_max": 0.1, "kinds": ["constant-volume", "drained"],
@@ -278,7 +278,7 @@ def test_bvp_refuses_a_failed_model_and_its_run_records_the_certificate(tmp_path
 def test_constant_volume_extension_is_compression_turned_for_an_even_orientation_set():
     """Why the certificate runs constant-volume extension only for an odd number of orientations:
     with an even set the turned compression test gives the same p and q (q negated) to round-off."""
-    from homogenization import driver, loading
+    from homogenization.element_test import driver, loading
     from homogenization.backends import make_cell_model
     from warp_hcell.mesostructures.hcell import h_cell
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from homogenization import certificate, loading
+from homogenization import certificate
+from homogenization.element_test import loading
 from homogenization.backends.ann import default_model_path
 from training import rollout
 from warp_hcell.core.provenance import file_sha256

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization import io
+from homogenization.output import io
 from homogenization.cli import sweep
 from warp_hcell.core import execution
 from warp_hcell.core.cli import run_main

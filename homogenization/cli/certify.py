@@ -101,7 +101,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.model.is_file():
         raise UserError(f"--model {args.model}: no such model file")
     check_writable(args)
-    from homogenization import certificate, driver  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from homogenization import certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from homogenization.element_test import driver
     from training.checkpoint import metadata_path, read_metadata  # noqa: PLC0415
 
     read_metadata(args.model)  # CheckpointError (one line) for a missing or unreadable JSON

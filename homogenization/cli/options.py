@@ -102,7 +102,7 @@ def add_orientations_argument(parser: argparse.ArgumentParser, default: int,
 
 def lebedev_order(text: str) -> int:
     """argparse type: one of ``orientation3d.LEBEDEV_ORDERS``."""
-    from homogenization.orientation3d import LEBEDEV_ORDERS  # noqa: PLC0415 (scipy: only the commands of 3D cells)
+    from homogenization.material.orientation3d import LEBEDEV_ORDERS  # noqa: PLC0415 (scipy: only the commands of 3D cells)
 
     order = positive_int(text)
     if order not in LEBEDEV_ORDERS:

@@ -21,7 +21,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from homogenization import loading
+from homogenization.element_test import loading
 from homogenization.backends import backend_class, mesostructure_refusal
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.parameters import CellDefaults, ContactLaw
