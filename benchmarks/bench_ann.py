@@ -11,7 +11,7 @@ printed with the numbers):
    implementation before the compiled one), the network call alone
    (``MesoNet.displacement``) and the step with its autograd tangent; with ``--widths``, in
    the same interleaved loop, the step of networks of other hidden widths (the model's inputs,
-   random weights: the cost of a width, ``homogenization.active.WIDTH_LADDER``);
+   random weights: the cost of a width, ``homogenization.learning.active.WIDTH_LADDER``);
 2. unless ``--skip-run``: one JSON line per biaxial test (isotropic compression to p0, then
    constant-volume, and/or drained (``--tests``), shear to ``--eps-max``; ``reversal``:
    constant volume to eps1 = +``--reversal-strain``, then back to -``--reversal-strain``,

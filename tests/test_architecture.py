@@ -124,8 +124,8 @@ def test_the_circle_check_finds_a_circle_through_a_local_import(tmp_path):
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set(), "c": {"a", "b"}}) == []
     source = tmp_path / "probe.py"
-    source.write_text("def f():\n    from homogenization.active import learn\n")
-    assert (2, "homogenization.active") in _imports(source)
+    source.write_text("def f():\n    from homogenization.learning.active import learn\n")
+    assert (2, "homogenization.learning.active") in _imports(source)
 
 
 def _defines_something(path: Path) -> bool:

@@ -1,10 +1,10 @@
-"""The minimum certificate and the envelope (homogenization.envelope) without running a test."""
+"""The minimum certificate and the envelope (homogenization.learning.envelope) without running a test."""
 
 import json
 
 import pytest
 
-from homogenization import envelope
+from homogenization.learning import envelope
 from homogenization.element_test import loading
 from homogenization.backends.ann import default_model_path
 
@@ -13,7 +13,7 @@ SHIPPED = json.loads(default_model_path().with_suffix(".json").read_text())["cer
 
 
 def test_the_certificate_defaults_are_the_minimum_and_meet_it():
-    from homogenization import certificate
+    from homogenization.learning import certificate
 
     assert (certificate.PRESSURES, certificate.EPS_MAX, certificate.INCREMENT, certificate.TARGET,
             certificate.N_ORIENTATIONS, certificate.SPATIAL_RULE) == (

@@ -33,7 +33,7 @@ from homogenization.backends import backend_class, BACKENDS, make_cell_model
 from homogenization.element_test import loading
 from homogenization.cli.options import ISO_TO_SHEAR_INCREMENT, certificate_note, refuse_uncertified
 from homogenization.element_test.driver import Record
-from homogenization.envelope import summary as envelope_summary
+from homogenization.learning.envelope import summary as envelope_summary
 from warp_hcell.core.cli import quiet_warp, UserError, writing_to
 from warp_hcell.core.files import check_output_path
 from warp_hcell.core.parameters import ContactLaw

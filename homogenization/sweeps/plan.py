@@ -107,10 +107,10 @@ class ModelTable:
 
     def outside_envelope(self, path: Path | None, programme: Any, meso: Mesostructure) -> list[str] | None:
         """Where ``programme`` on cells of ``meso`` leaves the certificate envelope of model ``path``
-        (None: the installed model): ``homogenization.envelope.outside``'s phrases, empty inside;
+        (None: the installed model): ``homogenization.learning.envelope.outside``'s phrases, empty inside;
         None for a model without a certificate."""
         from homogenization.backends.ann import default_model_path  # noqa: PLC0415 torch only for ann
-        from homogenization.envelope import envelope_of, outside  # noqa: PLC0415
+        from homogenization.learning.envelope import envelope_of, outside  # noqa: PLC0415
         from training.checkpoint import read_metadata  # noqa: PLC0415
 
         if path not in self._envelopes:

@@ -59,7 +59,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from homogenization.element_test import driver, loading
-from homogenization.envelope import dimension_of, envelope_of, MINIMUM, shortfalls, verdict
+from homogenization.learning.envelope import dimension_of, envelope_of, MINIMUM, shortfalls, verdict
 from homogenization.backends import make_cell_model
 from training.checkpoint import metadata_path, read_metadata
 from training.ood import state_features
