@@ -269,7 +269,7 @@ def test_normalise_reads_p0_from_the_programme_and_refuses_runs_without(runs, tm
 
 # -- one legend, also for the cyclic programme ---------------------------------------------
 
-CYCLIC = Path(figures.__file__).parent / "data" / "programmes" / "cyclic_constant_volume.toml"
+CYCLIC = Path(figures.__file__).parents[1] / "data" / "programmes" / "cyclic_constant_volume.toml"
 
 
 def test_cyclic_programme_figure_has_exactly_one_legend(tmp_path, monkeypatch, capsys):
