@@ -11,12 +11,12 @@ printed with the numbers):
    implementation before the compiled one), the network call alone
    (``MesoNet.displacement``) and the step with its autograd tangent; with ``--widths``, in
    the same interleaved loop, the step of networks of other hidden widths (the model's inputs,
-   random weights: the cost of a width, ``homogenization.active.WIDTH_LADDER``);
+   random weights: the cost of a width, ``homogenization.learning.active.WIDTH_LADDER``);
 2. unless ``--skip-run``: one JSON line per biaxial test (isotropic compression to p0, then
    constant-volume, and/or drained (``--tests``), shear to ``--eps-max``; ``reversal``:
    constant volume to eps1 = +``--reversal-strain``, then back to -``--reversal-strain``,
    compared increment by increment) run with the
-   ANN and its reference through ``homogenization.driver``: the analytical backend for the
+   ANN and its reference through ``homogenization.element_test.driver``: the analytical backend for the
    H-cell, the DEM with the same file for ``--mesostructure``; max |p - p_ref| and
    |q - q_ref| over the shear stage as fractions of p0, run times, and the ANN's counts of
    contact-law branches.
@@ -35,9 +35,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from homogenization import driver, loading
+from homogenization.element_test import driver, loading
 from homogenization.backends import make_cell_model
-from homogenization.orientation import localise, orientations
+from homogenization.material.orientation import localise, orientations
 from training.checkpoint import load_checkpoint, save_checkpoint
 from training.network import MesoNet
 from training.config import hidden_widths

@@ -17,10 +17,10 @@ import time
 import numpy as np
 
 from homogenization.fe import solver as fe
-from homogenization import orientation
+from homogenization.material import orientation
 from homogenization.backends import make_cell_model
 from homogenization.cli.bvp import element_counts
-from homogenization.material import HomogenisedMaterial
+from homogenization.material.homogenised import HomogenisedMaterial
 from warp_hcell.mesostructures.hcell import h_cell
 
 P0 = 5.85e6

@@ -36,8 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from homogenization import driver, figures, loading, orientation
-from homogenization.figure_style import number
+from homogenization.element_test import driver, loading
+from homogenization.material import orientation
+from homogenization.output import figures
+from homogenization.output.figure_style import number
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import DemSettings

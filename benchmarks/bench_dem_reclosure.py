@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from homogenization import driver, loading
+from homogenization.element_test import driver, loading
 from homogenization.backends import make_cell_model
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, DemSettings
 from warp_hcell.mesostructures.hcell import h_cell

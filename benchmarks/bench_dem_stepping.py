@@ -43,8 +43,9 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from homogenization import driver, figures, loading
-from homogenization.figure_style import apply_style, GRID, number
+from homogenization.element_test import driver, loading
+from homogenization.output import figures
+from homogenization.output.figure_style import apply_style, GRID, number
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.mesostructures.hcell import h_cell

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from tangent_fd import fd_tangent_fixed_schedule  # noqa: E402
 from warp_hcell.core.checks import central_difference_tangent  # noqa: E402
 
-from homogenization import driver, loading  # noqa: E402
+from homogenization.element_test import driver, loading  # noqa: E402
 from homogenization.element_test.solver import StressControl  # noqa: E402
 from homogenization.backends import make_cell_model  # noqa: E402
 from warp_hcell.dem.cell import DemCell  # noqa: E402

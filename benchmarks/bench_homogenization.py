@@ -14,7 +14,8 @@ import argparse
 import os
 import time
 
-from homogenization import driver, loading, orientation
+from homogenization.element_test import driver, loading
+from homogenization.material import orientation
 from homogenization.backends import BACKENDS, make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import CellDefaults, LoadingDefaults

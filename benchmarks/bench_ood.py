@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from homogenization.backends import make_cell_model
-from homogenization.orientation import localise, orientations
+from homogenization.material.orientation import localise, orientations
 from training.ood import state_features
 from warp_hcell.mesostructures.hcell import h_cell
 

@@ -25,7 +25,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from homogenization import certificate
+from homogenization.learning import certificate
 from homogenization.cli import hmodel
 
 

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from homogenization import figures, io
+from homogenization.output import figures, io
 from homogenization.cli import sweep
-from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS, number
+from homogenization.output.figure_style import apply_style, figure_legend, GRID, LABELS, number
 from warp_hcell.mesostructures.builders import parse_mesostructure
 from warp_hcell.mesostructures.hcell import pore_ratio
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from homogenization.figure_style import GRID, PNG_DPI, apply_style, figure_legend
+from homogenization.output.figure_style import GRID, PNG_DPI, apply_style, figure_legend
 
 
 def shear_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

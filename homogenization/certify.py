@@ -1,7 +1,7 @@
 """python -m homogenization.certify ... (``hmodel certify``)
 
 The command is ``homogenization.cli.certify``; this module is its ``python -m`` entry point
-(the library is ``homogenization.certificate``).
+(the library is ``homogenization.learning.certificate``).
 """
 
 import sys

@@ -1,13 +1,14 @@
 """A stress-controlled run with the meso-ANN that cannot converge stops with a one-line diagnosis: which
 cells failed their step or tangent at the last trial, the certificate's verdict and whether the run
-lies inside the certificate's envelope (``AnnCell.control_diagnosis``, ``homogenization.driver.run``);
+lies inside the certificate's envelope (``AnnCell.control_diagnosis``, ``homogenization.element_test.driver.run``);
 ``hmodel triaxial`` prints it on one line with exit code 2. The failing case is contrived: two cells
 of the shipped 3D model whose step turns non-finite after a number of step calls."""
 
 import numpy as np
 import pytest
 
-from homogenization import driver, hmodel, loading
+from homogenization import hmodel
+from homogenization.element_test import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.backends.ann import AnnCell, AnnCell3D, default_model_path
 from warp_hcell.core.contract import CellResponse

@@ -124,8 +124,8 @@ def test_the_circle_check_finds_a_circle_through_a_local_import(tmp_path):
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set(), "c": {"a", "b"}}) == []
     source = tmp_path / "probe.py"
-    source.write_text("def f():\n    from homogenization.active import learn\n")
-    assert (2, "homogenization.active") in _imports(source)
+    source.write_text("def f():\n    from homogenization.learning.active import learn\n")
+    assert (2, "homogenization.learning.active") in _imports(source)
 
 
 def _defines_something(path: Path) -> bool:
@@ -142,6 +142,29 @@ def test_only_the_python_m_entries_import_the_command_layer(path):
     assert not commands or not _defines_something(path), (
         f"{_name(path)} is a library module and imports the command layer {commands}")
 
+
+
+def _library_at_top(folder: Path) -> list[str]:
+    """Modules directly in ``folder`` (its ``__init__`` aside) that are not ``python -m`` entries:
+    each defines something or imports no command (``homogenization.cli``)."""
+    return sorted(path.name for path in folder.glob("*.py") if path.name != "__init__.py"
+                  and (_defines_something(path)
+                       or not any(name.startswith("homogenization.cli") for _, name in _imports(path))))
+
+
+def test_the_top_of_homogenization_holds_only_the_python_m_entries():
+    """The library sits in the folders of its parts (docs/architecture.md); the top level keeps the
+    ``python -m homogenization.COMMAND`` names users type, each only starting its command."""
+    library = _library_at_top(ROOT / "homogenization")
+    assert not library, f"library modules at the top of homogenization/: {library}; move them into their part's folder"
+
+
+def test_the_layout_check_sees_a_library_module_at_the_top(tmp_path):
+    (tmp_path / "entry.py").write_text("from homogenization.cli.sweep import main\n")
+    assert _library_at_top(tmp_path) == []
+    (tmp_path / "helper.py").write_text("from homogenization.cli.sweep import main\ndef f():\n    return main\n")
+    (tmp_path / "plain.py").write_text("from homogenization.element_test import driver\n")
+    assert _library_at_top(tmp_path) == ["helper.py", "plain.py"]
 
 def _tokens(path: Path) -> set[tuple[int, str]]:
     """Identifiers and non-docstring string constants of a module, with their line."""
@@ -192,11 +215,11 @@ def test_the_import_walk_sees_local_imports_and_ranks_the_layers(tmp_path):
     probe = ROOT / "warp_hcell" / "dem" / "cell.py"
     assert any(name.startswith("warp_hcell.core") for _, name in _imports(probe))
     source = tmp_path / "probe.py"
-    source.write_text("def f():\n    from homogenization.driver import run\n")
-    assert (2, "homogenization.driver") in _imports(source)
+    source.write_text("def f():\n    from homogenization.element_test.driver import run\n")
+    assert (2, "homogenization.element_test.driver") in _imports(source)
     order = [_layer(m) for m in ("warp_hcell.core.cli", "warp_hcell.mesostructures.hcell", "warp_hcell.dem.cell",
                                  "warp_hcell.database.format", "warp_hcell.generate", "training.train",
-                                 "homogenization.driver")]
+                                 "homogenization.element_test.driver")]
     assert order == sorted(order) and len(set(order)) == len(order)
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from homogenization.cli import biaxial
-from homogenization import figures
+from homogenization.output import figures
 from warp_hcell.core import cli
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,5 +1,5 @@
 """Two runs of the same inputs write byte-identical run.h5 files, apart from the one attribute
-documented as the invocation's (``command``, homogenization.io)."""
+documented as the invocation's (``command``, homogenization.output.io)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import time
 import h5py
 
 from homogenization.cli import biaxial
-from homogenization import io
+from homogenization.output import io
 from warp_hcell.core import cli
 
 TINY = ["--alpha0", "55", "--eps-max", "0.002", "--increment", "5e-4", "--orientations", "12", "-q"]

@@ -313,7 +313,7 @@ def test_shipped_3d_model_follows_the_closed_form():
     of the loose cell to eps_a = 1 % (the largest miss of the full run lies at 0.6 %), 100 cells
     (Lebedev order 11 x 4 spins), along the shear stage within 0.5 % of p0 of the closed form at 2e5 Pa and
     2e-5 at 5.85e6 Pa (docs: 0.28 % and 0.0030 % on the full runs; this short run measures 0.24 % and 4e-6)."""
-    from homogenization import driver, loading
+    from homogenization.element_test import driver, loading
     from homogenization.backends import make_cell_model
 
     for p0, tolerance in ((2e5, 5e-3), (5.85e6, 2e-5)):

@@ -68,7 +68,7 @@ def test_api_reference_reads_a_constants_docstring_as_prose_not_as_its_type(what
     conf = _conf_module()
     app = SimpleNamespace(config=Config(**{k: v for k, v in vars(conf).items() if k.startswith("napoleon_")}))
     lines = ["Deviator measure drawn: q = sigma11 - sigma22 or t = q / 2."]
-    conf._napoleon_without_inline_types(app, what, "homogenization.figures.DEVIATORS", ("q", "t"), None, lines)
+    conf._napoleon_without_inline_types(app, what, "homogenization.output.figures.DEVIATORS", ("q", "t"), None, lines)
     assert lines == ["Deviator measure drawn: q = sigma11 - sigma22 or t = q / 2."]
     sections = ["Run of a test.", "", "Args:", "    x: length [m]."]
     conf._napoleon_without_inline_types(app, "function", "f", None, None, sections)

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from homogenization import loading
+from homogenization.element_test import loading
 from homogenization.backends.analytical import AnalyticalCell
 from homogenization.element_test.points import material_points, orientation_set
 from homogenization.element_test.record import History

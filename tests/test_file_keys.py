@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from homogenization import loading
+from homogenization.element_test import loading
 from homogenization.cli import biaxial, triaxial
 from warp_hcell.core import cli
 from warp_hcell.mesostructures.files import load_mesostructure

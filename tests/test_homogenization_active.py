@@ -1,4 +1,4 @@
-"""Active learning (homogenization.active) and ``hmodel learn``: a model of a tiny database fails a
+"""Active learning (homogenization.learning.active) and ``hmodel learn``: a model of a tiny database fails a
 short certificate; one round adds the DEM states of the failing tests and repairs it."""
 
 import json
@@ -8,8 +8,8 @@ import h5py
 import numpy as np
 import pytest
 
-from homogenization import active, certificate
-from homogenization.learning_settings import CertificateSettings
+from homogenization.learning import active, certificate
+from homogenization.learning.settings import CertificateSettings
 from training import train as training_train
 from training.config import TrainConfig
 from training.dataset import load_database

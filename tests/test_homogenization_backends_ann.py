@@ -12,7 +12,7 @@ import torch
 
 from dem_database import build
 from homogenization.cli import biaxial
-from homogenization import driver, loading
+from homogenization.element_test import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.backends.ann import AnnCell, default_model_path
 from training.checkpoint import CheckpointError

@@ -13,7 +13,7 @@ import pytest
 from cli_checks import assert_usage_error
 
 from homogenization.cli import biaxial
-from homogenization import io
+from homogenization.output import io
 from homogenization.backends import BACKENDS
 from warp_hcell.core.cli import cuda_device_count, run_main
 from warp_hcell.core.parameters import LoadingDefaults

@@ -12,7 +12,7 @@ import pytest
 from cli_checks import assert_usage_error
 
 from homogenization.cli import bvp
-from homogenization import driver, loading
+from homogenization.element_test import driver, loading
 from homogenization.backends import make_cell_model
 from warp_hcell.core.cli import run_main
 from warp_hcell.mesostructures.hcell import h_cell

@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 import pytest
 
-from homogenization import driver, loading
+from homogenization.element_test import driver, loading
 from homogenization.backends.analytical import AnalyticalCell
 from homogenization.backends.analytical3d import Analytical3DCell
 from homogenization.calibration import bayes, report
@@ -132,7 +132,7 @@ def test_batched_forward_equals_one_at_a_time(tmp_path, drained):
 
 @pytest.mark.parametrize("drained", [False, True])
 def test_batched_forward_matches_the_driver(tmp_path, drained):
-    """The population runner against homogenization.driver.run of each set on its own backend."""
+    """The population runner against homogenization.element_test.driver.run of each set on its own backend."""
     test = Measurement("t", tmp_path / "t.csv", drained, 3e6, EPS1, {})
     batch = simulate(test, PARAMS, SETTINGS)
     n_shear = round(EPS1[-1] / SETTINGS.increment)
@@ -289,7 +289,7 @@ SETTINGS_3D = ForwardSettings(lebedev_order=5, n_spins=2, increment=2e-3, iso_in
 
 @pytest.mark.parametrize("drained", [False, True])
 def test_batched_triaxial_forward_matches_the_driver(tmp_path, drained):
-    """The 3D population runner against homogenization.driver.run of loading.triaxial, each set on its own
+    """The 3D population runner against homogenization.element_test.driver.run of loading.triaxial, each set on its own
     Analytical3DCell (q = sqrt(3 J2), p = tr(sigma) / 3, eps_v = eps11 + eps22 + eps33)."""
     test = Measurement("t", tmp_path / "t.csv", drained, 2e6, EPS1, {}, 3)
     batch = simulate(test, PARAMS, SETTINGS_3D)

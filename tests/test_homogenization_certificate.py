@@ -1,4 +1,4 @@
-"""The meso-ANN certificate (homogenization.certificate) and the refusal of models without a passed one."""
+"""The meso-ANN certificate (homogenization.learning.certificate) and the refusal of models without a passed one."""
 
 import json
 import shutil
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from homogenization import certificate
+from homogenization.learning import certificate
 from homogenization.backends.ann import default_model_path
 from homogenization.cli import biaxial, certify
 from warp_hcell.core.cli import run_main
@@ -103,7 +103,7 @@ def test_a_certified_model_runs_and_the_summary_and_run_say_so(tmp_path, capsys)
 
 def test_the_shipped_certificates_meet_the_minimum_and_record_their_envelope():
     """Derived from their recorded settings and tests: p0 2e5 to 1e6, +-10 % axial strain."""
-    from homogenization.envelope import envelope_of, shortfalls, verdict
+    from homogenization.learning.envelope import envelope_of, shortfalls, verdict
 
     for dim in (2, 3):
         path = default_model_path(dim)
@@ -136,8 +136,8 @@ def test_a_run_below_the_envelope_warns_once_and_run_h5_records_it(tmp_path, cap
 
 
 def test_the_envelope_names_every_way_out():
-    from homogenization import loading
-    from homogenization.envelope import outside
+    from homogenization.element_test import loading
+    from homogenization.learning.envelope import outside
 
     envelope = {"pressures": [2e5, 1e6], "eps_max": 0.1, "kinds": ["constant-volume", "drained"],
                 "mesostructure": "h-cell alpha0=55 deg", "cell_parameters": {"alpha0_deg": 55.0}}
@@ -278,7 +278,7 @@ def test_bvp_refuses_a_failed_model_and_its_run_records_the_certificate(tmp_path
 def test_constant_volume_extension_is_compression_turned_for_an_even_orientation_set():
     """Why the certificate runs constant-volume extension only for an odd number of orientations:
     with an even set the turned compression test gives the same p and q (q negated) to round-off."""
-    from homogenization import driver, loading
+    from homogenization.element_test import driver, loading
     from homogenization.backends import make_cell_model
     from warp_hcell.mesostructures.hcell import h_cell
 

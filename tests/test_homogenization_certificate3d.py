@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from homogenization import certificate, loading
+from homogenization.learning import certificate
+from homogenization.element_test import loading
 from homogenization.backends.ann import default_model_path
 from training import rollout
 from warp_hcell.core.provenance import file_sha256
@@ -138,13 +139,13 @@ def test_the_3d_rollout_of_the_shipped_model_follows_the_dem():
 
 
 def test_a_round_of_active_learning_probes_the_3d_states_of_the_failing_tests(tmp_path):
-    """The rounds of homogenization.active on a 3D database: the certificate's triaxial tests keep
+    """The rounds of homogenization.learning.active on a 3D database: the certificate's triaxial tests keep
     their DEM states (3 components per grain, a spring vector per pair), the failing ones are probed
     and appended, and the model is retrained and certified again on the spatial rule."""
     import h5py
 
-    from homogenization import active
-    from homogenization.learning_settings import CertificateSettings
+    from homogenization.learning import active
+    from homogenization.learning.settings import CertificateSettings
     from test_database_dimension import SPATIAL, tiny_database
     from training import train as training_train
     from training.config import TrainConfig

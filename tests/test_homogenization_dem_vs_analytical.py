@@ -20,7 +20,8 @@ import warnings
 import numpy as np
 import pytest
 
-from homogenization import driver, io, loading
+from homogenization.element_test import driver, loading
+from homogenization.output import io
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import DemSettings, LoadingDefaults

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from cell_doubles import ElasticCell
-from homogenization import driver, loading
+from homogenization.element_test import driver, loading
 from homogenization.backends import make_cell_model
-from homogenization.loading import Step
+from homogenization.element_test.loading import Step
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import LoadingDefaults
 

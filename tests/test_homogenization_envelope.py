@@ -1,10 +1,11 @@
-"""The minimum certificate and the envelope (homogenization.envelope) without running a test."""
+"""The minimum certificate and the envelope (homogenization.learning.envelope) without running a test."""
 
 import json
 
 import pytest
 
-from homogenization import envelope, loading
+from homogenization.learning import envelope
+from homogenization.element_test import loading
 from homogenization.backends.ann import default_model_path
 
 SHIPPED = json.loads(default_model_path().with_suffix(".json").read_text())["certificate"] \
@@ -12,7 +13,7 @@ SHIPPED = json.loads(default_model_path().with_suffix(".json").read_text())["cer
 
 
 def test_the_certificate_defaults_are_the_minimum_and_meet_it():
-    from homogenization import certificate
+    from homogenization.learning import certificate
 
     assert (certificate.PRESSURES, certificate.EPS_MAX, certificate.INCREMENT, certificate.TARGET,
             certificate.N_ORIENTATIONS, certificate.SPATIAL_RULE) == (
@@ -62,7 +63,7 @@ def test_step_kinds_of_the_triaxial_programmes():
 @pytest.mark.skipif(SHIPPED is None, reason="default model not installed")
 def test_a_sweep_plans_which_ann_cases_leave_the_envelope_and_warns_once(tmp_path, capsys):
     from homogenization.cli import sweep
-    from homogenization.sweep_plan import plan
+    from homogenization.sweeps.plan import plan
 
     args = sweep.build_parser().parse_args(["--backend", "ann,analytical", "--p0", "5e4,2e5", "--eps-max", "0.05",
                                             "--out", str(tmp_path / "s")])

@@ -9,10 +9,11 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from cell_doubles import ElasticCell
 from homogenization.cli import bvp, sweep
-from homogenization import driver, figure_style, figures, loading
+from homogenization.element_test import driver, loading
+from homogenization.output import figure_style, figures
 from homogenization.fe import output as fe_output
 from homogenization.backends import make_cell_model
-from homogenization.figure_style import TickFormatter
+from homogenization.output.figure_style import TickFormatter
 from warp_hcell.core.cli import run_main
 from warp_hcell.mesostructures.hcell import h_cell
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from homogenization import driver, invariants, loading
+from homogenization.element_test import driver, loading
+from homogenization.material import invariants
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
 

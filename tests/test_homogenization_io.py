@@ -9,7 +9,8 @@ import h5py
 import numpy as np
 import pytest
 
-from homogenization import driver, io, loading
+from homogenization.element_test import driver, loading
+from homogenization.output import io
 from homogenization.backends import make_cell_model
 from warp_hcell.core.cli import UserError
 from warp_hcell.mesostructures.hcell import h_cell

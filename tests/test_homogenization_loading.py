@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from homogenization import loading
-from homogenization.loading import Step
+from homogenization.element_test import loading
+from homogenization.element_test.loading import Step
 from warp_hcell.core.parameters import LoadingDefaults
 
 

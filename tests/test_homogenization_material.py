@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from cell_doubles import ElasticCell
-from homogenization import orientation
+from homogenization.material import orientation
 from homogenization.backends import make_cell_model
-from homogenization.material import HomogenisedMaterial
+from homogenization.material.homogenised import HomogenisedMaterial
 from warp_hcell.mesostructures.hcell import h_cell
 
 
@@ -67,7 +67,7 @@ def test_one_batched_step_call_and_purity():
 
 def test_stress_and_volume_rule_match_the_driver():
     """A homogeneous strain path through the material gives the driver's stresses and J."""
-    from homogenization import driver, loading
+    from homogenization.element_test import driver, loading
 
     model = make_cell_model("analytical")
     programme = (loading.proportional_strain(4e-3, 4e-3, 20, label="iso"), loading.constant_volume_biaxial(0.01, 20))
@@ -107,7 +107,7 @@ def test_points_are_independent():
     single = HomogenisedMaterial(model, material.orient, h_cell(55.0), 1)
     single.init_state()
     cells = model.take(state.cells, np.arange(24, 48))
-    from homogenization.material import MaterialState
+    from homogenization.material.homogenised import MaterialState
 
     one = MaterialState(cells, state.J[1:2], state.strain[1:2], state.stress[1:2])
     alone = single.update(one, d_e[1:2])

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from homogenization import orientation
+from homogenization.material import orientation
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from cell_doubles import ElasticCell
-from homogenization import driver, figures, loading
+from homogenization.element_test import driver, loading
+from homogenization.output import figures
 from homogenization.cli import plot
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
@@ -91,7 +92,7 @@ def test_drained_and_w2_panels(runs):
 # -- hmodel plot: overlay finished runs -----------------------------------------------------
 
 def _stored_run(tmp_path, name: str, record: driver.Record, drained: bool) -> str:
-    from homogenization import io
+    from homogenization.output import io
 
     path, _ = io.write_run(tmp_path / name, record, parameters={"p0": P0, "drained": drained}, seed=0)
     return str(path)
@@ -185,7 +186,7 @@ def high(runs) -> driver.Record:
 
 
 def _write(folder, record, **parameters) -> str:
-    from homogenization import io
+    from homogenization.output import io
 
     path, _ = io.write_run(folder, record, parameters=parameters, seed=0)
     return str(path)
@@ -268,7 +269,7 @@ def test_normalise_reads_p0_from_the_programme_and_refuses_runs_without(runs, tm
 
 # -- one legend, also for the cyclic programme ---------------------------------------------
 
-CYCLIC = Path(figures.__file__).parent / "data" / "programmes" / "cyclic_constant_volume.toml"
+CYCLIC = Path(figures.__file__).parents[1] / "data" / "programmes" / "cyclic_constant_volume.toml"
 
 
 def test_cyclic_programme_figure_has_exactly_one_legend(tmp_path, monkeypatch, capsys):
@@ -441,7 +442,7 @@ BIAXIAL_TINY = ["--alpha0", "55", "--p0", "2e5", "--eps-max", "0.05", "--increme
 def test_biaxial_figure_labels_normalise_and_csl(tmp_path, monkeypatch, capsys):
     """The loose cell at 2e5 N/m, 5 % of shear: p still falls, so --csl draws no line and says why."""
     from homogenization.cli import biaxial
-    from homogenization import io
+    from homogenization.output import io
     from warp_hcell.core.cli import run_main
 
     saved = _spy_saved_figures(monkeypatch)

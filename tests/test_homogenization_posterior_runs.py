@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization import io
+from homogenization.output import io
 from homogenization.calibration import posterior as post_mod
 from homogenization.calibration.data import Measurement
 from homogenization.calibration.forward import ForwardSettings, simulate

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from homogenization.cli import biaxial
-from homogenization import io, loading
+from homogenization.element_test import loading
+from homogenization.output import io
 from warp_hcell.core.cli import run_main
 from warp_hcell.core.parameters import LoadingDefaults
 

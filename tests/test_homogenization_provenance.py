@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from homogenization.cli import biaxial
-from homogenization import io
+from homogenization.output import io
 from warp_hcell.core.cli import run_main
 from warp_hcell.core import provenance
 from warp_hcell.core.parameters import DemSettings

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from homogenization import run_labels
+from homogenization.output import run_labels
 
 BASE = {"backend": "dem", "mesostructure": None, "alpha0_deg": 55.0, "p0": 2e5, "n_orientations": 360,
         "contact_law": {"kn": 2e8, "kt_over_kn": 0.5, "phi_g_deg": 30.0}, "radius": 0.5, "increment": 1e-4}

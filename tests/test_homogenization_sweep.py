@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization import io
+from homogenization.output import io
 from homogenization.cli import sweep
 from warp_hcell.core import execution
 from warp_hcell.core.cli import run_main
@@ -309,7 +309,7 @@ def test_an_ann_case_records_its_models_certificate_in_run_h5(fines_models, tmp_
     the uncertified model is then another run: refused without --overwrite)."""
     import json
 
-    from homogenization import certificate as certification
+    from homogenization.learning import certificate as certification
     from homogenization.backends.ann import default_model_path
     from warp_hcell.core.provenance import file_sha256
 

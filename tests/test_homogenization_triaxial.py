@@ -10,10 +10,11 @@ import warnings
 import numpy as np
 import pytest
 
-from homogenization import driver, invariants, loading
+from homogenization.element_test import driver, loading
+from homogenization.material import invariants
 from homogenization.backends import make_cell_model
-from homogenization.material import HomogenisedMaterial3D
-from homogenization.orientation3d import orientations_3d
+from homogenization.material.homogenised import HomogenisedMaterial3D
+from homogenization.material.orientation3d import orientations_3d
 from warp_hcell.core.parameters import LoadingDefaults
 from warp_hcell.mesostructures.builders import mesostructure_arg
 

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from homogenization import io
+from homogenization.output import io
 from homogenization.cli import hmodel, triaxial
 
 FAST = ["--order", "3", "--spins", "1", "--eps-max", "1e-3", "--increment", "2e-4", "--p0", "2e5", "-q"]

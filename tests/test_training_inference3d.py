@@ -148,7 +148,7 @@ def test_the_backend_steps_spatial_cells_compiled_and_takes_their_tangent_from_t
 
 @needs_model
 def test_a_short_undrained_triaxial_run_follows_the_torch_path():
-    from homogenization import driver, loading
+    from homogenization.element_test import driver, loading
     from homogenization.backends import make_cell_model
 
     meso = mesostructure_arg("hcell3d:alpha0=55").build(55.0)

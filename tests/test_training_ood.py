@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from homogenization import driver, loading
+from homogenization.element_test import driver, loading
 from homogenization.backends.ann import AnnCell, default_model_path
 from training import ood
 from training.checkpoint import load_checkpoint

@@ -79,8 +79,8 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 import torch
 
-from homogenization import envelope
-from homogenization.orientation3d import cell_kinematics, kinematics_of
+from homogenization.learning import envelope
+from homogenization.material.orientation3d import cell_kinematics, kinematics_of
 from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP

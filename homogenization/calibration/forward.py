@@ -9,10 +9,10 @@ points, each with its own cells (``AnalyticalCell.with_cell_laws`` /
 is one batched ``step`` over n x (cells per point) cells, run by the element-test engine
 (``homogenization.element_test``: the population's stages as plans, its one stress-control solver
 under the ``POPULATION`` policy). Other backends take one contact law per model: their sets run
-one after the other through ``homogenization.driver.run``. Both orient the cells as the driver
+one after the other through ``homogenization.element_test.driver.run``. Both orient the cells as the driver
 does (``element_test.points.orientation_set``).
 
-Stages, per point, as in ``homogenization.loading.biaxial`` / ``loading.triaxial``: equal strain
+Stages, per point, as in ``homogenization.element_test.loading.biaxial`` / ``loading.triaxial``: equal strain
 increments of ``iso_increment`` on every normal component until p reaches p0, the increment
 that crosses it shortened (regula falsi on its scale) so that p lands on p0; then ``increment``
 steps of eps11 with the lateral strains constant-volume (2D: d_eps22 = -d_eps11; 3D:
@@ -32,7 +32,7 @@ from typing import Mapping
 
 import numpy as np
 
-from homogenization import driver, loading
+from homogenization.element_test import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell
 from homogenization.backends.analytical3d import Analytical3DCell
@@ -42,7 +42,7 @@ from homogenization.element_test.programme import Plan
 from homogenization.element_test.record import History
 from homogenization.element_test.run import run
 from homogenization.element_test.solver import POPULATION, StressControl
-from homogenization.invariants import deviator_3d, mean_stress_3d
+from homogenization.material.invariants import deviator_3d, mean_stress_3d
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, LoadingDefaults
 from warp_hcell.mesostructures.hcell import build_h_cell_3d, h_cell
 
@@ -96,7 +96,7 @@ class Curves:
     """Model curves of n parameter sets at a test's eps1 values, each shape (n, n_data).
 
     ``q``, ``p`` [N/m in 2D, Pa in 3D], ``eps_v`` [-]; NaN for a point whose isotropic stage does not reach p0
-    within ``homogenization.loading.ISO_MAX_STRAIN`` (too soft); ``n_fallback``: per point, the
+    within ``homogenization.element_test.loading.ISO_MAX_STRAIN`` (too soft); ``n_fallback``: per point, the
     isotropic landings and drained Newton iterations that did not meet ``stress_rtol`` (their last
     iterate is used), or (dem/ann, one set at a time) 1 where the backend reported unconverged
     cells, shape (n,).
@@ -124,7 +124,7 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
 
     Raises:
         ValueError: a parameter value outside its range (one line).
-        homogenization.driver.ControlError: (dem/ann) a stage that cannot be run (p0 not reached).
+        homogenization.element_test.driver.ControlError: (dem/ann) a stage that cannot be run (p0 not reached).
     """
     full = full_parameters(params, settings)
     if settings.backend == "analytical":

@@ -19,8 +19,8 @@ from matplotlib.figure import Figure
 from homogenization.calibration import bayes, diagnostics
 from homogenization.calibration.data import Measurement
 from homogenization.calibration.forward import simulate
-from homogenization.figure_style import GRID, LABELS, apply_style, figure_legend
-from homogenization.figures import save_figure
+from homogenization.output.figure_style import GRID, LABELS, apply_style, figure_legend
+from homogenization.output.figures import save_figure
 from warp_hcell.core.cli import quiet_warp
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance

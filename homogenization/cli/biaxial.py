@@ -46,7 +46,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
-from homogenization import driver, figures, loading
+from homogenization.element_test import driver, loading
+from homogenization.output import figures
 from homogenization.cli import plot, posterior_flags
 from homogenization.cli.options import (
     add_alpha0_argument,
@@ -99,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
         eps_max_help="axial strain at the end of the shear stage, counted from its start [-]")
     loading_group.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
     parser.add_argument("--programme", type=Path, default=None,
-                        help="JSON or TOML loading programme (format of homogenization.loading.to_dict; "
+                        help="JSON or TOML loading programme (format of homogenization.element_test.loading.to_dict; "
                              "docs/programmes.md, examples in homogenization/data/programmes/)")
     add_orientations_argument(parser, cell.n_orientations)
     parser.add_argument("--fabric-anisotropy", type=fraction, default=0.0,

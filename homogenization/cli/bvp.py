@@ -2,7 +2,7 @@
 
 Plane-strain biaxial specimen of the homogenised H-model by finite elements
 (``homogenization.fe.solver``, scikit-fem): every Gauss point is a material point with its own
-cells (``homogenization.material``), all stepped in one batch per Newton iteration. Stage 1:
+cells (``homogenization.material.homogenised``), all stepped in one batch per Newton iteration. Stage 1:
 the lateral pressure and the stress of the top platen rise together to p0 in --iso-steps
 steps; stage 2: the smooth rigid top platen moves down by --increment H per step (lateral
 pressure p0) to eps1 = --eps-max, counted from the end of stage 1.
@@ -18,7 +18,7 @@ built at the looser angle, which needs a cell built from an opening angle.
 Writes DIR/curve.csv (stage,eps11,eps22,sigma11,sigma22,sigma12,p,q,iterations; 1 = axial),
 DIR/run.h5 (fields per step), DIR/vtu/step_NNNN.vtu with DIR/specimen.pvd (ParaView) and
 DIR/bvp.png (see ``homogenization.fe.output``). --compare also runs the material point of
-``homogenization.driver`` on the drained biaxial programme with the same settings and overlays
+``homogenization.element_test.driver`` on the drained biaxial programme with the same settings and overlays
 it (the homogeneous specimen should coincide with it).
 
 Sign convention: compression and contraction positive; stresses in N/m (2D). Bad input
@@ -37,13 +37,14 @@ from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
-from homogenization import driver, loading, orientation
+from homogenization.element_test import driver, loading
+from homogenization.material import orientation
 from homogenization.cli.options import (add_alpha0_argument, add_backend_argument, add_cell_arguments,
                                         add_orientations_argument, add_uncertified_argument, certificate_note,
                                         command_parser, refuse_uncertified)
 from homogenization.backends import make_cell_model
 from homogenization.cli.run_files import backend_options, check_models_take, check_options
-from homogenization.material import HomogenisedMaterial
+from homogenization.material.homogenised import HomogenisedMaterial
 from warp_hcell.core.cli import (
     UserError,
     fraction,
@@ -162,7 +163,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
     set_verbosity(args)
-    from homogenization import run_labels  # noqa: PLC0415 (matplotlib: only when the command runs)
+    from homogenization.output import run_labels  # noqa: PLC0415 (matplotlib: only when the command runs)
     from homogenization.fe import output as fe_output, solver as fe  # noqa: PLC0415 (scikit-fem)
 
     out: Path = args.out

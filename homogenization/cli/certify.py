@@ -1,7 +1,7 @@
 """hmodel certify --model M.pt [--mesostructure SPEC] [--data DB.h5] [--write] [--out FILE]
 
 (also ``python -m homogenization.certify``.) The certificate of a meso-ANN model
-(``homogenization.certificate.certify``, docs/certificate.md): the command prints one line per
+(``homogenization.learning.certificate.certify``, docs/certificate.md): the command prints one line per
 test, the verdict and the envelope, and exits with the verdict (``certificate.exit_code``: 0
 passed, 3 failed, 4 within the target but below the minimum certificate; the certificate is
 recorded in every case). ``--write`` stores it in the model's JSON under ``"certificate"`` (the
@@ -12,7 +12,7 @@ database (``training.ood.index_for_model``), for a model trained before the inde
 Bad input (missing model or JSON, a mesostructure the model does not take, --out a folder, an
 existing file without --overwrite or in a folder that cannot be written, --write on a JSON that
 cannot be written, --data not a database) is one line and exit 2, before any test. The parser
-reads its defaults from ``homogenization.learning_settings.CertificateSettings`` (the minimum
+reads its defaults from ``homogenization.learning.settings.CertificateSettings`` (the minimum
 certificate), so that --help imports neither torch nor Warp.
 """
 
@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Sequence
 
 from homogenization.cli.options import add_spatial_rule_arguments, certificate_settings, command_parser, EXIT_CODES_HELP
-from homogenization.learning_settings import CertificateSettings
+from homogenization.learning.settings import CertificateSettings
 from warp_hcell.core.cli import positive_float, positive_int, quiet_warp, say, set_verbosity, UserError, writing_to
 from warp_hcell.core.files import atomic_write, check_output_path
 from warp_hcell.mesostructures.builders import mesostructure_arg
@@ -101,7 +101,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.model.is_file():
         raise UserError(f"--model {args.model}: no such model file")
     check_writable(args)
-    from homogenization import certificate, driver  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from homogenization.learning import certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from homogenization.element_test import driver
     from training.checkpoint import metadata_path, read_metadata  # noqa: PLC0415
 
     read_metadata(args.model)  # CheckpointError (one line) for a missing or unreadable JSON

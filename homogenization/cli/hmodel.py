@@ -8,7 +8,7 @@ same code. Adding a subcommand is one line in ``COMMANDS``.
 
 Exit codes: 0 success, 2 bad input (one line on stderr), 130 interrupted; ``certify``, ``train``
 and ``learn`` exit 3 when the certificate failed and 4 when it is below the minimum certificate
-(``homogenization.certificate.exit_code``).
+(``homogenization.learning.certificate.exit_code``).
 """
 
 from __future__ import annotations

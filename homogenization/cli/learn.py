@@ -7,7 +7,7 @@ skipped when its output is complete (a second call continues; an interrupted sta
    sidecar ``DIR/db.h5.parts``);
 2. ``DIR/ann.pt``, ``DIR/ann.json``: the meso-ANN (``training.train``), skipped when the JSON's
    training data is the current ``db.h5``;
-3. the certificate and the active-learning rounds (``homogenization.active.learn``): while the
+3. the certificate and the active-learning rounds (``homogenization.learning.active.learn``): while the
    certificate fails and the budget (``ActiveSettings``) is left, the DEM states of the failing
    tests are probed, appended to ``db.h5`` and the model is retrained from scratch;
 4. ``DIR/certificate.png``: p and q of the ANN and the DEM on the certificate's worst test.
@@ -27,7 +27,7 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from homogenization.learning_settings import ActiveSettings
+from homogenization.learning.settings import ActiveSettings
 from homogenization.cli.options import (active_settings, add_active_arguments, add_threads_argument, certificate_settings,
                                         command_parser, EXIT_CODES_HELP)
 from training.config import DEFAULT_HIDDEN, hidden_widths, TrainConfig
@@ -117,7 +117,7 @@ def _train_config(args: argparse.Namespace) -> TrainConfig:
 
 def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings,
            budget: ActiveSettings, config: TrainConfig) -> int:
-    from homogenization import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from homogenization.learning import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from training.checkpoint import metadata_path  # noqa: PLC0415
     from warp_hcell.database.generate import generate  # noqa: PLC0415
     from warp_hcell.database.shards import DiskFull  # noqa: PLC0415

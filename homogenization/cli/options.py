@@ -21,7 +21,7 @@
   --posterior-band N (the 95 % band of N posterior draws), applied by ``homogenization.cli.posterior_flags``;
 - ``add_active_arguments(parser)``: the budget of the active-learning rounds (--rounds,
   --samples-per-round, --max-samples, --max-seconds, --warm-start, --widen; defaults from
-  ``homogenization.learning_settings.ActiveSettings``) and the certificate's --orientations (planar cells),
+  ``homogenization.learning.settings.ActiveSettings``) and the certificate's --orientations (planar cells),
   --order and --spins (spatial cells) and --eps-max,
   read back with ``active_settings(args)`` and ``certificate_settings(args)`` (``hmodel learn`` and
   ``hmodel train``).
@@ -33,16 +33,16 @@ import argparse
 from pathlib import Path
 
 from homogenization.backends import BACKENDS
-from homogenization.learning_settings import ActiveSettings, CertificateSettings
+from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
 from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 
 EXIT_CODES_HELP = ("exit codes: 0 the certificate passed; 2 bad input (one line, before any work); 3 the certificate "
                    "failed (worst > target); 4 within the target but below the minimum certificate "
-                   "(homogenization.envelope.MINIMUM), so not passed; 130 interrupted (docs/usage.md, Failures and existing output)")
+                   "(homogenization.learning.envelope.MINIMUM), so not passed; 130 interrupted (docs/usage.md, Failures and existing output)")
 """The --help epilog of the commands that end with a certificate (certify, train, learn;
-``homogenization.certificate.exit_code``)."""
+``homogenization.learning.certificate.exit_code``)."""
 ISO_TO_SHEAR_INCREMENT = LoadingDefaults.iso_increment / LoadingDefaults.increment
 """Default --iso-increment as a fraction of --increment (5e-6 / 1e-5 = 0.5)."""
 
@@ -102,7 +102,7 @@ def add_orientations_argument(parser: argparse.ArgumentParser, default: int,
 
 def lebedev_order(text: str) -> int:
     """argparse type: one of ``orientation3d.LEBEDEV_ORDERS``."""
-    from homogenization.orientation3d import LEBEDEV_ORDERS  # noqa: PLC0415 (scipy: only the commands of 3D cells)
+    from homogenization.material.orientation3d import LEBEDEV_ORDERS  # noqa: PLC0415 (scipy: only the commands of 3D cells)
 
     order = positive_int(text)
     if order not in LEBEDEV_ORDERS:

@@ -1,7 +1,7 @@
 """hmodel plot RUN.h5 [RUN.h5 ...] --out fig.png|fig.pdf|fig.svg [--deviator t] [--fourth-panel W2] [--normalise] [--csl]
 
 (also ``python -m homogenization.plotting``.) Overlays finished runs in the 2x2 biaxial figure
-of ``homogenization.figures``; whether the third panel shows p or eps_v is read from the files
+of ``homogenization.output.figures``; whether the third panel shows p or eps_v is read from the files
 (``drained`` parameter, else: a stress-controlled component after the first step).
 
 Sign convention: compression and contraction positive; stresses in N/m (2D).
@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from homogenization import figures, io
+from homogenization.output import figures, io
 from warp_hcell.core.cli import command_parser, run_main, say, set_verbosity, UserError, writing_to
 from warp_hcell.core.files import check_output_path
 

@@ -157,7 +157,7 @@ def shade(fig, run: PosteriorRun | None, panels: Sequence[tuple[int, str, float]
     """
     if run is None or run.band is None:
         return
-    from homogenization.figure_style import figure_legend  # noqa: PLC0415
+    from homogenization.output.figure_style import figure_legend  # noqa: PLC0415
 
     b = run.band
     x = 100.0 * b["eps1"]

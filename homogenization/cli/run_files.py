@@ -29,12 +29,13 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from homogenization import driver, io
+from homogenization.element_test import driver
+from homogenization.output import io
 from homogenization.backends import backend_class, BACKENDS, make_cell_model
-from homogenization import loading
+from homogenization.element_test import loading
 from homogenization.cli.options import ISO_TO_SHEAR_INCREMENT, certificate_note, refuse_uncertified
-from homogenization.driver import Record
-from homogenization.envelope import summary as envelope_summary
+from homogenization.element_test.driver import Record
+from homogenization.learning.envelope import summary as envelope_summary
 from warp_hcell.core.cli import quiet_warp, UserError, writing_to
 from warp_hcell.core.files import check_output_path
 from warp_hcell.core.parameters import ContactLaw

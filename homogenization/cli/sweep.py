@@ -34,13 +34,13 @@ Output:
 - DIR/summary.csv: one row per case (``SUMMARY_COLUMNS``): stresses [N/m] and strains [-],
   compression positive, eps1 counted from the end of the isotropic stage; peak_q is the
   largest q of the shear stages, first_peak_q the first maximum of q after which q falls by
-  more than ``homogenization.sweep_case.SOFTENING_DROP`` p0 (NaN if q never softens): the q peak of the instability
+  more than ``homogenization.sweeps.case.SOFTENING_DROP`` p0 (NaN if q never softens): the q peak of the instability
   analysis; p_at_5pct.. are p at eps1 = 5, 10, 15 % (NaN beyond the run).
 - DIR/summary.png: q/p0 and p/p0 against eps1, and the (p/p0, q/p0) paths, of every case.
 - DIR/sweep.json: the options of the sweep that made DIR.
 
-The cases are planned by ``homogenization.sweep_plan`` and computed by
-``homogenization.sweep_case``; this module is the command, its files and the summary. Cases are
+The cases are planned by ``homogenization.sweeps.plan`` and computed by
+``homogenization.sweeps.case``; this module is the command, its files and the summary. Cases are
 tasks of ``warp_hcell.core.execution`` (as the database generator): in this process for
 one worker, a Dask LocalCluster of --workers single-threaded processes, or the Dask scheduler
 at --scheduler ADDRESS (a remote cluster; docs/distributed.md). A task computes one case and
@@ -68,7 +68,8 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-from homogenization import driver, figures, io, run_labels
+from homogenization.element_test import driver
+from homogenization.output import figures, io, run_labels
 from homogenization.cli.options import (
     add_orientations_argument,
     add_threads_argument,
@@ -77,9 +78,9 @@ from homogenization.cli.options import (
     command_parser,
     refuse_uncertified_file,
 )
-from homogenization.figure_style import LABELS
-from homogenization.sweep_case import case_task, summarise
-from homogenization.sweep_plan import Case, ModelChoice, plan
+from homogenization.output.figure_style import LABELS
+from homogenization.sweeps.case import case_task, summarise
+from homogenization.sweeps.plan import Case, ModelChoice, plan
 from warp_hcell.mesostructures.builders import (
     MESOSTRUCTURE_HELP,
     mesostructure_list_arg,

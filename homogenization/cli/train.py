@@ -2,9 +2,9 @@
 
 (also ``python -m homogenization.train``.) Trains the meso-ANN (``training.train``, the same
 options and output), then measures the model against the DEM of its mesostructure
-(``homogenization.certificate``, docs/certificate.md) and writes the certificate into the
+(``homogenization.learning.certificate``, docs/certificate.md) and writes the certificate into the
 model's JSON, so that the ANN backend accepts a model that passed. When the certificate fails,
-the active-learning rounds of ``homogenization.active`` follow (the budget flags and defaults
+the active-learning rounds of ``homogenization.learning.active`` follow (the budget flags and defaults
 of ``hmodel learn``, ``homogenization.cli.options.add_active_arguments``): the DEM states of the
 failing tests are probed, their samples appended to the database, the model retrained and
 certified again, one line per round. The samples go into --data itself, or, where that file
@@ -101,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     set_verbosity(args)
     budget = active_settings(args)
-    from homogenization import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from homogenization.learning import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from training import train as training_train  # noqa: PLC0415
     from training.checkpoint import metadata_path  # noqa: PLC0415
 

@@ -2,7 +2,7 @@
 
 (also ``python -m homogenization.triaxial``.) Triaxial tests of the 3D H-model (ten-sphere cells
 oriented by a Lebedev rule on the hemisphere times spins about each axis,
-``homogenization.orientation3d``): isotropic compression to p0 (three equal strain increments of
+``homogenization.material.orientation3d``): isotropic compression to p0 (three equal strain increments of
 --iso-increment, by default half the shear increment, the last one shortened so that p lands on
 p0), then one shear stage (axis 1 axial, --eps-max of axial strain in increments of --increment):
 
@@ -39,7 +39,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
-from homogenization import driver, figures, loading
+from homogenization.element_test import driver, loading
+from homogenization.output import figures
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
 from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, command_parser, lebedev_order

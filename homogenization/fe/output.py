@@ -15,7 +15,7 @@
   eps_d = sqrt((eps_xx - eps_yy)^2 + gamma_xy^2), and alpha0 per element.
 - ``bvp.png``: q and eps_v against eps1 (strains in %, eps1 and eps_v counted from the end of
   the isotropic stage), and the deformed mesh coloured by eps_d; style of
-  ``homogenization.figure_style``.
+  ``homogenization.output.figure_style``.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
 from homogenization.fe.solver import BiaxialSpecimen, StepResult
-from homogenization.figure_style import apply_style, GRID, LABELS, PNG_DPI, TickFormatter
-from homogenization.orientation import VOLUME_RULE
+from homogenization.output.figure_style import apply_style, GRID, LABELS, PNG_DPI, TickFormatter
+from homogenization.material.orientation import VOLUME_RULE
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 

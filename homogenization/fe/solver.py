@@ -1,7 +1,7 @@
 """Plane-strain biaxial specimen of the homogenised H-model, by finite elements (scikit-fem).
 
 ``BiaxialSpecimen(nx, ny)`` is a W x H rectangle of bilinear quadrilaterals (2 x 2 Gauss
-points each, every Gauss point a material point of ``homogenization.material``) between two
+points each, every Gauss point a material point of ``homogenization.material.homogenised``) between two
 smooth rigid platens: the bottom platen holds u_y = 0, the top platen moves all top nodes by
 one common u_y (a master degree of freedom), both leave u_x free (no friction); the bottom
 node nearest x = W/2 holds u_x = 0 (no rigid-body drift). The lateral faces carry the
@@ -34,7 +34,7 @@ import scipy.sparse as sp
 from skfem import Basis, BilinearForm, ElementQuad1, ElementVector, FacetBasis, LinearForm, MeshQuad, condense, solve
 from skfem.helpers import dot, sym_grad
 
-from homogenization.material import HomogenisedMaterial, MaterialState
+from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
 from warp_hcell.core.parameters import FeDefaults
 
 QUADRATURE_ORDER = 2

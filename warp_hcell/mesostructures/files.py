@@ -77,7 +77,7 @@ GRAIN_KEYS = ("radius", "position", "driven")
 """Keys of one grain of a mesostructure file."""
 KINEMATICS = ("projected", "axisymmetric")
 """Values of the ``kinematics`` key of a 3D cell's file or description: how the macro strain drives the
-cell (homogenization.orientation3d); "axisymmetric" sets the parameter ``hcell.AXISYMMETRIC_KINEMATICS``."""
+cell (homogenization.material.orientation3d); "axisymmetric" sets the parameter ``hcell.AXISYMMETRIC_KINEMATICS``."""
 
 
 def _with_kinematics(meso: Mesostructure, kinematics: Any, where: str) -> Mesostructure:

@@ -577,7 +577,8 @@ H3_GRAINS = 10
 """Grains of the ten-sphere skeleton; fine grains follow."""
 AXISYMMETRIC_KINEMATICS = "axisymmetric_kinematics"
 """Parameter of a 3D cell (``Mesostructure.parameters``): nonzero where the macro strain drives the cell by
-its axisymmetric part (``homogenization.orientation3d``, kinematics "axisymmetric"; the kind ``hcell3d-axisym``)."""
+its axisymmetric part (``homogenization.material.orientation3d``, kinematics "axisymmetric"; the kind
+``hcell3d-axisym``)."""
 _TOP_RING = (5, 9, 1, 6)
 """Lateral grains (0-based) at n > 0 in the order of their azimuth about n: 6, 10, 2, 7."""
 _BOTTOM_RING = (4, 8, 2, 7)
@@ -638,7 +639,7 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
         name: mesostructure name (default: describes the parameters).
         axisymmetric: declare the axisymmetric kinematics (parameter ``AXISYMMETRIC_KINEMATICS`` = 1;
             the kind ``hcell3d-axisym``): the same grains, driven by the axisymmetric part of the cell
-            strain (``homogenization.orientation3d``). False: the projected kinematics.
+            strain (``homogenization.material.orientation3d``). False: the projected kinematics.
 
     Returns:
         Grains 1, 4 driven along n, t1, t2; grains 2, 3, 5, 6, 7, 8, 9, 10 driven along t1 and t2

@@ -35,9 +35,9 @@ from typing import Any, Callable, Mapping, Sequence
 import h5py
 import numpy as np
 
-from homogenization import certificate
-from homogenization.learning_settings import ActiveSettings, CertificateSettings
-from homogenization.envelope import verdict
+from homogenization.learning import certificate
+from homogenization.learning.settings import ActiveSettings, CertificateSettings
+from homogenization.learning.envelope import verdict
 from training import train as training_train
 from training.checkpoint import metadata_path
 from training.config import TrainConfig

@@ -17,7 +17,7 @@ import math
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from homogenization.figure_style import number
+from homogenization.output.figure_style import number
 from warp_hcell.mesostructures.builders import parse_mesostructure
 from warp_hcell.mesostructures.mesostructure import MesostructureError
 

@@ -58,8 +58,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from homogenization import driver, loading
-from homogenization.envelope import dimension_of, envelope_of, MINIMUM, shortfalls, verdict
+from homogenization.element_test import driver, loading
+from homogenization.learning.envelope import dimension_of, envelope_of, MINIMUM, shortfalls, verdict
 from homogenization.backends import make_cell_model
 from training.checkpoint import metadata_path, read_metadata
 from training.ood import state_features
@@ -307,7 +307,7 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
     DEM on the certificate's worst test (``cert["worst_test"]``, rerun with ``cert["settings"]``)."""
     from matplotlib.figure import Figure  # noqa: PLC0415 (matplotlib only where a figure is drawn)
 
-    from homogenization.figure_style import apply_style, figure_legend, PNG_DPI  # noqa: PLC0415
+    from homogenization.output.figure_style import apply_style, figure_legend, PNG_DPI  # noqa: PLC0415
 
     settings = cert["settings"]
     meta = read_metadata(model_path)

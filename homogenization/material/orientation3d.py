@@ -50,7 +50,7 @@ from typing import Mapping
 
 import numpy as np
 
-from homogenization.orientation import (  # noqa: F401 (localise, average_moment and the volume rule of both dimensions)
+from homogenization.material.orientation import (  # noqa: F401 (localise, average_moment and the volume rule of both dimensions)
     average_moment,
     initial_volume,
     localise,

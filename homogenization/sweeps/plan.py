@@ -21,7 +21,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from homogenization import loading
+from homogenization.element_test import loading
 from homogenization.backends import backend_class, mesostructure_refusal
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.parameters import CellDefaults, ContactLaw
@@ -107,10 +107,10 @@ class ModelTable:
 
     def outside_envelope(self, path: Path | None, programme: Any, meso: Mesostructure) -> list[str] | None:
         """Where ``programme`` on cells of ``meso`` leaves the certificate envelope of model ``path``
-        (None: the installed model): ``homogenization.envelope.outside``'s phrases, empty inside;
+        (None: the installed model): ``homogenization.learning.envelope.outside``'s phrases, empty inside;
         None for a model without a certificate."""
         from homogenization.backends.ann import default_model_path  # noqa: PLC0415 torch only for ann
-        from homogenization.envelope import envelope_of, outside  # noqa: PLC0415
+        from homogenization.learning.envelope import envelope_of, outside  # noqa: PLC0415
         from training.checkpoint import read_metadata  # noqa: PLC0415
 
         if path not in self._envelopes:

@@ -11,7 +11,7 @@ tangents with several in 3D; a failure raises ``ControlError``), and the history
 ``|target|`` (times the largest ``|sigma|`` recorded so far where the target is zero).
 
 The same driver runs 3D (triaxial) programmes, whose steps control (11, 22, 33)
-(``loading.COMPONENTS_3D``), on cells of dimension 3 oriented by ``homogenization.orientation3d``
+(``loading.COMPONENTS_3D``), on cells of dimension 3 oriented by ``homogenization.material.orientation3d``
 (``HomogenisedMaterial3D``): p = tr(sigma) / 3 and q = sqrt(3 J2) (``invariants``), stresses in Pa
 and the volume in m^3. A step's ``coupling`` makes the stress-controlled components also follow
 sigma11 (constant p, constant b): the residual of component i is sigma_i - c_i (sigma11 - sigma11 at
@@ -35,8 +35,8 @@ from homogenization.element_test.programme import Plan
 from homogenization.element_test.record import History, Record
 from homogenization.element_test.run import run as run_stages
 from homogenization.element_test.solver import JUMP_WIDTH, STRICT, ControlError, StressControl
-from homogenization.invariants import deviator, deviator_3d, mean_stress, mean_stress_3d
-from homogenization.loading import Programme, dimension, validate
+from homogenization.material.invariants import deviator, deviator_3d, mean_stress, mean_stress_3d
+from homogenization.element_test.loading import Programme, dimension, validate
 from warp_hcell.core.contract import CellModel
 from warp_hcell.core.cli import progress_bar
 from warp_hcell.mesostructures.mesostructure import Mesostructure
@@ -108,7 +108,7 @@ def run(
 
     Args:
         cell_model: any ``CellModel`` backend.
-        programme: loading steps, run in order (see ``homogenization.loading``).
+        programme: loading steps, run in order (see ``homogenization.element_test.loading``).
         mesostructure: the cell every orientation starts from (e.g.
             ``warp_hcell.mesostructures.hcell.h_cell(alpha0_deg, radius)``, a builder spec or a file).
         n_orientations: number N of cell orientations theta_k = k pi / N.
@@ -125,7 +125,7 @@ def run(
             cell's own (``Mesostructure.spin_period_deg``); ``staggered_spins`` False: every axis
             has the same spins (``orientation3d.orientations_3d``, which says what that keeps).
         before_stage: step index -> what to do to the material point before that step (e.g. erode its
-            cells: ``homogenization.sweep_case``); the run and its record go on from the changed state.
+            cells: ``homogenization.sweeps.case``); the run and its record go on from the changed state.
 
     Returns:
         The ``Record`` of the run.

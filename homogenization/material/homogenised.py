@@ -27,7 +27,7 @@ is -sigma (x) dV/d(d_e) / V). The cell moment's S_nt (zero for the H-cell) enter
 not the tangent.
 
 In 3D (``HomogenisedMaterial3D``, cells of dimension 3 oriented by
-``homogenization.orientation3d``) the macro tensors have six components (11, 22, 33, 23, 13, 12)
+``homogenization.material.orientation3d``) the macro tensors have six components (11, 22, 33, 23, 13, 12)
 (tensor shear strains, not engineering ones) [-] and [Pa]; cell k with frame R_k = (n, t1, t2) gets
 (d_eps_n, d_eps_t1, d_eps_t2) = L_k d_e (normal strains along its axes, shear dropped), and
 sigma = sum_k w_k R_k S_k R_k^T / V, V = V0 J, J multiplied by (1 - d_eps11)(1 - d_eps22)(1 - d_eps33)
@@ -44,8 +44,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from homogenization import orientation as orient_mod
-from homogenization import orientation3d
+from homogenization.material import orientation as orient_mod
+from homogenization.material import orientation3d
 from warp_hcell.core.contract import CellModel
 from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell
 

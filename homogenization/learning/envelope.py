@@ -3,7 +3,7 @@
 - ``MINIMUM`` (a frozen ``MinimumCertificate``): the weakest certificate that counts as passed,
   for planar and spatial cells alike (pressures, axial strain, increment, target, planar
   orientations, spatial rule, rollouts, and the tests every certificate must hold). The
-  defaults of ``homogenization.certificate`` are this minimum.
+  defaults of ``homogenization.learning.certificate`` are this minimum.
 - ``shortfalls(cert, dim)``: where a certificate is weaker than ``MINIMUM`` (one phrase each;
   empty: it meets the minimum). Read from the certificate's recorded ``settings``, ``tests``
   and ``rollout``, never from its ``passed`` flag.
@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
-from homogenization import loading
+from homogenization.element_test import loading
 
 PRESSURE_RTOL = 1e-9
 """Relative tolerance of pressure and strain comparisons (round-off of recorded numbers) [-]."""
@@ -64,7 +64,7 @@ class MinimumCertificate:
 
 
 MINIMUM = MinimumCertificate()
-"""The minimum certificate of the package (the defaults of ``homogenization.certificate``)."""
+"""The minimum certificate of the package (the defaults of ``homogenization.learning.certificate``)."""
 
 
 def _covers(value: float, least: float) -> bool:

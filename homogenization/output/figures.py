@@ -43,9 +43,10 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from homogenization import invariants, run_labels
-from homogenization.driver import Record
-from homogenization.figure_style import apply_style, figure_legend, GRID, LABELS, number, PNG_DPI
+from homogenization.material import invariants
+from homogenization.output import run_labels
+from homogenization.element_test.driver import Record
+from homogenization.output.figure_style import apply_style, figure_legend, GRID, LABELS, number, PNG_DPI
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.files import atomic_write
 

@@ -17,10 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from homogenization import driver, figures, loading
+from homogenization.element_test import driver, loading
+from homogenization.output import figures
 from homogenization.backends import make_cell_model
 from homogenization.element_test.points import MaterialPoints
-from homogenization.sweep_plan import Case
+from homogenization.sweeps.plan import Case
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.builders import parse_mesostructure

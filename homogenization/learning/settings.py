@@ -14,7 +14,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from homogenization.envelope import MINIMUM
+from homogenization.learning.envelope import MINIMUM
 
 
 @dataclass(frozen=True)

@@ -50,13 +50,13 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
-from homogenization import loading
+from homogenization.element_test import loading
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
-from homogenization.driver import Record
-from homogenization.orientation import VOLUME_RULE
-from homogenization.orientation3d import VOLUME_RULE as VOLUME_RULE_3D
+from homogenization.element_test.driver import Record
+from homogenization.material.orientation import VOLUME_RULE
+from homogenization.material.orientation3d import VOLUME_RULE as VOLUME_RULE_3D
 
 RUN_FILE = "run.h5"
 CURVE_FILE = "curve.csv"
