@@ -45,7 +45,7 @@ COMPARED = ("sigma11", "sigma22", "sigma33", "p", "q")
 
 def run(model, meso, args):
     """(record, wall time [s]) of the test on ``model``'s cells; warnings counted, not raised."""
-    from homogenization import driver, loading
+    from homogenization.element_test import driver, loading
 
     programme = loading.triaxial(args.p0, args.eps_max, args.increment, test=args.test,
                                  iso_increment=0.5 * args.increment)
@@ -92,7 +92,7 @@ def step_part(args, meso, corrections, tolerances) -> None:
     """Median time of one step call per backend on the cells of ``--step-rule``, side by side."""
     from homogenization.backends import make_cell_model
     from homogenization.backends.ann import AnnCell3D
-    from homogenization.orientation3d import orientations_3d
+    from homogenization.material.orientation3d import orientations_3d
     from warp_hcell.core.parameters import ContactLaw
 
     order, spins = (int(v) for v in args.step_rule.split("x"))
@@ -166,7 +166,7 @@ def main(argv=None) -> int:
 
     from homogenization.backends import make_cell_model
     from homogenization.backends.ann import AnnCell3D
-    from homogenization.driver import ControlError
+    from homogenization.element_test.driver import ControlError
     from training.inference import FastAdvance
     from warp_hcell.core.parameters import ContactLaw
     from warp_hcell.mesostructures.builders import mesostructure_arg

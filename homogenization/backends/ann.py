@@ -47,11 +47,11 @@ start state lies within the range of those start cells (e.g. an H-cell at an ope
 between the database's; ``training.checkpoint.check_start_cell``). Otherwise
 ``CheckpointError`` (one line; exit code 2 in the CLIs).
 
-Certificate (``homogenization.certificate``, docs/certificate.md): ``certificate`` is the
+Certificate (``homogenization.learning.certificate``, docs/certificate.md): ``certificate`` is the
 model JSON's ``"certificate"`` entry (None if absent) and ``certificate_problem`` one line
 saying why the model may not be used (uncertified, failed, or certified for another ``.pt``:
 its ``model_sha256`` differs from the file's, or a certificate below the minimum of
-``homogenization.envelope.MINIMUM``), None for a model that passed. The class only reports it;
+``homogenization.learning.envelope.MINIMUM``), None for a model that passed. The class only reports it;
 the commands refuse such a model unless ``--uncertified-ok``
 (``homogenization.cli.options.refuse_uncertified``). ``envelope`` is what the certificate
 covers (pressures, axial strain, test kinds, cell) and ``envelope_exits(programme, meso)``
@@ -120,7 +120,7 @@ def default_model_path(dim: int = 2) -> Path:
 def certificate_problem(metadata: dict[str, Any], path: Path) -> str | None:
     """Why model ``path`` (JSON ``metadata``) may not be used, in one line, or None if its
     certificate was measured on this very ``.pt`` (same sha256), is within its target and meets
-    the minimum certificate (``homogenization.envelope.MINIMUM``: pressures, strain,
+    the minimum certificate (``homogenization.learning.envelope.MINIMUM``: pressures, strain,
     orientations, rollouts, tests), read from its recorded settings, not from its ``passed`` flag."""
     cert = metadata.get("certificate")
     if not isinstance(cert, dict):
@@ -290,12 +290,12 @@ class AnnCell(ArrayStateMixin):
 
     @property
     def envelope(self) -> dict[str, Any] | None:
-        """The certificate's envelope (``homogenization.envelope.envelope_of``); None uncertified."""
+        """The certificate's envelope (``homogenization.learning.envelope.envelope_of``); None uncertified."""
         return envelope.envelope_of(self.certificate) if isinstance(self.certificate, dict) else None
 
     def envelope_exits(self, programme: Sequence[Any], meso: Mesostructure) -> list[str] | None:
-        """Where ``programme`` (``homogenization.loading``) run on cells of ``meso`` leaves the
-        certificate's envelope, one phrase each (``homogenization.envelope.outside``; empty:
+        """Where ``programme`` (``homogenization.element_test.loading``) run on cells of ``meso`` leaves the
+        certificate's envelope, one phrase each (``homogenization.learning.envelope.outside``; empty:
         inside); None for an uncertified model (no envelope)."""
         if self.envelope is None:
             return None
@@ -434,7 +434,7 @@ class AnnCell(ArrayStateMixin):
 
     def control_diagnosis(self, state: AnnState, d_eps_local: np.ndarray, directions: np.ndarray,
                           programme: Sequence[Any], meso: Mesostructure) -> str:
-        """One line on a stress-controlled increment that failed (``homogenization.driver``): how many
+        """One line on a stress-controlled increment that failed (``homogenization.element_test.driver``): how many
         cells, which (indices and cell axes ``directions`` (n, dim), unit vectors in the macro frame),
         failed their step or tangent over the last trial (``failed_cells``), whether the model is
         certified and whether the run lies inside its certificate's envelope."""

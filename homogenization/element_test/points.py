@@ -1,8 +1,9 @@
 """The material points of an element test: their oriented cells, their saved state, trials and acceptance.
 
 ``material_points(cell_model, mesostructure, n_points, ...)`` builds n material points of one
-mesostructure (``homogenization.material``), oriented in 2D by ``homogenization.orientation`` and in
-3D by ``homogenization.orientation3d`` with the mesostructure's own spin period and kinematics
+mesostructure (``homogenization.material.homogenised``), oriented in 2D by
+``homogenization.material.orientation`` and in 3D by ``homogenization.material.orientation3d``
+with the mesostructure's own spin period and kinematics
 (``orientation3d.cell_kinematics``: e.g. ``hcell3d-axisym``). ``MaterialPoints`` holds the state of
 the last accepted increment; a trial updates every point from it (one batched ``step``), and
 ``accept`` takes a trial for the points of a mask, the others keeping their state, so a point's
@@ -19,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from homogenization import orientation as orient_mod
-from homogenization import orientation3d
-from homogenization.invariants import mean_stress, mean_stress_3d
-from homogenization.material import HomogenisedMaterial, HomogenisedMaterial3D, MaterialState, MaterialUpdate
+from homogenization.material import orientation as orient_mod
+from homogenization.material import orientation3d
+from homogenization.material.invariants import mean_stress, mean_stress_3d
+from homogenization.material.homogenised import HomogenisedMaterial, HomogenisedMaterial3D, MaterialState, MaterialUpdate
 from warp_hcell.core.contract import CellModel
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
@@ -58,7 +59,7 @@ class MaterialPoints:
     Attributes:
         material: the ``HomogenisedMaterial`` or ``HomogenisedMaterial3D`` of n points.
         state: ``MaterialState`` of the last accepted increment.
-        peak: per point, the largest abs(sigma) component accepted so far [N/m or Pa], shape (n,).
+        peak: per point, the largest ``|sigma|`` component accepted so far [N/m or Pa], shape (n,).
         call_totals: each backend diagnostic summed over the trials since the last recorded increment.
         accepted_diagnostics: the backend diagnostics of the last accepted trial.
         last_trial: the macro increment (n, n_voigt) of the last trial with finite increments (None before).

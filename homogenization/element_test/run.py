@@ -21,7 +21,7 @@ from homogenization.element_test.points import MaterialPoints
 from homogenization.element_test.programme import Plan
 from homogenization.element_test.record import History
 from homogenization.element_test.solver import ControlError, StressControl
-from homogenization.loading import Step
+from homogenization.element_test.loading import Step
 
 Progress = Callable[[Plan, MaterialPoints], None]
 """Called after every recorded increment of a stage (e.g. a progress bar's update)."""
@@ -34,9 +34,9 @@ def run_stage(solver: StressControl, plan: Plan, history: History, stage: int, *
     a non-strict policy only; a strict one raises).
 
     Raises:
-        homogenization.element_test.solver.ControlError: (strict policy) a stress-controlled
-            increment or landing did not converge, or a stage that stops on p starts at or above it
-            or ends before reaching it.
+        homogenization.element_test.solver.ControlError: (strict policy) a stress-controlled increment
+            or landing did not converge, or a stage that stops on p starts at or above it or ends before
+            reaching it.
     """
     points = solver.points
     fallback = np.zeros(points.n, dtype=np.int64)
@@ -102,7 +102,7 @@ def run(solver: StressControl, stages: Iterable[Step | Plan], history: History, 
 
     Args:
         solver: the stress-control solver of the points.
-        stages: programme steps (``homogenization.loading``) or plans.
+        stages: programme steps (``homogenization.element_test.loading``) or plans.
         history: where the increments are recorded.
         snapshot_interval: also snapshot every this many increments (0: at stage ends only).
         progress: ``progress(plan)`` -> a context that gives the per-increment callback of that stage

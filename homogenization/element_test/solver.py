@@ -5,12 +5,12 @@ stress-controlled components of an increment (``solve``: Newton on the material'
 tangent) and the scale of a strain increment that lands p on a stop value (``land_on_p``: Illinois).
 Every trial is one batched ``step`` from the saved state (steps are pure); a point is accepted as
 soon as it meets its tolerance, the others iterate on, so a point's result does not depend on its
-batch. Convergence: every controlled stress within ``rtol`` times abs(target) (times the largest
-abs(sigma) the point has carried where the target is zero); a landing within ``rtol`` times the stop.
+batch. Convergence: every controlled stress within ``rtol`` times its ``|target|`` (times the largest
+``|sigma|`` the point has carried where the target is zero); a landing within ``rtol`` times the stop.
 
 ``Policy`` says how the iterations spend step calls and what a failure does:
 
-- ``STRICT`` (a recorded run, ``homogenization.driver``): the first trial of an increment reuses the
+- ``STRICT`` (a recorded run, ``homogenization.element_test.driver``): the first trial of an increment reuses the
   last tangent (a DEM tangent costs ~10 step calls), later ones compute their own; with several
   controlled components of a 3D step, trials between fresh tangents take Broyden's rank-one update
   (a fresh one only where the last trial did not halve the residual); with one controlled component
@@ -69,7 +69,7 @@ class Policy:
 
 
 STRICT = Policy()
-"""The policy of a recorded run (``homogenization.driver.run``)."""
+"""The policy of a recorded run (``homogenization.element_test.driver.run``)."""
 POPULATION = Policy(strict=False, reuse_tangent=False, secant=False, bracket=False, cramer=True)
 """The policy of a calibration's population of parameter sets."""
 

@@ -1,6 +1,6 @@
 """Active learning of the meso-ANN: the DEM states where the certificate fails become new samples.
 
-One round: the certificate (``homogenization.certificate.certify``) runs the DEM
+One round: the certificate (``homogenization.learning.certificate.certify``) runs the DEM
 along its homogenised tests and keeps the DEM cell states met every ``state_every`` increments
 (all orientations). The states of the tests that fail (max(dp, dq) > target) are probed as the
 generator probes them (``warp_hcell.database.probing.compute_chunk``: the database's own
@@ -16,7 +16,7 @@ random weights, or with ``ActiveSettings.warm_start`` from the previous round's,
 ``TrainConfig.init_from``), certify, and while the
 certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds) is not spent,
 add a round and retrain (a certificate within its target but below the minimum certificate,
-``homogenization.envelope.MINIMUM``, is not passed, and no round can mend it: the loop stops).
+``homogenization.learning.envelope.MINIMUM``, is not passed, and no round can mend it: the loop stops).
 Every round is printed (samples added,
 certificate worst, seconds) and stored in the model's JSON under ``active_learning``.
 

@@ -11,12 +11,12 @@ and one reversal: constant-volume shear at ``PRESSURES[0]`` to +EPS_MAX / 2, the
 axial, ``loading.triaxial_shear``): undrained (isochoric) and drained (sigma22 = sigma33 = p0)
 compression and extension at every pressure, and the undrained reversal, on the Lebedev rule
 times spins ``SPATIAL_RULE`` over the cell's spin period (``Mesostructure.spin_period_deg``).
-Each test runs through ``homogenization.driver.run`` with the ANN and with the DEM
+Each test runs through ``homogenization.element_test.driver.run`` with the ANN and with the DEM
 (``homogenization.backends``) from the same mesostructure. Figures per test, over the shear
 stages (the isotropic stages may differ by one increment, as p lands on p0): ``dp`` = max
 abs(p_ann - p_dem) / scale, ``dq`` likewise, scale = max(p0, largest DEM p of the test). The
 certificate passes when the worst of them is <= ``TARGET`` and its settings meet the minimum certificate
-(``homogenization.envelope.MINIMUM``; the constants below are that minimum).
+(``homogenization.learning.envelope.MINIMUM``; the constants below are that minimum).
 
 Also reported, not part of ``worst``: the single-cell rollouts of ``training.rollout`` (held-out
 constant-volume and drained legs, each error a fraction of that path's own largest moment: one
@@ -30,7 +30,7 @@ The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_te
 not follow the programme, e.g. a drained increment without convergence), ``rollout``,
 ``coverage``, the settings, ``cell_parameters`` (the cell's, e.g. alpha0_deg), ``model_sha256``
 (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the tree differs),
-``seconds``, and the verdict (``homogenization.envelope``): ``within_target`` (worst <=
+``seconds``, and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
 target), ``below_minimum`` (where the settings are weaker than the minimum certificate
 ``MINIMUM``, whose values the constants above take), ``verdict`` ("passed", "failed", "weak")
 and ``passed`` (within the target AND the minimum met), and ``envelope`` (what the tests
@@ -40,7 +40,7 @@ backend then checks it), ``summary_lines`` are what the commands print (one line
 the verdict and the envelope) and ``exit_code`` the verdict as their exit code: 0 passed,
 ``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the target but below the minimum.
 ``certify(dem_states=...)`` also hands back the DEM cell states met along each test (the
-active-learning rounds of ``homogenization.active`` probe those of the failing tests).
+active-learning rounds of ``homogenization.learning.active`` probe those of the failing tests).
 The command (its flags, its checks of bad input, --data, --write, --out) is
 ``homogenization.cli.certify`` (``hmodel certify``, ``python -m homogenization.certify``).
 
@@ -152,7 +152,7 @@ def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_
                        spatial_rule: Sequence[int] = SPATIAL_RULE) -> dict[str, Any]:
     """The ``settings`` a certificate of cells of dimension ``dim`` records for these options
     (planar: ``n_orientations``; spatial: ``spatial_rule`` as [order, spins], with the spins
-    staggered from axis to axis, ``staggered_spins``: ``homogenization.orientation3d``)."""
+    staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation3d``)."""
     settings = {"pressures": [float(p) for p in pressures], "eps_max": float(eps_max), "increment": float(increment)}
     if dim == 3:
         return {**settings, "spatial_rule": [int(k) for k in spatial_rule], "staggered_spins": True}
@@ -218,11 +218,11 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     every ``state_every`` increments (all cells): ``cell_size`` (n, dim) [m], ``position``
     (n, n_grains, dim) [m], ``shear_force`` (n, n_pairs) [N] (3D: (n, n_pairs, 3);
     ``DemCell.state_to_arrays``, local frame), and ``cell`` (n,) int64, a distinct id per (test,
-    orientation): the active-learning rounds (``homogenization.active``) probe these states.
+    orientation): the active-learning rounds (``homogenization.learning.active``) probe these states.
 
     Raises:
         ValueError (CheckpointError, one line): unusable model, or a mesostructure it does not take.
-        homogenization.driver.ControlError: a stress-controlled increment of the DEM did not converge
+        homogenization.element_test.driver.ControlError: a stress-controlled increment of the DEM did not converge
             (where the ANN's does not, that test fails with dp = dq = inf and its ``error``).
     """
     start = time.perf_counter()
@@ -373,6 +373,6 @@ def exit_code(cert: dict[str, Any]) -> int:
 
 
 if __name__ == "__main__":  # the command is in the command layer; an old command line gets one line, not silence
-    print("python -m homogenization.certificate: this is the library; the command is hmodel certify "
+    print("python -m homogenization.learning.certificate: this is the library; the command is hmodel certify "
           "(python -m homogenization.certify)", file=sys.stderr)
     raise SystemExit(2)

@@ -1,6 +1,6 @@
 """The settings of the learning loop, apart from the loop itself: the certificate's
-(``CertificateSettings``, measured by ``homogenization.certificate.certify``) and the budget and
-sampling of the active-learning rounds (``ActiveSettings``, run by ``homogenization.active``);
+(``CertificateSettings``, measured by ``homogenization.learning.certificate.certify``) and the budget and
+sampling of the active-learning rounds (``ActiveSettings``, run by ``homogenization.learning.active``);
 the single home of their defaults.
 
 Light on purpose: the commands read these defaults for their flags (``hmodel certify``, ``hmodel
@@ -19,8 +19,8 @@ from homogenization.learning.envelope import MINIMUM
 
 @dataclass(frozen=True)
 class CertificateSettings:
-    """What a certificate measures (``homogenization.certificate.certify``); the defaults are the
-    minimum certificate (``homogenization.envelope.MINIMUM``)."""
+    """What a certificate measures (``homogenization.learning.certificate.certify``); the defaults are the
+    minimum certificate (``homogenization.learning.envelope.MINIMUM``)."""
 
     pressures: tuple[float, ...] = MINIMUM.pressures
     """Confining pressures p0 of the tests [N/m in 2D, Pa in 3D]."""
@@ -38,7 +38,7 @@ class CertificateSettings:
     """Also run the single-cell rollouts (reported, not part of the verdict)."""
 
     def keywords(self) -> dict[str, Any]:
-        """The settings as keywords of ``homogenization.certificate.certify``."""
+        """The settings as keywords of ``homogenization.learning.certificate.certify``."""
         return {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
 
 
@@ -60,8 +60,8 @@ class ActiveSettings:
     """Retrain each round from the previous round's weights (``training.train --init-from``)
     instead of random weights (docs/certificate.md, "Warm start": measured no better)."""
     widen: bool = True
-    """Let a round train a wider network (``homogenization.active.next_widths``: the next rung of ``WIDTH_LADDER``)
-    when the round before it gained less than ``homogenization.active.WIDEN_BELOW_GAIN``."""
+    """Let a round train a wider network (``homogenization.learning.active.next_widths``: the next rung of ``WIDTH_LADDER``)
+    when the round before it gained less than ``homogenization.learning.active.WIDEN_BELOW_GAIN``."""
 
     def __post_init__(self) -> None:
         for name in ("rounds", "samples_per_round", "max_samples", "state_every"):
