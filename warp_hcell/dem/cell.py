@@ -21,6 +21,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from warp_hcell.core.contact import hertz_pair_constants
 from warp_hcell.core.contract import CellResponse
 from warp_hcell.dem.integrator import DemIntegrator
 from warp_hcell.dem.love_weber import to_compression_positive
@@ -33,7 +34,7 @@ from warp_hcell.mesostructures.mesostructure import (
     topology_arrays,
 )
 from warp_hcell.dem.model import DemModel
-from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings
+from warp_hcell.core.parameters import check_positive, DemSettings, Law
 from warp_hcell.dem.state import DemState, StatePool
 from warp_hcell.dem.tangent import condensed_tangent, sliding_contacts, sliding_contacts_3d
 
@@ -57,7 +58,8 @@ class DemCell:
     """Meso-DEM backend (see the module docstring).
 
     Args:
-        contact_law: stiffnesses and friction.
+        contact_law: stiffnesses and friction (any law of ``warp_hcell.core.parameters.CONTACT_LAWS``;
+            the Hertz-Mindlin law in spatial cells only).
         radius: grain radius r [m]; positive, not used: every grain's radius comes from
             the mesostructure given to ``init_state`` (the argument keeps the constructor
             of every backend alike, ``homogenization.backends.make_cell_model``).
@@ -68,7 +70,7 @@ class DemCell:
 
     name = "dem"
 
-    def __init__(self, contact_law: ContactLaw, radius: float, *, settings: DemSettings = DemSettings(),
+    def __init__(self, contact_law: Law, radius: float, *, settings: DemSettings = DemSettings(),
                  device: str = "cpu", threads: int = 2):
         if int(threads) < 1:
             raise ValueError(f"threads = {threads} must be >= 1")
@@ -128,7 +130,11 @@ class DemCell:
         model, law = new.model, self.contact_law
         arrays, before = new.dem.to_numpy(), old.dem.to_numpy()
         radius, pairs, driven = model.radius.numpy(), model.meso.pairs, model.meso.driven
-        laws = dict(kn=law.kn, kt=law.kt, mu=law.mu)
+        if law.name == "linear":
+            laws = dict(kn=law.kn, kt=law.kt, mu=law.mu)
+        else:
+            kh, ks = hertz_pair_constants(law, radius[:, pairs[:, 0]], radius[:, pairs[:, 1]])
+            laws = dict(kn=kh, kt=ks, mu=law.mu, law=law.name)
         slides = sliding_contacts if model.meso.dim == 2 else sliding_contacts_3d
         sliding = slides(before["position"], arrays["position"], radius, pairs, before["shear_force"], **laws)
         l_ratio = before["cell_size"] / model.reference_cell_size.numpy()
