@@ -27,8 +27,8 @@ The partial derivatives of the frozen-regime residual and moment are written out
 
 The Hertz-Mindlin law (``warp_hcell.core.parameters.HertzMindlinLaw``, used by the ten-sphere
 cell of ``analytical3d``, whose planes are such cells of spheres) replaces kn <D - d> by
-kh <D - d>^(3/2) and kt by ks sqrt(delta_mid), delta_mid = D - d1_mid the type-1 overlap at
-mid-increment (the DEM grows its spring with kt at the current overlap), kh and ks the pair
+kh <D - d>^(3/2) and kt by the mean Mindlin stiffness of the increment's type-1 overlaps,
+kt(D - d1_old, D - d1) (``warp_hcell.core.contact.mindlin_move_stiffness``, as the DEM's), kh and ks the pair
 constants of equal spheres (R* = r / 2, ``warp_hcell.core.contact.hertz_pair_constants``); the
 solve, its bracket and the tangent are the same with the overlap-dependent slopes.
 
@@ -288,7 +288,7 @@ class AnalyticalCell(ArrayStateMixin):
         d_alpha = new.alpha - old.alpha
         if self.hertz:
             d1_mid = 0.5 * (old.d1 + new.d1)
-            trial = old.T1 + self.law.shear_stiffness(D - d1_mid) * d1_mid * d_alpha
+            trial = old.T1 + self.law.move_stiffness(D - old.d1, D - new.d1) * d1_mid * d_alpha
         else:
             trial = old.T1 + self.kt * 0.5 * (old.d1 + new.d1) * d_alpha
         cap = self.mu * new.N1
@@ -333,10 +333,9 @@ class AnalyticalCell(ArrayStateMixin):
             N1_u, N1_h = -k1 * c, -k1 * s
             N2 = law.normal(D - 2.0 * y2) * closed2
             N2_y = -2.0 * law.normal_stiffness(D - 2.0 * y2) * closed2
-            # kt = ks sqrt(delta_mid), delta_mid = D - d1_mid: dkt/du = -kt / (4 delta_mid) c, dkt/dh likewise with s
-            delta_mid = D - d1_mid
-            kt = law.shear_stiffness(delta_mid)
-            kt_d = np.where(delta_mid > 0.0, -0.25 * kt / np.where(delta_mid > 0.0, delta_mid, 1.0), 0.0)
+            # kt = kt(D - d1_old, D - d1): dkt/du = -kt' c, dkt/dh = -kt' s, kt' its slope in the end overlap
+            kt = law.move_stiffness(D - old.d1, D - d1)
+            kt_d = -law.move_stiffness_slope(D - old.d1, D - d1)
             T1 = np.where(stick, old.T1 + kt * d1_mid * d_alpha, slide * N1)
             T_u = np.where(stick, kt * (0.5 * c * d_alpha + d1_mid * a_u) + kt_d * c * d1_mid * d_alpha, slide * N1_u)
             T_h = np.where(stick, kt * (0.5 * s * d_alpha + d1_mid * a_h) + kt_d * s * d1_mid * d_alpha, slide * N1_h)
@@ -414,7 +413,7 @@ class AnalyticalCell(ArrayStateMixin):
             d1_mid = half_d1_old + 0.5 * d1
             if hertz:
                 N1, N2 = law.normal(gap1), law.normal(gap2)
-                kt = law.shear_stiffness(D - d1_mid)
+                kt = law.move_stiffness(D - old.d1, gap1)
             else:
                 N1 = kn * np.maximum(gap1, 0.0)
                 N2 = kn * np.maximum(gap2, 0.0)
@@ -435,7 +434,7 @@ class AnalyticalCell(ArrayStateMixin):
             f = np.where(converged, 0.0, f)
             # df/dy2, with dd1/dy2 = -cos a, da/dy2 = sin a / d1.
             if hertz:
-                # the slope of kt = ks sqrt(D - d1_mid) is left out of the Newton slope (it only steers)
+                # the slope of kt in the overlap is left out of the Newton slope (it only steers)
                 k1, k2 = law.normal_stiffness(gap1), law.normal_stiffness(gap2)
                 dT = np.where(np.abs(trial) < cap, kt * (d1_mid * s / d1 - 0.5 * c * d_alpha),
                               np.copysign(mu * k1, trial) * c * closed1)

@@ -9,8 +9,13 @@ displacement of the step [m]. The trial force f_s,old + kt du decides the slidin
 The Hertz-Mindlin law (``warp_hcell.core.parameters.HertzMindlinLaw``) replaces the two
 stiffnesses by functions of the overlap: f_n = kh delta sqrt(delta) and kt = ks sqrt(delta),
 delta = max(overlap, 0), with the pair constants kh = (4/3) E* sqrt(R*) and ks = 8 G* sqrt(R*)
-[N/m^1.5] (``hertz_pair_constants``); the cap is the same. ``pair_law`` evaluates either law
-for a batch of pairs.
+[N/m^1.5] (``hertz_pair_constants``); the cap is the same. A move from overlap delta0 to delta1
+grows the spring by the mean of kt over the move (delta linear in the move) times du:
+
+    kt(delta0, delta1) = (2/3) ks (delta1 + sqrt(delta0 delta1) + delta0) / (sqrt(delta1) + sqrt(delta0))
+
+(= ks sqrt(delta) where delta0 = delta1; exact for a contact that closes within the move), in
+every runtime (``mindlin_move_stiffness``). ``pair_law`` evaluates either law for a batch of pairs.
 
 Every function works elementwise on numpy arrays and, compiled by ``numba.njit``, on scalars
 inside numba kernels (``training.inference``); the results are bit for bit the same. The Warp
@@ -71,6 +76,25 @@ def mindlin_shear_stiffness(overlap, ks):
     return ks * np.sqrt(np.maximum(overlap, 0.0))
 
 
+def mindlin_move_stiffness(start_overlap, overlap, ks):
+    """Mean Mindlin stiffness [N/m] of a move from ``start_overlap`` to ``overlap`` [m] (module
+    docstring); 0 where both are <= 0."""
+    a = np.sqrt(np.maximum(overlap, 0.0))
+    b = np.sqrt(np.maximum(start_overlap, 0.0))
+    total = a + b
+    return np.where(total > 0.0, (2.0 / 3.0) * ks * ((a * a + a * b + b * b) / np.where(total > 0.0, total, 1.0)), 0.0)
+
+
+def mindlin_move_stiffness_slope(start_overlap, overlap, ks):
+    """d ``mindlin_move_stiffness`` / d overlap [N/m^2] = (1/3) ks (a + 2 b) / (a + b)^2, a = sqrt(overlap),
+    b = sqrt(start_overlap) (0 where both are <= 0)."""
+    a = np.sqrt(np.maximum(overlap, 0.0))
+    b = np.sqrt(np.maximum(start_overlap, 0.0))
+    total = a + b
+    return np.where((total > 0.0) & (overlap > 0.0),
+                    (1.0 / 3.0) * ks * ((a + 2.0 * b) / np.where(total > 0.0, total * total, 1.0)), 0.0)
+
+
 def hertz_pair_constants(law, radius_i, radius_j):
     """(kh, ks) [N/m^1.5] of pairs of radii r_i, r_j [m] (arrays broadcast): (4/3) E* sqrt(R*) and
     8 G* sqrt(R*), R* = r_i r_j / (r_i + r_j); ``law`` a ``HertzMindlinLaw``."""
@@ -109,6 +133,15 @@ class PairLaw:
     def shear_stiffness(self, overlap):
         """Tangential stiffness kt [N/m] at ``overlap`` (the linear law: kt)."""
         return self.kt if self.linear else mindlin_shear_stiffness(overlap, self.kt)
+
+    def move_stiffness(self, start_overlap, overlap):
+        """Stiffness [N/m] by which a move from ``start_overlap`` to ``overlap`` grows the spring
+        (the linear law: kt; Hertz-Mindlin: ``mindlin_move_stiffness``)."""
+        return self.kt if self.linear else mindlin_move_stiffness(start_overlap, overlap, self.kt)
+
+    def move_stiffness_slope(self, start_overlap, overlap):
+        """d ``move_stiffness`` / d overlap [N/m^2] (the linear law: 0)."""
+        return 0.0 if self.linear else mindlin_move_stiffness_slope(start_overlap, overlap, self.kt)
 
 
 def pair_law(law, radius_i=None, radius_j=None) -> PairLaw:

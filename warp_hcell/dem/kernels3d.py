@@ -61,9 +61,11 @@ def spatial_contact(u: wp.vec3d, rel: wp.vec3d, overlap: wp.float64, spring: wp.
 def hertz_spatial_contact(u: wp.vec3d, rel: wp.vec3d, overlap: wp.float64, spring: wp.vec3d, kh: wp.float64,
                           ks: wp.float64, mu: wp.float64):
     """``spatial_contact`` of the Hertz-Mindlin law: kh, ks [N/m^1.5] the pair's constants
-    (``warp_hcell.dem.contact.hertz_contact_law_3d``)."""
-    du = rel - wp.dot(rel, u) * u
-    return hertz_contact_law_3d(overlap, du, carried_spring(spring, u), kh, ks, mu)
+    (``warp_hcell.dem.contact.hertz_contact_law_3d``); the move started at the overlap
+    overlap + rel . u (it opened the pair by rel . u, to first order)."""
+    opening = wp.dot(rel, u)
+    du = rel - opening * u
+    return hertz_contact_law_3d(overlap, overlap + opening, du, carried_spring(spring, u), kh, ks, mu)
 
 
 SPATIAL_CONTACTS = {"linear": spatial_contact, "hertz-mindlin": hertz_spatial_contact}

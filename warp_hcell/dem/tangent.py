@@ -113,7 +113,7 @@ def sliding_contacts_3d(position_old: np.ndarray, position: np.ndarray, radius: 
     """``sliding_contacts`` of spatial cells: the old spring (n_cells, n_pairs, 3) carried into the
     mid-increment tangent plane (projected, rescaled to its magnitude) plus kt times the tangential
     relative displacement; True where that trial exceeds mu N. ``law``: module docstring (the
-    Hertz-Mindlin kt at the overlap after the increment)."""
+    Hertz-Mindlin kt: the mean of the increment, ``PairLaw.move_stiffness``)."""
     i, j = pairs[:, 0], pairs[:, 1]
     b_old = position_old[:, j] - position_old[:, i]
     b = position[:, j] - position[:, i]
@@ -125,7 +125,9 @@ def sliding_contacts_3d(position_old: np.ndarray, position: np.ndarray, radius: 
     step = b - b_old
     overlap = radius[:, i] + radius[:, j] - np.linalg.norm(b, axis=-1)
     pair = PairLaw(law, kn, kt)
-    kt = pair.shear_stiffness(overlap) if law == "linear" else pair.shear_stiffness(overlap)[..., None]
+    if law != "linear":  # the mean kt of the increment
+        start_overlap = radius[:, i] + radius[:, j] - np.linalg.norm(b_old, axis=-1)
+        kt = pair.move_stiffness(start_overlap, overlap)[..., None]
     trial = carried + kt * (step - np.sum(step * u, axis=-1, keepdims=True) * u)
     N = pair.normal(overlap)
     return (N > 0.0) & (np.linalg.norm(trial, axis=-1) > mu * N)
