@@ -46,6 +46,17 @@ needs; kn from 1e6 to 1e10 N/m, which at laboratory pressures (p0 = 5e4 to 1e6 P
 alpha0 = 60 deg, drained at 1e5 Pa: q_peak / p0 = 0.9, 2.6, 5.1, 12.3 at kn = 1e6, 1e7, 1e8, 1e9)."""
 
 
+PRIOR_BOUNDS_HERTZ_3D: dict[str, tuple[float, float, bool]] = {
+    "shear_modulus": (1e6, 1e11, True),
+    "poisson": (0.0, 0.45, False),
+}
+"""Prior bounds of the Hertz-Mindlin law's parameters on triaxial data, as ``PRIOR_BOUNDS_3D``: the grain
+shear modulus G [Pa] log-uniform from 1 MPa to 100 GPa (the closed form's drained tests of Dobrany sand
+reach its measured peak stress ratios near G = 0.1-1 GPa, below the mineral's 29-44 GPa: the H-cell's
+stiffness, not the mineral's), the Poisson ratio nu [-] uniform in [0, 0.45]; phi_g and alpha0 as in
+``PRIOR_BOUNDS_3D``."""
+
+
 def check_alpha0_deg(alpha0_deg: float) -> float:
     """Return ``alpha0_deg`` as float if it lies in [30, 90) deg, else raise ValueError (one line)."""
     value = float(alpha0_deg)

@@ -34,7 +34,7 @@ from warp_hcell.mesostructures.mesostructure import (
     topology_arrays,
 )
 from warp_hcell.dem.model import DemModel
-from warp_hcell.core.parameters import check_positive, DemSettings, Law
+from warp_hcell.core.parameters import HERTZ_DT_OVERLAP, check_positive, DemSettings, Law
 from warp_hcell.dem.state import DemState, StatePool
 from warp_hcell.dem.tangent import condensed_tangent, sliding_contacts, sliding_contacts_3d
 
@@ -143,11 +143,14 @@ class DemCell:
                                  drive_rate, **laws)
 
     def response(self, state: DemCellState) -> CellResponse:
-        """Love-Weber moment (compression positive) and V_cell of ``state``; diagnostics of its step."""
+        """Love-Weber moment (compression positive) and V_cell of ``state``; diagnostics of its step
+        (a law other than the linear one adds ``n_stiffer_than_dt``, ``stiffer_than_dt``)."""
         dem = state.dem  # the step's Love-Weber sum and polygon area, computed in the kernel
         substeps = dem.substeps.numpy()
         diagnostics = {"substeps": float(substeps.sum()), "max_substeps": float(substeps.max(initial=0)),
                        "n_unconverged": float(np.count_nonzero(dem.converged.numpy() == 0))}
+        if state.model.contact_law.name != "linear":
+            diagnostics["n_stiffer_than_dt"] = float(np.count_nonzero(stiffer_than_dt(state)))
         return CellResponse(moment=to_compression_positive(dem.moment.numpy()), area=dem.area.numpy().copy(),
                             diagnostics=diagnostics)
 
@@ -209,6 +212,16 @@ class DemCell:
                                         arrays["reference_cell_size"], contact_law=self.contact_law,
                                         settings=self.settings, device=self.device)
         return DemCellState(model, DemState.from_numpy(arrays, self.device))
+
+
+def stiffer_than_dt(state: DemCellState) -> np.ndarray:
+    """bool (n_cells,): cells with a contact whose overlap exceeds HERTZ_DT_OVERLAP (r_i + r_j), so stiffer
+    than the stiffness their time step was set for (``warp_hcell.dem.model.reference_stiffness``)."""
+    pairs = state.model.meso.pairs
+    x, radius = state.dem.position.numpy(), state.model.radius.numpy()
+    rsum = radius[:, pairs[:, 0]] + radius[:, pairs[:, 1]]
+    overlap = rsum - np.linalg.norm(x[:, pairs[:, 1]] - x[:, pairs[:, 0]], axis=-1)
+    return (overlap > HERTZ_DT_OVERLAP * rsum).any(axis=1)
 
 
 def _observables_3d(arrays: Mapping[str, np.ndarray], response: CellResponse) -> dict[str, np.ndarray]:
