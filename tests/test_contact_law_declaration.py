@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,6 +26,8 @@ from warp_hcell.core.parameters import (
     contact_law_from_dict,
 )
 from warp_hcell.mesostructures.builders import resolve_mesostructure
+
+DOBRANY_50 = Path(__file__).resolve().parents[1] / "benchmarks" / "lab_data" / "dobrany_sand" / "cid_50kpa.csv"
 
 
 @pytest.mark.parametrize("law", [ContactLaw(kn=3e7, kt_over_kn=0.8, phi_g_deg=25.0),
@@ -93,6 +96,9 @@ def test_the_meso_ann_and_the_learning_database_refuse_it(tmp_path):
      "the meso-ANN backend (its networks learn from DEM databases of the linear law) supports the linear contact "
      "law only, not 'hertz-mindlin'"),
     (["triaxial", "--law", "hertz-mindlin", "--poisson", "0.7"], "poisson = 0.7 is outside [0, 0.5)"),
+    (["calibrate", "--data", str(DOBRANY_50), "--params", "phi_g", "--law", "hertz-mindlin"],
+     "hmodel calibrate (its forward model fits phi_g, kn, kt_over_kn and alpha0) supports the linear contact law "
+     "only, not 'hertz-mindlin'"),
 ])
 def test_the_commands_refuse_in_one_line(argv, message, tmp_path, capsys):
     out = tmp_path / "run"
