@@ -336,3 +336,22 @@ def test_the_analytical_closed_form_obeys_the_hertz_law():
         stuck += np.count_nonzero((new.N1 > 0.0) & (regime == contact.STICK))
         state = new
     assert slid > 50 and stuck > 50
+
+
+def test_the_hertz_dem_tangent_is_the_closed_forms():
+    """The DEM's condensed tangent (``warp_hcell.dem.tangent``, numpy Hertz-Mindlin stiffnesses) and the
+    closed form's consistent tangent of the same ten-sphere cell after axial loading: within 8e-11 of
+    the largest entry (measured 1.6e-11)."""
+    from warp_hcell.mesostructures.builders import resolve_mesostructure
+    from homogenization.backends import make_cell_model
+
+    meso = resolve_mesostructure("hcell3d:alpha0=55")
+    tangents = {}
+    for backend in ("dem", "analytical"):
+        model = make_cell_model(backend, dim=3, contact_law=HERTZ)
+        state = model.init_state(meso, 1)
+        for k in range(20):
+            state, response = model.step(state, np.array([[1e-4, 0.0, 0.0]]), with_tangent=k == 19)
+        tangents[backend] = response.tangent[0]
+    scale = np.abs(tangents["analytical"]).max()
+    assert np.abs(tangents["dem"] - tangents["analytical"]).max() <= 8e-11 * scale
