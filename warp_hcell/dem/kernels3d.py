@@ -17,7 +17,9 @@ Conventions inside the kernel (tension-positive DEM quantities, local frame (n, 
       substep; for a contact whose relative motion stays in one plane this is exactly the
       scalar spring of the 2D kernel), then grows by kt times the tangential part of the
       relative displacement (dx_j - dx_i); the trial force is capped at mu f_n along its own
-      direction (Coulomb); out of contact the history is reset;
+      direction (Coulomb); out of contact the history is reset; the Hertz-Mindlin law
+      (``hertz_spatial_contact``) has f_n = kh delta^(3/2) and the mean Mindlin stiffness of the
+      move in place of kt;
     - contact when the gap is <= contact_tolerance (r_i + r_j); a contact with a gap >= 0
       carries zero force;
     - free DOFs: leapfrog with Cundall local damping per component, from rest at the start of
