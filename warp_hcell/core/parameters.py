@@ -165,7 +165,7 @@ class HertzMindlinLaw:
         return {"law": self.name, **asdict(self)}
 
 
-Law = Union[ContactLaw, "HertzMindlinLaw"]
+Law = Union[ContactLaw, HertzMindlinLaw]
 """Any contact-law declaration of ``CONTACT_LAWS``."""
 CONTACT_LAWS: dict[str, type] = {ContactLaw.name: ContactLaw, HertzMindlinLaw.name: HertzMindlinLaw}
 """Contact laws by name (the ``law`` key of files; a mapping without it is the linear law)."""
