@@ -16,7 +16,7 @@ import pytest
 import dem_oracle3d
 from tangent_fd import fd_tangent_fixed_schedule, relative_error
 from homogenization.backends import make_cell_model
-from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.core.parameters import HERTZ_DT_OVERLAP, ContactLaw, DemSettings, HertzMindlinLaw
 from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
@@ -128,3 +128,24 @@ def test_the_condensed_tangent_equals_central_differences_with_sticking_and_slid
     assert slides.any() and (~slides).any()
     assert error[~slides].max() < 1e-5, error
     assert error[slides].max() < 1e-3, error  # measured 4.8e-4 (4.0e-4 at 1e-9 per substep)
+
+
+def test_hertz_mindlin_cells_count_contacts_stiffer_than_their_time_step():
+    """The Hertz-Mindlin DEM sets its time step at an overlap of HERTZ_DT_OVERLAP (r_i + r_j); a cell with a
+    larger overlap is counted in ``n_stiffer_than_dt`` (the linear law has no such count)."""
+    meso = resolve_mesostructure("hcell3d:alpha0=55")
+    model = make_cell_model("dem", dim=3, contact_law=HertzMindlinLaw())
+    state = model.init_state(meso, 1)
+    counts, overlaps = [], []
+    for _ in range(60):
+        state, response = model.step(state, np.array([[1e-4, 0.0, 0.0]]))
+        counts.append(response.diagnostics["n_stiffer_than_dt"])
+        x = np.stack([[model.observables(state)[f"x_{a}{g}"][0] for a in ("n", "t1", "t2")] for g in range(1, 11)])
+        gaps = np.linalg.norm(x[:, None] - x[None], axis=-1)[np.triu_indices(10, 1)] - 1.0
+        overlaps.append(-gaps.min())
+    expected = (np.array(overlaps) > HERTZ_DT_OVERLAP * 1.0).astype(float)
+    np.testing.assert_array_equal(counts, expected)
+    assert expected[0] == 0.0 and expected[-1] == 1.0
+    linear = make_cell_model("dem", dim=3)
+    _, response = linear.step(linear.init_state(meso, 1), np.array([[1e-4, 0.0, 0.0]]))
+    assert "n_stiffer_than_dt" not in response.diagnostics

@@ -52,8 +52,13 @@ def make_cell_model(
     **options: Any,
 ):
     """Construct backend ``name`` for cells of dimension ``dim`` (the mesostructure's ``dim``) with the given
-    physical parameters and options."""
-    return backend_class(name, dim)(contact_law or ContactLaw(), radius, **options)
+    physical parameters and options; ValueError (one line) for a contact law the cells' dimension does not
+    define (the Hertz-Mindlin law of spheres in planar cells)."""
+    law = contact_law or ContactLaw()
+    if dim == 2 and law.name != ContactLaw.name:
+        raise ValueError(f"the {law.name} contact law is defined for spheres (3D cells, hmodel triaxial); planar "
+                         f"cells use the linear law")
+    return backend_class(name, dim)(law, radius, **options)
 
 
 def mesostructure_refusal(name: str, meso: Any) -> str | None:

@@ -25,6 +25,13 @@ dy2/dl = -(df/dl) / (df/dy2), dS/dl = dS/dl|_y2 + dS/dy2 dy2/dl, and dl_i/d(d_ep
 The partial derivatives of the frozen-regime residual and moment are written out in
 ``_partials``.
 
+The Hertz-Mindlin law (``warp_hcell.core.parameters.HertzMindlinLaw``, used by the ten-sphere
+cell of ``analytical3d``, whose planes are such cells of spheres) replaces kn <D - d> by
+kh <D - d>^(3/2) and kt by the mean Mindlin stiffness of the increment's type-1 overlaps,
+kt(D - d1_old, D - d1) (``warp_hcell.core.contact.mindlin_move_stiffness``, as the DEM's), kh and ks the pair
+constants of equal spheres (R* = r / 2, ``warp_hcell.core.contact.hertz_pair_constants``); the
+solve, its bracket and the tangent are the same with the overlap-dependent slopes.
+
 Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
 growing). Local frame: index 0 = n, 1 = t.
 """
@@ -39,7 +46,8 @@ import numpy as np
 from warp_hcell.mesostructures import hcell
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell
-from warp_hcell.core.parameters import check_positive, ContactLaw
+from warp_hcell.core.contact import PairLaw, pair_law
+from warp_hcell.core.parameters import HERTZ_DT_OVERLAP, check_positive, ContactLaw, Law
 
 
 class AnalyticalState(NamedTuple):
@@ -106,11 +114,13 @@ class AnalyticalCell(ArrayStateMixin):
     """Closed-form H-cell (spec sections 2-7), vectorised over cells.
 
     Args:
-        contact_law: contact stiffnesses and friction (``warp_hcell.core.parameters.ContactLaw``).
+        contact_law: contact stiffnesses and friction (a law of ``warp_hcell.core.parameters.CONTACT_LAWS``;
+            the Hertz-Mindlin law as the plane of the ten-sphere cell, ``analytical3d``).
         radius: grain radius r [m].
         g2: coefficient of the published "G2" variant of the equilibrium (spec section 5),
             N2 = N1 cos a + T1 sin a + g2 T1 [-]. 0 (the default) is the consistent model.
-        tolerance: equilibrium residual accepted, as a fraction of kn r [-].
+        tolerance: equilibrium residual accepted, as a fraction of kn r [-] (Hertz-Mindlin: kn is
+            the tangent stiffness at an overlap of HERTZ_DT_OVERLAP D).
         max_iterations: Newton/bisection iterations allowed per increment [-]; cells still
             above the tolerance are counted in ``diagnostics["n_unconverged"]``.
 
@@ -125,7 +135,7 @@ class AnalyticalCell(ArrayStateMixin):
 
     def __init__(
         self,
-        contact_law: ContactLaw,
+        contact_law: Law,
         radius: float,
         *,
         g2: float = 0.0,
@@ -138,16 +148,37 @@ class AnalyticalCell(ArrayStateMixin):
             raise ValueError(f"g2 = {g2:g} must be finite")
         self.g2 = float(g2)
         self.diameter = 2.0 * self.radius
-        self.kn = contact_law.kn
-        self.kt = contact_law.kt
+        self.law: PairLaw = pair_law(contact_law, self.radius, self.radius)
+        """The contact law of the cell's equal grains (numpy)."""
+        self.kn = self.law.kn
+        """Linear: kn [N/m]; Hertz-Mindlin: kh [N/m^1.5]."""
+        self.kt = self.law.kt
+        """Linear: kt [N/m]; Hertz-Mindlin: ks [N/m^1.5]."""
         self.mu = contact_law.mu
         self.tolerance = check_positive("tolerance", tolerance)
-        self.f_tolerance = self.tolerance * self.kn * self.radius
+        self.f_tolerance = self.tolerance * self.stiffness_scale * self.radius
         if int(max_iterations) < 1:
             raise ValueError(f"max_iterations = {max_iterations} must be >= 1")
         self.max_iterations = int(max_iterations)
         self.cell_alpha0_deg: np.ndarray | None = None
         """Per-cell initial opening angles [deg] of ``with_cell_laws``; None: the mesostructure's."""
+
+    @property
+    def hertz(self) -> bool:
+        """True for the Hertz-Mindlin law."""
+        return not self.law.linear
+
+    @property
+    def stiffness_scale(self):
+        """A normal stiffness [N/m] of the cell's contacts for tolerances and Newton safeguards: kn;
+        Hertz-Mindlin: the tangent stiffness 1.5 kh sqrt(delta) at delta = HERTZ_DT_OVERLAP D."""
+        if self.law.linear:
+            return self.kn
+        return self.law.normal_stiffness(HERTZ_DT_OVERLAP * self.diameter)
+
+    def _pathological(self, overlap: np.ndarray) -> np.ndarray:
+        """Normal force [N] of the pathological contacts at ``overlap`` [m] (never tension)."""
+        return self.law.normal(overlap)
 
     @classmethod
     def with_cell_laws(cls, kn: np.ndarray, kt_over_kn: np.ndarray, phi_g_deg: np.ndarray, radius: float,
@@ -185,6 +216,7 @@ class AnalyticalCell(ArrayStateMixin):
         model.contact_law = None
         model.kn = kn.copy()
         model.kt = ratio * kn
+        model.law = PairLaw("linear", model.kn, model.kt)
         model.mu = np.tan(np.radians(phi))
         model.f_tolerance = model.tolerance * model.kn * model.radius
         if alpha0_deg is not None:
@@ -244,7 +276,8 @@ class AnalyticalCell(ArrayStateMixin):
         l2 = state.l2 * (1.0 - d_eps[:, 1])
         new, diagnostics = self._solve(state, l1, l2)
         moment, area = hcell.love_weber_moment(
-            new.alpha, new.N1, new.N2, new.T1, l1, l2, kn=self.kn, diameter=self.diameter
+            new.alpha, new.N1, new.N2, new.T1, l1, l2, kn=self.kn, diameter=self.diameter,
+            normal=self._pathological if self.hertz else None
         )
         tangent = self._tangent(state, new) if with_tangent else None
         return new, CellResponse(moment, area, diagnostics, tangent)
@@ -253,7 +286,11 @@ class AnalyticalCell(ArrayStateMixin):
         """Contact regime reached by the solve, as the masks that ``_partials`` holds fixed."""
         D = self.diameter
         d_alpha = new.alpha - old.alpha
-        trial = old.T1 + self.kt * 0.5 * (old.d1 + new.d1) * d_alpha
+        if self.hertz:
+            d1_mid = 0.5 * (old.d1 + new.d1)
+            trial = old.T1 + self.law.move_stiffness(D - old.d1, D - new.d1) * d1_mid * d_alpha
+        else:
+            trial = old.T1 + self.kt * 0.5 * (old.d1 + new.d1) * d_alpha
         cap = self.mu * new.N1
         return {
             "closed1": (D - new.d1 > 0.0).astype(np.float64),
@@ -286,16 +323,30 @@ class AnalyticalCell(ArrayStateMixin):
         s_u, s_h = -cs_d1, c * c / d1
         a_u, a_h = -s / d1, c / d1
         closed1, closed2 = regime["closed1"], regime["closed2"]
-        N1 = kn * (D - d1) * closed1
-        N1_u, N1_h = -kn * closed1 * c, -kn * closed1 * s
-        N2 = kn * (D - 2.0 * y2) * closed2
-        N2_y = -2.0 * kn * closed2
         d_alpha = new.alpha - old.alpha
         d1_mid = 0.5 * (old.d1 + d1)
         stick, slide = regime["stick"], regime["slide_sign"] * mu
-        T1 = np.where(stick, old.T1 + kt * d1_mid * d_alpha, slide * N1)
-        T_u = np.where(stick, kt * (0.5 * c * d_alpha + d1_mid * a_u), slide * N1_u)
-        T_h = np.where(stick, kt * (0.5 * s * d_alpha + d1_mid * a_h), slide * N1_h)
+        if self.hertz:
+            law = self.law
+            N1 = law.normal(D - d1) * closed1
+            k1 = law.normal_stiffness(D - d1) * closed1
+            N1_u, N1_h = -k1 * c, -k1 * s
+            N2 = law.normal(D - 2.0 * y2) * closed2
+            N2_y = -2.0 * law.normal_stiffness(D - 2.0 * y2) * closed2
+            # kt = kt(D - d1_old, D - d1): dkt/du = -kt' c, dkt/dh = -kt' s, kt' its slope in the end overlap
+            kt = law.move_stiffness(D - old.d1, D - d1)
+            kt_d = -law.move_stiffness_slope(D - old.d1, D - d1)
+            T1 = np.where(stick, old.T1 + kt * d1_mid * d_alpha, slide * N1)
+            T_u = np.where(stick, kt * (0.5 * c * d_alpha + d1_mid * a_u) + kt_d * c * d1_mid * d_alpha, slide * N1_u)
+            T_h = np.where(stick, kt * (0.5 * s * d_alpha + d1_mid * a_h) + kt_d * s * d1_mid * d_alpha, slide * N1_h)
+        else:
+            N1 = kn * (D - d1) * closed1
+            N1_u, N1_h = -kn * closed1 * c, -kn * closed1 * s
+            N2 = kn * (D - 2.0 * y2) * closed2
+            N2_y = -2.0 * kn * closed2
+            T1 = np.where(stick, old.T1 + kt * d1_mid * d_alpha, slide * N1)
+            T_u = np.where(stick, kt * (0.5 * c * d_alpha + d1_mid * a_u), slide * N1_u)
+            T_h = np.where(stick, kt * (0.5 * s * d_alpha + d1_mid * a_h), slide * N1_h)
         sg = s + self.g2
         f_u = -N1_u * c - N1 * c_u - s_u * T1 - sg * T_u
         f_h = -N1_h * c - N1 * c_h - s_h * T1 - sg * T_h
@@ -310,9 +361,15 @@ class AnalyticalCell(ArrayStateMixin):
         Stt_u, Stt_h = 4.0 * h * B_u, 4.0 * (B + h * B_h)
         # chain rule: du/dy2 = -1, du/dl1 = dh/dl2 = 1/2
         f_x = np.stack([N2_y - f_u, 0.5 * f_u, 0.5 * f_h], axis=-1)
-        S_nn_x = np.stack([4.0 * (N2_y * y2 + N2) - Snn_u, 0.5 * Snn_u + kn * (D - 2.0 * l1) * regime["touch14"],
-                           0.5 * Snn_h], axis=-1)
-        S_tt_x = np.stack([-Stt_u, 0.5 * Stt_u, 0.5 * Stt_h + 2.0 * kn * (D - 2.0 * l2) * regime["touch26"]], axis=-1)
+        # the pathological contacts: d/dl [F(D - l) l] = F(D - l) - F'(D - l) l
+        if self.hertz:
+            axial_l1 = (self.law.normal(D - l1) - self.law.normal_stiffness(D - l1) * l1) * regime["touch14"]
+            lateral_l2 = (self.law.normal(D - l2) - self.law.normal_stiffness(D - l2) * l2) * regime["touch26"]
+        else:
+            axial_l1 = kn * (D - 2.0 * l1) * regime["touch14"]
+            lateral_l2 = kn * (D - 2.0 * l2) * regime["touch26"]
+        S_nn_x = np.stack([4.0 * (N2_y * y2 + N2) - Snn_u, 0.5 * Snn_u + axial_l1, 0.5 * Snn_h], axis=-1)
+        S_tt_x = np.stack([-Stt_u, 0.5 * Stt_u, 0.5 * Stt_h + 2.0 * lateral_l2], axis=-1)
         return f_x, np.stack([S_nn_x, S_tt_x], axis=1)
 
     def _tangent(self, old: AnalyticalState, new: AnalyticalState) -> np.ndarray:
@@ -335,6 +392,7 @@ class AnalyticalCell(ArrayStateMixin):
     def _solve(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray) -> tuple[AnalyticalState, dict]:
         """Equilibrium y2 for the new lengths; returns the state and the diagnostics."""
         kn, kt, mu, D, g2 = self.kn, self.kt, self.mu, self.diameter, self.g2
+        law, hertz, k_scale = self.law, self.hertz, self.stiffness_scale
         h = 0.5 * l2
         half_l1 = 0.5 * l1
         alpha_old, T_old, half_d1_old = old.alpha, old.T1, 0.5 * old.d1
@@ -350,11 +408,15 @@ class AnalyticalCell(ArrayStateMixin):
             alpha = np.arctan2(h, u)
             gap1 = D - d1
             closed1 = gap1 > 0.0
-            N1 = kn * np.maximum(gap1, 0.0)
             gap2 = D - 2.0 * y
-            N2 = kn * np.maximum(gap2, 0.0)
             d_alpha = alpha - alpha_old
             d1_mid = half_d1_old + 0.5 * d1
+            if hertz:
+                N1, N2 = law.normal(gap1), law.normal(gap2)
+                kt = law.move_stiffness(D - old.d1, gap1)
+            else:
+                N1 = kn * np.maximum(gap1, 0.0)
+                N2 = kn * np.maximum(gap2, 0.0)
             trial = T_old + kt * d1_mid * d_alpha
             cap = mu * N1
             T1 = np.minimum(np.maximum(trial, -cap), cap)
@@ -371,18 +433,25 @@ class AnalyticalCell(ArrayStateMixin):
             # on the other cells of the batch.
             f = np.where(converged, 0.0, f)
             # df/dy2, with dd1/dy2 = -cos a, da/dy2 = sin a / d1.
-            dT = np.where(
-                np.abs(trial) < cap,
-                kt * (d1_mid * s / d1 - 0.5 * c * d_alpha),
-                np.copysign(mu * kn, trial) * c * closed1,
-            )
-            df = (s * (N1 * s - T1 * c) / d1 - (s + g2) * dT) - kn * (2.0 * (gap2 > 0.0) + c * c * closed1)
+            if hertz:
+                # the slope of kt in the overlap is left out of the Newton slope (it only steers)
+                k1, k2 = law.normal_stiffness(gap1), law.normal_stiffness(gap2)
+                dT = np.where(np.abs(trial) < cap, kt * (d1_mid * s / d1 - 0.5 * c * d_alpha),
+                              np.copysign(mu * k1, trial) * c * closed1)
+                df = (s * (N1 * s - T1 * c) / d1 - (s + g2) * dT) - (2.0 * k2 + c * c * k1)
+            else:
+                dT = np.where(
+                    np.abs(trial) < cap,
+                    kt * (d1_mid * s / d1 - 0.5 * c * d_alpha),
+                    np.copysign(mu * kn, trial) * c * closed1,
+                )
+                df = (s * (N1 * s - T1 * c) / d1 - (s + g2) * dT) - kn * (2.0 * (gap2 > 0.0) + c * c * closed1)
             lo = np.where(f > 0.0, y, lo)
             hi = np.where(f < 0.0, y, hi)
             # f mostly decreases in y2; a slope that is not negative (all contacts open, or a
             # friction-locked cell sliding back) is made tiny and negative, so y leaves the
             # bracket and the walk below takes over.
-            y_newton = y - f / np.minimum(df, -kn * 1e-12)
+            y_newton = y - f / np.minimum(df, -k_scale * 1e-12)
             # Newton inside the open bracket, or a step below the resolution of y.
             inside = ((y_newton > lo) & (y_newton < hi)) | (y_newton == y)
             if inside.all():
@@ -394,7 +463,7 @@ class AnalyticalCell(ArrayStateMixin):
             # of the bracket, so the (wide) initial bracket costs no long bisection; the
             # walk may reach the limit y2 = l1/2 while that end is not yet evaluated.
             if walk is None:
-                walk = np.abs(l1 - old.l1) + np.abs(l2 - old.l2) + self.f_tolerance / kn
+                walk = np.abs(l1 - old.l1) + np.abs(l2 - old.l2) + self.f_tolerance / k_scale
             mid = 0.5 * (lo + hi)
             upper = np.where(hi == half_l1, hi, mid)
             y_walk = np.where(f > 0.0, np.minimum(y + walk, upper), np.maximum(y - walk, mid))
@@ -411,7 +480,8 @@ class AnalyticalCell(ArrayStateMixin):
     def response(self, state: AnalyticalState) -> CellResponse:
         """Meso-stress of ``state`` without advancing it."""
         moment, area = hcell.love_weber_moment(
-            state.alpha, state.N1, state.N2, state.T1, state.l1, state.l2, kn=self.kn, diameter=self.diameter
+            state.alpha, state.N1, state.N2, state.T1, state.l1, state.l2, kn=self.kn, diameter=self.diameter,
+            normal=self._pathological if self.hertz else None
         )
         return CellResponse(moment, area)
 

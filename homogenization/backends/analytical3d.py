@@ -39,8 +39,9 @@ from typing import Any, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from homogenization.backends.analytical import AnalyticalCell, AnalyticalState, cell_alpha0, plain_cell_alpha0
+from warp_hcell.core.contact import PairLaw
 from warp_hcell.core.contract import CellResponse
-from warp_hcell.core.parameters import ContactLaw
+from warp_hcell.core.parameters import ContactLaw, HertzMindlinLaw, Law
 from warp_hcell.mesostructures import hcell
 from warp_hcell.mesostructures.hcell import plain_alpha0_3d
 from warp_hcell.mesostructures.mesostructure import Mesostructure, polyhedron_volume
@@ -74,7 +75,8 @@ class Analytical3DCell:
     """Closed-form ten-sphere H-cell (module docstring), vectorised over cells.
 
     Args:
-        contact_law: contact stiffnesses and friction.
+        contact_law: contact stiffnesses and friction: the linear law or the Hertz-Mindlin law of
+            spheres (``warp_hcell.core.parameters.CONTACT_LAWS``).
         radius: grain radius r [m] (all ten spheres equal).
         tolerance, max_iterations: of the planar solve (``AnalyticalCell``).
     """
@@ -83,7 +85,7 @@ class Analytical3DCell:
     dim = 3
     """Spatial dimension of the cells."""
 
-    def __init__(self, contact_law: ContactLaw, radius: float, *, tolerance: float = 1e-10,
+    def __init__(self, contact_law: Law, radius: float, *, tolerance: float = 1e-10,
                  max_iterations: int = 60) -> None:
         self.plane = AnalyticalCell(contact_law, radius, tolerance=tolerance, max_iterations=max_iterations)
         self.kn = self.plane.kn
@@ -105,6 +107,35 @@ class Analytical3DCell:
         model.plane = AnalyticalCell.with_cell_laws(kn, kt_over_kn, phi_g_deg, radius, alpha0_deg=alpha0_deg,
                                                     **options)
         model.kn = model.plane.kn
+        return model
+
+    @classmethod
+    def with_hertz_cell_laws(cls, shear_modulus: np.ndarray, poisson: np.ndarray, phi_g_deg: np.ndarray,
+                             radius: float, alpha0_deg: np.ndarray | None = None, **options) -> Analytical3DCell:
+        """``with_cell_laws`` of the Hertz-Mindlin law: cell i has the grain shear modulus
+        shear_modulus[i] [Pa] (> 0), Poisson ratio poisson[i] [-] (in [0, 0.5)), friction angle
+        phi_g_deg[i] [deg] and opening angle alpha0_deg[i] [deg] (shape (n_cells,) each).
+
+        Raises:
+            ValueError: (one line) a value outside the ranges of ``HertzMindlinLaw``.
+        """
+        G, nu, phi = np.broadcast_arrays(*(np.array(v, dtype=np.float64, ndmin=1)
+                                           for v in (shear_modulus, poisson, phi_g_deg)))
+        for k in np.flatnonzero(~(np.isfinite(G) & (G > 0.0) & (nu >= 0.0) & (nu < 0.5) & (phi >= 0.0) & (phi < 90.0))):
+            HertzMindlinLaw(float(G[k]), float(nu[k]), float(phi[k]))  # raises, naming the value
+        model = cls(HertzMindlinLaw(), radius, **options)
+        plane = model.plane
+        # (4/3) E* and 8 G* of every cell (as HertzMindlinLaw writes them) times sqrt(R*) of equal spheres
+        root = np.sqrt(plane.radius * plane.radius / (plane.radius + plane.radius))
+        plane.law = PairLaw("hertz-mindlin", 4.0 / 3.0 * (G / (1.0 - nu)) * root, 8.0 * (G / (2.0 * (2.0 - nu))) * root)
+        plane.kn, plane.kt = plane.law.kn, plane.law.kt
+        plane.mu = np.tan(np.radians(phi))
+        plane.contact_law = None
+        plane.f_tolerance = plane.tolerance * plane.stiffness_scale * plane.radius
+        if alpha0_deg is not None:
+            plane.cell_alpha0_deg = np.array(alpha0_deg, dtype=np.float64, ndmin=1)
+            hcell.touching_cells(plane.cell_alpha0_deg, plane.cell_alpha0_deg.size, plane.diameter)  # range check
+        model.kn = plane.kn
         return model
 
     @staticmethod
@@ -136,7 +167,10 @@ class Analytical3DCell:
         return Analytical3DState(*(self.plane.touching_state(alpha0_deg, n_cells) for _ in range(2)))
 
     def _pathological_axial(self, l1: np.ndarray) -> np.ndarray:
-        """kn <D - l1> l1 [N m]: the contact 1-4 that both planar cells add to S_nn."""
+        """kn <D - l1> l1 [N m] (the contact law's force at overlap D - l1, times l1): the contact 1-4
+        that both planar cells add to S_nn."""
+        if self.plane.hertz:
+            return self.plane.law.normal(self.diameter - l1) * l1
         return self.kn * np.maximum(self.diameter - l1, 0.0) * l1
 
     def step(self, state: Analytical3DState, d_eps_local: np.ndarray, *,
@@ -159,7 +193,12 @@ class Analytical3DCell:
             ta, tb = response_a.tangent, response_b.tangent
             l1 = new_a.l1
             closed14 = (self.diameter - l1 > 0.0)
-            d_axial = np.where(closed14, self.kn * (self.diameter - 2.0 * l1), 0.0) * -state.a.l1
+            if self.plane.hertz:
+                law, overlap = self.plane.law, self.diameter - l1
+                slope = law.normal(overlap) - law.normal_stiffness(overlap) * l1
+            else:
+                slope = self.kn * (self.diameter - 2.0 * l1)
+            d_axial = np.where(closed14, slope, 0.0) * -state.a.l1
             tangent[:, 0, 0] = ta[:, 0, 0] + tb[:, 0, 0] - d_axial
             tangent[:, 0, 1], tangent[:, 0, 2] = ta[:, 0, 1], tb[:, 0, 1]
             tangent[:, 1, 0], tangent[:, 1, 1] = ta[:, 1, 0], ta[:, 1, 1]

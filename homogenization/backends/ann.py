@@ -91,7 +91,7 @@ from warp_hcell.core.provenance import file_sha256
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.files import from_description
 from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, evaluate_observables, Mesostructure, per_cell
-from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings
+from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings, require_linear_law
 
 DEFAULT_MODEL = "ann_default.pt"
 """File name of the planar model shipped in ``homogenization/data`` (with its ``.json``)."""
@@ -203,6 +203,7 @@ class AnnCell(ArrayStateMixin):
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
                  device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL,
                  equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None) -> None:
+        require_linear_law(contact_law, "the meso-ANN backend (its networks learn from DEM databases of the linear law)")
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
         if int(threads) < 1:

@@ -42,7 +42,6 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -184,7 +183,7 @@ def main(argv: Sequence[str] | None = None) -> int:
              f"(~1 % of p0 and more){'; the ANN extrapolates beyond its training probes' if 'ann' in args.backend else ''}")
     law = contact_law_from_args(args)
     if args.verbose:
-        say(f"programme: {loading.to_dict(programme)}", f"contact law: {asdict(law)}, radius {args.radius:g} m")
+        say(f"programme: {loading.to_dict(programme)}", f"contact law: {law.to_dict()}, radius {args.radius:g} m")
 
     meso = run_mesostructure(args)
     with output_lock(out):

@@ -63,6 +63,7 @@ from warp_hcell.core.cli import (
 )
 from warp_hcell.core.files import check_output_path, output_lock, temporary_of
 from warp_hcell.core.provenance import file_sha256
+from warp_hcell.core.parameters import require_linear_law
 
 CHAIN_FILE = "chain.h5"
 OUTPUT_FILES = (CHAIN_FILE, "posterior.h5", "posterior.json", "corner.png", "fits.png", "run.json")
@@ -170,6 +171,7 @@ def configuration(args: argparse.Namespace, tests: Sequence[Measurement], prior:
 
 def forward_settings(args: argparse.Namespace) -> ForwardSettings:
     law = contact_law_from_args(args)
+    require_linear_law(law, "hmodel calibrate (its forward model fits phi_g, kn, kt_over_kn and alpha0)")
     fixed = {"phi_g": law.phi_g_deg, "kn": law.kn, "kt_over_kn": law.kt_over_kn, "alpha0": args.alpha0}
     options: dict[str, Any] = {}
     if args.backend in ("dem", "ann"):

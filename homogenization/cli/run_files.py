@@ -196,7 +196,7 @@ def backend_parameters(name: str, model: Any, options: dict[str, Any], law: Cont
         "backend": name,
         "backend_options": {k: str(v) if isinstance(v, Path) else v for k, v in options.items()},
         **provenance_of(name, model, options),
-        "contact_law": asdict(law),
+        "contact_law": law.to_dict(),
         "radius": radius,
         "alpha0_deg": meso.parameters.get("alpha0_deg"),
     }

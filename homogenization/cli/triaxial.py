@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -198,7 +197,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     meso = run_mesostructure(args)
     spin_period = meso.spin_period_deg()
     if args.verbose:
-        say(f"programme: {loading.to_dict(programme)}", f"contact law: {asdict(law)}, radius {args.radius:g} m")
+        say(f"programme: {loading.to_dict(programme)}", f"contact law: {law.to_dict()}, radius {args.radius:g} m")
     with output_lock(out):
         models, options = build_models(args, law, meso, dim=3)
         with output_folder(out) as work:

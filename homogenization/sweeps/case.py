@@ -23,7 +23,7 @@ from homogenization.backends import make_cell_model
 from homogenization.element_test.points import MaterialPoints
 from homogenization.sweeps.plan import Case
 from warp_hcell.core.cli import UserError
-from warp_hcell.core.parameters import ContactLaw
+from warp_hcell.core.parameters import contact_law_from_dict
 from warp_hcell.mesostructures.builders import parse_mesostructure
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
@@ -96,7 +96,7 @@ def compute_case(case: Case) -> driver.Record:
     meso = parse_mesostructure(case.source).build(None if math.isnan(case.alpha0) else case.alpha0)
     if "model" in options:
         options["model"] = Path(options["model"])
-    model = make_cell_model(case.backend, contact_law=ContactLaw(**prm["contact_law"]), radius=prm["radius"], **options)
+    model = make_cell_model(case.backend, contact_law=contact_law_from_dict(prm["contact_law"]), radius=prm["radius"], **options)
     return run_test(model, case, meso)
 
 

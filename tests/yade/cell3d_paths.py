@@ -9,6 +9,12 @@ form, so it uses only YADE's own contact law and integrator:
   kt / kn (its ks = kn (nu_i + nu_j) / 2 = kt); Law2_ScGeom_FrictPhys_CundallStrack: linear normal
   spring without tension, incremental tangential spring rotated with the contact plane, Coulomb cap
   tan(phi_g) N, interaction erased (shear history reset) when it opens;
+- or, where the settings' contact law has ``"law": "hertz-mindlin"`` (``shear_modulus`` G [Pa],
+  ``poisson`` nu [-], ``phi_g_deg``): FrictMat with young = 2 G (1 + nu) and poisson = nu,
+  Ip2_FrictMat_FrictMat_MindlinPhys (kno = 4/3 E* sqrt(R*), kso = 8 G* sqrt(R*)) and
+  Law2_ScGeom_MindlinPhys_Mindlin (normal force kno uN^1.5, incremental shear spring of stiffness
+  kso sqrt(uN), Coulomb cap, no damping or adhesion); the time step then uses the settings'
+  ``dt_stiffness`` [N/m] in place of kn;
 - Ig2_Sphere_Sphere_ScGeom with avoidGranularRatcheting=False, contacts detected up to a gap of
   ``contact_tolerance`` (r_i + r_j) (they carry no force until the spheres overlap);
 - rotations blocked, no gravity, NewtonIntegrator with Cundall local damping,
@@ -62,7 +68,9 @@ from yade.wrapper import (  # noqa: E402
     InsertionSortCollider,
     InteractionLoop,
     Ip2_FrictMat_FrictMat_FrictPhys,
+    Ip2_FrictMat_FrictMat_MindlinPhys,
     Law2_ScGeom_FrictPhys_CundallStrack,
+    Law2_ScGeom_MindlinPhys_Mindlin,
     NewtonIntegrator,
 )
 from yade.utils import sphere  # noqa: E402
@@ -113,7 +121,9 @@ class CellScene:
         r_max = float(radius.max())
         mass_max = settings["density"] * 4.0 / 3.0 * math.pi * r_max**3
         self.mass = mass_max * (radius / r_max) ** 3
-        self.dt = settings["dt_factor"] * math.sqrt(float(self.mass.min()) / law["kn"])
+        hertz = law.get("law", "linear") == "hertz-mindlin"
+        stiffness = settings["dt_stiffness"] if hertz else law["kn"]
+        self.dt = settings["dt_factor"] * math.sqrt(float(self.mass.min()) / stiffness)
         self.stretch = np.ones(3)
         O.reset()
         detection = 1.0 + settings["contact_tolerance"]
@@ -122,15 +132,20 @@ class CellScene:
             InsertionSortCollider([Bo1_Sphere_Aabb(aabbEnlargeFactor=detection)]),
             InteractionLoop(
                 [Ig2_Sphere_Sphere_ScGeom(interactionDetectionFactor=detection, avoidGranularRatcheting=False)],
-                [Ip2_FrictMat_FrictMat_FrictPhys()],
-                [Law2_ScGeom_FrictPhys_CundallStrack(neverErase=False)],
+                [Ip2_FrictMat_FrictMat_MindlinPhys() if hertz else Ip2_FrictMat_FrictMat_FrictPhys()],
+                [Law2_ScGeom_MindlinPhys_Mindlin(neverErase=False) if hertz
+                 else Law2_ScGeom_FrictPhys_CundallStrack(neverErase=False)],
             ),
             NewtonIntegrator(damping=settings["damping"], gravity=(0.0, 0.0, 0.0)),
         ]
         O.dt = self.dt
         ids = []
         for g, (r, x, driven) in enumerate(zip(radius, cell["position"], cell["driven"])):
-            material = O.materials.append(FrictMat(young=law["kn"] / r, poisson=law["kt_over_kn"],
+            if hertz:
+                young, poisson = 2.0 * law["shear_modulus"] * (1.0 + law["poisson"]), law["poisson"]
+            else:
+                young, poisson = law["kn"] / r, law["kt_over_kn"]
+            material = O.materials.append(FrictMat(young=young, poisson=poisson,
                                                    frictionAngle=math.radians(law["phi_g_deg"]),
                                                    density=settings["density"]))
             body = sphere(tuple(float(v) for v in x), float(r), material=material, fixed=False)

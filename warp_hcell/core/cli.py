@@ -38,7 +38,7 @@ from typing import Any, Callable, Iterator, NoReturn, Sequence
 
 from tqdm import tqdm
 
-from warp_hcell.core.parameters import CellDefaults, check_alpha0_deg, ContactLaw
+from warp_hcell.core.parameters import CONTACT_LAWS, CellDefaults, check_alpha0_deg, ContactLaw, HertzMindlinLaw, Law
 
 EXIT_USAGE = 2
 """Exit code for bad user input (argparse's own convention)."""
@@ -352,10 +352,18 @@ def common_parser() -> argparse.ArgumentParser:
 
 
 def add_contact_law_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add --radius, --kn, --kt, --phi (defaults from ``CellDefaults`` and ``ContactLaw``);
-    read them back with ``contact_law_from_args``. --kt defaults to kt_over_kn x --kn."""
-    law = ContactLaw()
+    """Add --radius, --law, --kn, --kt, --shear-modulus, --poisson, --phi (defaults from ``CellDefaults``,
+    ``ContactLaw`` and ``HertzMindlinLaw``); read them back with ``contact_law_from_args``. --kt
+    defaults to kt_over_kn x --kn."""
+    law, hertz = ContactLaw(), HertzMindlinLaw()
     parser.add_argument("--radius", type=positive_float, default=CellDefaults.radius, help="grain radius r [m]")
+    parser.add_argument("--law", choices=tuple(CONTACT_LAWS), default=ContactLaw.name,
+                        help="contact law: linear springs (--kn, --kt) or Hertz-Mindlin of elastic spheres "
+                             "(--shear-modulus, --poisson; 3D cells)")
+    parser.add_argument("--shear-modulus", type=positive_float, default=hertz.shear_modulus,
+                        help="Hertz-Mindlin: shear modulus G of the grain material [Pa]")
+    parser.add_argument("--poisson", type=finite_float, default=hertz.poisson,
+                        help="Hertz-Mindlin: Poisson ratio nu of the grain material [-], in [0, 0.5)")
     parser.add_argument("--kn", type=positive_float, default=law.kn, help="normal contact stiffness [N/m]")
     parser.add_argument("--kt", type=positive_float, default=argparse.SUPPRESS,
                         help=f"tangential contact stiffness [N/m] (default: {law.kt_over_kn:g} x kn)")
@@ -363,8 +371,11 @@ def add_contact_law_arguments(parser: argparse.ArgumentParser) -> None:
                         help="inter-granular friction angle phi_g [deg], in [0, 90)")
 
 
-def contact_law_from_args(args: argparse.Namespace) -> ContactLaw:
-    """The ``ContactLaw`` of the flags added by ``add_contact_law_arguments``."""
+def contact_law_from_args(args: argparse.Namespace) -> Law:
+    """The contact law of the flags added by ``add_contact_law_arguments``; ValueError (one line) for
+    values outside the law's ranges."""
+    if getattr(args, "law", ContactLaw.name) == HertzMindlinLaw.name:
+        return HertzMindlinLaw(shear_modulus=args.shear_modulus, poisson=args.poisson, phi_g_deg=args.phi)
     kt = getattr(args, "kt", ContactLaw.kt_over_kn * args.kn)
     return ContactLaw(kn=args.kn, kt_over_kn=kt / args.kn, phi_g_deg=args.phi)
 

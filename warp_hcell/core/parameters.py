@@ -12,7 +12,8 @@ contraction positive.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
+from typing import Any, ClassVar, Mapping, Union
 
 ALPHA_MIN_DEG = 30.0
 """Smallest admissible opening angle [deg]: lateral grains 2-6 and 3-5 touch."""
@@ -45,6 +46,18 @@ needs; kn from 1e6 to 1e10 N/m, which at laboratory pressures (p0 = 5e4 to 1e6 P
 alpha0 = 60 deg, drained at 1e5 Pa: q_peak / p0 = 0.9, 2.6, 5.1, 12.3 at kn = 1e6, 1e7, 1e8, 1e9)."""
 
 
+PRIOR_BOUNDS_HERTZ_3D: dict[str, tuple[float, float, bool]] = {
+    "shear_modulus": (1e6, 1e11, True),
+    "poisson": (0.0, 0.45, False),
+}
+"""Prior bounds of the Hertz-Mindlin law's parameters on triaxial data, as ``PRIOR_BOUNDS_3D``: the grain
+shear modulus G [Pa] log-uniform from 1 MPa to 100 GPa (the closed form's drained tests of Dobrany sand
+come nearest its measured curves near G = 2 GPa, below the mineral's 29-44 GPa, where the model's peak
+q / p0 is 12-18: the H-cell's stiffness, not the mineral's; docs/calibration.md), the Poisson ratio nu
+[-] uniform in [0, 0.45]; phi_g and alpha0 as in ``PRIOR_BOUNDS_3D``. Read by no command yet: the
+calibration's forward model fits the linear law only."""
+
+
 def check_alpha0_deg(alpha0_deg: float) -> float:
     """Return ``alpha0_deg`` as float if it lies in [30, 90) deg, else raise ValueError (one line)."""
     value = float(alpha0_deg)
@@ -63,7 +76,8 @@ def check_positive(name: str, value: float) -> float:
 
 @dataclass(frozen=True)
 class ContactLaw:
-    """Linear contact law with Coulomb friction, shared by every backend."""
+    """Linear contact law with Coulomb friction (the default law of every backend): f_n = kn overlap,
+    tangential spring of stiffness kt capped at mu f_n."""
 
     kn: float = 2e8
     """Normal contact stiffness [N/m]."""
@@ -78,15 +92,114 @@ class ContactLaw:
         if not (0.0 <= self.phi_g_deg < 90.0):
             raise ValueError(f"phi_g = {self.phi_g_deg:g} deg is outside [0, 90) deg")
 
+    name: ClassVar[str] = "linear"
+
     @property
     def kt(self) -> float:
         """Tangential contact stiffness [N/m]."""
         return self.kt_over_kn * self.kn
 
+    def to_dict(self) -> dict[str, float]:
+        """The law as file formats store it (no ``law`` key: the linear law is the default)."""
+        return asdict(self)
+
     @property
     def mu(self) -> float:
         """Friction coefficient tan(phi_g) [-]."""
         return math.tan(math.radians(self.phi_g_deg))
+
+
+@dataclass(frozen=True)
+class HertzMindlinLaw:
+    """Hertz-Mindlin contact law of elastic spheres with Coulomb friction (docs/model.md, "Contact laws").
+
+    For a pair of spheres of radii r_i, r_j with overlap delta = r_i + r_j - distance [m]:
+
+        N = (4/3) E* sqrt(R*) delta^(3/2)  [N],   kt = 8 G* sqrt(R* delta)  [N/m],
+
+    R* = r_i r_j / (r_i + r_j), E* = G / (1 - nu) (= E / (2 (1 - nu^2)), E = 2 G (1 + nu)) and
+    G* = G / (2 (2 - nu)) for grains of one material. The tangential spring grows by kt times
+    the tangential relative displacement (kt at the current overlap) and is capped at mu N, as
+    in the linear law (no Mindlin-Deresiewicz partial slip). It is the law of YADE's
+    Ip2_FrictMat_FrictMat_MindlinPhys / Law2_ScGeom_MindlinPhys_Mindlin without damping or
+    adhesion (FrictMat young = E, poisson = nu). Defined for spheres (3D cells) only.
+    """
+
+    name: ClassVar[str] = "hertz-mindlin"
+    shear_modulus: float = 29e9
+    """Shear modulus G of the grain material [Pa] (quartz sand in DEM practice: about 29 GPa)."""
+    poisson: float = 0.2
+    """Poisson ratio nu of the grain material [-], in [0, 0.5)."""
+    phi_g_deg: float = 30.0
+    """Inter-granular friction angle [deg]."""
+
+    def __post_init__(self) -> None:
+        check_positive("shear_modulus", self.shear_modulus)
+        if not (0.0 <= self.poisson < 0.5):
+            raise ValueError(f"poisson = {self.poisson:g} is outside [0, 0.5)")
+        if not (0.0 <= self.phi_g_deg < 90.0):
+            raise ValueError(f"phi_g = {self.phi_g_deg:g} deg is outside [0, 90) deg")
+
+    @property
+    def normal_modulus(self) -> float:
+        """(4/3) E* [Pa]: N = normal_modulus sqrt(R*) delta^(3/2)."""
+        return 4.0 / 3.0 * (self.shear_modulus / (1.0 - self.poisson))
+
+    @property
+    def shear_stiffness_modulus(self) -> float:
+        """8 G* [Pa]: kt = shear_stiffness_modulus sqrt(R* delta)."""
+        return 8.0 * (self.shear_modulus / (2.0 * (2.0 - self.poisson)))
+
+    @property
+    def mu(self) -> float:
+        """Friction coefficient tan(phi_g) [-]."""
+        return math.tan(math.radians(self.phi_g_deg))
+
+    def stiffness_at(self, overlap: float, reduced_radius: float) -> float:
+        """Normal tangent stiffness dN/d(delta) = (3/2) normal_modulus sqrt(R* delta) [N/m] at ``overlap``
+        [m] of a pair of reduced radius R* [m]."""
+        return 1.5 * self.normal_modulus * math.sqrt(reduced_radius * overlap)
+
+    def to_dict(self) -> dict[str, float | str]:
+        """The law as file formats store it: {"law": name, field: value, ...}."""
+        return {"law": self.name, **asdict(self)}
+
+
+Law = Union[ContactLaw, HertzMindlinLaw]
+"""Any contact-law declaration of ``CONTACT_LAWS``."""
+CONTACT_LAWS: dict[str, type] = {ContactLaw.name: ContactLaw, HertzMindlinLaw.name: HertzMindlinLaw}
+"""Contact laws by name (the ``law`` key of files; a mapping without it is the linear law)."""
+HERTZ_DT_OVERLAP = 2e-3
+"""Overlap, as a fraction of r_i + r_j, at whose Hertz tangent stiffness the meso-DEM sets its time
+step and force floor [-] (the linear law's kn). Drained triaxial tests at 50-200 kPa on grains with
+G = 29 GPa reach overlaps of about 1e-4 to 5e-4 (r_i + r_j); a contact stiffer than this one
+(overlap above 2e-3 (r_i + r_j)) is counted in the DEM's ``n_stiffer_than_dt`` diagnostic."""
+
+
+def contact_law_from_dict(values: Mapping[str, Any]) -> Law:
+    """The contact law a file stores (``to_dict`` of any law; no ``law`` key: the linear law).
+
+    Raises:
+        ValueError: (one line) an unknown law name or a key the law does not have.
+    """
+    values = dict(values)
+    name = values.pop("law", ContactLaw.name)
+    if name not in CONTACT_LAWS:
+        raise ValueError(f"unknown contact law {name!r}; choose from {', '.join(CONTACT_LAWS)}")
+    cls = CONTACT_LAWS[name]
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ValueError(f"contact law {name!r} has no parameter {unknown[0]!r}; it has {', '.join(sorted(known))}")
+    return cls(**values)
+
+
+def require_linear_law(law: Any, what: str) -> None:
+    """ValueError (one line) unless ``law`` is the linear law: ``what`` (e.g. "the meso-ANN backend")
+    was built for the linear law only."""
+    name = getattr(law, "name", ContactLaw.name)
+    if name != ContactLaw.name:
+        raise ValueError(f"{what} supports the linear contact law only, not {name!r}")
 
 
 @dataclass(frozen=True)

@@ -71,7 +71,7 @@ from warp_hcell.database.learning_state import free_coordinates
 from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, shares_state_schema
 from warp_hcell.mesostructures.files import describe, description_sha256
 from warp_hcell.mesostructures.hcell import StartCells, h_cell
-from warp_hcell.core.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings
+from warp_hcell.core.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings, require_linear_law
 from warp_hcell.database.probing import chunk_samples, n_chunks
 from warp_hcell.core.provenance import provenance
 from warp_hcell.database.shards import DiskFull, Sidecar, sidecar_path
@@ -223,10 +223,13 @@ def generate(
 
     Raises:
         ValueError: (one line) a start cell of another learning state, an increment beyond
-            max_substeps, or the sidecar holds an unfinished run with other options.
+            max_substeps, a contact law other than the linear one, or the sidecar holds an
+            unfinished run with other options.
         UserError: another run is writing ``out`` (``warp_hcell.core.files.output_lock``).
         DiskFull: no space left (no partial file is left in the sidecar).
     """
+    require_linear_law(contact_law, "the learning database (its format stores kn, kt and phi_g; the meso-ANN "
+                                    "learns from it)")
     starts = [meso] if starts is None else list(starts)
     check_starts(meso, starts)
     check_increments(settings, dem_settings)

@@ -21,6 +21,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from warp_hcell.core.contact import hertz_pair_constants
 from warp_hcell.core.contract import CellResponse
 from warp_hcell.dem.integrator import DemIntegrator
 from warp_hcell.dem.love_weber import to_compression_positive
@@ -33,7 +34,7 @@ from warp_hcell.mesostructures.mesostructure import (
     topology_arrays,
 )
 from warp_hcell.dem.model import DemModel
-from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings
+from warp_hcell.core.parameters import HERTZ_DT_OVERLAP, check_positive, DemSettings, Law
 from warp_hcell.dem.state import DemState, StatePool
 from warp_hcell.dem.tangent import condensed_tangent, sliding_contacts, sliding_contacts_3d
 
@@ -57,7 +58,8 @@ class DemCell:
     """Meso-DEM backend (see the module docstring).
 
     Args:
-        contact_law: stiffnesses and friction.
+        contact_law: stiffnesses and friction (any law of ``warp_hcell.core.parameters.CONTACT_LAWS``;
+            the Hertz-Mindlin law in spatial cells only).
         radius: grain radius r [m]; positive, not used: every grain's radius comes from
             the mesostructure given to ``init_state`` (the argument keeps the constructor
             of every backend alike, ``homogenization.backends.make_cell_model``).
@@ -68,7 +70,7 @@ class DemCell:
 
     name = "dem"
 
-    def __init__(self, contact_law: ContactLaw, radius: float, *, settings: DemSettings = DemSettings(),
+    def __init__(self, contact_law: Law, radius: float, *, settings: DemSettings = DemSettings(),
                  device: str = "cpu", threads: int = 2):
         if int(threads) < 1:
             raise ValueError(f"threads = {threads} must be >= 1")
@@ -128,7 +130,11 @@ class DemCell:
         model, law = new.model, self.contact_law
         arrays, before = new.dem.to_numpy(), old.dem.to_numpy()
         radius, pairs, driven = model.radius.numpy(), model.meso.pairs, model.meso.driven
-        laws = dict(kn=law.kn, kt=law.kt, mu=law.mu)
+        if law.name == "linear":
+            laws = dict(kn=law.kn, kt=law.kt, mu=law.mu)
+        else:
+            kh, ks = hertz_pair_constants(law, radius[:, pairs[:, 0]], radius[:, pairs[:, 1]])
+            laws = dict(kn=kh, kt=ks, mu=law.mu, law=law.name)
         slides = sliding_contacts if model.meso.dim == 2 else sliding_contacts_3d
         sliding = slides(before["position"], arrays["position"], radius, pairs, before["shear_force"], **laws)
         l_ratio = before["cell_size"] / model.reference_cell_size.numpy()
@@ -137,11 +143,14 @@ class DemCell:
                                  drive_rate, **laws)
 
     def response(self, state: DemCellState) -> CellResponse:
-        """Love-Weber moment (compression positive) and V_cell of ``state``; diagnostics of its step."""
+        """Love-Weber moment (compression positive) and V_cell of ``state``; diagnostics of its step
+        (a law other than the linear one adds ``n_stiffer_than_dt``, ``stiffer_than_dt``)."""
         dem = state.dem  # the step's Love-Weber sum and polygon area, computed in the kernel
         substeps = dem.substeps.numpy()
         diagnostics = {"substeps": float(substeps.sum()), "max_substeps": float(substeps.max(initial=0)),
                        "n_unconverged": float(np.count_nonzero(dem.converged.numpy() == 0))}
+        if state.model.contact_law.name != "linear":
+            diagnostics["n_stiffer_than_dt"] = float(np.count_nonzero(stiffer_than_dt(state)))
         return CellResponse(moment=to_compression_positive(dem.moment.numpy()), area=dem.area.numpy().copy(),
                             diagnostics=diagnostics)
 
@@ -203,6 +212,16 @@ class DemCell:
                                         arrays["reference_cell_size"], contact_law=self.contact_law,
                                         settings=self.settings, device=self.device)
         return DemCellState(model, DemState.from_numpy(arrays, self.device))
+
+
+def stiffer_than_dt(state: DemCellState) -> np.ndarray:
+    """bool (n_cells,): cells with a contact whose overlap exceeds HERTZ_DT_OVERLAP (r_i + r_j), so stiffer
+    than the stiffness their time step was set for (``warp_hcell.dem.model.reference_stiffness``)."""
+    pairs = state.model.meso.pairs
+    x, radius = state.dem.position.numpy(), state.model.radius.numpy()
+    rsum = radius[:, pairs[:, 0]] + radius[:, pairs[:, 1]]
+    overlap = rsum - np.linalg.norm(x[:, pairs[:, 1]] - x[:, pairs[:, 0]], axis=-1)
+    return (overlap > HERTZ_DT_OVERLAP * rsum).any(axis=1)
 
 
 def _observables_3d(arrays: Mapping[str, np.ndarray], response: CellResponse) -> dict[str, np.ndarray]:

@@ -27,7 +27,7 @@ import warp as wp
 
 from warp_hcell.dem.kernels import step_kernel
 from warp_hcell.dem.kernels3d import step_kernel_3d
-from warp_hcell.dem.model import DemModel
+from warp_hcell.dem.model import DemModel, kernel_constants
 from warp_hcell.dem.state import DemState
 
 
@@ -78,7 +78,7 @@ def step_arguments(model: DemModel, state_in: DemState, state_out: DemState, d_e
     """Kernel inputs and outputs for cells [start, start + launch dim) (whole arrays passed)."""
     settings, law = model.settings, model.contact_law
     inputs = [model.radius, model.inv_mass, model.reference_position, model.reference_cell_size, model.dt,
-              model.force_floor, law.kn, law.kt, law.mu, settings.damping, settings.contact_tolerance,
+              model.force_floor, *kernel_constants(law), settings.damping, settings.contact_tolerance,
               settings.strain_per_substep, settings.refined_strain_per_substep,
               settings.closing_rate, settings.velocity_change,
               settings.rate_growth,               settings.force_tolerance,
@@ -96,7 +96,8 @@ def launch_step(model: DemModel, state_in: DemState, state_out: DemState, d_eps_
 def kernel_of(model: DemModel) -> wp.Kernel:
     """The compiled cell-step kernel of the model's topology."""
     if model.meso.dim == 3:
-        return step_kernel_3d(*model.meso.topology_key(), tuple(map(tuple, model.meso.outer.tolist())))
+        return step_kernel_3d(*model.meso.topology_key(), tuple(map(tuple, model.meso.outer.tolist())),
+                              model.contact_law.name)
     return step_kernel(*model.meso.topology_key(), tuple(int(g) for g in model.meso.outer))
 
 

@@ -17,7 +17,9 @@ Conventions inside the kernel (tension-positive DEM quantities, local frame (n, 
       substep; for a contact whose relative motion stays in one plane this is exactly the
       scalar spring of the 2D kernel), then grows by kt times the tangential part of the
       relative displacement (dx_j - dx_i); the trial force is capped at mu f_n along its own
-      direction (Coulomb); out of contact the history is reset;
+      direction (Coulomb); out of contact the history is reset; the Hertz-Mindlin law
+      (``hertz_spatial_contact``) has f_n = kh delta^(3/2) and the mean Mindlin stiffness of the
+      move in place of kt;
     - contact when the gap is <= contact_tolerance (r_i + r_j); a contact with a gap >= 0
       carries zero force;
     - free DOFs: leapfrog with Cundall local damping per component, from rest at the start of
@@ -36,7 +38,7 @@ import functools
 
 import warp as wp
 
-from warp_hcell.dem.contact import carried_spring, contact_law_3d
+from warp_hcell.dem.contact import carried_spring, contact_law_3d, hertz_contact_law_3d
 from warp_hcell.dem.pairs import pair_loops
 from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code
 from warp_hcell.dem.warp_options import MODULE_OPTIONS
@@ -58,16 +60,32 @@ def spatial_contact(u: wp.vec3d, rel: wp.vec3d, overlap: wp.float64, spring: wp.
 
 
 @wp.func
+def hertz_spatial_contact(u: wp.vec3d, rel: wp.vec3d, overlap: wp.float64, spring: wp.vec3d, kh: wp.float64,
+                          ks: wp.float64, mu: wp.float64):
+    """``spatial_contact`` of the Hertz-Mindlin law: kh, ks [N/m^1.5] the pair's constants
+    (``warp_hcell.dem.contact.hertz_contact_law_3d``); the move started at the overlap
+    overlap + rel . u (it opened the pair by rel . u, to first order)."""
+    opening = wp.dot(rel, u)
+    du = rel - opening * u
+    return hertz_contact_law_3d(overlap, overlap + opening, du, carried_spring(spring, u), kh, ks, mu)
+
+
+SPATIAL_CONTACTS = {"linear": spatial_contact, "hertz-mindlin": hertz_spatial_contact}
+"""The law of one spatial pair, by contact-law name."""
+
+
+@wp.func
 def spatial_pair_force(u: wp.vec3d, normal: wp.float64, spring: wp.vec3d):
     """The force on grain i by grain j [N]: -f_n u + f_s."""
     return spring - normal * u
 
 
 @functools.lru_cache(maxsize=None)
-def pair_pieces_3d(pairs: tuple[tuple[int, int], ...], n_grains: int) -> tuple[wp.Function, wp.Function, wp.Function]:
-    """(``setup``, ``forces``, ``output``) of the spatial pairs (i, j) of one topology
-    (``warp_hcell.dem.pairs.pair_loops``); a pair's spring is a vector (a row of an (n_pairs, 3) matrix)."""
-    return pair_loops(pairs, n_grains, DIM, spatial_contact, spatial_pair_force)
+def pair_pieces_3d(pairs: tuple[tuple[int, int], ...], n_grains: int,
+                   law: str = "linear") -> tuple[wp.Function, wp.Function, wp.Function]:
+    """(``setup``, ``forces``, ``output``) of the spatial pairs (i, j) of one topology with contact law
+    ``law`` (``warp_hcell.dem.pairs.pair_loops``); a pair's spring is a vector (a row of an (n_pairs, 3) matrix)."""
+    return pair_loops(pairs, n_grains, DIM, SPATIAL_CONTACTS[law], spatial_pair_force, law)
 
 
 @functools.lru_cache(maxsize=None)
@@ -95,18 +113,19 @@ def polyhedron_volume(faces: tuple[tuple[int, int, int], ...], n_grains: int) ->
 
 @functools.lru_cache(maxsize=None)
 def step_kernel_3d(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool, bool, bool], ...],
-                   faces: tuple[tuple[int, int, int], ...]) -> wp.Kernel:
-    """The 3D cell-step kernel for one topology.
+                   faces: tuple[tuple[int, int, int], ...], law: str = "linear") -> wp.Kernel:
+    """The 3D cell-step kernel for one topology and contact law.
 
     Args:
         pairs: candidate contact pairs (i, j), 0-based, i < j.
         driven: per grain, driven along (n, t1, t2).
         faces: outer triangles (a, b, c) of grain indices, oriented outwards (volume V_cell).
+        law: contact-law name (``SPATIAL_CONTACTS``).
 
     Returns:
         A kernel launched with one thread per cell of cells [first_cell, first_cell + dim).
     """
     drive = tuple(tuple(bool(v) for v in d) for d in driven)
     n_grains = len(drive)
-    return cell_step_kernel(drive, len(pairs), pair_pieces_3d(pairs, n_grains), polyhedron_volume(faces, n_grains),
+    return cell_step_kernel(drive, len(pairs), pair_pieces_3d(pairs, n_grains, law), polyhedron_volume(faces, n_grains),
                             8192)

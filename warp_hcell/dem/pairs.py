@@ -13,6 +13,11 @@ kernel module (``warp_hcell.dem.kernels``, ``warp_hcell.dem.kernels3d``) as two 
 - ``pair_force(u, normal, spring)``: the force on grain i by grain j [N], -f_n u plus the
   spring's force in the tangent plane.
 
+The contact law (``LAWS``) is a compile-time choice: the linear law passes the kernel's kn and kt
+to ``contact`` as they are; the Hertz-Mindlin law passes kn sqrt(R*) and kt sqrt(R*) of each pair,
+with kn = (4/3) E* and kt = 8 G* [Pa] (``warp_hcell.core.parameters.HertzMindlinLaw``) and
+R* = r_i r_j / (r_i + r_j) from ``setup``.
+
 The springs are one value per pair in the plane (a (n_pairs,) vector), a row of an
 (n_pairs, 3) matrix in space; ``fs[p]`` is pair p's in either. Conventions (tension positive,
 contact within contact_tolerance (r_i + r_j), history reset out of contact) are those of
@@ -23,17 +28,22 @@ import functools
 
 import warp as wp
 
-from warp_hcell.dem.contact import normal_force
+from warp_hcell.dem.contact import hertz_normal_force, normal_force
 from warp_hcell.dem.stepping import cell_vector, grain_matrix, mask_code, spring_types
 from warp_hcell.dem.warp_options import MODULE_OPTIONS
 
 wp.set_module_options(MODULE_OPTIONS)
 
 
+LAWS = ("linear", "hertz-mindlin")
+"""Contact laws the pair loops compile (``warp_hcell.core.parameters.CONTACT_LAWS``)."""
+
+
 @functools.lru_cache(maxsize=None)
-def pair_setup(pairs: tuple[tuple[int, int], ...], dim: int) -> wp.Function:
+def pair_setup(pairs: tuple[tuple[int, int], ...], dim: int, law: str = "linear") -> wp.Function:
     """``setup(radius, shear_force_in, c, contact_tolerance)``: a cell's pairs (i, j) before the
-    increment: (tangential springs [N], r_i + r_j [m], squared reach ((r_i + r_j)(1 + tolerance))^2)."""
+    increment: (tangential springs [N], r_i + r_j [m], squared reach ((r_i + r_j)(1 + tolerance))^2,
+    per-pair stiffness scale [m^0.5]: sqrt(R*) for the Hertz-Mindlin law, 1 for the linear law)."""
     n_pairs = len(pairs)
     pi = tuple(p[0] for p in pairs)
     pj = tuple(p[1] for p in pairs)
@@ -48,6 +58,7 @@ def pair_setup(pairs: tuple[tuple[int, int], ...], dim: int) -> wp.Function:
         fs = springs()
         rsum = vec_p()
         cut2 = vec_p()
+        scale = vec_p()
         widen = wp.float64(1.0) + contact_tolerance
         for p in range(wp.static(n_pairs)):
             if wp.static(dim == 2):
@@ -56,26 +67,32 @@ def pair_setup(pairs: tuple[tuple[int, int], ...], dim: int) -> wp.Function:
                 s0 = shear_force_in[c, p]
                 for a in range(wp.static(dim)):
                     fs[p, a] = s0[a]
-            r_sum = radius[c, wp.static(pi[p])] + radius[c, wp.static(pj[p])]
+            r_i = radius[c, wp.static(pi[p])]
+            r_j = radius[c, wp.static(pj[p])]
+            r_sum = r_i + r_j
             rsum[p] = r_sum
             cut2[p] = (r_sum * widen) * (r_sum * widen)
-        return fs, rsum, cut2
+            if wp.static(law == "linear"):
+                scale[p] = wp.float64(1.0)
+            else:
+                scale[p] = wp.sqrt(r_i * r_j / r_sum)
+        return fs, rsum, cut2, scale
 
     return setup
 
 
 def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, contact: wp.Function,
-                pair_force: wp.Function) -> tuple[wp.Function, wp.Function, wp.Function]:
+                pair_force: wp.Function, law: str = "linear") -> tuple[wp.Function, wp.Function, wp.Function]:
     """(``setup``, ``forces``, ``output``) of the pairs (i, j) of one topology, with the
-    dimension's ``contact`` and ``pair_force`` (module docstring).
+    dimension's ``contact`` and ``pair_force`` (module docstring) of contact law ``law``.
 
     - ``setup``: ``pair_setup``;
-    - ``forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)``: the contact forces at
+    - ``forces(x, dx, fs, rsum, cut2, scale, was_regime, substeps, kn, kt, mu)``: the contact forces at
       the grain centres x with the shear increment from the last move dx: (net force per grain,
       new springs, regime per pair (0 open, 1 sticking, 2 sliding), largest normal force, 1 if a
       regime changed since the last evaluation, 1 if a pair came within reach since the last
       evaluation);
-    - ``output(x, fs, rsum, cut2, kn, shear_force_out, contact_force_out, contact_out, c)``: writes
+    - ``output(x, fs, rsum, cut2, scale, kn, shear_force_out, contact_force_out, contact_out, c)``: writes
       the pairs' state and forces (the last force evaluation ran at these positions: same
       contacts, same normal forces) and returns the Love-Weber sum (tension positive)
       sum_p f_p (x) (x_j - x_i), a (dim, dim) matrix.
@@ -89,10 +106,13 @@ def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, cont
     springs, spring_out = spring_types(n_pairs, dim)
     moment_type = wp.types.matrix(shape=(dim, dim), dtype=wp.float64)
     code = mask_code(pairs)
+    if law not in LAWS:
+        raise ValueError(f"unknown contact law {law!r}; the DEM kernels compile {', '.join(LAWS)}")
+    linear = law == "linear"
 
     @wp.func
-    def forces(x: mat, dx: mat, fs: springs, rsum: vec_p, cut2: vec_p, was_regime: vec_p, substeps: wp.int32,
-               kn: wp.float64, kt: wp.float64, mu: wp.float64):
+    def forces(x: mat, dx: mat, fs: springs, rsum: vec_p, cut2: vec_p, scale: vec_p, was_regime: vec_p,
+               substeps: wp.int32, kn: wp.float64, kt: wp.float64, mu: wp.float64):
         wp.static(code)
         zero = wp.float64(0.0)
         f = mat()
@@ -110,7 +130,11 @@ def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, cont
             if dist2 <= cut2[p]:
                 dist = wp.sqrt(dist2)
                 u = b * (wp.float64(1.0) / dist)
-                normal, shear, regime = contact(u, dx[j] - dx[i], rsum[p] - dist, fs[p], kn, kt, mu)
+                if wp.static(linear):
+                    normal, shear, regime = contact(u, dx[j] - dx[i], rsum[p] - dist, fs[p], kn, kt, mu)
+                else:
+                    normal, shear, regime = contact(u, dx[j] - dx[i], rsum[p] - dist, fs[p], kn * scale[p],
+                                                    kt * scale[p], mu)
                 force = pair_force(u, normal, shear)
                 shear_new[p] = shear
                 for a in range(wp.static(dim)):
@@ -123,7 +147,7 @@ def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, cont
         return f, shear_new, regime_new, fmax, changed, closed
 
     @wp.func
-    def output(x: mat, fs: springs, rsum: vec_p, cut2: vec_p, kn: wp.float64,
+    def output(x: mat, fs: springs, rsum: vec_p, cut2: vec_p, scale: vec_p, kn: wp.float64,
                shear_force_out: wp.array2d(dtype=spring_out), contact_force_out: wp.array2d(dtype=vec),
                contact_out: wp.array2d(dtype=wp.int32), c: wp.int32):
         wp.static(code)
@@ -137,11 +161,14 @@ def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, cont
             dist2 = wp.dot(b, b)
             dist = wp.sqrt(dist2)
             touching = dist2 <= cut2[p]
-            normal = wp.where(touching, normal_force(rsum[p] - dist, kn), wp.float64(0.0))
+            if wp.static(linear):
+                normal = wp.where(touching, normal_force(rsum[p] - dist, kn), wp.float64(0.0))
+            else:
+                normal = wp.where(touching, hertz_normal_force(rsum[p] - dist, kn * scale[p]), wp.float64(0.0))
             force = pair_force(b / dist, normal, shear)
             contact_force_out[c, p] = force
             contact_out[c, p] = wp.where(touching, 1, 0)
             moment = moment + wp.outer(force, b)
         return moment
 
-    return pair_setup(pairs, dim), forces, output
+    return pair_setup(pairs, dim, law), forces, output

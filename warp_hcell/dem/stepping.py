@@ -379,7 +379,7 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
         x, v, ref, im = load(position_in, velocity_in, reference_position, inv_mass, c)
         x0 = x
         dx = mat_g()
-        fs, rsum, cut2 = setup(radius, shear_force_in, c, contact_tolerance)
+        fs, rsum, cut2, scale = setup(radius, shear_force_in, c, contact_tolerance)
         was_regime = vec_p()
         l_end, largest, scale0, dscale = path(cell_size_in[c], reference_cell_size[c], d_eps_local[c])
         v, drift, n_phase, ds = predict(v, ref, dscale, h, largest, strain_per_substep, refined_strain_per_substep,
@@ -394,7 +394,8 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
         converged = wp.int32(0)
         closures = wp.int32(0)
         while True:
-            f, fs, was_regime, fmax, changed, closed = forces(x, dx, fs, rsum, cut2, was_regime, substeps, kn, kt, mu)
+            f, fs, was_regime, fmax, changed, closed = forces(x, dx, fs, rsum, cut2, scale, was_regime, substeps, kn, kt,
+                                                                        mu)
             closures = wp.max(closures, closed)
             if k_phase < n_phase:
                 refined, s_base, ds, n_phase, k_phase = refined_schedule(changed, closed, refined, s, s_base, ds,
@@ -417,7 +418,7 @@ def cell_step_kernel(drive: tuple[tuple[bool, ...], ...], n_pairs: int,
             x, v, dx = move(x, v, f, drift, ref, scale0, dscale, s, s_prev, im, h, damping)
         store(x, position_out, c)
         store(memory(x, x0, ref, dscale, driving, h, closures, ds), velocity_out, c)
-        moment_out[c] = output(x, fs, rsum, cut2, kn, shear_force_out, contact_force_out, contact_out, c)
+        moment_out[c] = output(x, fs, rsum, cut2, scale, kn, shear_force_out, contact_force_out, contact_out, c)
         measure_out[c] = measure(x)
         cell_size_out[c] = l_end
         substeps_out[c] = substeps

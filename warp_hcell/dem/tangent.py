@@ -30,6 +30,11 @@ P = I - u u^T its projector, and k_p = kn u u^T - (N / d) P - u T^T / d + dT/db 
 dT/db = kt P (stick) or -mu kn t u^T + kt (P - t t^T) (slide, t = T / norm(T): the force keeps
 its magnitude mu N and turns with the trial force in the plane); the -u T^T / d term is the
 spring turning with the contact. In 2D (P = w w^T) these are the expressions above.
+
+The Hertz-Mindlin law (spatial cells only, ``law="hertz-mindlin"``): kn and kt are then the pair
+constants kh, ks [N/m^1.5] (``warp_hcell.core.contact.hertz_pair_constants``, shape broadcasting
+against (n_cells, n_pairs)), N = kh delta^(3/2), and the kn and kt of the expressions above become
+the tangent stiffnesses 1.5 kh sqrt(delta) and ks sqrt(delta) at the contact's overlap delta.
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ import functools
 
 import numpy as np
 
-from warp_hcell.core.contact import normal_force
+from warp_hcell.core.contact import PairLaw, normal_force
 
 
 def _unit_tangent(branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -103,10 +108,12 @@ def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.n
 
 
 def sliding_contacts_3d(position_old: np.ndarray, position: np.ndarray, radius: np.ndarray, pairs: np.ndarray,
-                        shear_force_old: np.ndarray, *, kn: float, kt: float, mu: float) -> np.ndarray:
+                        shear_force_old: np.ndarray, *, kn: float, kt: float, mu: float,
+                        law: str = "linear") -> np.ndarray:
     """``sliding_contacts`` of spatial cells: the old spring (n_cells, n_pairs, 3) carried into the
     mid-increment tangent plane (projected, rescaled to its magnitude) plus kt times the tangential
-    relative displacement; True where that trial exceeds mu N."""
+    relative displacement; True where that trial exceeds mu N. ``law``: module docstring (the
+    Hertz-Mindlin kt: the mean of the increment, ``PairLaw.move_stiffness``)."""
     i, j = pairs[:, 0], pairs[:, 1]
     b_old = position_old[:, j] - position_old[:, i]
     b = position[:, j] - position[:, i]
@@ -116,21 +123,30 @@ def sliding_contacts_3d(position_old: np.ndarray, position: np.ndarray, radius: 
     before, after = np.linalg.norm(shear_force_old, axis=-1), np.linalg.norm(projected, axis=-1)
     carried = projected * np.where(after > 0.0, before / np.where(after > 0.0, after, 1.0), 0.0)[..., None]
     step = b - b_old
+    overlap = radius[:, i] + radius[:, j] - np.linalg.norm(b, axis=-1)
+    pair = PairLaw(law, kn, kt)
+    if law != "linear":  # the mean kt of the increment
+        start_overlap = radius[:, i] + radius[:, j] - np.linalg.norm(b_old, axis=-1)
+        kt = pair.move_stiffness(start_overlap, overlap)[..., None]
     trial = carried + kt * (step - np.sum(step * u, axis=-1, keepdims=True) * u)
-    N = normal_force(radius[:, i] + radius[:, j] - np.linalg.norm(b, axis=-1), kn)
+    N = pair.normal(overlap)
     return (N > 0.0) & (np.linalg.norm(trial, axis=-1) > mu * N)
 
 
 def contact_stiffness_3d(branch: np.ndarray, overlap: np.ndarray, shear_force: np.ndarray, sliding: np.ndarray, *,
-                         kn: float, kt: float, mu: float) -> np.ndarray:
+                         kn: float, kt: float, mu: float, law: str = "linear") -> np.ndarray:
     """``contact_stiffness`` of spatial cells, shape (n_cells, n_pairs, 3, 3) (module docstring).
 
-    ``shear_force`` is the tangential force vector on grain i, shape (n_cells, n_pairs, 3).
+    ``shear_force`` is the tangential force vector on grain i, shape (n_cells, n_pairs, 3); ``law``:
+    module docstring.
     """
     d = np.linalg.norm(branch, axis=-1)
     u = branch / d[..., None]
     active = overlap > 0.0
-    N = normal_force(overlap, kn)
+    pair = PairLaw(law, kn, kt)
+    N = pair.normal(overlap)
+    if law != "linear":
+        kn, kt = pair.normal_stiffness(overlap)[..., None, None], pair.shear_stiffness(overlap)[..., None, None]
     T = np.where(active[..., None], shear_force, 0.0)
     size = np.linalg.norm(T, axis=-1)
     t = T / np.where(size > 0.0, size, 1.0)[..., None]
@@ -164,7 +180,7 @@ def _assembly(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int = 2) -
 
 def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarray, driven: np.ndarray,
                       shear_force: np.ndarray, sliding: np.ndarray, drive_rate: np.ndarray, *, kn: float,
-                      kt: float, mu: float) -> np.ndarray:
+                      kt: float, mu: float, law: str = "linear") -> np.ndarray:
     """Consistent tangent of cells at quasi-static equilibrium, by static condensation.
 
     Args:
@@ -179,6 +195,8 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
         drive_rate: dx_g,a / d d_eps_a [m] of every driven DOF (0 elsewhere), shape
             (n_cells, n_grains, dim); e.g. -x_ref,g,a l_a,old / l_a,ref for homothetic driving.
         kn, kt: contact stiffnesses [N/m]; mu: friction coefficient [-].
+        law: contact-law name; "hertz-mindlin" (spatial cells): kn, kt are the pair constants
+            kh, ks [N/m^1.5] (module docstring).
 
     Returns:
         C = d(S_aa)/d(d_eps_b) [N m], shape (n_cells, dim, dim) (2D: (S_nn, S_tt) by (d_eps_n,
@@ -190,8 +208,12 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
     i, j = pairs[:, 0], pairs[:, 1]
     branch = position[:, j] - position[:, i]
     overlap = radius[:, i] + radius[:, j] - np.linalg.norm(branch, axis=-1)
-    stiffness = contact_stiffness if dim == 2 else contact_stiffness_3d
-    k = stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu)
+    if dim == 2:
+        if law != "linear":
+            raise ValueError(f"the {law} contact law is defined for spatial cells only")
+        k = contact_stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu)
+    else:
+        k = contact_stiffness_3d(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu, law=law)
     incidence, assembly = _assembly(tuple(map(tuple, np.asarray(pairs).tolist())), n_grains, dim)
     k_flat = k.reshape(n_cells, -1)
     d_mask = np.asarray(driven, dtype=bool).reshape(-1)
@@ -208,7 +230,8 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
         f = (-kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active, shear_force, 0.0)[..., None] * w)
     else:
         u = branch / np.linalg.norm(branch, axis=-1, keepdims=True)
-        f = -kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active[..., None], shear_force, 0.0)
+        normal = kn * np.where(active, overlap, 0.0) if law == "linear" else PairLaw(law, kn, kt).normal(overlap)
+        f = -normal[..., None] * u + np.where(active[..., None], shear_force, 0.0)
     F = -(np.swapaxes(f, 1, 2) @ incidence).transpose(0, 2, 1).reshape(n_cells, n_dof)
 
     K_dd = block(di, di)

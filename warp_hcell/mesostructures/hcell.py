@@ -459,6 +459,7 @@ def love_weber_moment(
     *,
     kn: float,
     diameter: float,
+    normal: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Love-Weber moment S = sum_c f_c (x) l_c of the H-cell and its area (spec section 7).
 
@@ -481,6 +482,8 @@ def love_weber_moment(
         l1, l2: cell lengths [m], shape (n_cells,).
         kn: normal contact stiffness [N/m] of the pathological contacts.
         diameter: grain diameter D [m].
+        normal: the normal force [N] of an overlap [m] of a non-linear law (its pathological
+            contacts carry normal(D - l) instead of kn <D - l>); None: the linear law of ``kn``.
 
     Returns:
         (moment, area): moment [N m], shape (n_cells, 2, 2), local frame (index 0 = n,
@@ -490,8 +493,12 @@ def love_weber_moment(
     axial = 0.5 * l2 * c / s  # d1 cos a = l1/2 - y2
     d2 = l1 - 2.0 * axial
     moment = np.zeros((np.shape(alpha)[0], 2, 2))
-    moment[:, 0, 0] = 4.0 * axial * (N1 * c + T1 * s) + 2.0 * N2 * d2 + kn * np.maximum(diameter - l1, 0.0) * l1
-    moment[:, 1, 1] = 2.0 * l2 * (N1 * s - T1 * c) + 2.0 * kn * np.maximum(diameter - l2, 0.0) * l2
+    if normal is None:
+        moment[:, 0, 0] = 4.0 * axial * (N1 * c + T1 * s) + 2.0 * N2 * d2 + kn * np.maximum(diameter - l1, 0.0) * l1
+        moment[:, 1, 1] = 2.0 * l2 * (N1 * s - T1 * c) + 2.0 * kn * np.maximum(diameter - l2, 0.0) * l2
+    else:
+        moment[:, 0, 0] = 4.0 * axial * (N1 * c + T1 * s) + 2.0 * N2 * d2 + normal(diameter - l1) * l1
+        moment[:, 1, 1] = 2.0 * l2 * (N1 * s - T1 * c) + 2.0 * normal(diameter - l2) * l2
     return moment, cell_area(l1, l2, d2)
 
 
