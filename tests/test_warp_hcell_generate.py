@@ -365,7 +365,7 @@ def test_second_run_on_the_same_output_exits_2(tmp_path, capsys):
 
 def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monkeypatch):
     out = tmp_path / "db.h5"
-    real_savez = np.savez
+    real_savez = np.savez_compressed
 
     def full_disk_at_chunk_1(handle, **arrays):
         if Path(handle.name).name.startswith("chunk_000001"):
@@ -373,7 +373,7 @@ def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monk
             raise OSError(errno.ENOSPC, "No space left on device")
         real_savez(handle, **arrays)
 
-    monkeypatch.setattr(shards.np, "savez", full_disk_at_chunk_1)
+    monkeypatch.setattr(shards.np, "savez_compressed", full_disk_at_chunk_1)
     argv = ["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "1500", "--chunk-size", "500",
             "--n-directions", "4", "--out", str(out)]
     assert exit_code(argv) == 2
@@ -381,7 +381,7 @@ def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monk
     assert len(err) == 1 and "no space left on the device" in err[0] and "chunk_000001.npz" in err[0]
     sidecar = generate.sidecar_path(out)
     assert not out.exists() and not list(sidecar.glob("*.tmp")) and not (sidecar / "chunk_000001.npz").exists()
-    monkeypatch.setattr(shards.np, "savez", real_savez)  # space freed: the same command resumes
+    monkeypatch.setattr(shards.np, "savez_compressed", real_savez)  # space freed: the same command resumes
 
     def full_disk_in_hdf5(*args, **kwargs):
         raise OSError("Can't write data (file write failed: errno = 28, error message = 'No space left on device')")
