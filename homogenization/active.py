@@ -171,11 +171,18 @@ def _mb(db: Path) -> float:
     return Path(db).stat().st_size / 1e6
 
 
-def budget_room(db: Path, max_mb: float) -> tuple[int, float]:
-    """(samples that still fit in ``db`` under ``max_mb`` [MB] at its own bytes per sample, bytes per sample)."""
-    size, n = Path(db).stat().st_size, _n_samples(db)
-    per_sample = size / max(n, 1)
-    return max(int((max_mb * 1e6 - size) // per_sample), 0), per_sample
+BUDGET_MARGIN = 1.1
+"""A round's samples are assumed to take this many times the bytes on disk of the file's average
+sample [-] (a round's states are more loaded than the generator's average: measured 1.03x on the
+tiny database of the tests)."""
+
+
+def budget_room(db: Path, max_mb: float, reserve: int = 0) -> tuple[int, float]:
+    """(samples that still fit in ``db`` under ``max_mb`` [MB] besides ``reserve`` bytes (the
+    round's probed states), bytes on disk assumed per sample: ``BUDGET_MARGIN`` x
+    ``warp_hcell.database.format.bytes_per_sample``)."""
+    per_sample = BUDGET_MARGIN * database.bytes_per_sample(db)
+    return max(int((max_mb * 1e6 - Path(db).stat().st_size - reserve) // per_sample), 0), per_sample
 
 
 def round_seed(seed: int, round_index: int) -> int:
@@ -314,7 +321,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
     rounds = [r for r in meta.get("active_learning") or [] if r["round"] <= len(stored)]
     added_total = sum(r["samples"] for r in stored)
     if meta["training_data"]["sha256"] != file_sha256(db):  # appended, not yet retrained
-        widths = tuple(stored[-1].get("hidden") or meta["architecture"]["hidden"])
+        widths = tuple((stored[-1].get("hidden") if stored else None) or meta["architecture"]["hidden"])
         train_model(db, model, round_config(config, model, settings, widths), rounds)
     elif _current(meta.get("certificate"), model, certify_settings) and rounds and rounds[-1]["round"] == len(stored) and (
             verdict(meta["certificate"]) != "failed" or len(stored) >= settings.rounds
@@ -340,17 +347,17 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         if stalled(rounds, settings):
             log(stall_line(rounds, cert, db))
             break
-        room, per_sample = budget_room(db, settings.max_database_mb)
+        t0 = time.perf_counter()
+        picked, names = failing_states(cert, states, settings.departure_margin)
+        if not names:
+            log("active learning stops: the failing tests left no DEM states (the DEM did not run them)")
+            break
+        room, per_sample = budget_room(db, settings.max_database_mb, sum(v.nbytes for v in picked.values()))
         n = min(asked, room)
         if n < min(asked, MIN_ROUND_SAMPLES):
             log(f"active learning stops: the database budget is spent ({db} {_mb(db):.1f} MB of "
                 f"{settings.max_database_mb:g} MB at {per_sample / 1e3:.2f} kB per sample: {room} more samples fit, "
                 f"round {k} asks {asked})")
-            break
-        t0 = time.perf_counter()
-        picked, names = failing_states(cert, states, settings.departure_margin)
-        if not names:
-            log("active learning stops: the failing tests left no DEM states (the DEM did not run them)")
             break
         attrs = _attrs(db)
         samples = probe_states(meso, picked, n, round_seed(seed, k), attrs, threads)

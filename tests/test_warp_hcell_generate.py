@@ -215,7 +215,8 @@ def test_equilibrium_perturbed_mechanism_samples_are_kept_and_marked(h_db):
 def test_hcell_observables_follow_the_generic_state(h_db):
     data, _ = h_db
     for group in database.STATE_GROUPS:
-        np.testing.assert_array_equal(data[f"hcell/{group}_N1"], data[f"{group}/normal_force"][:, 0])  # pair 1-2
+        normal = data[f"{group}/normal_force"][:, 0]  # pair 1-2, float32 (probing.FLOAT32_FEATURES)
+        np.testing.assert_array_equal(data[f"hcell/{group}_N1"].astype(normal.dtype), normal)
         np.testing.assert_array_equal(data[f"hcell/{group}_T1"], data[f"{group}/shear_force"][:, 0])
     np.testing.assert_array_equal(data["after/cell_size"][:, 0], data["before/cell_size"][:, 0]
                                   * (1.0 - data["d_eps"][:, 0]))

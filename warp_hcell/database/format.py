@@ -173,6 +173,21 @@ def sizes(path: Path) -> tuple[int, int]:
     return Path(path).stat().st_size, raw[0]
 
 
+def bytes_per_sample(path: Path) -> float:
+    """Bytes on disk [B] of one sample of database ``path``: its per-sample datasets' storage (the
+    groups ``states``, ``schema`` and ``active_states`` left out) over the samples."""
+    total = [0]
+    with h5py.File(path, "r") as f:
+        n = f["d_eps"].shape[0]
+
+        def add(name: str, item: Any) -> None:
+            if (isinstance(item, h5py.Dataset) and item.shape[:1] == (n,)
+                    and not name.startswith(("states/", SCHEMA_GROUP + "/", ACTIVE_GROUP + "/"))):
+                total[0] += item.id.get_storage_size()
+        f.visititems(add)
+    return total[0] / max(n, 1)
+
+
 def read_attrs_of(path: Path) -> dict[str, dict[str, Any]]:
     """Attributes of every dataset and group of a database, keyed by HDF5 path."""
     out: dict[str, dict[str, Any]] = {}
