@@ -153,7 +153,7 @@ def stall_line(rounds: Sequence[Mapping[str, Any]], cert: Mapping[str, Any], db:
     return (f"active learning stops: no progress in rounds {tried[0]['round']}-{last['round']} on round "
             f"{best['round']} ({_figure(best)}): round {last['round']} worst test {cert['worst_test']!r}, {where}; "
             f"tried {sum(r['samples_added'] for r in tried)} samples on the DEM states of {', '.join(tests) or 'no test'} "
-            f"from their departure on, network {', '.join(widths) or '?'}; database {_mb(db):.0f} MB")
+            f"from their departure on, network {', '.join(widths) or '?'}; database {_mb(db):.1f} MB")
 
 
 def _figure(entry: Mapping[str, Any]) -> str:

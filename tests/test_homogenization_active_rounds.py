@@ -144,16 +144,18 @@ def test_the_database_budget_caps_a_round_and_then_stops_the_rounds(tiny, capsys
     database.write_database(db, data, attrs, database.read_attrs_of(db))
     active.train_model(db, model, TRAIN_CONFIG, [])
     size = db.stat().st_size
-    budget = (size + 1500 * database.bytes_per_sample(db)) / 1e6
+    budget = (size + 2000 * database.bytes_per_sample(db)) / 1e6
     rounds = active.learn(db, model, TRAIN_CONFIG,
                           settings=ActiveSettings(rounds=3, samples_per_round=3000, max_database_mb=budget,
                                                   stall_rounds=5, widen=False),
                           certify_settings=CertificateSettings(**SHORT, target=1e-9))
     printed = capsys.readouterr().out
-    # measured: round 1 adds 1500 (1500 left out), round 2 1348 (1652 left out; the small file's
-    # first samples compressed worse than later ones), then 0.0 MB are left: the loop stops
+    # measured: round 1 adds 1,643 of its 3,000 (at 1.1x the 48-sample file's bytes per sample, its
+    # probed states reserved), round 2 2,488 (the grown file compresses better per sample), then 73
+    # fit: the loop stops at 1.3 of 1.46 MB
     added, capped = [r["samples_added"] for r in rounds[1:]], [r["samples_capped"] for r in rounds[1:]]
-    assert len(rounds) in (2, 3) and added[0] == 1500 and all(a + c == 3000 and c > 0 for a, c in zip(added, capped))
+    assert len(rounds) in (2, 3) and 1000 <= added[0] <= 2000 / active.BUDGET_MARGIN
+    assert all(a + c == 3000 and c > 0 for a, c in zip(added, capped))
     assert f"{capped[0]} more did not fit the database budget" in printed
     assert printed.strip().splitlines()[-1].startswith("active learning stops: the database budget is spent (")
     on_disk, raw = sizes(db)
@@ -170,7 +172,8 @@ def test_the_database_is_stored_compressed(model_3d):
     assert raw > 3 * on_disk  # measured 4x on this cell
     with h5py.File(db) as f:
         assert f["before/shear_force"].compression == "gzip" and f["before/shear_force"].shuffle
-        assert f["before/shear_force"].dtype == np.float64
+        assert f["before/shear_force"].dtype == np.float64 and f["after/free_position"].dtype == np.float64
+        assert f["after/normal_force"].dtype == np.float32 and "after/normal_force" in f.attrs["float32_datasets"]
 
 
 def test_bad_budget_settings_are_refused():
