@@ -14,9 +14,13 @@ path of its own (new ``path_id``), so training's split by path keeps a test's st
 The loop (``learn``): train (``training.train.train_and_save`` with a ``TrainConfig``; from
 random weights, or with ``ActiveSettings.warm_start`` from the previous round's,
 ``TrainConfig.init_from``), certify, and while the
-certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds) is not spent,
-add a round and retrain (a certificate within its target but below the minimum certificate,
-``homogenization.envelope.MINIMUM``, is not passed, and no round can mend it: the loop stops).
+certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds, the database's
+size ``max_database_mb``) is not spent, add a round and retrain (a certificate within its target
+but below the minimum certificate, ``homogenization.envelope.MINIMUM``, is not passed, and no
+round can mend it: the loop stops). A round probes the states of a failing test from where the
+ANN left the DEM (``failing_states``: the certificate's ``departure``; a test the ANN could not
+follow, worst = inf, included), and ``stall_rounds`` rounds without progress (``improved``: fewer
+tests not followed, those followed further, or a lower worst) stop the loop with one line.
 Every round is printed (samples added,
 certificate worst, seconds) and stored in the model's JSON under ``active_learning``.
 
@@ -173,8 +177,8 @@ def _mb(db: Path) -> float:
 
 BUDGET_MARGIN = 1.1
 """A round's samples are assumed to take this many times the bytes on disk of the file's average
-sample [-] (a round's states are more loaded than the generator's average: measured 1.03x on the
-tiny database of the tests)."""
+sample [-] (a round's states are more loaded than the generator's average: counted at 1x, a round
+on the tiny database of the tests ended 3 % over its budget)."""
 
 
 def budget_room(db: Path, max_mb: float, reserve: int = 0) -> tuple[int, float]:
