@@ -182,11 +182,14 @@ on the tiny database of the tests ended 3 % over its budget)."""
 
 
 def budget_room(db: Path, max_mb: float, reserve: int = 0) -> tuple[int, float]:
-    """(samples that still fit in ``db`` under ``max_mb`` [MB] besides ``reserve`` bytes (the
-    round's probed states), bytes on disk assumed per sample: ``BUDGET_MARGIN`` x
-    ``warp_hcell.database.format.bytes_per_sample``)."""
+    """(samples that still fit in ``db`` under ``max_mb`` [MB] besides ``reserve`` bytes in memory
+    (the round's probed states, stored at the file's own ratio of bytes on disk to bytes
+    uncompressed, ``warp_hcell.database.format.sizes``), bytes on disk assumed per sample:
+    ``BUDGET_MARGIN`` x ``warp_hcell.database.format.bytes_per_sample``)."""
     per_sample = BUDGET_MARGIN * database.bytes_per_sample(db)
-    return max(int((max_mb * 1e6 - Path(db).stat().st_size - reserve) // per_sample), 0), per_sample
+    on_disk, raw = database.sizes(db)
+    left = max_mb * 1e6 - on_disk - BUDGET_MARGIN * reserve * min(on_disk / max(raw, 1), 1.0)
+    return max(int(left // per_sample), 0), per_sample
 
 
 def round_seed(seed: int, round_index: int) -> int:
