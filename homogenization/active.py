@@ -332,7 +332,8 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         train_model(db, model, round_config(config, model, settings, widths), rounds)
     elif _current(meta.get("certificate"), model, certify_settings) and rounds and rounds[-1]["round"] == len(stored) and (
             verdict(meta["certificate"]) != "failed" or len(stored) >= settings.rounds
-            or added_total >= settings.max_samples or stalled(rounds, settings)):
+            or added_total >= settings.max_samples or stalled(rounds, settings)
+            or budget_room(db, settings.max_database_mb)[0] < min(settings.samples_per_round, MIN_ROUND_SAMPLES)):
         log(round_line(rounds[-1]) + " (done before)")
         return rounds
     t0 = time.perf_counter()

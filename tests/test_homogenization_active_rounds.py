@@ -164,6 +164,11 @@ def test_the_database_budget_caps_a_round_and_then_stops_the_rounds(tiny, capsys
     with h5py.File(db) as f:
         stored = json.loads(f.attrs["active_learning"])
     assert [r["samples_capped"] for r in stored] == capped and [r["samples"] for r in stored] == added
+    again = active.learn(db, model, TRAIN_CONFIG,  # a second call: the budget is spent, no certificate again
+                         settings=ActiveSettings(rounds=3, samples_per_round=3000, max_database_mb=budget,
+                                                 stall_rounds=5, widen=False),
+                         certify_settings=CertificateSettings(**SHORT, target=1e-9))
+    assert again == rounds and "(done before)" in capsys.readouterr().out
 
 
 def test_the_database_is_stored_compressed(model_3d):
