@@ -17,9 +17,9 @@ random weights, or with ``ActiveSettings.warm_start`` from the previous round's,
 certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds, the database's
 size ``max_database_mb``) is not spent, add a round and retrain (a certificate within its target
 but below the minimum certificate, ``homogenization.envelope.MINIMUM``, is not passed, and no
-round can mend it: the loop stops). A round probes the states of a failing test from where the
-ANN left the DEM (``failing_states``: the certificate's ``departure``; a test the ANN could not
-follow, worst = inf, included), and ``stall_rounds`` rounds without progress (``improved``: fewer
+round can mend it: the loop stops). A round probes the states of the failing tests (a test the
+ANN could not follow, worst = inf, included; with ``departure_margin`` < 1 only those from where
+the ANN left the DEM on, ``failing_states``: the certificate's ``departure``), and ``stall_rounds`` rounds without progress (``improved``: fewer
 tests not followed, those followed further, or a lower worst) stop the loop with one line.
 Every round is printed (samples added,
 certificate worst, seconds) and stored in the model's JSON under ``active_learning``.
@@ -141,8 +141,9 @@ def stalled(rounds: Sequence[Mapping[str, Any]], settings: ActiveSettings) -> bo
     return len(rounds) > settings.stall_rounds and rounds[-1]["round"] - best_round(rounds)["round"] >= settings.stall_rounds
 
 
-def stall_line(rounds: Sequence[Mapping[str, Any]], cert: Mapping[str, Any], db: Path) -> str:
-    """One line: why the loop stops without progress (which test, which rounds, what they tried)."""
+def stall_line(rounds: Sequence[Mapping[str, Any]], cert: Mapping[str, Any], db: Path, margin: float = 1.0) -> str:
+    """One line: why the loop stops without progress (which test, which rounds, what they tried;
+    ``margin``: the rounds' ``ActiveSettings.departure_margin``)."""
     best, last = best_round(rounds), rounds[-1]
     tried = [r for r in rounds if r["round"] > best["round"]]
     test = next(t for t in cert["tests"] if t["name"] == cert["worst_test"])
@@ -156,8 +157,9 @@ def stall_line(rounds: Sequence[Mapping[str, Any]], cert: Mapping[str, Any], db:
     widths = sorted({"x".join(map(str, r["hidden"])) for r in tried if "hidden" in r})
     return (f"active learning stops: no progress in rounds {tried[0]['round']}-{last['round']} on round "
             f"{best['round']} ({_figure(best)}): round {last['round']} worst test {cert['worst_test']!r}, {where}; "
-            f"tried {sum(r['samples_added'] for r in tried)} samples on the DEM states of {', '.join(tests) or 'no test'} "
-            f"from their departure on, network {', '.join(widths) or '?'}; database {_mb(db):.1f} MB")
+            f"tried {sum(r['samples_added'] for r in tried)} samples on the DEM states of {', '.join(tests) or 'no test'}"
+            f"{'' if margin >= 1.0 else f' from {margin:g} of a test before their departure on'}, network "
+            f"{', '.join(widths) or '?'}; database {_mb(db):.1f} MB")
 
 
 def _figure(entry: Mapping[str, Any]) -> str:
@@ -306,8 +308,8 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
     one line says which test, which rounds and what they tried, ``stall_line``); returns the
     rounds (round 0: the model as given), also stored in the model's JSON under ``active_learning``.
 
-    A round probes the DEM states of the failing tests from their point of departure on
-    (``failing_states`` with ``settings.departure_margin``), a test the ANN could not follow
+    A round probes the DEM states of the failing tests (with ``settings.departure_margin`` < 1,
+    those from their point of departure on, ``failing_states``), a test the ANN could not follow
     included, and adds at most the samples that fit the database's size budget
     (``settings.max_database_mb``, ``budget_room``; those left out are counted in
     ``samples_capped``); with no room left the loop stops and says so.
@@ -353,7 +355,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
                 f"{added_total}/{settings.max_samples}, {time.perf_counter() - start:.0f}/{settings.max_seconds:g} s)")
             break
         if stalled(rounds, settings):
-            log(stall_line(rounds, cert, db))
+            log(stall_line(rounds, cert, db, settings.departure_margin))
             break
         t0 = time.perf_counter()
         picked, names = failing_states(cert, states, settings.departure_margin)

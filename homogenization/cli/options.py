@@ -207,7 +207,7 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
                         help="rounds in a row without progress after which the rounds stop with a diagnosis")
     parser.add_argument("--departure-margin", type=float, default=budget.departure_margin,
                         help="fraction of a failing test's increments before its point of departure whose "
-                             "DEM states are probed with those after it (1: every state)")
+                             "DEM states are probed with those after it (1: every state of the test)")
     add_orientations_argument(parser, measured.n_orientations, "cell orientations per certificate test (planar cells)")
     add_spatial_rule_arguments(parser, *measured.spatial_rule, " in the certificate's tests")
     parser.add_argument("--eps-max", type=positive_float, default=measured.eps_max,

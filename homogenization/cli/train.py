@@ -6,7 +6,7 @@ options and output), then measures the model against the DEM of its mesostructur
 model's JSON, so that the ANN backend accepts a model that passed. When the certificate fails,
 the active-learning rounds of ``homogenization.active`` follow (the budget flags and defaults
 of ``hmodel learn``, ``homogenization.cli.options.add_active_arguments``): the DEM states of the
-failing tests from where the ANN left the DEM are probed, their samples appended to the database,
+failing tests are probed, their samples appended to the database,
 the model retrained and certified again, one line per round (with the database's size); they
 stop when the certificate passes, the budget or the database's size budget is spent, or rounds
 make no progress (one line: which test, which rounds, what they tried). The samples go into --data itself, or, where that file
