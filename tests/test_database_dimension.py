@@ -28,13 +28,13 @@ from warp_hcell.mesostructures.mesostructure import cell_measure
 from warp_hcell.core.parameters import DatabaseSettings
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
-H_CELL_DIGEST = "73bc49200a1c48f73972b768727774bd6bf8b23e0de55af63b78657a8fcde3b7"
+H_CELL_DIGEST = "136ea1afc569d53d2dd746a432948a2d8eb3be235d7f87e1d80461a3726f1538"
 """sha256 (``array_digest``) of the arrays of the H-cell database of ``h_cell_database`` (54 datasets)."""
-FINE_DIGEST = "4e3bd85e3a16e69ff78da12e94be19c565f996604ae734da44f5fff2827ccda5"
+FINE_DIGEST = "c3c8cf81840b4ba05b9863553fd7b8323c8a401aedb8c228a30c81b9a2c02976"
 """The same for the cell with a fine grain (``h_cell_fine_grain.toml``)."""
-SPATIAL_DIGEST = "80170264c61f356fa3b11c21b65fa1b04d26a1b4cd969c9d5da09d28d73a2034"
+SPATIAL_DIGEST = "66c76b00c432fd690132ac4d3cd9cadf3bc49ac1756a09f859c3431b17f20b2c"
 """The same for the ``TINY_3D`` database of the ten-sphere H-cell (``spatial_path``)."""
-FINES_3D_DIGEST = "912f22473b904f85869188f9d55e8e84e0389903658d13e7504a9d4fce3f51c6"
+FINES_3D_DIGEST = "183bf108e2e2efcd579d75e29bfc6bed4a84bbf1e115b741e6e7070ea979be8c"
 """The same for the ten-sphere cell with a free fine grain (``fines_db``)."""
 
 

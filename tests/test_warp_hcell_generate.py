@@ -215,7 +215,8 @@ def test_equilibrium_perturbed_mechanism_samples_are_kept_and_marked(h_db):
 def test_hcell_observables_follow_the_generic_state(h_db):
     data, _ = h_db
     for group in database.STATE_GROUPS:
-        np.testing.assert_array_equal(data[f"hcell/{group}_N1"], data[f"{group}/normal_force"][:, 0])  # pair 1-2
+        normal = data[f"{group}/normal_force"][:, 0]  # pair 1-2, float32 (probing.FLOAT32_FEATURES)
+        np.testing.assert_array_equal(data[f"hcell/{group}_N1"].astype(normal.dtype), normal)
         np.testing.assert_array_equal(data[f"hcell/{group}_T1"], data[f"{group}/shear_force"][:, 0])
     np.testing.assert_array_equal(data["after/cell_size"][:, 0], data["before/cell_size"][:, 0]
                                   * (1.0 - data["d_eps"][:, 0]))
@@ -365,7 +366,7 @@ def test_second_run_on_the_same_output_exits_2(tmp_path, capsys):
 
 def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monkeypatch):
     out = tmp_path / "db.h5"
-    real_savez = np.savez
+    real_savez = np.savez_compressed
 
     def full_disk_at_chunk_1(handle, **arrays):
         if Path(handle.name).name.startswith("chunk_000001"):
@@ -373,7 +374,7 @@ def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monk
             raise OSError(errno.ENOSPC, "No space left on device")
         real_savez(handle, **arrays)
 
-    monkeypatch.setattr(shards.np, "savez", full_disk_at_chunk_1)
+    monkeypatch.setattr(shards.np, "savez_compressed", full_disk_at_chunk_1)
     argv = ["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "1500", "--chunk-size", "500",
             "--n-directions", "4", "--out", str(out)]
     assert exit_code(argv) == 2
@@ -381,7 +382,7 @@ def test_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys, monk
     assert len(err) == 1 and "no space left on the device" in err[0] and "chunk_000001.npz" in err[0]
     sidecar = generate.sidecar_path(out)
     assert not out.exists() and not list(sidecar.glob("*.tmp")) and not (sidecar / "chunk_000001.npz").exists()
-    monkeypatch.setattr(shards.np, "savez", real_savez)  # space freed: the same command resumes
+    monkeypatch.setattr(shards.np, "savez_compressed", real_savez)  # space freed: the same command resumes
 
     def full_disk_in_hdf5(*args, **kwargs):
         raise OSError("Can't write data (file write failed: errno = 28, error message = 'No space left on device')")

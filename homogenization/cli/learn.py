@@ -8,8 +8,9 @@ skipped when its output is complete (a second call continues; an interrupted sta
 2. ``DIR/ann.pt``, ``DIR/ann.json``: the meso-ANN (``training.train``), skipped when the JSON's
    training data is the current ``db.h5``;
 3. the certificate and the active-learning rounds (``homogenization.learning.active.learn``): while the
-   certificate fails and the budget (``ActiveSettings``) is left, the DEM states of the failing
-   tests are probed, appended to ``db.h5`` and the model is retrained from scratch;
+   certificate fails, the budget (``ActiveSettings``: rounds, samples, seconds, the database's
+   size) is left and rounds make progress, the DEM states of the failing tests are probed,
+   appended to ``db.h5`` and the model is retrained from scratch;
 4. ``DIR/certificate.png``: p and q of the ANN and the DEM on the certificate's worst test.
 
 ``DIR/learn.json`` records the options of the run: a second call with other options is refused

@@ -201,6 +201,13 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
                         help="retrain each round from the previous round's weights")
     parser.add_argument("--widen", action=argparse.BooleanOptionalAction, default=budget.widen,
                         help="let a round that gained little give the next a wider network (WIDTH_LADDER)")
+    parser.add_argument("--max-database-mb", type=positive_float, default=budget.max_database_mb,
+                        help="size budget of the database file [MB]: a round adds only the samples that fit")
+    parser.add_argument("--stall-rounds", type=positive_int, default=budget.stall_rounds,
+                        help="rounds in a row without progress after which the rounds stop with a diagnosis")
+    parser.add_argument("--departure-margin", type=float, default=budget.departure_margin,
+                        help="fraction of a failing test's increments before its point of departure whose "
+                             "DEM states are probed with those after it (1: every state of the test)")
     add_orientations_argument(parser, measured.n_orientations, "cell orientations per certificate test (planar cells)")
     add_spatial_rule_arguments(parser, *measured.spatial_rule, " in the certificate's tests")
     parser.add_argument("--eps-max", type=positive_float, default=measured.eps_max,
@@ -212,7 +219,8 @@ def active_settings(args: argparse.Namespace) -> ActiveSettings:
     try:
         return ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
                               max_samples=args.max_samples, max_seconds=args.max_seconds,
-                              warm_start=args.warm_start, widen=args.widen)
+                              warm_start=args.warm_start, widen=args.widen, max_database_mb=args.max_database_mb,
+                              stall_rounds=args.stall_rounds, departure_margin=args.departure_margin)
     except ValueError as exc:
         raise UserError(str(exc)) from None
 

@@ -6,8 +6,10 @@ options and output), then measures the model against the DEM of its mesostructur
 model's JSON, so that the ANN backend accepts a model that passed. When the certificate fails,
 the active-learning rounds of ``homogenization.learning.active`` follow (the budget flags and defaults
 of ``hmodel learn``, ``homogenization.cli.options.add_active_arguments``): the DEM states of the
-failing tests are probed, their samples appended to the database, the model retrained and
-certified again, one line per round. The samples go into --data itself, or, where that file
+failing tests are probed, their samples appended to the database,
+the model retrained and certified again, one line per round (with the database's size); they
+stop when the certificate passes, the budget or the database's size budget is spent, or rounds
+make no progress (one line: which test, which rounds, what they tried). The samples go into --data itself, or, where that file
 or its folder is not writable or with --enrich-copy, into a copy of it beside the model
 (``MODEL_db.h5``, ``enriched_path``); the output says which.
 

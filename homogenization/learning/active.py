@@ -14,9 +14,13 @@ path of its own (new ``path_id``), so training's split by path keeps a test's st
 The loop (``learn``): train (``training.train.train_and_save`` with a ``TrainConfig``; from
 random weights, or with ``ActiveSettings.warm_start`` from the previous round's,
 ``TrainConfig.init_from``), certify, and while the
-certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds) is not spent,
-add a round and retrain (a certificate within its target but below the minimum certificate,
-``homogenization.learning.envelope.MINIMUM``, is not passed, and no round can mend it: the loop stops).
+certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds, the database's
+size ``max_database_mb``) is not spent, add a round and retrain (a certificate within its target
+but below the minimum certificate, ``homogenization.learning.envelope.MINIMUM``, is not passed, and no
+round can mend it: the loop stops). A round probes the states of the failing tests (a test the
+ANN could not follow, worst = inf, included; with ``departure_margin`` < 1 only those from where
+the ANN left the DEM on, ``failing_states``: the certificate's ``departure``), and ``stall_rounds`` rounds without progress (``improved``: fewer
+tests not followed, those followed further, or a lower worst) stop the loop with one line.
 Every round is printed (samples added,
 certificate worst, seconds) and stored in the model's JSON under ``active_learning``.
 
@@ -28,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -67,17 +72,126 @@ WIDEN_BELOW_GAIN = 2.0
 gives the next round the next rung of ``WIDTH_LADDER`` (samples alone stopped helping)."""
 
 
-def failing_states(cert: Mapping[str, Any], dem_states: Mapping[str, Mapping[str, np.ndarray]]
+MIN_ROUND_SAMPLES = 1000
+"""Fewest samples [-] a round adds: with less room left in the database budget the loop stops
+(a round costs a training and a certificate whatever it adds)."""
+
+
+def failing_states(cert: Mapping[str, Any], dem_states: Mapping[str, Mapping[str, np.ndarray]], margin: float = 1.0
                    ) -> tuple[dict[str, np.ndarray], list[str]]:
     """The DEM states of the certificate's failing tests (max(dp, dq) > target), concatenated, and
-    those tests' names. States: ``cell_size`` (n, dim) [m], ``position`` (n, n_grains, dim) [m],
-    ``shear_force`` (n, n_pairs) [N] (3D: (n, n_pairs, 3)), ``cell`` (n,) int64 (one id per test and
-    orientation)."""
-    names = [t["name"] for t in cert["tests"] if max(t["dp"], t["dq"]) > cert["target"] and t["name"] in dem_states]
-    if not names:
+    those tests' names. Of a test that records its ``departure`` (the increment where the ANN
+    left the DEM, ``certificate.certify``; a test it could not follow included), only the states
+    from ``departure - margin x n_increments`` on (``ActiveSettings.departure_margin``). States:
+    ``cell_size`` (n, dim) [m], ``position`` (n, n_grains, dim) [m], ``shear_force`` (n, n_pairs)
+    [N] (3D: (n, n_pairs, 3)), ``cell`` (n,) int64 (one id per test and orientation)."""
+    tests = [t for t in cert["tests"] if max(t["dp"], t["dq"]) > cert["target"] and t["name"] in dem_states]
+    if not tests:
         return {}, []
     keys = ("cell_size", "position", "shear_force", "cell")
-    return {k: np.concatenate([dem_states[name][k] for name in names]) for k in keys}, names
+    parts = []
+    for test in tests:
+        states = dem_states[test["name"]]
+        keep = np.ones(states["cell"].shape[0], bool)
+        if "departure" in test and "increment" in states:
+            keep = states["increment"] >= test["departure"] - margin * test["n_increments"]
+        parts.append({k: states[k][keep] for k in keys})
+    return {k: np.concatenate([part[k] for part in parts]) for k in keys}, [t["name"] for t in tests]
+
+
+MIN_FOLLOWED_GAIN = 0.02
+"""Progress of a round whose certificate has tests the ANN cannot follow (as many as the best round
+before it): they are followed further, by at least this fraction of a test's increments, summed
+over those tests [-] (``improved``)."""
+MIN_WORST_GAIN = 0.1
+"""Progress of a round whose ANN follows every test: its certificate worst is below the best
+round's by at least this fraction of it [-] (``improved``)."""
+
+
+def progress(entry: Mapping[str, Any]) -> tuple[int, float, float]:
+    """(tests the ANN could not follow, the fractions of those tests it followed, summed,
+    certificate worst) of a round's record (``round_entry``)."""
+    unfollowed = entry.get("not_followed", ["?"] if math.isinf(entry["worst"]) else [])
+    return len(unfollowed), float(entry.get("followed", 0.0)), float(entry["worst"])
+
+
+def improved(new: Mapping[str, Any], best: Mapping[str, Any]) -> bool:
+    """Whether round record ``new`` made progress on ``best``: fewer tests the ANN cannot follow;
+    or as many (some), followed further by ``MIN_FOLLOWED_GAIN``; or all followed and the worst
+    ``MIN_WORST_GAIN`` lower."""
+    (n_new, f_new, w_new), (n_best, f_best, w_best) = progress(new), progress(best)
+    if n_new != n_best:
+        return n_new < n_best
+    if n_new:
+        return f_new >= f_best + MIN_FOLLOWED_GAIN
+    return w_new <= (1.0 - MIN_WORST_GAIN) * w_best
+
+
+def best_round(rounds: Sequence[Mapping[str, Any]]) -> Mapping[str, Any]:
+    """The round of ``rounds`` that the later ones did not improve on (``improved``)."""
+    best = rounds[0]
+    for entry in rounds[1:]:
+        if improved(entry, best):
+            best = entry
+    return best
+
+
+def stalled(rounds: Sequence[Mapping[str, Any]], settings: ActiveSettings) -> bool:
+    """Whether the last ``settings.stall_rounds`` rounds made no progress on the best before them."""
+    return len(rounds) > settings.stall_rounds and rounds[-1]["round"] - best_round(rounds)["round"] >= settings.stall_rounds
+
+
+def stall_line(rounds: Sequence[Mapping[str, Any]], cert: Mapping[str, Any], db: Path, margin: float = 1.0) -> str:
+    """One line: why the loop stops without progress (which test, which rounds, what they tried;
+    ``margin``: the rounds' ``ActiveSettings.departure_margin``)."""
+    best, last = best_round(rounds), rounds[-1]
+    tried = [r for r in rounds if r["round"] > best["round"]]
+    test = next(t for t in cert["tests"] if t["name"] == cert["worst_test"])
+    if math.isinf(cert["worst"]):
+        where = (f"the ANN could not follow it past increment {test.get('departure', '?')} of "
+                 f"{test.get('n_increments', '?')}: {_short(test.get('error', ''))}")
+    else:
+        where = f"{100 * cert['worst']:.3f} % off" + (f" from increment {test['departure']} of {test['n_increments']}"
+                                                      if "departure" in test else "")
+    tests = sorted({name for r in tried for name in r.get("tests", [])})
+    widths = sorted({"x".join(map(str, r["hidden"])) for r in tried if "hidden" in r})
+    return (f"active learning stops: no progress in rounds {tried[0]['round']}-{last['round']} on round "
+            f"{best['round']} ({_figure(best)}): round {last['round']} worst test {cert['worst_test']!r}, {where}; "
+            f"tried {sum(r['samples_added'] for r in tried)} samples on the DEM states of {', '.join(tests) or 'no test'}"
+            f"{'' if margin >= 1.0 else f' from {margin:g} of a test before their departure on'}, network "
+            f"{', '.join(widths) or '?'}; database {_mb(db):.1f} MB")
+
+
+def _figure(entry: Mapping[str, Any]) -> str:
+    n, followed, worst = progress(entry)
+    if n:
+        return f"{n} test(s) not followed, {followed:.2f} of a test followed"
+    return f"worst {100 * worst:.3f} %"
+
+
+def _short(text: str, limit: int = 160) -> str:
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _mb(db: Path) -> float:
+    return Path(db).stat().st_size / 1e6
+
+
+BUDGET_MARGIN = 1.1
+"""A round's samples are assumed to take this many times the bytes on disk of the file's average
+sample [-] (a round's states are more loaded than the generator's average: counted at 1x, a round
+on the tiny database of the tests ended 3 % over its budget)."""
+
+
+def budget_room(db: Path, max_mb: float, reserve: int = 0) -> tuple[int, float]:
+    """(samples that still fit in ``db`` under ``max_mb`` [MB] besides ``reserve`` bytes in memory
+    (the round's probed states, stored at the file's own ratio of bytes on disk to bytes
+    uncompressed, ``warp_hcell.database.format.sizes``), bytes on disk assumed per sample:
+    ``BUDGET_MARGIN`` x ``warp_hcell.database.format.bytes_per_sample``)."""
+    per_sample = BUDGET_MARGIN * database.bytes_per_sample(db)
+    on_disk, raw = database.sizes(db)
+    left = max_mb * 1e6 - on_disk - BUDGET_MARGIN * reserve * min(on_disk / max(raw, 1), 1.0)
+    return max(int(left // per_sample), 0), per_sample
 
 
 def round_seed(seed: int, round_index: int) -> int:
@@ -159,20 +273,46 @@ def _record(model: Path, rounds: list[dict[str, Any]], cert: Mapping[str, Any]) 
 
 def round_line(entry: Mapping[str, Any]) -> str:
     """One line of a round's report."""
-    return (f"active round {entry['round']}: +{entry['samples_added']} samples ({entry['samples_total']} in all), "
+    capped = entry.get("samples_capped", 0)
+    return (f"active round {entry['round']}: +{entry['samples_added']} samples ({entry['samples_total']} in all"
+            + (f"; {capped} more did not fit the database budget" if capped else "") + "), "
             f"certificate worst {100 * entry['worst']:.3f} % ({entry['worst_test']}), "
             f"{entry.get('verdict', 'passed' if entry['passed'] else 'failed').upper()}, {entry['seconds']:.1f} s"
+            + (f", database {entry['database_mb']:.1f} MB ({entry['database_raw_mb']:.1f} MB uncompressed)"
+               if "database_mb" in entry else "")
             + (f" (training {'x'.join(map(str, entry['hidden']))}, {entry['epochs']} epochs"
                f"{', warm start' if entry.get('warm_start') else ''})"
                if "epochs" in entry else ""))
 
 
+def round_entry(k: int, db: Path, model: Path, cert: Mapping[str, Any], seconds: float, **extra: Any) -> dict[str, Any]:
+    """The record of round ``k`` (0: the model as given) after its certificate ``cert``: the
+    samples (``extra`` gives ``samples_added`` and what else the round knows), the certificate's
+    figures, the tests the ANN could not follow (``not_followed``) and how far it followed them
+    (``followed``: the fractions of their increments, summed), the database's size in MB
+    (``database_mb``, and ``database_raw_mb`` uncompressed) and the training (``training_record``)."""
+    file_bytes, raw_bytes = database.sizes(db)
+    lost = [t for t in cert["tests"] if not math.isfinite(max(t["dp"], t["dq"]))]
+    return {"round": k, **extra, "samples_total": _n_samples(db), "worst": cert["worst"],
+            "worst_test": cert["worst_test"], "passed": cert["passed"], "verdict": cert["verdict"],
+            "seconds": seconds, "not_followed": [t["name"] for t in lost],
+            "followed": float(sum(t.get("departure", 0) / t["n_increments"] for t in lost if t.get("n_increments"))),
+            "database_mb": file_bytes / 1e6, "database_raw_mb": raw_bytes / 1e6, **training_record(model)}
+
+
 def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
           certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
           log: Callable[..., None] = print) -> list[dict[str, Any]]:
-    """Certify ``model`` (trained on ``db``) and run active rounds until it passes or the budget
-    of ``settings`` is spent; returns the rounds (round 0: the model as given), also stored in
-    the model's JSON under ``active_learning``.
+    """Certify ``model`` (trained on ``db``) and run active rounds until it passes, the budget
+    of ``settings`` is spent, or ``settings.stall_rounds`` rounds make no progress (``stalled``:
+    one line says which test, which rounds and what they tried, ``stall_line``); returns the
+    rounds (round 0: the model as given), also stored in the model's JSON under ``active_learning``.
+
+    A round probes the DEM states of the failing tests (with ``settings.departure_margin`` < 1,
+    those from their point of departure on, ``failing_states``), a test the ANN could not follow
+    included, and adds at most the samples that fit the database's size budget
+    (``settings.max_database_mb``, ``budget_room``; those left out are counted in
+    ``samples_capped``); with no room left the loop stops and says so.
 
     Args:
         db: the model's database; the rounds append to it (``append_samples``).
@@ -190,47 +330,59 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
     rounds = [r for r in meta.get("active_learning") or [] if r["round"] <= len(stored)]
     added_total = sum(r["samples"] for r in stored)
     if meta["training_data"]["sha256"] != file_sha256(db):  # appended, not yet retrained
-        widths = tuple(stored[-1].get("hidden") or meta["architecture"]["hidden"])
+        widths = tuple((stored[-1].get("hidden") if stored else None) or meta["architecture"]["hidden"])
         train_model(db, model, round_config(config, model, settings, widths), rounds)
     elif _current(meta.get("certificate"), model, certify_settings) and rounds and rounds[-1]["round"] == len(stored) and (
-            verdict(meta["certificate"]) != "failed" or len(stored) >= settings.rounds or added_total >= settings.max_samples):
+            verdict(meta["certificate"]) != "failed" or len(stored) >= settings.rounds
+            or added_total >= settings.max_samples or stalled(rounds, settings)
+            or budget_room(db, settings.max_database_mb)[0] < min(settings.samples_per_round, MIN_ROUND_SAMPLES)):
         log(round_line(rounds[-1]) + " (done before)")
         return rounds
     t0 = time.perf_counter()
     cert, states = _certify(model, certify_settings, settings, threads)
     if not rounds or rounds[-1]["round"] != len(stored):
-        rounds.append({"round": len(stored), "samples_added": stored[-1]["samples"] if stored else 0,
-                       "samples_total": _n_samples(db), "worst": cert["worst"], "worst_test": cert["worst_test"],
-                       "passed": cert["passed"], "verdict": cert["verdict"], "seconds": time.perf_counter() - t0,
-                       **training_record(model)})
+        rounds.append(round_entry(len(stored), db, model, cert, time.perf_counter() - t0,
+                                  samples_added=stored[-1]["samples"] if stored else 0,
+                                  **({"tests": stored[-1].get("tests", [])} if stored else {})))
         log(round_line(rounds[-1]))
     _record(model, rounds, cert)
     meso = from_description(str(_attrs(db)["mesostructure"]))
     while cert["verdict"] == "failed":  # a weak certificate (below the minimum) is no matter of samples
         k = len(stored) + 1
-        n = min(settings.samples_per_round, settings.max_samples - added_total)
-        if k > settings.rounds or n <= 0 or time.perf_counter() - start > settings.max_seconds:
+        asked = min(settings.samples_per_round, settings.max_samples - added_total)
+        if k > settings.rounds or asked <= 0 or time.perf_counter() - start > settings.max_seconds:
             log(f"active learning stops: budget spent (rounds {k - 1}/{settings.rounds}, samples "
                 f"{added_total}/{settings.max_samples}, {time.perf_counter() - start:.0f}/{settings.max_seconds:g} s)")
             break
+        if stalled(rounds, settings):
+            log(stall_line(rounds, cert, db, settings.departure_margin))
+            break
         t0 = time.perf_counter()
-        picked, names = failing_states(cert, states)
+        picked, names = failing_states(cert, states, settings.departure_margin)
         if not names:
             log("active learning stops: the failing tests left no DEM states (the DEM did not run them)")
+            break
+        room, per_sample = budget_room(db, settings.max_database_mb, sum(v.nbytes for v in picked.values()))
+        n = min(asked, room)
+        if n < min(asked, MIN_ROUND_SAMPLES):
+            log(f"active learning stops: the database budget is spent ({db} {_mb(db):.1f} MB of "
+                f"{settings.max_database_mb:g} MB at {per_sample / 1e3:.2f} kB per sample: {room} more samples fit, "
+                f"round {k} asks {asked})")
             break
         attrs = _attrs(db)
         samples = probe_states(meso, picked, n, round_seed(seed, k), attrs, threads)
         widths = next_widths(rounds, model) if settings.widen else _architecture(model)[0]
+        departures = {t["name"]: [t["departure"], t["n_increments"]] for t in cert["tests"]
+                      if t["name"] in names and "departure" in t}
         entry = append_samples(db, samples, picked, {"tests": names, "seed": round_seed(seed, k),
-                                                     "hidden": list(widths)})
+                                                     "hidden": list(widths), "departures": departures,
+                                                     "samples_capped": asked - n})
         stored.append(entry)
         added_total += entry["samples"]
         train_model(db, model, round_config(config, model, settings, widths), rounds)
         cert, states = _certify(model, certify_settings, settings, threads)
-        rounds.append({"round": k, "samples_added": entry["samples"], "samples_total": _n_samples(db),
-                       "tests": names, "worst": cert["worst"], "worst_test": cert["worst_test"],
-                       "passed": cert["passed"], "verdict": cert["verdict"], "seconds": time.perf_counter() - t0,
-                       **training_record(model)})
+        rounds.append(round_entry(k, db, model, cert, time.perf_counter() - t0, samples_added=entry["samples"],
+                                  samples_capped=asked - n, tests=names, departures=departures))
         log(round_line(rounds[-1]))
         _record(model, rounds, cert)
     return rounds

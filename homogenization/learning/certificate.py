@@ -27,7 +27,9 @@ model's index (``training.ood``; None without one).
 
 The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_test``,
 ``tests`` (name, kind, sense, p0, dp, dq, scale [N/m]; inf and an ``error`` where the ANN could
-not follow the programme, e.g. a drained increment without convergence), ``rollout``,
+not follow the programme, e.g. a drained increment without convergence; ``n_increments``, the
+test's length, and, where the ANN left the DEM, ``departure``: the increment that put it more
+than the target off, or the one it could not follow, counted from the test's start), ``rollout``,
 ``coverage``, the settings, ``cell_parameters`` (the cell's, e.g. alpha0_deg), ``model_sha256``
 (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the tree differs),
 ``seconds``, and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
@@ -169,37 +171,73 @@ def run_test(model: Any, programme: loading.Programme, meso: Mesostructure, sett
     return driver.run(model, programme, mesostructure=meso, n_orientations=settings["n_orientations"], progress=False)
 
 
-class _Sampler:
-    """A cell model that passes every call to ``model`` and keeps, every ``every``-th distinct
-    start state of the current test (``test``, set by the caller), the DEM state arrays
-    (``cell_size``, ``position``, ``shear_force``) of its cells; every ``COVERAGE_EVERY``-th
-    one is also kept for the coverage."""
+class _Counter:
+    """A cell model that passes every call to ``model`` and counts the increments of a run: the
+    distinct start states of its ``step`` calls (the trial calls of a stress-controlled increment
+    start from one state: counted once). ``increment`` is the index of the latest start state
+    within the current test (``test``, set by the caller; 0 the first state of the test)."""
 
-    def __init__(self, model: Any, every: int) -> None:
-        self.model, self.every = model, every
+    def __init__(self, model: Any) -> None:
+        self.model = model
         self.name = model.name
         self.test = 0
-        self.coverage: list[dict[str, np.ndarray]] = []
-        self.states: dict[int, list[dict[str, np.ndarray]]] = {}
+        self.increment = -1
         self._last: object = None
-        self._count = 0
+        self._counted_test = 0
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.model, name)
 
+    def _count(self, state: Any) -> bool:
+        """Count ``state``; whether it is a new start state."""
+        if state is self._last:
+            return False
+        if self.test != self._counted_test:
+            self._counted_test, self.increment = self.test, -1
+        self._last = state
+        self.increment += 1
+        return True
+
     def step(self, state: Any, d_eps: np.ndarray, *, with_tangent: bool = False):
-        if state is not self._last:
-            self._last = state
-            keep, cover = self._count % self.every == 0, self._count % COVERAGE_EVERY == 0
+        self._count(state)
+        return self.model.step(state, d_eps, with_tangent=with_tangent)
+
+
+class _Sampler(_Counter):
+    """A ``_Counter`` that also keeps, every ``every``-th distinct start state (counted over all
+    tests), the DEM state arrays (``cell_size``, ``position``, ``shear_force``) of its cells and
+    the ``increment`` of that state within its test; every ``COVERAGE_EVERY``-th one is also
+    kept for the coverage."""
+
+    def __init__(self, model: Any, every: int) -> None:
+        super().__init__(model)
+        self.every = every
+        self.coverage: list[dict[str, np.ndarray]] = []
+        self.states: dict[int, list[dict[str, np.ndarray]]] = {}
+        self._seen = 0
+
+    def step(self, state: Any, d_eps: np.ndarray, *, with_tangent: bool = False):
+        if self._count(state):
+            keep, cover = self._seen % self.every == 0, self._seen % COVERAGE_EVERY == 0
             if keep or cover:
                 arrays = self.model.state_to_arrays(state)
                 kept = {name: np.array(arrays[name]) for name in ("cell_size", "position", "shear_force")}
                 if keep:
-                    self.states.setdefault(self.test, []).append(kept)
+                    n = kept["cell_size"].shape[0]
+                    self.states.setdefault(self.test, []).append({**kept, "increment": np.full(n, self.increment)})
                 if cover:
                     self.coverage.append(kept)
-            self._count += 1
+            self._seen += 1
         return self.model.step(state, d_eps, with_tangent=with_tangent)
+
+
+def departure(a: driver.Record, d: driver.Record, scale: float, target: float) -> int | None:
+    """The increment [-] (counted from the start of the test, as ``_Counter.increment``) whose
+    result first puts the ANN's p or q more than ``target`` x ``scale`` off the DEM's, over the
+    shear stages; None where it never does."""
+    ra, rd = _shear_rows(a), _shear_rows(d)
+    off = np.nan_to_num(np.maximum(np.abs(a.p[ra] - d.p[rd]), np.abs(a.q[ra] - d.q[rd])), nan=math.inf) > target * scale
+    return int(np.flatnonzero(rd)[np.argmax(off)]) if off.any() else None
 
 
 def _shear_rows(record: driver.Record) -> np.ndarray:
@@ -217,8 +255,10 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     ``dem_states``, when given, receives per test name the DEM cell states met along that test
     every ``state_every`` increments (all cells): ``cell_size`` (n, dim) [m], ``position``
     (n, n_grains, dim) [m], ``shear_force`` (n, n_pairs) [N] (3D: (n, n_pairs, 3);
-    ``DemCell.state_to_arrays``, local frame), and ``cell`` (n,) int64, a distinct id per (test,
-    orientation): the active-learning rounds (``homogenization.learning.active``) probe these states.
+    ``DemCell.state_to_arrays``, local frame), ``cell`` (n,) int64, a distinct id per (test,
+    orientation), and ``increment`` (n,) int64, the state's increment within its test (0 the
+    first): the active-learning rounds (``homogenization.learning.active``) probe these states, from a
+    failing test's ``departure`` on.
 
     Raises:
         ValueError (CheckpointError, one line): unusable model, or a mesostructure it does not take.
@@ -240,21 +280,26 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
                                    n_orientations=n_orientations, spatial_rule=spatial_rule)
     results = []
     n_cells = 0
+    counter = _Counter(ann)
     for k, (info, programme) in enumerate(tests_of(pressures, eps_max, increment, n_orientations, meso.dim)):
-        sampler.test = k
+        sampler.test = counter.test = k
         d = run_test(sampler, programme, meso, requested)
         n_cells = d.weights.size
         scale = max(float(info["p0"]), float(np.max(d.p)))
+        length = {"n_increments": int(d.p.size)}
         try:
-            a = run_test(ann, programme, meso, requested)
+            a = run_test(counter, programme, meso, requested)
         except driver.ControlError as exc:  # the ANN cannot follow the programme: the test fails
-            results.append({**info, "dp": math.inf, "dq": math.inf, "scale": scale, "error": " ".join(str(exc).split())})
+            results.append({**info, "dp": math.inf, "dq": math.inf, "scale": scale, "error": " ".join(str(exc).split()),
+                            "departure": max(counter.increment, 0), **length})
             continue
         ra, rd = _shear_rows(a), _shear_rows(d)
         if ra.sum() != rd.sum():
             raise ValueError(f"test {info['name']!r}: the ANN and the DEM recorded different shear lengths")
         dp, dq = (float(np.nan_to_num(np.abs(x[ra] - y[rd]), nan=math.inf).max()) / scale for x, y in ((a.p, d.p), (a.q, d.q)))
-        results.append({**info, "dp": dp, "dq": dq, "scale": scale})
+        left = departure(a, d, scale, target)
+        results.append({**info, "dp": dp, "dq": dq, "scale": scale, **length,
+                        **({} if left is None else {"departure": left})})
     worst = max(results, key=lambda t: max(t["dp"], t["dq"]))
     if dem_states is not None:
         for k, parts in sampler.states.items():

@@ -62,11 +62,26 @@ class ActiveSettings:
     widen: bool = True
     """Let a round train a wider network (``homogenization.learning.active.next_widths``: the next rung of ``WIDTH_LADDER``)
     when the round before it gained less than ``homogenization.learning.active.WIDEN_BELOW_GAIN``."""
+    departure_margin: float = 1.0
+    """Of a failing test, the DEM states from its point of departure (the increment that first put
+    the ANN more than the target off the DEM, or that the ANN could not follow) back by this
+    fraction of the test's increments, and every state after it, are probed [-]; 1 (the default):
+    every state of the test (docs/certificate.md, "The pipeline of a 3D cell with a fine grain":
+    in the one comparison made, 0.1 left round 1 at 2.19 % where every state gave 0.99 %)."""
+    stall_rounds: int = 2
+    """Rounds in a row without progress on the best round so far (``homogenization.learning.active.improved``)
+    after which the loop stops with a one-line diagnosis [-]."""
+    max_database_mb: float = 300.0
+    """Size budget of the database file [MB, 1e6 bytes]: a round adds only the samples that fit
+    (at the file's own bytes per sample) and none once it is spent."""
 
     def __post_init__(self) -> None:
-        for name in ("rounds", "samples_per_round", "max_samples", "state_every"):
+        for name in ("rounds", "samples_per_round", "max_samples", "state_every", "stall_rounds"):
             least = 0 if name == "rounds" else 1
             if int(getattr(self, name)) < least:
                 raise ValueError(f"{name} = {getattr(self, name)} must be >= {least}")
-        if not self.max_seconds > 0.0:
-            raise ValueError(f"max_seconds = {self.max_seconds:g} must be > 0")
+        for name in ("max_seconds", "max_database_mb"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name} = {getattr(self, name):g} must be > 0")
+        if not 0.0 <= self.departure_margin <= 1.0:
+            raise ValueError(f"departure_margin = {self.departure_margin:g} must lie in [0, 1]")

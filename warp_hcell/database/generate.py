@@ -72,7 +72,7 @@ from warp_hcell.mesostructures.mesostructure import Mesostructure, Mesostructure
 from warp_hcell.mesostructures.files import describe, description_sha256
 from warp_hcell.mesostructures.hcell import StartCells, h_cell
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings, require_linear_law
-from warp_hcell.database.probing import chunk_samples, n_chunks
+from warp_hcell.database.probing import chunk_samples, FLOAT32_FEATURES, n_chunks
 from warp_hcell.core.provenance import provenance
 from warp_hcell.database.shards import DiskFull, Sidecar, sidecar_path
 from warp_hcell.database.tasks import explore_starts, ExploreInputs, Physics, probe_chunk, ProbeInputs
@@ -169,6 +169,7 @@ def _assemble(out: Path, states: Mapping[str, np.ndarray], chunks: Sequence[Mapp
         "n_mechanism": int(np.count_nonzero(data["mechanism"])),
         "n_perturbed": int(np.count_nonzero(data["perturbed"])),
         "n_zero_probes": int(np.count_nonzero(np.all(data["d_eps"] == 0.0, axis=1))),
+        "float32_datasets": json.dumps([f"{group}/{name}" for group in database.STATE_GROUPS for name in FLOAT32_FEATURES]),
         "exploration_stops": stops,
     }
     data["valid"], cleaning_attrs = cleaning.clean_samples(data) if clean else cleaning.not_cleaned(data)

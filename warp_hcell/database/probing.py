@@ -45,6 +45,11 @@ from warp_hcell.core.parameters import ContactLaw, DatabaseSettings
 STATE_FEATURES = ("cell_size", "free_position", "shear_force", "contact", "normal_force", "unbalanced", "moment",
                   "area")
 """Datasets of the groups ``before`` and ``after`` (``StateSchema.features``)."""
+FLOAT32_FEATURES = ("normal_force", "unbalanced", "moment")
+"""Derived features stored in float32 (relative rounding 6e-8): each follows exactly from the
+learning state (``cell_size``, ``free_position``, ``shear_force``, float64) and the contact law
+(``learning_state.evaluate``), no replay or training reads them, and in float64 they took 39 %
+of the default database of a ten-sphere cell with a fine grain (docs/database_format.md, "Size")."""
 
 
 def rng(seed: int, *key: int) -> np.random.Generator:
@@ -142,7 +147,8 @@ def _features(ev: Mapping[str, np.ndarray], cell_size: np.ndarray, free_position
               "shear_force": ev["shear_force"], "contact": ev["contact"], "normal_force": ev["normal_force"],
               "unbalanced": ev["unbalanced"], "moment": ev["moment"].reshape(ev["moment"].shape[0], -1),
               "area": ev["area"]}
-    return {prefix + name: values[name] for name in STATE_FEATURES}
+    return {prefix + name: values[name].astype(np.float32) if name in FLOAT32_FEATURES else values[name]
+            for name in STATE_FEATURES}
 
 
 def canonical_dem_arrays(context: ProbeContext, ev: Mapping[str, np.ndarray], cell_size: np.ndarray) -> dict:

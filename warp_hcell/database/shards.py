@@ -2,7 +2,8 @@
 
 The sidecar holds the completed work of an unfinished run: ``run.json`` (what identifies the
 run, and the provenance of its start), one ``start_XXXXXX.npz`` per explored start cell,
-``states.npz`` (the whole exploration), and one ``chunk_XXXXXX.npz`` per chunk of samples.
+``states.npz`` (the whole exploration), and one ``chunk_XXXXXX.npz`` per chunk of samples, each
+compressed (lossless: the sidecar of a large 3D database would otherwise hold its whole raw size).
 Every file is written to a temporary name, synced and renamed, so a killed run leaves either
 a complete file or none; a file that is unreadable anyway (disk trouble, a foreign file) is
 found by ``Sidecar.load`` and the work is redone. A full disk raises ``DiskFull`` after
@@ -27,7 +28,7 @@ class DiskFull(OSError):
 
 
 def save_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
-    """Write ``arrays`` to ``path`` atomically (temporary name, fsync, rename).
+    """Write ``arrays`` to ``path`` atomically (temporary name, fsync, rename), compressed.
 
     Raises:
         DiskFull: no space left on the device (the temporary file is removed).
@@ -35,7 +36,7 @@ def save_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
     tmp = path.with_name(path.name + ".tmp")
     try:
         with open(tmp, "wb") as handle:
-            np.savez(handle, **{name.replace("/", ":"): value for name, value in arrays.items()})
+            np.savez_compressed(handle, **{name.replace("/", ":"): value for name, value in arrays.items()})
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)
