@@ -16,7 +16,11 @@ abs(sigma) the point has carried where the target is zero); a landing within ``r
   (a fresh one only where the last trial did not halve the residual); with one controlled component
   the Newton step is safeguarded by bisection once two trials bracket the target, and where the
   response jumps across the target (within ``JUMP_WIDTH`` of the increment) the nearer side is
-  accepted and flagged; linear systems by LAPACK; a point that does not converge raises ``ControlError``.
+  accepted and flagged; with several controlled components, a point still unconverged after
+  ``max_iterations`` trials, whose response jumps by more than the tolerance across ``JUMP_WIDTH`` of
+  the increment next to its trial nearest the target (found by bisection, ``_several_jump``), takes
+  that trial, flagged the same way; linear systems by LAPACK; a point that does not converge raises
+  ``ControlError``.
 - ``POPULATION`` (a calibration's parameter sets, ``homogenization.calibration.forward``): a fresh
   tangent every trial, systems of one or two components by Cramer's rule (a singular tangent gives a
   non-finite step instead of an exception), and a point that does not converge in ``max_iterations``
@@ -39,6 +43,10 @@ JUMP_WIDTH = 1e-6
 """Bracket width, as a fraction of the increment, below which stress control takes the
 response for discontinuous at the target (``StressControl.solve``) [-]: the residual still
 above the tolerance there means a slope ~1e6 times the material's own (about 20 bisections)."""
+
+JUMP_SPAN = 1e-2
+"""Largest distance between two trials, as a fraction of the increment, that stress control with several
+controlled components bisects in search of a jump of the response (``_several_jump``) [-]."""
 
 
 class ControlError(RuntimeError):
@@ -200,10 +208,13 @@ class StressControl:
         jump, fallback = np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64)
         last = np.full(n, np.inf)
         calls = 0
+        trials: list = []
         while True:
             update = points.trial(d, with_tangent=fresh)
             calls += 1
             g = plan.controlled(update.stress)
+            if secant and policy.strict:
+                trials.append((update, d.copy(), g))
             if update.tangent is not None:
                 T = update.tangent.copy() if T is None else np.where(todo[:, None, None], update.tangent, T)
             elif secant:
@@ -231,6 +242,15 @@ class StressControl:
                     return Solved(d, calls, jump, fallback, T)
             residual = np.abs(r).max(axis=1)
             if calls >= policy.max_iterations:
+                if trials:
+                    jumped, spent = _several_jump(points, plan, trials, target, tol, todo,
+                                                  np.abs(d[:, :points.dim]).max(axis=1))
+                    calls += spent
+                    if (jumped == todo).all():
+                        for trial, trial_d, mask in _nearest_trials(trials, target, tol, todo):
+                            points.accept(trial, mask)
+                            d[mask] = trial_d[mask]
+                        return Solved(d, calls, jump | todo, fallback, T)
                 if policy.strict:
                     raise ControlError(f"{where}: stress control did not converge in {calls} step calls (residual "
                                        f"{float(residual[todo].max()):.3g} {points.unit}, tolerance "
@@ -256,6 +276,48 @@ def _broyden(T: np.ndarray, plan: Plan, dx: np.ndarray, dg: np.ndarray, todo: np
     Tc = plan.controlled_tangent(T)[:, idx]
     for p in np.flatnonzero(todo):
         T[p, idx] += np.outer(dg[p] - Tc[p] @ dx[p], dx[p]) / float(dx[p] @ dx[p])
+
+
+def _several_jump(points: MaterialPoints, plan: Plan, trials: list, target: np.ndarray, tol: np.ndarray,
+                  todo: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, int]:
+    """Per point of ``todo`` (n,), whether the response jumps across the target next to its trial nearest the
+    target a: with b the trial within ``JUMP_SPAN`` of the increment ``size`` of a whose controlled stresses
+    differ most from a's, the segment [a, b] is bisected (keeping the half whose ends differ more) to
+    ``JUMP_WIDTH`` of the increment, and its ends still differ by more than the tolerance. ``trials``:
+    (update, increments, controlled stresses) of every trial; the trials nearer the target met on the way are
+    appended. Returns the mask and the step calls spent."""
+    ratio = np.stack([(np.abs(g - target) / tol).max(axis=1) for _, _, g in trials])
+    rows = np.arange(todo.size)
+    a = np.argmin(ratio, axis=0)
+    d_a, g_a = np.stack([t[1] for t in trials])[a, rows], np.stack([t[2] for t in trials])[a, rows]
+    far = np.stack([np.where(np.abs(d - d_a).max(axis=1) <= JUMP_SPAN * size, np.abs(g - g_a).max(axis=1), -1.0)
+                    for _, d, g in trials])
+    b = np.argmax(far, axis=0)
+    d_b, g_b = np.stack([t[1] for t in trials])[b, rows], np.stack([t[2] for t in trials])[b, rows]
+    calls = 0
+    while True:
+        wide = np.abs(d_b - d_a).max(axis=1) > JUMP_WIDTH * size
+        split = todo & wide & np.any(np.abs(g_b - g_a) > tol, axis=1)
+        if not split.any():
+            return todo & ~wide & np.any(np.abs(g_b - g_a) > tol, axis=1), calls
+        d_m = np.where(split[:, None], 0.5 * (d_a + d_b), d_a)
+        update = points.trial(d_m)
+        calls += 1
+        g_m = plan.controlled(update.stress)
+        trials.append((update, d_m, np.where(split[:, None], g_m, np.inf)))
+        toward_b = split & (np.abs(g_m - g_a).max(axis=1) <= np.abs(g_m - g_b).max(axis=1))
+        toward_a = split & ~toward_b
+        d_a, g_a = np.where(toward_b[:, None], d_m, d_a), np.where(toward_b[:, None], g_m, g_a)
+        d_b, g_b = np.where(toward_a[:, None], d_m, d_b), np.where(toward_a[:, None], g_m, g_b)
+
+
+def _nearest_trials(trials: list, target: np.ndarray, tol: np.ndarray, todo: np.ndarray):
+    """(trial update, its increments, mask) of the trial nearest the target (largest abs residual over the
+    tolerance) of every point of ``todo``."""
+    ratio = np.stack([(np.abs(g - target) / tol).max(axis=1) for _, _, g in trials])
+    chosen = np.argmin(ratio, axis=0)
+    for t in np.unique(chosen[todo]):
+        yield trials[t][0], trials[t][1], todo & (chosen == t)
 
 
 class _Bracket:
