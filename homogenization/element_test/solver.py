@@ -17,9 +17,9 @@ abs(sigma) the point has carried where the target is zero); a landing within ``r
   the Newton step is safeguarded by bisection once two trials bracket the target, and where the
   response jumps across the target (within ``JUMP_WIDTH`` of the increment) the nearer side is
   accepted and flagged; with several controlled components, a point still unconverged after
-  ``max_iterations`` trials, whose response jumps by more than the tolerance across ``JUMP_WIDTH`` of
-  the increment next to its trial nearest the target (found by bisection, ``_several_jump``), takes
-  that trial, flagged the same way; linear systems by LAPACK; a point that does not converge raises
+  ``max_iterations`` trials, whose worst controlled stress jumps across its target within
+  ``JUMP_WIDTH`` of the increment next to its trial nearest the target (found by bisection,
+  ``_several_jump``), takes that trial, flagged the same way; linear systems by LAPACK; a point that does not converge raises
   ``ControlError``.
 - ``POPULATION`` (a calibration's parameter sets, ``homogenization.calibration.forward``): a fresh
   tangent every trial, systems of one or two components by Cramer's rule (a singular tangent gives a
@@ -43,10 +43,6 @@ JUMP_WIDTH = 1e-6
 """Bracket width, as a fraction of the increment, below which stress control takes the
 response for discontinuous at the target (``StressControl.solve``) [-]: the residual still
 above the tolerance there means a slope ~1e6 times the material's own (about 20 bisections)."""
-
-JUMP_SPAN = 1e-2
-"""Largest distance between two trials, as a fraction of the increment, that stress control with several
-controlled components bisects in search of a jump of the response (``_several_jump``) [-]."""
 
 
 class ControlError(RuntimeError):
@@ -281,34 +277,40 @@ def _broyden(T: np.ndarray, plan: Plan, dx: np.ndarray, dg: np.ndarray, todo: np
 def _several_jump(points: MaterialPoints, plan: Plan, trials: list, target: np.ndarray, tol: np.ndarray,
                   todo: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, int]:
     """Per point of ``todo`` (n,), whether the response jumps across the target next to its trial nearest the
-    target a: with b the trial within ``JUMP_SPAN`` of the increment ``size`` of a whose controlled stresses
-    differ most from a's, the segment [a, b] is bisected (keeping the half whose ends differ more) to
-    ``JUMP_WIDTH`` of the increment, and its ends still differ by more than the tolerance. ``trials``:
-    (update, increments, controlled stresses) of every trial; the trials nearer the target met on the way are
-    appended. Returns the mask and the step calls spent."""
-    ratio = np.stack([(np.abs(g - target) / tol).max(axis=1) for _, _, g in trials])
+    target a: in a's worst component c (largest abs residual over the tolerance), b is the trial nearest a
+    whose residual in c has the other sign; the segment [a, b]
+    is bisected, keeping the half across which c's residual changes sign, to ``JUMP_WIDTH`` of the increment,
+    and c's residual is still above the tolerance at both ends (the one-component bracket's test, on the
+    segment). ``trials``: (update, increments, controlled stresses) of every trial; the bisection's trials
+    are appended; ``size``: largest abs strain increment of each point [-]. Returns the mask and the step
+    calls spent."""
     rows = np.arange(todo.size)
-    a = np.argmin(ratio, axis=0)
-    d_a, g_a = np.stack([t[1] for t in trials])[a, rows], np.stack([t[2] for t in trials])[a, rows]
-    far = np.stack([np.where(np.abs(d - d_a).max(axis=1) <= JUMP_SPAN * size, np.abs(g - g_a).max(axis=1), -1.0)
-                    for _, d, g in trials])
-    b = np.argmax(far, axis=0)
-    d_b, g_b = np.stack([t[1] for t in trials])[b, rows], np.stack([t[2] for t in trials])[b, rows]
+    d_all = np.stack([t[1] for t in trials])
+    r_all = np.stack([t[2] for t in trials]) - target
+    a = np.argmin((np.abs(r_all) / tol).max(axis=2), axis=0)
+    d_a, r_a = d_all[a, rows], r_all[a, rows]
+    c = np.argmax(np.abs(r_a) / tol, axis=1)
+    distance = np.abs(d_all - d_a).max(axis=2)
+    across = np.sign(r_all[:, rows, c]) == -np.sign(r_a[rows, c])
+    b = np.argmin(np.where(across, distance, np.inf), axis=0)
+    found = todo & across.any(axis=0)
+    d_b, r_b = d_all[b, rows], r_all[b, rows]
     calls = 0
     while True:
         wide = np.abs(d_b - d_a).max(axis=1) > JUMP_WIDTH * size
-        split = todo & wide & np.any(np.abs(g_b - g_a) > tol, axis=1)
+        split = found & wide
         if not split.any():
-            return todo & ~wide & np.any(np.abs(g_b - g_a) > tol, axis=1), calls
+            above = (np.abs(r_a[rows, c]) > tol[rows, c]) & (np.abs(r_b[rows, c]) > tol[rows, c])
+            return found & above, calls
         d_m = np.where(split[:, None], 0.5 * (d_a + d_b), d_a)
         update = points.trial(d_m)
         calls += 1
-        g_m = plan.controlled(update.stress)
-        trials.append((update, d_m, np.where(split[:, None], g_m, np.inf)))
-        toward_b = split & (np.abs(g_m - g_a).max(axis=1) <= np.abs(g_m - g_b).max(axis=1))
-        toward_a = split & ~toward_b
-        d_a, g_a = np.where(toward_b[:, None], d_m, d_a), np.where(toward_b[:, None], g_m, g_a)
-        d_b, g_b = np.where(toward_a[:, None], d_m, d_b), np.where(toward_a[:, None], g_m, g_b)
+        r_m = plan.controlled(update.stress) - target
+        trials.append((update, d_m, np.where(split[:, None], r_m + target, np.inf)))
+        same_as_a = split & (np.sign(r_m[rows, c]) == np.sign(r_a[rows, c]))
+        to_b = split & ~same_as_a
+        d_a, r_a = np.where(same_as_a[:, None], d_m, d_a), np.where(same_as_a[:, None], r_m, r_a)
+        d_b, r_b = np.where(to_b[:, None], d_m, d_b), np.where(to_b[:, None], r_m, r_b)
 
 
 def _nearest_trials(trials: list, target: np.ndarray, tol: np.ndarray, todo: np.ndarray):
