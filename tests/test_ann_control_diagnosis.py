@@ -102,6 +102,6 @@ def test_the_diagnosis_names_the_cells_that_the_equilibrium_corrections_left_unb
     assert np.count_nonzero(ratio > 1e-14) == response.diagnostics["n_unconverged"] > 0
     line = hybrid.control_diagnosis(state, d, np.eye(3)[[0, 1, 2, 0]], loading.triaxial(2e5, 0.02, 1e-4), meso)
     unbalanced = int(response.diagnostics["n_unconverged"])
-    assert f"force ratio above 1e-14 after 1 equilibrium corrections in {unbalanced} of 4 cells: " in line
+    assert f"force ratio above 1e-14 after K = 1 equilibrium corrections in {unbalanced} of 4 cells: " in line
     assert f", ratio {ratio[np.argmax(ratio > 1e-14)]:.2g})" in line and "\n" not in line
     assert make_cell_model("ann", dim=3).unbalanced_cells(state, d).max() == 0.0  # no corrections, nothing named

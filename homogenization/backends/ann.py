@@ -462,7 +462,7 @@ class AnnCell(ArrayStateMixin):
         parts = []
         for key, what in (("step", "non-finite step"), ("tangent", "non-finite tangent"),
                           ("off", f"tangent off the step by > {TANGENT_MISS:.0%}"),
-                          ("unbalanced", f"force ratio above {self.force_tolerance:g} after "
+                          ("unbalanced", f"force ratio above {self.force_tolerance:g} after K = "
                                          f"{self.equilibrium_corrections} equilibrium corrections")):
             index = np.flatnonzero(failed[key])
             if index.size:
