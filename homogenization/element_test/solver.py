@@ -278,10 +278,9 @@ def _several_jump(points: MaterialPoints, plan: Plan, trials: list, target: np.n
                   todo: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, int]:
     """Per point of ``todo`` (n,), whether the response jumps across the target next to its trial nearest the
     target a: in a's worst component c (largest abs residual over the tolerance), b is the trial nearest a
-    whose residual in c has the other sign; the segment [a, b]
-    is bisected, keeping the half across which c's residual changes sign, to ``JUMP_WIDTH`` of the increment,
-    and c's residual is still above the tolerance at both ends (the one-component bracket's test, on the
-    segment). ``trials``: (update, increments, controlled stresses) of every trial; the bisection's trials
+    whose residual in c has the other sign; the segment [a, b] is bisected, keeping the half across which
+    c's residual changes sign, to ``JUMP_WIDTH`` of the increment, and c's residual is still above the
+    tolerance at both ends (the one-component bracket's test, on the segment). ``trials``: (update, increments, controlled stresses) of every trial; the bisection's trials
     are appended; ``size``: largest abs strain increment of each point [-]. Returns the mask and the step
     calls spent."""
     rows = np.arange(todo.size)
