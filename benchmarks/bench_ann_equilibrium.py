@@ -6,7 +6,9 @@ one cell, all on the same rule of cells, printed side by side in one run:
 
 - the largest difference from the DEM of sigma11, sigma22, sigma33, p and q along the shear stage,
   over p0 and over the path's scale max(p0, largest DEM p), and where it is (a run whose stress
-  control fails is reported as stopped, with the driver's line);
+  control fails is reported as stopped, with the driver's line), the same of q alone over the
+  scale, the largest difference of the shear stage's volumetric strain eps11 + eps22 + eps33 (in % of strain), and the increments whose
+  stress control accepted the nearer side of a response jump (``stress_control_jump``);
 - the corrections' counts over the run: cell-increments corrected, Newton steps, cell-increments
   left above the DEM's force tolerance (unconverged), the largest force ratio of the network's
   guess;
@@ -57,7 +59,7 @@ def run(model, meso, args):
     return record, time.perf_counter() - start
 
 
-def difference(record, reference, p0: float) -> tuple[float, float, float, str]:
+def difference(record, reference, p0: float, curves=COMPARED) -> tuple[float, float, float, str]:
     """(largest difference of the shear-stage curves [Pa], the path's scale [Pa], axial strain of the
     shear stage where it is [-], the curve) of ``record`` against ``reference``, increment by increment
     from the start of each one's shear stage (the isotropic stage lands on p0 in as many increments
@@ -70,12 +72,25 @@ def difference(record, reference, p0: float) -> tuple[float, float, float, str]:
     theirs, start = shear_stage(reference)
     n = min(mine.size, theirs.size)
     worst, where, name = 0.0, 0.0, ""
-    for curve in COMPARED:
+    for curve in curves:
         diff = np.abs(getattr(record, curve)[mine[:n]] - getattr(reference, curve)[theirs[:n]])
         k = int(np.argmax(diff))
         if diff[k] > worst:
             worst, where, name = float(diff[k]), float(reference.eps11[theirs[k]]) - start, curve
     return worst, max(p0, float(np.abs(reference.p).max())), where, name
+
+
+def volumetric_difference(record, reference) -> float:
+    """Largest difference [-] of the shear stage's volumetric strain eps11 + eps22 + eps33 (from the stage's
+    start, compression positive) against ``reference``, increment by increment as in ``difference``."""
+    def shear_eps_v(r):
+        rows = np.flatnonzero(r.stage == r.stage[-1])
+        eps_v = r.eps11 + r.eps22 + r.eps33
+        return eps_v[rows] - (eps_v[rows[0] - 1] if rows[0] > 0 else 0.0)
+
+    mine, theirs = shear_eps_v(record), shear_eps_v(reference)
+    n = min(mine.size, theirs.size)
+    return float(np.abs(mine[:n] - theirs[:n]).max())
 
 
 def total(record, key: str) -> float:
@@ -202,13 +217,15 @@ def main(argv=None) -> int:
         rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol if k else None,
                      "wall_s": wall, "diff_p0": worst / args.p0, "diff_scale": worst / scale, "scale_pa": scale,
                      "at_eps_a": where, "curve": curve, "increments": record.n_increments,
+                     "q_diff_scale": difference(record, dem, args.p0, ("q",))[0] / scale,
+                     "eps_v_diff": volumetric_difference(record, dem), "jumps": total(record, "stress_control_jump"),
                      "corrected": total(record, "n_corrected"), "newton_steps": total(record, "n_corrections"),
                      "unconverged": total(record, "n_unconverged"),
                      "network_ratio_max": largest(record, "force_ratio_network_max"),
                      "ratio_max": largest(record, "force_ratio_max"),
                      "cell_increments": record.n_increments * int(np.asarray(record.weights).size)})
     print(f"{'variant':>22} {'diff/p0':>9} {'diff/scale':>10} {'at eps_a':>8} {'corrected':>10} {'Newton':>10} "
-          f"{'unconv.':>8} {'guess ratio':>11} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
+          f"{'unconv.':>8} {'guess ratio':>11} {'q/scale':>8} {'eps_v diff':>10} {'jumps':>5} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
     closed_s = next((r["wall_s"] for r in rows if r["variant"] == "closed form"), None)
     for row in rows:
         if "stopped" in row:
@@ -216,7 +233,9 @@ def main(argv=None) -> int:
             continue
         cells = (f"{100 * row['diff_p0']:8.3g}% {100 * row['diff_scale']:9.3g}%" if "diff_p0" in row else f"{'':>9} {'':>10}")
         extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} {row['unconverged']:8.0f} "
-                 f"{row['network_ratio_max']:11.2g}" if "corrected" in row else f" {'':>8} {'':>10} {'':>10} {'':>8} {'':>11}")
+                 f"{row['network_ratio_max']:11.2g} {100 * row['q_diff_scale']:7.3g}% {100 * row['eps_v_diff']:9.3g}% "
+                 f"{row['jumps']:5.0f}" if "corrected" in row
+                 else f" {'':>8} {'':>10} {'':>10} {'':>8} {'':>11} {'':>8} {'':>10} {'':>5}")
         print(f"{row['variant']:>22} {cells}{extra} {row['wall_s']:7.1f} {row['wall_s'] / dem_s:6.2f}"
               + (f" {row['wall_s'] / closed_s:8.2f}" if closed_s else ""))
     if args.json:

@@ -88,3 +88,21 @@ def test_hmodel_triaxial_prints_the_diagnosis_on_one_line_with_exit_code_2(monke
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "ANN diagnosis: non-finite step in 2 of 100 cells" in err
     assert "Traceback" not in err
+
+
+def test_the_diagnosis_names_the_cells_that_the_equilibrium_corrections_left_unbalanced():
+    meso = mesostructure_arg("hcell3d:alpha0=55").build(55.0)
+    hybrid = AnnCell3D(make_cell_model("ann", dim=3).contact_law, 0.5, model=default_model_path(3),
+                       equilibrium_corrections=1, equilibrium_tolerance=1e-14)  # one step cannot reach 1e-14
+    state = hybrid.init_state(meso, 4)
+    for _ in range(20):
+        state, _ = hybrid.step(state, np.full((4, 3), 3e-4))
+    d = np.array([[1e-4, -5e-5, -5e-5]] * 4)
+    _, response = hybrid.step(state, d)
+    ratio = hybrid.unbalanced_cells(state, d)
+    assert np.count_nonzero(ratio > 1e-14) == response.diagnostics["n_unconverged"] > 0
+    line = hybrid.control_diagnosis(state, d, np.eye(3)[[0, 1, 2, 0]], loading.triaxial(2e5, 0.02, 1e-4), meso)
+    unbalanced = int(response.diagnostics["n_unconverged"])
+    assert f"force ratio above 1e-14 after K = 1 equilibrium corrections in {unbalanced} of 4 cells: " in line
+    assert f", ratio {ratio[np.argmax(ratio > 1e-14)]:.2g})" in line and "\n" not in line
+    assert make_cell_model("ann", dim=3).unbalanced_cells(state, d).max() == 0.0  # no corrections, nothing named

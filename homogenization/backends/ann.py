@@ -433,21 +433,43 @@ class AnnCell(ArrayStateMixin):
         tangent = ~np.isfinite(np.asarray(full.tangent)).all(axis=(1, 2))
         return {"step": step, "tangent": tangent & ~step, "off": off & ~step & ~tangent}
 
+    def unbalanced_cells(self, state: AnnState, d_eps_local: np.ndarray) -> np.ndarray:
+        """Force ratio (n,) after the equilibrium corrections of the increment ``d_eps_local`` (n, dim) from
+        ``state``, the largest unbalanced free-DOF force over the largest normal force [-] (0 where not
+        evaluated); zeros without corrections."""
+        d = np.asarray(d_eps_local, dtype=np.float64)
+        if not self.equilibrium_corrections:
+            return np.zeros(d.shape[0])
+        if self.fast is not None:
+            self.fast.increment(*state, d, False)
+            return np.asarray(self.fast.last_corrections().force_ratio[1])
+        size, free, shear = self._tensors(state)
+        with torch.no_grad():
+            _, (ratio, _) = self._advance(size, free, shear, torch.as_tensor(d, device=self.device))
+        return ratio[1].cpu().numpy()
+
     def control_diagnosis(self, state: AnnState, d_eps_local: np.ndarray, directions: np.ndarray,
                           programme: Sequence[Any], meso: Mesostructure) -> str:
         """One line on a stress-controlled increment that failed (``homogenization.element_test.driver``): how many
         cells, which (indices and cell axes ``directions`` (n, dim), unit vectors in the macro frame),
-        failed their step or tangent over the last trial (``failed_cells``), whether the model is
-        certified and whether the run lies inside its certificate's envelope."""
+        failed their step or tangent over the last trial (``failed_cells``), with equilibrium corrections
+        which cells the corrections left above their tolerance over it (``unbalanced_cells``: their step
+        may jump and their tangent miss it), whether the model is certified and whether the run lies
+        inside its certificate's envelope."""
         failed = self.failed_cells(state, d_eps_local)
+        ratio = self.unbalanced_cells(state, d_eps_local)
+        failed["unbalanced"] = ratio > self.force_tolerance
         n = np.asarray(d_eps_local).shape[0]
         parts = []
         for key, what in (("step", "non-finite step"), ("tangent", "non-finite tangent"),
-                          ("off", f"tangent off the step by > {TANGENT_MISS:.0%}")):
+                          ("off", f"tangent off the step by > {TANGENT_MISS:.0%}"),
+                          ("unbalanced", f"force ratio above {self.force_tolerance:g} after K = "
+                                         f"{self.equilibrium_corrections} equilibrium corrections")):
             index = np.flatnonzero(failed[key])
             if index.size:
-                shown = ", ".join(f"{k} (n = ({', '.join(f'{v:.2f}' for v in directions[k])}))"
-                                  for k in index[:DIAGNOSED_CELLS])
+                ratios = key == "unbalanced"
+                shown = ", ".join(f"{k} (n = ({', '.join(f'{v:.2f}' for v in directions[k])})"
+                                  + (f", ratio {ratio[k]:.2g})" if ratios else ")") for k in index[:DIAGNOSED_CELLS])
                 parts.append(f"{what} in {index.size} of {n} cells: {shown}{', ...' if index.size > DIAGNOSED_CELLS else ''}")
         cells = "; ".join(parts) if parts else f"no cell of {n} failed its step or tangent over the last trial"
         if self.certificate_problem is not None:

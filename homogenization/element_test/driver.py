@@ -6,7 +6,8 @@ the element-test engine (``homogenization.element_test``): the point's oriented 
 stress-controlled components solved by the engine's one stress-control solver under its strict
 policy (``element_test.solver``: Newton on the consistent tangent, a linear predictor from the last
 tangent, bisection and jump detection with one controlled component, Broyden updates between fresh
-tangents with several in 3D; a failure raises ``ControlError``), and the history recorded
+tangents with several in 3D and, where they do not converge, jump detection by bisection on the worst
+component; a failure raises ``ControlError``), and the history recorded
 (``element_test.record``). Convergence: every controlled stress within ``stress_rtol`` times its
 ``|target|`` (times the largest ``|sigma|`` recorded so far where the target is zero).
 

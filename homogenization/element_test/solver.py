@@ -16,7 +16,11 @@ batch. Convergence: every controlled stress within ``rtol`` times its ``|target|
   (a fresh one only where the last trial did not halve the residual); with one controlled component
   the Newton step is safeguarded by bisection once two trials bracket the target, and where the
   response jumps across the target (within ``JUMP_WIDTH`` of the increment) the nearer side is
-  accepted and flagged; linear systems by LAPACK; a point that does not converge raises ``ControlError``.
+  accepted and flagged; with several controlled components, a point still unconverged after
+  ``max_iterations`` trials, whose worst controlled stress jumps across its target within
+  ``JUMP_WIDTH`` of the increment next to its trial nearest the target (found by bisection,
+  ``_several_jump``), takes that trial, flagged the same way; linear systems by LAPACK; a point that does not converge raises
+  ``ControlError``.
 - ``POPULATION`` (a calibration's parameter sets, ``homogenization.calibration.forward``): a fresh
   tangent every trial, systems of one or two components by Cramer's rule (a singular tangent gives a
   non-finite step instead of an exception), and a point that does not converge in ``max_iterations``
@@ -200,10 +204,13 @@ class StressControl:
         jump, fallback = np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64)
         last = np.full(n, np.inf)
         calls = 0
+        trials: list = []
         while True:
             update = points.trial(d, with_tangent=fresh)
             calls += 1
             g = plan.controlled(update.stress)
+            if secant and policy.strict:
+                trials.append((update, d.copy(), g))
             if update.tangent is not None:
                 T = update.tangent.copy() if T is None else np.where(todo[:, None, None], update.tangent, T)
             elif secant:
@@ -231,6 +238,15 @@ class StressControl:
                     return Solved(d, calls, jump, fallback, T)
             residual = np.abs(r).max(axis=1)
             if calls >= policy.max_iterations:
+                if trials:
+                    jumped, spent = _several_jump(points, plan, trials, target, tol, todo,
+                                                  np.abs(d[:, :points.dim]).max(axis=1))
+                    calls += spent
+                    if (jumped == todo).all():
+                        for trial, trial_d, mask in _nearest_trials(trials, target, tol, todo):
+                            points.accept(trial, mask)
+                            d[mask] = trial_d[mask]
+                        return Solved(d, calls, jump | todo, fallback, T)
                 if policy.strict:
                     raise ControlError(f"{where}: stress control did not converge in {calls} step calls (residual "
                                        f"{float(residual[todo].max()):.3g} {points.unit}, tolerance "
@@ -256,6 +272,53 @@ def _broyden(T: np.ndarray, plan: Plan, dx: np.ndarray, dg: np.ndarray, todo: np
     Tc = plan.controlled_tangent(T)[:, idx]
     for p in np.flatnonzero(todo):
         T[p, idx] += np.outer(dg[p] - Tc[p] @ dx[p], dx[p]) / float(dx[p] @ dx[p])
+
+
+def _several_jump(points: MaterialPoints, plan: Plan, trials: list, target: np.ndarray, tol: np.ndarray,
+                  todo: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, int]:
+    """Per point of ``todo`` (n,), whether the response jumps across the target next to its trial nearest the
+    target a: in a's worst component c (largest abs residual over the tolerance), b is the trial nearest a
+    whose residual in c has the other sign; the segment [a, b] is bisected, keeping the half across which
+    c's residual changes sign, to ``JUMP_WIDTH`` of the increment, and c's residual is still above the
+    tolerance at both ends (the one-component bracket's test, on the segment). ``trials``: (update, increments, controlled stresses) of every trial; the bisection's trials
+    are appended; ``size``: largest abs strain increment of each point [-]. Returns the mask and the step
+    calls spent."""
+    rows = np.arange(todo.size)
+    d_all = np.stack([t[1] for t in trials])
+    r_all = np.stack([t[2] for t in trials]) - target
+    a = np.argmin((np.abs(r_all) / tol).max(axis=2), axis=0)
+    d_a, r_a = d_all[a, rows], r_all[a, rows]
+    c = np.argmax(np.abs(r_a) / tol, axis=1)
+    distance = np.abs(d_all - d_a).max(axis=2)
+    across = np.sign(r_all[:, rows, c]) == -np.sign(r_a[rows, c])
+    b = np.argmin(np.where(across, distance, np.inf), axis=0)
+    found = todo & across.any(axis=0)
+    d_b, r_b = d_all[b, rows], r_all[b, rows]
+    calls = 0
+    while True:
+        wide = np.abs(d_b - d_a).max(axis=1) > JUMP_WIDTH * size
+        split = found & wide
+        if not split.any():
+            above = (np.abs(r_a[rows, c]) > tol[rows, c]) & (np.abs(r_b[rows, c]) > tol[rows, c])
+            return found & above, calls
+        d_m = np.where(split[:, None], 0.5 * (d_a + d_b), d_a)
+        update = points.trial(d_m)
+        calls += 1
+        r_m = plan.controlled(update.stress) - target
+        trials.append((update, d_m, np.where(split[:, None], r_m + target, np.inf)))
+        same_as_a = split & (np.sign(r_m[rows, c]) == np.sign(r_a[rows, c]))
+        to_b = split & ~same_as_a
+        d_a, r_a = np.where(same_as_a[:, None], d_m, d_a), np.where(same_as_a[:, None], r_m, r_a)
+        d_b, r_b = np.where(to_b[:, None], d_m, d_b), np.where(to_b[:, None], r_m, r_b)
+
+
+def _nearest_trials(trials: list, target: np.ndarray, tol: np.ndarray, todo: np.ndarray):
+    """(trial update, its increments, mask) of the trial nearest the target (largest abs residual over the
+    tolerance) of every point of ``todo``."""
+    ratio = np.stack([(np.abs(g - target) / tol).max(axis=1) for _, _, g in trials])
+    chosen = np.argmin(ratio, axis=0)
+    for t in np.unique(chosen[todo]):
+        yield trials[t][0], trials[t][1], todo & (chosen == t)
 
 
 class _Bracket:
