@@ -39,7 +39,7 @@ import numpy as np
 
 from training.fast_cells import grain_positions
 from training.fast_increment import hold_at_rest
-from training.fast_step3d import pair_branch3
+from training.fast_step3d import pair_branch3, pair_force3
 from warp_hcell.core.contact import CAP_SLACK
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -168,33 +168,9 @@ def residual3(x, shear, old_branch, old_contact, cells, law, residual, fn_max):
             touching = d <= reach
             fn = normal_force(rsum - d, kn) if touching else 0.0
             fn_max[c] = max(fn_max[c], fn)
-            u0, u1, u2 = b0 / d, b1 / d, b2 / d
-            ob0, ob1, ob2 = old_branch[p, 0, c], old_branch[p, 1, c], old_branch[p, 2, c]
-            mid0, mid1, mid2 = 0.5 * (ob0 + b0), 0.5 * (ob1 + b1), 0.5 * (ob2 + b2)
-            mid_norm = math.sqrt(mid0 * mid0 + mid1 * mid1 + mid2 * mid2)
-            mid0, mid1, mid2 = mid0 / mid_norm, mid1 / mid_norm, mid2 / mid_norm
-            r0, r1, r2 = b0 - ob0, b1 - ob1, b2 - ob2
-            s0, s1, s2 = 0.0, 0.0, 0.0
-            if old_contact[p, c]:
-                s0, s1, s2 = shear[p, 0, c], shear[p, 1, c], shear[p, 2, c]
-                along = s0 * u0 + s1 * u1 + s2 * u2
-                q0, q1, q2 = s0 - along * u0, s1 - along * u1, s2 - along * u2
-                before2 = s0 * s0 + s1 * s1 + s2 * s2
-                after2 = q0 * q0 + q1 * q1 + q2 * q2
-                if after2 > 0:
-                    ratio = math.sqrt(before2 / after2)
-                    q0, q1, q2 = q0 * ratio, q1 * ratio, q2 * ratio
-                s0, s1, s2 = q0, q1, q2
-            along = r0 * mid0 + r1 * mid1 + r2 * mid2
-            t0 = s0 + kt * (r0 - along * mid0)
-            t1 = s1 + kt * (r1 - along * mid1)
-            t2 = s2 + kt * (r2 - along * mid2)
-            trial = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-            cap = mu * fn
-            f0, f1, f2 = 0.0, 0.0, 0.0
-            if touching:
-                scale = cap / (trial if trial > 0 else 1.0) if trial > cap * slack else 1.0
-                f0, f1, f2 = t0 * scale, t1 * scale, t2 * scale
+            u0, u1, u2, f0, f1, f2, trial, cap = pair_force3(
+                b0, b1, b2, d, old_branch[p, 0, c], old_branch[p, 1, c], old_branch[p, 2, c], old_contact[p, c],
+                shear[p, 0, c], shear[p, 1, c], shear[p, 2, c], fn, touching, kt, mu, slack)
             g[0, c] = -fn * u0 + f0
             g[1, c] = -fn * u1 + f1
             g[2, c] = -fn * u2 + f2

@@ -158,6 +158,44 @@ def features3d(size, free, shear, d_eps, cells, law, scaling, before):
         _zscore(feats[3 + a], value, feature_mean[3 + a], inv_std[3 + a])
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def pair_force3(b0, b1, b2, d, ob0, ob1, ob2, stuck, s0, s1, s2, fn, touching, kt, mu, slack):
+    """The tangential force of one spatial contact after an increment, the compiled runtime's one copy of
+    the spatial contact law (``warp_hcell.dem.contact``): branch (b0, b1, b2) of length d [m] at the end,
+    (ob0, ob1, ob2) at the start; the old spring (s0, s1, s2) [N], counted only where ``stuck`` (the pair
+    was in contact), is turned into the new tangent plane at its own magnitude, grows by kt times the
+    tangential part (about the mid-increment normal) of the branch's change, and is capped at mu fn
+    (normal force fn [N]) once it exceeds the cap by the factor ``slack``; zero where not ``touching``.
+    Returns the unit normal (u0, u1, u2), the force (f0, f1, f2) [N], the trial magnitude and the cap [N]."""
+    u0, u1, u2 = b0 / d, b1 / d, b2 / d
+    mid0, mid1, mid2 = 0.5 * (ob0 + b0), 0.5 * (ob1 + b1), 0.5 * (ob2 + b2)
+    mid_norm = math.sqrt(mid0 * mid0 + mid1 * mid1 + mid2 * mid2)
+    mid0, mid1, mid2 = mid0 / mid_norm, mid1 / mid_norm, mid2 / mid_norm
+    r0, r1, r2 = b0 - ob0, b1 - ob1, b2 - ob2
+    if stuck:
+        along = s0 * u0 + s1 * u1 + s2 * u2
+        q0, q1, q2 = s0 - along * u0, s1 - along * u1, s2 - along * u2
+        before2 = s0 * s0 + s1 * s1 + s2 * s2
+        after2 = q0 * q0 + q1 * q1 + q2 * q2
+        if after2 > 0:
+            ratio = math.sqrt(before2 / after2)
+            q0, q1, q2 = q0 * ratio, q1 * ratio, q2 * ratio
+        s0, s1, s2 = q0, q1, q2
+    else:
+        s0, s1, s2 = 0.0, 0.0, 0.0
+    along = r0 * mid0 + r1 * mid1 + r2 * mid2
+    t0 = s0 + kt * (r0 - along * mid0)
+    t1 = s1 + kt * (r1 - along * mid1)
+    t2 = s2 + kt * (r2 - along * mid2)
+    trial = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    cap = mu * fn
+    f0, f1, f2 = 0.0, 0.0, 0.0
+    if touching:
+        scale = cap / (trial if trial > 0 else 1.0) if trial > cap * slack else 1.0
+        f0, f1, f2 = t0 * scale, t1 * scale, t2 * scale
+    return u0, u1, u2, f0, f1, f2, trial, cap
+
+
 @numba.njit(cache=True, error_model="numpy")
 def contact_pass3(x, shear, before, cells, law, new_shear, capped_any, opened_any):
     """The spatial contact law at the new grain centres x (n_grains, 3, n): writes new_shear (n_pairs, 3,
@@ -184,33 +222,9 @@ def contact_pass3(x, shear, before, cells, law, new_shear, capped_any, opened_an
             d = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
             touching = d <= reach
             fn = normal_force(rsum - d, kn) if touching else 0.0
-            u0, u1, u2 = b0 / d, b1 / d, b2 / d
-            ob0, ob1, ob2 = old_branch[p, 0, c], old_branch[p, 1, c], old_branch[p, 2, c]
-            mid0, mid1, mid2 = 0.5 * (ob0 + b0), 0.5 * (ob1 + b1), 0.5 * (ob2 + b2)
-            mid_norm = math.sqrt(mid0 * mid0 + mid1 * mid1 + mid2 * mid2)
-            mid0, mid1, mid2 = mid0 / mid_norm, mid1 / mid_norm, mid2 / mid_norm
-            r0, r1, r2 = b0 - ob0, b1 - ob1, b2 - ob2
-            s0, s1, s2 = 0.0, 0.0, 0.0
-            if old_contact[p, c]:
-                s0, s1, s2 = shear[p, 0, c], shear[p, 1, c], shear[p, 2, c]
-                along = s0 * u0 + s1 * u1 + s2 * u2
-                q0, q1, q2 = s0 - along * u0, s1 - along * u1, s2 - along * u2
-                before2 = s0 * s0 + s1 * s1 + s2 * s2
-                after2 = q0 * q0 + q1 * q1 + q2 * q2
-                if after2 > 0:
-                    ratio = math.sqrt(before2 / after2)
-                    q0, q1, q2 = q0 * ratio, q1 * ratio, q2 * ratio
-                s0, s1, s2 = q0, q1, q2
-            along = r0 * mid0 + r1 * mid1 + r2 * mid2
-            t0 = s0 + kt * (r0 - along * mid0)
-            t1 = s1 + kt * (r1 - along * mid1)
-            t2 = s2 + kt * (r2 - along * mid2)
-            trial = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-            cap = mu * fn
-            f0, f1, f2 = 0.0, 0.0, 0.0
-            if touching:
-                scale = cap / (trial if trial > 0 else 1.0) if trial > cap * slack else 1.0
-                f0, f1, f2 = t0 * scale, t1 * scale, t2 * scale
+            u0, u1, u2, f0, f1, f2, trial, cap = pair_force3(
+                b0, b1, b2, d, old_branch[p, 0, c], old_branch[p, 1, c], old_branch[p, 2, c], old_contact[p, c],
+                shear[p, 0, c], shear[p, 1, c], shear[p, 2, c], fn, touching, kt, mu, slack)
             new_shear[p, 0, c] = f0
             new_shear[p, 1, c] = f1
             new_shear[p, 2, c] = f2
