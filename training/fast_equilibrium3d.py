@@ -37,17 +37,10 @@ import math
 import numba
 import numpy as np
 
-from training.fast_cells import grain_positions
+from training.fast_cells import grain_positions, normal_force
 from training.fast_increment import hold_at_rest
 from training.fast_step3d import pair_branch3, pair_force3
 from warp_hcell.core.contact import CAP_SLACK
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def normal_force(overlap, kn):
-    """kn max(overlap, 0) [N] of a scalar overlap [m] (``warp_hcell.core.contact.normal_force``, without
-    the array function's cost per call)."""
-    return kn * (overlap if overlap > 0.0 else 0.0)
-
 
 REGULARISATION = 1e-9
 """Diagonal stiffness added to -J in every Newton step, as a fraction of kn [-]."""
@@ -59,6 +52,15 @@ def _mat3(a, b, out):
     for r_ in range(3):
         for e in range(3):
             out[r_, e] = a[r_, 0] * b[0, e] + a[r_, 1] * b[1, e] + a[r_, 2] * b[2, e]
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _scaled_projector(scale, h, out):
+    """out = scale (I - h h^T) (3, 3): the derivative of scale times the unit direction h (3,) of a vector,
+    per unit of that vector's change (the rescaled spring, the capped force)."""
+    for a in range(3):
+        for e in range(3):
+            out[a, e] = scale * ((1.0 if a == e else 0.0) - h[a] * h[e])
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -103,9 +105,7 @@ def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g
             qn = math.sqrt(after2)
             qh = (q0 / qn, q1 / qn, q2 / qn)
             sc0, sc1, sc2 = q0 * ratio, q1 * ratio, q2 * ratio
-            for a in range(3):
-                for e in range(3):
-                    tmp[a, e] = ratio * ((1.0 if a == e else 0.0) - qh[a] * qh[e])
+            _scaled_projector(ratio, qh, tmp)
             _mat3(tmp, dq, dsc)
         else:
             sc0, sc1, sc2 = q0, q1, q2
@@ -130,9 +130,7 @@ def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g
         scale = cap / (trial if trial > 0 else 1.0)
         th = (t0 / trial, t1 / trial, t2 / trial)
         f0, f1, f2 = t0 * scale, t1 * scale, t2 * scale
-        for a in range(3):
-            for e in range(3):
-                tmp[a, e] = scale * ((1.0 if a == e else 0.0) - th[a] * th[e])
+        _scaled_projector(scale, th, tmp)
         _mat3(tmp, dt, df)
         for a in range(3):
             for e in range(3):
@@ -163,14 +161,10 @@ def residual3(x, shear, old_branch, old_contact, cells, law, residual, fn_max):
         if not near:
             continue
         for c in range(n):
-            b0, b1, b2 = b[0, c], b[1, c], b[2, c]
-            d = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
-            touching = d <= reach
-            fn = normal_force(rsum - d, kn) if touching else 0.0
+            touching, fn, u0, u1, u2, f0, f1, f2, trial, cap = pair_force3(
+                b[0, c], b[1, c], b[2, c], old_branch[p, 0, c], old_branch[p, 1, c], old_branch[p, 2, c],
+                old_contact[p, c], shear[p, 0, c], shear[p, 1, c], shear[p, 2, c], rsum, reach, kn, kt, mu, slack)
             fn_max[c] = max(fn_max[c], fn)
-            u0, u1, u2, f0, f1, f2, trial, cap = pair_force3(
-                b0, b1, b2, d, old_branch[p, 0, c], old_branch[p, 1, c], old_branch[p, 2, c], old_contact[p, c],
-                shear[p, 0, c], shear[p, 1, c], shear[p, 2, c], fn, touching, kt, mu, slack)
             g[0, c] = -fn * u0 + f0
             g[1, c] = -fn * u1 + f1
             g[2, c] = -fn * u2 + f2

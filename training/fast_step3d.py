@@ -159,14 +159,19 @@ def features3d(size, free, shear, d_eps, cells, law, scaling, before):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def pair_force3(b0, b1, b2, d, ob0, ob1, ob2, stuck, s0, s1, s2, fn, touching, kt, mu, slack):
-    """The tangential force of one spatial contact after an increment, the compiled runtime's one copy of
-    the spatial contact law (``warp_hcell.dem.contact``): branch (b0, b1, b2) of length d [m] at the end,
-    (ob0, ob1, ob2) at the start; the old spring (s0, s1, s2) [N], counted only where ``stuck`` (the pair
-    was in contact), is turned into the new tangent plane at its own magnitude, grows by kt times the
-    tangential part (about the mid-increment normal) of the branch's change, and is capped at mu fn
-    (normal force fn [N]) once it exceeds the cap by the factor ``slack``; zero where not ``touching``.
-    Returns the unit normal (u0, u1, u2), the force (f0, f1, f2) [N], the trial magnitude and the cap [N]."""
+def pair_force3(b0, b1, b2, ob0, ob1, ob2, stuck, s0, s1, s2, rsum, reach, kn, kt, mu, slack):
+    """One spatial contact after an increment, the compiled runtime's one copy of the spatial contact law
+    (``warp_hcell.dem.contact``): branch (b0, b1, b2) [m] at the end, (ob0, ob1, ob2) at the start; the
+    pair touches where the branch is no longer than ``reach`` [m], with normal force kn max(rsum - d, 0)
+    [N] (d the branch length, rsum the sum of the radii [m]); the old spring (s0, s1, s2) [N], counted
+    only where ``stuck`` (the pair was in contact), is turned into the new tangent plane at its own
+    magnitude, grows by kt times the tangential part (about the mid-increment normal) of the branch's
+    change, and is capped at mu fn once it exceeds the cap by the factor ``slack``; zero where not
+    touching. Returns (touching, fn, u0, u1, u2, f0, f1, f2, trial, cap): the unit normal u, the
+    tangential force f [N], the trial magnitude and the cap [N]."""
+    d = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    touching = d <= reach
+    fn = normal_force(rsum - d, kn) if touching else 0.0
     u0, u1, u2 = b0 / d, b1 / d, b2 / d
     mid0, mid1, mid2 = 0.5 * (ob0 + b0), 0.5 * (ob1 + b1), 0.5 * (ob2 + b2)
     mid_norm = math.sqrt(mid0 * mid0 + mid1 * mid1 + mid2 * mid2)
@@ -193,7 +198,7 @@ def pair_force3(b0, b1, b2, d, ob0, ob1, ob2, stuck, s0, s1, s2, fn, touching, k
     if touching:
         scale = cap / (trial if trial > 0 else 1.0) if trial > cap * slack else 1.0
         f0, f1, f2 = t0 * scale, t1 * scale, t2 * scale
-    return u0, u1, u2, f0, f1, f2, trial, cap
+    return touching, fn, u0, u1, u2, f0, f1, f2, trial, cap
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -219,12 +224,9 @@ def contact_pass3(x, shear, before, cells, law, new_shear, capped_any, opened_an
             continue
         for c in range(n):
             b0, b1, b2 = b[0, c], b[1, c], b[2, c]
-            d = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
-            touching = d <= reach
-            fn = normal_force(rsum - d, kn) if touching else 0.0
-            u0, u1, u2, f0, f1, f2, trial, cap = pair_force3(
-                b0, b1, b2, d, old_branch[p, 0, c], old_branch[p, 1, c], old_branch[p, 2, c], old_contact[p, c],
-                shear[p, 0, c], shear[p, 1, c], shear[p, 2, c], fn, touching, kt, mu, slack)
+            touching, fn, u0, u1, u2, f0, f1, f2, trial, cap = pair_force3(
+                b0, b1, b2, old_branch[p, 0, c], old_branch[p, 1, c], old_branch[p, 2, c], old_contact[p, c],
+                shear[p, 0, c], shear[p, 1, c], shear[p, 2, c], rsum, reach, kn, kt, mu, slack)
             new_shear[p, 0, c] = f0
             new_shear[p, 1, c] = f1
             new_shear[p, 2, c] = f2
