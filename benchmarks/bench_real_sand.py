@@ -1,5 +1,5 @@
 """python benchmarks/bench_real_sand.py [--split 50+200|50+100] [--start map|prior] [--walkers 16] [--steps 100]
-[--increment 2e-3] [--band 20] [--out runs/real_sand_SPLIT]
+[--channels q,eps_v|q] [--increment 2e-3] [--band 20] [--out runs/real_sand_SPLIT]
 
 The H-model on a real sand: ``hmodel calibrate`` on two of the drained triaxial tests of Dobrany
 sand (benchmarks/lab_data/dobrany_sand/, measured; --split 50+200: the 50 and 200 kPa tests,
@@ -48,6 +48,20 @@ drained test at these pressures gives up (Newton fallbacks at every increment, N
 grid search found the linear law's best near 8e7 N/m, docs/calibration.md)."""
 
 
+def restricted(path: Path, channels: list[str], folder: Path) -> Path:
+    """``path`` itself when it holds exactly ``channels``, else a copy with only eps1 and ``channels`` in ``folder``."""
+    lines = path.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    names = lines[header].split(",")
+    if names[1:] == channels:
+        return path
+    keep = [0] + [names.index(c) for c in channels]
+    rows = [",".join(line.split(",")[k] for k in keep) for line in lines[header:]]
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / path.name).write_text("\n".join([*lines[:header], *rows]) + "\n")
+    return folder / path.name
+
+
 def hmodel(*argv: str) -> None:
     """Run an hmodel command in a subprocess (its output passed through); exit on failure."""
     command = [sys.executable, "-m", "homogenization.cli.hmodel", *argv]
@@ -86,6 +100,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[1])
     parser.add_argument("--split", choices=tuple(SPLITS), default="50+200", help="the fitted tests (kPa)")
     parser.add_argument("--start", choices=("map", "prior"), default="map", help="hmodel calibrate --start")
+    parser.add_argument("--channels", default="q,eps_v",
+                        help="measured channels the calibration fits (q,eps_v or q): the fitted tests' files "
+                             "restricted to them are written to --out/data")
     parser.add_argument("--walkers", type=int, default=16)
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--increment", type=float, default=2e-3, help="forward and prediction increment [-]")
@@ -99,7 +116,8 @@ def main(argv: list[str] | None = None) -> int:
     prior = args.out / "prior.json"
     prior.write_text(json.dumps(PRIOR) + "\n")
     start = time.perf_counter()
-    hmodel("calibrate", *[a for f in fitted for a in ("--data", str(DATA / f))],
+    channels = args.channels.split(",")
+    hmodel("calibrate", *[a for f in fitted for a in ("--data", str(restricted(DATA / f, channels, args.out / "data")))],
            "--params", "phi_g,kn,kt_over_kn,alpha0", "--prior", str(prior), "--start", args.start,
            "--walkers", str(args.walkers), "--steps", str(args.steps),
            "--increment", f"{args.increment:g}", "--iso-increment", f"{args.increment / 2:g}", "--confirm", "none",
@@ -119,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
                "forward_model": {k: v for k, v in run["forward_model"].items() if k != "settings"},
                "seconds_calibration": seconds_calibration, "tests": results,
                "load_average_at_end": list(os.getloadavg()),
-               "settings": {"split": args.split, "start": args.start, "walkers": args.walkers, "steps": args.steps, "increment": args.increment,
+               "settings": {"split": args.split, "channels": args.channels, "start": args.start, "walkers": args.walkers, "steps": args.steps, "increment": args.increment,
                             "band": args.band}}
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(f"calibration: {args.walkers} walkers x {run['sampler']['steps']} steps, {seconds_calibration:.0f} s wall")

@@ -96,7 +96,7 @@ def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generato
     width = hi - lo
     res = Residuals(log_post)
     draws = prior.sample(rng, MAP_DRAWS)
-    cost = np.sum(res(draws) ** 2, axis=1)
+    cost = np.sum(res(draws) ** 2, axis=1)  # chi-square of each draw
     starts = draws[np.argsort(cost, kind="stable")[:MAP_STARTS]]
 
     def fun(x: np.ndarray) -> np.ndarray:
@@ -123,6 +123,7 @@ def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generato
         "least_squares_starts": MAP_STARTS,
         "optimum": {n: float(v) for n, v in zip(prior.names, prior.to_values(centre))},
         "chi_square": best_chi2,
+        "chi_square_best_prior_draw": float(np.min(cost)),
         "residuals": int(best.fun.size),
         "fits": [{"chi_square": c, "status": int(f.status), "residual_evaluations": int(f.nfev),
                   "optimum": {n: float(v) for n, v in zip(prior.names, prior.to_values(f.x))}} for c, f in fits],
