@@ -19,7 +19,8 @@ chain is shorter than 50 tau). The predictions run on the calibration's own rule
 and draw a 95 % band of --band posterior sets (posterior_band.csv in each prediction folder).
 
 The calibration resumes (and a larger --steps extends it) in --out/calibration; everything is
-written under --out; the summary goes to stdout and --out/summary.json.
+written under --out; the summary goes to stdout and --out/summary.json, the figure (q and eps_v
+of the data, the run at the posterior mean and its 95 % band, each test) to --out/real_sand.png.
 """
 
 from __future__ import annotations
@@ -96,6 +97,43 @@ def compare(data_file: Path, folder: Path) -> dict[str, float]:
     }
 
 
+def band(folder: Path) -> dict[str, np.ndarray]:
+    """Columns of the prediction's posterior_band.csv (``homogenization.calibration.posterior.band_columns``)."""
+    lines = [line for line in (folder / "posterior_band.csv").read_text().splitlines() if not line.startswith("#")]
+    table = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+    return dict(zip(lines[0].split(","), table.T))
+
+
+def figure(folders: dict[str, Path], roles: dict[str, str], title: str, path: Path) -> None:
+    """q and eps_v against eps1 of every test: the data, the run at the posterior mean and the 95 % band."""
+    from matplotlib.figure import Figure  # noqa: PLC0415
+
+    from homogenization.output.figure_style import apply_style, figure_legend  # noqa: PLC0415
+    from homogenization.output.figures import save_figure  # noqa: PLC0415
+
+    fig = Figure(figsize=(10, 4.4), layout="constrained")
+    ax_q, ax_v = fig.subplots(1, 2)
+    handles = []
+    for k, (name, folder) in enumerate(folders.items()):
+        test, b, colour = read_test(DATA / name), band(folder), f"C{k}"
+        e1, q, ev = model_curve(folder)
+        label = f"{test.p0 / 1e3:g} kPa ({roles[name]})"
+        for ax, data, model, key, scale in ((ax_q, test.observed["q"], q, "q", 1e-3),
+                                            (ax_v, test.observed["eps_v"], ev, "eps_v", 100.0)):
+            h_band = ax.fill_between(100 * b["eps1"], scale * b[f"{key}_lo"], scale * b[f"{key}_hi"], color=colour,
+                                     alpha=0.25, label=f"{label}: 95 % posterior band")
+            (h_model,) = ax.plot(100 * e1, scale * model, color=colour, ls="--" if roles[name] == "predicted" else "-",
+                                 label=f"{label}: model at the posterior mean")
+            (h_data,) = ax.plot(100 * test.eps1, scale * data, "o", ms=2, color=colour, label=f"{label}: measured")
+            if ax is ax_q:
+                handles += [h_data, h_model, h_band]
+    ax_q.set(xlabel="axial strain eps1 [%]", ylabel="q [kPa]")
+    ax_v.set(xlabel="axial strain eps1 [%]", ylabel="volumetric strain eps_v [%] (contraction +)")
+    fig.suptitle(title)
+    figure_legend(fig, handles, max_columns=3)
+    save_figure(apply_style(fig), path)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[1])
     parser.add_argument("--split", choices=tuple(SPLITS), default="50+200", help="the fitted tests (kPa)")
@@ -132,6 +170,11 @@ def main(argv: list[str] | None = None) -> int:
                "--increment", f"{args.increment:g}", "--iso-increment", f"{args.increment / 2:g}",
                "--order", "11", "--spins", "4", "--aligned-spins", "-q", "--overwrite", "--out", str(folder))
         results[name] = {"role": "predicted" if name == predicted else "fitted", **compare(DATA / name, folder)}
+    figure({name: args.out / f"predict_{name.removesuffix('.csv')}" for name in results},
+           {name: r["role"] for name, r in results.items()},
+           f"Dobrany sand, drained triaxial: fitted {' + '.join(f.split('_')[1].removesuffix('kpa.csv') for f in fitted)} "
+           f"kPa ({args.channels}), predicted {predicted.split('_')[1].removesuffix('kpa.csv')} kPa",
+           args.out / "real_sand.png")
     run = json.loads((cal / "run.json").read_text())
     summary = {"split": args.split, "start": run.get("start"), "posterior": run["posterior"], "sampler": run["sampler"],
                "forward_model": {k: v for k, v in run["forward_model"].items() if k != "settings"},
