@@ -128,7 +128,7 @@ def figure(folders: dict[str, Path], roles: dict[str, str], title: str, path: Pa
             if ax is ax_q:
                 handles += [h_data, h_model, h_band]
     ax_q.set(xlabel="axial strain eps1 [%]", ylabel="q [kPa]")
-    ax_v.set(xlabel="axial strain eps1 [%]", ylabel="volumetric strain eps_v [%] (contraction +)")
+    ax_v.set(xlabel="axial strain eps1 [%]", ylabel="eps_v [%] (contraction +)")
     fig.suptitle(title)
     figure_legend(fig, handles, max_columns=3)
     save_figure(apply_style(fig), path)
