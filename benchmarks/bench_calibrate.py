@@ -45,6 +45,7 @@ from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import PARAMETERS, ForwardSettings, simulate
 from homogenization.calibration.report import retained_samples
+from homogenization.calibration.start import prior_start
 from homogenization.cli.calibrate import FORWARD
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "calibration"
@@ -178,14 +179,14 @@ def joint_region(truth: dict[str, float], run: dict, names: list[str]) -> None:
 
 def calibrate_in_process(tests: list[Measurement], prior: bayes.Prior, walkers: int, steps: int, burn: float,
                          seed: int, forward: ForwardSettings) -> tuple[dict, dict]:
-    """The sampling of ``hmodel calibrate`` (same start, sampler, burn-in and stuck-walker rule) on
-    ``tests``: its posterior summary (``bayes.summarise``) and sampler diagnostics."""
+    """The sampling of ``hmodel calibrate --start prior`` (same start, sampler, burn-in and stuck-walker
+    rule) on ``tests``: its posterior summary (``bayes.summarise``) and sampler diagnostics."""
     import emcee  # noqa: PLC0415
 
     log_post = bayes.Posterior(tests, prior, forward, NOISE)
     sampler = emcee.EnsembleSampler(walkers, len(prior.names), log_post, vectorize=True)
     sampler.random_state = np.random.RandomState(seed).get_state()
-    start = bayes.initial_walkers(log_post, prior, walkers, np.random.default_rng(seed))
+    start, _ = prior_start(log_post, walkers, np.random.default_rng(seed))
     with np.errstate(divide="ignore", invalid="ignore"):  # sets too soft for p0 fail: counted in "failed"
         sampler.run_mcmc(start, steps)
     samples, _, _, stuck = retained_samples(sampler, burn)

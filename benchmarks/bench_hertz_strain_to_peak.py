@@ -10,8 +10,8 @@ the peak q / p0, the axial strain at the peak and where q first reaches half the
 of those strains 200 kPa / 50 kPa, beside the data's. Forward fallbacks (drained Newton iterations
 that ended above the stress tolerance; their last iterate is used) are counted per run.
 
-The defaults are the linear law's posterior mean on the 50 and 200 kPa tests (docs/calibration.md,
-"A real sand") and a Hertz-Mindlin law whose tangent normal stiffness at 100 kPa is near that kn
+The defaults are the linear law's posterior mean of an early short chain on the 50 and 200 kPa tests
+(benchmarks/results/real_sand_first_look.txt) and a Hertz-Mindlin law whose tangent normal stiffness at 100 kPa is near that kn
 (G = 0.14 GPa: the H-cell's stiffness, not the mineral's); nu = 0.2 gives kt / kn = 2 (1 - nu) /
 (2 - nu) = 0.89.
 

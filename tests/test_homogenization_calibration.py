@@ -321,7 +321,7 @@ def test_triaxial_likelihood_peaks_at_the_truth_of_synthetic_3d_data(tmp_path):
     nearest the truth, and a CLI run on the same file, told the fixed parameters of the truth, puts
     the truth inside its 95 % interval, which is much narrower than the prior.
 
-    Measured (4 walkers, 3 steps): mean 24.09 deg, ci95 [23.61, 24.76] deg, against the uniform
+    Measured (4 walkers, 3 steps, --start prior): mean 24.09 deg, ci95 [23.61, 24.76] deg, against the uniform
     prior [10, 45] deg. On another rule (Lebedev order 5 x 2 spins, 14 cells) the same data put the
     posterior at 19 deg: the data must be made with the rule the command uses."""
     truth = {"phi_g": np.array([24.0]), "kn": np.array([3e8]), "kt_over_kn": np.array([0.6]),
@@ -342,7 +342,7 @@ def test_triaxial_likelihood_peaks_at_the_truth_of_synthetic_3d_data(tmp_path):
     assert grid[np.argmax(log_post(grid[:, None]))] == 24.0
     out = tmp_path / "run"
     code = run_main(calibrate.main, ["--data", str(path), "--params", "phi_g", "--walkers", "4", "--steps", "3",
-                                     "--noise", "0.01", "--alpha0", "60", "--kn", "3e8", "--kt", "1.8e8",
+                                     "--start", "prior", "--noise", "0.01", "--alpha0", "60", "--kn", "3e8", "--kt", "1.8e8",
                                      "--increment", str(SETTINGS_3D.increment), "--iso-increment",
                                      str(SETTINGS_3D.iso_increment), "--confirm", "none", "-q", "--out", str(out)])
     assert code == 0

@@ -22,7 +22,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -138,6 +138,20 @@ def channel_sigma(test: Measurement, noise: float) -> dict[str, float]:
     return {c: noise * float(np.max(np.abs(v))) for c, v in test.observed.items()}
 
 
+def channel_residuals(tests: Sequence[Measurement], curves: Sequence[Mapping[str, np.ndarray]],
+                      noise: float) -> Iterator[tuple[float, np.ndarray]]:
+    """(sigma_c, (model - observed) / sigma_c of shape (n, n_data)) of every test and channel, in order."""
+    for test, model in zip(tests, curves):
+        for c, sigma in channel_sigma(test, noise).items():
+            yield sigma, (np.asarray(model[c]) - test.observed[c]) / sigma
+
+
+def residuals(tests: Sequence[Measurement], curves: Sequence[Mapping[str, np.ndarray]], noise: float) -> np.ndarray:
+    """Every residual of the likelihood, (model - observed) / sigma, of n model curves per test, shape
+    (n, n_residuals): log L = -0.5 sum(residuals^2) + a constant, so least squares on them maximises L."""
+    return np.concatenate([r for _, r in channel_residuals(tests, curves, noise)], axis=1)
+
+
 def log_likelihood(tests: Sequence[Measurement], curves: Sequence[Mapping[str, np.ndarray]], noise: float) -> np.ndarray:
     """Gaussian log-likelihood (module docstring) of n model curves per test, shape (n,).
 
@@ -147,11 +161,9 @@ def log_likelihood(tests: Sequence[Measurement], curves: Sequence[Mapping[str, n
         noise: measurement error as a fraction of each channel's largest abs value [-].
     """
     total = None
-    for test, model in zip(tests, curves):
-        for c, sigma in channel_sigma(test, noise).items():
-            r = (np.asarray(model[c]) - test.observed[c]) / sigma
-            term = -0.5 * np.sum(r * r, axis=1) - r.shape[1] * (math.log(sigma) + 0.5 * math.log(2.0 * math.pi))
-            total = term if total is None else total + term
+    for sigma, r in channel_residuals(tests, curves, noise):
+        term = -0.5 * np.sum(r * r, axis=1) - r.shape[1] * (math.log(sigma) + 0.5 * math.log(2.0 * math.pi))
+        total = term if total is None else total + term
     return np.where(np.isfinite(total), total, -np.inf)
 
 

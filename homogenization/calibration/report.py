@@ -158,7 +158,7 @@ def confirm_with_dem(tests: Sequence[Measurement], log_post: bayes.Posterior, me
 
 
 def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.Namespace, seconds: float,
-                  config: Mapping[str, Any]) -> dict[str, Any]:
+                  config: Mapping[str, Any], start: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Write posterior.h5, posterior.json, corner.png, fits.png and run.json; returns run.json's content."""
     prior, tests = log_post.prior, log_post.tests
     samples, lp, discard, stuck = retained_samples(sampler, args.burn)
@@ -183,6 +183,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
             "acceptance_fraction": float(np.mean(sampler.acceptance_fraction)),
             "autocorrelation": autocorrelation, "seconds_this_run": seconds,
         },
+        "start": dict(start) if start is not None else None,
         "forward_model": {
             "settings": config["forward"], "noise": args.noise,
             "evaluations": log_post.n_calls, "failed": log_post.n_failed, "fallbacks": log_post.n_fallback,
@@ -215,9 +216,21 @@ def _ann_model(backend: str) -> dict[str, Any]:
     return {"ann_model": model_record(None)}
 
 
+def start_line(start: Mapping[str, Any]) -> str:
+    """One status line of the walkers' start (``homogenization.calibration.start``)."""
+    if start["method"] == "prior":
+        return f"start: the best of {start['prior_draws']} prior draws"
+    optimum = ", ".join(f"{k} {v:.4g}" for k, v in start["optimum"].items())
+    return (f"start: least-squares optimum {optimum} (chi-square {start['chi_square']:.4g} over {start['residuals']} "
+            f"residuals; best of {start['least_squares_starts']} fits from {start['prior_draws']} prior draws, "
+            f"{start['evaluations']} forward evaluations in {start['forward_batches']} batches, "
+            f"{start['failed_sets']} failed sets); walkers drawn around it from its Laplace approximation "
+            f"(sd at most {start['ball_fraction_of_prior_width']:g} x the prior width)")
+
+
 def summary_lines(result: Mapping[str, Any]) -> list[str]:
     """Status lines: one per parameter, then the identifiability note and the misfits."""
-    lines = []
+    lines = [start_line(result["start"])] if result.get("start") else []
     for name, s in result["posterior"].items():
         lo, hi = s["ci95"]
         lines.append(f"{name}: mean {s['mean']:.4g}, median {s['median']:.4g}, 95 % [{lo:.4g}, {hi:.4g}] {s['unit']}")

@@ -11,6 +11,11 @@ per-cell contact laws and alpha0; dem: one parameter set after the other; ann: a
 the ANN being trained on one contact law). At the end the DEM runs once at the posterior
 mean (--confirm dem) and its misfit is reported next to the forward model's.
 
+Before the walkers (--start map, the default), a seeded multi-start least-squares fit on the
+likelihood's residuals finds the posterior's main mode and the walkers start in a small ball
+around it (``homogenization.calibration.start``); --start prior starts them at the best prior
+draws instead. The start's evaluations and optimum are printed and kept in run.json.
+
 DIR receives: chain.h5 (emcee's HDF5 backend: the whole chain, resumable), posterior.h5
 (the retained samples in CLI units and their log posterior), posterior.json (mean, median,
 ci95 per parameter in the CLI flags' units: degrees for phi_g and alpha0, N/m for kn),
@@ -42,6 +47,7 @@ from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import PARAMETERS, ForwardSettings
+from homogenization.calibration.start import START_METHODS
 from homogenization.cli.options import (
     add_orientations_argument,
     add_threads_argument,
@@ -110,6 +116,10 @@ def build_parser() -> argparse.ArgumentParser:
     sampler.add_argument("--walkers", type=positive_int, default=32, help="ensemble size (>= 2 x number of parameters)")
     sampler.add_argument("--steps", type=positive_int, default=600, help="ensemble steps in total (resume extends)")
     sampler.add_argument("--burn", type=fraction, default=0.5, help="fraction of the steps discarded as burn-in")
+    sampler.add_argument("--start", choices=tuple(START_METHODS), default="map",
+                         help="where the walkers start: map = a ball around the best of a seeded multi-start "
+                              "least-squares fit (default: no walker starts in a secondary mode), prior = the best "
+                              "of 8 x --walkers prior draws")
     sampler.add_argument("--noise", type=positive_float, default=0.02,
                          help="measurement error sd as a fraction of each channel's largest abs value")
     forward = parser.add_argument_group("forward model")
@@ -165,6 +175,7 @@ def configuration(args: argparse.Namespace, tests: Sequence[Measurement], prior:
         "noise": args.noise,
         "walkers": args.walkers,
         "seed": args.seed,
+        "start": args.start,
         "forward": {**asdict(settings), "fixed": dict(settings.fixed), "backend_options": {}},
     }
 
@@ -250,6 +261,7 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
         if stored != config_json or args.overwrite:
             chain.unlink()
     log_post = bayes.Posterior(tests, prior, settings, args.noise)
+    started = time.perf_counter()
     backend = emcee.backends.HDFBackend(str(chain))
     done = backend.iteration if chain.exists() else 0
     n_dim = len(prior.names)
@@ -263,9 +275,16 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
             fh.attrs["calibration_config"] = config_json
         rng = np.random.default_rng(args.seed)
         sampler.random_state = np.random.RandomState(args.seed).get_state()
-        start = bayes.initial_walkers(log_post, prior, args.walkers, rng)
+        start, start_record = START_METHODS[args.start](log_post, args.walkers, rng)
+        start_record["seconds"] = time.perf_counter() - started
+        with h5py.File(chain, "a") as fh:
+            fh.attrs["start_record"] = json.dumps(start_record, sort_keys=True)
+        say(report.start_line(start_record))
     else:
         start = backend.get_last_sample()  # positions, log posterior and random state of the last step
+        with h5py.File(chain, "r") as fh:
+            stored_start = fh.attrs.get("start_record")
+        start_record = json.loads(stored_start) if stored_start is not None else None
         say(f"{chain}: resuming after {done} of {args.steps} steps")
     seconds = time.perf_counter()
     remaining = max(0, args.steps - done)
@@ -274,4 +293,4 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
             for _ in sampler.sample(start, iterations=remaining):
                 bar.update(1)
     seconds = time.perf_counter() - seconds
-    return report.write_outputs(out, sampler, log_post, args, seconds, config)
+    return report.write_outputs(out, sampler, log_post, args, seconds, config, start_record)

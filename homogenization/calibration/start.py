@@ -1,0 +1,139 @@
+"""Where the walkers of a calibration start: the best prior draws, or a ball around a least-squares optimum.
+
+``prior``: the ``n_walkers`` best of ``PRIOR_OVERSAMPLE`` x n_walkers prior draws (one batch of the
+forward model). Walkers that start in a secondary mode of the posterior stay there (emcee's stretch
+move does not leave it): they are left out at the end as stuck walkers.
+
+``map``: a deterministic (seeded) multi-start least-squares fit first. ``MAP_DRAWS`` prior draws
+(one batch), the ``MAP_STARTS`` best of them as starting points of ``scipy.optimize.least_squares``
+('trf', bounded by the prior) on the residuals the likelihood uses (``bayes.residuals``: (model -
+observed) / sigma of every channel and point, so that least squares maximises the posterior inside
+the uniform prior), in the sampler's coordinates (log10 kn where its prior is log-uniform), each
+with at most ``MAP_MAX_EVALUATIONS`` residual evaluations. The Jacobian is a forward difference of
+step ``MAP_STEP`` x the prior's width per parameter, its n_params perturbed sets run as one batch.
+The walkers start around the best optimum, drawn from the posterior's
+Laplace approximation there (covariance (J^T J)^-1 of the last Jacobian; along a direction the
+data do not constrain its sd is capped at ``MAP_BALL`` x the prior's width), clipped into the prior. A parameter set whose forward model fails (NaN) gets the residual
+``FAILED_RESIDUAL`` on every point, counted.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from homogenization.calibration import bayes
+
+PRIOR_OVERSAMPLE = 8
+"""Prior draws per walker of the ``prior`` start [-]."""
+MAP_DRAWS = 16
+"""Prior draws from which the ``map`` start picks its starting points [-]."""
+MAP_STARTS = 3
+"""Least-squares fits of the ``map`` start, from its best prior draws [-]."""
+MAP_MAX_EVALUATIONS = 40
+"""Residual evaluations (scipy's max_nfev; the Jacobian's are not counted by it) per least-squares fit [-]."""
+MAP_STEP = 1e-3
+"""Forward-difference step of the Jacobian, as a fraction of the prior's width in sampled coordinates [-]."""
+MAP_BALL = 1e-2
+"""Largest sd of the walkers' start around the optimum, as a fraction of the prior's width in sampled
+coordinates [-]."""
+FAILED_RESIDUAL = 1e3
+"""Residual [sigma] given to every point of a parameter set whose forward model failed [-]."""
+
+
+class Residuals:
+    """Batched residual vectors of parameter sets in sampled coordinates, counting what it runs.
+
+    ``evaluations``: parameter sets run; ``batches``: forward-model calls; ``failed``: sets whose
+    forward model failed (their residuals are ``FAILED_RESIDUAL``).
+    """
+
+    def __init__(self, log_post: bayes.Posterior) -> None:
+        self.log_post = log_post
+        self.evaluations = 0
+        self.batches = 0
+        self.failed = 0
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """Residuals of sets x, shape (n, n_params) -> (n, n_residuals)."""
+        x = np.atleast_2d(x)
+        curves = self.log_post.curves(self.log_post.prior.to_values(x))
+        r = bayes.residuals(self.log_post.tests, curves, self.log_post.noise)
+        bad = ~np.all(np.isfinite(r), axis=1)
+        self.evaluations += x.shape[0]
+        self.batches += 1
+        self.failed += int(np.count_nonzero(bad))
+        r[bad] = FAILED_RESIDUAL
+        return r
+
+
+def laplace_draws(jac: np.ndarray, rng: np.random.Generator, n: int) -> np.ndarray:
+    """n draws of the Laplace approximation N(0, (J^T J)^-1) of the posterior at a least-squares optimum,
+    its sd along every eigen-direction capped at ``MAP_BALL``, shape (n, n_params).
+
+    Args:
+        jac: Jacobian of the residuals in coordinates scaled by the prior's width, shape (n_residuals, n_params).
+    """
+    curvature, directions = np.linalg.eigh(jac.T @ jac)
+    sd = np.minimum(1.0 / np.sqrt(np.maximum(curvature, 1e-300)), MAP_BALL)
+    return (rng.standard_normal((n, sd.size)) * sd) @ directions.T
+
+
+def prior_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+    """The ``prior`` start (module docstring): positions (n_walkers, n_params) and its record."""
+    start = bayes.initial_walkers(log_post, log_post.prior, n_walkers, rng, oversample=PRIOR_OVERSAMPLE)
+    return start, {"method": "prior", "prior_draws": PRIOR_OVERSAMPLE * n_walkers}
+
+
+def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+    """The ``map`` start (module docstring): positions (n_walkers, n_params) and its record (the
+    optimum in CLI units, its chi-square sum of squared residuals, every fit's, the evaluations)."""
+    from scipy.optimize import least_squares  # noqa: PLC0415 (only when a calibration starts)
+
+    prior = log_post.prior
+    lo, hi = prior.lo_coord, prior.hi_coord
+    width = hi - lo
+    res = Residuals(log_post)
+    draws = prior.sample(rng, MAP_DRAWS)
+    cost = np.sum(res(draws) ** 2, axis=1)  # chi-square of each draw
+    starts = draws[np.argsort(cost, kind="stable")[:MAP_STARTS]]
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        return res(x)[0]
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        step = MAP_STEP * width
+        step = np.where(x + step > hi, -step, step)  # stay inside the prior at its upper bound
+        f0 = res(x)[0]
+        shifted = x + np.diag(step)
+        return ((res(shifted) - f0) / step[:, None]).T
+
+    fits = []
+    for x0 in starts:
+        fit = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=width, method="trf",
+                            max_nfev=MAP_MAX_EVALUATIONS)
+        fits.append((float(2.0 * fit.cost), fit))
+    best_chi2, best = min(fits, key=lambda item: item[0])
+    centre = best.x
+    ball = np.clip(centre + width * laplace_draws(best.jac * width, rng, n_walkers), lo, hi)
+    record: dict[str, Any] = {
+        "method": "map",
+        "prior_draws": MAP_DRAWS,
+        "least_squares_starts": MAP_STARTS,
+        "optimum": {n: float(v) for n, v in zip(prior.names, prior.to_values(centre))},
+        "chi_square": best_chi2,
+        "chi_square_best_prior_draw": float(np.min(cost)),
+        "residuals": int(best.fun.size),
+        "fits": [{"chi_square": c, "status": int(f.status), "residual_evaluations": int(f.nfev),
+                  "optimum": {n: float(v) for n, v in zip(prior.names, prior.to_values(f.x))}} for c, f in fits],
+        "evaluations": res.evaluations,
+        "forward_batches": res.batches,
+        "failed_sets": res.failed,
+        "ball_fraction_of_prior_width": MAP_BALL,
+    }
+    return ball, record
+
+
+START_METHODS = {"map": map_start, "prior": prior_start}
+"""``hmodel calibrate --start`` choices."""
