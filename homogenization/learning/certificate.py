@@ -151,14 +151,20 @@ def _spatial_tests(pressures: Sequence[float], eps_max: float, increment: float
 
 def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
                        increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
-                       spatial_rule: Sequence[int] = SPATIAL_RULE) -> dict[str, Any]:
+                       spatial_rule: Sequence[int] = SPATIAL_RULE, equilibrium_corrections: int = 0,
+                       equilibrium_tolerance: float | None = None) -> dict[str, Any]:
     """The ``settings`` a certificate of cells of dimension ``dim`` records for these options
     (planar: ``n_orientations``; spatial: ``spatial_rule`` as [order, spins], with the spins
-    staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation3d``)."""
+    staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation3d``;
+    with ``equilibrium_corrections`` K > 0 also K and ``equilibrium_tolerance``, the resolved force
+    ratio [-] of the hybrid its tests ran: ``envelope.equilibrium_settings``)."""
     settings = {"pressures": [float(p) for p in pressures], "eps_max": float(eps_max), "increment": float(increment)}
+    hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": float(equilibrium_tolerance)}
+              if equilibrium_corrections else {})
     if dim == 3:
-        return {**settings, "spatial_rule": [int(k) for k in spatial_rule], "staggered_spins": True}
-    return {**settings, "n_orientations": int(n_orientations)}
+        return {**settings, "spatial_rule": [int(k) for k in spatial_rule], "staggered_spins": True, **hybrid}
+    return {**settings, "n_orientations": int(n_orientations), **hybrid}
+
 
 
 def run_test(model: Any, programme: loading.Programme, meso: Mesostructure, settings: dict[str, Any]) -> driver.Record:
@@ -184,6 +190,8 @@ class _Counter:
         self.increment = -1
         self._last: object = None
         self._counted_test = 0
+        self.corrections = {"steps": 0, "n_corrected": 0, "n_corrections": 0, "n_unconverged": 0,
+                            "force_ratio_network_max": 0.0, "force_ratio_max": 0.0}
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.model, name)
@@ -200,7 +208,22 @@ class _Counter:
 
     def step(self, state: Any, d_eps: np.ndarray, *, with_tangent: bool = False):
         self._count(state)
-        return self.model.step(state, d_eps, with_tangent=with_tangent)
+        new, response = self.model.step(state, d_eps, with_tangent=with_tangent)
+        self._tally(response.diagnostics)
+        return new, response
+
+    def _tally(self, diagnostics: dict[str, float]) -> None:
+        """Add one step's equilibrium-correction counts (``AnnCell``; none without corrections) to
+        ``corrections``: calls (``steps``, trial calls included), cells corrected, Newton steps, cells
+        left above the tolerance (summed) and the largest force ratios before and after."""
+        if "n_corrected" not in diagnostics:
+            return
+        tally = self.corrections
+        tally["steps"] += 1
+        for key in ("n_corrected", "n_corrections", "n_unconverged"):
+            tally[key] += int(diagnostics[key])
+        for key in ("force_ratio_network_max", "force_ratio_max"):
+            tally[key] = max(tally[key], float(diagnostics[key]))
 
 
 class _Sampler(_Counter):
@@ -247,8 +270,8 @@ def _shear_rows(record: driver.Record) -> np.ndarray:
 def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pressures: Sequence[float] = PRESSURES,
             eps_max: float = EPS_MAX, increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
             spatial_rule: Sequence[int] = SPATIAL_RULE, target: float = TARGET, rollout: bool = True, threads: int = 1,
-            dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY
-            ) -> dict[str, Any]:
+            dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY,
+            equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None) -> dict[str, Any]:
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
     model's own (its JSON's ``mesostructure``).
 
@@ -260,6 +283,13 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     first): the active-learning rounds (``homogenization.learning.active``) probe these states, from a
     failing test's ``departure`` on.
 
+    ``equilibrium_corrections`` K > 0 (spatial cells): the tests run the hybrid, the network followed
+    by up to K exact Newton steps on the free grains' balance in the cells whose force ratio exceeds
+    ``equilibrium_tolerance`` (None: the DEM's ``force_tolerance``; ``AnnCell``). The certificate
+    then records K and the resolved tolerance in its ``settings`` and, in ``equilibrium``, how often
+    the corrections fired over its ANN runs (``correction_counts``); the ANN backend accepts it for
+    runs with that very K and tolerance only. K = 0 records neither (the network alone).
+
     Raises:
         ValueError (CheckpointError, one line): unusable model, or a mesostructure it does not take.
         homogenization.element_test.driver.ControlError: a stress-controlled increment of the DEM did not converge
@@ -269,7 +299,9 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     model_path = Path(model_path)
     meta = read_metadata(model_path)
     law = ContactLaw(**meta["contact_law"])
-    ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads)
+    hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": equilibrium_tolerance}
+              if equilibrium_corrections else {})
+    ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads, **hybrid)
     meso = mesostructure if mesostructure is not None else from_description(meta["mesostructure"])
     ann.check_trained_on(meso)
     settings = DemSettings(contact_tolerance=float(meta["contact_tolerance"]))
@@ -277,7 +309,9 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     free = ann.net.schema.free_dofs.cpu().numpy()
     sampler = _Sampler(dem, int(state_every))
     requested = requested_settings(meso.dim, pressures=pressures, eps_max=eps_max, increment=increment,
-                                   n_orientations=n_orientations, spatial_rule=spatial_rule)
+                                   n_orientations=n_orientations, spatial_rule=spatial_rule,
+                                   equilibrium_corrections=equilibrium_corrections,
+                                   equilibrium_tolerance=ann.force_tolerance if equilibrium_corrections else None)
     results = []
     n_cells = 0
     counter = _Counter(ann)
@@ -328,6 +362,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
         "model_sha256": file_sha256(model_path),
         "revision": git_revision(),
         "seconds": time.perf_counter() - start,
+        **({"equilibrium": counter.corrections} if equilibrium_corrections else {}),
     }
     cert["within_target"] = bool(worst_figure <= target)
     cert["below_minimum"] = shortfalls(cert, meso.dim)
