@@ -32,7 +32,12 @@ test's length, and, where the ANN left the DEM, ``departure``: the increment tha
 than the target off, or the one it could not follow, counted from the test's start), ``rollout``,
 ``coverage``, the settings, ``cell_parameters`` (the cell's, e.g. alpha0_deg), ``model_sha256``
 (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the tree differs),
-``seconds``, and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
+``seconds``, with equilibrium corrections (``certify(equilibrium_corrections=K)``: the hybrid)
+``equilibrium`` (how often they fired over the ANN calls of the tests, trial calls included:
+``steps`` calls, ``n_corrected`` cell steps corrected, ``n_corrections`` Newton steps,
+``n_unconverged`` cell steps left above the tolerance, the largest force ratios before and
+after, ``force_ratio_network_max`` and ``force_ratio_max``; the rollouts, reported only, run the
+network alone), and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
 target), ``below_minimum`` (where the settings are weaker than the minimum certificate
 ``MINIMUM``, whose values the constants above take), ``verdict`` ("passed", "failed", "weak")
 and ``passed`` (within the target AND the minimum met), and ``envelope`` (what the tests
@@ -61,7 +66,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from homogenization.element_test import driver, loading
-from homogenization.learning.envelope import dimension_of, envelope_of, MINIMUM, shortfalls, verdict
+from homogenization.learning.envelope import dimension_of, envelope_of, equilibrium_settings, MINIMUM, shortfalls, verdict
 from homogenization.backends import make_cell_model
 from training.checkpoint import metadata_path, read_metadata
 from training.ood import state_features
@@ -384,7 +389,8 @@ def write_certificate(model_path: Path, certificate: dict[str, Any]) -> Path:
 
 def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, threads: int = 1) -> Path:
     """Figure ``out`` (PNG, written atomically) of p and q [N/m] against eps11 [-] of the ANN and the
-    DEM on the certificate's worst test (``cert["worst_test"]``, rerun with ``cert["settings"]``)."""
+    DEM on the certificate's worst test (``cert["worst_test"]``, rerun with ``cert["settings"]``, the
+    equilibrium corrections included)."""
     from matplotlib.figure import Figure  # noqa: PLC0415 (matplotlib only where a figure is drawn)
 
     from homogenization.output.figure_style import apply_style, figure_legend, PNG_DPI  # noqa: PLC0415
@@ -399,7 +405,7 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
     models = {"DEM": make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()),
                                      settings=DemSettings(contact_tolerance=float(meta["contact_tolerance"])),
                                      threads=threads),
-              "ANN": make_cell_model("ann", contact_law=law, model=model_path, threads=threads)}
+              "ANN": make_cell_model("ann", contact_law=law, model=model_path, threads=threads, **_hybrid_of(cert))}
     fig = Figure(figsize=(8.0, 3.6), layout="constrained")
     axes = fig.subplots(1, 2)
     handles = []
@@ -422,6 +428,12 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
     return Path(out)
 
 
+def _hybrid_of(cert: dict[str, Any]) -> dict[str, Any]:
+    """The ANN backend's keywords of the surrogate certificate ``cert`` measured ({}: the network alone)."""
+    corrections, tolerance = equilibrium_settings(cert)
+    return {"equilibrium_corrections": corrections, "equilibrium_tolerance": tolerance} if corrections else {}
+
+
 def summary_lines(cert: dict[str, Any]) -> list[str]:
     """One line per test, then the verdict."""
     lines = [f"{t['name']:<40} dp {100 * t['dp']:.3f} %  dq {100 * t['dq']:.3f} %" for t in cert["tests"]]
@@ -431,6 +443,13 @@ def summary_lines(cert: dict[str, Any]) -> list[str]:
     if cert["coverage"] is not None:
         lines.append(f"coverage: {100 * cert['coverage']['fraction_within']:.2f} % of {cert['coverage']['n_states']} "
                      f"DEM states within the out-of-distribution threshold")
+    if "equilibrium" in cert:
+        k, tolerance = equilibrium_settings(cert)
+        tally = cert["equilibrium"]
+        lines.append(f"hybrid: the network with {k} equilibrium corrections at tolerance {tolerance:g}: "
+                     f"{tally['n_corrected']} cell steps corrected ({tally['n_corrections']} Newton steps) over "
+                     f"{tally['steps']} ANN calls, {tally['n_unconverged']} left above the tolerance, "
+                     f"largest force ratio {tally['force_ratio_network_max']:.3g} before, {tally['force_ratio_max']:.3g} after")
     result = verdict(cert)
     figures = (f"worst {100 * cert['worst']:.3f} % ({cert['worst_test']}), target {100 * cert['target']:.3g} %, "
                f"{cert['seconds']:.1f} s")
