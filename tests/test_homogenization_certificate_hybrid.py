@@ -133,3 +133,15 @@ def test_certify_records_the_corrections_it_was_given(tmp_path):
     cert = json.loads(out.read_text())
     assert equilibrium_settings(cert) == (2, 1e-3) and cert["equilibrium"]["n_corrected"] > 0
     assert "--equilibrium-corrections 2" in cert["command"]
+
+
+@needs_model
+def test_the_certificate_counts_the_jumps_its_stress_control_accepted(tmp_path):
+    """The tiny hybrid certificate (3 cells) meets jumps of the response in its drained tests (the
+    driver warns); each test records how many increments of each backend were accepted across one."""
+    with pytest.warns(RuntimeWarning, match="jump"):
+        cert = certificate.certify(_copy(tmp_path / "m"), **TINY, **HYBRID)
+    counted = [t["stress_control_jumps"] for t in cert["tests"] if "stress_control_jumps" in t]
+    assert counted and all(sum(c.values()) > 0 for c in counted)
+    assert all(t["kind"] == "drained" for t in cert["tests"] if "stress_control_jumps" in t)
+    assert sum("accepted across a jump" in line for line in certificate.summary_lines(cert)) == len(counted)

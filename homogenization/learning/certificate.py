@@ -29,7 +29,9 @@ The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_te
 ``tests`` (name, kind, sense, p0, dp, dq, scale [N/m]; inf and an ``error`` where the ANN could
 not follow the programme, e.g. a drained increment without convergence; ``n_increments``, the
 test's length, and, where the ANN left the DEM, ``departure``: the increment that put it more
-than the target off, or the one it could not follow, counted from the test's start), ``rollout``,
+than the target off, or the one it could not follow, counted from the test's start; where stress
+control accepted a trial across a jump of the response, ``stress_control_jumps``: such increments of
+the ANN's run and of the DEM's), ``rollout``,
 ``coverage``, the settings, ``cell_parameters`` (the cell's, e.g. alpha0_deg), ``model_sha256``
 (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the tree differs),
 ``seconds``, with equilibrium corrections (``certify(equilibrium_corrections=K)``: the hybrid)
@@ -268,6 +270,12 @@ def departure(a: driver.Record, d: driver.Record, scale: float, target: float) -
     return int(np.flatnonzero(rd)[np.argmax(off)]) if off.any() else None
 
 
+def _jumps(record: driver.Record) -> int:
+    """Increments of ``record`` whose stress control accepted the trial nearest its target across a jump of
+    the response (``stress_control_jump``, ``homogenization.element_test.driver``)."""
+    return int(np.nansum(record.diagnostics.get("stress_control_jump", np.zeros(0))))
+
+
 def _shear_rows(record: driver.Record) -> np.ndarray:
     return record.stage != record.programme[0].label
 
@@ -337,8 +345,10 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
             raise ValueError(f"test {info['name']!r}: the ANN and the DEM recorded different shear lengths")
         dp, dq = (float(np.nan_to_num(np.abs(x[ra] - y[rd]), nan=math.inf).max()) / scale for x, y in ((a.p, d.p), (a.q, d.q)))
         left = departure(a, d, scale, target)
+        jumps = {"ann": _jumps(a), "dem": _jumps(d)}
         results.append({**info, "dp": dp, "dq": dq, "scale": scale, **length,
-                        **({} if left is None else {"departure": left})})
+                        **({} if left is None else {"departure": left}),
+                        **({"stress_control_jumps": jumps} if any(jumps.values()) else {})})
     worst = max(results, key=lambda t: max(t["dp"], t["dq"]))
     if dem_states is not None:
         for k, parts in sampler.states.items():
@@ -436,7 +446,10 @@ def _hybrid_of(cert: dict[str, Any]) -> dict[str, Any]:
 
 def summary_lines(cert: dict[str, Any]) -> list[str]:
     """One line per test, then the verdict."""
-    lines = [f"{t['name']:<40} dp {100 * t['dp']:.3f} %  dq {100 * t['dq']:.3f} %" for t in cert["tests"]]
+    lines = [f"{t['name']:<40} dp {100 * t['dp']:.3f} %  dq {100 * t['dq']:.3f} %"
+             + ("" if "stress_control_jumps" not in t else
+                f"  (accepted across a jump: ANN {t['stress_control_jumps']['ann']}, DEM {t['stress_control_jumps']['dem']})")
+             for t in cert["tests"]]
     if cert["rollout"] is not None:
         inc = next(v for k, v in cert["rollout"].items() if k.startswith("increment_"))
         lines.append(f"rollout (single cells, reported only): max {inc['max']:.4f}, median {inc['median']:.4f}")
