@@ -49,6 +49,11 @@ def test_a_tiny_certificate_of_the_hybrid_records_k_and_covers_that_hybrid_only(
     assert cert["within_target"] and cert["verdict"] == "weak"  # tiny: below the minimum certificate
     assert any("2 equilibrium corrections" in line for line in certificate.summary_lines(cert))
     certificate.write_certificate(model, cert)
+    from homogenization.learning.active import _current  # the rounds redo a certificate of another surrogate
+
+    assert _current(cert, model, CertificateSettings(**TINY, **HYBRID))
+    assert not _current(cert, model, CertificateSettings(**TINY))
+    assert not _current(cert, model, CertificateSettings(**TINY, equilibrium_corrections=2))
 
     same = _cell(model, 2, 1e-3).certificate_problem
     assert same is not None and "below the minimum" in same and "equilibrium" not in same
