@@ -144,7 +144,7 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
     else:
         active.train_model(db, model, config, [])
     rounds = active.learn(db, model, config, settings=budget, seed=args.seed, threads=args.threads, log=say,
-                          certify_settings=measured)
+                          certify_settings=certificate_settings(args))
     cert = json.loads(meta.read_text())["certificate"]
     stamp = out / "certificate.png.sha256"
     if figure.is_file() and stamp.is_file() and stamp.read_text().strip() == cert["model_sha256"]:
