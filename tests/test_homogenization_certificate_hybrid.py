@@ -76,9 +76,19 @@ def test_the_default_certificate_of_the_hybrid_passes_and_covers_its_runs_only(t
     assert model_record(model, metadata, 2, 1e-3)["certified"] is True
     alone = _cell(model).certificate_problem
     assert alone is not None and "not the network alone" in alone
+    assert "run it with --equilibrium-corrections 2 --equilibrium-tolerance 0.001" in alone
     assert model_record(model, metadata)["certified"] is False
     assert "not the network with 1 equilibrium corrections" in certificate_problem(metadata, model, 1, 1e-3)
     assert "at tolerance 1e-06" in _cell(model, 2).certificate_problem
+
+    shutil.copy(SHIPPED_3D.with_name(f"{SHIPPED_3D.stem}_ood.npz"), model.with_name("m_ood.npz"))
+    run = ["triaxial", "--backend", "ann", "--model", str(model), "--p0", "2e5", "--undrained", "--eps-max", "0.005",
+           "--increment", "1e-3", "--order", "3", "--spins", "1"]
+    refused = _hmodel(*run, "--out", str(tmp_path / "alone"))
+    assert refused.returncode == 2 and "not the network alone" in refused.stderr and "Traceback" not in refused.stderr
+    done = _hmodel(*run, "--equilibrium-corrections", "2", "--equilibrium-tolerance", "1e-3", "--out", str(tmp_path / "k2"))
+    assert done.returncode == 0, done.stderr
+    assert "certificate passed" in done.stdout
 
 
 @needs_model
@@ -87,6 +97,7 @@ def test_the_network_alone_refuses_nothing_new_and_the_hybrid_is_refused_under_i
     assert certificate_problem(shipped, SHIPPED_3D) is None
     problem = certificate_problem(shipped, SHIPPED_3D, 2, 1e-3)
     assert problem is not None and "measured the network alone, not the network with 2 equilibrium corrections" in problem
+    assert "run it with no --equilibrium-corrections" in problem
 
 
 @needs_model

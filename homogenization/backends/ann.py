@@ -136,8 +136,7 @@ def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int =
     measured = envelope.equilibrium_settings(cert)
     if run != measured:
         return (f"{path}: its certificate measured {_surrogate(*measured)}, not {_surrogate(*run)} "
-                f"(certify it with --equilibrium-corrections {run[0]}"
-                + (f" --equilibrium-tolerance {run[1]:g}" if run[0] else "") + ", or run what it measured)")
+                f"(run it with {_flags(*measured)}, or certify it with {_flags(*run)})")
     result = envelope.verdict(cert)
     if result == "failed" or (result == "passed" and cert.get("passed") is False):
         return (f"{path}: the model failed its certificate (worst {100 * float(cert['worst']):.3g} % of the scale "
@@ -152,6 +151,12 @@ def _surrogate(corrections: int, tolerance: float | None) -> str:
     """The surrogate of (K, tolerance) in words."""
     return (f"the network with {corrections} equilibrium corrections at tolerance {tolerance:g}" if corrections
             else "the network alone")
+
+
+def _flags(corrections: int, tolerance: float | None) -> str:
+    """The command-line flags of the surrogate (K, tolerance)."""
+    return (f"--equilibrium-corrections {corrections} --equilibrium-tolerance {tolerance:g}" if corrections
+            else "no --equilibrium-corrections")
 
 
 def model_record(path: Path | None, metadata: dict[str, Any] | None = None, corrections: int = 0,
