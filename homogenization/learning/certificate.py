@@ -173,7 +173,6 @@ def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_
     return {**settings, "n_orientations": int(n_orientations), **hybrid}
 
 
-
 def run_test(model: Any, programme: loading.Programme, meso: Mesostructure, settings: dict[str, Any]) -> driver.Record:
     """``programme`` on cells of ``model`` from ``meso``, oriented as ``settings`` say
     (``requested_settings``: planar ``n_orientations``, spatial ``spatial_rule``)."""
