@@ -29,8 +29,9 @@ law (``training.fast_equilibrium3d``, ``training.equilibrium``), in the cells wh
 surrogate than the network alone: its diagnostics add ``n_corrected`` (cells corrected),
 ``n_corrections`` (Newton steps), ``n_unconverged`` (cells still above the tolerance after them),
 ``force_ratio_network_max`` and ``force_ratio_max`` (the largest force ratio before and after),
-and the model's certificate, measured on the network alone, does not cover it
-(``certificate_problem`` says so). Each ``step``
+and the model's certificate covers it only where that certificate measured this very hybrid
+(``hmodel certify --equilibrium-corrections K``: same K and tolerance; ``certificate_problem`` says
+otherwise, as it does for a run of the network alone under a certificate of the hybrid). Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
 ``n_coulomb_capped`` (a trial tangential force exceeded mu f_n), ``n_tension_clipped`` (a
 contact carrying a normal force opened: no tension), ``n_mechanism`` (cells carrying no
@@ -117,17 +118,25 @@ def default_model_path(dim: int = 2) -> Path:
     return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODELS[dim]
 
 
-def certificate_problem(metadata: dict[str, Any], path: Path) -> str | None:
+def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int = 0,
+                        tolerance: float | None = None) -> str | None:
     """Why model ``path`` (JSON ``metadata``) may not be used, in one line, or None if its
-    certificate was measured on this very ``.pt`` (same sha256), is within its target and meets
-    the minimum certificate (``homogenization.learning.envelope.MINIMUM``: pressures, strain,
-    orientations, rollouts, tests), read from its recorded settings, not from its ``passed`` flag."""
+    certificate was measured on this very ``.pt`` (same sha256) and this very surrogate (the
+    network with ``corrections`` equilibrium corrections at force ratio ``tolerance`` [-], the
+    resolved one; 0: the network alone, ``envelope.equilibrium_settings``), is within its target
+    and meets the minimum certificate (``homogenization.learning.envelope.MINIMUM``: pressures,
+    strain, orientations, rollouts, tests), read from its recorded settings, not from its ``passed`` flag."""
     cert = metadata.get("certificate")
     if not isinstance(cert, dict):
         return (f"{path}: the model is uncertified (certify it: python -m homogenization.certify "
                 f"--model {path} --write)")
     if cert.get("model_sha256") != file_sha256(path):
         return f"{path}: its certificate was measured on another model file (sha256 differs); certify it again"
+    run = (int(corrections), float(tolerance)) if corrections else (0, None)
+    measured = envelope.equilibrium_settings(cert)
+    if run != measured:
+        return (f"{path}: its certificate measured {_surrogate(*measured)}, not {_surrogate(*run)} "
+                f"(run it with {_flags(*measured)}, or certify it with {_flags(*run)})")
     result = envelope.verdict(cert)
     if result == "failed" or (result == "passed" and cert.get("passed") is False):
         return (f"{path}: the model failed its certificate (worst {100 * float(cert['worst']):.3g} % of the scale "
@@ -138,18 +147,32 @@ def certificate_problem(metadata: dict[str, Any], path: Path) -> str | None:
     return None
 
 
-def model_record(path: Path | None, metadata: dict[str, Any] | None = None) -> dict[str, Any]:
+def _surrogate(corrections: int, tolerance: float | None) -> str:
+    """The surrogate of (K, tolerance) in words."""
+    return (f"the network with {corrections} equilibrium corrections at tolerance {tolerance:g}" if corrections
+            else "the network alone")
+
+
+def _flags(corrections: int, tolerance: float | None) -> str:
+    """The command-line flags of the surrogate (K, tolerance)."""
+    return (f"--equilibrium-corrections {corrections} --equilibrium-tolerance {tolerance:g}" if corrections
+            else "no --equilibrium-corrections")
+
+
+def model_record(path: Path | None, metadata: dict[str, Any] | None = None, corrections: int = 0,
+                 tolerance: float | None = None) -> dict[str, Any]:
     """What a run file records of ANN model ``path`` (None: the installed model): ``path``
     (resolved), ``sha256`` of the ``.pt``, ``certificate_worst`` (the certificate's worst figure,
     a fraction of the scale; None uncertified), ``certified`` (``certificate_problem`` is None)
-    and ``certificate_problem`` (its line, or None). ``metadata``: the model's JSON, read from
+    and ``certificate_problem`` (its line, or None) for runs with ``corrections`` equilibrium
+    corrections at ``tolerance`` (``certificate_problem``). ``metadata``: the model's JSON, read from
     beside ``path`` when None."""
     path = (default_model_path() if path is None else Path(path)).resolve()
     if metadata is None:
         from training.checkpoint import read_metadata  # noqa: PLC0415
 
         metadata = read_metadata(path)
-    problem = certificate_problem(metadata, path)
+    problem = certificate_problem(metadata, path, corrections, tolerance)
     cert = metadata.get("certificate")
     return {"path": str(path), "sha256": file_sha256(path),
             "certificate_worst": cert.get("worst") if isinstance(cert, dict) else None,
@@ -234,10 +257,8 @@ class AnnCell(ArrayStateMixin):
         self.fast = (FastAdvance(self.net, self.equilibrium_corrections, self.force_tolerance)
                      if self.device.type == "cpu" else None)
         self.certificate: dict[str, Any] | None = self.metadata.get("certificate")
-        self.certificate_problem = certificate_problem(self.metadata, path)
-        if self.equilibrium_corrections and self.certificate_problem is None:
-            self.certificate_problem = (f"{path}: its certificate measured the network alone, not the network with "
-                                        f"{self.equilibrium_corrections} equilibrium corrections")
+        self.certificate_problem = certificate_problem(self.metadata, path, self.equilibrium_corrections,
+                                                       self.force_tolerance)
         if int(ood_interval) < 1:
             raise ValueError(f"ood_interval = {ood_interval} must be >= 1")
         self.ood_interval = int(ood_interval)

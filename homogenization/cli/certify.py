@@ -1,4 +1,5 @@
 """hmodel certify --model M.pt [--mesostructure SPEC] [--data DB.h5] [--write] [--out FILE]
+[--equilibrium-corrections K [--equilibrium-tolerance R]]
 
 (also ``python -m homogenization.certify``.) The certificate of a meso-ANN model
 (``homogenization.learning.certificate.certify``, docs/certificate.md): the command prints one line per
@@ -8,6 +9,8 @@ recorded in every case). ``--write`` stores it in the model's JSON under ``"cert
 ANN backend then checks it), ``--out`` writes it to a JSON file (an existing one only with
 --overwrite). ``--data DB.h5`` first (re)builds the model's out-of-distribution index from its
 database (``training.ood.index_for_model``), for a model trained before the index existed.
+``--equilibrium-corrections K`` certifies the hybrid (the ANN followed by up to K exact Newton
+steps; ``AnnCell``): the certificate records K and the tolerance, and covers runs with those only.
 
 Bad input (missing model or JSON, a mesostructure the model does not take, --out a folder, an
 existing file without --overwrite or in a folder that cannot be written, --write on a JSON that
@@ -25,7 +28,8 @@ import shlex
 from pathlib import Path
 from typing import Sequence
 
-from homogenization.cli.options import add_spatial_rule_arguments, certificate_settings, command_parser, EXIT_CODES_HELP
+from homogenization.cli.options import (add_certificate_equilibrium_arguments, add_spatial_rule_arguments, certificate_settings,
+                                        command_parser, EXIT_CODES_HELP)
 from homogenization.learning.settings import CertificateSettings
 from warp_hcell.core.cli import positive_float, positive_int, quiet_warp, say, set_verbosity, UserError, writing_to
 from warp_hcell.core.files import atomic_write, check_output_path
@@ -52,6 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eps-max", type=positive_float, default=measured.eps_max,
                         help="axial strain of each shear stage [-]")
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
+    add_certificate_equilibrium_arguments(parser)
     parser.epilog = EXIT_CODES_HELP
     return parser
 
@@ -101,6 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.model.is_file():
         raise UserError(f"--model {args.model}: no such model file")
     check_writable(args)
+    measured = certificate_settings(args)
     from homogenization.learning import certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from homogenization.element_test import driver
     from training.checkpoint import metadata_path, read_metadata  # noqa: PLC0415
@@ -112,7 +118,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.data is not None:
         rebuild_index(args.model, args.data)
     try:
-        cert = certificate.certify(args.model, mesostructure=meso, **certificate_settings(args).keywords())
+        cert = certificate.certify(args.model, mesostructure=meso, **measured.keywords())
     except driver.ControlError as exc:
         raise UserError(f"a test did not converge: {exc}") from None
     if argv is not None:

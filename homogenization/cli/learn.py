@@ -63,7 +63,9 @@ def _options(args: argparse.Namespace, meso) -> dict:
     """What identifies a run (``learn.json``): a second call must give the same."""
     return {"mesostructure": args.mesostructure.text, "mesostructure_sha256": description_sha256(describe(meso)),
             "samples": args.samples, "seed": args.seed, "hidden": list(args.hidden), "epochs": args.epochs,
-            "orientations": args.orientations, "eps_max": args.eps_max, "rollout": not args.no_rollout}
+            "orientations": args.orientations, "eps_max": args.eps_max, "rollout": not args.no_rollout,
+            **({"equilibrium_corrections": args.equilibrium_corrections,
+                "equilibrium_tolerance": args.equilibrium_tolerance} if args.equilibrium_corrections else {})}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -71,12 +73,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     certificate's verdict, ``certificate.exit_code``)."""
     args = build_parser().parse_args(argv)
     set_verbosity(args)
-    budget = active_settings(args)
+    budget, measured = active_settings(args), certificate_settings(args)
     try:
         settings = DatabaseSettings(samples=args.samples)
         meso = args.mesostructure.build()
     except (ValueError, MesostructureError) as exc:
         raise UserError(str(exc)) from None
+    if measured.equilibrium_corrections and meso.dim != 3:
+        raise UserError(f"--equilibrium-corrections: spatial cells only ({args.mesostructure.text} is {meso.dim}D)")
     out: Path = args.out
     config = _train_config(args)
     if out.exists() and not out.is_dir():

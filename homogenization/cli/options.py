@@ -24,7 +24,10 @@
   ``homogenization.learning.settings.ActiveSettings``) and the certificate's --orientations (planar cells),
   --order and --spins (spatial cells) and --eps-max,
   read back with ``active_settings(args)`` and ``certificate_settings(args)`` (``hmodel learn`` and
-  ``hmodel train``).
+  ``hmodel train``);
+- ``add_certificate_equilibrium_arguments(parser)``: --equilibrium-corrections K and --equilibrium-tolerance R
+  of the certificate's ANN runs (the hybrid; ``hmodel certify``, ``hmodel train``, ``hmodel learn``), read
+  back with ``certificate_settings(args)``.
 """
 
 from __future__ import annotations
@@ -212,6 +215,19 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
     add_spatial_rule_arguments(parser, *measured.spatial_rule, " in the certificate's tests")
     parser.add_argument("--eps-max", type=positive_float, default=measured.eps_max,
                         help="axial strain of each certificate shear stage [-]")
+    add_certificate_equilibrium_arguments(parser)
+
+
+def add_certificate_equilibrium_arguments(parser: argparse.ArgumentParser) -> None:
+    """--equilibrium-corrections K and --equilibrium-tolerance R of the certificate's ANN runs
+    (``CertificateSettings``; default: the network alone)."""
+    parser.add_argument("--equilibrium-corrections", type=positive_int, default=None, metavar="K",
+                        help="certify the hybrid: the tests run the ANN with up to K exact Newton steps on the free "
+                             "grains' balance after the network's step (spatial cells; docs/certificate.md); runs are "
+                             "then certified with this K and tolerance only")
+    parser.add_argument("--equilibrium-tolerance", type=positive_float, default=None, metavar="R",
+                        help="with --equilibrium-corrections: the force ratio above which a cell is corrected "
+                             "(None: the DEM's force tolerance, 1e-6)")
 
 
 def active_settings(args: argparse.Namespace) -> ActiveSettings:
@@ -226,6 +242,11 @@ def active_settings(args: argparse.Namespace) -> ActiveSettings:
 
 
 def certificate_settings(args: argparse.Namespace) -> CertificateSettings:
-    """The ``CertificateSettings`` of the flags of ``add_active_arguments`` and --no-rollout."""
+    """The ``CertificateSettings`` of the flags of ``add_active_arguments`` and --no-rollout
+    (UserError, one line: --equilibrium-tolerance without --equilibrium-corrections)."""
+    if args.equilibrium_tolerance is not None and args.equilibrium_corrections is None:
+        raise UserError("--equilibrium-tolerance applies with --equilibrium-corrections only")
     return CertificateSettings(n_orientations=args.orientations, spatial_rule=(args.order, args.spins),
-                               eps_max=args.eps_max, rollout=not args.no_rollout)
+                               eps_max=args.eps_max, rollout=not args.no_rollout,
+                               equilibrium_corrections=args.equilibrium_corrections or 0,
+                               equilibrium_tolerance=args.equilibrium_tolerance)

@@ -175,7 +175,8 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
     if name == "ann":
         from homogenization.backends.ann import model_record  # noqa: PLC0415
 
-        record["ann_model"] = model_record(getattr(model, "model_path", None) or options.get("model"), model.metadata)
+        record["ann_model"] = model_record(getattr(model, "model_path", None) or options.get("model"), model.metadata,
+                                           model.equilibrium_corrections, model.force_tolerance)
         if model.certificate_problem is not None:  # also the run's own cells, e.g. kinematics the certificate did not drive
             record["ann_model"].update(certified=False, certificate_problem=model.certificate_problem)
         corrections = getattr(model, "equilibrium_corrections", 0)

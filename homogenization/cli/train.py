@@ -102,7 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     set_verbosity(args)
-    budget = active_settings(args)
+    budget, measured = active_settings(args), certificate_settings(args)
     from homogenization.learning import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from training import train as training_train  # noqa: PLC0415
     from training.checkpoint import metadata_path  # noqa: PLC0415
@@ -122,7 +122,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.no_certify:
             return 0
         if not enrich:
-            cert = certificate.certify(args.out, **certificate_settings(args).keywords())
+            cert = certificate.certify(args.out, **measured.keywords())
             say(*certificate.summary_lines(cert), f"certificate -> {certificate.write_certificate(args.out, cert)}")
             return certificate.exit_code(cert)
         active.write_rounds(args.out, [])
@@ -132,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     say(f"active learning adds its samples to {database}" + ("" if database == args.data else
         f" (a copy of {args.data}: {'--enrich-copy' if args.enrich_copy else 'that file or its folder is not writable'})"))
     with output_lock(database):
-        rounds = active.learn(database, args.out, config, settings=budget, certify_settings=certificate_settings(args),
+        rounds = active.learn(database, args.out, config, settings=budget, certify_settings=measured,
                               seed=args.seed, threads=args.threads, log=say)
     cert = json.loads(metadata_path(args.out).read_text())["certificate"]
     say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples "

@@ -42,7 +42,7 @@ import numpy as np
 
 from homogenization.learning import certificate
 from homogenization.learning.settings import ActiveSettings, CertificateSettings
-from homogenization.learning.envelope import verdict
+from homogenization.learning.envelope import equilibrium_settings, verdict
 from training import train as training_train
 from training.checkpoint import metadata_path
 from training.config import TrainConfig
@@ -255,14 +255,18 @@ def _certify(model: Path, measured: CertificateSettings, settings: ActiveSetting
 
 
 def _current(cert: Mapping[str, Any] | None, model: Path, measured: CertificateSettings) -> bool:
-    """Whether ``cert`` was measured on this model file with the certificate settings ``measured``."""
+    """Whether ``cert`` was measured on this model file with the certificate settings ``measured``
+    (the equilibrium corrections included: ``envelope.equilibrium_settings``)."""
     if not cert or cert.get("model_sha256") != file_sha256(model):
         return False
     dim = from_description(json.loads(metadata_path(model).read_text())["mesostructure"]).dim
     wanted = certificate.requested_settings(dim, pressures=measured.pressures, eps_max=measured.eps_max,
                                             n_orientations=measured.n_orientations, spatial_rule=measured.spatial_rule)
     wanted.pop("increment")
-    return all(cert["settings"].get(k) == v for k, v in wanted.items()) and cert["target"] == measured.target
+    hybrid = ((measured.equilibrium_corrections, measured.equilibrium_tolerance or DemSettings().force_tolerance)
+              if measured.equilibrium_corrections else (0, None))
+    return (all(cert["settings"].get(k) == v for k, v in wanted.items()) and cert["target"] == measured.target
+            and equilibrium_settings(cert) == hybrid)
 
 
 def _record(model: Path, rounds: list[dict[str, Any]], cert: Mapping[str, Any]) -> None:

@@ -29,10 +29,17 @@ The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_te
 ``tests`` (name, kind, sense, p0, dp, dq, scale [N/m]; inf and an ``error`` where the ANN could
 not follow the programme, e.g. a drained increment without convergence; ``n_increments``, the
 test's length, and, where the ANN left the DEM, ``departure``: the increment that put it more
-than the target off, or the one it could not follow, counted from the test's start), ``rollout``,
+than the target off, or the one it could not follow, counted from the test's start; where stress
+control accepted a trial across a jump of the response, ``stress_control_jumps``: such increments of
+the ANN's run and of the DEM's), ``rollout``,
 ``coverage``, the settings, ``cell_parameters`` (the cell's, e.g. alpha0_deg), ``model_sha256``
 (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the tree differs),
-``seconds``, and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
+``seconds``, with equilibrium corrections (``certify(equilibrium_corrections=K)``: the hybrid)
+``equilibrium`` (how often they fired over the ANN calls of the tests, trial calls included:
+``steps`` calls, ``n_corrected`` cell steps corrected, ``n_corrections`` Newton steps,
+``n_unconverged`` cell steps left above the tolerance, the largest force ratios before and
+after, ``force_ratio_network_max`` and ``force_ratio_max``; the rollouts, reported only, run the
+network alone), and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
 target), ``below_minimum`` (where the settings are weaker than the minimum certificate
 ``MINIMUM``, whose values the constants above take), ``verdict`` ("passed", "failed", "weak")
 and ``passed`` (within the target AND the minimum met), and ``envelope`` (what the tests
@@ -61,7 +68,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from homogenization.element_test import driver, loading
-from homogenization.learning.envelope import dimension_of, envelope_of, MINIMUM, shortfalls, verdict
+from homogenization.learning.envelope import dimension_of, envelope_of, equilibrium_settings, MINIMUM, shortfalls, verdict
 from homogenization.backends import make_cell_model
 from training.checkpoint import metadata_path, read_metadata
 from training.ood import state_features
@@ -151,14 +158,19 @@ def _spatial_tests(pressures: Sequence[float], eps_max: float, increment: float
 
 def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
                        increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
-                       spatial_rule: Sequence[int] = SPATIAL_RULE) -> dict[str, Any]:
+                       spatial_rule: Sequence[int] = SPATIAL_RULE, equilibrium_corrections: int = 0,
+                       equilibrium_tolerance: float | None = None) -> dict[str, Any]:
     """The ``settings`` a certificate of cells of dimension ``dim`` records for these options
     (planar: ``n_orientations``; spatial: ``spatial_rule`` as [order, spins], with the spins
-    staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation3d``)."""
+    staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation3d``;
+    with ``equilibrium_corrections`` K > 0 also K and ``equilibrium_tolerance``, the resolved force
+    ratio [-] of the hybrid its tests ran: ``envelope.equilibrium_settings``)."""
     settings = {"pressures": [float(p) for p in pressures], "eps_max": float(eps_max), "increment": float(increment)}
+    hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": float(equilibrium_tolerance)}
+              if equilibrium_corrections else {})
     if dim == 3:
-        return {**settings, "spatial_rule": [int(k) for k in spatial_rule], "staggered_spins": True}
-    return {**settings, "n_orientations": int(n_orientations)}
+        return {**settings, "spatial_rule": [int(k) for k in spatial_rule], "staggered_spins": True, **hybrid}
+    return {**settings, "n_orientations": int(n_orientations), **hybrid}
 
 
 def run_test(model: Any, programme: loading.Programme, meso: Mesostructure, settings: dict[str, Any]) -> driver.Record:
@@ -184,6 +196,8 @@ class _Counter:
         self.increment = -1
         self._last: object = None
         self._counted_test = 0
+        self.corrections = {"steps": 0, "n_corrected": 0, "n_corrections": 0, "n_unconverged": 0,
+                            "force_ratio_network_max": 0.0, "force_ratio_max": 0.0}
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.model, name)
@@ -200,7 +214,22 @@ class _Counter:
 
     def step(self, state: Any, d_eps: np.ndarray, *, with_tangent: bool = False):
         self._count(state)
-        return self.model.step(state, d_eps, with_tangent=with_tangent)
+        new, response = self.model.step(state, d_eps, with_tangent=with_tangent)
+        self._tally(response.diagnostics)
+        return new, response
+
+    def _tally(self, diagnostics: dict[str, float]) -> None:
+        """Add one step's equilibrium-correction counts (``AnnCell``; none without corrections) to
+        ``corrections``: calls (``steps``, trial calls included), cells corrected, Newton steps, cells
+        left above the tolerance (summed) and the largest force ratios before and after."""
+        if "n_corrected" not in diagnostics:
+            return
+        tally = self.corrections
+        tally["steps"] += 1
+        for key in ("n_corrected", "n_corrections", "n_unconverged"):
+            tally[key] += int(diagnostics[key])
+        for key in ("force_ratio_network_max", "force_ratio_max"):
+            tally[key] = max(tally[key], float(diagnostics[key]))
 
 
 class _Sampler(_Counter):
@@ -240,6 +269,12 @@ def departure(a: driver.Record, d: driver.Record, scale: float, target: float) -
     return int(np.flatnonzero(rd)[np.argmax(off)]) if off.any() else None
 
 
+def _jumps(record: driver.Record) -> int:
+    """Increments of ``record`` whose stress control accepted the trial nearest its target across a jump of
+    the response (``stress_control_jump``, ``homogenization.element_test.driver``)."""
+    return int(np.nansum(record.diagnostics.get("stress_control_jump", np.zeros(0))))
+
+
 def _shear_rows(record: driver.Record) -> np.ndarray:
     return record.stage != record.programme[0].label
 
@@ -247,8 +282,8 @@ def _shear_rows(record: driver.Record) -> np.ndarray:
 def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pressures: Sequence[float] = PRESSURES,
             eps_max: float = EPS_MAX, increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
             spatial_rule: Sequence[int] = SPATIAL_RULE, target: float = TARGET, rollout: bool = True, threads: int = 1,
-            dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY
-            ) -> dict[str, Any]:
+            dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY,
+            equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None) -> dict[str, Any]:
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
     model's own (its JSON's ``mesostructure``).
 
@@ -260,6 +295,13 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     first): the active-learning rounds (``homogenization.learning.active``) probe these states, from a
     failing test's ``departure`` on.
 
+    ``equilibrium_corrections`` K > 0 (spatial cells): the tests run the hybrid, the network followed
+    by up to K exact Newton steps on the free grains' balance in the cells whose force ratio exceeds
+    ``equilibrium_tolerance`` (None: the DEM's ``force_tolerance``; ``AnnCell``). The certificate
+    then records K and the resolved tolerance in its ``settings`` and, in ``equilibrium``, how often
+    the corrections fired over its ANN runs (``correction_counts``); the ANN backend accepts it for
+    runs with that very K and tolerance only. K = 0 records neither (the network alone).
+
     Raises:
         ValueError (CheckpointError, one line): unusable model, or a mesostructure it does not take.
         homogenization.element_test.driver.ControlError: a stress-controlled increment of the DEM did not converge
@@ -269,7 +311,9 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     model_path = Path(model_path)
     meta = read_metadata(model_path)
     law = ContactLaw(**meta["contact_law"])
-    ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads)
+    hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": equilibrium_tolerance}
+              if equilibrium_corrections else {})
+    ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads, **hybrid)
     meso = mesostructure if mesostructure is not None else from_description(meta["mesostructure"])
     ann.check_trained_on(meso)
     settings = DemSettings(contact_tolerance=float(meta["contact_tolerance"]))
@@ -277,7 +321,9 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     free = ann.net.schema.free_dofs.cpu().numpy()
     sampler = _Sampler(dem, int(state_every))
     requested = requested_settings(meso.dim, pressures=pressures, eps_max=eps_max, increment=increment,
-                                   n_orientations=n_orientations, spatial_rule=spatial_rule)
+                                   n_orientations=n_orientations, spatial_rule=spatial_rule,
+                                   equilibrium_corrections=equilibrium_corrections,
+                                   equilibrium_tolerance=ann.force_tolerance if equilibrium_corrections else None)
     results = []
     n_cells = 0
     counter = _Counter(ann)
@@ -298,8 +344,10 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
             raise ValueError(f"test {info['name']!r}: the ANN and the DEM recorded different shear lengths")
         dp, dq = (float(np.nan_to_num(np.abs(x[ra] - y[rd]), nan=math.inf).max()) / scale for x, y in ((a.p, d.p), (a.q, d.q)))
         left = departure(a, d, scale, target)
+        jumps = {"ann": _jumps(a), "dem": _jumps(d)}
         results.append({**info, "dp": dp, "dq": dq, "scale": scale, **length,
-                        **({} if left is None else {"departure": left})})
+                        **({} if left is None else {"departure": left}),
+                        **({"stress_control_jumps": jumps} if any(jumps.values()) else {})})
     worst = max(results, key=lambda t: max(t["dp"], t["dq"]))
     if dem_states is not None:
         for k, parts in sampler.states.items():
@@ -328,6 +376,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
         "model_sha256": file_sha256(model_path),
         "revision": git_revision(),
         "seconds": time.perf_counter() - start,
+        **({"equilibrium": counter.corrections} if equilibrium_corrections else {}),
     }
     cert["within_target"] = bool(worst_figure <= target)
     cert["below_minimum"] = shortfalls(cert, meso.dim)
@@ -349,7 +398,8 @@ def write_certificate(model_path: Path, certificate: dict[str, Any]) -> Path:
 
 def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, threads: int = 1) -> Path:
     """Figure ``out`` (PNG, written atomically) of p and q [N/m] against eps11 [-] of the ANN and the
-    DEM on the certificate's worst test (``cert["worst_test"]``, rerun with ``cert["settings"]``)."""
+    DEM on the certificate's worst test (``cert["worst_test"]``, rerun with ``cert["settings"]``, the
+    equilibrium corrections included)."""
     from matplotlib.figure import Figure  # noqa: PLC0415 (matplotlib only where a figure is drawn)
 
     from homogenization.output.figure_style import apply_style, figure_legend, PNG_DPI  # noqa: PLC0415
@@ -364,7 +414,7 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
     models = {"DEM": make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()),
                                      settings=DemSettings(contact_tolerance=float(meta["contact_tolerance"])),
                                      threads=threads),
-              "ANN": make_cell_model("ann", contact_law=law, model=model_path, threads=threads)}
+              "ANN": make_cell_model("ann", contact_law=law, model=model_path, threads=threads, **_hybrid_of(cert))}
     fig = Figure(figsize=(8.0, 3.6), layout="constrained")
     axes = fig.subplots(1, 2)
     handles = []
@@ -387,15 +437,31 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
     return Path(out)
 
 
+def _hybrid_of(cert: dict[str, Any]) -> dict[str, Any]:
+    """The ANN backend's keywords of the surrogate certificate ``cert`` measured ({}: the network alone)."""
+    corrections, tolerance = equilibrium_settings(cert)
+    return {"equilibrium_corrections": corrections, "equilibrium_tolerance": tolerance} if corrections else {}
+
+
 def summary_lines(cert: dict[str, Any]) -> list[str]:
     """One line per test, then the verdict."""
-    lines = [f"{t['name']:<40} dp {100 * t['dp']:.3f} %  dq {100 * t['dq']:.3f} %" for t in cert["tests"]]
+    lines = [f"{t['name']:<40} dp {100 * t['dp']:.3f} %  dq {100 * t['dq']:.3f} %"
+             + ("" if "stress_control_jumps" not in t else
+                f"  (accepted across a jump: ANN {t['stress_control_jumps']['ann']}, DEM {t['stress_control_jumps']['dem']})")
+             for t in cert["tests"]]
     if cert["rollout"] is not None:
         inc = next(v for k, v in cert["rollout"].items() if k.startswith("increment_"))
         lines.append(f"rollout (single cells, reported only): max {inc['max']:.4f}, median {inc['median']:.4f}")
     if cert["coverage"] is not None:
         lines.append(f"coverage: {100 * cert['coverage']['fraction_within']:.2f} % of {cert['coverage']['n_states']} "
                      f"DEM states within the out-of-distribution threshold")
+    if "equilibrium" in cert:
+        k, tolerance = equilibrium_settings(cert)
+        tally = cert["equilibrium"]
+        lines.append(f"hybrid: the network with {k} equilibrium corrections at tolerance {tolerance:g}: "
+                     f"{tally['n_corrected']} cell steps corrected ({tally['n_corrections']} Newton steps) over "
+                     f"{tally['steps']} ANN calls, {tally['n_unconverged']} left above the tolerance, "
+                     f"largest force ratio {tally['force_ratio_network_max']:.3g} before, {tally['force_ratio_max']:.3g} after")
     result = verdict(cert)
     figures = (f"worst {100 * cert['worst']:.3f} % ({cert['worst_test']}), target {100 * cert['target']:.3g} %, "
                f"{cert['seconds']:.1f} s")

@@ -14,6 +14,9 @@
   Derived from the recorded ``settings`` and ``tests`` (a certificate written before the
   envelope was recorded has the same information).
 - ``outside(envelope, programme, meso)``: where a run leaves the envelope, one phrase each.
+- ``equilibrium_settings(cert)``: (K, tolerance) of the surrogate a certificate measured: the
+  network with K equilibrium corrections at that force ratio [-], or (0, None), the network alone;
+  the ANN backend certifies runs of that very surrogate only.
 
 Sign convention: compression and contraction positive; axial strain eps11 > 0 in compression.
 """
@@ -214,3 +217,10 @@ def outside(envelope: Mapping[str, Any], programme: loading.Programme, *, mesost
 def summary(exits: Sequence[str]) -> str:
     """One line of ``outside``'s phrases ('' inside the envelope)."""
     return "" if not exits else "outside its certificate's envelope: " + "; ".join(exits)
+
+def equilibrium_settings(cert: dict[str, Any]) -> tuple[int, float | None]:
+    """(K, tolerance) of the ANN runs certificate ``cert`` measured: (0, None) for the network alone
+    (a certificate that records no equilibrium corrections)."""
+    settings = cert.get("settings", {})
+    corrections = int(settings.get("equilibrium_corrections", 0))
+    return (corrections, float(settings["equilibrium_tolerance"])) if corrections else (0, None)

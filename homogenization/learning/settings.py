@@ -36,6 +36,21 @@ class CertificateSettings:
     """Largest dp or dq allowed, as a fraction of max(p0, largest DEM p) [-]."""
     rollout: bool = True
     """Also run the single-cell rollouts (reported, not part of the verdict)."""
+    equilibrium_corrections: int = 0
+    """Exact Newton steps on the free grains' balance after the network's step in the tests' ANN runs
+    (``AnnCell(equilibrium_corrections=...)``, spatial cells) [-]; 0: the network alone."""
+    equilibrium_tolerance: float | None = None
+    """Force ratio above which a cell is corrected [-] (None: the DEM's ``force_tolerance``); only with
+    ``equilibrium_corrections`` > 0."""
+
+    def __post_init__(self) -> None:
+        if int(self.equilibrium_corrections) < 0:
+            raise ValueError(f"equilibrium_corrections = {self.equilibrium_corrections} must be >= 0")
+        if self.equilibrium_tolerance is not None:
+            if not self.equilibrium_corrections:
+                raise ValueError("equilibrium_tolerance applies with equilibrium_corrections > 0 only")
+            if not self.equilibrium_tolerance > 0.0:
+                raise ValueError(f"equilibrium_tolerance = {self.equilibrium_tolerance:g} must be > 0")
 
     def keywords(self) -> dict[str, Any]:
         """The settings as keywords of ``homogenization.learning.certificate.certify``."""
