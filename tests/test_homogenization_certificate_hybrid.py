@@ -161,3 +161,18 @@ def test_the_certificate_counts_the_jumps_its_stress_control_accepted(tmp_path):
     assert counted and all(sum(c.values()) > 0 for c in counted)
     assert all(t["kind"] == "drained" for t in cert["tests"] if "stress_control_jumps" in t)
     assert sum("accepted across a jump" in line for line in certificate.summary_lines(cert)) == len(counted)
+
+
+def test_train_refuses_corrections_on_a_planar_database_before_training(tmp_path):
+    import h5py
+    import numpy as np
+
+    from warp_hcell.database.format import FORMAT, FORMAT_VERSION
+
+    database = tmp_path / "db.h5"
+    with h5py.File(database, "w") as f:
+        f.attrs["format"], f.attrs["format_version"] = FORMAT, FORMAT_VERSION
+        f["d_eps"] = np.zeros((4, 2))
+    done = _hmodel("train", "--data", str(database), "--out", str(tmp_path / "m.pt"), "--equilibrium-corrections", "2")
+    assert done.returncode == 2 and "spatial cells only" in done.stderr and "holds 2D cells" in done.stderr
+    assert "Traceback" not in done.stderr and not (tmp_path / "m.pt").exists()

@@ -96,6 +96,19 @@ def _continues(args: argparse.Namespace, database: Path) -> bool:
                                                   if k not in ROUND_SET)
 
 
+def _require_spatial_database(path: Path) -> None:
+    """One line (UserError) before any training unless ``path`` is a database of 3D cells: the
+    equilibrium corrections exist for spatial cells only."""
+    from warp_hcell.database.format import strain_dimension  # noqa: PLC0415 (h5py: only when the command runs)
+
+    try:
+        dim = strain_dimension(path)
+    except (OSError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    if dim != 3:
+        raise UserError(f"--equilibrium-corrections: spatial cells only ({path} holds {dim}D cells)")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (bad input: one line, 2, before any training; then the
     certificate's verdict, ``certificate.exit_code``)."""
@@ -103,6 +116,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     set_verbosity(args)
     budget, measured = active_settings(args), certificate_settings(args)
+    if measured.equilibrium_corrections:
+        _require_spatial_database(args.data)
     from homogenization.learning import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from training import train as training_train  # noqa: PLC0415
     from training.checkpoint import metadata_path  # noqa: PLC0415

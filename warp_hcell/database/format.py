@@ -173,6 +173,17 @@ def sizes(path: Path) -> tuple[int, int]:
     return Path(path).stat().st_size, raw[0]
 
 
+def strain_dimension(path: Path) -> int:
+    """Spatial dimension of the cells of database ``path`` [-]: 2 or 3, the width of its ``d_eps``.
+
+    Raises:
+        ValueError: (one line) not a readable database of this format version.
+    """
+    check_database(path)
+    with h5py.File(path, "r") as f:
+        return int(f["d_eps"].shape[1])
+
+
 def bytes_per_sample(path: Path) -> float:
     """Bytes on disk [B] of one sample of database ``path``: its per-sample datasets' storage (the
     groups ``states``, ``schema`` and ``active_states`` left out) over the samples."""
