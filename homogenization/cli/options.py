@@ -218,16 +218,22 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
     add_certificate_equilibrium_arguments(parser)
 
 
-def add_certificate_equilibrium_arguments(parser: argparse.ArgumentParser) -> None:
-    """--equilibrium-corrections K and --equilibrium-tolerance R of the certificate's ANN runs
-    (``CertificateSettings``; default: the network alone)."""
+def add_equilibrium_arguments(parser: argparse.ArgumentParser, corrections_help: str) -> None:
+    """--equilibrium-corrections K (``corrections_help`` says what K does for the command) and
+    --equilibrium-tolerance R of the hybrid meso-ANN (docs/ann.md, "Equilibrium corrections")."""
     parser.add_argument("--equilibrium-corrections", type=positive_int, default=None, metavar="K",
-                        help="certify the hybrid: the tests run the ANN with up to K exact Newton steps on the free "
-                             "grains' balance after the network's step (spatial cells; docs/certificate.md); runs are "
-                             "then certified with this K and tolerance only")
+                        help=corrections_help)
     parser.add_argument("--equilibrium-tolerance", type=positive_float, default=None, metavar="R",
                         help="with --equilibrium-corrections: the force ratio above which a cell is corrected "
                              "(None: the DEM's force tolerance, 1e-6)")
+
+
+def add_certificate_equilibrium_arguments(parser: argparse.ArgumentParser) -> None:
+    """--equilibrium-corrections K and --equilibrium-tolerance R of the certificate's ANN runs
+    (``CertificateSettings``; default: the network alone)."""
+    add_equilibrium_arguments(parser, "certify the hybrid: the tests run the ANN with up to K exact Newton steps on "
+                                      "the free grains' balance after the network's step (spatial cells; "
+                                      "docs/certificate.md); runs are then certified with this K and tolerance only")
 
 
 def active_settings(args: argparse.Namespace) -> ActiveSettings:

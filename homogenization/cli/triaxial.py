@@ -42,14 +42,13 @@ from homogenization.element_test import driver, loading
 from homogenization.output import figures
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
-from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, command_parser, lebedev_order
+from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, command_parser, lebedev_order
 from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, run_backends, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
     contact_law_from_args,
     finite_float,
-    positive_float,
     positive_int,
     run_main,
     say,
@@ -113,13 +112,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_cell_arguments(parser, f"the 3D cell of every backend (analytical: the plain ten-sphere cell only); "
                                f"None: {DEFAULT_MESOSTRUCTURE} at --alpha0 and --radius.",
                        "CPU threads of the DEM (None: its own default)")
-    parser.add_argument("--equilibrium-corrections", type=positive_int, default=None, metavar="K",
-                        help="ann only: after the network's step, up to K exact Newton steps on the balance of the free "
-                             "grains with the exact contact law, in cells whose force ratio exceeds the DEM's tolerance "
-                             "(a hybrid surrogate, recorded in run.h5 and counted per increment; docs/ann.md)")
-    parser.add_argument("--equilibrium-tolerance", type=positive_float, default=None, metavar="R",
-                        help="ann with --equilibrium-corrections: the force ratio above which a cell is corrected "
-                             "(None: the DEM's force tolerance, 1e-6)")
+    add_equilibrium_arguments(parser, "ann only: after the network's step, up to K exact Newton steps on the balance "
+                                      "of the free grains with the exact contact law, in cells whose force ratio "
+                                      "exceeds the tolerance (a hybrid surrogate, recorded in run.h5 and counted per "
+                                      "increment; docs/ann.md)")
     add_uncertified_argument(parser)
     add_posterior_arguments(parser)
     return parser
