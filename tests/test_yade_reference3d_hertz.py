@@ -11,10 +11,7 @@ the committed outputs.
 from __future__ import annotations
 
 import functools
-import importlib.util
-import json
 import shutil
-import sys
 from itertools import combinations
 from pathlib import Path
 
@@ -25,6 +22,7 @@ from homogenization.backends import make_cell_model
 from warp_hcell.core.contact import hertz_normal_force, hertz_pair_constants
 from warp_hcell.core.parameters import contact_law_from_dict
 from warp_hcell.mesostructures.builders import resolve_mesostructure
+from yade_cases import read_case, yade_script
 
 HERE = Path(__file__).resolve().parent
 DATA_DIR = HERE / "data" / "yade3d_hertz"
@@ -37,15 +35,7 @@ POSITION_TOL = {"dem": 2e-6, "analytical": 5e-7}
 """Grain centres where the cell carries force [m] (measured: DEM 9.8e-7, closed form 2.0e-7)."""
 
 
-def _module(name: str):
-    spec = importlib.util.spec_from_file_location(name, HERE / "yade" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-MAKE_REFERENCE = _module("make_reference3d_hertz")
+MAKE_REFERENCE = yade_script("make_reference3d_hertz")
 CASE_NAMES = tuple(MAKE_REFERENCE.CASES)
 PAIRS = list(combinations(range(10), 2))
 LAW = contact_law_from_dict(MAKE_REFERENCE.CONTACT_LAW)
@@ -53,10 +43,7 @@ LAW = contact_law_from_dict(MAKE_REFERENCE.CONTACT_LAW)
 
 @functools.lru_cache(maxsize=None)
 def _case(name: str) -> tuple[dict, np.ndarray, np.ndarray]:
-    cell = json.loads((DATA_DIR / f"{name}.cell.json").read_text())
-    path = np.loadtxt(DATA_DIR / f"{name}.path.csv", delimiter=",", skiprows=1, ndmin=2)
-    table = np.genfromtxt(DATA_DIR / f"{name}.yade.csv", delimiter=",", names=True)
-    return cell, path, table
+    return read_case(DATA_DIR, name)
 
 
 def _normal_forces(position: np.ndarray, radius: float = 0.5) -> np.ndarray:
