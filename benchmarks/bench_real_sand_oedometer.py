@@ -86,7 +86,8 @@ def modulus(sigma: np.ndarray, eps: np.ndarray, interval: tuple[float, float]) -
 def hmodel(*args: str) -> None:
     command = [sys.executable, "-m", "homogenization.hmodel", *args]
     print("$ hmodel " + " ".join(args), flush=True)
-    subprocess.run(command, check=True)
+    if subprocess.run(command, check=False).returncode != 0:
+        raise SystemExit(f"bench_real_sand_oedometer: hmodel {args[0]} failed (its error above)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -126,13 +127,14 @@ def main(argv: list[str] | None = None) -> int:
     k0_at = lambda level: float(np.interp(level, model["sigma_v"][up], model["K0"][up]))  # noqa: E731
     unload_interval = (float(unload_s[1]), top)
     summary = {
-        "posterior": {"file": str(args.posterior), **mean},
+        "posterior": {"file": args.posterior.resolve().relative_to(ROOT).as_posix()
+                      if args.posterior.resolve().is_relative_to(ROOT) else str(args.posterior), **mean},
         "seating_stress_Pa": seat,
         "constrained_modulus_low_Pa": {"interval": LOW, "model": modulus(*m_up, LOW), "data": modulus(load_s, load_e, LOW)},
         "constrained_modulus_high_Pa": {"interval": HIGH, "model": modulus(*m_up, HIGH), "data": modulus(load_s, load_e, HIGH)},
         "unloading_modulus_Pa": {"interval": unload_interval, "model": modulus(*m_down, unload_interval),
                                  "data": modulus(unload_s, unload_e, unload_interval)},
-        "eps_a_at_top": {"stress_Pa": top, "model": float(eps_a[up][-1]), "data": float(load_e[-1])},
+        "eps_a_at_top": {"stress_Pa": top, "model": strain_at(*m_up, top), "data": float(load_e[-1])},
         "eps_a_after_unloading": {"stress_Pa": bottom, "model": strain_at(*m_down, bottom), "data": float(unload_e[-1])},
         "K0_model": {"80kPa": k0_at(80e3), "top": k0_at(top), "after_unloading": float(np.interp(
             bottom, model["sigma_v"][down_idx][::-1], model["K0"][down_idx][::-1]))},

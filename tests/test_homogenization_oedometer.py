@@ -88,3 +88,11 @@ def test_cli_oedometer_writes_the_table_of_its_curve(tmp_path):
         assert float(row["sigma_v"]) == pytest.approx(s11, rel=1e-9)
         assert float(row["K0"]) == pytest.approx(0.5 * (s22 + s33) / s11, rel=1e-8)
         assert float(row["eps_v"]) == pytest.approx(sum(float(point[k]) for k in ("eps11", "eps22", "eps33")), rel=1e-8)
+
+
+def test_cli_oedometer_reruns_over_its_own_output_with_overwrite(tmp_path):
+    argv = ["triaxial", "--oedometer", "0", "--eps-max", "1e-3", "--increment", "5e-4", "--p0", "2e4", "--order", "3",
+            "--spins", "1", "-q", "--out", str(tmp_path / "oed")]
+    assert hmodel.main(argv) == 0
+    assert hmodel.main([*argv, "--overwrite"]) == 0
+    assert (tmp_path / "oed" / oedometer.FILE).is_file()

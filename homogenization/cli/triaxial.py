@@ -207,7 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv_given = sys.argv[1:] if argv is None else argv
     check_backends(args.backend, args.model)
     calibrated = posterior_flags.apply_posterior(args, argv_given, build_parser(), dim=3)
-    check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE)
+    check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE, oedometer.FILE)
     programme, settings = build_programme(args, argv_given)
     posterior_flags.check_band_test(calibrated, settings, "")
     law = contact_law_from_args(args)
