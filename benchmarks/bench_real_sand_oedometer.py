@@ -1,12 +1,14 @@
 """python benchmarks/bench_real_sand_oedometer.py [--posterior benchmarks/results/real_sand_50_200.json]
-[--increment 1e-3] [--out runs/real_sand_oedometer]
+[--increment 1e-3] [--hertz G] [--out runs/real_sand_oedometer]
 
 The 3D H-model on an oedometer test it was not fitted to: the loading-unloading curve of the loose
 Dobrany sand specimen (benchmarks/lab_data/dobrany_sand/oed_loose.csv, sheet OED-REC-1, e0 0.996,
 vertical stress 8 kPa - 1.2 MPa - 10 kPa) against ``hmodel triaxial --oedometer`` (closed form,
 the calibration's rule of Lebedev order 11 x 4 aligned spins) at the posterior mean of the
 calibration on the drained triaxial tests (the ``posterior`` means of --posterior, the summary
-json of ``bench_real_sand.py``), with the linear contact law it was fitted with.
+json of ``bench_real_sand.py``), with the linear contact law it was fitted with; ``--hertz G`` runs
+the Hertz-Mindlin law of grains of shear modulus G [Pa] (Poisson ratio 0.2) instead, at the
+posterior's phi_g and alpha0 (not fitted: the calibration reads the linear law only).
 
 The model is seated isotropically at the data's first stress (8 kPa), then loaded with the
 lateral strains held at zero. A first run loads far enough to find the axial strain at which
@@ -95,14 +97,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--posterior", type=Path, default=POSTERIOR,
                         help="summary json whose 'posterior' holds the means of phi_g, kn, kt_over_kn, alpha0")
     parser.add_argument("--increment", type=float, default=1e-3, help="axial strain increment [-]")
+    parser.add_argument("--hertz", type=float, default=None, metavar="G",
+                        help="Hertz-Mindlin law of grain shear modulus G [Pa] instead of the posterior's kn, kt")
     parser.add_argument("--out", type=Path, default=Path("runs/real_sand_oedometer"))
     args = parser.parse_args(argv)
     post = json.loads(args.posterior.read_text())["posterior"]
     mean = {name: post[name]["mean"] for name in ("phi_g", "kn", "kt_over_kn", "alpha0")}
     load_s, load_e, unload_s, unload_e = read_data(DATA)
     seat, top, bottom = float(load_s[0]), float(load_s[-1]), float(unload_s[-1])
-    cell = ("--p0", f"{seat:g}", "--alpha0", f"{mean['alpha0']:.4g}", "--kn", f"{mean['kn']:.4g}",
-            "--kt", f"{mean['kt_over_kn'] * mean['kn']:.4g}", "--phi", f"{mean['phi_g']:.4g}", *RULE,
+    law = (("--kn", f"{mean['kn']:.4g}", "--kt", f"{mean['kt_over_kn'] * mean['kn']:.4g}") if args.hertz is None else
+           ("--law", "hertz-mindlin", "--shear-modulus", f"{args.hertz:g}", "--poisson", "0.2"))
+    cell = ("--p0", f"{seat:g}", "--alpha0", f"{mean['alpha0']:.4g}", *law, "--phi", f"{mean['phi_g']:.4g}", *RULE,
             "--increment", f"{args.increment:g}", "-q", "--overwrite")
     args.out.mkdir(parents=True, exist_ok=True)
     probe = args.out / "probe"
@@ -129,6 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     summary = {
         "posterior": {"file": args.posterior.resolve().relative_to(ROOT).as_posix()
                       if args.posterior.resolve().is_relative_to(ROOT) else str(args.posterior), **mean},
+        "law": "linear" if args.hertz is None else f"hertz-mindlin, G = {args.hertz:g} Pa, nu = 0.2",
         "seating_stress_Pa": seat,
         "constrained_modulus_low_Pa": {"interval": LOW, "model": modulus(*m_up, LOW), "data": modulus(load_s, load_e, LOW)},
         "constrained_modulus_high_Pa": {"interval": HIGH, "model": modulus(*m_up, HIGH), "data": modulus(load_s, load_e, HIGH)},
@@ -145,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
             summary["unloading_modulus_Pa"][key] / modulus(*(m_up if key == "model" else (load_s, load_e)), unload_interval))
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(f"posterior mean of {args.posterior.name}: phi_g {mean['phi_g']:.2f} deg, kn {mean['kn']:.4g} N/m, "
-          f"kt/kn {mean['kt_over_kn']:.3f}, alpha0 {mean['alpha0']:.2f} deg; seated at {seat:g} Pa")
+          f"kt/kn {mean['kt_over_kn']:.3f}, alpha0 {mean['alpha0']:.2f} deg; law: {summary['law']}; seated at {seat:g} Pa")
     print("quantity                                   model        data")
     for label, key in (("M, 40-80 kPa [MPa]", "constrained_modulus_low_Pa"), ("M, 0.6-1.2 MPa [MPa]", "constrained_modulus_high_Pa"),
                        ("unloading M, 1.2-0.6 MPa [MPa]", "unloading_modulus_Pa")):
@@ -160,12 +166,12 @@ def main(argv: list[str] | None = None) -> int:
           f"after unloading to {bottom / 1e3:g} kPa; Jaky 1 - sin(angle of repose) {summary['K0_jaky_repose']:.3f} "
           f"(estimate; not measured)")
     draw(args.out / "oedometer.png", (load_s, load_e, unload_s, unload_e), m_up, m_down, model, up, down_idx,
-         summary["K0_jaky_repose"])
+         summary["K0_jaky_repose"], summary["law"])
     print(f"figure -> {args.out / 'oedometer.png'}; summary -> {args.out / 'summary.json'}")
     return 0
 
 
-def draw(path: Path, data, m_up, m_down, model, up, down_idx, k0_jaky: float) -> None:
+def draw(path: Path, data, m_up, m_down, model, up, down_idx, k0_jaky: float, law: str) -> None:
     """sigma_v [kPa] against eps_a [%] (data and model, loading and unloading) and K0 against sigma_v."""
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
@@ -185,7 +191,8 @@ def draw(path: Path, data, m_up, m_down, model, up, down_idx, k0_jaky: float) ->
     right.set_xlabel("vertical stress sigma_v [kPa]")
     right.set_ylabel("K0 = sigma_h / sigma_v [-]")
     right.legend()
-    fig.suptitle("Dobrany sand, loose oedometer specimen (e0 0.996): data and the 3D H-model at the triaxial posterior mean")
+    fig.suptitle(f"Dobrany sand, loose oedometer specimen (e0 0.996): data and the 3D H-model at the triaxial "
+                 f"posterior mean ({law} law)", fontsize=10)
     fig.savefig(path, dpi=120)
 
 
