@@ -191,8 +191,8 @@ def draw(path: Path, data, m_up, m_down, model, up, down_idx, k0_jaky: float, la
     right.set_xlabel("vertical stress sigma_v [kPa]")
     right.set_ylabel("K0 = sigma_h / sigma_v [-]")
     right.legend()
-    fig.suptitle(f"Dobrany sand, loose oedometer specimen (e0 0.996): data and the 3D H-model at the triaxial "
-                 f"posterior mean ({law} law)", fontsize=10)
+    fig.suptitle(f"Dobrany sand, loose oedometer specimen (e0 0.996): data and the 3D H-model\n"
+                 f"at the triaxial posterior mean ({law} law)", fontsize=10)
     fig.savefig(path, dpi=120)
 
 
