@@ -10,7 +10,11 @@ p0), then one shear stage (axis 1 axial, --eps-max of axial strain in increments
 - ``--drained``: compression at sigma2 = sigma3 = p0; ``--extension``: extension at sigma2 = sigma3 = p0;
 - ``--constant-p``: compression at p = p0, sigma2 = sigma3;
 - ``--true B``: true triaxial compression at p = p0 and b = (sigma2 - sigma3)/(sigma1 - sigma3) = B;
-- ``--cyclic N``: N undrained cycles of axial strain amplitude --eps-max.
+- ``--cyclic N``: N undrained cycles of axial strain amplitude --eps-max;
+- ``--oedometer U``: oedometric (K0) compression under pure strain control, lateral strains held at
+  zero: axial loading by --eps-max from the seating stress p0, then unloading by U of axial strain
+  (0: none); each backend also writes oedometer.csv (``homogenization.element_test.oedometer``:
+  stage, eps_a, eps_v, sigma_v = sigma11, sigma_h = (sigma22 + sigma33)/2, K0 = sigma_h/sigma_v).
 
 ``--posterior DIR/posterior.json`` (of ``hmodel calibrate`` on triaxial data) runs at its
 posterior mean instead of --phi, --kn, --kt, --alpha0 and --radius, and records the posterior
@@ -26,7 +30,7 @@ shear), several DIR/<backend>/...; DIR/triaxial.png overlays every backend in th
 Sign convention: compression and contraction positive; stresses in Pa. Bad input (unknown
 backend, the ann backend with a model that has no passed certificate of its own file, unless
 --uncertified-ok, a planar mesostructure, p0 <= 0, an
-increment larger than --eps-max, a programme of planar steps, existing output without
+increment larger than --eps-max, an --oedometer unloading outside [0, --eps-max], a programme of planar steps, existing output without
 --overwrite) is one line on stderr and exit code 2, before any run.
 """
 
@@ -38,7 +42,7 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, loading, oedometer
 from homogenization.output import figures
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
@@ -65,7 +69,7 @@ FIGURE_FILE = "triaxial.png"
 DEFAULT_MESOSTRUCTURE = "hcell3d"
 """Builder spec of the cell when --mesostructure is not given (built at --alpha0)."""
 TESTS = {"undrained": "--undrained", "drained": "--drained", "extension": "--extension",
-         "constant_p": "--constant-p", "true": "--true", "cyclic": "--cyclic"}
+         "constant_p": "--constant-p", "true": "--true", "cyclic": "--cyclic", "oedometer": "--oedometer"}
 """Shear stage (``loading.TRIAXIAL_TESTS``) -> its flag."""
 PROGRAMME_FLAGS = {"p0": "--p0", "eps_max": "--eps-max", "increment": "--increment",
                    "iso_increment": "--iso-increment", **{name: flag for name, flag in TESTS.items()}}
@@ -99,6 +103,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="true triaxial compression at p = p0 and b = (s2 - s3)/(s1 - s3) = B in [0, 1]")
     tests.add_argument("--cyclic", type=positive_int, default=None, metavar="N",
                        help="N undrained cycles of axial strain amplitude --eps-max")
+    tests.add_argument("--oedometer", type=finite_float, default=None, metavar="U",
+                       help="oedometric (K0) test, lateral strains held at zero: axial loading by --eps-max from the "
+                            "seating stress p0, then unloading by U of axial strain, in [0, --eps-max] (0: none); "
+                            "also writes oedometer.csv (sigma_v, sigma_h, K0, eps_v)")
     parser.add_argument("--programme", type=Path, default=None,
                         help="JSON or TOML loading programme of three-component steps (docs/programmes.md)")
     parser.add_argument("--order", type=lebedev_order, default=driver.LEBEDEV_ORDER,
@@ -127,6 +135,8 @@ def chosen_test(args: argparse.Namespace) -> str:
         return "true"
     if args.cyclic is not None:
         return "cyclic"
+    if args.oedometer is not None:
+        return "oedometer"
     return next((name for name in ("drained", "extension", "constant_p") if getattr(args, name)), "undrained")
 
 
@@ -146,6 +156,13 @@ def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[load
     cycles = args.cyclic or 1
     settings = {"p0": args.p0, "eps_max": args.eps_max, "increment": args.increment, "iso_increment": iso_increment,
                 "test": test, **({"b": b} if test == "true" else {}), **({"cycles": cycles} if test == "cyclic" else {})}
+    if test == "oedometer":
+        if not 0.0 <= args.oedometer <= args.eps_max:
+            raise UserError(f"--oedometer {args.oedometer:g}: the unloading strain must be in [0, --eps-max "
+                            f"{args.eps_max:g}] (the loading strain)")
+        settings["eps_unload"] = args.oedometer
+        return loading.oedometric(args.p0, args.eps_max, args.oedometer, args.increment,
+                                  iso_increment=iso_increment), settings
     programme = loading.triaxial(args.p0, args.eps_max, args.increment, test=test, iso_increment=iso_increment,
                                  b=b, cycles=cycles)
     return programme, settings
@@ -186,7 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv_given = sys.argv[1:] if argv is None else argv
     check_backends(args.backend, args.model)
     calibrated = posterior_flags.apply_posterior(args, argv_given, build_parser(), dim=3)
-    check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE)
+    check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE, oedometer.FILE)
     programme, settings = build_programme(args, argv_given)
     posterior_flags.check_band_test(calibrated, settings, "")
     law = contact_law_from_args(args)
@@ -214,6 +231,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     **posterior_flags.run_record(calibrated),
                 },
                 work=work, command=command)
+            if settings.get("test") == "oedometer":
+                with writing_to(out):
+                    for name, record in runs.items():
+                        oedometer.write_csv((work / name if len(runs) > 1 else work) / oedometer.FILE, record)
             posterior_flags.compute_band(calibrated, dim=3, drained=settings.get("test") == "drained", p0=args.p0,
                                          eps_max=args.eps_max)
             with writing_to(out):

@@ -302,6 +302,39 @@ def triaxial(
             *triaxial_shear(test, p0, eps_max, n, b=b, cycles=cycles))
 
 
+def oedometric(
+    p0: float,
+    eps_load: float,
+    eps_unload: float,
+    increment: float,
+    *,
+    iso_increment: float = LoadingDefaults.iso_increment,
+) -> Programme:
+    """Oedometric (K0) test under pure strain control: isotropic compression to the seating stress p0,
+    then axial loading by ``eps_load`` and unloading by ``eps_unload`` of axial strain with the lateral
+    strains 22 and 33 held at zero (steps ``load`` and ``unload``; no unloading step when it is 0).
+
+    Args:
+        p0: isotropic seating stress [Pa], > 0.
+        eps_load: axial strain of the loading step [-], > 0 (compression positive).
+        eps_unload: axial strain recovered by the unloading step [-], in [0, eps_load].
+        increment: axial strain increment of both steps [-].
+        iso_increment: strain increment per component of the isotropic stage [-].
+    """
+    if not (math.isfinite(p0) and p0 > 0.0):
+        raise ValueError(f"p0 = {p0:g} must be finite and > 0")
+    if not (math.isfinite(eps_load) and eps_load > 0.0):
+        raise ValueError(f"oedometric loading strain = {eps_load:g} must be finite and > 0")
+    if not (math.isfinite(eps_unload) and 0.0 <= eps_unload <= eps_load):
+        raise ValueError(f"oedometric unloading strain = {eps_unload:g} must be in [0, {eps_load:g}] (the loading strain)")
+    control = ("strain",) * 3
+    steps = [isotropic(p0, increment=iso_increment, dim=3),
+             Step(control, (eps_load, 0.0, 0.0), n_increments_for(eps_load, increment), "load")]
+    if eps_unload > 0.0:
+        steps.append(Step(control, (-eps_unload, 0.0, 0.0), n_increments_for(eps_unload, increment), "unload"))
+    return tuple(steps)
+
+
 def _step_dict(step: Step) -> dict[str, Any]:
     data = {**asdict(step), "control": list(step.control), "target": list(step.target)}
     if step.coupling is None:
