@@ -4,6 +4,9 @@
 micro-parameters on measured biaxial (2D) or triaxial (3D) curves (format:
 ``homogenization.calibration.data``; worked example: docs/calibration.md). Every --data test is
 fitted jointly; the parameters not in --params keep the values of --phi, --kn, --kt and --alpha0.
+--law hertz-mindlin (triaxial data only) calibrates phi_g, shear_modulus, poisson and alpha0
+instead (fixed: --phi, --shear-modulus, --poisson, --alpha0; default prior PRIOR_BOUNDS_HERTZ_3D),
+and posterior.json then holds ``contact_law``, the law at the posterior mean.
 
 The posterior is sampled with emcee's affine-invariant ensemble: every step runs the forward
 model of the whole population of walkers as one batch of cells (analytical backend:
