@@ -43,10 +43,13 @@ import numpy as np
 
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
-from homogenization.calibration.forward import PARAMETERS, ForwardSettings, simulate
+from homogenization.calibration.forward import LAW_PARAMETERS, ForwardSettings, simulate
 from homogenization.calibration.report import retained_samples
 from homogenization.calibration.start import prior_start
 from homogenization.cli.calibrate import FORWARD
+
+PARAMETERS = LAW_PARAMETERS["linear"]
+"""The linear law's parameters, all calibrated by this benchmark."""
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "calibration"
 TESTS = ("undrained.csv", "drained.csv")

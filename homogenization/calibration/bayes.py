@@ -28,12 +28,21 @@ import numpy as np
 
 from homogenization.calibration.data import CHANNELS, Measurement
 from homogenization.calibration.forward import ForwardSettings, simulate
-from warp_hcell.core.parameters import ALPHA_MIN_3D_DEG, PRIOR_BOUNDS_2D, PRIOR_BOUNDS_3D
+from warp_hcell.core.parameters import (
+    ALPHA_MIN_3D_DEG,
+    PRIOR_BOUNDS_2D,
+    PRIOR_BOUNDS_3D,
+    PRIOR_BOUNDS_HERTZ_3D,
+    HertzMindlinLaw,
+)
 
 DEFAULT_BOUNDS = {2: PRIOR_BOUNDS_2D, 3: PRIOR_BOUNDS_3D}
 """Default prior of each parameter by the dimension of the data (3 where any test is triaxial):
 (low, high, log-uniform?) in CLI units (deg, N/m, -, deg); ``warp_hcell.core.parameters``."""
-UNITS = {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg"}
+HERTZ_BOUNDS = {**PRIOR_BOUNDS_3D, **PRIOR_BOUNDS_HERTZ_3D}
+"""Default prior of the Hertz-Mindlin law's calibration (triaxial data only): G [Pa], nu [-] from
+``PRIOR_BOUNDS_HERTZ_3D``, phi_g and alpha0 as ``PRIOR_BOUNDS_3D``."""
+UNITS = {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg", "shear_modulus": "Pa", "poisson": "-"}
 """Unit of each parameter in posterior.json and the figures."""
 CONTRACTION_CONSTRAINED = 0.5
 """A parameter counts as constrained by the data where its posterior standard deviation is below
@@ -88,8 +97,9 @@ class Prior:
                 for name, lo, hi, lg in zip(self.names, self.low, self.high, self.log)}
 
 
-def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2) -> Prior:
-    """The prior of ``names``: ``DEFAULT_BOUNDS[dim]``, overridden by the JSON file ``path``.
+def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2, law: str = "linear") -> Prior:
+    """The prior of ``names``: ``DEFAULT_BOUNDS[dim]`` (``HERTZ_BOUNDS`` for the Hertz-Mindlin
+    ``law``), overridden by the JSON file ``path``.
 
     File: ``{"phi_g": [20, 40], "kn": {"low": 1e8, "high": 1e9, "log": true}}``; a list keeps the
     parameter's default scale. Parameters not calibrated may not appear.
@@ -101,7 +111,8 @@ def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2) -> 
         ValueError: one line naming the file for a missing, malformed or inconsistent prior, or
             (dim 3) an alpha0 prior reaching below ``ALPHA_MIN_3D_DEG``.
     """
-    bounds = {name: DEFAULT_BOUNDS[dim][name] for name in names}
+    defaults = HERTZ_BOUNDS if law == HertzMindlinLaw.name else DEFAULT_BOUNDS[dim]
+    bounds = {name: defaults[name] for name in names}
     if path is not None:
         path = Path(path)
         if not path.is_file():

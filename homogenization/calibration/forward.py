@@ -5,7 +5,8 @@ constant-volume or drained shear) for n parameter sets at once and returns the m
 and eps_v at the measured eps1 values. With the analytical backend the n sets are ONE
 ``HomogenisedMaterial`` (2D) or ``HomogenisedMaterial3D`` (triaxial tests) of n material
 points, each with its own cells (``AnalyticalCell.with_cell_laws`` /
-``Analytical3DCell.with_cell_laws``: per-cell kn, kt/kn, phi_g and alpha0), so every increment
+``Analytical3DCell.with_cell_laws``: per-cell kn, kt/kn, phi_g and alpha0; with the Hertz-Mindlin
+law ``Analytical3DCell.with_hertz_cell_laws``: per-cell G, nu, phi_g and alpha0), so every increment
 is one batched ``step`` over n x (cells per point) cells, run by the element-test engine
 (``homogenization.element_test``: the population's stages as plans, its one stress-control solver
 under the ``POPULATION`` policy). Other backends take one contact law per model: their sets run
@@ -43,12 +44,17 @@ from homogenization.element_test.record import History
 from homogenization.element_test.run import run
 from homogenization.element_test.solver import POPULATION, StressControl
 from homogenization.material.invariants import deviator_3d, mean_stress_3d
-from warp_hcell.core.parameters import CellDefaults, ContactLaw, LoadingDefaults
+from warp_hcell.core.parameters import CellDefaults, ContactLaw, HertzMindlinLaw, Law, LoadingDefaults
 from warp_hcell.mesostructures.hcell import build_h_cell_3d, h_cell
 
-PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0")
+PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson")
 """Names of the calibratable parameters, in the units of the CLI flags: phi_g [deg], kn [N/m],
-kt_over_kn [-], alpha0 [deg]."""
+kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-]."""
+LAW_PARAMETERS = {ContactLaw.name: ("phi_g", "kn", "kt_over_kn", "alpha0"),
+                  HertzMindlinLaw.name: ("phi_g", "shear_modulus", "poisson", "alpha0")}
+"""The parameters of ``PARAMETERS`` that each contact law's forward model reads."""
+CONTACT_LAW_KEY = "contact_law"
+"""Key of posterior.json holding a non-linear contact law at the posterior mean (``to_dict``); absent: the linear law."""
 
 
 @dataclass(frozen=True)
@@ -56,6 +62,7 @@ class ForwardSettings:
     """Numerical settings of the forward model.
 
     Attributes:
+        law: contact law of the cells, a name of ``LAW_PARAMETERS`` ("hertz-mindlin": spheres, 3D tests only).
         backend: "analytical" (batched), "dem" or "ann" (one parameter set at a time).
         n_orientations: cell orientations per material point of a 2D test [-].
         lebedev_order, n_spins: cell orientations of a triaxial test (``orientation3d.orientations_3d``);
@@ -75,6 +82,7 @@ class ForwardSettings:
         backend_options: extra keyword options of the backend (dem/ann: device, threads, model).
     """
 
+    law: str = ContactLaw.name
     backend: str = "analytical"
     n_orientations: int = 36
     lebedev_order: int = 11
@@ -87,8 +95,14 @@ class ForwardSettings:
     max_newton: int = LoadingDefaults.max_newton_iterations
     fixed: Mapping[str, float] = field(default_factory=lambda: {
         "phi_g": ContactLaw.phi_g_deg, "kn": ContactLaw.kn, "kt_over_kn": ContactLaw.kt_over_kn,
-        "alpha0": CellDefaults.alpha0_deg})
+        "alpha0": CellDefaults.alpha0_deg, "shear_modulus": HertzMindlinLaw.shear_modulus,
+        "poisson": HertzMindlinLaw.poisson})
     backend_options: Mapping[str, object] = field(default_factory=dict)
+
+    @property
+    def parameters(self) -> tuple[str, ...]:
+        """The parameters the forward model of ``law`` reads (``LAW_PARAMETERS``)."""
+        return LAW_PARAMETERS[self.law]
 
 
 @dataclass
@@ -113,19 +127,23 @@ class Curves:
 
 
 def full_parameters(params: Mapping[str, np.ndarray], settings: ForwardSettings) -> dict[str, np.ndarray]:
-    """All four parameters as arrays of one shape (n,): the calibrated ones, the others fixed."""
+    """The four parameters of the settings' law (``settings.parameters``) as arrays of one shape (n,):
+    the calibrated ones, the others fixed."""
     n = len(np.atleast_1d(next(iter(params.values())))) if params else 1
     return {name: np.broadcast_to(np.asarray(params.get(name, settings.fixed[name]), dtype=np.float64), (n,)).copy()
-            for name in PARAMETERS}
+            for name in settings.parameters}
 
 
 def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings) -> Curves:
-    """Curves of ``test`` for each parameter set; ``params`` maps names of ``PARAMETERS`` to shape (n,).
+    """Curves of ``test`` for each parameter set; ``params`` maps names of ``settings.parameters`` to shape (n,).
 
     Raises:
-        ValueError: a parameter value outside its range (one line).
+        ValueError: a parameter value outside its range, or the Hertz-Mindlin law on a 2D test (one line).
         homogenization.element_test.driver.ControlError: (dem/ann) a stage that cannot be run (p0 not reached).
     """
+    if settings.law == HertzMindlinLaw.name and test.dim != 3:
+        raise ValueError(f"the Hertz-Mindlin contact law is defined for spheres: {test.name} is a biaxial (2D) "
+                         f"test; calibrate it on triaxial data")
     full = full_parameters(params, settings)
     if settings.backend == "analytical":
         return _simulate_batched(test, full, settings)
@@ -144,9 +162,9 @@ def _sample(eps1_model: np.ndarray, values: np.ndarray, eps1: np.ndarray) -> np.
 
 
 def _population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int) -> MaterialPoints:
-    """One material point per parameter set, each with its own cells (per-cell kn, kt/kn, phi_g and alpha0),
-    oriented as the driver orients the H-cell (``element_test.points.orientation_set``)."""
-    n = full["kn"].size
+    """One material point per parameter set, each with its own cells (per-cell contact law: kn and kt/kn,
+    or G and nu; phi_g and alpha0), oriented as the driver orients the H-cell (``element_test.points.orientation_set``)."""
+    n = full["phi_g"].size
     if dim == 2:
         cell_class, meso = AnalyticalCell, h_cell(CellDefaults.alpha0_deg, settings.radius)
     else:
@@ -154,8 +172,12 @@ def _population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int
     orient = orientation_set(meso, n_orientations=settings.n_orientations, lebedev_order=settings.lebedev_order,
                              n_spins=settings.n_spins, staggered_spins=settings.staggered_spins)
     per_cell = {name: np.repeat(values, orient.n_cells) for name, values in full.items()}
-    model = cell_class.with_cell_laws(per_cell["kn"], per_cell["kt_over_kn"], per_cell["phi_g"], settings.radius,
-                                      alpha0_deg=per_cell["alpha0"])
+    if settings.law == HertzMindlinLaw.name:
+        model = Analytical3DCell.with_hertz_cell_laws(per_cell["shear_modulus"], per_cell["poisson"], per_cell["phi_g"],
+                                                      settings.radius, alpha0_deg=per_cell["alpha0"])
+    else:
+        model = cell_class.with_cell_laws(per_cell["kn"], per_cell["kt_over_kn"], per_cell["phi_g"], settings.radius,
+                                          alpha0_deg=per_cell["alpha0"])
     return material_points(model, meso, n, orient)
 
 
@@ -201,8 +223,17 @@ def _row(row: np.ndarray, start: np.ndarray, dim: int) -> np.ndarray:
     return np.stack([deviator_3d(*s.T), mean_stress_3d(s[:, 0], s[:, 1], s[:, 2]), eps.sum(axis=1)])
 
 
+def contact_law_at(full: Mapping[str, np.ndarray], i: int, law: str) -> Law:
+    """The contact law ``law`` of parameter set ``i`` of ``full`` (``full_parameters``)."""
+    if law == HertzMindlinLaw.name:
+        return HertzMindlinLaw(shear_modulus=float(full["shear_modulus"][i]), poisson=float(full["poisson"][i]),
+                               phi_g_deg=float(full["phi_g"][i]))
+    return ContactLaw(kn=float(full["kn"][i]), kt_over_kn=float(full["kt_over_kn"][i]),
+                      phi_g_deg=float(full["phi_g"][i]))
+
+
 def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], settings: ForwardSettings) -> Curves:
-    n = full["kn"].size
+    n = full["phi_g"].size
     out = np.empty((3, n, test.eps1.size))
     fallback = np.zeros(n, dtype=np.int64)
     n_shear = _n_shear(test, settings)
@@ -214,8 +245,7 @@ def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], setting
                                      test="drained" if test.drained else "undrained",
                                      iso_increment=settings.iso_increment)
     for i in range(n):
-        law = ContactLaw(kn=float(full["kn"][i]), kt_over_kn=float(full["kt_over_kn"][i]),
-                         phi_g_deg=float(full["phi_g"][i]))
+        law = contact_law_at(full, i, settings.law)
         model = make_cell_model(settings.backend, contact_law=law, radius=settings.radius, dim=test.dim,
                                 **dict(settings.backend_options))
         alpha0 = float(full["alpha0"][i])

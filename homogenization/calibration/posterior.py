@@ -21,8 +21,15 @@ from typing import Any, Mapping
 import numpy as np
 
 from homogenization.calibration.data import Measurement
-from homogenization.calibration.forward import PARAMETERS, ForwardSettings, simulate
-from warp_hcell.core.parameters import ContactLaw
+from homogenization.calibration.bayes import UNITS
+from homogenization.calibration.forward import (
+    CONTACT_LAW_KEY,
+    LAW_PARAMETERS,
+    ForwardSettings,
+    contact_law_at,
+    simulate,
+)
+from warp_hcell.core.parameters import ContactLaw, Law, contact_law_from_dict
 
 POSTERIOR_FILE = "posterior.json"
 SAMPLES_FILE = "posterior.h5"
@@ -43,8 +50,8 @@ class CalibratedPosterior:
         sha256: its sha256 (recorded in run.h5).
         dims: the dimensions of the calibration's data (2: biaxial, 3: triaxial), sorted.
         calibrated: the calibrated parameters, in posterior.json's order.
-        mean: every parameter of ``PARAMETERS`` at the posterior mean (calibrated) or at the
-            calibration's fixed value (not calibrated), CLI units.
+        mean: every parameter of the calibration's contact law (``forward.parameters``) at the
+            posterior mean (calibrated) or at the calibration's fixed value (not calibrated), CLI units.
         radius: the grain radius of the calibration [m].
         forward: the calibration's forward-model settings (the band runs with them).
     """
@@ -58,15 +65,16 @@ class CalibratedPosterior:
     forward: ForwardSettings
 
     @property
-    def contact_law(self) -> ContactLaw:
-        """The contact law at the posterior mean."""
-        return ContactLaw(kn=self.mean["kn"], kt_over_kn=self.mean["kt_over_kn"], phi_g_deg=self.mean["phi_g"])
+    def contact_law(self) -> Law:
+        """The contact law at the posterior mean (the calibration's law: linear or Hertz-Mindlin)."""
+        return contact_law_at({name: np.array([value]) for name, value in self.mean.items()}, 0, self.forward.law)
 
     def record(self) -> dict[str, Any]:
         """What run.h5 stores of the posterior (its ``parameters`` attribute, key ``posterior``)."""
         return {"file": str(self.path.resolve()), "sha256": self.sha256, "statistic": "mean",
                 "calibrated": list(self.calibrated), "values": dict(self.mean),
-                "units": {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg"}}
+                "units": {name: UNITS[name] for name in self.mean},
+                **({} if self.forward.law == ContactLaw.name else {"contact_law": self.contact_law.to_dict()})}
 
 
 def _read_json(path: Path, what: str) -> Any:
@@ -83,7 +91,7 @@ def read_posterior(path: Path) -> CalibratedPosterior:
     """The posterior of ``path`` (posterior.json, or the folder holding it) and its run.json.
 
     Raises:
-        ValueError: one line for a missing or malformed file, a parameter not in ``PARAMETERS``,
+        ValueError: one line for a missing or malformed file, a parameter not of its contact law,
             or a run.json without the calibration's dimension, fixed values or radius.
     """
     from warp_hcell.core.provenance import file_sha256  # noqa: PLC0415
@@ -94,11 +102,17 @@ def read_posterior(path: Path) -> CalibratedPosterior:
     data = _read_json(path, "posterior")
     if not isinstance(data, dict) or not data:
         raise ValueError(f"--posterior {path}: not a posterior.json of hmodel calibrate (parameter -> mean, median, ci95)")
+    law_name = ContactLaw.name
+    if CONTACT_LAW_KEY in data:
+        try:
+            law_name = contact_law_from_dict(data.pop(CONTACT_LAW_KEY)).name
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise ValueError(f"--posterior {path}: {CONTACT_LAW_KEY!r} is not a contact law: {exc}") from None
     mean: dict[str, float] = {}
     for name, entry in data.items():
-        if name not in PARAMETERS:
-            raise ValueError(f"--posterior {path}: {name!r} is not a parameter these commands can set "
-                             f"({', '.join(PARAMETERS)})")
+        if name not in LAW_PARAMETERS[law_name]:
+            raise ValueError(f"--posterior {path}: {name!r} is not a parameter of the {law_name} contact law "
+                             f"({', '.join(LAW_PARAMETERS[law_name])})")
         value = entry.get("mean") if isinstance(entry, dict) else None
         if not isinstance(value, (int, float)) or not math.isfinite(value):
             raise ValueError(f"--posterior {path}: {name!r} has no finite mean")
@@ -107,21 +121,23 @@ def read_posterior(path: Path) -> CalibratedPosterior:
     try:
         forward_json = run["config"]["forward"]
         dims = tuple(sorted({int(d) for d in run["data_dimensions"]}))
-        fixed = {name: float(forward_json["fixed"][name]) for name in PARAMETERS}
+        fixed = {name: float(forward_json["fixed"][name]) for name in LAW_PARAMETERS[law_name]}
         radius = float(forward_json["radius"])
         fields = {k: v for k, v in forward_json.items() if k in ForwardSettings.__dataclass_fields__}
-        forward = ForwardSettings(**{**fields, "fixed": fixed, "backend": "analytical", "backend_options": {}})
+        forward = ForwardSettings(**{**fields, "law": law_name, "fixed": fixed, "backend": "analytical",
+                                     "backend_options": {}})
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"--posterior: {path.parent / RUN_FILE} lacks {exc} (written by an older hmodel calibrate? "
                          f"rerun the same calibrate command on {path.parent} to rewrite it)") from None
     return CalibratedPosterior(path=path, sha256=file_sha256(path), dims=dims, calibrated=tuple(mean),
-                               mean={name: mean.get(name, fixed[name]) for name in PARAMETERS}, radius=radius,
+                               mean={name: mean.get(name, fixed[name]) for name in forward.parameters}, radius=radius,
                                forward=forward)
 
 
 def draw_samples(post: CalibratedPosterior, n: int, seed: int) -> dict[str, np.ndarray]:
     """``n`` parameter sets drawn without replacement from posterior.h5's samples (seeded): every
-    parameter of ``PARAMETERS`` as shape (n,), the uncalibrated ones at their fixed values.
+    parameter of the calibration's law (``forward.parameters``) as shape (n,), the uncalibrated ones at
+    their fixed values.
 
     Raises:
         ValueError: a missing or malformed posterior.h5, or fewer samples than ``n`` (one line).
@@ -140,7 +156,7 @@ def draw_samples(post: CalibratedPosterior, n: int, seed: int) -> dict[str, np.n
     if size < n:
         raise ValueError(f"--posterior-band {n}: {path} holds {size} samples; ask for at most that many")
     pick = np.random.default_rng(seed).choice(size, size=n, replace=False)
-    return {name: samples[name][pick] if name in samples else np.full(n, post.mean[name]) for name in PARAMETERS}
+    return {name: samples[name][pick] if name in samples else np.full(n, post.mean[name]) for name in post.forward.parameters}
 
 
 def band_grid(eps_max: float, increment: float) -> np.ndarray:
@@ -167,7 +183,7 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
     eps1 = band_grid(eps_max, post.forward.increment)
     test = Measurement("band", post.path, drained, p0, eps1, {}, dim)
     n = int(next(iter(params.values())).size)
-    with_mean = {name: np.append(params[name], post.mean[name]) for name in PARAMETERS}
+    with_mean = {name: np.append(params[name], post.mean[name]) for name in post.forward.parameters}
     with np.errstate(all="ignore"):  # a diverging set gives NaN, left out of the quantiles and counted
         curves = simulate(test, with_mean, post.forward)
     ok = np.all(np.isfinite(curves.q[:n]) & np.isfinite(curves.p[:n]) & np.isfinite(curves.eps_v[:n]), axis=1)

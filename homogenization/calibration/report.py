@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 
 from homogenization.calibration import bayes, diagnostics
 from homogenization.calibration.data import Measurement
-from homogenization.calibration.forward import simulate
+from homogenization.calibration.forward import CONTACT_LAW_KEY, ForwardSettings, contact_law_at, simulate
 from homogenization.output.figure_style import GRID, LABELS, apply_style, figure_legend
 from homogenization.output.figures import save_figure
 from warp_hcell.core.cli import quiet_warp
@@ -157,6 +157,18 @@ def confirm_with_dem(tests: Sequence[Measurement], log_post: bayes.Posterior, me
     return out
 
 
+def posterior_json(summary: Mapping[str, Mapping[str, Any]], names: Sequence[str],
+                   settings: ForwardSettings) -> dict[str, Any]:
+    """posterior.json: mean, median and ci95 of each calibrated parameter; with a law other than the
+    linear one (the default, not named), ``contact_law``: that law at the posterior mean (``to_dict``)."""
+    data: dict[str, Any] = {n: {k: summary[n][k] for k in ("mean", "median", "ci95")} for n in names}
+    if settings.law != ForwardSettings.law:
+        at_mean = {name: np.array([summary[name]["mean"] if name in summary else settings.fixed[name]])
+                   for name in settings.parameters}
+        data[CONTACT_LAW_KEY] = contact_law_at(at_mean, 0, settings.law).to_dict()
+    return data
+
+
 def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.Namespace, seconds: float,
                   config: Mapping[str, Any], start: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Write posterior.h5, posterior.json, corner.png, fits.png and run.json; returns run.json's content."""
@@ -198,7 +210,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
         "provenance": record,
     }
     write_samples(out / "posterior.h5", samples, lp, prior, record)
-    write_json(out / "posterior.json", {n: {k: summary[n][k] for k in ("mean", "median", "ci95")} for n in prior.names})
+    write_json(out / "posterior.json", posterior_json(summary, prior.names, log_post.settings))
     save_figure(corner_figure(samples, prior), out / "corner.png")
     save_figure(fit_figure(tests, log_post, samples, mean_curves, confirm, np.random.default_rng(args.seed)),
                 out / "fits.png")

@@ -4,6 +4,9 @@
 micro-parameters on measured biaxial (2D) or triaxial (3D) curves (format:
 ``homogenization.calibration.data``; worked example: docs/calibration.md). Every --data test is
 fitted jointly; the parameters not in --params keep the values of --phi, --kn, --kt and --alpha0.
+--law hertz-mindlin (triaxial data only) calibrates phi_g, shear_modulus, poisson and alpha0
+instead (fixed: --phi, --shear-modulus, --poisson, --alpha0; default prior PRIOR_BOUNDS_HERTZ_3D),
+and posterior.json then holds ``contact_law``, the law at the posterior mean.
 
 The posterior is sampled with emcee's affine-invariant ensemble: every step runs the forward
 model of the whole population of walkers as one batch of cells (analytical backend:
@@ -46,7 +49,7 @@ import numpy as np
 from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
-from homogenization.calibration.forward import PARAMETERS, ForwardSettings
+from homogenization.calibration.forward import LAW_PARAMETERS, PARAMETERS, ForwardSettings
 from homogenization.calibration.start import START_METHODS
 from homogenization.cli.options import (
     add_orientations_argument,
@@ -69,7 +72,7 @@ from warp_hcell.core.cli import (
 )
 from warp_hcell.core.files import check_output_path, output_lock, temporary_of
 from warp_hcell.core.provenance import file_sha256
-from warp_hcell.core.parameters import require_linear_law
+from warp_hcell.core.parameters import HertzMindlinLaw
 
 CHAIN_FILE = "chain.h5"
 OUTPUT_FILES = (CHAIN_FILE, "posterior.h5", "posterior.json", "corner.png", "fits.png", "run.json")
@@ -103,11 +106,13 @@ def build_parser() -> argparse.ArgumentParser:
                              "'# p0 = ...', header eps1 and any of q, p, eps_v); repeat for a joint fit")
     parser.add_argument("--backend", choices=tuple(BACKENDS), default="analytical", help="forward model")
     parser.add_argument("--params", type=parameter_list, required=True,
-                        help=f"parameters to calibrate, comma list of {','.join(PARAMETERS)}")
+                        help="parameters to calibrate, comma list of those of the contact law: "
+                             + "; ".join(f"{law}: {','.join(names)}" for law, names in LAW_PARAMETERS.items()))
     parser.add_argument("--prior", type=Path, default=None,
                         help="JSON prior: parameter -> [low, high] or {low, high, log} (default bounds, biaxial data: "
                              + prior_text(bayes.DEFAULT_BOUNDS[2]) + "; with triaxial data: "
-                             + prior_text(bayes.DEFAULT_BOUNDS[3]) + ")")
+                             + prior_text(bayes.DEFAULT_BOUNDS[3]) + "; with --law hertz-mindlin: "
+                             + prior_text(bayes.HERTZ_BOUNDS) + ")")
     parser.add_argument("--out", type=Path, required=True, help="output folder (resumed if it holds this calibration)")
     parser.add_argument("--alpha0", type=alpha0_deg, default=FORWARD.fixed["alpha0"],
                         help="alpha0 [deg] where not calibrated")
@@ -176,25 +181,50 @@ def configuration(args: argparse.Namespace, tests: Sequence[Measurement], prior:
         "walkers": args.walkers,
         "seed": args.seed,
         "start": args.start,
-        "forward": {**asdict(settings), "fixed": dict(settings.fixed), "backend_options": {}},
+        "forward": forward_config(settings),
     }
+
+
+def forward_config(settings: ForwardSettings) -> dict[str, Any]:
+    """The forward model's settings as run.json and chain.h5 store them; the linear law, the default,
+    is not named (as ``ContactLaw.to_dict``), so that a linear chain's settings read the same as ever."""
+    config = {**asdict(settings), "fixed": dict(settings.fixed), "backend_options": {}}
+    if settings.law == ForwardSettings.law:
+        del config["law"]
+    return config
 
 
 def forward_settings(args: argparse.Namespace) -> ForwardSettings:
     law = contact_law_from_args(args)
-    require_linear_law(law, "hmodel calibrate (its forward model fits phi_g, kn, kt_over_kn and alpha0)")
-    fixed = {"phi_g": law.phi_g_deg, "kn": law.kn, "kt_over_kn": law.kt_over_kn, "alpha0": args.alpha0}
+    if law.name == HertzMindlinLaw.name:
+        fixed = {"phi_g": law.phi_g_deg, "shear_modulus": law.shear_modulus, "poisson": law.poisson,
+                 "alpha0": args.alpha0}
+    else:
+        fixed = {"phi_g": law.phi_g_deg, "kn": law.kn, "kt_over_kn": law.kt_over_kn, "alpha0": args.alpha0}
     options: dict[str, Any] = {}
     if args.backend in ("dem", "ann"):
         options["device"] = args.device
     if args.threads is not None and args.backend in ("dem", "ann"):
         options["threads"] = args.threads
-    return ForwardSettings(backend=args.backend, n_orientations=args.orientations, increment=args.increment,
+    return ForwardSettings(law=law.name, backend=args.backend, n_orientations=args.orientations, increment=args.increment,
                            iso_increment=args.iso_increment, radius=args.radius, stress_rtol=args.stress_rtol,
                            fixed=fixed, backend_options=options)
 
 
 def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
+    law_parameters = LAW_PARAMETERS[args.law]
+    wrong = [name for name in args.params if name not in law_parameters]
+    if wrong:
+        raise UserError(f"--params {wrong[0]} is not a parameter of the {args.law} contact law (--law {args.law}: "
+                        f"{','.join(law_parameters)})")
+    if args.law == HertzMindlinLaw.name:
+        flat = [t.name for t in tests if t.dim != 3]
+        if flat:
+            raise UserError(f"--law {args.law} is defined for spheres: --data {flat[0]} is biaxial (2D); give "
+                            f"triaxial data")
+        if args.backend == "ann":
+            raise UserError("--backend ann is trained on the linear contact law: --law hertz-mindlin needs "
+                            "--backend analytical or dem")
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
     if args.backend == "ann" and any(t.dim == 3 for t in tests):
@@ -217,7 +247,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     tests = read_tests(args.data)
     check_args(args, tests)
     try:
-        prior = bayes.make_prior(args.params, args.prior, dim=max(t.dim for t in tests))
+        prior = bayes.make_prior(args.params, args.prior, dim=max(t.dim for t in tests), law=args.law)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     settings = forward_settings(args)

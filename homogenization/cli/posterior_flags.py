@@ -4,8 +4,9 @@
 - ``apply_posterior(args, argv, parser, dim)``: before any work, reads the posterior
   (``homogenization.calibration.posterior``), refuses (one line, exit 2) a posterior of the other
   dimension, one whose parameters the chosen backends cannot set (the ann runs its model's own
-  contact law and cell), and the flags it replaces given explicitly; then sets --phi, --kn, --kt,
-  --alpha0 and --radius to the posterior mean (uncalibrated parameters: the calibration's fixed
+  contact law and cell), and the flags it replaces given explicitly; then sets --law (the
+  calibration's, posterior.json's ``contact_law``; none: linear), --phi, --kn and --kt or
+  --shear-modulus and --poisson, --alpha0 and --radius to the posterior mean (uncalibrated parameters: the calibration's fixed
   values), and draws the band's parameter sets (--posterior-band N);
 - ``run_record(...)``: what run.h5 stores of it;
 - ``write_band(...)``: the band by the calibration's forward model, its CSV beside run.h5, and
@@ -23,12 +24,13 @@ import numpy as np
 
 from homogenization.cli.run_files import explicit_flags
 from warp_hcell.core.cli import UserError
-from warp_hcell.core.parameters import check_alpha0_deg
+from warp_hcell.core.parameters import HertzMindlinLaw, check_alpha0_deg
 
 BAND_FILE = "posterior_band.csv"
 """The band of --posterior-band, written beside run.h5 (columns ``posterior.band_columns``)."""
 REPLACED_FLAGS = {"phi": "--phi", "kn": "--kn", "kt": "--kt", "alpha0": "--alpha0", "radius": "--radius",
-                  "mesostructure": "--mesostructure"}
+                  "mesostructure": "--mesostructure", "law": "--law", "shear_modulus": "--shear-modulus",
+                  "poisson": "--poisson"}
 """Flags that --posterior sets (or whose cell the calibration did not use): argparse dest -> flag."""
 
 
@@ -73,15 +75,20 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
                         "posterior's; use analytical or dem")
     given = [flag for dest, flag in REPLACED_FLAGS.items() if dest in explicit_flags(parser, argv, tuple(REPLACED_FLAGS))]
     if given:
-        raise UserError(f"{', '.join(given)} conflict with --posterior, which sets phi_g, kn, kt/kn, alpha0 and the "
-                        f"radius of the plain H-cell it was calibrated on; drop them or --posterior")
+        raise UserError(f"{', '.join(given)} conflict with --posterior, which sets the contact law (phi_g and kn, "
+                        f"kt/kn or G, nu), alpha0 and the radius of the plain H-cell it was calibrated on; drop them "
+                        f"or --posterior")
     law = post.contact_law
     alpha0 = post.mean["alpha0"]
     try:
         check_alpha0_deg(alpha0)
     except ValueError as exc:
         raise UserError(f"--posterior {post.path}: {exc}") from None
-    args.phi, args.kn, args.kt, args.alpha0, args.radius = law.phi_g_deg, law.kn, law.kt, alpha0, post.radius
+    args.law, args.phi, args.alpha0, args.radius = law.name, law.phi_g_deg, alpha0, post.radius
+    if law.name == HertzMindlinLaw.name:
+        args.shear_modulus, args.poisson = law.shear_modulus, law.poisson
+    else:
+        args.kn, args.kt = law.kn, law.kt
     draws = None
     if args.posterior_band is not None:
         try:

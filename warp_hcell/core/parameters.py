@@ -54,8 +54,8 @@ PRIOR_BOUNDS_HERTZ_3D: dict[str, tuple[float, float, bool]] = {
 shear modulus G [Pa] log-uniform from 1 MPa to 100 GPa (the closed form's drained tests of Dobrany sand
 come nearest its measured curves near G = 2 GPa, below the mineral's 29-44 GPa, where the model's peak
 q / p0 is 12-18: the H-cell's stiffness, not the mineral's; docs/calibration.md), the Poisson ratio nu
-[-] uniform in [0, 0.45]; phi_g and alpha0 as in ``PRIOR_BOUNDS_3D``. Read by no command yet: the
-calibration's forward model fits the linear law only."""
+[-] uniform in [0, 0.45]; phi_g and alpha0 as in ``PRIOR_BOUNDS_3D``. The default prior of ``hmodel
+calibrate --law hertz-mindlin``."""
 
 
 def check_alpha0_deg(alpha0_deg: float) -> float:
