@@ -82,7 +82,7 @@ def _load_unload(axis: int, alpha0_deg: float) -> Case:
     return Case(alpha0_deg, ((tuple(step), 100), (tuple(back), 60), (tuple(step), 80)))
 
 
-def _isochoric(d_axial: float) -> tuple[float, float, float]:
+def isochoric(d_axial: float) -> tuple[float, float, float]:
     """(d_eps_n, d_eps_t, d_eps_t) with (1 - d_eps_n)(1 - d_eps_t)^2 = 1 exactly."""
     lateral = 1.0 - 1.0 / math.sqrt(1.0 - d_axial)
     return (d_axial, lateral, lateral)
@@ -103,30 +103,38 @@ CASES: dict[str, Case] = {
     "axial3d_a50": _load_unload(0, 50.0),
     "lateral3d_a55": _load_unload(1, 55.0),
     "lateral3d_a50": _load_unload(1, 50.0),
-    "cv3d_a55": Case(55.0, (((1e-4, 1e-4, 1e-4), 10), (_isochoric(2e-4), 500))),
-    "axisym3d_a54_axial": Case(54.0, (((1e-4, 1e-4, 1e-4), 10), (axisymmetric(_isochoric(2e-4)), 175))),
+    "cv3d_a55": Case(55.0, (((1e-4, 1e-4, 1e-4), 10), (isochoric(2e-4), 500))),
+    "axisym3d_a54_axial": Case(54.0, (((1e-4, 1e-4, 1e-4), 10), (axisymmetric(isochoric(2e-4)), 175))),
     "axisym3d_a54_normal": Case(54.0, (((1e-4, 1e-4, 1e-4), 10), (axisymmetric((_LATERAL, 2e-4, _LATERAL)), 400))),
 }
 """Reference cases by name."""
 
 
-def write_case(name: str, out_dir: Path) -> Path:
-    """Write the cell, path and settings files of case ``name``; return the output prefix."""
-    case = CASES[name]
-    out_dir.mkdir(parents=True, exist_ok=True)
-    prefix = out_dir / name
+def write_inputs(case: Case, prefix: Path, contact_law: dict, dem_settings: dict) -> Path:
+    """Write the cell, settings and path files of ``case`` under ``prefix`` (its folder created) with
+    ``contact_law`` and the YADE settings ``dem_settings``; return the prefix."""
+    prefix.parent.mkdir(parents=True, exist_ok=True)
     Path(f"{prefix}.cell.json").write_text(json.dumps(ten_sphere_cell(case.alpha0_deg)) + "\n")
-    Path(f"{prefix}.settings.json").write_text(json.dumps({"contact_law": CONTACT_LAW, "dem": YADE_SETTINGS}) + "\n")
+    Path(f"{prefix}.settings.json").write_text(json.dumps({"contact_law": contact_law, "dem": dem_settings}) + "\n")
     write_path(case.path(), Path(f"{prefix}.path.csv"))
     return prefix
 
 
-def generate(name: str, out_dir: Path, yade: str = "yade") -> Path:
-    """Write the inputs of ``name`` and run YADE on them in ``out_dir``; return the output prefix."""
-    prefix = write_case(name, out_dir)
+def run_case(prefix: Path, yade: str = "yade") -> Path:
+    """Run YADE (``SCRIPT``) on the input files under ``prefix``; return the output prefix."""
     command = [yade, "-j1", "-n", "-x", str(SCRIPT), "--cell", f"{prefix}.cell.json", "--path", f"{prefix}.path.csv",
                "--settings", f"{prefix}.settings.json", "--out", str(prefix)]
-    return run_yade(command, out_dir, prefix)
+    return run_yade(command, prefix.parent, prefix)
+
+
+def write_case(name: str, out_dir: Path) -> Path:
+    """Write the cell, path and settings files of case ``name``; return the output prefix."""
+    return write_inputs(CASES[name], out_dir / name, CONTACT_LAW, YADE_SETTINGS)
+
+
+def generate(name: str, out_dir: Path, yade: str = "yade") -> Path:
+    """Write the inputs of ``name`` and run YADE on them in ``out_dir``; return the output prefix."""
+    return run_case(write_case(name, out_dir), yade)
 
 
 def main(argv: list[str] | None = None) -> int:

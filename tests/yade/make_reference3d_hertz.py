@@ -19,18 +19,16 @@ package's DEM takes it.
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from make_reference import regenerate, run_yade, write_path  # noqa: E402 (tests/yade is not a package)
-from make_reference3d import RADIUS, YADE_SETTINGS, Case, ten_sphere_cell  # noqa: E402
+from make_reference import regenerate  # noqa: E402 (tests/yade is not a package)
+from make_reference3d import RADIUS, YADE_SETTINGS, Case, isochoric, run_case, write_inputs  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 DATA_DIR = HERE.parent / "data" / "yade3d_hertz"
-SCRIPT = HERE / "cell3d_paths.py"
 CONTACT_LAW = {"law": "hertz-mindlin", "shear_modulus": 29e9, "poisson": 0.2, "phi_g_deg": 30.0}
 """Contact law of the YADE runs."""
 DT_OVERLAP = 2e-3
@@ -44,37 +42,22 @@ def dt_stiffness(law: dict, radius: float = RADIUS) -> float:
     return 1.5 * 4.0 / 3.0 * e_star * math.sqrt(0.5 * radius * DT_OVERLAP * 2.0 * radius)
 
 
-def _isochoric(d_axial: float) -> tuple[float, float, float]:
-    """(d_eps_n, d_eps_t, d_eps_t) with (1 - d_eps_n)(1 - d_eps_t)^2 = 1 exactly."""
-    lateral = 1.0 - 1.0 / math.sqrt(1.0 - d_axial)
-    return (d_axial, lateral, lateral)
-
-
 CASES: dict[str, Case] = {
     "hertz_axial3d_a55": Case(55.0, (((2e-5, 0.0, 0.0), 50), ((-2e-5, 0.0, 0.0), 30), ((2e-5, 0.0, 0.0), 40))),
-    "hertz_cv3d_a55": Case(55.0, (((2e-5, 2e-5, 2e-5), 10), (_isochoric(4e-5), 250))),
+    "hertz_cv3d_a55": Case(55.0, (((2e-5, 2e-5, 2e-5), 10), (isochoric(4e-5), 250))),
 }
 """Reference cases by name."""
 
 
 def write_case(name: str, out_dir: Path) -> Path:
     """Write the cell, path and settings files of case ``name``; return the output prefix."""
-    case = CASES[name]
-    out_dir.mkdir(parents=True, exist_ok=True)
-    prefix = out_dir / name
-    Path(f"{prefix}.cell.json").write_text(json.dumps(ten_sphere_cell(case.alpha0_deg)) + "\n")
     settings = {**YADE_SETTINGS, "dt_stiffness": dt_stiffness(CONTACT_LAW)}
-    Path(f"{prefix}.settings.json").write_text(json.dumps({"contact_law": CONTACT_LAW, "dem": settings}) + "\n")
-    write_path(case.path(), Path(f"{prefix}.path.csv"))
-    return prefix
+    return write_inputs(CASES[name], out_dir / name, CONTACT_LAW, settings)
 
 
 def generate(name: str, out_dir: Path, yade: str = "yade") -> Path:
     """Write the inputs of ``name`` and run YADE on them in ``out_dir``; return the output prefix."""
-    prefix = write_case(name, out_dir)
-    command = [yade, "-j1", "-n", "-x", str(SCRIPT), "--cell", f"{prefix}.cell.json", "--path", f"{prefix}.path.csv",
-               "--settings", f"{prefix}.settings.json", "--out", str(prefix)]
-    return run_yade(command, out_dir, prefix)
+    return run_case(write_case(name, out_dir), yade)
 
 
 def main(argv: list[str] | None = None) -> int:
