@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from homogenization.element_test.record import Record
+from homogenization.material.invariants import volumetric_strain_3d
 
 FILE = "oedometer.csv"
 """Name of the oedometer table written beside curve.csv."""
@@ -30,7 +31,7 @@ def columns(record: Record) -> dict[str, np.ndarray]:
     with np.errstate(divide="ignore", invalid="ignore"):
         k0 = np.where(sigma_v > 0.0, sigma_h / sigma_v, np.nan)
     return {"stage": np.asarray(record.stage), "eps_a": np.asarray(record.eps11, dtype=float),
-            "eps_v": np.asarray(record.eps11) + np.asarray(record.eps22) + np.asarray(record.eps33),
+            "eps_v": volumetric_strain_3d(record.eps11, record.eps22, record.eps33),
             "sigma_v": sigma_v, "sigma_h": sigma_h, "K0": k0}
 
 
