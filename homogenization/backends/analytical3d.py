@@ -39,9 +39,9 @@ from typing import Any, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from homogenization.backends.analytical import AnalyticalCell, AnalyticalState, cell_alpha0, plain_cell_alpha0
-from warp_hcell.core.contact import PairLaw
+from warp_hcell.core.contact import PairLaw, reduced_radius_root
 from warp_hcell.core.contract import CellResponse
-from warp_hcell.core.parameters import ContactLaw, HertzMindlinLaw, Law
+from warp_hcell.core.parameters import ContactLaw, hertz_normal_modulus, hertz_shear_stiffness_modulus, HertzMindlinLaw, Law
 from warp_hcell.mesostructures import hcell
 from warp_hcell.mesostructures.hcell import plain_alpha0_3d
 from warp_hcell.mesostructures.mesostructure import Mesostructure, polyhedron_volume
@@ -125,9 +125,9 @@ class Analytical3DCell:
             HertzMindlinLaw(float(G[k]), float(nu[k]), float(phi[k]))  # raises, naming the value
         model = cls(HertzMindlinLaw(), radius, **options)
         plane = model.plane
-        # (4/3) E* and 8 G* of every cell (as HertzMindlinLaw writes them) times sqrt(R*) of equal spheres
-        root = np.sqrt(plane.radius * plane.radius / (plane.radius + plane.radius))
-        plane.law = PairLaw("hertz-mindlin", 4.0 / 3.0 * (G / (1.0 - nu)) * root, 8.0 * (G / (2.0 * (2.0 - nu))) * root)
+        root = reduced_radius_root(plane.radius, plane.radius)
+        plane.law = PairLaw("hertz-mindlin", hertz_normal_modulus(G, nu) * root,
+                            hertz_shear_stiffness_modulus(G, nu) * root)
         plane.kn, plane.kt = plane.law.kn, plane.law.kt
         plane.mu = np.tan(np.radians(phi))
         plane.contact_law = None

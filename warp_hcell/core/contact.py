@@ -95,10 +95,15 @@ def mindlin_move_stiffness_slope(start_overlap, overlap, ks):
                     (1.0 / 3.0) * ks * ((a + 2.0 * b) / np.where(total > 0.0, total * total, 1.0)), 0.0)
 
 
+def reduced_radius_root(radius_i, radius_j):
+    """sqrt(R*) [m^0.5] of pairs of radii r_i, r_j [m] (arrays broadcast), R* = r_i r_j / (r_i + r_j)."""
+    return np.sqrt(radius_i * radius_j / (radius_i + radius_j))
+
+
 def hertz_pair_constants(law, radius_i, radius_j):
     """(kh, ks) [N/m^1.5] of pairs of radii r_i, r_j [m] (arrays broadcast): (4/3) E* sqrt(R*) and
     8 G* sqrt(R*), R* = r_i r_j / (r_i + r_j); ``law`` a ``HertzMindlinLaw``."""
-    root = np.sqrt(radius_i * radius_j / (radius_i + radius_j))
+    root = reduced_radius_root(radius_i, radius_j)
     return law.normal_modulus * root, law.shear_stiffness_modulus * root
 
 

@@ -109,6 +109,18 @@ class ContactLaw:
         return math.tan(math.radians(self.phi_g_deg))
 
 
+def hertz_normal_modulus(shear_modulus, poisson):
+    """(4/3) E* [Pa] of a Hertz contact of two grains of shear modulus G [Pa] and Poisson ratio nu [-],
+    E* = G / (1 - nu) (floats or arrays, elementwise)."""
+    return 4.0 / 3.0 * (shear_modulus / (1.0 - poisson))
+
+
+def hertz_shear_stiffness_modulus(shear_modulus, poisson):
+    """8 G* [Pa] of a Mindlin contact of two grains of shear modulus G [Pa] and Poisson ratio nu [-],
+    G* = G / (2 (2 - nu)) (floats or arrays, elementwise)."""
+    return 8.0 * (shear_modulus / (2.0 * (2.0 - poisson)))
+
+
 @dataclass(frozen=True)
 class HertzMindlinLaw:
     """Hertz-Mindlin contact law of elastic spheres with Coulomb friction (docs/model.md, "Contact laws").
@@ -142,13 +154,13 @@ class HertzMindlinLaw:
 
     @property
     def normal_modulus(self) -> float:
-        """(4/3) E* [Pa]: N = normal_modulus sqrt(R*) delta^(3/2)."""
-        return 4.0 / 3.0 * (self.shear_modulus / (1.0 - self.poisson))
+        """(4/3) E* [Pa]: N = normal_modulus sqrt(R*) delta^(3/2) (``hertz_normal_modulus``)."""
+        return hertz_normal_modulus(self.shear_modulus, self.poisson)
 
     @property
     def shear_stiffness_modulus(self) -> float:
-        """8 G* [Pa]: kt = shear_stiffness_modulus sqrt(R* delta)."""
-        return 8.0 * (self.shear_modulus / (2.0 * (2.0 - self.poisson)))
+        """8 G* [Pa]: kt = shear_stiffness_modulus sqrt(R* delta) (``hertz_shear_stiffness_modulus``)."""
+        return hertz_shear_stiffness_modulus(self.shear_modulus, self.poisson)
 
     @property
     def mu(self) -> float:
