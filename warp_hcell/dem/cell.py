@@ -14,6 +14,7 @@ polygon through the centres of the outer (driven) grains: the hexagon for the H-
 
 from __future__ import annotations
 
+import functools
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields, replace
@@ -21,7 +22,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from warp_hcell.core.contact import hertz_pair_constants
+from warp_hcell.core.contact import pair_law
 from warp_hcell.core.contract import CellResponse
 from warp_hcell.dem.integrator import DemIntegrator
 from warp_hcell.dem.love_weber import to_compression_positive
@@ -130,17 +131,14 @@ class DemCell:
         model, law = new.model, self.contact_law
         arrays, before = new.dem.to_numpy(), old.dem.to_numpy()
         radius, pairs, driven = model.radius.numpy(), model.meso.pairs, model.meso.driven
-        if law.name == "linear":
-            laws = dict(kn=law.kn, kt=law.kt, mu=law.mu)
-        else:
-            kh, ks = hertz_pair_constants(law, radius[:, pairs[:, 0]], radius[:, pairs[:, 1]])
-            laws = dict(kn=kh, kt=ks, mu=law.mu, law=law.name)
-        slides = sliding_contacts if model.meso.dim == 2 else sliding_contacts_3d
+        pair = pair_law(law, radius[:, pairs[:, 0]], radius[:, pairs[:, 1]])
+        laws = dict(kn=pair.kn, kt=pair.kt, mu=law.mu)
+        slides = sliding_contacts if model.meso.dim == 2 else functools.partial(sliding_contacts_3d, law=law.name)
         sliding = slides(before["position"], arrays["position"], radius, pairs, before["shear_force"], **laws)
         l_ratio = before["cell_size"] / model.reference_cell_size.numpy()
         drive_rate = -model.reference_position.numpy() * l_ratio[:, None, :] * driven[None]
         return condensed_tangent(arrays["position"], radius, pairs, driven, arrays["shear_force"], sliding,
-                                 drive_rate, **laws)
+                                 drive_rate, law=law.name, **laws)
 
     def response(self, state: DemCellState) -> CellResponse:
         """Love-Weber moment (compression positive) and V_cell of ``state``; diagnostics of its step
@@ -216,7 +214,7 @@ class DemCell:
 
 def stiffer_than_dt(state: DemCellState) -> np.ndarray:
     """bool (n_cells,): cells with a contact whose overlap exceeds HERTZ_DT_OVERLAP (r_i + r_j), so stiffer
-    than the stiffness their time step was set for (``warp_hcell.dem.model.reference_stiffness``)."""
+    than the stiffness their time step was set for (``reference_stiffness`` of ``warp_hcell.dem.laws``)."""
     pairs = state.model.meso.pairs
     x, radius = state.dem.position.numpy(), state.model.radius.numpy()
     rsum = radius[:, pairs[:, 0]] + radius[:, pairs[:, 1]]

@@ -27,7 +27,8 @@ import warp as wp
 
 from warp_hcell.dem.kernels import step_kernel
 from warp_hcell.dem.kernels3d import step_kernel_3d
-from warp_hcell.dem.model import DemModel, kernel_constants
+from warp_hcell.dem.laws import warp_law
+from warp_hcell.dem.model import DemModel
 from warp_hcell.dem.state import DemState
 
 
@@ -78,7 +79,8 @@ def step_arguments(model: DemModel, state_in: DemState, state_out: DemState, d_e
     """Kernel inputs and outputs for cells [start, start + launch dim) (whole arrays passed)."""
     settings, law = model.settings, model.contact_law
     inputs = [model.radius, model.inv_mass, model.reference_position, model.reference_cell_size, model.dt,
-              model.force_floor, *kernel_constants(law), settings.damping, settings.contact_tolerance,
+              model.force_floor, *warp_law(law.name).kernel_constants(law), settings.damping,
+              settings.contact_tolerance,
               settings.strain_per_substep, settings.refined_strain_per_substep,
               settings.closing_rate, settings.velocity_change,
               settings.rate_growth,               settings.force_tolerance,

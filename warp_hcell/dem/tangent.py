@@ -32,7 +32,7 @@ its magnitude mu N and turns with the trial force in the plane); the -u T^T / d 
 spring turning with the contact. In 2D (P = w w^T) these are the expressions above.
 
 The Hertz-Mindlin law (spatial cells only, ``law="hertz-mindlin"``): kn and kt are then the pair
-constants kh, ks [N/m^1.5] (``warp_hcell.core.contact.hertz_pair_constants``, shape broadcasting
+constants kh, ks [N/m^1.5] (``warp_hcell.core.laws.hertz_mindlin.pair_constants``, shape broadcasting
 against (n_cells, n_pairs)), N = kh delta^(3/2), and the kn and kt of the expressions above become
 the tangent stiffnesses 1.5 kh sqrt(delta) and ks sqrt(delta) at the contact's overlap delta.
 """
