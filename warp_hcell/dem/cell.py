@@ -14,7 +14,6 @@ polygon through the centres of the outer (driven) grains: the hexagon for the H-
 
 from __future__ import annotations
 
-import functools
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields, replace
@@ -24,6 +23,7 @@ import numpy as np
 
 from warp_hcell.core.contact import pair_law
 from warp_hcell.core.contract import CellResponse
+from warp_hcell.dem.dimensions import DIMENSIONS
 from warp_hcell.dem.integrator import DemIntegrator
 from warp_hcell.dem.love_weber import to_compression_positive
 from warp_hcell.mesostructures.files import with_declarations
@@ -37,7 +37,7 @@ from warp_hcell.mesostructures.mesostructure import (
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import HERTZ_DT_OVERLAP, check_positive, DemSettings, Law
 from warp_hcell.dem.state import DemState, StatePool
-from warp_hcell.dem.tangent import condensed_tangent, sliding_contacts, sliding_contacts_3d
+from warp_hcell.dem.tangent import condensed_tangent
 
 _MODEL_ARRAYS = ("radius", "reference_position", "reference_cell_size")
 
@@ -133,8 +133,9 @@ class DemCell:
         radius, pairs, driven = model.radius.numpy(), model.meso.pairs, model.meso.driven
         pair = pair_law(law, radius[:, pairs[:, 0]], radius[:, pairs[:, 1]])
         laws = dict(kn=pair.kn, kt=pair.kt, mu=law.mu)
-        slides = sliding_contacts if model.meso.dim == 2 else functools.partial(sliding_contacts_3d, law=law.name)
-        sliding = slides(before["position"], arrays["position"], radius, pairs, before["shear_force"], **laws)
+        slides = DIMENSIONS[model.meso.dim].sliding_contacts
+        sliding = slides(before["position"], arrays["position"], radius, pairs, before["shear_force"], law=law.name,
+                         **laws)
         l_ratio = before["cell_size"] / model.reference_cell_size.numpy()
         drive_rate = -model.reference_position.numpy() * l_ratio[:, None, :] * driven[None]
         return condensed_tangent(arrays["position"], radius, pairs, driven, arrays["shear_force"], sliding,

@@ -8,7 +8,6 @@ force-free initial state.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -17,6 +16,7 @@ import warp as wp
 
 from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, cell_measure, per_cell
 from warp_hcell.core.parameters import ContactLaw, DemSettings, Law
+from warp_hcell.dem.dimensions import DIMENSIONS
 from warp_hcell.dem.laws import warp_law
 from warp_hcell.dem.state import DemState
 
@@ -76,7 +76,7 @@ class DemModel:
             raise ValueError(f"the {contact_law.name} contact law is defined for spheres (3D cells); "
                              f"mesostructure {meso.name!r} is planar: use the linear law")
         radius = np.ascontiguousarray(radius, dtype=np.float64)
-        mass = settings.density * (math.pi * radius**2 if meso.dim == 2 else 4.0 / 3.0 * math.pi * radius**3)
+        mass = settings.density * DIMENSIONS[meso.dim].grain_measure(radius)
         kn = warp_law(contact_law.name).reference_stiffness(contact_law, radius)
         dt = settings.dt_factor * np.sqrt(mass.min(axis=1) / kn)
         floor = kn * settings.contact_tolerance * 2.0 * radius.mean(axis=1)
@@ -84,7 +84,7 @@ class DemModel:
         def put(a, dtype):
             return wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=dtype, device=device)
 
-        vector = wp.vec2d if meso.dim == 2 else wp.vec3d
+        vector = DIMENSIONS[meso.dim].vector
         return cls(meso=meso, device=str(device), radius=put(radius, wp.float64), inv_mass=put(1.0 / mass, wp.float64),
                    reference_position=put(reference_position, vector),
                    reference_cell_size=put(reference_cell_size, vector), dt=put(dt, wp.float64),

@@ -52,8 +52,15 @@ def _unit_tangent(branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.stack([-u[..., 1], u[..., 0]], axis=-1)
 
 
+def require_planar_law(law: str) -> None:
+    """ValueError (one line) unless ``law`` (a contact-law name) is the linear law, the one law of planar cells."""
+    if law != "linear":
+        raise ValueError(f"the {law} contact law is defined for spatial cells only")
+
+
 def sliding_contacts(position_old: np.ndarray, position: np.ndarray, radius: np.ndarray, pairs: np.ndarray,
-                     shear_force_old: np.ndarray, *, kn: float, kt: float, mu: float) -> np.ndarray:
+                     shear_force_old: np.ndarray, *, kn: float, kt: float, mu: float,
+                     law: str = "linear") -> np.ndarray:
     """Contacts whose elastic trial force over the increment exceeds the Coulomb cap.
 
     Args:
@@ -63,10 +70,12 @@ def sliding_contacts(position_old: np.ndarray, position: np.ndarray, radius: np.
         pairs: candidate pairs (i, j), shape (n_pairs, 2).
         shear_force_old: tangential force before the increment [N], shape (n_cells, n_pairs).
         kn, kt: contact stiffnesses [N/m]; mu: friction coefficient [-].
+        law: contact-law name; planar cells carry the linear law only (``require_planar_law``).
 
     Returns:
         bool, shape (n_cells, n_pairs): overlapping pairs with ``|T_old + kt (b - b_old) . w_mid| > mu N``.
     """
+    require_planar_law(law)
     i, j = pairs[:, 0], pairs[:, 1]
     b_old = position_old[:, j] - position_old[:, i]
     b = position[:, j] - position[:, i]
@@ -209,8 +218,7 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
     branch = position[:, j] - position[:, i]
     overlap = radius[:, i] + radius[:, j] - np.linalg.norm(branch, axis=-1)
     if dim == 2:
-        if law != "linear":
-            raise ValueError(f"the {law} contact law is defined for spatial cells only")
+        require_planar_law(law)
         k = contact_stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu)
     else:
         k = contact_stiffness_3d(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu, law=law)
