@@ -86,8 +86,9 @@ def sliding_contacts(position_old: np.ndarray, position: np.ndarray, radius: np.
 
 
 def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.ndarray, sliding: np.ndarray, *,
-                      kn: float, kt: float, mu: float) -> np.ndarray:
-    """Stiffness df/db of every pair [N/m], shape (n_cells, n_pairs, 2, 2).
+                      kn: float, kt: float, mu: float, law: str = "linear") -> np.ndarray:
+    """Stiffness df/db of every pair [N/m], shape (n_cells, n_pairs, 2, 2) (``law``: the linear law only,
+    ``require_planar_law``).
 
     Args:
         branch: b = x_j - x_i [m], shape (n_cells, n_pairs, 2).
@@ -97,6 +98,7 @@ def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.n
         sliding: True where the contact slides (T = +-mu N), shape (n_cells, n_pairs).
         kn, kt: normal and tangential contact stiffness [N/m]; mu: friction coefficient [-].
     """
+    require_planar_law(law)
     d = np.linalg.norm(branch, axis=-1)
     u, w = _unit_tangent(branch)
     active = overlap > 0.0
@@ -187,6 +189,29 @@ def _assembly(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int = 2) -
     return incidence, assembly
 
 
+def pair_forces(branch: np.ndarray, overlap: np.ndarray, shear_force: np.ndarray, *, kn: float, kt: float,
+                law: str = "linear") -> np.ndarray:
+    """Force on grain i of every planar pair [N], -f_n u + f_s w, shape (n_cells, n_pairs, 2); pairs with
+    overlap <= 0 carry none (``contact_stiffness``: the arguments)."""
+    active = overlap > 0.0
+    u, w = _unit_tangent(branch)
+    return -kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active, shear_force, 0.0)[..., None] * w
+
+
+def pair_forces_3d(branch: np.ndarray, overlap: np.ndarray, shear_force: np.ndarray, *, kn: float, kt: float,
+                   law: str = "linear") -> np.ndarray:
+    """``pair_forces`` of spatial pairs, -f_n u + f_s, shape (n_cells, n_pairs, 3) (``contact_stiffness_3d``:
+    the arguments)."""
+    active = overlap > 0.0
+    u = branch / np.linalg.norm(branch, axis=-1, keepdims=True)
+    normal = kn * np.where(active, overlap, 0.0) if law == "linear" else PairLaw(law, kn, kt).normal(overlap)
+    return -normal[..., None] * u + np.where(active[..., None], shear_force, 0.0)
+
+
+PAIR_TERMS = {2: (contact_stiffness, pair_forces), 3: (contact_stiffness_3d, pair_forces_3d)}
+"""(pair stiffness df/db, pair force) of each dimension, as ``condensed_tangent`` assembles them."""
+
+
 def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarray, driven: np.ndarray,
                       shear_force: np.ndarray, sliding: np.ndarray, drive_rate: np.ndarray, *, kn: float,
                       kt: float, mu: float, law: str = "linear") -> np.ndarray:
@@ -217,11 +242,8 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
     i, j = pairs[:, 0], pairs[:, 1]
     branch = position[:, j] - position[:, i]
     overlap = radius[:, i] + radius[:, j] - np.linalg.norm(branch, axis=-1)
-    if dim == 2:
-        require_planar_law(law)
-        k = contact_stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu)
-    else:
-        k = contact_stiffness_3d(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu, law=law)
+    stiffness, forces = PAIR_TERMS[dim]
+    k = stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu, law=law)
     incidence, assembly = _assembly(tuple(map(tuple, np.asarray(pairs).tolist())), n_grains, dim)
     k_flat = k.reshape(n_cells, -1)
     d_mask = np.asarray(driven, dtype=bool).reshape(-1)
@@ -232,14 +254,7 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
         return (k_flat @ assembly[:, (rows[:, None] * n_dof + cols).reshape(-1)]).reshape(n_cells, rows.size, cols.size)
 
     # net contact force on every DOF, F = -sum_p (e_j - e_i) f_p
-    active = overlap > 0.0
-    if dim == 2:
-        u, w = _unit_tangent(branch)
-        f = (-kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active, shear_force, 0.0)[..., None] * w)
-    else:
-        u = branch / np.linalg.norm(branch, axis=-1, keepdims=True)
-        normal = kn * np.where(active, overlap, 0.0) if law == "linear" else PairLaw(law, kn, kt).normal(overlap)
-        f = -normal[..., None] * u + np.where(active[..., None], shear_force, 0.0)
+    f = forces(branch, overlap, shear_force, kn=kn, kt=kt, law=law)
     F = -(np.swapaxes(f, 1, 2) @ incidence).transpose(0, 2, 1).reshape(n_cells, n_dof)
 
     K_dd = block(di, di)
