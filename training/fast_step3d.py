@@ -24,7 +24,8 @@ import numpy as np
 
 from training.fast_cells import grain_positions, normal_force
 from training.fast_features import load_fractions
-from training.fast_increment import free_displacement, hold_at_rest, moment_flags, open_far_pair, start_pass, subtract_outer
+from training.fast_increment import (free_displacement, hold_at_rest, moment_flags, open_far_pair, start_pass,
+                                     subtract_outer)
 from warp_hcell.core.contact import CAP_SLACK
 
 PAIR_WIDTH = 9
