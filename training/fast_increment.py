@@ -3,7 +3,9 @@
 ``advance`` composes the steps, each one job: the free-DOF displacement from the network output
 (``free_displacement``), the DEM's rest rule (``hold_at_rest``, as
 ``training.cell_physics.hold_at_rest``), the contact law at the new positions
-(``contact_pass``, ``warp_hcell.core.contact``), and the area and flags (``area_and_flags``).
+(``contact_pass``, ``warp_hcell.core.contact``), and the area and flags (``area_and_flags``). The
+pieces that do not depend on the dimension (``start_pass``, ``open_far_pair``, ``subtract_outer``,
+``moment_flags``) serve the spatial increment too (``training.fast_step3d``).
 Layouts: ``training.fast_cells``; ``out`` (n_free + n_free^2, n) float32 is the perceptron's
 output, cells last.
 """

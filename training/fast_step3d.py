@@ -6,8 +6,9 @@ vector in its tangent plane, carried into the new tangent plane (projected and r
 length), grown by kt times the relative displacement normal to the mid-increment branch and
 capped at mu f_n along its own direction where longer by more than ``CAP_SLACK``; V_cell is the
 volume of the outer triangles. The dimension-free steps are shared with the planar kernels:
-grain positions (``fast_cells.grain_positions``), the load fractions, the free-DOF displacement
-and the rest rule (``fast_increment``).
+grain positions (``fast_cells.grain_positions``), the load fractions, the free-DOF displacement,
+the rest rule, the start of a contact pass, the reset of a pair out of reach, the moment sum and
+the mechanism and ramp flags (``fast_increment``).
 
 Layouts (cells LAST, one cell a vector lane, nothing reduced across cells): size (3, n) [m],
 free (n_free, n) [m], shear (n_pairs, 3, n) [N]; d_eps (n, 3) [-]; ``before.old_branch``
