@@ -2,8 +2,9 @@
 once by the cell's dimension: ``DIMENSIONS[meso.dim]``.
 
 The kernels of both dimensions share their stepping and pair loops (``warp_hcell.dem.stepping``,
-``warp_hcell.dem.pairs``); what differs on the host is the type of a cell vector, a grain's mass,
-the kernel of a topology and the sliding test of the tangent.
+``warp_hcell.dem.pairs``); what differs on the host is a grain's mass, the kernel of a topology,
+the sliding test of the tangent and the shape of a spring (the type of a cell vector:
+``warp_hcell.dem.stepping.cell_vector``).
 """
 
 from __future__ import annotations
@@ -35,8 +36,6 @@ def _spatial_kernel(meso: Mesostructure, law: str) -> wp.Kernel:
 class Dimension:
     """The pieces of the meso-DEM of one spatial dimension."""
 
-    vector: type
-    """Warp type of a cell size, a strain increment or a grain centre: ``wp.vec2d`` or ``wp.vec3d``."""
     grain_measure: Callable[[np.ndarray], np.ndarray]
     """Grain radii [m] -> the measure whose density gives a grain's mass: pi r^2 [m^2] (a disk per unit
     thickness) or 4/3 pi r^3 [m^3]."""
@@ -44,10 +43,12 @@ class Dimension:
     """(mesostructure, contact-law name) -> the compiled cell-step kernel of its topology."""
     sliding_contacts: Callable[..., np.ndarray]
     """``warp_hcell.dem.tangent.sliding_contacts`` or ``sliding_contacts_3d``."""
+    spring_shape: tuple[int, ...]
+    """Shape of one pair's tangential spring: () in the plane (f_s along w), (3,) in space (a vector)."""
 
 
 DIMENSIONS = {
-    2: Dimension(wp.vec2d, lambda radius: math.pi * radius**2, _planar_kernel, sliding_contacts),
-    3: Dimension(wp.vec3d, lambda radius: 4.0 / 3.0 * math.pi * radius**3, _spatial_kernel, sliding_contacts_3d),
+    2: Dimension(lambda radius: math.pi * radius**2, _planar_kernel, sliding_contacts, ()),
+    3: Dimension(lambda radius: 4.0 / 3.0 * math.pi * radius**3, _spatial_kernel, sliding_contacts_3d, (3,)),
 }
 """The meso-DEM's pieces by the cell's dimension."""

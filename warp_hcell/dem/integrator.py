@@ -29,6 +29,7 @@ from warp_hcell.dem.dimensions import DIMENSIONS
 from warp_hcell.dem.laws import warp_law
 from warp_hcell.dem.model import DemModel
 from warp_hcell.dem.state import DemState
+from warp_hcell.dem.stepping import cell_vector
 
 
 CHUNKS_PER_THREAD = 4
@@ -150,7 +151,7 @@ class DemIntegrator:
         self.model = model
         self.threads = 1 if wp.get_device(model.device).is_cuda else int(threads)
         self._pool = None if self.threads == 1 else pool or ThreadPoolExecutor(self.threads)
-        self._d_eps = wp.zeros(model.n_cells, dtype=DIMENSIONS[model.meso.dim].vector, device=model.device)
+        self._d_eps = wp.zeros(model.n_cells, dtype=cell_vector(model.meso.dim), device=model.device)
         self._d_eps_host = None if wp.get_device(model.device).is_cuda else self._d_eps.numpy()
         # one chunk per thread from MIN_CELLS_TO_SPLIT cells; more chunks than threads, so that
         # the pool balances cells of very different substep counts, where each keeps

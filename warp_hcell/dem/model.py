@@ -19,6 +19,7 @@ from warp_hcell.core.parameters import ContactLaw, DemSettings, Law
 from warp_hcell.dem.dimensions import DIMENSIONS
 from warp_hcell.dem.laws import warp_law
 from warp_hcell.dem.state import DemState
+from warp_hcell.dem.stepping import cell_vector
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,7 +85,7 @@ class DemModel:
         def put(a, dtype):
             return wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=dtype, device=device)
 
-        vector = DIMENSIONS[meso.dim].vector
+        vector = cell_vector(meso.dim)
         return cls(meso=meso, device=str(device), radius=put(radius, wp.float64), inv_mass=put(1.0 / mass, wp.float64),
                    reference_position=put(reference_position, vector),
                    reference_cell_size=put(reference_cell_size, vector), dt=put(dt, wp.float64),
@@ -126,7 +127,7 @@ class DemModel:
         position = self.reference_position.numpy()
         return DemState.from_numpy({
             "position": position, "velocity": np.zeros_like(position),
-            "shear_force": np.zeros((n_cells, n_pairs) if dim == 2 else (n_cells, n_pairs, dim)),
+            "shear_force": np.zeros((n_cells, n_pairs, *DIMENSIONS[dim].spring_shape)),
             "contact_force": np.zeros((n_cells, n_pairs, dim)),
             "contact": initial_contacts(position, self.radius.numpy(), self.meso.pairs,
                                         self.settings.contact_tolerance),
