@@ -123,3 +123,54 @@ def test_a_hertz_mindlin_triaxial_run_records_its_law(tmp_path):
     assert '"law": "hertz-mindlin"' in text and '"shear_modulus": 1000000000.0' in text
     q = np.loadtxt(out / "curve.csv", delimiter=",", skiprows=1, usecols=8)
     assert np.all(np.isfinite(q)) and q[-1] > 0.0
+
+
+NUMPY_INTERFACE = ("pair_constants", "normal_force", "normal_stiffness", "shear_stiffness", "move_stiffness",
+                   "move_stiffness_slope")
+WARP_INTERFACE = ("pair_scale", "pair_constant", "normal_force", "spatial_contact", "kernel_constants",
+                  "reference_stiffness")
+
+
+@pytest.mark.parametrize("name", list(CONTACT_LAWS))
+def test_every_registered_law_has_one_module_per_runtime(name):
+    from warp_hcell.core.laws import numpy_law
+    from warp_hcell.dem.laws import warp_law
+
+    assert numpy_law(name).__name__ == "warp_hcell.core.laws." + name.replace("-", "_")
+    assert all(callable(getattr(numpy_law(name), f, None)) for f in NUMPY_INTERFACE)
+    assert all(getattr(warp_law(name), f, None) is not None for f in WARP_INTERFACE)
+    law = CONTACT_LAWS[name]()
+    kn, kt, mu = warp_law(name).kernel_constants(law)
+    assert mu == law.mu and kn > 0.0 and kt > 0.0
+    radius = np.array([[0.5, 0.25, 0.5]])
+    stiffness = np.asarray(warp_law(name).reference_stiffness(law, radius))
+    assert np.all(np.isfinite(stiffness)) and np.all(stiffness > 0.0)
+
+
+def test_a_name_no_law_is_registered_under_is_a_one_line_error():
+    from warp_hcell.core.laws import numpy_law
+    from warp_hcell.dem.laws import warp_law
+
+    for runtime in (numpy_law, warp_law):
+        with pytest.raises(ValueError, match="unknown contact law 'hertz'; choose from linear, hertz-mindlin"):
+            runtime("hertz")
+
+
+def test_the_law_flags_are_built_from_the_declarations():
+    import argparse
+
+    from warp_hcell.core.cli import add_contact_law_arguments, contact_law_from_args
+
+    parser = argparse.ArgumentParser()
+    add_contact_law_arguments(parser)
+    flags = {a for action in parser._actions for a in action.option_strings}
+    assert {flag.flag for law in CONTACT_LAWS.values() for flag in law.flags} <= flags
+    assert contact_law_from_args(parser.parse_args([])) == ContactLaw()
+    assert contact_law_from_args(parser.parse_args(["--kn", "1e8", "--kt", "3e7", "--phi", "25"])) == \
+        ContactLaw(kn=1e8, kt_over_kn=3e7 / 1e8, phi_g_deg=25.0)
+    assert contact_law_from_args(parser.parse_args(["--law", "hertz-mindlin", "--shear-modulus", "1e9", "--poisson",
+                                                    "0.3", "--phi", "25", "--kn", "5"])) == \
+        HertzMindlinLaw(shear_modulus=1e9, poisson=0.3, phi_g_deg=25.0)
+    assert contact_law_from_args(parser.parse_args(["--law", "hertz-mindlin"])) == HertzMindlinLaw()
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--shear-modulus", "-1"])

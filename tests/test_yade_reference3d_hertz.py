@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from homogenization.backends import make_cell_model
-from warp_hcell.core.contact import hertz_normal_force, hertz_pair_constants
+from warp_hcell.core.laws.hertz_mindlin import normal_force as hertz_normal_force
+from warp_hcell.core.laws.hertz_mindlin import pair_constants as hertz_pair_constants
 from warp_hcell.core.parameters import contact_law_from_dict
 from warp_hcell.mesostructures.builders import resolve_mesostructure
 from yade_cases import read_case, yade_script

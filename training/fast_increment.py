@@ -3,7 +3,9 @@
 ``advance`` composes the steps, each one job: the free-DOF displacement from the network output
 (``free_displacement``), the DEM's rest rule (``hold_at_rest``, as
 ``training.cell_physics.hold_at_rest``), the contact law at the new positions
-(``contact_pass``, ``warp_hcell.core.contact``), and the area and flags (``area_and_flags``).
+(``contact_pass``, ``warp_hcell.core.contact``), and the area and flags (``area_and_flags``). The
+pieces that do not depend on the dimension (``start_pass``, ``open_far_pair``, ``subtract_outer``,
+``moment_flags``) serve the spatial increment too (``training.fast_step3d``).
 Layouts: ``training.fast_cells``; ``out`` (n_free + n_free^2, n) float32 is the perceptron's
 output, cells last.
 """
@@ -111,6 +113,53 @@ def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, n
 
 
 @numba.njit(cache=True, error_model="numpy")
+def start_pass(x, capped_any, opened_any):
+    """A contact pass over the grain centres x (n_grains, dim, n) begins: the flags (n,) cleared, the
+    moment (dim, dim, n) [N m] zero (returned)."""
+    capped_any[:] = False
+    opened_any[:] = False
+    return np.zeros((x.shape[1], x.shape[1], x.shape[2]))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def open_far_pair(p, old_fn, new_shear, opened_any):
+    """Pair p, within reach of no cell: its springs new_shear[p] (n,) or (3, n) [N] are reset, and a
+    cell where the pair carried a normal force old_fn[p] (n,) [N] is flagged in opened_any (n,)."""
+    new_shear[p] = 0.0
+    old_fn_p = old_fn[p]
+    for c in range(old_fn_p.shape[0]):
+        opened_any[c] |= old_fn_p[c] > 0.0
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def subtract_outer(moment, c, force, branch):
+    """moment[:, :, c] -= force (x) branch: a pair's force on grain i [N] and its branch x_j - x_i [m],
+    tuples of dim floats, into the compression-positive moment (dim, dim, n) [N m] of cell c."""
+    for a in range(len(force)):
+        for e in range(len(branch)):
+            moment[a, e, c] -= force[a] * branch[e]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def moment_flags(moment, m_in, ramp, mechanism, ramped, moment_out):
+    """The mechanism flag (no pair carries force: the moment (dim, dim, n) is zero) and the ramp flag
+    (load fraction m_in < ramp) of each cell (n,), and the moment copied cells first into moment_out
+    (n, dim, dim); dim 2 or 3."""
+    dim = moment.shape[0]
+    for c in range(moment.shape[2]):
+        zero = True
+        for a in range(dim):
+            for e in range(dim):
+                zero = zero and moment[a, e, c] == 0.0
+        mechanism[c] = zero
+        ramped[c] = m_in[c] < ramp
+    for c in range(moment.shape[2]):
+        for a in range(dim):
+            for e in range(dim):
+                moment_out[c, a, e] = moment[a, e, c]
+
+
+@numba.njit(cache=True, error_model="numpy")
 def contact_pass(x, shear, before, cells, law, new_shear, capped_any, opened_any):
     """The contact law at the new grain centres x: writes new_shear (n_pairs, n) and the flags
     capped_any, opened_any (n,); returns the compression-positive moment (2, 2, n) [N m]."""
@@ -118,17 +167,12 @@ def contact_pass(x, shear, before, cells, law, new_shear, capped_any, opened_any
     pairs, radius = cells.pairs, cells.radius
     kn, kt, mu, tol = law.kn, law.kt, law.mu, law.tol
     old_branch, old_contact, old_fn = before.old_branch, before.old_contact, before.old_fn
-    moment = np.zeros((2, 2, n))
-    capped_any[:] = False
-    opened_any[:] = False
+    moment = start_pass(x, capped_any, opened_any)
     b0_p, b1_p = np.empty(n), np.empty(n)
     for p in range(pairs.shape[0]):
         _, _, rsum, reach, near = pair_branch(x, pairs, radius, tol, p, b0_p, b1_p)
         if not near:
-            new_shear[p, :] = 0.0
-            old_fn_p = old_fn[p]
-            for c in range(n):
-                opened_any[c] |= old_fn_p[c] > 0.0
+            open_far_pair(p, old_fn, new_shear, opened_any)
             continue
         for c in range(n):
             b0 = b0_p[c]
@@ -152,10 +196,7 @@ def contact_pass(x, shear, before, cells, law, new_shear, capped_any, opened_any
             u1 = b1 * inv_d
             f0 = -fn * u0 + fs * -u1
             f1 = -fn * u1 + fs * u0
-            moment[0, 0, c] -= f0 * b0
-            moment[0, 1, c] -= f0 * b1
-            moment[1, 0, c] -= f1 * b0
-            moment[1, 1, c] -= f1 * b1
+            subtract_outer(moment, c, (f0, f1), (b0, b1))
     return moment
 
 
@@ -174,13 +215,7 @@ def area_and_flags(x, moment, m_in, outer, ramp, area, mechanism, ramped, moment
             area[c] += xi0[c] * xj1[c] - xj0[c] * xi1[c]
     for c in range(n):
         area[c] = 0.5 * abs(area[c])
-        mechanism[c] = moment[0, 0, c] == 0.0 and moment[0, 1, c] == 0.0 and moment[1, 0, c] == 0.0 and \
-            moment[1, 1, c] == 0.0
-        ramped[c] = m_in[c] < ramp
-    for c in range(n):
-        for a in range(2):
-            moment_out[c, a, 0] = moment[a, 0, c]
-            moment_out[c, a, 1] = moment[a, 1, c]
+    moment_flags(moment, m_in, ramp, mechanism, ramped, moment_out)
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -6,8 +6,9 @@ vector in its tangent plane, carried into the new tangent plane (projected and r
 length), grown by kt times the relative displacement normal to the mid-increment branch and
 capped at mu f_n along its own direction where longer by more than ``CAP_SLACK``; V_cell is the
 volume of the outer triangles. The dimension-free steps are shared with the planar kernels:
-grain positions (``fast_cells.grain_positions``), the load fractions, the free-DOF displacement
-and the rest rule (``fast_increment``).
+grain positions (``fast_cells.grain_positions``), the load fractions, the free-DOF displacement,
+the rest rule, the start of a contact pass, the reset of a pair out of reach, the moment sum and
+the mechanism and ramp flags (``fast_increment``).
 
 Layouts (cells LAST, one cell a vector lane, nothing reduced across cells): size (3, n) [m],
 free (n_free, n) [m], shear (n_pairs, 3, n) [N]; d_eps (n, 3) [-]; ``before.old_branch``
@@ -24,7 +25,8 @@ import numpy as np
 
 from training.fast_cells import grain_positions, normal_force
 from training.fast_features import load_fractions
-from training.fast_increment import free_displacement, hold_at_rest
+from training.fast_increment import (free_displacement, hold_at_rest, moment_flags, open_far_pair, start_pass,
+                                     subtract_outer)
 from warp_hcell.core.contact import CAP_SLACK
 
 PAIR_WIDTH = 9
@@ -209,18 +211,13 @@ def contact_pass3(x, shear, before, cells, law, new_shear, capped_any, opened_an
     pairs, radius = cells.pairs, cells.radius
     kn, kt, mu, tol = law.kn, law.kt, law.mu, law.tol
     old_branch, old_contact, old_fn = before.old_branch, before.old_contact, before.old_fn
-    moment = np.zeros((3, 3, n))
-    capped_any[:] = False
-    opened_any[:] = False
+    moment = start_pass(x, capped_any, opened_any)
     b = np.empty((3, n))
     slack = 1.0 + CAP_SLACK
     for p in range(pairs.shape[0]):
         _, _, rsum, reach, near = pair_branch3(x, pairs, radius, tol, p, b[0], b[1], b[2])
         if not near:
-            new_shear[p, :, :] = 0.0
-            old_fn_p = old_fn[p]
-            for c in range(n):
-                opened_any[c] |= old_fn_p[c] > 0.0
+            open_far_pair(p, old_fn, new_shear, opened_any)
             continue
         for c in range(n):
             b0, b1, b2 = b[0, c], b[1, c], b[2, c]
@@ -233,15 +230,7 @@ def contact_pass3(x, shear, before, cells, law, new_shear, capped_any, opened_an
             capped_any[c] |= touching and trial > cap
             opened_any[c] |= old_fn[p, c] > 0.0 and fn == 0.0
             g0, g1, g2 = -fn * u0 + f0, -fn * u1 + f1, -fn * u2 + f2
-            moment[0, 0, c] -= g0 * b0
-            moment[0, 1, c] -= g0 * b1
-            moment[0, 2, c] -= g0 * b2
-            moment[1, 0, c] -= g1 * b0
-            moment[1, 1, c] -= g1 * b1
-            moment[1, 2, c] -= g1 * b2
-            moment[2, 0, c] -= g2 * b0
-            moment[2, 1, c] -= g2 * b1
-            moment[2, 2, c] -= g2 * b2
+            subtract_outer(moment, c, (-fn * u0 + f0, -fn * u1 + f1, -fn * u2 + f2), (b0, b1, b2))
     return moment
 
 
@@ -259,16 +248,7 @@ def volume_and_flags(x, moment, m_in, faces, ramp, volume, mechanism, ramped, mo
                           + xa[2, c] * (xb[0, c] * xc[1, c] - xb[1, c] * xc[0, c]))
     for c in range(n):
         volume[c] = abs(volume[c]) / 6.0
-        zero = True
-        for a in range(3):
-            for e in range(3):
-                zero = zero and moment[a, e, c] == 0.0
-        mechanism[c] = zero
-        ramped[c] = m_in[c] < ramp
-    for c in range(n):
-        for a in range(3):
-            for e in range(3):
-                moment_out[c, a, e] = moment[a, e, c]
+    moment_flags(moment, m_in, ramp, mechanism, ramped, moment_out)
 
 
 @numba.njit(cache=True, error_model="numpy")

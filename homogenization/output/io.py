@@ -101,6 +101,37 @@ _SIGNED_3D = _SIGNED | {"eps33", "sigma33", "sigma23", "sigma13"}
 
 
 @dataclass(frozen=True)
+class RunLayout:
+    """What the run files of one dimension hold differently (``LAYOUTS[record.dim]``)."""
+
+    history: Mapping[str, tuple[str, str]]
+    """The datasets of /history but ``stage``: name -> (units, description)."""
+    signed: frozenset[str]
+    """The datasets of /history that carry the sign convention."""
+    curve_columns: tuple[str, ...]
+    """The columns of curve.csv, in order."""
+    volume_units: str
+    """Units of V0."""
+    volume_rule: str
+    """How V = V0 J is kept (the orientation set's rule)."""
+    stress_units: str
+    """Units of the stresses."""
+    theta: str
+    """Description of /orientations/theta_deg."""
+    frames: bool
+    """Whether /orientations/frames holds the cell frames R_k (3D)."""
+
+
+LAYOUTS = {
+    2: RunLayout(_HISTORY, frozenset(_SIGNED), CURVE_COLUMNS, "m^2", VOLUME_RULE, "N/m (2D: force per unit length)",
+                 "cell-axis angle theta_k = k 180 / N", False),
+    3: RunLayout(_HISTORY_3D, frozenset(_SIGNED_3D), CURVE_COLUMNS_3D, "m^3", VOLUME_RULE_3D, "Pa (3D)",
+                 "angle between the cell axis n_k and axis 1", True),
+}
+"""The run-file layout of each dimension."""
+
+
+@dataclass(frozen=True)
 class StoredRun:
     """A run read back from run.h5."""
 
@@ -146,9 +177,7 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
         command: the command line to record (None: this process's own).
     """
     path = Path(path)
-    spatial = record.dim == 3
-    history = _HISTORY_3D if spatial else _HISTORY
-    signed = _SIGNED_3D if spatial else _SIGNED
+    layout = LAYOUTS[record.dim]
     with atomic_write(path) as tmp, _new_h5(tmp) as f:
         f.attrs["format"] = FORMAT
         f.attrs["backend"] = record.backend
@@ -156,10 +185,10 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
             f.attrs[name] = float(value)
         f.attrs["cell_parameters"] = json.dumps(list(record.parameters))
         f.attrs["V0"] = record.V0
-        f.attrs["V0_units"] = "m^3" if spatial else "m^2"
-        f.attrs["volume_rule"] = VOLUME_RULE_3D if spatial else VOLUME_RULE
+        f.attrs["V0_units"] = layout.volume_units
+        f.attrs["volume_rule"] = layout.volume_rule
         f.attrs["sign_convention"] = SIGN_CONVENTION
-        f.attrs["stress_units"] = "Pa (3D)" if spatial else "N/m (2D: force per unit length)"
+        f.attrs["stress_units"] = layout.stress_units
         f.attrs["programme"] = json.dumps(loading.to_dict(record.programme))
         f.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True)
         f.attrs["seed"] = int(seed)
@@ -168,18 +197,15 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
 
         hist = f.create_group("history")
         _dataset(hist, "stage", _strings(record.stage), "", "stage label of the increment")
-        for name, (units, description) in history.items():
-            _dataset(hist, name, getattr(record, name), units, description, name in signed)
+        for name, (units, description) in layout.history.items():
+            _dataset(hist, name, getattr(record, name), units, description, name in layout.signed)
         diag = f.create_group("diagnostics")
         for name, values in record.diagnostics.items():
             _dataset(diag, name, values, "", "backend diagnostic of the accepted step call")
         orient = f.create_group("orientations")
-        if spatial:
-            _dataset(orient, "theta_deg", record.theta_deg, "deg", "angle between the cell axis n_k and axis 1")
-        else:
-            _dataset(orient, "theta_deg", record.theta_deg, "deg", "cell-axis angle theta_k = k 180 / N")
+        _dataset(orient, "theta_deg", record.theta_deg, "deg", layout.theta)
         _dataset(orient, "weights", record.weights, "1", "fabric weight w_k")
-        if spatial:
+        if layout.frames:
             _dataset(orient, "frames", record.frames, "1", "cell frame R_k, columns (n, t1, t2) in the macro frame")
         snaps = f.create_group("snapshots")
         _dataset(snaps, "increment", record.snapshot_increment, "1", "completed increments at the snapshot")
@@ -196,7 +222,7 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
 def write_curve_csv(path: Path, record: Record) -> Path:
     """Write the macro curve of ``record`` to ``path`` (atomically); returns ``path``."""
     path = Path(path)
-    names = CURVE_COLUMNS_3D if record.dim == 3 else CURVE_COLUMNS
+    names = LAYOUTS[record.dim].curve_columns
     columns = np.stack([getattr(record, name) for name in names[1:]], axis=1)
     lines = [",".join(names)]
     lines += [f"{stage}," + ",".join(f"{v:.17g}" for v in row) for stage, row in zip(record.stage, columns.tolist())]
@@ -243,11 +269,11 @@ def read_run(path: Path) -> StoredRun:
             attrs["programme"] = json.loads(attrs["programme"])
             attrs["parameters"] = json.loads(attrs["parameters"])
             hist, snaps = f["history"], f["snapshots"]
-            spatial = "eps33" in hist
-            extra = {"frames": f["orientations/frames"][()]} if spatial else {}
+            layout = LAYOUTS[3 if "eps33" in hist else 2]
+            extra = {"frames": f["orientations/frames"][()]} if layout.frames else {}
             record = Record(
                 stage=_decode(hist["stage"][()]),
-                **{name: hist[name][()] for name in (_HISTORY_3D if spatial else _HISTORY)},
+                **{name: hist[name][()] for name in layout.history},
                 **extra,
                 diagnostics={name: ds[()] for name, ds in f["diagnostics"].items()},
                 snapshot_increment=snaps["increment"][()],

@@ -33,12 +33,13 @@ import os
 import re
 import sys
 from contextlib import contextmanager
+from dataclasses import fields
 from pathlib import Path
 from typing import Any, Callable, Iterator, NoReturn, Sequence
 
 from tqdm import tqdm
 
-from warp_hcell.core.parameters import CONTACT_LAWS, CellDefaults, check_alpha0_deg, ContactLaw, HertzMindlinLaw, Law
+from warp_hcell.core.parameters import CONTACT_LAWS, CellDefaults, check_alpha0_deg, ContactLaw, Law
 
 EXIT_USAGE = 2
 """Exit code for bad user input (argparse's own convention)."""
@@ -352,32 +353,30 @@ def common_parser() -> argparse.ArgumentParser:
 
 
 def add_contact_law_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add --radius, --law, --kn, --kt, --shear-modulus, --poisson, --phi (defaults from ``CellDefaults``,
-    ``ContactLaw`` and ``HertzMindlinLaw``); read them back with ``contact_law_from_args``. --kt
-    defaults to kt_over_kn x --kn."""
-    law, hertz = ContactLaw(), HertzMindlinLaw()
+    """Add --radius (``CellDefaults``), --law and the flags every law of ``CONTACT_LAWS`` declares
+    (``flags``, defaults from the law's fields; a flag several laws declare is added once); read them
+    back with ``contact_law_from_args``."""
     parser.add_argument("--radius", type=positive_float, default=CellDefaults.radius, help="grain radius r [m]")
-    parser.add_argument("--law", choices=tuple(CONTACT_LAWS), default=ContactLaw.name,
-                        help="contact law: linear springs (--kn, --kt) or Hertz-Mindlin of elastic spheres "
-                             "(--shear-modulus, --poisson; 3D cells)")
-    parser.add_argument("--shear-modulus", type=positive_float, default=hertz.shear_modulus,
-                        help="Hertz-Mindlin: shear modulus G of the grain material [Pa]")
-    parser.add_argument("--poisson", type=finite_float, default=hertz.poisson,
-                        help="Hertz-Mindlin: Poisson ratio nu of the grain material [-], in [0, 0.5)")
-    parser.add_argument("--kn", type=positive_float, default=law.kn, help="normal contact stiffness [N/m]")
-    parser.add_argument("--kt", type=positive_float, default=argparse.SUPPRESS,
-                        help=f"tangential contact stiffness [N/m] (default: {law.kt_over_kn:g} x kn)")
-    parser.add_argument("--phi", type=finite_float, default=law.phi_g_deg,
-                        help="inter-granular friction angle phi_g [deg], in [0, 90)")
+    shared = set.intersection(*({flag.flag for flag in law.flags} for law in CONTACT_LAWS.values()))
+    kinds = " or ".join(f"{law.summary} ({', '.join(f.flag for f in law.flags if f.flag not in shared)}"
+                        f"{'' if law.planar else '; 3D cells'})" for law in CONTACT_LAWS.values())
+    parser.add_argument("--law", choices=tuple(CONTACT_LAWS), default=ContactLaw.name, help=f"contact law: {kinds}")
+    added = set()
+    for law in CONTACT_LAWS.values():
+        defaults = {f.name: f.default for f in fields(law)}
+        for flag in law.flags:
+            if flag.flag not in added:
+                added.add(flag.flag)
+                parser.add_argument(flag.flag, type=positive_float if flag.positive else finite_float,
+                                    default=defaults.get(flag.parameter, argparse.SUPPRESS), help=flag.help)
 
 
 def contact_law_from_args(args: argparse.Namespace) -> Law:
-    """The contact law of the flags added by ``add_contact_law_arguments``; ValueError (one line) for
-    values outside the law's ranges."""
-    if getattr(args, "law", ContactLaw.name) == HertzMindlinLaw.name:
-        return HertzMindlinLaw(shear_modulus=args.shear_modulus, poisson=args.poisson, phi_g_deg=args.phi)
-    kt = getattr(args, "kt", ContactLaw.kt_over_kn * args.kn)
-    return ContactLaw(kn=args.kn, kt_over_kn=kt / args.kn, phi_g_deg=args.phi)
+    """The contact law of the flags added by ``add_contact_law_arguments`` (its ``from_flags`` of the
+    flags it declares that ``args`` holds); ValueError (one line) for values outside the law's ranges."""
+    law = CONTACT_LAWS[getattr(args, "law", ContactLaw.name)]
+    values = {flag.parameter: getattr(args, flag.flag[2:].replace("-", "_"), None) for flag in law.flags}
+    return law.from_flags(**{name: value for name, value in values.items() if value is not None})
 
 
 def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[str] | None = None) -> int:

@@ -6,16 +6,9 @@ Linear normal spring without tension, incremental tangential spring with a Coulo
 
 with overlap = r_i + r_j - norm(x_j - x_i) [m] (negative: a gap) and du the tangential relative
 displacement of the step [m]. The trial force f_s,old + kt du decides the sliding direction.
-The Hertz-Mindlin law (``warp_hcell.core.parameters.HertzMindlinLaw``) replaces the two
-stiffnesses by functions of the overlap: f_n = kh delta sqrt(delta) and kt = ks sqrt(delta),
-delta = max(overlap, 0), with the pair constants kh = (4/3) E* sqrt(R*) and ks = 8 G* sqrt(R*)
-[N/m^1.5] (``hertz_pair_constants``); the cap is the same. A move from overlap delta0 to delta1
-grows the spring by the mean of kt over the move (delta linear in the move) times du:
-
-    kt(delta0, delta1) = (2/3) ks (delta1 + sqrt(delta0 delta1) + delta0) / (sqrt(delta1) + sqrt(delta0))
-
-(= ks sqrt(delta) where delta0 = delta1; exact for a contact that closes within the move), in
-every runtime (``mindlin_move_stiffness``). ``pair_law`` evaluates either law for a batch of pairs.
+Each law holds its stiffnesses in its own module (``warp_hcell.core.laws``: ``linear``,
+``hertz_mindlin``), found by the law's name; ``PairLaw`` evaluates any of them for a batch of
+pairs (``pair_law``), with the cap above.
 
 Every function works elementwise on numpy arrays and, compiled by ``numba.njit``, on scalars
 inside numba kernels (``training.inference``); the results are bit for bit the same. The Warp
@@ -29,6 +22,9 @@ Units: overlaps and displacements [m], stiffnesses [N/m], forces [N], mu [-].
 from __future__ import annotations
 
 import numpy as np
+
+from warp_hcell.core.laws import numpy_law
+from warp_hcell.core.parameters import ContactLaw
 
 CAP_SLACK = 1e-12
 """Relative excess of a spatial spring over mu f_n that the vector cap leaves alone [-]: the 3D cap
@@ -60,55 +56,14 @@ def regime(normal, shear, mu):
     return np.where((normal > 0.0) & (np.abs(shear) >= mu * normal), SLIDE, STICK)
 
 
-def hertz_normal_force(overlap, kh):
-    """Hertz normal force f_n = kh delta sqrt(delta) [N], delta = max(overlap, 0) [m]; kh [N/m^1.5]."""
-    delta = np.maximum(overlap, 0.0)
-    return kh * (delta * np.sqrt(delta))
-
-
-def hertz_normal_stiffness(overlap, kh):
-    """Tangent normal stiffness d f_n / d overlap = 1.5 kh sqrt(delta) [N/m] (0 without overlap)."""
-    return 1.5 * kh * np.sqrt(np.maximum(overlap, 0.0))
-
-
-def mindlin_shear_stiffness(overlap, ks):
-    """Mindlin tangential stiffness kt = ks sqrt(delta) [N/m], delta = max(overlap, 0); ks [N/m^1.5]."""
-    return ks * np.sqrt(np.maximum(overlap, 0.0))
-
-
-def mindlin_move_stiffness(start_overlap, overlap, ks):
-    """Mean Mindlin stiffness [N/m] of a move from ``start_overlap`` to ``overlap`` [m] (module
-    docstring); 0 where both are <= 0."""
-    a = np.sqrt(np.maximum(overlap, 0.0))
-    b = np.sqrt(np.maximum(start_overlap, 0.0))
-    total = a + b
-    return np.where(total > 0.0, (2.0 / 3.0) * ks * ((a * a + a * b + b * b) / np.where(total > 0.0, total, 1.0)), 0.0)
-
-
-def mindlin_move_stiffness_slope(start_overlap, overlap, ks):
-    """d ``mindlin_move_stiffness`` / d overlap [N/m^2] = (1/3) ks (a + 2 b) / (a + b)^2, a = sqrt(overlap),
-    b = sqrt(start_overlap) (0 where both are <= 0)."""
-    a = np.sqrt(np.maximum(overlap, 0.0))
-    b = np.sqrt(np.maximum(start_overlap, 0.0))
-    total = a + b
-    return np.where((total > 0.0) & (overlap > 0.0),
-                    (1.0 / 3.0) * ks * ((a + 2.0 * b) / np.where(total > 0.0, total * total, 1.0)), 0.0)
-
-
 def reduced_radius_root(radius_i, radius_j):
     """sqrt(R*) [m^0.5] of pairs of radii r_i, r_j [m] (arrays broadcast), R* = r_i r_j / (r_i + r_j)."""
     return np.sqrt(radius_i * radius_j / (radius_i + radius_j))
 
 
-def hertz_pair_constants(law, radius_i, radius_j):
-    """(kh, ks) [N/m^1.5] of pairs of radii r_i, r_j [m] (arrays broadcast): (4/3) E* sqrt(R*) and
-    8 G* sqrt(R*), R* = r_i r_j / (r_i + r_j); ``law`` a ``HertzMindlinLaw``."""
-    root = reduced_radius_root(radius_i, radius_j)
-    return law.normal_modulus * root, law.shear_stiffness_modulus * root
-
-
 class PairLaw:
-    """A contact law evaluated for a batch of pairs (numpy, elementwise over overlaps).
+    """A contact law evaluated for a batch of pairs (numpy, elementwise over overlaps), by the law's
+    module (``warp_hcell.core.laws``) with its two pair constants ``kn``, ``kt``.
 
     ``normal(overlap)`` [N], ``normal_stiffness(overlap)`` d f_n / d overlap [N/m] and
     ``shear_stiffness(overlap)`` kt [N/m]. The linear law returns its kn and kt as given
@@ -121,39 +76,36 @@ class PairLaw:
         """Linear: kn [N/m]; Hertz-Mindlin: kh [N/m^1.5]."""
         self.kt = kt
         """Linear: kt [N/m]; Hertz-Mindlin: ks [N/m^1.5]."""
+        self._law = numpy_law(name)
 
     @property
     def linear(self) -> bool:
-        """True for the linear law."""
-        return self.name == "linear"
+        """True for the linear law (constant stiffnesses)."""
+        return self.name == ContactLaw.name
 
     def normal(self, overlap):
         """Normal force [N] at ``overlap`` [m], never tension."""
-        return normal_force(overlap, self.kn) if self.linear else hertz_normal_force(overlap, self.kn)
+        return self._law.normal_force(overlap, self.kn)
 
     def normal_stiffness(self, overlap):
         """d f_n / d overlap [N/m] for overlap > 0 (the linear law: kn)."""
-        return self.kn if self.linear else hertz_normal_stiffness(overlap, self.kn)
+        return self._law.normal_stiffness(overlap, self.kn)
 
     def shear_stiffness(self, overlap):
         """Tangential stiffness kt [N/m] at ``overlap`` (the linear law: kt)."""
-        return self.kt if self.linear else mindlin_shear_stiffness(overlap, self.kt)
+        return self._law.shear_stiffness(overlap, self.kt)
 
     def move_stiffness(self, start_overlap, overlap):
         """Stiffness [N/m] by which a move from ``start_overlap`` to ``overlap`` grows the spring
-        (the linear law: kt; Hertz-Mindlin: ``mindlin_move_stiffness``)."""
-        return self.kt if self.linear else mindlin_move_stiffness(start_overlap, overlap, self.kt)
+        (the linear law: kt; Hertz-Mindlin: the mean Mindlin stiffness of the move)."""
+        return self._law.move_stiffness(start_overlap, overlap, self.kt)
 
     def move_stiffness_slope(self, start_overlap, overlap):
         """d ``move_stiffness`` / d overlap [N/m^2] (the linear law: 0)."""
-        return 0.0 if self.linear else mindlin_move_stiffness_slope(start_overlap, overlap, self.kt)
+        return self._law.move_stiffness_slope(start_overlap, overlap, self.kt)
 
 
 def pair_law(law, radius_i=None, radius_j=None) -> PairLaw:
     """``PairLaw`` of a contact-law declaration (``warp_hcell.core.parameters``) for pairs of radii
     r_i, r_j [m] (arrays broadcast; the linear law ignores them)."""
-    if law.name == "linear":
-        return PairLaw("linear", law.kn, law.kt)
-    if radius_i is None or radius_j is None:
-        raise ValueError(f"the {law.name} contact law needs the radii of the pairs")
-    return PairLaw(law.name, *hertz_pair_constants(law, np.asarray(radius_i), np.asarray(radius_j)))
+    return PairLaw(law.name, *numpy_law(law.name).pair_constants(law, radius_i, radius_j))

@@ -75,6 +75,26 @@ def check_positive(name: str, value: float) -> float:
 
 
 @dataclass(frozen=True)
+class LawFlag:
+    """A command-line flag of a contact law's parameter (``warp_hcell.core.cli.add_contact_law_arguments``
+    builds the flags of every law of ``CONTACT_LAWS`` from these)."""
+
+    flag: str
+    """The flag, e.g. "--kn"; laws that share a parameter declare the same flag."""
+    parameter: str
+    """The keyword of the law's ``from_flags`` it sets; its default is the law's field of that name (none:
+    the flag has no default)."""
+    help: str
+    """What it sets, with its unit and range."""
+    positive: bool = False
+    """True: a value must be > 0; False: any finite value (the law's ranges are checked on building it)."""
+
+
+FRICTION_FLAG = LawFlag("--phi", "phi_g_deg", "inter-granular friction angle phi_g [deg], in [0, 90)")
+"""--phi: the friction angle, a flag of every law."""
+
+
+@dataclass(frozen=True)
 class ContactLaw:
     """Linear contact law with Coulomb friction (the default law of every backend): f_n = kn overlap,
     tangential spring of stiffness kt capped at mu f_n."""
@@ -93,6 +113,22 @@ class ContactLaw:
             raise ValueError(f"phi_g = {self.phi_g_deg:g} deg is outside [0, 90) deg")
 
     name: ClassVar[str] = "linear"
+    summary: ClassVar[str] = "linear springs"
+    """What the law is, for the help of --law."""
+    planar: ClassVar[bool] = True
+    """True: defined for disks (planar cells) as well as spheres."""
+    flags: ClassVar[tuple[LawFlag, ...]] = (
+        LawFlag("--kn", "kn", "normal contact stiffness [N/m]", positive=True),
+        LawFlag("--kt", "kt", f"tangential contact stiffness [N/m] (default: {kt_over_kn:g} x kn)", positive=True),
+        FRICTION_FLAG,
+    )
+    """The law's command-line flags (``LawFlag``)."""
+
+    @classmethod
+    def from_flags(cls, kn: float, phi_g_deg: float, kt: float | None = None) -> "ContactLaw":
+        """The law of its flags: kt [N/m] (None: ``kt_over_kn`` x kn) sets ``kt_over_kn`` = kt / kn."""
+        kt = cls.kt_over_kn * kn if kt is None else kt
+        return cls(kn=kn, kt_over_kn=kt / kn, phi_g_deg=phi_g_deg)
 
     @property
     def kt(self) -> float:
@@ -138,6 +174,17 @@ class HertzMindlinLaw:
     """
 
     name: ClassVar[str] = "hertz-mindlin"
+    summary: ClassVar[str] = "Hertz-Mindlin of elastic spheres"
+    """What the law is, for the help of --law."""
+    planar: ClassVar[bool] = False
+    """Defined for spheres (3D cells) only."""
+    flags: ClassVar[tuple[LawFlag, ...]] = (
+        LawFlag("--shear-modulus", "shear_modulus", "Hertz-Mindlin: shear modulus G of the grain material [Pa]",
+                positive=True),
+        LawFlag("--poisson", "poisson", "Hertz-Mindlin: Poisson ratio nu of the grain material [-], in [0, 0.5)"),
+        FRICTION_FLAG,
+    )
+    """The law's command-line flags (``LawFlag``)."""
     shear_modulus: float = 29e9
     """Shear modulus G of the grain material [Pa] (quartz sand in DEM practice: about 29 GPa)."""
     poisson: float = 0.2
@@ -151,6 +198,11 @@ class HertzMindlinLaw:
             raise ValueError(f"poisson = {self.poisson:g} is outside [0, 0.5)")
         if not (0.0 <= self.phi_g_deg < 90.0):
             raise ValueError(f"phi_g = {self.phi_g_deg:g} deg is outside [0, 90) deg")
+
+    @classmethod
+    def from_flags(cls, **values: float) -> "HertzMindlinLaw":
+        """The law of its flags (keywords: its fields)."""
+        return cls(**values)
 
     @property
     def normal_modulus(self) -> float:

@@ -21,8 +21,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from warp_hcell.core.contact import hertz_pair_constants
+from warp_hcell.core.contact import pair_law
 from warp_hcell.core.contract import CellResponse
+from warp_hcell.dem.dimensions import DIMENSIONS
 from warp_hcell.dem.integrator import DemIntegrator
 from warp_hcell.dem.love_weber import to_compression_positive
 from warp_hcell.mesostructures.files import with_declarations
@@ -36,7 +37,7 @@ from warp_hcell.mesostructures.mesostructure import (
 from warp_hcell.dem.model import DemModel
 from warp_hcell.core.parameters import HERTZ_DT_OVERLAP, check_positive, DemSettings, Law
 from warp_hcell.dem.state import DemState, StatePool
-from warp_hcell.dem.tangent import condensed_tangent, sliding_contacts, sliding_contacts_3d
+from warp_hcell.dem.tangent import condensed_tangent
 
 _MODEL_ARRAYS = ("radius", "reference_position", "reference_cell_size")
 
@@ -130,17 +131,15 @@ class DemCell:
         model, law = new.model, self.contact_law
         arrays, before = new.dem.to_numpy(), old.dem.to_numpy()
         radius, pairs, driven = model.radius.numpy(), model.meso.pairs, model.meso.driven
-        if law.name == "linear":
-            laws = dict(kn=law.kn, kt=law.kt, mu=law.mu)
-        else:
-            kh, ks = hertz_pair_constants(law, radius[:, pairs[:, 0]], radius[:, pairs[:, 1]])
-            laws = dict(kn=kh, kt=ks, mu=law.mu, law=law.name)
-        slides = sliding_contacts if model.meso.dim == 2 else sliding_contacts_3d
-        sliding = slides(before["position"], arrays["position"], radius, pairs, before["shear_force"], **laws)
+        pair = pair_law(law, radius[:, pairs[:, 0]], radius[:, pairs[:, 1]])
+        laws = dict(kn=pair.kn, kt=pair.kt, mu=law.mu)
+        slides = DIMENSIONS[model.meso.dim].sliding_contacts
+        sliding = slides(before["position"], arrays["position"], radius, pairs, before["shear_force"], law=law.name,
+                         **laws)
         l_ratio = before["cell_size"] / model.reference_cell_size.numpy()
         drive_rate = -model.reference_position.numpy() * l_ratio[:, None, :] * driven[None]
         return condensed_tangent(arrays["position"], radius, pairs, driven, arrays["shear_force"], sliding,
-                                 drive_rate, **laws)
+                                 drive_rate, law=law.name, **laws)
 
     def response(self, state: DemCellState) -> CellResponse:
         """Love-Weber moment (compression positive) and V_cell of ``state``; diagnostics of its step
@@ -216,7 +215,7 @@ class DemCell:
 
 def stiffer_than_dt(state: DemCellState) -> np.ndarray:
     """bool (n_cells,): cells with a contact whose overlap exceeds HERTZ_DT_OVERLAP (r_i + r_j), so stiffer
-    than the stiffness their time step was set for (``warp_hcell.dem.model.reference_stiffness``)."""
+    than the stiffness their time step was set for (``reference_stiffness`` of ``warp_hcell.dem.laws``)."""
     pairs = state.model.meso.pairs
     x, radius = state.dem.position.numpy(), state.model.radius.numpy()
     rsum = radius[:, pairs[:, 0]] + radius[:, pairs[:, 1]]

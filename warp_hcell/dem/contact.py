@@ -6,10 +6,7 @@ mu f_n along the trial force; regime 1 (sticking) or 2 (sliding: at the cap with
 pair within the contact tolerance. Comparisons stand for max/clamp (no NaN handling on the hot
 path); the results equal the numpy form's bit for bit (``tests/test_contact_law_conformance.py``).
 
-The Hertz-Mindlin law (``hertz_normal_force``, ``hertz_contact_law_3d``) takes the pair
-constants kh and ks [N/m^1.5] in place of kn and kt: f_n = kh delta sqrt(delta), the spring grows
-by the mean Mindlin stiffness of the move from its start overlap (``mindlin_move_stiffness``, as
-``warp_hcell.core.contact``) times the displacement, delta = max(overlap, 0); same cap, same regimes.
+The other laws (``warp_hcell.dem.laws``) use the regimes and the carried spring below.
 
 Units: overlaps and displacements [m], stiffnesses [N/m], forces [N], mu [-].
 """
@@ -96,59 +93,14 @@ def contact_law_3d(
     Returns:
         (normal force >= 0 [N], new tangential force vector [N], regime: 1 sticking, 2 sliding).
     """
-    zero = wp.float64(0.0)
-    normal = normal_force(overlap, kn)
-    trial = carried + kt * shear_increment
-    cap = mu * normal
-    size = wp.length(trial)
-    shear = wp.where(size > cap, trial * (cap / wp.where(size > zero, size, wp.float64(1.0))), trial)
-    return normal, shear, contact_regime(normal, size, cap)
+    return capped_spring(normal_force(overlap, kn), carried + kt * shear_increment, mu)
 
 
 @wp.func
-def hertz_normal_force(overlap: wp.float64, kh: wp.float64):
-    """Hertz normal force kh delta sqrt(delta) [N], delta = max(overlap, 0) [m]; kh [N/m^1.5]."""
+def capped_spring(normal: wp.float64, trial: wp.vec3d, mu: wp.float64):
+    """A spatial pair's (normal force f_n [N], the trial spring [N] capped at mu f_n along its own
+    direction, regime: 1 sticking, 2 sliding), every law's cap."""
     zero = wp.float64(0.0)
-    delta = wp.where(overlap > zero, overlap, zero)
-    return kh * (delta * wp.sqrt(delta))
-
-
-@wp.func
-def mindlin_move_stiffness(start_overlap: wp.float64, overlap: wp.float64, ks: wp.float64):
-    """Mean Mindlin stiffness [N/m] of a move from ``start_overlap`` to ``overlap`` [m]:
-    (2/3) ks (a^2 + a b + b^2) / (a + b), a = sqrt(max(overlap, 0)), b = sqrt(max(start_overlap, 0)); 0
-    where both are <= 0."""
-    zero = wp.float64(0.0)
-    a = wp.sqrt(wp.where(overlap > zero, overlap, zero))
-    b = wp.sqrt(wp.where(start_overlap > zero, start_overlap, zero))
-    total = a + b
-    return wp.where(total > zero,
-                    (wp.float64(2.0) / wp.float64(3.0)) * ks * ((a * a + a * b + b * b) / wp.where(total > zero, total,
-                                                                                                  wp.float64(1.0))),
-                    zero)
-
-
-@wp.func
-def hertz_contact_law_3d(
-    overlap: wp.float64,
-    start_overlap: wp.float64,
-    shear_increment: wp.vec3d,
-    carried: wp.vec3d,
-    kh: wp.float64,
-    ks: wp.float64,
-    mu: wp.float64,
-):
-    """``contact_law_3d`` of the Hertz-Mindlin law: f_n = kh delta sqrt(delta), the spring grows by
-    ``mindlin_move_stiffness(start_overlap, overlap, ks)`` times ``shear_increment`` (``start_overlap``
-    [m]: the overlap before the move), cap mu f_n along the trial force; kh, ks [N/m^1.5]
-    (``warp_hcell.core.contact.hertz_pair_constants``).
-
-    Returns:
-        (normal force >= 0 [N], new tangential force vector [N], regime: 1 sticking, 2 sliding).
-    """
-    zero = wp.float64(0.0)
-    normal = hertz_normal_force(overlap, kh)
-    trial = carried + mindlin_move_stiffness(start_overlap, overlap, ks) * shear_increment
     cap = mu * normal
     size = wp.length(trial)
     shear = wp.where(size > cap, trial * (cap / wp.where(size > zero, size, wp.float64(1.0))), trial)

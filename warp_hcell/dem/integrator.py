@@ -25,10 +25,11 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import warp as wp
 
-from warp_hcell.dem.kernels import step_kernel
-from warp_hcell.dem.kernels3d import step_kernel_3d
-from warp_hcell.dem.model import DemModel, kernel_constants
+from warp_hcell.dem.dimensions import DIMENSIONS
+from warp_hcell.dem.laws import warp_law
+from warp_hcell.dem.model import DemModel
 from warp_hcell.dem.state import DemState
+from warp_hcell.dem.stepping import cell_vector
 
 
 CHUNKS_PER_THREAD = 4
@@ -78,7 +79,8 @@ def step_arguments(model: DemModel, state_in: DemState, state_out: DemState, d_e
     """Kernel inputs and outputs for cells [start, start + launch dim) (whole arrays passed)."""
     settings, law = model.settings, model.contact_law
     inputs = [model.radius, model.inv_mass, model.reference_position, model.reference_cell_size, model.dt,
-              model.force_floor, *kernel_constants(law), settings.damping, settings.contact_tolerance,
+              model.force_floor, *warp_law(law.name).kernel_constants(law), settings.damping,
+              settings.contact_tolerance,
               settings.strain_per_substep, settings.refined_strain_per_substep,
               settings.closing_rate, settings.velocity_change,
               settings.rate_growth,               settings.force_tolerance,
@@ -95,10 +97,7 @@ def launch_step(model: DemModel, state_in: DemState, state_out: DemState, d_eps_
 
 def kernel_of(model: DemModel) -> wp.Kernel:
     """The compiled cell-step kernel of the model's topology."""
-    if model.meso.dim == 3:
-        return step_kernel_3d(*model.meso.topology_key(), tuple(map(tuple, model.meso.outer.tolist())),
-                              model.contact_law.name)
-    return step_kernel(*model.meso.topology_key(), tuple(int(g) for g in model.meso.outer))
+    return DIMENSIONS[model.meso.dim].kernel(model.meso, model.contact_law.name)
 
 
 class _RecordedLaunch:
@@ -152,7 +151,7 @@ class DemIntegrator:
         self.model = model
         self.threads = 1 if wp.get_device(model.device).is_cuda else int(threads)
         self._pool = None if self.threads == 1 else pool or ThreadPoolExecutor(self.threads)
-        self._d_eps = wp.zeros(model.n_cells, dtype=wp.vec2d if model.meso.dim == 2 else wp.vec3d, device=model.device)
+        self._d_eps = wp.zeros(model.n_cells, dtype=cell_vector(model.meso.dim), device=model.device)
         self._d_eps_host = None if wp.get_device(model.device).is_cuda else self._d_eps.numpy()
         # one chunk per thread from MIN_CELLS_TO_SPLIT cells; more chunks than threads, so that
         # the pool balances cells of very different substep counts, where each keeps

@@ -4,8 +4,8 @@ The 3D counterpart of ``warp_hcell.dem.kernels`` (same stepping, same convention
 per cell with the whole increment inside the kernel and the cell in fixed-size local
 matrices; kernels are generated per topology (candidate pairs, driven DOF mask and outer
 faces are compile-time constants, loops unrolled). The stepping (``warp_hcell.dem.stepping``)
-and the pair loops (``warp_hcell.dem.pairs``) are the 2D kernel's; the law of one spatial pair
-and the volume are below.
+and the pair loops (``warp_hcell.dem.pairs``) are the 2D kernel's, the law of one spatial pair the
+contact law's (``warp_hcell.dem.laws``: ``spatial_contact``); the pair force and the volume are below.
 
 Conventions inside the kernel (tension-positive DEM quantities, local frame (n, t1, t2)):
     - pair p = (i, j): unit normal u = (x_j - x_i) / norm(x_j - x_i);
@@ -18,7 +18,7 @@ Conventions inside the kernel (tension-positive DEM quantities, local frame (n, 
       scalar spring of the 2D kernel), then grows by kt times the tangential part of the
       relative displacement (dx_j - dx_i); the trial force is capped at mu f_n along its own
       direction (Coulomb); out of contact the history is reset; the Hertz-Mindlin law
-      (``hertz_spatial_contact``) has f_n = kh delta^(3/2) and the mean Mindlin stiffness of the
+      (``warp_hcell.dem.laws.hertz_mindlin``) has f_n = kh delta^(3/2) and the mean Mindlin stiffness of the
       move in place of kt;
     - contact when the gap is <= contact_tolerance (r_i + r_j); a contact with a gap >= 0
       carries zero force;
@@ -38,7 +38,7 @@ import functools
 
 import warp as wp
 
-from warp_hcell.dem.contact import carried_spring, contact_law_3d, hertz_contact_law_3d
+from warp_hcell.dem.laws import warp_law
 from warp_hcell.dem.pairs import pair_loops
 from warp_hcell.dem.stepping import cell_step_kernel, grain_matrix, mask_code
 from warp_hcell.dem.warp_options import MODULE_OPTIONS
@@ -47,31 +47,6 @@ wp.set_module_options(MODULE_OPTIONS)
 
 DIM = 3
 """Spatial dimension of the cells this module steps."""
-
-
-@wp.func
-def spatial_contact(u: wp.vec3d, rel: wp.vec3d, overlap: wp.float64, spring: wp.vec3d, kn: wp.float64,
-                    kt: wp.float64, mu: wp.float64):
-    """One spatial pair within reach (``warp_hcell.dem.pairs``): the spring carried into the tangent
-    plane of u, then grown by kt times the tangential part of rel; returns (f_n [N], new spring
-    vector [N], regime: 1 sticking, 2 sliding)."""
-    du = rel - wp.dot(rel, u) * u
-    return contact_law_3d(overlap, du, carried_spring(spring, u), kn, kt, mu)
-
-
-@wp.func
-def hertz_spatial_contact(u: wp.vec3d, rel: wp.vec3d, overlap: wp.float64, spring: wp.vec3d, kh: wp.float64,
-                          ks: wp.float64, mu: wp.float64):
-    """``spatial_contact`` of the Hertz-Mindlin law: kh, ks [N/m^1.5] the pair's constants
-    (``warp_hcell.dem.contact.hertz_contact_law_3d``); the move started at the overlap
-    overlap + rel . u (it opened the pair by rel . u, to first order)."""
-    opening = wp.dot(rel, u)
-    du = rel - opening * u
-    return hertz_contact_law_3d(overlap, overlap + opening, du, carried_spring(spring, u), kh, ks, mu)
-
-
-SPATIAL_CONTACTS = {"linear": spatial_contact, "hertz-mindlin": hertz_spatial_contact}
-"""The law of one spatial pair, by contact-law name."""
 
 
 @wp.func
@@ -85,7 +60,7 @@ def pair_pieces_3d(pairs: tuple[tuple[int, int], ...], n_grains: int,
                    law: str = "linear") -> tuple[wp.Function, wp.Function, wp.Function]:
     """(``setup``, ``forces``, ``output``) of the spatial pairs (i, j) of one topology with contact law
     ``law`` (``warp_hcell.dem.pairs.pair_loops``); a pair's spring is a vector (a row of an (n_pairs, 3) matrix)."""
-    return pair_loops(pairs, n_grains, DIM, SPATIAL_CONTACTS[law], spatial_pair_force, law)
+    return pair_loops(pairs, n_grains, DIM, warp_law(law).spatial_contact, spatial_pair_force, law)
 
 
 @functools.lru_cache(maxsize=None)
@@ -120,7 +95,7 @@ def step_kernel_3d(pairs: tuple[tuple[int, int], ...], driven: tuple[tuple[bool,
         pairs: candidate contact pairs (i, j), 0-based, i < j.
         driven: per grain, driven along (n, t1, t2).
         faces: outer triangles (a, b, c) of grain indices, oriented outwards (volume V_cell).
-        law: contact-law name (``SPATIAL_CONTACTS``).
+        law: contact-law name (``warp_hcell.dem.laws``).
 
     Returns:
         A kernel launched with one thread per cell of cells [first_cell, first_cell + dim).

@@ -8,7 +8,6 @@ force-free initial state.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -16,8 +15,11 @@ import numpy as np
 import warp as wp
 
 from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, cell_measure, per_cell
-from warp_hcell.core.parameters import HERTZ_DT_OVERLAP, ContactLaw, DemSettings, Law
+from warp_hcell.core.parameters import ContactLaw, DemSettings, Law
+from warp_hcell.dem.dimensions import DIMENSIONS
+from warp_hcell.dem.laws import warp_law
 from warp_hcell.dem.state import DemState
+from warp_hcell.dem.stepping import cell_vector
 
 
 @dataclass(frozen=True, eq=False)
@@ -32,8 +34,8 @@ class DemModel:
         reference_position: reference centres [m], shape (n_cells, n_grains) vec2d.
         reference_cell_size: (l1_ref, l2_ref) [m], shape (n_cells,) vec2d.
         dt: time step dt_factor sqrt(m_min / kn) [s] of each cell (its lightest grain), (n_cells,);
-            kn is ``reference_stiffness`` (the Hertz-Mindlin law: its tangent stiffness at an overlap of
-            ``HERTZ_DT_OVERLAP`` (r_i + r_j) of the cell's smallest pair).
+            kn is the law's ``reference_stiffness`` (``warp_hcell.dem.laws``; the Hertz-Mindlin law: its
+            tangent stiffness at an overlap of ``HERTZ_DT_OVERLAP`` (r_i + r_j) of the cell's smallest pair).
         force_floor: kn * contact_tolerance * mean grain diameter [N], shape (n_cells,): the
             force below which the resolution of contact detection is reached; the unbalanced
             force ratio is taken relative to max(largest normal force, force_floor).
@@ -71,19 +73,19 @@ class DemModel:
 
         A grain's mass is density pi r^2 (a disk per unit thickness) in 2D, density 4/3 pi r^3 in 3D.
         """
-        if meso.dim == 2 and contact_law.name != "linear":
+        if meso.dim == 2 and not contact_law.planar:
             raise ValueError(f"the {contact_law.name} contact law is defined for spheres (3D cells); "
                              f"mesostructure {meso.name!r} is planar: use the linear law")
         radius = np.ascontiguousarray(radius, dtype=np.float64)
-        mass = settings.density * (math.pi * radius**2 if meso.dim == 2 else 4.0 / 3.0 * math.pi * radius**3)
-        kn = reference_stiffness(contact_law, radius)
+        mass = settings.density * DIMENSIONS[meso.dim].grain_measure(radius)
+        kn = warp_law(contact_law.name).reference_stiffness(contact_law, radius)
         dt = settings.dt_factor * np.sqrt(mass.min(axis=1) / kn)
         floor = kn * settings.contact_tolerance * 2.0 * radius.mean(axis=1)
 
         def put(a, dtype):
             return wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=dtype, device=device)
 
-        vector = wp.vec2d if meso.dim == 2 else wp.vec3d
+        vector = cell_vector(meso.dim)
         return cls(meso=meso, device=str(device), radius=put(radius, wp.float64), inv_mass=put(1.0 / mass, wp.float64),
                    reference_position=put(reference_position, vector),
                    reference_cell_size=put(reference_cell_size, vector), dt=put(dt, wp.float64),
@@ -125,7 +127,7 @@ class DemModel:
         position = self.reference_position.numpy()
         return DemState.from_numpy({
             "position": position, "velocity": np.zeros_like(position),
-            "shear_force": np.zeros((n_cells, n_pairs) if dim == 2 else (n_cells, n_pairs, dim)),
+            "shear_force": np.zeros((n_cells, n_pairs, *DIMENSIONS[dim].spring_shape)),
             "contact_force": np.zeros((n_cells, n_pairs, dim)),
             "contact": initial_contacts(position, self.radius.numpy(), self.meso.pairs,
                                         self.settings.contact_tolerance),
@@ -140,21 +142,3 @@ def initial_contacts(position: np.ndarray, radius: np.ndarray, pairs: np.ndarray
     dist = np.linalg.norm(position[:, j] - position[:, i], axis=-1)
     rsum = radius[:, i] + radius[:, j]
     return (dist - rsum <= tolerance * rsum).astype(np.int32)
-
-
-def reference_stiffness(law: Law, radius: np.ndarray) -> float | np.ndarray:
-    """The normal stiffness [N/m] that sets a cell's time step and force floor: kn of the linear law;
-    for the Hertz-Mindlin law, its tangent stiffness at the overlap HERTZ_DT_OVERLAP (2 r) of the
-    cell's smallest grain radius r, shape (n_cells,) (``radius``: (n_cells, n_grains) [m])."""
-    if law.name == "linear":
-        return law.kn
-    smallest = radius.min(axis=1)
-    return 1.5 * law.normal_modulus * np.sqrt(0.5 * smallest * (HERTZ_DT_OVERLAP * 2.0 * smallest))
-
-
-def kernel_constants(law: Law) -> tuple[float, float, float]:
-    """(kn, kt, mu) as the cell-step kernel takes them (``warp_hcell.dem.pairs``): the linear law's kn, kt
-    [N/m]; the Hertz-Mindlin law's (4/3) E* and 8 G* [Pa], which the kernel scales by sqrt(R*) per pair."""
-    if law.name == "linear":
-        return law.kn, law.kt, law.mu
-    return law.normal_modulus, law.shear_stiffness_modulus, law.mu

@@ -13,10 +13,10 @@ kernel module (``warp_hcell.dem.kernels``, ``warp_hcell.dem.kernels3d``) as two 
 - ``pair_force(u, normal, spring)``: the force on grain i by grain j [N], -f_n u plus the
   spring's force in the tangent plane.
 
-The contact law (``LAWS``) is a compile-time choice: the linear law passes the kernel's kn and kt
-to ``contact`` as they are; the Hertz-Mindlin law passes kn sqrt(R*) and kt sqrt(R*) of each pair,
-with kn = (4/3) E* and kt = 8 G* [Pa] (``warp_hcell.core.parameters.HertzMindlinLaw``) and
-R* = r_i r_j / (r_i + r_j) from ``setup``.
+The contact law is a compile-time choice by name (``warp_hcell.dem.laws``): ``setup`` computes
+each pair's factor (``pair_scale``), ``contact`` and the law's ``normal_force`` get the pair's
+constants (``pair_constant`` of the kernel's kn and kt and the factor; the linear law's: kn and kt
+as they are).
 
 The springs are one value per pair in the plane (a (n_pairs,) vector), a row of an
 (n_pairs, 3) matrix in space; ``fs[p]`` is pair p's in either. Conventions (tension positive,
@@ -28,28 +28,25 @@ import functools
 
 import warp as wp
 
-from warp_hcell.dem.contact import hertz_normal_force, normal_force
+from warp_hcell.dem.laws import warp_law
 from warp_hcell.dem.stepping import cell_vector, grain_matrix, mask_code, spring_types
 from warp_hcell.dem.warp_options import MODULE_OPTIONS
 
 wp.set_module_options(MODULE_OPTIONS)
 
 
-LAWS = ("linear", "hertz-mindlin")
-"""Contact laws the pair loops compile (``warp_hcell.core.parameters.CONTACT_LAWS``)."""
-
-
 @functools.lru_cache(maxsize=None)
 def pair_setup(pairs: tuple[tuple[int, int], ...], dim: int, law: str = "linear") -> wp.Function:
     """``setup(radius, shear_force_in, c, contact_tolerance)``: a cell's pairs (i, j) before the
     increment: (tangential springs [N], r_i + r_j [m], squared reach ((r_i + r_j)(1 + tolerance))^2,
-    per-pair stiffness scale [m^0.5]: sqrt(R*) for the Hertz-Mindlin law, 1 for the linear law)."""
+    per-pair factor of the law's constants (``warp_hcell.dem.laws``: ``pair_scale``))."""
     n_pairs = len(pairs)
     pi = tuple(p[0] for p in pairs)
     pj = tuple(p[1] for p in pairs)
     vec_p = wp.types.vector(length=n_pairs, dtype=wp.float64)
     springs, spring_in = spring_types(n_pairs, dim)
     code = mask_code(pairs)
+    pair_scale = warp_law(law).pair_scale
 
     @wp.func
     def setup(radius: wp.array2d(dtype=wp.float64), shear_force_in: wp.array2d(dtype=spring_in), c: wp.int32,
@@ -72,10 +69,7 @@ def pair_setup(pairs: tuple[tuple[int, int], ...], dim: int, law: str = "linear"
             r_sum = r_i + r_j
             rsum[p] = r_sum
             cut2[p] = (r_sum * widen) * (r_sum * widen)
-            if wp.static(law == "linear"):
-                scale[p] = wp.float64(1.0)
-            else:
-                scale[p] = wp.sqrt(r_i * r_j / r_sum)
+            scale[p] = pair_scale(r_i, r_j, r_sum)
         return fs, rsum, cut2, scale
 
     return setup
@@ -106,9 +100,8 @@ def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, cont
     springs, spring_out = spring_types(n_pairs, dim)
     moment_type = wp.types.matrix(shape=(dim, dim), dtype=wp.float64)
     code = mask_code(pairs)
-    if law not in LAWS:
-        raise ValueError(f"unknown contact law {law!r}; the DEM kernels compile {', '.join(LAWS)}")
-    linear = law == "linear"
+    law_functions = warp_law(law)
+    pair_constant, law_normal_force = law_functions.pair_constant, law_functions.normal_force
 
     @wp.func
     def forces(x: mat, dx: mat, fs: springs, rsum: vec_p, cut2: vec_p, scale: vec_p, was_regime: vec_p,
@@ -130,11 +123,8 @@ def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, cont
             if dist2 <= cut2[p]:
                 dist = wp.sqrt(dist2)
                 u = b * (wp.float64(1.0) / dist)
-                if wp.static(linear):
-                    normal, shear, regime = contact(u, dx[j] - dx[i], rsum[p] - dist, fs[p], kn, kt, mu)
-                else:
-                    normal, shear, regime = contact(u, dx[j] - dx[i], rsum[p] - dist, fs[p], kn * scale[p],
-                                                    kt * scale[p], mu)
+                normal, shear, regime = contact(u, dx[j] - dx[i], rsum[p] - dist, fs[p], pair_constant(kn, scale[p]),
+                                                pair_constant(kt, scale[p]), mu)
                 force = pair_force(u, normal, shear)
                 shear_new[p] = shear
                 for a in range(wp.static(dim)):
@@ -161,10 +151,8 @@ def pair_loops(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int, cont
             dist2 = wp.dot(b, b)
             dist = wp.sqrt(dist2)
             touching = dist2 <= cut2[p]
-            if wp.static(linear):
-                normal = wp.where(touching, normal_force(rsum[p] - dist, kn), wp.float64(0.0))
-            else:
-                normal = wp.where(touching, hertz_normal_force(rsum[p] - dist, kn * scale[p]), wp.float64(0.0))
+            normal = wp.where(touching, law_normal_force(rsum[p] - dist, pair_constant(kn, scale[p])),
+                              wp.float64(0.0))
             force = pair_force(b / dist, normal, shear)
             contact_force_out[c, p] = force
             contact_out[c, p] = wp.where(touching, 1, 0)

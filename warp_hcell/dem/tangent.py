@@ -32,7 +32,7 @@ its magnitude mu N and turns with the trial force in the plane); the -u T^T / d 
 spring turning with the contact. In 2D (P = w w^T) these are the expressions above.
 
 The Hertz-Mindlin law (spatial cells only, ``law="hertz-mindlin"``): kn and kt are then the pair
-constants kh, ks [N/m^1.5] (``warp_hcell.core.contact.hertz_pair_constants``, shape broadcasting
+constants kh, ks [N/m^1.5] (``warp_hcell.core.laws.hertz_mindlin.pair_constants``, shape broadcasting
 against (n_cells, n_pairs)), N = kh delta^(3/2), and the kn and kt of the expressions above become
 the tangent stiffnesses 1.5 kh sqrt(delta) and ks sqrt(delta) at the contact's overlap delta.
 """
@@ -52,8 +52,15 @@ def _unit_tangent(branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.stack([-u[..., 1], u[..., 0]], axis=-1)
 
 
+def require_planar_law(law: str) -> None:
+    """ValueError (one line) unless ``law`` (a contact-law name) is the linear law, the one law of planar cells."""
+    if law != "linear":
+        raise ValueError(f"the {law} contact law is defined for spatial cells only")
+
+
 def sliding_contacts(position_old: np.ndarray, position: np.ndarray, radius: np.ndarray, pairs: np.ndarray,
-                     shear_force_old: np.ndarray, *, kn: float, kt: float, mu: float) -> np.ndarray:
+                     shear_force_old: np.ndarray, *, kn: float, kt: float, mu: float,
+                     law: str = "linear") -> np.ndarray:
     """Contacts whose elastic trial force over the increment exceeds the Coulomb cap.
 
     Args:
@@ -63,10 +70,12 @@ def sliding_contacts(position_old: np.ndarray, position: np.ndarray, radius: np.
         pairs: candidate pairs (i, j), shape (n_pairs, 2).
         shear_force_old: tangential force before the increment [N], shape (n_cells, n_pairs).
         kn, kt: contact stiffnesses [N/m]; mu: friction coefficient [-].
+        law: contact-law name; planar cells carry the linear law only (``require_planar_law``).
 
     Returns:
         bool, shape (n_cells, n_pairs): overlapping pairs with ``|T_old + kt (b - b_old) . w_mid| > mu N``.
     """
+    require_planar_law(law)
     i, j = pairs[:, 0], pairs[:, 1]
     b_old = position_old[:, j] - position_old[:, i]
     b = position[:, j] - position[:, i]
@@ -77,8 +86,9 @@ def sliding_contacts(position_old: np.ndarray, position: np.ndarray, radius: np.
 
 
 def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.ndarray, sliding: np.ndarray, *,
-                      kn: float, kt: float, mu: float) -> np.ndarray:
-    """Stiffness df/db of every pair [N/m], shape (n_cells, n_pairs, 2, 2).
+                      kn: float, kt: float, mu: float, law: str = "linear") -> np.ndarray:
+    """Stiffness df/db of every pair [N/m], shape (n_cells, n_pairs, 2, 2) (``law``: the linear law only,
+    ``require_planar_law``).
 
     Args:
         branch: b = x_j - x_i [m], shape (n_cells, n_pairs, 2).
@@ -88,6 +98,7 @@ def contact_stiffness(branch: np.ndarray, overlap: np.ndarray, shear_force: np.n
         sliding: True where the contact slides (T = +-mu N), shape (n_cells, n_pairs).
         kn, kt: normal and tangential contact stiffness [N/m]; mu: friction coefficient [-].
     """
+    require_planar_law(law)
     d = np.linalg.norm(branch, axis=-1)
     u, w = _unit_tangent(branch)
     active = overlap > 0.0
@@ -178,6 +189,29 @@ def _assembly(pairs: tuple[tuple[int, int], ...], n_grains: int, dim: int = 2) -
     return incidence, assembly
 
 
+def pair_forces(branch: np.ndarray, overlap: np.ndarray, shear_force: np.ndarray, *, kn: float, kt: float,
+                law: str = "linear") -> np.ndarray:
+    """Force on grain i of every planar pair [N], -f_n u + f_s w, shape (n_cells, n_pairs, 2); pairs with
+    overlap <= 0 carry none (``contact_stiffness``: the arguments)."""
+    active = overlap > 0.0
+    u, w = _unit_tangent(branch)
+    return -kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active, shear_force, 0.0)[..., None] * w
+
+
+def pair_forces_3d(branch: np.ndarray, overlap: np.ndarray, shear_force: np.ndarray, *, kn: float, kt: float,
+                   law: str = "linear") -> np.ndarray:
+    """``pair_forces`` of spatial pairs, -f_n u + f_s, shape (n_cells, n_pairs, 3) (``contact_stiffness_3d``:
+    the arguments)."""
+    active = overlap > 0.0
+    u = branch / np.linalg.norm(branch, axis=-1, keepdims=True)
+    normal = kn * np.where(active, overlap, 0.0) if law == "linear" else PairLaw(law, kn, kt).normal(overlap)
+    return -normal[..., None] * u + np.where(active[..., None], shear_force, 0.0)
+
+
+PAIR_TERMS = {2: (contact_stiffness, pair_forces), 3: (contact_stiffness_3d, pair_forces_3d)}
+"""(pair stiffness df/db, pair force) of each dimension, as ``condensed_tangent`` assembles them."""
+
+
 def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarray, driven: np.ndarray,
                       shear_force: np.ndarray, sliding: np.ndarray, drive_rate: np.ndarray, *, kn: float,
                       kt: float, mu: float, law: str = "linear") -> np.ndarray:
@@ -208,12 +242,8 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
     i, j = pairs[:, 0], pairs[:, 1]
     branch = position[:, j] - position[:, i]
     overlap = radius[:, i] + radius[:, j] - np.linalg.norm(branch, axis=-1)
-    if dim == 2:
-        if law != "linear":
-            raise ValueError(f"the {law} contact law is defined for spatial cells only")
-        k = contact_stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu)
-    else:
-        k = contact_stiffness_3d(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu, law=law)
+    stiffness, forces = PAIR_TERMS[dim]
+    k = stiffness(branch, overlap, shear_force, sliding, kn=kn, kt=kt, mu=mu, law=law)
     incidence, assembly = _assembly(tuple(map(tuple, np.asarray(pairs).tolist())), n_grains, dim)
     k_flat = k.reshape(n_cells, -1)
     d_mask = np.asarray(driven, dtype=bool).reshape(-1)
@@ -224,14 +254,7 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
         return (k_flat @ assembly[:, (rows[:, None] * n_dof + cols).reshape(-1)]).reshape(n_cells, rows.size, cols.size)
 
     # net contact force on every DOF, F = -sum_p (e_j - e_i) f_p
-    active = overlap > 0.0
-    if dim == 2:
-        u, w = _unit_tangent(branch)
-        f = (-kn * np.where(active, overlap, 0.0)[..., None] * u + np.where(active, shear_force, 0.0)[..., None] * w)
-    else:
-        u = branch / np.linalg.norm(branch, axis=-1, keepdims=True)
-        normal = kn * np.where(active, overlap, 0.0) if law == "linear" else PairLaw(law, kn, kt).normal(overlap)
-        f = -normal[..., None] * u + np.where(active[..., None], shear_force, 0.0)
+    f = forces(branch, overlap, shear_force, kn=kn, kt=kt, law=law)
     F = -(np.swapaxes(f, 1, 2) @ incidence).transpose(0, 2, 1).reshape(n_cells, n_dof)
 
     K_dd = block(di, di)

@@ -1,0 +1,54 @@
+"""What the meso-DEM does differently for planar cells (disks) and spatial cells (spheres), chosen
+once by the cell's dimension: ``DIMENSIONS[meso.dim]``.
+
+The kernels of both dimensions share their stepping and pair loops (``warp_hcell.dem.stepping``,
+``warp_hcell.dem.pairs``); what differs on the host is a grain's mass, the kernel of a topology,
+the sliding test of the tangent and the shape of a spring (the type of a cell vector:
+``warp_hcell.dem.stepping.cell_vector``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import warp as wp
+
+from warp_hcell.dem.kernels import step_kernel
+from warp_hcell.dem.kernels3d import step_kernel_3d
+from warp_hcell.dem.tangent import sliding_contacts, sliding_contacts_3d
+from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+
+def _planar_kernel(meso: Mesostructure, law: str) -> wp.Kernel:
+    """The planar cell-step kernel of ``meso``'s topology and outer polygon (the linear law, ``law``)."""
+    return step_kernel(*meso.topology_key(), tuple(int(g) for g in meso.outer))
+
+
+def _spatial_kernel(meso: Mesostructure, law: str) -> wp.Kernel:
+    """The spatial cell-step kernel of ``meso``'s topology and outer faces with contact law ``law``."""
+    return step_kernel_3d(*meso.topology_key(), tuple(map(tuple, meso.outer.tolist())), law)
+
+
+@dataclass(frozen=True)
+class Dimension:
+    """The pieces of the meso-DEM of one spatial dimension."""
+
+    grain_measure: Callable[[np.ndarray], np.ndarray]
+    """Grain radii [m] -> the measure whose density gives a grain's mass: pi r^2 [m^2] (a disk per unit
+    thickness) or 4/3 pi r^3 [m^3]."""
+    kernel: Callable[[Mesostructure, str], wp.Kernel]
+    """(mesostructure, contact-law name) -> the compiled cell-step kernel of its topology."""
+    sliding_contacts: Callable[..., np.ndarray]
+    """``warp_hcell.dem.tangent.sliding_contacts`` or ``sliding_contacts_3d``."""
+    spring_shape: tuple[int, ...]
+    """Shape of one pair's tangential spring: () in the plane (f_s along w), (3,) in space (a vector)."""
+
+
+DIMENSIONS = {
+    2: Dimension(lambda radius: math.pi * radius**2, _planar_kernel, sliding_contacts, ()),
+    3: Dimension(lambda radius: 4.0 / 3.0 * math.pi * radius**3, _spatial_kernel, sliding_contacts_3d, (3,)),
+}
+"""The meso-DEM's pieces by the cell's dimension."""
