@@ -55,7 +55,7 @@ def make_cell_model(
     physical parameters and options; ValueError (one line) for a contact law the cells' dimension does not
     define (the Hertz-Mindlin law of spheres in planar cells)."""
     law = contact_law or ContactLaw()
-    if dim == 2 and law.name != ContactLaw.name:
+    if dim == 2 and not law.planar:
         raise ValueError(f"the {law.name} contact law is defined for spheres (3D cells, hmodel triaxial); planar "
                          f"cells use the linear law")
     return backend_class(name, dim)(law, radius, **options)

@@ -28,8 +28,8 @@ The partial derivatives of the frozen-regime residual and moment are written out
 The Hertz-Mindlin law (``warp_hcell.core.parameters.HertzMindlinLaw``, used by the ten-sphere
 cell of ``analytical3d``, whose planes are such cells of spheres) replaces kn <D - d> by
 kh <D - d>^(3/2) and kt by the mean Mindlin stiffness of the increment's type-1 overlaps,
-kt(D - d1_old, D - d1) (``warp_hcell.core.contact.mindlin_move_stiffness``, as the DEM's), kh and ks the pair
-constants of equal spheres (R* = r / 2, ``warp_hcell.core.contact.hertz_pair_constants``); the
+kt(D - d1_old, D - d1) (``warp_hcell.core.laws.hertz_mindlin.move_stiffness``, as the DEM's), kh and ks the pair
+constants of equal spheres (R* = r / 2, ``warp_hcell.core.laws.hertz_mindlin.pair_constants``); the
 solve, its bracket and the tangent are the same with the overlap-dependent slopes.
 
 Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
