@@ -14,7 +14,36 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from homogenization.learning.envelope import MINIMUM
+
+FINES_EQUILIBRIUM_CORRECTIONS = 5
+"""Default equilibrium corrections K of the certificate, and so of the runs, of a spatial cell with
+fine grains (``default_equilibrium``) [-]: K = 2 left cell-increments unbalanced (force ratio up to
+1) that stopped a drained test, K = 5 followed it (docs/ann.md, "Drained tests of the hybrid")."""
+FINES_EQUILIBRIUM_TOLERANCE = 1e-3
+"""Default force ratio above which such a cell is corrected [-]: within 0.02 % of the scale of the
+DEM undrained while the network's guess decides 64-77 % of the cell-increments (docs/ann.md,
+"Equilibrium corrections"; the DEM's 1e-6 corrects 90-99 % of them)."""
+
+
+def has_fine_grains(meso: Any) -> bool:
+    """Whether ``meso`` (a ``Mesostructure``) has a grain driven along no axis: a fine grain whose
+    position only its contacts' balance decides (the lateral spheres of the ten-sphere cell are
+    driven across n and count not)."""
+    return bool(np.any(~np.asarray(meso.driven, dtype=bool).any(axis=1)))
+
+
+def default_equilibrium(meso: Any) -> tuple[int, float | None]:
+    """(K, tolerance) of the surrogate that ``hmodel train``, ``learn`` and ``certify`` certify by
+    default for cells of ``meso``: (``FINES_EQUILIBRIUM_CORRECTIONS``,
+    ``FINES_EQUILIBRIUM_TOLERANCE``) for a spatial cell with fine grains (``has_fine_grains``),
+    where the network alone misses the DEM by 30-49 % (docs/ann.md), else (0, None), the network
+    alone (planar cells, the plain ten-sphere cell)."""
+    if int(meso.dim) == 3 and has_fine_grains(meso):
+        return FINES_EQUILIBRIUM_CORRECTIONS, FINES_EQUILIBRIUM_TOLERANCE
+    return 0, None
 
 
 @dataclass(frozen=True)
