@@ -18,10 +18,12 @@ import numpy as np
 
 from homogenization.learning.envelope import MINIMUM
 
-FINES_EQUILIBRIUM_CORRECTIONS = 5
+FINES_EQUILIBRIUM_CORRECTIONS = 20
 """Default equilibrium corrections K of the certificate, and so of the runs, of a spatial cell with
-fine grains (``default_equilibrium``) [-]: K = 2 left cell-increments unbalanced (force ratio up to
-1) that stopped a drained test, K = 5 followed it (docs/ann.md, "Drained tests of the hybrid")."""
+fine grains (``default_equilibrium``) [-]: a cap, reached only in cells whose Newton steps do not
+converge (counted as unconverged); K = 2 stopped a drained test that K = 5 followed, and on a cell
+nobody tuned for K = 20 followed a drained test that K = 5 did not (docs/certificate.md, "The
+default pipeline of a 3D cell with fine grains")."""
 FINES_EQUILIBRIUM_TOLERANCE = 1e-3
 """Default force ratio above which such a cell is corrected [-]: within 0.02 % of the scale of the
 DEM undrained while the network's guess decides 64-77 % of the cell-increments (docs/ann.md,
