@@ -132,6 +132,7 @@ def surrogate_of(args: argparse.Namespace):
     --patience not given set to those of a hybrid's network where it is one
     (``training.config.for_hybrid``); UserError (one line) for corrections asked on a planar
     database, before any training."""
+    certificate_settings(args)  # its one-line errors first
     if args.equilibrium_corrections:
         _require_spatial_database(args.data)
     explicit = args.no_certify or args.equilibrium_corrections is not None
