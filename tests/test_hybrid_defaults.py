@@ -37,14 +37,14 @@ def _meso(spec: str):
 def test_a_3d_cell_with_a_fine_grain_defaults_to_the_hybrid(spec):
     meso = _meso(spec)
     assert has_fine_grains(meso)
-    assert default_equilibrium(meso) == (FINES_EQUILIBRIUM_CORRECTIONS, FINES_EQUILIBRIUM_TOLERANCE) == (20, 1e-3)
+    assert default_equilibrium(meso) == (FINES_EQUILIBRIUM_CORRECTIONS, FINES_EQUILIBRIUM_TOLERANCE) == (20, 1e-4)
 
 
 @pytest.mark.parametrize("name", ["fine_off_centre", "unequal_planes", "large_axial"])
 def test_the_committed_acceptance_cells_are_3d_cells_with_a_fine_grain(name):
     meso = load_mesostructure(CELLS / f"{name}.toml")
     assert meso.dim == 3 and meso.n_grains == 11
-    assert default_equilibrium(meso) == (20, 1e-3)
+    assert default_equilibrium(meso) == (20, 1e-4)
 
 
 @pytest.mark.parametrize("spec", ["hcell3d:alpha0=55", "hcell3d:alpha0=55,lateral=0.8", "hcell:alpha0=50",
@@ -72,7 +72,7 @@ def test_train_certifies_the_hybrid_of_a_fines_database_and_trains_its_network_s
     _database(tmp_path / "db.h5", "hcell3d-fines:alpha0=55,ratio=0.9")
     args = _train_args(tmp_path)
     measured = train_cli.surrogate_of(args)
-    assert (measured.equilibrium_corrections, measured.equilibrium_tolerance) == (20, 1e-3)
+    assert (measured.equilibrium_corrections, measured.equilibrium_tolerance) == (20, 1e-4)
     assert (args.epochs, args.patience) == (HYBRID_EPOCHS, HYBRID_PATIENCE) == (30, 10)
     overridden = _train_args(tmp_path, "--equilibrium-corrections", "0")
     measured = train_cli.surrogate_of(overridden)
@@ -126,7 +126,7 @@ def test_learn_json_records_the_round_flags_and_the_surrogate(tmp_path):
     meso = args.mesostructure.build()
     options = learn_cli._options(args, meso, learn_cli.certificate_settings(args, meso))
     assert (options["stall_rounds"], options["departure_margin"], options["max_database_mb"]) == (3, 0.25, 80.0)
-    assert (options["equilibrium_corrections"], options["equilibrium_tolerance"]) == (20, 1e-3)
+    assert (options["equilibrium_corrections"], options["equilibrium_tolerance"]) == (20, 1e-4)
     config = learn_cli._train_config(args, learn_cli.certificate_settings(args, meso))
     assert (config.epochs, config.patience) == (HYBRID_EPOCHS, HYBRID_PATIENCE)
 
