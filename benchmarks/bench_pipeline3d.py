@@ -18,7 +18,8 @@ fired in the final certificate.
 
 Default cell: ten equal spheres (alpha0 = 53 deg) with a free fine sphere of 0.74 r, off the
 pore centre (n = 0.06 r, t2 = 0.04 r). Numbers: docs/certificate.md, "The pipeline of a 3D cell
-with a fine grain".
+with a fine grain" (the network alone, then the default) and "The default pipeline of a 3D cell
+with fine grains" (the cells of ``benchmarks/cells``).
 """
 
 from __future__ import annotations
