@@ -12,9 +12,14 @@ certificate worst, the tests the ANN could not follow and the samples the size b
 out. The load average of the machine is printed beside the times (they are the wall times of
 a shared machine). A folder of an earlier call is started again (``--overwrite``).
 
+The train line says which surrogate the certificate measures (a 3D cell with fine grains: the
+network with equilibrium corrections, by default); the last lines say how often its corrections
+fired in the final certificate.
+
 Default cell: ten equal spheres (alpha0 = 53 deg) with a free fine sphere of 0.74 r, off the
 pore centre (n = 0.06 r, t2 = 0.04 r). Numbers: docs/certificate.md, "The pipeline of a 3D cell
-with a fine grain".
+with a fine grain" (the network alone, then the default) and "The default pipeline of a 3D cell
+with fine grains" (the cells of ``benchmarks/cells``).
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from pathlib import Path
 import h5py
 
 from homogenization.learning import certificate
+from homogenization.learning.envelope import equilibrium_settings
 from homogenization.cli import hmodel
 from warp_hcell.database.format import sizes
 
@@ -44,6 +50,19 @@ def _mb(path: Path) -> str:
 
 def _load() -> str:
     return "load %.1f %.1f %.1f" % os.getloadavg()
+
+
+def surrogate_line(cert: dict) -> str:
+    """The surrogate the certificate measured and, for the hybrid, how often its corrections fired."""
+    k, tolerance = equilibrium_settings(cert)
+    if not k:
+        return "certified surrogate: the network alone"
+    tally = cert["equilibrium"]
+    cell_steps = int(cert["settings"]["n_cells"]) * int(tally["steps"])
+    return (f"certified surrogate: the network + up to {k} equilibrium corrections at force ratio {tolerance:g}: "
+            f"{tally['n_corrected']} of {cell_steps} cell steps corrected "
+            f"({100 * tally['n_corrected'] / max(cell_steps, 1):.1f} %), "
+            f"{tally['n_corrections']} Newton steps, {tally['n_unconverged']} left above the tolerance")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -87,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{r.get('database_mb', float('nan')):.1f} ({r.get('database_raw_mb', float('nan')):.1f}) | "
               f"{r['seconds'] - train_s:.0f} | {train_s:.0f} ({r['epochs'] if r['round'] else '-'}) | "
               f"{100 * r['worst']:.3f} ({r['worst_test']}) | {', '.join(r.get('not_followed', [])) or '-'}")
+    print(surrogate_line(meta["certificate"]))
     print(f"pipeline: {generated + trained:.0f} s ({(generated + trained) / 60:.1f} min), generate {generated:.0f} s, "
           f"train + certificate + rounds {trained:.0f} s; database {_mb(db)}; final verdict "
           f"{meta['certificate']['verdict']} (exit {code}); {_load()}")

@@ -84,11 +84,14 @@ def test_the_default_certificate_of_the_hybrid_passes_and_covers_its_runs_only(t
     shutil.copy(SHIPPED_3D.with_name(f"{SHIPPED_3D.stem}_ood.npz"), model.with_name("m_ood.npz"))
     run = ["triaxial", "--backend", "ann", "--model", str(model), "--p0", "2e5", "--undrained", "--eps-max", "0.005",
            "--increment", "1e-3", "--order", "3", "--spins", "1"]
-    refused = _hmodel(*run, "--out", str(tmp_path / "alone"))
+    refused = _hmodel(*run, "--equilibrium-corrections", "0", "--out", str(tmp_path / "alone"))
     assert refused.returncode == 2 and "not the network alone" in refused.stderr and "Traceback" not in refused.stderr
     done = _hmodel(*run, "--equilibrium-corrections", "2", "--equilibrium-tolerance", "1e-3", "--out", str(tmp_path / "k2"))
     assert done.returncode == 0, done.stderr
     assert "certificate passed" in done.stdout
+    unflagged = _hmodel(*run, "--out", str(tmp_path / "certified"))  # the certificate's K and R
+    assert unflagged.returncode == 0, unflagged.stderr
+    assert "certificate passed" in unflagged.stdout and "equilibrium corrections" in unflagged.stdout
 
 
 @needs_model

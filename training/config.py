@@ -23,6 +23,16 @@ DEFAULT_HIDDEN: tuple[int, ...] = (40, 40)
 the H-cell acceptance table, `docs/ann.md`; its inference is no slower than the analytical cell)."""
 
 
+HYBRID_EPOCHS = 30
+"""Maximum epochs [-] of the network of a hybrid surrogate (the network followed by exact
+equilibrium corrections): where ``hmodel train`` and ``hmodel learn`` certify such a surrogate
+and no --epochs is given (``for_hybrid``). The corrections, not the network's accuracy, decide its
+error against the DEM (docs/ann.md, "Equilibrium corrections"; the measured validation curves and
+pipeline times: docs/certificate.md, "The default pipeline of a 3D cell with fine grains")."""
+HYBRID_PATIENCE = 10
+"""Epochs without validation improvement before early stopping [-] of such a network (``for_hybrid``)."""
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Training hyperparameters and split settings (the single home of their defaults)."""
@@ -108,10 +118,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(seed=d.seed, device=d.device)
     p.add_argument("--data", type=Path, required=True, help="generic learning database (HDF5, docs/database_format.md)")
     p.add_argument("--out", type=Path, required=True, help="state_dict file; metadata goes to the same stem .json")
-    p.add_argument("--epochs", type=_positive(int), default=d.epochs, help="maximum epochs")
+    p.add_argument("--epochs", type=_positive(int), default=None,
+                   help=f"maximum epochs (None: {d.epochs}; {HYBRID_EPOCHS} where hmodel train certifies a hybrid)")
     p.add_argument("--batch-size", type=_positive(int), default=d.batch_size, help="samples per Adam step")
     p.add_argument("--lr", type=_positive(float), default=d.lr, help="initial Adam learning rate")
-    p.add_argument("--patience", type=_positive(int), default=d.patience, help="early-stopping patience [epochs]")
+    p.add_argument("--patience", type=_positive(int), default=None,
+                   help=f"early-stopping patience [epochs] (None: {d.patience}; {HYBRID_PATIENCE} where hmodel train "
+                        f"certifies a hybrid)")
     p.add_argument("--hidden", type=hidden_widths, default=",".join(map(str, d.hidden)), help="hidden layer widths, comma separated")
     p.add_argument("--load-features", action="store_true",
                    help="give the network the load fraction f_n / max f_n of every active pair")
@@ -124,10 +137,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def for_hybrid(args: argparse.Namespace) -> None:
+    """Set --epochs and --patience of parsed ``build_parser`` flags that were not given to those of
+    the network of a hybrid surrogate (``HYBRID_EPOCHS``, ``HYBRID_PATIENCE``)."""
+    if args.epochs is None:
+        args.epochs = HYBRID_EPOCHS
+    if args.patience is None:
+        args.patience = HYBRID_PATIENCE
+
+
 def config_of(args: argparse.Namespace) -> TrainConfig:
-    """The ``TrainConfig`` of parsed ``build_parser`` flags."""
+    """The ``TrainConfig`` of parsed ``build_parser`` flags (--epochs and --patience not given:
+    ``TrainConfig``'s)."""
+    d = TrainConfig()
     return TrainConfig(hidden=args.hidden, load_features=args.load_features, sliding_weight=args.sliding_weight,
-                       epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, patience=args.patience,
+                       epochs=d.epochs if args.epochs is None else args.epochs, batch_size=args.batch_size, lr=args.lr,
+                       patience=d.patience if args.patience is None else args.patience,
                        seed=args.seed, threads=args.threads, device=args.device, rollout=not args.no_rollout,
                        init_from=None if args.init_from is None else str(args.init_from))
 

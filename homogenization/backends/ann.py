@@ -20,8 +20,9 @@ physics compiled with numba around the network call; equal to the torch path up 
 and a planar cell's tangent by forward-mode differentiation in the same code; a spatial cell's
 tangent, and everything on another device, through the torch path and autograd.
 
-No equilibrium is solved and no closed form of a particular cell is used, unless asked:
-``equilibrium_corrections=K`` (spatial cells) takes the network's free-DOF displacement as the
+No equilibrium is solved and no closed form of a particular cell is used, unless asked or
+certified: ``equilibrium_corrections=K`` (spatial cells; None, the default: the K and tolerance
+that the model's certificate measured, ``envelope.equilibrium_settings``, 0 without one) takes the network's free-DOF displacement as the
 first guess of up to K exact Newton steps on the balance of the free DOFs with the exact contact
 law (``training.fast_equilibrium3d``, ``training.equilibrium``), in the cells whose force ratio
 (largest unbalanced free-DOF force over the largest normal force) exceeds
@@ -207,10 +208,12 @@ class AnnCell(ArrayStateMixin):
         ood_interval: distinct start states between two out-of-distribution checks (module
             docstring), >= 1.
         equilibrium_corrections: the most exact Newton steps on the free DOFs' balance after the
-            network's step, per cell-increment (module docstring); 0: the network alone. Spatial
-            models only (ValueError for a planar one).
-        equilibrium_tolerance: the force ratio above which a cell is corrected [-] (None: the DEM's
-            ``DemSettings.force_tolerance``).
+            network's step, per cell-increment (module docstring); 0: the network alone; None: the
+            K of the surrogate the model's certificate measured (0 without a certificate), with
+            its tolerance where ``equilibrium_tolerance`` is None. K > 0: spatial models only
+            (ValueError for a planar one).
+        equilibrium_tolerance: the force ratio above which a cell is corrected [-] (None: the
+            certificate's where K comes from it, else the DEM's ``DemSettings.force_tolerance``).
 
     Raises:
         training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
@@ -225,7 +228,7 @@ class AnnCell(ArrayStateMixin):
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
                  device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL,
-                 equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None) -> None:
+                 equilibrium_corrections: int | None = None, equilibrium_tolerance: float | None = None) -> None:
         require_linear_law(contact_law, "the meso-ANN backend (its networks learn from DEM databases of the linear law)")
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
@@ -247,6 +250,12 @@ class AnnCell(ArrayStateMixin):
         self.threads = int(threads)
         torch.set_num_threads(self.threads)
         self.dim = self.net.schema.dim
+        if equilibrium_corrections is None:
+            certified = self.metadata.get("certificate")
+            equilibrium_corrections, measured_tolerance = (envelope.equilibrium_settings(certified)
+                                                           if isinstance(certified, dict) else (0, None))
+            if equilibrium_tolerance is None:
+                equilibrium_tolerance = measured_tolerance
         if int(equilibrium_corrections) < 0 or (int(equilibrium_corrections) > 0 and self.dim != 3):
             raise ValueError(f"equilibrium corrections = {equilibrium_corrections}: a count >= 0, and > 0 for a "
                              f"spatial model only ({path.name} is {self.dim}D)")

@@ -11,6 +11,8 @@ ANN backend then checks it), ``--out`` writes it to a JSON file (an existing one
 database (``training.ood.index_for_model``), for a model trained before the index existed.
 ``--equilibrium-corrections K`` certifies the hybrid (the ANN followed by up to K exact Newton
 steps; ``AnnCell``): the certificate records K and the tolerance, and covers runs with those only.
+Without it, the default surrogate of the model's cell (``settings.default_equilibrium``: the
+hybrid for a 3D cell with fine grains, the network alone for any other), said in one line.
 
 Bad input (missing model or JSON, a mesostructure the model does not take, --out a folder, an
 existing file without --overwrite or in a folder that cannot be written, --write on a JSON that
@@ -29,7 +31,7 @@ from pathlib import Path
 from typing import Sequence
 
 from homogenization.cli.options import (add_certificate_equilibrium_arguments, add_spatial_rule_arguments, certificate_settings,
-                                        command_parser, EXIT_CODES_HELP)
+                                        command_parser, equilibrium_line, EXIT_CODES_HELP)
 from homogenization.learning.settings import CertificateSettings
 from warp_hcell.core.cli import positive_float, positive_int, quiet_warp, say, set_verbosity, UserError, writing_to
 from warp_hcell.core.files import atomic_write, check_output_path
@@ -106,12 +108,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.model.is_file():
         raise UserError(f"--model {args.model}: no such model file")
     check_writable(args)
-    measured = certificate_settings(args)
+    certificate_settings(args)  # its one-line errors before torch is imported
     from homogenization.learning import certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from homogenization.element_test import driver
     from training.checkpoint import metadata_path, read_metadata  # noqa: PLC0415
+    from warp_hcell.mesostructures.files import from_description  # noqa: PLC0415
 
-    read_metadata(args.model)  # CheckpointError (one line) for a missing or unreadable JSON
+    meta = read_metadata(args.model)  # CheckpointError (one line) for a missing or unreadable JSON
+    measured = certificate_settings(args, from_description(meta["mesostructure"]))
+    say(equilibrium_line(measured, args.equilibrium_corrections is not None))
     if not args.verbose:
         quiet_warp()
     meso = args.mesostructure.build(None) if args.mesostructure is not None else None

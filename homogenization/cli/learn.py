@@ -13,7 +13,8 @@ skipped when its output is complete (a second call continues; an interrupted sta
    appended to ``db.h5`` and the model is retrained from scratch;
 4. ``DIR/certificate.png``: p and q of the ANN and the DEM on the certificate's worst test.
 
-``DIR/learn.json`` records the options of the run: a second call with other options is refused
+``DIR/learn.json`` records the options of the run (the certified surrogate and the round flags
+--stall-rounds, --departure-margin and --max-database-mb included): a second call with other options is refused
 (one line, exit 2) unless --overwrite, which starts the folder again (a folder with other files
 and no ``learn.json`` is refused). The exit code is the final certificate's verdict
 (``certificate.exit_code``: 0 passed, 3 failed, 4 below the minimum certificate; bad input 2),
@@ -28,10 +29,10 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from homogenization.learning.settings import ActiveSettings
+from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from homogenization.cli.options import (active_settings, add_active_arguments, add_threads_argument, certificate_settings,
-                                        command_parser, EXIT_CODES_HELP)
-from training.config import DEFAULT_HIDDEN, hidden_widths, TrainConfig
+                                        command_parser, equilibrium_line, EXIT_CODES_HELP)
+from training.config import DEFAULT_HIDDEN, HYBRID_EPOCHS, HYBRID_PATIENCE, hidden_widths, TrainConfig
 from warp_hcell.core.cli import positive_int, quiet_warp, say, set_verbosity, UserError
 from warp_hcell.core.files import atomic_write, check_output_path, output_lock
 from warp_hcell.core.parameters import DatabaseSettings
@@ -59,13 +60,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _options(args: argparse.Namespace, meso) -> dict:
-    """What identifies a run (``learn.json``): a second call must give the same."""
+ROUND_OPTIONS = ("stall_rounds", "departure_margin", "max_database_mb")
+"""The round flags that ``learn.json`` records (``ActiveSettings`` fields); a record written
+before they were recorded reads as their defaults (``_recorded``)."""
+
+
+def _options(args: argparse.Namespace, meso, measured: CertificateSettings) -> dict:
+    """What identifies a run (``learn.json``): a second call must give the same. The surrogate the
+    certificate measures (``measured``: K and tolerance where it is the hybrid, the flags' or the
+    cell's default) and the round flags ``ROUND_OPTIONS`` included."""
     return {"mesostructure": args.mesostructure.text, "mesostructure_sha256": description_sha256(describe(meso)),
             "samples": args.samples, "seed": args.seed, "hidden": list(args.hidden), "epochs": args.epochs,
             "orientations": args.orientations, "eps_max": args.eps_max, "rollout": not args.no_rollout,
-            **({"equilibrium_corrections": args.equilibrium_corrections,
-                "equilibrium_tolerance": args.equilibrium_tolerance} if args.equilibrium_corrections else {})}
+            **{name: getattr(args, name) for name in ROUND_OPTIONS},
+            **({"equilibrium_corrections": measured.equilibrium_corrections,
+                "equilibrium_tolerance": measured.equilibrium_tolerance} if measured.equilibrium_corrections else {})}
+
+
+def _recorded(path: Path) -> dict:
+    """The options of ``learn.json`` at ``path``, the round flags it lacks (``ROUND_OPTIONS``) at
+    their defaults."""
+    defaults = ActiveSettings()
+    return {**{name: getattr(defaults, name) for name in ROUND_OPTIONS}, **json.loads(path.read_text())}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -73,26 +89,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     certificate's verdict, ``certificate.exit_code``)."""
     args = build_parser().parse_args(argv)
     set_verbosity(args)
-    budget, measured = active_settings(args), certificate_settings(args)
+    budget = active_settings(args)
     try:
         settings = DatabaseSettings(samples=args.samples)
         meso = args.mesostructure.build()
     except (ValueError, MesostructureError) as exc:
         raise UserError(str(exc)) from None
+    measured = certificate_settings(args, meso)
     if measured.equilibrium_corrections and meso.dim != 3:
         raise UserError(f"--equilibrium-corrections: spatial cells only ({args.mesostructure.text} is {meso.dim}D)")
     out: Path = args.out
-    config = _train_config(args)
+    config = _train_config(args, measured)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; give a folder")
     check_output_path(out, overwrite=True)  # the nearest existing folder above --out can be written
-    record, options = out / "learn.json", _options(args, meso)
+    record, options = out / "learn.json", _options(args, meso, measured)
     if not args.verbose:
         quiet_warp()
     with output_lock(out):
         if out.is_dir() and any(out.iterdir()) and not record.is_file():
             raise UserError(f"--out {out} holds files that are not a learn run; give a new or empty folder")
-        if record.is_file() and (args.overwrite or json.loads(record.read_text()) != options):
+        if record.is_file() and (args.overwrite or _recorded(record) != options):
             if not args.overwrite:
                 raise UserError(f"{out} holds a learn run with other options; rerun it with the same options or "
                                 f"pass --overwrite to start again")
@@ -100,7 +117,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         out.mkdir(parents=True, exist_ok=True)
         with atomic_write(record) as tmp:
             tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
-        return _learn(args, out, meso, settings, budget, config)
+        say(equilibrium_line(measured, args.equilibrium_corrections is not None)
+            + (f"; training {config.epochs} epochs at most, patience {config.patience}" if measured.equilibrium_corrections
+               else ""))
+        return _learn(args, out, meso, settings, budget, measured, config)
 
 
 def _database_complete(path: Path) -> bool:
@@ -113,15 +133,18 @@ def _database_complete(path: Path) -> bool:
     return True
 
 
-def _train_config(args: argparse.Namespace) -> TrainConfig:
+def _train_config(args: argparse.Namespace, measured: CertificateSettings) -> TrainConfig:
     """The training settings of the run (training's defaults but for --hidden, --threads, --seed,
-    --device, --epochs and --no-rollout)."""
+    --device, --epochs and --no-rollout; a hybrid surrogate's network, ``measured`` with
+    equilibrium corrections: at most ``HYBRID_EPOCHS`` epochs without --epochs, patience
+    ``HYBRID_PATIENCE``)."""
+    hybrid = {"epochs": HYBRID_EPOCHS, "patience": HYBRID_PATIENCE} if measured.equilibrium_corrections else {}
     return TrainConfig(hidden=tuple(args.hidden), threads=args.threads, seed=args.seed, device=args.device,
-                       rollout=not args.no_rollout, **({"epochs": args.epochs} if args.epochs else {}))
+                       rollout=not args.no_rollout, **{**hybrid, **({"epochs": args.epochs} if args.epochs else {})})
 
 
 def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings,
-           budget: ActiveSettings, config: TrainConfig) -> int:
+           budget: ActiveSettings, measured: CertificateSettings, config: TrainConfig) -> int:
     from homogenization.learning import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from training.checkpoint import metadata_path  # noqa: PLC0415
     from warp_hcell.database.generate import generate  # noqa: PLC0415
@@ -144,7 +167,7 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
     else:
         active.train_model(db, model, config, [])
     rounds = active.learn(db, model, config, settings=budget, seed=args.seed, threads=args.threads, log=say,
-                          certify_settings=certificate_settings(args))
+                          certify_settings=measured)
     cert = json.loads(meta.read_text())["certificate"]
     stamp = out / "certificate.png.sha256"
     if figure.is_file() and stamp.is_file() and stamp.read_text().strip() == cert["model_sha256"]:

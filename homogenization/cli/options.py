@@ -27,18 +27,21 @@
   ``hmodel train``);
 - ``add_certificate_equilibrium_arguments(parser)``: --equilibrium-corrections K and --equilibrium-tolerance R
   of the certificate's ANN runs (the hybrid; ``hmodel certify``, ``hmodel train``, ``hmodel learn``), read
-  back with ``certificate_settings(args)``.
+  back with ``certificate_settings(args, meso)`` (without the flag: the cell's default,
+  ``homogenization.learning.settings.default_equilibrium``); ``equilibrium_line`` says it.
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from homogenization.backends import BACKENDS
-from homogenization.learning.settings import ActiveSettings, CertificateSettings
+from homogenization.learning.settings import (ActiveSettings, CertificateSettings, default_equilibrium,
+                                              FINES_EQUILIBRIUM_CORRECTIONS, FINES_EQUILIBRIUM_TOLERANCE)
 from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
-from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
+from warp_hcell.core.parameters import CellDefaults, DemSettings, LoadingDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 
 EXIT_CODES_HELP = ("exit codes: 0 the certificate passed; 2 bad input (one line, before any work); 3 the certificate "
@@ -218,10 +221,22 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
     add_certificate_equilibrium_arguments(parser)
 
 
+def correction_count(text: str) -> int:
+    """argparse type of --equilibrium-corrections: an integer >= 0 (0: the network alone)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text} must be >= 0")
+    return value
+
+
 def add_equilibrium_arguments(parser: argparse.ArgumentParser, corrections_help: str) -> None:
-    """--equilibrium-corrections K (``corrections_help`` says what K does for the command) and
-    --equilibrium-tolerance R of the hybrid meso-ANN (docs/ann.md, "Equilibrium corrections")."""
-    parser.add_argument("--equilibrium-corrections", type=positive_int, default=None, metavar="K",
+    """--equilibrium-corrections K (``corrections_help`` says what K does for the command and what
+    it is when not given) and --equilibrium-tolerance R of the hybrid meso-ANN (docs/ann.md,
+    "Equilibrium corrections")."""
+    parser.add_argument("--equilibrium-corrections", type=correction_count, default=None, metavar="K",
                         help=corrections_help)
     parser.add_argument("--equilibrium-tolerance", type=positive_float, default=None, metavar="R",
                         help="with --equilibrium-corrections: the force ratio above which a cell is corrected "
@@ -230,10 +245,13 @@ def add_equilibrium_arguments(parser: argparse.ArgumentParser, corrections_help:
 
 def add_certificate_equilibrium_arguments(parser: argparse.ArgumentParser) -> None:
     """--equilibrium-corrections K and --equilibrium-tolerance R of the certificate's ANN runs
-    (``CertificateSettings``; default: the network alone)."""
+    (``CertificateSettings``; default: ``settings.default_equilibrium`` of the cell)."""
     add_equilibrium_arguments(parser, "certify the hybrid: the tests run the ANN with up to K exact Newton steps on "
                                       "the free grains' balance after the network's step (spatial cells; "
-                                      "docs/certificate.md); runs are then certified with this K and tolerance only")
+                                      "docs/certificate.md); runs are then certified with this K and tolerance only. "
+                                      f"None: K = {FINES_EQUILIBRIUM_CORRECTIONS} at tolerance "
+                                      f"{FINES_EQUILIBRIUM_TOLERANCE:g} for a 3D cell with fine grains, 0 (the "
+                                      "network alone) for any other; 0: the network alone")
 
 
 def active_settings(args: argparse.Namespace) -> ActiveSettings:
@@ -247,12 +265,32 @@ def active_settings(args: argparse.Namespace) -> ActiveSettings:
         raise UserError(str(exc)) from None
 
 
-def certificate_settings(args: argparse.Namespace) -> CertificateSettings:
+def certificate_settings(args: argparse.Namespace, meso: Any = None) -> CertificateSettings:
     """The ``CertificateSettings`` of the flags of ``add_active_arguments`` and --no-rollout
-    (UserError, one line: --equilibrium-tolerance without --equilibrium-corrections)."""
+    (UserError, one line: --equilibrium-tolerance without --equilibrium-corrections, or with 0).
+    Without --equilibrium-corrections the cell's default surrogate (``settings.default_equilibrium``
+    of ``meso``, the ``Mesostructure`` of the model; None: the network alone)."""
     if args.equilibrium_tolerance is not None and args.equilibrium_corrections is None:
         raise UserError("--equilibrium-tolerance applies with --equilibrium-corrections only")
-    return CertificateSettings(n_orientations=args.orientations, spatial_rule=(args.order, args.spins),
-                               eps_max=args.eps_max, rollout=not args.no_rollout,
-                               equilibrium_corrections=args.equilibrium_corrections or 0,
-                               equilibrium_tolerance=args.equilibrium_tolerance)
+    if args.equilibrium_corrections is None:
+        corrections, tolerance = (0, None) if meso is None else default_equilibrium(meso)
+    else:
+        corrections, tolerance = args.equilibrium_corrections, args.equilibrium_tolerance
+    try:
+        return CertificateSettings(n_orientations=args.orientations, spatial_rule=(args.order, args.spins),
+                                   eps_max=args.eps_max, rollout=not args.no_rollout,
+                                   equilibrium_corrections=corrections, equilibrium_tolerance=tolerance)
+    except ValueError as exc:
+        raise UserError(f"--equilibrium-corrections / --equilibrium-tolerance: {exc}") from None
+
+
+def equilibrium_line(measured: CertificateSettings, explicit: bool) -> str:
+    """The line that says which surrogate a command certifies: ``measured``'s K and tolerance, and
+    whether the cell's default (``explicit`` False) or the flags chose it."""
+    k, tolerance = measured.equilibrium_corrections, measured.equilibrium_tolerance
+    which = "--equilibrium-corrections" if explicit else "the default of this cell"
+    if not k:
+        return f"certified surrogate: the network alone ({which})"
+    return (f"certified surrogate: the network with up to {k} equilibrium corrections at force ratio "
+            f"{tolerance if tolerance is not None else DemSettings().force_tolerance:g} ({which}; "
+            f"--equilibrium-corrections 0: the network alone)")

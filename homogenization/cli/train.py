@@ -38,7 +38,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from homogenization.cli.options import active_settings, add_active_arguments, certificate_settings, EXIT_CODES_HELP
+from homogenization.cli.options import (active_settings, add_active_arguments, certificate_settings, equilibrium_line,
+                                        EXIT_CODES_HELP)
 from training import config as training_config
 from warp_hcell.core.cli import UserError, command_prog, quiet_warp, say, set_verbosity
 from warp_hcell.core.files import atomic_write, output_lock
@@ -96,6 +97,22 @@ def _continues(args: argparse.Namespace, database: Path) -> bool:
                                                   if k not in ROUND_SET)
 
 
+def _database_mesostructure(path: Path):
+    """The ``Mesostructure`` of the cells of database ``path`` (UserError, one line, before any
+    training, where ``path`` is not a database of this format)."""
+    from warp_hcell.database.format import check_database  # noqa: PLC0415 (h5py: only when the command runs)
+    from warp_hcell.mesostructures.files import from_description  # noqa: PLC0415
+
+    try:
+        check_database(path)
+        import h5py  # noqa: PLC0415
+
+        with h5py.File(path, "r") as f:
+            return from_description(f.attrs["mesostructure"])
+    except (OSError, KeyError, ValueError) as exc:
+        raise UserError(f"--data {path}: {exc}") from None
+
+
 def _require_spatial_database(path: Path) -> None:
     """One line (UserError) before any training unless ``path`` is a database of 3D cells: the
     equilibrium corrections exist for spatial cells only."""
@@ -109,15 +126,29 @@ def _require_spatial_database(path: Path) -> None:
         raise UserError(f"--equilibrium-corrections: spatial cells only ({path} holds {dim}D cells)")
 
 
+def surrogate_of(args: argparse.Namespace):
+    """The certificate settings of ``args`` (``certificate_settings``; without
+    --equilibrium-corrections the default surrogate of the database's cell), with --epochs and
+    --patience not given set to those of a hybrid's network where it is one
+    (``training.config.for_hybrid``); UserError (one line) for corrections asked on a planar
+    database, before any training."""
+    certificate_settings(args)  # its one-line errors first
+    if args.equilibrium_corrections:
+        _require_spatial_database(args.data)
+    explicit = args.no_certify or args.equilibrium_corrections is not None
+    measured = certificate_settings(args, None if explicit else _database_mesostructure(args.data))
+    if measured.equilibrium_corrections:
+        training_config.for_hybrid(args)
+    return measured
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (bad input: one line, 2, before any training; then the
     certificate's verdict, ``certificate.exit_code``)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     set_verbosity(args)
-    budget, measured = active_settings(args), certificate_settings(args)
-    if measured.equilibrium_corrections:
-        _require_spatial_database(args.data)
+    budget, measured = active_settings(args), surrogate_of(args)
     from homogenization.learning import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from training import train as training_train  # noqa: PLC0415
     from training.checkpoint import metadata_path  # noqa: PLC0415
@@ -128,6 +159,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     resumed = enrich and _continues(args, database)
     if not (args.verbose or args.no_certify):
         quiet_warp()  # the certificate runs the DEM on the cpu
+    if not args.no_certify:
+        say(equilibrium_line(measured, args.equilibrium_corrections is not None)
+            + (f"; training {config.epochs} epochs at most, patience {config.patience}" if measured.equilibrium_corrections
+               else ""))
     if resumed:
         say(f"{args.out}: an earlier run of these options, continued")
     else:

@@ -312,7 +312,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     meta = read_metadata(model_path)
     law = ContactLaw(**meta["contact_law"])
     hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": equilibrium_tolerance}
-              if equilibrium_corrections else {})
+              if equilibrium_corrections else {"equilibrium_corrections": 0})  # never the model's earlier certificate's
     ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads, **hybrid)
     meso = mesostructure if mesostructure is not None else from_description(meta["mesostructure"])
     ann.check_trained_on(meso)
@@ -438,9 +438,10 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
 
 
 def _hybrid_of(cert: dict[str, Any]) -> dict[str, Any]:
-    """The ANN backend's keywords of the surrogate certificate ``cert`` measured ({}: the network alone)."""
+    """The ANN backend's keywords of the surrogate certificate ``cert`` measured (K = 0: the network alone)."""
     corrections, tolerance = equilibrium_settings(cert)
-    return {"equilibrium_corrections": corrections, "equilibrium_tolerance": tolerance} if corrections else {}
+    return ({"equilibrium_corrections": corrections, "equilibrium_tolerance": tolerance} if corrections
+            else {"equilibrium_corrections": 0})
 
 
 def summary_lines(cert: dict[str, Any]) -> list[str]:

@@ -14,7 +14,42 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from homogenization.learning.envelope import MINIMUM
+
+FINES_EQUILIBRIUM_CORRECTIONS = 20
+"""Default equilibrium corrections K of the certificate, and so of the runs, of a spatial cell with
+fine grains (``default_equilibrium``) [-]: a cap, reached only in cells whose Newton steps do not
+converge (counted as unconverged); K = 2 stopped a drained test that K = 5 followed, and on a cell
+nobody tuned for K = 20 followed a drained test that K = 5 did not (docs/certificate.md, "The
+default pipeline of a 3D cell with fine grains")."""
+FINES_EQUILIBRIUM_TOLERANCE = 1e-4
+"""Default force ratio above which such a cell is corrected [-]. A cell whose force ratio crosses
+the tolerance from one trial to the next jumps by the correction, about the tolerance times its
+largest force: at 1e-3 these jumps stopped the stress control of drained tests of two cells
+nobody tuned for, at 1e-4 to 1e-6 the same model followed them within 0.021 % of the scale of the
+DEM (docs/certificate.md, "The default pipeline of a 3D cell with fine grains"); undrained, 1e-4
+is within 0.005 % while the network's guess still decides 19-37 % of the cell-increments (docs/ann.md,
+"Equilibrium corrections"; the DEM's 1e-6 corrects 90-99 % of them)."""
+
+
+def has_fine_grains(meso: Any) -> bool:
+    """Whether ``meso`` (a ``Mesostructure``) has a grain driven along no axis: a fine grain whose
+    position only its contacts' balance decides (the lateral spheres of the ten-sphere cell are
+    driven across n and count not)."""
+    return bool(np.any(~np.asarray(meso.driven, dtype=bool).any(axis=1)))
+
+
+def default_equilibrium(meso: Any) -> tuple[int, float | None]:
+    """(K, tolerance) of the surrogate that ``hmodel train``, ``learn`` and ``certify`` certify by
+    default for cells of ``meso``: (``FINES_EQUILIBRIUM_CORRECTIONS``,
+    ``FINES_EQUILIBRIUM_TOLERANCE``) for a spatial cell with fine grains (``has_fine_grains``),
+    where the network alone misses the DEM by 30-49 % (docs/ann.md), else (0, None), the network
+    alone (planar cells, the plain ten-sphere cell)."""
+    if int(meso.dim) == 3 and has_fine_grains(meso):
+        return FINES_EQUILIBRIUM_CORRECTIONS, FINES_EQUILIBRIUM_TOLERANCE
+    return 0, None
 
 
 @dataclass(frozen=True)
