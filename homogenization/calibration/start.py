@@ -104,19 +104,14 @@ def prior_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Genera
     return start, {"method": "prior", "prior_draws": PRIOR_OVERSAMPLE * n_walkers}
 
 
-def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
-    """The ``map`` start (module docstring): positions (n_walkers, n_params) and its record (the
-    optimum in CLI units, its chi-square sum of squared residuals, every fit's, the evaluations)."""
+def least_squares_fit(log_post: bayes.Posterior, res: Residuals, x0: np.ndarray) -> tuple[float, Any]:
+    """One bounded least-squares fit of ``map_start`` from ``x0`` (sampled coordinates): its chi-square
+    (sum of squared residuals) and scipy's result."""
     from scipy.optimize import least_squares  # noqa: PLC0415 (only when a calibration starts)
 
     prior = log_post.prior
     lo, hi = prior.lo_coord, prior.hi_coord
     width = hi - lo
-    res = Residuals(log_post)
-    draws = prior.sample(rng, MAP_DRAWS)
-    cost = np.sum(res(draws) ** 2, axis=1)  # chi-square of each draw
-    starts = draws[np.argsort(cost, kind="stable")[:MAP_STARTS]]
-
     last: dict[str, np.ndarray] = {}
 
     def fun(x: np.ndarray) -> np.ndarray:
@@ -132,11 +127,22 @@ def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generato
         shifted = x + np.diag(step)
         return ((res(shifted) - f0) / step[:, None]).T
 
-    fits = []
-    for x0 in starts:
-        fit = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=width, method="trf",
-                            max_nfev=MAP_MAX_EVALUATIONS)
-        fits.append((float(2.0 * fit.cost), fit))
+    fit = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=width, method="trf", max_nfev=MAP_MAX_EVALUATIONS)
+    return float(2.0 * fit.cost), fit
+
+
+def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+    """The ``map`` start (module docstring): positions (n_walkers, n_params) and its record (the
+    optimum in CLI units, its chi-square sum of squared residuals, every fit's, the evaluations)."""
+    prior = log_post.prior
+    lo, hi = prior.lo_coord, prior.hi_coord
+    width = hi - lo
+    res = Residuals(log_post)
+    draws = prior.sample(rng, MAP_DRAWS)
+    cost = np.sum(res(draws) ** 2, axis=1)  # chi-square of each draw
+    starts = draws[np.argsort(cost, kind="stable")[:MAP_STARTS]]
+
+    fits = [least_squares_fit(log_post, res, x0) for x0 in starts]
     best_chi2, best = min(fits, key=lambda item: item[0])
     centre = best.x
     ball = np.clip(centre + width * laplace_draws(best.jac * width, rng, n_walkers), lo, hi)
