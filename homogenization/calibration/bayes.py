@@ -68,12 +68,12 @@ class Prior:
     @property
     def lo_coord(self) -> np.ndarray:
         """Lower bounds in sampled coordinates."""
-        return np.where(self.log, np.log10(self.low), self.low)
+        return np.where(self.log, np.log10(np.where(self.log, self.low, 1.0)), self.low)
 
     @property
     def hi_coord(self) -> np.ndarray:
         """Upper bounds in sampled coordinates."""
-        return np.where(self.log, np.log10(self.high), self.high)
+        return np.where(self.log, np.log10(np.where(self.log, self.high, 1.0)), self.high)
 
     def to_values(self, x: np.ndarray) -> np.ndarray:
         """Sampled coordinates (..., n_params) -> CLI units."""
@@ -81,7 +81,7 @@ class Prior:
 
     def to_coord(self, values: np.ndarray) -> np.ndarray:
         """CLI units (..., n_params) -> sampled coordinates."""
-        return np.where(self.log, np.log10(values), values)
+        return np.where(self.log, np.log10(np.where(self.log, values, 1.0)), values)
 
     def log_prob(self, x: np.ndarray) -> np.ndarray:
         """log prior density of sampled coordinates x, shape (n, n_params) -> (n,); -inf outside."""

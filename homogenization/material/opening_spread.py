@@ -11,6 +11,9 @@ sigma = sum_j g_j sum_k w_k R_k S_jk R_k^T / (V0 J), V0 = sum_j g_j sum_k w_k V_
 spread s is the families' moments over their volumes, i.e. the volume-weighted mean
 sum_j g_j V0_j sigma_j / sum_j g_j V0_j of single-alpha0 points under the same strain.
 
+A run of one material point (``hmodel triaxial --posterior`` of a calibration with a spread) gives
+its cell model per-cell opening angles (``cell_alpha0``) and ``FAMILIES_ATTRIBUTE``.
+
 The ten-sphere cell needs every opening angle >= ``ALPHA_MIN_3D_DEG``: the distribution's lowest,
 alpha0 - spread, must be (``check``).
 """
@@ -28,6 +31,10 @@ N_NODES = 3
 """Families of opening angles per material point (Gauss-Legendre nodes of the uniform distribution) [-]."""
 NAME = "alpha0_spread"
 """The spread's parameter name in a calibration (posterior.json, --params) [deg]."""
+FAMILIES_ATTRIBUTE = "alpha0_families"
+"""Attribute (True) of a cell model whose cells carry a point's ``N_NODES`` families of opening angles for
+one orientation rule (``cell_alpha0`` of one point): ``element_test.points.material_points`` then
+orients them by ``replicate`` of the rule it builds."""
 
 
 def nodes() -> tuple[np.ndarray, np.ndarray]:
