@@ -1,5 +1,5 @@
 """python benchmarks/bench_real_sand_oedometer.py [--posterior benchmarks/results/real_sand_50_200.json]
-[--increment 1e-3] [--hertz G] [--out runs/real_sand_oedometer]
+[--calibration DIR] [--increment 1e-3] [--hertz G] [--out runs/real_sand_oedometer]
 
 The 3D H-model on an oedometer test it was not fitted to: the loading-unloading curve of the loose
 Dobrany sand specimen (benchmarks/lab_data/dobrany_sand/oed_loose.csv, sheet OED-REC-1, e0 0.996,
@@ -8,7 +8,9 @@ the calibration's rule of Lebedev order 11 x 4 aligned spins) at the posterior m
 calibration on the drained triaxial tests (the ``posterior`` means of --posterior, the summary
 json of ``bench_real_sand.py``), with the linear contact law it was fitted with; ``--hertz G`` runs
 the Hertz-Mindlin law of grains of shear modulus G [Pa] (Poisson ratio 0.2) instead, at the
-posterior's phi_g and alpha0 (not fitted: the calibration reads the linear law only).
+posterior's phi_g and alpha0 (not fitted: the calibration reads the linear law only). ``--calibration DIR``
+runs ``hmodel triaxial --posterior DIR`` instead (an ``hmodel calibrate`` folder: its law at the posterior
+mean, with its alpha0_spread where it has one).
 
 The model is seated isotropically at the data's first stress (8 kPa), then loaded with the
 lateral strains held at zero. A first run loads far enough to find the axial strain at which
@@ -99,9 +101,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--increment", type=float, default=1e-3, help="axial strain increment [-]")
     parser.add_argument("--hertz", type=float, default=None, metavar="G",
                         help="Hertz-Mindlin law of grain shear modulus G [Pa] instead of the posterior's kn, kt")
+    parser.add_argument("--calibration", type=Path, default=None,
+                        help="an hmodel calibrate folder: hmodel triaxial --posterior DIR instead of --posterior's means")
     parser.add_argument("--out", type=Path, default=Path("runs/real_sand_oedometer"))
     args = parser.parse_args(argv)
-    post = json.loads(args.posterior.read_text())["posterior"]
+    if args.calibration is not None:
+        post = {name: {"mean": entry["mean"]} for name, entry in
+                json.loads((args.calibration / "posterior.json").read_text()).items() if isinstance(entry, dict)}
+        fixed = json.loads((args.calibration / "run.json").read_text())["config"]["forward"]["fixed"]
+        post = {**{name: {"mean": value} for name, value in fixed.items()}, **post}
+    else:
+        post = json.loads(args.posterior.read_text())["posterior"]
     mean = {name: post[name]["mean"] for name in ("phi_g", "kn", "kt_over_kn", "alpha0")}
     load_s, load_e, unload_s, unload_e = read_data(DATA)
     seat, top, bottom = float(load_s[0]), float(load_s[-1]), float(unload_s[-1])
@@ -109,6 +119,9 @@ def main(argv: list[str] | None = None) -> int:
            ("--law", "hertz-mindlin", "--shear-modulus", f"{args.hertz:g}", "--poisson", "0.2"))
     cell = ("--p0", f"{seat:g}", "--alpha0", f"{mean['alpha0']:.4g}", *law, "--phi", f"{mean['phi_g']:.4g}", *RULE,
             "--increment", f"{args.increment:g}", "-q", "--overwrite")
+    if args.calibration is not None:
+        cell = ("--p0", f"{seat:g}", "--posterior", str(args.calibration), *RULE, "--increment", f"{args.increment:g}",
+                "-q", "--overwrite")
     args.out.mkdir(parents=True, exist_ok=True)
     probe = args.out / "probe"
     hmodel("triaxial", "--oedometer", "0", "--eps-max", "0.3", *cell, "--out", str(probe))

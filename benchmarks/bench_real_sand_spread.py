@@ -9,7 +9,9 @@ of those and alpha0_spread (--spread on), with the settings of benchmarks/bench_
 (Lebedev 11 x 4 aligned spins, shear increments of 2e-3, isotropic 1e-3, noise 2 %, kn prior
 3e6-3e8 N/m, alpha0_spread prior [0, 10] deg cut by alpha0 - spread >= 45 deg); with --spread on
 also one more fit started from the --spread off optimum (--from FILE.json of a --spread off run)
-at a spread of 3 deg. At the best optimum the calibration's forward model runs all three tests
+at a spread of 3 deg. ``--scan FILE.json`` instead runs the optimum of FILE (a --spread off result) with
+alpha0_spread 0, 2, ..., 10 deg, the other parameters held, and prints each spread's chi-square on the
+fitted tests and the misfits of all three (where the spread's evidence is one-dimensional). At the best optimum the calibration's forward model runs all three tests
 and prints, per test, RMS |dq| / q_peak (measured peak), RMS d eps_v, peak q and the axial strain
 at the peak (model / data), eps_v at the last measured eps1 (negative: dilated).
 """
@@ -32,6 +34,7 @@ from bench_real_sand import DATA, PRIOR, SPLITS  # noqa: E402
 from homogenization.calibration import bayes, start  # noqa: E402
 from homogenization.calibration.data import read_test  # noqa: E402
 from homogenization.calibration.forward import SPREAD, ForwardSettings, simulate  # noqa: E402
+from homogenization.material import opening_spread  # noqa: E402
 
 SETTINGS = ForwardSettings(increment=2e-3, iso_increment=1e-3, stress_rtol=1e-5)
 """The forward model of benchmarks/bench_real_sand.py's calibrations (hmodel calibrate's defaults there)."""
@@ -50,6 +53,43 @@ def metrics(test, q: np.ndarray, ev: np.ndarray) -> dict[str, float]:
             "eps_v_end_model": float(ev[-1]), "eps_v_end_data": float(evd[-1])}
 
 
+SCAN = np.arange(0.0, 10.5, 2.0)
+"""Spreads of ``--scan`` [deg]."""
+
+
+def scan(args: argparse.Namespace) -> int:
+    """``--scan`` (module docstring): one batch of the spreads ``SCAN`` per test."""
+    fitted, predicted = SPLITS[args.split]
+    base = json.loads(args.scan.read_text())["optimum"]
+    spreads = SCAN[opening_spread.feasible(base["alpha0"], SCAN)]  # alpha0 - spread >= 45 deg
+    params = {**{k: np.full(spreads.size, v) for k, v in base.items()}, SPREAD: spreads}
+    rows = {}
+    chi2 = np.zeros(spreads.size)
+    for name in sorted((*fitted, predicted), key=lambda f: read_test(DATA / f).p0):
+        test = read_test(DATA / name)
+        with np.errstate(all="ignore"):
+            c = simulate(test, params, SETTINGS)
+        if name in fitted:
+            chi2 += np.sum(bayes.residuals([test], [{"q": c.q, "p": c.p, "eps_v": c.eps_v}], NOISE) ** 2, axis=1)
+        rows[name] = [{"spread": float(s), "forward_fallbacks": int(c.n_fallback[i]), **metrics(test, c.q[i], c.eps_v[i])}
+                      for i, s in enumerate(spreads)]
+    out = {"split": args.split, "at": base, "spreads": spreads.tolist(), "chi_square_fitted": chi2.tolist(), "tests": rows,
+           "load_average_at_end": list(os.getloadavg())}
+    if args.out is not None:
+        args.out.write_text(json.dumps(out, indent=2) + "\n")
+    print(f"split {args.split}: spread scan at " + ", ".join(f"{k} {v:.4g}" for k, v in base.items()))
+    print("spread [deg]  chi2 fitted  " + "  ".join(f"{n.split('_')[1].removesuffix('kpa.csv'):>3s} kPa: RMS dq/q_pk, d eps_v, q_pk [kPa], "
+                                                  f"eps1 pk [%], eps_v end [%]" for n in rows))
+    for i, s in enumerate(spreads):
+        cells = []
+        for name, r in rows.items():
+            m = r[i]
+            cells.append(f"{m['rms_dq_over_qpeak']:.3f}, {100 * m['rms_deps_v']:.2f} %, {m['q_peak_model'] / 1e3:.0f}, "
+                         f"{100 * m['eps1_at_peak_model']:.1f}, {100 * m['eps_v_end_model']:.2f} ({m['forward_fallbacks']})")
+        print(f"{s:6.1f}  {chi2[i]:12.4g}   " + "   |   ".join(cells))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[1])
     parser.add_argument("--split", choices=tuple(SPLITS), default="50+200")
@@ -57,8 +97,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--from", dest="start_from", type=Path, default=None,
                         help="--spread on: a --spread off result (JSON) whose optimum starts one more fit")
+    parser.add_argument("--scan", type=Path, default=None, help="a --spread off result (JSON): scan the spread at its optimum")
     parser.add_argument("--out", type=Path, default=None, help="result JSON")
     args = parser.parse_args(argv)
+    if args.scan is not None:
+        return scan(args)
     fitted, predicted = SPLITS[args.split]
     tests = [read_test(DATA / f) for f in fitted]
     names = PARAMS + ((SPREAD,) if args.spread == "on" else ())
