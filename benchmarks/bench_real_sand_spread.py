@@ -11,7 +11,9 @@ of those and alpha0_spread (--spread on), with the settings of benchmarks/bench_
 also one more fit started from the --spread off optimum (--from FILE.json of a --spread off run)
 at a spread of 3 deg. ``--scan FILE.json`` instead runs the optimum of FILE (a --spread off result) with
 alpha0_spread 0, 2, ..., 10 deg, the other parameters held, and prints each spread's chi-square on the
-fitted tests and the misfits of all three (where the spread's evidence is one-dimensional). At the best optimum the calibration's forward model runs all three tests
+fitted tests and the misfits of all three (where the spread's evidence is one-dimensional), then
+single-alpha0 points at the three families' opening angles of the largest spread scanned (each
+family alone: its peak, where it comes, q and eps_v at the end). At the best optimum the calibration's forward model runs all three tests
 and prints, per test, RMS |dq| / q_peak (measured peak), RMS d eps_v, peak q and the axial strain
 at the peak (model / data), eps_v at the last measured eps1 (negative: dilated).
 """
@@ -77,6 +79,18 @@ def scan(args: argparse.Namespace) -> int:
            "load_average_at_end": list(os.getloadavg())}
     if args.out is not None:
         args.out.write_text(json.dumps(out, indent=2) + "\n")
+    x, _ = opening_spread.nodes()
+    single = {**{k: np.full(x.size, v) for k, v in base.items()}, "alpha0": base["alpha0"] + spreads[-1] * x}
+    families = {}
+    for name in rows:
+        test = read_test(DATA / name)
+        with np.errstate(all="ignore"):
+            c = simulate(test, single, SETTINGS)
+        families[name] = [{"alpha0": float(a), **metrics(test, c.q[i], c.eps_v[i]), "q_end": float(c.q[i, -1])}
+                          for i, a in enumerate(single["alpha0"])]
+    out["families_alone"] = {"spread": float(spreads[-1]), "tests": families}
+    if args.out is not None:
+        args.out.write_text(json.dumps(out, indent=2) + "\n")
     print(f"split {args.split}: spread scan at " + ", ".join(f"{k} {v:.4g}" for k, v in base.items()))
     print("spread [deg]  chi2 fitted  " + "  ".join(f"{n.split('_')[1].removesuffix('kpa.csv'):>3s} kPa: RMS dq/q_pk, d eps_v, q_pk [kPa], "
                                                   f"eps1 pk [%], eps_v end [%]" for n in rows))
@@ -87,6 +101,12 @@ def scan(args: argparse.Namespace) -> int:
             cells.append(f"{m['rms_dq_over_qpeak']:.3f}, {100 * m['rms_deps_v']:.2f} %, {m['q_peak_model'] / 1e3:.0f}, "
                          f"{100 * m['eps1_at_peak_model']:.1f}, {100 * m['eps_v_end_model']:.2f} ({m['forward_fallbacks']})")
         print(f"{s:6.1f}  {chi2[i]:12.4g}   " + "   |   ".join(cells))
+    print(f"each family of spread {spreads[-1]:g} deg alone (single alpha0): q_pk [kPa] at eps1 [%], q end [kPa], "
+          f"eps_v end [%]")
+    for name, fams in families.items():
+        print(f"  {name}: " + "; ".join(f"alpha0 {f['alpha0']:.1f}: {f['q_peak_model'] / 1e3:.0f} at "
+                                        f"{100 * f['eps1_at_peak_model']:.1f}, {f['q_end'] / 1e3:.0f}, "
+                                        f"{100 * f['eps_v_end_model']:.1f}" for f in fams))
     return 0
 
 
