@@ -7,6 +7,9 @@ fitted jointly; the parameters not in --params keep the values of --phi, --kn, -
 --law hertz-mindlin (triaxial data only) calibrates phi_g, shear_modulus, poisson and alpha0
 instead (fixed: --phi, --shear-modulus, --poisson, --alpha0; default prior PRIOR_BOUNDS_HERTZ_3D),
 and posterior.json then holds ``contact_law``, the law at the posterior mean.
+alpha0_spread (triaxial data, analytical backend, --confirm none) adds a uniform distribution of
+opening angles of that half-width [deg] about alpha0 to every material point
+(``homogenization.material.opening_spread``); --alpha0-spread fixes it where not calibrated.
 
 The posterior is sampled with emcee's affine-invariant ensemble: every step runs the forward
 model of the whole population of walkers as one batch of cells (analytical backend:
