@@ -186,3 +186,14 @@ def test_calibrate_and_triaxial_posterior_run_the_spread(spread_posterior, tmp_p
                                   "--p0", "1e5", "--eps-max", "0.02", "-q", "--out", str(tmp_path / "dem")]) == 2
     err = capsys.readouterr().err.strip()
     assert "analytical backend only" in err and len(err.splitlines()) == 1
+
+
+def test_the_hertz_mindlin_law_takes_the_spread_too():
+    hertz = ForwardSettings(**{**SETTINGS.__dict__, "law": "hertz-mindlin"})
+    sets = {"phi_g": SETS["phi_g"], "alpha0": SETS["alpha0"], "shear_modulus": np.array([1e9, 2e9]),
+            "poisson": np.array([0.2, 0.2])}
+    plain = simulate(drained(), sets, hertz)
+    zero = simulate(drained(), {**sets, SPREAD: np.zeros(2)}, hertz)
+    np.testing.assert_allclose(zero.q, plain.q, rtol=1e-11, atol=1e-6)
+    spread = simulate(drained(), {**sets, SPREAD: np.array([6.0, 5.0])}, hertz)
+    assert np.max(np.abs(spread.q - plain.q)) > 1e-2 * np.max(plain.q)
