@@ -146,10 +146,12 @@ def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generato
     best_chi2, best = min(fits, key=lambda item: item[0])
     centre = best.x
     ball = np.clip(centre + width * laplace_draws(best.jac * width, rng, n_walkers), lo, hi)
+    redrawn = 0
     for _ in range(100):
         outside = ~log_post.feasible(ball)
         if not outside.any():
             break
+        redrawn += int(outside.sum())
         ball[outside] = np.clip(centre + width * laplace_draws(best.jac * width, rng, int(outside.sum())), lo, hi)
     record: dict[str, Any] = {
         "method": "map",
@@ -164,7 +166,7 @@ def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generato
         "evaluations": res.evaluations,
         "forward_batches": res.batches,
         "failed_sets": res.failed,
-        **({"infeasible_sets": res.infeasible} if log_post.spread_cut else {}),
+        **({"infeasible_sets": res.infeasible, "walkers_redrawn_into_the_cut": redrawn} if log_post.spread_cut else {}),
         "ball_fraction_of_prior_width": MAP_BALL,
     }
     return ball, record
