@@ -1,5 +1,6 @@
 """python benchmarks/bench_real_sand.py [--split 50+200|50+100] [--start map|prior] [--walkers 16] [--steps 100]
-[--channels q,eps_v|q] [--increment 2e-3] [--band 20] [--out runs/real_sand_SPLIT]
+[--channels q,eps_v|q] [--params phi_g,kn,kt_over_kn,alpha0[,alpha0_spread]] [--increment 2e-3] [--band 20]
+[--out runs/real_sand_SPLIT]
 
 The H-model on a real sand: ``hmodel calibrate`` on two of the drained triaxial tests of Dobrany
 sand (benchmarks/lab_data/dobrany_sand/, measured; --split 50+200: the 50 and 200 kPa tests,
@@ -164,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--channels", default="q,eps_v",
                         help="measured channels the calibration fits (q,eps_v or q): the fitted tests' files "
                              "restricted to them are written to --out/data")
+    parser.add_argument("--params", default="phi_g,kn,kt_over_kn,alpha0",
+                        help="hmodel calibrate --params (add alpha0_spread for a spread of opening angles)")
     parser.add_argument("--walkers", type=int, default=16)
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--increment", type=float, default=2e-3, help="forward and prediction increment [-]")
@@ -179,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     channels = args.channels.split(",")
     hmodel("calibrate", *[a for f in fitted for a in ("--data", str(restricted(DATA / f, channels, args.out / "data")))],
-           "--params", "phi_g,kn,kt_over_kn,alpha0", "--prior", str(prior), "--start", args.start,
+           "--params", args.params, "--prior", str(prior), "--start", args.start,
            "--walkers", str(args.walkers), "--steps", str(args.steps),
            "--increment", f"{args.increment:g}", "--iso-increment", f"{args.increment / 2:g}", "--confirm", "none",
            "--out", str(cal))
@@ -210,7 +213,8 @@ def main(argv: list[str] | None = None) -> int:
                "forward_model": {k: v for k, v in run["forward_model"].items() if k != "settings"},
                "seconds_calibration": seconds_calibration, "tests": results,
                "load_average_at_end": list(os.getloadavg()),
-               "settings": {"split": args.split, "channels": args.channels, "start": args.start, "walkers": args.walkers, "steps": args.steps, "increment": args.increment,
+               "settings": {"split": args.split, "channels": args.channels, "start": args.start, "walkers": args.walkers,
+                            "steps": args.steps, "increment": args.increment, "params": args.params,
                             "band": args.band}}
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(f"calibration: {args.walkers} walkers x {run['sampler']['steps']} steps, {seconds_calibration:.0f} s wall")

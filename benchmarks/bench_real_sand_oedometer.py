@@ -1,5 +1,5 @@
 """python benchmarks/bench_real_sand_oedometer.py [--posterior benchmarks/results/real_sand_50_200.json]
-[--increment 1e-3] [--hertz G] [--out runs/real_sand_oedometer]
+[--calibration DIR] [--increment 1e-3] [--hertz G] [--out runs/real_sand_oedometer]
 
 The 3D H-model on an oedometer test it was not fitted to: the loading-unloading curve of the loose
 Dobrany sand specimen (benchmarks/lab_data/dobrany_sand/oed_loose.csv, sheet OED-REC-1, e0 0.996,
@@ -8,7 +8,9 @@ the calibration's rule of Lebedev order 11 x 4 aligned spins) at the posterior m
 calibration on the drained triaxial tests (the ``posterior`` means of --posterior, the summary
 json of ``bench_real_sand.py``), with the linear contact law it was fitted with; ``--hertz G`` runs
 the Hertz-Mindlin law of grains of shear modulus G [Pa] (Poisson ratio 0.2) instead, at the
-posterior's phi_g and alpha0 (not fitted: the calibration reads the linear law only).
+posterior's phi_g and alpha0 (not fitted: the calibration reads the linear law only). ``--calibration DIR``
+runs ``hmodel triaxial --posterior DIR`` instead (an ``hmodel calibrate`` folder: its law at the posterior
+mean, with its alpha0_spread where it has one).
 
 The model is seated isotropically at the data's first stress (8 kPa), then loaded with the
 lateral strains held at zero. A first run loads far enough to find the axial strain at which
@@ -99,16 +101,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--increment", type=float, default=1e-3, help="axial strain increment [-]")
     parser.add_argument("--hertz", type=float, default=None, metavar="G",
                         help="Hertz-Mindlin law of grain shear modulus G [Pa] instead of the posterior's kn, kt")
+    parser.add_argument("--calibration", type=Path, default=None,
+                        help="an hmodel calibrate folder: hmodel triaxial --posterior DIR instead of --posterior's means")
     parser.add_argument("--out", type=Path, default=Path("runs/real_sand_oedometer"))
     args = parser.parse_args(argv)
-    post = json.loads(args.posterior.read_text())["posterior"]
-    mean = {name: post[name]["mean"] for name in ("phi_g", "kn", "kt_over_kn", "alpha0")}
+    if args.calibration is not None and args.hertz is not None:
+        parser.error("--calibration runs the calibration's own law: drop --hertz")
+    if args.calibration is not None:
+        post = {name: {"mean": entry["mean"]} for name, entry in
+                json.loads((args.calibration / "posterior.json").read_text()).items() if isinstance(entry, dict)}
+        fixed = json.loads((args.calibration / "run.json").read_text())["config"]["forward"]["fixed"]
+        post = {**{name: {"mean": value} for name, value in fixed.items()}, **post}
+    else:
+        post = json.loads(args.posterior.read_text())["posterior"]
+    mean = {name: post[name]["mean"] for name in ("phi_g", "kn", "kt_over_kn", "alpha0", "alpha0_spread") if name in post}
+    source = args.calibration / "posterior.json" if args.calibration is not None else args.posterior
     load_s, load_e, unload_s, unload_e = read_data(DATA)
     seat, top, bottom = float(load_s[0]), float(load_s[-1]), float(unload_s[-1])
     law = (("--kn", f"{mean['kn']:.4g}", "--kt", f"{mean['kt_over_kn'] * mean['kn']:.4g}") if args.hertz is None else
            ("--law", "hertz-mindlin", "--shear-modulus", f"{args.hertz:g}", "--poisson", "0.2"))
     cell = ("--p0", f"{seat:g}", "--alpha0", f"{mean['alpha0']:.4g}", *law, "--phi", f"{mean['phi_g']:.4g}", *RULE,
             "--increment", f"{args.increment:g}", "-q", "--overwrite")
+    if args.calibration is not None:
+        cell = ("--p0", f"{seat:g}", "--posterior", str(args.calibration), *RULE, "--increment", f"{args.increment:g}",
+                "-q", "--overwrite")
     args.out.mkdir(parents=True, exist_ok=True)
     probe = args.out / "probe"
     hmodel("triaxial", "--oedometer", "0", "--eps-max", "0.3", *cell, "--out", str(probe))
@@ -132,8 +148,8 @@ def main(argv: list[str] | None = None) -> int:
     k0_at = lambda level: float(np.interp(level, model["sigma_v"][up], model["K0"][up]))  # noqa: E731
     unload_interval = (float(unload_s[1]), top)
     summary = {
-        "posterior": {"file": args.posterior.resolve().relative_to(ROOT).as_posix()
-                      if args.posterior.resolve().is_relative_to(ROOT) else str(args.posterior), **mean},
+        "posterior": {"file": source.resolve().relative_to(ROOT).as_posix()
+                      if source.resolve().is_relative_to(ROOT) else str(source), **mean},
         "law": "linear" if args.hertz is None else f"hertz-mindlin, G = {args.hertz:g} Pa, nu = 0.2",
         "seating_stress_Pa": seat,
         "constrained_modulus_low_Pa": {"interval": LOW, "model": modulus(*m_up, LOW), "data": modulus(load_s, load_e, LOW)},
@@ -150,8 +166,10 @@ def main(argv: list[str] | None = None) -> int:
         summary["unloading_modulus_Pa"][f"ratio_to_loading_{key}"] = (
             summary["unloading_modulus_Pa"][key] / modulus(*(m_up if key == "model" else (load_s, load_e)), unload_interval))
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
-    print(f"posterior mean of {args.posterior.name}: phi_g {mean['phi_g']:.2f} deg, kn {mean['kn']:.4g} N/m, "
-          f"kt/kn {mean['kt_over_kn']:.3f}, alpha0 {mean['alpha0']:.2f} deg; law: {summary['law']}; seated at {seat:g} Pa")
+    print(f"posterior mean of {source}: phi_g {mean['phi_g']:.2f} deg, kn {mean['kn']:.4g} N/m, "
+          f"kt/kn {mean['kt_over_kn']:.3f}, alpha0 {mean['alpha0']:.2f} deg"
+          + (f", alpha0_spread {mean['alpha0_spread']:.2f} deg" if "alpha0_spread" in mean else "")
+          + f"; law: {summary['law']}; seated at {seat:g} Pa")
     print("quantity                                   model        data")
     for label, key in (("M, 40-80 kPa [MPa]", "constrained_modulus_low_Pa"), ("M, 0.6-1.2 MPa [MPa]", "constrained_modulus_high_Pa"),
                        ("unloading M, 1.2-0.6 MPa [MPa]", "unloading_modulus_Pa")):

@@ -27,7 +27,7 @@ from typing import Callable, Iterator, Mapping, Sequence
 import numpy as np
 
 from homogenization.calibration.data import CHANNELS, Measurement
-from homogenization.calibration.forward import ForwardSettings, simulate
+from homogenization.calibration.forward import SPREAD, SPREAD_PRIOR, ForwardSettings, feasible, simulate
 from warp_hcell.core.parameters import (
     ALPHA_MIN_3D_DEG,
     PRIOR_BOUNDS_2D,
@@ -42,7 +42,8 @@ DEFAULT_BOUNDS = {2: PRIOR_BOUNDS_2D, 3: PRIOR_BOUNDS_3D}
 HERTZ_BOUNDS = {**PRIOR_BOUNDS_3D, **PRIOR_BOUNDS_HERTZ_3D}
 """Default prior of the Hertz-Mindlin law's calibration (triaxial data only): G [Pa], nu [-] from
 ``PRIOR_BOUNDS_HERTZ_3D``, phi_g and alpha0 as ``PRIOR_BOUNDS_3D``."""
-UNITS = {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg", "shear_modulus": "Pa", "poisson": "-"}
+UNITS = {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg", "shear_modulus": "Pa", "poisson": "-",
+         SPREAD: "deg"}
 """Unit of each parameter in posterior.json and the figures."""
 CONTRACTION_CONSTRAINED = 0.5
 """A parameter counts as constrained by the data where its posterior standard deviation is below
@@ -67,12 +68,12 @@ class Prior:
     @property
     def lo_coord(self) -> np.ndarray:
         """Lower bounds in sampled coordinates."""
-        return np.where(self.log, np.log10(self.low), self.low)
+        return np.where(self.log, np.log10(np.where(self.log, self.low, 1.0)), self.low)
 
     @property
     def hi_coord(self) -> np.ndarray:
         """Upper bounds in sampled coordinates."""
-        return np.where(self.log, np.log10(self.high), self.high)
+        return np.where(self.log, np.log10(np.where(self.log, self.high, 1.0)), self.high)
 
     def to_values(self, x: np.ndarray) -> np.ndarray:
         """Sampled coordinates (..., n_params) -> CLI units."""
@@ -80,7 +81,7 @@ class Prior:
 
     def to_coord(self, values: np.ndarray) -> np.ndarray:
         """CLI units (..., n_params) -> sampled coordinates."""
-        return np.where(self.log, np.log10(values), values)
+        return np.where(self.log, np.log10(np.where(self.log, values, 1.0)), values)
 
     def log_prob(self, x: np.ndarray) -> np.ndarray:
         """log prior density of sampled coordinates x, shape (n, n_params) -> (n,); -inf outside."""
@@ -111,7 +112,10 @@ def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2, law
         ValueError: one line naming the file for a missing, malformed or inconsistent prior, or
             (dim 3) an alpha0 prior reaching below ``ALPHA_MIN_3D_DEG``.
     """
-    defaults = HERTZ_BOUNDS if law == HertzMindlinLaw.name else DEFAULT_BOUNDS[dim]
+    if SPREAD in names and dim != 3:
+        raise ValueError(f"{SPREAD}: a spread of opening angles is a parameter of the ten-sphere cell; calibrate it on "
+                         f"triaxial data")
+    defaults = {**(HERTZ_BOUNDS if law == HertzMindlinLaw.name else DEFAULT_BOUNDS[dim]), SPREAD: SPREAD_PRIOR}
     bounds = {name: defaults[name] for name in names}
     if path is not None:
         path = Path(path)
@@ -137,6 +141,8 @@ def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2, law
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) or (log and lo <= 0.0):
                 raise ValueError(f"{path}: prior of {name!r} needs finite low < high (and low > 0 if log)")
             bounds[name] = (lo, hi, log)
+    if SPREAD in bounds and bounds[SPREAD][0] < 0.0:
+        raise ValueError(f"{path}: the prior of {SPREAD} reaches below 0 deg (it is a half-width)")
     if dim == 3 and "alpha0" in bounds and bounds["alpha0"][0] < ALPHA_MIN_3D_DEG:
         raise ValueError(f"{path}: triaxial data: the ten-sphere cell needs alpha0 >= {ALPHA_MIN_3D_DEG:g} deg "
                          f"(below, its two planes overlap); give alpha0 a prior such as [{ALPHA_MIN_3D_DEG:g}, 85]")
@@ -186,7 +192,9 @@ class Posterior:
     ``n_failed`` the parameter sets whose forward model failed (log L = -inf), ``n_calls`` the
     parameter sets evaluated inside the prior, ``n_float_errors`` the numpy operations of the
     forward model that overflowed, divided by zero or gave NaN (a drained Newton iteration that
-    diverges for an extreme parameter set): counted, not printed as RuntimeWarnings.
+    diverges for an extreme parameter set): counted, not printed as RuntimeWarnings. Where alpha0_spread
+    is calibrated, the prior is also cut by alpha0 - alpha0_spread >= ALPHA_MIN_3D_DEG
+    (``forward.feasible``): sets outside get log posterior -inf without a run, counted in ``n_infeasible``.
     """
 
     def __init__(self, tests: Sequence[Measurement], prior: Prior, settings: ForwardSettings, noise: float) -> None:
@@ -198,6 +206,18 @@ class Posterior:
         self.n_failed = 0
         self.n_calls = 0
         self.n_float_errors = 0
+        self.n_infeasible = 0
+
+    @property
+    def spread_cut(self) -> bool:
+        """Whether the prior is cut by alpha0 - alpha0_spread >= ALPHA_MIN_3D_DEG (alpha0_spread calibrated or fixed)."""
+        return SPREAD in self.prior.names or SPREAD in self.settings.fixed
+
+    def feasible(self, x: np.ndarray) -> np.ndarray:
+        """Whether each set of sampled coordinates x (n, n_params) meets the prior's cut (class docstring), shape (n,)."""
+        values = self.prior.to_values(np.atleast_2d(x))
+        ok = feasible({name: values[:, i] for i, name in enumerate(self.prior.names)}, self.settings)
+        return np.ones(values.shape[0], dtype=bool) if ok is None else ok
 
     def _count_float_error(self, kind: str, flag: int) -> None:
         self.n_float_errors += 1
@@ -217,6 +237,10 @@ class Posterior:
         x = np.atleast_2d(x)
         lp = self.prior.log_prob(x)
         inside = np.isfinite(lp)
+        if self.spread_cut:
+            cut = inside & ~self.feasible(x)
+            self.n_infeasible += int(np.count_nonzero(cut))
+            inside &= ~cut
         out = np.full(x.shape[0], -np.inf)
         if inside.any():
             values = self.prior.to_values(x[inside])

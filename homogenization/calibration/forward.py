@@ -6,7 +6,8 @@ and eps_v at the measured eps1 values. With the analytical backend the n sets ar
 ``HomogenisedMaterial`` (2D) or ``HomogenisedMaterial3D`` (triaxial tests) of n material
 points, each with its own cells (``AnalyticalCell.with_cell_laws`` /
 ``Analytical3DCell.with_cell_laws``: per-cell kn, kt/kn, phi_g and alpha0; with the Hertz-Mindlin
-law ``Analytical3DCell.with_hertz_cell_laws``: per-cell G, nu, phi_g and alpha0), so every increment
+law ``Analytical3DCell.with_hertz_cell_laws``: per-cell G, nu, phi_g and alpha0; with ``alpha0_spread`` the
+point's cells in ``opening_spread.N_NODES`` families of alpha0, ``homogenization.material.opening_spread``), so every increment
 is one batched ``step`` over n x (cells per point) cells, run by the element-test engine
 (``homogenization.element_test``: the population's stages as plans, its one stress-control solver
 under the ``POPULATION`` policy). Other backends take one contact law per model: their sets run
@@ -43,16 +44,30 @@ from homogenization.element_test.programme import Plan
 from homogenization.element_test.record import History
 from homogenization.element_test.run import run
 from homogenization.element_test.solver import POPULATION, StressControl
+from homogenization.material import opening_spread
 from homogenization.material.invariants import deviator_3d, mean_stress_3d
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, HertzMindlinLaw, Law, LoadingDefaults
 from warp_hcell.mesostructures.hcell import build_h_cell_3d, h_cell
 
-PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson")
+PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson", opening_spread.NAME)
 """Names of the calibratable parameters, in the units of the CLI flags: phi_g [deg], kn [N/m],
-kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-]."""
+kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-], alpha0_spread [deg]."""
 LAW_PARAMETERS = {ContactLaw.name: ("phi_g", "kn", "kt_over_kn", "alpha0"),
                   HertzMindlinLaw.name: ("phi_g", "shear_modulus", "poisson", "alpha0")}
 """The parameters of ``PARAMETERS`` that each contact law's forward model reads."""
+SPREAD = opening_spread.NAME
+"""The half-width [deg] of a point's uniform distribution of opening angles about alpha0
+(``homogenization.material.opening_spread``; triaxial tests, analytical backend, either law): read
+only where calibrated or set nonzero in ``ForwardSettings.fixed``, so that without it the forward
+model is the single-alpha0 one, bit for bit."""
+SPREAD_PRIOR = (0.0, 10.0, False)
+"""Default prior of alpha0_spread [deg]: uniform (low, high, log-uniform?), further cut by
+alpha0 - alpha0_spread >= ALPHA_MIN_3D_DEG."""
+
+
+def calibratable(law: str) -> tuple[str, ...]:
+    """The parameters a calibration of ``law`` may vary: the law's and the spread of alpha0."""
+    return LAW_PARAMETERS[law] + (SPREAD,)
 CONTACT_LAW_KEY = "contact_law"
 """Key of posterior.json holding a non-linear contact law at the posterior mean (``to_dict``); absent: the linear law."""
 
@@ -128,23 +143,45 @@ class Curves:
 
 def full_parameters(params: Mapping[str, np.ndarray], settings: ForwardSettings) -> dict[str, np.ndarray]:
     """The four parameters of the settings' law (``settings.parameters``) as arrays of one shape (n,):
-    the calibrated ones, the others fixed."""
+    the calibrated ones, the others fixed; and ``SPREAD`` where calibrated or fixed nonzero."""
     n = len(np.atleast_1d(next(iter(params.values())))) if params else 1
-    return {name: np.broadcast_to(np.asarray(params.get(name, settings.fixed[name]), dtype=np.float64), (n,)).copy()
-            for name in settings.parameters}
+    names = settings.parameters + ((SPREAD,) if uses_spread(params, settings) else ())
+    return {name: np.broadcast_to(np.asarray(params[name] if name in params else settings.fixed[name],
+                                             dtype=np.float64), (n,)).copy()
+            for name in names}
+
+
+def uses_spread(params: Mapping[str, object], settings: ForwardSettings) -> bool:
+    """Whether the forward model runs a distribution of opening angles: ``SPREAD`` calibrated or fixed nonzero."""
+    return SPREAD in params or float(settings.fixed.get(SPREAD, 0.0)) != 0.0
+
+
+def feasible(values: Mapping[str, np.ndarray], settings: ForwardSettings) -> np.ndarray | None:
+    """Per set, whether its alpha0 and spread are allowed (``opening_spread.feasible``), shape (n,); None
+    where the forward model runs no spread (every set allowed)."""
+    if not uses_spread(values, settings):
+        return None
+    full = full_parameters(values, settings)
+    return opening_spread.feasible(full["alpha0"], full[SPREAD])
 
 
 def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings) -> Curves:
     """Curves of ``test`` for each parameter set; ``params`` maps names of ``settings.parameters`` to shape (n,).
 
     Raises:
-        ValueError: a parameter value outside its range, or the Hertz-Mindlin law on a 2D test (one line).
+        ValueError: a parameter value outside its range, the Hertz-Mindlin law on a 2D test, or alpha0_spread
+            on a 2D test or a backend other than the analytical one (one line).
         homogenization.element_test.driver.ControlError: (dem/ann) a stage that cannot be run (p0 not reached).
     """
     if settings.law == HertzMindlinLaw.name and test.dim != 3:
         raise ValueError(f"the Hertz-Mindlin contact law is defined for spheres: {test.name} is a biaxial (2D) "
                          f"test; calibrate it on triaxial data")
     full = full_parameters(params, settings)
+    if SPREAD in full:
+        if test.dim != 3 or settings.backend != "analytical":
+            raise ValueError(f"alpha0_spread runs on triaxial tests with the analytical backend only ({test.name}: "
+                             f"{'biaxial' if test.dim != 3 else 'backend ' + settings.backend})")
+        opening_spread.check(full["alpha0"], full[SPREAD])
     if settings.backend == "analytical":
         return _simulate_batched(test, full, settings)
     return _simulate_one_by_one(test, full, settings)
@@ -163,7 +200,7 @@ def _sample(eps1_model: np.ndarray, values: np.ndarray, eps1: np.ndarray) -> np.
 
 def _population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int) -> MaterialPoints:
     """One material point per parameter set, each with its own cells (per-cell contact law: kn and kt/kn,
-    or G and nu; phi_g and alpha0), oriented as the driver orients the H-cell (``element_test.points.orientation_set``)."""
+    or G and nu; phi_g and alpha0; with ``SPREAD``, ``opening_spread.N_NODES`` families of alpha0), oriented as the driver orients the H-cell (``element_test.points.orientation_set``)."""
     n = full["phi_g"].size
     if dim == 2:
         cell_class, meso = AnalyticalCell, h_cell(CellDefaults.alpha0_deg, settings.radius)
@@ -171,7 +208,13 @@ def _population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int
         cell_class, meso = Analytical3DCell, build_h_cell_3d(CellDefaults.alpha0_deg, radius=settings.radius)
     orient = orientation_set(meso, n_orientations=settings.n_orientations, lebedev_order=settings.lebedev_order,
                              n_spins=settings.n_spins, staggered_spins=settings.staggered_spins)
-    per_cell = {name: np.repeat(values, orient.n_cells) for name, values in full.items()}
+    if SPREAD in full:
+        alpha0 = opening_spread.cell_alpha0(full["alpha0"], full[SPREAD], orient.n_cells)
+        orient = opening_spread.replicate(orient)
+        per_cell = {name: np.repeat(values, orient.n_cells) for name, values in full.items() if name != SPREAD}
+        per_cell["alpha0"] = alpha0
+    else:
+        per_cell = {name: np.repeat(values, orient.n_cells) for name, values in full.items()}
     if settings.law == HertzMindlinLaw.name:
         model = Analytical3DCell.with_hertz_cell_laws(per_cell["shear_modulus"], per_cell["poisson"], per_cell["phi_g"],
                                                       settings.radius, alpha0_deg=per_cell["alpha0"])

@@ -25,6 +25,8 @@ from homogenization.calibration.bayes import UNITS
 from homogenization.calibration.forward import (
     CONTACT_LAW_KEY,
     LAW_PARAMETERS,
+    SPREAD,
+    calibratable,
     ForwardSettings,
     contact_law_at,
     simulate,
@@ -50,8 +52,9 @@ class CalibratedPosterior:
         sha256: its sha256 (recorded in run.h5).
         dims: the dimensions of the calibration's data (2: biaxial, 3: triaxial), sorted.
         calibrated: the calibrated parameters, in posterior.json's order.
-        mean: every parameter of the calibration's contact law (``forward.parameters``) at the
-            posterior mean (calibrated) or at the calibration's fixed value (not calibrated), CLI units.
+        mean: every parameter of the calibration's contact law (``forward.parameters``), and alpha0_spread
+            where calibrated or fixed nonzero, at the posterior mean (calibrated) or at the calibration's
+            fixed value (not calibrated), CLI units.
         radius: the grain radius of the calibration [m].
         forward: the calibration's forward-model settings (the band runs with them).
     """
@@ -110,9 +113,9 @@ def read_posterior(path: Path) -> CalibratedPosterior:
             raise ValueError(f"--posterior {path}: {CONTACT_LAW_KEY!r} is not a contact law: {exc}") from None
     mean: dict[str, float] = {}
     for name, entry in data.items():
-        if name not in LAW_PARAMETERS[law_name]:
+        if name not in calibratable(law_name):
             raise ValueError(f"--posterior {path}: {name!r} is not a parameter of the {law_name} contact law "
-                             f"({', '.join(LAW_PARAMETERS[law_name])})")
+                             f"({', '.join(calibratable(law_name))})")
         value = entry.get("mean") if isinstance(entry, dict) else None
         if not isinstance(value, (int, float)) or not math.isfinite(value):
             raise ValueError(f"--posterior {path}: {name!r} has no finite mean")
@@ -122,6 +125,8 @@ def read_posterior(path: Path) -> CalibratedPosterior:
         forward_json = run["config"]["forward"]
         dims = tuple(sorted({int(d) for d in run["data_dimensions"]}))
         fixed = {name: float(forward_json["fixed"][name]) for name in LAW_PARAMETERS[law_name]}
+        if SPREAD in forward_json["fixed"]:
+            fixed[SPREAD] = float(forward_json["fixed"][SPREAD])
         radius = float(forward_json["radius"])
         fields = {k: v for k, v in forward_json.items() if k in ForwardSettings.__dataclass_fields__}
         forward = ForwardSettings(**{**fields, "law": law_name, "fixed": fixed, "backend": "analytical",
@@ -129,8 +134,9 @@ def read_posterior(path: Path) -> CalibratedPosterior:
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"--posterior: {path.parent / RUN_FILE} lacks {exc} (written by an older hmodel calibrate? "
                          f"rerun the same calibrate command on {path.parent} to rewrite it)") from None
+    names = forward.parameters + ((SPREAD,) if SPREAD in mean or SPREAD in fixed else ())
     return CalibratedPosterior(path=path, sha256=file_sha256(path), dims=dims, calibrated=tuple(mean),
-                               mean={name: mean.get(name, fixed[name]) for name in forward.parameters}, radius=radius,
+                               mean={name: mean.get(name, fixed.get(name)) for name in names}, radius=radius,
                                forward=forward)
 
 
@@ -156,7 +162,7 @@ def draw_samples(post: CalibratedPosterior, n: int, seed: int) -> dict[str, np.n
     if size < n:
         raise ValueError(f"--posterior-band {n}: {path} holds {size} samples; ask for at most that many")
     pick = np.random.default_rng(seed).choice(size, size=n, replace=False)
-    return {name: samples[name][pick] if name in samples else np.full(n, post.mean[name]) for name in post.forward.parameters}
+    return {name: samples[name][pick] if name in samples else np.full(n, post.mean[name]) for name in post.mean}
 
 
 def band_grid(eps_max: float, increment: float) -> np.ndarray:
@@ -183,7 +189,7 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
     eps1 = band_grid(eps_max, post.forward.increment)
     test = Measurement("band", post.path, drained, p0, eps1, {}, dim)
     n = int(next(iter(params.values())).size)
-    with_mean = {name: np.append(params[name], post.mean[name]) for name in post.forward.parameters}
+    with_mean = {name: np.append(params[name], post.mean[name]) for name in post.mean}
     with np.errstate(all="ignore"):  # a diverging set gives NaN, left out of the quantiles and counted
         curves = simulate(test, with_mean, post.forward)
     ok = np.all(np.isfinite(curves.q[:n]) & np.isfinite(curves.p[:n]) & np.isfinite(curves.eps_v[:n]), axis=1)

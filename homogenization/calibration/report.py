@@ -200,6 +200,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
             "settings": config["forward"], "noise": args.noise,
             "evaluations": log_post.n_calls, "failed": log_post.n_failed, "fallbacks": log_post.n_fallback,
             "floating_point_errors": log_post.n_float_errors,
+            **({"infeasible_sets": log_post.n_infeasible} if log_post.spread_cut else {}),
             **_ann_model(config["forward"]["backend"]),
         },
         "maximum_a_posteriori": {n: float(v) for n, v in zip(prior.names, best)},

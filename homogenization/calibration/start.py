@@ -14,7 +14,12 @@ step ``MAP_STEP`` x the prior's width per parameter, its n_params perturbed sets
 The walkers start around the best optimum, drawn from the posterior's
 Laplace approximation there (covariance (J^T J)^-1 of the last Jacobian; along a direction the
 data do not constrain its sd is capped at ``MAP_BALL`` x the prior's width), clipped into the prior. A parameter set whose forward model fails (NaN) gets the residual
-``FAILED_RESIDUAL`` on every point, counted.
+``FAILED_RESIDUAL`` on every point, counted. The Jacobian reuses the residuals at x that the fit has
+just computed (least_squares asks for the Jacobian only at a point it has evaluated). Where
+alpha0_spread is calibrated, a set outside the prior's cut (alpha0 - alpha0_spread below the
+ten-sphere cell's smallest opening; ``bayes.Posterior.feasible``) gets ``FAILED_RESIDUAL`` without a
+run, counted in ``infeasible``, and a Jacobian step that would leave the cut goes the other way;
+the walkers' ball is drawn again where it leaves the cut.
 """
 
 from __future__ import annotations
@@ -54,10 +59,18 @@ class Residuals:
         self.evaluations = 0
         self.batches = 0
         self.failed = 0
+        self.infeasible = 0
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """Residuals of sets x, shape (n, n_params) -> (n, n_residuals)."""
         x = np.atleast_2d(x)
+        ok = self.log_post.feasible(x)
+        if not ok.all():
+            self.infeasible += int(np.count_nonzero(~ok))
+            r = np.full((x.shape[0], self.n_residuals), FAILED_RESIDUAL)
+            if ok.any():
+                r[ok] = self(x[ok])
+            return r
         curves = self.log_post.curves(self.log_post.prior.to_values(x))
         r = bayes.residuals(self.log_post.tests, curves, self.log_post.noise)
         bad = ~np.all(np.isfinite(r), axis=1)
@@ -66,6 +79,11 @@ class Residuals:
         self.failed += int(np.count_nonzero(bad))
         r[bad] = FAILED_RESIDUAL
         return r
+
+    @property
+    def n_residuals(self) -> int:
+        """Residuals per set: every measured point of every channel of every test."""
+        return sum(v.size for t in self.log_post.tests for v in t.observed.values())
 
 
 def laplace_draws(jac: np.ndarray, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -86,11 +104,36 @@ def prior_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Genera
     return start, {"method": "prior", "prior_draws": PRIOR_OVERSAMPLE * n_walkers}
 
 
+def least_squares_fit(log_post: bayes.Posterior, res: Residuals, x0: np.ndarray) -> tuple[float, Any]:
+    """One bounded least-squares fit of ``map_start`` from ``x0`` (sampled coordinates): its chi-square
+    (sum of squared residuals) and scipy's result."""
+    from scipy.optimize import least_squares  # noqa: PLC0415 (only when a calibration starts)
+
+    prior = log_post.prior
+    lo, hi = prior.lo_coord, prior.hi_coord
+    width = hi - lo
+    last: dict[str, np.ndarray] = {}
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        last["x"], last["f"] = np.array(x, dtype=np.float64), res(x)[0]
+        return last["f"]
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        step = MAP_STEP * width
+        step = np.where(x + step > hi, -step, step)  # stay inside the prior at its upper bound
+        shifted = x + np.diag(step)
+        step = np.where(log_post.feasible(shifted), step, -step)  # and inside its cut (alpha0_spread)
+        f0 = last["f"] if "x" in last and np.array_equal(last["x"], x) else res(x)[0]
+        shifted = x + np.diag(step)
+        return ((res(shifted) - f0) / step[:, None]).T
+
+    fit = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=width, method="trf", max_nfev=MAP_MAX_EVALUATIONS)
+    return float(2.0 * fit.cost), fit
+
+
 def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
     """The ``map`` start (module docstring): positions (n_walkers, n_params) and its record (the
     optimum in CLI units, its chi-square sum of squared residuals, every fit's, the evaluations)."""
-    from scipy.optimize import least_squares  # noqa: PLC0415 (only when a calibration starts)
-
     prior = log_post.prior
     lo, hi = prior.lo_coord, prior.hi_coord
     width = hi - lo
@@ -99,24 +142,17 @@ def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generato
     cost = np.sum(res(draws) ** 2, axis=1)  # chi-square of each draw
     starts = draws[np.argsort(cost, kind="stable")[:MAP_STARTS]]
 
-    def fun(x: np.ndarray) -> np.ndarray:
-        return res(x)[0]
-
-    def jac(x: np.ndarray) -> np.ndarray:
-        step = MAP_STEP * width
-        step = np.where(x + step > hi, -step, step)  # stay inside the prior at its upper bound
-        f0 = res(x)[0]
-        shifted = x + np.diag(step)
-        return ((res(shifted) - f0) / step[:, None]).T
-
-    fits = []
-    for x0 in starts:
-        fit = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=width, method="trf",
-                            max_nfev=MAP_MAX_EVALUATIONS)
-        fits.append((float(2.0 * fit.cost), fit))
+    fits = [least_squares_fit(log_post, res, x0) for x0 in starts]
     best_chi2, best = min(fits, key=lambda item: item[0])
     centre = best.x
     ball = np.clip(centre + width * laplace_draws(best.jac * width, rng, n_walkers), lo, hi)
+    redrawn = 0
+    for _ in range(100):
+        outside = ~log_post.feasible(ball)
+        if not outside.any():
+            break
+        redrawn += int(outside.sum())
+        ball[outside] = np.clip(centre + width * laplace_draws(best.jac * width, rng, int(outside.sum())), lo, hi)
     record: dict[str, Any] = {
         "method": "map",
         "prior_draws": MAP_DRAWS,
@@ -130,6 +166,7 @@ def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generato
         "evaluations": res.evaluations,
         "forward_batches": res.batches,
         "failed_sets": res.failed,
+        **({"infeasible_sets": res.infeasible, "walkers_redrawn_into_the_cut": redrawn} if log_post.spread_cut else {}),
         "ball_fraction_of_prior_width": MAP_BALL,
     }
     return ball, record

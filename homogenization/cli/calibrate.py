@@ -7,6 +7,9 @@ fitted jointly; the parameters not in --params keep the values of --phi, --kn, -
 --law hertz-mindlin (triaxial data only) calibrates phi_g, shear_modulus, poisson and alpha0
 instead (fixed: --phi, --shear-modulus, --poisson, --alpha0; default prior PRIOR_BOUNDS_HERTZ_3D),
 and posterior.json then holds ``contact_law``, the law at the posterior mean.
+alpha0_spread (triaxial data, analytical backend, --confirm none) adds a uniform distribution of
+opening angles of that half-width [deg] about alpha0 to every material point
+(``homogenization.material.opening_spread``); --alpha0-spread fixes it where not calibrated.
 
 The posterior is sampled with emcee's affine-invariant ensemble: every step runs the forward
 model of the whole population of walkers as one batch of cells (analytical backend:
@@ -49,7 +52,8 @@ import numpy as np
 from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
-from homogenization.calibration.forward import LAW_PARAMETERS, PARAMETERS, ForwardSettings
+from homogenization.calibration.forward import LAW_PARAMETERS, PARAMETERS, SPREAD, ForwardSettings, calibratable
+from homogenization.material import opening_spread
 from homogenization.calibration.start import START_METHODS
 from homogenization.cli.options import (
     add_orientations_argument,
@@ -107,15 +111,21 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--backend", choices=tuple(BACKENDS), default="analytical", help="forward model")
     parser.add_argument("--params", type=parameter_list, required=True,
                         help="parameters to calibrate, comma list of those of the contact law: "
-                             + "; ".join(f"{law}: {','.join(names)}" for law, names in LAW_PARAMETERS.items()))
+                             + "; ".join(f"{law}: {','.join(calibratable(law))}" for law in LAW_PARAMETERS)
+                             + f" ({SPREAD}: triaxial data, analytical backend)")
     parser.add_argument("--prior", type=Path, default=None,
                         help="JSON prior: parameter -> [low, high] or {low, high, log} (default bounds, biaxial data: "
                              + prior_text(bayes.DEFAULT_BOUNDS[2]) + "; with triaxial data: "
                              + prior_text(bayes.DEFAULT_BOUNDS[3]) + "; with --law hertz-mindlin: "
-                             + prior_text(bayes.HERTZ_BOUNDS) + ")")
+                             + prior_text(bayes.HERTZ_BOUNDS) + f"; {SPREAD} [{bayes.SPREAD_PRIOR[0]:g}, "
+                             f"{bayes.SPREAD_PRIOR[1]:g}], cut by alpha0 - {SPREAD} >= 45)")
     parser.add_argument("--out", type=Path, required=True, help="output folder (resumed if it holds this calibration)")
     parser.add_argument("--alpha0", type=alpha0_deg, default=FORWARD.fixed["alpha0"],
                         help="alpha0 [deg] where not calibrated")
+    parser.add_argument("--alpha0-spread", type=float, default=0.0,
+                        help="half-width [deg] of each point's uniform distribution of opening angles about alpha0 "
+                             f"({opening_spread.N_NODES} families of cells; triaxial data) where not calibrated; 0: "
+                             "one opening angle")
     add_contact_law_arguments(parser)
     sampler = parser.add_argument_group("sampler")
     sampler.add_argument("--walkers", type=positive_int, default=32, help="ensemble size (>= 2 x number of parameters)")
@@ -201,6 +211,8 @@ def forward_settings(args: argparse.Namespace) -> ForwardSettings:
                  "alpha0": args.alpha0}
     else:
         fixed = {"phi_g": law.phi_g_deg, "kn": law.kn, "kt_over_kn": law.kt_over_kn, "alpha0": args.alpha0}
+    if args.alpha0_spread != 0.0:
+        fixed[SPREAD] = args.alpha0_spread
     options: dict[str, Any] = {}
     if args.backend in ("dem", "ann"):
         options["device"] = args.device
@@ -212,7 +224,7 @@ def forward_settings(args: argparse.Namespace) -> ForwardSettings:
 
 
 def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
-    law_parameters = LAW_PARAMETERS[args.law]
+    law_parameters = calibratable(args.law)
     wrong = [name for name in args.params if name not in law_parameters]
     if wrong:
         raise UserError(f"--params {wrong[0]} is not a parameter of the {args.law} contact law (--law {args.law}: "
@@ -225,6 +237,7 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
         if args.backend == "ann":
             raise UserError("--backend ann is trained on the linear contact law: --law hertz-mindlin needs "
                             "--backend analytical or dem")
+    check_spread(args, tests)
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
     if args.backend == "ann" and any(t.dim == 3 for t in tests):
@@ -238,6 +251,26 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
         raise UserError(f"--increment {args.increment:g} is larger than the strain range of a data file")
     if args.iso_increment >= 0.1:
         raise UserError(f"--iso-increment {args.iso_increment:g} must be < 0.1")
+
+
+def check_spread(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
+    """UserError (one line) for alpha0_spread (calibrated or --alpha0-spread) where the forward model cannot
+    run it: biaxial data, a backend other than the analytical one, --confirm dem (the DEM takes one opening
+    angle per model), or a fixed spread below 0 or past alpha0 - 45 deg."""
+    if SPREAD not in args.params and args.alpha0_spread == 0.0:
+        return
+    if any(t.dim != 3 for t in tests):
+        raise UserError(f"{SPREAD}: a spread of opening angles is a parameter of the ten-sphere cell; give triaxial "
+                        f"data only")
+    if args.backend != "analytical" or args.confirm == "dem":
+        what = f"--backend {args.backend}" if args.backend != "analytical" else "--confirm dem"
+        raise UserError(f"{SPREAD}: {what} runs one opening angle per model; a spread runs on the analytical backend "
+                        f"only (add --confirm none)")
+    if SPREAD not in args.params:
+        try:
+            opening_spread.check(args.alpha0, args.alpha0_spread)
+        except ValueError as exc:
+            raise UserError(f"--alpha0-spread: {exc}") from None
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -8,6 +8,8 @@
   calibration's, posterior.json's ``contact_law``; none: linear), --phi, --kn and --kt or
   --shear-modulus and --poisson, --alpha0 and --radius to the posterior mean (uncalibrated parameters: the calibration's fixed
   values), and draws the band's parameter sets (--posterior-band N);
+- ``spread_models(...)``: where the posterior holds alpha0_spread, the analytical model whose cells carry
+  the point's families of opening angles (``homogenization.material.opening_spread``);
 - ``run_record(...)``: what run.h5 stores of it;
 - ``write_band(...)``: the band by the calibration's forward model, its CSV beside run.h5, and
   its shading in the command's figure.
@@ -22,7 +24,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from homogenization.calibration.forward import SPREAD
 from homogenization.cli.run_files import explicit_flags
+from homogenization.material import opening_spread
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.parameters import HertzMindlinLaw, check_alpha0_deg
 
@@ -82,8 +86,13 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
     alpha0 = post.mean["alpha0"]
     try:
         check_alpha0_deg(alpha0)
+        if SPREAD in post.mean:
+            opening_spread.check(alpha0, post.mean[SPREAD])
     except ValueError as exc:
         raise UserError(f"--posterior {post.path}: {exc}") from None
+    if SPREAD in post.mean and set(args.backend) - {"analytical"}:
+        raise UserError(f"--posterior {post.path}: its {SPREAD} runs on the analytical backend only (the DEM takes one "
+                        f"opening angle per model); give --backend analytical")
     args.law, args.phi, args.alpha0, args.radius = law.name, law.phi_g_deg, alpha0, post.radius
     if law.name == HertzMindlinLaw.name:
         args.shear_modulus, args.poisson = law.shear_modulus, law.poisson
@@ -96,6 +105,32 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
         except ValueError as exc:
             raise UserError(str(exc)) from None
     return PosteriorRun(post, draws, args.seed)
+
+
+def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *, lebedev_order: int, n_spins: int,
+                  staggered_spins: bool) -> dict[str, Any]:
+    """``models`` with the analytical one replaced, where the posterior holds alpha0_spread, by a closed form
+    whose cells carry the families of opening angles of one point (``opening_spread.cell_alpha0`` at the
+    posterior mean, ``FAMILIES_ATTRIBUTE``) for the orientation rule of ``meso``, ``lebedev_order`` x
+    ``n_spins``; ``models`` unchanged otherwise."""
+    if run is None or SPREAD not in run.posterior.mean:
+        return models
+    from homogenization.backends.analytical3d import Analytical3DCell  # noqa: PLC0415
+    from homogenization.element_test.points import orientation_set  # noqa: PLC0415
+
+    mean, law = run.posterior.mean, run.posterior.contact_law
+    n = orientation_set(meso, n_orientations=1, lebedev_order=lebedev_order, n_spins=n_spins,
+                        staggered_spins=staggered_spins).n_cells
+    alpha0 = opening_spread.cell_alpha0(np.array([mean["alpha0"]]), np.array([mean[SPREAD]]), n)
+    ones = np.ones(alpha0.size)
+    if law.name == HertzMindlinLaw.name:
+        model = Analytical3DCell.with_hertz_cell_laws(law.shear_modulus * ones, law.poisson * ones, law.phi_g_deg * ones,
+                                                      run.posterior.radius, alpha0_deg=alpha0)
+    else:
+        model = Analytical3DCell.with_cell_laws(law.kn * ones, law.kt_over_kn * ones, law.phi_g_deg * ones,
+                                                run.posterior.radius, alpha0_deg=alpha0)
+    setattr(model, opening_spread.FAMILIES_ATTRIBUTE, True)
+    return {**models, "analytical": model}
 
 
 def check_band_test(run: PosteriorRun | None, settings: Mapping[str, Any], what: str) -> None:

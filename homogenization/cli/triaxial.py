@@ -17,7 +17,8 @@ p0), then one shear stage (axis 1 axial, --eps-max of axial strain in increments
   stage, eps_a, eps_v, sigma_v = sigma11, sigma_h = (sigma22 + sigma33)/2, K0 = sigma_h/sigma_v).
 
 ``--posterior DIR/posterior.json`` (of ``hmodel calibrate`` on triaxial data) runs at its
-posterior mean instead of --phi, --kn, --kt, --alpha0 and --radius, and records the posterior
+posterior mean instead of --phi, --kn, --kt, --alpha0 and --radius (and, where it holds alpha0_spread,
+with the point's families of opening angles: analytical backend only), and records the posterior
 in run.h5 (parameters ``posterior``); ``--posterior-band N`` adds the 95 % band of N posterior
 draws (DIR/posterior_band.csv, shaded in the figure; ``homogenization.cli.posterior_flags``).
 
@@ -213,6 +214,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         say(f"programme: {loading.to_dict(programme)}", f"contact law: {law.to_dict()}, radius {args.radius:g} m")
     with output_lock(out):
         models, options = build_models(args, law, meso, dim=3)
+        models = posterior_flags.spread_models(calibrated, models, meso, lebedev_order=args.order, n_spins=args.spins,
+                                               staggered_spins=not args.aligned_spins)
         with output_folder(out) as work:
             runs, _, written = run_backends(
                 args, models, options, law, meso,

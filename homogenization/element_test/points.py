@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from homogenization.material import orientation as orient_mod
-from homogenization.material import orientation3d
+from homogenization.material import opening_spread, orientation3d
 from homogenization.material.invariants import mean_stress, mean_stress_3d
 from homogenization.material.homogenised import HomogenisedMaterial, HomogenisedMaterial3D, MaterialState, MaterialUpdate
 from warp_hcell.core.contract import CellModel
@@ -46,8 +46,12 @@ def orientation_set(mesostructure: Mesostructure, *, n_orientations: int, fabric
 def material_points(cell_model: CellModel, mesostructure: Mesostructure, n_points: int,
                     orient: orient_mod.OrientationSet | None = None, **orientations: Any) -> MaterialPoints:
     """``n_points`` touching, force-free material points of ``mesostructure`` cells oriented by ``orient``
-    (None: ``orientation_set(mesostructure, **orientations)``)."""
-    orient = orientation_set(mesostructure, **orientations) if orient is None else orient
+    (None: ``orientation_set(mesostructure, **orientations)``, once per family of opening angles where
+    the cell model declares them: ``opening_spread.FAMILIES_ATTRIBUTE``)."""
+    if orient is None:
+        orient = orientation_set(mesostructure, **orientations)
+        if getattr(cell_model, opening_spread.FAMILIES_ATTRIBUTE, False):
+            orient = opening_spread.replicate(orient)
     cls = HomogenisedMaterial if getattr(mesostructure, "dim", 2) == 2 else HomogenisedMaterial3D
     return MaterialPoints(cls(cell_model, orient, mesostructure, n_points))
 
