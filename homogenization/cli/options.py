@@ -40,7 +40,7 @@ from typing import Any
 from homogenization.backends import BACKENDS
 from homogenization.learning.settings import (ActiveSettings, CertificateSettings, default_equilibrium,
                                               FINES_EQUILIBRIUM_CORRECTIONS, FINES_EQUILIBRIUM_TOLERANCE)
-from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
+from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, int_at_least, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
 from warp_hcell.core.parameters import CellDefaults, DemSettings, LoadingDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 
@@ -221,15 +221,8 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
     add_certificate_equilibrium_arguments(parser)
 
 
-def correction_count(text: str) -> int:
-    """argparse type of --equilibrium-corrections: an integer >= 0 (0: the network alone)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text} must be >= 0")
-    return value
+correction_count = int_at_least(0)
+"""argparse type of --equilibrium-corrections: an integer >= 0 (0: the network alone)."""
 
 
 def add_equilibrium_arguments(parser: argparse.ArgumentParser, corrections_help: str) -> None:

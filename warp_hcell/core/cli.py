@@ -209,15 +209,21 @@ def fraction(text: str) -> float:
     return value
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text} must be >= 1")
-    return value
+def int_at_least(smallest: int):
+    """argparse type factory: an integer >= ``smallest``."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < smallest:
+            raise argparse.ArgumentTypeError(f"{text} must be >= {smallest}")
+        return value
+    return parse
+
+
+positive_int = int_at_least(1)
+"""argparse type: an integer >= 1."""
 
 
 def alpha0_deg(text: str) -> float:
