@@ -223,14 +223,21 @@ def main(argv: list[str] | None = None) -> int:
     auto = run["sampler"]["autocorrelation"]
     print(f"  tau [steps]: {auto['tau_steps']}; effective samples: {auto['effective_samples']} of {auto['samples']}; "
           f"{auto['steps_per_tau']} retained steps per largest tau (short: {auto['short']})")
+    print_prediction_table(results)
+    return 0
+
+
+def print_prediction_table(results: dict, fallbacks: bool = False) -> None:
+    """Print one row per test: RMS |dq|/q_peak, RMS d eps_v, peak q, strain at peak and final eps_v,
+    model against data (and the forward model's fallbacks where ``fallbacks``)."""
     print("test            role       RMS|dq|/q_pk  RMS d eps_v  q_pk model/data [kPa]  eps1 at pk model/data [%]  "
-          "eps_v end model/data [%]")
+          "eps_v end model/data [%]" + ("  fallbacks" if fallbacks else ""))
     for name, r in results.items():
         print(f"{name:15s} {r['role']:10s} {r['rms_dq_over_qpeak']:12.3f}  {r['rms_deps_v']:11.4f}  "
               f"{r['q_peak_model'] / 1e3:8.0f} / {r['q_peak_data'] / 1e3:<8.0f}     "
               f"{100 * r['eps1_at_peak_model']:6.1f} / {100 * r['eps1_at_peak_data']:<6.1f}             "
-              f"{100 * r['eps_v_end_model']:6.2f} / {100 * r['eps_v_end_data']:<6.2f}")
-    return 0
+              f"{100 * r['eps_v_end_model']:6.2f} / {100 * r['eps_v_end_data']:<6.2f}"
+              + (f"   {r['forward_fallbacks']}" if fallbacks else ""))
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_real_sand import DATA, PRIOR, SPLITS  # noqa: E402
+from bench_real_sand import DATA, PRIOR, SPLITS, print_prediction_table  # noqa: E402
 
 from homogenization.calibration import bayes, start  # noqa: E402
 from homogenization.calibration.data import read_test  # noqa: E402
@@ -162,13 +162,7 @@ def main(argv: list[str] | None = None) -> int:
           + f"; {record['evaluations']} sets, {seconds:.0f} s, load {os.getloadavg()[0]:.1f}")
     for fit in record["fits"]:
         print(f"  fit: chi-square {fit['chi_square']:.4g} at " + ", ".join(f"{k} {v:.4g}" for k, v in fit["optimum"].items()))
-    print("test            role       RMS|dq|/q_pk  RMS d eps_v  q_pk model/data [kPa]  eps1 at pk model/data [%]  "
-          "eps_v end model/data [%]  fallbacks")
-    for name, r in results.items():
-        print(f"{name:15s} {r['role']:10s} {r['rms_dq_over_qpeak']:12.3f}  {r['rms_deps_v']:11.4f}  "
-              f"{r['q_peak_model'] / 1e3:8.0f} / {r['q_peak_data'] / 1e3:<8.0f}     "
-              f"{100 * r['eps1_at_peak_model']:6.1f} / {100 * r['eps1_at_peak_data']:<6.1f}             "
-              f"{100 * r['eps_v_end_model']:6.2f} / {100 * r['eps_v_end_data']:<6.2f}   {r['forward_fallbacks']}")
+    print_prediction_table(results, fallbacks=True)
     return 0
 
 
