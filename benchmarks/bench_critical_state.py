@@ -96,9 +96,9 @@ class Candidate(Analytical3DCell):
     def configure(self, value: np.ndarray, cells_per_point: int) -> None:
         self.value = value
 
-    def rule_count(self, state) -> int:
-        """Planes (or renewals) under the rule in ``state``."""
-        return 0
+    def rule_count(self, state) -> np.ndarray:
+        """Per cell, its planes under the rule in ``state`` (renewal: the renewals so far), shape (n_cells,)."""
+        return np.zeros(state.a.alpha.size, dtype=np.int64)
 
 
 class Reform(Candidate):
@@ -112,8 +112,8 @@ class Reform(Candidate):
         r = self.response(new)
         return new, type(response)(r.moment, r.area, response.diagnostics, response.tangent)
 
-    def rule_count(self, state) -> int:
-        return int(sum(np.count_nonzero((p.N1 <= 0.0) & (p.N2 <= 0.0)) for p in _planes(state)))
+    def rule_count(self, state) -> np.ndarray:
+        return sum(((p.N1 <= 0.0) & (p.N2 <= 0.0)).astype(np.int64) for p in _planes(state))
 
 
 class Freeze(Candidate):
@@ -133,8 +133,8 @@ class Freeze(Candidate):
         r = self.response(new)
         return new, type(response)(r.moment, r.area, response.diagnostics, tangent)
 
-    def rule_count(self, state) -> int:
-        return int(sum(np.count_nonzero(self._held(p)) for p in _planes(state)))
+    def rule_count(self, state) -> np.ndarray:
+        return sum(self._held(p).astype(np.int64) for p in _planes(state))
 
 
 class Lock(Candidate):
@@ -161,8 +161,8 @@ class Lock(Candidate):
         r = self.response(new)
         return new, type(ra)(r.moment, r.area, diagnostics, tangent)
 
-    def rule_count(self, state) -> int:
-        return int(sum(np.count_nonzero(p.alpha <= np.radians(self.value)) for p in _planes(state)))
+    def rule_count(self, state) -> np.ndarray:
+        return sum((p.alpha <= np.radians(self.value)).astype(np.int64) for p in _planes(state))
 
 
 class RenewalState(NamedTuple):
@@ -225,8 +225,8 @@ class Renewal(Candidate):
         state = super().state_from_arrays(arrays)
         return RenewalState(state.a, state.b, s, J)
 
-    def rule_count(self, state) -> int:
-        return int(np.sum(self._renewals(state.s) - self._renewals(np.zeros_like(state.s))))
+    def rule_count(self, state) -> np.ndarray:
+        return (self._renewals(state.s) - self._renewals(np.zeros_like(state.s))).astype(np.int64)
 
 
 class RenewalAtDensity(Renewal):
@@ -266,11 +266,7 @@ def simulate(test: Measurement, params: dict[str, np.ndarray], candidate: str | 
     q, p, eps_v = (forward._sample(eps1_model, rows[:, i].T, test.eps1) for i in range(3))
     counts = np.zeros(points.n, dtype=np.int64)
     if candidate is not None:
-        per_point = points.material.orient.n_cells
-        for i in range(points.n):
-            take = np.arange(i * per_point, (i + 1) * per_point)
-            counts[i] = model.rule_count(model.state_from_arrays(
-                {k: v[take] for k, v in model.state_to_arrays(points.state.cells).items()}))
+        counts = model.rule_count(points.state.cells).reshape(points.n, -1).sum(axis=1)
     return forward.Curves(q, p, eps_v, fallback), counts
 
 
