@@ -16,7 +16,8 @@ aligned spins, shear increments 2e-3, isotropic 1e-3, drained Newton to 1e-5):
   five measured points;
 - ``--fit CANDIDATE``: a bounded least-squares fit (scipy, finite-difference Jacobian in one batch,
   as ``hmodel calibrate --start map``'s fits) of phi_g, kn, kt/kn, alpha0 and the candidate's
-  parameter on the fitted tests, from the optimum at each of ``--starts``; then the three tests;
+  parameter on the fitted tests, from the optimum at each of ``--starts``; then the three tests
+  (``--fit plain``: the four parameters, ``--starts`` the starting alpha0s);
 - ``--long FILE``: the plain optimum and the ``--fit`` result of FILE (JSON) on drained tests at 50,
   100 and 200 kPa to 60 % axial strain: is q stationary, does eps_v level off?
 
@@ -36,6 +37,10 @@ The candidates (none is in the package; each is a subclass of the closed form's
   fractional part): a fraction lambda of the contact network rebuilt per unit strain;
 - ``renewal-density`` [1/strain]: the same, the fresh cell at the opening angle whose touching
   volume is V(alpha0) J (J the cell's volume ratio since its start): new cells as loose as the point.
+
+``--axisymmetric`` drives the cells (of --scan, --fit) by the kinematics of the cell kind hcell3d-axisym
+(docs/model.md, section 14: both planes of a cell take the same lateral strain, and an isochoric
+path strains no plane's area) instead of the projected ones of the calibration's forward model.
 
 Counts of the rules are printed beside the results (planes under the rule at the end, renewals).
 """
@@ -63,9 +68,11 @@ from homogenization.backends.analytical import AnalyticalState  # noqa: E402
 from homogenization.backends.analytical3d import Analytical3DCell, Analytical3DState  # noqa: E402
 from homogenization.calibration import bayes, forward  # noqa: E402
 from homogenization.calibration.data import Measurement, read_test  # noqa: E402
+from homogenization.element_test.points import material_points, orientation_set  # noqa: E402
 from homogenization.element_test.record import History  # noqa: E402
 from homogenization.element_test.run import run  # noqa: E402
 from homogenization.element_test.solver import POPULATION, StressControl  # noqa: E402
+from warp_hcell.mesostructures.hcell import build_h_cell_3d  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
@@ -236,12 +243,22 @@ class RenewalAtDensity(Renewal):
 CANDIDATES = {"reform": Reform, "freeze": Freeze, "lock": Lock, "renewal": Renewal, "renewal-density": RenewalAtDensity}
 
 
+AXISYMMETRIC = False
+"""``--axisymmetric``: drive the cells by the axisymmetric kinematics of the cell kind hcell3d-axisym."""
+
+
 def simulate(test: Measurement, params: dict[str, np.ndarray], candidate: str | None, values: np.ndarray | None):
     """The forward model's drained test (``forward.simulate``'s batched path) of n parameter sets, the
-    cells of set i those of ``candidate`` with parameter values[i] (None: the plain closed form).
+    cells of set i those of ``candidate`` with parameter values[i] (None: the plain closed form), driven
+    by the kinematics of hcell3d-axisym where ``AXISYMMETRIC``.
     Returns the curves and, per set, the rule's count at the end."""
     full = forward.full_parameters(params, SETTINGS)
     points = forward._population(full, SETTINGS, 3)
+    if AXISYMMETRIC:
+        meso = build_h_cell_3d(57.0, radius=SETTINGS.radius, axisymmetric=True)
+        orient = orientation_set(meso, n_orientations=SETTINGS.n_orientations, lebedev_order=SETTINGS.lebedev_order,
+                                 n_spins=SETTINGS.n_spins, staggered_spins=SETTINGS.staggered_spins)
+        points = material_points(points.model, meso, points.n, orient)
     model = points.model
     before = {}
     if candidate is not None:
@@ -331,7 +348,8 @@ def fit(args) -> dict:
     fitted, _ = SPLITS[args.split]
     tests = [read_test(DATA / f) for f in fitted]
     base = optimum(args.split)
-    lo, hi = np.append(LOWER, BOUNDS[args.fit][0]), np.append(UPPER, BOUNDS[args.fit][1])
+    rule = args.fit if args.fit != "plain" else None
+    lo, hi = (np.append(LOWER, BOUNDS[rule][0]), np.append(UPPER, BOUNDS[rule][1])) if rule else (LOWER, UPPER)
     width = hi - lo
     evaluations = [0]
 
@@ -341,7 +359,7 @@ def fit(args) -> dict:
         curves = []
         for test in tests:
             with np.errstate(all="ignore"):
-                c, _ = simulate(test, params, args.fit, X[:, 4])
+                c, _ = simulate(test, params, rule, X[:, 4] if rule else None)
             curves.append({"q": c.q, "p": c.p, "eps_v": c.eps_v})
         evaluations[0] += X.shape[0]
         r = bayes.residuals(tests, curves, NOISE)
@@ -365,23 +383,31 @@ def fit(args) -> dict:
     started = time.perf_counter()
     fits = []
     for value in args.starts:
-        x0 = np.array([base["phi_g"], math.log10(base["kn"]), base["kt_over_kn"], base["alpha0"], value])
+        x0 = np.array([base["phi_g"], math.log10(base["kn"]), base["kt_over_kn"], base["alpha0"]])
+        if rule:
+            x0 = np.append(x0, value)
+        else:
+            x0[3] = value
         result = one_fit(np.clip(x0, lo, hi))
         fits.append({"start": value, "chi_square": float(2.0 * result.cost), "x": result.x.tolist()})
         x = result.x
         print(f"fit from {args.fit} {value:g}: chi-square {2.0 * result.cost:.4g} at phi_g {x[0]:.2f}, kn {10 ** x[1]:.3g}, "
-              f"kt/kn {x[2]:.3f}, alpha0 {x[3]:.2f}, {args.fit} {x[4]:.3f} ({result.nfev} iterations)", flush=True)
+              f"kt/kn {x[2]:.3f}, alpha0 {x[3]:.2f}" + (f", {args.fit} {x[4]:.3f}" if rule else "")
+              + f" ({result.nfev} iterations)", flush=True)
     best = min(fits, key=lambda f: f["chi_square"])
     x = np.array(best["x"])
     params = {"phi_g": x[0], "kn": 10.0 ** x[1], "kt_over_kn": x[2], "alpha0": x[3]}
-    chi2, rows = all_tests(args.split, {k: np.array([v]) for k, v in params.items()}, args.fit, np.array([x[4]]))
+    chi2, rows = all_tests(args.split, {k: np.array([v]) for k, v in params.items()}, rule,
+                           np.array([x[4]]) if rule else None)
     seconds = time.perf_counter() - started
-    print(f"split {args.split}, {args.fit}: optimum " + ", ".join(f"{k} {v:.4g}" for k, v in params.items())
-          + f", {args.fit} {x[4]:.4g}; chi-square {chi2[0]:.4g} ({evaluations[0]} sets, {seconds:.0f} s, "
+    print(f"split {args.split}, {args.fit}{' (axisymmetric kinematics)' if AXISYMMETRIC else ''}: optimum "
+          + ", ".join(f"{k} {v:.4g}" for k, v in params.items())
+          + (f", {args.fit} {x[4]:.4g}" if rule else "") + f"; chi-square {chi2[0]:.4g} ({evaluations[0]} sets, {seconds:.0f} s, "
           f"load {os.getloadavg()[0]:.1f})")
     print_prediction_table({k: v[0] for k, v in rows.items()}, fallbacks=True)
     print("rule counts (" + args.fit + "): " + ", ".join(f"{k} {v[0]['rule_count']}" for k, v in rows.items()))
-    return {"split": args.split, "candidate": args.fit, "optimum": {**params, args.fit: float(x[4])},
+    return {"split": args.split, "candidate": args.fit, "axisymmetric": AXISYMMETRIC,
+            "optimum": {**{k: float(v) for k, v in params.items()}, **({args.fit: float(x[4])} if rule else {})},
             "chi_square_fitted": float(chi2[0]), "fits": fits, "tests": {k: v[0] for k, v in rows.items()},
             "evaluations": evaluations[0], "seconds": seconds, "load_average_at_end": list(os.getloadavg())}
 
@@ -482,14 +508,19 @@ def main(argv: list[str] | None = None) -> int:
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument("--diagnose", action="store_true")
     mode.add_argument("--scan", action="store_true")
-    mode.add_argument("--fit", choices=tuple(CANDIDATES))
+    mode.add_argument("--fit", choices=("plain", *CANDIDATES))
     mode.add_argument("--long", type=Path, help="a --fit result (JSON)")
     parser.add_argument("--split", choices=tuple(SPLITS), default="50+200")
     parser.add_argument("--p0", type=float, default=5e4, help="--diagnose: confining pressure [Pa]")
     parser.add_argument("--candidates", default=",".join(CANDIDATES), help="--scan: which candidates (comma-separated)")
-    parser.add_argument("--starts", default="1.5", help="--fit: starting values of the candidate's parameter")
+    parser.add_argument("--starts", default="1.5", help="--fit: starting values of the candidate's parameter "
+                                                           "(--fit plain: of alpha0 [deg])")
+    parser.add_argument("--axisymmetric", action="store_true",
+                        help="--scan, --fit: the cells driven by the kinematics of hcell3d-axisym (model page, section 14)")
     parser.add_argument("--out", type=Path, default=None, help="result JSON")
     args = parser.parse_args(argv)
+    global AXISYMMETRIC
+    AXISYMMETRIC = args.axisymmetric
     args.candidates = [c for c in args.candidates.split(",") if c]
     if any(c not in CANDIDATES for c in args.candidates):
         parser.error(f"--candidates: one of {', '.join(CANDIDATES)}")
