@@ -24,17 +24,19 @@ from typing import NamedTuple
 import torch
 
 from training import cell_physics
-from training.fast_equilibrium3d import REGULARISATION
+from training.fast_equilibrium3d import HALVINGS, REGULARISATION
 from training.network import features_and_contacts, MesoNet, RELAXATION_RAMP
 
 
 class Corrected(NamedTuple):
     """Outcome of ``corrected_advance``: the increment (``cell_physics.Increment``), force_ratio (2, n)
-    (first guess, after the corrections; 0 where not evaluated) and corrections (n,) int64 (Newton steps)."""
+    (first guess, after the corrections; 0 where not evaluated), corrections (n,) int64 (Newton steps) and
+    shortened (n,) int64 (those of them the line search shortened)."""
 
     increment: cell_physics.Increment
     force_ratio: torch.Tensor
     corrections: torch.Tensor
+    shortened: torch.Tensor
 
 
 def balance(schema: cell_physics.CellSchema, cell_size, free_position, shear_force, d_eps, d_free,
@@ -58,8 +60,36 @@ def _jacobian(schema, state, d_eps, d_free, old) -> tuple[torch.Tensor, torch.Te
     return residual.detach(), fn_max.detach(), torch.stack(rows, dim=1)
 
 
+def _line_search(schema, state, d_eps, d, delta, residual, active, halvings: int, old, shortened) -> torch.Tensor:
+    """d + alpha delta (n, n_free) [m] in the ``active`` cells, d elsewhere: alpha the first of 1, 1/2, ...,
+    2^-halvings whose sum of squared residuals is below that of ``residual`` (at d), else 2^-halvings;
+    counts the cells' steps taken at alpha < 1 in ``shortened`` (n,), in place."""
+    with torch.no_grad():
+        return _halved(schema, state, d_eps, d, delta, residual, active, halvings, old, shortened)
+
+
+def _halved(schema, state, d_eps, d, delta, residual, active, halvings, old, shortened) -> torch.Tensor:
+    """``_line_search`` without autograd."""
+    merit = (residual * residual).sum(dim=1)
+    alpha = torch.ones_like(merit)
+    pending = active.clone()
+    d = d.clone()
+    for trial in range(int(halvings) + 1):
+        trial_d = torch.where(pending.unsqueeze(-1), d + alpha.unsqueeze(-1) * delta, d)
+        trial_residual, _ = balance(schema, *state, d_eps.detach(), trial_d, old)
+        accept = pending & (((trial_residual * trial_residual).sum(dim=1) < merit) | (trial == int(halvings)))
+        d = torch.where(accept.unsqueeze(-1), trial_d, d)
+        if trial > 0:
+            shortened += accept.to(shortened.dtype)
+        pending = pending & ~accept
+        alpha = torch.where(pending, 0.5 * alpha, alpha)
+        if not bool(pending.any()):
+            break
+    return d
+
+
 def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps, iterations: int,
-                      tolerance: float) -> Corrected:
+                      tolerance: float, halvings: int = HALVINGS) -> Corrected:
     """``MesoNet.advance`` with up to ``iterations`` exact Newton corrections (module docstring)."""
     schema = net.schema
     feats, m, unbalanced, old = features_and_contacts(schema, net.active_index, cell_size, free_position,
@@ -73,6 +103,7 @@ def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps
     n = cell_size.shape[0]
     ratios = torch.zeros(2, n, dtype=cell_size.dtype, device=cell_size.device)
     steps = torch.zeros(n, dtype=torch.int64, device=cell_size.device)
+    shortened = torch.zeros_like(steps)
     d = d_net.detach().clone()
     eye = torch.eye(d.shape[1], dtype=d.dtype, device=d.device)
     residual = jac = None
@@ -87,9 +118,11 @@ def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps
         active = active & (ratio > tolerance) & (step < int(iterations))
         if not bool(active.any()):
             break
-        delta = torch.linalg.solve(-jac[active] + REGULARISATION * schema.kn * eye, residual[active].unsqueeze(-1))
-        d[active] = d[active] + delta.squeeze(-1)
+        delta = torch.zeros_like(d)
+        delta[active] = torch.linalg.solve(-jac[active] + REGULARISATION * schema.kn * eye,
+                                           residual[active].unsqueeze(-1)).squeeze(-1)
         steps[active] += 1
+        d = _line_search(schema, state, d_eps, d, delta, residual, active, halvings, old, shortened)
     if d_eps.requires_grad:
         corrected = steps > 0
         with torch.enable_grad():
@@ -101,4 +134,4 @@ def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps
     else:
         d = torch.where((probe >= RELAXATION_RAMP).unsqueeze(-1), d, d_net)
     inc = cell_physics.advance(schema, cell_size, free_position, shear_force, d_eps, d, old, rest_rule=True)
-    return Corrected(inc, ratios, steps)
+    return Corrected(inc, ratios, steps, shortened)

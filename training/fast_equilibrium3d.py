@@ -45,6 +45,9 @@ from warp_hcell.core.contact import CAP_SLACK
 REGULARISATION = 1e-9
 """Diagonal stiffness added to -J in every Newton step, as a fraction of kn [-]."""
 
+HALVINGS = 5
+"""The most halvings of a Newton step whose full length does not lower the sum of squared residuals [-]."""
+
 
 @numba.njit(cache=True, error_model="numpy")
 def _mat3(a, b, out):
@@ -264,21 +267,27 @@ def solve_small(a, rhs, out):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, ratios, corrections):
+def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, halvings, ratios,
+              corrections, shortened):
     """Newton corrections of the free-DOF displacement ``d_free`` (n_free, n) [m], in place (module docstring).
 
     The DEM's rest rule (``fast_increment.hold_at_rest``) is applied to the first guess (the held DOFs'
     displacement set to zero) before the first step, so that a grain's own predicted motion never
     puts it in contact; a held grain that no contact reaches has a zero row and stays held.
 
+    Each Newton step delta is globalised by halving (module docstring): the step taken is alpha delta
+    for the first alpha of 1, 1/2, ..., 2^-halvings whose sum of squared residuals is below the
+    current one, else 2^-halvings delta; ``halvings`` = 0 takes the full steps.
+
     Args:
         size (3, n), free (n_free, n), shear (n_pairs, 3, n), d_eps (n, 3): the state and probe;
         before: ``training.fast_cells.Before`` of the state (``fast_step3d.features3d``);
         iterations: the most Newton steps per cell (>= 0); tolerance: force ratio [-] below which a
-            cell is not corrected.
+            cell is not corrected; halvings: the most halvings of a Newton step (>= 0).
 
     Writes ratios (2, n): the force ratio at the first guess and after the last step (0 for a cell
-    with no normal force or a probe below the ramp), and corrections (n,) int64, the Newton steps taken.
+    with no normal force or a probe below the ramp), corrections (n,) int64, the Newton steps taken,
+    and shortened (n,) int64, those of them taken at alpha < 1.
     """
     n = size.shape[1]
     frac, free_dofs = cells.frac, cells.free_dofs
@@ -297,18 +306,25 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
     residual = np.empty((n_free, n))
     jacobian = np.empty((n_free, n_free, n))
     fn_max = np.empty(n)
+    trial_residual = np.empty((n_free, n))
+    trial_fn_max = np.empty(n)
+    step_d = np.empty((n_free, n))
+    merit = np.empty(n)
+    alpha = np.empty(n)
     active = np.empty(n, dtype=np.bool_)
     for c in range(n):
         active[c] = before.m[c] >= law.ramp
         corrections[c] = 0
+        shortened[c] = 0
     a_c, rhs, delta = np.empty((n_free, n_free)), np.empty(n_free), np.empty(n_free)
     stepping = np.zeros(n, dtype=np.bool_)
+    pending = np.zeros(n, dtype=np.bool_)
+    for k in range(n_free):
+        for c in range(n):
+            position[k, c] = free[k, c] + d_free[k, c]
+    grain_positions(new_size, position, frac, free_dofs, x)
+    residual3(x, shear, before.old_branch, before.old_contact, cells, law, residual, fn_max)
     for step in range(iterations + 1):
-        for k in range(n_free):
-            for c in range(n):
-                position[k, c] = free[k, c] + d_free[k, c]
-        grain_positions(new_size, position, frac, free_dofs, x)
-        residual3(x, shear, before.old_branch, before.old_contact, cells, law, residual, fn_max)
         for c in range(n):
             stepping[c] = False
             if not active[c]:
@@ -330,14 +346,43 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
                            fn_max)
         for c in range(n):
             active[c] = stepping[c]
+            pending[c] = stepping[c]
+            alpha[c] = 1.0
             if not stepping[c]:
                 continue
+            total = 0.0
             for k in range(n_free):
                 rhs[k] = residual[k, c]
+                total += residual[k, c] * residual[k, c]
                 for e in range(n_free):
                     a_c[k, e] = -jacobian[k, e, c]
                 a_c[k, k] += REGULARISATION * kn
+            merit[c] = total
             solve_small(a_c, rhs, delta)
             for k in range(n_free):
-                d_free[k, c] += delta[k]
+                step_d[k, c] = delta[k]
             corrections[c] += 1
+        for trial in range(halvings + 1):
+            for k in range(n_free):
+                for c in range(n):
+                    position[k, c] = free[k, c] + (d_free[k, c] + alpha[c] * step_d[k, c] if pending[c] else d_free[k, c])
+            grain_positions(new_size, position, frac, free_dofs, x)
+            residual3(x, shear, before.old_branch, before.old_contact, cells, law, trial_residual, trial_fn_max)
+            for c in range(n):
+                if not pending[c]:
+                    continue
+                total = 0.0
+                for k in range(n_free):
+                    total += trial_residual[k, c] * trial_residual[k, c]
+                if total < merit[c] or trial == halvings:
+                    pending[c] = False
+                    for k in range(n_free):
+                        d_free[k, c] += alpha[c] * step_d[k, c]
+                        residual[k, c] = trial_residual[k, c]
+                    fn_max[c] = trial_fn_max[c]
+                    if trial > 0:
+                        shortened[c] += 1
+                else:
+                    alpha[c] *= 0.5
+            if not pending.any():
+                break
