@@ -9,7 +9,7 @@ one cell, all on the same rule of cells, printed side by side in one run:
   control fails is reported as stopped, with the driver's line), the same of q alone over the
   scale, the largest difference of the shear stage's volumetric strain eps11 + eps22 + eps33 (in % of strain), and the increments whose
   stress control accepted the nearer side of a response jump (``stress_control_jump``);
-- the corrections' counts over the run: cell-increments corrected, Newton steps (and those the line search shortened), cell-increments
+- the corrections' counts over the run: cell-increments corrected, Newton steps (and those the line search shortened or shifted), cell-increments
   left above the DEM's force tolerance (unconverged), the largest force ratio of the network's
   guess;
 - the wall time of each run and its ratio to the DEM's (and to the closed form's, with
@@ -130,7 +130,7 @@ def step_part(args, meso, corrections, tolerances) -> None:
                 state, response = model.step(state, iso if k < 10 else shear)
         states[name] = state
         counts[name] = {key: response.diagnostics.get(key) for key in ("n_corrected", "n_corrections", "n_shortened",
-                                                                       "n_unconverged")}
+                                                                       "n_shifted", "n_unconverged")}
     times = {name: [] for name in models}
     for _ in range(args.repeats):
         for name, model in models.items():
@@ -221,24 +221,24 @@ def main(argv=None) -> int:
                      "q_diff_scale": difference(record, dem, args.p0, ("q",))[0] / scale,
                      "eps_v_diff": volumetric_difference(record, dem), "jumps": total(record, "stress_control_jump"),
                      "corrected": total(record, "n_corrected"), "newton_steps": total(record, "n_corrections"),
-                     "shortened": total(record, "n_shortened"),
+                     "shortened": total(record, "n_shortened"), "shifted": total(record, "n_shifted"),
                      "unconverged": total(record, "n_unconverged"),
                      "network_ratio_max": largest(record, "force_ratio_network_max"),
                      "ratio_max": largest(record, "force_ratio_max"),
                      "cell_increments": record.n_increments * int(np.asarray(record.weights).size)})
     print(f"{'variant':>22} {'diff/p0':>9} {'diff/scale':>10} {'at eps_a':>8} {'corrected':>10} {'Newton':>10} "
-          f"{'shortened':>9} {'unconv.':>8} {'guess ratio':>11} {'q/scale':>8} {'eps_v diff':>10} {'jumps':>5} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
+          f"{'shortened':>9} {'shifted':>8} {'unconv.':>8} {'guess ratio':>11} {'q/scale':>8} {'eps_v diff':>10} {'jumps':>5} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
     closed_s = next((r["wall_s"] for r in rows if r["variant"] == "closed form"), None)
     for row in rows:
         if "stopped" in row:
             print(f"{row['variant']:>22} stopped (stress control; line above)")
             continue
         cells = (f"{100 * row['diff_p0']:8.3g}% {100 * row['diff_scale']:9.3g}%" if "diff_p0" in row else f"{'':>9} {'':>10}")
-        extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} {row['shortened']:9.0f} "
+        extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} {row['shortened']:9.0f} {row['shifted']:8.0f} "
                  f"{row['unconverged']:8.0f} "
                  f"{row['network_ratio_max']:11.2g} {100 * row['q_diff_scale']:7.3g}% {100 * row['eps_v_diff']:9.3g}% "
                  f"{row['jumps']:5.0f}" if "corrected" in row
-                 else f" {'':>8} {'':>10} {'':>10} {'':>9} {'':>8} {'':>11} {'':>8} {'':>10} {'':>5}")
+                 else f" {'':>8} {'':>10} {'':>10} {'':>9} {'':>8} {'':>8} {'':>11} {'':>8} {'':>10} {'':>5}")
         print(f"{row['variant']:>22} {cells}{extra} {row['wall_s']:7.1f} {row['wall_s'] / dem_s:6.2f}"
               + (f" {row['wall_s'] / closed_s:8.2f}" if closed_s else ""))
     if args.json:

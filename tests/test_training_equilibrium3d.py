@@ -117,14 +117,14 @@ def test_corrections_bring_every_cell_to_the_dem_tolerance_and_are_counted(shear
         return fast(*state, d), fast.last_corrections()
 
     assert corrected(cell.fast, d_eps)[1] is None
-    _, (ratio, steps, _) = corrected(FastAdvance(cell.net, 3, 1e-6), d_eps)
+    _, (ratio, steps, *_) = corrected(FastAdvance(cell.net, 3, 1e-6), d_eps)
     assert (ratio[0] > 1e-6).all()  # the network alone leaves every cell off balance here
     assert (ratio[1] <= 1e-6).all()
     assert ((steps >= 1) & (steps <= 3)).all()
-    _, (still_ratio, _, _) = corrected(FastAdvance(cell.net, 3, 1e-6, guess="still"), d_eps)
+    _, (still_ratio, *_) = corrected(FastAdvance(cell.net, 3, 1e-6, guess="still"), d_eps)
     assert (still_ratio[0] > ratio[0]).all()
     assert (still_ratio[1] <= 1e-6).all()
-    none, (_, none_steps, _) = corrected(FastAdvance(cell.net, 3, 1e-6), np.zeros_like(d_eps))
+    none, (_, none_steps, *_) = corrected(FastAdvance(cell.net, 3, 1e-6), np.zeros_like(d_eps))
     assert np.array_equal(none_steps, np.zeros(d_eps.shape[0], dtype=np.int64))  # a zero increment stays a no-op
     assert np.array_equal(none.free_position, np.asarray(state.free_position))
 
