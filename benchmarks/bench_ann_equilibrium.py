@@ -21,6 +21,9 @@ own state after the same local increments (10 isotropic of 3e-4, then ``--step-s
 1e-4 along the cell axis: 300 catch the fine grain of ``hcell3d-fines:alpha0=55,ratio=0.9``), timed in turn ``--repeats`` times; the
 medians and their ratios.
 
+``--steps full`` adds rows whose corrections take full Newton steps (no shift, no line search, in the
+compiled and the torch path), to measure what the globalisation adds.
+
 ``--guesses`` adds rows whose corrections start from another first guess than the network's
 (``training.inference.FastAdvance``'s ``guess``: ``still``, the free grains do not move; ``affine``,
 they follow the cell's strain), to measure what the network adds to the Newton steps (the network
@@ -33,6 +36,7 @@ network. Strains [-], stresses [Pa], compression positive. Rows are also written
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import time
@@ -165,6 +169,9 @@ def main(argv=None) -> int:
     parser.add_argument("--corrections", default="0,1,3", help="comma-separated K (0: the network alone)")
     parser.add_argument("--tolerances", default="1e-6", help="comma-separated force ratios above which a cell is "
                         "corrected (1e-6: the DEM's)")
+    parser.add_argument("--steps", default="globalised", help="comma-separated Newton steps of the corrections: "
+                        "globalised (the package's: shifted where they climb, halved by the line search) or full "
+                        "(plain Newton steps, halvings 0 and shift 0 in both paths)")
     parser.add_argument("--guesses", default="network", help="comma-separated first guesses (network, still, affine)")
     parser.add_argument("--closed-form", action="store_true", help="also time the closed form (plain ten-sphere cell)")
     parser.add_argument("--part", choices=("test", "step"), default="test")
@@ -177,12 +184,17 @@ def main(argv=None) -> int:
     corrections = [int(k) for k in args.corrections.split(",")]
     tolerances = [float(t) for t in args.tolerances.split(",")]
     guesses = args.guesses.split(",")
+    rules = args.steps.split(",")
+    if any(rule not in ("globalised", "full") for rule in rules):
+        parser.error(f"--steps {args.steps}: globalised and/or full")
     if any(g != "network" for g in guesses) and args.test != "undrained":
         parser.error("--guesses other than network need --test undrained (stress control starts from the network)")
 
     from homogenization.backends import make_cell_model
+    from homogenization.backends import ann as ann_backend
     from homogenization.backends.ann import AnnCell3D
     from homogenization.element_test.driver import ControlError
+    from training.equilibrium import corrected_advance
     from training.inference import FastAdvance
     from warp_hcell.core.parameters import ContactLaw
     from warp_hcell.mesostructures.builders import mesostructure_arg
@@ -199,23 +211,26 @@ def main(argv=None) -> int:
         closed, closed_s = run(make_cell_model("analytical", dim=3), meso, args)
         worst, scale, _, _ = difference(closed, dem, args.p0)
         rows.append({"variant": "closed form", "wall_s": closed_s, "diff_p0": worst / args.p0, "diff_scale": worst / scale})
-    variants = [(guess, k, tol) for guess in guesses for k in corrections
-                for tol in (tolerances if k else tolerances[:1]) if guess == "network" or k]
-    for guess, k, tol in variants:
-        name = "network alone" if not k else f"{guess} + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
+    variants = [(guess, k, tol, rule) for rule in rules for guess in guesses for k in corrections
+                for tol in (tolerances if k else tolerances[:1]) if (guess == "network" or k) and (k or rule == rules[0])]
+    for guess, k, tol, rule in variants:
+        name = ("network alone" if not k else f"{guess} + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
+                + (f" {rule}" if len(rules) > 1 else ""))
         ann = AnnCell3D(ContactLaw(), 0.5, model=args.model, equilibrium_corrections=k,
                         equilibrium_tolerance=tol if k else None)
-        if guess != "network":
-            ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess)
+        plain = {"halvings": 0, "shift": 0.0} if rule == "full" else {}
+        if guess != "network" or plain:
+            ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess, **plain)
+        ann_backend.corrected_advance = functools.partial(corrected_advance, **plain)
         try:
             record, wall = run(ann, meso, args)
         except ControlError as exc:
-            rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol,
+            rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol, "steps": rule,
                          "stopped": str(exc)})
             print(f"{rows[-1]['variant']}: stopped: {exc}")
             continue
         worst, scale, where, curve = difference(record, dem, args.p0)
-        rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol if k else None,
+        rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol if k else None, "steps": rule,
                      "wall_s": wall, "diff_p0": worst / args.p0, "diff_scale": worst / scale, "scale_pa": scale,
                      "at_eps_a": where, "curve": curve, "increments": record.n_increments,
                      "q_diff_scale": difference(record, dem, args.p0, ("q",))[0] / scale,

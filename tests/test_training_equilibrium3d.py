@@ -24,7 +24,9 @@ import torch
 
 from homogenization.backends.ann import AnnCell, AnnCell3D, default_model_path
 from training import cell_physics
-from training.equilibrium import balance
+from training.cell_physics import CellSchema
+from training.equilibrium import balance, corrected_advance
+from training.network import MesoNet
 from training.fast_cells import grain_positions
 from training.fast_equilibrium3d import pair_force_jacobian, residual3, residual_jacobian3
 from training.inference import _cells_last, FastAdvance
@@ -165,7 +167,7 @@ def test_torch_and_compiled_corrections_agree_and_the_tangent_is_the_equilibrium
     cell.fast = fast
     scale = np.abs(compiled.moment).max()
     assert np.abs(compiled.moment - torch_response.moment).max() <= 2e-14 * scale
-    for key in ("n_corrected", "n_corrections", "n_unconverged"):
+    for key in ("n_corrected", "n_corrections", "n_shortened", "n_shifted", "n_unconverged"):
         assert compiled.diagnostics[key] == torch_response.diagnostics[key]
     h = 1e-7
     fd = np.empty_like(torch_response.tangent)
@@ -176,6 +178,53 @@ def test_torch_and_compiled_corrections_agree_and_the_tangent_is_the_equilibrium
         _, minus = cell.step(state, d_eps - step)
         fd[:, :, j] = (np.diagonal(plus.moment, axis1=1, axis2=2) - np.diagonal(minus.moment, axis1=1, axis2=2)) / (2 * h)
     assert np.abs(fd - torch_response.tangent).max() <= 2.5e-8 * np.abs(fd).max()
+
+
+HARD_CASES = ROOT / "tests" / "data" / "equilibrium" / "large_axial_hard.npz"
+"""Cell-increments of ``benchmarks/cells/large_axial.toml`` where full Newton steps fail (README beside it)."""
+
+
+def _relaxing_network(meso) -> MesoNet:
+    """A network of ``meso`` whose output layer is zero: its first guess is the relaxation along the
+    unbalanced force alone, the same in torch and compiled (no weight enters it)."""
+    law = ContactLaw()
+    schema = CellSchema.from_arrays(radius=meso.radius, reference_position=meso.position,
+                                    reference_cell_size=meso.cell_size, driven=meso.driven, pairs=meso.pairs,
+                                    outer=meso.outer, kn=law.kn, kt=law.kt, mu=law.mu,
+                                    contact_tolerance=meso.contact_tolerance)
+    net = MesoNet(schema, torch.ones(schema.n_pairs, dtype=torch.bool), hidden=(16,))
+    with torch.no_grad():
+        net.mlp[-1].weight.zero_()
+        net.mlp[-1].bias.zero_()
+    return net
+
+
+def test_globalised_corrections_balance_cells_where_full_newton_steps_do_not():
+    meso = mesostructure_arg(str(ROOT / "benchmarks" / "cells" / "large_axial.toml")).build(None)
+    net = _relaxing_network(meso)
+    data = np.load(HARD_CASES)
+    state = tuple(data[name] for name in ("cell_size", "free_position", "shear_force"))
+    d_eps = data["d_eps"]
+    full = FastAdvance(net, 20, 1e-4, halvings=0, shift=0.0)
+    full(*state, d_eps)
+    assert (full.last_corrections().force_ratio[1] > 1e-2).all()  # full steps leave every case off balance
+    fast = FastAdvance(net, 20, 1e-4)
+    inc = fast(*state, d_eps)
+    ratio, steps, shortened, shifted = fast.last_corrections()
+    assert ((ratio[1] > 0) & (ratio[1] <= 1e-4)).all() and (steps <= 20).all()
+    assert (shifted[:3] >= 1).all() and (shifted[3:] == 0).all() and (shortened[3:] >= 1).all()
+    assert ((shortened + shifted) <= steps).all()
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))  # noqa: E731
+    schema = net.schema
+    old = cell_physics.contacts(schema, cell_physics.positions(schema, t(state[0]), t(state[1])))
+    residual, fn_max = balance(schema, *(t(a) for a in state), t(d_eps), t(inc.free_position - state[1]), old)
+    assert (residual.abs().amax(dim=1) <= 1.001e-4 * fn_max).all()  # balanced by the torch contact law too
+    with torch.no_grad():
+        out = corrected_advance(net, *(t(a) for a in state), t(d_eps), 20, 1e-4)
+    for name, compiled, other in (("steps", steps, out.corrections), ("shortened", shortened, out.shortened),
+                                  ("shifted", shifted, out.shifted)):
+        np.testing.assert_array_equal(compiled, other.numpy(), err_msg=name)
+    assert np.abs(out.increment.free_position.numpy() - inc.free_position).max() <= 1e-14
 
 
 @needs_model
