@@ -22,11 +22,10 @@ import numpy as np
 import pytest
 import torch
 
+from ann3d_increment_worker import relaxing_network
 from homogenization.backends.ann import AnnCell, AnnCell3D, default_model_path
 from training import cell_physics
-from training.cell_physics import CellSchema
 from training.equilibrium import balance, corrected_advance
-from training.network import MesoNet
 from training.fast_cells import grain_positions
 from training.fast_equilibrium3d import pair_force_jacobian, residual3, residual_jacobian3
 from training.inference import _cells_last, FastAdvance
@@ -184,24 +183,8 @@ HARD_CASES = ROOT / "tests" / "data" / "equilibrium" / "large_axial_hard.npz"
 """Cell-increments of ``benchmarks/cells/large_axial.toml`` where full Newton steps fail (README beside it)."""
 
 
-def _relaxing_network(meso) -> MesoNet:
-    """A network of ``meso`` whose output layer is zero: its first guess is the relaxation along the
-    unbalanced force alone, the same in torch and compiled (no weight enters it)."""
-    law = ContactLaw()
-    schema = CellSchema.from_arrays(radius=meso.radius, reference_position=meso.position,
-                                    reference_cell_size=meso.cell_size, driven=meso.driven, pairs=meso.pairs,
-                                    outer=meso.outer, kn=law.kn, kt=law.kt, mu=law.mu,
-                                    contact_tolerance=meso.contact_tolerance)
-    net = MesoNet(schema, torch.ones(schema.n_pairs, dtype=torch.bool), hidden=(16,))
-    with torch.no_grad():
-        net.mlp[-1].weight.zero_()
-        net.mlp[-1].bias.zero_()
-    return net
-
-
 def test_globalised_corrections_balance_cells_where_full_newton_steps_do_not():
-    meso = mesostructure_arg(str(ROOT / "benchmarks" / "cells" / "large_axial.toml")).build(None)
-    net = _relaxing_network(meso)
+    net = relaxing_network()
     data = np.load(HARD_CASES)
     state = tuple(data[name] for name in ("cell_size", "free_position", "shear_force"))
     d_eps = data["d_eps"]
@@ -225,6 +208,27 @@ def test_globalised_corrections_balance_cells_where_full_newton_steps_do_not():
                                   ("shifted", shifted, out.shifted)):
         np.testing.assert_array_equal(compiled, other.numpy(), err_msg=name)
     assert np.abs(out.increment.free_position.numpy() - inc.free_position).max() <= 1e-14
+
+
+def test_globalised_corrections_are_bit_identical_in_any_batch_and_on_other_cpus(tmp_path):
+    fast = FastAdvance(relaxing_network(), 20)  # the worker's: the DEM's tolerance
+    data = np.load(HARD_CASES)
+    state = tuple(data[name] for name in ("cell_size", "free_position", "shear_force"))
+    whole = {**fast(*state, data["d_eps"])._asdict(), **fast.last_corrections()._asdict()}
+    assert whole["shortened"].sum() > 0 and whole["shifted"].sum() > 0  # both rules fire here
+    index = np.array([4, 0, 2, 0])
+    part = {**fast(*(a[index] for a in state), data["d_eps"][index])._asdict(), **fast.last_corrections()._asdict()}
+    for name, value in part.items():
+        np.testing.assert_array_equal(np.asarray(value), np.asarray(whole[name])[..., index] if name == "force_ratio"
+                                      else np.asarray(whole[name])[index], err_msg=name)
+    np.savez(tmp_path / "in.npz", **{name: data[name] for name in data.files}, index=index)
+    for setting, cpu in OTHER_CPUS.items():
+        subprocess.run([sys.executable, str(ROOT / "tests" / "ann3d_increment_worker.py"), str(tmp_path / "in.npz"),
+                        str(tmp_path / "out.npz"), "20", "large_axial"],
+                       env={**os.environ, "NUMBA_CPU_NAME": cpu, "PYTHONPATH": str(ROOT)}, check=True, cwd=ROOT)
+        other = np.load(tmp_path / "out.npz")
+        for name, value in whole.items():
+            np.testing.assert_array_equal(other[f"whole_{name}"], np.asarray(value), err_msg=f"{name}, {setting}")
 
 
 @needs_model
