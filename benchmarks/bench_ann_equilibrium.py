@@ -9,9 +9,9 @@ one cell, all on the same rule of cells, printed side by side in one run:
   control fails is reported as stopped, with the driver's line), the same of q alone over the
   scale, the largest difference of the shear stage's volumetric strain eps11 + eps22 + eps33 (in % of strain), and the increments whose
   stress control accepted the nearer side of a response jump (``stress_control_jump``);
-- the corrections' counts over the run: cell-increments corrected, Newton steps (and those the line search shortened or shifted), cell-increments
-  left above the DEM's force tolerance (unconverged), the largest force ratio of the network's
-  guess;
+- the corrections' counts over the run: cell-increments corrected, Newton steps (and those the line
+  search shortened or shifted), cell-increments left above the DEM's force tolerance (unconverged),
+  the largest force ratio of the network's guess;
 - the wall time of each run and its ratio to the DEM's (and to the closed form's, with
   ``--closed-form``, for the plain ten-sphere cell only), per increment.
 
@@ -212,7 +212,8 @@ def main(argv=None) -> int:
         worst, scale, _, _ = difference(closed, dem, args.p0)
         rows.append({"variant": "closed form", "wall_s": closed_s, "diff_p0": worst / args.p0, "diff_scale": worst / scale})
     variants = [(guess, k, tol, rule) for rule in rules for guess in guesses for k in corrections
-                for tol in (tolerances if k else tolerances[:1]) if (guess == "network" or k) and (k or rule == rules[0])]
+                for tol in (tolerances if k else tolerances[:1])
+                if (guess == "network" or k) and (k or rule == rules[0])]
     for guess, k, tol, rule in variants:
         name = ("network alone" if not k else f"{guess} + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
                 + (f" {rule}" if len(rules) > 1 else ""))
@@ -242,14 +243,16 @@ def main(argv=None) -> int:
                      "ratio_max": largest(record, "force_ratio_max"),
                      "cell_increments": record.n_increments * int(np.asarray(record.weights).size)})
     print(f"{'variant':>22} {'diff/p0':>9} {'diff/scale':>10} {'at eps_a':>8} {'corrected':>10} {'Newton':>10} "
-          f"{'shortened':>9} {'shifted':>8} {'unconv.':>8} {'guess ratio':>11} {'q/scale':>8} {'eps_v diff':>10} {'jumps':>5} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
+          f"{'shortened':>9} {'shifted':>8} "
+          f"{'unconv.':>8} {'guess ratio':>11} {'q/scale':>8} {'eps_v diff':>10} {'jumps':>5} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
     closed_s = next((r["wall_s"] for r in rows if r["variant"] == "closed form"), None)
     for row in rows:
         if "stopped" in row:
             print(f"{row['variant']:>22} stopped (stress control; line above)")
             continue
         cells = (f"{100 * row['diff_p0']:8.3g}% {100 * row['diff_scale']:9.3g}%" if "diff_p0" in row else f"{'':>9} {'':>10}")
-        extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} {row['shortened']:9.0f} {row['shifted']:8.0f} "
+        extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} "
+                 f"{row['shortened']:9.0f} {row['shifted']:8.0f} "
                  f"{row['unconverged']:8.0f} "
                  f"{row['network_ratio_max']:11.2g} {100 * row['q_diff_scale']:7.3g}% {100 * row['eps_v_diff']:9.3g}% "
                  f"{row['jumps']:5.0f}" if "corrected" in row

@@ -415,7 +415,8 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
         for trial in range(halvings + 1):
             for k in range(n_free):
                 for c in range(n):
-                    position[k, c] = free[k, c] + (d_free[k, c] + alpha[c] * step_d[k, c] if pending[c] else d_free[k, c])
+                    moved = d_free[k, c] + alpha[c] * step_d[k, c] if pending[c] else d_free[k, c]
+                    position[k, c] = free[k, c] + moved
             grain_positions(new_size, position, frac, free_dofs, x)
             residual3(x, shear, before.old_branch, before.old_contact, cells, law, trial_residual, trial_fn_max)
             for c in range(n):

@@ -38,9 +38,9 @@ the ANN's run and of the DEM's), ``rollout``,
 ``equilibrium`` (how often they fired over the ANN calls of the tests, trial calls included:
 ``steps`` calls, ``n_corrected`` cell steps corrected, ``n_corrections`` Newton steps,
 ``n_shortened`` of them shortened by the line search and ``n_shifted`` with their matrix
-shifted (``training.fast_equilibrium3d``), ``n_unconverged`` cell steps left above the tolerance, the largest force ratios before and
-after, ``force_ratio_network_max`` and ``force_ratio_max``; the rollouts, reported only, run the
-network alone), and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
+shifted (``training.fast_equilibrium3d``), ``n_unconverged`` cell steps left above the tolerance,
+the largest force ratios before and after, ``force_ratio_network_max`` and ``force_ratio_max``; the
+rollouts, reported only, run the network alone), and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
 target), ``below_minimum`` (where the settings are weaker than the minimum certificate
 ``MINIMUM``, whose values the constants above take), ``verdict`` ("passed", "failed", "weak")
 and ``passed`` (within the target AND the minimum met), and ``envelope`` (what the tests
