@@ -9,9 +9,9 @@ one cell, all on the same rule of cells, printed side by side in one run:
   control fails is reported as stopped, with the driver's line), the same of q alone over the
   scale, the largest difference of the shear stage's volumetric strain eps11 + eps22 + eps33 (in % of strain), and the increments whose
   stress control accepted the nearer side of a response jump (``stress_control_jump``);
-- the corrections' counts over the run: cell-increments corrected, Newton steps, cell-increments
-  left above the DEM's force tolerance (unconverged), the largest force ratio of the network's
-  guess;
+- the corrections' counts over the run: cell-increments corrected, Newton steps (and those the line
+  search shortened or shifted), cell-increments left above the DEM's force tolerance (unconverged),
+  the largest force ratio of the network's guess;
 - the wall time of each run and its ratio to the DEM's (and to the closed form's, with
   ``--closed-form``, for the plain ten-sphere cell only), per increment.
 
@@ -20,6 +20,9 @@ DEM, the ANN alone and the ANN with each K (and the closed form with ``--closed-
 own state after the same local increments (10 isotropic of 3e-4, then ``--step-shear`` undrained of
 1e-4 along the cell axis: 300 catch the fine grain of ``hcell3d-fines:alpha0=55,ratio=0.9``), timed in turn ``--repeats`` times; the
 medians and their ratios.
+
+``--steps full`` adds rows whose corrections take full Newton steps (no shift, no line search, in the
+compiled and the torch path), to measure what the globalisation adds.
 
 ``--guesses`` adds rows whose corrections start from another first guess than the network's
 (``training.inference.FastAdvance``'s ``guess``: ``still``, the free grains do not move; ``affine``,
@@ -33,6 +36,7 @@ network. Strains [-], stresses [Pa], compression positive. Rows are also written
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import time
@@ -129,7 +133,8 @@ def step_part(args, meso, corrections, tolerances) -> None:
             for k in range(10 + args.step_shear):
                 state, response = model.step(state, iso if k < 10 else shear)
         states[name] = state
-        counts[name] = {key: response.diagnostics.get(key) for key in ("n_corrected", "n_corrections", "n_unconverged")}
+        counts[name] = {key: response.diagnostics.get(key) for key in ("n_corrected", "n_corrections", "n_shortened",
+                                                                       "n_shifted", "n_unconverged")}
     times = {name: [] for name in models}
     for _ in range(args.repeats):
         for name, model in models.items():
@@ -164,6 +169,9 @@ def main(argv=None) -> int:
     parser.add_argument("--corrections", default="0,1,3", help="comma-separated K (0: the network alone)")
     parser.add_argument("--tolerances", default="1e-6", help="comma-separated force ratios above which a cell is "
                         "corrected (1e-6: the DEM's)")
+    parser.add_argument("--steps", default="globalised", help="comma-separated Newton steps of the corrections: "
+                        "globalised (the package's: shifted where they climb, halved by the line search) or full "
+                        "(plain Newton steps, halvings 0 and shift 0 in both paths)")
     parser.add_argument("--guesses", default="network", help="comma-separated first guesses (network, still, affine)")
     parser.add_argument("--closed-form", action="store_true", help="also time the closed form (plain ten-sphere cell)")
     parser.add_argument("--part", choices=("test", "step"), default="test")
@@ -176,12 +184,17 @@ def main(argv=None) -> int:
     corrections = [int(k) for k in args.corrections.split(",")]
     tolerances = [float(t) for t in args.tolerances.split(",")]
     guesses = args.guesses.split(",")
+    rules = args.steps.split(",")
+    if any(rule not in ("globalised", "full") for rule in rules):
+        parser.error(f"--steps {args.steps}: globalised and/or full")
     if any(g != "network" for g in guesses) and args.test != "undrained":
         parser.error("--guesses other than network need --test undrained (stress control starts from the network)")
 
     from homogenization.backends import make_cell_model
+    from homogenization.backends import ann as ann_backend
     from homogenization.backends.ann import AnnCell3D
     from homogenization.element_test.driver import ControlError
+    from training.equilibrium import corrected_advance
     from training.inference import FastAdvance
     from warp_hcell.core.parameters import ContactLaw
     from warp_hcell.mesostructures.builders import mesostructure_arg
@@ -198,33 +211,39 @@ def main(argv=None) -> int:
         closed, closed_s = run(make_cell_model("analytical", dim=3), meso, args)
         worst, scale, _, _ = difference(closed, dem, args.p0)
         rows.append({"variant": "closed form", "wall_s": closed_s, "diff_p0": worst / args.p0, "diff_scale": worst / scale})
-    variants = [(guess, k, tol) for guess in guesses for k in corrections
-                for tol in (tolerances if k else tolerances[:1]) if guess == "network" or k]
-    for guess, k, tol in variants:
-        name = "network alone" if not k else f"{guess} + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
+    variants = [(guess, k, tol, rule) for rule in rules for guess in guesses for k in corrections
+                for tol in (tolerances if k else tolerances[:1])
+                if (guess == "network" or k) and (k or rule == rules[0])]
+    for guess, k, tol, rule in variants:
+        name = ("network alone" if not k else f"{guess} + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
+                + (f" {rule}" if len(rules) > 1 else ""))
         ann = AnnCell3D(ContactLaw(), 0.5, model=args.model, equilibrium_corrections=k,
                         equilibrium_tolerance=tol if k else None)
-        if guess != "network":
-            ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess)
+        plain = {"halvings": 0, "shift": 0.0} if rule == "full" else {}
+        if guess != "network" or plain:
+            ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess, **plain)
+        ann_backend.corrected_advance = functools.partial(corrected_advance, **plain)
         try:
             record, wall = run(ann, meso, args)
         except ControlError as exc:
-            rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol,
+            rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol, "steps": rule,
                          "stopped": str(exc)})
             print(f"{rows[-1]['variant']}: stopped: {exc}")
             continue
         worst, scale, where, curve = difference(record, dem, args.p0)
-        rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol if k else None,
+        rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol if k else None, "steps": rule,
                      "wall_s": wall, "diff_p0": worst / args.p0, "diff_scale": worst / scale, "scale_pa": scale,
                      "at_eps_a": where, "curve": curve, "increments": record.n_increments,
                      "q_diff_scale": difference(record, dem, args.p0, ("q",))[0] / scale,
                      "eps_v_diff": volumetric_difference(record, dem), "jumps": total(record, "stress_control_jump"),
                      "corrected": total(record, "n_corrected"), "newton_steps": total(record, "n_corrections"),
+                     "shortened": total(record, "n_shortened"), "shifted": total(record, "n_shifted"),
                      "unconverged": total(record, "n_unconverged"),
                      "network_ratio_max": largest(record, "force_ratio_network_max"),
                      "ratio_max": largest(record, "force_ratio_max"),
                      "cell_increments": record.n_increments * int(np.asarray(record.weights).size)})
     print(f"{'variant':>22} {'diff/p0':>9} {'diff/scale':>10} {'at eps_a':>8} {'corrected':>10} {'Newton':>10} "
+          f"{'shortened':>9} {'shifted':>8} "
           f"{'unconv.':>8} {'guess ratio':>11} {'q/scale':>8} {'eps_v diff':>10} {'jumps':>5} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
     closed_s = next((r["wall_s"] for r in rows if r["variant"] == "closed form"), None)
     for row in rows:
@@ -232,10 +251,12 @@ def main(argv=None) -> int:
             print(f"{row['variant']:>22} stopped (stress control; line above)")
             continue
         cells = (f"{100 * row['diff_p0']:8.3g}% {100 * row['diff_scale']:9.3g}%" if "diff_p0" in row else f"{'':>9} {'':>10}")
-        extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} {row['unconverged']:8.0f} "
+        extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} "
+                 f"{row['shortened']:9.0f} {row['shifted']:8.0f} "
+                 f"{row['unconverged']:8.0f} "
                  f"{row['network_ratio_max']:11.2g} {100 * row['q_diff_scale']:7.3g}% {100 * row['eps_v_diff']:9.3g}% "
                  f"{row['jumps']:5.0f}" if "corrected" in row
-                 else f" {'':>8} {'':>10} {'':>10} {'':>8} {'':>11} {'':>8} {'':>10} {'':>5}")
+                 else f" {'':>8} {'':>10} {'':>10} {'':>9} {'':>8} {'':>8} {'':>11} {'':>8} {'':>10} {'':>5}")
         print(f"{row['variant']:>22} {cells}{extra} {row['wall_s']:7.1f} {row['wall_s'] / dem_s:6.2f}"
               + (f" {row['wall_s'] / closed_s:8.2f}" if closed_s else ""))
     if args.json:

@@ -62,7 +62,9 @@ def surrogate_line(cert: dict) -> str:
     return (f"certified surrogate: the network + up to {k} equilibrium corrections at force ratio {tolerance:g}: "
             f"{tally['n_corrected']} of {cell_steps} cell steps corrected "
             f"({100 * tally['n_corrected'] / max(cell_steps, 1):.1f} %), "
-            f"{tally['n_corrections']} Newton steps, {tally['n_unconverged']} left above the tolerance")
+            f"{tally['n_corrections']} Newton steps ({tally.get('n_shortened', 0)} shortened by the line search, "
+            f"{tally.get('n_shifted', 0)} shifted), "
+            f"{tally['n_unconverged']} left above the tolerance")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -45,9 +45,11 @@ def test_a_tiny_certificate_of_the_hybrid_records_k_and_covers_that_hybrid_only(
     assert equilibrium_settings(cert) == (2, 1e-3)
     tally = cert["equilibrium"]
     assert tally["steps"] > 0 and 0 < tally["n_corrected"] <= tally["n_corrections"] <= 2 * tally["n_corrected"]
+    assert 0 <= tally["n_shortened"] + tally["n_shifted"] <= tally["n_corrections"]  # the globalised steps, counted
     assert tally["force_ratio_network_max"] > 1e-3  # the network alone left cells above the tolerance
     assert cert["within_target"] and cert["verdict"] == "weak"  # tiny: below the minimum certificate
-    assert any("2 equilibrium corrections" in line for line in certificate.summary_lines(cert))
+    assert any("2 equilibrium corrections" in line and "shortened by the line search" in line
+               for line in certificate.summary_lines(cert))
     certificate.write_certificate(model, cert)
     from homogenization.learning.active import _current  # the rounds redo a certificate of another surrogate
 

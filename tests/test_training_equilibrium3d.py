@@ -22,9 +22,10 @@ import numpy as np
 import pytest
 import torch
 
+from ann3d_increment_worker import relaxing_network
 from homogenization.backends.ann import AnnCell, AnnCell3D, default_model_path
 from training import cell_physics
-from training.equilibrium import balance
+from training.equilibrium import balance, corrected_advance
 from training.fast_cells import grain_positions
 from training.fast_equilibrium3d import pair_force_jacobian, residual3, residual_jacobian3
 from training.inference import _cells_last, FastAdvance
@@ -117,14 +118,14 @@ def test_corrections_bring_every_cell_to_the_dem_tolerance_and_are_counted(shear
         return fast(*state, d), fast.last_corrections()
 
     assert corrected(cell.fast, d_eps)[1] is None
-    _, (ratio, steps) = corrected(FastAdvance(cell.net, 3, 1e-6), d_eps)
+    _, (ratio, steps, *_) = corrected(FastAdvance(cell.net, 3, 1e-6), d_eps)
     assert (ratio[0] > 1e-6).all()  # the network alone leaves every cell off balance here
     assert (ratio[1] <= 1e-6).all()
     assert ((steps >= 1) & (steps <= 3)).all()
-    _, (still_ratio, _) = corrected(FastAdvance(cell.net, 3, 1e-6, guess="still"), d_eps)
+    _, (still_ratio, *_) = corrected(FastAdvance(cell.net, 3, 1e-6, guess="still"), d_eps)
     assert (still_ratio[0] > ratio[0]).all()
     assert (still_ratio[1] <= 1e-6).all()
-    none, (_, none_steps) = corrected(FastAdvance(cell.net, 3, 1e-6), np.zeros_like(d_eps))
+    none, (_, none_steps, *_) = corrected(FastAdvance(cell.net, 3, 1e-6), np.zeros_like(d_eps))
     assert np.array_equal(none_steps, np.zeros(d_eps.shape[0], dtype=np.int64))  # a zero increment stays a no-op
     assert np.array_equal(none.free_position, np.asarray(state.free_position))
 
@@ -165,7 +166,7 @@ def test_torch_and_compiled_corrections_agree_and_the_tangent_is_the_equilibrium
     cell.fast = fast
     scale = np.abs(compiled.moment).max()
     assert np.abs(compiled.moment - torch_response.moment).max() <= 2e-14 * scale
-    for key in ("n_corrected", "n_corrections", "n_unconverged"):
+    for key in ("n_corrected", "n_corrections", "n_shortened", "n_shifted", "n_unconverged"):
         assert compiled.diagnostics[key] == torch_response.diagnostics[key]
     h = 1e-7
     fd = np.empty_like(torch_response.tangent)
@@ -176,6 +177,58 @@ def test_torch_and_compiled_corrections_agree_and_the_tangent_is_the_equilibrium
         _, minus = cell.step(state, d_eps - step)
         fd[:, :, j] = (np.diagonal(plus.moment, axis1=1, axis2=2) - np.diagonal(minus.moment, axis1=1, axis2=2)) / (2 * h)
     assert np.abs(fd - torch_response.tangent).max() <= 2.5e-8 * np.abs(fd).max()
+
+
+HARD_CASES = ROOT / "tests" / "data" / "equilibrium" / "large_axial_hard.npz"
+"""Cell-increments of ``benchmarks/cells/large_axial.toml`` where full Newton steps fail (README beside it)."""
+
+
+def test_globalised_corrections_balance_cells_where_full_newton_steps_do_not():
+    net = relaxing_network()
+    data = np.load(HARD_CASES)
+    state = tuple(data[name] for name in ("cell_size", "free_position", "shear_force"))
+    d_eps = data["d_eps"]
+    full = FastAdvance(net, 20, 1e-4, halvings=0, shift=0.0)
+    full(*state, d_eps)
+    assert (full.last_corrections().force_ratio[1] > 1e-2).all()  # full steps leave every case off balance
+    fast = FastAdvance(net, 20, 1e-4)
+    inc = fast(*state, d_eps)
+    ratio, steps, shortened, shifted = fast.last_corrections()
+    assert ((ratio[1] > 0) & (ratio[1] <= 1e-4)).all() and (steps <= 20).all()
+    assert (shifted[:3] >= 1).all() and (shifted[3:] == 0).all() and (shortened[3:] >= 1).all()
+    assert ((shortened + shifted) <= steps).all()
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64))  # noqa: E731
+    schema = net.schema
+    old = cell_physics.contacts(schema, cell_physics.positions(schema, t(state[0]), t(state[1])))
+    residual, fn_max = balance(schema, *(t(a) for a in state), t(d_eps), t(inc.free_position - state[1]), old)
+    assert (residual.abs().amax(dim=1) <= 1.001e-4 * fn_max).all()  # balanced by the torch contact law too
+    with torch.no_grad():
+        out = corrected_advance(net, *(t(a) for a in state), t(d_eps), 20, 1e-4)
+    for name, compiled, other in (("steps", steps, out.corrections), ("shortened", shortened, out.shortened),
+                                  ("shifted", shifted, out.shifted)):
+        np.testing.assert_array_equal(compiled, other.numpy(), err_msg=name)
+    assert np.abs(out.increment.free_position.numpy() - inc.free_position).max() <= 1e-14
+
+
+def test_globalised_corrections_are_bit_identical_in_any_batch_and_on_other_cpus(tmp_path):
+    fast = FastAdvance(relaxing_network(), 20)  # the worker's: the DEM's tolerance
+    data = np.load(HARD_CASES)
+    state = tuple(data[name] for name in ("cell_size", "free_position", "shear_force"))
+    whole = {**fast(*state, data["d_eps"])._asdict(), **fast.last_corrections()._asdict()}
+    assert whole["shortened"].sum() > 0 and whole["shifted"].sum() > 0  # both rules fire here
+    index = np.array([4, 0, 2, 0])
+    part = {**fast(*(a[index] for a in state), data["d_eps"][index])._asdict(), **fast.last_corrections()._asdict()}
+    for name, value in part.items():
+        np.testing.assert_array_equal(np.asarray(value), np.asarray(whole[name])[..., index] if name == "force_ratio"
+                                      else np.asarray(whole[name])[index], err_msg=name)
+    np.savez(tmp_path / "in.npz", **{name: data[name] for name in data.files}, index=index)
+    for setting, cpu in OTHER_CPUS.items():
+        subprocess.run([sys.executable, str(ROOT / "tests" / "ann3d_increment_worker.py"), str(tmp_path / "in.npz"),
+                        str(tmp_path / "out.npz"), "20", "large_axial"],
+                       env={**os.environ, "NUMBA_CPU_NAME": cpu, "PYTHONPATH": str(ROOT)}, check=True, cwd=ROOT)
+        other = np.load(tmp_path / "out.npz")
+        for name, value in whole.items():
+            np.testing.assert_array_equal(other[f"whole_{name}"], np.asarray(value), err_msg=f"{name}, {setting}")
 
 
 @needs_model

@@ -8,7 +8,9 @@ balance of the free DOFs, R(d) = net contact force on the free DOFs after the in
 exact contact law (``cell_physics.advance``), J = dR/dd by autograd (one backward pass per free
 DOF, all cells at once), each step solving (J - REGULARISATION kn I) delta = -R, in the cells
 whose force ratio max abs(R) / max f_n exceeds ``tolerance`` and whose probe is at least
-``RELAXATION_RAMP``.
+``RELAXATION_RAMP``, globalised as the compiled steps are (the matrix shifted where the step does
+no positive work along R, another step halved until the sum of squared residuals falls;
+``training.fast_equilibrium3d``'s docstring) and counted the same way.
 
 Derivative: where ``d_eps`` requires grad, the corrected displacement carries the derivative of the
 equilibrium, -J^-1 dR/d(d_eps) at the last iterate (one more linearisation, whose value is added
@@ -24,17 +26,20 @@ from typing import NamedTuple
 import torch
 
 from training import cell_physics
-from training.fast_equilibrium3d import REGULARISATION
+from training.fast_equilibrium3d import HALVINGS, REGULARISATION, SHIFT
 from training.network import features_and_contacts, MesoNet, RELAXATION_RAMP
 
 
 class Corrected(NamedTuple):
     """Outcome of ``corrected_advance``: the increment (``cell_physics.Increment``), force_ratio (2, n)
-    (first guess, after the corrections; 0 where not evaluated) and corrections (n,) int64 (Newton steps)."""
+    (first guess, after the corrections; 0 where not evaluated), corrections (n,) int64 (Newton steps),
+    and of them shortened (n,) int64 (by the line search) and shifted (n,) int64 (the matrix shifted)."""
 
     increment: cell_physics.Increment
     force_ratio: torch.Tensor
     corrections: torch.Tensor
+    shortened: torch.Tensor
+    shifted: torch.Tensor
 
 
 def balance(schema: cell_physics.CellSchema, cell_size, free_position, shear_force, d_eps, d_free,
@@ -58,8 +63,60 @@ def _jacobian(schema, state, d_eps, d_free, old) -> tuple[torch.Tensor, torch.Te
     return residual.detach(), fn_max.detach(), torch.stack(rows, dim=1)
 
 
+def _downhill(matrix: torch.Tensor, residual: torch.Tensor, first: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The Newton steps (m, n_free) [m] of the ``matrix`` (m, n_free, n_free) [N/m] and ``residual`` (m, n_free)
+    [N] of the corrected cells, and whether each was shifted (m,): where a step does no positive work
+    along the residual, the matrix plus lambda I, lambda = ``first`` [N/m] doubled until it does
+    (``first`` = 0: never; ``training.fast_equilibrium3d``)."""
+    delta = torch.linalg.solve(matrix, residual.unsqueeze(-1)).squeeze(-1)
+    uphill = ~((residual * delta).sum(dim=1) > 0) if first > 0 else torch.zeros_like(residual[:, 0], dtype=torch.bool)
+    shifted = uphill.clone()
+    eye = torch.eye(matrix.shape[-1], dtype=matrix.dtype, device=matrix.device)
+    lam = torch.full_like(residual[:, 0], first)
+    for _ in range(64):
+        if not bool(uphill.any()):
+            break
+        trial = torch.linalg.solve(matrix[uphill] + lam[uphill, None, None] * eye, residual[uphill].unsqueeze(-1))
+        delta[uphill] = trial.squeeze(-1)
+        lam = torch.where(uphill, 2.0 * lam, lam)
+        uphill = uphill & ~((residual * delta).sum(dim=1) > 0)
+    return delta, shifted
+
+
+def _line_search(schema, state, d_eps, d, delta, residual, active, full, halvings: int, old, shortened) -> torch.Tensor:
+    """d + alpha delta (n, n_free) [m] in the ``active`` cells, d + delta in the ``full`` ones (shifted
+    steps), d elsewhere: alpha the first of 1, 1/2, ..., 2^-halvings whose sum of squared residuals is
+    below that of ``residual`` (at d), else 2^-halvings; counts the cells' steps taken at alpha < 1 in
+    ``shortened`` (n,), in place."""
+    with torch.no_grad():
+        d = torch.where(full.unsqueeze(-1), d + delta, d)
+        return _halved(schema, state, d_eps, d, delta, residual, active, halvings, old, shortened)
+
+
+def _halved(schema, state, d_eps, d, delta, residual, active, halvings, old, shortened) -> torch.Tensor:
+    """``_line_search`` of the ``active`` cells, without autograd."""
+    if not bool(active.any()):
+        return d
+    merit = (residual * residual).sum(dim=1)
+    alpha = torch.ones_like(merit)
+    pending = active.clone()
+    d = d.clone()
+    for trial in range(int(halvings) + 1):
+        trial_d = torch.where(pending.unsqueeze(-1), d + alpha.unsqueeze(-1) * delta, d)
+        trial_residual, _ = balance(schema, *state, d_eps.detach(), trial_d, old)
+        accept = pending & (((trial_residual * trial_residual).sum(dim=1) < merit) | (trial == int(halvings)))
+        d = torch.where(accept.unsqueeze(-1), trial_d, d)
+        if trial > 0:
+            shortened += accept.to(shortened.dtype)
+        pending = pending & ~accept
+        alpha = torch.where(pending, 0.5 * alpha, alpha)
+        if not bool(pending.any()):
+            break
+    return d
+
+
 def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps, iterations: int,
-                      tolerance: float) -> Corrected:
+                      tolerance: float, halvings: int = HALVINGS, shift: float = SHIFT) -> Corrected:
     """``MesoNet.advance`` with up to ``iterations`` exact Newton corrections (module docstring)."""
     schema = net.schema
     feats, m, unbalanced, old = features_and_contacts(schema, net.active_index, cell_size, free_position,
@@ -73,6 +130,8 @@ def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps
     n = cell_size.shape[0]
     ratios = torch.zeros(2, n, dtype=cell_size.dtype, device=cell_size.device)
     steps = torch.zeros(n, dtype=torch.int64, device=cell_size.device)
+    shortened = torch.zeros_like(steps)
+    shifted = torch.zeros_like(steps)
     d = d_net.detach().clone()
     eye = torch.eye(d.shape[1], dtype=d.dtype, device=d.device)
     residual = jac = None
@@ -87,9 +146,14 @@ def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps
         active = active & (ratio > tolerance) & (step < int(iterations))
         if not bool(active.any()):
             break
-        delta = torch.linalg.solve(-jac[active] + REGULARISATION * schema.kn * eye, residual[active].unsqueeze(-1))
-        d[active] = d[active] + delta.squeeze(-1)
+        delta = torch.zeros_like(d)
+        full = torch.zeros_like(active)
+        delta[active], full[active] = _downhill(-jac[active] + REGULARISATION * schema.kn * eye, residual[active],
+                                                shift * schema.kn)
         steps[active] += 1
+        shifted += full.to(shifted.dtype)
+        d = _line_search(schema, state, d_eps, d, delta, residual, active & ~full, active & full, halvings, old,
+                         shortened)
     if d_eps.requires_grad:
         corrected = steps > 0
         with torch.enable_grad():
@@ -101,4 +165,4 @@ def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps
     else:
         d = torch.where((probe >= RELAXATION_RAMP).unsqueeze(-1), d, d_net)
     inc = cell_physics.advance(schema, cell_size, free_position, shear_force, d_eps, d, old, rest_rule=True)
-    return Corrected(inc, ratios, steps)
+    return Corrected(inc, ratios, steps, shortened, shifted)

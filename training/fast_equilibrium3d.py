@@ -9,9 +9,23 @@ relative displacement normal to the mid-increment branch and capped at mu f_n, a
 
     R(d) = net contact force on every free DOF  [N],  J = dR/dd  [N/m]  (n_free x n_free).
 
-A Newton step solves (J - REGULARISATION kn I) delta = -R per cell (Gaussian elimination with
-partial pivoting): the small diagonal term leaves a free DOF that no contact touches (a zero row of
-J and a zero residual) where it is, and bounds the step along a mechanism (a sliding contact). A
+A Newton step solves (K + lambda I) delta = R per cell, K = -J + REGULARISATION kn I (Gaussian
+elimination with partial pivoting): the small diagonal term leaves a free DOF that no contact touches
+(a zero row of J and a zero residual) where it is, and bounds the step along a mechanism (a sliding
+contact). Two rules globalise the steps, each counted per cell:
+
+- shift: where Newton's step (lambda = 0) does no positive work along the unbalanced force,
+  R . delta <= 0, the grains sit near an unstable equilibrium (e.g. a fine grain wedged between two
+  sliding contacts, whose geometric softening -f_n / d outweighs the contact stiffness) and the
+  step would climb to it, while the DEM's damped dynamics move the grains along R, away from it;
+  then lambda = SHIFT kn, doubled until R . delta > 0 (as lambda grows, delta turns to R / lambda),
+  and the shifted step is taken in full.
+- line search: an unshifted step taken is alpha delta for the first alpha of 1, 1/2, ...,
+  2^-HALVINGS whose sum of squared residuals is below the current one, else 2^-HALVINGS delta (the
+  contact law is piecewise: contacts open and close, springs reach the Coulomb cap, and full steps
+  cycle).
+
+Without either (shift 0, halvings 0) the steps are the full Newton steps, bit for bit. A
 cell is corrected only while its force ratio, max abs(R) over its largest normal force (the DEM's
 criterion, ``DemSettings.force_tolerance``), exceeds ``tolerance``, and only when its probe is at
 least ``Physics.ramp`` (a zero increment stays a no-op, as stress control assumes).
@@ -44,6 +58,13 @@ from warp_hcell.core.contact import CAP_SLACK
 
 REGULARISATION = 1e-9
 """Diagonal stiffness added to -J in every Newton step, as a fraction of kn [-]."""
+
+HALVINGS = 5
+"""The most halvings of a Newton step whose full length does not lower the sum of squared residuals [-]."""
+
+SHIFT = 1e-3
+"""First diagonal stiffness added to the Newton matrix of a cell whose Newton step does no positive work
+along its unbalanced force, doubled until it does, as a fraction of kn [-]."""
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -263,22 +284,40 @@ def solve_small(a, rhs, out):
     return True
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _work(force, step):
+    """The work of the unbalanced force (m,) [N] along the step (m,) [m] (J), a fixed order of summation."""
+    total = 0.0
+    for k in range(force.shape[0]):
+        total += force[k] * step[k]
+    return total
+
+
 @numba.njit(cache=True, error_model="numpy")
-def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, ratios, corrections):
+def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, halvings, shift, ratios,
+              corrections, shortened, shifted):
     """Newton corrections of the free-DOF displacement ``d_free`` (n_free, n) [m], in place (module docstring).
 
     The DEM's rest rule (``fast_increment.hold_at_rest``) is applied to the first guess (the held DOFs'
     displacement set to zero) before the first step, so that a grain's own predicted motion never
     puts it in contact; a held grain that no contact reaches has a zero row and stays held.
 
+    Each Newton step is globalised (module docstring): its matrix shifted by shift kn, doubled, where
+    the step does no positive work along the residual (``shift`` = 0: never), a shifted step taken in
+    full, another alpha delta for the first alpha of 1, 1/2, ..., 2^-halvings whose sum of squared
+    residuals is below the current one, else 2^-halvings delta (``halvings`` = 0: the full steps).
+
     Args:
         size (3, n), free (n_free, n), shear (n_pairs, 3, n), d_eps (n, 3): the state and probe;
         before: ``training.fast_cells.Before`` of the state (``fast_step3d.features3d``);
         iterations: the most Newton steps per cell (>= 0); tolerance: force ratio [-] below which a
-            cell is not corrected.
+            cell is not corrected; halvings: the most halvings of a Newton step (>= 0); shift: the first
+            shift of a Newton matrix whose step climbs, as a fraction of kn (>= 0).
 
     Writes ratios (2, n): the force ratio at the first guess and after the last step (0 for a cell
-    with no normal force or a probe below the ramp), and corrections (n,) int64, the Newton steps taken.
+    with no normal force or a probe below the ramp), corrections (n,) int64, the Newton steps taken,
+    and of them shortened (n,) int64, those taken at alpha < 1, and shifted (n,) int64, those whose
+    matrix was shifted.
     """
     n = size.shape[1]
     frac, free_dofs = cells.frac, cells.free_dofs
@@ -297,18 +336,28 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
     residual = np.empty((n_free, n))
     jacobian = np.empty((n_free, n_free, n))
     fn_max = np.empty(n)
+    trial_residual = np.empty((n_free, n))
+    trial_fn_max = np.empty(n)
+    step_d = np.empty((n_free, n))
+    merit = np.empty(n)
+    alpha = np.empty(n)
     active = np.empty(n, dtype=np.bool_)
     for c in range(n):
         active[c] = before.m[c] >= law.ramp
         corrections[c] = 0
+        shortened[c] = 0
+        shifted[c] = 0
     a_c, rhs, delta = np.empty((n_free, n_free)), np.empty(n_free), np.empty(n_free)
+    a_w = np.empty((n_free, n_free))
+    full = np.zeros(n, dtype=np.bool_)
     stepping = np.zeros(n, dtype=np.bool_)
+    pending = np.zeros(n, dtype=np.bool_)
+    for k in range(n_free):
+        for c in range(n):
+            position[k, c] = free[k, c] + d_free[k, c]
+    grain_positions(new_size, position, frac, free_dofs, x)
+    residual3(x, shear, before.old_branch, before.old_contact, cells, law, residual, fn_max)
     for step in range(iterations + 1):
-        for k in range(n_free):
-            for c in range(n):
-                position[k, c] = free[k, c] + d_free[k, c]
-        grain_positions(new_size, position, frac, free_dofs, x)
-        residual3(x, shear, before.old_branch, before.old_contact, cells, law, residual, fn_max)
         for c in range(n):
             stepping[c] = False
             if not active[c]:
@@ -330,14 +379,61 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
                            fn_max)
         for c in range(n):
             active[c] = stepping[c]
+            pending[c] = stepping[c]
+            alpha[c] = 1.0
             if not stepping[c]:
                 continue
+            total = 0.0
             for k in range(n_free):
                 rhs[k] = residual[k, c]
+                total += residual[k, c] * residual[k, c]
                 for e in range(n_free):
                     a_c[k, e] = -jacobian[k, e, c]
                 a_c[k, k] += REGULARISATION * kn
-            solve_small(a_c, rhs, delta)
+            merit[c] = total
             for k in range(n_free):
-                d_free[k, c] += delta[k]
+                for e in range(n_free):
+                    a_w[k, e] = a_c[k, e]
+            solve_small(a_w, rhs, delta)
+            full[c] = False
+            lam = shift * kn
+            for attempt in range(64):
+                if not shift > 0.0 or _work(rhs, delta) > 0.0:
+                    break
+                full[c] = True
+                for k in range(n_free):
+                    for e in range(n_free):
+                        a_w[k, e] = a_c[k, e]
+                    a_w[k, k] += lam
+                solve_small(a_w, rhs, delta)
+                lam *= 2.0
+            if full[c]:
+                shifted[c] += 1
+            for k in range(n_free):
+                step_d[k, c] = delta[k]
             corrections[c] += 1
+        for trial in range(halvings + 1):
+            for k in range(n_free):
+                for c in range(n):
+                    moved = d_free[k, c] + alpha[c] * step_d[k, c] if pending[c] else d_free[k, c]
+                    position[k, c] = free[k, c] + moved
+            grain_positions(new_size, position, frac, free_dofs, x)
+            residual3(x, shear, before.old_branch, before.old_contact, cells, law, trial_residual, trial_fn_max)
+            for c in range(n):
+                if not pending[c]:
+                    continue
+                total = 0.0
+                for k in range(n_free):
+                    total += trial_residual[k, c] * trial_residual[k, c]
+                if total < merit[c] or trial == halvings or full[c]:
+                    pending[c] = False
+                    for k in range(n_free):
+                        d_free[k, c] += alpha[c] * step_d[k, c]
+                        residual[k, c] = trial_residual[k, c]
+                    fn_max[c] = trial_fn_max[c]
+                    if trial > 0:
+                        shortened[c] += 1
+                else:
+                    alpha[c] *= 0.5
+            if not pending.any():
+                break

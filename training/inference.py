@@ -41,7 +41,7 @@ import numpy as np
 import torch
 
 from training.fast_cells import Advanced, Before, CellTables, Normalisation, Physics
-from training.fast_equilibrium3d import correct3d
+from training.fast_equilibrium3d import correct3d, HALVINGS, SHIFT
 from training.fast_features import features
 from training.fast_increment import advance, free_displacement
 from training.fast_step3d import advance3d, features3d, physics3d
@@ -109,10 +109,14 @@ class Corrections(NamedTuple):
     """The equilibrium corrections of one ``FastAdvance`` call (``FastAdvance(corrections=K)``, spatial cells):
     force_ratio (2, n), the largest unbalanced free-DOF force over the largest normal force at the first
     guess and after the corrections (0 where not evaluated: no normal force, or a probe below the
-    relaxation ramp), and steps: int64 (n,), the Newton steps taken."""
+    relaxation ramp), steps: int64 (n,), the Newton steps taken, and of them shortened: int64 (n,), those
+    the line search shortened, and shifted: int64 (n,), those whose matrix was shifted (the step did no
+    positive work along the unbalanced force; ``training.fast_equilibrium3d.correct3d``)."""
 
     force_ratio: np.ndarray
     steps: np.ndarray
+    shortened: np.ndarray
+    shifted: np.ndarray
 
 
 class _Workspace(NamedTuple):
@@ -148,12 +152,14 @@ class FastAdvance:
         guess: the first guess of the corrections: ``"network"``; or, to measure what the network
             adds, ``"still"`` (the free DOFs do not move) or ``"affine"`` (they follow the cell's strain,
             x <- x (1 - d_eps) along their axis); the network is still evaluated (same cost).
+        halvings: the most halvings of a Newton step by the line search (``correct3d``; 0: full steps).
+        shift: the first shift of a Newton matrix whose step climbs, a fraction of kn (``correct3d``; 0: none).
     """
 
     GUESSES = ("network", "still", "affine")
 
     def __init__(self, net: MesoNet, corrections: int = 0, tolerance: float | None = None,
-                 guess: str = "network") -> None:
+                 guess: str = "network", halvings: int = HALVINGS, shift: float = SHIFT) -> None:
         schema = net.schema
         as_np = lambda t, dtype=np.float64: np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)  # noqa: E731
         frac = as_np(schema.driven_fraction)
@@ -187,6 +193,12 @@ class FastAdvance:
                              f"corrections only")
         self.corrections = int(corrections)
         self.guess = guess
+        if int(halvings) < 0:
+            raise ValueError(f"halvings = {halvings} must be >= 0")
+        self.halvings = int(halvings)
+        if not shift >= 0:
+            raise ValueError(f"shift = {shift} must be >= 0")
+        self.shift = float(shift)
         self.tolerance = float(tolerance)
         self._displacement = _Compiled(free_displacement)
         self._correct = _Compiled(correct3d)
@@ -256,10 +268,11 @@ class FastAdvance:
             elif self.guess == "affine":
                 d_free[:] = -free * d_eps.T[self.cells.free_dofs[:, 1]]
             ratios, steps = np.empty((2, n)), np.empty(n, dtype=np.int64)
+            shortened, shifted = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
             self._correct(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, self.corrections,
-                          self.tolerance, ratios, steps)
+                          self.tolerance, self.halvings, self.shift, ratios, steps, shortened, shifted)
             self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, result)
-            self._local.corrections = Corrections(ratios, steps)
+            self._local.corrections = Corrections(ratios, steps, shortened, shifted)
         else:
             self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
         tangent = None

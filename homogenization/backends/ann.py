@@ -28,7 +28,9 @@ law (``training.fast_equilibrium3d``, ``training.equilibrium``), in the cells wh
 (largest unbalanced free-DOF force over the largest normal force) exceeds
 ``equilibrium_tolerance`` (default: the DEM's ``force_tolerance``). That hybrid is another
 surrogate than the network alone: its diagnostics add ``n_corrected`` (cells corrected),
-``n_corrections`` (Newton steps), ``n_unconverged`` (cells still above the tolerance after them),
+``n_corrections`` (Newton steps), ``n_shortened`` and ``n_shifted`` (those of them the line search
+shortened, and those whose matrix was shifted; ``training.fast_equilibrium3d``),
+``n_unconverged`` (cells still above the tolerance after them),
 ``force_ratio_network_max`` and ``force_ratio_max`` (the largest force ratio before and after),
 and the model's certificate covers it only where that certificate measured this very hybrid
 (``hmodel certify --equilibrium-corrections K``: same K and tolerance; ``certificate_problem`` says
@@ -392,14 +394,14 @@ class AnnCell(ArrayStateMixin):
                            "n_mechanism": float(np.count_nonzero(inc.mechanism)),
                            "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled)),
                            "n_grains_held": float(inc.grains_held.sum()),
-                           **self._correction_diagnostics(*(self.fast.last_corrections() or (None, None))),
+                           **self._correction_diagnostics(*(self.fast.last_corrections() or (None,) * 4)),
                            **self._ood_diagnostics(due, state, features)}
             return (AnnState(inc.cell_size, inc.free_position, inc.shear_force),
                     CellResponse(inc.moment, inc.area, diagnostics, tangent))
         size, free, shear = self._tensors(state)
         d_eps = torch.as_tensor(np.asarray(d_eps_local, dtype=np.float64), device=self.device)
         tangent = None
-        counts: tuple = (None, None)
+        counts: tuple = (None,) * 4
         if with_tangent:
             d_eps = d_eps.clone().requires_grad_(True)
             step, counts = self._advance(size, free, shear, d_eps)
@@ -426,15 +428,17 @@ class AnnCell(ArrayStateMixin):
         """The torch increment (``MesoNet.advance``, or ``training.equilibrium.corrected_advance`` with
         equilibrium corrections) and its (force ratios, corrections) (None, None without)."""
         if not self.equilibrium_corrections:
-            return self.net.advance(size, free, shear, d_eps), (None, None)
+            return self.net.advance(size, free, shear, d_eps), (None,) * 4
         out = corrected_advance(self.net, size, free, shear, d_eps, self.equilibrium_corrections, self.force_tolerance)
-        return out.increment, (out.force_ratio, out.corrections)
+        return out.increment, (out.force_ratio, out.corrections, out.shortened, out.shifted)
 
-    def _correction_diagnostics(self, force_ratio: np.ndarray | None, corrections: np.ndarray | None) -> dict[str, float]:
+    def _correction_diagnostics(self, force_ratio: np.ndarray | None, corrections: np.ndarray | None,
+                                shortened: np.ndarray | None, shifted: np.ndarray | None) -> dict[str, float]:
         """The counts of the equilibrium corrections of one step (module docstring); {} without them."""
         if force_ratio is None:
             return {}
         return {"n_corrected": float(np.count_nonzero(corrections)), "n_corrections": float(corrections.sum()),
+                "n_shortened": float(shortened.sum()), "n_shifted": float(shifted.sum()),
                 "n_unconverged": float(np.count_nonzero(force_ratio[1] > self.force_tolerance)),
                 "force_ratio_network_max": float(force_ratio[0].max(initial=0.0)),
                 "force_ratio_max": float(force_ratio[1].max(initial=0.0))}
@@ -475,7 +479,7 @@ class AnnCell(ArrayStateMixin):
             return np.asarray(self.fast.last_corrections().force_ratio[1])
         size, free, shear = self._tensors(state)
         with torch.no_grad():
-            _, (ratio, _) = self._advance(size, free, shear, torch.as_tensor(d, device=self.device))
+            _, (ratio, *_) = self._advance(size, free, shear, torch.as_tensor(d, device=self.device))
         return ratio[1].cpu().numpy()
 
     def control_diagnosis(self, state: AnnState, d_eps_local: np.ndarray, directions: np.ndarray,

@@ -211,7 +211,8 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
     The line counts the cell-increments the backend reports unconverged
     (``diagnostics["n_unconverged"]``) and those with contacts outside the closed form
     (``diagnostics["n_cross_plane"]``), where there are any, the ANN's equilibrium corrections
-    (``n_corrections`` Newton steps in ``n_corrected`` cell-increments) where it took them, then
+    (``n_corrections`` Newton steps, ``n_shortened`` of them shortened by the line search and
+    ``n_shifted`` shifted, in ``n_corrected`` cell-increments) where it took them, then
     ``note`` (the backend's own).
 
     Raises:
@@ -229,8 +230,11 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
         counts += f", cross-plane contacts outside the closed form in {int(cross.sum())} cell-increments"
     corrected = record.diagnostics.get("n_corrected")
     if corrected is not None:
-        counts += (f", equilibrium corrections: {int(np.nansum(record.diagnostics['n_corrections']))} Newton steps in "
-                   f"{int(np.nansum(corrected))} cell-increments")
+        shortened, shifted = record.diagnostics.get("n_shortened"), record.diagnostics.get("n_shifted")
+        counts += (f", equilibrium corrections: {int(np.nansum(record.diagnostics['n_corrections']))} Newton steps"
+                   + (f" ({int(np.nansum(shortened))} shortened by the line search, {int(np.nansum(shifted))} shifted)"
+                      if shortened is not None and shifted is not None else "")
+                   + f" in {int(np.nansum(corrected))} cell-increments")
     return f"{name}: {record.n_increments} increments in {elapsed:.1f} s{counts}{note} -> {final / io.RUN_FILE}, {final / io.CURVE_FILE}"
 
 

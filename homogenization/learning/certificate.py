@@ -37,9 +37,10 @@ the ANN's run and of the DEM's), ``rollout``,
 ``seconds``, with equilibrium corrections (``certify(equilibrium_corrections=K)``: the hybrid)
 ``equilibrium`` (how often they fired over the ANN calls of the tests, trial calls included:
 ``steps`` calls, ``n_corrected`` cell steps corrected, ``n_corrections`` Newton steps,
-``n_unconverged`` cell steps left above the tolerance, the largest force ratios before and
-after, ``force_ratio_network_max`` and ``force_ratio_max``; the rollouts, reported only, run the
-network alone), and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
+``n_shortened`` of them shortened by the line search and ``n_shifted`` with their matrix
+shifted (``training.fast_equilibrium3d``), ``n_unconverged`` cell steps left above the tolerance,
+the largest force ratios before and after, ``force_ratio_network_max`` and ``force_ratio_max``; the
+rollouts, reported only, run the network alone), and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
 target), ``below_minimum`` (where the settings are weaker than the minimum certificate
 ``MINIMUM``, whose values the constants above take), ``verdict`` ("passed", "failed", "weak")
 and ``passed`` (within the target AND the minimum met), and ``envelope`` (what the tests
@@ -196,7 +197,8 @@ class _Counter:
         self.increment = -1
         self._last: object = None
         self._counted_test = 0
-        self.corrections = {"steps": 0, "n_corrected": 0, "n_corrections": 0, "n_unconverged": 0,
+        self.corrections = {"steps": 0, "n_corrected": 0, "n_corrections": 0, "n_shortened": 0, "n_shifted": 0,
+                            "n_unconverged": 0,
                             "force_ratio_network_max": 0.0, "force_ratio_max": 0.0}
 
     def __getattr__(self, name: str) -> Any:
@@ -226,7 +228,7 @@ class _Counter:
             return
         tally = self.corrections
         tally["steps"] += 1
-        for key in ("n_corrected", "n_corrections", "n_unconverged"):
+        for key in ("n_corrected", "n_corrections", "n_shortened", "n_shifted", "n_unconverged"):
             tally[key] += int(diagnostics[key])
         for key in ("force_ratio_network_max", "force_ratio_max"):
             tally[key] = max(tally[key], float(diagnostics[key]))
@@ -460,7 +462,10 @@ def summary_lines(cert: dict[str, Any]) -> list[str]:
         k, tolerance = equilibrium_settings(cert)
         tally = cert["equilibrium"]
         lines.append(f"hybrid: the network with {k} equilibrium corrections at tolerance {tolerance:g}: "
-                     f"{tally['n_corrected']} cell steps corrected ({tally['n_corrections']} Newton steps) over "
+                     f"{tally['n_corrected']} cell steps corrected ({tally['n_corrections']} Newton steps"
+                     + (f", {tally['n_shortened']} shortened by the line search, {tally['n_shifted']} shifted"
+                        if "n_shortened" in tally else "")
+                     + ") over "
                      f"{tally['steps']} ANN calls, {tally['n_unconverged']} left above the tolerance, "
                      f"largest force ratio {tally['force_ratio_network_max']:.3g} before, {tally['force_ratio_max']:.3g} after")
     result = verdict(cert)
