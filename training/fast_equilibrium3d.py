@@ -294,6 +294,74 @@ def _work(force, step):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _newton_direction(jacobian, residual, c, kn, shift, a_c, a_w, rhs, delta):
+    """Newton step ``delta`` (n_free,) [m] of cell c from its residual (n_free, n) [N] and Jacobian
+    (n_free, n_free, n) [N/m], its matrix shifted by shift kn, doubled, until the step does positive
+    work along the residual (module docstring); ``a_c``, ``a_w``, ``rhs``: work arrays. Returns the
+    sum of squared residuals [N^2] and whether the matrix was shifted."""
+    n_free = rhs.shape[0]
+    total = 0.0
+    for k in range(n_free):
+        rhs[k] = residual[k, c]
+        total += residual[k, c] * residual[k, c]
+        for e in range(n_free):
+            a_c[k, e] = -jacobian[k, e, c]
+        a_c[k, k] += REGULARISATION * kn
+    for k in range(n_free):
+        for e in range(n_free):
+            a_w[k, e] = a_c[k, e]
+    solve_small(a_w, rhs, delta)
+    was_shifted = False
+    lam = shift * kn
+    for attempt in range(64):
+        if not shift > 0.0 or _work(rhs, delta) > 0.0:
+            break
+        was_shifted = True
+        for k in range(n_free):
+            for e in range(n_free):
+                a_w[k, e] = a_c[k, e]
+            a_w[k, k] += lam
+        solve_small(a_w, rhs, delta)
+        lam *= 2.0
+    return total, was_shifted
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _line_search(free, d_free, step_d, alpha, pending, full, merit, halvings, new_size, position, x, shear, before,
+                 cells, law, trial_residual, trial_fn_max, residual, fn_max, shortened):
+    """Take alpha step_d for the pending cells (n,): the first alpha of 1, 1/2, ..., 2^-halvings whose sum of
+    squared residuals is below ``merit`` (n,) [N^2], else the last; a shifted step (``full``) in full. Updates
+    d_free, residual, fn_max and shortened (steps taken at alpha < 1) in place."""
+    n_free, n = d_free.shape
+    frac, free_dofs = cells.frac, cells.free_dofs
+    for trial in range(halvings + 1):
+        for k in range(n_free):
+            for c in range(n):
+                moved = d_free[k, c] + alpha[c] * step_d[k, c] if pending[c] else d_free[k, c]
+                position[k, c] = free[k, c] + moved
+        grain_positions(new_size, position, frac, free_dofs, x)
+        residual3(x, shear, before.old_branch, before.old_contact, cells, law, trial_residual, trial_fn_max)
+        for c in range(n):
+            if not pending[c]:
+                continue
+            total = 0.0
+            for k in range(n_free):
+                total += trial_residual[k, c] * trial_residual[k, c]
+            if total < merit[c] or trial == halvings or full[c]:
+                pending[c] = False
+                for k in range(n_free):
+                    d_free[k, c] += alpha[c] * step_d[k, c]
+                    residual[k, c] = trial_residual[k, c]
+                fn_max[c] = trial_fn_max[c]
+                if trial > 0:
+                    shortened[c] += 1
+            else:
+                alpha[c] *= 0.5
+        if not pending.any():
+            break
+
+
+@numba.njit(cache=True, error_model="numpy")
 def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, halvings, shift, ratios,
               corrections, shortened, shifted):
     """Newton corrections of the free-DOF displacement ``d_free`` (n_free, n) [m], in place (module docstring).
@@ -383,57 +451,11 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
             alpha[c] = 1.0
             if not stepping[c]:
                 continue
-            total = 0.0
-            for k in range(n_free):
-                rhs[k] = residual[k, c]
-                total += residual[k, c] * residual[k, c]
-                for e in range(n_free):
-                    a_c[k, e] = -jacobian[k, e, c]
-                a_c[k, k] += REGULARISATION * kn
-            merit[c] = total
-            for k in range(n_free):
-                for e in range(n_free):
-                    a_w[k, e] = a_c[k, e]
-            solve_small(a_w, rhs, delta)
-            full[c] = False
-            lam = shift * kn
-            for attempt in range(64):
-                if not shift > 0.0 or _work(rhs, delta) > 0.0:
-                    break
-                full[c] = True
-                for k in range(n_free):
-                    for e in range(n_free):
-                        a_w[k, e] = a_c[k, e]
-                    a_w[k, k] += lam
-                solve_small(a_w, rhs, delta)
-                lam *= 2.0
+            merit[c], full[c] = _newton_direction(jacobian, residual, c, kn, shift, a_c, a_w, rhs, delta)
             if full[c]:
                 shifted[c] += 1
             for k in range(n_free):
                 step_d[k, c] = delta[k]
             corrections[c] += 1
-        for trial in range(halvings + 1):
-            for k in range(n_free):
-                for c in range(n):
-                    moved = d_free[k, c] + alpha[c] * step_d[k, c] if pending[c] else d_free[k, c]
-                    position[k, c] = free[k, c] + moved
-            grain_positions(new_size, position, frac, free_dofs, x)
-            residual3(x, shear, before.old_branch, before.old_contact, cells, law, trial_residual, trial_fn_max)
-            for c in range(n):
-                if not pending[c]:
-                    continue
-                total = 0.0
-                for k in range(n_free):
-                    total += trial_residual[k, c] * trial_residual[k, c]
-                if total < merit[c] or trial == halvings or full[c]:
-                    pending[c] = False
-                    for k in range(n_free):
-                        d_free[k, c] += alpha[c] * step_d[k, c]
-                        residual[k, c] = trial_residual[k, c]
-                    fn_max[c] = trial_fn_max[c]
-                    if trial > 0:
-                        shortened[c] += 1
-                else:
-                    alpha[c] *= 0.5
-            if not pending.any():
-                break
+        _line_search(free, d_free, step_d, alpha, pending, full, merit, halvings, new_size, position, x, shear,
+                     before, cells, law, trial_residual, trial_fn_max, residual, fn_max, shortened)
