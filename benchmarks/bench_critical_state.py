@@ -66,7 +66,7 @@ from bench_real_sand_spread import NOISE, SETTINGS, metrics  # noqa: E402
 
 from homogenization.backends.analytical import AnalyticalState  # noqa: E402
 from homogenization.backends.analytical3d import Analytical3DCell, Analytical3DState  # noqa: E402
-from homogenization.calibration import bayes, forward  # noqa: E402
+from homogenization.calibration import bayes, forward, start  # noqa: E402
 from homogenization.calibration.data import Measurement, read_test  # noqa: E402
 from homogenization.element_test.points import material_points, orientation_set  # noqa: E402
 from homogenization.element_test.record import History  # noqa: E402
@@ -253,7 +253,7 @@ def simulate(test: Measurement, params: dict[str, np.ndarray], candidate: str | 
     by the kinematics of hcell3d-axisym where ``AXISYMMETRIC``.
     Returns the curves and, per set, the rule's count at the end."""
     full = forward.full_parameters(params, SETTINGS)
-    points = forward._population(full, SETTINGS, 3)
+    points = forward.population(full, SETTINGS, 3)
     if AXISYMMETRIC:
         meso = build_h_cell_3d(57.0, radius=SETTINGS.radius, axisymmetric=True)
         orient = orientation_set(meso, n_orientations=SETTINGS.n_orientations, lebedev_order=SETTINGS.lebedev_order,
@@ -271,20 +271,11 @@ def simulate(test: Measurement, params: dict[str, np.ndarray], candidate: str | 
             model.shear = True
 
         before = {1: start_shear}
-    stages = forward._stages(test, SETTINGS, points)
-    history = History(sum(plan.n_increments for plan in stages), points.n, 3, observe=False)
-    solver = StressControl(points, replace(POPULATION, rtol=SETTINGS.stress_rtol, max_iterations=SETTINGS.max_newton))
-    _, fallback, failed = run(solver, stages, history, before_stage=before)
-    shear = history.stage_index[:history.k] == 1
-    start = int(np.flatnonzero(shear)[0]) - 1
-    rows = np.stack([forward._row(history.rows[k], history.rows[start], 3) for k in range(start, history.k)])
-    rows[:, :, failed] = np.nan
-    eps1_model = SETTINGS.increment * np.arange(rows.shape[0])
-    q, p, eps_v = (forward._sample(eps1_model, rows[:, i].T, test.eps1) for i in range(3))
+    curves = forward.simulate_points(test, points, SETTINGS, before_stage=before)
     counts = np.zeros(points.n, dtype=np.int64)
     if candidate is not None:
         counts = model.rule_count(points.state.cells).reshape(points.n, -1).sum(axis=1)
-    return forward.Curves(q, p, eps_v, fallback), counts
+    return curves, counts
 
 
 def optimum(split: str) -> dict[str, float]:
@@ -343,14 +334,11 @@ def scan(args) -> dict:
 
 
 def fit(args) -> dict:
-    from scipy.optimize import least_squares  # noqa: PLC0415
-
     fitted, _ = SPLITS[args.split]
     tests = [read_test(DATA / f) for f in fitted]
     base = optimum(args.split)
     rule = args.fit if args.fit != "plain" else None
     lo, hi = (np.append(LOWER, BOUNDS[rule][0]), np.append(UPPER, BOUNDS[rule][1])) if rule else (LOWER, UPPER)
-    width = hi - lo
     evaluations = [0]
 
     def residuals(X: np.ndarray) -> np.ndarray:
@@ -365,21 +353,6 @@ def fit(args) -> dict:
         r = bayes.residuals(tests, curves, NOISE)
         return np.where(np.isfinite(r), r, 1e3)
 
-    def one_fit(x0: np.ndarray):
-        last: dict[str, np.ndarray] = {}
-
-        def fun(x):
-            last["x"], last["f"] = x.copy(), residuals(x)[0]
-            return last["f"]
-
-        def jac(x):
-            step = 1e-3 * width
-            step = np.where(x + step > hi, -step, step)
-            f0 = last["f"] if "x" in last and np.array_equal(last["x"], x) else residuals(x)[0]
-            return ((residuals(x + np.diag(step)) - f0) / step[:, None]).T
-
-        return least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=width, method="trf", max_nfev=40)
-
     started = time.perf_counter()
     fits = []
     for value in args.starts:
@@ -388,8 +361,8 @@ def fit(args) -> dict:
             x0 = np.append(x0, value)
         else:
             x0[3] = value
-        result = one_fit(np.clip(x0, lo, hi))
-        fits.append({"start": value, "chi_square": float(2.0 * result.cost), "x": result.x.tolist()})
+        chi_square, result = start.least_squares_fit(residuals, np.clip(x0, lo, hi), lo, hi)
+        fits.append({"start": value, "chi_square": chi_square, "x": result.x.tolist()})
         x = result.x
         print(f"fit from {args.fit} {value:g}: chi-square {2.0 * result.cost:.4g} at phi_g {x[0]:.2f}, kn {10 ** x[1]:.3g}, "
               f"kt/kn {x[2]:.3f}, alpha0 {x[3]:.2f}" + (f", {args.fit} {x[4]:.3f}" if rule else "")
@@ -445,8 +418,8 @@ def diagnose(args) -> dict:
     base = optimum(args.split)
     test = replace(read_test(DATA / "cid_50kpa.csv"), p0=args.p0)
     full = forward.full_parameters({k: np.array([v]) for k, v in base.items()}, SETTINGS)
-    points = forward._population(full, SETTINGS, 3)
-    stages = forward._stages(test, SETTINGS, points)
+    points = forward.population(full, SETTINGS, 3)
+    stages = forward.stages(test, SETTINGS, points)
     frames, weights = points.material.orient.frames, points.material.orient.weights
     group = np.round(np.abs(frames[:, 0, 0]), 2)
     groups = np.unique(group)

@@ -137,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
         x0_values = np.array([base[n] for n in PARAMS] + [3.0])
         x0_values[3] = max(x0_values[3], 45.0 + 3.0 + 1e-6)
         res = start.Residuals(log_post)
-        chi2, fit = start.least_squares_fit(log_post, res, prior.to_coord(x0_values))
+        chi2, fit = start.least_squares_fit(res, prior.to_coord(x0_values), prior.lo_coord, prior.hi_coord,
+                                            log_post.feasible)
         record["from_spread_off_optimum"] = {"chi_square": chi2, "status": int(fit.status), "evaluations": res.evaluations,
                                              "optimum": {n: float(v) for n, v in zip(names, prior.to_values(fit.x))}}
         if chi2 < record["chi_square"]:

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -183,7 +183,7 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
                              f"{'biaxial' if test.dim != 3 else 'backend ' + settings.backend})")
         opening_spread.check(full["alpha0"], full[SPREAD])
     if settings.backend == "analytical":
-        return _simulate_batched(test, full, settings)
+        return simulate_points(test, population(full, settings, test.dim), settings)
     return _simulate_one_by_one(test, full, settings)
 
 
@@ -198,7 +198,7 @@ def _sample(eps1_model: np.ndarray, values: np.ndarray, eps1: np.ndarray) -> np.
     return values[:, j] * (1.0 - w) + values[:, j + 1] * w
 
 
-def _population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int) -> MaterialPoints:
+def population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int) -> MaterialPoints:
     """One material point per parameter set, each with its own cells (per-cell contact law: kn and kt/kn,
     or G and nu; phi_g and alpha0; with ``SPREAD``, ``opening_spread.N_NODES`` families of alpha0), oriented as the driver orients the H-cell (``element_test.points.orientation_set``)."""
     n = full["phi_g"].size
@@ -224,7 +224,7 @@ def _population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int
     return material_points(model, meso, n, orient)
 
 
-def _stages(test: Measurement, settings: ForwardSettings, points: MaterialPoints) -> tuple[Plan, Plan]:
+def stages(test: Measurement, settings: ForwardSettings, points: MaterialPoints) -> tuple[Plan, Plan]:
     """The isotropic stage to p0 and the shear stage of ``test`` as plans of the population (module docstring)."""
     n, dim, p0, inc = points.n, points.dim, test.p0, settings.increment
     none, lateral = np.zeros(0, dtype=np.int64), np.arange(1, dim)
@@ -242,12 +242,15 @@ def _stages(test: Measurement, settings: ForwardSettings, points: MaterialPoints
     return isotropic, Plan("shear", _n_shear(test, settings), shear, none, np.zeros((n, 0)), np.zeros((n, 0)))
 
 
-def _simulate_batched(test: Measurement, full: dict[str, np.ndarray], settings: ForwardSettings) -> Curves:
-    points = _population(full, settings, test.dim)
-    stages = _stages(test, settings, points)
-    history = History(sum(plan.n_increments for plan in stages), points.n, points.dim, observe=False)
+def simulate_points(test: Measurement, points: MaterialPoints, settings: ForwardSettings, *,
+                    before_stage: Mapping[int, Callable[[MaterialPoints], None]] | None = None) -> Curves:
+    """Curves of ``test`` for a population built as ``population`` builds it (one point per parameter
+    set), its two ``stages`` run by the calibration's solver; ``before_stage`` as in
+    ``element_test.run.run`` (stage 1: the shear)."""
+    plans = stages(test, settings, points)
+    history = History(sum(plan.n_increments for plan in plans), points.n, points.dim, observe=False)
     solver = StressControl(points, replace(POPULATION, rtol=settings.stress_rtol, max_iterations=settings.max_newton))
-    _, fallback, failed = run(solver, stages, history)
+    _, fallback, failed = run(solver, plans, history, before_stage=before_stage)
     shear = history.stage_index[:history.k] == 1
     start = int(np.flatnonzero(shear)[0]) - 1
     rows = np.stack([_row(history.rows[k], history.rows[start], points.dim) for k in range(start, history.k)])

@@ -24,7 +24,7 @@ the walkers' ball is drawn again where it leaves the cut.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -104,28 +104,28 @@ def prior_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Genera
     return start, {"method": "prior", "prior_draws": PRIOR_OVERSAMPLE * n_walkers}
 
 
-def least_squares_fit(log_post: bayes.Posterior, res: Residuals, x0: np.ndarray) -> tuple[float, Any]:
-    """One bounded least-squares fit of ``map_start`` from ``x0`` (sampled coordinates): its chi-square
-    (sum of squared residuals) and scipy's result."""
+def least_squares_fit(res: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                      feasible: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[float, Any]:
+    """One bounded least-squares fit of ``map_start`` from ``x0`` (sampled coordinates) inside [lo, hi]: its
+    chi-square (sum of squared residuals) and scipy's result. ``res`` maps parameter sets (k, n_params) to
+    residual vectors (k, m) in one batch; the Jacobian's forward differences step inwards at ``hi`` and
+    where ``feasible`` (sets (k, n_params) -> (k,) bool, e.g. the prior's cut) refuses the step."""
     from scipy.optimize import least_squares  # noqa: PLC0415 (only when a calibration starts)
 
-    prior = log_post.prior
-    lo, hi = prior.lo_coord, prior.hi_coord
     width = hi - lo
     last: dict[str, np.ndarray] = {}
 
     def fun(x: np.ndarray) -> np.ndarray:
-        last["x"], last["f"] = np.array(x, dtype=np.float64), res(x)[0]
+        last["x"], last["f"] = np.array(x, dtype=np.float64), res(np.atleast_2d(x))[0]
         return last["f"]
 
     def jac(x: np.ndarray) -> np.ndarray:
         step = MAP_STEP * width
         step = np.where(x + step > hi, -step, step)  # stay inside the prior at its upper bound
-        shifted = x + np.diag(step)
-        step = np.where(log_post.feasible(shifted), step, -step)  # and inside its cut (alpha0_spread)
-        f0 = last["f"] if "x" in last and np.array_equal(last["x"], x) else res(x)[0]
-        shifted = x + np.diag(step)
-        return ((res(shifted) - f0) / step[:, None]).T
+        if feasible is not None:
+            step = np.where(feasible(x + np.diag(step)), step, -step)  # and inside its cut (alpha0_spread)
+        f0 = last["f"] if "x" in last and np.array_equal(last["x"], x) else res(np.atleast_2d(x))[0]
+        return ((res(x + np.diag(step)) - f0) / step[:, None]).T
 
     fit = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=width, method="trf", max_nfev=MAP_MAX_EVALUATIONS)
     return float(2.0 * fit.cost), fit
@@ -142,7 +142,7 @@ def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generato
     cost = np.sum(res(draws) ** 2, axis=1)  # chi-square of each draw
     starts = draws[np.argsort(cost, kind="stable")[:MAP_STARTS]]
 
-    fits = [least_squares_fit(log_post, res, x0) for x0 in starts]
+    fits = [least_squares_fit(res, x0, lo, hi, log_post.feasible) for x0 in starts]
     best_chi2, best = min(fits, key=lambda item: item[0])
     centre = best.x
     ball = np.clip(centre + width * laplace_draws(best.jac * width, rng, n_walkers), lo, hi)
