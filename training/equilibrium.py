@@ -90,28 +90,20 @@ def _line_search(schema, state, d_eps, d, delta, residual, active, full, halving
     ``shortened`` (n,), in place."""
     with torch.no_grad():
         d = torch.where(full.unsqueeze(-1), d + delta, d)
-        return _halved(schema, state, d_eps, d, delta, residual, active, halvings, old, shortened)
-
-
-def _halved(schema, state, d_eps, d, delta, residual, active, halvings, old, shortened) -> torch.Tensor:
-    """``_line_search`` of the ``active`` cells, without autograd."""
-    if not bool(active.any()):
-        return d
-    merit = (residual * residual).sum(dim=1)
-    alpha = torch.ones_like(merit)
-    pending = active.clone()
-    d = d.clone()
-    for trial in range(int(halvings) + 1):
-        trial_d = torch.where(pending.unsqueeze(-1), d + alpha.unsqueeze(-1) * delta, d)
-        trial_residual, _ = balance(schema, *state, d_eps.detach(), trial_d, old)
-        accept = pending & (((trial_residual * trial_residual).sum(dim=1) < merit) | (trial == int(halvings)))
-        d = torch.where(accept.unsqueeze(-1), trial_d, d)
-        if trial > 0:
-            shortened += accept.to(shortened.dtype)
-        pending = pending & ~accept
-        alpha = torch.where(pending, 0.5 * alpha, alpha)
-        if not bool(pending.any()):
-            break
+        merit = (residual * residual).sum(dim=1)
+        alpha = torch.ones_like(merit)
+        pending = active.clone()
+        for trial in range(int(halvings) + 1):
+            if not bool(pending.any()):
+                break
+            trial_d = torch.where(pending.unsqueeze(-1), d + alpha.unsqueeze(-1) * delta, d)
+            trial_residual, _ = balance(schema, *state, d_eps.detach(), trial_d, old)
+            accept = pending & (((trial_residual * trial_residual).sum(dim=1) < merit) | (trial == int(halvings)))
+            d = torch.where(accept.unsqueeze(-1), trial_d, d)
+            if trial > 0:
+                shortened += accept.to(shortened.dtype)
+            pending = pending & ~accept
+            alpha = torch.where(pending, 0.5 * alpha, alpha)
     return d
 
 

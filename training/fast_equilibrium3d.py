@@ -313,7 +313,7 @@ def _newton_direction(jacobian, residual, c, kn, shift, a_c, a_w, rhs, delta):
     solve_small(a_w, rhs, delta)
     was_shifted = False
     lam = shift * kn
-    for attempt in range(64):
+    for _ in range(64):
         if not shift > 0.0 or _work(rhs, delta) > 0.0:
             break
         was_shifted = True
