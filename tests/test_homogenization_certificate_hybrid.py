@@ -66,10 +66,11 @@ def test_a_tiny_certificate_of_the_hybrid_records_k_and_covers_that_hybrid_only(
 
 @needs_model
 def test_the_default_certificate_of_the_hybrid_passes_and_covers_its_runs_only(tmp_path):
-    """The full default certificate of the shipped 3D model with K = 2 at 1e-3 (about 20 s):
-    docs/certificate.md measures worst 0.040 % (the network alone: 0.175 %)."""
+    """The full default certificate of the shipped 3D model with K = 2 at 1e-3 (about 20 s; without the
+    DEM from rest, which it does not check and which would add 15 s): docs/certificate.md measures worst
+    0.040 % (the network alone: 0.175 %)."""
     model = _copy(tmp_path / "m")
-    cert = certificate.certify(model, **HYBRID)
+    cert = certificate.certify(model, **HYBRID, reproducibility=False)
     assert cert["passed"] and cert["worst"] <= 5 * 0.040e-2
     assert cert["equilibrium"]["n_corrected"] > 0
     certificate.write_certificate(model, cert)
