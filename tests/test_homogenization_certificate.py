@@ -67,6 +67,7 @@ def test_the_shipped_model_is_within_the_target_of_the_short_certificate_which_i
     assert cert["envelope"]["cell_parameters"] == {"alpha0_deg": 55.0}
     assert cert["model_sha256"] == file_sha256(shipped_copy)
     assert all(t["scale"] >= t["p0"] for t in cert["tests"])
+    assert all(0 <= t["dem_spread"] < 0.002 for t in cert["tests"])  # the DEM from rest: measured 0.03-0.05 %
     assert cert["coverage"]["fraction_within"] > 0.95 and cert["coverage"]["n_states"] > 0
 
 

@@ -66,10 +66,11 @@ def test_a_tiny_certificate_of_the_hybrid_records_k_and_covers_that_hybrid_only(
 
 @needs_model
 def test_the_default_certificate_of_the_hybrid_passes_and_covers_its_runs_only(tmp_path):
-    """The full default certificate of the shipped 3D model with K = 2 at 1e-3 (about 20 s):
-    docs/certificate.md measures worst 0.040 % (the network alone: 0.175 %)."""
+    """The full default certificate of the shipped 3D model with K = 2 at 1e-3 (about 20 s; without the
+    DEM from rest, which it does not check and which would add 15 s): docs/certificate.md measures worst
+    0.040 % (the network alone: 0.175 %)."""
     model = _copy(tmp_path / "m")
-    cert = certificate.certify(model, **HYBRID)
+    cert = certificate.certify(model, **HYBRID, reproducibility=False)
     assert cert["passed"] and cert["worst"] <= 5 * 0.040e-2
     assert cert["equilibrium"]["n_corrected"] > 0
     certificate.write_certificate(model, cert)
@@ -107,13 +108,14 @@ def test_the_network_alone_refuses_nothing_new_and_the_hybrid_is_refused_under_i
 
 @needs_model
 def test_the_default_certificate_keeps_the_keys_and_settings_of_the_shipped_one(tmp_path):
-    """K = 0 (the default) records nothing new: the same keys as the committed certificate of the shipped
-    3D model, the same settings for the same options, and no count of corrections."""
+    """K = 0 (the default) records nothing of the hybrid: the keys of the committed certificate of the shipped
+    3D model (with those measured since: ``n_increments``, ``dem_spread``), the same settings for the same
+    options, and no count of corrections."""
     shipped = json.loads(SHIPPED_3D.with_suffix(".json").read_text())["certificate"]
     cert = certificate.certify(_copy(tmp_path / "m"), **TINY)
-    assert set(cert) == set(shipped) and "equilibrium" not in cert
+    assert set(cert) == set(shipped) | {"dem_spread"} and "equilibrium" not in cert
     assert set(cert["settings"]) == set(shipped["settings"])
-    assert set(cert["tests"][0]) == set(shipped["tests"][0]) | {"n_increments"}
+    assert set(cert["tests"][0]) == set(shipped["tests"][0]) | {"n_increments", "dem_spread"}
     recorded = {k: v for k, v in shipped["settings"].items() if k not in ("mesostructure", "n_cells")}
     assert certificate.requested_settings(3) == recorded
     assert equilibrium_settings(shipped) == (0, None)

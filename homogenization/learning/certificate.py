@@ -20,38 +20,46 @@ certificate passes when the worst of them is <= ``TARGET`` and its settings meet
 
 Also reported, not part of ``worst``: the single-cell rollouts of ``training.rollout`` (held-out
 constant-volume and drained legs, each error a fraction of that path's own largest moment: one
-cell's grain engaging at another strain weighs there what 360 averaged cells do not), and the
+cell's grain engaging at another strain weighs there what 360 averaged cells do not), the
 ``coverage``: the fraction of the DEM cell states visited by the tests (every
 ``COVERAGE_EVERY``-th increment, all cells) within the out-of-distribution threshold of the
-model's index (``training.ood``; None without one).
+model's index (``training.ood``; None without one), and the DEM's own reproducibility: each
+test's DEM run again with every increment started from rest (``homogenization.learning.from_rest``:
+the map the database probes, without the velocity memory from which the DEM sets its next rate and
+predicts its free grains), ``dem_spread`` = max over the shear stages of max(abs(p_dem - p_rest),
+abs(q_dem - q_rest)) / scale. Where a sawtooth drop of the response (a fine grain leaving its
+wedge) moves by an increment or two it exceeds the target: the reference does not resolve the
+target there; the pass rule does not change.
 
-The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_test``,
-``tests`` (name, kind, sense, p0, dp, dq, scale [N/m]; inf and an ``error`` where the ANN could
-not follow the programme, e.g. a drained increment without convergence; ``n_increments``, the
-test's length, and, where the ANN left the DEM, ``departure``: the increment that put it more
-than the target off, or the one it could not follow, counted from the test's start; where stress
-control accepted a trial across a jump of the response, ``stress_control_jumps``: such increments of
-the ANN's run and of the DEM's), ``rollout``,
-``coverage``, the settings, ``cell_parameters`` (the cell's, e.g. alpha0_deg), ``model_sha256``
-(of the ``.pt``), ``revision`` (git revision of this code, ``-dirty`` where the tree differs),
-``seconds``, with equilibrium corrections (``certify(equilibrium_corrections=K)``: the hybrid)
-``equilibrium`` (how often they fired over the ANN calls of the tests, trial calls included:
-``steps`` calls, ``n_corrected`` cell steps corrected, ``n_corrections`` Newton steps,
-``n_shortened`` of them shortened by the line search and ``n_shifted`` with their matrix
-shifted (``training.fast_equilibrium3d``), ``n_unconverged`` cell steps left above the tolerance,
-the largest force ratios before and after, ``force_ratio_network_max`` and ``force_ratio_max``; the
-rollouts, reported only, run the network alone), and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <=
-target), ``below_minimum`` (where the settings are weaker than the minimum certificate
-``MINIMUM``, whose values the constants above take), ``verdict`` ("passed", "failed", "weak")
-and ``passed`` (within the target AND the minimum met), and ``envelope`` (what the tests
-covered: pressures, axial strain, test kinds, cell; the ANN backend warns when a run leaves
-it). ``write_certificate`` stores it in the model's JSON under ``"certificate"`` (the ANN
-backend then checks it), ``summary_lines`` are what the commands print (one line per test,
-the verdict and the envelope) and ``exit_code`` the verdict as their exit code: 0 passed,
-``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the target but below the minimum.
-``certify(dem_states=...)`` also hands back the DEM cell states met along each test (the
-active-learning rounds of ``homogenization.learning.active`` probe those of the failing tests).
-The command (its flags, its checks of bad input, --data, --write, --out) is
+The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_test``, ``tests``
+(name, kind, sense, p0, dp, dq, scale [N/m]; inf and an ``error`` where the ANN could not follow the
+programme, e.g. a drained increment without convergence; ``n_increments``, the test's length, and,
+where the ANN left the DEM, ``departure``: the increment that put it more than the target off, or
+the one it could not follow, counted from the test's start; where stress control accepted a trial
+across a jump of the response, ``stress_control_jumps``: such increments of the ANN's run and of the
+DEM's; ``dem_spread``, and ``dem_spread_error`` where the DEM from rest could not follow the
+programme, its spread inf), ``rollout``, ``coverage``, ``dem_spread`` (the largest of the tests',
+``max``, its ``test``, and the tests above the target, ``above_target``; None with
+``certify(reproducibility=False)``), the settings, ``cell_parameters`` (the cell's, e.g.
+alpha0_deg), ``model_sha256`` (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty``
+where the tree differs), ``seconds``, with equilibrium corrections
+(``certify(equilibrium_corrections=K)``: the hybrid) ``equilibrium`` (how often they fired over the
+ANN calls of the tests, trial calls included: ``steps`` calls, ``n_corrected`` cell steps corrected,
+``n_corrections`` Newton steps, ``n_shortened`` of them shortened by the line search and
+``n_shifted`` with their matrix shifted (``training.fast_equilibrium3d``), ``n_unconverged`` cell
+steps left above the tolerance, the largest force ratios before and after,
+``force_ratio_network_max`` and ``force_ratio_max``; the rollouts, reported only, run the network
+alone), and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <= target),
+``below_minimum`` (where the settings are weaker than the minimum certificate ``MINIMUM``, whose
+values the constants above take), ``verdict`` ("passed", "failed", "weak") and ``passed`` (within
+the target AND the minimum met), and ``envelope`` (what the tests covered: pressures, axial strain,
+test kinds, cell; the ANN backend warns when a run leaves it). ``write_certificate`` stores it in
+the model's JSON under ``"certificate"`` (the ANN backend then checks it), ``summary_lines`` are
+what the commands print (one line per test, the verdict and the envelope) and ``exit_code`` the
+verdict as their exit code: 0 passed, ``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the
+target but below the minimum. ``certify(dem_states=...)`` also hands back the DEM cell states met
+along each test (the active-learning rounds of ``homogenization.learning.active`` probe those of the
+failing tests). The command (its flags, its checks of bad input, --data, --write, --out) is
 ``homogenization.cli.certify`` (``hmodel certify``, ``python -m homogenization.certify``).
 
 Sign convention: compression and contraction positive; stresses in N/m.
@@ -69,6 +77,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from homogenization.element_test import driver, loading
+from homogenization.learning.from_rest import FromRest
 from homogenization.learning.envelope import dimension_of, envelope_of, equilibrium_settings, MINIMUM, shortfalls, verdict
 from homogenization.backends import make_cell_model
 from training.checkpoint import metadata_path, read_metadata
@@ -281,13 +290,58 @@ def _shear_rows(record: driver.Record) -> np.ndarray:
     return record.stage != record.programme[0].label
 
 
+def _paired_shear_rows(x: driver.Record, y: driver.Record, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The shear-stage rows of two runs ``x`` and ``y`` of test ``name``, as many in both."""
+    rx, ry = _shear_rows(x), _shear_rows(y)
+    if rx.sum() != ry.sum():
+        raise ValueError(f"test {name!r}: two runs ({x.backend}, {y.backend}) recorded different shear lengths")
+    return rx, ry
+
+
+def _compare(a: driver.Record, d: driver.Record, name: str, scale: float, target: float) -> dict[str, Any]:
+    """The figures of test ``name`` (module docstring) from the ANN's record ``a`` and the DEM's ``d``:
+    ``dp``, ``dq`` [-], and where they arise ``departure`` and ``stress_control_jumps``."""
+    ra, rd = _paired_shear_rows(a, d, name)
+    dp, dq = (float(np.nan_to_num(np.abs(x[ra] - y[rd]), nan=math.inf).max()) / scale for x, y in ((a.p, d.p), (a.q, d.q)))
+    left = departure(a, d, scale, target)
+    jumps = {"ann": _jumps(a), "dem": _jumps(d)}
+    return {"dp": dp, "dq": dq, **({} if left is None else {"departure": left}),
+            **({"stress_control_jumps": jumps} if any(jumps.values()) else {})}
+
+
+def _dem_spread(rest: FromRest, test: tuple[dict[str, Any], loading.Programme], meso: Mesostructure,
+                settings: dict[str, Any], d: driver.Record, scale: float) -> dict[str, Any]:
+    """``dem_spread`` of ``test`` (description, programme): its programme run by the DEM ``rest`` started
+    from rest in every increment, max over the shear stages of max(abs(p_dem - p_rest), abs(q_dem -
+    q_rest)) / ``scale`` [-] against the DEM's record ``d``; inf and ``dem_spread_error`` where it could
+    not follow the programme."""
+    info, programme = test
+    try:
+        r = run_test(rest, programme, meso, settings)
+    except driver.ControlError as exc:
+        return {"dem_spread": math.inf, "dem_spread_error": " ".join(str(exc).split())}
+    rr, rd = _paired_shear_rows(r, d, info["name"])
+    off = np.maximum(np.abs(r.p[rr] - d.p[rd]), np.abs(r.q[rr] - d.q[rd]))
+    return {"dem_spread": float(np.nan_to_num(off, nan=math.inf).max()) / scale}
+
+
+def _widest_spread(results: list[dict[str, Any]], target: float) -> dict[str, Any]:
+    """The certificate's ``dem_spread``: the largest of its tests' [-] (``max``), that test's name
+    (``test``) and the names of the tests whose spread exceeds ``target`` (``above_target``)."""
+    widest = max(results, key=lambda t: t["dem_spread"])
+    return {"max": widest["dem_spread"], "test": widest["name"],
+            "above_target": [t["name"] for t in results if t["dem_spread"] > target]}
+
+
 def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pressures: Sequence[float] = PRESSURES,
             eps_max: float = EPS_MAX, increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
             spatial_rule: Sequence[int] = SPATIAL_RULE, target: float = TARGET, rollout: bool = True, threads: int = 1,
             dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY,
-            equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None) -> dict[str, Any]:
+            equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None,
+            reproducibility: bool = True) -> dict[str, Any]:
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
-    model's own (its JSON's ``mesostructure``).
+    model's own (its JSON's ``mesostructure``). ``reproducibility`` False: no ``dem_spread``
+    (each test's DEM is not run a second time, from rest; the top-level ``dem_spread`` is None).
 
     ``dem_states``, when given, receives per test name the DEM cell states met along that test
     every ``state_every`` increments (all cells): ``cell_size`` (n, dim) [m], ``position``
@@ -322,6 +376,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     dem = make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()), settings=settings, threads=threads)
     free = ann.net.schema.free_dofs.cpu().numpy()
     sampler = _Sampler(dem, int(state_every))
+    rest = FromRest(dem) if reproducibility else None
     requested = requested_settings(meso.dim, pressures=pressures, eps_max=eps_max, increment=increment,
                                    n_orientations=n_orientations, spatial_rule=spatial_rule,
                                    equilibrium_corrections=equilibrium_corrections,
@@ -329,27 +384,21 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     results = []
     n_cells = 0
     counter = _Counter(ann)
-    for k, (info, programme) in enumerate(tests_of(pressures, eps_max, increment, n_orientations, meso.dim)):
+    for k, test in enumerate(tests_of(pressures, eps_max, increment, n_orientations, meso.dim)):
+        info, programme = test
         sampler.test = counter.test = k
         d = run_test(sampler, programme, meso, requested)
         n_cells = d.weights.size
         scale = max(float(info["p0"]), float(np.max(d.p)))
         length = {"n_increments": int(d.p.size)}
+        spread = {} if rest is None else _dem_spread(rest, test, meso, requested, d, scale)
         try:
             a = run_test(counter, programme, meso, requested)
         except driver.ControlError as exc:  # the ANN cannot follow the programme: the test fails
             results.append({**info, "dp": math.inf, "dq": math.inf, "scale": scale, "error": " ".join(str(exc).split()),
-                            "departure": max(counter.increment, 0), **length})
+                            "departure": max(counter.increment, 0), **length, **spread})
             continue
-        ra, rd = _shear_rows(a), _shear_rows(d)
-        if ra.sum() != rd.sum():
-            raise ValueError(f"test {info['name']!r}: the ANN and the DEM recorded different shear lengths")
-        dp, dq = (float(np.nan_to_num(np.abs(x[ra] - y[rd]), nan=math.inf).max()) / scale for x, y in ((a.p, d.p), (a.q, d.q)))
-        left = departure(a, d, scale, target)
-        jumps = {"ann": _jumps(a), "dem": _jumps(d)}
-        results.append({**info, "dp": dp, "dq": dq, "scale": scale, **length,
-                        **({} if left is None else {"departure": left}),
-                        **({"stress_control_jumps": jumps} if any(jumps.values()) else {})})
+        results.append({**info, **_compare(a, d, info["name"], scale, target), "scale": scale, **length, **spread})
     worst = max(results, key=lambda t: max(t["dp"], t["dq"]))
     if dem_states is not None:
         for k, parts in sampler.states.items():
@@ -373,6 +422,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
         "tests": results,
         "rollout": report,
         "coverage": coverage,
+        "dem_spread": _widest_spread(results, target) if reproducibility else None,
         "settings": {**requested, "mesostructure": meso.name, "n_cells": n_cells},
         "cell_parameters": {k: float(v) for k, v in meso.parameters.items()},
         "model_sha256": file_sha256(model_path),
@@ -449,9 +499,17 @@ def _hybrid_of(cert: dict[str, Any]) -> dict[str, Any]:
 def summary_lines(cert: dict[str, Any]) -> list[str]:
     """One line per test, then the verdict."""
     lines = [f"{t['name']:<40} dp {100 * t['dp']:.3f} %  dq {100 * t['dq']:.3f} %"
+             + ("" if "dem_spread" not in t else f"  DEM from rest off the DEM by {100 * t['dem_spread']:.3f} %"
+                + (" (above the target)" if t["dem_spread"] > cert["target"] else ""))
              + ("" if "stress_control_jumps" not in t else
                 f"  (accepted across a jump: ANN {t['stress_control_jumps']['ann']}, DEM {t['stress_control_jumps']['dem']})")
              for t in cert["tests"]]
+    spread = cert.get("dem_spread")
+    if spread and spread["above_target"]:
+        lines.append(f"the DEM's own reproducibility: started from rest in every increment it moves "
+                     f"{len(spread['above_target'])} test(s) by up to {100 * spread['max']:.3f} % ({spread['test']}), "
+                     f"above the target {100 * cert['target']:.3g} %: "
+                     "the target is finer than the reference resolves there")
     if cert["rollout"] is not None:
         inc = next(v for k, v in cert["rollout"].items() if k.startswith("increment_"))
         lines.append(f"rollout (single cells, reported only): max {inc['max']:.4f}, median {inc['median']:.4f}")

@@ -20,6 +20,7 @@ from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+import warp as wp
 
 from warp_hcell.core.contact import pair_law
 from warp_hcell.core.contract import CellResponse
@@ -125,6 +126,18 @@ class DemCell:
                           f"equilibrium within max_substeps = {self.settings.max_substeps}", RuntimeWarning,
                           stacklevel=2)
         return new, response
+
+    @staticmethod
+    def at_rest(state: DemCellState) -> DemCellState:
+        """``state`` with its velocity memory zero: stepped, it starts from rest, as a state no step
+        produced (``DemState.velocity``; the rate starts again from refined_strain_per_substep and
+        the free grains are not predicted, ``warp_hcell.dem.kernels``). The database probes every
+        state so (``warp_hcell.database.probing``, canonical form).
+
+        Pure: ``state`` is not modified; the other fields are shared with it (a step never writes
+        its input).
+        """
+        return DemCellState(state.model, replace(state.dem, velocity=wp.zeros_like(state.dem.velocity)))
 
     def _tangent(self, old: DemCellState, new: DemCellState) -> np.ndarray:
         """Condensed tangent of ``new``; driven DOFs move as x_ref l_old / l_ref per unit strain."""
