@@ -176,12 +176,14 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
         from homogenization.backends.ann import model_record  # noqa: PLC0415
 
         record["ann_model"] = model_record(getattr(model, "model_path", None) or options.get("model"), model.metadata,
-                                           model.equilibrium_corrections, model.force_tolerance)
+                                           model.equilibrium_corrections, model.force_tolerance,
+                                           getattr(model, "escalation", None) is not None)
         if model.certificate_problem is not None:  # also the run's own cells, e.g. kinematics the certificate did not drive
             record["ann_model"].update(certified=False, certificate_problem=model.certificate_problem)
         corrections = getattr(model, "equilibrium_corrections", 0)
         if corrections:
-            record["ann_model"].update(equilibrium_corrections=corrections, equilibrium_tolerance=model.force_tolerance)
+            record["ann_model"].update(equilibrium_corrections=corrections, equilibrium_tolerance=model.force_tolerance,
+                                       dem_escalation=model.escalation is not None)
         if model.ood is not None:
             record["ann_model"]["ood"] = {"checked": int(model.ood_counts[1]), "outside": int(model.ood_counts[0]),
                                           "threshold": model.ood.threshold}
