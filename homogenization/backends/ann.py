@@ -31,8 +31,10 @@ surrogate than the network alone: its diagnostics add ``n_corrected`` (cells cor
 ``n_corrections`` (Newton steps), ``n_shortened`` and ``n_shifted`` (those of them the line search
 shortened, and those whose matrix was shifted; ``training.fast_equilibrium3d``),
 ``n_unconverged`` (cells still above the tolerance after them),
-``force_ratio_network_max`` and ``force_ratio_max`` (the largest force ratio before and after),
-and the model's certificate covers it only where that certificate measured this very hybrid
+``force_ratio_network_max`` and ``force_ratio_max`` (the largest force ratio before and after) and
+``n_escalated`` (cells handed to the DEM's own increment from rest because a free grain moved and ends
+touching nothing, which the corrections cannot place: ``homogenization.backends.escalation``; off with
+``dem_escalation=False``), and the model's certificate covers it only where that certificate measured this very hybrid
 (``hmodel certify --equilibrium-corrections K``: same K and tolerance; ``certificate_problem`` says
 otherwise, as it does for a run of the network alone under a certificate of the hybrid). Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
