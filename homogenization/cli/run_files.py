@@ -214,7 +214,8 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
     (``diagnostics["n_unconverged"]``) and those with contacts outside the closed form
     (``diagnostics["n_cross_plane"]``), where there are any, the ANN's equilibrium corrections
     (``n_corrections`` Newton steps, ``n_shortened`` of them shortened by the line search and
-    ``n_shifted`` shifted, in ``n_corrected`` cell-increments) where it took them, then
+    ``n_shifted`` shifted, in ``n_corrected`` cell-increments) where it took them, the cell-increments it
+    handed to the DEM (``n_escalated``, ``homogenization.backends.escalation``) where it may, then
     ``note`` (the backend's own).
 
     Raises:
@@ -237,6 +238,9 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
                    + (f" ({int(np.nansum(shortened))} shortened by the line search, {int(np.nansum(shifted))} shifted)"
                       if shortened is not None and shifted is not None else "")
                    + f" in {int(np.nansum(corrected))} cell-increments")
+    escalated = record.diagnostics.get("n_escalated")
+    if escalated is not None:
+        counts += f", {int(np.nansum(escalated))} cell-increments handed to the DEM (a released grain)"
     return f"{name}: {record.n_increments} increments in {elapsed:.1f} s{counts}{note} -> {final / io.RUN_FILE}, {final / io.CURVE_FILE}"
 
 
