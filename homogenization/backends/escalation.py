@@ -23,7 +23,9 @@ import numpy as np
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.database.learning_state import evaluate, free_coordinates, positions
 from warp_hcell.database.probing import ProbeContext, step_from_rest
-from warp_hcell.dem.cell import DemCell
+from warp_hcell.dem.cell import DemCell, DemCellState
+from warp_hcell.dem.model import DemModel
+from warp_hcell.dem.state import DemState
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 
@@ -49,16 +51,31 @@ def released_cells(schema, cell_size: np.ndarray, free_before: np.ndarray, free_
 class DemEscalation:
     """The DEM's increment of learning states of cells of ``meso`` (the model's own mesostructure), from rest.
 
+    Batches are padded to a power of two cells (the last cell repeated) and each size keeps its DEM cell
+    model and DEM model, so that the next call of that size reuses them and their integrator (building
+    them costs more than stepping a few cells).
+
     Args:
         meso: the mesostructure the model was trained on (its learning state is the model's).
         contact_law: the model's contact law; contact_tolerance: its DEM's (``DemSettings.contact_tolerance``).
     """
 
     def __init__(self, meso: Mesostructure, contact_law: ContactLaw, contact_tolerance: float) -> None:
-        cell_model = DemCell(contact_law, float(meso.radius.mean()),
-                             settings=DemSettings(contact_tolerance=float(contact_tolerance)), threads=1)
+        self.meso = meso
         self.schema = meso.schema()
-        self.context = ProbeContext(cell_model, meso, self.schema, {}, contact_law, float(contact_tolerance))
+        self.contact_law = contact_law
+        self.contact_tolerance = float(contact_tolerance)
+        self._batches: dict[int, tuple[ProbeContext, DemModel]] = {}
+
+    def _batch(self, n: int) -> tuple[ProbeContext, DemModel]:
+        """The probe context and the DEM model of batches of ``n`` cells (built once)."""
+        if n not in self._batches:
+            settings = DemSettings(contact_tolerance=self.contact_tolerance)
+            cell_model = DemCell(self.contact_law, float(self.meso.radius.mean()), settings=settings, threads=1)
+            model = DemModel.build(self.meso, n, contact_law=self.contact_law, settings=settings)
+            self._batches[n] = (ProbeContext(cell_model, self.meso, self.schema, {}, self.contact_law,
+                                             self.contact_tolerance), model)
+        return self._batches[n]
 
     def advance(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
                 d_eps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -66,8 +83,14 @@ class DemEscalation:
 
         Returns (cell_size (n, dim) [m], free_position (n, n_free) [m], shear_force (capped, zero out of
         contact: the learning state's) [N], moment (n, dim, dim) [N m], area (n,) [m^dim]) after it."""
-        _, after, response = step_from_rest(self.context, cell_size, free_position, shear_force, d_eps)
-        free = free_coordinates(self.schema, after["position"])
-        law, tolerance = self.context.contact_law, self.context.contact_tolerance
-        shear = evaluate(self.schema, after["cell_size"], free, after["shear_force"], law, tolerance)["shear_force"]
-        return after["cell_size"], free, shear, np.asarray(response.moment), np.asarray(response.area)
+        n = cell_size.shape[0]
+        rows = np.minimum(np.arange(1 << (n - 1).bit_length()), n - 1)
+        context, model = self._batch(rows.size)
+        _, after, response = step_from_rest(
+            context, *(np.asarray(a)[rows] for a in (cell_size, free_position, shear_force, d_eps)),
+            state_of=lambda arrays: DemCellState(model, DemState.from_numpy(arrays, model.device)))
+        free = free_coordinates(self.schema, after["position"][:n])
+        shear = evaluate(self.schema, after["cell_size"][:n], free, after["shear_force"][:n], self.contact_law,
+                         self.contact_tolerance)["shear_force"]
+        return (after["cell_size"][:n], free, shear, np.asarray(response.moment)[:n],
+                np.asarray(response.area)[:n])

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -169,12 +169,15 @@ def canonical_dem_arrays(context: ProbeContext, ev: Mapping[str, np.ndarray], ce
 
 
 def step_from_rest(context: ProbeContext, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
-                   d_eps: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], Any]:
+                   d_eps: np.ndarray, state_of: Callable[[dict], Any] | None = None
+                   ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], Any]:
     """The DEM's increment of learning states from their canonical form (module docstring), one batch.
 
     Args:
         cell_size (n, dim) [m], free_position (n, n_free) [m], shear_force (n, ``*schema.shear_shape``) [N]:
             the learning states; d_eps (n, dim) [-]: the local strain increments, compression positive.
+        state_of: builds the cell model's state from the canonical arrays (None: its ``state_from_arrays``;
+            a caller that steps batches of one size again and again may keep their model).
 
     Returns:
         (the contact-law evaluation of the states, ``learning_state.evaluate``; the DEM's state arrays after
@@ -186,7 +189,8 @@ def step_from_rest(context: ProbeContext, cell_size: np.ndarray, free_position: 
     cm = context.cell_model
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        new, response = cm.step(cm.state_from_arrays(canonical_dem_arrays(context, before, cell_size)), d_eps)
+        arrays = canonical_dem_arrays(context, before, cell_size)
+        new, response = cm.step((state_of or cm.state_from_arrays)(arrays), d_eps)
     return before, cm.state_to_arrays(new), response
 
 
