@@ -247,10 +247,16 @@ def main(argv=None) -> int:
     if args.from_rest:
         from homogenization.learning.from_rest import FromRest
 
-        rest, rest_s = run(FromRest(make_cell_model("dem", dim=3, threads=1)), meso, args)
-        worst, scale, where, curve = difference(rest, dem, args.p0)
-        rows.append({"variant": "dem from rest", "wall_s": rest_s, "diff_p0": worst / args.p0, "diff_scale": worst / scale,
-                     "at_eps_a": where, "curve": curve, "windowed": windowed_difference(rest, dem, args.p0, args.window)})
+        try:
+            rest, rest_s = run(FromRest(make_cell_model("dem", dim=3, threads=1)), meso, args)
+        except ControlError as exc:
+            rows.append({"variant": "dem from rest", "stopped": str(exc)})
+            print(f"dem from rest: stopped: {exc}")
+        else:
+            worst, scale, where, curve = difference(rest, dem, args.p0)
+            rows.append({"variant": "dem from rest", "wall_s": rest_s, "diff_p0": worst / args.p0,
+                         "diff_scale": worst / scale, "at_eps_a": where, "curve": curve,
+                         "windowed": windowed_difference(rest, dem, args.p0, args.window)})
     if args.closed_form:
         closed, closed_s = run(make_cell_model("analytical", dim=3), meso, args)
         worst, scale, _, _ = difference(closed, dem, args.p0)
