@@ -79,9 +79,9 @@ def test_the_escalated_increment_is_the_dems_equilibrium_in_the_learning_state()
 @pytest.mark.skipif(not SHIPPED_3D.is_file(), reason="3D model not installed")
 def test_the_hybrid_hands_the_released_cells_to_the_dem_and_counts_them(monkeypatch):
     meso = mesostructure_arg("hcell3d:alpha0=55").build(None)
-    hybrid = AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=2, equilibrium_tolerance=1e-3)
-    assert AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=2,
-                     dem_escalation=False).escalation is None
+    hybrid = AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=2, equilibrium_tolerance=1e-3,
+                       dem_escalation=True)
+    assert AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=2).escalation is None  # plain cell
     assert AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=0).escalation is None
     state = hybrid.init_state(meso, 3)
     for _ in range(5):

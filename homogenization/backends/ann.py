@@ -87,6 +87,7 @@ import torch
 
 from homogenization.backends.escalation import DemEscalation, released_cells
 from homogenization.learning import envelope
+from homogenization.learning.settings import has_fine_grains
 from homogenization.material.orientation3d import cell_kinematics, kinematics_of
 from training import cell_physics
 from training.inference import FastAdvance
@@ -124,6 +125,14 @@ def default_model_path(dim: int = 2) -> Path:
     return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODELS[dim]
 
 
+def default_escalation(metadata: dict[str, Any]) -> bool:
+    """Whether a hybrid of the model with JSON ``metadata`` hands the cells with a released grain to the DEM
+    when nobody says: for a cell with fine grains (``homogenization.learning.settings.has_fine_grains``),
+    where it was measured to follow the DEM closer (docs/ann.md, "Released grains"), not for the plain cell
+    (its lateral spheres released in extension: the same certificate figures at 2.6 times the cost)."""
+    return has_fine_grains(from_description(metadata["mesostructure"]))
+
+
 def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int = 0,
                         tolerance: float | None = None, escalation: bool | None = None) -> str | None:
     """Why model ``path`` (JSON ``metadata``) may not be used, in one line, or None if its
@@ -133,8 +142,8 @@ def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int =
     and meets the minimum certificate (``homogenization.learning.envelope.MINIMUM``: pressures,
     strain, orientations, rollouts, tests), read from its recorded settings, not from its ``passed`` flag.
     ``escalation``: whether the hybrid hands the cells with a released grain to the DEM (``AnnCell``'s
-    ``dem_escalation``; None: it does, as by default); a certificate of the hybrid records whether it did
-    (``envelope.escalation_of``)."""
+    ``dem_escalation``; None: as by default, ``default_escalation``); a certificate of the hybrid records
+    whether it did (``envelope.escalation_of``)."""
     cert = metadata.get("certificate")
     if not isinstance(cert, dict):
         return (f"{path}: the model is uncertified (certify it: python -m homogenization.certify "
@@ -146,7 +155,7 @@ def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int =
     if run != measured:
         return (f"{path}: its certificate measured {_surrogate(*measured)}, not {_surrogate(*run)} "
                 f"(run it with {_flags(*measured)}, or certify it with {_flags(*run)})")
-    escalation = True if escalation is None else bool(escalation)
+    escalation = default_escalation(metadata) if escalation is None else bool(escalation)
     if corrections and escalation != envelope.escalation_of(cert):
         said = {True: "with", False: "without"}
         return (f"{path}: its certificate measured the hybrid {said[envelope.escalation_of(cert)]} the DEM's "
@@ -231,7 +240,8 @@ class AnnCell(ArrayStateMixin):
         dem_escalation: with K > 0, the DEM's own increment in the cells where a free grain moved and ends
             touching nothing (``homogenization.backends.escalation``; counted in ``n_escalated``); False:
             the corrections' result there too (to measure what the escalation adds); None: as the
-            certificate's hybrid where K comes from it (``envelope.escalation_of``), else True.
+            certificate's hybrid where K comes from it (``envelope.escalation_of``), else
+            ``default_escalation`` (cells with fine grains).
 
     Raises:
         training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
@@ -287,7 +297,9 @@ class AnnCell(ArrayStateMixin):
         self.fast = (FastAdvance(self.net, self.equilibrium_corrections, self.force_tolerance)
                      if self.device.type == "cpu" else None)
         self.escalation = (DemEscalation(self.trained_on, contact_law, float(self.metadata["contact_tolerance"]))
-                           if dem_escalation in (None, True) and self.equilibrium_corrections else None)
+                           if self.equilibrium_corrections and (default_escalation(self.metadata)
+                                                                if dem_escalation is None else dem_escalation)
+                           else None)
         self.certificate: dict[str, Any] | None = self.metadata.get("certificate")
         self.certificate_problem = certificate_problem(self.metadata, path, self.equilibrium_corrections,
                                                        self.force_tolerance, self.escalation is not None)
