@@ -29,7 +29,8 @@ and ends touching nothing (the package hands those cells to the DEM: ``homogeniz
 the column "to DEM" counts them); ``--from-rest`` adds the DEM started from rest in every increment (the map
 the database samples), the DEM's own reproducibility. Beside the largest difference, the column "+-W inc."
 is the largest difference of p and q when each increment may be matched with one of the other curve's within
-``--window`` W increments (a drop at another increment costs nothing there).
+``--window`` W increments (a drop at another increment costs nothing there); with ``--from-rest`` each
+ANN row also says how far it is from the DEM started from rest (pointwise, over the DEM's scale).
 
 ``--guesses`` adds rows whose corrections start from another first guess than the network's
 (``training.inference.FastAdvance``'s ``guess``: ``still``, the free grains do not move; ``affine``,
@@ -244,6 +245,7 @@ def main(argv=None) -> int:
           f"{args.order} x {args.spins}; load {os.getloadavg()[0]:.1f}")
     dem, dem_s = run(make_cell_model("dem", dim=3, threads=1), meso, args)
     rows = [{"variant": "dem", "wall_s": dem_s, "increments": dem.n_increments}]
+    rest = None
     if args.from_rest:
         from homogenization.learning.from_rest import FromRest
 
@@ -283,6 +285,7 @@ def main(argv=None) -> int:
         worst, scale, where, curve = difference(record, dem, args.p0)
         rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol if k else None, "steps": rule,
                      "escalation": esc, "windowed": windowed_difference(record, dem, args.p0, args.window),
+                     **({"diff_from_rest": difference(record, rest, args.p0)[0] / scale} if rest is not None else {}),
                      "escalated": total(record, "n_escalated"), "wall_s": wall, "diff_p0": worst / args.p0, "diff_scale": worst / scale, "scale_pa": scale,
                      "at_eps_a": where, "curve": curve, "increments": record.n_increments,
                      "q_diff_scale": difference(record, dem, args.p0, ("q",))[0] / scale,
@@ -310,7 +313,8 @@ def main(argv=None) -> int:
                  f"{row['jumps']:5.0f}" if "corrected" in row
                  else f" {'':>8} {'':>10} {'':>10} {'':>9} {'':>8} {'':>8} {'':>8} {'':>11} {'':>8} {'':>10} {'':>5}")
         print(f"{row['variant']:>22} {cells}{extra} {row['wall_s']:7.1f} {row['wall_s'] / dem_s:6.2f}"
-              + (f" {row['wall_s'] / closed_s:8.2f}" if closed_s else ""))
+              + (f" {row['wall_s'] / closed_s:8.2f}" if closed_s else "")
+              + (f"  off the DEM from rest by {100 * row['diff_from_rest']:.3g}%" if "diff_from_rest" in row else ""))
     if args.json:
         with open(args.json, "a", encoding="utf-8") as out:
             for row in rows:
