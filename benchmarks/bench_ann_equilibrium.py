@@ -1,4 +1,4 @@
-"""python benchmarks/bench_ann_equilibrium.py --model M.pt --mesostructure SPEC [--p0 2e5] [--test undrained] [--corrections 0,1,3] [--guesses network,still] [--part test|step]
+"""python benchmarks/bench_ann_equilibrium.py --model M.pt --mesostructure SPEC [--p0 2e5] [--test undrained] [--corrections 0,1,3] [--guesses network,still] [--escalation on,off] [--from-rest] [--part test|step]
 
 The 3D meso-ANN alone against the ANN followed by K exact equilibrium corrections
 (``AnnCell(equilibrium_corrections=K)``, docs/ann.md) and against the DEM, on one triaxial test of
@@ -23,6 +23,14 @@ medians and their ratios.
 
 ``--steps full`` adds rows whose corrections take full Newton steps (no shift, no line search, in the
 compiled and the torch path), to measure what the globalisation adds.
+
+``--escalation on,off`` adds rows of the hybrid that keeps the corrections' result where a free grain moved
+and ends touching nothing (the package hands those cells to the DEM: ``homogenization.backends.escalation``;
+the column "to DEM" counts them); ``--from-rest`` adds the DEM started from rest in every increment (the map
+the database samples), the DEM's own reproducibility. Beside the largest difference, the column "+-W inc."
+is the largest difference of p and q when each increment may be matched with one of the other curve's within
+``--window`` W increments (a drop at another increment costs nothing there); with ``--from-rest`` each
+ANN row also says how far it is from the DEM started from rest (pointwise, over the DEM's scale).
 
 ``--guesses`` adds rows whose corrections start from another first guess than the network's
 (``training.inference.FastAdvance``'s ``guess``: ``still``, the free grains do not move; ``affine``,
@@ -82,6 +90,28 @@ def difference(record, reference, p0: float, curves=COMPARED) -> tuple[float, fl
         if diff[k] > worst:
             worst, where, name = float(diff[k]), float(reference.eps11[theirs[k]]) - start, curve
     return worst, max(p0, float(np.abs(reference.p).max())), where, name
+
+
+def windowed_difference(record, reference, p0: float, window: int) -> float:
+    """Largest difference of p and q over the path's scale [-] when each increment of one curve may be matched
+    with any of the other's within ``window`` increments (both ways): a drop at another increment costs
+    nothing, a curve off the other for longer than the window costs what it is off. ``window`` 0:
+    ``difference`` of p and q."""
+    def shear_stage(r):
+        return np.flatnonzero(r.stage == r.stage[-1])
+
+    mine, theirs = shear_stage(record), shear_stage(reference)
+    n = min(mine.size, theirs.size)
+    worst = 0.0
+    for curve in ("p", "q"):
+        a, b = getattr(record, curve)[mine[:n]], getattr(reference, curve)[theirs[:n]]
+        for x, y in ((a, b), (b, a)):
+            nearest = np.full(n, np.inf)
+            for shift in range(-window, window + 1):
+                lo, hi = max(0, -shift), min(n, n - shift)
+                nearest[lo:hi] = np.minimum(nearest[lo:hi], np.abs(x[lo:hi] - y[lo + shift:hi + shift]))
+            worst = max(worst, float(nearest.max()))
+    return worst / max(p0, float(np.abs(reference.p).max()))
 
 
 def volumetric_difference(record, reference) -> float:
@@ -172,6 +202,11 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", default="globalised", help="comma-separated Newton steps of the corrections: "
                         "globalised (the package's: shifted where they climb, halved by the line search) or full "
                         "(plain Newton steps, halvings 0 and shift 0 in both paths)")
+    parser.add_argument("--escalation", default="on", help="comma-separated on/off: the hybrid hands the cells with a "
+                        "released grain to the DEM (homogenization.backends.escalation) or not")
+    parser.add_argument("--from-rest", action="store_true", help="also the DEM started from rest in every increment "
+                        "(the map the database samples): the DEM's own reproducibility")
+    parser.add_argument("--window", type=positive_int, default=20, help="increments of the windowed difference")
     parser.add_argument("--guesses", default="network", help="comma-separated first guesses (network, still, affine)")
     parser.add_argument("--closed-form", action="store_true", help="also time the closed form (plain ten-sphere cell)")
     parser.add_argument("--part", choices=("test", "step"), default="test")
@@ -185,6 +220,9 @@ def main(argv=None) -> int:
     tolerances = [float(t) for t in args.tolerances.split(",")]
     guesses = args.guesses.split(",")
     rules = args.steps.split(",")
+    escalations = args.escalation.split(",")
+    if any(e not in ("on", "off") for e in escalations):
+        parser.error(f"--escalation {args.escalation}: on and/or off")
     if any(rule not in ("globalised", "full") for rule in rules):
         parser.error(f"--steps {args.steps}: globalised and/or full")
     if any(g != "network" for g in guesses) and args.test != "undrained":
@@ -207,18 +245,32 @@ def main(argv=None) -> int:
           f"{args.order} x {args.spins}; load {os.getloadavg()[0]:.1f}")
     dem, dem_s = run(make_cell_model("dem", dim=3, threads=1), meso, args)
     rows = [{"variant": "dem", "wall_s": dem_s, "increments": dem.n_increments}]
+    rest = None
+    if args.from_rest:
+        from homogenization.learning.from_rest import FromRest
+
+        try:
+            rest, rest_s = run(FromRest(make_cell_model("dem", dim=3, threads=1)), meso, args)
+        except ControlError as exc:
+            rows.append({"variant": "dem from rest", "stopped": str(exc)})
+            print(f"dem from rest: stopped: {exc}")
+        else:
+            worst, scale, where, curve = difference(rest, dem, args.p0)
+            rows.append({"variant": "dem from rest", "wall_s": rest_s, "diff_p0": worst / args.p0,
+                         "diff_scale": worst / scale, "at_eps_a": where, "curve": curve,
+                         "windowed": windowed_difference(rest, dem, args.p0, args.window)})
     if args.closed_form:
         closed, closed_s = run(make_cell_model("analytical", dim=3), meso, args)
         worst, scale, _, _ = difference(closed, dem, args.p0)
         rows.append({"variant": "closed form", "wall_s": closed_s, "diff_p0": worst / args.p0, "diff_scale": worst / scale})
-    variants = [(guess, k, tol, rule) for rule in rules for guess in guesses for k in corrections
-                for tol in (tolerances if k else tolerances[:1])
-                if (guess == "network" or k) and (k or rule == rules[0])]
-    for guess, k, tol, rule in variants:
+    variants = [(guess, k, tol, rule, esc) for esc in escalations for rule in rules for guess in guesses
+                for k in corrections for tol in (tolerances if k else tolerances[:1])
+                if (guess == "network" or k) and (k or (rule == rules[0] and esc == escalations[0]))]
+    for guess, k, tol, rule, esc in variants:
         name = ("network alone" if not k else f"{guess} + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
-                + (f" {rule}" if len(rules) > 1 else ""))
+                + (f" {rule}" if len(rules) > 1 else "") + (" no DEM" if esc == "off" and len(escalations) > 1 else ""))
         ann = AnnCell3D(ContactLaw(), 0.5, model=args.model, equilibrium_corrections=k,
-                        equilibrium_tolerance=tol if k else None)
+                        equilibrium_tolerance=tol if k else None, dem_escalation=esc == "on")
         plain = {"halvings": 0, "shift": 0.0} if rule == "full" else {}
         if guess != "network" or plain:
             ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess, **plain)
@@ -227,12 +279,14 @@ def main(argv=None) -> int:
             record, wall = run(ann, meso, args)
         except ControlError as exc:
             rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol, "steps": rule,
-                         "stopped": str(exc)})
+                         "escalation": esc, "stopped": str(exc)})
             print(f"{rows[-1]['variant']}: stopped: {exc}")
             continue
         worst, scale, where, curve = difference(record, dem, args.p0)
         rows.append({"variant": name, "guess": guess, "corrections": k, "tolerance": tol if k else None, "steps": rule,
-                     "wall_s": wall, "diff_p0": worst / args.p0, "diff_scale": worst / scale, "scale_pa": scale,
+                     "escalation": esc, "windowed": windowed_difference(record, dem, args.p0, args.window),
+                     **({"diff_from_rest": difference(record, rest, args.p0)[0] / scale} if rest is not None else {}),
+                     "escalated": total(record, "n_escalated"), "wall_s": wall, "diff_p0": worst / args.p0, "diff_scale": worst / scale, "scale_pa": scale,
                      "at_eps_a": where, "curve": curve, "increments": record.n_increments,
                      "q_diff_scale": difference(record, dem, args.p0, ("q",))[0] / scale,
                      "eps_v_diff": volumetric_difference(record, dem), "jumps": total(record, "stress_control_jump"),
@@ -242,8 +296,8 @@ def main(argv=None) -> int:
                      "network_ratio_max": largest(record, "force_ratio_network_max"),
                      "ratio_max": largest(record, "force_ratio_max"),
                      "cell_increments": record.n_increments * int(np.asarray(record.weights).size)})
-    print(f"{'variant':>22} {'diff/p0':>9} {'diff/scale':>10} {'at eps_a':>8} {'corrected':>10} {'Newton':>10} "
-          f"{'shortened':>9} {'shifted':>8} "
+    print(f"{'variant':>22} {'diff/p0':>9} {'diff/scale':>10} {f'+-{args.window} inc.':>10} {'at eps_a':>8} "
+          f"{'corrected':>10} {'Newton':>10} {'shortened':>9} {'shifted':>8} {'to DEM':>8} "
           f"{'unconv.':>8} {'guess ratio':>11} {'q/scale':>8} {'eps_v diff':>10} {'jumps':>5} {'wall s':>7} {'/ DEM':>6}" + (f" {'/ closed':>8}" if args.closed_form else ""))
     closed_s = next((r["wall_s"] for r in rows if r["variant"] == "closed form"), None)
     for row in rows:
@@ -251,14 +305,16 @@ def main(argv=None) -> int:
             print(f"{row['variant']:>22} stopped (stress control; line above)")
             continue
         cells = (f"{100 * row['diff_p0']:8.3g}% {100 * row['diff_scale']:9.3g}%" if "diff_p0" in row else f"{'':>9} {'':>10}")
+        cells += f" {100 * row['windowed']:9.3g}%" if "windowed" in row else f" {'':>10}"
         extra = (f" {row['at_eps_a']:8.4f} {row['corrected']:10.0f} {row['newton_steps']:10.0f} "
-                 f"{row['shortened']:9.0f} {row['shifted']:8.0f} "
+                 f"{row['shortened']:9.0f} {row['shifted']:8.0f} {row['escalated']:8.0f} "
                  f"{row['unconverged']:8.0f} "
                  f"{row['network_ratio_max']:11.2g} {100 * row['q_diff_scale']:7.3g}% {100 * row['eps_v_diff']:9.3g}% "
                  f"{row['jumps']:5.0f}" if "corrected" in row
-                 else f" {'':>8} {'':>10} {'':>10} {'':>9} {'':>8} {'':>8} {'':>11} {'':>8} {'':>10} {'':>5}")
+                 else f" {'':>8} {'':>10} {'':>10} {'':>9} {'':>8} {'':>8} {'':>8} {'':>11} {'':>8} {'':>10} {'':>5}")
         print(f"{row['variant']:>22} {cells}{extra} {row['wall_s']:7.1f} {row['wall_s'] / dem_s:6.2f}"
-              + (f" {row['wall_s'] / closed_s:8.2f}" if closed_s else ""))
+              + (f" {row['wall_s'] / closed_s:8.2f}" if closed_s else "")
+              + (f"  off the DEM from rest by {100 * row['diff_from_rest']:.3g}%" if "diff_from_rest" in row else ""))
     if args.json:
         with open(args.json, "a", encoding="utf-8") as out:
             for row in rows:

@@ -35,7 +35,7 @@ from pathlib import Path
 import h5py
 
 from homogenization.learning import certificate
-from homogenization.learning.envelope import equilibrium_settings
+from homogenization.learning.envelope import equilibrium_settings, escalation_of
 from homogenization.cli import hmodel
 from warp_hcell.database.format import sizes
 
@@ -64,7 +64,8 @@ def surrogate_line(cert: dict) -> str:
             f"({100 * tally['n_corrected'] / max(cell_steps, 1):.1f} %), "
             f"{tally['n_corrections']} Newton steps ({tally.get('n_shortened', 0)} shortened by the line search, "
             f"{tally.get('n_shifted', 0)} shifted), "
-            f"{tally['n_unconverged']} left above the tolerance")
+            f"{tally['n_unconverged']} left above the tolerance"
+            + (f", {tally.get('n_escalated', 0)} handed to the DEM (a released grain)" if escalation_of(cert) else ""))
 
 
 def main(argv: list[str] | None = None) -> int:

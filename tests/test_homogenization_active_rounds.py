@@ -79,6 +79,21 @@ def test_progress_rule_and_stall():
     assert active.progress({"round": 0, "worst": math.inf}) == (1, 0.0, math.inf)
 
 
+def test_rounds_stop_where_every_failing_test_is_within_the_dems_own_reproducibility():
+    def cert(*tests):
+        return {"target": 0.02, "tests": [dict(zip(("name", "dp", "dq", "dem_spread"), t)) for t in tests]}
+
+    within = cert(("drained", 0.01, 0.031, 0.0318), ("undrained", 0.003, 0.009, 0.007))
+    line = active.unresolvable_line(within)
+    assert line.startswith("active learning stops: every failing test") and "drained 3.100 % against 3.180 %" in line
+    assert "undrained" not in line  # a passing test is no matter
+    assert active.unresolvable_line(cert(("drained", 0.01, 0.031, 0.0318), ("other", 0.03, 0.0, 0.001))) is None
+    assert active.unresolvable_line(cert(("drained", math.inf, math.inf, 0.0318))) is None  # not followed
+    assert active.unresolvable_line(cert(("passing", 0.01, 0.0, 0.05))) is None
+    no_spread = {"target": 0.02, "tests": [{"name": "drained", "dp": 0.01, "dq": 0.031}]}  # not measured
+    assert active.unresolvable_line(no_spread) is None
+
+
 @pytest.fixture(scope="module")
 def model_3d(tmp_path_factory):
     """A poorly trained model of a tiny database of ``CELL_3D`` (3 epochs): it cannot follow drained tests."""

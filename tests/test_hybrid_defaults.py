@@ -102,6 +102,9 @@ def test_a_run_takes_the_corrections_its_certificate_measured_without_flags(tmp_
     model.with_suffix(".json").write_text(json.dumps(meta))
     cell = AnnCell3D(ContactLaw(), 0.5, model=model)
     assert (cell.equilibrium_corrections, cell.force_tolerance, cell.certificate_problem) == (2, 1e-3, None)
+    assert cell.escalation is None  # a certificate that records no DEM escalation measured the hybrid without it
+    escalated = AnnCell3D(ContactLaw(), 0.5, model=model, dem_escalation=True).certificate_problem
+    assert escalated is not None and "without the DEM's increment" in escalated
     assert AnnCell3D(ContactLaw(), 0.5, model=model, equilibrium_tolerance=1e-4).certificate_problem is not None
     alone = AnnCell3D(ContactLaw(), 0.5, model=model, equilibrium_corrections=0).certificate_problem
     assert alone is not None and "not the network alone" in alone

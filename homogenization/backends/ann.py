@@ -31,8 +31,10 @@ surrogate than the network alone: its diagnostics add ``n_corrected`` (cells cor
 ``n_corrections`` (Newton steps), ``n_shortened`` and ``n_shifted`` (those of them the line search
 shortened, and those whose matrix was shifted; ``training.fast_equilibrium3d``),
 ``n_unconverged`` (cells still above the tolerance after them),
-``force_ratio_network_max`` and ``force_ratio_max`` (the largest force ratio before and after),
-and the model's certificate covers it only where that certificate measured this very hybrid
+``force_ratio_network_max`` and ``force_ratio_max`` (the largest force ratio before and after) and
+``n_escalated`` (cells handed to the DEM's own increment from rest because a free grain moved and ends
+touching nothing, which the corrections cannot place: ``homogenization.backends.escalation``; off with
+``dem_escalation=False``), and the model's certificate covers it only where that certificate measured this very hybrid
 (``hmodel certify --equilibrium-corrections K``: same K and tolerance; ``certificate_problem`` says
 otherwise, as it does for a run of the network alone under a certificate of the hybrid). Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
@@ -83,7 +85,9 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 import torch
 
+from homogenization.backends.escalation import DemEscalation, released_cells
 from homogenization.learning import envelope
+from homogenization.learning.settings import has_fine_grains
 from homogenization.material.orientation3d import cell_kinematics, kinematics_of
 from training import cell_physics
 from training.inference import FastAdvance
@@ -121,14 +125,25 @@ def default_model_path(dim: int = 2) -> Path:
     return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODELS[dim]
 
 
+def default_escalation(metadata: dict[str, Any]) -> bool:
+    """Whether a hybrid of the model with JSON ``metadata`` hands the cells with a released grain to the DEM
+    when nobody says: for a cell with fine grains (``homogenization.learning.settings.has_fine_grains``),
+    where it was measured to follow the DEM closer (docs/ann.md, "Released grains"), not for the plain cell
+    (its lateral spheres released in extension: the same certificate figures at 2.6 times the cost)."""
+    return has_fine_grains(from_description(metadata["mesostructure"]))
+
+
 def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int = 0,
-                        tolerance: float | None = None) -> str | None:
+                        tolerance: float | None = None, escalation: bool | None = None) -> str | None:
     """Why model ``path`` (JSON ``metadata``) may not be used, in one line, or None if its
     certificate was measured on this very ``.pt`` (same sha256) and this very surrogate (the
     network with ``corrections`` equilibrium corrections at force ratio ``tolerance`` [-], the
     resolved one; 0: the network alone, ``envelope.equilibrium_settings``), is within its target
     and meets the minimum certificate (``homogenization.learning.envelope.MINIMUM``: pressures,
-    strain, orientations, rollouts, tests), read from its recorded settings, not from its ``passed`` flag."""
+    strain, orientations, rollouts, tests), read from its recorded settings, not from its ``passed`` flag.
+    ``escalation``: whether the hybrid hands the cells with a released grain to the DEM (``AnnCell``'s
+    ``dem_escalation``; None: as by default, ``default_escalation``); a certificate of the hybrid records
+    whether it did (``envelope.escalation_of``)."""
     cert = metadata.get("certificate")
     if not isinstance(cert, dict):
         return (f"{path}: the model is uncertified (certify it: python -m homogenization.certify "
@@ -140,6 +155,12 @@ def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int =
     if run != measured:
         return (f"{path}: its certificate measured {_surrogate(*measured)}, not {_surrogate(*run)} "
                 f"(run it with {_flags(*measured)}, or certify it with {_flags(*run)})")
+    escalation = default_escalation(metadata) if escalation is None else bool(escalation)
+    if corrections and escalation != envelope.escalation_of(cert):
+        said = {True: "with", False: "without"}
+        return (f"{path}: its certificate measured the hybrid {said[envelope.escalation_of(cert)]} the DEM's "
+                f"increment in cells with a released grain, this run is {said[escalation]} it; certify the "
+                f"model again")
     result = envelope.verdict(cert)
     if result == "failed" or (result == "passed" and cert.get("passed") is False):
         return (f"{path}: the model failed its certificate (worst {100 * float(cert['worst']):.3g} % of the scale "
@@ -163,19 +184,19 @@ def _flags(corrections: int, tolerance: float | None) -> str:
 
 
 def model_record(path: Path | None, metadata: dict[str, Any] | None = None, corrections: int = 0,
-                 tolerance: float | None = None) -> dict[str, Any]:
+                 tolerance: float | None = None, escalation: bool | None = None) -> dict[str, Any]:
     """What a run file records of ANN model ``path`` (None: the installed model): ``path``
     (resolved), ``sha256`` of the ``.pt``, ``certificate_worst`` (the certificate's worst figure,
     a fraction of the scale; None uncertified), ``certified`` (``certificate_problem`` is None)
     and ``certificate_problem`` (its line, or None) for runs with ``corrections`` equilibrium
-    corrections at ``tolerance`` (``certificate_problem``). ``metadata``: the model's JSON, read from
+    corrections at ``tolerance``, with or without the DEM ``escalation`` (``certificate_problem``). ``metadata``: the model's JSON, read from
     beside ``path`` when None."""
     path = (default_model_path() if path is None else Path(path)).resolve()
     if metadata is None:
         from training.checkpoint import read_metadata  # noqa: PLC0415
 
         metadata = read_metadata(path)
-    problem = certificate_problem(metadata, path, corrections, tolerance)
+    problem = certificate_problem(metadata, path, corrections, tolerance, escalation)
     cert = metadata.get("certificate")
     return {"path": str(path), "sha256": file_sha256(path),
             "certificate_worst": cert.get("worst") if isinstance(cert, dict) else None,
@@ -216,6 +237,11 @@ class AnnCell(ArrayStateMixin):
             (ValueError for a planar one).
         equilibrium_tolerance: the force ratio above which a cell is corrected [-] (None: the
             certificate's where K comes from it, else the DEM's ``DemSettings.force_tolerance``).
+        dem_escalation: with K > 0, the DEM's own increment in the cells where a free grain moved and ends
+            touching nothing (``homogenization.backends.escalation``; counted in ``n_escalated``); False:
+            the corrections' result there too (to measure what the escalation adds); None: as the
+            certificate's hybrid where K comes from it (``envelope.escalation_of``), else
+            ``default_escalation`` (cells with fine grains).
 
     Raises:
         training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
@@ -230,7 +256,8 @@ class AnnCell(ArrayStateMixin):
 
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
                  device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL,
-                 equilibrium_corrections: int | None = None, equilibrium_tolerance: float | None = None) -> None:
+                 equilibrium_corrections: int | None = None, equilibrium_tolerance: float | None = None,
+                 dem_escalation: bool | None = None) -> None:
         require_linear_law(contact_law, "the meso-ANN backend (its networks learn from DEM databases of the linear law)")
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
@@ -258,6 +285,8 @@ class AnnCell(ArrayStateMixin):
                                                            if isinstance(certified, dict) else (0, None))
             if equilibrium_tolerance is None:
                 equilibrium_tolerance = measured_tolerance
+            if dem_escalation is None and isinstance(certified, dict):
+                dem_escalation = envelope.escalation_of(certified)
         if int(equilibrium_corrections) < 0 or (int(equilibrium_corrections) > 0 and self.dim != 3):
             raise ValueError(f"equilibrium corrections = {equilibrium_corrections}: a count >= 0, and > 0 for a "
                              f"spatial model only ({path.name} is {self.dim}D)")
@@ -267,9 +296,13 @@ class AnnCell(ArrayStateMixin):
             raise ValueError(f"equilibrium tolerance = {equilibrium_tolerance} must be > 0")
         self.fast = (FastAdvance(self.net, self.equilibrium_corrections, self.force_tolerance)
                      if self.device.type == "cpu" else None)
+        self.escalation = (DemEscalation(self.trained_on, contact_law, float(self.metadata["contact_tolerance"]))
+                           if self.equilibrium_corrections and (default_escalation(self.metadata)
+                                                                if dem_escalation is None else dem_escalation)
+                           else None)
         self.certificate: dict[str, Any] | None = self.metadata.get("certificate")
         self.certificate_problem = certificate_problem(self.metadata, path, self.equilibrium_corrections,
-                                                       self.force_tolerance)
+                                                       self.force_tolerance, self.escalation is not None)
         if int(ood_interval) < 1:
             raise ValueError(f"ood_interval = {ood_interval} must be >= 1")
         self.ood_interval = int(ood_interval)
@@ -396,8 +429,8 @@ class AnnCell(ArrayStateMixin):
                            "n_grains_held": float(inc.grains_held.sum()),
                            **self._correction_diagnostics(*(self.fast.last_corrections() or (None,) * 4)),
                            **self._ood_diagnostics(due, state, features)}
-            return (AnnState(inc.cell_size, inc.free_position, inc.shear_force),
-                    CellResponse(inc.moment, inc.area, diagnostics, tangent))
+            return self._escalated(state, d_eps_local, AnnState(inc.cell_size, inc.free_position, inc.shear_force),
+                                   CellResponse(inc.moment, inc.area, diagnostics, tangent))
         size, free, shear = self._tensors(state)
         d_eps = torch.as_tensor(np.asarray(d_eps_local, dtype=np.float64), device=self.device)
         tangent = None
@@ -422,7 +455,28 @@ class AnnCell(ArrayStateMixin):
             **self._correction_diagnostics(*(None if c is None else c.detach().cpu().numpy() for c in counts)),
             **self._ood_diagnostics(due, state, None),
         }
-        return new, CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent)
+        return self._escalated(state, d_eps_local, new,
+                               CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent))
+
+    def _escalated(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState,
+                   response: CellResponse) -> tuple[AnnState, CellResponse]:
+        """``new`` and ``response`` with the DEM's increment in the cells a released grain leaves to it
+        (``escalation.released_cells``; hybrids with ``dem_escalation`` only), counted in ``n_escalated``.
+        The tangent of such a cell stays the hybrid's (stress control's search direction only)."""
+        if self.escalation is None:
+            return new, response
+        released = released_cells(self.escalation.schema, new.cell_size, state.free_position, new.free_position)
+        response.diagnostics["n_escalated"] = float(np.count_nonzero(released))
+        if not released.any():
+            return new, response
+        index = np.flatnonzero(released)
+        size, free, shear, moment, area = self.escalation.advance(
+            state.cell_size[index], state.free_position[index], state.shear_force[index],
+            np.asarray(d_eps_local, dtype=np.float64)[index])
+        arrays = [np.array(a) for a in (*new, response.moment, response.area)]
+        for whole, part in zip(arrays, (size, free, shear, moment, area)):
+            whole[index] = part
+        return AnnState(*arrays[:3]), CellResponse(arrays[3], arrays[4], response.diagnostics, response.tangent)
 
     def _advance(self, size, free, shear, d_eps):
         """The torch increment (``MesoNet.advance``, or ``training.equilibrium.corrected_advance`` with

@@ -176,12 +176,14 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
         from homogenization.backends.ann import model_record  # noqa: PLC0415
 
         record["ann_model"] = model_record(getattr(model, "model_path", None) or options.get("model"), model.metadata,
-                                           model.equilibrium_corrections, model.force_tolerance)
+                                           model.equilibrium_corrections, model.force_tolerance,
+                                           getattr(model, "escalation", None) is not None)
         if model.certificate_problem is not None:  # also the run's own cells, e.g. kinematics the certificate did not drive
             record["ann_model"].update(certified=False, certificate_problem=model.certificate_problem)
         corrections = getattr(model, "equilibrium_corrections", 0)
         if corrections:
-            record["ann_model"].update(equilibrium_corrections=corrections, equilibrium_tolerance=model.force_tolerance)
+            record["ann_model"].update(equilibrium_corrections=corrections, equilibrium_tolerance=model.force_tolerance,
+                                       dem_escalation=model.escalation is not None)
         if model.ood is not None:
             record["ann_model"]["ood"] = {"checked": int(model.ood_counts[1]), "outside": int(model.ood_counts[0]),
                                           "threshold": model.ood.threshold}
@@ -212,7 +214,8 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
     (``diagnostics["n_unconverged"]``) and those with contacts outside the closed form
     (``diagnostics["n_cross_plane"]``), where there are any, the ANN's equilibrium corrections
     (``n_corrections`` Newton steps, ``n_shortened`` of them shortened by the line search and
-    ``n_shifted`` shifted, in ``n_corrected`` cell-increments) where it took them, then
+    ``n_shifted`` shifted, in ``n_corrected`` cell-increments) where it took them, the cell-increments it
+    handed to the DEM (``n_escalated``, ``homogenization.backends.escalation``) where it may, then
     ``note`` (the backend's own).
 
     Raises:
@@ -235,6 +238,9 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
                    + (f" ({int(np.nansum(shortened))} shortened by the line search, {int(np.nansum(shifted))} shifted)"
                       if shortened is not None and shifted is not None else "")
                    + f" in {int(np.nansum(corrected))} cell-increments")
+    escalated = record.diagnostics.get("n_escalated")
+    if escalated is not None:
+        counts += f", {int(np.nansum(escalated))} cell-increments handed to the DEM (a released grain)"
     return f"{name}: {record.n_increments} increments in {elapsed:.1f} s{counts}{note} -> {final / io.RUN_FILE}, {final / io.CURVE_FILE}"
 
 

@@ -20,7 +20,9 @@ but below the minimum certificate, ``homogenization.learning.envelope.MINIMUM``,
 round can mend it: the loop stops). A round probes the states of the failing tests (a test the
 ANN could not follow, worst = inf, included; with ``departure_margin`` < 1 only those from where
 the ANN left the DEM on, ``failing_states``: the certificate's ``departure``), and ``stall_rounds`` rounds without progress (``improved``: fewer
-tests not followed, those followed further, or a lower worst) stop the loop with one line.
+tests not followed, those followed further, or a lower worst) stop the loop with one line, as does a
+certificate whose every failing test misses the DEM by no more than the DEM started from rest does (its
+``dem_spread``: the target is finer than the reference resolves there, ``unresolvable_line``).
 Every round is printed (samples added,
 certificate worst, seconds) and stored in the model's JSON under ``active_learning``.
 
@@ -160,6 +162,20 @@ def stall_line(rounds: Sequence[Mapping[str, Any]], cert: Mapping[str, Any], db:
             f"tried {sum(r['samples_added'] for r in tried)} samples on the DEM states of {', '.join(tests) or 'no test'}"
             f"{'' if margin >= 1.0 else f' from {margin:g} of a test before their departure on'}, network "
             f"{', '.join(widths) or '?'}; database {_mb(db):.1f} MB")
+
+
+def unresolvable_line(cert: Mapping[str, Any]) -> str | None:
+    """One line when no round can help: every test that misses the target is off the DEM by no more than the
+    DEM started from rest in every increment is (the test's ``dem_spread``, ``certificate.certify``), so the
+    target is finer than the reference resolves there; None otherwise (or where a test records no spread)."""
+    failing = [t for t in cert["tests"] if max(t["dp"], t["dq"]) > cert["target"]]
+    if not failing or any(not max(t["dp"], t["dq"]) <= t.get("dem_spread", -math.inf) for t in failing):
+        return None
+    figures = "; ".join(f"{t['name']} {100 * max(t['dp'], t['dq']):.3f} % against {100 * t['dem_spread']:.3f} %"
+                        for t in failing)
+    return (f"active learning stops: every failing test is off the DEM by no more than the DEM started from rest is "
+            f"({figures}): the target {100 * cert['target']:.3g} % is finer than the reference resolves there, "
+            f"and no round of samples can close that; the certificate stays failed")
 
 
 def _figure(entry: Mapping[str, Any]) -> str:
@@ -308,8 +324,9 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
           certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
           log: Callable[..., None] = print) -> list[dict[str, Any]]:
     """Certify ``model`` (trained on ``db``) and run active rounds until it passes, the budget
-    of ``settings`` is spent, or ``settings.stall_rounds`` rounds make no progress (``stalled``:
-    one line says which test, which rounds and what they tried, ``stall_line``); returns the
+    of ``settings`` is spent, ``settings.stall_rounds`` rounds make no progress (``stalled``:
+    one line says which test, which rounds and what they tried, ``stall_line``), or every failing
+    test misses the DEM by no more than the DEM started from rest does (``unresolvable_line``); returns the
     rounds (round 0: the model as given), also stored in the model's JSON under ``active_learning``.
 
     A round probes the DEM states of the failing tests (with ``settings.departure_margin`` < 1,
@@ -339,6 +356,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
     elif _current(meta.get("certificate"), model, certify_settings) and rounds and rounds[-1]["round"] == len(stored) and (
             verdict(meta["certificate"]) != "failed" or len(stored) >= settings.rounds
             or added_total >= settings.max_samples or stalled(rounds, settings)
+            or unresolvable_line(meta["certificate"]) is not None
             or budget_room(db, settings.max_database_mb)[0] < min(settings.samples_per_round, MIN_ROUND_SAMPLES)):
         log(round_line(rounds[-1]) + " (done before)")
         return rounds
@@ -360,6 +378,10 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
             break
         if stalled(rounds, settings):
             log(stall_line(rounds, cert, db, settings.departure_margin))
+            break
+        unresolvable = unresolvable_line(cert)
+        if unresolvable is not None:
+            log(unresolvable)
             break
         t0 = time.perf_counter()
         picked, names = failing_states(cert, states, settings.departure_margin)

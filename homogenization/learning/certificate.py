@@ -78,7 +78,8 @@ import numpy as np
 
 from homogenization.element_test import driver, loading
 from homogenization.learning.from_rest import FromRest
-from homogenization.learning.envelope import dimension_of, envelope_of, equilibrium_settings, MINIMUM, shortfalls, verdict
+from homogenization.learning.envelope import (dimension_of, envelope_of, equilibrium_settings, escalation_of, MINIMUM,
+                                              shortfalls, verdict)
 from homogenization.backends import make_cell_model
 from training.checkpoint import metadata_path, read_metadata
 from training.ood import state_features
@@ -169,15 +170,16 @@ def _spatial_tests(pressures: Sequence[float], eps_max: float, increment: float
 def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
                        increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
                        spatial_rule: Sequence[int] = SPATIAL_RULE, equilibrium_corrections: int = 0,
-                       equilibrium_tolerance: float | None = None) -> dict[str, Any]:
+                       equilibrium_tolerance: float | None = None, dem_escalation: bool = False) -> dict[str, Any]:
     """The ``settings`` a certificate of cells of dimension ``dim`` records for these options
     (planar: ``n_orientations``; spatial: ``spatial_rule`` as [order, spins], with the spins
     staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation3d``;
     with ``equilibrium_corrections`` K > 0 also K and ``equilibrium_tolerance``, the resolved force
-    ratio [-] of the hybrid its tests ran: ``envelope.equilibrium_settings``)."""
+    ratio [-] of the hybrid its tests ran: ``envelope.equilibrium_settings``, and ``dem_escalation``, whether
+    it handed the cells with a released grain to the DEM: ``envelope.escalation_of``)."""
     settings = {"pressures": [float(p) for p in pressures], "eps_max": float(eps_max), "increment": float(increment)}
-    hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": float(equilibrium_tolerance)}
-              if equilibrium_corrections else {})
+    hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": float(equilibrium_tolerance),
+               "dem_escalation": bool(dem_escalation)} if equilibrium_corrections else {})
     if dim == 3:
         return {**settings, "spatial_rule": [int(k) for k in spatial_rule], "staggered_spins": True, **hybrid}
     return {**settings, "n_orientations": int(n_orientations), **hybrid}
@@ -207,7 +209,7 @@ class _Counter:
         self._last: object = None
         self._counted_test = 0
         self.corrections = {"steps": 0, "n_corrected": 0, "n_corrections": 0, "n_shortened": 0, "n_shifted": 0,
-                            "n_unconverged": 0,
+                            "n_unconverged": 0, "n_escalated": 0,
                             "force_ratio_network_max": 0.0, "force_ratio_max": 0.0}
 
     def __getattr__(self, name: str) -> Any:
@@ -237,8 +239,8 @@ class _Counter:
             return
         tally = self.corrections
         tally["steps"] += 1
-        for key in ("n_corrected", "n_corrections", "n_shortened", "n_shifted", "n_unconverged"):
-            tally[key] += int(diagnostics[key])
+        for key in ("n_corrected", "n_corrections", "n_shortened", "n_shifted", "n_unconverged", "n_escalated"):
+            tally[key] += int(diagnostics.get(key, 0))
         for key in ("force_ratio_network_max", "force_ratio_max"):
             tally[key] = max(tally[key], float(diagnostics[key]))
 
@@ -380,7 +382,8 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     requested = requested_settings(meso.dim, pressures=pressures, eps_max=eps_max, increment=increment,
                                    n_orientations=n_orientations, spatial_rule=spatial_rule,
                                    equilibrium_corrections=equilibrium_corrections,
-                                   equilibrium_tolerance=ann.force_tolerance if equilibrium_corrections else None)
+                                   equilibrium_tolerance=ann.force_tolerance if equilibrium_corrections else None,
+                                   dem_escalation=ann.escalation is not None)
     results = []
     n_cells = 0
     counter = _Counter(ann)
@@ -492,8 +495,8 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
 def _hybrid_of(cert: dict[str, Any]) -> dict[str, Any]:
     """The ANN backend's keywords of the surrogate certificate ``cert`` measured (K = 0: the network alone)."""
     corrections, tolerance = equilibrium_settings(cert)
-    return ({"equilibrium_corrections": corrections, "equilibrium_tolerance": tolerance} if corrections
-            else {"equilibrium_corrections": 0})
+    return ({"equilibrium_corrections": corrections, "equilibrium_tolerance": tolerance,
+             "dem_escalation": escalation_of(cert)} if corrections else {"equilibrium_corrections": 0})
 
 
 def summary_lines(cert: dict[str, Any]) -> list[str]:
@@ -525,7 +528,8 @@ def summary_lines(cert: dict[str, Any]) -> list[str]:
                         if "n_shortened" in tally else "")
                      + ") over "
                      f"{tally['steps']} ANN calls, {tally['n_unconverged']} left above the tolerance, "
-                     f"largest force ratio {tally['force_ratio_network_max']:.3g} before, {tally['force_ratio_max']:.3g} after")
+                     + (f"{tally.get('n_escalated', 0)} handed to the DEM (a released grain), " if escalation_of(cert) else "")
+                     + f"largest force ratio {tally['force_ratio_network_max']:.3g} before, {tally['force_ratio_max']:.3g} after")
     result = verdict(cert)
     figures = (f"worst {100 * cert['worst']:.3f} % ({cert['worst_test']}), target {100 * cert['target']:.3g} %, "
                f"{cert['seconds']:.1f} s")

@@ -224,3 +224,9 @@ def equilibrium_settings(cert: dict[str, Any]) -> tuple[int, float | None]:
     settings = cert.get("settings", {})
     corrections = int(settings.get("equilibrium_corrections", 0))
     return (corrections, float(settings["equilibrium_tolerance"])) if corrections else (0, None)
+
+
+def escalation_of(cert: dict[str, Any]) -> bool:
+    """Whether the hybrid that certificate ``cert`` measured handed the cells with a released grain to the DEM
+    (``homogenization.backends.escalation``; False where it records nothing: certified before that rule)."""
+    return bool(cert.get("settings", {}).get("dem_escalation", False))

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -168,6 +168,32 @@ def canonical_dem_arrays(context: ProbeContext, ev: Mapping[str, np.ndarray], ce
     }
 
 
+def step_from_rest(context: ProbeContext, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
+                   d_eps: np.ndarray, state_of: Callable[[dict], Any] | None = None
+                   ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], Any]:
+    """The DEM's increment of learning states from their canonical form (module docstring), one batch.
+
+    Args:
+        cell_size (n, dim) [m], free_position (n, n_free) [m], shear_force (n, ``*schema.shear_shape``) [N]:
+            the learning states; d_eps (n, dim) [-]: the local strain increments, compression positive.
+        state_of: builds the cell model's state from the canonical arrays (None: its ``state_from_arrays``;
+            a caller that steps batches of one size again and again may keep their model).
+
+    Returns:
+        (the contact-law evaluation of the states, ``learning_state.evaluate``; the DEM's state arrays after
+        the increment, ``cell_model.state_to_arrays``; its ``CellResponse``). Unconverged cells are flagged
+        in the arrays' ``converged``, not warned about.
+    """
+    before = evaluate(context.schema, cell_size, free_position, shear_force, context.contact_law,
+                      context.contact_tolerance)
+    cm = context.cell_model
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        arrays = canonical_dem_arrays(context, before, cell_size)
+        new, response = cm.step((state_of or cm.state_from_arrays)(arrays), d_eps)
+    return before, cm.state_to_arrays(new), response
+
+
 def compute_chunk(context: ProbeContext, settings: DatabaseSettings, seed: int, chunk: int) -> dict[str, np.ndarray]:
     """All samples of one chunk, computed as ONE DEM batch (module docstring).
 
@@ -190,12 +216,7 @@ def compute_chunk(context: ProbeContext, settings: DatabaseSettings, seed: int, 
     states = context.states
     cell_size = np.array(states[DEM_PREFIX + "cell_size"][index])
     free = free_coordinates(schema, states[DEM_PREFIX + "position"][index]) + displacement
-    before = evaluate(schema, cell_size, free, states[DEM_PREFIX + "shear_force"][index], law, tol)
-    cm = context.cell_model
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # unconverged probes are flagged in `converged`
-        new, _ = cm.step(cm.state_from_arrays(canonical_dem_arrays(context, before, cell_size)), d_eps)
-    dem = cm.state_to_arrays(new)
+    before, dem, _ = step_from_rest(context, cell_size, free, states[DEM_PREFIX + "shear_force"][index], d_eps)
     after_free = free_coordinates(schema, dem["position"])
     after = evaluate(schema, dem["cell_size"], after_free, dem["shear_force"], law, tol)
     out = {**_features(before, cell_size, free, "before/"), **_features(after, dem["cell_size"], after_free, "after/")}

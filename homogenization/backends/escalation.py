@@ -1,0 +1,96 @@
+"""The DEM's own increment for the cells of the meso-ANN hybrid whose free grain the corrections cannot place.
+
+The equilibrium corrections of the hybrid (``training.fast_equilibrium3d``, ``training.equilibrium``)
+move the free grains by the contact forces on them. A free grain that moved during an increment and
+ends it touching nothing (no pair of it overlaps) carries no force, so the corrections leave it where
+the network put it. The DEM moves such a grain only as far as its neighbours push it: it ends where
+the last contact lets it go, in the direction the contact forces drove it. Where the network's guess
+overshoots or turns that motion (a fine grain pushed off a lateral sphere, then sliding along it), the
+difference accumulates over the increments and decides when the grain engages or leaves its wedge,
+which the homogenised stress shows as a drop at another strain (docs/ann.md, "Released grains").
+
+``released_cells`` finds those cell-increments; ``DemEscalation.advance`` replaces them by the
+DEM's increment from the cell's learning state at rest, the very map the database samples
+(``warp_hcell.database.probing.step_from_rest``). The ANN backend counts them in ``n_escalated``.
+
+Sign convention: compression positive (moments as the DEM backend's ``CellResponse``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.database.learning_state import evaluate, free_coordinates, positions
+from warp_hcell.database.probing import ProbeContext, step_from_rest
+from warp_hcell.dem.cell import DemCell, DemCellState
+from warp_hcell.dem.model import DemModel
+from warp_hcell.dem.state import DemState
+from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+
+def released_cells(schema, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray) -> np.ndarray:
+    """bool (n,): cells with a free grain that moved over the increment (a free coordinate changed) and
+    touches nothing at its end (no pair of it overlaps); ``schema``: the cells' ``StateSchema``; cell_size
+    (n, dim) [m] and free_after (n, n_free) [m]: the state after the increment, free_before: before it."""
+    x = positions(schema, cell_size, free_after)
+    pairs = schema.pairs
+    branch = x[:, pairs[:, 1]] - x[:, pairs[:, 0]]
+    overlapping = np.linalg.norm(branch, axis=-1) < schema.radius[pairs[:, 0]] + schema.radius[pairs[:, 1]]
+    n_grains = schema.radius.shape[0]
+    incidence = np.zeros((pairs.shape[0], n_grains))
+    incidence[np.arange(pairs.shape[0]), pairs[:, 0]] = 1.0
+    incidence[np.arange(pairs.shape[0]), pairs[:, 1]] = 1.0
+    touching = overlapping.astype(np.float64) @ incidence > 0.0
+    owner = np.zeros((schema.free_dofs.shape[0], n_grains))
+    owner[np.arange(schema.free_dofs.shape[0]), schema.free_dofs[:, 0]] = 1.0
+    moved = (free_after != free_before).astype(np.float64) @ owner > 0.0
+    return np.any(moved & ~touching, axis=1)
+
+
+class DemEscalation:
+    """The DEM's increment of learning states of cells of ``meso`` (the model's own mesostructure), from rest.
+
+    Batches are padded to a power of two cells (the last cell repeated) and each size keeps its DEM cell
+    model and DEM model, so that the next call of that size reuses them and their integrator (building
+    them costs more than stepping a few cells).
+
+    Args:
+        meso: the mesostructure the model was trained on (its learning state is the model's).
+        contact_law: the model's contact law; contact_tolerance: its DEM's (``DemSettings.contact_tolerance``).
+    """
+
+    def __init__(self, meso: Mesostructure, contact_law: ContactLaw, contact_tolerance: float) -> None:
+        self.meso = meso
+        self.schema = meso.schema()
+        self.contact_law = contact_law
+        self.contact_tolerance = float(contact_tolerance)
+        self._batches: dict[int, tuple[ProbeContext, DemModel]] = {}
+
+    def _batch(self, n: int) -> tuple[ProbeContext, DemModel]:
+        """The probe context and the DEM model of batches of ``n`` cells (built once)."""
+        if n not in self._batches:
+            settings = DemSettings(contact_tolerance=self.contact_tolerance)
+            cell_model = DemCell(self.contact_law, float(self.meso.radius.mean()), settings=settings, threads=1)
+            model = DemModel.build(self.meso, n, contact_law=self.contact_law, settings=settings)
+            self._batches[n] = (ProbeContext(cell_model, self.meso, self.schema, {}, self.contact_law,
+                                             self.contact_tolerance), model)
+        return self._batches[n]
+
+    def advance(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
+                d_eps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The DEM's increment of the cells (first axis n) from their learning states at rest.
+
+        Returns (cell_size (n, dim) [m], free_position (n, n_free) [m], shear_force (capped, zero out of
+        contact: the learning state's) [N], moment (n, dim, dim) [N m], area (n,) [m^dim]) after it."""
+        n = cell_size.shape[0]
+        rows = np.minimum(np.arange(1 << (n - 1).bit_length()), n - 1)
+        context, model = self._batch(rows.size)
+        _, after, response = step_from_rest(
+            context, *(np.asarray(a)[rows] for a in (cell_size, free_position, shear_force, d_eps)),
+            state_of=lambda arrays: DemCellState(model, DemState.from_numpy(arrays, model.device)))
+        free = free_coordinates(self.schema, after["position"][:n])
+        shear = evaluate(self.schema, after["cell_size"][:n], free, after["shear_force"][:n], self.contact_law,
+                         self.contact_tolerance)["shear_force"]
+        return (after["cell_size"][:n], free, shear, np.asarray(response.moment)[:n],
+                np.asarray(response.area)[:n])

@@ -1,0 +1,100 @@
+"""The hybrid's DEM escalation (``homogenization.backends.escalation``): the cells where a free grain moved and
+ends touching nothing are found grain by grain, handed to the DEM's increment from rest, and counted."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ann3d_increment_worker import relaxing_network
+from homogenization.backends import ann as ann_backend
+from homogenization.backends.ann import AnnCell3D, default_model_path
+from homogenization.backends.escalation import DemEscalation, released_cells
+from training.inference import FastAdvance
+from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.database.learning_state import evaluate
+from warp_hcell.mesostructures.builders import mesostructure_arg
+
+ROOT = Path(__file__).resolve().parents[1]
+LARGE_AXIAL = ROOT / "benchmarks" / "cells" / "large_axial.toml"
+HARD_CASES = ROOT / "tests" / "data" / "equilibrium" / "large_axial_hard.npz"
+SHIPPED_3D = default_model_path(3)
+
+
+def _released_by_hand(schema, cell_size, before, after) -> np.ndarray:
+    """The cells with a free grain that moved and overlaps no other grain, one grain and one pair at a time."""
+    out = np.zeros(cell_size.shape[0], dtype=bool)
+    for c in range(cell_size.shape[0]):
+        x = schema.reference_position * cell_size[c] / schema.reference_cell_size
+        for k, (grain, axis) in enumerate(schema.free_dofs):
+            x[grain, axis] = after[c, k]
+        for grain in set(int(g) for g in schema.free_dofs[:, 0]):
+            moved = any(after[c, k] != before[c, k] for k, (g, _) in enumerate(schema.free_dofs) if g == grain)
+            touching = any(np.linalg.norm(x[j] - x[i]) < schema.radius[i] + schema.radius[j]
+                           for i, j in schema.pairs if grain in (i, j))
+            out[c] |= moved and not touching
+    return out
+
+
+def _hard_cases():
+    data = np.load(HARD_CASES)
+    return tuple(data[name] for name in ("cell_size", "free_position", "shear_force")), data["d_eps"]
+
+
+def test_released_cells_are_those_with_a_grain_that_moved_and_touches_nothing():
+    schema = mesostructure_arg(str(LARGE_AXIAL)).build(None).schema()
+    (size, free, shear), d_eps = _hard_cases()
+    inc = FastAdvance(relaxing_network(), 20, 1e-4)(size, free, shear, d_eps)
+    assert not released_cells(schema, inc.cell_size, inc.free_position, inc.free_position).any()  # nothing moved
+    fine = np.flatnonzero(schema.free_dofs[:, 0] == np.bincount(schema.free_dofs[:, 0]).argmax())
+    afloat = inc.free_position.copy()
+    afloat[:, fine] = free[:, fine] + np.array([0.0, 0.0, 1e-9])  # back near the pore centre, a hair off its start
+    pushed = inc.free_position.copy()
+    pushed[:, fine[0]] += 0.2  # into the axial sphere
+    centred = inc.free_position.copy()
+    centred[:, fine] = 0.0  # at the pore centre: clear of every sphere of this cell
+    for after in (inc.free_position, afloat, pushed, centred):
+        expected = _released_by_hand(schema, inc.cell_size, free, after)
+        assert np.array_equal(released_cells(schema, inc.cell_size, free, after), expected)
+    assert _released_by_hand(schema, inc.cell_size, free, centred).sum() >= 3
+    assert not released_cells(schema, inc.cell_size, free, pushed).any()
+
+
+def test_the_escalated_increment_is_the_dems_equilibrium_in_the_learning_state():
+    meso = mesostructure_arg(str(LARGE_AXIAL)).build(None)
+    law = ContactLaw()
+    (size, free, shear), d_eps = _hard_cases()
+    new_size, new_free, new_shear, moment, area = DemEscalation(meso, law, meso.contact_tolerance).advance(
+        size, free, shear, d_eps)
+    assert np.array_equal(new_size, size * (1.0 - d_eps))
+    ev = evaluate(meso.schema(), new_size, new_free, new_shear, law, meso.contact_tolerance)
+    assert np.array_equal(ev["shear_force"], new_shear)  # the learning state's springs: capped, zero out of contact
+    largest = ev["normal_force"].max(axis=1)
+    assert (np.abs(ev["unbalanced"]).max(axis=1) <= 1.0001 * DemSettings().force_tolerance * largest).all()
+    scale = np.abs(moment).max(axis=(1, 2))[:, None, None]
+    assert np.abs(ev["moment"].reshape(moment.shape) - moment).max() <= 1e-9 * scale.max()
+    assert np.allclose(ev["area"], area, rtol=1e-12)
+
+
+@pytest.mark.skipif(not SHIPPED_3D.is_file(), reason="3D model not installed")
+def test_the_hybrid_hands_the_released_cells_to_the_dem_and_counts_them(monkeypatch):
+    meso = mesostructure_arg("hcell3d:alpha0=55").build(None)
+    hybrid = AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=2, equilibrium_tolerance=1e-3,
+                       dem_escalation=True)
+    assert AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=2).escalation is None  # plain cell
+    assert AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=0).escalation is None
+    state = hybrid.init_state(meso, 3)
+    for _ in range(5):
+        state, _ = hybrid.step(state, np.full((3, 3), 2e-4))
+    d_eps = np.tile([1e-4, -5e-5, -5e-5], (3, 1))
+    plain, plain_response = hybrid.step(state, d_eps)
+    assert plain_response.diagnostics["n_escalated"] == 0  # the plain cell's grains stay in contact
+    monkeypatch.setattr(ann_backend, "released_cells", lambda *args: np.array([False, True, False]))
+    out, response = hybrid.step(state, d_eps)  # the detection is the test above's; here: what follows it
+    assert response.diagnostics["n_escalated"] == 1
+    dem = hybrid.escalation.advance(*(a[1:2] for a in state), d_eps[1:2])
+    for whole, part in zip((*out, response.moment, response.area), dem):
+        assert np.array_equal(whole[1:2], part)
+    for whole, kept in zip((*out, response.moment, response.area), (*plain, plain_response.moment, plain_response.area)):
+        assert np.array_equal(whole[[0, 2]], np.asarray(kept)[[0, 2]])
+    assert not np.array_equal(out.free_position[1], plain.free_position[1])
