@@ -47,7 +47,9 @@ where the tree differs), ``seconds``, with equilibrium corrections
 ANN calls of the tests, trial calls included: ``steps`` calls, ``n_corrected`` cell steps corrected,
 ``n_corrections`` Newton steps, ``n_shortened`` of them shortened by the line search and
 ``n_shifted`` with their matrix shifted (``training.fast_equilibrium3d``), ``n_unconverged`` cell
-steps left above the tolerance, the largest force ratios before and after,
+steps left above the tolerance, ``n_escalated`` cell steps handed to the DEM because a free grain ended
+released (``homogenization.backends.escalation``; the settings record ``dem_escalation``), the largest
+force ratios before and after,
 ``force_ratio_network_max`` and ``force_ratio_max``; the rollouts, reported only, run the network
 alone), and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <= target),
 ``below_minimum`` (where the settings are weaker than the minimum certificate ``MINIMUM``, whose
