@@ -224,7 +224,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     d_eps = read_path(args.path)
     meso = path_cell(args, d_eps.shape[1])
     check_path_for_backend(args.path, d_eps, args.backend)
-    if args.backend == DEM_ONLY_BACKEND and not args.verbose:
+    if args.backend in (DEM_ONLY_BACKEND, "ann") and not args.verbose:  # the ANN's hybrid may hand cells to the DEM
         quiet_warp(args.device)
     law = contact_law_from_args(args)
     model = make_cell_model(args.backend, contact_law=law, radius=args.radius, dim=meso.dim, **_backend_options(args))

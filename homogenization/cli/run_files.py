@@ -96,9 +96,10 @@ def check_options(args: argparse.Namespace, backends: Sequence[str] | None = Non
 def check_run(args: argparse.Namespace, figure_file: str, *extra_files: str) -> None:
     """What a run command checks before any work: --out (``check_output_path``,
     ``check_replaceable``; ``extra_files``: other files the command writes there) and the
-    backend-only flags (``check_options``); Warp's start-up lines are silenced where the DEM runs
-    and --verbose is not given."""
-    if "dem" in args.backend and not args.verbose:
+    backend-only flags (``check_options``); Warp's start-up lines are silenced where the DEM may run (the
+    DEM backend, and the ANN's hybrid, which hands cells with a released grain to it) and --verbose is not
+    given."""
+    if ("dem" in args.backend or "ann" in args.backend) and not args.verbose:
         quiet_warp(args.device)
     check_output_path(args.out, overwrite=args.overwrite)
     check_replaceable(args.out, figure_file, *extra_files)
