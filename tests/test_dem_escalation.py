@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 
 from ann3d_increment_worker import relaxing_network
-from homogenization.backends import ann as ann_backend
 from homogenization.backends.ann import AnnCell3D, default_model_path
-from homogenization.backends.escalation import DemEscalation, released_cells
+from homogenization.backends.escalation import DemEscalation
 from training.inference import FastAdvance
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.database.learning_state import evaluate
@@ -42,10 +41,12 @@ def _hard_cases():
 
 
 def test_released_cells_are_those_with_a_grain_that_moved_and_touches_nothing():
-    schema = mesostructure_arg(str(LARGE_AXIAL)).build(None).schema()
+    meso = mesostructure_arg(str(LARGE_AXIAL)).build(None)
+    schema = meso.schema()
+    released_cells = DemEscalation(meso, ContactLaw(), meso.contact_tolerance).released
     (size, free, shear), d_eps = _hard_cases()
     inc = FastAdvance(relaxing_network(), 20, 1e-4)(size, free, shear, d_eps)
-    assert not released_cells(schema, inc.cell_size, inc.free_position, inc.free_position).any()  # nothing moved
+    assert not released_cells(inc.cell_size, inc.free_position, inc.free_position).any()  # nothing moved
     fine = np.flatnonzero(schema.free_dofs[:, 0] == np.bincount(schema.free_dofs[:, 0]).argmax())
     afloat = inc.free_position.copy()
     afloat[:, fine] = free[:, fine] + np.array([0.0, 0.0, 1e-9])  # back near the pore centre, a hair off its start
@@ -55,9 +56,9 @@ def test_released_cells_are_those_with_a_grain_that_moved_and_touches_nothing():
     centred[:, fine] = 0.0  # at the pore centre: clear of every sphere of this cell
     for after in (inc.free_position, afloat, pushed, centred):
         expected = _released_by_hand(schema, inc.cell_size, free, after)
-        assert np.array_equal(released_cells(schema, inc.cell_size, free, after), expected)
+        assert np.array_equal(released_cells(inc.cell_size, free, after), expected)
     assert _released_by_hand(schema, inc.cell_size, free, centred).sum() >= 3
-    assert not released_cells(schema, inc.cell_size, free, pushed).any()
+    assert not released_cells(inc.cell_size, free, pushed).any()
 
 
 def test_the_escalated_increment_is_the_dems_equilibrium_in_the_learning_state():
@@ -89,7 +90,7 @@ def test_the_hybrid_hands_the_released_cells_to_the_dem_and_counts_them(monkeypa
     d_eps = np.tile([1e-4, -5e-5, -5e-5], (3, 1))
     plain, plain_response = hybrid.step(state, d_eps)
     assert plain_response.diagnostics["n_escalated"] == 0  # the plain cell's grains stay in contact
-    monkeypatch.setattr(ann_backend, "released_cells", lambda *args: np.array([False, True, False]))
+    monkeypatch.setattr(hybrid.escalation, "released", lambda *args: np.array([False, True, False]))
     out, response = hybrid.step(state, d_eps)  # the detection is the test above's; here: what follows it
     assert response.diagnostics["n_escalated"] == 1
     dem = hybrid.escalation.advance(*(a[1:2] for a in state), d_eps[1:2])

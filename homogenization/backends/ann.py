@@ -85,7 +85,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 import torch
 
-from homogenization.backends.escalation import DemEscalation, released_cells
+from homogenization.backends.escalation import DemEscalation
 from homogenization.learning import envelope
 from homogenization.learning.settings import has_fine_grains
 from homogenization.material.orientation3d import cell_kinematics, kinematics_of
@@ -461,11 +461,11 @@ class AnnCell(ArrayStateMixin):
     def _escalated(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState,
                    response: CellResponse) -> tuple[AnnState, CellResponse]:
         """``new`` and ``response`` with the DEM's increment in the cells a released grain leaves to it
-        (``escalation.released_cells``; hybrids with ``dem_escalation`` only), counted in ``n_escalated``.
+        (``DemEscalation.released``; hybrids with ``dem_escalation`` only), counted in ``n_escalated``.
         The tangent of such a cell stays the hybrid's (stress control's search direction only)."""
         if self.escalation is None:
             return new, response
-        released = released_cells(self.escalation.schema, new.cell_size, state.free_position, new.free_position)
+        released = self.escalation.released(new.cell_size, state.free_position, new.free_position)
         response.diagnostics["n_escalated"] = float(np.count_nonzero(released))
         if not released.any():
             return new, response

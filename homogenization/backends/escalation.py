@@ -9,7 +9,7 @@ overshoots or turns that motion (a fine grain pushed off a lateral sphere, then 
 difference accumulates over the increments and decides when the grain engages or leaves its wedge,
 which the homogenised stress shows as a drop at another strain (docs/ann.md, "Released grains").
 
-``released_cells`` finds those cell-increments; ``DemEscalation.advance`` replaces them by the
+``DemEscalation.released`` finds those cell-increments; ``DemEscalation.advance`` replaces them by the
 DEM's increment from the cell's learning state at rest, the very map the database samples
 (``warp_hcell.database.probing.step_from_rest``). The ANN backend counts them in ``n_escalated``.
 
@@ -27,25 +27,6 @@ from warp_hcell.dem.cell import DemCell, DemCellState
 from warp_hcell.dem.model import DemModel
 from warp_hcell.dem.state import DemState
 from warp_hcell.mesostructures.mesostructure import Mesostructure
-
-
-def released_cells(schema, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray) -> np.ndarray:
-    """bool (n,): cells with a free grain that moved over the increment (a free coordinate changed) and
-    touches nothing at its end (no pair of it overlaps); ``schema``: the cells' ``StateSchema``; cell_size
-    (n, dim) [m] and free_after (n, n_free) [m]: the state after the increment, free_before: before it."""
-    x = positions(schema, cell_size, free_after)
-    pairs = schema.pairs
-    branch = x[:, pairs[:, 1]] - x[:, pairs[:, 0]]
-    overlapping = np.linalg.norm(branch, axis=-1) < schema.radius[pairs[:, 0]] + schema.radius[pairs[:, 1]]
-    n_grains = schema.radius.shape[0]
-    incidence = np.zeros((pairs.shape[0], n_grains))
-    incidence[np.arange(pairs.shape[0]), pairs[:, 0]] = 1.0
-    incidence[np.arange(pairs.shape[0]), pairs[:, 1]] = 1.0
-    touching = overlapping.astype(np.float64) @ incidence > 0.0
-    owner = np.zeros((schema.free_dofs.shape[0], n_grains))
-    owner[np.arange(schema.free_dofs.shape[0]), schema.free_dofs[:, 0]] = 1.0
-    moved = (free_after != free_before).astype(np.float64) @ owner > 0.0
-    return np.any(moved & ~touching, axis=1)
 
 
 class DemEscalation:
@@ -66,6 +47,24 @@ class DemEscalation:
         self.contact_law = contact_law
         self.contact_tolerance = float(contact_tolerance)
         self._batches: dict[int, tuple[ProbeContext, DemModel]] = {}
+        pairs, free_dofs, n_grains = self.schema.pairs, self.schema.free_dofs, self.schema.radius.shape[0]
+        self._contact_reach = self.schema.radius[pairs[:, 0]] + self.schema.radius[pairs[:, 1]]
+        self._pair_grains = np.zeros((pairs.shape[0], n_grains))
+        self._pair_grains[np.arange(pairs.shape[0]), pairs[:, 0]] = 1.0
+        self._pair_grains[np.arange(pairs.shape[0]), pairs[:, 1]] = 1.0
+        self._dof_grains = np.zeros((free_dofs.shape[0], n_grains))
+        self._dof_grains[np.arange(free_dofs.shape[0]), free_dofs[:, 0]] = 1.0
+
+    def released(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray) -> np.ndarray:
+        """bool (n,): cells with a free grain that moved over the increment (a free coordinate changed) and
+        touches nothing at its end (no pair of it overlaps); cell_size (n, dim) [m] and free_after (n, n_free)
+        [m]: the state after the increment, free_before: before it."""
+        x = positions(self.schema, cell_size, free_after)
+        pairs = self.schema.pairs
+        overlapping = np.linalg.norm(x[:, pairs[:, 1]] - x[:, pairs[:, 0]], axis=-1) < self._contact_reach
+        touching = overlapping.astype(np.float64) @ self._pair_grains > 0.0
+        moved = (free_after != free_before).astype(np.float64) @ self._dof_grains > 0.0
+        return np.any(moved & ~touching, axis=1)
 
     def _batch(self, n: int) -> tuple[ProbeContext, DemModel]:
         """The probe context and the DEM model of batches of ``n`` cells (built once)."""
