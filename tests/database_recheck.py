@@ -13,7 +13,8 @@ def recheck_against_the_dem(data, meso, rows, threads=None):
     stored learning state and after-state to be the DEM's own.
 
     The before-state's normal and unbalanced forces are recomputed from its sizes, free
-    positions and springs (exactly, then rounded to the stored dtype); one DEM step of the stored ``d_eps`` from it gives the
+    positions and springs (exactly, then rounded to the stored dtype); one DEM step of the stored ``d_eps`` from it, from rest
+    (``DemCell.at_rest``), gives the
     stored free positions, cell sizes and contacts exactly, and the stored cell moment (dim x
     dim) to rounding (float32). Returns the after-state's arrays of the DEM.
     """
@@ -26,8 +27,8 @@ def recheck_against_the_dem(data, meso, rows, threads=None):
         stored = data[f"before/{name}"][rows]
         np.testing.assert_array_equal(before[name].astype(stored.dtype), stored)
     cell = context.cell_model
-    new, response = cell.step(cell.state_from_arrays(probing.canonical_dem_arrays(
-        context, before, data["before/cell_size"][rows])), data["d_eps"][rows])
+    new, response = cell.step(cell.at_rest(cell.state_from_arrays(probing.canonical_dem_arrays(
+        context, before, data["before/cell_size"][rows]))), data["d_eps"][rows])
     arrays = cell.state_to_arrays(new)
     np.testing.assert_array_equal(free_coordinates(schema, arrays["position"]), data["after/free_position"][rows])
     np.testing.assert_array_equal(arrays["cell_size"], data["after/cell_size"][rows])

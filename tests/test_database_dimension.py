@@ -28,13 +28,13 @@ from warp_hcell.mesostructures.mesostructure import cell_measure
 from warp_hcell.core.parameters import DatabaseSettings
 
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
-H_CELL_DIGEST = "136ea1afc569d53d2dd746a432948a2d8eb3be235d7f87e1d80461a3726f1538"
+H_CELL_DIGEST = "268e13a9be8d013bfc8ac2ef769005565d2d30a763c14f3af3b35de760efa2e8"
 """sha256 (``array_digest``) of the arrays of the H-cell database of ``h_cell_database`` (54 datasets)."""
-FINE_DIGEST = "c3c8cf81840b4ba05b9863553fd7b8323c8a401aedb8c228a30c81b9a2c02976"
+FINE_DIGEST = "e29f4534fc6a046f7b4165930193b8bdae21e759ce28ff4fc27b48ad595445f9"
 """The same for the cell with a fine grain (``h_cell_fine_grain.toml``)."""
-SPATIAL_DIGEST = "66c76b00c432fd690132ac4d3cd9cadf3bc49ac1756a09f859c3431b17f20b2c"
+SPATIAL_DIGEST = "96ed482fb209420cc83d0a618de6f2a94cdc0c4478d1420fa8f0a7d43b16be0a"
 """The same for the ``TINY_3D`` database of the ten-sphere H-cell (``spatial_path``)."""
-FINES_3D_DIGEST = "183bf108e2e2efcd579d75e29bfc6bed4a84bbf1e115b741e6e7070ea979be8c"
+FINES_3D_DIGEST = "6693a6be0c57fe1f05c730c399c12712401206856c0429494c9c424a4963d4ec"
 """The same for the ten-sphere cell with a free fine grain (``fines_db``)."""
 
 

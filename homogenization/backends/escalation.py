@@ -69,7 +69,7 @@ class DemEscalation:
     def _batch(self, n: int) -> tuple[ProbeContext, DemModel]:
         """The probe context and the DEM model of batches of ``n`` cells (built once)."""
         if n not in self._batches:
-            settings = DemSettings(contact_tolerance=self.contact_tolerance)
+            settings = DemSettings(contact_tolerance=self.contact_tolerance).from_rest
             cell_model = DemCell(self.contact_law, float(self.meso.radius.mean()), settings=settings, threads=1)
             model = DemModel.build(self.meso, n, contact_law=self.contact_law, settings=settings)
             self._batches[n] = (ProbeContext(cell_model, self.meso, self.schema, {}, self.contact_law,

@@ -91,7 +91,7 @@ def check_increments(settings: DatabaseSettings, dem_settings: DemSettings) -> N
     """Raise ValueError (one line) when an exploration increment or a probe needs more DEM
     substeps than ``max_substeps`` allows."""
     largest = max(settings.sample_spacing, settings.probe_max)
-    finest = dem_settings.refined_strain_per_substep
+    finest = dem_settings.from_rest.refined_strain_per_substep
     if math.ceil(largest / finest) > dem_settings.max_substeps:
         raise ValueError(f"increment {largest:g} needs more substeps than max_substeps = {dem_settings.max_substeps} "
                          f"at {finest:g} per substep")

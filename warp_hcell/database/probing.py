@@ -13,7 +13,8 @@ only relaxes the state).
 
 Every start state is put in the canonical form of its learning state before the step:
 driven DOFs at x_ref * l / l_ref of the schema's reference, velocities zero, tangential forces
-after the contact-law evaluation (capped, zero out of contact). The stored "before" state
+after the contact-law evaluation (capped, zero out of contact); it is stepped from rest
+(``DemCell.at_rest``: at ``DemSettings.rest_strain_per_substep``). The stored "before" state
 therefore determines the DEM's "after" state exactly (with the probe and the schema).
 
 ``compute_chunk(context, settings, seed, chunk)`` depends on nothing else: chunk c draws
@@ -190,7 +191,7 @@ def step_from_rest(context: ProbeContext, cell_size: np.ndarray, free_position: 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         arrays = canonical_dem_arrays(context, before, cell_size)
-        new, response = cm.step((state_of or cm.state_from_arrays)(arrays), d_eps)
+        new, response = cm.step(cm.at_rest((state_of or cm.state_from_arrays)(arrays)), d_eps)
     return before, cm.state_to_arrays(new), response
 
 

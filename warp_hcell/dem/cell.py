@@ -129,15 +129,19 @@ class DemCell:
 
     @staticmethod
     def at_rest(state: DemCellState) -> DemCellState:
-        """``state`` with its velocity memory zero: stepped, it starts from rest, as a state no step
-        produced (``DemState.velocity``; the rate starts again from refined_strain_per_substep and
-        the free grains are not predicted, ``warp_hcell.dem.kernels``). The database probes every
-        state so (``warp_hcell.database.probing``, canonical form).
+        """``state`` with its velocity memory zero and its model's settings ``DemSettings.from_rest``: stepped,
+        it starts from rest, as a state no step produced (``DemState.velocity``; the free grains are not
+        predicted and the rate starts from rest_strain_per_substep, ``warp_hcell.dem.kernels``). The database
+        probes every state so (``warp_hcell.database.probing``, canonical form).
 
         Pure: ``state`` is not modified; the other fields are shared with it (a step never writes
-        its input).
+        its input), and so is its model where its settings are already those from rest.
         """
-        return DemCellState(state.model, replace(state.dem, velocity=wp.zeros_like(state.dem.velocity)))
+        model = state.model
+        rest = model.settings.from_rest
+        if rest is not model.settings:
+            model = replace(model, settings=rest)
+        return DemCellState(model, replace(state.dem, velocity=wp.zeros_like(state.dem.velocity)))
 
     def _tangent(self, old: DemCellState, new: DemCellState) -> np.ndarray:
         """Condensed tangent of ``new``; driven DOFs move as x_ref l_old / l_ref per unit strain."""
