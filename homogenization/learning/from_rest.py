@@ -3,9 +3,10 @@
 A DEM state carries a memory of the increment that produced it (``warp_hcell.dem.state.DemState.velocity``),
 from which the next step sets its driving rate and predicts its free grains (``warp_hcell.dem.kernels``,
 "memory", "adaptive rate and prediction"). ``FromRest`` forgets it before every step
-(``warp_hcell.dem.cell.DemCell.at_rest``): each increment starts from rest, as the database probes every
+(``warp_hcell.dem.cell.DemCell.at_rest``, which also drives the increment at
+``DemSettings.rest_strain_per_substep``): each increment starts from rest, as the database probes every
 state (``warp_hcell.database.probing``), so it is the map the network is trained on. Where the response
-drops in a sawtooth (a fine grain leaving its wedge), when a drop happens depends on such details, and the
+drops in a sawtooth (a fine grain leaving its wedge), when a drop happens depends on such details; the
 two DEMs differ there by what the certificate cannot resolve (``certificate.certify``, ``dem_spread``).
 """
 
