@@ -12,7 +12,11 @@ every cell are kept, and the script prints
   and the hybrid's move of it over the increment [um], and the hybrid's force ratios (the network's
   guess, after the corrections) and Newton steps;
 - from the DEM's own state at the onset of the first departing cell: the DEM's increment, the network's alone and the
-  hybrid's, of that cell's most-moved free grain [um] (whether the corrections moved it at all).
+  hybrid's, of that cell's most-moved free grain [um] (whether the corrections moved it at all); then, under the
+  hybrid's one-increment contact law (``training.equilibrium.balance``), the force ratio of the DEM's end and where
+  the corrections land with the diagonal stiffness of their Newton matrix set to each of --regularisations (the
+  package's: ``training.fast_equilibrium3d.REGULARISATION``): several balanced ends far apart are equilibria
+  that the exact law does not tell apart.
 
 Strains [-], compression positive; DOFs numbered as the model's free_dofs (0-based).
 """
@@ -71,6 +75,8 @@ def main(argv=None) -> int:
     parser.add_argument("--onset", type=positive_float, default=1e-5,
                         help="the departure [m] whose increment is shown in detail (the onset)")
     parser.add_argument("--shown", type=positive_int, default=4, help="departing cells shown in detail")
+    parser.add_argument("--regularisations", default="1e-9,1e-5,1e-4,1e-3,1e-2",
+                        help="comma-separated diagonal stiffnesses of the Newton matrix, fractions of kn [-]")
     args = parser.parse_args(argv)
 
     from homogenization.backends import make_cell_model
@@ -129,7 +135,34 @@ def main(argv=None) -> int:
         print(f"from the DEM's state of increment {i}, cell {c}, grain {grain} (DOFs {cols.tolist()}), its move [um]:")
         for name, after in moves.items():
             print(f"  {name:>13}: {np.array2string(1e6 * (after[c, cols] - learning.free_position[c, cols]), precision=3)}")
+        _landings(hybrid, learning, d_eps, after_dem, c, cols, args)
     return 0
+
+
+def _landings(hybrid, learning, d_eps, after_dem, c, cols, args) -> None:
+    """Print the force ratio, under the one-increment contact law, of the DEM's end of cell ``c`` and of the
+    corrections' ends at each of ``args.regularisations``, with the move of DOFs ``cols`` [um]."""
+    import torch
+
+    from training.equilibrium import balance, corrected_advance
+    from training.network import features_and_contacts
+
+    net = hybrid.net
+    size, free, shear, strain = (torch.as_tensor(np.asarray(a, dtype=np.float64)[c:c + 1]) for a in
+                                 (learning.cell_size, learning.free_position, learning.shear_force, d_eps))
+    old = features_and_contacts(net.schema, net.active_index, size, free, shear, strain, net.load_features)[3]
+    ends = {"DEM": torch.as_tensor(after_dem[c:c + 1]) - free}
+    with torch.no_grad():
+        for text in args.regularisations.split(","):
+            out = corrected_advance(net, size, free, shear, strain, args.corrections, args.tolerance,
+                                    regularisation=float(text))
+            ends[f"corrections at {float(text):g} kn ({int(out.corrections[0])} steps)"] = (
+                out.increment.free_position - free)
+        print("under the one-increment contact law: force ratio at the end, and the move [um]:")
+        for name, d in ends.items():
+            residual, fn_max = balance(net.schema, size, free, shear, strain, d, old)
+            print(f"  {name:>34}: {float(residual.abs().max() / fn_max.max()):.2e}  "
+                  f"{np.array2string(1e6 * d[0, cols].numpy(), precision=3)}")
 
 
 if __name__ == "__main__":

@@ -108,8 +108,11 @@ def _line_search(schema, state, d_eps, d, delta, residual, active, full, halving
 
 
 def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps, iterations: int,
-                      tolerance: float, halvings: int = HALVINGS, shift: float = SHIFT) -> Corrected:
-    """``MesoNet.advance`` with up to ``iterations`` exact Newton corrections (module docstring)."""
+                      tolerance: float, halvings: int = HALVINGS, shift: float = SHIFT,
+                      regularisation: float = REGULARISATION) -> Corrected:
+    """``MesoNet.advance`` with up to ``iterations`` exact Newton corrections (module docstring);
+    ``regularisation`` [-] the diagonal stiffness added to -J as a fraction of kn (the package's
+    ``REGULARISATION``; another value only to study where the steps land, benchmarks/diagnose_hybrid_paths.py)."""
     schema = net.schema
     feats, m, unbalanced, old = features_and_contacts(schema, net.active_index, cell_size, free_position,
                                                       shear_force, d_eps, net.load_features)
@@ -140,7 +143,7 @@ def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps
             break
         delta = torch.zeros_like(d)
         full = torch.zeros_like(active)
-        delta[active], full[active] = _downhill(-jac[active] + REGULARISATION * schema.kn * eye, residual[active],
+        delta[active], full[active] = _downhill(-jac[active] + regularisation * schema.kn * eye, residual[active],
                                                 shift * schema.kn)
         steps[active] += 1
         shifted += full.to(shifted.dtype)
@@ -151,7 +154,7 @@ def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps
         with torch.enable_grad():
             r_eps, _ = balance(schema, *state, d_eps, d, old)
         _, _, jac = _jacobian(schema, state, d_eps, d, old)
-        delta = torch.linalg.solve(-jac + REGULARISATION * schema.kn * eye, r_eps.unsqueeze(-1)).squeeze(-1)
+        delta = torch.linalg.solve(-jac + regularisation * schema.kn * eye, r_eps.unsqueeze(-1)).squeeze(-1)
         implicit = d + (delta - delta.detach())
         d = torch.where(corrected.unsqueeze(-1), implicit, d_net)
     else:
