@@ -26,7 +26,8 @@ compiled and the torch path), to measure what the globalisation adds.
 
 ``--escalation on,off`` adds rows of the hybrid that keeps the corrections' result where a free grain moved
 and ends touching nothing (the package hands those cells to the DEM: ``homogenization.backends.escalation``;
-the column "to DEM" counts them); ``--from-rest`` adds the DEM started from rest in every increment (the map
+the column "to DEM" counts them), ``sliding`` rows of a hybrid that also hands the DEM the cells where a grain
+free along every axis slides (``DemEscalation(sliding=True)``, not the package's default); ``--from-rest`` adds the DEM started from rest in every increment (the map
 the database samples), the DEM's own reproducibility. Beside the largest difference, the column "+-W inc."
 is the largest difference of p and q when each increment may be matched with one of the other curve's within
 ``--window`` W increments (a drop at another increment costs nothing there); with ``--from-rest`` each
@@ -202,8 +203,9 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", default="globalised", help="comma-separated Newton steps of the corrections: "
                         "globalised (the package's: shifted where they climb, halved by the line search) or full "
                         "(plain Newton steps, halvings 0 and shift 0 in both paths)")
-    parser.add_argument("--escalation", default="on", help="comma-separated on/off: the hybrid hands the cells with a "
-                        "released grain to the DEM (homogenization.backends.escalation) or not")
+    parser.add_argument("--escalation", default="on", help="comma-separated on/off/sliding: the hybrid hands the cells "
+                        "with a released grain to the DEM (homogenization.backends.escalation) or not, or also "
+                        "those where a free grain slides (DemEscalation(sliding=True), not the package's)")
     parser.add_argument("--from-rest", action="store_true", help="also the DEM started from rest in every increment "
                         "(the map the database samples): the DEM's own reproducibility")
     parser.add_argument("--window", type=positive_int, default=20, help="increments of the windowed difference")
@@ -221,8 +223,8 @@ def main(argv=None) -> int:
     guesses = args.guesses.split(",")
     rules = args.steps.split(",")
     escalations = args.escalation.split(",")
-    if any(e not in ("on", "off") for e in escalations):
-        parser.error(f"--escalation {args.escalation}: on and/or off")
+    if any(e not in ("on", "off", "sliding") for e in escalations):
+        parser.error(f"--escalation {args.escalation}: on, off and/or sliding")
     if any(rule not in ("globalised", "full") for rule in rules):
         parser.error(f"--steps {args.steps}: globalised and/or full")
     if any(g != "network" for g in guesses) and args.test != "undrained":
@@ -231,6 +233,7 @@ def main(argv=None) -> int:
     from homogenization.backends import make_cell_model
     from homogenization.backends import ann as ann_backend
     from homogenization.backends.ann import AnnCell3D
+    from homogenization.backends.escalation import DemEscalation
     from homogenization.element_test.driver import ControlError
     from training.equilibrium import corrected_advance
     from training.inference import FastAdvance
@@ -268,9 +271,13 @@ def main(argv=None) -> int:
                 if (guess == "network" or k) and (k or (rule == rules[0] and esc == escalations[0]))]
     for guess, k, tol, rule, esc in variants:
         name = ("network alone" if not k else f"{guess} + {k}" + (f" @{tol:g}" if len(tolerances) > 1 else "")
-                + (f" {rule}" if len(rules) > 1 else "") + (" no DEM" if esc == "off" and len(escalations) > 1 else ""))
+                + (f" {rule}" if len(rules) > 1 else "") + (" no DEM" if esc == "off" and len(escalations) > 1 else "")
+                + (" sliding to DEM" if esc == "sliding" else ""))
         ann = AnnCell3D(ContactLaw(), 0.5, model=args.model, equilibrium_corrections=k,
-                        equilibrium_tolerance=tol if k else None, dem_escalation=esc == "on")
+                        equilibrium_tolerance=tol if k else None, dem_escalation=esc != "off")
+        if k and esc == "sliding":
+            ann.escalation = DemEscalation(ann.trained_on, ContactLaw(), float(ann.metadata["contact_tolerance"]),
+                                           sliding=True)
         plain = {"halvings": 0, "shift": 0.0} if rule == "full" else {}
         if guess != "network" or plain:
             ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess, **plain)

@@ -61,6 +61,34 @@ def test_released_cells_are_those_with_a_grain_that_moved_and_touches_nothing():
     assert not released_cells(inc.cell_size, free, pushed).any()
 
 
+def test_sliding_cells_are_those_where_a_grain_free_along_every_axis_slides_on_a_pressed_contact():
+    meso = mesostructure_arg(str(LARGE_AXIAL)).build(None)
+    schema, law = meso.schema(), ContactLaw()
+    escalation = DemEscalation(meso, law, meso.contact_tolerance, sliding=True)
+    (size, free, shear), _ = _hard_cases()
+    fine = int(np.bincount(schema.free_dofs[:, 0]).argmax())  # the grain free along every axis
+    fine_pairs = np.array([fine in (int(i), int(j)) for i, j in schema.pairs])
+    ev = evaluate(schema, size, free, shear, law, meso.contact_tolerance)
+    pressed = (ev["contact"] > 0) & (ev["normal_force"] > 0)
+    wedged = pressed[:, fine_pairs].any(axis=1)
+    assert 0 < wedged.sum() < wedged.size  # the fine grain is pressed in some hard cases, free in others
+    pushed = shear.copy()
+    pushed[:, fine_pairs] = 1e3 * np.abs(shear).max() + 1.0  # beyond the Coulomb cap: capped, sliding
+    stuck = shear.copy()
+    stuck[:, fine_pairs] = 0.0
+    stuck[:, ~fine_pairs] = 1e3 * np.abs(shear).max() + 1.0  # the lateral spheres (free along t only) slide
+    assert np.array_equal(escalation.sliding(size, free, pushed), wedged)
+    assert not escalation.sliding(size, free, stuck).any()
+    for c in range(size.shape[0]):  # the flag, pair by pair
+        f_s = np.linalg.norm(ev["shear_force"][c], axis=-1)
+        by_hand = any(pressed[c, p] and f_s[p] >= (1 - 1e-9) * law.mu * ev["normal_force"][c, p]
+                      for p in np.flatnonzero(fine_pairs))
+        assert escalation.sliding(size[c:c + 1], free[c:c + 1], shear[c:c + 1])[0] == by_hand
+    released_only = DemEscalation(meso, law, meso.contact_tolerance)
+    assert np.array_equal(released_only.escalated(size, free, free, pushed), released_only.released(size, free, free))
+    assert np.array_equal(escalation.escalated(size, free, free, pushed), wedged)
+
+
 def test_the_escalated_increment_is_the_dems_equilibrium_in_the_learning_state():
     meso = mesostructure_arg(str(LARGE_AXIAL)).build(None)
     law = ContactLaw()

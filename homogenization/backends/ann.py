@@ -461,11 +461,11 @@ class AnnCell(ArrayStateMixin):
     def _escalated(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState,
                    response: CellResponse) -> tuple[AnnState, CellResponse]:
         """``new`` and ``response`` with the DEM's increment in the cells a released grain leaves to it
-        (``DemEscalation.released``; hybrids with ``dem_escalation`` only), counted in ``n_escalated``.
+        (``DemEscalation.escalated``; hybrids with ``dem_escalation`` only), counted in ``n_escalated``.
         The tangent of such a cell stays the hybrid's (stress control's search direction only)."""
         if self.escalation is None:
             return new, response
-        released = self.escalation.released(new.cell_size, state.free_position, new.free_position)
+        released = self.escalation.escalated(new.cell_size, state.free_position, new.free_position, new.shear_force)
         response.diagnostics["n_escalated"] = float(np.count_nonzero(released))
         if not released.any():
             return new, response

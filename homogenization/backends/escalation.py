@@ -13,6 +13,13 @@ which the homogenised stress shows as a drop at another strain (docs/ann.md, "Re
 DEM's increment from the cell's learning state at rest, the very map the database samples
 (``warp_hcell.database.probing.step_from_rest``). The ANN backend counts them in ``n_escalated``.
 
+A grain free along every axis that slides on a contact can also end anywhere along a direction its
+contacts leave free, each point an equilibrium of the one-increment contact law, and the corrections
+pick another one than the DEM's path (docs/certificate.md, "With increments from rest at 1e-6").
+``DemEscalation(sliding=True)`` hands those cell-increments to the DEM too (``DemEscalation.sliding``,
+``DemEscalation.escalated``); the package's hybrids do not (measured only:
+benchmarks/bench_ann_equilibrium.py ``--escalation sliding``).
+
 Sign convention: compression positive (moments as the DEM backend's ``CellResponse``).
 """
 
@@ -39,10 +46,16 @@ class DemEscalation:
     Args:
         meso: the mesostructure the model was trained on (its learning state is the model's).
         contact_law: the model's contact law; contact_tolerance: its DEM's (``DemSettings.contact_tolerance``).
+        sliding: also the cells where a grain free along every axis slides (``escalated``).
     """
 
-    def __init__(self, meso: Mesostructure, contact_law: ContactLaw, contact_tolerance: float) -> None:
+    SLIDING_CAP = 1.0 - 1e-9
+    """A contact slides where its tangential force is at least this fraction of mu times its normal force [-]."""
+
+    def __init__(self, meso: Mesostructure, contact_law: ContactLaw, contact_tolerance: float, *,
+                 sliding: bool = False) -> None:
         self.meso = meso
+        self.sliding_too = bool(sliding)
         self.schema = meso.schema()
         self.contact_law = contact_law
         self.contact_tolerance = float(contact_tolerance)
@@ -54,6 +67,25 @@ class DemEscalation:
         self._pair_grains[np.arange(pairs.shape[0]), pairs[:, 1]] = 1.0
         self._dof_grains = np.zeros((free_dofs.shape[0], n_grains))
         self._dof_grains[np.arange(free_dofs.shape[0]), free_dofs[:, 0]] = 1.0
+        loose = np.bincount(free_dofs[:, 0], minlength=n_grains) == self.schema.dim
+        self._loose_pairs = loose[pairs[:, 0]] | loose[pairs[:, 1]]
+
+    def sliding(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray) -> np.ndarray:
+        """bool (n,): cells of the learning states (cell_size (n, dim) [m], free_position (n, n_free) [m],
+        shear_force (n, ``*schema.shear_shape``) [N]) where a pair of a grain free along every axis is in
+        contact, pressed (f_n > 0) and sliding: abs(f_s) >= ``SLIDING_CAP`` mu f_n."""
+        ev = evaluate(self.schema, cell_size, free_position, shear_force, self.contact_law, self.contact_tolerance)
+        normal = ev["normal_force"]
+        tangential = np.abs(ev["shear_force"]) if ev["shear_force"].ndim == 2 else np.linalg.norm(ev["shear_force"], axis=-1)
+        slides = (ev["contact"] > 0) & (normal > 0.0) & (tangential >= self.SLIDING_CAP * self.contact_law.mu * normal)
+        return np.any(slides & self._loose_pairs, axis=1)
+
+    def escalated(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray,
+                  shear_after: np.ndarray) -> np.ndarray:
+        """bool (n,): the cells handed to the DEM, ``released``, or with ``sliding=True`` also ``sliding`` at
+        the end of the increment (cell_size, free_after, shear_after: the state after it)."""
+        cells = self.released(cell_size, free_before, free_after)
+        return cells | self.sliding(cell_size, free_after, shear_after) if self.sliding_too else cells
 
     def released(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray) -> np.ndarray:
         """bool (n,): cells with a free grain that moved over the increment (a free coordinate changed) and
