@@ -465,11 +465,11 @@ class AnnCell(ArrayStateMixin):
         The tangent of such a cell stays the hybrid's (stress control's search direction only)."""
         if self.escalation is None:
             return new, response
-        released = self.escalation.escalated(new.cell_size, state.free_position, new.free_position, new.shear_force)
-        response.diagnostics["n_escalated"] = float(np.count_nonzero(released))
-        if not released.any():
+        escalated = self.escalation.escalated(new.cell_size, state.free_position, new.free_position, new.shear_force)
+        response.diagnostics["n_escalated"] = float(np.count_nonzero(escalated))
+        if not escalated.any():
             return new, response
-        index = np.flatnonzero(released)
+        index = np.flatnonzero(escalated)
         size, free, shear, moment, area = self.escalation.advance(
             state.cell_size[index], state.free_position[index], state.shear_force[index],
             np.asarray(d_eps_local, dtype=np.float64)[index])

@@ -55,7 +55,7 @@ class DemEscalation:
     def __init__(self, meso: Mesostructure, contact_law: ContactLaw, contact_tolerance: float, *,
                  sliding: bool = False) -> None:
         self.meso = meso
-        self.sliding_too = bool(sliding)
+        self.with_sliding = bool(sliding)
         self.schema = meso.schema()
         self.contact_law = contact_law
         self.contact_tolerance = float(contact_tolerance)
@@ -85,7 +85,7 @@ class DemEscalation:
         """bool (n,): the cells handed to the DEM, ``released``, or with ``sliding=True`` also ``sliding`` at
         the end of the increment (cell_size, free_after, shear_after: the state after it)."""
         cells = self.released(cell_size, free_before, free_after)
-        return cells | self.sliding(cell_size, free_after, shear_after) if self.sliding_too else cells
+        return cells | self.sliding(cell_size, free_after, shear_after) if self.with_sliding else cells
 
     def released(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray) -> np.ndarray:
         """bool (n,): cells with a free grain that moved over the increment (a free coordinate changed) and

@@ -363,7 +363,7 @@ class DemSettings:
     ``from_rest``) [-]. Its free grains start from rest while the driven ones move, and lag behind; at 5e-6
     where a fine grain is about to leave its wedge, the lag decided when it left: drained compression of
     benchmarks/cells/large_axial.toml (100 cells, 1e-4 to 10 %) from rest differed from the DEM by 2.1 %
-    of the scale, at 2.5e-6 / 1e-6 / 5e-7 / 2e-7 by 0.012 / 0.004 / 0.011 / 0.005 % (docs/dem_stepping.md,
+    of the scale, at 2.5e-6 / 1e-6 / 5e-7 / 2e-7 by 0.012 / 0.003 / 0.011 / 0.005 % (docs/dem_stepping.md,
     "Increments from rest")."""
     velocity_change: float = 0.5
     """Largest deviation of the last increment's driven displacements per driving substep from
