@@ -277,7 +277,7 @@ def main(argv=None) -> int:
                         equilibrium_tolerance=tol if k else None, dem_escalation=esc != "off")
         if k and esc == "sliding":
             ann.escalation = DemEscalation(ann.trained_on, ContactLaw(), float(ann.metadata["contact_tolerance"]),
-                                           sliding=True)
+                                           force_ratio=ann.force_tolerance, sliding=True)
         plain = {"halvings": 0, "shift": 0.0} if rule == "full" else {}
         if guess != "network" or plain:
             ann.fast = FastAdvance(ann.net, k, ann.force_tolerance, guess, **plain)

@@ -1,5 +1,5 @@
 """The hybrid's DEM escalation (``homogenization.backends.escalation``): the cells where a free grain moved and
-ends touching nothing are found grain by grain, handed to the DEM's increment from rest, and counted."""
+ends pressed by nothing are found grain by grain, handed to the DEM's increment from rest, and counted."""
 
 from pathlib import Path
 
@@ -20,18 +20,33 @@ HARD_CASES = ROOT / "tests" / "data" / "equilibrium" / "large_axial_hard.npz"
 SHIPPED_3D = default_model_path(3)
 
 
-def _released_by_hand(schema, cell_size, before, after) -> np.ndarray:
-    """The cells with a free grain that moved and overlaps no other grain, one grain and one pair at a time."""
+def _released_by_hand(schema, cell_size, before, after, kn, ratio) -> np.ndarray:
+    """The cells with a free grain that moved and that no pair presses with a normal force above ``ratio`` times
+    the cell's largest (linear law, f_n = kn overlap), one grain and one pair at a time."""
     out = np.zeros(cell_size.shape[0], dtype=bool)
     for c in range(cell_size.shape[0]):
         x = schema.reference_position * cell_size[c] / schema.reference_cell_size
         for k, (grain, axis) in enumerate(schema.free_dofs):
             x[grain, axis] = after[c, k]
+        force = {(int(i), int(j)): kn * max(schema.radius[i] + schema.radius[j] - np.linalg.norm(x[j] - x[i]), 0.0)
+                 for i, j in schema.pairs}
+        largest = max(force.values())
         for grain in set(int(g) for g in schema.free_dofs[:, 0]):
             moved = any(after[c, k] != before[c, k] for k, (g, _) in enumerate(schema.free_dofs) if g == grain)
-            touching = any(np.linalg.norm(x[j] - x[i]) < schema.radius[i] + schema.radius[j]
-                           for i, j in schema.pairs if grain in (i, j))
-            out[c] |= moved and not touching
+            pressed = any(f > ratio * largest for pair, f in force.items() if grain in pair)
+            out[c] |= moved and not pressed
+    return out
+
+
+def _in_touch_with(schema, cell_size, free, grain, other, overlap) -> np.ndarray:
+    """``free`` with ``grain`` moved beyond ``other`` on the line from the cell's centre through ``other``'s
+    centre (clear of the other grains), overlapping ``other`` by ``overlap`` times r_i + r_j."""
+    out = free.copy()
+    cols = np.flatnonzero(schema.free_dofs[:, 0] == grain)
+    for c in range(cell_size.shape[0]):
+        x_other = schema.reference_position[other] * cell_size[c] / schema.reference_cell_size
+        rsum = schema.radius[grain] + schema.radius[other]
+        out[c, cols] = x_other + x_other / np.linalg.norm(x_other) * rsum * (1.0 - overlap)
     return out
 
 
@@ -40,25 +55,35 @@ def _hard_cases():
     return tuple(data[name] for name in ("cell_size", "free_position", "shear_force")), data["d_eps"]
 
 
-def test_released_cells_are_those_with_a_grain_that_moved_and_touches_nothing():
+def test_released_cells_are_those_with_a_grain_that_moved_and_that_nothing_presses():
     meso = mesostructure_arg(str(LARGE_AXIAL)).build(None)
-    schema = meso.schema()
-    released_cells = DemEscalation(meso, ContactLaw(), meso.contact_tolerance).released
+    schema, law = meso.schema(), ContactLaw()
+    ratio = 1e-4
+    released_cells = DemEscalation(meso, law, meso.contact_tolerance, force_ratio=ratio).released
     (size, free, shear), d_eps = _hard_cases()
-    inc = FastAdvance(relaxing_network(), 20, 1e-4)(size, free, shear, d_eps)
-    assert not released_cells(inc.cell_size, inc.free_position, inc.free_position).any()  # nothing moved
-    fine = np.flatnonzero(schema.free_dofs[:, 0] == np.bincount(schema.free_dofs[:, 0]).argmax())
+    inc = FastAdvance(relaxing_network(), 20, ratio)(size, free, shear, d_eps)
+
+    def released(after):
+        return released_cells(inc.cell_size, free, after, inc.shear_force)
+
+    assert not released_cells(inc.cell_size, inc.free_position, inc.free_position, inc.shear_force).any()  # none moved
+    fine_grain = int(np.bincount(schema.free_dofs[:, 0]).argmax())
+    fine = np.flatnonzero(schema.free_dofs[:, 0] == fine_grain)
     afloat = inc.free_position.copy()
     afloat[:, fine] = free[:, fine] + np.array([0.0, 0.0, 1e-9])  # back near the pore centre, a hair off its start
     pushed = inc.free_position.copy()
     pushed[:, fine[0]] += 0.2  # into the axial sphere
     centred = inc.free_position.copy()
     centred[:, fine] = 0.0  # at the pore centre: clear of every sphere of this cell
-    for after in (inc.free_position, afloat, pushed, centred):
-        expected = _released_by_hand(schema, inc.cell_size, free, after)
-        assert np.array_equal(released_cells(inc.cell_size, free, after), expected)
-    assert _released_by_hand(schema, inc.cell_size, free, centred).sum() >= 3
-    assert not released_cells(inc.cell_size, free, pushed).any()
+    touching = _in_touch_with(schema, inc.cell_size, inc.free_position, fine_grain, 0, 1e-13)  # only axial sphere 0
+    pressed = _in_touch_with(schema, inc.cell_size, inc.free_position, fine_grain, 0, 1e-2)
+    for after in (inc.free_position, afloat, pushed, centred, touching, pressed):
+        expected = _released_by_hand(schema, inc.cell_size, free, after, law.kn, ratio)
+        assert np.array_equal(released(after), expected)
+    assert _released_by_hand(schema, inc.cell_size, free, centred, law.kn, ratio).sum() >= 3
+    assert not released(pushed).any()
+    assert released(touching).all()  # in touch at a round-off overlap: pushed by one sphere, held by none
+    assert 0 < released(pressed).sum() < released(touching).sum()  # pressed: released only where a lateral sphere is
 
 
 def test_sliding_cells_are_those_where_a_grain_free_along_every_axis_slides_on_a_pressed_contact():
@@ -85,7 +110,8 @@ def test_sliding_cells_are_those_where_a_grain_free_along_every_axis_slides_on_a
                       for p in np.flatnonzero(fine_pairs))
         assert escalation.sliding(size[c:c + 1], free[c:c + 1], shear[c:c + 1])[0] == by_hand
     released_only = DemEscalation(meso, law, meso.contact_tolerance)
-    assert np.array_equal(released_only.escalated(size, free, free, pushed), released_only.released(size, free, free))
+    assert np.array_equal(released_only.escalated(size, free, free, pushed),
+                          released_only.released(size, free, free, pushed))
     assert np.array_equal(escalation.escalated(size, free, free, pushed), wedged)
 
 

@@ -12,6 +12,7 @@ import h5py
 import pytest
 
 from homogenization.backends.ann import AnnCell3D, default_model_path
+from homogenization.backends.escalation import RELEASE_RULE
 from homogenization.cli import learn as learn_cli
 from homogenization.cli import train as train_cli
 from homogenization.learning.settings import (default_equilibrium, FINES_EQUILIBRIUM_CORRECTIONS,
@@ -105,6 +106,14 @@ def test_a_run_takes_the_corrections_its_certificate_measured_without_flags(tmp_
     assert cell.escalation is None  # a certificate that records no DEM escalation measured the hybrid without it
     escalated = AnnCell3D(ContactLaw(), 0.5, model=model, dem_escalation=True).certificate_problem
     assert escalated is not None and "without the DEM's increment" in escalated
+    for rule, covered in ((None, False), ("a grain that moved and overlaps nothing", False), (RELEASE_RULE, True)):
+        meta["certificate"]["settings"].update(dem_escalation=True, dem_escalation_rule=rule)
+        model.with_suffix(".json").write_text(json.dumps(meta))
+        problem = AnnCell3D(ContactLaw(), 0.5, model=model, dem_escalation=True).certificate_problem
+        assert (problem is None) == covered and (covered or "by another rule" in problem)
+    meta["certificate"]["settings"].update(dem_escalation=False)
+    del meta["certificate"]["settings"]["dem_escalation_rule"]
+    model.with_suffix(".json").write_text(json.dumps(meta))
     assert AnnCell3D(ContactLaw(), 0.5, model=model, equilibrium_tolerance=1e-4).certificate_problem is not None
     alone = AnnCell3D(ContactLaw(), 0.5, model=model, equilibrium_corrections=0).certificate_problem
     assert alone is not None and "not the network alone" in alone

@@ -85,7 +85,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 import torch
 
-from homogenization.backends.escalation import DemEscalation
+from homogenization.backends.escalation import DemEscalation, RELEASE_RULE
 from homogenization.learning import envelope
 from homogenization.learning.settings import has_fine_grains
 from homogenization.material.orientation3d import cell_kinematics, kinematics_of
@@ -161,6 +161,10 @@ def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int =
         return (f"{path}: its certificate measured the hybrid {said[envelope.escalation_of(cert)]} the DEM's "
                 f"increment in cells with a released grain, this run is {said[escalation]} it; certify the "
                 f"model again")
+    if corrections and escalation and envelope.escalation_rule_of(cert) != RELEASE_RULE:
+        return (f"{path}: its certificate measured the hybrid handing cells to the DEM by another rule "
+                f"({envelope.escalation_rule_of(cert) or 'a grain that moved and overlaps nothing'}) than this "
+                f"package's ({RELEASE_RULE}); certify the model again")
     result = envelope.verdict(cert)
     if result == "failed" or (result == "passed" and cert.get("passed") is False):
         return (f"{path}: the model failed its certificate (worst {100 * float(cert['worst']):.3g} % of the scale "
@@ -296,7 +300,8 @@ class AnnCell(ArrayStateMixin):
             raise ValueError(f"equilibrium tolerance = {equilibrium_tolerance} must be > 0")
         self.fast = (FastAdvance(self.net, self.equilibrium_corrections, self.force_tolerance)
                      if self.device.type == "cpu" else None)
-        self.escalation = (DemEscalation(self.trained_on, contact_law, float(self.metadata["contact_tolerance"]))
+        self.escalation = (DemEscalation(self.trained_on, contact_law, float(self.metadata["contact_tolerance"]),
+                                         force_ratio=self.force_tolerance)
                            if self.equilibrium_corrections and (default_escalation(self.metadata)
                                                                 if dem_escalation is None else dem_escalation)
                            else None)

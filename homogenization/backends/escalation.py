@@ -2,9 +2,12 @@
 
 The equilibrium corrections of the hybrid (``training.fast_equilibrium3d``, ``training.equilibrium``)
 move the free grains by the contact forces on them. A free grain that moved during an increment and
-ends it touching nothing (no pair of it overlaps) carries no force, so the corrections leave it where
-the network put it. The DEM moves such a grain only as far as its neighbours push it: it ends where
-the last contact lets it go, in the direction the contact forces drove it. Where the network's guess
+ends it pressed by nothing carries no force, so the corrections leave it where the network put it or
+where their last step ended it (in touch with the one grain that pushed it, or just clear of it: a
+mechanism, balanced anywhere its pairs do not overlap). The DEM moves such a grain only as far as its
+neighbours push it: it ends where the last contact lets it go, in the direction the contact forces
+drove it. "Pressed by nothing" is read at the resolution of the corrections' balance, which stops at a
+force ratio R: each pair of the grain carries a normal force of at most R times the cell's largest. Where the network's guess
 overshoots or turns that motion (a fine grain pushed off a lateral sphere, then sliding along it), the
 difference accumulates over the increments and decides when the grain engages or leaves its wedge,
 which the homogenised stress shows as a drop at another strain (docs/ann.md, "Released grains").
@@ -28,12 +31,17 @@ from __future__ import annotations
 import numpy as np
 
 from warp_hcell.core.parameters import ContactLaw, DemSettings
-from warp_hcell.database.learning_state import evaluate, free_coordinates, positions
+from warp_hcell.database.learning_state import evaluate, free_coordinates
 from warp_hcell.database.probing import ProbeContext, step_from_rest
 from warp_hcell.dem.cell import DemCell, DemCellState
 from warp_hcell.dem.model import DemModel
 from warp_hcell.dem.state import DemState
 from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+
+RELEASE_RULE = "a free grain moved and no pair presses it above the equilibrium tolerance"
+"""What ``DemEscalation.released`` hands to the DEM, in words; a certificate of a hybrid with the escalation records
+it (``dem_escalation_rule``), and a certificate of another rule does not cover this one."""
 
 
 class DemEscalation:
@@ -46,6 +54,7 @@ class DemEscalation:
     Args:
         meso: the mesostructure the model was trained on (its learning state is the model's).
         contact_law: the model's contact law; contact_tolerance: its DEM's (``DemSettings.contact_tolerance``).
+        force_ratio: the hybrid's equilibrium tolerance [-] (``released``).
         sliding: also the cells where a grain free along every axis slides (``escalated``).
     """
 
@@ -53,15 +62,15 @@ class DemEscalation:
     """A contact slides where its tangential force is at least this fraction of mu times its normal force [-]."""
 
     def __init__(self, meso: Mesostructure, contact_law: ContactLaw, contact_tolerance: float, *,
-                 sliding: bool = False) -> None:
+                 force_ratio: float = DemSettings().force_tolerance, sliding: bool = False) -> None:
         self.meso = meso
+        self.force_ratio = float(force_ratio)
         self.with_sliding = bool(sliding)
         self.schema = meso.schema()
         self.contact_law = contact_law
         self.contact_tolerance = float(contact_tolerance)
         self._batches: dict[int, tuple[ProbeContext, DemModel]] = {}
         pairs, free_dofs, n_grains = self.schema.pairs, self.schema.free_dofs, self.schema.radius.shape[0]
-        self._contact_reach = self.schema.radius[pairs[:, 0]] + self.schema.radius[pairs[:, 1]]
         self._pair_grains = np.zeros((pairs.shape[0], n_grains))
         self._pair_grains[np.arange(pairs.shape[0]), pairs[:, 0]] = 1.0
         self._pair_grains[np.arange(pairs.shape[0]), pairs[:, 1]] = 1.0
@@ -84,17 +93,20 @@ class DemEscalation:
                   shear_after: np.ndarray) -> np.ndarray:
         """bool (n,): the cells handed to the DEM, ``released``, or with ``sliding=True`` also ``sliding`` at
         the end of the increment (cell_size, free_after, shear_after: the state after it)."""
-        cells = self.released(cell_size, free_before, free_after)
+        cells = self.released(cell_size, free_before, free_after, shear_after)
         return cells | self.sliding(cell_size, free_after, shear_after) if self.with_sliding else cells
 
-    def released(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray) -> np.ndarray:
+    def released(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray,
+                 shear_after: np.ndarray) -> np.ndarray:
         """bool (n,): cells with a free grain that moved over the increment (a free coordinate changed) and
-        touches nothing at its end (no pair of it overlaps); cell_size (n, dim) [m] and free_after (n, n_free)
-        [m]: the state after the increment, free_before: before it."""
-        x = positions(self.schema, cell_size, free_after)
-        pairs = self.schema.pairs
-        overlapping = np.linalg.norm(x[:, pairs[:, 1]] - x[:, pairs[:, 0]], axis=-1) < self._contact_reach
-        touching = overlapping.astype(np.float64) @ self._pair_grains > 0.0
+        that nothing presses at its end: each of its pairs' normal force is at most ``force_ratio`` times the
+        cell's largest (the resolution of the corrections' balance: a grain that only one neighbour pushed
+        ends in touch with such a force, which the corrections cannot tell from none); cell_size (n, dim)
+        [m], free_after (n, n_free) [m] and shear_after: the state after the increment, free_before: before it."""
+        normal = evaluate(self.schema, cell_size, free_after, shear_after, self.contact_law,
+                          self.contact_tolerance)["normal_force"]
+        pressed = normal > self.force_ratio * normal.max(axis=1, keepdims=True)
+        touching = pressed.astype(np.float64) @ self._pair_grains > 0.0
         moved = (free_after != free_before).astype(np.float64) @ self._dof_grains > 0.0
         return np.any(moved & ~touching, axis=1)
 

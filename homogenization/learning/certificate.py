@@ -83,6 +83,7 @@ from homogenization.learning.from_rest import FromRest
 from homogenization.learning.envelope import (dimension_of, envelope_of, equilibrium_settings, escalation_of, MINIMUM,
                                               shortfalls, verdict)
 from homogenization.backends import make_cell_model
+from homogenization.backends.escalation import RELEASE_RULE
 from training.checkpoint import metadata_path, read_metadata
 from training.ood import state_features
 from training.rollout import rollout_report
@@ -178,10 +179,12 @@ def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_
     staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation3d``;
     with ``equilibrium_corrections`` K > 0 also K and ``equilibrium_tolerance``, the resolved force
     ratio [-] of the hybrid its tests ran: ``envelope.equilibrium_settings``, and ``dem_escalation``, whether
-    it handed the cells with a released grain to the DEM: ``envelope.escalation_of``)."""
+    it handed the cells with a released grain to the DEM: ``envelope.escalation_of``, with the rule it did it
+    by, ``dem_escalation_rule``: ``homogenization.backends.escalation.RELEASE_RULE``)."""
     settings = {"pressures": [float(p) for p in pressures], "eps_max": float(eps_max), "increment": float(increment)}
     hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": float(equilibrium_tolerance),
-               "dem_escalation": bool(dem_escalation)} if equilibrium_corrections else {})
+               "dem_escalation": bool(dem_escalation), **({"dem_escalation_rule": RELEASE_RULE} if dem_escalation else {})}
+              if equilibrium_corrections else {})
     if dim == 3:
         return {**settings, "spatial_rule": [int(k) for k in spatial_rule], "staggered_spins": True, **hybrid}
     return {**settings, "n_orientations": int(n_orientations), **hybrid}

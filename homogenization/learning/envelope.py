@@ -230,3 +230,9 @@ def escalation_of(cert: dict[str, Any]) -> bool:
     """Whether the hybrid that certificate ``cert`` measured handed the cells with a released grain to the DEM
     (``homogenization.backends.escalation``; False where it records nothing: certified before that rule)."""
     return bool(cert.get("settings", {}).get("dem_escalation", False))
+
+
+def escalation_rule_of(cert: dict[str, Any]) -> str | None:
+    """The rule by which the hybrid that certificate ``cert`` measured handed cells to the DEM
+    (``homogenization.backends.escalation.RELEASE_RULE`` as it read then; None where it records none)."""
+    return cert.get("settings", {}).get("dem_escalation_rule")
