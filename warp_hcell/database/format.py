@@ -61,13 +61,22 @@ ACTIVE_GROUP = "active_states"
 """Group of the start states of the active-learning probes (``append_round``)."""
 SCHEMA_DATASETS = ("free_dofs", "pairs", "radius", "reference_position", "reference_cell_size", "driven", "outer")
 """Datasets of the group ``schema`` (``StateSchema`` attributes)."""
-COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
-"""HDF5 filters of every dataset of ``COMPRESS_FROM`` elements or more: lossless (the arrays read back
-are the bits written), 4.6x smaller on a tiny database of the ten-sphere cell with a fine grain
-(most of its 55 candidate pairs carry no force: zero springs and normal forces), which raw takes
-4.3 kB per sample (docs/database_format.md, "Size")."""
+COMPRESSION = {"compression": "gzip", "compression_opts": 4}
+"""HDF5 filter of every dataset of ``COMPRESS_FROM`` elements or more: lossless (the arrays read back
+are the bits written). Most of a fines cell's 55 candidate pairs carry no force (zero springs and normal
+forces), which gzip packs best in whole samples without the shuffle filter (docs/database_format.md,
+"Size")."""
 COMPRESS_FROM = 1024
 """Elements [-] from which a dataset is stored compressed (smaller ones gain nothing)."""
+CHUNK_BYTES = 1 << 20
+"""Uncompressed bytes [B] of one HDF5 chunk of a compressed dataset, whole samples (rows) each (``chunk_rows``)."""
+
+
+def chunk_rows(shape: tuple[int, ...], itemsize: int) -> tuple[int, ...]:
+    """HDF5 chunk shape of a compressed dataset of ``shape`` and ``itemsize`` [B]: whole rows (samples), as many
+    as fill ``CHUNK_BYTES`` (at least one, at most all)."""
+    row = int(np.prod(shape[1:], dtype=np.int64)) * int(itemsize)
+    return (max(1, min(int(shape[0]), CHUNK_BYTES // max(row, 1))), *shape[1:])
 
 
 def schema_datasets(schema: StateSchema) -> dict[str, np.ndarray]:
@@ -113,7 +122,8 @@ def write_database(path: Path, datasets: Mapping[str, np.ndarray], attrs: Mappin
     """Write a complete database file atomically (temporary file renamed onto ``path``).
 
     No timestamps are stored, so the same arrays and attrs give a byte-identical file. Datasets
-    of ``COMPRESS_FROM`` elements or more are stored with the lossless ``COMPRESSION``.
+    of ``COMPRESS_FROM`` elements or more are stored with the lossless ``COMPRESSION`` in chunks of whole
+    rows (``chunk_rows``).
 
     Args:
         path: file to create or replace.
@@ -127,8 +137,9 @@ def write_database(path: Path, datasets: Mapping[str, np.ndarray], attrs: Mappin
                 f.attrs[key] = _attr(value)
             for name, value in datasets.items():
                 value = np.asarray(value)
-                f.create_dataset(name, data=value, track_times=False,
-                                 **(COMPRESSION if value.ndim and value.size >= COMPRESS_FROM else {}))
+                packed = ({**COMPRESSION, "chunks": chunk_rows(value.shape, value.itemsize)}
+                          if value.ndim and value.size >= COMPRESS_FROM else {})
+                f.create_dataset(name, data=value, track_times=False, **packed)
             for name, values in (attrs_of or {}).items():
                 if name in f:
                     for key, value in values.items():
