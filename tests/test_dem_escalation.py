@@ -64,9 +64,9 @@ def test_released_cells_are_those_with_a_grain_that_moved_and_that_nothing_press
     inc = FastAdvance(relaxing_network(), 20, ratio)(size, free, shear, d_eps)
 
     def released(after):
-        return released_cells(inc.cell_size, free, after, inc.shear_force)
+        return released_cells(inc.cell_size, free, after)
 
-    assert not released_cells(inc.cell_size, inc.free_position, inc.free_position, inc.shear_force).any()  # none moved
+    assert not released_cells(inc.cell_size, inc.free_position, inc.free_position).any()  # none moved
     fine_grain = int(np.bincount(schema.free_dofs[:, 0]).argmax())
     fine = np.flatnonzero(schema.free_dofs[:, 0] == fine_grain)
     afloat = inc.free_position.copy()
@@ -110,8 +110,7 @@ def test_sliding_cells_are_those_where_a_grain_free_along_every_axis_slides_on_a
                       for p in np.flatnonzero(fine_pairs))
         assert escalation.sliding(size[c:c + 1], free[c:c + 1], shear[c:c + 1])[0] == by_hand
     released_only = DemEscalation(meso, law, meso.contact_tolerance)
-    assert np.array_equal(released_only.escalated(size, free, free, pushed),
-                          released_only.released(size, free, free, pushed))
+    assert np.array_equal(released_only.escalated(size, free, free, pushed), released_only.released(size, free, free))
     assert np.array_equal(escalation.escalated(size, free, free, pushed), wedged)
 
 

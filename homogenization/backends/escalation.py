@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from warp_hcell.core.parameters import ContactLaw, DemSettings
-from warp_hcell.database.learning_state import evaluate, free_coordinates
+from warp_hcell.database.learning_state import evaluate, free_coordinates, pair_normal_forces, positions
 from warp_hcell.database.probing import ProbeContext, step_from_rest
 from warp_hcell.dem.cell import DemCell, DemCellState
 from warp_hcell.dem.model import DemModel
@@ -93,18 +93,17 @@ class DemEscalation:
                   shear_after: np.ndarray) -> np.ndarray:
         """bool (n,): the cells handed to the DEM, ``released``, or with ``sliding=True`` also ``sliding`` at
         the end of the increment (cell_size, free_after, shear_after: the state after it)."""
-        cells = self.released(cell_size, free_before, free_after, shear_after)
+        cells = self.released(cell_size, free_before, free_after)
         return cells | self.sliding(cell_size, free_after, shear_after) if self.with_sliding else cells
 
-    def released(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray,
-                 shear_after: np.ndarray) -> np.ndarray:
+    def released(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray) -> np.ndarray:
         """bool (n,): cells with a free grain that moved over the increment (a free coordinate changed) and
         that nothing presses at its end: each of its pairs' normal force is at most ``force_ratio`` times the
         cell's largest (the resolution of the corrections' balance: a grain that only one neighbour pushed
         ends in touch with such a force, which the corrections cannot tell from none); cell_size (n, dim)
-        [m], free_after (n, n_free) [m] and shear_after: the state after the increment, free_before: before it."""
-        normal = evaluate(self.schema, cell_size, free_after, shear_after, self.contact_law,
-                          self.contact_tolerance)["normal_force"]
+        [m] and free_after (n, n_free) [m]: the state after the increment, free_before: before it."""
+        normal = pair_normal_forces(self.schema, positions(self.schema, cell_size, free_after), self.contact_law,
+                                    self.contact_tolerance)[3]
         pressed = normal > self.force_ratio * normal.max(axis=1, keepdims=True)
         touching = pressed.astype(np.float64) @ self._pair_grains > 0.0
         moved = (free_after != free_before).astype(np.float64) @ self._dof_grains > 0.0

@@ -64,6 +64,24 @@ def _spatial_forces(shear_force: np.ndarray, normal: np.ndarray, u: np.ndarray, 
     return shear, shear - normal[..., None] * u
 
 
+def pair_normal_forces(schema: StateSchema, x: np.ndarray, contact_law: ContactLaw, contact_tolerance: float
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Branch vectors x_j - x_i [m] (n, n_pairs, dim), distances [m] (n, n_pairs), contact flags (gap within
+    ``contact_tolerance`` (r_i + r_j)) bool (n, n_pairs) and normal forces f_n >= 0 [N] (n, n_pairs) of every
+    pair of grain centres ``x`` (n, n_grains, dim) (``positions``): the part of ``evaluate`` that needs no springs."""
+    pi, pj = schema.pairs[:, 0], schema.pairs[:, 1]
+    rsum = schema.radius[pi] + schema.radius[pj]
+    widen = 1.0 + contact_tolerance
+    cut2 = (rsum * widen) * (rsum * widen)
+    b = x[:, pj] - x[:, pi]
+    dist2 = b[..., 0] * b[..., 0] + b[..., 1] * b[..., 1]
+    for axis in range(2, schema.dim):
+        dist2 = dist2 + b[..., axis] * b[..., axis]
+    touching = dist2 <= cut2
+    dist = np.sqrt(dist2)
+    return b, dist, touching, np.where(touching, normal_force(rsum - dist, contact_law.kn), 0.0)
+
+
 def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
              contact_law: ContactLaw, contact_tolerance: float) -> dict[str, np.ndarray]:
     """Contact-law evaluation of a learning state (module docstring), vectorised over cells.
@@ -81,17 +99,8 @@ def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarr
     """
     x = positions(schema, cell_size, free_position)
     pi, pj = schema.pairs[:, 0], schema.pairs[:, 1]
-    rsum = schema.radius[pi] + schema.radius[pj]
-    widen = 1.0 + contact_tolerance
-    cut2 = (rsum * widen) * (rsum * widen)
-    b = x[:, pj] - x[:, pi]
-    dist2 = b[..., 0] * b[..., 0] + b[..., 1] * b[..., 1]
-    for axis in range(2, schema.dim):
-        dist2 = dist2 + b[..., axis] * b[..., axis]
-    touching = dist2 <= cut2
-    dist = np.sqrt(dist2)
+    b, dist, touching, normal = pair_normal_forces(schema, x, contact_law, contact_tolerance)
     u = b / np.where(dist > 0.0, dist, 1.0)[..., None]
-    normal = np.where(touching, normal_force(rsum - dist, contact_law.kn), 0.0)
     pair_forces = _planar_forces if schema.dim == 2 else _spatial_forces
     shear, force = pair_forces(shear_force, normal, u, touching, contact_law.mu)
     net = np.zeros_like(x)
