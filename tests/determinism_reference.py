@@ -2,10 +2,10 @@
 
 ``python tests/determinism_reference.py`` (from the repository root) trains the tiny network
 and writes its weights to ``REFERENCE``; run it only when the training's numerics change on
-purpose, and say so in the commit. The DEM database is the same bits on every x86-64 CPU
-(``tests/test_database_dimension.py`` holds its digests); torch's training is not (MKL, oneDNN
-and ATen pick kernels by CPU), so the test compares the weights with ``WEIGHTS_RTOL``
-(docs/determinism.md).
+purpose, and say so in the commit. The DEM database is the same bits on any x86-64 CPU under
+Linux with glibc, FMA or not (``tests/test_database_dimension.py`` holds its digests); torch's
+training is not (MKL, oneDNN and ATen pick kernels by CPU), so the test compares the weights
+with ``WEIGHTS_RTOL`` (docs/determinism.md).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """``make determinism``: the tests marked ``determinism`` under every CPU-feature setting, one pytest each.
 
-numpy, OpenBLAS, torch (ATen, MKL, oneDNN) and numba pick their kernels by CPU; these variables
+numpy, OpenBLAS, torch (ATen, MKL, oneDNN), numba and glibc pick their kernels by CPU; these variables
 make them pick those of another CPU, so that one machine checks what an AVX2 or an AVX-512
 machine would compute (docs/determinism.md). Settings that need AVX-512 run only where the CPU
 has it. Prints one line per setting and the total time; exit status 1 if any setting failed.
@@ -21,6 +21,8 @@ NUMPY_AVX2 = "X86_V4 AVX512_ICL AVX512_SPR"
 """numpy's dispatch groups above AVX2 (numpy >= 2.4 names the x86-64 levels X86_V3, X86_V4)."""
 NUMPY_BASELINE = "X86_V3 " + NUMPY_AVX2
 """Every numpy dispatch group above its baseline (SSE4.2)."""
+GLIBC_NO_FMA = "glibc.cpu.hwcaps=-AVX2_Usable,-FMA_Usable,-FMA"
+"""glibc's exp, log, sin, cos, atan2 ... without their AVX2 and FMA variants (as on a CPU without FMA)."""
 SETTINGS: list[tuple[dict[str, str], bool]] = [
     ({}, False),
     ({"NPY_DISABLE_CPU_FEATURES": NUMPY_AVX2}, False),
@@ -40,8 +42,10 @@ SETTINGS: list[tuple[dict[str, str], bool]] = [
     ({"NUMBA_CPU_NAME": "generic"}, False),
     ({"NUMBA_CPU_NAME": "haswell"}, False),
     ({"NUMBA_CPU_NAME": "skylake-avx512"}, True),
+    ({"GLIBC_TUNABLES": GLIBC_NO_FMA}, False),
     ({"NPY_DISABLE_CPU_FEATURES": NUMPY_BASELINE, "OPENBLAS_CORETYPE": "Sandybridge", "ATEN_CPU_CAPABILITY": "default",
-      "MKL_CBWR": "COMPATIBLE", "DNNL_MAX_CPU_ISA": "SSE41", "NUMBA_CPU_NAME": "generic"}, False),
+      "MKL_CBWR": "COMPATIBLE", "DNNL_MAX_CPU_ISA": "SSE41", "NUMBA_CPU_NAME": "generic",
+      "GLIBC_TUNABLES": GLIBC_NO_FMA}, False),
 ]
 """(environment variables, needs AVX-512): the host as it is, then one library at a time at each
 level, then every library at its lowest level together."""

@@ -45,6 +45,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from warp_hcell.core import libm
 from warp_hcell.core.contract import StateSchema
 from warp_hcell.core.cli import progress_bar
 from warp_hcell.database.learning_state import evaluate, free_coordinates
@@ -80,12 +81,12 @@ def leg_directions(settings: DatabaseSettings, dim: int = 2) -> np.ndarray:
     k = np.arange(settings.n_directions)
     if dim == 2:
         psi = 2.0 * np.pi * k / settings.n_directions
-        return np.stack([np.cos(psi), np.sin(psi)], axis=1)
+        return np.stack([libm.cos(psi), libm.sin(psi)], axis=1)
     z = 1.0 - (2.0 * k + 1.0) / settings.n_directions
     ring, phi = np.sqrt(1.0 - z * z), k * np.pi * (3.0 - math.sqrt(5.0))
     e_1, e_2, e_v = np.array([[2.0, -1.0, -1.0], [0.0, 1.0, -1.0], [1.0, 1.0, 1.0]]) / np.sqrt([[6.0], [2.0], [3.0]])
     # term by term, not a matrix product: BLAS picks its kernel (FMA or not) by CPU
-    return (ring * np.cos(phi))[:, None] * e_1 + (ring * np.sin(phi))[:, None] * e_2 + z[:, None] * e_v
+    return (ring * libm.cos(phi))[:, None] * e_1 + (ring * libm.sin(phi))[:, None] * e_2 + z[:, None] * e_v
 
 
 def path_length(d_eps: np.ndarray) -> np.ndarray:
@@ -137,7 +138,7 @@ def turn_draws(settings: DatabaseSettings, start_id: int, n_levels: int,
     negated = rng.random(shape) < settings.reversal_negated_fraction
     turn = rng.uniform(math.radians(settings.reversal_min_angle_deg), math.pi, size=shape)
     sense = np.where(rng.random(shape) < 0.5, -1.0, 1.0)
-    plane = None if dim == 2 else rng.standard_normal((*shape, dim))
+    plane = None if dim == 2 else libm.standard_normal(rng, (*shape, dim))
     return steps.astype(np.int64), np.where(negated, math.pi, sense * turn), plane
 
 
@@ -147,7 +148,7 @@ def turned(directions: np.ndarray, angle: np.ndarray, plane: np.ndarray | None =
     dim = 2 (``plane`` None): counter-clockwise in the (eps_n, eps_t) plane. dim = 3: towards
     the part of ``plane`` (n, 3) normal to the direction (the turn's plane; ``turn_draws``).
     """
-    c, s = np.cos(angle), np.sin(angle)
+    c, s = libm.cos(angle), libm.sin(angle)
     if plane is None:
         out = np.stack([c * directions[:, 0] - s * directions[:, 1], s * directions[:, 0] + c * directions[:, 1]],
                        axis=1)

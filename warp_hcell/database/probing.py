@@ -27,7 +27,6 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
@@ -95,8 +94,8 @@ def probe_increments(settings: DatabaseSettings, seed: int, chunk: int, n: int, 
     hi = np.where(focus, settings.probe_focus_max, settings.probe_max)
     magnitude = libm.exp(libm.log(lo) + gen.random(n) * (libm.log(hi) - libm.log(lo)))
     if angle is not None:
-        return magnitude[:, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
-    direction = gen.standard_normal((n, dim))
+        return magnitude[:, None] * np.stack([libm.cos(angle), libm.sin(angle)], axis=1)
+    direction = libm.standard_normal(gen, (n, dim))
     return magnitude[:, None] * direction / np.linalg.norm(direction, axis=1, keepdims=True)
 
 
@@ -111,9 +110,9 @@ def perturbations(settings: DatabaseSettings, seed: int, chunk: int, n: int, n_f
     gen = rng(seed, 2, chunk)
     perturbed = gen.random(n) < settings.perturbed_fraction
     zero_probe = perturbed & (gen.random(n) < settings.zero_probe_fraction)
-    lo, hi = math.log(settings.perturbation_min), math.log(settings.perturbation_max)
+    lo, hi = float(libm.log(settings.perturbation_min)), float(libm.log(settings.perturbation_max))
     amplitude = libm.exp(lo + gen.random(n) * (hi - lo)) * diameter
-    direction = gen.standard_normal((n, n_free))
+    direction = libm.standard_normal(gen, (n, n_free))
     return perturbed, zero_probe, np.where(perturbed[:, None], amplitude[:, None] * direction, 0.0)
 
 
