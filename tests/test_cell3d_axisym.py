@@ -71,9 +71,15 @@ def shear_p(record: driver.Record) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_loose_cell_liquefies_and_dense_cell_dilates_in_undrained_triaxial_compression():
+    """The loose cell's liquefaction onset, the first axial strain with p < 0.3 p0, lies within [7.0, 8.5] %:
+    measured 7.6 % on this rule (25 axes, increment 1e-3), 7.3-8.1 % on 7 to 487 axes at 1e-3 or 1e-4
+    (8.1 %: docs/triaxial.md's rule); alpha0 = 53.5 deg gives 6.5 %, 53 deg 10.7 %, 55 deg 14.7 %, 52 and
+    56 deg never. The dense cell and the projected kinematics do not liquefy."""
     # 25 axes x 1 spin: with these kinematics a cell's response does not depend on its spin
     eps, p = shear_p(run(f"hcell3d-axisym:alpha0={LOOSE:g}"))
-    assert p.min() < 0.3 and eps[np.argmax(p < 0.3)] <= 0.15  # measured: below 0.3 p0 from 7.6 %, 0.16 p0 at 10 %
+    below = np.flatnonzero(p < 0.3)
+    onset = eps[below[0]] if below.size else None
+    assert onset is not None and 0.070 <= onset <= 0.085, f"p < 0.3 p0 from {onset} (lowest {p.min():.3f} p0)"
     eps, p = shear_p(run(f"hcell3d-axisym:alpha0={DENSE:g}"))
     assert p.min() > 0.95 and p[np.argmin(np.abs(eps - 0.10))] > 2.5  # measured: lowest 0.994, 3.47 at 10 %
     eps, p = shear_p(run(f"hcell3d:alpha0={LOOSE:g}", eps_max=0.05))
