@@ -4,6 +4,7 @@ site (make docs); licence and citation files match pyproject."""
 
 from __future__ import annotations
 
+import json
 import re
 import tomllib
 from pathlib import Path
@@ -39,10 +40,12 @@ def test_every_docs_page_is_on_the_site():
 
 
 def test_readme_is_a_front_page():
+    """At most 100 lines, the two commands, every user page linked, and no measured test-suite
+    line (a count of tests and minutes that goes stale with every commit)."""
     text = (ROOT / "README.md").read_text()
-    assert len(text.splitlines()) < 200
+    assert len(text.splitlines()) <= 100
     assert "make test" in text and "make demo" in text and "make docs" in text
-    assert re.search(r"`make test` runs \d+ tests in about \d+ minutes? on 2 cores", text)
+    assert not re.search(r"\d+ passed|runs \d+ tests", text)
     for page in sorted((ROOT / "docs").glob("*.md")):
         if page.stem not in ("index", "api"):
             assert f"(docs/{page.name}" in text, f"README does not link {page.name}"
@@ -81,3 +84,41 @@ def test_quoted_tests_exist():
     missing = [f"{path}::{name}" for path, name in sorted(named)
                if not re.search(rf"^def {name}\(", (ROOT / path).read_text(), re.M)]
     assert named and not missing, missing
+
+
+NUMBER = r"\d+(?:\.\d+)?(?:e[+-]?\d+)?"
+
+
+def readme_results() -> list[tuple[str, str, str]]:
+    """The rows (what, result, backed by) of the README's Results table."""
+    section = (ROOT / "README.md").read_text().split("\n## Results\n", 1)[1].split("\n## ", 1)[0]
+    rows = [[cell.strip() for cell in line.strip().strip("|").split(" | ")]
+            for line in section.splitlines() if line.startswith("| ")]
+    assert rows[0] == ["what", "result", "backed by"], rows[0]
+    return [tuple(row) for row in rows[1:]]
+
+
+def test_readme_results_are_backed():
+    """Every README result row names what backs it: a test that make test runs (its existence is
+    checked by test_quoted_tests_exist), a committed benchmark output whose text holds every figure
+    of the row's result, or a committed certificate whose worst figure is the row's. Prints the
+    list (pytest -s)."""
+    rows = readme_results()
+    assert len(rows) >= 5
+    for what, result, backed in rows:
+        tests = re.findall(r"`(tests/[\w./-]+\.py::test_\w+)`", backed)
+        outputs = re.findall(r"`(benchmarks/results/[\w.-]+)`", backed)
+        certificates = re.findall(r"`(homogenization/data/[\w.-]+\.json)`", backed)
+        assert tests or outputs or certificates, f"README result row without a backing: {what}"
+        for output in outputs:
+            text = (ROOT / output).read_text()
+            assert re.search(r"`benchmarks/\w+\.py[^`]*`", backed), f"{what}: no command regenerates {output}"
+            missing = [n for n in re.findall(NUMBER, result) if n not in text]
+            assert not missing, f"{what}: {missing} not in {output}"
+        for path in certificates:
+            worst = json.loads((ROOT / path).read_text())["certificate"]["worst"] * 100
+            quoted = re.search(rf"worst ({NUMBER}) %", result)
+            assert quoted, f"{what}: no worst figure quoted for {path}"
+            decimals = len(quoted.group(1).partition(".")[2])
+            assert f"{worst:.{decimals}f}" == quoted.group(1), (what, worst, quoted.group(1))
+        print(f"{what}\n    {result}\n    backed by: {', '.join(tests + outputs + certificates)}")
