@@ -9,8 +9,9 @@
 # make determinism: the tests marked determinism under every CPU-feature setting of numpy, OpenBLAS,
 #                  torch and numba (docs/determinism.md)
 # make reproduce : the whole pipeline from scratch: DEM database (6e5), training, active-learning
-#                  rounds on the certificate's failing tests (docs/certificate.md), three backends
-#                  (its model is the shipped one: docs/ann.md)
+#                  rounds on the certificate's failing tests (docs/certificate.md), three backends.
+#                  The shipped 2D model came from this pipeline at 94021ee; the DEM that generates
+#                  the database has changed since, so it now trains another model (docs/ann.md)
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
