@@ -196,30 +196,50 @@ REVERSAL_BEFORE_RECLOSURE = 4e-4
 REVERSAL_AFTER_COLLAPSE = 1.5e-4
 """The same from two increments after the last collapse of a wedge to the end (measured 3.6e-5;
 6.1e-3 before the DEM drove closing contacts at closing_strain_per_substep)."""
+REVERSAL_WINDOW = 55
+"""The most increments of the reversal between the first re-closure and two after the last collapse,
+where the curves are compared on REVERSAL_IN_WINDOW only (measured 53 of 150 at 18 orientations: the
+cells at 40 and 140 deg close a contact again at increment 84 of both runs and collapse at 134-135;
+the margin, 2, is a collapse one increment later at either end)."""
+REVERSAL_IN_WINDOW = 0.15
+"""|dp|, |dq| / p0 of the reversal in that window, on the increments where the two runs have collapsed
+the same wedges (measured 0.089: the closed form's spring of a contact that closed again is up to 3.6 %
+of the largest contact force off; 0.50 on the 3 increments where one has collapsed a wedge that the
+other has not)."""
+
+
+def _wedge_events(record: driver.Record) -> tuple[np.ndarray, np.ndarray]:
+    """Per orientation of a run with a snapshot per increment: (the first increment where its cell, every
+    contact open, closes a contact again; the last where its type-2 contacts close as alpha drops by
+    > 0.1 deg: its wedge collapsing), -1 where none."""
+    n1, n2, alpha = (record.snapshots[key] for key in ("N1", "N2", "alpha_deg"))
+    all_open = (n1 == 0.0) & (n2 == 0.0)
+    reclosed = (n1[1:] > 0.0) & all_open[:-1]
+    collapse = (np.abs(np.diff(alpha, axis=0)) > 0.1) & (n2[1:] > 0.0) & (n2[:-1] == 0.0)
+    first = np.where(reclosed.any(axis=0), reclosed.argmax(axis=0) + 1, -1)
+    last = np.where(collapse.any(axis=0), collapse.shape[0] - collapse[::-1].argmax(axis=0), -1)
+    return first, last
 
 
 def _reclosure_and_collapse(record: driver.Record) -> tuple[int, int]:
     """(first increment where a cell with every contact open closes a contact again, last increment
-    where a cell's type-2 contacts close as alpha drops by > 0.1 deg: a wedge collapsing) of a run
-    with a snapshot per increment."""
-    n1, n2, alpha = (record.snapshots[key] for key in ("N1", "N2", "alpha_deg"))
-    all_open = (n1 == 0.0) & (n2 == 0.0)
-    reclosed = np.flatnonzero(((n1[1:] > 0.0) & all_open[:-1]).any(axis=1)) + 1
-    collapse = (np.abs(np.diff(alpha, axis=0)) > 0.1) & (n2[1:] > 0.0) & (n2[:-1] == 0.0)
-    collapsed = np.flatnonzero(collapse.any(axis=1)) + 1
-    assert reclosed.size and collapsed.size, "the path neither closes contacts again nor collapses a wedge"
-    return int(reclosed[0]), int(collapsed[-1])
+    where a wedge collapses) of a run with a snapshot per increment (``_wedge_events``)."""
+    closes, collapses = _wedge_events(record)
+    assert (closes >= 0).any() and (collapses >= 0).any(), "the path closes no contact again or collapses no wedge"
+    return int(closes[closes >= 0].min()), int(collapses.max())
 
 
 def test_dem_matches_analytical_on_a_reversal_after_full_opening():
     """alpha0 = 60 deg = 90 - phi_g, p0 = 2e5 N/m, constant volume eps1 = +5 % then -10 %, 18
     orientations, increments of 1e-3: every contact of the sheared cells opens, the reversal
     closes the type-1 contacts again onto friction-locked wedges that collapse when alpha passes
-    60 deg. Before the first re-closure and after the last collapse the DEM and the closed form
-    agree (tolerances above). In between they do not, and are not compared here: the closed form
-    counts the rotation of the closing increment before the touch in the spring and collapses
-    some wedges an increment before the DEM and YADE do (|dq| up to 0.50 p0 at 18 orientations;
-    the DEM follows YADE through it, tests/test_yade_reference.py, ``reclose_`` cases)."""
+    60 deg. Each cell closes a contact again at the same increment in both runs and collapses its
+    wedge within one increment of the other's (measured: 3 of 9 wedges at the same increment, 6 one
+    apart either way; the DEM collapses within a row of YADE, tests/test_yade_reference.py,
+    ``reclose_`` cases). Before the first re-closure and after the last collapse the curves agree to
+    the tolerances above; in between, a window of at most REVERSAL_WINDOW increments, the closed form
+    counts the rotation of the closing increment before the touch in the spring, and the curves are
+    held to REVERSAL_IN_WINDOW where both have collapsed the same wedges."""
     p0 = 2e5
     programme = (loading.isotropic(p0, increment=ISO_INCREMENT),
                  loading.constant_volume_biaxial(0.05, 50, label="load"),
@@ -232,13 +252,22 @@ def test_dem_matches_analytical_on_a_reversal_after_full_opening():
                                     snapshot_interval=1, progress=False)
     ana, dem = runs["analytical"], runs["dem"]
     assert dem.n_increments == ana.n_increments
-    windows = [_reclosure_and_collapse(run) for run in (ana, dem)]
-    first, last = min(w[0] for w in windows), max(w[1] for w in windows)
-    assert ana.stage[first] == "unload" and last + 2 < ana.n_increments - 10
+    (closes, dem_closes), (collapses, dem_collapses) = zip(*(_wedge_events(run) for run in (ana, dem)))
+    assert np.array_equal(closes, dem_closes), (closes, dem_closes)
+    assert np.array_equal(collapses < 0, dem_collapses < 0) and np.abs(collapses - dem_collapses).max() <= 1, (
+        collapses, dem_collapses)
+    first, last = int(closes[closes >= 0].min()), int(max(collapses.max(), dem_collapses.max()))
+    assert ana.stage[first] == "unload" and last + 2 - first <= REVERSAL_WINDOW, (first, last)
+    assert last + 2 < ana.n_increments - 10
     dp = np.abs(dem.p - ana.p) / p0
     dq = np.abs(dem.q - ana.q) / p0
     before, after = slice(0, first), slice(last + 2, None)
     assert max(dp[before].max(), dq[before].max()) <= REVERSAL_BEFORE_RECLOSURE, (dp[before].max(), dq[before].max())
     assert max(dp[after].max(), dq[after].max()) <= REVERSAL_AFTER_COLLAPSE, (dp[after].max(), dq[after].max())
+    agreed = np.zeros(ana.n_increments, dtype=bool)
+    agreed[first:last + 2] = True
+    for a, d in zip(collapses, dem_collapses):
+        agreed[min(a, d):max(a, d)] = False  # one of the two has collapsed this wedge, the other not yet
+    assert max(dp[agreed].max(), dq[agreed].max()) <= REVERSAL_IN_WINDOW, (dp[agreed].max(), dq[agreed].max())
     assert ana.q[:first].max() > 0.2 * p0  # a sheared sample, not two stress-free curves
 
