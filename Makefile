@@ -6,7 +6,7 @@
 #                  backends overlaid, the two triaxial tests) into docs/figures/; the benchmark
 #                  scripts draw the others (docs/benchmarks.md)
 # make bench     : speed benchmarks (numbers quoted in README)
-# make determinism: the tests marked determinism under every CPU-feature setting of numpy, OpenBLAS,
+# make determinism: the tests marked determinism under every CPU-feature setting of numpy, OpenBLAS, glibc,
 #                  torch and numba (docs/determinism.md)
 # make reproduce : the whole pipeline from scratch: DEM database (6e5), training, active-learning
 #                  rounds on the certificate's failing tests (docs/certificate.md), three backends.
