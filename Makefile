@@ -48,6 +48,7 @@ $(VENV)/.docs-installed: $(VENV)/.installed
 docs: $(VENV)/.docs-installed
 	rm -rf docs/_build docs/_autosummary
 	$(PY) -m sphinx -b html -W --keep-going -q docs docs/_build/html
+	@! grep -l "cdn.jsdelivr.net\|mathjax@" docs/_build/html/*.html || (echo "a page loads MathJax from a CDN"; exit 1)
 	@echo "Site: docs/_build/html/index.html"
 
 demo: venv

@@ -7,8 +7,8 @@ so a new or moved module needs no edit here.
 
 Equations: MyST's ``dollarmath`` (``$...$`` inline, ``$$...$$`` display) and ``amsmath``
 (``\begin{aligned}`` and the like) turn them into math nodes, which ``sphinx.ext.mathjax``
-writes as ``\(...\)`` / ``\[...\]`` for MathJax; the browser loads MathJax from its CDN
-when the page is viewed, so building the site needs no network.
+writes as ``\(...\)`` / ``\[...\]`` for MathJax. ``sphinx-mathjax-offline`` copies MathJax
+into the site's ``_static/``, so neither building nor reading the site needs a network.
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.autosummary",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",
     "sphinx.ext.napoleon",
     "sphinx.ext.viewcode",
 ]

@@ -23,6 +23,7 @@ def _conf_value(name: str):
 def test_conf_enables_dollar_math_and_mathjax():
     assert {"dollarmath", "amsmath"} <= set(_conf_value("myst_enable_extensions"))
     assert "sphinx.ext.mathjax" in _conf_value("extensions")
+    assert "sphinx-mathjax-offline" in _conf_value("extensions")  # MathJax from the site, not a CDN
 
 
 def _planar_sections() -> str:
