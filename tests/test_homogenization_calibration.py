@@ -315,15 +315,19 @@ def test_batched_triaxial_forward_matches_the_driver(tmp_path, drained):
     assert not batch.n_fallback.any()
 
 
-def test_triaxial_likelihood_peaks_at_the_truth_of_synthetic_3d_data(tmp_path):
-    """Synthetic 3D data (the closed form at a truth, 1 % seeded noise, on the rule ``hmodel
-    calibrate`` uses for triaxial tests): the log posterior along phi_g is largest at the grid value
-    nearest the truth, and a CLI run on the same file, told the fixed parameters of the truth, puts
-    the truth inside its 95 % interval, which is much narrower than the prior.
+def test_triaxial_calibration_of_synthetic_3d_data_samples_the_posterior_interval(tmp_path):
+    """Synthetic 3D data (the closed form at phi_g = 24 deg, 1 % seeded noise, on the rule ``hmodel calibrate``
+    uses for triaxial tests): the log posterior along phi_g is largest at the grid value nearest the truth,
+    its 95 % interval (integrated on a 0.02 deg grid) holds the truth, and a CLI run on the same file, told
+    the fixed parameters of the truth, samples that interval: its ends and mean within 0.15 deg of the grid's
+    (so its interval holds the truth too).
 
-    Measured (4 walkers, 3 steps, --start prior): mean 24.09 deg, ci95 [23.61, 24.76] deg, against the uniform
-    prior [10, 45] deg. On another rule (Lebedev order 5 x 2 spins, 14 cells) the same data put the
-    posterior at 19 deg: the data must be made with the rule the command uses."""
+    Measured: grid mean 23.82 deg, interval [23.32, 24.31] deg (other noise seeds: [23.44, 24.45] to
+    [23.65, 24.67]). The CLI, 32 walkers x 60 steps from the MAP start, 20 % burn-in (1536 samples, tau 4
+    steps; 5.6 s), is within 0.03 (low end), 0.06 (high end) and 0.03 deg (mean) of the grid's over three
+    sampler seeds, and as close on the data of noise seeds 4 and 5. 4 walkers x 3 steps gave [23.61, 24.76]
+    deg for three of those four noise seeds. On another rule (Lebedev order 5 x 2 spins, 14 cells) the same
+    data put the posterior at 19 deg: the data must be made with the rule the command uses."""
     truth = {"phi_g": np.array([24.0]), "kn": np.array([3e8]), "kt_over_kn": np.array([0.6]),
              "alpha0": np.array([60.0])}
     rule = replace(SETTINGS_3D, lebedev_order=calibrate.FORWARD.lebedev_order, n_spins=calibrate.FORWARD.n_spins)
@@ -340,17 +344,23 @@ def test_triaxial_likelihood_peaks_at_the_truth_of_synthetic_3d_data(tmp_path):
     log_post = bayes.Posterior([test], bayes.make_prior(("phi_g",)), replace(rule, fixed=fixed), 0.01)
     grid = np.arange(18.0, 30.5, 1.0)
     assert grid[np.argmax(log_post(grid[:, None]))] == 24.0
+    fine = np.arange(21.0, 27.0, 0.02)  # the posterior at its ends: 5e-28 and 4e-33 of its peak
+    density = log_post(fine[:, None])
+    density = np.exp(density - density.max())
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]))])
+    lo, hi = np.interp([0.025, 0.975], cdf / cdf[-1], fine)
+    mean = np.sum(fine * density) / np.sum(density)
+    assert lo <= 24.0 <= hi and hi - lo <= 0.1 * (45.0 - 10.0)  # at least 10x narrower than the prior (35x)
     out = tmp_path / "run"
-    code = run_main(calibrate.main, ["--data", str(path), "--params", "phi_g", "--walkers", "4", "--steps", "3",
-                                     "--start", "prior", "--noise", "0.01", "--alpha0", "60", "--kn", "3e8", "--kt", "1.8e8",
+    code = run_main(calibrate.main, ["--data", str(path), "--params", "phi_g", "--walkers", "32", "--steps", "60",
+                                     "--burn", "0.2", "--noise", "0.01", "--alpha0", "60", "--kn", "3e8",
+                                     "--kt", "1.8e8",
                                      "--increment", str(SETTINGS_3D.increment), "--iso-increment",
                                      str(SETTINGS_3D.iso_increment), "--confirm", "none", "-q", "--out", str(out)])
     assert code == 0
     posterior = json.loads((out / "posterior.json").read_text())["phi_g"]
-    lo, hi = posterior["ci95"]
-    assert lo <= 24.0 <= hi
-    assert abs(posterior["mean"] - 24.0) <= 1.0
-    assert hi - lo <= 0.1 * (45.0 - 10.0)  # at least 10x narrower than the prior (measured 31x)
+    sampled = (*posterior["ci95"], posterior["mean"])
+    assert np.abs(np.subtract(sampled, (lo, hi, mean))).max() <= 0.15, (sampled, (lo, hi, mean))
 
 
 def test_triaxial_data_with_the_ann_backend_exit_2(tmp_path, capsys):
