@@ -3,6 +3,7 @@ file made on it, and the ANN backend runs a cell only with the kinematics its ce
 that nothing silently falls back to the projected kinematics (docs/triaxial.md, Static liquefaction in 3D)."""
 
 import json
+import warnings
 
 import pytest
 
@@ -52,7 +53,8 @@ def test_database_and_model_file_carry_the_kinematics(tmp_path):
         cell = from_description(str(f.attrs["mesostructure"]))
         starts = [from_description(text) for text in json.loads(f.attrs["start_mesostructures"])]
     assert cell_kinematics(cell) == "axisymmetric" and [cell_kinematics(s) for s in starts] == ["axisymmetric"]
-    with pytest.warns(RuntimeWarning):  # R^2 of 60 samples in 2 epochs: empty slices, not what is tested here
+    with warnings.catch_warnings():  # R^2 of 60 samples in 2 epochs may meet empty slices: not what is tested here
+        warnings.simplefilter("ignore", RuntimeWarning)
         assert train.main(["--data", str(db), "--out", str(model), "--epochs", "2", "--hidden", "8", "--no-rollout",
                            "--quiet"]) == 0
     assert cell_kinematics(from_description(read_metadata(model)["mesostructure"])) == "axisymmetric"
