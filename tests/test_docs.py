@@ -124,3 +124,19 @@ def test_readme_results_are_backed():
             decimals = len(quoted.group(1).partition(".")[2])
             assert f"{worst:.{decimals}f}" == quoted.group(1), (what, worst, quoted.group(1))
         print(f"{what}\n    {result}\n    backed by: {', '.join(tests + outputs + certificates)}")
+
+
+PAGE_WORDS = 3000
+"""Most words of one reference or how-to page (``docs/*.md``); measurement campaigns go to docs/studies/."""
+TOTAL_WORDS = 30000
+"""Most words of all reference and how-to pages together."""
+
+
+def test_reference_pages_are_short():
+    """Word counts (``wc -w``) of the pages outside docs/studies/, printed (pytest -s) and bounded."""
+    counts = {page.name: len(page.read_text().split()) for page in sorted((ROOT / "docs").glob("*.md"))}
+    for name, words in sorted(counts.items(), key=lambda item: -item[1]):
+        print(f"{words:6d}  docs/{name}")
+    print(f"{sum(counts.values()):6d}  total outside docs/studies/")
+    assert {name: words for name, words in counts.items() if words > PAGE_WORDS} == {}
+    assert sum(counts.values()) <= TOTAL_WORDS
