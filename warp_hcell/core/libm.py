@@ -2,7 +2,7 @@
 
 The C library's exp, log, atan2, sin and cos (and numpy's, which call it or run their own
 AVX-512 kernels) pick their code by CPU and platform and differ in last bits. These use only
-numpy's +, -, *, /, sqrt, rint, frexp, ldexp, comparisons and ``where``, one ufunc call per
+numpy's ``+``, ``-``, ``*``, ``/``, sqrt, rint, frexp, ldexp, comparisons and ``where``, one ufunc call per
 operation (no fused multiply-add can form across calls), in a fixed order: IEEE-754 rounds each
 correctly, so the results are the same bits on every CPU, C library and platform. They follow
 fdlibm's algorithms (Cody-Waite reduction, fixed polynomials). Max error against mpmath over
@@ -30,7 +30,7 @@ _PIO2 = ((1.57079632673412561417e00, 6.07710050650619224932e-11),  # pio2_1, pio
          (6.07710050630396597660e-11, 2.02226624879595063154e-21),  # pio2_2, pio2_2t
          (2.02226624871116645580e-21, 8.47842766036889956997e-32))  # pio2_3, pio2_3t
 _REDUCE_MAX = 2.0**19 * np.pi
-"""Largest |x| [rad] sin and cos take (Cody-Waite reduction by pi/2 in three parts)."""
+"""Largest ``abs(x)`` [rad] sin and cos take (Cody-Waite reduction by pi/2 in three parts)."""
 _S = (-1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04,
       2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10)
 _C = (4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05,
@@ -168,7 +168,7 @@ def sin(x: np.ndarray | float) -> np.ndarray:
     """Sine of ``x`` [rad], element by element.
 
     Args:
-        x: float64 array (or scalar), any shape, |x| <= 2**19 pi (ValueError beyond).
+        x: float64 array (or scalar), any shape, ``abs(x) <= 2**19 * pi`` (ValueError beyond).
 
     Returns:
         float64 array of the shape of ``x``; nan for inf or nan.
