@@ -174,8 +174,11 @@ def _start_long_run(out: Path) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
     argv = ["--alpha0", "55", "--eps-max", "0.2", "--increment", "1e-5", "--orientations", "360", "-q",
             "--out", str(out), "--overwrite"]
+    # SIGINT at its default in the child: a shell starts background jobs with SIGINT ignored, and a
+    # Python started so installs no KeyboardInterrupt handler (a suite run with `&` then failed here)
     return subprocess.Popen([sys.executable, "-m", "homogenization.biaxial", *argv], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _wait_for(path: Path, process: subprocess.Popen, timeout: float = 60.0) -> None:
