@@ -1,4 +1,5 @@
-# make test      : create .venv, install the package (CPU torch first), run the CI test suite
+# make test      : create .venv, install the package (CPU torch first), run the CI test suite in
+#                  TEST_WORKERS processes (default 2)
 # make demo      : same set-up, then the constant-volume biaxial tests and their figures
 # make docs      : same set-up plus the docs extra, then the documentation site (warnings are errors)
 #                  into docs/_build/html/index.html
@@ -34,8 +35,11 @@ $(VENV)/.installed: pyproject.toml
 
 venv: $(VENV)/.installed
 
+# The suite in TEST_WORKERS processes (pytest-xdist): 2 fills the 2-core CI machine.
+TEST_WORKERS ?= 2
+
 test: venv
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS)
 
 determinism: venv
 	$(PY) tests/determinism_settings.py
