@@ -33,8 +33,13 @@ DOBRANY_50 = Path(__file__).resolve().parents[1] / "benchmarks" / "lab_data" / "
 @pytest.mark.parametrize("law", [ContactLaw(kn=3e7, kt_over_kn=0.8, phi_g_deg=25.0),
                                  HertzMindlinLaw(shear_modulus=1e9, poisson=0.3, phi_g_deg=33.0)])
 def test_every_law_round_trips_through_its_file_form(law):
-    assert contact_law_from_dict(law.to_dict()) == law
+    assert contact_law_from_dict(law.to_dict()) == law == type(law).from_dict(law.to_dict())
     assert CONTACT_LAWS[law.name] is type(law)
+
+
+def test_a_law_refuses_the_file_form_of_another():
+    with pytest.raises(ValueError, match="is not the 'linear' law"):
+        ContactLaw.from_dict(HertzMindlinLaw().to_dict())
 
 
 def test_the_linear_law_is_stored_as_before():

@@ -132,7 +132,7 @@ def test_the_3d_rollout_of_the_shipped_model_follows_the_dem():
 
     net, _ = load_checkpoint(SHIPPED_3D)
     meta = read_metadata(SHIPPED_3D)
-    report = rollout.rollout_report(net, from_description(meta["mesostructure"]), ContactLaw(**meta["contact_law"]),
+    report = rollout.rollout_report(net, from_description(meta["mesostructure"]), ContactLaw.from_dict(meta["contact_law"]),
                                     DemSettings(contact_tolerance=float(meta["contact_tolerance"])), increments=(2e-3,))
     errors = report["increment_0.002"]["per_path"]
     assert len(errors) == 12 and max(errors) < 0.02

@@ -28,6 +28,7 @@ import torch
 from training.dataset import SCHEMA_FIELDS, schema_from_arrays
 from training.network import ACTIVATION, MesoNet
 from warp_hcell.core.files import atomic_write
+from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.files import describe, description_sha256, from_description
 from warp_hcell.mesostructures.mesostructure import Mesostructure, shares_state_schema
 
@@ -104,11 +105,11 @@ def load_checkpoint(path: str | Path) -> tuple[MesoNet, dict[str, Any]]:
     if not path.is_file():
         raise CheckpointError(f"{path}: no such model file")
     meta = read_metadata(path)
-    law = meta["contact_law"]
     try:
+        law = ContactLaw.from_dict(meta["contact_law"])
         schema_arrays = {k: np.asarray(meta["schema"][k]) for k in SCHEMA_FIELDS}
-        schema = schema_from_arrays(schema_arrays, kn=float(law["kn"]), kt_over_kn=float(law["kt_over_kn"]),
-                                    phi_g_deg=float(law["phi_g_deg"]), contact_tolerance=float(meta["contact_tolerance"]))
+        schema = schema_from_arrays(schema_arrays, kn=float(law.kn), kt_over_kn=float(law.kt_over_kn),
+                                    phi_g_deg=float(law.phi_g_deg), contact_tolerance=float(meta["contact_tolerance"]))
         net = MesoNet(schema, torch.tensor(meta["architecture"]["active_pairs"], dtype=torch.bool),
                       meta["architecture"]["hidden"], bool(meta["architecture"].get("load_features", False)))
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:

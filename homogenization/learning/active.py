@@ -216,8 +216,7 @@ def round_seed(seed: int, round_index: int) -> int:
 
 
 def _physics(attrs: Mapping[str, Any]) -> tuple[ContactLaw, DemSettings, DatabaseSettings]:
-    law = ContactLaw(kn=float(attrs["kn"]), kt_over_kn=float(attrs["kt"]) / float(attrs["kn"]),
-                     phi_g_deg=float(attrs["phi_g_deg"]))
+    law = ContactLaw.from_flags(kn=float(attrs["kn"]), phi_g_deg=float(attrs["phi_g_deg"]), kt=float(attrs["kt"]))
     fields = {f.name for f in dataclasses.fields(DemSettings)}
     dem = DemSettings(**{k: v for k, v in json.loads(str(attrs.get("dem_settings", "{}"))).items() if k in fields})
     generator = json.loads(str(attrs["generator"])) if "generator" in attrs else {}

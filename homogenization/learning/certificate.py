@@ -373,7 +373,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     start = time.perf_counter()
     model_path = Path(model_path)
     meta = read_metadata(model_path)
-    law = ContactLaw(**meta["contact_law"])
+    law = ContactLaw.from_dict(meta["contact_law"])
     hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": equilibrium_tolerance}
               if equilibrium_corrections else {"equilibrium_corrections": 0})  # never the model's earlier certificate's
     ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads, **hybrid)
@@ -466,7 +466,7 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
 
     settings = cert["settings"]
     meta = read_metadata(model_path)
-    law = ContactLaw(**meta["contact_law"])
+    law = ContactLaw.from_dict(meta["contact_law"])
     meso = from_description(meta["mesostructure"])
     info, programme = next((i, prog) for i, prog in tests_of(settings["pressures"], settings["eps_max"],
                                                              settings["increment"], settings.get("n_orientations", 0),

@@ -139,6 +139,15 @@ class ContactLaw:
         """The law as file formats store it (no ``law`` key: the linear law is the default)."""
         return asdict(self)
 
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> "ContactLaw":
+        """The law of its ``to_dict`` (a ``law`` key, if any, must name this law).
+
+        Raises:
+            ValueError: (one line) another law's name, or a key the law does not have.
+        """
+        return _law_from_dict(cls, values)
+
     @property
     def mu(self) -> float:
         """Friction coefficient tan(phi_g) [-]."""
@@ -228,6 +237,11 @@ class HertzMindlinLaw:
         """The law as file formats store it: {"law": name, field: value, ...}."""
         return {"law": self.name, **asdict(self)}
 
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> "HertzMindlinLaw":
+        """The law of its ``to_dict`` (``ContactLaw.from_dict``)."""
+        return _law_from_dict(cls, values)
+
 
 Law = Union[ContactLaw, HertzMindlinLaw]
 """Any contact-law declaration of ``CONTACT_LAWS``."""
@@ -240,22 +254,29 @@ G = 29 GPa reach overlaps of about 1e-4 to 5e-4 (r_i + r_j); a contact stiffer t
 (overlap above 2e-3 (r_i + r_j)) is counted in the DEM's ``n_stiffer_than_dt`` diagnostic."""
 
 
+def _law_from_dict(cls: type, values: Mapping[str, Any]) -> Any:
+    """Law ``cls`` of mapping ``values`` (its fields; ``law`` its name or absent for the linear law)."""
+    values = dict(values)
+    name = values.pop("law", ContactLaw.name)
+    if name != cls.name:
+        raise ValueError(f"contact law {name!r} is not the {cls.name!r} law")
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ValueError(f"contact law {name!r} has no parameter {unknown[0]!r}; it has {', '.join(sorted(known))}")
+    return cls(**values)
+
+
 def contact_law_from_dict(values: Mapping[str, Any]) -> Law:
     """The contact law a file stores (``to_dict`` of any law; no ``law`` key: the linear law).
 
     Raises:
         ValueError: (one line) an unknown law name or a key the law does not have.
     """
-    values = dict(values)
-    name = values.pop("law", ContactLaw.name)
+    name = values.get("law", ContactLaw.name)
     if name not in CONTACT_LAWS:
         raise ValueError(f"unknown contact law {name!r}; choose from {', '.join(CONTACT_LAWS)}")
-    cls = CONTACT_LAWS[name]
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(values) - known)
-    if unknown:
-        raise ValueError(f"contact law {name!r} has no parameter {unknown[0]!r}; it has {', '.join(sorted(known))}")
-    return cls(**values)
+    return CONTACT_LAWS[name].from_dict(values)
 
 
 def require_linear_law(law: Any, what: str) -> None:
