@@ -3,7 +3,8 @@
 numpy, OpenBLAS, torch (ATen, MKL, oneDNN), numba and glibc pick their kernels by CPU; these variables
 make them pick those of another CPU, so that one machine checks what an AVX2 or an AVX-512
 machine would compute (docs/determinism.md). Settings that need AVX-512 run only where the CPU
-has it. Prints one line per setting and the total time; exit status 1 if any setting failed.
+has it. The settings run two at a time (each its own process). Prints one line per setting, in
+order, and the total time; exit status 1 if any setting failed.
 
     python tests/determinism_settings.py [pytest arguments, e.g. -x]
 """
@@ -14,6 +15,7 @@ import os
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,24 +67,38 @@ def marked_files() -> list[str]:
                   if "pytest.mark.determinism" in p.read_text())
 
 
+WORKERS = 2
+"""Settings run at once (after the first, which fills Warp's and numba's caches alone): the CI machine's cores."""
+
+
+def run_setting(variables: dict[str, str], argv: list[str], files: list[str]) -> tuple[subprocess.CompletedProcess, float]:
+    """One pytest of the ``determinism`` tests under ``variables``: (its result, its wall time [s])."""
+    t0 = time.perf_counter()
+    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-m", "determinism",
+                             *argv, *files], cwd=ROOT, env={**os.environ, **variables}, capture_output=True, text=True)
+    return result, time.perf_counter() - t0
+
+
 def main(argv: list[str]) -> int:
     avx512 = has_avx512()
     files = marked_files()
     failed, start = [], time.perf_counter()
+    runnable = []
     for variables, needs_avx512 in SETTINGS:
         label = " ".join(f"{k}={v!r}" for k, v in variables.items()) or "host CPU as it is"
         if needs_avx512 and not avx512:
             print(f"skipped (no AVX-512): {label}", flush=True)
-            continue
-        t0 = time.perf_counter()
-        result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-m", "determinism",
-                                 *argv, *files], cwd=ROOT, env={**os.environ, **variables}, capture_output=True, text=True)
-        summary = (result.stdout.strip().splitlines() or ["(no output)"])[-1]
-        print(f"{'ok    ' if result.returncode == 0 else 'FAILED'} {time.perf_counter() - t0:5.0f} s  {label}: {summary}",
-              flush=True)
-        if result.returncode != 0:
-            failed.append(label)
-            print(result.stdout[-4000:] + result.stderr[-2000:], flush=True)
+        else:
+            runnable.append((label, variables))
+    first = [run_setting(runnable[0][1], argv, files)]
+    with ThreadPoolExecutor(max_workers=WORKERS) as pool:
+        rest = pool.map(lambda setting: run_setting(setting[1], argv, files), runnable[1:])
+        for (label, _), (result, seconds) in zip(runnable, [*first, *rest]):
+            summary = (result.stdout.strip().splitlines() or ["(no output)"])[-1]
+            print(f"{'ok    ' if result.returncode == 0 else 'FAILED'} {seconds:5.0f} s  {label}: {summary}", flush=True)
+            if result.returncode != 0:
+                failed.append(label)
+                print(result.stdout[-4000:] + result.stderr[-2000:], flush=True)
     print(f"determinism: {len(failed)} of the settings failed in {time.perf_counter() - start:.0f} s"
           + (": " + "; ".join(failed) if failed else ""))
     return 1 if failed else 0
