@@ -36,7 +36,6 @@ from homogenization.element_test.programme import Plan
 from homogenization.element_test.record import History, Record
 from homogenization.element_test.run import run as run_stages
 from homogenization.element_test.solver import JUMP_WIDTH, STRICT, ControlError, StressControl
-from homogenization.material.invariants import deviator, deviator_3d, mean_stress, mean_stress_3d
 from homogenization.element_test.loading import Programme, dimension, validate
 from warp_hcell.core.contract import CellModel
 from warp_hcell.core.cli import progress_bar
@@ -171,28 +170,18 @@ def to_record(history: History, points: MaterialPoints, programme: Programme, st
     rows = history.rows[:k, 0]
     V0 = float(points.material.V0[0])
     label_array = np.array([s.label for s in programme])
-    if dim == 2:
-        sigma11, sigma22 = rows[:, 2].copy(), rows[:, 3].copy()
-        sigma12 = rows[:, 4].copy()
-        p, q = mean_stress(sigma11, sigma22), deviator(sigma11, sigma22)
-        theta_deg, spatial = np.degrees(orient.theta), {}
-    else:
-        sigma11, sigma22, sigma33, sigma23, sigma13, sigma12 = (rows[:, 3 + m].copy() for m in range(6))
-        p = mean_stress_3d(sigma11, sigma22, sigma33)
-        q = deviator_3d(sigma11, sigma22, sigma33, sigma23, sigma13, sigma12)
-        theta_deg = np.degrees(np.arccos(np.clip(np.abs(orient.frames[:, 0, 0]), 0.0, 1.0)))
-        spatial = dict(eps33=rows[:, 2].copy(), sigma33=sigma33, sigma23=sigma23, sigma13=sigma13,
-                       frames=np.array(orient.frames))
+    space = points.dimension
+    stress = rows[:, dim:dim + space.n_voigt]
+    strain = {f"eps{c}": rows[:, a].copy() for a, c in enumerate(space.normal_components)}
+    sigma = {f"sigma{c}": stress[:, m].copy() for m, c in enumerate(space.components)}
+    spatial = {} if dim == 2 else dict(frames=np.array(orient.frames))
     model = points.model
     return Record(
         stage=label_array[history.stage_index[:k]],
-        eps11=rows[:, 0].copy(),
-        eps22=rows[:, 1].copy(),
-        sigma11=sigma11,
-        sigma22=sigma22,
-        sigma12=sigma12,
-        p=p,
-        q=q,
+        **strain,
+        **sigma,
+        p=space.mean_stress(stress),
+        q=space.deviator(stress),
         J=rows[:, -1].copy(),
         volume=V0 * rows[:, -1],
         newton_iterations=history.iterations[:k].copy(),
@@ -200,7 +189,7 @@ def to_record(history: History, points: MaterialPoints, programme: Programme, st
         snapshot_increment=np.array(history.snap_k, dtype=np.int64),
         snapshot_stage=label_array[np.array(history.snap_stage, dtype=np.int64)],
         snapshots=_snapshots(history.snaps),
-        theta_deg=theta_deg,
+        theta_deg=orient.axis_angle_deg,
         weights=np.array(orient.weights),
         V0=V0,
         parameters=parameters,

@@ -38,16 +38,15 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
+from warp_hcell.core.dimension import dimension as dimension_of
 from warp_hcell.core.parameters import LoadingDefaults
 
 CONTROLS = ("strain", "stress")
 """Allowed control kinds of a component."""
-COMPONENTS = ("11", "22")
+COMPONENTS = dimension_of(2).normal_components
 """Controlled components of a planar step, in the order of ``Step.control`` and ``Step.target``."""
-COMPONENTS_3D = ("11", "22", "33")
+COMPONENTS_3D = dimension_of(3).normal_components
 """Controlled components of a spatial (triaxial) step; axis 1 is the axial direction."""
-DIMENSIONS = {2: COMPONENTS, 3: COMPONENTS_3D}
-"""Number of controlled components -> their names."""
 ISO_MAX_STRAIN = 0.1
 """Largest strain per component the isotropic stage may apply before giving up [-]."""
 
@@ -74,7 +73,7 @@ class Step:
         object.__setattr__(self, "control", tuple(self.control))
         object.__setattr__(self, "target", tuple(float(v) for v in self.target))
         count = "three" if len(self.control) == 3 else "two"  # a planar step unless three are given
-        if len(self.control) not in DIMENSIONS or any(c not in CONTROLS for c in self.control):
+        if len(self.control) not in (2, 3) or any(c not in CONTROLS for c in self.control):
             raise ValueError(f"step {self.label!r}: control must be {count} of {CONTROLS}, got {self.control}")
         if len(self.target) != len(self.control) or not all(math.isfinite(v) for v in self.target):
             raise ValueError(f"step {self.label!r}: target must be {count} finite numbers, got {self.target}")
@@ -83,14 +82,14 @@ class Step:
         object.__setattr__(self, "n_increments", int(self.n_increments))
         if not self.label or not self.label.isidentifier():
             raise ValueError(f"step label {self.label!r} must be a non-empty identifier (letters, digits, _)")
-        for comp, control, value in zip(DIMENSIONS[self.dim], self.control, self.target):
+        for comp, control, value in zip(dimension_of(self.dim).normal_components, self.control, self.target):
             if control == "strain" and not abs(value) < 1.0:
                 raise ValueError(f"step {self.label!r}: strain change of component {comp} = {value:g} must be in (-1, 1)")
         if self.stop_at_p is not None:
             object.__setattr__(self, "stop_at_p", float(self.stop_at_p))
             if any(c != "strain" for c in self.control):
                 raise ValueError(f"step {self.label!r}: stop_at_p needs strain control on "
-                                 f"{'both' if self.dim == 2 else 'all three'} components")
+                                 f"{dimension_of(self.dim).every_axis} components")
             if not (math.isfinite(self.stop_at_p) and self.stop_at_p > 0.0):
                 raise ValueError(f"step {self.label!r}: stop_at_p = {self.stop_at_p:g} must be finite and > 0")
             if sum(self.target) <= 0.0:

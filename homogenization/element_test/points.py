@@ -22,9 +22,9 @@ import numpy as np
 
 from homogenization.material import orientation as orient_mod
 from homogenization.material import opening_spread, orientation3d
-from homogenization.material.invariants import mean_stress, mean_stress_3d
 from homogenization.material.homogenised import HomogenisedMaterial, HomogenisedMaterial3D, MaterialState, MaterialUpdate
 from warp_hcell.core.contract import CellModel
+from warp_hcell.core.dimension import dimension
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 
@@ -76,7 +76,8 @@ class MaterialPoints:
         self.n = material.n_points
         self.dim = material.dim
         self.n_voigt = material.n_voigt
-        self.unit = "N/m" if self.dim == 2 else "Pa"
+        self.dimension = dimension(self.dim)
+        self.unit = self.dimension.stress_unit
         self.peak = np.zeros(self.n)
         self.call_totals: dict[str, float] = {}
         self.accepted_diagnostics: dict[str, Any] = {}
@@ -89,9 +90,7 @@ class MaterialPoints:
 
     def mean(self, stress: np.ndarray) -> np.ndarray:
         """p = tr(sigma) / dim of stresses (n, 3 or 6), shape (n,)."""
-        if self.dim == 2:
-            return mean_stress(stress[:, 0], stress[:, 1])
-        return mean_stress_3d(stress[:, 0], stress[:, 1], stress[:, 2])
+        return self.dimension.mean_stress(stress)
 
     def trial(self, d_e: np.ndarray, *, with_tangent: bool = False) -> MaterialUpdate:
         """Every point updated by its macro increment ``d_e`` (n, n_voigt) from the saved state (pure)."""
@@ -132,7 +131,4 @@ class MaterialPoints:
 
     def axes(self) -> np.ndarray:
         """Each cell's axis n in the macro frame, shape (n_cells, dim)."""
-        orient = self.material.orient
-        if self.dim == 3:
-            return orient.frames[:, :, 0]
-        return np.stack([np.cos(orient.theta), np.sin(orient.theta)], axis=1)
+        return self.material.orient.axes

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from homogenization.element_test.loading import Programme
+from warp_hcell.core.dimension import dimension
 
 
 @dataclass
@@ -114,7 +115,7 @@ class History:
     """
 
     def __init__(self, n_max: int, n_points: int, dim: int, *, observe: bool = True) -> None:
-        n_stress = 3 if dim == 2 else 6
+        n_stress = dimension(dim).n_voigt
         self.dim = dim
         self.rows = np.empty((n_max, n_points, dim + n_stress + 1))
         self.iterations = np.empty(n_max, dtype=np.int64)

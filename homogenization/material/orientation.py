@@ -68,6 +68,16 @@ class Orientations(OrientationSet):
 
     theta: np.ndarray
 
+    @property
+    def axes(self) -> np.ndarray:
+        """Each cell's axis n = (cos theta, sin theta) in the macro frame [-], shape (N, 2)."""
+        return np.stack([np.cos(self.theta), np.sin(self.theta)], axis=1)
+
+    @property
+    def axis_angle_deg(self) -> np.ndarray:
+        """theta_k in degrees [deg], shape (N,)."""
+        return np.degrees(self.theta)
+
 
 def fabric_weights(theta: np.ndarray, anisotropy: float = 0.0, direction_deg: float = 0.0) -> np.ndarray:
     """Weights w_k = w(theta_k) pi / N with w(theta) = (1 + a_f cos 2(theta - b_f)) / pi.

@@ -121,6 +121,16 @@ class Orientations3D(OrientationSet):
     staggered: bool = True
     kinematics: str = "projected"
 
+    @property
+    def axes(self) -> np.ndarray:
+        """Each cell's axis n in the macro frame [-], shape (N, 3)."""
+        return self.frames[:, :, 0]
+
+    @property
+    def axis_angle_deg(self) -> np.ndarray:
+        """Angle between each cell axis and macro axis 1, in [0, 90] [deg], shape (N,)."""
+        return np.degrees(np.arccos(np.clip(np.abs(self.frames[:, 0, 0]), 0.0, 1.0)))
+
 
 def hemisphere_rule(order: int) -> tuple[np.ndarray, np.ndarray]:
     """Cell axes and weights: a Lebedev rule with one point of each antipodal pair, weights summing to 1.

@@ -35,6 +35,8 @@ from typing import Any, Mapping, Protocol, Sequence, TypeVar, runtime_checkable
 
 import numpy as np
 
+from warp_hcell.core.dimension import dimension
+
 Mesostructure = Any
 """A ``warp_hcell.mesostructures.mesostructure.Mesostructure`` (that layer sits above this one)."""
 S = TypeVar("S")
@@ -195,7 +197,7 @@ class SchemaCounts(CellCounts):
         """Shape of one cell's tangential spring forces: (n_pairs,) in 2D (a scalar along
         w = (-u_t, u_n) per pair), (n_pairs, 3) in 3D (a vector in the contact's tangent plane,
         local frame components, as the 3D DEM keeps it)."""
-        return (self.n_pairs,) if self.dim == 2 else (self.n_pairs, self.dim)
+        return (self.n_pairs, *dimension(self.dim).spring_shape)
 
     @property
     def n_free(self) -> int:

@@ -2,14 +2,13 @@
 once by the cell's dimension: ``DIMENSIONS[meso.dim]``.
 
 The kernels of both dimensions share their stepping and pair loops (``warp_hcell.dem.stepping``,
-``warp_hcell.dem.pairs``); what differs on the host is a grain's mass, the kernel of a topology,
-the sliding test of the tangent and the shape of a spring (the type of a cell vector:
-``warp_hcell.dem.stepping.cell_vector``).
+``warp_hcell.dem.pairs``); what differs on the host is the kernel of a topology and the sliding test
+of the tangent. A grain's measure (its mass) and the shape of a spring are the dimension's data
+(``warp_hcell.core.dimension``).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -33,22 +32,17 @@ def _spatial_kernel(meso: Mesostructure, law: str) -> wp.Kernel:
 
 
 @dataclass(frozen=True)
-class Dimension:
+class DemDimension:
     """The pieces of the meso-DEM of one spatial dimension."""
 
-    grain_measure: Callable[[np.ndarray], np.ndarray]
-    """Grain radii [m] -> the measure whose density gives a grain's mass: pi r^2 [m^2] (a disk per unit
-    thickness) or 4/3 pi r^3 [m^3]."""
     kernel: Callable[[Mesostructure, str], wp.Kernel]
     """(mesostructure, contact-law name) -> the compiled cell-step kernel of its topology."""
     sliding_contacts: Callable[..., np.ndarray]
     """``warp_hcell.dem.tangent.sliding_contacts`` or ``sliding_contacts_3d``."""
-    spring_shape: tuple[int, ...]
-    """Shape of one pair's tangential spring: () in the plane (f_s along w), (3,) in space (a vector)."""
 
 
 DIMENSIONS = {
-    2: Dimension(lambda radius: math.pi * radius**2, _planar_kernel, sliding_contacts, ()),
-    3: Dimension(lambda radius: 4.0 / 3.0 * math.pi * radius**3, _spatial_kernel, sliding_contacts_3d, (3,)),
+    2: DemDimension(_planar_kernel, sliding_contacts),
+    3: DemDimension(_spatial_kernel, sliding_contacts_3d),
 }
 """The meso-DEM's pieces by the cell's dimension."""

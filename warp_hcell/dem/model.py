@@ -16,7 +16,7 @@ import warp as wp
 
 from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, cell_measure, per_cell
 from warp_hcell.core.parameters import ContactLaw, DemSettings, Law
-from warp_hcell.dem.dimensions import DIMENSIONS
+from warp_hcell.core.dimension import dimension
 from warp_hcell.dem.laws import warp_law
 from warp_hcell.dem.state import DemState
 from warp_hcell.dem.stepping import cell_vector
@@ -77,7 +77,7 @@ class DemModel:
             raise ValueError(f"the {contact_law.name} contact law is defined for spheres (3D cells); "
                              f"mesostructure {meso.name!r} is planar: use the linear law")
         radius = np.ascontiguousarray(radius, dtype=np.float64)
-        mass = settings.density * DIMENSIONS[meso.dim].grain_measure(radius)
+        mass = settings.density * dimension(meso.dim).grain_measure(radius)
         kn = warp_law(contact_law.name).reference_stiffness(contact_law, radius)
         dt = settings.dt_factor * np.sqrt(mass.min(axis=1) / kn)
         floor = kn * settings.contact_tolerance * 2.0 * radius.mean(axis=1)
@@ -127,7 +127,7 @@ class DemModel:
         position = self.reference_position.numpy()
         return DemState.from_numpy({
             "position": position, "velocity": np.zeros_like(position),
-            "shear_force": np.zeros((n_cells, n_pairs, *DIMENSIONS[dim].spring_shape)),
+            "shear_force": np.zeros((n_cells, n_pairs, *dimension(dim).spring_shape)),
             "contact_force": np.zeros((n_cells, n_pairs, dim)),
             "contact": initial_contacts(position, self.radius.numpy(), self.meso.pairs,
                                         self.settings.contact_tolerance),

@@ -1,0 +1,112 @@
+"""The spatial dimension of a cell as data: ``dimension(2)`` (planar cells, disks) and ``dimension(3)``
+(spatial cells, spheres).
+
+What the package does differently in the two dimensions and that is only data or a formula (the
+components of a macro tensor, a cell's local frame, the measure of a grain and of a cell, the shape
+of a tangential spring, the stress unit, the invariants p and q) is read from the ``Dimension``
+record of the cell's dimension, so that the code around it is one path for both.
+
+Macro tensors are given by their Voigt components (``Dimension.components``; tensor, not
+engineering, shear strains). Sign convention: compression and contraction positive.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+
+def _deviator_planar(stress: np.ndarray) -> np.ndarray:
+    """q = sigma11 - sigma22 [N/m] of planar stresses (..., 3)."""
+    return stress[..., 0] - stress[..., 1]
+
+
+def _deviator_spatial(stress: np.ndarray) -> np.ndarray:
+    """q = sqrt(3 J2) [Pa] of spatial stresses (..., 6): J2 = ((s11 - s22)^2 + (s22 - s33)^2 +
+    (s33 - s11)^2) / 6 + s23^2 + s13^2 + s12^2."""
+    s11, s22, s33, s23, s13, s12 = (stress[..., m] for m in range(6))
+    J2 = ((s11 - s22) ** 2 + (s22 - s33) ** 2 + (s33 - s11) ** 2) / 6.0 + (s23**2 + s13**2 + s12**2)
+    return np.sqrt(3.0 * J2)
+
+
+@dataclass(frozen=True)
+class Dimension:
+    """What differs between planar and spatial cells, as data and formulas.
+
+    Attributes:
+        dim: the spatial dimension d, 2 or 3.
+        components: names of a macro tensor's Voigt components, normal ones first: (11, 22, 12) or
+            (11, 22, 33, 23, 13, 12).
+        index: (i, j) of each component, 0-based.
+        frame: names of a cell's local axes: (n, t) or (n, t1, t2); index 0 is the cell axis n.
+        measure: "area" (planar cells, per unit thickness) or "volume".
+        stress_unit: unit of a stress: "N/m" (force per unit thickness over length) or "Pa".
+        spring_shape: shape of one pair's tangential spring force: () in the plane (a scalar along
+            w = (-u_t, u_n)), (3,) in space (a vector in the contact's tangent plane).
+        every_axis: how a message names all d normal components ("both", "all three").
+        grain_measure: grain radii [m] -> the measure whose density gives a grain's mass: pi r^2
+            [m^2] (a disk per unit thickness) or 4/3 pi r^3 [m^3].
+        deviator: Voigt stresses (..., n_voigt) -> q: sigma11 - sigma22 [N/m] in the plane,
+            sqrt(3 J2) [Pa] in space.
+    """
+
+    dim: int
+    components: tuple[str, ...]
+    index: tuple[tuple[int, int], ...]
+    frame: tuple[str, ...]
+    measure: str
+    stress_unit: str
+    spring_shape: tuple[int, ...]
+    every_axis: str
+    grain_measure: Callable[[np.ndarray], np.ndarray]
+    deviator: Callable[[np.ndarray], np.ndarray]
+
+    @property
+    def n_voigt(self) -> int:
+        """Number of Voigt components of a symmetric macro tensor: 3 or 6."""
+        return len(self.components)
+
+    @property
+    def normal_components(self) -> tuple[str, ...]:
+        """Names of the d normal components, (11, 22) or (11, 22, 33): those a loading step controls."""
+        return self.components[: self.dim]
+
+    def mean_stress(self, stress: np.ndarray) -> np.ndarray:
+        """p = tr(sigma) / d [N/m or Pa] of Voigt stresses (..., n_voigt), compression positive."""
+        total = stress[..., 0]
+        for a in range(1, self.dim):
+            total = total + stress[..., a]
+        return total / self.dim
+
+    def to_tensor(self, components: np.ndarray) -> np.ndarray:
+        """Symmetric d x d tensor(s) (..., d, d) from Voigt components (..., n_voigt)."""
+        components = np.asarray(components, dtype=np.float64)
+        tensor = np.empty(components.shape[:-1] + (self.dim, self.dim))
+        for m, (i, j) in enumerate(self.index):
+            tensor[..., i, j] = components[..., m]
+            tensor[..., j, i] = components[..., m]
+        return tensor
+
+
+_DIMENSIONS = {
+    2: Dimension(2, ("11", "22", "12"), ((0, 0), (1, 1), (0, 1)), ("n", "t"), "area", "N/m", (), "both",
+                 lambda radius: math.pi * radius**2, _deviator_planar),
+    3: Dimension(3, ("11", "22", "33", "23", "13", "12"), ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)),
+                 ("n", "t1", "t2"), "volume", "Pa", (3,), "all three",
+                 lambda radius: 4.0 / 3.0 * math.pi * radius**3, _deviator_spatial),
+}
+
+
+def dimension(dim: int) -> Dimension:
+    """The ``Dimension`` record of ``dim``.
+
+    Raises:
+        ValueError: ``dim`` is neither 2 nor 3.
+    """
+    try:
+        return _DIMENSIONS[int(dim)]
+    except KeyError:
+        raise ValueError(f"dimension {dim} is neither 2 nor 3") from None
