@@ -5,7 +5,7 @@
 #                  into docs/_build/html/index.html
 # make figures   : same set-up, then redraws the docs' figures that hmodel commands draw (the three
 #                  backends overlaid, the two triaxial tests) into docs/figures/; the benchmark
-#                  scripts draw the others (docs/benchmarks.md)
+#                  and study scripts draw the others (docs/benchmarks.md, studies/README.md)
 # make bench     : speed benchmarks (numbers quoted in README)
 # make determinism: the tests marked determinism under every CPU-feature setting of numpy, OpenBLAS, glibc,
 #                  torch and numba (docs/determinism.md)

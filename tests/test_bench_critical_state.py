@@ -1,4 +1,4 @@
-"""benchmarks/bench_critical_state.py measures candidate cell rules against the calibration's forward
+"""studies/bench_critical_state.py measures candidate cell rules against the calibration's forward
 model: its plain path must be that forward model bit for bit, and a rule that never fires must leave it
 unchanged, or its tables compare unlike things."""
 
@@ -17,14 +17,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def bench():
-    sys.path.insert(0, str(ROOT / "benchmarks"))
+    sys.path.insert(0, str(ROOT / "studies"))
     try:
-        spec = importlib.util.spec_from_file_location("_bench_critical_state", ROOT / "benchmarks" / "bench_critical_state.py")
+        spec = importlib.util.spec_from_file_location("_bench_critical_state", ROOT / "studies" / "bench_critical_state.py")
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
         yield module
     finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
+        sys.path.remove(str(ROOT / "studies"))
 
 
 def _short_test(bench, eps_max: float = 0.03):

@@ -1,5 +1,5 @@
-"""Every benchmark script imports: a script that names a function the package no longer has fails
-here, not the next time someone runs the benchmark."""
+"""Every benchmark and study script imports: a script that names a function the package no longer
+has fails here, not the next time someone runs it."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = sorted((ROOT / "benchmarks").glob("*.py")) + sorted((ROOT / "benchmarks" / "lab_data").glob("*/*.py"))
+SCRIPTS = (sorted((ROOT / "benchmarks").glob("*.py")) + sorted((ROOT / "benchmarks" / "lab_data").glob("*/*.py"))
+           + sorted((ROOT / "studies").glob("*.py")))
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: str(p.relative_to(ROOT)))

@@ -56,7 +56,7 @@ def test_readme_is_a_front_page():
 def test_quoted_repository_paths_exist():
     """Every repository path the pages quote exists, but for what a build writes (docs/_build)."""
     text = "\n".join(page.read_text() for page in DOCS)
-    quoted = set(re.findall(r"`((?:homogenization|warp_hcell|training|docs|benchmarks|tests)/[\w./-]+)`", text))
+    quoted = set(re.findall(r"`((?:homogenization|warp_hcell|training|docs|benchmarks|studies|tests)/[\w./-]+)`", text))
     quoted = {path for path in quoted if not path.startswith("docs/_build/")}
     missing = sorted(path for path in quoted if not (ROOT / path.split(":")[0]).exists())
     assert quoted and not missing

@@ -13,7 +13,7 @@ tangent to <= 1e-5. Sliding contacts depend on the size of every driving substep
 difference step along the largest component changes the last driving substep by the step
 itself, and the step's slope along that component differs from the quasi-static one by 0.25
 to 2.6 % in slide, at any driving rate (a property of the stepping: docs/bvp.md section 1,
-benchmarks/bench_dem_tangent.py). Sliding cells are therefore checked with differences at a
+studies/bench_dem_tangent.py). Sliding cells are therefore checked with differences at a
 held driving schedule (``fd_tangent_fixed_schedule``: the rate follows max |d_eps| over the
 stencil, so the s_k stay those of the increment); what remains falls with the driving rate
 (|T| / mu N ends a hair below 1 after the last relaxation swings): 4.0e-5 to 1.2e-4 at 1e-8

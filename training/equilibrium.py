@@ -112,7 +112,7 @@ def corrected_advance(net: MesoNet, cell_size, free_position, shear_force, d_eps
                       regularisation: float = REGULARISATION) -> Corrected:
     """``MesoNet.advance`` with up to ``iterations`` exact Newton corrections (module docstring);
     ``regularisation`` [-] the diagonal stiffness added to -J as a fraction of kn (the package's
-    ``REGULARISATION``; another value only to study where the steps land, benchmarks/diagnose_hybrid_paths.py)."""
+    ``REGULARISATION``; another value only to study where the steps land, studies/diagnose_hybrid_paths.py)."""
     schema = net.schema
     feats, m, unbalanced, old = features_and_contacts(schema, net.active_index, cell_size, free_position,
                                                       shear_force, d_eps, net.load_features)

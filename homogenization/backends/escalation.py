@@ -21,7 +21,7 @@ contacts leave free, each point an equilibrium of the one-increment contact law,
 pick another one than the DEM's path (docs/certificate.md, "With increments from rest at 1e-6").
 ``DemEscalation(sliding=True)`` hands those cell-increments to the DEM too (``DemEscalation.sliding``,
 ``DemEscalation.escalated``); the package's hybrids do not (measured only:
-benchmarks/bench_ann_equilibrium.py ``--escalation sliding``).
+studies/bench_ann_equilibrium.py ``--escalation sliding``).
 
 Sign convention: compression positive (moments as the DEM backend's ``CellResponse``).
 """
