@@ -6,13 +6,15 @@ This module sits at the bottom of the package (``warp_hcell.core``): ``warp_hcel
 A cell model creates a batch of independent cells (one per orientation, or one per
 database probe) from a mesostructure (``warp_hcell.mesostructures.mesostructure.Mesostructure``: a builder
 such as ``h_cell(alpha0_deg, radius)`` or a spec of ``warp_hcell.mesostructures.builders``, or a file),
-advances them by per-cell strain increments given in each cell's local frame (n, t), and
-returns the Love-Weber moment S and the cell area V_cell. The homogenisation drives any
-cell model through this protocol without knowing which backend it is; backends know
-nothing about orientations, weights or loading programmes.
+advances them by per-cell strain increments given in each cell's local frame, and returns the
+Love-Weber moment S and the cell measure V_cell. The homogenisation drives any cell model through
+this protocol without knowing which backend it is; backends know nothing about orientations,
+weights or loading programmes.
 
+Every shape below holds for cells of either dimension d = ``mesostructure.dim`` (2: planar cells
+of disks, per unit thickness; 3: spatial cells of spheres; ``warp_hcell.core.dimension``).
 Sign convention: compression and contraction positive (strain increments, forces, S).
-Local frame: index 0 = n (cell axis), index 1 = t (lateral direction).
+Local frame: index 0 = n (cell axis), then the lateral axes: t (d = 2) or t1, t2 (d = 3).
 
 States are values: ``step`` never modifies its input state, so saving a state is keeping a
 reference to it, and a trial increment (stress control) is a ``step`` whose result is
@@ -21,8 +23,8 @@ out into probes; ``state_to_arrays``/``state_from_arrays`` round-trip a state th
 named numpy arrays (HDF5 snapshots, resume).
 
 Tangents: ``step(state, d_eps_local, with_tangent=True)`` also returns, in
-``CellResponse.tangent``, the consistent cell tangent C = d(S_nn, S_tt)/d(eps_n, eps_t)
-[N m] of the increment just taken (the derivative of the step's result with respect to its
+``CellResponse.tangent``, the consistent cell tangent C = d(diagonal of S)/d(eps along the
+local axes) [N m], shape (n_cells, d, d), of the increment just taken (the derivative of the step's result with respect to its
 own increment, in the contact regimes the step reached: stick, slide, open). A backend
 computes it only when asked, so plain calls cost nothing extra.
 """
@@ -48,15 +50,15 @@ class CellResponse:
 
     Attributes:
         moment: Love-Weber sum S = sum_c f_c (x) l_c over the contacts [N m], shape
-            (n_cells, 2, 2), local frame (index 0 = n, 1 = t), compression positive.
-            sigma_cell = moment / area.
-        area: cell area V_cell [m^2], shape (n_cells,): the polygon through the centres
-            of the driven (outer) grains (the hexagon for the H-cell).
+            (n_cells, d, d), local frame, compression positive. sigma_cell = moment / area.
+        area: cell measure V_cell, shape (n_cells,): the area [m^2] of the polygon (d = 2)
+            or the volume [m^3] of the polyhedron (d = 3) through the centres of the
+            driven (outer) grains, as the mesostructure declares them.
         diagnostics: per-call scalars a backend may report (e.g. DEM ``substeps`` spent
             and ``n_unconverged`` cells); empty for closed-form backends.
-        tangent: consistent cell tangent d(S_nn, S_tt)/d(eps_n, eps_t) [N m] of the
-            increment just taken, shape (n_cells, 2, 2), compression positive; None where
-            the backend was not asked for it.
+        tangent: consistent cell tangent d(S_aa)/d(eps_b) [N m] of the increment just
+            taken (a, b local axes), shape (n_cells, d, d), compression positive; None
+            where the backend was not asked for it.
     """
 
     moment: np.ndarray
@@ -90,7 +92,7 @@ class CellModel(Protocol[S]):
 
         Raises:
             ValueError: (one line) a mesostructure this backend does not model (the
-                analytical backend models the six-equal-grain H-cell only; an ANN model only
+                analytical backend models the H-cell of equal grains only; an ANN model only
                 the mesostructure it was trained on), or a sequence of the wrong length.
         """
         ...
@@ -100,12 +102,13 @@ class CellModel(Protocol[S]):
 
         Args:
             state: cells before the increment.
-            d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive:
-                l1 <- l1 (1 - d_eps_n), l2 <- l2 (1 - d_eps_t).
+            d_eps_local: normal strain increments along the local axes [-], shape
+                (n_cells, d): (d_eps_n, d_eps_t) or (d_eps_n, d_eps_t1, d_eps_t2), compression
+                positive: the cell size along axis a, l_a <- l_a (1 - d_eps_a).
             with_tangent: also return ``CellResponse.tangent``, the consistent tangent
-                d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m] of this increment, shape
-                (n_cells, 2, 2) (row = stress component, column = strain component); None
-                (and no extra work) when False.
+                d(S_aa)/d(d_eps_b) [N m] of this increment, shape (n_cells, d, d) (row =
+                stress component, column = strain component); None (and no extra work)
+                when False.
 
         Returns:
             The new state and its meso-stress response.
@@ -119,10 +122,11 @@ class CellModel(Protocol[S]):
     def observables(self, state: S) -> dict[str, np.ndarray]:
         """Named per-cell quantities, each of shape (n_cells,).
 
-        H-cell backends return at least ``l1, l2, d1, d2`` [m], ``alpha_deg`` [deg],
-        ``N1, N2, T1`` [N] (compression positive, T1 > 0 resists opening),
+        Planar H-cell backends return at least ``l1, l2, d1, d2`` [m], ``alpha_deg``
+        [deg], ``N1, N2, T1`` [N] (compression positive, T1 > 0 resists opening),
         ``S_nn, S_tt`` [N m], ``area`` [m^2], and contact flags ``closed1, closed2``
-        (bool: type-1 / type-2 contacts closed).
+        (bool: type-1 / type-2 contacts closed); a spatial cell's backends return those
+        its mesostructure declares (``Mesostructure.observables``).
         """
         ...
 
@@ -182,21 +186,22 @@ class CellCounts:
 
 class SchemaCounts(CellCounts):
     """``CellCounts``, ``n_free``, ``dim`` and ``shear_shape`` of a schema with ``free_dofs``
-    (n_free, 2): (grain, axis) and ``driven`` (n_grains, dim)."""
+    (n_free, 2): (grain, axis) and ``driven`` (n_grains, d)."""
 
     free_dofs: Any
     driven: Any
 
     @property
     def dim(self) -> int:
-        """Spatial dimension of the cell: 2 (frame (n, t)) or 3 (frame (n, t1, t2))."""
+        """Spatial dimension d of the cell, 2 or 3 (``warp_hcell.core.dimension``)."""
         return int(self.driven.shape[1])
 
     @property
     def shear_shape(self) -> tuple[int, ...]:
-        """Shape of one cell's tangential spring forces: (n_pairs,) in 2D (a scalar along
-        w = (-u_t, u_n) per pair), (n_pairs, 3) in 3D (a vector in the contact's tangent plane,
-        local frame components, as the 3D DEM keeps it)."""
+        """Shape of one cell's tangential spring forces: (n_pairs, *spring_shape) of the cell's
+        ``Dimension``: (n_pairs,) for d = 2 (a scalar along w = (-u_t, u_n) per pair),
+        (n_pairs, 3) for d = 3 (a vector in the contact's tangent plane, local frame
+        components, as the 3D DEM keeps it)."""
         return (self.n_pairs, *dimension(self.dim).spring_shape)
 
     @property
@@ -237,21 +242,22 @@ class StateSchema(SchemaCounts):
 
     A state is (cell size, free-DOF coordinates, per-pair tangential spring forces); every
     other feature (contact flags, normal forces, unbalanced forces on the free DOFs,
-    Love-Weber moment, area) follows from it, the reference geometry below and the contact
-    law. Driven coordinates follow x = x_ref * l / l_ref. Local frame: index 0 = n, 1 = t
-    (2D) or 1 = t1, 2 = t2 (3D, ``dim`` = 3: shapes below with 3 in place of 2, the spring
-    forces per pair a vector, ``shear_shape``); grain labels in feature names are 1-based.
+    Love-Weber moment, measure) follows from it, the reference geometry below and the contact
+    law. Driven coordinates follow x = x_ref * l / l_ref. Local frame: index 0 = n, then t
+    (d = 2) or t1, t2 (d = 3); the spring forces of a pair have ``shear_shape``; grain labels
+    in feature names are 1-based.
 
     Attributes:
-        free_dofs: (grain index 0-based, axis 0 = n / 1 = t (/ 2 = t2)) of every free DOF, shape
+        free_dofs: (grain index 0-based, local axis 0 .. d - 1) of every free DOF, shape
             (n_free, 2) int64, row-major order of ``driven == False``.
         pairs: candidate contact pairs (i, j), 0-based, shape (n_pairs, 2) int64.
         radius: grain radii [m], shape (n_grains,).
-        reference_position: reference centres [m], shape (n_grains, dim).
-        reference_cell_size: (l1_ref, l2_ref[, l3_ref]) [m], shape (dim,).
-        driven: True where the DOF is driven, shape (n_grains, dim) bool.
-        outer: ordered grain indices of the outer polygon (area V_cell), shape (n_outer,);
-            in 3D the outer triangles (volume V_cell), shape (n_faces, 3).
+        reference_position: reference centres [m], shape (n_grains, d).
+        reference_cell_size: (l1_ref, .., ld_ref) [m], shape (d,).
+        driven: True where the DOF is driven, shape (n_grains, d) bool.
+        outer: the boundary whose measure is V_cell: for d = 2 the ordered grain indices of
+            the outer polygon, shape (n_outer,); for d = 3 the outer triangles, shape
+            (n_faces, 3).
         features: feature name -> ``StateFeature``, in storage order.
     """
 
