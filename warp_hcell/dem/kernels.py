@@ -1,46 +1,27 @@
 """Warp code of the planar meso-DEM: the batched cell-step kernel (float64); the contact law is
 ``warp_hcell.dem.contact``.
 
-One thread advances one cell through a whole strain increment: the substep loop runs
-inside the kernel and the cell (positions, velocities, displacements, shear forces) lives in
-fixed-size local matrices; the pieces shared with the 3D kernel are ``warp_hcell.dem.stepping``
-and the pair loops ``warp_hcell.dem.pairs``; the law of one planar pair and the cell area are
-below. Kernels are generated per topology (candidate pairs and driven DOF mask are
-compile-time constants), so every grain/pair index is static and the loops are unrolled;
-``step_kernel`` caches one kernel per topology. Measured on the H-cell (CPU, one thread, 1e5
-cells): 1.9e7 cell-substeps per CPU-second, 1.8 times the same kernel reading the pair and
-driven tables from arrays in rolled loops (bit-identical results).
+One thread advances one cell through a whole strain increment: the substep loop runs inside the
+kernel and the cell (positions, velocities, displacements, shear forces) lives in fixed-size
+local matrices. The stepping shared with the 3D kernel is ``warp_hcell.dem.stepping``, the pair
+loops ``warp_hcell.dem.pairs``; the law of one planar pair and the cell area are below. Kernels
+are generated per topology (candidate pairs and driven DOF mask are compile-time constants, loops
+unrolled); ``step_kernel`` caches one kernel per topology. Throughput: docs/studies/bench_dem_kernel.md.
 
 Conventions inside the kernels (tension-positive DEM quantities, local frame (n, t)):
     - pair p = (i, j): unit normal ``u = (x_j - x_i) / |x_j - x_i|``, tangent w = (-u_t, u_n);
-    - ``contact_force[p]`` is the force exerted ON grain i BY grain j: -f_n u + f_s w,
-      with f_n >= 0 the normal (repulsive) force and f_s the tangential spring force
-      (``shear_force``), which grows by kt * ((dx_j - dx_i) . w);
-    - a pair is in contact when its gap is <= contact_tolerance * (r_i + r_j); a contact with
-      a gap >= 0 carries zero force (and so zero shear force); out of contact the shear
-      history is reset;
-    - free DOFs: explicit (leapfrog) integration with Cundall local damping
-      (``warp_hcell.dem.stepping.damped_velocity``), from rest at the start of each increment; a free grain whose net
-      force is exactly zero is set at rest (no drift of unloaded grains in mechanism states);
-    - driven DOFs: x = x_ref * l(s) / l_ref with l(s) moving linearly from the old to the new
-      cell size, s = min(k rate / max abs(d_eps), 1) over n = ceil(max abs(d_eps) / rate) driving
-      substeps (the last one shorter: the driven path is continuous in d_eps); then relaxation
-      until max free-DOF force <= force_tolerance * max(max normal force, force_floor), or
-      max_substeps;
-    - memory: the velocities in the state are every grain's mean velocity over the last
-      increment's driving substeps (driven DOFs: the last driving rate; free DOFs: how they
-      moved while the cell was driven, relaxation included);
-    - adaptive rate and prediction, from the cell's own state only (no knowledge of the
-      mesostructure): if the new increment, driven at strain_per_substep, continues the last
-      one (same direction within velocity_change), the rate may grow by rate_growth over the
-      last driving rate, up to strain_per_substep, and the free grains drift with the driven
-      ones by what they did in the last increment, scaled like the driven displacements. A new
-      direction (start of shear, reversal, a probe) starts again from
-      refined_strain_per_substep without prediction. Within an increment, once a contact
-      opens, closes, starts or stops sliding, the rest is driven at refined_strain_per_substep;
-      once a contact closes, at closing_strain_per_substep, and the next increment grows its rate
-      from there with the free grains unpredicted (docs/dem_stepping.md, "Contacts that close
-      again").
+    - ``contact_force[p]`` is the force ON grain i BY grain j: -f_n u + f_s w, f_n >= 0 the
+      normal (repulsive) force, f_s the tangential spring force (``shear_force``), which grows
+      by kt * ((dx_j - dx_i) . w);
+    - contact when the gap is <= contact_tolerance * (r_i + r_j); a contact with a gap >= 0
+      carries zero force; out of contact the shear history is reset;
+    - free DOFs: leapfrog with Cundall local damping (``stepping.damped_velocity``), from rest
+      at the start of each increment; a free grain with exactly zero net force is held at rest;
+    - driven DOFs: x = x_ref * l(s) / l_ref, l(s) linear from the old to the new cell size over
+      n = ceil(max abs(d_eps) / rate) driving substeps; then relaxation until max free-DOF force
+      <= force_tolerance * max(max normal force, force_floor), or max_substeps;
+    - adaptive rate, prediction of the free grains and refinement on a regime change from the
+      cell's own state (``warp_hcell.dem.stepping``, docs/dem_stepping.md).
 
 The conversion to compression-positive quantities happens on the host
 (``warp_hcell.database.learning_state.to_compression_positive``).

@@ -1,35 +1,24 @@
 """Warp code of the 3D meso-DEM: the batched cell-step kernel for cells of spheres (float64).
 
-The 3D counterpart of ``warp_hcell.dem.kernels`` (same stepping, same conventions), one thread
-per cell with the whole increment inside the kernel and the cell in fixed-size local
-matrices; kernels are generated per topology (candidate pairs, driven DOF mask and outer
-faces are compile-time constants, loops unrolled). The stepping (``warp_hcell.dem.stepping``)
-and the pair loops (``warp_hcell.dem.pairs``) are the 2D kernel's, the law of one spatial pair the
-contact law's (``warp_hcell.dem.laws``: ``spatial_contact``); the pair force and the volume are below.
+The 3D counterpart of ``warp_hcell.dem.kernels`` (same stepping, same conventions): one thread per
+cell, the whole increment inside the kernel, kernels generated per topology (candidate pairs,
+driven DOF mask and outer faces are compile-time constants). The stepping
+(``warp_hcell.dem.stepping``) and pair loops (``warp_hcell.dem.pairs``) are the 2D kernel's, the
+law of one spatial pair the contact law's (``warp_hcell.dem.laws``: ``spatial_contact``); the
+pair force and the volume are below.
 
 Conventions inside the kernel (tension-positive DEM quantities, local frame (n, t1, t2)):
     - pair p = (i, j): unit normal u = (x_j - x_i) / norm(x_j - x_i);
-    - ``shear_force[p]`` is the tangential spring force ON grain i, a vector in the contact's
-      tangent plane; ``contact_force[p]`` = -f_n u + f_s is the force on grain i by grain j,
-      f_n >= 0 the normal (repulsive) force;
-    - each substep the spring is first carried into the current tangent plane (projected on
-      it and rescaled to its former magnitude: a rotation for the small changes of u of one
-      substep; for a contact whose relative motion stays in one plane this is exactly the
-      scalar spring of the 2D kernel), then grows by kt times the tangential part of the
-      relative displacement (dx_j - dx_i); the trial force is capped at mu f_n along its own
-      direction (Coulomb); out of contact the history is reset; the Hertz-Mindlin law
-      (``warp_hcell.dem.laws.hertz_mindlin``) has f_n = kh delta^(3/2) and the mean Mindlin stiffness of the
-      move in place of kt;
-    - contact when the gap is <= contact_tolerance (r_i + r_j); a contact with a gap >= 0
-      carries zero force;
-    - free DOFs: leapfrog with Cundall local damping per component, from rest at the start of
-      each increment (plus the predicted drift); a free grain whose net force is exactly zero
-      is held at rest;
-    - driven DOFs: x_a = x_a,ref l_a(s) / l_a,ref, l(s) linear from the old to the new cell size
-      over the driving substeps; then relaxation until max free-DOF force <= force_tolerance *
-      max(max normal force, force_floor), or max_substeps;
-    - adaptive rate, prediction of the free grains and refinement on regime changes (a contact
-      opening, closing, starting or stopping sliding) exactly as in the 2D kernel;
+    - ``shear_force[p]`` is the tangential spring force ON grain i, a vector in the tangent
+      plane; ``contact_force[p]`` = -f_n u + f_s is the force on grain i by grain j, f_n >= 0;
+    - each substep the spring is carried into the current tangent plane (projected and rescaled
+      to its former magnitude), then grows by kt times the tangential relative displacement;
+      the trial force is capped at mu f_n (Coulomb); out of contact the history is reset;
+      Hertz-Mindlin (``warp_hcell.dem.laws.hertz_mindlin``): f_n = kh delta^(3/2), mean
+      Mindlin stiffness in place of kt;
+    - contact when the gap is <= contact_tolerance (r_i + r_j); a gap >= 0 carries zero force;
+    - free DOFs, driven DOFs, relaxation, adaptive rate, prediction and refinement exactly as
+      in the 2D kernel;
     - cell volume: the polyhedron of the outer faces (triangles of grain centres, oriented
       outwards), V = abs(sum_f x_a . (x_b x x_c)) / 6.
 """

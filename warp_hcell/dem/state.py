@@ -32,32 +32,22 @@ _DTYPES = {
 
 @dataclass(frozen=True, eq=False)
 class DemState:
-    """Arrays of one batch state.
-
-    Planar cells (dim 2) hold vec2d/mat22d fields, spatial cells (dim 3) vec3d/mat33d ones;
-    ``vecd`` below is the vector of the cell's dimension, frame (n, t) or (n, t1, t2).
+    """Arrays of one batch state; ``vecd`` is vec2d (dim 2, frame (n, t)) or vec3d (dim 3, (n, t1, t2)).
 
     Attributes:
-        position: grain centres [m], shape (n_cells, n_grains) vecd.
-        velocity: every grain's mean velocity over the driving substeps of the step that
-            produced this state [m/s], shape (n_cells, n_grains) vecd: the memory from which
-            the next step sets its strain per substep and predicts its free grains
-            (``warp_hcell.dem.kernels``); zero for a state no step produced.
-        shear_force: tangential spring force of each candidate pair [N] on grain i: in 2D a
-            scalar along w = (-u_t, u_n), shape (n_cells, n_pairs); in 3D a vector in the
-            contact's tangent plane, shape (n_cells, n_pairs) vec3d.
-        contact_force: force on grain i of pair (i, j) by grain j [N], shape
-            (n_cells, n_pairs) vecd; zero for pairs out of contact.
-        contact: 1 where the pair is in contact (gap <= tolerance), shape (n_cells, n_pairs) int32.
-        cell_size: (l1, l2[, l3]) [m], shape (n_cells,) vecd.
-        moment: Love-Weber sum sum_p f_p (x) (x_j - x_i) over the pairs [N m], tension
-            positive (negative for a compressed cell), shape (n_cells,) mat22d or mat33d, rows =
-            force component, columns = branch component.
-        area: V_cell [m^2 in 2D, m^3 in 3D]: area of the polygon, volume of the closed surface,
-            through the outer grains, shape (n_cells,).
-        substeps: substeps spent by the step that produced this state, shape (n_cells,) int32.
-        converged: 1 where that step reached quasi-static equilibrium, shape (n_cells,) int32.
-    """
+        position: grain centres [m], (n_cells, n_grains) vecd.
+        velocity: each grain's mean velocity over the producing step's driving substeps [m/s],
+            (n_cells, n_grains) vecd.
+        shear_force: tangential spring force on grain i [N]: 2D a scalar along w = (-u_t, u_n),
+            (n_cells, n_pairs); 3D a tangent-plane vec3d.
+        contact_force: force on grain i of pair (i, j) by grain j [N], (n_cells, n_pairs) vecd.
+        contact: 1 where the pair is in contact, (n_cells, n_pairs) int32.
+        cell_size: (l1, l2[, l3]) [m], (n_cells,) vecd.
+        moment: Love-Weber sum sum_p f_p (x) (x_j - x_i) [N m], tension positive, (n_cells,)
+            mat22d/mat33d, rows = force, columns = branch component.
+        area: V_cell [m^2 or m^3] through the outer grains, (n_cells,).
+        substeps, converged: substeps spent by the producing step, 1 where it reached
+            equilibrium, (n_cells,) int32."""
 
     position: wp.array
     velocity: wp.array
@@ -126,22 +116,17 @@ class DemState:
 class StatePool:
     """Output states of a batch's steps, reused once nothing outside the pool refers to them.
 
-    States are values (a step writes a new one and never modifies its input), but allocating
-    the ten field arrays of a new state and building their kernel-argument structs costs
-    ~70 us of CPU per step, more than the kernel spends on a few hundred cells at a few
-    substeps. ``acquire`` hands out a state that nobody can observe any more instead: one whose
-    reference counts (the state, each field array) are back at what they were when only the
-    pool held it. Any reference held elsewhere (a state kept by the caller or inside a
-    ``DemCellState``, a numpy view of one of its fields) keeps it out of reuse; then, or when
-    every pooled state is in use, a new state is allocated (pooled while there is room).
-    A step overwrites every field of its output, so a reused state carries nothing over.
-
-    Each thread has its own pool: no state is checked and handed out by two threads at once.
+    States are values (a step writes a new one and never modifies its input); allocating one costs
+    more CPU than the kernel spends on a small batch. ``acquire`` hands out a state nobody can
+    observe any more: its reference counts (the state, each field array) are back at what they
+    were when only the pool held it. A reference held elsewhere (a caller's state, a
+    ``DemCellState``, a numpy view of a field) keeps it out of reuse; then, or when every pooled
+    state is in use, a new state is allocated. A step overwrites every field of its output. Each
+    thread has its own pool.
 
     Args:
-        n_cells, n_grains, n_pairs: batch dimensions; device: Warp device; dim: of the cells (2 or 3).
-        capacity: most states kept per thread.
-    """
+        n_cells, n_grains, n_pairs: batch dimensions; device: Warp device; dim: 2 or 3.
+        capacity: most states kept per thread."""
 
     def __init__(self, n_cells: int, n_grains: int, n_pairs: int, device: str, capacity: int = 8, dim: int = 2):
         self._shape = (int(n_cells), int(n_grains), int(n_pairs), device, int(dim))

@@ -141,18 +141,15 @@ def driving_path(dim: int) -> wp.Function:
 def rate_and_prediction(drive: tuple[tuple[bool, ...], ...]) -> wp.Function:
     """``predict(v, ref, dscale, h, largest, ...)``: the strain per substep and the free grains' drift.
 
-    From the cell's own state: its velocities are every grain's mean velocity over the last
-    increment's driving substeps; for the driven DOFs d_last = v h is the last driving rate per
-    substep and d_new = D_new / n this increment's displacement per substep at the coarse rate,
-    lam = (d_last . d_new) / (d_new . d_new). The new increment continues the last one when
-    max abs(d_last - lam d_new) <= velocity_change lam max abs(d_new); then the rate may grow by
-    rate_growth over the last one, up to strain_per_substep (else refined_strain_per_substep;
-    after an increment driven at closing_strain_per_substep it grows from there),
-    and the free grains drift as they moved, scaled like the driven ones: by span v_last,
+    From the cell's own state (v: each grain's mean velocity over the last increment's driving
+    substeps): for the driven DOFs d_last = v h is the last driving rate per substep, d_new = D_new / n
+    this increment's at the coarse rate, lam = (d_last . d_new) / (d_new . d_new). The increment
+    continues the last one when max abs(d_last - lam d_new) <= velocity_change lam max abs(d_new);
+    then the rate may grow by rate_growth up to strain_per_substep (else refined_strain_per_substep;
+    after closing_strain_per_substep it grows from there), and the free grains drift by span v_last,
     span = (v_last . D_new) / (v_last . v_last) [s] over the driven DOFs.
 
-    Returns (velocities with the free DOFs at rest, drift [m/s], driving substeps, ds).
-    """
+    Returns (velocities with the free DOFs at rest, drift [m/s], driving substeps, ds)."""
     n_grains, dim = len(drive), len(drive[0])
     mat = grain_matrix(n_grains, dim)
     vec = cell_vector(dim)
@@ -218,13 +215,10 @@ def grain_motion(drive: tuple[tuple[bool, ...], ...]) -> tuple[wp.Function, wp.F
       zero is held at rest;
     - ``memory(x, x0, ref, dscale, driving, h, closed, ds)``: every DOF's mean velocity over the
       increment's driving substeps (driven: the driving rate; free: how it moved while the cell
-      was driven, relaxation included), zero without driving. Where a contact closed in the
-      increment (``closed`` = 1) the driven DOFs keep the rate of the last driving substep
-      (ds, a fraction of the increment), so that the next increment grows from the closing rate,
-      and the free DOFs' is zero: they moved in another contact state (a snap-through ending on
-      a new contact), and predicting the next increment from that motion would push them,
-      against the springs, where the new state does not go.
-    """
+      was driven), zero without driving. Where a contact closed in the increment (``closed`` = 1)
+      the driven DOFs keep the rate of the last driving substep (ds, a fraction of the increment)
+      and the free DOFs' memory is zero: they moved in another contact state
+      (docs/dem_stepping.md)."""
     n_grains, dim = len(drive), len(drive[0])
     mat = grain_matrix(n_grains, dim)
     vec = cell_vector(dim)

@@ -1,40 +1,28 @@
 """Consistent tangent of a quasi-static few-grain cell by static condensation (any mesostructure).
 
-``condensed_tangent`` returns C = d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m] of a batch of cells
-at equilibrium, from their grain positions, contact forces and driven-DOF mask only: nothing
-here knows the shape of a cell. Vectorised over cells (numpy), no per-cell Python loop.
+``condensed_tangent`` returns C = d(S_aa)/d(d_eps_b) [N m] of a batch of cells at equilibrium from
+their grain positions, contact forces and driven-DOF mask only (nothing here knows the shape of a
+cell); vectorised over cells (numpy).
 
-The maths (spec section 13), tension-positive DEM forces, local frame (n, t), pair p = (i, j),
-branch b = x_j - x_i, ``d = |b|``, u = b / d, w = (-u_t, u_n):
+The maths (spec section 13), tension-positive DEM forces, pair p = (i, j), branch b = x_j - x_i,
+``d = |b|``, u = b / d, tangent projector P = I - u u^T (2D: P = w w^T, w = (-u_t, u_n)):
 
-- The force on grain i by grain j is f = -N u + T w with N = kn (r_i + r_j - d) and T the
-  tangential spring force. Its stiffness k_p = df/db (2 x 2) is
-  kn u u^T - (N / d) w w^T - (T / d) u w^T + w dT/db, with dT/db = kt w^T for a sticking
-  contact and -sign(T) mu kn u^T for a sliding one; pairs without overlap carry nothing.
-- A contact slides in the increment when its elastic trial force exceeds the cap:
-  ``|T_old + kt (b_new - b_old) . w_mid| > mu N`` (``sliding_contacts``), as in the analytical
-  cell's return mapping. (The final ``|T|`` alone does not tell: a contact that slid all along
-  can end a hair below the cap after the last relaxation swing.)
-- The net contact force on grain g is F_g = -sum_p (e_j - e_i)_g f_p, so the stiffness of
-  all DOFs is K = dF/dx = -sum_p (e_j - e_i)(e_j - e_i)^T (x) k_p.
-- Free DOFs stay in equilibrium: K_ff dx_f = -K_fd dx_d (pseudo-inverse of K_ff, so that
-  a DOF without stiffness, e.g. a force-free grain of a mechanism, stays at rest), hence
-  dF_d = (K_dd - K_df K_ff^+ K_fd) dx_d.
-- At equilibrium the Love-Weber moment is the virial of the DOF forces,
-  S_aa = sum_g F_g,a x_g,a (compression positive: S = -sum_p f_p (x) b_p), where only driven
-  DOFs carry a force; with dx_d = B d_eps (the driven kinematics):
-  dS_aa/d d_eps_b = sum_{g driven along a} (dF_g,a/d d_eps_b x_g,a + F_g,a dx_g,a/d d_eps_b).
+- the force on grain i by grain j is f = -N u + T, N = kn (r_i + r_j - d), T the tangential
+  spring force; its stiffness k_p = df/db = kn u u^T - (N / d) P - u T^T / d + dT/db, with
+  dT/db = kt P (stick) or -mu kn t u^T + kt (P - t t^T) (slide, t = T / norm(T)); pairs without
+  overlap carry nothing;
+- a contact slides when its elastic trial force exceeds the cap,
+  ``|T_old + kt (b_new - b_old) . w_mid| > mu N`` (``sliding_contacts``);
+- K = dF/dx = -sum_p (e_j - e_i)(e_j - e_i)^T (x) k_p; free DOFs stay in equilibrium
+  (pseudo-inverse of K_ff, so a DOF without stiffness stays at rest), hence
+  dF_d = (K_dd - K_df K_ff^+ K_fd) dx_d;
+- at equilibrium S_aa = sum_g F_g,a x_g,a over driven DOFs (compression positive), and with
+  dx_d = B d_eps: dS_aa/d d_eps_b = sum (dF_g,a/d d_eps_b x_g,a + F_g,a dx_g,a/d d_eps_b).
 
-Spatial cells (3D, frame (n, t1, t2)): the tangential force T is a vector in the tangent plane,
-P = I - u u^T its projector, and k_p = kn u u^T - (N / d) P - u T^T / d + dT/db with
-dT/db = kt P (stick) or -mu kn t u^T + kt (P - t t^T) (slide, t = T / norm(T): the force keeps
-its magnitude mu N and turns with the trial force in the plane); the -u T^T / d term is the
-spring turning with the contact. In 2D (P = w w^T) these are the expressions above.
-
-The Hertz-Mindlin law (spatial cells only, ``law="hertz-mindlin"``): kn and kt are then the pair
-constants kh, ks [N/m^1.5] (``warp_hcell.core.laws.hertz_mindlin.pair_constants``, shape broadcasting
-against (n_cells, n_pairs)), N = kh delta^(3/2), and the kn and kt of the expressions above become
-the tangent stiffnesses 1.5 kh sqrt(delta) and ks sqrt(delta) at the contact's overlap delta.
+Hertz-Mindlin (spatial cells, ``law="hertz-mindlin"``): kn, kt are the pair constants kh, ks
+[N/m^1.5] (``warp_hcell.core.laws.hertz_mindlin.pair_constants``, broadcasting against
+(n_cells, n_pairs)), N = kh delta^(3/2), and kn, kt above become the tangent stiffnesses
+1.5 kh sqrt(delta) and ks sqrt(delta).
 """
 
 from __future__ import annotations
@@ -218,24 +206,20 @@ def condensed_tangent(position: np.ndarray, radius: np.ndarray, pairs: np.ndarra
     """Consistent tangent of cells at quasi-static equilibrium, by static condensation.
 
     Args:
-        position: grain centres [m], shape (n_cells, n_grains, dim), local frame (n, t) or (n, t1, t2).
-        radius: grain radii [m], shape (n_cells, n_grains).
-        pairs: candidate contact pairs (i, j), 0-based, shape (n_pairs, 2).
-        driven: True where DOF (grain, direction) follows the cell strain, shape (n_grains, dim).
-        shear_force: tangential spring force of each pair [N], tension-positive DEM convention,
-            on grain i: shape (n_cells, n_pairs) along w = (-u_t, u_n) in 2D, (n_cells, n_pairs, 3)
-            vectors in 3D.
-        sliding: True where the contact slides, shape (n_cells, n_pairs) (``sliding_contacts``).
-        drive_rate: dx_g,a / d d_eps_a [m] of every driven DOF (0 elsewhere), shape
-            (n_cells, n_grains, dim); e.g. -x_ref,g,a l_a,old / l_a,ref for homothetic driving.
+        position: grain centres [m], (n_cells, n_grains, dim), local frame.
+        radius: grain radii [m], (n_cells, n_grains).
+        pairs: candidate contact pairs (i, j), 0-based, (n_pairs, 2).
+        driven: True where DOF (grain, direction) follows the cell strain, (n_grains, dim).
+        shear_force: tangential spring force on grain i [N], tension-positive: (n_cells, n_pairs)
+            along w in 2D, (n_cells, n_pairs, 3) in 3D.
+        sliding: True where the contact slides, (n_cells, n_pairs) (``sliding_contacts``).
+        drive_rate: dx_g,a / d d_eps_a [m] of driven DOFs (0 elsewhere), (n_cells, n_grains, dim).
         kn, kt: contact stiffnesses [N/m]; mu: friction coefficient [-].
-        law: contact-law name; "hertz-mindlin" (spatial cells): kn, kt are the pair constants
-            kh, ks [N/m^1.5] (module docstring).
+        law: contact-law name; "hertz-mindlin": kn, kt are kh, ks [N/m^1.5] (module docstring).
 
     Returns:
-        C = d(S_aa)/d(d_eps_b) [N m], shape (n_cells, dim, dim) (2D: (S_nn, S_tt) by (d_eps_n,
-        d_eps_t)), compression positive; row = stress component, column = strain component.
-    """
+        C = d(S_aa)/d(d_eps_b) [N m], (n_cells, dim, dim), compression positive; row = stress
+        component, column = strain component."""
     position = np.asarray(position, dtype=np.float64)
     n_cells, n_grains, dim = position.shape
     n_dof = dim * n_grains
