@@ -1,43 +1,36 @@
 """Parametric mesostructures: H-cells with unequal grains and fine grains in the pore, and specs.
 
-A mesostructure is named on the command line (``--mesostructure``) and in Python either by
-a file (TOML/JSON, ``warp_hcell.mesostructures.files.load_mesostructure``) or by a *builder spec*:
+A mesostructure is named on the command line (``--mesostructure``) and in Python either by a
+file (TOML/JSON, ``warp_hcell.mesostructures.files.load_mesostructure``) or by a *builder spec*:
 
     SPEC   := KIND [":" KEY "=" VALUE ("," KEY "=" VALUE)*]
     KIND   := "hcell" | "hcell-unequal" | "hcell-fines" | "hcell3d" | "hcell3d-fines" | "hcell3d-axisym"
 
 Keys (all optional unless marked):
 
-- ``alpha0=DEG``: initial opening angle [deg], in [30, 90). Given in the spec it fixes the
-  geometry; without it the command's ``--alpha0`` (or the sweep's list) is used.
-- ``radius=R``: radius r of the axial grains 1 and 4 [m] (default 0.5, D = 1 m).
-- ``lateral=RATIO``: radius of the lateral grains 2, 3, 5, 6 over r [-] (default 1;
-  required by ``hcell-unequal``). Every contact of the H-cell touches: d1 = r (1 + lateral),
-  d2 = 2 r lateral.
-- ``ratio=R1/R2/...``: fine grains (required by ``hcell-fines``): radius of each fine grain
-  over r [-], "/" between grains; a ratio of 0 means no grain. Fine grains are free along
-  n and t (no driven DOF), labelled 7, 8, ... after the six H-cell grains.
-- ``n=X1/X2/...``, ``t=Y1/Y2/...``: offset of each fine grain's centre from the pore
-  centre along the cell axis n and the lateral direction t, in units of r [-] (default 0:
-  the pore centre). One value applies to every grain.
+- ``alpha0=DEG``: initial opening angle [deg], in [30, 90); without it the command's
+  ``--alpha0`` (or the sweep's list) is used.
+- ``radius=R``: radius r of the axial grains 1 and 4 [m] (default 0.5).
+- ``lateral=RATIO``: radius of the lateral grains over r [-] (default 1; required by
+  ``hcell-unequal``).
+- ``ratio=R1/R2/...``: fine grains (required by ``hcell-fines``): radius of each over r [-];
+  0 means no grain. Fine grains are free (no driven DOF), labelled 7, 8, ...
+- ``n=X1/X2/...``, ``t=Y1/Y2/...`` (3D: ``t1``, ``t2``): offset of each fine grain's centre from
+  the pore centre in units of r [-] (default 0); one value applies to every grain.
+- ``plane=DEG`` (``hcell3d``): angle between the ten-sphere cell's two planes (default 90).
 
-Examples: ``hcell``, ``hcell-unequal:alpha0=55,lateral=0.7``,
-``hcell-fines:alpha0=50,ratio=0.76``, ``hcell-fines:ratio=0.3/0.3,n=0.4/-0.4``; in 3D
-``hcell3d:alpha0=55`` (the ten-sphere cell; ``plane=DEG``: angle between its two planes, 90 by
-default), ``hcell3d-fines:ratio=0.5,n=0.1`` (offsets ``n``, ``t1``, ``t2``; docs/model.md
-section 14) and ``hcell3d-axisym:alpha0=54`` (the same ten spheres driven by the axisymmetric part of
-the cell strain, the 3D cell that liquefies; docs/model.md section 14).
-Anything that is not a spec is read as a file path (write ``./hcell`` for a file of that
-name). In a comma list of mesostructures (the sweep), a piece ``KEY=VALUE`` without ``:``
-continues the spec before it (``split_mesostructure_list``).
+Examples: ``hcell``, ``hcell-unequal:alpha0=55,lateral=0.7``, ``hcell-fines:ratio=0.3/0.3,n=0.4/-0.4``,
+``hcell3d:alpha0=55``, ``hcell3d-fines:ratio=0.5,n=0.1``, ``hcell3d-axisym:alpha0=54`` (driven by
+the axisymmetric part of the strain; docs/model.md section 14). Anything that is not a spec is a
+file path (``./hcell`` for a file of that name). In a comma list (the sweep), a piece
+``KEY=VALUE`` without ``:`` continues the spec before it (``split_mesostructure_list``).
 
-Validation (``MesostructureError``, one line): unknown kind or key, malformed values, and
-what ``warp_hcell.mesostructures.hcell.build_h_cell`` refuses (grains that overlap by more
-than the contact tolerance, a fine grain whose centre is outside the pore, the hexagon
-1-2-3-4-5-6; ``hcell.pore_ratio`` gives the largest fine grain that fits at a position).
+Raises ``MesostructureError`` (one line) for an unknown kind or key, malformed values, and what
+``warp_hcell.mesostructures.hcell.build_h_cell`` refuses (overlapping grains, a fine grain
+outside the pore; ``hcell.pore_ratio`` gives the largest that fits).
 
-This module parses names; the cells are built by ``warp_hcell.mesostructures.hcell`` (the
-only code that knows their shape) or read by ``warp_hcell.mesostructures.files``.
+This module parses names; cells are built by ``warp_hcell.mesostructures.hcell`` (the only code
+that knows their shape) or read by ``warp_hcell.mesostructures.files``.
 """
 
 from __future__ import annotations

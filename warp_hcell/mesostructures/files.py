@@ -35,30 +35,25 @@ def with_declarations(meso: Mesostructure) -> Mesostructure:
 def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettings.contact_tolerance) -> Mesostructure:
     """Read a mesostructure from a TOML (``.toml``) or JSON (``.json``) file.
 
-    Format (labels are 1-based, coordinates (n, t) in metres)::
+    Format (labels 1-based, coordinates (n, t) in metres)::
 
         name = "h-cell, lateral grains 0.7 D"
         cell_size = [l1_ref, l2_ref]
-        outer = [1, 2, 3, 4, 5, 6]          # ordered around the polygon whose area is V_cell
+        outer = [1, 2, 3, 4, 5, 6]          # ordered polygon whose area is V_cell
         pairs = [[1, 2], ...]               # optional; default: all pairs
-        type1 = [[1, 2], [1, 6], ...]       # optional H-cell labels (``hcell.file_labels``:
-        type2 = [[2, 3], [5, 6]]            #   the cell then declares alpha_deg, N1, N2, T1, ...)
+        type1 = [[1, 2], [1, 6], ...]       # optional H-cell labels (``hcell.file_labels``)
+        type2 = [[2, 3], [5, 6]]
         [[grains]]                          # one table per grain, in label order
         radius = 0.5
         position = [x_n, x_t]
         driven = [true, false]              # (along n, along t)
 
-    A 3D cell may add ``kinematics = "axisymmetric"`` (``KINEMATICS``; default "projected"): the
-    macro strain drives it by its axisymmetric part (the kind ``hcell3d-axisym``).
-    No other key is read: any other key, at the top level or in a grain, is refused with its
-    name (``check_keys``). A 3D cell (spheres) gives three coordinates per grain, position =
-    [x_n, x_t1, x_t2] and driven = [n, t1, t2], a cell_size of three lengths, and ``outer`` as
-    the triangles of the closed surface whose volume is V_cell, oriented outwards:
-    outer = [[1, 6, 10], ...].
+    3D: three coordinates per grain, three cell lengths, ``outer`` the outward triangles of the
+    closed surface ([[1, 6, 10], ...]), optionally ``kinematics = "axisymmetric"``
+    (``KINEMATICS``). Any other key is refused with its name (``check_keys``).
 
     Raises:
-        MesostructureError: unreadable file, unknown key or invalid description (one-line message).
-    """
+        MesostructureError: unreadable file, unknown key or invalid description (one line)."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -77,7 +72,7 @@ GRAIN_KEYS = ("radius", "position", "driven")
 """Keys of one grain of a mesostructure file."""
 KINEMATICS = ("projected", "axisymmetric")
 """Values of the ``kinematics`` key of a 3D cell's file or description: how the macro strain drives the
-cell (homogenization.material.orientation3d); "axisymmetric" sets the parameter ``hcell.AXISYMMETRIC_KINEMATICS``."""
+cell (homogenization.material.orientation); "axisymmetric" sets the parameter ``hcell.AXISYMMETRIC_KINEMATICS``."""
 
 
 def _with_kinematics(meso: Mesostructure, kinematics: Any, where: str) -> Mesostructure:

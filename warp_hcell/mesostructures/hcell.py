@@ -21,9 +21,8 @@ Exports:
   ``TYPE2_PAIRS``), stored as ``Mesostructure.pair_label`` 1 / 2. A cell with labels on
   the reference contacts 1-2 (type 1) and 2-3 (type 2) declares the observables
   ``OBSERVABLES`` (alpha_deg, d1, d2, N1, N2, T1, closed1, closed2) and the parameter
-  ``alpha0_deg`` (``declare``; files with labels are handed here by
-  ``warp_hcell.mesostructures.files``); ``plain_alpha0(meso)`` tells whether a cell is the
-  plain six-equal-grain H-cell that the closed forms model.
+  ``alpha0_deg`` (``declare``); ``plain_alpha0(meso)`` tells whether a cell is the plain
+  six-equal-grain H-cell that the closed forms model.
 - Start cells of the default learning database (``StartCells``, ``start_cells``).
 - Closed forms of the symmetric H-cell (spec sections 2, 3, 7), vectorised over cells
   (arrays of shape (n_cells,) or scalars that broadcast): ``lengths``,
@@ -219,19 +218,17 @@ def build_h_cell(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: float =
         radius: radius r of grains 1 and 4 [m], > 0.
         lateral: radius of grains 2, 3, 5, 6 over r [-], > 0.
         fines: radius of each fine grain over r [-], >= 0; zeros are left out.
-        fine_offsets: (n, t) offset of each fine grain from the pore centre, in units of r
-            [-], one per entry of ``fines`` (default: the pore centre).
+        fine_offsets: (n, t) offset of each fine grain from the pore centre over r [-], one per
+            entry of ``fines`` (default: the pore centre).
         name: mesostructure name (default: describes the parameters).
 
     Returns:
-        Grains 1..6 as in spec section 2 (1, 4 driven along n and t; 2, 3, 5, 6 driven along
-        t, free along n), then the fine grains (free along n and t); every pair is a
-        candidate contact; type-1/type-2 labels on the skeleton; outer polygon = hexagon.
+        Grains 1..6 as in spec section 2 (1, 4 driven along n and t; 2, 3, 5, 6 driven along t,
+        free along n), then the fine grains (free); every pair a candidate; type-1/type-2 labels;
+        outer polygon = hexagon.
 
     Raises:
-        MesostructureError: bad parameter, a fine grain outside the pore, or overlapping
-            grains (one line).
-    """
+        MesostructureError: bad parameter, a fine grain outside the pore, or overlapping grains."""
     label = name or _default_name(alpha0_deg, lateral, fines)
     for key, value in (("radius", radius), ("lateral", lateral)):
         if not (math.isfinite(value) and value > 0.0):
@@ -463,32 +460,20 @@ def love_weber_moment(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Love-Weber moment S = sum_c f_c (x) l_c of the H-cell and its area (spec section 7).
 
-    Sums the four type-1 contacts (normal N1, tangential T1), the two type-2 contacts
-    (normal N2) and the pathological contacts that the six-contact cell ignores in its
-    equilibrium: grains 1-4 when l1 < D (force kn (D - l1) along n) and grains 2-6, 3-5
-    when l2 < D (force kn (D - l2) each, along t). In the local frame:
-
-        S_nn = 4 d1 cos a (N1 cos a + T1 sin a) + 2 N2 d2 + kn <D - l1> l1
-        S_tt = 4 d1 sin a (N1 sin a - T1 cos a) + 2 kn <D - l2> l2,   S_nt = 0,
-
-    with d1 = l2 / (2 sin a) and d2 = l1 - 2 d1 cos a.
+    Sums the type-1 and type-2 contacts and the pathological contacts 1-4 (l1 < D) and 2-6,
+    3-5 (l2 < D), which carry kn <D - l> (or ``normal(D - l)``); S_nt = 0.
 
     Args:
-        alpha: opening angle [rad], shape (n_cells,), in (0, pi/2].
-        N1: normal force of the type-1 contacts [N], shape (n_cells,), compression positive.
-        N2: normal force of the type-2 contacts [N], shape (n_cells,), compression positive.
-        T1: tangential force of the type-1 contacts [N], shape (n_cells,), > 0 resists
-            opening (spec section 4).
-        l1, l2: cell lengths [m], shape (n_cells,).
-        kn: normal contact stiffness [N/m] of the pathological contacts.
-        diameter: grain diameter D [m].
-        normal: the normal force [N] of an overlap [m] of a non-linear law (its pathological
-            contacts carry normal(D - l) instead of kn <D - l>); None: the linear law of ``kn``.
+        alpha: opening angle [rad], (n_cells,), in (0, pi/2].
+        N1, N2: type-1 / type-2 normal forces [N], (n_cells,), compression positive.
+        T1: type-1 tangential force [N], (n_cells,), > 0 resists opening.
+        l1, l2: cell lengths [m], (n_cells,).
+        kn: normal stiffness of the pathological contacts [N/m]; diameter: D [m].
+        normal: normal force [N] of an overlap [m] for a non-linear law; None: linear.
 
     Returns:
-        (moment, area): moment [N m], shape (n_cells, 2, 2), local frame (index 0 = n,
-        1 = t), compression positive; area V_cell [m^2], shape (n_cells,).
-    """
+        (moment [N m], (n_cells, 2, 2), local frame (0 = n, 1 = t), compression positive;
+        area V_cell [m^2], (n_cells,))."""
     c, s = np.cos(alpha), np.sin(alpha)
     axial = 0.5 * l2 * c / s  # d1 cos a = l1/2 - y2
     d2 = l1 - 2.0 * axial
@@ -584,7 +569,7 @@ H3_GRAINS = 10
 """Grains of the ten-sphere skeleton; fine grains follow."""
 AXISYMMETRIC_KINEMATICS = "axisymmetric_kinematics"
 """Parameter of a 3D cell (``Mesostructure.parameters``): nonzero where the macro strain drives the cell by
-its axisymmetric part (``homogenization.material.orientation3d``, kinematics "axisymmetric"; the kind
+its axisymmetric part (``homogenization.material.orientation``, kinematics "axisymmetric"; the kind
 ``hcell3d-axisym``)."""
 _TOP_RING = (5, 9, 1, 6)
 """Lateral grains (0-based) at n > 0 in the order of their azimuth about n: 6, 10, 2, 7."""
@@ -634,30 +619,23 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
     """Ten-sphere H-cell (docs/model.md section 14) with free fine grains in the pore.
 
     Args:
-        alpha0_deg: opening angle [deg]; equal spheres in planes 90 deg apart need >= 45 deg (below,
-            the lateral grains of the two planes overlap).
+        alpha0_deg: opening angle [deg]; equal spheres in orthogonal planes need >= 45 deg.
         radius: radius r of the axial grains 1 and 4 [m].
         lateral: radius of the eight lateral grains over r [-].
-        plane_angle_deg: angle between plane A (grains 1-6, (n, t1)) and plane B (grains 1, 4,
-            7-10) about n [deg], in (0, 180); 90 is the orthogonal cell.
+        plane_angle_deg: angle between plane A (grains 1-6) and plane B (grains 1, 4, 7-10)
+            about n [deg], in (0, 180).
         fines: radius of each fine grain over r [-]; zeros are left out.
-        fine_offsets: (n, t1, t2) offset of each fine grain from the pore centre in units of r [-]
-            (default: the centre).
+        fine_offsets: (n, t1, t2) offset of each fine grain from the pore centre over r [-].
         name: mesostructure name (default: describes the parameters).
-        axisymmetric: declare the axisymmetric kinematics (parameter ``AXISYMMETRIC_KINEMATICS`` = 1;
-            the kind ``hcell3d-axisym``): the same grains, driven by the axisymmetric part of the cell
-            strain (``homogenization.material.orientation3d``). False: the projected kinematics.
+        axisymmetric: driven by the axisymmetric part of the strain (kind ``hcell3d-axisym``);
+            False: projected kinematics.
 
     Returns:
-        Grains 1, 4 driven along n, t1, t2; grains 2, 3, 5, 6, 7, 8, 9, 10 driven along t1 and t2
-        (homothetically with l2, l3) and free along n; fine grains free along every axis; every
-        pair a candidate; type-1 / type-2 labels on the skeleton; the parameter ``alpha0_deg``
-        (and ``AXISYMMETRIC_KINEMATICS`` where asked); outer surface: the sixteen triangles of
-        ``h_cell_3d_faces``.
+        The cell: grains 1, 4 driven, lateral grains driven along t1, t2 only, fine grains free;
+        outer surface ``h_cell_3d_faces``.
 
     Raises:
-        MesostructureError: bad parameter, a fine grain outside the pore or overlapping grains (one line).
-    """
+        MesostructureError: bad parameter, a fine grain outside the pore or overlapping grains."""
     label = name or "3D " + _default_name(alpha0_deg, lateral, fines)
     for key, value in (("radius", radius), ("lateral", lateral)):
         if not (math.isfinite(value) and value > 0.0):

@@ -77,31 +77,22 @@ class MesostructureError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class Mesostructure(CellCounts):
-    """One cell made of a few disks (2D) or spheres (3D), in the local frame (index 0 = n, the cell axis).
-
-    A cell is planar (dim = 2, frame (n, t)) or spatial (dim = 3, frame (n, t1, t2)); the
-    dimension is the number of position columns.
+    """One cell of a few disks (dim 2, frame (n, t)) or spheres (dim 3, frame (n, t1, t2)).
 
     Attributes:
         name: short description.
-        radius: grain radii [m], shape (n_grains,), > 0. Grain label = index + 1.
-        position: reference centre positions [m], shape (n_grains, dim), (x_n, x_t) or
-            (x_n, x_t1, x_t2).
-        driven: True where the DOF (grain, direction) is driven by the cell strain,
-            shape (n_grains, dim) bool; False = free (integrated by the DEM).
-        pairs: candidate contact pairs (i, j), i < j, 0-based, shape (n_pairs, 2).
-        outer: the outer boundary whose measure is V_cell: in 2D the ordered 0-based grain
-            indices of a polygon, shape (n_outer,); in 3D the triangles of a closed surface
-            through grain centres, oriented outwards, shape (n_faces, 3).
-        cell_size: reference cell size (l1_ref, l2_ref[, l3_ref]) [m], shape (dim,).
-        pair_label: label of each pair set by the builder or file that made the cell, shape
-            (n_pairs,) int8, 0 = none; only that builder reads it (descriptions, files and
-            state arrays carry it, ``warp_hcell.mesostructures.files`` hands it back).
-        observables: the named per-cell quantities the cell declares (``PairObservable``);
-            backends, the database and run records evaluate them without knowing the cell.
-        parameters: named scalars of the cell (e.g. ``alpha0_deg`` [deg]) that run records
-            copy without knowing what they are.
-    """
+        radius: grain radii [m], (n_grains,), > 0; grain label = index + 1.
+        position: reference centres [m], (n_grains, dim); column 0 = n, the cell axis.
+        driven: True where the DOF (grain, direction) follows the cell strain, (n_grains, dim);
+            False = free (integrated by the DEM).
+        pairs: candidate contact pairs (i, j), i < j, 0-based, (n_pairs, 2).
+        outer: the boundary whose measure is V_cell: 2D ordered polygon grain indices,
+            (n_outer,); 3D outward triangles, (n_faces, 3).
+        cell_size: reference cell size (l1_ref, l2_ref[, l3_ref]) [m], (dim,).
+        pair_label: per-pair label of the builder or file that made the cell, (n_pairs,) int8,
+            0 = none.
+        observables: named per-cell quantities the cell declares (``PairObservable``).
+        parameters: named scalars of the cell (e.g. ``alpha0_deg`` [deg]) copied by run records."""
 
     name: str
     radius: np.ndarray
