@@ -1,38 +1,27 @@
 """Exploration tree of the database generator: the cell states that the probes start from.
 
-Deterministic (fixed draws, below). From each start cell (a batch of cells sharing one learning
-state, ``warp_hcell.mesostructures.mesostructure.shares_state_schema``), one isotropic path compresses the
-cell (every local strain component equal) through the precompression levels; from the state at
-each level, proportional legs leave in ``n_directions`` directions of the local strain space
-(all directions: cells close, open, slide and lose contacts): angles psi of the (eps_n, eps_t)
-plane for a planar cell, the points of a spherical Fibonacci set in (eps_n, eps_t1, eps_t2)
-for a spatial one (``leg_directions``). The dimension is the schema's (``StateSchema.dim``). A leg runs until its path length
-reaches ``leg_length`` or its volumetric strain change reaches ``leg_volumetric``. All
-active paths advance as ONE batch per increment and every state reached is sampled. The
-increment is ``sample_spacing`` (path length), except at the start of a leg where it starts
-at sample_spacing / 2**leg_refinement and doubles (finer sampling after the change of
-direction, where the response changes fastest).
+Deterministic. From each start cell (a batch of cells sharing one learning state,
+``warp_hcell.mesostructures.mesostructure.shares_state_schema``) one isotropic path compresses
+the cell through the precompression levels; from each level, proportional legs leave in
+``n_directions`` directions of the local strain space (``leg_directions``: angles psi of the
+(eps_n, eps_t) plane in 2D, a spherical Fibonacci set in 3D). A leg runs until its path length
+reaches ``leg_length`` or its volumetric strain change ``leg_volumetric``. All active paths
+advance as one batch per increment and every state reached is sampled; the increment is
+``sample_spacing``, refined by 2**leg_refinement at the start of a leg and doubling.
 
-Turning branches (``reversal_legs`` per leg, ``turn_branches``): each leaves one of its leg's
-sampled states (the turn, at a path length drawn in ``reversal_arc``) in the leg's direction
-turned by an angle > 90 deg (negated for a fraction ``reversal_negated_fraction``, else turned
-by an angle drawn in [``reversal_min_angle_deg``, 180] deg, either sense; in 3D in a plane
-through the leg's direction drawn uniformly), so the cell unloads
-and then loads the other way, as in a homogenised test whose loading reverses. A branch runs
-like a leg (the same refined increments, up to ``leg_length``; its volumetric limit counts from
-its leg's start) and is a path of its own. The draws are pseudo-random but fixed: a generator
-seeded with (``TURN_STREAM``, start id) draws them for every (precompression level, direction,
-branch) of its start cell, so they depend neither on the generator's seed nor on how start
-cells are grouped. A branch whose leg stopped before its turn is not walked (counted:
-``turn_not_reached`` among the stop counts).
+Turning branches (``reversal_legs`` per leg, ``turn_branches``): each leaves a sampled state of
+its leg (at a path length drawn in ``reversal_arc``) in the leg's direction turned by > 90 deg
+(negated for a fraction ``reversal_negated_fraction``, else by an angle drawn in
+[``reversal_min_angle_deg``, 180] deg), and runs like a leg. The draws come from a generator
+seeded with (``TURN_STREAM``, start id), so they depend neither on the generator's seed nor on
+how start cells are grouped. A branch whose leg stopped before its turn is counted as
+``turn_not_reached``.
 
-Stop rules (generic; ``stop_masks``): a path stops, and its state is not sampled, when the
-DEM did not converge, a value is not finite, the cell has carried no contact force over a
-path length above ``stress_free_length`` (open or force-free mechanism for long; shorter
-force-free stretches are kept: the network must learn mechanisms), an overlap exceeds
+Stop rules (``stop_masks``): a path stops, unsampled, when the DEM did not converge, a value is
+not finite, the cell carried no contact force (every normal force <= kn * contact_tolerance *
+mean diameter) over a path length above ``stress_free_length``, an overlap exceeds
 ``max_overlap`` (r_i + r_j), or a local strain component from the start cell exceeds
-``max_cell_strain``. A path length is the Euclidean norm of the local strain increments. "No contact force" means every normal force <= the DEM's force floor
-kn * contact_tolerance * mean grain diameter.
+``max_cell_strain``. A path length is the Euclidean norm of the local strain increments.
 
 Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t
 (3D: 1 = t1, 2 = t2). Arrays of strains have ``dim`` columns.
@@ -311,20 +300,15 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
         schema: their learning state.
         settings: generator settings.
         contact_law, contact_tolerance: the DEM's.
-        start_ids: global index of each start cell, shape (n_starts,) int; default 0, 1, ...
+        start_ids: global index of each start cell, (n_starts,) int; default 0, 1, ...
 
     Returns:
-        (states, stops): states with first axis n_states, ordered by start cell (then as
-        walked), so that exploring the start cells together or apart gives the same states:
-        the DEM arrays (prefix ``DEM_PREFIX``), ``path_id`` (``path_stride``) and ``start_id``
-        int64, ``precompression`` [-] (isotropic strain the leg started from; the current one
-        on isotropic paths), ``direction_deg`` [deg] (leg direction psi; NaN on isotropic
-        paths; the leg's on its branches), ``turn_deg`` [deg] (a branch's turn from its
-        leg's direction, counter-clockwise, 180 = negated; NaN elsewhere), ``eps`` (n_states, dim)
-        [-] summed from the start cell (for a spatial cell ``direction_deg`` = 360 k / n_directions
-        labels direction k of ``leg_directions``). ``stops``: rule (and ``TURN_NOT_REACHED``) -> how
-        often it fired, per start cell, shape (n_starts,) int64.
-    """
+        (states, stops). ``states``: first axis n_states, ordered by start cell (then as walked):
+        the DEM arrays (prefix ``DEM_PREFIX``), ``path_id`` and ``start_id`` int64,
+        ``precompression`` [-], ``direction_deg`` [deg] (leg direction; NaN on isotropic paths;
+        3D: 360 k / n_directions for direction k), ``turn_deg`` [deg] (a branch's counter-clockwise
+        turn, 180 = negated; NaN elsewhere), ``eps`` (n_states, dim) [-] from the start cell.
+        ``stops``: rule -> how often it fired per start cell, (n_starts,) int64."""
     n_starts = int(start_state.n_cells)
     explorer = Explorer(cell_model, schema, settings, contact_law, contact_tolerance, n_starts)
     start_ids = np.arange(n_starts, dtype=np.int64) if start_ids is None else np.asarray(start_ids, np.int64)

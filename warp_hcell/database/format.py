@@ -222,26 +222,23 @@ def read_attrs_of(path: Path) -> dict[str, dict[str, Any]]:
 def append_round(path: Path, samples: Mapping[str, np.ndarray], states: Mapping[str, np.ndarray],
                  record: Mapping[str, Any], clean: Callable[[Mapping[str, np.ndarray]], np.ndarray]) -> dict[str, Any]:
     """Append one active-learning round's ``samples`` and their start ``states`` to database
-    ``path`` (rewritten atomically, ``write_database``; docs/database_format.md, "Active-learning
-    samples"); returns the round's record as stored in the root attr ``active_learning``.
+    ``path`` (rewritten atomically; docs/database_format.md, "Active-learning samples"); returns
+    the round's record as stored in the root attr ``active_learning``.
 
-    The per-sample datasets of the file grow (a dataset the file lacks is not added); the new
-    samples get ``source_round`` = the round k (the rounds listed so far + 1; 0: the generator),
-    ``path_id`` offset past every path of the file, ``state_id`` = their row in the group
-    ``ACTIVE_GROUP``, and ``valid`` = ``clean(samples)`` (the cleaning rules' mask,
-    ``warp_hcell.database.clean``) when the file was cleaned (all True otherwise; ``n_valid``
-    follows). The file is read whole into memory.
+    The per-sample datasets grow; the new samples get ``source_round`` = k (rounds so far + 1),
+    ``path_id`` offset past every path of the file, ``state_id`` = their row in ``ACTIVE_GROUP``,
+    and ``valid`` = the cleaning rules' mask when the file was cleaned (all True otherwise). The
+    file is read whole into memory.
 
     Args:
-        samples: the probes' arrays (``warp_hcell.database.probing.compute_chunk``), first axis the sample.
-        states: the probed start states: ``cell_size`` (n, dim) [m], ``free_position`` (n, n_free) [m],
-            ``shear_force`` (n, n_pairs) [N] (3D: (n, n_pairs, 3)) and ``path_id`` (n,) int64, one
-            path per (test, orientation), numbered from 0 within the round.
-        record: what else the round's entry of ``active_learning`` holds (tests, seed, widths).
+        samples: the probes' arrays (``probing.compute_chunk``), first axis the sample.
+        states: the probed start states: ``cell_size`` (n, dim) [m], ``free_position``
+            (n, n_free) [m], ``shear_force`` (n, n_pairs) [N] (3D: (n, n_pairs, 3)), ``path_id``
+            (n,) int64 numbered from 0 within the round.
+        record: the rest of the round's entry (tests, seed, widths).
 
     Raises:
-        ValueError: (one line) ``samples`` lacks a per-sample dataset of the file.
-    """
+        ValueError: ``samples`` lacks a per-sample dataset of the file."""
     data, attrs = read_database(path)
     attrs_of = read_attrs_of(path)
     n_old = data["d_eps"].shape[0]

@@ -1,37 +1,31 @@
 """python -m warp_hcell.generate [--mesostructure FILE_OR_SPEC] --samples 300000 --seed 0 --out runs/db.h5
 
-Generates the generic learning database of the meso-ANN for ANY mesostructure (file format
-in docs/database_format.md, written by ``warp_hcell.database.format``). The DEM
+Generates the generic learning database of the meso-ANN for any mesostructure (file format in
+docs/database_format.md, written by ``warp_hcell.database.format``); the DEM
 (``warp_hcell.dem.cell.DemCell``) explores and probes. ``--mesostructure`` takes a file or a
-builder spec (``warp_hcell.mesostructures.builders``, e.g. ``hcell-fines:alpha0=50,ratio=0.82``; the database
-records the hash of the cell it builds, name = spec text); without it the cell is
-the H-cell of ``warp_hcell.mesostructures.hcell.h_cell`` and the exploration starts from H-cells of
-several opening angles (``hcell.StartCells``: they share one learning state).
+builder spec (``warp_hcell.mesostructures.builders``; the database records the hash of the cell,
+name = spec text); without it the cell is ``hcell.h_cell`` and the exploration starts from
+H-cells of several opening angles (``hcell.StartCells``).
 
 The generator's jobs, one module each:
 
 1. exploration (``warp_hcell.database.exploration``, deterministic): isotropic paths then
-   proportional legs in the local strain space ((eps_n, eps_t), or (eps_n, eps_t1, eps_t2) for a
-   spatial cell such as ``hcell3d``) from every start cell; generic stop rules;
+   proportional legs in the local strain space from every start cell; generic stop rules;
 2. probing (``warp_hcell.database.probing``, seeded): a chunk of samples is a pure function of
-   (settings, mesostructure, seed, chunk index), computed as ONE DEM batch;
-3. storage and resume (``warp_hcell.database.shards``): the sidecar ``<out>.parts`` keeps each explored
-   start cell, the exploration and each chunk as soon as done; an interrupted run resumes
-   where it stopped (an unreadable file is recomputed); a lock keeps a second run off the
-   same ``--out``, and taking it removes the hidden temporary file of a final write that a
-   SIGKILL interrupted (``warp_hcell.core.files.remove_stale_temporaries``);
-4. execution (``warp_hcell.core.execution``, injected): the tasks (``warp_hcell.database.tasks``) run in this
-   process, on a Dask LocalCluster (``--workers N``) or on a Dask scheduler
-   (``--scheduler ADDRESS``); results come back to this process, which writes them, so the
-   file is bit-identical for a seed whatever the execution, lost workers and interruptions.
+   (settings, mesostructure, seed, chunk index), computed as one DEM batch;
+3. storage and resume (``warp_hcell.database.shards``): the sidecar ``<out>.parts`` keeps each
+   piece as soon as done; an interrupted run resumes where it stopped; a lock keeps a second
+   run off the same ``--out``;
+4. execution (``warp_hcell.core.execution``, injected): the tasks (``warp_hcell.database.tasks``)
+   run in this process or on Dask (``--workers N``, ``--scheduler ADDRESS``); this process
+   writes the results, so the file is bit-identical for a seed whatever the execution.
 
 This module composes them: ``generate`` and the command line. Cleaning is an explicit step
 (``--clean`` here, or ``python -m warp_hcell.clean``): it marks unconverged and non-finite
-samples; mechanism and perturbed samples are kept.
+samples.
 
-Nothing in ``warp_hcell`` imports ``homogenization`` or ``training``.
-Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t
-(3D: 1 = t1, 2 = t2).
+Nothing in ``warp_hcell`` imports ``homogenization`` or ``training``. Sign convention:
+compression and contraction positive; local frame index 0 = n, 1 = t (3D: 1 = t1, 2 = t2).
 """
 
 from __future__ import annotations
@@ -199,36 +193,27 @@ def generate(
     max_chunks: int | None = None,
     discard_partial: bool = False,
 ) -> Path | None:
-    """Generate (or resume) the database of ``meso`` and write it to ``out``.
+    """Generate (or resume) the database of ``meso`` and write it to ``out`` (replaced atomically).
 
     Args:
         meso: the mesostructure (its learning state is the database's schema).
-        settings: generator settings.
-        out: database file to write (replaced atomically at the end).
-        seed: seed of the probes, perturbations and state order.
-        starts: start cells of the exploration, each sharing ``meso``'s learning state;
-            None = ``[meso]``.
+        settings: generator settings; seed: seed of the probes and state order.
+        starts: start cells sharing ``meso``'s learning state; None = ``[meso]``.
         contact_law, dem_settings, device: the DEM's physics and numerics.
-        threads: DEM CPU threads per process (the result does not depend on it).
-        execution: where the tasks run (``warp_hcell.core.execution``); None =
-            ``make_execution(workers)``, closed at the end (one passed in is left open).
-        workers: worker processes when ``execution`` is None (the result does not depend on it).
+        threads, workers: DEM threads, worker processes (no effect on the result).
+        execution: where the tasks run; None = ``make_execution(workers)``.
         clean: apply ``warp_hcell.clean`` before writing.
-        max_chunks: compute at most this many new chunks, then return None without writing
-            ``out`` (the run resumes later; 0 = explore only).
-        discard_partial: drop an unfinished run of other options found in the sidecar
-            instead of refusing.
+        max_chunks: compute at most this many new chunks, then return None.
+        discard_partial: drop an unfinished run of other options instead of refusing.
 
     Returns:
         ``out`` once written, or None when stopped by ``max_chunks``.
 
     Raises:
-        ValueError: (one line) a start cell of another learning state, an increment beyond
-            max_substeps, a contact law other than the linear one, or the sidecar holds an
-            unfinished run with other options.
-        UserError: another run is writing ``out`` (``warp_hcell.core.files.output_lock``).
-        DiskFull: no space left (no partial file is left in the sidecar).
-    """
+        ValueError: a start cell of another learning state, an increment beyond max_substeps,
+            a non-linear law, or an unfinished run with other options.
+        UserError: another run is writing ``out``.
+        DiskFull: no space left."""
     require_linear_law(contact_law, "the learning database (its format stores kn, kt and phi_g; the meso-ANN "
                                     "learns from it)")
     starts = [meso] if starts is None else list(starts)
