@@ -42,7 +42,7 @@ import warnings
 
 import numpy as np
 
-from homogenization.material.orientation3d import LEBEDEV_ORDERS
+from homogenization.material.orientation import LEBEDEV_ORDERS
 from warp_hcell.core.cli import Parser, positive_float, positive_int
 
 PARTS = ("accuracy", "quadrature", "timing", "ann", "ann3d-step")
@@ -128,7 +128,7 @@ def rule(text: str) -> tuple[int, int]:
 def doubled_axes_order(order: int) -> int:
     """The first Lebedev order with at least twice the hemisphere axes of ``order`` (``order`` itself
     at the end of the list)."""
-    from homogenization.material.orientation3d import hemisphere_rule
+    from homogenization.material.orientation import hemisphere_rule
 
     axes = hemisphere_rule(order)[0].shape[0]
     return next((o for o in LEBEDEV_ORDERS if o > order and hemisphere_rule(o)[0].shape[0] >= 2 * axes), order)
@@ -221,7 +221,7 @@ def ann(args) -> None:
 
 def ann3d_step(args) -> None:
     from homogenization.backends import make_cell_model
-    from homogenization.material.orientation3d import orientations_3d
+    from homogenization.material.orientation import orientations_3d
     from warp_hcell.mesostructures.builders import mesostructure_arg
 
     order, spins = rule(args.step_rule)

@@ -142,7 +142,7 @@ def step_part(args, meso, corrections, tolerances) -> None:
     """Median time of one step call per backend on the cells of ``--step-rule``, side by side."""
     from homogenization.backends import make_cell_model
     from homogenization.backends.ann import AnnCell3D
-    from homogenization.material.orientation3d import orientations_3d
+    from homogenization.material.orientation import orientations_3d
     from warp_hcell.core.parameters import ContactLaw
 
     order, spins = (int(v) for v in args.step_rule.split("x"))

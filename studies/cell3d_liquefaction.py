@@ -26,7 +26,7 @@ import numpy as np
 
 from homogenization.backends.analytical3d import Analytical3DCell
 from homogenization.material.orientation import average_moment, initial_volume, localise
-from homogenization.material.orientation3d import cell_kinematics, orientations_3d
+from homogenization.material.orientation import cell_kinematics, orientations_3d
 from warp_hcell.core.parameters import CellDefaults, ContactLaw
 from warp_hcell.mesostructures.builders import resolve_mesostructure
 

@@ -17,7 +17,7 @@ from homogenization.element_test import driver, loading
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical3d import Analytical3DCell
 from homogenization.material.orientation import localise
-from homogenization.material.orientation3d import AXISYMMETRIC_MAP, cell_kinematics, orientations_3d
+from homogenization.material.orientation import AXISYMMETRIC_MAP, cell_kinematics, orientations_3d
 from warp_hcell.mesostructures.builders import resolve_mesostructure
 
 P0 = 2e5

@@ -3,15 +3,17 @@
 import numpy as np
 import pytest
 
-from homogenization.material.orientation3d import (
-    COMPONENTS,
+from homogenization.material.orientation import (
     average_moment,
     hemisphere_rule,
     localise,
     orientations_3d,
-    to_tensor,
     volume_ratio_factor,
 )
+from warp_hcell.core.dimension import dimension
+
+COMPONENTS = dimension(3).components
+to_tensor = dimension(3).to_tensor
 
 
 def test_hemisphere_keeps_one_point_of_each_antipodal_pair():
@@ -92,7 +94,7 @@ def test_volume_ratio_factor_multiplies_the_three_normal_stretches():
 def test_staggered_spins_sample_distinct_phases_and_keep_each_axis_equally_spaced():
     """Staggering (the default) gives every axis its own spin phase, frac(k g) of a spin step; each
     axis keeps n equally spaced spins over the period, so the isotropy of the rule is kept."""
-    from homogenization.material.orientation3d import SPIN_STAGGER
+    from homogenization.material.orientation import SPIN_STAGGER
 
     aligned, staggered = orientations_3d(11, 4, staggered=False), orientations_3d(11, 4)
     assert staggered.staggered and not aligned.staggered

@@ -14,7 +14,7 @@ from homogenization.element_test import driver, loading
 from homogenization.material import invariants
 from homogenization.backends import make_cell_model
 from homogenization.material.homogenised import HomogenisedMaterial3D
-from homogenization.material.orientation3d import orientations_3d
+from homogenization.material.orientation import orientations_3d
 from warp_hcell.core.parameters import LoadingDefaults
 from warp_hcell.mesostructures.builders import mesostructure_arg
 

@@ -7,7 +7,7 @@ import warnings
 
 import pytest
 
-from homogenization.material.orientation3d import cell_kinematics
+from homogenization.material.orientation import cell_kinematics
 from warp_hcell.mesostructures.files import describe, from_description, load_mesostructure
 from warp_hcell.mesostructures.hcell import build_h_cell_3d
 from warp_hcell.mesostructures.mesostructure import MesostructureError

@@ -23,7 +23,7 @@ counts the cells in ``diagnostics["n_cross_plane"]`` (the DEM models it).
 
 Kinematics: ``step`` takes the cell-axis strains as given. The cell kind ``hcell3d-axisym`` has the same
 grains and is modelled here unchanged; its axisymmetric kinematics are applied where the macro
-increment is localised (``homogenization.material.orientation3d``, ``AXISYMMETRIC_MAP``), so both planes then
+increment is localised (``homogenization.material.orientation``, ``AXISYMMETRIC_MAP``), so both planes then
 receive the same lateral strain.
 
 Cell volume: the polyhedron through the ten centres (``polyhedron_volume`` over

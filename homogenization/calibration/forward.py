@@ -80,11 +80,11 @@ class ForwardSettings:
         law: contact law of the cells, a name of ``LAW_PARAMETERS`` ("hertz-mindlin": spheres, 3D tests only).
         backend: "analytical" (batched), "dem" or "ann" (one parameter set at a time).
         n_orientations: cell orientations per material point of a 2D test [-].
-        lebedev_order, n_spins: cell orientations of a triaxial test (``orientation3d.orientations_3d``);
+        lebedev_order, n_spins: cell orientations of a triaxial test (``orientation.orientations_3d``);
             11 x 4 = 100 cells, coarser than ``hmodel triaxial``'s default (as 36 orientations are in
             2D) so that a population of parameter sets runs in minutes; its quadrature error is in
             docs/triaxial.md (Quadrature).
-        staggered_spins: stagger the spins from axis to axis (``orientation3d``); False here: on
+        staggered_spins: stagger the spins from axis to axis (``orientation``); False here: on
             100 cells aligned spins keep the rule's cube symmetry (sigma22 = sigma33 on the
             axisymmetric tests), where staggered ones would leave a quadrature asymmetry of about
             1 % of p, and the forward model's bias in docs/calibration.md was measured on them.

@@ -10,7 +10,7 @@ increments along the cell axis n and the lateral direction t [-], compression po
 hcell3d:alpha0=55``, the ten-sphere H-cell) takes the header ``d_eps_n,d_eps_t1,d_eps_t2``, the
 increments along n and the two lateral axes t1, t2 (l3 <- l3 (1 - d_eps_t2)), as given for every
 3D kind: the axisymmetric kinematics of ``hcell3d-axisym`` map a macro strain to the cell's axes
-(``homogenization.material.orientation3d``) and play no part here.
+(``homogenization.material.orientation``) and play no part here.
 
 OUT.csv: header ``l1,l2,alpha_deg,d1,d2,N1,N2,T1,S_nn,S_tt`` (with ``--positions`` followed
 by the grain centres ``x_n1,x_t1,...,x_n6,x_t6`` [m], local frame, cell centre at the

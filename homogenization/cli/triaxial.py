@@ -2,7 +2,7 @@
 
 (also ``python -m homogenization.triaxial``.) Triaxial tests of the 3D H-model (ten-sphere cells
 oriented by a Lebedev rule on the hemisphere times spins about each axis,
-``homogenization.material.orientation3d``): isotropic compression to p0 (three equal strain increments of
+``homogenization.material.orientation``): isotropic compression to p0 (three equal strain increments of
 --iso-increment, by default half the shear increment, the last one shortened so that p lands on
 p0), then one shear stage (axis 1 axial, --eps-max of axial strain in increments of --increment):
 

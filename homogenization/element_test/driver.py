@@ -12,7 +12,7 @@ component; a failure raises ``ControlError``), and the history recorded
 ``|target|`` (times the largest ``|sigma|`` recorded so far where the target is zero).
 
 The same driver runs 3D (triaxial) programmes, whose steps control (11, 22, 33)
-(``loading.COMPONENTS_3D``), on cells of dimension 3 oriented by ``homogenization.material.orientation3d``
+(``loading.COMPONENTS_3D``), on cells of dimension 3 oriented by ``homogenization.material.orientation``
 (``HomogenisedMaterial3D``): p = tr(sigma) / 3 and q = sqrt(3 J2) (``invariants``), stresses in Pa
 and the volume in m^3. A step's ``coupling`` makes the stress-controlled components also follow
 sigma11 (constant p, constant b): the residual of component i is sigma_i - c_i (sigma11 - sigma11 at
@@ -45,14 +45,14 @@ from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 __all__ = ["JUMP_WIDTH", "LEBEDEV_ORDER", "N_SPINS", "ControlError", "Record", "run", "to_record"]
 
 LEBEDEV_ORDER = 53
-"""Default Lebedev order of the 3D cell axes (``orientation3d``: 487 axes on the hemisphere).
+"""Default Lebedev order of the 3D cell axes (``orientation``: 487 axes on the hemisphere).
 With ``N_SPINS`` staggered spins (7792 cells) doubling the spins moves the closed form's
 triaxial curves by at most 0.08 % of p0 and doubling the axes (order 77) by at most 0.46 %,
 also where undrained samples at 2e5 Pa dilate to 20-30 p0 (docs/triaxial.md, Quadrature;
 orders 35 and 47 missed there by up to 3.3 % and 1.1 %)."""
 N_SPINS = 16
 """Default spins per 3D cell axis, equally spaced over the cell's spin period and staggered from
-axis to axis (``orientation3d``)."""
+axis to axis (``orientation``)."""
 
 
 
@@ -120,10 +120,10 @@ def run(
         max_newton_iterations: ``step`` calls allowed per stress-controlled increment.
         progress: show a progress bar per stage (``warp_hcell.core.cli.progress_bar``: off under -q).
         lebedev_order, n_spins, spin_period_deg: the orientations of a 3D programme (steps of three
-            components, cells of dimension 3; ``orientation3d.orientations_3d``), which ignores
+            components, cells of dimension 3; ``orientation.orientations_3d``), which ignores
             ``n_orientations`` and takes an isotropic fabric only; ``spin_period_deg`` None: the
             cell's own (``Mesostructure.spin_period_deg``); ``staggered_spins`` False: every axis
-            has the same spins (``orientation3d.orientations_3d``, which says what that keeps).
+            has the same spins (``orientation.orientations_3d``, which says what that keeps).
         before_stage: step index -> what to do to the material point before that step (e.g. erode its
             cells: ``homogenization.sweeps.case``); the run and its record go on from the changed state.
 

@@ -1,10 +1,9 @@
 """The material points of an element test: their oriented cells, their saved state, trials and acceptance.
 
 ``material_points(cell_model, mesostructure, n_points, ...)`` builds n material points of one
-mesostructure (``homogenization.material.homogenised``), oriented in 2D by
-``homogenization.material.orientation`` and in 3D by ``homogenization.material.orientation3d``
-with the mesostructure's own spin period and kinematics
-(``orientation3d.cell_kinematics``: e.g. ``hcell3d-axisym``). ``MaterialPoints`` holds the state of
+mesostructure (``homogenization.material.homogenised``), oriented by
+``homogenization.material.orientation`` (in 3D with the mesostructure's own spin period and kinematics
+``orientation.cell_kinematics``: e.g. ``hcell3d-axisym``). ``MaterialPoints`` holds the state of
 the last accepted increment; a trial updates every point from it (one batched ``step``), and
 ``accept`` takes a trial for the points of a mask, the others keeping their state, so a point's
 history does not depend on the batch it runs in.
@@ -21,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from homogenization.material import orientation as orient_mod
-from homogenization.material import opening_spread, orientation3d
+from homogenization.material import opening_spread
 from homogenization.material.homogenised import HomogenisedMaterial, HomogenisedMaterial3D, MaterialState, MaterialUpdate
 from warp_hcell.core.contract import CellModel
 from warp_hcell.core.dimension import dimension
@@ -39,8 +38,8 @@ def orientation_set(mesostructure: Mesostructure, *, n_orientations: int, fabric
     if fabric_anisotropy:
         raise ValueError("an anisotropic fabric is not available in 3D yet (fabric_anisotropy must be 0)")
     period = mesostructure.spin_period_deg() if spin_period_deg is None else spin_period_deg
-    return orientation3d.orientations_3d(lebedev_order, n_spins, spin_period_deg=period, staggered=staggered_spins,
-                                         kinematics=orientation3d.cell_kinematics(mesostructure))
+    return orient_mod.orientations_3d(lebedev_order, n_spins, spin_period_deg=period, staggered=staggered_spins,
+                                      kinematics=orient_mod.cell_kinematics(mesostructure))
 
 
 def material_points(cell_model: CellModel, mesostructure: Mesostructure, n_points: int,

@@ -2,7 +2,7 @@
 
 ``homogenised`` (``HomogenisedMaterial`` and ``HomogenisedMaterial3D``: stress and consistent
 tangent of a batch of material points, one batched cell step per update), ``orientation`` (the
-planar orientation sets, the localisation and averaging both dimensions share, the volume rule),
-``orientation3d`` (the Lebedev rule of the 3D cell axes with their spins, the cells' kinematics)
+orientation sets of both dimensions: the planar rule, the Lebedev rule of the 3D cell axes with
+their spins and the cells' kinematics; the localisation, averaging and volume rule they share)
 and ``invariants`` (p, q, W2 and the 3D invariants).
 """

@@ -27,7 +27,7 @@ is -sigma (x) dV/d(d_e) / V). The cell moment's S_nt (zero for the H-cell) enter
 not the tangent.
 
 In 3D (``HomogenisedMaterial3D``, cells of dimension 3 oriented by
-``homogenization.material.orientation3d``) the macro tensors have six components (11, 22, 33, 23, 13, 12)
+``homogenization.material.orientation``) the macro tensors have six components (11, 22, 33, 23, 13, 12)
 (tensor shear strains, not engineering ones) [-] and [Pa]; cell k with frame R_k = (n, t1, t2) gets
 (d_eps_n, d_eps_t1, d_eps_t2) = L_k d_e (normal strains along its axes, shear dropped), and
 sigma = sum_k w_k R_k S_k R_k^T / V, V = V0 J, J multiplied by (1 - d_eps11)(1 - d_eps22)(1 - d_eps33)
@@ -45,7 +45,6 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from homogenization.material import orientation as orient_mod
-from homogenization.material import orientation3d
 from warp_hcell.core.contract import CellModel
 from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell
 
@@ -239,7 +238,7 @@ class HomogenisedMaterial3D(_HomogenisedMaterialBase):
     """A batch of 3D H-model material points (module docstring); six tensor components.
 
     Args: those of ``_HomogenisedMaterialBase``, with ``orient`` an
-    ``orientation3d.Orientations3D`` and cells of dimension 3 (local strains (n_cells, 3),
+    ``orientation.Orientations3D`` and cells of dimension 3 (local strains (n_cells, 3),
     moments (n_cells, 3, 3), volume [m^3] in ``response.area``).
     """
 
@@ -247,7 +246,7 @@ class HomogenisedMaterial3D(_HomogenisedMaterialBase):
     """Spatial dimension: six tensor components."""
     n_voigt = 6
 
-    def _localisation(self, orient: orientation3d.Orientations3D) -> np.ndarray:
+    def _localisation(self, orient: orient_mod.Orientations3D) -> np.ndarray:
         n = orient.n_cells
         self.A = np.ascontiguousarray(np.diagonal(orient.averaging.reshape(6, n, 3, 3), axis1=2, axis2=3))
         """w_k A_k [-], shape (6, N, 3): macro components of w_k R_k e_a e_a R_k^T."""

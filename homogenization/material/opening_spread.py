@@ -69,10 +69,9 @@ def replicate(orient: OrientationSet) -> OrientationSet:
     family-major, weights g_j w_k (module docstring); of the same class, arrays read-only."""
     _, g = nodes()
     n = orient.n_cells
-    arrays = {}
-    for name in ("frames", "theta"):
-        if hasattr(orient, name):
-            arrays[name] = np.concatenate([getattr(orient, name)] * N_NODES, axis=0)
+    arrays = {"frames": np.concatenate([orient.frames] * N_NODES, axis=0)}
+    if hasattr(orient, "theta"):
+        arrays["theta"] = np.concatenate([orient.theta] * N_NODES, axis=0)
     arrays["weights"] = (g[:, None] * orient.weights[None, :]).reshape(-1)
     arrays["localisation"] = np.concatenate([orient.localisation] * N_NODES, axis=0)
     per_cell = orient.averaging.reshape(orient.averaging.shape[0], n, -1)

@@ -56,7 +56,7 @@ from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 from homogenization.element_test.driver import Record
 from homogenization.material.orientation import VOLUME_RULE
-from homogenization.material.orientation3d import VOLUME_RULE as VOLUME_RULE_3D
+from homogenization.material.orientation import VOLUME_RULE_3D
 
 RUN_FILE = "run.h5"
 CURVE_FILE = "curve.csv"

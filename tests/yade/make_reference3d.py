@@ -18,7 +18,7 @@ unless said):
   the undrained triaxial path: isotropic rows of 1e-4 to 0.1 %, then the isochoric rows of the
   macro axial strain 2e-4 as the axisymmetric kinematics hand them to a cell whose axis lies along
   the loading axis (175 rows: its contacts open from the 162nd) or normal to it with t1 along it
-  (400 rows); ``axisymmetric`` is the mapping of ``homogenization.material.orientation3d.AXISYMMETRIC_MAP``.
+  (400 rows); ``axisymmetric`` is the mapping of ``homogenization.material.orientation.AXISYMMETRIC_MAP``.
 The YADE settings are the slow, accurate ones of the 2D reference (dt = 0.2 sqrt(m/kn), damping
 0.5, 2.5e-7 strain per substep, unbalanced ratio 1e-6).
 """
