@@ -1,40 +1,31 @@
 """hmodel biaxial --backend analytical --alpha0 55 --p0 5.85e6 --eps-max 0.2 --increment 1e-5 --orientations 360 [--drained] [--overwrite] --out DIR
 
 (also ``python -m homogenization.biaxial``.) Biaxial test of the H-model: isotropic
-compression to p0 (strain increments of --iso-increment, by default half the shear
-increment, the last one shortened so that p lands on p0), then constant-volume shear
-(d_eps11 = +increment, d_eps22 = -increment) or, with --drained, shear at sigma22 = p0
-(stress control), to eps1 = --eps-max counted from the end of stage 1. ``--programme FILE``
-runs any loading programme instead (JSON or TOML, docs/programmes.md).
+compression to p0 (increments of --iso-increment, default half the shear increment, the last
+one shortened so that p lands on p0), then constant-volume shear (d_eps11 = +increment,
+d_eps22 = -increment) or, with --drained, shear at sigma22 = p0, to eps1 = --eps-max counted
+from the end of stage 1. ``--programme FILE`` runs any loading programme instead
+(docs/programmes.md).
 
-``--posterior DIR/posterior.json`` (of ``hmodel calibrate`` on biaxial data) runs at its
-posterior mean instead of --phi, --kn, --kt, --alpha0 and --radius, recorded in run.h5;
-``--posterior-band N`` adds the 95 % band of N posterior draws (DIR/posterior_band.csv, shaded
-in the figure; ``homogenization.cli.posterior_flags``).
+``--posterior DIR/posterior.json`` (of ``hmodel calibrate``) runs at its posterior mean instead
+of --phi, --kn, --kt, --alpha0 and --radius; ``--posterior-band N`` adds the 95 % band of N
+posterior draws (DIR/posterior_band.csv; ``homogenization.cli.posterior_flags``).
 
---backend takes one name or a comma list (e.g. ``analytical,dem``): every backend runs
-the same programme. One backend writes DIR/run.h5 and DIR/curve.csv; several write
-DIR/<backend>/run.h5 and DIR/<backend>/curve.csv. Either way DIR/cambridge.png overlays
-all backends in the 2x2 figure (q-eps1, q-p, p-eps1 or eps_v-eps1, q/p-eps1).
-Every backend's cells start from one mesostructure: the H-cell of --alpha0 and --radius
-(``warp_hcell.mesostructures.hcell.h_cell``), or --mesostructure, a file or a builder spec
-(``warp_hcell.mesostructures.builders``, e.g. ``hcell-fines:ratio=0.76``) built at --alpha0 unless the spec
-gives its own alpha0. A backend that does not model it (the analytical backend models the
-plain H-cell only; an ANN model the mesostructure it was trained on) stops the command before
-any run. Backend-specific options go to their backend only: --threads to dem and ann, --model
-to ann, --device to dem and ann.
+--backend takes one name or a comma list: every backend runs the same programme. One backend
+writes DIR/run.h5 and DIR/curve.csv, several DIR/<backend>/...; DIR/cambridge.png overlays all
+backends (q-eps1, q-p, p-eps1 or eps_v-eps1, q/p-eps1). The cells start from the H-cell of
+--alpha0 and --radius, or --mesostructure (a file or a builder spec, built at --alpha0 unless it
+gives its own); a backend that does not model it stops the command before any run.
+Backend-specific options go to their backend only (--threads, --model, --device).
 
-The output folder DIR is written as a unit: everything goes to a hidden sibling folder
-that replaces DIR only when the run has finished (--overwrite), so an interrupted run
-leaves the previous output as it was. A second run on the same DIR exits at once.
+DIR is written as a unit: a hidden sibling folder replaces it only when the run has finished
+(--overwrite); a second run on the same DIR exits at once.
 
 Sign convention: compression and contraction positive; stresses in N/m (2D). Bad input
-(unknown backend, alpha0 outside [30, 90) deg, a mesostructure a backend does not model,
-p0 <= 0, an increment larger than
---eps-max, a malformed programme, a CUDA device the machine lacks, unwritable --out,
-existing output without --overwrite, DIR busy) is one line on stderr and exit code 2.
-Increments coarser than the learning database's largest probe (1e-3) are run with a
-warning: the macro kinematics errs by ~1 % of p0 there and the ANN extrapolates.
+(unknown backend, alpha0 outside [30, 90) deg, an unmodelled mesostructure, p0 <= 0, an
+increment larger than --eps-max, a malformed programme, a missing CUDA device, unwritable
+--out, existing output without --overwrite, DIR busy) is one line on stderr and exit code 2.
+Increments above the learning database's largest probe (1e-3) run with a warning.
 """
 
 from __future__ import annotations

@@ -4,37 +4,27 @@
 micro-parameters on measured biaxial (2D) or triaxial (3D) curves (format:
 ``homogenization.calibration.data``; worked example: docs/calibration.md). Every --data test is
 fitted jointly; the parameters not in --params keep the values of --phi, --kn, --kt and --alpha0.
---law hertz-mindlin (triaxial data only) calibrates phi_g, shear_modulus, poisson and alpha0
-instead (fixed: --phi, --shear-modulus, --poisson, --alpha0; default prior PRIOR_BOUNDS_HERTZ_3D),
-and posterior.json then holds ``contact_law``, the law at the posterior mean.
-alpha0_spread (triaxial data, analytical backend, --confirm none) adds a uniform distribution of
-opening angles of that half-width [deg] about alpha0 to every material point
-(``homogenization.material.opening_spread``); --alpha0-spread fixes it where not calibrated.
+--law hertz-mindlin (triaxial data) calibrates phi_g, shear_modulus, poisson and alpha0 instead
+(default prior PRIOR_BOUNDS_HERTZ_3D; posterior.json then holds ``contact_law``). alpha0_spread
+(triaxial data, analytical backend, --confirm none) adds a uniform distribution of opening
+angles of that half-width [deg] about alpha0 (``homogenization.material.opening_spread``).
 
-The posterior is sampled with emcee's affine-invariant ensemble: every step runs the forward
-model of the whole population of walkers as one batch of cells (analytical backend:
-per-cell contact laws and alpha0; dem: one parameter set after the other; ann: alpha0 only,
-the ANN being trained on one contact law). At the end the DEM runs once at the posterior
-mean (--confirm dem) and its misfit is reported next to the forward model's.
+The posterior is sampled with emcee's affine-invariant ensemble, every step running the forward
+model of all walkers as one batch of cells. --start map (default) first finds the posterior's
+main mode by a seeded multi-start least-squares fit and starts the walkers around it
+(``homogenization.calibration.start``); --start prior starts them at the best prior draws. At
+the end the DEM runs once at the posterior mean (--confirm dem) and its misfit is reported.
 
-Before the walkers (--start map, the default), a seeded multi-start least-squares fit on the
-likelihood's residuals finds the posterior's main mode and the walkers start in a small ball
-around it (``homogenization.calibration.start``); --start prior starts them at the best prior
-draws instead. The start's evaluations and optimum are printed and kept in run.json.
+DIR receives: chain.h5 (emcee's backend: the whole chain, resumable), posterior.h5 (retained
+samples in CLI units, log posterior), posterior.json (mean, median, ci95 per parameter in the
+CLI flags' units), corner.png, fits.png, run.json (identifiability, correlations, diagnostics,
+provenance). The same settings resume the chain up to --steps; other settings need --overwrite,
+which restarts it.
 
-DIR receives: chain.h5 (emcee's HDF5 backend: the whole chain, resumable), posterior.h5
-(the retained samples in CLI units and their log posterior), posterior.json (mean, median,
-ci95 per parameter in the CLI flags' units: degrees for phi_g and alpha0, N/m for kn),
-corner.png, fits.png (data, posterior median and 95 % band, DEM at the mean),
-run.json (identifiability note, correlations, sampler and forward-model diagnostics,
-provenance). A second run with the same settings resumes the chain up to --steps (a larger
---steps extends it); other settings need --overwrite, which restarts the chain.
-
-Bad input (a missing or malformed data or prior file, an unknown parameter, a parameter the
-backend cannot vary, a folder holding other files, an --out under a file or in an unwritable
-folder, a folder that another calibration is writing: ``output_lock``) is one line on stderr
-and exit code 2, before any run. Ctrl-C or ``kill`` is one line and exit code 130; chain.h5
-keeps every finished step, and the same command resumes from there.
+Bad input (missing or malformed file, unknown parameter or one the backend cannot vary, a
+folder holding other files or being written by another calibration, an unwritable --out) is one
+line on stderr and exit code 2, before any run. Ctrl-C or ``kill`` is one line and exit code
+130; chain.h5 keeps every finished step.
 """
 
 from __future__ import annotations

@@ -1,38 +1,29 @@
 """python -m homogenization.cell --backend analytical --alpha0 55 --path PATH.csv --out OUT.csv
 
-Element test of ONE cell: starting from its touching, force-free initial state, the cell
-is driven along the local strain increments of PATH.csv and its state after every
-increment is written to OUT.csv.
+Element test of one cell: from its touching, force-free initial state, the cell is driven along
+the local strain increments of PATH.csv and its state after every increment is written to OUT.csv.
 
-PATH.csv: a header line ``d_eps_n,d_eps_t`` then one row per increment: the local strain
-increments along the cell axis n and the lateral direction t [-], compression positive
+PATH.csv: header ``d_eps_n,d_eps_t`` then one row per increment [-], compression positive
 (l1 <- l1 (1 - d_eps_n), l2 <- l2 (1 - d_eps_t)). A 3D cell (e.g. ``--mesostructure
-hcell3d:alpha0=55``, the ten-sphere H-cell) takes the header ``d_eps_n,d_eps_t1,d_eps_t2``, the
-increments along n and the two lateral axes t1, t2 (l3 <- l3 (1 - d_eps_t2)), as given for every
-3D kind: the axisymmetric kinematics of ``hcell3d-axisym`` map a macro strain to the cell's axes
-(``homogenization.material.orientation``) and play no part here.
+hcell3d:alpha0=55``) takes ``d_eps_n,d_eps_t1,d_eps_t2`` along its own axes (the axisymmetric
+kinematics of ``hcell3d-axisym`` play no part here).
 
-OUT.csv: header ``l1,l2,alpha_deg,d1,d2,N1,N2,T1,S_nn,S_tt`` (with ``--positions`` followed
-by the grain centres ``x_n1,x_t1,...,x_n6,x_t6`` [m], local frame, cell centre at the
-origin) and one row per increment. Units: lengths [m], angle [deg], contact forces [N]
-(compression positive, T1 > 0 resists opening), Love-Weber moments S_nn, S_tt [N m],
-compression positive. A 3D cell: ``COLUMNS_3D``, l1, l2, l3, the planar observables of its
-planes A (n, t1) and B (n, t2) with suffix ``_a`` / ``_b`` where the backend reports them (the
-analytical one), S_nn, S_t1t1, S_t2t2 [N m], then ``x_n1,x_t11,x_t21,...`` with --positions.
-The cell starts from the H-cell of --alpha0 and --radius (the ten-sphere H-cell ``hcell3d``
-for a three-column path), or from ``--mesostructure`` (a file, or a builder spec of
-``warp_hcell.mesostructures.builders`` built at its own alpha0 or else at --alpha0; the
-analytical backend models the plain H-cells only, the ANN the mesostructure its model was
-trained on); the path's columns must match the cell's dimension. A cell that is not an H-cell
-has no l1..T1 of its own: only the columns that the backend reports among ``observables()``
-are written, in the order above, and with ``--positions`` every grain centre it reports.
+OUT.csv: header ``l1,l2,alpha_deg,d1,d2,N1,N2,T1,S_nn,S_tt`` (with ``--positions`` followed by
+the grain centres ``x_n1,x_t1,...`` [m], local frame, cell centre at the origin), one row per
+increment: lengths [m], angle [deg], contact forces [N] (compression positive, T1 > 0 resists
+opening), Love-Weber moments [N m], compression positive. A 3D cell: ``COLUMNS_3D`` (l1, l2, l3,
+the observables of planes A and B with suffix ``_a`` / ``_b`` where reported, S_nn, S_t1t1,
+S_t2t2). A cell that is not an H-cell writes only the columns its backend reports among
+``observables()``.
 
-Bad input (missing or malformed PATH.csv, a path of two columns for a 3D cell or of three for
-a planar one, alpha0 outside [30, 90) deg, a mesostructure the backend does not model,
-unwritable --out, a second run on the same --out: ``output_lock``,
-a CUDA device the machine lacks, and for the ann backend a row larger than the largest
-probe of its learning database, ``|d_eps|`` > 1e-3, where the network extrapolates) is one
-line on stderr and exit code 2; an existing OUT.csv is kept unless --overwrite.
+The cell is the H-cell of --alpha0 and --radius (``hcell3d`` for a three-column path) or
+``--mesostructure`` (a file or a builder spec of ``warp_hcell.mesostructures.builders``); the
+analytical backend models the plain H-cells only, the ANN its model's mesostructure.
+
+Bad input (missing or malformed PATH.csv, a path of the wrong dimension, alpha0 outside
+[30, 90) deg, a mesostructure the backend does not model, unwritable or busy --out, a missing
+CUDA device, and for the ann backend a row with ``|d_eps|`` above its database's largest probe)
+is one line on stderr and exit code 2; an existing OUT.csv is kept unless --overwrite.
 """
 
 from __future__ import annotations

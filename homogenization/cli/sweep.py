@@ -1,56 +1,39 @@
 """python -m homogenization.sweep --mesostructure hcell,hcell-fines:ratio=0.76 --alpha0 50,55 --p0 2e5,5.85e6 --backend dem --eps-max 0.15 --increment 1e-4 --orientations 72 --out DIR
 
-Biaxial tests (isotropic compression to p0, then constant-volume or, with --drained,
-sigma22 = p0 shear, as ``homogenization.biaxial``) over the Cartesian product of the lists
---mesostructure x --alpha0 x --p0 x --backend. Lists are comma separated; a mesostructure
-is a TOML/JSON file or a builder spec (``warp_hcell.mesostructures.builders``; a spec without alpha0 is
-built at each --alpha0, a file or a spec with alpha0 fixes its geometry and makes one case
-per p0 and backend).
+Biaxial tests (as ``homogenization.biaxial``) over the Cartesian product of the comma lists
+--mesostructure x --alpha0 x --p0 x --backend. A mesostructure is a TOML/JSON file or a builder
+spec (``warp_hcell.mesostructures.builders``); a spec without alpha0 is built at each --alpha0,
+a file or a spec with alpha0 makes one case per p0 and backend. A backend that refuses a
+mesostructure (``homogenization.backends.mesostructure_refusal``) skips it; the skipped
+combinations are listed.
 
-Every case's cells start from its mesostructure (``CellModel.init_state``). The dem and ann
-backends run every mesostructure; a backend whose class refuses some
-(``homogenization.backends.mesostructure_refusal``: the analytical backend models the
-six-equal-grain H-cell only) skips the others, and the
-skipped combinations are listed.
+ANN models (--model, repeatable; a model records its mesostructure's sha256):
+``--model MESOSTRUCTURE=PATH`` gives the model of one mesostructure of --mesostructure;
+``--model PATH`` is used where its recorded mesostructure is the case's. The plain H-cell runs
+on its own model, else the single bare --model, else the installed model. A fines cell without
+a model is an error before any case runs.
 
-ANN models (--model, repeatable): a model is trained on one mesostructure and records its
-sha256 (``training.checkpoint``). ``--model MESOSTRUCTURE=PATH`` gives the model of one
-mesostructure of --mesostructure (the same text); ``--model PATH`` offers a model to every
-mesostructure and is used where its recorded mesostructure is the case's (built at the case's
-alpha0). The plain H-cell runs on any model of the H-cell's learning state (no sha256 check:
-H-cell databases are explored from many alpha0, ``homogenization.backends.ann``) on its own
-model, else the single bare --model, else the installed model. A fines cell without a model, or a model of another mesostructure, is an
-error before any case runs.
-
---erode-at EPS (dem): in cases whose mesostructure has grains free along n and t (fines),
-those grains are removed at eps1 = EPS (``warp_hcell.dem.erosion``); one increment at fixed eps11
-(stage ``erode``: eps22 fixed too, or sigma22 brought back to p0 with --drained) records the
-relaxation, then the test continues (stage ``eroded``) to --eps-max. The macro volume carries
-on (V0 and J of the whole test).
+--erode-at EPS (dem): grains free along every axis (fines) are removed at eps1 = EPS
+(``warp_hcell.dem.erosion``); one increment (stage ``erode``) records the relaxation, then the
+test continues (stage ``eroded``) to --eps-max.
 
 Output:
 
-- DIR/cases/<case>/{run.h5, curve.csv, cambridge.png}: the files ``biaxial`` writes, per case.
-- DIR/summary.csv: one row per case (``SUMMARY_COLUMNS``): stresses [N/m] and strains [-],
-  compression positive, eps1 counted from the end of the isotropic stage; peak_q is the
-  largest q of the shear stages, first_peak_q the first maximum of q after which q falls by
-  more than ``homogenization.sweeps.case.SOFTENING_DROP`` p0 (NaN if q never softens): the q peak of the instability
-  analysis; p_at_5pct.. are p at eps1 = 5, 10, 15 % (NaN beyond the run).
-- DIR/summary.png: q/p0 and p/p0 against eps1, and the (p/p0, q/p0) paths, of every case.
-- DIR/sweep.json: the options of the sweep that made DIR.
+- DIR/cases/<case>/{run.h5, curve.csv, cambridge.png}: the files ``biaxial`` writes.
+- DIR/summary.csv: one row per case (``SUMMARY_COLUMNS``): stresses [N/m], strains [-],
+  compression positive, eps1 from the end of the isotropic stage; peak_q the largest q,
+  first_peak_q the first maximum after which q falls by more than
+  ``homogenization.sweeps.case.SOFTENING_DROP`` p0 (NaN if none); p_at_5pct.. p at eps1 = 5,
+  10, 15 %.
+- DIR/summary.png: the q/p0 and p/p0 curves and (p/p0, q/p0) paths of every case.
+- DIR/sweep.json: the options of the sweep.
 
-The cases are planned by ``homogenization.sweeps.plan`` and computed by
-``homogenization.sweeps.case``; this module is the command, its files and the summary. Cases are
-tasks of ``warp_hcell.core.execution`` (as the database generator): in this process for
-one worker, a Dask LocalCluster of --workers single-threaded processes, or the Dask scheduler
-at --scheduler ADDRESS (a remote cluster; docs/distributed.md). A task computes one case and
-returns its record; this process writes every file, so the workers need no shared file system
-and the results do not depend on the execution (each case is computed alone). An unreachable
-scheduler is one line, exit code 2, nothing written. Rerunning the command keeps finished cases (a case is
-finished when its run.h5 holds the same parameters) and runs the others; a case folder holding
-a run with other parameters is an error unless --overwrite. Bad input (unknown backend or
-key, a mesostructure that does not build, unwritable DIR) is one line on stderr and exit
-code 2, before any case runs; cases that fail while running are listed, exit code 1.
+Cases are planned by ``homogenization.sweeps.plan``, computed by ``homogenization.sweeps.case``
+as tasks of ``warp_hcell.core.execution`` (this process, --workers N, or --scheduler ADDRESS;
+docs/distributed.md); this process writes every file, so results do not depend on the execution.
+Rerunning keeps finished cases (same parameters in run.h5); a case holding other parameters is
+an error unless --overwrite. Bad input is one line on stderr, exit code 2, before any case
+runs; cases that fail while running are listed, exit code 1.
 """
 
 from __future__ import annotations

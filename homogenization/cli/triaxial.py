@@ -1,38 +1,32 @@
 """hmodel triaxial --backend analytical,dem --mesostructure hcell3d:alpha0=55 --p0 2e5 --undrained --eps-max 0.15 --increment 1e-4 --out DIR
 
 (also ``python -m homogenization.triaxial``.) Triaxial tests of the 3D H-model (ten-sphere cells
-oriented by a Lebedev rule on the hemisphere times spins about each axis,
-``homogenization.material.orientation``): isotropic compression to p0 (three equal strain increments of
---iso-increment, by default half the shear increment, the last one shortened so that p lands on
+oriented by ``homogenization.material.orientation``): isotropic compression to p0 (increments of
+--iso-increment, default half the shear increment, the last one shortened so that p lands on
 p0), then one shear stage (axis 1 axial, --eps-max of axial strain in increments of --increment):
 
-- ``--undrained`` (the default): isochoric compression, (1 - d_eps1)(1 - d_eps2)^2 = 1, d_eps2 = d_eps3;
+- ``--undrained`` (default): isochoric compression, (1 - d_eps1)(1 - d_eps2)^2 = 1, d_eps2 = d_eps3;
 - ``--drained``: compression at sigma2 = sigma3 = p0; ``--extension``: extension at sigma2 = sigma3 = p0;
 - ``--constant-p``: compression at p = p0, sigma2 = sigma3;
-- ``--true B``: true triaxial compression at p = p0 and b = (sigma2 - sigma3)/(sigma1 - sigma3) = B;
+- ``--true B``: true triaxial at p = p0 and b = (sigma2 - sigma3)/(sigma1 - sigma3) = B;
 - ``--cyclic N``: N undrained cycles of axial strain amplitude --eps-max;
-- ``--oedometer U``: oedometric (K0) compression under pure strain control, lateral strains held at
-  zero: axial loading by --eps-max from the seating stress p0, then unloading by U of axial strain
-  (0: none); each backend also writes oedometer.csv (``homogenization.element_test.oedometer``:
-  stage, eps_a, eps_v, sigma_v = sigma11, sigma_h = (sigma22 + sigma33)/2, K0 = sigma_h/sigma_v).
+- ``--oedometer U``: K0 compression (lateral strains zero) by --eps-max from p0, then unloading
+  by U; each backend also writes oedometer.csv (``homogenization.element_test.oedometer``).
 
-``--posterior DIR/posterior.json`` (of ``hmodel calibrate`` on triaxial data) runs at its
-posterior mean instead of --phi, --kn, --kt, --alpha0 and --radius (and, where it holds alpha0_spread,
-with the point's families of opening angles: analytical backend only), and records the posterior
-in run.h5 (parameters ``posterior``); ``--posterior-band N`` adds the 95 % band of N posterior
-draws (DIR/posterior_band.csv, shaded in the figure; ``homogenization.cli.posterior_flags``).
+``--posterior DIR/posterior.json`` (of ``hmodel calibrate``) runs at its posterior mean, with
+its alpha0_spread where it holds one (analytical backend); ``--posterior-band N`` adds the 95 %
+band of N draws (``homogenization.cli.posterior_flags``). ``--programme FILE`` runs any
+programme of three-component steps instead (docs/programmes.md).
 
-``--programme FILE`` runs any loading programme of three-component steps instead (JSON or TOML,
-docs/programmes.md). Outputs as ``hmodel biaxial``: one backend writes DIR/run.h5 and
-DIR/curve.csv (header ``stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q``, stages iso and
-shear), several DIR/<backend>/...; DIR/triaxial.png overlays every backend in the (p, q),
-(eps_a, q) and (eps_a, eps_v) panels. The output folder is replaced as a unit (--overwrite).
+Outputs as ``hmodel biaxial``: DIR/run.h5 and DIR/curve.csv (header
+``stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q``) per backend, DIR/triaxial.png overlaying
+every backend; the folder is replaced as a unit (--overwrite).
 
 Sign convention: compression and contraction positive; stresses in Pa. Bad input (unknown
-backend, the ann backend with a model that has no passed certificate of its own file, unless
---uncertified-ok, a planar mesostructure, p0 <= 0, an
-increment larger than --eps-max, an --oedometer unloading outside [0, --eps-max], a programme of planar steps, existing output without
---overwrite) is one line on stderr and exit code 2, before any run.
+backend, an ann model without a passed certificate of its own file unless --uncertified-ok, a
+planar mesostructure, p0 <= 0, an increment larger than --eps-max, an --oedometer unloading
+outside [0, --eps-max], a programme of planar steps, existing output without --overwrite) is
+one line on stderr and exit code 2, before any run.
 """
 
 from __future__ import annotations
