@@ -1,33 +1,24 @@
-"""The 2x2 biaxial-test figure, several runs overlaid.
+"""The 2x2 biaxial-test figure, several runs overlaid, and the triaxial figure.
 
-Panels: q vs eps1; q vs p (stress path in the Cambridge plane); p vs eps1 (drained tests:
-eps_v vs eps1); q/p vs eps1 (or W2 vs eps1). The half-difference t = q/2 can replace q, and
-stresses can be drawn over each run's p0. eps1 and eps_v are counted from the end of the
-first (isotropic) stage, whose end point starts every curve. ``make_figure`` builds the
-figure from ``{label: Record}``; ``overlay_figure`` from stored runs, with the title and
-legend labels made from their metadata (``run_labels``); ``save_figure`` writes it
-atomically as PNG, PDF or SVG (by the file suffix). One legend per figure, below the panels.
-Tick format and axis labels: ``figure_style``.
+Panels: q vs eps1; q vs p (Cambridge plane); p vs eps1 (drained tests: eps_v vs eps1); q/p vs
+eps1 (or W2 vs eps1). t = q/2 can replace q, and stresses can be drawn over each run's p0. eps1
+and eps_v are counted from the end of the first (isotropic) stage. ``make_figure`` builds the
+figure from ``{label: Record}``; ``overlay_figure`` from stored runs, titled and labelled from
+their metadata (``run_labels``); ``save_figure`` writes PNG, PDF or SVG atomically (by suffix).
+Tick format and axis labels: ``figure_style``. The command ``hmodel plot`` is
+``homogenization.cli.plot``.
 
-Critical-state line (``--csl``): q = M p, M by least squares through the origin over the
-last 10 % of the shear-stage points with p > 0.05 p0 (``critical_state``), drawn only where the
-run has reached a critical state there: p, q and eps_v steady over that span (least-squares
-rates against eps1: abs(dp/deps1)/p <= 0.1, abs(dq/deps1)/p <= 0.1, abs(deps_v/deps1) <= 0.01),
-q/p stationary (range <= 0.1) and the run not ended near the origin (static liquefaction).
-Any other run gets no line and a one-line warning naming the rate that failed; the command
-reports M with the measured rates of every run that got a line.
+Critical-state line (``--csl``): q = M p, M by least squares through the origin over the last
+10 % of the shear-stage points with p > 0.05 p0 (``critical_state``), drawn only where p, q and
+eps_v are steady over that span (abs(dp/deps1)/p <= 0.1, abs(dq/deps1)/p <= 0.1,
+abs(deps_v/deps1) <= 0.01), q/p is stationary (range <= 0.1) and the run did not end near the
+origin; any other run gets a one-line warning naming the rate that failed.
 
-The command ``hmodel plot`` is ``homogenization.cli.plot``.
+Triaxial (3D) runs: ``triaxial_figure`` draws (p, q), (eps_a, q) and (eps_a, eps_v), eps_a =
+eps11, eps_v = 1 - V/V1 from the end of the isotropic stage, p = tr(sigma) / 3, q = sqrt(3 J2).
 
-Triaxial (3D) runs: ``triaxial_figure`` draws three panels side by side, the stress path (p, q),
-the deviator (eps_a, q) and the volumetric strain (eps_a, eps_v), with eps_a = eps11 (axis 1
-axial) and eps_v = 1 - V/V1 counted from the end of the first (isotropic) stage (V1 its volume;
-zero on an isochoric path, where the small-strain sum eps11 + eps22 + eps33 is not),
-p = tr(sigma) / 3 and q = sqrt(3 J2) in Pa (``hmodel triaxial`` writes it as triaxial.png).
-
-Volumetric-strain panels (triaxial, drained biaxial): a run whose eps_v is round-off only
-(abs(eps_v) <= ``ROUND_OFF`` max abs(eps1), an isochoric test) is drawn at exactly 0; a panel of
-such runs only gets fixed limits and the note "eps_v held at 0", never an axis of 1e-11 %.
+Volumetric-strain panels: a run whose eps_v is round-off only (abs(eps_v) <= ``ROUND_OFF`` max
+abs(eps1)) is drawn at exactly 0, with the note "eps_v held at 0".
 
 Sign convention: compression and contraction positive; stresses in N/m (2D), Pa (3D).
 """
@@ -259,9 +250,8 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
                 csl: Mapping[str, float] | None = None) -> Figure:
     """2x2 figure of the shear stage of every run in ``runs`` (label -> record), overlaid.
 
-    One legend for the whole figure, below the panels, listing the runs with a non-empty label
-    (with the slope M of their critical-state line) and the critical-state line style; none if
-    there is nothing to list.
+    One legend below the panels lists the runs with a non-empty label (with their slope M) and the
+    critical-state line style; none if there is nothing to list.
 
     Args:
         runs: curves to draw, keyed by legend label ("" for no legend entry).
@@ -270,9 +260,8 @@ def make_figure(runs: Mapping[str, Record], *, drained: bool = False, fourth: st
         deviator: "q" (sigma11 - sigma22) or "t" (half of it) on the deviator axes.
         title: figure title.
         normalise: p0 [N/m] of every label: stresses (and W2) are drawn divided by it.
-        csl: slope M of the critical-state line q = M p to draw in the Cambridge plane, by label
-            (labels without one get no line); in the t axes the line is t = M p / 2.
-    """
+        csl: slope M of the critical-state line q = M p by label (none: no line); in the t axes
+            the line is t = M p / 2."""
     if fourth not in FOURTH_PANELS:
         raise ValueError(f"fourth panel {fourth!r} is not one of {FOURTH_PANELS}")
     if deviator not in DEVIATORS:
