@@ -244,14 +244,11 @@ def hold_at_rest(schema: CellSchema, new_size: torch.Tensor, free_position: torc
                  old: Contacts) -> tuple[torch.Tensor, torch.Tensor]:
     """The DEM's rest rule for one increment: a free grain with zero force that nothing reaches does not move.
 
-    The DEM sets a free grain whose net force is exactly zero at rest at every substep. Over
-    one increment this means: a free grain with no pair within the contact tolerance at the
-    start (so no force) stays where it is, unless a neighbour reaches it during the increment.
-    Reached = one of its pairs is within the contact tolerance at the end of the increment
-    with every such grain held at rest and the other free DOFs moved by ``d_free``; a reached
-    grain keeps ``d_free`` (the DEM would push it). Repeated until no grain is released (at
-    most n_grains passes): a released grain may reach another held one (a chain of touching
-    grains is pushed within the same increment, as in the DEM).
+    A free grain with no pair within the contact tolerance at the start stays where it is unless
+    reached: one of its pairs is within the tolerance at the end of the increment, with every held
+    grain at rest and the other free DOFs moved by ``d_free``; a reached grain keeps ``d_free``.
+    Repeated until no grain is released (at most n_grains passes), so a chain of touching grains is
+    pushed within the increment, as in the DEM.
 
     Args:
         new_size: cell size at the end of the increment [m], (n, dim).
@@ -259,8 +256,7 @@ def hold_at_rest(schema: CellSchema, new_size: torch.Tensor, free_position: torc
         old: ``contacts`` of the state at the start.
 
     Returns:
-        (d_free with the rows of held DOFs set to zero, held: bool (n, n_free)).
-    """
+        (d_free with the rows of held DOFs set to zero, held: bool (n, n_free))."""
     grain = schema.free_dofs[:, 0]
     held = ~grains_touched(schema, old.contact)[:, grain]
     with torch.no_grad():
@@ -291,17 +287,14 @@ def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Te
         d_eps: local strain increment [-], (n, dim), compression positive: l <- l (1 - d_eps).
         d_free: displacement of the free DOFs over the increment [m], (n, n_free).
         old: ``contacts`` of the state before the increment, when already computed.
-        rest_rule: apply ``hold_at_rest`` to ``d_free`` first (the meso-ANN does; a DEM
-            displacement already obeys it) and report the held DOFs in ``Increment.held``.
+        rest_rule: apply ``hold_at_rest`` to ``d_free`` first and report the held DOFs in
+            ``Increment.held``.
 
     Returns:
-        The new state with its moment and area. The tangential force grows by kt times the
-        relative displacement along the mid-increment tangent, is capped at mu f_n (new normal
-        force) with the sign of the trial force, and is reset out of contact. In 3D the spring
-        is first carried into the new tangent plane (``carried_spring``), grows by kt times the
-        relative displacement normal to the mid-increment normal, and is capped along its own
-        direction (``coulomb_cap_vector``).
-    """
+        The new state with its moment and area. The spring (3D: first carried into the new tangent
+        plane, ``carried_spring``) grows by kt times the relative tangential displacement about the
+        mid-increment normal, is capped at mu f_n along its trial direction
+        (``coulomb_cap_vector``) and is reset out of contact."""
     if old is None:
         old = contacts(schema, positions(schema, cell_size, free_position))
     new_size = cell_size * (1.0 - d_eps)

@@ -58,32 +58,17 @@ class Database:
         before: ``cell_size`` (n, dim) [m], ``free_position`` (n, n_free) [m], ``shear_force``
             (n, n_pairs) [N] (3D: (n, n_pairs, 3)) before the probe.
         after_free_position: free-DOF coordinates after the probe [m], (n, n_free).
-        after_contact: contact flags after the probe, bool (n, n_pairs).
-        before_contact: contact flags before the probe, bool (n, n_pairs).
+        after_contact, before_contact: contact flags, bool (n, n_pairs).
         d_eps: probes (n, dim) [-], compression positive.
-        perturbed: bool (n,).
-        mechanism: bool (n,).
-        path_id: int (n,).
-        source_round: int (n,), the active-learning round of each sample (the file's
-            ``source_round``: 0 the generator, k round k; zeros where the file has none).
-        row: int (n,), each sample's row in the file (appends keep the rows before them).
-        schema_arrays: the ``schema`` group (numpy), enough to rebuild the cell.
-        schema: the same as a ``CellSchema`` with the contact law of the file.
-        mesostructure: JSON description stored in the file.
-        mesostructure_sha256: its hash.
-        start_mesostructures: descriptions of the cells the exploration started from (the
-            file's ``start_mesostructures``; the mesostructure alone where the file has none).
-        kn: normal contact stiffness, file attribute [N/m].
-        kt_over_kn: tangential over normal stiffness, file attribute [-].
-        phi_g_deg: friction angle, file attribute [deg].
-        contact_tolerance: contact gap tolerance, file attribute [-].
-        sha256: hex digest of the file bytes.
-        source: path of the file.
+        perturbed, mechanism: bool (n,); path_id, source_round (0: the generator), row: int (n,).
+        schema_arrays, schema: the ``schema`` group (numpy) and its ``CellSchema``.
+        mesostructure, mesostructure_sha256: JSON description in the file, its hash.
+        start_mesostructures: descriptions of the exploration's start cells.
+        kn [N/m], kt_over_kn [-], phi_g_deg [deg], contact_tolerance [-]: file attributes.
+        sha256, source: hex digest of the file bytes, its path.
         n_stored: samples in the file.
-        n_unconverged: samples dropped by the selection as unconverged.
-        n_jumps: samples dropped by the selection as jumps (a free-DOF displacement above
-            ``RATE_LIMIT`` times the sample's scale).
-    """
+        n_unconverged, n_jumps: samples dropped as unconverged, as jumps (a free-DOF
+            displacement above ``RATE_LIMIT`` times the sample's scale)."""
 
     before: dict
     after_free_position: np.ndarray

@@ -2,48 +2,29 @@
 
 The network's free-DOF displacement is a first guess; ``correct3d`` then takes up to a fixed
 number of Newton steps on the balance of the free DOFs, with the residual and its Jacobian from
-the exact spatial contact law of the increment (``training.fast_step3d.contact_pass3``): for a
-trial displacement d of the free DOFs, the grains go to their positions at the end of the
-increment, every pair's spring is carried into its new tangent plane, grown by kt times the
-relative displacement normal to the mid-increment branch and capped at mu f_n, and
+the exact spatial contact law of the increment (``training.fast_step3d.contact_pass3``; the
+derivatives are written above ``pair_force_jacobian``):
 
     R(d) = net contact force on every free DOF  [N],  J = dR/dd  [N/m]  (n_free x n_free).
 
 A Newton step solves (K + lambda I) delta = R per cell, K = -J + REGULARISATION kn I (Gaussian
-elimination with partial pivoting): the small diagonal term leaves a free DOF that no contact touches
-(a zero row of J and a zero residual) where it is, and bounds the step along a mechanism (a sliding
-contact). Two rules globalise the steps, each counted per cell:
+elimination with partial pivoting): the small diagonal term leaves a free DOF that no contact
+touches where it is and bounds the step along a mechanism. Two rules globalise the steps, each
+counted per cell:
 
 - shift: where Newton's step (lambda = 0) does no positive work along the unbalanced force,
-  R . delta <= 0, the grains sit near an unstable equilibrium (e.g. a fine grain wedged between two
-  sliding contacts, whose geometric softening -f_n / d outweighs the contact stiffness) and the
-  step would climb to it, while the DEM's damped dynamics move the grains along R, away from it;
-  then lambda = SHIFT kn, doubled until R . delta > 0 (as lambda grows, delta turns to R / lambda),
-  and the shifted step is taken in full.
+  R . delta <= 0 (the grains near an unstable equilibrium, which the DEM's damped dynamics move
+  away from), lambda = SHIFT kn, doubled until R . delta > 0, and the shifted step is taken in full;
 - line search: an unshifted step taken is alpha delta for the first alpha of 1, 1/2, ...,
-  2^-HALVINGS whose sum of squared residuals is below the current one, else 2^-HALVINGS delta (the
-  contact law is piecewise: contacts open and close, springs reach the Coulomb cap, and full steps
-  cycle).
+  2^-HALVINGS whose sum of squared residuals is below the current one, else 2^-HALVINGS delta.
 
-Without either (shift 0, halvings 0) the steps are the full Newton steps, bit for bit. A
-cell is corrected only while its force ratio, max abs(R) over its largest normal force (the DEM's
+Without either (shift 0, halvings 0) the steps are the full Newton steps, bit for bit. A cell is
+corrected only while its force ratio, max abs(R) over its largest normal force (the DEM's
 criterion, ``DemSettings.force_tolerance``), exceeds ``tolerance``, and only when its probe is at
-least ``Physics.ramp`` (a zero increment stays a no-op, as stress control assumes).
+least ``Physics.ramp`` (a zero increment stays a no-op).
 
-Jacobian of the force g on grain i of a touching pair with branch b = x_j - x_i (d = norm(b),
-u = b / d, P = I - u u^T; overlap > 0 for the normal terms; a^ = a / norm(a))::
-
-    normal:          d(-f_n u)/db = kn u u^T - (f_n / d) P
-    carried spring:  s_c = norm(s) q / norm(q), q = s - (s.u) u,
-                     ds_c/db = (norm(s) / norm(q)) (I - q^ q^^T) (-(u s^T + (s.u) I) P / d)
-    slip:            r - (r.m) m, r = b - b_old, m the unit mid-increment branch,
-                     dm/db = (I - m m^T) / norm(b_old + b),
-                     d(slip)/db = I - m m^T - (m r^T + (r.m) I) dm/db
-    Coulomb cap:     where norm(t) > mu f_n (1 + CAP_SLACK), t = s_c + kt slip:
-                     f = mu f_n t^,  df/db = (mu f_n / norm(t)) (I - t^ t^^T) dt/db - mu kn t^ u^T
-
-Layouts: ``training.fast_cells`` (cells last, one cell a vector lane; every cell's arithmetic is its
-own, so a cell's result does not depend on its batch). Sign convention: compression positive.
+Layouts: ``training.fast_cells`` (cells last, one cell a vector lane; a cell's result does not
+depend on its batch). Sign convention: compression positive.
 """
 
 import math
@@ -84,6 +65,16 @@ def _scaled_projector(scale, h, out):
             out[a, e] = scale * ((1.0 if a == e else 0.0) - h[a] * h[e])
 
 
+# Jacobian of the force g on grain i of a touching pair, branch b = x_j - x_i (d = norm(b),
+# u = b / d, P = I - u u^T; overlap > 0 for the normal terms; a^ = a / norm(a)):
+#   normal:          d(-f_n u)/db = kn u u^T - (f_n / d) P
+#   carried spring:  s_c = norm(s) q / norm(q), q = s - (s.u) u,
+#                    ds_c/db = (norm(s) / norm(q)) (I - q^ q^^T) (-(u s^T + (s.u) I) P / d)
+#   slip:            r - (r.m) m, r = b - b_old, m the unit mid-increment branch,
+#                    dm/db = (I - m m^T) / norm(b_old + b),
+#                    d(slip)/db = I - m m^T - (m r^T + (r.m) I) dm/db
+#   Coulomb cap:     where norm(t) > mu f_n (1 + CAP_SLACK), t = s_c + kt slip:
+#                    f = mu f_n t^,  df/db = (mu f_n / norm(t)) (I - t^ t^^T) dt/db - mu kn t^ u^T
 @numba.njit(cache=True, error_model="numpy")
 def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g, dg, work):
     """Force g (3,) [N] on grain i of one pair of one cell by the spatial contact law and dg = dg/db (3, 3)
@@ -366,27 +357,18 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
               corrections, shortened, shifted):
     """Newton corrections of the free-DOF displacement ``d_free`` (n_free, n) [m], in place (module docstring).
 
-    The DEM's rest rule (``fast_increment.hold_at_rest``) is applied to the first guess (the held DOFs'
-    displacement set to zero) before the first step, so that a grain's own predicted motion never
-    puts it in contact; a held grain that no contact reaches has a zero row and stays held.
-
-    Each Newton step is globalised (module docstring): its matrix shifted by shift kn, doubled, where
-    the step does no positive work along the residual (``shift`` = 0: never), a shifted step taken in
-    full, another alpha delta for the first alpha of 1, 1/2, ..., 2^-halvings whose sum of squared
-    residuals is below the current one, else 2^-halvings delta (``halvings`` = 0: the full steps).
+    The DEM's rest rule (``fast_increment.hold_at_rest``) is applied to the first guess first.
 
     Args:
         size (3, n), free (n_free, n), shear (n_pairs, 3, n), d_eps (n, 3): the state and probe;
         before: ``training.fast_cells.Before`` of the state (``fast_step3d.features3d``);
-        iterations: the most Newton steps per cell (>= 0); tolerance: force ratio [-] below which a
-            cell is not corrected; halvings: the most halvings of a Newton step (>= 0); shift: the first
-            shift of a Newton matrix whose step climbs, as a fraction of kn (>= 0).
+        iterations: the most Newton steps per cell (>= 0); tolerance: force ratio [-] below which
+            a cell is not corrected; halvings: the most halvings of a step (>= 0, 0: full steps);
+            shift: the first shift of a climbing step's matrix, a fraction of kn (>= 0, 0: never).
 
-    Writes ratios (2, n): the force ratio at the first guess and after the last step (0 for a cell
-    with no normal force or a probe below the ramp), corrections (n,) int64, the Newton steps taken,
-    and of them shortened (n,) int64, those taken at alpha < 1, and shifted (n,) int64, those whose
-    matrix was shifted.
-    """
+    Writes ratios (2, n): the force ratio at the first guess and after the last step (0 without
+    normal force or below the ramp); corrections, shortened, shifted (n,) int64: Newton steps
+    taken, of them those at alpha < 1 and those with a shifted matrix."""
     n = size.shape[1]
     frac, free_dofs = cells.frac, cells.free_dofs
     n_free = free_dofs.shape[0]

@@ -162,15 +162,13 @@ def features3d(size, free, shear, d_eps, cells, law, scaling, before):
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def pair_force3(b0, b1, b2, ob0, ob1, ob2, stuck, s0, s1, s2, rsum, reach, kn, kt, mu, slack):
-    """One spatial contact after an increment, the compiled runtime's one copy of the spatial contact law
+    """One spatial contact after an increment, the compiled runtime's copy of the spatial contact law
     (``warp_hcell.dem.contact``): branch (b0, b1, b2) [m] at the end, (ob0, ob1, ob2) at the start; the
-    pair touches where the branch is no longer than ``reach`` [m], with normal force kn max(rsum - d, 0)
-    [N] (d the branch length, rsum the sum of the radii [m]); the old spring (s0, s1, s2) [N], counted
-    only where ``stuck`` (the pair was in contact), is turned into the new tangent plane at its own
-    magnitude, grows by kt times the tangential part (about the mid-increment normal) of the branch's
-    change, and is capped at mu fn once it exceeds the cap by the factor ``slack``; zero where not
-    touching. Returns (touching, fn, u0, u1, u2, f0, f1, f2, trial, cap): the unit normal u, the
-    tangential force f [N], the trial magnitude and the cap [N]."""
+    pair touches where the branch length d <= ``reach`` [m], with normal force kn max(rsum - d, 0) [N];
+    the old spring (s0, s1, s2) [N], counted only where ``stuck``, is turned into the new tangent plane,
+    grows by kt times the tangential change of the branch and is capped at mu fn once it exceeds the
+    cap by the factor ``slack``. Returns (touching, fn, u0, u1, u2, f0, f1, f2, trial, cap): the unit
+    normal u, the tangential force f [N], the trial magnitude and the cap [N]."""
     d = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
     touching = d <= reach
     fn = normal_force(rsum - d, kn) if touching else 0.0

@@ -130,31 +130,20 @@ class _Workspace(NamedTuple):
 class FastAdvance:
     """``MesoNet.advance`` for inference on CPU: numba physics (float64) around the perceptron (float32).
 
-    The perceptron is ``training.perceptron.Perceptron``: each cell's output is one fixed
-    sequence of float32 operations, so a cell's result does not depend on the size of its
-    batch, its place in it or the CPU's vector width. Scratch arrays are kept per thread
-    between calls with the same number of cells; the arrays returned are new.
-
-    Planar and spatial cells (the schema's dimension): a spatial cell runs ``training.fast_step3d``
-    around the same perceptron; its tangent is not compiled (``increment`` refuses
-    ``with_tangent``; the backend takes it from torch autograd).
-
-    With ``corrections`` K > 0 (spatial cells only), the network's free-DOF displacement is the
-    first guess of up to K exact Newton steps on the balance of the free DOFs
-    (``training.fast_equilibrium3d.correct3d``), taken in a cell while its force ratio exceeds
-    ``tolerance``; ``last_corrections`` counts them.
+    Each cell's output is one fixed sequence of float32 operations (``training.perceptron``), so it
+    does not depend on its batch or the CPU's vector width; the arrays returned are new. Spatial
+    cells run ``training.fast_step3d``; their tangent is not compiled (``increment`` refuses
+    ``with_tangent``).
 
     Args:
-        net: the trained network (its schema, active pairs, normalisation and layers are copied).
-        corrections: the most Newton steps per cell-increment (0: the network alone, unchanged).
-        tolerance: the force ratio below which a cell is not corrected [-] (None: the DEM's
-            ``DemSettings.force_tolerance``).
-        guess: the first guess of the corrections: ``"network"``; or, to measure what the network
-            adds, ``"still"`` (the free DOFs do not move) or ``"affine"`` (they follow the cell's strain,
-            x <- x (1 - d_eps) along their axis); the network is still evaluated (same cost).
-        halvings: the most halvings of a Newton step by the line search (``correct3d``; 0: full steps).
-        shift: the first shift of a Newton matrix whose step climbs, a fraction of kn (``correct3d``; 0: none).
-    """
+        net: the trained network (schema, active pairs, normalisation and layers are copied).
+        corrections: the most exact Newton steps per cell-increment (spatial cells,
+            ``fast_equilibrium3d.correct3d``; 0: the network alone); ``last_corrections`` counts them.
+        tolerance: force ratio [-] below which a cell is not corrected (None: the DEM's).
+        guess: first guess of the corrections: ``"network"``, ``"still"`` (free DOFs stay) or
+            ``"affine"`` (they follow the cell's strain).
+        halvings: the most line-search halvings of a Newton step (0: full steps).
+        shift: the first shift of a climbing step's matrix, a fraction of kn (0: none)."""
 
     GUESSES = ("network", "still", "affine")
 

@@ -1,36 +1,29 @@
 """``MesoNet``: the generic meso-ANN (spec section 12): where do the free DOFs of a cell go?
 
 Contract. For a batch of generic cell states (``training.cell_physics``: cell size, free-DOF
-coordinates, per-pair tangential forces) and probes d_eps = (d_eps_n, d_eps_t) [-]
-(3D: (d_eps_n, d_eps_t1, d_eps_t2); compression positive), ``MesoNet.displacement`` returns
-the displacement of every free DOF over the increment [m], shape (n, n_free):
+coordinates, per-pair tangential forces) and probes d_eps [-] of ``dim`` components
+(compression positive), ``MesoNet.displacement`` returns the displacement of every free DOF
+over the increment [m], shape (n, n_free):
 
     d_free = D * m * r(state, u)  -  C(state) @ F / kn
 
 with ``m = |d_eps|``, u = d_eps / m (u = 0 where m = 0), D the mean grain diameter, F the
-unbalanced contact force on the free DOFs [N] (exact, from the contact law) and kn the
-normal stiffness. Both r (free-DOF rates per unit probe magnitude, in D) and C (an
-n_free x n_free compliance in units of 1/kn) are outputs of one tanh multilayer perceptron.
-The first term is homogeneous of degree one in the probe, so a zero probe moves nothing
-but what is unbalanced; the second term is what makes a recurrent model return towards
-equilibrium: a position error e produces F ~ K e and the network, trained on perturbed
-states that the DEM relaxes, moves the DOFs back by ~ -e at the next increment.
+unbalanced contact force on the free DOFs [N] (exact, from the contact law) and kn the normal
+stiffness. r (free-DOF rates per unit probe magnitude, in D) and C (an n_free x n_free
+compliance in units of 1/kn) are outputs of one tanh multilayer perceptron. The first term is
+homogeneous of degree one in the probe; the second returns a recurrent model towards
+equilibrium (trained on perturbed states that the DEM relaxes).
 
 Features (z-scored with training statistics), for any mesostructure:
 
-    - the probe direction (u_n, u_t) (3D: (u_n, u_t1, u_t2));
+    - the probe direction u;
     - cell size l / D; free coordinates x / D and x / l (l of the coordinate's axis);
-    - per active pair (a candidate pair in contact somewhere in the training data): the
-      overlap / D (gaps clipped at ``GAP_CLIP``), the contact flag, the branch direction
-      (u_n, u_t), the tangential force / (kn D) and the friction ratio ``f_s / (mu f_n)``
-      (0 out of contact); in 3D the branch direction and the spring vector have three
-      components each and the friction ratio is ``|f_s| / (mu f_n)`` (``pair_features``);
-    - optionally (``load_features``), after all of these, per active pair the load fraction
-      f_n / max f_n, the pair's normal force over the largest normal force of the cell's
-      pairs (0 in a cell carrying none). The overlap / D feature is scaled by the training
-      spread of the overlaps, which the high-pressure states set (~0.03 D), so a barely
-      loaded contact at low pressure (overlap ~1e-5 D) looks like one just touching; its
-      load fraction is of order 0.1 at any pressure.
+    - per active pair (in contact somewhere in the training data): overlap / D (gaps clipped
+      at ``GAP_CLIP``), the contact flag, the branch direction, the tangential force / (kn D)
+      and the friction ratio ``|f_s| / (mu f_n)`` (0 out of contact; ``pair_features``);
+    - optionally (``load_features``), per active pair the load fraction f_n / max f_n over the
+      cell's pairs (0 in a cell carrying none), which tells a barely loaded contact at low
+      pressure from one just touching.
 
 Nothing here knows any particular cell; the dimension is the schema's. Everything is float64
 (positions must be resolved to ~1e-7 D).
