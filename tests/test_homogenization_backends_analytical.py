@@ -7,6 +7,7 @@ import pytest
 
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell, AnalyticalState
+from homogenization.backends.analytical3d import Analytical3DCell
 from warp_hcell.core.contract import CellModel
 from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.mesostructures.files import describe, from_description
@@ -49,9 +50,10 @@ def _mixed_states(model):
     return state
 
 
-def test_is_a_cell_model_and_in_the_registry():
-    model = make_cell_model("analytical", contact_law=LAW, radius=R)
-    assert isinstance(model, AnalyticalCell) and isinstance(model, CellModel)
+@pytest.mark.parametrize("dim, cls", [(2, AnalyticalCell), (3, Analytical3DCell)])
+def test_is_a_cell_model_and_in_the_registry(dim, cls):
+    model = make_cell_model("analytical", contact_law=LAW, radius=R, dim=dim)
+    assert isinstance(model, cls) and isinstance(model, CellModel)
     assert model.name == "analytical"
 
 

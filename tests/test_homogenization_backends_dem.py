@@ -13,6 +13,7 @@ from homogenization.backends.analytical import AnalyticalCell
 from warp_hcell.dem.cell import DemCell
 from warp_hcell.core.contract import CellModel
 from warp_hcell.dem.integrator import MIN_CELLS_PER_CHUNK
+from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import ContactLaw, DemSettings
@@ -22,9 +23,9 @@ LAW = ContactLaw()
 DATA = resources.files("warp_hcell") / "data"
 
 
-def _h_cells(alpha0):
-    """One H-cell (r = 0.5 m) per opening angle [deg]."""
-    return [h_cell(a, 0.5) for a in alpha0]
+def _h_cells(alpha0, dim=2):
+    """One H-cell (r = 0.5 m) per opening angle [deg]: planar, or the ten-sphere cell for ``dim`` 3."""
+    return [h_cell(a, 0.5) if dim == 2 else resolve_mesostructure(f"hcell3d:alpha0={float(a)!r}") for a in alpha0]
 
 
 def _constant_volume_path(n_cells: int, theta: np.ndarray, iso: float, n_iso: int, delta: float, n_shear: int):
@@ -59,8 +60,9 @@ def test_dem_matches_analytical_cell_along_constant_volume_path(device):
     assert worst["alpha_deg"] <= 1e-4
 
 
-def test_dem_satisfies_the_cell_model_protocol_and_is_registered():
-    cell = make_cell_model("dem", contact_law=LAW, radius=0.5)
+@pytest.mark.parametrize("dim", (2, 3))
+def test_dem_satisfies_the_cell_model_protocol_and_is_registered(dim):
+    cell = make_cell_model("dem", contact_law=LAW, radius=0.5, dim=dim)
     assert isinstance(cell, DemCell) and isinstance(cell, CellModel) and cell.name == "dem"
 
 
@@ -130,13 +132,14 @@ def test_bitwise_determinism_and_batch_invariance(device):
     _assert_same(runs[0], flipped, rows=slice(None, None, -1))
 
 
-def test_step_is_pure_and_state_round_trips(device):
+@pytest.mark.parametrize("dim", (2, 3))
+def test_step_is_pure_and_state_round_trips(device, dim):
     rng = np.random.default_rng(5)
     cell = DemCell(LAW, 0.5, device=device)
-    state = cell.init_state(_h_cells(rng.uniform(35.0, 80.0, 5)), 5)
-    state, _ = cell.step(state, np.full((5, 2), 2e-4))
+    state = cell.init_state(_h_cells(rng.uniform(46.0, 80.0, 5), dim), 5)
+    state, _ = cell.step(state, np.full((5, dim), 2e-4))
     before = cell.state_to_arrays(state)
-    d_eps = rng.uniform(-1e-4, 1e-4, (5, 2))
+    d_eps = rng.uniform(-1e-4, 1e-4, (5, dim))
     first, r1 = cell.step(state, d_eps)
     _assert_same(before, cell.state_to_arrays(state))
     second, r2 = cell.step(cell.state_from_arrays(before), d_eps)
