@@ -77,25 +77,21 @@ class ForwardSettings:
     """Numerical settings of the forward model.
 
     Attributes:
-        law: contact law of the cells, a name of ``LAW_PARAMETERS`` ("hertz-mindlin": spheres, 3D tests only).
-        backend: "analytical" (batched), "dem" or "ann" (one parameter set at a time).
+        law: contact law, a name of ``LAW_PARAMETERS`` ("hertz-mindlin": 3D tests only).
+        backend: "analytical" (batched), "dem" or "ann".
         n_orientations: cell orientations per material point of a 2D test [-].
-        lebedev_order, n_spins: cell orientations of a triaxial test (``orientation.orientations_3d``);
-            11 x 4 = 100 cells, coarser than ``hmodel triaxial``'s default (as 36 orientations are in
-            2D) so that a population of parameter sets runs in minutes; its quadrature error is in
-            docs/triaxial.md (Quadrature).
-        staggered_spins: stagger the spins from axis to axis (``orientation``); False here: on
-            100 cells aligned spins keep the rule's cube symmetry (sigma22 = sigma33 on the
-            axisymmetric tests), where staggered ones would leave a quadrature asymmetry of about
-            1 % of p, and the forward model's bias in docs/calibration.md was measured on them.
+        lebedev_order, n_spins: cell orientations of a triaxial test
+            (``orientation.orientations_3d``); coarser than ``hmodel triaxial``'s default so that a
+            population runs in minutes (quadrature error: docs/triaxial.md, Quadrature).
+        staggered_spins: stagger the spins from axis to axis; False keeps the rule's cube symmetry
+            (sigma22 = sigma33 on axisymmetric tests).
         increment: axial strain increment of the shear stage [-].
         iso_increment: strain increment per component of the isotropic stage [-].
         radius: grain radius [m].
         stress_rtol: relative tolerance of p = p0 (landing) and sigma22 = p0 (drained) [-].
         max_newton: Newton iterations allowed per drained increment [-].
         fixed: value of every parameter not calibrated (CLI flag units).
-        backend_options: extra keyword options of the backend (dem/ann: device, threads, model).
-    """
+        backend_options: extra keyword options of the backend (dem/ann: device, threads, model)."""
 
     law: str = ContactLaw.name
     backend: str = "analytical"
