@@ -36,6 +36,7 @@ import h5py
 
 from homogenization.learning import certificate
 from homogenization.learning.envelope import equilibrium_settings, escalation_of
+from homogenization.learning.records import Certificate
 from homogenization.cli import hmodel
 from warp_hcell.database.format import sizes
 
@@ -52,13 +53,13 @@ def _load() -> str:
     return "load %.1f %.1f %.1f" % os.getloadavg()
 
 
-def surrogate_line(cert: dict) -> str:
+def surrogate_line(cert: Certificate) -> str:
     """The surrogate the certificate measured and, for the hybrid, how often its corrections fired."""
     k, tolerance = equilibrium_settings(cert)
     if not k:
         return "certified surrogate: the network alone"
-    tally = cert["equilibrium"]
-    cell_steps = int(cert["settings"]["n_cells"]) * int(tally["steps"])
+    tally = cert.equilibrium
+    cell_steps = int(cert.settings["n_cells"]) * int(tally["steps"])
     return (f"certified surrogate: the network + up to {k} equilibrium corrections at force ratio {tolerance:g}: "
             f"{tally['n_corrected']} of {cell_steps} cell steps corrected "
             f"({100 * tally['n_corrected'] / max(cell_steps, 1):.1f} %), "
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{r.get('database_mb', float('nan')):.1f} ({r.get('database_raw_mb', float('nan')):.1f}) | "
               f"{r['seconds'] - train_s:.0f} | {train_s:.0f} ({r['epochs'] if r['round'] else '-'}) | "
               f"{100 * r['worst']:.3f} ({r['worst_test']}) | {', '.join(r.get('not_followed', [])) or '-'}")
-    print(surrogate_line(meta["certificate"]))
+    print(surrogate_line(Certificate.from_dict(meta["certificate"])))
     print(f"pipeline: {generated + trained:.0f} s ({(generated + trained) / 60:.1f} min), generate {generated:.0f} s, "
           f"train + certificate + rounds {trained:.0f} s; database {_mb(db)}; final verdict "
           f"{meta['certificate']['verdict']} (exit {code}); {_load()}")

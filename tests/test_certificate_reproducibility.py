@@ -105,16 +105,16 @@ def tiny_model(tmp_path_factory):
 def test_every_test_reports_a_small_spread_on_the_plain_cell_and_the_verdict_is_that_without(tiny_model):
     cert = certificate.certify(tiny_model, **TINY)
     without = certificate.certify(tiny_model, **TINY, reproducibility=False)
-    spreads = [t["dem_spread"] for t in cert["tests"]]
+    spreads = [t.dem_spread for t in cert.tests]
     assert all(math.isfinite(s) and 0 <= s < PLAIN_SPREAD for s in spreads), spreads
-    assert cert["dem_spread"] == {"max": max(spreads), "test": cert["tests"][int(np.argmax(spreads))]["name"],
+    assert cert.dem_spread == {"max": max(spreads), "test": cert.tests[int(np.argmax(spreads))].name,
                                   "above_target": []}
-    assert without["dem_spread"] is None and all("dem_spread" not in t for t in without["tests"])
+    assert without.dem_spread is None and all(t.dem_spread is None for t in without.tests)
     for key in ("worst", "worst_test", "within_target", "verdict", "passed"):
-        assert cert[key] == without[key], key
-    assert [(t["dp"], t["dq"]) for t in cert["tests"]] == [(t["dp"], t["dq"]) for t in without["tests"]]
+        assert getattr(cert, key) == getattr(without, key), key
+    assert [(t.dp, t.dq) for t in cert.tests] == [(t.dp, t.dq) for t in without.tests]
     lines = certificate.summary_lines(cert)
-    assert sum("DEM from rest off the DEM by" in line for line in lines) == len(cert["tests"])
+    assert sum("DEM from rest off the DEM by" in line for line in lines) == len(cert.tests)
     assert not any("reproducibility" in line for line in lines)
 
 
@@ -125,12 +125,12 @@ def test_a_dem_from_rest_that_cannot_follow_is_reported_not_raised(tiny_model, m
 
     monkeypatch.setattr(FromRest, "step", refuse)
     cert = certificate.certify(tiny_model, **{**TINY, "pressures": (1e6,)})
-    assert all(t["dem_spread"] == math.inf and t["dem_spread_error"] == "no convergence" for t in cert["tests"])
-    assert cert["within_target"] and len(cert["dem_spread"]["above_target"]) == len(cert["tests"])
+    assert all(t.dem_spread == math.inf and t.dem_spread_error == "no convergence" for t in cert.tests)
+    assert cert.within_target and len(cert.dem_spread["above_target"]) == len(cert.tests)
     lines = certificate.summary_lines(cert)
-    assert sum("(above the target)" in line for line in lines) == len(cert["tests"])
+    assert sum("(above the target)" in line for line in lines) == len(cert.tests)
     assert any(line.startswith(f"the DEM's own reproducibility: started from rest in every increment it moves "
-                               f"{len(cert['tests'])} test(s)") for line in lines)
+                               f"{len(cert.tests)} test(s)") for line in lines)
 
 
 @needs_model
@@ -140,5 +140,5 @@ def test_a_test_the_ann_cannot_follow_still_reports_the_spread(tiny_model, monke
 
     monkeypatch.setattr(certificate._Counter, "step", refuse)
     cert = certificate.certify(tiny_model, **TINY)
-    assert all(t["dp"] == math.inf and "error" in t for t in cert["tests"])
-    assert all(0 <= t["dem_spread"] < PLAIN_SPREAD for t in cert["tests"])
+    assert all(t.dp == math.inf and t.error is not None for t in cert.tests)
+    assert all(0 <= t.dem_spread < PLAIN_SPREAD for t in cert.tests)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from homogenization.learning import active, certificate
+from homogenization.learning.records import Certificate
 from homogenization.learning.settings import CertificateSettings
 from training import train as training_train
 from training.config import TrainConfig
@@ -39,8 +40,8 @@ def tiny(tmp_path):
 def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, capsys):
     db, model = tiny
     n_before = load_database(db).n_stored
-    rounds = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=1, samples_per_round=3000),
-                          certify_settings=CertificateSettings(**SHORT))
+    rounds, cert = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=1, samples_per_round=3000),
+                                certify_settings=CertificateSettings(**SHORT))
     printed = capsys.readouterr().out
     assert [r["round"] for r in rounds] == [0, 1] and "active round 1: +3000 samples" in printed
     first, second = rounds
@@ -50,7 +51,8 @@ def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, cap
     assert second["worst"] < first["worst"] / 10 and second["samples_added"] == 3000
     meta = json.loads(model.with_suffix(".json").read_text())
     assert meta["active_learning"] == json.loads(json.dumps(rounds))
-    assert meta["certificate"]["worst"] == second["worst"]
+    assert meta["certificate"]["worst"] == second["worst"] == cert.worst
+    assert meta["certificate"] == json.loads(json.dumps(cert.to_dict()))
     assert meta["training_data"]["n_stored"] == n_before + 3000
     with h5py.File(db) as f:
         source = f["source_round"][()]
@@ -85,7 +87,7 @@ def test_hmodel_learn_writes_every_stage_resumes_and_refuses_other_options(tmp_p
     assert n_stored == 2000 + added == rounds[-1]["samples_total"]
     assert added == (1000 if len(rounds) == 2 else 0) and (len(rounds) == 2) == (rounds[0]["verdict"] == "failed")
     # the short certificate (4 orientations, 1 %, no rollouts) is below the minimum: never passed
-    assert code == certificate.exit_code(meta["certificate"]) in (certificate.EXIT_FAILED, certificate.EXIT_WEAK)
+    assert code == certificate.exit_code(Certificate.from_dict(meta["certificate"])) in (certificate.EXIT_FAILED, certificate.EXIT_WEAK)
     assert (out / "certificate.png").stat().st_size > 10_000
     sha = (out / "ann.pt").read_bytes()
     assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == code
@@ -143,7 +145,7 @@ def test_hmodel_train_enriches_its_database_and_an_interrupted_run_continues(tmp
     assert [r["round"] for r in meta["active_learning"]] == [0, 1]
     first_round, second_round = meta["active_learning"]
     assert first_round["verdict"] == "failed" and second_round["worst"] < first_round["worst"]
-    assert code == certificate.exit_code(meta["certificate"]) != 0  # a short certificate is never passed
+    assert code == certificate.exit_code(Certificate.from_dict(meta["certificate"])) != 0  # a short certificate is never passed
 
     weights = model.read_bytes()
     assert hmodel.main(argv) == code  # a finished run: nothing is added or retrained
@@ -222,9 +224,9 @@ def test_rounds_record_their_network_and_a_round_that_gains_little_widens_the_ne
     another architecture), and every round records its widths."""
     db, model = tiny
     monkeypatch.setattr(active, "WIDEN_BELOW_GAIN", 1e9)
-    rounds = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=2, samples_per_round=1000,
-                                                                           warm_start=True),
-                          certify_settings=CertificateSettings(**SHORT, target=1e-9))
+    rounds, _ = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=2, samples_per_round=1000,
+                                                                              warm_start=True),
+                             certify_settings=CertificateSettings(**SHORT, target=1e-9))
     assert [r["hidden"] for r in rounds] == [[16], [16], list(active.WIDTH_LADDER[0])]
     assert [r["warm_start"] for r in rounds] == [None, True, False]
     assert "(training 40x40, " in capsys.readouterr().out

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from homogenization.learning import active, certificate
+from homogenization.learning.records import Certificate, TestResult
 from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from test_homogenization_active import SHORT, TRAIN_CONFIG, tiny  # noqa: F401 (tiny: the fixture)
 from training import train as training_train
@@ -43,15 +44,25 @@ def test_departure_is_the_first_shear_increment_beyond_the_target():
     assert certificate.departure(ann, dem, scale=10.0, target=1.0) is None
 
 
+def _certificate(*tests, target=0.02):
+    """A certificate of target ``target`` whose tests are these rows (their other fields placeholders)."""
+    rows = tuple(TestResult.from_dict({"kind": "drained", "sense": "compression", "p0": 2e5, "scale": 2e5,
+                                       "n_increments": 100, **t}) for t in tests)
+    worst = max(rows, key=lambda t: t.figure)
+    return Certificate(target=target, worst=worst.figure, worst_test=worst.name, metric="", tests=rows, rollout=None,
+                       coverage=None, dem_spread=None, settings={}, cell_parameters={}, model_sha256="", revision="",
+                       seconds=0.0, within_target=False, below_minimum=[], verdict="failed", passed=False)
+
+
 def test_failing_states_are_those_from_the_departure_on():
     increments = np.tile(np.arange(0, 100, 10), 2)  # two cells, a state every 10 increments
     states = {"cell_size": np.ones((20, 3)), "position": np.zeros((20, 11, 3)), "shear_force": np.zeros((20, 55, 3)),
               "cell": np.repeat([0, 1], 10), "increment": increments}
-    cert = {"target": 0.02, "tests": [
+    cert = _certificate(
         {"name": "a", "dp": math.inf, "dq": math.inf, "departure": 60, "n_increments": 100},
         {"name": "b", "dp": 0.05, "dq": 0.0, "departure": 95, "n_increments": 100},
         {"name": "c", "dp": 0.01, "dq": 0.0, "n_increments": 100},  # passed: none of its states
-        {"name": "d", "dp": 0.03, "dq": 0.0}]}  # no departure recorded: every state
+        {"name": "d", "dp": 0.03, "dq": 0.0, "n_increments": 100})  # no departure recorded: every state
     dem_states = {name: dict(states) for name in "abcd"}
     picked, names = active.failing_states(cert, dem_states, margin=0.1)
     assert names == ["a", "b", "d"]
@@ -81,7 +92,7 @@ def test_progress_rule_and_stall():
 
 def test_rounds_stop_where_every_failing_test_is_within_the_dems_own_reproducibility():
     def cert(*tests):
-        return {"target": 0.02, "tests": [dict(zip(("name", "dp", "dq", "dem_spread"), t)) for t in tests]}
+        return _certificate(*(dict(zip(("name", "dp", "dq", "dem_spread"), t)) for t in tests))
 
     within = cert(("drained", 0.01, 0.031, 0.0318), ("undrained", 0.003, 0.009, 0.007))
     line = active.unresolvable_line(within)
@@ -90,7 +101,7 @@ def test_rounds_stop_where_every_failing_test_is_within_the_dems_own_reproducibi
     assert active.unresolvable_line(cert(("drained", 0.01, 0.031, 0.0318), ("other", 0.03, 0.0, 0.001))) is None
     assert active.unresolvable_line(cert(("drained", math.inf, math.inf, 0.0318))) is None  # not followed
     assert active.unresolvable_line(cert(("passing", 0.01, 0.0, 0.05))) is None
-    no_spread = {"target": 0.02, "tests": [{"name": "drained", "dp": 0.01, "dq": 0.031}]}  # not measured
+    no_spread = _certificate({"name": "drained", "dp": 0.01, "dq": 0.031})  # not measured
     assert active.unresolvable_line(no_spread) is None
 
 
@@ -113,22 +124,22 @@ def test_a_drained_test_the_ann_cannot_follow_is_diagnosed_and_its_states_from_t
     states = {}
     cert = certificate.certify(model, pressures=(2e5,), eps_max=0.01, spatial_rule=(5, 2), rollout=False,
                                dem_states=states, state_every=5)
-    lost = [t for t in cert["tests"] if not math.isfinite(t["dp"])]
-    assert lost and math.isinf(cert["worst"]) and cert["verdict"] == "failed"
+    lost = [t for t in cert.tests if not math.isfinite(t.dp)]
+    assert lost and math.isinf(cert.worst) and cert.verdict == "failed"
     for test in lost:  # one line: where, which cells (or none), the certificate's verdict
-        assert test["kind"] == "drained" and "\n" not in test["error"]
-        assert test["error"].startswith("step 'shear', increment ") and "ANN diagnosis: " in test["error"]
-        assert re.search(r"in \d+ of \d+ cells: \d+ \(n = |no cell of \d+ failed", test["error"])
-        assert "model not certified" in test["error"]
-        shear = int(test["error"].split("increment ")[1].split(":")[0])
-        assert 0 < shear <= test["departure"] < test["n_increments"]  # the departure counts the isotropic stage too
-    for test in cert["tests"]:
-        assert ("departure" in test) == (max(test["dp"], test["dq"]) > cert["target"])
+        assert test.kind == "drained" and "\n" not in test.error
+        assert test.error.startswith("step 'shear', increment ") and "ANN diagnosis: " in test.error
+        assert re.search(r"in \d+ of \d+ cells: \d+ \(n = |no cell of \d+ failed", test.error)
+        assert "model not certified" in test.error
+        shear = int(test.error.split("increment ")[1].split(":")[0])
+        assert 0 < shear <= test.departure < test.n_increments  # the departure counts the isotropic stage too
+    for test in cert.tests:
+        assert (test.departure is not None) == (test.figure > cert.target)
     picked, names = active.failing_states(cert, states, margin=0.0)
-    assert set(t["name"] for t in lost) <= set(names)
+    assert set(t.name for t in lost) <= set(names)
     first = {name: int(states[name]["increment"].min()) for name in names}
-    kept = sum(int(np.count_nonzero(states[t["name"]]["increment"] >= t["departure"])) for t in cert["tests"]
-               if t["name"] in names)
+    kept = sum(int(np.count_nonzero(states[t.name]["increment"] >= t.departure)) for t in cert.tests
+               if t.name in names)
     assert picked["cell_size"].shape[0] == kept < sum(states[name]["cell"].size for name in names)
     assert all(v == 0 for v in first.values())  # the certificate kept every test's states from its start
 
@@ -136,9 +147,9 @@ def test_a_drained_test_the_ann_cannot_follow_is_diagnosed_and_its_states_from_t
 def test_rounds_without_progress_stop_with_one_line(tiny, monkeypatch, capsys):  # noqa: F811 (the fixture)
     db, model = tiny
     monkeypatch.setattr(active, "improved", lambda new, best: False)
-    rounds = active.learn(db, model, TRAIN_CONFIG, settings=ActiveSettings(rounds=3, samples_per_round=1000,
-                                                                          stall_rounds=1, widen=False),
-                          certify_settings=CertificateSettings(**SHORT, target=1e-9))
+    rounds, _ = active.learn(db, model, TRAIN_CONFIG, settings=ActiveSettings(rounds=3, samples_per_round=1000,
+                                                                             stall_rounds=1, widen=False),
+                             certify_settings=CertificateSettings(**SHORT, target=1e-9))
     assert [r["round"] for r in rounds] == [0, 1]
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("active learning stops")]
     assert len(lines) == 1
@@ -148,9 +159,9 @@ def test_rounds_without_progress_stop_with_one_line(tiny, monkeypatch, capsys): 
     assert "network 16" in line and "MB" in line
     # a second call finds the run finished: nothing added
     n = rounds[-1]["samples_total"]
-    again = active.learn(db, model, TRAIN_CONFIG, settings=ActiveSettings(rounds=3, samples_per_round=1000,
-                                                                          stall_rounds=1, widen=False),
-                         certify_settings=CertificateSettings(**SHORT, target=1e-9))
+    again, _ = active.learn(db, model, TRAIN_CONFIG, settings=ActiveSettings(rounds=3, samples_per_round=1000,
+                                                                             stall_rounds=1, widen=False),
+                            certify_settings=CertificateSettings(**SHORT, target=1e-9))
     assert again[-1]["samples_total"] == n and "(done before)" in capsys.readouterr().out
 
 
@@ -161,7 +172,7 @@ def test_the_database_budget_caps_a_round_and_then_stops_the_rounds(tiny, capsys
     active.train_model(db, model, TRAIN_CONFIG, [])
     size = db.stat().st_size
     budget = (size + 2000 * database.bytes_per_sample(db)) / 1e6
-    rounds = active.learn(db, model, TRAIN_CONFIG,
+    rounds, _ = active.learn(db, model, TRAIN_CONFIG,
                           settings=ActiveSettings(rounds=6, samples_per_round=3000, max_database_mb=budget,
                                                   stall_rounds=5, widen=False),
                           certify_settings=CertificateSettings(**SHORT, target=1e-9))
@@ -180,7 +191,7 @@ def test_the_database_budget_caps_a_round_and_then_stops_the_rounds(tiny, capsys
     with h5py.File(db) as f:
         stored = json.loads(f.attrs["active_learning"])
     assert [r["samples_capped"] for r in stored] == capped and [r["samples"] for r in stored] == added
-    again = active.learn(db, model, TRAIN_CONFIG,  # a second call: the budget is spent, no certificate again
+    again, _ = active.learn(db, model, TRAIN_CONFIG,  # a second call: the budget is spent, no certificate again
                          settings=ActiveSettings(rounds=6, samples_per_round=3000, max_database_mb=budget,
                                                  stall_rounds=5, widen=False),
                          certify_settings=CertificateSettings(**SHORT, target=1e-9))

@@ -1,5 +1,6 @@
 """The meso-ANN certificate (homogenization.learning.certificate) and the refusal of models without a passed one."""
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -10,6 +11,7 @@ import pytest
 import torch
 
 from homogenization.learning import certificate
+from homogenization.learning.records import Certificate
 from homogenization.backends.ann import default_model_path
 from homogenization.cli import biaxial, certify
 from warp_hcell.core.cli import run_main
@@ -54,33 +56,33 @@ def test_the_shipped_model_is_within_the_target_of_the_short_certificate_which_i
     """A certificate weaker than the minimum (one pressure, 2 %, 6 orientations, no rollouts) is
     not passed, however small its figures; its envelope is what it ran."""
     cert = short_certificate
-    assert [t["name"] for t in cert["tests"]] == [
+    assert [t.name for t in cert.tests] == [
         "constant-volume compression p0=200000",
         "drained compression p0=200000", "drained extension p0=200000", "constant-volume reversal p0=200000"]
-    figures = np.array([[t["dp"], t["dq"]] for t in cert["tests"]])
+    figures = np.array([[t.dp, t.dq] for t in cert.tests])
     assert np.all(figures > 0) and np.all(figures < 0.01)  # measured 0.06-0.30 % against the DEM
-    assert cert["within_target"] and cert["worst"] == figures.max()
-    assert not cert["passed"] and cert["verdict"] == "weak" and len(cert["below_minimum"]) == 4
-    assert cert["below_minimum"][:2] == ["pressures 200000 (minimum: 200000, 1e+06)", "eps_max 0.02 (minimum 0.1)"]
-    assert cert["envelope"]["pressures"] == [2e5, 2e5] and cert["envelope"]["eps_max"] == 0.02
-    assert cert["envelope"]["kinds"] == ["constant-volume", "drained"]
-    assert cert["envelope"]["cell_parameters"] == {"alpha0_deg": 55.0}
-    assert cert["model_sha256"] == file_sha256(shipped_copy)
-    assert all(t["scale"] >= t["p0"] for t in cert["tests"])
-    assert all(0 <= t["dem_spread"] < 0.002 for t in cert["tests"])  # the DEM from rest: measured 0.03-0.05 %
-    assert cert["coverage"]["fraction_within"] > 0.95 and cert["coverage"]["n_states"] > 0
+    assert cert.within_target and cert.worst == figures.max()
+    assert not cert.passed and cert.verdict == "weak" and len(cert.below_minimum) == 4
+    assert cert.below_minimum[:2] == ["pressures 200000 (minimum: 200000, 1e+06)", "eps_max 0.02 (minimum 0.1)"]
+    assert cert.envelope["pressures"] == [2e5, 2e5] and cert.envelope["eps_max"] == 0.02
+    assert cert.envelope["kinds"] == ["constant-volume", "drained"]
+    assert cert.envelope["cell_parameters"] == {"alpha0_deg": 55.0}
+    assert cert.model_sha256 == file_sha256(shipped_copy)
+    assert all(t.scale >= t.p0 for t in cert.tests)
+    assert all(0 <= t.dem_spread < 0.002 for t in cert.tests)  # the DEM from rest: measured 0.03-0.05 %
+    assert cert.coverage["fraction_within"] > 0.95 and cert.coverage["n_states"] > 0
 
 
 def test_a_perturbed_model_fails_the_certificate(tmp_path):
     model = _copy_shipped(tmp_path / "bad")
     _perturb(model, 2.0)
     cert = certificate.certify(model, **SHORT)
-    assert not cert["passed"] and cert["worst"] > certificate.TARGET
+    assert not cert.passed and cert.worst > certificate.TARGET
 
 
-def _write(model: Path, cert: dict) -> None:
+def _write(model: Path, cert: Certificate) -> None:
     certificate.write_certificate(model, cert)
-    assert json.loads(model.with_suffix(".json").read_text())["certificate"]["model_sha256"] == cert["model_sha256"]
+    assert json.loads(model.with_suffix(".json").read_text())["certificate"]["model_sha256"] == cert.model_sha256
 
 
 def _one_error(capsys) -> str:
@@ -102,6 +104,17 @@ def test_a_certified_model_runs_and_the_summary_and_run_say_so(tmp_path, capsys)
     assert ann["outside_envelope"] == [] and ann["envelope"]["pressures"] == [2e5, 1e6]
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_shipped_model_files_round_trip_byte_for_byte_through_their_records(dim):
+    """The file-format guarantee: read as records and written as the package writes them, a shipped
+    model's JSON is the same bytes (its certificate as a ``Certificate``, its rounds as ``Round``s)."""
+    path = default_model_path(dim).with_suffix(".json")
+    text = path.read_text()
+    meta = json.loads(text)
+    meta["certificate"] = Certificate.from_dict(meta["certificate"]).to_dict()
+    assert json.dumps(meta, indent=2, sort_keys=True) + "\n" == text
+
+
 def test_the_shipped_certificates_meet_the_minimum_and_record_their_envelope():
     """Derived from their recorded settings and tests: p0 2e5 to 1e6, +-10 % axial strain."""
     from homogenization.learning.envelope import envelope_of, shortfalls, verdict
@@ -110,10 +123,11 @@ def test_the_shipped_certificates_meet_the_minimum_and_record_their_envelope():
         path = default_model_path(dim)
         if not path.is_file():
             continue
-        cert = json.loads(path.with_suffix(".json").read_text())["certificate"]
-        assert shortfalls(cert, dim) == [] and verdict(cert) == "passed" == cert["verdict"]
-        stored = cert.pop("envelope")
-        assert stored == envelope_of(cert)  # the recorded envelope is the one its settings and tests give
+        cert = Certificate.from_dict(json.loads(path.with_suffix(".json").read_text())["certificate"])
+        assert shortfalls(cert, dim) == [] and verdict(cert) == "passed" == cert.verdict
+        # the recorded envelope is the one its settings and tests give
+        assert cert.envelope == envelope_of(dataclasses.replace(cert, envelope=None))
+        stored = cert.envelope
         assert stored["pressures"] == [2e5, 1e6] and stored["eps_max"] == 0.1
         assert stored["kinds"] == (["constant-volume", "drained"] if dim == 2 else ["drained", "undrained"])
 
@@ -167,7 +181,7 @@ def test_uncertified_failed_and_mismatched_models_are_refused_unless_asked(tmp_p
     assert run_main(biaxial.main, [*RUN, "--model", str(model), "--out", str(out)]) == 2
     assert "the model is uncertified" in _one_error(capsys) and not out.exists()
 
-    _write(model, short_certificate | {"passed": False, "worst": 0.05, "worst_test": "x"})
+    _write(model, dataclasses.replace(short_certificate, passed=False, worst=0.05, worst_test="x"))
     assert run_main(biaxial.main, [*RUN, "--model", str(model), "--out", str(out)]) == 2
     assert "failed its certificate (worst 5 %" in _one_error(capsys) and not out.exists()
 
@@ -264,7 +278,7 @@ def test_bvp_refuses_a_failed_model_and_its_run_records_the_certificate(tmp_path
     from homogenization.cli import bvp
 
     model = _copy_shipped(tmp_path / "f")
-    _write(model, short_certificate | {"passed": False, "worst": 0.05, "worst_test": "x"})
+    _write(model, dataclasses.replace(short_certificate, passed=False, worst=0.05, worst_test="x"))
     argv = ["--backend", "ann", "--model", str(model), "--alpha0", "40", "--p0", "5.85e6", "--eps-max", "0.002",
             "--increment", "1e-3", "--orientations", "4", "--elements", "1,1"]
     assert run_main(bvp.main, [*argv, "--out", str(tmp_path / "no")]) == 2

@@ -107,18 +107,18 @@ def test_the_shipped_3d_model_carries_a_passed_certificate_of_its_file():
 def test_the_shipped_3d_model_passes_a_short_certificate_and_a_perturbed_one_fails(tmp_path):
     model = _copy(tmp_path / "shipped")
     cert = certificate.certify(model, **SHORT)
-    figures = np.array([[t["dp"], t["dq"]] for t in cert["tests"]])
-    assert len(cert["tests"]) == 5 and np.all(figures > 0) and np.all(figures < 0.01)  # measured 0.04-0.43 %
-    assert cert["within_target"] and cert["settings"]["n_cells"] == 14
-    assert cert["verdict"] == "weak" and not cert["passed"]  # below the minimum certificate: not passed
-    assert cert["envelope"]["kinds"] == ["drained", "undrained"] and cert["envelope"]["pressures"] == [2e5, 2e5]
-    assert cert["coverage"]["fraction_within"] > 0.95
+    figures = np.array([[t.dp, t.dq] for t in cert.tests])
+    assert len(cert.tests) == 5 and np.all(figures > 0) and np.all(figures < 0.01)  # measured 0.04-0.43 %
+    assert cert.within_target and cert.settings["n_cells"] == 14
+    assert cert.verdict == "weak" and not cert.passed  # below the minimum certificate: not passed
+    assert cert.envelope["kinds"] == ["drained", "undrained"] and cert.envelope["pressures"] == [2e5, 2e5]
+    assert cert.coverage["fraction_within"] > 0.95
 
     state = torch.load(model, weights_only=True)
     state["rate_mean"] = state["rate_mean"] + 4.0 * state["rate_std"]  # 2 standard deviations still pass (1.7 %)
     torch.save(state, model)
     bad = certificate.certify(model, **SHORT)
-    assert not bad["passed"] and bad["worst"] > certificate.TARGET
+    assert not bad.passed and bad.worst > certificate.TARGET
 
 
 @needs_model
@@ -157,8 +157,8 @@ def test_a_round_of_active_learning_probes_the_3d_states_of_the_failing_tests(tm
     assert training_train.main(["--data", str(db), "--out", str(model), *args]) == 0
     short = {"pressures": (2e5,), "eps_max": 0.01, "spatial_rule": (3, 1), "rollout": False, "target": 1e-6}
     config = TrainConfig(epochs=8, hidden=(12,), threads=1, rollout=False)
-    rounds = active.learn(db, model, config, settings=active.ActiveSettings(rounds=1, samples_per_round=400),
-                          certify_settings=CertificateSettings(**short), log=lambda *lines: None)
+    rounds, _ = active.learn(db, model, config, settings=active.ActiveSettings(rounds=1, samples_per_round=400),
+                             certify_settings=CertificateSettings(**short), log=lambda *lines: None)
     assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["samples_added"] == 400
     assert set(rounds[1]["tests"]) <= {info["name"] for info, _ in certificate.tests_of((2e5,), 0.01, dim=3)}
     cert = json.loads(model.with_suffix(".json").read_text())["certificate"]

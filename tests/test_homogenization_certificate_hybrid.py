@@ -13,6 +13,7 @@ import pytest
 from homogenization.backends.ann import AnnCell3D, certificate_problem, default_model_path, model_record
 from homogenization.learning import certificate
 from homogenization.learning.envelope import equilibrium_settings
+from homogenization.learning.records import Certificate
 from homogenization.learning.settings import CertificateSettings
 from warp_hcell.core.parameters import ContactLaw
 
@@ -41,21 +42,21 @@ def _cell(model: Path, corrections: int = 0, tolerance: float | None = None) -> 
 def test_a_tiny_certificate_of_the_hybrid_records_k_and_covers_that_hybrid_only(tmp_path):
     model = _copy(tmp_path / "m")
     cert = certificate.certify(model, **TINY, **HYBRID)
-    assert cert["settings"]["equilibrium_corrections"] == 2 and cert["settings"]["equilibrium_tolerance"] == 1e-3
+    assert cert.settings["equilibrium_corrections"] == 2 and cert.settings["equilibrium_tolerance"] == 1e-3
     assert equilibrium_settings(cert) == (2, 1e-3)
-    tally = cert["equilibrium"]
+    tally = cert.equilibrium
     assert tally["steps"] > 0 and 0 < tally["n_corrected"] <= tally["n_corrections"] <= 2 * tally["n_corrected"]
     assert 0 <= tally["n_shortened"] + tally["n_shifted"] <= tally["n_corrections"]  # the globalised steps, counted
     assert tally["force_ratio_network_max"] > 1e-3  # the network alone left cells above the tolerance
-    assert cert["within_target"] and cert["verdict"] == "weak"  # tiny: below the minimum certificate
+    assert cert.within_target and cert.verdict == "weak"  # tiny: below the minimum certificate
     assert any("2 equilibrium corrections" in line and "shortened by the line search" in line
                for line in certificate.summary_lines(cert))
     certificate.write_certificate(model, cert)
     from homogenization.learning.active import _current  # the rounds redo a certificate of another surrogate
 
-    assert _current(cert, model, CertificateSettings(**TINY, **HYBRID))
-    assert not _current(cert, model, CertificateSettings(**TINY))
-    assert not _current(cert, model, CertificateSettings(**TINY, equilibrium_corrections=2))
+    assert _current(cert, model, CertificateSettings(**TINY, **HYBRID), 3)
+    assert not _current(cert, model, CertificateSettings(**TINY), 3)
+    assert not _current(cert, model, CertificateSettings(**TINY, equilibrium_corrections=2), 3)
 
     same = _cell(model, 2, 1e-3).certificate_problem
     assert same is not None and "below the minimum" in same and "equilibrium" not in same
@@ -73,9 +74,9 @@ def test_the_default_certificate_of_the_hybrid_passes_and_covers_its_runs_only(t
     alone's worst measured here (measured 0.23x): corrections that do nothing fail."""
     model = _copy(tmp_path / "m")
     cert = certificate.certify(model, **HYBRID, reproducibility=False)
-    alone = certificate.certify(model, pressures=(2e5,), reproducibility=False, rollout=False)["worst"]
-    assert cert["passed"] and cert["worst"] <= 0.10e-2 and cert["worst"] <= 0.5 * alone, (cert["worst"], alone)
-    assert cert["equilibrium"]["n_corrected"] > 0
+    alone = certificate.certify(model, pressures=(2e5,), reproducibility=False, rollout=False).worst
+    assert cert.passed and cert.worst <= 0.10e-2 and cert.worst <= 0.5 * alone, (cert.worst, alone)
+    assert cert.equilibrium["n_corrected"] > 0
     certificate.write_certificate(model, cert)
     assert _cell(model, 2, 1e-3).certificate_problem is None
     metadata = json.loads(model.with_suffix(".json").read_text())
@@ -116,12 +117,12 @@ def test_the_default_certificate_keeps_the_keys_and_settings_of_the_shipped_one(
     same options, and no count of corrections."""
     shipped = json.loads(SHIPPED_3D.with_suffix(".json").read_text())["certificate"]
     cert = certificate.certify(_copy(tmp_path / "m"), **TINY)
-    assert set(cert) == set(shipped) - {"command"} and "equilibrium" not in cert
-    assert set(cert["settings"]) == set(shipped["settings"])
-    assert set(cert["tests"][0]) == set(shipped["tests"][0])
+    assert set(cert.to_dict()) == set(shipped) - {"command"} and cert.equilibrium is None
+    assert set(cert.settings) == set(shipped["settings"])
+    assert set(cert.tests[0].to_dict()) == set(shipped["tests"][0])
     recorded = {k: v for k, v in shipped["settings"].items() if k not in ("mesostructure", "n_cells")}
     assert certificate.requested_settings(3) == recorded
-    assert equilibrium_settings(shipped) == (0, None)
+    assert equilibrium_settings(Certificate.from_dict(shipped)) == (0, None)
 
 
 def test_the_settings_refuse_a_tolerance_without_corrections():
@@ -156,9 +157,9 @@ def test_certify_records_the_corrections_it_was_given(tmp_path):
                    "--order", "3", "--spins", "1", "--eps-max", "0.01", "--equilibrium-corrections", "2",
                    "--equilibrium-tolerance", "1e-3", "--out", str(out))
     assert done.returncode == 4, done.stderr  # within the target, below the minimum certificate
-    cert = json.loads(out.read_text())
-    assert equilibrium_settings(cert) == (2, 1e-3) and cert["equilibrium"]["n_corrected"] > 0
-    assert "--equilibrium-corrections 2" in cert["command"]
+    cert = Certificate.from_dict(json.loads(out.read_text()))
+    assert equilibrium_settings(cert) == (2, 1e-3) and cert.equilibrium["n_corrected"] > 0
+    assert "--equilibrium-corrections 2" in cert.command
 
 
 @needs_model
@@ -167,9 +168,9 @@ def test_the_certificate_counts_the_jumps_its_stress_control_accepted(tmp_path):
     driver warns); each test records how many increments of each backend were accepted across one."""
     with pytest.warns(RuntimeWarning, match="jump"):
         cert = certificate.certify(_copy(tmp_path / "m"), **TINY, **HYBRID)
-    counted = [t["stress_control_jumps"] for t in cert["tests"] if "stress_control_jumps" in t]
+    counted = [t.stress_control_jumps for t in cert.tests if t.stress_control_jumps is not None]
     assert counted and all(sum(c.values()) > 0 for c in counted)
-    assert all(t["kind"] == "drained" for t in cert["tests"] if "stress_control_jumps" in t)
+    assert all(t.kind == "drained" for t in cert.tests if t.stress_control_jumps is not None)
     assert sum("accepted across a jump" in line for line in certificate.summary_lines(cert)) == len(counted)
 
 

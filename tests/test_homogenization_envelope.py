@@ -1,15 +1,26 @@
 """The minimum certificate and the envelope (homogenization.learning.envelope) without running a test."""
 
+import dataclasses
 import json
 
 import pytest
 
 from homogenization.learning import envelope
+from homogenization.learning.records import Certificate, TestResult
 from homogenization.element_test import loading
 from homogenization.backends.ann import default_model_path
 
 SHIPPED = json.loads(default_model_path().with_suffix(".json").read_text())["certificate"] \
     if default_model_path().is_file() else None
+
+
+def _cert(settings, tests, *, rollout=None, target=0.02, worst=0.0, passed=True):
+    """A certificate of these settings, (kind, sense) tests and figures (the rest placeholders)."""
+    rows = tuple(TestResult(name=f"{k} {s}", kind=k, sense=s, p0=2e5, dp=worst, dq=worst, scale=2e5, n_increments=1)
+                 for k, s in tests)
+    return Certificate(target=target, worst=worst, worst_test="", metric="", tests=rows, rollout=rollout, coverage=None,
+                       dem_spread=None, settings=settings, cell_parameters={}, model_sha256="", revision="", seconds=0.0,
+                       within_target=worst <= target, below_minimum=[], verdict="", passed=passed)
 
 
 def test_the_certificate_defaults_are_the_minimum_and_meet_it():
@@ -20,26 +31,25 @@ def test_the_certificate_defaults_are_the_minimum_and_meet_it():
         envelope.MINIMUM.pressures, envelope.MINIMUM.eps_max, envelope.MINIMUM.increment, envelope.MINIMUM.target,
         envelope.MINIMUM.n_orientations, envelope.MINIMUM.spatial_rule)
     for dim in (2, 3):
-        tests = [{"kind": info["kind"], "sense": info["sense"]} for info, _ in certificate.tests_of(dim=dim)]
+        tests = [(info["kind"], info["sense"]) for info, _ in certificate.tests_of(dim=dim)]
         settings = certificate.requested_settings(dim)
-        cert = {"settings": settings, "tests": tests, "rollout": {"x": 1}, "target": certificate.TARGET}
+        cert = _cert(settings, tests, rollout={"x": 1}, target=certificate.TARGET)
         assert envelope.shortfalls(cert, dim) == []
-        weaker = {**cert, "settings": {**settings, "pressures": [2e5]}, "rollout": None}
+        weaker = dataclasses.replace(cert, settings={**settings, "pressures": [2e5]}, rollout=None)
         assert envelope.shortfalls(weaker, dim) == ["pressures 200000 (minimum: 200000, 1e+06)",
                                                     "no rollouts (the minimum runs them)"]
 
 
 def test_a_weak_certificate_within_its_target_is_not_passed_whatever_its_flag():
-    cert = {"settings": {"pressures": [2e5, 1e6], "eps_max": 0.1, "increment": 1e-4, "n_orientations": 2},
-            "tests": [{"kind": k, "sense": s} for k, s in envelope.MINIMUM.planar_tests],
-            "rollout": {"x": 1}, "target": 0.02, "worst": 0.001, "passed": True}
+    cert = _cert({"pressures": [2e5, 1e6], "eps_max": 0.1, "increment": 1e-4, "n_orientations": 2},
+                 envelope.MINIMUM.planar_tests, rollout={"x": 1}, target=0.02, worst=0.001, passed=True)
     assert envelope.verdict(cert) == "weak" and envelope.dimension_of(cert) == 2
     assert envelope.shortfalls(cert, 2) == ["2 orientations (minimum 24)"]
-    assert envelope.verdict({**cert, "worst": 0.03}) == "failed"
-    loose = {**cert, "target": 0.5, "settings": {**cert["settings"], "n_orientations": 24}}
+    assert envelope.verdict(dataclasses.replace(cert, worst=0.03)) == "failed"
+    loose = dataclasses.replace(cert, target=0.5, settings={**cert.settings, "n_orientations": 24})
     assert envelope.verdict(loose) == "weak" and envelope.shortfalls(loose, 2) == ["target 50 % (maximum 2 %)"]
-    assert envelope.verdict({**cert, "settings": {**cert["settings"], "n_orientations": 24}}) == "passed"
-    spatial = {**cert, "settings": {**cert["settings"], "spatial_rule": [5, 2]}}
+    assert envelope.verdict(dataclasses.replace(cert, settings={**cert.settings, "n_orientations": 24})) == "passed"
+    spatial = dataclasses.replace(cert, settings={**cert.settings, "spatial_rule": [5, 2]})
     assert envelope.dimension_of(spatial) == 3
     assert "spatial rule order 5 x 2 spins (minimum 11 x 4)" in envelope.shortfalls(spatial, 3)
 

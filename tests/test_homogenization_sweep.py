@@ -310,6 +310,7 @@ def test_an_ann_case_records_its_models_certificate_in_run_h5(fines_models, tmp_
     import json
 
     from homogenization.learning import certificate as certification
+    from homogenization.learning.records import Certificate
     from homogenization.backends.ann import default_model_path
     from warp_hcell.core.provenance import file_sha256
 
@@ -325,8 +326,8 @@ def test_an_ann_case_records_its_models_certificate_in_run_h5(fines_models, tmp_
     assert stored["sha256"] == file_sha256(model) and stored["certified"] is False
     assert stored["certificate_worst"] is None and "uncertified" in stored["certificate_problem"]
     full = json.loads(default_model_path().with_suffix(".json").read_text())["certificate"]  # meets the minimum
-    certification.write_certificate(model, {**full, "model_sha256": file_sha256(model), "passed": True, "worst": 0.0123,
-                                            "worst_test": "x", "target": 0.02})
+    certification.write_certificate(model, Certificate.from_dict({**full, "model_sha256": file_sha256(model), "passed": True,
+                                                                  "worst": 0.0123, "worst_test": "x", "target": 0.02}))
     assert cli([*argv, "--out", str(tmp_path / "c")]) == 0
     (row,) = sweep.read_summary(tmp_path / "c" / sweep.SUMMARY_FILE)
     stored = io.read_run(tmp_path / "c" / sweep.CASES_DIR / row["case"] / "run.h5").attrs["parameters"]["ann_model"]

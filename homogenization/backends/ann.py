@@ -54,7 +54,7 @@ between the database's; ``training.checkpoint.check_start_cell``). Otherwise
 ``CheckpointError`` (one line; exit code 2 in the CLIs).
 
 Certificate (``homogenization.learning.certificate``, docs/certificate.md): ``certificate`` is the
-model JSON's ``"certificate"`` entry (None if absent) and ``certificate_problem`` one line
+model JSON's ``"certificate"`` entry as a ``records.Certificate`` (None if absent) and ``certificate_problem`` one line
 saying why the model may not be used (uncertified, failed, or certified for another ``.pt``:
 its ``model_sha256`` differs from the file's, or a certificate below the minimum of
 ``homogenization.learning.envelope.MINIMUM``), None for a model that passed. The class only reports it;
@@ -87,8 +87,9 @@ import torch
 
 from homogenization.backends.escalation import DemEscalation, RELEASE_RULE
 from homogenization.learning import envelope
+from homogenization.learning.records import Certificate, certificate_of
 from homogenization.learning.settings import has_fine_grains
-from homogenization.material.orientation import cell_kinematics, kinematics_of
+from homogenization.material.orientation3d import cell_kinematics, kinematics_of
 from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
@@ -144,11 +145,11 @@ def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int =
     ``escalation``: whether the hybrid hands the cells with a released grain to the DEM (``AnnCell``'s
     ``dem_escalation``; None: as by default, ``default_escalation``); a certificate of the hybrid records
     whether it did (``envelope.escalation_of``)."""
-    cert = metadata.get("certificate")
-    if not isinstance(cert, dict):
+    cert = certificate_of(metadata)
+    if cert is None:
         return (f"{path}: the model is uncertified (certify it: python -m homogenization.certify "
                 f"--model {path} --write)")
-    if cert.get("model_sha256") != file_sha256(path):
+    if cert.model_sha256 != file_sha256(path):
         return f"{path}: its certificate was measured on another model file (sha256 differs); certify it again"
     run = (int(corrections), float(tolerance)) if corrections else (0, None)
     measured = envelope.equilibrium_settings(cert)
@@ -166,9 +167,9 @@ def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int =
                 f"({envelope.escalation_rule_of(cert) or 'a grain that moved and overlaps nothing'}) than this "
                 f"package's ({RELEASE_RULE}); certify the model again")
     result = envelope.verdict(cert)
-    if result == "failed" or (result == "passed" and cert.get("passed") is False):
-        return (f"{path}: the model failed its certificate (worst {100 * float(cert['worst']):.3g} % of the scale "
-                f"in test {cert.get('worst_test')!r}, target {100 * float(cert['target']):.3g} %)")
+    if result == "failed" or (result == "passed" and not cert.passed):
+        return (f"{path}: the model failed its certificate (worst {100 * float(cert.worst):.3g} % of the scale "
+                f"in test {cert.worst_test!r}, target {100 * float(cert.target):.3g} %)")
     if result == "weak":
         return (f"{path}: its certificate is below the minimum certificate "
                 f"({'; '.join(envelope.shortfalls(cert, envelope.dimension_of(cert)))}); certify it with the defaults")
@@ -201,9 +202,9 @@ def model_record(path: Path | None, metadata: dict[str, Any] | None = None, corr
 
         metadata = read_metadata(path)
     problem = certificate_problem(metadata, path, corrections, tolerance, escalation)
-    cert = metadata.get("certificate")
+    cert = certificate_of(metadata)
     return {"path": str(path), "sha256": file_sha256(path),
-            "certificate_worst": cert.get("worst") if isinstance(cert, dict) else None,
+            "certificate_worst": None if cert is None else cert.worst,
             "certified": problem is None, "certificate_problem": problem}
 
 
@@ -284,12 +285,12 @@ class AnnCell(ArrayStateMixin):
         torch.set_num_threads(self.threads)
         self.dim = self.net.schema.dim
         if equilibrium_corrections is None:
-            certified = self.metadata.get("certificate")
+            certified = certificate_of(self.metadata)
             equilibrium_corrections, measured_tolerance = (envelope.equilibrium_settings(certified)
-                                                           if isinstance(certified, dict) else (0, None))
+                                                           if certified is not None else (0, None))
             if equilibrium_tolerance is None:
                 equilibrium_tolerance = measured_tolerance
-            if dem_escalation is None and isinstance(certified, dict):
+            if dem_escalation is None and certified is not None:
                 dem_escalation = envelope.escalation_of(certified)
         if int(equilibrium_corrections) < 0 or (int(equilibrium_corrections) > 0 and self.dim != 3):
             raise ValueError(f"equilibrium corrections = {equilibrium_corrections}: a count >= 0, and > 0 for a "
@@ -305,7 +306,7 @@ class AnnCell(ArrayStateMixin):
                            if self.equilibrium_corrections and (default_escalation(self.metadata)
                                                                 if dem_escalation is None else dem_escalation)
                            else None)
-        self.certificate: dict[str, Any] | None = self.metadata.get("certificate")
+        self.certificate: Certificate | None = certificate_of(self.metadata)
         self.certificate_problem = certificate_problem(self.metadata, path, self.equilibrium_corrections,
                                                        self.force_tolerance, self.escalation is not None)
         if int(ood_interval) < 1:
@@ -362,7 +363,7 @@ class AnnCell(ArrayStateMixin):
     @property
     def envelope(self) -> dict[str, Any] | None:
         """The certificate's envelope (``homogenization.learning.envelope.envelope_of``); None uncertified."""
-        return envelope.envelope_of(self.certificate) if isinstance(self.certificate, dict) else None
+        return None if self.certificate is None else envelope.envelope_of(self.certificate)
 
     def envelope_exits(self, programme: Sequence[Any], meso: Mesostructure) -> list[str] | None:
         """Where ``programme`` (``homogenization.element_test.loading``) run on cells of ``meso`` leaves the
@@ -378,7 +379,7 @@ class AnnCell(ArrayStateMixin):
         """Raise ``CheckpointError`` (one line) unless the model may start cells from ``meso``
         (``training.checkpoint.check_start_cell``: its database's mesostructure, or a cell of
         the same learning state within the range of the cells the database started from). A 3D cell whose
-        kinematics (``orientation.cell_kinematics``) are not those the certificate's tests drove their
+        kinematics (``orientation3d.cell_kinematics``) are not those the certificate's tests drove their
         cells with (``certified_kinematics``) leaves the certificate: ``certificate_problem`` says so."""
         check_start_cell(self.metadata, meso, source=str(self.model_path))
         if meso.dim != 3 or self.certificate_problem is not None:
@@ -390,8 +391,8 @@ class AnnCell(ArrayStateMixin):
 
     @property
     def certified_kinematics(self) -> str:
-        """The kinematics (``orientation.KINEMATICS``) of the cells of the certificate's tests, read from the
-        cell parameters it recorded (``orientation.kinematics_of``; a certificate that records none: "projected")."""
+        """The kinematics (``orientation3d.KINEMATICS``) of the cells of the certificate's tests, read from the
+        cell parameters it recorded (``orientation3d.kinematics_of``; a certificate that records none: "projected")."""
         return kinematics_of(self.envelope["cell_parameters"] if self.envelope is not None else {})
 
     # -- CellModel protocol ---------------------------------------------------------------
@@ -568,7 +569,7 @@ class AnnCell(ArrayStateMixin):
         if self.certificate_problem is not None:
             verdict = f"model not certified ({self.certificate_problem.split(': ', 1)[-1]})"
         else:
-            verdict = f"model certified (worst {100 * float(self.certificate['worst']):.3g} %)"
+            verdict = f"model certified (worst {100 * float(self.certificate.worst):.3g} %)"
         exits = self.envelope_exits(programme, meso)
         where = ("no envelope" if exits is None else "run inside its envelope" if not exits
                  else f"run outside its envelope ({'; '.join(exits)})")

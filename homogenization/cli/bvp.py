@@ -210,7 +210,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     }
     if hasattr(model, "certificate_problem"):
         parameters["ann_certificate"] = {"certified": model.certificate_problem is None,
-                                         "worst": (model.certificate or {}).get("worst"),
+                                         "worst": None if model.certificate is None else model.certificate.worst,
                                          "problem": model.certificate_problem}
     kind = "homogeneous" if not weak.any() else f"imperfection F = {args.imperfection:g} in {int(weak.sum())} elements"
     title = f"{run_labels.title(run_labels.describe(parameters))}, {nx} × {ny} elements, {kind}"

@@ -24,6 +24,7 @@ certificate), so that --help imports neither torch nor Warp.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shlex
@@ -123,15 +124,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.data is not None:
         rebuild_index(args.model, args.data)
     try:
-        cert = certificate.certify(args.model, mesostructure=meso, **measured.keywords())
+        cert = certificate.certify(args.model, mesostructure=meso, metadata=meta, **measured.keywords())
     except driver.ControlError as exc:
         raise UserError(f"a test did not converge: {exc}") from None
     if argv is not None:
-        cert["command"] = shlex.join(["python", "-m", PROG, *argv])
+        cert = dataclasses.replace(cert, command=shlex.join(["python", "-m", PROG, *argv]))
     say(*certificate.summary_lines(cert))
     if args.out is not None:
         with writing_to(args.out), atomic_write(args.out) as tmp:
-            tmp.write_text(json.dumps(cert, indent=2, sort_keys=True) + "\n")
+            tmp.write_text(json.dumps(cert.to_dict(), indent=2, sort_keys=True) + "\n")
     if args.write:
         with writing_to(metadata_path(args.model)):
             say(f"certificate -> {certificate.write_certificate(args.model, cert)}")

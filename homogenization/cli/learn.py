@@ -166,15 +166,14 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
         say(f"model: {model} (done before)")
     else:
         active.train_model(db, model, config, [])
-    rounds = active.learn(db, model, config, settings=budget, seed=args.seed, threads=args.threads, log=say,
-                          certify_settings=measured)
-    cert = json.loads(meta.read_text())["certificate"]
+    rounds, cert = active.learn(db, model, config, settings=budget, seed=args.seed, threads=args.threads, log=say,
+                                certify_settings=measured)
     stamp = out / "certificate.png.sha256"
-    if figure.is_file() and stamp.is_file() and stamp.read_text().strip() == cert["model_sha256"]:
+    if figure.is_file() and stamp.is_file() and stamp.read_text().strip() == cert.model_sha256:
         say(f"figure: {figure} (done before)")
     else:
         certificate.plot_worst_test(model, cert, figure, threads=args.threads)
-        stamp.write_text(cert["model_sha256"] + "\n")
+        stamp.write_text(cert.model_sha256 + "\n")
         say(f"figure: {figure}")
     say(*certificate.summary_lines(cert),
         f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples in {db}")

@@ -107,8 +107,8 @@ def add_orientations_argument(parser: argparse.ArgumentParser, default: int,
 
 
 def lebedev_order(text: str) -> int:
-    """argparse type: one of ``orientation.LEBEDEV_ORDERS``."""
-    from homogenization.material.orientation import LEBEDEV_ORDERS  # noqa: PLC0415 (scipy: only the commands of 3D cells)
+    """argparse type: one of ``orientation3d.LEBEDEV_ORDERS``."""
+    from homogenization.material.orientation3d import LEBEDEV_ORDERS  # noqa: PLC0415 (scipy: only the commands of 3D cells)
 
     order = positive_int(text)
     if order not in LEBEDEV_ORDERS:
@@ -170,9 +170,9 @@ def certificate_note(model: object) -> str:
         return ""
     cert = model.certificate
     if model.certificate_problem is None:
-        return f", certificate passed (worst {100 * cert['worst']:.3g} % of the scale)"
+        return f", certificate passed (worst {100 * cert.worst:.3g} % of the scale)"
     problem = model.certificate_problem
-    worst = (f", worst {100 * cert['worst']:.3g} %" if isinstance(cert, dict) and "worst" in cert and "worst" not in problem
+    worst = (f", worst {100 * cert.worst:.3g} %" if cert is not None and "worst" not in problem
              else "")
     return f", UNCERTIFIED ({problem.split(': ', 1)[-1]}{worst}; --uncertified-ok)"
 

@@ -182,9 +182,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     say(f"active learning adds its samples to {database}" + ("" if database == args.data else
         f" (a copy of {args.data}: {'--enrich-copy' if args.enrich_copy else 'that file or its folder is not writable'})"))
     with output_lock(database):
-        rounds = active.learn(database, args.out, config, settings=budget, certify_settings=measured,
-                              seed=args.seed, threads=args.threads, log=say)
-    cert = json.loads(metadata_path(args.out).read_text())["certificate"]
+        rounds, cert = active.learn(database, args.out, config, settings=budget, certify_settings=measured,
+                                    seed=args.seed, threads=args.threads, log=say)
     say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples "
         f"in {database}; certificate -> {metadata_path(args.out)}")
     return certificate.exit_code(cert)

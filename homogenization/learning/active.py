@@ -45,6 +45,7 @@ import numpy as np
 from homogenization.learning import certificate
 from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from homogenization.learning.envelope import equilibrium_settings, verdict
+from homogenization.learning.records import Certificate
 from training import train as training_train
 from training.checkpoint import metadata_path
 from training.config import TrainConfig
@@ -79,7 +80,7 @@ MIN_ROUND_SAMPLES = 1000
 (a round costs a training and a certificate whatever it adds)."""
 
 
-def failing_states(cert: Mapping[str, Any], dem_states: Mapping[str, Mapping[str, np.ndarray]], margin: float = 1.0
+def failing_states(cert: Certificate, dem_states: Mapping[str, Mapping[str, np.ndarray]], margin: float = 1.0
                    ) -> tuple[dict[str, np.ndarray], list[str]]:
     """The DEM states of the certificate's failing tests (max(dp, dq) > target), concatenated, and
     those tests' names. Of a test that records its ``departure`` (the increment where the ANN
@@ -87,18 +88,18 @@ def failing_states(cert: Mapping[str, Any], dem_states: Mapping[str, Mapping[str
     from ``departure - margin x n_increments`` on (``ActiveSettings.departure_margin``). States:
     ``cell_size`` (n, dim) [m], ``position`` (n, n_grains, dim) [m], ``shear_force`` (n, n_pairs)
     [N] (3D: (n, n_pairs, 3)), ``cell`` (n,) int64 (one id per test and orientation)."""
-    tests = [t for t in cert["tests"] if max(t["dp"], t["dq"]) > cert["target"] and t["name"] in dem_states]
+    tests = [t for t in cert.tests if t.figure > cert.target and t.name in dem_states]
     if not tests:
         return {}, []
     keys = ("cell_size", "position", "shear_force", "cell")
     parts = []
     for test in tests:
-        states = dem_states[test["name"]]
+        states = dem_states[test.name]
         keep = np.ones(states["cell"].shape[0], bool)
-        if "departure" in test and "increment" in states:
-            keep = states["increment"] >= test["departure"] - margin * test["n_increments"]
+        if test.departure is not None and "increment" in states:
+            keep = states["increment"] >= test.departure - margin * test.n_increments
         parts.append({k: states[k][keep] for k in keys})
-    return {k: np.concatenate([part[k] for part in parts]) for k in keys}, [t["name"] for t in tests]
+    return {k: np.concatenate([part[k] for part in parts]) for k in keys}, [t.name for t in tests]
 
 
 MIN_FOLLOWED_GAIN = 0.02
@@ -143,38 +144,37 @@ def stalled(rounds: Sequence[Mapping[str, Any]], settings: ActiveSettings) -> bo
     return len(rounds) > settings.stall_rounds and rounds[-1]["round"] - best_round(rounds)["round"] >= settings.stall_rounds
 
 
-def stall_line(rounds: Sequence[Mapping[str, Any]], cert: Mapping[str, Any], db: Path, margin: float = 1.0) -> str:
+def stall_line(rounds: Sequence[Mapping[str, Any]], cert: Certificate, db: Path, margin: float = 1.0) -> str:
     """One line: why the loop stops without progress (which test, which rounds, what they tried;
     ``margin``: the rounds' ``ActiveSettings.departure_margin``)."""
     best, last = best_round(rounds), rounds[-1]
     tried = [r for r in rounds if r["round"] > best["round"]]
-    test = next(t for t in cert["tests"] if t["name"] == cert["worst_test"])
-    if math.isinf(cert["worst"]):
-        where = (f"the ANN could not follow it past increment {test.get('departure', '?')} of "
-                 f"{test.get('n_increments', '?')}: {_short(test.get('error', ''))}")
+    test = cert.test(cert.worst_test)
+    if math.isinf(cert.worst):
+        where = (f"the ANN could not follow it past increment {_or_unknown(test.departure)} of "
+                 f"{test.n_increments}: {_short(test.error or '')}")
     else:
-        where = f"{100 * cert['worst']:.3f} % off" + (f" from increment {test['departure']} of {test['n_increments']}"
-                                                      if "departure" in test else "")
+        where = f"{100 * cert.worst:.3f} % off" + (f" from increment {test.departure} of {test.n_increments}"
+                                                   if test.departure is not None else "")
     tests = sorted({name for r in tried for name in r.get("tests", [])})
     widths = sorted({"x".join(map(str, r["hidden"])) for r in tried if "hidden" in r})
     return (f"active learning stops: no progress in rounds {tried[0]['round']}-{last['round']} on round "
-            f"{best['round']} ({_figure(best)}): round {last['round']} worst test {cert['worst_test']!r}, {where}; "
+            f"{best['round']} ({_figure(best)}): round {last['round']} worst test {cert.worst_test!r}, {where}; "
             f"tried {sum(r['samples_added'] for r in tried)} samples on the DEM states of {', '.join(tests) or 'no test'}"
             f"{'' if margin >= 1.0 else f' from {margin:g} of a test before their departure on'}, network "
             f"{', '.join(widths) or '?'}; database {_mb(db):.1f} MB")
 
 
-def unresolvable_line(cert: Mapping[str, Any]) -> str | None:
+def unresolvable_line(cert: Certificate) -> str | None:
     """One line when no round can help: every test that misses the target is off the DEM by no more than the
     DEM started from rest in every increment is (the test's ``dem_spread``, ``certificate.certify``), so the
     target is finer than the reference resolves there; None otherwise (or where a test records no spread)."""
-    failing = [t for t in cert["tests"] if max(t["dp"], t["dq"]) > cert["target"]]
-    if not failing or any(not max(t["dp"], t["dq"]) <= t.get("dem_spread", -math.inf) for t in failing):
+    failing = [t for t in cert.tests if t.figure > cert.target]
+    if not failing or any(t.dem_spread is None or not t.figure <= t.dem_spread for t in failing):
         return None
-    figures = "; ".join(f"{t['name']} {100 * max(t['dp'], t['dq']):.3f} % against {100 * t['dem_spread']:.3f} %"
-                        for t in failing)
+    figures = "; ".join(f"{t.name} {100 * t.figure:.3f} % against {100 * t.dem_spread:.3f} %" for t in failing)
     return (f"active learning stops: every failing test is off the DEM by no more than the DEM started from rest is "
-            f"({figures}): the target {100 * cert['target']:.3g} % is finer than the reference resolves there, "
+            f"({figures}): the target {100 * cert.target:.3g} % is finer than the reference resolves there, "
             f"and no round of samples can close that; the certificate stays failed")
 
 
@@ -183,6 +183,10 @@ def _figure(entry: Mapping[str, Any]) -> str:
     if n:
         return f"{n} test(s) not followed, {followed:.2f} of a test followed"
     return f"worst {100 * worst:.3f} %"
+
+
+def _or_unknown(value: object) -> str:
+    return "?" if value is None else str(value)
 
 
 def _short(text: str, limit: int = 160) -> str:
@@ -262,31 +266,30 @@ def append_samples(path: Path, samples: Mapping[str, np.ndarray], states: Mappin
 
 
 def _certify(model: Path, measured: CertificateSettings, settings: ActiveSettings, threads: int
-             ) -> tuple[dict[str, Any], dict[str, dict[str, np.ndarray]]]:
+             ) -> tuple[Certificate, dict[str, dict[str, np.ndarray]]]:
     states: dict[str, dict[str, np.ndarray]] = {}
     cert = certificate.certify(model, dem_states=states, state_every=settings.state_every, threads=threads,
                                **measured.keywords())
     return cert, states
 
 
-def _current(cert: Mapping[str, Any] | None, model: Path, measured: CertificateSettings) -> bool:
+def _current(cert: Certificate | None, model: Path, measured: CertificateSettings, dim: int) -> bool:
     """Whether ``cert`` was measured on this model file with the certificate settings ``measured``
-    (the equilibrium corrections included: ``envelope.equilibrium_settings``)."""
-    if not cert or cert.get("model_sha256") != file_sha256(model):
+    (the equilibrium corrections included: ``envelope.equilibrium_settings``) on cells of dimension ``dim``."""
+    if cert is None or cert.model_sha256 != file_sha256(model):
         return False
-    dim = from_description(json.loads(metadata_path(model).read_text())["mesostructure"]).dim
     wanted = certificate.requested_settings(dim, pressures=measured.pressures, eps_max=measured.eps_max,
                                             n_orientations=measured.n_orientations, spatial_rule=measured.spatial_rule)
     wanted.pop("increment")
     hybrid = ((measured.equilibrium_corrections, measured.equilibrium_tolerance or DemSettings().force_tolerance)
               if measured.equilibrium_corrections else (0, None))
-    return (all(cert["settings"].get(k) == v for k, v in wanted.items()) and cert["target"] == measured.target
+    return (all(cert.settings.get(k) == v for k, v in wanted.items()) and cert.target == measured.target
             and equilibrium_settings(cert) == hybrid)
 
 
-def _record(model: Path, rounds: list[dict[str, Any]], cert: Mapping[str, Any]) -> None:
+def _record(model: Path, rounds: list[dict[str, Any]], cert: Certificate) -> None:
     """Store the certificate and the rounds in the model's JSON."""
-    certificate.write_certificate(model, dict(cert))
+    certificate.write_certificate(model, cert)
     write_rounds(model, rounds)
 
 
@@ -304,29 +307,30 @@ def round_line(entry: Mapping[str, Any]) -> str:
                if "epochs" in entry else ""))
 
 
-def round_entry(k: int, db: Path, model: Path, cert: Mapping[str, Any], seconds: float, **extra: Any) -> dict[str, Any]:
+def round_entry(k: int, db: Path, model: Path, cert: Certificate, seconds: float, **extra: Any) -> dict[str, Any]:
     """The record of round ``k`` (0: the model as given) after its certificate ``cert``: the
     samples (``extra`` gives ``samples_added`` and what else the round knows), the certificate's
     figures, the tests the ANN could not follow (``not_followed``) and how far it followed them
     (``followed``: the fractions of their increments, summed), the database's size in MB
     (``database_mb``, and ``database_raw_mb`` uncompressed) and the training (``training_record``)."""
     file_bytes, raw_bytes = database.sizes(db)
-    lost = [t for t in cert["tests"] if not math.isfinite(max(t["dp"], t["dq"]))]
-    return {"round": k, **extra, "samples_total": _n_samples(db), "worst": cert["worst"],
-            "worst_test": cert["worst_test"], "passed": cert["passed"], "verdict": cert["verdict"],
-            "seconds": seconds, "not_followed": [t["name"] for t in lost],
-            "followed": float(sum(t.get("departure", 0) / t["n_increments"] for t in lost if t.get("n_increments"))),
+    lost = [t for t in cert.tests if not math.isfinite(t.figure)]
+    return {"round": k, **extra, "samples_total": _n_samples(db), "worst": cert.worst,
+            "worst_test": cert.worst_test, "passed": cert.passed, "verdict": cert.verdict,
+            "seconds": seconds, "not_followed": [t.name for t in lost],
+            "followed": float(sum((t.departure or 0) / t.n_increments for t in lost if t.n_increments)),
             "database_mb": file_bytes / 1e6, "database_raw_mb": raw_bytes / 1e6, **training_record(model)}
 
 
 def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
           certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
-          log: Callable[..., None] = print) -> list[dict[str, Any]]:
+          log: Callable[..., None] = print) -> tuple[list[dict[str, Any]], Certificate]:
     """Certify ``model`` (trained on ``db``) and run active rounds until it passes, the budget
     of ``settings`` is spent, ``settings.stall_rounds`` rounds make no progress (``stalled``:
     one line says which test, which rounds and what they tried, ``stall_line``), or every failing
     test misses the DEM by no more than the DEM started from rest does (``unresolvable_line``); returns the
-    rounds (round 0: the model as given), also stored in the model's JSON under ``active_learning``.
+    rounds (round 0: the model as given), also stored in the model's JSON under ``active_learning``,
+    and the last certificate, also stored there under ``certificate``.
 
     A round probes the DEM states of the failing tests (with ``settings.departure_margin`` < 1,
     those from their point of departure on, ``failing_states``), a test the ANN could not follow
@@ -349,16 +353,18 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
     stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
     rounds = [r for r in meta.get("active_learning") or [] if r["round"] <= len(stored)]
     added_total = sum(r["samples"] for r in stored)
+    stored_cert = None if meta.get("certificate") is None else Certificate.from_dict(meta["certificate"])
+    dim = from_description(meta["mesostructure"]).dim
     if meta["training_data"]["sha256"] != file_sha256(db):  # appended, not yet retrained
         widths = tuple((stored[-1].get("hidden") if stored else None) or meta["architecture"]["hidden"])
         train_model(db, model, round_config(config, model, settings, widths), rounds)
-    elif _current(meta.get("certificate"), model, certify_settings) and rounds and rounds[-1]["round"] == len(stored) and (
-            verdict(meta["certificate"]) != "failed" or len(stored) >= settings.rounds
+    elif _current(stored_cert, model, certify_settings, dim) and rounds and rounds[-1]["round"] == len(stored) and (
+            verdict(stored_cert) != "failed" or len(stored) >= settings.rounds
             or added_total >= settings.max_samples or stalled(rounds, settings)
-            or unresolvable_line(meta["certificate"]) is not None
+            or unresolvable_line(stored_cert) is not None
             or budget_room(db, settings.max_database_mb)[0] < min(settings.samples_per_round, MIN_ROUND_SAMPLES)):
         log(round_line(rounds[-1]) + " (done before)")
-        return rounds
+        return rounds, stored_cert
     t0 = time.perf_counter()
     cert, states = _certify(model, certify_settings, settings, threads)
     if not rounds or rounds[-1]["round"] != len(stored):
@@ -368,7 +374,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         log(round_line(rounds[-1]))
     _record(model, rounds, cert)
     meso = from_description(str(_attrs(db)["mesostructure"]))
-    while cert["verdict"] == "failed":  # a weak certificate (below the minimum) is no matter of samples
+    while cert.verdict == "failed":  # a weak certificate (below the minimum) is no matter of samples
         k = len(stored) + 1
         asked = min(settings.samples_per_round, settings.max_samples - added_total)
         if k > settings.rounds or asked <= 0 or time.perf_counter() - start > settings.max_seconds:
@@ -397,8 +403,8 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         attrs = _attrs(db)
         samples = probe_states(meso, picked, n, round_seed(seed, k), attrs, threads)
         widths = next_widths(rounds, model) if settings.widen else _architecture(model)[0]
-        departures = {t["name"]: [t["departure"], t["n_increments"]] for t in cert["tests"]
-                      if t["name"] in names and "departure" in t}
+        departures = {t.name: [t.departure, t.n_increments] for t in cert.tests
+                      if t.name in names and t.departure is not None}
         entry = append_samples(db, samples, picked, {"tests": names, "seed": round_seed(seed, k),
                                                      "hidden": list(widths), "departures": departures,
                                                      "samples_capped": asked - n})
@@ -410,7 +416,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
                                   samples_capped=asked - n, tests=names, departures=departures))
         log(round_line(rounds[-1]))
         _record(model, rounds, cert)
-    return rounds
+    return rounds, cert
 
 
 def round_config(config: TrainConfig, model: Path, settings: ActiveSettings, widths: Sequence[int]) -> TrainConfig:

@@ -31,31 +31,8 @@ abs(q_dem - q_rest)) / scale. Where a sawtooth drop of the response (a fine grai
 wedge) moves by an increment or two it exceeds the target: the reference does not resolve the
 target there; the pass rule does not change.
 
-The result (``certify``) is a JSON-ready dict: ``target``, ``worst``, ``worst_test``, ``tests``
-(name, kind, sense, p0, dp, dq, scale [N/m]; inf and an ``error`` where the ANN could not follow the
-programme, e.g. a drained increment without convergence; ``n_increments``, the test's length, and,
-where the ANN left the DEM, ``departure``: the increment that put it more than the target off, or
-the one it could not follow, counted from the test's start; where stress control accepted a trial
-across a jump of the response, ``stress_control_jumps``: such increments of the ANN's run and of the
-DEM's; ``dem_spread``, and ``dem_spread_error`` where the DEM from rest could not follow the
-programme, its spread inf), ``rollout``, ``coverage``, ``dem_spread`` (the largest of the tests',
-``max``, its ``test``, and the tests above the target, ``above_target``; None with
-``certify(reproducibility=False)``), the settings, ``cell_parameters`` (the cell's, e.g.
-alpha0_deg), ``model_sha256`` (of the ``.pt``), ``revision`` (git revision of this code, ``-dirty``
-where the tree differs), ``seconds``, with equilibrium corrections
-(``certify(equilibrium_corrections=K)``: the hybrid) ``equilibrium`` (how often they fired over the
-ANN calls of the tests, trial calls included: ``steps`` calls, ``n_corrected`` cell steps corrected,
-``n_corrections`` Newton steps, ``n_shortened`` of them shortened by the line search and
-``n_shifted`` with their matrix shifted (``training.fast_equilibrium3d``), ``n_unconverged`` cell
-steps left above the tolerance, ``n_escalated`` cell steps handed to the DEM because a free grain ended
-released (``homogenization.backends.escalation``; the settings record ``dem_escalation``), the largest
-force ratios before and after,
-``force_ratio_network_max`` and ``force_ratio_max``; the rollouts, reported only, run the network
-alone), and the verdict (``homogenization.learning.envelope``): ``within_target`` (worst <= target),
-``below_minimum`` (where the settings are weaker than the minimum certificate ``MINIMUM``, whose
-values the constants above take), ``verdict`` ("passed", "failed", "weak") and ``passed`` (within
-the target AND the minimum met), and ``envelope`` (what the tests covered: pressures, axial strain,
-test kinds, cell; the ANN backend warns when a run leaves it). ``write_certificate`` stores it in
+The result (``certify``) is a ``homogenization.learning.records.Certificate`` (its fields say what
+each entry holds), its verdict from ``homogenization.learning.envelope``. ``write_certificate`` stores it in
 the model's JSON under ``"certificate"`` (the ANN backend then checks it), ``summary_lines`` are
 what the commands print (one line per test, the verdict and the envelope) and ``exit_code`` the
 verdict as their exit code: 0 passed, ``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the
@@ -69,6 +46,7 @@ Sign convention: compression and contraction positive; stresses in N/m.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -80,6 +58,7 @@ import numpy as np
 
 from homogenization.element_test import driver, loading
 from homogenization.learning.from_rest import FromRest
+from homogenization.learning.records import Certificate, TestResult
 from homogenization.learning.envelope import (dimension_of, envelope_of, equilibrium_settings, escalation_of, MINIMUM,
                                               shortfalls, verdict)
 from homogenization.backends import make_cell_model
@@ -176,7 +155,7 @@ def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_
                        equilibrium_tolerance: float | None = None, dem_escalation: bool = False) -> dict[str, Any]:
     """The ``settings`` a certificate of cells of dimension ``dim`` records for these options
     (planar: ``n_orientations``; spatial: ``spatial_rule`` as [order, spins], with the spins
-    staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation``;
+    staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation3d``;
     with ``equilibrium_corrections`` K > 0 also K and ``equilibrium_tolerance``, the resolved force
     ratio [-] of the hybrid its tests ran: ``envelope.equilibrium_settings``, and ``dem_escalation``, whether
     it handed the cells with a released grain to the DEM: ``envelope.escalation_of``, with the rule it did it
@@ -345,9 +324,10 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
             spatial_rule: Sequence[int] = SPATIAL_RULE, target: float = TARGET, rollout: bool = True, threads: int = 1,
             dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY,
             equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None,
-            reproducibility: bool = True) -> dict[str, Any]:
+            reproducibility: bool = True, metadata: dict[str, Any] | None = None) -> Certificate:
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
-    model's own (its JSON's ``mesostructure``). ``reproducibility`` False: no ``dem_spread``
+    model's own (its JSON's ``mesostructure``; ``metadata``: that JSON, as ``read_metadata`` gives it,
+    None: read here). ``reproducibility`` False: no ``dem_spread``
     (each test's DEM is not run a second time, from rest; the top-level ``dem_spread`` is None).
 
     ``dem_states``, when given, receives per test name the DEM cell states met along that test
@@ -372,7 +352,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     """
     start = time.perf_counter()
     model_path = Path(model_path)
-    meta = read_metadata(model_path)
+    meta = read_metadata(model_path) if metadata is None else metadata
     law = ContactLaw.from_dict(meta["contact_law"])
     hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": equilibrium_tolerance}
               if equilibrium_corrections else {"equilibrium_corrections": 0})  # never the model's earlier certificate's
@@ -407,7 +387,8 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
                             "departure": max(counter.increment, 0), **length, **spread})
             continue
         results.append({**info, **_compare(a, d, info["name"], scale, target), "scale": scale, **length, **spread})
-    worst = max(results, key=lambda t: max(t["dp"], t["dq"]))
+    rows = tuple(TestResult.from_dict(t) for t in results)
+    worst = max(rows, key=lambda t: t.figure)
     if dem_states is not None:
         for k, parts in sampler.states.items():
             merged = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
@@ -421,56 +402,46 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
         coverage = {"fraction_within": float(inside.mean()), "n_states": int(inside.size),
                     "threshold": ann.ood.threshold, "every_increments": COVERAGE_EVERY}
     report = (rollout_report(ann.net, meso, law, settings, increments=(increment,)) if rollout else None)
-    worst_figure = max(worst["dp"], worst["dq"])
-    cert = {
-        "target": target,
-        "worst": worst_figure,
-        "worst_test": worst["name"],
-        "metric": "max over the shear stages of abs(p_ann - p_dem) and abs(q_ann - q_dem) / max(p0, largest DEM p)",
-        "tests": results,
-        "rollout": report,
-        "coverage": coverage,
-        "dem_spread": _widest_spread(results, target) if reproducibility else None,
-        "settings": {**requested, "mesostructure": meso.name, "n_cells": n_cells},
-        "cell_parameters": {k: float(v) for k, v in meso.parameters.items()},
-        "model_sha256": file_sha256(model_path),
-        "revision": git_revision(),
-        "seconds": time.perf_counter() - start,
-        **({"equilibrium": counter.corrections} if equilibrium_corrections else {}),
-    }
-    cert["within_target"] = bool(worst_figure <= target)
-    cert["below_minimum"] = shortfalls(cert, meso.dim)
-    cert["verdict"] = verdict(cert)
-    cert["passed"] = cert["verdict"] == "passed"
-    cert["envelope"] = envelope_of(cert)
-    return cert
+    cert = Certificate(
+        target=target, worst=worst.figure, worst_test=worst.name,
+        metric="max over the shear stages of abs(p_ann - p_dem) and abs(q_ann - q_dem) / max(p0, largest DEM p)",
+        tests=rows, rollout=report, coverage=coverage,
+        dem_spread=_widest_spread(results, target) if reproducibility else None,
+        settings={**requested, "mesostructure": meso.name, "n_cells": n_cells},
+        cell_parameters={k: float(v) for k, v in meso.parameters.items()},
+        model_sha256=file_sha256(model_path), revision=git_revision(), seconds=time.perf_counter() - start,
+        equilibrium=counter.corrections if equilibrium_corrections else None,
+        within_target=bool(worst.figure <= target), below_minimum=[], verdict="", passed=False)
+    cert = dataclasses.replace(cert, below_minimum=shortfalls(cert, meso.dim))
+    result = verdict(cert)
+    return dataclasses.replace(cert, verdict=result, passed=result == "passed", envelope=envelope_of(cert))
 
 
-def write_certificate(model_path: Path, certificate: dict[str, Any]) -> Path:
+def write_certificate(model_path: Path, certificate: Certificate) -> Path:
     """Store ``certificate`` in the model's JSON under ``"certificate"`` (atomically); returns the JSON path."""
     path = metadata_path(model_path)
     meta = json.loads(path.read_text())
-    meta["certificate"] = certificate
+    meta["certificate"] = certificate.to_dict()
     with atomic_write(path) as tmp:
         tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     return path
 
 
-def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, threads: int = 1) -> Path:
+def plot_worst_test(model_path: Path, cert: Certificate, out: Path, *, threads: int = 1) -> Path:
     """Figure ``out`` (PNG, written atomically) of p and q [N/m] against eps11 [-] of the ANN and the
-    DEM on the certificate's worst test (``cert["worst_test"]``, rerun with ``cert["settings"]``, the
+    DEM on the certificate's worst test (``cert.worst_test``, rerun with ``cert.settings``, the
     equilibrium corrections included)."""
     from matplotlib.figure import Figure  # noqa: PLC0415 (matplotlib only where a figure is drawn)
 
     from homogenization.output.figure_style import apply_style, figure_legend, PNG_DPI  # noqa: PLC0415
 
-    settings = cert["settings"]
+    settings = cert.settings
     meta = read_metadata(model_path)
     law = ContactLaw.from_dict(meta["contact_law"])
     meso = from_description(meta["mesostructure"])
     info, programme = next((i, prog) for i, prog in tests_of(settings["pressures"], settings["eps_max"],
                                                              settings["increment"], settings.get("n_orientations", 0),
-                                                             meso.dim) if i["name"] == cert["worst_test"])
+                                                             meso.dim) if i["name"] == cert.worst_test)
     models = {"DEM": make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()),
                                      settings=DemSettings(contact_tolerance=float(meta["contact_tolerance"])),
                                      threads=threads),
@@ -490,43 +461,43 @@ def plot_worst_test(model_path: Path, cert: dict[str, Any], out: Path, *, thread
     for ax, name in zip(axes, ("p [N/m]", "q [N/m]")):
         ax.set(xlabel="eps11 [-]", ylabel=name)
     missing = "" if len(handles) == len(models) else " (the ANN could not follow the programme)"
-    fig.suptitle(f"{info['name']}: worst {100 * cert['worst']:.3g} % of the scale{missing}")
+    fig.suptitle(f"{info['name']}: worst {100 * cert.worst:.3g} % of the scale{missing}")
     figure_legend(fig, handles)
     with atomic_write(Path(out)) as tmp:
         apply_style(fig).savefig(tmp, dpi=PNG_DPI, format="png")
     return Path(out)
 
 
-def _hybrid_of(cert: dict[str, Any]) -> dict[str, Any]:
+def _hybrid_of(cert: Certificate) -> dict[str, Any]:
     """The ANN backend's keywords of the surrogate certificate ``cert`` measured (K = 0: the network alone)."""
     corrections, tolerance = equilibrium_settings(cert)
     return ({"equilibrium_corrections": corrections, "equilibrium_tolerance": tolerance,
              "dem_escalation": escalation_of(cert)} if corrections else {"equilibrium_corrections": 0})
 
 
-def summary_lines(cert: dict[str, Any]) -> list[str]:
+def summary_lines(cert: Certificate) -> list[str]:
     """One line per test, then the verdict."""
-    lines = [f"{t['name']:<40} dp {100 * t['dp']:.3f} %  dq {100 * t['dq']:.3f} %"
-             + ("" if "dem_spread" not in t else f"  DEM from rest off the DEM by {100 * t['dem_spread']:.3f} %"
-                + (" (above the target)" if t["dem_spread"] > cert["target"] else ""))
-             + ("" if "stress_control_jumps" not in t else
-                f"  (accepted across a jump: ANN {t['stress_control_jumps']['ann']}, DEM {t['stress_control_jumps']['dem']})")
-             for t in cert["tests"]]
-    spread = cert.get("dem_spread")
+    lines = [f"{t.name:<40} dp {100 * t.dp:.3f} %  dq {100 * t.dq:.3f} %"
+             + ("" if t.dem_spread is None else f"  DEM from rest off the DEM by {100 * t.dem_spread:.3f} %"
+                + (" (above the target)" if t.dem_spread > cert.target else ""))
+             + ("" if t.stress_control_jumps is None else
+                f"  (accepted across a jump: ANN {t.stress_control_jumps['ann']}, DEM {t.stress_control_jumps['dem']})")
+             for t in cert.tests]
+    spread = cert.dem_spread
     if spread and spread["above_target"]:
         lines.append(f"the DEM's own reproducibility: started from rest in every increment it moves "
                      f"{len(spread['above_target'])} test(s) by up to {100 * spread['max']:.3f} % ({spread['test']}), "
-                     f"above the target {100 * cert['target']:.3g} %: "
+                     f"above the target {100 * cert.target:.3g} %: "
                      "the target is finer than the reference resolves there")
-    if cert["rollout"] is not None:
-        inc = next(v for k, v in cert["rollout"].items() if k.startswith("increment_"))
+    if cert.rollout is not None:
+        inc = next(v for k, v in cert.rollout.items() if k.startswith("increment_"))
         lines.append(f"rollout (single cells, reported only): max {inc['max']:.4f}, median {inc['median']:.4f}")
-    if cert["coverage"] is not None:
-        lines.append(f"coverage: {100 * cert['coverage']['fraction_within']:.2f} % of {cert['coverage']['n_states']} "
+    if cert.coverage is not None:
+        lines.append(f"coverage: {100 * cert.coverage['fraction_within']:.2f} % of {cert.coverage['n_states']} "
                      f"DEM states within the out-of-distribution threshold")
-    if "equilibrium" in cert:
+    if cert.equilibrium is not None:
         k, tolerance = equilibrium_settings(cert)
-        tally = cert["equilibrium"]
+        tally = cert.equilibrium
         lines.append(f"hybrid: the network with {k} equilibrium corrections at tolerance {tolerance:g}: "
                      f"{tally['n_corrected']} cell steps corrected ({tally['n_corrections']} Newton steps"
                      + (f", {tally['n_shortened']} shortened by the line search, {tally['n_shifted']} shifted"
@@ -536,8 +507,8 @@ def summary_lines(cert: dict[str, Any]) -> list[str]:
                      + (f"{tally.get('n_escalated', 0)} handed to the DEM (a released grain), " if escalation_of(cert) else "")
                      + f"largest force ratio {tally['force_ratio_network_max']:.3g} before, {tally['force_ratio_max']:.3g} after")
     result = verdict(cert)
-    figures = (f"worst {100 * cert['worst']:.3f} % ({cert['worst_test']}), target {100 * cert['target']:.3g} %, "
-               f"{cert['seconds']:.1f} s")
+    figures = (f"worst {100 * cert.worst:.3f} % ({cert.worst_test}), target {100 * cert.target:.3g} %, "
+               f"{cert.seconds:.1f} s")
     if result == "weak":
         lines.append(f"NOT PASSED (weak): {figures}, but the certificate is below the minimum: "
                      f"{'; '.join(shortfalls(cert, dimension_of(cert)))}")
@@ -550,7 +521,7 @@ def summary_lines(cert: dict[str, Any]) -> list[str]:
     return lines
 
 
-def exit_code(cert: dict[str, Any]) -> int:
+def exit_code(cert: Certificate) -> int:
     """Exit code of a command whose result is certificate ``cert``: 0 passed, ``EXIT_FAILED`` (3)
     failed, ``EXIT_WEAK`` (4) within the target but below the minimum certificate."""
     return {"passed": 0, "failed": EXIT_FAILED, "weak": EXIT_WEAK}[verdict(cert)]

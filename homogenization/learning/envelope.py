@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 from homogenization.element_test import loading
+from homogenization.learning.records import Certificate
 
 PRESSURE_RTOL = 1e-9
 """Relative tolerance of pressure and strain comparisons (round-off of recorded numbers) [-]."""
@@ -74,10 +75,10 @@ def _covers(value: float, least: float) -> bool:
     return value >= least * (1.0 - PRESSURE_RTOL)
 
 
-def shortfalls(cert: Mapping[str, Any], dim: int, minimum: MinimumCertificate = MINIMUM) -> list[str]:
+def shortfalls(cert: Certificate, dim: int, minimum: MinimumCertificate = MINIMUM) -> list[str]:
     """Where certificate ``cert`` of cells of dimension ``dim`` is weaker than ``minimum``: one
     phrase each (e.g. "2 orientations (minimum 24)"); empty when it meets the minimum."""
-    settings = cert.get("settings") or {}
+    settings = cert.settings
     missing: list[str] = []
     pressures = sorted(float(p) for p in settings.get("pressures", ()))
     if not all(any(math.isclose(p, q, rel_tol=PRESSURE_RTOL) for p in pressures) for q in minimum.pressures):
@@ -89,7 +90,7 @@ def shortfalls(cert: Mapping[str, Any], dim: int, minimum: MinimumCertificate = 
     increment = float(settings.get("increment", math.inf))
     if increment > minimum.increment * (1.0 + PRESSURE_RTOL):
         missing.append(f"increment {increment:g} (maximum {minimum.increment:g})")
-    target = float(cert.get("target", math.inf))
+    target = float(cert.target)
     if target > minimum.target * (1.0 + PRESSURE_RTOL):
         missing.append(f"target {100 * target:g} % (maximum {100 * minimum.target:g} %)")
     if dim == 3:
@@ -101,46 +102,46 @@ def shortfalls(cert: Mapping[str, Any], dim: int, minimum: MinimumCertificate = 
         n = int(settings.get("n_orientations", 0))
         if n < minimum.n_orientations:
             missing.append(f"{n} orientations (minimum {minimum.n_orientations})")
-    if minimum.rollout and not cert.get("rollout"):
+    if minimum.rollout and not cert.rollout:
         missing.append("no rollouts (the minimum runs them)")
-    held = {(t.get("kind"), t.get("sense")) for t in cert.get("tests", ())}
+    held = {(t.kind, t.sense) for t in cert.tests}
     absent = [f"{kind} {sense}" for kind, sense in minimum.tests(dim) if (kind, sense) not in held]
     if absent:
         missing.append(f"no {', '.join(absent)} test")
     return missing
 
 
-def dimension_of(cert: Mapping[str, Any]) -> int:
+def dimension_of(cert: Certificate) -> int:
     """Cell dimension of certificate ``cert``: 3 where its settings hold a ``spatial_rule``, else 2."""
-    return 3 if "spatial_rule" in (cert.get("settings") or {}) else 2
+    return 3 if "spatial_rule" in cert.settings else 2
 
 
-def verdict(cert: Mapping[str, Any]) -> str:
+def verdict(cert: Certificate) -> str:
     """"passed" (worst <= target and the minimum met), "failed" (worst > target, or a test the
     ANN could not follow) or "weak" (within the target, below ``MINIMUM``: not passed); read
     from the certificate's figures and settings, not from its ``passed`` flag."""
-    worst, target = float(cert.get("worst", math.inf)), float(cert.get("target", 0.0))
+    worst, target = float(cert.worst), float(cert.target)
     if not worst <= target:
         return "failed"
     return "weak" if shortfalls(cert, dimension_of(cert)) else "passed"
 
 
-def envelope_of(cert: Mapping[str, Any]) -> dict[str, Any]:
+def envelope_of(cert: Certificate) -> dict[str, Any]:
     """The envelope of certificate ``cert`` (module docstring): its ``envelope`` entry where it
     records one, else derived from its ``settings`` and ``tests``."""
-    if isinstance(cert.get("envelope"), Mapping):
-        return dict(cert["envelope"])
-    settings = cert.get("settings") or {}
-    tests = cert.get("tests") or ()
-    p0 = [float(t["p0"]) for t in tests] or [float(p) for p in settings.get("pressures", ())]
+    if cert.envelope is not None:
+        return dict(cert.envelope)
+    settings = cert.settings
+    tests = cert.tests
+    p0 = [float(t.p0) for t in tests] or [float(p) for p in settings.get("pressures", ())]
     return {
         "pressures": [min(p0), max(p0)] if p0 else None,
         "eps_max": float(settings["eps_max"]) if "eps_max" in settings else None,
         "increment": float(settings["increment"]) if "increment" in settings else None,
-        "kinds": sorted({str(t["kind"]) for t in tests}),
-        "senses": sorted({str(t["sense"]) for t in tests}),
+        "kinds": sorted({str(t.kind) for t in tests}),
+        "senses": sorted({str(t.sense) for t in tests}),
         "mesostructure": settings.get("mesostructure"),
-        "cell_parameters": dict(cert.get("cell_parameters") or settings.get("cell_parameters") or {}),
+        "cell_parameters": dict(cert.cell_parameters or settings.get("cell_parameters") or {}),
     }
 
 
@@ -218,21 +219,21 @@ def summary(exits: Sequence[str]) -> str:
     """One line of ``outside``'s phrases ('' inside the envelope)."""
     return "" if not exits else "outside its certificate's envelope: " + "; ".join(exits)
 
-def equilibrium_settings(cert: dict[str, Any]) -> tuple[int, float | None]:
+def equilibrium_settings(cert: Certificate) -> tuple[int, float | None]:
     """(K, tolerance) of the ANN runs certificate ``cert`` measured: (0, None) for the network alone
     (a certificate that records no equilibrium corrections)."""
-    settings = cert.get("settings", {})
+    settings = cert.settings
     corrections = int(settings.get("equilibrium_corrections", 0))
     return (corrections, float(settings["equilibrium_tolerance"])) if corrections else (0, None)
 
 
-def escalation_of(cert: dict[str, Any]) -> bool:
+def escalation_of(cert: Certificate) -> bool:
     """Whether the hybrid that certificate ``cert`` measured handed the cells with a released grain to the DEM
     (``homogenization.backends.escalation``; False where it records nothing: certified before that rule)."""
-    return bool(cert.get("settings", {}).get("dem_escalation", False))
+    return bool(cert.settings.get("dem_escalation", False))
 
 
-def escalation_rule_of(cert: dict[str, Any]) -> str | None:
+def escalation_rule_of(cert: Certificate) -> str | None:
     """The rule by which the hybrid that certificate ``cert`` measured handed cells to the DEM
     (``homogenization.backends.escalation.RELEASE_RULE`` as it read then; None where it records none)."""
-    return cert.get("settings", {}).get("dem_escalation_rule")
+    return cert.settings.get("dem_escalation_rule")

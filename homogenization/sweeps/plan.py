@@ -111,11 +111,12 @@ class ModelTable:
         None for a model without a certificate."""
         from homogenization.backends.ann import default_model_path  # noqa: PLC0415 torch only for ann
         from homogenization.learning.envelope import envelope_of, outside  # noqa: PLC0415
+        from homogenization.learning.records import certificate_of  # noqa: PLC0415
         from training.checkpoint import read_metadata  # noqa: PLC0415
 
         if path not in self._envelopes:
-            cert = read_metadata(default_model_path() if path is None else path).get("certificate")
-            self._envelopes[path] = envelope_of(cert) if isinstance(cert, dict) else None
+            cert = certificate_of(read_metadata(default_model_path() if path is None else path))
+            self._envelopes[path] = None if cert is None else envelope_of(cert)
         envelope = self._envelopes[path]
         if envelope is None:
             return None

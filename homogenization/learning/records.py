@@ -1,0 +1,156 @@
+"""The records of the learning loop as the model's JSON stores them: ``Certificate`` and its ``TestResult`` rows.
+
+Part of the model card's file format: its ``format_version`` (``training.checkpoint.FORMAT_VERSION``)
+versions them too, so a record carries no version key of its own. ``to_dict`` gives back the
+mapping ``from_dict`` read, key for key (an optional entry absent stays absent), so that a file
+read and written again is the same bytes (``json.dumps(indent=2, sort_keys=True)``).
+
+Sign convention: compression and contraction positive; stresses in N/m (planar) or Pa (spatial).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+SCHEMA_VERSION = 2
+"""The model card's ``format_version`` these records belong to (``training.checkpoint.FORMAT_VERSION``)."""
+
+
+def _to_dict(record: Any) -> dict[str, Any]:
+    """The fields of ``record``, those of ``record.OPTIONAL`` left out where None."""
+    return {f.name: getattr(record, f.name) for f in dataclasses.fields(record)
+            if not (f.name in record.OPTIONAL and getattr(record, f.name) is None)}
+
+
+def _from_dict(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
+    """The keywords of ``cls`` from mapping ``values``; ValueError (one line) for an unknown or missing key."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - names)
+    if unknown:
+        raise ValueError(f"{cls.__name__}: unknown key {unknown[0]!r}")
+    missing = sorted(name for name in names - set(values) if name not in cls.OPTIONAL)
+    if missing:
+        raise ValueError(f"{cls.__name__}: missing key {missing[0]!r}")
+    return dict(values)
+
+
+@dataclass(frozen=True)
+class TestResult:
+    """One homogenised test of a certificate: the ANN against the DEM."""
+
+    __test__: ClassVar[bool] = False  # not a pytest class
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({"error", "departure", "stress_control_jumps", "dem_spread",
+                                                    "dem_spread_error"})
+    """Keys a test records only where they arise (None: absent)."""
+
+    name: str
+    """E.g. "drained compression p0=200000"."""
+    kind: str
+    """"constant-volume", "drained" (planar) or "undrained", "drained" (spatial)."""
+    sense: str
+    """"compression", "extension" or "reversal"."""
+    p0: float
+    """Confining pressure [N/m or Pa]."""
+    dp: float
+    """max abs(p_ann - p_dem) / scale over the shear stages [-]; inf where the ANN could not follow."""
+    dq: float
+    """Likewise for q [-]."""
+    scale: float
+    """max(p0, largest DEM p of the test) [N/m or Pa]."""
+    n_increments: int
+    """The test's length [-]."""
+    error: str | None = None
+    """Why the ANN could not follow the programme."""
+    departure: int | None = None
+    """The increment that put the ANN more than the target off the DEM (or that it could not follow)."""
+    stress_control_jumps: dict[str, int] | None = None
+    """Increments accepted across a jump of the response: {"ann": n, "dem": n}."""
+    dem_spread: float | None = None
+    """The DEM from rest against the DEM [-] (inf where it could not follow)."""
+    dem_spread_error: str | None = None
+    """Why the DEM from rest could not follow the programme."""
+
+    @property
+    def figure(self) -> float:
+        """max(dp, dq) [-]."""
+        return max(self.dp, self.dq)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The row as the model's JSON stores it."""
+        return _to_dict(self)
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> "TestResult":
+        """The row of its ``to_dict`` (ValueError, one line, for an unknown or missing key)."""
+        return cls(**_from_dict(cls, values))
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """The certificate of a meso-ANN model (``homogenization.learning.certificate.certify``, docs/certificate.md)."""
+
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({"envelope", "equilibrium", "command"})
+    """Keys recorded only where they arise (None: absent)."""
+
+    target: float
+    """Largest dp or dq allowed [-]."""
+    worst: float
+    """The largest dp or dq of the tests [-]."""
+    worst_test: str
+    """The name of that test."""
+    metric: str
+    """What dp and dq measure, in words."""
+    tests: tuple[TestResult, ...]
+    """The tests, in the order run."""
+    rollout: dict[str, Any] | None
+    """The single-cell rollouts (``training.rollout.rollout_report``; reported only); None: not run."""
+    coverage: dict[str, Any] | None
+    """``fraction_within``, ``n_states``, ``threshold``, ``every_increments``; None without an index."""
+    dem_spread: dict[str, Any] | None
+    """The DEM's reproducibility: ``max``, ``test``, ``above_target``; None: not measured."""
+    settings: dict[str, Any]
+    """What was measured (``certificate.requested_settings``, with ``mesostructure`` and ``n_cells``)."""
+    cell_parameters: dict[str, float]
+    """The cell's parameters, e.g. alpha0_deg."""
+    model_sha256: str
+    """sha256 of the ``.pt`` certified."""
+    revision: str
+    """git revision of the code that measured it (``-dirty`` where the tree differed)."""
+    seconds: float
+    """Time taken [s]."""
+    within_target: bool
+    """worst <= target."""
+    below_minimum: list[str]
+    """Where the settings are weaker than the minimum certificate (``envelope.shortfalls``)."""
+    verdict: str
+    """"passed", "failed" or "weak" (``envelope.verdict``)."""
+    passed: bool
+    """verdict == "passed"."""
+    envelope: dict[str, Any] | None = None
+    """What the tests covered (``envelope.envelope_of``)."""
+    equilibrium: dict[str, Any] | None = None
+    """How often the hybrid's equilibrium corrections fired (``certify(equilibrium_corrections=K)``)."""
+    command: str | None = None
+    """The command line that measured it (``hmodel certify``)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The certificate as the model's JSON stores it under ``"certificate"``."""
+        return {**_to_dict(self), "tests": [t.to_dict() for t in self.tests]}
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> "Certificate":
+        """The certificate of its ``to_dict`` (ValueError, one line, for an unknown or missing key)."""
+        fields = _from_dict(cls, values)
+        return cls(**{**fields, "tests": tuple(TestResult.from_dict(t) for t in fields["tests"])})
+
+    def test(self, name: str) -> TestResult:
+        """The test called ``name`` (StopIteration where none is)."""
+        return next(t for t in self.tests if t.name == name)
+
+
+def certificate_of(metadata: Mapping[str, Any]) -> Certificate | None:
+    """The certificate a model's JSON ``metadata`` records under ``"certificate"`` (None: uncertified)."""
+    values = metadata.get("certificate")
+    return None if values is None else Certificate.from_dict(values)
