@@ -89,7 +89,7 @@ from homogenization.backends.escalation import DemEscalation, RELEASE_RULE
 from homogenization.learning import envelope
 from homogenization.learning.records import Certificate, certificate_of
 from homogenization.learning.settings import has_fine_grains
-from homogenization.material.orientation3d import cell_kinematics, kinematics_of
+from homogenization.material.orientation import cell_kinematics, kinematics_of
 from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
@@ -379,7 +379,7 @@ class AnnCell(ArrayStateMixin):
         """Raise ``CheckpointError`` (one line) unless the model may start cells from ``meso``
         (``training.checkpoint.check_start_cell``: its database's mesostructure, or a cell of
         the same learning state within the range of the cells the database started from). A 3D cell whose
-        kinematics (``orientation3d.cell_kinematics``) are not those the certificate's tests drove their
+        kinematics (``orientation.cell_kinematics``) are not those the certificate's tests drove their
         cells with (``certified_kinematics``) leaves the certificate: ``certificate_problem`` says so."""
         check_start_cell(self.metadata, meso, source=str(self.model_path))
         if meso.dim != 3 or self.certificate_problem is not None:
@@ -391,8 +391,8 @@ class AnnCell(ArrayStateMixin):
 
     @property
     def certified_kinematics(self) -> str:
-        """The kinematics (``orientation3d.KINEMATICS``) of the cells of the certificate's tests, read from the
-        cell parameters it recorded (``orientation3d.kinematics_of``; a certificate that records none: "projected")."""
+        """The kinematics (``orientation.KINEMATICS``) of the cells of the certificate's tests, read from the
+        cell parameters it recorded (``orientation.kinematics_of``; a certificate that records none: "projected")."""
         return kinematics_of(self.envelope["cell_parameters"] if self.envelope is not None else {})
 
     # -- CellModel protocol ---------------------------------------------------------------

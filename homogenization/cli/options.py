@@ -107,8 +107,8 @@ def add_orientations_argument(parser: argparse.ArgumentParser, default: int,
 
 
 def lebedev_order(text: str) -> int:
-    """argparse type: one of ``orientation3d.LEBEDEV_ORDERS``."""
-    from homogenization.material.orientation3d import LEBEDEV_ORDERS  # noqa: PLC0415 (scipy: only the commands of 3D cells)
+    """argparse type: one of ``orientation.LEBEDEV_ORDERS``."""
+    from homogenization.material.orientation import LEBEDEV_ORDERS  # noqa: PLC0415 (scipy: only the commands of 3D cells)
 
     order = positive_int(text)
     if order not in LEBEDEV_ORDERS:

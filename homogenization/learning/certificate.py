@@ -155,7 +155,7 @@ def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_
                        equilibrium_tolerance: float | None = None, dem_escalation: bool = False) -> dict[str, Any]:
     """The ``settings`` a certificate of cells of dimension ``dim`` records for these options
     (planar: ``n_orientations``; spatial: ``spatial_rule`` as [order, spins], with the spins
-    staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation3d``;
+    staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation``;
     with ``equilibrium_corrections`` K > 0 also K and ``equilibrium_tolerance``, the resolved force
     ratio [-] of the hybrid its tests ran: ``envelope.equilibrium_settings``, and ``dem_escalation``, whether
     it handed the cells with a released grain to the DEM: ``envelope.escalation_of``, with the rule it did it
