@@ -10,8 +10,8 @@ import pytest
 
 from homogenization.backends import make_cell_model
 from homogenization.cli import hmodel
-from homogenization.element_test import driver, loading, oedometer
-from homogenization.output import io
+from homogenization.element_test import driver, loading
+from homogenization.output import io, oedometer
 from warp_hcell.mesostructures.builders import mesostructure_arg
 
 

@@ -11,7 +11,7 @@ p0), then one shear stage (axis 1 axial, --eps-max of axial strain in increments
 - ``--true B``: true triaxial at p = p0 and b = (sigma2 - sigma3)/(sigma1 - sigma3) = B;
 - ``--cyclic N``: N undrained cycles of axial strain amplitude --eps-max;
 - ``--oedometer U``: K0 compression (lateral strains zero) by --eps-max from p0, then unloading
-  by U; each backend also writes oedometer.csv (``homogenization.element_test.oedometer``).
+  by U; each backend also writes oedometer.csv (``homogenization.output.oedometer``).
 
 ``--posterior DIR/posterior.json`` (of ``hmodel calibrate``) runs at its posterior mean, with
 its alpha0_spread where it holds one (analytical backend); ``--posterior-band N`` adds the 95 %
@@ -37,8 +37,8 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from homogenization.element_test import driver, loading, oedometer
-from homogenization.output import figures
+from homogenization.element_test import driver, loading
+from homogenization.output import figures, oedometer
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
 from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, command_parser, lebedev_order
