@@ -70,7 +70,7 @@ from homogenization.calibration import bayes, forward, start  # noqa: E402
 from homogenization.calibration.data import Measurement, read_test  # noqa: E402
 from homogenization.element_test.points import material_points, orientation_set  # noqa: E402
 from homogenization.element_test.record import History  # noqa: E402
-from homogenization.element_test.run import run  # noqa: E402
+from homogenization.element_test.stages import run_stages  # noqa: E402
 from homogenization.element_test.solver import POPULATION, StressControl  # noqa: E402
 from warp_hcell.mesostructures.hcell import build_h_cell_3d  # noqa: E402
 
@@ -450,7 +450,7 @@ def diagnose(args) -> dict:
                                                for g in groups])})
 
     solver = StressControl(points, replace(POPULATION, rtol=SETTINGS.stress_rtol, max_iterations=SETTINGS.max_newton))
-    run(solver, stages, History(sum(p.n_increments for p in stages), 1, 3, observe=False), progress=Recorder)
+    run_stages(solver, stages, History(sum(p.n_increments for p in stages), 1, 3, observe=False), progress=Recorder)
     print(f"{args.p0 / 1e3:.0f} kPa at the {args.split} optimum; groups of |n . e1| (cells, weight): "
           + ", ".join(f"{g:.2f} ({np.count_nonzero(group == g)}, {weights[group == g].sum():.3f})" for g in groups))
     print("eps1 [%]  q [kPa]  eps_v [%]  | per group: alpha plane A / B [deg], type-1 closed, sliding (fraction of planes)")

@@ -12,7 +12,7 @@ from homogenization.element_test import loading
 from homogenization.backends.analytical import AnalyticalCell
 from homogenization.element_test.points import material_points, orientation_set
 from homogenization.element_test.record import History
-from homogenization.element_test.run import run
+from homogenization.element_test.stages import run_stages
 from homogenization.element_test.solver import POPULATION, STRICT, ControlError, StressControl
 from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.mesostructures.hcell import h_cell
@@ -34,7 +34,7 @@ def points_of(sets: list[int]):
 
 def history_of(points, stages, policy=STRICT) -> History:
     history = History(sum(s.n_increments for s in stages), points.n, points.dim, observe=False)
-    run(StressControl(points, policy), stages, history)
+    run_stages(StressControl(points, policy), stages, history)
     return history
 
 
@@ -70,8 +70,8 @@ def test_the_strict_policy_raises_where_the_population_counts():
         history_of(points_of([0]), PROGRAMME, tight)
     points = points_of([0, 1])
     history = History(sum(s.n_increments for s in PROGRAMME), 2, 2, observe=False)
-    _, fallback, unreached = run(StressControl(points, replace(POPULATION, max_iterations=1, rtol=1e-12)), PROGRAMME,
-                                 history)
+    _, fallback, unreached = run_stages(StressControl(points, replace(POPULATION, max_iterations=1, rtol=1e-12)), PROGRAMME,
+                                        history)
     n_shear = PROGRAMME[1].n_increments
     assert np.all(fallback >= n_shear) and not unreached.any()  # every shear increment took its one iterate
 

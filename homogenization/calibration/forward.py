@@ -42,7 +42,7 @@ from homogenization.calibration.data import Measurement
 from homogenization.element_test.points import MaterialPoints, material_points, orientation_set
 from homogenization.element_test.programme import Plan
 from homogenization.element_test.record import History
-from homogenization.element_test.run import run
+from homogenization.element_test.stages import run_stages
 from homogenization.element_test.solver import POPULATION, StressControl
 from homogenization.material import opening_spread
 from homogenization.material.invariants import deviator_3d, mean_stress_3d
@@ -242,11 +242,11 @@ def simulate_points(test: Measurement, points: MaterialPoints, settings: Forward
                     before_stage: Mapping[int, Callable[[MaterialPoints], None]] | None = None) -> Curves:
     """Curves of ``test`` for a population built as ``population`` builds it (one point per parameter
     set), its two ``stages`` run by the calibration's solver; ``before_stage`` as in
-    ``element_test.run.run`` (stage 1: the shear)."""
+    ``element_test.stages.run_stages`` (stage 1: the shear)."""
     plans = stages(test, settings, points)
     history = History(sum(plan.n_increments for plan in plans), points.n, points.dim, observe=False)
     solver = StressControl(points, replace(POPULATION, rtol=settings.stress_rtol, max_iterations=settings.max_newton))
-    _, fallback, failed = run(solver, plans, history, before_stage=before_stage)
+    _, fallback, failed = run_stages(solver, plans, history, before_stage=before_stage)
     shear = history.stage_index[:history.k] == 1
     start = int(np.flatnonzero(shear)[0]) - 1
     rows = np.stack([_row(history.rows[k], history.rows[start], points.dim) for k in range(start, history.k)])

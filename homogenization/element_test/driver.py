@@ -34,7 +34,7 @@ import numpy as np
 from homogenization.element_test.points import MaterialPoints, material_points
 from homogenization.element_test.programme import Plan
 from homogenization.element_test.record import History, Record
-from homogenization.element_test.run import run as run_stages
+from homogenization.element_test.stages import run_stages
 from homogenization.element_test.solver import JUMP_WIDTH, STRICT, ControlError, StressControl
 from homogenization.element_test.loading import Programme, dimension, validate
 from warp_hcell.core.contract import CellModel

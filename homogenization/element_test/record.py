@@ -1,5 +1,5 @@
 """What an element test records: ``Record`` (one material point, 2D and 3D) and ``History`` (the buffers
-of a run of n material points, filled increment by increment by ``element_test.run``).
+of a run of n material points, filled increment by increment by ``element_test.stages``).
 
 Sign convention: compression and contraction positive; stresses [N/m] (2D) or [Pa] (3D), strains [-].
 """
@@ -96,7 +96,7 @@ class Record:
 
 
 class History:
-    """Buffers of a run of n material points, one row per increment (``element_test.run``).
+    """Buffers of a run of n material points, one row per increment (``element_test.stages``).
 
     Args:
         n_max: most increments the run can take.

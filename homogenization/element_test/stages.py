@@ -1,4 +1,5 @@
-"""Run a loading programme on material points from their present state: ``run(solver, stages, history)``.
+"""Run the stages of a loading programme on material points from their present state:
+``run_stages(solver, stages, history)``.
 
 Each stage (``programme.Plan``) advances every point by its increments: strain-controlled components
 as given, stress-controlled ones solved by the stress-control solver (``solver.StressControl``), and a
@@ -93,10 +94,10 @@ class _Where:
         return f"step {self.label!r}, increment {self.increment}"
 
 
-def run(solver: StressControl, stages: Iterable[Step | Plan], history: History, *, snapshot_interval: int = 0,
-        progress: Callable[[Plan], ContextManager[Progress]] | None = None,
-        before_stage: Mapping[int, Callable[[MaterialPoints], None]] | None = None,
-        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def run_stages(solver: StressControl, stages: Iterable[Step | Plan], history: History, *, snapshot_interval: int = 0,
+               progress: Callable[[Plan], ContextManager[Progress]] | None = None,
+               before_stage: Mapping[int, Callable[[MaterialPoints], None]] | None = None,
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Run ``stages`` in turn on ``solver.points`` from their present state; a ``Step`` of a programme
     becomes its ``Plan`` from the stresses at its start. A snapshot closes every stage.
 
