@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from homogenization.element_test.programme import Plan
+from homogenization.element_test.plan import Plan
 from homogenization.element_test.solver import STRICT, ControlError, StressControl
 from warp_hcell.core.parameters import LoadingDefaults
 

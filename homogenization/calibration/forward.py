@@ -40,7 +40,7 @@ from homogenization.backends.analytical import AnalyticalCell
 from homogenization.backends.analytical3d import Analytical3DCell
 from homogenization.calibration.data import Measurement
 from homogenization.element_test.points import MaterialPoints, material_points, orientation_set
-from homogenization.element_test.programme import Plan
+from homogenization.element_test.plan import Plan
 from homogenization.element_test.record import History
 from homogenization.element_test.stages import run_stages
 from homogenization.element_test.solver import POPULATION, StressControl

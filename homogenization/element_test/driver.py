@@ -2,7 +2,7 @@
 
 The driver runs one material point of the homogenised material from the touching state through
 the element-test engine (``homogenization.element_test``): the point's oriented cells
-(``element_test.points``), the programme's steps as stages (``element_test.programme``), the
+(``element_test.points``), the programme's steps as stages (``element_test.plan``), the
 stress-controlled components solved by the engine's one stress-control solver under its strict
 policy (``element_test.solver``: Newton on the consistent tangent, a linear predictor from the last
 tangent, bisection and jump detection with one controlled component, Broyden updates between fresh
@@ -32,7 +32,7 @@ from typing import Any, Callable, Iterator, Mapping
 import numpy as np
 
 from homogenization.element_test.points import MaterialPoints, material_points
-from homogenization.element_test.programme import Plan
+from homogenization.element_test.plan import Plan
 from homogenization.element_test.record import History, Record
 from homogenization.element_test.stages import run_stages
 from homogenization.element_test.solver import JUMP_WIDTH, STRICT, ControlError, StressControl

@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from homogenization.element_test.points import MaterialPoints
-from homogenization.element_test.programme import Plan
+from homogenization.element_test.plan import Plan
 from warp_hcell.core.parameters import LoadingDefaults
 
 JUMP_WIDTH = 1e-6

@@ -1,7 +1,7 @@
 """Run the stages of a loading programme on material points from their present state:
 ``run_stages(solver, stages, history)``.
 
-Each stage (``programme.Plan``) advances every point by its increments: strain-controlled components
+Each stage (``plan.Plan``) advances every point by its increments: strain-controlled components
 as given, stress-controlled ones solved by the stress-control solver (``solver.StressControl``), and a
 stage that stops on p lands each point on the stop (its crossing increment shortened) and leaves it
 there while the others go on. The points start wherever they are, so a test continues after an erosion
@@ -19,7 +19,7 @@ from typing import Callable, ContextManager, Iterable, Mapping
 import numpy as np
 
 from homogenization.element_test.points import MaterialPoints
-from homogenization.element_test.programme import Plan
+from homogenization.element_test.plan import Plan
 from homogenization.element_test.record import History
 from homogenization.element_test.solver import ControlError, StressControl
 from homogenization.element_test.loading import Step
