@@ -17,7 +17,7 @@ from homogenization.calibration.forward import SPREAD, ForwardSettings, simulate
 from homogenization.cli import calibrate, hmodel
 from homogenization.element_test.points import orientation_set
 from homogenization.material import opening_spread
-from homogenization.material.homogenised import HomogenisedMaterial3D
+from homogenization.material.homogenised import HomogenisedMaterial
 from homogenization.output import io
 from warp_hcell.core.cli import run_main
 from warp_hcell.core.parameters import ContactLaw
@@ -65,10 +65,10 @@ def test_a_spread_point_is_the_volume_weighted_mean_of_single_alpha0_points():
     alpha0, spread, kn, kt, phi = 55.0, 6.0, 2e7, 0.6, 30.0
     cells = opening_spread.cell_alpha0(np.array([alpha0]), np.array([spread]), n)
     ones = np.ones(cells.size)
-    mixed = HomogenisedMaterial3D(Analytical3DCell.with_cell_laws(kn * ones, kt * ones, phi * ones, 0.5, alpha0_deg=cells),
+    mixed = HomogenisedMaterial(Analytical3DCell.with_cell_laws(kn * ones, kt * ones, phi * ones, 0.5, alpha0_deg=cells),
                                   opening_spread.replicate(orient), meso, 1)
     x, g = opening_spread.nodes()
-    singles = [HomogenisedMaterial3D(Analytical3DCell(ContactLaw(kn=kn, kt_over_kn=kt, phi_g_deg=phi), 0.5), orient,
+    singles = [HomogenisedMaterial(Analytical3DCell(ContactLaw(kn=kn, kt_over_kn=kt, phi_g_deg=phi), 0.5), orient,
                                      build_h_cell_3d(alpha0 + spread * xj, radius=0.5), 1) for xj in x]
     states = [m.init_state() for m in (mixed, *singles)]
     V0 = np.array([m.V0[0] for m in singles])

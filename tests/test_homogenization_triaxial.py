@@ -13,7 +13,7 @@ import pytest
 from homogenization.element_test import driver, loading
 from homogenization.material import invariants
 from homogenization.backends import make_cell_model
-from homogenization.material.homogenised import HomogenisedMaterial3D
+from homogenization.material.homogenised import HomogenisedMaterial
 from homogenization.material.orientation import orientations_3d
 from warp_hcell.core.parameters import LoadingDefaults
 from warp_hcell.mesostructures.builders import mesostructure_arg
@@ -102,7 +102,7 @@ def test_isotropic_stress_is_the_cell_moment_trace_over_three_volumes():
     R diag(S) R^T to tr(S)/3 I, so sigma = (S_nn + S_t1t1 + S_t2t2) / (3 V_cell) (V = V0 J, J the product)."""
     model = make_cell_model("analytical", dim=3)
     orient = orientations_3d(5, 2)
-    material = HomogenisedMaterial3D(model, orient, cell(55.0), 1)
+    material = HomogenisedMaterial(model, orient, cell(55.0), 1)
     state = material.init_state()
     d = 3e-4
     update = material.update(state, np.array([[d, d, d, 0.0, 0.0, 0.0]]), with_tangent=False)
@@ -118,7 +118,7 @@ def test_isotropic_stress_is_the_cell_moment_trace_over_three_volumes():
 
 def test_material_tangent_matches_finite_differences():
     model = make_cell_model("analytical", dim=3)
-    material = HomogenisedMaterial3D(model, orientations_3d(5, 2), cell(55.0), 1)
+    material = HomogenisedMaterial(model, orientations_3d(5, 2), cell(55.0), 1)
     state = material.init_state()
     state = material.update(state, np.array([[6e-4, 4e-4, 5e-4, 0.0, 0.0, 0.0]]), with_tangent=False).state
     base = np.array([3e-5, -1e-5, 1e-5, 0.0, 0.0, 0.0])

@@ -21,7 +21,7 @@ import numpy as np
 
 from homogenization.material import orientation as orient_mod
 from homogenization.material import opening_spread
-from homogenization.material.homogenised import HomogenisedMaterial, HomogenisedMaterial3D, MaterialState, MaterialUpdate
+from homogenization.material.homogenised import HomogenisedMaterial, MaterialState, MaterialUpdate
 from warp_hcell.core.contract import CellModel
 from warp_hcell.core.dimension import dimension
 from warp_hcell.mesostructures.mesostructure import Mesostructure
@@ -51,8 +51,7 @@ def material_points(cell_model: CellModel, mesostructure: Mesostructure, n_point
         orient = orientation_set(mesostructure, **orientations)
         if getattr(cell_model, opening_spread.FAMILIES_ATTRIBUTE, False):
             orient = opening_spread.replicate(orient)
-    cls = HomogenisedMaterial if getattr(mesostructure, "dim", 2) == 2 else HomogenisedMaterial3D
-    return MaterialPoints(cls(cell_model, orient, mesostructure, n_points))
+    return MaterialPoints(HomogenisedMaterial(cell_model, orient, mesostructure, n_points))
 
 
 class MaterialPoints:
@@ -60,7 +59,7 @@ class MaterialPoints:
     trials since the last recorded increment cost.
 
     Attributes:
-        material: the ``HomogenisedMaterial`` or ``HomogenisedMaterial3D`` of n points.
+        material: the ``HomogenisedMaterial`` of n points.
         state: ``MaterialState`` of the last accepted increment.
         peak: per point, the largest ``|sigma|`` component accepted so far [N/m or Pa], shape (n,).
         call_totals: each backend diagnostic summed over the trials since the last recorded increment.
@@ -68,7 +67,7 @@ class MaterialPoints:
         last_trial: the macro increment (n, n_voigt) of the last trial with finite increments (None before).
     """
 
-    def __init__(self, material: HomogenisedMaterial | HomogenisedMaterial3D) -> None:
+    def __init__(self, material: HomogenisedMaterial) -> None:
         self.material = material
         self.model = material.model
         self.state = material.init_state()

@@ -2,38 +2,28 @@
 
 ``HomogenisedMaterial(cell_model, orient, mesostructure, n_points)`` holds, for each of
 ``n_points`` material points (e.g. finite-element Gauss points), its own set of oriented cells
-(``orient``: theta_k with weights w_k), built from the point's mesostructure. ``update(state, d_e)`` advances every point by its own
+(``orient``: frames R_k with weights w_k), built from the point's mesostructure. ``update(state, d_e)`` advances every point by its own
 macro strain increment with ONE batched ``cell_model.step`` call over all points' cells and
 returns the new state, the stresses and the consistent tangents. Like ``step``, ``update``
 is pure: trial increments (Newton iterations of a stress control or of a finite-element
 solve) start again from the same saved state.
 
-Plane strain, Voigt form, in the macro frame (axes 1, 2)::
+Voigt form in the macro frame, of the dimension d of the cells (``warp_hcell.core.dimension``): in
+the plane e = (eps11, eps22, gamma12), gamma12 = 2 eps12 [-] (engineering shear, as plane-strain
+finite elements take it) and sigma = (sigma11, sigma22, sigma12) [N/m]; in space e = (eps11, eps22,
+eps33, eps23, eps13, eps12) (tensor shear) [-] and sigma in [Pa]. Sign convention: compression and
+contraction positive.
 
-    e = (eps11, eps22, gamma12), gamma12 = 2 eps12 [-];  sigma = (sigma11, sigma22, sigma12) [N/m].
+Localisation (spec sections 3, 13): cell k with frame R_k gets the normal strains along its axes,
+L_k d_e, shear of the cell dropped (``orientation``). Stress: sigma = sum_k w_k R_k S_k R_k^T / V with
+the volume rule V = V0 J (``orientation.VOLUME_RULE``), J multiplied by prod_a (1 - d_eps_aa) per
+increment. Tangent: D = d sigma / d(d_e) = ::
 
-Sign convention: compression and contraction positive.
+    (1/V) sum_k w_k A_k C_k L_k + sigma (x) (1/(1 - d_eps_aa) for a = 1..d, 0 for the shears),
 
-Localisation (spec sections 3, 13): cell k at theta_k gets d_eps_n = P_k . d_e and
-d_eps_t = Q_k . d_e with P_k = (c^2, s^2, s c), Q_k = (s^2, c^2, -s c); shear of the cell is
-dropped. Stress: sigma = sum_k w_k R_k S_k R_k^T / V with the volume rule V = V0 J
-(``orientation.VOLUME_RULE``), J multiplied by (1 - d_eps11)(1 - d_eps22) per increment.
-Tangent: D = d sigma / d(d_e) = ::
-
-    (1/V) sum_k w_k [P_k; Q_k]^T C_k [P_k; Q_k] + sigma (x) (1/(1 - d_eps11), 1/(1 - d_eps22), 0),
-
-with C_k = d(S_nn, S_tt)/d(d_eps_n, d_eps_t) the cell tangent of the increment (the last term
-is -sigma (x) dV/d(d_e) / V). The cell moment's S_nt (zero for the H-cell) enters the stress but
-not the tangent.
-
-In 3D (``HomogenisedMaterial3D``, cells of dimension 3 oriented by
-``homogenization.material.orientation``) the macro tensors have six components (11, 22, 33, 23, 13, 12)
-(tensor shear strains, not engineering ones) [-] and [Pa]; cell k with frame R_k = (n, t1, t2) gets
-(d_eps_n, d_eps_t1, d_eps_t2) = L_k d_e (normal strains along its axes, shear dropped), and
-sigma = sum_k w_k R_k S_k R_k^T / V, V = V0 J, J multiplied by (1 - d_eps11)(1 - d_eps22)(1 - d_eps33)
-per increment. Tangent: D = (1/V) sum_k w_k A_k C_k L_k + sigma (x) (1/(1 - d_eps_aa), a = 1..3; 0, 0, 0),
-A_k [6 x 3] the macro components of R_k e_a e_a R_k^T and C_k = d(S_nn, S_t1t1, S_t2t2)/d(d_eps_n,
-d_eps_t1, d_eps_t2) the cell tangent (off-diagonal moments enter the stress, not the tangent).
+A_k the macro components of R_k e_a e_a R_k^T and C_k the cell tangent d(S_aa)/d(d_eps_b) of the
+increment (the last term is -sigma (x) dV/d(d_e) / V). The cell moment's off-diagonal terms (zero
+for the H-cells) enter the stress but not the tangent.
 """
 
 from __future__ import annotations
@@ -46,6 +36,7 @@ import numpy as np
 
 from homogenization.material import orientation as orient_mod
 from warp_hcell.core.contract import CellModel
+from warp_hcell.core.dimension import dimension
 from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell
 
 
@@ -57,9 +48,9 @@ class MaterialState:
         cells: cell-model state of all n_points * n_orientations cells, point-major (cell
             p * n_orientations + k is orientation k of point p).
         J: volume ratio V / V0 [-], shape (n_points,).
-        strain: accumulated macro strain (eps11, eps22, gamma12) [-], shape (n_points, 3),
-            the sum of the increments, compression positive.
-        stress: (sigma11, sigma22, sigma12) [N/m], shape (n_points, 3), compression positive.
+        strain: accumulated macro strain [-], shape (n_points, n_voigt) (module docstring), the
+            sum of the increments, compression positive.
+        stress: macro stress [N/m or Pa], shape (n_points, n_voigt), compression positive.
     """
 
     cells: Any
@@ -74,9 +65,9 @@ class MaterialUpdate:
 
     Attributes:
         state: the material state at the end of the increment.
-        stress: (sigma11, sigma22, sigma12) [N/m], shape (n_points, 3), compression positive.
-        tangent: d stress / d(d_eps11, d_eps22, d_gamma12) [N/m], shape (n_points, 3, 3);
-            None when not asked for.
+        stress: macro stress [N/m or Pa], shape (n_points, n_voigt), compression positive.
+        tangent: d stress / d(d_e) [N/m or Pa], shape (n_points, n_voigt, n_voigt); None when
+            not asked for.
         diagnostics: the backend's diagnostics of the one ``step`` call.
     """
 
@@ -86,36 +77,24 @@ class MaterialUpdate:
     diagnostics: Mapping[str, float] = field(default_factory=dict)
 
 
-def voigt_localisation(orient: orient_mod.Orientations) -> np.ndarray:
-    """G_k = [P_k; Q_k] [-], shape (N, 2, 3): (d_eps_n, d_eps_t) = G_k @ (d_eps11, d_eps22, d_gamma12)."""
-    c, s = np.cos(orient.theta), np.sin(orient.theta)
-    G = np.empty((orient.n_cells, 2, 3))
-    G[:, 0] = np.stack([c * c, s * s, s * c], axis=1)
-    G[:, 1] = np.stack([s * s, c * c, -s * c], axis=1)
-    return G
-
-
-class _HomogenisedMaterialBase:
-    """What a batch of material points does in either dimension (the module docstring).
-
-    A subclass sets ``dim``, the number ``n_voigt`` of macro components, the localisation
-    ``self.L`` [-], shape (N, dim, n_voigt), in ``_localisation`` and the averaged cell
-    tangent in ``_cell_tangent_average``.
+class HomogenisedMaterial:
+    """A batch of H-model material points of dimension d (module docstring), d that of ``orient``.
 
     Args:
-        cell_model: any ``CellModel`` of cells of dimension ``dim``; ``update(...,
-            with_tangent=True)`` needs one whose step takes ``with_tangent`` (ValueError
-            otherwise); plain updates call ``step`` without it.
-        orient: orientations and fabric weights shared by every point.
+        cell_model: any ``CellModel`` of cells of dimension d; ``update(..., with_tangent=True)``
+            needs one whose step takes ``with_tangent`` (ValueError otherwise); plain updates call
+            ``step`` without it.
+        orient: orientations and fabric weights shared by every point (``orientation.orientations``
+            or ``orientation.orientations_3d``).
         mesostructure: the cell of every point, or a sequence of n_points, one per point (a
             weaker zone of a specimen has its own, e.g. an H-cell of larger alpha0), all of one
-            topology and of dimension ``dim``; every cell of a point starts from the point's
+            topology and of dimension d; every cell of a point starts from the point's
             mesostructure.
         n_points: number of material points.
-    """
 
-    dim: int
-    n_voigt: int
+    Raises:
+        ValueError: n_points < 1, or a mesostructure of another dimension than ``orient``.
+    """
 
     def __init__(self, cell_model: CellModel, orient: orient_mod.OrientationSet,
                  mesostructure: Mesostructure | Sequence[Mesostructure], n_points: int) -> None:
@@ -126,21 +105,23 @@ class _HomogenisedMaterialBase:
         self.n_points = int(n_points)
         self.mesostructures, self.point_mesostructure = per_cell(mesostructure, self.n_points)
         """Distinct mesostructures, and the index of each point's one, shape (n_points,)."""
+        self.space = dimension(orient.frames.shape[1])
+        """The ``Dimension`` of the points and their cells."""
+        self.dim, self.n_voigt = self.space.dim, self.space.n_voigt
         for meso in self.mesostructures:
-            if getattr(meso, "dim", 2) != self.dim:
-                raise ValueError(f"mesostructure {meso.name!r} has dimension {getattr(meso, 'dim', 2)}; "
+            if meso.dim != self.dim:
+                raise ValueError(f"mesostructure {meso.name!r} has dimension {meso.dim}; "
                                  f"a material of dimension {self.dim} needs cells of dimension {self.dim}")
-        self.L = self._localisation(orient)
+        n = orient.n_cells
+        self.L = np.array(orient.localisation).reshape(n, self.dim, self.n_voigt)
         """L_k [-], shape (N, dim, n_voigt): the cell's normal strains = L_k @ d_e."""
+        self.L[:, :, self.dim:] /= self.space.shear_strain_factor
+        self.A = np.ascontiguousarray(np.diagonal(orient.averaging.reshape(self.n_voigt, n, self.dim, self.dim),
+                                                  axis1=2, axis2=3))
+        """w_k A_k [-], shape (n_voigt, N, dim): macro components of w_k R_k e_a e_a R_k^T."""
         self.V0 = np.zeros(self.n_points)
         self.returns_tangent = "with_tangent" in inspect.signature(cell_model.step).parameters
         """Whether the backend's step takes ``with_tangent`` (plain updates work without it)."""
-
-    def _localisation(self, orient: orient_mod.OrientationSet) -> np.ndarray:
-        raise NotImplementedError
-
-    def _cell_tangent_average(self, C: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
 
     @property
     def n_cells(self) -> int:
@@ -209,50 +190,16 @@ class _HomogenisedMaterialBase:
         return MaterialUpdate(new, stress, tangent, dict(response.diagnostics))
 
 
-class HomogenisedMaterial(_HomogenisedMaterialBase):
-    """A batch of plane-strain H-model material points (module docstring); Voigt components.
-
-    Args: those of ``_HomogenisedMaterialBase``, with ``orient`` an ``orientation.Orientations``.
-    """
-
-    dim = 2
-    """Spatial dimension: plane strain, three Voigt components."""
-    n_voigt = 3
-
-    def _localisation(self, orient: orient_mod.Orientations) -> np.ndarray:
-        G = voigt_localisation(orient)
-        self.wGT = np.ascontiguousarray((orient.weights[:, None, None] * G).reshape(-1, 3).T)
-        """w_k G_k^T stacked over cells and components [-], shape (3, 2 N)."""
-        return G
-
     def _cell_tangent_average(self, C: np.ndarray) -> np.ndarray:
-        """sum_k w_k G_k^T C_k G_k [N/m], shape (n_points, 3, 3), of C (n_points, N, 2, 2)."""
-        G = self.L
-        # C_k G_k, then the weighted sum of G_k^T (.) over cells and components as one
-        # stacked matmul per point (per-point products: batch invariant)
-        CG = C[..., :, 0, None] * G[None, :, 0, None, :] + C[..., :, 1, None] * G[None, :, 1, None, :]
-        return self.wGT @ CG.reshape(self.n_points, 2 * self.orient.n_cells, 3)
+        """sum_k w_k A_k C_k L_k [N/m or Pa], shape (n_points, n_voigt, n_voigt), of C (n_points, N, dim, dim).
 
-
-class HomogenisedMaterial3D(_HomogenisedMaterialBase):
-    """A batch of 3D H-model material points (module docstring); six tensor components.
-
-    Args: those of ``_HomogenisedMaterialBase``, with ``orient`` an
-    ``orientation.Orientations3D`` and cells of dimension 3 (local strains (n_cells, 3),
-    moments (n_cells, 3, 3), volume [m^3] in ``response.area``).
-    """
-
-    dim = 3
-    """Spatial dimension: six tensor components."""
-    n_voigt = 6
-
-    def _localisation(self, orient: orient_mod.Orientations3D) -> np.ndarray:
-        n = orient.n_cells
-        self.A = np.ascontiguousarray(np.diagonal(orient.averaging.reshape(6, n, 3, 3), axis1=2, axis2=3))
-        """w_k A_k [-], shape (6, N, 3): macro components of w_k R_k e_a e_a R_k^T."""
-        return orient.localisation.reshape(n, 3, 6)
-
-    def _cell_tangent_average(self, C: np.ndarray) -> np.ndarray:
-        """sum_k w_k A_k C_k L_k [Pa], shape (n_points, 6, 6), of C (n_points, N, 3, 3)."""
+        Per-point products, so a point's tangent does not depend on its batch. The two dimensions sum
+        the same terms in different orders (a stacked matmul, an einsum); each order is kept because the
+        runs' files are pinned to it bit for bit.
+        """
+        if self.dim == 2:
+            n = self.orient.n_cells
+            CL = C[..., :, 0, None] * self.L[None, :, 0, None, :] + C[..., :, 1, None] * self.L[None, :, 1, None, :]
+            return self.A.reshape(self.n_voigt, n * self.dim) @ CL.reshape(self.n_points, n * self.dim, self.n_voigt)
         CL = np.einsum("pkab,kbj->pkaj", C, self.L)
         return np.einsum("ika,pkaj->pij", self.A, CL)

@@ -51,6 +51,9 @@ class Dimension:
             [m^2] (a disk per unit thickness) or 4/3 pi r^3 [m^3].
         deviator: Voigt stresses (..., n_voigt) -> q: sigma11 - sigma22 [N/m] in the plane,
             sqrt(3 J2) [Pa] in space.
+        shear_strain_factor: a material point's shear strain per tensor shear component: 2 in the
+            plane (engineering gamma12 = 2 eps12, as plane-strain finite elements take it), 1 in
+            space (tensor components eps23, eps13, eps12).
     """
 
     dim: int
@@ -63,6 +66,7 @@ class Dimension:
     every_axis: str
     grain_measure: Callable[[np.ndarray], np.ndarray]
     deviator: Callable[[np.ndarray], np.ndarray]
+    shear_strain_factor: float
 
     @property
     def n_voigt(self) -> int:
@@ -93,10 +97,10 @@ class Dimension:
 
 _DIMENSIONS = {
     2: Dimension(2, ("11", "22", "12"), ((0, 0), (1, 1), (0, 1)), ("n", "t"), "area", "N/m", (), "both",
-                 lambda radius: math.pi * radius**2, _deviator_planar),
+                 lambda radius: math.pi * radius**2, _deviator_planar, 2.0),
     3: Dimension(3, ("11", "22", "33", "23", "13", "12"), ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)),
                  ("n", "t1", "t2"), "volume", "Pa", (3,), "all three",
-                 lambda radius: 4.0 / 3.0 * math.pi * radius**3, _deviator_spatial),
+                 lambda radius: 4.0 / 3.0 * math.pi * radius**3, _deviator_spatial, 1.0),
 }
 
 
