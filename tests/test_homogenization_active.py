@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from homogenization.learning import active, certificate
-from homogenization.learning.records import Certificate
+from homogenization.learning.records import Certificate, Round
 from homogenization.learning.settings import CertificateSettings
 from training import train as training_train
 from training.config import TrainConfig
@@ -43,15 +43,15 @@ def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, cap
     rounds, cert = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=1, samples_per_round=3000),
                                 certify_settings=CertificateSettings(**SHORT))
     printed = capsys.readouterr().out
-    assert [r["round"] for r in rounds] == [0, 1] and "active round 1: +3000 samples" in printed
+    assert [r.round for r in rounds] == [0, 1] and "active round 1: +3000 samples" in printed
     first, second = rounds
     # measured: 61 % of the scale before (constant-volume compression), 0.77 % after; the same
     # 3,000 samples drawn as the generator draws them (probes_per_state=64) leave 830 %.
-    assert not first["passed"] and first["worst"] > certificate.TARGET
-    assert second["worst"] < first["worst"] / 10 and second["samples_added"] == 3000
+    assert not first.passed and first.worst > certificate.TARGET
+    assert second.worst < first.worst / 10 and second.samples_added == 3000
     meta = json.loads(model.with_suffix(".json").read_text())
-    assert meta["active_learning"] == json.loads(json.dumps(rounds))
-    assert meta["certificate"]["worst"] == second["worst"] == cert.worst
+    assert meta["active_learning"] == json.loads(json.dumps([r.to_dict() for r in rounds]))
+    assert meta["certificate"]["worst"] == second.worst == cert.worst
     assert meta["certificate"] == json.loads(json.dumps(cert.to_dict()))
     assert meta["training_data"]["n_stored"] == n_before + 3000
     with h5py.File(db) as f:
@@ -62,8 +62,8 @@ def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, cap
         old_paths = f["path_id"][source == 0]
         state_id = f["state_id"][source == 1]
     assert np.count_nonzero(source == 1) == 3000 and np.count_nonzero(source == 0) == n_before
-    assert stored[0]["samples"] == 3000 and stored[0]["tests"] == second["tests"]
-    assert first["worst_test"] in second["tests"]
+    assert stored[0]["samples"] == 3000 and stored[0]["tests"] == second.tests
+    assert first.worst_test in second.tests
     assert new_paths.min() > old_paths.max() and state_id.max() < group_rows
 
 
@@ -208,11 +208,16 @@ def hmodel_help(hmodel, command: str, capsys) -> str:
     return capsys.readouterr().out
 
 
+def _round(worst):
+    """A round whose certificate worst is ``worst`` (its other fields placeholders)."""
+    return Round(round=0, samples_added=0, samples_total=0, worst=worst, worst_test="", passed=False, seconds=0.0)
+
+
 def test_multiply_adds_and_the_ladder_rule(tiny):
     _, model = tiny  # TRAIN: --hidden 16, one layer of 16
     assert active.multiply_adds((40, 40), 66, 20) == 66 * 40 + 40 * 40 + 40 * 20
     assert active.WIDTH_LADDER[0] == (40, 40)  # the training default is the ladder's foot
-    slow, fast = [{"worst": 0.5}, {"worst": 0.4}], [{"worst": 0.5}, {"worst": 0.1}]
+    slow, fast = [_round(0.5), _round(0.4)], [_round(0.5), _round(0.1)]
     assert active.next_widths(slow[:1], model) == (16,)  # round 0 alone: samples first
     assert active.next_widths(fast, model) == (16,)  # the round gained 5x: same network
     assert active.next_widths(slow, model) == active.WIDTH_LADDER[0]  # gained 1.25x: the next rung
@@ -227,8 +232,8 @@ def test_rounds_record_their_network_and_a_round_that_gains_little_widens_the_ne
     rounds, _ = active.learn(db, model, TRAIN_CONFIG, settings=active.ActiveSettings(rounds=2, samples_per_round=1000,
                                                                               warm_start=True),
                              certify_settings=CertificateSettings(**SHORT, target=1e-9))
-    assert [r["hidden"] for r in rounds] == [[16], [16], list(active.WIDTH_LADDER[0])]
-    assert [r["warm_start"] for r in rounds] == [None, True, False]
+    assert [r.hidden for r in rounds] == [[16], [16], list(active.WIDTH_LADDER[0])]
+    assert [r.warm_start for r in rounds] == [None, True, False]
     assert "(training 40x40, " in capsys.readouterr().out
     meta = json.loads(model.with_suffix(".json").read_text())
     assert meta["architecture"]["hidden"] == list(active.WIDTH_LADDER[0])

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from homogenization.learning import active, certificate
-from homogenization.learning.records import Certificate, TestResult
+from homogenization.learning.records import Certificate, Round, TestResult
 from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from test_homogenization_active import SHORT, TRAIN_CONFIG, tiny  # noqa: F401 (tiny: the fixture)
 from training import train as training_train
@@ -72,7 +72,8 @@ def test_failing_states_are_those_from_the_departure_on():
 
 
 def _entry(k, worst, not_followed=(), followed=0.0):
-    return {"round": k, "worst": worst, "not_followed": list(not_followed), "followed": followed}
+    return Round(round=k, samples_added=0, samples_total=0, worst=worst, worst_test="", passed=False, seconds=0.0,
+                 not_followed=list(not_followed), followed=followed)
 
 
 def test_progress_rule_and_stall():
@@ -84,10 +85,11 @@ def test_progress_rule_and_stall():
     assert active.improved(_entry(1, 0.08), _entry(0, 0.1)) and not active.improved(_entry(1, 0.095), _entry(0, 0.1))
     settings = ActiveSettings(stall_rounds=2)
     rounds = [_entry(0, 0.1), _entry(1, 0.05), _entry(2, 0.048), _entry(3, 0.06)]
-    assert active.best_round(rounds)["round"] == 1
+    assert active.best_round(rounds).round == 1
     assert not active.stalled(rounds[:3], settings) and active.stalled(rounds, settings)
     # a record without the fields (written before them): an infinite worst counts as one test not followed
-    assert active.progress({"round": 0, "worst": math.inf}) == (1, 0.0, math.inf)
+    old = Round(round=0, samples_added=0, samples_total=0, worst=math.inf, worst_test="", passed=False, seconds=0.0)
+    assert active.progress(old) == (1, 0.0, math.inf)
 
 
 def test_rounds_stop_where_every_failing_test_is_within_the_dems_own_reproducibility():
@@ -150,19 +152,19 @@ def test_rounds_without_progress_stop_with_one_line(tiny, monkeypatch, capsys): 
     rounds, _ = active.learn(db, model, TRAIN_CONFIG, settings=ActiveSettings(rounds=3, samples_per_round=1000,
                                                                              stall_rounds=1, widen=False),
                              certify_settings=CertificateSettings(**SHORT, target=1e-9))
-    assert [r["round"] for r in rounds] == [0, 1]
+    assert [r.round for r in rounds] == [0, 1]
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("active learning stops")]
     assert len(lines) == 1
     line = lines[0]
     assert line.startswith("active learning stops: no progress in rounds 1-1 on round 0 (")
-    assert f"worst test {rounds[1]['worst_test']!r}" in line and "tried 1000 samples on the DEM states of " in line
+    assert f"worst test {rounds[1].worst_test!r}" in line and "tried 1000 samples on the DEM states of " in line
     assert "network 16" in line and "MB" in line
     # a second call finds the run finished: nothing added
-    n = rounds[-1]["samples_total"]
+    n = rounds[-1].samples_total
     again, _ = active.learn(db, model, TRAIN_CONFIG, settings=ActiveSettings(rounds=3, samples_per_round=1000,
                                                                              stall_rounds=1, widen=False),
                             certify_settings=CertificateSettings(**SHORT, target=1e-9))
-    assert again[-1]["samples_total"] == n and "(done before)" in capsys.readouterr().out
+    assert again[-1].samples_total == n and "(done before)" in capsys.readouterr().out
 
 
 def test_the_database_budget_caps_a_round_and_then_stops_the_rounds(tiny, capsys):  # noqa: F811 (the fixture)
@@ -180,13 +182,13 @@ def test_the_database_budget_caps_a_round_and_then_stops_the_rounds(tiny, capsys
     # measured: round 1 adds 1,626 of its 3,000 (at 1.1x the 48-sample file's bytes per sample, its
     # probed states reserved); the grown file packs a sample in less, so rounds 2 and 3 add their 3,000,
     # then 761 fit and round 4 asks 3,000: the loop stops at 1.3 of 1.46 MB
-    added, capped = [r["samples_added"] for r in rounds[1:]], [r["samples_capped"] for r in rounds[1:]]
+    added, capped = [r.samples_added for r in rounds[1:]], [r.samples_capped for r in rounds[1:]]
     assert 3 <= len(rounds) <= 5 and 1000 <= added[0] <= 2000 / active.BUDGET_MARGIN and capped[0] > 0
     assert all(a + c == 3000 for a, c in zip(added, capped))
     assert f"{capped[0]} more did not fit the database budget" in printed
     assert printed.strip().splitlines()[-1].startswith("active learning stops: the database budget is spent (")
     on_disk, raw = sizes(db)
-    assert rounds[-1]["database_mb"] == on_disk / 1e6 and rounds[-1]["database_raw_mb"] == raw / 1e6
+    assert rounds[-1].database_mb == on_disk / 1e6 and rounds[-1].database_raw_mb == raw / 1e6
     assert on_disk <= 1e6 * budget
     with h5py.File(db) as f:
         stored = json.loads(f.attrs["active_learning"])

@@ -159,8 +159,8 @@ def test_a_round_of_active_learning_probes_the_3d_states_of_the_failing_tests(tm
     config = TrainConfig(epochs=8, hidden=(12,), threads=1, rollout=False)
     rounds, _ = active.learn(db, model, config, settings=active.ActiveSettings(rounds=1, samples_per_round=400),
                              certify_settings=CertificateSettings(**short), log=lambda *lines: None)
-    assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["samples_added"] == 400
-    assert set(rounds[1]["tests"]) <= {info["name"] for info, _ in certificate.tests_of((2e5,), 0.01, dim=3)}
+    assert [r.round for r in rounds] == [0, 1] and rounds[1].samples_added == 400
+    assert set(rounds[1].tests) <= {info["name"] for info, _ in certificate.tests_of((2e5,), 0.01, dim=3)}
     cert = json.loads(model.with_suffix(".json").read_text())["certificate"]
     assert cert["settings"]["spatial_rule"] == [3, 1] and cert["settings"]["n_cells"] == 3
     with h5py.File(db) as f:

@@ -176,5 +176,5 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
         stamp.write_text(cert.model_sha256 + "\n")
         say(f"figure: {figure}")
     say(*certificate.summary_lines(cert),
-        f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples in {db}")
+        f"{len(rounds) - 1} active round(s), {rounds[-1].samples_total} samples in {db}")
     return certificate.exit_code(cert)

@@ -184,6 +184,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     with output_lock(database):
         rounds, cert = active.learn(database, args.out, config, settings=budget, certify_settings=measured,
                                     seed=args.seed, threads=args.threads, log=say)
-    say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1]['samples_total']} samples "
+    say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1].samples_total} samples "
         f"in {database}; certificate -> {metadata_path(args.out)}")
     return certificate.exit_code(cert)

@@ -45,7 +45,7 @@ import numpy as np
 from homogenization.learning import certificate
 from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from homogenization.learning.envelope import equilibrium_settings, verdict
-from homogenization.learning.records import Certificate
+from homogenization.learning.records import Certificate, Round
 from training import train as training_train
 from training.checkpoint import metadata_path
 from training.config import TrainConfig
@@ -111,14 +111,15 @@ MIN_WORST_GAIN = 0.1
 round's by at least this fraction of it [-] (``improved``)."""
 
 
-def progress(entry: Mapping[str, Any]) -> tuple[int, float, float]:
+def progress(entry: Round) -> tuple[int, float, float]:
     """(tests the ANN could not follow, the fractions of those tests it followed, summed,
-    certificate worst) of a round's record (``round_entry``)."""
-    unfollowed = entry.get("not_followed", ["?"] if math.isinf(entry["worst"]) else [])
-    return len(unfollowed), float(entry.get("followed", 0.0)), float(entry["worst"])
+    certificate worst) of a round's record (``round_entry``; one written without ``not_followed``
+    counts an infinite worst as one test not followed)."""
+    unfollowed = entry.not_followed if entry.not_followed is not None else (["?"] if math.isinf(entry.worst) else [])
+    return len(unfollowed), float(entry.followed or 0.0), float(entry.worst)
 
 
-def improved(new: Mapping[str, Any], best: Mapping[str, Any]) -> bool:
+def improved(new: Round, best: Round) -> bool:
     """Whether round record ``new`` made progress on ``best``: fewer tests the ANN cannot follow;
     or as many (some), followed further by ``MIN_FOLLOWED_GAIN``; or all followed and the worst
     ``MIN_WORST_GAIN`` lower."""
@@ -130,7 +131,7 @@ def improved(new: Mapping[str, Any], best: Mapping[str, Any]) -> bool:
     return w_new <= (1.0 - MIN_WORST_GAIN) * w_best
 
 
-def best_round(rounds: Sequence[Mapping[str, Any]]) -> Mapping[str, Any]:
+def best_round(rounds: Sequence[Round]) -> Round:
     """The round of ``rounds`` that the later ones did not improve on (``improved``)."""
     best = rounds[0]
     for entry in rounds[1:]:
@@ -139,16 +140,16 @@ def best_round(rounds: Sequence[Mapping[str, Any]]) -> Mapping[str, Any]:
     return best
 
 
-def stalled(rounds: Sequence[Mapping[str, Any]], settings: ActiveSettings) -> bool:
+def stalled(rounds: Sequence[Round], settings: ActiveSettings) -> bool:
     """Whether the last ``settings.stall_rounds`` rounds made no progress on the best before them."""
-    return len(rounds) > settings.stall_rounds and rounds[-1]["round"] - best_round(rounds)["round"] >= settings.stall_rounds
+    return len(rounds) > settings.stall_rounds and rounds[-1].round - best_round(rounds).round >= settings.stall_rounds
 
 
-def stall_line(rounds: Sequence[Mapping[str, Any]], cert: Certificate, db: Path, margin: float = 1.0) -> str:
+def stall_line(rounds: Sequence[Round], cert: Certificate, db: Path, margin: float = 1.0) -> str:
     """One line: why the loop stops without progress (which test, which rounds, what they tried;
     ``margin``: the rounds' ``ActiveSettings.departure_margin``)."""
     best, last = best_round(rounds), rounds[-1]
-    tried = [r for r in rounds if r["round"] > best["round"]]
+    tried = [r for r in rounds if r.round > best.round]
     test = cert.test(cert.worst_test)
     if math.isinf(cert.worst):
         where = (f"the ANN could not follow it past increment {_or_unknown(test.departure)} of "
@@ -156,11 +157,11 @@ def stall_line(rounds: Sequence[Mapping[str, Any]], cert: Certificate, db: Path,
     else:
         where = f"{100 * cert.worst:.3f} % off" + (f" from increment {test.departure} of {test.n_increments}"
                                                    if test.departure is not None else "")
-    tests = sorted({name for r in tried for name in r.get("tests", [])})
-    widths = sorted({"x".join(map(str, r["hidden"])) for r in tried if "hidden" in r})
-    return (f"active learning stops: no progress in rounds {tried[0]['round']}-{last['round']} on round "
-            f"{best['round']} ({_figure(best)}): round {last['round']} worst test {cert.worst_test!r}, {where}; "
-            f"tried {sum(r['samples_added'] for r in tried)} samples on the DEM states of {', '.join(tests) or 'no test'}"
+    tests = sorted({name for r in tried for name in r.tests or []})
+    widths = sorted({"x".join(map(str, r.hidden)) for r in tried if r.hidden is not None})
+    return (f"active learning stops: no progress in rounds {tried[0].round}-{last.round} on round "
+            f"{best.round} ({_figure(best)}): round {last.round} worst test {cert.worst_test!r}, {where}; "
+            f"tried {sum(r.samples_added for r in tried)} samples on the DEM states of {', '.join(tests) or 'no test'}"
             f"{'' if margin >= 1.0 else f' from {margin:g} of a test before their departure on'}, network "
             f"{', '.join(widths) or '?'}; database {_mb(db):.1f} MB")
 
@@ -178,7 +179,7 @@ def unresolvable_line(cert: Certificate) -> str | None:
             f"and no round of samples can close that; the certificate stays failed")
 
 
-def _figure(entry: Mapping[str, Any]) -> str:
+def _figure(entry: Round) -> str:
     n, followed, worst = progress(entry)
     if n:
         return f"{n} test(s) not followed, {followed:.2f} of a test followed"
@@ -287,27 +288,27 @@ def _current(cert: Certificate | None, model: Path, measured: CertificateSetting
             and equilibrium_settings(cert) == hybrid)
 
 
-def _record(model: Path, rounds: list[dict[str, Any]], cert: Certificate) -> None:
+def _record(model: Path, rounds: list[Round], cert: Certificate) -> None:
     """Store the certificate and the rounds in the model's JSON."""
     certificate.write_certificate(model, cert)
     write_rounds(model, rounds)
 
 
-def round_line(entry: Mapping[str, Any]) -> str:
+def round_line(entry: Round) -> str:
     """One line of a round's report."""
-    capped = entry.get("samples_capped", 0)
-    return (f"active round {entry['round']}: +{entry['samples_added']} samples ({entry['samples_total']} in all"
+    capped = entry.samples_capped
+    return (f"active round {entry.round}: +{entry.samples_added} samples ({entry.samples_total} in all"
             + (f"; {capped} more did not fit the database budget" if capped else "") + "), "
-            f"certificate worst {100 * entry['worst']:.3f} % ({entry['worst_test']}), "
-            f"{entry.get('verdict', 'passed' if entry['passed'] else 'failed').upper()}, {entry['seconds']:.1f} s"
-            + (f", database {entry['database_mb']:.1f} MB ({entry['database_raw_mb']:.1f} MB uncompressed)"
-               if "database_mb" in entry else "")
-            + (f" (training {'x'.join(map(str, entry['hidden']))}, {entry['epochs']} epochs"
-               f"{', warm start' if entry.get('warm_start') else ''})"
-               if "epochs" in entry else ""))
+            f"certificate worst {100 * entry.worst:.3f} % ({entry.worst_test}), "
+            f"{(entry.verdict or ('passed' if entry.passed else 'failed')).upper()}, {entry.seconds:.1f} s"
+            + (f", database {entry.database_mb:.1f} MB ({entry.database_raw_mb:.1f} MB uncompressed)"
+               if entry.database_mb is not None else "")
+            + (f" (training {'x'.join(map(str, entry.hidden))}, {entry.epochs} epochs"
+               f"{', warm start' if entry.warm_start else ''})"
+               if entry.epochs is not None else ""))
 
 
-def round_entry(k: int, db: Path, model: Path, cert: Certificate, seconds: float, **extra: Any) -> dict[str, Any]:
+def round_entry(k: int, db: Path, model: Path, cert: Certificate, seconds: float, **extra: Any) -> Round:
     """The record of round ``k`` (0: the model as given) after its certificate ``cert``: the
     samples (``extra`` gives ``samples_added`` and what else the round knows), the certificate's
     figures, the tests the ANN could not follow (``not_followed``) and how far it followed them
@@ -315,16 +316,15 @@ def round_entry(k: int, db: Path, model: Path, cert: Certificate, seconds: float
     (``database_mb``, and ``database_raw_mb`` uncompressed) and the training (``training_record``)."""
     file_bytes, raw_bytes = database.sizes(db)
     lost = [t for t in cert.tests if not math.isfinite(t.figure)]
-    return {"round": k, **extra, "samples_total": _n_samples(db), "worst": cert.worst,
-            "worst_test": cert.worst_test, "passed": cert.passed, "verdict": cert.verdict,
-            "seconds": seconds, "not_followed": [t.name for t in lost],
-            "followed": float(sum((t.departure or 0) / t.n_increments for t in lost if t.n_increments)),
-            "database_mb": file_bytes / 1e6, "database_raw_mb": raw_bytes / 1e6, **training_record(model)}
+    return Round(round=k, **extra, samples_total=_n_samples(db), worst=cert.worst, worst_test=cert.worst_test,
+                 passed=cert.passed, verdict=cert.verdict, seconds=seconds, not_followed=[t.name for t in lost],
+                 followed=float(sum((t.departure or 0) / t.n_increments for t in lost if t.n_increments)),
+                 database_mb=file_bytes / 1e6, database_raw_mb=raw_bytes / 1e6, **training_record(model))
 
 
 def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
           certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
-          log: Callable[..., None] = print) -> tuple[list[dict[str, Any]], Certificate]:
+          log: Callable[..., None] = print) -> tuple[list[Round], Certificate]:
     """Certify ``model`` (trained on ``db``) and run active rounds until it passes, the budget
     of ``settings`` is spent, ``settings.stall_rounds`` rounds make no progress (``stalled``:
     one line says which test, which rounds and what they tried, ``stall_line``), or every failing
@@ -351,14 +351,14 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
     start = time.perf_counter()
     meta = json.loads(metadata_path(model).read_text())
     stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
-    rounds = [r for r in meta.get("active_learning") or [] if r["round"] <= len(stored)]
+    rounds = [r for r in map(Round.from_dict, meta.get("active_learning") or []) if r.round <= len(stored)]
     added_total = sum(r["samples"] for r in stored)
     stored_cert = None if meta.get("certificate") is None else Certificate.from_dict(meta["certificate"])
     dim = from_description(meta["mesostructure"]).dim
     if meta["training_data"]["sha256"] != file_sha256(db):  # appended, not yet retrained
         widths = tuple((stored[-1].get("hidden") if stored else None) or meta["architecture"]["hidden"])
         train_model(db, model, round_config(config, model, settings, widths), rounds)
-    elif _current(stored_cert, model, certify_settings, dim) and rounds and rounds[-1]["round"] == len(stored) and (
+    elif _current(stored_cert, model, certify_settings, dim) and rounds and rounds[-1].round == len(stored) and (
             verdict(stored_cert) != "failed" or len(stored) >= settings.rounds
             or added_total >= settings.max_samples or stalled(rounds, settings)
             or unresolvable_line(stored_cert) is not None
@@ -367,7 +367,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         return rounds, stored_cert
     t0 = time.perf_counter()
     cert, states = _certify(model, certify_settings, settings, threads)
-    if not rounds or rounds[-1]["round"] != len(stored):
+    if not rounds or rounds[-1].round != len(stored):
         rounds.append(round_entry(len(stored), db, model, cert, time.perf_counter() - t0,
                                   samples_added=stored[-1]["samples"] if stored else 0,
                                   **({"tests": stored[-1].get("tests", [])} if stored else {})))
@@ -440,13 +440,13 @@ def multiply_adds(widths: Sequence[int], n_in: int, n_out: int) -> int:
     return sum(a * b for a, b in zip(sizes[:-1], sizes[1:]))
 
 
-def next_widths(rounds: Sequence[Mapping[str, Any]], model: Path) -> tuple[int, ...]:
+def next_widths(rounds: Sequence[Round], model: Path) -> tuple[int, ...]:
     """Hidden widths of the next round's network: ``model``'s, or, where the last round's
     certificate worst fell by less than ``WIDEN_BELOW_GAIN`` from the round before it (two
     rounds known), the first rung of ``WIDTH_LADDER`` that costs more multiply-adds than
     ``model``'s network (none left: ``model``'s)."""
     widths, n_in, n_out = _architecture(model)
-    if len(rounds) < 2 or rounds[-1]["worst"] * WIDEN_BELOW_GAIN <= rounds[-2]["worst"]:
+    if len(rounds) < 2 or rounds[-1].worst * WIDEN_BELOW_GAIN <= rounds[-2].worst:
         return widths
     cost = multiply_adds(widths, n_in, n_out)
     return next((rung for rung in WIDTH_LADDER if multiply_adds(rung, n_in, n_out) > cost), widths)
@@ -461,7 +461,7 @@ def training_record(model: Path) -> dict[str, Any]:
             "train_seconds": meta["history"]["seconds"], "warm_start": None if warm is None else bool(warm["used"])}
 
 
-def train_model(db: Path, model: Path, config: TrainConfig, rounds: list[dict[str, Any]]) -> None:
+def train_model(db: Path, model: Path, config: TrainConfig, rounds: list[Round]) -> None:
     """Train ``model`` on ``db`` from scratch (``training.train.train_and_save``, settings
     ``config``, the model overwritten); its JSON keeps the ``rounds`` so far (an interrupted loop
     resumes with them)."""
@@ -469,11 +469,11 @@ def train_model(db: Path, model: Path, config: TrainConfig, rounds: list[dict[st
     write_rounds(model, rounds)
 
 
-def write_rounds(model: Path, rounds: list[dict[str, Any]]) -> None:
+def write_rounds(model: Path, rounds: Sequence[Round]) -> None:
     """Store ``rounds`` in the model's JSON under ``active_learning`` (atomically)."""
     path = metadata_path(model)
     meta = json.loads(path.read_text())
-    meta["active_learning"] = rounds
+    meta["active_learning"] = [r.to_dict() for r in rounds]
     with atomic_write(path) as tmp:
         tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
 

@@ -1,4 +1,4 @@
-"""The records of the learning loop as the model's JSON stores them: ``Certificate`` and its ``TestResult`` rows.
+"""The records of the learning loop as the model's JSON stores them: ``Certificate`` and its ``TestResult`` rows, ``Round``.
 
 Part of the model card's file format: its ``format_version`` (``training.checkpoint.FORMAT_VERSION``)
 versions them too, so a record carries no version key of its own. ``to_dict`` gives back the
@@ -148,6 +148,70 @@ class Certificate:
     def test(self, name: str) -> TestResult:
         """The test called ``name`` (StopIteration where none is)."""
         return next(t for t in self.tests if t.name == name)
+
+
+@dataclass(frozen=True)
+class Round:
+    """One active-learning round as the model's JSON stores it under ``"active_learning"``
+    (``homogenization.learning.active.round_entry``; round 0: the model as given).
+
+    The training's figures (``hidden``, ``epochs``, ``train_seconds``, ``warm_start``) are written
+    together where the round records its training (``epochs`` not None), ``warm_start`` as null
+    where the training was not asked to start warm.
+    """
+
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({
+        "verdict", "not_followed", "followed", "database_mb", "database_raw_mb", "samples_capped", "tests",
+        "departures", "hidden", "epochs", "train_seconds", "warm_start"})
+    """Keys recorded only where they arise (None: absent), ``warm_start`` apart (see above)."""
+
+    round: int
+    """The round's index [-] (0: the model as given)."""
+    samples_added: int
+    """Samples the round appended to the database [-]."""
+    samples_total: int
+    """The database's samples after it [-]."""
+    worst: float
+    """Its certificate's worst [-] (inf: a test the ANN could not follow)."""
+    worst_test: str
+    """The name of that test."""
+    passed: bool
+    """Its certificate passed."""
+    seconds: float
+    """Time the round took (probes, training, certificate) [s]."""
+    verdict: str | None = None
+    """Its certificate's verdict ("passed", "failed", "weak")."""
+    not_followed: list[str] | None = None
+    """The tests the ANN could not follow."""
+    followed: float | None = None
+    """The fractions of those tests' increments it followed, summed [-]."""
+    database_mb: float | None = None
+    """The database's size on disk after the round [MB]."""
+    database_raw_mb: float | None = None
+    """Likewise, uncompressed [MB]."""
+    samples_capped: int | None = None
+    """Samples the round left out for the database's size budget [-]."""
+    tests: list[str] | None = None
+    """The failing tests whose DEM states it probed."""
+    departures: dict[str, list[int]] | None = None
+    """Of those tests: [departure increment, increments] [-]."""
+    hidden: list[int] | None = None
+    """Hidden widths of the network it trained [-]."""
+    epochs: int | None = None
+    """Epochs the training ran [-]."""
+    train_seconds: float | None = None
+    """Time the training took [s]."""
+    warm_start: bool | None = None
+    """Whether the training started from the previous weights (None: not asked)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The round as the model's JSON stores it."""
+        return {**_to_dict(self), **({"warm_start": self.warm_start} if self.epochs is not None else {})}
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> "Round":
+        """The round of its ``to_dict`` (ValueError, one line, for an unknown or missing key)."""
+        return cls(**_from_dict(cls, values))
 
 
 def certificate_of(metadata: Mapping[str, Any]) -> Certificate | None:
