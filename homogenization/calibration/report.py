@@ -22,6 +22,7 @@ from homogenization.calibration.forward import CONTACT_LAW_KEY, ForwardSettings,
 from homogenization.output.figure_style import GRID, LABELS, apply_style, figure_legend
 from homogenization.output.figures import save_figure
 from warp_hcell.core.cli import quiet_warp
+from warp_hcell.core.dimension import dimension
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 
@@ -122,7 +123,8 @@ def fit_figure(tests: Sequence[Measurement], log_post: bayes.Posterior, samples:
             if confirm is not None:
                 (h_dem,) = ax.plot(x, s * confirm[row][c], "--", color="C3", label="DEM at the posterior mean")
                 handles_row.append(h_dem)
-            ax.set(xlabel=LABELS["eps1"], ylabel=(LABELS_3D if test.dim == 3 else LABELS)[c], title=f"{test.name} ({test.kind}, p0 = {test.p0:g} {'Pa' if test.dim == 3 else 'N/m'})")
+            ax.set(xlabel=LABELS["eps1"], ylabel={2: LABELS, 3: LABELS_3D}[test.dim][c],
+                   title=f"{test.name} ({test.kind}, p0 = {test.p0:g} {dimension(test.dim).stress_unit})")
             ax.grid(**GRID)
             handles = handles or handles_row
         for col in range(len(test.observed), n_cols):

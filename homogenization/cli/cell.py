@@ -61,6 +61,8 @@ COLUMNS_3D = ("l1", "l2", "l3",
               *(f"{name}_{plane}" for plane in "ab" for name in ("alpha_deg", "d1", "d2", "N1", "N2", "T1")),
               "S_nn", "S_t1t1", "S_t2t2")
 """Columns of the output file of a 3D cell, before the optional grain positions."""
+CELL_KINDS = {2: "planar", 3: "3D"}
+"""How a message names a cell of each dimension."""
 DEFAULT_3D_CELL = "hcell3d"
 """Builder spec of the cell of a three-column path without --mesostructure (built at --alpha0, --radius)."""
 DEM_ONLY_BACKEND = "dem"
@@ -110,8 +112,8 @@ def read_path(path: Path) -> np.ndarray:
         raise UserError(f"cannot read path file {path}: {exc}") from None
     header = tuple(name.strip() for name in lines[0].split(",")) if lines else ()
     if header not in PATH_HEADERS.values():
-        raise UserError(f"{path}: header must be '{','.join(PATH_HEADERS[2])}' (a planar cell) or "
-                        f"'{','.join(PATH_HEADERS[3])}' (a 3D cell), got {lines[0] if lines else ''!r}")
+        raise UserError(f"{path}: header must be '{','.join(PATH_HEADERS[2])}' (a {CELL_KINDS[2]} cell) or "
+                        f"'{','.join(PATH_HEADERS[3])}' (a {CELL_KINDS[3]} cell), got {lines[0] if lines else ''!r}")
     count = {2: "two", 3: "three"}[len(header)]
     if len(lines) == 1:
         raise UserError(f"{path}: no increments after the header")
@@ -179,7 +181,7 @@ def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
     state = model.init_state(mesostructure, 1)
     rows = []
     columns: list[str] | None = None
-    wanted = COLUMNS_3D if mesostructure.dim == 3 else COLUMNS
+    wanted = {2: COLUMNS, 3: COLUMNS_3D}[mesostructure.dim]
     for increment in d_eps:
         state, _ = model.step(state, increment[None, :])
         observed = model.observables(state)
@@ -202,7 +204,7 @@ def path_cell(args: argparse.Namespace, dim: int) -> Mesostructure:
     meso = spec.build(args.alpha0)
     if meso.dim != dim:
         raise UserError(f"{args.path}: a path of {len(PATH_HEADERS[dim])} columns ({','.join(PATH_HEADERS[dim])}) "
-                        f"but --mesostructure {spec.text} is a {'3D' if meso.dim == 3 else 'planar'} cell, whose "
+                        f"but --mesostructure {spec.text} is a {CELL_KINDS[meso.dim]} cell, whose "
                         f"path has the header {','.join(PATH_HEADERS[meso.dim])}")
     return meso
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from homogenization.output.figure_style import number
+from warp_hcell.core.dimension import dimension
 from warp_hcell.mesostructures.builders import parse_mesostructure
 from warp_hcell.mesostructures.mesostructure import MesostructureError
 
@@ -87,7 +88,7 @@ def describe(parameters: Mapping[str, Any], *, test: str = "", backend: str | No
         "backend": BACKEND_NAMES.get(backend, str(backend)) if backend else "",
         "mesostructure": mesostructure_name(parameters.get("mesostructure")),
         "alpha0": f"$\\alpha_0$ = {alpha0:g}°" if alpha0 is not None and math.isfinite(alpha0) else "",
-        "p0": f"$p_0 = {number(p0)}$ {'Pa' if dim == 3 else 'N/m'}" if p0 else "",
+        "p0": f"$p_0 = {number(p0)}$ {dimension(dim).stress_unit}" if p0 else "",
         "n_orientations": f"$N$ = {int(n)}" if n else "",
         "erosion": f"fines removed at $\\varepsilon_1$ = {100 * erode_at:g} %" if erode_at is not None else "",
         "fabric": f"$a_f$ = {fabric:g}" if fabric else "",
