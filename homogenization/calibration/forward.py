@@ -3,7 +3,7 @@
 ``simulate(test, params, settings)`` runs the test (isotropic compression to p0, then
 constant-volume or drained shear) for n parameter sets at once and returns the model's q, p
 and eps_v at the measured eps1 values. With the analytical backend the n sets are ONE
-``HomogenisedMaterial`` (2D) or ``HomogenisedMaterial3D`` (triaxial tests) of n material
+``HomogenisedMaterial`` (of the test's dimension) of n material
 points, each with its own cells (``AnalyticalCell.with_cell_laws`` /
 ``Analytical3DCell.with_cell_laws``: per-cell kn, kt/kn, phi_g and alpha0; with the Hertz-Mindlin
 law ``Analytical3DCell.with_hertz_cell_laws``: per-cell G, nu, phi_g and alpha0; with ``alpha0_spread`` the

@@ -13,7 +13,7 @@ component; a failure raises ``ControlError``), and the history recorded
 
 The same driver runs 3D (triaxial) programmes, whose steps control (11, 22, 33)
 (``loading.COMPONENTS_3D``), on cells of dimension 3 oriented by ``homogenization.material.orientation``
-(``HomogenisedMaterial3D``): p = tr(sigma) / 3 and q = sqrt(3 J2) (``invariants``), stresses in Pa
+(``HomogenisedMaterial``): p = tr(sigma) / 3 and q = sqrt(3 J2) (``invariants``), stresses in Pa
 and the volume in m^3. A step's ``coupling`` makes the stress-controlled components also follow
 sigma11 (constant p, constant b): the residual of component i is sigma_i - c_i (sigma11 - sigma11 at
 the start of the step) - its ramped target.
