@@ -27,6 +27,7 @@ of the outer triangles in 3D (``cell_measure``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
@@ -136,7 +137,7 @@ def contacts(schema: CellSchema, x: torch.Tensor) -> Contacts:
     b = branches(schema, x)
     dist = torch.linalg.vector_norm(b, dim=-1)
     u = b / dist.unsqueeze(-1)
-    w = torch.stack([-u[..., 1], u[..., 0]], dim=-1) if schema.dim == 2 else None
+    w = SPRINGS[schema.dim].tangent(u)
     rsum = schema.radius[schema.pairs[:, 0]] + schema.radius[schema.pairs[:, 1]]
     overlap = rsum - dist
     contact = dist <= rsum * (1.0 + schema.contact_tolerance)
@@ -205,6 +206,53 @@ def coulomb_cap_vector(trial: torch.Tensor, normal: torch.Tensor, mu: float) -> 
     cap = mu * normal
     scale = torch.where(size > cap * (1.0 + CAP_SLACK), cap / torch.where(size > 0, size, 1.0), 1.0)
     return trial * scale.unsqueeze(-1)
+
+
+def _rotated(u: torch.Tensor) -> torch.Tensor:
+    """Planar unit tangents w = (-u_t, u_n) (..., 2) of unit normals ``u`` (..., 2)."""
+    return torch.stack([-u[..., 1], u[..., 0]], dim=-1)
+
+
+def _scalar_spring(schema: CellSchema, old: Contacts, new: Contacts, shear_force: torch.Tensor, mid: torch.Tensor,
+                   relative: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Planar springs (n, n_pairs) after an increment, and where the Coulomb cap acted (``advance``)."""
+    w_mid = _rotated(mid)
+    trial = torch.where(old.contact, shear_force, torch.zeros_like(shear_force)) + schema.kt * torch.sum(relative * w_mid, dim=-1)
+    shear = torch.where(new.contact, coulomb_cap(trial, new.normal_force, schema.mu), torch.zeros_like(trial))
+    return shear, new.contact & (torch.abs(trial) > schema.mu * new.normal_force)
+
+
+def _vector_spring(schema: CellSchema, old: Contacts, new: Contacts, shear_force: torch.Tensor, mid: torch.Tensor,
+                   relative: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Spatial springs (n, n_pairs, 3) after an increment, and where the Coulomb cap acted (``advance``)."""
+    carried = torch.where(old.contact.unsqueeze(-1), carried_spring(shear_force, new.normal),
+                          torch.zeros_like(shear_force))
+    slip = relative - torch.sum(relative * mid, dim=-1, keepdim=True) * mid
+    trial = carried + schema.kt * slip
+    shear = torch.where(new.contact.unsqueeze(-1), coulomb_cap_vector(trial, new.normal_force, schema.mu),
+                        torch.zeros_like(trial))
+    return shear, new.contact & (torch.linalg.vector_norm(trial, dim=-1) > schema.mu * new.normal_force)
+
+
+@dataclass(frozen=True)
+class Spring:
+    """The tangential spring of one dimension: a scalar along w in the plane, a vector in the
+    contact's tangent plane in space (module docstring).
+
+    Attributes:
+        tangent: unit normals u (..., dim) -> the unit tangents w (..., dim) of a scalar spring,
+            or None (a vector spring needs none).
+        update: (schema, contacts before, contacts after, springs before [N], unit mid-increment
+            normals (n, n_pairs, dim), branch change (n, n_pairs, dim) [m]) -> (the new springs [N],
+            bool (n, n_pairs): the Coulomb cap acted); ``advance`` documents the law.
+    """
+
+    tangent: Callable[[torch.Tensor], torch.Tensor | None]
+    update: Callable[..., tuple[torch.Tensor, torch.Tensor]]
+
+
+SPRINGS = {2: Spring(_rotated, _scalar_spring), 3: Spring(lambda u: None, _vector_spring)}
+"""The tangential spring of a cell by its dimension."""
 
 
 @dataclass(frozen=True)
@@ -307,19 +355,7 @@ def advance(schema: CellSchema, cell_size: torch.Tensor, free_position: torch.Te
     mid = 0.5 * (old.branch + new.branch)
     mid = mid / torch.linalg.vector_norm(mid, dim=-1, keepdim=True)
     relative = new.branch - old.branch
-    if schema.dim == 2:
-        w_mid = torch.stack([-mid[..., 1], mid[..., 0]], dim=-1)
-        trial = torch.where(old.contact, shear_force, torch.zeros_like(shear_force)) + schema.kt * torch.sum(relative * w_mid, dim=-1)
-        shear = torch.where(new.contact, coulomb_cap(trial, new.normal_force, schema.mu), torch.zeros_like(trial))
-        capped = new.contact & (torch.abs(trial) > schema.mu * new.normal_force)
-    else:
-        carried = torch.where(old.contact.unsqueeze(-1), carried_spring(shear_force, new.normal),
-                              torch.zeros_like(shear_force))
-        slip = relative - torch.sum(relative * mid, dim=-1, keepdim=True) * mid
-        trial = carried + schema.kt * slip
-        shear = torch.where(new.contact.unsqueeze(-1), coulomb_cap_vector(trial, new.normal_force, schema.mu),
-                            torch.zeros_like(trial))
-        capped = new.contact & (torch.linalg.vector_norm(trial, dim=-1) > schema.mu * new.normal_force)
+    shear, capped = SPRINGS[schema.dim].update(schema, old, new, shear_force, mid, relative)
     opened = (old.normal_force > 0.0) & (new.normal_force == 0.0)
     force = pair_forces(new, shear)
     return Increment(new_size, new_free, shear, love_weber(new, force), cell_measure(x_new, schema.outer), capped,

@@ -32,6 +32,7 @@ import torch
 
 from training.cell_physics import CellSchema
 from training.network import features
+from warp_hcell.core.dimension import dimension
 from warp_hcell.core.provenance import file_sha256
 
 FORMAT = "meso-hmodel-database"
@@ -155,7 +156,7 @@ def load_database(path: str | Path) -> Database:
     n_pairs = schema_arrays["pairs"].shape[0]
     stored = {"before/" + name: value for name, value in before.items()} | {"d_eps": d_eps}
     shapes = {"before/cell_size": (n, dim), "before/free_position": (n, n_free),
-              "before/shear_force": (n, n_pairs) if dim == 2 else (n, n_pairs, dim), "d_eps": (n, dim)}
+              "before/shear_force": (n, n_pairs, *dimension(dim).spring_shape), "d_eps": (n, dim)}
     for name, shape in shapes.items():
         if stored[name].shape != shape:
             raise DataError(f"{path}: {name} has shape {stored[name].shape}, expected {shape}")

@@ -85,12 +85,10 @@ def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, n
             reach = (radius[i] + radius[j]) * (1.0 + tol)
             for c in range(n):
                 if held[i, c] or held[j, c]:
-                    b0 = x[j, 0, c] - x[i, 0, c]
-                    b1 = x[j, 1, c] - x[i, 1, c]
-                    square = b0 * b0 + b1 * b1
-                    if dim == 3:
-                        b2 = x[j, 2, c] - x[i, 2, c]
-                        square = square + b2 * b2
+                    square = 0.0
+                    for a in range(dim):
+                        b = x[j, a, c] - x[i, a, c]
+                        square += b * b
                     if math.sqrt(square) <= reach:
                         held[i, c] = False
                         held[j, c] = False

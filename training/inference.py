@@ -35,7 +35,8 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 from __future__ import annotations
 
 import threading
-from typing import NamedTuple
+from dataclasses import dataclass
+from typing import Callable, NamedTuple
 
 import numpy as np
 import torch
@@ -48,6 +49,7 @@ from training.fast_step3d import advance3d, features3d, physics3d
 from training.fast_tangent import moment_tangent, probe_feature_tangent
 from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
 from training.perceptron import Perceptron
+from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import DemSettings
 
 
@@ -78,6 +80,31 @@ class _Compiled:
         if self._entry is None:
             self._entry = self._kernel.compile(tuple(self._kernel.typeof_pyval(a) for a in args))
         return self._entry(*args)
+
+
+@dataclass(frozen=True)
+class Kernels:
+    """The compiled kernels of the cells of one dimension (``FastAdvance``).
+
+    Attributes:
+        features, advance: steps 1 and 3 (module docstring): ``training.fast_features.features`` and
+            ``training.fast_increment.advance``, or ``training.fast_step3d.features3d`` and ``advance3d``.
+        tangent: ``training.fast_tangent.moment_tangent``, or None where the tangent is not compiled.
+        correct, physics: the equilibrium corrections and the contact law after them
+            (``training.fast_equilibrium3d.correct3d``, ``training.fast_step3d.physics3d``), or None
+            where the cells take none.
+    """
+
+    features: Callable
+    advance: Callable
+    tangent: Callable | None
+    correct: Callable | None
+    physics: Callable | None
+
+
+KERNELS = {2: Kernels(features, advance, moment_tangent, None, None),
+           3: Kernels(features3d, advance3d, None, correct3d, physics3d)}
+"""The compiled kernels of a cell by its dimension."""
 
 
 class FastIncrement(NamedTuple):
@@ -169,10 +196,11 @@ class FastAdvance:
                                       for layer in net.mlp if isinstance(layer, torch.nn.Linear)])
         self._local = threading.local()
         self.dim = int(frac.shape[1])
-        self._features = _Compiled(features if self.dim == 2 else features3d)
-        self._advance = _Compiled(advance if self.dim == 2 else advance3d)
-        self._tangent = _Compiled(moment_tangent)
-        if int(corrections) < 0 or (int(corrections) > 0 and self.dim != 3):
+        kernels = KERNELS[self.dim]
+        self._features = _Compiled(kernels.features)
+        self._advance = _Compiled(kernels.advance)
+        self._tangent = None if kernels.tangent is None else _Compiled(kernels.tangent)
+        if int(corrections) < 0 or (int(corrections) > 0 and kernels.correct is None):
             raise ValueError(f"corrections = {corrections}: equilibrium corrections are >= 0 and for spatial cells only")
         tolerance = DemSettings().force_tolerance if tolerance is None else tolerance
         if not tolerance > 0:
@@ -190,8 +218,8 @@ class FastAdvance:
         self.shift = float(shift)
         self.tolerance = float(tolerance)
         self._displacement = _Compiled(free_displacement)
-        self._correct = _Compiled(correct3d)
-        self._physics = _Compiled(physics3d)
+        self._correct = None if kernels.correct is None else _Compiled(kernels.correct)
+        self._physics = None if kernels.physics is None else _Compiled(kernels.physics)
 
     def _workspace(self, n: int) -> _Workspace:
         """This thread's scratch arrays for ``n`` cells (kept from its previous call with as many)."""
@@ -233,15 +261,16 @@ class FastAdvance:
         [N m], (n, 2, 2), by forward-mode differentiation of the same increment (``training.fast_tangent``;
         planar cells only: ValueError for a spatial one)."""
         dim = self.dim
-        if with_tangent and dim != 2:
+        if with_tangent and self._tangent is None:
             raise ValueError("the compiled tangent is planar; take the tangent of a spatial cell from torch autograd")
         size, free, shear = (_cells_last(a) for a in (cell_size, free_position, shear_force))
         d_eps = np.ascontiguousarray(d_eps, dtype=np.float64)
         n, n_free, n_pairs = size.shape[-1], self.cells.free_dofs.shape[0], self.cells.pairs.shape[0]
-        shear_shape = (n_pairs, n) if dim == 2 else (n_pairs, 3, n)
+        springs = (n_pairs, *dimension(dim).spring_shape)
+        shear_shape = (*springs, n)
         if size.shape != (dim, n) or free.shape != (n_free, n) or shear.shape != shear_shape or d_eps.shape != (n, dim):
             raise ValueError(f"state shapes {cell_size.shape}, {free_position.shape}, {shear_force.shape} and d_eps "
-                             f"{d_eps.shape}: expected (n, {dim}), (n, {n_free}), (n, {n_pairs}{'' if dim == 2 else ', 3'}),"
+                             f"{d_eps.shape}: expected (n, {dim}), (n, {n_free}), (n, {', '.join(map(str, springs))}),"
                              f" (n, {dim})")
         work = self._workspace(n)
         self._features(size, free, shear, d_eps, self.cells, self.law, self.scaling, work.before)

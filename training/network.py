@@ -31,7 +31,8 @@ Nothing here knows any particular cell; the dimension is the schema's. Everythin
 
 from __future__ import annotations
 
-from typing import Sequence
+from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import torch
 from torch import nn
@@ -53,9 +54,46 @@ PAIR_FEATURES_3D = ("overlap", "contact", "branch_n", "branch_t1", "branch_t2", 
 """Features of each active pair of a spatial cell."""
 
 
+def _planar_pairs(overlap, contact, closed, fn, normal, shear_force, mu: float, force_scale: float) -> torch.Tensor:
+    """``PAIR_FEATURES`` columns (n, n_active, 6) of a planar cell's active pairs (``features_and_contacts``)."""
+    fs = torch.where(contact, shear_force, 0.0)
+    ratio = torch.where(closed, fs / (mu * torch.where(closed, fn, 1.0)), 0.0)
+    return torch.stack([overlap, contact.to(fn.dtype), normal[..., 0], normal[..., 1], fs / force_scale, ratio], dim=2)
+
+
+def _spatial_pairs(overlap, contact, closed, fn, normal, shear_force, mu: float, force_scale: float) -> torch.Tensor:
+    """``PAIR_FEATURES_3D`` columns (n, n_active, 9) of a spatial cell's active pairs (``features_and_contacts``)."""
+    fs = torch.where(contact.unsqueeze(-1), shear_force, 0.0)
+    size = torch.linalg.vector_norm(fs, dim=-1)
+    ratio = torch.where(closed, size / (mu * torch.where(closed, fn, 1.0)), 0.0)
+    return torch.cat([overlap.unsqueeze(-1), contact.to(fn.dtype).unsqueeze(-1), normal, fs / force_scale,
+                      ratio.unsqueeze(-1)], dim=2)
+
+
+@dataclass(frozen=True)
+class PairFeatures:
+    """The features of each active pair of a cell of one dimension.
+
+    Attributes:
+        names: the features' names, in input order.
+        columns: (overlap / D clipped, contact bool, closed bool, f_n [N], unit normals (..., dim),
+            springs [N] (n, n_active[, 3]), mu, kn D [N]) of the active pairs -> their features
+            (n, n_active, len(names)).
+    """
+
+    names: tuple[str, ...]
+    columns: Callable[..., torch.Tensor]
+
+
+PAIRS = {2: PairFeatures(PAIR_FEATURES, _planar_pairs), 3: PairFeatures(PAIR_FEATURES_3D, _spatial_pairs)}
+"""The pair features of a cell by its dimension."""
+
+
 def pair_features(dim: int) -> tuple[str, ...]:
     """Names of the features of each active pair of a cell of dimension ``dim``, in input order."""
-    return PAIR_FEATURES if dim == 2 else PAIR_FEATURES_3D
+    return PAIRS[dim].names
+
+
 COMPLIANCE_SCALE = 0.5
 """Initial and reference compliance C [1/kn]: a free grain between two contacts."""
 RELAXATION_RAMP = 1e-7
@@ -104,17 +142,8 @@ def features_and_contacts(schema: CellSchema, active: torch.Tensor, cell_size: t
     closed = fn > 0
     normal = c.normal.index_select(1, index)
     overlap = torch.clamp(c.overlap.index_select(1, index) / diameter, min=-GAP_CLIP)
-    if schema.dim == 2:
-        fs = torch.where(contact, shear_force.index_select(1, index), 0.0)
-        ratio = torch.where(closed, fs / (schema.mu * torch.where(closed, fn, 1.0)), 0.0)
-        pair = torch.stack([overlap, contact.to(fn.dtype), normal[..., 0], normal[..., 1], fs / force_scale, ratio],
-                           dim=2)
-    else:
-        fs = torch.where(contact.unsqueeze(-1), shear_force.index_select(1, index), 0.0)
-        size = torch.linalg.vector_norm(fs, dim=-1)
-        ratio = torch.where(closed, size / (schema.mu * torch.where(closed, fn, 1.0)), 0.0)
-        pair = torch.cat([overlap.unsqueeze(-1), contact.to(fn.dtype).unsqueeze(-1), normal, fs / force_scale,
-                          ratio.unsqueeze(-1)], dim=2)
+    pair = PAIRS[schema.dim].columns(overlap, contact, closed, fn, normal, shear_force.index_select(1, index),
+                                     schema.mu, force_scale)
     feats = torch.cat([u, cell_size / diameter, free_position / diameter, free_position / axis_length,
                        pair.reshape(pair.shape[0], -1)], dim=1)
     if load_features:
