@@ -37,6 +37,7 @@ import numpy as np
 from warp_hcell.core import libm
 from warp_hcell.core.contract import StateSchema
 from warp_hcell.core.cli import progress_bar
+from warp_hcell.database.dimensions import DIMENSIONS
 from warp_hcell.database.learning_state import evaluate, free_coordinates
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings
 
@@ -67,15 +68,7 @@ def leg_directions(settings: DatabaseSettings, dim: int = 2) -> np.ndarray:
     direction: its rings near z = 0 are the isochoric directions every cell of an undrained
     test follows (as psi = 135 and 315 deg in 2D).
     """
-    k = np.arange(settings.n_directions)
-    if dim == 2:
-        psi = 2.0 * np.pi * k / settings.n_directions
-        return np.stack([libm.cos(psi), libm.sin(psi)], axis=1)
-    z = 1.0 - (2.0 * k + 1.0) / settings.n_directions
-    ring, phi = np.sqrt(1.0 - z * z), k * np.pi * (3.0 - math.sqrt(5.0))
-    e_1, e_2, e_v = np.array([[2.0, -1.0, -1.0], [0.0, 1.0, -1.0], [1.0, 1.0, 1.0]]) / np.sqrt([[6.0], [2.0], [3.0]])
-    # term by term, not a matrix product: BLAS picks its kernel (FMA or not) by CPU
-    return (ring * libm.cos(phi))[:, None] * e_1 + (ring * libm.sin(phi))[:, None] * e_2 + z[:, None] * e_v
+    return DIMENSIONS[dim].leg_directions(settings.n_directions)
 
 
 def path_length(d_eps: np.ndarray) -> np.ndarray:
@@ -127,7 +120,7 @@ def turn_draws(settings: DatabaseSettings, start_id: int, n_levels: int,
     negated = rng.random(shape) < settings.reversal_negated_fraction
     turn = rng.uniform(math.radians(settings.reversal_min_angle_deg), math.pi, size=shape)
     sense = np.where(rng.random(shape) < 0.5, -1.0, 1.0)
-    plane = None if dim == 2 else libm.standard_normal(rng, (*shape, dim))
+    plane = DIMENSIONS[dim].turn_plane(rng, shape)
     return steps.astype(np.int64), np.where(negated, math.pi, sense * turn), plane
 
 
@@ -392,13 +385,14 @@ def turn_branches(explorer: Explorer, cell_model, legs: Mapping[str, np.ndarray]
     dim = directions.shape[1]
     steps = np.empty((leg_dir.size, n_rev), np.int64)
     angle = np.empty((leg_dir.size, n_rev))
-    plane = None if dim == 2 else np.empty((leg_dir.size, n_rev, dim))
+    plane = None
     for start_id in np.unique(leg_start):
         mine = leg_start == start_id
         turn_step, turn_angle, turn_plane = turn_draws(settings, int(start_id), n_levels, dim)
         steps[mine] = turn_step[leg_level[mine], leg_dir[mine]]
         angle[mine] = turn_angle[leg_level[mine], leg_dir[mine]]
-        if plane is not None:
+        if turn_plane is not None:
+            plane = np.empty((leg_dir.size, n_rev, dim)) if plane is None else plane
             plane[mine] = turn_plane[leg_level[mine], leg_dir[mine]]
     leg = np.repeat(np.arange(leg_dir.size), n_rev)
     branch = np.tile(np.arange(n_rev), leg_dir.size)

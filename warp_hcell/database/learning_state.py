@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from warp_hcell.core.contact import CAP_SLACK, coulomb_cap, normal_force
+from warp_hcell.core.contact import normal_force
 from warp_hcell.core.contract import StateSchema
+from warp_hcell.database.dimensions import DIMENSIONS
 from warp_hcell.dem.love_weber import love_weber_tension_positive, to_compression_positive
 from warp_hcell.mesostructures.mesostructure import cell_measure
 from warp_hcell.core.parameters import ContactLaw
@@ -41,27 +42,6 @@ def positions(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndar
 def free_coordinates(schema: StateSchema, position: np.ndarray) -> np.ndarray:
     """The free-DOF coordinates [m] of grain centres ``position`` (n, n_grains, dim): (n, n_free)."""
     return np.ascontiguousarray(position[:, schema.free_dofs[:, 0], schema.free_dofs[:, 1]])
-
-
-def _planar_forces(shear_force: np.ndarray, normal: np.ndarray, u: np.ndarray, touching: np.ndarray,
-                   mu: float) -> tuple[np.ndarray, np.ndarray]:
-    """(capped spring forces (n, n_pairs), forces on grain i (n, n_pairs, 2)) of planar pairs."""
-    shear = np.where(touching, coulomb_cap(np.asarray(shear_force, dtype=np.float64), normal, mu), 0.0)
-    force = np.stack([-normal * u[..., 0] - shear * u[..., 1], -normal * u[..., 1] + shear * u[..., 0]], axis=-1)
-    return shear, force
-
-
-def _spatial_forces(shear_force: np.ndarray, normal: np.ndarray, u: np.ndarray, touching: np.ndarray,
-                    mu: float) -> tuple[np.ndarray, np.ndarray]:
-    """(capped spring vectors (n, n_pairs, 3), forces on grain i (n, n_pairs, 3)) of spatial pairs:
-    the spring is scaled down to mu f_n where longer by more than ``CAP_SLACK`` (the 3D DEM's cap,
-    ``warp_hcell.dem.contact``, made idempotent)."""
-    trial = np.asarray(shear_force, dtype=np.float64)
-    size = np.sqrt(np.sum(trial * trial, axis=-1))
-    cap = mu * normal
-    scale = np.where(size > cap * (1.0 + CAP_SLACK), cap / np.where(size > 0.0, size, 1.0), 1.0)
-    shear = np.where(touching[..., None], trial * scale[..., None], 0.0)
-    return shear, shear - normal[..., None] * u
 
 
 def pair_normal_forces(schema: StateSchema, x: np.ndarray, contact_law: ContactLaw, contact_tolerance: float
@@ -101,8 +81,7 @@ def evaluate(schema: StateSchema, cell_size: np.ndarray, free_position: np.ndarr
     pi, pj = schema.pairs[:, 0], schema.pairs[:, 1]
     b, dist, touching, normal = pair_normal_forces(schema, x, contact_law, contact_tolerance)
     u = b / np.where(dist > 0.0, dist, 1.0)[..., None]
-    pair_forces = _planar_forces if schema.dim == 2 else _spatial_forces
-    shear, force = pair_forces(shear_force, normal, u, touching, contact_law.mu)
+    shear, force = DIMENSIONS[schema.dim].pair_forces(shear_force, normal, u, touching, contact_law.mu)
     net = np.zeros_like(x)
     for p in range(schema.n_pairs):  # pair order fixed: the DEM's summation order
         net[:, pi[p]] += force[:, p]

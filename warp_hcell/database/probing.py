@@ -35,6 +35,7 @@ import numpy as np
 
 from warp_hcell.core import libm
 from warp_hcell.core.contract import StateSchema
+from warp_hcell.database.dimensions import DIMENSIONS
 from warp_hcell.database.exploration import DEM_PREFIX, force_floor
 from warp_hcell.database.format import OBSERVABLES_GROUP
 from warp_hcell.database.learning_state import evaluate, free_coordinates
@@ -88,15 +89,14 @@ def probe_increments(settings: DatabaseSettings, seed: int, chunk: int, n: int, 
     [probe_min, probe_max]. Drawn from stream (1, chunk) of ``seed`` only.
     """
     gen = rng(seed, 1, chunk)
-    angle = gen.uniform(0.0, 2.0 * np.pi, n) if dim == 2 else None
-    focus = gen.random(n) < settings.probe_focus_fraction
-    lo = np.where(focus, settings.probe_focus_min, settings.probe_min)
-    hi = np.where(focus, settings.probe_focus_max, settings.probe_max)
-    magnitude = libm.exp(libm.log(lo) + gen.random(n) * (libm.log(hi) - libm.log(lo)))
-    if angle is not None:
-        return magnitude[:, None] * np.stack([libm.cos(angle), libm.sin(angle)], axis=1)
-    direction = libm.standard_normal(gen, (n, dim))
-    return magnitude[:, None] * direction / np.linalg.norm(direction, axis=1, keepdims=True)
+
+    def magnitude() -> np.ndarray:
+        focus = gen.random(n) < settings.probe_focus_fraction
+        lo = np.where(focus, settings.probe_focus_min, settings.probe_min)
+        hi = np.where(focus, settings.probe_focus_max, settings.probe_max)
+        return libm.exp(libm.log(lo) + gen.random(n) * (libm.log(hi) - libm.log(lo)))
+
+    return DIMENSIONS[dim].probes(gen, n, magnitude)
 
 
 def perturbations(settings: DatabaseSettings, seed: int, chunk: int, n: int, n_free: int,
