@@ -8,10 +8,12 @@ import h5py
 import numpy as np
 import pytest
 
+from homogenization.backends.ann import default_model_path
 from homogenization.learning import active, certificate
 from homogenization.learning.records import Certificate, Round
 from homogenization.learning.settings import CertificateSettings
 from training import train as training_train
+from training.card import read_card
 from training.config import TrainConfig
 from training.dataset import load_database
 from warp_hcell.core.provenance import file_sha256
@@ -218,9 +220,10 @@ def test_multiply_adds_and_the_ladder_rule(tiny):
     assert active.multiply_adds((40, 40), 66, 20) == 66 * 40 + 40 * 40 + 40 * 20
     assert active.WIDTH_LADDER[0] == (40, 40)  # the training default is the ladder's foot
     slow, fast = [_round(0.5), _round(0.4)], [_round(0.5), _round(0.1)]
-    assert active.next_widths(slow[:1], model) == (16,)  # round 0 alone: samples first
-    assert active.next_widths(fast, model) == (16,)  # the round gained 5x: same network
-    assert active.next_widths(slow, model) == active.WIDTH_LADDER[0]  # gained 1.25x: the next rung
+    card = read_card(model)
+    assert active.next_widths(slow[:1], card) == (16,)  # round 0 alone: samples first
+    assert active.next_widths(fast, card) == (16,)  # the round gained 5x: same network
+    assert active.next_widths(slow, card) == active.WIDTH_LADDER[0]  # gained 1.25x: the next rung
 
 
 def test_rounds_record_their_network_and_a_round_that_gains_little_widens_the_next(tiny, monkeypatch, capsys):
@@ -253,7 +256,8 @@ def test_an_earlier_run_is_recognised_by_its_rounds_data_and_options_not_by_what
     model.write_bytes(b"")
     args = train_cli.build_parser().parse_args(["--data", str(db), "--out", str(model)])
     config = training_train.config_record(training_train.config_of(args))
-    meta = {"training_data": {"path": str(db)}, "config": {**config, "hidden": [48, 48], "init_from": str(model)},
+    meta = {**json.loads(default_model_path(2).with_suffix(".json").read_text()),
+            "training_data": {"path": str(db)}, "config": {**config, "hidden": [48, 48], "init_from": str(model)},
             "active_learning": [{"round": 0, "hidden": config["hidden"]}]}
 
     def continues(database=db, **changes) -> bool:

@@ -14,6 +14,7 @@ from homogenization.learning import certificate
 from homogenization.learning.records import Certificate, Round
 from homogenization.backends.ann import default_model_path
 from homogenization.cli import biaxial, certify
+from training.card import read_card
 from warp_hcell.core.cli import run_main
 from warp_hcell.core.provenance import file_sha256
 
@@ -115,6 +116,7 @@ def test_the_shipped_model_files_round_trip_byte_for_byte_through_their_records(
     if "active_learning" in meta:  # the 2D model's rounds: the older, shorter record
         meta["active_learning"] = [Round.from_dict(r).to_dict() for r in meta["active_learning"]]
     assert json.dumps(meta, indent=2, sort_keys=True) + "\n" == text
+    assert json.dumps(read_card(path).to_dict(), indent=2, sort_keys=True) + "\n" == text  # the model card
 
 
 def test_a_round_writes_back_what_it_read_and_its_training_with_warm_start_null():

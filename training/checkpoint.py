@@ -7,7 +7,7 @@ Contract:
   mesostructure schema (topology and reference geometry), the contact law, the
   mesostructure description and its sha256, the normalisation statistics and whatever the
   caller adds (training-data hash, metrics, configuration, versions).
-- ``load_checkpoint(path)`` rebuilds a ``MesoNet`` from the JSON and loads the
+- ``load_checkpoint(path[, metadata])`` rebuilds a ``MesoNet`` from the JSON and loads the
   ``state_dict`` with ``torch.load(weights_only=True)``: no pickled module is ever executed.
   A missing, corrupt or mismatched pair raises ``CheckpointError`` (one line).
 - ``check_compatible`` refuses a model trained for another contact law;
@@ -99,12 +99,13 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
     return meta
 
 
-def load_checkpoint(path: str | Path) -> tuple[MesoNet, dict[str, Any]]:
-    """Rebuild the network saved at ``path``; returns ``(net in eval mode, metadata)``."""
+def load_checkpoint(path: str | Path, metadata: dict[str, Any] | None = None) -> tuple[MesoNet, dict[str, Any]]:
+    """Rebuild the network saved at ``path``; returns ``(net in eval mode, metadata)``. ``metadata``:
+    its JSON as ``read_metadata`` gave it (None: read here)."""
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path}: no such model file")
-    meta = read_metadata(path)
+    meta = read_metadata(path) if metadata is None else metadata
     try:
         law = ContactLaw.from_dict(meta["contact_law"])
         schema_arrays = {k: np.asarray(meta["schema"][k]) for k in SCHEMA_FIELDS}

@@ -95,6 +95,7 @@ from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
 from training.equilibrium import corrected_advance
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
+from training.card import ModelCard
 from training.ood import index_path, load_index, OodError, OodIndex, probe_columns, state_features, WARN_FRACTION
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
@@ -247,6 +248,7 @@ class AnnCell(ArrayStateMixin):
             the corrections' result there too (to measure what the escalation adds); None: as the
             certificate's hybrid where K comes from it (``envelope.escalation_of``), else
             ``default_escalation`` (cells with fine grains).
+        card: ``model``'s JSON already read (``training.card.read_card``); None: read here.
 
     Raises:
         training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
@@ -262,7 +264,7 @@ class AnnCell(ArrayStateMixin):
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
                  device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL,
                  equilibrium_corrections: int | None = None, equilibrium_tolerance: float | None = None,
-                 dem_escalation: bool | None = None) -> None:
+                 dem_escalation: bool | None = None, card: ModelCard | None = None) -> None:
         require_linear_law(contact_law, "the meso-ANN backend (its networks learn from DEM databases of the linear law)")
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
@@ -272,7 +274,7 @@ class AnnCell(ArrayStateMixin):
         if model is None and not path.is_file():
             raise CheckpointError(f"{path}: the default {self.default_dim}D ANN model is not installed; pass "
                                   f"model=PATH (--model)")
-        self.net, self.metadata = load_checkpoint(path)
+        self.net, self.metadata = load_checkpoint(path, None if card is None else card.to_dict())
         check_compatible(self.metadata, kn=contact_law.kn, kt_over_kn=contact_law.kt_over_kn,
                          phi_g_deg=contact_law.phi_g_deg, source=str(path))
         self.trained_on = from_description(self.metadata["mesostructure"])

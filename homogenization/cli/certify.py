@@ -84,13 +84,14 @@ def check_writable(args: argparse.Namespace) -> None:
         raise UserError(f"--data {args.data}: no such database file")
 
 
-def rebuild_index(model: Path, data: Path) -> None:
-    """(Re)build ``model``'s out-of-distribution index from database ``data`` and say where it went."""
+def rebuild_index(model: Path, data: Path, metadata: dict | None = None) -> None:
+    """(Re)build ``model``'s out-of-distribution index from database ``data`` and say where it went
+    (``metadata``: the model's JSON already read, None: read here)."""
     from training.checkpoint import load_checkpoint  # noqa: PLC0415 (torch: only when the command runs)
     from training.dataset import load_database  # noqa: PLC0415
     from training.ood import index_for_model, index_path  # noqa: PLC0415
 
-    net, meta = load_checkpoint(model)
+    net, meta = load_checkpoint(model, metadata)
     try:
         database = load_database(data)
     except (OSError, KeyError) as exc:
@@ -112,19 +113,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     certificate_settings(args)  # its one-line errors before torch is imported
     from homogenization.learning import certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from homogenization.element_test import driver
-    from training.checkpoint import metadata_path, read_metadata  # noqa: PLC0415
+    from training.card import read_card  # noqa: PLC0415
+    from training.checkpoint import metadata_path  # noqa: PLC0415
     from warp_hcell.mesostructures.files import from_description  # noqa: PLC0415
 
-    meta = read_metadata(args.model)  # CheckpointError (one line) for a missing or unreadable JSON
-    measured = certificate_settings(args, from_description(meta["mesostructure"]))
+    card = read_card(args.model)  # CheckpointError (one line) for a missing or unreadable JSON
+    measured = certificate_settings(args, from_description(card.mesostructure))
     say(equilibrium_line(measured, args.equilibrium_corrections is not None))
     if not args.verbose:
         quiet_warp()
     meso = args.mesostructure.build(None) if args.mesostructure is not None else None
     if args.data is not None:
-        rebuild_index(args.model, args.data)
+        rebuild_index(args.model, args.data, card.to_dict())
     try:
-        cert = certificate.certify(args.model, mesostructure=meso, metadata=meta, **measured.keywords())
+        cert = certificate.certify(args.model, mesostructure=meso, card=card, **measured.keywords())
     except driver.ControlError as exc:
         raise UserError(f"a test did not converge: {exc}") from None
     if argv is not None:
@@ -135,5 +137,5 @@ def main(argv: Sequence[str] | None = None) -> int:
             tmp.write_text(json.dumps(cert.to_dict(), indent=2, sort_keys=True) + "\n")
     if args.write:
         with writing_to(metadata_path(args.model)):
-            say(f"certificate -> {certificate.write_certificate(args.model, cert)}")
+            say(f"certificate -> {certificate.write_certificate(args.model, cert, card)}")
     return certificate.exit_code(cert)

@@ -146,6 +146,7 @@ def _train_config(args: argparse.Namespace, measured: CertificateSettings) -> Tr
 def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings,
            budget: ActiveSettings, measured: CertificateSettings, config: TrainConfig) -> int:
     from homogenization.learning import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
+    from training.card import read_card  # noqa: PLC0415
     from training.checkpoint import metadata_path  # noqa: PLC0415
     from warp_hcell.database.generate import generate  # noqa: PLC0415
     from warp_hcell.database.shards import DiskFull  # noqa: PLC0415
@@ -161,13 +162,13 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
             raise UserError(f"no space left on the device writing {exc.filename}; free space and rerun the same "
                             f"command to resume") from None
         say(f"database: {db}, {settings.samples} samples")
-    meta = metadata_path(model)
-    if meta.is_file() and model.is_file() and json.loads(meta.read_text())["training_data"]["sha256"] == file_sha256(db):
+    card = read_card(model) if metadata_path(model).is_file() and model.is_file() else None
+    if card is not None and card.training_data["sha256"] == file_sha256(db):
         say(f"model: {model} (done before)")
     else:
-        active.train_model(db, model, config, [])
+        card = active.train_model(db, model, config, [])
     rounds, cert = active.learn(db, model, config, settings=budget, seed=args.seed, threads=args.threads, log=say,
-                                certify_settings=measured)
+                                certify_settings=measured, card=card)
     stamp = out / "certificate.png.sha256"
     if figure.is_file() and stamp.is_file() and stamp.read_text().strip() == cert.model_sha256:
         say(f"figure: {figure} (done before)")

@@ -31,7 +31,6 @@ training.train`` alone leaves the model uncertified and says how to certify it.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import sys
@@ -76,25 +75,25 @@ def enriched_path(args: argparse.Namespace) -> Path:
     return data if writable and not args.enrich_copy else args.out.with_name(args.out.stem + ENRICHED_SUFFIX)
 
 
-def _continues(args: argparse.Namespace, database: Path) -> bool:
-    """Whether ``args.out`` is the model of an earlier run of this command with these options:
-    its JSON records active-learning rounds (none yet, too), training data --data or
-    ``database``, and the training configuration of ``args``, but for what the rounds set
-    (``ROUND_SET``: the hidden widths are those of its round 0)."""
-    from training.checkpoint import metadata_path  # noqa: PLC0415 (torch: only when the command runs)
+def _continues(args: argparse.Namespace, database: Path):
+    """The card (``training.card.ModelCard``) of ``args.out`` where it is the model of an earlier run
+    of this command with these options: its JSON records active-learning rounds (none yet, too),
+    training data --data or ``database``, and the training configuration of ``args``, but for what
+    the rounds set (``ROUND_SET``: the hidden widths are those of its round 0); None otherwise."""
+    from training.card import read_card  # noqa: PLC0415 (torch: only when the command runs)
+    from training.checkpoint import metadata_path  # noqa: PLC0415
 
-    meta_file = metadata_path(args.out)
-    if args.overwrite or not (args.out.is_file() and meta_file.is_file()):
-        return False
-    meta = json.loads(meta_file.read_text())
-    trained_on = Path(meta["training_data"]["path"]).resolve()
-    rounds = meta.get("active_learning")
+    if args.overwrite or not (args.out.is_file() and metadata_path(args.out).is_file()):
+        return None
+    card = read_card(args.out)
+    trained_on = Path(card.training_data["path"]).resolve()
+    rounds = card.active_learning
     if rounds is None or trained_on not in (args.data.resolve(), database.resolve()):
-        return False
-    first_hidden = rounds[0]["hidden"] if rounds and "hidden" in rounds[0] else meta["config"]["hidden"]
+        return None
+    first_hidden = rounds[0]["hidden"] if rounds and "hidden" in rounds[0] else card.config["hidden"]
     ours = training_config.config_record(training_config.config_of(args))
-    return first_hidden == ours["hidden"] and all(meta["config"].get(k) == v for k, v in ours.items()
-                                                  if k not in ROUND_SET)
+    same = first_hidden == ours["hidden"] and all(card.config.get(k) == v for k, v in ours.items() if k not in ROUND_SET)
+    return card if same else None
 
 
 def _database_mesostructure(path: Path):
@@ -151,12 +150,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     budget, measured = active_settings(args), surrogate_of(args)
     from homogenization.learning import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
     from training import train as training_train  # noqa: PLC0415
+    from training.card import read_card  # noqa: PLC0415
     from training.checkpoint import metadata_path  # noqa: PLC0415
 
     enrich = not (args.no_certify or args.no_enrich or budget.rounds == 0)
     config = training_config.config_of(args)
     database = enriched_path(args) if enrich else args.data
-    resumed = enrich and _continues(args, database)
+    card = _continues(args, database) if enrich else None
+    resumed = card is not None
     if not (args.verbose or args.no_certify):
         quiet_warp()  # the certificate runs the DEM on the cpu
     if not args.no_certify:
@@ -171,11 +172,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         training_train.train_and_save(args.data, args.out, config, overwrite=args.overwrite, verbose=args.verbose)
         if args.no_certify:
             return 0
+        card = read_card(args.out)
         if not enrich:
-            cert = certificate.certify(args.out, **measured.keywords())
-            say(*certificate.summary_lines(cert), f"certificate -> {certificate.write_certificate(args.out, cert)}")
+            cert = certificate.certify(args.out, card=card, **measured.keywords())
+            say(*certificate.summary_lines(cert),
+                f"certificate -> {certificate.write_certificate(args.out, cert, card)}")
             return certificate.exit_code(cert)
-        active.write_rounds(args.out, [])
+        card = active.write_rounds(args.out, card, [])
     if database != args.data and not (resumed and database.is_file()):
         with atomic_write(database) as tmp:
             shutil.copyfile(args.data, tmp)
@@ -183,7 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f" (a copy of {args.data}: {'--enrich-copy' if args.enrich_copy else 'that file or its folder is not writable'})"))
     with output_lock(database):
         rounds, cert = active.learn(database, args.out, config, settings=budget, certify_settings=measured,
-                                    seed=args.seed, threads=args.threads, log=say)
+                                    seed=args.seed, threads=args.threads, card=card, log=say)
     say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1].samples_total} samples "
         f"in {database}; certificate -> {metadata_path(args.out)}")
     return certificate.exit_code(cert)

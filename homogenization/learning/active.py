@@ -45,12 +45,11 @@ import numpy as np
 from homogenization.learning import certificate
 from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from homogenization.learning.envelope import equilibrium_settings, verdict
-from homogenization.learning.records import Certificate, Round
+from homogenization.learning.records import Certificate, learning_of, Round, with_learning
 from training import train as training_train
-from training.checkpoint import metadata_path
+from training.card import ModelCard, read_card, write_card
 from training.config import TrainConfig
 from training.network import n_features
-from warp_hcell.core.files import atomic_write
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.database import clean as cleaning
@@ -266,10 +265,10 @@ def append_samples(path: Path, samples: Mapping[str, np.ndarray], states: Mappin
     return database.append_round(path, samples, start, record, clean=lambda new: cleaning.clean_samples(new)[0])
 
 
-def _certify(model: Path, measured: CertificateSettings, settings: ActiveSettings, threads: int
+def _certify(model: Path, card: ModelCard, measured: CertificateSettings, settings: ActiveSettings, threads: int
              ) -> tuple[Certificate, dict[str, dict[str, np.ndarray]]]:
     states: dict[str, dict[str, np.ndarray]] = {}
-    cert = certificate.certify(model, dem_states=states, state_every=settings.state_every, threads=threads,
+    cert = certificate.certify(model, card=card, dem_states=states, state_every=settings.state_every, threads=threads,
                                **measured.keywords())
     return cert, states
 
@@ -288,10 +287,11 @@ def _current(cert: Certificate | None, model: Path, measured: CertificateSetting
             and equilibrium_settings(cert) == hybrid)
 
 
-def _record(model: Path, rounds: list[Round], cert: Certificate) -> None:
-    """Store the certificate and the rounds in the model's JSON."""
-    certificate.write_certificate(model, cert)
-    write_rounds(model, rounds)
+def _record(model: Path, card: ModelCard, rounds: list[Round], cert: Certificate) -> ModelCard:
+    """``card`` with the certificate and the rounds, written as the model's JSON (atomically); returns it."""
+    card = with_learning(card, cert, rounds)
+    write_card(model, card)
+    return card
 
 
 def round_line(entry: Round) -> str:
@@ -308,7 +308,7 @@ def round_line(entry: Round) -> str:
                if entry.epochs is not None else ""))
 
 
-def round_entry(k: int, db: Path, model: Path, cert: Certificate, seconds: float, **extra: Any) -> Round:
+def round_entry(k: int, db: Path, card: ModelCard, cert: Certificate, seconds: float, **extra: Any) -> Round:
     """The record of round ``k`` (0: the model as given) after its certificate ``cert``: the
     samples (``extra`` gives ``samples_added`` and what else the round knows), the certificate's
     figures, the tests the ANN could not follow (``not_followed``) and how far it followed them
@@ -319,12 +319,12 @@ def round_entry(k: int, db: Path, model: Path, cert: Certificate, seconds: float
     return Round(round=k, **extra, samples_total=_n_samples(db), worst=cert.worst, worst_test=cert.worst_test,
                  passed=cert.passed, verdict=cert.verdict, seconds=seconds, not_followed=[t.name for t in lost],
                  followed=float(sum((t.departure or 0) / t.n_increments for t in lost if t.n_increments)),
-                 database_mb=file_bytes / 1e6, database_raw_mb=raw_bytes / 1e6, **training_record(model))
+                 database_mb=file_bytes / 1e6, database_raw_mb=raw_bytes / 1e6, **training_record(card))
 
 
 def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
           certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
-          log: Callable[..., None] = print) -> tuple[list[Round], Certificate]:
+          card: ModelCard | None = None, log: Callable[..., None] = print) -> tuple[list[Round], Certificate]:
     """Certify ``model`` (trained on ``db``) and run active rounds until it passes, the budget
     of ``settings`` is spent, ``settings.stall_rounds`` rounds make no progress (``stalled``:
     one line says which test, which rounds and what they tried, ``stall_line``), or every failing
@@ -346,18 +346,19 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         certify_settings: what each round's certificate measures (``CertificateSettings``).
         seed: seed of the rounds' probes (``round_seed``).
         threads: DEM and ANN threads of the certificate and the probes.
+        card: ``model``'s JSON already read (``training.card.read_card``); None: read here.
         log: receives one line per round.
     """
     start = time.perf_counter()
-    meta = json.loads(metadata_path(model).read_text())
+    card = read_card(model) if card is None else card
     stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
-    rounds = [r for r in map(Round.from_dict, meta.get("active_learning") or []) if r.round <= len(stored)]
+    stored_cert, rounds = learning_of(card)
+    rounds = [r for r in rounds if r.round <= len(stored)]
     added_total = sum(r["samples"] for r in stored)
-    stored_cert = None if meta.get("certificate") is None else Certificate.from_dict(meta["certificate"])
-    dim = from_description(meta["mesostructure"]).dim
-    if meta["training_data"]["sha256"] != file_sha256(db):  # appended, not yet retrained
-        widths = tuple((stored[-1].get("hidden") if stored else None) or meta["architecture"]["hidden"])
-        train_model(db, model, round_config(config, model, settings, widths), rounds)
+    dim = from_description(card.mesostructure).dim
+    if card.training_data["sha256"] != file_sha256(db):  # appended, not yet retrained
+        widths = tuple((stored[-1].get("hidden") if stored else None) or card.architecture["hidden"])
+        card = train_model(db, model, round_config(config, model, settings, widths), rounds)
     elif _current(stored_cert, model, certify_settings, dim) and rounds and rounds[-1].round == len(stored) and (
             verdict(stored_cert) != "failed" or len(stored) >= settings.rounds
             or added_total >= settings.max_samples or stalled(rounds, settings)
@@ -366,13 +367,13 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         log(round_line(rounds[-1]) + " (done before)")
         return rounds, stored_cert
     t0 = time.perf_counter()
-    cert, states = _certify(model, certify_settings, settings, threads)
+    cert, states = _certify(model, card, certify_settings, settings, threads)
     if not rounds or rounds[-1].round != len(stored):
-        rounds.append(round_entry(len(stored), db, model, cert, time.perf_counter() - t0,
+        rounds.append(round_entry(len(stored), db, card, cert, time.perf_counter() - t0,
                                   samples_added=stored[-1]["samples"] if stored else 0,
                                   **({"tests": stored[-1].get("tests", [])} if stored else {})))
         log(round_line(rounds[-1]))
-    _record(model, rounds, cert)
+    card = _record(model, card, rounds, cert)
     meso = from_description(str(_attrs(db)["mesostructure"]))
     while cert.verdict == "failed":  # a weak certificate (below the minimum) is no matter of samples
         k = len(stored) + 1
@@ -402,7 +403,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
             break
         attrs = _attrs(db)
         samples = probe_states(meso, picked, n, round_seed(seed, k), attrs, threads)
-        widths = next_widths(rounds, model) if settings.widen else _architecture(model)[0]
+        widths = next_widths(rounds, card) if settings.widen else _architecture(card)[0]
         departures = {t.name: [t.departure, t.n_increments] for t in cert.tests
                       if t.name in names and t.departure is not None}
         entry = append_samples(db, samples, picked, {"tests": names, "seed": round_seed(seed, k),
@@ -410,12 +411,12 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
                                                      "samples_capped": asked - n})
         stored.append(entry)
         added_total += entry["samples"]
-        train_model(db, model, round_config(config, model, settings, widths), rounds)
-        cert, states = _certify(model, certify_settings, settings, threads)
-        rounds.append(round_entry(k, db, model, cert, time.perf_counter() - t0, samples_added=entry["samples"],
+        card = train_model(db, model, round_config(config, model, settings, widths), rounds)
+        cert, states = _certify(model, card, certify_settings, settings, threads)
+        rounds.append(round_entry(k, db, card, cert, time.perf_counter() - t0, samples_added=entry["samples"],
                                   samples_capped=asked - n, tests=names, departures=departures))
         log(round_line(rounds[-1]))
-        _record(model, rounds, cert)
+        card = _record(model, card, rounds, cert)
     return rounds, cert
 
 
@@ -426,9 +427,9 @@ def round_config(config: TrainConfig, model: Path, settings: ActiveSettings, wid
                                **({"init_from": str(model)} if settings.warm_start else {}))
 
 
-def _architecture(model: Path) -> tuple[tuple[int, ...], int, int]:
-    """(hidden widths, inputs, outputs) of ``model`` (its JSON)."""
-    arch = json.loads(metadata_path(model).read_text())["architecture"]
+def _architecture(card: ModelCard) -> tuple[tuple[int, ...], int, int]:
+    """(hidden widths, inputs, outputs) of the model of ``card``."""
+    arch = card.architecture
     n_free = int(arch["n_free"])
     n_in = n_features(n_free, sum(arch["active_pairs"]), bool(arch.get("load_features", False)))
     return tuple(arch["hidden"]), n_in, n_free + n_free**2
@@ -440,42 +441,39 @@ def multiply_adds(widths: Sequence[int], n_in: int, n_out: int) -> int:
     return sum(a * b for a, b in zip(sizes[:-1], sizes[1:]))
 
 
-def next_widths(rounds: Sequence[Round], model: Path) -> tuple[int, ...]:
-    """Hidden widths of the next round's network: ``model``'s, or, where the last round's
+def next_widths(rounds: Sequence[Round], card: ModelCard) -> tuple[int, ...]:
+    """Hidden widths of the next round's network: the model's (``card``), or, where the last round's
     certificate worst fell by less than ``WIDEN_BELOW_GAIN`` from the round before it (two
     rounds known), the first rung of ``WIDTH_LADDER`` that costs more multiply-adds than
-    ``model``'s network (none left: ``model``'s)."""
-    widths, n_in, n_out = _architecture(model)
+    the model's network (none left: the model's)."""
+    widths, n_in, n_out = _architecture(card)
     if len(rounds) < 2 or rounds[-1].worst * WIDEN_BELOW_GAIN <= rounds[-2].worst:
         return widths
     cost = multiply_adds(widths, n_in, n_out)
     return next((rung for rung in WIDTH_LADDER if multiply_adds(rung, n_in, n_out) > cost), widths)
 
 
-def training_record(model: Path) -> dict[str, Any]:
-    """What a round stores of its training (the model's JSON): ``hidden`` widths, ``epochs`` run,
+def training_record(card: ModelCard) -> dict[str, Any]:
+    """What a round stores of its training (the model's ``card``): ``hidden`` widths, ``epochs`` run,
     ``train_seconds``, ``warm_start`` (whether it started from the previous weights; None: not asked)."""
-    meta = json.loads(metadata_path(model).read_text())
-    warm = meta["history"].get("warm_start")
-    return {"hidden": list(meta["architecture"]["hidden"]), "epochs": meta["history"]["epochs_run"],
-            "train_seconds": meta["history"]["seconds"], "warm_start": None if warm is None else bool(warm["used"])}
+    warm = card.history.get("warm_start")
+    return {"hidden": list(card.architecture["hidden"]), "epochs": card.history["epochs_run"],
+            "train_seconds": card.history["seconds"], "warm_start": None if warm is None else bool(warm["used"])}
 
 
-def train_model(db: Path, model: Path, config: TrainConfig, rounds: list[Round]) -> None:
+def train_model(db: Path, model: Path, config: TrainConfig, rounds: list[Round]) -> ModelCard:
     """Train ``model`` on ``db`` from scratch (``training.train.train_and_save``, settings
     ``config``, the model overwritten); its JSON keeps the ``rounds`` so far (an interrupted loop
-    resumes with them)."""
+    resumes with them). Returns the new model's card."""
     training_train.train_and_save(db, model, config, overwrite=True)
-    write_rounds(model, rounds)
+    return write_rounds(model, read_card(model), rounds)
 
 
-def write_rounds(model: Path, rounds: Sequence[Round]) -> None:
-    """Store ``rounds`` in the model's JSON under ``active_learning`` (atomically)."""
-    path = metadata_path(model)
-    meta = json.loads(path.read_text())
-    meta["active_learning"] = [r.to_dict() for r in rounds]
-    with atomic_write(path) as tmp:
-        tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+def write_rounds(model: Path, card: ModelCard, rounds: Sequence[Round]) -> ModelCard:
+    """``card`` with ``rounds`` under ``active_learning``, written as ``model``'s JSON (atomically); returns it."""
+    card = dataclasses.replace(card, active_learning=[r.to_dict() for r in rounds])
+    write_card(model, card)
+    return card
 
 
 def _attrs(db: Path) -> dict[str, Any]:

@@ -47,7 +47,6 @@ Sign convention: compression and contraction positive; stresses in N/m.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import sys
 import time
@@ -63,11 +62,11 @@ from homogenization.learning.envelope import (dimension_of, envelope_of, equilib
                                               shortfalls, verdict)
 from homogenization.backends import make_cell_model
 from homogenization.backends.escalation import RELEASE_RULE
-from training.checkpoint import metadata_path, read_metadata
+from training.card import ModelCard, read_card, write_card
 from training.ood import state_features
 from training.rollout import rollout_report
 from warp_hcell.core.files import atomic_write
-from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.core.parameters import DemSettings
 from warp_hcell.core.provenance import file_sha256, git_revision
 from warp_hcell.mesostructures.files import from_description
 from warp_hcell.mesostructures.mesostructure import Mesostructure
@@ -324,10 +323,10 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
             spatial_rule: Sequence[int] = SPATIAL_RULE, target: float = TARGET, rollout: bool = True, threads: int = 1,
             dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY,
             equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None,
-            reproducibility: bool = True, metadata: dict[str, Any] | None = None) -> Certificate:
+            reproducibility: bool = True, card: ModelCard | None = None) -> Certificate:
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
-    model's own (its JSON's ``mesostructure``; ``metadata``: that JSON, as ``read_metadata`` gives it,
-    None: read here). ``reproducibility`` False: no ``dem_spread``
+    model's own (its card's ``mesostructure``; ``card``: the model's JSON already read,
+    ``training.card.read_card``, None: read here). ``reproducibility`` False: no ``dem_spread``
     (each test's DEM is not run a second time, from rest; the top-level ``dem_spread`` is None).
 
     ``dem_states``, when given, receives per test name the DEM cell states met along that test
@@ -352,14 +351,14 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     """
     start = time.perf_counter()
     model_path = Path(model_path)
-    meta = read_metadata(model_path) if metadata is None else metadata
-    law = ContactLaw.from_dict(meta["contact_law"])
+    card = read_card(model_path) if card is None else card
+    law = card.law
     hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": equilibrium_tolerance}
               if equilibrium_corrections else {"equilibrium_corrections": 0})  # never the model's earlier certificate's
-    ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads, **hybrid)
-    meso = mesostructure if mesostructure is not None else from_description(meta["mesostructure"])
+    ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads, card=card, **hybrid)
+    meso = mesostructure if mesostructure is not None else from_description(card.mesostructure)
     ann.check_trained_on(meso)
-    settings = DemSettings(contact_tolerance=float(meta["contact_tolerance"]))
+    settings = DemSettings(contact_tolerance=float(card.contact_tolerance))
     dem = make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()), settings=settings, threads=threads)
     free = ann.net.schema.free_dofs.cpu().numpy()
     sampler = _Sampler(dem, int(state_every))
@@ -417,35 +416,34 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     return dataclasses.replace(cert, verdict=result, passed=result == "passed", envelope=envelope_of(cert))
 
 
-def write_certificate(model_path: Path, certificate: Certificate) -> Path:
-    """Store ``certificate`` in the model's JSON under ``"certificate"`` (atomically); returns the JSON path."""
-    path = metadata_path(model_path)
-    meta = json.loads(path.read_text())
-    meta["certificate"] = certificate.to_dict()
-    with atomic_write(path) as tmp:
-        tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-    return path
+def write_certificate(model_path: Path, certificate: Certificate, card: ModelCard | None = None) -> Path:
+    """Store ``certificate`` in the model's JSON under ``"certificate"`` (atomically; ``card``: that JSON
+    already read, None: read here); returns the JSON path."""
+    card = read_card(model_path) if card is None else card
+    return write_card(model_path, dataclasses.replace(card, certificate=certificate.to_dict()))
 
 
-def plot_worst_test(model_path: Path, cert: Certificate, out: Path, *, threads: int = 1) -> Path:
+def plot_worst_test(model_path: Path, cert: Certificate, out: Path, *, threads: int = 1,
+                    card: ModelCard | None = None) -> Path:
     """Figure ``out`` (PNG, written atomically) of p and q [N/m] against eps11 [-] of the ANN and the
     DEM on the certificate's worst test (``cert.worst_test``, rerun with ``cert.settings``, the
-    equilibrium corrections included)."""
+    equilibrium corrections included; ``card``: the model's JSON already read, None: read here)."""
     from matplotlib.figure import Figure  # noqa: PLC0415 (matplotlib only where a figure is drawn)
 
     from homogenization.output.figure_style import apply_style, figure_legend, PNG_DPI  # noqa: PLC0415
 
     settings = cert.settings
-    meta = read_metadata(model_path)
-    law = ContactLaw.from_dict(meta["contact_law"])
-    meso = from_description(meta["mesostructure"])
+    card = read_card(model_path) if card is None else card
+    law = card.law
+    meso = from_description(card.mesostructure)
     info, programme = next((i, prog) for i, prog in tests_of(settings["pressures"], settings["eps_max"],
                                                              settings["increment"], settings.get("n_orientations", 0),
                                                              meso.dim) if i["name"] == cert.worst_test)
     models = {"DEM": make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()),
-                                     settings=DemSettings(contact_tolerance=float(meta["contact_tolerance"])),
+                                     settings=DemSettings(contact_tolerance=float(card.contact_tolerance)),
                                      threads=threads),
-              "ANN": make_cell_model("ann", contact_law=law, model=model_path, threads=threads, **_hybrid_of(cert))}
+              "ANN": make_cell_model("ann", contact_law=law, model=model_path, threads=threads, card=card,
+                                     **_hybrid_of(cert))}
     fig = Figure(figsize=(8.0, 3.6), layout="constrained")
     axes = fig.subplots(1, 2)
     handles = []

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar, Mapping, Sequence
+
+from training.card import ModelCard
 
 SCHEMA_VERSION = 2
 """The model card's ``format_version`` these records belong to (``training.checkpoint.FORMAT_VERSION``)."""
@@ -218,3 +220,13 @@ def certificate_of(metadata: Mapping[str, Any]) -> Certificate | None:
     """The certificate a model's JSON ``metadata`` records under ``"certificate"`` (None: uncertified)."""
     values = metadata.get("certificate")
     return None if values is None else Certificate.from_dict(values)
+
+
+def learning_of(card: ModelCard) -> tuple[Certificate | None, list[Round]]:
+    """The certificate (None: uncertified) and the active-learning rounds ([]: none) of a model's ``card``."""
+    return certificate_of(card.to_dict()), [Round.from_dict(r) for r in card.active_learning or []]
+
+
+def with_learning(card: ModelCard, cert: Certificate, rounds: Sequence[Round]) -> ModelCard:
+    """``card`` recording ``cert`` and ``rounds`` (the model's JSON as the learning loop writes it)."""
+    return dataclasses.replace(card, certificate=cert.to_dict(), active_learning=[r.to_dict() for r in rounds])
