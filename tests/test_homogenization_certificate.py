@@ -108,7 +108,8 @@ def test_a_certified_model_runs_and_the_summary_and_run_say_so(tmp_path, capsys)
 @pytest.mark.parametrize("dim", [2, 3])
 def test_the_shipped_model_files_round_trip_byte_for_byte_through_their_records(dim):
     """The file-format guarantee: read as records and written as the package writes them, a shipped
-    model's JSON is the same bytes (its certificate as a ``Certificate``, its rounds as ``Round``s)."""
+    model's JSON is the same bytes (as a ``ModelCard``; its certificate as a ``Certificate``, its rounds as
+    ``Round``s)."""
     path = default_model_path(dim).with_suffix(".json")
     text = path.read_text()
     meta = json.loads(text)
