@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
 from homogenization.material.orientation import localise, orientations
 from training.checkpoint import load_checkpoint, save_checkpoint
@@ -145,16 +145,16 @@ def _cases(args) -> list[dict]:
             for p0 in args.p0 for inc in args.increments]
 
 
-def reversal_programme(p0: float, turn: float, increment: float) -> loading.Programme:
+def reversal_programme(p0: float, turn: float, increment: float) -> programmes.Programme:
     """Isotropic compression to p0, constant volume to eps1 = +turn, then back to eps1 = -turn.
 
     Args:
         p0: confining pressure [N/m]; turn: eps1 of the turn [-], > 0 (compression
             positive); increment: strain increment of every stage [-].
     """
-    n = loading.n_increments_for(turn, increment)
-    return (loading.isotropic(p0, increment=increment), loading.constant_volume_biaxial(turn, n, label="load"),
-            loading.proportional_strain(-2.0 * turn, 2.0 * turn, 2 * n, label="unload"))
+    n = programmes.n_increments_for(turn, increment)
+    return (programmes.isotropic(p0, increment=increment), programmes.constant_volume_biaxial(turn, n, label="load"),
+            programmes.proportional_strain(-2.0 * turn, 2.0 * turn, 2 * n, label="unload"))
 
 
 def _shear_stage(record):
@@ -176,7 +176,7 @@ def compare(case: dict, model, mesostructure, n_cells: int) -> dict:
     if "reversal" in case:
         programme = reversal_programme(case["p0"], case["reversal"], case["increment"])
     else:
-        programme = loading.biaxial(case["p0"], case["eps_max"], case["increment"], iso_increment=case["increment"],
+        programme = programmes.biaxial(case["p0"], case["eps_max"], case["increment"], iso_increment=case["increment"],
                                     drained=case["drained"])
     out: dict = {"case": {**case, "mesostructure": str(mesostructure) if mesostructure else "h-cell (builder)",
                           "reference": reference[0], "n_cells": n_cells}}

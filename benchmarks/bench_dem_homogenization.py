@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.material import orientation
 from homogenization.output import figures
 from homogenization.output.figure_style import number
@@ -78,7 +78,7 @@ def compare(name: str, args: argparse.Namespace, increment: float, analytical, d
             converged: driver.Record | None) -> tuple[dict, dict[str, driver.Record]]:
     """Run one case with both backends at ``increment``; the numbers of the acceptance table."""
     alpha0, p0 = CASES[name]
-    programme = loading.biaxial(p0, args.eps_max, increment, iso_increment=args.iso_increment)
+    programme = programmes.biaxial(p0, args.eps_max, increment, iso_increment=args.iso_increment)
     ana, t_ana, _ = timed_run(analytical, programme, alpha0, args.orientations)
     dem_record, t_dem, cpu_dem = timed_run(dem, programme, alpha0, args.orientations)
     shear, eps1 = shear_part(dem_record)
@@ -170,7 +170,7 @@ def main() -> None:
         alpha0, p0 = CASES[name]
         converged, t_conv = None, math.nan
         if not args.no_converged:
-            converged, t_conv, _ = timed_run(analytical, loading.biaxial(p0, args.eps_max, CONVERGED[0],
+            converged, t_conv, _ = timed_run(analytical, programmes.biaxial(p0, args.eps_max, CONVERGED[0],
                                                                       iso_increment=CONVERGED[1]), alpha0, args.orientations)
             print(f"{name:<12} analytical at the converged increments {CONVERGED}: {t_conv:.2f} s", flush=True)
         for increment in increments:

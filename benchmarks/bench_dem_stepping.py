@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.output import figures
 from homogenization.output.figure_style import apply_style, GRID, number
 from homogenization.backends import make_cell_model
@@ -85,7 +85,7 @@ mesostructure spec and shear increment."""
 
 
 def programme(p0: float, drained: bool, args: argparse.Namespace) -> tuple:
-    return loading.biaxial(p0, args.eps_max, args.increment, iso_increment=args.iso_increment, drained=drained)
+    return programmes.biaxial(p0, args.eps_max, args.increment, iso_increment=args.iso_increment, drained=drained)
 
 
 def timed(model, prog, n_orientations: int) -> tuple[driver.Record, float]:
@@ -265,7 +265,7 @@ def main() -> None:
             cases += [(resolve_mesostructure(spec), spec, 2e5, increment, 72) for spec, increment in FINES]
             for meso, label, p0, increment, n_orientations in cases:
                 runs += 1
-                prog = loading.biaxial(p0, 0.1, increment, iso_increment=args.iso_increment,
+                prog = programmes.biaxial(p0, 0.1, increment, iso_increment=args.iso_increment,
                                        drained=True)
                 try:
                     with warnings.catch_warnings():

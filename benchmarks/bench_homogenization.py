@@ -14,7 +14,7 @@ import argparse
 import os
 import time
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.material import orientation
 from homogenization.backends import BACKENDS, make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
@@ -69,8 +69,8 @@ def main() -> None:
 
     options = {"device": args.device} if args.backend in ("dem", "ann") else {}
     model = make_cell_model(args.backend, **options)
-    iso = (loading.isotropic(args.p0),)
-    programme = loading.biaxial(args.p0, args.eps_max, args.increment)
+    iso = (programmes.isotropic(args.p0),)
+    programme = programmes.biaxial(args.p0, args.eps_max, args.increment)
     n_shear = programme[1].n_increments
     kw = dict(mesostructure=h_cell(args.alpha0), n_orientations=args.orientations, progress=False)
 

@@ -52,12 +52,12 @@ COMPARED = ("sigma11", "sigma22", "sigma33", "p", "q")
 def run(backend: str, alpha0: float, p0: float, test: str, args, *, order: int | None = None,
         spins: int | None = None):
     """(record, wall time [s]) of one triaxial test; DEM and ANN warnings counted, not raised."""
-    from homogenization.element_test import driver, loading
+    from homogenization.element_test import driver, programme as programmes
     from homogenization.backends import make_cell_model
     from warp_hcell.mesostructures.builders import mesostructure_arg
 
     meso = mesostructure_arg(f"hcell3d:alpha0={alpha0:g}").build(alpha0)
-    programme = loading.triaxial(p0, args.eps_max, args.increment, test=test, iso_increment=0.5 * args.increment)
+    programme = programmes.triaxial(p0, args.eps_max, args.increment, test=test, iso_increment=0.5 * args.increment)
     options = {"threads": args.threads} if backend == "dem" and args.threads else {}
     if backend == "ann":
         options["model"] = args.model

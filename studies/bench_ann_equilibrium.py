@@ -60,9 +60,9 @@ COMPARED = ("sigma11", "sigma22", "sigma33", "p", "q")
 
 def run(model, meso, args):
     """(record, wall time [s]) of the test on ``model``'s cells; warnings counted, not raised."""
-    from homogenization.element_test import driver, loading
+    from homogenization.element_test import driver, programme as programmes
 
-    programme = loading.triaxial(args.p0, args.eps_max, args.increment, test=args.test,
+    programme = programmes.triaxial(args.p0, args.eps_max, args.increment, test=args.test,
                                  iso_increment=0.5 * args.increment)
     start = time.perf_counter()
     with warnings.catch_warnings():

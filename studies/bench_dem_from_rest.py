@@ -39,14 +39,14 @@ def main(argv=None) -> int:
                         help="comma-separated strains per substep of an increment from rest [-]")
     args = parser.parse_args(argv)
 
-    from homogenization.element_test import driver, loading
+    from homogenization.element_test import driver, programme as programmes
     from homogenization.learning.from_rest import FromRest
     from warp_hcell.core.parameters import ContactLaw, DemSettings
     from warp_hcell.dem.cell import DemCell
     from warp_hcell.mesostructures.builders import mesostructure_arg
 
     meso = mesostructure_arg(args.mesostructure).build(None)
-    programme = loading.triaxial(args.p0, args.eps_max, args.increment, test=args.test,
+    programme = programmes.triaxial(args.p0, args.eps_max, args.increment, test=args.test,
                                  iso_increment=0.5 * args.increment)
 
     def run(model):

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, DemSettings
 from warp_hcell.mesostructures.hcell import h_cell
@@ -65,9 +65,9 @@ def cell_errors(backend: str, name: str, reference, **options) -> dict[str, floa
 def macro_windows(n_orientations: int, increment: float, reference) -> dict[str, float]:
     """DEM vs closed form on the alpha0 = 60 deg reversal, max |dp|, |dq| / p0 per window."""
     p0 = 2e5
-    programme = (loading.isotropic(p0, increment=1e-3),
-                 loading.constant_volume_biaxial(0.05, round(0.05 / increment), label="load"),
-                 loading.constant_volume_biaxial(-0.10, round(0.10 / increment), label="unload"))
+    programme = (programmes.isotropic(p0, increment=1e-3),
+                 programmes.constant_volume_biaxial(0.05, round(0.05 / increment), label="load"),
+                 programmes.constant_volume_biaxial(-0.10, round(0.10 / increment), label="unload"))
     runs = {name: driver.run(make_cell_model(name), programme, mesostructure=h_cell(60.0),
                              n_orientations=n_orientations, snapshot_interval=1, progress=False)
             for name in ("analytical", "dem")}

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from tangent_fd import fd_tangent_fixed_schedule  # noqa: E402
 from warp_hcell.core.checks import central_difference_tangent  # noqa: E402
 
-from homogenization.element_test import driver, loading  # noqa: E402
+from homogenization.element_test import driver, programme as programmes  # noqa: E402
 from homogenization.element_test.solver import StressControl  # noqa: E402
 from homogenization.backends import make_cell_model  # noqa: E402
 from warp_hcell.dem.cell import DemCell  # noqa: E402
@@ -79,7 +79,7 @@ def tangent_probe(rate: float) -> None:
 def newton_contraction(orientations: int) -> None:
     """Residual ratios of the driver's stress-control iterations (drained shear)."""
     p0 = 2e5
-    programme = loading.biaxial(p0, 0.05, 1e-3, iso_increment=1e-4, drained=True)
+    programme = programmes.biaxial(p0, 0.05, 1e-3, iso_increment=1e-4, drained=True)
     solve = StressControl.solve
     print(f"drained biaxial, alpha0 = 40 deg, p0 = {p0:g}, {orientations} orientations, increment 1e-3")
     for name, options in (("analytical", {}), ("dem", {}), ("dem, force tolerance 1e-10",

@@ -81,7 +81,7 @@ def main(argv=None) -> int:
 
     from homogenization.backends import make_cell_model
     from homogenization.backends.ann import AnnCell3D, AnnState
-    from homogenization.element_test import driver, loading
+    from homogenization.element_test import driver, programme as programmes
     from warp_hcell.core.parameters import ContactLaw
     from warp_hcell.mesostructures.builders import mesostructure_arg
 
@@ -94,7 +94,7 @@ def main(argv=None) -> int:
     dem_free = lambda s: dem_model.state_to_arrays(s)["position"][:, free_dofs[:, 0], free_dofs[:, 1]]  # noqa: E731
     dem = _Keeper(dem_model, dem_free)
     ann = _Keeper(hybrid, lambda s: np.array(s.free_position), hybrid.fast.last_corrections)
-    programme = loading.triaxial(args.p0, args.eps_max, args.increment, test=args.test,
+    programme = programmes.triaxial(args.p0, args.eps_max, args.increment, test=args.test,
                                  iso_increment=0.5 * args.increment)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

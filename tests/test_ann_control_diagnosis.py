@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from homogenization import hmodel
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
 from homogenization.backends.ann import AnnCell, AnnCell3D, default_model_path
 from warp_hcell.core.contract import CellResponse
@@ -41,7 +41,7 @@ def _break(monkeypatch, after: int) -> None:
 
 def test_a_drained_run_that_fails_names_the_cells_and_the_certificate(monkeypatch):
     meso = mesostructure_arg("hcell3d:alpha0=55").build(55.0)
-    programme = loading.triaxial(2e5, 0.02, 1e-4, test="drained", iso_increment=5e-5)
+    programme = programmes.triaxial(2e5, 0.02, 1e-4, test="drained", iso_increment=5e-5)
     _break(monkeypatch, after=60)
     model = make_cell_model("ann", dim=3)
     with pytest.raises(driver.ControlError) as caught:
@@ -59,7 +59,7 @@ def test_without_failed_cells_the_diagnosis_says_so_and_names_the_envelope():
     state = model.init_state(meso, 4)
     for _ in range(20):
         state, _ = model.step(state, np.full((4, 3), 3e-4))
-    outside = loading.triaxial(5e7, 0.3, 1e-4, test="drained")
+    outside = programmes.triaxial(5e7, 0.3, 1e-4, test="drained")
     line = model.control_diagnosis(state, np.full((4, 3), 1e-5), np.eye(3)[[0, 1, 2, 0]], outside, meso)
     assert line.startswith("ANN diagnosis: no cell of 4 failed its step or tangent over the last trial; model certified")
     assert "run outside its envelope (" in line and "\n" not in line
@@ -101,7 +101,7 @@ def test_the_diagnosis_names_the_cells_that_the_equilibrium_corrections_left_unb
     _, response = hybrid.step(state, d)
     ratio = hybrid.unbalanced_cells(state, d)
     assert np.count_nonzero(ratio > 1e-14) == response.diagnostics["n_unconverged"] > 0
-    line = hybrid.control_diagnosis(state, d, np.eye(3)[[0, 1, 2, 0]], loading.triaxial(2e5, 0.02, 1e-4), meso)
+    line = hybrid.control_diagnosis(state, d, np.eye(3)[[0, 1, 2, 0]], programmes.triaxial(2e5, 0.02, 1e-4), meso)
     unbalanced = int(response.diagnostics["n_unconverged"])
     assert f"force ratio above 1e-14 after K = 1 equilibrium corrections in {unbalanced} of 4 cells: " in line
     assert f", ratio {ratio[np.argmax(ratio > 1e-14)]:.2g})" in line and "\n" not in line

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical3d import Analytical3DCell
 from homogenization.material.orientation import localise
@@ -56,7 +56,7 @@ def test_builder_declares_the_kinematics_and_the_closed_form_accepts_the_cell():
 
 def run(spec: str, backend: str = "analytical", *, eps_max: float = 0.15, increment: float = 1e-3,
         order: int = 11, spins: int = 1) -> driver.Record:
-    programme = loading.triaxial(P0, eps_max, increment, test="undrained", iso_increment=1e-4)
+    programme = programmes.triaxial(P0, eps_max, increment, test="undrained", iso_increment=1e-4)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # an unconverged DEM cell fails the test
         return driver.run(make_cell_model(backend, dim=3), programme, mesostructure=resolve_mesostructure(spec),

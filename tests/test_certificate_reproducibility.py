@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from homogenization.backends.ann import default_model_path
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.learning import certificate
 from homogenization.learning.from_rest import FromRest
 from warp_hcell.core.parameters import ContactLaw, DemSettings
@@ -79,7 +79,7 @@ left its wedge one increment apart)."""
 def test_the_dem_from_rest_follows_the_dem_where_fine_grains_leave_their_wedges():
     dem = DemCell(ContactLaw(), 0.5, threads=1)
     meso = mesostructure_arg(str(LARGE_AXIAL)).build(None)
-    programme = loading.triaxial(2e5, 0.10, 1e-4, test="drained", iso_increment=0.5e-4)
+    programme = programmes.triaxial(2e5, 0.10, 1e-4, test="drained", iso_increment=0.5e-4)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         d, r = (driver.run(model, programme, mesostructure=meso, lebedev_order=5, n_spins=1, progress=False)

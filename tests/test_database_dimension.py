@@ -326,11 +326,11 @@ def test_shipped_3d_model_follows_the_closed_form():
     of the loose cell to eps_a = 1 % (the largest miss of the full run lies at 0.6 %), 100 cells
     (Lebedev order 11 x 4 spins), along the shear stage within 0.5 % of p0 of the closed form at 2e5 Pa and
     2e-5 at 5.85e6 Pa (docs: 0.28 % and 0.0030 % on the full runs; this short run measures 0.24 % and 4e-6)."""
-    from homogenization.element_test import driver, loading
+    from homogenization.element_test import driver, programme as programmes
     from homogenization.backends import make_cell_model
 
     for p0, tolerance in ((2e5, 5e-3), (5.85e6, 2e-5)):
-        programme = loading.triaxial(p0, 0.01, 1e-4, test="undrained", iso_increment=5e-5)
+        programme = programmes.triaxial(p0, 0.01, 1e-4, test="undrained", iso_increment=5e-5)
         runs = [driver.run(make_cell_model(name, dim=3), programme, mesostructure=SPATIAL, lebedev_order=11,
                            n_spins=4, progress=False) for name in ("analytical", "ann")]
         shear = [record.stage != record.stage[0] for record in runs]

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from homogenization.element_test import loading
+from homogenization.element_test import programme as programmes
 from homogenization.backends.analytical import AnalyticalCell
 from homogenization.element_test.points import material_points, orientation_set
 from homogenization.element_test.record import History
@@ -18,7 +18,7 @@ from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.mesostructures.hcell import h_cell
 
 P0 = 3e6
-PROGRAMME = loading.biaxial(P0, 0.01, 1e-3, iso_increment=1e-3, drained=True)
+PROGRAMME = programmes.biaxial(P0, 0.01, 1e-3, iso_increment=1e-3, drained=True)
 LAWS = {"kn": [2e8, 5e8, 1e8], "kt_over_kn": [0.5, 0.9, 0.3], "phi_g": [30.0, 20.0, 40.0], "alpha0": [55.0, 65.0, 45.0]}
 N_ORIENTATIONS = 12
 

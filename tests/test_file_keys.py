@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from homogenization.element_test import loading
+from homogenization.element_test import programme as programmes
 from homogenization.cli import biaxial, triaxial
 from warp_hcell.core import cli
 from warp_hcell.mesostructures.files import load_mesostructure
@@ -58,7 +58,7 @@ def test_the_shipped_files_have_no_unknown_key():
     for path in sorted((ROOT / "warp_hcell" / "data").glob("*.toml")):
         load_mesostructure(path)
     for path in sorted(PROGRAMMES.iterdir()):
-        loading.read_programme(path)
+        programmes.read_programme(path)
 
 
 @pytest.fixture
@@ -100,8 +100,8 @@ def test_biaxial_refuses_a_mesostructure_file_with_an_unknown_key_before_any_run
 ])
 def test_an_unknown_key_of_a_programme_file_is_named(source, old, new, message, previous_run, tmp_path, capsys):
     path = edited(tmp_path, PROGRAMMES / source, old, new, "bad" + Path(source).suffix)
-    with pytest.raises(loading.UnknownKey) as info:
-        loading.read_programme(path)
+    with pytest.raises(programmes.UnknownKey) as info:
+        programmes.read_programme(path)
     assert message.format(path=path) in str(info.value)
     before = snapshot(tmp_path)
     code = cli.run_main(biaxial.main, ["--programme", str(path), "--orientations", "12", "-q", "--overwrite",
@@ -122,8 +122,8 @@ def test_triaxial_names_an_unknown_key_of_its_programme(tmp_path, capsys):
 
 
 def test_a_stored_programme_keeps_reading_back():
-    programme = loading.triaxial(2e5, 0.01, 1e-3, test="true", iso_increment=5e-4, b=0.5)
-    assert loading.from_dict(loading.to_dict(programme)) == programme
-    with pytest.raises(loading.UnknownKey, match="unknown key 'extra' in step 2;"):
-        loading.from_dict({"steps": [*loading.to_dict(programme)["steps"][:1],
-                                     {**loading.to_dict(programme)["steps"][1], "extra": 1}]})
+    programme = programmes.triaxial(2e5, 0.01, 1e-3, test="true", iso_increment=5e-4, b=0.5)
+    assert programmes.from_dict(programmes.to_dict(programme)) == programme
+    with pytest.raises(programmes.UnknownKey, match="unknown key 'extra' in step 2;"):
+        programmes.from_dict({"steps": [*programmes.to_dict(programme)["steps"][:1],
+                                     {**programmes.to_dict(programme)["steps"][1], "extra": 1}]})

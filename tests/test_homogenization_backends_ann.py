@@ -12,7 +12,7 @@ import torch
 
 from dem_database import build
 from homogenization.cli import biaxial
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
 from homogenization.backends.ann import AnnCell, default_model_path
 from training.checkpoint import CheckpointError
@@ -177,7 +177,7 @@ def test_inference_runs_on_one_torch_thread_by_default(model_path):
 
 @pytest.mark.skipif(not default_model_path().is_file(), reason="default model not installed")
 def test_shipped_model_follows_the_analytical_cell_in_a_short_constant_volume_test():
-    programme = loading.biaxial(5.85e6, 0.02, 1e-4, iso_increment=1e-4)
+    programme = programmes.biaxial(5.85e6, 0.02, 1e-4, iso_increment=1e-4)
     runs = {name: driver.run(make_cell_model(name), programme, mesostructure=h_cell(55.0), n_orientations=12, progress=False)
             for name in ("analytical", "ann")}
     a, b = runs["analytical"], runs["ann"]
@@ -193,9 +193,9 @@ def test_shipped_model_follows_the_analytical_cell_through_a_constant_volume_rev
     before the active-learning rounds of `make reproduce`; p0 = 3e5 is a pressure the rounds never
     probed). Measured with 72 cells: 0.39 / 0.93 % (2e5), 0.25 / 0.61 % (3e5) of p0 (docs/ann.md);
     the DEM follows the analytical cell here to 0.02 % of p0."""
-    n = loading.n_increments_for(0.05, 1e-4)
-    programme = (loading.isotropic(p0, increment=1e-4), loading.constant_volume_biaxial(0.05, n, label="shear"),
-                 loading.constant_volume_biaxial(-0.1, 2 * n, label="reverse"))
+    n = programmes.n_increments_for(0.05, 1e-4)
+    programme = (programmes.isotropic(p0, increment=1e-4), programmes.constant_volume_biaxial(0.05, n, label="shear"),
+                 programmes.constant_volume_biaxial(-0.1, 2 * n, label="reverse"))
     runs = {name: driver.run(make_cell_model(name), programme, mesostructure=h_cell(55.0), n_orientations=24,
                              progress=False) for name in ("analytical", "ann")}
     shear = {name: r.stage != r.stage[0] for name, r in runs.items()}

@@ -12,7 +12,7 @@ import pytest
 from cli_checks import assert_usage_error
 
 from homogenization.cli import bvp
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
 from warp_hcell.core.cli import run_main
 from warp_hcell.mesostructures.hcell import h_cell
@@ -41,7 +41,7 @@ def homogeneous(tmp_path_factory):
 
 def test_homogeneous_specimen_follows_the_material_point(homogeneous):
     curve = read_curve(homogeneous / "curve.csv")
-    record = driver.run(make_cell_model("analytical"), loading.biaxial(P0, 0.01, 1e-3, drained=True),
+    record = driver.run(make_cell_model("analytical"), programmes.biaxial(P0, 0.01, 1e-3, drained=True),
                         mesostructure=h_cell(40.0), n_orientations=12, progress=False)
     shear = curve["stage"] == "shear"
     assert shear.sum() == 10 and np.sum(record.stage == "shear") == 10
@@ -128,7 +128,7 @@ def test_acceptance_case_4x8_72_orientations(tmp_path):
     assert cli(["--alpha0", "40", "--p0", "5.85e6", "--eps-max", "0.05", "--increment", "1e-3",
                 "--orientations", "72", "--elements", "4,8", "--out", str(out)]) == 0
     curve = read_curve(out / "curve.csv")
-    record = driver.run(make_cell_model("analytical"), loading.biaxial(P0, 0.05, 1e-3, drained=True),
+    record = driver.run(make_cell_model("analytical"), programmes.biaxial(P0, 0.05, 1e-3, drained=True),
                         mesostructure=h_cell(40.0), n_orientations=72, progress=False)
     shear = curve["stage"] == "shear"
     for name in ("q", "p", "sigma11", "sigma22"):

@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 import pytest
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.backends.analytical import AnalyticalCell
 from homogenization.backends.analytical3d import Analytical3DCell
 from homogenization.calibration import bayes, report
@@ -136,7 +136,7 @@ def test_batched_forward_matches_the_driver(tmp_path, drained):
     test = Measurement("t", tmp_path / "t.csv", drained, 3e6, EPS1, {})
     batch = simulate(test, PARAMS, SETTINGS)
     n_shear = round(EPS1[-1] / SETTINGS.increment)
-    programme = loading.biaxial(3e6, n_shear * SETTINGS.increment, SETTINGS.increment,
+    programme = programmes.biaxial(3e6, n_shear * SETTINGS.increment, SETTINGS.increment,
                                 iso_increment=SETTINGS.iso_increment, drained=drained)
     for i in range(3):
         law = ContactLaw(kn=PARAMS["kn"][i], kt_over_kn=PARAMS["kt_over_kn"][i], phi_g_deg=PARAMS["phi_g"][i])
@@ -289,12 +289,12 @@ SETTINGS_3D = ForwardSettings(lebedev_order=5, n_spins=2, increment=2e-3, iso_in
 
 @pytest.mark.parametrize("drained", [False, True])
 def test_batched_triaxial_forward_matches_the_driver(tmp_path, drained):
-    """The 3D population runner against homogenization.element_test.driver.run of loading.triaxial, each set on its own
+    """The 3D population runner against homogenization.element_test.driver.run of programme.triaxial, each set on its own
     Analytical3DCell (q = sqrt(3 J2), p = tr(sigma) / 3, eps_v = eps11 + eps22 + eps33)."""
     test = Measurement("t", tmp_path / "t.csv", drained, 2e6, EPS1, {}, 3)
     batch = simulate(test, PARAMS, SETTINGS_3D)
     n_shear = round(EPS1[-1] / SETTINGS_3D.increment)
-    programme = loading.triaxial(2e6, n_shear * SETTINGS_3D.increment, SETTINGS_3D.increment,
+    programme = programmes.triaxial(2e6, n_shear * SETTINGS_3D.increment, SETTINGS_3D.increment,
                                  test="drained" if drained else "undrained", iso_increment=SETTINGS_3D.iso_increment)
     for i in range(3):
         law = ContactLaw(kn=PARAMS["kn"][i], kt_over_kn=PARAMS["kt_over_kn"][i], phi_g_deg=PARAMS["phi_g"][i])

@@ -18,7 +18,7 @@ from homogenization.calibration import posterior as post_mod
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import ForwardSettings, simulate
 from homogenization.cli import calibrate
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.output import io
 from warp_hcell.core.cli import run_main
 from warp_hcell.core.parameters import HertzMindlinLaw
@@ -40,7 +40,7 @@ def test_hertz_forward_matches_the_driver_on_one_hertz_cell_model(tmp_path):
     settings = replace(RULE, lebedev_order=5, n_spins=2)
     batch = simulate(Measurement("t", tmp_path / "t.csv", True, P0, EPS1, {}, 3), sets, settings)
     n_shear = round(EPS1[-1] / INC)
-    programme = loading.triaxial(P0, n_shear * INC, INC, test="drained", iso_increment=ISO)
+    programme = programmes.triaxial(P0, n_shear * INC, INC, test="drained", iso_increment=ISO)
     for i in range(2):
         law = HertzMindlinLaw(sets["shear_modulus"][i], sets["poisson"][i], sets["phi_g"][i])
         record = driver.run(Analytical3DCell(law, 0.5), programme, mesostructure=build_h_cell_3d(sets["alpha0"][i], radius=0.5),

@@ -166,24 +166,24 @@ def test_a_run_below_the_envelope_warns_once_and_run_h5_records_it(tmp_path, cap
 
 
 def test_the_envelope_names_every_way_out():
-    from homogenization.element_test import loading
+    from homogenization.element_test import programme as programmes
     from homogenization.learning.envelope import outside
 
     envelope = {"pressures": [2e5, 1e6], "eps_max": 0.1, "kinds": ["constant-volume", "drained"],
                 "mesostructure": "h-cell alpha0=55 deg", "cell_parameters": {"alpha0_deg": 55.0}}
-    inside = loading.biaxial(5e5, 0.1, 1e-3, drained=True)
+    inside = programmes.biaxial(5e5, 0.1, 1e-3, drained=True)
     assert outside(envelope, inside, mesostructure="h-cell alpha0=55 deg", cell_parameters={"alpha0_deg": 55.0}) == []
-    assert outside(envelope, loading.biaxial(2e6, 0.05, 1e-3)) == [
+    assert outside(envelope, programmes.biaxial(2e6, 0.05, 1e-3)) == [
         "p0 = 2e+06 N/m above the highest certified pressure 1e+06 N/m"]
-    ratio = (loading.isotropic(2e5), loading.proportional_strain(0.01, 0.0, 10))
+    ratio = (programmes.isotropic(2e5), programmes.proportional_strain(0.01, 0.0, 10))
     assert outside(envelope, ratio) == ["test kind other not certified (certified: constant-volume, drained)"]
-    reversal = (loading.isotropic(2e5), loading.constant_volume_biaxial(0.08, 80),
-                loading.constant_volume_biaxial(-0.16, 160))
+    reversal = (programmes.isotropic(2e5), programmes.constant_volume_biaxial(0.08, 80),
+                programmes.constant_volume_biaxial(-0.16, 160))
     assert outside(envelope, reversal) == []  # +8 %, then back to -8 %: within +-10 % of the shear start
     assert outside(envelope, inside, mesostructure="h-cell alpha0=40 deg", cell_parameters={"alpha0_deg": 40.0}) == [
         "cell 'h-cell alpha0=40 deg': alpha0_deg = 40 (certified: 55)"]
     assert outside(envelope, inside, mesostructure="hcell:alpha0=55", cell_parameters={"alpha0_deg": 55.0}) == []
-    no_p0 = (loading.constant_volume_biaxial(0.01, 10),)
+    no_p0 = (programmes.constant_volume_biaxial(0.01, 10),)
     assert "before any isotropic compression" in outside(envelope, no_p0)[0]
 
 
@@ -308,7 +308,7 @@ def test_bvp_refuses_a_failed_model_and_its_run_records_the_certificate(tmp_path
 def test_constant_volume_extension_is_compression_turned_for_an_even_orientation_set():
     """Why the certificate runs constant-volume extension only for an odd number of orientations:
     with an even set the turned compression test gives the same p and q (q negated) to round-off."""
-    from homogenization.element_test import driver, loading
+    from homogenization.element_test import driver, programme as programmes
     from homogenization.backends import make_cell_model
     from warp_hcell.mesostructures.hcell import h_cell
 
@@ -316,8 +316,8 @@ def test_constant_volume_extension_is_compression_turned_for_an_even_orientation
     curves = {}
     for n_orientations in (6, 5):
         for sign in (1.0, -1.0):
-            record = driver.run(model, (loading.isotropic(2e5, increment=1e-4),
-                                        loading.constant_volume_biaxial(sign * 0.01, 100)),
+            record = driver.run(model, (programmes.isotropic(2e5, increment=1e-4),
+                                        programmes.constant_volume_biaxial(sign * 0.01, 100)),
                                 mesostructure=meso, n_orientations=n_orientations, progress=False)
             curves[n_orientations, sign] = (record.p, record.q)
     np.testing.assert_allclose(curves[6, 1.0][0], curves[6, -1.0][0], rtol=1e-12)

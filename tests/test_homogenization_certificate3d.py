@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from homogenization.learning import certificate
-from homogenization.element_test import loading
+from homogenization.element_test import programme as programmes
 from homogenization.backends.ann import default_model_path
 from training import rollout
 from warp_hcell.core.provenance import file_sha256
@@ -34,7 +34,7 @@ def test_spatial_tests_are_the_triaxial_tests_in_both_senses():
     assert names[:4] == ["undrained compression p0=200000", "undrained extension p0=200000",
                          "drained compression p0=200000", "drained extension p0=200000"]
     for info, programme in tests:
-        assert loading.dimension(programme) == 3 and programme[0].stop_at_p == info["p0"]
+        assert programmes.dimension(programme) == 3 and programme[0].stop_at_p == info["p0"]
         shear = programme[1]
         sign = -1.0 if info["sense"] == "extension" else 1.0
         assert math.isclose(shear.target[0], sign * certificate.EPS_MAX / (2 if info["sense"] == "reversal" else 1))

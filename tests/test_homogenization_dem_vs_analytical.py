@@ -20,7 +20,7 @@ import warnings
 import numpy as np
 import pytest
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.output import io
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
@@ -63,7 +63,7 @@ DRAINED_AGREEMENT = 1e-3
 def run_pair(alpha0_deg: float, p0: float, n_orientations: int, eps_max: float, *, drained: bool = False,
              increment: float = SHEAR_INCREMENT, iso_increment: float = ISO_INCREMENT) -> dict[str, driver.Record]:
     """The same biaxial programme with the analytical and the DEM backends."""
-    programme = loading.biaxial(p0, eps_max, increment, iso_increment=iso_increment, drained=drained)
+    programme = programmes.biaxial(p0, eps_max, increment, iso_increment=iso_increment, drained=drained)
     records = {}
     for name in ("analytical", "dem"):
         with warnings.catch_warnings():
@@ -241,9 +241,9 @@ def test_dem_matches_analytical_on_a_reversal_after_full_opening():
     counts the rotation of the closing increment before the touch in the spring, and the curves are
     held to REVERSAL_IN_WINDOW where both have collapsed the same wedges."""
     p0 = 2e5
-    programme = (loading.isotropic(p0, increment=ISO_INCREMENT),
-                 loading.constant_volume_biaxial(0.05, 50, label="load"),
-                 loading.constant_volume_biaxial(-0.10, 100, label="unload"))
+    programme = (programmes.isotropic(p0, increment=ISO_INCREMENT),
+                 programmes.constant_volume_biaxial(0.05, 50, label="load"),
+                 programmes.constant_volume_biaxial(-0.10, 100, label="unload"))
     runs = {}
     for name in ("analytical", "dem"):
         with warnings.catch_warnings():

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from cell_doubles import ElasticCell
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
-from homogenization.element_test.loading import Step
+from homogenization.element_test.programme import Step
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import LoadingDefaults
 
@@ -41,11 +41,11 @@ def reference_run(row: dict, n_orientations: int, increment: float, iso_incremen
     """Isotropic stage, then constant-volume shear to 20 % (stage end) and on to the last listed strain."""
     eps_last = max(row["p_ratio"])
     programme = [
-        loading.isotropic(row["p0"], increment=iso_increment),
-        loading.constant_volume_biaxial(0.2, loading.n_increments_for(0.2, increment)),
+        programmes.isotropic(row["p0"], increment=iso_increment),
+        programmes.constant_volume_biaxial(0.2, programmes.n_increments_for(0.2, increment)),
     ]
     if eps_last > 0.2:
-        programme.append(loading.constant_volume_biaxial(eps_last - 0.2, loading.n_increments_for(eps_last - 0.2, increment)))
+        programme.append(programmes.constant_volume_biaxial(eps_last - 0.2, programmes.n_increments_for(eps_last - 0.2, increment)))
     return driver.run(make_cell_model("analytical"), tuple(programme), mesostructure=h_cell(row["alpha0"]),
                       n_orientations=n_orientations, progress=False)
 
@@ -107,7 +107,7 @@ def test_reference_table_full_resolution(name):
 
 def test_isotropic_stage_lands_on_p0():
     for p0 in (2e5, 5.85e6):
-        record = driver.run(make_cell_model("analytical"), (loading.isotropic(p0, increment=1e-4),),
+        record = driver.run(make_cell_model("analytical"), (programmes.isotropic(p0, increment=1e-4),),
                             mesostructure=h_cell(55.0), n_orientations=36, stress_rtol=1e-6, progress=False)
         assert abs(record.p[-1] / p0 - 1.0) <= 1e-6
         assert record.p[-2] < p0  # only the last increment reaches p0
@@ -115,7 +115,7 @@ def test_isotropic_stage_lands_on_p0():
 
 
 def test_isotropic_strain_gives_isotropic_stress():
-    record = driver.run(make_cell_model("analytical"), (loading.isotropic(5.85e6, increment=1e-4),),
+    record = driver.run(make_cell_model("analytical"), (programmes.isotropic(5.85e6, increment=1e-4),),
                         mesostructure=h_cell(40.0), n_orientations=360, progress=False)
     assert np.all(record.eps11 == record.eps22)
     assert np.abs(record.q).max() <= 1e-12 * record.p[-1]
@@ -124,7 +124,7 @@ def test_isotropic_strain_gives_isotropic_stress():
 
 def test_constant_volume_keeps_J_to_second_order():
     n, delta = 500, 2e-4
-    programme = (loading.isotropic(2e5, increment=1e-4), loading.constant_volume_biaxial(n * delta, n))
+    programme = (programmes.isotropic(2e5, increment=1e-4), programmes.constant_volume_biaxial(n * delta, n))
     record = driver.run(make_cell_model("analytical"), programme, mesostructure=h_cell(55.0), n_orientations=36, progress=False)
     shear = record.stage == "shear"
     J_iso = record.J[~shear][-1]
@@ -136,7 +136,7 @@ def test_constant_volume_keeps_J_to_second_order():
 
 def test_drained_holds_sigma22_at_p0():
     p0 = 5.85e6
-    record = driver.run(make_cell_model("analytical"), loading.biaxial(p0, 0.05, 5e-4, drained=True),
+    record = driver.run(make_cell_model("analytical"), programmes.biaxial(p0, 0.05, 5e-4, drained=True),
                         mesostructure=h_cell(55.0), n_orientations=36, progress=False)
     shear = record.stage == "shear"
     assert np.abs(record.sigma22[shear] / p0 - 1.0).max() <= LoadingDefaults.stress_rtol
@@ -147,8 +147,8 @@ def test_drained_holds_sigma22_at_p0():
 
 def round_trip(cell_model, n: int = 40, delta: float = 5e-4):
     """A strain-controlled run and a run that follows its sigma22 history by stress control."""
-    prefix = (loading.proportional_strain(5e-3, 5e-3, 10, label="iso"),)
-    strain_run = driver.run(cell_model, prefix + (loading.constant_volume_biaxial(n * delta, n),),
+    prefix = (programmes.proportional_strain(5e-3, 5e-3, 10, label="iso"),)
+    strain_run = driver.run(cell_model, prefix + (programmes.constant_volume_biaxial(n * delta, n),),
                             mesostructure=h_cell(55.0), n_orientations=24, progress=False)
     shear = strain_run.stage == "shear"
     stress_steps = tuple(Step(("strain", "stress"), (delta, s22), 1, "shear") for s22 in strain_run.sigma22[shear])
@@ -182,18 +182,18 @@ def test_elastic_double_closed_form_under_stress_control():
 
 def test_unreachable_p0_is_an_error():
     with pytest.raises(driver.ControlError, match="before reaching 5.85e\\+06 N/m"):
-        driver.run(make_cell_model("analytical"), (loading.isotropic(5.85e6, increment=1e-3, max_strain=0.005),),
+        driver.run(make_cell_model("analytical"), (programmes.isotropic(5.85e6, increment=1e-3, max_strain=0.005),),
                    mesostructure=h_cell(55.0), n_orientations=8, progress=False)
 
 
 def test_stop_at_p_already_reached_is_an_error():
-    programme = (loading.isotropic(2e5, increment=1e-4), loading.isotropic(1e5, increment=1e-4, label="again"))
+    programme = (programmes.isotropic(2e5, increment=1e-4), programmes.isotropic(1e5, increment=1e-4, label="again"))
     with pytest.raises(driver.ControlError, match=r"^step 'again' starts at p = 200000 N/m, already at or above "):
         driver.run(make_cell_model("analytical"), programme, mesostructure=h_cell(55.0), n_orientations=8, progress=False)
 
 
 def test_snapshots_diagnostics_and_determinism():
-    programme = loading.biaxial(2e5, 0.01, 1e-3)
+    programme = programmes.biaxial(2e5, 0.01, 1e-3)
     cell_model = make_cell_model("analytical")
     first = driver.run(cell_model, programme, mesostructure=h_cell(55.0), n_orientations=12, snapshot_interval=4, progress=False)
     again = driver.run(cell_model, programme, mesostructure=h_cell(55.0), n_orientations=12, snapshot_interval=4, progress=False)
@@ -213,7 +213,7 @@ def test_bad_programme_is_one_line_error():
     with pytest.raises(ValueError, match="^a loading programme needs at least one step$"):
         driver.run(ElasticCell(), (), mesostructure=h_cell(), progress=False)
     with pytest.raises(ValueError, match="snapshot_interval = -1 must be >= 0"):
-        driver.run(ElasticCell(), (loading.proportional_strain(1e-3, 0.0, 2),), mesostructure=h_cell(),
+        driver.run(ElasticCell(), (programmes.proportional_strain(1e-3, 0.0, 2),), mesostructure=h_cell(),
                    snapshot_interval=-1, progress=False)
 
 
@@ -221,7 +221,7 @@ def test_diagnostics_count_every_step_call_of_stress_controlled_increments():
     # ElasticCell reports calls = 1 per step: the per-increment sum over all calls must equal
     # the calls the driver says it spent (trial calls of Newton included), the accepted-call
     # value stays 1.
-    record = driver.run(ElasticCell(), loading.biaxial(2e6, 0.01, 1e-3, drained=True), mesostructure=h_cell(55.0),
+    record = driver.run(ElasticCell(), programmes.biaxial(2e6, 0.01, 1e-3, drained=True), mesostructure=h_cell(55.0),
                         n_orientations=12, progress=False)
     shear = record.stage == "shear"
     assert np.all(record.diagnostics["calls"] == 1.0)
@@ -251,7 +251,7 @@ def test_stress_control_newton_with_the_consistent_tangent(alpha0, p0):
     removes the residual. At most three step calls per drained increment: the predictor's trial
     (reusing the last tangent), one with its tangent, the converged one; a tangent 10 % off
     needs up to 4-6."""
-    programme = loading.biaxial(p0, 0.05, 5e-4, drained=True)
+    programme = programmes.biaxial(p0, 0.05, 5e-4, drained=True)
     record = driver.run(make_cell_model("analytical"), programme, mesostructure=h_cell(alpha0), n_orientations=36,
                         progress=False)
     calls = record.newton_iterations[record.stage == "shear"]
@@ -273,7 +273,7 @@ def test_an_increment_the_predictor_solves_asks_for_no_tangent():
             asked.append(with_tangent)
             return super().step(state, d_eps, with_tangent=with_tangent)
 
-    record = driver.run(Counting(model, 1.0), loading.biaxial(5.85e6, 0.05, 5e-4, drained=True),
+    record = driver.run(Counting(model, 1.0), programmes.biaxial(5.85e6, 0.05, 5e-4, drained=True),
                         mesostructure=h_cell(55.0), n_orientations=36, progress=False)
     shear = record.stage == "shear"
     one_call = np.count_nonzero(record.newton_iterations[shear] == 1)

@@ -7,7 +7,7 @@ import pytest
 
 from homogenization.learning import envelope
 from homogenization.learning.records import Certificate, TestResult
-from homogenization.element_test import loading
+from homogenization.element_test import programme as programmes
 from homogenization.backends.ann import default_model_path
 
 SHIPPED = json.loads(default_model_path().with_suffix(".json").read_text())["certificate"] \
@@ -55,16 +55,16 @@ def test_a_weak_certificate_within_its_target_is_not_passed_whatever_its_flag():
 
 
 def test_step_kinds_of_the_triaxial_programmes():
-    iso = loading.isotropic(2e5, dim=3)
-    kinds = {test: [envelope.step_kind(step, 2e5) for step in loading.triaxial_shear(test, 2e5, 0.1, 100)]
-             for test in loading.TRIAXIAL_TESTS}
+    iso = programmes.isotropic(2e5, dim=3)
+    kinds = {test: [envelope.step_kind(step, 2e5) for step in programmes.triaxial_shear(test, 2e5, 0.1, 100)]
+             for test in programmes.TRIAXIAL_TESTS}
     assert kinds == {"undrained": ["undrained"], "drained": ["drained"], "extension": ["drained"],
                      "constant_p": ["other"], "true": ["other"], "cyclic": ["undrained"] * 5}
     assert envelope.step_kind(iso, None) == "other"  # outside() never asks: the isotropic stage sets p0
     env = {"pressures": [2e5, 1e6], "eps_max": 0.1, "kinds": ["drained", "undrained"]}
-    cyclic = loading.triaxial(2e5, 0.1, 1e-3, test="cyclic")
+    cyclic = programmes.triaxial(2e5, 0.1, 1e-3, test="cyclic")
     assert envelope.outside(env, cyclic, unit="Pa") == []
-    assert envelope.outside(env, loading.triaxial(3e6, 0.15, 1e-3, test="constant_p"), unit="Pa") == [
+    assert envelope.outside(env, programmes.triaxial(3e6, 0.15, 1e-3, test="constant_p"), unit="Pa") == [
         "p0 = 3e+06 Pa above the highest certified pressure 1e+06 Pa",
         "test kind other not certified (certified: drained, undrained)",
         "axial strain 0.15 beyond the certified 0.1"]

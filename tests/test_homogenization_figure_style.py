@@ -9,7 +9,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from cell_doubles import ElasticCell
 from homogenization.cli import bvp, sweep
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.output import figure_style, figures
 from homogenization.fe import output as fe_output
 from homogenization.backends import make_cell_model
@@ -21,7 +21,7 @@ from warp_hcell.mesostructures.hcell import h_cell
 @pytest.fixture(scope="module")
 def records() -> dict[float, driver.Record]:
     """Analytical runs at p0 = 2e5 and 5.85e6 N/m."""
-    return {p0: driver.run(make_cell_model("analytical"), loading.biaxial(p0, 0.02, 1e-3), mesostructure=h_cell(55.0),
+    return {p0: driver.run(make_cell_model("analytical"), programmes.biaxial(p0, 0.02, 1e-3), mesostructure=h_cell(55.0),
                            n_orientations=12, progress=False) for p0 in (2e5, 5.85e6)}
 
 
@@ -130,7 +130,7 @@ def test_number_is_mathtext(value, text):
 
 
 def test_elastic_double_figure_has_a_shared_legend():
-    record = driver.run(ElasticCell(), loading.biaxial(2e5, 0.01, 1e-3), mesostructure=h_cell(), n_orientations=4,
+    record = driver.run(ElasticCell(), programmes.biaxial(2e5, 0.01, 1e-3), mesostructure=h_cell(), n_orientations=4,
                         progress=False)
     fig = figures.make_figure({"one": record, "two": record})
     assert len(fig.legends) == 1 and [t.get_text() for t in fig.legends[0].get_texts()] == ["one", "two"]

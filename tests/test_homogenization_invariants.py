@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.material import invariants
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
@@ -26,7 +26,7 @@ def test_second_order_work_by_hand():
 
 
 def test_w2_changes_sign_at_the_q_peak():
-    record = driver.run(make_cell_model("analytical"), loading.biaxial(5.85e6, 0.08, 2e-4), mesostructure=h_cell(55.0),
+    record = driver.run(make_cell_model("analytical"), programmes.biaxial(5.85e6, 0.08, 2e-4), mesostructure=h_cell(55.0),
                         n_orientations=72, progress=False)
     shear = np.flatnonzero(record.stage == "shear")
     k = np.concatenate([[shear[0] - 1], shear])  # include the end of the isotropic stage

@@ -9,7 +9,7 @@ import h5py
 import numpy as np
 import pytest
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.output import io
 from homogenization.backends import make_cell_model
 from warp_hcell.core.cli import UserError
@@ -18,7 +18,7 @@ from warp_hcell.mesostructures.hcell import h_cell
 
 @pytest.fixture(scope="module")
 def record() -> driver.Record:
-    return driver.run(make_cell_model("analytical"), loading.biaxial(2e5, 0.01, 1e-3), mesostructure=h_cell(55.0),
+    return driver.run(make_cell_model("analytical"), programmes.biaxial(2e5, 0.01, 1e-3), mesostructure=h_cell(55.0),
                       n_orientations=12, snapshot_interval=5, progress=False)
 
 

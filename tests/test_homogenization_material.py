@@ -67,10 +67,10 @@ def test_one_batched_step_call_and_purity():
 
 def test_stress_and_volume_rule_match_the_driver():
     """A homogeneous strain path through the material gives the driver's stresses and J."""
-    from homogenization.element_test import driver, loading
+    from homogenization.element_test import driver, programme as programmes
 
     model = make_cell_model("analytical")
-    programme = (loading.proportional_strain(4e-3, 4e-3, 20, label="iso"), loading.constant_volume_biaxial(0.01, 20))
+    programme = (programmes.proportional_strain(4e-3, 4e-3, 20, label="iso"), programmes.constant_volume_biaxial(0.01, 20))
     record = driver.run(model, programme, mesostructure=h_cell(40.0), n_orientations=36, progress=False)
     material = HomogenisedMaterial(model, orientation.orientations(36), h_cell(40.0), 1)
     state = material.init_state()

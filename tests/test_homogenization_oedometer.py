@@ -10,19 +10,19 @@ import pytest
 
 from homogenization.backends import make_cell_model
 from homogenization.cli import hmodel
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.output import io, oedometer
 from warp_hcell.mesostructures.builders import mesostructure_arg
 
 
-def run(programme: loading.Programme) -> driver.Record:
+def run(programme: programmes.Programme) -> driver.Record:
     meso = mesostructure_arg("hcell3d:alpha0=55").build(55.0)
     return driver.run(make_cell_model("analytical", dim=3), programme, mesostructure=meso, lebedev_order=5,
                       n_spins=2, staggered_spins=False, progress=False)
 
 
 def test_oedometric_programme_keeps_the_lateral_strains_and_returns_the_axial_strain():
-    programme = loading.oedometric(2e4, 3e-3, 3e-3, 5e-4, iso_increment=1e-4)
+    programme = programmes.oedometric(2e4, 3e-3, 3e-3, 5e-4, iso_increment=1e-4)
     assert [s.label for s in programme] == ["iso", "load", "unload"]
     record = run(programme)
     seated = np.flatnonzero(record.stage == "iso")[-1]
@@ -36,7 +36,7 @@ def test_oedometric_programme_keeps_the_lateral_strains_and_returns_the_axial_st
     assert np.all(np.diff(table["sigma_v"][load]) > 0.0) and np.all(np.diff(table["sigma_v"][record.stage == "unload"]) < 0.0)
     np.testing.assert_allclose(table["K0"], table["sigma_h"] / table["sigma_v"], rtol=1e-15)
     assert 0.0 < table["K0"][load].min() and table["K0"][load].max() < 1.0
-    assert loading.oedometric(2e4, 3e-3, 0.0, 5e-4)[-1].label == "load"
+    assert programmes.oedometric(2e4, 3e-3, 0.0, 5e-4)[-1].label == "load"
 
 
 def test_k0_of_an_isotropic_start_is_the_superposition_of_uniaxial_strains():
@@ -44,7 +44,7 @@ def test_k0_of_an_isotropic_start_is_the_superposition_of_uniaxial_strains():
     adds d sigma_v + 2 d sigma_h = the stress of an isotropic strain d on every component, so
     1 + 2 K0 = (sigma_iso / d) / (d sigma_v / d) for the incremental K0 = d sigma_h / d sigma_v."""
     d = 1e-5
-    record = run((loading.Step(("strain",) * 3, (d,) * 3, 1, "iso"), loading.Step(("strain",) * 3, (d, 0.0, 0.0), 1, "load")))
+    record = run((programmes.Step(("strain",) * 3, (d,) * 3, 1, "iso"), programmes.Step(("strain",) * 3, (d, 0.0, 0.0), 1, "load")))
     iso = record.sigma11[0]
     d_v, d_h = record.sigma11[1] - iso, 0.5 * (record.sigma22[1] + record.sigma33[1]) - iso
     k0 = d_h / d_v

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cell_doubles import ElasticCell
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.output import figures
 from homogenization.cli import plot
 from homogenization.backends import make_cell_model
@@ -20,7 +20,7 @@ P0 = 2e5
 
 @pytest.fixture(scope="module")
 def runs() -> dict[str, driver.Record]:
-    programme = loading.biaxial(P0, 0.02, 5e-4)
+    programme = programmes.biaxial(P0, 0.02, 5e-4)
     return {
         "analytical": driver.run(make_cell_model("analytical"), programme, mesostructure=h_cell(55.0), n_orientations=24,
                                  progress=False),
@@ -40,7 +40,7 @@ def test_shear_curve_counts_from_end_of_stage_one(runs):
 
 
 def test_single_stage_record_starts_at_the_initial_state():
-    record = driver.run(ElasticCell(), (loading.proportional_strain(0.01, 0.0, 4),), mesostructure=h_cell(),
+    record = driver.run(ElasticCell(), (programmes.proportional_strain(0.01, 0.0, 4),), mesostructure=h_cell(),
                         n_orientations=4, progress=False)
     curve = figures.shear_curve(record)
     assert curve.eps1.tolist() == pytest.approx([0.0, 0.0025, 0.005, 0.0075, 0.01])
@@ -118,7 +118,7 @@ def test_plot_reads_drained_from_the_file(runs, tmp_path, monkeypatch):
         return real(records, **kwargs)
 
     monkeypatch.setattr(figures, "make_figure", spy)
-    drained = driver.run(make_cell_model("analytical"), loading.biaxial(P0, 0.01, 5e-4, drained=True),
+    drained = driver.run(make_cell_model("analytical"), programmes.biaxial(P0, 0.01, 5e-4, drained=True),
                          mesostructure=h_cell(), n_orientations=12, progress=False)
     path = _stored_run(tmp_path, "d", drained, None)  # no drained parameter: read from the programme
     assert plot.main([path, "--out", str(tmp_path / "d.png")]) == 0
@@ -181,7 +181,7 @@ def _legend(fig) -> list[str]:
 @pytest.fixture(scope="module")
 def high(runs) -> driver.Record:
     """The analytical run of ``runs`` at p0 = 5.85e6 N/m."""
-    return driver.run(make_cell_model("analytical"), loading.biaxial(5.85e6, 0.02, 5e-4), mesostructure=h_cell(55.0),
+    return driver.run(make_cell_model("analytical"), programmes.biaxial(5.85e6, 0.02, 5e-4), mesostructure=h_cell(55.0),
                       n_orientations=24, progress=False)
 
 
@@ -258,7 +258,7 @@ def test_normalise_reads_p0_from_the_programme_and_refuses_runs_without(runs, tm
     code, fig = _figure_of_plot(monkeypatch, [no_p0, "--normalise", "--out", str(tmp_path / "f.png")])
     assert code == 0
     assert fig.axes[1].get_lines()[0].get_xdata()[0] == pytest.approx(1.0, rel=1e-6)
-    record = driver.run(ElasticCell(), (loading.proportional_strain(0.01, 0.0, 4),), mesostructure=h_cell(),
+    record = driver.run(ElasticCell(), (programmes.proportional_strain(0.01, 0.0, 4),), mesostructure=h_cell(),
                         n_orientations=4, progress=False)
     bare = _write(tmp_path / "b", record)
     code, _ = _figure_of_plot(monkeypatch, [bare, "--normalise", "--out", str(tmp_path / "g.png")])
@@ -273,7 +273,7 @@ CYCLIC = Path(figures.__file__).parents[1] / "data" / "programmes" / "cyclic_con
 
 
 def test_cyclic_programme_figure_has_exactly_one_legend(tmp_path, monkeypatch, capsys):
-    programme = loading.read_programme(CYCLIC)
+    programme = programmes.read_programme(CYCLIC)
     files = []
     for name, model, meso in (("analytical", make_cell_model("analytical"), h_cell(55.0)),
                               ("elastic", ElasticCell(), h_cell(55.0))):
@@ -364,7 +364,7 @@ def test_csl_is_drawn_with_its_rates_where_the_run_reached_a_steady_state(runs, 
 
 
 def _loose_undrained(eps_max: float) -> driver.Record:
-    return driver.run(make_cell_model("analytical"), loading.biaxial(P0, eps_max, 1e-3), mesostructure=h_cell(55.0),
+    return driver.run(make_cell_model("analytical"), programmes.biaxial(P0, eps_max, 1e-3), mesostructure=h_cell(55.0),
                       n_orientations=360, progress=False)
 
 
@@ -386,7 +386,7 @@ def test_csl_refuses_the_loose_cell_while_p_still_falls(tmp_path, monkeypatch, c
 
 def test_csl_refuses_a_drained_run_whose_volume_still_changes(runs):
     """A dense drained run at 5.85e6 N/m to 30 %: q/p is stationary (the old rule drew M = 0.66), eps_v is not."""
-    record = driver.run(make_cell_model("analytical"), loading.biaxial(5.85e6, 0.3, 2e-3, drained=True),
+    record = driver.run(make_cell_model("analytical"), programmes.biaxial(5.85e6, 0.3, 2e-3, drained=True),
                         mesostructure=h_cell(40.0), n_orientations=24, progress=False)
     curve = figures.shear_curve(record)
     with pytest.raises(figures.NoCriticalState, match=r"volume still dilating.*\|deps_v/deps1\| = [0-9.]+ > 0.01"):
@@ -398,7 +398,7 @@ def test_csl_refuses_a_drained_run_whose_volume_still_changes(runs):
 def _triaxial(test: str) -> driver.Record:
     from warp_hcell.mesostructures.builders import mesostructure_arg
 
-    return driver.run(make_cell_model("analytical", dim=3), loading.triaxial(2e5, 2e-2, 1e-4, test=test),
+    return driver.run(make_cell_model("analytical", dim=3), programmes.triaxial(2e5, 2e-2, 1e-4, test=test),
                       mesostructure=mesostructure_arg("hcell3d:alpha0=55").build(55.0), lebedev_order=3, n_spins=1,
                       progress=False)
 
@@ -482,7 +482,7 @@ def test_a_triaxial_run_is_named_by_its_test_and_its_stresses_in_pa(tmp_path, mo
     """hmodel plot of a 3D run: the title names the triaxial test it stores, p0 in Pa (not a biaxial test in N/m)."""
     from warp_hcell.mesostructures.builders import mesostructure_arg
 
-    record = driver.run(make_cell_model("analytical", dim=3), loading.triaxial(2e5, 2e-3, 5e-4, test="drained"),
+    record = driver.run(make_cell_model("analytical", dim=3), programmes.triaxial(2e5, 2e-3, 5e-4, test="drained"),
                         mesostructure=mesostructure_arg("hcell3d:alpha0=55").build(55.0), lebedev_order=3, n_spins=1,
                         progress=False)
     path = _write(tmp_path / "t", record, backend="analytical", alpha0_deg=55.0, p0=2e5, test="drained")

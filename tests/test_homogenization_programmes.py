@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from homogenization.cli import biaxial
-from homogenization.element_test import loading
+from homogenization.element_test import programme as programmes
 from homogenization.output import io
 from warp_hcell.core.cli import run_main
 from warp_hcell.core.parameters import LoadingDefaults
@@ -27,9 +27,9 @@ def test_shipped_programmes_are_valid_and_documented():
     assert {f.suffix for f in files} == {".json", ".toml"}
     docs = (Path(biaxial.__file__).resolve().parents[2] / "docs" / "programmes.md").read_text()
     for path in files:
-        programme = loading.read_programme(path)
+        programme = programmes.read_programme(path)
         assert programme[0].stop_at_p == 5.85e6
-        assert loading.from_dict(loading.to_dict(programme)) == programme
+        assert programmes.from_dict(programmes.to_dict(programme)) == programme
         assert path.name in docs
 
 

@@ -10,7 +10,7 @@ import warnings
 import numpy as np
 import pytest
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.material import invariants
 from homogenization.backends import make_cell_model
 from homogenization.material.homogenised import HomogenisedMaterial
@@ -31,7 +31,7 @@ def run(test: str, *, backend: str = "analytical", alpha0: float = 55.0, eps_max
         p0: float = P0, iso_increment: float = 1e-4, **options) -> driver.Record:
     """A triaxial test on a small rule; aligned spins by default, so that axisymmetric paths keep
     sigma22 = sigma33 and zero shear stresses to round-off (the cube symmetry of the rule)."""
-    programme = loading.triaxial(p0, eps_max, increment, test=test, iso_increment=iso_increment, **options)
+    programme = programmes.triaxial(p0, eps_max, increment, test=test, iso_increment=iso_increment, **options)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # an unconverged DEM cell or a stress-control jump fails the test
         return driver.run(make_cell_model(backend, dim=3), programme, mesostructure=cell(alpha0),
@@ -68,7 +68,7 @@ def test_q_is_invariant_under_rotation():
 
 # -- programmes ------------------------------------------------------------------------------
 def test_isochoric_increments_keep_the_volume():
-    step = loading.isochoric(0.15, 1500)
+    step = programmes.isochoric(0.15, 1500)
     d = np.array(step.target) / step.n_increments
     assert (1.0 - d[0]) * (1.0 - d[1]) * (1.0 - d[2]) == pytest.approx(1.0, abs=1e-15)
     assert d[1] == d[2] and d[0] == pytest.approx(1e-4, rel=1e-12)
@@ -76,7 +76,7 @@ def test_isochoric_increments_keep_the_volume():
 
 @pytest.mark.parametrize("b", [0.0, 0.25, 0.5, 1.0])
 def test_true_triaxial_coupling_holds_p_and_b(b):
-    c = np.array(loading.true_triaxial_coupling(b))
+    c = np.array(programmes.true_triaxial_coupling(b))
     d1 = 1.7e5
     sigma = P0 + np.array([d1, c[1] * d1, c[2] * d1])
     s1, s2, s3 = sorted(sigma, reverse=True) if b < 1.0 else (sigma[0], sigma[1], sigma[2])
@@ -86,14 +86,14 @@ def test_true_triaxial_coupling_holds_p_and_b(b):
 
 def test_planar_and_spatial_steps_do_not_mix_and_round_trip():
     with pytest.raises(ValueError, match="steps of one dimension"):
-        loading.validate((loading.isotropic(P0), loading.isotropic(P0, dim=3)))
-    programme = loading.triaxial(P0, 0.01, 1e-4, test="true", b=0.3)
-    assert loading.from_dict(loading.to_dict(programme)) == programme
-    assert "coupling" not in loading.to_dict(loading.biaxial(P0, 0.01, 1e-4))["steps"][1]
+        programmes.validate((programmes.isotropic(P0), programmes.isotropic(P0, dim=3)))
+    programme = programmes.triaxial(P0, 0.01, 1e-4, test="true", b=0.3)
+    assert programmes.from_dict(programmes.to_dict(programme)) == programme
+    assert "coupling" not in programmes.to_dict(programmes.biaxial(P0, 0.01, 1e-4))["steps"][1]
     with pytest.raises(ValueError, match="coupling applies to stress-controlled components only"):
-        loading.Step(("strain",) * 3, (0.1, 0.0, 0.0), 10, "s", coupling=(0.0, 0.5, 0.0))
+        programmes.Step(("strain",) * 3, (0.1, 0.0, 0.0), 10, "s", coupling=(0.0, 0.5, 0.0))
     with pytest.raises(ValueError, match="stop_at_p needs strain control on all three components"):
-        loading.Step(("strain", "stress", "strain"), (0.1, P0, 0.0), 10, "s", stop_at_p=P0)
+        programmes.Step(("strain", "stress", "strain"), (0.1, P0, 0.0), 10, "s", stop_at_p=P0)
 
 
 # -- the 3D material -----------------------------------------------------------------------
@@ -227,7 +227,7 @@ def test_dem_matches_the_closed_form_to_15_percent(alpha0, p0, test):
 
 
 def test_a_planar_cell_is_refused_for_a_3d_programme():
-    programme = loading.triaxial(P0, 1e-3, 1e-4)
+    programme = programmes.triaxial(P0, 1e-3, 1e-4)
     planar = mesostructure_arg("hcell:alpha0=55").build(55.0)
     with pytest.raises(ValueError, match="programme controls 3 components but mesostructure"):
         driver.run(make_cell_model("analytical"), programme, mesostructure=planar, progress=False)

@@ -148,11 +148,11 @@ def test_the_backend_steps_spatial_cells_compiled_and_takes_their_tangent_from_t
 
 @needs_model
 def test_a_short_undrained_triaxial_run_follows_the_torch_path():
-    from homogenization.element_test import driver, loading
+    from homogenization.element_test import driver, programme as programmes
     from homogenization.backends import make_cell_model
 
     meso = mesostructure_arg("hcell3d:alpha0=55").build(55.0)
-    programme = loading.triaxial(2e5, 0.01, 1e-4, test="undrained", iso_increment=5e-5)
+    programme = programmes.triaxial(2e5, 0.01, 1e-4, test="undrained", iso_increment=5e-5)
     runs = []
     for compiled in (True, False):
         model = make_cell_model("ann", dim=3)

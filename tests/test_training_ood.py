@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.backends.ann import AnnCell, default_model_path
 from training import ood
 from training.checkpoint import load_checkpoint
@@ -25,7 +25,7 @@ def _counts(record: driver.Record) -> tuple[np.ndarray, np.ndarray]:
 
 def test_a_biaxial_test_inside_the_database_has_no_outlier():
     cell = AnnCell(LAW, 0.5, ood_interval=50)
-    record = driver.run(cell, loading.biaxial(2e5, 0.05, 1e-4, iso_increment=1e-4), mesostructure=h_cell(55.0),
+    record = driver.run(cell, programmes.biaxial(2e5, 0.05, 1e-4, iso_increment=1e-4), mesostructure=h_cell(55.0),
                         n_orientations=24, progress=False)
     outside, checked = _counts(record)
     assert checked.size == len(range(0, record.n_increments, 50)) and np.all(checked == 24)

@@ -368,7 +368,7 @@ class AnnCell(ArrayStateMixin):
         return None if self.certificate is None else envelope.envelope_of(self.certificate)
 
     def envelope_exits(self, programme: Sequence[Any], meso: Mesostructure) -> list[str] | None:
-        """Where ``programme`` (``homogenization.element_test.loading``) run on cells of ``meso`` leaves the
+        """Where ``programme`` (``homogenization.element_test.programme``) run on cells of ``meso`` leaves the
         certificate's envelope, one phrase each (``homogenization.learning.envelope.outside``; empty:
         inside); None for an uncertified model (no envelope)."""
         if self.envelope is None:

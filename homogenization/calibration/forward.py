@@ -14,11 +14,11 @@ under the ``POPULATION`` policy). Other backends take one contact law per model:
 one after the other through ``homogenization.element_test.driver.run``. Both orient the cells as the driver
 does (``element_test.points.orientation_set``).
 
-Stages, per point, as in ``homogenization.element_test.loading.biaxial`` / ``loading.triaxial``: equal strain
+Stages, per point, as in ``homogenization.element_test.programme.biaxial`` / ``programme.triaxial``: equal strain
 increments of ``iso_increment`` on every normal component until p reaches p0, the increment
 that crosses it shortened (regula falsi on its scale) so that p lands on p0; then ``increment``
 steps of eps11 with the lateral strains constant-volume (2D: d_eps22 = -d_eps11; 3D:
-``loading.isochoric``, d_eps22 = d_eps33) or solved by Newton so that every lateral stress is p0
+``programme.isochoric``, d_eps22 = d_eps33) or solved by Newton so that every lateral stress is p0
 (drained). A point is advanced only while its stage lasts (the others keep their state), so a
 point's curve does not depend on the population it runs in.
 
@@ -34,7 +34,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
 from homogenization.backends.analytical import AnalyticalCell
 from homogenization.backends.analytical3d import Analytical3DCell
@@ -121,7 +121,7 @@ class Curves:
     """Model curves of n parameter sets at a test's eps1 values, each shape (n, n_data).
 
     ``q``, ``p`` [N/m in 2D, Pa in 3D], ``eps_v`` [-]; NaN for a point whose isotropic stage does not reach p0
-    within ``homogenization.element_test.loading.ISO_MAX_STRAIN`` (too soft); ``n_fallback``: per point, the
+    within ``homogenization.element_test.programme.ISO_MAX_STRAIN`` (too soft); ``n_fallback``: per point, the
     isotropic landings and drained Newton iterations that did not meet ``stress_rtol`` (their last
     iterate is used), or (dem/ann, one set at a time) 1 where the backend reported unconverged
     cells, shape (n,).
@@ -226,7 +226,7 @@ def stages(test: Measurement, settings: ForwardSettings, points: MaterialPoints)
     none, lateral = np.zeros(0, dtype=np.int64), np.arange(1, dim)
     iso = np.zeros((n, points.n_voigt))
     iso[:, :dim] = settings.iso_increment
-    n_iso = loading.n_increments_for(loading.ISO_MAX_STRAIN, settings.iso_increment)
+    n_iso = programmes.n_increments_for(programmes.ISO_MAX_STRAIN, settings.iso_increment)
     isotropic = Plan("iso", n_iso, iso, none, np.zeros((n, 0)), np.zeros((n, 0)), stop_at_p=p0)
     shear = np.zeros((n, points.n_voigt))
     shear[:, 0] = inc
@@ -234,7 +234,7 @@ def stages(test: Measurement, settings: ForwardSettings, points: MaterialPoints)
         shear[:, lateral] = -inc / lateral.size
         held = np.full((n, lateral.size), p0)
         return isotropic, Plan("shear", _n_shear(test, settings), shear, lateral, held, held, held=True)
-    shear[:, lateral] = -inc if dim == 2 else 1.0 - 1.0 / math.sqrt(1.0 - inc)  # loading.isochoric
+    shear[:, lateral] = -inc if dim == 2 else 1.0 - 1.0 / math.sqrt(1.0 - inc)  # programme.isochoric
     return isotropic, Plan("shear", _n_shear(test, settings), shear, none, np.zeros((n, 0)), np.zeros((n, 0)))
 
 
@@ -280,10 +280,10 @@ def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], setting
     fallback = np.zeros(n, dtype=np.int64)
     n_shear = _n_shear(test, settings)
     if test.dim == 2:
-        programme = loading.biaxial(test.p0, n_shear * settings.increment, settings.increment,
+        programme = programmes.biaxial(test.p0, n_shear * settings.increment, settings.increment,
                                     iso_increment=settings.iso_increment, drained=test.drained)
     else:
-        programme = loading.triaxial(test.p0, n_shear * settings.increment, settings.increment,
+        programme = programmes.triaxial(test.p0, n_shear * settings.increment, settings.increment,
                                      test="drained" if test.drained else "undrained",
                                      iso_increment=settings.iso_increment)
     for i in range(n):

@@ -36,7 +36,7 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.output import figures
 from homogenization.cli import plot, posterior_flags
 from homogenization.cli.options import (
@@ -90,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
         eps_max_help="axial strain at the end of the shear stage, counted from its start [-]")
     loading_group.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
     parser.add_argument("--programme", type=Path, default=None,
-                        help="JSON or TOML loading programme (format of homogenization.element_test.loading.to_dict; "
+                        help="JSON or TOML loading programme (format of homogenization.element_test.programme.to_dict; "
                              "docs/programmes.md, examples in homogenization/data/programmes/)")
     add_orientations_argument(parser, cell.n_orientations)
     parser.add_argument("--fabric-anisotropy", type=fraction, default=0.0,
@@ -120,7 +120,7 @@ def run_mesostructure(args: argparse.Namespace) -> Mesostructure:
     return h_cell(args.alpha0, args.radius)
 
 
-def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[loading.Programme, dict[str, Any]]:
+def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[programmes.Programme, dict[str, Any]]:
     """The programme of the run: the ``--programme`` file, else the built-in biaxial test.
 
     Returns:
@@ -133,15 +133,15 @@ def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[load
     """
     if args.programme is not None:
         refuse_programme_flags(build_parser(), argv, PROGRAMME_FLAGS)
-        return loading.read_programme(args.programme), {"programme_file": str(args.programme)}
+        return programmes.read_programme(args.programme), {"programme_file": str(args.programme)}
     p0, eps_max, increment = args.p0, args.eps_max, args.increment
     iso_increment = shear_iso_increment(args, f": the shear stage would be one increment of {eps_max:g}; "
                                               f"use an increment <= {COARSE_INCREMENT:g}")
     settings = {"p0": p0, "eps_max": eps_max, "increment": increment, "iso_increment": iso_increment}
-    return loading.biaxial(p0, eps_max, increment, iso_increment=iso_increment, drained=args.drained), settings
+    return programmes.biaxial(p0, eps_max, increment, iso_increment=iso_increment, drained=args.drained), settings
 
 
-def coarse_steps(programme: loading.Programme) -> list[tuple[str, float]]:
+def coarse_steps(programme: programmes.Programme) -> list[tuple[str, float]]:
     """(label, largest strain-controlled increment [-]) of the steps coarser than ``COARSE_INCREMENT``."""
     coarse = []
     for step in programme:
@@ -174,7 +174,7 @@ def main(argv: Sequence[str] | None = None) -> int:
              f"(~1 % of p0 and more){'; the ANN extrapolates beyond its training probes' if 'ann' in args.backend else ''}")
     law = contact_law_from_args(args)
     if args.verbose:
-        say(f"programme: {loading.to_dict(programme)}", f"contact law: {law.to_dict()}, radius {args.radius:g} m")
+        say(f"programme: {programmes.to_dict(programme)}", f"contact law: {law.to_dict()}, radius {args.radius:g} m")
 
     meso = run_mesostructure(args)
     with output_lock(out):

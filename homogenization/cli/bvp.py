@@ -37,7 +37,7 @@ from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.material import orientation
 from homogenization.cli.options import (add_alpha0_argument, add_backend_argument, add_cell_arguments,
                                         add_orientations_argument, add_uncertified_argument, certificate_note,
@@ -150,7 +150,7 @@ def _alpha0_or_nan(meso: Mesostructure | None) -> float:
 
 def material_point_reference(model, meso: Mesostructure, args: argparse.Namespace) -> dict[str, np.ndarray]:
     """Drained biaxial material point of ``meso`` with the same settings, from the end of its isotropic stage."""
-    programme = loading.biaxial(args.p0, args.eps_max, args.increment, drained=True)
+    programme = programmes.biaxial(args.p0, args.eps_max, args.increment, drained=True)
     record = driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations, progress=False)
     start = int(np.flatnonzero(record.stage != "shear")[-1])
     keep = slice(start, None)
@@ -187,7 +187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     material = HomogenisedMaterial(model, orientation.orientations(args.orientations), point_meso, specimen.n_points)
     if not material.returns_tangent:
         raise UserError(f"backend {args.backend!r} returns no consistent tangent in this version")
-    n_shear = loading.n_increments_for(args.eps_max, args.increment)
+    n_shear = programmes.n_increments_for(args.eps_max, args.increment)
     steps = fe.isotropic_stage(args.p0, args.iso_steps) + fe.shear_stage(args.p0, n_shear * args.increment, n_shear)
 
     start = time.perf_counter()

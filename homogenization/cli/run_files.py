@@ -32,7 +32,7 @@ import numpy as np
 from homogenization.element_test import driver
 from homogenization.output import io
 from homogenization.backends import backend_class, BACKENDS, make_cell_model
-from homogenization.element_test import loading
+from homogenization.element_test import programme as programmes
 from homogenization.cli.options import ISO_TO_SHEAR_INCREMENT, certificate_note, refuse_uncertified
 from homogenization.element_test.driver import Record
 from homogenization.learning.envelope import summary as envelope_summary
@@ -133,13 +133,13 @@ def shear_iso_increment(args: argparse.Namespace, hint: str = "") -> float:
     Raises:
         UserError: --increment larger than --eps-max (``hint`` ends the line: the shear stage
             would be one increment), or an isotropic increment of at least
-            ``loading.ISO_MAX_STRAIN``.
+            ``programme.ISO_MAX_STRAIN``.
     """
     if args.increment > args.eps_max:
         raise UserError(f"--increment {args.increment:g} is larger than --eps-max {args.eps_max:g}{hint}")
     iso_increment = getattr(args, "iso_increment", ISO_TO_SHEAR_INCREMENT * args.increment)
-    if iso_increment >= loading.ISO_MAX_STRAIN:
-        raise UserError(f"--iso-increment {iso_increment:g} must be < {loading.ISO_MAX_STRAIN:g}, "
+    if iso_increment >= programmes.ISO_MAX_STRAIN:
+        raise UserError(f"--iso-increment {iso_increment:g} must be < {programmes.ISO_MAX_STRAIN:g}, "
                         f"the largest isotropic strain allowed")
     return iso_increment
 

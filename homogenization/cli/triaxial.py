@@ -37,7 +37,7 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.output import figures, oedometer
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
@@ -65,7 +65,7 @@ DEFAULT_MESOSTRUCTURE = "hcell3d"
 """Builder spec of the cell when --mesostructure is not given (built at --alpha0)."""
 TESTS = {"undrained": "--undrained", "drained": "--drained", "extension": "--extension",
          "constant_p": "--constant-p", "true": "--true", "cyclic": "--cyclic", "oedometer": "--oedometer"}
-"""Shear stage (``loading.TRIAXIAL_TESTS``) -> its flag."""
+"""Shear stage (``programme.TRIAXIAL_TESTS``) -> its flag."""
 PROGRAMME_FLAGS = {"p0": "--p0", "eps_max": "--eps-max", "increment": "--increment",
                    "iso_increment": "--iso-increment", **{name: flag for name, flag in TESTS.items()}}
 """Flags of the built-in programme, which conflict with --programme (argparse dest -> flag)."""
@@ -125,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def chosen_test(args: argparse.Namespace) -> str:
-    """The shear stage the flags ask for (``loading.TRIAXIAL_TESTS``); undrained by default."""
+    """The shear stage the flags ask for (``programme.TRIAXIAL_TESTS``); undrained by default."""
     if args.true is not None:
         return "true"
     if args.cyclic is not None:
@@ -135,13 +135,13 @@ def chosen_test(args: argparse.Namespace) -> str:
     return next((name for name in ("drained", "extension", "constant_p") if getattr(args, name)), "undrained")
 
 
-def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[loading.Programme, dict[str, Any]]:
+def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[programmes.Programme, dict[str, Any]]:
     """The programme of the run (the --programme file or the built-in test) and its settings; UserError
     (one line) for conflicting flags, an increment above --eps-max or a file of planar steps."""
     if args.programme is not None:
         refuse_programme_flags(build_parser(), argv, PROGRAMME_FLAGS)
-        programme = loading.read_programme(args.programme)
-        if loading.dimension(programme) != 3:
+        programme = programmes.read_programme(args.programme)
+        if programmes.dimension(programme) != 3:
             raise UserError(f"{args.programme}: its steps control two components (a biaxial programme); "
                             f"hmodel triaxial takes steps of three (11, 22, 33)")
         return programme, {"programme_file": str(args.programme)}
@@ -156,9 +156,9 @@ def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[load
             raise UserError(f"--oedometer {args.oedometer:g}: the unloading strain must be in [0, --eps-max "
                             f"{args.eps_max:g}] (the loading strain)")
         settings["eps_unload"] = args.oedometer
-        return loading.oedometric(args.p0, args.eps_max, args.oedometer, args.increment,
+        return programmes.oedometric(args.p0, args.eps_max, args.oedometer, args.increment,
                                   iso_increment=iso_increment), settings
-    programme = loading.triaxial(args.p0, args.eps_max, args.increment, test=test, iso_increment=iso_increment,
+    programme = programmes.triaxial(args.p0, args.eps_max, args.increment, test=test, iso_increment=iso_increment,
                                  b=b, cycles=cycles)
     return programme, settings
 
@@ -205,7 +205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     meso = run_mesostructure(args)
     spin_period = meso.spin_period_deg()
     if args.verbose:
-        say(f"programme: {loading.to_dict(programme)}", f"contact law: {law.to_dict()}, radius {args.radius:g} m")
+        say(f"programme: {programmes.to_dict(programme)}", f"contact law: {law.to_dict()}, radius {args.radius:g} m")
     with output_lock(out):
         models, options = build_models(args, law, meso, dim=3)
         models = posterior_flags.spread_models(calibrated, models, meso, lebedev_order=args.order, n_spins=args.spins,

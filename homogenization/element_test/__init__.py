@@ -1,6 +1,6 @@
 """The element test: a loading programme applied to material points of oriented cells.
 
-``loading`` (programmes as data: per component strain or stress control, targets, stops) and
+``programme`` (programmes as data: per component strain or stress control, targets, stops) and
 ``driver`` (one material point run from the touching state: ``run(cell_model, programme) ->
 Record``) over the engine: ``points`` (the material points: orientations, trials, acceptance),
 ``plan`` (a stage as a plan: per component strain or stress control, targets, coupling,

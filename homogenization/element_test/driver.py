@@ -12,7 +12,7 @@ component; a failure raises ``ControlError``), and the history recorded
 ``|target|`` (times the largest ``|sigma|`` recorded so far where the target is zero).
 
 The same driver runs 3D (triaxial) programmes, whose steps control (11, 22, 33)
-(``loading.COMPONENTS_3D``), on cells of dimension 3 oriented by ``homogenization.material.orientation``
+(``programme.COMPONENTS_3D``), on cells of dimension 3 oriented by ``homogenization.material.orientation``
 (``HomogenisedMaterial``): p = tr(sigma) / 3 and q = sqrt(3 J2) (``invariants``), stresses in Pa
 and the volume in m^3. A step's ``coupling`` makes the stress-controlled components also follow
 sigma11 (constant p, constant b): the residual of component i is sigma_i - c_i (sigma11 - sigma11 at
@@ -36,7 +36,7 @@ from homogenization.element_test.plan import Plan
 from homogenization.element_test.record import History, Record
 from homogenization.element_test.stages import run_stages
 from homogenization.element_test.solver import JUMP_WIDTH, STRICT, ControlError, StressControl
-from homogenization.element_test.loading import Programme, dimension, validate
+from homogenization.element_test.programme import Programme, dimension, validate
 from warp_hcell.core.contract import CellModel
 from warp_hcell.core.cli import progress_bar
 from warp_hcell.mesostructures.mesostructure import Mesostructure
@@ -108,7 +108,7 @@ def run(
 
     Args:
         cell_model: any ``CellModel`` backend.
-        programme: loading steps, run in order (see ``homogenization.element_test.loading``).
+        programme: loading steps, run in order (see ``homogenization.element_test.programme``).
         mesostructure: the cell every orientation starts from (e.g.
             ``warp_hcell.mesostructures.hcell.h_cell(alpha0_deg, radius)``, a builder spec or a file).
         n_orientations: number N of cell orientations theta_k = k pi / N.

@@ -1,7 +1,7 @@
 """A programme step as the engine runs it: per component strain or stress control, the targets of each
 increment, the coupling to sigma11 and the stop on p.
 
-``Plan.from_step(step, stress_start, n_voigt)`` resolves a ``homogenization.element_test.loading.Step`` of a
+``Plan.from_step(step, stress_start, n_voigt)`` resolves a ``homogenization.element_test.programme.Step`` of a
 programme for n material points: the strain-controlled components advance by ``target /
 n_increments`` per increment, the stress-controlled ones follow a ramp from their stress at the start
 of the step to the target. ``Plan`` can also be written directly (a calibration's population):
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from homogenization.element_test.loading import Step
+from homogenization.element_test.programme import Step
 
 
 @dataclass

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from homogenization.element_test.loading import Programme
+from homogenization.element_test.programme import Programme
 from warp_hcell.core.dimension import dimension
 
 

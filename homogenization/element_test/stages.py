@@ -22,7 +22,7 @@ from homogenization.element_test.points import MaterialPoints
 from homogenization.element_test.plan import Plan
 from homogenization.element_test.record import History
 from homogenization.element_test.solver import ControlError, StressControl
-from homogenization.element_test.loading import Step
+from homogenization.element_test.programme import Step
 
 Progress = Callable[[Plan, MaterialPoints], None]
 """Called after every recorded increment of a stage (e.g. a progress bar's update)."""
@@ -103,7 +103,7 @@ def run_stages(solver: StressControl, stages: Iterable[Step | Plan], history: Hi
 
     Args:
         solver: the stress-control solver of the points.
-        stages: programme steps (``homogenization.element_test.loading``) or plans.
+        stages: programme steps (``homogenization.element_test.programme``) or plans.
         history: where the increments are recorded.
         snapshot_interval: also snapshot every this many increments (0: at stage ends only).
         progress: ``progress(plan)`` -> a context that gives the per-increment callback of that stage

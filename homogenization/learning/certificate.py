@@ -8,7 +8,7 @@ biaxial shear in compression (eps11 > 0) and extension (eps11 < 0; constant volu
 odd number of orientations, ``tests_of``) to ``EPS_MAX``, at every pressure of ``PRESSURES``,
 and one reversal: constant-volume shear at ``PRESSURES[0]`` to +EPS_MAX / 2, then back to
 -EPS_MAX / 2, on ``N_ORIENTATIONS`` cells. A spatial cell: the triaxial counterparts (axis 1
-axial, ``loading.triaxial_shear``): undrained (isochoric) and drained (sigma22 = sigma33 = p0)
+axial, ``programme.triaxial_shear``): undrained (isochoric) and drained (sigma22 = sigma33 = p0)
 compression and extension at every pressure, and the undrained reversal, on the Lebedev rule
 times spins ``SPATIAL_RULE`` over the cell's spin period (``Mesostructure.spin_period_deg``).
 Each test runs through ``homogenization.element_test.driver.run`` with the ANN and with the DEM
@@ -55,7 +55,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.learning.from_rest import FromRest
 from homogenization.learning.records import Certificate, TestResult
 from homogenization.learning.envelope import (dimension_of, envelope_of, equilibrium_settings, escalation_of, MINIMUM,
@@ -94,7 +94,7 @@ COVERAGE_EVERY = 50
 
 def tests_of(pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
              increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS, dim: int = 2
-             ) -> list[tuple[dict[str, Any], loading.Programme]]:
+             ) -> list[tuple[dict[str, Any], programmes.Programme]]:
     """(description, programme) of every test of a cell of dimension ``dim``: kind, sense, p0
     [N/m in 2D, Pa in 3D] and name.
 
@@ -108,43 +108,43 @@ def tests_of(pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
     if dim == 3:
         return _spatial_tests(pressures, eps_max, increment)
     tests = []
-    n = loading.n_increments_for(eps_max, increment)
+    n = programmes.n_increments_for(eps_max, increment)
     for p0 in pressures:
         for kind in ("constant-volume", "drained"):
             senses = (("compression", 1.0), ("extension", -1.0))
             if kind == "constant-volume" and n_orientations % 2 == 0:
                 senses = senses[:1]
             for sense, sign in senses:
-                shear = (loading.drained_biaxial(p0, sign * eps_max, n) if kind == "drained"
-                         else loading.constant_volume_biaxial(sign * eps_max, n))
+                shear = (programmes.drained_biaxial(p0, sign * eps_max, n) if kind == "drained"
+                         else programmes.constant_volume_biaxial(sign * eps_max, n))
                 tests.append(({"name": f"{kind} {sense} p0={p0:g}", "kind": kind, "sense": sense, "p0": p0},
-                              (loading.isotropic(p0, increment=increment), shear)))
-    p0, half = pressures[0], loading.n_increments_for(eps_max / 2, increment)
+                              (programmes.isotropic(p0, increment=increment), shear)))
+    p0, half = pressures[0], programmes.n_increments_for(eps_max / 2, increment)
     tests.append(({"name": f"constant-volume reversal p0={p0:g}", "kind": "constant-volume", "sense": "reversal", "p0": p0},
-                  (loading.isotropic(p0, increment=increment),
-                   loading.constant_volume_biaxial(eps_max / 2, half, label="shear"),
-                   loading.constant_volume_biaxial(-eps_max, 2 * half, label="reverse"))))
+                  (programmes.isotropic(p0, increment=increment),
+                   programmes.constant_volume_biaxial(eps_max / 2, half, label="shear"),
+                   programmes.constant_volume_biaxial(-eps_max, 2 * half, label="reverse"))))
     return tests
 
 
 def _spatial_tests(pressures: Sequence[float], eps_max: float, increment: float
-                   ) -> list[tuple[dict[str, Any], loading.Programme]]:
+                   ) -> list[tuple[dict[str, Any], programmes.Programme]]:
     """The triaxial tests of a spatial cell (``tests_of``)."""
     tests = []
-    n = loading.n_increments_for(eps_max, increment)
+    n = programmes.n_increments_for(eps_max, increment)
     for p0 in pressures:
-        iso = loading.isotropic(p0, increment=increment, dim=3)
-        shears = {("undrained", "compression"): loading.isochoric(eps_max, n),
-                  ("undrained", "extension"): loading.isochoric(-eps_max, n),
-                  ("drained", "compression"): loading.triaxial_shear("drained", p0, eps_max, n)[0],
-                  ("drained", "extension"): loading.triaxial_shear("extension", p0, eps_max, n)[0]}
+        iso = programmes.isotropic(p0, increment=increment, dim=3)
+        shears = {("undrained", "compression"): programmes.isochoric(eps_max, n),
+                  ("undrained", "extension"): programmes.isochoric(-eps_max, n),
+                  ("drained", "compression"): programmes.triaxial_shear("drained", p0, eps_max, n)[0],
+                  ("drained", "extension"): programmes.triaxial_shear("extension", p0, eps_max, n)[0]}
         for (kind, sense), shear in shears.items():
             tests.append(({"name": f"{kind} {sense} p0={p0:g}", "kind": kind, "sense": sense, "p0": p0}, (iso, shear)))
-    p0, half = pressures[0], loading.n_increments_for(eps_max / 2, increment)
+    p0, half = pressures[0], programmes.n_increments_for(eps_max / 2, increment)
     tests.append(({"name": f"undrained reversal p0={p0:g}", "kind": "undrained", "sense": "reversal", "p0": p0},
-                  (loading.isotropic(p0, increment=increment, dim=3),
-                   loading.isochoric(eps_max / 2, half, label="shear"),
-                   loading.isochoric(-eps_max, 2 * half, label="reverse"))))
+                  (programmes.isotropic(p0, increment=increment, dim=3),
+                   programmes.isochoric(eps_max / 2, half, label="shear"),
+                   programmes.isochoric(-eps_max, 2 * half, label="reverse"))))
     return tests
 
 
@@ -168,7 +168,7 @@ def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_
     return {**settings, "n_orientations": int(n_orientations), **hybrid}
 
 
-def run_test(model: Any, programme: loading.Programme, meso: Mesostructure, settings: dict[str, Any]) -> driver.Record:
+def run_test(model: Any, programme: programmes.Programme, meso: Mesostructure, settings: dict[str, Any]) -> driver.Record:
     """``programme`` on cells of ``model`` from ``meso``, oriented as ``settings`` say
     (``requested_settings``: planar ``n_orientations``, spatial ``spatial_rule``)."""
     if meso.dim == 3:
@@ -294,7 +294,7 @@ def _compare(a: driver.Record, d: driver.Record, name: str, scale: float, target
             **({"stress_control_jumps": jumps} if any(jumps.values()) else {})}
 
 
-def _dem_spread(rest: FromRest, test: tuple[dict[str, Any], loading.Programme], meso: Mesostructure,
+def _dem_spread(rest: FromRest, test: tuple[dict[str, Any], programmes.Programme], meso: Mesostructure,
                 settings: dict[str, Any], d: driver.Record, scale: float) -> dict[str, Any]:
     """``dem_spread`` of ``test`` (description, programme): its programme run by the DEM ``rest`` started
     from rest in every increment, max over the shear stages of max(abs(p_dem - p_rest), abs(q_dem -

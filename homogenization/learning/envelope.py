@@ -27,7 +27,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
-from homogenization.element_test import loading
+from homogenization.element_test import programme as programmes
 from homogenization.learning.records import Certificate
 
 PRESSURE_RTOL = 1e-9
@@ -145,9 +145,9 @@ def envelope_of(cert: Certificate) -> dict[str, Any]:
     }
 
 
-def step_kind(step: loading.Step, p0: float | None) -> str:
+def step_kind(step: programmes.Step, p0: float | None) -> str:
     """Kind of a shear step as the certificate names its tests: "constant-volume" (planar, d_eps22
-    = -d_eps11), "undrained" (spatial isochoric, ``loading.isochoric``), "drained" (axial strain,
+    = -d_eps11), "undrained" (spatial isochoric, ``programme.isochoric``), "drained" (axial strain,
     the lateral stresses held at ``p0``, no coupling), else "other"."""
     rtol = 1e-9
     if all(c == "strain" for c in step.control):
@@ -165,7 +165,7 @@ def step_kind(step: loading.Step, p0: float | None) -> str:
     return "other"
 
 
-def outside(envelope: Mapping[str, Any], programme: loading.Programme, *, mesostructure: str | None = None,
+def outside(envelope: Mapping[str, Any], programme: programmes.Programme, *, mesostructure: str | None = None,
             cell_parameters: Mapping[str, float] | None = None, unit: str = "N/m") -> list[str]:
     """Where ``programme`` (run on the cell named ``mesostructure`` with ``cell_parameters``)
     leaves ``envelope`` (``envelope_of``): one phrase each, empty inside.

@@ -360,7 +360,7 @@ def run_drained(run: Run) -> bool:
 TRIAXIAL_NAMES = {"undrained": "undrained triaxial compression", "drained": "drained triaxial compression",
                   "extension": "drained triaxial extension", "constant_p": "triaxial compression at constant p",
                   "true": "true triaxial compression", "cyclic": "cyclic undrained triaxial test"}
-"""What a 3D run is, by the ``test`` parameter that ``hmodel triaxial`` stores (``loading.TRIAXIAL_TESTS``)."""
+"""What a 3D run is, by the ``test`` parameter that ``hmodel triaxial`` stores (``programme.TRIAXIAL_TESTS``)."""
 
 
 def programme_name(run: Run) -> str:
@@ -550,7 +550,7 @@ def save_figure(fig: Figure, path: Path, *, dpi: int = PNG_DPI) -> Path:
 
 def is_drained(parameters: Mapping, programme: Sequence) -> bool:
     """Whether a stored run is drained: its ``drained`` parameter, else a stress-controlled
-    component in any step after the first (``programme`` as ``loading.Programme``)."""
+    component in any step after the first (``programme``: its steps, a ``Programme``)."""
     if "drained" in parameters and parameters["drained"] is not None:
         return bool(parameters["drained"])
     return any(any(step.stress_mask) for step in programme[1:])

@@ -50,7 +50,7 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
-from homogenization.element_test import loading
+from homogenization.element_test import programme as programmes
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
@@ -189,7 +189,7 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
         f.attrs["volume_rule"] = layout.volume_rule
         f.attrs["sign_convention"] = SIGN_CONVENTION
         f.attrs["stress_units"] = layout.stress_units
-        f.attrs["programme"] = json.dumps(loading.to_dict(record.programme))
+        f.attrs["programme"] = json.dumps(programmes.to_dict(record.programme))
         f.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True)
         f.attrs["seed"] = int(seed)
         for key, value in provenance(command=command).items():
@@ -284,7 +284,7 @@ def read_run(path: Path) -> StoredRun:
                 V0=float(attrs["V0"]),
                 parameters=_cell_parameters(attrs),
                 backend=str(attrs["backend"]),
-                programme=loading.from_dict(attrs["programme"]),
+                programme=programmes.from_dict(attrs["programme"]),
                 final_state={name: ds[()] for name, ds in f["final_state"].items()},
             )
     except UserError:

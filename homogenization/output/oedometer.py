@@ -1,5 +1,5 @@
 """What an oedometric (K0) test reports: vertical and horizontal stress, K0 and volumetric strain of a
-3D ``Record`` (axis 1 vertical; programme ``loading.oedometric``).
+3D ``Record`` (axis 1 vertical; programme ``element_test.programme.oedometric``).
 
 Sign convention: compression and contraction positive; stresses [Pa], strains [-].
 """

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from homogenization.element_test import driver, loading
+from homogenization.element_test import driver, programme as programmes
 from homogenization.output import figures
 from homogenization.backends import make_cell_model
 from homogenization.element_test.points import MaterialPoints
@@ -40,24 +40,24 @@ def run_test(cell_model: Any, case: Case, meso: Mesostructure) -> driver.Record:
     prm = case.parameters
     common = dict(mesostructure=meso, n_orientations=prm["n_orientations"], stress_rtol=prm["stress_rtol"],
                   progress=False)
-    full = loading.biaxial(case.p0, prm["eps_max"], prm["increment"], iso_increment=prm["iso_increment"],
+    full = programmes.biaxial(case.p0, prm["eps_max"], prm["increment"], iso_increment=prm["iso_increment"],
                            drained=prm["drained"])
     if prm["erode_at"] is None:
         return driver.run(cell_model, full, **common)
     from warp_hcell.dem.erosion import erode_state
 
     iso, shear = full
-    n_before = min(loading.n_increments_for(prm["erode_at"], prm["increment"]), shear.n_increments - 1)
+    n_before = min(programmes.n_increments_for(prm["erode_at"], prm["increment"]), shear.n_increments - 1)
     eps_before = prm["eps_max"] * n_before / shear.n_increments
 
-    def shear_step(eps: float, n: int, label: str) -> loading.Step:
+    def shear_step(eps: float, n: int, label: str) -> programmes.Step:
         if prm["drained"]:
-            return loading.drained_biaxial(case.p0, eps, n, label=label)
-        return loading.constant_volume_biaxial(eps, n, label=label)
+            return programmes.drained_biaxial(case.p0, eps, n, label=label)
+        return programmes.constant_volume_biaxial(eps, n, label=label)
 
     before = (iso, shear_step(eps_before, n_before, shear.label))
-    relax = (loading.drained_biaxial(case.p0, 0.0, 1, label=ERODE_STAGE) if prm["drained"]
-             else loading.proportional_strain(0.0, 0.0, 1, label=ERODE_STAGE))
+    relax = (programmes.drained_biaxial(case.p0, 0.0, 1, label=ERODE_STAGE) if prm["drained"]
+             else programmes.proportional_strain(0.0, 0.0, 1, label=ERODE_STAGE))
     after = (relax,
              shear_step(prm["eps_max"] - eps_before, shear.n_increments - n_before, ERODED_STAGE))
 

@@ -21,7 +21,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from homogenization.element_test import loading
+from homogenization.element_test import programme as programmes
 from homogenization.backends import backend_class, mesostructure_refusal
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.parameters import CellDefaults, ContactLaw
@@ -195,7 +195,7 @@ def plan(args: Any) -> tuple[list[Case], list[str]]:
                     model = models.for_case(source, meso, plain is not None) if backend == "ann" else None
                     ann = {}
                     if backend == "ann":
-                        programme = loading.biaxial(p0, args.eps_max, args.increment, drained=args.drained)
+                        programme = programmes.biaxial(p0, args.eps_max, args.increment, drained=args.drained)
                         ann = {"ann_model": {**models.record(model),
                                              "outside_envelope": models.outside_envelope(model, programme, meso)}}
                     parameters = {
