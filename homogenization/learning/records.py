@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
 
-from training.card import ModelCard
+if TYPE_CHECKING:  # training.card imports torch (through the checkpoint): not for commands' --help
+    from training.card import ModelCard
 
 SCHEMA_VERSION = 2
 """The model card's ``format_version`` these records belong to (``training.checkpoint.FORMAT_VERSION``)."""
