@@ -54,6 +54,12 @@ class Dimension:
         shear_strain_factor: a material point's shear strain per tensor shear component: 2 in the
             plane (engineering gamma12 = 2 eps12, as plane-strain finite elements take it), 1 in
             space (tensor components eps23, eps13, eps12).
+        boundary: the outer boundary whose measure is V_cell: "polygon" (grain indices in order) or
+            "polyhedron" (outward triangles).
+        boundary_faces: least number of faces of a valid boundary: 1 (the polygon) or 4 (triangles).
+        boundary_rule: what a valid boundary needs, as an error message says it.
+        empty_boundary: how an error message says that the boundary has no measure.
+        spring: what a pair's tangential spring force is, as the learning state describes it.
     """
 
     dim: int
@@ -67,6 +73,11 @@ class Dimension:
     grain_measure: Callable[[np.ndarray], np.ndarray]
     deviator: Callable[[np.ndarray], np.ndarray]
     shear_strain_factor: float
+    boundary: str
+    boundary_faces: int
+    boundary_rule: str
+    empty_boundary: str
+    spring: str
 
     @property
     def n_voigt(self) -> int:
@@ -97,10 +108,19 @@ class Dimension:
 
 _DIMENSIONS = {
     2: Dimension(2, ("11", "22", "12"), ((0, 0), (1, 1), (0, 1)), ("n", "t"), "area", "N/m", (), "both",
-                 lambda radius: math.pi * radius**2, _deviator_planar, 2.0),
+                 lambda radius: math.pi * radius**2, _deviator_planar, 2.0,
+                 boundary="polygon", boundary_faces=1, boundary_rule="outer polygon needs >= 3 distinct grains",
+                 empty_boundary="polygon has zero area",
+                 spring="tangential spring force of each pair, on grain i along w = (-u_t, u_n), "
+                        "u = (x_j - x_i) / |x_j - x_i|; zero out of contact"),
     3: Dimension(3, ("11", "22", "33", "23", "13", "12"), ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)),
                  ("n", "t1", "t2"), "volume", "Pa", (3,), "all three",
-                 lambda radius: 4.0 / 3.0 * math.pi * radius**3, _deviator_spatial, 1.0),
+                 lambda radius: 4.0 / 3.0 * math.pi * radius**3, _deviator_spatial, 1.0,
+                 boundary="polyhedron", boundary_faces=4,
+                 boundary_rule="outer surface needs >= 4 triangles of distinct grains",
+                 empty_boundary="surface encloses no volume",
+                 spring="tangential spring force vector of each pair on grain i, components (n, t1, t2), in the "
+                        "contact's tangent plane (normal u = (x_j - x_i) / |x_j - x_i|); zero out of contact"),
 }
 
 

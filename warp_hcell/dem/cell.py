@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import warnings
 from concurrent.futures import ThreadPoolExecutor
+from itertools import combinations
 from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping, Sequence
 
@@ -24,6 +25,7 @@ import warp as wp
 
 from warp_hcell.core.contact import pair_law
 from warp_hcell.core.contract import CellResponse
+from warp_hcell.core.dimension import dimension
 from warp_hcell.dem.dimensions import DIMENSIONS
 from warp_hcell.dem.integrator import DemIntegrator
 from warp_hcell.dem.love_weber import to_compression_positive
@@ -171,35 +173,34 @@ class DemCell:
                             diagnostics=diagnostics)
 
     def observables(self, state: DemCellState) -> dict[str, np.ndarray]:
-        """Per-cell quantities, shape (n_cells,) each.
+        """Per-cell quantities, shape (n_cells,) each, named by the cell's frame (``Dimension.frame``:
+        (n, t) or (n, t1, t2)).
 
-        Always: ``l1, l2, area`` [m, m^2], ``S_nn, S_tt, S_nt`` [N m] (compression positive),
-        ``n_contacts`` (closed contacts), ``substeps`` and ``converged`` of the last step, and
-        grain centres ``x_n{i}, x_t{i}`` [m] (i = 1-based label); then the observables the
-        mesostructure declares (``Mesostructure.observables``). 3D cells give ``l1, l2, l3``,
-        ``area`` (the volume [m^3]), ``S_nn, S_t1t1, S_t2t2, S_nt1, S_nt2, S_t1t2`` and
-        ``x_n{i}, x_t1{i}, x_t2{i}`` instead, with the same counts.
+        Cell sizes ``l1 .. ld`` [m], ``area`` (V_cell [m^2] or [m^3]), the moment's diagonal
+        ``S_nn, S_tt`` (3D: ``S_nn, S_t1t1, S_t2t2``) then its upper triangle ``S_nt`` (3D:
+        ``S_nt1, S_nt2, S_t1t2``) [N m] (compression positive), ``n_contacts`` (closed contacts),
+        ``substeps`` and ``converged`` of the last step, the observables the mesostructure
+        declares (``Mesostructure.observables``), and grain centres ``x_n{i}, x_t{i}`` (3D:
+        ``x_n{i}, x_t1{i}, x_t2{i}``) [m] (i = 1-based label).
         """
         arrays = state.dem.to_numpy()
         meso = state.model.meso
         response = self.response(state)
-        x = arrays["position"]
-        if meso.dim == 3:
-            return _observables_3d(arrays, response)
-        obs: dict[str, np.ndarray] = {
-            "l1": arrays["cell_size"][:, 0].copy(), "l2": arrays["cell_size"][:, 1].copy(),
-            "area": response.area, "S_nn": response.moment[:, 0, 0], "S_tt": response.moment[:, 1, 1],
-            "S_nt": response.moment[:, 0, 1], "n_contacts": arrays["contact"].sum(axis=1),
-            "substeps": arrays["substeps"].copy(), "converged": arrays["converged"] == 1,
-        }
+        x, moment, frame = arrays["position"], response.moment, dimension(meso.dim).frame
+        obs: dict[str, np.ndarray] = {f"l{k + 1}": arrays["cell_size"][:, k].copy() for k in range(meso.dim)}
+        obs["area"] = response.area
+        obs.update({f"S_{a}{a}": moment[:, k, k] for k, a in enumerate(frame)})
+        obs.update({f"S_{frame[i]}{frame[j]}": moment[:, i, j] for i, j in combinations(range(meso.dim), 2)})
+        obs.update({"n_contacts": arrays["contact"].sum(axis=1), "substeps": arrays["substeps"].copy(),
+                    "converged": arrays["converged"] == 1})
         if meso.observables:
             branch = x[:, meso.pairs[:, 1]] - x[:, meso.pairs[:, 0]]
-            unit = branch / np.hypot(branch[..., 0], branch[..., 1])[..., None]
+            unit = branch / np.hypot.reduce(branch, axis=-1)[..., None]
             normal = 0.0 - np.sum(arrays["contact_force"] * unit, axis=-1)
             obs.update(evaluate_observables(meso, x, normal, arrays["shear_force"], arrays["contact"]))
         for g in range(meso.n_grains):
-            obs[f"x_n{g + 1}"] = x[:, g, 0].copy()
-            obs[f"x_t{g + 1}"] = x[:, g, 1].copy()
+            for axis, name in enumerate(frame):
+                obs[f"x_{name}{g + 1}"] = x[:, g, axis].copy()
         return obs
 
     def take(self, state: DemCellState, index: np.ndarray) -> DemCellState:
@@ -238,18 +239,3 @@ def stiffer_than_dt(state: DemCellState) -> np.ndarray:
     rsum = radius[:, pairs[:, 0]] + radius[:, pairs[:, 1]]
     overlap = rsum - np.linalg.norm(x[:, pairs[:, 1]] - x[:, pairs[:, 0]], axis=-1)
     return (overlap > HERTZ_DT_OVERLAP * rsum).any(axis=1)
-
-
-def _observables_3d(arrays: Mapping[str, np.ndarray], response: CellResponse) -> dict[str, np.ndarray]:
-    """``DemCell.observables`` of spatial cells (its docstring)."""
-    moment = response.moment
-    obs = {"l1": arrays["cell_size"][:, 0].copy(), "l2": arrays["cell_size"][:, 1].copy(),
-           "l3": arrays["cell_size"][:, 2].copy(), "area": response.area, "S_nn": moment[:, 0, 0],
-           "S_t1t1": moment[:, 1, 1], "S_t2t2": moment[:, 2, 2], "S_nt1": moment[:, 0, 1], "S_nt2": moment[:, 0, 2],
-           "S_t1t2": moment[:, 1, 2], "n_contacts": arrays["contact"].sum(axis=1),
-           "substeps": arrays["substeps"].copy(), "converged": arrays["converged"] == 1}
-    x = arrays["position"]
-    for g in range(x.shape[1]):
-        for axis, name in enumerate(("n", "t1", "t2")):
-            obs[f"x_{name}{g + 1}"] = x[:, g, axis].copy()
-    return obs

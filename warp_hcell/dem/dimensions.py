@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
+from warp_hcell.core.parameters import Law
 from warp_hcell.dem.kernels import step_kernel
 from warp_hcell.dem.kernels3d import step_kernel_3d
 from warp_hcell.dem.tangent import sliding_contacts, sliding_contacts_3d
@@ -39,10 +40,13 @@ class DemDimension:
     """(mesostructure, contact-law name) -> the compiled cell-step kernel of its topology."""
     sliding_contacts: Callable[..., np.ndarray]
     """``warp_hcell.dem.tangent.sliding_contacts`` or ``sliding_contacts_3d``."""
+    steps: Callable[[Law], bool]
+    """contact law -> True where the kernel steps it: in the plane only the laws defined for disks
+    (``Law.planar``), in space every law."""
 
 
 DIMENSIONS = {
-    2: DemDimension(_planar_kernel, sliding_contacts),
-    3: DemDimension(_spatial_kernel, sliding_contacts_3d),
+    2: DemDimension(_planar_kernel, sliding_contacts, lambda law: law.planar),
+    3: DemDimension(_spatial_kernel, sliding_contacts_3d, lambda law: True),
 }
 """The meso-DEM's pieces by the cell's dimension."""

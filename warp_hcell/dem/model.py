@@ -17,6 +17,7 @@ import warp as wp
 from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, cell_measure, per_cell
 from warp_hcell.core.parameters import ContactLaw, DemSettings, Law
 from warp_hcell.core.dimension import dimension
+from warp_hcell.dem.dimensions import DIMENSIONS
 from warp_hcell.dem.laws import warp_law
 from warp_hcell.dem.state import DemState
 from warp_hcell.dem.stepping import cell_vector
@@ -73,7 +74,7 @@ class DemModel:
 
         A grain's mass is density pi r^2 (a disk per unit thickness) in 2D, density 4/3 pi r^3 in 3D.
         """
-        if meso.dim == 2 and not contact_law.planar:
+        if not DIMENSIONS[meso.dim].steps(contact_law):
             raise ValueError(f"the {contact_law.name} contact law is defined for spheres (3D cells); "
                              f"mesostructure {meso.name!r} is planar: use the linear law")
         radius = np.ascontiguousarray(radius, dtype=np.float64)

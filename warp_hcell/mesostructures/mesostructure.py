@@ -34,6 +34,7 @@ import numpy as np
 
 from warp_hcell.core import libm
 from warp_hcell.core.contract import CellCounts, StateFeature, StateSchema
+from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import DemSettings
 
 OBSERVABLE_KINDS = {
@@ -254,26 +255,20 @@ def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_labe
         raise MesostructureError(f"mesostructure {name!r}: duplicate contact pairs")
     if pair_label.shape != (pairs.shape[0],):
         raise MesostructureError(f"mesostructure {name!r}: pair labels must be one per pair")
-    if dim == 2:
-        if outer.size < 3 or len(set(outer.tolist())) != outer.size or outer.min() < 0 or outer.max() >= n_grains:
-            raise MesostructureError(f"mesostructure {name!r}: outer polygon needs >= 3 distinct grains in 1..{n_grains}")
-    elif (outer.shape[0] < 4 or outer.min() < 0 or outer.max() >= n_grains
-          or any(len(set(face)) != 3 for face in outer.tolist())):
-        raise MesostructureError(f"mesostructure {name!r}: outer surface needs >= 4 triangles of distinct grains in "
-                                 f"1..{n_grains}")
+    cell = dimension(dim)
+    faces = np.atleast_2d(outer)  # the polygon as one face, or the triangles
+    if (faces.shape[0] < cell.boundary_faces or faces.shape[1] < 3 or outer.min() < 0 or outer.max() >= n_grains
+            or any(len(set(face)) != len(face) for face in faces.tolist())):
+        raise MesostructureError(f"mesostructure {name!r}: {cell.boundary_rule} in 1..{n_grains}")
     undriven = [int(g) + 1 for g in np.unique(outer) if not driven[g].any()]
     if undriven:
         raise MesostructureError(
             f"mesostructure {name!r}: outer grain {undriven[0]} has no driven DOF; outer grains follow the cell strain")
-    if dim == 2 and not (driven[:, 0].any() and driven[:, 1].any()):
-        raise MesostructureError(f"mesostructure {name!r}: needs at least one DOF driven along n and one along t")
     for axis in range(dim):
         if not driven[:, axis].any():
-            raise MesostructureError(f"mesostructure {name!r}: needs at least one DOF driven along "
-                                     f"{AXIS_NAMES[dim][axis]}")
+            raise MesostructureError(f"mesostructure {name!r}: needs at least one DOF driven along {cell.frame[axis]}")
     if not cell_measure(position, outer) > 0.0:
-        raise MesostructureError(f"mesostructure {name!r}: the outer "
-                                 f"{'polygon has zero area' if dim == 2 else 'surface encloses no volume'}")
+        raise MesostructureError(f"mesostructure {name!r}: the outer {cell.empty_boundary}")
     for i, j in combinations(range(n_grains), 2):
         gap = math.dist(position[i], position[j]) - radius[i] - radius[j]
         if gap < -tolerance * (radius[i] + radius[j]):
@@ -398,19 +393,12 @@ def state_schema(meso: Mesostructure) -> StateSchema:
     pair_names = tuple(_pair_label(p) for p in meso.pairs)
     sizes = tuple(f"l{k + 1}" for k in range(meso.dim))
     frame = ", ".join(axes)
-    if meso.dim == 2:
-        shear = ("tangential spring force of each pair, on grain i along w = (-u_t, u_n), "
-                 "u = (x_j - x_i) / |x_j - x_i|; zero out of contact")
-        measure = ("area", "m^2", "area V_cell of the outer polygon")
-    else:
-        shear = ("tangential spring force vector of each pair on grain i, components (n, t1, t2), in the "
-                 "contact's tangent plane (normal u = (x_j - x_i) / |x_j - x_i|); zero out of contact")
-        measure = ("area", "m^3", "volume V_cell of the outer polyhedron")
+    cell = dimension(meso.dim)
     features = {
         "cell_size": StateFeature(sizes, "m", "driven", f"cell size ({', '.join(sizes)}); l <- l (1 - d_eps)"),
         "free_position": StateFeature(tuple("x_" + n for n in dof_names), "m", "learned",
                                       f"coordinates of the free DOFs in the local frame ({frame})"),
-        "shear_force": StateFeature(tuple("fs_" + n for n in pair_names), "N", "history", shear),
+        "shear_force": StateFeature(tuple("fs_" + n for n in pair_names), "N", "history", cell.spring),
         "contact": StateFeature(tuple("contact_" + n for n in pair_names), "bool", "derived",
                                 "1 where gap <= contact_tolerance (r_i + r_j)"),
         "normal_force": StateFeature(tuple("fn_" + n for n in pair_names), "N", "derived",
@@ -419,7 +407,7 @@ def state_schema(meso: Mesostructure) -> StateSchema:
                                    "net contact force on each free DOF (~0 at equilibrium)"),
         "moment": StateFeature(tuple(f"S_{a}{b}" for a in axes for b in axes), "N m", "derived",
                                "Love-Weber sum over the contacts, compression positive"),
-        measure[0]: StateFeature((measure[0],), measure[1], "derived", measure[2]),
+        "area": StateFeature(("area",), f"m^{meso.dim}", "derived", f"{cell.measure} V_cell of the outer {cell.boundary}"),
     }
     return StateSchema(free_dofs=free_dofs, pairs=np.array(meso.pairs), radius=np.array(meso.radius),
                        reference_position=np.array(meso.position), reference_cell_size=np.array(meso.cell_size),
