@@ -13,6 +13,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import CellDefaults, ContactLaw
 
 BACKENDS: dict[str, dict[int, str]] = {
@@ -55,7 +56,7 @@ def make_cell_model(
     physical parameters and options; ValueError (one line) for a contact law the cells' dimension does not
     define (the Hertz-Mindlin law of spheres in planar cells)."""
     law = contact_law or ContactLaw()
-    if dim == 2 and not law.planar:
+    if dimension(dim).planar and not law.planar:
         raise ValueError(f"the {law.name} contact law is defined for spheres (3D cells, hmodel triaxial); planar "
                          f"cells use the linear law")
     return backend_class(name, dim)(law, radius, **options)

@@ -32,8 +32,11 @@ import numpy as np
 
 CHANNELS = ("q", "p", "eps_v")
 """Measured quantities a test may hold: q, p [N/m in 2D, Pa in 3D], eps_v [-]."""
-TESTS = ("undrained", "drained", "triaxial_undrained", "triaxial_drained")
-"""Measurement kinds: constant-volume or drained biaxial (2D) and triaxial (3D) shear after isotropic compression."""
+TEST_KINDS = {(2, False): "undrained", (2, True): "drained", (3, False): "triaxial_undrained", (3, True): "triaxial_drained"}
+"""(dimension, drained) -> measurement kind: constant-volume or drained biaxial (2D) and triaxial (3D) shear after
+isotropic compression."""
+TESTS = tuple(TEST_KINDS.values())
+"""Measurement kinds (``TEST_KINDS``' values)."""
 
 
 @dataclass(frozen=True)
@@ -61,7 +64,7 @@ class Measurement:
     @property
     def kind(self) -> str:
         """One of ``TESTS``."""
-        return TESTS[int(self.drained) + 2 * (self.dim == 3)]
+        return TEST_KINDS[(self.dim, bool(self.drained))]
 
 
 def read_test(path: Path) -> Measurement:
@@ -126,8 +129,8 @@ def read_test(path: Path) -> Measurement:
         raise ValueError(f"{path}: eps1 must be > 0 and increasing (counted from the end of the isotropic stage)")
     if eps1[-1] >= 0.5:
         raise ValueError(f"{path}: eps1 reaches {eps1[-1]:g}; strains are fractions, not percent")
-    return Measurement(path.name, path, kind.endswith("_drained") or kind == "drained", p0, eps1, columns,
-                       3 if kind.startswith("triaxial") else 2)
+    dim, drained = next(key for key, name in TEST_KINDS.items() if name == kind)
+    return Measurement(path.name, path, drained, p0, eps1, columns, dim)
 
 
 def _check_header(path: Path, number: int, header: list[str]) -> None:

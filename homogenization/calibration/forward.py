@@ -35,9 +35,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from homogenization.element_test import driver, programme as programmes
-from homogenization.backends import make_cell_model
-from homogenization.backends.analytical import AnalyticalCell
-from homogenization.backends.analytical3d import Analytical3DCell
+from homogenization.backends import backend_class, make_cell_model
 from homogenization.calibration.data import Measurement
 from homogenization.element_test.points import MaterialPoints, material_points, orientation_set
 from homogenization.element_test.plan import Plan
@@ -45,9 +43,9 @@ from homogenization.element_test.record import History
 from homogenization.element_test.stages import run_stages
 from homogenization.element_test.solver import POPULATION, StressControl
 from homogenization.material import opening_spread
-from homogenization.material.invariants import deviator_3d, mean_stress_3d
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, HertzMindlinLaw, Law, LoadingDefaults
-from warp_hcell.mesostructures.hcell import build_h_cell_3d, h_cell
+from warp_hcell.core.dimension import dimension
+from warp_hcell.mesostructures.hcell import plain_h_cell
 
 PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson", opening_spread.NAME)
 """Names of the calibratable parameters, in the units of the CLI flags: phi_g [deg], kn [N/m],
@@ -183,6 +181,15 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
     return _simulate_one_by_one(test, full, settings)
 
 
+SHEAR_TESTS: dict[int, Callable[..., programmes.Programme]] = {
+    2: programmes.biaxial,
+    3: lambda p0, eps_max, increment, *, iso_increment, drained: programmes.triaxial(
+        p0, eps_max, increment, test="drained" if drained else "undrained", iso_increment=iso_increment),
+}
+"""Dimension of a test -> its programme ``(p0, eps_max, increment, *, iso_increment, drained)``: the
+biaxial (2) or triaxial (3) test, drained or undrained (``element_test.programme``)."""
+
+
 def _n_shear(test: Measurement, settings: ForwardSettings) -> int:
     return max(1, math.ceil(float(test.eps1.max()) / settings.increment - 1e-9))
 
@@ -198,10 +205,7 @@ def population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int)
     """One material point per parameter set, each with its own cells (per-cell contact law: kn and kt/kn,
     or G and nu; phi_g and alpha0; with ``SPREAD``, ``opening_spread.N_NODES`` families of alpha0), oriented as the driver orients the H-cell (``element_test.points.orientation_set``)."""
     n = full["phi_g"].size
-    if dim == 2:
-        cell_class, meso = AnalyticalCell, h_cell(CellDefaults.alpha0_deg, settings.radius)
-    else:
-        cell_class, meso = Analytical3DCell, build_h_cell_3d(CellDefaults.alpha0_deg, radius=settings.radius)
+    cell_class, meso = backend_class("analytical", dim), plain_h_cell(dim, CellDefaults.alpha0_deg, settings.radius)
     orient = orientation_set(meso, n_orientations=settings.n_orientations, lebedev_order=settings.lebedev_order,
                              n_spins=settings.n_spins, staggered_spins=settings.staggered_spins)
     if SPREAD in full:
@@ -212,8 +216,8 @@ def population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int)
     else:
         per_cell = {name: np.repeat(values, orient.n_cells) for name, values in full.items()}
     if settings.law == HertzMindlinLaw.name:
-        model = Analytical3DCell.with_hertz_cell_laws(per_cell["shear_modulus"], per_cell["poisson"], per_cell["phi_g"],
-                                                      settings.radius, alpha0_deg=per_cell["alpha0"])
+        model = cell_class.with_hertz_cell_laws(per_cell["shear_modulus"], per_cell["poisson"], per_cell["phi_g"],
+                                                settings.radius, alpha0_deg=per_cell["alpha0"])
     else:
         model = cell_class.with_cell_laws(per_cell["kn"], per_cell["kt_over_kn"], per_cell["phi_g"], settings.radius,
                                           alpha0_deg=per_cell["alpha0"])
@@ -234,7 +238,7 @@ def stages(test: Measurement, settings: ForwardSettings, points: MaterialPoints)
         shear[:, lateral] = -inc / lateral.size
         held = np.full((n, lateral.size), p0)
         return isotropic, Plan("shear", _n_shear(test, settings), shear, lateral, held, held, held=True)
-    shear[:, lateral] = -inc if dim == 2 else 1.0 - 1.0 / math.sqrt(1.0 - inc)  # programme.isochoric
+    shear[:, lateral] = dimension(dim).undrained_lateral(inc)
     return isotropic, Plan("shear", _n_shear(test, settings), shear, none, np.zeros((n, 0)), np.zeros((n, 0)))
 
 
@@ -259,10 +263,8 @@ def simulate_points(test: Measurement, points: MaterialPoints, settings: Forward
 def _row(row: np.ndarray, start: np.ndarray, dim: int) -> np.ndarray:
     """q, p, eps_v of every point of a history row (n, dim + n_stress + 1), strains counted from ``start``, shape (3, n)."""
     eps = row[:, :dim] - start[:, :dim]
-    s = row[:, dim:-1]
-    if dim == 2:
-        return np.stack([s[:, 0] - s[:, 1], 0.5 * (s[:, 0] + s[:, 1]), eps[:, 0] + eps[:, 1]])
-    return np.stack([deviator_3d(*s.T), mean_stress_3d(s[:, 0], s[:, 1], s[:, 2]), eps.sum(axis=1)])
+    s, record = row[:, dim:-1], dimension(dim)
+    return np.stack([record.deviator(s), record.mean_stress(s), eps.sum(axis=1)])
 
 
 def contact_law_at(full: Mapping[str, np.ndarray], i: int, law: str) -> Law:
@@ -279,27 +281,21 @@ def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], setting
     out = np.empty((3, n, test.eps1.size))
     fallback = np.zeros(n, dtype=np.int64)
     n_shear = _n_shear(test, settings)
-    if test.dim == 2:
-        programme = programmes.biaxial(test.p0, n_shear * settings.increment, settings.increment,
-                                    iso_increment=settings.iso_increment, drained=test.drained)
-    else:
-        programme = programmes.triaxial(test.p0, n_shear * settings.increment, settings.increment,
-                                     test="drained" if test.drained else "undrained",
-                                     iso_increment=settings.iso_increment)
+    programme = SHEAR_TESTS[test.dim](test.p0, n_shear * settings.increment, settings.increment,
+                                      iso_increment=settings.iso_increment, drained=test.drained)
     for i in range(n):
         law = contact_law_at(full, i, settings.law)
         model = make_cell_model(settings.backend, contact_law=law, radius=settings.radius, dim=test.dim,
                                 **dict(settings.backend_options))
         alpha0 = float(full["alpha0"][i])
-        meso = (h_cell(alpha0, settings.radius) if test.dim == 2
-                else build_h_cell_3d(alpha0, radius=settings.radius))
+        meso = plain_h_cell(test.dim, alpha0, settings.radius)
         record = driver.run(model, programme, mesostructure=meso, n_orientations=settings.n_orientations,
                             stress_rtol=settings.stress_rtol, max_newton_iterations=settings.max_newton,
                             progress=False, lebedev_order=settings.lebedev_order, n_spins=settings.n_spins,
                             staggered_spins=settings.staggered_spins)
         shear = record.stage == programme[1].label
         start = np.flatnonzero(shear)[0] - 1
-        volumetric = record.eps11 + record.eps22 + (record.eps33 if test.dim == 3 else 0.0)
+        volumetric = record.eps_v
         e11 = record.eps11[start:]
         eps1_model = e11 - e11[0]
         values = np.stack([record.q[start:], record.p[start:], volumetric[start:] - volumetric[start]])

@@ -276,7 +276,7 @@ def isochoric(eps_axial: float, n_increments: int, *, label: str = "shear") -> S
     increments d, lateral increments d_lat = 1 - 1 / sqrt(1 - d) each, so that every increment
     keeps (1 - d)(1 - d_lat)^2 = 1 (the volume V = V0 J of the driver, to rounding)."""
     d = eps_axial / n_increments
-    d_lat = 1.0 - 1.0 / math.sqrt(1.0 - d)
+    d_lat = dimension_of(3).undrained_lateral(d)
     return Step(("strain",) * 3, (eps_axial, n_increments * d_lat, n_increments * d_lat), n_increments, label)
 
 

@@ -94,6 +94,12 @@ class Record:
         """2 for a plane-strain run, 3 for a triaxial one."""
         return 2 if self.eps33 is None else 3
 
+    @property
+    def eps_v(self) -> np.ndarray:
+        """Volumetric strain eps11 + eps22 (3D: + eps33) [-], contraction positive, shape (n,)."""
+        normal = self.eps11 + self.eps22
+        return normal if self.eps33 is None else normal + self.eps33
+
 
 class History:
     """Buffers of a run of n material points, one row per increment (``element_test.stages``).

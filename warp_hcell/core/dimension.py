@@ -60,6 +60,10 @@ class Dimension:
         boundary_rule: what a valid boundary needs, as an error message says it.
         empty_boundary: how an error message says that the boundary has no measure.
         spring: what a pair's tangential spring force is, as the learning state describes it.
+        planar: the cells are planar (disks per unit thickness), where contact laws of spheres do not apply.
+        undrained_lateral: axial strain increment d [-] -> the lateral strain increment of each lateral
+            normal component that keeps the increment undrained: -d in the plane (constant area to first
+            order), 1 - 1 / sqrt(1 - d) in space (volume (1 - d)(1 - d_lat)^2 kept exactly).
     """
 
     dim: int
@@ -78,6 +82,8 @@ class Dimension:
     boundary_rule: str
     empty_boundary: str
     spring: str
+    planar: bool
+    undrained_lateral: Callable[[float], float]
 
     @property
     def n_voigt(self) -> int:
@@ -112,7 +118,8 @@ _DIMENSIONS = {
                  boundary="polygon", boundary_faces=1, boundary_rule="outer polygon needs >= 3 distinct grains",
                  empty_boundary="polygon has zero area",
                  spring="tangential spring force of each pair, on grain i along w = (-u_t, u_n), "
-                        "u = (x_j - x_i) / |x_j - x_i|; zero out of contact"),
+                        "u = (x_j - x_i) / |x_j - x_i|; zero out of contact",
+                 planar=True, undrained_lateral=lambda d: -d),
     3: Dimension(3, ("11", "22", "33", "23", "13", "12"), ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)),
                  ("n", "t1", "t2"), "volume", "Pa", (3,), "all three",
                  lambda radius: 4.0 / 3.0 * math.pi * radius**3, _deviator_spatial, 1.0,
@@ -120,7 +127,8 @@ _DIMENSIONS = {
                  boundary_rule="outer surface needs >= 4 triangles of distinct grains",
                  empty_boundary="surface encloses no volume",
                  spring="tangential spring force vector of each pair on grain i, components (n, t1, t2), in the "
-                        "contact's tangent plane (normal u = (x_j - x_i) / |x_j - x_i|); zero out of contact"),
+                        "contact's tangent plane (normal u = (x_j - x_i) / |x_j - x_i|); zero out of contact",
+                 planar=False, undrained_lateral=lambda d: 1.0 - 1.0 / math.sqrt(1.0 - d)),
 }
 
 

@@ -43,6 +43,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import (
     ALPHA_MAX_DEG,
     ALPHA_MIN_DEG,
@@ -673,6 +674,20 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
                          pair_label=_labels(label, pairs, H3_TYPE1_PAIRS, H3_TYPE2_PAIRS),
                          parameters={"alpha0_deg": float(alpha0_deg),
                                      **({AXISYMMETRIC_KINEMATICS: 1.0} if axisymmetric else {})})
+
+
+def plain_h_cell(dim: int, alpha0_deg: float = CellDefaults.alpha0_deg,
+                 radius: float = CellDefaults.radius) -> Mesostructure:
+    """The touching plain H-cell of dimension ``dim``: ``h_cell`` (six equal disks) for 2,
+    ``build_h_cell_3d`` (ten equal spheres in orthogonal planes) for 3, at ``alpha0_deg`` [deg] and
+    grain radius ``radius`` [m].
+
+    Raises:
+        ValueError: ``dim`` is neither 2 nor 3.
+        MesostructureError: the 3D cell's bad parameter (as ``build_h_cell_3d``).
+    """
+    dimension(dim)
+    return h_cell(alpha0_deg, radius) if dim == 2 else build_h_cell_3d(alpha0_deg, radius=radius)
 
 
 def plain_alpha0_3d(meso: Mesostructure) -> tuple[float, float] | None:
