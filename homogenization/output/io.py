@@ -23,7 +23,7 @@ stresses and strains, ``sign_convention``):
 curve.csv: header ``stage,eps11,eps22,sigma11,sigma22,sigma12,p,q``, one row per increment,
 strains [-] and stresses [N/m], compression positive.
 
-3D (triaxial) runs (``Record.dim == 3``): ``/history`` also holds ``eps33, sigma33, sigma23,
+Triaxial runs (3D cells, ``Record.dim`` 3): ``/history`` also holds ``eps33, sigma33, sigma23,
 sigma13`` (stresses in Pa, p = tr(sigma) / 3, q = sqrt(3 J2), volume in m^3), ``/orientations``
 also ``frames`` (n_cells, 3, 3) and theta_deg is the angle between each cell axis and axis 1;
 the root attributes give the 3D volume rule and units. Their curve.csv has the header
