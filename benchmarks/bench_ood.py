@@ -5,7 +5,7 @@
 360 H-cells (alpha0 = 55 deg) compressed isotropically, then stepped along a constant-volume
 path (each step from the state the previous one returned, so every ``OOD_INTERVAL``-th step
 is checked, as in a run): the analytical backend, the ANN with its index (checks every
-``homogenization.backends.ann.OOD_INTERVAL`` distinct states) and the same ANN with the checks
+``homogenization.ann.ood.OOD_INTERVAL`` distinct states) and the same ANN with the checks
 off, interleaved round by round. Prints the mean time per increment of each (a median would
 hide the checked steps) and the time of one check.
 """

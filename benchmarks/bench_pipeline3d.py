@@ -35,8 +35,8 @@ from pathlib import Path
 import h5py
 
 from homogenization.learning import certificate
-from homogenization.learning.envelope import equilibrium_settings, escalation_of
-from homogenization.learning.records import Certificate
+from homogenization.ann.envelope import equilibrium_settings, escalation_of
+from homogenization.ann.records import Certificate
 from homogenization.cli import hmodel
 from warp_hcell.database.format import sizes
 

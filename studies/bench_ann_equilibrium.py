@@ -25,7 +25,7 @@ medians and their ratios.
 compiled and the torch path), to measure what the globalisation adds.
 
 ``--escalation on,off`` adds rows of the hybrid that keeps the corrections' result where a free grain moved
-and ends touching nothing (the package hands those cells to the DEM: ``homogenization.backends.escalation``;
+and ends touching nothing (the package hands those cells to the DEM: ``homogenization.ann.escalation``;
 the column "to DEM" counts them), ``sliding`` rows of a hybrid that also hands the DEM the cells where a grain
 free along every axis slides (``DemEscalation(sliding=True)``, not the package's default); ``--from-rest`` adds the DEM started from rest in every increment (the map
 the database samples), the DEM's own reproducibility. Beside the largest difference, the column "+-W inc."
@@ -141,7 +141,7 @@ def largest(record, key: str) -> float:
 def step_part(args, meso, corrections, tolerances) -> None:
     """Median time of one step call per backend on the cells of ``--step-rule``, side by side."""
     from homogenization.backends import make_cell_model
-    from homogenization.backends.ann import AnnCell3D
+    from homogenization.ann.cell import AnnCell3D
     from homogenization.material.orientation import orientations_3d
     from warp_hcell.core.parameters import ContactLaw
 
@@ -204,7 +204,7 @@ def main(argv=None) -> int:
                         "globalised (the package's: shifted where they climb, halved by the line search) or full "
                         "(plain Newton steps, halvings 0 and shift 0 in both paths)")
     parser.add_argument("--escalation", default="on", help="comma-separated on/off/sliding: the hybrid hands the cells "
-                        "with a released grain to the DEM (homogenization.backends.escalation) or not, or also "
+                        "with a released grain to the DEM (homogenization.ann.escalation) or not, or also "
                         "those where a free grain slides (DemEscalation(sliding=True), not the package's)")
     parser.add_argument("--from-rest", action="store_true", help="also the DEM started from rest in every increment "
                         "(the map the database samples): the DEM's own reproducibility")
@@ -231,9 +231,9 @@ def main(argv=None) -> int:
         parser.error("--guesses other than network need --test undrained (stress control starts from the network)")
 
     from homogenization.backends import make_cell_model
-    from homogenization.backends import ann as ann_backend
-    from homogenization.backends.ann import AnnCell3D
-    from homogenization.backends.escalation import DemEscalation
+    from homogenization.ann import cell as ann_backend
+    from homogenization.ann.cell import AnnCell3D
+    from homogenization.ann.escalation import DemEscalation
     from homogenization.element_test.driver import ControlError
     from training.equilibrium import corrected_advance
     from training.inference import FastAdvance

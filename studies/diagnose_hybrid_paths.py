@@ -80,7 +80,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     from homogenization.backends import make_cell_model
-    from homogenization.backends.ann import AnnCell3D, AnnState
+    from homogenization.ann.cell import AnnCell3D, AnnState
     from homogenization.element_test import driver, programme as programmes
     from warp_hcell.core.parameters import ContactLaw
     from warp_hcell.mesostructures.builders import mesostructure_arg

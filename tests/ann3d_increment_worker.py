@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from homogenization.backends.ann import AnnCell3D
+from homogenization.ann.cell import AnnCell3D
 from training.cell_physics import CellSchema
 from training.inference import FastAdvance
 from training.network import MesoNet

@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 
-from homogenization.backends.ann import AnnCell
+from homogenization.ann.cell import AnnCell
 from training.inference import FastAdvance
 from warp_hcell.core.parameters import ContactLaw
 

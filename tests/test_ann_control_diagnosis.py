@@ -10,7 +10,8 @@ import pytest
 from homogenization import hmodel
 from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
-from homogenization.backends.ann import AnnCell, AnnCell3D, default_model_path
+from homogenization.ann import default_model_path
+from homogenization.ann.cell import AnnCell, AnnCell3D
 from warp_hcell.core.contract import CellResponse
 from warp_hcell.mesostructures.builders import mesostructure_arg
 

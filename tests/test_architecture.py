@@ -120,6 +120,16 @@ def test_no_import_circle_among_the_package_modules():
     assert not circles, f"import circles (each a set of modules that import one another): {circles}"
 
 
+def test_no_import_circle_among_the_folders_of_homogenization():
+    """Each folder of ``homogenization`` (and each module at its top) as one node: no arrow back up between them."""
+    folders: dict[str, set[str]] = {}
+    for module, targets in _graph([p for p in MODULES if _name(p).startswith("homogenization.")]).items():
+        part = module.split(".")[1]
+        folders.setdefault(part, set()).update(t.split(".")[1] for t in targets if t.split(".")[1] != part)
+    circles = _cycles({part: folders.get(part, set()) for part in set(folders).union(*folders.values())})
+    assert not circles, f"import circles between the folders of homogenization: {circles}"
+
+
 def test_the_circle_check_finds_a_circle_through_a_local_import(tmp_path):
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set(), "c": {"a", "b"}}) == []
@@ -245,3 +255,31 @@ def test_the_length_check_counts_nested_definitions_and_methods(tmp_path):
     source.write_text("class A:\n    def f(self):\n        def g():\n" + "            x = 1\n" * 4 + "        return g\n")
     assert _long_functions(source, limit=6) == ["f at line 2 (7 lines)"]
     assert _long_functions(source, limit=4) == ["f at line 2 (7 lines)", "g at line 3 (5 lines)"]
+
+
+COMMAND_MODULES = ("warp_hcell.generate", "warp_hcell.clean")
+"""The command modules of ``warp_hcell`` (``python -m``): the only ones that import the command
+helpers ``warp_hcell.core.cli`` (argparse, progress bars, status lines); library code raises
+``warp_hcell.core.errors.UserError`` and takes a progress callback."""
+DRAWS_ITS_OWN_BARS = {"warp_hcell.database.exploration": "the exploration walks draw their bars in the tasks"}
+"""Library modules that still import the command helpers, and why."""
+
+
+def _imports_the_command_helpers(path: Path) -> bool:
+    return any(name == "warp_hcell.core.cli" or name.startswith("warp_hcell.core.cli.") for _, name in _imports(path))
+
+
+@pytest.mark.parametrize("path", [p for p in MODULES if _name(p).startswith("warp_hcell.")
+                                  and _name(p) not in (*COMMAND_MODULES, "warp_hcell.core.cli")],
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_library_modules_of_warp_hcell_do_not_import_the_command_helpers(path):
+    listed = _name(path) in DRAWS_ITS_OWN_BARS  # a listed module that stops importing them leaves the list
+    assert _imports_the_command_helpers(path) == listed, (
+        f"{_name(path)} is a library module and imports warp_hcell.core.cli" if not listed
+        else f"{_name(path)} no longer imports warp_hcell.core.cli: remove it from DRAWS_ITS_OWN_BARS")
+
+
+def test_the_command_modules_of_warp_hcell_are_the_python_m_entries():
+    for module in COMMAND_MODULES:
+        path = ROOT / Path(*module.split(".")).with_suffix(".py")
+        assert _imports_the_command_helpers(path) and "__main__" in path.read_text(), module

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization.backends.ann import default_model_path
+from homogenization.ann import default_model_path
 from homogenization.element_test import driver, programme as programmes
 from homogenization.learning import certificate
 from homogenization.learning.from_rest import FromRest

@@ -26,7 +26,8 @@ from homogenization.calibration import bayes
 from homogenization.cli import biaxial, calibrate, cell, hmodel
 from training import train
 from warp_hcell.core import cli, files
-from warp_hcell.database import clean, format as database, generate
+from warp_hcell.database import format as database
+from warp_hcell import clean as clean_command, generate as generate_command
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--alpha0", "55", "--eps-max", "0.01", "--increment", "5e-4", "--orientations", "12", "-q"]
@@ -118,7 +119,7 @@ def test_clean_on_a_file_without_outputs(tmp_path, capsys):
         f.attrs["format"], f.attrs["format_version"] = database.FORMAT, database.FORMAT_VERSION
         f.create_dataset("d_eps", data=[[0.0, 1e-4]])
     before = path.read_bytes()
-    assert clean.main([str(path)]) == 2
+    assert clean_command.main([str(path)]) == 2
     assert "not a complete learning database" in one_error_line(capsys)
     assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["db.h5"]
 
@@ -331,7 +332,7 @@ def test_the_temporary_of_a_killed_final_write_is_removed_by_the_next_run(tmp_pa
     (tmp_path / "notes.tmp").write_text("mine")
     argv = ["--mesostructure", str(ROOT / "warp_hcell" / "data" / "h_cell_lateral_0.7D.toml"), "--samples", "100",
             "--chunk-size", "100", "--n-directions", "4", "--threads", "1", "-q", "--out", str(out)]
-    assert generate.main(argv) == 0
+    assert generate_command.main(argv) == 0
     assert not left.exists() and other.read_text() == "not ours" and (tmp_path / "notes.tmp").read_text() == "mine"
     assert sorted(p.name for p in tmp_path.iterdir()) == [".db.h5.x.abcdefgh.tmp", "db.h5", "notes.tmp"]
 

@@ -82,7 +82,7 @@ def test_the_planar_dem_model_refuses_it_too():
 
 
 def test_the_meso_ann_and_the_learning_database_refuse_it(tmp_path):
-    from homogenization.backends.ann import AnnCell3D
+    from homogenization.ann.cell import AnnCell3D
     from warp_hcell.database.generate import generate
 
     with pytest.raises(ValueError, match="linear contact law only, not 'hertz-mindlin'"):

@@ -24,6 +24,7 @@ import torch
 from database_recheck import recheck_against_the_dem
 from determinism_reference import REFERENCE, TINY, WEIGHTS_RTOL, h_cell_database, tiny_fit, weight_differences
 from warp_hcell.database import exploration, format as database, generate, probing
+from warp_hcell import generate as generate_command
 from warp_hcell.database.learning_state import positions
 from warp_hcell.mesostructures.builders import mesostructure_arg
 from warp_hcell.mesostructures.files import load_mesostructure
@@ -205,9 +206,9 @@ def test_spatial_samples_recheck_against_the_dem(spatial_db, fines_db, which):
 
 def test_spatial_cli(tmp_path):
     out = tmp_path / "x.h5"
-    code = generate.main(["--mesostructure", "hcell3d:alpha0=55", "--samples", "60", "--chunk-size", "30",
-                          "--precompression", "0", "1e-3", "--n-directions", "6", "--sample-spacing", "1e-2",
-                          "--threads", "1", "--out", str(out), "--quiet"])
+    code = generate_command.main(["--mesostructure", "hcell3d:alpha0=55", "--samples", "60", "--chunk-size", "30",
+                                  "--precompression", "0", "1e-3", "--n-directions", "6", "--sample-spacing", "1e-2",
+                                  "--threads", "1", "--out", str(out), "--quiet"])
     assert code == 0
     data, attrs = database.read_database(out)
     assert data["d_eps"].shape == (60, 3) and attrs["n_samples"] == 60
@@ -261,7 +262,7 @@ def test_spatial_model_drives_3d_cells(spatial_model):
     from homogenization.backends import make_cell_model
     from training.checkpoint import CheckpointError
 
-    from homogenization.backends.ann import AnnCell3D
+    from homogenization.ann.cell import AnnCell3D
 
     cell = make_cell_model("ann", dim=3, model=spatial_model)
     assert isinstance(cell, AnnCell3D) and cell.default_dim == 3
@@ -304,7 +305,7 @@ def test_shipped_models_follow_the_cell_dimension(tmp_path, capsys):
     """``--backend ann`` without a model: the planar model for planar cells, the 3D one for 3D cells."""
     from homogenization import hmodel
     from homogenization.backends import make_cell_model
-    from homogenization.backends.ann import default_model_path
+    from homogenization.ann import default_model_path
     from training.checkpoint import CheckpointError
 
     planar, spatial = make_cell_model("ann"), make_cell_model("ann", dim=3)

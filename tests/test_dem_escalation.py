@@ -1,4 +1,4 @@
-"""The hybrid's DEM escalation (``homogenization.backends.escalation``): the cells where a free grain moved and
+"""The hybrid's DEM escalation (``homogenization.ann.escalation``): the cells where a free grain moved and
 ends pressed by nothing are found grain by grain, handed to the DEM's increment from rest, and counted."""
 
 from pathlib import Path
@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from ann3d_increment_worker import relaxing_network
-from homogenization.backends.ann import AnnCell3D, default_model_path
-from homogenization.backends.escalation import DemEscalation
+from homogenization.ann import default_model_path
+from homogenization.ann.cell import AnnCell3D
+from homogenization.ann.escalation import DemEscalation
 from training.inference import FastAdvance
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.database.learning_state import evaluate

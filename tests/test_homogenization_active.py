@@ -8,9 +8,9 @@ import h5py
 import numpy as np
 import pytest
 
-from homogenization.backends.ann import default_model_path
+from homogenization.ann import default_model_path
 from homogenization.learning import active, certificate
-from homogenization.learning.records import Certificate, Round
+from homogenization.ann.records import Certificate, Round
 from homogenization.learning.settings import CertificateSettings
 from training import train as training_train
 from training.card import read_card

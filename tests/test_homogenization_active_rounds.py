@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from homogenization.learning import active, certificate
-from homogenization.learning.records import Certificate, Round, TestResult
+from homogenization.ann.records import Certificate, Round, TestResult
 from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from test_homogenization_active import SHORT, TRAIN_CONFIG, tiny  # noqa: F401 (tiny: the fixture)
 from training import train as training_train

@@ -14,7 +14,8 @@ from dem_database import build
 from homogenization.cli import biaxial
 from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
-from homogenization.backends.ann import AnnCell, default_model_path
+from homogenization.ann import default_model_path
+from homogenization.ann.cell import AnnCell
 from training.checkpoint import CheckpointError
 from training.train import main as train_main
 from warp_hcell.dem.cell import DemCell

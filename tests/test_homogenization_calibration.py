@@ -388,7 +388,8 @@ def test_triaxial_data_get_a_default_prior_of_the_ten_sphere_cell(tmp_path, caps
 def test_an_ann_calibration_records_the_models_certificate_in_run_json(tmp_path):
     """As biaxial's run.h5 does (``ann_model``): the installed model's sha256, its certificate's
     worst figure and verdict, read from its own JSON (the shipped model fails its certificate)."""
-    from homogenization.backends.ann import certificate_problem, default_model_path
+    from homogenization.ann import default_model_path
+    from homogenization.ann.policy import certificate_problem
     from training.checkpoint import read_metadata
     from warp_hcell.core.provenance import file_sha256
 

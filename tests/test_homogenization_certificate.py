@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from homogenization.learning import certificate
-from homogenization.learning.records import Certificate, Round
-from homogenization.backends.ann import default_model_path
+from homogenization.ann.records import Certificate, Round
+from homogenization.ann import default_model_path
 from homogenization.cli import biaxial, certify
 from training.card import read_card
 from warp_hcell.core.cli import run_main
@@ -132,7 +132,7 @@ def test_a_round_writes_back_what_it_read_and_its_training_with_warm_start_null(
 
 def test_the_shipped_certificates_meet_the_minimum_and_record_their_envelope():
     """Derived from their recorded settings and tests: p0 2e5 to 1e6, +-10 % axial strain."""
-    from homogenization.learning.envelope import envelope_of, shortfalls, verdict
+    from homogenization.ann.envelope import envelope_of, shortfalls, verdict
 
     for dim in (2, 3):
         path = default_model_path(dim)
@@ -167,7 +167,7 @@ def test_a_run_below_the_envelope_warns_once_and_run_h5_records_it(tmp_path, cap
 
 def test_the_envelope_names_every_way_out():
     from homogenization.element_test import programme as programmes
-    from homogenization.learning.envelope import outside
+    from homogenization.ann.envelope import outside
 
     envelope = {"pressures": [2e5, 1e6], "eps_max": 0.1, "kinds": ["constant-volume", "drained"],
                 "mesostructure": "h-cell alpha0=55 deg", "cell_parameters": {"alpha0_deg": 55.0}}

@@ -11,7 +11,7 @@ import torch
 
 from homogenization.learning import certificate
 from homogenization.element_test import programme as programmes
-from homogenization.backends.ann import default_model_path
+from homogenization.ann import default_model_path
 from training import rollout
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.mesostructures.builders import mesostructure_arg

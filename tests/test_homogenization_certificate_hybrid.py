@@ -10,10 +10,12 @@ from pathlib import Path
 
 import pytest
 
-from homogenization.backends.ann import AnnCell3D, certificate_problem, default_model_path, model_record
+from homogenization.ann import default_model_path
+from homogenization.ann.cell import AnnCell3D
+from homogenization.ann.policy import certificate_problem, model_record
 from homogenization.learning import certificate
-from homogenization.learning.envelope import equilibrium_settings
-from homogenization.learning.records import Certificate
+from homogenization.ann.envelope import equilibrium_settings
+from homogenization.ann.records import Certificate
 from homogenization.learning.settings import CertificateSettings
 from warp_hcell.core.parameters import ContactLaw
 

@@ -1,14 +1,14 @@
-"""The minimum certificate and the envelope (homogenization.learning.envelope) without running a test."""
+"""The minimum certificate and the envelope (homogenization.ann.envelope) without running a test."""
 
 import dataclasses
 import json
 
 import pytest
 
-from homogenization.learning import envelope
-from homogenization.learning.records import Certificate, TestResult
+from homogenization.ann import envelope
+from homogenization.ann.records import Certificate, TestResult
 from homogenization.element_test import programme as programmes
-from homogenization.backends.ann import default_model_path
+from homogenization.ann import default_model_path
 
 SHIPPED = json.loads(default_model_path().with_suffix(".json").read_text())["certificate"] \
     if default_model_path().is_file() else None

@@ -34,7 +34,7 @@ def test_file_sha256_matches_hashlib(tmp_path):
 
 
 def test_ann_run_records_the_shipped_model_and_its_hash(tmp_path):
-    from homogenization.backends.ann import default_model_path
+    from homogenization.ann import default_model_path
 
     argv = ["--backend", "analytical,ann", *TINY, "--out", str(tmp_path / "r")]
     assert run_main(biaxial.main, argv) == 0

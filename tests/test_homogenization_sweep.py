@@ -310,8 +310,8 @@ def test_an_ann_case_records_its_models_certificate_in_run_h5(fines_models, tmp_
     import json
 
     from homogenization.learning import certificate as certification
-    from homogenization.learning.records import Certificate
-    from homogenization.backends.ann import default_model_path
+    from homogenization.ann.records import Certificate
+    from homogenization.ann import default_model_path
     from warp_hcell.core.provenance import file_sha256
 
     spec = ANN_FINES[0]

@@ -11,12 +11,14 @@ from pathlib import Path
 import h5py
 import pytest
 
-from homogenization.backends.ann import AnnCell3D, default_model_path
-from homogenization.backends.escalation import RELEASE_RULE
+from homogenization.ann import default_model_path
+from homogenization.ann.cell import AnnCell3D
+from homogenization.ann.envelope import has_fine_grains
+from homogenization.ann.escalation import RELEASE_RULE
 from homogenization.cli import learn as learn_cli
 from homogenization.cli import train as train_cli
 from homogenization.learning.settings import (default_equilibrium, FINES_EQUILIBRIUM_CORRECTIONS,
-                                              FINES_EQUILIBRIUM_TOLERANCE, has_fine_grains)
+                                              FINES_EQUILIBRIUM_TOLERANCE)
 from training.config import HYBRID_EPOCHS, HYBRID_PATIENCE, TrainConfig
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.parameters import ContactLaw

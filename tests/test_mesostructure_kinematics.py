@@ -43,12 +43,12 @@ def test_database_and_model_file_carry_the_kinematics(tmp_path):
 
     from training import train
     from training.checkpoint import read_metadata
-    from warp_hcell.database import generate
+    from warp_hcell import generate as generate_command
 
     db, model = tmp_path / "db.h5", tmp_path / "m.pt"
-    assert generate.main(["--mesostructure", "hcell3d-axisym:alpha0=54", "--samples", "60", "--chunk-size", "30",
-                          "--precompression", "0", "1e-3", "--n-directions", "6", "--sample-spacing", "1e-2",
-                          "--threads", "1", "--out", str(db), "--quiet"]) == 0
+    assert generate_command.main(["--mesostructure", "hcell3d-axisym:alpha0=54", "--samples", "60", "--chunk-size", "30",
+                                  "--precompression", "0", "1e-3", "--n-directions", "6", "--sample-spacing", "1e-2",
+                                  "--threads", "1", "--out", str(db), "--quiet"]) == 0
     with h5py.File(db, "r") as f:
         cell = from_description(str(f.attrs["mesostructure"]))
         starts = [from_description(text) for text in json.loads(f.attrs["start_mesostructures"])]
@@ -65,7 +65,7 @@ def certified_copy(tmp_path, kinematics: str):
     certificate's recorded cell parameters declaring ``kinematics`` (the .pt, so its certificate, unchanged)."""
     import shutil
 
-    from homogenization.backends.ann import default_model_path
+    from homogenization.ann import default_model_path
     from warp_hcell.mesostructures.hcell import AXISYMMETRIC_KINEMATICS
 
     source = default_model_path(3)

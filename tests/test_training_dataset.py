@@ -12,7 +12,7 @@ import torch
 from dem_database import build
 from training import cell_physics
 from training.dataset import active_pairs, DataError, load_database, split_by_path
-from warp_hcell.database import generate
+from warp_hcell import generate as generate_command
 from warp_hcell.core.parameters import DemSettings
 
 
@@ -97,8 +97,8 @@ def test_bad_files_give_one_line_errors(tmp_path, case, message):
 def test_the_generators_database_is_read(tmp_path):
     """The agreed format: a file written by ``python -m warp_hcell.generate`` loads and has both kinds of sample."""
     path = tmp_path / "gen.h5"
-    assert generate.main(["--samples", "400", "--n-alpha0", "1", "--n-directions", "4", "--sample-spacing", "2e-2",
-                          "--threads", "1", "--out", str(path)]) in (0, None)
+    assert generate_command.main(["--samples", "400", "--n-alpha0", "1", "--n-directions", "4", "--sample-spacing", "2e-2",
+                                  "--threads", "1", "--out", str(path)]) in (0, None)
     db = load_database(path)
     assert db.n_samples == 400 and db.perturbed.any() and (~db.perturbed).any()
     assert db.schema.n_free == 4 and len(db.mesostructure_sha256) == 64

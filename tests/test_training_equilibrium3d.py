@@ -23,7 +23,8 @@ import pytest
 import torch
 
 from ann3d_increment_worker import relaxing_network
-from homogenization.backends.ann import AnnCell, AnnCell3D, default_model_path
+from homogenization.ann import default_model_path
+from homogenization.ann.cell import AnnCell, AnnCell3D
 from training import cell_physics
 from training.equilibrium import balance, corrected_advance
 from training.fast_cells import grain_positions

@@ -19,7 +19,7 @@ import pytest
 import torch
 
 from fast_vs_torch import assert_fast_matches_torch
-from homogenization.backends.ann import AnnCell
+from homogenization.ann.cell import AnnCell
 from training.cell_physics import CellSchema
 from training.inference import FastAdvance, FastIncrement
 from training.perceptron import BLOCK as MLP_BLOCK

@@ -21,7 +21,8 @@ import pytest
 import torch
 
 from fast_vs_torch import assert_fast_matches_torch
-from homogenization.backends.ann import AnnCell3D, default_model_path
+from homogenization.ann import default_model_path
+from homogenization.ann.cell import AnnCell3D
 from training import cell_physics
 from training.fast_cells import Advanced, Before
 from training.fast_step3d import features3d, physics3d

@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from homogenization.element_test import driver, programme as programmes
-from homogenization.backends.ann import AnnCell, default_model_path
+from homogenization.ann import default_model_path
+from homogenization.ann.cell import AnnCell
 from training import ood
 from training.checkpoint import load_checkpoint
 from warp_hcell.core.parameters import ContactLaw

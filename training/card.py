@@ -3,7 +3,7 @@
 ``ModelCard.to_dict`` gives back the mapping ``from_dict`` read, key for key (``certificate`` and
 ``active_learning`` absent where None; the training's keys present, null included), so a file read
 and written again (``write_card``) is the same bytes. The certificate and the rounds stay mappings
-here: their records belong to the learning loop (``homogenization.learning.records``), which
+here: their records belong to the learning loop (``homogenization.ann.records``), which
 ``training`` does not import.
 """
 
@@ -64,9 +64,9 @@ class ModelCard:
     command: str | None
     """The command line that trained it."""
     certificate: dict[str, Any] | None = None
-    """The certificate (``homogenization.learning.records.Certificate.to_dict``); None: uncertified."""
+    """The certificate (``homogenization.ann.records.Certificate.to_dict``); None: uncertified."""
     active_learning: list[dict[str, Any]] | None = None
-    """The active-learning rounds (``homogenization.learning.records.Round.to_dict``); None: none run."""
+    """The active-learning rounds (``homogenization.ann.records.Round.to_dict``); None: none run."""
 
     @property
     def law(self) -> ContactLaw:

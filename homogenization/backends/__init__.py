@@ -20,7 +20,7 @@ BACKENDS: dict[str, dict[int, str]] = {
     "analytical": {2: "homogenization.backends.analytical:AnalyticalCell",
                    3: "homogenization.backends.analytical3d:Analytical3DCell"},
     "dem": {2: "homogenization.backends.dem:DemCell", 3: "homogenization.backends.dem:DemCell"},
-    "ann": {2: "homogenization.backends.ann:AnnCell", 3: "homogenization.backends.ann:AnnCell3D"},
+    "ann": {2: "homogenization.ann.cell:AnnCell", 3: "homogenization.ann.cell:AnnCell3D"},
 }
 """Backend name -> spatial dimension of the cells (2 or 3) -> "module:Class" of its implementation (a plain
 "module:Class" registers a backend of planar cells)."""

@@ -223,10 +223,10 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
 
 def _ann_model(backend: str) -> dict[str, Any]:
     """``{"ann_model": ...}``, the installed model's record (sha256, certificate worst, certified,
-    the problem; ``homogenization.backends.ann.model_record``), for the ann backend; else {}."""
+    the problem; ``homogenization.ann.policy.model_record``), for the ann backend; else {}."""
     if backend != "ann":
         return {}
-    from homogenization.backends.ann import model_record  # noqa: PLC0415 (torch: ann only)
+    from homogenization.ann.policy import model_record  # noqa: PLC0415 (torch: ann only)
 
     return {"ann_model": model_record(None)}
 

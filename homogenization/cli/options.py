@@ -46,7 +46,7 @@ from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure
 
 EXIT_CODES_HELP = ("exit codes: 0 the certificate passed; 2 bad input (one line, before any work); 3 the certificate "
                    "failed (worst > target); 4 within the target but below the minimum certificate "
-                   "(homogenization.learning.envelope.MINIMUM), so not passed; 130 interrupted (docs/usage.md, Failures and existing output)")
+                   "(homogenization.ann.envelope.MINIMUM), so not passed; 130 interrupted (docs/usage.md, Failures and existing output)")
 """The --help epilog of the commands that end with a certificate (certify, train, learn;
 ``homogenization.learning.certificate.exit_code``)."""
 ISO_TO_SHEAR_INCREMENT = LoadingDefaults.iso_increment / LoadingDefaults.increment
@@ -154,7 +154,8 @@ def refuse_uncertified(model: object, args: argparse.Namespace) -> None:
 def refuse_uncertified_file(path: Path | None, args: argparse.Namespace) -> None:
     """``refuse_uncertified`` for a model file not built here (e.g. built by sweep workers):
     ``path`` None is the installed model; a missing file is left to the backend to report."""
-    from homogenization.backends.ann import certificate_problem, default_model_path  # noqa: PLC0415 (torch)
+    from homogenization.ann import default_model_path  # noqa: PLC0415
+    from homogenization.ann.policy import certificate_problem  # noqa: PLC0415 (Warp)
     from training.checkpoint import read_metadata  # noqa: PLC0415
 
     path = default_model_path() if path is None else Path(path)

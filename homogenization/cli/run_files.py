@@ -35,7 +35,7 @@ from homogenization.backends import backend_class, BACKENDS, make_cell_model
 from homogenization.element_test import programme as programmes
 from homogenization.cli.options import ISO_TO_SHEAR_INCREMENT, certificate_note, refuse_uncertified
 from homogenization.element_test.driver import Record
-from homogenization.learning.envelope import summary as envelope_summary
+from homogenization.ann.envelope import summary as envelope_summary
 from warp_hcell.core.cli import quiet_warp, UserError, writing_to
 from warp_hcell.core.files import check_output_path
 from warp_hcell.core.parameters import ContactLaw
@@ -174,7 +174,7 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
     if hasattr(model, "threads"):
         record["dem_threads"] = int(model.threads)
     if name == "ann":
-        from homogenization.backends.ann import model_record  # noqa: PLC0415
+        from homogenization.ann.policy import model_record  # noqa: PLC0415
 
         record["ann_model"] = model_record(getattr(model, "model_path", None) or options.get("model"), model.metadata,
                                            model.equilibrium_corrections, model.force_tolerance,
@@ -216,7 +216,7 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
     (``diagnostics["n_cross_plane"]``), where there are any, the ANN's equilibrium corrections
     (``n_corrections`` Newton steps, ``n_shortened`` of them shortened by the line search and
     ``n_shifted`` shifted, in ``n_corrected`` cell-increments) where it took them, the cell-increments it
-    handed to the DEM (``n_escalated``, ``homogenization.backends.escalation``) where it may, then
+    handed to the DEM (``n_escalated``, ``homogenization.ann.escalation``) where it may, then
     ``note`` (the backend's own).
 
     Raises:

@@ -180,7 +180,7 @@ def check_backends(names: Sequence[str], model: Path | None) -> None:
     no 3D meso-ANN model is installed."""
     for name in names:
         if name == "ann" and model is None:
-            from homogenization.backends.ann import default_model_path  # noqa: PLC0415 (torch)
+            from homogenization.ann import default_model_path  # noqa: PLC0415 (torch)
 
             if not default_model_path(3).is_file():
                 raise UserError("--backend ann: no 3D meso-ANN model is shipped; pass --model M.pt, a model trained "

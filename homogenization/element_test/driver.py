@@ -76,7 +76,7 @@ def _bar(plan: Plan, progress: bool) -> contextlib.AbstractContextManager:
 
 def _diagnosed(exc: ControlError, points: MaterialPoints, programme: Programme, mesostructure: Any) -> ControlError:
     """``exc`` with the cell model's one-line diagnosis of the failed stress control appended (its
-    ``control_diagnosis``, e.g. ``homogenization.backends.ann.AnnCell``) at the last trial from the last
+    ``control_diagnosis``, e.g. ``homogenization.ann.cell.AnnCell``) at the last trial from the last
     accepted state, where the model has one and a trial was made."""
     diagnose = getattr(points.model, "control_diagnosis", None)
     if diagnose is None or points.last_trial is None:

@@ -16,7 +16,7 @@ random weights, or with ``ActiveSettings.warm_start`` from the previous round's,
 ``TrainConfig.init_from``), certify, and while the
 certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds, the database's
 size ``max_database_mb``) is not spent, add a round and retrain (a certificate within its target
-but below the minimum certificate, ``homogenization.learning.envelope.MINIMUM``, is not passed, and no
+but below the minimum certificate, ``homogenization.ann.envelope.MINIMUM``, is not passed, and no
 round can mend it: the loop stops). A round probes the states of the failing tests (a test the
 ANN could not follow, worst = inf, included; with ``departure_margin`` < 1 only those from where
 the ANN left the DEM on, ``failing_states``: the certificate's ``departure``), and ``stall_rounds`` rounds without progress (``improved``: fewer
@@ -44,8 +44,8 @@ import numpy as np
 
 from homogenization.learning import certificate
 from homogenization.learning.settings import ActiveSettings, CertificateSettings
-from homogenization.learning.envelope import equilibrium_settings, verdict
-from homogenization.learning.records import Certificate, learning_of, Round, with_learning
+from homogenization.ann.envelope import equilibrium_settings, verdict
+from homogenization.ann.records import Certificate, learning_of, Round, with_learning
 from training import train as training_train
 from training.card import ModelCard, read_card, write_card
 from training.config import TrainConfig

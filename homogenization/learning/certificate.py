@@ -16,7 +16,7 @@ Each test runs through ``homogenization.element_test.driver.run`` with the ANN a
 stages (the isotropic stages may differ by one increment, as p lands on p0): ``dp`` = max
 abs(p_ann - p_dem) / scale, ``dq`` likewise, scale = max(p0, largest DEM p of the test). The
 certificate passes when the worst of them is <= ``TARGET`` and its settings meet the minimum certificate
-(``homogenization.learning.envelope.MINIMUM``; the constants below are that minimum).
+(``homogenization.ann.envelope.MINIMUM``; the constants below are that minimum).
 
 Also reported, not part of ``worst``: the single-cell rollouts of ``training.rollout`` (held-out
 constant-volume and drained legs, each error a fraction of that path's own largest moment: one
@@ -31,8 +31,8 @@ abs(q_dem - q_rest)) / scale. Where a sawtooth drop of the response (a fine grai
 wedge) moves by an increment or two it exceeds the target: the reference does not resolve the
 target there; the pass rule does not change.
 
-The result (``certify``) is a ``homogenization.learning.records.Certificate`` (its fields say what
-each entry holds), its verdict from ``homogenization.learning.envelope``. ``write_certificate`` stores it in
+The result (``certify``) is a ``homogenization.ann.records.Certificate`` (its fields say what
+each entry holds), its verdict from ``homogenization.ann.envelope``. ``write_certificate`` stores it in
 the model's JSON under ``"certificate"`` (the ANN backend then checks it), ``summary_lines`` are
 what the commands print (one line per test, the verdict and the envelope) and ``exit_code`` the
 verdict as their exit code: 0 passed, ``EXIT_FAILED`` (3) failed, ``EXIT_WEAK`` (4) within the
@@ -57,11 +57,11 @@ import numpy as np
 
 from homogenization.element_test import driver, programme as programmes
 from homogenization.learning.from_rest import FromRest
-from homogenization.learning.records import Certificate, TestResult
-from homogenization.learning.envelope import (dimension_of, envelope_of, equilibrium_settings, escalation_of, MINIMUM,
+from homogenization.ann.records import Certificate, TestResult
+from homogenization.ann.envelope import (dimension_of, envelope_of, equilibrium_settings, escalation_of, MINIMUM,
                                               shortfalls, verdict)
 from homogenization.backends import make_cell_model
-from homogenization.backends.escalation import RELEASE_RULE
+from homogenization.ann.escalation import RELEASE_RULE
 from training.card import ModelCard, read_card, write_card
 from training.ood import state_features
 from training.rollout import rollout_report
@@ -158,7 +158,7 @@ def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_
     with ``equilibrium_corrections`` K > 0 also K and ``equilibrium_tolerance``, the resolved force
     ratio [-] of the hybrid its tests ran: ``envelope.equilibrium_settings``, and ``dem_escalation``, whether
     it handed the cells with a released grain to the DEM: ``envelope.escalation_of``, with the rule it did it
-    by, ``dem_escalation_rule``: ``homogenization.backends.escalation.RELEASE_RULE``)."""
+    by, ``dem_escalation_rule``: ``homogenization.ann.escalation.RELEASE_RULE``)."""
     settings = {"pressures": [float(p) for p in pressures], "eps_max": float(eps_max), "increment": float(increment)}
     hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": float(equilibrium_tolerance),
                "dem_escalation": bool(dem_escalation), **({"dem_escalation_rule": RELEASE_RULE} if dem_escalation else {})}

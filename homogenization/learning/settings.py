@@ -14,9 +14,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
-from homogenization.learning.envelope import MINIMUM
+from homogenization.ann.envelope import has_fine_grains, MINIMUM
 
 FINES_EQUILIBRIUM_CORRECTIONS = 20
 """Default equilibrium corrections K of the certificate, and so of the runs, of a spatial cell with
@@ -34,13 +32,6 @@ is within 0.005 % while the network's guess still decides 19-37 % of the cell-in
 "Equilibrium corrections"; the DEM's 1e-6 corrects 90-99 % of them)."""
 
 
-def has_fine_grains(meso: Any) -> bool:
-    """Whether ``meso`` (a ``Mesostructure``) has a grain driven along no axis: a fine grain whose
-    position only its contacts' balance decides (the lateral spheres of the ten-sphere cell are
-    driven across n and count not)."""
-    return bool(np.any(~np.asarray(meso.driven, dtype=bool).any(axis=1)))
-
-
 def default_equilibrium(meso: Any) -> tuple[int, float | None]:
     """(K, tolerance) of the surrogate that ``hmodel train``, ``learn`` and ``certify`` certify by
     default for cells of ``meso``: (``FINES_EQUILIBRIUM_CORRECTIONS``,
@@ -55,7 +46,7 @@ def default_equilibrium(meso: Any) -> tuple[int, float | None]:
 @dataclass(frozen=True)
 class CertificateSettings:
     """What a certificate measures (``homogenization.learning.certificate.certify``); the defaults are the
-    minimum certificate (``homogenization.learning.envelope.MINIMUM``)."""
+    minimum certificate (``homogenization.ann.envelope.MINIMUM``)."""
 
     pressures: tuple[float, ...] = MINIMUM.pressures
     """Confining pressures p0 of the tests [N/m in 2D, Pa in 3D]."""

@@ -97,9 +97,9 @@ class ModelTable:
 
     def record(self, path: Path | None) -> dict[str, Any]:
         """What the run files of an ann case record of its model ``path`` (None: the installed
-        model): ``homogenization.backends.ann.model_record`` (sha256, certificate worst,
+        model): ``homogenization.ann.policy.model_record`` (sha256, certificate worst,
         certified, the problem), computed once per file."""
-        from homogenization.backends.ann import model_record  # noqa: PLC0415 torch only for ann
+        from homogenization.ann.policy import model_record  # noqa: PLC0415 torch only for ann
 
         if path not in self._records:
             self._records[path] = model_record(path)
@@ -107,11 +107,11 @@ class ModelTable:
 
     def outside_envelope(self, path: Path | None, programme: Any, meso: Mesostructure) -> list[str] | None:
         """Where ``programme`` on cells of ``meso`` leaves the certificate envelope of model ``path``
-        (None: the installed model): ``homogenization.learning.envelope.outside``'s phrases, empty inside;
+        (None: the installed model): ``homogenization.ann.envelope.outside``'s phrases, empty inside;
         None for a model without a certificate."""
-        from homogenization.backends.ann import default_model_path  # noqa: PLC0415 torch only for ann
-        from homogenization.learning.envelope import envelope_of, outside  # noqa: PLC0415
-        from homogenization.learning.records import certificate_of  # noqa: PLC0415
+        from homogenization.ann import default_model_path  # noqa: PLC0415 torch only for ann
+        from homogenization.ann.envelope import envelope_of, outside  # noqa: PLC0415
+        from homogenization.ann.records import certificate_of  # noqa: PLC0415
         from training.checkpoint import read_metadata  # noqa: PLC0415
 
         if path not in self._envelopes:

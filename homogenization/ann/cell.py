@@ -33,7 +33,7 @@ shortened, and those whose matrix was shifted; ``training.fast_equilibrium3d``),
 ``n_unconverged`` (cells still above the tolerance after them),
 ``force_ratio_network_max`` and ``force_ratio_max`` (the largest force ratio before and after) and
 ``n_escalated`` (cells handed to the DEM's own increment from rest because a free grain moved and ends
-touching nothing, which the corrections cannot place: ``homogenization.backends.escalation``; off with
+touching nothing, which the corrections cannot place: ``homogenization.ann.escalation``; off with
 ``dem_escalation=False``), and the model's certificate covers it only where that certificate measured this very hybrid
 (``hmodel certify --equilibrium-corrections K``: same K and tolerance; ``certificate_problem`` says
 otherwise, as it does for a run of the network alone under a certificate of the hybrid). Each ``step``
@@ -53,24 +53,9 @@ start state lies within the range of those start cells (e.g. an H-cell at an ope
 between the database's; ``training.checkpoint.check_start_cell``). Otherwise
 ``CheckpointError`` (one line; exit code 2 in the CLIs).
 
-Certificate (``homogenization.learning.certificate``, docs/certificate.md): ``certificate`` is the
-model JSON's ``"certificate"`` entry as a ``records.Certificate`` (None if absent) and ``certificate_problem`` one line
-saying why the model may not be used (uncertified, failed, or certified for another ``.pt``:
-its ``model_sha256`` differs from the file's, or a certificate below the minimum of
-``homogenization.learning.envelope.MINIMUM``), None for a model that passed. The class only reports it;
-the commands refuse such a model unless ``--uncertified-ok``
-(``homogenization.cli.options.refuse_uncertified``). ``envelope`` is what the certificate
-covers (pressures, axial strain, test kinds, cell) and ``envelope_exits(programme, meso)``
-says where a run leaves it; the run commands warn once and record it in run.h5.
-
-Out of distribution (``training.ood``): with the index file beside the model
-(``training.ood.index_path``), every ``ood_interval``-th distinct start state of ``step`` is
-checked: its cells' z-scored state features (those the step computes anyway) are compared
-with the indexed database states. ``diagnostics`` then hold ``n_ood_checked`` (cells checked
-at this increment: n_cells or 0) and ``n_ood`` (those beyond the index's threshold); the
-fraction of a checked increment is their ratio. Once the cumulative fraction exceeds
-``training.ood.WARN_FRACTION`` one ``RuntimeWarning`` says so. Without an index file the two
-counts are absent and ``ood`` is None.
+The certificate and its envelope (``homogenization.ann.policy.CertificatePolicy``) and the
+out-of-distribution checks (``homogenization.ann.ood.OodMonitor``) stand beside the cell, which
+reports them (``certificate``, ``certificate_problem``, ``envelope``, ``envelope_exits``, ``ood``).
 
 Sign convention: compression and contraction positive. Local frame: index 0 = n, 1 = t
 (3D: 1 = t1, 2 = t2).
@@ -85,34 +70,22 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 import torch
 
-from homogenization.backends.escalation import DemEscalation, RELEASE_RULE
-from homogenization.learning import envelope
-from homogenization.learning.records import Certificate, certificate_of
-from homogenization.learning.settings import has_fine_grains
-from homogenization.material.orientation import cell_kinematics, kinematics_of
+from homogenization.ann import default_model_path, envelope
+from homogenization.ann.escalation import DemEscalation
+from homogenization.ann.ood import OOD_INTERVAL, OodMonitor
+from homogenization.ann.policy import CertificatePolicy, default_escalation
+from homogenization.ann.records import Certificate, certificate_of
 from training import cell_physics
 from training.inference import FastAdvance
 from training.network import RELAXATION_RAMP
 from training.equilibrium import corrected_advance
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
 from training.card import ModelCard
-from training.ood import index_path, load_index, OodError, OodIndex, probe_columns, state_features, WARN_FRACTION
-from warp_hcell.core.provenance import file_sha256
+from training.ood import OodIndex, probe_columns
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.files import from_description
 from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, evaluate_observables, Mesostructure, per_cell
 from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings, require_linear_law
-
-DEFAULT_MODEL = "ann_default.pt"
-"""File name of the planar model shipped in ``homogenization/data`` (with its ``.json``)."""
-DEFAULT_MODELS = {2: DEFAULT_MODEL, 3: "ann3d_default.pt"}
-"""File names of the models shipped (or to be shipped) in ``homogenization/data``, by cell dimension."""
-
-
-OOD_INTERVAL = 500
-"""Distinct start states of ``AnnCell.step`` between two out-of-distribution checks: one check
-of 360 cells costs ~0.8-1.8 ms, so every 500th increment adds ~2-4 us to a ~80 us step
-(docs/certificate.md)."""
 
 
 TANGENT_MISS = 0.5
@@ -120,93 +93,6 @@ TANGENT_MISS = 0.5
 which ``AnnCell.failed_cells`` counts the tangent as off the step [-]."""
 DIAGNOSED_CELLS = 5
 """Failed cells named in the one-line diagnosis of a failed stress control (the rest are counted)."""
-
-
-def default_model_path(dim: int = 2) -> Path:
-    """Path of the shipped default model state_dict of cells of dimension ``dim`` (its metadata sits next to it)."""
-    return Path(__file__).resolve().parents[1] / "data" / DEFAULT_MODELS[dim]
-
-
-def default_escalation(metadata: dict[str, Any]) -> bool:
-    """Whether a hybrid of the model with JSON ``metadata`` hands the cells with a released grain to the DEM
-    when nobody says: for a cell with fine grains (``homogenization.learning.settings.has_fine_grains``),
-    where it was measured to follow the DEM closer (docs/ann.md, "Released grains"), not for the plain cell
-    (its lateral spheres released in extension: the same certificate figures at 2.6 times the cost)."""
-    return has_fine_grains(from_description(metadata["mesostructure"]))
-
-
-def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int = 0,
-                        tolerance: float | None = None, escalation: bool | None = None) -> str | None:
-    """Why model ``path`` (JSON ``metadata``) may not be used, in one line, or None if its
-    certificate was measured on this very ``.pt`` (same sha256) and this very surrogate (the
-    network with ``corrections`` equilibrium corrections at force ratio ``tolerance`` [-], the
-    resolved one; 0: the network alone, ``envelope.equilibrium_settings``), is within its target
-    and meets the minimum certificate (``homogenization.learning.envelope.MINIMUM``: pressures,
-    strain, orientations, rollouts, tests), read from its recorded settings, not from its ``passed`` flag.
-    ``escalation``: whether the hybrid hands the cells with a released grain to the DEM (``AnnCell``'s
-    ``dem_escalation``; None: as by default, ``default_escalation``); a certificate of the hybrid records
-    whether it did (``envelope.escalation_of``)."""
-    cert = certificate_of(metadata)
-    if cert is None:
-        return (f"{path}: the model is uncertified (certify it: python -m homogenization.certify "
-                f"--model {path} --write)")
-    if cert.model_sha256 != file_sha256(path):
-        return f"{path}: its certificate was measured on another model file (sha256 differs); certify it again"
-    run = (int(corrections), float(tolerance)) if corrections else (0, None)
-    measured = envelope.equilibrium_settings(cert)
-    if run != measured:
-        return (f"{path}: its certificate measured {_surrogate(*measured)}, not {_surrogate(*run)} "
-                f"(run it with {_flags(*measured)}, or certify it with {_flags(*run)})")
-    escalation = default_escalation(metadata) if escalation is None else bool(escalation)
-    if corrections and escalation != envelope.escalation_of(cert):
-        said = {True: "with", False: "without"}
-        return (f"{path}: its certificate measured the hybrid {said[envelope.escalation_of(cert)]} the DEM's "
-                f"increment in cells with a released grain, this run is {said[escalation]} it; certify the "
-                f"model again")
-    if corrections and escalation and envelope.escalation_rule_of(cert) != RELEASE_RULE:
-        return (f"{path}: its certificate measured the hybrid handing cells to the DEM by another rule "
-                f"({envelope.escalation_rule_of(cert) or 'a grain that moved and overlaps nothing'}) than this "
-                f"package's ({RELEASE_RULE}); certify the model again")
-    result = envelope.verdict(cert)
-    if result == "failed" or (result == "passed" and not cert.passed):
-        return (f"{path}: the model failed its certificate (worst {100 * float(cert.worst):.3g} % of the scale "
-                f"in test {cert.worst_test!r}, target {100 * float(cert.target):.3g} %)")
-    if result == "weak":
-        return (f"{path}: its certificate is below the minimum certificate "
-                f"({'; '.join(envelope.shortfalls(cert, envelope.dimension_of(cert)))}); certify it with the defaults")
-    return None
-
-
-def _surrogate(corrections: int, tolerance: float | None) -> str:
-    """The surrogate of (K, tolerance) in words."""
-    return (f"the network with {corrections} equilibrium corrections at tolerance {tolerance:g}" if corrections
-            else "the network alone")
-
-
-def _flags(corrections: int, tolerance: float | None) -> str:
-    """The command-line flags of the surrogate (K, tolerance)."""
-    return (f"--equilibrium-corrections {corrections} --equilibrium-tolerance {tolerance:g}" if corrections
-            else "no --equilibrium-corrections")
-
-
-def model_record(path: Path | None, metadata: dict[str, Any] | None = None, corrections: int = 0,
-                 tolerance: float | None = None, escalation: bool | None = None) -> dict[str, Any]:
-    """What a run file records of ANN model ``path`` (None: the installed model): ``path``
-    (resolved), ``sha256`` of the ``.pt``, ``certificate_worst`` (the certificate's worst figure,
-    a fraction of the scale; None uncertified), ``certified`` (``certificate_problem`` is None)
-    and ``certificate_problem`` (its line, or None) for runs with ``corrections`` equilibrium
-    corrections at ``tolerance``, with or without the DEM ``escalation`` (``certificate_problem``). ``metadata``: the model's JSON, read from
-    beside ``path`` when None."""
-    path = (default_model_path() if path is None else Path(path)).resolve()
-    if metadata is None:
-        from training.checkpoint import read_metadata  # noqa: PLC0415
-
-        metadata = read_metadata(path)
-    problem = certificate_problem(metadata, path, corrections, tolerance, escalation)
-    cert = certificate_of(metadata)
-    return {"path": str(path), "sha256": file_sha256(path),
-            "certificate_worst": None if cert is None else cert.worst,
-            "certified": problem is None, "certificate_problem": problem}
 
 
 class AnnState(NamedTuple):
@@ -244,7 +130,7 @@ class AnnCell(ArrayStateMixin):
         equilibrium_tolerance: the force ratio above which a cell is corrected [-] (None: the
             certificate's where K comes from it, else the DEM's ``DemSettings.force_tolerance``).
         dem_escalation: with K > 0, the DEM's own increment in the cells where a free grain moved and ends
-            touching nothing (``homogenization.backends.escalation``; counted in ``n_escalated``); False:
+            touching nothing (``homogenization.ann.escalation``; counted in ``n_escalated``); False:
             the corrections' result there too (to measure what the escalation adds); None: as the
             certificate's hybrid where K comes from it (``envelope.escalation_of``), else
             ``default_escalation`` (cells with fine grains).
@@ -308,94 +194,57 @@ class AnnCell(ArrayStateMixin):
                            if self.equilibrium_corrections and (default_escalation(self.metadata)
                                                                 if dem_escalation is None else dem_escalation)
                            else None)
-        self.certificate: Certificate | None = certificate_of(self.metadata)
-        self.certificate_problem = certificate_problem(self.metadata, path, self.equilibrium_corrections,
-                                                       self.force_tolerance, self.escalation is not None)
-        if int(ood_interval) < 1:
-            raise ValueError(f"ood_interval = {ood_interval} must be >= 1")
-        self.ood_interval = int(ood_interval)
-        ood_file = index_path(path)
-        self.ood: OodIndex | None = None
-        if ood_file.is_file():
-            try:
-                self.ood = load_index(ood_file, self.net)
-            except OodError as exc:
-                warnings.warn(f"ann: {exc}; out-of-distribution checks are off", RuntimeWarning, stacklevel=2)
-        self.ood_counts = np.zeros(2, dtype=np.int64)
-        """Cumulative (cells beyond the threshold, cells checked) over this object's checks."""
-        self._ood_last_state: object = None
-        self._ood_states = 0
-        self._ood_result: tuple[float, float] | None = None
-        self._ood_warned = False
+        self.policy = CertificatePolicy(self.metadata, path, self.dim, self.equilibrium_corrections,
+                                        self.force_tolerance, self.escalation is not None)
+        """The certificate and its envelope (``homogenization.ann.policy.CertificatePolicy``)."""
+        self.ood_monitor = OodMonitor(self.net, path, ood_interval)
+        """The out-of-distribution checks (``homogenization.ann.ood.OodMonitor``)."""
 
-    def _ood_due(self, state: AnnState) -> bool | None:
-        """None without an index; else whether to check this call's start state: every
-        ``ood_interval``-th distinct one, once (trials from the same state reuse its counts)."""
-        if self.ood is None:
-            return None
-        if state is not self._ood_last_state:
-            self._ood_last_state = state
-            self._ood_states += 1
-            self._ood_result = None
-        return self._ood_result is None and (self._ood_states - 1) % self.ood_interval == 0
+    @property
+    def certificate(self) -> Certificate | None:
+        """The model JSON's certificate (None: uncertified)."""
+        return self.policy.certificate
 
-    def _ood_check(self, state: AnnState, features: np.ndarray | None) -> tuple[float, float]:
-        """(n_ood, n_checked) of the cells of ``state``; ``features``: their z-scored state
-        features (n, n_state_features), or None to compute them."""
-        if features is None:
-            features = state_features(self.net, *state)
-        n_out = int(np.count_nonzero(self.ood.outside(features)))
-        self.ood_counts += (n_out, features.shape[0])
-        if not self._ood_warned and self.ood_counts[0] > WARN_FRACTION * self.ood_counts[1]:
-            self._ood_warned = True
-            warnings.warn(f"ann: {self.ood_counts[0]} of {self.ood_counts[1]} checked cell-increments lie beyond the "
-                          f"out-of-distribution threshold of {self.model_path.name} (> {WARN_FRACTION:.0%}): the "
-                          f"network extrapolates (diagnostics n_ood, n_ood_checked)", RuntimeWarning, stacklevel=4)
-        return float(n_out), float(features.shape[0])
-
-    def _ood_diagnostics(self, due: bool | None, state: AnnState, features: np.ndarray | None) -> dict[str, float]:
-        """``n_ood``, ``n_ood_checked`` of this call (zeros where its state is not checked); {} without an index."""
-        if due is None:
-            return {}
-        if due:
-            self._ood_result = self._ood_check(state, features)
-        n_out, n_checked = self._ood_result or (0.0, 0.0)
-        return {"n_ood": n_out, "n_ood_checked": n_checked}
+    @property
+    def certificate_problem(self) -> str | None:
+        """Why the model may not be used for this surrogate and these cells, one line
+        (``homogenization.ann.policy.certificate_problem``), or None."""
+        return self.policy.problem
 
     @property
     def envelope(self) -> dict[str, Any] | None:
-        """The certificate's envelope (``homogenization.learning.envelope.envelope_of``); None uncertified."""
-        return None if self.certificate is None else envelope.envelope_of(self.certificate)
+        """The certificate's envelope (``homogenization.ann.envelope.envelope_of``); None uncertified."""
+        return self.policy.envelope
 
     def envelope_exits(self, programme: Sequence[Any], meso: Mesostructure) -> list[str] | None:
-        """Where ``programme`` (``homogenization.element_test.programme``) run on cells of ``meso`` leaves the
-        certificate's envelope, one phrase each (``homogenization.learning.envelope.outside``; empty:
-        inside); None for an uncertified model (no envelope)."""
-        if self.envelope is None:
-            return None
-        return envelope.outside(self.envelope, tuple(programme), mesostructure=meso.name,
-                                cell_parameters=meso.parameters, unit="Pa" if self.dim == 3 else "N/m")
+        """Where ``programme`` run on cells of ``meso`` leaves the certificate's envelope
+        (``CertificatePolicy.envelope_exits``); None for an uncertified model."""
+        return self.policy.envelope_exits(programme, meso)
+
+    @property
+    def ood(self) -> OodIndex | None:
+        """The out-of-distribution index beside the model (None: no checks)."""
+        return self.ood_monitor.index
+
+    @property
+    def ood_counts(self) -> np.ndarray:
+        """Cumulative (cells beyond the threshold, cells checked) over this cell model's checks."""
+        return self.ood_monitor.counts
 
     # -- construction ---------------------------------------------------------------------
     def check_trained_on(self, meso: Mesostructure) -> None:
         """Raise ``CheckpointError`` (one line) unless the model may start cells from ``meso``
         (``training.checkpoint.check_start_cell``: its database's mesostructure, or a cell of
-        the same learning state within the range of the cells the database started from). A 3D cell whose
-        kinematics (``orientation.cell_kinematics``) are not those the certificate's tests drove their
-        cells with (``certified_kinematics``) leaves the certificate: ``certificate_problem`` says so."""
+        the same learning state within the range of the cells the database started from). A 3D cell driven
+        with other kinematics than the certificate's tests leaves the certificate: ``certificate_problem``
+        says so (``CertificatePolicy.check_kinematics``)."""
         check_start_cell(self.metadata, meso, source=str(self.model_path))
-        if meso.dim != 3 or self.certificate_problem is not None:
-            return
-        kinematics, certified = cell_kinematics(meso), self.certified_kinematics
-        if kinematics != certified:
-            self.certificate_problem = (f"{self.model_path}: its certificate drove the cells with the {certified} "
-                                        f"kinematics, {meso.name!r} declares the {kinematics} kinematics")
+        self.policy.check_kinematics(meso)
 
     @property
     def certified_kinematics(self) -> str:
-        """The kinematics (``orientation.KINEMATICS``) of the cells of the certificate's tests, read from the
-        cell parameters it recorded (``orientation.kinematics_of``; a certificate that records none: "projected")."""
-        return kinematics_of(self.envelope["cell_parameters"] if self.envelope is not None else {})
+        """The kinematics of the cells of the certificate's tests (``CertificatePolicy.certified_kinematics``)."""
+        return self.policy.certified_kinematics
 
     # -- CellModel protocol ---------------------------------------------------------------
     def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> AnnState:
@@ -426,7 +275,7 @@ class AnnCell(ArrayStateMixin):
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
-        due = self._ood_due(state)
+        due = self.ood_monitor.due(state)
         if self.fast is not None and not (with_tangent and self.dim == 3):
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
             features = self.fast.last_features()[probe_columns(self.net):].T if due else None
@@ -436,7 +285,7 @@ class AnnCell(ArrayStateMixin):
                            "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled)),
                            "n_grains_held": float(inc.grains_held.sum()),
                            **self._correction_diagnostics(*(self.fast.last_corrections() or (None,) * 4)),
-                           **self._ood_diagnostics(due, state, features)}
+                           **self.ood_monitor.diagnostics(due, state, features)}
             return self._escalated(state, d_eps_local, AnnState(inc.cell_size, inc.free_position, inc.shear_force),
                                    CellResponse(inc.moment, inc.area, diagnostics, tangent))
         size, free, shear = self._tensors(state)
@@ -461,7 +310,7 @@ class AnnCell(ArrayStateMixin):
             "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
             "n_grains_held": float(cell_physics.count_held_grains(self.net.schema, step.held).sum()),
             **self._correction_diagnostics(*(None if c is None else c.detach().cpu().numpy() for c in counts)),
-            **self._ood_diagnostics(due, state, None),
+            **self.ood_monitor.diagnostics(due, state, None),
         }
         return self._escalated(state, d_eps_local, new,
                                CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent))
@@ -568,10 +417,7 @@ class AnnCell(ArrayStateMixin):
                                   + (f", ratio {ratio[k]:.2g})" if ratios else ")") for k in index[:DIAGNOSED_CELLS])
                 parts.append(f"{what} in {index.size} of {n} cells: {shown}{', ...' if index.size > DIAGNOSED_CELLS else ''}")
         cells = "; ".join(parts) if parts else f"no cell of {n} failed its step or tangent over the last trial"
-        if self.certificate_problem is not None:
-            verdict = f"model not certified ({self.certificate_problem.split(': ', 1)[-1]})"
-        else:
-            verdict = f"model certified (worst {100 * float(self.certificate.worst):.3g} %)"
+        verdict = self.policy.standing()
         exits = self.envelope_exits(programme, meso)
         where = ("no envelope" if exits is None else "run inside its envelope" if not exits
                  else f"run outside its envelope ({'; '.join(exits)})")

@@ -14,6 +14,8 @@
   Derived from the recorded ``settings`` and ``tests`` (a certificate written before the
   envelope was recorded has the same information).
 - ``outside(envelope, programme, meso)``: where a run leaves the envelope, one phrase each.
+- ``has_fine_grains(meso)``: whether a cell has grains driven along no axis, whose default surrogate is
+  the hybrid (``homogenization.learning.settings.default_equilibrium``, ``policy.default_escalation``).
 - ``equilibrium_settings(cert)``: (K, tolerance) of the surrogate a certificate measured: the
   network with K equilibrium corrections at that force ratio [-], or (0, None), the network alone;
   the ANN backend certifies runs of that very surrogate only.
@@ -27,8 +29,10 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
+import numpy as np
+
 from homogenization.element_test import programme as programmes
-from homogenization.learning.records import Certificate
+from homogenization.ann.records import Certificate
 
 PRESSURE_RTOL = 1e-9
 """Relative tolerance of pressure and strain comparisons (round-off of recorded numbers) [-]."""
@@ -63,12 +67,19 @@ class MinimumCertificate:
     """(kind, sense) of the tests every certificate of a spatial cell holds."""
 
     def tests(self, dim: int) -> tuple[tuple[str, str], ...]:
-        """The required (kind, sense) of the tests of cells of dimension ``dim``."""
-        return self.spatial_tests if dim == 3 else self.planar_tests
+        """The required (kind, sense) of the tests of cells of dimension ``dim`` (2 or 3; KeyError otherwise)."""
+        return {2: self.planar_tests, 3: self.spatial_tests}[dim]
 
 
 MINIMUM = MinimumCertificate()
 """The minimum certificate of the package (the defaults of ``homogenization.learning.certificate``)."""
+
+
+def has_fine_grains(meso: Any) -> bool:
+    """Whether ``meso`` (a ``Mesostructure``) has a grain driven along no axis: a fine grain whose
+    position only its contacts' balance decides (the lateral spheres of the ten-sphere cell are
+    driven across n and count not)."""
+    return bool(np.any(~np.asarray(meso.driven, dtype=bool).any(axis=1)))
 
 
 def _covers(value: float, least: float) -> bool:
@@ -229,11 +240,11 @@ def equilibrium_settings(cert: Certificate) -> tuple[int, float | None]:
 
 def escalation_of(cert: Certificate) -> bool:
     """Whether the hybrid that certificate ``cert`` measured handed the cells with a released grain to the DEM
-    (``homogenization.backends.escalation``; False where it records nothing: certified before that rule)."""
+    (``homogenization.ann.escalation``; False where it records nothing: certified before that rule)."""
     return bool(cert.settings.get("dem_escalation", False))
 
 
 def escalation_rule_of(cert: Certificate) -> str | None:
     """The rule by which the hybrid that certificate ``cert`` measured handed cells to the DEM
-    (``homogenization.backends.escalation.RELEASE_RULE`` as it read then; None where it records none)."""
+    (``homogenization.ann.escalation.RELEASE_RULE`` as it read then; None where it records none)."""
     return cert.settings.get("dem_escalation_rule")
