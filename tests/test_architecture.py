@@ -261,8 +261,6 @@ COMMAND_MODULES = ("warp_hcell.generate", "warp_hcell.clean")
 """The command modules of ``warp_hcell`` (``python -m``): the only ones that import the command
 helpers ``warp_hcell.core.cli`` (argparse, progress bars, status lines); library code raises
 ``warp_hcell.core.errors.UserError`` and takes a progress callback."""
-DRAWS_ITS_OWN_BARS = {"warp_hcell.database.exploration": "the exploration walks draw their bars in the tasks"}
-"""Library modules that still import the command helpers, and why."""
 
 
 def _imports_the_command_helpers(path: Path) -> bool:
@@ -273,10 +271,7 @@ def _imports_the_command_helpers(path: Path) -> bool:
                                   and _name(p) not in (*COMMAND_MODULES, "warp_hcell.core.cli")],
                          ids=lambda p: str(p.relative_to(ROOT)))
 def test_library_modules_of_warp_hcell_do_not_import_the_command_helpers(path):
-    listed = _name(path) in DRAWS_ITS_OWN_BARS  # a listed module that stops importing them leaves the list
-    assert _imports_the_command_helpers(path) == listed, (
-        f"{_name(path)} is a library module and imports warp_hcell.core.cli" if not listed
-        else f"{_name(path)} no longer imports warp_hcell.core.cli: remove it from DRAWS_ITS_OWN_BARS")
+    assert not _imports_the_command_helpers(path), f"{_name(path)} is a library module and imports warp_hcell.core.cli"
 
 
 def test_the_command_modules_of_warp_hcell_are_the_python_m_entries():

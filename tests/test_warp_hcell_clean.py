@@ -7,6 +7,7 @@ import numpy as np
 
 from test_warp_hcell_database import fake_database
 from warp_hcell.database import clean, format as database
+from warp_hcell import clean as clean_command
 
 
 def pathological():
@@ -39,7 +40,7 @@ def test_cli_cleans_in_place_and_keeps_attrs(tmp_path, capsys):
     data, attrs, attrs_of = pathological()
     path = tmp_path / "db.h5"
     database.write_database(path, data, attrs, attrs_of)
-    assert clean.main([str(path)]) == 0
+    assert clean_command.main([str(path)]) == 0
     assert "2 valid, 4 removed" in capsys.readouterr().out
     read, read_attrs = database.read_database(path)
     np.testing.assert_array_equal(read["valid"], [True, False, False, False, False, True])
@@ -48,9 +49,9 @@ def test_cli_cleans_in_place_and_keeps_attrs(tmp_path, capsys):
 
 
 def test_cli_errors_exit_2(tmp_path, capsys):
-    assert clean.main([str(tmp_path / "missing.h5")]) == 2
+    assert clean_command.main([str(tmp_path / "missing.h5")]) == 2
     assert "no such database file" in capsys.readouterr().err
     (tmp_path / "text.h5").write_text("not hdf5")
-    assert clean.main([str(tmp_path / "text.h5")]) == 2
+    assert clean_command.main([str(tmp_path / "text.h5")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a readable HDF5 file" in err[0]

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from warp_hcell.database import exploration, format as database, generate, probing, shards
+from warp_hcell import generate as generate_command
 from warp_hcell.core import execution
 from warp_hcell.dem.cell import DemCell
 from warp_hcell.database.learning_state import evaluate, free_coordinates
@@ -278,7 +279,7 @@ def test_start_cells_must_share_the_learning_state(tmp_path):
 def exit_code(argv):
     """Exit code of the command line: argparse errors exit, other user errors return 2."""
     try:
-        return generate.main(argv)
+        return generate_command.main(argv)
     except SystemExit as exc:
         return exc.code
 
@@ -313,9 +314,9 @@ def test_bad_options_exit_2_with_one_line(tmp_path, capsys, args, message):
 
 def test_cli_writes_a_database_of_a_mesostructure_file(tmp_path, capsys):
     out = tmp_path / "cli.h5"
-    assert generate.main(["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "600",
-                          "--chunk-size", "300", "--n-directions", "4", "--seed", "1", "--out", str(out),
-                          "--clean", "--precompression", "0", "2e-3"]) == 0
+    assert generate_command.main(["--mesostructure", str(DATA / "h_cell_lateral_0.7D.toml"), "--samples", "600",
+                                  "--chunk-size", "300", "--n-directions", "4", "--seed", "1", "--out", str(out),
+                                  "--clean", "--precompression", "0", "2e-3"]) == 0
     assert "600 samples in" in capsys.readouterr().out
     data, attrs = database.read_database(out)
     assert attrs["seed"] == 1 and attrs["cleaned"] and attrs["kn"] == ContactLaw().kn

@@ -1,4 +1,7 @@
-"""Shared command-line plumbing: the parser class, parent parsers, validators, user errors, output.
+"""Shared command-line plumbing of the command modules: the parser class, parent parsers,
+validators, output (progress bars and status lines). Library code does not import it: it raises
+``warp_hcell.core.errors.UserError`` and reports progress through a callback (``ProgressBar``
+draws one).
 
 Every entry point builds its parser with ``command_parser(MODULE, description)``: a ``Parser``
 named ``command_prog(MODULE)``, with ``common_parser()`` (or ``verbosity_parser()`` where
@@ -39,17 +42,8 @@ from typing import Any, Callable, Iterator, NoReturn, Sequence
 
 from tqdm import tqdm
 
+from warp_hcell.core.errors import EXIT_INTERRUPTED, EXIT_USAGE, UserError
 from warp_hcell.core.parameters import CONTACT_LAWS, CellDefaults, check_alpha0_deg, ContactLaw, Law
-
-EXIT_USAGE = 2
-"""Exit code for bad user input (argparse's own convention)."""
-EXIT_INTERRUPTED = 130
-"""Exit code of a command stopped by Ctrl-C or ``kill`` (128 + SIGINT, the shells' convention)."""
-
-
-class UserError(Exception):
-    """Bad input that the user can fix; reported as one line with exit code 2."""
-
 
 @contextmanager
 def writing_to(path: Path) -> Iterator[None]:
@@ -473,3 +467,33 @@ def progress_bar(iterable: Any = None, *, disable: bool = False, file: Any = Non
         return tqdm(iterable, file=stream, disable=disable, miniters=1, **kwargs)
     kwargs.update(mininterval=PROGRESS_LOG_INTERVAL_S, maxinterval=PROGRESS_LOG_INTERVAL_S, leave=True, ascii=True)
     return tqdm(iterable, file=_LogLines(stream), disable=disable, miniters=1, **kwargs)
+
+
+class ProgressBar:
+    """A library function's progress callback ``(done, total) -> None`` drawn as a ``progress_bar``.
+
+    The first call starts the bar at ``done`` of ``total``; later calls advance it to ``done``;
+    it closes when ``done`` reaches ``total`` or at ``close()`` (an interrupted or stopped run).
+    ``kwargs`` go to ``progress_bar`` (``desc``, ``unit``, ...).
+    """
+
+    def __init__(self, **kwargs: Any) -> None:
+        self._kwargs = kwargs
+        self._bar: tqdm | None = None
+        self._closed = False
+
+    def __call__(self, done: int, total: int) -> None:
+        if self._closed:
+            return
+        if self._bar is None:
+            self._bar = progress_bar(total=total, initial=done, **self._kwargs)
+        else:
+            self._bar.update(done - self._bar.n)
+        if done >= total:
+            self.close()
+
+    def close(self) -> None:
+        """Close the bar (its final line where stderr is no terminal); later calls draw nothing."""
+        if self._bar is not None:
+            self._bar.close()
+        self._closed = True

@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-from warp_hcell.core.cli import UserError
+from warp_hcell.core.errors import UserError
 
 
 def check_output_path(path: Path, *, overwrite: bool) -> Path:

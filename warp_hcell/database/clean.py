@@ -1,6 +1,4 @@
-"""python -m warp_hcell.clean DB.h5 [--out CLEAN.h5]
-
-The cleaning step of the learning database: marks samples the network must not learn from
+"""The cleaning step of the learning database: marks samples the network must not learn from
 in ``valid`` and records what it removed. Nothing is deleted: a removed sample stays in the
 file with ``valid = False``, so the step can be audited and undone. Mechanism (stress-free)
 and perturbed samples are kept: the network must learn them.
@@ -14,21 +12,19 @@ A sample is removed for each of these reasons (``REASONS``; a sample may have se
 Root attrs written: ``cleaned`` (bool), ``n_valid``, ``removed_<reason>`` (count per
 reason), ``n_removed`` (samples with at least one reason) and ``cleaning`` (JSON: rules and
 counts). Without cleaning (``not_cleaned``) every sample is valid and ``cleaned`` is False.
-The command rewrites the file atomically (temporary file, then rename): an interrupted run
-leaves the original intact.
+``clean_file`` rewrites the file atomically (temporary file, then rename): an interrupted run
+leaves the original intact. The command is ``python -m warp_hcell.clean``.
 """
 
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 import numpy as np
 
 from warp_hcell.database import format as database
-from warp_hcell.core.cli import command_parser, run_main, say, set_verbosity, UserError
 
 REASONS = {
     "unconverged": "the DEM did not reach quasi-static equilibrium within max_substeps",
@@ -94,36 +90,3 @@ def clean_file(path: Path, out: Path) -> dict[str, Any]:
     attrs.update(cleaning_attrs)
     database.write_database(Path(out), data, attrs, attrs_of)
     return cleaning_attrs
-
-
-def _run(argv: Sequence[str] | None) -> int:
-    parser = command_parser(
-        "warp_hcell.clean",
-        "Mark unconverged and non-finite samples of a learning database in `valid` (mechanism and "
-        "perturbed samples are kept) and record the counts per reason as root attrs.",
-        device=False)
-    parser.add_argument("database", type=Path, help="database file written by warp_hcell.generate")
-    parser.add_argument("--out", type=Path, default=None, help="write the cleaned file here; unset: clean in place")
-    args = parser.parse_args(argv)
-    set_verbosity(args)
-    out = args.out or args.database
-    if not args.database.is_file():
-        raise UserError(f"{args.database}: no such database file")
-    if args.out is not None and args.out.exists():
-        raise UserError(f"{args.out} exists; remove it or clean in place")
-    try:
-        summary = clean_file(args.database, out)
-    except KeyError as exc:
-        raise UserError(f"{args.database}: not a complete learning database ({exc.args[0] if exc.args else exc})") from None
-    say(f"{out}: {summary['n_valid']} valid, {summary['n_removed']} removed "
-        + ", ".join(f"{reason} {summary[f'removed_{reason}']}" for reason in REASONS))
-    return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: clean a database file (see the module docstring); bad input exits 2."""
-    return run_main(_run, argv)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

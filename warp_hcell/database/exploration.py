@@ -30,13 +30,12 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
 from warp_hcell.core import libm
 from warp_hcell.core.contract import StateSchema
-from warp_hcell.core.cli import progress_bar
 from warp_hcell.database.dimensions import DIMENSIONS
 from warp_hcell.database.learning_state import evaluate, free_coordinates
 from warp_hcell.core.parameters import ContactLaw, DatabaseSettings
@@ -197,6 +196,15 @@ def stress_free(schema: StateSchema, arrays: Mapping[str, np.ndarray], contact_l
     return ev["normal_force"].max(axis=1) <= force_floor(schema, contact_law, contact_tolerance)
 
 
+WalkProgress = Callable[[Iterable[int], str], Iterable[int]]
+"""(increment indices, walk label) -> the same indices: what wraps a walk's increment loop."""
+
+
+def _unwrapped(steps: Iterable[int], label: str) -> Iterable[int]:
+    """The ``WalkProgress`` that reports nothing."""
+    return steps
+
+
 class Explorer:
     """Walks batches of DEM cells along their paths (module docstring).
 
@@ -206,11 +214,15 @@ class Explorer:
         schema: the learning state of the cells.
         settings: generator settings.
         contact_law, contact_tolerance: the DEM's (for the force-free and overlap rules).
+        n_starts: number of start cells (rows of ``stops``).
+        progress: ``(increment indices, walk label) -> the same indices``, wrapping each walk's
+            increment loop (a command draws a progress bar around it); None: no wrapping.
     """
 
     def __init__(self, cell_model, schema: StateSchema, settings: DatabaseSettings, contact_law: ContactLaw,
-                 contact_tolerance: float, n_starts: int = 1):
+                 contact_tolerance: float, n_starts: int = 1, progress: WalkProgress | None = None):
         self.cell_model = cell_model
+        self.progress = progress or _unwrapped
         self.schema = schema
         self.settings = settings
         self.contact_law = contact_law
@@ -235,7 +247,7 @@ class Explorer:
             eps_start: local strains of the start states from their start cell, (n_cells, dim).
             free_run_start: force-free path length of the start states, (n_cells,).
             cell_start: start cell (0..n_starts-1) of each walked cell, (n_cells,) int.
-            label: progress-bar label.
+            label: the walk's name (its progress bar's label).
             sample_start: also sample the start states (step 0).
 
         Returns:
@@ -246,7 +258,7 @@ class Explorer:
         active = np.arange(increments.shape[0])
         eps, free_run = np.array(eps_start, dtype=np.float64), np.array(free_run_start, dtype=np.float64)
         parts = [self._record(cm.state_to_arrays(state), active, 0, eps, free_run)] if sample_start else []
-        for k in progress_bar(range(int(n_steps.max(initial=0))), desc=label, unit="increment", leave=False):
+        for k in self.progress(range(int(n_steps.max(initial=0))), label):
             going = np.flatnonzero(n_steps[active] > k)
             if going.size < active.size:
                 state, active, eps, free_run = cm.take(state, going), active[going], eps[going], free_run[going]
@@ -284,7 +296,8 @@ def path_stride(settings: DatabaseSettings) -> int:
 
 
 def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSettings, contact_law: ContactLaw,
-            contact_tolerance: float, start_ids: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+            contact_tolerance: float, start_ids: np.ndarray | None = None, *,
+            progress: WalkProgress | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Run the exploration tree (module docstring) and return the sampled states.
 
     Args:
@@ -294,6 +307,7 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
         settings: generator settings.
         contact_law, contact_tolerance: the DEM's.
         start_ids: global index of each start cell, (n_starts,) int; default 0, 1, ...
+        progress: wraps each walk's increment loop (``Explorer``); None: silent.
 
     Returns:
         (states, stops). ``states``: first axis n_states, ordered by start cell (then as walked):
@@ -303,7 +317,7 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
         turn, 180 = negated; NaN elsewhere), ``eps`` (n_states, dim) [-] from the start cell.
         ``stops``: rule -> how often it fired per start cell, (n_starts,) int64."""
     n_starts = int(start_state.n_cells)
-    explorer = Explorer(cell_model, schema, settings, contact_law, contact_tolerance, n_starts)
+    explorer = Explorer(cell_model, schema, settings, contact_law, contact_tolerance, n_starts, progress)
     start_ids = np.arange(n_starts, dtype=np.int64) if start_ids is None else np.asarray(start_ids, np.int64)
     stride = path_stride(settings)
     levels = np.unique(np.asarray(settings.precompression, dtype=np.float64))

@@ -1,6 +1,4 @@
-"""python -m warp_hcell.generate [--mesostructure FILE_OR_SPEC] --samples 300000 --seed 0 --out runs/db.h5
-
-Generates the generic learning database of the meso-ANN for any mesostructure (file format in
+"""Generates the generic learning database of the meso-ANN for any mesostructure (file format in
 docs/database_format.md, written by ``warp_hcell.database.format``); the DEM
 (``warp_hcell.dem.cell.DemCell``) explores and probes. ``--mesostructure`` takes a file or a
 builder spec (``warp_hcell.mesostructures.builders``; the database records the hash of the cell,
@@ -20,7 +18,7 @@ The generator's jobs, one module each:
    run in this process or on Dask (``--workers N``, ``--scheduler ADDRESS``); this process
    writes the results, so the file is bit-identical for a seed whatever the execution.
 
-This module composes them: ``generate`` and the command line. Cleaning is an explicit step
+This module composes them: ``generate`` (the command is ``python -m warp_hcell.generate``). Cleaning is an explicit step
 (``--clean`` here, or ``python -m warp_hcell.clean``): it marks unconverged and non-finite
 samples.
 
@@ -30,48 +28,31 @@ compression and contraction positive; local frame index 0 = n, 1 = t (3D: 1 = t1
 
 from __future__ import annotations
 
-import argparse
 import errno
 import hashlib
 import json
 import math
-import sys
-import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from warp_hcell.database import clean as cleaning
 from warp_hcell.database import format as database
-from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
-from warp_hcell.core.cli import (
-    UserError,
-    command_parser,
-    finite_float,
-    positive_float,
-    positive_int,
-    progress_bar,
-    run_main,
-    say,
-    set_verbosity,
-    task_setup,
-)
-from warp_hcell.core.files import check_output_path, output_lock
-from warp_hcell.core.execution import InProcess, make_execution, SchedulerUnreachable
-from warp_hcell.database.exploration import DEM_PREFIX
+from warp_hcell.core.files import output_lock
+from warp_hcell.core.execution import InProcess, make_execution
+from warp_hcell.database.exploration import DEM_PREFIX, WalkProgress
 from warp_hcell.database.learning_state import free_coordinates
-from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, shares_state_schema
+from warp_hcell.mesostructures.mesostructure import Mesostructure, shares_state_schema
 from warp_hcell.mesostructures.files import describe, description_sha256
-from warp_hcell.mesostructures.hcell import StartCells, h_cell
-from warp_hcell.core.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings, require_linear_law
+from warp_hcell.core.parameters import ContactLaw, DatabaseSettings, DemSettings, require_linear_law
 from warp_hcell.database.probing import chunk_samples, FLOAT32_FEATURES, n_chunks
 from warp_hcell.core.provenance import provenance
 from warp_hcell.database.shards import DiskFull, Sidecar, sidecar_path
 from warp_hcell.database.tasks import explore_starts, ExploreInputs, Physics, probe_chunk, ProbeInputs
 
-__all__ = ["generate", "main", "sidecar_path", "check_starts", "check_increments"]
+__all__ = ["generate", "sidecar_path", "check_starts", "check_increments"]
 
 
 def check_starts(meso: Mesostructure, starts: Sequence[Mesostructure]) -> None:
@@ -192,6 +173,8 @@ def generate(
     clean: bool = False,
     max_chunks: int | None = None,
     discard_partial: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+    explore_progress: WalkProgress | None = None,
 ) -> Path | None:
     """Generate (or resume) the database of ``meso`` and write it to ``out`` (replaced atomically).
 
@@ -205,6 +188,10 @@ def generate(
         clean: apply ``warp_hcell.clean`` before writing.
         max_chunks: compute at most this many new chunks, then return None.
         discard_partial: drop an unfinished run of other options instead of refusing.
+        progress: called ``(samples probed, settings.samples)`` when probing starts (the samples a
+            resumed run already has) and after each chunk; None: silent.
+        explore_progress: wraps each exploration walk's increment loop
+            (``warp_hcell.database.exploration.Explorer``; picklable for Dask); None: silent.
 
     Returns:
         ``out`` once written, or None when stopped by ``max_chunks``.
@@ -227,22 +214,28 @@ def generate(
         execution = make_execution(workers) if own else execution
         try:
             return _generate(execution, physics, meso, settings, out, description, seed, clean, max_chunks,
-                             discard_partial)
+                             discard_partial, progress, explore_progress)
         finally:
             if own:
                 execution.close()
 
 
+def _silent(done: int, total: int) -> None:
+    """The progress callback that reports nothing."""
+
+
 def _generate(execution, physics: Physics, meso: Mesostructure, settings: DatabaseSettings, out: Path,
               description: Mapping[str, Any], seed: int, clean: bool, max_chunks: int | None,
-              discard_partial: bool) -> Path | None:
+              discard_partial: bool, progress: Callable[[int, int], None] | None,
+              explore_progress: WalkProgress | None) -> Path | None:
     sidecar = Sidecar(out)
     run = sidecar.open(description, lambda: {k: v for k, v in provenance().items() if k != "command"},
                        discard_partial)
     states_file = sidecar.file("states")
     states = sidecar.load(states_file)
     if states is None:
-        states = _explore(execution, sidecar, ExploreInputs(physics, tuple(description["starts"]), settings))
+        explore_inputs = ExploreInputs(physics, tuple(description["starts"]), settings, explore_progress)
+        states = _explore(execution, sidecar, explore_inputs)
         sidecar.save(states_file, states)
     chunks = {c: sidecar.load(sidecar.file("chunk", c), _chunk_check(settings, c, meso.dim))
               for c in range(n_chunks(settings))}
@@ -251,108 +244,15 @@ def _generate(execution, physics: Physics, meso: Mesostructure, settings: Databa
     token = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
     inputs = ProbeInputs(token, physics, settings, int(seed), states)
     done = settings.samples - sum(chunk_samples(settings, c) for c in missing)
-    with progress_bar(total=settings.samples, initial=done, desc="probes", unit="sample", smoothing=0.1) as bar:
-        for chunk, arrays in execution.map(probe_chunk, inputs, todo):
-            sidecar.save(sidecar.file("chunk", chunk), arrays)
-            chunks[chunk] = arrays
-            bar.update(chunk_samples(settings, chunk))
+    report = progress or _silent
+    report(done, settings.samples)
+    for chunk, arrays in execution.map(probe_chunk, inputs, todo):
+        sidecar.save(sidecar.file("chunk", chunk), arrays)
+        chunks[chunk] = arrays
+        done += chunk_samples(settings, chunk)
+        report(done, settings.samples)
     if len(todo) < len(missing):
         return None
     _assemble(out, states, [chunks[c] for c in range(n_chunks(settings))], meso, settings, run, description, clean)
     sidecar.remove()
     return out
-
-
-# -- command line ------------------------------------------------------------------------
-def build_parser() -> argparse.ArgumentParser:
-    """The ``python -m warp_hcell.generate`` argument parser (defaults from ``DatabaseSettings``)."""
-    defaults = DatabaseSettings()
-    parser = command_parser(
-        "warp_hcell.generate",
-        "Generate the generic meso-ANN learning database of a mesostructure with the DEM "
-        "(docs/database_format.md): exploration paths, then seeded strain probes and perturbed states of "
-        "the sampled states.")
-    parser.add_argument("--out", type=Path, required=True, help="database file (HDF5) to write")
-    parser.add_argument("--mesostructure", type=mesostructure_arg, default=None,
-                        help=MESOSTRUCTURE_HELP + " (a spec without alpha0 is built at "
-                             f"{CellDefaults.alpha0_deg:g} deg); unset: the H-cell, explored from "
-                             "H-cells of several opening angles")
-    parser.add_argument("--samples", type=positive_int, default=defaults.samples, help="number of samples")
-    parser.add_argument("--workers", type=positive_int, default=1,
-                        help="worker processes of a local Dask cluster (1: in this process; the result does not "
-                             "depend on it)")
-    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                        help="run the tasks on this Dask scheduler (e.g. tcp://host:8786) instead of locally")
-    parser.add_argument("--threads", type=positive_int, default=2,
-                        help="DEM CPU threads per process (the result does not depend on it)")
-    parser.add_argument("--chunk-size", type=positive_int, default=defaults.chunk_size,
-                        help="probes per batch (unit of resume and of parallel work)")
-    parser.add_argument("--max-chunks", type=positive_int, default=None,
-                        help="compute at most this many chunks, then stop (rerun to resume)")
-    parser.add_argument("--sample-spacing", type=positive_float, default=defaults.sample_spacing,
-                        help="path length between sampled states along the exploration paths [-]")
-    parser.add_argument("--n-directions", type=positive_int, default=defaults.n_directions,
-                        help="proportional-leg directions in the local strain space ((eps_n, eps_t) plane; "
-                             "a spherical Fibonacci set for a 3D cell)")
-    parser.add_argument("--n-alpha0", type=positive_int, default=StartCells.n_alpha0,
-                        help="default H-cell only: start cells at opening angles evenly spaced in [30, 89] deg "
-                             "(plus 35, 40, 55)")
-    parser.add_argument("--perturbed-fraction", type=float, default=defaults.perturbed_fraction,
-                        help="fraction of probes starting from a perturbed (unbalanced) state")
-    parser.add_argument("--reversal-legs", type=int, default=defaults.reversal_legs,
-                        help="turning branches per proportional leg (unloading / reloading states; 0 = none)")
-    parser.add_argument("--precompression", type=finite_float, nargs="+", default=list(defaults.precompression),
-                        metavar="EPS", help="isotropic strains [-] from which the proportional legs start")
-    parser.add_argument("--clean", action="store_true",
-                        help="apply the cleaning step (warp_hcell.clean: unconverged, non-finite) to `valid`")
-    return parser
-
-
-def _run(argv: Sequence[str] | None) -> int:
-    args = build_parser().parse_args(argv)
-    set_verbosity(args)
-    try:
-        settings = DatabaseSettings(samples=args.samples, chunk_size=args.chunk_size,
-                                    sample_spacing=args.sample_spacing, n_directions=args.n_directions,
-                                    perturbed_fraction=args.perturbed_fraction, reversal_legs=args.reversal_legs,
-                                    precompression=tuple(args.precompression))
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
-    check_output_path(args.out, overwrite=args.overwrite)
-    if args.out.is_dir():
-        raise UserError(f"{args.out} is a folder; --out must be a file")
-    if args.mesostructure is None:
-        meso = h_cell(CellDefaults.alpha0_deg, CellDefaults.radius)
-        starts = StartCells(n_alpha0=args.n_alpha0).build(CellDefaults.radius)
-    else:
-        try:
-            meso = args.mesostructure.build()
-        except MesostructureError as exc:
-            raise UserError(str(exc)) from None
-        starts = [meso]
-    start = time.perf_counter()
-    try:
-        with make_execution(args.workers, args.scheduler, setup=task_setup(args)) as execution:
-            written = generate(meso, settings, args.out, seed=args.seed, starts=starts, device=args.device,
-                               threads=args.threads, execution=execution, clean=args.clean,
-                               max_chunks=args.max_chunks, discard_partial=args.overwrite)
-    except SchedulerUnreachable as exc:
-        raise UserError(str(exc)) from None
-    except DiskFull as exc:
-        raise UserError(f"no space left on the device writing {exc.filename}; free space and rerun the same "
-                        f"command to resume") from None
-    elapsed = time.perf_counter() - start
-    if written is None:
-        say(f"stopped after --max-chunks {args.max_chunks} ({elapsed:.1f} s); rerun the same command to resume")
-    else:
-        say(f"{written}: {settings.samples} samples in {elapsed:.1f} s ({settings.samples / elapsed:.0f} samples/s)")
-    return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line entry point; bad input is one line on stderr and exit code 2."""
-    return run_main(_run, argv)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from warp_hcell.database.exploration import explore
+from warp_hcell.database.exploration import explore, WalkProgress
 from warp_hcell.mesostructures.files import from_description
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, DatabaseSettings, DemSettings
 from warp_hcell.database.probing import compute_chunk, ProbeContext
@@ -37,11 +37,14 @@ class Physics:
 
 @dataclass(frozen=True)
 class ExploreInputs:
-    """Inputs of ``explore_starts``: the physics, the start cells (``describe`` texts), settings."""
+    """Inputs of ``explore_starts``: the physics, the start cells (``describe`` texts), settings, and
+    what wraps each walk's increment loop (``warp_hcell.database.exploration.Explorer``; picklable
+    for Dask; None: silent)."""
 
     physics: Physics
     starts: tuple[str, ...]
     settings: DatabaseSettings
+    progress: WalkProgress | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,7 +91,8 @@ def explore_starts(inputs: ExploreInputs, group: tuple[int, ...]) -> dict[str, n
     model = DemModel.build(starts, len(starts), contact_law=physics.contact_law, settings=physics.dem_settings,
                            device=physics.device)
     states, stops = explore(dem_cell(physics), DemCellState(model, model.state()), meso.schema(), inputs.settings,
-                            physics.contact_law, physics.dem_settings.contact_tolerance, np.asarray(group))
+                            physics.contact_law, physics.dem_settings.contact_tolerance, np.asarray(group),
+                            progress=inputs.progress)
     for name in meso.parameters:
         value = {k: s.parameters[name] for k, s in zip(group, starts)}
         states[name] = np.array([value[k] for k in states["start_id"]], dtype=np.float64)
