@@ -51,7 +51,7 @@ import h5py
 import numpy as np
 
 from homogenization.element_test import programme as programmes
-from warp_hcell.core.cli import UserError
+from warp_hcell.core.errors import UserError
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 from homogenization.element_test.driver import Record

@@ -22,7 +22,7 @@ from homogenization.output import figures
 from homogenization.backends import make_cell_model
 from homogenization.element_test.points import MaterialPoints
 from homogenization.sweeps.plan import Case
-from warp_hcell.core.cli import UserError
+from warp_hcell.core.errors import UserError
 from warp_hcell.core.parameters import contact_law_from_dict
 from warp_hcell.mesostructures.builders import parse_mesostructure
 from warp_hcell.mesostructures.mesostructure import Mesostructure

@@ -23,7 +23,7 @@ import numpy as np
 
 from homogenization.element_test import programme as programmes
 from homogenization.backends import backend_class, mesostructure_refusal
-from warp_hcell.core.cli import UserError
+from warp_hcell.core.errors import UserError
 from warp_hcell.core.parameters import CellDefaults, ContactLaw
 from warp_hcell.mesostructures.builders import MesostructureSource, mesostructure_list_arg
 from warp_hcell.mesostructures.files import describe, description_sha256
