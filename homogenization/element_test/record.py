@@ -19,70 +19,70 @@ from warp_hcell.core.dimension import dimension
 class Record:
     """History of a run, one entry per increment (the force-free initial state is implicit).
 
-    Stresses [N/m] and strains [-] are compression/contraction positive; strains are the
-    sums of the applied macro increments, counted from the initial state.
-
-    Attributes:
-        stage: stage label of each increment, shape (n,), str.
-        eps11, eps22: macro strain [-], shape (n,).
-        sigma11, sigma22, sigma12: macro stress [N/m], shape (n,).
-        p: mean stress (sigma11 + sigma22) / 2 [N/m], shape (n,).
-        q: deviator sigma11 - sigma22 [N/m], shape (n,).
-        J: volume ratio V / V0 [-], shape (n,).
-        volume: macro volume V = V0 J [m^2], shape (n,).
-        newton_iterations: ``step`` calls spent on the increment (1 when purely
-            strain-controlled), shape (n,), int.
-        diagnostics: backend diagnostics of the accepted ``step`` call per increment (e.g.
-            DEM ``substeps``, ``n_unconverged``), name -> shape (n,); NaN where absent.
-            ``<name>_all_calls`` sums the same diagnostic over every ``step`` call of the
-            increment, trial calls of stress control included (the work really spent).
-        snapshot_increment: number of completed increments at each snapshot, shape (m,).
-        snapshot_stage: stage label of each snapshot, shape (m,), str.
-        snapshots: per-cell ``cell_model.observables``, name -> shape (m, n_cells).
-        theta_deg: cell-axis orientations [deg], shape (n_cells,).
-        weights: fabric weights [-], shape (n_cells,).
-        V0: initial macro volume [m^2] (3D: [m^3]).
-        parameters: the named parameters of the mesostructure (``Mesostructure.parameters``,
-            e.g. ``alpha0_deg`` [deg]), copied without knowing what they are.
-        backend: name of the cell model.
-        programme: the loading programme that was run.
-        final_state: ``cell_model.state_to_arrays`` of the last state (resume, inspection).
-        step_seconds: wall time of each programme step [s], shape (n_steps,); not written
-            to run files, which stay bit-reproducible.
-        eps33, sigma33, sigma23, sigma13: the third normal strain and the stress components of a
-            3D run (None in 2D), shape (n,); there p = tr(sigma) / 3 and q = sqrt(3 J2) [Pa],
-            sigma12 the 12 shear stress, and theta_deg the angle between each cell axis and axis 1.
-        frames: 3D cell frames (n, t1, t2) as columns [-], shape (n_cells, 3, 3); None in 2D.
+    Stresses [N/m] (2D) or [Pa] (3D) and strains [-] are compression/contraction positive;
+    strains are the sums of the applied macro increments, counted from the initial state.
+    n: increments; m: snapshots; n_cells: cells of the orientation set. The fields of a 3D run
+    only are None in 2D.
     """
 
     stage: np.ndarray
+    """Stage label of each increment, shape (n,), str."""
     eps11: np.ndarray
+    """Macro strain [-], shape (n,)."""
     eps22: np.ndarray
+    """Macro strain [-], shape (n,)."""
     sigma11: np.ndarray
+    """Macro stress, shape (n,)."""
     sigma22: np.ndarray
+    """Macro stress, shape (n,)."""
     sigma12: np.ndarray
+    """Macro shear stress, shape (n,)."""
     p: np.ndarray
+    """Mean stress, (sigma11 + sigma22) / 2 in 2D, tr(sigma) / 3 in 3D, shape (n,)."""
     q: np.ndarray
+    """Deviator, sigma11 - sigma22 in 2D, sqrt(3 J2) in 3D, shape (n,)."""
     J: np.ndarray
+    """Volume ratio V / V0 [-], shape (n,)."""
     volume: np.ndarray
+    """Macro volume V = V0 J [m^2] (3D: [m^3]), shape (n,)."""
     newton_iterations: np.ndarray
+    """``step`` calls spent on the increment (1 when purely strain-controlled), shape (n,), int."""
     diagnostics: dict[str, np.ndarray]
+    """Backend diagnostics of the accepted ``step`` call per increment (e.g. DEM ``substeps``,
+    ``n_unconverged``), name -> shape (n,), NaN where absent; ``<name>_all_calls`` sums it over
+    every ``step`` call of the increment, stress control's trial calls included."""
     snapshot_increment: np.ndarray
+    """Completed increments at each snapshot, shape (m,)."""
     snapshot_stage: np.ndarray
+    """Stage label of each snapshot, shape (m,), str."""
     snapshots: dict[str, np.ndarray]
+    """Per-cell ``cell_model.observables``, name -> shape (m, n_cells)."""
     theta_deg: np.ndarray
+    """Cell-axis orientations [deg] (3D: the angle between each cell axis and axis 1), shape (n_cells,)."""
     weights: np.ndarray
+    """Fabric weights [-], shape (n_cells,)."""
     V0: float
+    """Initial macro volume [m^2] (3D: [m^3])."""
     parameters: dict[str, float]
+    """The mesostructure's named parameters (``Mesostructure.parameters``, e.g. ``alpha0_deg``)."""
     backend: str
+    """Name of the cell model."""
     programme: Programme
+    """The loading programme that was run."""
     final_state: dict[str, np.ndarray] = field(default_factory=dict)
+    """``cell_model.state_to_arrays`` of the last state (resume, inspection)."""
     step_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """Wall time of each programme step [s], shape (n_steps,); not written to run files."""
     eps33: np.ndarray | None = None
+    """Third normal strain [-] of a 3D run, shape (n,)."""
     sigma33: np.ndarray | None = None
+    """Third normal stress of a 3D run, shape (n,)."""
     sigma23: np.ndarray | None = None
+    """Shear stress of a 3D run, shape (n,)."""
     sigma13: np.ndarray | None = None
+    """Shear stress of a 3D run, shape (n,)."""
     frames: np.ndarray | None = None
+    """Cell frames (n, t1, t2) as columns [-] of a 3D run, shape (n_cells, 3, 3)."""
 
     @property
     def n_increments(self) -> int:

@@ -246,29 +246,26 @@ class StateSchema(SchemaCounts):
     law. Driven coordinates follow x = x_ref * l / l_ref. Local frame: index 0 = n, then t
     (d = 2) or t1, t2 (d = 3); the spring forces of a pair have ``shear_shape``; grain labels
     in feature names are 1-based.
-
-    Attributes:
-        free_dofs: (grain index 0-based, local axis 0 .. d - 1) of every free DOF, shape
-            (n_free, 2) int64, row-major order of ``driven == False``.
-        pairs: candidate contact pairs (i, j), 0-based, shape (n_pairs, 2) int64.
-        radius: grain radii [m], shape (n_grains,).
-        reference_position: reference centres [m], shape (n_grains, d).
-        reference_cell_size: (l1_ref, .., ld_ref) [m], shape (d,).
-        driven: True where the DOF is driven, shape (n_grains, d) bool.
-        outer: the boundary whose measure is V_cell: for d = 2 the ordered grain indices of
-            the outer polygon, shape (n_outer,); for d = 3 the outer triangles, shape
-            (n_faces, 3).
-        features: feature name -> ``StateFeature``, in storage order.
     """
 
     free_dofs: np.ndarray
+    """(grain index 0-based, local axis 0 .. d - 1) of every free DOF, shape (n_free, 2) int64,
+    row-major order of ``driven == False``."""
     pairs: np.ndarray
+    """Candidate contact pairs (i, j), 0-based, shape (n_pairs, 2) int64."""
     radius: np.ndarray
+    """Grain radii [m], shape (n_grains,)."""
     reference_position: np.ndarray
+    """Reference centres [m], shape (n_grains, d)."""
     reference_cell_size: np.ndarray
+    """(l1_ref, .., ld_ref) [m], shape (d,)."""
     driven: np.ndarray
+    """True where the DOF is driven, shape (n_grains, d) bool."""
     outer: np.ndarray
+    """The boundary whose measure is V_cell: d = 2, the ordered grain indices of the outer polygon,
+    shape (n_outer,); d = 3, the outer triangles, shape (n_faces, 3)."""
     features: Mapping[str, StateFeature]
+    """Feature name -> ``StateFeature``, in storage order."""
 
     def of_role(self, role: str) -> tuple[str, ...]:
         """Names of the features with role ``role`` (``FEATURE_ROLES``)."""
