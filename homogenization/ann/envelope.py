@@ -33,6 +33,7 @@ import numpy as np
 
 from homogenization.element_test import programme as programmes
 from homogenization.ann.records import Certificate
+from warp_hcell.core.dimension import dimension
 
 PRESSURE_RTOL = 1e-9
 """Relative tolerance of pressure and strain comparisons (round-off of recorded numbers) [-]."""
@@ -104,15 +105,7 @@ def shortfalls(cert: Certificate, dim: int, minimum: MinimumCertificate = MINIMU
     target = float(cert.target)
     if target > minimum.target * (1.0 + PRESSURE_RTOL):
         missing.append(f"target {100 * target:g} % (maximum {100 * minimum.target:g} %)")
-    if dim == 3:
-        order, spins = (settings.get("spatial_rule") or (0, 0))
-        if order < minimum.spatial_rule[0] or spins < minimum.spatial_rule[1]:
-            missing.append(f"spatial rule order {order} x {spins} spins (minimum {minimum.spatial_rule[0]} x "
-                           f"{minimum.spatial_rule[1]})")
-    else:
-        n = int(settings.get("n_orientations", 0))
-        if n < minimum.n_orientations:
-            missing.append(f"{n} orientations (minimum {minimum.n_orientations})")
+    missing += _ORIENTATION_SHORTFALLS[dim](settings, minimum)
     if minimum.rollout and not cert.rollout:
         missing.append("no rollouts (the minimum runs them)")
     held = {(t.kind, t.sense) for t in cert.tests}
@@ -120,6 +113,24 @@ def shortfalls(cert: Certificate, dim: int, minimum: MinimumCertificate = MINIMU
     if absent:
         missing.append(f"no {', '.join(absent)} test")
     return missing
+
+
+def _planar_orientation_shortfalls(settings: Mapping[str, Any], minimum: MinimumCertificate) -> list[str]:
+    n = int(settings.get("n_orientations", 0))
+    return [f"{n} orientations (minimum {minimum.n_orientations})"] if n < minimum.n_orientations else []
+
+
+def _spatial_orientation_shortfalls(settings: Mapping[str, Any], minimum: MinimumCertificate) -> list[str]:
+    order, spins = (settings.get("spatial_rule") or (0, 0))
+    if order < minimum.spatial_rule[0] or spins < minimum.spatial_rule[1]:
+        return [f"spatial rule order {order} x {spins} spins (minimum {minimum.spatial_rule[0]} x "
+                f"{minimum.spatial_rule[1]})"]
+    return []
+
+
+_ORIENTATION_SHORTFALLS = {2: _planar_orientation_shortfalls, 3: _spatial_orientation_shortfalls}
+"""(recorded settings, minimum) -> where the orientations of a certificate of cells of each dimension fall
+short (``shortfalls``)."""
 
 
 def dimension_of(cert: Certificate) -> int:
@@ -157,18 +168,18 @@ def envelope_of(cert: Certificate) -> dict[str, Any]:
 
 
 def step_kind(step: programmes.Step, p0: float | None) -> str:
-    """Kind of a shear step as the certificate names its tests: "constant-volume" (planar, d_eps22
-    = -d_eps11), "undrained" (spatial isochoric, ``programme.isochoric``), "drained" (axial strain,
-    the lateral stresses held at ``p0``, no coupling), else "other"."""
+    """Kind of a shear step as the certificate names its tests: ``Dimension.isochoric_test``
+    ("constant-volume", planar, or "undrained", spatial) where every lateral strain increment is
+    ``Dimension.undrained_lateral`` of the axial one (to 1e-6: d_eps22 = -d_eps11 in the plane,
+    ``programme.isochoric`` in space), "drained" (axial strain, the lateral stresses held at ``p0``,
+    no coupling), else "other"."""
     rtol = 1e-9
     if all(c == "strain" for c in step.control):
+        space = dimension(step.dim)
         d = step.target[0] / step.n_increments
-        if step.dim == 2 and math.isclose(step.target[1], -step.target[0], rel_tol=rtol, abs_tol=1e-15):
-            return "constant-volume"
-        lateral = 1.0 - 1.0 / math.sqrt(1.0 - d) if d < 1.0 else math.nan
-        if step.dim == 3 and all(math.isclose(t / step.n_increments, lateral, rel_tol=1e-6, abs_tol=1e-15)
-                                 for t in step.target[1:]):
-            return "undrained"
+        lateral = space.undrained_lateral(d)
+        if all(math.isclose(t / step.n_increments, lateral, rel_tol=1e-6, abs_tol=1e-15) for t in step.target[1:]):
+            return space.isochoric_test
         return "other"
     if (step.control[0] == "strain" and all(c == "stress" for c in step.control[1:]) and step.coupling is None
             and p0 is not None and all(math.isclose(t, p0, rel_tol=rtol) for t in step.target[1:])):

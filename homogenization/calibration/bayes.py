@@ -28,8 +28,8 @@ import numpy as np
 
 from homogenization.calibration.data import CHANNELS, Measurement
 from homogenization.calibration.forward import SPREAD, SPREAD_PRIOR, ForwardSettings, feasible, simulate
+from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import (
-    ALPHA_MIN_3D_DEG,
     PRIOR_BOUNDS_2D,
     PRIOR_BOUNDS_3D,
     PRIOR_BOUNDS_HERTZ_3D,
@@ -106,11 +106,11 @@ def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2, law
     parameter's default scale. Parameters not calibrated may not appear.
 
     Args:
-        dim: 3 where any test is triaxial (the ten-sphere cell: alpha0 >= ``ALPHA_MIN_3D_DEG``), else 2.
+        dim: 3 where any test is triaxial (the ten-sphere cell: alpha0 >= ``Dimension.min_opening_deg``), else 2.
 
     Raises:
         ValueError: one line naming the file for a missing, malformed or inconsistent prior, or
-            (dim 3) an alpha0 prior reaching below ``ALPHA_MIN_3D_DEG``.
+            an alpha0 prior reaching below ``Dimension.min_opening_deg`` (dim 3).
     """
     if SPREAD in names and dim != 3:
         raise ValueError(f"{SPREAD}: a spread of opening angles is a parameter of the ten-sphere cell; calibrate it on "
@@ -143,9 +143,10 @@ def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2, law
             bounds[name] = (lo, hi, log)
     if SPREAD in bounds and bounds[SPREAD][0] < 0.0:
         raise ValueError(f"{path}: the prior of {SPREAD} reaches below 0 deg (it is a half-width)")
-    if dim == 3 and "alpha0" in bounds and bounds["alpha0"][0] < ALPHA_MIN_3D_DEG:
-        raise ValueError(f"{path}: triaxial data: the ten-sphere cell needs alpha0 >= {ALPHA_MIN_3D_DEG:g} deg "
-                         f"(below, its two planes overlap); give alpha0 a prior such as [{ALPHA_MIN_3D_DEG:g}, 85]")
+    floor = dimension(dim).min_opening_deg
+    if floor is not None and "alpha0" in bounds and bounds["alpha0"][0] < floor:
+        raise ValueError(f"{path}: triaxial data: the ten-sphere cell needs alpha0 >= {floor:g} deg "
+                         f"(below, its two planes overlap); give alpha0 a prior such as [{floor:g}, 85]")
     return Prior(tuple(names), np.array([bounds[n][0] for n in names]), np.array([bounds[n][1] for n in names]),
                  np.array([bounds[n][2] for n in names]))
 

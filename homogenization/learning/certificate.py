@@ -105,8 +105,12 @@ def tests_of(pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
     extension differs (sigma22 is held) and is always run. Spatial (``dim`` 3): axisymmetric
     extension is no turn of compression, so undrained and drained tests run in both senses.
     """
-    if dim == 3:
-        return _spatial_tests(pressures, eps_max, increment)
+    return _TESTS_OF[dim](pressures, eps_max, increment, n_orientations)
+
+
+def _planar_tests(pressures: Sequence[float], eps_max: float, increment: float, n_orientations: int
+                  ) -> list[tuple[dict[str, Any], programmes.Programme]]:
+    """The biaxial tests of a planar cell (``tests_of``)."""
     tests = []
     n = programmes.n_increments_for(eps_max, increment)
     for p0 in pressures:
@@ -127,9 +131,9 @@ def tests_of(pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
     return tests
 
 
-def _spatial_tests(pressures: Sequence[float], eps_max: float, increment: float
+def _spatial_tests(pressures: Sequence[float], eps_max: float, increment: float, n_orientations: int
                    ) -> list[tuple[dict[str, Any], programmes.Programme]]:
-    """The triaxial tests of a spatial cell (``tests_of``)."""
+    """The triaxial tests of a spatial cell (``tests_of``; ``n_orientations`` is a planar setting, unused)."""
     tests = []
     n = programmes.n_increments_for(eps_max, increment)
     for p0 in pressures:
@@ -148,6 +152,21 @@ def _spatial_tests(pressures: Sequence[float], eps_max: float, increment: float
     return tests
 
 
+_TESTS_OF = {2: _planar_tests, 3: _spatial_tests}
+"""The tests of a certificate of cells of each dimension (``tests_of``)."""
+_ORIENTATION_SETTINGS = {
+    2: lambda n_orientations, spatial_rule: {"n_orientations": int(n_orientations)},
+    3: lambda n_orientations, spatial_rule: {"spatial_rule": [int(k) for k in spatial_rule], "staggered_spins": True},
+}
+"""(n_orientations, spatial_rule) -> the orientation settings a certificate of cells of each dimension records."""
+_ORIENTATION_ARGUMENTS = {
+    2: lambda settings: {"n_orientations": settings["n_orientations"]},
+    3: lambda settings: {"lebedev_order": settings["spatial_rule"][0], "n_spins": settings["spatial_rule"][1],
+                         "staggered_spins": settings["staggered_spins"]},
+}
+"""Recorded settings -> the orientation arguments of ``driver.run`` for cells of each dimension."""
+
+
 def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
                        increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
                        spatial_rule: Sequence[int] = SPATIAL_RULE, equilibrium_corrections: int = 0,
@@ -163,19 +182,14 @@ def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_
     hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": float(equilibrium_tolerance),
                "dem_escalation": bool(dem_escalation), **({"dem_escalation_rule": RELEASE_RULE} if dem_escalation else {})}
               if equilibrium_corrections else {})
-    if dim == 3:
-        return {**settings, "spatial_rule": [int(k) for k in spatial_rule], "staggered_spins": True, **hybrid}
-    return {**settings, "n_orientations": int(n_orientations), **hybrid}
+    return {**settings, **_ORIENTATION_SETTINGS[dim](n_orientations, spatial_rule), **hybrid}
 
 
 def run_test(model: Any, programme: programmes.Programme, meso: Mesostructure, settings: dict[str, Any]) -> driver.Record:
     """``programme`` on cells of ``model`` from ``meso``, oriented as ``settings`` say
     (``requested_settings``: planar ``n_orientations``, spatial ``spatial_rule``)."""
-    if meso.dim == 3:
-        order, spins = settings["spatial_rule"]
-        return driver.run(model, programme, mesostructure=meso, lebedev_order=order, n_spins=spins,
-                          staggered_spins=settings["staggered_spins"], progress=False)
-    return driver.run(model, programme, mesostructure=meso, n_orientations=settings["n_orientations"], progress=False)
+    return driver.run(model, programme, mesostructure=meso, progress=False,
+                      **_ORIENTATION_ARGUMENTS[meso.dim](settings))
 
 
 class _Counter:

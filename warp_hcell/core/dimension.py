@@ -18,6 +18,8 @@ from typing import Callable
 
 import numpy as np
 
+from warp_hcell.core.parameters import ALPHA_MIN_3D_DEG
+
 
 def _deviator_planar(stress: np.ndarray) -> np.ndarray:
     """q = sigma11 - sigma22 [N/m] of planar stresses (..., 3)."""
@@ -84,6 +86,8 @@ class Dimension:
     spring: str
     planar: bool
     undrained_lateral: Callable[[float], float]
+    isochoric_test: str
+    min_opening_deg: float | None
 
     @property
     def n_voigt(self) -> int:
@@ -119,7 +123,7 @@ _DIMENSIONS = {
                  empty_boundary="polygon has zero area",
                  spring="tangential spring force of each pair, on grain i along w = (-u_t, u_n), "
                         "u = (x_j - x_i) / |x_j - x_i|; zero out of contact",
-                 planar=True, undrained_lateral=lambda d: -d),
+                 planar=True, undrained_lateral=lambda d: -d, isochoric_test="constant-volume", min_opening_deg=None),
     3: Dimension(3, ("11", "22", "33", "23", "13", "12"), ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)),
                  ("n", "t1", "t2"), "volume", "Pa", (3,), "all three",
                  lambda radius: 4.0 / 3.0 * math.pi * radius**3, _deviator_spatial, 1.0,
@@ -128,7 +132,8 @@ _DIMENSIONS = {
                  empty_boundary="surface encloses no volume",
                  spring="tangential spring force vector of each pair on grain i, components (n, t1, t2), in the "
                         "contact's tangent plane (normal u = (x_j - x_i) / |x_j - x_i|); zero out of contact",
-                 planar=False, undrained_lateral=lambda d: 1.0 - 1.0 / math.sqrt(1.0 - d)),
+                 planar=False, undrained_lateral=lambda d: 1.0 - 1.0 / math.sqrt(1.0 - d),
+                 isochoric_test="undrained", min_opening_deg=ALPHA_MIN_3D_DEG),
 }
 
 
