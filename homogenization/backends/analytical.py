@@ -124,10 +124,9 @@ class AnalyticalCell(ArrayStateMixin):
         max_iterations: Newton/bisection iterations allowed per increment [-]; cells still
             above the tolerance are counted in ``diagnostics["n_unconverged"]``.
 
-    ``step`` reports ``diagnostics``: ``iterations`` (residual evaluations spent by the
-    batch), ``n_unconverged`` (cells above the tolerance) and ``n_alpha_limit`` (cells held
-    at alpha = 90 deg because no equilibrium exists below it: grain 2 would pass over grain
-    1, outside the H-model; their residual is not zero).
+    ``step`` reports ``diagnostics``: ``iterations`` (residual evaluations of the batch),
+    ``n_unconverged`` (cells above the tolerance) and ``n_alpha_limit`` (cells held at
+    alpha = 90 deg, where no equilibrium exists below it).
     """
 
     name = "analytical"
@@ -191,14 +190,11 @@ class AnalyticalCell(ArrayStateMixin):
             phi_g_deg: inter-granular friction angle [deg], shape (n_cells,), in [0, 90).
             radius: grain radius r [m], shared by every cell.
             alpha0_deg: initial opening angle of each cell [deg], shape (n_cells,), in [30, 90);
-                ``init_state`` then starts cell i at alpha0_deg[i] and the mesostructure it is
-                given (a plain H-cell of any alpha0) fixes only the topology and the radius.
-                None: the mesostructure's alpha0.
+                the mesostructure then fixes only topology and radius. None: its alpha0.
             options: ``g2``, ``tolerance``, ``max_iterations`` as for the constructor.
 
-        Every batch it steps must have these n_cells, in this order (the arrays broadcast
-        against the cells); ``contact_law`` is None. A cell gives the same result as a
-        one-cell backend built from the same values.
+        Every batch it steps has these n_cells, in this order; ``contact_law`` is None. A cell
+        gives the same result as a one-cell backend built from the same values.
 
         Raises:
             ValueError: (one line) a value outside the ranges of ``ContactLaw``.

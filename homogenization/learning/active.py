@@ -325,27 +325,20 @@ def round_entry(k: int, db: Path, card: ModelCard, cert: Certificate, seconds: f
 def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
           certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
           card: ModelCard | None = None, log: Callable[..., None] = print) -> tuple[list[Round], Certificate]:
-    """Certify ``model`` (trained on ``db``) and run active rounds until it passes, the budget
-    of ``settings`` is spent, ``settings.stall_rounds`` rounds make no progress (``stalled``:
-    one line says which test, which rounds and what they tried, ``stall_line``), or every failing
-    test misses the DEM by no more than the DEM started from rest does (``unresolvable_line``); returns the
-    rounds (round 0: the model as given), also stored in the model's JSON under ``active_learning``,
-    and the last certificate, also stored there under ``certificate``.
-
-    A round probes the DEM states of the failing tests (with ``settings.departure_margin`` < 1,
-    those from their point of departure on, ``failing_states``), a test the ANN could not follow
-    included, and adds at most the samples that fit the database's size budget
-    (``settings.max_database_mb``, ``budget_room``; those left out are counted in
-    ``samples_capped``); with no room left the loop stops and says so.
+    """Certify ``model`` (trained on ``db``) and run active rounds until it passes, or the budget
+    is spent, or rounds stall (``stall_line``), or every failing test misses the DEM by no more
+    than the DEM from rest does (``unresolvable_line``). A round probes the DEM states of the
+    failing tests (``failing_states``), adds what fits the database's budget (``budget_room``)
+    and retrains. Returns the rounds (round 0: the model as given) and the last certificate,
+    both also stored in the model's JSON.
 
     Args:
         db: the model's database; the rounds append to it (``append_samples``).
         model: the ``.pt`` (its JSON beside it), retrained in place each round.
-        config: the training settings (``training.config.TrainConfig``); each round sets its widths
-            and, with ``settings.warm_start``, its start weights (``round_config``).
-        certify_settings: what each round's certificate measures (``CertificateSettings``).
-        seed: seed of the rounds' probes (``round_seed``).
-        threads: DEM and ANN threads of the certificate and the probes.
+        config: the training settings; each round sets its widths and start (``round_config``).
+        certify_settings: what each round's certificate measures.
+        seed: seed of the rounds' probes.
+        threads: DEM and ANN threads.
         card: ``model``'s JSON already read (``training.card.read_card``); None: read here.
         log: receives one line per round.
     """

@@ -179,26 +179,25 @@ def generate(
     """Generate (or resume) the database of ``meso`` and write it to ``out`` (replaced atomically).
 
     Args:
-        meso: the mesostructure (its learning state is the database's schema).
-        settings: generator settings; seed: seed of the probes and state order.
-        starts: start cells sharing ``meso``'s learning state; None = ``[meso]``.
+        meso: the mesostructure (its learning state: the schema).
+        settings, seed: generator settings; seed of the probes and state order.
+        starts: start cells of ``meso``'s learning state; None = ``[meso]``.
         contact_law, dem_settings, device: the DEM's physics and numerics.
-        threads, workers: DEM threads, worker processes (no effect on the result).
-        execution: where the tasks run; None = ``make_execution(workers)``.
+        threads, workers, execution: DEM threads, worker processes, where tasks run (no effect
+            on the result).
         clean: apply ``warp_hcell.clean`` before writing.
-        max_chunks: compute at most this many new chunks, then return None.
-        discard_partial: drop an unfinished run of other options instead of refusing.
-        progress: called ``(samples probed, settings.samples)`` when probing starts (the samples a
-            resumed run already has) and after each chunk; None: silent.
-        explore_progress: wraps each exploration walk's increment loop
-            (``warp_hcell.database.exploration.Explorer``; picklable for Dask); None: silent.
+        max_chunks: at most this many new chunks, then return None.
+        discard_partial: drop an unfinished run of other options.
+        progress: called ``(samples probed, settings.samples)`` as probing starts and after
+            each chunk; None: silent.
+        explore_progress: wraps each exploration walk's loop (``Explorer``; picklable); None: silent.
 
     Returns:
         ``out`` once written, or None when stopped by ``max_chunks``.
 
     Raises:
-        ValueError: a start cell of another learning state, an increment beyond max_substeps,
-            a non-linear law, or an unfinished run with other options.
+        ValueError: a start of another learning state, an increment beyond max_substeps, a
+            non-linear law, an unfinished run of other options.
         UserError: another run is writing ``out``.
         DiskFull: no space left."""
     require_linear_law(contact_law, "the learning database (its format stores kn, kt and phi_g; the meso-ANN "
