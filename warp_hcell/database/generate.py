@@ -185,7 +185,7 @@ def generate(
         contact_law, dem_settings, device: the DEM's physics and numerics.
         threads, workers, execution: DEM threads, worker processes, where tasks run (no effect
             on the result).
-        clean: apply ``warp_hcell.clean`` before writing.
+        clean: apply ``warp_hcell.clean`` first.
         max_chunks: at most this many new chunks, then return None.
         discard_partial: drop an unfinished run of other options.
         progress: called ``(samples probed, settings.samples)`` as probing starts and after
@@ -198,8 +198,7 @@ def generate(
     Raises:
         ValueError: a start of another learning state, an increment beyond max_substeps, a
             non-linear law, an unfinished run of other options.
-        UserError: another run is writing ``out``.
-        DiskFull: no space left."""
+        UserError: another run writes ``out``. DiskFull: no space left."""
     require_linear_law(contact_law, "the learning database (its format stores kn, kt and phi_g; the meso-ANN "
                                     "learns from it)")
     starts = [meso] if starts is None else list(starts)
