@@ -176,12 +176,12 @@ def generate(
     progress: Callable[[int, int], None] | None = None,
     explore_progress: WalkProgress | None = None,
 ) -> Path | None:
-    """Generate (or resume) the database of ``meso`` and write it to ``out`` (replaced atomically).
+    """Generate (or resume) the database of ``meso`` into ``out`` (replaced atomically).
 
     Args:
         meso: the mesostructure (its learning state: the schema).
         settings, seed: generator settings; seed of the probes and state order.
-        starts: start cells of ``meso``'s learning state; None = ``[meso]``.
+        starts: start cells (same learning state); None = ``[meso]``.
         contact_law, dem_settings, device: the DEM's physics and numerics.
         threads, workers, execution: DEM threads, worker processes, where tasks run (no effect
             on the result).
