@@ -84,3 +84,12 @@ def test_a_sweep_plans_which_ann_cases_leave_the_envelope_and_warns_once(tmp_pat
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["warning: ann: 1 of 2 ann case(s) run outside their model's certificate envelope: p0 = 50000 N/m "
                    "below the lowest certified pressure 200000 N/m (each case's run.h5: ann_model.outside_envelope)"]
+
+
+@pytest.mark.parametrize("dim", (2, 3))
+def test_the_isochoric_step_of_each_dimension_has_its_kind(dim):
+    isochoric = {2: programmes.constant_volume_biaxial, 3: programmes.isochoric}[dim]
+    drained = {2: programmes.drained_biaxial(2e5, 0.1, 100), 3: programmes.triaxial_shear("drained", 2e5, 0.1, 100)[0]}
+    assert envelope.step_kind(isochoric(0.1, 100), 2e5) == {2: "constant-volume", 3: "undrained"}[dim]
+    assert envelope.step_kind(isochoric(-0.05, 50), 2e5) == {2: "constant-volume", 3: "undrained"}[dim]
+    assert envelope.step_kind(drained[dim], 2e5) == "drained"

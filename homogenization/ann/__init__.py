@@ -19,6 +19,9 @@ from pathlib import Path
 
 DEFAULT_MODELS = {2: "ann_default.pt", 3: "ann3d_default.pt"}
 """File names of the models shipped in ``homogenization/data``, by cell dimension (metadata in the ``.json`` beside)."""
+RANGE_MODELS = {2: True, 3: False}
+"""Whether the shipped model of cells of each dimension covers a range of opening angles alpha0 (the 3D
+one is trained at alpha0 = 55 deg only), as calibrating alpha0 needs."""
 
 
 def default_model_path(dim: int = 2) -> Path:

@@ -76,7 +76,7 @@ from homogenization.ann.ood import OOD_INTERVAL, OodMonitor
 from homogenization.ann.policy import CertificatePolicy, default_escalation
 from homogenization.ann.records import Certificate, certificate_of
 from training import cell_physics
-from training.inference import FastAdvance
+from training.inference import KERNELS, FastAdvance
 from training.network import RELAXATION_RAMP
 from training.equilibrium import corrected_advance
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
@@ -269,14 +269,14 @@ class AnnCell(ArrayStateMixin):
             d_eps_local: local strain increment [-], shape (n_cells, dim), compression positive.
             with_tangent: also return ``CellResponse.tangent`` = d(S_nn, S_tt[, S_t2t2])/d(d_eps)
                 [N m], shape (n_cells, dim, dim), the derivative of the whole increment (network
-                and contact law): forward mode in the compiled path for planar cells on CPU,
-                torch autograd otherwise.
+                and contact law): forward mode in the compiled path on CPU where the cell's dimension
+                has a compiled tangent (``training.inference.KERNELS``: planar cells), torch autograd otherwise.
 
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
         due = self.ood_monitor.due(state)
-        if self.fast is not None and not (with_tangent and self.dim == 3):
+        if self.fast is not None and not (with_tangent and KERNELS[self.dim].tangent is None):
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
             features = self.fast.last_features()[probe_columns(self.net):].T if due else None
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),

@@ -39,6 +39,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from homogenization.ann import RANGE_MODELS
 from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
@@ -230,7 +231,7 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     check_spread(args, tests)
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
-    if args.backend == "ann" and any(t.dim == 3 for t in tests):
+    if args.backend == "ann" and not all(RANGE_MODELS[t.dim] for t in tests):
         raise UserError("--backend ann has no 3D model of a range of opening angles (the shipped one is trained at "
                         "alpha0 = 55 deg only): triaxial data need --backend analytical or dem")
     if args.backend == "ann":

@@ -65,6 +65,10 @@ CELL_KINDS = {2: "planar", 3: "3D"}
 """How a message names a cell of each dimension."""
 DEFAULT_3D_CELL = "hcell3d"
 """Builder spec of the cell of a three-column path without --mesostructure (built at --alpha0, --radius)."""
+DEFAULT_CELLS = {2: h_cell,
+                 3: lambda alpha0, radius: mesostructure_arg(f"{DEFAULT_3D_CELL}:radius={radius!r}").build(alpha0)}
+"""(alpha0 [deg], radius [m]) -> the cell of a path of each dimension without --mesostructure: ``h_cell``
+(two columns), ``DEFAULT_3D_CELL`` (three)."""
 DEM_ONLY_BACKEND = "dem"
 """The backend whose Warp start-up banner is silenced."""
 ANN_MAX_INCREMENT = DatabaseSettings.probe_max
@@ -196,11 +200,11 @@ def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
 
 def path_cell(args: argparse.Namespace, dim: int) -> Mesostructure:
     """The cell of the element test: --mesostructure, else the H-cell of the path's dimension ``dim``
-    (2: ``h_cell``, 3: ``DEFAULT_3D_CELL``) at --alpha0 and --radius; UserError (one line) where the
+    (``DEFAULT_CELLS``) at --alpha0 and --radius; UserError (one line) where the
     path's columns do not match the cell's dimension."""
-    if args.mesostructure is None and dim == 2:
-        return h_cell(args.alpha0, args.radius)
-    spec = args.mesostructure or mesostructure_arg(f"{DEFAULT_3D_CELL}:radius={args.radius!r}")
+    if args.mesostructure is None:
+        return DEFAULT_CELLS[dim](args.alpha0, args.radius)
+    spec = args.mesostructure
     meso = spec.build(args.alpha0)
     if meso.dim != dim:
         raise UserError(f"{args.path}: a path of {len(PATH_HEADERS[dim])} columns ({','.join(PATH_HEADERS[dim])}) "

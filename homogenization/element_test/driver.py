@@ -174,7 +174,6 @@ def to_record(history: History, points: MaterialPoints, programme: Programme, st
     stress = rows[:, dim:dim + space.n_voigt]
     strain = {f"eps{c}": rows[:, a].copy() for a, c in enumerate(space.normal_components)}
     sigma = {f"sigma{c}": stress[:, m].copy() for m, c in enumerate(space.components)}
-    spatial = {} if dim == 2 else dict(frames=np.array(orient.frames))
     model = points.model
     return Record(
         stage=label_array[history.stage_index[:k]],
@@ -190,6 +189,7 @@ def to_record(history: History, points: MaterialPoints, programme: Programme, st
         snapshot_stage=label_array[np.array(history.snap_stage, dtype=np.int64)],
         snapshots=_snapshots(history.snaps),
         theta_deg=orient.axis_angle_deg,
+        frames=orient.recorded_frames,
         weights=np.array(orient.weights),
         V0=V0,
         parameters=parameters,
@@ -197,7 +197,6 @@ def to_record(history: History, points: MaterialPoints, programme: Programme, st
         programme=programme,
         final_state={name: np.array(v) for name, v in model.state_to_arrays(points.state.cells).items()},
         step_seconds=step_seconds,
-        **spatial,
     )
 
 

@@ -118,6 +118,11 @@ class Orientations(OrientationSet):
         """theta_k in degrees [deg], shape (N,)."""
         return np.degrees(self.theta)
 
+    @property
+    def recorded_frames(self) -> None:
+        """The frames a run records beside ``axis_angle_deg``: none (theta gives them)."""
+        return None
+
 
 @dataclass(frozen=True, eq=False)
 class Orientations3D(OrientationSet):
@@ -141,6 +146,11 @@ class Orientations3D(OrientationSet):
     def axis_angle_deg(self) -> np.ndarray:
         """Angle between each cell axis and macro axis 1, in [0, 90] [deg], shape (N,)."""
         return np.degrees(np.arccos(np.clip(np.abs(self.frames[:, 0, 0]), 0.0, 1.0)))
+
+    @property
+    def recorded_frames(self) -> np.ndarray:
+        """The frames a run records beside ``axis_angle_deg`` (which loses the spin): a copy of ``frames``."""
+        return np.array(self.frames)
 
 
 def _matrices(frames: np.ndarray, weights: np.ndarray, space: Dimension) -> dict[str, np.ndarray]:

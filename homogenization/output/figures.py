@@ -361,17 +361,18 @@ TRIAXIAL_NAMES = {"undrained": "undrained triaxial compression", "drained": "dra
                   "extension": "drained triaxial extension", "constant_p": "triaxial compression at constant p",
                   "true": "true triaxial compression", "cyclic": "cyclic undrained triaxial test"}
 """What a 3D run is, by the ``test`` parameter that ``hmodel triaxial`` stores (``programme.TRIAXIAL_TESTS``)."""
+TEST_NAMES = {2: lambda run: "drained biaxial test" if run_drained(run) else "constant-volume biaxial test",
+              3: lambda run: TRIAXIAL_NAMES.get(str(run.parameters.get("test")), "triaxial test")}
+"""What a run of cells of each dimension is, without a programme file: the biaxial test of a planar
+run (drained or constant-volume), the triaxial test of a spatial one (``TRIAXIAL_NAMES``)."""
 
 
 def programme_name(run: Run) -> str:
-    """What the run is: "programme <file stem>"; a 3D run's triaxial test (``TRIAXIAL_NAMES``); else
-    "drained biaxial test" or "constant-volume biaxial test"."""
+    """What the run is: "programme <file stem>", else the test of its dimension (``TEST_NAMES``)."""
     programme_file = run.parameters.get("programme_file")
     if programme_file:
         return f"programme {Path(programme_file).stem}"
-    if run.record.dim == 3:
-        return TRIAXIAL_NAMES.get(str(run.parameters.get("test")), "triaxial test")
-    return "drained biaxial test" if run_drained(run) else "constant-volume biaxial test"
+    return TEST_NAMES[run.record.dim](run)
 
 
 def describe_run(run: Run) -> dict[str, str]:
