@@ -140,3 +140,30 @@ def test_reference_pages_are_short():
     print(f"{sum(counts.values()):6d}  total outside docs/studies/")
     assert {name: words for name, words in counts.items() if words > PAGE_WORDS} == {}
     assert sum(counts.values()) <= TOTAL_WORDS
+
+
+DOCSTRING_WORDS = 150
+"""Most words of a function's, class's or field's docstring: its contract (module overviews may say more)."""
+
+
+def test_docstrings_state_contracts_in_at_most_150_words():
+    import ast  # noqa: PLC0415
+
+    long = []
+    for package in ("warp_hcell", "training", "homogenization"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            tree = ast.parse(path.read_text())
+            for node in ast.walk(tree):
+                body = getattr(node, "body", None)
+                if not isinstance(body, list):
+                    continue
+                for i, child in enumerate(body):
+                    if not (isinstance(child, ast.Expr) and isinstance(child.value, ast.Constant)
+                            and isinstance(child.value.value, str)):
+                        continue
+                    if isinstance(node, ast.Module) and i == 0:
+                        continue  # the module overview
+                    words = len(child.value.value.split())
+                    if words > DOCSTRING_WORDS:
+                        long.append(f"{path.relative_to(ROOT)}:{child.lineno} ({words} words)")
+    assert not long, long

@@ -111,35 +111,22 @@ class AnnCell(ArrayStateMixin):
     """Cells whose increments are decided by a trained ``training.network.MesoNet``.
 
     Args:
-        contact_law: contact stiffnesses and friction; must match the model's training data.
-        radius: grain radius r [m]; positive, not used: the geometry comes from the
-            mesostructure given to ``init_state`` (the argument keeps the constructor of every
-            backend alike, ``homogenization.backends.make_cell_model``).
-        model: path of a model state_dict (``.pt``, metadata in the ``.json`` next to it);
-            None loads the default model shipped in ``homogenization/data`` for cells of
-            ``default_dim`` (``AnnCell3D``: the 3D one).
-        device: torch device of the network ("cpu", "cuda", ...).
-        threads: torch CPU threads (process-wide setting, applied here) [-].
-        ood_interval: distinct start states between two out-of-distribution checks (module
-            docstring), >= 1.
-        equilibrium_corrections: the most exact Newton steps on the free DOFs' balance after the
-            network's step, per cell-increment (module docstring); 0: the network alone; None: the
-            K of the surrogate the model's certificate measured (0 without a certificate), with
-            its tolerance where ``equilibrium_tolerance`` is None. K > 0: spatial models only
-            (ValueError for a planar one).
-        equilibrium_tolerance: the force ratio above which a cell is corrected [-] (None: the
-            certificate's where K comes from it, else the DEM's ``DemSettings.force_tolerance``).
-        dem_escalation: with K > 0, the DEM's own increment in the cells where a free grain moved and ends
-            touching nothing (``homogenization.ann.escalation``; counted in ``n_escalated``); False:
-            the corrections' result there too (to measure what the escalation adds); None: as the
-            certificate's hybrid where K comes from it (``envelope.escalation_of``), else
-            ``default_escalation`` (cells with fine grains).
-        card: ``model``'s JSON already read (``training.card.read_card``); None: read here.
+        contact_law: contact stiffnesses and friction, those of the model's training data.
+        radius: grain radius r [m], > 0; unused (the mesostructure gives the geometry).
+        model: a model's ``.pt`` (its ``.json`` beside it); None: the shipped one.
+        device: torch device ("cpu", "cuda", ...). threads: torch CPU threads (process-wide).
+        ood_interval: start states between two out-of-distribution checks, >= 1.
+        equilibrium_corrections: most exact Newton steps on the free DOFs' balance after the
+            network's (spatial models); 0: the network alone; None: the certificate's K.
+        equilibrium_tolerance: force ratio above which a cell is corrected [-]; None: the
+            certificate's, else the DEM's ``force_tolerance``.
+        dem_escalation: with K > 0, the DEM's increment for released grains (``ann.escalation``);
+            None: the certificate's choice, else ``default_escalation``.
+        card: ``model``'s JSON already read; None: read here.
 
     Raises:
-        training.checkpoint.CheckpointError: (a ValueError, one line) missing, corrupt or
-            mismatched model file, or a model trained for another contact law; ``init_state``
-            raises it for a mesostructure the model was not trained on.
+        CheckpointError: (ValueError, one line) a missing, corrupt or mismatched model, another
+            contact law; ``init_state``: another mesostructure.
     """
 
     name = "ann"

@@ -108,31 +108,26 @@ def run(
 
     Args:
         cell_model: any ``CellModel`` backend.
-        programme: loading steps, run in order (see ``homogenization.element_test.programme``).
-        mesostructure: the cell every orientation starts from (e.g.
-            ``warp_hcell.mesostructures.hcell.h_cell(alpha0_deg, radius)``, a builder spec or a file).
-        n_orientations: number N of cell orientations theta_k = k pi / N.
-        fabric_anisotropy: a_f in [0, 1) of the weights w(theta) (0 = isotropic fabric).
+        programme: loading steps, run in order (``element_test.programme``).
+        mesostructure: the cell every orientation starts from.
+        n_orientations: number N of planar cell orientations theta_k = k pi / N.
+        fabric_anisotropy: a_f in [0, 1) of the weights w(theta) (0: isotropic).
         fabric_direction_deg: preferred fabric direction b_f [deg].
-        snapshot_interval: also store per-cell observables every this many increments
-            (0: only at the end of each stage).
+        snapshot_interval: store per-cell observables every this many increments (0: at stage ends).
         stress_rtol: relative tolerance on stress-controlled components [-].
         max_newton_iterations: ``step`` calls allowed per stress-controlled increment.
-        progress: show a progress bar per stage (``warp_hcell.core.cli.progress_bar``: off under -q).
-        lebedev_order, n_spins, spin_period_deg: the orientations of a 3D programme (steps of three
-            components, cells of dimension 3; ``orientation.orientations_3d``), which ignores
-            ``n_orientations`` and takes an isotropic fabric only; ``spin_period_deg`` None: the
-            cell's own (``Mesostructure.spin_period_deg``); ``staggered_spins`` False: every axis
-            has the same spins (``orientation.orientations_3d``, which says what that keeps).
-        before_stage: step index -> what to do to the material point before that step (e.g. erode its
-            cells: ``homogenization.sweeps.case``); the run and its record go on from the changed state.
+        progress: a progress bar per stage.
+        lebedev_order, n_spins, spin_period_deg, staggered_spins: the orientations of a 3D
+            programme (``orientation.orientations_3d``; ``n_orientations`` and the fabric are then
+            ignored); ``spin_period_deg`` None: the cell's own.
+        before_stage: step index -> what to do to the material point before that step (e.g.
+            erosion).
 
     Returns:
         The ``Record`` of the run.
 
     Raises:
-        ValueError: invalid programme or options (one line).
-        ControlError: a stress-controlled increment could not be solved.
+        ValueError: invalid programme or options (one line). ControlError: an unsolved increment.
     """
     programme = validate(programme)
     if snapshot_interval < 0:

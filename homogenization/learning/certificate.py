@@ -339,29 +339,22 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
             equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None,
             reproducibility: bool = True, card: ModelCard | None = None) -> Certificate:
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
-    model's own (its card's ``mesostructure``; ``card``: the model's JSON already read,
-    ``training.card.read_card``, None: read here). ``reproducibility`` False: no ``dem_spread``
-    (each test's DEM is not run a second time, from rest; the top-level ``dem_spread`` is None).
+    model's own; ``card``: the model's JSON already read (None: read here); ``reproducibility``
+    False: no ``dem_spread`` (the DEM is not run a second time, from rest).
 
-    ``dem_states``, when given, receives per test name the DEM cell states met along that test
-    every ``state_every`` increments (all cells): ``cell_size`` (n, dim) [m], ``position``
-    (n, n_grains, dim) [m], ``shear_force`` (n, n_pairs) [N] (3D: (n, n_pairs, 3);
-    ``DemCell.state_to_arrays``, local frame), ``cell`` (n,) int64, a distinct id per (test,
-    orientation), and ``increment`` (n,) int64, the state's increment within its test (0 the
-    first): the active-learning rounds (``homogenization.learning.active``) probe these states, from a
-    failing test's ``departure`` on.
+    ``dem_states``, when given, receives per test name the DEM cell states every ``state_every``
+    increments (``DemCell.state_to_arrays``: ``cell_size``, ``position``, ``shear_force``, local
+    frame) with ``cell`` (an id per test and orientation) and ``increment`` (n,) int64: what the
+    rounds probe.
 
-    ``equilibrium_corrections`` K > 0 (spatial cells): the tests run the hybrid, the network followed
-    by up to K exact Newton steps on the free grains' balance in the cells whose force ratio exceeds
-    ``equilibrium_tolerance`` (None: the DEM's ``force_tolerance``; ``AnnCell``). The certificate
-    then records K and the resolved tolerance in its ``settings`` and, in ``equilibrium``, how often
-    the corrections fired over its ANN runs (``correction_counts``); the ANN backend accepts it for
-    runs with that very K and tolerance only. K = 0 records neither (the network alone).
+    ``equilibrium_corrections`` K > 0 (spatial cells): the tests run the hybrid (``AnnCell``) at
+    ``equilibrium_tolerance`` (None: the DEM's ``force_tolerance``); the certificate records K,
+    the tolerance and how often the corrections fired, and covers runs with that K and tolerance only.
 
     Raises:
         ValueError (CheckpointError, one line): unusable model, or a mesostructure it does not take.
-        homogenization.element_test.driver.ControlError: a stress-controlled increment of the DEM did not converge
-            (where the ANN's does not, that test fails with dp = dq = inf and its ``error``).
+        ControlError: a stress-controlled increment of the DEM did not converge (the ANN's: that
+            test fails with dp = dq = inf).
     """
     start = time.perf_counter()
     model_path = Path(model_path)

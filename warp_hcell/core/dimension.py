@@ -36,58 +36,55 @@ def _deviator_spatial(stress: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Dimension:
-    """What differs between planar and spatial cells, as data and formulas.
-
-    Attributes:
-        dim: the spatial dimension d, 2 or 3.
-        components: names of a macro tensor's Voigt components, normal ones first: (11, 22, 12) or
-            (11, 22, 33, 23, 13, 12).
-        index: (i, j) of each component, 0-based.
-        frame: names of a cell's local axes: (n, t) or (n, t1, t2); index 0 is the cell axis n.
-        measure: "area" (planar cells, per unit thickness) or "volume".
-        stress_unit: unit of a stress: "N/m" (force per unit thickness over length) or "Pa".
-        spring_shape: shape of one pair's tangential spring force: () in the plane (a scalar along
-            w = (-u_t, u_n)), (3,) in space (a vector in the contact's tangent plane).
-        every_axis: how a message names all d normal components ("both", "all three").
-        grain_measure: grain radii [m] -> the measure whose density gives a grain's mass: pi r^2
-            [m^2] (a disk per unit thickness) or 4/3 pi r^3 [m^3].
-        deviator: Voigt stresses (..., n_voigt) -> q: sigma11 - sigma22 [N/m] in the plane,
-            sqrt(3 J2) [Pa] in space.
-        shear_strain_factor: a material point's shear strain per tensor shear component: 2 in the
-            plane (engineering gamma12 = 2 eps12, as plane-strain finite elements take it), 1 in
-            space (tensor components eps23, eps13, eps12).
-        boundary: the outer boundary whose measure is V_cell: "polygon" (grain indices in order) or
-            "polyhedron" (outward triangles).
-        boundary_faces: least number of faces of a valid boundary: 1 (the polygon) or 4 (triangles).
-        boundary_rule: what a valid boundary needs, as an error message says it.
-        empty_boundary: how an error message says that the boundary has no measure.
-        spring: what a pair's tangential spring force is, as the learning state describes it.
-        planar: the cells are planar (disks per unit thickness), where contact laws of spheres do not apply.
-        undrained_lateral: axial strain increment d [-] -> the lateral strain increment of each lateral
-            normal component that keeps the increment undrained: -d in the plane (constant area to first
-            order), 1 - 1 / sqrt(1 - d) in space (volume (1 - d)(1 - d_lat)^2 kept exactly).
-    """
+    """What differs between planar and spatial cells, as data and formulas (``dimension(d)``)."""
 
     dim: int
+    """The spatial dimension d, 2 or 3."""
     components: tuple[str, ...]
+    """Names of a macro tensor's Voigt components, normal ones first: (11, 22, 12) or (11, 22, 33, 23,
+    13, 12)."""
     index: tuple[tuple[int, int], ...]
+    """(i, j) of each component, 0-based."""
     frame: tuple[str, ...]
+    """Names of a cell's local axes: (n, t) or (n, t1, t2); index 0 is the cell axis n."""
     measure: str
+    """"area" (planar cells, per unit thickness) or "volume"."""
     stress_unit: str
+    """Unit of a stress: "N/m" (force per unit thickness over length) or "Pa"."""
     spring_shape: tuple[int, ...]
+    """Shape of one pair's tangential spring force: () in the plane (a scalar along w = (-u_t, u_n)),
+    (3,) in space."""
     every_axis: str
+    """How a message names all d normal components ("both", "all three")."""
     grain_measure: Callable[[np.ndarray], np.ndarray]
+    """Grain radii [m] -> the measure whose density gives a grain's mass: pi r^2 [m^2] or 4/3 pi r^3
+    [m^3]."""
     deviator: Callable[[np.ndarray], np.ndarray]
+    """Voigt stresses (..., n_voigt) -> q: sigma11 - sigma22 [N/m] in the plane, sqrt(3 J2) [Pa] in
+    space."""
     shear_strain_factor: float
+    """A material point's shear strain per tensor shear component: 2 in the plane (engineering gamma12 =
+    2 eps12), 1 in space."""
     boundary: str
+    """The outer boundary whose measure is V_cell: "polygon" (grain indices in order) or "polyhedron"
+    (outward triangles)."""
     boundary_faces: int
+    """Least number of faces of a valid boundary: 1 (the polygon) or 4 (triangles)."""
     boundary_rule: str
+    """What a valid boundary needs, as an error message says it."""
     empty_boundary: str
+    """How an error message says that the boundary has no measure."""
     spring: str
+    """What a pair's tangential spring force is, as the learning state describes it."""
     planar: bool
+    """The cells are planar (disks per unit thickness), where contact laws of spheres do not apply."""
     undrained_lateral: Callable[[float], float]
+    """Axial strain increment d [-] -> the lateral increment of each lateral normal component that keeps
+    it undrained: -d in the plane, 1 - 1 / sqrt(1 - d) in space (volume kept exactly)."""
     isochoric_test: str
+    """Name of the test that keeps the volume: "constant-volume" (biaxial) or "undrained" (triaxial)."""
     min_opening_deg: float | None
+    """Least initial opening angle alpha0 [deg] the cell's closed form takes; None: no floor."""
 
     @property
     def n_voigt(self) -> int:
