@@ -115,8 +115,13 @@ class OodIndex:
         self.tree = cKDTree(self.points)
 
     def distance(self, features: np.ndarray) -> np.ndarray:
-        """Nearest-neighbour distance [z units] of each row of ``features``, shape (n,)."""
-        return self.tree.query(features, k=1)[0]
+        """Nearest-neighbour distance [z units] of each row of ``features`` (n, n_state_features), shape (n,).
+
+        Rows equal bit for bit are queried once (cells of one start state share their distance)."""
+        rows = np.ascontiguousarray(features, dtype=np.float64)
+        keys = rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
+        _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        return self.tree.query(rows[first], k=1)[0][inverse.ravel()]
 
     def outside(self, features: np.ndarray) -> np.ndarray:
         """True where a state lies beyond ``threshold``, shape (n,) bool."""
