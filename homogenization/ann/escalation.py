@@ -28,15 +28,17 @@ Sign convention: compression positive (moments as the DEM backend's ``CellRespon
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.database.learning_state import evaluate, free_coordinates, pair_normal_forces, positions
 from warp_hcell.database.probing import ProbeContext, step_from_rest
-from warp_hcell.dem.cell import DemCell, DemCellState
-from warp_hcell.dem.model import DemModel
-from warp_hcell.dem.state import DemState
 from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+if TYPE_CHECKING:
+    from warp_hcell.dem.model import DemModel
 
 
 RELEASE_RULE = "a free grain moved and no pair presses it above the equilibrium tolerance"
@@ -112,6 +114,9 @@ class DemEscalation:
     def _batch(self, n: int) -> tuple[ProbeContext, DemModel]:
         """The probe context and the DEM model of batches of ``n`` cells (built once)."""
         if n not in self._batches:
+            from warp_hcell.dem.cell import DemCell  # noqa: PLC0415 (Warp only where a cell escalates)
+            from warp_hcell.dem.model import DemModel  # noqa: PLC0415
+
             settings = DemSettings(contact_tolerance=self.contact_tolerance).from_rest
             cell_model = DemCell(self.contact_law, float(self.meso.radius.mean()), settings=settings, threads=1)
             model = DemModel.build(self.meso, n, contact_law=self.contact_law, settings=settings)
@@ -125,6 +130,9 @@ class DemEscalation:
 
         Returns (cell_size (n, dim) [m], free_position (n, n_free) [m], shear_force (capped, zero out of
         contact: the learning state's) [N], moment (n, dim, dim) [N m], area (n,) [m^dim]) after it."""
+        from warp_hcell.dem.cell import DemCellState  # noqa: PLC0415 (Warp only where a cell escalates)
+        from warp_hcell.dem.state import DemState  # noqa: PLC0415
+
         n = cell_size.shape[0]
         rows = np.minimum(np.arange(1 << (n - 1).bit_length()), n - 1)
         context, model = self._batch(rows.size)

@@ -96,10 +96,9 @@ def check_options(args: argparse.Namespace, backends: Sequence[str] | None = Non
 def check_run(args: argparse.Namespace, figure_file: str, *extra_files: str) -> None:
     """What a run command checks before any work: --out (``check_output_path``,
     ``check_replaceable``; ``extra_files``: other files the command writes there) and the
-    backend-only flags (``check_options``); Warp's start-up lines are silenced where the DEM may run (the
-    DEM backend, and the ANN's hybrid, which hands cells with a released grain to it) and --verbose is not
-    given."""
-    if ("dem" in args.backend or "ann" in args.backend) and not args.verbose:
+    backend-only flags (``check_options``); Warp's start-up lines are silenced for the DEM backend where
+    --verbose is not given (for the ANN's hybrid: ``build_models``)."""
+    if "dem" in args.backend and not args.verbose:
         quiet_warp(args.device)
     check_output_path(args.out, overwrite=args.overwrite)
     check_replaceable(args.out, figure_file, *extra_files)
@@ -270,10 +269,14 @@ def build_models(args: argparse.Namespace, law: ContactLaw, meso: Mesostructure,
                  **model_options: Any) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
     """(model, options) of every --backend, by name; each built with ``law``, --radius,
     ``model_options`` and its own flags, and checked to build a cell of ``meso``, so that a
-    missing model file or a mesostructure a backend does not model fails before any run."""
+    missing model file or a mesostructure a backend does not model fails before any run. Warp's
+    start-up lines are silenced (without --verbose) where an ANN hybrid may hand cells to the DEM
+    (its ``escalation``); other ANN runs never import Warp."""
     options = {name: backend_options(args, name) for name in args.backend}
     models = {name: make_cell_model(name, contact_law=law, radius=args.radius, **model_options, **options[name])
               for name in args.backend}
+    if not args.verbose and any(getattr(model, "escalation", None) is not None for model in models.values()):
+        quiet_warp(args.device)
     check_models_take(models, meso)
     for model in models.values():
         refuse_uncertified(model, args)
