@@ -127,7 +127,8 @@ def run(
         The ``Record`` of the run.
 
     Raises:
-        ValueError: invalid programme or options (one line). ControlError: an unsolved increment.
+        ValueError: invalid programme or options (one line).
+        ControlError: an unsolved stress-controlled increment.
     """
     programme = validate(programme)
     if snapshot_interval < 0:

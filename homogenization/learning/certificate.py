@@ -353,8 +353,8 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
 
     Raises:
         ValueError (CheckpointError, one line): unusable model, or a mesostructure it does not take.
-        ControlError: a stress-controlled increment of the DEM did not converge (the ANN's: that
-            test fails with dp = dq = inf).
+        homogenization.element_test.driver.ControlError: a stress-controlled increment of the
+            DEM did not converge (the ANN's: that test fails with dp = dq = inf).
     """
     start = time.perf_counter()
     model_path = Path(model_path)

@@ -198,7 +198,7 @@ class SchemaCounts(CellCounts):
 
     @property
     def shear_shape(self) -> tuple[int, ...]:
-        """Shape of one cell's tangential spring forces: (n_pairs, *spring_shape) of the cell's
+        """Shape of one cell's tangential spring forces: ``(n_pairs, *spring_shape)`` of the cell's
         ``Dimension``: (n_pairs,) for d = 2 (a scalar along w = (-u_t, u_n) per pair),
         (n_pairs, 3) for d = 3 (a vector in the contact's tangent plane, local frame
         components, as the 3D DEM keeps it)."""

@@ -85,7 +85,7 @@ class DatabaseDimension:
 
     Attributes:
         leg_directions: n -> the legs' unit directions (n, dim) in the local strain space.
-        turn_plane: (generator, shape) -> what picks each turn's plane, (*shape, 3), or None
+        turn_plane: (generator, shape) -> what picks each turn's plane, ``(*shape, 3)``, or None
             (a planar turn; ``warp_hcell.database.exploration.turned``).
         probes: (generator, n, magnitude) -> probes (n, dim) [-]: the direction draws around the
             magnitudes (n,) that ``magnitude()`` draws from the same generator.
