@@ -57,7 +57,8 @@ def _cells_last(values: np.ndarray) -> np.ndarray:
     """(k, n) or (k, 3, n) float64 C-contiguous per-cell ``values`` (n, k) or (n, k, 3) with the cell axis
     moved last; a view where the state came from ``FastAdvance`` (whose state arrays are views of
     cells-last arrays), a copy otherwise."""
-    moved = np.moveaxis(np.asarray(values), 0, -1)
+    values = np.asarray(values)
+    moved = values.transpose((*range(1, values.ndim), 0))
     return moved if moved.dtype == np.float64 and moved.flags.c_contiguous else np.ascontiguousarray(
         moved, dtype=np.float64)
 
@@ -196,6 +197,7 @@ class FastAdvance:
                                       for layer in net.mlp if isinstance(layer, torch.nn.Linear)])
         self._local = threading.local()
         self.dim = int(frac.shape[1])
+        self._springs = (pairs.shape[0], *dimension(self.dim).spring_shape)
         kernels = KERNELS[self.dim]
         self._features = _Compiled(kernels.features)
         self._advance = _Compiled(kernels.advance)
@@ -263,10 +265,9 @@ class FastAdvance:
         dim = self.dim
         if with_tangent and self._tangent is None:
             raise ValueError("the compiled tangent is planar; take the tangent of a spatial cell from torch autograd")
-        size, free, shear = (_cells_last(a) for a in (cell_size, free_position, shear_force))
+        size, free, shear = _cells_last(cell_size), _cells_last(free_position), _cells_last(shear_force)
         d_eps = np.ascontiguousarray(d_eps, dtype=np.float64)
-        n, n_free, n_pairs = size.shape[-1], self.cells.free_dofs.shape[0], self.cells.pairs.shape[0]
-        springs = (n_pairs, *dimension(dim).spring_shape)
+        n, n_free, springs = size.shape[-1], self.cells.free_dofs.shape[0], self._springs
         shear_shape = (*springs, n)
         if size.shape != (dim, n) or free.shape != (n_free, n) or shear.shape != shear_shape or d_eps.shape != (n, dim):
             raise ValueError(f"state shapes {cell_size.shape}, {free_position.shape}, {shear_force.shape} and d_eps "
@@ -300,5 +301,7 @@ class FastAdvance:
             tangent = np.empty((n, 2, 2))
             self._tangent(size, free, shear, d_eps, out, self._mlp_tangent(work, f_dot), self.cells, self.law,
                            self.scaling, work.before, result, tangent)
-        return FastIncrement(result.new_size.T, result.new_free.T, np.moveaxis(result.new_shear, -1, 0), result.moment,
+        new_shear = result.new_shear
+        return FastIncrement(result.new_size.T, result.new_free.T,
+                             new_shear.transpose((new_shear.ndim - 1, *range(new_shear.ndim - 1))), result.moment,
                              result.area, *flags, result.n_held), tangent
