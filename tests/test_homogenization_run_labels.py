@@ -62,3 +62,15 @@ def test_equal_or_empty_labels_are_numbered():
     eroded = BASE | {"erode_at": 0.05}
     assert run_labels.split_labels([run_labels.describe(r) for r in (eroded, BASE)])[1] == [
         r"fines removed at $\varepsilon_1$ = 5 %, run 1", "run 2"]
+
+
+def test_an_ann_run_its_certificate_does_not_cover_is_marked():
+    from homogenization.output.run_labels import describe
+
+    inside = {"backend": "ann", "ann_model": {"certified": True, "outside_envelope": []}}
+    outside = {"backend": "ann", "ann_model": {"certified": True, "outside_envelope": ["p0 above 1e6"]}}
+    uncertified = {"backend": "ann", "ann_model": {"certified": False, "outside_envelope": None}}
+    assert describe(inside)["backend"] == "ANN"
+    assert describe(outside)["backend"] == "ANN (outside its certificate's envelope)"
+    assert describe(uncertified)["backend"] == "ANN (uncertified)"
+    assert describe({"backend": "dem"})["backend"] == "DEM"

@@ -62,6 +62,16 @@ def _given(parameters: Mapping[str, Any], key: str, fallback: Any) -> Any:
     return parameters[key] if key in parameters else fallback
 
 
+def ann_mark(ann_model: Mapping[str, Any] | None) -> str:
+    """What a figure says after "ANN" of a run its certificate does not cover: " (uncertified)" or
+    " (outside its certificate's envelope)"; "" for a certified run inside it or any other backend."""
+    if not ann_model:
+        return ""
+    if ann_model.get("certified") is False:
+        return " (uncertified)"
+    return " (outside its certificate's envelope)" if ann_model.get("outside_envelope") else ""
+
+
 def describe(parameters: Mapping[str, Any], *, test: str = "", backend: str | None = None,
              alpha0_deg: float | None = None, n_orientations: int | None = None, dim: int = 2) -> dict[str, str]:
     """Parts of text (``KEYS`` -> text, "" where it does not apply) describing one run.
@@ -69,7 +79,8 @@ def describe(parameters: Mapping[str, Any], *, test: str = "", backend: str | No
     Args:
         parameters: the run's stored parameters (``backend``, ``mesostructure``,
             ``alpha0_deg``, ``p0`` [N/m], ``n_orientations``, ``erode_at`` [-],
-            ``fabric_anisotropy``, ``increment`` [-], ``contact_law``, ``radius`` [m]).
+            ``fabric_anisotropy``, ``increment`` [-], ``contact_law``, ``radius`` [m], ``ann_model``:
+            an ANN run uncertified or outside its certificate's envelope is marked, ``ann_mark``).
         test: what the run is, e.g. "constant-volume biaxial test".
         backend, alpha0_deg, n_orientations: used where ``parameters`` lacks the key.
         dim: the run's dimension: stresses (p0) in N/m for 2, Pa for 3.
@@ -85,7 +96,7 @@ def describe(parameters: Mapping[str, Any], *, test: str = "", backend: str | No
     radius = parameters.get("radius")
     parts = {
         "test": test,
-        "backend": BACKEND_NAMES.get(backend, str(backend)) if backend else "",
+        "backend": (BACKEND_NAMES.get(backend, str(backend)) + ann_mark(parameters.get("ann_model"))) if backend else "",
         "mesostructure": mesostructure_name(parameters.get("mesostructure")),
         "alpha0": f"$\\alpha_0$ = {alpha0:g}°" if alpha0 is not None and math.isfinite(alpha0) else "",
         "p0": f"$p_0 = {number(p0)}$ {dimension(dim).stress_unit}" if p0 else "",
