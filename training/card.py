@@ -9,23 +9,23 @@ here: their records belong to the learning loop (``homogenization.ann.records``)
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, ClassVar, Mapping
 
 from training.checkpoint import CheckpointError, metadata_path, read_metadata
+from training.record_io import record_dict, record_keywords
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.parameters import ContactLaw
-
-OPTIONAL = frozenset({"certificate", "active_learning"})
-"""Keys written only where the card holds them (None: absent)."""
 
 
 @dataclass(frozen=True)
 class ModelCard:
     """A model's JSON metadata (``training.checkpoint.save_checkpoint``, ``training.train``)."""
+
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({"certificate", "active_learning"})
+    """Keys written only where the card holds them (None: absent)."""
 
     format: str
     """``training.checkpoint.FORMAT``."""
@@ -75,20 +75,12 @@ class ModelCard:
 
     def to_dict(self) -> dict[str, Any]:
         """The card as its JSON holds it."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if not (f.name in OPTIONAL and getattr(self, f.name) is None)}
+        return record_dict(self)
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> "ModelCard":
         """The card of its ``to_dict`` (ValueError, one line, for an unknown or missing key)."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - names)
-        if unknown:
-            raise ValueError(f"ModelCard: unknown key {unknown[0]!r}")
-        missing = sorted(name for name in names - set(values) - OPTIONAL)
-        if missing:
-            raise ValueError(f"ModelCard: missing key {missing[0]!r}")
-        return cls(**values)
+        return cls(**record_keywords(cls, values))
 
 
 def read_card(path: str | Path) -> ModelCard:

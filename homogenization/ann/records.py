@@ -14,29 +14,13 @@ import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Sequence
 
+from training.record_io import record_dict, record_keywords
+
 if TYPE_CHECKING:  # training.card imports torch (through the checkpoint): not for commands' --help
     from training.card import ModelCard
 
 SCHEMA_VERSION = 2
 """The model card's ``format_version`` these records belong to (``training.checkpoint.FORMAT_VERSION``)."""
-
-
-def _to_dict(record: Any) -> dict[str, Any]:
-    """The fields of ``record``, those of ``record.OPTIONAL`` left out where None."""
-    return {f.name: getattr(record, f.name) for f in dataclasses.fields(record)
-            if not (f.name in record.OPTIONAL and getattr(record, f.name) is None)}
-
-
-def _from_dict(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
-    """The keywords of ``cls`` from mapping ``values``; ValueError (one line) for an unknown or missing key."""
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(values) - names)
-    if unknown:
-        raise ValueError(f"{cls.__name__}: unknown key {unknown[0]!r}")
-    missing = sorted(name for name in names - set(values) if name not in cls.OPTIONAL)
-    if missing:
-        raise ValueError(f"{cls.__name__}: missing key {missing[0]!r}")
-    return dict(values)
 
 
 @dataclass(frozen=True)
@@ -82,12 +66,12 @@ class TestResult:
 
     def to_dict(self) -> dict[str, Any]:
         """The row as the model's JSON stores it."""
-        return _to_dict(self)
+        return record_dict(self)
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> "TestResult":
         """The row of its ``to_dict`` (ValueError, one line, for an unknown or missing key)."""
-        return cls(**_from_dict(cls, values))
+        return cls(**record_keywords(cls, values))
 
 
 @dataclass(frozen=True)
@@ -140,12 +124,12 @@ class Certificate:
 
     def to_dict(self) -> dict[str, Any]:
         """The certificate as the model's JSON stores it under ``"certificate"``."""
-        return {**_to_dict(self), "tests": [t.to_dict() for t in self.tests]}
+        return {**record_dict(self), "tests": [t.to_dict() for t in self.tests]}
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> "Certificate":
         """The certificate of its ``to_dict`` (ValueError, one line, for an unknown or missing key)."""
-        fields = _from_dict(cls, values)
+        fields = record_keywords(cls, values)
         return cls(**{**fields, "tests": tuple(TestResult.from_dict(t) for t in fields["tests"])})
 
     def test(self, name: str) -> TestResult:
@@ -209,12 +193,12 @@ class Round:
 
     def to_dict(self) -> dict[str, Any]:
         """The round as the model's JSON stores it."""
-        return {**_to_dict(self), **({"warm_start": self.warm_start} if self.epochs is not None else {})}
+        return {**record_dict(self), **({"warm_start": self.warm_start} if self.epochs is not None else {})}
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> "Round":
         """The round of its ``to_dict`` (ValueError, one line, for an unknown or missing key)."""
-        return cls(**_from_dict(cls, values))
+        return cls(**record_keywords(cls, values))
 
 
 def certificate_of(metadata: Mapping[str, Any]) -> Certificate | None:
