@@ -49,7 +49,7 @@ from warp_hcell.core.cli import (
     writing_to,
 )
 from warp_hcell.core.files import atomic_write, check_output_path, output_lock
-from warp_hcell.mesostructures.hcell import h_cell
+from warp_hcell.mesostructures.hcell import plain_h_cell
 from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, Mesostructure
 from warp_hcell.core.parameters import DatabaseSettings
 
@@ -64,11 +64,8 @@ COLUMNS_3D = ("l1", "l2", "l3",
 CELL_KINDS = {2: "planar", 3: "3D"}
 """How a message names a cell of each dimension."""
 DEFAULT_3D_CELL = "hcell3d"
-"""Builder spec of the cell of a three-column path without --mesostructure (built at --alpha0, --radius)."""
-DEFAULT_CELLS = {2: h_cell,
-                 3: lambda alpha0, radius: mesostructure_arg(f"{DEFAULT_3D_CELL}:radius={radius!r}").build(alpha0)}
-"""(alpha0 [deg], radius [m]) -> the cell of a path of each dimension without --mesostructure: ``h_cell``
-(two columns), ``DEFAULT_3D_CELL`` (three)."""
+"""Builder spec of the cell of a three-column path without --mesostructure (``hcell.plain_h_cell(3)``, built
+at --alpha0, --radius), as the help names it."""
 DEM_ONLY_BACKEND = "dem"
 """The backend whose Warp start-up banner is silenced."""
 ANN_MAX_INCREMENT = DatabaseSettings.probe_max
@@ -200,10 +197,10 @@ def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
 
 def path_cell(args: argparse.Namespace, dim: int) -> Mesostructure:
     """The cell of the element test: --mesostructure, else the H-cell of the path's dimension ``dim``
-    (``DEFAULT_CELLS``) at --alpha0 and --radius; UserError (one line) where the
+    (``hcell.plain_h_cell``) at --alpha0 and --radius; UserError (one line) where the
     path's columns do not match the cell's dimension."""
     if args.mesostructure is None:
-        return DEFAULT_CELLS[dim](args.alpha0, args.radius)
+        return plain_h_cell(dim, args.alpha0, args.radius)
     spec = args.mesostructure
     meso = spec.build(args.alpha0)
     if meso.dim != dim:
