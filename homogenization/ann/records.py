@@ -19,9 +19,6 @@ from training.record_io import record_dict, record_keywords
 if TYPE_CHECKING:  # training.card imports torch (through the checkpoint): not for commands' --help
     from training.card import ModelCard
 
-SCHEMA_VERSION = 2
-"""The model card's ``format_version`` these records belong to (``training.checkpoint.FORMAT_VERSION``)."""
-
 
 @dataclass(frozen=True)
 class TestResult:
