@@ -66,8 +66,8 @@ LABEL_KEY = "pair_type"
 """Name of ``Mesostructure.pair_label`` in descriptions, files and state arrays."""
 
 
-AXIS_NAMES = {2: ("n", "t"), 3: ("n", "t1", "t2")}
-"""Names of the local axes of a planar and of a spatial cell."""
+AXIS_NAMES = {dim: dimension(dim).frame for dim in (2, 3)}
+"""Names of the local axes of a planar and of a spatial cell, by dimension (``Dimension.frame``)."""
 SPIN_TURNS_DEG = (90.0, 180.0, 360.0)
 """Turns about the cell axis n tried, in order, by ``Mesostructure.spin_period_deg`` [deg]."""
 
@@ -387,13 +387,13 @@ def state_schema(meso: Mesostructure) -> StateSchema:
     a spring force vector per pair (``fs_1_2`` of shape (3,): components n, t1, t2), the nine
     components of the moment (row-major, S_nn, S_nt1, ...) and the volume [m^3] as ``area``.
     """
-    axes = AXIS_NAMES[meso.dim]
+    cell = dimension(meso.dim)
+    axes = cell.frame
     free_dofs = np.argwhere(~meso.driven).astype(np.int64)
     dof_names = tuple(f"{axes[axis]}{grain + 1}" for grain, axis in free_dofs)
     pair_names = tuple(_pair_label(p) for p in meso.pairs)
     sizes = tuple(f"l{k + 1}" for k in range(meso.dim))
     frame = ", ".join(axes)
-    cell = dimension(meso.dim)
     features = {
         "cell_size": StateFeature(sizes, "m", "driven", f"cell size ({', '.join(sizes)}); l <- l (1 - d_eps)"),
         "free_position": StateFeature(tuple("x_" + n for n in dof_names), "m", "learned",
