@@ -44,7 +44,7 @@ from typing import Mapping
 from warp_hcell.core.parameters import CellDefaults, check_alpha0_deg
 from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.mesostructures.hcell import build_h_cell, build_h_cell_3d
-from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError
+from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, Mesostructure, MesostructureError
 
 KINDS = ("hcell", "hcell-unequal", "hcell-fines", "hcell3d", "hcell3d-fines", "hcell3d-axisym")
 """Builder names accepted as the KIND of a spec."""
@@ -106,7 +106,7 @@ class MesostructureSource:
         spatial = self.kind.startswith("hcell3d")
         offsets = None
         if n_fines:
-            axes = ("n", "t1", "t2") if spatial else ("n", "t")
+            axes = AXIS_NAMES[3 if spatial else 2]
             offsets = tuple(zip(*(_per_grain(self.text, key, opts.get(key, (0.0,)), n_fines) for key in axes)))
         size = {"radius": float(opts.get("radius", CellDefaults.radius)),  # type: ignore[arg-type]
                 "lateral": float(opts.get("lateral", 1.0))}  # type: ignore[arg-type]
