@@ -146,7 +146,7 @@ class Round:
 
     OPTIONAL: ClassVar[frozenset[str]] = frozenset({
         "verdict", "not_followed", "followed", "database_mb", "database_raw_mb", "samples_capped", "tests",
-        "departures", "hidden", "epochs", "train_seconds", "warm_start"})
+        "departures", "hidden", "epochs", "train_seconds", "warm_start", "accepted", "train_seed"})
     """Keys recorded only where they arise (None: absent), ``warm_start`` apart (see above)."""
 
     round: int
@@ -187,6 +187,11 @@ class Round:
     """Time the training took [s]."""
     warm_start: bool | None = None
     """Whether the training started from the previous weights (None: not asked)."""
+    accepted: bool | None = None
+    """Whether its model beat the model kept before it and replaced it (False: rejected, the kept
+    model stays; None: recorded before rounds were judged, read as accepted)."""
+    train_seed: int | None = None
+    """Seed of its training [-] (a round after a rejected one restarts with another)."""
 
     def to_dict(self) -> dict[str, Any]:
         """The round as the model's JSON stores it."""
