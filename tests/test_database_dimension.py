@@ -298,7 +298,7 @@ def test_triaxial_runs_a_3d_model(spatial_model, tmp_path, capsys):
     assert "uncertified" in capsys.readouterr().err and not (tmp_path / "refused").exists()
     assert hmodel.main([*argv, "--uncertified-ok", "--out", str(tmp_path / "run")]) == 0
     header = (tmp_path / "run" / "ann" / "curve.csv").read_text().splitlines()
-    assert header[0] == "stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q" and len(header) > 3
+    assert header[0] == "stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q,e" and len(header) > 3
 
 
 def test_shipped_models_follow_the_cell_dimension(tmp_path, capsys):

@@ -56,7 +56,7 @@ def test_curve_csv(tmp_path, record):
     path = io.write_curve_csv(tmp_path / "curve.csv", record)
     with open(path) as fh:
         rows = list(csv.reader(fh))
-    assert rows[0] == ["stage", "eps11", "eps22", "sigma11", "sigma22", "sigma12", "p", "q"]
+    assert rows[0] == ["stage", "eps11", "eps22", "sigma11", "sigma22", "sigma12", "p", "q", "e"]
     assert len(rows) == record.n_increments + 1
     assert {r[0] for r in rows[1:]} == {"iso", "shear"}
     values = np.array([[float(v) for v in r[1:]] for r in rows[1:]])

@@ -25,11 +25,11 @@ def undrained(tmp_path_factory):
 def test_undrained_run_writes_the_3d_curve_run_file_and_figure(undrained):
     out = undrained
     lines = (out / io.CURVE_FILE).read_text().splitlines()
-    assert lines[0] == "stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q"
+    assert lines[0] == "stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q,e"
     stages = {line.split(",")[0] for line in lines[1:]}
     assert stages == {"iso", "shear"}
     rows = np.array([[float(v) for v in line.split(",")[1:]] for line in lines[1:]])
-    e11, e22, e33, s11, s22, s33, p, q = rows.T
+    e11, e22, e33, s11, s22, s33, p, q, e = rows.T
     np.testing.assert_allclose(p, (s11 + s22 + s33) / 3.0, rtol=1e-12)
     np.testing.assert_allclose(q, np.abs(s11 - s22), rtol=1e-6, atol=1e-6 * p.max())  # s22 = s33: aligned spins
     stored = io.read_run(out / io.RUN_FILE)

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from homogenization.element_test.programme import Programme
+from homogenization.material.density import DensityMap, current_void_ratio, initial_void_ratio
 from warp_hcell.core.dimension import dimension
 
 
@@ -83,6 +84,10 @@ class Record:
     """Shear stress of a 3D run, shape (n,)."""
     frames: np.ndarray | None = None
     """Cell frames (n, t1, t2) as columns [-] of a 3D run, shape (n_cells, 3, 3)."""
+    e0: float | None = None
+    """Void ratio [-] given for the initial (force-free) cells (``material.density``); None: not given."""
+    density_map: DensityMap | None = None
+    """The void-ratio map the cells' alpha0 was read from where ``e0`` is given."""
 
     @property
     def n_increments(self) -> int:
@@ -93,6 +98,19 @@ class Record:
     def dim(self) -> int:
         """2 for a plane-strain run, 3 for a triaxial one."""
         return 2 if self.eps33 is None else 3
+
+    @property
+    def initial_void_ratio(self) -> float:
+        """e0 [-]: as given, else the default map's at the cell's alpha0 (``density.initial_void_ratio``;
+        NaN outside the map or for a cell without alpha0)."""
+        if self.e0 is not None:
+            return float(self.e0)
+        return initial_void_ratio(self.parameters.get("alpha0_deg"), self.dim)
+
+    @property
+    def e(self) -> np.ndarray:
+        """Current void ratio (1 + e0) J - 1 [-] (``initial_void_ratio``), shape (n,); NaN where e0 is not known."""
+        return current_void_ratio(self.initial_void_ratio, self.J)
 
     @property
     def eps_v(self) -> np.ndarray:

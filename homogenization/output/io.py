@@ -20,14 +20,21 @@ stresses and strains, ``sign_convention``):
   path and sha256 where those backends ran), the seed, the command line, the package
   version of the installed distribution, git revision and library versions.
 
-curve.csv: header ``stage,eps11,eps22,sigma11,sigma22,sigma12,p,q``, one row per increment,
-strains [-] and stresses [N/m], compression positive.
+curve.csv: header ``stage,eps11,eps22,sigma11,sigma22,sigma12,p,q,e``, one row per increment,
+strains [-] and stresses [N/m], compression positive; ``e`` the current void ratio
+(1 + e0) J - 1 [-] (``Record.e``: e0 as given, else the default void-ratio map's at the cell's
+alpha0; ``nan`` where neither is known).
+
+Void ratio (root attributes): ``void_ratio`` e0 [-] (NaN: not known), ``void_ratio_given`` (True:
+given, e.g. --void-ratio; False: the default map's at alpha0, or none) and ``density_map`` (JSON
+of ``density.DensityMap.to_dict``, or null). Files written before these attributes read back with
+e0 not given.
 
 Triaxial runs (3D cells, ``Record.dim`` 3): ``/history`` also holds ``eps33, sigma33, sigma23,
 sigma13`` (stresses in Pa, p = tr(sigma) / 3, q = sqrt(3 J2), volume in m^3), ``/orientations``
 also ``frames`` (n_cells, 3, 3) and theta_deg is the angle between each cell axis and axis 1;
 the root attributes give the 3D volume rule and units. Their curve.csv has the header
-``stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q`` (axis 1 axial).
+``stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q,e`` (axis 1 axial).
 
 Reproducible bytes: run.h5 holds no time (no HDF5 object timestamps, no wall time or date)
 and its objects and attributes are written in a fixed order, so two runs of the same inputs
@@ -55,6 +62,7 @@ from warp_hcell.core.errors import UserError
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 from homogenization.element_test.driver import Record
+from homogenization.material.density import DensityMap
 from homogenization.material.orientation import VOLUME_RULE
 from homogenization.material.orientation import VOLUME_RULE_3D
 
@@ -63,7 +71,7 @@ CURVE_FILE = "curve.csv"
 FORMAT = "hmodel-run/1"
 """Value of the ``format`` root attribute of run files written by this module."""
 SIGN_CONVENTION = "compression and contraction positive"
-CURVE_COLUMNS = ("stage", "eps11", "eps22", "sigma11", "sigma22", "sigma12", "p", "q")
+CURVE_COLUMNS = ("stage", "eps11", "eps22", "sigma11", "sigma22", "sigma12", "p", "q", "e")
 """Columns of curve.csv, in order."""
 
 _HISTORY = {
@@ -79,7 +87,7 @@ _HISTORY = {
     "newton_iterations": ("1", "cell-model step calls spent on the increment"),
 }
 _SIGNED = {"eps11", "eps22", "sigma11", "sigma22", "sigma12", "p", "q"}
-CURVE_COLUMNS_3D = ("stage", "eps11", "eps22", "eps33", "sigma11", "sigma22", "sigma33", "p", "q")
+CURVE_COLUMNS_3D = ("stage", "eps11", "eps22", "eps33", "sigma11", "sigma22", "sigma33", "p", "q", "e")
 """Columns of a 3D run's curve.csv, in order."""
 _HISTORY_3D = {
     "eps11": ("1", "macro strain, sum of the applied increments (axis 1 axial)"),
@@ -192,6 +200,9 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
         f.attrs["programme"] = json.dumps(programmes.to_dict(record.programme))
         f.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True)
         f.attrs["seed"] = int(seed)
+        f.attrs["void_ratio"] = record.initial_void_ratio
+        f.attrs["void_ratio_given"] = record.e0 is not None
+        f.attrs["density_map"] = json.dumps(None if record.density_map is None else record.density_map.to_dict())
         for key, value in provenance(command=command).items():
             f.attrs[key] = value
 
@@ -223,7 +234,7 @@ def write_curve_csv(path: Path, record: Record) -> Path:
     """Write the macro curve of ``record`` to ``path`` (atomically); returns ``path``."""
     path = Path(path)
     names = LAYOUTS[record.dim].curve_columns
-    columns = np.stack([getattr(record, name) for name in names[1:]], axis=1)
+    columns = np.stack([getattr(record, name) for name in names[1:]], axis=1)  # e: Record.e
     lines = [",".join(names)]
     lines += [f"{stage}," + ",".join(f"{v:.17g}" for v in row) for stage, row in zip(record.stage, columns.tolist())]
     with atomic_write(path) as tmp:
@@ -250,6 +261,15 @@ def _cell_parameters(attrs: Mapping[str, Any]) -> dict[str, float]:
         return {name: float(attrs[name]) for name in json.loads(attrs["cell_parameters"])}
     value = float(attrs.get("alpha0_deg", float("nan")))
     return {} if value != value else {"alpha0_deg": value}
+
+
+def _void_ratio(attrs: Mapping[str, Any]) -> dict[str, Any]:
+    """``Record.e0`` and ``density_map`` of a run file: given only where ``void_ratio_given`` (older
+    files: not given)."""
+    if not attrs.get("void_ratio_given", False):
+        return {}
+    stored = json.loads(attrs.get("density_map", "null"))
+    return {"e0": float(attrs["void_ratio"]), "density_map": None if stored is None else DensityMap.from_dict(stored)}
 
 
 def read_run(path: Path) -> StoredRun:
@@ -286,6 +306,7 @@ def read_run(path: Path) -> StoredRun:
                 backend=str(attrs["backend"]),
                 programme=programmes.from_dict(attrs["programme"]),
                 final_state={name: ds[()] for name, ds in f["final_state"].items()},
+                **_void_ratio(attrs),
             )
     except UserError:
         raise
