@@ -49,3 +49,106 @@ def test_current_void_ratio_and_the_default_e0_of_an_alpha0():
     m = default_map(2)
     assert density.initial_void_ratio(55.0, 2) == pytest.approx(m.void_ratio(55.0))
     assert math.isnan(density.initial_void_ratio(35.0, 2)) and math.isnan(density.initial_void_ratio(None, 3))
+
+
+# --- the commands: --void-ratio, the e column, the run file, bad input -------------------------------------------
+
+import csv  # noqa: E402
+
+import h5py  # noqa: E402
+
+from homogenization.cli import hmodel  # noqa: E402
+from homogenization.output import io  # noqa: E402
+
+FAST_2D = ["--orientations", "12", "--eps-max", "0.01", "--increment", "1e-3", "--p0", "2e5", "-q"]
+FAST_3D = ["--order", "3", "--spins", "1", "--eps-max", "2e-3", "--increment", "5e-4", "--p0", "2e5", "-q"]
+
+
+def read_curve(path):
+    with open(path, newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    return {name: np.array([float(r[name]) for r in rows]) for name in rows[0] if name != "stage"}
+
+
+def volume_ratio_from_strains(curve, dim):
+    """J = V / V0 rebuilt from the curve's strains alone: each increment scales every normal length by
+    (1 - d_eps) (compression positive), so J is the product over increments and components."""
+    normals = [curve[f"eps{c}{c}"] for c in "123"[:dim]]
+    factor = np.ones(normals[0].size)
+    for eps in normals:
+        factor = factor * (1.0 - np.diff(eps, prepend=0.0))
+    return np.cumprod(factor)
+
+
+@pytest.mark.parametrize("dim, command, fast, e0", [(2, "biaxial", FAST_2D, 0.70), (3, "triaxial", FAST_3D, 0.90)])
+def test_the_e_column_is_the_given_void_ratio_carried_by_the_volume(tmp_path, dim, command, fast, e0):
+    out = tmp_path / command
+    assert hmodel.main([command, "--void-ratio", str(e0), "--e-min", "0.55", "--e-max", "0.95", *fast,
+                        "--out", str(out)]) == 0
+    curve = read_curve(out / io.CURVE_FILE)
+    expected = (1.0 + e0) * volume_ratio_from_strains(curve, dim) - 1.0
+    np.testing.assert_allclose(curve["e"], expected, rtol=0.0, atol=1e-12)
+    assert curve["e"][-1] != pytest.approx(e0, abs=1e-6)  # the strain moved it
+    stored = io.read_run(out / io.RUN_FILE)
+    density_map = default_map(dim, 0.55, 0.95)
+    assert stored.record.e0 == e0 and stored.record.density_map == density_map
+    assert stored.attrs["alpha0_deg"] == pytest.approx(density_map.alpha0_deg(e0), abs=1e-12)
+    assert stored.attrs["parameters"]["void_ratio"] == e0
+    assert stored.attrs["parameters"]["density_map"] == density_map.to_dict()
+
+
+def test_a_run_given_alpha0_gets_e0_from_the_default_map_or_nan_outside_it(tmp_path):
+    out = tmp_path / "a55"
+    assert hmodel.main(["biaxial", "--alpha0", "55", *FAST_2D, "--out", str(out)]) == 0
+    curve = read_curve(out / io.CURVE_FILE)
+    e0 = default_map(2).void_ratio(55.0)
+    np.testing.assert_allclose(curve["e"], (1 + e0) * volume_ratio_from_strains(curve, 2) - 1, atol=1e-12)
+    with h5py.File(out / io.RUN_FILE, "r") as f:
+        assert f.attrs["void_ratio"] == pytest.approx(e0) and not f.attrs["void_ratio_given"]
+    out = tmp_path / "a35"
+    assert hmodel.main(["biaxial", "--alpha0", "35", *FAST_2D, "--out", str(out)]) == 0
+    assert np.all(np.isnan(read_curve(out / io.CURVE_FILE)["e"]))
+
+
+def test_a_run_file_without_the_void_ratio_still_reads(tmp_path):
+    out = tmp_path / "run"
+    assert hmodel.main(["biaxial", "--void-ratio", "0.8", *FAST_2D, "--out", str(out)]) == 0
+    with h5py.File(out / io.RUN_FILE, "a") as f:  # as written before the void ratio was recorded
+        for name in ("void_ratio", "void_ratio_given", "density_map"):
+            del f.attrs[name]
+    record = io.read_run(out / io.RUN_FILE).record
+    assert record.e0 is None and record.density_map is None
+    assert record.initial_void_ratio == pytest.approx(default_map(2).void_ratio(record.parameters["alpha0_deg"]))
+
+
+@pytest.mark.parametrize("command", ["biaxial", "triaxial"])
+@pytest.mark.parametrize("flags, expected", [
+    (["--void-ratio", "1.2"], "outside the void ratio map"),
+    (["--void-ratio", "-0.2"], "a void ratio is a finite number >= 0"),
+    (["--void-ratio", "0.7", "--alpha0", "50"], "not both"),
+    (["--e-max", "0.9"], "apply with --void-ratio only"),
+    (["--void-ratio", "0.7", "--e-min", "0.8", "--e-max", "0.6"], "e_min < e_max"),
+    (["--void-ratio", "0.7", "--mesostructure", "hcell3d:alpha0=55"], "fixes its own"),
+])
+def test_bad_void_ratios_are_one_line_before_any_run_and_keep_the_output(tmp_path, capsys, command, flags, expected):
+    out = tmp_path / "kept"
+    out.mkdir()
+    (out / io.CURVE_FILE).write_text("old\n")
+    fast = FAST_2D if command == "biaxial" else FAST_3D
+    assert hmodel.main([command, *flags, *fast, "--overwrite", "--out", str(out)]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"hmodel {command}: error: ") and expected in lines[0], lines
+    assert (out / io.CURVE_FILE).read_text() == "old\n" and sorted(p.name for p in out.iterdir()) == [io.CURVE_FILE]
+
+
+def test_dense_dilates_and_loose_contracts_when_drained(tmp_path):
+    """One map, two densities: the densest end of the map dilates, the loosest contracts (2D closed form)."""
+    eps_v = {}
+    for e0 in (0.62, 0.95):
+        out = tmp_path / str(e0)
+        assert hmodel.main(["biaxial", "--void-ratio", str(e0), "--drained", "--orientations", "36", "--eps-max", "0.05",
+                            "--increment", "1e-3", "--p0", "2e5", "-q", "--out", str(out)]) == 0
+        curve = read_curve(out / io.CURVE_FILE)
+        eps_v[e0] = curve["eps11"][-1] + curve["eps22"][-1]
+        assert (curve["e"][-1] > e0) == (eps_v[e0] < 0)  # e rises where the sample dilates
+    assert eps_v[0.62] < -0.005 and eps_v[0.95] > 0.001

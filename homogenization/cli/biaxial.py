@@ -5,7 +5,9 @@ compression to p0 (increments of --iso-increment, default half the shear increme
 one shortened so that p lands on p0), then constant-volume shear (d_eps11 = +increment,
 d_eps22 = -increment) or, with --drained, shear at sigma22 = p0, to eps1 = --eps-max counted
 from the end of stage 1. ``--programme FILE`` runs any loading programme instead
-(docs/programmes.md).
+(docs/programmes.md). ``--void-ratio E`` starts the cells at the alpha0 that the void-ratio map
+(--e-min, --e-max; ``homogenization.material.density``) gives E, instead of --alpha0; curve.csv's
+last column ``e`` is the current void ratio.
 
 ``--posterior DIR/posterior.json`` (of ``hmodel calibrate``) runs at its posterior mean instead
 of --phi, --kn, --kt, --alpha0 and --radius; ``--posterior-band N`` adds the 95 % band of N
@@ -22,7 +24,8 @@ DIR is written as a unit: a hidden sibling folder replaces it only when the run 
 (--overwrite); a second run on the same DIR exits at once.
 
 Sign convention: compression and contraction positive; stresses in N/m (2D). Bad input
-(unknown backend, alpha0 outside [30, 90) deg, an unmodelled mesostructure, p0 <= 0, an
+(unknown backend, alpha0 outside [30, 90) deg, --void-ratio outside [--e-min, --e-max], negative
+or with --alpha0, an unmodelled mesostructure, p0 <= 0, an
 increment larger than --eps-max, a malformed programme, a missing CUDA device, unwritable
 --out, existing output without --overwrite, DIR busy) is one line on stderr and exit code 2.
 Increments above the learning database's largest probe (1e-3) run with a warning.
@@ -47,9 +50,10 @@ from homogenization.cli.options import (
     add_posterior_arguments,
     add_programme_arguments,
     add_uncertified_argument,
+    add_void_ratio_arguments,
     command_parser,
 )
-from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, run_backends, shear_iso_increment
+from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment, void_ratio_record
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -85,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                       "biaxial shear of the H-model, or any loading programme file.")
     add_backend_list_argument(parser, "analytical")
     add_alpha0_argument(parser)
+    add_void_ratio_arguments(parser)
     loading_group = add_programme_arguments(
         parser, stress_unit="N/m", eps_max=load.eps_max, increment=load.increment,
         eps_max_help="axial strain at the end of the shear stage, counted from its start [-]")
@@ -164,6 +169,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     out: Path = args.out
     argv_given = sys.argv[1:] if argv is None else argv
     calibrated = posterior_flags.apply_posterior(args, argv_given, build_parser(), dim=2)
+    density_map = resolve_void_ratio(args, argv_given, build_parser(), dim=2)
     check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE)
     programme, settings = build_programme(args, argv_given)
     posterior_flags.check_band_test(calibrated, settings, "--fabric-anisotropy" if args.fabric_anisotropy else "")
@@ -184,10 +190,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         with output_folder(out) as work:
             records, stored, written = run_backends(
                 args, models, options, law, meso,
-                run=lambda model: driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,
+                run=lambda model: void_ratio_record(driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,
                                              fabric_anisotropy=args.fabric_anisotropy,
                                              fabric_direction_deg=args.fabric_direction,
-                                             snapshot_interval=args.snapshot_interval or 0),
+                                             snapshot_interval=args.snapshot_interval or 0), args, density_map),
                 parameters=lambda record: {
                     "p0": p0,
                     **settings,
@@ -198,6 +204,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "stress_rtol": LoadingDefaults.stress_rtol,
                     "mesostructure": args.mesostructure.text if args.mesostructure is not None else None,
                     **posterior_flags.run_record(calibrated),
+                    "void_ratio": args.void_ratio,
+                    "density_map": None if density_map is None else density_map.to_dict(),
                 },
                 work=work, command=command)
             posterior_flags.compute_band(calibrated, dim=2, drained=args.drained, p0=args.p0, eps_max=args.eps_max)

@@ -7,6 +7,8 @@
 - ``add_programme_arguments(parser, ...)``: the group of a built-in programme (--p0, --eps-max,
   --increment, --iso-increment), not with --programme;
 - ``add_alpha0_argument(parser)``: --alpha0 [deg], the opening angle of builder specs;
+  ``add_void_ratio_arguments(parser)``: --void-ratio E and the map's --e-min, --e-max
+  (``homogenization.material.density``), resolved by ``run_files.resolve_void_ratio``;
 - ``add_cell_arguments(parser, cell_help, threads_help)``: --mesostructure (a file or a
   builder spec), --threads and --model (the backend-specific options);
 - ``add_orientations_argument(parser, default, help_text)`` and ``add_threads_argument(parser,
@@ -38,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from homogenization.backends import BACKENDS
+from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN, OPENING_RANGE_DEG
 from homogenization.learning.settings import (ActiveSettings, CertificateSettings, default_equilibrium,
                                               FINES_EQUILIBRIUM_CORRECTIONS, FINES_EQUILIBRIUM_TOLERANCE)
 from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, int_at_least, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
@@ -98,6 +101,31 @@ def add_alpha0_argument(parser: argparse.ArgumentParser) -> None:
     """--alpha0 [deg] in [30, 90) (default ``CellDefaults.alpha0_deg``)."""
     parser.add_argument("--alpha0", type=alpha0_deg, default=CellDefaults.alpha0_deg,
                         help="initial opening angle [deg], in [30, 90)")
+
+
+def void_ratio_value(text: str) -> float:
+    """argparse type: a void ratio [-], a finite float >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (value == value and abs(value) != float("inf") and value >= 0.0):
+        raise argparse.ArgumentTypeError(f"{text}: a void ratio is a finite number >= 0")
+    return value
+
+
+def add_void_ratio_arguments(parser: argparse.ArgumentParser) -> None:
+    """The group "density": --void-ratio E (default None: the cell of --alpha0) and the void-ratio map's
+    --e-min and --e-max [-] (defaults ``density.DEFAULT_E_MIN``, ``DEFAULT_E_MAX``)."""
+    angles = "; ".join(f"{d}D {a:g}-{b:g} deg" for d, (a, b) in OPENING_RANGE_DEG.items())
+    group = parser.add_argument_group(f"density (instead of --alpha0): alpha0 linear in e between the densest and "
+                                      f"the loosest cell ({angles}; docs/model.md, Density)")
+    group.add_argument("--void-ratio", type=void_ratio_value, default=None, metavar="E",
+                       help="initial void ratio e0 [-] of the cells, in [--e-min, --e-max]; not with --alpha0")
+    group.add_argument("--e-min", type=void_ratio_value, default=DEFAULT_E_MIN,
+                       help="void ratio of the densest cell [-] (with --void-ratio)")
+    group.add_argument("--e-max", type=void_ratio_value, default=DEFAULT_E_MAX,
+                       help="void ratio of the loosest cell [-] (with --void-ratio)")
 
 
 def add_orientations_argument(parser: argparse.ArgumentParser, default: int,

@@ -8,6 +8,8 @@ folder, the parameters and the status line of each backend's run.
   ``refuse_programme_flags(parser, argv, flags)``: none of them with --programme;
   ``shear_iso_increment(args, hint)``: the built-in programme's increments checked, and its
   isotropic increment (``options.add_programme_arguments``);
+- ``resolve_void_ratio(args, argv, parser, dim)``: --void-ratio checked and turned into --alpha0
+  by the void-ratio map; ``void_ratio_record(record, args, density_map)``: the run's e0 on its record;
 - ``check_replaceable(out, figure_file)``: DIR holds nothing but what the command writes;
 - ``backend_parameters(...)``: the first entries of a run's stored parameters (backend, its
   options and provenance, contact law, radius, alpha0);
@@ -35,6 +37,7 @@ from homogenization.backends import backend_class, BACKENDS, make_cell_model
 from homogenization.element_test import programme as programmes
 from homogenization.cli.options import ISO_TO_SHEAR_INCREMENT, certificate_note, refuse_uncertified
 from homogenization.element_test.driver import Record
+from homogenization.material.density import DensityMap, default_map
 from homogenization.ann.envelope import summary as envelope_summary
 from warp_hcell.core.cli import quiet_warp, UserError, writing_to
 from warp_hcell.core.files import check_output_path
@@ -123,6 +126,44 @@ def refuse_programme_flags(parser: argparse.ArgumentParser, argv: Sequence[str],
     given = [flag for dest, flag in flags.items() if dest in explicit]
     if given:
         raise UserError(f"{', '.join(given)} do not apply with --programme (the file holds the whole programme)")
+
+
+def resolve_void_ratio(args: argparse.Namespace, argv: Sequence[str], parser: argparse.ArgumentParser,
+                       dim: int) -> DensityMap | None:
+    """The void-ratio map of a run given --void-ratio (``options.add_void_ratio_arguments``), with
+    --alpha0 set to the map's opening angle; None without --void-ratio.
+
+    Raises:
+        UserError: one line, before any run: --void-ratio with --alpha0, --posterior or a
+            --mesostructure that fixes its own alpha0; --e-min/--e-max without --void-ratio or not
+            e_min < e_max; a void ratio outside [e_min, e_max].
+    """
+    explicit = explicit_flags(parser, argv, ("alpha0", "e_min", "e_max"))
+    if args.void_ratio is None:
+        if explicit & {"e_min", "e_max"}:
+            raise UserError("--e-min and --e-max apply with --void-ratio only")
+        return None
+    if "alpha0" in explicit:
+        raise UserError("--void-ratio sets alpha0 through the void-ratio map; give --void-ratio or --alpha0, not both")
+    if getattr(args, "posterior", None) is not None:
+        raise UserError("--void-ratio does not apply with --posterior (the posterior sets alpha0)")
+    spec = getattr(args, "mesostructure", None)
+    if spec is not None and not spec.takes_alpha0:
+        raise UserError(f"--void-ratio sets alpha0, but --mesostructure {spec.text} fixes its own; give a builder "
+                        f"spec without alpha0")
+    try:
+        density_map = default_map(dim, args.e_min, args.e_max)
+    except ValueError as exc:
+        raise UserError(f"--e-min {args.e_min:g} --e-max {args.e_max:g}: {exc}") from None
+    args.alpha0 = density_map.alpha0_deg(density_map.check(args.void_ratio, "--void-ratio"))
+    return density_map
+
+
+def void_ratio_record(record: Record, args: argparse.Namespace, density_map: DensityMap | None) -> Record:
+    """``record`` with the run's --void-ratio as its e0 and ``density_map`` (unchanged without one)."""
+    if density_map is not None:
+        record.e0, record.density_map = float(args.void_ratio), density_map
+    return record
 
 
 def shear_iso_increment(args: argparse.Namespace, hint: str = "") -> float:

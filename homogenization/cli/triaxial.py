@@ -13,19 +13,23 @@ p0), then one shear stage (axis 1 axial, --eps-max of axial strain in increments
 - ``--oedometer U``: K0 compression (lateral strains zero) by --eps-max from p0, then unloading
   by U; each backend also writes oedometer.csv (``homogenization.output.oedometer``).
 
+``--void-ratio E`` starts the cells at the alpha0 that the void-ratio map (--e-min, --e-max;
+``homogenization.material.density``) gives E, instead of --alpha0.
+
 ``--posterior DIR/posterior.json`` (of ``hmodel calibrate``) runs at its posterior mean, with
 its alpha0_spread where it holds one (analytical backend); ``--posterior-band N`` adds the 95 %
 band of N draws (``homogenization.cli.posterior_flags``). ``--programme FILE`` runs any
 programme of three-component steps instead (docs/programmes.md).
 
 Outputs as ``hmodel biaxial``: DIR/run.h5 and DIR/curve.csv (header
-``stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q``) per backend, DIR/triaxial.png overlaying
+``stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q,e``, e the current void ratio) per backend, DIR/triaxial.png overlaying
 every backend; the folder is replaced as a unit (--overwrite).
 
 Sign convention: compression and contraction positive; stresses in Pa. Bad input (unknown
 backend, an ann model without a passed certificate of its own file unless --uncertified-ok, a
 planar mesostructure, p0 <= 0, an increment larger than --eps-max, an --oedometer unloading
-outside [0, --eps-max], a programme of planar steps, existing output without --overwrite) is
+outside [0, --eps-max], a programme of planar steps, --void-ratio outside [--e-min, --e-max], negative or with
+--alpha0, existing output without --overwrite) is
 one line on stderr and exit code 2, before any run.
 """
 
@@ -41,8 +45,8 @@ from homogenization.element_test import driver, programme as programmes
 from homogenization.output import figures, oedometer
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
-from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, command_parser, lebedev_order
-from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, run_backends, shear_iso_increment
+from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, add_void_ratio_arguments, command_parser, lebedev_order
+from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment, void_ratio_record
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -86,6 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                        "triaxial, cyclic), or any 3D loading programme file.")
     add_backend_list_argument(parser, ("analytical",), " (ann: the shipped 3D model of the loose cell, or --model)")
     add_alpha0_argument(parser)
+    add_void_ratio_arguments(parser)
     group = add_programme_arguments(
         parser, stress_unit="Pa", eps_max=0.15, increment=1e-4,
         eps_max_help="axial strain (amplitude of --cyclic) of the shear stage, counted from its start [-]")
@@ -198,6 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv_given = sys.argv[1:] if argv is None else argv
     check_backends(args.backend, args.model)
     calibrated = posterior_flags.apply_posterior(args, argv_given, build_parser(), dim=3)
+    density_map = resolve_void_ratio(args, argv_given, build_parser(), dim=3)
     check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE, oedometer.FILE)
     programme, settings = build_programme(args, argv_given)
     posterior_flags.check_band_test(calibrated, settings, "")
@@ -213,9 +219,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         with output_folder(out) as work:
             runs, _, written = run_backends(
                 args, models, options, law, meso,
-                run=lambda model: driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
+                run=lambda model: void_ratio_record(driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
                                              n_spins=args.spins, spin_period_deg=spin_period,
-                                             staggered_spins=not args.aligned_spins),
+                                             staggered_spins=not args.aligned_spins), args, density_map),
                 parameters=lambda record: {
                     **settings,
                     "lebedev_order": args.order,
@@ -226,6 +232,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "stress_rtol": LoadingDefaults.stress_rtol,
                     "mesostructure": args.mesostructure.text if args.mesostructure is not None else DEFAULT_MESOSTRUCTURE,
                     **posterior_flags.run_record(calibrated),
+                    "void_ratio": args.void_ratio,
+                    "density_map": None if density_map is None else density_map.to_dict(),
                 },
                 work=work, command=command)
             if settings.get("test") == "oedometer":
