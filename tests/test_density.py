@@ -152,3 +152,23 @@ def test_dense_dilates_and_loose_contracts_when_drained(tmp_path):
         eps_v[e0] = curve["eps11"][-1] + curve["eps22"][-1]
         assert (curve["e"][-1] > e0) == (eps_v[e0] < 0)  # e rises where the sample dilates
     assert eps_v[0.62] < -0.005 and eps_v[0.95] > 0.001
+
+
+# --- calibration: '# void_ratio = E' in a data file's header -------------------------------------------------------
+
+from homogenization.calibration.data import read_test  # noqa: E402
+
+
+def write_data(path, void_ratio=None, test="drained"):
+    lines = [f"# test = {test}", "# p0 = 2e5"] + ([f"# void_ratio = {void_ratio}"] if void_ratio is not None else [])
+    path.write_text("\n".join(lines + ["eps1,q", "0.001,1e4", "0.002,2e4"]) + "\n")
+    return path
+
+
+def test_the_calibration_header_gives_each_file_its_void_ratio(tmp_path):
+    assert read_test(write_data(tmp_path / "a.csv", "0.72")).void_ratio == 0.72
+    assert read_test(write_data(tmp_path / "b.csv")).void_ratio is None
+    for bad in ("-0.1", "loose", "nan"):
+        with pytest.raises(ValueError, match="void_ratio") as info:
+            read_test(write_data(tmp_path / "c.csv", bad))
+        assert "\n" not in str(info.value)

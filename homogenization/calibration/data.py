@@ -5,6 +5,7 @@ compression and contraction positive)::
 
     # test = undrained          (or drained: sigma22 held at p0)
     # p0 = 5.85e6               (confining pressure of the isotropic stage [N/m], > 0)
+    # void_ratio = 0.72         (optional: the specimen's initial void ratio [-], >= 0)
     eps1,q,p
     0.001,8.1e5,5.7e6
     ...
@@ -12,6 +13,9 @@ compression and contraction positive)::
 Tests: ``undrained`` (constant-volume biaxial: d_eps22 = -d_eps11) and ``drained`` (biaxial,
 sigma22 = p0), 2D; ``triaxial_undrained`` (isochoric: d_eps22 = d_eps33, volume kept) and
 ``triaxial_drained`` (sigma22 = sigma33 = p0), 3D, p0 [Pa].
+
+A test that gives its void ratio starts its cells at the alpha0 of the void-ratio map
+(``homogenization.material.density``; e_min and e_max calibratable), the others at alpha0.
 
 Comment lines start with ``#``; ``key = value`` comments give the test; other comments are
 ignored. The header names ``eps1`` (axial strain counted from the end of the isotropic stage,
@@ -51,6 +55,7 @@ class Measurement:
         eps1: axial strain [-], shape (n_data,), > 0, increasing.
         observed: channel name -> measured values, shape (n_data,), for the channels of the file.
         dim: 2 (biaxial) or 3 (triaxial).
+        void_ratio: the specimen's initial void ratio [-] (``# void_ratio = E``); None: not given.
     """
 
     name: str
@@ -60,6 +65,7 @@ class Measurement:
     eps1: np.ndarray
     observed: dict[str, np.ndarray]
     dim: int = 2
+    void_ratio: float | None = None
 
     @property
     def kind(self) -> str:
@@ -122,6 +128,14 @@ def read_test(path: Path) -> Measurement:
         raise ValueError(f"{path}: p0 = {meta['p0']!r} is not a number") from None
     if not (math.isfinite(p0) and p0 > 0.0):
         raise ValueError(f"{path}: p0 = {p0:g} must be finite and > 0")
+    void_ratio = None
+    if "void_ratio" in meta:
+        try:
+            void_ratio = float(meta["void_ratio"])
+        except ValueError:
+            raise ValueError(f"{path}: void_ratio = {meta['void_ratio']!r} is not a number") from None
+        if not (math.isfinite(void_ratio) and void_ratio >= 0.0):
+            raise ValueError(f"{path}: void_ratio = {void_ratio:g} must be finite and >= 0")
     table = np.array(rows)
     columns = {name: table[:, i].copy() for i, name in enumerate(header)}
     eps1 = columns.pop("eps1")
@@ -130,7 +144,7 @@ def read_test(path: Path) -> Measurement:
     if eps1[-1] >= 0.5:
         raise ValueError(f"{path}: eps1 reaches {eps1[-1]:g}; strains are fractions, not percent")
     dim, drained = next(key for key, name in TEST_KINDS.items() if name == kind)
-    return Measurement(path.name, path, drained, p0, eps1, columns, dim)
+    return Measurement(path.name, path, drained, p0, eps1, columns, dim, void_ratio)
 
 
 def _check_header(path: Path, number: int, header: list[str]) -> None:
