@@ -172,3 +172,57 @@ def test_the_calibration_header_gives_each_file_its_void_ratio(tmp_path):
         with pytest.raises(ValueError, match="void_ratio") as info:
             read_test(write_data(tmp_path / "c.csv", bad))
         assert "\n" not in str(info.value)
+
+
+from dataclasses import replace  # noqa: E402
+
+from homogenization.calibration import forward  # noqa: E402
+from homogenization.calibration.forward import ForwardSettings, check_density, simulate, with_density  # noqa: E402
+
+QUICK = ForwardSettings(n_orientations=12, increment=2e-3, iso_increment=1e-3)
+
+
+@pytest.mark.parametrize("dim, test", [(2, "drained"), (3, "triaxial_drained")])
+def test_a_test_with_a_void_ratio_runs_each_set_at_its_maps_alpha0(tmp_path, dim, test):
+    measured = read_test(write_data(tmp_path / "d.csv", "0.7", test))
+    measured = replace(measured, eps1=np.array([0.002, 0.004, 0.006]))
+    sets = {"e_min": np.array([0.5, 0.6, 0.72]), "e_max": np.array([0.9, 1.0, 1.2])}
+    settings = with_density(replace(QUICK, lebedev_order=3, n_spins=1), [measured], 0.5, 0.9)
+    curves = simulate(measured, sets, settings)
+    dense, loose = density.OPENING_RANGE_DEG[dim]
+    for i in range(2):  # by hand: alpha0 linear in e between (e_min, dense) and (e_max, loose)
+        alpha0 = dense + (0.7 - sets["e_min"][i]) / (sets["e_max"][i] - sets["e_min"][i]) * (loose - dense)
+        plain = simulate(replace(measured, void_ratio=None), {"alpha0": np.array([alpha0])}, settings)
+        np.testing.assert_allclose(curves.q[i], plain.q[0], rtol=1e-9)
+        np.testing.assert_allclose(curves.eps_v[i], plain.eps_v[0], rtol=1e-9, atol=1e-15)
+    assert np.all(np.isnan(curves.q[2]))  # e_min = 0.72 > 0.7: this set's map cannot hold the test
+    assert not np.allclose(curves.q[0], curves.q[1])
+
+
+def test_calibration_inputs_the_map_cannot_serve_are_refused(tmp_path):
+    given = read_test(write_data(tmp_path / "a.csv", "0.7"))
+    plain = read_test(write_data(tmp_path / "b.csv"))
+    settings = with_density(QUICK, [given], 0.6, 0.9)
+    assert with_density(QUICK, [plain], 0.6, 0.9) == QUICK  # no void ratio: the settings of before
+    bounds = forward.DENSITY_PRIOR
+    check_density([given, plain], ["e_min", "e_max", "alpha0"], settings, bounds)  # alpha0 serves the plain test
+    for tests, params, fixed, match in (
+            ([plain], ["e_min"], (0.6, 0.9), "no --data file gives its void ratio"),
+            ([given], ["alpha0"], (0.6, 0.9), "calibrate e_min,e_max instead"),
+            ([given], ["phi_g"], (0.75, 0.9), "outside what the void-ratio map reaches"),
+            ([given], ["phi_g"], (0.5, 0.65), r"reaches, \[0.5, 0.65\]"),
+            ([given], ["phi_g"], (0.9, 0.6), "must be below"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            check_density(tests, params, with_density(QUICK, tests, *fixed), bounds)
+    far = read_test(write_data(tmp_path / "c.csv", "1.5"))
+    with pytest.raises(ValueError, match=r"reaches, \[0.3, 1.4\]"):
+        check_density([far], ["e_min", "e_max"], with_density(QUICK, [far], 0.6, 0.9), bounds)
+
+
+def test_hmodel_calibrate_refuses_an_unreachable_void_ratio_before_any_run(tmp_path, capsys):
+    data = write_data(tmp_path / "loose.csv", "1.1")
+    out = tmp_path / "cal"
+    assert hmodel.main(["calibrate", "--data", str(data), "--params", "phi_g", "--out", str(out), "-q"]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and "void_ratio = 1.1 is outside" in lines[0] and not out.exists()

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Callable, Mapping
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -43,13 +43,18 @@ from homogenization.element_test.record import History
 from homogenization.element_test.stages import run_stages
 from homogenization.element_test.solver import POPULATION, StressControl
 from homogenization.material import opening_spread
+from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN, OPENING_RANGE_DEG, opening_angle_deg
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, HertzMindlinLaw, Law, LoadingDefaults
 from warp_hcell.core.dimension import dimension
 from warp_hcell.mesostructures.hcell import plain_h_cell
 
-PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson", opening_spread.NAME)
+DENSITY = ("e_min", "e_max")
+"""The void-ratio map's parameters [-] (``homogenization.material.density``): a test that gives its void
+ratio (``Measurement.void_ratio``) runs at the map's alpha0 instead of alpha0; read only for such tests."""
+PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson", opening_spread.NAME, *DENSITY)
 """Names of the calibratable parameters, in the units of the CLI flags: phi_g [deg], kn [N/m],
-kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-], alpha0_spread [deg]."""
+kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-], alpha0_spread [deg], e_min and
+e_max [-]."""
 LAW_PARAMETERS = {ContactLaw.name: ("phi_g", "kn", "kt_over_kn", "alpha0"),
                   HertzMindlinLaw.name: ("phi_g", "shear_modulus", "poisson", "alpha0")}
 """The parameters of ``PARAMETERS`` that each contact law's forward model reads."""
@@ -63,9 +68,16 @@ SPREAD_PRIOR = (0.0, 10.0, False)
 alpha0 - alpha0_spread >= ALPHA_MIN_3D_DEG."""
 
 
+DENSITY_DEFAULTS = (DEFAULT_E_MIN, DEFAULT_E_MAX)
+"""e_min and e_max [-] where neither calibrated nor in ``ForwardSettings.fixed``."""
+DENSITY_PRIOR = {"e_min": (0.3, 0.8, False), "e_max": (0.8, 1.4, False)}
+"""Default prior of e_min and e_max [-]: uniform (low, high, log-uniform?), apart so that e_min < e_max;
+a set whose [e_min, e_max] does not hold a test's void ratio fails (log L = -inf)."""
+
+
 def calibratable(law: str) -> tuple[str, ...]:
-    """The parameters a calibration of ``law`` may vary: the law's and the spread of alpha0."""
-    return LAW_PARAMETERS[law] + (SPREAD,)
+    """The parameters a calibration of ``law`` may vary: the law's, the spread of alpha0 and the void-ratio map's."""
+    return LAW_PARAMETERS[law] + (SPREAD,) + DENSITY
 CONTACT_LAW_KEY = "contact_law"
 """Key of posterior.json holding a non-linear contact law at the posterior mean (``to_dict``); absent: the linear law."""
 
@@ -160,7 +172,9 @@ def feasible(values: Mapping[str, np.ndarray], settings: ForwardSettings) -> np.
 
 
 def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings) -> Curves:
-    """Curves of ``test`` for each parameter set; ``params`` maps names of ``settings.parameters`` to shape (n,).
+    """Curves of ``test`` for each parameter set; ``params`` maps names of ``settings.parameters`` (and of
+    ``DENSITY``) to shape (n,). A test that gives its void ratio runs each set at its map's alpha0
+    (``density_alpha0``); a set whose [e_min, e_max] does not hold that void ratio gets NaN curves.
 
     Raises:
         ValueError: a parameter value outside its range, the Hertz-Mindlin law on a 2D test, or alpha0_spread
@@ -171,6 +185,12 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
         raise ValueError(f"the Hertz-Mindlin contact law is defined for spheres: {test.name} is a biaxial (2D) "
                          f"test; calibrate it on triaxial data")
     full = full_parameters(params, settings)
+    alpha0 = density_alpha0(test, params, settings)
+    if alpha0 is not None:
+        reached = np.isfinite(alpha0)
+        full["alpha0"] = np.where(reached, alpha0, full["alpha0"])
+        if not reached.all():
+            return _unreached(test, full, settings, reached)
     if SPREAD in full:
         if test.dim != 3 or settings.backend != "analytical":
             raise ValueError(f"alpha0_spread runs on triaxial tests with the analytical backend only ({test.name}: "
@@ -179,6 +199,65 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
     if settings.backend == "analytical":
         return simulate_points(test, population(full, settings, test.dim), settings)
     return _simulate_one_by_one(test, full, settings)
+
+
+def density_alpha0(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings) -> np.ndarray | None:
+    """Per set, the alpha0 [deg] of a test that gives its void ratio: the map of ``density.default_map(test.dim)``
+    between the set's e_min and e_max (calibrated, else ``settings.fixed``, else the defaults), NaN where they do
+    not hold the void ratio; None for a test without one."""
+    if test.void_ratio is None:
+        return None
+    n = len(np.atleast_1d(next(iter(params.values())))) if params else 1
+    bounds = [np.broadcast_to(np.asarray(params[name] if name in params else settings.fixed.get(name, default),
+                                         dtype=np.float64), (n,)) for name, default in zip(DENSITY, DENSITY_DEFAULTS)]
+    return opening_angle_deg(test.void_ratio, *bounds, *OPENING_RANGE_DEG[test.dim])
+
+
+def with_density(settings: ForwardSettings, tests: Sequence[Measurement], e_min: float, e_max: float) -> ForwardSettings:
+    """``settings`` with ``e_min`` and ``e_max`` [-] fixed where a test gives its void ratio (else unchanged, so
+    that the settings of a calibration without void ratios read as before)."""
+    if all(t.void_ratio is None for t in tests):
+        return settings
+    return replace(settings, fixed={**settings.fixed, "e_min": float(e_min), "e_max": float(e_max)})
+
+
+def check_density(tests: Sequence[Measurement], calibrated: Sequence[str], settings: ForwardSettings,
+                  bounds: Mapping[str, tuple[float, float]]) -> None:
+    """Before any run: ValueError (one line) for e_min or e_max calibrated where no test gives its void ratio,
+    alpha0 calibrated where every test gives one (the map sets it), fixed e_min >= e_max, or a test whose void
+    ratio no map reaches: outside [e_min, e_max], each end the prior's far bound (``bounds``: name ->
+    (low, high)) where calibrated, else its fixed value."""
+    given = [t for t in tests if t.void_ratio is not None]
+    fitted = [name for name in calibrated if name in DENSITY]
+    if fitted and not given:
+        raise ValueError(f"--params {fitted[0]}: no --data file gives its void ratio ('# void_ratio = E' in its "
+                         f"header), so the void-ratio map is not used")
+    if "alpha0" in calibrated and given and len(given) == len(tests):
+        raise ValueError("--params alpha0: every --data file gives its void ratio, which sets alpha0 through the "
+                         "void-ratio map; calibrate e_min,e_max instead")
+    fixed = [float(settings.fixed.get(name, default)) for name, default in zip(DENSITY, DENSITY_DEFAULTS)]
+    if not fitted and given and not fixed[0] < fixed[1]:
+        raise ValueError(f"--e-min {fixed[0]:g} must be below --e-max {fixed[1]:g}")
+    low = bounds["e_min"][0] if "e_min" in calibrated else fixed[0]
+    high = bounds["e_max"][1] if "e_max" in calibrated else fixed[1]
+    for test in given:
+        if not low <= test.void_ratio <= high:
+            raise ValueError(f"{test.path}: void_ratio = {test.void_ratio:g} is outside what the void-ratio map "
+                             f"reaches, [{low:g}, {high:g}] (e_min to e_max, over the prior where calibrated); give "
+                             f"--e-min/--e-max or a prior that hold it")
+
+
+def _unreached(test: Measurement, full: dict[str, np.ndarray], settings: ForwardSettings,
+               reached: np.ndarray) -> Curves:
+    """``simulate`` of the sets whose map reaches the test's void ratio; NaN curves for the others."""
+    n = reached.size
+    out = Curves(*(np.full((n, test.eps1.size), np.nan) for _ in range(3)), np.zeros(n, dtype=np.int64))
+    if reached.any():
+        subset = {name: values[reached] for name, values in full.items()}  # alpha0 already mapped
+        part = simulate(replace(test, void_ratio=None), subset, settings)
+        for name in ("q", "p", "eps_v", "n_fallback"):
+            getattr(out, name)[reached] = getattr(part, name)
+    return out
 
 
 SHEAR_TESTS: dict[int, Callable[..., programmes.Programme]] = {

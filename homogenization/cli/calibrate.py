@@ -43,7 +43,9 @@ from homogenization.ann import RANGE_MODELS
 from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
-from homogenization.calibration.forward import LAW_PARAMETERS, PARAMETERS, SPREAD, ForwardSettings, calibratable
+from homogenization.calibration.forward import (LAW_PARAMETERS, PARAMETERS, SPREAD, ForwardSettings, calibratable,
+                                                check_density, with_density)
+from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN
 from homogenization.material import opening_spread
 from homogenization.calibration.start import START_METHODS
 from homogenization.cli.options import (
@@ -117,6 +119,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="half-width [deg] of each point's uniform distribution of opening angles about alpha0 "
                              f"({opening_spread.N_NODES} families of cells; triaxial data) where not calibrated; 0: "
                              "one opening angle")
+    parser.add_argument("--e-min", type=float, default=DEFAULT_E_MIN,
+                        help="void ratio of the densest cell [-] where not calibrated (data files with '# void_ratio = E')")
+    parser.add_argument("--e-max", type=float, default=DEFAULT_E_MAX,
+                        help="void ratio of the loosest cell [-] where not calibrated (data files with '# void_ratio = E')")
     add_contact_law_arguments(parser)
     sampler = parser.add_argument_group("sampler")
     sampler.add_argument("--walkers", type=positive_int, default=32, help="ensemble size (>= 2 x number of parameters)")
@@ -274,7 +280,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         prior = bayes.make_prior(args.params, args.prior, dim=max(t.dim for t in tests), law=args.law)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    settings = forward_settings(args)
+    settings = with_density(forward_settings(args), tests, args.e_min, args.e_max)
+    try:
+        check_density(tests, args.params, settings, dict(zip(prior.names, zip(prior.low, prior.high))))
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     check_out(args.out, args.overwrite)
     config = configuration(args, tests, prior, settings)
     started = time.perf_counter()
