@@ -32,6 +32,7 @@ from typing import Any, Callable, Iterator, Mapping
 import numpy as np
 
 from homogenization.element_test.points import MaterialPoints, material_points
+from homogenization.material.critical_state import CriticalState, Renewal
 from homogenization.element_test.plan import Plan
 from homogenization.element_test.record import History, Record
 from homogenization.element_test.stages import run_stages
@@ -103,6 +104,7 @@ def run(
     spin_period_deg: float | None = None,
     staggered_spins: bool = True,
     before_stage: Mapping[int, Callable[[MaterialPoints], None]] | None = None,
+    critical_state: CriticalState | None = None,
 ) -> Record:
     """Run ``programme`` on ``n_orientations`` cells of ``cell_model`` and record the history.
 
@@ -122,6 +124,9 @@ def run(
             ignored); ``spin_period_deg`` None: the cell's own.
         before_stage: step index -> what to do to the material point before that step (e.g.
             erosion).
+        critical_state: renew the cells between increments by this rule
+            (``homogenization.material.critical_state``; None: the plain H-model); the record's
+            diagnostic ``critical_state_renewals`` counts the renewals made up to each increment.
 
     Returns:
         The ``Record`` of the run.
@@ -142,6 +147,8 @@ def run(
                              fabric_anisotropy=fabric_anisotropy, fabric_direction_deg=fabric_direction_deg,
                              lebedev_order=lebedev_order, n_spins=n_spins, spin_period_deg=spin_period_deg,
                              staggered_spins=staggered_spins)
+    if critical_state is not None:
+        points.renewal = Renewal(critical_state, points.material, points.state)
     solver = StressControl(points, replace(STRICT, rtol=stress_rtol, max_iterations=max_newton_iterations))
     history = History(sum(s.n_increments for s in programme), 1, dim)
     try:
@@ -155,6 +162,9 @@ def run(
         warnings.warn(f"stress control met a jump of the response across its target at {jumps} increment(s): the "
                       f"side nearer the target was accepted (diagnostics 'stress_control_jump')", RuntimeWarning,
                       stacklevel=2)
+    if points.renewal is not None:
+        history.diagnostics["critical_state_renewals"] = np.array(
+            [float(c[0]) for c in points.renewal.log] + [np.nan] * (history.rows.shape[0] - len(points.renewal.log)))
     return to_record(history, points, programme, step_seconds, dict(mesostructure.parameters))
 
 

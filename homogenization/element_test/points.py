@@ -80,6 +80,9 @@ class MaterialPoints:
         self.call_totals: dict[str, float] = {}
         self.accepted_diagnostics: dict[str, Any] = {}
         self.last_trial: np.ndarray | None = None
+        self.renewal: Any = None
+        """A rule applied to the accepted state after every recorded increment (``end_increment``), e.g.
+        ``homogenization.material.critical_state.Renewal``; None: none."""
 
     @property
     def stress(self) -> np.ndarray:
@@ -109,6 +112,11 @@ class MaterialPoints:
         else:
             return
         self.accepted_diagnostics = update.diagnostics
+
+    def end_increment(self) -> None:
+        """Apply ``renewal`` (if any) to the accepted state, between two increments."""
+        if self.renewal is not None:
+            self.state = self.renewal.advance(self.state)
 
     def _merged(self, new: MaterialState, mask: np.ndarray) -> MaterialState:
         old = self.state

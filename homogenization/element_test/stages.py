@@ -70,6 +70,7 @@ def run_stage(solver: StressControl, plan: Plan, history: History, stage: int, *
             else:
                 points.accept(update)
         history.record(points, calls, stage, jump)
+        points.end_increment()
         if progress is not None:
             progress(plan, points)
         if plan.stop_at_p is not None and not moving.any():

@@ -189,6 +189,13 @@ class HomogenisedMaterial:
         new = MaterialState(cells, J, state.strain + d_e, stress)
         return MaterialUpdate(new, stress, tangent, dict(response.diagnostics))
 
+    def stress_of(self, cells: Any, J: np.ndarray) -> np.ndarray:
+        """Macro stress [N/m or Pa], shape (n_points, n_voigt), of ``cells`` (a state of this material's cells)
+        at volume ratios ``J`` (n_points,), as ``update`` averages it (e.g. after cells were replaced)."""
+        V = self.V0 * np.asarray(J, dtype=np.float64)
+        moment = np.ascontiguousarray(self.model.response(cells).moment).reshape(self.n_points,
+                                                                               self.dim * self.dim * self.orient.n_cells)
+        return np.einsum("pm,im->pi", moment, self.orient.averaging) / V[:, None]
 
     def _cell_tangent_average(self, C: np.ndarray) -> np.ndarray:
         """sum_k w_k A_k C_k L_k [N/m or Pa], shape (n_points, n_voigt, n_voigt), of C (n_points, N, dim, dim).

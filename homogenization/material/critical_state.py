@@ -1,0 +1,163 @@
+"""Renewal of a material point's cells towards a critical state (opt-in: ``CriticalState``).
+
+Between two accepted increments, every cell of a point that has been distorted enough is replaced
+by a fresh, touching, force-free cell of the same orientation, built by the backend's own
+``init_state`` (closed form, DEM and ANN share the rule exactly). Cell k accumulates its distortion
+s_k = sum over increments of sum_{a<b} abs(d eps_a - d eps_b) (its local normal strains, so an
+isotropic compression distorts no cell) and is renewed each time floor(rate s_k + phi_k) grows,
+phi_k = frac(k g) a fixed phase (g the golden ratio): ``rate`` renewals per unit of distortion.
+
+The fresh cell's opening angle follows the point's current density (the feedback that makes loose
+and dense points meet): alpha_f = clip(alpha0 + gain (a(J) - alpha0), alpha_min, alpha_max), with
+a(J) the opening angle of the touching cell whose measure is the point's mean cell measure V0 J
+(V0 the initial one, J the volume ratio), alpha0 the point's initial opening angle [deg]. A point
+that dilates gets looser, more contractive fresh cells, and one that contracts denser ones, until
+renewal and sliding balance at constant volume; gain = 0 renews at alpha0.
+
+Renewal changes the stress at fixed strain; the next increment's stress control re-equilibrates
+the point. ``Renewal.count`` holds the renewals made per point.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from homogenization.material.density import DensityMap, default_map
+from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
+from warp_hcell.core.parameters import ALPHA_MIN_3D_DEG
+from warp_hcell.mesostructures import hcell
+from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+"""Fractional part of the golden ratio: the cells' renewal phases are frac(k GOLDEN) [-]."""
+ANGLE_STEP_DEG = 0.01
+"""Fresh opening angles are rounded to this step [deg] (one mesostructure per rounded angle)."""
+
+
+@dataclass(frozen=True)
+class CriticalState:
+    """Parameters of the renewal rule (module docstring).
+
+    Attributes:
+        rate: renewals per unit of a cell's accumulated distortion [-], > 0.
+        gain: feedback of the point's density on the fresh cells' opening angle [-], >= 0.
+        alpha_min_deg: smallest fresh opening angle [deg].
+        alpha_max_deg: largest fresh opening angle [deg], > alpha_min_deg, below the largest
+            touching-cell measure's angle.
+    """
+
+    rate: float = 2.0
+    gain: float = 1.0
+    alpha_c_deg: float = 52.0
+    rate_gain: float = 0.0
+    alpha_min_deg: float = 46.0
+    alpha_max_deg: float = 62.0
+
+    def check(self) -> None:
+        """ValueError (one line) for a parameter out of range."""
+        if not (math.isfinite(self.rate) and self.rate > 0.0):
+            raise ValueError(f"critical-state rate = {self.rate:g} must be finite and > 0")
+        if not (math.isfinite(self.gain) and self.gain >= 0.0):
+            raise ValueError(f"critical-state gain = {self.gain:g} must be finite and >= 0")
+        if not (math.isfinite(self.alpha_min_deg) and math.isfinite(self.alpha_max_deg)
+                and 0.0 < self.alpha_min_deg < self.alpha_max_deg < 90.0):
+            raise ValueError(f"critical-state alpha_min_deg = {self.alpha_min_deg:g} and alpha_max_deg = "
+                             f"{self.alpha_max_deg:g} must satisfy 0 < alpha_min < alpha_max < 90 deg")
+
+
+def _plain(meso: Mesostructure) -> tuple[float, float]:
+    """(alpha0_deg, radius) of a plain H-cell of either dimension; ValueError (one line) for another cell."""
+    plain = hcell.plain_alpha0(meso) if meso.dim == 2 else hcell.plain_alpha0_3d(meso)
+    if plain is None:
+        raise ValueError(f"the critical-state renewal builds fresh plain H-cells; mesostructure {meso.name!r} is not one")
+    return plain
+
+
+class Renewal:
+    """The renewal rule applied to the points of one ``HomogenisedMaterial`` (module docstring).
+
+    Args:
+        params: the rule's ``CriticalState`` (checked here).
+        material: the material whose cells are renewed; every point's mesostructure a plain H-cell.
+        state: the material's state where counting starts (its strain is the reference).
+        density: the void-ratio map (None: ``density.default_map`` of the cells' dimension).
+
+    Raises:
+        ValueError: (one line) bad parameters, a mesostructure that is not a plain H-cell, or an
+            ``alpha_min_deg`` below the cell's smallest opening angle.
+    """
+
+    def __init__(self, params: CriticalState, material: HomogenisedMaterial, state: MaterialState,
+                 density: DensityMap | None = None) -> None:
+        params.check()
+        if material.dim == 3 and params.alpha_min_deg < ALPHA_MIN_3D_DEG:
+            raise ValueError(f"critical-state alpha_min_deg = {params.alpha_min_deg:g} deg is below "
+                             f"{ALPHA_MIN_3D_DEG:g} deg, the ten-sphere cell's smallest opening angle")
+        self.params, self.material = params, material
+        self.density = default_map(material.dim) if density is None else density
+        plains = [_plain(meso) for meso in material.mesostructures]
+        self.radius = plains[0][1]
+        alpha0 = np.array([plains[i][0] for i in material.point_mesostructure])
+        self.e0 = np.array([self.density.void_ratio(a) for a in alpha0])
+        """Each point's initial void ratio [-] (the map's), shape (n_points,)."""
+        n = material.orient.n_cells
+        self.phase = np.tile(np.mod(np.arange(n) * GOLDEN, 1.0), material.n_points)
+        self.distortion = np.zeros(material.n_cells)
+        """Renewal clock of every cell: its distortion times the rate, summed [-], shape (n_cells,)."""
+        self.count = np.zeros(material.n_points, dtype=np.int64)
+        """Renewals made per point."""
+        self.log: list[np.ndarray] = []
+        """``count`` after each ``advance`` call (one per recorded increment)."""
+        self.last_strain = np.array(state.strain)
+        self._mesos: dict[float, Mesostructure] = {}
+
+    def _meso(self, alpha_deg: float) -> Mesostructure:
+        key = round(float(alpha_deg) / ANGLE_STEP_DEG) * ANGLE_STEP_DEG
+        if key not in self._mesos:
+            self._mesos[key] = hcell.plain_h_cell(self.material.dim, key, self.radius)
+        return self._mesos[key]
+
+    def density_angle(self, J: np.ndarray) -> np.ndarray:
+        """a(e) [deg]: the opening angle that the map gives the points' current void ratio e = (1 + e0) J - 1,
+        extrapolated linearly beyond [e_min, e_max], shape (n_points,)."""
+        m = self.density
+        e = (1.0 + self.e0) * np.asarray(J, dtype=np.float64) - 1.0  # density.current_void_ratio, per point
+        return m.alpha_dense_deg + (e - m.e_min) / (m.e_max - m.e_min) * (m.alpha_loose_deg - m.alpha_dense_deg)
+
+    def fresh_angle(self, J: np.ndarray) -> np.ndarray:
+        """Opening angle alpha_f [deg] of fresh cells of each point of volume ratio J [-], shape (n_points,)."""
+        p = self.params
+        return np.clip(p.alpha_c_deg + p.gain * (self.density_angle(J) - p.alpha_c_deg), p.alpha_min_deg,
+                       p.alpha_max_deg)
+
+    def rate(self, J: np.ndarray) -> np.ndarray:
+        """Renewals per unit distortion [-] of each point of volume ratio J [-], shape (n_points,)."""
+        p = self.params
+        return p.rate * np.exp(p.rate_gain * (self.density_angle(J) - p.alpha_c_deg))
+
+    def advance(self, state: MaterialState) -> MaterialState:
+        """The accepted ``state`` with its due cells renewed (the others untouched) and its stress recomputed."""
+        d_local = self.material.localise(state.strain - self.last_strain)
+        self.last_strain = np.array(state.strain)
+        dim = d_local.shape[1]
+        increment = sum(np.abs(d_local[:, a] - d_local[:, b]) for a in range(dim) for b in range(a + 1, dim))
+        n = self.material.orient.n_cells
+        before = np.floor(self.distortion + self.phase)
+        self.distortion = self.distortion + np.repeat(self.rate(state.J), n) * increment
+        due = np.floor(self.distortion + self.phase) > before
+        self.count = self.count + due.reshape(self.material.n_points, n).sum(axis=1)
+        self.log.append(self.count)
+        if not due.any():
+            return state
+        index = np.flatnonzero(due)
+        alpha = self.fresh_angle(state.J)[index // n]
+        model = self.material.model
+        fresh = model.state_to_arrays(model.init_state([self._meso(a) for a in alpha], index.size))
+        arrays = {k: np.array(v, copy=True) for k, v in model.state_to_arrays(state.cells).items()}
+        for k, v in arrays.items():
+            v[index] = fresh[k]
+        cells = model.state_from_arrays(arrays)
+        return MaterialState(cells, state.J, state.strain, self.material.stress_of(cells, state.J))

@@ -1,0 +1,80 @@
+"""The critical-state renewal (homogenization.material.critical_state): parameters checked, default path
+untouched, loose and dense drained points converging towards one state, DEM and closed form agreeing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from homogenization.backends import make_cell_model
+from homogenization.element_test import driver, programme as pg
+from homogenization.material.critical_state import CriticalState
+from homogenization.material.density import default_map
+from warp_hcell.mesostructures.hcell import plain_h_cell
+
+RULE_3D = CriticalState(rate=10.0, gain=0.0, rate_gain=1.0, alpha_c_deg=53.0, alpha_min_deg=46.0, alpha_max_deg=70.0)
+
+
+@pytest.mark.parametrize("changes", [{"rate": 0.0}, {"rate": float("nan")}, {"gain": -1.0},
+                                     {"alpha_min_deg": 60.0, "alpha_max_deg": 50.0}, {"alpha_max_deg": 95.0}])
+def test_bad_parameters_are_refused(changes):
+    params = CriticalState(**changes)
+    with pytest.raises(ValueError, match="critical-state"):
+        params.check()
+    with pytest.raises(ValueError, match="critical-state"):
+        driver.run(make_cell_model("analytical"), pg.biaxial(2e5, 0.01, 1e-3, drained=True),
+                   mesostructure=plain_h_cell(2, 52.0), n_orientations=6, progress=False, critical_state=params)
+
+
+def test_3d_fresh_cells_above_the_smallest_opening():
+    with pytest.raises(ValueError, match="smallest opening"):
+        driver.run(make_cell_model("analytical", dim=3), pg.triaxial(1e5, 0.01, 1e-3, test="drained"),
+                   mesostructure=plain_h_cell(3, 52.0), lebedev_order=3, n_spins=1, progress=False,
+                   critical_state=CriticalState(alpha_min_deg=40.0))
+
+
+def test_default_run_is_the_plain_model():
+    """Without the rule no renewal diagnostic and the same curve as a run that never renews (rate tiny)."""
+    prog = pg.biaxial(2e5, 0.05, 1e-3, drained=True)
+    args = dict(mesostructure=plain_h_cell(2, 52.0), n_orientations=12, progress=False)
+    plain = driver.run(make_cell_model("analytical"), prog, **args)
+    idle = driver.run(make_cell_model("analytical"), prog, critical_state=CriticalState(rate=1e-9), **args)
+    assert "critical_state_renewals" not in plain.diagnostics
+    assert np.nanmax(idle.diagnostics["critical_state_renewals"]) == 0
+    np.testing.assert_array_equal(plain.q, idle.q)
+    np.testing.assert_array_equal(plain.J, idle.J)
+    busy = driver.run(make_cell_model("analytical"), prog, critical_state=CriticalState(rate=50.0), **args)
+    assert np.nanmax(busy.diagnostics["critical_state_renewals"]) > 10
+    assert np.max(np.abs(busy.q - plain.q)) > 0.01 * 2e5
+
+
+def _end_void_ratio(alpha0: float, params: CriticalState | None) -> tuple[float, float]:
+    rec = driver.run(make_cell_model("analytical", dim=3), pg.triaxial(1e5, 0.3, 4e-3, test="drained"),
+                     mesostructure=plain_h_cell(3, alpha0), lebedev_order=11, n_spins=4, progress=False,
+                     critical_state=params)
+    e0 = default_map(3).void_ratio(alpha0)
+    return (1.0 + e0) * rec.J[-1] - 1.0, rec.q[-1] / rec.p[-1]
+
+
+def test_loose_and_dense_3d_points_meet():
+    """Drained to 30 %: with the rule the void ratios of a dense and a loose point end within 0.02 (0.23 apart
+    at the start) and their stress ratios within 10 %; the plain cell's stay 0.15 or more apart."""
+    dense, loose = _end_void_ratio(49.0, RULE_3D), _end_void_ratio(57.0, RULE_3D)
+    assert abs(dense[0] - loose[0]) < 0.02
+    assert abs(dense[1] / loose[1] - 1.0) < 0.10
+    plain_dense, plain_loose = _end_void_ratio(49.0, None), _end_void_ratio(57.0, None)
+    assert abs(plain_dense[0] - plain_loose[0]) > 0.15
+
+
+
+def test_dem_agrees_with_the_closed_form_under_renewal():
+    params = CriticalState(rate=200.0, gain=2.0, rate_gain=0.5, alpha_c_deg=52.0, alpha_min_deg=40.0,
+                           alpha_max_deg=58.0)
+    p0 = 2e5
+    prog = pg.biaxial(p0, 0.01, 1e-3, drained=True)
+    records = [driver.run(make_cell_model(backend), prog, mesostructure=plain_h_cell(2, 52.0), n_orientations=12,
+                          progress=False, critical_state=params) for backend in ("analytical", "dem")]
+    a, d = records
+    assert np.nanmax(a.diagnostics["critical_state_renewals"]) >= 10
+    np.testing.assert_array_equal(a.diagnostics["critical_state_renewals"], d.diagnostics["critical_state_renewals"])
+    assert max(np.max(np.abs(a.sigma11 - d.sigma11)), np.max(np.abs(a.sigma22 - d.sigma22))) < 1e-3 * p0
