@@ -66,6 +66,27 @@ if TYPE_CHECKING:
 from warp_hcell.core.parameters import ALPHA_MAX_DEG, CellDefaults, ContactLaw, FeDefaults
 
 
+CHECKPOINT_FILE = "checkpoint.h5"
+"""Checkpoint of a run in its output folder (``homogenization.fe.checkpoint``)."""
+MIN_ELEMENTS_ACROSS_BAND = 3.0
+"""Fewest elements across the expected band width that --length accepts [-]."""
+
+
+def check_regularisation(args: argparse.Namespace) -> None:
+    """UserError (one line) where the mesh is too coarse for --length: fewer than
+    ``MIN_ELEMENTS_ACROSS_BAND`` elements across the expected band (``second_gradient.expected_band_width``)."""
+    if args.length is None:
+        return
+    from homogenization.fe.second_gradient import expected_band_width  # noqa: PLC0415 (scikit-fem)
+    nx, ny = args.elements
+    h = max(FeDefaults.width / nx, FeDefaults.height / ny)
+    width = expected_band_width(args.length)
+    if width < MIN_ELEMENTS_ACROSS_BAND * h:
+        raise UserError(f"--length {args.length:g}: the expected band ({width:.3g} m wide) spans {width / h:.1f} "
+                        f"elements of {h:.3g} m; use at least {MIN_ELEMENTS_ACROSS_BAND:g} (finer --elements or "
+                        f"a larger --length)")
+
+
 def element_counts(text: str) -> tuple[int, int]:
     """argparse type: "NX,NY", two integers >= 1."""
     parts = text.split(",")
@@ -99,6 +120,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--newton-rtol", type=positive_float, default=bvp.newton_rtol,
                         help="Newton tolerance: out-of-balance force norm / (p0 W) [-] (the DEM's own equilibrium "
                              "tolerance limits it: use ~1e-5 with --backend dem)")
+    parser.add_argument("--length", type=positive_float, default=None,
+                        help="material length L [m] of the local second-gradient regularisation (D = E_ref L^2, "
+                             "E_ref the material's shear modulus at p0); none: the plain first-gradient solver")
+    parser.add_argument("--checkpoint-every", type=positive_int, default=None,
+                        help=f"save DIR/{CHECKPOINT_FILE} every N load steps (and after the last)")
+    parser.add_argument("--resume", action="store_true",
+                        help=f"continue the run of DIR from DIR/{CHECKPOINT_FILE} (same flags)")
     parser.add_argument("--compare", action="store_true",
                         help="also run the material point (driver, drained biaxial) and overlay it")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
@@ -164,10 +192,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     set_verbosity(args)
     from homogenization.output import run_labels  # noqa: PLC0415 (matplotlib: only when the command runs)
-    from homogenization.fe import output as fe_output, solver as fe  # noqa: PLC0415 (scikit-fem)
+    from homogenization.fe import output as fe_output, second_gradient, solver as fe  # noqa: PLC0415 (scikit-fem)
+    from homogenization.fe.checkpoint import Checkpoint  # noqa: PLC0415 (scikit-fem)
 
     out: Path = args.out
-    check_output_path(out, overwrite=args.overwrite)
+    checkpoint_path = out / CHECKPOINT_FILE
+    if args.resume:
+        if not checkpoint_path.is_file():
+            raise UserError(f"--resume: {checkpoint_path} does not exist")
+    else:
+        check_output_path(out, overwrite=args.overwrite)
+    check_regularisation(args)
     check_options(args, (args.backend,))
     if args.backend == "dem" and not args.verbose:
         quiet_warp(args.device)
@@ -175,7 +210,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                             **backend_options(args, args.backend))
     refuse_uncertified(model, args)
     nx, ny = args.elements
-    specimen = fe.BiaxialSpecimen(nx, ny, newton_rtol=args.newton_rtol)
+    if args.length is None:
+        specimen = fe.BiaxialSpecimen(nx, ny, newton_rtol=args.newton_rtol)
+    else:
+        specimen = second_gradient.SecondGradientSpecimen(nx, ny, length=args.length, modulus=1.0,
+                                                          newton_rtol=args.newton_rtol)
     weak = weak_elements(specimen) if args.imperfection > 0.0 else np.zeros(specimen.mesh.nelements, bool)
     sound, weak_meso = element_mesostructures(args, weak)
     for meso in (sound, weak_meso):
@@ -189,16 +228,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UserError(f"backend {args.backend!r} returns no consistent tangent in this version")
     n_shear = programmes.n_increments_for(args.eps_max, args.increment)
     steps = fe.isotropic_stage(args.p0, args.iso_steps) + fe.shear_stage(args.p0, n_shear * args.increment, n_shear)
-
-    start = time.perf_counter()
-    with progress_bar(total=len(steps), desc="bvp", unit="step", leave=False) as bar:
+    modulus = None
+    if args.length is not None:
+        point = HomogenisedMaterial(model, orientation.orientations(args.orientations), sound, 1)
         try:
-            results = specimen.run(material, steps, scale=args.p0, progress=lambda k: bar.update(1))
-        except fe.NewtonError as exc:
-            raise UserError(str(exc)) from None
-    elapsed = time.perf_counter() - start
-    updates = sum(r.iterations + 1 for r in results)
-    reference = material_point_reference(model, sound, args) if args.compare else None
+            modulus = second_gradient.reference_modulus(point, args.p0)
+        except ValueError as exc:
+            raise UserError(f"--length: {exc}") from None
+        specimen.set_modulus(modulus)
 
     parameters = {
         "backend": args.backend, "alpha0_deg": sound.parameters.get("alpha0_deg"), "p0": args.p0, "eps_max": args.eps_max,
@@ -207,17 +244,48 @@ def main(argv: Sequence[str] | None = None) -> int:
         "width": specimen.width, "height": specimen.height, "newton_rtol": specimen.newton_rtol,
         "contact_law": asdict(ContactLaw()), "radius": CellDefaults.radius,
         "mesostructure": args.mesostructure.text if args.mesostructure is not None else None,
+        "length": args.length, "reference_modulus": modulus,
+        "second_gradient_modulus": None if modulus is None else modulus * args.length ** 2,
     }
+    checkpoint = None
+    if args.checkpoint_every is not None or args.resume:
+        settings = {k: v for k, v in parameters.items() if k != "ann_certificate"}
+        checkpoint = Checkpoint(checkpoint_path, args.checkpoint_every or len(steps), settings)
+        if args.resume:
+            checkpoint.check()
+        else:
+            out.mkdir(parents=True, exist_ok=True)
+            checkpoint_path.unlink(missing_ok=True)  # an old run's (--overwrite): never resumed from
+
+    start = time.perf_counter()
+    done = checkpoint.steps_done() if args.resume else 0
+    if done:
+        say(f"resuming from {checkpoint_path} after step {done} of {len(steps)}")
+    with progress_bar(total=len(steps), initial=done, desc="bvp", unit="step", leave=False) as bar:
+        def progress(k: int, result: fe.StepResult) -> None:
+            bar.set_postfix_str(f"{result.stage}, q/p0 {(result.sigma11 - result.sigma22) / args.p0:.4f}, "
+                                f"{result.iterations} its, residual {result.residuals[-1]:.2e} N/m", refresh=False)
+            bar.update(1)
+        try:
+            results = specimen.run(material, steps, scale=args.p0, progress=progress, checkpoint=checkpoint)
+        except fe.NewtonError as exc:
+            raise UserError(str(exc)) from None
+    elapsed = time.perf_counter() - start
+    updates = sum(r.iterations + 1 for r in results[done:])
+    reference = material_point_reference(model, sound, args) if args.compare else None
+
     if hasattr(model, "certificate_problem"):
         parameters["ann_certificate"] = {"certified": model.certificate_problem is None,
                                          "worst": None if model.certificate is None else model.certificate.worst,
                                          "problem": model.certificate_problem}
     kind = "homogeneous" if not weak.any() else f"imperfection F = {args.imperfection:g} in {int(weak.sum())} elements"
+    if args.length is not None:
+        kind += f", second gradient L = {args.length:g} m"
     title = f"{run_labels.title(run_labels.describe(parameters))}, {nx} × {ny} elements, {kind}"
     with writing_to(out):
         paths = fe_output.write_outputs(out, specimen, results, element_alpha0, parameters, args.seed, title, reference)
-    shear_iterations = [r.iterations for r in results if r.stage == "shear"]
-    say(f"{len(results)} steps in {elapsed:.1f} s{certificate_note(model)}: {updates} material updates of {specimen.n_points} points "
+    shear_iterations = [r.iterations for r in results if r.stage == "shear"] or [0]
+    say(f"{len(results) - done} steps in {elapsed:.1f} s{certificate_note(model)}: {updates} material updates of {specimen.n_points} points "
         f"({updates * specimen.n_points / elapsed:.3g} material-point updates/s, "
         f"{updates * material.n_cells / elapsed:.3g} cell-steps/s); "
         f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}")

@@ -8,11 +8,14 @@
 - ``run.h5``: ``/mesh/{points, cells, element_alpha0_deg, gauss_points, gauss_weights}``,
   ``/history/<curve column>`` and ``/history/residuals`` (n_steps, max iterations + 1; NaN
   padded), ``/fields/{displacement (n_steps, n_nodes, 2), strain, stress (n_steps, n_points,
-  3)}`` (Gauss points, Voigt (xx, yy, xy), compression positive; displacement in the FE sign,
-  tension positive), root attributes (parameters, volume rule, sign convention, provenance).
+  3)}, opening, open_fraction (n_steps, n_points)}`` (Gauss points, Voigt (xx, yy, xy),
+  compression positive; displacement in the FE sign, tension positive; the cells' mean opening
+  angle [deg] and fraction of open contacts, NaN where the backend gives none), root attributes
+  (parameters, volume rule, sign convention, provenance).
 - ``vtu/step_NNNN.vtu`` and ``specimen.pvd`` (ParaView collection): displacement at the
-  nodes, element averages of stress, strain and the deviatoric strain
-  eps_d = sqrt((eps_xx - eps_yy)^2 + gamma_xy^2), and alpha0 per element.
+  nodes, element averages of stress, strain, p = (s_xx + s_yy) / 2, q = s_1 - s_2, the
+  deviatoric strain eps_d = sqrt((eps_xx - eps_yy)^2 + gamma_xy^2), the mean opening angle and
+  the fraction of open contacts, and alpha0 per element.
 - ``bvp.png``: q and eps_v against eps1 (strains in %, eps1 and eps_v counted from the end of
   the isotropic stage), and the deformed mesh coloured by eps_d; style of
   ``homogenization.output.figure_style``.
@@ -69,6 +72,15 @@ def element_average(specimen: BiaxialSpecimen, values: np.ndarray) -> np.ndarray
     return np.einsum("eg,eg...->e...", w, v) / w.sum(axis=1).reshape(-1, *([1] * (values.ndim - 1)))
 
 
+def _or_nan(values: np.ndarray | None, specimen: BiaxialSpecimen) -> np.ndarray:
+    return np.full(specimen.n_points, np.nan) if values is None else values
+
+
+def p_q(stress: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """In-plane mean stress p = (s_xx + s_yy) / 2 and deviator q = s_1 - s_2 (principal) of Voigt stresses (..., 3)."""
+    return 0.5 * (stress[..., 0] + stress[..., 1]), np.hypot(stress[..., 0] - stress[..., 1], 2.0 * stress[..., 2])
+
+
 def write_curve(path: Path, results: Sequence[StepResult]) -> Path:
     table = curve_table(results)
     lines = [",".join(CURVE_COLUMNS)]
@@ -113,6 +125,11 @@ def write_h5(path: Path, specimen: BiaxialSpecimen, results: Sequence[StepResult
         fields["displacement"] = np.stack([r.displacement for r in results])
         fields["strain"] = np.stack([r.strain for r in results])
         fields["stress"] = np.stack([r.stress for r in results])
+        fields["opening"] = np.stack([_or_nan(r.opening, specimen) for r in results])
+        fields["open_fraction"] = np.stack([_or_nan(r.open_fraction, specimen) for r in results])
+        fields["opening"].attrs["units"] = "deg"
+        fields["opening"].attrs["description"] = "fabric-weighted mean opening angle of the point's cells"
+        fields["open_fraction"].attrs["description"] = "fraction of the point's contacts that are open"
         fields["displacement"].attrs["units"] = "m"
         fields["strain"].attrs["units"] = "1"
         fields["stress"].attrs["units"] = "N/m"
@@ -130,11 +147,14 @@ def write_vtu(folder: Path, specimen: BiaxialSpecimen, results: Sequence[StepRes
     for k, r in enumerate(results):
         strain = element_average(specimen, r.strain)
         stress = element_average(specimen, r.stress)
+        p, q = p_q(stress)
         mesh = meshio.Mesh(
             points, cells,
             point_data={"displacement": np.column_stack([r.displacement, np.zeros(len(points))])},
-            cell_data={"stress_xx_yy_xy": [stress], "strain_xx_yy_gxy": [strain],
-                       "deviatoric_strain": [deviatoric_strain(strain)], "alpha0_deg": [element_alpha0]},
+            cell_data={"stress_xx_yy_xy": [stress], "strain_xx_yy_gxy": [strain], "p": [p], "q": [q],
+                       "deviatoric_strain": [deviatoric_strain(strain)], "alpha0_deg": [element_alpha0],
+                       "mean_opening_deg": [element_average(specimen, _or_nan(r.opening, specimen))],
+                       "open_contact_fraction": [element_average(specimen, _or_nan(r.open_fraction, specimen))]},
         )
         name = f"step_{k + 1:04d}.vtu"
         with atomic_write(vtu / name) as tmp:

@@ -27,6 +27,8 @@ sigma22 and sigma12 = area averages of the Gauss-point sigma_xx and sigma_xy.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,6 +38,9 @@ from skfem.helpers import dot, sym_grad
 
 from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
 from warp_hcell.core.parameters import FeDefaults
+
+if TYPE_CHECKING:
+    from homogenization.fe.checkpoint import Checkpoint
 
 QUADRATURE_ORDER = 2
 """Integration order of the bilinear quadrilaterals: 2 x 2 Gauss points [-]."""
@@ -87,6 +92,9 @@ class StepResult:
         strain: Gauss-point strain (eps_xx, eps_yy, gamma_xy) [-], shape (n_points, 3), compression positive.
         stress: Gauss-point stress (sigma_xx, sigma_yy, sigma_xy) [N/m], shape (n_points, 3), compression positive.
         diagnostics: backend diagnostics summed over the step's material updates.
+        opening: fabric-weighted mean opening angle of each Gauss point's cells [deg], shape
+            (n_points,); NaN where the backend gives none.
+        open_fraction: fraction of each Gauss point's contacts that are open [-], shape (n_points,).
     """
 
     stage: str
@@ -101,6 +109,8 @@ class StepResult:
     strain: np.ndarray
     stress: np.ndarray
     diagnostics: dict[str, float] = field(default_factory=dict)
+    opening: np.ndarray | None = None
+    open_fraction: np.ndarray | None = None
 
 
 @BilinearForm
@@ -137,7 +147,8 @@ class BiaxialSpecimen:
     """
 
     def __init__(self, nx: int, ny: int, *, width: float = FeDefaults.width, height: float = FeDefaults.height,
-                 newton_rtol: float = FeDefaults.newton_rtol, max_newton: int = FeDefaults.max_newton) -> None:
+                 newton_rtol: float = FeDefaults.newton_rtol, max_newton: int = FeDefaults.max_newton,
+                 element=None) -> None:
         if int(nx) < 1 or int(ny) < 1:
             raise ValueError(f"element counts must be >= 1, got {nx} x {ny}")
         self.newton_rtol = float(newton_rtol)
@@ -145,13 +156,16 @@ class BiaxialSpecimen:
         self.nx, self.ny = int(nx), int(ny)
         self.width, self.height = float(width), float(height)
         self.mesh = MeshQuad.init_tensor(np.linspace(0.0, width, nx + 1), np.linspace(0.0, height, ny + 1))
-        element = ElementVector(ElementQuad1())
+        element = ElementVector(ElementQuad1() if element is None else element)
         self.basis = Basis(self.mesh, element, intorder=QUADRATURE_ORDER)
         x, y = self.mesh.p
         nodal = self.basis.nodal_dofs
+        self.x_dofs, self.y_dofs = self.basis.split_indices()
+        """Displacement DOFs along x and along y (vertices and, for higher-order elements, the others)."""
+        xd, yd = self.basis.doflocs[0], self.basis.doflocs[1]
         self.top_nodes = np.flatnonzero(np.isclose(y, height))
-        self.left_nodes = np.flatnonzero(np.isclose(x, 0.0))
-        self.right_nodes = np.flatnonzero(np.isclose(x, width))
+        self.left_dofs = self.x_dofs[np.isclose(xd[self.x_dofs], 0.0)]
+        self.right_dofs = self.x_dofs[np.isclose(xd[self.x_dofs], width)]
         bottom = np.flatnonzero(np.isclose(y, 0.0))
         pin = bottom[np.argmin(np.abs(x[bottom] - 0.5 * width))]
         lateral = self.mesh.facets_satisfying(lambda p: np.isclose(p[0], 0.0) | np.isclose(p[0], width))
@@ -159,7 +173,8 @@ class BiaxialSpecimen:
                                                                       intorder=QUADRATURE_ORDER))
         # reduced unknowns: every DOF but the top u_y, which share one master DOF (the last)
         n = self.basis.N
-        top_y = nodal[1, self.top_nodes]
+        top_y = self.y_dofs[np.isclose(yd[self.y_dofs], height)]
+        bottom_y = self.y_dofs[np.isclose(yd[self.y_dofs], 0.0)]
         keep = np.setdiff1d(np.arange(n), top_y)
         self.master = keep.size
         rows = np.concatenate([keep, top_y])
@@ -167,7 +182,7 @@ class BiaxialSpecimen:
         self.tie = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, keep.size + 1))
         """Sparse map u = tie @ a from the reduced unknowns a to all DOFs (rigid top platen)."""
         position = {dof: k for k, dof in enumerate(keep)}
-        self.fixed = np.array([position[d] for d in nodal[1, bottom]] + [position[nodal[0, pin]]])
+        self.fixed = np.array([position[d] for d in bottom_y] + [position[nodal[0, pin]]])
         self.top_y = top_y
         self.n_points = self.mesh.nelements * self.basis.X.shape[1]
         self.weights = self.basis.dx.reshape(-1)
@@ -198,11 +213,9 @@ class BiaxialSpecimen:
 
     def averages(self, u: np.ndarray, f_int: np.ndarray, stress: np.ndarray) -> tuple[float, ...]:
         """(eps11, eps22, sigma11, sigma22, sigma12) of the specimen (1 = axial, 2 = lateral)."""
-        nodal = self.basis.nodal_dofs
         U = u[self.top_y[0]]
-        ux = u[nodal[0]]
         eps11 = -U / self.height
-        eps22 = -(ux[self.right_nodes].mean() - ux[self.left_nodes].mean()) / self.width
+        eps22 = -(u[self.right_dofs].mean() - u[self.left_dofs].mean()) / self.width
         # force of the top platen on the specimen = internal force of the master DOF (< 0 in compression)
         sigma11 = -float(np.sum(f_int[self.top_y])) / self.width
         area = self.weights.sum()
@@ -210,46 +223,86 @@ class BiaxialSpecimen:
         sigma12 = float(self.weights @ stress[:, 2]) / area
         return eps11, eps22, sigma11, sigma22, sigma12
 
-    # -- solution -------------------------------------------------------------------------
-    def solve_step(self, material: HomogenisedMaterial, state: MaterialState, u_start: np.ndarray,
-                   u_guess: np.ndarray, step: LoadStep, scale: float, where: str):
-        """Newton iterations of one load step from the converged ``u_start``/``state``.
+    # -- unknowns: the displacement here; a subclass adds fields after it ----------------------
+    @property
+    def n_unknowns(self) -> int:
+        """Length of the full unknown vector x (here the displacement DOFs)."""
+        return self.basis.N
 
-        Returns (u, material update, f_int, iterations, residual norms, diagnostics).
+    @property
+    def expand(self) -> sp.csr_matrix:
+        """Sparse map x = expand @ a from the reduced unknowns (the master DOF last of the displacement part)."""
+        return self.tie
+
+    def displacement_of(self, x: np.ndarray) -> np.ndarray:
+        """The displacement DOFs of the full unknown vector x."""
+        return x[:self.basis.N]
+
+    def system(self, x: np.ndarray, stress: np.ndarray, tangent: np.ndarray) -> tuple[np.ndarray, sp.spmatrix]:
+        """Internal force vector and its Jacobian for the unknowns x and the Gauss-point stress and tangent."""
+        return self._assemble(stress, tangent)
+
+    def residual_weights(self, scale: float) -> np.ndarray | float:
+        """Factors turning each reduced residual component into a force [N] for the Newton test (here 1)."""
+        return 1.0
+
+    def seed(self, isotropic_seed: float) -> np.ndarray:
+        """First guess of the first step: a homogeneous isotropic compression ``isotropic_seed`` [-]."""
+        guess = np.zeros(self.n_unknowns)
+        xd, yd = self.basis.doflocs
+        guess[self.x_dofs] = -isotropic_seed * (xd[self.x_dofs] - 0.5 * self.width)
+        guess[self.y_dofs] = -isotropic_seed * yd[self.y_dofs]
+        return guess
+
+    def axial_guess(self, x: np.ndarray, strain: float) -> np.ndarray:
+        """x plus a homogeneous axial compression ``strain`` [-] (first guess of a new displacement stage)."""
+        guess = x.copy()
+        guess[self.y_dofs] -= strain * self.basis.doflocs[1][self.y_dofs]
+        return guess
+
+    # -- solution -------------------------------------------------------------------------
+    def solve_step(self, material: HomogenisedMaterial, state: MaterialState, x_start: np.ndarray,
+                   x_guess: np.ndarray, step: LoadStep, scale: float, where: str):
+        """Newton iterations of one load step from the converged unknowns ``x_start`` and ``state``.
+
+        Returns (x, material update, internal force vector, iterations, residual norms, diagnostics).
         """
-        tie = self.tie
-        u = u_guess.copy()
+        expand = self.expand
+        x = x_guess.copy()
         fixed = self.fixed
         if step.platen_increment is not None:
-            u[self.top_y] = u_start[self.top_y[0]] - step.platen_increment * self.height
+            x[self.top_y] = x_start[self.top_y[0]] - step.platen_increment * self.height
             fixed = np.append(fixed, self.master)
-        f_ext = tie.T @ (step.pressure * self.unit_pressure)
+        load = np.zeros(self.n_unknowns)
+        load[:self.basis.N] = step.pressure * self.unit_pressure
+        f_ext = expand.T @ load
         if step.platen_force is not None:
             f_ext[self.master] -= step.platen_force * self.width
-        eps_start = self.strain(u_start)
+        eps_start = self.strain(self.displacement_of(x_start))
         residuals: list[float] = []
         totals: dict[str, float] = {}
-        free = np.setdiff1d(np.arange(tie.shape[1]), fixed)
+        free = np.setdiff1d(np.arange(expand.shape[1]), fixed)
         for iteration in range(self.max_newton + 1):
-            update = material.update(state, self.strain(u) - eps_start)
+            update = material.update(state, self.strain(self.displacement_of(x)) - eps_start)
             for name, value in update.diagnostics.items():
                 totals[name] = totals.get(name, 0.0) + float(value)
-            f_int, K = self._assemble(update.stress, update.tangent)
-            residual = tie.T @ f_int - f_ext
-            norm = float(np.linalg.norm(residual[free]))
+            f_int, K = self.system(x, update.stress, update.tangent)
+            residual = expand.T @ f_int - f_ext
+            norm = float(np.linalg.norm((residual * self.residual_weights(scale))[free]))
             residuals.append(norm / self.width)
             if norm <= self.newton_rtol * scale * self.width:
-                return u, update, f_int, iteration, residuals, totals
+                return x, update, f_int, iteration, residuals, totals
             if iteration == self.max_newton:
                 break
-            K_r = (tie.T @ K @ tie).tocsr()
-            du = solve(*condense(K_r, -residual, x=np.zeros(tie.shape[1]), D=fixed))
-            u = u + tie @ du
+            K_r = (expand.T @ K @ expand).tocsr()
+            dx = solve(*condense(K_r, -residual, x=np.zeros(expand.shape[1]), D=fixed))
+            x = x + expand @ dx
         raise NewtonError(f"{where}: Newton did not converge in {self.max_newton} iterations "
                           f"(out-of-balance {residuals[-1]:.3g} N/m, tolerance {self.newton_rtol * scale:.3g} N/m)")
 
     def run(self, material: HomogenisedMaterial, steps: list[LoadStep], *, scale: float,
-            isotropic_seed: float = FeDefaults.isotropic_seed, progress=None) -> list[StepResult]:
+            isotropic_seed: float = FeDefaults.isotropic_seed, progress=None,
+            checkpoint: "Checkpoint | None" = None) -> list[StepResult]:
         """Solve the load steps in order; returns one ``StepResult`` per step.
 
         Args:
@@ -258,34 +311,59 @@ class BiaxialSpecimen:
             scale: stress scale of the convergence test (p0) [N/m].
             isotropic_seed: homogeneous isotropic strain of the first Newton guess [-] (the
                 touching, force-free cells have no stiffness; a small compression closes them).
-            progress: optional callable(step_index) called after each converged step.
+            progress: optional callable(step_index, StepResult) called after each converged step.
+            checkpoint: optional ``homogenization.fe.checkpoint.Checkpoint``: the run starts from
+                its saved step where it holds one, and saves every ``checkpoint.every`` steps.
         """
         if material.n_points != self.n_points:
             raise ValueError(f"material has {material.n_points} points, the mesh {self.n_points} Gauss points")
         state = material.init_state()
-        x, y = self.mesh.p
-        u = np.zeros(self.basis.N)
-        previous = np.zeros_like(u)
-        nodal = self.basis.nodal_dofs
+        x = np.zeros(self.n_unknowns)
+        previous = np.zeros_like(x)
         results: list[StepResult] = []
-        for k, step in enumerate(steps):
+        if checkpoint is not None and checkpoint.exists():
+            x, previous, state, results = checkpoint.load(material, len(steps))
+        nodal = self.basis.nodal_dofs
+        for k in range(len(results), len(steps)):
+            step = steps[k]
             if k == 0:
-                guess = np.zeros_like(u)
-                guess[nodal[0]] = -isotropic_seed * (x - 0.5 * self.width)
-                guess[nodal[1]] = -isotropic_seed * y
+                guess = self.seed(isotropic_seed)
             elif step.stage != steps[k - 1].stage and step.platen_increment is not None:
-                guess = u.copy()
-                guess[nodal[1]] -= step.platen_increment * y  # homogeneous axial compression
+                guess = self.axial_guess(x, step.platen_increment)
             else:
-                guess = u + (u - previous)  # the last step's increment again
+                guess = x + (x - previous)  # the last step's increment again
             where = f"step {k + 1} ({step.stage})"
-            u_new, update, f_int, iterations, residuals, totals = self.solve_step(
-                material, state, u, guess, step, scale, where)
-            previous, u, state = u, u_new, update.state
+            x_new, update, f_int, iterations, residuals, totals = self.solve_step(
+                material, state, x, guess, step, scale, where)
+            previous, x, state = x, x_new, update.state
+            u = self.displacement_of(x)
             eps11, eps22, sigma11, sigma22, sigma12 = self.averages(u, f_int, update.stress)
+            opening, open_fraction = point_observables(material, state)
             results.append(StepResult(step.stage, eps11, eps22, sigma11, sigma22, sigma12, iterations, residuals,
                                       np.stack([u[nodal[0]], u[nodal[1]]], axis=1), state.strain.copy(),
-                                      update.stress.copy(), totals))
+                                      update.stress.copy(), totals, opening, open_fraction))
+            if checkpoint is not None and ((k + 1) % checkpoint.every == 0 or k + 1 == len(steps)):
+                checkpoint.save(x, previous, material, state, results)
             if progress is not None:
-                progress(k)
+                progress(k, results[-1])
         return results
+
+
+def point_observables(material: HomogenisedMaterial, state: MaterialState) -> tuple[np.ndarray, np.ndarray]:
+    """Per Gauss point: fabric-weighted mean opening angle [deg] and fraction of open contacts [-].
+
+    Uses the backend's ``observables`` ``alpha_deg``, ``closed1``, ``closed2`` (an H-cell has four
+    type-1 and two type-2 contacts); NaN, shape (n_points,), where the backend does not give them.
+    """
+    nan = np.full(material.n_points, np.nan)
+    try:
+        obs = material.model.observables(state.cells)
+    except (AttributeError, NotImplementedError):
+        return nan, nan.copy()
+    if not {"alpha_deg", "closed1", "closed2"} <= set(obs):
+        return nan, nan.copy()
+    n = material.orient.n_cells
+    w = material.orient.weights / material.orient.weights.sum()
+    alpha = np.asarray(obs["alpha_deg"], float).reshape(material.n_points, n) @ w
+    open_ = (4.0 * (1.0 - np.asarray(obs["closed1"], float)) + 2.0 * (1.0 - np.asarray(obs["closed2"], float))) / 6.0
+    return alpha, open_.reshape(material.n_points, n) @ w

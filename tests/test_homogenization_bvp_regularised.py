@@ -1,0 +1,232 @@
+"""The second-gradient biaxial specimen, checkpoints and resume, the band measurement, and their errors."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import meshio
+import numpy as np
+import pytest
+from cli_checks import assert_usage_error
+
+from homogenization.backends import make_cell_model
+from homogenization.cli import bvp
+from homogenization.fe import solver as fe
+from homogenization.fe.band import measure_band
+from homogenization.fe.checkpoint import Checkpoint
+from homogenization.fe.second_gradient import SecondGradientSpecimen, reference_modulus
+from homogenization.material import orientation
+from homogenization.material.homogenised import HomogenisedMaterial
+from warp_hcell.core.cli import run_main
+from warp_hcell.mesostructures.hcell import h_cell
+
+P0 = 2e5
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["--alpha0", "40", "--p0", "2e5", "--eps-max", "0.01", "--increment", "1e-3", "--orientations", "12",
+        "--elements", "4,8", "--iso-steps", "5"]
+
+
+def cli(argv: list[str]) -> int:
+    return run_main(bvp.main, argv)
+
+
+def programme(n_shear: int = 10) -> list[fe.LoadStep]:
+    return fe.isotropic_stage(P0, 5) + fe.shear_stage(P0, n_shear * 1e-3, n_shear)
+
+
+def material_for(specimen: fe.BiaxialSpecimen, n_orientations: int = 12) -> HomogenisedMaterial:
+    return HomogenisedMaterial(make_cell_model("analytical"), orientation.orientations(n_orientations), h_cell(40.0),
+                               specimen.n_points)
+
+
+def test_homogeneous_specimen_the_second_gradient_terms_vanish():
+    """Uniform strain: v = grad u, grad v = 0, lambda = 0, so the regularised specimen follows the
+    plain one (which follows the material point) within 1e-3 p0."""
+    plain = fe.BiaxialSpecimen(2, 4)
+    regular = SecondGradientSpecimen(2, 4, length=0.2, modulus=4e7)
+    a = plain.run(material_for(plain), programme(), scale=P0)
+    b = regular.run(material_for(regular), programme(), scale=P0)
+    for name in ("sigma11", "sigma22", "eps11", "eps22"):
+        deviation = max(abs(getattr(r, name) - getattr(s, name)) for r, s in zip(a, b))
+        assert deviation <= (1e-3 * P0 if name.startswith("sigma") else 1e-9), name
+    assert (b[-1].sigma11 - b[-1].sigma22) > 2.0 * P0  # really sheared
+
+
+def test_second_gradient_newton_is_quadratic_and_lambda_is_the_constraint():
+    specimen = SecondGradientSpecimen(2, 4, length=0.2, modulus=4e7)
+    weak = np.zeros(specimen.n_points, bool)
+    weak[:4] = True  # one weak element: a non-uniform field where the second gradient works
+    material = HomogenisedMaterial(make_cell_model("analytical"), orientation.orientations(12),
+                                   [h_cell(50.0) if w else h_cell(40.0) for w in weak], specimen.n_points)
+    results = specimen.run(material, programme(), scale=P0)
+    r = np.array(results[-1].residuals)
+    assert r.size >= 3 and r[-1] <= 1e-8 * P0
+    assert r[-2] / r[-3] < 1e-2 and r[-1] / r[-2] < 1e-2 * (r[-2] / r[-3])
+    assert np.ptp(results[-1].strain[:, 1]) > 1e-4  # the field is not uniform
+
+
+def test_reference_modulus_is_the_shear_stiffness_at_p0():
+    model = make_cell_model("analytical")
+    point = HomogenisedMaterial(model, orientation.orientations(12), h_cell(40.0), 1)
+    G = reference_modulus(point, P0)
+    # central difference of sigma_12 over gamma_12 at p0, from the same isotropic state
+    state = point.init_state()
+    state = point.update(state, np.array([[1e-6, 1e-6, 0.0]]), with_tangent=False).state
+    for k in range(1, 21):
+        a = 0.0
+        for _ in range(50):
+            u = point.update(state, np.array([[a, a, 0.0]]))
+            p = 0.5 * (u.stress[0, 0] + u.stress[0, 1])
+            if abs(p - P0 * k / 20) <= 1e-10 * P0:
+                break
+            a += (P0 * k / 20 - p) / (0.5 * u.tangent[0, :2, :2].sum())
+        state = u.state
+    h = 1e-7
+    s = [point.update(state, np.array([[0.0, 0.0, g]]), with_tangent=False).stress[0, 2] for g in (h, -h)]
+    assert G == pytest.approx((s[0] - s[1]) / (2 * h), rel=1e-3)
+    assert G > 0.0
+
+
+class _Stop(Exception):
+    pass
+
+
+@pytest.mark.parametrize("regularised", [False, True])
+def test_checkpoint_resume_gives_the_uninterrupted_result_bit_for_bit(tmp_path, regularised):
+    make = (lambda: SecondGradientSpecimen(2, 4, length=0.2, modulus=4e7)) if regularised else (
+        lambda: fe.BiaxialSpecimen(2, 4))
+    steps = programme(12)
+    specimen = make()
+    full = specimen.run(material_for(specimen), steps, scale=P0)
+    checkpoint = Checkpoint(tmp_path / "c.h5", 3, {"case": regularised})
+
+    def interrupt(k, result):
+        if k == 10:
+            raise _Stop
+
+    specimen = make()
+    with pytest.raises(_Stop):
+        specimen.run(material_for(specimen), steps, scale=P0, progress=interrupt, checkpoint=checkpoint)
+    assert checkpoint.steps_done() == 9
+    specimen = make()
+    resumed = specimen.run(material_for(specimen), steps, scale=P0, checkpoint=checkpoint)
+    assert len(resumed) == len(full)
+    for a, b in zip(full, resumed):
+        assert (a.sigma11, a.sigma22, a.eps11, a.iterations, a.residuals) == (b.sigma11, b.sigma22, b.eps11,
+                                                                            b.iterations, b.residuals)
+        for name in ("displacement", "strain", "stress", "opening", "open_fraction"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_killed_run_resumes_to_the_same_files(tmp_path):
+    """A run killed (SIGKILL) after a random checkpoint and resumed writes the uninterrupted run's fields."""
+    argv = TINY + ["--eps-max", "0.02", "--imperfection", "0.2", "--length", "0.2", "--orientations", "24"]
+    reference = tmp_path / "reference"
+    assert cli(argv + ["--out", str(reference)]) == 0
+    out = tmp_path / "killed"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    process = subprocess.Popen([sys.executable, "-m", "homogenization.bvp", *argv, "--checkpoint-every", "1",
+                                "--out", str(out), "-q"], cwd=ROOT, env=env)
+    target = int(np.random.default_rng().integers(3, 18))
+    checkpoint = Checkpoint(out / bvp.CHECKPOINT_FILE, 1, {})
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and process.poll() is None:
+        try:
+            if checkpoint.exists() and checkpoint.steps_done() >= target:
+                break
+        except OSError:
+            pass
+        time.sleep(0.02)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    killed_at = checkpoint.steps_done()
+    assert killed_at < 25, "the run ended before it was killed"
+    assert not (out / "curve.csv").exists()
+    assert cli(argv + ["--checkpoint-every", "1", "--resume", "--out", str(out)]) == 0
+    assert (out / "curve.csv").read_text() == (reference / "curve.csv").read_text()
+    with h5py.File(reference / "run.h5") as a, h5py.File(out / "run.h5") as b:
+        for name in ("displacement", "strain", "stress", "opening", "open_fraction"):
+            np.testing.assert_array_equal(a["fields"][name][()], b["fields"][name][()])
+
+
+def test_output_fields_for_paraview(tmp_path):
+    out = tmp_path / "run"
+    assert cli(TINY + ["--length", "0.2", "--out", str(out)]) == 0
+    mesh = meshio.read(out / "vtu" / "step_0015.vtu")
+    for name in ("p", "q", "mean_opening_deg", "open_contact_fraction", "deviatoric_strain"):
+        assert name in mesh.cell_data, name
+    opening = mesh.cell_data["mean_opening_deg"][0]
+    assert np.all((opening > 30.0) & (opening < 60.0) & (np.abs(opening - 40.0) > 1e-3))  # moved from alpha0 = 40
+    fraction = mesh.cell_data["open_contact_fraction"][0]
+    assert np.all((fraction > 0.0) & (fraction < 1.0))
+    assert mesh.cell_data["p"][0] == pytest.approx(np.full(32, P0 + 0.5 * mesh.cell_data["q"][0]), rel=2e-2)
+    with h5py.File(out / "run.h5") as f:
+        assert f["fields/opening"].shape == (15, 128)
+
+
+def test_band_measurement_of_a_known_band():
+    """A Gaussian band of FWHM 0.2 m at 60 deg on scattered points: width and angle recovered."""
+    rng = np.random.default_rng(0)
+    points = rng.uniform([0.0, 0.0], [1.0, 2.0], size=(20000, 2))
+    d = np.array([np.cos(np.radians(60.0)), np.sin(np.radians(60.0))])
+    s = (points - [0.5, 1.0]) @ np.array([-d[1], d[0]])
+    sigma = 0.2 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    eps_d = 0.01 + 0.3 * np.exp(-0.5 * (s / sigma) ** 2)
+    band = measure_band(points, np.full(len(points), 1e-4), eps_d, bin_width=0.01)
+    assert band.angle_deg == pytest.approx(60.0, abs=1.0)
+    assert band.width == pytest.approx(0.2, rel=0.05)
+    assert band.background == pytest.approx(0.01, abs=0.01)
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--length", "0"], "argument --length: 0 must be > 0"),
+    (["--length=-0.1"], "argument --length: -0.1 must be > 0"),
+    (["--checkpoint-every", "0"], "argument --checkpoint-every: 0 must be >= 1"),
+])
+def test_bad_length_one_line_exit_2(tmp_path, capsys, extra, message):
+    assert_usage_error(capsys, cli, TINY + extra + ["--out", str(tmp_path / "x")], message, tmp_path / "x")
+
+
+def test_mesh_too_coarse_for_the_length_and_bad_resume(tmp_path, capsys):
+    assert cli(TINY + ["--length", "0.05", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "--length 0.05: the expected band" in err and "use at least 3" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "x").exists()
+    assert cli(TINY + ["--resume", "--out", str(tmp_path / "y")]) == 2
+    assert capsys.readouterr().err.strip().endswith(f"--resume: {tmp_path / 'y' / 'checkpoint.h5'} does not exist")
+
+
+def test_resume_with_other_settings_is_refused(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert cli(TINY + ["--checkpoint-every", "5", "--out", str(out)]) == 0
+    capsys.readouterr()
+    before = (out / "curve.csv").read_bytes()
+    assert cli(TINY + ["--p0", "3e5", "--resume", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "was written with other settings (p0)" in err and err.count("\n") == 1, err
+    assert (out / "curve.csv").read_bytes() == before
+
+
+def test_backend_without_tangent_is_refused_before_any_step(tmp_path, capsys, monkeypatch):
+    class NoTangent:
+        def __init__(self, model):
+            self._model = model
+            self.name = "no-tangent"
+
+        def __getattr__(self, name):
+            return getattr(self._model, name)
+
+        def step(self, state, d_eps_local):
+            raise AssertionError("no step may run")
+
+    real = bvp.make_cell_model
+    monkeypatch.setattr(bvp, "make_cell_model", lambda *a, **k: NoTangent(real(*a, **k)))
+    assert cli(TINY + ["--length", "0.2", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "returns no consistent tangent" in err and err.count("\n") == 1, err
