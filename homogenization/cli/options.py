@@ -119,7 +119,7 @@ def add_void_ratio_arguments(parser: argparse.ArgumentParser) -> None:
     --e-min and --e-max [-] (defaults ``density.DEFAULT_E_MIN``, ``DEFAULT_E_MAX``)."""
     angles = "; ".join(f"{d}D {a:g}-{b:g} deg" for d, (a, b) in OPENING_RANGE_DEG.items())
     group = parser.add_argument_group(f"density (instead of --alpha0): alpha0 linear in e between the densest and "
-                                      f"the loosest cell ({angles}; docs/model.md, Density)")
+                                      f"the loosest cell ({angles}; docs/usage.md, Density)")
     group.add_argument("--void-ratio", type=void_ratio_value, default=None, metavar="E",
                        help="initial void ratio e0 [-] of the cells, in [--e-min, --e-max]; not with --alpha0")
     group.add_argument("--e-min", type=void_ratio_value, default=DEFAULT_E_MIN,
