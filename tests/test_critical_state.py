@@ -8,14 +8,16 @@ import pytest
 
 from homogenization.backends import make_cell_model
 from homogenization.element_test import driver, programme as pg
-from homogenization.material.critical_state import CriticalState
+from dataclasses import replace
+
+from homogenization.material.critical_state import DEFAULTS, CriticalState
 from homogenization.material.density import default_map
 from warp_hcell.mesostructures.hcell import plain_h_cell
 
-RULE_3D = CriticalState(rate=10.0, gain=0.0, rate_gain=1.0, alpha_c_deg=53.0, alpha_min_deg=46.0, alpha_max_deg=70.0)
 
 
-@pytest.mark.parametrize("changes", [{"rate": 0.0}, {"rate": float("nan")}, {"gain": -1.0},
+@pytest.mark.parametrize("changes", [{"rate": 0.0}, {"rate": float("nan")}, {"gain": -1.0}, {"rate_gain": -0.5},
+                                     {"rate_max": 10.0}, {"alpha_c_deg": 63.0},
                                      {"alpha_min_deg": 60.0, "alpha_max_deg": 50.0}, {"alpha_max_deg": 95.0}])
 def test_bad_parameters_are_refused(changes):
     params = CriticalState(**changes)
@@ -38,12 +40,13 @@ def test_default_run_is_the_plain_model():
     prog = pg.biaxial(2e5, 0.05, 1e-3, drained=True)
     args = dict(mesostructure=plain_h_cell(2, 52.0), n_orientations=12, progress=False)
     plain = driver.run(make_cell_model("analytical"), prog, **args)
-    idle = driver.run(make_cell_model("analytical"), prog, critical_state=CriticalState(rate=1e-9), **args)
+    idle = driver.run(make_cell_model("analytical"), prog, critical_state=CriticalState(rate=1e-9, rate_gain=0.0),
+                      **args)
     assert "critical_state_renewals" not in plain.diagnostics
     assert np.nanmax(idle.diagnostics["critical_state_renewals"]) == 0
     np.testing.assert_array_equal(plain.q, idle.q)
     np.testing.assert_array_equal(plain.J, idle.J)
-    busy = driver.run(make_cell_model("analytical"), prog, critical_state=CriticalState(rate=50.0), **args)
+    busy = driver.run(make_cell_model("analytical"), prog, critical_state=DEFAULTS[2], **args)
     assert np.nanmax(busy.diagnostics["critical_state_renewals"]) > 10
     assert np.max(np.abs(busy.q - plain.q)) > 0.01 * 2e5
 
@@ -59,7 +62,7 @@ def _end_void_ratio(alpha0: float, params: CriticalState | None) -> tuple[float,
 def test_loose_and_dense_3d_points_meet():
     """Drained to 30 %: with the rule the void ratios of a dense and a loose point end within 0.02 (0.23 apart
     at the start) and their stress ratios within 10 %; the plain cell's stay 0.15 or more apart."""
-    dense, loose = _end_void_ratio(49.0, RULE_3D), _end_void_ratio(57.0, RULE_3D)
+    dense, loose = _end_void_ratio(49.0, DEFAULTS[3]), _end_void_ratio(57.0, DEFAULTS[3])
     assert abs(dense[0] - loose[0]) < 0.02
     assert abs(dense[1] / loose[1] - 1.0) < 0.10
     plain_dense, plain_loose = _end_void_ratio(49.0, None), _end_void_ratio(57.0, None)
@@ -68,8 +71,7 @@ def test_loose_and_dense_3d_points_meet():
 
 
 def test_dem_agrees_with_the_closed_form_under_renewal():
-    params = CriticalState(rate=200.0, gain=2.0, rate_gain=0.5, alpha_c_deg=52.0, alpha_min_deg=40.0,
-                           alpha_max_deg=58.0)
+    params = replace(DEFAULTS[2], rate=400.0)
     p0 = 2e5
     prog = pg.biaxial(p0, 0.01, 1e-3, drained=True)
     records = [driver.run(make_cell_model(backend), prog, mesostructure=plain_h_cell(2, 52.0), n_orientations=12,

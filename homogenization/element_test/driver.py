@@ -126,7 +126,8 @@ def run(
             erosion).
         critical_state: renew the cells between increments by this rule
             (``homogenization.material.critical_state``; None: the plain H-model); the record's
-            diagnostic ``critical_state_renewals`` counts the renewals made up to each increment.
+            diagnostics ``critical_state_renewals``, ``_rate_capped`` and ``_angle_clipped`` count the
+            renewals, capped rates and clipped fresh angles up to each increment.
 
     Returns:
         The ``Record`` of the run.
@@ -163,8 +164,9 @@ def run(
                       f"side nearer the target was accepted (diagnostics 'stress_control_jump')", RuntimeWarning,
                       stacklevel=2)
     if points.renewal is not None:
-        history.diagnostics["critical_state_renewals"] = np.array(
-            [float(c[0]) for c in points.renewal.log] + [np.nan] * (history.rows.shape[0] - len(points.renewal.log)))
+        pad = [np.nan] * (history.rows.shape[0] - len(points.renewal.log))
+        for i, name in enumerate(("renewals", "rate_capped", "angle_clipped")):
+            history.diagnostics[f"critical_state_{name}"] = np.array([float(c[i][0]) for c in points.renewal.log] + pad)
     return to_record(history, points, programme, step_seconds, dict(mesostructure.parameters))
 
 

@@ -42,17 +42,21 @@ class CriticalState:
     """Parameters of the renewal rule (module docstring).
 
     Attributes:
-        rate: renewals per unit of a cell's accumulated distortion [-], > 0.
+        rate: renewals per unit of a cell's accumulated distortion at alpha_c [-], > 0.
         gain: feedback of the point's density on the fresh cells' opening angle [-], >= 0.
+        alpha_c_deg: the opening angle [deg] where neither feedback acts (in [alpha_min, alpha_max]).
+        rate_gain: feedback of the point's density on the rate [1/deg], >= 0.
+        rate_max: cap of the rate [-], >= rate.
         alpha_min_deg: smallest fresh opening angle [deg].
-        alpha_max_deg: largest fresh opening angle [deg], > alpha_min_deg, below the largest
-            touching-cell measure's angle.
+        alpha_max_deg: largest fresh opening angle [deg], > alpha_min_deg.
+    The defaults are ``DEFAULTS[3]``'s.
     """
 
-    rate: float = 2.0
+    rate: float = 20.0
     gain: float = 1.0
-    alpha_c_deg: float = 52.0
-    rate_gain: float = 0.0
+    alpha_c_deg: float = 53.0
+    rate_gain: float = 1.0
+    rate_max: float = 400.0
     alpha_min_deg: float = 46.0
     alpha_max_deg: float = 62.0
 
@@ -60,12 +64,26 @@ class CriticalState:
         """ValueError (one line) for a parameter out of range."""
         if not (math.isfinite(self.rate) and self.rate > 0.0):
             raise ValueError(f"critical-state rate = {self.rate:g} must be finite and > 0")
+        if not (math.isfinite(self.rate_gain) and self.rate_gain >= 0.0):
+            raise ValueError(f"critical-state rate_gain = {self.rate_gain:g} must be finite and >= 0")
+        if not (math.isfinite(self.rate_max) and self.rate_max >= self.rate):
+            raise ValueError(f"critical-state rate_max = {self.rate_max:g} must be finite and >= rate = {self.rate:g}")
+        if not (math.isfinite(self.alpha_c_deg) and self.alpha_min_deg <= self.alpha_c_deg <= self.alpha_max_deg):
+            raise ValueError(f"critical-state alpha_c_deg = {self.alpha_c_deg:g} must lie in [alpha_min_deg, "
+                             f"alpha_max_deg] = [{self.alpha_min_deg:g}, {self.alpha_max_deg:g}]")
         if not (math.isfinite(self.gain) and self.gain >= 0.0):
             raise ValueError(f"critical-state gain = {self.gain:g} must be finite and >= 0")
         if not (math.isfinite(self.alpha_min_deg) and math.isfinite(self.alpha_max_deg)
                 and 0.0 < self.alpha_min_deg < self.alpha_max_deg < 90.0):
             raise ValueError(f"critical-state alpha_min_deg = {self.alpha_min_deg:g} and alpha_max_deg = "
                              f"{self.alpha_max_deg:g} must satisfy 0 < alpha_min < alpha_max < 90 deg")
+
+
+DEFAULTS = {2: CriticalState(rate=120.0, gain=3.0, alpha_c_deg=52.0, rate_gain=1.0, rate_max=400.0, alpha_min_deg=40.0,
+                             alpha_max_deg=58.0),
+            3: CriticalState()}
+"""The rule's parameters by cell dimension, chosen by measurement on the plain cells at the default contact law
+(docs/studies/critical_state_mechanism.md)."""
 
 
 def _plain(meso: Mesostructure) -> tuple[float, float]:
@@ -109,8 +127,12 @@ class Renewal:
         """Renewal clock of every cell: its distortion times the rate, summed [-], shape (n_cells,)."""
         self.count = np.zeros(material.n_points, dtype=np.int64)
         """Renewals made per point."""
-        self.log: list[np.ndarray] = []
-        """``count`` after each ``advance`` call (one per recorded increment)."""
+        self.capped = np.zeros(material.n_points, dtype=np.int64)
+        """Per point, the increments whose rate ``rate_max`` capped."""
+        self.clipped = np.zeros(material.n_points, dtype=np.int64)
+        """Per point, the fresh cells whose opening angle [alpha_min_deg, alpha_max_deg] clipped."""
+        self.log: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        """(count, capped, clipped) after each ``advance`` call (one per recorded increment)."""
         self.last_strain = np.array(state.strain)
         self._mesos: dict[float, Mesostructure] = {}
 
@@ -128,13 +150,14 @@ class Renewal:
         return m.alpha_dense_deg + (e - m.e_min) / (m.e_max - m.e_min) * (m.alpha_loose_deg - m.alpha_dense_deg)
 
     def fresh_angle(self, J: np.ndarray) -> np.ndarray:
-        """Opening angle alpha_f [deg] of fresh cells of each point of volume ratio J [-], shape (n_points,)."""
+        """Opening angle alpha_f [deg] of fresh cells of each point of volume ratio J [-] before the clip to
+        [alpha_min_deg, alpha_max_deg], shape (n_points,)."""
         p = self.params
-        return np.clip(p.alpha_c_deg + p.gain * (self.density_angle(J) - p.alpha_c_deg), p.alpha_min_deg,
-                       p.alpha_max_deg)
+        return p.alpha_c_deg + p.gain * (self.density_angle(J) - p.alpha_c_deg)
 
     def rate(self, J: np.ndarray) -> np.ndarray:
-        """Renewals per unit distortion [-] of each point of volume ratio J [-], shape (n_points,)."""
+        """Renewals per unit distortion [-] of each point of volume ratio J [-] before the cap ``rate_max``,
+        shape (n_points,)."""
         p = self.params
         return p.rate * np.exp(p.rate_gain * (self.density_angle(J) - p.alpha_c_deg))
 
@@ -143,17 +166,25 @@ class Renewal:
         d_local = self.material.localise(state.strain - self.last_strain)
         self.last_strain = np.array(state.strain)
         dim = d_local.shape[1]
-        increment = sum(np.abs(d_local[:, a] - d_local[:, b]) for a in range(dim) for b in range(a + 1, dim))
+        cell = sum(np.abs(d_local[:, a] - d_local[:, b]) for a in range(dim) for b in range(a + 1, dim))
         n = self.material.orient.n_cells
+        weights = self.material.orient.weights
+        increment = (cell.reshape(self.material.n_points, n) @ weights) / weights.sum()
         before = np.floor(self.distortion + self.phase)
-        self.distortion = self.distortion + np.repeat(self.rate(state.J), n) * increment
+        rate = self.rate(state.J)
+        self.capped = self.capped + (rate > self.params.rate_max)
+        self.distortion = self.distortion + np.repeat(np.minimum(rate, self.params.rate_max) * increment, n)
         due = np.floor(self.distortion + self.phase) > before
-        self.count = self.count + due.reshape(self.material.n_points, n).sum(axis=1)
-        self.log.append(self.count)
+        per_point = due.reshape(self.material.n_points, n).sum(axis=1)
+        self.count = self.count + per_point
+        angle = self.fresh_angle(state.J)
+        clipped = (angle < self.params.alpha_min_deg) | (angle > self.params.alpha_max_deg)
+        self.clipped = self.clipped + per_point * clipped
+        self.log.append((self.count, self.capped, self.clipped))
         if not due.any():
             return state
         index = np.flatnonzero(due)
-        alpha = self.fresh_angle(state.J)[index // n]
+        alpha = np.clip(angle, self.params.alpha_min_deg, self.params.alpha_max_deg)[index // n]
         model = self.material.model
         fresh = model.state_to_arrays(model.init_state([self._meso(a) for a in alpha], index.size))
         arrays = {k: np.array(v, copy=True) for k, v in model.state_to_arrays(state.cells).items()}

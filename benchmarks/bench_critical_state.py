@@ -1,0 +1,187 @@
+"""Does the critical-state renewal (``homogenization.material.critical_state``) give the closed form a critical
+state? Drained loose and dense tests at two pressures to 40 % axial strain, in 2D and 3D, and undrained tests.
+
+Prints, per dimension, pressure and initial state: q/p and e at the end, the rates over the last 10 % of axial
+strain (least-squares slopes: abs(dq/deps1)/p and abs(d eps_v/d eps1)), the renewals made, and the acceptance
+checks (rates <= 0.05 and 0.01, end stress ratios within 5 %, end void ratios within 0.02); the undrained
+tests' end (p, e) against the line e = e_G - lambda ln p through the drained ends. Writes
+benchmarks/results/critical_state.{txt,json,png}.
+
+    python benchmarks/bench_critical_state.py [--increment 2e-3] [--orientations 360] [--order 11 --spins 4]
+    python benchmarks/bench_critical_state.py --dem-check      # DEM vs closed form, rule on, short 2D test
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from homogenization.backends import make_cell_model
+from homogenization.element_test import driver, programme as pg
+from homogenization.material.critical_state import DEFAULTS, CriticalState
+from homogenization.material.density import default_map
+from warp_hcell.mesostructures.hcell import plain_h_cell
+
+RESULTS = Path(__file__).resolve().parent / "results"
+PARAMS = DEFAULTS
+"""The rule's parameters per dimension (the module's measured DEFAULTS)."""
+STATES = {2: (48.0, 56.0), 3: (49.0, 57.0)}
+"""Dense and loose initial opening angles [deg] per dimension (8 deg apart)."""
+PRESSURES = (1e5, 4e5)
+"""Confining pressures [N/m in 2D, Pa in 3D]."""
+EPS = 0.4
+
+
+def run(dim: int, alpha0: float, p0: float, test: str, args, params: CriticalState | None, backend: str = "analytical"):
+    """The record of one test with the rule ``params`` (None: plain)."""
+    model = make_cell_model(backend, dim=dim)
+    if dim == 2:
+        prog = pg.biaxial(p0, EPS, args.increment, drained=test == "drained")
+        extra = {"n_orientations": args.orientations}
+    else:
+        prog = pg.triaxial(p0, EPS, args.increment, test=test)
+        extra = {"lebedev_order": args.order, "n_spins": args.spins}
+    return driver.run(model, prog, mesostructure=plain_h_cell(dim, alpha0), progress=False, critical_state=params,
+                      **extra)
+
+
+def slope(x: np.ndarray, y: np.ndarray) -> float:
+    """Least-squares slope of y(x)."""
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def summary(record, dim: int, alpha0: float) -> dict:
+    """End values and last-10 % rates of the shear stage of ``record``."""
+    shear = record.stage == "shear"
+    e1 = record.eps11[shear] - record.eps11[shear][0]
+    ev = sum(getattr(record, f"eps{c}{c}")[shear] for c in "123"[:dim])
+    ev = ev - ev[0]
+    q, p, J = record.q[shear], record.p[shear], record.J[shear]
+    e0 = default_map(dim).void_ratio(alpha0)
+    e = (1.0 + e0) * J - 1.0
+    last = e1 >= e1[-1] - 0.1
+    renewals = record.diagnostics.get("critical_state_renewals")
+    return {"dim": dim, "alpha0": alpha0, "e0": e0, "q_over_p": float(q[-1] / p[-1]), "e": float(e[-1]),
+            "p": float(p[-1]), "dq_rate": abs(slope(e1[last], q[last])) / float(p[-1]),
+            "dv_rate": abs(slope(e1[last], ev[last])),
+            "renewals": int(np.nanmax(renewals)) if renewals is not None else 0,
+            "rate_capped": int(np.nanmax(record.diagnostics.get("critical_state_rate_capped", [0]))),
+            "angle_clipped": int(np.nanmax(record.diagnostics.get("critical_state_angle_clipped", [0]))),
+            "curve": {"eps1": e1[::5].tolist(), "q_over_p": (q / p)[::5].tolist(), "e": e[::5].tolist(),
+                      "p": p[::5].tolist()}}
+
+
+def dem_check(args) -> int:
+    """DEM and closed form with the rule on a short drained biaxial; prints the largest stress gap / p0."""
+    params = replace(DEFAULTS[2], rate=400.0)
+    p0 = 2e5
+    prog = pg.biaxial(p0, 0.01, 1e-3, drained=True)
+    out = {}
+    for backend in ("analytical", "dem"):
+        start = time.perf_counter()
+        rec = driver.run(make_cell_model(backend), prog, mesostructure=plain_h_cell(2, 52.0), n_orientations=12,
+                         progress=False, critical_state=params)
+        out[backend] = (rec, time.perf_counter() - start)
+    a, d = out["analytical"][0], out["dem"][0]
+    gap = max(np.max(np.abs(a.sigma11 - d.sigma11)), np.max(np.abs(a.sigma22 - d.sigma22))) / p0
+    line = (f"DEM vs closed form, rule on (12 orientations, drained biaxial to 1 %, p0 = {p0:g} N/m): largest stress "
+            f"gap {gap:.2e} p0; renewals {np.nanmax(a.diagnostics['critical_state_renewals']):.0f} / "
+            f"{np.nanmax(d.diagnostics['critical_state_renewals']):.0f}; {out['analytical'][1]:.1f} s / "
+            f"{out['dem'][1]:.1f} s")
+    print(line)
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "critical_state_dem.txt").write_text(line + "\n")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--increment", type=float, default=2e-3)
+    parser.add_argument("--orientations", type=int, default=360)
+    parser.add_argument("--order", type=int, default=11)
+    parser.add_argument("--spins", type=int, default=4)
+    parser.add_argument("--dims", default="2,3")
+    parser.add_argument("--dem-check", action="store_true")
+    args = parser.parse_args(argv)
+    if args.dem_check:
+        return dem_check(args)
+    lines, rows = [], []
+
+    def say(text: str) -> None:
+        print(text, flush=True)
+        lines.append(text)
+
+    say(f"critical-state renewal, closed form, drained to {EPS:.0%}, increments {args.increment:g}; 2D "
+        f"{args.orientations} orientations, 3D Lebedev {args.order} x {args.spins} spins")
+    for dim in (int(d) for d in args.dims.split(",")):
+        say(f"\n{dim}D rule: {PARAMS[dim]}")
+        say("p0        alpha0  e0     q/p end  e end   |dq/de1|/p  |dev/de1|  renewals  capped  clipped  seconds")
+        for p0 in PRESSURES:
+            pair = []
+            for alpha0 in STATES[dim]:
+                start = time.perf_counter()
+                s = summary(run(dim, alpha0, p0, "drained", args, PARAMS[dim]), dim, alpha0)
+                s.update(p0=p0, test="drained", seconds=time.perf_counter() - start)
+                rows.append(s)
+                pair.append(s)
+                say(f"{p0:<9.0e} {alpha0:<7g} {s['e0']:.3f}  {s['q_over_p']:<8.3f} {s['e']:.3f}   {s['dq_rate']:<11.3f} "
+                    f"{s['dv_rate']:<10.4f} {s['renewals']:<9d} {s['rate_capped']:<7d} {s['angle_clipped']:<8d} "
+                    f"{s['seconds']:.1f}")
+            ratio = abs(pair[0]["q_over_p"] / pair[1]["q_over_p"] - 1.0)
+            de = abs(pair[0]["e"] - pair[1]["e"])
+            ok_rates = all(s["dq_rate"] <= 0.05 and s["dv_rate"] <= 0.01 for s in pair)
+            say(f"  -> stress ratios differ by {ratio:.1%} (<= 5 %: {ratio <= 0.05}), void ratios by {de:.3f} "
+                f"(<= 0.02: {de <= 0.02}), rates within 0.05 / 0.01: {ok_rates}")
+        drained = [r for r in rows if r["dim"] == dim and r["test"] == "drained"]
+        lam, e_g = np.polyfit(-np.log([r["p"] for r in drained]), [r["e"] for r in drained], 1)
+        say(f"  line through the drained ends: e = {e_g:.3f} - {lam:.4f} ln p")
+        for alpha0 in STATES[dim]:
+            start = time.perf_counter()
+            s = summary(run(dim, alpha0, PRESSURES[0], "undrained", args, PARAMS[dim]), dim, alpha0)
+            s.update(p0=PRESSURES[0], test="undrained", seconds=time.perf_counter() - start)
+            rows.append(s)
+            e_line = e_g - lam * np.log(s["p"])
+            say(f"  undrained alpha0 {alpha0:g}: end p {s['p']:.4g}, e {s['e']:.3f}, q/p {s['q_over_p']:.3f}; the "
+                f"line at that p: e {e_line:.3f} (off by {s['e'] - e_line:+.3f}); renewals {s['renewals']}, capped "
+                f"{s['rate_capped']}, clipped {s['angle_clipped']}")
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "critical_state.txt").write_text("\n".join(lines) + "\n")
+    (RESULTS / "critical_state.json").write_text(json.dumps(rows, indent=1))
+    figure(rows)
+    return 0
+
+
+def figure(rows: list[dict]) -> None:
+    """q/p and e against eps1, e against ln p, per dimension: benchmarks/results/critical_state.png."""
+    import matplotlib.pyplot as plt
+    dims = sorted({r["dim"] for r in rows})
+    fig, axes = plt.subplots(len(dims), 3, figsize=(13, 4 * len(dims)), squeeze=False)
+    for i, dim in enumerate(dims):
+        for r in (r for r in rows if r["dim"] == dim):
+            c = r["curve"]
+            style = "-" if r["test"] == "drained" else ":"
+            label = f"{r['test']} {r['p0']:.0e}, alpha0 {r['alpha0']:g}"
+            axes[i, 0].plot(c["eps1"], c["q_over_p"], style, label=label)
+            axes[i, 1].plot(c["eps1"], c["e"], style, label=label)
+            axes[i, 2].semilogx(c["p"], c["e"], style, label=label)
+            axes[i, 2].plot(r["p"], r["e"], "ko", ms=4)
+        drained = [r for r in rows if r["dim"] == dim and r["test"] == "drained"]
+        lam, e_g = np.polyfit(-np.log([r["p"] for r in drained]), [r["e"] for r in drained], 1)
+        p = np.geomspace(min(r["p"] for r in rows if r["dim"] == dim) / 2, 8e5, 20)
+        axes[i, 2].semilogx(p, e_g - lam * np.log(p), "k--", label="line through the drained ends")
+        for ax, y in zip(axes[i], ("q/p", "e", "e")):
+            ax.set_ylabel(f"{dim}D {y}")
+            ax.set_xlabel("p" if ax is axes[i, 2] else "eps1")
+        axes[i, 0].legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(RESULTS / "critical_state.png", dpi=90)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
