@@ -26,7 +26,9 @@ Kinematics of a 3D cell (``KINEMATICS``): ``"projected"`` drives each axis by th
 above; ``"axisymmetric"`` (``hcell3d-axisym``, docs/model.md section 14) drives the cell by its
 axisymmetric part lat = (d_eps_t1 + d_eps_t2) / 2 only: d_eps_n' = d_eps_n - c, d_eps_t1' =
 d_eps_t2' = lat - c with c = (d_eps_n - lat) / 6 (``AXISYMMETRIC_MAP``), so that each plane (n, t1),
-(n, t2) keeps the cell's axisymmetric deviator and takes two thirds of its volumetric strain.
+(n, t2) keeps the cell's axisymmetric deviator and takes two thirds of its volumetric strain;
+``"amplified"`` (``hcell3d-sand``, docs/triaxial.md) is the same with that deviator multiplied by the gain
+g = 2 (``axisymmetric_map``; ``hcell.KINEMATICS_GAIN``).
 
 Macro tensors are given by their Voigt components (``Dimension.components``: (11, 22, 12) or
 (11, 22, 33, 23, 13, 12); tensor, not engineering, shear strains). Sign convention: compression
@@ -42,7 +44,7 @@ from typing import Mapping
 import numpy as np
 
 from warp_hcell.core.dimension import Dimension, dimension
-from warp_hcell.mesostructures.hcell import AXISYMMETRIC_KINEMATICS
+from warp_hcell.mesostructures.hcell import AXISYMMETRIC_KINEMATICS, KINEMATICS_GAIN
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 VOLUME_RULE = (
@@ -63,11 +65,20 @@ step (module docstring) [-]."""
 LEBEDEV_ORDERS = (3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31, 35, 41, 47, 53, 59, 65, 71, 77, 83, 89, 95,
                   101, 107, 113, 119, 125, 131)
 """Lebedev orders accepted (``scipy.integrate.lebedev_rule``), degree of exactness on the sphere."""
-KINEMATICS = ("projected", "axisymmetric")
+KINEMATICS = ("projected", *KINEMATICS_GAIN)
 """Ways a macro increment drives the axes of a 3D cell (module docstring)."""
 AXISYMMETRIC_MAP = np.array([[5.0, 0.5, 0.5], [-1.0, 3.5, 3.5], [-1.0, 3.5, 3.5]]) / 6.0
 """(d_eps_n', d_eps_t1', d_eps_t2') = AXISYMMETRIC_MAP @ (d_eps_n, d_eps_t1, d_eps_t2) [-] of the axisymmetric
 kinematics (module docstring)."""
+
+
+def axisymmetric_map(gain: float) -> np.ndarray:
+    """The 3 x 3 map of the cell-axis strains (d_eps_n, d_eps_t1, d_eps_t2) [-] that drives a cell by its
+    axisymmetric part with the deviator multiplied by ``gain`` [-]: d_eps_n' = v/3 + g dev/2, d_eps_t1' =
+    d_eps_t2' = v/3 - g dev/2 with v = d_eps_n + d_eps_t1 + d_eps_t2 and dev = d_eps_n - (d_eps_t1 + d_eps_t2)/2.
+    ``gain`` 1 is ``AXISYMMETRIC_MAP`` (to rounding)."""
+    deviator = np.array([[0.5, -0.25, -0.25], [-0.5, 0.25, 0.25], [-0.5, 0.25, 0.25]])
+    return np.full((3, 3), 1.0 / 3.0) + float(gain) * deviator
 
 
 @dataclass(frozen=True, eq=False)
@@ -211,9 +222,13 @@ def orientations(n_orientations: int, *, anisotropy: float = 0.0, direction_deg:
 
 def kinematics_of(parameters: Mapping[str, float]) -> str:
     """The kinematics (``KINEMATICS``) that a 3D cell's ``parameters`` declare (a mesostructure's, or the
-    ``cell_parameters`` a certificate recorded): "axisymmetric" where ``hcell.AXISYMMETRIC_KINEMATICS``
-    is nonzero (``hcell3d-axisym``), else "projected"."""
-    return "axisymmetric" if parameters.get(AXISYMMETRIC_KINEMATICS, 0.0) else "projected"
+    ``cell_parameters`` a certificate recorded): "amplified" where ``hcell.AXISYMMETRIC_KINEMATICS`` is its
+    gain (``hcell3d-sand``), "axisymmetric" where it is another nonzero value (``hcell3d-axisym``), else
+    "projected"."""
+    gain = parameters.get(AXISYMMETRIC_KINEMATICS, 0.0)
+    if not gain:
+        return "projected"
+    return "amplified" if gain == KINEMATICS_GAIN["amplified"] else "axisymmetric"
 
 
 def cell_kinematics(mesostructure: Mesostructure) -> str:
@@ -263,7 +278,7 @@ def orientations_3d(order: int = 11, n_spins: int = 4, *, spin_period_deg: float
         spin_period_deg: period of the cell's spin symmetry [deg], in (0, 360].
         staggered: stagger the spins from axis to axis (``SPIN_STAGGER``); False: every axis has
             the spins psi_j = j * spin_period / n_spins.
-        kinematics: "projected" or "axisymmetric" (``KINEMATICS``, module docstring).
+        kinematics: "projected", "axisymmetric" or "amplified" (``KINEMATICS``, module docstring).
     """
     n_spins = int(n_spins)
     if n_spins < 1:
@@ -283,9 +298,10 @@ def orientations_3d(order: int = 11, n_spins: int = 4, *, spin_period_deg: float
     t2 = -s * t1_ref[:, None, :] + c * t2_ref[:, None, :]
     frames = np.stack([n, t1, t2], axis=-1).reshape(-1, 3, 3)
     arrays = _matrices(frames, np.repeat(axis_weights / n_spins, n_spins), dimension(3))
-    if kinematics == "axisymmetric":
+    if kinematics != "projected":
         count = frames.shape[0]
-        arrays["localisation"] = np.einsum("ab,kbm->kam", AXISYMMETRIC_MAP,
+        mapping = AXISYMMETRIC_MAP if kinematics == "axisymmetric" else axisymmetric_map(KINEMATICS_GAIN[kinematics])
+        arrays["localisation"] = np.einsum("ab,kbm->kam", mapping,
                                            arrays["localisation"].reshape(count, 3, 6)).reshape(3 * count, 6)
     return Orientations3D(**_read_only(arrays), order=int(order), n_spins=n_spins,
                           spin_period_deg=float(spin_period_deg), staggered=bool(staggered), kinematics=kinematics)

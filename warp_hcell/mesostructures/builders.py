@@ -5,6 +5,7 @@ file (TOML/JSON, ``warp_hcell.mesostructures.files.load_mesostructure``) or by a
 
     SPEC   := KIND [":" KEY "=" VALUE ("," KEY "=" VALUE)*]
     KIND   := "hcell" | "hcell-unequal" | "hcell-fines" | "hcell3d" | "hcell3d-fines" | "hcell3d-axisym"
+             | "hcell3d-sand"
 
 Keys (all optional unless marked):
 
@@ -21,7 +22,8 @@ Keys (all optional unless marked):
 
 Examples: ``hcell``, ``hcell-unequal:alpha0=55,lateral=0.7``, ``hcell-fines:ratio=0.3/0.3,n=0.4/-0.4``,
 ``hcell3d:alpha0=55``, ``hcell3d-fines:ratio=0.5,n=0.1``, ``hcell3d-axisym:alpha0=54`` (driven by
-the axisymmetric part of the strain; docs/model.md section 14). Anything that is not a spec is a
+the axisymmetric part of the strain; docs/model.md section 14), ``hcell3d-sand:alpha0=54`` (the
+same with the cell's deviator doubled, kinematics "amplified"; docs/triaxial.md). Anything that is not a spec is a
 file path (``./hcell`` for a file of that name). In a comma list (the sweep), a piece
 ``KEY=VALUE`` without ``:`` continues the spec before it (``split_mesostructure_list``).
 
@@ -46,7 +48,7 @@ from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.mesostructures.hcell import build_h_cell, build_h_cell_3d
 from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, Mesostructure, MesostructureError
 
-KINDS = ("hcell", "hcell-unequal", "hcell-fines", "hcell3d", "hcell3d-fines", "hcell3d-axisym")
+KINDS = ("hcell", "hcell-unequal", "hcell-fines", "hcell3d", "hcell3d-fines", "hcell3d-axisym", "hcell3d-sand")
 """Builder names accepted as the KIND of a spec."""
 KEYS = {
     "hcell": ("alpha0", "radius", "lateral"),
@@ -55,11 +57,14 @@ KEYS = {
     "hcell3d": ("alpha0", "radius", "lateral", "plane"),
     "hcell3d-fines": ("alpha0", "radius", "lateral", "plane", "ratio", "n", "t1", "t2"),
     "hcell3d-axisym": ("alpha0", "radius", "lateral", "plane"),
+    "hcell3d-sand": ("alpha0", "radius", "lateral", "plane"),
 }
 """Keys each kind accepts."""
 REQUIRED = {"hcell": (), "hcell-unequal": ("lateral",), "hcell-fines": ("ratio",), "hcell3d": (),
-            "hcell3d-fines": ("ratio",), "hcell3d-axisym": ()}
+            "hcell3d-fines": ("ratio",), "hcell3d-axisym": (), "hcell3d-sand": ()}
 """Keys each kind needs."""
+KIND_KINEMATICS = {"hcell3d-axisym": "axisymmetric", "hcell3d-sand": "amplified"}
+"""Kinematics of the 3D kinds not driven by the projected strains (``hcell.KINEMATICS_GAIN``)."""
 LIST_KEYS = ("ratio", "n", "t", "t1", "t2")
 """Keys whose value is a "/"-separated list (one value per fine grain)."""
 @dataclass(frozen=True)
@@ -113,7 +118,7 @@ class MesostructureSource:
         if spatial:
             return build_h_cell_3d(float(alpha0), **size, plane_angle_deg=float(opts.get("plane", 90.0)),  # type: ignore[arg-type]
                                    fines=fines, fine_offsets=offsets, name=self.text,
-                                   axisymmetric=self.kind == "hcell3d-axisym")
+                                   kinematics=KIND_KINEMATICS.get(self.kind, "projected"))
         return build_h_cell(float(alpha0), **size, fines=fines, fine_offsets=offsets, name=self.text)
 
     def __str__(self) -> str:

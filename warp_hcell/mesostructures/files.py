@@ -70,20 +70,22 @@ FILE_KEYS = ("name", "cell_size", "outer", "pairs", *hcell.FILE_LABEL_KEYS, "gra
 """Keys of a mesostructure file (``hcell.FILE_LABEL_KEYS``: the H-cell labels read by ``hcell.file_labels``)."""
 GRAIN_KEYS = ("radius", "position", "driven")
 """Keys of one grain of a mesostructure file."""
-KINEMATICS = ("projected", "axisymmetric")
+KINEMATICS = ("projected", *hcell.KINEMATICS_GAIN)
 """Values of the ``kinematics`` key of a 3D cell's file or description: how the macro strain drives the
-cell (homogenization.material.orientation); "axisymmetric" sets the parameter ``hcell.AXISYMMETRIC_KINEMATICS``."""
+cell (homogenization.material.orientation); "axisymmetric" and "amplified" set the parameter
+``hcell.AXISYMMETRIC_KINEMATICS`` to their ``hcell.KINEMATICS_GAIN``."""
 
 
 def _with_kinematics(meso: Mesostructure, kinematics: Any, where: str) -> Mesostructure:
     """``meso`` with the parameter of the ``kinematics`` read from a file or description ``where``."""
     if kinematics is None or kinematics == "projected":
         return meso
-    if kinematics != "axisymmetric":
+    if kinematics not in hcell.KINEMATICS_GAIN:
         raise MesostructureError(f"{where}: kinematics = {kinematics!r} is not one of {', '.join(KINEMATICS)}")
     if meso.dim != 3:
-        raise MesostructureError(f"{where}: kinematics = 'axisymmetric' needs a 3D cell")
-    return replace(meso, parameters={**meso.parameters, hcell.AXISYMMETRIC_KINEMATICS: 1.0})
+        raise MesostructureError(f"{where}: kinematics = {kinematics!r} needs a 3D cell")
+    return replace(meso, parameters={**meso.parameters,
+                                     hcell.AXISYMMETRIC_KINEMATICS: hcell.KINEMATICS_GAIN[kinematics]})
 
 
 def unknown_key_message(key: str, where: str, path: str | Path, expected: tuple[str, ...]) -> str:
@@ -157,8 +159,9 @@ def describe(meso: Mesostructure) -> str:
                             "contact_tolerance": float(meso.contact_tolerance)}
     for key, name in DESCRIPTION_FIELDS.items():
         data[key] = np.asarray(getattr(meso, name)).tolist()
-    if meso.parameters.get(hcell.AXISYMMETRIC_KINEMATICS, 0.0):
-        data["kinematics"] = "axisymmetric"  # only then: descriptions of other cells keep their text
+    gain = meso.parameters.get(hcell.AXISYMMETRIC_KINEMATICS, 0.0)
+    if gain:  # only then: descriptions of other cells keep their text
+        data["kinematics"] = "amplified" if gain == hcell.KINEMATICS_GAIN["amplified"] else "axisymmetric"
     return json.dumps(data, sort_keys=True, separators=(",", ":"))
 
 

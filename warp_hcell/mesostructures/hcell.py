@@ -571,7 +571,11 @@ H3_GRAINS = 10
 AXISYMMETRIC_KINEMATICS = "axisymmetric_kinematics"
 """Parameter of a 3D cell (``Mesostructure.parameters``): nonzero where the macro strain drives the cell by
 its axisymmetric part (``homogenization.material.orientation``, kinematics "axisymmetric"; the kind
-``hcell3d-axisym``)."""
+``hcell3d-axisym``); its value is the gain on the cell's deviator (``KINEMATICS_GAIN``)."""
+KINEMATICS_GAIN = {"axisymmetric": 1.0, "amplified": 2.0}
+"""Value of ``AXISYMMETRIC_KINEMATICS`` for each kinematics driven by the axisymmetric part of the strain: the
+gain g [-] on the cell's axisymmetric deviator (``homogenization.material.orientation.axisymmetric_map``); the
+kind ``hcell3d-axisym`` has 1, ``hcell3d-sand`` 2."""
 _TOP_RING = (5, 9, 1, 6)
 """Lateral grains (0-based) at n > 0 in the order of their azimuth about n: 6, 10, 2, 7."""
 _BOTTOM_RING = (4, 8, 2, 7)
@@ -616,7 +620,8 @@ def h_cell_3d_skeleton(alpha0_deg: float, radius: float, lateral: float = 1.0,
 def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: float = CellDefaults.radius,
                     lateral: float = 1.0, plane_angle_deg: float = 90.0, fines: tuple[float, ...] = (),
                     fine_offsets: tuple[tuple[float, float, float], ...] | None = None,
-                    name: str | None = None, axisymmetric: bool = False) -> Mesostructure:
+                    name: str | None = None, axisymmetric: bool = False,
+                    kinematics: str | None = None) -> Mesostructure:
     """Ten-sphere H-cell (docs/model.md section 14) with free fine grains in the pore.
 
     Args:
@@ -630,6 +635,8 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
         name: mesostructure name (default: describes the parameters).
         axisymmetric: driven by the axisymmetric part of the strain (kind ``hcell3d-axisym``);
             False: projected kinematics.
+        kinematics: a key of ``KINEMATICS_GAIN`` ("amplified": kind ``hcell3d-sand``), overriding
+            ``axisymmetric``; None: as ``axisymmetric`` says.
 
     Returns:
         The cell: grains 1, 4 driven, lateral grains driven along t1, t2 only, fine grains free;
@@ -638,6 +645,11 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
     Raises:
         MesostructureError: bad parameter, a fine grain outside the pore or overlapping grains."""
     label = name or "3D " + _default_name(alpha0_deg, lateral, fines)
+    if kinematics is None:
+        kinematics = "axisymmetric" if axisymmetric else "projected"
+    if kinematics != "projected" and kinematics not in KINEMATICS_GAIN:
+        raise MesostructureError(f"mesostructure {label!r}: kinematics {kinematics!r} is not one of projected, "
+                                 f"{', '.join(KINEMATICS_GAIN)}")
     for key, value in (("radius", radius), ("lateral", lateral)):
         if not (math.isfinite(value) and value > 0.0):
             raise MesostructureError(f"mesostructure {label!r}: {key} = {value:g} must be finite and > 0")
@@ -673,7 +685,8 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
                          pairs=np.array(pairs, dtype=np.int64), outer=faces, cell_size=cell_size,
                          pair_label=_labels(label, pairs, H3_TYPE1_PAIRS, H3_TYPE2_PAIRS),
                          parameters={"alpha0_deg": float(alpha0_deg),
-                                     **({AXISYMMETRIC_KINEMATICS: 1.0} if axisymmetric else {})})
+                                     **({AXISYMMETRIC_KINEMATICS: KINEMATICS_GAIN[kinematics]}
+                                        if kinematics != "projected" else {})})
 
 
 def plain_h_cell(dim: int, alpha0_deg: float = CellDefaults.alpha0_deg,
