@@ -177,7 +177,8 @@ def test_hmodel_train_enriches_a_copy_where_the_database_is_not_writable(tmp_pat
     assert f"adds its samples to {copy} (a copy of {db}: --enrich-copy)" in printed
     assert file_sha256(db) == sha and _source_counts(copy)[1:] == [1000]  # --max-samples caps the round
     meta = json.loads(model.with_suffix(".json").read_text())
-    assert Path(meta["training_data"]["path"]) == copy and meta["training_data"]["sha256"] == file_sha256(copy)
+    trained_on = copy if meta["active_learning"][-1]["accepted"] else db  # a rejected round keeps round 0's model
+    assert Path(meta["training_data"]["path"]) == trained_on and meta["training_data"]["sha256"] == file_sha256(trained_on)
     (tmp_path / "d").mkdir()
     (tmp_path / "d" / "m_db.h5").write_text("keep")
     assert hmodel.main([*argv[:4], str(tmp_path / "d" / "m.pt"), *argv[5:]]) == 2  # never replaces an output
@@ -239,8 +240,9 @@ def test_rounds_record_their_network_and_a_round_that_gains_little_widens_the_ne
     assert [r.warm_start for r in rounds] == [None, True, False]
     assert "(training 40x40, " in capsys.readouterr().out
     meta = json.loads(model.with_suffix(".json").read_text())
-    assert meta["architecture"]["hidden"] == list(active.WIDTH_LADDER[0])
-    assert "hidden widths [16], not [40, 40]" in meta["history"]["warm_start"]["reason"]
+    assert meta["architecture"]["hidden"] == active.kept_round(rounds).hidden  # the model kept is the best round's
+    if rounds[-1].accepted:
+        assert "hidden widths [16], not [40, 40]" in meta["history"]["warm_start"]["reason"]
     with h5py.File(db) as f:
         assert [r["hidden"] for r in json.loads(f.attrs["active_learning"])] == [[16], list(active.WIDTH_LADDER[0])]
 

@@ -3,6 +3,7 @@ taken (from the ANN's point of departure on, a test the ANN cannot follow includ
 stop for want of progress (one line saying which test, which rounds, what they tried), and the
 database's size budget (a round adds only what fits; none once it is spent)."""
 
+import dataclasses
 import json
 import math
 import re
@@ -18,6 +19,7 @@ from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from test_homogenization_active import SHORT, TRAIN_CONFIG, tiny  # noqa: F401 (tiny: the fixture)
 from training import train as training_train
 from warp_hcell.core.parameters import DatabaseSettings
+from warp_hcell.core.provenance import file_sha256
 from warp_hcell.database import generate
 from warp_hcell.database import format as database
 from warp_hcell.database.format import CHUNK_BYTES, sizes
@@ -186,7 +188,8 @@ def test_the_database_budget_caps_a_round_and_then_stops_the_rounds(tiny, capsys
     assert 3 <= len(rounds) <= 5 and 1000 <= added[0] <= 2000 / active.BUDGET_MARGIN and capped[0] > 0
     assert all(a + c == 3000 for a, c in zip(added, capped))
     assert f"{capped[0]} more did not fit the database budget" in printed
-    assert printed.strip().splitlines()[-1].startswith("active learning stops: the database budget is spent (")
+    assert printed.strip().splitlines()[-2].startswith("active learning stops: the database budget is spent (")
+    assert printed.strip().splitlines()[-1].startswith(f"round rule: {len(rounds) - 1} round(s) trained")
     on_disk, raw = sizes(db)
     assert rounds[-1].database_mb == on_disk / 1e6 and rounds[-1].database_raw_mb == raw / 1e6
     assert on_disk <= 1e6 * budget
@@ -217,3 +220,45 @@ def test_bad_budget_settings_are_refused():
         with pytest.raises(ValueError):
             ActiveSettings(**bad)
 
+
+
+def test_the_round_rule_keeps_the_better_model():
+    assert active.better(_entry(1, 0.05), _entry(0, 0.1)) and not active.better(_entry(1, 0.1), _entry(0, 0.1))
+    assert not active.better(_entry(1, 0.2), _entry(0, 0.1))  # worse: rejected
+    assert active.better(_entry(1, 0.5), _entry(0, math.inf, ["x"]))  # follows every test
+    assert not active.better(_entry(1, math.inf, ["x"], 0.3), _entry(0, math.inf, ["x"], 0.3))
+    rounds = [dataclasses.replace(_entry(k, worst), accepted=accepted)
+              for k, (worst, accepted) in enumerate(((0.1, True), (0.05, True), (0.2, False), (0.06, False)))]
+    assert active.kept_round(rounds).round == 1 and active.restarts(rounds) == 2
+    assert active.rules_line(rounds).startswith("round rule: 3 round(s) trained, 1 accepted, 2 rejected (")
+    assert "1 restarted with another training seed; kept: round 1 (worst 5.000 %)" in active.rules_line(rounds)
+
+
+def test_a_round_that_makes_the_model_worse_is_rejected_and_the_kept_worst_never_rises(tiny, monkeypatch,  # noqa: F811
+                                                                                        capsys):
+    """The reduced pipeline end to end (48-sample database, 30 epochs, 6 orientations, one pressure):
+    round 2's training is cut to one epoch, so its model is worse; the rule rejects it, keeps round
+    1's model file and certificate, and round 3 restarts its training with the next seed."""
+    db, model = tiny
+    real = active.train_model
+
+    def one_epoch_in_round_2(db_, model_, config, rounds):
+        return real(db_, model_, dataclasses.replace(config, epochs=1) if len(rounds) == 2 else config, rounds)
+
+    monkeypatch.setattr(active, "train_model", one_epoch_in_round_2)
+    rounds, cert = active.learn(db, model, TRAIN_CONFIG, settings=ActiveSettings(rounds=3, samples_per_round=3000,
+                                                                                stall_rounds=3, widen=False),
+                                certify_settings=CertificateSettings(**SHORT, target=1e-9))
+    printed = capsys.readouterr().out
+    assert [r.round for r in rounds] == [0, 1, 2, 3] and rounds[1].accepted  # 6092 % -> 0.73 %
+    assert rounds[2].worst > rounds[1].worst and rounds[2].accepted is False and rounds[2].epochs == 1
+    assert "REJECTED: no better than round 1" in printed
+    assert [r.train_seed for r in rounds] == [0, 0, 0, 1]  # round 3 restarts with the next seed
+    kept = [active.kept_round(rounds[:k + 1]).worst for k in range(len(rounds))]
+    assert all(b <= a for a, b in zip(kept, kept[1:])) and cert.worst == kept[-1] == min(r.worst for r in rounds)
+    meta = json.loads(model.with_suffix(".json").read_text())  # the model on disk is the kept one
+    assert meta["certificate"]["model_sha256"] == cert.model_sha256 == file_sha256(model)
+    assert meta["certificate"]["worst"] == cert.worst and meta["history"]["epochs_run"] > 1
+    assert not active.candidate_path(model).exists()
+    assert printed.strip().splitlines()[-1].startswith(
+        f"round rule: 3 round(s) trained, {3 - active.restarts(rounds)} accepted, {active.restarts(rounds)} rejected")

@@ -45,8 +45,9 @@ from warp_hcell.core.files import atomic_write, output_lock
 
 ENRICHED_SUFFIX = "_db.h5"
 """Name ending of the enriched copy of the database beside the model (``enriched_path``)."""
-ROUND_SET = ("hidden", "init_from")
-"""Training options that the active-learning rounds set themselves (wider network, warm start)."""
+ROUND_SET = ("hidden", "init_from", "seed")
+"""Training options that the active-learning rounds set themselves (wider network, warm start, the
+seed of a round that restarts after a rejected one)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -79,7 +80,7 @@ def _continues(args: argparse.Namespace, database: Path):
     """The card (``training.card.ModelCard``) of ``args.out`` where it is the model of an earlier run
     of this command with these options: its JSON records active-learning rounds (none yet, too),
     training data --data or ``database``, and the training configuration of ``args``, but for what
-    the rounds set (``ROUND_SET``: the hidden widths are those of its round 0); None otherwise."""
+    the rounds set (``ROUND_SET``: the hidden widths and training seed are those of its round 0); None otherwise."""
     from training.card import read_card  # noqa: PLC0415 (torch: only when the command runs)
     from training.checkpoint import metadata_path  # noqa: PLC0415
 
@@ -92,7 +93,10 @@ def _continues(args: argparse.Namespace, database: Path):
         return None
     first_hidden = rounds[0]["hidden"] if rounds and "hidden" in rounds[0] else card.config["hidden"]
     ours = training_config.config_record(training_config.config_of(args))
-    same = first_hidden == ours["hidden"] and all(card.config.get(k) == v for k, v in ours.items() if k not in ROUND_SET)
+    first_seed = rounds[0].get("train_seed") if rounds else None
+    first_seed = card.config.get("seed") if first_seed is None else first_seed
+    same = first_hidden == ours["hidden"] and first_seed == ours["seed"] and all(
+        card.config.get(k) == v for k, v in ours.items() if k not in ROUND_SET)
     return card if same else None
 
 

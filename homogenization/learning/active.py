@@ -12,10 +12,14 @@ and the root attr ``active_learning`` lists the rounds. Each (test, orientation)
 path of its own (new ``path_id``), so training's split by path keeps a test's states together.
 
 The loop (``learn``): train (``training.train.train_and_save`` with a ``TrainConfig``; from
-random weights, or with ``ActiveSettings.warm_start`` from the previous round's,
+random weights, or with ``ActiveSettings.warm_start`` from the kept model's,
 ``TrainConfig.init_from``), certify, and while the
 certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds, the database's
-size ``max_database_mb``) is not spent, add a round and retrain (a certificate within its target
+size ``max_database_mb``) is not spent, add a round and train a candidate beside the model. The
+round rule: the candidate replaces the kept model only where its certificate is ``better``
+(never worse: the kept worst never rises); a rejected round's samples stay in the database, and
+the next round probes the kept model's failing tests again and restarts its training with the
+next seed (``restarts``); ``rules_line`` counts what the rule did (a certificate within its target
 but below the minimum certificate, ``homogenization.ann.envelope.MINIMUM``, is not passed, and no
 round can mend it: the loop stops). A round probes the states of the failing tests (a test the
 ANN could not follow, worst = inf, included; with ``departure_margin`` < 1 only those from where
@@ -35,6 +39,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -322,20 +327,145 @@ def round_entry(k: int, db: Path, card: ModelCard, cert: Certificate, seconds: f
                  database_mb=file_bytes / 1e6, database_raw_mb=raw_bytes / 1e6, **training_record(card))
 
 
+def better(new: Round, kept: Round) -> bool:
+    """Whether round ``new``'s certificate beats that of the model kept (``kept``), the rule that
+    accepts a round: fewer tests the ANN cannot follow; or as many (some), followed further; or
+    every test followed and a lower worst. A tie is no gain (the kept model stays)."""
+    (n_new, f_new, w_new), (n_kept, f_kept, w_kept) = progress(new), progress(kept)
+    if n_new != n_kept:
+        return n_new < n_kept
+    return f_new > f_kept if n_new else w_new < w_kept
+
+
+def kept_round(rounds: Sequence[Round]) -> Round:
+    """The round whose model the loop keeps: the last one not rejected (round 0, the model as
+    given, is kept; a record without ``accepted`` reads as accepted)."""
+    return [r for r in rounds if r.accepted is not False][-1]
+
+
+def restarts(rounds: Sequence[Round]) -> int:
+    """Rejected rounds so far [-]: each makes the next round restart its training with another seed."""
+    return sum(r.accepted is False for r in rounds)
+
+
+def rules_line(rounds: Sequence[Round]) -> str:
+    """One line: how often the round rule fired (rounds run, accepted, rejected, restarts) and the round kept."""
+    run = rounds[1:]
+    restarted = sum(before.accepted is False for before in rounds[:-1])
+    kept = kept_round(rounds)
+    return (f"round rule: {len(run)} round(s) trained, {len(run) - restarts(run)} accepted, "
+            f"{restarts(run)} rejected (no better than the model kept), {restarted} restarted with another "
+            f"training seed; kept: round {kept.round} ({_figure(kept)})")
+
+
+def candidate_path(model: Path) -> Path:
+    """Where a round trains its model before it is judged (``<stem>_candidate.pt`` beside ``model``)."""
+    model = Path(model)
+    return model.with_name(f"{model.stem}_candidate{model.suffix}")
+
+
+def model_files(model: Path) -> list[Path]:
+    """The files ``training.train.train_and_save`` writes for ``model``: the weights, the JSON,
+    the learning curve and the out-of-distribution index."""
+    model = Path(model)
+    return [model, model.with_suffix(".json"), model.with_name(f"{model.stem}_learning_curve.png"),
+            model.with_name(f"{model.stem}_ood.npz")]
+
+
+def _promote(candidate: Path, model: Path) -> None:
+    """Move the files of ``candidate`` onto those of ``model`` (each an atomic rename; the JSON last)."""
+    pairs = list(zip(model_files(candidate), model_files(model)))
+    for source, target in pairs[2:] + pairs[:1] + pairs[1:2]:
+        if source.exists():
+            os.replace(source, target)
+
+
+def _discard(candidate: Path) -> None:
+    for path in model_files(candidate):
+        path.unlink(missing_ok=True)
+
+
+@dataclasses.dataclass
+class _Loop:
+    """The state of ``learn`` between rounds: the kept model's card and certificate, the latest
+    certificate and its DEM states (the DEM's states do not depend on the model) and the rounds."""
+
+    card: ModelCard
+    cert: Certificate
+    states: dict[str, dict[str, np.ndarray]]
+    rounds: list[Round]
+    latest: Certificate
+
+
+def _judge(k: int, db: Path, model: Path, config: TrainConfig, settings: ActiveSettings,
+           measured: CertificateSettings, threads: int, loop: _Loop, t0: float, stored_entry: Mapping[str, Any],
+           log: Callable[..., None]) -> None:
+    """Round ``k`` after its samples were appended (``stored_entry``): train a candidate (a new
+    seed after each rejected round, ``restarts``), certify it, keep it where it is ``better`` than
+    the kept model, else discard it; record and log the round."""
+    widths = tuple(stored_entry.get("hidden") or loop.card.architecture["hidden"])
+    seed = config.seed + restarts(loop.rounds)
+    candidate = candidate_path(model)
+    cfg = dataclasses.replace(round_config(config, model, settings, widths), seed=seed)
+    card = train_model(db, candidate, cfg, loop.rounds)
+    cert, loop.states = _certify(candidate, card, measured, settings, threads)
+    loop.latest = cert
+    capped = stored_entry.get("samples_capped")
+    entry = round_entry(k, db, card, cert, time.perf_counter() - t0, samples_added=int(stored_entry["samples"]),
+                        samples_capped=capped, tests=stored_entry.get("tests"),
+                        departures=stored_entry.get("departures"), train_seed=seed)
+    kept = kept_round(loop.rounds)
+    entry = dataclasses.replace(entry, accepted=better(entry, kept))
+    loop.rounds.append(entry)
+    if entry.accepted:
+        _promote(candidate, model)
+        loop.card, loop.cert = card, cert
+        log(round_line(entry) + ", ACCEPTED")
+    else:
+        _discard(candidate)
+        log(round_line(entry) + f", REJECTED: no better than round {kept.round} ({_figure(kept)}), whose model "
+            f"stays; the next round restarts its training with seed {config.seed + restarts(loop.rounds)}")
+    loop.card = _record(model, loop.card, loop.rounds, loop.cert)
+
+
+def _done(cert: Certificate | None, model: Path, db: Path, measured: CertificateSettings, settings: ActiveSettings,
+          rounds: Sequence[Round], stored: Sequence[Mapping[str, Any]], dim: int) -> bool:
+    """Whether a run recorded in the model's JSON already finished (nothing left to do on resume)."""
+    return (_current(cert, model, measured, dim) and bool(rounds) and rounds[-1].round == len(stored)
+            and (verdict(cert) != "failed" or len(stored) >= settings.rounds
+                 or sum(r["samples"] for r in stored) >= settings.max_samples or stalled(rounds, settings)
+                 or unresolvable_line(cert) is not None
+                 or budget_room(db, settings.max_database_mb)[0] < min(settings.samples_per_round, MIN_ROUND_SAMPLES)))
+
+
+def _stop_line(k: int, loop: _Loop, db: Path, settings: ActiveSettings, added_total: int, elapsed: float
+               ) -> str | None:
+    """Why round ``k`` does not start (one line), or None: budget spent, rounds stalled, or no round can help."""
+    asked = min(settings.samples_per_round, settings.max_samples - added_total)
+    if k > settings.rounds or asked <= 0 or elapsed > settings.max_seconds:
+        return (f"active learning stops: budget spent (rounds {k - 1}/{settings.rounds}, samples "
+                f"{added_total}/{settings.max_samples}, {elapsed:.0f}/{settings.max_seconds:g} s)")
+    if stalled(loop.rounds, settings):
+        return stall_line(loop.rounds, loop.latest, db, settings.departure_margin)
+    return unresolvable_line(loop.cert)
+
+
 def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
           certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
           card: ModelCard | None = None, log: Callable[..., None] = print) -> tuple[list[Round], Certificate]:
     """Certify ``model`` (trained on ``db``) and run active rounds until it passes, or the budget
     is spent, or rounds stall (``stall_line``), or every failing test misses the DEM by no more
-    than the DEM from rest does (``unresolvable_line``). A round probes the DEM states of the
-    failing tests (``failing_states``), adds what fits the database's budget (``budget_room``)
-    and retrains. Returns the rounds (round 0: the model as given) and the last certificate,
-    both also stored in the model's JSON.
+    than the DEM from rest does (``unresolvable_line``). A round probes the DEM states of the kept
+    model's failing tests (``failing_states``), adds what fits the database's budget
+    (``budget_room``) and trains a candidate (``_judge``); the candidate replaces the kept model
+    only where its certificate is ``better``, so the kept worst never rises. Returns the rounds
+    (round 0: the model as given; ``rules_line`` counts them) and the kept model's certificate,
+    both also stored in the model's JSON; ``model`` is the kept model.
 
     Args:
         db: the model's database; the rounds append to it (``append_samples``).
-        model: the ``.pt`` (its JSON beside it), retrained in place each round.
-        config: the training settings; each round sets its widths and start (``round_config``).
+        model: the ``.pt`` (its JSON beside it), replaced by each accepted round's model.
+        config: the training settings; each round sets its widths, start and seed.
         certify_settings: what each round's certificate measures.
         seed: seed of the rounds' probes.
         threads: DEM and ANN threads.
@@ -347,46 +477,38 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
     stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
     stored_cert, rounds = learning_of(card)
     rounds = [r for r in rounds if r.round <= len(stored)]
-    added_total = sum(r["samples"] for r in stored)
     dim = from_description(card.mesostructure).dim
-    if card.training_data["sha256"] != file_sha256(db):  # appended, not yet retrained
+    if not rounds and card.training_data["sha256"] != file_sha256(db):  # not trained on this database
         widths = tuple((stored[-1].get("hidden") if stored else None) or card.architecture["hidden"])
         card = train_model(db, model, round_config(config, model, settings, widths), rounds)
-    elif _current(stored_cert, model, certify_settings, dim) and rounds and rounds[-1].round == len(stored) and (
-            verdict(stored_cert) != "failed" or len(stored) >= settings.rounds
-            or added_total >= settings.max_samples or stalled(rounds, settings)
-            or unresolvable_line(stored_cert) is not None
-            or budget_room(db, settings.max_database_mb)[0] < min(settings.samples_per_round, MIN_ROUND_SAMPLES)):
+    elif _done(stored_cert, model, db, certify_settings, settings, rounds, stored, dim):
         log(round_line(rounds[-1]) + " (done before)")
         return rounds, stored_cert
     t0 = time.perf_counter()
     cert, states = _certify(model, card, certify_settings, settings, threads)
-    if not rounds or rounds[-1].round != len(stored):
-        rounds.append(round_entry(len(stored), db, card, cert, time.perf_counter() - t0,
-                                  samples_added=stored[-1]["samples"] if stored else 0,
-                                  **({"tests": stored[-1].get("tests", [])} if stored else {})))
+    if not rounds:
+        rounds.append(dataclasses.replace(round_entry(
+            len(stored), db, card, cert, time.perf_counter() - t0, samples_added=stored[-1]["samples"] if stored else 0,
+            **({"tests": stored[-1].get("tests", [])} if stored else {})), accepted=True, train_seed=config.seed))
         log(round_line(rounds[-1]))
-    card = _record(model, card, rounds, cert)
+    loop = _Loop(_record(model, card, rounds, cert), cert, states, rounds, cert)
+    if rounds[-1].round < len(stored):  # appended before an interruption, not yet trained and judged
+        _judge(len(stored), db, model, config, settings, certify_settings, threads, loop, time.perf_counter(),
+               stored[-1], log)
     meso = from_description(str(_attrs(db)["mesostructure"]))
-    while cert.verdict == "failed":  # a weak certificate (below the minimum) is no matter of samples
+    added_total = sum(r["samples"] for r in stored)
+    while loop.cert.verdict == "failed":  # a weak certificate (below the minimum) is no matter of samples
         k = len(stored) + 1
-        asked = min(settings.samples_per_round, settings.max_samples - added_total)
-        if k > settings.rounds or asked <= 0 or time.perf_counter() - start > settings.max_seconds:
-            log(f"active learning stops: budget spent (rounds {k - 1}/{settings.rounds}, samples "
-                f"{added_total}/{settings.max_samples}, {time.perf_counter() - start:.0f}/{settings.max_seconds:g} s)")
-            break
-        if stalled(rounds, settings):
-            log(stall_line(rounds, cert, db, settings.departure_margin))
-            break
-        unresolvable = unresolvable_line(cert)
-        if unresolvable is not None:
-            log(unresolvable)
+        stop = _stop_line(k, loop, db, settings, added_total, time.perf_counter() - start)
+        if stop is not None:
+            log(stop)
             break
         t0 = time.perf_counter()
-        picked, names = failing_states(cert, states, settings.departure_margin)
+        picked, names = failing_states(loop.cert, loop.states, settings.departure_margin)
         if not names:
             log("active learning stops: the failing tests left no DEM states (the DEM did not run them)")
             break
+        asked = min(settings.samples_per_round, settings.max_samples - added_total)
         room, per_sample = budget_room(db, settings.max_database_mb, sum(v.nbytes for v in picked.values()))
         n = min(asked, room)
         if n < min(asked, MIN_ROUND_SAMPLES):
@@ -394,23 +516,18 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
                 f"{settings.max_database_mb:g} MB at {per_sample / 1e3:.2f} kB per sample: {room} more samples fit, "
                 f"round {k} asks {asked})")
             break
-        attrs = _attrs(db)
-        samples = probe_states(meso, picked, n, round_seed(seed, k), attrs, threads)
-        widths = next_widths(rounds, card) if settings.widen else _architecture(card)[0]
-        departures = {t.name: [t.departure, t.n_increments] for t in cert.tests
+        samples = probe_states(meso, picked, n, round_seed(seed, k), _attrs(db), threads)
+        widths = next_widths(loop.rounds, loop.card) if settings.widen else _architecture(loop.card)[0]
+        departures = {t.name: [t.departure, t.n_increments] for t in loop.cert.tests
                       if t.name in names and t.departure is not None}
         entry = append_samples(db, samples, picked, {"tests": names, "seed": round_seed(seed, k),
                                                      "hidden": list(widths), "departures": departures,
                                                      "samples_capped": asked - n})
         stored.append(entry)
         added_total += entry["samples"]
-        card = train_model(db, model, round_config(config, model, settings, widths), rounds)
-        cert, states = _certify(model, card, certify_settings, settings, threads)
-        rounds.append(round_entry(k, db, card, cert, time.perf_counter() - t0, samples_added=entry["samples"],
-                                  samples_capped=asked - n, tests=names, departures=departures))
-        log(round_line(rounds[-1]))
-        card = _record(model, card, rounds, cert)
-    return rounds, cert
+        _judge(k, db, model, config, settings, certify_settings, threads, loop, t0, entry, log)
+    log(rules_line(loop.rounds))
+    return loop.rounds, loop.cert
 
 
 def round_config(config: TrainConfig, model: Path, settings: ActiveSettings, widths: Sequence[int]) -> TrainConfig:
