@@ -20,17 +20,18 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
-from training.dataset import SCHEMA_FIELDS, schema_from_arrays
-from training.network import ACTIVATION, MesoNet
+from training.fast_model import ACTIVATION
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.files import describe, description_sha256, from_description
 from warp_hcell.mesostructures.mesostructure import Mesostructure, shares_state_schema
+
+if TYPE_CHECKING:
+    from training.network import MesoNet
 
 FORMAT = "meso-hmodel-ann"
 """Value of the metadata key ``format``."""
@@ -56,6 +57,8 @@ def save_checkpoint(path: str | Path, net: MesoNet, metadata: dict[str, Any]) ->
     architecture and the normalisation statistics (copies of the buffers, for readers
     without torch). Returns the two paths written.
     """
+    import torch  # noqa: PLC0415 (torch only where a network is saved or rebuilt: compiled inference reads without it)
+
     path = Path(path)
     buffers = {name: getattr(net, name).tolist() for name in ("feature_mean", "feature_std", "rate_mean", "rate_std")}
     meta = {
@@ -102,6 +105,11 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
 def load_checkpoint(path: str | Path, metadata: dict[str, Any] | None = None) -> tuple[MesoNet, dict[str, Any]]:
     """Rebuild the network saved at ``path``; returns ``(net in eval mode, metadata)``. ``metadata``:
     its JSON as ``read_metadata`` gave it (None: read here)."""
+    import torch  # noqa: PLC0415 (as in save_checkpoint)
+
+    from training.dataset import SCHEMA_FIELDS, schema_from_arrays  # noqa: PLC0415
+    from training.network import MesoNet  # noqa: PLC0415
+
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path}: no such model file")

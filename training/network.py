@@ -40,13 +40,10 @@ from torch import nn
 from training import cell_physics
 from training.cell_physics import CellSchema
 from training.config import DEFAULT_HIDDEN
+from training.fast_model import ACTIVATION, COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP  # noqa: F401 (torch-free home)
 
 PAPER_HIDDEN: tuple[int, ...] = (8, 8, 8)
 """Hidden layer widths of the paper's network (spec section 11), measured for comparison."""
-ACTIVATION = "tanh"
-"""Hidden activation (the output layer is linear)."""
-GAP_CLIP = 0.05
-"""Gaps larger than this fraction of D look alike to the network [-]."""
 PAIR_FEATURES = ("overlap", "contact", "branch_n", "branch_t", "shear", "friction_ratio")
 """Features of each active pair of a planar cell."""
 PAIR_FEATURES_3D = ("overlap", "contact", "branch_n", "branch_t1", "branch_t2", "shear_n", "shear_t1", "shear_t2",
@@ -92,14 +89,6 @@ PAIRS = {2: PairFeatures(PAIR_FEATURES, _planar_pairs), 3: PairFeatures(PAIR_FEA
 def pair_features(dim: int) -> tuple[str, ...]:
     """Names of the features of each active pair of a cell of dimension ``dim``, in input order."""
     return PAIRS[dim].names
-
-
-COMPLIANCE_SCALE = 0.5
-"""Initial and reference compliance C [1/kn]: a free grain between two contacts."""
-RELAXATION_RAMP = 1e-7
-"""Probe magnitude [-] below which ``advance`` scales the relaxation term by ``|d_eps| / RELAXATION_RAMP``,
-so that a zero increment leaves a state unchanged (stress control brackets the increment
-from zero); 100 times below the smallest probe of the databases, so never active in a run."""
 
 
 def features(schema: CellSchema, active: torch.Tensor, cell_size: torch.Tensor, free_position: torch.Tensor,
