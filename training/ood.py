@@ -4,8 +4,9 @@ A cell state (cell size, free-DOF coordinates, tangential spring forces) is mapp
 network's own input features without the probe direction (``state_features``: the features of
 ``training.network.features_and_contacts`` after their first two columns, z-scored with the
 network's training statistics, so one unit is one standard deviation of that feature in the
-training data). ``OodIndex`` holds a subsample of database states in that space in a
-``scipy.spatial.cKDTree``; a state whose Euclidean distance to its nearest indexed state exceeds
+training data). ``OodIndex`` holds a subsample of database states in that space (nearest
+neighbours by brute force for a few distinct states, else a ``scipy.spatial.cKDTree`` built on
+first use); a state whose Euclidean distance to its nearest indexed state exceeds
 ``threshold`` is out of distribution.
 
 Threshold: the ``QUANTILE`` (99.9 %) quantile of the nearest-neighbour distances of held-out
@@ -34,19 +35,21 @@ from pathlib import Path
 import argparse
 import hashlib
 import sys
-from typing import Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
-import torch
-from scipy.spatial import cKDTree
 
-from training.dataset import STATE_FIELDS, Database
-from training.network import MesoNet
+if TYPE_CHECKING:
+    from training.dataset import Database
+    from training.network import MesoNet
 
 N_POINTS = 2000
 """Database states drawn into the index."""
 QUANTILE = 0.999
 """Quantile of the held-out states' nearest-neighbour distances that sets the threshold [-]."""
+BRUTE_FORCE_ROWS = 64
+"""Distinct rows up to which ``OodIndex.distance`` searches by brute force (no tree, no import: the
+first check of a run, all cells at one start state, is one row); more go through a k-d tree."""
 WARN_FRACTION = 0.05
 """Fraction of checked cell-increments beyond the threshold above which a run is warned [-]."""
 PROBE_COLUMNS = 2
@@ -54,8 +57,9 @@ PROBE_COLUMNS = 2
 (left out); a spatial cell has three (``probe_columns``)."""
 
 
-def probe_columns(net: MesoNet) -> int:
-    """Leading feature columns of ``net`` that describe the probe direction: one per local axis."""
+def probe_columns(net: Any) -> int:
+    """Leading feature columns of ``net`` (a ``MesoNet`` or ``training.fast_model.NetArrays``) that describe
+    the probe direction: one per local axis."""
     return net.schema.dim
 
 
@@ -69,11 +73,14 @@ def index_path(model: str | Path) -> Path:
     return model.with_name(f"{model.stem}_ood.npz")
 
 
-def normalisation_digest(net: MesoNet) -> str:
-    """sha256 of the network's feature normalisation (mean then std, float64 bytes)."""
+def normalisation_digest(net: Any) -> str:
+    """sha256 of the network's feature normalisation (mean then std, float64 bytes); ``net``: a ``MesoNet``
+    or ``training.fast_model.NetArrays``."""
     digest = hashlib.sha256()
     for name in ("feature_mean", "feature_std"):
-        digest.update(getattr(net, name).detach().cpu().numpy().astype(np.float64).tobytes())
+        values = getattr(net, name)
+        values = values.detach().cpu().numpy() if hasattr(values, "detach") else np.asarray(values)
+        digest.update(values.astype(np.float64).tobytes())
     return digest.hexdigest()
 
 
@@ -85,6 +92,8 @@ def state_features(net: MesoNet, cell_size: np.ndarray, free_position: np.ndarra
         cell_size: (n, dim) [m]; free_position: (n, n_free) [m]; shear_force: (n, n_pairs)
             (3D: (n, n_pairs, 3)) [N] (DEM convention), all in the network's schema order.
     """
+    import torch  # noqa: PLC0415 (the network's own features; a compiled run passes them instead)
+
     t = [torch.as_tensor(np.asarray(a, dtype=np.float64)) for a in (cell_size, free_position, shear_force)]
     device = net.feature_mean.device
     t = [a.to(device) for a in t]
@@ -97,6 +106,8 @@ def state_features(net: MesoNet, cell_size: np.ndarray, free_position: np.ndarra
 
 def database_features(net: MesoNet, db: Database, index: np.ndarray) -> np.ndarray:
     """``state_features`` of the states before the probes of samples ``index``."""
+    from training.dataset import STATE_FIELDS  # noqa: PLC0415
+
     return state_features(net, *(db.before[k][index] for k in STATE_FIELDS))
 
 
@@ -112,16 +123,44 @@ class OodIndex:
     normalisation_sha256: str
 
     def __post_init__(self) -> None:
-        self.tree = cKDTree(self.points)
+        self.points = np.ascontiguousarray(self.points, dtype=np.float64)
+        self._norm2 = np.einsum("ij,ij->i", self.points, self.points)
+        self._tree = None
+
+    def _exact(self, rows: np.ndarray, index: np.ndarray) -> np.ndarray:
+        """Euclidean distances (m, k) of ``rows`` (m, d) to the indexed points ``index`` (m, k), from differences."""
+        diff = rows[:, None, :] - self.points[index]
+        return np.sqrt(np.einsum("mkd,mkd->mk", diff, diff))
+
+    def _brute_force(self, query: np.ndarray) -> np.ndarray:
+        """Nearest distances of the rows of ``query``: the nearest point by |a|^2 - 2 a.b + |b|^2, its exact
+        distance, and exact distances to every point whose estimate is within the estimate's rounding bound."""
+        q2 = np.einsum("ij,ij->i", query, query)
+        estimate = q2[:, None] - 2.0 * (query @ self.points.T) + self._norm2[None, :]
+        best = self._exact(query, estimate.argmin(axis=1)[:, None])[:, 0]
+        bound = 1e-12 * query.shape[1] * (q2 + self._norm2.max())
+        close = estimate <= (best * best + 2.0 * bound)[:, None]
+        for i in np.flatnonzero(np.count_nonzero(close, axis=1) > 1):
+            best[i] = self._exact(query[i:i + 1], np.flatnonzero(close[i])[None, :]).min()
+        return best
 
     def distance(self, features: np.ndarray) -> np.ndarray:
         """Nearest-neighbour distance [z units] of each row of ``features`` (n, n_state_features), shape (n,).
 
-        Rows equal bit for bit are queried once (cells of one start state share their distance)."""
+        Rows equal bit for bit are queried once (cells of one start state share their distance): up to
+        ``BRUTE_FORCE_ROWS`` distinct rows by brute force (``_brute_force``; no import), more through a
+        ``scipy.spatial.cKDTree`` built on first use. Both are exact to rounding."""
         rows = np.ascontiguousarray(features, dtype=np.float64)
         keys = rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
         _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-        return self.tree.query(rows[first], k=1)[0][inverse.ravel()]
+        query = rows[first]
+        if query.shape[0] <= BRUTE_FORCE_ROWS:
+            return self._brute_force(query)[inverse.ravel()]
+        if self._tree is None:
+            from scipy.spatial import cKDTree  # noqa: PLC0415 (~0.5 s to import: only where many rows are queried)
+
+            self._tree = cKDTree(self.points)
+        return self._tree.query(query, k=1)[0][inverse.ravel()]
 
     def outside(self, features: np.ndarray) -> np.ndarray:
         """True where a state lies beyond ``threshold``, shape (n,) bool."""
@@ -157,8 +196,9 @@ def build_index(net: MesoNet, db: Database, indexed: np.ndarray, held_out: np.nd
     return index
 
 
-def load_index(path: str | Path, net: MesoNet) -> OodIndex:
-    """Read an index file written by ``OodIndex.save`` for ``net``; ``OodError`` (one line) if
+def load_index(path: str | Path, net: Any) -> OodIndex:
+    """Read an index file written by ``OodIndex.save`` for ``net`` (a ``MesoNet`` or
+    ``training.fast_model.NetArrays``); ``OodError`` (one line) if
     unreadable or built with another network's normalisation."""
     path = Path(path)
     keys = ("points", "threshold", "quantile", "n_database", "database_sha256", "n_features", "normalisation_sha256")
