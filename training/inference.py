@@ -35,19 +35,16 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 from __future__ import annotations
 
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Callable, NamedTuple
+from typing import Any, Callable, Iterator, NamedTuple
 
 import numpy as np
-import torch
 
 from training.fast_cells import Advanced, Before, CellTables, Normalisation, Physics
-from training.fast_equilibrium3d import correct3d, HALVINGS, SHIFT
-from training.fast_features import features
-from training.fast_increment import advance, free_displacement
-from training.fast_step3d import advance3d, features3d, physics3d
-from training.fast_tangent import moment_tangent, probe_feature_tangent
-from training.network import COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP, MesoNet
+from training.fast_increment import free_displacement
+from training.fast_tangent import probe_feature_tangent
+from training.fast_model import arrays_of_net, COMPLIANCE_SCALE, GAP_CLIP, NetArrays, RELAXATION_RAMP
 from training.perceptron import Perceptron
 from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import DemSettings
@@ -103,8 +100,43 @@ class Kernels:
     physics: Callable | None
 
 
-KERNELS = {2: Kernels(features, advance, moment_tangent, None, None),
-           3: Kernels(features3d, advance3d, None, correct3d, physics3d)}
+def _planar_kernels() -> Kernels:
+    from training.fast_features import features  # noqa: PLC0415 (each dimension's kernels imported on first use)
+    from training.fast_increment import advance  # noqa: PLC0415
+    from training.fast_tangent import moment_tangent  # noqa: PLC0415
+
+    return Kernels(features, advance, moment_tangent, None, None)
+
+
+def _spatial_kernels() -> Kernels:
+    from training.fast_equilibrium3d import correct3d  # noqa: PLC0415
+    from training.fast_step3d import advance3d, features3d, physics3d  # noqa: PLC0415
+
+    return Kernels(features3d, advance3d, None, correct3d, physics3d)
+
+
+class _KernelTable(Mapping):
+    """Dimension -> ``Kernels``, each dimension's modules imported the first time it is looked up
+    (a planar run does not import the spatial kernels, nor the reverse)."""
+
+    _loaders = {2: _planar_kernels, 3: _spatial_kernels}
+
+    def __init__(self) -> None:
+        self._loaded: dict[int, Kernels] = {}
+
+    def __getitem__(self, dim: int) -> Kernels:
+        if dim not in self._loaded:
+            self._loaded[dim] = self._loaders[dim]()
+        return self._loaded[dim]
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self._loaders)
+
+    def __len__(self) -> int:
+        return len(self._loaders)
+
+
+KERNELS = _KernelTable()
 """The compiled kernels of a cell by its dimension."""
 
 
@@ -164,21 +196,25 @@ class FastAdvance:
     ``with_tangent``).
 
     Args:
-        net: the trained network (schema, active pairs, normalisation and layers are copied).
+        net: the trained network, a ``training.network.MesoNet`` or its ``training.fast_model.NetArrays``
+            (read without torch); schema, active pairs, normalisation and layers are copied.
         corrections: the most exact Newton steps per cell-increment (spatial cells,
             ``fast_equilibrium3d.correct3d``; 0: the network alone); ``last_corrections`` counts them.
         tolerance: force ratio [-] below which a cell is not corrected (None: the DEM's).
         guess: first guess of the corrections: ``"network"``, ``"still"`` (free DOFs stay) or
             ``"affine"`` (they follow the cell's strain).
-        halvings: the most line-search halvings of a Newton step (0: full steps).
-        shift: the first shift of a climbing step's matrix, a fraction of kn (0: none)."""
+        halvings: the most line-search halvings of a Newton step (0: full steps; None:
+            ``training.fast_equilibrium3d.HALVINGS``).
+        shift: the first shift of a climbing step's matrix, a fraction of kn (0: none; None:
+            ``training.fast_equilibrium3d.SHIFT``)."""
 
     GUESSES = ("network", "still", "affine")
 
-    def __init__(self, net: MesoNet, corrections: int = 0, tolerance: float | None = None,
-                 guess: str = "network", halvings: int = HALVINGS, shift: float = SHIFT) -> None:
+    def __init__(self, net: NetArrays | Any, corrections: int = 0, tolerance: float | None = None,
+                 guess: str = "network", halvings: int | None = None, shift: float | None = None) -> None:
+        net = net if isinstance(net, NetArrays) else arrays_of_net(net)
         schema = net.schema
-        as_np = lambda t, dtype=np.float64: np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)  # noqa: E731
+        as_np = lambda a, dtype=np.float64: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
         frac = as_np(schema.driven_fraction)
         free_dofs = as_np(schema.free_dofs, np.int64)
         pairs = as_np(schema.pairs, np.int64)
@@ -193,8 +229,7 @@ class FastAdvance:
                            float(RELAXATION_RAMP))
         self.scaling = Normalisation(as_np(net.feature_mean), as_np(net.feature_std), as_np(net.rate_mean),
                                      as_np(net.rate_std))
-        self.perceptron = Perceptron([(as_np(layer.weight), as_np(layer.bias))
-                                      for layer in net.mlp if isinstance(layer, torch.nn.Linear)])
+        self.perceptron = Perceptron([(as_np(weight), as_np(bias)) for weight, bias in net.layers])
         self._local = threading.local()
         self.dim = int(frac.shape[1])
         self._springs = (pairs.shape[0], *dimension(self.dim).spring_shape)
@@ -212,6 +247,11 @@ class FastAdvance:
                              f"corrections only")
         self.corrections = int(corrections)
         self.guess = guess
+        if self.corrections and (halvings is None or shift is None):
+            from training.fast_equilibrium3d import HALVINGS, SHIFT  # noqa: PLC0415 (spatial kernels: imported on use)
+
+            halvings, shift = HALVINGS if halvings is None else halvings, SHIFT if shift is None else shift
+        halvings, shift = 0 if halvings is None else halvings, 0.0 if shift is None else shift  # unused without corrections
         if int(halvings) < 0:
             raise ValueError(f"halvings = {halvings} must be >= 0")
         self.halvings = int(halvings)

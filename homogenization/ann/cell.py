@@ -18,7 +18,9 @@ per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
 On CPU, ``step`` runs a cell's increment through ``training.inference.FastAdvance`` (the same
 physics compiled with numba around the network call; equal to the torch path up to rounding),
 and a planar cell's tangent by forward-mode differentiation in the same code; a spatial cell's
-tangent, and everything on another device, through the torch path and autograd.
+tangent, and everything on another device, through the torch path and autograd. The compiled
+path reads the model's weights without torch (``training.fast_model``); the torch network
+(``AnnCell.net``) is rebuilt from the same files the first time something needs it.
 
 No equilibrium is solved and no closed form of a particular cell is used, unless asked or
 certified: ``equilibrium_corrections=K`` (spatial cells; None, the default: the K and tolerance
@@ -68,20 +70,18 @@ from pathlib import Path
 from typing import Any, NamedTuple, Sequence
 
 import numpy as np
-import torch
 
 from homogenization.ann import default_model_path, envelope
 from homogenization.ann.escalation import DemEscalation
 from homogenization.ann.ood import OOD_INTERVAL, OodMonitor
 from homogenization.ann.policy import CertificatePolicy, default_escalation
 from homogenization.ann.records import Certificate, certificate_of
-from training import cell_physics
+from training import fast_model
 from training.inference import KERNELS, FastAdvance
-from training.network import RELAXATION_RAMP
-from training.equilibrium import corrected_advance
-from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint
+from training.fast_model import net_arrays, RELAXATION_RAMP, StateDictError
+from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint, read_metadata
 from training.card import ModelCard
-from training.ood import OodIndex, probe_columns
+from training.ood import OodIndex, probe_columns, state_features
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.files import from_description
 from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, evaluate_observables, Mesostructure, per_cell
@@ -147,18 +147,27 @@ class AnnCell(ArrayStateMixin):
         if model is None and not path.is_file():
             raise CheckpointError(f"{path}: the default {self.default_dim}D ANN model is not installed; pass "
                                   f"model=PATH (--model)")
-        self.net, self.metadata = load_checkpoint(path, None if card is None else card.to_dict())
+        if not path.is_file():
+            raise CheckpointError(f"{path}: no such model file")
+        self.metadata = read_metadata(path) if card is None else card.to_dict()
+        try:
+            arrays = net_arrays(path, self.metadata)
+        except StateDictError as exc:
+            raise CheckpointError(str(exc)) from None
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise CheckpointError(f"{path}: cannot rebuild the network ({exc})") from None
+        self.arrays = arrays
+        """The network as numpy arrays, read without torch (``training.fast_model.NetArrays``)."""
         check_compatible(self.metadata, kn=contact_law.kn, kt_over_kn=contact_law.kt_over_kn,
                          phi_g_deg=contact_law.phi_g_deg, source=str(path))
         self.trained_on = from_description(self.metadata["mesostructure"])
         self.model_path = path
-        self.device = torch.device(device)
-        self.net.to(self.device)
-        self.net.schema = self.net.schema.to(self.device)
-        self.net.active_index = self.net.active_index.to(self.device)
+        self.device_name = str(device)
+        self._net = None
         self.threads = int(threads)
-        torch.set_num_threads(self.threads)
-        self.dim = self.net.schema.dim
+        if not self.device_name.startswith("cpu"):
+            self.net  # noqa: B018 (another device: the torch network now, so that a bad device fails here)
+        self.dim = self.arrays.schema.dim
         if equilibrium_corrections is None:
             certified = certificate_of(self.metadata)
             equilibrium_corrections, measured_tolerance = (envelope.equilibrium_settings(certified)
@@ -174,8 +183,8 @@ class AnnCell(ArrayStateMixin):
         self.force_tolerance = DemSettings().force_tolerance if equilibrium_tolerance is None else float(equilibrium_tolerance)
         if not self.force_tolerance > 0:
             raise ValueError(f"equilibrium tolerance = {equilibrium_tolerance} must be > 0")
-        self.fast = (FastAdvance(self.net, self.equilibrium_corrections, self.force_tolerance)
-                     if self.device.type == "cpu" else None)
+        self.fast = (FastAdvance(self.arrays, self.equilibrium_corrections, self.force_tolerance)
+                     if self.device_name.startswith("cpu") else None)
         self.escalation = (DemEscalation(self.trained_on, contact_law, float(self.metadata["contact_tolerance"]),
                                          force_ratio=self.force_tolerance)
                            if self.equilibrium_corrections and (default_escalation(self.metadata)
@@ -184,8 +193,32 @@ class AnnCell(ArrayStateMixin):
         self.policy = CertificatePolicy(self.metadata, path, self.dim, self.equilibrium_corrections,
                                         self.force_tolerance, self.escalation is not None)
         """The certificate and its envelope (``homogenization.ann.policy.CertificatePolicy``)."""
-        self.ood_monitor = OodMonitor(self.net, path, ood_interval)
+        self.ood_monitor = OodMonitor(self.arrays, path, ood_interval)
         """The out-of-distribution checks (``homogenization.ann.ood.OodMonitor``)."""
+
+    @property
+    def net(self):
+        """The model's ``training.network.MesoNet`` on this cell model's device, rebuilt with torch
+        (``training.checkpoint.load_checkpoint``) the first time it is asked for; sets torch's CPU threads."""
+        if self._net is None:
+            import torch  # noqa: PLC0415 (only the torch path and autograd need it)
+
+            with torch.inference_mode(False):  # first asked for inside inference mode: still a network autograd can use
+                net, _ = load_checkpoint(self.model_path, self.metadata)
+            device = torch.device(self.device_name)
+            net.to(device)
+            net.schema = net.schema.to(device)
+            net.active_index = net.active_index.to(device)
+            torch.set_num_threads(self.threads)
+            self._net = net
+        return self._net
+
+    @property
+    def device(self):
+        """The torch device of the torch path (imports torch)."""
+        import torch  # noqa: PLC0415
+
+        return torch.device(self.device_name)
 
     @property
     def certificate(self) -> Certificate | None:
@@ -241,11 +274,13 @@ class AnnCell(ArrayStateMixin):
             self.check_trained_on(meso)
         position = np.stack([meso.position for meso in distinct])[index]
         cell_size = np.stack([meso.cell_size for meso in distinct])[index]
-        free = self.net.schema.free_dofs.cpu().numpy()
+        free = self.arrays.schema.free_dofs
         return AnnState(np.array(cell_size, dtype=np.float64), np.array(position[:, free[:, 0], free[:, 1]]),
-                        np.zeros((int(n_cells), *self.net.schema.shear_shape)))
+                        np.zeros((int(n_cells), *self.arrays.schema.shear_shape)))
 
     def _tensors(self, state: AnnState):
+        import torch  # noqa: PLC0415
+
         return tuple(torch.from_numpy(np.asarray(a, dtype=np.float64)).to(self.device) for a in state)
 
     def step(self, state: AnnState, d_eps_local: np.ndarray, *, with_tangent: bool = False) -> tuple[AnnState, CellResponse]:
@@ -265,7 +300,7 @@ class AnnCell(ArrayStateMixin):
         due = self.ood_monitor.due(state)
         if self.fast is not None and not (with_tangent and KERNELS[self.dim].tangent is None):
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
-            features = self.fast.last_features()[probe_columns(self.net):].T if due else None
+            features = self.fast.last_features()[probe_columns(self.arrays):].T if due else None
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
                            "n_tension_clipped": float(np.count_nonzero(inc.opened)),
                            "n_mechanism": float(np.count_nonzero(inc.mechanism)),
@@ -275,6 +310,9 @@ class AnnCell(ArrayStateMixin):
                            **self.ood_monitor.diagnostics(due, state, features)}
             return self._escalated(state, d_eps_local, AnnState(inc.cell_size, inc.free_position, inc.shear_force),
                                    CellResponse(inc.moment, inc.area, diagnostics, tangent))
+        import torch  # noqa: PLC0415
+        from training import cell_physics  # noqa: PLC0415
+
         size, free, shear = self._tensors(state)
         d_eps = torch.as_tensor(np.asarray(d_eps_local, dtype=np.float64), device=self.device)
         tangent = None
@@ -297,7 +335,7 @@ class AnnCell(ArrayStateMixin):
             "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
             "n_grains_held": float(cell_physics.count_held_grains(self.net.schema, step.held).sum()),
             **self._correction_diagnostics(*(None if c is None else c.detach().cpu().numpy() for c in counts)),
-            **self.ood_monitor.diagnostics(due, state, None),
+            **self.ood_monitor.diagnostics(due, state, state_features(self.net, *state) if due else None),
         }
         return self._escalated(state, d_eps_local, new,
                                CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent))
@@ -327,6 +365,8 @@ class AnnCell(ArrayStateMixin):
         equilibrium corrections) and its (force ratios, corrections) (None, None without)."""
         if not self.equilibrium_corrections:
             return self.net.advance(size, free, shear, d_eps), (None,) * 4
+        from training.equilibrium import corrected_advance  # noqa: PLC0415
+
         out = corrected_advance(self.net, size, free, shear, d_eps, self.equilibrium_corrections, self.force_tolerance)
         return out.increment, (out.force_ratio, out.corrections, out.shortened, out.shifted)
 
@@ -375,6 +415,8 @@ class AnnCell(ArrayStateMixin):
         if self.fast is not None:
             self.fast.increment(*state, d, False)
             return np.asarray(self.fast.last_corrections().force_ratio[1])
+        import torch  # noqa: PLC0415
+
         size, free, shear = self._tensors(state)
         with torch.no_grad():
             _, (ratio, *_) = self._advance(size, free, shear, torch.as_tensor(d, device=self.device))
@@ -411,19 +453,16 @@ class AnnCell(ArrayStateMixin):
         return f"ANN diagnosis: {cells}; {verdict}, {where}"
 
     def _forces(self, state: AnnState):
-        size, free, shear = self._tensors(state)
-        x = cell_physics.positions(self.net.schema, size, free)
-        c = cell_physics.contacts(self.net.schema, x)
-        force = cell_physics.pair_forces(c, shear)
-        return x, c, force
+        """Grain centres, ``training.fast_model.Contacts`` and pair forces of ``state`` (numpy)."""
+        schema = self.arrays.schema
+        x = fast_model.positions(schema, state.cell_size, np.asarray(state.free_position, dtype=np.float64))
+        c = fast_model.contacts(schema, x)
+        return x, c, fast_model.pair_forces(c, np.asarray(state.shear_force, dtype=np.float64))
 
     def response(self, state: AnnState) -> CellResponse:
-        """Meso-stress of ``state`` without advancing it."""
-        with torch.inference_mode():
-            x, c, force = self._forces(state)
-            moment = cell_physics.love_weber(c, force).cpu().numpy()
-            area = cell_physics.cell_measure(x, self.net.schema.outer).cpu().numpy()
-        return CellResponse(moment, area)
+        """Meso-stress of ``state`` without advancing it (the contact law on numpy arrays)."""
+        x, c, force = self._forces(state)
+        return CellResponse(fast_model.love_weber(c, force), fast_model.cell_measure(x, self.arrays.schema.outer))
 
     def observables(self, state: AnnState) -> dict[str, np.ndarray]:
         """Per-cell quantities, shape (n_cells,) each.
@@ -434,20 +473,17 @@ class AnnCell(ArrayStateMixin):
         spatial cell gives, as the DEM backend, ``l1, l2, l3``, ``area`` (the volume [m^3]),
         ``S_nn, S_t1t1, S_t2t2, S_nt1, S_nt2, S_t1t2`` and ``x_n{i}, x_t1{i}, x_t2{i}`` instead.
         """
-        with torch.inference_mode():
-            x, c, force = self._forces(state)
-        x = x.cpu().numpy()
-        response = self.response(state)
+        x, c, force = self._forces(state)
+        response = CellResponse(fast_model.love_weber(c, force), fast_model.cell_measure(x, self.arrays.schema.outer))
         axes = AXIS_NAMES[self.dim]
         obs: dict[str, np.ndarray] = {f"l{k + 1}": state.cell_size[:, k].copy() for k in range(self.dim)}
         obs["area"] = response.area
         for a, b in ((0, 0), *((k, k) for k in range(1, self.dim)), *((a, b) for a in range(self.dim)
                                                                        for b in range(a + 1, self.dim))):
             obs[f"S_{axes[a]}{axes[b]}"] = response.moment[:, a, b]
-        obs["n_contacts"] = c.contact.cpu().numpy().sum(axis=1)
+        obs["n_contacts"] = c.contact.sum(axis=1)
         if self.trained_on.observables:
-            obs.update(evaluate_observables(self.trained_on, x, c.normal_force.cpu().numpy(), state.shear_force,
-                                         c.contact.cpu().numpy()))
+            obs.update(evaluate_observables(self.trained_on, x, c.normal_force, state.shear_force, c.contact))
         for g in range(x.shape[1]):
             for k, axis in enumerate(axes):
                 obs[f"x_{axis}{g + 1}"] = x[:, g, k].copy()

@@ -28,7 +28,8 @@ class OodMonitor:
     """The out-of-distribution checks of one cell model.
 
     Args:
-        net: the model's ``MesoNet`` (its features).
+        net: the model's ``training.fast_model.NetArrays`` (its normalisation names the index it reads), or
+            its ``MesoNet`` (which also computes the features ``diagnostics`` is not given).
         path: the model file; the index is read from beside it (a corrupt index: a ``RuntimeWarning``, no checks).
         interval: distinct start states between two checks, >= 1 (ValueError otherwise).
 

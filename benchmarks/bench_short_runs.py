@@ -1,0 +1,98 @@
+"""python benchmarks/bench_short_runs.py [--repeats 3] [--increment 1e-4] [--eps-max 0.03] [--cold]: whole-process cost of short ANN runs.
+
+Runs, as whole processes (``python -m homogenization.hmodel ...``, start-up, imports, model and
+certificate loading, compilation or cache loading, the run and its output all counted), a
+constant-volume ``hmodel biaxial`` (H-cell, 360 orientations, p0 = 2e5 N/m, inside the shipped
+2D model's certificate) and an undrained ``hmodel triaxial`` (7 792 cells, p0 = 2e5 Pa) with
+``--backend ann`` (A) and ``--backend analytical`` (B), interleaved A B A B ..., and prints for
+each pair the wall and CPU (user + system of the child) seconds and the ratio A / B, then the
+median and best ratio. ``--eps-max / --increment`` shear increments (300 by default) follow the
+command's isotropic stage (its default increment).
+
+``--cold``: the ANN runs with an empty ``NUMBA_CACHE_DIR`` each time (the first run on a machine:
+the kernels compiled), the closed form as usual.
+
+The machine may be shared: the load average is printed before and after; CPU seconds are less
+sensitive to other processes than wall seconds, not immune.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def commands(args, out: Path) -> dict[str, dict[str, list[str]]]:
+    """Per test, the ANN and the closed-form command lines."""
+    hmodel = [sys.executable, "-m", "homogenization.hmodel"]
+    shear = ["--eps-max", f"{args.eps_max:g}", "--increment", f"{args.increment:g}", "--p0", "2e5", "--overwrite", "-q"]
+    tests = {"biaxial 2D (360 cells)": ["biaxial", "--orientations", "360", *shear],
+             "triaxial 3D (7792 cells)": ["triaxial", "--undrained", *shear]}
+    return {test: {backend: [*hmodel, *argv, "--backend", backend, "--out", str(out / f"{argv[0]}_{backend}")]
+                   for backend in ("ann", "analytical")}
+            for test, argv in tests.items() if test.split()[0] in args.tests}
+
+
+def timed(argv: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """(wall, CPU) seconds of one whole process; RuntimeError if it fails."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    done = subprocess.run(argv, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(argv)} failed ({done.returncode}): {done.stderr.strip()[-400:]}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=3, help="pairs (A, B) per test")
+    parser.add_argument("--increment", type=float, default=1e-4, help="shear strain increment [-]")
+    parser.add_argument("--eps-max", type=float, default=0.03, help="shear strain of the test [-]")
+    parser.add_argument("--tests", nargs="+", choices=("biaxial", "triaxial"), default=["biaxial", "triaxial"])
+    parser.add_argument("--cold", action="store_true", help="ANN runs with an empty NUMBA_CACHE_DIR each time")
+    args = parser.parse_args()
+    print(f"load average (1, 5, 15 min): {os.getloadavg()}; {os.cpu_count()} CPUs", flush=True)
+    with tempfile.TemporaryDirectory() as scratch:
+        out = Path(scratch)
+        env = {**os.environ, "MPLBACKEND": "Agg"}
+        for test, argv in commands(args, out).items():
+            print(f"== {test}: {' '.join(Path(a).name if a == sys.executable else a for a in argv['ann'])}", flush=True)
+            for backend in ("ann", "analytical"):  # warm-up: caches (numba, Warp, the OS's files) as a user's second run
+                timed(argv[backend], env)
+            rows = []
+            for k in range(args.repeats):
+                ann_env = env
+                if args.cold:
+                    ann_env = {**env, "NUMBA_CACHE_DIR": tempfile.mkdtemp(dir=scratch)}
+                a = timed(argv["ann"], ann_env)
+                b = timed(argv["analytical"], env)
+                rows.append({"ann_wall": a[0], "ann_cpu": a[1], "analytical_wall": b[0], "analytical_cpu": b[1],
+                             "ratio_wall": a[0] / b[0], "ratio_cpu": a[1] / b[1]})
+                print(f"pair {k + 1}: ANN {a[0]:.2f} s wall, {a[1]:.2f} s CPU; closed form {b[0]:.2f} s wall, "
+                      f"{b[1]:.2f} s CPU; ratio ANN / closed form {a[0] / b[0]:.2f} wall, {a[1] / b[1]:.2f} CPU",
+                      flush=True)
+            summary = {key: (statistics.median(r[key] for r in rows), min(r[key] for r in rows))
+                       for key in ("ratio_wall", "ratio_cpu")}
+            print(f"{test}: ratio ANN / closed form, whole process, median (best) of {args.repeats}: "
+                  f"wall {summary['ratio_wall'][0]:.2f} ({summary['ratio_wall'][1]:.2f}), "
+                  f"CPU {summary['ratio_cpu'][0]:.2f} ({summary['ratio_cpu'][1]:.2f})", flush=True)
+            print(json.dumps({"test": test, "cold": args.cold, "increment": args.increment, "eps_max": args.eps_max,
+                              "pairs": rows}), flush=True)
+    print(f"load average after: {os.getloadavg()}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
