@@ -53,7 +53,7 @@ from homogenization.cli.options import (
     add_void_ratio_arguments,
     command_parser,
 )
-from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment, void_ratio_record
+from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -190,10 +190,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         with output_folder(out) as work:
             records, stored, written = run_backends(
                 args, models, options, law, meso,
-                run=lambda model: void_ratio_record(driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,
+                run=lambda model: driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,
                                              fabric_anisotropy=args.fabric_anisotropy,
                                              fabric_direction_deg=args.fabric_direction,
-                                             snapshot_interval=args.snapshot_interval or 0), args, density_map),
+                                             snapshot_interval=args.snapshot_interval or 0,
+                                             void_ratio=args.void_ratio, density_map=density_map),
                 parameters=lambda record: {
                     "p0": p0,
                     **settings,

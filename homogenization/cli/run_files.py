@@ -9,7 +9,7 @@ folder, the parameters and the status line of each backend's run.
   ``shear_iso_increment(args, hint)``: the built-in programme's increments checked, and its
   isotropic increment (``options.add_programme_arguments``);
 - ``resolve_void_ratio(args, argv, parser, dim)``: --void-ratio checked and turned into --alpha0
-  by the void-ratio map; ``void_ratio_record(record, args, density_map)``: the run's e0 on its record;
+  by the void-ratio map (the commands pass it and --void-ratio to ``driver.run``);
 - ``check_replaceable(out, figure_file)``: DIR holds nothing but what the command writes;
 - ``backend_parameters(...)``: the first entries of a run's stored parameters (backend, its
   options and provenance, contact law, radius, alpha0);
@@ -157,13 +157,6 @@ def resolve_void_ratio(args: argparse.Namespace, argv: Sequence[str], parser: ar
         raise UserError(f"--e-min {args.e_min:g} --e-max {args.e_max:g}: {exc}") from None
     args.alpha0 = density_map.alpha0_deg(density_map.check(args.void_ratio, "--void-ratio"))
     return density_map
-
-
-def void_ratio_record(record: Record, args: argparse.Namespace, density_map: DensityMap | None) -> Record:
-    """``record`` with the run's --void-ratio as its e0 and ``density_map`` (unchanged without one)."""
-    if density_map is not None:
-        record.e0, record.density_map = float(args.void_ratio), density_map
-    return record
 
 
 def shear_iso_increment(args: argparse.Namespace, hint: str = "") -> float:

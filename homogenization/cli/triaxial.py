@@ -46,7 +46,7 @@ from homogenization.output import figures, oedometer
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
 from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, add_void_ratio_arguments, command_parser, lebedev_order
-from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment, void_ratio_record
+from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -219,9 +219,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         with output_folder(out) as work:
             runs, _, written = run_backends(
                 args, models, options, law, meso,
-                run=lambda model: void_ratio_record(driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
+                run=lambda model: driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
                                              n_spins=args.spins, spin_period_deg=spin_period,
-                                             staggered_spins=not args.aligned_spins), args, density_map),
+                                             staggered_spins=not args.aligned_spins,
+                                             void_ratio=args.void_ratio, density_map=density_map),
                 parameters=lambda record: {
                     **settings,
                     "lebedev_order": args.order,

@@ -33,6 +33,7 @@ import numpy as np
 
 from homogenization.element_test.points import MaterialPoints, material_points
 from homogenization.material.critical_state import CriticalState, Renewal
+from homogenization.material.density import DensityMap, default_map
 from homogenization.element_test.plan import Plan
 from homogenization.element_test.record import History, Record
 from homogenization.element_test.stages import run_stages
@@ -105,6 +106,8 @@ def run(
     staggered_spins: bool = True,
     before_stage: Mapping[int, Callable[[MaterialPoints], None]] | None = None,
     critical_state: CriticalState | None = None,
+    void_ratio: float | None = None,
+    density_map: DensityMap | None = None,
 ) -> Record:
     """Run ``programme`` on ``n_orientations`` cells of ``cell_model`` and record the history.
 
@@ -128,6 +131,8 @@ def run(
             (``homogenization.material.critical_state``; None: the plain H-model); the record's
             diagnostics ``critical_state_renewals``, ``_rate_capped`` and ``_angle_clipped`` count the
             renewals, capped rates and clipped fresh angles up to each increment.
+        void_ratio: the cells' initial void ratio [-], recorded (``Record.e0``); ``mesostructure`` must be
+            at the alpha0 that ``density_map`` (None: ``density.default_map``) gives it.
 
     Returns:
         The ``Record`` of the run.
@@ -144,6 +149,7 @@ def run(
     if meso_dim != dim:
         raise ValueError(f"the programme controls {dim} components but mesostructure {mesostructure.name!r} is a "
                          f"{meso_dim}D cell")
+    density_map = _void_ratio_map(mesostructure, dim, void_ratio, density_map)
     points = material_points(cell_model, mesostructure, 1, n_orientations=n_orientations,
                              fabric_anisotropy=fabric_anisotropy, fabric_direction_deg=fabric_direction_deg,
                              lebedev_order=lebedev_order, n_spins=n_spins, spin_period_deg=spin_period_deg,
@@ -167,7 +173,31 @@ def run(
         pad = [np.nan] * (history.rows.shape[0] - len(points.renewal.log))
         for i, name in enumerate(("renewals", "rate_capped", "angle_clipped")):
             history.diagnostics[f"critical_state_{name}"] = np.array([float(c[i][0]) for c in points.renewal.log] + pad)
-    return to_record(history, points, programme, step_seconds, dict(mesostructure.parameters))
+    record = to_record(history, points, programme, step_seconds, dict(mesostructure.parameters))
+    if density_map is not None:
+        record.e0, record.density_map = float(void_ratio), density_map
+    return record
+
+
+def _void_ratio_map(mesostructure: Mesostructure, dim: int, void_ratio: float | None,
+                    density_map: DensityMap | None) -> DensityMap | None:
+    """The map of a run given ``void_ratio`` (``density_map``, else the default of ``dim``); None without one.
+
+    Raises:
+        ValueError: ``density_map`` without ``void_ratio``, or a cell not at the map's alpha0 (1e-6 deg).
+        UserError: a void ratio outside the map.
+    """
+    if void_ratio is None:
+        if density_map is not None:
+            raise ValueError("density_map is given without void_ratio")
+        return None
+    density_map = default_map(dim) if density_map is None else density_map
+    alpha0 = density_map.alpha0_deg(void_ratio)
+    cell = mesostructure.parameters.get("alpha0_deg")
+    if cell is None or abs(float(cell) - alpha0) > 1e-6:
+        raise ValueError(f"void ratio {void_ratio:g} maps to alpha0 = {alpha0:.9g} deg, but the mesostructure "
+                         f"{mesostructure.name!r} has alpha0 = {cell} deg; build it at the map's alpha0")
+    return density_map
 
 
 def to_record(history: History, points: MaterialPoints, programme: Programme, step_seconds: np.ndarray,
