@@ -109,33 +109,22 @@ def run(
     void_ratio: float | None = None,
     density_map: DensityMap | None = None,
 ) -> Record:
-    """Run ``programme`` on ``n_orientations`` cells of ``cell_model`` and record the history.
+    """Run ``programme`` on the oriented cells of ``cell_model``, all starting as ``mesostructure``; returns
+    the ``Record``.
 
     Args:
-        cell_model: any ``CellModel`` backend.
-        programme: loading steps, run in order (``element_test.programme``).
-        mesostructure: the cell every orientation starts from.
-        n_orientations: number N of planar cell orientations theta_k = k pi / N.
-        fabric_anisotropy: a_f in [0, 1) of the weights w(theta) (0: isotropic).
-        fabric_direction_deg: preferred fabric direction b_f [deg].
-        snapshot_interval: store per-cell observables every this many increments (0: at stage ends).
-        stress_rtol: relative tolerance on stress-controlled components [-].
-        max_newton_iterations: ``step`` calls allowed per stress-controlled increment.
+        n_orientations, fabric_anisotropy, fabric_direction_deg: planar orientations theta_k = k pi / N,
+            weights (1 + a_f cos 2(theta - b_f)) / pi, a_f in [0, 1).
+        lebedev_order, n_spins, spin_period_deg, staggered_spins: 3D orientations
+            (``orientation.orientations_3d``; spin_period_deg None: the cell's own).
+        snapshot_interval: per-cell observables every this many increments (0: at stage ends).
+        stress_rtol, max_newton_iterations: stress control's tolerance [-] and step calls per increment.
         progress: a progress bar per stage.
-        lebedev_order, n_spins, spin_period_deg, staggered_spins: the orientations of a 3D
-            programme (``orientation.orientations_3d``; ``n_orientations`` and the fabric are then
-            ignored); ``spin_period_deg`` None: the cell's own.
-        before_stage: step index -> what to do to the material point before that step (e.g.
-            erosion).
-        critical_state: renew the cells between increments by this rule
-            (``homogenization.material.critical_state``; None: the plain H-model); the record's
-            diagnostics ``critical_state_renewals``, ``_rate_capped`` and ``_angle_clipped`` count the
-            renewals, capped rates and clipped fresh angles up to each increment.
-        void_ratio: the cells' initial void ratio [-], recorded (``Record.e0``); ``mesostructure`` must be
-            at the alpha0 that ``density_map`` (None: ``density.default_map``) gives it.
-
-    Returns:
-        The ``Record`` of the run.
+        before_stage: step index -> action on the material point before that step (e.g. erosion).
+        critical_state: renewal rule of the cells (``material.critical_state``; None: the plain H-model);
+            diagnostics ``critical_state_renewals``, ``_rate_capped``, ``_angle_clipped`` count its events.
+        void_ratio, density_map: the cells' initial void ratio [-], recorded (``Record.e0``); the cell
+            must be at the map's alpha0 (None: ``density.default_map``).
 
     Raises:
         ValueError: invalid programme or options (one line).
