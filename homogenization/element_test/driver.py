@@ -144,7 +144,7 @@ def run(
                              lebedev_order=lebedev_order, n_spins=n_spins, spin_period_deg=spin_period_deg,
                              staggered_spins=staggered_spins)
     if critical_state is not None:
-        points.renewal = Renewal(critical_state, points.material, points.state)
+        points.renewal = Renewal(critical_state, points.material, points.state, density_map)
     solver = StressControl(points, replace(STRICT, rtol=stress_rtol, max_iterations=max_newton_iterations))
     history = History(sum(s.n_increments for s in programme), 1, dim)
     try:
