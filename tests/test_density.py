@@ -33,8 +33,8 @@ def test_bad_maps_and_angles_are_refused():
     for args in ((0.9, 0.5, 40.0, 60.0), (-0.1, 0.5, 40.0, 60.0), (0.5, 0.9, 60.0, 40.0), (0.5, 0.9, 20.0, 60.0)):
         with pytest.raises(ValueError):
             DensityMap(*args)
-    with pytest.raises(ValueError):
-        default_map(2).void_ratio(35.0)
+    m = default_map(2, 0.6, 1.0)  # beyond its angles: the line extended, and said so by contains
+    assert m.void_ratio(35.0) == pytest.approx(0.6 - 5.0 / (56.0 - 40.0) * 0.4) and not m.contains(35.0)
     assert DensityMap.from_dict(default_map(3).to_dict()) == default_map(3)
 
 
@@ -92,7 +92,7 @@ def test_the_e_column_is_the_given_void_ratio_carried_by_the_volume(tmp_path, di
     stored = io.read_run(out / io.RUN_FILE)
     density_map = default_map(dim, 0.55, 0.95)
     assert stored.record.e0 == e0 and stored.record.density_map == density_map
-    assert stored.attrs["alpha0_deg"] == pytest.approx(density_map.alpha0_deg(e0), abs=1e-12)
+    assert stored.attrs["alpha0_deg"] == pytest.approx(density_map.alpha0_deg(e0), abs=1e-9)
     assert stored.attrs["parameters"]["void_ratio"] == e0
     assert stored.attrs["parameters"]["density_map"] == density_map.to_dict()
 
@@ -226,3 +226,21 @@ def test_hmodel_calibrate_refuses_an_unreachable_void_ratio_before_any_run(tmp_p
     assert hmodel.main(["calibrate", "--data", str(data), "--params", "phi_g", "--out", str(out), "-q"]) == 2
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and "void_ratio = 1.1 is outside" in lines[0] and not out.exists()
+
+
+def test_the_python_api_records_the_void_ratio_of_a_cell_built_at_the_maps_alpha0():
+    from homogenization.backends import make_cell_model
+    from homogenization.element_test import driver, programme as programmes
+    from warp_hcell.mesostructures.hcell import h_cell
+
+    m = default_map(2, 0.55, 0.95)
+    run = dict(n_orientations=6, progress=False)
+    record = driver.run(make_cell_model("analytical"), programmes.biaxial(2e5, 2e-3, 1e-3), void_ratio=0.8,
+                        density_map=m, mesostructure=h_cell(m.alpha0_deg(0.8)), **run)
+    assert record.e0 == 0.8 and record.density_map == m and record.e[0] < 0.8  # isotropic compression
+    with pytest.raises(ValueError, match="maps to alpha0"):
+        driver.run(make_cell_model("analytical"), programmes.biaxial(2e5, 2e-3, 1e-3), void_ratio=0.8,
+                   mesostructure=h_cell(m.alpha0_deg(0.8)), **run)  # the default map gives 0.8 another angle
+    with pytest.raises(UserError):
+        driver.run(make_cell_model("analytical"), programmes.biaxial(2e5, 2e-3, 1e-3), void_ratio=1.5,
+                   mesostructure=h_cell(55.0), **run)

@@ -31,11 +31,12 @@ DEFAULT_E_MIN = 0.597
 """Void ratio of the densest cell when not given [-] (Toyoura sand's minimum void ratio)."""
 DEFAULT_E_MAX = 0.977
 """Void ratio of the loosest cell when not given [-] (Toyoura sand's maximum void ratio)."""
-OPENING_RANGE_DEG = {2: (40.0, 60.0), 3: (47.0, 60.0)}
-"""Dimension -> (alpha_dense, alpha_loose) [deg] of the plain cell. Loose: 60 = 90 - phi_g at the
-default phi_g = 30 deg, beyond which a closing cell cannot slide; the planar cell liquefies over
-53.6-60 deg, the loose third of the map. Dense: the planar studies' dense cell (40 deg) and the
-dense ten-sphere cell (47 deg; below 45 its planes overlap)."""
+OPENING_RANGE_DEG = {2: (40.0, 56.0), 3: (47.0, 56.0)}
+"""Dimension -> (alpha_dense, alpha_loose) [deg] of the cell. Loose: 56 deg, the widest opening that
+still liquefies (undrained, phi_g = 30 deg; wider cells stiffen again), so that the map's loose third
+is the liquefying window of the planar cell and of ``hcell3d-sand`` (docs/studies/density_map_range.md).
+Dense: the planar studies' dense cell (40 deg) and the dense ten-sphere cell (47 deg; below 45 its
+planes overlap)."""
 
 
 @dataclass(frozen=True)
@@ -79,13 +80,15 @@ class DensityMap:
         return float(opening_angle_deg(value, self.e_min, self.e_max, self.alpha_dense_deg, self.alpha_loose_deg))
 
     def void_ratio(self, alpha0_deg: float) -> float:
-        """Void ratio [-] of opening angle ``alpha0_deg``; ValueError outside [alpha_dense, alpha_loose]."""
+        """Void ratio [-] of opening angle ``alpha0_deg`` [deg] (the inverse of ``alpha0_deg``; beyond
+        [alpha_dense, alpha_loose] the same line extended, which ``contains`` tells)."""
         a = float(alpha0_deg)
-        if not self.alpha_dense_deg <= a <= self.alpha_loose_deg:
-            raise ValueError(f"alpha0 = {a:g} deg is outside the void ratio map's [{self.alpha_dense_deg:g}, "
-                             f"{self.alpha_loose_deg:g}] deg")
         dr = (self.alpha_loose_deg - a) / (self.alpha_loose_deg - self.alpha_dense_deg)
         return self.e_max - dr * (self.e_max - self.e_min)
+
+    def contains(self, alpha0_deg: float) -> bool:
+        """Whether ``alpha0_deg`` [deg] lies within [alpha_dense, alpha_loose]."""
+        return self.alpha_dense_deg <= float(alpha0_deg) <= self.alpha_loose_deg
 
     def to_dict(self) -> dict[str, float]:
         """The four parameters by field name (run files, posterior.json)."""
@@ -129,6 +132,6 @@ def initial_void_ratio(alpha0_deg: float | None, dim: int) -> float:
     """e0 [-] that the default map (``default_map(dim)``) gives a cell of opening ``alpha0_deg``; NaN where
     alpha0 is None, NaN or outside the map's angles (a run given alpha0 only)."""
     m = default_map(dim)
-    if alpha0_deg is None or not m.alpha_dense_deg <= float(alpha0_deg) <= m.alpha_loose_deg:
+    if alpha0_deg is None or not m.contains(alpha0_deg):
         return float("nan")
     return m.void_ratio(float(alpha0_deg))
