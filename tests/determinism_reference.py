@@ -42,7 +42,7 @@ def h_cell_database(out: Path) -> Path:
 def tiny_fit(path: Path, epochs: int = 3) -> dict[str, np.ndarray]:
     """state_dict of a 6-wide network trained ``epochs`` epochs on the database ``path`` (seed 2, no rollout)."""
     from training.dataset import load_database
-    from training.train import TrainConfig, fit
+    from training.fitting import TrainConfig, fit
 
     net = fit(load_database(path), TrainConfig(hidden=(6,), epochs=epochs, batch_size=64, seed=2, rollout=False)).net
     return {name: value.detach().cpu().numpy().copy() for name, value in net.state_dict().items()}

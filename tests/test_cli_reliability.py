@@ -24,7 +24,7 @@ import pytest
 
 from homogenization.calibration import bayes
 from homogenization.cli import biaxial, calibrate, cell, hmodel
-from training import train
+from training import fitting, train
 from warp_hcell.core import cli, files
 from warp_hcell.database import format as database
 from warp_hcell import clean as clean_command, generate as generate_command
@@ -133,12 +133,12 @@ def test_train_checks_out_before_reading_the_data(tmp_path, capsys):
 
 def test_train_ctrl_c_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch):
     planar_database = SimpleNamespace(schema=SimpleNamespace(dim=2))
-    monkeypatch.setattr(train, "load_database", lambda path: planar_database)
+    monkeypatch.setattr(fitting, "load_database", lambda path: planar_database)
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(train, "fit", interrupted)
+    monkeypatch.setattr(fitting, "fit", interrupted)
     assert train.run(["--data", "db.h5", "--out", str(tmp_path / "model.pt")]) == 130
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["hmodel: interrupted"]

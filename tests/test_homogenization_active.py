@@ -14,7 +14,7 @@ from homogenization.ann.records import Certificate, Round
 from homogenization.learning.settings import CertificateSettings
 from training import train as training_train
 from training.card import read_card
-from training.config import TrainConfig
+from training.config import config_record, TrainConfig
 from training.dataset import load_database
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.database.format import ACTIVE_GROUP
@@ -257,7 +257,7 @@ def test_an_earlier_run_is_recognised_by_its_rounds_data_and_options_not_by_what
     db.write_bytes(b"")
     model.write_bytes(b"")
     args = train_cli.build_parser().parse_args(["--data", str(db), "--out", str(model)])
-    config = training_train.config_record(training_train.config_of(args))
+    config = config_record(training_train.config_of(args))
     meta = {**json.loads(default_model_path(2).with_suffix(".json").read_text()),
             "training_data": {"path": str(db)}, "config": {**config, "hidden": [48, 48], "init_from": str(model)},
             "active_learning": [{"round": 0, "hidden": config["hidden"]}]}
@@ -273,4 +273,7 @@ def test_an_earlier_run_is_recognised_by_its_rounds_data_and_options_not_by_what
     assert not continues(active_learning=[{"round": 0, "hidden": [16]}])
     assert not continues(active_learning=None)
     assert not continues(config={**meta["config"], "lr": 1e-4})
+    first = {"round": 0, "hidden": config["hidden"], "train_seed": config["seed"]}
+    assert continues(config={**meta["config"], "seed": config["seed"] + 1}, active_learning=[first])  # a restart kept
+    assert not continues(active_learning=[{**first, "train_seed": config["seed"] + 3}])  # another --seed
     assert not continues(training_data={"path": str(tmp_path / "other.h5")})

@@ -80,7 +80,7 @@ def test_train_certifies_the_hybrid_of_a_fines_database_and_trains_its_network_s
     overridden = _train_args(tmp_path, "--equilibrium-corrections", "0")
     measured = train_cli.surrogate_of(overridden)
     assert measured.equilibrium_corrections == 0 and measured.equilibrium_tolerance is None
-    assert train_cli.training_config.config_of(overridden).epochs == TrainConfig().epochs == 300
+    assert train_cli.training_command.config_of(overridden).epochs == TrainConfig().epochs == 300
     chosen = _train_args(tmp_path, "--equilibrium-corrections", "2", "--epochs", "7")
     measured = train_cli.surrogate_of(chosen)
     assert (measured.equilibrium_corrections, measured.equilibrium_tolerance, chosen.epochs, chosen.patience) == (2, None, 7, 10)
@@ -91,7 +91,7 @@ def test_train_keeps_the_network_alone_and_the_training_defaults_elsewhere(tmp_p
     _database(tmp_path / "db.h5", spec)
     args = _train_args(tmp_path)
     assert train_cli.surrogate_of(args).equilibrium_corrections == 0
-    assert train_cli.training_config.config_of(args) == TrainConfig()
+    assert train_cli.training_command.config_of(args) == TrainConfig()
 
 
 @needs_model

@@ -9,7 +9,8 @@ from dem_database import build
 from training.checkpoint import load_checkpoint
 from training.dataset import Tensors, load_database
 from training.network import PAIR_FEATURES, n_features
-from training.train import TrainConfig, evaluate, fit, main, run, sliding_light
+from training.fitting import TrainConfig, evaluate, fit, sliding_light
+from training.train import main, run
 
 CONFIG = TrainConfig(hidden=(32, 32), epochs=150, batch_size=64, lr=3e-3, patience=150, threads=1, rollout=False)
 
@@ -110,7 +111,7 @@ def test_reexpressed_weights_compute_the_same_function_in_another_normalisation(
     """Warm start: the start model's layers re-expressed in the new training split's feature scaling
     give the same displacements (to round-off), where copying them unchanged does not."""
     from training.network import MesoNet
-    from training.train import reexpress
+    from training.fitting import reexpress
 
     db, result = fitted
     old = result.net
@@ -175,3 +176,12 @@ def test_a_split_by_round_keeps_every_earlier_path_in_its_set(db_path):
         assert np.any(kept >= n)  # the round's paths are split too
     moved = split_by_path(grown, **options)
     assert not np.array_equal(moved.val[moved.val < n], plain.val)  # one permutation of all paths moves them
+
+
+def test_fit_reports_every_epoch_to_its_progress_callback_and_marks_the_last(db_path):
+    seen = []
+    config = TrainConfig(hidden=(8,), epochs=6, batch_size=64, threads=1, rollout=False)
+    result = fit(load_database(db_path), config, progress=seen.append)
+    assert [e.epoch for e in seen] == result.history["epoch"] == [1, 2, 3, 4, 5, 6]
+    assert [e.last for e in seen] == [False] * 5 + [True] and all(e.epochs == 6 for e in seen)
+    assert [e.val_loss for e in seen] == result.history["val_loss"] and [e.lr for e in seen] == result.history["lr"]

@@ -33,6 +33,7 @@ from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from homogenization.cli.options import (active_settings, add_active_arguments, add_threads_argument, certificate_settings,
                                         command_parser, equilibrium_line, EXIT_CODES_HELP)
 from training.config import DEFAULT_HIDDEN, HYBRID_EPOCHS, HYBRID_PATIENCE, hidden_widths, TrainConfig
+from training.train import EpochBar
 from warp_hcell.core.cli import positive_int, quiet_warp, say, set_verbosity, UserError
 from warp_hcell.core.files import atomic_write, check_output_path, output_lock
 from warp_hcell.core.parameters import DatabaseSettings
@@ -152,6 +153,7 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
     from warp_hcell.database.shards import DiskFull  # noqa: PLC0415
 
     db, model, figure = out / "db.h5", out / "ann.pt", out / "certificate.png"
+    bar = EpochBar()
     if _database_complete(db):
         say(f"database: {db} (done before)")
     else:
@@ -166,8 +168,9 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
     if card is not None and card.training_data["sha256"] == file_sha256(db):
         say(f"model: {model} (done before)")
     else:
-        card = active.train_model(db, model, config, [])
+        card = active.train_model(db, model, config, [], progress=bar, log=say)
     rounds, cert = active.learn(db, model, config, settings=budget, seed=args.seed, threads=args.threads, log=say,
+                                progress=bar,
                                 certify_settings=measured, card=card)
     stamp = out / "certificate.png.sha256"
     if figure.is_file() and stamp.is_file() and stamp.read_text().strip() == cert.model_sha256:

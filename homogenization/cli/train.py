@@ -40,6 +40,7 @@ from typing import Sequence
 from homogenization.cli.options import (active_settings, add_active_arguments, certificate_settings, equilibrium_line,
                                         EXIT_CODES_HELP)
 from training import config as training_config
+from training import train as training_command
 from warp_hcell.core.cli import UserError, command_prog, quiet_warp, say, set_verbosity
 from warp_hcell.core.files import atomic_write, output_lock
 
@@ -51,9 +52,9 @@ seed of a round that restarts after a rejected one)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The training parser (``training.config.build_parser``) plus --no-certify, --no-enrich,
+    """The training parser (``training.train.build_parser``) plus --no-certify, --no-enrich,
     --enrich-copy and the active-learning flags (``add_active_arguments``)."""
-    parser = training_config.build_parser()
+    parser = training_command.build_parser()
     parser.prog = command_prog("homogenization.train")
     parser.add_argument("--no-certify", action="store_true",
                         help="leave the model uncertified (the ANN backend refuses it without --uncertified-ok)")
@@ -92,7 +93,7 @@ def _continues(args: argparse.Namespace, database: Path):
     if rounds is None or trained_on not in (args.data.resolve(), database.resolve()):
         return None
     first_hidden = rounds[0]["hidden"] if rounds and "hidden" in rounds[0] else card.config["hidden"]
-    ours = training_config.config_record(training_config.config_of(args))
+    ours = training_config.config_record(training_command.config_of(args))
     first_seed = rounds[0].get("train_seed") if rounds else None
     first_seed = card.config.get("seed") if first_seed is None else first_seed
     same = first_hidden == ours["hidden"] and first_seed == ours["seed"] and all(
@@ -133,7 +134,7 @@ def surrogate_of(args: argparse.Namespace):
     """The certificate settings of ``args`` (``certificate_settings``; without
     --equilibrium-corrections the default surrogate of the database's cell), with --epochs and
     --patience not given set to those of a hybrid's network where it is one
-    (``training.config.for_hybrid``); UserError (one line) for corrections asked on a planar
+    (``training.train.for_hybrid``); UserError (one line) for corrections asked on a planar
     database, before any training."""
     certificate_settings(args)  # its one-line errors first
     if args.equilibrium_corrections:
@@ -141,7 +142,7 @@ def surrogate_of(args: argparse.Namespace):
     explicit = args.no_certify or args.equilibrium_corrections is not None
     measured = certificate_settings(args, None if explicit else _database_mesostructure(args.data))
     if measured.equilibrium_corrections:
-        training_config.for_hybrid(args)
+        training_command.for_hybrid(args)
     return measured
 
 
@@ -153,17 +154,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     set_verbosity(args)
     budget, measured = active_settings(args), surrogate_of(args)
     from homogenization.learning import active, certificate  # noqa: PLC0415 (torch and Warp: only when the command runs)
-    from training import train as training_train  # noqa: PLC0415
+    from training import fitting  # noqa: PLC0415
     from training.card import read_card  # noqa: PLC0415
     from training.checkpoint import metadata_path  # noqa: PLC0415
 
     enrich = not (args.no_certify or args.no_enrich or budget.rounds == 0)
-    config = training_config.config_of(args)
+    config = training_command.config_of(args)
     database = enriched_path(args) if enrich else args.data
     card = _continues(args, database) if enrich else None
     resumed = card is not None
-    if not (args.verbose or args.no_certify):
-        quiet_warp()  # the certificate runs the DEM on the cpu
+    if not args.verbose:
+        quiet_warp()  # the training's rollout and the certificate run the DEM on the cpu
+    bar = training_command.EpochBar()
     if not args.no_certify:
         say(equilibrium_line(measured, args.equilibrium_corrections is not None)
             + (f"; training {config.epochs} epochs at most, patience {config.patience}" if measured.equilibrium_corrections
@@ -173,7 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         if database != args.data and database.exists() and not args.overwrite:
             raise UserError(f"{database} exists; pass --overwrite to replace it")
-        training_train.train_and_save(args.data, args.out, config, overwrite=args.overwrite, verbose=args.verbose)
+        fitting.train_and_save(args.data, args.out, config, overwrite=args.overwrite, progress=bar, log=say)
         if args.no_certify:
             return 0
         card = read_card(args.out)
@@ -189,7 +191,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     say(f"active learning adds its samples to {database}" + ("" if database == args.data else
         f" (a copy of {args.data}: {'--enrich-copy' if args.enrich_copy else 'that file or its folder is not writable'})"))
     with output_lock(database):
-        rounds, cert = active.learn(database, args.out, config, settings=budget, certify_settings=measured,
+        rounds, cert = active.learn(database, args.out, config, settings=budget, certify_settings=measured, progress=bar,
                                     seed=args.seed, threads=args.threads, card=card, log=say)
     say(*certificate.summary_lines(cert), f"{len(rounds) - 1} active round(s), {rounds[-1].samples_total} samples "
         f"in {database}; certificate -> {metadata_path(args.out)}")

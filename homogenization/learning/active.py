@@ -11,7 +11,7 @@ sample comes from (0: the generator), the probed start states go to the group ``
 and the root attr ``active_learning`` lists the rounds. Each (test, orientation) of a round is a
 path of its own (new ``path_id``), so training's split by path keeps a test's states together.
 
-The loop (``learn``): train (``training.train.train_and_save`` with a ``TrainConfig``; from
+The loop (``learn``): train (``training.fitting.train_and_save`` with a ``TrainConfig``; from
 random weights, or with ``ActiveSettings.warm_start`` from the kept model's,
 ``TrainConfig.init_from``), certify, and while the
 certificate fails and the budget (``ActiveSettings``: rounds, samples, seconds, the database's
@@ -51,7 +51,7 @@ from homogenization.learning import certificate
 from homogenization.learning.settings import ActiveSettings, CertificateSettings
 from homogenization.ann.envelope import equilibrium_settings, verdict
 from homogenization.ann.records import Certificate, learning_of, Round, with_learning
-from training import train as training_train
+from training import fitting
 from training.card import ModelCard, read_card, write_card
 from training.config import TrainConfig
 from training.network import n_features
@@ -365,7 +365,7 @@ def candidate_path(model: Path) -> Path:
 
 
 def model_files(model: Path) -> list[Path]:
-    """The files ``training.train.train_and_save`` writes for ``model``: the weights, the JSON,
+    """The files ``training.fitting.train_and_save`` writes for ``model``: the weights, the JSON,
     the learning curve and the out-of-distribution index."""
     model = Path(model)
     return [model, model.with_suffix(".json"), model.with_name(f"{model.stem}_learning_curve.png"),
@@ -395,6 +395,8 @@ class _Loop:
     states: dict[str, dict[str, np.ndarray]]
     rounds: list[Round]
     latest: Certificate
+    progress: fitting.Progress | None = None
+    """The trainings' progress callback (``learn``)."""
 
 
 def _judge(k: int, db: Path, model: Path, config: TrainConfig, settings: ActiveSettings,
@@ -407,7 +409,7 @@ def _judge(k: int, db: Path, model: Path, config: TrainConfig, settings: ActiveS
     seed = config.seed + restarts(loop.rounds)
     candidate = candidate_path(model)
     cfg = dataclasses.replace(round_config(config, model, settings, widths), seed=seed)
-    card = train_model(db, candidate, cfg, loop.rounds)
+    card = train_model(db, candidate, cfg, loop.rounds, progress=loop.progress, log=log)
     cert, loop.states = _certify(candidate, card, measured, settings, threads)
     loop.latest = cert
     capped = stored_entry.get("samples_capped")
@@ -452,7 +454,8 @@ def _stop_line(k: int, loop: _Loop, db: Path, settings: ActiveSettings, added_to
 
 def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
           certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
-          card: ModelCard | None = None, log: Callable[..., None] = print) -> tuple[list[Round], Certificate]:
+          card: ModelCard | None = None, log: Callable[..., None] = print, progress: fitting.Progress | None = None
+          ) -> tuple[list[Round], Certificate]:
     """Certify ``model`` (trained on ``db``) and run active rounds until it passes, or the budget
     is spent, or rounds stall (``stall_line``), or every failing test misses the DEM by no more
     than the DEM from rest does (``unresolvable_line``). A round probes the DEM states of the kept
@@ -470,7 +473,8 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         seed: seed of the rounds' probes.
         threads: DEM and ANN threads.
         card: ``model``'s JSON already read (``training.card.read_card``); None: read here.
-        log: receives one line per round.
+        log: receives one line per round (and the trainings' summary lines).
+        progress: receives every training's epochs (``training.fitting.Progress``; None: silent).
     """
     start = time.perf_counter()
     card = read_card(model) if card is None else card
@@ -480,7 +484,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
     dim = from_description(card.mesostructure).dim
     if not rounds and card.training_data["sha256"] != file_sha256(db):  # not trained on this database
         widths = tuple((stored[-1].get("hidden") if stored else None) or card.architecture["hidden"])
-        card = train_model(db, model, round_config(config, model, settings, widths), rounds)
+        card = train_model(db, model, round_config(config, model, settings, widths), rounds, progress=progress, log=log)
     elif _done(stored_cert, model, db, certify_settings, settings, rounds, stored, dim):
         log(round_line(rounds[-1]) + " (done before)")
         return rounds, stored_cert
@@ -491,7 +495,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
             len(stored), db, card, cert, time.perf_counter() - t0, samples_added=stored[-1]["samples"] if stored else 0,
             **({"tests": stored[-1].get("tests", [])} if stored else {})), accepted=True, train_seed=config.seed))
         log(round_line(rounds[-1]))
-    loop = _Loop(_record(model, card, rounds, cert), cert, states, rounds, cert)
+    loop = _Loop(_record(model, card, rounds, cert), cert, states, rounds, cert, progress)
     if rounds[-1].round < len(stored):  # appended before an interruption, not yet trained and judged
         _judge(len(stored), db, model, config, settings, certify_settings, threads, loop, time.perf_counter(),
                stored[-1], log)
@@ -571,11 +575,13 @@ def training_record(card: ModelCard) -> dict[str, Any]:
             "train_seconds": card.history["seconds"], "warm_start": None if warm is None else bool(warm["used"])}
 
 
-def train_model(db: Path, model: Path, config: TrainConfig, rounds: list[Round]) -> ModelCard:
-    """Train ``model`` on ``db`` from scratch (``training.train.train_and_save``, settings
-    ``config``, the model overwritten); its JSON keeps the ``rounds`` so far (an interrupted loop
-    resumes with them). Returns the new model's card."""
-    training_train.train_and_save(db, model, config, overwrite=True)
+def train_model(db: Path, model: Path, config: TrainConfig, rounds: list[Round], *,
+                progress: fitting.Progress | None = None, log: Callable[..., None] | None = None) -> ModelCard:
+    """Train ``model`` on ``db`` from scratch (``training.fitting.train_and_save``, settings
+    ``config``, the model overwritten; ``progress`` receives its epochs, ``log`` its summary lines,
+    None: silent); its JSON keeps the ``rounds`` so far (an interrupted loop resumes with them).
+    Returns the new model's card."""
+    fitting.train_and_save(db, model, config, overwrite=True, progress=progress, **({"log": log} if log else {}))
     return write_rounds(model, read_card(model), rounds)
 
 
