@@ -16,7 +16,9 @@ Static liquefaction and strength under a lateral deviator of the 3D cells, close
 4. Drained compression (sigma2 = sigma3 = p0) of the dense and loose states: eps_v at 15 %.
 5. DEM against the closed form, undrained, dense and loose, largest |dp| and |dq| over p0 up to the
    first increment with a cell whose lateral grains of the two planes meet (``n_cross_plane``), where
-   the closed form stops holding (the DEM models that contact), and to 15 %.
+   the closed form stops holding (the DEM models that contact), and to 15 %; also at two liquefying
+   states (``DEM_STATES``).
+6. The same at ``DEM_GAIN`` (``hcell3d-axisym``'s map with that gain) at ``DEM_STATES``.
 
 Every run goes through ``hmodel triaxial`` / ``hmodel biaxial`` in this process (``--spins 1``: the
 response of the axisymmetric and amplified cells does not depend on the spin; the projected cell gets
@@ -51,7 +53,11 @@ EPS_MAX = 0.15
 LIQUEFIED = 0.3
 """A test liquefies where the lowest p/p0 falls below this [-]."""
 B_VALUES = (0.0, 0.25, 0.5, 0.75, 1.0)
-GAINS = (1.0, 1.58, 2.0, 2.5)
+GAINS = (1.0, 1.58, 2.0, 2.5, 3.0, 3.5)
+DEM_STATES = (52.0, 55.0)
+"""Liquefying states where the DEM is also run (section 5), besides the dense and loose ones [deg]."""
+DEM_GAIN = 3.5
+"""A gain whose closed-form window passes 5 deg, run with the DEM at DEM_STATES (section 6)."""
 
 
 RETRIES: list[str] = []
@@ -163,9 +169,9 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="coarse grid, order 11, no gain scan")
     parser.add_argument("--order", type=int, default=23, help="Lebedev order of the cell axes (default 23)")
     parser.add_argument("--increment", type=float, default=1e-3, help="strain increment (default 1e-3)")
-    parser.add_argument("--dense", type=float, default=50.0, help="dense alpha0 [deg] (default 50)")
+    parser.add_argument("--dense", type=float, default=49.0, help="dense alpha0 [deg] (default 49)")
     parser.add_argument("--loose", type=float, default=54.0, help="loose alpha0 [deg] (default 54)")
-    parser.add_argument("--sections", default="1,2,3,4,5", help="sections to run (default 1,2,3,4,5)")
+    parser.add_argument("--sections", default="1,2,3,4,5,6", help="sections to run (default all)")
     args = parser.parse_args()
     sections = {int(k) for k in args.sections.split(",")}
     if args.quick:
@@ -195,12 +201,14 @@ def main() -> None:
         drained_section(args, say)
     if 5 in sections:
         dem_section(args, say)
+    if 6 in sections:
+        dem_section(args, say, DEM_GAIN)
     say(f"\nReruns at a smaller increment (stress control failed): {len(RETRIES)}")
     for line in RETRIES:
         say(f"  {line}")
     say(f"\n# {time.time() - start:.0f} s")
     name = "liquefaction3d_quick.txt" if args.quick else "liquefaction3d.txt"
-    if sections == {1, 2, 3, 4, 5}:
+    if sections == {1, 2, 3, 4, 5, 6}:
         (HERE / "results" / name).write_text("\n".join(lines) + "\n")
 
 
@@ -210,7 +218,7 @@ def undrained_section(args, say) -> None:
     say("\n## 1. Undrained compression: lowest p/p0, end p/p0, peak q/p0")
     say("alpha0 | " + " | ".join(f"{spec} (min, end, q)" for spec, _ in cells))
     table: dict[str, dict[float, float]] = {spec: {} for spec, _ in cells}
-    projected_grid = set(grid[::4] if not args.quick else grid[::2])
+    projected_grid = set(grid[::6] if not args.quick else grid[::4])
     for alpha0 in grid:
         row = []
         for spec, spins in cells:
@@ -254,12 +262,21 @@ def drained_section(args, say) -> None:
                 f"peak q/p0 {curve['q'].max() / P0:.3f}, end q/p0 {curve['q'][-1] / P0:.3f}")
 
 
-def dem_section(args, say) -> None:
-    say("\n## 5. DEM against the closed form, undrained, hcell3d-sand: largest |dp|/p0, |dq|/p0 while no planes "
-        "meet (closed form valid), and to 15 %")
-    for alpha0 in (args.dense, args.loose):
-        curves = run("triaxial", "hcell3d-sand", alpha0, ["--undrained"], order=args.order, spins=1,
-                     increment=args.increment, backends="analytical,dem")
+def dem_section(args, say, gain: float | None = None) -> None:
+    states = (args.dense, *DEM_STATES[:1], args.loose, *DEM_STATES[1:]) if gain is None else DEM_STATES
+    spec = "hcell3d-sand" if gain is None else "hcell3d-axisym"
+    title = "5. DEM against the closed form, undrained, hcell3d-sand" if gain is None else \
+        f"6. DEM against the closed form, undrained, gain g = {gain:g}"
+    say(f"\n## {title}: largest |dp|/p0, |dq|/p0 while no planes meet (closed form valid), and to 15 %")
+    saved = orientation.AXISYMMETRIC_MAP
+    for alpha0 in states:
+        if gain is not None:
+            orientation.AXISYMMETRIC_MAP = orientation.axisymmetric_map(gain)
+        try:
+            curves = run("triaxial", spec, alpha0, ["--undrained"], order=args.order, spins=1,
+                         increment=args.increment, backends="analytical,dem")
+        finally:
+            orientation.AXISYMMETRIC_MAP = saved
         a, d = curves["analytical"], curves["dem"]
         dp, dq = np.abs(a["p"] - d["p"]) / P0, np.abs(a["q"] - d["q"]) / P0
         met = a["n_cross_plane"] > 0
