@@ -38,7 +38,7 @@ from homogenization.material import invariants
 from homogenization.output import run_labels
 from homogenization.element_test.driver import Record
 from homogenization.output.figure_style import apply_style, figure_legend, GRID, LABELS, number, PNG_DPI
-from warp_hcell.core.cli import UserError
+from warp_hcell.core.errors import UserError
 from warp_hcell.core.files import atomic_write
 
 FOURTH_PANELS = ("q/p", "W2")
