@@ -88,7 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = command_parser("homogenization.triaxial", "Isotropic compression to p0, then a triaxial test of the 3D "
                                                        "H-model (undrained, drained, extension, constant p, true "
                                                        "triaxial, cyclic), or any 3D loading programme file.")
-    add_backend_list_argument(parser, ("analytical",), " (ann: the shipped 3D model of the loose cell, or --model)")
+    add_backend_list_argument(parser, ("analytical",), " (ann: the shipped 3D model of the loose cell, or --model; "
+                                                       "each backend's cost per cell-increment: docs/ann.md, Speed)")
     add_alpha0_argument(parser)
     add_void_ratio_arguments(parser)
     group = add_programme_arguments(
