@@ -1,0 +1,97 @@
+"""python benchmarks/bench_backend_costs.py [--cells 100 1000 7792] [--increments 10] [--fine-model PATH]: cost per cell-increment of each backend.
+
+For each cell (the plain 2D H-cell and the plain 3D ten-sphere cell at alpha0 = 55 deg, and the 3D
+cell with a fine grain ``benchmarks/cells/fine_off_centre.toml``) and each number of cells, the
+backends that model it (closed form, DEM, ANN: the shipped model of the plain cells;
+``--fine-model``, a model trained on the fine-grain cell, for that one) start from the cell's
+rest state, take ``--warmup`` isotropic compression increments of 2e-5 per axis, then
+``--increments`` timed increments of a constant-volume-like local strain (1e-5 along n, the
+opposite shared by the other axes): ``step`` of all the cells at once, one thread, the backends
+one after the other in one run. Prints one line per cell, number of cells and backend: the
+median wall time of one increment and that time per cell-increment [us], then a Markdown table
+of the latter (rows: cells; columns: backends), with the load average.
+
+Timings are of ``CellModel.step`` alone (no stress control, no output); a whole run adds its
+start-up (``benchmarks/bench_short_runs.py``) and, for stress-controlled tests, a few trial steps
+per increment.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from homogenization.backends import make_cell_model, mesostructure_refusal
+from warp_hcell.mesostructures.builders import resolve_mesostructure
+from warp_hcell.mesostructures.files import load_mesostructure
+
+ROOT = Path(__file__).resolve().parents[1]
+FINE = ROOT / "benchmarks" / "cells" / "fine_off_centre.toml"
+
+
+def cells(args) -> list[tuple[str, object, dict[str, dict]]]:
+    """(label, mesostructure, backend -> options) of every cell measured."""
+    fine = {"dem": {"threads": 1}}
+    if args.fine_model:
+        fine["ann"] = {"model": args.fine_model, "threads": 1}
+    return [("plain 2D H-cell", resolve_mesostructure("hcell:alpha0=55"),
+             {"analytical": {}, "dem": {"threads": 1}, "ann": {"threads": 1}}),
+            ("plain 3D ten-sphere cell", resolve_mesostructure("hcell3d:alpha0=55"),
+             {"analytical": {}, "dem": {"threads": 1}, "ann": {"threads": 1}}),
+            ("3D cell with a fine grain (fine_off_centre.toml)", load_mesostructure(FINE), fine)]
+
+
+def time_backend(name: str, options: dict, meso, n: int, args) -> float:
+    """Median wall seconds of one ``step`` of ``n`` cells of ``meso`` (module docstring)."""
+    model = make_cell_model(name, dim=meso.dim, **options)
+    state = model.init_state(meso, n)
+    iso = np.full((n, meso.dim), 2e-5)
+    shear = np.full((n, meso.dim), -1e-5 / (meso.dim - 1))
+    shear[:, 0] = 1e-5
+    for _ in range(args.warmup):
+        state, _ = model.step(state, iso)
+    times = []
+    for _ in range(args.increments):
+        start = time.perf_counter()
+        state, _ = model.step(state, shear)
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("--cells", type=int, nargs="+", default=[100, 1000, 7792], help="numbers of cells")
+    parser.add_argument("--increments", type=int, default=10, help="timed increments per backend")
+    parser.add_argument("--warmup", type=int, default=20, help="isotropic increments before the timed ones")
+    parser.add_argument("--fine-model", default=None, help="an ANN model of the fine-grain cell (none is shipped)")
+    args = parser.parse_args()
+    print(f"load average (1, 5, 15 min): {os.getloadavg()}", flush=True)
+    table: dict[tuple[str, int], dict[str, float]] = {}
+    backends: list[str] = []
+    for label, meso, options in cells(args):
+        for n in args.cells:
+            for name, opts in options.items():
+                refusal = mesostructure_refusal(name, meso)
+                if refusal:
+                    continue
+                seconds = time_backend(name, opts, meso, n, args)
+                per = 1e6 * seconds / n
+                table.setdefault((label, n), {})[name] = per
+                backends += [name] if name not in backends else []
+                print(json.dumps({"cell": label, "cells": n, "backend": name, "step_ms": round(1e3 * seconds, 3),
+                                  "us_per_cell_increment": round(per, 3)}), flush=True)
+    print(f"\n| cell | cells | {' | '.join(f'{b} [us]' for b in backends)} |")
+    print(f"|---|---|{'---|' * len(backends)}")
+    for (label, n), row in table.items():
+        print(f"| {label} | {n} | {' | '.join(f'{row[b]:.2f}' if b in row else '-' for b in backends)} |")
+    print(f"\nload average after: {os.getloadavg()}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
