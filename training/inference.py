@@ -190,14 +190,11 @@ class _Workspace(NamedTuple):
 class FastAdvance:
     """``MesoNet.advance`` for inference on CPU: numba physics (float64) around the perceptron (float32).
 
-    Each cell's output is one fixed sequence of float32 operations (``training.perceptron``), so it
-    does not depend on its batch or the CPU's vector width; the arrays returned are new. Spatial
-    cells run ``training.fast_step3d``; their tangent is not compiled (``increment`` refuses
-    ``with_tangent``).
+    A cell's output does not depend on its batch or the CPU's vector width (``training.perceptron``);
+    the arrays returned are new. Spatial cells run ``training.fast_step3d``, without a compiled tangent.
 
     Args:
-        net: the trained network, a ``training.network.MesoNet`` or its ``training.fast_model.NetArrays``
-            (read without torch); schema, active pairs, normalisation and layers are copied.
+        net: the trained network, a ``MesoNet`` or its ``training.fast_model.NetArrays``; copied.
         corrections: the most exact Newton steps per cell-increment (spatial cells,
             ``fast_equilibrium3d.correct3d``; 0: the network alone); ``last_corrections`` counts them.
         tolerance: force ratio [-] below which a cell is not corrected (None: the DEM's).
