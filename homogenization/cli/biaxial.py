@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -46,12 +47,14 @@ from homogenization.cli.options import (
     add_alpha0_argument,
     add_backend_list_argument,
     add_cell_arguments,
+    add_critical_state_argument,
     add_orientations_argument,
     add_posterior_arguments,
     add_programme_arguments,
     add_uncertified_argument,
     add_void_ratio_arguments,
     command_parser,
+    critical_state_rule,
 )
 from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment
 from warp_hcell.core.cli import (
@@ -90,6 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_backend_list_argument(parser, "analytical")
     add_alpha0_argument(parser)
     add_void_ratio_arguments(parser)
+    add_critical_state_argument(parser)
     loading_group = add_programme_arguments(
         parser, stress_unit="N/m", eps_max=load.eps_max, increment=load.increment,
         eps_max_help="axial strain at the end of the shear stage, counted from its start [-]")
@@ -170,6 +174,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv_given = sys.argv[1:] if argv is None else argv
     calibrated = posterior_flags.apply_posterior(args, argv_given, build_parser(), dim=2)
     density_map = resolve_void_ratio(args, argv_given, build_parser(), dim=2)
+    critical_state = critical_state_rule(2) if args.critical_state else None
     check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE)
     programme, settings = build_programme(args, argv_given)
     posterior_flags.check_band_test(calibrated, settings, "--fabric-anisotropy" if args.fabric_anisotropy else "")
@@ -194,7 +199,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                              fabric_anisotropy=args.fabric_anisotropy,
                                              fabric_direction_deg=args.fabric_direction,
                                              snapshot_interval=args.snapshot_interval or 0,
-                                             void_ratio=args.void_ratio, density_map=density_map),
+                                             void_ratio=args.void_ratio, density_map=density_map,
+                                             critical_state=critical_state),
                 parameters=lambda record: {
                     "p0": p0,
                     **settings,
@@ -207,6 +213,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     **posterior_flags.run_record(calibrated),
                     "void_ratio": args.void_ratio,
                     "density_map": None if density_map is None else density_map.to_dict(),
+                    **({} if critical_state is None else {"critical_state": asdict(critical_state)}),
                 },
                 work=work, command=command)
             posterior_flags.compute_band(calibrated, dim=2, drained=args.drained, p0=args.p0, eps_max=args.eps_max)

@@ -128,6 +128,19 @@ def add_void_ratio_arguments(parser: argparse.ArgumentParser) -> None:
                        help="void ratio of the loosest cell [-] (with --void-ratio)")
 
 
+def add_critical_state_argument(parser: argparse.ArgumentParser) -> None:
+    """--critical-state: renew the cells towards a critical state (opt-in; off: the plain H-model)."""
+    parser.add_argument("--critical-state", action="store_true",
+                        help="renew the cells between increments towards a critical state, with the measured "
+                             "parameters of the cells' dimension (docs/usage.md, Critical state)")
+
+
+def critical_state_rule(dim: int):
+    """The ``CriticalState`` that --critical-state runs with cells of dimension ``dim`` (its ``DEFAULTS``)."""
+    from homogenization.material.critical_state import DEFAULTS  # noqa: PLC0415 (only runs that ask for it)
+    return DEFAULTS[dim]
+
+
 def add_orientations_argument(parser: argparse.ArgumentParser, default: int,
                               help_text: str = "number N of cell orientations") -> None:
     """--orientations: the number N of cell orientations [-], a positive int (default ``default``)."""

@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -45,7 +46,7 @@ from homogenization.element_test import driver, programme as programmes
 from homogenization.output import figures, oedometer
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
-from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, add_void_ratio_arguments, command_parser, lebedev_order
+from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, add_void_ratio_arguments, add_critical_state_argument, command_parser, critical_state_rule, lebedev_order
 from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
@@ -92,6 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                        "each backend's cost per cell-increment: docs/ann.md, Speed)")
     add_alpha0_argument(parser)
     add_void_ratio_arguments(parser)
+    add_critical_state_argument(parser)
     group = add_programme_arguments(
         parser, stress_unit="Pa", eps_max=0.15, increment=1e-4,
         eps_max_help="axial strain (amplitude of --cyclic) of the shear stage, counted from its start [-]")
@@ -205,6 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     check_backends(args.backend, args.model)
     calibrated = posterior_flags.apply_posterior(args, argv_given, build_parser(), dim=3)
     density_map = resolve_void_ratio(args, argv_given, build_parser(), dim=3)
+    critical_state = critical_state_rule(3) if args.critical_state else None
     check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE, oedometer.FILE)
     programme, settings = build_programme(args, argv_given)
     posterior_flags.check_band_test(calibrated, settings, "")
@@ -223,7 +226,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 run=lambda model: driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
                                              n_spins=args.spins, spin_period_deg=spin_period,
                                              staggered_spins=not args.aligned_spins,
-                                             void_ratio=args.void_ratio, density_map=density_map),
+                                             void_ratio=args.void_ratio, density_map=density_map,
+                                             critical_state=critical_state),
                 parameters=lambda record: {
                     **settings,
                     "lebedev_order": args.order,
@@ -236,6 +240,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     **posterior_flags.run_record(calibrated),
                     "void_ratio": args.void_ratio,
                     "density_map": None if density_map is None else density_map.to_dict(),
+                    **({} if critical_state is None else {"critical_state": asdict(critical_state)}),
                 },
                 work=work, command=command)
             if settings.get("test") == "oedometer":
