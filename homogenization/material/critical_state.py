@@ -1,21 +1,20 @@
 """Renewal of a material point's cells towards a critical state (opt-in: ``CriticalState``).
 
-Between two accepted increments, every cell of a point that has been distorted enough is replaced
-by a fresh, touching, force-free cell of the same orientation, built by the backend's own
-``init_state`` (closed form, DEM and ANN share the rule exactly). Cell k accumulates its distortion
-s_k = sum over increments of sum_{a<b} abs(d eps_a - d eps_b) (its local normal strains, so an
-isotropic compression distorts no cell) and is renewed each time floor(rate s_k + phi_k) grows,
-phi_k = frac(k g) a fixed phase (g the golden ratio): ``rate`` renewals per unit of distortion.
+Between two accepted increments, cells of a point are replaced by fresh, touching, force-free cells
+of the same orientations, built by the backend's own ``init_state`` (closed form, DEM and ANN share
+the rule exactly). The clock is the point's distortion: per increment, s = sum_k w_k sum_{a<b}
+abs(d eps_a - d eps_b) / sum_k w_k (the cells' local normal strains, so an isotropic compression
+renews nothing); cell k is renewed each time floor(S_k + phi_k) grows, S_k the sum of lambda s over
+the increments and phi_k = frac(k g) a fixed phase (g the golden ratio).
 
-The fresh cell's opening angle follows the point's current density (the feedback that makes loose
-and dense points meet): alpha_f = clip(alpha0 + gain (a(J) - alpha0), alpha_min, alpha_max), with
-a(J) the opening angle of the touching cell whose measure is the point's mean cell measure V0 J
-(V0 the initial one, J the volume ratio), alpha0 the point's initial opening angle [deg]. A point
-that dilates gets looser, more contractive fresh cells, and one that contracts denser ones, until
-renewal and sliding balance at constant volume; gain = 0 renews at alpha0.
-
-Renewal changes the stress at fixed strain; the next increment's stress control re-equilibrates
-the point. ``Renewal.count`` holds the renewals made per point.
+Both the rate lambda and the fresh cells' opening angle follow the point's current void ratio
+e = (1 + e0) J - 1 (``homogenization.material.density``'s map, a(e) the opening angle the map gives
+e, extrapolated linearly): lambda = min(rate exp(rate_gain (a(e) - alpha_c)), rate_max) and
+alpha_f = clip(alpha_c + gain (a(e) - alpha_c), alpha_min, alpha_max). A point looser than alpha_c
+renews faster with looser, contractive cells, a denser one slower with denser, dilatant cells, so
+loose and dense points head for one stationary void ratio at each pressure. Renewal changes the stress at
+fixed strain; the next increment's stress control re-equilibrates the point. ``Renewal`` counts the
+renewals, the capped rates and the clipped angles.
 """
 
 from __future__ import annotations
@@ -53,9 +52,9 @@ class CriticalState:
     """
 
     rate: float = 20.0
-    gain: float = 1.0
+    gain: float = 3.0
     alpha_c_deg: float = 53.0
-    rate_gain: float = 1.0
+    rate_gain: float = 1.4
     rate_max: float = 400.0
     alpha_min_deg: float = 46.0
     alpha_max_deg: float = 62.0
@@ -79,11 +78,11 @@ class CriticalState:
                              f"{self.alpha_max_deg:g} must satisfy 0 < alpha_min < alpha_max < 90 deg")
 
 
-DEFAULTS = {2: CriticalState(rate=120.0, gain=3.0, alpha_c_deg=52.0, rate_gain=1.0, rate_max=400.0, alpha_min_deg=40.0,
+DEFAULTS = {2: CriticalState(rate=160.0, gain=8.0, alpha_c_deg=52.0, rate_gain=1.0, rate_max=400.0, alpha_min_deg=40.0,
                              alpha_max_deg=58.0),
             3: CriticalState()}
 """The rule's parameters by cell dimension, chosen by measurement on the plain cells at the default contact law
-(docs/studies/critical_state_mechanism.md)."""
+and void-ratio map (docs/studies/critical_state_mechanism.md); the gains are per degree of the map's angles."""
 
 
 def _plain(meso: Mesostructure) -> tuple[float, float]:
