@@ -1,5 +1,6 @@
 """Density as the state: the void-ratio map (homogenization.material.density), its round trip and bounds."""
 
+import json
 import math
 
 import numpy as np
@@ -105,9 +106,12 @@ def test_a_run_given_alpha0_gets_e0_from_the_default_map_or_nan_outside_it(tmp_p
     np.testing.assert_allclose(curve["e"], (1 + e0) * volume_ratio_from_strains(curve, 2) - 1, atol=1e-12)
     with h5py.File(out / io.RUN_FILE, "r") as f:
         assert f.attrs["void_ratio"] == pytest.approx(e0) and not f.attrs["void_ratio_given"]
+        assert json.loads(f.attrs["density_map"]) == default_map(2).to_dict()
     out = tmp_path / "a35"
     assert hmodel.main(["biaxial", "--alpha0", "35", *FAST_2D, "--out", str(out)]) == 0
     assert np.all(np.isnan(read_curve(out / io.CURVE_FILE)["e"]))
+    with h5py.File(out / io.RUN_FILE, "r") as f:
+        assert np.isnan(f.attrs["void_ratio"]) and json.loads(f.attrs["density_map"]) is None
 
 
 def test_a_run_file_without_the_void_ratio_still_reads(tmp_path):

@@ -27,7 +27,7 @@ alpha0; ``nan`` where neither is known).
 
 Void ratio (root attributes): ``void_ratio`` e0 [-] (NaN: not known), ``void_ratio_given`` (True:
 given, e.g. --void-ratio; False: the default map's at alpha0, or none) and ``density_map`` (JSON
-of ``density.DensityMap.to_dict``, or null). Files written before these attributes read back with
+of ``density.DensityMap.to_dict``: the map e0 came from; null where e0 is not known). Files written before these attributes read back with
 e0 not given.
 
 Triaxial runs (3D cells, ``Record.dim`` 3): ``/history`` also holds ``eps33, sigma33, sigma23,
@@ -49,6 +49,7 @@ not the run, and are equal on one installation.
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,7 +63,7 @@ from warp_hcell.core.errors import UserError
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 from homogenization.element_test.driver import Record
-from homogenization.material.density import DensityMap
+from homogenization.material.density import DensityMap, default_map
 from homogenization.material.orientation import VOLUME_RULE
 from homogenization.material.orientation import VOLUME_RULE_3D
 
@@ -202,7 +203,7 @@ def write_run_h5(path: Path, record: Record, *, parameters: Mapping[str, Any], s
         f.attrs["seed"] = int(seed)
         f.attrs["void_ratio"] = record.initial_void_ratio
         f.attrs["void_ratio_given"] = record.e0 is not None
-        f.attrs["density_map"] = json.dumps(None if record.density_map is None else record.density_map.to_dict())
+        f.attrs["density_map"] = json.dumps(_density_map(record))
         for key, value in provenance(command=command).items():
             f.attrs[key] = value
 
@@ -261,6 +262,13 @@ def _cell_parameters(attrs: Mapping[str, Any]) -> dict[str, float]:
         return {name: float(attrs[name]) for name in json.loads(attrs["cell_parameters"])}
     value = float(attrs.get("alpha0_deg", float("nan")))
     return {} if value != value else {"alpha0_deg": value}
+
+
+def _density_map(record: Record) -> dict[str, float] | None:
+    """The map of a run's e0: the given one, else the default map where e0 came from it, else None."""
+    if record.density_map is not None:
+        return record.density_map.to_dict()
+    return default_map(record.dim).to_dict() if math.isfinite(record.initial_void_ratio) else None
 
 
 def _void_ratio(attrs: Mapping[str, Any]) -> dict[str, Any]:
