@@ -197,6 +197,8 @@ class Posterior:
     diverges for an extreme parameter set): counted, not printed as RuntimeWarnings. Where alpha0_spread
     is calibrated, the prior is also cut by alpha0 - alpha0_spread >= ALPHA_MIN_3D_DEG
     (``forward.feasible``): sets outside get log posterior -inf without a run, counted in ``n_infeasible``.
+    ``correction`` (None, or per test channel -> shape (n_data,)) is added to every model curve: the
+    discretisation correction of ``resolution.correction``.
     """
 
     def __init__(self, tests: Sequence[Measurement], prior: Prior, settings: ForwardSettings, noise: float) -> None:
@@ -209,6 +211,7 @@ class Posterior:
         self.n_calls = 0
         self.n_float_errors = 0
         self.n_infeasible = 0
+        self.correction: list[dict[str, np.ndarray]] | None = None
 
     @property
     def spread_cut(self) -> bool:
@@ -228,11 +231,12 @@ class Posterior:
         """Model curves of parameter sets in CLI units, shape (n, n_params): per test, channel -> (n, n_data)."""
         params = {name: values[:, i] for i, name in enumerate(self.prior.names)}
         out = []
-        for test in self.tests:
+        for k, test in enumerate(self.tests):
             with np.errstate(all="call", call=self._count_float_error):
                 c = simulate(test, params, self.settings)
             self.n_fallback += int(c.n_fallback.sum())
-            out.append({name: c.channel(name) for name in CHANNELS})
+            shift = self.correction[k] if self.correction is not None else {}
+            out.append({name: c.channel(name) + shift[name] if name in shift else c.channel(name) for name in CHANNELS})
         return out
 
     def __call__(self, x: np.ndarray) -> np.ndarray:

@@ -72,6 +72,16 @@ def chain_diagnostics(chain: np.ndarray, names: Sequence[str]) -> dict[str, Any]
             "short": bool(short)}
 
 
+def steps_needed(diag: dict[str, Any], steps_total: int, burn: float) -> int | None:
+    """Total steps (burn-in included) for ``STEPS_PER_TAU`` autocorrelation times of ``diag``'s largest tau,
+    at least ``steps_total``; None where no tau is finite."""
+    finite = [t for t in diag["tau_steps"].values() if t is not None]
+    if not finite:
+        return None
+    need = math.ceil(diag["rule_steps_per_tau"] * max(max(finite), 1.0) / max(1.0 - burn, 1e-9))
+    return max(need, steps_total)
+
+
 def warning_line(diag: dict[str, Any], steps_total: int, burn: float) -> str | None:
     """One warning line with advice where ``diag`` (``chain_diagnostics``) is ``short``; else None."""
     if not diag["short"]:

@@ -171,9 +171,35 @@ def posterior_json(summary: Mapping[str, Mapping[str, Any]], names: Sequence[str
     return data
 
 
+def resolution_at_optimum(log_post: bayes.Posterior, record: Mapping[str, Any], x: np.ndarray) -> dict[str, Any]:
+    """run.json's ``forward_model.resolution``: ``record`` (``cli.calibrate.resolved_start``) and the check at
+    the optimum ``x`` (sampled coordinates) as ``optimum``: against the reference where a correction is
+    applied, else against the refined models; none with --resolution off."""
+    from homogenization.calibration import resolution  # noqa: PLC0415
+
+    out = {k: v for k, v in record.items() if k != "correction"}
+    if record.get("mode", "off") == "off":
+        return out
+    if record.get("correction") is not None:
+        reference = replace(log_post.settings, **record["reference"])
+        optimum = resolution.check(log_post, x, "optimum", against=reference)
+        out["correction_max_abs_over_sigma"] = {
+            f"{t.name}:{c}": float(np.max(np.abs(v)) / sigma) for t, corr in zip(log_post.tests, log_post.correction)
+            for c, sigma in bayes.channel_sigma(t, log_post.noise).items() for v in [corr[c]]}
+    else:
+        optimum = resolution.check(log_post, x, "optimum")
+    out["optimum"] = optimum.to_dict()
+    out["optimum_line"] = optimum.line()
+    return out
+
+
 def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.Namespace, seconds: float,
-                  config: Mapping[str, Any], start: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """Write posterior.h5, posterior.json, corner.png, fits.png and run.json; returns run.json's content."""
+                  config: Mapping[str, Any], start: Mapping[str, Any] | None = None,
+                  resolution_record: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Write posterior.h5, posterior.json, corner.png, fits.png and run.json; returns run.json's content.
+    ``resolution_record``: the forward model's resolution checks at the start (``cli.calibrate.resolved_start``)."""
+    from homogenization.calibration import resolution  # noqa: PLC0415
+
     prior, tests = log_post.prior, log_post.tests
     samples, lp, discard, stuck = retained_samples(sampler, args.burn)
     autocorrelation = diagnostics.chain_diagnostics(retained_chain(sampler, args.burn)[0], prior.names)
@@ -185,6 +211,12 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
     both = log_post.curves(np.stack([mean, best]))
     mean_curves, best_curves = ([{c: v[k] for c, v in curves.items()} for curves in both] for k in (0, 1))
     confirm = confirm_with_dem(tests, log_post, mean, args) if args.confirm == "dem" else None
+    x_best = samples[np.argmax(lp)]
+    resolution_run = resolution_at_optimum(log_post, resolution_record or {"mode": "off"}, x_best)
+    fit = resolution.misfit(log_post, x_best, args.noise)
+    autocorrelation["converged"] = not autocorrelation["short"]
+    autocorrelation["steps_needed"] = diagnostics.steps_needed(autocorrelation, int(sampler.backend.iteration),
+                                                               args.burn)
     record = provenance()
     run = {
         "data_dimensions": sorted({t.dim for t in tests}),
@@ -201,14 +233,16 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
         "forward_model": {
             "settings": config["forward"], "noise": args.noise,
             "evaluations": log_post.n_calls, "failed": log_post.n_failed, "fallbacks": log_post.n_fallback,
-            "floating_point_errors": log_post.n_float_errors,
+            "floating_point_errors": log_post.n_float_errors, "model_error": getattr(args, "model_error", 0.0),
+            "likelihood_sigma_fraction": log_post.noise, "resolution": resolution_run,
             **({"infeasible_sets": log_post.n_infeasible} if log_post.spread_cut else {}),
             **_ann_model(config["forward"]["backend"]),
         },
         "maximum_a_posteriori": {n: float(v) for n, v in zip(prior.names, best)},
-        "misfit_rms_over_sigma": {"forward_at_mean": misfit(tests, mean_curves, args.noise),
-                                  "forward_at_maximum_a_posteriori": misfit(tests, best_curves, args.noise),
-                                  **({"dem_at_mean": misfit(tests, confirm, args.noise)} if confirm else {})},
+        "misfit_rms_over_sigma": {"forward_at_mean": misfit(tests, mean_curves, log_post.noise),
+                                  "forward_at_maximum_a_posteriori": misfit(tests, best_curves, log_post.noise),
+                                  **({"dem_at_mean": misfit(tests, confirm, log_post.noise)} if confirm else {})},
+        "misfit_against_noise": {**fit.to_dict(), "warning": fit.warning(args.noise)},
         "config": config,
         "provenance": record,
     }
@@ -236,8 +270,13 @@ def start_line(start: Mapping[str, Any]) -> str:
     if start["method"] == "prior":
         return f"start: the best of {start['prior_draws']} prior draws"
     optimum = ", ".join(f"{k} {v:.4g}" for k, v in start["optimum"].items())
+    if "refit_from" in start:
+        return (f"start: least-squares optimum {optimum} (chi-square {start['chi_square']:.4g} over {start['residuals']} "
+                f"residuals; one fit from the previous optimum, {start['evaluations']} forward evaluations); walkers "
+                f"drawn around it from its Laplace approximation")
     return (f"start: least-squares optimum {optimum} (chi-square {start['chi_square']:.4g} over {start['residuals']} "
-            f"residuals; best of {start['least_squares_starts']} fits from {start['prior_draws']} prior draws, "
+            f"residuals; best of {start['least_squares_starts'] + start.get('more_fits', 0)} fits from {start['prior_draws']} "
+            f"prior draws{', ' + str(start['more_fits']) + ' of them because the first ones missed the data far above the noise' if start.get('more_fits') else ''}, "
             f"{start['evaluations']} forward evaluations in {start['forward_batches']} batches, "
             f"{start['failed_sets']} failed sets); walkers drawn around it from its Laplace approximation "
             f"(sd at most {start['ball_fraction_of_prior_width']:g} x the prior width)")
@@ -246,14 +285,31 @@ def start_line(start: Mapping[str, Any]) -> str:
 def summary_lines(result: Mapping[str, Any]) -> list[str]:
     """Status lines: one per parameter, then the identifiability note and the misfits."""
     lines = [start_line(result["start"])] if result.get("start") else []
+    res = result.get("forward_model", {}).get("resolution", {})
+    lines += [f"after the discretisation correction, {start_line(again)}" for again in res.get("starts_after_correction", [])]
+    if res.get("mode", "off") != "off":
+        lines.append(f"forward-model resolution: {res.get('refinements', 0)} refinements to the reference "
+                     f"{res.get('reference')}, {'a correction applied' if res.get('corrected_at') else 'no correction'} "
+                     f"({res.get('restarts', 0)} starts found again)")
+        if "optimum_line" in res:
+            lines.append(res["optimum_line"])
     for name, s in result["posterior"].items():
         lo, hi = s["ci95"]
         lines.append(f"{name}: mean {s['mean']:.4g}, median {s['median']:.4g}, 95 % [{lo:.4g}, {hi:.4g}] {s['unit']}")
     lines += result["identifiability"]
     for which, values in result["misfit_rms_over_sigma"].items():
         lines.append(f"rms misfit / sigma, {which}: " + ", ".join(f"{k} {v:.2f}" for k, v in values.items()))
+    fit = result.get("misfit_against_noise")
+    if fit is not None:
+        lines.append(f"misfit at the optimum: reduced chi-square {fit['reduced_chi_square']:.2f} over "
+                     f"{fit['residuals']} residuals ({'FAR ABOVE' if fit['far_above_noise'] else 'within'} the noise; "
+                     f"limit {fit['limit']:.2f})")
     sampler, forward = result["sampler"], result["forward_model"]
     auto = sampler.get("autocorrelation")  # absent from a result made without a chain
+    if auto is not None and "converged" in auto:
+        lines.append(f"chains converged: {'yes' if auto['converged'] else 'NO'} ({_number(auto['steps_per_tau'], '.1f')} "
+                     f"autocorrelation times retained, {auto['rule_steps_per_tau']:g} needed"
+                     + ("" if auto["converged"] else f"; about --steps {auto['steps_needed']} in all") + ")")
     if auto is not None:
         lines.append("autocorrelation time [steps] / effective samples: " + ", ".join(
             f"{n} {_number(t, '.1f')} / {_number(auto['effective_samples'][n], '.0f')}"
@@ -271,6 +327,19 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
                      f"{STUCK_LOG_POSTERIOR:g}) of the other walkers' and are left out of it; if that is many, rerun "
                      f"with a --prior narrowed around the posterior above or with more --walkers")
     return lines
+
+
+def warnings(result: Mapping[str, Any]) -> list[str]:
+    """Every warning line of a calibration: the chain too short, the misfit far above the noise, the
+    forward model not resolved at the optimum."""
+    lines = [chain_warning(result)]
+    lines.append(result.get("misfit_against_noise", {}).get("warning"))
+    optimum = result.get("forward_model", {}).get("resolution", {}).get("optimum")
+    if optimum is not None and not optimum["passed"]:
+        lines.append(f"warning: at the optimum the forward model's discretisation error is not well below the noise "
+                     f"({optimum['worst_rms_over_sigma']:.2f} sigma rms, parameter shift {optimum['worst_shift_over_sd']:.2f} "
+                     f"sd): the intervals may be biased; rerun with a finer --increment and --orientations")
+    return [line for line in lines if line]
 
 
 def chain_warning(result: Mapping[str, Any]) -> str | None:

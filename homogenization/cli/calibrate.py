@@ -47,7 +47,7 @@ from homogenization.calibration.forward import (LAW_PARAMETERS, PARAMETERS, SPRE
                                                 check_density, with_density)
 from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN
 from homogenization.material import opening_spread
-from homogenization.calibration.start import START_METHODS
+from homogenization.calibration.start import START_METHODS, refit_start
 from homogenization.cli.options import (
     add_orientations_argument,
     add_threads_argument,
@@ -71,6 +71,8 @@ from warp_hcell.core.files import check_output_path, output_lock, temporary_of
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.core.parameters import HertzMindlinLaw
 
+RESOLUTION_MODES = ("correct", "check", "off")
+"""--resolution choices (``homogenization.calibration.resolution``)."""
 CHAIN_FILE = "chain.h5"
 OUTPUT_FILES = (CHAIN_FILE, "posterior.h5", "posterior.json", "corner.png", "fits.png", "run.json")
 """Everything this command writes into DIR."""
@@ -134,6 +136,10 @@ def build_parser() -> argparse.ArgumentParser:
                               "of 8 x --walkers prior draws")
     sampler.add_argument("--noise", type=positive_float, default=0.02,
                          help="measurement error sd as a fraction of each channel's largest abs value")
+    sampler.add_argument("--model-error", type=non_negative_float, default=0.0, metavar="FRACTION",
+                         help="model error sd as a fraction of each channel's largest abs value, added in quadrature "
+                              "to --noise (the likelihood's sigma); the run suggests a value where the fit misses the "
+                              "data far above their noise (default 0)")
     forward = parser.add_argument_group("forward model")
     add_orientations_argument(forward, FORWARD.n_orientations, "cell orientations")
     forward.add_argument("--increment", type=positive_float, default=FORWARD.increment, help="shear strain increment [-]")
@@ -141,6 +147,12 @@ def build_parser() -> argparse.ArgumentParser:
                          help="isotropic strain increment per component [-]")
     forward.add_argument("--stress-rtol", type=positive_float, default=FORWARD.stress_rtol,
                          help="relative tolerance of p = p0 and drained sigma22 = p0 [-]")
+    forward.add_argument("--resolution", choices=RESOLUTION_MODES, default="correct",
+                         help="check the forward model's discretisation error against the noise at the start "
+                              "point and at the optimum: correct (default) = where it is not well below the noise, "
+                              "refine a copy at that point until it is and add the difference to every curve; "
+                              "check = refuse (exit 2) naming the --increment and --orientations it needs; off = "
+                              "no check")
     add_threads_argument(forward, "CPU threads of the DEM (dem, --confirm)")
     parser.add_argument("--confirm", choices=("dem", "none"), default="dem",
                         help="run the DEM once at the posterior mean and report its misfit")
@@ -189,6 +201,9 @@ def configuration(args: argparse.Namespace, tests: Sequence[Measurement], prior:
         "seed": args.seed,
         "start": args.start,
         "forward": forward_config(settings),
+        # new keys only where not default, so that the chains of earlier runs still resume
+        **({"model_error": args.model_error} if args.model_error else {}),
+        **({"resolution": args.resolution} if args.resolution != "correct" else {}),
     }
 
 
@@ -250,6 +265,22 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
         raise UserError(f"--iso-increment {args.iso_increment:g} must be < 0.1")
 
 
+def non_negative_float(text: str) -> float:
+    """argparse type: a finite float >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (value >= 0.0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"{text!r} must be finite and >= 0")
+    return value
+
+
+def likelihood_noise(args: argparse.Namespace) -> float:
+    """The likelihood's sigma as a fraction of each channel's scale: --noise and --model-error in quadrature."""
+    return float(np.hypot(args.noise, args.model_error))
+
+
 def check_spread(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     """UserError (one line) for alpha0_spread (calibrated or --alpha0-spread) where the forward model cannot
     run it: biaxial data, a backend other than the analytical one, --confirm dem (the DEM takes one opening
@@ -293,8 +324,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with output_lock(args.out):
         result = run_calibration(args, tests, prior, settings, config)
     say(*report.summary_lines(result), f"{args.out}: done in {time.perf_counter() - started:.0f} s")
-    warning = report.chain_warning(result)
-    if warning:
+    for warning in report.warnings(result):
         print(f"hmodel calibrate: {warning}", file=sys.stderr)
     return 0
 
@@ -324,7 +354,7 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
                             f"seed or forward model); add --overwrite to restart it")
         if stored != config_json or args.overwrite:
             chain.unlink()
-    log_post = bayes.Posterior(tests, prior, settings, args.noise)
+    log_post = bayes.Posterior(tests, prior, settings, likelihood_noise(args))
     started = time.perf_counter()
     backend = emcee.backends.HDFBackend(str(chain))
     done = backend.iteration if chain.exists() else 0
@@ -337,18 +367,21 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
         backend.reset(args.walkers, n_dim)
         with h5py.File(chain, "a") as fh:
             fh.attrs["calibration_config"] = config_json
-        rng = np.random.default_rng(args.seed)
         sampler.random_state = np.random.RandomState(args.seed).get_state()
-        start, start_record = START_METHODS[args.start](log_post, args.walkers, rng)
+        start, start_record, resolution_record = resolved_start(args, log_post)
         start_record["seconds"] = time.perf_counter() - started
         with h5py.File(chain, "a") as fh:
             fh.attrs["start_record"] = json.dumps(start_record, sort_keys=True)
-        say(report.start_line(start_record))
+            fh.attrs["resolution_record"] = json.dumps(resolution_record, sort_keys=True)
     else:
         start = backend.get_last_sample()  # positions, log posterior and random state of the last step
         with h5py.File(chain, "r") as fh:
             stored_start = fh.attrs.get("start_record")
+            stored_resolution = fh.attrs.get("resolution_record")
         start_record = json.loads(stored_start) if stored_start is not None else None
+        resolution_record = json.loads(stored_resolution) if stored_resolution is not None else {"mode": "off"}
+        if resolution_record.get("correction") is not None:
+            log_post.correction = [{c: np.asarray(v) for c, v in t.items()} for t in resolution_record["correction"]]
         say(f"{chain}: resuming after {done} of {args.steps} steps")
     seconds = time.perf_counter()
     remaining = max(0, args.steps - done)
@@ -357,4 +390,78 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
             for _ in sampler.sample(start, iterations=remaining):
                 bar.update(1)
     seconds = time.perf_counter() - seconds
-    return report.write_outputs(out, sampler, log_post, args, seconds, config, start_record)
+    return report.write_outputs(out, sampler, log_post, args, seconds, config, start_record, resolution_record)
+
+
+def resolved_start(args: argparse.Namespace, log_post: bayes.Posterior) -> tuple[np.ndarray, dict, dict]:
+    """The walkers' start (--start) with the forward model's resolution checked there (--resolution): where
+    its discretisation error is not well below the noise, ``resolution.reference`` finds a finer model
+    (each refinement reported), its difference at the start point is added to every curve
+    (``log_post.correction``, set in place) and the start is found again (--start map: one fit from the
+    previous optimum; recorded in the resolution's ``starts_after_correction``), at most ``RESOLUTION_RESTARTS`` times. Returns the walkers, the start's record and the resolution's record.
+
+    Raises:
+        UserError: --resolution check and a model too coarse, or no reference within
+            ``resolution.MAX_REFINEMENTS`` refinements (one line naming the flags to set).
+    """
+    from homogenization.calibration import report, resolution  # noqa: PLC0415
+
+    record: dict[str, Any] = {"mode": args.resolution, "restarts": 0, "correction": None}
+    start, start_record = START_METHODS[args.start](log_post, args.walkers, np.random.default_rng(args.seed))
+    say(report.start_line(start_record))
+    if args.resolution == "off":
+        return start, start_record, record
+    x = start_point(log_post, start, start_record)
+    try:
+        ref, levels = resolution.reference(log_post, x)
+    except resolution.ResolutionError as exc:
+        raise UserError(f"the forward model is still too coarse for these data after {resolution.MAX_REFINEMENTS} "
+                        f"refinements ({exc}); give finer --increment and --orientations, or --model-error, or "
+                        f"--resolution off") from None
+    for level in levels:
+        say(level.line())
+    record.update(levels=[level.to_dict() for level in levels], reference=resolution.knob_settings(ref),
+                  refinements=len(levels) - 1)
+    if len(levels) == 1:
+        return start, start_record, record
+    if args.resolution == "check":
+        raise UserError(f"the forward model's discretisation error is not well below the noise ({levels[0].line()}); "
+                        f"set --increment {ref.increment:g} --iso-increment {ref.iso_increment:g} --orientations "
+                        f"{ref.n_orientations}, or --resolution correct")
+    checks = []
+    for restart in range(1, RESOLUTION_RESTARTS + 1):
+        log_post.correction = resolution.correction(log_post, ref, x)
+        rng = np.random.default_rng(args.seed)
+        start, again = (refit_start(log_post, x, args.walkers, rng) if args.start == "map" else
+                        START_METHODS[args.start](log_post, args.walkers, rng))
+        say(f"forward model corrected by the reference's difference at {format_point(log_post, x)}; "
+            + report.start_line(again))
+        x_new = start_point(log_post, start, again)
+        record.setdefault("starts_after_correction", []).append(again)
+        checks.append(resolution.check(log_post, x_new, "start", against=ref))
+        say(checks[-1].line())
+        record["restarts"] = restart
+        x_done, x = x, x_new
+        if checks[-1].passed:
+            break
+    record.update(correction=[{c: v.tolist() for c, v in t.items()} for t in log_post.correction],
+                  corrected_at=dict(zip(log_post.prior.names, log_post.prior.to_values(x_done).tolist())),
+                  start_checks=[c.to_dict() for c in checks])
+    return start, start_record, record
+
+
+RESOLUTION_RESTARTS = 2
+"""Starts found again after a discretisation correction, at most [-]."""
+
+
+def start_point(log_post: bayes.Posterior, walkers: np.ndarray, record: dict) -> np.ndarray:
+    """Where the start's resolution is checked: the least-squares optimum (--start map) or the best walker."""
+    if "optimum" in record:
+        return log_post.prior.to_coord(np.array([record["optimum"][n] for n in log_post.prior.names]))
+    with np.errstate(all="ignore"):
+        return walkers[int(np.argmax(log_post(walkers)))]
+
+
+def format_point(log_post: bayes.Posterior, x: np.ndarray) -> str:
+    """"phi_g 26.5, alpha0 52.5" of sampled coordinates x."""
+    return ", ".join(f"{n} {v:.4g}" for n, v in zip(log_post.prior.names, log_post.prior.to_values(x)))
