@@ -1,0 +1,106 @@
+"""hmodel calibrate where the truth is known: the forward model's resolution is checked and corrected, a
+misfit far above the noise is said out loud, and the truth lies inside the 95 % intervals."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from homogenization.calibration import bayes, resolution
+from homogenization.calibration.data import read_test
+from homogenization.calibration.forward import ForwardSettings
+from homogenization.calibration.synthetic import synthetic_test, write_test
+from homogenization.cli import calibrate
+from warp_hcell.core.cli import run_main
+
+TRUTH = {"phi_g": 26.5, "alpha0": 52.5}
+ORIENTATIONS = 12
+"""Orientations of the data and of the forward model: small, so that the test runs in seconds."""
+TESTS = (("undrained", 5e4, ("q", "p")), ("drained", 3e4, ("q", "eps_v")))
+
+
+def make_data(folder: Path, noise: float = 0.02, truth: dict | None = None) -> list[Path]:
+    """The known-truth problem of benchmarks/bench_calibrate_truths.py, its source the closed form at a fine
+    increment (5e-5) and 96 orientations (converged: the calibration refines towards the same curves)."""
+    source = ForwardSettings(n_orientations=96, increment=5e-5, iso_increment=5e-5, stress_rtol=1e-5)
+    rng = np.random.default_rng(20)
+    eps1 = np.linspace(0.02 / 20, 0.02, 20)
+    paths = []
+    for kind, p0, channels in TESTS:
+        test, _ = synthetic_test(kind, p0, eps1, channels, truth or TRUTH, source, noise, rng)
+        paths.append(folder / f"{kind}.csv")
+        write_test(paths[-1], test)
+    return paths
+
+
+def calibrate_run(paths: list[Path], out: Path, *extra: str) -> int:
+    argv = ["--params", "phi_g,alpha0", "--walkers", "8", "--steps", "40", "--orientations", str(ORIENTATIONS),
+            "--confirm", "none", "-q", "--out", str(out), *extra]
+    for path in paths:
+        argv += ["--data", str(path)]
+    return run_main(calibrate.main, argv)
+
+
+def test_known_truth_lies_inside_the_intervals_with_the_default_increment(tmp_path):
+    """The default increment (1e-3) is several sigma away from the converged curves of these low-pressure
+    tests: without the resolution check (and the start's further fits) the posterior misses the truth by
+    many posterior standard deviations."""
+    paths = make_data(tmp_path)
+    assert calibrate_run(paths, tmp_path / "run") == 0
+    posterior = json.loads((tmp_path / "run" / "posterior.json").read_text())
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    for name, value in TRUTH.items():  # within 3 posterior sd (the short chain's 95 % interval is itself noisy)
+        lo, hi = posterior[name]["ci95"]
+        assert abs(posterior[name]["mean"] - value) <= 3.0 * (hi - lo) / 3.92, (name, posterior[name])
+    res = run["forward_model"]["resolution"]
+    assert not res["levels"][0]["passed"] and res["levels"][0]["worst_rms_over_sigma"] > resolution.RMS_TOLERANCE
+    assert res["refinements"] >= 1 and res["levels"][-1]["passed"] and res["reference"]["increment"] < 1e-3
+    assert res["optimum"]["passed"]
+    assert not run["misfit_against_noise"]["far_above_noise"]
+    assert "converged" in run["sampler"]["autocorrelation"]
+
+
+def test_resolution_check_refuses_with_the_flags_to_set(tmp_path, capsys):
+    paths = make_data(tmp_path)
+    assert calibrate_run(paths, tmp_path / "run", "--resolution", "check", "--start", "prior") == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--increment" in err and "--orientations" in err
+    assert not (tmp_path / "run" / "posterior.json").exists()
+
+
+def test_misfit_far_above_the_noise_is_measured_and_a_model_error_brings_it_to_one(tmp_path):
+    """Data with 6 % noise calibrated with the default 2 %: the reduced chi-square at the truth is near 9, above
+    the limit; the suggested model error, added in quadrature, brings it near 1."""
+    tests = [read_test(p) for p in make_data(tmp_path, noise=0.06)]
+    prior = bayes.make_prior(("phi_g", "alpha0"))
+    settings = ForwardSettings(n_orientations=96, increment=5e-5, iso_increment=5e-5, stress_rtol=1e-5)
+    x = prior.to_coord(np.array([TRUTH["phi_g"], TRUTH["alpha0"]]))
+    fit = resolution.misfit(bayes.Posterior(tests, prior, settings, 0.02), x, 0.02)
+    assert fit.far_above_noise and 5.0 < fit.reduced < 15.0
+    assert "--model-error" in fit.warning(0.02)
+    widened = resolution.misfit(bayes.Posterior(tests, prior, settings, float(np.hypot(0.02, fit.suggested_model_error))),
+                                x, 0.02)
+    assert not widened.far_above_noise and widened.reduced == pytest.approx(1.0, rel=0.05)
+    honest = resolution.misfit(bayes.Posterior(tests, prior, settings, 0.06), x, 0.06)
+    assert not honest.far_above_noise
+
+
+def test_model_error_widens_sigma_in_quadrature_and_bad_values_exit_2(tmp_path, capsys):
+    paths = make_data(tmp_path)
+    with pytest.raises(SystemExit) as exit_info:
+        calibrate_run(paths, tmp_path / "run", "--model-error", "-0.1")
+    assert exit_info.value.code == 2 and "--model-error" in capsys.readouterr().err
+    args = calibrate.build_parser().parse_args(["--data", "a", "--params", "phi_g", "--out", "o", "--noise", "0.03",
+                                                "--model-error", "0.04"])
+    assert calibrate.likelihood_noise(args) == pytest.approx(0.05)
+
+
+def test_refined_settings_halve_the_increment_and_double_the_orientations():
+    s = ForwardSettings(n_orientations=36, increment=1e-3, iso_increment=5e-4, lebedev_order=11)
+    assert resolution.refined(s, "increment").increment == 5e-4
+    assert resolution.refined(s, "increment").iso_increment == 2.5e-4
+    finer = resolution.refined(s, "orientations")
+    assert finer.n_orientations == 72 and finer.lebedev_order == 15 and finer.increment == 1e-3
