@@ -58,7 +58,8 @@ def test_a_parameter_that_never_moved_has_no_tau():
 def test_a_short_calibration_warns_and_writes_its_diagnostics(tmp_path, capsys):
     assert tiny_run(tmp_path, "run", 12) == 0
     err = capsys.readouterr().err
-    assert "warning: the chain is short" in err and "--steps" in err and len(err.strip().splitlines()) == 1
+    short = [line for line in err.strip().splitlines() if "the chain is short" in line]
+    assert "--steps" in err and len(short) == 1  # (the misfit of these three points may warn too)
     run = json.loads((tmp_path / "run" / "run.json").read_text())
     sampler = run["sampler"]
     line = next(x for x in report.summary_lines(run) if x.startswith("autocorrelation time"))
