@@ -456,14 +456,11 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
           certify_settings: CertificateSettings = CertificateSettings(), seed: int = 0, threads: int = 1,
           card: ModelCard | None = None, log: Callable[..., None] = print, progress: fitting.Progress | None = None
           ) -> tuple[list[Round], Certificate]:
-    """Certify ``model`` (trained on ``db``) and run active rounds until it passes, or the budget
-    is spent, or rounds stall (``stall_line``), or every failing test misses the DEM by no more
-    than the DEM from rest does (``unresolvable_line``). A round probes the DEM states of the kept
-    model's failing tests (``failing_states``), adds what fits the database's budget
-    (``budget_room``) and trains a candidate (``_judge``); the candidate replaces the kept model
-    only where its certificate is ``better``, so the kept worst never rises. Returns the rounds
-    (round 0: the model as given; ``rules_line`` counts them) and the kept model's certificate,
-    both also stored in the model's JSON; ``model`` is the kept model.
+    """Certify ``model`` (trained on ``db``) and run rounds (module docstring) until it passes or
+    the loop stops (budget, ``stall_line``, ``unresolvable_line``). A round's candidate replaces
+    the kept model only where it is ``better`` (``_judge``), so the kept worst never rises.
+    Returns the rounds (round 0: the model as given) and the kept model's certificate, both also
+    in the model's JSON.
 
     Args:
         db: the model's database; the rounds append to it (``append_samples``).
@@ -473,7 +470,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         seed: seed of the rounds' probes.
         threads: DEM and ANN threads.
         card: ``model``'s JSON already read (``training.card.read_card``); None: read here.
-        log: receives one line per round (and the trainings' summary lines).
+        log: receives one line per round and the trainings' summary lines.
         progress: receives every training's epochs (``training.fitting.Progress``; None: silent).
     """
     start = time.perf_counter()
