@@ -51,6 +51,15 @@ def test_default_run_is_the_plain_model():
     assert np.max(np.abs(busy.q - plain.q)) > 0.01 * 2e5
 
 
+def test_renewal_keeps_a_symmetric_planar_test_symmetric():
+    """Mirror-image cells (theta, pi - theta) are renewed together: no macro shear stress appears."""
+    rec = driver.run(make_cell_model("analytical"), pg.biaxial(2e5, 0.05, 1e-3, drained=True),
+                     mesostructure=plain_h_cell(2, 52.0), n_orientations=36, progress=False,
+                     critical_state=DEFAULTS[2])
+    assert np.nanmax(rec.diagnostics["critical_state_renewals"]) > 50
+    assert np.max(np.abs(rec.sigma12)) < 1e-9 * 2e5
+
+
 def _end_void_ratio(alpha0: float, params: CriticalState | None) -> tuple[float, float]:
     rec = driver.run(make_cell_model("analytical", dim=3), pg.triaxial(1e5, 0.3, 4e-3, test="drained"),
                      mesostructure=plain_h_cell(3, alpha0), lebedev_order=11, n_spins=4, progress=False,

@@ -122,7 +122,8 @@ def run(
         progress: a progress bar per stage.
         before_stage: step index -> action on the material point before that step (e.g. erosion).
         critical_state: renewal rule of the cells (``material.critical_state``; None: the plain H-model);
-            diagnostics ``critical_state_renewals``, ``_rate_capped``, ``_angle_clipped`` count its events.
+            diagnostics ``critical_state_renewals``, ``_rate_capped``, ``_angle_clipped``, ``_merged`` count its
+            events.
         void_ratio, density_map: the cells' initial void ratio [-], recorded (``Record.e0``); the cell
             must be at the map's alpha0 (None: ``density.default_map``).
 
@@ -160,7 +161,7 @@ def run(
                       stacklevel=2)
     if points.renewal is not None:
         pad = [np.nan] * (history.rows.shape[0] - len(points.renewal.log))
-        for i, name in enumerate(("renewals", "rate_capped", "angle_clipped")):
+        for i, name in enumerate(("renewals", "rate_capped", "angle_clipped", "merged")):
             history.diagnostics[f"critical_state_{name}"] = np.array([float(c[i][0]) for c in points.renewal.log] + pad)
     record = to_record(history, points, programme, step_seconds, dict(mesostructure.parameters))
     if density_map is not None:

@@ -5,7 +5,9 @@ of the same orientations, built by the backend's own ``init_state`` (closed form
 the rule exactly). The clock is the point's distortion: per increment, s = sum_k w_k sum_{a<b}
 abs(d eps_a - d eps_b) / sum_k w_k (the cells' local normal strains, so an isotropic compression
 renews nothing); cell k is renewed each time floor(S_k + phi_k) grows, S_k the sum of lambda s over
-the increments and phi_k = frac(k g) a fixed phase (g the golden ratio).
+the increments and phi_k = frac(j g) a fixed phase (g the golden ratio, j the index of k's class of
+cells that reflections of the macro axes map onto one another: renewed together, they keep a symmetric
+test symmetric where the orientation set is).
 
 Both the rate lambda and the fresh cells' opening angle follow the point's current void ratio
 e = (1 + e0) J - 1 (``homogenization.material.density``'s map, a(e) the opening angle the map gives
@@ -14,7 +16,8 @@ alpha_f = clip(alpha_c + gain (a(e) - alpha_c), alpha_min, alpha_max). A point l
 renews faster with looser, contractive cells, a denser one slower with denser, dilatant cells, so
 loose and dense points head for one stationary void ratio at each pressure. Renewal changes the stress at
 fixed strain; the next increment's stress control re-equilibrates the point. ``Renewal`` counts the
-renewals, the capped rates and the clipped angles.
+renewals, the capped rates, the clipped angles and the renewals merged into one (an increment too large for
+the rate: more than one renewal of a cell fell due in it).
 """
 
 from __future__ import annotations
@@ -85,6 +88,16 @@ DEFAULTS = {2: CriticalState(rate=160.0, gain=8.0, alpha_c_deg=52.0, rate_gain=1
 and void-ratio map (docs/studies/critical_state_mechanism.md); the gains are per degree of the map's angles."""
 
 
+def _phases(frames: np.ndarray) -> np.ndarray:
+    """Renewal phase phi_k = frac(j g) [-] of each cell, shape (N,), of frames R_k (N, d, d): j indexes the classes
+    of cells whose abs(R_k) agree (to 1e-9), i.e. cells that reflections of the macro axes (or sign flips of their
+    own axes) map onto one another, in order of first appearance; such cells are renewed together."""
+    keys = np.round(np.abs(frames).reshape(frames.shape[0], -1), 9)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(np.argsort(first))
+    return np.mod(order[inverse.reshape(-1)] * GOLDEN, 1.0)
+
+
 def _plain(meso: Mesostructure) -> tuple[float, float]:
     """(alpha0_deg, radius) of a plain H-cell of either dimension; ValueError (one line) for another cell."""
     plain = hcell.plain_alpha0(meso) if meso.dim == 2 else hcell.plain_alpha0_3d(meso)
@@ -121,17 +134,21 @@ class Renewal:
         self.e0 = np.array([self.density.void_ratio(a) for a in alpha0])
         """Each point's initial void ratio [-] (the map's), shape (n_points,)."""
         n = material.orient.n_cells
-        self.phase = np.tile(np.mod(np.arange(n) * GOLDEN, 1.0), material.n_points)
+        self.phase = np.tile(_phases(np.asarray(material.orient.frames)), material.n_points)
+        """phi_k [-] of every cell (``_phases``), shape (n_cells,)."""
         self.distortion = np.zeros(material.n_cells)
         """Renewal clock of every cell: its distortion times the rate, summed [-], shape (n_cells,)."""
         self.count = np.zeros(material.n_points, dtype=np.int64)
         """Renewals made per point."""
+        self.merged = np.zeros(material.n_points, dtype=np.int64)
+        """Per point, renewals that fell due in an increment where the cell was already due (made once): more
+        than one renewal per cell and increment, i.e. an increment too large for the rate."""
         self.capped = np.zeros(material.n_points, dtype=np.int64)
         """Per point, the increments whose rate ``rate_max`` capped."""
         self.clipped = np.zeros(material.n_points, dtype=np.int64)
         """Per point, the fresh cells whose opening angle [alpha_min_deg, alpha_max_deg] clipped."""
-        self.log: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        """(count, capped, clipped) after each ``advance`` call (one per recorded increment)."""
+        self.log: list[tuple[np.ndarray, ...]] = []
+        """(count, capped, clipped, merged) after each ``advance`` call (one per recorded increment)."""
         self.last_strain = np.array(state.strain)
         self._mesos: dict[float, Mesostructure] = {}
 
@@ -173,13 +190,16 @@ class Renewal:
         rate = self.rate(state.J)
         self.capped = self.capped + (rate > self.params.rate_max)
         self.distortion = self.distortion + np.repeat(np.minimum(rate, self.params.rate_max) * increment, n)
-        due = np.floor(self.distortion + self.phase) > before
+        after = np.floor(self.distortion + self.phase)
+        due = after > before
+        self.merged = self.merged + np.maximum(after - before - 1.0, 0.0).reshape(self.material.n_points, n).sum(
+            axis=1).astype(np.int64)
         per_point = due.reshape(self.material.n_points, n).sum(axis=1)
         self.count = self.count + per_point
         angle = self.fresh_angle(state.J)
         clipped = (angle < self.params.alpha_min_deg) | (angle > self.params.alpha_max_deg)
         self.clipped = self.clipped + per_point * clipped
-        self.log.append((self.count, self.capped, self.clipped))
+        self.log.append((self.count, self.capped, self.clipped, self.merged))
         if not due.any():
             return state
         index = np.flatnonzero(due)
