@@ -628,15 +628,12 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
         alpha0_deg: opening angle [deg]; equal spheres in orthogonal planes need >= 45 deg.
         radius: radius r of the axial grains 1 and 4 [m].
         lateral: radius of the eight lateral grains over r [-].
-        plane_angle_deg: angle between plane A (grains 1-6) and plane B (grains 1, 4, 7-10)
-            about n [deg], in (0, 180).
-        fines: radius of each fine grain over r [-]; zeros are left out.
+        plane_angle_deg: angle of plane B (grains 1, 4, 7-10) to plane A (1-6) about n [deg], in (0, 180).
+        fines: radius of each fine grain over r [-] (zeros left out).
         fine_offsets: (n, t1, t2) offset of each fine grain from the pore centre over r [-].
-        name: mesostructure name (default: describes the parameters).
-        axisymmetric: driven by the axisymmetric part of the strain (kind ``hcell3d-axisym``);
-            False: projected kinematics.
-        kinematics: a key of ``KINEMATICS_GAIN`` ("amplified": kind ``hcell3d-sand``), overriding
-            ``axisymmetric``; None: as ``axisymmetric`` says.
+        name: its name (default: from the parameters).
+        axisymmetric: the kinematics "axisymmetric" (``hcell3d-axisym``) where ``kinematics`` is None.
+        kinematics: "projected" or a key of ``KINEMATICS_GAIN``.
 
     Returns:
         The cell: grains 1, 4 driven, lateral grains driven along t1, t2 only, fine grains free;
