@@ -136,11 +136,6 @@ class SchemaArrays:
         return int(self.driven_fraction.shape[1])
 
     @property
-    def n_free(self) -> int:
-        """Number of free DOFs."""
-        return int(self.free_dofs.shape[0])
-
-    @property
     def shear_shape(self) -> tuple[int, ...]:
         """Shape of one cell's tangential springs: (n_pairs,) planar, (n_pairs, 3) spatial."""
         return (int(self.pairs.shape[0]),) if self.dim == 2 else (int(self.pairs.shape[0]), 3)
@@ -196,7 +191,7 @@ def net_arrays(path: str | Path, metadata: Mapping[str, Any]) -> NetArrays:
     except KeyError as exc:
         raise StateDictError(f"{path}: state_dict has no {exc.args[0]!r} (another architecture than its JSON's)") from None
     if (active.shape != (schema.pairs.shape[0],) or layers[0][0].shape[1] != stats[0].shape[0]
-            or stats[2].shape != (schema.n_free,)):
+            or stats[2].shape != (schema.free_dofs.shape[0],)):
         raise StateDictError(f"{path}: state_dict does not match the architecture in its JSON")
     return NetArrays(schema, np.flatnonzero(active).astype(np.int64), *stats, layers)
 
