@@ -12,8 +12,14 @@ isotropic compression to p0 and an isochoric triaxial compression, with its own 
 - the rigid-mechanism ratio r_mech(alpha) of a planar H-cell (d1, d2 fixed), which decides
   whether an imposed ratio r opens (|r| > |r_mech|) or loads (|r| < |r_mech|) a plane.
 
+- with ``--by-axis``: the share of p, the opening angles, the closed contacts and the sliding ratio
+  T1/N1 of the cells grouped by |n.e1| of their axis, at 5 and 15 % (which cells hold the pressure
+  at a window's edge; docs/studies/liquefaction_3d_cell.md); ``--gain G`` drives an axisymmetric
+  kind with the cell deviator multiplied by G (``orientation.axisymmetric_map``).
+
 Usage: python studies/cell3d_liquefaction.py [--alpha0 55,65,75] [--kind hcell3d,hcell3d-volumetric]
        [--order 11] [--spins 4] [--p0 2e5] [--increment 1e-3] [--eps-max 0.15] [--phi-g 30]
+       [--by-axis] [--gain G]
 Units: stresses in Pa, strains [-], compression positive.
 """
 
@@ -26,6 +32,7 @@ import numpy as np
 
 from homogenization.backends.analytical3d import Analytical3DCell
 from homogenization.material.orientation import average_moment, initial_volume, localise
+from homogenization.material import orientation as orientation_module
 from homogenization.material.orientation import cell_kinematics, orientations_3d
 from warp_hcell.core.parameters import CellDefaults, ContactLaw
 from warp_hcell.mesostructures.builders import resolve_mesostructure
@@ -82,7 +89,7 @@ def run_path(spec: str, alpha0: float, *, order: int, spins: int, p0: float, inc
             if abs(k * increment - eps) < 0.5 * increment:
                 snaps[eps] = (state, resp.moment.copy(), v0 * j)
     return {"curve": np.array(curve), "orient": orient, "cell": cell, "local": local, "snaps": snaps,
-            "iso_state": iso_state, "eps_iso": None}
+            "iso_state": iso_state, "eps_iso": None, "increment": increment}
 
 
 def mechanism_ratio(alpha_deg: np.ndarray) -> np.ndarray:
@@ -143,6 +150,34 @@ def plane_strains(out: dict) -> None:
         print(f"  rigid planar cell alpha = {a:5.1f} deg: r_mech = {mechanism_ratio(np.array(a)):+.3f}")
 
 
+AXIS_BINS = (0.0, 0.3, 0.5, 0.577, 0.7, 0.85, 1.0001)
+"""Edges of the groups of |n.e1| in ``by_axis`` (0.577: the cone where the axisymmetric deviator vanishes)."""
+
+
+def by_axis(out: dict, p0: float) -> None:
+    """p/p0 carried by the cells grouped by |n.e1| of their axis, with their plane-A opening angles, the share
+    with contact 1-2 closed and the mean T1/N1 of those, at the probes 5 and 15 %."""
+    orient, cell, local = out["orient"], out["cell"], out["local"]
+    cosine = np.abs(orient.frames[:, 0, 0])
+    print(f"  by |n.e1| (weight; d_eps_n per unit axial increment):")
+    for eps, (state, moment, volume) in sorted(out["snaps"].items()):
+        if eps not in (0.05, 0.15):
+            continue
+        share = orient.weights * np.trace(moment, axis1=1, axis2=2) / (3.0 * volume * p0)
+        alpha = np.degrees(state.a.alpha)
+        closed = state.a.N1 > 0.0
+        ratio = np.where(closed, np.abs(state.a.T1) / np.where(closed, state.a.N1, 1.0), 0.0)
+        print(f"  eps_a = {eps:.2f}: p/p0 = {share.sum():.3f}")
+        for lo, hi in zip(AXIS_BINS[:-1], AXIS_BINS[1:]):
+            sel = (cosine >= lo) & (cosine < hi)
+            if not sel.any():
+                continue
+            print(f"    |n.e1| {lo:.3f}-{min(hi, 1.0):.3f} (weight {orient.weights[sel].sum():.2f}, d_eps_n "
+                  f"{local[sel, 0].mean() / out['increment']:+.2f}): p/p0 {share[sel].sum():.3f}, alpha "
+                  f"{alpha[sel].min():.1f}-{alpha[sel].max():.1f} deg, contact 1-2 closed in {closed[sel].mean():.0%}, "
+                  f"T1/N1 {ratio[sel].mean():.3f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--alpha0", default="55,65,75")
@@ -153,7 +188,12 @@ def main() -> None:
     parser.add_argument("--increment", type=float, default=1e-3)
     parser.add_argument("--eps-max", type=float, default=0.15)
     parser.add_argument("--phi-g", type=float, default=ContactLaw.phi_g_deg, help="inter-granular friction angle [deg]")
+    parser.add_argument("--by-axis", action="store_true", help="the cells grouped by |n.e1| at 5 and 15 %%")
+    parser.add_argument("--gain", type=float, default=None,
+                        help="gain on the cell deviator of an axisymmetric kind (default: the kind's own)")
     args = parser.parse_args()
+    if args.gain is not None:
+        orientation_module.AXISYMMETRIC_MAP = orientation_module.axisymmetric_map(args.gain)
     first = True
     for spec in args.kind.split(","):
         for alpha0 in (float(a) for a in args.alpha0.split(",")):
@@ -163,6 +203,8 @@ def main() -> None:
                 plane_strains(out)
                 first = False
             report(spec, alpha0, out, args.p0)
+            if args.by_axis:
+                by_axis(out, args.p0)
 
 
 if __name__ == "__main__":
