@@ -90,6 +90,7 @@ def time_increments(args) -> None:
     for widths in args.widths:
         models[f"ann {'x'.join(map(str, widths))}"] = make_cell_model(
             "ann", model=_random_model(models["ann"].model_path, widths, Path(scratch.name)), threads=1)
+    models["ann"].net  # noqa: B018 (the torch network of the torch-path timings below; sets torch's threads)
     print(f"torch threads: {torch.get_num_threads()}")
     orient = orientations(args.cells)
     iso = localise(orient, np.array([2e-5, 2e-5, 0.0]))

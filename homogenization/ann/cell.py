@@ -114,7 +114,8 @@ class AnnCell(ArrayStateMixin):
         contact_law: contact stiffnesses and friction, those of the model's training data.
         radius: grain radius r [m], > 0; unused (the mesostructure gives the geometry).
         model: a model's ``.pt`` (its ``.json`` beside it); None: the shipped one.
-        device: torch device ("cpu", "cuda", ...). threads: torch CPU threads (process-wide).
+        device: torch device ("cpu", "cuda", ...). threads: torch CPU threads (process-wide), set where
+            the torch network is first used (``net``).
         ood_interval: start states between two out-of-distribution checks, >= 1.
         equilibrium_corrections: most exact Newton steps on the free DOFs' balance after the
             network's (spatial models); 0: the network alone; None: the certificate's K.
