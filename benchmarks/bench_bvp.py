@@ -9,7 +9,7 @@ batched material update of all points.
 
 Per backend: load steps run, wall [s], Newton iterations per step (mean, max), material-point
 updates/s, cell-steps/s and, for the DEM, cell-substeps/s (the DEM's ``substeps`` diagnostic).
-``--dem-steps K`` (and ``--ann-steps``) run only the first K load steps of that backend and
+``--dem-steps K`` (and ``--ann-steps``, ``--analytical-steps``) run only the first K load steps of that backend and
 extrapolate the wall time to the whole programme from the mean time per step of the steps run
 (labelled "extrapolated"; the shear steps cost more than the isotropic ones, so K should reach
 into the shear stage). Prints the machine load before and after (shared machine).
@@ -82,6 +82,7 @@ def main() -> None:
     parser.add_argument("--backends", nargs="+", default=["analytical", "ann", "dem"])
     parser.add_argument("--dem-steps", type=int, default=None, help="load steps of the DEM run (None: all)")
     parser.add_argument("--ann-steps", type=int, default=None, help="load steps of the ANN run (None: all)")
+    parser.add_argument("--analytical-steps", type=int, default=None, help="load steps of the closed-form run (None: all)")
     parser.add_argument("--out", type=Path, default=None, help="also write the rows as JSON")
     args = parser.parse_args()
     nx, ny = args.elements
@@ -89,7 +90,7 @@ def main() -> None:
           f"{ISO_STEPS} + {args.shear_steps} steps", flush=True)
     rows = []
     for name in args.backends:
-        limit = {"dem": args.dem_steps, "ann": args.ann_steps}.get(name)
+        limit = {"dem": args.dem_steps, "ann": args.ann_steps, "analytical": args.analytical_steps}.get(name)
         rows.append(run_backend(name, nx, ny, args.orientations, args.shear_steps, limit))
         print(f"load average: {os.getloadavg()}", flush=True)
     print("backend | points | cells | steps run / total | wall [s] | wall, whole programme [s] | Newton its/step "

@@ -15,6 +15,12 @@ from the H-cell of --alpha0 (``warp_hcell.mesostructures.hcell.h_cell``), or fro
 file or a builder spec, built at --alpha0 unless it gives its own); the weak zone's cells are
 built at the looser angle, which needs a cell built from an opening angle.
 
+--length L [m] regularises the specimen by a local second-gradient continuum
+(``homogenization.fe.second_gradient``: D = E_ref L^2, E_ref the material point's shear modulus
+at p0), which sets the band width by L instead of the mesh; without it the plain
+first-gradient solver runs. --checkpoint-every N saves DIR/checkpoint.h5 every N steps;
+--resume continues a killed run from it (same flags; the result is the uninterrupted run's).
+
 Writes DIR/curve.csv (stage,eps11,eps22,sigma11,sigma22,sigma12,p,q,iterations; 1 = axial),
 DIR/run.h5 (fields per step), DIR/vtu/step_NNNN.vtu with DIR/specimen.pvd (ParaView) and
 DIR/bvp.png (see ``homogenization.fe.output``). --compare also runs the material point of
@@ -24,7 +30,9 @@ it (the homogeneous specimen should coincide with it).
 Sign convention: compression and contraction positive; stresses in N/m (2D). Bad input
 (non-positive element counts, imperfection outside [0, 1), unknown backend, alpha0 outside
 [30, 90) deg, a mesostructure the backend does not model, --imperfection with a cell of fixed
-geometry, existing output without --overwrite) is one line on stderr and exit code 2.
+geometry, existing output without --overwrite, --length <= 0 or too large an element for it, a
+backend without tangent, --resume without a checkpoint or with other flags) is one line on
+stderr and exit code 2, before any step.
 """
 
 from __future__ import annotations

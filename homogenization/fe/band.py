@@ -52,7 +52,7 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
 
 
 def measure_band(points: np.ndarray, weights: np.ndarray, eps_d: np.ndarray, *, bin_width: float,
-                 threshold: float = 0.5, core: float = 0.5) -> Band:
+                 threshold: float = 0.5, core: float = 0.5, region: np.ndarray | None = None) -> Band:
     """Band axis, angle and width of the field ``eps_d`` (module docstring).
 
     Args:
@@ -62,12 +62,16 @@ def measure_band(points: np.ndarray, weights: np.ndarray, eps_d: np.ndarray, *, 
         bin_width: bin width of the profile across the band [m], > 0.
         threshold: fraction of max(eps_d) above which a point belongs to the band's axis fit.
         core: fraction of the band's half-length kept for the profile.
+        region: optional bool mask, shape (n,): only these points are used (one branch of
+            crossing or reflected bands).
 
     Raises:
         ValueError: eps_d has no positive value, or the profile has no half-maximum crossing
             on one side (the band reaches the specimen's edge).
     """
     points, weights, eps_d = (np.asarray(a, dtype=np.float64) for a in (points, weights, eps_d))
+    if region is not None:
+        points, weights, eps_d = points[region], weights[region], eps_d[region]
     top = float(eps_d.max())
     if not top > 0.0:
         raise ValueError("no positive deviatoric strain: no band")

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 from skfem import Basis, BilinearForm, ElementQuad0, ElementQuad1, ElementQuadS2
 from skfem.helpers import dot, grad
 
@@ -28,6 +29,12 @@ from homogenization.fe.solver import BiaxialSpecimen
 from homogenization.material.homogenised import HomogenisedMaterial
 from warp_hcell.core.parameters import FeDefaults
 
+PENALTY_FACTOR = 1e4
+"""beta / E_ref of the augmented-Lagrangian Newton step [-]."""
+MAX_KRYLOV = 40
+"""GMRES iterations allowed with the stored LU factors before the system is factorised afresh [-]."""
+KRYLOV_RTOL = 1e-8
+"""Relative residual of the preconditioned GMRES solve [-]."""
 COMPONENTS = ((0, 0), (0, 1), (1, 0), (1, 1))
 """(i, j) of the components of v and lambda, in their order in the unknown vector."""
 
@@ -80,6 +87,13 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         self._M = sp.kron(sp.identity(c), _mass.assemble(self.l_basis, self.v_basis))  # (c nv, c nl)
         self._lap = sp.kron(sp.identity(c), _laplace.assemble(self.v_basis))
         self._expand = sp.block_diag([self.tie, sp.identity(c * (nv + nl))], format="csr")
+        self._areas = np.tile(_mass.assemble(self.l_basis).diagonal(), c)
+        """Diagonal of the multiplier's mass matrix (element areas) [m^2], per multiplier unknown."""
+        self._lu, self._lu_free = None, np.zeros(0, int)
+        self.factorisations = 0
+        """Sparse LU factorisations done by ``newton_correction`` so far."""
+        self.krylov_iterations = 0
+        """Preconditioned GMRES iterations done by ``newton_correction`` so far."""
         self.set_modulus(modulus)
 
     def set_modulus(self, modulus: float) -> None:
@@ -88,6 +102,8 @@ class SecondGradientSpecimen(BiaxialSpecimen):
             raise ValueError(f"modulus must be > 0, got {modulus}")
         self.modulus = float(modulus)
         self.D = self.modulus * self.length ** 2
+        self.penalty = PENALTY_FACTOR * self.modulus
+        """beta [N/m] of the augmented-Lagrangian Newton step (``newton_correction``)."""
         nu, c = self.basis.N, len(COMPONENTS)
         zero_uv = sp.csr_matrix((nu, c * self.n_v))
         self._linear = sp.bmat([[sp.csr_matrix((nu, nu)), zero_uv, -self._G],
@@ -110,6 +126,50 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         f[:n] += f_u
         K = self._linear + sp.block_diag([K_u, sp.csr_matrix((x.size - n, x.size - n))], format="csr")
         return f, K
+
+    def begin_step(self) -> None:
+        """Forget the stored LU factors: each load step starts with a fresh factorisation, so a step's
+        arithmetic depends on its own iterations only (a resumed run repeats it bit for bit)."""
+        self._lu = None
+
+    def newton_correction(self, K_r, residual, fixed):
+        """Newton correction by an augmented-Lagrangian step (the multiplier block of the Jacobian,
+        zero, replaced by -A / beta, A the multiplier's mass matrix, diagonal): the multiplier is
+        condensed out element by element and the remaining (u, v) system is solved by GMRES
+        preconditioned with the sparse LU factors of an earlier such system of the same load step, refactorised when
+        GMRES needs more than ``MAX_KRYLOV`` iterations (or the fixed DOFs change). The residual
+        stays exact, so the converged solution is that of the exact multiplier; the Jacobian's
+        perturbation, of relative order E_ref / beta, only slows the final iterations. Counts:
+        ``factorisations``, ``krylov_iterations``."""
+        n = K_r.shape[0] - self._areas.size
+        C = K_r[n:, :n]
+        beta_over_area = self.penalty / self._areas
+        K_p = (K_r[:n, :n] + C.T @ sp.diags(beta_over_area) @ C).tocsr()
+        rhs = -residual[:n] - C.T @ (beta_over_area * residual[n:])
+        free = np.setdiff1d(np.arange(n), fixed)
+        A = K_p[free][:, free].tocsc()
+        b = rhs[free]
+        d_free = None
+        if self._lu is not None and self._lu_free.size == free.size and np.array_equal(self._lu_free, free):
+            count = [0]
+
+            def counter(_):
+                count[0] += 1
+
+            precondition = spla.LinearOperator(A.shape, self._lu.solve)
+            x, info = spla.gmres(A, b, M=precondition, rtol=KRYLOV_RTOL, atol=0.0, restart=MAX_KRYLOV,
+                                 maxiter=1, callback=counter, callback_type="pr_norm")
+            self.krylov_iterations += count[0]
+            if info == 0:
+                d_free = x
+        if d_free is None:
+            self._lu = spla.splu(A)
+            self._lu_free = free
+            self.factorisations += 1
+            d_free = self._lu.solve(b)
+        d_uv = np.zeros(n)
+        d_uv[free] = d_free
+        return np.concatenate([d_uv, beta_over_area * (C @ d_uv + residual[n:])])
 
     def residual_weights(self, scale: float) -> np.ndarray:
         """1 for the displacement rows [N]; 1 / W for the v rows [N m]; scale / W for the lambda rows [m^2]."""
@@ -142,7 +202,7 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         return max(self.width / self.nx, self.height / self.ny)
 
 
-BAND_WIDTH_PER_LENGTH = 4.0
+BAND_WIDTH_PER_LENGTH = 25.0
 """Expected band width / L [-] of the dense H-model specimen (docs/studies), used to refuse meshes
 too coarse for a length."""
 

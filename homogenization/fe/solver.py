@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from skfem import Basis, BilinearForm, ElementQuad1, ElementVector, FacetBasis, LinearForm, MeshQuad, condense, solve
-from skfem.helpers import dot, sym_grad
+from skfem import Basis, ElementQuad1, ElementVector, FacetBasis, LinearForm, MeshQuad, condense, solve
+from skfem.helpers import dot
 
 from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
 from warp_hcell.core.parameters import FeDefaults
@@ -113,23 +113,6 @@ class StepResult:
     open_fraction: np.ndarray | None = None
 
 
-@BilinearForm
-def _stiffness(u, v, w):
-    """Integrand e(v)^T D e(u) with Voigt (eps_xx, eps_yy, gamma_xy) and D = w.D (3, 3, ...)."""
-    eu, ev = sym_grad(u), sym_grad(v)
-    Eu = (eu[0, 0], eu[1, 1], 2.0 * eu[0, 1])
-    Ev = (ev[0, 0], ev[1, 1], 2.0 * ev[0, 1])
-    return sum(Ev[i] * w.D[i, j] * Eu[j] for i in range(3) for j in range(3))
-
-
-@LinearForm
-def _internal(v, w):
-    """Internal virtual work sigma_t : sym grad v, sigma_t (tension positive) = w.sigma (2, 2, ...)."""
-    ev = sym_grad(v)
-    s = w.sigma
-    return s[0, 0] * ev[0, 0] + s[1, 1] * ev[1, 1] + 2.0 * s[0, 1] * ev[0, 1]
-
-
 @LinearForm
 def _outward_normal_load(v, w):
     """Work of a unit pressure: traction -n, so  -n . v."""
@@ -202,13 +185,31 @@ class BiaxialSpecimen:
         g = self.basis.interpolate(u).grad  # (2, 2, n_elements, n_gauss): g[i, j] = d u_i / d x_j
         return -np.stack([g[0, 0], g[1, 1], g[0, 1] + g[1, 0]], axis=-1).reshape(-1, 3)
 
+    def _strain_operator(self) -> np.ndarray:
+        """B [1/m], shape (n_elements, n_gauss, 3, n_local_dofs): tension-positive Voigt strain
+        (eps_xx, eps_yy, gamma_xy) of each local displacement DOF at each Gauss point."""
+        if getattr(self, "_B", None) is None:
+            grads = np.stack([phi[0].grad for phi in self.basis.basis], axis=-1)  # (2, 2, ne, nq, nloc)
+            self._B = np.ascontiguousarray(np.stack([grads[0, 0], grads[1, 1], grads[0, 1] + grads[1, 0]], axis=2))
+            dofs = self.basis.element_dofs  # (nloc, ne)
+            self._rows = np.repeat(dofs.T, dofs.shape[0], axis=1).ravel()
+            self._cols = np.tile(dofs.T, (1, dofs.shape[0])).ravel()
+        return self._B
+
     def _assemble(self, stress: np.ndarray, tangent: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
-        shape = (self.mesh.nelements, self.points_per_element())
-        s = -stress.T.reshape(3, *shape)  # tension positive
-        sigma = np.array([[s[0], s[2]], [s[2], s[1]]])
-        D = np.moveaxis(tangent.reshape(*shape, 3, 3), (2, 3), (0, 1))
-        f_int = _internal.assemble(self.basis, sigma=sigma)
-        K = _stiffness.assemble(self.basis, D=D)
+        """Internal forces and stiffness of the Gauss-point stresses and tangents, vectorised over
+        elements: f = sum_q dx B^T sigma_t, K = sum_q dx B^T D B (sigma_t = -stress, same tangent)."""
+        B = self._strain_operator()
+        ne, nq = B.shape[:2]
+        dx = self.basis.dx
+        s = -stress.reshape(ne, nq, 3)
+        D = tangent.reshape(ne, nq, 3, 3)
+        f_e = np.einsum("eqak,eqa,eq->ek", B, s, dx)
+        DB = np.einsum("eqab,eqbl->eqal", D, B)
+        K_e = np.einsum("eqak,eqal,eq->ekl", B, DB, dx)
+        dofs = self.basis.element_dofs
+        f_int = np.bincount(dofs.T.ravel(), f_e.ravel(), minlength=self.basis.N)
+        K = sp.coo_matrix((K_e.ravel(), (self._rows, self._cols)), shape=(self.basis.N, self.basis.N)).tocsr()
         return f_int, K
 
     def averages(self, u: np.ndarray, f_int: np.ndarray, stress: np.ndarray) -> tuple[float, ...]:
@@ -242,6 +243,13 @@ class BiaxialSpecimen:
         """Internal force vector and its Jacobian for the unknowns x and the Gauss-point stress and tangent."""
         return self._assemble(stress, tangent)
 
+    def begin_step(self) -> None:
+        """Called at the start of each load step's Newton iterations (here nothing)."""
+
+    def newton_correction(self, K_r: sp.csr_matrix, residual: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+        """Correction of the reduced unknowns: K_r da = -residual with da = 0 at ``fixed`` (sparse LU)."""
+        return solve(*condense(K_r, -residual, x=np.zeros(K_r.shape[0]), D=fixed))
+
     def residual_weights(self, scale: float) -> np.ndarray | float:
         """Factors turning each reduced residual component into a force [N] for the Newton test (here 1)."""
         return 1.0
@@ -268,6 +276,7 @@ class BiaxialSpecimen:
         Returns (x, material update, internal force vector, iterations, residual norms, diagnostics).
         """
         expand = self.expand
+        self.begin_step()
         x = x_guess.copy()
         fixed = self.fixed
         if step.platen_increment is not None:
@@ -295,8 +304,7 @@ class BiaxialSpecimen:
             if iteration == self.max_newton:
                 break
             K_r = (expand.T @ K @ expand).tocsr()
-            dx = solve(*condense(K_r, -residual, x=np.zeros(expand.shape[1]), D=fixed))
-            x = x + expand @ dx
+            x = x + expand @ self.newton_correction(K_r, residual, fixed)
         raise NewtonError(f"{where}: Newton did not converge in {self.max_newton} iterations "
                           f"(out-of-balance {residuals[-1]:.3g} N/m, tolerance {self.newton_rtol * scale:.3g} N/m)")
 
@@ -314,6 +322,8 @@ class BiaxialSpecimen:
             progress: optional callable(step_index, StepResult) called after each converged step.
             checkpoint: optional ``homogenization.fe.checkpoint.Checkpoint``: the run starts from
                 its saved step where it holds one, and saves every ``checkpoint.every`` steps.
+
+        The full unknown vector of the last converged step is left in ``last_unknowns``.
         """
         if material.n_points != self.n_points:
             raise ValueError(f"material has {material.n_points} points, the mesh {self.n_points} Gauss points")
@@ -336,6 +346,7 @@ class BiaxialSpecimen:
             x_new, update, f_int, iterations, residuals, totals = self.solve_step(
                 material, state, x, guess, step, scale, where)
             previous, x, state = x, x_new, update.state
+            self.last_unknowns = x
             u = self.displacement_of(x)
             eps11, eps22, sigma11, sigma22, sigma12 = self.averages(u, f_int, update.stress)
             opening, open_fraction = point_observables(material, state)
