@@ -4,10 +4,11 @@ state? Drained loose and dense tests at two pressures to 40 % axial strain, in 2
 Prints, per dimension, pressure and initial state: q/p and e at the end, the rates over the last 10 % of axial
 strain (least-squares slopes: abs(dq/deps1)/p and abs(d eps_v/d eps1)), the renewals made, and the acceptance
 checks (rates <= 0.05 and 0.01, end stress ratios within 5 %, end void ratios within 0.02); the undrained
-tests' end (p, e) against the line e = e_G - lambda ln p through the drained ends. Writes
+tests' end (p, e), from the same two states and from alpha_c -+ 2 deg, against the line e = e_G - lambda ln p
+through the drained ends. Writes
 benchmarks/results/critical_state.{txt,json,png}.
 
-    python benchmarks/bench_critical_state.py [--increment 2e-3] [--orientations 360] [--order 11 --spins 4]
+    python benchmarks/bench_critical_state.py [--increment 2e-3] [--orientations 360] [--order 17 --spins 8] [--tag T]
     python benchmarks/bench_critical_state.py --dem-check      # DEM vs closed form, rule on, short 2D test
 """
 
@@ -31,7 +32,7 @@ from warp_hcell.mesostructures.hcell import plain_h_cell
 RESULTS = Path(__file__).resolve().parent / "results"
 PARAMS = DEFAULTS
 """The rule's parameters per dimension (the module's measured DEFAULTS)."""
-STATES = {2: (48.0, 56.0), 3: (49.0, 57.0)}
+STATES = {2: (48.0, 56.0), 3: (48.0, 56.0)}
 """Dense and loose initial opening angles [deg] per dimension (8 deg apart)."""
 PRESSURES = (1e5, 4e5)
 """Confining pressures [N/m in 2D, Pa in 3D]."""
@@ -73,6 +74,7 @@ def summary(record, dim: int, alpha0: float) -> dict:
             "renewals": int(np.nanmax(renewals)) if renewals is not None else 0,
             "rate_capped": int(np.nanmax(record.diagnostics.get("critical_state_rate_capped", [0]))),
             "angle_clipped": int(np.nanmax(record.diagnostics.get("critical_state_angle_clipped", [0]))),
+            "merged": int(np.nanmax(record.diagnostics.get("critical_state_merged", [0]))),
             "curve": {"eps1": e1[::5].tolist(), "q_over_p": (q / p)[::5].tolist(), "e": e[::5].tolist(),
                       "p": p[::5].tolist()}}
 
@@ -104,13 +106,27 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--increment", type=float, default=2e-3)
     parser.add_argument("--orientations", type=int, default=360)
-    parser.add_argument("--order", type=int, default=11)
-    parser.add_argument("--spins", type=int, default=4)
+    parser.add_argument("--order", type=int, default=17)
+    parser.add_argument("--spins", type=int, default=8)
     parser.add_argument("--dims", default="2,3")
     parser.add_argument("--dem-check", action="store_true")
+    parser.add_argument("--tag", default="", help="suffix of the output files' names (e.g. _increment_1e-3)")
+    parser.add_argument("--plain", action="store_true", help="the plain cells (no rule); needs --tag")
+    parser.add_argument("--rule", default=None, help="JSON of CriticalState fields replacing DEFAULTS' (with --dims "
+                        "of one dimension), e.g. '{\"rate\": 40, \"gain\": 3}'; needs --tag")
     args = parser.parse_args(argv)
     if args.dem_check:
         return dem_check(args)
+    params = dict(PARAMS)
+    if args.rule is not None:
+        if not args.tag:
+            parser.error("--rule needs --tag (the default results stay the DEFAULTS')")
+        changes = json.loads(args.rule)
+        params = {dim: replace(rule, **changes) for dim, rule in PARAMS.items()}
+    if args.plain:
+        if not args.tag:
+            parser.error("--plain needs --tag")
+        params = {dim: None for dim in PARAMS}
     lines, rows = [], []
 
     def say(text: str) -> None:
@@ -118,20 +134,21 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(text)
 
     say(f"critical-state renewal, closed form, drained to {EPS:.0%}, increments {args.increment:g}; 2D "
-        f"{args.orientations} orientations, 3D Lebedev {args.order} x {args.spins} spins")
+        f"{args.orientations} orientations, 3D Lebedev {args.order} x {args.spins} spins; the rule's parameters: "
+        f"homogenization.material.critical_state.DEFAULTS")
     for dim in (int(d) for d in args.dims.split(",")):
-        say(f"\n{dim}D rule: {PARAMS[dim]}")
-        say("p0        alpha0  e0     q/p end  e end   |dq/de1|/p  |dev/de1|  renewals  capped  clipped  seconds")
+        say(f"\n{dim}D rule: {params[dim]}")
+        say("p0        alpha0  e0     q/p end  e end   |dq/de1|/p  |dev/de1|  renewals  capped  clipped  merged  seconds")
         for p0 in PRESSURES:
             pair = []
             for alpha0 in STATES[dim]:
                 start = time.perf_counter()
-                s = summary(run(dim, alpha0, p0, "drained", args, PARAMS[dim]), dim, alpha0)
+                s = summary(run(dim, alpha0, p0, "drained", args, params[dim]), dim, alpha0)
                 s.update(p0=p0, test="drained", seconds=time.perf_counter() - start)
                 rows.append(s)
                 pair.append(s)
                 say(f"{p0:<9.0e} {alpha0:<7g} {s['e0']:.3f}  {s['q_over_p']:<8.3f} {s['e']:.3f}   {s['dq_rate']:<11.3f} "
-                    f"{s['dv_rate']:<10.4f} {s['renewals']:<9d} {s['rate_capped']:<7d} {s['angle_clipped']:<8d} "
+                    f"{s['dv_rate']:<10.4f} {s['renewals']:<9d} {s['rate_capped']:<7d} {s['angle_clipped']:<8d} {s['merged']:<7d} "
                     f"{s['seconds']:.1f}")
             ratio = abs(pair[0]["q_over_p"] / pair[1]["q_over_p"] - 1.0)
             de = abs(pair[0]["e"] - pair[1]["e"])
@@ -141,24 +158,25 @@ def main(argv: list[str] | None = None) -> int:
         drained = [r for r in rows if r["dim"] == dim and r["test"] == "drained"]
         lam, e_g = np.polyfit(-np.log([r["p"] for r in drained]), [r["e"] for r in drained], 1)
         say(f"  line through the drained ends: e = {e_g:.3f} - {lam:.4f} ln p")
-        for alpha0 in STATES[dim]:
+        near = (PARAMS[dim].alpha_c_deg - 2.0, PARAMS[dim].alpha_c_deg + 2.0)
+        for alpha0 in STATES[dim] + near:
             start = time.perf_counter()
-            s = summary(run(dim, alpha0, PRESSURES[0], "undrained", args, PARAMS[dim]), dim, alpha0)
+            s = summary(run(dim, alpha0, PRESSURES[0], "undrained", args, params[dim]), dim, alpha0)
             s.update(p0=PRESSURES[0], test="undrained", seconds=time.perf_counter() - start)
             rows.append(s)
             e_line = e_g - lam * np.log(s["p"])
             say(f"  undrained alpha0 {alpha0:g}: end p {s['p']:.4g}, e {s['e']:.3f}, q/p {s['q_over_p']:.3f}; the "
                 f"line at that p: e {e_line:.3f} (off by {s['e'] - e_line:+.3f}); renewals {s['renewals']}, capped "
-                f"{s['rate_capped']}, clipped {s['angle_clipped']}")
+                f"{s['rate_capped']}, clipped {s['angle_clipped']}, merged {s['merged']}")
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "critical_state.txt").write_text("\n".join(lines) + "\n")
-    (RESULTS / "critical_state.json").write_text(json.dumps(rows, indent=1))
-    figure(rows)
+    (RESULTS / f"critical_state{args.tag}.txt").write_text("\n".join(lines) + "\n")
+    (RESULTS / f"critical_state{args.tag}.json").write_text(json.dumps(rows, indent=1))
+    figure(rows, RESULTS / f"critical_state{args.tag}.png")
     return 0
 
 
-def figure(rows: list[dict]) -> None:
-    """q/p and e against eps1, e against ln p, per dimension: benchmarks/results/critical_state.png."""
+def figure(rows: list[dict], path: Path) -> None:
+    """q/p and e against eps1, e against ln p, per dimension, saved to ``path``."""
     import matplotlib.pyplot as plt
     dims = sorted({r["dim"] for r in rows})
     fig, axes = plt.subplots(len(dims), 3, figsize=(13, 4 * len(dims)), squeeze=False)
@@ -173,14 +191,15 @@ def figure(rows: list[dict]) -> None:
             axes[i, 2].plot(r["p"], r["e"], "ko", ms=4)
         drained = [r for r in rows if r["dim"] == dim and r["test"] == "drained"]
         lam, e_g = np.polyfit(-np.log([r["p"] for r in drained]), [r["e"] for r in drained], 1)
-        p = np.geomspace(min(r["p"] for r in rows if r["dim"] == dim) / 2, 8e5, 20)
+        ends = [r["p"] for r in rows if r["dim"] == dim]
+        p = np.geomspace(min(ends) / 2, max(ends) * 1.5, 20)
         axes[i, 2].semilogx(p, e_g - lam * np.log(p), "k--", label="line through the drained ends")
         for ax, y in zip(axes[i], ("q/p", "e", "e")):
             ax.set_ylabel(f"{dim}D {y}")
             ax.set_xlabel("p" if ax is axes[i, 2] else "eps1")
         axes[i, 0].legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(RESULTS / "critical_state.png", dpi=90)
+    fig.savefig(path, dpi=90)
 
 
 if __name__ == "__main__":
