@@ -80,25 +80,28 @@ def summary(record, dim: int, alpha0: float) -> dict:
 
 
 def dem_check(args) -> int:
-    """DEM and closed form with the rule on a short drained biaxial; prints the largest stress gap / p0."""
-    params = replace(DEFAULTS[2], rate=400.0)
-    p0 = 2e5
-    prog = pg.biaxial(p0, 0.01, 1e-3, drained=True)
-    out = {}
-    for backend in ("analytical", "dem"):
-        start = time.perf_counter()
-        rec = driver.run(make_cell_model(backend), prog, mesostructure=plain_h_cell(2, 52.0), n_orientations=12,
-                         progress=False, critical_state=params)
-        out[backend] = (rec, time.perf_counter() - start)
-    a, d = out["analytical"][0], out["dem"][0]
-    gap = max(np.max(np.abs(a.sigma11 - d.sigma11)), np.max(np.abs(a.sigma22 - d.sigma22))) / p0
-    line = (f"DEM vs closed form, rule on (12 orientations, drained biaxial to 1 %, p0 = {p0:g} N/m): largest stress "
-            f"gap {gap:.2e} p0; renewals {np.nanmax(a.diagnostics['critical_state_renewals']):.0f} / "
-            f"{np.nanmax(d.diagnostics['critical_state_renewals']):.0f}; {out['analytical'][1]:.1f} s / "
-            f"{out['dem'][1]:.1f} s")
-    print(line)
+    """DEM and closed form with the rule (DEFAULTS at rate 400) on short drained tests, 2D and 3D; prints the largest
+    normal-stress gap / p0 and writes benchmarks/results/critical_state_dem.txt."""
+    cases = ((2, pg.biaxial(2e5, 0.01, 1e-3, drained=True), 2e5, {"n_orientations": 12}, "12 orientations"),
+             (3, pg.triaxial(1e5, 0.01, 1e-3, test="drained"), 1e5, {"lebedev_order": 5, "n_spins": 4},
+              "Lebedev 5 x 4 spins"))
+    lines = []
+    for dim, prog, p0, extra, label in cases:
+        out = {}
+        for backend in ("analytical", "dem"):
+            start = time.perf_counter()
+            rec = driver.run(make_cell_model(backend, dim=dim), prog, mesostructure=plain_h_cell(dim, 52.0),
+                             progress=False, critical_state=replace(DEFAULTS[dim], rate=400.0), **extra)
+            out[backend] = (rec, time.perf_counter() - start)
+        a, d = out["analytical"][0], out["dem"][0]
+        gap = max(np.max(np.abs(getattr(a, f"sigma{c}{c}") - getattr(d, f"sigma{c}{c}"))) for c in "123"[:dim]) / p0
+        lines.append(f"{dim}D DEM vs closed form, rule on ({label}, drained to 1 %, p0 = {p0:g}): largest normal-stress "
+                     f"gap {gap:.2e} p0; renewals {np.nanmax(a.diagnostics['critical_state_renewals']):.0f} / "
+                     f"{np.nanmax(d.diagnostics['critical_state_renewals']):.0f}; {out['analytical'][1]:.1f} s / "
+                     f"{out['dem'][1]:.1f} s")
+        print(lines[-1])
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "critical_state_dem.txt").write_text(line + "\n")
+    (RESULTS / "critical_state_dem.txt").write_text("\n".join(lines) + "\n")
     return 0
 
 

@@ -108,3 +108,15 @@ def test_dem_agrees_with_the_closed_form_under_renewal():
     assert np.nanmax(a.diagnostics["critical_state_renewals"]) >= 10
     np.testing.assert_array_equal(a.diagnostics["critical_state_renewals"], d.diagnostics["critical_state_renewals"])
     assert max(np.max(np.abs(a.sigma11 - d.sigma11)), np.max(np.abs(a.sigma22 - d.sigma22))) < 1e-3 * p0
+
+
+def test_dem_agrees_with_the_closed_form_under_renewal_3d():
+    p0 = 1e5
+    prog = pg.triaxial(p0, 0.01, 1e-3, test="drained")
+    records = [driver.run(make_cell_model(backend, dim=3), prog, mesostructure=plain_h_cell(3, 52.0), lebedev_order=5,
+                          n_spins=4, progress=False, critical_state=replace(DEFAULTS[3], rate=400.0))
+               for backend in ("analytical", "dem")]
+    a, d = records
+    assert np.nanmax(a.diagnostics["critical_state_renewals"]) >= 20
+    np.testing.assert_array_equal(a.diagnostics["critical_state_renewals"], d.diagnostics["critical_state_renewals"])
+    assert max(np.max(np.abs(getattr(a, c) - getattr(d, c))) for c in ("sigma11", "sigma22", "sigma33")) < 1e-3 * p0
