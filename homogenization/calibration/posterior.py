@@ -24,6 +24,7 @@ from homogenization.calibration.data import Measurement
 from homogenization.calibration.bayes import UNITS
 from homogenization.calibration.forward import (
     CONTACT_LAW_KEY,
+    DENSITY,
     LAW_PARAMETERS,
     SPREAD,
     calibratable,
@@ -53,8 +54,8 @@ class CalibratedPosterior:
         dims: the dimensions of the calibration's data (2: biaxial, 3: triaxial), sorted.
         calibrated: the calibrated parameters, in posterior.json's order.
         mean: every parameter of the calibration's contact law (``forward.parameters``), and alpha0_spread
-            where calibrated or fixed nonzero, at the posterior mean (calibrated) or at the calibration's
-            fixed value (not calibrated), CLI units.
+            where calibrated or fixed nonzero, e_min and e_max where its data gave void ratios, at the
+            posterior mean (calibrated) or at the calibration's fixed value (not calibrated), CLI units.
         radius: the grain radius of the calibration [m].
         forward: the calibration's forward-model settings (the band runs with them).
     """
@@ -125,8 +126,9 @@ def read_posterior(path: Path) -> CalibratedPosterior:
         forward_json = run["config"]["forward"]
         dims = tuple(sorted({int(d) for d in run["data_dimensions"]}))
         fixed = {name: float(forward_json["fixed"][name]) for name in LAW_PARAMETERS[law_name]}
-        if SPREAD in forward_json["fixed"]:
-            fixed[SPREAD] = float(forward_json["fixed"][SPREAD])
+        for name in (SPREAD, *DENSITY):
+            if name in forward_json["fixed"]:
+                fixed[name] = float(forward_json["fixed"][name])
         radius = float(forward_json["radius"])
         fields = {k: v for k, v in forward_json.items() if k in ForwardSettings.__dataclass_fields__}
         forward = ForwardSettings(**{**fields, "law": law_name, "fixed": fixed, "backend": "analytical",
@@ -134,7 +136,7 @@ def read_posterior(path: Path) -> CalibratedPosterior:
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"--posterior: {path.parent / RUN_FILE} lacks {exc} (written by an older hmodel calibrate? "
                          f"rerun the same calibrate command on {path.parent} to rewrite it)") from None
-    names = forward.parameters + ((SPREAD,) if SPREAD in mean or SPREAD in fixed else ())
+    names = forward.parameters + tuple(name for name in (SPREAD, *DENSITY) if name in mean or name in fixed)
     return CalibratedPosterior(path=path, sha256=file_sha256(path), dims=dims, calibrated=tuple(mean),
                                mean={name: mean.get(name, fixed.get(name)) for name in names}, radius=radius,
                                forward=forward)
@@ -173,10 +175,10 @@ def band_grid(eps_max: float, increment: float) -> np.ndarray:
 
 
 def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: int, drained: bool, p0: float,
-         eps_max: float) -> dict[str, np.ndarray]:
+         eps_max: float, void_ratio: float | None = None) -> dict[str, np.ndarray]:
     """The posterior band of a built-in test (isotropic compression to ``p0``, then drained or
-    constant-volume shear to ``eps_max``) by the calibration's forward model (``post.forward``), all
-    sets in one batch.
+    constant-volume shear to ``eps_max``; at ``void_ratio``, each set's map's alpha0, where given) by the
+    calibration's forward model (``post.forward``), all sets in one batch.
 
     Returns:
         ``eps1`` (k,), ``<channel>_lo`` / ``_median`` / ``_hi`` for q, p [N/m or Pa] and eps_v [-]
@@ -187,7 +189,7 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
         model's fallbacks).
     """
     eps1 = band_grid(eps_max, post.forward.increment)
-    test = Measurement("band", post.path, drained, p0, eps1, {}, dim)
+    test = Measurement("band", post.path, drained, p0, eps1, {}, dim, void_ratio)
     n = int(next(iter(params.values())).size)
     with_mean = {name: np.append(params[name], post.mean[name]) for name in post.mean}
     with np.errstate(all="ignore"):  # a diverging set gives NaN, left out of the quantiles and counted

@@ -7,7 +7,9 @@
   contact law and cell), and the flags it replaces given explicitly; then sets --law (the
   calibration's, posterior.json's ``contact_law``; none: linear), --phi, --kn and --kt or
   --shear-modulus and --poisson, --alpha0 and --radius to the posterior mean (uncalibrated parameters: the calibration's fixed
-  values), and draws the band's parameter sets (--posterior-band N);
+  values), and --e-min and --e-max where its data gave void ratios (``check_void_ratio``: then the run
+  needs --void-ratio, whose map gives alpha0; ``run_files.resolve_void_ratio``), and draws the band's
+  parameter sets (--posterior-band N);
 - ``spread_models(...)``: where the posterior holds alpha0_spread, the analytical model whose cells carry
   the point's families of opening angles (``homogenization.material.opening_spread``);
 - ``run_record(...)``: what run.h5 stores of it;
@@ -24,7 +26,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from homogenization.calibration.forward import SPREAD
+from homogenization.calibration.forward import DENSITY, SPREAD
 from homogenization.cli.run_files import explicit_flags
 from homogenization.material import opening_spread
 from warp_hcell.core.cli import UserError
@@ -34,7 +36,7 @@ BAND_FILE = "posterior_band.csv"
 """The band of --posterior-band, written beside run.h5 (columns ``posterior.band_columns``)."""
 REPLACED_FLAGS = {"phi": "--phi", "kn": "--kn", "kt": "--kt", "alpha0": "--alpha0", "radius": "--radius",
                   "mesostructure": "--mesostructure", "law": "--law", "shear_modulus": "--shear-modulus",
-                  "poisson": "--poisson"}
+                  "poisson": "--poisson", "e_min": "--e-min", "e_max": "--e-max"}
 """Flags that --posterior sets (or whose cell the calibration did not use): argparse dest -> flag."""
 
 
@@ -46,6 +48,7 @@ class PosteriorRun:
     draws: dict[str, np.ndarray] | None
     seed: int
     band: dict[str, Any] | None = None
+    void_ratio: float | None = None
 
 
 def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argparse.ArgumentParser,
@@ -93,6 +96,9 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
     if SPREAD in post.mean and set(args.backend) - {"analytical"}:
         raise UserError(f"--posterior {post.path}: its {SPREAD} runs on the analytical backend only (the DEM takes one "
                         f"opening angle per model); give --backend analytical")
+    check_void_ratio(post, getattr(args, "void_ratio", None))
+    if DENSITY[0] in post.mean:
+        args.e_min, args.e_max = post.mean["e_min"], post.mean["e_max"]
     args.law, args.phi, args.alpha0, args.radius = law.name, law.phi_g_deg, alpha0, post.radius
     if law.name == HertzMindlinLaw.name:
         args.shear_modulus, args.poisson = law.shear_modulus, law.poisson
@@ -104,7 +110,21 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
             draws = post_mod.draw_samples(post, args.posterior_band, args.seed)
         except ValueError as exc:
             raise UserError(str(exc)) from None
-    return PosteriorRun(post, draws, args.seed)
+    return PosteriorRun(post, draws, args.seed, void_ratio=getattr(args, "void_ratio", None))
+
+
+def check_void_ratio(post: Any, void_ratio: float | None) -> None:
+    """UserError (one line): a posterior whose data gave void ratios (its mean holds e_min and e_max) run
+    without --void-ratio, one whose data gave none run with it, or a void ratio with alpha0_spread."""
+    mapped = DENSITY[0] in post.mean
+    if mapped and void_ratio is None:
+        raise UserError(f"--posterior {post.path}: calibrated on data with void ratios (its e_min, e_max map the void "
+                        f"ratio to alpha0); give --void-ratio E, the state to run")
+    if void_ratio is not None and not mapped:
+        raise UserError(f"--void-ratio with --posterior {post.path}: its data gave no void ratios, so its alpha0 is "
+                        f"the state; drop --void-ratio")
+    if void_ratio is not None and SPREAD in post.mean:
+        raise UserError(f"--void-ratio with --posterior {post.path}: a run of its {SPREAD} takes the posterior's alpha0")
 
 
 def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *, lebedev_order: int, n_spins: int,
@@ -165,7 +185,8 @@ def compute_band(run: PosteriorRun | None, *, dim: int, drained: bool, p0: float
         return
     from homogenization.calibration.posterior import band  # noqa: PLC0415
 
-    run.band = band(run.posterior, run.draws, dim=dim, drained=drained, p0=p0, eps_max=eps_max)
+    run.band = band(run.posterior, run.draws, dim=dim, drained=drained, p0=p0, eps_max=eps_max,
+                    void_ratio=run.void_ratio)
 
 
 def write_band(run: PosteriorRun | None, work: Path) -> str | None:

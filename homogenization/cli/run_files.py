@@ -130,12 +130,13 @@ def refuse_programme_flags(parser: argparse.ArgumentParser, argv: Sequence[str],
 
 def resolve_void_ratio(args: argparse.Namespace, argv: Sequence[str], parser: argparse.ArgumentParser,
                        dim: int) -> DensityMap | None:
-    """The void-ratio map of a run given --void-ratio (``options.add_void_ratio_arguments``), with
-    --alpha0 set to the map's opening angle; None without --void-ratio.
+    """The void-ratio map of a run given --void-ratio (``options.add_void_ratio_arguments``; its e_min and
+    e_max where --posterior set them, ``posterior_flags.apply_posterior``), with --alpha0 set to the map's
+    opening angle; None without --void-ratio.
 
     Raises:
-        UserError: one line, before any run: --void-ratio with --alpha0, --posterior or a
-            --mesostructure that fixes its own alpha0; --e-min/--e-max without --void-ratio or not
+        UserError: one line, before any run: --void-ratio with --alpha0 or a --mesostructure that
+            fixes its own alpha0; --e-min/--e-max without --void-ratio or not
             e_min < e_max; a void ratio outside [e_min, e_max].
     """
     explicit = explicit_flags(parser, argv, ("alpha0", "e_min", "e_max"))
@@ -145,8 +146,6 @@ def resolve_void_ratio(args: argparse.Namespace, argv: Sequence[str], parser: ar
         return None
     if "alpha0" in explicit:
         raise UserError("--void-ratio sets alpha0 through the void-ratio map; give --void-ratio or --alpha0, not both")
-    if getattr(args, "posterior", None) is not None:
-        raise UserError("--void-ratio does not apply with --posterior (the posterior sets alpha0)")
     spec = getattr(args, "mesostructure", None)
     if spec is not None and not spec.takes_alpha0:
         raise UserError(f"--void-ratio sets alpha0, but --mesostructure {spec.text} fixes its own; give a builder "
