@@ -74,11 +74,14 @@ TRIAXIAL := $(PY) -m homogenization.triaxial --overwrite --backend analytical,de
 	--increment 1e-4 --order 11 --spins 4
 
 figures: venv
-	$(BIAXIAL) --backend analytical,dem,ann --alpha0 55 --p0 5.85e6 $(OVERLAY) --out $(FIGURES)/a55_p5.85e6
-	$(BIAXIAL) --backend analytical,dem,ann --alpha0 55 --p0 2e5 $(OVERLAY) --out $(FIGURES)/a55_p2e5
+	$(BIAXIAL) --backend analytical,dem --alpha0 55 --p0 5.85e6 $(OVERLAY) --out $(FIGURES)/a55_p5.85e6
+	$(BIAXIAL) --backend analytical,dem --alpha0 55 --p0 2e5 $(OVERLAY) --out $(FIGURES)/a55_p2e5
+	$(BIAXIAL) --backend ann --alpha0 55 --p0 2e5 $(ANN_OVERLAY) --out $(FIGURES)/a55_p2e5_ann
+	$(PY) -m homogenization.plotting --overwrite $(FIGURES)/a55_p2e5/analytical/run.h5 $(FIGURES)/a55_p2e5/dem/run.h5 \
+		$(FIGURES)/a55_p2e5_ann/run.h5 --out $(FIGURES)/a55_p2e5/cambridge.png
 	$(TRIAXIAL) --mesostructure hcell3d:alpha0=55 --undrained --out $(FIGURES)/tx55
 	$(TRIAXIAL) --mesostructure hcell3d:alpha0=47 --drained --out $(FIGURES)/tx47
-	cp $(FIGURES)/a55_p5.85e6/cambridge.png docs/figures/three_backends_a55_p5.85e6.png
+	cp $(FIGURES)/a55_p5.85e6/cambridge.png docs/figures/analytical_dem_a55_p5.85e6.png
 	cp $(FIGURES)/a55_p2e5/cambridge.png docs/figures/three_backends_a55_p2e5.png
 	cp $(FIGURES)/tx55/triaxial.png docs/figures/triaxial_a55_p2e5_undrained.png
 	cp $(FIGURES)/tx47/triaxial.png docs/figures/triaxial_a47_p2e5_drained.png
