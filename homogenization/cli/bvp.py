@@ -296,7 +296,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     say(f"{len(results) - done} steps in {elapsed:.1f} s{certificate_note(model)}: {updates} material updates of {specimen.n_points} points "
         f"({updates * specimen.n_points / elapsed:.3g} material-point updates/s, "
         f"{updates * material.n_cells / elapsed:.3g} cell-steps/s); "
-        f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}")
+        f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}; "
+        f"corrections halved (residual grew): {int(sum(r.diagnostics.get('line_search_halvings', 0) for r in results))}")
     if reference is not None and not weak.any():
         table = fe_output.curve_table(results)
         shear = np.flatnonzero(table["stage"] == "shear")

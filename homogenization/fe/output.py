@@ -6,8 +6,8 @@
   per load step: specimen averages (1 = axial, the platen direction; 2 = lateral) and the
   global Newton iterations of the step; strains [-], stresses [N/m], compression positive.
 - ``run.h5``: ``/mesh/{points, cells, element_alpha0_deg, gauss_points, gauss_weights}``,
-  ``/history/<curve column>`` and ``/history/residuals`` (n_steps, max iterations + 1; NaN
-  padded), ``/fields/{displacement (n_steps, n_nodes, 2), strain, stress (n_steps, n_points,
+  ``/history/<curve column>``, ``/history/residuals`` (n_steps, max iterations + 1; NaN
+  padded) and ``/history/line_search_halvings``, ``/fields/{displacement (n_steps, n_nodes, 2), strain, stress (n_steps, n_points,
   3)}, opening, open_fraction (n_steps, n_points)}`` (Gauss points, Voigt (xx, yy, xy),
   compression positive; displacement in the FE sign, tension positive; the cells' mean opening
   angle [deg] and fraction of open contacts, NaN where the backend gives none), root attributes
@@ -120,6 +120,8 @@ def write_h5(path: Path, specimen: BiaxialSpecimen, results: Sequence[StepResult
         for name in CURVE_COLUMNS[1:]:
             hist[name] = table[name]
         hist["residuals"] = residuals
+        hist["line_search_halvings"] = np.array([r.diagnostics.get("line_search_halvings", 0.0) for r in results])
+        hist["line_search_halvings"].attrs["description"] = "Newton corrections halved because the residual grew"
         hist["residuals"].attrs["description"] = "out-of-balance force norm [N/m] before each Newton iteration"
         fields = f.create_group("fields")
         fields["displacement"] = np.stack([r.displacement for r in results])

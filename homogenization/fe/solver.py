@@ -46,6 +46,10 @@ QUADRATURE_ORDER = 2
 """Integration order of the bilinear quadrilaterals: 2 x 2 Gauss points [-]."""
 
 
+MAX_HALVINGS = 4
+"""Halvings of a Newton correction after which it is taken even if the residual grew [-]."""
+
+
 class NewtonError(RuntimeError):
     """A load step did not converge (the message names the step and the residual)."""
 
@@ -273,6 +277,9 @@ class BiaxialSpecimen:
                    x_guess: np.ndarray, step: LoadStep, scale: float, where: str):
         """Newton iterations of one load step from the converged unknowns ``x_start`` and ``state``.
 
+        Where a correction increases the residual, it is halved (at most ``MAX_HALVINGS`` times,
+        each costing an iteration); the count is the diagnostic ``line_search_halvings``.
+
         Returns (x, material update, internal force vector, iterations, residual norms, diagnostics).
         """
         expand = self.expand
@@ -291,6 +298,7 @@ class BiaxialSpecimen:
         residuals: list[float] = []
         totals: dict[str, float] = {}
         free = np.setdiff1d(np.arange(expand.shape[1]), fixed)
+        accepted, step_x, alpha, halvings = np.inf, None, 1.0, 0
         for iteration in range(self.max_newton + 1):
             update = material.update(state, self.strain(self.displacement_of(x)) - eps_start)
             for name, value in update.diagnostics.items():
@@ -300,11 +308,20 @@ class BiaxialSpecimen:
             norm = float(np.linalg.norm((residual * self.residual_weights(scale))[free]))
             residuals.append(norm / self.width)
             if norm <= self.newton_rtol * scale * self.width:
+                totals["line_search_halvings"] = float(halvings)
                 return x, update, f_int, iteration, residuals, totals
             if iteration == self.max_newton:
                 break
+            if norm > accepted and alpha > 1.0 / 2 ** MAX_HALVINGS:
+                # the residual grew (e.g. contacts switching back and forth): halve the last correction
+                alpha *= 0.5
+                halvings += 1
+                x = x_base + alpha * step_x
+                continue
             K_r = (expand.T @ K @ expand).tocsr()
-            x = x + expand @ self.newton_correction(K_r, residual, fixed)
+            accepted, alpha, x_base = norm, 1.0, x
+            step_x = expand @ self.newton_correction(K_r, residual, fixed)
+            x = x + step_x
         raise NewtonError(f"{where}: Newton did not converge in {self.max_newton} iterations "
                           f"(out-of-balance {residuals[-1]:.3g} N/m, tolerance {self.newton_rtol * scale:.3g} N/m)")
 
