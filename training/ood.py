@@ -22,9 +22,9 @@ drawn from); ``database_sha256`` str scalar; ``n_features`` int64 scalar (column
 ``points``); ``normalisation_sha256`` str scalar (``normalisation_digest`` of the model the
 points were z-scored with: an index is only read with that model).
 
-``python -m training.ood --model M.pt --data DB.h5`` builds the index of a trained model from
-its database (the split of its JSON's ``config``; ``training.train`` writes it at the end of
-training).
+``python -m training.ood --model M.pt --data DB.h5`` (the command ``training.ood_command``) builds
+the index of a trained model from its database (the split of its JSON's ``config``;
+``training.fitting.train_and_save`` writes it at the end of training).
 """
 
 from __future__ import annotations
@@ -32,10 +32,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import argparse
 import hashlib
-import sys
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -224,28 +222,7 @@ def index_for_model(net: MesoNet, config: dict, db: Database) -> OodIndex:
     return build_index(net, db, split.train, split.test, seed=config["seed"])
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m training.ood --model M.pt --data DB.h5``: write the model's index file."""
-    from training.checkpoint import load_checkpoint  # noqa: PLC0415
-    from training.dataset import load_database  # noqa: PLC0415
-    from warp_hcell.core.cli import say  # noqa: PLC0415
+if __name__ == "__main__":  # python -m training.ood runs the command module training.ood_command as its script
+    import runpy  # noqa: PLC0415
 
-    parser = argparse.ArgumentParser(prog="python -m training.ood", description=main.__doc__)
-    parser.add_argument("--model", type=Path, required=True, help="trained model (.pt, JSON beside it)")
-    parser.add_argument("--data", type=Path, required=True, help="the learning database it was trained on")
-    args = parser.parse_args(argv)
-    net, meta = load_checkpoint(args.model)
-    db = load_database(args.data)
-    index = index_for_model(net, meta["config"], db)
-    out = index.save(index_path(args.model))
-    say(f"{index.points.shape[0]} states indexed, threshold {index.threshold:.4g} (quantile {index.quantile:g} of "
-        f"held-out states) -> {out}")
-    if db.sha256 != meta.get("training_data", {}).get("sha256"):
-        say(f"note: {args.data} is not the database the model's JSON names (sha256 differs)")
-    return 0
-
-
-if __name__ == "__main__":
-    from warp_hcell.core.cli import run_main  # noqa: PLC0415
-
-    sys.exit(run_main(main))
+    runpy.run_module("training.ood_command", run_name="__main__", alter_sys=True)
