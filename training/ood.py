@@ -225,4 +225,4 @@ def index_for_model(net: MesoNet, config: dict, db: Database) -> OodIndex:
 if __name__ == "__main__":  # python -m training.ood runs the command module training.ood_command as its script
     import runpy  # noqa: PLC0415
 
-    runpy.run_module("training.ood_command", run_name="__main__", alter_sys=True)
+    runpy.run_module("training.ood_command", run_name="__main__")
