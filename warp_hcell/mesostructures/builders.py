@@ -4,8 +4,7 @@ A mesostructure is named on the command line (``--mesostructure``) and in Python
 file (TOML/JSON, ``warp_hcell.mesostructures.files.load_mesostructure``) or by a *builder spec*:
 
     SPEC   := KIND [":" KEY "=" VALUE ("," KEY "=" VALUE)*]
-    KIND   := "hcell" | "hcell-unequal" | "hcell-fines" | "hcell3d" | "hcell3d-fines" | "hcell3d-axisym"
-             | "hcell3d-sand"
+    KIND   := "hcell" | "hcell-unequal" | "hcell-fines" | "hcell3d" | "hcell3d-fines" | "hcell3d-axisym" | "hcell3d-sand"
 
 Keys (all optional unless marked):
 
@@ -220,7 +219,7 @@ def mesostructure_list_arg(text: str) -> list[MesostructureSource]:
 
 MESOSTRUCTURE_HELP = (
     "mesostructure: a TOML/JSON file, or a builder spec KIND[:KEY=VALUE,...] with KIND hcell | hcell-unequal | "
-    "hcell-fines (2D) or hcell3d | hcell3d-fines | hcell3d-axisym (3D, ten spheres) and keys alpha0 (deg; default: --alpha0), "
+    "hcell-fines (2D) or hcell3d | hcell3d-fines | hcell3d-axisym | hcell3d-sand (3D, ten spheres) and keys alpha0 (deg; default: --alpha0), "
     "radius (r of grains 1, 4 [m]), lateral (radius of the lateral grains / r), plane (3D: angle between the two "
     "planes, deg), ratio (fine-grain radius / r, 'a/b' for several), n, t (2D) or n, t1, t2 (3D) (fine-grain "
     "offset from the pore centre / r); e.g. hcell-fines:alpha0=50,ratio=0.76 or hcell3d:alpha0=55")
