@@ -2,7 +2,8 @@
 
 Static liquefaction and strength under a lateral deviator of the 3D cells, closed form, p0 = 2e5 Pa
 (2D: 2e5 N/m), against the 2D H-cell. Prints and writes ``benchmarks/results/liquefaction3d.txt``
-(``--quick``: ``liquefaction3d_quick.txt``):
+(``--quick``: ``liquefaction3d_quick.txt``; other orders or sections:
+``liquefaction3d_order{N}_sections{K}.txt``):
 
 1. Undrained compression to eps_a = 15 % (triaxial; 2D: constant-volume biaxial) over alpha0: the
    lowest p/p0, p/p0 at the end and the peak q/p0, for ``hcell3d-sand`` (kinematics "amplified"),
@@ -208,8 +209,9 @@ def main() -> None:
         say(f"  {line}")
     say(f"\n# {time.time() - start:.0f} s")
     name = "liquefaction3d_quick.txt" if args.quick else "liquefaction3d.txt"
-    if sections == {1, 2, 3, 4, 5, 6}:
-        (HERE / "results" / name).write_text("\n".join(lines) + "\n")
+    if sections != {1, 2, 3, 4, 5, 6} or args.order != 23:
+        name = f"liquefaction3d_order{args.order}_sections{''.join(str(k) for k in sorted(sections))}.txt"
+    (HERE / "results" / name).write_text("\n".join(lines) + "\n")
 
 
 def undrained_section(args, say) -> None:
