@@ -37,13 +37,17 @@ import numpy as np
 from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import backend_class, make_cell_model
 from homogenization.calibration.data import Measurement
+from homogenization.calibration.renewal import PopulationRenewal, laws_of
 from homogenization.element_test.points import MaterialPoints, material_points, orientation_set
 from homogenization.element_test.plan import Plan
 from homogenization.element_test.record import History
 from homogenization.element_test.stages import run_stages
 from homogenization.element_test.solver import POPULATION, StressControl
 from homogenization.material import opening_spread
-from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN, OPENING_RANGE_DEG, opening_angle_deg
+from homogenization.material import orientation as orient_mod
+from homogenization.material.critical_state import CriticalState
+from homogenization.material.density import (DEFAULT_E_MAX, DEFAULT_E_MIN, OPENING_RANGE_DEG, default_map,
+                                              opening_angle_deg)
 from warp_hcell.core.parameters import CellDefaults, ContactLaw, HertzMindlinLaw, Law, LoadingDefaults
 from warp_hcell.core.dimension import dimension
 from warp_hcell.mesostructures.hcell import plain_h_cell
@@ -101,7 +105,11 @@ class ForwardSettings:
         stress_rtol: relative tolerance of p = p0 (landing) and sigma22 = p0 (drained) [-].
         max_newton: Newton iterations allowed per drained increment [-].
         fixed: value of every parameter not calibrated (CLI flag units).
-        backend_options: extra keyword options of the backend (dem/ann: device, threads, model)."""
+        backend_options: extra keyword options of the backend (dem/ann: device, threads, model).
+        critical_state: the cells' renewal rule (``homogenization.material.critical_state``; None: the plain
+            H-model), its void-ratio map ``density.default_map`` between the fixed e_min and e_max.
+        kinematics: how a 3D increment drives the cell axes (``orientation.KINEMATICS``: "projected", the
+            cell kind hcell3d; "axisymmetric", hcell3d-axisym; "amplified", hcell3d-sand); analytical backend."""
 
     law: str = ContactLaw.name
     backend: str = "analytical"
@@ -119,6 +127,8 @@ class ForwardSettings:
         "alpha0": CellDefaults.alpha0_deg, "shear_modulus": HertzMindlinLaw.shear_modulus,
         "poisson": HertzMindlinLaw.poisson})
     backend_options: Mapping[str, object] = field(default_factory=dict)
+    critical_state: CriticalState | None = None
+    kinematics: str = "projected"
 
     @property
     def parameters(self) -> tuple[str, ...]:
@@ -197,8 +207,24 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
                              f"{'biaxial' if test.dim != 3 else 'backend ' + settings.backend})")
         opening_spread.check(full["alpha0"], full[SPREAD])
     if settings.backend == "analytical":
-        return simulate_points(test, population(full, settings, test.dim), settings)
+        points = population(full, settings, test.dim)
+        if settings.critical_state is not None:
+            if any(name in params for name in DENSITY):
+                raise ValueError("the critical-state renewal runs on a fixed void-ratio map: give e_min and e_max, "
+                                 "do not calibrate them")
+            points.renewal = _renewal(full, settings, points)
+        return simulate_points(test, points, settings)
     return _simulate_one_by_one(test, full, settings)
+
+
+def _renewal(full: dict[str, np.ndarray], settings: ForwardSettings, points: MaterialPoints):
+    """The critical-state renewal of a population (``calibration.renewal``); ValueError (one line) with a spread."""
+    if SPREAD in full:
+        raise ValueError("the critical-state renewal does not run with alpha0_spread")
+    density = default_map(points.dim, *(float(settings.fixed.get(name, default))
+                                        for name, default in zip(DENSITY, DENSITY_DEFAULTS)))
+    return PopulationRenewal(settings.critical_state, points.material, points.state, density, full["alpha0"],
+                             laws_of(full, settings.law), settings.law, settings.radius)
 
 
 def density_alpha0(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings) -> np.ndarray | None:
@@ -287,6 +313,10 @@ def population(full: dict[str, np.ndarray], settings: ForwardSettings, dim: int)
     cell_class, meso = backend_class("analytical", dim), plain_h_cell(dim, CellDefaults.alpha0_deg, settings.radius)
     orient = orientation_set(meso, n_orientations=settings.n_orientations, lebedev_order=settings.lebedev_order,
                              n_spins=settings.n_spins, staggered_spins=settings.staggered_spins)
+    if dim == 3 and settings.kinematics != "projected":
+        orient = orient_mod.orientations_3d(settings.lebedev_order, settings.n_spins,
+                                            spin_period_deg=meso.spin_period_deg(),
+                                            staggered=settings.staggered_spins, kinematics=settings.kinematics)
     if SPREAD in full:
         alpha0 = opening_spread.cell_alpha0(full["alpha0"], full[SPREAD], orient.n_cells)
         orient = opening_spread.replicate(orient)
@@ -371,7 +401,7 @@ def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], setting
         record = driver.run(model, programme, mesostructure=meso, n_orientations=settings.n_orientations,
                             stress_rtol=settings.stress_rtol, max_newton_iterations=settings.max_newton,
                             progress=False, lebedev_order=settings.lebedev_order, n_spins=settings.n_spins,
-                            staggered_spins=settings.staggered_spins)
+                            staggered_spins=settings.staggered_spins, critical_state=settings.critical_state)
         shear = record.stage == programme[1].label
         start = np.flatnonzero(shear)[0] - 1
         volumetric = record.eps_v

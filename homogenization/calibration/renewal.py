@@ -1,0 +1,108 @@
+"""The critical-state renewal (``homogenization.material.critical_state``) on a calibration's population.
+
+A calibration's population is one material of n points whose cell model carries per-cell contact laws and
+opening angles (``forward.population``: ``with_cell_laws``), so the package's ``Renewal`` cannot build or step
+its fresh cells through that model (it expects one law for all cells and reads alpha0 from the points'
+mesostructures). ``population_renewal`` runs the same rule, unchanged, through a view of the material whose
+model builds fresh cells touching at the asked angles (``touching_state``) and steps them with the laws of
+the cells they replace; each point's initial void ratio is its own alpha0's on the map.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, replace
+from types import SimpleNamespace
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from homogenization.material.critical_state import CriticalState, Renewal
+from homogenization.material.density import DensityMap
+from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
+from warp_hcell.mesostructures.mesostructure import Mesostructure
+
+
+class _FreshCells:
+    """The population's cell model as ``Renewal`` sees it: fresh cells are touching cells at each
+    mesostructure's angle, stepped with the contact laws of the cells whose places they take (``index``)."""
+
+    def __init__(self, model: Any, laws: Mapping[str, np.ndarray], law: str, radius: float, cells: int) -> None:
+        self._model, self._laws, self._law, self._radius, self._cells = model, laws, law, radius, cells
+        self._angles: dict[int, tuple[Mesostructure, float]] = {}
+        self.index = np.zeros(0, dtype=np.int64)
+        """The cells (flat indices) renewed in the present increment."""
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._model, name)
+
+    def init_state(self, mesostructure: Sequence[Mesostructure], n_cells: int) -> Any:
+        for m in mesostructure:
+            if id(m) not in self._angles:
+                self._angles[id(m)] = (m, self._model.check_mesostructure(m))  # keeps m, so its id stays its own
+        angles = np.array([self._angles[id(m)][1] for m in mesostructure], dtype=np.float64)
+        return self._model.touching_state(angles, int(n_cells))
+
+    def step(self, state: Any, d_eps_local: np.ndarray, *, with_tangent: bool = False) -> Any:
+        point = self.index // self._cells
+        laws = {name: values[point] for name, values in self._laws.items()}
+        model_class = type(self._model)
+        if self._law == "hertz-mindlin":
+            subset = model_class.with_hertz_cell_laws(laws["shear_modulus"], laws["poisson"], laws["phi_g"],
+                                                      self._radius)
+        else:
+            subset = model_class.with_cell_laws(laws["kn"], laws["kt_over_kn"], laws["phi_g"], self._radius)
+        return subset.step(state, d_eps_local, with_tangent=with_tangent)
+
+
+class _MaterialView:
+    """``material`` with its cell model replaced by ``model`` (everything else delegated)."""
+
+    def __init__(self, material: HomogenisedMaterial, model: _FreshCells) -> None:
+        self._material, self.model = material, model
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._material, name)
+
+
+class PopulationRenewal(Renewal):
+    """``Renewal`` of a calibration population (module docstring).
+
+    Args:
+        params: the rule's parameters.
+        material: the population (``forward.population(...).material``), n points.
+        state: its state where counting starts.
+        density: the void-ratio map.
+        alpha0_deg: each point's initial opening angle [deg], shape (n,).
+        laws: the contact-law parameters of each point, name -> shape (n,) (``forward.full_parameters``).
+        law: "linear" or "hertz-mindlin".
+        radius: grain radius [m].
+        per_point: fields of ``params`` that differ between points, name -> shape (n,) (each point's set
+            checked as a ``CriticalState``); None: ``params`` for every point.
+    """
+
+    def __init__(self, params: CriticalState, material: HomogenisedMaterial, state: MaterialState,
+                 density: DensityMap, alpha0_deg: np.ndarray, laws: Mapping[str, np.ndarray], law: str,
+                 radius: float, per_point: Mapping[str, np.ndarray] | None = None) -> None:
+        self._fresh = _FreshCells(material.model, laws, law, radius, material.orient.n_cells)
+        super().__init__(params, _MaterialView(material, self._fresh), state, density)
+        alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (material.n_points,))
+        self.e0 = np.array([self.density.void_ratio(float(a)) for a in alpha0])
+        if per_point:
+            values = {name: np.broadcast_to(np.asarray(v, dtype=np.float64), (material.n_points,)).copy()
+                      for name, v in per_point.items()}
+            for i in range(material.n_points):
+                replace(params, **{name: float(v[i]) for name, v in values.items()}).check()
+            self.params = SimpleNamespace(**{**asdict(params), **values})
+
+    def _renewed(self, cells: Any, J: np.ndarray, due: Any, *args: Any, **kwargs: Any) -> Any:
+        """``Renewal._renewed``, the cells due (``due``: a mask of the cells, or a record holding it as "due")
+        named to the fresh-cell model first, which steps them with their own laws."""
+        self._fresh.index = np.flatnonzero(due["due"] if isinstance(due, dict) else due)
+        return super()._renewed(cells, J, due, *args, **kwargs)
+
+
+def laws_of(full: Mapping[str, np.ndarray], law: str) -> dict[str, np.ndarray]:
+    """The contact-law parameters of ``full`` (``forward.full_parameters``) that ``PopulationRenewal`` needs."""
+    names = ("shear_modulus", "poisson", "phi_g") if law == "hertz-mindlin" else ("kn", "kt_over_kn", "phi_g")
+    return {name: np.asarray(full[name], dtype=np.float64) for name in names}
+

@@ -1,0 +1,55 @@
+"""The calibration's forward model under the critical-state renewal (``ForwardSettings.critical_state``):
+its population (per-cell contact laws and opening angles) runs the package's ``Renewal`` exactly."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from homogenization.backends import make_cell_model
+from homogenization.calibration import forward
+from homogenization.calibration.data import Measurement
+from homogenization.element_test.points import material_points, orientation_set
+from homogenization.material.critical_state import DEFAULTS, Renewal
+from homogenization.material.density import default_map
+from warp_hcell.core.parameters import ContactLaw
+from warp_hcell.mesostructures.hcell import plain_h_cell
+
+SETTINGS = forward.ForwardSettings(increment=2e-3, iso_increment=1e-3, lebedev_order=5, n_spins=2,
+                                   stress_rtol=1e-5, critical_state=DEFAULTS[3])
+EPS1 = np.linspace(0.002, 0.04, 20)
+TEST = Measurement("drained", Path("drained.csv"), True, 1e5, EPS1, {"q": np.zeros(20), "eps_v": np.zeros(20)}, dim=3)
+SETS = {"phi_g": np.array([30.0, 36.0]), "kn": np.array([2e7, 5e7]), "kt_over_kn": np.array([0.8, 1.2]),
+        "alpha0": np.array([49.0, 57.0])}
+
+
+def _single(i: int) -> forward.Curves:
+    """Set i run as the package runs one law: a scalar-law model, cells from the mesostructure at alpha0, the
+    package's ``Renewal`` on the default map, the calibration's stages and solver."""
+    law = ContactLaw(kn=float(SETS["kn"][i]), kt_over_kn=float(SETS["kt_over_kn"][i]), phi_g_deg=float(SETS["phi_g"][i]))
+    model = make_cell_model("analytical", contact_law=law, radius=SETTINGS.radius, dim=3)
+    meso = plain_h_cell(3, float(SETS["alpha0"][i]), SETTINGS.radius)
+    orient = orientation_set(meso, n_orientations=SETTINGS.n_orientations, lebedev_order=SETTINGS.lebedev_order,
+                             n_spins=SETTINGS.n_spins, staggered_spins=SETTINGS.staggered_spins)
+    points = material_points(model, meso, 1, orient)
+    points.renewal = Renewal(SETTINGS.critical_state, points.material, points.state, default_map(3))
+    return forward.simulate_points(TEST, points, SETTINGS)
+
+
+def test_population_renewal_is_the_package_rule_per_set():
+    both = forward.simulate(TEST, SETS, SETTINGS)
+    plain = forward.simulate(TEST, SETS, replace(SETTINGS, critical_state=None))
+    for i in range(2):
+        one = _single(i)
+        for name in ("q", "p", "eps_v"):
+            np.testing.assert_allclose(both.channel(name)[i], one.channel(name)[0], rtol=1e-9, atol=1e-9 * 1e5)
+    # the rule acts on the loose set (alpha0 57 deg; the dense one renews at exp(-1.4 x 4) of the rate)
+    assert np.max(np.abs(both.q[1] - plain.q[1])) > 0.02 * np.max(plain.q[1])
+
+
+def test_renewal_refuses_a_spread_and_a_fitted_map():
+    with pytest.raises(ValueError, match="alpha0_spread"):
+        forward.simulate(TEST, {**SETS, "alpha0_spread": np.array([1.0, 1.0])}, SETTINGS)
+    with pytest.raises(ValueError, match="fixed void-ratio map"):
+        forward.simulate(TEST, {**SETS, "e_min": np.array([0.5, 0.5])}, SETTINGS)
