@@ -120,3 +120,33 @@ def test_dem_agrees_with_the_closed_form_under_renewal_3d():
     assert np.nanmax(a.diagnostics["critical_state_renewals"]) >= 20
     np.testing.assert_array_equal(a.diagnostics["critical_state_renewals"], d.diagnostics["critical_state_renewals"])
     assert max(np.max(np.abs(getattr(a, c) - getattr(d, c))) for c in ("sigma11", "sigma22", "sigma33")) < 1e-3 * p0
+
+
+def _end_2d_p(alpha0: float, params: CriticalState, drained: bool, p0: float = 1e5,
+              increment: float = 4e-3) -> tuple[float, float]:
+    rec = driver.run(make_cell_model("analytical"), pg.biaxial(p0, 0.4, increment, drained=drained),
+                     mesostructure=plain_h_cell(2, alpha0), n_orientations=90, progress=False, critical_state=params)
+    e0 = default_map(2).void_ratio(alpha0)
+    return float(rec.p[-1]), (1.0 + e0) * rec.J[-1] - 1.0
+
+
+def test_loose_undrained_2d_point_ends_on_the_drained_line():
+    """Undrained from the loose drained state (56 deg) to 40 % (90 orientations): with the renewals made inside
+    the increment it ends within 0.02 in e of the line through the drained ends; renewed force-free after the
+    increment (the earlier rule) it ends more than 0.03 off."""
+    ends = [_end_2d_p(a, DEFAULTS[2], True, p0) for a in (48.0, 56.0) for p0 in (1e5, 4e5)]
+    lam, e_g = np.polyfit(-np.log([p for p, _ in ends]), [e for _, e in ends], 1)
+    p, e = _end_2d_p(56.0, DEFAULTS[2], False)
+    assert abs(e - (e_g - lam * np.log(p))) < 0.02
+    p_old, e_old = _end_2d_p(56.0, replace(DEFAULTS[2], rate_max=400.0, in_increment=False), False)
+    assert e_old - (e_g - lam * np.log(p_old)) > 0.03
+
+
+def test_undrained_end_converges_with_the_increment():
+    """The loose undrained point renews every cell in every increment; its end p changes by less than 3 % from
+    increments 4e-3 to 2e-3 with the renewals inside the increment, by more than 15 % without."""
+    fine, coarse = (_end_2d_p(56.0, DEFAULTS[2], False, increment=h)[0] for h in (2e-3, 4e-3))
+    assert abs(coarse / fine - 1.0) < 0.03
+    old = replace(DEFAULTS[2], rate_max=400.0, in_increment=False)
+    fine, coarse = (_end_2d_p(56.0, old, False, increment=h)[0] for h in (2e-3, 4e-3))
+    assert abs(coarse / fine - 1.0) > 0.15

@@ -81,8 +81,8 @@ class MaterialPoints:
         self.accepted_diagnostics: dict[str, Any] = {}
         self.last_trial: np.ndarray | None = None
         self.renewal: Any = None
-        """A rule applied to the accepted state after every recorded increment (``end_increment``), e.g.
-        ``homogenization.material.critical_state.Renewal``; None: none."""
+        """A rule applied to every trial (``within``) and to the accepted state after every recorded increment
+        (``advance``, in ``end_increment``), e.g. ``homogenization.material.critical_state.Renewal``; None: none."""
 
     @property
     def stress(self) -> np.ndarray:
@@ -96,6 +96,8 @@ class MaterialPoints:
     def trial(self, d_e: np.ndarray, *, with_tangent: bool = False) -> MaterialUpdate:
         """Every point updated by its macro increment ``d_e`` (n, n_voigt) from the saved state (pure)."""
         update = self.material.update(self.state, d_e, with_tangent=with_tangent)
+        if self.renewal is not None:
+            update = self.renewal.within(self.state, update)
         if np.all(np.isfinite(d_e)):
             self.last_trial = np.array(d_e, dtype=np.float64)
         for name, value in update.diagnostics.items():

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from homogenization.material.density import DensityMap, default_map
-from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
+from homogenization.material.homogenised import HomogenisedMaterial, MaterialState, MaterialUpdate
 from warp_hcell.core.parameters import ALPHA_MIN_3D_DEG
 from warp_hcell.mesostructures import hcell
 from warp_hcell.mesostructures.mesostructure import Mesostructure
@@ -51,6 +51,10 @@ class CriticalState:
         rate_max: cap of the rate [-], >= rate.
         alpha_min_deg: smallest fresh opening angle [deg].
         alpha_max_deg: largest fresh opening angle [deg], > alpha_min_deg.
+        in_increment: renewals are made inside every trial of the increment where they fall due (``within``),
+            each fresh cell stepped by the part of the increment after its last renewal fell due (the clock
+            interpolated linearly), so the increment's stress control and record include them and a cell's age
+            does not depend on the increment; False: made force-free after the recorded increment.
     The defaults are ``DEFAULTS[3]``'s.
     """
 
@@ -58,9 +62,10 @@ class CriticalState:
     gain: float = 3.0
     alpha_c_deg: float = 53.0
     rate_gain: float = 1.4
-    rate_max: float = 400.0
+    rate_max: float = 1000.0
     alpha_min_deg: float = 46.0
     alpha_max_deg: float = 62.0
+    in_increment: bool = True
 
     def check(self) -> None:
         """ValueError (one line) for a parameter out of range."""
@@ -81,7 +86,7 @@ class CriticalState:
                              f"{self.alpha_max_deg:g} must satisfy 0 < alpha_min < alpha_max < 90 deg")
 
 
-DEFAULTS = {2: CriticalState(rate=160.0, gain=8.0, alpha_c_deg=52.0, rate_gain=1.0, rate_max=400.0, alpha_min_deg=40.0,
+DEFAULTS = {2: CriticalState(rate=160.0, gain=8.0, alpha_c_deg=52.0, rate_gain=1.0, rate_max=2000.0, alpha_min_deg=40.0,
                              alpha_max_deg=58.0),
             3: CriticalState()}
 """The rule's parameters by cell dimension, chosen by measurement on the plain cells at the default contact law
@@ -150,6 +155,8 @@ class Renewal:
         self.log: list[tuple[np.ndarray, ...]] = []
         """(count, capped, clipped, merged) after each ``advance`` call (one per recorded increment)."""
         self.last_strain = np.array(state.strain)
+        self.next_tick = np.zeros(material.n_cells)
+        """Clock tick of every cell over the next increment (``in_increment``): the last accepted increment's."""
         self._mesos: dict[float, Mesostructure] = {}
 
     def _meso(self, alpha_deg: float) -> Mesostructure:
@@ -177,37 +184,108 @@ class Renewal:
         p = self.params
         return p.rate * np.exp(p.rate_gain * (self.density_angle(J) - p.alpha_c_deg))
 
-    def advance(self, state: MaterialState) -> MaterialState:
-        """The accepted ``state`` with its due cells renewed (the others untouched) and its stress recomputed."""
-        d_local = self.material.localise(state.strain - self.last_strain)
-        self.last_strain = np.array(state.strain)
+    def _tick(self, strain: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(per-cell local increments (n_cells, dim), per-point rates before the cap (n_points,), per-cell clock
+        ticks (n_cells,)) of an increment from the last advanced state to ``strain`` (n_points, n_voigt), rates at
+        ``J`` (n_points,)."""
+        d_local = self.material.localise(strain - self.last_strain)
         dim = d_local.shape[1]
         cell = sum(np.abs(d_local[:, a] - d_local[:, b]) for a in range(dim) for b in range(a + 1, dim))
         n = self.material.orient.n_cells
         weights = self.material.orient.weights
         increment = (cell.reshape(self.material.n_points, n) @ weights) / weights.sum()
-        before = np.floor(self.distortion + self.phase)
-        rate = self.rate(state.J)
-        self.capped = self.capped + (rate > self.params.rate_max)
-        self.distortion = self.distortion + np.repeat(np.minimum(rate, self.params.rate_max) * increment, n)
-        after = np.floor(self.distortion + self.phase)
+        rate = self.rate(J)
+        return d_local, rate, np.repeat(np.minimum(rate, self.params.rate_max) * increment, n)
+
+    def _due(self, tick: np.ndarray) -> dict:
+        """Clock before and after a tick (n_cells,), the due cells and the fraction of the increment after each due
+        cell's last renewal (pure)."""
+        clock0 = self.distortion + self.phase
+        clock = clock0 + tick
+        before, after = np.floor(clock0), np.floor(clock)
         due = after > before
-        self.merged = self.merged + np.maximum(after - before - 1.0, 0.0).reshape(self.material.n_points, n).sum(
+        rest = np.clip((clock - after) / np.where(due, tick, 1.0), 0.0, 1.0)
+        return {"distortion": self.distortion + tick, "before": before, "after": after, "due": due, "rest": rest}
+
+    def _renewed(self, cells, J: np.ndarray, due: np.ndarray, rest: np.ndarray | None, d_local: np.ndarray,
+                 with_tangent: bool = False):
+        """(``cells`` with the ``due`` cells (n_cells,) replaced by fresh ones at the points' current fresh angle,
+        stepped by ``rest`` (n_cells,) times their increment ``d_local`` (None: force-free); with ``with_tangent``
+        the fresh cells' d stress / d(d_local), shape (n_due, dim, dim), else None)."""
+        n = self.material.orient.n_cells
+        index = np.flatnonzero(due)
+        alpha = np.clip(self.fresh_angle(J), self.params.alpha_min_deg, self.params.alpha_max_deg)[index // n]
+        model = self.material.model
+        fresh_cells = model.init_state([self._meso(a) for a in alpha], index.size)
+        tangent = None
+        if rest is not None and with_tangent:
+            fresh_cells, response = model.step(fresh_cells, rest[index, None] * d_local[index], with_tangent=True)
+            dim = self.material.dim
+            tangent = np.asarray(response.tangent).reshape(index.size, dim, dim) * rest[index, None, None]
+        elif rest is not None:
+            fresh_cells, _ = model.step(fresh_cells, rest[index, None] * d_local[index])
+        fresh = model.state_to_arrays(fresh_cells)
+        arrays = {k: np.array(v, copy=True) for k, v in model.state_to_arrays(cells).items()}
+        for k, v in arrays.items():
+            v[index] = fresh[k]
+        return model.state_from_arrays(arrays), tangent
+
+    def within(self, start: MaterialState, update: MaterialUpdate) -> MaterialUpdate:
+        """The trial ``update`` from the last advanced state ``start`` with the renewals of its increment made
+        (``in_increment``; otherwise ``update`` itself); pure. The due cells and where in the increment they fall
+        due come from the previous increment's tick (fixed over the trials, so the stress stays continuous in the
+        trial increment); each fresh cell is stepped by its rest of the trial's increment, and a tangent is
+        corrected for the cells replaced."""
+        if not self.params.in_increment:
+            return update
+        due = self._due(self.next_tick)
+        if not due["due"].any():
+            return update
+        state = update.state
+        d_local = self.material.localise(state.strain - self.last_strain)
+        cells, fresh_tangent = self._renewed(state.cells, state.J, due["due"], due["rest"], d_local,
+                                             with_tangent=update.tangent is not None)
+        stress = self.material.stress_of(cells, state.J)
+        tangent = update.tangent
+        if tangent is not None:
+            model, index = self.material.model, np.flatnonzero(due["due"])
+            arrays = model.state_to_arrays(start.cells)
+            old = model.state_from_arrays({k: np.array(v[index]) for k, v in arrays.items()})
+            _, response = model.step(old, d_local[index], with_tangent=True)
+            C = np.zeros((self.material.n_cells, self.material.dim, self.material.dim))
+            C[index] = fresh_tangent - np.asarray(response.tangent).reshape(index.size, self.material.dim,
+                                                                              self.material.dim)
+            n = self.material.orient.n_cells
+            V = self.material.V0 * np.asarray(state.J, dtype=np.float64)
+            d_e = state.strain - start.strain
+            volume = np.zeros_like(d_e)
+            volume[:, :self.material.dim] = 1.0 / (1.0 - d_e[:, :self.material.dim])
+            tangent = (tangent + self.material._cell_tangent_average(C.reshape(self.material.n_points, n,
+                       self.material.dim, self.material.dim)) / V[:, None, None]
+                       + (stress - update.stress)[:, :, None] * volume[:, None, :])
+        return MaterialUpdate(MaterialState(cells, state.J, state.strain, stress), stress, tangent,
+                              update.diagnostics)
+
+    def advance(self, state: MaterialState) -> MaterialState:
+        """Move the clock over the accepted increment ending at ``state`` and count its renewals; with
+        ``in_increment`` ``state`` (renewed in ``within``) is returned and the next increment's tick set from
+        this one, otherwise ``state`` with its due cells renewed force-free and its stress recomputed."""
+        d_local, rate, tick = self._tick(state.strain, state.J)
+        due = self._due(self.next_tick if self.params.in_increment else tick)
+        self.last_strain = np.array(state.strain)
+        self.next_tick = tick
+        n_points, n = self.material.n_points, self.material.orient.n_cells
+        self.capped = self.capped + (rate > self.params.rate_max)
+        self.distortion = due["distortion"]
+        self.merged = self.merged + np.maximum(due["after"] - due["before"] - 1.0, 0.0).reshape(n_points, n).sum(
             axis=1).astype(np.int64)
-        per_point = due.reshape(self.material.n_points, n).sum(axis=1)
+        per_point = due["due"].reshape(n_points, n).sum(axis=1)
         self.count = self.count + per_point
         angle = self.fresh_angle(state.J)
         clipped = (angle < self.params.alpha_min_deg) | (angle > self.params.alpha_max_deg)
         self.clipped = self.clipped + per_point * clipped
         self.log.append((self.count, self.capped, self.clipped, self.merged))
-        if not due.any():
+        if self.params.in_increment or not due["due"].any():
             return state
-        index = np.flatnonzero(due)
-        alpha = np.clip(angle, self.params.alpha_min_deg, self.params.alpha_max_deg)[index // n]
-        model = self.material.model
-        fresh = model.state_to_arrays(model.init_state([self._meso(a) for a in alpha], index.size))
-        arrays = {k: np.array(v, copy=True) for k, v in model.state_to_arrays(state.cells).items()}
-        for k, v in arrays.items():
-            v[index] = fresh[k]
-        cells = model.state_from_arrays(arrays)
+        cells, _ = self._renewed(state.cells, state.J, due["due"], None, d_local)
         return MaterialState(cells, state.J, state.strain, self.material.stress_of(cells, state.J))
