@@ -111,7 +111,8 @@ def test_checkpoint_resume_gives_the_uninterrupted_result_bit_for_bit(tmp_path, 
         lambda: fe.BiaxialSpecimen(2, 4))
     steps = programme(12)
     specimen = make()
-    full = specimen.run(material_for(specimen), steps, scale=P0)
+    full = specimen.run(material_for(specimen), steps, scale=P0,
+                        checkpoint=Checkpoint(tmp_path / "full.h5", 3, {"case": regularised}))
     checkpoint = Checkpoint(tmp_path / "c.h5", 3, {"case": regularised})
 
     def interrupt(k, result):
@@ -136,7 +137,7 @@ def test_killed_run_resumes_to_the_same_files(tmp_path):
     """A run killed (SIGKILL) after a random checkpoint and resumed writes the uninterrupted run's fields."""
     argv = TINY + ["--eps-max", "0.02", "--imperfection", "0.2", "--length", "0.2", "--orientations", "24"]
     reference = tmp_path / "reference"
-    assert cli(argv + ["--out", str(reference)]) == 0
+    assert cli(argv + ["--checkpoint-every", "1", "--out", str(reference)]) == 0
     out = tmp_path / "killed"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     process = subprocess.Popen([sys.executable, "-m", "homogenization.bvp", *argv, "--checkpoint-every", "1",

@@ -94,6 +94,8 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         """Sparse LU factorisations done by ``newton_correction`` so far."""
         self.krylov_iterations = 0
         """Preconditioned GMRES iterations done by ``newton_correction`` so far."""
+        self.pivoted_factorisations = 0
+        """Factorisations redone with partial pivoting (the pivot-free ones fell short) so far."""
         self.set_modulus(modulus)
 
     def set_modulus(self, modulus: float) -> None:
@@ -127,17 +129,18 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         K = self._linear + sp.block_diag([K_u, sp.csr_matrix((x.size - n, x.size - n))], format="csr")
         return f, K
 
-    def begin_step(self) -> None:
-        """Forget the stored LU factors: each load step starts with a fresh factorisation, so a step's
-        arithmetic depends on its own iterations only (a resumed run repeats it bit for bit)."""
-        self._lu = None
+    def begin_step(self, fresh: bool) -> None:
+        """Where ``fresh``, forget the stored LU factors: the steps from here on depend only on the
+        state here, so a run resumed here repeats the uninterrupted run's arithmetic bit for bit."""
+        if fresh:
+            self._lu = None
 
     def newton_correction(self, K_r, residual, fixed):
         """Newton correction by an augmented-Lagrangian step (the multiplier block of the Jacobian,
         zero, replaced by -A / beta, A the multiplier's mass matrix, diagonal): the multiplier is
         condensed out element by element and the remaining (u, v) system is solved by GMRES
-        preconditioned with the sparse LU factors of an earlier such system of the same load step, refactorised when
-        GMRES needs more than ``MAX_KRYLOV`` iterations (or the fixed DOFs change). The residual
+        preconditioned with the sparse LU factors of an earlier such system (``begin_step``),
+        refactorised when GMRES needs more than ``MAX_KRYLOV`` iterations (or the fixed DOFs change). The residual
         stays exact, so the converged solution is that of the exact multiplier; the Jacobian's
         perturbation, of relative order E_ref / beta, only slows the final iterations. Counts:
         ``factorisations``, ``krylov_iterations``."""
@@ -163,10 +166,18 @@ class SecondGradientSpecimen(BiaxialSpecimen):
             if info == 0:
                 d_free = x
         if d_free is None:
-            self._lu = spla.splu(A)
+            # symmetric ordering without pivoting: fast; GMRES checks what it gives
+            self._lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                                 options={"SymmetricMode": True})
             self._lu_free = free
             self.factorisations += 1
-            d_free = self._lu.solve(b)
+            x, info = spla.gmres(A, b, M=spla.LinearOperator(A.shape, self._lu.solve), rtol=KRYLOV_RTOL, atol=0.0,
+                                 restart=MAX_KRYLOV, maxiter=1)
+            if info != 0:  # the pivot-free factors are not good enough: partial pivoting
+                self.pivoted_factorisations += 1
+                self._lu = spla.splu(A)
+                x = self._lu.solve(b)
+            d_free = x
         d_uv = np.zeros(n)
         d_uv[free] = d_free
         return np.concatenate([d_uv, beta_over_area * (C @ d_uv + residual[n:])])

@@ -46,6 +46,9 @@ QUADRATURE_ORDER = 2
 """Integration order of the bilinear quadrilaterals: 2 x 2 Gauss points [-]."""
 
 
+REFRESH_EVERY = 10
+"""Without checkpoints, solver data kept across steps (``begin_step``) is renewed every this many
+steps; with checkpoints, every checkpoint interval, so that a resumed run repeats the arithmetic [-]."""
 MAX_HALVINGS = 4
 """Halvings of a Newton correction after which it is taken even if the residual grew [-]."""
 
@@ -247,8 +250,9 @@ class BiaxialSpecimen:
         """Internal force vector and its Jacobian for the unknowns x and the Gauss-point stress and tangent."""
         return self._assemble(stress, tangent)
 
-    def begin_step(self) -> None:
-        """Called at the start of each load step's Newton iterations (here nothing)."""
+    def begin_step(self, fresh: bool) -> None:
+        """Called at the start of each load step's Newton iterations; ``fresh``: the run starts
+        here or the step index is a multiple of the refresh interval (here nothing)."""
 
     def newton_correction(self, K_r: sp.csr_matrix, residual: np.ndarray, fixed: np.ndarray) -> np.ndarray:
         """Correction of the reduced unknowns: K_r da = -residual with da = 0 at ``fixed`` (sparse LU)."""
@@ -274,7 +278,7 @@ class BiaxialSpecimen:
 
     # -- solution -------------------------------------------------------------------------
     def solve_step(self, material: HomogenisedMaterial, state: MaterialState, x_start: np.ndarray,
-                   x_guess: np.ndarray, step: LoadStep, scale: float, where: str):
+                   x_guess: np.ndarray, step: LoadStep, scale: float, where: str, fresh: bool = True):
         """Newton iterations of one load step from the converged unknowns ``x_start`` and ``state``.
 
         Where a correction increases the residual, it is halved (at most ``MAX_HALVINGS`` times,
@@ -283,7 +287,7 @@ class BiaxialSpecimen:
         Returns (x, material update, internal force vector, iterations, residual norms, diagnostics).
         """
         expand = self.expand
-        self.begin_step()
+        self.begin_step(fresh)
         x = x_guess.copy()
         fixed = self.fixed
         if step.platen_increment is not None:
@@ -351,7 +355,9 @@ class BiaxialSpecimen:
         if checkpoint is not None and checkpoint.exists():
             x, previous, state, results = checkpoint.load(material, len(steps))
         nodal = self.basis.nodal_dofs
-        for k in range(len(results), len(steps)):
+        first = len(results)
+        refresh = checkpoint.every if checkpoint is not None else REFRESH_EVERY
+        for k in range(first, len(steps)):
             step = steps[k]
             if k == 0:
                 guess = self.seed(isotropic_seed)
@@ -361,7 +367,7 @@ class BiaxialSpecimen:
                 guess = x + (x - previous)  # the last step's increment again
             where = f"step {k + 1} ({step.stage})"
             x_new, update, f_int, iterations, residuals, totals = self.solve_step(
-                material, state, x, guess, step, scale, where)
+                material, state, x, guess, step, scale, where, fresh=k == first or k % refresh == 0)
             previous, x, state = x, x_new, update.state
             self.last_unknowns = x
             u = self.displacement_of(x)
