@@ -48,8 +48,29 @@ def test_population_renewal_is_the_package_rule_per_set():
     assert np.max(np.abs(both.q[1] - plain.q[1])) > 0.02 * np.max(plain.q[1])
 
 
-def test_renewal_refuses_a_spread_and_a_fitted_map():
+def test_renewal_refuses_a_spread():
     with pytest.raises(ValueError, match="alpha0_spread"):
         forward.simulate(TEST, {**SETS, "alpha0_spread": np.array([1.0, 1.0])}, SETTINGS)
-    with pytest.raises(ValueError, match="fixed void-ratio map"):
-        forward.simulate(TEST, {**SETS, "e_min": np.array([0.5, 0.5])}, SETTINGS)
+
+
+def test_renewal_on_each_sets_own_void_ratio_map():
+    """A test that gives its void ratio: each set runs at its map's alpha0 and renews on its own map, as the
+    package's Renewal on that map alone; a set whose map misses the void ratio gets NaN."""
+    e_min, e_max = np.array([0.55, 0.60, 0.80]), np.array([0.90, 1.00, 0.95])
+    sets = {name: np.append(v, v[0]) for name, v in SETS.items() if name != "alpha0"}
+    test = replace(TEST, void_ratio=0.75)
+    curves = forward.simulate(test, {**sets, "e_min": e_min, "e_max": e_max}, SETTINGS)
+    assert np.all(np.isnan(curves.q[2]))
+    for i in range(2):
+        law = ContactLaw(kn=float(sets["kn"][i]), kt_over_kn=float(sets["kt_over_kn"][i]),
+                         phi_g_deg=float(sets["phi_g"][i]))
+        model = make_cell_model("analytical", contact_law=law, radius=SETTINGS.radius, dim=3)
+        density = default_map(3, e_min[i], e_max[i])
+        meso = plain_h_cell(3, density.alpha0_deg(0.75), SETTINGS.radius)
+        orient = orientation_set(meso, n_orientations=SETTINGS.n_orientations, lebedev_order=SETTINGS.lebedev_order,
+                                 n_spins=SETTINGS.n_spins, staggered_spins=SETTINGS.staggered_spins)
+        points = material_points(model, meso, 1, orient)
+        points.renewal = Renewal(SETTINGS.critical_state, points.material, points.state, density)
+        one = forward.simulate_points(test, points, SETTINGS)
+        np.testing.assert_allclose(curves.q[i], one.q[0], rtol=1e-9, atol=1e-4)
+        np.testing.assert_allclose(curves.eps_v[i], one.eps_v[0], rtol=1e-9, atol=1e-12)

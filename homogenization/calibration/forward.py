@@ -107,7 +107,7 @@ class ForwardSettings:
         fixed: value of every parameter not calibrated (CLI flag units).
         backend_options: extra keyword options of the backend (dem/ann: device, threads, model).
         critical_state: the cells' renewal rule (``homogenization.material.critical_state``; None: the plain
-            H-model), its void-ratio map ``density.default_map`` between the fixed e_min and e_max.
+            H-model), on each set's void-ratio map (``density.default_map`` between its e_min and e_max).
         kinematics: how a 3D increment drives the cell axes (``orientation.KINEMATICS``: "projected", the
             cell kind hcell3d; "axisymmetric", hcell3d-axisym; "amplified", hcell3d-sand); analytical backend."""
 
@@ -195,6 +195,10 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
         raise ValueError(f"the Hertz-Mindlin contact law is defined for spheres: {test.name} is a biaxial (2D) "
                          f"test; calibrate it on triaxial data")
     full = full_parameters(params, settings)
+    if settings.critical_state is not None:  # the renewal's map, per set
+        for name, default in zip(DENSITY, DENSITY_DEFAULTS):
+            value = params[name] if name in params else settings.fixed.get(name, default)
+            full[name] = np.broadcast_to(np.asarray(value, dtype=np.float64), full["phi_g"].shape).copy()
     alpha0 = density_alpha0(test, params, settings)
     if alpha0 is not None:
         reached = np.isfinite(alpha0)
@@ -209,22 +213,20 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
     if settings.backend == "analytical":
         points = population(full, settings, test.dim)
         if settings.critical_state is not None:
-            if any(name in params for name in DENSITY):
-                raise ValueError("the critical-state renewal runs on a fixed void-ratio map: give e_min and e_max, "
-                                 "do not calibrate them")
             points.renewal = _renewal(full, settings, points)
         return simulate_points(test, points, settings)
     return _simulate_one_by_one(test, full, settings)
 
 
-def _renewal(full: dict[str, np.ndarray], settings: ForwardSettings, points: MaterialPoints):
-    """The critical-state renewal of a population (``calibration.renewal``); ValueError (one line) with a spread."""
+def _renewal(full: dict[str, np.ndarray], settings: ForwardSettings, points: MaterialPoints) -> PopulationRenewal:
+    """The critical-state renewal of a population (``calibration.renewal``) on each set's void-ratio map (``full``'s
+    e_min and e_max: calibrated, else fixed, else the defaults); ValueError (one line) with a spread."""
     if SPREAD in full:
         raise ValueError("the critical-state renewal does not run with alpha0_spread")
-    density = default_map(points.dim, *(float(settings.fixed.get(name, default))
-                                        for name, default in zip(DENSITY, DENSITY_DEFAULTS)))
-    return PopulationRenewal(settings.critical_state, points.material, points.state, density, full["alpha0"],
-                             laws_of(full, settings.law), settings.law, settings.radius)
+    bounds = (full["e_min"], full["e_max"])
+    return PopulationRenewal(settings.critical_state, points.material, points.state, default_map(points.dim),
+                             full["alpha0"], laws_of(full, settings.law), settings.law, settings.radius,
+                             e_bounds=bounds)
 
 
 def density_alpha0(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings) -> np.ndarray | None:

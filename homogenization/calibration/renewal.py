@@ -71,22 +71,33 @@ class PopulationRenewal(Renewal):
         params: the rule's parameters.
         material: the population (``forward.population(...).material``), n points.
         state: its state where counting starts.
-        density: the void-ratio map.
+        density: the void-ratio map (its e_min and e_max replaced per point by ``e_bounds`` where given).
         alpha0_deg: each point's initial opening angle [deg], shape (n,).
         laws: the contact-law parameters of each point, name -> shape (n,) (``forward.full_parameters``).
         law: "linear" or "hertz-mindlin".
         radius: grain radius [m].
         per_point: fields of ``params`` that differ between points, name -> shape (n,) (each point's set
             checked as a ``CriticalState``); None: ``params`` for every point.
+        e_bounds: each point's (e_min, e_max) [-], shapes (n,), e_min < e_max (a calibration of the map); None:
+            ``density``'s.
     """
 
     def __init__(self, params: CriticalState, material: HomogenisedMaterial, state: MaterialState,
                  density: DensityMap, alpha0_deg: np.ndarray, laws: Mapping[str, np.ndarray], law: str,
-                 radius: float, per_point: Mapping[str, np.ndarray] | None = None) -> None:
+                 radius: float, per_point: Mapping[str, np.ndarray] | None = None,
+                 e_bounds: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self._fresh = _FreshCells(material.model, laws, law, radius, material.orient.n_cells)
         super().__init__(params, _MaterialView(material, self._fresh), state, density)
         alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (material.n_points,))
-        self.e0 = np.array([self.density.void_ratio(float(a)) for a in alpha0])
+        if e_bounds is not None:
+            e_min, e_max = (np.broadcast_to(np.asarray(v, dtype=np.float64), (material.n_points,)).copy()
+                            for v in e_bounds)
+            if not np.all(e_min < e_max):
+                raise ValueError("every point's e_min must be below its e_max")
+            self.density = SimpleNamespace(e_min=e_min, e_max=e_max, alpha_dense_deg=density.alpha_dense_deg,
+                                           alpha_loose_deg=density.alpha_loose_deg)
+        m = self.density  # DensityMap.void_ratio on arrays
+        self.e0 = m.e_max - (m.alpha_loose_deg - alpha0) / (m.alpha_loose_deg - m.alpha_dense_deg) * (m.e_max - m.e_min)
         if per_point:
             values = {name: np.broadcast_to(np.asarray(v, dtype=np.float64), (material.n_points,)).copy()
                       for name, v in per_point.items()}
