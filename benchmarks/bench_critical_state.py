@@ -10,6 +10,7 @@ benchmarks/results/critical_state.{txt,json,png}.
 
     python benchmarks/bench_critical_state.py [--increment 2e-3] [--orientations 360] [--order 17 --spins 8] [--tag T]
     python benchmarks/bench_critical_state.py --dem-check      # DEM vs closed form, rule on, short 2D and 3D tests
+    python benchmarks/bench_critical_state.py --shear-check    # 3D shear stresses per phase rule
 
 The undrained ends at increments 2e-3, 1e-3 and 5e-4 (``--increment``, ``--tag``) show the rule's convergence.
 """
@@ -27,7 +28,7 @@ import numpy as np
 
 from homogenization.backends import make_cell_model
 from homogenization.element_test import driver, programme as pg
-from homogenization.material.critical_state import DEFAULTS, CriticalState
+from homogenization.material.critical_state import DEFAULTS, PHASES, CriticalState
 from homogenization.material.density import default_map
 from warp_hcell.mesostructures.hcell import plain_h_cell
 
@@ -107,6 +108,29 @@ def dem_check(args) -> int:
     return 0
 
 
+def shear_check(args) -> int:
+    """3D shear stresses under the rule with each phase rule (``PHASES``) and without it: per test, the largest
+    abs(sigma_23, sigma_13, sigma_12) / p over the shear stage and the last-10 % q rate; writes
+    benchmarks/results/critical_state_shear.txt."""
+    lines = [f"3D shear stresses, closed form, Lebedev {args.order} x {args.spins} spins, increments {args.increment:g}, "
+             f"p0 1e5, to {EPS:.0%}; DEFAULTS[3] with each phase rule",
+             "phases       test       alpha0  max|shear|/p  |dq/de1|/p  q/p end  e end   renewals"]
+    print("\n".join(lines), flush=True)
+    for phases in (None,) + PHASES:
+        params = None if phases is None else replace(DEFAULTS[3], phases=phases)
+        for alpha0, test in ((48.0, "drained"), (56.0, "drained"), (56.0, "undrained")):
+            rec = run(3, alpha0, 1e5, test, args, params)
+            s = summary(rec, 3, alpha0)
+            shear = rec.stage == "shear"
+            worst = max(np.max(np.abs(getattr(rec, c)[shear] / rec.p[shear])) for c in ("sigma23", "sigma13", "sigma12"))
+            lines.append(f"{phases or 'plain':<12} {test:<10} {alpha0:<7g} {worst:<13.4f} {s['dq_rate']:<11.3f} "
+                         f"{s['q_over_p']:<8.3f} {s['e']:.3f}   {s['renewals']}")
+            print(lines[-1], flush=True)
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "critical_state_shear.txt").write_text("\n".join(lines) + "\n")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--increment", type=float, default=2e-3)
@@ -114,7 +138,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--order", type=int, default=17)
     parser.add_argument("--spins", type=int, default=8)
     parser.add_argument("--dims", default="2,3")
+    parser.add_argument("--pressures", default=None, help="comma-separated p0 of the drained pairs (default 1e5,4e5; "
+                        "the undrained tests start from the first); needs --tag")
+    parser.add_argument("--no-undrained", action="store_true", help="the drained pairs only")
     parser.add_argument("--dem-check", action="store_true")
+    parser.add_argument("--shear-check", action="store_true", help="3D shear stresses per phase rule")
     parser.add_argument("--tag", default="", help="suffix of the output files' names (e.g. _increment_1e-3)")
     parser.add_argument("--plain", action="store_true", help="the plain cells (no rule); needs --tag")
     parser.add_argument("--rule", default=None, help="JSON of CriticalState fields replacing DEFAULTS' (with --dims "
@@ -122,12 +150,19 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.dem_check:
         return dem_check(args)
+    if args.shear_check:
+        return shear_check(args)
     params = dict(PARAMS)
     if args.rule is not None:
         if not args.tag:
             parser.error("--rule needs --tag (the default results stay the DEFAULTS')")
         changes = json.loads(args.rule)
         params = {dim: replace(rule, **changes) for dim, rule in PARAMS.items()}
+    pressures = PRESSURES
+    if args.pressures is not None:
+        if not args.tag:
+            parser.error("--pressures needs --tag")
+        pressures = tuple(float(p) for p in args.pressures.split(","))
     if args.plain:
         if not args.tag:
             parser.error("--plain needs --tag")
@@ -144,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     for dim in (int(d) for d in args.dims.split(",")):
         say(f"\n{dim}D rule: {params[dim]}")
         say("p0        alpha0  e0     q/p end  e end   |dq/de1|/p  |dev/de1|  renewals  capped  clipped  merged  seconds")
-        for p0 in PRESSURES:
+        for p0 in pressures:
             pair = []
             for alpha0 in STATES[dim]:
                 start = time.perf_counter()
@@ -161,13 +196,18 @@ def main(argv: list[str] | None = None) -> int:
             say(f"  -> stress ratios differ by {ratio:.1%} (<= 5 %: {ratio <= 0.05}), void ratios by {de:.3f} "
                 f"(<= 0.02: {de <= 0.02}), rates within 0.05 / 0.01: {ok_rates}")
         drained = [r for r in rows if r["dim"] == dim and r["test"] == "drained"]
-        lam, e_g = np.polyfit(-np.log([r["p"] for r in drained]), [r["e"] for r in drained], 1)
-        say(f"  line through the drained ends: e = {e_g:.3f} - {lam:.4f} ln p")
+        fit = [r for r in drained if r["p0"] in PRESSURES] or drained
+        lam, e_g = np.polyfit(-np.log([r["p"] for r in fit]), [r["e"] for r in fit], 1)
+        at = ", ".join(f"{p0:g}" for p0 in sorted({r["p0"] for r in fit}))
+        say(f"  line through the drained ends at p0 {at}: e = {e_g:.3f} - {lam:.4f} ln p")
+        for r in (r for r in drained if r not in fit):
+            say(f"  drained p0 {r['p0']:g}, alpha0 {r['alpha0']:g}: end p {r['p']:.4g}, e {r['e']:.3f}; the line at "
+                f"that p: e {e_g - lam * np.log(r['p']):.3f} (off by {r['e'] - e_g + lam * np.log(r['p']):+.3f})")
         near = (PARAMS[dim].alpha_c_deg - 2.0, PARAMS[dim].alpha_c_deg + 2.0)
-        for alpha0 in STATES[dim] + near:
+        for alpha0 in () if args.no_undrained else STATES[dim] + near:
             start = time.perf_counter()
-            s = summary(run(dim, alpha0, PRESSURES[0], "undrained", args, params[dim]), dim, alpha0)
-            s.update(p0=PRESSURES[0], test="undrained", seconds=time.perf_counter() - start)
+            s = summary(run(dim, alpha0, pressures[0], "undrained", args, params[dim]), dim, alpha0)
+            s.update(p0=pressures[0], test="undrained", seconds=time.perf_counter() - start)
             rows.append(s)
             e_line = e_g - lam * np.log(s["p"])
             say(f"  undrained alpha0 {alpha0:g}: end p {s['p']:.4g}, e {s['e']:.3f}, q/p {s['q_over_p']:.3f}; the "
@@ -195,6 +235,7 @@ def figure(rows: list[dict], path: Path) -> None:
             axes[i, 2].semilogx(c["p"], c["e"], style, label=label)
             axes[i, 2].plot(r["p"], r["e"], "ko", ms=4)
         drained = [r for r in rows if r["dim"] == dim and r["test"] == "drained"]
+        drained = [r for r in drained if r["p0"] in PRESSURES] or drained
         lam, e_g = np.polyfit(-np.log([r["p"] for r in drained]), [r["e"] for r in drained], 1)
         ends = [r["p"] for r in rows if r["dim"] == dim]
         p = np.geomspace(min(ends) / 2, max(ends) * 1.5, 20)

@@ -18,7 +18,8 @@ from warp_hcell.mesostructures.hcell import plain_h_cell
 
 @pytest.mark.parametrize("changes", [{"rate": 0.0}, {"rate": float("nan")}, {"gain": -1.0}, {"rate_gain": -0.5},
                                      {"rate_max": 10.0}, {"alpha_c_deg": 63.0},
-                                     {"alpha_min_deg": 60.0, "alpha_max_deg": 50.0}, {"alpha_max_deg": 95.0}])
+                                     {"alpha_min_deg": 60.0, "alpha_max_deg": 50.0}, {"alpha_max_deg": 95.0},
+                                     {"phases": "spin"}])
 def test_bad_parameters_are_refused(changes):
     params = CriticalState(**changes)
     with pytest.raises(ValueError, match="critical-state"):
@@ -150,3 +151,22 @@ def test_undrained_end_converges_with_the_increment():
     old = replace(DEFAULTS[2], rate_max=400.0, in_increment=False)
     fine, coarse = (_end_2d_p(56.0, old, False, increment=h)[0] for h in (2e-3, 4e-3))
     assert abs(coarse / fine - 1.0) > 0.15
+
+
+def _end_3d_p(alpha0: float, params: CriticalState, test: str, p0: float = 1e5) -> tuple[float, float]:
+    rec = driver.run(make_cell_model("analytical", dim=3), pg.triaxial(p0, 0.4, 4e-3, test=test),
+                     mesostructure=plain_h_cell(3, alpha0), lebedev_order=11, n_spins=4, progress=False,
+                     critical_state=params)
+    e0 = default_map(3).void_ratio(alpha0)
+    return float(rec.p[-1]), (1.0 + e0) * rec.J[-1] - 1.0
+
+
+def test_loose_undrained_3d_point_ends_on_the_drained_line():
+    """As the 2D test, triaxial (Lebedev 11 x 4 spins): the loose undrained point ends within 0.02 in e of the line
+    through the drained ends, more than 0.03 off with the earlier rule."""
+    ends = [_end_3d_p(a, DEFAULTS[3], "drained", p0) for a in (48.0, 56.0) for p0 in (1e5, 4e5)]
+    lam, e_g = np.polyfit(-np.log([p for p, _ in ends]), [e for _, e in ends], 1)
+    p, e = _end_3d_p(56.0, DEFAULTS[3], "undrained")
+    assert abs(e - (e_g - lam * np.log(p))) < 0.02
+    p_old, e_old = _end_3d_p(56.0, replace(DEFAULTS[3], rate_max=400.0, in_increment=False), "undrained")
+    assert e_old - (e_g - lam * np.log(p_old)) > 0.03

@@ -1,23 +1,26 @@
 """Renewal of a material point's cells towards a critical state (opt-in: ``CriticalState``).
 
-Between two accepted increments, cells of a point are replaced by fresh, touching, force-free cells
-of the same orientations, built by the backend's own ``init_state`` (closed form, DEM and ANN share
-the rule exactly). The clock is the point's distortion: per increment, s = sum_k w_k sum_{a<b}
-abs(d eps_a - d eps_b) / sum_k w_k (the cells' local normal strains, so an isotropic compression
-renews nothing); cell k is renewed each time floor(S_k + phi_k) grows, S_k the sum of lambda s over
-the increments and phi_k = frac(j g) a fixed phase (g the golden ratio, j the index of k's class of
-cells that reflections of the macro axes map onto one another: renewed together, they keep a symmetric
-test symmetric where the orientation set is).
+Cells of a point are replaced by fresh, touching cells of the same orientations, built by the backend's
+own ``init_state`` (closed form, DEM and ANN share the rule exactly). The clock is the point's
+distortion: per increment, s = sum_k w_k sum_{a<b} abs(d eps_a - d eps_b) / sum_k w_k (the cells'
+local normal strains, so an isotropic compression renews nothing); cell k is renewed each time
+floor(S_k + phi_k) grows, S_k the sum of lambda s over the increments and phi_k = frac(j g) a fixed
+phase (g the golden ratio, j the index of k's class of cells sharing a phase, ``PHASES``).
+
+With ``in_increment`` a renewal is made in every trial of the increment where it falls due: which cells
+fall due, and where in the increment, come from the previous increment's tick (fixed over the trials, so
+the stress stays continuous in the trial increment); each fresh cell is stepped by the rest of the
+increment after its last renewal, and the tangent is corrected. Otherwise fresh cells are force-free,
+made after the recorded increment.
 
 Both the rate lambda and the fresh cells' opening angle follow the point's current void ratio
 e = (1 + e0) J - 1 (``homogenization.material.density``'s map, a(e) the opening angle the map gives
 e, extrapolated linearly): lambda = min(rate exp(rate_gain (a(e) - alpha_c)), rate_max) and
 alpha_f = clip(alpha_c + gain (a(e) - alpha_c), alpha_min, alpha_max). A point looser than alpha_c
 renews faster with looser, contractive cells, a denser one slower with denser, dilatant cells, so
-loose and dense points head for one stationary void ratio at each pressure. Renewal changes the stress at
-fixed strain; the next increment's stress control re-equilibrates the point. ``Renewal`` counts the
-renewals, the capped rates, the clipped angles and the renewals merged into one (an increment too large for
-the rate: more than one renewal of a cell fell due in it).
+loose and dense points head for one stationary void ratio at each pressure. ``Renewal`` counts the
+renewals, the capped rates, the clipped angles and the renewals merged into one (more than one renewal
+of a cell fell due in an increment).
 """
 
 from __future__ import annotations
@@ -33,6 +36,10 @@ from warp_hcell.core.parameters import ALPHA_MIN_3D_DEG
 from warp_hcell.mesostructures import hcell
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
+PHASES = ("cell", "axis", "mirror", "mirror-spin")
+"""Cells that share a renewal phase: "cell": cells whose frames reflections of the macro axes map onto one another;
+"axis": the spins of one axis; "mirror": the spins of axes that such reflections map onto one another;
+"mirror-spin": as "mirror", one phase per spin index (the rank of a cell among its axis' cells)."""
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 """Fractional part of the golden ratio: the cells' renewal phases are frac(k GOLDEN) [-]."""
 ANGLE_STEP_DEG = 0.01
@@ -51,10 +58,9 @@ class CriticalState:
         rate_max: cap of the rate [-], >= rate.
         alpha_min_deg: smallest fresh opening angle [deg].
         alpha_max_deg: largest fresh opening angle [deg], > alpha_min_deg.
-        in_increment: renewals are made inside every trial of the increment where they fall due (``within``),
-            each fresh cell stepped by the part of the increment after its last renewal fell due (the clock
-            interpolated linearly), so the increment's stress control and record include them and a cell's age
-            does not depend on the increment; False: made force-free after the recorded increment.
+        in_increment: renewals made inside the trials of their increment (``Renewal.within``), so that a
+            cell's age does not depend on the increment; False: force-free after the recorded increment.
+        phases: which cells share a renewal phase (``PHASES``).
     The defaults are ``DEFAULTS[3]``'s.
     """
 
@@ -66,9 +72,12 @@ class CriticalState:
     alpha_min_deg: float = 46.0
     alpha_max_deg: float = 62.0
     in_increment: bool = True
+    phases: str = "cell"
 
     def check(self) -> None:
         """ValueError (one line) for a parameter out of range."""
+        if self.phases not in PHASES:
+            raise ValueError(f"critical-state phases = {self.phases!r} must be one of {', '.join(PHASES)}")
         if not (math.isfinite(self.rate) and self.rate > 0.0):
             raise ValueError(f"critical-state rate = {self.rate:g} must be finite and > 0")
         if not (math.isfinite(self.rate_gain) and self.rate_gain >= 0.0):
@@ -93,11 +102,26 @@ DEFAULTS = {2: CriticalState(rate=160.0, gain=8.0, alpha_c_deg=52.0, rate_gain=1
 and void-ratio map (docs/studies/critical_state_mechanism.md); the gains are per degree of the map's angles."""
 
 
-def _phases(frames: np.ndarray) -> np.ndarray:
-    """Renewal phase phi_k = frac(j g) [-] of each cell, shape (N,), of frames R_k (N, d, d): j indexes the classes
-    of cells whose abs(R_k) agree (to 1e-9), i.e. cells that reflections of the macro axes (or sign flips of their
-    own axes) map onto one another, in order of first appearance; such cells are renewed together."""
-    keys = np.round(np.abs(frames).reshape(frames.shape[0], -1), 9)
+def _phases(frames: np.ndarray, rule: str = "cell") -> np.ndarray:
+    """Renewal phase phi_k = frac(j g) [-] of each cell, shape (N,), of frames R_k (N, d, d) (first column the cell's
+    axis): j indexes the classes of cells that share a phase under ``rule`` (``PHASES``; "cell": abs(R_k) agree to
+    1e-9), in order of first appearance; such cells are renewed together."""
+    axis = np.round(frames[:, :, 0], 9)
+    if rule == "cell":
+        keys = np.abs(frames).reshape(frames.shape[0], -1)
+    elif rule == "axis":
+        keys = axis
+    else:
+        keys = np.abs(frames[:, :, 0])
+        if rule == "mirror-spin":
+            _, same = np.unique(axis, axis=0, return_inverse=True)
+            same = same.reshape(-1)
+            order = np.argsort(same, kind="stable")
+            start = np.searchsorted(same[order], same[order])
+            spin = np.empty(same.size)
+            spin[order] = np.arange(same.size) - start
+            keys = np.column_stack([keys, spin])
+    keys = np.round(keys, 9)
     _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     order = np.argsort(np.argsort(first))
     return np.mod(order[inverse.reshape(-1)] * GOLDEN, 1.0)
@@ -139,7 +163,7 @@ class Renewal:
         self.e0 = np.array([self.density.void_ratio(a) for a in alpha0])
         """Each point's initial void ratio [-] (the map's), shape (n_points,)."""
         n = material.orient.n_cells
-        self.phase = np.tile(_phases(np.asarray(material.orient.frames)), material.n_points)
+        self.phase = np.tile(_phases(np.asarray(material.orient.frames), params.phases), material.n_points)
         """phi_k [-] of every cell (``_phases``), shape (n_cells,)."""
         self.distortion = np.zeros(material.n_cells)
         """Renewal clock of every cell: its distortion times the rate, summed [-], shape (n_cells,)."""
