@@ -1,0 +1,233 @@
+"""python studies/bench_real_sand_critical_state.py --split 50+200|50+100 [--kinematics K] [--rule-params NAMES]
+                                                  [--starts A,B] [--max-nfev N] [--plain] [--tag T]
+
+Dobrany sand with the critical-state renewal (``homogenization.material.critical_state``, ``DEFAULTS[3]``):
+fitted on two drained triaxial tests, the third predicted. A bounded least-squares fit (``hmodel calibrate
+--start map``'s: ``calibration.start.least_squares_fit``, finite-difference Jacobian in one batch, noise 2 % of
+each channel's largest value, q and eps_v) of phi_g, log10 kn, kt/kn, alpha0 and the rule's parameters named
+by ``--rule-params`` (default alpha_c_deg; also rate, as log10, gain, rate_gain), the others at ``DEFAULTS[3]``,
+on the calibration's forward model (``calibration.forward.simulate`` with ``ForwardSettings.critical_state``:
+Lebedev 11 x 4 aligned spins, shear increments 2e-3, isotropic 1e-3, drained Newton to 1e-5; void-ratio map
+the default one). ``--kinematics amplified`` drives the cells as the cell kind hcell3d-sand does, ``axisymmetric``
+as hcell3d-axisym. ``--starts``: alpha0 of each start (the others: ``START``). ``--start NAME=VALUE,...`` moves the start's other coordinates. ``--void-ratio`` runs each test at its specimen's void ratio (``specimens.json``) on the map and fits e_min,
+e_max instead of alpha0 (each set renews on its own map). ``--plain`` fits the plain cell
+(no renewal) with the same settings, for comparison. Then all three tests at the optimum: RMS abs(dq) / q_peak,
+RMS d eps_v, peak q and its strain, eps_v at the end, late dilatancy, fallbacks, renewals.
+
+``--max-nfev 0`` evaluates the start (no fit). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
+data and model); the printout is the .txt when run through tee.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_real_sand import DATA, SPLITS, print_prediction_table  # noqa: E402
+from bench_real_sand_spread import NOISE, SETTINGS, metrics  # noqa: E402
+
+from homogenization.calibration import bayes, forward, start  # noqa: E402
+from homogenization.calibration.data import Measurement, read_test  # noqa: E402
+from homogenization.calibration.renewal import PopulationRenewal, laws_of  # noqa: E402
+from homogenization.material.critical_state import DEFAULTS  # noqa: E402
+from homogenization.material.density import OPENING_RANGE_DEG, default_map, opening_angle_deg  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+RULE = DEFAULTS[3]
+LAW = ("phi_g", "log10_kn", "kt_over_kn", "alpha0")
+LAW_VOID = ("phi_g", "log10_kn", "kt_over_kn", "e_min", "e_max")
+"""The fitted coordinates with ``--void-ratio``: each test's alpha0 from its specimen's void ratio on the map."""
+BOUNDS = {"phi_g": (10.0, 45.0), "log10_kn": (math.log10(3e6), math.log10(3e8)), "kt_over_kn": (0.1, 1.5),
+          "alpha0": (45.0 + 1e-6, 70.0), "e_min": (0.2, 0.52), "e_max": (0.59, 1.2), "alpha_c_deg": (RULE.alpha_min_deg, RULE.alpha_max_deg),
+          "log10_rate": (0.0, math.log10(RULE.rate_max)), "gain": (0.0, 8.0), "rate_gain": (0.0, 4.0)}
+"""Bounds of the fitted coordinates (the law's: the prior of bench_real_sand.py, alpha0 to 70 deg)."""
+START = {"e_min": 0.45, "e_max": 0.75, "phi_g": 35.0, "log10_kn": math.log10(2e7), "kt_over_kn": 1.0, "alpha0": 50.0,
+         "alpha_c_deg": RULE.alpha_c_deg, "log10_rate": math.log10(RULE.rate), "gain": RULE.gain,
+         "rate_gain": RULE.rate_gain}
+"""Start of every fit (alpha0 from ``--starts``)."""
+
+
+def rule_values(names: tuple[str, ...], X: np.ndarray) -> dict[str, np.ndarray]:
+    """The rule's per-set parameters (CriticalState field names) of coordinates X (n, law + len(names))."""
+    out = {}
+    for j, name in enumerate(names):
+        value = X[:, X.shape[1] - len(names) + j]
+        out["rate" if name == "log10_rate" else name] = 10.0 ** value if name == "log10_rate" else value
+    return out
+
+
+def simulate(test: Measurement, X: np.ndarray, names: tuple[str, ...], settings: forward.ForwardSettings,
+             plain: bool) -> tuple[forward.Curves, np.ndarray]:
+    """Curves of ``test`` for the sets X (module docstring) and the renewals per set (0 where ``plain``)."""
+    params = {"phi_g": X[:, 0], "kn": 10.0 ** X[:, 1], "kt_over_kn": X[:, 2], "alpha0": X[:, 3]}
+    e_bounds = None
+    if test.void_ratio is not None:  # --void-ratio: X[:, 3:5] are e_min, e_max
+        e_bounds = (X[:, 3], X[:, 4])
+        params["alpha0"] = opening_angle_deg(test.void_ratio, *e_bounds, *OPENING_RANGE_DEG[3])
+    if plain or not names:
+        s = replace(settings, critical_state=None if plain else RULE)
+        if e_bounds is not None:  # forward.simulate maps the void ratio itself
+            params = {**{k: v for k, v in params.items() if k != "alpha0"}, "e_min": e_bounds[0], "e_max": e_bounds[1]}
+        with np.errstate(all="ignore"):
+            curves = forward.simulate(test, params, s)
+        return curves, np.zeros(X.shape[0], dtype=np.int64)
+    full = forward.full_parameters(params, settings)
+    points = forward.population(full, settings, test.dim)
+    points.renewal = PopulationRenewal(RULE, points.material, points.state, default_map(3), full["alpha0"],
+                                       laws_of(full, settings.law), settings.law, settings.radius,
+                                       per_point=rule_values(names, X), e_bounds=e_bounds)
+    with np.errstate(all="ignore"):
+        curves = forward.simulate_points(test, points, settings)
+    return curves, np.asarray(points.renewal.count)
+
+
+def load(name: str, void_ratio: bool) -> Measurement:
+    """The test of file ``name``, with its specimen's void ratio at the start of shear where ``void_ratio``."""
+    test = read_test(DATA / name)
+    if not void_ratio:
+        return test
+    specimens = json.loads((DATA / "specimens.json").read_text())["tests"]
+    return replace(test, void_ratio=float(next(t for t in specimens if t.get("file") == name)["void_ratio_start_of_shear"]))
+
+
+def row(test: Measurement, curves: forward.Curves, i: int, renewals: int) -> dict[str, float]:
+    e, ev = test.eps1, curves.eps_v[i]
+    return {**metrics(test, curves.q[i], ev), "q_end": float(curves.q[i, -1]),
+            "dilatancy_end": float((ev[-1] - ev[-6]) / (e[-1] - e[-6])), "forward_fallbacks": int(curves.n_fallback[i]),
+            "renewals": int(renewals)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--split", choices=tuple(SPLITS))
+    parser.add_argument("--figure", type=Path, help="redraw the figure of a result JSON and stop")
+    parser.add_argument("--kinematics", default="projected", choices=("projected", "amplified", "axisymmetric"))
+    parser.add_argument("--rule-params", default="alpha_c_deg")
+    parser.add_argument("--starts", default="50")
+    parser.add_argument("--start", default="", help="NAME=VALUE,... overriding START")
+    parser.add_argument("--max-nfev", type=int, default=30)
+    parser.add_argument("--plain", action="store_true")
+    parser.add_argument("--void-ratio", action="store_true",
+                        help="each test at its specimen's void ratio on the map; fit e_min, e_max instead of alpha0")
+    parser.add_argument("--tag", default="")
+    args = parser.parse_args(argv)
+    if args.figure:
+        figure(json.loads(args.figure.read_text()), args.figure.with_suffix(".png"))
+        return 0
+    if args.split is None:
+        parser.error("--split is required")
+    names = tuple(n for n in args.rule_params.split(",") if n) if not args.plain else ()
+    for name in names:
+        if name not in BOUNDS or name in LAW:
+            print(f"--rule-params: {name!r} is not one of alpha_c_deg, log10_rate, gain, rate_gain", file=sys.stderr)
+            return 2
+    settings = replace(SETTINGS, kinematics=args.kinematics)
+    fitted, predicted = SPLITS[args.split]
+    tests = [load(f, args.void_ratio) for f in fitted]
+    law = LAW_VOID if args.void_ratio else LAW
+    coords = law + names
+    lo = np.array([BOUNDS[c][0] for c in coords])
+    hi = np.array([BOUNDS[c][1] for c in coords])
+    evaluations = [0]
+
+    def residuals(X: np.ndarray) -> np.ndarray:
+        X = np.atleast_2d(X)
+        curves = []
+        for test in tests:
+            c, _ = simulate(test, X, names, settings, args.plain)
+            curves.append({"q": c.q, "p": c.p, "eps_v": c.eps_v})
+        evaluations[0] += X.shape[0]
+        r = bayes.residuals(tests, curves, NOISE)
+        return np.where(np.isfinite(r), r, 1e3)
+
+    start.MAP_MAX_EVALUATIONS = args.max_nfev
+    cell = "plain cell" if args.plain else "critical state (" + ", ".join(names or ("DEFAULTS[3]",)) + " fitted)"
+    print(f"split {args.split}, {cell}, kinematics {args.kinematics}; forward: Lebedev {settings.lebedev_order} x "
+          f"{settings.n_spins}, increment {settings.increment:g}, iso {settings.iso_increment:g}; nice "
+          f"{os.nice(0)}, load {os.getloadavg()[0]:.1f}", flush=True)
+    started = time.perf_counter()
+    fits = []
+    for a0 in (float(v) for v in args.starts.split(",")):
+        given = dict(item.split("=") for item in args.start.split(",") if item)
+        x0 = np.array([float(given.get(c, START[c])) for c in coords])
+        if not args.void_ratio:
+            x0[3] = a0
+        t0 = time.perf_counter()
+        if args.max_nfev == 0:  # evaluate the start only
+            fits.append({"start_alpha0": a0, "chi_square": float("nan"), "x": x0.tolist(), "nfev": 0, "seconds": 0.0})
+            continue
+        chi_square, result = start.least_squares_fit(residuals, np.clip(x0, lo, hi), lo, hi)
+        fits.append({"start_alpha0": a0, "chi_square": chi_square, "x": result.x.tolist(), "nfev": int(result.nfev),
+                     "seconds": time.perf_counter() - t0})
+        print(f"fit from alpha0 {a0:g}: chi-square {chi_square:.4g} at " + ", ".join(
+            f"{c} {v:.4g}" for c, v in zip(coords, result.x)) + f" ({result.nfev} iterations, "
+            f"{time.perf_counter() - t0:.0f} s)", flush=True)
+    best = min(fits, key=lambda f: f["chi_square"]) if args.max_nfev else fits[0]
+    x = np.array(best["x"])[None, :]
+    rows, chi2, curves_out = {}, 0.0, {}
+    for name in sorted((*fitted, predicted), key=lambda f: read_test(DATA / f).p0):
+        test = load(name, args.void_ratio)
+        c, count = simulate(test, x, names, settings, args.plain)
+        if name in fitted:
+            chi2 += float(np.sum(bayes.residuals([test], [{"q": c.q, "p": c.p, "eps_v": c.eps_v}], NOISE) ** 2))
+        rows[name] = {"role": "predicted" if name == predicted else "fitted", **row(test, c, 0, int(count[0]))}
+        curves_out[name] = {"eps1": test.eps1.tolist(), "q": c.q[0].tolist(), "eps_v": c.eps_v[0].tolist(),
+                            "q_data": test.observed["q"].tolist(), "eps_v_data": test.observed["eps_v"].tolist()}
+    seconds = time.perf_counter() - started
+    optimum = {c: float(v) for c, v in zip(coords, x[0])}
+    print(f"optimum: " + ", ".join(f"{c} {v:.4g}" for c, v in optimum.items())
+          + f"; chi-square fitted {chi2:.4g}; {evaluations[0]} sets, {seconds:.0f} s, load {os.getloadavg()[0]:.1f}")
+    print_prediction_table(rows, fallbacks=True)
+    print("renewals per point: " + ", ".join(f"{k} {v['renewals']}" for k, v in rows.items())
+          + "; d eps_v / d eps1 over the last five points: "
+          + ", ".join(f"{k} {v['dilatancy_end']:+.2f}" for k, v in rows.items()))
+    out = {"split": args.split, "cell": cell, "start": args.start, "void_ratio": args.void_ratio, "kinematics": args.kinematics, "rule_params": list(names),
+           "rule_defaults": {k: float(v) for k, v in RULE.__dict__.items() if not isinstance(v, bool)},
+           "settings": {"lebedev_order": settings.lebedev_order, "n_spins": settings.n_spins,
+                        "increment": settings.increment, "iso_increment": settings.iso_increment,
+                        "stress_rtol": settings.stress_rtol}, "noise": NOISE,
+           "optimum": optimum, "chi_square_fitted": chi2, "fits": fits, "tests": rows, "curves": curves_out,
+           "evaluations": evaluations[0], "seconds": seconds, "load_average_at_end": list(os.getloadavg())}
+    stem = f"real_sand_critical_state_{args.split.replace('+', '_')}" + (f"_{args.tag}" if args.tag else "")
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f"{stem}.json").write_text(json.dumps(out, indent=1))
+    figure(out, RESULTS / f"{stem}.png")
+    return 0
+
+
+def figure(out: dict, path: Path) -> None:
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig, (ax_q, ax_v) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for k, (name, c) in enumerate(out["curves"].items()):
+        colour = f"C{k}"
+        role = out["tests"][name]["role"]
+        e = 100 * np.asarray(c["eps1"])
+        label = f"{name.split('_')[1].replace('kpa.csv', ' kPa')} ({role})"
+        style = "--" if role == "predicted" else "-"
+        ax_q.plot(e, np.asarray(c["q_data"]) / 1e3, ".", color=colour, ms=3)
+        ax_q.plot(e, np.asarray(c["q"]) / 1e3, style, color=colour, label=label)
+        ax_v.plot(e, 100 * np.asarray(c["eps_v_data"]), ".", color=colour, ms=3)
+        ax_v.plot(e, 100 * np.asarray(c["eps_v"]), style, color=colour)
+    ax_q.set(xlabel="eps1 [%]", ylabel="q [kPa]")
+    ax_v.set(xlabel="eps1 [%]", ylabel="eps_v [%] (contraction > 0)")
+    ax_q.legend(fontsize=8)
+    fig.suptitle(f"Dobrany sand, split {out['split']}: {out['cell']}, kinematics {out['kinematics']} "
+                 "(dots: data; lines: model)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
