@@ -19,7 +19,7 @@ from warp_hcell.mesostructures.hcell import plain_h_cell
 @pytest.mark.parametrize("changes", [{"rate": 0.0}, {"rate": float("nan")}, {"gain": -1.0}, {"rate_gain": -0.5},
                                      {"rate_max": 10.0}, {"alpha_c_deg": 63.0},
                                      {"alpha_min_deg": 60.0, "alpha_max_deg": 50.0}, {"alpha_max_deg": 95.0},
-                                     {"phases": "spin"}])
+                                     {"phases": "spin"}, {"rate_gain_loose": -1.0}])
 def test_bad_parameters_are_refused(changes):
     params = CriticalState(**changes)
     with pytest.raises(ValueError, match="critical-state"):
@@ -123,6 +123,10 @@ def test_dem_agrees_with_the_closed_form_under_renewal_3d():
     assert max(np.max(np.abs(getattr(a, c) - getattr(d, c))) for c in ("sigma11", "sigma22", "sigma33")) < 1e-3 * p0
 
 
+EARLIER = {dim: replace(DEFAULTS[dim], rate_max=400.0, rate_gain_loose=None, in_increment=False) for dim in (2, 3)}
+"""The first version of the rule: renewed force-free after the increment, rate capped at 400."""
+
+
 def _end_2d_p(alpha0: float, params: CriticalState, drained: bool, p0: float = 1e5,
               increment: float = 4e-3) -> tuple[float, float]:
     rec = driver.run(make_cell_model("analytical"), pg.biaxial(p0, 0.4, increment, drained=drained),
@@ -132,14 +136,15 @@ def _end_2d_p(alpha0: float, params: CriticalState, drained: bool, p0: float = 1
 
 
 def test_loose_undrained_2d_point_ends_on_the_drained_line():
-    """Undrained from the loose drained state (56 deg) to 40 % (90 orientations): with the renewals made inside
-    the increment it ends within 0.02 in e of the line through the drained ends; renewed force-free after the
-    increment (the earlier rule) it ends more than 0.03 off."""
+    """Undrained from the loose drained state (56 deg) and from alpha_c + 2 deg to 40 % (90 orientations): with the
+    renewals made inside the increment they end within 0.02 in e of the line through the drained ends; renewed
+    force-free after the increment (the earlier rule) the loose one ends more than 0.03 off."""
     ends = [_end_2d_p(a, DEFAULTS[2], True, p0) for a in (48.0, 56.0) for p0 in (1e5, 4e5)]
     lam, e_g = np.polyfit(-np.log([p for p, _ in ends]), [e for _, e in ends], 1)
-    p, e = _end_2d_p(56.0, DEFAULTS[2], False)
-    assert abs(e - (e_g - lam * np.log(p))) < 0.02
-    p_old, e_old = _end_2d_p(56.0, replace(DEFAULTS[2], rate_max=400.0, in_increment=False), False)
+    for alpha0 in (54.0, 56.0):
+        p, e = _end_2d_p(alpha0, DEFAULTS[2], False)
+        assert abs(e - (e_g - lam * np.log(p))) < 0.02
+    p_old, e_old = _end_2d_p(56.0, EARLIER[2], False)
     assert e_old - (e_g - lam * np.log(p_old)) > 0.03
 
 
@@ -148,8 +153,7 @@ def test_undrained_end_converges_with_the_increment():
     increments 4e-3 to 2e-3 with the renewals inside the increment, by more than 15 % without."""
     fine, coarse = (_end_2d_p(56.0, DEFAULTS[2], False, increment=h)[0] for h in (2e-3, 4e-3))
     assert abs(coarse / fine - 1.0) < 0.03
-    old = replace(DEFAULTS[2], rate_max=400.0, in_increment=False)
-    fine, coarse = (_end_2d_p(56.0, old, False, increment=h)[0] for h in (2e-3, 4e-3))
+    fine, coarse = (_end_2d_p(56.0, EARLIER[2], False, increment=h)[0] for h in (2e-3, 4e-3))
     assert abs(coarse / fine - 1.0) > 0.15
 
 
@@ -168,5 +172,5 @@ def test_loose_undrained_3d_point_ends_on_the_drained_line():
     lam, e_g = np.polyfit(-np.log([p for p, _ in ends]), [e for _, e in ends], 1)
     p, e = _end_3d_p(56.0, DEFAULTS[3], "undrained")
     assert abs(e - (e_g - lam * np.log(p))) < 0.02
-    p_old, e_old = _end_3d_p(56.0, replace(DEFAULTS[3], rate_max=400.0, in_increment=False), "undrained")
+    p_old, e_old = _end_3d_p(56.0, EARLIER[3], "undrained")
     assert e_old - (e_g - lam * np.log(p_old)) > 0.03

@@ -15,7 +15,7 @@ made after the recorded increment.
 
 Both the rate lambda and the fresh cells' opening angle follow the point's current void ratio
 e = (1 + e0) J - 1 (``homogenization.material.density``'s map, a(e) the opening angle the map gives
-e, extrapolated linearly): lambda = min(rate exp(rate_gain (a(e) - alpha_c)), rate_max) and
+e, extrapolated linearly): lambda = min(rate exp(rate_gain (a(e) - alpha_c)), rate_max) (``rate_gain_loose`` where a(e) > alpha_c) and
 alpha_f = clip(alpha_c + gain (a(e) - alpha_c), alpha_min, alpha_max). A point looser than alpha_c
 renews faster with looser, contractive cells, a denser one slower with denser, dilatant cells, so
 loose and dense points head for one stationary void ratio at each pressure. ``Renewal`` counts the
@@ -55,6 +55,7 @@ class CriticalState:
         gain: feedback of the point's density on the fresh cells' opening angle [-], >= 0.
         alpha_c_deg: the opening angle [deg] where neither feedback acts (in [alpha_min, alpha_max]).
         rate_gain: feedback of the point's density on the rate [1/deg], >= 0.
+        rate_gain_loose: the same where a(e) > alpha_c (None: ``rate_gain``) [1/deg], >= 0.
         rate_max: cap of the rate [-], >= rate.
         alpha_min_deg: smallest fresh opening angle [deg].
         alpha_max_deg: largest fresh opening angle [deg], > alpha_min_deg.
@@ -68,6 +69,7 @@ class CriticalState:
     gain: float = 3.0
     alpha_c_deg: float = 53.0
     rate_gain: float = 1.4
+    rate_gain_loose: float | None = None
     rate_max: float = 1000.0
     alpha_min_deg: float = 46.0
     alpha_max_deg: float = 62.0
@@ -82,6 +84,8 @@ class CriticalState:
             raise ValueError(f"critical-state rate = {self.rate:g} must be finite and > 0")
         if not (math.isfinite(self.rate_gain) and self.rate_gain >= 0.0):
             raise ValueError(f"critical-state rate_gain = {self.rate_gain:g} must be finite and >= 0")
+        if self.rate_gain_loose is not None and not (math.isfinite(self.rate_gain_loose) and self.rate_gain_loose >= 0.0):
+            raise ValueError(f"critical-state rate_gain_loose = {self.rate_gain_loose:g} must be finite and >= 0")
         if not (math.isfinite(self.rate_max) and self.rate_max >= self.rate):
             raise ValueError(f"critical-state rate_max = {self.rate_max:g} must be finite and >= rate = {self.rate:g}")
         if not (math.isfinite(self.alpha_c_deg) and self.alpha_min_deg <= self.alpha_c_deg <= self.alpha_max_deg):
@@ -95,8 +99,8 @@ class CriticalState:
                              f"{self.alpha_max_deg:g} must satisfy 0 < alpha_min < alpha_max < 90 deg")
 
 
-DEFAULTS = {2: CriticalState(rate=160.0, gain=8.0, alpha_c_deg=52.0, rate_gain=1.0, rate_max=2000.0, alpha_min_deg=40.0,
-                             alpha_max_deg=58.0),
+DEFAULTS = {2: CriticalState(rate=160.0, gain=8.0, alpha_c_deg=52.0, rate_gain=1.0, rate_gain_loose=0.7, rate_max=2000.0,
+                             alpha_min_deg=40.0, alpha_max_deg=58.0),
             3: CriticalState()}
 """The rule's parameters by cell dimension, chosen by measurement on the plain cells at the default contact law
 and void-ratio map (docs/studies/critical_state_mechanism.md); the gains are per degree of the map's angles."""
@@ -206,7 +210,9 @@ class Renewal:
         """Renewals per unit distortion [-] of each point of volume ratio J [-] before the cap ``rate_max``,
         shape (n_points,)."""
         p = self.params
-        return p.rate * np.exp(p.rate_gain * (self.density_angle(J) - p.alpha_c_deg))
+        excess = self.density_angle(J) - p.alpha_c_deg
+        loose = p.rate_gain if p.rate_gain_loose is None else p.rate_gain_loose
+        return p.rate * np.exp(np.where(excess > 0.0, loose, p.rate_gain) * excess)
 
     def _tick(self, strain: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(per-cell local increments (n_cells, dim), per-point rates before the cap (n_points,), per-cell clock
