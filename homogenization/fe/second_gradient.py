@@ -213,7 +213,7 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         return max(self.width / self.nx, self.height / self.ny)
 
 
-BAND_WIDTH_PER_LENGTH = 25.0
+BAND_WIDTH_PER_LENGTH = 27.0
 """Expected band width / L [-] of the dense H-model specimen (docs/studies), used to refuse meshes
 too coarse for a length."""
 
