@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
           + "; d eps_v / d eps1 over the last five points: "
           + ", ".join(f"{k} {v['dilatancy_end']:+.2f}" for k, v in rows.items()))
     out = {"split": args.split, "cell": cell, "start": args.start, "void_ratio": args.void_ratio, "kinematics": args.kinematics, "rule_params": list(names),
-           "rule_defaults": {k: float(v) for k, v in RULE.__dict__.items() if not isinstance(v, bool)},
+           "rule_defaults": {k: v for k, v in RULE.__dict__.items() if isinstance(v, (int, float, str))},
            "settings": {"lebedev_order": settings.lebedev_order, "n_spins": settings.n_spins,
                         "increment": settings.increment, "iso_increment": settings.iso_increment,
                         "stress_rtol": settings.stress_rtol}, "noise": NOISE,

@@ -94,11 +94,8 @@ class ForwardSettings:
         law: contact law, a name of ``LAW_PARAMETERS`` ("hertz-mindlin": 3D tests only).
         backend: "analytical" (batched), "dem" or "ann".
         n_orientations: cell orientations per material point of a 2D test [-].
-        lebedev_order, n_spins: cell orientations of a triaxial test
-            (``orientation.orientations_3d``); coarser than ``hmodel triaxial``'s default so that a
-            population runs in minutes (quadrature error: docs/triaxial.md, Quadrature).
-        staggered_spins: stagger the spins from axis to axis; False keeps the rule's cube symmetry
-            (sigma22 = sigma33 on axisymmetric tests).
+        lebedev_order, n_spins: cell orientations of a triaxial test (``orientation.orientations_3d``).
+        staggered_spins: stagger the spins from axis to axis; False keeps the rule's cube symmetry.
         increment: axial strain increment of the shear stage [-].
         iso_increment: strain increment per component of the isotropic stage [-].
         radius: grain radius [m].
@@ -106,10 +103,9 @@ class ForwardSettings:
         max_newton: Newton iterations allowed per drained increment [-].
         fixed: value of every parameter not calibrated (CLI flag units).
         backend_options: extra keyword options of the backend (dem/ann: device, threads, model).
-        critical_state: the cells' renewal rule (``homogenization.material.critical_state``; None: the plain
-            H-model), on each set's void-ratio map (``density.default_map`` between its e_min and e_max).
-        kinematics: how a 3D increment drives the cell axes (``orientation.KINEMATICS``: "projected", the
-            cell kind hcell3d; "axisymmetric", hcell3d-axisym; "amplified", hcell3d-sand); analytical backend."""
+        critical_state: the cells' renewal rule (``material.critical_state``; None: none), on each set's
+            void-ratio map.
+        kinematics: 3D cells' kinematics (``orientation.KINEMATICS``; "amplified": hcell3d-sand)."""
 
     law: str = ContactLaw.name
     backend: str = "analytical"
