@@ -14,7 +14,7 @@ e_max instead of alpha0 (each set renews on its own map). ``--plain`` fits the p
 (no renewal) with the same settings, for comparison. Then all three tests at the optimum: RMS abs(dq) / q_peak,
 RMS d eps_v, peak q and its strain, eps_v at the end, late dilatancy, fallbacks, renewals.
 
-``--max-nfev 0`` evaluates the start (no fit). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
+``--max-nfev 0`` evaluates the start (no fit). ``--increment`` refines the shear increment (isotropic: the smaller of it and 1e-3). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
 data and model); the printout is the .txt when run through tee.
 """
 
@@ -117,6 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--start", default="", help="NAME=VALUE,... overriding START")
     parser.add_argument("--max-nfev", type=int, default=30)
     parser.add_argument("--plain", action="store_true")
+    parser.add_argument("--increment", type=float, default=SETTINGS.increment, help="shear increment [-]")
     parser.add_argument("--void-ratio", action="store_true",
                         help="each test at its specimen's void ratio on the map; fit e_min, e_max instead of alpha0")
     parser.add_argument("--tag", default="")
@@ -131,7 +132,8 @@ def main(argv: list[str] | None = None) -> int:
         if name not in BOUNDS or name in LAW:
             print(f"--rule-params: {name!r} is not one of alpha_c_deg, log10_rate, gain, rate_gain", file=sys.stderr)
             return 2
-    settings = replace(SETTINGS, kinematics=args.kinematics)
+    settings = replace(SETTINGS, kinematics=args.kinematics, increment=args.increment,
+                       iso_increment=min(SETTINGS.iso_increment, args.increment))
     fitted, predicted = SPLITS[args.split]
     tests = [load(f, args.void_ratio) for f in fitted]
     law = LAW_VOID if args.void_ratio else LAW
