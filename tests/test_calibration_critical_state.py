@@ -74,3 +74,15 @@ def test_renewal_on_each_sets_own_void_ratio_map():
         one = forward.simulate_points(test, points, SETTINGS)
         np.testing.assert_allclose(curves.q[i], one.q[0], rtol=1e-9, atol=1e-4)
         np.testing.assert_allclose(curves.eps_v[i], one.eps_v[0], rtol=1e-9, atol=1e-12)
+
+
+def test_a_failed_set_does_not_stop_the_population():
+    """A point whose J is not finite (its run failed) renews at alpha_c, flagged, instead of raising."""
+    full = forward.full_parameters(SETS, SETTINGS)
+    for name, default in zip(forward.DENSITY, forward.DENSITY_DEFAULTS):
+        full[name] = np.full(2, default)
+    points = forward.population(full, SETTINGS, 3)
+    renewal = forward._renewal(full, SETTINGS, points)
+    angle = renewal.fresh_angle(np.array([np.nan, 1.0]))
+    assert angle[0] == SETTINGS.critical_state.alpha_c_deg and np.isfinite(angle[1])
+    assert renewal.nonfinite.tolist() == [True, False]

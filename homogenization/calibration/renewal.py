@@ -88,6 +88,8 @@ class PopulationRenewal(Renewal):
                  e_bounds: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self._fresh = _FreshCells(material.model, laws, law, radius, material.orient.n_cells)
         super().__init__(params, _MaterialView(material, self._fresh), state, density)
+        self.nonfinite = np.zeros(material.n_points, dtype=bool)
+        """Per point, whether its fresh angle was ever not finite (``fresh_angle``)."""
         alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (material.n_points,))
         if e_bounds is not None:
             e_min, e_max = (np.broadcast_to(np.asarray(v, dtype=np.float64), (material.n_points,)).copy()
@@ -104,6 +106,16 @@ class PopulationRenewal(Renewal):
             for i in range(material.n_points):
                 replace(params, **{name: float(v[i]) for name, v in values.items()}).check()
             self.params = SimpleNamespace(**{**asdict(params), **values})
+
+    def fresh_angle(self, J: np.ndarray) -> np.ndarray:
+        """``Renewal.fresh_angle``; alpha_c where a point's J is not finite (a set whose run failed: its curves
+        are NaN; counted in ``nonfinite``), so that one failed set does not stop the population."""
+        angle = super().fresh_angle(J)
+        bad = ~np.isfinite(angle)
+        if bad.any():
+            self.nonfinite = self.nonfinite | bad
+            angle = np.where(bad, self.params.alpha_c_deg, angle)
+        return angle
 
     def _renewed(self, cells: Any, J: np.ndarray, due: Any, *args: Any, **kwargs: Any) -> Any:
         """``Renewal._renewed``, the cells due (``due``: a mask of the cells, or a record holding it as "due")
