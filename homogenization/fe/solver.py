@@ -27,7 +27,6 @@ sigma22 and sigma12 = area averages of the Gauss-point sigma_xx and sigma_xy.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
 
 from dataclasses import dataclass, field
 
@@ -38,9 +37,6 @@ from skfem.helpers import dot
 
 from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
 from warp_hcell.core.parameters import FeDefaults
-
-if TYPE_CHECKING:
-    from homogenization.fe.checkpoint import Checkpoint
 
 QUADRATURE_ORDER = 2
 """Integration order of the bilinear quadrilaterals: 2 x 2 Gauss points [-]."""
@@ -331,7 +327,7 @@ class BiaxialSpecimen:
 
     def run(self, material: HomogenisedMaterial, steps: list[LoadStep], *, scale: float,
             isotropic_seed: float = FeDefaults.isotropic_seed, progress=None,
-            checkpoint: "Checkpoint | None" = None) -> list[StepResult]:
+            checkpoint=None) -> list[StepResult]:
         """Solve the load steps in order; returns one ``StepResult`` per step.
 
         Args:
