@@ -111,19 +111,19 @@ class AnnCell(ArrayStateMixin):
     """Cells whose increments are decided by a trained ``training.network.MesoNet``.
 
     Args:
-        contact_law: contact stiffnesses and friction, those of the model's training data.
-        radius: grain radius r [m], > 0; unused (the mesostructure gives the geometry).
+        contact_law: the contact law of the model's training data.
+        radius: grain radius r [m], > 0; unused (the mesostructure sets it).
         model: a model's ``.pt`` (its ``.json`` beside it); None: the shipped one.
-        device: torch device ("cpu", "cuda", ...). threads: torch CPU threads (process-wide), set where
-            the torch network is first used (``net``).
-        ood_interval: start states between two out-of-distribution checks, >= 1.
+        device: torch device ("cpu", "cuda", ...). threads: torch CPU threads (process-wide), set
+            at the torch network's first use.
+        ood_interval: start states between out-of-distribution checks, >= 1.
         equilibrium_corrections: most exact Newton steps on the free DOFs' balance after the
             network's (spatial models); 0: the network alone; None: the certificate's K.
         equilibrium_tolerance: force ratio above which a cell is corrected [-]; None: the
-            certificate's, else the DEM's ``force_tolerance``.
+            certificate's, else the DEM's.
         dem_escalation: with K > 0, the DEM's increment for released grains (``ann.escalation``);
             None: the certificate's choice, else ``default_escalation``.
-        card: ``model``'s JSON already read; None: read here.
+        card: ``model``'s JSON already read, or None.
 
     Raises:
         CheckpointError: (ValueError, one line) a missing, corrupt or mismatched model, another
