@@ -242,8 +242,8 @@ def test_a_round_that_makes_the_model_worse_is_rejected_and_the_kept_worst_never
     db, model = tiny
     real = active.train_model
 
-    def one_epoch_in_round_2(db_, model_, config, rounds):
-        return real(db_, model_, dataclasses.replace(config, epochs=1) if len(rounds) == 2 else config, rounds)
+    def one_epoch_in_round_2(db_, model_, config, rounds, **kwargs):
+        return real(db_, model_, dataclasses.replace(config, epochs=1) if len(rounds) == 2 else config, rounds, **kwargs)
 
     monkeypatch.setattr(active, "train_model", one_epoch_in_round_2)
     rounds, cert = active.learn(db, model, TRAIN_CONFIG, settings=ActiveSettings(rounds=3, samples_per_round=3000,
