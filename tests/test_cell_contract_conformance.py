@@ -23,7 +23,7 @@ from warp_hcell.mesostructures.files import load_mesostructure
 DATA = Path(__file__).resolve().parents[1] / "warp_hcell" / "data"
 SPECS = {"hcell": "hcell:alpha0=50", "hcell-unequal": "hcell-unequal:lateral=0.7",
          "hcell-fines": "hcell-fines:alpha0=50,ratio=0.76", "hcell3d": "hcell3d:alpha0=55",
-         "hcell3d-axisym": "hcell3d-axisym:alpha0=54",
+         "hcell3d-axisym": "hcell3d-axisym:alpha0=54", "hcell3d-sand": "hcell3d-sand:alpha0=54",
          "hcell3d-fines": "hcell3d-fines:alpha0=55,ratio=0.5,n=0.2"}
 """One spec per builder kind."""
 CELLS = [*SPECS.values(), *sorted(p.name for p in DATA.glob("*.toml"))]
