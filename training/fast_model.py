@@ -32,6 +32,8 @@ from typing import Any, Mapping, NamedTuple
 
 import numpy as np
 
+from warp_hcell.core.dimension import dimension
+
 ACTIVATION = "tanh"
 """Hidden activation (the output layer is linear)."""
 GAP_CLIP = 0.05
@@ -138,7 +140,7 @@ class SchemaArrays:
     @property
     def shear_shape(self) -> tuple[int, ...]:
         """Shape of one cell's tangential springs: (n_pairs,) planar, (n_pairs, 3) spatial."""
-        return (int(self.pairs.shape[0]),) if self.dim == 2 else (int(self.pairs.shape[0]), 3)
+        return (int(self.pairs.shape[0]), *dimension(self.dim).spring_shape)
 
     @property
     def diameter(self) -> float:

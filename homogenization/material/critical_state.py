@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from homogenization.material.density import DensityMap, default_map
+from homogenization.material.density import DensityMap, current_void_ratio, default_map, line_angle_deg
 from homogenization.material.homogenised import HomogenisedMaterial, MaterialState, MaterialUpdate
-from warp_hcell.core.parameters import ALPHA_MIN_3D_DEG
+from warp_hcell.core.dimension import dimension
 from warp_hcell.mesostructures import hcell
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
@@ -156,9 +156,10 @@ class Renewal:
     def __init__(self, params: CriticalState, material: HomogenisedMaterial, state: MaterialState,
                  density: DensityMap | None = None) -> None:
         params.check()
-        if material.dim == 3 and params.alpha_min_deg < ALPHA_MIN_3D_DEG:
+        floor = dimension(material.dim).min_opening_deg
+        if floor is not None and params.alpha_min_deg < floor:
             raise ValueError(f"critical-state alpha_min_deg = {params.alpha_min_deg:g} deg is below "
-                             f"{ALPHA_MIN_3D_DEG:g} deg, the ten-sphere cell's smallest opening angle")
+                             f"{floor:g} deg, the {material.dim}D cell's smallest opening angle")
         self.params, self.material = params, material
         self.density = default_map(material.dim) if density is None else density
         plains = [_plain(meso) for meso in material.mesostructures]
@@ -197,8 +198,7 @@ class Renewal:
         """a(e) [deg]: the opening angle that the map gives the points' current void ratio e = (1 + e0) J - 1,
         extrapolated linearly beyond [e_min, e_max], shape (n_points,)."""
         m = self.density
-        e = (1.0 + self.e0) * np.asarray(J, dtype=np.float64) - 1.0  # density.current_void_ratio, per point
-        return m.alpha_dense_deg + (e - m.e_min) / (m.e_max - m.e_min) * (m.alpha_loose_deg - m.alpha_dense_deg)
+        return line_angle_deg(current_void_ratio(self.e0, J), m.e_min, m.e_max, m.alpha_dense_deg, m.alpha_loose_deg)
 
     def fresh_angle(self, J: np.ndarray) -> np.ndarray:
         """Opening angle alpha_f [deg] of fresh cells of each point of volume ratio J [-] before the clip to
@@ -246,7 +246,9 @@ class Renewal:
         index = np.flatnonzero(due)
         alpha = np.clip(self.fresh_angle(J), self.params.alpha_min_deg, self.params.alpha_max_deg)[index // n]
         model = self.material.model
-        fresh_cells = model.init_state([self._meso(a) for a in alpha], index.size)
+        angles, which = np.unique(alpha, return_inverse=True)  # one mesostructure per distinct angle
+        mesos = [self._meso(a) for a in angles]
+        fresh_cells = model.init_state([mesos[i] for i in which.reshape(-1)], index.size)
         tangent = None
         if rest is not None and with_tangent:
             fresh_cells, response = model.step(fresh_cells, rest[index, None] * d_local[index], with_tangent=True)

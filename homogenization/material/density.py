@@ -13,7 +13,8 @@ positive: J < 1 and e falls in contraction).
 
 - ``DensityMap``: the map, with ``alpha0_deg(e)``, ``void_ratio(alpha0)``, ``to_dict``/``from_dict``;
 - ``default_map(dim, e_min, e_max)``: the map of the plain cell of ``dim``;
-- ``opening_angle_deg(e, e_min, e_max, alpha_dense, alpha_loose)``: the rule on arrays (NaN outside);
+- ``opening_angle_deg(e, e_min, e_max, alpha_dense, alpha_loose)``: the rule on arrays (NaN outside;
+  ``line_angle_deg`` the same line extended);
 - ``current_void_ratio(e0, J)``; ``initial_void_ratio(alpha0, dim)``: e0 of a run given alpha0 only.
 """
 
@@ -111,21 +112,28 @@ def default_map(dim: int, e_min: float = DEFAULT_E_MIN, e_max: float = DEFAULT_E
     return DensityMap(float(e_min), float(e_max), *OPENING_RANGE_DEG[dim])
 
 
+def line_angle_deg(e: Any, e_min: Any, e_max: Any, alpha_dense_deg: Any, alpha_loose_deg: Any) -> np.ndarray:
+    """The rule's line on arrays (broadcast): the opening angle [deg] of void ratios ``e``, extended beyond
+    [e_min, e_max] (the critical-state renewal's a(e))."""
+    e, lo, hi = (np.asarray(v, dtype=np.float64) for v in (e, e_min, e_max))
+    dense, loose = np.asarray(alpha_dense_deg, dtype=np.float64), np.asarray(alpha_loose_deg, dtype=np.float64)
+    return dense + (e - lo) / (hi - lo) * (loose - dense)
+
+
 def opening_angle_deg(e: Any, e_min: Any, e_max: Any, alpha_dense_deg: Any, alpha_loose_deg: Any) -> np.ndarray:
     """The rule on arrays (broadcast): alpha0 [deg] of void ratios ``e``; NaN where e is outside [e_min, e_max]
     or e_min >= e_max (a calibration's sets whose map cannot hold its test)."""
     e, lo, hi = (np.asarray(v, dtype=np.float64) for v in (e, e_min, e_max))
-    dense, loose = np.asarray(alpha_dense_deg, dtype=np.float64), np.asarray(alpha_loose_deg, dtype=np.float64)
     ok = (lo <= e) & (e <= hi) & (lo < hi)
     with np.errstate(divide="ignore", invalid="ignore"):
-        alpha = loose - (hi - e) / (hi - lo) * (loose - dense)
+        alpha = line_angle_deg(e, lo, hi, alpha_dense_deg, alpha_loose_deg)
     return np.where(ok, alpha, np.nan)
 
 
-def current_void_ratio(e0: float, J: Any) -> np.ndarray:
-    """Void ratio [-] after the volume ratio ``J`` = V / V0 [-] from the state of void ratio ``e0``:
-    (1 + e0) J - 1 (NaN where e0 is NaN)."""
-    return (1.0 + float(e0)) * np.asarray(J, dtype=np.float64) - 1.0
+def current_void_ratio(e0: Any, J: Any) -> np.ndarray:
+    """Void ratio [-] after the volume ratio ``J`` = V / V0 [-] from the state of void ratio ``e0`` (both
+    broadcast): (1 + e0) J - 1 (NaN where e0 is NaN)."""
+    return (1.0 + np.asarray(e0, dtype=np.float64)) * np.asarray(J, dtype=np.float64) - 1.0
 
 
 def initial_void_ratio(alpha0_deg: float | None, dim: int) -> float:
