@@ -11,8 +11,9 @@ the schema (``SchemaArrays``: numpy, float64/int64), the active pairs, the z-sco
 the layers' weights; ``net_arrays(path, metadata)`` builds it from a model file and its JSON,
 ``arrays_of_net(net)`` from a ``training.network.MesoNet``. Both give bit-identical arrays.
 
-``contacts``, ``pair_forces``, ``love_weber`` and ``cell_measure`` are the contact law of
-``training.cell_physics`` on numpy arrays (cells first), for a cell's response and observables.
+``contacts``, ``pair_forces`` and ``love_weber`` are the contact law of ``training.cell_physics`` on
+numpy arrays (cells first), for a cell's response and observables (V_cell:
+``warp_hcell.mesostructures.mesostructure.cell_measure``).
 
 The network's constants (``ACTIVATION``, ``GAP_CLIP``, ``COMPLIANCE_SCALE``,
 ``RELAXATION_RAMP``) live here so that inference reads them without torch; ``training.network``
@@ -258,14 +259,3 @@ def pair_forces(c: Contacts, shear_force: np.ndarray) -> np.ndarray:
 def love_weber(c: Contacts, force_on_i: np.ndarray) -> np.ndarray:
     """Compression-positive Love-Weber moment -sum_c f_c (x) l_c [N m], (n, dim, dim)."""
     return -np.einsum("cpa,cpb->cab", force_on_i, c.branch)
-
-
-def cell_measure(x: np.ndarray, outer: np.ndarray) -> np.ndarray:
-    """V_cell [m^2 or m^3], (n,): the shoelace area of the polygon ``outer`` (n_outer,), or the volume
-    enclosed by the triangles ``outer`` (n_faces, 3) (``cell_physics.cell_measure``)."""
-    if outer.ndim == 1:
-        p = x[:, outer]
-        q = np.roll(p, -1, axis=1)
-        return 0.5 * np.abs(np.sum(p[..., 0] * q[..., 1] - q[..., 0] * p[..., 1], axis=1))
-    a, b, c = x[:, outer[:, 0]], x[:, outer[:, 1]], x[:, outer[:, 2]]
-    return np.abs(np.sum(a * np.cross(b, c), axis=(1, 2))) / 6.0

@@ -84,7 +84,7 @@ from training.card import ModelCard
 from training.ood import OodIndex, probe_columns, state_features
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.files import from_description
-from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, evaluate_observables, Mesostructure, per_cell
+from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, cell_measure, evaluate_observables, Mesostructure, per_cell
 from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings, require_linear_law
 
 
@@ -463,7 +463,7 @@ class AnnCell(ArrayStateMixin):
     def response(self, state: AnnState) -> CellResponse:
         """Meso-stress of ``state`` without advancing it (the contact law on numpy arrays)."""
         x, c, force = self._forces(state)
-        return CellResponse(fast_model.love_weber(c, force), fast_model.cell_measure(x, self.arrays.schema.outer))
+        return CellResponse(fast_model.love_weber(c, force), cell_measure(x, self.arrays.schema.outer))
 
     def observables(self, state: AnnState) -> dict[str, np.ndarray]:
         """Per-cell quantities, shape (n_cells,) each.
@@ -475,7 +475,7 @@ class AnnCell(ArrayStateMixin):
         ``S_nn, S_t1t1, S_t2t2, S_nt1, S_nt2, S_t1t2`` and ``x_n{i}, x_t1{i}, x_t2{i}`` instead.
         """
         x, c, force = self._forces(state)
-        response = CellResponse(fast_model.love_weber(c, force), fast_model.cell_measure(x, self.arrays.schema.outer))
+        response = CellResponse(fast_model.love_weber(c, force), cell_measure(x, self.arrays.schema.outer))
         axes = AXIS_NAMES[self.dim]
         obs: dict[str, np.ndarray] = {f"l{k + 1}": state.cell_size[:, k].copy() for k in range(self.dim)}
         obs["area"] = response.area
