@@ -55,10 +55,20 @@ from warp_hcell.mesostructures.hcell import plain_h_cell
 DENSITY = ("e_min", "e_max")
 """The void-ratio map's parameters [-] (``homogenization.material.density``): a test that gives its void
 ratio (``Measurement.void_ratio``) runs at the map's alpha0 instead of alpha0; read only for such tests."""
-PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson", opening_spread.NAME, *DENSITY)
+RULE = {"alpha_c": "alpha_c_deg", "renewal_rate": "rate"}
+"""The critical-state rule's calibratable parameters (CLI name -> ``CriticalState`` field): alpha_c [deg], the
+opening angle where the density feedback changes sign, and renewal_rate [-]; read only with
+``ForwardSettings.critical_state``, per set (the rule's other fields: the settings' rule)."""
+RULE_PRIOR = {"alpha_c": (46.0, 58.0, False), "renewal_rate": (1.0, 400.0, True)}
+"""Default prior of the rule's parameters: uniform (low, high, log-uniform?); alpha_c within the clip of the fresh
+angles of both dimensions' ``DEFAULTS``, renewal_rate below both rate_max."""
+CRITICAL_STATE_KEY = "critical_state"
+"""Key of posterior.json (and of run.json's forward settings) holding the critical-state rule at the posterior
+mean (``dataclasses.asdict``); absent: the plain cell."""
+PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson", opening_spread.NAME, *DENSITY, *RULE)
 """Names of the calibratable parameters, in the units of the CLI flags: phi_g [deg], kn [N/m],
 kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-], alpha0_spread [deg], e_min and
-e_max [-]."""
+e_max [-], alpha_c [deg] and renewal_rate [-] (``RULE``)."""
 LAW_PARAMETERS = {ContactLaw.name: ("phi_g", "kn", "kt_over_kn", "alpha0"),
                   HertzMindlinLaw.name: ("phi_g", "shear_modulus", "poisson", "alpha0")}
 """The parameters of ``PARAMETERS`` that each contact law's forward model reads."""
@@ -80,8 +90,17 @@ a set whose [e_min, e_max] does not hold a test's void ratio fails (log L = -inf
 
 
 def calibratable(law: str) -> tuple[str, ...]:
-    """The parameters a calibration of ``law`` may vary: the law's, the spread of alpha0 and the void-ratio map's."""
-    return LAW_PARAMETERS[law] + (SPREAD,) + DENSITY
+    """The parameters a calibration of ``law`` may vary: the law's, the spread of alpha0, the void-ratio map's and
+    the critical-state rule's (``RULE``)."""
+    return LAW_PARAMETERS[law] + (SPREAD,) + DENSITY + tuple(RULE)
+
+
+def rule_at(values: Mapping[str, float], settings: "ForwardSettings") -> CriticalState | None:
+    """The settings' critical-state rule with the fields of ``RULE`` that ``values`` (CLI names, floats) holds
+    replaced; None without a rule."""
+    if settings.critical_state is None:
+        return None
+    return replace(settings.critical_state, **{RULE[name]: float(v) for name, v in values.items() if name in RULE})
 CONTACT_LAW_KEY = "contact_law"
 """Key of posterior.json holding a non-linear contact law at the posterior mean (``to_dict``); absent: the linear law."""
 
@@ -191,6 +210,12 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
         raise ValueError(f"the Hertz-Mindlin contact law is defined for spheres: {test.name} is a biaxial (2D) "
                          f"test; calibrate it on triaxial data")
     full = full_parameters(params, settings)
+    if settings.critical_state is None and any(name in params for name in RULE):
+        raise ValueError(f"{', '.join(n for n in RULE if n in params)}: parameters of the critical-state rule; the "
+                         f"forward model runs none (ForwardSettings.critical_state)")
+    for name in RULE:  # the rule's calibrated parameters, per set
+        if name in params:
+            full[name] = np.broadcast_to(np.asarray(params[name], dtype=np.float64), full["phi_g"].shape).copy()
     if settings.critical_state is not None:  # the renewal's map, per set
         for name, default in zip(DENSITY, DENSITY_DEFAULTS):
             value = params[name] if name in params else settings.fixed.get(name, default)
@@ -220,9 +245,10 @@ def _renewal(full: dict[str, np.ndarray], settings: ForwardSettings, points: Mat
     if SPREAD in full:
         raise ValueError("the critical-state renewal does not run with alpha0_spread")
     bounds = (full["e_min"], full["e_max"])
+    per_point = {field: full[name] for name, field in RULE.items() if name in full}
     return PopulationRenewal(settings.critical_state, points.material, points.state, default_map(points.dim),
                              full["alpha0"], laws_of(full, settings.law), settings.law, settings.radius,
-                             e_bounds=bounds)
+                             per_point=per_point or None, e_bounds=bounds)
 
 
 def density_alpha0(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings) -> np.ndarray | None:
@@ -399,7 +425,8 @@ def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], setting
         record = driver.run(model, programme, mesostructure=meso, n_orientations=settings.n_orientations,
                             stress_rtol=settings.stress_rtol, max_newton_iterations=settings.max_newton,
                             progress=False, lebedev_order=settings.lebedev_order, n_spins=settings.n_spins,
-                            staggered_spins=settings.staggered_spins, critical_state=settings.critical_state)
+                            staggered_spins=settings.staggered_spins,
+                            critical_state=rule_at({n: full[n][i] for n in RULE if n in full}, settings))
         shear = record.stage == programme[1].label
         start = np.flatnonzero(shear)[0] - 1
         volumetric = record.eps_v
