@@ -24,7 +24,9 @@ from homogenization.calibration.data import Measurement
 from homogenization.calibration.bayes import UNITS
 from homogenization.calibration.forward import (
     CONTACT_LAW_KEY,
+    CRITICAL_STATE_KEY,
     DENSITY,
+    RULE,
     LAW_PARAMETERS,
     SPREAD,
     calibratable,
@@ -32,6 +34,7 @@ from homogenization.calibration.forward import (
     contact_law_at,
     simulate,
 )
+from homogenization.material.critical_state import CriticalState
 from warp_hcell.core.parameters import ContactLaw, Law, contact_law_from_dict
 
 POSTERIOR_FILE = "posterior.json"
@@ -112,6 +115,13 @@ def read_posterior(path: Path) -> CalibratedPosterior:
             law_name = contact_law_from_dict(data.pop(CONTACT_LAW_KEY)).name
         except (TypeError, ValueError, AttributeError) as exc:
             raise ValueError(f"--posterior {path}: {CONTACT_LAW_KEY!r} is not a contact law: {exc}") from None
+    rule = None
+    if CRITICAL_STATE_KEY in data:
+        try:
+            rule = CriticalState(**data.pop(CRITICAL_STATE_KEY))
+            rule.check()
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"--posterior {path}: {CRITICAL_STATE_KEY!r} is not a critical-state rule: {exc}") from None
     mean: dict[str, float] = {}
     for name, entry in data.items():
         if name not in calibratable(law_name):
@@ -132,11 +142,11 @@ def read_posterior(path: Path) -> CalibratedPosterior:
         radius = float(forward_json["radius"])
         fields = {k: v for k, v in forward_json.items() if k in ForwardSettings.__dataclass_fields__}
         forward = ForwardSettings(**{**fields, "law": law_name, "fixed": fixed, "backend": "analytical",
-                                     "backend_options": {}})
+                                     "backend_options": {}, "critical_state": rule})
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"--posterior: {path.parent / RUN_FILE} lacks {exc} (written by an older hmodel calibrate? "
                          f"rerun the same calibrate command on {path.parent} to rewrite it)") from None
-    names = forward.parameters + tuple(name for name in (SPREAD, *DENSITY) if name in mean or name in fixed)
+    names = forward.parameters + tuple(name for name in (SPREAD, *DENSITY, *RULE) if name in mean or name in fixed)
     return CalibratedPosterior(path=path, sha256=file_sha256(path), dims=dims, calibrated=tuple(mean),
                                mean={name: mean.get(name, fixed.get(name)) for name in names}, radius=radius,
                                forward=forward)
