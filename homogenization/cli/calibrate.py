@@ -8,6 +8,10 @@ fitted jointly; the parameters not in --params keep the values of --phi, --kn, -
 (default prior PRIOR_BOUNDS_HERTZ_3D; posterior.json then holds ``contact_law``). alpha0_spread
 (triaxial data, analytical backend, --confirm none) adds a uniform distribution of opening
 angles of that half-width [deg] about alpha0 (``homogenization.material.opening_spread``).
+--critical-state runs the cells' renewal rule (``homogenization.material.critical_state``, its
+defaults for the data's dimension) in the forward model; its alpha_c [deg] and renewal_rate [-] may
+then be calibrated; posterior.json holds the rule at the posterior mean (``critical_state``), which
+``hmodel triaxial --posterior`` and ``hmodel biaxial --posterior`` run.
 
 The posterior is sampled with emcee's affine-invariant ensemble, every step running the forward
 model of all walkers as one batch of cells. --start map (default) first finds the posterior's
@@ -33,7 +37,7 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -43,16 +47,18 @@ from homogenization.ann import RANGE_MODELS
 from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
-from homogenization.calibration.forward import (LAW_PARAMETERS, PARAMETERS, SPREAD, ForwardSettings, calibratable,
-                                                check_density, with_density)
+from homogenization.calibration.forward import (LAW_PARAMETERS, PARAMETERS, RULE, SPREAD, ForwardSettings,
+                                                calibratable, check_density, with_density)
 from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN
 from homogenization.material import opening_spread
 from homogenization.calibration.start import START_METHODS, refit_start
 from homogenization.cli.options import (
+    add_critical_state_argument,
     add_orientations_argument,
     add_threads_argument,
     add_uncertified_argument,
     command_parser,
+    critical_state_rule,
     refuse_uncertified_file,
 )
 from warp_hcell.core.cli import (
@@ -125,6 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="void ratio of the densest cell [-] where not calibrated (data files with '# void_ratio = E')")
     parser.add_argument("--e-max", type=float, default=DEFAULT_E_MAX,
                         help="void ratio of the loosest cell [-] where not calibrated (data files with '# void_ratio = E')")
+    add_critical_state_argument(parser)
     add_contact_law_arguments(parser)
     sampler = parser.add_argument_group("sampler")
     sampler.add_argument("--walkers", type=positive_int, default=32, help="ensemble size (>= 2 x number of parameters)")
@@ -216,7 +223,8 @@ def forward_config(settings: ForwardSettings) -> dict[str, Any]:
     return config
 
 
-def forward_settings(args: argparse.Namespace) -> ForwardSettings:
+def forward_settings(args: argparse.Namespace, dim: int = 2) -> ForwardSettings:
+    """The forward model of the flags; ``dim``: the data's dimension (the critical-state rule's ``DEFAULTS[dim]``)."""
     law = contact_law_from_args(args)
     if law.name == HertzMindlinLaw.name:
         fixed = {"phi_g": law.phi_g_deg, "shear_modulus": law.shear_modulus, "poisson": law.poisson,
@@ -232,7 +240,8 @@ def forward_settings(args: argparse.Namespace) -> ForwardSettings:
         options["threads"] = args.threads
     return ForwardSettings(law=law.name, backend=args.backend, n_orientations=args.orientations, increment=args.increment,
                            iso_increment=args.iso_increment, radius=args.radius, stress_rtol=args.stress_rtol,
-                           fixed=fixed, backend_options=options)
+                           fixed=fixed, backend_options=options,
+                           critical_state=critical_state_rule(dim) if args.critical_state else None)
 
 
 def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
@@ -250,6 +259,7 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
             raise UserError("--backend ann is trained on the linear contact law: --law hertz-mindlin needs "
                             "--backend analytical or dem")
     check_spread(args, tests)
+    check_critical_state(args, tests)
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
     if args.backend == "ann" and not all(RANGE_MODELS[t.dim] for t in tests):
@@ -263,6 +273,36 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
         raise UserError(f"--increment {args.increment:g} is larger than the strain range of a data file")
     if args.iso_increment >= 0.1:
         raise UserError(f"--iso-increment {args.iso_increment:g} must be < 0.1")
+
+
+def check_critical_state(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
+    """UserError (one line) for the rule's parameters (``RULE``) calibrated without --critical-state, or
+    --critical-state with data of both dimensions or with alpha0_spread (the renewal runs one opening angle
+    per point)."""
+    rule = [name for name in args.params if name in RULE]
+    if rule and not args.critical_state:
+        raise UserError(f"--params {rule[0]} is a parameter of the critical-state rule; add --critical-state")
+    if not args.critical_state:
+        return
+    if len({t.dim for t in tests}) > 1:
+        raise UserError("--critical-state: the rule's defaults differ between biaxial and triaxial cells; give data "
+                        "of one dimension")
+    if SPREAD in args.params or args.alpha0_spread != 0.0:
+        raise UserError(f"--critical-state does not run with {SPREAD} (the renewal takes one opening angle per point)")
+
+
+def check_rule_prior(prior: bayes.Prior, settings: ForwardSettings) -> None:
+    """UserError (one line) where the prior of a rule parameter reaches outside what the rule allows
+    (``CriticalState.check``: alpha_c within the fresh angles' clip, renewal_rate > 0 and <= rate_max)."""
+    if settings.critical_state is None:
+        return
+    for name, low, high in zip(prior.names, prior.low, prior.high):
+        if name in RULE:
+            for value in (low, high):
+                try:
+                    replace(settings.critical_state, **{RULE[name]: float(value)}).check()
+                except ValueError as exc:
+                    raise UserError(f"the prior of {name} reaches {value:g}: {exc}") from None
 
 
 def non_negative_float(text: str) -> float:
@@ -311,7 +351,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         prior = bayes.make_prior(args.params, args.prior, dim=max(t.dim for t in tests), law=args.law)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    settings = with_density(forward_settings(args), tests, args.e_min, args.e_max)
+    settings = with_density(forward_settings(args, max(t.dim for t in tests)), tests, args.e_min, args.e_max)
+    check_rule_prior(prior, settings)
     try:
         check_density(tests, args.params, settings, dict(zip(prior.names, zip(prior.low, prior.high))))
     except ValueError as exc:

@@ -8,8 +8,9 @@
   calibration's, posterior.json's ``contact_law``; none: linear), --phi, --kn and --kt or
   --shear-modulus and --poisson, --alpha0 and --radius to the posterior mean (uncalibrated parameters: the calibration's fixed
   values), and --e-min and --e-max where its data gave void ratios (``check_void_ratio``: then the run
-  needs --void-ratio, whose map gives alpha0; ``run_files.resolve_void_ratio``), and draws the band's
-  parameter sets (--posterior-band N);
+  needs --void-ratio, whose map gives alpha0; ``run_files.resolve_void_ratio``), turns --critical-state on
+  where the calibration ran the rule (``critical_state``: the rule at the posterior mean; a posterior of the
+  plain cell refuses --critical-state), and draws the band's parameter sets (--posterior-band N);
 - ``spread_models(...)``: where the posterior holds alpha0_spread, the analytical model whose cells carry
   the point's families of opening angles (``homogenization.material.opening_spread``);
 - ``run_record(...)``: what run.h5 stores of it;
@@ -49,6 +50,22 @@ class PosteriorRun:
     seed: int
     band: dict[str, Any] | None = None
     void_ratio: float | None = None
+
+    @property
+    def critical_state(self) -> Any:
+        """The calibration's critical-state rule at the posterior mean (``CriticalState``), or None."""
+        return self.posterior.forward.critical_state
+
+
+def critical_state(run: PosteriorRun | None, args: argparse.Namespace, dim: int) -> Any:
+    """The rule a run applies: the posterior's where it has one, else the defaults' with --critical-state, else None."""
+    if run is not None and run.critical_state is not None:
+        return run.critical_state
+    if not args.critical_state:
+        return None
+    from homogenization.cli.options import critical_state_rule  # noqa: PLC0415
+
+    return critical_state_rule(dim)
 
 
 def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argparse.ArgumentParser,
@@ -97,6 +114,9 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
         raise UserError(f"--posterior {post.path}: its {SPREAD} runs on the analytical backend only (the DEM takes one "
                         f"opening angle per model); give --backend analytical")
     check_void_ratio(post, getattr(args, "void_ratio", None))
+    if getattr(args, "critical_state", False) and post.forward.critical_state is None:
+        raise UserError(f"--critical-state with --posterior {post.path}: calibrated without the critical-state rule, "
+                        f"so its parameters are the plain cell's; drop --critical-state")
     if DENSITY[0] in post.mean:
         args.e_min, args.e_max = post.mean["e_min"], post.mean["e_max"]
     args.law, args.phi, args.alpha0, args.radius = law.name, law.phi_g_deg, alpha0, post.radius
