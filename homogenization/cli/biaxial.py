@@ -54,7 +54,6 @@ from homogenization.cli.options import (
     add_uncertified_argument,
     add_void_ratio_arguments,
     command_parser,
-    critical_state_rule,
 )
 from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment
 from warp_hcell.core.cli import (
@@ -174,7 +173,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv_given = sys.argv[1:] if argv is None else argv
     calibrated = posterior_flags.apply_posterior(args, argv_given, build_parser(), dim=2)
     density_map = resolve_void_ratio(args, argv_given, build_parser(), dim=2)
-    critical_state = critical_state_rule(2) if args.critical_state else None
+    critical_state = posterior_flags.critical_state(calibrated, args, 2)
     check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE)
     programme, settings = build_programme(args, argv_given)
     posterior_flags.check_band_test(calibrated, settings, "--fabric-anisotropy" if args.fabric_anisotropy else "")

@@ -46,7 +46,7 @@ from homogenization.element_test import driver, programme as programmes
 from homogenization.output import figures, oedometer
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
-from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, add_void_ratio_arguments, add_critical_state_argument, command_parser, critical_state_rule, lebedev_order
+from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, add_void_ratio_arguments, add_critical_state_argument, command_parser, lebedev_order
 from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
@@ -207,7 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     check_backends(args.backend, args.model)
     calibrated = posterior_flags.apply_posterior(args, argv_given, build_parser(), dim=3)
     density_map = resolve_void_ratio(args, argv_given, build_parser(), dim=3)
-    critical_state = critical_state_rule(3) if args.critical_state else None
+    critical_state = posterior_flags.critical_state(calibrated, args, 3)
     check_run(args, FIGURE_FILE, posterior_flags.BAND_FILE, oedometer.FILE)
     programme, settings = build_programme(args, argv_given)
     posterior_flags.check_band_test(calibrated, settings, "")
