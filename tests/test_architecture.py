@@ -274,6 +274,31 @@ def test_library_modules_of_warp_hcell_do_not_import_the_command_helpers(path):
     assert not _imports_the_command_helpers(path), f"{_name(path)} is a library module and imports warp_hcell.core.cli"
 
 
+LIBRARY_WITH_COMMAND_HELPERS = {"homogenization.calibration.report": "reads the calibrate command's argparse "
+                                                                      "options and silences Warp itself"}
+"""Library modules of ``homogenization`` that still import ``warp_hcell.core.cli``, with why; to be emptied."""
+
+
+def _homogenization_library() -> list[Path]:
+    """Modules of ``homogenization``'s part folders (not ``cli/``, not the ``python -m`` entries at its top)."""
+    return [p for p in MODULES if _name(p).count(".") >= 2 and _name(p).startswith("homogenization.")
+            and not _name(p).startswith("homogenization.cli.")]
+
+
+@pytest.mark.parametrize("path", [p for p in _homogenization_library() if _name(p) not in LIBRARY_WITH_COMMAND_HELPERS],
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_library_modules_of_homogenization_do_not_import_the_command_helpers(path):
+    """The element test, the backends and every other part take progress callbacks and raise ``UserError``;
+    progress bars, argparse and status lines are drawn by ``homogenization.cli``."""
+    assert not _imports_the_command_helpers(path), f"{_name(path)} is a library module and imports warp_hcell.core.cli"
+
+
+def test_the_library_list_holds_the_element_test_and_the_backends():
+    names = {_name(p) for p in _homogenization_library()}
+    assert {"homogenization.element_test.driver", "homogenization.element_test.stages",
+            "homogenization.backends.analytical"} <= names and not any(n.startswith("homogenization.cli") for n in names)
+
+
 def test_the_command_modules_of_warp_hcell_are_the_python_m_entries():
     for module in COMMAND_MODULES:
         path = ROOT / Path(*module.split(".")).with_suffix(".py")

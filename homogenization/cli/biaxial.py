@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from homogenization.element_test import driver, programme as programmes
+from homogenization.cli.progress import stage_bars
 from homogenization.output import figures
 from homogenization.cli import plot, posterior_flags
 from homogenization.cli.options import (
@@ -199,7 +200,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                              fabric_direction_deg=args.fabric_direction,
                                              snapshot_interval=args.snapshot_interval or 0,
                                              void_ratio=args.void_ratio, density_map=density_map,
-                                             critical_state=critical_state),
+                                             critical_state=critical_state, progress=stage_bars),
                 parameters=lambda record: {
                     "p0": p0,
                     **settings,

@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from homogenization.element_test import driver, programme as programmes
+from homogenization.cli.progress import stage_bars
 from homogenization.output import figures, oedometer
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
@@ -227,7 +228,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                              n_spins=args.spins, spin_period_deg=spin_period,
                                              staggered_spins=not args.aligned_spins,
                                              void_ratio=args.void_ratio, density_map=density_map,
-                                             critical_state=critical_state),
+                                             critical_state=critical_state, progress=stage_bars),
                 parameters=lambda record: {
                     **settings,
                     "lebedev_order": args.order,

@@ -24,23 +24,20 @@ and contraction positive; stresses [N/m] (2D) or [Pa] (3D), strains [-], macro s
 
 from __future__ import annotations
 
-import contextlib
 import warnings
 from dataclasses import replace
-from typing import Any, Callable, Iterator, Mapping
+from typing import Any, Callable, Literal, Mapping
 
 import numpy as np
 
 from homogenization.element_test.points import MaterialPoints, material_points
 from homogenization.material.critical_state import CriticalState, Renewal
 from homogenization.material.density import DensityMap, default_map
-from homogenization.element_test.plan import Plan
 from homogenization.element_test.record import History, Record
-from homogenization.element_test.stages import run_stages
+from homogenization.element_test.stages import StageProgress, run_stages
 from homogenization.element_test.solver import JUMP_WIDTH, STRICT, ControlError, StressControl
 from homogenization.element_test.programme import Programme, dimension, validate
 from warp_hcell.core.contract import CellModel
-from warp_hcell.core.cli import progress_bar
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 
@@ -55,25 +52,6 @@ orders 35 and 47 missed there by up to 3.3 % and 1.1 %)."""
 N_SPINS = 16
 """Default spins per 3D cell axis, equally spaced over the cell's spin period and staggered from
 axis to axis (``orientation``)."""
-
-
-
-
-def _bar(plan: Plan, progress: bool) -> contextlib.AbstractContextManager:
-    """A progress bar of the stage ``plan`` that counts its increments; a stage that stops on p has no known
-    length, so its bar has no total and shows p as a percentage of stop_at_p."""
-    @contextlib.contextmanager
-    def bar() -> Iterator:
-        total = None if plan.stop_at_p is not None else plan.n_increments
-        with progress_bar(total=total, desc=plan.label, unit="incr", disable=not progress, leave=False) as shown:
-            def advance(_plan: Plan, points: MaterialPoints) -> None:
-                if plan.stop_at_p is not None and not shown.disable:
-                    p = float(points.mean(points.stress)[0])
-                    shown.set_postfix_str(f"p = {p / plan.stop_at_p:.1%} of {plan.stop_at_p:g} {points.unit}",
-                                          refresh=False)
-                shown.update(1)
-            yield advance
-    return bar()
 
 
 def _diagnosed(exc: ControlError, points: MaterialPoints, programme: Programme, mesostructure: Any) -> ControlError:
@@ -99,7 +77,7 @@ def run(
     snapshot_interval: int = 0,
     stress_rtol: float = LoadingDefaults.stress_rtol,
     max_newton_iterations: int = LoadingDefaults.max_newton_iterations,
-    progress: bool = True,
+    progress: StageProgress | Literal[False] | None = None,
     lebedev_order: int = LEBEDEV_ORDER,
     n_spins: int = N_SPINS,
     spin_period_deg: float | None = None,
@@ -119,7 +97,8 @@ def run(
             (``orientation.orientations_3d``; spin_period_deg None: the cell's own).
         snapshot_interval: per-cell observables every this many increments (0: at stage ends).
         stress_rtol, max_newton_iterations: stress control's tolerance [-] and step calls per increment.
-        progress: a progress bar per stage.
+        progress: ``progress(plan)`` -> a context giving each stage's per-increment callback (the commands pass
+            ``homogenization.cli.progress.stage_bars``); None or False: no progress reported.
         before_stage: step index -> action on the material point before that step (e.g. erosion).
         critical_state: renewal rule of the cells (``material.critical_state``; None: the plain H-model);
             diagnostics ``critical_state_renewals``, ``_rate_capped``, ``_angle_clipped``, ``_merged`` count its
@@ -132,6 +111,8 @@ def run(
         ControlError: an unsolved stress-controlled increment.
     """
     programme = validate(programme)
+    if progress is True:
+        raise TypeError("progress=True: pass a callback (homogenization.cli.progress.stage_bars draws bars)")
     if snapshot_interval < 0:
         raise ValueError(f"snapshot_interval = {snapshot_interval} must be >= 0")
     dim = dimension(programme)
@@ -150,7 +131,7 @@ def run(
     history = History(sum(s.n_increments for s in programme), 1, dim)
     try:
         step_seconds, _, _ = run_stages(solver, programme, history, snapshot_interval=snapshot_interval,
-                                     progress=lambda plan: _bar(plan, progress), before_stage=before_stage)
+                                     progress=progress or None, before_stage=before_stage)
     except ControlError as exc:
         raise _diagnosed(exc, points, programme, mesostructure) from None
     k = history.k

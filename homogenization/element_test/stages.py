@@ -26,6 +26,8 @@ from homogenization.element_test.programme import Step
 
 Progress = Callable[[Plan, MaterialPoints], None]
 """Called after every recorded increment of a stage (e.g. a progress bar's update)."""
+StageProgress = Callable[[Plan], ContextManager[Progress]]
+"""``progress(plan)`` -> a context, open while the stage runs, that gives the stage's ``Progress`` callback."""
 
 
 def run_stage(solver: StressControl, plan: Plan, history: History, stage: int, *, snapshot_interval: int = 0,
@@ -96,7 +98,7 @@ class _Where:
 
 
 def run_stages(solver: StressControl, stages: Iterable[Step | Plan], history: History, *, snapshot_interval: int = 0,
-               progress: Callable[[Plan], ContextManager[Progress]] | None = None,
+               progress: StageProgress | None = None,
                before_stage: Mapping[int, Callable[[MaterialPoints], None]] | None = None,
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Run ``stages`` in turn on ``solver.points`` from their present state; a ``Step`` of a programme
