@@ -15,6 +15,7 @@ import os
 import time
 
 from homogenization.element_test import driver, programme as programmes
+from homogenization.cli.progress import stage_bars
 from homogenization.material import orientation
 from homogenization.backends import BACKENDS, make_cell_model
 from warp_hcell.mesostructures.hcell import h_cell
@@ -95,7 +96,7 @@ def main() -> None:
         t_full = min(t_full, t)
         t_iso, t_shear = min(t_iso, record.step_seconds[0]), min(t_shear, record.step_seconds[1])
         t_bare = min(t_bare, best_time(bare, 1)[0])
-        t_bar = min(t_bar, best_time(lambda: driver.run(model, programme, **{**kw, "progress": True}), 1)[0])
+        t_bar = min(t_bar, best_time(lambda: driver.run(model, programme, **{**kw, "progress": stage_bars}), 1)[0])
         t_null = min(t_null, best_time(lambda: driver.run(null, shear_only, **kw), 1)[0])
     load = os.getloadavg()
     print(f"backend={args.backend} orientations={args.orientations} increment={args.increment:g} "
