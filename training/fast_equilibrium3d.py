@@ -357,7 +357,7 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
               corrections, shortened, shifted):
     """Newton corrections of the free-DOF displacement ``d_free`` (n_free, n) [m], in place (module docstring).
 
-    The DEM's rest rule (``fast_increment.hold_at_rest``) is applied to the first guess first.
+    The DEM's rest rule (``hold_guess3d``) is applied to the first guess first, then ``newton3d``.
 
     Args:
         size (3, n), free (n_free, n), shear (n_pairs, 3, n), d_eps (n, 3): the state and probe;
@@ -369,19 +369,41 @@ def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, 
     Writes ratios (2, n): the force ratio at the first guess and after the last step (0 without
     normal force or below the ramp); corrections, shortened, shifted (n,) int64: Newton steps
     taken, of them those at alpha < 1 and those with a shifted matrix."""
+    hold_guess3d(size, free, d_eps, d_free, cells, law, before)
+    newton3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, halvings, shift, ratios,
+             corrections, shortened, shifted)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def hold_guess3d(size, free, d_eps, d_free, cells, law, before):
+    """The DEM's rest rule (``fast_increment.hold_at_rest``) on the first guess ``d_free`` (n_free, n) [m], in
+    place: the free DOFs of the grains it holds get zero displacement (arguments: ``correct3d``)."""
+    n = size.shape[1]
+    n_free = cells.free_dofs.shape[0]
+    held_dof = np.empty((n_free, n), dtype=np.bool_)
+    hold_at_rest(size, free, d_eps, d_free, before.old_contact, cells, law.tol, np.empty((3, n)),
+                 np.empty((n_free, n)), np.empty(n, dtype=np.int64), held_dof)
+    for k in range(n_free):
+        for c in range(n):
+            if held_dof[k, c]:
+                d_free[k, c] = 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def newton3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, halvings, shift, ratios,
+             corrections, shortened, shifted):
+    """The Newton steps of ``correct3d`` from the guess ``d_free`` as it is (no rest rule; same arguments and
+    outputs). Each cell is a lane: a cell that has taken ``iterations`` steps with its ratio still above
+    ``tolerance`` continues bit for bit in another call from its ``d_free``, alone or in any batch."""
     n = size.shape[1]
     frac, free_dofs = cells.frac, cells.free_dofs
     n_free = free_dofs.shape[0]
     kn = law.kn
     new_size = np.empty((3, n))
-    position = np.empty((n_free, n))
-    held_dof = np.empty((n_free, n), dtype=np.bool_)
-    hold_at_rest(size, free, d_eps, d_free, before.old_contact, cells, law.tol, new_size, position,
-                 np.empty(n, dtype=np.int64), held_dof)
-    for k in range(n_free):
+    for a in range(3):
         for c in range(n):
-            if held_dof[k, c]:
-                d_free[k, c] = 0.0
+            new_size[a, c] = size[a, c] * (1.0 - d_eps[c, a])
+    position = np.empty((n_free, n))
     x = np.empty((frac.shape[0], 3, n))
     residual = np.empty((n_free, n))
     jacobian = np.empty((n_free, n_free, n))

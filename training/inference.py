@@ -90,7 +90,8 @@ class Kernels:
         tangent: ``training.fast_tangent.moment_tangent``, or None where the tangent is not compiled.
         correct, physics: the equilibrium corrections and the contact law after them
             (``training.fast_equilibrium3d.correct3d``, ``training.fast_step3d.physics3d``), or None
-            where the cells take none.
+            where the cells take none; hold, newton: its two parts, the rest rule on the first guess and the
+            Newton steps (``hold_guess3d``, ``newton3d``).
     """
 
     features: Callable
@@ -98,6 +99,8 @@ class Kernels:
     tangent: Callable | None
     correct: Callable | None
     physics: Callable | None
+    hold: Callable | None = None
+    newton: Callable | None = None
 
 
 def _planar_kernels() -> Kernels:
@@ -109,10 +112,10 @@ def _planar_kernels() -> Kernels:
 
 
 def _spatial_kernels() -> Kernels:
-    from training.fast_equilibrium3d import correct3d  # noqa: PLC0415
+    from training.fast_equilibrium3d import correct3d, hold_guess3d, newton3d  # noqa: PLC0415
     from training.fast_step3d import advance3d, features3d, physics3d  # noqa: PLC0415
 
-    return Kernels(features3d, advance3d, None, correct3d, physics3d)
+    return Kernels(features3d, advance3d, None, correct3d, physics3d, hold_guess3d, newton3d)
 
 
 class _KernelTable(Mapping):
@@ -138,6 +141,11 @@ class _KernelTable(Mapping):
 
 KERNELS = _KernelTable()
 """The compiled kernels of a cell by its dimension."""
+
+
+COMPACT_ROUNDS = (2, 2, 4)
+"""The most Newton steps of the first rounds of ``FastAdvance``'s compacted corrections (the last round takes
+the rest); each round runs on the cells the previous one left above the tolerance only."""
 
 
 class FastIncrement(NamedTuple):
@@ -203,12 +211,15 @@ class FastAdvance:
         halvings: the most line-search halvings of a Newton step (0: full steps; None:
             ``training.fast_equilibrium3d.HALVINGS``).
         shift: the first shift of a climbing step's matrix, a fraction of kn (0: none; None:
-            ``training.fast_equilibrium3d.SHIFT``)."""
+            ``training.fast_equilibrium3d.SHIFT``).
+        compact: take the corrections in ``COMPACT_ROUNDS``, each on the cells still above the
+            tolerance only (the same bits as one pass over all cells, which False takes)."""
 
     GUESSES = ("network", "still", "affine")
 
     def __init__(self, net: NetArrays | Any, corrections: int = 0, tolerance: float | None = None,
-                 guess: str = "network", halvings: int | None = None, shift: float | None = None) -> None:
+                 guess: str = "network", halvings: int | None = None, shift: float | None = None,
+                 compact: bool = True) -> None:
         net = net if isinstance(net, NetArrays) else arrays_of_net(net)
         schema = net.schema
         as_np = lambda a, dtype=np.float64: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
@@ -257,8 +268,45 @@ class FastAdvance:
         self.shift = float(shift)
         self.tolerance = float(tolerance)
         self._displacement = _Compiled(free_displacement)
-        self._correct = None if kernels.correct is None else _Compiled(kernels.correct)
+        self._hold = None if kernels.hold is None else _Compiled(kernels.hold)
+        self._newton = None if kernels.newton is None else _Compiled(kernels.newton)
+        self.rounds = self._rounds(self.corrections, compact)
         self._physics = None if kernels.physics is None else _Compiled(kernels.physics)
+
+    @staticmethod
+    def _rounds(corrections: int, compact: bool) -> tuple[int, ...]:
+        """The most Newton steps of each round of the corrections (``COMPACT_ROUNDS`` up to ``corrections``)."""
+        if not compact:
+            return (corrections,) if corrections else ()
+        rounds, left = [], corrections
+        for cap in (*COMPACT_ROUNDS, corrections):
+            if left > 0:
+                rounds.append(min(cap, left))
+                left -= rounds[-1]
+        return tuple(rounds)
+
+    def _corrected(self, size, free, shear, d_eps, d_free, before, ratios, steps, shortened, shifted) -> None:
+        """The Newton steps (``fast_equilibrium3d.newton3d``) of the cells (cells last), in ``self.rounds``: after
+        each round the cells that took all its steps and are still above the tolerance are gathered and the
+        next round continues them alone; outputs written in place (``Corrections``)."""
+        self._newton(size, free, shear, d_eps, d_free, self.cells, self.law, before, self.rounds[0], self.tolerance,
+                     self.halvings, self.shift, ratios, steps, shortened, shifted)
+        going = np.flatnonzero((steps == self.rounds[0]) & (ratios[1] > self.tolerance))
+        for cap in self.rounds[1:]:
+            if not going.size:
+                return
+            take = lambda a: np.ascontiguousarray(a[..., going])  # noqa: E731
+            part = Before(*(take(a) for a in before))
+            sub_free = take(d_free)
+            sub_ratios = np.empty((2, going.size))
+            sub_counts = [np.empty(going.size, dtype=np.int64) for _ in range(3)]
+            self._newton(take(size), take(free), take(shear), np.ascontiguousarray(d_eps[going]), sub_free, self.cells,
+                         self.law, part, cap, self.tolerance, self.halvings, self.shift, sub_ratios, *sub_counts)
+            d_free[:, going] = sub_free
+            ratios[1, going] = sub_ratios[1]
+            for whole, sub in zip((steps, shortened, shifted), sub_counts):
+                whole[going] += sub
+            going = going[(sub_counts[0] == cap) & (sub_ratios[1] > self.tolerance)]
 
     def _workspace(self, n: int) -> _Workspace:
         """This thread's scratch arrays for ``n`` cells (kept from its previous call with as many)."""
@@ -325,8 +373,8 @@ class FastAdvance:
                 d_free[:] = -free * d_eps.T[self.cells.free_dofs[:, 1]]
             ratios, steps = np.empty((2, n)), np.empty(n, dtype=np.int64)
             shortened, shifted = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
-            self._correct(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, self.corrections,
-                          self.tolerance, self.halvings, self.shift, ratios, steps, shortened, shifted)
+            self._hold(size, free, d_eps, d_free, self.cells, self.law, work.before)
+            self._corrected(size, free, shear, d_eps, d_free, work.before, ratios, steps, shortened, shifted)
             self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, result)
             self._local.corrections = Corrections(ratios, steps, shortened, shifted)
         else:
