@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import resource
 import subprocess
@@ -125,13 +126,18 @@ def report(truth: dict, result: dict) -> dict:
                                  "restarts": res.get("restarts"), "corrected": res.get("corrected_at") is not None,
                                  "default_model_rms_over_sigma": first["worst_rms_over_sigma"],
                                  "default_model_shift_over_sd": first["worst_shift_over_sd"],
+                                 "default_model_error_shift_over_sd": max(first.get("error_shift_over_sd", {"-": math.nan}).values()),
+                                 "reference_error_shift_over_sd": max(res["levels"][-1].get("error_shift_over_sd",
+                                                                                               {"-": math.nan}).values()),
                                  "default_model_rms_fraction_of_scale": max(
                                      v for knob in first["rms_fraction_of_scale"].values() for v in knob.values()),
-                                 "optimum": {k: res["optimum"][k] for k in ("worst_rms_over_sigma", "worst_shift_over_sd",
-                                                                            "passed")} if "optimum" in res else None}
+                                 "optimum": {k: res["optimum"].get(k) for k in ("worst_rms_over_sigma", "worst_shift_over_sd",
+                                                                               "error_shift_over_sd", "passed")} if "optimum" in res else None}
         print(f"  resolution: default model {first['worst_rms_over_sigma']:.2f} sigma rms "
               f"({100 * verdict['resolution']['default_model_rms_fraction_of_scale']:.2f} % of a channel's scale), "
-              f"shift {first['worst_shift_over_sd']:.2f} sd; {res.get('refinements')} refinements to {res.get('reference')}, "
+              f"shift {first['worst_shift_over_sd']:.2f} sd (estimated error "
+              f"{verdict['resolution']['default_model_error_shift_over_sd']:.2f} sd; the reference's "
+              f"{verdict['resolution']['reference_error_shift_over_sd']:.2f} sd); {res.get('refinements')} refinements to {res.get('reference')}, "
               f"corrected: {verdict['resolution']['corrected']}, starts found again {res.get('restarts')}; at the optimum: "
               f"{verdict['resolution']['optimum']}")
     fit = run.get("misfit_against_noise")

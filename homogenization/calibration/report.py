@@ -341,8 +341,8 @@ def warnings(result: Mapping[str, Any]) -> list[str]:
     optimum = result.get("forward_model", {}).get("resolution", {}).get("optimum")
     if optimum is not None and not optimum["passed"]:
         lines.append(f"warning: at the optimum the forward model's discretisation error is not well below the noise "
-                     f"({optimum['worst_rms_over_sigma']:.2f} sigma rms, parameter shift {optimum['worst_shift_over_sd']:.2f} "
-                     f"sd): the intervals may be biased; rerun with a finer --increment and --orientations")
+                     f"(estimated {max(optimum['error_rms_over_sigma'].values()):.2f} sigma rms, parameter shift "
+                     f"{max(optimum['error_shift_over_sd'].values()):.2f} sd): the intervals may be biased; rerun with a finer --increment and --orientations")
     return [line for line in lines if line]
 
 
