@@ -61,6 +61,29 @@ def test_known_truth_lies_inside_the_intervals_with_the_default_increment(tmp_pa
     assert res["optimum"]["passed"]
     assert not run["misfit_against_noise"]["far_above_noise"]
     assert "converged" in run["sampler"]["autocorrelation"]
+    check_band_is_corrected(tmp_path / "run")
+
+
+def check_band_is_corrected(folder: Path) -> None:
+    """The posterior band of a corrected calibration runs the same correction: at the posterior mean it is the
+    reference model's curve, not the coarse model's (which is several sigma away on these tests)."""
+    from dataclasses import replace  # noqa: PLC0415
+
+    from homogenization.calibration.data import Measurement  # noqa: PLC0415
+    from homogenization.calibration.forward import simulate  # noqa: PLC0415
+    from homogenization.calibration.posterior import band, draw_samples, read_posterior  # noqa: PLC0415
+
+    post = read_posterior(folder)
+    assert post.reference is not None and post.reference.increment < post.forward.increment
+    out = band(post, draw_samples(post, 16, 0), dim=2, drained=True, p0=3e4, eps_max=0.02)
+    test = Measurement("band", post.path, True, 3e4, out["eps1"], {}, 2)
+    mean = {name: np.array([value]) for name, value in post.mean.items()}
+    fine, coarse = simulate(test, mean, post.reference), simulate(test, mean, replace(post.forward))
+    for c in ("q", "eps_v"):
+        scale = np.max(np.abs(fine.channel(c)[0]))
+        assert np.max(np.abs(out[f"{c}_forward_at_mean"] - fine.channel(c)[0])) <= 1e-9 * scale
+        assert np.max(np.abs(coarse.channel(c)[0] - fine.channel(c)[0])) > 0.01 * scale  # a correction that matters
+    assert out["correction"]["eps_v"] > 0.0
 
 
 def test_resolution_check_refuses_with_the_flags_to_set(tmp_path, capsys):

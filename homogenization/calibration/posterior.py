@@ -7,14 +7,16 @@ kn [N/m], kt_over_kn [-]), run.json beside it (the values of the parameters not 
 grain radius, the forward model's settings and the dimension of the data) and posterior.h5 (the
 retained samples, ``/samples/<name>``). ``band(...)`` runs the batched closed form
 (``forward.simulate``) for parameter sets drawn from those samples and returns the 2.5 and 97.5 %
-quantiles of q, p and eps_v over eps1.
+quantiles of q, p and eps_v over eps1. Where the calibration corrected its forward model
+(``resolution``: the reference's difference added to every curve), the band does the same at its own
+test: the reference's curve minus the model's at the posterior mean is added to every draw.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -61,6 +63,8 @@ class CalibratedPosterior:
             posterior mean (calibrated) or at the calibration's fixed value (not calibrated), CLI units.
         radius: the grain radius of the calibration [m].
         forward: the calibration's forward-model settings (the band runs with them).
+        reference: where the calibration corrected its forward model, the reference model (``forward`` with
+            the reference's increments and orientations); None otherwise.
     """
 
     path: Path
@@ -70,6 +74,7 @@ class CalibratedPosterior:
     mean: dict[str, float]
     radius: float
     forward: ForwardSettings
+    reference: ForwardSettings | None = None
 
     @property
     def contact_law(self) -> Law:
@@ -149,7 +154,17 @@ def read_posterior(path: Path) -> CalibratedPosterior:
     names = forward.parameters + tuple(name for name in (SPREAD, *DENSITY, *RULE) if name in mean or name in fixed)
     return CalibratedPosterior(path=path, sha256=file_sha256(path), dims=dims, calibrated=tuple(mean),
                                mean={name: mean.get(name, fixed.get(name)) for name in names}, radius=radius,
-                               forward=forward)
+                               forward=forward, reference=_reference(run, forward))
+
+
+def _reference(run: Any, forward: ForwardSettings) -> ForwardSettings | None:
+    """The reference model of run.json's ``forward_model.resolution`` where the calibration corrected its
+    forward model with it (``corrected_at`` recorded); None otherwise."""
+    record = run.get("forward_model", {}).get("resolution", {}) if isinstance(run, dict) else {}
+    knobs = record.get("reference") if isinstance(record, dict) else None
+    if not isinstance(knobs, dict) or record.get("corrected_at") is None:
+        return None
+    return replace(forward, **{k: v for k, v in knobs.items() if k in ForwardSettings.__dataclass_fields__})
 
 
 def draw_samples(post: CalibratedPosterior, n: int, seed: int) -> dict[str, np.ndarray]:
@@ -196,7 +211,8 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
         shape (k,), quantiles over the sets whose curve is finite; ``dim``; ``<channel>_forward_at_mean``
         (the forward model at the posterior mean, to compare with the command's own run), ``n_sets``,
         ``n_failed`` (sets whose isotropic stage did not reach p0) and ``n_fallback`` (the forward
-        model's fallbacks).
+        model's fallbacks); ``correction``: None, or (``post.reference`` set) channel -> the largest abs
+        difference reference - model at the mean, added to every curve, and ``reference`` its settings.
     """
     eps1 = band_grid(eps_max, post.forward.increment)
     test = Measurement("band", post.path, drained, p0, eps1, {}, dim, void_ratio)
@@ -204,11 +220,18 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
     with_mean = {name: np.append(params[name], post.mean[name]) for name in post.mean}
     with np.errstate(all="ignore"):  # a diverging set gives NaN, left out of the quantiles and counted
         curves = simulate(test, with_mean, post.forward)
+    shift: dict[str, np.ndarray] = {}
+    if post.reference is not None:
+        with np.errstate(all="ignore"):
+            fine = simulate(test, {name: np.array([value]) for name, value in post.mean.items()}, post.reference)
+        shift = {c: np.nan_to_num(fine.channel(c)[0] - curves.channel(c)[n]) for c in ("q", "p", "eps_v")}
     ok = np.all(np.isfinite(curves.q[:n]) & np.isfinite(curves.p[:n]) & np.isfinite(curves.eps_v[:n]), axis=1)
     out: dict[str, Any] = {"eps1": eps1, "dim": dim, "n_sets": n, "n_failed": int(np.count_nonzero(~ok)),
-                           "n_fallback": int(curves.n_fallback.sum())}
+                           "n_fallback": int(curves.n_fallback.sum()),
+                           "correction": {c: float(np.max(np.abs(v))) for c, v in shift.items()} or None,
+                           "reference": post.reference}
     for c in ("q", "p", "eps_v"):
-        values = curves.channel(c)
+        values = curves.channel(c) + shift.get(c, 0.0)
         lo, med, hi = (np.quantile(values[:n][ok], q, axis=0) if ok.any() else np.full(eps1.size, np.nan)
                        for q in (BAND_QUANTILES[0], 0.5, BAND_QUANTILES[1]))
         out[f"{c}_lo"], out[f"{c}_median"], out[f"{c}_hi"] = lo, med, hi
@@ -227,6 +250,12 @@ def write_band_csv(path: Path, result: Mapping[str, Any], header: Mapping[str, A
 
     columns = band_columns()
     lines = [f"# {k} = {v}" for k, v in header.items()]
+    if result.get("correction") is not None:
+        ref = result["reference"]
+        lines.append(f"# resolution_correction = the calibration's reference (increment {ref.increment:g}, iso "
+                     f"increment {ref.iso_increment:g}, {ref.n_orientations} orientations / Lebedev {ref.lebedev_order}) "
+                     f"minus the forward model at the posterior mean, added to every draw; largest abs value: "
+                     + ", ".join(f"{c} {v:.4g}" for c, v in result["correction"].items()))
     lines.append(",".join(columns))
     table = np.stack([result[c] for c in columns], axis=1)
     lines += [",".join(f"{v:.10g}" for v in row) for row in table.tolist()]
