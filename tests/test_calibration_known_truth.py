@@ -127,3 +127,21 @@ def test_refined_settings_halve_the_increment_and_double_the_orientations():
     assert resolution.refined(s, "increment").iso_increment == 2.5e-4
     finer = resolution.refined(s, "orientations")
     assert finer.n_orientations == 72 and finer.lebedev_order == 15 and finer.increment == 1e-3
+
+
+def test_error_estimate_adds_the_knobs_richardson_scaled():
+    """Truth 2 of benchmarks/bench_calibrate_truths.py: one refinement of each knob moves alpha0 by 0.27 and 0.12 sd
+    and phi_g by 0.14 and 0.26 sd, each under the tolerance, yet the default model's optimum lies 0.7 sd from the
+    converged one. The error estimate (2 x the increment's, 4/3 x the orientations', summed) fails the check."""
+    rms = {"increment": {"d:q": 0.21, "d:eps_v": 0.07}, "orientations": {"d:q": 0.12, "d:eps_v": 0.12}}
+    shift = {"increment": {"phi_g": -0.14, "alpha0": -0.27}, "orientations": {"phi_g": -0.26, "alpha0": -0.12}}
+    check = resolution.Check("start", {}, {}, rms, rms, shift)
+    assert check.worst_rms() < resolution.RMS_TOLERANCE and check.worst_shift() < resolution.SHIFT_TOLERANCE + 0.1
+    assert check.error_shift()["alpha0"] == pytest.approx(2 * 0.27 + 4 / 3 * 0.12)
+    assert check.error_rms()["d:q"] == pytest.approx(2 * 0.21 + 4 / 3 * 0.12)
+    assert not check.passed and check.knobs_to_refine == ["increment", "orientations"]
+    halved = {k: {n: v / 4 for n, v in d.items()} for k, d in shift.items()}
+    assert resolution.Check("start", {}, {}, rms, rms, halved).error_shift()["alpha0"] < resolution.SHIFT_TOLERANCE
+    against = resolution.Check("optimum", {}, {}, {"reference": {"d:q": 0.1}}, {"reference": {"d:q": 0.1}},
+                               {"reference": {"alpha0": 0.15}})
+    assert against.passed and against.error_shift()["alpha0"] == pytest.approx(0.15)
