@@ -185,3 +185,27 @@ def test_fit_reports_every_epoch_to_its_progress_callback_and_marks_the_last(db_
     assert [e.epoch for e in seen] == result.history["epoch"] == [1, 2, 3, 4, 5, 6]
     assert [e.last for e in seen] == [False] * 5 + [True] and all(e.epochs == 6 for e in seen)
     assert [e.val_loss for e in seen] == result.history["val_loss"] and [e.lr for e in seen] == result.history["lr"]
+
+
+def test_round_share_weights_the_rounds_samples_to_their_share_and_changes_no_bit_without_rounds(fitted):
+    """The samples of active-learning rounds carry ``round_share`` of the summed loss weight; a
+    database without rounds trains bit-identically whatever the share; with rounds the network changes."""
+    import dataclasses
+
+    import numpy as np
+
+    from training.fitting import round_weights
+
+    weight = round_weights(np.array([0, 0, 0, 0, 0, 0, 1, 2]), 0.25).numpy()[:, 0]
+    assert weight[:6].tolist() == [1.0] * 6 and weight[6:].sum() / weight.sum() == pytest.approx(0.25, rel=1e-12)
+    assert round_weights(np.array([0, 0, 1]), 0.0).numpy().tolist() == [[1.0]] * 3
+    assert round_weights(np.array([1, 1]), 0.5).numpy().tolist() == [[1.0]] * 2  # one kind only: no weighting
+    db, _ = fitted
+    short = {**CONFIG.__dict__, "epochs": 2}
+    nets = [fit(d, TrainConfig(**{**short, "round_share": s})).net.state_dict()
+            for d, s in ((db, 0.0), (db, 0.5))]
+    assert all(torch.equal(a, b) for a, b in zip(*(n.values() for n in nets)))
+    grown = dataclasses.replace(db, source_round=(db.path_id % 3 == 0).astype(np.int64))  # a third of the paths a round
+    pair = [fit(grown, TrainConfig(**{**short, "round_share": s})) for s in (0.0, 0.5)]
+    assert not all(torch.equal(a, b) for a, b in zip(*(p.net.state_dict().values() for p in pair)))
+    assert pair[0].history["val_loss"] != pair[1].history["val_loss"]  # the validation loss is weighted too

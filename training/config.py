@@ -66,6 +66,10 @@ class TrainConfig:
     """torch device of the training."""
     rollout: bool = True
     """Measure the rollout error along held-out DEM paths after training."""
+    round_share: float = 0.0
+    """Fraction [-] of the training and validation loss carried by the samples of active-learning
+    rounds (``source_round`` > 0), whose weight is set so (``training.fitting.round_weights``);
+    0: every sample weighs 1."""
     init_from: str | None = None
     """Model (.pt) whose weights start the training (warm start), None: random weights
     (``training.fitting.warm_start``). Also splits the database by round (``split_by_path(by_round=True)``)."""
@@ -76,6 +80,8 @@ class TrainConfig:
                 raise ValueError(f"{name} = {getattr(self, name)} must be >= 1")
         if not (math.isfinite(self.sliding_weight) and self.sliding_weight > 0.0):
             raise ValueError(f"sliding_weight = {self.sliding_weight:g} must be finite and > 0")
+        if not 0.0 <= self.round_share < 1.0:
+            raise ValueError(f"round_share = {self.round_share:g} must lie in [0, 1)")
         if not (math.isfinite(self.lr) and self.lr > 0.0):
             raise ValueError(f"lr = {self.lr:g} must be finite and > 0")
         if not self.hidden or min(self.hidden) < 1:

@@ -120,16 +120,32 @@ def sliding_light(net: MesoNet, data: Tensors) -> torch.Tensor:
     return sliding.any(dim=1) & light.any(dim=1)
 
 
+def round_weights(source_round: np.ndarray, share: float) -> torch.Tensor:
+    """float64 (n, 1) loss weights of samples from ``source_round`` (0: the generator): the
+    samples of active-learning rounds (> 0) carry the fraction ``share`` of the summed weight, the
+    generator's weigh 1 (all 1 where ``share`` is 0 or one kind is absent)."""
+    from_rounds = source_round > 0
+    n_rounds, n_generator = int(from_rounds.sum()), int((~from_rounds).sum())
+    weight = np.ones(source_round.shape[0])
+    if share > 0.0 and n_rounds and n_generator:
+        weight[from_rounds] = share / (1.0 - share) * n_generator / n_rounds
+    return torch.from_numpy(weight)[:, None]
+
+
 def _loss_terms(net: MesoNet, data: Tensors, index) -> torch.Tensor:
     predicted = net.displacement_from_features(data.features[index], data.magnitude[index], data.unbalanced[index])
     return ((predicted - data.target[index]) / (data.scale[index] * net.rate_std * net.schema.diameter)) ** 2
 
 
-def _mse(net: MesoNet, data: Tensors, chunk: int = 65536) -> float:
+def _mse(net: MesoNet, data: Tensors, chunk: int = 65536, weight: torch.Tensor | None = None) -> float:
     n = data.target.shape[0]
     with torch.no_grad():
-        total = sum(float(_loss_terms(net, data, slice(i, i + chunk)).sum()) for i in range(0, n, chunk))
-    return total / data.target.numel()
+        if weight is None:
+            total = sum(float(_loss_terms(net, data, slice(i, i + chunk)).sum()) for i in range(0, n, chunk))
+            return total / data.target.numel()
+        total = sum(float((weight[i:i + chunk] * _loss_terms(net, data, slice(i, i + chunk))).sum())
+                    for i in range(0, n, chunk))
+    return total / float(weight.sum() * data.target.shape[1])
 
 
 def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: Progress | None = None) -> FitResult:
@@ -150,6 +166,10 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: Progress
     net.set_normalisation(norm.feature_mean, norm.feature_std, norm.rate_mean, norm.rate_std)
     warm = warm_start(net, db, config.init_from) if config.init_from is not None else None
     weight = torch.where(sliding_light(net, train), config.sliding_weight, 1.0)[:, None]
+    val_weight = None
+    if config.round_share > 0.0:
+        weight = weight * round_weights(db.source_round[split.train], config.round_share).to(weight.dtype)
+        val_weight = round_weights(db.source_round[split.val], config.round_share).to(weight.dtype)
     optimiser = torch.optim.Adam(net.parameters(), lr=config.lr)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=config.lr_patience)
     generator = torch.Generator().manual_seed(config.seed)
@@ -167,7 +187,7 @@ def fit(db: Database, config: TrainConfig = TrainConfig(), *, progress: Progress
             optimiser.step()
             running += loss.item() * batch.numel()
         net.eval()
-        val_loss = _mse(net, val)
+        val_loss = _mse(net, val, weight=val_weight)
         lr = optimiser.param_groups[0]["lr"]
         for key, value in zip(history, (epoch, running / n_train, val_loss, lr)):
             history[key].append(value)

@@ -38,6 +38,17 @@ def _positive(kind):
     return parse
 
 
+def _fraction(text: str) -> float:
+    """argparse type of --round-share: a number in [0, 1)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"{text} must lie in [0, 1)")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m training.train`` parser; defaults come from ``TrainConfig``."""
     d = TrainConfig()
@@ -58,6 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="give the network the load fraction f_n / max f_n of every active pair")
     p.add_argument("--sliding-weight", type=_positive(float), default=d.sliding_weight,
                    help="loss weight of samples with a sliding contact beside a lightly loaded one")
+    p.add_argument("--round-share", type=_fraction, default=d.round_share,
+                   help="fraction of the loss carried by the samples of active-learning rounds (0: every sample weighs 1)")
     p.add_argument("--threads", type=_positive(int), default=d.threads, help="torch CPU threads")
     p.add_argument("--no-rollout", action="store_true", help="skip the rollout error along held-out DEM paths")
     p.add_argument("--init-from", type=Path, default=None,
@@ -79,6 +92,7 @@ def config_of(args: argparse.Namespace) -> TrainConfig:
     ``TrainConfig``'s)."""
     d = TrainConfig()
     return TrainConfig(hidden=args.hidden, load_features=args.load_features, sliding_weight=args.sliding_weight,
+                       round_share=args.round_share,
                        epochs=d.epochs if args.epochs is None else args.epochs, batch_size=args.batch_size, lr=args.lr,
                        patience=d.patience if args.patience is None else args.patience,
                        seed=args.seed, threads=args.threads, device=args.device, rollout=not args.no_rollout,

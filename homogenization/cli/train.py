@@ -46,9 +46,9 @@ from warp_hcell.core.files import atomic_write, output_lock
 
 ENRICHED_SUFFIX = "_db.h5"
 """Name ending of the enriched copy of the database beside the model (``enriched_path``)."""
-ROUND_SET = ("hidden", "init_from", "seed")
+ROUND_SET = ("hidden", "init_from", "seed", "round_share")
 """Training options that the active-learning rounds set themselves (wider network, warm start, the
-seed of a round that restarts after a rejected one)."""
+seed of a round that restarts after a rejected one) or that act on the rounds' samples only (their share)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
