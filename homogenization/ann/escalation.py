@@ -28,12 +28,14 @@ Sign convention: compression positive (moments as the DEM backend's ``CellRespon
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 from warp_hcell.core.parameters import ContactLaw, DemSettings
-from warp_hcell.database.learning_state import evaluate, free_coordinates, pair_normal_forces, positions
+from warp_hcell.database.learning_state import evaluate, free_coordinates
 from warp_hcell.database.probing import ProbeContext, step_from_rest
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
@@ -44,6 +46,51 @@ if TYPE_CHECKING:
 RELEASE_RULE = "a free grain moved and no pair presses it above the equilibrium tolerance"
 """What ``DemEscalation.released`` hands to the DEM, in words; a certificate of a hybrid with the escalation records
 it (``dem_escalation_rule``), and a certificate of another rule does not cover this one."""
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _released(size, before, after, reference_position, reference_size, free_dofs, pairs, rsum, cut2, kn, ratio, out):
+    """``DemEscalation.released`` of cells last: size (dim, n) [m], before and after (n_free, n) [m]; the
+    schema's reference_position (n_grains, dim) and reference_size (dim,) [m], free_dofs (n_free, 2) and
+    pairs (n_pairs, 2) int64, rsum and cut2 (n_pairs,) [m, m^2]; kn [N/m]; ratio [-]. Writes out (n,) bool."""
+    n = size.shape[1]
+    n_grains, dim = reference_position.shape
+    x = np.empty((n_grains, dim, n))
+    for g in range(n_grains):
+        for a in range(dim):
+            for c in range(n):
+                x[g, a, c] = reference_position[g, a] * (size[a, c] / reference_size[a])
+    moved = np.zeros((n_grains, n), dtype=np.bool_)
+    for k in range(free_dofs.shape[0]):
+        g, a = free_dofs[k, 0], free_dofs[k, 1]
+        for c in range(n):
+            x[g, a, c] = after[k, c]
+            moved[g, c] |= after[k, c] != before[k, c]
+    normal = np.empty((pairs.shape[0], n))
+    largest = np.zeros(n)
+    for p in range(pairs.shape[0]):
+        i, j = pairs[p, 0], pairs[p, 1]
+        for c in range(n):
+            b = x[j, 0, c] - x[i, 0, c]
+            dist2 = b * b
+            for a in range(1, dim):
+                b = x[j, a, c] - x[i, a, c]
+                dist2 = dist2 + b * b
+            force = kn * max(rsum[p] - math.sqrt(dist2), 0.0) if dist2 <= cut2[p] else 0.0
+            normal[p, c] = force
+            largest[c] = max(largest[c], force)
+    pressed = np.zeros((n_grains, n), dtype=np.bool_)
+    for p in range(pairs.shape[0]):
+        i, j = pairs[p, 0], pairs[p, 1]
+        for c in range(n):
+            if normal[p, c] > ratio * largest[c]:
+                pressed[i, c] = True
+                pressed[j, c] = True
+    for c in range(n):
+        out[c] = False
+    for g in range(n_grains):
+        for c in range(n):
+            out[c] |= moved[g, c] and not pressed[g, c]
 
 
 class DemEscalation:
@@ -73,13 +120,15 @@ class DemEscalation:
         self.contact_tolerance = float(contact_tolerance)
         self._batches: dict[int, tuple[ProbeContext, DemModel]] = {}
         pairs, free_dofs, n_grains = self.schema.pairs, self.schema.free_dofs, self.schema.radius.shape[0]
-        self._pair_grains = np.zeros((pairs.shape[0], n_grains))
-        self._pair_grains[np.arange(pairs.shape[0]), pairs[:, 0]] = 1.0
-        self._pair_grains[np.arange(pairs.shape[0]), pairs[:, 1]] = 1.0
-        self._dof_grains = np.zeros((free_dofs.shape[0], n_grains))
-        self._dof_grains[np.arange(free_dofs.shape[0]), free_dofs[:, 0]] = 1.0
         loose = np.bincount(free_dofs[:, 0], minlength=n_grains) == self.schema.dim
         self._loose_pairs = loose[pairs[:, 0]] | loose[pairs[:, 1]]
+        as_array = lambda a, dtype=np.float64: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
+        self._reference_position = as_array(self.schema.reference_position)
+        self._reference_size = as_array(self.schema.reference_cell_size)
+        self._free_dofs, self._pairs = as_array(free_dofs, np.int64), as_array(pairs, np.int64)
+        self._rsum = as_array(self.schema.radius[pairs[:, 0]] + self.schema.radius[pairs[:, 1]])
+        widen = 1.0 + self.contact_tolerance
+        self._cut2 = (self._rsum * widen) * (self._rsum * widen)
 
     def sliding(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray) -> np.ndarray:
         """bool (n,): cells of the learning states (cell_size (n, dim) [m], free_position (n, n_free) [m],
@@ -103,13 +152,15 @@ class DemEscalation:
         that nothing presses at its end: each of its pairs' normal force is at most ``force_ratio`` times the
         cell's largest (the resolution of the corrections' balance: a grain that only one neighbour pushed
         ends in touch with such a force, which the corrections cannot tell from none); cell_size (n, dim)
-        [m] and free_after (n, n_free) [m]: the state after the increment, free_before: before it."""
-        normal = pair_normal_forces(self.schema, positions(self.schema, cell_size, free_after), self.contact_law,
-                                    self.contact_tolerance)[3]
-        pressed = normal > self.force_ratio * normal.max(axis=1, keepdims=True)
-        touching = pressed.astype(np.float64) @ self._pair_grains > 0.0
-        moved = (free_after != free_before).astype(np.float64) @ self._dof_grains > 0.0
-        return np.any(moved & ~touching, axis=1)
+        [m] and free_after (n, n_free) [m]: the state after the increment, free_before: before it. Compiled
+        (``_released``): the operations of ``learning_state.pair_normal_forces``, cells innermost."""
+        schema = self.schema
+        cells_last = lambda a: np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)  # noqa: E731
+        out = np.empty(np.shape(cell_size)[0], dtype=np.bool_)
+        _released(cells_last(cell_size), cells_last(free_before), cells_last(free_after), self._reference_position,
+                  self._reference_size, self._free_dofs, self._pairs, self._rsum, self._cut2,
+                  float(self.contact_law.kn), self.force_ratio, out)
+        return out
 
     def _batch(self, n: int) -> tuple[ProbeContext, DemModel]:
         """The probe context and the DEM model of batches of ``n`` cells (built once)."""
