@@ -20,8 +20,13 @@ Static liquefaction and strength under a lateral deviator of the 3D cells, close
    the closed form stops holding (the DEM models that contact), and to 15 %; also at two liquefying
    states (``DEM_STATES``).
 6. The same at ``DEM_GAIN`` (``hcell3d-axisym``'s map with that gain) at ``DEM_STATES``.
+7. The DEM's window against the gain (``WINDOW_GAINS``), for the cell as built (the lateral grains of
+   the two planes meet and jam, as in YADE: tests/data/yade3d_sand) and for the cell without the 16
+   candidate pairs between them (``decoupled``, the closed form's hypothesis), with the largest |dp|,
+   |dq| over p0 of the decoupled DEM against the closed form at ``DEM_STATES`` and the dense state.
 
-Every run goes through ``hmodel triaxial`` / ``hmodel biaxial`` in this process (``--spins 1``: the
+Sections 1-6 run through ``hmodel triaxial`` / ``hmodel biaxial`` in this process (section 7 calls the
+element-test driver, as the decoupled cell has no spec) (``--spins 1``: the
 response of the axisymmetric and amplified cells does not depend on the spin; the projected cell gets
 ``--spins 4``). Signs: compression positive; eps_v > 0 is contraction.
 """
@@ -31,6 +36,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import dataclasses
 import datetime
 import io
 import math
@@ -43,8 +49,12 @@ import h5py
 import numpy as np
 from scipy.optimize import brentq
 
+from homogenization.backends import make_cell_model
 from homogenization.cli import hmodel
+from homogenization.element_test import driver, programme as programmes
 from homogenization.material import orientation
+from warp_hcell.mesostructures.builders import resolve_mesostructure
+from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 HERE = Path(__file__).resolve().parent
 P0 = 2e5
@@ -59,6 +69,8 @@ DEM_STATES = (52.0, 55.0)
 """Liquefying states where the DEM is also run (section 5), besides the dense and loose ones [deg]."""
 DEM_GAIN = 3.5
 """A gain whose closed-form window passes 5 deg, run with the DEM at DEM_STATES (section 6)."""
+WINDOW_GAINS = (2.0, 3.0, 3.5)
+"""Gains of the DEM windows (section 7)."""
 
 
 RETRIES: list[str] = []
@@ -172,7 +184,7 @@ def main() -> None:
     parser.add_argument("--increment", type=float, default=1e-3, help="strain increment (default 1e-3)")
     parser.add_argument("--dense", type=float, default=49.0, help="dense alpha0 [deg] (default 49)")
     parser.add_argument("--loose", type=float, default=54.0, help="loose alpha0 [deg] (default 54)")
-    parser.add_argument("--sections", default="1,2,3,4,5,6", help="sections to run (default all)")
+    parser.add_argument("--sections", default="1,2,3,4,5,6", help="sections to run (default 1-6; 7: DEM windows)")
     args = parser.parse_args()
     sections = {int(k) for k in args.sections.split(",")}
     if args.quick:
@@ -204,6 +216,8 @@ def main() -> None:
         dem_section(args, say)
     if 6 in sections:
         dem_section(args, say, DEM_GAIN)
+    if 7 in sections:
+        dem_window_section(args, say)
     say(f"\nReruns at a smaller increment (stress control failed): {len(RETRIES)}")
     for line in RETRIES:
         say(f"  {line}")
@@ -288,6 +302,47 @@ def dem_section(args, say, gain: float | None = None) -> None:
         say(f"  alpha0 = {alpha0:g}: {meet}; before: |dp| {dp[valid].max():.1e}, |dq| {dq[valid].max():.1e}; "
             f"to 15 %: |dp| {dp.max():.1e}, |dq| {dq.max():.1e}; p/p0 at 15 % {a['p'][-1] / P0:.3f} (closed form), "
             f"{d['p'][-1] / P0:.3f} (DEM); lowest {a['p'].min() / P0:.3f}, {d['p'].min() / P0:.3f}")
+
+
+def decoupled(meso: Mesostructure) -> Mesostructure:
+    """The ten-sphere cell ``meso`` without the candidate pairs between a lateral grain of plane A (2, 3,
+    5, 6) and one of plane B (7-10)."""
+    keep = np.array([not (i in (1, 2, 4, 5) and j in (6, 7, 8, 9)) for i, j in meso.pairs])
+    return dataclasses.replace(meso, pairs=meso.pairs[keep], pair_label=meso.pair_label[keep])
+
+
+def driven_undrained(backend: str, alpha0: float, gain: float, apart: bool, args) -> driver.Record:
+    """Undrained triaxial run of the ten-sphere cell with the amplified map of ``gain`` (``apart``: decoupled)."""
+    meso = resolve_mesostructure(f"hcell3d-axisym:alpha0={alpha0:.6f}")
+    saved = orientation.AXISYMMETRIC_MAP
+    orientation.AXISYMMETRIC_MAP = orientation.axisymmetric_map(gain)
+    try:
+        programme = programmes.triaxial(P0, EPS_MAX, args.increment, test="undrained", iso_increment=1e-4)
+        return driver.run(make_cell_model(backend, dim=3), programme, mesostructure=decoupled(meso) if apart else meso,
+                          lebedev_order=args.order, n_spins=1, progress=False)
+    finally:
+        orientation.AXISYMMETRIC_MAP = saved
+
+
+def dem_window_section(args, say) -> None:
+    say("\n## 7. The DEM's window against the gain: the cell as built (its planes meet and jam) and decoupled")
+    for gain in WINDOW_GAINS:
+        for apart in (False, True):
+            def probe(alpha0: float, gain=gain, apart=apart) -> float:
+                record = driven_undrained("dem", alpha0, gain, apart, args)
+                return float(record.p[record.stage == "shear"].min() / P0)
+            coarse = {a: probe(a) for a in np.arange(49.0, 58.01, 0.5)}
+            edges = window(coarse, probe)
+            text = "none" if edges is None else f"{edges[0]:.2f}-{edges[1]:.2f} deg, width {edges[1] - edges[0]:.2f} deg"
+            say(f"  g = {gain:4.2f}, {'decoupled' if apart else 'as built '}: {text}")
+        for alpha0 in (args.dense, *DEM_STATES):
+            dem, closed = (driven_undrained(b, alpha0, gain, b == "dem", args) for b in ("dem", "analytical"))
+            shear = closed.stage == "shear"
+            dp, dq = (np.abs(getattr(dem, k) - getattr(closed, k))[shear].max() / P0 for k in ("p", "q"))
+            say(f"    decoupled DEM vs closed form, alpha0 = {alpha0:g}: |dp| {dp:.1e}, |dq| {dq:.1e}; lowest p/p0 "
+                f"{dem.p[shear].min() / P0:.3f} (closed form {closed.p[shear].min() / P0:.3f}), at 15 % "
+                f"{dem.p[shear][-1] / P0:.3f} ({closed.p[shear][-1] / P0:.3f}); closed-form cells whose planes meet: "
+                f"{np.max(closed.diagnostics['n_cross_plane']):.0f}")
 
 
 if __name__ == "__main__":
