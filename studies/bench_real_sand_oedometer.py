@@ -10,7 +10,11 @@ json of ``bench_real_sand.py``), with the linear contact law it was fitted with;
 the Hertz-Mindlin law of grains of shear modulus G [Pa] (Poisson ratio 0.2) instead, at the
 posterior's phi_g and alpha0 (not fitted: the calibration reads the linear law only). ``--calibration DIR``
 runs ``hmodel triaxial --posterior DIR`` instead (an ``hmodel calibrate`` folder: its law at the posterior
-mean, with its alpha0_spread where it has one).
+mean, with its alpha0_spread or its critical-state rule where it has one). ``--optimum FILE.json`` (a result of
+``bench_real_sand_critical_state.py``) writes its least-squares optimum as a one-point posterior folder
+(posterior.json with the rule, run.json with that study's forward settings) under --out and runs it the same way.
+``--void-ratio E`` runs the specimen at void ratio E on a calibration's map (``loosest``: its e_max, where the
+specimen's 0.996 lies beyond the fitted map).
 
 The model is seated isotropically at the data's first stress (8 kPa), then loaded with the
 lateral strains held at zero. A first run loads far enough to find the axial strain at which
@@ -23,6 +27,7 @@ branch is read down to the data's last stress (10 kPa). Prints, model against da
 - the unloading modulus over the first unloading interval (1.2 MPa - 600 kPa) and its ratio to the
   loading modulus over the same stresses;
 - the axial strain at 1.2 MPa and the strain left after unloading to 10 kPa (irrecoverable part);
+- the RMS difference of the axial strain at the measured stress levels, loading branch and unloading branch;
 - K0 = sigma_h / sigma_v of the model at 80 kPa and 1.2 MPa and after unloading (the oedometer
   measures no lateral stress; beside it, Jaky's 1 - sin(phi) with the sand's angle of repose,
   35.5 deg, an empirical estimate, not a measurement).
@@ -87,6 +92,38 @@ def modulus(sigma: np.ndarray, eps: np.ndarray, interval: tuple[float, float]) -
     return (hi - lo) / abs(strain_at(sigma, eps, hi) - strain_at(sigma, eps, lo))
 
 
+def rms_strain(model: tuple[np.ndarray, np.ndarray], sigma: np.ndarray, eps: np.ndarray) -> float:
+    """RMS [-] of the model's axial strain minus the data's at the data's stress levels of a branch (a level the
+    model's branch does not reach counts as NaN)."""
+    return float(np.sqrt(np.mean([(strain_at(*model, level) - e) ** 2 for level, e in zip(sigma, eps)])))
+
+
+def point_posterior(result: dict, folder: Path, rule: bool = True) -> Path:
+    """An hmodel calibrate folder holding only what ``hmodel triaxial --posterior`` reads (posterior.json,
+    run.json) for the least-squares optimum of a ``bench_real_sand_critical_state.py`` result: every fitted
+    coordinate as a calibrated parameter at its value, the rule (``DEFAULTS[3]`` with alpha_c and the rate
+    fitted; none where not ``rule``) and that study's forward settings."""
+    from dataclasses import asdict, replace  # noqa: PLC0415
+
+    from homogenization.material.critical_state import DEFAULTS  # noqa: PLC0415
+    from warp_hcell.core.parameters import CellDefaults  # noqa: PLC0415
+
+    x = result["optimum"]
+    values = {"phi_g": x["phi_g"], "kn": 10.0 ** x["log10_kn"], "kt_over_kn": x["kt_over_kn"]}
+    values.update({k: x[k] for k in ("alpha0", "e_min", "e_max") if k in x})
+    fitted = replace(DEFAULTS[3], **({"alpha_c_deg": x["alpha_c_deg"]} if "alpha_c_deg" in x else {}),
+                   **({"rate": 10.0 ** x["log10_rate"]} if "log10_rate" in x else {}))
+    folder.mkdir(parents=True, exist_ok=True)
+    posterior = {k: {"mean": v, "median": v, "ci95": [v, v]} for k, v in values.items()}
+    (folder / "posterior.json").write_text(json.dumps({**posterior, **({"critical_state": asdict(fitted)} if rule else {})},
+                                                      indent=1))
+    fixed = {"phi_g": values["phi_g"], "kn": values["kn"], "kt_over_kn": values["kt_over_kn"],
+             "alpha0": values.get("alpha0", 55.0)}
+    forward = {**result["settings"], "radius": CellDefaults.radius, "fixed": fixed, "staggered_spins": False}
+    (folder / "run.json").write_text(json.dumps({"data_dimensions": [3], "config": {"forward": forward}}, indent=1))
+    return folder
+
+
 def hmodel(*args: str) -> None:
     command = [sys.executable, "-m", "homogenization.hmodel", *args]
     print("$ hmodel " + " ".join(args), flush=True)
@@ -103,18 +140,33 @@ def main(argv: list[str] | None = None) -> int:
                         help="Hertz-Mindlin law of grain shear modulus G [Pa] instead of the posterior's kn, kt")
     parser.add_argument("--calibration", type=Path, default=None,
                         help="an hmodel calibrate folder: hmodel triaxial --posterior DIR instead of --posterior's means")
+    parser.add_argument("--optimum", type=Path, default=None,
+                        help="a bench_real_sand_critical_state.py result json: its optimum as a one-point posterior")
+    parser.add_argument("--plain", action="store_true", help="--optimum without its critical-state rule")
+    parser.add_argument("--void-ratio", default=None, help="void ratio E of the specimen on the calibration's map, or "
+                                                           "'loosest' (its e_max)")
     parser.add_argument("--out", type=Path, default=Path("runs/real_sand_oedometer"))
     args = parser.parse_args(argv)
+    if args.optimum is not None:
+        args.calibration = point_posterior(json.loads(args.optimum.read_text()), args.out / "point_posterior",
+                                           rule=not args.plain)
     if args.calibration is not None and args.hertz is not None:
         parser.error("--calibration runs the calibration's own law: drop --hertz")
     if args.calibration is not None:
         post = {name: {"mean": entry["mean"]} for name, entry in
-                json.loads((args.calibration / "posterior.json").read_text()).items() if isinstance(entry, dict)}
+                json.loads((args.calibration / "posterior.json").read_text()).items()
+                if isinstance(entry, dict) and "mean" in entry}
         fixed = json.loads((args.calibration / "run.json").read_text())["config"]["forward"]["fixed"]
         post = {**{name: {"mean": value} for name, value in fixed.items()}, **post}
     else:
         post = json.loads(args.posterior.read_text())["posterior"]
-    mean = {name: post[name]["mean"] for name in ("phi_g", "kn", "kt_over_kn", "alpha0", "alpha0_spread") if name in post}
+    mean = {name: post[name]["mean"] for name in ("phi_g", "kn", "kt_over_kn", "alpha0", "alpha0_spread", "e_min", "e_max",
+                                                  "alpha_c", "renewal_rate") if name in post}
+    state = ()
+    if args.void_ratio is not None:
+        e0 = mean["e_max"] if args.void_ratio == "loosest" else float(args.void_ratio)
+        mean["void_ratio"] = e0
+        state = ("--void-ratio", repr(e0))
     source = args.calibration / "posterior.json" if args.calibration is not None else args.posterior
     load_s, load_e, unload_s, unload_e = read_data(DATA)
     seat, top, bottom = float(load_s[0]), float(load_s[-1]), float(unload_s[-1])
@@ -123,8 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     cell = ("--p0", f"{seat:g}", "--alpha0", f"{mean['alpha0']:.4g}", *law, "--phi", f"{mean['phi_g']:.4g}", *RULE,
             "--increment", f"{args.increment:g}", "-q", "--overwrite")
     if args.calibration is not None:
-        cell = ("--p0", f"{seat:g}", "--posterior", str(args.calibration), *RULE, "--increment", f"{args.increment:g}",
-                "-q", "--overwrite")
+        cell = ("--p0", f"{seat:g}", "--posterior", str(args.calibration), *state, *RULE, "--increment",
+                f"{args.increment:g}", "-q", "--overwrite")
     args.out.mkdir(parents=True, exist_ok=True)
     probe = args.out / "probe"
     hmodel("triaxial", "--oedometer", "0", "--eps-max", "0.3", *cell, "--out", str(probe))
@@ -151,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
         "posterior": {"file": source.resolve().relative_to(ROOT).as_posix()
                       if source.resolve().is_relative_to(ROOT) else str(source), **mean},
         "law": "linear" if args.hertz is None else f"hertz-mindlin, G = {args.hertz:g} Pa, nu = 0.2",
+        "critical_state": json.loads((args.calibration / "posterior.json").read_text()).get("critical_state")
+        if args.calibration is not None else None,
         "seating_stress_Pa": seat,
         "constrained_modulus_low_Pa": {"interval": LOW, "model": modulus(*m_up, LOW), "data": modulus(load_s, load_e, LOW)},
         "constrained_modulus_high_Pa": {"interval": HIGH, "model": modulus(*m_up, HIGH), "data": modulus(load_s, load_e, HIGH)},
@@ -161,13 +215,14 @@ def main(argv: list[str] | None = None) -> int:
         "K0_model": {"80kPa": k0_at(80e3), "top": k0_at(top), "after_unloading": float(np.interp(
             bottom, model["sigma_v"][down_idx][::-1], model["K0"][down_idx][::-1]))},
         "K0_jaky_repose": 1.0 - math.sin(math.radians(REPOSE_DEG)),
+        "rms_eps_a_loading": rms_strain(m_up, load_s, load_e),
+        "rms_eps_a_unloading": rms_strain(m_down, unload_s, unload_e),
     }
     for key in ("model", "data"):
         summary["unloading_modulus_Pa"][f"ratio_to_loading_{key}"] = (
             summary["unloading_modulus_Pa"][key] / modulus(*(m_up if key == "model" else (load_s, load_e)), unload_interval))
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
-    print(f"posterior mean of {source}: phi_g {mean['phi_g']:.2f} deg, kn {mean['kn']:.4g} N/m, "
-          f"kt/kn {mean['kt_over_kn']:.3f}, alpha0 {mean['alpha0']:.2f} deg"
+    print(f"posterior mean of {source}: " + ", ".join(f"{k} {v:.4g}" for k, v in mean.items())
           + (f", alpha0_spread {mean['alpha0_spread']:.2f} deg" if "alpha0_spread" in mean else "")
           + f"; law: {summary['law']}; seated at {seat:g} Pa")
     print("quantity                                   model        data")
@@ -179,12 +234,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'eps_a at 1.2 MPa [%]':40s} {100 * summary['eps_a_at_top']['model']:10.3g} {100 * summary['eps_a_at_top']['data']:10.3g}")
     print(f"{'eps_a after unloading to 10 kPa [%]':40s} {100 * summary['eps_a_after_unloading']['model']:10.3g} "
           f"{100 * summary['eps_a_after_unloading']['data']:10.3g}")
+    print(f"{'RMS d eps_a at the measured stresses, loading [%]':40s} {100 * summary['rms_eps_a_loading']:10.3g}")
+    print(f"{'RMS d eps_a at the measured stresses, unloading [%]':40s} {100 * summary['rms_eps_a_unloading']:10.3g}")
     k0 = summary["K0_model"]
     print(f"K0 of the model: {k0['80kPa']:.3f} at 80 kPa, {k0['top']:.3f} at {top / 1e6:g} MPa, {k0['after_unloading']:.3f} "
           f"after unloading to {bottom / 1e3:g} kPa; Jaky 1 - sin(angle of repose) {summary['K0_jaky_repose']:.3f} "
           f"(estimate; not measured)")
     draw(args.out / "oedometer.png", (load_s, load_e, unload_s, unload_e), m_up, m_down, model, up, down_idx,
-         summary["K0_jaky_repose"], summary["law"])
+         summary["K0_jaky_repose"], summary["law"] + (", critical-state rule" if summary["critical_state"] else ""))
     print(f"figure -> {args.out / 'oedometer.png'}; summary -> {args.out / 'summary.json'}")
     return 0
 
