@@ -29,7 +29,9 @@ is below ``force_tolerance`` or ``max_substeps`` is spent (zero when nothing car
 
 Input:
 - ``--cell``: JSON with ``radius`` (n_grains,) [m], ``position`` (n_grains, 3) [m] (n, t1, t2),
-  ``driven`` (n_grains, 3) bool, ``cell_size`` (3,) [m] (written by ``make_reference3d.py``);
+  ``driven`` (n_grains, 3) bool, ``cell_size`` (3,) [m] (written by ``make_reference3d.py``) and
+  optionally ``mask`` (n_grains,) int: YADE's body masks, two grains interacting only where their masks
+  share a bit (default 1 for every grain: all pairs);
 - ``--path``: CSV with header ``d_eps_n,d_eps_t1,d_eps_t2``, one row per increment [-],
   compression positive (l_a <- l_a (1 - d_eps_a)).
 The cell starts exactly as given (touching, force-free).
@@ -99,15 +101,18 @@ def read_path(path: Path) -> np.ndarray:
 
 
 def read_cell(path: Path) -> dict:
-    """The cell description (radius, position, driven, cell_size) as numpy arrays."""
+    """The cell description (radius, position, driven, cell_size, mask) as numpy arrays."""
     data = json.loads(Path(path).read_text())
     cell = {"radius": np.asarray(data["radius"], dtype=np.float64),
             "position": np.asarray(data["position"], dtype=np.float64),
             "driven": np.asarray(data["driven"], dtype=bool),
             "cell_size": np.asarray(data["cell_size"], dtype=np.float64)}
     n = cell["radius"].size
+    cell["mask"] = np.asarray(data.get("mask", [1] * n), dtype=np.int64)
     if cell["position"].shape != (n, 3) or cell["driven"].shape != (n, 3) or cell["cell_size"].shape != (3,):
         raise ValueError(f"{path}: expected position and driven of shape ({n}, 3) and cell_size of 3 values")
+    if cell["mask"].shape != (n,) or np.any(cell["mask"] <= 0):
+        raise ValueError(f"{path}: mask must hold {n} positive integers")
     return cell
 
 
@@ -149,6 +154,7 @@ class CellScene:
                                                    frictionAngle=math.radians(law["phi_g_deg"]),
                                                    density=settings["density"]))
             body = sphere(tuple(float(v) for v in x), float(r), material=material, fixed=False)
+            body.mask = int(cell["mask"][g])
             body.state.blockedDOFs = "".join(AXES[a] for a in range(3) if driven[a]) + "XYZ"
             body.state.mass = float(self.mass[g])
             inertia = 0.4 * float(self.mass[g]) * r**2

@@ -14,11 +14,14 @@ strain) hand them to one cell, written here without the package:
   open before 15 %);
 - ``sand3d_a54_normal``: loose, the axis normal to the loading axis with t1 along it (closing, sliding);
 - ``sand3d_a49_normal``: dense (49 deg), axis normal (closing; the two planes' lateral grains meet);
-- ``sand3d_g3_a52_normal``: the gain 3 at 52 deg, axis normal (the planes meet inside the window).
+- ``sand3d_g3_a52_normal``: the gain 3 at 52 deg, axis normal (the planes meet inside the window);
+- ``sand3d_apart_g35_a52_normal``: the gain 3.5 at 52 deg, axis normal, the planes decoupled (YADE body
+  masks: no interaction between the lateral grains of the two planes, the closed form's hypothesis).
 """
 
 from __future__ import annotations
 
+import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +54,9 @@ class SandCase(Case):
     """"axial": the cell axis n along the loading axis; "normal": n normal to it, t1 along it."""
     gain: float = GAIN
     """Deviator gain of the kinematics [-]."""
+    apart: bool = False
+    """The planes decoupled: no interaction between a lateral grain of plane A (2, 3, 5, 6) and one of
+    plane B (7-10) (YADE body masks ``APART_MASK``)."""
 
     def macro_step(self) -> tuple[float, float, float]:
         """Normal strains (n, t1, t2) [-] of one undrained macro row along the cell axes, before the map."""
@@ -62,11 +68,15 @@ ISOTROPIC = ((1e-4, 1e-4, 1e-4), 10)
 """The isotropic rows that start every case."""
 
 
-def undrained(alpha0_deg: float, axis: str, n_rows: int, gain: float = GAIN) -> SandCase:
+APART_MASK = (3, 1, 1, 3, 1, 1, 2, 2, 2, 2)
+"""YADE body mask of grains 1-10 in a case with decoupled planes: the axial grains meet both planes."""
+
+
+def undrained(alpha0_deg: float, axis: str, n_rows: int, gain: float = GAIN, apart: bool = False) -> SandCase:
     """The case of a cell with its axis along ("axial") or normal to ("normal", t1 along) the loading
     axis on the undrained triaxial path to ``n_rows`` macro rows of ``MACRO_STEP``."""
     macro = SandCase(alpha0_deg, (), axis, gain).macro_step()
-    return SandCase(alpha0_deg, (ISOTROPIC, (amplified(macro, gain), n_rows)), axis, gain)
+    return SandCase(alpha0_deg, (ISOTROPIC, (amplified(macro, gain), n_rows)), axis, gain, apart)
 
 
 CASES: dict[str, SandCase] = {
@@ -75,13 +85,18 @@ CASES: dict[str, SandCase] = {
     "sand3d_a49_axial": undrained(49.0, "axial", 450),
     "sand3d_a49_normal": undrained(49.0, "normal", 500),
     "sand3d_g3_a52_normal": undrained(52.0, "normal", 600, gain=3.0),
+    "sand3d_apart_g35_a52_normal": undrained(52.0, "normal", 450, gain=3.5, apart=True),
 }
 """Reference cases by name."""
 
 
 def write_case(name: str, out_dir: Path) -> Path:
     """Write the cell, path and settings files of case ``name``; return the output prefix."""
-    return write_inputs(CASES[name], out_dir / name, CONTACT_LAW, YADE_SETTINGS)
+    prefix = write_inputs(CASES[name], out_dir / name, CONTACT_LAW, YADE_SETTINGS)
+    if CASES[name].apart:
+        cell_file = Path(f"{prefix}.cell.json")
+        cell_file.write_text(json.dumps({**json.loads(cell_file.read_text()), "mask": list(APART_MASK)}) + "\n")
+    return prefix
 
 
 def generate(name: str, out_dir: Path, yade: str = "yade") -> Path:
