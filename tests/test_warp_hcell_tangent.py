@@ -40,9 +40,12 @@ TIGHT = DemSettings(force_tolerance=1e-13, strain_per_substep=1e-8, refined_stra
 DATA = "warp_hcell/data"
 
 
-def _sheared(model, alpha0, n_cells, iso=1e-3):
-    """Cells compressed isotropically, then sheared at constant volume in several directions."""
+def _sheared(model, alpha0, n_cells, iso=1e-3, cells=None):
+    """Cells compressed isotropically, then sheared at constant volume in several directions (those of
+    ``n_cells`` cells; ``cells``: an index array that keeps only those cells of ``alpha0`` and the directions)."""
     c2 = np.cos(2 * np.linspace(0, np.pi / 2, n_cells))
+    if cells is not None:
+        alpha0, c2, n_cells = np.asarray(alpha0)[cells], c2[cells], len(cells)
     state = model.init_state([h_cell(a, R) for a in alpha0], n_cells)
     state, _ = model.step(state, np.full((n_cells, 2), iso))
     d_eps = np.stack([1e-3 * c2, -1e-3 * c2], axis=1)
@@ -99,12 +102,13 @@ def test_h_cell_stick_and_slide(h_cells):
 
 
 def test_h_cell_slide_approaches_the_condensed_tangent_as_driving_slows(h_cells):
-    """Ten times slower driving: the slope of the step in slide comes within 3e-5 (from ~1e-4)."""
+    """Ten times slower driving: the slope of the step in slide comes within 3e-5 (from ~1e-4). Only the cells of
+    ``h_cells`` that slide at this driving are run (35 deg in its first three directions, 40 and 55 deg in one)."""
     slow = DemSettings(force_tolerance=1e-13, strain_per_substep=1e-9, refined_strain_per_substep=1e-9,
                        max_substeps=10**8)
     dem = DemCell(LAW, R, settings=slow, threads=1)
     alpha0 = np.repeat([35.0, 40.0, 55.0, 70.0], 3)
-    state, d_eps = _sheared(dem, alpha0, alpha0.size)
+    state, d_eps = _sheared(dem, alpha0, alpha0.size, cells=np.array([0, 1, 2, 3, 8]))
     d_eps = _probe(d_eps, slow.strain_per_substep)
     new, response = dem.step(state, d_eps, with_tangent=True)
     sliding, loaded = _sliding_cells(dem, state, new)
