@@ -262,3 +262,25 @@ def test_a_round_that_makes_the_model_worse_is_rejected_and_the_kept_worst_never
     assert not active.candidate_path(model).exists()
     assert printed.strip().splitlines()[-1].startswith(
         f"round rule: 3 round(s) trained, {3 - active.restarts(rounds)} accepted, {active.restarts(rounds)} rejected")
+
+
+def test_rounds_fine_tune_the_kept_model_with_their_samples_at_their_share(tiny, monkeypatch):  # noqa: F811
+    """make reproduce's rounds on the reduced pipeline: each round trains its candidate from the kept
+    model's weights (--warm-start) with the rounds' samples at ``round_share`` of the loss, and the
+    kept worst never rises."""
+    db, model = tiny
+    real, seen = active.train_model, []
+
+    def recorded(db_, model_, config, rounds, **kwargs):
+        seen.append(config)
+        return real(db_, model_, config, rounds, **kwargs)
+
+    monkeypatch.setattr(active, "train_model", recorded)
+    config = dataclasses.replace(TRAIN_CONFIG, round_share=0.3)
+    rounds, cert = active.learn(db, model, config, settings=ActiveSettings(rounds=2, samples_per_round=3000,
+                                                                          stall_rounds=3, widen=False, warm_start=True),
+                                certify_settings=CertificateSettings(**SHORT, target=1e-9))
+    assert [r.round for r in rounds] == [0, 1, 2] and [r.warm_start for r in rounds[1:]] == [True, True]
+    assert [(c.round_share, c.init_from) for c in seen] == [(0.3, str(model))] * 2
+    kept = [active.kept_round(rounds[:k + 1]).worst for k in range(len(rounds))]
+    assert all(b <= a for a, b in zip(kept, kept[1:])) and cert.worst == kept[-1]
