@@ -95,7 +95,7 @@ def test_skipped_combinations_and_worker_count_do_not_change_results(fines_sweep
             *SMALL, "--out", str(out)]
     assert cli(argv) == 0
     assert "3 cases: 3 finished before, 0 to run" in capsys.readouterr().out
-    shutil.rmtree(out / sweep.CASES_DIR / rows_by_case(out)[(FINES[3], "dem")]["case"])
+    shutil.rmtree(out / sweep.CASES_DIR / rows_by_case(out)[("hcell", "analytical")]["case"])
     assert cli(argv) == 0
     assert "3 cases: 2 finished before, 1 to run" in capsys.readouterr().out
     assert (out / sweep.SUMMARY_FILE).read_bytes() == summary
