@@ -74,7 +74,8 @@ def chain_diagnostics(chain: np.ndarray, names: Sequence[str]) -> dict[str, Any]
 
 def steps_needed(diag: dict[str, Any], steps_total: int, burn: float) -> int | None:
     """Total steps (burn-in included) for ``STEPS_PER_TAU`` autocorrelation times of ``diag``'s largest tau,
-    at least ``steps_total``; None where no tau is finite."""
+    at least ``steps_total``; None where no tau is finite. A lower bound: tau estimated on a chain shorter
+    than ``STEPS_PER_TAU`` x tau is biased low, and grows as the chain does."""
     finite = [t for t in diag["tau_steps"].values() if t is not None]
     if not finite:
         return None

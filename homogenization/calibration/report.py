@@ -313,7 +313,9 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
     if auto is not None and "converged" in auto:
         lines.append(f"chains converged: {'yes' if auto['converged'] else 'NO'} ({_number(auto['steps_per_tau'], '.1f')} "
                      f"autocorrelation times retained, {auto['rule_steps_per_tau']:g} needed"
-                     + ("" if auto["converged"] else f"; about --steps {auto['steps_needed']} in all") + ")")
+                     + ("" if auto["converged"] else f"; at least --steps {auto['steps_needed']} in all: tau's estimate "
+                                                         f"grows with the chain, so rerun with it (the chain resumes) and "
+                                                         f"read this line again") + ")")
     if auto is not None:
         lines.append("autocorrelation time [steps] / effective samples: " + ", ".join(
             f"{n} {_number(t, '.1f')} / {_number(auto['effective_samples'][n], '.0f')}"
