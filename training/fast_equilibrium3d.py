@@ -48,7 +48,7 @@ SHIFT = 1e-3
 along its unbalanced force, doubled until it does, as a fraction of kn [-]."""
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _mat3(a, b, out):
     """out (3, 3) = a @ b for (3, 3) arrays, a fixed order of operations (no BLAS)."""
     for r_ in range(3):
@@ -75,7 +75,7 @@ def _scaled_projector(scale, h, out):
 #                    d(slip)/db = I - m m^T - (m r^T + (r.m) I) dm/db
 #   Coulomb cap:     where norm(t) > mu f_n (1 + CAP_SLACK), t = s_c + kt slip:
 #                    f = mu f_n t^,  df/db = (mu f_n / norm(t)) (I - t^ t^^T) dt/db - mu kn t^ u^T
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def pair_force_jacobian(b, ob, s, was_contact, rsum, reach, kn, kt, mu, slack, g, dg, work):
     """Force g (3,) [N] on grain i of one pair of one cell by the spatial contact law and dg = dg/db (3, 3)
     [N/m] (module docstring); b, ob: the new and old branch x_j - x_i (3,) [m]; s: the old spring (3,) [N],
@@ -196,8 +196,8 @@ def residual3(x, shear, old_branch, old_contact, cells, law, residual, fn_max):
 
 @numba.njit(cache=True, error_model="numpy")
 def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, residual, jacobian, fn_max):
-    """Net contact force on the free DOFs ``residual`` (n_free, n) [N], its Jacobian ``jacobian`` (n_free,
-    n_free, n) [N/m] with respect to the free coordinates and the largest normal force ``fn_max`` (n,) [N]
+    """Net contact force on the free DOFs ``residual`` (n_free, n) [N], its Jacobian ``jacobian`` (n, n_free,
+    n_free) [N/m] (cells first: one cell's matrix contiguous) with respect to the free coordinates and the largest normal force ``fn_max`` (n,) [N]
     of the cells flagged ``active`` (n,) bool (the others are left at zero), at the grain centres x
     (n_grains, 3, n) after the increment; shear (n_pairs, 3, n) and old_branch, old_contact: the state
     before it."""
@@ -240,7 +240,7 @@ def residual_jacobian3(x, shear, old_branch, old_contact, cells, law, active, re
                     col = slots[q_]
                     if col >= 0:
                         # g acts on i (+) and j (-); b = x_j - x_i, so db/dx_j = I, db/dx_i = -I
-                        jacobian[k, col, c] += signs[r_] * (-signs[q_]) * dg[r_ % 3, q_ % 3]
+                        jacobian[c, k, col] += signs[r_] * (-signs[q_]) * dg[r_ % 3, q_ % 3]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -287,7 +287,7 @@ def _work(force, step):
 @numba.njit(cache=True, error_model="numpy")
 def _newton_direction(jacobian, residual, c, kn, shift, a_c, a_w, rhs, delta):
     """Newton step ``delta`` (n_free,) [m] of cell c from its residual (n_free, n) [N] and Jacobian
-    (n_free, n_free, n) [N/m], its matrix shifted by shift kn, doubled, until the step does positive
+    (n, n_free, n_free) [N/m], its matrix shifted by shift kn, doubled, until the step does positive
     work along the residual (module docstring); ``a_c``, ``a_w``, ``rhs``: work arrays. Returns the
     sum of squared residuals [N^2] and whether the matrix was shifted."""
     n_free = rhs.shape[0]
@@ -296,7 +296,7 @@ def _newton_direction(jacobian, residual, c, kn, shift, a_c, a_w, rhs, delta):
         rhs[k] = residual[k, c]
         total += residual[k, c] * residual[k, c]
         for e in range(n_free):
-            a_c[k, e] = -jacobian[k, e, c]
+            a_c[k, e] = -jacobian[c, k, e]
         a_c[k, k] += REGULARISATION * kn
     for k in range(n_free):
         for e in range(n_free):
@@ -406,7 +406,7 @@ def newton3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, t
     position = np.empty((n_free, n))
     x = np.empty((frac.shape[0], 3, n))
     residual = np.empty((n_free, n))
-    jacobian = np.empty((n_free, n_free, n))
+    jacobian = np.empty((n, n_free, n_free))
     fn_max = np.empty(n)
     trial_residual = np.empty((n_free, n))
     trial_fn_max = np.empty(n)
