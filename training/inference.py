@@ -212,8 +212,7 @@ class FastAdvance:
             ``training.fast_equilibrium3d.HALVINGS``).
         shift: the first shift of a climbing step's matrix, a fraction of kn (0: none; None:
             ``training.fast_equilibrium3d.SHIFT``).
-        compact: take the corrections in ``COMPACT_ROUNDS``, each on the cells still above the
-            tolerance only (the same bits as one pass over all cells, which False takes)."""
+        compact: corrections in ``COMPACT_ROUNDS`` on the cells still above tolerance (same bits as False)."""
 
     GUESSES = ("network", "still", "affine")
 
@@ -343,10 +342,12 @@ class FastAdvance:
         return self.increment(cell_size, free_position, shear_force, d_eps)[0]
 
     def increment(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
-                  d_eps: np.ndarray, with_tangent: bool = False) -> tuple[FastIncrement, np.ndarray | None]:
+                  d_eps: np.ndarray, with_tangent: bool = False, held: np.ndarray | None = None
+                  ) -> tuple[FastIncrement, np.ndarray | None]:
         """``__call__``, and with ``with_tangent`` also the consistent tangent d(S_nn, S_tt)/d(eps_n, eps_t)
         [N m], (n, 2, 2), by forward-mode differentiation of the same increment (``training.fast_tangent``;
-        planar cells only: ValueError for a spatial one)."""
+        planar cells only: ValueError for a spatial one). ``held``: bool (n, n_free), free DOFs whose first
+        guess of the corrections is no motion (with corrections only)."""
         dim = self.dim
         if with_tangent and self._tangent is None:
             raise ValueError("the compiled tangent is planar; take the tangent of a spatial cell from torch autograd")
@@ -358,6 +359,8 @@ class FastAdvance:
             raise ValueError(f"state shapes {cell_size.shape}, {free_position.shape}, {shear_force.shape} and d_eps "
                              f"{d_eps.shape}: expected (n, {dim}), (n, {n_free}), (n, {', '.join(map(str, springs))}),"
                              f" (n, {dim})")
+        if held is not None and not self.corrections:
+            raise ValueError("held: a first guess of the corrections, and this FastAdvance takes none")
         work = self._workspace(n)
         self._features(size, free, shear, d_eps, self.cells, self.law, self.scaling, work.before)
         out = self.perceptron.forward(work.before.feats, work.layers)
@@ -374,6 +377,8 @@ class FastAdvance:
             ratios, steps = np.empty((2, n)), np.empty(n, dtype=np.int64)
             shortened, shifted = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
             self._hold(size, free, d_eps, d_free, self.cells, self.law, work.before)
+            if held is not None:
+                d_free[np.asarray(held, dtype=bool).T] = 0.0
             self._corrected(size, free, shear, d_eps, d_free, work.before, ratios, steps, shortened, shifted)
             self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, result)
             self._local.corrections = Corrections(ratios, steps, shortened, shifted)

@@ -343,12 +343,22 @@ class AnnCell(ArrayStateMixin):
 
     def _escalated(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState,
                    response: CellResponse) -> tuple[AnnState, CellResponse]:
-        """``new`` and ``response`` with the DEM's increment in the cells a released grain leaves to it
-        (``DemEscalation.escalated``; hybrids with ``dem_escalation`` only), counted in ``n_escalated``.
-        The tangent of such a cell stays the hybrid's (stress control's search direction only)."""
+        """``new`` and ``response`` where a grain is released (``DemEscalation.released``; hybrids with
+        ``dem_escalation`` only, counted in ``n_released``): on CPU the increment again from rest for that grain
+        (``_held_at_rest``), on another device the DEM's increment, as with ``sliding`` the sliding cells
+        (counted in ``n_escalated``). The tangent of such a cell stays the hybrid's (stress control's search
+        direction only)."""
         if self.escalation is None:
             return new, response
-        escalated = self.escalation.escalated(new.cell_size, state.free_position, new.free_position, new.shear_force)
+        released = self.escalation.released_dofs(new.cell_size, state.free_position, new.free_position)
+        escalated = released.any(axis=1)
+        response.diagnostics["n_released"] = float(np.count_nonzero(escalated))
+        response.diagnostics["n_released_pushed"] = 0.0
+        if escalated.any() and self.fast is not None:
+            new, response = self._held_at_rest(state, d_eps_local, new, response, np.flatnonzero(escalated), released)
+            escalated = np.zeros_like(escalated)
+        if self.escalation.with_sliding:
+            escalated |= self.escalation.sliding(new.cell_size, new.free_position, new.shear_force)
         response.diagnostics["n_escalated"] = float(np.count_nonzero(escalated))
         if not escalated.any():
             return new, response
@@ -360,6 +370,26 @@ class AnnCell(ArrayStateMixin):
         for whole, part in zip(arrays, (size, free, shear, moment, area)):
             whole[index] = part
         return AnnState(*arrays[:3]), CellResponse(arrays[3], arrays[4], response.diagnostics, response.tangent)
+
+    def _held_at_rest(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState, response: CellResponse,
+                      index: np.ndarray, released: np.ndarray) -> tuple[AnnState, CellResponse]:
+        """``new`` and ``response`` with the increment of the cells ``index`` taken again, the DOFs of their
+        released grains (``released`` (n, n_free) bool) starting the corrections at rest
+        (``FastAdvance.increment(held=...)``): a grain that nothing pushes stays where it was, one that a
+        neighbour pushes moves as far as the balance needs. Counts ``n_released_pushed`` (cells with a
+        released grain again after it) and adds those corrections to ``n_corrections``."""
+        d = np.asarray(d_eps_local, dtype=np.float64)[index]
+        before = tuple(np.asarray(a)[index] for a in state)
+        inc, _ = self.fast.increment(*before, d, False, held=released[index])
+        diagnostics = response.diagnostics
+        diagnostics["n_released_pushed"] = float(np.count_nonzero(
+            self.escalation.released(inc.cell_size, before[1], inc.free_position)))
+        if "n_corrections" in diagnostics:
+            diagnostics["n_corrections"] += float(self.fast.last_corrections().steps.sum())
+        arrays = [np.array(a) for a in (*new, response.moment, response.area)]
+        for whole, part in zip(arrays, (inc.cell_size, inc.free_position, inc.shear_force, inc.moment, inc.area)):
+            whole[index] = part
+        return AnnState(*arrays[:3]), CellResponse(arrays[3], arrays[4], diagnostics, response.tangent)
 
     def _advance(self, size, free, shear, d_eps):
         """The torch increment (``MesoNet.advance``, or ``training.equilibrium.corrected_advance`` with

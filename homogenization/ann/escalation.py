@@ -12,9 +12,11 @@ overshoots or turns that motion (a fine grain pushed off a lateral sphere, then 
 difference accumulates over the increments and decides when the grain engages or leaves its wedge,
 which the homogenised stress shows as a drop at another strain (docs/ann.md, "Released grains").
 
-``DemEscalation.released`` finds those cell-increments; ``DemEscalation.advance`` replaces them by the
-DEM's increment from the cell's learning state at rest, the very map the database samples
-(``warp_hcell.database.probing.step_from_rest``). The ANN backend counts them in ``n_escalated``.
+``DemEscalation.released`` finds those cell-increments (``n_released``); on CPU the hybrid takes them again
+with the released grain starting the corrections at rest (``AnnCell._held_at_rest``): a grain nothing pushes
+stays, as in the DEM, one a neighbour pushes moves as far as the balance needs. ``DemEscalation.advance``,
+the DEM's increment from the cell's learning state at rest (``warp_hcell.database.probing.step_from_rest``),
+replaces them on other devices and serves the sliding cells; the ANN backend counts it in ``n_escalated``.
 
 A grain free along every axis that slides on a contact can also end anywhere along a direction its
 contacts leave free, each point an equilibrium of the one-increment contact law, and the corrections
@@ -43,16 +45,20 @@ if TYPE_CHECKING:
     from warp_hcell.dem.model import DemModel
 
 
-RELEASE_RULE = "a free grain moved and no pair presses it above the equilibrium tolerance"
-"""What ``DemEscalation.released`` hands to the DEM, in words; a certificate of a hybrid with the escalation records
-it (``dem_escalation_rule``), and a certificate of another rule does not cover this one."""
+RELEASE_RULE = ("a free grain moved and no pair presses it above the equilibrium tolerance: the corrections start "
+                "again with that grain at rest")
+"""What the hybrid does with ``DemEscalation.released`` cells, in words (``homogenization.ann.cell.AnnCell``); a
+certificate of a hybrid with the escalation records it (``dem_escalation_rule``), and a certificate of another rule
+(e.g. the DEM's increment from rest for those cells) does not cover this one."""
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _released(size, before, after, reference_position, reference_size, free_dofs, pairs, rsum, cut2, kn, ratio, out):
+def _released(size, before, after, reference_position, reference_size, free_dofs, pairs, rsum, cut2, kn, ratio, out,
+              dofs):
     """``DemEscalation.released`` of cells last: size (dim, n) [m], before and after (n_free, n) [m]; the
     schema's reference_position (n_grains, dim) and reference_size (dim,) [m], free_dofs (n_free, 2) and
-    pairs (n_pairs, 2) int64, rsum and cut2 (n_pairs,) [m, m^2]; kn [N/m]; ratio [-]. Writes out (n,) bool."""
+    pairs (n_pairs, 2) int64, rsum and cut2 (n_pairs,) [m, m^2]; kn [N/m]; ratio [-]. Writes out (n,) bool
+    and dofs (n_free, n) bool, the free DOFs of the released grains."""
     n = size.shape[1]
     n_grains, dim = reference_position.shape
     x = np.empty((n_grains, dim, n))
@@ -91,6 +97,10 @@ def _released(size, before, after, reference_position, reference_size, free_dofs
     for g in range(n_grains):
         for c in range(n):
             out[c] |= moved[g, c] and not pressed[g, c]
+    for k in range(free_dofs.shape[0]):
+        g = free_dofs[k, 0]
+        for c in range(n):
+            dofs[k, c] = moved[g, c] and not pressed[g, c]
 
 
 class DemEscalation:
@@ -154,13 +164,17 @@ class DemEscalation:
         ends in touch with such a force, which the corrections cannot tell from none); cell_size (n, dim)
         [m] and free_after (n, n_free) [m]: the state after the increment, free_before: before it. Compiled
         (``_released``): the operations of ``learning_state.pair_normal_forces``, cells innermost."""
-        schema = self.schema
+        return self.released_dofs(cell_size, free_before, free_after).any(axis=1)
+
+    def released_dofs(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray) -> np.ndarray:
+        """bool (n, n_free): the free DOFs of the grains that ``released`` finds (same arguments)."""
         cells_last = lambda a: np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)  # noqa: E731
-        out = np.empty(np.shape(cell_size)[0], dtype=np.bool_)
+        n = np.shape(cell_size)[0]
+        out, dofs = np.empty(n, dtype=np.bool_), np.empty((self._free_dofs.shape[0], n), dtype=np.bool_)
         _released(cells_last(cell_size), cells_last(free_before), cells_last(free_after), self._reference_position,
                   self._reference_size, self._free_dofs, self._pairs, self._rsum, self._cut2,
-                  float(self.contact_law.kn), self.force_ratio, out)
-        return out
+                  float(self.contact_law.kn), self.force_ratio, out, dofs)
+        return dofs.T
 
     def _batch(self, n: int) -> tuple[ProbeContext, DemModel]:
         """The probe context and the DEM model of batches of ``n`` cells (built once)."""
