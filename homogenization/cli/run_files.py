@@ -247,8 +247,8 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
     (``diagnostics["n_unconverged"]``) and those with contacts outside the closed form
     (``diagnostics["n_cross_plane"]``), where there are any, the ANN's equilibrium corrections
     (``n_corrections`` Newton steps, ``n_shortened`` of them shortened by the line search and
-    ``n_shifted`` shifted, in ``n_corrected`` cell-increments) where it took them, the cell-increments it
-    handed to the DEM (``n_escalated``, ``homogenization.ann.escalation``) where it may, then
+    ``n_shifted`` shifted, in ``n_corrected`` cell-increments) where it took them, the cell-increments with a
+    released grain (``n_released``) and those handed to the DEM (``n_escalated``) where it may, then
     ``note`` (the backend's own).
 
     Raises:
@@ -271,9 +271,12 @@ def write_backend_run(work: Path, out: Path, name: str, record: Record, paramete
                    + (f" ({int(np.nansum(shortened))} shortened by the line search, {int(np.nansum(shifted))} shifted)"
                       if shortened is not None and shifted is not None else "")
                    + f" in {int(np.nansum(corrected))} cell-increments")
+    released = record.diagnostics.get("n_released")
+    if released is not None:
+        counts += f", {int(np.nansum(released))} cell-increments with a released grain taken again from rest"
     escalated = record.diagnostics.get("n_escalated")
-    if escalated is not None:
-        counts += f", {int(np.nansum(escalated))} cell-increments handed to the DEM (a released grain)"
+    if escalated is not None and np.nansum(escalated):
+        counts += f", {int(np.nansum(escalated))} cell-increments handed to the DEM"
     return f"{name}: {record.n_increments} increments in {elapsed:.1f} s{counts}{note} -> {final / io.RUN_FILE}, {final / io.CURVE_FILE}"
 
 
