@@ -167,6 +167,16 @@ def main() -> int:
     parser.add_argument("extra", nargs="*", help="more flags of hmodel calibrate (after --)")
     args = parser.parse_args()
     verdicts = []
+
+    def write() -> None:
+        args.results.parent.mkdir(parents=True, exist_ok=True)
+        args.results.write_text(json.dumps({
+            "what": "known-truth check of hmodel calibrate (benchmarks/bench_calibrate_truths.py)",
+            "command": "hmodel calibrate --data undrained.csv --data drained.csv --backend analytical --params "
+                       "phi_g,alpha0 " + " ".join(args.extra), "code": str(args.code or "this checkout"), "tests": TESTS,
+            "eps_max": EPS_MAX, "points": N_POINTS, "noise": NOISE, "source_settings": SOURCE, "verdicts": verdicts},
+            indent=2, default=str) + "\n")
+
     for i in (int(k) for k in args.truths.split(",")):
         truth = TRUTHS[i]
         print(f"truth {i}: phi_g {truth['phi_g']:g}, alpha0 {truth['alpha0']:g} deg, data by the {truth['source']} "
@@ -175,16 +185,10 @@ def main() -> int:
         paths = make_data(truth, args.out / f"truth_{i}" / "data")
         print(f"  data made in {time.perf_counter() - started:.0f} s", flush=True)
         verdicts.append(report(truth, calibrate(paths, args.out / f"truth_{i}" / "calibration", args.code, args.extra)))
+        write()  # after every truth: a run stopped early keeps the truths done
     passed = sum(v["passed"] for v in verdicts)
     print(f"{passed} of {len(verdicts)} truths recovered (inside the 95 % interval, within tolerance, within "
           f"{BUDGET_S:.0f} s); 2-core machine shared with other jobs: read wall times with the load average")
-    args.results.parent.mkdir(parents=True, exist_ok=True)
-    args.results.write_text(json.dumps({
-        "what": "known-truth check of hmodel calibrate (benchmarks/bench_calibrate_truths.py)",
-        "command": "hmodel calibrate --data undrained.csv --data drained.csv --backend analytical --params phi_g,alpha0 "
-                   + " ".join(args.extra), "code": str(args.code or "this checkout"), "tests": TESTS,
-        "eps_max": EPS_MAX, "points": N_POINTS, "noise": NOISE, "source_settings": SOURCE, "verdicts": verdicts},
-        indent=2, default=str) + "\n")
     print(f"written to {args.results}")
     return 0 if passed == len(verdicts) else 1
 
