@@ -1,0 +1,202 @@
+"""python benchmarks/bench_finegrain_hybrid.py --model M.pt [--mesostructure CELL] [--order 53 --spins 16] [--tests undrained drained] [--repeats 1]: the certified hybrid of a 3D cell with a fine grain against the DEM.
+
+For each test (triaxial compression at ``--p0`` to ``--eps-max`` at ``--increment``, isotropic stage at
+half the increment, the cells of Lebedev order ``--order`` with ``--spins`` spins: 53 x 16 = 7792
+cells, ``hmodel triaxial``'s default) the DEM (one thread) and the ANN model's hybrid (the
+certificate's K, R and DEM escalation, as ``hmodel triaxial --backend ann --model M.pt`` runs it) run
+in one process, interleaved (DEM, ANN, DEM, ANN, ... ``--repeats`` times each), after a short run of
+each that compiles their kernels. Prints per run its wall time, and per test the ratio ANN / DEM of the
+medians beside the accuracy (largest difference of sigma11, sigma22, sigma33, p and q over the shear
+stage, increment by increment, over the path's scale max(p0, largest DEM p)) and the hybrid's counts:
+Newton corrections per increment (every step call, trial calls included), cells corrected per
+increment, cell-increments with a released grain (taken again from rest; of them those whose grain a
+neighbour pushed), escalated to the DEM, left unconverged, and the ANN's step wall time split into phases
+(features, network, rest rule, corrections, contact law after them, release test, the released cells
+again, the DEM's increments, the rest of ``AnnCell.step``, outside it) [s]. The load average is
+printed before and after. JSON lines with ``--json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import os
+import statistics
+import time
+import warnings
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+FINE = ROOT / "benchmarks" / "cells" / "fine_off_centre.toml"
+COMPARED = ("sigma11", "sigma22", "sigma33", "p", "q")
+
+
+def difference(record, reference, p0: float) -> tuple[float, float]:
+    """(largest difference of the shear stage's ``COMPARED`` curves [Pa], the path's scale [Pa]), increment by
+    increment from the start of each record's shear stage."""
+    def shear(r):
+        return np.flatnonzero(r.stage == r.stage[-1])
+
+    mine, theirs = shear(record), shear(reference)
+    n = min(mine.size, theirs.size)
+    worst = max(float(np.abs(getattr(record, c)[mine[:n]] - getattr(reference, c)[theirs[:n]]).max()) for c in COMPARED)
+    return worst, max(p0, float(np.abs(reference.p).max()))
+
+
+def total(record, key: str) -> float:
+    """Sum over the increments of a diagnostic (NaN where absent)."""
+    values = record.diagnostics.get(key)
+    return float(np.nansum(values)) if values is not None else float("nan")
+
+
+class PhaseTimer:
+    """Wall seconds spent in named callables of one ANN cell model (wrapped in place), each phase's own: the
+    time of a wrapped callable inside another counts for the inner one only."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = defaultdict(float)
+        self._inner: list[float] = []
+
+    def wrap(self, owner, attribute: str, phase: str) -> None:
+        inner = getattr(owner, attribute)
+
+        @functools.wraps(inner)
+        def timed(*args, **kwargs):
+            self._inner.append(0.0)
+            start = time.perf_counter()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                elapsed = time.perf_counter() - start
+                self.seconds[phase] += elapsed - self._inner.pop()
+                if self._inner:
+                    self._inner[-1] += elapsed
+
+        setattr(owner, attribute, timed)
+
+    def reset(self) -> None:
+        self.seconds.clear()
+
+
+def ann_model(path: str, timer: PhaseTimer | None, corrections: int | None = None, tolerance: float | None = None):
+    """The hybrid of ``path`` as ``hmodel triaxial`` builds it (K and R: the certificate's, or those given), with its
+    phases timed by ``timer``."""
+    from homogenization.backends import make_cell_model
+
+    model = make_cell_model("ann", dim=3, model=path, threads=1, equilibrium_corrections=corrections,
+                            equilibrium_tolerance=tolerance)
+    if timer is not None:
+        fast = model.fast
+        for attribute, phase in (("_features", "features"), ("_hold", "rest rule"), ("_newton", "corrections"),
+                                 ("_physics", "contact law"), ("_advance", "contact law")):
+            if getattr(fast, attribute, None) is not None:
+                timer.wrap(fast, attribute, phase)
+        timer.wrap(fast.perceptron, "forward", "network")
+        if model.escalation is not None:
+            timer.wrap(model.escalation, "released_dofs", "release test")
+            timer.wrap(model.escalation, "advance", "DEM escalation")
+            timer.wrap(model, "_held_at_rest", "released again from rest")
+        timer.wrap(model, "step", "step")
+    return model
+
+
+def run(model, meso, args, eps_max: float, test: str):
+    """(record, wall seconds) of one triaxial test."""
+    from homogenization.element_test import driver, programme as programmes
+
+    programme = programmes.triaxial(args.p0, eps_max, args.increment, test=test, iso_increment=0.5 * args.increment)
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        record = driver.run(model, programme, mesostructure=meso, lebedev_order=args.order, n_spins=args.spins,
+                            progress=False)
+    return record, time.perf_counter() - start
+
+
+def main(argv=None) -> int:
+    from warp_hcell.core.cli import Parser, positive_float, positive_int
+
+    parser = Parser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", required=True, help="a 3D meso-ANN model (.pt) of the cell, certified as the hybrid")
+    parser.add_argument("--mesostructure", default=str(FINE), help="the cell (a file or a builder spec)")
+    parser.add_argument("--p0", type=positive_float, default=2e5, help="isotropic pressure [Pa]")
+    parser.add_argument("--eps-max", type=positive_float, default=0.05, help="axial strain of the shear stage [-]")
+    parser.add_argument("--increment", type=positive_float, default=1e-4, help="shear increment [-]")
+    parser.add_argument("--order", type=positive_int, default=53, help="Lebedev order of the cell axes")
+    parser.add_argument("--spins", type=positive_int, default=16, help="spins per axis")
+    parser.add_argument("--tests", nargs="+", choices=("undrained", "drained"), default=["undrained"])
+    parser.add_argument("--repeats", type=positive_int, default=1, help="runs of each backend per test, interleaved")
+    parser.add_argument("--equilibrium-corrections", type=int, default=None,
+                        help="K of the hybrid (None: the certificate's; a model being certified: 20 for a fine grain)")
+    parser.add_argument("--equilibrium-tolerance", type=positive_float, default=None, help="R of the hybrid (None: the certificate's)")
+    parser.add_argument("--json", default=None, help="append one JSON line per test to this file")
+    args = parser.parse_args(argv)
+    if not Path(args.model).is_file():
+        parser.error(f"--model {args.model}: no such file")
+
+    from homogenization.backends import make_cell_model
+    from homogenization.material.orientation import orientations_3d
+    from warp_hcell.mesostructures.builders import mesostructure_arg
+
+    meso = mesostructure_arg(args.mesostructure).build(None)
+    cells = orientations_3d(args.order, args.spins).weights.size
+    timer = PhaseTimer()
+    dem, ann = make_cell_model("dem", dim=3, threads=1), ann_model(args.model, timer, args.equilibrium_corrections,
+                                                                    args.equilibrium_tolerance)
+    print(f"{args.mesostructure}; model {args.model} (K = {ann.equilibrium_corrections}, R = {ann.force_tolerance:g}, "
+          f"DEM escalation {'on' if ann.escalation is not None else 'off'}; {ann.certificate_problem or 'certified'}); "
+          f"rule {args.order} x {args.spins}; load average {os.getloadavg()}", flush=True)
+    compile_args = argparse.Namespace(**{**vars(args), "order": 3, "spins": 1})
+    for model in (dem, ann):
+        run(model, meso, compile_args, 10 * args.increment, args.tests[0])
+    for test in args.tests:
+        walls: dict[str, list[float]] = {"dem": [], "ann": []}
+        records = {}
+        phases: list[dict[str, float]] = []
+        for _ in range(args.repeats):
+            for name, model in (("dem", dem), ("ann", ann)):
+                timer.reset()
+                records[name], wall = run(model, meso, args, args.eps_max, test)
+                walls[name].append(wall)
+                if name == "ann":
+                    phases.append(dict(timer.seconds))
+                print(f"  {test} {name}: {wall:.1f} s ({records[name].n_increments} increments; load "
+                      f"{os.getloadavg()[0]:.2f})", flush=True)
+        worst, scale = difference(records["ann"], records["dem"], args.p0)
+        dem_s, ann_s = statistics.median(walls["dem"]), statistics.median(walls["ann"])
+        record = records["ann"]
+        n = record.n_increments
+        counts = {"corrections_per_increment": total(record, "n_corrections_all_calls") / n,
+                  "corrected_per_increment": total(record, "n_corrected_all_calls") / n,
+                  "released": total(record, "n_released_all_calls"),
+                  "released_pushed": total(record, "n_released_pushed_all_calls"),
+                  "escalated": total(record, "n_escalated_all_calls"),
+                  "unconverged": total(record, "n_unconverged_all_calls"),
+                  "step_calls": float(record.newton_iterations.sum())}
+        phase = phases[-1]
+        phase["outside step"] = walls["ann"][-1] - sum(phase.values())
+        phase["rest of step"] = phase.pop("step", float("nan"))
+        print(f"{test}: DEM {dem_s:.1f} s, ANN {ann_s:.1f} s, ANN / DEM = {ann_s / dem_s:.3f}; max |diff| / scale = "
+              f"{worst / scale:.2e} (scale {scale:.3g} Pa); {cells} cells, "
+              f"{n} increments, {counts['step_calls']:.0f} step calls; Newton corrections per increment "
+              f"{counts['corrections_per_increment']:.0f}, cells corrected per increment "
+              f"{counts['corrected_per_increment']:.0f}; cell-increments released {counts['released']:.0f} (taken again "
+              f"from rest; of them pushed {counts['released_pushed']:.0f}), escalated to the DEM "
+              f"{counts['escalated']:.0f}, unconverged {counts['unconverged']:.0f}", flush=True)
+        print("  ANN phases [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in phase.items()), flush=True)
+        if args.json:
+            with open(args.json, "a", encoding="utf-8") as out:
+                out.write(json.dumps({"test": test, "model": args.model, "mesostructure": args.mesostructure,
+                                      "rule": [args.order, args.spins], "eps_max": args.eps_max, "dem_s": walls["dem"],
+                                      "ann_s": walls["ann"], "ratio": ann_s / dem_s, "diff_scale": worst / scale,
+                                      **counts, "phases_s": phase, "load_average": os.getloadavg()}) + "\n")
+    print(f"load average after: {os.getloadavg()}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
