@@ -97,8 +97,7 @@ def run(
             (``orientation.orientations_3d``; spin_period_deg None: the cell's own).
         snapshot_interval: per-cell observables every this many increments (0: at stage ends).
         stress_rtol, max_newton_iterations: stress control's tolerance [-] and step calls per increment.
-        progress: ``progress(plan)`` -> a context giving each stage's per-increment callback (the commands pass
-            ``homogenization.cli.progress.stage_bars``); None or False: no progress reported.
+        progress: per-stage progress callbacks (``stages.StageProgress``); None or False: none.
         before_stage: step index -> action on the material point before that step (e.g. erosion).
         critical_state: renewal rule of the cells (``material.critical_state``; None: the plain H-model);
             diagnostics ``critical_state_renewals``, ``_rate_capped``, ``_angle_clipped``, ``_merged`` count its
