@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import functools
 import shutil
-from itertools import combinations
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +19,7 @@ import pytest
 
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.builders import resolve_mesostructure
-from yade_cases import read_case, yade_script
+from yade_cases import PAIRS, linear_normal_forces, read_case, yade_script
 
 HERE = Path(__file__).resolve().parent
 DATA_DIR = HERE / "data" / "yade3d"
@@ -32,19 +31,12 @@ POSITION_TOL = 1e-6
 
 MAKE_REFERENCE = yade_script("make_reference3d")
 CASE_NAMES = tuple(MAKE_REFERENCE.CASES)
-PAIRS = list(combinations(range(10), 2))
 
 
 @functools.lru_cache(maxsize=None)
 def _case(name: str) -> tuple[dict, np.ndarray, np.ndarray]:
     return read_case(DATA_DIR, name)
 
-
-def _normal_forces(position: np.ndarray, radius: float = 0.5, kn: float = 2e8) -> np.ndarray:
-    """kn <2 r - |x_j - x_i|> of every pair (rows, 45) from centres (rows, 10, 3)."""
-    i, j = np.array(PAIRS).T
-    gap = np.linalg.norm(position[:, j] - position[:, i], axis=-1) - 2.0 * radius
-    return kn * np.maximum(-gap, 0.0)
 
 
 @pytest.mark.parametrize("name", CASE_NAMES)
@@ -74,7 +66,7 @@ def test_backend_matches_yade_along_the_path(name, backend):
     positions = np.array(positions)
     scale = yade_fn.max()
     assert scale > 1e5
-    assert np.abs(_normal_forces(positions) - yade_fn).max() <= FORCE_RTOL * scale
+    assert np.abs(linear_normal_forces(positions) - yade_fn).max() <= FORCE_RTOL * scale
     loaded = yade_fn.max(axis=1) > 0.0
     assert loaded.mean() > 0.9
     assert np.abs(positions[loaded] - yade_x[loaded]).max() <= POSITION_TOL

@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import shutil
-from itertools import combinations
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +27,7 @@ import pytest
 from homogenization.backends import make_cell_model
 from homogenization.material.orientation import axisymmetric_map, localise, orientations_3d
 from warp_hcell.mesostructures.builders import resolve_mesostructure
-from yade_cases import read_case, yade_script
+from yade_cases import PAIRS, linear_normal_forces, read_case, yade_script
 
 HERE = Path(__file__).resolve().parent
 DATA_DIR = HERE / "data" / "yade3d_sand"
@@ -43,7 +42,6 @@ POSITION_TOL = 1e-6
 
 MAKE_REFERENCE = yade_script("make_reference3d_sand")
 CASE_NAMES = tuple(MAKE_REFERENCE.CASES)
-PAIRS = list(combinations(range(10), 2))
 CROSS = np.array([(i in (1, 2, 4, 5)) and (j in (6, 7, 8, 9)) for i, j in PAIRS])
 """Pairs of a lateral grain of plane A (2, 3, 5, 6) and one of plane B (7-10)."""
 MOMENT = ("S_nn", "S_t1t1", "S_t2t2")
@@ -53,12 +51,6 @@ MOMENT = ("S_nn", "S_t1t1", "S_t2t2")
 def _case(name: str) -> tuple[dict, np.ndarray, np.ndarray]:
     return read_case(DATA_DIR, name)
 
-
-def _normal_forces(position: np.ndarray, radius: float = 0.5, kn: float = 2e8) -> np.ndarray:
-    """kn <2 r - |x_j - x_i|> of every pair (rows, 45) from centres (rows, 10, 3)."""
-    i, j = np.array(PAIRS).T
-    gap = np.linalg.norm(position[:, j] - position[:, i], axis=-1) - 2.0 * radius
-    return kn * np.maximum(-gap, 0.0)
 
 
 def _yade(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -141,7 +133,7 @@ def test_backend_matches_yade_along_the_path(name, backend):
     yade_fn, yade_x, yade_moment = _yade(name)
     positions, moments, cross = _drive(backend, name, path)
     meet = _planes_meet(name)
-    forces = _normal_forces(positions)
+    forces = linear_normal_forces(positions)
     if MAKE_REFERENCE.CASES[name].apart:  # the overlaps between the planes carry no force in that cell
         forces[:, CROSS] = 0.0
     spans = [slice(0, meet)] + ([slice(0, len(path))] if backend == "dem" else [])
@@ -194,7 +186,7 @@ def test_the_references_tell_the_gain():
     path[10:] = MAKE_REFERENCE.amplified(case.macro_step(), 1.0)
     yade_fn = _yade(name)[0]
     positions = _drive("dem", name, path)[0]
-    assert np.abs(_normal_forces(positions) - yade_fn).max() > 10.0 * FORCE_RTOL * yade_fn.max()
+    assert np.abs(linear_normal_forces(positions) - yade_fn).max() > 10.0 * FORCE_RTOL * yade_fn.max()
 
 
 @pytest.mark.yade

@@ -7,11 +7,21 @@ from __future__ import annotations
 import importlib.util
 import json
 import sys
+from itertools import combinations
 from pathlib import Path
 
 import numpy as np
 
 YADE_SCRIPTS = Path(__file__).resolve().parent / "yade"
+PAIRS = list(combinations(range(10), 2))
+"""The ten-sphere cell's 45 grain pairs (i < j), in the order of the references' fn_I_J columns."""
+
+
+def linear_normal_forces(position: np.ndarray, radius: float = 0.5, kn: float = 2e8) -> np.ndarray:
+    """kn <2 r - |x_j - x_i|> of every pair of PAIRS (rows, 45) [N] from centres (rows, 10, 3) [m]."""
+    i, j = np.array(PAIRS).T
+    gap = np.linalg.norm(position[:, j] - position[:, i], axis=-1) - 2.0 * radius
+    return kn * np.maximum(-gap, 0.0)
 
 
 def yade_script(name: str):
