@@ -1,7 +1,7 @@
 """Compacted equilibrium corrections (``FastAdvance(compact=True)``, ``training.fast_equilibrium3d.newton3d``).
 
-Oracle: the same corrections in one pass over every cell (``compact=False``, the kernel ``correct3d`` as it
-was: every cell a lane until the last one stops). The compacted rounds continue each cell that is still above
+Oracle: the same corrections in one pass over every cell (``compact=False``: every cell a lane until the last
+one stops, as the corrections ran before the rounds). The compacted rounds continue each cell that is still above
 the tolerance from where it stopped, so every output, counts included, must be bit-identical.
 """
 

@@ -1,9 +1,9 @@
 """Exact equilibrium corrections of the meso-ANN's step of spatial cells, compiled (numba, float64).
 
-The network's free-DOF displacement is a first guess; ``correct3d`` then takes up to a fixed
-number of Newton steps on the balance of the free DOFs, with the residual and its Jacobian from
-the exact spatial contact law of the increment (``training.fast_step3d.contact_pass3``; the
-derivatives are written above ``pair_force_jacobian``):
+The network's free-DOF displacement is a first guess (the DEM's rest rule applied by ``hold_guess3d``);
+``newton3d`` then takes up to a fixed number of Newton steps on the balance of the free DOFs, with
+the residual and its Jacobian from the exact spatial contact law of the increment
+(``training.fast_step3d.contact_pass3``; the derivatives are written above ``pair_force_jacobian``):
 
     R(d) = net contact force on every free DOF  [N],  J = dR/dd  [N/m]  (n_free x n_free).
 
@@ -353,31 +353,9 @@ def _line_search(free, d_free, step_d, alpha, pending, full, merit, halvings, ne
 
 
 @numba.njit(cache=True, error_model="numpy")
-def correct3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, halvings, shift, ratios,
-              corrections, shortened, shifted):
-    """Newton corrections of the free-DOF displacement ``d_free`` (n_free, n) [m], in place (module docstring).
-
-    The DEM's rest rule (``hold_guess3d``) is applied to the first guess first, then ``newton3d``.
-
-    Args:
-        size (3, n), free (n_free, n), shear (n_pairs, 3, n), d_eps (n, 3): the state and probe;
-        before: ``training.fast_cells.Before`` of the state (``fast_step3d.features3d``);
-        iterations: the most Newton steps per cell (>= 0); tolerance: force ratio [-] below which
-            a cell is not corrected; halvings: the most halvings of a step (>= 0, 0: full steps);
-            shift: the first shift of a climbing step's matrix, a fraction of kn (>= 0, 0: never).
-
-    Writes ratios (2, n): the force ratio at the first guess and after the last step (0 without
-    normal force or below the ramp); corrections, shortened, shifted (n,) int64: Newton steps
-    taken, of them those at alpha < 1 and those with a shifted matrix."""
-    hold_guess3d(size, free, d_eps, d_free, cells, law, before)
-    newton3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, halvings, shift, ratios,
-             corrections, shortened, shifted)
-
-
-@numba.njit(cache=True, error_model="numpy")
 def hold_guess3d(size, free, d_eps, d_free, cells, law, before):
     """The DEM's rest rule (``fast_increment.hold_at_rest``) on the first guess ``d_free`` (n_free, n) [m], in
-    place: the free DOFs of the grains it holds get zero displacement (arguments: ``correct3d``)."""
+    place: the free DOFs of the grains it holds get zero displacement (arguments: ``newton3d``)."""
     n = size.shape[1]
     n_free = cells.free_dofs.shape[0]
     held_dof = np.empty((n_free, n), dtype=np.bool_)
@@ -392,9 +370,20 @@ def hold_guess3d(size, free, d_eps, d_free, cells, law, before):
 @numba.njit(cache=True, error_model="numpy")
 def newton3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, halvings, shift, ratios,
              corrections, shortened, shifted):
-    """The Newton steps of ``correct3d`` from the guess ``d_free`` as it is (no rest rule; same arguments and
-    outputs). Each cell is a lane: a cell that has taken ``iterations`` steps with its ratio still above
-    ``tolerance`` continues bit for bit in another call from its ``d_free``, alone or in any batch."""
+    """Newton corrections of the free-DOF displacement ``d_free`` (n_free, n) [m] from the guess as it is,
+    in place (module docstring). Each cell is a lane: one stopped at ``iterations`` steps continues bit for
+    bit in another call from its ``d_free``, alone or in any batch.
+
+    Args:
+        size (3, n), free (n_free, n), shear (n_pairs, 3, n), d_eps (n, 3): the state and probe;
+        before: ``training.fast_cells.Before`` of the state (``fast_step3d.features3d``);
+        iterations: the most Newton steps per cell (>= 0); tolerance: force ratio [-] below which
+            a cell is not corrected; halvings: the most halvings of a step (>= 0, 0: full steps);
+            shift: the first shift of a climbing step's matrix, a fraction of kn (>= 0, 0: never).
+
+    Writes ratios (2, n): the force ratio at the first guess and after the last step (0: not
+    evaluated); corrections, shortened, shifted (n,) int64: Newton steps taken, of them those at
+    alpha < 1 and those with a shifted matrix."""
     n = size.shape[1]
     frac, free_dofs = cells.frac, cells.free_dofs
     n_free = free_dofs.shape[0]

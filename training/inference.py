@@ -88,19 +88,17 @@ class Kernels:
         features, advance: steps 1 and 3 (module docstring): ``training.fast_features.features`` and
             ``training.fast_increment.advance``, or ``training.fast_step3d.features3d`` and ``advance3d``.
         tangent: ``training.fast_tangent.moment_tangent``, or None where the tangent is not compiled.
-        correct, physics: the equilibrium corrections and the contact law after them
-            (``training.fast_equilibrium3d.correct3d``, ``training.fast_step3d.physics3d``), or None
-            where the cells take none; hold, newton: its two parts, the rest rule on the first guess and the
-            Newton steps (``hold_guess3d``, ``newton3d``).
+        hold, newton, physics: the equilibrium corrections (the DEM's rest rule on the first guess, then the
+            Newton steps: ``training.fast_equilibrium3d.hold_guess3d``, ``newton3d``) and the contact law
+            after them (``training.fast_step3d.physics3d``), or None where the cells take none.
     """
 
     features: Callable
     advance: Callable
     tangent: Callable | None
-    correct: Callable | None
+    hold: Callable | None
+    newton: Callable | None
     physics: Callable | None
-    hold: Callable | None = None
-    newton: Callable | None = None
 
 
 def _planar_kernels() -> Kernels:
@@ -108,14 +106,14 @@ def _planar_kernels() -> Kernels:
     from training.fast_increment import advance  # noqa: PLC0415
     from training.fast_tangent import moment_tangent  # noqa: PLC0415
 
-    return Kernels(features, advance, moment_tangent, None, None)
+    return Kernels(features, advance, moment_tangent, None, None, None)
 
 
 def _spatial_kernels() -> Kernels:
-    from training.fast_equilibrium3d import correct3d, hold_guess3d, newton3d  # noqa: PLC0415
+    from training.fast_equilibrium3d import hold_guess3d, newton3d  # noqa: PLC0415
     from training.fast_step3d import advance3d, features3d, physics3d  # noqa: PLC0415
 
-    return Kernels(features3d, advance3d, None, correct3d, physics3d, hold_guess3d, newton3d)
+    return Kernels(features3d, advance3d, None, hold_guess3d, newton3d, physics3d)
 
 
 class _KernelTable(Mapping):
@@ -179,7 +177,7 @@ class Corrections(NamedTuple):
     guess and after the corrections (0 where not evaluated: no normal force, or a probe below the
     relaxation ramp), steps: int64 (n,), the Newton steps taken, and of them shortened: int64 (n,), those
     the line search shortened, and shifted: int64 (n,), those whose matrix was shifted (the step did no
-    positive work along the unbalanced force; ``training.fast_equilibrium3d.correct3d``)."""
+    positive work along the unbalanced force; ``training.fast_equilibrium3d.newton3d``)."""
 
     force_ratio: np.ndarray
     steps: np.ndarray
@@ -204,7 +202,7 @@ class FastAdvance:
     Args:
         net: the trained network, a ``MesoNet`` or its ``training.fast_model.NetArrays``; copied.
         corrections: the most exact Newton steps per cell-increment (spatial cells,
-            ``fast_equilibrium3d.correct3d``; 0: the network alone); ``last_corrections`` counts them.
+            ``fast_equilibrium3d.newton3d``; 0: the network alone); ``last_corrections`` counts them.
         tolerance: force ratio [-] below which a cell is not corrected (None: the DEM's).
         guess: first guess of the corrections: ``"network"``, ``"still"`` (free DOFs stay) or
             ``"affine"`` (they follow the cell's strain).
@@ -244,7 +242,7 @@ class FastAdvance:
         self._features = _Compiled(kernels.features)
         self._advance = _Compiled(kernels.advance)
         self._tangent = None if kernels.tangent is None else _Compiled(kernels.tangent)
-        if int(corrections) < 0 or (int(corrections) > 0 and kernels.correct is None):
+        if int(corrections) < 0 or (int(corrections) > 0 and kernels.newton is None):
             raise ValueError(f"corrections = {corrections}: equilibrium corrections are >= 0 and for spatial cells only")
         tolerance = DemSettings().force_tolerance if tolerance is None else tolerance
         if not tolerance > 0:
