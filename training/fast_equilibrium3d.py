@@ -370,16 +370,15 @@ def hold_guess3d(size, free, d_eps, d_free, cells, law, before):
 @numba.njit(cache=True, error_model="numpy")
 def newton3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, tolerance, halvings, shift, ratios,
              corrections, shortened, shifted):
-    """Newton corrections of the free-DOF displacement ``d_free`` (n_free, n) [m] from the guess as it is,
-    in place (module docstring). Each cell is a lane: one stopped at ``iterations`` steps continues bit for
+    """Newton corrections of the free-DOF displacement ``d_free`` (n_free, n) [m], in place. Each cell is a lane: one stopped at ``iterations`` steps continues bit for
     bit in another call from its ``d_free``, alone or in any batch.
 
     Args:
         size (3, n), free (n_free, n), shear (n_pairs, 3, n), d_eps (n, 3): the state and probe;
         before: ``training.fast_cells.Before`` of the state (``fast_step3d.features3d``);
         iterations: the most Newton steps per cell (>= 0); tolerance: force ratio [-] below which
-            a cell is not corrected; halvings: the most halvings of a step (>= 0, 0: full steps);
-            shift: the first shift of a climbing step's matrix, a fraction of kn (>= 0, 0: never).
+            a cell is not corrected; halvings: the most halvings of a step (0: full steps);
+            shift: a climbing step's first matrix shift, a fraction of kn (0: never).
 
     Writes ratios (2, n): the force ratio at the first guess and after the last step (0: not
     evaluated); corrections, shortened, shifted (n,) int64: Newton steps taken, of them those at
