@@ -366,10 +366,7 @@ class AnnCell(ArrayStateMixin):
         size, free, shear, moment, area = self.escalation.advance(
             state.cell_size[index], state.free_position[index], state.shear_force[index],
             np.asarray(d_eps_local, dtype=np.float64)[index])
-        arrays = [np.array(a) for a in (*new, response.moment, response.area)]
-        for whole, part in zip(arrays, (size, free, shear, moment, area)):
-            whole[index] = part
-        return AnnState(*arrays[:3]), CellResponse(arrays[3], arrays[4], response.diagnostics, response.tangent)
+        return _with_cells(new, response, index, (size, free, shear, moment, area))
 
     def _held_at_rest(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState, response: CellResponse,
                       index: np.ndarray, released: np.ndarray) -> tuple[AnnState, CellResponse]:
@@ -386,10 +383,8 @@ class AnnCell(ArrayStateMixin):
             self.escalation.released(inc.cell_size, before[1], inc.free_position)))
         if "n_corrections" in diagnostics:
             diagnostics["n_corrections"] += float(self.fast.last_corrections().steps.sum())
-        arrays = [np.array(a) for a in (*new, response.moment, response.area)]
-        for whole, part in zip(arrays, (inc.cell_size, inc.free_position, inc.shear_force, inc.moment, inc.area)):
-            whole[index] = part
-        return AnnState(*arrays[:3]), CellResponse(arrays[3], arrays[4], diagnostics, response.tangent)
+        return _with_cells(new, response, index, (inc.cell_size, inc.free_position, inc.shear_force, inc.moment,
+                                                  inc.area))
 
     def _advance(self, size, free, shear, d_eps):
         """The torch increment (``MesoNet.advance``, or ``training.equilibrium.corrected_advance`` with
@@ -526,3 +521,13 @@ class AnnCell3D(AnnCell):
     the backend ``ann`` of 3D runs (``homogenization.backends.BACKENDS``)."""
 
     default_dim = 3
+
+
+def _with_cells(new: AnnState, response: CellResponse, index: np.ndarray,
+                parts: tuple[np.ndarray, ...]) -> tuple[AnnState, CellResponse]:
+    """Copies of ``new`` and ``response`` whose cells ``index`` take ``parts`` (cell_size, free_position,
+    shear_force, moment, area of those cells, first axis len(index)); diagnostics and tangent kept."""
+    arrays = [np.array(a) for a in (*new, response.moment, response.area)]
+    for whole, part in zip(arrays, parts):
+        whole[index] = part
+    return AnnState(*arrays[:3]), CellResponse(arrays[3], arrays[4], response.diagnostics, response.tangent)
