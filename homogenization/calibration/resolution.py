@@ -50,6 +50,8 @@ MAX_REFINEMENTS = 8
 """Refinements ``reference`` makes at most before it gives up (``ResolutionError``) [-]."""
 KNOBS = ("increment", "orientations")
 """The forward model's discretisation knobs that ``refined`` refines."""
+MISFIT_QUANTILE = 0.999
+"""Chi-square quantile above which a misfit counts as far above the noise [-]."""
 ORDER = {"increment": 1, "orientations": 2}
 """Order of convergence of each knob [-]: the strain increments' explicit integration is first order, the
 orientations' quadrature second; ``richardson`` turns one refinement's difference into an error estimate."""
@@ -60,8 +62,6 @@ def richardson(knob: str) -> float:
     ``ORDER``; 1 for a comparison with a reference ("reference") [-]."""
     p = ORDER.get(knob)
     return 1.0 if p is None else 2.0 ** p / (2.0 ** p - 1.0)
-MISFIT_QUANTILE = 0.999
-"""Chi-square quantile above which a misfit counts as far above the noise [-]."""
 
 
 def refined(settings: ForwardSettings, knob: str) -> ForwardSettings:
@@ -152,7 +152,8 @@ class Check:
                 "rms_fraction_of_scale": self.rms_fraction_of_scale, "shift_over_sd": self.shift_over_sd,
                 "worst_rms_over_sigma": self.worst_rms(), "worst_shift_over_sd": self.worst_shift(),
                 "error_rms_over_sigma": self.error_rms(), "error_shift_over_sd": self.error_shift(),
-                "richardson": {k: richardson(k) for k in self.rms_over_sigma}, "passed": self.passed, "rms_tolerance": RMS_TOLERANCE, "shift_tolerance": SHIFT_TOLERANCE,
+                "richardson": {k: richardson(k) for k in self.rms_over_sigma}, "passed": self.passed,
+                "rms_tolerance": RMS_TOLERANCE, "shift_tolerance": SHIFT_TOLERANCE,
                 "seconds": self.seconds, **self.extra}
 
     def line(self) -> str:
