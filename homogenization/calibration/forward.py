@@ -62,6 +62,8 @@ opening angle where the density feedback changes sign, and renewal_rate [-]; rea
 RULE_PRIOR = {"alpha_c": (46.0, 58.0, False), "renewal_rate": (1.0, 400.0, True)}
 """Default prior of the rule's parameters: uniform (low, high, log-uniform?); alpha_c within the clip of the fresh
 angles of both dimensions' ``DEFAULTS``, renewal_rate below both rate_max."""
+CONTACT_LAW_KEY = "contact_law"
+"""Key of posterior.json holding a non-linear contact law at the posterior mean (``to_dict``); absent: the linear law."""
 CRITICAL_STATE_KEY = "critical_state"
 """Key of posterior.json (and of run.json's forward settings) holding the critical-state rule at the posterior
 mean (``dataclasses.asdict``); absent: the plain cell."""
@@ -101,8 +103,6 @@ def rule_at(values: Mapping[str, float], settings: "ForwardSettings") -> Critica
     if settings.critical_state is None:
         return None
     return replace(settings.critical_state, **{RULE[name]: float(v) for name, v in values.items() if name in RULE})
-CONTACT_LAW_KEY = "contact_law"
-"""Key of posterior.json holding a non-linear contact law at the posterior mean (``to_dict``); absent: the linear law."""
 
 
 @dataclass(frozen=True)
