@@ -39,3 +39,14 @@ def read_case(data_dir: Path, name: str) -> tuple[dict, np.ndarray, np.ndarray]:
     path = np.loadtxt(data_dir / f"{name}.path.csv", delimiter=",", skiprows=1, ndmin=2)
     table = np.genfromtxt(data_dir / f"{name}.yade.csv", delimiter=",", names=True)
     return cell, path, table
+
+
+def assert_regenerates(make_reference, data_dir: Path, name: str, tmp_path: Path) -> None:
+    """Runs YADE on case ``name`` of the generating script ``make_reference`` into tmp_path and asserts that
+    every column of its table equals the committed one in ``data_dir`` (rtol and atol 1e-9)."""
+    prefix = make_reference.generate(name, tmp_path)
+    fresh = np.genfromtxt(f"{prefix}.yade.csv", delimiter=",", names=True)
+    committed = read_case(data_dir, name)[2]
+    for column in committed.dtype.names:
+        np.testing.assert_allclose(fresh[column], committed[column], rtol=1e-9, atol=1e-9, err_msg=column)
+
