@@ -66,7 +66,9 @@ def surrogate_line(cert: Certificate) -> str:
             f"{tally['n_corrections']} Newton steps ({tally.get('n_shortened', 0)} shortened by the line search, "
             f"{tally.get('n_shifted', 0)} shifted), "
             f"{tally['n_unconverged']} left above the tolerance"
-            + (f", {tally.get('n_escalated', 0)} handed to the DEM (a released grain)" if escalation_of(cert) else ""))
+            + (f", {tally.get('n_released', 0)} with a released grain taken again at rest "
+               f"({tally.get('n_released_pushed', 0)} pushed), {tally.get('n_escalated', 0)} handed to the DEM"
+               if escalation_of(cert) else ""))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -157,3 +157,20 @@ def test_the_hybrid_takes_the_released_cells_again_from_rest_and_counts_them(mon
     for whole, kept in zip((*out, response.moment, response.area), (*plain, plain_response.moment, plain_response.area)):
         assert np.array_equal(whole[[0, 2]], np.asarray(kept)[[0, 2]])
     assert not np.array_equal(out.free_position[1], plain.free_position[1])  # another first guess, another balance
+
+
+def test_a_certificate_counts_the_released_grains_where_the_hybrid_reports_them():
+    """The certificate's tally sums n_released / n_released_pushed of a hybrid with the released-grain rule
+    and records no such key for a hybrid without it (its certificate stays as it was)."""
+    from types import SimpleNamespace
+
+    from homogenization.learning.certificate import _Counter
+
+    base = {"n_corrected": 1.0, "force_ratio_network_max": 0.1, "force_ratio_max": 0.01}
+    plain = _Counter(SimpleNamespace(name="ann"))
+    plain._tally(base)
+    assert "n_released" not in plain.corrections and "n_released_pushed" not in plain.corrections
+    hybrid = _Counter(SimpleNamespace(name="ann"))
+    hybrid._tally({**base, "n_released": 3.0, "n_released_pushed": 1.0})
+    hybrid._tally({**base, "n_released": 2.0, "n_released_pushed": 0.0})
+    assert hybrid.corrections["n_released"] == 5 and hybrid.corrections["n_released_pushed"] == 1
