@@ -43,6 +43,9 @@ from warp_hcell.dem.state import DemState, StatePool
 from warp_hcell.dem.tangent import condensed_tangent
 
 _MODEL_ARRAYS = ("radius", "reference_position", "reference_cell_size")
+TANGENT_CHUNK = 8192
+"""Cells per chunk of the condensed tangent, the chunks spread over the backend's threads (numpy
+releases the GIL); a cell's tangent does not depend on the chunking."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,7 +125,7 @@ class DemCell:
         new = DemCellState(model, out)
         response = self.response(new)
         if with_tangent:
-            response = replace(response, tangent=self._tangent(state, new))
+            response = replace(response, tangent=self.step_tangent(state, new))
         if response.diagnostics["n_unconverged"]:
             warnings.warn(f"DEM: {response.diagnostics['n_unconverged']:g} of {model.n_cells} cells did not reach "
                           f"equilibrium within max_substeps = {self.settings.max_substeps}", RuntimeWarning,
@@ -145,20 +148,33 @@ class DemCell:
             model = replace(model, settings=rest)
         return DemCellState(model, replace(state.dem, velocity=wp.zeros_like(state.dem.velocity)))
 
-    def _tangent(self, old: DemCellState, new: DemCellState) -> np.ndarray:
-        """Condensed tangent of ``new``; driven DOFs move as x_ref l_old / l_ref per unit strain."""
+    def step_tangent(self, old: DemCellState, new: DemCellState) -> np.ndarray:
+        """The tangent ``step(old, d_eps, with_tangent=True)`` returns, of the step from ``old`` to ``new``
+        (``new`` = ``step(old, d_eps)``): d(S_aa)/d(d_eps_b) [N m], shape (n_cells, dim, dim), condensed
+        (``warp_hcell.dem.tangent.condensed_tangent``; driven DOFs move as x_ref l_old / l_ref per unit strain).
+        Computed in chunks of ``TANGENT_CHUNK`` cells on the backend's threads."""
         model, law = new.model, self.contact_law
         arrays, before = new.dem.to_numpy(), old.dem.to_numpy()
-        radius, pairs, driven = model.radius.numpy(), model.meso.pairs, model.meso.driven
-        pair = pair_law(law, radius[:, pairs[:, 0]], radius[:, pairs[:, 1]])
-        laws = dict(kn=pair.kn, kt=pair.kt, mu=law.mu)
+        radius_all, pairs, driven = model.radius.numpy(), model.meso.pairs, model.meso.driven
         slides = DIMENSIONS[model.meso.dim].sliding_contacts
-        sliding = slides(before["position"], arrays["position"], radius, pairs, before["shear_force"], law=law.name,
-                         **laws)
         l_ratio = before["cell_size"] / model.reference_cell_size.numpy()
-        drive_rate = -model.reference_position.numpy() * l_ratio[:, None, :] * driven[None]
-        return condensed_tangent(arrays["position"], radius, pairs, driven, arrays["shear_force"], sliding,
-                                 drive_rate, law=law.name, **laws)
+        reference = model.reference_position.numpy()
+
+        def chunk(cells: slice) -> np.ndarray:
+            radius = radius_all[cells]
+            pair = pair_law(law, radius[:, pairs[:, 0]], radius[:, pairs[:, 1]])
+            laws = dict(kn=pair.kn, kt=pair.kt, mu=law.mu)
+            position, shear = arrays["position"][cells], arrays["shear_force"][cells]
+            sliding = slides(before["position"][cells], position, radius, pairs, before["shear_force"][cells],
+                             law=law.name, **laws)
+            drive_rate = -reference[cells] * l_ratio[cells, None, :] * driven[None]
+            return condensed_tangent(position, radius, pairs, driven, shear, sliding, drive_rate, law=law.name, **laws)
+
+        starts = range(0, max(model.n_cells, 1), TANGENT_CHUNK)
+        chunks = [slice(start, start + TANGENT_CHUNK) for start in starts]
+        if self._pool is None or len(chunks) < 2:
+            return np.concatenate([chunk(cells) for cells in chunks])
+        return np.concatenate(list(self._pool.map(chunk, chunks)))
 
     def response(self, state: DemCellState) -> CellResponse:
         """Love-Weber moment (compression positive) and V_cell of ``state``; diagnostics of its step
