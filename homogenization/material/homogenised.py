@@ -181,13 +181,33 @@ class HomogenisedMaterial:
         if with_tangent:
             if response.tangent is None:
                 raise ValueError(f"cell model {getattr(self.model, 'name', self.model)!r} returned no tangent")
-            C = np.asarray(response.tangent).reshape(self.n_points, n, self.dim, self.dim)
-            tangent = self._cell_tangent_average(C) / V[:, None, None]
-            volume = np.zeros((self.n_points, self.n_voigt))
-            volume[:, :self.dim] = 1.0 / (1.0 - d_e[:, :self.dim])
-            tangent += stress[:, :, None] * volume[:, None, :]
+            tangent = self._macro_tangent(response.tangent, stress, d_e, V)
         new = MaterialState(cells, J, state.strain + d_e, stress)
         return MaterialUpdate(new, stress, tangent, dict(response.diagnostics))
+
+    @property
+    def defers_tangent(self) -> bool:
+        """Whether the cell model gives a step's tangent apart from the step (``step_tangent(old_cells,
+        new_cells)``): then ``tangent`` after a plain ``update`` costs no second step."""
+        return callable(getattr(self.model, "step_tangent", None))
+
+    def tangent(self, state: MaterialState, d_e: np.ndarray, update: MaterialUpdate) -> np.ndarray:
+        """The tangent ``update(state, d_e, with_tangent=True)`` returns, of ``update`` = ``update(state, d_e,
+        with_tangent=False)`` [N/m or Pa], shape (n_points, n_voigt, n_voigt); needs ``defers_tangent``."""
+        d_e = np.asarray(d_e, dtype=np.float64).reshape(self.n_points, self.n_voigt)
+        C = self.model.step_tangent(state.cells, update.state.cells)
+        return self._macro_tangent(C, update.stress, d_e, self.V0 * update.state.J)
+
+    def _macro_tangent(self, cell_tangent: np.ndarray, stress: np.ndarray, d_e: np.ndarray,
+                       V: np.ndarray) -> np.ndarray:
+        """D (module docstring) of the cells' tangents (n_cells, dim, dim), the stress and d_e of the
+        increment and the volumes V at its end, shapes (n_points, n_voigt) and (n_points,)."""
+        C = np.asarray(cell_tangent).reshape(self.n_points, self.orient.n_cells, self.dim, self.dim)
+        tangent = self._cell_tangent_average(C) / V[:, None, None]
+        volume = np.zeros((self.n_points, self.n_voigt))
+        volume[:, :self.dim] = 1.0 / (1.0 - d_e[:, :self.dim])
+        tangent += stress[:, :, None] * volume[:, None, :]
+        return tangent
 
     def stress_of(self, cells: Any, J: np.ndarray) -> np.ndarray:
         """Macro stress [N/m or Pa], shape (n_points, n_voigt), of ``cells`` (a state of this material's cells)
