@@ -126,6 +126,8 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         n = self.basis.N
         f = self._linear @ x
         f[:n] += f_u
+        if K_u is None:
+            return f, None
         K = self._linear + sp.block_diag([K_u, sp.csr_matrix((x.size - n, x.size - n))], format="csr")
         return f, K
 

@@ -199,19 +199,22 @@ class BiaxialSpecimen:
             self._cols = np.tile(dofs.T, (1, dofs.shape[0])).ravel()
         return self._B
 
-    def _assemble(self, stress: np.ndarray, tangent: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+    def _assemble(self, stress: np.ndarray, tangent: np.ndarray | None) -> tuple[np.ndarray, sp.csr_matrix | None]:
         """Internal forces and stiffness of the Gauss-point stresses and tangents, vectorised over
-        elements: f = sum_q dx B^T sigma_t, K = sum_q dx B^T D B (sigma_t = -stress, same tangent)."""
+        elements: f = sum_q dx B^T sigma_t, K = sum_q dx B^T D B (sigma_t = -stress, same tangent);
+        K is None where ``tangent`` is."""
         B = self._strain_operator()
         ne, nq = B.shape[:2]
         dx = self.basis.dx
         s = -stress.reshape(ne, nq, 3)
-        D = tangent.reshape(ne, nq, 3, 3)
         f_e = np.einsum("eqak,eqa,eq->ek", B, s, dx)
-        DB = np.einsum("eqab,eqbl->eqal", D, B)
-        K_e = np.einsum("eqak,eqal,eq->ekl", B, DB, dx)
         dofs = self.basis.element_dofs
         f_int = np.bincount(dofs.T.ravel(), f_e.ravel(), minlength=self.basis.N)
+        if tangent is None:
+            return f_int, None
+        D = tangent.reshape(ne, nq, 3, 3)
+        DB = np.einsum("eqab,eqbl->eqal", D, B)
+        K_e = np.einsum("eqak,eqal,eq->ekl", B, DB, dx)
         K = sp.coo_matrix((K_e.ravel(), (self._rows, self._cols)), shape=(self.basis.N, self.basis.N)).tocsr()
         return f_int, K
 
@@ -242,8 +245,10 @@ class BiaxialSpecimen:
         """The displacement DOFs of the full unknown vector x."""
         return x[:self.basis.N]
 
-    def system(self, x: np.ndarray, stress: np.ndarray, tangent: np.ndarray) -> tuple[np.ndarray, sp.spmatrix]:
-        """Internal force vector and its Jacobian for the unknowns x and the Gauss-point stress and tangent."""
+    def system(self, x: np.ndarray, stress: np.ndarray,
+               tangent: np.ndarray | None) -> tuple[np.ndarray, sp.spmatrix | None]:
+        """Internal force vector and its Jacobian (None where ``tangent`` is) for the unknowns x and the
+        Gauss-point stress and tangent."""
         return self._assemble(stress, tangent)
 
     def begin_step(self, fresh: bool) -> None:
@@ -278,7 +283,9 @@ class BiaxialSpecimen:
         """Newton iterations of one load step from the converged unknowns ``x_start`` and ``state``.
 
         Where a correction increases the residual, it is halved (at most ``MAX_HALVINGS`` times,
-        each costing an iteration); the count is the diagnostic ``line_search_halvings``.
+        each costing an iteration); the count is the diagnostic ``line_search_halvings``. Where the
+        material ``defers_tangent``, an update computes its tangent only when a correction needs it
+        (not for the converged iterate, nor a halving); the count is ``tangents``.
 
         Returns (x, material update, internal force vector, iterations, residual norms, diagnostics).
         """
@@ -298,9 +305,12 @@ class BiaxialSpecimen:
         residuals: list[float] = []
         totals: dict[str, float] = {}
         free = np.setdiff1d(np.arange(expand.shape[1]), fixed)
-        accepted, step_x, alpha, halvings = np.inf, None, 1.0, 0
+        accepted, step_x, alpha, halvings, tangents = np.inf, None, 1.0, 0, 0
+        defer = material.defers_tangent
         for iteration in range(self.max_newton + 1):
-            update = material.update(state, self.strain(self.displacement_of(x)) - eps_start)
+            d_e = self.strain(self.displacement_of(x)) - eps_start
+            update = material.update(state, d_e, with_tangent=not defer)
+            tangents += not defer
             for name, value in update.diagnostics.items():
                 totals[name] = totals.get(name, 0.0) + float(value)
             f_int, K = self.system(x, update.stress, update.tangent)
@@ -309,6 +319,7 @@ class BiaxialSpecimen:
             residuals.append(norm / self.width)
             if norm <= self.newton_rtol * scale * self.width:
                 totals["line_search_halvings"] = float(halvings)
+                totals["tangents"] = float(tangents)
                 return x, update, f_int, iteration, residuals, totals
             if iteration == self.max_newton:
                 break
@@ -318,6 +329,9 @@ class BiaxialSpecimen:
                 halvings += 1
                 x = x_base + alpha * step_x
                 continue
+            if K is None:
+                _, K = self.system(x, update.stress, material.tangent(state, d_e, update))
+                tangents += 1
             K_r = (expand.T @ K @ expand).tocsr()
             accepted, alpha, x_base = norm, 1.0, x
             step_x = expand @ self.newton_correction(K_r, residual, fixed)
