@@ -24,6 +24,11 @@ Static liquefaction and strength under a lateral deviator of the 3D cells, close
    the two planes meet and jam, as in YADE: tests/data/yade3d_sand) and for the cell without the 16
    candidate pairs between them (``decoupled``, the closed form's hypothesis), with the largest |dp|,
    |dq| over p0 of the decoupled DEM against the closed form at ``DEM_STATES`` and the dense state.
+8. The 3D void-ratio map's range (``density.OPENING_RANGE_DEG[3]``), DEM and closed form in one run each
+   (``hmodel triaxial --backend analytical,dem``): the window's loose edge in ``EDGE_STEP_DEG`` steps and
+   bisected to 0.01 deg, also at a tenth of the increment; undrained compression over the map's angles
+   (lowest and end p/p0, the map's e0), every ``EDGE_STEP_DEG`` within its loose third, whether the whole
+   loose third liquefies; drained eps_v of the map's dense and loose ends.
 
 Sections 1-6 run through ``hmodel triaxial`` / ``hmodel biaxial`` in this process (section 7 calls the
 element-test driver, as the decoupled cell has no spec) (``--spins 1``: the
@@ -53,6 +58,7 @@ from homogenization.backends import make_cell_model
 from homogenization.cli import hmodel
 from homogenization.element_test import driver, programme as programmes
 from homogenization.material import orientation
+from homogenization.material.density import OPENING_RANGE_DEG, default_map
 from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
@@ -71,6 +77,10 @@ DEM_GAIN = 3.5
 """A gain whose closed-form window passes 5 deg, run with the DEM at DEM_STATES (section 6)."""
 WINDOW_GAINS = (2.0, 3.0, 3.5)
 """Gains of the DEM windows (section 7)."""
+EDGE_SCAN_DEG = (55.2, 56.0)
+"""Opening angles [deg] between which section 8 looks for the window's loose edge."""
+EDGE_STEP_DEG = 0.1
+"""Step [deg] of section 8's edge scan and of its rows within the map's loose third."""
 
 
 RETRIES: list[str] = []
@@ -184,7 +194,8 @@ def main() -> None:
     parser.add_argument("--increment", type=float, default=1e-3, help="strain increment (default 1e-3)")
     parser.add_argument("--dense", type=float, default=49.0, help="dense alpha0 [deg] (default 49)")
     parser.add_argument("--loose", type=float, default=54.0, help="loose alpha0 [deg] (default 54)")
-    parser.add_argument("--sections", default="1,2,3,4,5,6", help="sections to run (default 1-6; 7: DEM windows)")
+    parser.add_argument("--sections", default="1,2,3,4,5,6",
+                        help="sections to run (default 1-6; 7: DEM windows; 8: the 3D void-ratio map's range)")
     args = parser.parse_args()
     sections = {int(k) for k in args.sections.split(",")}
     if args.quick:
@@ -218,6 +229,8 @@ def main() -> None:
         dem_section(args, say, DEM_GAIN)
     if 7 in sections:
         dem_window_section(args, say)
+    if 8 in sections:
+        map_range_section(args, say)
     say(f"\nReruns at a smaller increment (stress control failed): {len(RETRIES)}")
     for line in RETRIES:
         say(f"  {line}")
@@ -343,6 +356,78 @@ def dem_window_section(args, say) -> None:
                 f"{dem.p[shear].min() / P0:.3f} (closed form {closed.p[shear].min() / P0:.3f}), at 15 % "
                 f"{dem.p[shear][-1] / P0:.3f} ({closed.p[shear][-1] / P0:.3f}); closed-form cells whose planes meet: "
                 f"{np.max(closed.diagnostics['n_cross_plane']):.0f}")
+
+
+def both_undrained(alpha0: float, args, increment: float | None = None) -> dict[str, dict[str, np.ndarray]]:
+    """The undrained test of ``hcell3d-sand`` at ``alpha0``, by backend ("analytical", "dem"): ``run``'s columns."""
+    return run("triaxial", "hcell3d-sand", alpha0, ["--undrained"], order=args.order, spins=1,
+               increment=args.increment if increment is None else increment, backends="analytical,dem")
+
+
+def lowest_p(alpha0: float, args, increment: float) -> dict[str, float]:
+    """Lowest p/p0 of the undrained test by backend."""
+    return {name: float(curve["p"].min() / P0) for name, curve in both_undrained(alpha0, args, increment).items()}
+
+
+def loose_edge(args, increment: float, say) -> None:
+    """The window's loose edge per backend: lowest p/p0 every EDGE_STEP_DEG over EDGE_SCAN_DEG, then bisected to
+    0.01 deg between the last liquefying and the first non-liquefying angle."""
+    grid = np.round(np.arange(EDGE_SCAN_DEG[0], EDGE_SCAN_DEG[1] + 1e-9, EDGE_STEP_DEG), 6)
+    lowest = {a: lowest_p(float(a), args, increment) for a in grid}
+    say(f"  increment {increment:g}: lowest p/p0 closed form / DEM: " + "; ".join(
+        f"{a:.1f}: {r['analytical']:.4f} / {r['dem']:.4f}" for a, r in lowest.items()))
+    for name in ("analytical", "dem"):
+        inside = [a for a in grid if lowest[a][name] < LIQUEFIED]
+        if not inside or inside[-1] == grid[-1]:
+            say(f"    {name}: no edge within {EDGE_SCAN_DEG[0]:g}-{EDGE_SCAN_DEG[1]:g} deg")
+            continue
+        lo, hi = inside[-1], grid[list(grid).index(inside[-1]) + 1]
+        while hi - lo > 0.01 + 1e-9:
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if lowest_p(mid, args, increment)[name] < LIQUEFIED else (lo, mid)
+        say(f"    {name}: loose edge {lo:.3f}-{hi:.3f} deg")
+
+
+def map_range_section(args, say) -> None:
+    dense, loose = OPENING_RANGE_DEG[3]
+    third = loose - (loose - dense) / 3.0
+    density = default_map(3)
+    say(f"\n## 8. The 3D void-ratio map's range (OPENING_RANGE_DEG[3] = {dense:g}-{loose:g} deg, loose third "
+        f"{third:.2f}-{loose:g} deg), hcell3d-sand, DEM and closed form")
+    say(f"The window's loose edge (lowest p/p0 < {LIQUEFIED} by {EPS_MAX:g}):")
+    for increment in (args.increment, args.increment / 10.0):
+        loose_edge(args, increment, say)
+    coarse = np.arange(dense, third, 0.5)
+    fine = np.arange(loose, third, -EDGE_STEP_DEG)[::-1]
+    grid = np.round(np.unique(np.concatenate([coarse, [third], fine])), 6)
+    say(f"Undrained over the map (e0: default_map(3), e_min {density.e_min:g}, e_max {density.e_max:g}):")
+    say("alpha0  e0     third | closed form: lowest p/p0, end p/p0 | DEM: lowest p/p0, end p/p0 | max |dp|/p0 | "
+        "planes meet from eps_a")
+    worst = {"analytical": 0.0, "dem": 0.0}
+    for alpha0 in grid:
+        curves = both_undrained(float(alpha0), args)
+        p = {name: curve["p"] / P0 for name, curve in curves.items()}
+        a, d = p["analytical"], p["dem"]
+        met = curves["analytical"]["n_cross_plane"] > 0
+        meet = f"{curves['analytical']['eps11'][np.argmax(met)]:.4f}" if met.any() else "never"
+        in_third = alpha0 >= third - 1e-6  # the grid is rounded to 1e-6 deg
+        if in_third:
+            worst = {k: max(worst[k], p[k].min()) for k in worst}
+        say(f"{alpha0:6.2f}  {density.void_ratio(alpha0):.3f}  {'yes' if in_third else 'no ':<5} | {a.min():.4f}, "
+            f"{a[-1]:.4f} | {d.min():.4f}, {d[-1]:.4f} | {np.abs(a - d).max():.1e} | {meet}")
+    say(f"Loose third liquefies at every row (largest lowest p/p0 there: closed form {worst['analytical']:.4f}, DEM "
+        f"{worst['dem']:.4f}, < {LIQUEFIED}): {max(worst.values()) < LIQUEFIED}")
+    say("Drained compression (sigma2 = sigma3 = p0), eps_v of the shear stage at 15 % (> 0 contraction), closed form / DEM:")
+    for alpha0 in (dense, loose):
+        curves = run("triaxial", "hcell3d-sand", alpha0, ["--drained"], order=args.order, spins=1,
+                     increment=args.increment, backends="analytical,dem")
+        eps_v = {k: c["eps11"] + c["eps22"] + c["eps33"] - c["eps_v_iso"] for k, c in curves.items()}
+        met = curves["analytical"]["n_cross_plane"] > 0
+        k = int(np.argmax(met)) if met.any() else -1
+        meet = f"planes meet from eps_a = {curves['analytical']['eps11'][k]:.4f}, eps_v there " \
+               f"{eps_v['analytical'][k]:+.4f} / {eps_v['dem'][k]:+.4f}" if met.any() else "planes never meet"
+        say(f"  alpha0 = {alpha0:g}: eps_v {eps_v['analytical'][-1]:+.4f} / {eps_v['dem'][-1]:+.4f} (lowest "
+            f"{eps_v['analytical'].min():+.4f} / {eps_v['dem'].min():+.4f}); {meet}")
 
 
 if __name__ == "__main__":

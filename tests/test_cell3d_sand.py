@@ -105,3 +105,18 @@ def test_where_the_planes_meet_the_dem_stops_liquefying_whatever_the_gain(monkey
     assert lowest[3.0, "dem"][0] > 0.6 and abs(lowest[3.0, "dem"][1] - meet) <= 1
     assert abs(lowest[6.0, "dem"][0] - lowest[3.0, "dem"][0]) < 0.05
     assert abs(2 * lowest[6.0, "dem"][1] - lowest[3.0, "dem"][1]) <= 4
+
+
+def test_the_3d_void_ratio_maps_loose_third_liquefies_and_its_loose_end_is_the_windows_edge():
+    """The 3D map (density.OPENING_RANGE_DEG[3]) ends at the widest cell that still liquefies: DEM and closed
+    form (91 axes, increment 1e-3) liquefy at both ends of its loose third (measured lowest p/p0 0.26 at
+    55.3 deg), and 0.3 deg beyond its loose end the closed form no longer does (measured 0.364 at 55.6 deg;
+    the edge lies at 55.41 deg, 55.37 at increment 1e-4)."""
+    from homogenization.material.density import OPENING_RANGE_DEG  # noqa: PLC0415
+
+    dense, loose = OPENING_RANGE_DEG[3]
+    for alpha0 in (loose - (loose - dense) / 3.0, loose):
+        spec = f"hcell3d-sand:alpha0={alpha0:.6f}"
+        assert shear_p(run(spec)).min() < 0.3
+        assert shear_p(run(spec, "dem")).min() < 0.3
+    assert 0.3 < shear_p(run(f"hcell3d-sand:alpha0={loose + 0.3:.6f}")).min() < 0.45

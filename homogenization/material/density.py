@@ -32,12 +32,12 @@ DEFAULT_E_MIN = 0.597
 """Void ratio of the densest cell when not given [-] (Toyoura sand's minimum void ratio)."""
 DEFAULT_E_MAX = 0.977
 """Void ratio of the loosest cell when not given [-] (Toyoura sand's maximum void ratio)."""
-OPENING_RANGE_DEG = {2: (40.0, 56.0), 3: (47.0, 56.0)}
-"""Dimension -> (alpha_dense, alpha_loose) [deg] of the cell. Loose: 56 deg, the widest opening that
-still liquefies (undrained, phi_g = 30 deg; wider cells stiffen again), so that the map's loose third
-is the liquefying window of the planar cell and of ``hcell3d-sand`` (docs/studies/density_map_range.md).
-Dense: the planar studies' dense cell (40 deg) and the dense ten-sphere cell (47 deg; below 45 its
-planes overlap)."""
+OPENING_RANGE_DEG = {2: (40.0, 56.0), 3: (47.0, 55.3)}
+"""Dimension -> (alpha_dense, alpha_loose) [deg] of the cell. Loose: the widest opening that still
+liquefies (undrained from 2e5, phi_g = 30 deg; wider cells stiffen again), rounded inwards: 56 deg for
+the planar cell, 55.3 deg for ``hcell3d-sand`` (DEM and closed form), so that the map's loose third
+liquefies (docs/studies/density_map_range.md). Dense: the planar studies' dense cell (40 deg) and the
+dense ten-sphere cell (47 deg; below 45 its planes overlap)."""
 
 
 @dataclass(frozen=True)
