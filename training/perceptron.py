@@ -147,6 +147,21 @@ def dense(weight, bias, h, out, squash):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def forward_layers(weights, biases, h, layers):
+    """Every layer in turn (``dense``): tanh hidden layers, linear output layer.
+
+    Args:
+        weights, biases: tuples of the layers' (n_out, n_in) and (n_out,) float32 arrays, input layer first.
+        h: inputs (n_inputs, n) float32, cells last.
+        layers: tuple of (n_out, n) float32 arrays, written: every layer's output, the network's last.
+    """
+    last = len(weights) - 1
+    dense(weights[0], biases[0], h, layers[0], last > 0)
+    for index in range(1, len(weights)):
+        dense(weights[index], biases[index], layers[index - 1], layers[index], index < last)
+
+
+@numba.njit(cache=True, error_model="numpy")
 def scale_by_tanh_derivative(h, out_dot):
     """``out_dot *= 1 - h^2`` in place (tanh' = 1 - tanh^2 at the layer's output ``h``), both (n_rows, n) float32."""
     for j in range(h.shape[0]):
@@ -164,8 +179,8 @@ class Perceptron:
     """
 
     def __init__(self, weights: list[tuple[np.ndarray, np.ndarray]]) -> None:
-        self.weight = [np.ascontiguousarray(w, dtype=np.float32) for w, _ in weights]
-        self.bias = [np.ascontiguousarray(b, dtype=np.float32) for _, b in weights]
+        self.weight = tuple(np.ascontiguousarray(w, dtype=np.float32) for w, _ in weights)
+        self.bias = tuple(np.ascontiguousarray(b, dtype=np.float32) for _, b in weights)
         self._zero_bias = [np.zeros_like(b) for b in self.bias]
         self.widths = tuple(w.shape[0] for w in self.weight)
         """Output width of every layer."""
@@ -176,20 +191,17 @@ class Perceptron:
         """Number of inputs of the first layer."""
         return int(self.weight[0].shape[1])
 
-    def buffers(self, n: int) -> list[np.ndarray]:
+    def buffers(self, n: int) -> tuple[np.ndarray, ...]:
         """Scratch outputs of every layer for ``n`` cells, (width, n) float32 each."""
-        return [np.empty((width, n), dtype=np.float32) for width in self.widths]
+        return tuple(np.empty((width, n), dtype=np.float32) for width in self.widths)
 
-    def forward(self, h: np.ndarray, layers: list[np.ndarray]) -> np.ndarray:
-        """Network output (n_outputs, n) of inputs ``h`` (n_inputs, n); ``layers`` from ``buffers(n)``
-        receive every layer's output (the hidden activations stay there for ``jvp``)."""
-        last = len(self.weight) - 1
-        for index, (weight, bias, out) in enumerate(zip(self.weight, self.bias, layers)):
-            dense(weight, bias, h, out, index < last)
-            h = out
-        return h
+    def forward(self, h: np.ndarray, layers: tuple[np.ndarray, ...]) -> np.ndarray:
+        """Network output (n_outputs, n) of inputs ``h`` (n_inputs, n) float32 C-contiguous; ``layers`` from
+        ``buffers(n)`` receive every layer's output (the hidden activations stay there for ``jvp``)."""
+        forward_layers(self.weight, self.bias, h, layers)
+        return layers[-1]
 
-    def jvp(self, first: int, h_dot: np.ndarray, layers: list[np.ndarray]) -> np.ndarray:
+    def jvp(self, first: int, h_dot: np.ndarray, layers: tuple[np.ndarray, ...]) -> np.ndarray:
         """Derivative of the output (n_outputs, n) along one direction, given that of the inputs
         ``first``, ``first + 1``, ... (``h_dot`` (n_varying, n); every other input constant) and the
         activations ``forward`` left in ``layers``."""
