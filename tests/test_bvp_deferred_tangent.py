@@ -88,3 +88,48 @@ def test_solver_skips_the_tangents_newton_does_not_use():
 
 if __name__ == "__main__":
     pytest.main([__file__])
+
+
+def test_reused_tangent_converges_to_the_same_curve_with_fewer_tangents():
+    steps = fe.isotropic_stage(P0, 4) + fe.shear_stage(P0, 8e-3, 8)
+    runs = {}
+    for reuse in (False, True):
+        specimen = fe.BiaxialSpecimen(1, 2, newton_rtol=1e-5, reuse_tangent=reuse)
+        material = HomogenisedMaterial(make_cell_model("dem"), orientation.orientations(12), h_cell(40.0),
+                                       specimen.n_points)
+        runs[reuse] = specimen.run(material, steps, scale=P0)
+    fresh, reused = runs[False], runs[True]
+    for r in reused:
+        corrections = r.iterations - r.diagnostics["line_search_halvings"]
+        assert r.diagnostics["tangents"] + r.diagnostics["tangents_reused"] == corrections
+        assert r.residuals[-1] <= 1e-5 * P0
+    assert all(r.diagnostics["tangents_reused"] == 0 for r in fresh)
+    n_fresh = sum(r.diagnostics["tangents"] for r in fresh)
+    n_reused = sum(r.diagnostics["tangents"] for r in reused)
+    assert sum(r.diagnostics["tangents_reused"] for r in reused) > 0 and n_reused < n_fresh
+    q = np.array([[r.sigma11 - r.sigma22 for r in run] for run in (fresh, reused)]) / P0
+    assert q[0, -1] > 0.5  # sheared
+    assert np.abs(q[0] - q[1]).max() <= 5e-5  # both within 5x the Newton tolerance (1e-5 of p0) of one curve
+
+
+def test_cli_reuse_tangent_records_the_flag_and_the_counts(tmp_path, capsys):
+    import json
+
+    import h5py
+
+    from homogenization.cli import bvp
+    from warp_hcell.core.cli import run_main
+
+    argv = ["--backend", "dem", "--alpha0", "40", "--p0", "2e5", "--eps-max", "0.004", "--increment", "1e-3",
+            "--orientations", "12", "--elements", "1,2", "--iso-steps", "4", "--newton-rtol", "1e-5"]
+    counts = {}
+    for flag in ([], ["--reuse-tangent"]):
+        out = tmp_path / ("reuse" if flag else "fresh")
+        assert run_main(bvp.main, argv + flag + ["--out", str(out)]) == 0
+        line = next(text for text in capsys.readouterr().out.splitlines() if "tangents computed" in text)
+        computed, reused = (int(part.split()[-1]) for part in line.split("tangents computed ")[1].split(", reused"))
+        counts[bool(flag)] = computed, reused
+        with h5py.File(out / "run.h5") as f:
+            assert json.loads(f.attrs["parameters"])["reuse_tangent"] is bool(flag)
+    assert counts[False][1] == 0 and counts[True][1] > 0
+    assert counts[True][0] < counts[False][0]

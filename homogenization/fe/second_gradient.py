@@ -71,11 +71,11 @@ class SecondGradientSpecimen(BiaxialSpecimen):
 
     def __init__(self, nx: int, ny: int, *, length: float, modulus: float, width: float = FeDefaults.width,
                  height: float = FeDefaults.height, newton_rtol: float = FeDefaults.newton_rtol,
-                 max_newton: int = FeDefaults.max_newton) -> None:
+                 max_newton: int = FeDefaults.max_newton, reuse_tangent: bool = False) -> None:
         if not (length > 0.0 and modulus > 0.0):
             raise ValueError(f"length and modulus must be > 0, got {length} and {modulus}")
         super().__init__(nx, ny, width=width, height=height, newton_rtol=newton_rtol, max_newton=max_newton,
-                         element=ElementQuadS2())
+                         element=ElementQuadS2(), reuse_tangent=reuse_tangent)
         self.length = float(length)
         quadrature = self.basis.quadrature
         self.v_basis = Basis(self.mesh, ElementQuad1(), quadrature=quadrature)

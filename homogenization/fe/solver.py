@@ -46,6 +46,9 @@ REFRESH_EVERY = 10
 """Without checkpoints, solver data kept across steps (``begin_step``) is renewed every this many
 steps; with checkpoints, every checkpoint interval, so that a resumed run repeats the arithmetic [-]."""
 MAX_HALVINGS = 4
+REUSE_CONTRACTION = 0.1
+"""With ``reuse_tangent``, a Newton correction takes the kept stiffness where it is the step's first
+or the previous correction cut the residual to at most this fraction [-]."""
 """Halvings of a Newton correction after which it is taken even if the residual grew [-]."""
 
 
@@ -130,15 +133,21 @@ class BiaxialSpecimen:
         width, height: specimen size W, H [m].
         newton_rtol: convergence when the out-of-balance force norm <= newton_rtol * scale * W [-].
         max_newton: Newton iterations allowed per load step.
+        reuse_tangent: with a material that ``defers_tangent``, keep the last stiffness computed and
+            correct with it across iterations and steps while it contracts (``REUSE_CONTRACTION``);
+            a correction after a poorer one computes a fresh tangent (modified Newton). Counts:
+            diagnostics ``tangents`` (computed) and ``tangents_reused``.
     """
 
     def __init__(self, nx: int, ny: int, *, width: float = FeDefaults.width, height: float = FeDefaults.height,
                  newton_rtol: float = FeDefaults.newton_rtol, max_newton: int = FeDefaults.max_newton,
-                 element=None) -> None:
+                 element=None, reuse_tangent: bool = False) -> None:
         if int(nx) < 1 or int(ny) < 1:
             raise ValueError(f"element counts must be >= 1, got {nx} x {ny}")
         self.newton_rtol = float(newton_rtol)
         self.max_newton = int(max_newton)
+        self.reuse_tangent = bool(reuse_tangent)
+        self._kept_stiffness = None
         self.nx, self.ny = int(nx), int(ny)
         self.width, self.height = float(width), float(height)
         self.mesh = MeshQuad.init_tensor(np.linspace(0.0, width, nx + 1), np.linspace(0.0, height, ny + 1))
@@ -285,7 +294,9 @@ class BiaxialSpecimen:
         Where a correction increases the residual, it is halved (at most ``MAX_HALVINGS`` times,
         each costing an iteration); the count is the diagnostic ``line_search_halvings``. Where the
         material ``defers_tangent``, an update computes its tangent only when a correction needs it
-        (not for the converged iterate, nor a halving); the count is ``tangents``.
+        (not for the converged iterate, nor a halving; with ``reuse_tangent`` only where the kept
+        stiffness stopped contracting); the counts are ``tangents`` and ``tangents_reused``. Where
+        ``fresh``, the kept stiffness is dropped (a resumed run repeats the arithmetic).
 
         Returns (x, material update, internal force vector, iterations, residual norms, diagnostics).
         """
@@ -305,8 +316,10 @@ class BiaxialSpecimen:
         residuals: list[float] = []
         totals: dict[str, float] = {}
         free = np.setdiff1d(np.arange(expand.shape[1]), fixed)
-        accepted, step_x, alpha, halvings, tangents = np.inf, None, 1.0, 0, 0
+        accepted, step_x, alpha, halvings, tangents, reused = np.inf, None, 1.0, 0, 0, 0
         defer = material.defers_tangent
+        if fresh:
+            self._kept_stiffness = None
         for iteration in range(self.max_newton + 1):
             d_e = self.strain(self.displacement_of(x)) - eps_start
             update = material.update(state, d_e, with_tangent=not defer)
@@ -320,6 +333,7 @@ class BiaxialSpecimen:
             if norm <= self.newton_rtol * scale * self.width:
                 totals["line_search_halvings"] = float(halvings)
                 totals["tangents"] = float(tangents)
+                totals["tangents_reused"] = float(reused)
                 return x, update, f_int, iteration, residuals, totals
             if iteration == self.max_newton:
                 break
@@ -329,9 +343,14 @@ class BiaxialSpecimen:
                 halvings += 1
                 x = x_base + alpha * step_x
                 continue
-            if K is None:
+            kept = self._kept_stiffness
+            if K is None and kept is not None and (step_x is None or norm <= REUSE_CONTRACTION * accepted):
+                K = kept
+                reused += 1
+            elif K is None:
                 _, K = self.system(x, update.stress, material.tangent(state, d_e, update))
                 tangents += 1
+                self._kept_stiffness = K if self.reuse_tangent else None
             K_r = (expand.T @ K @ expand).tocsr()
             accepted, alpha, x_base = norm, 1.0, x
             step_x = expand @ self.newton_correction(K_r, residual, fixed)
