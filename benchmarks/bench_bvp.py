@@ -1,12 +1,14 @@
-"""python benchmarks/bench_bvp.py [--elements 32,64] [--orientations 72] [--shear-steps 100] [--dem-steps K] [--out FILE]
+"""python benchmarks/bench_bvp.py [--elements 32,64] [--orientations N] [--shear-steps 100] [--dem-steps K] [--out FILE]
 
 Speed of the finite-element biaxial specimen (``homogenization.fe.solver``) at scale, the
 closed-form (analytical), meso-ANN and meso-DEM backends side by side in one run, on one mesh
 (default 32 x 64 bilinear quadrilaterals, 2 x 2 Gauss points: 8 192 material points) with
 --orientations cells per point: alpha0 = 40 deg, p0 = 2e5 N/m, 20 isotropic steps, then
 --shear-steps steps of 1e-3 (through the peak at about 3.5 %). Every Newton iteration is one
-batched material update of all points. The DEM defers its tangent (computed only for a Newton
-correction) and, unless --fresh-tangents, reuses it while it contracts (``reuse_tangent``).
+batched material update of all points. Backend ``dem`` defers its tangent (computed only for a
+Newton correction) and reuses it while it contracts (``reuse_tangent``); ``dem:deferred`` defers
+it without reuse; ``dem:eager`` computes it with every update (the solver before deferral), so
+--backends dem:eager dem:deferred dem compares the three in one run (CPU and wall ratios printed).
 
 Per backend: load steps run (iso + shear), wall and CPU time [s], the wall split into material
 updates (the cells' step, with the tangent where the backend computes it with the step), deferred
@@ -43,6 +45,21 @@ RTOL = {"analytical": 1e-8, "ann": 1e-8, "dem": 1e-5}
 """Newton tolerance per backend (the DEM's equilibrium tolerance bounds its attainable residual)."""
 
 
+class EagerTangent:
+    """A cell model without ``step_tangent``: the material asks every step for its tangent."""
+
+    def __init__(self, model) -> None:
+        self.model, self.name = model, model.name
+
+    def step(self, cells, d_eps, *, with_tangent=False):
+        return self.model.step(cells, d_eps, with_tangent=with_tangent)
+
+    def __getattr__(self, name):
+        if name == "step_tangent":
+            raise AttributeError(name)
+        return getattr(self.model, name)
+
+
 class Timed:
     """Wall time spent in a material's ``update`` and ``tangent`` (wrapped on the instance)."""
 
@@ -67,11 +84,13 @@ class Timed:
         material.update, material.tangent = timed_update, timed_tangent
 
 
-def run_backend(name: str, nx: int, ny: int, n_orientations: int, shear_steps: int, limit: int | None,
-                reuse: bool) -> dict:
-    """One homogeneous run of backend ``name``, the first ``limit`` load steps (None: all)."""
-    specimen = fe.BiaxialSpecimen(nx, ny, newton_rtol=RTOL[name], reuse_tangent=reuse)
-    model = make_cell_model(name)
+def run_backend(name: str, nx: int, ny: int, n_orientations: int, shear_steps: int, limit: int | None) -> dict:
+    """One homogeneous run of backend ``name`` (module docstring), the first ``limit`` load steps (None: all)."""
+    backend, _, variant = name.partition(":")
+    specimen = fe.BiaxialSpecimen(nx, ny, newton_rtol=RTOL[backend], reuse_tangent=backend == "dem" and not variant)
+    model = make_cell_model(backend)
+    if variant == "eager":
+        model = EagerTangent(model)
     material = HomogenisedMaterial(model, orientation.orientations(n_orientations), h_cell(ALPHA0), specimen.n_points)
     timed = Timed(material)
     steps = fe.isotropic_stage(P0, ISO_STEPS) + fe.shear_stage(P0, shear_steps * 1e-3, shear_steps)
@@ -113,7 +132,8 @@ def run_backend(name: str, nx: int, ny: int, n_orientations: int, shear_steps: i
 
     substeps = diag("substeps")
     q = np.array([r.sigma11 - r.sigma22 for r in results]) / P0
-    return {"backend": name, "points": specimen.n_points, "cells": material.n_cells, "reuse_tangent": reuse,
+    return {"backend": name, "points": specimen.n_points, "cells": material.n_cells,
+            "reuse_tangent": specimen.reuse_tangent,
             "steps_run": len(results), "iso_steps_run": int((~shear).sum()), "shear_steps_run": int(shear.sum()),
             "steps_total": len(steps), "wall_s": wall, "cpu_s": cpu, "update_s": timed.update_s,
             "tangent_s": timed.tangent_s, "rest_s": wall - timed.update_s - timed.tangent_s,
@@ -142,8 +162,6 @@ def main() -> None:
     parser.add_argument("--ann-steps", type=int, default=None, help="load steps of the ANN run (None: all)")
     parser.add_argument("--analytical-steps", type=int, default=None,
                         help="load steps of the closed-form run (None: all)")
-    parser.add_argument("--fresh-tangents", action="store_true",
-                        help="the DEM computes a fresh tangent for every Newton correction (no reuse_tangent)")
     parser.add_argument("--out", type=Path, default=None, help="also write the rows as JSON")
     args = parser.parse_args()
     nx, ny = args.elements
@@ -151,9 +169,9 @@ def main() -> None:
           f"{ISO_STEPS} + {args.shear_steps} steps; CPUs {os.cpu_count()}", flush=True)
     rows = []
     for name in args.backends:
-        limit = {"dem": args.dem_steps, "ann": args.ann_steps, "analytical": args.analytical_steps}.get(name)
-        rows.append(run_backend(name, nx, ny, args.orientations, args.shear_steps, limit,
-                                reuse=name == "dem" and not args.fresh_tangents))
+        limit = {"dem": args.dem_steps, "ann": args.ann_steps,
+                 "analytical": args.analytical_steps}.get(name.partition(":")[0])
+        rows.append(run_backend(name, nx, ny, args.orientations, args.shear_steps, limit))
         print(f"load average: {os.getloadavg()}", flush=True)
         if args.out is not None:  # after each backend: a long run keeps what it measured
             args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -175,6 +193,13 @@ def main() -> None:
               f"{r['cpu_s']:.1f} | {full} | {its}; {r['iterations_max']} | {r['updates']} | {r['tangents']:g} "
               f"({r['tangents_reused']:g}) | {r['point_updates_per_s']:.3g} | {sub} | {per} | "
               f"{r['n_unconverged_cells']:g} | {r['load_before'][0]:.1f} -> {r['load_after'][0]:.1f}")
+    base = next((r for r in rows if r["backend"] == "dem:eager"), None)
+    for r in rows:
+        same = base is not None and r is not base and r["steps_run"] == base["steps_run"]
+        if same and r["backend"].startswith("dem"):
+            dq = np.abs(np.subtract(r["q_over_p0"], base["q_over_p0"])).max()
+            print(f"{r['backend']} / dem:eager: wall {r['wall_s'] / base['wall_s']:.3f}, "
+                  f"CPU {r['cpu_s'] / base['cpu_s']:.3f}, max |q - q_eager| / p0 = {dq:.2g}")
     print(f"load average after: {os.getloadavg()}")
 
 
