@@ -451,3 +451,91 @@ def newton3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, t
             corrections[c] += 1
         _line_search(free, d_free, step_d, alpha, pending, full, merit, halvings, new_size, position, x, shear,
                      before, cells, law, trial_residual, trial_fn_max, residual, fn_max, shortened)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def balance_tangent3d(size, shear, new_size, new_free, held_dof, cells, law, before, tangent):
+    """Consistent tangent d(S_nn, S_t1t1, S_t2t2)/d(eps_n, eps_t1, eps_t2) [N m] of a corrected increment, at its end.
+
+    The free DOFs follow the balance R(d, eps) = 0 (``residual3``): dd/deps = K^-1 dR/deps with
+    K = -J + REGULARISATION kn I (the Newton matrix of ``newton3d``, the derivative of the equilibrium that
+    ``training.equilibrium.corrected_advance`` gives autograd), zero for DOFs the rest rule held; the moment's
+    derivative is then taken along (eps, d) through the contact law (``pair_force_jacobian``). Branch choices
+    are those of the end state. size (3, n): before the increment; new_size (3, n), new_free (n_free, n),
+    held_dof (n_free, n) bool: after it (``training.fast_cells.Advanced``); shear, before: the state and
+    ``training.fast_cells.Before`` before it. Output tangent (n, 3, 3): [c, i, j] = d S_ii / d eps_j,
+    compression positive."""
+    n = size.shape[1]
+    frac, free_dofs, free_slot, pairs, radius = cells.frac, cells.free_dofs, cells.free_slot, cells.pairs, cells.radius
+    kn, kt, mu, tol = law.kn, law.kt, law.mu, law.tol
+    slack = 1.0 + CAP_SLACK
+    n_free, n_pairs, n_grains = free_dofs.shape[0], pairs.shape[0], frac.shape[0]
+    x = np.empty((n_grains, 3, n))
+    grain_positions(new_size, new_free, frac, free_dofs, x)
+    b, ob, s = np.empty(3), np.empty(3), np.empty(3)
+    g, dg = np.empty((n_pairs, 3)), np.empty((n_pairs, 3, 3))
+    branch, bdot = np.empty((n_pairs, 3)), np.empty((n_pairs, 3))
+    touching = np.empty(n_pairs, dtype=np.bool_)
+    work = np.empty((8, 3, 3))
+    k_mat, a_w = np.empty((n_free, n_free)), np.empty((n_free, n_free))
+    r_eps, v = np.empty((n_free, 3)), np.empty((3, n_free))
+    rhs, sol = np.empty(n_free), np.empty(n_free)
+    db = np.empty(3)
+    for c in range(n):
+        k_mat[:, :] = 0.0
+        r_eps[:, :] = 0.0
+        for p in range(n_pairs):
+            i, j = pairs[p, 0], pairs[p, 1]
+            rsum = radius[i] + radius[j]
+            for a in range(3):
+                b[a] = x[j, a, c] - x[i, a, c]
+                ob[a] = before.old_branch[p, a, c]
+                s[a] = shear[p, a, c]
+                branch[p, a] = b[a]
+                # d x / d eps_a of a driven coordinate: -frac size_a (x = frac size_a (1 - eps_a)); free: 0
+                dxj = 0.0 if free_slot[j, a] >= 0 else -frac[j, a] * size[a, c]
+                dxi = 0.0 if free_slot[i, a] >= 0 else -frac[i, a] * size[a, c]
+                bdot[p, a] = dxj - dxi
+            touching[p] = pair_force_jacobian(b, ob, s, before.old_contact[p, c], rsum, rsum * (1.0 + tol), kn, kt,
+                                              mu, slack, g[p], dg[p], work)
+            if not touching[p]:
+                continue
+            for r_ in range(6):
+                k = free_slot[i, r_] if r_ < 3 else free_slot[j, r_ - 3]
+                if k < 0:
+                    continue
+                sign = 1.0 if r_ < 3 else -1.0
+                for e in range(3):
+                    r_eps[k, e] += sign * dg[p, r_ % 3, e] * bdot[p, e]
+                for q_ in range(6):
+                    col = free_slot[i, q_] if q_ < 3 else free_slot[j, q_ - 3]
+                    if col >= 0:
+                        k_mat[k, col] -= sign * (-1.0 if q_ < 3 else 1.0) * dg[p, r_ % 3, q_ % 3]
+        for k in range(n_free):
+            k_mat[k, k] += REGULARISATION * kn
+        for e in range(3):
+            for k in range(n_free):
+                rhs[k] = r_eps[k, e]
+                for q in range(n_free):
+                    a_w[k, q] = k_mat[k, q]
+            solve_small(a_w, rhs, sol)
+            for k in range(n_free):
+                v[e, k] = 0.0 if held_dof[k, c] else sol[k]
+        for a in range(3):
+            for e in range(3):
+                tangent[c, a, e] = 0.0
+        for p in range(n_pairs):
+            if not touching[p]:
+                continue
+            i, j = pairs[p, 0], pairs[p, 1]
+            for e in range(3):
+                for a in range(3):
+                    db[a] = bdot[p, a] if a == e else 0.0
+                    kj, ki = free_slot[j, a], free_slot[i, a]
+                    if kj >= 0:
+                        db[a] += v[e, kj]
+                    if ki >= 0:
+                        db[a] -= v[e, ki]
+                for a in range(3):
+                    dg_a = dg[p, a, 0] * db[0] + dg[p, a, 1] * db[1] + dg[p, a, 2] * db[2]
+                    tangent[c, a, e] -= dg_a * branch[p, a] + g[p, a] * db[a]

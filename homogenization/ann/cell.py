@@ -17,8 +17,9 @@ per unit probe magnitude plus a learned relaxation of the unbalanced forces, see
 
 On CPU, ``step`` runs a cell's increment through ``training.inference.FastAdvance`` (the same
 physics compiled with numba around the network call; equal to the torch path up to rounding),
-and a planar cell's tangent by forward-mode differentiation in the same code; a spatial cell's
-tangent, and everything on another device, through the torch path and autograd. The compiled
+and a planar cell's tangent by forward-mode differentiation in the same code, a corrected spatial
+cell's as the derivative of its balanced end state (``FastAdvance.has_tangent``); the tangent of a
+spatial network alone, and everything on another device, through the torch path and autograd. The compiled
 path reads the model's weights without torch (``training.fast_model``); the torch network
 (``AnnCell.net``) is rebuilt from the same files the first time something needs it.
 
@@ -77,7 +78,7 @@ from homogenization.ann.ood import OOD_INTERVAL, OodMonitor
 from homogenization.ann.policy import CertificatePolicy, default_escalation
 from homogenization.ann.records import Certificate, certificate_of
 from training import fast_model
-from training.inference import KERNELS, FastAdvance
+from training.inference import FastAdvance
 from training.fast_model import net_arrays, RELAXATION_RAMP, StateDictError
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint, read_metadata
 from training.card import ModelCard
@@ -292,14 +293,14 @@ class AnnCell(ArrayStateMixin):
             d_eps_local: local strain increment [-], shape (n_cells, dim), compression positive.
             with_tangent: also return ``CellResponse.tangent`` = d(S_nn, S_tt[, S_t2t2])/d(d_eps)
                 [N m], shape (n_cells, dim, dim), the derivative of the whole increment (network
-                and contact law): forward mode in the compiled path on CPU where the cell's dimension
-                has a compiled tangent (``training.inference.KERNELS``: planar cells), torch autograd otherwise.
+                and contact law): compiled on CPU where ``FastAdvance.has_tangent`` (planar cells; spatial
+                cells with corrections), torch autograd otherwise.
 
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
         due = self.ood_monitor.due(state)
-        if self.fast is not None and not (with_tangent and KERNELS[self.dim].tangent is None):
+        if self.fast is not None and not (with_tangent and not self.fast.has_tangent):
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
             features = self.fast.last_features()[probe_columns(self.arrays):].T if due else None
             diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
