@@ -16,8 +16,8 @@
    torch autograd of ``MesoNet.advance`` up to the float32 rounding of the network.
 
 Spatial cells (a schema of dimension 3) take ``training.fast_step3d`` for steps 1 and 3 (the
-spring a vector in the tangent plane, V_cell a volume) around the same perceptron; their
-tangent is not compiled.
+spring a vector in the tangent plane, V_cell a volume) around the same perceptron; the tangent
+of their network is not compiled, that of their corrected increment is (``fast_equilibrium3d``).
 
 The un-normalisation of the outputs and all the physics are float64 (positions must be
 resolved to ~1e-7 D), so float32 only rounds the network's arithmetic (its effect on whole
@@ -88,10 +88,11 @@ class Kernels:
         features, advance: steps 1 and 3 (module docstring): ``training.fast_features.features`` and
             ``training.fast_increment.advance``, or ``training.fast_step3d.features3d`` and ``advance3d``.
         step: features, perceptron and advance in one call (``training.fast_increment.step``), or None.
-        tangent: ``training.fast_tangent.moment_tangent``, or None where the tangent is not compiled.
+        tangent: ``training.fast_tangent.moment_tangent``, or None where the network's tangent is not compiled.
         hold, newton, physics: the equilibrium corrections (the DEM's rest rule on the first guess, then the
             Newton steps: ``training.fast_equilibrium3d.hold_guess3d``, ``newton3d``) and the contact law
             after them (``training.fast_step3d.physics3d``), or None where the cells take none.
+        balance_tangent: the tangent of a corrected increment (``fast_equilibrium3d.balance_tangent3d``), or None.
     """
 
     features: Callable
@@ -101,6 +102,7 @@ class Kernels:
     hold: Callable | None
     newton: Callable | None
     physics: Callable | None
+    balance_tangent: Callable | None = None
 
 
 def _planar_kernels() -> Kernels:
@@ -112,10 +114,10 @@ def _planar_kernels() -> Kernels:
 
 
 def _spatial_kernels() -> Kernels:
-    from training.fast_equilibrium3d import hold_guess3d, newton3d  # noqa: PLC0415
+    from training.fast_equilibrium3d import balance_tangent3d, hold_guess3d, newton3d  # noqa: PLC0415
     from training.fast_step3d import advance3d, features3d, physics3d  # noqa: PLC0415
 
-    return Kernels(features3d, advance3d, None, None, hold_guess3d, newton3d, physics3d)
+    return Kernels(features3d, advance3d, None, None, hold_guess3d, newton3d, physics3d, balance_tangent3d)
 
 
 class _KernelTable(Mapping):
@@ -199,7 +201,7 @@ class FastAdvance:
     """``MesoNet.advance`` for inference on CPU: numba physics (float64) around the perceptron (float32).
 
     A cell's output does not depend on its batch or the CPU's vector width (``training.perceptron``);
-    the arrays returned are new. Spatial cells run ``training.fast_step3d``, without a compiled tangent.
+    the arrays returned are new. Spatial cells run ``training.fast_step3d`` (a compiled tangent with corrections only).
 
     Args:
         net: the trained network, a ``MesoNet`` or its ``training.fast_model.NetArrays``; copied.
@@ -272,6 +274,14 @@ class FastAdvance:
         self._newton = None if kernels.newton is None else _Compiled(kernels.newton)
         self.rounds = self._rounds(self.corrections, compact)
         self._physics = None if kernels.physics is None else _Compiled(kernels.physics)
+        self._balance_tangent = (_Compiled(kernels.balance_tangent)
+                                 if self.corrections and kernels.balance_tangent is not None else None)
+
+    @property
+    def has_tangent(self) -> bool:
+        """Whether ``increment`` computes the tangent: planar cells, and spatial cells with corrections (the
+        derivative of the balanced end state, ``fast_equilibrium3d.balance_tangent3d``)."""
+        return self._tangent is not None or self._balance_tangent is not None
 
     @staticmethod
     def _rounds(corrections: int, compact: bool) -> tuple[int, ...]:
@@ -346,12 +356,13 @@ class FastAdvance:
                   d_eps: np.ndarray, with_tangent: bool = False, held: np.ndarray | None = None
                   ) -> tuple[FastIncrement, np.ndarray | None]:
         """``__call__``, and with ``with_tangent`` also the consistent tangent d(S_nn, S_tt)/d(eps_n, eps_t)
-        [N m], (n, 2, 2), by forward-mode differentiation of the same increment (``training.fast_tangent``;
-        planar cells only: ValueError for a spatial one). ``held``: bool (n, n_free), free DOFs whose first
+        [N m], (n, dim, dim), by forward-mode differentiation of the same increment (``training.fast_tangent``)
+        or, with corrections, of its balanced end state (``fast_equilibrium3d.balance_tangent3d``); ValueError
+        where ``has_tangent`` is False. ``held``: bool (n, n_free), free DOFs whose first
         guess of the corrections is no motion (with corrections only)."""
         dim = self.dim
-        if with_tangent and self._tangent is None:
-            raise ValueError("the compiled tangent is planar; take the tangent of a spatial cell from torch autograd")
+        if with_tangent and not self.has_tangent:
+            raise ValueError("no compiled tangent of a spatial cell without corrections; take it from torch autograd")
         size, free, shear = _cells_last(cell_size), _cells_last(free_position), _cells_last(shear_force)
         d_eps = np.ascontiguousarray(d_eps, dtype=np.float64)
         n, n_free, springs = size.shape[-1], self.cells.free_dofs.shape[0], self._springs
@@ -391,7 +402,11 @@ class FastAdvance:
         elif self._step is None:
             self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
         tangent = None
-        if with_tangent:
+        if with_tangent and self._balance_tangent is not None:
+            tangent = np.empty((n, dim, dim))
+            self._balance_tangent(size, shear, result.new_size, result.new_free, result.held_dof, self.cells, self.law,
+                                  work.before, tangent)
+        elif with_tangent:
             f_dot = np.empty((2, 2, n), dtype=np.float32)
             probe_feature_tangent(d_eps, work.before.m, self.scaling.feature_std, f_dot)
             tangent = np.empty((n, 2, 2))
