@@ -25,8 +25,9 @@ medians and their ratios.
 compiled and the torch path), to measure what the globalisation adds.
 
 ``--escalation on,off`` adds rows of the hybrid that keeps the corrections' result where a free grain moved
-and ends touching nothing (the package hands those cells to the DEM: ``homogenization.ann.escalation``;
-the column "to DEM" counts them), ``sliding`` rows of a hybrid that also hands the DEM the cells where a grain
+and ends touching nothing (the package takes those cells' increment again with that grain starting the
+corrections at rest, ``homogenization.ann.escalation``, ``AnnCell``; the column "to DEM" counts the cells
+the DEM computes: those of ``sliding`` rows, or of another device than the CPU), ``sliding`` rows of a hybrid that also hands the DEM the cells where a grain
 free along every axis slides (``DemEscalation(sliding=True)``, not the package's default); ``--from-rest`` adds the DEM started from rest in every increment (the map
 the database samples), the DEM's own reproducibility. Beside the largest difference, the column "+-W inc."
 is the largest difference of p and q when each increment may be matched with one of the other curve's within
