@@ -12,6 +12,10 @@ printed with the numbers):
    (``MesoNet.displacement``) and the step with its autograd tangent; with ``--widths``, in
    the same interleaved loop, the step of networks of other hidden widths (the model's inputs,
    random weights: the cost of a width, ``homogenization.learning.active.WIDTH_LADDER``);
+   with ``--parts``, where the ANN step's time goes: the median of each part called alone (the
+   whole ``AnnCell.step``, ``FastAdvance.increment``, its one compiled call, and the features,
+   each perceptron layer with and without its tanh, and the advance kernel called apart), at
+   ``--cells`` cells and at one cell (the fixed cost of each call);
 2. unless ``--skip-run``: one JSON line per biaxial test (isotropic compression to p0, then
    constant-volume, and/or drained (``--tests``), shear to ``--eps-max``; ``reversal``:
    constant volume to eps1 = +``--reversal-strain``, then back to -``--reversal-strain``,
@@ -73,8 +77,12 @@ def main() -> None:
     parser.add_argument("--widths", nargs="+", type=hidden_widths, default=[],
                         help="also time networks of these hidden widths (e.g. 48,48 40,40,40): --model's inputs, "
                              "normalisation and schema, random weights (timing only: the active-learning ladder)")
+    parser.add_argument("--parts", action="store_true", help="also time the parts of the ANN step, each alone")
     args = parser.parse_args()
     print(f"load average (1, 5, 15 min): {os.getloadavg()}")
+    if args.parts and args.mesostructure is None:
+        for n in (args.cells, 1):
+            time_parts(args.model, n, args.repeats)
     if args.mesostructure is None:
         time_increments(args)
     if not args.skip_run:
@@ -121,6 +129,53 @@ def time_increments(args) -> None:
     for name in list(models)[2:]:
         print(f"{name}: step {ms[name]:.3f} ms, ratio / analytical = {ms[name] / ms['analytical']:.2f}", flush=True)
     scratch.cleanup()
+
+
+def _median_us(fn, repeats: int) -> float:
+    return 1e6 * float(np.median([_time(fn) for _ in range(repeats)]))
+
+
+def time_parts(model, n: int, repeats: int) -> None:
+    """Median time [us] of each part of the ANN step of ``n`` H-cells (as ``time_increments``), each called alone."""
+    from training.fast_cells import Advanced  # noqa: PLC0415
+    from training.fast_features import features  # noqa: PLC0415
+    from training.fast_increment import advance  # noqa: PLC0415
+    from training.inference import _cells_last, _Compiled  # noqa: PLC0415
+    from training.perceptron import dense  # noqa: PLC0415
+
+    ann = make_cell_model("ann", model=model, threads=1)
+    fast = ann.fast
+    orient = orientations(n)
+    state = ann.init_state(h_cell(55.0), n)
+    for _ in range(100):
+        state, _ = ann.step(state, localise(orient, np.array([2e-5, 2e-5, 0.0])))
+    d_eps = np.ascontiguousarray(localise(orient, np.array([1e-5, -1e-5, 0.0])))
+    size, free, shear = (_cells_last(a) for a in state)
+    work = fast._workspace(n)
+    n_free = free.shape[0]
+    result = Advanced(np.empty((2, n)), np.empty((n_free, n)), np.empty(shear.shape), np.empty((n, 2, 2)), np.empty(n),
+                      *np.empty((4, n), dtype=bool), np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=bool))
+    tables = (fast.cells, fast.law, fast.scaling)
+    features_entry, advance_entry = _Compiled(features), _Compiled(advance)  # entry points, as FastAdvance calls them
+    weights, biases, layers = fast.perceptron.weight, fast.perceptron.bias, work.layers
+    inputs = (work.before.feats, *layers[:-1])
+    last = len(weights) - 1
+    parts = {"AnnCell.step": lambda: ann.step(state, d_eps),
+             "FastAdvance.increment": lambda: fast.increment(*state, d_eps),
+             "its compiled call (step)": lambda: fast._step(size, free, shear, d_eps, *tables, weights, biases,
+                                                            work.before, layers, result),
+             "features apart": lambda: features_entry(size, free, shear, d_eps, *tables, work.before),
+             "perceptron apart": lambda: fast.perceptron.forward(work.before.feats, layers),
+             **{f"layer {k} (tanh: {k < last})":
+                (lambda k=k: dense(weights[k], biases[k], inputs[k], layers[k], k < last)) for k in range(last + 1)},
+             **{f"layer {k} without tanh": (lambda k=k: dense(weights[k], biases[k], inputs[k], layers[k], False))
+                for k in range(last)},
+             "advance apart": lambda: advance_entry(size, free, shear, d_eps, layers[-1], *tables, work.before, result)}
+    for fn in parts.values():
+        fn()
+    fast.increment(*state, d_eps)  # leaves the layers as the network's outputs
+    print(f"{n} cells, parts alone, median of {repeats} calls [us]: "
+          + "; ".join(f"{name} {_median_us(fn, repeats):.1f}" for name, fn in parts.items()), flush=True)
 
 
 def _random_model(model: Path, widths: tuple[int, ...], folder: Path) -> Path:

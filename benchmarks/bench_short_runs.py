@@ -1,4 +1,4 @@
-"""python benchmarks/bench_short_runs.py [--repeats 3] [--increment 1e-4] [--eps-max 0.03] [--cold]: whole-process cost of short ANN runs.
+"""python benchmarks/bench_short_runs.py [--repeats 3] [--increment 1e-4] [--eps-max 0.03] [--cold] [--startup]: whole-process cost of short ANN runs.
 
 Runs, as whole processes (``python -m homogenization.hmodel ...``, start-up, imports, model and
 certificate loading, compilation or cache loading, the run and its output all counted), a
@@ -11,6 +11,13 @@ command's isotropic stage (its default increment).
 
 ``--cold``: the ANN runs with an empty ``NUMBA_CACHE_DIR`` each time (the first run on a machine:
 the kernels compiled), the closed form as usual.
+
+``--startup``: instead, where a planar ANN process's CPU time goes, by phase, in fresh processes
+(``--repeats`` of them): numpy's import, numba's, the ANN's modules and cell model (``AnnCell``),
+the first step (numba's set-up of its typing and lowering registries and the cached kernels' loading),
+the other 320 steps of 360 cells; and the same with scipy's ``cython_blas`` extension loaded before
+numba's set-up without its package (what numba's BLAS check would import: ``scipy.linalg``), to
+measure that import's share. Not the CLI: the phases of the run that differ from the closed form's.
 
 The machine may be shared: the load average is printed before and after; CPU seconds are less
 sensitive to other processes than wall seconds, not immune.
@@ -55,6 +62,59 @@ def timed(argv: list[str], env: dict[str, str]) -> tuple[float, float]:
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
+STARTUP = r"""
+import importlib.machinery, importlib.util, json, os, sys, time
+marks = [("start", time.process_time())]
+def mark(name):
+    marks.append((name, time.process_time()))
+import numpy as np
+mark("import numpy")
+import numba
+mark("import numba")
+if sys.argv[1] == "blas":  # scipy.linalg.cython_blas alone, before numba's set-up imports it with scipy.linalg
+    folder = os.path.join(os.path.dirname(importlib.util.find_spec("scipy").origin), "linalg")
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        path = os.path.join(folder, "cython_blas" + suffix)
+        if os.path.exists(path):
+            spec = importlib.util.spec_from_file_location("scipy.linalg.cython_blas", path)
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[spec.name] = module
+            spec.loader.exec_module(module)
+            break
+    mark("scipy's cython_blas alone")
+from homogenization.backends import make_cell_model
+from homogenization.material.orientation import localise, orientations
+from warp_hcell.mesostructures.hcell import h_cell
+mark("import the ANN's modules")
+cell = make_cell_model("ann", threads=1)
+mark("AnnCell (model, certificate, OOD index)")
+state = cell.init_state(h_cell(55.0), 360)
+d_eps = localise(orientations(360), np.array([1e-5, -1e-5, 0.0]))
+state, _ = cell.step(state, d_eps)
+mark("first step (numba's set-up, cached kernels)")
+for _ in range(320):
+    state, _ = cell.step(state, d_eps)
+mark("320 more steps")
+print(json.dumps({b[0]: round(b[1] - a[1], 4) for a, b in zip(marks, marks[1:])}))
+"""
+
+
+def startup(args) -> None:
+    """CPU seconds of each phase of a planar ANN process (``STARTUP``), with and without scipy's BLAS module loaded
+    apart, interleaved, ``args.repeats`` processes each."""
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    rows: dict[str, list[dict[str, float]]] = {"plain": [], "blas": []}
+    for _ in range(args.repeats):
+        for variant in rows:
+            done = subprocess.run([sys.executable, "-c", STARTUP, variant], cwd=ROOT, env=env, capture_output=True,
+                                  text=True, check=True)
+            rows[variant].append(json.loads(done.stdout.strip().splitlines()[-1]))
+    for variant, runs in rows.items():
+        phases = "; ".join(f"{name} {statistics.median(r[name] for r in runs):.3f}" for name in runs[0])
+        total = statistics.median(sum(r.values()) for r in runs)
+        print(f"{variant}: CPU seconds, median of {len(runs)} processes: {phases}; sum {total:.3f}", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -63,8 +123,13 @@ def main() -> None:
     parser.add_argument("--eps-max", type=float, default=0.03, help="shear strain of the test [-]")
     parser.add_argument("--tests", nargs="+", choices=("biaxial", "triaxial"), default=["biaxial", "triaxial"])
     parser.add_argument("--cold", action="store_true", help="ANN runs with an empty NUMBA_CACHE_DIR each time")
+    parser.add_argument("--startup", action="store_true", help="only the CPU time of a planar ANN process by phase")
     args = parser.parse_args()
     print(f"load average (1, 5, 15 min): {os.getloadavg()}; {os.cpu_count()} CPUs", flush=True)
+    if args.startup:
+        startup(args)
+        print(f"load average after: {os.getloadavg()}", flush=True)
+        return
     with tempfile.TemporaryDirectory() as scratch:
         out = Path(scratch)
         env = {**os.environ, "MPLBACKEND": "Agg"}
