@@ -106,7 +106,7 @@ def test_the_planar_increment_in_one_call_equals_its_three_kernels_apart(loaded)
     fast = FastAdvance(cell.net)
     one = fast(*state, d)
     fused_features = fast.last_features().copy()
-    size, free, shear = (np.ascontiguousarray(np.moveaxis(np.asarray(a, dtype=np.float64), 0, -1)) for a in state)
+    size, free, shear = (np.ascontiguousarray(np.moveaxis(np.asarray(a, np.float64), 0, -1)) for a in state)
     n, n_free = size.shape[1], free.shape[0]
     before = fast._workspace(n).before
     before.feats[:] = np.nan
@@ -114,8 +114,9 @@ def test_the_planar_increment_in_one_call_equals_its_three_kernels_apart(loaded)
     np.testing.assert_array_equal(before.feats, fused_features)
     layers = fast.perceptron.buffers(n)
     out = fast.perceptron.forward(before.feats, layers)
-    result = Advanced(np.empty((2, n)), np.empty((n_free, n)), np.empty(shear.shape), np.empty((n, 2, 2)), np.empty(n),
-                      *np.empty((4, n), dtype=bool), np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=bool))
+    result = Advanced(np.empty((2, n)), np.empty((n_free, n)), np.empty(shear.shape), np.empty((n, 2, 2)),
+                      np.empty(n), *np.empty((4, n), dtype=bool), np.empty(n, dtype=np.int64),
+                      np.empty((n_free, n), dtype=bool))
     advance(size, free, shear, d, out, fast.cells, fast.law, fast.scaling, before, result)
     apart = FastIncrement(result.new_size.T, result.new_free.T, result.new_shear.T, result.moment, result.area,
                           result.capped, result.opened, result.mechanism, result.ramped, result.n_held)
