@@ -13,7 +13,7 @@ import pytest
 
 from homogenization import hmodel
 from homogenization.backends.analytical3d import Analytical3DCell
-from homogenization.calibration import bayes
+from homogenization.calibration import bayes, resolution
 from homogenization.calibration import posterior as post_mod
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import ForwardSettings, simulate
@@ -66,12 +66,21 @@ def hertz_data(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def hertz_posterior(hertz_data, tmp_path_factory) -> Path:
+    """The data's own forward model, so without the resolution check (most of the run's time); that the
+    check's finer models keep the law is test_the_resolution_checks_finer_models_keep_the_hertz_law."""
     out = tmp_path_factory.mktemp("hertzcal") / "cal"
     assert run_main(calibrate.main, [
         "--data", str(hertz_data), "--law", "hertz-mindlin", "--params", "shear_modulus,phi_g", "--walkers", "4",
         "--steps", "4", "--poisson", "0.2", "--alpha0", "60", "--noise", "0.01", "--increment", str(INC),
-        "--iso-increment", str(ISO), "--confirm", "none", "--seed", "3", "-q", "--out", str(out)]) == 0
+        "--iso-increment", str(ISO), "--resolution", "off", "--confirm", "none", "--seed", "3", "-q",
+        "--out", str(out)]) == 0
     return out
+
+
+def test_the_resolution_checks_finer_models_keep_the_hertz_law():
+    for knob in ("increment", "orientations"):
+        finer = resolution.refined(RULE, knob)
+        assert finer.law == HertzMindlinLaw.name and finer != RULE
 
 
 def test_hertz_likelihood_peaks_at_the_truth_and_the_calibration_finds_it(hertz_data, hertz_posterior):
