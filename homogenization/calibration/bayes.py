@@ -191,7 +191,8 @@ class Posterior:
     """log posterior of sampled coordinates, vectorised: the callable emcee samples.
 
     One call runs the forward model of every test on the whole population at once.
-    ``n_fallback`` counts the forward-model fallbacks fired (``forward.Curves.n_fallback``),
+    ``n_fallback`` counts the forward-model fallbacks fired (``forward.Curves.n_fallback``), ``n_jump`` the
+    drained increments solved at a jump of the response (``forward.Curves.n_jump``),
     ``n_failed`` the parameter sets whose forward model failed (log L = -inf), ``n_calls`` the
     parameter sets evaluated inside the prior, ``n_float_errors`` the numpy operations of the
     forward model that overflowed, divided by zero or gave NaN (a drained Newton iteration that
@@ -208,6 +209,7 @@ class Posterior:
         self.settings = settings
         self.noise = float(noise)
         self.n_fallback = 0
+        self.n_jump = 0
         self.n_failed = 0
         self.n_calls = 0
         self.n_float_errors = 0
@@ -236,6 +238,7 @@ class Posterior:
             with np.errstate(all="call", call=self._count_float_error):
                 c = simulate(test, params, self.settings)
             self.n_fallback += int(c.n_fallback.sum())
+            self.n_jump += int(c.n_jump.sum())
             shift = self.correction[k] if self.correction is not None else {}
             out.append({name: c.channel(name) + shift[name] if name in shift else c.channel(name) for name in CHANNELS})
         return out

@@ -159,13 +159,15 @@ class Curves:
     within ``homogenization.element_test.programme.ISO_MAX_STRAIN`` (too soft); ``n_fallback``: per point, the
     isotropic landings and drained Newton iterations that did not meet ``stress_rtol`` (their last
     iterate is used), or (dem/ann, one set at a time) 1 where the backend reported unconverged
-    cells, shape (n,).
+    cells, shape (n,); ``n_jump``: per point, the drained increments whose lateral stress jumps across
+    its target, solved at the jump (``element_test.solver``, the nearer side), shape (n,).
     """
 
     q: np.ndarray
     p: np.ndarray
     eps_v: np.ndarray
     n_fallback: np.ndarray
+    n_jump: np.ndarray
 
     def channel(self, name: str) -> np.ndarray:
         """The curve of ``name`` ("q", "p" or "eps_v")."""
@@ -301,11 +303,12 @@ def _unreached(test: Measurement, full: dict[str, np.ndarray], settings: Forward
                reached: np.ndarray) -> Curves:
     """``simulate`` of the sets whose map reaches the test's void ratio; NaN curves for the others."""
     n = reached.size
-    out = Curves(*(np.full((n, test.eps1.size), np.nan) for _ in range(3)), np.zeros(n, dtype=np.int64))
+    out = Curves(*(np.full((n, test.eps1.size), np.nan) for _ in range(3)),
+                 *(np.zeros(n, dtype=np.int64) for _ in range(2)))
     if reached.any():
         subset = {name: values[reached] for name, values in full.items()}  # alpha0 already mapped
         part = simulate(replace(test, void_ratio=None), subset, settings)
-        for name in ("q", "p", "eps_v", "n_fallback"):
+        for name in ("q", "p", "eps_v", "n_fallback", "n_jump"):
             getattr(out, name)[reached] = getattr(part, name)
     return out
 
@@ -390,7 +393,7 @@ def simulate_points(test: Measurement, points: MaterialPoints, settings: Forward
     rows[:, :, failed] = np.nan
     eps1_model = settings.increment * np.arange(rows.shape[0])
     q, p, eps_v = (_sample(eps1_model, rows[:, i].T, test.eps1) for i in range(3))
-    return Curves(q, p, eps_v, fallback)
+    return Curves(q, p, eps_v, fallback, solver.jumps.copy())
 
 
 def _row(row: np.ndarray, start: np.ndarray, dim: int) -> np.ndarray:
@@ -412,7 +415,7 @@ def contact_law_at(full: Mapping[str, np.ndarray], i: int, law: str) -> Law:
 def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], settings: ForwardSettings) -> Curves:
     n = full["phi_g"].size
     out = np.empty((3, n, test.eps1.size))
-    fallback = np.zeros(n, dtype=np.int64)
+    fallback, jumps = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
     n_shear = _n_shear(test, settings)
     programme = SHEAR_TESTS[test.dim](test.p0, n_shear * settings.increment, settings.increment,
                                       iso_increment=settings.iso_increment, drained=test.drained)
@@ -436,4 +439,5 @@ def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], setting
         for c in range(3):
             out[c, i] = np.interp(test.eps1, eps1_model, values[c])
         fallback[i] = int(np.nansum(record.diagnostics.get("n_unconverged", np.zeros(1))) > 0)
-    return Curves(out[0], out[1], out[2], fallback)
+        jumps[i] = int(np.nansum(record.diagnostics.get("stress_control_jump", np.zeros(1))))
+    return Curves(out[0], out[1], out[2], fallback, jumps)

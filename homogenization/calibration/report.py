@@ -237,6 +237,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
         "forward_model": {
             "settings": config["forward"], "noise": args.noise,
             "evaluations": log_post.n_calls, "failed": log_post.n_failed, "fallbacks": log_post.n_fallback,
+            "jumps": log_post.n_jump,
             "floating_point_errors": log_post.n_float_errors, "model_error": getattr(args, "model_error", 0.0),
             "likelihood_sigma_fraction": log_post.noise, "resolution": resolution_run,
             **({"infeasible_sets": log_post.n_infeasible} if log_post.spread_cut else {}),

@@ -23,8 +23,12 @@ batch. Convergence: every controlled stress within ``rtol`` times its ``|target|
   ``ControlError``.
 - ``POPULATION`` (a calibration's parameter sets, ``homogenization.calibration.forward``): a fresh
   tangent every trial, systems of one or two components by Cramer's rule (a singular tangent gives a
-  non-finite step instead of an exception), and a point that does not converge in ``max_iterations``
+  non-finite step instead of an exception), bisection safeguards (one component: ``bracket``; several:
+  ``segment``), their jumps taken at ``POPULATION_JUMP_WIDTH`` (plain Newton cycles between the two sides
+  of a jump until its trials are spent), and a point that does not converge in ``max_iterations``
   trials, or whose residual is not finite, takes its last iterate and is counted (``fallback``).
+
+``StressControl.jumps`` counts, per point, the increments that took the nearer side of a jump.
 
 Increments are Voigt rows (n, n_voigt) [-]; stresses [N/m] (2D) or [Pa] (3D); compression positive.
 """
@@ -43,6 +47,11 @@ JUMP_WIDTH = 1e-6
 """Bracket width, as a fraction of the increment, below which stress control takes the
 response for discontinuous at the target (``StressControl.solve``) [-]: the residual still
 above the tolerance there means a slope ~1e6 times the material's own (about 20 bisections)."""
+POPULATION_NEWTON_FIRST = 6
+"""``Policy.newton_first`` of the ``POPULATION`` policy: Newton's trials before its safeguards engage."""
+POPULATION_JUMP_WIDTH = 1e-3
+"""``JUMP_WIDTH`` of the ``POPULATION`` policy [-]: the jump's strain located to 1e-3 of the increment (about
+10 bisections), its stress then off the located jump's by about 1e-3 of an increment's stress change."""
 
 
 class ControlError(RuntimeError):
@@ -61,6 +70,10 @@ class Policy:
         secant: Broyden updates between fresh tangents where a 3D step controls several components.
         bracket: bisection safeguard and jump detection where one component is controlled.
         cramer: linear systems by Cramer's rule (non-finite where singular) instead of LAPACK.
+        jump_width: bracket width below which a safeguard takes the response for discontinuous, a
+            fraction of the increment [-].
+        segment: bisection safeguard and jump detection where several components are controlled (``_Segment``).
+        newton_first: trials of plain Newton before a safeguard may replace its step.
     """
 
     rtol: float = LoadingDefaults.stress_rtol
@@ -70,11 +83,15 @@ class Policy:
     secant: bool = True
     bracket: bool = True
     cramer: bool = False
+    jump_width: float = JUMP_WIDTH
+    segment: bool = False
+    newton_first: int = 0
 
 
 STRICT = Policy()
 """The policy of a recorded run (``homogenization.element_test.driver.run``)."""
-POPULATION = Policy(strict=False, reuse_tangent=False, secant=False, bracket=False, cramer=True)
+POPULATION = Policy(strict=False, reuse_tangent=False, secant=False, bracket=True, cramer=True,
+                    jump_width=POPULATION_JUMP_WIDTH, segment=True, newton_first=POPULATION_NEWTON_FIRST)
 """The policy of a calibration's population of parameter sets."""
 
 
@@ -113,6 +130,8 @@ class StressControl:
     def __init__(self, points: MaterialPoints, policy: Policy = STRICT) -> None:
         self.points = points
         self.policy = policy
+        self.jumps = np.zeros(points.n, dtype=np.int64)
+        """Per point, the increments whose solution took the nearer side of a response jump (``Solved.jump``)."""
 
     def with_policy(self, **changes: object) -> StressControl:
         """This solver with some of its policy's fields changed."""
@@ -184,19 +203,30 @@ class StressControl:
               where: object) -> Solved:
         """Find the increments of the components ``plan.idx`` that give the controlled stresses ``target``
         (n, k) at every point, starting from the guess ``d`` (n, n_voigt; its strain-controlled components
-        are the increment's), and accept each point's solution (module docstring). ``tangent``: the last
-        tangent of each point (None: none yet); ``where``: names the increment in an error.
+        are the increment's), and accept each point's solution (module docstring); the jumps taken are
+        counted in ``jumps``. ``tangent``: the last tangent of each point (None: none yet); ``where``: names
+        the increment in an error.
 
         Raises:
             ControlError: (``STRICT``) a point did not converge, or its tangent is singular.
         """
+        solved = self._solve(d, plan, target, tangent, where)
+        self.jumps += solved.jump
+        return solved
+
+    def _solve(self, d: np.ndarray, plan: Plan, target: np.ndarray, tangent: np.ndarray | None,
+               where: object) -> Solved:
+        """``solve`` without the count."""
         points, policy, idx = self.points, self.policy, plan.idx
         n = points.n
         d = d.copy()
         scale = np.abs(target)
         tol = policy.rtol * np.where(scale > 0.0, scale, points.peak[:, None])
         secant = policy.secant and points.dim == 3 and idx.size > 1
-        bracket = _Bracket(n, d, points.dim, int(idx[0])) if policy.bracket and idx.size == 1 else None
+        bracket = (_Bracket(n, d, points.dim, int(idx[0]), policy.jump_width, policy.newton_first)
+                   if policy.bracket and idx.size == 1 else None)
+        segment = (_Segment(n, d, points.dim, idx, policy.jump_width, policy.newton_first)
+                   if policy.segment and idx.size > 1 else None)
         T = None if tangent is None else tangent.copy()
         fresh = T is None or not policy.reuse_tangent
         previous = (np.zeros_like(d), plan.controlled(points.stress))
@@ -236,6 +266,17 @@ class StressControl:
                 todo &= ~jumped
                 if not todo.any():
                     return Solved(d, calls, jump, fallback, T)
+            bisected = None
+            if segment is not None:
+                bisected = segment.update(d, r, tol, todo, last, update)
+                jumped = segment.jumped
+                for trial, trial_d, mask in segment.nearer_trials(jumped):
+                    points.accept(trial, mask)
+                    d[mask] = trial_d[mask]
+                jump |= jumped
+                todo &= ~jumped
+                if not todo.any():
+                    return Solved(d, calls, jump, fallback, T)
             residual = np.abs(r).max(axis=1)
             if calls >= policy.max_iterations:
                 if trials:
@@ -263,6 +304,73 @@ class StressControl:
                                    f"(singular tangent)")
             else:
                 d[:, idx] = np.where(todo[:, None], d[:, idx] - step, d[:, idx])
+            if bisected is not None:
+                mid = todo & np.all(np.isfinite(bisected), axis=1)
+                d[:, idx] = np.where(mid[:, None], bisected, d[:, idx])
+
+
+class _Segment:
+    """The bisection safeguard of several controlled components, per point (``Policy.segment``): where a trial
+    (from the ``newton_first``-th on) leaves the worst controlled stress c on the other side of its target
+    than the trial before, without halving the largest residual, the segment between the two trials is
+    bisected, keeping the half across which c's residual changes sign. A midpoint within c's tolerance
+    hands the point back to Newton; a segment narrower than ``width`` of the increment with c's residual
+    above its tolerance at both ends is a jump of the response (``jumped``), whose end nearer the target
+    is taken."""
+
+    def __init__(self, n: int, d: np.ndarray, dim: int, idx: np.ndarray, width: float, newton_first: int = 0) -> None:
+        self.idx, self.width, self.newton_first = idx, width, newton_first
+        self.size = np.abs(d[:, :dim]).max(axis=1)
+        self.active = np.zeros(n, dtype=bool)
+        """Per point, whether its segment is being bisected."""
+        self.c = np.zeros(n, dtype=np.int64)
+        self.ends = np.zeros((2, n, idx.size))
+        """Controlled increments of the two ends, per point."""
+        self.res = np.zeros((2, n))
+        """c's residual at the two ends."""
+        self.trial = np.zeros((2, n), dtype=np.int64)
+        self.trials: list = []
+        self.previous: tuple[np.ndarray, np.ndarray] | None = None
+        self.jumped = np.zeros(n, dtype=bool)
+
+    def update(self, d: np.ndarray, r: np.ndarray, tol: np.ndarray, todo: np.ndarray, last: np.ndarray,
+               update) -> np.ndarray:
+        """Record the trial (increments ``d``, residuals ``r`` (n, k), tolerances ``tol`` (n, k); ``last``: each
+        point's largest residual of the trial before) and return the next controlled increments (n, k): the
+        segment's midpoint where it is bisected, NaN elsewhere (Newton's step); sets ``jumped``."""
+        rows, x, t = np.arange(d.shape[0]), d[:, self.idx].copy(), len(self.trials)
+        self.trials.append((update, d.copy()))
+        rc = r[rows, self.c]
+        inside = todo & self.active & (np.abs(rc) <= tol[rows, self.c])
+        self.active &= ~inside  # c met: back to Newton for the other components
+        for side in (0, 1):
+            mark = todo & self.active & (np.sign(rc) == np.sign(self.res[side]))
+            self.ends[side][mark], self.res[side][mark], self.trial[side][mark] = x[mark], rc[mark], t
+        if self.previous is not None and t + 1 >= self.newton_first:
+            x_prev, r_prev = self.previous
+            c = np.argmax(np.abs(r) / tol, axis=1)
+            flips = np.sign(r[rows, c]) == -np.sign(r_prev[rows, c])
+            start = todo & ~self.active & ~inside & flips & (np.abs(r).max(axis=1) > 0.5 * last)
+            self.c[start] = c[start]
+            for side, (x_end, r_end, t_end) in enumerate(((x_prev, r_prev, t - 1), (x, r, t))):
+                self.ends[side][start], self.res[side][start] = x_end[start], r_end[start, c[start]]
+                self.trial[side][start] = t_end
+            self.active |= start
+        self.previous = (x, r.copy())
+        narrow = np.abs(self.ends[1] - self.ends[0]).max(axis=1) <= self.width * self.size
+        above = (np.abs(self.res) > tol[rows, self.c]).all(axis=0)
+        self.jumped = todo & self.active & narrow & above
+        self.active &= ~(narrow & ~above)
+        mid = todo & self.active & ~narrow
+        out = np.full_like(x, np.nan)
+        out[mid] = 0.5 * (self.ends[0][mid] + self.ends[1][mid])
+        return out
+
+    def nearer_trials(self, jumped: np.ndarray):
+        """(trial update, its increments, mask) of the end nearer the target (in c) of every point of ``jumped``."""
+        chosen = np.where(np.abs(self.res[0]) <= np.abs(self.res[1]), self.trial[0], self.trial[1])
+        for t in np.unique(chosen[jumped]):
+            yield (*self.trials[t], jumped & (chosen == t))
 
 
 def _broyden(T: np.ndarray, plan: Plan, dx: np.ndarray, dg: np.ndarray, todo: np.ndarray) -> None:
@@ -325,9 +433,14 @@ class _Bracket:
     """The bisection safeguard of one controlled component, per point (``StressControl.solve``): the last
     trials below and above the target, and the trials themselves, for accepting the nearer side of a jump."""
 
-    def __init__(self, n: int, d: np.ndarray, dim: int, column: int) -> None:
+    def __init__(self, n: int, d: np.ndarray, dim: int, column: int, width: float = JUMP_WIDTH,
+                 newton_first: int = 0) -> None:
         self.column = column
         """The controlled component."""
+        self.newton_first = newton_first
+        """Trials before a midpoint may replace Newton's step."""
+        self.width = width
+        """Bracket width below which the response is taken for discontinuous, a fraction of the increment [-]."""
         self.size = np.abs(d[:, :dim]).max(axis=1)
         self.x = np.full((2, n), np.nan)
         """Increments of the last trial below (row 0) and above (row 1) the target, per point."""
@@ -340,7 +453,7 @@ class _Bracket:
                last: np.ndarray, calls: int) -> np.ndarray:
         """Record the trial (increments ``d``, residuals ``r`` (n, 1)) and return the next increment of the
         component per point: Newton's, or the bracket's midpoint where Newton leaves the bracket or the
-        last trial did not halve the residual; sets ``jumped`` where the bracket is narrower than ``JUMP_WIDTH``."""
+        last trial did not halve the residual; sets ``jumped`` where the bracket is narrower than ``width``."""
         x, res = d[:, self.column], r[:, 0]
         self.trials.append((update, d.copy()))
         side = np.where(res < 0.0, 0, 1)
@@ -353,10 +466,10 @@ class _Bracket:
         newton = np.where(np.isfinite(newton), newton, np.nan)
         both = todo & (self.trial >= 0).all(axis=0)
         lo, hi = np.minimum(self.x[0], self.x[1]), np.maximum(self.x[0], self.x[1])
-        width = JUMP_WIDTH * np.maximum(np.maximum(self.size, np.abs(lo)), np.abs(hi))
+        width = self.width * np.maximum(np.maximum(self.size, np.abs(lo)), np.abs(hi))
         self.jumped = both & (hi - lo <= width)
         outside = np.isnan(newton) | ~((lo < newton) & (newton < hi)) | (np.abs(res) > 0.5 * last)
-        return np.where(both & ~self.jumped & outside, 0.5 * (lo + hi), newton)
+        return np.where(both & ~self.jumped & outside & (calls >= self.newton_first), 0.5 * (lo + hi), newton)
 
     def nearer_trials(self, jumped: np.ndarray):
         """(trial update, its increments, mask) of the side nearer the target of every point of ``jumped``."""
