@@ -13,8 +13,8 @@ printed with the numbers):
    the same interleaved loop, the step of networks of other hidden widths (the model's inputs,
    random weights: the cost of a width, ``homogenization.learning.active.WIDTH_LADDER``);
    with ``--parts``, where the ANN step's time goes: the median of each part called alone (the
-   whole ``AnnCell.step``, ``FastAdvance.increment``, its one compiled call, and the features,
-   each perceptron layer with and without its tanh, and the advance kernel called apart), at
+   whole ``AnnCell.step``, ``FastAdvance.increment``, its three compiled calls together, and the
+   features, the perceptron, each layer with and without its tanh, and the advance kernel apart), at
    ``--cells`` cells and at one cell (the fixed cost of each call);
 2. unless ``--skip-run``: one JSON line per biaxial test (isotropic compression to p0, then
    constant-volume, and/or drained (``--tests``), shear to ``--eps-max``; ``reversal``:
@@ -141,7 +141,7 @@ def time_parts(model, n: int, repeats: int) -> None:
     from training.fast_features import features  # noqa: PLC0415
     from training.fast_increment import advance  # noqa: PLC0415
     from training.inference import _cells_last, _Compiled  # noqa: PLC0415
-    from training.perceptron import dense  # noqa: PLC0415
+    from training.perceptron import dense, forward_layers  # noqa: PLC0415
 
     ann = make_cell_model("ann", model=model, threads=1)
     fast = ann.fast
@@ -156,16 +156,21 @@ def time_parts(model, n: int, repeats: int) -> None:
     result = Advanced(np.empty((2, n)), np.empty((n_free, n)), np.empty(shear.shape), np.empty((n, 2, 2)), np.empty(n),
                       *np.empty((4, n), dtype=bool), np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=bool))
     tables = (fast.cells, fast.law, fast.scaling)
-    features_entry, advance_entry = _Compiled(features), _Compiled(advance)  # entry points, as FastAdvance calls them
+    # entry points, as FastAdvance calls them
+    features_entry, forward_entry, advance_entry = _Compiled(features), _Compiled(forward_layers), _Compiled(advance)
     weights, biases, layers = fast.perceptron.weight, fast.perceptron.bias, work.layers
     inputs = (work.before.feats, *layers[:-1])
     last = len(weights) - 1
+    def compiled() -> None:
+        features_entry(size, free, shear, d_eps, *tables, work.before)
+        forward_entry(weights, biases, work.before.feats, layers)
+        advance_entry(size, free, shear, d_eps, layers[-1], *tables, work.before, result)
+
     parts = {"AnnCell.step": lambda: ann.step(state, d_eps),
              "FastAdvance.increment": lambda: fast.increment(*state, d_eps),
-             "its compiled call (step)": lambda: fast._step(size, free, shear, d_eps, *tables, weights, biases,
-                                                            work.before, layers, result),
+             "its three compiled calls": compiled,
              "features apart": lambda: features_entry(size, free, shear, d_eps, *tables, work.before),
-             "perceptron apart": lambda: fast.perceptron.forward(work.before.feats, layers),
+             "perceptron apart": lambda: forward_entry(weights, biases, work.before.feats, layers),
              **{f"layer {k} (tanh: {k < last})":
                 (lambda k=k: dense(weights[k], biases[k], inputs[k], layers[k], k < last)) for k in range(last + 1)},
              **{f"layer {k} without tanh": (lambda k=k: dense(weights[k], biases[k], inputs[k], layers[k], False))

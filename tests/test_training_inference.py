@@ -95,35 +95,6 @@ def test_later_calls_with_other_array_types_give_the_same_increment(loaded):
         fast(state[0], state[1][:, :-1], state[2], d)
 
 
-def test_the_planar_increment_in_one_call_equals_its_three_kernels_apart(loaded):
-    """``training.fast_increment.step`` (features, perceptron and advance in one compiled call, the planar
-    path of ``FastAdvance``) gives the bits of the three kernels called one after the other, features included."""
-    from training.fast_cells import Advanced  # noqa: PLC0415
-    from training.fast_features import features  # noqa: PLC0415
-    from training.fast_increment import advance  # noqa: PLC0415
-
-    cell, state, d = loaded
-    fast = FastAdvance(cell.net)
-    one = fast(*state, d)
-    fused_features = fast.last_features().copy()
-    size, free, shear = (np.ascontiguousarray(np.moveaxis(np.asarray(a, np.float64), 0, -1)) for a in state)
-    n, n_free = size.shape[1], free.shape[0]
-    before = fast._workspace(n).before
-    before.feats[:] = np.nan
-    features(size, free, shear, d, fast.cells, fast.law, fast.scaling, before)
-    np.testing.assert_array_equal(before.feats, fused_features)
-    layers = fast.perceptron.buffers(n)
-    out = fast.perceptron.forward(before.feats, layers)
-    result = Advanced(np.empty((2, n)), np.empty((n_free, n)), np.empty(shear.shape), np.empty((n, 2, 2)),
-                      np.empty(n), *np.empty((4, n), dtype=bool), np.empty(n, dtype=np.int64),
-                      np.empty((n_free, n), dtype=bool))
-    advance(size, free, shear, d, out, fast.cells, fast.law, fast.scaling, before, result)
-    apart = FastIncrement(result.new_size.T, result.new_free.T, result.new_shear.T, result.moment, result.area,
-                          result.capped, result.opened, result.mechanism, result.ramped, result.n_held)
-    for name in FastIncrement._fields:
-        np.testing.assert_array_equal(getattr(one, name), getattr(apart, name), err_msg=name)
-
-
 def _autograd_tangent(net, state, d):
     """d(S_nn, S_tt)/d(eps_n, eps_t) (n, 2, 2) of ``MesoNet.advance`` by torch autograd."""
     d_eps = torch.from_numpy(np.asarray(d, dtype=np.float64)).clone().requires_grad_(True)

@@ -45,7 +45,7 @@ from training.fast_cells import Advanced, Before, CellTables, Normalisation, Phy
 from training.fast_increment import free_displacement
 from training.fast_tangent import probe_feature_tangent
 from training.fast_model import arrays_of_net, COMPLIANCE_SCALE, GAP_CLIP, NetArrays, RELAXATION_RAMP
-from training.perceptron import Perceptron
+from training.perceptron import forward_layers, Perceptron
 from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import DemSettings
 
@@ -87,7 +87,6 @@ class Kernels:
     Attributes:
         features, advance: steps 1 and 3 (module docstring): ``training.fast_features.features`` and
             ``training.fast_increment.advance``, or ``training.fast_step3d.features3d`` and ``advance3d``.
-        step: features, perceptron and advance in one call (``training.fast_increment.step``), or None.
         tangent: ``training.fast_tangent.moment_tangent``, or None where the network's tangent is not compiled.
         hold, newton, physics: the equilibrium corrections (the DEM's rest rule on the first guess, then the
             Newton steps: ``training.fast_equilibrium3d.hold_guess3d``, ``newton3d``) and the contact law
@@ -97,7 +96,6 @@ class Kernels:
 
     features: Callable
     advance: Callable
-    step: Callable | None
     tangent: Callable | None
     hold: Callable | None
     newton: Callable | None
@@ -107,17 +105,17 @@ class Kernels:
 
 def _planar_kernels() -> Kernels:
     from training.fast_features import features  # noqa: PLC0415 (each dimension's kernels imported on first use)
-    from training.fast_increment import advance, step  # noqa: PLC0415
+    from training.fast_increment import advance  # noqa: PLC0415
     from training.fast_tangent import moment_tangent  # noqa: PLC0415
 
-    return Kernels(features, advance, step, moment_tangent, None, None, None)
+    return Kernels(features, advance, moment_tangent, None, None, None)
 
 
 def _spatial_kernels() -> Kernels:
     from training.fast_equilibrium3d import balance_tangent3d, hold_guess3d, newton3d  # noqa: PLC0415
     from training.fast_step3d import advance3d, features3d, physics3d  # noqa: PLC0415
 
-    return Kernels(features3d, advance3d, None, None, hold_guess3d, newton3d, physics3d, balance_tangent3d)
+    return Kernels(features3d, advance3d, None, hold_guess3d, newton3d, physics3d, balance_tangent3d)
 
 
 class _KernelTable(Mapping):
@@ -245,7 +243,7 @@ class FastAdvance:
         kernels = KERNELS[self.dim]
         self._features = _Compiled(kernels.features)
         self._advance = _Compiled(kernels.advance)
-        self._step = None if kernels.step is None else _Compiled(kernels.step)
+        self._forward = _Compiled(forward_layers)
         self._tangent = None if kernels.tangent is None else _Compiled(kernels.tangent)
         if int(corrections) < 0 or (int(corrections) > 0 and kernels.newton is None):
             raise ValueError(f"corrections = {corrections}: equilibrium corrections are >= 0 and for spatial cells only")
@@ -374,17 +372,13 @@ class FastAdvance:
         if held is not None and not self.corrections:
             raise ValueError("held: a first guess of the corrections, and this FastAdvance takes none")
         work = self._workspace(n)
+        self._features(size, free, shear, d_eps, self.cells, self.law, self.scaling, work.before)
+        self._forward(self.perceptron.weight, self.perceptron.bias, work.before.feats, work.layers)
+        out = work.layers[-1]
         flags = np.empty((4, n), dtype=np.bool_)
         result = Advanced(np.empty((dim, n)), np.empty((n_free, n)), np.empty(shear_shape), np.empty((n, dim, dim)),
                           np.empty(n), *flags, np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=np.bool_))
         self._local.corrections = None
-        out = work.layers[-1]
-        if self._step is not None and not self.corrections:  # features, perceptron and advance in one compiled call
-            self._step(size, free, shear, d_eps, self.cells, self.law, self.scaling, self.perceptron.weight,
-                       self.perceptron.bias, work.before, work.layers, result)
-        else:
-            self._features(size, free, shear, d_eps, self.cells, self.law, self.scaling, work.before)
-            self.perceptron.forward(work.before.feats, work.layers)
         if self.corrections:
             d_free = self._displacement(out, work.before.m, work.before.unbalanced, self.scaling, self.law)
             if self.guess == "still":
@@ -399,7 +393,7 @@ class FastAdvance:
             self._corrected(size, free, shear, d_eps, d_free, work.before, ratios, steps, shortened, shifted)
             self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, result)
             self._local.corrections = Corrections(ratios, steps, shortened, shifted)
-        elif self._step is None:
+        else:
             self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
         tangent = None
         if with_tangent and self._balance_tangent is not None:
