@@ -4,12 +4,12 @@ runs of that very K and tolerance only; the network alone keeps its certificate 
 
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
+from homogenization import hmodel
 from homogenization.ann import default_model_path
 from homogenization.ann.cell import AnnCell3D
 from homogenization.ann.policy import certificate_problem, model_record
@@ -19,7 +19,6 @@ from homogenization.ann.records import Certificate
 from homogenization.learning.settings import CertificateSettings
 from warp_hcell.core.parameters import ContactLaw
 
-ROOT = Path(__file__).resolve().parents[1]
 SHIPPED_3D = default_model_path(3)
 needs_model = pytest.mark.skipif(not SHIPPED_3D.is_file(), reason="3D model not installed")
 
@@ -68,7 +67,7 @@ def test_a_tiny_certificate_of_the_hybrid_records_k_and_covers_that_hybrid_only(
 
 
 @needs_model
-def test_the_default_certificate_of_the_hybrid_passes_and_covers_its_runs_only(tmp_path):
+def test_the_default_certificate_of_the_hybrid_passes_and_covers_its_runs_only(tmp_path, _hmodel):
     """The full default certificate of the shipped 3D model with K = 2 at 1e-3 (without the DEM from rest,
     which it does not check), and the network alone on its five tests at p0 = 2e5 (8 s; both have their
     worst there, drained extension). Measured: worst 0.040 % with the corrections, 0.175 % without. The
@@ -136,13 +135,20 @@ def test_the_settings_refuse_a_tolerance_without_corrections():
         CertificateSettings(equilibrium_corrections=-1)
 
 
-def _hmodel(*argv):
-    return subprocess.run([sys.executable, "-m", "homogenization.hmodel", *argv], cwd=ROOT, capture_output=True,
-                          text=True, timeout=600)
+@pytest.fixture
+def _hmodel(capsys):
+    """``hmodel ARGV`` in this process (no start-up of its own): (returncode, stdout, stderr); an exception
+    that the command lets out fails the test, as its traceback would in a shell."""
+    def run(*argv):
+        capsys.readouterr()
+        code = hmodel.main(list(argv))
+        out, err = capsys.readouterr()
+        return SimpleNamespace(returncode=code, stdout=out, stderr=err)
+    return run
 
 
 @pytest.mark.parametrize("command", ["certify", "train", "learn"])
-def test_the_commands_refuse_a_tolerance_without_corrections(command, tmp_path):
+def test_the_commands_refuse_a_tolerance_without_corrections(command, tmp_path, _hmodel):
     required = {"certify": ["--model", str(SHIPPED_3D)],
                 "train": ["--data", str(tmp_path / "db.h5"), "--out", str(tmp_path / "m.pt")],
                 "learn": ["--mesostructure", "hcell3d", "--out", str(tmp_path / "run")]}[command]
@@ -152,7 +158,7 @@ def test_the_commands_refuse_a_tolerance_without_corrections(command, tmp_path):
 
 
 @needs_model
-def test_certify_records_the_corrections_it_was_given(tmp_path):
+def test_certify_records_the_corrections_it_was_given(tmp_path, _hmodel):
     model = _copy(tmp_path / "m")
     out = tmp_path / "cert.json"
     done = _hmodel("certify", "--model", str(model), "--no-rollout",
@@ -176,7 +182,7 @@ def test_the_certificate_counts_the_jumps_its_stress_control_accepted(tmp_path):
     assert sum("accepted across a jump" in line for line in certificate.summary_lines(cert)) == len(counted)
 
 
-def test_train_refuses_corrections_on_a_planar_database_before_training(tmp_path):
+def test_train_refuses_corrections_on_a_planar_database_before_training(tmp_path, _hmodel):
     import h5py
     import numpy as np
 
