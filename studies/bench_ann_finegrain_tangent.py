@@ -8,6 +8,11 @@ existed) and the hybrid with the compiled tangent (``training.fast_equilibrium3d
 per run the wall time, then per variant the median, its ratio to the DEM's, the accuracy (largest difference of
 sigma11, sigma22, sigma33, p and q over the shear stage over max(p0, largest DEM p)), step calls, tangent calls
 and the cells of those calls that took no correction, and the load average.
+
+``--one-call N``: instead, N cells of the cell (one orientation) compressed isotropically by 50 increments of
+1e-4, then one step with a tangent of a drained probe (1e-4 axial, -5e-5 lateral), torch and compiled
+interleaved ``--repeats`` times: each call's wall time and the largest difference of the two tangents over
+the largest entry (all cells, and those corrected).
 """
 
 from __future__ import annotations
@@ -58,9 +63,12 @@ def main(argv=None) -> int:
     parser.add_argument("--spins", type=positive_int, default=4, help="spins per axis")
     parser.add_argument("--test", choices=("undrained", "drained"), default="drained")
     parser.add_argument("--repeats", type=positive_int, default=1, help="runs of each variant, interleaved")
+    parser.add_argument("--one-call", type=positive_int, default=None, help="time one tangent call on this many cells")
     args = parser.parse_args(argv)
     if not Path(args.model).is_file():
         parser.error(f"--model {args.model}: no such file")
+    if args.one_call:
+        return one_call(args)
 
     from homogenization.backends import make_cell_model
     from warp_hcell.mesostructures.builders import mesostructure_arg
@@ -93,6 +101,38 @@ def main(argv=None) -> int:
               f"{records[name].newton_iterations.sum():.0f} step calls, {counts[name].calls} with a tangent, "
               f"{counts[name].uncorrected} of their cell steps uncorrected", flush=True)
     print(f"DEM {dem_s:.1f} s; load average after: {os.getloadavg()}", flush=True)
+    return 0
+
+
+def one_call(args) -> int:
+    """``--one-call``: one tangent call of ``args.one_call`` cells, torch and compiled (module docstring)."""
+    import time
+
+    import numpy as np
+
+    from warp_hcell.mesostructures.builders import mesostructure_arg
+
+    model = ann_model(args.model, None)
+    torch_path = TorchTangent(model)
+    n = args.one_call
+    state = model.init_state(mesostructure_arg(args.mesostructure).build(None), n)
+    for _ in range(50):
+        state, _ = model.step(state, np.full((n, 3), 1e-4))
+    probe = np.tile([1e-4, -0.5e-4, -0.5e-4], (n, 1))
+    print(f"{args.mesostructure}; {n} cells; load average {os.getloadavg()}", flush=True)
+    tangents = {}
+    for k in range(args.repeats + 1):
+        for name, variant in (("torch", torch_path), ("compiled", model)):
+            start = time.perf_counter()
+            _, response = variant.step(state, probe, with_tangent=True)
+            wall = time.perf_counter() - start
+            tangents[name] = response.tangent
+            corrected = response.diagnostics["n_corrected"]
+            print(f"  {name}{' (first: start-up)' if k == 0 else ''}: {wall:.2f} s; {corrected:.0f} of {n} cells "
+                  f"corrected (load {os.getloadavg()[0]:.2f})", flush=True)
+    scale = np.abs(tangents["torch"]).max()
+    print(f"max |compiled - torch| / max |torch| = {np.abs(tangents['compiled'] - tangents['torch']).max() / scale:.2e}; "
+          f"load average after: {os.getloadavg()}", flush=True)
     return 0
 
 
