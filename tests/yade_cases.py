@@ -50,3 +50,10 @@ def assert_regenerates(make_reference, data_dir: Path, name: str, tmp_path: Path
     for column in committed.dtype.names:
         np.testing.assert_allclose(fresh[column], committed[column], rtol=1e-9, atol=1e-9, err_msg=column)
 
+
+def assert_committed_cell(cell: dict, meso) -> None:
+    """The committed cell description ``cell`` (``NAME.cell.json``) is the package's mesostructure ``meso``:
+    the same grain centres and cell size (to 1e-15) and the same driven DOFs."""
+    np.testing.assert_allclose(cell["position"], meso.position, atol=1e-15)
+    np.testing.assert_array_equal(cell["driven"], meso.driven)
+    np.testing.assert_allclose(cell["cell_size"], meso.cell_size, atol=1e-15)
