@@ -1,6 +1,7 @@
 """Shared fixtures: Warp devices to test on (cpu, plus cuda:0 where Warp sees a GPU); each test starts
 with the commands' output verbosity at its default (a command's ``main`` called directly with -q
-leaves the process quiet, as ``run_main`` would not)."""
+leaves the process quiet, as ``run_main`` would not). The modules with the longest tests run first
+(``LONG_FIRST``), so that with ``make test``'s work stealing no long test is left alone at the end."""
 
 import os
 
@@ -31,3 +32,17 @@ def _default_verbosity():
     from warp_hcell.core import cli  # noqa: PLC0415
     yield
     cli._OUTPUT.quiet = False
+
+
+LONG_FIRST = ("test_training_equilibrium3d.py", "test_homogenization_certificate_hybrid.py",
+              "test_calibration_known_truth.py", "test_ann_control_diagnosis.py",
+              "test_homogenization_active_rounds.py", "test_homogenization_active.py", "test_homogenization_sweep.py",
+              "test_warp_hcell_generate.py", "test_training_inference.py", "test_cell_contract_conformance.py")
+"""Test files whose tests take longest (tens of seconds each): collected first, in this order, each file's
+tests together and in their own order (module fixtures are built once per worker as before)."""
+
+
+def pytest_collection_modifyitems(config, items):
+    """Move the tests of ``LONG_FIRST`` to the front; the order of the rest is kept."""
+    rank = {name: i for i, name in enumerate(LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keeps its order
