@@ -360,7 +360,7 @@ class FastAdvance:
         guess of the corrections is no motion (with corrections only)."""
         dim = self.dim
         if with_tangent and not self.has_tangent:
-            raise ValueError("no compiled tangent of a spatial cell without corrections; take it from torch autograd")
+            raise ValueError("the compiled tangent is planar, or of corrected spatial cells; take this one from torch autograd")
         size, free, shear = _cells_last(cell_size), _cells_last(free_position), _cells_last(shear_force)
         d_eps = np.ascontiguousarray(d_eps, dtype=np.float64)
         n, n_free, springs = size.shape[-1], self.cells.free_dofs.shape[0], self._springs
