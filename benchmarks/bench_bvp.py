@@ -108,7 +108,7 @@ def run_backend(name: str, nx: int, ny: int, n_orientations: int, shear_steps: i
               f"{(result.sigma11 - result.sigma22) / P0:.4f}, {result.iterations} iterations, tangents "
               f"{result.diagnostics.get('tangents', 0):g} (+{result.diagnostics.get('tangents_reused', 0):g} reused), "
               f"{sub:.1f} substeps/cell/update, residual {result.residuals[-1]:.2e} N/m, {now - clock[0]:.1f} s, "
-              f"load {os.getloadavg()[0]:.1f}", flush=True)
+              f"CPU so far {time.process_time() - cpu_start:.1f} s, load {os.getloadavg()[0]:.1f}", flush=True)
         clock[0] = now
 
     results = specimen.run(material, run_steps, scale=P0, progress=progress)
