@@ -22,7 +22,7 @@ first-gradient solver runs. --checkpoint-every N saves DIR/checkpoint.h5 every N
 --resume continues a killed run from it (same flags; the result is the uninterrupted run's).
 --reuse-tangent (a backend that computes its tangent apart from the step: the DEM) lets Newton
 corrections reuse the last tangent computed, also from earlier steps, while it contracts
-(``homogenization.fe.solver.BiaxialSpecimen``); the curve moves within the Newton tolerance.
+(``homogenization.fe.solver.BiaxialSpecimen``); the curve moves by about the Newton tolerance.
 
 Writes DIR/curve.csv (stage,eps11,eps22,sigma11,sigma22,sigma12,p,q,iterations; 1 = axial),
 DIR/run.h5 (fields per step), DIR/vtu/step_NNNN.vtu with DIR/specimen.pvd (ParaView) and
