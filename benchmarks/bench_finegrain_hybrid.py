@@ -98,7 +98,10 @@ def ann_model(path: str, timer: PhaseTimer | None, corrections: int | None = Non
                                  ("_physics", "contact law"), ("_advance", "contact law")):
             if getattr(fast, attribute, None) is not None:
                 timer.wrap(fast, attribute, phase)
-        timer.wrap(fast.perceptron, "forward", "network")
+        if getattr(fast, "_forward", None) is not None:  # the perceptron's layers in one compiled call
+            timer.wrap(fast, "_forward", "network")
+        else:
+            timer.wrap(fast.perceptron, "forward", "network")
         if model.escalation is not None:
             timer.wrap(model.escalation, "released_dofs", "release test")
             timer.wrap(model.escalation, "advance", "DEM escalation")
