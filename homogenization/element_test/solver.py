@@ -258,23 +258,13 @@ class StressControl:
             newton = None
             if bracket is not None:
                 newton = bracket.update(d, r, step, update, todo, last, calls)
-                jumped = bracket.jumped
-                for trial, trial_d, mask in bracket.nearer_trials(jumped):
-                    points.accept(trial, mask)
-                    d[mask] = trial_d[mask]
-                jump |= jumped
-                todo &= ~jumped
+                _take_jumps(bracket, points, d, jump, todo)
                 if not todo.any():
                     return Solved(d, calls, jump, fallback, T)
             bisected = None
             if segment is not None:
                 bisected = segment.update(d, r, tol, todo, last, update)
-                jumped = segment.jumped
-                for trial, trial_d, mask in segment.nearer_trials(jumped):
-                    points.accept(trial, mask)
-                    d[mask] = trial_d[mask]
-                jump |= jumped
-                todo &= ~jumped
+                _take_jumps(segment, points, d, jump, todo)
                 if not todo.any():
                     return Solved(d, calls, jump, fallback, T)
             residual = np.abs(r).max(axis=1)
@@ -371,6 +361,18 @@ class _Segment:
         chosen = np.where(np.abs(self.res[0]) <= np.abs(self.res[1]), self.trial[0], self.trial[1])
         for t in np.unique(chosen[jumped]):
             yield (*self.trials[t], jumped & (chosen == t))
+
+
+def _take_jumps(tracker: "_Bracket | _Segment", points: MaterialPoints, d: np.ndarray, jump: np.ndarray,
+                todo: np.ndarray) -> None:
+    """Accept the nearer side of every point whose jump ``tracker`` has located: its state and its
+    controlled strains ``d`` (n, k) are set in place, ``jump`` (n,) marks it and ``todo`` (n,) drops it."""
+    jumped = tracker.jumped
+    for trial, trial_d, mask in tracker.nearer_trials(jumped):
+        points.accept(trial, mask)
+        d[mask] = trial_d[mask]
+    jump |= jumped
+    todo &= ~jumped
 
 
 def _broyden(T: np.ndarray, plan: Plan, dx: np.ndarray, dg: np.ndarray, todo: np.ndarray) -> None:
