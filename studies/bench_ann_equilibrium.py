@@ -50,27 +50,23 @@ import functools
 import json
 import os
 import time
+import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 
 from warp_hcell.core.cli import Parser, positive_float, positive_int
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import bench_finegrain_hybrid as finegrain  # noqa: E402
+
 COMPARED = ("sigma11", "sigma22", "sigma33", "p", "q")
 
 
 def run(model, meso, args):
-    """(record, wall time [s]) of the test on ``model``'s cells; warnings counted, not raised."""
-    from homogenization.element_test import driver, programme as programmes
-
-    programme = programmes.triaxial(args.p0, args.eps_max, args.increment, test=args.test,
-                                 iso_increment=0.5 * args.increment)
-    start = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        record = driver.run(model, programme, mesostructure=meso, lebedev_order=args.order, n_spins=args.spins,
-                            progress=False)
-    return record, time.perf_counter() - start
+    """(record, wall time [s]) of the test on ``model``'s cells (the fine-grain benchmark's runner)."""
+    return finegrain.run(model, meso, args, args.eps_max, args.test)
 
 
 def difference(record, reference, p0: float, curves=COMPARED) -> tuple[float, float, float, str]:
