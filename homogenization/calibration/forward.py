@@ -37,6 +37,7 @@ import numpy as np
 from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import backend_class, make_cell_model
 from homogenization.calibration.data import Measurement
+from homogenization.calibration.interlocking import FIELDS as INTERLOCKING, Interlocking, InterlockingFriction
 from homogenization.calibration.renewal import PopulationRenewal, laws_of
 from homogenization.element_test.points import MaterialPoints, material_points, orientation_set
 from homogenization.element_test.plan import Plan
@@ -198,10 +199,14 @@ def feasible(values: Mapping[str, np.ndarray], settings: ForwardSettings) -> np.
     return opening_spread.feasible(full["alpha0"], full[SPREAD])
 
 
-def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings) -> Curves:
+def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings, *,
+             interlocking: Interlocking | None = None) -> Curves:
     """Curves of ``test`` for each parameter set; ``params`` maps names of ``settings.parameters`` (and of
     ``DENSITY``) to shape (n,). A test that gives its void ratio runs each set at its map's alpha0
     (``density_alpha0``); a set whose [e_min, e_max] does not hold that void ratio gets NaN curves.
+    ``interlocking`` (analytical backend, no spread): phi_g is each set's phi_mu of the interlocking friction
+    (``calibration.interlocking``), e0 the test's void ratio, else the set's map's of its alpha0; m, e_gamma and
+    lambda_c per set where ``params`` holds ``INTERLOCKING``'s names; None: the plain contact law.
 
     Raises:
         ValueError: a parameter value outside its range, the Hertz-Mindlin law on a 2D test, or alpha0_spread
@@ -222,23 +227,54 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
         for name, default in zip(DENSITY, DENSITY_DEFAULTS):
             value = params[name] if name in params else settings.fixed.get(name, default)
             full[name] = np.broadcast_to(np.asarray(value, dtype=np.float64), full["phi_g"].shape).copy()
+    if interlocking is not None:
+        full.update(_interlocking_values(test, params, full, settings))
     alpha0 = density_alpha0(test, params, settings)
     if alpha0 is not None:
         reached = np.isfinite(alpha0)
         full["alpha0"] = np.where(reached, alpha0, full["alpha0"])
         if not reached.all():
-            return _unreached(test, full, settings, reached)
+            return _unreached(test, full, settings, reached, interlocking)
     if SPREAD in full:
         if test.dim != 3 or settings.backend != "analytical":
             raise ValueError(f"alpha0_spread runs on triaxial tests with the analytical backend only ({test.name}: "
                              f"{'biaxial' if test.dim != 3 else 'backend ' + settings.backend})")
         opening_spread.check(full["alpha0"], full[SPREAD])
+    if interlocking is not None and (settings.backend != "analytical" or SPREAD in full):
+        raise ValueError("the interlocking friction runs with the analytical backend and without alpha0_spread only")
     if settings.backend == "analytical":
         points = population(full, settings, test.dim)
         if settings.critical_state is not None:
             points.renewal = _renewal(full, settings, points)
+        if interlocking is not None:
+            points.renewal = InterlockingFriction(interlocking, points.material, points.state, full["phi_g"], full[E0],
+                                                  {f: full[name] for name, f in INTERLOCKING.items() if name in full}
+                                                  or None, inner=points.renewal)
         return simulate_points(test, points, settings)
     return _simulate_one_by_one(test, full, settings)
+
+
+E0 = "interlocking_e0"
+"""Key of ``simulate``'s per-set values: each set's void ratio at J = 1 [-] for the interlocking friction."""
+
+
+def _interlocking_values(test: Measurement, params: Mapping[str, np.ndarray], full: dict[str, np.ndarray],
+                         settings: ForwardSettings) -> dict[str, np.ndarray]:
+    """Per set: e0 [-] (``E0``: given in ``params``, else the test's void ratio, else the set's map's of its alpha0) and the interlocking
+    parameters that ``params`` holds (``INTERLOCKING``), shapes (n,)."""
+    n = full["phi_g"].size
+    if E0 in params:  # a subset of sets (``_unreached``)
+        e0 = np.broadcast_to(np.asarray(params[E0], dtype=np.float64), (n,)).copy()
+    elif test.void_ratio is not None:
+        e0 = np.full(n, float(test.void_ratio))
+    else:
+        e_min, e_max = (np.broadcast_to(np.asarray(params[name] if name in params else settings.fixed.get(name, default),
+                                                   dtype=np.float64), (n,)) for name, default in zip(DENSITY, DENSITY_DEFAULTS))
+        dense, loose = OPENING_RANGE_DEG[test.dim]
+        e0 = e_max - (loose - full["alpha0"]) / (loose - dense) * (e_max - e_min)
+    out = {name: np.broadcast_to(np.asarray(params[name], dtype=np.float64), (n,)).copy()
+           for name in INTERLOCKING if name in params}
+    return {**out, E0: e0}
 
 
 def _renewal(full: dict[str, np.ndarray], settings: ForwardSettings, points: MaterialPoints) -> PopulationRenewal:
@@ -300,14 +336,14 @@ def check_density(tests: Sequence[Measurement], calibrated: Sequence[str], setti
 
 
 def _unreached(test: Measurement, full: dict[str, np.ndarray], settings: ForwardSettings,
-               reached: np.ndarray) -> Curves:
+               reached: np.ndarray, interlocking: Interlocking | None = None) -> Curves:
     """``simulate`` of the sets whose map reaches the test's void ratio; NaN curves for the others."""
     n = reached.size
     out = Curves(*(np.full((n, test.eps1.size), np.nan) for _ in range(3)),
                  *(np.zeros(n, dtype=np.int64) for _ in range(2)))
     if reached.any():
         subset = {name: values[reached] for name, values in full.items()}  # alpha0 already mapped
-        part = simulate(replace(test, void_ratio=None), subset, settings)
+        part = simulate(replace(test, void_ratio=None), subset, settings, interlocking=interlocking)
         for name in ("q", "p", "eps_v", "n_fallback", "n_jump"):
             getattr(out, name)[reached] = getattr(part, name)
     return out

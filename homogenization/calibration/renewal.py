@@ -107,6 +107,11 @@ class PopulationRenewal(Renewal):
                 replace(params, **{name: float(v[i]) for name, v in values.items()}).check()
             self.params = SimpleNamespace(**{**asdict(params), **values})
 
+    def set_friction(self, phi_g_deg: np.ndarray) -> None:
+        """Step the fresh cells from now on with each point's friction angle ``phi_g_deg`` [deg], shape (n,)
+        (``calibration.interlocking``)."""
+        self._fresh._laws = {**self._fresh._laws, "phi_g": np.asarray(phi_g_deg, dtype=np.float64).copy()}
+
     def fresh_angle(self, J: np.ndarray) -> np.ndarray:
         """``Renewal.fresh_angle``; alpha_c where a point's J is not finite (a set whose run failed: its curves
         are NaN; counted in ``nonfinite``), so that one failed set does not stop the population."""

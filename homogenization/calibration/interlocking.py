@@ -1,0 +1,156 @@
+"""Interlocking friction of a calibration's population (opt-in: ``ForwardSettings.interlocking``).
+
+After the form of Chang & Hicher (2005, IJSS 42): the friction mobilised at the contacts of a material point
+depends on its void ratio e relative to a critical one at its mean stress p,
+
+    tan phi = (e_c(p) / e)^m tan phi_mu,    e_c(p) = e_Gamma - lambda (p / p_ref)^xi,
+
+phi_mu the set's contact friction angle (phi_g). A point denser than e_c(p) has phi > phi_mu, which falls to
+phi_mu as it dilates to e_c; a denser point at a lower pressure gets more. e = (1 + e0) J - 1, e0 the point's
+void ratio where J = 1, J and p those of the accepted state; the friction is set before every increment
+(explicit: each trial of an increment sees the same friction). ``InterlockingFriction`` sets it on the
+population's per-cell friction (``with_cell_laws``' cells) and on a critical-state renewal's fresh cells.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+
+from homogenization.material.density import current_void_ratio
+from homogenization.material.homogenised import MaterialState, MaterialUpdate
+from warp_hcell.core.dimension import dimension
+
+P_REF = 101325.0
+"""Reference pressure p_ref [Pa] of the critical-state line (one atmosphere)."""
+E_C_FLOOR = 0.05
+"""Smallest critical void ratio [-]: e_c(p) is clipped to it (counted: ``InterlockingFriction.floored``)."""
+FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c"}
+"""Per-set parameters (calibration name -> ``Interlocking`` field) that ``simulate`` reads from its params."""
+
+
+@dataclass(frozen=True)
+class Interlocking:
+    """Parameters of the interlocking friction (module docstring).
+
+    Attributes:
+        m: interlocking exponent [-], >= 0 (0: the friction stays phi_mu).
+        e_gamma: critical void ratio at p = 0 [-], > 0.
+        lambda_c: slope of the critical-state line in (p / p_ref)^xi [-], >= 0.
+        xi: exponent of the line [-], in (0, 1].
+        p_ref: reference pressure [Pa in 3D, N/m in 2D], > 0.
+    """
+
+    m: float = 1.0
+    e_gamma: float = 0.7
+    lambda_c: float = 0.05
+    xi: float = 0.7
+    p_ref: float = P_REF
+
+    def check(self) -> None:
+        """ValueError (one line) for a parameter out of range."""
+        for name, ok in (("m", self.m >= 0.0), ("e_gamma", self.e_gamma > 0.0), ("lambda_c", self.lambda_c >= 0.0),
+                         ("xi", 0.0 < self.xi <= 1.0), ("p_ref", self.p_ref > 0.0)):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and ok):
+                raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
+
+
+def critical_void_ratio(p: Any, e_gamma: Any, lambda_c: Any, xi: float, p_ref: float) -> np.ndarray:
+    """e_c(p) = e_Gamma - lambda (max(p, 0) / p_ref)^xi [-] (broadcast), before ``E_C_FLOOR``."""
+    p = np.maximum(np.asarray(p, dtype=np.float64), 0.0)
+    return np.asarray(e_gamma, dtype=np.float64) - np.asarray(lambda_c, dtype=np.float64) * (p / p_ref) ** xi
+
+
+def mobilised_friction_deg(phi_mu_deg: Any, e: Any, p: Any, m: Any, e_gamma: Any, lambda_c: Any, xi: float,
+                           p_ref: float) -> np.ndarray:
+    """phi [deg] with tan phi = (e_c(p) / e)^m tan phi_mu (broadcast; e_c clipped to ``E_C_FLOOR``), in (0, 90)."""
+    e_c = np.maximum(critical_void_ratio(p, e_gamma, lambda_c, xi, p_ref), E_C_FLOOR)
+    ratio = e_c / np.asarray(e, dtype=np.float64)
+    return np.degrees(np.arctan(ratio ** np.asarray(m, dtype=np.float64) * np.tan(np.radians(phi_mu_deg))))
+
+
+def friction_owner(model: Any) -> Any:
+    """The object whose per-cell friction coefficient ``mu`` (n_cells,) a population's cell model steps with:
+    the 3D cell's planar cells, else the model itself; ValueError (one line) where neither holds one."""
+    owner = getattr(model, "plane", model)
+    if np.ndim(getattr(owner, "mu", None)) != 1:
+        raise ValueError("the interlocking friction needs a cell model with per-cell laws (with_cell_laws)")
+    return owner
+
+
+class InterlockingFriction:
+    """The rule of the module docstring on a population, as ``MaterialPoints.renewal`` (wrapping ``inner``, a
+    critical-state renewal or None, which runs first).
+
+    Args:
+        params: the line's xi and p_ref (and m, e_gamma, lambda_c where ``per_point`` lacks them).
+        material: the population (``forward.population(...).material``), n points of n_cells cells.
+        state: its initial state (the friction is set from it at once).
+        phi_mu_deg: each point's phi_mu [deg], shape (n,).
+        e0: each point's void ratio at J = 1 [-], shape (n,).
+        per_point: m, e_gamma, lambda_c per point (``Interlocking`` field -> shape (n,)); None: ``params``'.
+        inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
+    Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped.
+    """
+
+    def __init__(self, params: Interlocking, material: Any, state: MaterialState, phi_mu_deg: np.ndarray,
+                 e0: np.ndarray, per_point: Mapping[str, np.ndarray] | None = None, inner: Any = None) -> None:
+        params.check()
+        n = material.n_points
+        self.params, self.material, self.inner = params, material, inner
+        self.owner = friction_owner(material.model)
+        self.n_cells = material.orient.n_cells
+        if np.size(self.owner.mu) != n * self.n_cells:
+            raise ValueError(f"the cell model holds {np.size(self.owner.mu)} frictions for {n} points of "
+                             f"{self.n_cells} cells")
+        values = {name: getattr(params, name) for name in ("m", "e_gamma", "lambda_c")}
+        values.update(per_point or {})
+        self.m, self.e_gamma, self.lambda_c = (np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy()
+                                               for k in ("m", "e_gamma", "lambda_c"))
+        for i in range(n):
+            Interlocking(float(self.m[i]), float(self.e_gamma[i]), float(self.lambda_c[i]), params.xi,
+                         params.p_ref).check()
+        self.phi_mu_deg = np.broadcast_to(np.asarray(phi_mu_deg, dtype=np.float64), (n,)).copy()
+        self.e0 = np.broadcast_to(np.asarray(e0, dtype=np.float64), (n,)).copy()
+        self.floored = np.zeros(n, dtype=np.int64)
+        self.friction_deg = self.phi_mu_deg.copy()
+        self._mean = dimension(material.dim).mean_stress
+        self.set_from(state)
+
+    @property
+    def count(self) -> Any:
+        """The inner renewal's renewals per point (zeros without one)."""
+        return self.inner.count if self.inner is not None else np.zeros(self.material.n_points, dtype=np.int64)
+
+    def friction_at(self, state: MaterialState) -> np.ndarray:
+        """The friction [deg] of each point at ``state`` (its J and p), shape (n,); phi_mu where not finite."""
+        e = current_void_ratio(self.e0, state.J)
+        p = self._mean(state.stress)
+        with np.errstate(all="ignore"):
+            e_c = critical_void_ratio(p, self.e_gamma, self.lambda_c, self.params.xi, self.params.p_ref)
+            phi = mobilised_friction_deg(self.phi_mu_deg, e, p, self.m, self.e_gamma, self.lambda_c, self.params.xi,
+                                         self.params.p_ref)
+        self.floored += (e_c < E_C_FLOOR).astype(np.int64)
+        return np.where(np.isfinite(phi) & (phi < 90.0), phi, self.phi_mu_deg)
+
+    def set_from(self, state: MaterialState) -> None:
+        """Set every cell's friction (and the inner renewal's fresh cells') from ``state``."""
+        self.friction_deg = self.friction_at(state)
+        self.owner.mu = np.repeat(np.tan(np.radians(self.friction_deg)), self.n_cells)
+        if self.inner is not None:
+            self.inner.set_friction(self.friction_deg)
+
+    def within(self, start: MaterialState, update: MaterialUpdate) -> MaterialUpdate:
+        """The inner renewal's ``within`` (the friction is fixed over an increment's trials)."""
+        return self.inner.within(start, update) if self.inner is not None else update
+
+    def advance(self, state: MaterialState) -> MaterialState:
+        """The inner renewal's ``advance``, then the friction set from the accepted state for the next increment."""
+        if self.inner is not None:
+            state = self.inner.advance(state)
+        self.set_from(state)
+        return state

@@ -1,0 +1,92 @@
+"""The interlocking friction of the calibration's forward model (``calibration.interlocking``, opt-in)."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from homogenization.calibration import forward
+from homogenization.calibration.data import Measurement
+from homogenization.calibration.interlocking import (Interlocking, InterlockingFriction, critical_void_ratio,
+                                                     mobilised_friction_deg)
+from homogenization.material.critical_state import DEFAULTS
+from homogenization.material.density import current_void_ratio
+
+SETTINGS = forward.ForwardSettings(increment=2e-3, iso_increment=1e-3, lebedev_order=5, n_spins=2, stress_rtol=1e-5)
+EPS1 = np.linspace(0.002, 0.06, 30)
+TEST = Measurement("drained", Path("drained.csv"), True, 1e5, EPS1, {"q": np.zeros(30), "eps_v": np.zeros(30)}, dim=3)
+SETS = {"phi_g": np.array([30.0, 34.0]), "kn": np.array([2e7, 5e7]), "kt_over_kn": np.array([0.8, 1.2]),
+        "alpha0": np.array([48.0, 50.0])}
+
+
+def test_the_friction_law():
+    rule = Interlocking(m=2.0, e_gamma=0.8, lambda_c=0.1, xi=0.7)
+    p = np.array([0.0, 5e4, 2e5])
+    e_c = critical_void_ratio(p, rule.e_gamma, rule.lambda_c, rule.xi, rule.p_ref)
+    np.testing.assert_allclose(e_c, 0.8 - 0.1 * (p / 101325.0) ** 0.7, rtol=1e-14)
+    # at e = e_c the friction is phi_mu, whatever m and p
+    np.testing.assert_allclose(mobilised_friction_deg(32.0, e_c, p, 2.0, 0.8, 0.1, 0.7, rule.p_ref), 32.0, rtol=1e-12)
+    # a hand value: e_c / e = 1.2, m = 2
+    hand = np.degrees(np.arctan(1.44 * np.tan(np.radians(30.0))))
+    assert mobilised_friction_deg(30.0, 0.5, 0.0, 2.0, 0.6, 0.0, 0.7, rule.p_ref) == pytest.approx(hand, rel=1e-12)
+    # falls with the void ratio, and at one void ratio with the pressure; m = 0: phi_mu
+    e = np.linspace(0.4, 0.9, 11)
+    assert np.all(np.diff(mobilised_friction_deg(30.0, e, 1e5, 1.5, 0.8, 0.1, 0.7, rule.p_ref)) < 0.0)
+    assert np.all(np.diff(mobilised_friction_deg(30.0, 0.6, p, 1.5, 0.8, 0.1, 0.7, rule.p_ref)) < 0.0)
+    assert np.all(mobilised_friction_deg(30.0, e, 1e5, 0.0, 0.8, 0.1, 0.7, rule.p_ref) == pytest.approx(30.0, abs=1e-12))
+    with pytest.raises(ValueError, match="lambda_c"):
+        Interlocking(lambda_c=-0.1).check()
+
+
+@pytest.mark.parametrize("rule", [None, DEFAULTS[3]])
+def test_m_zero_is_the_plain_contact_law_bit_for_bit(rule):
+    settings = replace(SETTINGS, critical_state=rule)
+    sets = {**SETS, "alpha0": np.array([48.0, 57.0])}  # the loose one renews (in the increments' trials)
+    plain = forward.simulate(TEST, sets, settings)
+    flat = forward.simulate(TEST, sets, settings, interlocking=Interlocking(m=0.0))
+    for name in ("q", "p", "eps_v"):
+        np.testing.assert_array_equal(flat.channel(name), plain.channel(name))
+
+
+def test_each_point_runs_at_its_own_state_and_dense_points_gain_strength():
+    """Per point, the friction after the run is the law's at the point's own e and p; the denser set at low
+    pressure gets friction above phi_mu, falling as it dilates; its peak q rises."""
+    rule = Interlocking(xi=0.7)
+    per_set = {"m": np.array([1.5, 3.0]), "e_gamma": np.array([0.75, 0.70]), "lambda_c": np.array([0.05, 0.02])}
+    e0 = np.array([0.55, 0.60])
+    full = forward.full_parameters(SETS, SETTINGS)
+    points = forward.population(full, SETTINGS, 3)
+    hook = InterlockingFriction(rule, points.material, points.state, full["phi_g"], e0, per_set)
+    start = hook.friction_deg.copy()
+    points.renewal = hook
+    seen = []
+    curves = forward.simulate_points(TEST, points, SETTINGS,
+                                     before_stage={1: lambda pts: seen.append(hook.friction_deg.copy())})
+    e = current_void_ratio(e0, points.state.J)
+    p = points.mean(points.state.stress)
+    expected = mobilised_friction_deg(full["phi_g"], e, p, per_set["m"], per_set["e_gamma"], per_set["lambda_c"],
+                                      rule.xi, rule.p_ref)
+    np.testing.assert_allclose(hook.friction_deg, expected, rtol=1e-12)
+    np.testing.assert_allclose(hook.owner.mu, np.repeat(np.tan(np.radians(expected)), points.material.orient.n_cells),
+                               rtol=1e-12)
+    assert np.all(start > full["phi_g"] + 3.0)  # e0 well below e_Gamma
+    assert np.all(hook.friction_deg < seen[0])  # dilated in shear: e nearer e_c
+    assert hook.floored.sum() == 0
+    plain = forward.simulate(TEST, SETS, SETTINGS)
+    assert np.all(curves.q.max(axis=1) > 1.1 * plain.q.max(axis=1))
+
+
+def test_a_test_with_its_void_ratio_runs_each_set_from_it():
+    """e0 is the test's void ratio; a set whose map misses it gets NaN, the others run as alone."""
+    test = replace(TEST, void_ratio=0.6)
+    rule = Interlocking(m=2.0, e_gamma=0.75, lambda_c=0.05)
+    sets = {**{k: np.append(v, v[0]) for k, v in SETS.items() if k != "alpha0"},
+            "e_min": np.array([0.45, 0.5, 0.65]), "e_max": np.array([0.8, 0.9, 0.9])}
+    both = forward.simulate(test, sets, SETTINGS, interlocking=rule)
+    assert np.all(np.isnan(both.q[2])) and np.all(np.isfinite(both.q[:2]))
+    one = forward.simulate(test, {k: v[1:2] for k, v in sets.items()}, SETTINGS, interlocking=rule)
+    np.testing.assert_allclose(both.q[1], one.q[0], rtol=1e-12)
+    low = forward.simulate(test, {k: v[1:2] for k, v in sets.items()}, SETTINGS,
+                           interlocking=replace(rule, e_gamma=0.65))  # e0 nearer e_c: less strength
+    assert low.q[0].max() < one.q[0].max()
