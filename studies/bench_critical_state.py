@@ -64,8 +64,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_real_sand import DATA, SPLITS, print_prediction_table  # noqa: E402
 from bench_real_sand_spread import NOISE, SETTINGS, metrics  # noqa: E402
 
-from homogenization.backends.analytical import AnalyticalState  # noqa: E402
-from homogenization.backends.analytical3d import Analytical3DCell, Analytical3DState  # noqa: E402
+from homogenization.backends.analytical import Analytical3DCell, Analytical3DState, AnalyticalState  # noqa: E402
 from homogenization.calibration import bayes, forward, start  # noqa: E402
 from homogenization.calibration.data import Measurement, read_test  # noqa: E402
 from homogenization.element_test.points import material_points, orientation_set  # noqa: E402
@@ -114,7 +113,7 @@ class Reform(Candidate):
         planes = []
         for plane in _planes(new):
             free = (plane.N1 <= 0.0) & (plane.N2 <= 0.0)
-            planes.append(_where(free, self.plane.touching_state(self.value, free.size), plane))
+            planes.append(_where(free, self.touching_plane(self.value, free.size), plane))
         new = Analytical3DState(*planes)
         r = self.response(new)
         return new, type(response)(r.moment, r.area, response.diagnostics, response.tangent)
@@ -146,15 +145,15 @@ class Freeze(Candidate):
 
 class Lock(Candidate):
     def step(self, state, d_eps_local, *, with_tangent=False):
-        mu, limit = self.plane.mu, np.radians(self.value)
+        mu, limit = self.mu, np.radians(self.value)
         d_eps = np.asarray(d_eps_local, dtype=np.float64)
         planes, responses = [], []
         for plane, columns in zip(_planes(state), ([0, 1], [0, 2])):
-            self.plane.mu = np.where(plane.alpha <= limit, 1e6, mu)
-            new_plane, response = self.plane.step(plane, d_eps[:, columns], with_tangent=with_tangent)
+            self.mu = np.where(plane.alpha <= limit, 1e6, mu)
+            new_plane, response = self.plane_step(plane, d_eps[:, columns], with_tangent=with_tangent)
             planes.append(new_plane)
             responses.append(response)
-        self.plane.mu = mu
+        self.mu = mu
         new = Analytical3DState(*planes)
         ra, rb = responses
         tangent = None
@@ -193,7 +192,7 @@ class Renewal(Candidate):
         return RenewalState(state.a, state.b, np.zeros(n_cells), np.ones(n_cells))
 
     def _fresh(self, J: np.ndarray) -> Analytical3DState:
-        alpha0 = np.broadcast_to(self.plane.cell_alpha0_deg, J.shape)
+        alpha0 = np.broadcast_to(self.cell_alpha0_deg, J.shape)
         if self.at_density:
             grid = np.linspace(45.0 + 1e-6, 74.0, 800)  # the touching cell's volume grows up to 74.7 deg
             volume = super().volume(self.touching_state(grid, grid.size))

@@ -1,6 +1,6 @@
 """Why the ten-sphere cell does not liquefy: single cells on the undrained triaxial path.
 
-Runs the closed form of the 3D cell (``homogenization.backends.analytical3d``) through an
+Runs the closed form of the 3D cell (``homogenization.backends.analytical.Analytical3DCell``) through an
 isotropic compression to p0 and an isochoric triaxial compression, with its own short loop
 (strain control only, so every cell's state is at hand), and prints:
 
@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from homogenization.backends.analytical3d import Analytical3DCell
+from homogenization.backends.analytical import Analytical3DCell
 from homogenization.material.orientation import average_moment, initial_volume, localise
 from homogenization.material import orientation as orientation_module
 from homogenization.material.orientation import cell_kinematics, orientations_3d
@@ -101,7 +101,7 @@ def mechanism_ratio(alpha_deg: np.ndarray) -> np.ndarray:
 
 def report(spec: str, alpha0: float, out: dict, p0: float) -> None:
     curve, orient, local = out["curve"], out["orient"], out["local"]
-    print(f"\n== {spec} alpha0 = {alpha0:g} deg, phi_g = {math.degrees(math.atan(out['cell'].plane.mu)):g} deg, {orient.n_cells} cells")
+    print(f"\n== {spec} alpha0 = {alpha0:g} deg, phi_g = {math.degrees(math.atan(out['cell'].mu)):g} deg, {orient.n_cells} cells")
     for eps in (0.005, 0.01, 0.02, 0.05, 0.10, 0.15):
         k = np.argmin(np.abs(curve[:, 0] - eps))
         if abs(curve[k, 0] - eps) < 1e-9 + 0.5 * (curve[1, 0] - curve[0, 0]):
@@ -116,7 +116,7 @@ def report(spec: str, alpha0: float, out: dict, p0: float) -> None:
                "extended planes (area strain < -0.1)": area < -0.1}
     weight = np.concatenate([orient.weights, orient.weights])
     for eps, (state, moment, volume) in sorted(out["snaps"].items()):
-        planes = [cell.plane.response(state.a).moment, cell.plane.response(state.b).moment]
+        planes = [cell.plane_response(state.a)[0], cell.plane_response(state.b)[0]]
         p_plane = weight * np.concatenate([m[:, 0, 0] + m[:, 1, 1] for m in planes]) / (3.0 * volume * p0)
         alpha = np.degrees(np.concatenate([state.a.alpha, state.b.alpha]))
         loaded = np.concatenate([state.a.N1, state.b.N1]) > 0.0

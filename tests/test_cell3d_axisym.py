@@ -15,7 +15,7 @@ import pytest
 
 from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import make_cell_model
-from homogenization.backends.analytical3d import Analytical3DCell
+from homogenization.backends.analytical import Analytical3DCell
 from homogenization.material.orientation import localise
 from homogenization.material.orientation import AXISYMMETRIC_MAP, cell_kinematics, orientations_3d
 from warp_hcell.mesostructures.builders import resolve_mesostructure

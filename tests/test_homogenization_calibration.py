@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 from homogenization.element_test import driver, programme as programmes
-from homogenization.backends.analytical import AnalyticalCell
-from homogenization.backends.analytical3d import Analytical3DCell
+from homogenization.backends.analytical import Analytical3DCell, AnalyticalCell
 from homogenization.calibration import bayes, report
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import ForwardSettings, simulate

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from homogenization import hmodel
-from homogenization.backends.analytical3d import Analytical3DCell
+from homogenization.backends.analytical import Analytical3DCell
 from homogenization.calibration import bayes, resolution
 from homogenization.calibration import posterior as post_mod
 from homogenization.calibration.data import Measurement, read_test

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from homogenization.backends import make_cell_model
-from homogenization.backends.analytical3d import Analytical3DCell
+from homogenization.backends.analytical import Analytical3DCell
 from homogenization.cli import hmodel
 from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.files import describe, from_description, load_mesostructure

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization.backends.analytical3d import Analytical3DCell
+from homogenization.backends.analytical import Analytical3DCell
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement
 from homogenization.calibration.forward import SPREAD, ForwardSettings, simulate

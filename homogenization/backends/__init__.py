@@ -18,7 +18,7 @@ from warp_hcell.core.parameters import CellDefaults, ContactLaw
 
 BACKENDS: dict[str, dict[int, str]] = {
     "analytical": {2: "homogenization.backends.analytical:AnalyticalCell",
-                   3: "homogenization.backends.analytical3d:Analytical3DCell"},
+                   3: "homogenization.backends.analytical:Analytical3DCell"},
     "dem": {2: "homogenization.backends.dem:DemCell", 3: "homogenization.backends.dem:DemCell"},
     "ann": {2: "homogenization.ann.cell:AnnCell", 3: "homogenization.ann.cell:AnnCell3D"},
 }

@@ -1,57 +1,73 @@
-"""Analytical H-cell backend: the one-unknown equilibrium solve of spec section 6.
+"""Closed-form H-cell backend (spec section 6): a cell is one planar H-cell per lateral axis, all sharing the
+axial grains 1 and 4.
 
-``AnalyticalCell`` implements ``warp_hcell.core.contract.CellModel``. Per increment and
-per cell, l1 and l2 follow the imposed local strain (spec section 3); the only unknown,
-y2 = d2/2, is found such that grain 2 is in equilibrium along n:
+The planar cell (``dimension(2)``) is one plane, (n, t): six disks. The ten-sphere cell (``dimension(3)``,
+docs/model.md section 14) is two, (n, t1) with grains 1-6 and (n, t2) with grains 1, 4 and 7-10. Per increment
+plane k takes (d_eps_n, d_eps_tk): l1 and its lateral length follow the imposed strain (spec section 3), and its
+only unknown, y2 = d2/2, is found such that grain 2 is in equilibrium along n:
 
     f(y2) = N2 - N1 cos a - T1 sin a (- g2 T1) = 0,
 
-with N1 = kn <D - d1>, N2 = kn <D - d2> and T1 the incremental tangential spring with a
-Coulomb cap evaluated from the state at the start of the increment:
-T_trial = T1_old + kt d1_mid (a - a_old), T1 = clip(T_trial, -mu N1, +mu N1). The cap
-takes its sign from the trial force, and T1 = 0 (history reset) whenever the type-1
-contact is open, because then N1 = 0. The solve is a safeguarded Newton iteration on the
-whole batch at once, from the previous y2, inside a bracket in (0, l1/2]: when a Newton step
-leaves the bracket (kinks where contacts open or start sliding), y2 walks towards the root
-by doubling steps, never past the middle of the bracket. Converged cells are frozen, so a
-cell's result does not depend on its batch. Where both contacts are open f is identically
-zero and y2 is kept. Where f > 0 even at y2 = l1/2 (alpha = 90 deg) the cell is held there.
+with N1 = kn <D - d1>, N2 = kn <D - d2> and T1 the incremental tangential spring with a Coulomb cap evaluated
+from the state at the start of the increment: T_trial = T1_old + kt d1_mid (a - a_old), T1 = clip(T_trial,
+-mu N1, +mu N1); T1 = 0 whenever the type-1 contact is open. The solve is a safeguarded Newton iteration on the
+whole batch, from the previous y2, inside a bracket in (0, l1/2]: where a Newton step leaves the bracket, y2
+walks towards the root by doubling steps. Converged cells are frozen, so a cell's result does not depend on its
+batch. Where both contacts are open y2 is kept; where f > 0 even at y2 = l1/2 (alpha = 90 deg) the cell is held
+there.
 
-With ``with_tangent=True`` the step also returns the consistent tangent
-d(S_nn, S_tt)/d(d_eps_n, d_eps_t) of the increment, by implicit differentiation of
-f(y2; l1, l2) = 0 in the regime the solve reached (which contacts are closed, stick or slide
-of the type-1 contacts with the sign of the trial force, pathological contacts):
-dy2/dl = -(df/dl) / (df/dy2), dS/dl = dS/dl|_y2 + dS/dy2 dy2/dl, and dl_i/d(d_eps_i) = -l_i,old.
-The partial derivatives of the frozen-regime residual and moment are written out in
-``_partials``.
+The cell's Love-Weber moment sums its planes' with the axial contact 1-4, which every plane counts, counted
+once:
 
-The Hertz-Mindlin law (``warp_hcell.core.parameters.HertzMindlinLaw``, used by the ten-sphere
-cell of ``analytical3d``, whose planes are such cells of spheres) replaces kn <D - d> by
-kh <D - d>^(3/2) and kt by the mean Mindlin stiffness of the increment's type-1 overlaps,
-kt(D - d1_old, D - d1) (``warp_hcell.core.laws.hertz_mindlin.move_stiffness``, as the DEM's), kh and ks the pair
-constants of equal spheres (R* = r / 2, ``warp_hcell.core.laws.hertz_mindlin.pair_constants``); the
-solve, its bracket and the tangent are the same with the overlap-dependent slopes.
+    S_nn = sum_k S_nn(k) - (n_planes - 1) kn <D - l1> l1,   S_tktk = S_tt(k),   other components zero,
 
-Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha
-growing). Local frame: index 0 = n, 1 = t.
+and so does the consistent tangent (``with_tangent=True``), from each plane's: implicit differentiation of
+f(y2; l1, l2) = 0 in the regime the solve reached, dy2/dl = -(df/dl) / (df/dy2), with the partial derivatives of
+``_partials``. The planes decouple while no lateral grain of one plane touches one of another (true for the
+planar cell); ``step`` counts the cells where two planes' lateral grains come within one diameter in
+``diagnostics["n_cross_plane"]`` (the DEM models that contact). V_cell is the hexagon's area (one plane) or the
+polyhedron through the ten centres.
+
+The Hertz-Mindlin law (``warp_hcell.core.parameters.HertzMindlinLaw``, spheres) replaces kn <D - d> by
+kh <D - d>^(3/2) and kt by the mean Mindlin stiffness of the increment's type-1 overlaps (as the DEM's,
+``warp_hcell.core.laws.hertz_mindlin``); the solve and the tangent are the same with the overlap-dependent
+slopes.
+
+Kinematics: ``step`` takes the cell-axis strains as given; the kinds ``hcell3d-axisym`` and ``hcell3d-sand``
+are modelled unchanged, their kinematics applied where the macro increment is localised
+(``homogenization.material.orientation``).
+
+Sign convention: compression and contraction positive; T1 > 0 resists opening (alpha growing). Local frame:
+index 0 = n, k = t_k.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Callable, NamedTuple, Sequence
+from dataclasses import dataclass
+from itertools import combinations
+from typing import Any, Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
+from warp_hcell.core.contact import PairLaw, pair_law, reduced_radius_root
+from warp_hcell.core.contract import CellResponse
+from warp_hcell.core.dimension import Dimension, dimension
+from warp_hcell.core.parameters import (
+    HERTZ_DT_OVERLAP,
+    check_positive,
+    ContactLaw,
+    hertz_normal_modulus,
+    hertz_shear_stiffness_modulus,
+    HertzMindlinLaw,
+    Law,
+)
 from warp_hcell.mesostructures import hcell
-from warp_hcell.core.contract import ArrayStateMixin, CellResponse
-from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell
-from warp_hcell.core.contact import PairLaw, pair_law
-from warp_hcell.core.parameters import HERTZ_DT_OVERLAP, check_positive, ContactLaw, Law
+from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell, polyhedron_volume
 
 
 class AnalyticalState(NamedTuple):
-    """Batch of analytical H-cells; every field has shape (n_cells,).
+    """Batch of planar H-cells (the state of one plane); every field has shape (n_cells,).
 
     (l1, l2, y2) fix the geometry; the other fields are derived from it at the end of the
     increment that produced the state and kept so that the next increment starts from them.
@@ -60,7 +76,7 @@ class AnalyticalState(NamedTuple):
     l1: np.ndarray
     """Axial length, centre 1 to centre 4 [m]."""
     l2: np.ndarray
-    """Distance between the lateral columns [m]."""
+    """Distance between the plane's lateral columns [m] (the cell's l2, or l3 for the second plane)."""
     y2: np.ndarray
     """n-coordinate of grain 2, d2/2 [m]."""
     d1: np.ndarray
@@ -75,19 +91,94 @@ class AnalyticalState(NamedTuple):
     """Tangential force of the type-1 contacts [N], > 0 resists opening."""
 
 
-def plain_cell_alpha0(meso: Mesostructure, plain_alpha0: Callable[[Mesostructure], tuple[float, ...] | None],
-                      models: str, dim: int) -> float:
-    """Opening angle alpha0 [deg] of ``meso`` as ``plain_alpha0`` (``hcell.plain_alpha0`` or
-    ``hcell.plain_alpha0_3d``) reads it; ValueError (one line) for a cell of another dimension
-    than the backend's ``dim`` (saying which backend to build), or naming what the backend
-    ``models`` where ``plain_alpha0`` reads none."""
-    if meso.dim != dim:
+class Analytical3DState(NamedTuple):
+    """Batch of ten-sphere cells: the states of plane A (n, t1) and plane B (n, t2), which share l1."""
+
+    a: AnalyticalState
+    b: AnalyticalState
+
+
+LATERAL_GRAINS = (1, 2, 4, 5)
+"""Indices (0-based) in a plane's six grains of its lateral grains: those a second plane adds to the cell."""
+TEN_SPHERE_FACES = hcell.h_cell_3d_faces()
+"""Outer triangles of the ten-sphere cell."""
+
+
+def cell_positions(planes: Sequence[AnalyticalState]) -> np.ndarray:
+    """Grain centres (n_cells, 2 + 4 n_planes, 1 + n_planes) [m], cell centre at the origin: the first plane's
+    six grains in (n, t1), then each further plane k's lateral grains in (n, tk)."""
+    first = hcell.grain_positions(planes[0].l1, planes[0].l2, planes[0].y2)
+    n_planes = len(planes)
+    x = np.zeros((first.shape[0], 2 + 4 * n_planes, 1 + n_planes))
+    x[:, :6, 0], x[:, :6, 1] = first[..., 0], first[..., 1]
+    for k, plane in enumerate(planes[1:], start=2):
+        lateral = hcell.grain_positions(plane.l1, plane.l2, plane.y2)[:, LATERAL_GRAINS]
+        rows = slice(4 * k - 2, 4 * k + 2)
+        x[:, rows, 0], x[:, rows, k] = lateral[..., 0], lateral[..., 1]
+    return x
+
+
+def _hexagon_area(planes: Sequence[AnalyticalState], areas: Sequence[np.ndarray]) -> np.ndarray:
+    return areas[0]
+
+
+def _polyhedron_volume(planes: Sequence[AnalyticalState], areas: Sequence[np.ndarray]) -> np.ndarray:
+    return polyhedron_volume(cell_positions(planes), TEN_SPHERE_FACES)
+
+
+@dataclass(frozen=True)
+class CellLayout:
+    """How the planes make the closed form's cell of one dimension (``LAYOUTS``)."""
+
+    dimension: Dimension
+    """The cells' dimension: one plane per lateral axis (``frame[1:]``)."""
+    state: Callable[..., Any]
+    """The planes' states, one argument per plane -> the cell's state."""
+    planes: Callable[[Any], tuple[AnalyticalState, ...]]
+    """The cell's state -> its planes' states, in the order of the lateral axes."""
+    prefixes: tuple[str, ...]
+    """Prefix of each plane's fields in ``state_to_arrays``."""
+    suffixes: tuple[str, ...]
+    """Suffix of each plane's quantities in ``observables``."""
+    plain_alpha0: Callable[[Mesostructure], tuple[float, float] | None]
+    """(alpha0_deg, radius) of the plain cell of this dimension, None for another mesostructure."""
+    models: str
+    """What the backend models, as its refusal of another mesostructure says it."""
+    grains: str
+    """How a message names the grains."""
+    measure: Callable[[Sequence[AnalyticalState], Sequence[np.ndarray]], np.ndarray]
+    """(planes, each plane's hexagon area [m^2], shape (n_cells,)) -> V_cell [m^2 or m^3], shape (n_cells,)."""
+
+    @property
+    def n_planes(self) -> int:
+        """Number of planes: one per lateral axis."""
+        return len(self.dimension.frame) - 1
+
+
+LAYOUTS = {
+    2: CellLayout(dimension(2), lambda plane: plane, lambda state: (state,), ("",), ("",), hcell.plain_alpha0,
+                  "the plain H-cell only (six equal touching grains)", "grains", _hexagon_area),
+    3: CellLayout(dimension(3), Analytical3DState, tuple, ("a_", "b_"), ("_a", "_b"), hcell.plain_alpha0_3d,
+                  "the plain ten-sphere H-cell only in 3D (equal touching spheres, planes 90 deg apart)", "spheres",
+                  _polyhedron_volume),
+}
+"""The closed form's cell of each dimension: the planar H-cell (one plane; its state is the plane's) and the
+ten-sphere cell (``Analytical3DState``)."""
+PLANE_OBSERVABLES = ("alpha_deg", "d1", "d2", "N1", "N2", "T1", "closed1", "closed2")
+"""Per-plane quantities of ``observables``."""
+
+
+def plain_cell_alpha0(meso: Mesostructure, layout: CellLayout) -> float:
+    """Opening angle alpha0 [deg] of ``meso`` if it is the plain cell of ``layout``; ValueError (one line) for a
+    cell of another dimension (saying which backend to build) or another cell."""
+    if meso.dim != layout.dimension.dim:
         raise ValueError(f"mesostructure {meso.name!r} is a {meso.dim}D cell and this analytical backend models "
-                         f"{dim}D cells: build the backend with make_cell_model('analytical', dim={meso.dim}) "
-                         f"(dim = the mesostructure's dim)")
-    plain = plain_alpha0(meso)
+                         f"{layout.dimension.dim}D cells: build the backend with make_cell_model('analytical', "
+                         f"dim={meso.dim}) (dim = the mesostructure's dim)")
+    plain = layout.plain_alpha0(meso)
     if plain is None:
-        raise ValueError(f"analytical models {models}; mesostructure {meso.name!r} is not one: use --backend dem or ann")
+        raise ValueError(f"analytical models {layout.models}; mesostructure {meso.name!r} is not one: use --backend "
+                         f"dem or ann")
     return plain[0]
 
 
@@ -110,12 +201,11 @@ def cell_alpha0(mesostructure: Mesostructure | Sequence[Mesostructure], n_cells:
     return alpha0_deg
 
 
-class AnalyticalCell(ArrayStateMixin):
-    """Closed-form H-cell (spec sections 2-7), vectorised over cells.
+class AnalyticalCell:
+    """Closed-form H-cell of ``dim`` dimensions (module docstring), vectorised over cells.
 
     Args:
-        contact_law: contact stiffnesses and friction (a law of ``warp_hcell.core.parameters.CONTACT_LAWS``;
-            the Hertz-Mindlin law as the plane of the ten-sphere cell, ``analytical3d``).
+        contact_law: contact stiffnesses and friction (a law of ``warp_hcell.core.parameters.CONTACT_LAWS``).
         radius: grain radius r [m].
         g2: coefficient of the published "G2" variant of the equilibrium (spec section 5),
             N2 = N1 cos a + T1 sin a + g2 T1 [-]. 0 (the default) is the consistent model.
@@ -124,13 +214,14 @@ class AnalyticalCell(ArrayStateMixin):
         max_iterations: Newton/bisection iterations allowed per increment [-]; cells still
             above the tolerance are counted in ``diagnostics["n_unconverged"]``.
 
-    ``step`` reports ``diagnostics``: ``iterations`` (residual evaluations of the batch),
-    ``n_unconverged`` (cells above the tolerance) and ``n_alpha_limit`` (cells held at
-    alpha = 90 deg, where no equilibrium exists below it).
+    ``step`` reports ``diagnostics``, summed over the planes: ``iterations`` (residual evaluations of the
+    batch), ``n_unconverged`` (cells above the tolerance), ``n_alpha_limit`` (cells held at alpha = 90 deg)
+    and, with several planes, ``n_cross_plane``.
     """
 
     name = "analytical"
-    state_type = AnalyticalState
+    dim = 2
+    """Spatial dimension of the cells (``LAYOUTS``); ``Analytical3DCell`` has 3."""
 
     def __init__(
         self,
@@ -141,6 +232,7 @@ class AnalyticalCell(ArrayStateMixin):
         tolerance: float = 1e-10,
         max_iterations: int = 60,
     ) -> None:
+        self.layout = LAYOUTS[self.dim]
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
         if not math.isfinite(g2):
@@ -209,74 +301,171 @@ class AnalyticalCell(ArrayStateMixin):
         if bad.any():
             raise ValueError(f"phi_g = {phi[bad][0]:g} deg is outside [0, 90) deg")
         model = cls(ContactLaw(), radius, **options)
-        model.contact_law = None
         model.kn = kn.copy()
         model.kt = ratio * kn
-        model.law = PairLaw("linear", model.kn, model.kt)
-        model.mu = np.tan(np.radians(phi))
-        model.f_tolerance = model.tolerance * model.kn * model.radius
-        if alpha0_deg is not None:
-            model.cell_alpha0_deg = np.array(alpha0_deg, dtype=np.float64, ndmin=1)
-            hcell.touching_cells(model.cell_alpha0_deg, model.cell_alpha0_deg.size, model.diameter)  # range check
+        model._set_cell_laws(PairLaw("linear", model.kn, model.kt), phi, alpha0_deg)
         return model
 
-    @staticmethod
-    def check_mesostructure(meso: Mesostructure) -> float:
+    @classmethod
+    def with_hertz_cell_laws(cls, shear_modulus: np.ndarray, poisson: np.ndarray, phi_g_deg: np.ndarray,
+                             radius: float, alpha0_deg: np.ndarray | None = None, **options) -> AnalyticalCell:
+        """``with_cell_laws`` of the Hertz-Mindlin law: cell i has the grain shear modulus
+        shear_modulus[i] [Pa] (> 0), Poisson ratio poisson[i] [-] (in [0, 0.5)), friction angle
+        phi_g_deg[i] [deg] and opening angle alpha0_deg[i] [deg] (shape (n_cells,) each).
+
+        Raises:
+            ValueError: (one line) a value outside the ranges of ``HertzMindlinLaw``.
+        """
+        G, nu, phi = np.broadcast_arrays(*(np.array(v, dtype=np.float64, ndmin=1)
+                                           for v in (shear_modulus, poisson, phi_g_deg)))
+        for k in np.flatnonzero(~(np.isfinite(G) & (G > 0.0) & (nu >= 0.0) & (nu < 0.5) & (phi >= 0.0) & (phi < 90.0))):
+            HertzMindlinLaw(float(G[k]), float(nu[k]), float(phi[k]))  # raises, naming the value
+        model = cls(HertzMindlinLaw(), radius, **options)
+        root = reduced_radius_root(model.radius, model.radius)
+        law = PairLaw("hertz-mindlin", hertz_normal_modulus(G, nu) * root, hertz_shear_stiffness_modulus(G, nu) * root)
+        model.kn, model.kt = law.kn, law.kt
+        model._set_cell_laws(law, phi, alpha0_deg)
+        return model
+
+    def _set_cell_laws(self, law: PairLaw, phi_g_deg: np.ndarray, alpha0_deg: np.ndarray | None) -> None:
+        """Per-cell ``law``, friction angles [deg] and opening angles [deg] (None: the mesostructure's)."""
+        self.contact_law = None
+        self.law = law
+        self.mu = np.tan(np.radians(phi_g_deg))
+        self.f_tolerance = self.tolerance * self.stiffness_scale * self.radius
+        if alpha0_deg is not None:
+            self.cell_alpha0_deg = np.array(alpha0_deg, dtype=np.float64, ndmin=1)
+            hcell.touching_cells(self.cell_alpha0_deg, self.cell_alpha0_deg.size, self.diameter)  # range check
+
+    @classmethod
+    def check_mesostructure(cls, meso: Mesostructure) -> float:
         """Opening angle alpha0 [deg] of ``meso`` if it is the cell this backend models.
 
         Raises:
-            ValueError: (one line) ``meso`` is not the touching six-equal-grain H-cell of
-                ``warp_hcell.mesostructures.hcell.h_cell`` (``hcell.plain_alpha0``).
+            ValueError: (one line) ``meso`` is not the plain cell of the backend's dimension: the
+                touching six-equal-grain H-cell (``hcell.plain_alpha0``) or the touching ten-equal-sphere
+                cell of orthogonal planes (``hcell.plain_alpha0_3d``).
         """
-        return plain_cell_alpha0(meso, hcell.plain_alpha0, "the plain H-cell only (six equal touching grains)", 2)
+        return plain_cell_alpha0(meso, LAYOUTS[cls.dim])
 
-    def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int) -> AnalyticalState:
-        """Touching, force-free cells: d1 = d2 = D at the opening angle alpha0 of each cell's mesostructure.
+    def init_state(self, mesostructure: Mesostructure | Sequence[Mesostructure], n_cells: int):
+        """Touching, force-free cells (d1 = d2 = D in every plane) at the opening angle alpha0 of each cell's
+        mesostructure, or at the per-cell angles of ``with_cell_laws``.
 
         Args:
-            mesostructure: the plain H-cell (``warp_hcell.mesostructures.hcell.h_cell(alpha0_deg, radius)``
-                with this backend's radius), or a sequence of n_cells of them.
+            mesostructure: the plain cell of the backend's dimension with this backend's radius
+                (``hcell.plain_h_cell``), or a sequence of n_cells of them.
             n_cells: number of cells.
 
         Raises:
-            ValueError: (one line) a mesostructure that is not such an H-cell
-                (``check_mesostructure``) or whose grains have another radius.
+            ValueError: (one line) a mesostructure that is not such a cell (``check_mesostructure``)
+                or whose grains have another radius.
         """
-        alpha0_deg = cell_alpha0(mesostructure, n_cells, self.check_mesostructure, self.radius, "grains")
+        alpha0_deg = cell_alpha0(mesostructure, n_cells, self.check_mesostructure, self.radius, self.layout.grains)
         if self.cell_alpha0_deg is not None:
             alpha0_deg = np.broadcast_to(self.cell_alpha0_deg, (int(n_cells),))
         return self.touching_state(alpha0_deg, n_cells)
 
-    def touching_state(self, alpha0_deg: float | np.ndarray, n_cells: int) -> AnalyticalState:
+    def touching_state(self, alpha0_deg: float | np.ndarray, n_cells: int):
         """Touching, force-free cells at opening angle(s) ``alpha0_deg`` [deg] (scalar or (n_cells,))."""
+        return self.layout.state(*(self.touching_plane(alpha0_deg, n_cells) for _ in range(self.layout.n_planes)))
+
+    def touching_plane(self, alpha0_deg: float | np.ndarray, n_cells: int) -> AnalyticalState:
+        """One plane of touching, force-free cells at opening angle(s) ``alpha0_deg`` [deg]."""
         alpha, l1, l2 = hcell.touching_cells(alpha0_deg, n_cells, self.diameter)
         D = np.full(alpha.shape, self.diameter)
         zero = np.zeros_like(alpha)
         return AnalyticalState(l1, l2, 0.5 * D, D, alpha, zero, zero.copy(), zero.copy())
 
-    def step(self, state: AnalyticalState, d_eps_local: np.ndarray, *,
-             with_tangent: bool = False) -> tuple[AnalyticalState, CellResponse]:
+    def step(self, state, d_eps_local: np.ndarray, *, with_tangent: bool = False) -> tuple[Any, CellResponse]:
         """Advance every cell by its local strain increment; ``state`` is left untouched.
 
         Args:
             state: cells at the start of the increment.
-            d_eps_local: (d_eps_n, d_eps_t) [-], shape (n_cells, 2), compression positive.
-            with_tangent: also return the consistent tangent d(S_nn, S_tt)/d(d_eps_n, d_eps_t)
-                [N m], shape (n_cells, 2, 2), in ``CellResponse.tangent``.
+            d_eps_local: (d_eps_n, d_eps_t) or (d_eps_n, d_eps_t1, d_eps_t2) [-], shape (n_cells, dim),
+                compression positive.
+            with_tangent: also return the consistent tangent d(S_nn, S_tktk)/d(d_eps_n, d_eps_tk) [N m],
+                shape (n_cells, dim, dim), in ``CellResponse.tangent``.
 
         Returns:
-            The equilibrium state at the end of the increment and its response.
+            The equilibrium state at the end of the increment and its response: moment [N m], shape
+            (n_cells, dim, dim), local frame, compression positive; V_cell (``area``) [m^2 or m^3].
         """
         d_eps = np.asarray(d_eps_local, dtype=np.float64)
-        l1 = state.l1 * (1.0 - d_eps[:, 0])
-        l2 = state.l2 * (1.0 - d_eps[:, 1])
-        new, diagnostics = self._solve(state, l1, l2)
-        moment, area = hcell.love_weber_moment(
-            new.alpha, new.N1, new.N2, new.T1, l1, l2, kn=self.kn, diameter=self.diameter,
-            normal=self._pathological if self.hertz else None
-        )
-        tangent = self._tangent(state, new) if with_tangent else None
+        old = self.layout.planes(state)
+        steps = [self.plane_step(plane, d_eps[:, [0, k]], with_tangent=with_tangent) for k, plane in enumerate(old, 1)]
+        planes = [new for new, _ in steps]
+        responses = [response for _, response in steps]
+        new = self.layout.state(*planes)
+        moment = self._moment(planes, [r.moment for r in responses])
+        tangent = self._cell_tangent(old, planes, [r.tangent for r in responses]) if with_tangent else None
+        diagnostics = {key: sum(r.diagnostics[key] for r in responses) for key in responses[0].diagnostics}
+        if len(planes) > 1:  # planes that may meet
+            diagnostics["n_cross_plane"] = float(np.count_nonzero(self.cross_plane_contact(new)))
+        return new, CellResponse(moment, self.layout.measure(planes, [r.area for r in responses]), diagnostics, tangent)
+
+    def plane_step(self, plane: AnalyticalState, d_eps_local: np.ndarray, *,
+                   with_tangent: bool = False) -> tuple[AnalyticalState, CellResponse]:
+        """Advance one plane by (d_eps_n, d_eps_t) [-], shape (n_cells, 2); ``plane`` is left untouched.
+
+        Returns its equilibrium state and its response: moment (n_cells, 2, 2) [N m] and hexagon area [m^2];
+        ``tangent`` (n_cells, 2, 2) d(S_nn, S_tt)/d(d_eps_n, d_eps_t) [N m] when asked.
+        """
+        d_eps = np.asarray(d_eps_local, dtype=np.float64)
+        l1 = plane.l1 * (1.0 - d_eps[:, 0])
+        l2 = plane.l2 * (1.0 - d_eps[:, 1])
+        new, diagnostics = self._solve(plane, l1, l2)
+        moment, area = self.plane_response(new)
+        tangent = self._tangent(plane, new) if with_tangent else None
         return new, CellResponse(moment, area, diagnostics, tangent)
+
+    def plane_response(self, plane: AnalyticalState) -> tuple[np.ndarray, np.ndarray]:
+        """Love-Weber moment (n_cells, 2, 2) [N m] and hexagon area (n_cells,) [m^2] of one plane."""
+        return hcell.love_weber_moment(plane.alpha, plane.N1, plane.N2, plane.T1, plane.l1, plane.l2, kn=self.kn,
+                                       diameter=self.diameter, normal=self._pathological if self.hertz else None)
+
+    def _axial_moment(self, l1: np.ndarray) -> np.ndarray:
+        """kn <D - l1> l1 [N m] (the law's force at overlap D - l1, times l1): the contact 1-4 that every plane
+        adds to S_nn."""
+        if self.hertz:
+            return self.law.normal(self.diameter - l1) * l1
+        return self.kn * np.maximum(self.diameter - l1, 0.0) * l1
+
+    def _axial_slope(self, old_l1: np.ndarray, l1: np.ndarray) -> np.ndarray:
+        """d(kn <D - l1> l1)/d(d_eps_n) [N m] at the end of an increment that started at ``old_l1``."""
+        if self.hertz:
+            overlap = self.diameter - l1
+            slope = self.law.normal(overlap) - self.law.normal_stiffness(overlap) * l1
+        else:
+            slope = self.kn * (self.diameter - 2.0 * l1)
+        return np.where(self.diameter - l1 > 0.0, slope, 0.0) * -old_l1
+
+    @staticmethod
+    def _once(values: Sequence[np.ndarray], shared: Callable[[], np.ndarray]) -> np.ndarray:
+        """The sum of the planes' ``values`` with the axial contact's ``shared()`` term, which each counts,
+        counted once."""
+        total = values[0]
+        for value in values[1:]:
+            total = total + value - shared()
+        return total
+
+    def _moment(self, planes: Sequence[AnalyticalState], moments: Sequence[np.ndarray]) -> np.ndarray:
+        """The cell's moment (n_cells, dim, dim) [N m] from its planes' (n_cells, 2, 2)."""
+        moment = np.zeros((moments[0].shape[0], self.dim, self.dim))
+        moment[:, 0, 0] = self._once([m[:, 0, 0] for m in moments], lambda: self._axial_moment(planes[0].l1))
+        for k, plane_moment in enumerate(moments, 1):
+            moment[:, k, k] = plane_moment[:, 1, 1]
+        return moment
+
+    def _cell_tangent(self, old: Sequence[AnalyticalState], new: Sequence[AnalyticalState],
+                      tangents: Sequence[np.ndarray]) -> np.ndarray:
+        """The cell's tangent (n_cells, dim, dim) [N m] from its planes' (n_cells, 2, 2)."""
+        tangent = np.zeros((tangents[0].shape[0], self.dim, self.dim))
+        tangent[:, 0, 0] = self._once([t[:, 0, 0] for t in tangents], lambda: self._axial_slope(old[0].l1, new[0].l1))
+        for k, plane_tangent in enumerate(tangents, 1):
+            tangent[:, 0, k], tangent[:, k, 0] = plane_tangent[:, 0, 1], plane_tangent[:, 1, 0]
+            tangent[:, k, k] = plane_tangent[:, 1, 1]
+        return tangent
 
     def _regime(self, old: AnalyticalState, new: AnalyticalState) -> dict[str, np.ndarray]:
         """Contact regime reached by the solve, as the masks that ``_partials`` holds fixed."""
@@ -473,23 +662,81 @@ class AnalyticalCell(ArrayStateMixin):
         }
         return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), diagnostics
 
-    def response(self, state: AnalyticalState) -> CellResponse:
-        """Meso-stress of ``state`` without advancing it."""
-        moment, area = hcell.love_weber_moment(
-            state.alpha, state.N1, state.N2, state.T1, state.l1, state.l2, kn=self.kn, diameter=self.diameter,
-            normal=self._pathological if self.hertz else None
-        )
-        return CellResponse(moment, area)
+    def response(self, state) -> CellResponse:
+        """Meso-stress of ``state`` without advancing it: moment (n_cells, dim, dim) [N m], V_cell (``area``)."""
+        planes = self.layout.planes(state)
+        responses = [self.plane_response(plane) for plane in planes]
+        moment = self._moment(planes, [m for m, _ in responses])
+        return CellResponse(moment, self.layout.measure(planes, [a for _, a in responses]))
 
-    def observables(self, state: AnalyticalState) -> dict[str, np.ndarray]:
+    def volume(self, state) -> np.ndarray:
+        """V_cell [m^2 or m^3] of every cell, shape (n_cells,): the hexagon or the polyhedron through the centres."""
+        return self.response(state).area
+
+    def positions(self, state) -> np.ndarray:
+        """Grain centres (n_cells, n_grains, dim) [m] in the local frame, cell centre at the origin
+        (``cell_positions``)."""
+        return cell_positions(self.layout.planes(state))
+
+    def cross_plane_contact(self, state) -> np.ndarray:
+        """bool (n_cells,): a lateral grain of one plane within one diameter of a lateral grain of another
+        (planes at right angles); never with one plane."""
+        planes = self.layout.planes(state)
+        meet = np.zeros(planes[0].l1.shape, dtype=bool)
+        for a, b in combinations(planes, 2):
+            meet |= (a.y2 - b.y2) ** 2 + 0.25 * (a.l2 ** 2 + b.l2 ** 2) < self.diameter ** 2
+        return meet
+
+    def observables(self, state) -> dict[str, np.ndarray]:
         """Named per-cell quantities, each shape (n_cells,).
 
-        ``l1, l2, d1, d2`` [m], ``alpha_deg`` [deg], ``N1, N2, T1`` [N] (compression
-        positive, T1 > 0 resists opening), ``S_nn, S_tt`` [N m], ``area`` [m^2],
-        ``closed1, closed2`` (bool: type-1 / type-2 contacts carry force) and grain centres
-        ``x_n{i}, x_t{i}`` [m] for labels i = 1..6 (cell centre at the origin).
+        ``l1`` and each plane's lateral length ``l2`` (``l3``) [m]; per plane, with its suffix (none for
+        one plane, ``_a`` / ``_b`` for two), ``alpha_deg`` [deg], ``d1, d2`` [m], ``N1, N2, T1`` [N]
+        (compression positive, T1 > 0 resists opening), ``closed1, closed2`` (bool: the contacts carry
+        force); ``S_nn, S_tt`` (``S_nn, S_t1t1, S_t2t2``) [N m]; ``area`` [m^2] (``volume`` [m^3]);
+        ``cross_plane`` (bool) with several planes; grain centres ``x_n{i}, x_t{i}`` (``x_n{i}, x_t1{i},
+        x_t2{i}``) [m] for labels i (cell centre at the origin).
         """
+        planes = self.layout.planes(state)
         response = self.response(state)
-        return hcell.closed_form_observables(state.l1, state.l2, state.d1, 2.0 * state.y2, state.alpha, state.N1, state.N2,
-                                 state.T1, response.moment, response.area)
+        out: dict[str, np.ndarray] = {"l1": planes[0].l1}
+        out.update({f"l{k}": plane.l2 for k, plane in enumerate(planes, 2)})
+        for suffix, plane in zip(self.layout.suffixes, planes):
+            values = (np.degrees(plane.alpha), plane.d1, 2.0 * plane.y2, plane.N1, plane.N2, plane.T1,
+                      plane.N1 > 0.0, plane.N2 > 0.0)
+            out.update({f"{key}{suffix}": value for key, value in zip(PLANE_OBSERVABLES, values)})
+        frame = self.layout.dimension.frame
+        out.update({f"S_{axis}{axis}": response.moment[:, i, i] for i, axis in enumerate(frame)})
+        out[self.layout.dimension.measure] = response.area
+        if len(planes) > 1:  # planes that may meet
+            out["cross_plane"] = self.cross_plane_contact(state)
+        x = cell_positions(planes)
+        for g in range(x.shape[1]):
+            for i, axis in enumerate(frame):
+                out[f"x_{axis}{g + 1}"] = x[:, g, i]
+        return out
 
+    def take(self, state, index: np.ndarray):
+        """Cells ``state[index]`` (int array, repetition allowed)."""
+        index = np.asarray(index, dtype=np.intp)
+        return self.layout.state(*(AnalyticalState(*(value[index] for value in plane))
+                                   for plane in self.layout.planes(state)))
+
+    def state_to_arrays(self, state) -> dict[str, np.ndarray]:
+        """Copies of the planes' fields, keyed by field name with each plane's prefix (none for one plane,
+        ``a_`` / ``b_`` for two)."""
+        return {f"{prefix}{key}": np.array(value, dtype=np.float64)
+                for prefix, plane in zip(self.layout.prefixes, self.layout.planes(state))
+                for key, value in zip(AnalyticalState._fields, plane)}
+
+    def state_from_arrays(self, arrays: Mapping[str, Any]):
+        """Inverse of ``state_to_arrays``; KeyError names a missing field."""
+        return self.layout.state(*(AnalyticalState(*(np.array(arrays[f"{prefix}{key}"], dtype=np.float64)
+                                                     for key in AnalyticalState._fields))
+                                   for prefix in self.layout.prefixes))
+
+
+class Analytical3DCell(AnalyticalCell):
+    """The closed form of the ten-sphere cell: ``AnalyticalCell`` of two planes (``dim`` = 3)."""
+
+    dim = 3

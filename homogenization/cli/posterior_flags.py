@@ -155,7 +155,7 @@ def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *
     ``n_spins``; ``models`` unchanged otherwise."""
     if run is None or SPREAD not in run.posterior.mean:
         return models
-    from homogenization.backends.analytical3d import Analytical3DCell  # noqa: PLC0415
+    from homogenization.backends.analytical import Analytical3DCell  # noqa: PLC0415
     from homogenization.element_test.points import orientation_set  # noqa: PLC0415
 
     mean, law = run.posterior.mean, run.posterior.contact_law
