@@ -18,6 +18,8 @@ VENV := .venv
 PY := $(VENV)/bin/python
 export WARP_CACHE_PATH := $(CURDIR)/.warp_cache
 export MPLBACKEND := Agg
+# Python keeps the bytecode it compiles: uv, unlike pip, compiles none at install (.ci/uv_pip_install.py)
+unexport PYTHONDONTWRITEBYTECODE
 
 BIAXIAL := $(PY) -m homogenization.biaxial --overwrite
 # The three backends overlaid; shear and isotropic increments of 1e-4 keep every backend
@@ -26,11 +28,14 @@ OVERLAY := --increment 1e-4 --iso-increment 1e-4 --orientations 360 --eps-max 0.
 
 .PHONY: venv test determinism docs demo figures bench reproduce clean
 
+# uv installs what pip would (pip's configuration, .ci/uv_pip_install.py), faster from a cold cache.
+UV_PIP_INSTALL := $(PY) .ci/uv_pip_install.py
+
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --upgrade pip
-	$(PY) -m pip install torch==2.13.0
-	$(PY) -m pip install -e '.[dev]'
+	$(PY) -m pip install uv
+	$(UV_PIP_INSTALL) torch==2.13.0
+	$(UV_PIP_INSTALL) -e '.[dev]'
 	touch $@
 
 venv: $(VENV)/.installed
@@ -47,7 +52,7 @@ determinism: venv
 	$(PY) tests/determinism_settings.py
 
 $(VENV)/.docs-installed: $(VENV)/.installed
-	$(PY) -m pip install -e '.[dev,docs]'
+	$(UV_PIP_INSTALL) -e '.[dev,docs]'
 	touch $@
 
 # A fresh build every time (no stale API stubs, every warning shown again); no network needed.
