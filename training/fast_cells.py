@@ -7,6 +7,10 @@ d_eps (n, 2) [-]. Sign convention: compression and contraction positive; local f
 0 = n, 1 = t. The numba kernels take these tuples instead of long lists of arguments.
 """
 
+import importlib.machinery
+import importlib.util
+import os
+import sys
 from typing import NamedTuple
 
 import numba
@@ -14,6 +18,37 @@ import numpy as np
 
 from warp_hcell.core.contact import coulomb_cap as _coulomb_cap
 from warp_hcell.core.contact import normal_force as _normal_force
+
+
+def _load_numba_arraymath() -> None:
+    """Import ``numba.np.arraymath`` (loaded by numba's set-up before the first compiled call) without
+    ``scipy.linalg``: its import checks that BLAS is there by importing ``scipy.linalg.cython_blas``,
+    which loads the whole ``scipy.linalg`` package (~0.2 s of CPU; these kernels call no BLAS). That
+    extension module is loaded alone for the check and then taken out of ``sys.modules``, so that
+    ``scipy.linalg``, and numba's BLAS calls, load it with its package as usual when needed. Nothing
+    happens where either module is loaded already or scipy is not installed."""
+    name = "scipy.linalg.cython_blas"
+    if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules or name in sys.modules:
+        return
+    scipy = importlib.util.find_spec("scipy")
+    if scipy is None or scipy.origin is None:
+        return
+    folder = os.path.join(os.path.dirname(scipy.origin), "linalg")
+    path = next((p for p in (os.path.join(folder, "cython_blas" + s) for s in importlib.machinery.EXTENSION_SUFFIXES)
+                 if os.path.exists(p)), None)
+    if path is None:
+        return
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+        import numba.np.arraymath  # noqa: F401, PLC0415
+    finally:
+        sys.modules.pop(name, None)
+
+
+_load_numba_arraymath()
 
 normal_force = numba.njit(cache=True, error_model="numpy")(_normal_force)
 """``warp_hcell.core.contact.normal_force`` compiled for the kernels (scalars)."""

@@ -109,6 +109,30 @@ def _accumulate8(weight, h, out, k, lo, hi):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _accumulate2(weight, h, out, k, lo, hi):
+    """out[j, c] += weight[j, k] h[k, c] + weight[j, k + 1] h[k + 1, c] (two FMAs, in that order) for every
+    output j and the cells lo <= c < hi, three outputs per pass (``_accumulate8`` for the inputs left)."""
+    m = hi - lo
+    h0, h1 = h[k, lo:hi], h[k + 1, lo:hi]
+    n_out = weight.shape[0]
+    j = 0
+    while j + 3 <= n_out:
+        r0, r1, r2 = out[j, lo:hi], out[j + 1, lo:hi], out[j + 2, lo:hi]
+        a0, b0, a1, b1 = weight[j, k], weight[j, k + 1], weight[j + 1, k], weight[j + 1, k + 1]
+        a2, b2 = weight[j + 2, k], weight[j + 2, k + 1]
+        for c in range(m):
+            r0[c] = _fma32(b0, h1[c], _fma32(a0, h0[c], r0[c]))
+            r1[c] = _fma32(b1, h1[c], _fma32(a1, h0[c], r1[c]))
+            r2[c] = _fma32(b2, h1[c], _fma32(a2, h0[c], r2[c]))
+        j += 3
+    while j < n_out:
+        r0, a0, b0 = out[j, lo:hi], weight[j, k], weight[j, k + 1]
+        for c in range(m):
+            r0[c] = _fma32(b0, h1[c], _fma32(a0, h0[c], r0[c]))
+        j += 1
+
+
+@numba.njit(cache=True, error_model="numpy")
 def dense(weight, bias, h, out, squash):
     """One layer: out[j, c] = act(bias[j] + sum_k weight[j, k] h[k, c]), the sum in input order by FMAs.
 
@@ -119,8 +143,8 @@ def dense(weight, bias, h, out, squash):
         squash: apply ``tanh32`` (hidden layer) or not (output layer, derivatives).
 
     Cells are processed in tiles of ``BLOCK``; inside a tile the inputs are taken eight at a
-    time (``_accumulate8``), the last n_in mod 8 one at a time; the order of the terms of each
-    sum is k = 0, 1, ... regardless.
+    time (``_accumulate8``), the last n_in mod 8 two (``_accumulate2``) then one at a time; the
+    order of the terms of each sum is k = 0, 1, ... regardless.
     """
     n_out, n_in = weight.shape
     n = h.shape[1]
@@ -132,6 +156,9 @@ def dense(weight, bias, h, out, squash):
         while k + 8 <= n_in:
             _accumulate8(weight, h, out, k, lo, hi)
             k += 8
+        while k + 2 <= n_in:
+            _accumulate2(weight, h, out, k, lo, hi)
+            k += 2
         while k < n_in:
             h0 = h[k, lo:hi]
             for j in range(n_out):
