@@ -174,3 +174,25 @@ def test_a_certificate_counts_the_released_grains_where_the_hybrid_reports_them(
     hybrid._tally({**base, "n_released": 3.0, "n_released_pushed": 1.0})
     hybrid._tally({**base, "n_released": 2.0, "n_released_pushed": 0.0})
     assert hybrid.corrections["n_released"] == 5 and hybrid.corrections["n_released_pushed"] == 1
+
+
+def test_again_at_rest_is_the_increment_with_those_grains_held_without_the_network():
+    """``FastAdvance.again_at_rest`` reuses the last call's first guess: bit for bit the cells of
+    ``increment(..., held=...)`` (state, moment, flags, corrections), whatever cells are taken again."""
+    (size, free, shear), d_eps = _hard_cases()
+    fast = FastAdvance(relaxing_network(), 20, 1e-6)
+    fast(size, free, shear, d_eps)
+    index = np.array([0, 2, 3])
+    held = np.zeros((index.size, free.shape[1]), dtype=bool)
+    held[:, -3:] = True  # the fine grain
+    held[1, 0] = True
+    got = fast.again_at_rest(index, held)
+    got_counts = fast.last_corrections()
+    expected = fast.increment(size[index], free[index], shear[index], d_eps[index], held=held)[0]
+    for name, value in expected._asdict().items():
+        np.testing.assert_array_equal(np.asarray(getattr(got, name)), np.asarray(value), err_msg=name)
+    for name, value in fast.last_corrections()._asdict().items():
+        np.testing.assert_array_equal(getattr(got_counts, name), value, err_msg=name)
+    assert got_counts.steps.sum() > 0
+    assert not np.array_equal(np.asarray(got.free_position), fast(size[index], free[index], shear[index],
+                                                                 d_eps[index]).free_position)  # another first guess

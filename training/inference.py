@@ -187,6 +187,18 @@ class Corrections(NamedTuple):
     shifted: np.ndarray
 
 
+class _Last(NamedTuple):
+    """What ``FastAdvance.again_at_rest`` reads of this thread's last corrected ``increment`` (cells last):
+    its state and probe, ``before`` and the first guess of the corrections (n_free, n) [m]."""
+
+    size: np.ndarray
+    free: np.ndarray
+    shear: np.ndarray
+    d_eps: np.ndarray
+    before: Before
+    guess: np.ndarray
+
+
 class _Workspace(NamedTuple):
     """Scratch arrays of one ``FastAdvance`` call: ``before`` (``training.fast_cells.Before``, cells
     last) and ``layers``, each perceptron layer's output (width, n) float32."""
@@ -375,10 +387,9 @@ class FastAdvance:
         self._features(size, free, shear, d_eps, self.cells, self.law, self.scaling, work.before)
         self._forward(self.perceptron.weight, self.perceptron.bias, work.before.feats, work.layers)
         out = work.layers[-1]
-        flags = np.empty((4, n), dtype=np.bool_)
-        result = Advanced(np.empty((dim, n)), np.empty((n_free, n)), np.empty(shear_shape), np.empty((n, dim, dim)),
-                          np.empty(n), *flags, np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=np.bool_))
+        result = self._result(n)
         self._local.corrections = None
+        self._local.last = None
         if self.corrections:
             d_free = self._displacement(out, work.before.m, work.before.unbalanced, self.scaling, self.law)
             if self.guess == "still":
@@ -390,9 +401,11 @@ class FastAdvance:
             self._hold(size, free, d_eps, d_free, self.cells, self.law, work.before)
             if held is not None:
                 d_free[np.asarray(held, dtype=bool).T] = 0.0
+            guess = d_free.copy()
             self._corrected(size, free, shear, d_eps, d_free, work.before, ratios, steps, shortened, shifted)
             self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, result)
             self._local.corrections = Corrections(ratios, steps, shortened, shifted)
+            self._local.last = _Last(size, free, shear, d_eps, work.before, guess)
         else:
             self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
         tangent = None
@@ -406,7 +419,43 @@ class FastAdvance:
             tangent = np.empty((n, 2, 2))
             self._tangent(size, free, shear, d_eps, out, self._mlp_tangent(work, f_dot), self.cells, self.law,
                            self.scaling, work.before, result, tangent)
+        return self._outcome(result), tangent
+
+    def _result(self, n: int) -> Advanced:
+        """Empty ``Advanced`` arrays of ``n`` cells."""
+        dim, n_free = self.dim, self.cells.free_dofs.shape[0]
+        flags = np.empty((4, n), dtype=np.bool_)
+        return Advanced(np.empty((dim, n)), np.empty((n_free, n)), np.empty((*self._springs, n)),
+                        np.empty((n, dim, dim)), np.empty(n), *flags, np.empty(n, dtype=np.int64),
+                        np.empty((n_free, n), dtype=np.bool_))
+
+    @staticmethod
+    def _outcome(result: Advanced) -> FastIncrement:
+        """The ``FastIncrement`` of ``result`` (cells first, views)."""
         new_shear = result.new_shear
         return FastIncrement(result.new_size.T, result.new_free.T,
                              new_shear.transpose((new_shear.ndim - 1, *range(new_shear.ndim - 1))), result.moment,
-                             result.area, *flags, result.n_held), tangent
+                             result.area, result.capped, result.opened, result.mechanism, result.ramped, result.n_held)
+
+    def again_at_rest(self, index: np.ndarray, held: np.ndarray) -> FastIncrement:
+        """The cells ``index`` (int (m,)) of this thread's last corrected ``increment``, taken again with the free
+        DOFs ``held`` (bool (m, n_free)) starting the corrections at rest: bit for bit those cells of
+        ``increment(..., held=held)``, from the first guess of the last call (no features, no network);
+        ``last_corrections`` then counts these corrections."""
+        last = getattr(self._local, "last", None)
+        if last is None:
+            raise ValueError("again_at_rest: no corrected increment before it in this thread")
+        take = lambda a: np.ascontiguousarray(a[..., index])  # noqa: E731
+        size, free, shear = take(last.size), take(last.free), take(last.shear)
+        before = Before(last.before.feats, *map(take, last.before[1:]))  # the features: read by no kernel here
+        d_eps = np.ascontiguousarray(last.d_eps[index])
+        d_free = take(last.guess)
+        d_free[np.asarray(held, dtype=bool).T] = 0.0
+        m = d_eps.shape[0]
+        ratios, steps = np.empty((2, m)), np.empty(m, dtype=np.int64)
+        shortened, shifted = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+        self._corrected(size, free, shear, d_eps, d_free, before, ratios, steps, shortened, shifted)
+        result = self._result(m)
+        self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, before, result)
+        self._local.corrections = Corrections(ratios, steps, shortened, shifted)
+        return self._outcome(result)

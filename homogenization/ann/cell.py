@@ -373,15 +373,13 @@ class AnnCell(ArrayStateMixin):
                       index: np.ndarray, released: np.ndarray) -> tuple[AnnState, CellResponse]:
         """``new`` and ``response`` with the increment of the cells ``index`` taken again, the DOFs of their
         released grains (``released`` (n, n_free) bool) starting the corrections at rest
-        (``FastAdvance.increment(held=...)``): a grain that nothing pushes stays where it was, one that a
+        (``FastAdvance.again_at_rest``): a grain that nothing pushes stays where it was, one that a
         neighbour pushes moves as far as the balance needs. Counts ``n_released_pushed`` (cells with a
         released grain again after it) and adds those corrections to ``n_corrections``."""
-        d = np.asarray(d_eps_local, dtype=np.float64)[index]
-        before = tuple(np.asarray(a)[index] for a in state)
-        inc, _ = self.fast.increment(*before, d, False, held=released[index])
+        inc = self.fast.again_at_rest(index, released[index])
         diagnostics = response.diagnostics
         diagnostics["n_released_pushed"] = float(np.count_nonzero(
-            self.escalation.released(inc.cell_size, before[1], inc.free_position)))
+            self.escalation.released(inc.cell_size, np.asarray(state.free_position)[index], inc.free_position)))
         if "n_corrections" in diagnostics:
             diagnostics["n_corrections"] += float(self.fast.last_corrections().steps.sum())
         return _with_cells(new, response, index, (inc.cell_size, inc.free_position, inc.shear_force, inc.moment,
