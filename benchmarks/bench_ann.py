@@ -15,7 +15,9 @@ printed with the numbers):
    with ``--parts``, where the ANN step's time goes: the median of each part called alone (the
    whole ``AnnCell.step``, ``FastAdvance.increment``, its three compiled calls together, and the
    features, the perceptron, each layer with and without its tanh, and the advance kernel apart), at
-   ``--cells`` cells and at one cell (the fixed cost of each call);
+   ``--cells`` cells and at one cell (the fixed cost of each call); with ``--step3d-repeats`` N > 0, beside
+   it the spatial step's ratio (``benchmarks/bench_triaxial.py --part ann3d-step --repeats N``: the shipped
+   3D model on 7 792 ten-sphere cells);
 2. unless ``--skip-run``: one JSON line per biaxial test (isotropic compression to p0, then
    constant-volume, and/or drained (``--tests``), shear to ``--eps-max``; ``reversal``:
    constant volume to eps1 = +``--reversal-strain``, then back to -``--reversal-strain``,
@@ -29,6 +31,7 @@ printed with the numbers):
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import time
@@ -78,6 +81,8 @@ def main() -> None:
                         help="also time networks of these hidden widths (e.g. 48,48 40,40,40): --model's inputs, "
                              "normalisation and schema, random weights (timing only: the active-learning ladder)")
     parser.add_argument("--parts", action="store_true", help="also time the parts of the ANN step, each alone")
+    parser.add_argument("--step3d-repeats", type=int, default=0,
+                        help="also time the 3D step (bench_triaxial.py --part ann3d-step) with this many repeats (0: no)")
     args = parser.parse_args()
     print(f"load average (1, 5, 15 min): {os.getloadavg()}")
     if args.parts and args.mesostructure is None:
@@ -85,6 +90,8 @@ def main() -> None:
             time_parts(args.model, n, args.repeats)
     if args.mesostructure is None:
         time_increments(args)
+    if args.step3d_repeats > 0:
+        time_step3d(args.step3d_repeats)
     if not args.skip_run:
         for case in _cases(args):
             print(json.dumps(compare(case, args.model, args.mesostructure, args.cells)), flush=True)
@@ -129,6 +136,16 @@ def time_increments(args) -> None:
     for name in list(models)[2:]:
         print(f"{name}: step {ms[name]:.3f} ms, ratio / analytical = {ms[name] / ms['analytical']:.2f}", flush=True)
     scratch.cleanup()
+
+
+def time_step3d(repeats: int) -> None:
+    """The 3D step's ratio (``bench_triaxial.ann3d_step``, its defaults and ``repeats``), printed beside the 2D one."""
+    spec = importlib.util.spec_from_file_location("bench_triaxial", Path(__file__).with_name("bench_triaxial.py"))
+    triaxial = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(triaxial)
+    options = argparse.Namespace(step_rule="53x16", loose=55.0, model=None, repeats=repeats)
+    print("3D step (bench_triaxial.py --part ann3d-step): ", end="", flush=True)
+    triaxial.ann3d_step(options)
 
 
 def _median_us(fn, repeats: int) -> float:

@@ -74,6 +74,43 @@ def test_a_cells_increment_is_bit_identical_in_any_batch_at_any_place(loaded):
             np.testing.assert_array_equal(getattr(part, name), getattr(whole, name)[index], err_msg=f"{name}, {n} cells")
 
 
+def test_the_planar_increment_in_one_call_equals_its_kernels_apart(loaded):
+    """``training.fast_increment.step`` (features, perceptron, advance and branch counts in one compiled call)
+    gives the bits of the kernels called one after the other; its counts are those of the flags."""
+    from training.fast_cells import Advanced, Before  # noqa: PLC0415
+    from training.fast_features import features  # noqa: PLC0415
+    from training.fast_increment import advance, step  # noqa: PLC0415
+    from training.perceptron import forward_layers  # noqa: PLC0415
+
+    cell, state, d = loaded
+    fast = FastAdvance(cell.net)
+    size, free, shear = (np.ascontiguousarray(np.moveaxis(np.asarray(a, dtype=np.float64), 0, -1)) for a in state)
+    d = np.ascontiguousarray(d)
+    n, n_free, weights, biases = size.shape[1], free.shape[0], fast.perceptron.weight, fast.perceptron.bias
+    tables = (fast.cells, fast.law, fast.scaling)
+
+    def scratch():
+        before = Before(*(np.zeros_like(a) for a in fast._workspace(n).before))
+        result = Advanced(np.zeros((2, n)), np.zeros((n_free, n)), np.zeros(shear.shape), np.zeros((n, 2, 2)),
+                          np.zeros(n), *np.zeros((4, n), dtype=bool), np.zeros(n, dtype=np.int64),
+                          np.zeros((n_free, n), dtype=bool))
+        return before, fast.perceptron.padded_buffers(n), result
+
+    one, apart = scratch(), scratch()
+    counts = np.full(5, -1, dtype=np.int64)
+    step(size, free, shear, d, *tables, weights, biases, *one, counts)
+    features(size, free, shear, d, *tables, apart[0])
+    forward_layers(weights, biases, apart[0].feats, apart[1])
+    advance(size, free, shear, d, apart[1][-1], *tables, apart[0], apart[2])
+    for x, y in zip([*one[0], *one[1], *one[2]], [*apart[0], *apart[1], *apart[2]]):
+        np.testing.assert_array_equal(x, y)
+    result = one[2]
+    assert result.capped.any() and result.ramped.any()  # loaded and tiny-probe cells: counts that can be wrong
+    expected = [np.count_nonzero(result.capped), np.count_nonzero(result.opened), np.count_nonzero(result.mechanism),
+                np.count_nonzero(result.ramped), result.n_held.sum()]
+    np.testing.assert_array_equal(counts, expected)
+
+
 def test_later_calls_with_other_array_types_give_the_same_increment(loaded):
     """The kernels run the machine code of the first call's argument types: later inputs that are
     read-only, strided or float32 are converted to those types, and wrong shapes are refused."""

@@ -5,7 +5,8 @@
 ``training.cell_physics.hold_at_rest``), the contact law at the new positions
 (``contact_pass``, ``warp_hcell.core.contact``), and the area and flags (``area_and_flags``). The
 pieces that do not depend on the dimension (``start_pass``, ``open_far_pair``, ``subtract_outer``,
-``moment_flags``) serve the spatial increment too (``training.fast_step3d``).
+``moment_flags``) serve the spatial increment too (``training.fast_step3d``). ``step`` is the
+whole planar increment in one call: the features, the perceptron and ``advance``.
 Layouts: ``training.fast_cells``; ``out`` (n_free + n_free^2, n) float32 is the perceptron's
 output, cells last.
 """
@@ -16,6 +17,8 @@ import numba
 import numpy as np
 
 from training.fast_cells import coulomb_cap, grain_positions, normal_force, pair_branch
+from training.fast_features import features
+from training.perceptron import forward_layers
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -226,3 +229,28 @@ def advance(size, free, shear, d_eps, out, cells, law, scaling, before, result):
     moment = contact_pass(x, shear, before, cells, law, result.new_shear, result.capped, result.opened)
     area_and_flags(x, moment, before.m, cells.outer, law.ramp, result.area, result.mechanism, result.ramped,
                    result.moment)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def branch_counts(result, counts):
+    """The cells (int64) of ``result`` (``training.fast_cells.Advanced``) that are capped, opened, mechanism,
+    ramped, and the grains held at rest summed over the cells, written into ``counts`` (5,)."""
+    counts[:] = 0
+    for c in range(result.area.shape[0]):
+        counts[0] += result.capped[c]
+        counts[1] += result.opened[c]
+        counts[2] += result.mechanism[c]
+        counts[3] += result.ramped[c]
+        counts[4] += result.n_held[c]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def step(size, free, shear, d_eps, cells, law, scaling, weights, biases, before, layers, result, counts):
+    """One whole planar increment in one call: ``training.fast_features.features`` into ``before``, the
+    perceptron (``training.perceptron.forward_layers``: ``weights``, ``biases`` and the layers' outputs
+    ``layers``, tuples, input layer first), ``advance`` on its output ``layers[-1]`` into ``result``, and
+    ``branch_counts`` into ``counts``; the same operations as these calls apart."""
+    features(size, free, shear, d_eps, cells, law, scaling, before)
+    forward_layers(weights, biases, before.feats, layers)
+    advance(size, free, shear, d_eps, layers[-1], cells, law, scaling, before, result)
+    branch_counts(result, counts)

@@ -31,6 +31,10 @@ from numba.extending import intrinsic
 BLOCK = 512
 """Cells per cache tile of a layer (a speed setting; results do not depend on it)."""
 
+LANES = 16
+"""``Perceptron.padded_buffers`` rounds the cells up to a multiple of this, so that the layers after the first
+run whole vectors, without a scalar remainder (a speed setting; results do not depend on it)."""
+
 TANH_CLIP = 9.0
 """``|x|`` beyond which tanh32 returns its value at +-9 (within 2e-8 of +-1, below float32's resolution)."""
 
@@ -190,10 +194,11 @@ def forward_layers(weights, biases, h, layers):
 
 @numba.njit(cache=True, error_model="numpy")
 def scale_by_tanh_derivative(h, out_dot):
-    """``out_dot *= 1 - h^2`` in place (tanh' = 1 - tanh^2 at the layer's output ``h``), both (n_rows, n) float32."""
+    """``out_dot *= 1 - h^2`` in place (tanh' = 1 - tanh^2 at the layer's output ``h``), (n_rows, n) float32; ``h``
+    may have more columns (``Perceptron.padded_buffers``)."""
     for j in range(h.shape[0]):
         h_j, d_j = h[j], out_dot[j]
-        for c in range(h_j.shape[0]):
+        for c in range(d_j.shape[0]):
             d_j[c] = d_j[c] * (_ONE - h_j[c] * h_j[c])
 
 
@@ -222,6 +227,12 @@ class Perceptron:
         """Scratch outputs of every layer for ``n`` cells, (width, n) float32 each."""
         return tuple(np.empty((width, n), dtype=np.float32) for width in self.widths)
 
+    def padded_buffers(self, n: int) -> tuple[np.ndarray, ...]:
+        """``buffers`` of n rounded up to a multiple of ``LANES`` cells, zeros: ``forward`` of n cells writes cell c
+        in column c of every layer and runs the layers after the first on every column (the other columns are
+        scratch, their values finite)."""
+        return tuple(np.zeros((width, -(-n // LANES) * LANES), dtype=np.float32) for width in self.widths)
+
     def forward(self, h: np.ndarray, layers: tuple[np.ndarray, ...]) -> np.ndarray:
         """Network output (n_outputs, n) of inputs ``h`` (n_inputs, n) float32 C-contiguous; ``layers`` from
         ``buffers(n)`` receive every layer's output (the hidden activations stay there for ``jvp``)."""
@@ -239,7 +250,7 @@ class Perceptron:
                 if key not in self._first_columns:
                     self._first_columns[key] = np.ascontiguousarray(weight[:, first:first + h_dot.shape[0]])
                 weight = self._first_columns[key]
-            out_dot = np.empty_like(h)
+            out_dot = np.empty((weight.shape[0], h_dot.shape[1]), dtype=np.float32)
             dense(weight, zero, h_dot, out_dot, False)
             if index < last:
                 scale_by_tanh_derivative(h, out_dot)
