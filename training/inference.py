@@ -42,10 +42,10 @@ from typing import Any, Callable, Iterator, NamedTuple
 import numpy as np
 
 from training.fast_cells import Advanced, Before, CellTables, Normalisation, Physics
-from training.fast_increment import free_displacement
+from training.fast_increment import branch_counts, free_displacement
 from training.fast_tangent import probe_feature_tangent
 from training.fast_model import arrays_of_net, COMPLIANCE_SCALE, GAP_CLIP, NetArrays, RELAXATION_RAMP
-from training.perceptron import forward_layers, Perceptron
+from training.perceptron import forward_layers, LANES, Perceptron
 from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import DemSettings
 
@@ -55,7 +55,7 @@ def _cells_last(values: np.ndarray) -> np.ndarray:
     moved last; a view where the state came from ``FastAdvance`` (whose state arrays are views of
     cells-last arrays), a copy otherwise."""
     values = np.asarray(values)
-    moved = values.transpose((*range(1, values.ndim), 0))
+    moved = values.T if values.ndim == 2 else values.transpose((*range(1, values.ndim), 0))  # .T: the cheaper call
     return moved if moved.dtype == np.float64 and moved.flags.c_contiguous else np.ascontiguousarray(
         moved, dtype=np.float64)
 
@@ -92,6 +92,9 @@ class Kernels:
             Newton steps: ``training.fast_equilibrium3d.hold_guess3d``, ``newton3d``) and the contact law
             after them (``training.fast_step3d.physics3d``), or None where the cells take none.
         balance_tangent: the tangent of a corrected increment (``fast_equilibrium3d.balance_tangent3d``), or None.
+        step: features, perceptron, advance and branch counts in one call (``training.fast_increment.step``), or None.
+        padded_features: whether ``features`` takes the features' scratch with more columns than cells
+            (``Perceptron.padded_buffers``: the first layer then runs whole vectors too).
     """
 
     features: Callable
@@ -101,14 +104,16 @@ class Kernels:
     newton: Callable | None
     physics: Callable | None
     balance_tangent: Callable | None = None
+    step: Callable | None = None
+    padded_features: bool = False
 
 
 def _planar_kernels() -> Kernels:
     from training.fast_features import features  # noqa: PLC0415 (each dimension's kernels imported on first use)
-    from training.fast_increment import advance  # noqa: PLC0415
+    from training.fast_increment import advance, step  # noqa: PLC0415
     from training.fast_tangent import moment_tangent  # noqa: PLC0415
 
-    return Kernels(features, advance, moment_tangent, None, None, None)
+    return Kernels(features, advance, moment_tangent, None, None, None, step=step, padded_features=True)
 
 
 def _spatial_kernels() -> Kernels:
@@ -201,7 +206,7 @@ class _Last(NamedTuple):
 
 class _Workspace(NamedTuple):
     """Scratch arrays of one ``FastAdvance`` call: ``before`` (``training.fast_cells.Before``, cells
-    last) and ``layers``, each perceptron layer's output (width, n) float32."""
+    last) and ``layers``, each perceptron layer's output (width, n padded: ``Perceptron.padded_buffers``) float32."""
 
     before: Before
     layers: tuple
@@ -257,6 +262,9 @@ class FastAdvance:
         self._advance = _Compiled(kernels.advance)
         self._forward = _Compiled(forward_layers)
         self._tangent = None if kernels.tangent is None else _Compiled(kernels.tangent)
+        self._step = None if kernels.step is None else _Compiled(kernels.step)
+        self._padded_features = kernels.padded_features
+        self._branch_counts = _Compiled(branch_counts)
         if int(corrections) < 0 or (int(corrections) > 0 and kernels.newton is None):
             raise ValueError(f"corrections = {corrections}: equilibrium corrections are >= 0 and for spatial cells only")
         tolerance = DemSettings().force_tolerance if tolerance is None else tolerance
@@ -333,11 +341,12 @@ class FastAdvance:
         work = getattr(self._local, "work", None)
         if work is None or work.before.m.shape[0] != n:
             n_free, n_pairs = self.cells.free_dofs.shape[0], self.cells.pairs.shape[0]
-            before = Before(np.empty((self.scaling.feature_mean.shape[0], n), dtype=np.float32), np.empty(n),
+            columns = -(-n // LANES) * LANES if self._padded_features else n  # as padded_buffers
+            before = Before(np.zeros((self.scaling.feature_mean.shape[0], columns), dtype=np.float32), np.empty(n),
                             np.empty((n_free, n)), np.empty((n_pairs, self.dim, n)),
                             np.empty((n_pairs, n), dtype=np.bool_),
                             np.empty((n_pairs, n)))
-            work = _Workspace(before, self.perceptron.buffers(n))
+            work = _Workspace(before, self.perceptron.padded_buffers(n))
             self._local.work = work
         return work
 
@@ -350,7 +359,13 @@ class FastAdvance:
     def last_features(self) -> np.ndarray:
         """The z-scored float32 features of the states before this thread's last ``increment``,
         (n_features, n) cells last (a view of the scratch array: read it before the next call)."""
-        return self._local.work.before.feats
+        before = self._local.work.before
+        return before.feats[:, :before.m.shape[0]]
+
+    def last_counts(self) -> np.ndarray:
+        """The branch counts of this thread's last ``increment``, int64 (5,): its cells capped, opened, mechanism
+        and relaxation-scaled (``FastIncrement``'s flags), and its grains held at rest, summed."""
+        return self._local.counts
 
     def last_corrections(self) -> Corrections | None:
         """The equilibrium corrections of this thread's last ``increment`` (None without corrections)."""
@@ -384,10 +399,17 @@ class FastAdvance:
         if held is not None and not self.corrections:
             raise ValueError("held: a first guess of the corrections, and this FastAdvance takes none")
         work = self._workspace(n)
-        self._features(size, free, shear, d_eps, self.cells, self.law, self.scaling, work.before)
-        self._forward(self.perceptron.weight, self.perceptron.bias, work.before.feats, work.layers)
         out = work.layers[-1]
         result = self._result(n)
+        counts = np.empty(5, dtype=np.int64)
+        self._local.counts = counts
+        fused = self._step is not None and not self.corrections
+        if fused:  # features, perceptron, advance and branch counts in one compiled call
+            self._step(size, free, shear, d_eps, self.cells, self.law, self.scaling, self.perceptron.weight,
+                       self.perceptron.bias, work.before, work.layers, result, counts)
+        else:
+            self._features(size, free, shear, d_eps, self.cells, self.law, self.scaling, work.before)
+            self._forward(self.perceptron.weight, self.perceptron.bias, work.before.feats, work.layers)
         self._local.corrections = None
         self._local.last = None
         if self.corrections:
@@ -406,8 +428,10 @@ class FastAdvance:
             self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, result)
             self._local.corrections = Corrections(ratios, steps, shortened, shifted)
             self._local.last = _Last(size, free, shear, d_eps, work.before, guess)
-        else:
+        elif not fused:
             self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
+        if not fused:
+            self._branch_counts(result, counts)
         tangent = None
         if with_tangent and self._balance_tangent is not None:
             tangent = np.empty((n, dim, dim))
@@ -426,16 +450,17 @@ class FastAdvance:
         dim, n_free = self.dim, self.cells.free_dofs.shape[0]
         flags = np.empty((4, n), dtype=np.bool_)
         return Advanced(np.empty((dim, n)), np.empty((n_free, n)), np.empty((*self._springs, n)),
-                        np.empty((n, dim, dim)), np.empty(n), *flags, np.empty(n, dtype=np.int64),
-                        np.empty((n_free, n), dtype=np.bool_))
+                        np.empty((n, dim, dim)), np.empty(n), flags[0], flags[1], flags[2], flags[3],  # *flags: slower
+                        np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=np.bool_))
 
     @staticmethod
     def _outcome(result: Advanced) -> FastIncrement:
         """The ``FastIncrement`` of ``result`` (cells first, views)."""
         new_shear = result.new_shear
-        return FastIncrement(result.new_size.T, result.new_free.T,
-                             new_shear.transpose((new_shear.ndim - 1, *range(new_shear.ndim - 1))), result.moment,
-                             result.area, result.capped, result.opened, result.mechanism, result.ramped, result.n_held)
+        last = new_shear.ndim - 1
+        new_shear = new_shear.T if last == 1 else new_shear.transpose((last, *range(last)))  # .T: the cheaper call
+        return FastIncrement(result.new_size.T, result.new_free.T, new_shear, result.moment, result.area, result.capped,
+                             result.opened, result.mechanism, result.ramped, result.n_held)
 
     def again_at_rest(self, index: np.ndarray, held: np.ndarray) -> FastIncrement:
         """The cells ``index`` (int (m,)) of this thread's last corrected ``increment``, taken again with the free

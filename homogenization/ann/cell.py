@@ -303,11 +303,10 @@ class AnnCell(ArrayStateMixin):
         if self.fast is not None and not (with_tangent and not self.fast.has_tangent):
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
             features = self.fast.last_features()[probe_columns(self.arrays):].T if due else None
-            diagnostics = {"n_coulomb_capped": float(np.count_nonzero(inc.capped)),
-                           "n_tension_clipped": float(np.count_nonzero(inc.opened)),
-                           "n_mechanism": float(np.count_nonzero(inc.mechanism)),
-                           "n_relaxation_scaled": float(np.count_nonzero(inc.relaxation_scaled)),
-                           "n_grains_held": float(inc.grains_held.sum()),
+            capped, opened, mechanism, scaled, held = self.fast.last_counts().tolist()
+            diagnostics = {"n_coulomb_capped": float(capped), "n_tension_clipped": float(opened),
+                           "n_mechanism": float(mechanism), "n_relaxation_scaled": float(scaled),
+                           "n_grains_held": float(held),
                            **self._correction_diagnostics(*(self.fast.last_corrections() or (None,) * 4)),
                            **self.ood_monitor.diagnostics(due, state, features)}
             return self._escalated(state, d_eps_local, AnnState(inc.cell_size, inc.free_position, inc.shear_force),
