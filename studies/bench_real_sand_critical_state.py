@@ -14,6 +14,10 @@ e_max instead of alpha0 (each set renews on its own map). ``--plain`` fits the p
 (no renewal) with the same settings, for comparison. Then all three tests at the optimum: RMS abs(dq) / q_peak,
 RMS d eps_v, peak q and its strain, eps_v at the end, late dilatancy, fallbacks, renewals.
 
+``--interlocking`` adds the interlocking friction (``calibration.interlocking``: tan phi = (e_c(p) / e)^m tan phi_g,
+e_c(p) = e_Gamma - lambda (p / p_ref)^0.7) and fits m, e_Gamma, lambda (``INTERLOCKING``) after the rule's
+parameters; ``--psi`` (with ``--void-ratio``) puts the map on the state parameter (``PSI``); ``--orders L,S`` another Lebedev order and spin count (cheap scouting).
+
 ``--max-nfev 0`` evaluates the start (no fit). ``--increment`` refines the shear increment (isotropic: the smaller of it and 1e-3). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
 data and model); the printout is the .txt when run through tee.
 """
@@ -38,6 +42,7 @@ from bench_real_sand_spread import NOISE, SETTINGS, metrics  # noqa: E402
 
 from homogenization.calibration import bayes, forward, start  # noqa: E402
 from homogenization.calibration.data import Measurement, read_test  # noqa: E402
+from homogenization.calibration.interlocking import Interlocking, InterlockingFriction  # noqa: E402
 from homogenization.calibration.renewal import PopulationRenewal, laws_of  # noqa: E402
 from homogenization.material.critical_state import DEFAULTS  # noqa: E402
 from homogenization.material.density import OPENING_RANGE_DEG, default_map, opening_angle_deg  # noqa: E402
@@ -49,31 +54,47 @@ LAW_VOID = ("phi_g", "log10_kn", "kt_over_kn", "e_min", "e_max")
 """The fitted coordinates with ``--void-ratio``: each test's alpha0 from its specimen's void ratio on the map."""
 BOUNDS = {"phi_g": (10.0, 45.0), "log10_kn": (math.log10(3e6), math.log10(3e8)), "kt_over_kn": (0.1, 1.5),
           "alpha0": (45.0 + 1e-6, 70.0), "e_min": (0.2, 0.52), "e_max": (0.59, 1.2), "alpha_c_deg": (RULE.alpha_min_deg, RULE.alpha_max_deg),
-          "log10_rate": (0.0, math.log10(RULE.rate_max)), "gain": (0.0, 8.0), "rate_gain": (0.0, 4.0)}
+          "log10_rate": (0.0, math.log10(RULE.rate_max)), "gain": (0.0, 8.0), "rate_gain": (0.0, 4.0),
+          "interlocking_m": (0.0, 6.0), "e_gamma": (0.5, 1.2), "lambda_c": (0.0, 0.4),
+          "lambda_psi": (0.0, 0.2)}
 """Bounds of the fitted coordinates (the law's: the prior of bench_real_sand.py, alpha0 to 70 deg)."""
 START = {"e_min": 0.45, "e_max": 0.75, "phi_g": 35.0, "log10_kn": math.log10(2e7), "kt_over_kn": 1.0, "alpha0": 50.0,
          "alpha_c_deg": RULE.alpha_c_deg, "log10_rate": math.log10(RULE.rate), "gain": RULE.gain,
-         "rate_gain": RULE.rate_gain}
+         "rate_gain": RULE.rate_gain, "interlocking_m": 1.0, "e_gamma": 0.75, "lambda_c": 0.05,
+         "lambda_psi": 0.0}
 """Start of every fit (alpha0 from ``--starts``)."""
+PSI = ("lambda_psi",)
+"""The fitted coordinate of ``--psi`` (last): each test's void ratio enters the map (and the renewal) as
+e + lambda_psi (p0 / p_ref)^0.7, i.e. the map reads the state parameter psi = e - e_c(p0) up to a constant
+(e_c(p) = e_Gamma - lambda_psi (p / p_ref)^0.7, e_Gamma absorbed by the map's e_min and e_max)."""
+INTERLOCKING = ("interlocking_m", "e_gamma", "lambda_c")
+"""The fitted coordinates of ``--interlocking`` (after the rule's): m, e_Gamma and lambda of
+``calibration.interlocking``, xi fixed at ``Interlocking().xi``, phi_g its phi_mu."""
 
 
-def rule_values(names: tuple[str, ...], X: np.ndarray) -> dict[str, np.ndarray]:
-    """The rule's per-set parameters (CriticalState field names) of coordinates X (n, law + len(names))."""
+def rule_values(names: tuple[str, ...], X: np.ndarray, tail: int = 0) -> dict[str, np.ndarray]:
+    """The rule's per-set parameters (CriticalState field names) of coordinates X (n, law + len(names) + tail)."""
     out = {}
     for j, name in enumerate(names):
-        value = X[:, X.shape[1] - len(names) + j]
+        value = X[:, X.shape[1] - tail - len(names) + j]
         out["rate" if name == "log10_rate" else name] = 10.0 ** value if name == "log10_rate" else value
     return out
 
 
 def simulate(test: Measurement, X: np.ndarray, names: tuple[str, ...], settings: forward.ForwardSettings,
-             plain: bool) -> tuple[forward.Curves, np.ndarray]:
-    """Curves of ``test`` for the sets X (module docstring) and the renewals per set (0 where ``plain``)."""
+             plain: bool, interlocking: bool = False, stats: dict | None = None,
+             psi: bool = False) -> tuple[forward.Curves, np.ndarray]:
+    """Curves of ``test`` for the sets X (module docstring) and the renewals per set (0 where ``plain``);
+    ``interlocking``: X's columns after the rule's are ``INTERLOCKING``'s (``stats`` gets the friction at the start
+    of shear and at the end, and the clipped e_c, per set); ``psi``: X's last column is ``PSI``'s."""
     params = {"phi_g": X[:, 0], "kn": 10.0 ** X[:, 1], "kt_over_kn": X[:, 2], "alpha0": X[:, 3]}
     e_bounds = None
     if test.void_ratio is not None:  # --void-ratio: X[:, 3:5] are e_min, e_max
         e_bounds = (X[:, 3], X[:, 4])
-        params["alpha0"] = opening_angle_deg(test.void_ratio, *e_bounds, *OPENING_RANGE_DEG[3])
+        shift = X[:, -1] * (test.p0 / Interlocking().p_ref) ** Interlocking().xi if psi else 0.0
+        params["alpha0"] = opening_angle_deg(test.void_ratio + shift, *e_bounds, *OPENING_RANGE_DEG[3])
+    if interlocking or psi:
+        return _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, stats, interlocking, psi)
     if plain or not names:
         s = replace(settings, critical_state=None if plain else RULE)
         if e_bounds is not None:  # forward.simulate maps the void ratio itself
@@ -89,6 +110,42 @@ def simulate(test: Measurement, X: np.ndarray, names: tuple[str, ...], settings:
     with np.errstate(all="ignore"):
         curves = forward.simulate_points(test, points, settings)
     return curves, np.asarray(points.renewal.count)
+
+
+def _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, stats, interlocking=True, psi=False):
+    """``simulate`` with the interlocking friction on top of the renewal (or of the plain cell), and/or with the
+    map on the state parameter (``psi``: sets whose map misses the shifted void ratio get NaN curves)."""
+    missed = ~np.isfinite(params["alpha0"])
+    params = {**params, "alpha0": np.where(missed, 50.0, params["alpha0"])}
+    full = forward.full_parameters(params, settings)
+    points = forward.population(full, settings, test.dim)
+    tail = len(INTERLOCKING) * interlocking + psi
+    if not plain:
+        points.renewal = PopulationRenewal(RULE, points.material, points.state, default_map(3), full["alpha0"],
+                                           laws_of(full, settings.law), settings.law, settings.radius,
+                                           per_point=rule_values(names, X, tail) or None, e_bounds=e_bounds)
+    hook = None
+    if interlocking:
+        if test.void_ratio is not None:
+            e0 = np.full(X.shape[0], test.void_ratio)
+        else:
+            e0 = np.array([default_map(3).void_ratio(a) for a in full["alpha0"]])
+        cols = X[:, X.shape[1] - tail:X.shape[1] - tail + len(INTERLOCKING)]
+        hook = InterlockingFriction(Interlocking(), points.material, points.state, full["phi_g"], e0,
+                                    {"m": cols[:, 0], "e_gamma": cols[:, 1], "lambda_c": cols[:, 2]},
+                                    inner=points.renewal)
+        points.renewal = hook
+    at_shear = {}
+    with np.errstate(all="ignore"):
+        curves = forward.simulate_points(test, points, settings, before_stage=None if hook is None else {
+            1: lambda pts: at_shear.update(phi=hook.friction_deg.copy())})
+    for name in ("q", "p", "eps_v"):
+        curves.channel(name)[missed] = np.nan
+    if stats is not None and hook is not None:
+        stats.update(friction_shear_start=at_shear.get("phi"), friction_end=hook.friction_deg.copy(),
+                     floored=hook.floored.copy())
+    count = points.renewal.count if points.renewal is not None else np.zeros(X.shape[0], dtype=np.int64)
+    return curves, np.asarray(count)
 
 
 def load(name: str, void_ratio: bool) -> Measurement:
@@ -120,6 +177,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--increment", type=float, default=SETTINGS.increment, help="shear increment [-]")
     parser.add_argument("--void-ratio", action="store_true",
                         help="each test at its specimen's void ratio on the map; fit e_min, e_max instead of alpha0")
+    parser.add_argument("--interlocking", action="store_true",
+                        help="fit the interlocking friction's m, e_gamma, lambda_c too (calibration.interlocking)")
+    parser.add_argument("--psi", action="store_true",
+                        help="with --void-ratio: the map on the state parameter, lambda_psi fitted (PSI)")
+    parser.add_argument("--orders", default="", help="LEBEDEV,SPINS: a cheaper or finer orientation rule")
     parser.add_argument("--tag", default="")
     args = parser.parse_args(argv)
     if args.figure:
@@ -129,15 +191,20 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--split is required")
     names = tuple(n for n in args.rule_params.split(",") if n) if not args.plain else ()
     for name in names:
-        if name not in BOUNDS or name in LAW:
+        if name not in BOUNDS or name in LAW or name in INTERLOCKING or name in PSI:
             print(f"--rule-params: {name!r} is not one of alpha_c_deg, log10_rate, gain, rate_gain", file=sys.stderr)
             return 2
     settings = replace(SETTINGS, kinematics=args.kinematics, increment=args.increment,
                        iso_increment=min(SETTINGS.iso_increment, args.increment))
+    if args.orders:
+        order, spins = (int(v) for v in args.orders.split(","))
+        settings = replace(settings, lebedev_order=order, n_spins=spins)
     fitted, predicted = SPLITS[args.split]
     tests = [load(f, args.void_ratio) for f in fitted]
     law = LAW_VOID if args.void_ratio else LAW
-    coords = law + names
+    if args.psi and not args.void_ratio:
+        parser.error("--psi needs --void-ratio")
+    coords = law + names + (INTERLOCKING if args.interlocking else ()) + (PSI if args.psi else ())
     lo = np.array([BOUNDS[c][0] for c in coords])
     hi = np.array([BOUNDS[c][1] for c in coords])
     evaluations = [0]
@@ -146,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         X = np.atleast_2d(X)
         curves = []
         for test in tests:
-            c, _ = simulate(test, X, names, settings, args.plain)
+            c, _ = simulate(test, X, names, settings, args.plain, args.interlocking, psi=args.psi)
             curves.append({"q": c.q, "p": c.p, "eps_v": c.eps_v})
         evaluations[0] += X.shape[0]
         r = bayes.residuals(tests, curves, NOISE)
@@ -154,6 +221,10 @@ def main(argv: list[str] | None = None) -> int:
 
     start.MAP_MAX_EVALUATIONS = args.max_nfev
     cell = "plain cell" if args.plain else "critical state (" + ", ".join(names or ("DEFAULTS[3]",)) + " fitted)"
+    if args.interlocking:
+        cell += " + interlocking friction (m, e_gamma, lambda_c fitted)"
+    if args.psi:
+        cell += " + map on psi (lambda_psi fitted)"
     print(f"split {args.split}, {cell}, kinematics {args.kinematics}; forward: Lebedev {settings.lebedev_order} x "
           f"{settings.n_spins}, increment {settings.increment:g}, iso {settings.iso_increment:g}; nice "
           f"{os.nice(0)}, load {os.getloadavg()[0]:.1f}", flush=True)
@@ -179,10 +250,14 @@ def main(argv: list[str] | None = None) -> int:
     rows, chi2, curves_out = {}, 0.0, {}
     for name in sorted((*fitted, predicted), key=lambda f: read_test(DATA / f).p0):
         test = load(name, args.void_ratio)
-        c, count = simulate(test, x, names, settings, args.plain)
+        stats: dict = {}
+        c, count = simulate(test, x, names, settings, args.plain, args.interlocking, stats, args.psi)
         if name in fitted:
             chi2 += float(np.sum(bayes.residuals([test], [{"q": c.q, "p": c.p, "eps_v": c.eps_v}], NOISE) ** 2))
         rows[name] = {"role": "predicted" if name == predicted else "fitted", **row(test, c, 0, int(count[0]))}
+        if stats:
+            rows[name].update(friction_shear_start=float(stats["friction_shear_start"][0]),
+                              friction_end=float(stats["friction_end"][0]), e_c_floored=int(stats["floored"][0]))
         curves_out[name] = {"eps1": test.eps1.tolist(), "q": c.q[0].tolist(), "eps_v": c.eps_v[0].tolist(),
                             "q_data": test.observed["q"].tolist(), "eps_v_data": test.observed["eps_v"].tolist()}
     seconds = time.perf_counter() - started
@@ -190,10 +265,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"optimum: " + ", ".join(f"{c} {v:.4g}" for c, v in optimum.items())
           + f"; chi-square fitted {chi2:.4g}; {evaluations[0]} sets, {seconds:.0f} s, load {os.getloadavg()[0]:.1f}")
     print_prediction_table(rows, fallbacks=True)
+    if args.interlocking:
+        print("interlocking friction [deg] at the start of shear -> at the end (clipped e_c): " + ", ".join(
+            f"{k} {v['friction_shear_start']:.2f} -> {v['friction_end']:.2f} ({v['e_c_floored']})" for k, v in rows.items()))
     print("renewals per point: " + ", ".join(f"{k} {v['renewals']}" for k, v in rows.items())
           + "; d eps_v / d eps1 over the last five points: "
           + ", ".join(f"{k} {v['dilatancy_end']:+.2f}" for k, v in rows.items()))
     out = {"split": args.split, "cell": cell, "start": args.start, "void_ratio": args.void_ratio, "kinematics": args.kinematics, "rule_params": list(names),
+           "interlocking": {"xi": Interlocking().xi, "p_ref": Interlocking().p_ref} if args.interlocking else None,
            "rule_defaults": {k: v for k, v in RULE.__dict__.items() if isinstance(v, (int, float, str))},
            "settings": {"lebedev_order": settings.lebedev_order, "n_spins": settings.n_spins,
                         "increment": settings.increment, "iso_increment": settings.iso_increment,
