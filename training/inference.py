@@ -323,7 +323,7 @@ class FastAdvance:
         for cap in self.rounds[1:]:
             if not going.size:
                 return
-            take = lambda a: np.ascontiguousarray(a[..., going])  # noqa: E731
+            take = lambda a: np.take(a, going, axis=-1)  # noqa: E731 (C order; a[..., going] is not)
             part = Before(*(take(a) for a in before))
             sub_free = take(d_free)
             sub_ratios = np.empty((2, going.size))
@@ -470,7 +470,7 @@ class FastAdvance:
         last = getattr(self._local, "last", None)
         if last is None:
             raise ValueError("again_at_rest: no corrected increment before it in this thread")
-        take = lambda a: np.ascontiguousarray(a[..., index])  # noqa: E731
+        take = lambda a: np.take(a, index, axis=-1)  # noqa: E731 (C order; a[..., index] is not)
         size, free, shear = take(last.size), take(last.free), take(last.shear)
         before = Before(last.before.feats, *map(take, last.before[1:]))  # the features: read by no kernel here
         d_eps = np.ascontiguousarray(last.d_eps[index])
