@@ -523,9 +523,8 @@ class AnnCell3D(AnnCell):
 
 def _with_cells(new: AnnState, response: CellResponse, index: np.ndarray,
                 parts: tuple[np.ndarray, ...]) -> tuple[AnnState, CellResponse]:
-    """Copies of ``new`` and ``response`` whose cells ``index`` take ``parts`` (cell_size, free_position,
-    shear_force, moment, area of those cells, first axis len(index)); diagnostics and tangent kept."""
-    arrays = [np.array(a) for a in (*new, response.moment, response.area)]
-    for whole, part in zip(arrays, parts):
+    """``new`` and ``response`` (this step's own arrays, written in place) whose cells ``index`` take ``parts``
+    (cell_size, free_position, shear_force, moment, area of those cells, first axis len(index))."""
+    for whole, part in zip((*new, response.moment, response.area), parts):
         whole[index] = part
-    return AnnState(*arrays[:3]), CellResponse(arrays[3], arrays[4], response.diagnostics, response.tangent)
+    return new, response
