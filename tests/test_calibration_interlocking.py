@@ -8,7 +8,7 @@ import pytest
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
-from homogenization.calibration.interlocking import (Interlocking, InterlockingFriction, critical_void_ratio,
+from homogenization.calibration.interlocking import (Interlocking, InterlockingFriction, critical_void_ratio, spread_factors,
                                                      mobilised_friction_deg)
 from homogenization.material.critical_state import DEFAULTS
 from homogenization.material.density import current_void_ratio
@@ -90,3 +90,73 @@ def test_a_test_with_its_void_ratio_runs_each_set_from_it():
     low = forward.simulate(test, {k: v[1:2] for k, v in sets.items()}, SETTINGS,
                            interlocking=replace(rule, e_gamma=0.65))  # e0 nearer e_c: less strength
     assert low.q[0].max() < one.q[0].max()
+
+
+def test_the_cells_spread_of_friction():
+    """cell_spread s: a point's cells step with tan phi (1 + s u_k), u_k the n uniform quantiles of [-1, 1] dealt
+    over the cells; the point's mean is the rule's tan phi; s = 0 leaves every cell at tan phi; per point."""
+    n_cells = 40
+    u = np.sort(spread_factors(n_cells, 0.3) - 1.0) / 0.3
+    np.testing.assert_allclose(u, (2.0 * np.arange(n_cells) + 1.0) / n_cells - 1.0, atol=1e-12)
+    first = spread_factors(n_cells, 0.3)[:8]
+    assert np.ptp(first) > 0.3  # neighbours in the cell order (one orientation's spins) are spread apart
+    full = forward.full_parameters(SETS, SETTINGS)
+    points = forward.population(full, SETTINGS, 3)
+    per_set = {"m": np.array([1.5, 1.5]), "e_gamma": np.array([0.75, 0.75]), "lambda_c": np.array([0.05, 0.05]),
+               "cell_spread": np.array([0.0, 0.3])}
+    hook = InterlockingFriction(Interlocking(), points.material, points.state, full["phi_g"], np.array([0.55, 0.55]),
+                                per_set)
+    mu = hook.owner.mu.reshape(2, -1)
+    tan = np.tan(np.radians(hook.friction_deg))
+    assert np.all(mu[0] == tan[0])
+    np.testing.assert_allclose(mu[1].mean(), tan[1], rtol=1e-12)
+    n = mu.shape[1]
+    np.testing.assert_allclose([mu[1].min(), mu[1].max()], tan[1] * (1.0 + 0.3 * np.array([1.0 / n - 1.0, 1.0 - 1.0 / n])),
+                               rtol=1e-12)
+    with pytest.raises(ValueError, match="cell_spread"):
+        Interlocking(cell_spread=1.0).check()
+
+
+def test_the_spread_reaches_the_forward_model_and_softens_the_peak():
+    """forward.simulate reads cell_spread per set: s = 0 is the unspread run bit for bit, s = 0.4 another curve
+    whose cells slide one after the other, so its peak is lower."""
+    test = replace(TEST, void_ratio=0.55)
+    rule = Interlocking(m=2.0, e_gamma=0.7, lambda_c=0.02)
+    sets = {**{k: v for k, v in SETS.items() if k != "alpha0"}, "e_min": np.array([0.45, 0.45]),
+            "e_max": np.array([0.7, 0.7])}
+    base = forward.simulate(test, sets, SETTINGS, interlocking=rule)
+    zero = forward.simulate(test, {**sets, "cell_spread": np.zeros(2)}, SETTINGS, interlocking=rule)
+    np.testing.assert_array_equal(zero.q, base.q)
+    spread = forward.simulate(test, {**sets, "cell_spread": np.array([0.0, 0.4])}, SETTINGS, interlocking=rule)
+    np.testing.assert_array_equal(spread.q[0], base.q[0])
+    assert spread.q[1].max() < base.q[1].max()
+
+
+def test_the_lagged_void_ratio_follows_the_distortion():
+    """relax_strain gamma_r: the friction reads a void ratio that lags the point's in shear (for the dilating set,
+    between the start's and the current one); a tiny gamma_r is the unlagged rule within 1 % (the lag
+    holds e0 through the isotropic stage, which has no distortion)."""
+    test = replace(TEST, void_ratio=0.55)
+    rule = Interlocking(m=2.0, e_gamma=0.7, lambda_c=0.02)
+    sets = {**{k: v for k, v in SETS.items() if k != "alpha0"}, "e_min": np.array([0.45, 0.45]),
+            "e_max": np.array([0.7, 0.7])}
+    full = forward.full_parameters({**sets, "alpha0": np.array([50.0, 50.0])}, SETTINGS)
+    runs = {}
+    for gamma_r in (0.0, 1e-9, 0.05):
+        points = forward.population(full, SETTINGS, 3)
+        hook = InterlockingFriction(replace(rule, relax_strain=gamma_r), points.material, points.state, full["phi_g"],
+                                    np.full(2, 0.55))
+        points.renewal = hook
+        start = {}
+        runs[gamma_r] = (forward.simulate_points(test, points, SETTINGS, before_stage={
+            1: lambda pts, s=start, h=hook: s.update(e=h.e_lagged.copy())}), hook, points, start)
+    curves0, _, _, _ = runs[0.0]
+    np.testing.assert_allclose(runs[1e-9][0].q, curves0.q, rtol=1e-2)
+    assert np.max(np.abs(runs[0.05][0].q - curves0.q) / curves0.q.max()) > 0.03  # the lag changes the curve
+    _, hook, points, start = runs[0.05]
+    e = current_void_ratio(0.55, points.state.J)
+    assert e[1] > start["e"][1] + 0.05  # the stronger set dilated in shear
+    assert start["e"][1] + 0.02 < hook.e_lagged[1] < e[1] - 0.01
+    expected = mobilised_friction_deg(full["phi_g"], hook.e_lagged, points.mean(points.state.stress), 2.0, 0.7, 0.02,
+                                      0.7, rule.p_ref)
+    np.testing.assert_allclose(hook.friction_deg, expected, rtol=1e-12)

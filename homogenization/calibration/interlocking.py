@@ -10,12 +10,25 @@ phi_mu as it dilates to e_c; a denser point at a lower pressure gets more. e = (
 void ratio where J = 1, J and p those of the accepted state; the friction is set before every increment
 (explicit: each trial of an increment sees the same friction). ``InterlockingFriction`` sets it on the
 population's per-cell friction (``with_cell_laws``' cells) and on a critical-state renewal's fresh cells.
+
+Opt-in lag (``Interlocking.relax_strain`` gamma_r > 0): the rule reads a lagged void ratio e_r instead of e, which
+follows e over distortion, d e_r = -(e_r - e) d gamma / gamma_r (exact over an increment: e_r - e scaled by
+exp(-d gamma / gamma_r)), d gamma the increment's deviatoric strain (the dimension's q of the strain tensor: 3D
+sqrt(3 J2), a triaxial test's abs(d eps1 - d eps3)); e_r = e at the start. e_c(p) follows p at once, so an
+isotropic compression keeps the pressure dependence; in shear the interlocking decays over gamma_r of
+distortion after the dilation rather than with it.
+
+Opt-in spread (``Interlocking.cell_spread`` s in [0, 1)): cell k of a point steps with tan phi (1 + s u_k) instead of
+tan phi, u_k the uniform quantiles (2 j + 1) / n - 1 (j = 0 .. n - 1, n cells per point) dealt to the cells in the
+order of the fractional parts of k (sqrt(5) - 1) / 2, the same for every point; so cells of one orientation class
+(equal under the test's symmetry) reach their friction limit at different strains. The point's mean tan phi is
+the rule's. A renewal's fresh cells step with the point's friction in the increment that renews them.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
 import numpy as np
@@ -28,7 +41,7 @@ P_REF = 101325.0
 """Reference pressure p_ref [Pa] of the critical-state line (one atmosphere)."""
 E_C_FLOOR = 0.05
 """Smallest critical void ratio [-]: e_c(p) is clipped to it (counted: ``InterlockingFriction.floored``)."""
-FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c"}
+FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "cell_spread": "cell_spread"}
 """Per-set parameters (calibration name -> ``Interlocking`` field) that ``simulate`` reads from its params."""
 
 
@@ -42,6 +55,8 @@ class Interlocking:
         lambda_c: slope of the critical-state line in (p / p_ref)^xi [-], >= 0.
         xi: exponent of the line [-], in (0, 1].
         p_ref: reference pressure [Pa in 3D, N/m in 2D], > 0.
+        relax_strain: gamma_r [-], >= 0, of the lagged void ratio (module docstring); 0: no lag.
+        cell_spread: s [-], in [0, 1), the half-width of the cells' spread of tan phi about the point's; 0: none.
     """
 
     m: float = 1.0
@@ -49,11 +64,14 @@ class Interlocking:
     lambda_c: float = 0.05
     xi: float = 0.7
     p_ref: float = P_REF
+    relax_strain: float = 0.0
+    cell_spread: float = 0.0
 
     def check(self) -> None:
         """ValueError (one line) for a parameter out of range."""
         for name, ok in (("m", self.m >= 0.0), ("e_gamma", self.e_gamma > 0.0), ("lambda_c", self.lambda_c >= 0.0),
-                         ("xi", 0.0 < self.xi <= 1.0), ("p_ref", self.p_ref > 0.0)):
+                         ("xi", 0.0 < self.xi <= 1.0), ("p_ref", self.p_ref > 0.0),
+                         ("relax_strain", self.relax_strain >= 0.0), ("cell_spread", 0.0 <= self.cell_spread < 1.0)):
             value = getattr(self, name)
             if not (math.isfinite(value) and ok):
                 raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
@@ -73,6 +91,14 @@ def mobilised_friction_deg(phi_mu_deg: Any, e: Any, p: Any, m: Any, e_gamma: Any
     return np.degrees(np.arctan(ratio ** np.asarray(m, dtype=np.float64) * np.tan(np.radians(phi_mu_deg))))
 
 
+def spread_factors(n_cells: int, spread: float) -> np.ndarray:
+    """Each cell's factor 1 + s u_k on tan phi (module docstring), shape (n_cells,), mean 1; ones where s = 0."""
+    order = np.argsort(np.mod(np.arange(n_cells) * (math.sqrt(5.0) - 1.0) / 2.0, 1.0), kind="stable")
+    u = np.empty(n_cells)
+    u[order] = (2.0 * np.arange(n_cells) + 1.0) / n_cells - 1.0
+    return 1.0 + spread * u
+
+
 def friction_owner(model: Any) -> Any:
     """The object whose per-cell friction coefficient ``mu`` (n_cells,) a population's cell model steps with:
     the 3D cell's planar cells, else the model itself; ValueError (one line) where neither holds one."""
@@ -87,14 +113,17 @@ class InterlockingFriction:
     critical-state renewal or None, which runs first).
 
     Args:
-        params: the line's xi and p_ref (and m, e_gamma, lambda_c where ``per_point`` lacks them).
+        params: the line's xi, p_ref and relax_strain (and m, e_gamma, lambda_c, cell_spread where ``per_point``
+            lacks them).
         material: the population (``forward.population(...).material``), n points of n_cells cells.
         state: its initial state (the friction is set from it at once).
         phi_mu_deg: each point's phi_mu [deg], shape (n,).
         e0: each point's void ratio at J = 1 [-], shape (n,).
-        per_point: m, e_gamma, lambda_c per point (``Interlocking`` field -> shape (n,)); None: ``params``'.
+        per_point: m, e_gamma, lambda_c, cell_spread per point (``Interlocking`` field -> shape (n,)); None:
+            ``params``'.
         inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
-    Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped.
+    Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped;
+    ``e_lagged`` (n,): the lagged void ratio (the void ratio itself without ``relax_strain``).
     """
 
     def __init__(self, params: Interlocking, material: Any, state: MaterialState, phi_mu_deg: np.ndarray,
@@ -107,18 +136,24 @@ class InterlockingFriction:
         if np.size(self.owner.mu) != n * self.n_cells:
             raise ValueError(f"the cell model holds {np.size(self.owner.mu)} frictions for {n} points of "
                              f"{self.n_cells} cells")
-        values = {name: getattr(params, name) for name in ("m", "e_gamma", "lambda_c")}
+        keys = ("m", "e_gamma", "lambda_c", "cell_spread")
+        values = {name: getattr(params, name) for name in keys}
         values.update(per_point or {})
-        self.m, self.e_gamma, self.lambda_c = (np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy()
-                                               for k in ("m", "e_gamma", "lambda_c"))
+        self.m, self.e_gamma, self.lambda_c, self.cell_spread = (
+            np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy() for k in keys)
         for i in range(n):
-            Interlocking(float(self.m[i]), float(self.e_gamma[i]), float(self.lambda_c[i]), params.xi,
-                         params.p_ref).check()
+            replace(params, m=float(self.m[i]), e_gamma=float(self.e_gamma[i]), lambda_c=float(self.lambda_c[i]),
+                    cell_spread=float(self.cell_spread[i])).check()
         self.phi_mu_deg = np.broadcast_to(np.asarray(phi_mu_deg, dtype=np.float64), (n,)).copy()
         self.e0 = np.broadcast_to(np.asarray(e0, dtype=np.float64), (n,)).copy()
         self.floored = np.zeros(n, dtype=np.int64)
         self.friction_deg = self.phi_mu_deg.copy()
-        self._mean = dimension(material.dim).mean_stress
+        self._record = dimension(material.dim)
+        self._mean = self._record.mean_stress
+        self.e_lagged = current_void_ratio(self.e0, state.J)
+        u = spread_factors(self.n_cells, 1.0) - 1.0
+        self.factors = (1.0 + self.cell_spread[:, None] * u[None, :]).ravel()
+        self._strain = np.array(state.strain, dtype=np.float64)
         self.set_from(state)
 
     @property
@@ -127,8 +162,9 @@ class InterlockingFriction:
         return self.inner.count if self.inner is not None else np.zeros(self.material.n_points, dtype=np.int64)
 
     def friction_at(self, state: MaterialState) -> np.ndarray:
-        """The friction [deg] of each point at ``state`` (its J and p), shape (n,); phi_mu where not finite."""
-        e = current_void_ratio(self.e0, state.J)
+        """The friction [deg] of each point at ``state`` (its J and p; with ``relax_strain`` the lagged void ratio
+        ``e_lagged`` instead of J's), shape (n,); phi_mu where not finite."""
+        e = current_void_ratio(self.e0, state.J) if self.params.relax_strain == 0.0 else self.e_lagged
         p = self._mean(state.stress)
         with np.errstate(all="ignore"):
             e_c = critical_void_ratio(p, self.e_gamma, self.lambda_c, self.params.xi, self.params.p_ref)
@@ -140,7 +176,7 @@ class InterlockingFriction:
     def set_from(self, state: MaterialState) -> None:
         """Set every cell's friction (and the inner renewal's fresh cells') from ``state``."""
         self.friction_deg = self.friction_at(state)
-        self.owner.mu = np.repeat(np.tan(np.radians(self.friction_deg)), self.n_cells)
+        self.owner.mu = np.repeat(np.tan(np.radians(self.friction_deg)), self.n_cells) * self.factors
         if self.inner is not None:
             self.inner.set_friction(self.friction_deg)
 
@@ -152,5 +188,18 @@ class InterlockingFriction:
         """The inner renewal's ``advance``, then the friction set from the accepted state for the next increment."""
         if self.inner is not None:
             state = self.inner.advance(state)
+        if self.params.relax_strain > 0.0:
+            self.e_lagged = self._relaxed(state)
         self.set_from(state)
         return state
+
+    def _relaxed(self, state: MaterialState) -> np.ndarray:
+        """The lagged void ratio after the increment that ended at ``state`` (module docstring), shape (n,)."""
+        d = np.array(state.strain, dtype=np.float64) - self._strain
+        self._strain = np.array(state.strain, dtype=np.float64)
+        d[:, self._record.dim:] /= self._record.shear_strain_factor  # engineering -> tensor shear
+        gamma = self._record.deviator(d)
+        e = current_void_ratio(self.e0, state.J)
+        with np.errstate(all="ignore"):
+            lagged = e + (self.e_lagged - e) * np.exp(-gamma / self.params.relax_strain)
+        return np.where(np.isfinite(lagged), lagged, e)
