@@ -16,7 +16,7 @@ RMS d eps_v, peak q and its strain, eps_v at the end, late dilatancy, fallbacks,
 
 ``--interlocking`` adds the interlocking friction (``calibration.interlocking``: tan phi = (e_c(p) / e)^m tan phi_g,
 e_c(p) = e_Gamma - lambda (p / p_ref)^0.7) and fits m, e_Gamma, lambda (``INTERLOCKING``) after the rule's
-parameters; ``--psi`` (with ``--void-ratio``) puts the map on the state parameter (``PSI``); ``--orders L,S`` another Lebedev order and spin count (cheap scouting).
+parameters; with ``--cell-spread`` also the cells' spread of friction s (``Interlocking.cell_spread``, last); ``--psi`` (with ``--void-ratio``) puts the map on the state parameter (``PSI``); ``--orders L,S`` another Lebedev order and spin count (cheap scouting).
 
 ``--max-nfev 0`` evaluates the start (no fit). ``--increment`` refines the shear increment (isotropic: the smaller of it and 1e-3). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
 data and model); the printout is the .txt when run through tee.
@@ -56,12 +56,12 @@ BOUNDS = {"phi_g": (10.0, 45.0), "log10_kn": (math.log10(3e6), math.log10(3e8)),
           "alpha0": (45.0 + 1e-6, 70.0), "e_min": (0.2, 0.52), "e_max": (0.59, 1.2), "alpha_c_deg": (RULE.alpha_min_deg, RULE.alpha_max_deg),
           "log10_rate": (0.0, math.log10(RULE.rate_max)), "gain": (0.0, 8.0), "rate_gain": (0.0, 4.0),
           "interlocking_m": (0.0, 6.0), "e_gamma": (0.5, 1.2), "lambda_c": (0.0, 0.4),
-          "lambda_psi": (0.0, 0.2)}
+          "lambda_psi": (0.0, 0.2), "cell_spread": (0.0, 0.6)}
 """Bounds of the fitted coordinates (the law's: the prior of bench_real_sand.py, alpha0 to 70 deg)."""
 START = {"e_min": 0.45, "e_max": 0.75, "phi_g": 35.0, "log10_kn": math.log10(2e7), "kt_over_kn": 1.0, "alpha0": 50.0,
          "alpha_c_deg": RULE.alpha_c_deg, "log10_rate": math.log10(RULE.rate), "gain": RULE.gain,
          "rate_gain": RULE.rate_gain, "interlocking_m": 1.0, "e_gamma": 0.75, "lambda_c": 0.05,
-         "lambda_psi": 0.0}
+         "lambda_psi": 0.0, "cell_spread": 0.0}
 """Start of every fit (alpha0 from ``--starts``)."""
 PSI = ("lambda_psi",)
 """The fitted coordinate of ``--psi`` (last): each test's void ratio enters the map (and the renewal) as
@@ -70,6 +70,8 @@ e + lambda_psi (p0 / p_ref)^0.7, i.e. the map reads the state parameter psi = e 
 INTERLOCKING = ("interlocking_m", "e_gamma", "lambda_c")
 """The fitted coordinates of ``--interlocking`` (after the rule's): m, e_Gamma and lambda of
 ``calibration.interlocking``, xi fixed at ``Interlocking().xi``, phi_g its phi_mu."""
+SPREAD = ("cell_spread",)
+"""The fitted coordinate of ``--cell-spread`` (with ``--interlocking``, last): ``Interlocking.cell_spread``."""
 
 
 def rule_values(names: tuple[str, ...], X: np.ndarray, tail: int = 0) -> dict[str, np.ndarray]:
@@ -83,10 +85,11 @@ def rule_values(names: tuple[str, ...], X: np.ndarray, tail: int = 0) -> dict[st
 
 def simulate(test: Measurement, X: np.ndarray, names: tuple[str, ...], settings: forward.ForwardSettings,
              plain: bool, interlocking: bool = False, stats: dict | None = None,
-             psi: bool = False) -> tuple[forward.Curves, np.ndarray]:
+             psi: bool = False, spread: bool = False) -> tuple[forward.Curves, np.ndarray]:
     """Curves of ``test`` for the sets X (module docstring) and the renewals per set (0 where ``plain``);
     ``interlocking``: X's columns after the rule's are ``INTERLOCKING``'s (``stats`` gets the friction at the start
-    of shear and at the end, and the clipped e_c, per set); ``psi``: X's last column is ``PSI``'s."""
+    of shear and at the end, and the clipped e_c, per set); ``psi``: X's last column is ``PSI``'s; ``spread``: X's last
+    column is ``SPREAD``'s (with ``interlocking``)."""
     params = {"phi_g": X[:, 0], "kn": 10.0 ** X[:, 1], "kt_over_kn": X[:, 2], "alpha0": X[:, 3]}
     e_bounds = None
     if test.void_ratio is not None:  # --void-ratio: X[:, 3:5] are e_min, e_max
@@ -94,7 +97,8 @@ def simulate(test: Measurement, X: np.ndarray, names: tuple[str, ...], settings:
         shift = X[:, -1] * (test.p0 / Interlocking().p_ref) ** Interlocking().xi if psi else 0.0
         params["alpha0"] = opening_angle_deg(test.void_ratio + shift, *e_bounds, *OPENING_RANGE_DEG[3])
     if interlocking or psi:
-        return _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, stats, interlocking, psi)
+        return _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, stats, interlocking, psi,
+                                      spread)
     if plain or not names:
         s = replace(settings, critical_state=None if plain else RULE)
         if e_bounds is not None:  # forward.simulate maps the void ratio itself
@@ -112,14 +116,15 @@ def simulate(test: Measurement, X: np.ndarray, names: tuple[str, ...], settings:
     return curves, np.asarray(points.renewal.count)
 
 
-def _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, stats, interlocking=True, psi=False):
+def _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, stats, interlocking=True, psi=False,
+                           spread=False):
     """``simulate`` with the interlocking friction on top of the renewal (or of the plain cell), and/or with the
     map on the state parameter (``psi``: sets whose map misses the shifted void ratio get NaN curves)."""
     missed = ~np.isfinite(params["alpha0"])
     params = {**params, "alpha0": np.where(missed, 50.0, params["alpha0"])}
     full = forward.full_parameters(params, settings)
     points = forward.population(full, settings, test.dim)
-    tail = len(INTERLOCKING) * interlocking + psi
+    tail = len(INTERLOCKING) * interlocking + psi + spread
     if not plain:
         points.renewal = PopulationRenewal(RULE, points.material, points.state, default_map(3), full["alpha0"],
                                            laws_of(full, settings.law), settings.law, settings.radius,
@@ -131,8 +136,10 @@ def _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, st
         else:
             e0 = np.array([default_map(3).void_ratio(a) for a in full["alpha0"]])
         cols = X[:, X.shape[1] - tail:X.shape[1] - tail + len(INTERLOCKING)]
-        hook = InterlockingFriction(Interlocking(), points.material, points.state, full["phi_g"], e0,
-                                    {"m": cols[:, 0], "e_gamma": cols[:, 1], "lambda_c": cols[:, 2]},
+        per_point = {"m": cols[:, 0], "e_gamma": cols[:, 1], "lambda_c": cols[:, 2]}
+        if spread:
+            per_point["cell_spread"] = X[:, -1]
+        hook = InterlockingFriction(Interlocking(), points.material, points.state, full["phi_g"], e0, per_point,
                                     inner=points.renewal)
         points.renewal = hook
     at_shear = {}
@@ -179,6 +186,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="each test at its specimen's void ratio on the map; fit e_min, e_max instead of alpha0")
     parser.add_argument("--interlocking", action="store_true",
                         help="fit the interlocking friction's m, e_gamma, lambda_c too (calibration.interlocking)")
+    parser.add_argument("--cell-spread", action="store_true",
+                        help="with --interlocking: fit the cells' spread of friction too (Interlocking.cell_spread)")
     parser.add_argument("--psi", action="store_true",
                         help="with --void-ratio: the map on the state parameter, lambda_psi fitted (PSI)")
     parser.add_argument("--orders", default="", help="LEBEDEV,SPINS: a cheaper or finer orientation rule")
@@ -204,7 +213,10 @@ def main(argv: list[str] | None = None) -> int:
     law = LAW_VOID if args.void_ratio else LAW
     if args.psi and not args.void_ratio:
         parser.error("--psi needs --void-ratio")
-    coords = law + names + (INTERLOCKING if args.interlocking else ()) + (PSI if args.psi else ())
+    if args.cell_spread and (not args.interlocking or args.psi):
+        parser.error("--cell-spread needs --interlocking (and no --psi)")
+    coords = (law + names + (INTERLOCKING if args.interlocking else ()) + (PSI if args.psi else ())
+              + (SPREAD if args.cell_spread else ()))
     lo = np.array([BOUNDS[c][0] for c in coords])
     hi = np.array([BOUNDS[c][1] for c in coords])
     evaluations = [0]
@@ -213,7 +225,8 @@ def main(argv: list[str] | None = None) -> int:
         X = np.atleast_2d(X)
         curves = []
         for test in tests:
-            c, _ = simulate(test, X, names, settings, args.plain, args.interlocking, psi=args.psi)
+            c, _ = simulate(test, X, names, settings, args.plain, args.interlocking, psi=args.psi,
+                            spread=args.cell_spread)
             curves.append({"q": c.q, "p": c.p, "eps_v": c.eps_v})
         evaluations[0] += X.shape[0]
         r = bayes.residuals(tests, curves, NOISE)
@@ -225,6 +238,8 @@ def main(argv: list[str] | None = None) -> int:
         cell += " + interlocking friction (m, e_gamma, lambda_c fitted)"
     if args.psi:
         cell += " + map on psi (lambda_psi fitted)"
+    if args.cell_spread:
+        cell += " + cells' friction spread (cell_spread fitted)"
     print(f"split {args.split}, {cell}, kinematics {args.kinematics}; forward: Lebedev {settings.lebedev_order} x "
           f"{settings.n_spins}, increment {settings.increment:g}, iso {settings.iso_increment:g}; nice "
           f"{os.nice(0)}, load {os.getloadavg()[0]:.1f}", flush=True)
@@ -251,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in sorted((*fitted, predicted), key=lambda f: read_test(DATA / f).p0):
         test = load(name, args.void_ratio)
         stats: dict = {}
-        c, count = simulate(test, x, names, settings, args.plain, args.interlocking, stats, args.psi)
+        c, count = simulate(test, x, names, settings, args.plain, args.interlocking, stats, args.psi, args.cell_spread)
         if name in fitted:
             chi2 += float(np.sum(bayes.residuals([test], [{"q": c.q, "p": c.p, "eps_v": c.eps_v}], NOISE) ** 2))
         rows[name] = {"role": "predicted" if name == predicted else "fitted", **row(test, c, 0, int(count[0]))}
