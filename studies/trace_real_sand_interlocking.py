@@ -106,6 +106,10 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"{100 * r['eps1']:6.2f} {r['q'] / 1e3:7.1f} {r['p'] / 1e3:7.1f} {r['e']:.4f} {r['e_c']:.4f} "
                      f"{r['friction_next_deg']:7.2f}  {r['open']:.3f}  {r['sliding']:.3f}   {r['sticking']:.3f}    "
                      f"{r['beyond_new_cap']:.3f}")
+    q = np.array([r["q"] for r in rows])
+    k = int(np.argmin(np.diff(q)))
+    lines.append(f"peak q {q.max() / 1e3:.1f} kPa at {100 * rows[int(np.argmax(q))]['eps1']:.2f} %; largest one-increment "
+                 f"fall of q {(q[k] - q[k + 1]) / q.max():.3f} of the peak, at {100 * rows[k + 1]['eps1']:.2f} %")
     text = "\n".join(lines)
     print(text)
     stem = f"real_sand_interlocking_trace_{Path(args.test).stem}" + (f"_{args.tag}" if args.tag else "")
