@@ -98,7 +98,7 @@ class Normalisation(NamedTuple):
 
 class Before(NamedTuple):
     """What ``fast_features.features`` leaves of the state before the increment: feats (n_features, n)
-    float32 (planar cells in ``FastAdvance``: n rounded up to ``training.perceptron.LANES`` columns, the
+    float32 (planar cells in ``FastAdvance``: ``training.perceptron.padded_cells(n)`` columns, the
     others scratch), m = norm(d_eps) (n,), unbalanced (n_free, n) [N], old_branch (n_pairs, 2, n) [m],
     old_contact (n_pairs, n) bool, old_fn (n_pairs, n) [N]."""
 

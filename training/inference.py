@@ -45,7 +45,7 @@ from training.fast_cells import Advanced, Before, CellTables, Normalisation, Phy
 from training.fast_increment import branch_counts, free_displacement
 from training.fast_tangent import probe_feature_tangent
 from training.fast_model import arrays_of_net, COMPLIANCE_SCALE, GAP_CLIP, NetArrays, RELAXATION_RAMP
-from training.perceptron import forward_layers, LANES, Perceptron
+from training.perceptron import forward_layers, padded_cells, Perceptron
 from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import DemSettings
 
@@ -341,7 +341,7 @@ class FastAdvance:
         work = getattr(self._local, "work", None)
         if work is None or work.before.m.shape[0] != n:
             n_free, n_pairs = self.cells.free_dofs.shape[0], self.cells.pairs.shape[0]
-            columns = -(-n // LANES) * LANES if self._padded_features else n  # as padded_buffers
+            columns = padded_cells(n) if self._padded_features else n
             before = Before(np.zeros((self.scaling.feature_mean.shape[0], columns), dtype=np.float32), np.empty(n),
                             np.empty((n_free, n)), np.empty((n_pairs, self.dim, n)),
                             np.empty((n_pairs, n), dtype=np.bool_),

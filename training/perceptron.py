@@ -35,6 +35,12 @@ LANES = 16
 """``Perceptron.padded_buffers`` rounds the cells up to a multiple of this, so that the layers after the first
 run whole vectors, without a scalar remainder (a speed setting; results do not depend on it)."""
 
+
+def padded_cells(n: int) -> int:
+    """Columns of ``Perceptron.padded_buffers`` for n cells: n rounded up to a multiple of ``LANES``, or n below
+    ``LANES`` (where the loops' scalar remainder costs less than one whole vector)."""
+    return n if n < LANES else -(-n // LANES) * LANES
+
 TANH_CLIP = 9.0
 """``|x|`` beyond which tanh32 returns its value at +-9 (within 2e-8 of +-1, below float32's resolution)."""
 
@@ -228,10 +234,10 @@ class Perceptron:
         return tuple(np.empty((width, n), dtype=np.float32) for width in self.widths)
 
     def padded_buffers(self, n: int) -> tuple[np.ndarray, ...]:
-        """``buffers`` of n rounded up to a multiple of ``LANES`` cells, zeros: ``forward`` of n cells writes cell c
-        in column c of every layer and runs the layers after the first on every column (the other columns are
-        scratch, their values finite)."""
-        return tuple(np.zeros((width, -(-n // LANES) * LANES), dtype=np.float32) for width in self.widths)
+        """``buffers`` of ``padded_cells(n)`` cells, zeros: ``forward`` of n cells writes cell c in column c of
+        every layer and runs the layers after the first on every column (the other columns are scratch, their
+        values finite)."""
+        return tuple(np.zeros((width, padded_cells(n)), dtype=np.float32) for width in self.widths)
 
     def forward(self, h: np.ndarray, layers: tuple[np.ndarray, ...]) -> np.ndarray:
         """Network output (n_outputs, n) of inputs ``h`` (n_inputs, n) float32 C-contiguous; ``layers`` from
