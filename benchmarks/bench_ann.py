@@ -13,7 +13,8 @@ printed with the numbers):
    the same interleaved loop, the step of networks of other hidden widths (the model's inputs,
    random weights: the cost of a width, ``homogenization.learning.active.WIDTH_LADDER``);
    with ``--parts``, where the ANN step's time goes: the median of each part called alone (the
-   whole ``AnnCell.step``, ``FastAdvance.increment``, its three compiled calls together, and the
+   whole ``AnnCell.step``, ``FastAdvance.increment``, its compiled call (``fast_increment.step``), the
+   three kernels it runs called one after the other, and the
    features, the perceptron, each layer with and without its tanh, and the advance kernel apart), at
    ``--cells`` cells and at one cell (the fixed cost of each call); with ``--step3d-repeats`` N > 0, beside
    it the spatial step's ratio (``benchmarks/bench_triaxial.py --part ann3d-step --repeats N``: the shipped
@@ -156,7 +157,7 @@ def time_parts(model, n: int, repeats: int) -> None:
     """Median time [us] of each part of the ANN step of ``n`` H-cells (as ``time_increments``), each called alone."""
     from training.fast_cells import Advanced  # noqa: PLC0415
     from training.fast_features import features  # noqa: PLC0415
-    from training.fast_increment import advance  # noqa: PLC0415
+    from training.fast_increment import advance, step  # noqa: PLC0415
     from training.inference import _cells_last, _Compiled  # noqa: PLC0415
     from training.perceptron import dense, forward_layers  # noqa: PLC0415
 
@@ -175,6 +176,7 @@ def time_parts(model, n: int, repeats: int) -> None:
     tables = (fast.cells, fast.law, fast.scaling)
     # entry points, as FastAdvance calls them
     features_entry, forward_entry, advance_entry = _Compiled(features), _Compiled(forward_layers), _Compiled(advance)
+    step_entry, counts = _Compiled(step), np.empty(5, dtype=np.int64)
     weights, biases, layers = fast.perceptron.weight, fast.perceptron.bias, work.layers
     inputs = (work.before.feats, *layers[:-1])
     last = len(weights) - 1
@@ -185,7 +187,9 @@ def time_parts(model, n: int, repeats: int) -> None:
 
     parts = {"AnnCell.step": lambda: ann.step(state, d_eps),
              "FastAdvance.increment": lambda: fast.increment(*state, d_eps),
-             "its three compiled calls": compiled,
+             "its compiled call": lambda: step_entry(size, free, shear, d_eps, *tables, weights, biases, work.before,
+                                                     layers, result, counts),
+             "the three kernels apart": compiled,
              "features apart": lambda: features_entry(size, free, shear, d_eps, *tables, work.before),
              "perceptron apart": lambda: forward_entry(weights, biases, work.before.feats, layers),
              **{f"layer {k} (tanh: {k < last})":

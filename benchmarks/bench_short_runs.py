@@ -13,11 +13,10 @@ command's isotropic stage (its default increment).
 the kernels compiled), the closed form as usual.
 
 ``--startup``: instead, where a planar ANN process's CPU time goes, by phase, in fresh processes
-(``--repeats`` of them): numpy's import, numba's, the ANN's modules and cell model (``AnnCell``),
-the first step (numba's set-up of its typing and lowering registries and the cached kernels' loading),
-the other 320 steps of 360 cells; and the same with scipy's ``cython_blas`` extension loaded before
-numba's set-up without its package (what numba's BLAS check would import: ``scipy.linalg``), to
-measure that import's share. Not the CLI: the phases of the run that differ from the closed form's.
+(``--repeats`` of them): numpy's import, numba's, the ANN's modules and cell model (``AnnCell``, with
+the kernels' modules and numba's BLAS check, ``training.fast_cells``), the first step (numba's set-up
+of its typing and lowering registries and the cached kernels' loading), the other 320 steps of 360
+cells. Not the CLI: the phases of the run that differ from the closed form's.
 
 The machine may be shared: the load average is printed before and after; CPU seconds are less
 sensitive to other processes than wall seconds, not immune.
@@ -63,7 +62,7 @@ def timed(argv: list[str], env: dict[str, str]) -> tuple[float, float]:
 
 
 STARTUP = r"""
-import importlib.machinery, importlib.util, json, os, sys, time
+import json, sys, time
 marks = [("start", time.process_time())]
 def mark(name):
     marks.append((name, time.process_time()))
@@ -71,17 +70,6 @@ import numpy as np
 mark("import numpy")
 import numba
 mark("import numba")
-if sys.argv[1] == "blas":  # scipy.linalg.cython_blas alone, before numba's set-up imports it with scipy.linalg
-    folder = os.path.join(os.path.dirname(importlib.util.find_spec("scipy").origin), "linalg")
-    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
-        path = os.path.join(folder, "cython_blas" + suffix)
-        if os.path.exists(path):
-            spec = importlib.util.spec_from_file_location("scipy.linalg.cython_blas", path)
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[spec.name] = module
-            spec.loader.exec_module(module)
-            break
-    mark("scipy's cython_blas alone")
 from homogenization.backends import make_cell_model
 from homogenization.material.orientation import localise, orientations
 from warp_hcell.mesostructures.hcell import h_cell
@@ -96,23 +84,24 @@ for _ in range(320):
     state, _ = cell.step(state, d_eps)
 mark("320 more steps")
 print(json.dumps({b[0]: round(b[1] - a[1], 4) for a, b in zip(marks, marks[1:])}))
+print("scipy.linalg imported:", "scipy.linalg" in sys.modules, file=sys.stderr)
 """
 
 
 def startup(args) -> None:
-    """CPU seconds of each phase of a planar ANN process (``STARTUP``), with and without scipy's BLAS module loaded
-    apart, interleaved, ``args.repeats`` processes each."""
+    """CPU seconds of each phase of a planar ANN process (``STARTUP``), ``args.repeats`` processes, and whether
+    ``scipy.linalg`` was imported."""
     env = {**os.environ, "MPLBACKEND": "Agg"}
-    rows: dict[str, list[dict[str, float]]] = {"plain": [], "blas": []}
+    runs, scipy_linalg = [], set()
     for _ in range(args.repeats):
-        for variant in rows:
-            done = subprocess.run([sys.executable, "-c", STARTUP, variant], cwd=ROOT, env=env, capture_output=True,
-                                  text=True, check=True)
-            rows[variant].append(json.loads(done.stdout.strip().splitlines()[-1]))
-    for variant, runs in rows.items():
-        phases = "; ".join(f"{name} {statistics.median(r[name] for r in runs):.3f}" for name in runs[0])
-        total = statistics.median(sum(r.values()) for r in runs)
-        print(f"{variant}: CPU seconds, median of {len(runs)} processes: {phases}; sum {total:.3f}", flush=True)
+        done = subprocess.run([sys.executable, "-c", STARTUP], cwd=ROOT, env=env, capture_output=True, text=True,
+                              check=True)
+        runs.append(json.loads(done.stdout.strip().splitlines()[-1]))
+        scipy_linalg.add(done.stderr.strip().splitlines()[-1])
+    phases = "; ".join(f"{name} {statistics.median(r[name] for r in runs):.3f}" for name in runs[0])
+    total = statistics.median(sum(r.values()) for r in runs)
+    print(f"CPU seconds, median of {len(runs)} processes: {phases}; sum {total:.3f} ({', '.join(sorted(scipy_linalg))})",
+          flush=True)
 
 
 def main() -> None:
