@@ -206,10 +206,12 @@ class _Last(NamedTuple):
 
 class _Workspace(NamedTuple):
     """Scratch arrays of one ``FastAdvance`` call: ``before`` (``training.fast_cells.Before``, cells
-    last) and ``layers``, each perceptron layer's output (width, n padded: ``Perceptron.padded_buffers``) float32."""
+    last), ``layers``, each perceptron layer's output (width, n padded: ``Perceptron.padded_buffers``) float32,
+    and ``counts`` (5,) int64 (``FastAdvance.last_counts``)."""
 
     before: Before
     layers: tuple
+    counts: np.ndarray
 
 
 class FastAdvance:
@@ -346,7 +348,7 @@ class FastAdvance:
                             np.empty((n_free, n)), np.empty((n_pairs, self.dim, n)),
                             np.empty((n_pairs, n), dtype=np.bool_),
                             np.empty((n_pairs, n)))
-            work = _Workspace(before, self.perceptron.padded_buffers(n))
+            work = _Workspace(before, self.perceptron.padded_buffers(n), np.empty(5, dtype=np.int64))
             self._local.work = work
         return work
 
@@ -364,8 +366,9 @@ class FastAdvance:
 
     def last_counts(self) -> np.ndarray:
         """The branch counts of this thread's last ``increment``, int64 (5,): its cells capped, opened, mechanism
-        and relaxation-scaled (``FastIncrement``'s flags), and its grains held at rest, summed."""
-        return self._local.counts
+        and relaxation-scaled (``FastIncrement``'s flags), and its grains held at rest, summed (this thread's
+        scratch array: read it before the next call)."""
+        return self._local.work.counts
 
     def last_corrections(self) -> Corrections | None:
         """The equilibrium corrections of this thread's last ``increment`` (None without corrections)."""
@@ -401,8 +404,7 @@ class FastAdvance:
         work = self._workspace(n)
         out = work.layers[-1]
         result = self._result(n)
-        counts = np.empty(5, dtype=np.int64)
-        self._local.counts = counts
+        counts = work.counts
         fused = self._step is not None and not self.corrections
         if fused:  # features, perceptron, advance and branch counts in one compiled call
             self._step(size, free, shear, d_eps, self.cells, self.law, self.scaling, self.perceptron.weight,

@@ -111,6 +111,13 @@ def _accumulate8(weight, h, out, k, lo, hi):
             r1[c] = _dot8(w1, x, r1[c])
             r2[c] = _dot8(w2, x, r2[c])
         j += 3
+    if j + 2 == n_out:
+        r0, r1, w0, w1 = out[j, lo:hi], out[j + 1, lo:hi], _eight(weight, j, k), _eight(weight, j + 1, k)
+        for c in range(m):
+            x = (h0[c], h1[c], h2[c], h3[c], h4[c], h5[c], h6[c], h7[c])
+            r0[c] = _dot8(w0, x, r0[c])
+            r1[c] = _dot8(w1, x, r1[c])
+        j += 2
     while j < n_out:
         r0, w0 = out[j, lo:hi], _eight(weight, j, k)
         for c in range(m):
