@@ -5,7 +5,8 @@ accepted increment of the shear: eps1, q, p, the point's void ratio e, e_c(p), t
 increment, and over the point's cells (both planes of every ten-sphere cell, renewed cells included) the fractions
 of type-1 contacts open (N1 <= 0), sliding (abs(T1) >= 0.999 mu N1 under the friction they stepped with) and
 sticking, with the fraction of contacts that the friction set after the increment puts beyond its cap
-(abs(T1) > mu_new N1: they must slide in the next increment). ``--relax-strain`` runs the lagged friction
+(abs(T1) > mu_new N1: they must slide in the next increment), and how many of those were sticking, with their
+cells' axis angles to axis 1. ``--relax-strain`` runs the lagged friction
 (``Interlocking.relax_strain``), ``--cell-spread`` the cells' spread of friction (``Interlocking.cell_spread``). Output: studies/results/real_sand_interlocking_trace_TEST[_TAG].json and .txt.
 """
 
@@ -70,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
                                 {"m": m, "e_gamma": e_gamma, "lambda_c": lambda_c}, inner=points.renewal)
     points.renewal = hook
     record = dimension(3)
+    axis_deg = points.material.orient.axis_angle_deg
     rows: list[dict] = []
     shear = {"on": False}
     advance = hook.advance
@@ -84,11 +86,16 @@ def main(argv: list[str] | None = None) -> int:
             N1 = np.concatenate([new.cells.a.N1, new.cells.b.N1])
             T1 = np.concatenate([new.cells.a.T1, new.cells.b.T1])
             mu_new = np.concatenate([hook.owner.mu, hook.owner.mu])
-            beyond = float(((N1 > 0) & (np.abs(T1) > mu_new * N1 * 1.0000001)).sum() / N1.size)
+            over = (N1 > 0) & (np.abs(T1) > mu_new * N1 * 1.0000001)
+            beyond = float(over.sum() / N1.size)
+            was = (N1 > 0) & (np.abs(T1) >= 0.999 * np.concatenate([mu_before, mu_before]) * N1)
+            pushed = np.flatnonzero(over & ~was) % hook.owner.mu.size  # sticking contacts the new cap passes
+            angles = sorted(set(np.round(axis_deg[pushed % hook.n_cells], 1).tolist()))
             rows.append({"eps1": float(new.strain[0, 0] - shear["eps1_0"]), "q": float(record.deviator(new.stress)[0]),
                          "p": p, "e": e, "e_c": float(critical_void_ratio(p, e_gamma, lambda_c, rule.xi, rule.p_ref)[0]),
                          "friction_next_deg": float(hook.friction_deg[0]), "open": opened, "sliding": slide,
-                         "sticking": stick, "beyond_new_cap": beyond})
+                         "sticking": stick, "beyond_new_cap": beyond, "pushed": int(pushed.size),
+                         "pushed_axis_deg": angles})
         return new
 
     hook.advance = traced
@@ -101,11 +108,11 @@ def main(argv: list[str] | None = None) -> int:
     lines = [f"{args.test} at the optimum of {args.result.name} (relax_strain {args.relax_strain:g}, cell_spread {args.cell_spread:g}); e0 "
              f"{test.void_ratio:.3f}, phi_mu {opt['phi_g']:.2f}, m {float(m[0]):.3f}, e_Gamma {float(e_gamma[0]):.4f}, "
              f"lambda {float(lambda_c[0]):.4f}; contacts: type-1 of both planes, {hook.n_cells} cells",
-             "eps1[%]  q[kPa]  p[kPa]  e       e_c     phi_next  open   sliding sticking beyond_new_cap"]
+             "eps1[%]  q[kPa]  p[kPa]  e       e_c     phi_next  open   sliding sticking beyond_new_cap  pushed (axis angles [deg])"]
     for r in rows:
         lines.append(f"{100 * r['eps1']:6.2f} {r['q'] / 1e3:7.1f} {r['p'] / 1e3:7.1f} {r['e']:.4f} {r['e_c']:.4f} "
                      f"{r['friction_next_deg']:7.2f}  {r['open']:.3f}  {r['sliding']:.3f}   {r['sticking']:.3f}    "
-                     f"{r['beyond_new_cap']:.3f}")
+                     f"{r['beyond_new_cap']:.3f}  " + (f"{r['pushed']} {r['pushed_axis_deg']}" if r["pushed"] else ""))
     q = np.array([r["q"] for r in rows])
     k = int(np.argmin(np.diff(q)))
     lines.append(f"peak q {q.max() / 1e3:.1f} kPa at {100 * rows[int(np.argmax(q))]['eps1']:.2f} %; largest one-increment "
