@@ -3,8 +3,8 @@
 numpy, OpenBLAS, torch (ATen, MKL, oneDNN), numba and glibc pick their kernels by CPU; these variables
 make them pick those of another CPU, so that one machine checks what an AVX2 or an AVX-512
 machine would compute (docs/determinism.md). Settings that need AVX-512 run only where the CPU
-has it. The settings run two at a time (each its own process). Prints one line per setting, in
-order, and the total time; exit status 1 if any setting failed.
+has it. The settings run two at a time (each its own process; those that compile numba for another CPU
+start first). Prints one line per setting, in order, and the total time; exit status 1 if any setting failed.
 
     python tests/determinism_settings.py [pytest arguments, e.g. -x]
 """
@@ -71,6 +71,17 @@ WORKERS = 2
 """Settings run at once (after the first, which fills Warp's and numba's caches alone): the CI machine's cores."""
 
 
+def start_order(settings: list[dict[str, str]]) -> list[int]:
+    """Indices of ``settings`` after the first, in the order they start: first those that compile numba for a
+    CPU no earlier setting names (several times the others' time), so that no long one is left alone at the end."""
+    seen = {settings[0].get("NUMBA_CPU_NAME")}
+    compiles = []
+    for variables in settings[1:]:
+        compiles.append(variables.get("NUMBA_CPU_NAME") not in seen)
+        seen.add(variables.get("NUMBA_CPU_NAME"))
+    return sorted(range(1, len(settings)), key=lambda index: not compiles[index - 1])
+
+
 def run_setting(variables: dict[str, str], argv: list[str], files: list[str]) -> tuple[subprocess.CompletedProcess, float]:
     """One pytest of the ``determinism`` tests under ``variables``: (its result, its wall time [s])."""
     t0 = time.perf_counter()
@@ -90,10 +101,12 @@ def main(argv: list[str]) -> int:
             print(f"skipped (no AVX-512): {label}", flush=True)
         else:
             runnable.append((label, variables))
-    first = [run_setting(runnable[0][1], argv, files)]
+    first = run_setting(runnable[0][1], argv, files)
     with ThreadPoolExecutor(max_workers=WORKERS) as pool:
-        rest = pool.map(lambda setting: run_setting(setting[1], argv, files), runnable[1:])
-        for (label, _), (result, seconds) in zip(runnable, [*first, *rest]):
+        futures = {index: pool.submit(run_setting, runnable[index][1], argv, files)
+                   for index in start_order([variables for _, variables in runnable])}
+        for index, (label, _) in enumerate(runnable):
+            result, seconds = futures[index].result() if index else first
             summary = (result.stdout.strip().splitlines() or ["(no output)"])[-1]
             print(f"{'ok    ' if result.returncode == 0 else 'FAILED'} {seconds:5.0f} s  {label}: {summary}", flush=True)
             if result.returncode != 0:
