@@ -18,7 +18,7 @@ RMS d eps_v, peak q and its strain, eps_v at the end, late dilatancy, fallbacks,
 e_c(p) = e_Gamma - lambda (p / p_ref)^0.7) and fits m, e_Gamma, lambda (``INTERLOCKING``) after the rule's
 parameters; with ``--cell-spread`` also the cells' spread of friction s (``Interlocking.cell_spread``, last); ``--psi`` (with ``--void-ratio``) puts the map on the state parameter (``PSI``); ``--orders L,S`` another Lebedev order and spin count (cheap scouting).
 
-``--max-nfev 0`` evaluates the start (no fit). ``--increment`` refines the shear increment (isotropic: the smaller of it and 1e-3). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
+``--max-nfev 0`` evaluates the start (no fit); ``--max-seconds T`` stops each fit after T s of wall time at the lowest chi-square set it has run (each new lowest goes to stderr). ``--increment`` refines the shear increment (isotropic: the smaller of it and 1e-3). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
 data and model); the printout is the .txt when run through tee.
 """
 
@@ -171,6 +171,10 @@ def row(test: Measurement, curves: forward.Curves, i: int, renewals: int) -> dic
             "renewals": int(renewals)}
 
 
+class _OutOfTime(Exception):
+    """A fit ran past ``--max-seconds``."""
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--split", choices=tuple(SPLITS))
@@ -191,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--psi", action="store_true",
                         help="with --void-ratio: the map on the state parameter, lambda_psi fitted (PSI)")
     parser.add_argument("--orders", default="", help="LEBEDEV,SPINS: a cheaper or finer orientation rule")
+    parser.add_argument("--max-seconds", type=float, default=0.0,
+                        help="stop each fit after this wall time [s] at the lowest chi-square set it has run (0: none)")
     parser.add_argument("--tag", default="")
     args = parser.parse_args(argv)
     if args.figure:
@@ -220,9 +226,12 @@ def main(argv: list[str] | None = None) -> int:
     lo = np.array([BOUNDS[c][0] for c in coords])
     hi = np.array([BOUNDS[c][1] for c in coords])
     evaluations = [0]
+    seen = {"deadline": math.inf, "chi_square": math.inf, "x": None, "calls": 0}
 
     def residuals(X: np.ndarray) -> np.ndarray:
         X = np.atleast_2d(X)
+        if time.perf_counter() > seen["deadline"]:
+            raise _OutOfTime
         curves = []
         for test in tests:
             c, _ = simulate(test, X, names, settings, args.plain, args.interlocking, psi=args.psi,
@@ -230,7 +239,13 @@ def main(argv: list[str] | None = None) -> int:
             curves.append({"q": c.q, "p": c.p, "eps_v": c.eps_v})
         evaluations[0] += X.shape[0]
         r = bayes.residuals(tests, curves, NOISE)
-        return np.where(np.isfinite(r), r, 1e3)
+        r = np.where(np.isfinite(r), r, 1e3)
+        chi = np.sum(r ** 2, axis=1)
+        seen["calls"] += X.shape[0] == 1
+        if chi.min() < seen["chi_square"]:
+            seen.update(chi_square=float(chi.min()), x=X[int(np.argmin(chi))].copy())
+            print(f"  set {evaluations[0]}: chi-square {chi.min():.4g}", file=sys.stderr, flush=True)
+        return r
 
     start.MAP_MAX_EVALUATIONS = args.max_nfev
     cell = "plain cell" if args.plain else "critical state (" + ", ".join(names or ("DEFAULTS[3]",)) + " fitted)"
@@ -254,12 +269,19 @@ def main(argv: list[str] | None = None) -> int:
         if args.max_nfev == 0:  # evaluate the start only
             fits.append({"start_alpha0": a0, "chi_square": float("nan"), "x": x0.tolist(), "nfev": 0, "seconds": 0.0})
             continue
-        chi_square, result = start.least_squares_fit(residuals, np.clip(x0, lo, hi), lo, hi)
-        fits.append({"start_alpha0": a0, "chi_square": chi_square, "x": result.x.tolist(), "nfev": int(result.nfev),
-                     "seconds": time.perf_counter() - t0})
+        seen.update(deadline=t0 + args.max_seconds if args.max_seconds > 0 else math.inf, chi_square=math.inf,
+                    x=None, calls=0)
+        try:
+            chi_square, result = start.least_squares_fit(residuals, np.clip(x0, lo, hi), lo, hi)
+            x_fit, nfev, stopped = result.x, int(result.nfev), False
+        except _OutOfTime:  # --max-seconds: the lowest set run so far
+            chi_square, x_fit, nfev, stopped = seen["chi_square"], seen["x"], int(seen["calls"]), True
+        fits.append({"start_alpha0": a0, "chi_square": chi_square, "x": x_fit.tolist(), "nfev": nfev,
+                     "stopped_at_max_seconds": stopped, "seconds": time.perf_counter() - t0})
         print(f"fit from alpha0 {a0:g}: chi-square {chi_square:.4g} at " + ", ".join(
-            f"{c} {v:.4g}" for c, v in zip(coords, result.x)) + f" ({result.nfev} iterations, "
-            f"{time.perf_counter() - t0:.0f} s)", flush=True)
+            f"{c} {v:.4g}" for c, v in zip(coords, x_fit)) + f" ({nfev} iterations, "
+            f"{time.perf_counter() - t0:.0f} s" + (", stopped at --max-seconds: lowest set so far" if stopped else "")
+            + ")", flush=True)
     best = min(fits, key=lambda f: f["chi_square"]) if args.max_nfev else fits[0]
     x = np.array(best["x"])[None, :]
     rows, chi2, curves_out = {}, 0.0, {}
