@@ -1,11 +1,11 @@
 """``pip install`` through uv: what pip would install here, several times faster from a cold cache.
 
-uv reads no pip configuration, so this passes it pip's own (``pip config list``: the environment's
-``PIP_*`` variables over the ``[install]`` section over ``[global]``): index URL, extra index URLs,
-find-links, constraints, no-index and the certificate bundle) and pip's choice among indexes, the
-newest version on any (``unsafe-best-match``). Unlike pip it compiles no bytecode at install: Python
-does it on first import, for the modules imported (unless PYTHONDONTWRITEBYTECODE is set). Installs
-into this interpreter's environment.
+uv reads no pip configuration, so this passes it pip's own, as ``pip config list`` gives it (the
+environment's ``PIP_*`` variables over the ``[install]`` section over ``[global]``): index URL, extra
+index URLs, find-links, constraints, no-index, certificate bundle and timeout; and pip's choice among
+indexes, the newest version on any (``unsafe-best-match``). Unlike pip, uv compiles no bytecode at
+install: Python does it on first import, for the modules imported (unless PYTHONDONTWRITEBYTECODE is
+set). Installs into this interpreter's environment.
 
     .venv/bin/python .ci/uv_pip_install.py [pip install arguments, e.g. torch==2.13.0, -e '.[dev]']
 
@@ -59,6 +59,9 @@ def main(argv: list[str]) -> int:
     env = dict(os.environ)
     if options.get("cert"):
         env.setdefault("SSL_CERT_FILE", options["cert"])
+    timeout = options.get("timeout") or options.get("default-timeout")
+    if timeout:
+        env.setdefault("UV_HTTP_TIMEOUT", timeout)
     return subprocess.run(uv_command(options, argv), env=env).returncode
 
 
