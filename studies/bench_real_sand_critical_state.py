@@ -18,7 +18,7 @@ RMS d eps_v, peak q and its strain, eps_v at the end, late dilatancy, fallbacks,
 e_c(p) = e_Gamma - lambda (p / p_ref)^0.7) and fits m, e_Gamma, lambda (``INTERLOCKING``) after the rule's
 parameters; with ``--cell-spread`` also the cells' spread of friction s (``Interlocking.cell_spread``, last); ``--psi`` (with ``--void-ratio``) puts the map on the state parameter (``PSI``); ``--orders L,S`` another Lebedev order and spin count (cheap scouting).
 
-``--max-nfev 0`` evaluates the start (no fit); ``--max-seconds T`` stops each fit after T s of wall time at the lowest chi-square set it has run (each new lowest goes to stderr). ``--increment`` refines the shear increment (isotropic: the smaller of it and 1e-3). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
+``--max-nfev 0`` evaluates the start (no fit); ``--max-seconds T`` stops each fit after T s of wall time at the lowest chi-square set it has run (each new lowest goes to stderr); ``--fd-step F`` the Jacobian's step, F of each bound's width. ``--increment`` refines the shear increment (isotropic: the smaller of it and 1e-3). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
 data and model); the printout is the .txt when run through tee.
 """
 
@@ -197,6 +197,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--orders", default="", help="LEBEDEV,SPINS: a cheaper or finer orientation rule")
     parser.add_argument("--max-seconds", type=float, default=0.0,
                         help="stop each fit after this wall time [s] at the lowest chi-square set it has run (0: none)")
+    parser.add_argument("--fd-step", type=float, default=0.0,
+                        help="the Jacobian's forward-difference step as a fraction of each bound's width (0: MAP_STEP)")
     parser.add_argument("--tag", default="")
     args = parser.parse_args(argv)
     if args.figure:
@@ -248,6 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         return r
 
     start.MAP_MAX_EVALUATIONS = args.max_nfev
+    if args.fd_step > 0:
+        start.MAP_STEP = args.fd_step
     cell = "plain cell" if args.plain else "critical state (" + ", ".join(names or ("DEFAULTS[3]",)) + " fitted)"
     if args.interlocking:
         cell += " + interlocking friction (m, e_gamma, lambda_c fitted)"
@@ -273,15 +277,15 @@ def main(argv: list[str] | None = None) -> int:
                     x=None, calls=0)
         try:
             chi_square, result = start.least_squares_fit(residuals, np.clip(x0, lo, hi), lo, hi)
-            x_fit, nfev, stopped = result.x, int(result.nfev), False
+            x_fit, nfev, stopped, why = result.x, int(result.nfev), False, str(result.message)
         except _OutOfTime:  # --max-seconds: the lowest set run so far
-            chi_square, x_fit, nfev, stopped = seen["chi_square"], seen["x"], int(seen["calls"]), True
+            chi_square, x_fit, nfev, stopped, why = seen["chi_square"], seen["x"], int(seen["calls"]), True, "--max-seconds"
         fits.append({"start_alpha0": a0, "chi_square": chi_square, "x": x_fit.tolist(), "nfev": nfev,
-                     "stopped_at_max_seconds": stopped, "seconds": time.perf_counter() - t0})
+                     "stopped_at_max_seconds": stopped, "termination": why, "fd_step": start.MAP_STEP, "seconds": time.perf_counter() - t0})
         print(f"fit from alpha0 {a0:g}: chi-square {chi_square:.4g} at " + ", ".join(
             f"{c} {v:.4g}" for c, v in zip(coords, x_fit)) + f" ({nfev} iterations, "
-            f"{time.perf_counter() - t0:.0f} s" + (", stopped at --max-seconds: lowest set so far" if stopped else "")
-            + ")", flush=True)
+            f"{time.perf_counter() - t0:.0f} s" + (", stopped at --max-seconds: lowest set so far" if stopped else
+                                                    f"; {why}") + ")", flush=True)
     best = min(fits, key=lambda f: f["chi_square"]) if args.max_nfev else fits[0]
     x = np.array(best["x"])[None, :]
     rows, chi2, curves_out = {}, 0.0, {}
