@@ -9,7 +9,7 @@ set). Installs into this interpreter's environment.
 
     .venv/bin/python .ci/uv_pip_install.py [pip install arguments, e.g. torch==2.13.0, -e '.[dev]']
 
-Needs uv (MIT or Apache-2.0) in the same environment: ``python -m pip install uv``. Exit status: uv's.
+Installs uv (MIT or Apache-2.0) with pip into the same environment if it is not there. Exit status: uv's.
 """
 
 from __future__ import annotations
@@ -55,6 +55,8 @@ def uv_command(options: dict[str, str], argv: list[str]) -> list[str]:
 
 
 def main(argv: list[str]) -> int:
+    if not Path(sys.executable).with_name("uv").exists():  # an environment made before the Makefile used uv
+        subprocess.run([sys.executable, "-m", "pip", "install", "uv"], check=True)
     options = pip_options()
     env = dict(os.environ)
     if options.get("cert"):
