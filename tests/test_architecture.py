@@ -303,3 +303,26 @@ def test_the_command_modules_of_warp_hcell_are_the_python_m_entries():
     for module in COMMAND_MODULES:
         path = ROOT / Path(*module.split(".")).with_suffix(".py")
         assert _imports_the_command_helpers(path) and "__main__" in path.read_text(), module
+
+
+DIMENSION_BRANCH = re.compile(r"n?dim == [23]")
+"""The layout's count of branches on the dimension: ``dim == 2``/``3`` (or ``ndim``) written in the source."""
+DIMENSION_BRANCHES_MAX = 15
+"""At most this many, each in a module whose job is the dimension (docs/architecture.md)."""
+
+
+def _dimension_branches(paths) -> list[str]:
+    """Each line of ``paths`` that branches on the dimension, as 'path:line'."""
+    return [f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}:{number}" for path in paths
+            for number, line in enumerate(path.read_text().splitlines(), 1) if DIMENSION_BRANCH.search(line)]
+
+
+def test_the_dimension_is_data_not_branches():
+    branches = _dimension_branches(MODULES)
+    assert len(branches) <= DIMENSION_BRANCHES_MAX, "\n".join(branches)
+
+
+def test_the_branch_count_sees_a_branch(tmp_path):
+    module = tmp_path / "m.py"
+    module.write_text("def f(dim):\n    return 1 if dim == 3 else 2\nx = a.ndim == 2\ny = dim >= 2\n")
+    assert len(_dimension_branches([module])) == 2
