@@ -55,7 +55,8 @@ def _cells_last(values: np.ndarray) -> np.ndarray:
     moved last; a view where the state came from ``FastAdvance`` (whose state arrays are views of
     cells-last arrays), a copy otherwise."""
     values = np.asarray(values)
-    moved = values.T if values.ndim <= 2 else values.transpose((*range(1, values.ndim), 0))  # .T (the cheaper call) moves axis 0 last for up to two axes
+    # .T, the cheaper call, moves axis 0 last where there are at most two axes
+    moved = values.T if values.ndim <= 2 else values.transpose((*range(1, values.ndim), 0))
     return moved if moved.dtype == np.float64 and moved.flags.c_contiguous else np.ascontiguousarray(
         moved, dtype=np.float64)
 
