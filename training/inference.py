@@ -421,15 +421,11 @@ class FastAdvance:
                 d_free[:] = 0.0
             elif self.guess == "affine":
                 d_free[:] = -free * d_eps.T[self.cells.free_dofs[:, 1]]
-            ratios, steps = np.empty((2, n)), np.empty(n, dtype=np.int64)
-            shortened, shifted = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
             self._hold(size, free, d_eps, d_free, self.cells, self.law, work.before)
             if held is not None:
                 d_free[np.asarray(held, dtype=bool).T] = 0.0
             guess = d_free.copy()
-            self._corrected(size, free, shear, d_eps, d_free, work.before, ratios, steps, shortened, shifted)
-            self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, work.before, result)
-            self._local.corrections = Corrections(ratios, steps, shortened, shifted)
+            self._balance(size, free, shear, d_eps, d_free, work.before, result)
             self._local.last = _Last(size, free, shear, d_eps, work.before, guess)
         elif not fused:
             self._advance(size, free, shear, d_eps, out, self.cells, self.law, self.scaling, work.before, result)
@@ -479,11 +475,16 @@ class FastAdvance:
         d_eps = np.ascontiguousarray(last.d_eps[index])
         d_free = take(last.guess)
         d_free[np.asarray(held, dtype=bool).T] = 0.0
-        m = d_eps.shape[0]
-        ratios, steps = np.empty((2, m)), np.empty(m, dtype=np.int64)
-        shortened, shifted = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+        result = self._result(d_eps.shape[0])
+        self._balance(size, free, shear, d_eps, d_free, before, result)
+        return self._outcome(result)
+
+    def _balance(self, size, free, shear, d_eps, d_free, before: Before, result: Advanced) -> None:
+        """The equilibrium corrections of the first guess ``d_free`` (n_free, n) [m] (in place), then the contact law
+        at the corrected positions into ``result``; this thread's ``last_corrections`` then holds their counts."""
+        n = d_eps.shape[0]
+        ratios, steps = np.empty((2, n)), np.empty(n, dtype=np.int64)
+        shortened, shifted = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
         self._corrected(size, free, shear, d_eps, d_free, before, ratios, steps, shortened, shifted)
-        result = self._result(m)
         self._physics(size, free, shear, d_eps, d_free, self.cells, self.law, before, result)
         self._local.corrections = Corrections(ratios, steps, shortened, shifted)
-        return self._outcome(result)
