@@ -150,7 +150,7 @@ def _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, st
         curves.channel(name)[missed] = np.nan
     if stats is not None and hook is not None:
         stats.update(friction_shear_start=at_shear.get("phi"), friction_end=hook.friction_deg.copy(),
-                     floored=hook.floored.copy())
+                     floored=hook.floored.copy(), fallbacks=hook.fallbacks.copy())
     count = points.renewal.count if points.renewal is not None else np.zeros(X.shape[0], dtype=np.int64)
     return curves, np.asarray(count)
 
@@ -298,7 +298,8 @@ def main(argv: list[str] | None = None) -> int:
         rows[name] = {"role": "predicted" if name == predicted else "fitted", **row(test, c, 0, int(count[0]))}
         if stats:
             rows[name].update(friction_shear_start=float(stats["friction_shear_start"][0]),
-                              friction_end=float(stats["friction_end"][0]), e_c_floored=int(stats["floored"][0]))
+                              friction_end=float(stats["friction_end"][0]), e_c_floored=int(stats["floored"][0]),
+                              friction_fallbacks=int(stats["fallbacks"][0]))
         curves_out[name] = {"eps1": test.eps1.tolist(), "q": c.q[0].tolist(), "eps_v": c.eps_v[0].tolist(),
                             "q_data": test.observed["q"].tolist(), "eps_v_data": test.observed["eps_v"].tolist()}
     seconds = time.perf_counter() - started
@@ -307,8 +308,10 @@ def main(argv: list[str] | None = None) -> int:
           + f"; chi-square fitted {chi2:.4g}; {evaluations[0]} sets, {seconds:.0f} s, load {os.getloadavg()[0]:.1f}")
     print_prediction_table(rows, fallbacks=True)
     if args.interlocking:
-        print("interlocking friction [deg] at the start of shear -> at the end (clipped e_c): " + ", ".join(
-            f"{k} {v['friction_shear_start']:.2f} -> {v['friction_end']:.2f} ({v['e_c_floored']})" for k, v in rows.items()))
+        print("interlocking friction [deg] at the start of shear -> at the end (increments with e_c clipped, with "
+              "the friction back at phi_mu): " + ", ".join(
+                  f"{k} {v['friction_shear_start']:.2f} -> {v['friction_end']:.2f} ({v['e_c_floored']}, "
+                  f"{v['friction_fallbacks']})" for k, v in rows.items()))
     print("renewals per point: " + ", ".join(f"{k} {v['renewals']}" for k, v in rows.items())
           + "; d eps_v / d eps1 over the last five points: "
           + ", ".join(f"{k} {v['dilatancy_end']:+.2f}" for k, v in rows.items()))

@@ -72,7 +72,7 @@ def test_each_point_runs_at_its_own_state_and_dense_points_gain_strength():
                                rtol=1e-12)
     assert np.all(start > full["phi_g"] + 3.0)  # e0 well below e_Gamma
     assert np.all(hook.friction_deg < seen[0])  # dilated in shear: e nearer e_c
-    assert hook.floored.sum() == 0
+    assert hook.floored.sum() == 0 and hook.fallbacks.sum() == 0
     plain = forward.simulate(TEST, SETS, SETTINGS)
     assert np.all(curves.q.max(axis=1) > 1.1 * plain.q.max(axis=1))
 
@@ -160,3 +160,14 @@ def test_the_lagged_void_ratio_follows_the_distortion():
     expected = mobilised_friction_deg(full["phi_g"], hook.e_lagged, points.mean(points.state.stress), 2.0, 0.7, 0.02,
                                       0.7, rule.p_ref)
     np.testing.assert_allclose(hook.friction_deg, expected, rtol=1e-12)
+
+
+def test_a_friction_at_90_deg_falls_back_to_phi_mu_and_is_counted():
+    """A point so dense that its mobilised friction reaches 90 deg steps with phi_mu instead, counted per point."""
+    full = forward.full_parameters(SETS, SETTINGS)
+    points = forward.population(full, SETTINGS, 3)
+    per_set = {"m": np.array([1.5, 400.0]), "e_gamma": np.array([0.75, 0.75]), "lambda_c": np.array([0.05, 0.05])}
+    hook = InterlockingFriction(Interlocking(), points.material, points.state, full["phi_g"], np.array([0.55, 0.55]),
+                                per_set)
+    assert hook.fallbacks.tolist() == [0, 1]
+    assert hook.friction_deg[1] == full["phi_g"][1] and hook.friction_deg[0] > full["phi_g"][0]

@@ -1,4 +1,4 @@
-"""Interlocking friction of a calibration's population (opt-in: ``ForwardSettings.interlocking``).
+"""Interlocking friction of a calibration's population (opt-in: ``forward.simulate(..., interlocking=...)``).
 
 After the form of Chang & Hicher (2005, IJSS 42): the friction mobilised at the contacts of a material point
 depends on its void ratio e relative to a critical one at its mean stress p,
@@ -100,12 +100,11 @@ def spread_factors(n_cells: int, spread: float) -> np.ndarray:
 
 
 def friction_owner(model: Any) -> Any:
-    """The object whose per-cell friction coefficient ``mu`` (n_cells,) a population's cell model steps with:
-    the 3D cell's planar cells, else the model itself; ValueError (one line) where neither holds one."""
-    owner = getattr(model, "plane", model)
-    if np.ndim(getattr(owner, "mu", None)) != 1:
+    """``model``, whose per-cell friction coefficient ``mu`` (n_cells,) its cells step with; ValueError (one line)
+    where it holds none."""
+    if np.ndim(getattr(model, "mu", None)) != 1:
         raise ValueError("the interlocking friction needs a cell model with per-cell laws (with_cell_laws)")
-    return owner
+    return model
 
 
 class InterlockingFriction:
@@ -123,6 +122,7 @@ class InterlockingFriction:
             ``params``'.
         inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
     Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped;
+    ``fallbacks`` (n,): increments whose friction fell back to phi_mu (not finite, or not below 90 deg);
     ``e_lagged`` (n,): the lagged void ratio (the void ratio itself without ``relax_strain``).
     """
 
@@ -147,6 +147,7 @@ class InterlockingFriction:
         self.phi_mu_deg = np.broadcast_to(np.asarray(phi_mu_deg, dtype=np.float64), (n,)).copy()
         self.e0 = np.broadcast_to(np.asarray(e0, dtype=np.float64), (n,)).copy()
         self.floored = np.zeros(n, dtype=np.int64)
+        self.fallbacks = np.zeros(n, dtype=np.int64)
         self.friction_deg = self.phi_mu_deg.copy()
         self._record = dimension(material.dim)
         self._mean = self._record.mean_stress
@@ -171,7 +172,9 @@ class InterlockingFriction:
             phi = mobilised_friction_deg(self.phi_mu_deg, e, p, self.m, self.e_gamma, self.lambda_c, self.params.xi,
                                          self.params.p_ref)
         self.floored += (e_c < E_C_FLOOR).astype(np.int64)
-        return np.where(np.isfinite(phi) & (phi < 90.0), phi, self.phi_mu_deg)
+        usable = np.isfinite(phi) & (phi < 90.0)
+        self.fallbacks += (~usable).astype(np.int64)
+        return np.where(usable, phi, self.phi_mu_deg)
 
     def set_from(self, state: MaterialState) -> None:
         """Set every cell's friction (and the inner renewal's fresh cells') from ``state``."""
