@@ -171,3 +171,23 @@ def test_a_friction_at_90_deg_falls_back_to_phi_mu_and_is_counted():
                                 per_set)
     assert hook.fallbacks.tolist() == [0, 1]
     assert hook.friction_deg[1] == full["phi_g"][1] and hook.friction_deg[0] > full["phi_g"][0]
+
+
+def test_xi_per_set_in_one_batch():
+    """forward.simulate reads xi_c per set: xi_c = 0.7 is the rule's default xi bit for bit; a batch of two xi runs
+    each set as a run with that xi alone does; a larger xi at p above p_ref lowers e_c, so less strength."""
+    test = replace(TEST, void_ratio=0.55, p0=3e5)
+    rule = Interlocking(m=2.0, e_gamma=0.7, lambda_c=0.05)
+    sets = {**{k: v for k, v in SETS.items() if k != "alpha0"}, "e_min": np.array([0.45, 0.45]),
+            "e_max": np.array([0.7, 0.7])}
+    base = forward.simulate(test, sets, SETTINGS, interlocking=rule)
+    same = forward.simulate(test, {**sets, "xi_c": np.full(2, 0.7)}, SETTINGS, interlocking=rule)
+    for name in ("q", "p", "eps_v"):
+        np.testing.assert_array_equal(same.channel(name), base.channel(name))
+    both = forward.simulate(test, {**sets, "xi_c": np.array([0.4, 1.0])}, SETTINGS, interlocking=rule)
+    for i, xi in enumerate((0.4, 1.0)):
+        alone = forward.simulate(test, sets, SETTINGS, interlocking=replace(rule, xi=xi))
+        np.testing.assert_allclose(both.q[i], alone.q[i], rtol=1e-12)
+    assert np.all(np.isfinite(both.q)) and both.q[0].max() > 1.01 * alone.q[0].max()
+    with pytest.raises(ValueError, match="xi"):
+        forward.simulate(test, {**sets, "xi_c": np.array([0.7, 1.5])}, SETTINGS, interlocking=rule)

@@ -9,7 +9,9 @@ phi_mu the set's contact friction angle (phi_g). A point denser than e_c(p) has 
 phi_mu as it dilates to e_c; a denser point at a lower pressure gets more. e = (1 + e0) J - 1, e0 the point's
 void ratio where J = 1, J and p those of the accepted state; the friction is set before every increment
 (explicit: each trial of an increment sees the same friction). ``InterlockingFriction`` sets it on the
-population's per-cell friction (``with_cell_laws``' cells) and on a critical-state renewal's fresh cells.
+population's per-cell friction (``with_cell_laws``' cells) and on a critical-state renewal's fresh cells. m, e_Gamma,
+lambda, xi and s (below) may differ from point to point (per calibration set: ``FIELDS``), so one batch holds sets
+of different xi.
 
 Opt-in lag (``Interlocking.relax_strain`` gamma_r > 0): the rule reads a lagged void ratio e_r instead of e, which
 follows e over distortion, d e_r = -(e_r - e) d gamma / gamma_r (exact over an increment: e_r - e scaled by
@@ -41,7 +43,8 @@ P_REF = 101325.0
 """Reference pressure p_ref [Pa] of the critical-state line (one atmosphere)."""
 E_C_FLOOR = 0.05
 """Smallest critical void ratio [-]: e_c(p) is clipped to it (counted: ``InterlockingFriction.floored``)."""
-FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "cell_spread": "cell_spread"}
+FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi",
+          "cell_spread": "cell_spread"}
 """Per-set parameters (calibration name -> ``Interlocking`` field) that ``simulate`` reads from its params."""
 
 
@@ -77,13 +80,13 @@ class Interlocking:
                 raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
 
 
-def critical_void_ratio(p: Any, e_gamma: Any, lambda_c: Any, xi: float, p_ref: float) -> np.ndarray:
-    """e_c(p) = e_Gamma - lambda (max(p, 0) / p_ref)^xi [-] (broadcast), before ``E_C_FLOOR``."""
+def critical_void_ratio(p: Any, e_gamma: Any, lambda_c: Any, xi: Any, p_ref: float) -> np.ndarray:
+    """e_c(p) = e_Gamma - lambda (max(p, 0) / p_ref)^xi [-] (broadcast, xi too), before ``E_C_FLOOR``."""
     p = np.maximum(np.asarray(p, dtype=np.float64), 0.0)
     return np.asarray(e_gamma, dtype=np.float64) - np.asarray(lambda_c, dtype=np.float64) * (p / p_ref) ** xi
 
 
-def mobilised_friction_deg(phi_mu_deg: Any, e: Any, p: Any, m: Any, e_gamma: Any, lambda_c: Any, xi: float,
+def mobilised_friction_deg(phi_mu_deg: Any, e: Any, p: Any, m: Any, e_gamma: Any, lambda_c: Any, xi: Any,
                            p_ref: float) -> np.ndarray:
     """phi [deg] with tan phi = (e_c(p) / e)^m tan phi_mu (broadcast; e_c clipped to ``E_C_FLOOR``), in (0, 90)."""
     e_c = np.maximum(critical_void_ratio(p, e_gamma, lambda_c, xi, p_ref), E_C_FLOOR)
@@ -112,13 +115,13 @@ class InterlockingFriction:
     critical-state renewal or None, which runs first).
 
     Args:
-        params: the line's xi, p_ref and relax_strain (and m, e_gamma, lambda_c, cell_spread where ``per_point``
+        params: the line's p_ref and relax_strain (and m, e_gamma, lambda_c, xi, cell_spread where ``per_point``
             lacks them).
         material: the population (``forward.population(...).material``), n points of n_cells cells.
         state: its initial state (the friction is set from it at once).
         phi_mu_deg: each point's phi_mu [deg], shape (n,).
         e0: each point's void ratio at J = 1 [-], shape (n,).
-        per_point: m, e_gamma, lambda_c, cell_spread per point (``Interlocking`` field -> shape (n,)); None:
+        per_point: m, e_gamma, lambda_c, xi, cell_spread per point (``Interlocking`` field -> shape (n,)); None:
             ``params``'.
         inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
     Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped;
@@ -136,14 +139,14 @@ class InterlockingFriction:
         if np.size(self.owner.mu) != n * self.n_cells:
             raise ValueError(f"the cell model holds {np.size(self.owner.mu)} frictions for {n} points of "
                              f"{self.n_cells} cells")
-        keys = ("m", "e_gamma", "lambda_c", "cell_spread")
+        keys = ("m", "e_gamma", "lambda_c", "xi", "cell_spread")
         values = {name: getattr(params, name) for name in keys}
         values.update(per_point or {})
-        self.m, self.e_gamma, self.lambda_c, self.cell_spread = (
+        self.m, self.e_gamma, self.lambda_c, self.xi, self.cell_spread = (
             np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy() for k in keys)
         for i in range(n):
             replace(params, m=float(self.m[i]), e_gamma=float(self.e_gamma[i]), lambda_c=float(self.lambda_c[i]),
-                    cell_spread=float(self.cell_spread[i])).check()
+                    xi=float(self.xi[i]), cell_spread=float(self.cell_spread[i])).check()
         self.phi_mu_deg = np.broadcast_to(np.asarray(phi_mu_deg, dtype=np.float64), (n,)).copy()
         self.e0 = np.broadcast_to(np.asarray(e0, dtype=np.float64), (n,)).copy()
         self.floored = np.zeros(n, dtype=np.int64)
@@ -168,8 +171,8 @@ class InterlockingFriction:
         e = current_void_ratio(self.e0, state.J) if self.params.relax_strain == 0.0 else self.e_lagged
         p = self._mean(state.stress)
         with np.errstate(all="ignore"):
-            e_c = critical_void_ratio(p, self.e_gamma, self.lambda_c, self.params.xi, self.params.p_ref)
-            phi = mobilised_friction_deg(self.phi_mu_deg, e, p, self.m, self.e_gamma, self.lambda_c, self.params.xi,
+            e_c = critical_void_ratio(p, self.e_gamma, self.lambda_c, self.xi, self.params.p_ref)
+            phi = mobilised_friction_deg(self.phi_mu_deg, e, p, self.m, self.e_gamma, self.lambda_c, self.xi,
                                          self.params.p_ref)
         self.floored += (e_c < E_C_FLOOR).astype(np.int64)
         usable = np.isfinite(phi) & (phi < 90.0)
