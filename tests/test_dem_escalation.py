@@ -10,7 +10,7 @@ import pytest
 from ann3d_increment_worker import relaxing_network
 from homogenization.ann import default_model_path
 from homogenization.ann.cell import AnnCell3D
-from homogenization.ann.escalation import DemEscalation
+from homogenization.ann.escalation import DemEscalation, RELEASE_RULE, RELEASE_RULE_AFTER
 from training.inference import FastAdvance
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.database.learning_state import evaluate
@@ -37,6 +37,22 @@ def _released_by_hand(schema, cell_size, before, after, kn, ratio) -> np.ndarray
             moved = any(after[c, k] != before[c, k] for k, (g, _) in enumerate(schema.free_dofs) if g == grain)
             pressed = any(f > ratio * largest for pair, f in force.items() if grain in pair)
             out[c] |= moved and not pressed
+    return out
+
+
+def _resting_by_hand(schema, cell_size, free, kn, ratio) -> np.ndarray:
+    """bool (n, n_free): the free DOFs of the grains that no pair presses with a normal force above ``ratio`` times
+    the cell's largest (linear law), one grain and one pair at a time."""
+    out = np.zeros(free.shape, dtype=bool)
+    for c in range(cell_size.shape[0]):
+        x = schema.reference_position * cell_size[c] / schema.reference_cell_size
+        for k, (grain, axis) in enumerate(schema.free_dofs):
+            x[grain, axis] = free[c, k]
+        force = {(int(i), int(j)): kn * max(schema.radius[i] + schema.radius[j] - np.linalg.norm(x[j] - x[i]), 0.0)
+                 for i, j in schema.pairs}
+        largest = max(force.values())
+        for k, (grain, _) in enumerate(schema.free_dofs):
+            out[c, k] = not any(f > ratio * largest for pair, f in force.items() if int(grain) in pair)
     return out
 
 
@@ -88,6 +104,30 @@ def test_released_cells_are_those_with_a_grain_that_moved_and_that_nothing_press
     assert 0 < released(pressed).sum() < released(touching).sum()  # pressed: released only where a lateral sphere is
 
 
+def test_resting_grains_are_those_that_nothing_presses_at_the_start():
+    meso = mesostructure_arg(str(LARGE_AXIAL)).build(None)
+    schema, law = meso.schema(), ContactLaw()
+    ratio = 1e-4
+    escalation = DemEscalation(meso, law, meso.contact_tolerance, force_ratio=ratio)
+    (size, free, shear), d_eps = _hard_cases()
+    inc = FastAdvance(relaxing_network(), 20, ratio)(size, free, shear, d_eps)
+    fine_grain = int(np.bincount(schema.free_dofs[:, 0]).argmax())
+    touching = _in_touch_with(schema, inc.cell_size, inc.free_position, fine_grain, 0, 1e-13)
+    pressed = _in_touch_with(schema, inc.cell_size, inc.free_position, fine_grain, 0, 1e-2)
+    seen = np.zeros(2, dtype=bool)
+    for cell_size, position in ((size, free), (inc.cell_size, inc.free_position), (inc.cell_size, touching),
+                                (inc.cell_size, pressed)):
+        got = escalation.resting_dofs(cell_size, position)
+        assert np.array_equal(got, _resting_by_hand(schema, cell_size, position, law.kn, ratio))
+        seen |= (got.any(), (~got).any())
+    assert seen.all()  # both kinds of grain among the cases
+    fine = schema.free_dofs[:, 0] == fine_grain
+    assert escalation.resting_dofs(inc.cell_size, touching)[:, fine].all()
+    untouched = mesostructure_arg(str(LARGE_AXIAL)).build(None)
+    start = np.tile(untouched.position[schema.free_dofs[:, 0], schema.free_dofs[:, 1]], (2, 1))
+    assert escalation.resting_dofs(np.tile(untouched.cell_size, (2, 1)), start).all()  # a cell that carries no force
+
+
 def test_sliding_cells_are_those_where_a_grain_free_along_every_axis_slides_on_a_pressed_contact():
     meso = mesostructure_arg(str(LARGE_AXIAL)).build(None)
     schema, law = meso.schema(), ContactLaw()
@@ -136,7 +176,7 @@ def test_the_escalated_increment_is_the_dems_equilibrium_in_the_learning_state()
 def test_the_hybrid_takes_the_released_cells_again_from_rest_and_counts_them(monkeypatch):
     meso = mesostructure_arg("hcell3d:alpha0=55").build(None)
     hybrid = AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=2, equilibrium_tolerance=1e-3,
-                       dem_escalation=True)
+                       dem_escalation=True, release_rule=RELEASE_RULE_AFTER)
     assert AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=2).escalation is None  # plain cell
     assert AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=0).escalation is None
     state = hybrid.init_state(meso, 3)
@@ -157,6 +197,37 @@ def test_the_hybrid_takes_the_released_cells_again_from_rest_and_counts_them(mon
     for whole, kept in zip((*out, response.moment, response.area), (*plain, plain_response.moment, plain_response.area)):
         assert np.array_equal(whole[[0, 2]], np.asarray(kept)[[0, 2]])
     assert not np.array_equal(out.free_position[1], plain.free_position[1])  # another first guess, another balance
+
+
+@pytest.mark.skipif(not SHIPPED_3D.is_file(), reason="3D model not installed")
+def test_the_hybrid_starts_the_resting_grains_at_rest_and_takes_again_the_cells_released_beyond_them(monkeypatch):
+    meso = mesostructure_arg("hcell3d:alpha0=55").build(None)
+    hybrid = AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D, equilibrium_corrections=2, equilibrium_tolerance=1e-3,
+                       dem_escalation=True)
+    assert hybrid.release_rule == RELEASE_RULE  # no certificate of a rule: this package's
+    state = hybrid.init_state(meso, 3)
+    for _ in range(5):
+        state, _ = hybrid.step(state, np.full((3, 3), 2e-4))
+    d_eps = np.tile([1e-4, -5e-5, -5e-5], (3, 1))
+    n_free = hybrid.arrays.schema.free_dofs.shape[0]
+    resting, released = np.zeros((3, n_free), dtype=bool), np.zeros((3, n_free), dtype=bool)
+    resting[0, 0] = resting[2, 0] = True
+    released[0, 0] = True  # started at rest, pushed and released: the rule's end, not taken again
+    released[1, :2] = True  # released, none resting: taken again with them at rest
+    released[2, 1] = True  # released beyond its resting grain: taken again with both at rest
+    monkeypatch.setattr(hybrid.escalation, "resting_dofs", lambda *args: resting)
+    monkeypatch.setattr(hybrid.escalation, "released_dofs",
+                        lambda size, *args: released if len(size) == 3 else np.zeros((len(size), n_free), dtype=bool))
+    out, response = hybrid.step(state, d_eps)
+    d = response.diagnostics
+    assert (d["n_released"], d["n_resting"], d["n_released_pushed"], d["n_escalated"]) == (3, 2, 1, 0)
+    plain, _ = hybrid.fast.increment(*state, d_eps)
+    for c, held in ((0, resting[0]), (1, released[1]), (2, resting[2] | released[2])):
+        again, _ = hybrid.fast.increment(*(np.asarray(a)[c:c + 1] for a in state), d_eps[c:c + 1], held=held[None])
+        for whole, part in zip((*out, response.moment, response.area),
+                               (again.cell_size, again.free_position, again.shear_force, again.moment, again.area)):
+            assert np.array_equal(whole[c:c + 1], part)
+        assert not np.array_equal(out.free_position[c], plain.free_position[c])  # another first guess, another balance
 
 
 def test_a_certificate_counts_the_released_grains_where_the_hybrid_reports_them():

@@ -14,7 +14,7 @@ import pytest
 from homogenization.ann import default_model_path
 from homogenization.ann.cell import AnnCell3D
 from homogenization.ann.envelope import has_fine_grains
-from homogenization.ann.escalation import RELEASE_RULE
+from homogenization.ann.escalation import RELEASE_RULE, RELEASE_RULE_AFTER, RELEASE_RULES
 from homogenization.cli import learn as learn_cli
 from homogenization.cli import train as train_cli
 from homogenization.learning.settings import (default_equilibrium, FINES_EQUILIBRIUM_CORRECTIONS,
@@ -108,11 +108,18 @@ def test_a_run_takes_the_corrections_its_certificate_measured_without_flags(tmp_
     assert cell.escalation is None  # a certificate that records no DEM escalation measured the hybrid without it
     escalated = AnnCell3D(ContactLaw(), 0.5, model=model, dem_escalation=True).certificate_problem
     assert escalated is not None and "without the DEM's increment" in escalated
-    for rule, covered in ((None, False), ("a grain that moved and overlaps nothing", False), (RELEASE_RULE, True)):
+    for rule, covered in ((None, False), ("a grain that moved and overlaps nothing", False), (RELEASE_RULE, True),
+                          (RELEASE_RULE_AFTER, True)):
         meta["certificate"]["settings"].update(dem_escalation=True, dem_escalation_rule=rule)
         model.with_suffix(".json").write_text(json.dumps(meta))
-        problem = AnnCell3D(ContactLaw(), 0.5, model=model, dem_escalation=True).certificate_problem
+        cell = AnnCell3D(ContactLaw(), 0.5, model=model, dem_escalation=True)
+        problem = cell.certificate_problem
         assert (problem is None) == covered and (covered or "by another rule" in problem)
+        if covered:  # the cell runs the rule its certificate measured, and no other one is covered by it
+            assert cell.release_rule == rule
+            other = next(r for r in RELEASE_RULES if r != rule)
+            problem = AnnCell3D(ContactLaw(), 0.5, model=model, dem_escalation=True, release_rule=other).certificate_problem
+            assert problem is not None and "by another rule" in problem
     meta["certificate"]["settings"].update(dem_escalation=False)
     del meta["certificate"]["settings"]["dem_escalation_rule"]
     model.with_suffix(".json").write_text(json.dumps(meta))

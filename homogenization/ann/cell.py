@@ -37,7 +37,9 @@ shortened, and those whose matrix was shifted; ``training.fast_equilibrium3d``),
 ``force_ratio_network_max`` and ``force_ratio_max`` (the largest force ratio before and after) and
 ``n_escalated`` (cells handed to the DEM's own increment from rest because a free grain moved and ends
 touching nothing, which the corrections cannot place: ``homogenization.ann.escalation``; off with
-``dem_escalation=False``), and the model's certificate covers it only where that certificate measured this very hybrid
+``dem_escalation=False``; on CPU ``n_released`` cells taken again with that grain at rest instead, and under
+``escalation.RELEASE_RULE`` ``n_resting`` cells whose grains nothing pressed started the corrections at rest),
+and the model's certificate covers it only where that certificate measured this very hybrid
 (``hmodel certify --equilibrium-corrections K``: same K and tolerance; ``certificate_problem`` says
 otherwise, as it does for a run of the network alone under a certificate of the hybrid). Each ``step``
 reports in ``CellResponse.diagnostics`` how many cells a branch of the contact law touched:
@@ -73,7 +75,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 
 from homogenization.ann import default_model_path, envelope
-from homogenization.ann.escalation import DemEscalation
+from homogenization.ann.escalation import DemEscalation, RELEASE_RULE, RELEASE_RULES
 from homogenization.ann.ood import OOD_INTERVAL, OodMonitor
 from homogenization.ann.policy import CertificatePolicy, default_escalation
 from homogenization.ann.records import Certificate, certificate_of
@@ -124,6 +126,8 @@ class AnnCell(ArrayStateMixin):
             certificate's, else the DEM's.
         dem_escalation: with K > 0, the DEM's increment for released grains (``ann.escalation``);
             None: the certificate's choice, else ``default_escalation``.
+        release_rule: with the escalation on CPU, what is done with the grains nothing presses, one of
+            ``escalation.RELEASE_RULES``; None: the one the certificate records, else ``RELEASE_RULE``.
         card: ``model``'s JSON already read, or None.
 
     Raises:
@@ -139,7 +143,8 @@ class AnnCell(ArrayStateMixin):
     def __init__(self, contact_law: ContactLaw, radius: float, *, model: str | Path | None = None,
                  device: str = "cpu", threads: int = 1, ood_interval: int = OOD_INTERVAL,
                  equilibrium_corrections: int | None = None, equilibrium_tolerance: float | None = None,
-                 dem_escalation: bool | None = None, card: ModelCard | None = None) -> None:
+                 dem_escalation: bool | None = None, card: ModelCard | None = None,
+                 release_rule: str | None = None) -> None:
         require_linear_law(contact_law, "the meso-ANN backend (its networks learn from DEM databases of the linear law)")
         self.contact_law = contact_law
         self.radius = check_positive("radius", radius)
@@ -192,8 +197,16 @@ class AnnCell(ArrayStateMixin):
                            if self.equilibrium_corrections and (default_escalation(self.metadata)
                                                                 if dem_escalation is None else dem_escalation)
                            else None)
+        certified = certificate_of(self.metadata)
+        recorded = None if certified is None else envelope.escalation_rule_of(certified)
+        if release_rule is None:
+            release_rule = recorded if recorded in RELEASE_RULES else RELEASE_RULE
+        if release_rule not in RELEASE_RULES:
+            raise ValueError(f"release rule {release_rule!r}: one of {RELEASE_RULES}")
+        self.release_rule = release_rule
+        """What the hybrid does with the grains nothing presses (``homogenization.ann.escalation.RELEASE_RULES``)."""
         self.policy = CertificatePolicy(self.metadata, path, self.dim, self.equilibrium_corrections,
-                                        self.force_tolerance, self.escalation is not None)
+                                        self.force_tolerance, self.escalation is not None, self.release_rule)
         """The certificate and its envelope (``homogenization.ann.policy.CertificatePolicy``)."""
         self.ood_monitor = OodMonitor(self.arrays, path, ood_interval)
         """The out-of-distribution checks (``homogenization.ann.ood.OodMonitor``)."""
@@ -301,7 +314,8 @@ class AnnCell(ArrayStateMixin):
         """
         due = self.ood_monitor.due(state)
         if self.fast is not None and not (with_tangent and not self.fast.has_tangent):
-            inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent)
+            resting = self._resting(state)
+            inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent, held=resting)
             features = self.fast.last_features()[probe_columns(self.arrays):].T if due else None
             capped, opened, mechanism, scaled, held = self.fast.last_counts().tolist()
             diagnostics = {"n_coulomb_capped": float(capped), "n_tension_clipped": float(opened),
@@ -310,7 +324,7 @@ class AnnCell(ArrayStateMixin):
                            **self._correction_diagnostics(*(self.fast.last_corrections() or (None,) * 4)),
                            **self.ood_monitor.diagnostics(due, state, features)}
             return self._escalated(state, d_eps_local, AnnState(inc.cell_size, inc.free_position, inc.shear_force),
-                                   CellResponse(inc.moment, inc.area, diagnostics, tangent))
+                                   CellResponse(inc.moment, inc.area, diagnostics, tangent), resting)
         import torch  # noqa: PLC0415
         from training import cell_physics  # noqa: PLC0415
 
@@ -341,22 +355,39 @@ class AnnCell(ArrayStateMixin):
         return self._escalated(state, d_eps_local, new,
                                CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent))
 
+    def _resting(self, state: AnnState) -> np.ndarray | None:
+        """bool (n, n_free): the free DOFs that start the corrections at rest under ``RELEASE_RULE``, those of the
+        grains nothing presses at the start (``DemEscalation.resting_dofs``); None under another rule or without
+        the escalation."""
+        if self.escalation is None or self.release_rule != RELEASE_RULE:
+            return None
+        return self.escalation.resting_dofs(state.cell_size, state.free_position)
+
     def _escalated(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState,
-                   response: CellResponse) -> tuple[AnnState, CellResponse]:
+                   response: CellResponse, resting: np.ndarray | None = None) -> tuple[AnnState, CellResponse]:
         """``new`` and ``response`` where a grain is released (``DemEscalation.released``; hybrids with
         ``dem_escalation`` only, counted in ``n_released``): on CPU the increment again from rest for that grain
-        (``_held_at_rest``), on another device the DEM's increment, as with ``sliding`` the sliding cells
-        (counted in ``n_escalated``). The tangent of such a cell stays the hybrid's (stress control's search
-        direction only)."""
+        (``_held_at_rest``) unless it started there (``resting``, (n, n_free) bool; cells with one counted in
+        ``n_resting``, the released among them in ``n_released_pushed``), on another device the DEM's increment,
+        as with ``sliding`` the sliding cells (counted in ``n_escalated``). The tangent of such a cell stays the
+        hybrid's (stress control's search direction only)."""
         if self.escalation is None:
             return new, response
         released = self.escalation.released_dofs(new.cell_size, state.free_position, new.free_position)
         escalated = released.any(axis=1)
         response.diagnostics["n_released"] = float(np.count_nonzero(escalated))
         response.diagnostics["n_released_pushed"] = 0.0
+        if resting is not None:
+            response.diagnostics["n_resting"] = float(np.count_nonzero(resting.any(axis=1)))
+            again = (released & ~resting).any(axis=1)
+            pushed = float(np.count_nonzero(escalated & ~again))  # started at rest, pushed, released: the rule's end
+            released |= resting
+            escalated = again
         if escalated.any() and self.fast is not None:
             new, response = self._held_at_rest(state, d_eps_local, new, response, np.flatnonzero(escalated), released)
             escalated = np.zeros_like(escalated)
+        if resting is not None:
+            response.diagnostics["n_released_pushed"] += pushed
         if self.escalation.with_sliding:
             escalated |= self.escalation.sliding(new.cell_size, new.free_position, new.shear_force)
         response.diagnostics["n_escalated"] = float(np.count_nonzero(escalated))
@@ -437,7 +468,7 @@ class AnnCell(ArrayStateMixin):
         if not self.equilibrium_corrections:
             return np.zeros(d.shape[0])
         if self.fast is not None:
-            self.fast.increment(*state, d, False)
+            self.fast.increment(*state, d, False, held=self._resting(state))
             return np.asarray(self.fast.last_corrections().force_ratio[1])
         import torch  # noqa: PLC0415
 

@@ -14,7 +14,9 @@ which the homogenised stress shows as a drop at another strain (docs/ann.md, "Re
 
 ``DemEscalation.released`` finds those cell-increments (``n_released``); on CPU the hybrid takes them again
 with the released grain starting the corrections at rest (``AnnCell._held_at_rest``): a grain nothing pushes
-stays, as in the DEM, one a neighbour pushes moves as far as the balance needs. ``DemEscalation.advance``,
+stays, as in the DEM, one a neighbour pushes moves as far as the balance needs. Under ``RELEASE_RULE`` the
+grains that nothing presses at the start of the increment (``DemEscalation.resting_dofs``, ``n_resting``) start
+the corrections at rest at once, and only a cell whose other grains end released is balanced again. ``DemEscalation.advance``,
 the DEM's increment from the cell's learning state at rest (``warp_hcell.database.probing.step_from_rest``),
 replaces them on other devices and serves the sliding cells; the ANN backend counts it in ``n_escalated``.
 
@@ -45,20 +47,29 @@ if TYPE_CHECKING:
     from warp_hcell.dem.model import DemModel
 
 
-RELEASE_RULE = ("a free grain moved and no pair presses it above the equilibrium tolerance: the corrections start "
-                "again with that grain at rest")
-"""What the hybrid does with ``DemEscalation.released`` cells, in words (``homogenization.ann.cell.AnnCell``); a
-certificate of a hybrid with the escalation records it (``dem_escalation_rule``), and a certificate of another rule
-(e.g. the DEM's increment from rest for those cells) does not cover this one."""
+RELEASE_RULE_AFTER = ("a free grain moved and no pair presses it above the equilibrium tolerance: the corrections "
+                      "start again with that grain at rest")
+"""The earlier rule, in words: a released grain is found after the balance (``DemEscalation.released``) and its cell
+balanced again with that grain starting at rest."""
+RELEASE_RULE = ("a free grain that no pair presses above the equilibrium tolerance at the start of the increment starts "
+                "the corrections at rest; one that moved and no pair presses: the corrections start again with that "
+                "grain at rest")
+"""What the hybrid does with the grains that nothing presses, in words (``homogenization.ann.cell.AnnCell``): those
+resting at the start of the increment (``DemEscalation.resting_dofs``) start the balance at rest, and a cell whose
+other grains end released (``DemEscalation.released``) is balanced again with them at rest too. A certificate of a
+hybrid with the escalation records its rule (``dem_escalation_rule``) and covers that rule only."""
+RELEASE_RULES = (RELEASE_RULE, RELEASE_RULE_AFTER)
+"""The rules the CPU hybrid runs; a certificate recording one of them runs with it (new certificates: ``RELEASE_RULE``)."""
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _released(size, before, after, reference_position, reference_size, free_dofs, pairs, rsum, cut2, kn, ratio, out,
-              dofs):
+              dofs, every):
     """``DemEscalation.released`` of cells last: size (dim, n) [m], before and after (n_free, n) [m]; the
     schema's reference_position (n_grains, dim) and reference_size (dim,) [m], free_dofs (n_free, 2) and
     pairs (n_pairs, 2) int64, rsum and cut2 (n_pairs,) [m, m^2]; kn [N/m]; ratio [-]. Writes out (n,) bool
-    and dofs (n_free, n) bool, the free DOFs of the released grains."""
+    and dofs (n_free, n) bool, the free DOFs of the released grains; every (bool): every grain counts as moved
+    (dofs: those of the grains nothing presses at ``after``)."""
     n = size.shape[1]
     n_grains, dim = reference_position.shape
     x = np.empty((n_grains, dim, n))
@@ -66,7 +77,7 @@ def _released(size, before, after, reference_position, reference_size, free_dofs
         for a in range(dim):
             for c in range(n):
                 x[g, a, c] = reference_position[g, a] * (size[a, c] / reference_size[a])
-    moved = np.zeros((n_grains, n), dtype=np.bool_)
+    moved = np.full((n_grains, n), every, dtype=np.bool_)
     for k in range(free_dofs.shape[0]):
         g, a = free_dofs[k, 0], free_dofs[k, 1]
         for c in range(n):
@@ -168,12 +179,22 @@ class DemEscalation:
 
     def released_dofs(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray) -> np.ndarray:
         """bool (n, n_free): the free DOFs of the grains that ``released`` finds (same arguments)."""
+        return self._test(cell_size, free_before, free_after, False)
+
+    def resting_dofs(self, cell_size: np.ndarray, free_position: np.ndarray) -> np.ndarray:
+        """bool (n, n_free): the free DOFs of the grains that no pair presses in the state (cell_size (n, dim),
+        free_position (n, n_free) [m]): each of their pairs' normal force is at most ``force_ratio`` times the
+        cell's largest (``released``'s test without the motion; every grain of a cell that carries no force)."""
+        return self._test(cell_size, free_position, free_position, True)
+
+    def _test(self, cell_size, free_before, free_after, every: bool) -> np.ndarray:
+        """The DOFs of ``_released`` (n, n_free), cells first."""
         cells_last = lambda a: np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)  # noqa: E731
         n = np.shape(cell_size)[0]
         out, dofs = np.empty(n, dtype=np.bool_), np.empty((self._free_dofs.shape[0], n), dtype=np.bool_)
         _released(cells_last(cell_size), cells_last(free_before), cells_last(free_after), self._reference_position,
                   self._reference_size, self._free_dofs, self._pairs, self._rsum, self._cut2,
-                  float(self.contact_law.kn), self.force_ratio, out, dofs)
+                  float(self.contact_law.kn), self.force_ratio, out, dofs, bool(every))
         return dofs.T
 
     def _batch(self, n: int) -> tuple[ProbeContext, DemModel]:

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from homogenization.ann import default_model_path, envelope
-from homogenization.ann.escalation import RELEASE_RULE
+from homogenization.ann.escalation import RELEASE_RULES
 from homogenization.ann.records import Certificate, certificate_of
 from homogenization.material.orientation import cell_kinematics, kinematics_of
 from warp_hcell.core.dimension import dimension
@@ -31,7 +31,8 @@ def default_escalation(metadata: dict[str, Any]) -> bool:
 
 
 def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int = 0,
-                        tolerance: float | None = None, escalation: bool | None = None) -> str | None:
+                        tolerance: float | None = None, escalation: bool | None = None,
+                        rule: str | None = None) -> str | None:
     """Why model ``path`` (JSON ``metadata``) may not be used, in one line, or None if its
     certificate was measured on this very ``.pt`` (same sha256) and this very surrogate (the
     network with ``corrections`` equilibrium corrections at force ratio ``tolerance`` [-], the
@@ -39,7 +40,8 @@ def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int =
     and meets the minimum certificate (``envelope.MINIMUM``), read from its recorded settings, not from
     its ``passed`` flag. ``escalation``: whether the hybrid hands the cells with a released grain to the DEM
     (``AnnCell``'s ``dem_escalation``; None: ``default_escalation``); a certificate of the hybrid records
-    whether it did (``envelope.escalation_of``)."""
+    whether it did (``envelope.escalation_of``) and by which rule (``rule``, one of ``escalation.RELEASE_RULES``;
+    None: any of them, the cell running the one its certificate records)."""
     cert = certificate_of(metadata)
     if cert is None:
         return (f"{path}: the model is uncertified (certify it: python -m homogenization.certify "
@@ -57,10 +59,11 @@ def certificate_problem(metadata: dict[str, Any], path: Path, corrections: int =
         return (f"{path}: its certificate measured the hybrid {said[envelope.escalation_of(cert)]} the DEM's "
                 f"increment in cells with a released grain, this run is {said[escalation]} it; certify the "
                 f"model again")
-    if corrections and escalation and envelope.escalation_rule_of(cert) != RELEASE_RULE:
+    recorded = envelope.escalation_rule_of(cert)
+    if corrections and escalation and (recorded not in RELEASE_RULES or (rule is not None and recorded != rule)):
         return (f"{path}: its certificate measured the hybrid handing cells to the DEM by another rule "
-                f"({envelope.escalation_rule_of(cert) or 'a grain that moved and overlaps nothing'}) than this "
-                f"package's ({RELEASE_RULE}); certify the model again")
+                f"({recorded or 'a grain that moved and overlaps nothing'}) than this run's "
+                f"({rule or RELEASE_RULES[0]}); certify the model again")
     result = envelope.verdict(cert)
     if result == "failed" or (result == "passed" and not cert.passed):
         return (f"{path}: the model failed its certificate (worst {100 * float(cert.worst):.3g} % of the scale "
@@ -110,7 +113,7 @@ class CertificatePolicy:
         metadata: the model's JSON.
         path: the model file (``.pt``).
         dim: the model's cell dimension (its stress unit).
-        corrections, tolerance, escalation: the surrogate the cell runs (``certificate_problem``).
+        corrections, tolerance, escalation, rule: the surrogate the cell runs (``certificate_problem``).
 
     Attributes:
         certificate: the JSON's certificate (None: uncertified).
@@ -118,11 +121,11 @@ class CertificatePolicy:
     """
 
     def __init__(self, metadata: dict[str, Any], path: Path, dim: int, corrections: int, tolerance: float | None,
-                 escalation: bool) -> None:
+                 escalation: bool, rule: str | None = None) -> None:
         self.path = path
         self.dim = int(dim)
         self.certificate: Certificate | None = certificate_of(metadata)
-        self.problem: str | None = certificate_problem(metadata, path, corrections, tolerance, escalation)
+        self.problem: str | None = certificate_problem(metadata, path, corrections, tolerance, escalation, rule)
 
     @property
     def envelope(self) -> dict[str, Any] | None:

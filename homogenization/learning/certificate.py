@@ -364,7 +364,8 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     model_path = Path(model_path)
     card = read_card(model_path) if card is None else card
     law = card.law
-    hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": equilibrium_tolerance}
+    hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": equilibrium_tolerance,
+               "release_rule": RELEASE_RULE}
               if equilibrium_corrections else {"equilibrium_corrections": 0})  # never the model's earlier certificate's
     ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads, card=card, **hybrid)
     meso = mesostructure if mesostructure is not None else from_description(card.mesostructure)
