@@ -12,7 +12,8 @@ test the ratio ANN / DEM of the medians beside the accuracy (largest difference 
 sigma33, p and q over the shear stage, increment by increment, over the path's scale max(p0, largest DEM
 p)) and the hybrid's counts: Newton corrections per increment (every step call, trial calls included),
 cells corrected per increment, cell-increments with a released grain (taken again from rest; of them
-those whose grain a neighbour pushed), escalated to the DEM, left unconverged, step calls with a tangent
+those whose grain a neighbour pushed), those whose grains nothing pressed started at rest (the released-grain
+rule of newer certificates, ``homogenization.ann.escalation.RELEASE_RULE``), escalated to the DEM, left unconverged, step calls with a tangent
 and the cells of those calls that took no correction (their tangent is that of their balance, not the
 network's), and the ANN's step wall time split into phases [s]. A table of all cells and tests ends the
 output. The load average is printed before and after. JSON lines with ``--json``.
@@ -199,7 +200,8 @@ def main(argv=None) -> int:
         ann = ann_model(model_path, timer, args.equilibrium_corrections, args.equilibrium_tolerance)
         tangents = TangentCount(ann)
         print(f"{mesostructure}; model {model_path} (K = {ann.equilibrium_corrections}, R = {ann.force_tolerance:g}, "
-              f"DEM escalation {'on' if ann.escalation is not None else 'off'}; {ann.certificate_problem or 'certified'}); "
+              f"DEM escalation {'on' if ann.escalation is not None else 'off'}, released-grain rule "
+              f"{getattr(ann, 'release_rule', None)!r}; {ann.certificate_problem or 'certified'}); "
               f"rule {args.order} x {args.spins}; load average {os.getloadavg()}", flush=True)
         compile_args = argparse.Namespace(**{**vars(args), "order": 3, "spins": 1})
         for model in (dem, ann):
@@ -227,6 +229,7 @@ def main(argv=None) -> int:
                       "corrected_per_increment": total(record, "n_corrected_all_calls") / n,
                       "released": total(record, "n_released_all_calls"),
                       "released_pushed": total(record, "n_released_pushed_all_calls"),
+                      "resting": total(record, "n_resting_all_calls"),
                       "escalated": total(record, "n_escalated_all_calls"),
                       "unconverged": total(record, "n_unconverged_all_calls"),
                       "step_calls": float(record.newton_iterations.sum()),
@@ -238,8 +241,9 @@ def main(argv=None) -> int:
                   f"{worst / scale:.2e} (scale {scale:.3g} Pa); {cells} cells, "
                   f"{n} increments, {counts['step_calls']:.0f} step calls; Newton corrections per increment "
                   f"{counts['corrections_per_increment']:.0f}, cells corrected per increment "
-                  f"{counts['corrected_per_increment']:.0f}; cell-increments released {counts['released']:.0f} (taken "
-                  f"again from rest; of them pushed {counts['released_pushed']:.0f}), escalated to the DEM "
+                  f"{counts['corrected_per_increment']:.0f}; cell-increments started with a resting grain at rest "
+                  f"{counts['resting']:.0f}, released {counts['released']:.0f} (taken again from rest unless their "
+                  f"grain started there; of them pushed {counts['released_pushed']:.0f}), escalated to the DEM "
                   f"{counts['escalated']:.0f}, unconverged {counts['unconverged']:.0f}; {tangents.calls} calls with a "
                   f"tangent, {tangents.uncorrected} of their cell steps uncorrected", flush=True)
             print("  ANN phases [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in phase.items()), flush=True)
