@@ -3,6 +3,8 @@ with the commands' output verbosity at its default (a command's ``main`` called 
 leaves the process quiet, as ``run_main`` would not). The modules with the longest tests run first
 (``LONG_FIRST``), so that with ``make test``'s work stealing no long test is left alone at the end."""
 
+import fcntl
+import json
 import os
 
 import pytest
@@ -32,6 +34,31 @@ def _default_verbosity():
     from warp_hcell.core import cli  # noqa: PLC0415
     yield
     cli._OUTPUT.quiet = False
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "other_cpus(check): compares a check of tests/other_cpus.py (CHECKS) with its "
+                                       "run on other CPUs (fixture other_cpus)")
+
+
+@pytest.fixture(scope="session")
+def other_cpus(request, tmp_path_factory):
+    """``other_cpus.Runs`` of the checks that this session's tests marked ``other_cpus`` name: the first test process
+    that asks runs them (one process per CPU, every check at once); the others (pytest-xdist workers) wait for it
+    and read its results."""
+    import other_cpus as runs  # noqa: PLC0415 (imports torch: only where asked)
+    from homogenization.ann import default_model_path  # noqa: PLC0415
+
+    checks = sorted({mark.args[0] for item in request.session.items for mark in item.iter_markers("other_cpus")})
+    checks = [c for c in checks if default_model_path(3).is_file() or not runs.CHECKS[c].shipped_3d]
+    root = tmp_path_factory.getbasetemp()
+    root = root.parent if os.environ.get("PYTEST_XDIST_WORKER") else root  # shared by the workers of this session
+    directory, done = root / "other_cpus", root / "other_cpus.json"
+    with open(root / "other_cpus.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.is_file():
+            done.write_text(json.dumps(runs.run_other_cpus(directory, checks)))
+    return runs.Runs(directory, json.loads(done.read_text()))
 
 
 LONG_FIRST = ("test_training_equilibrium3d.py", "test_homogenization_certificate_hybrid.py",

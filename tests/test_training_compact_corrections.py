@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ann3d_increment_worker import relaxing_network
+from other_cpus import relaxing_network
 from training.inference import COMPACT_ROUNDS, FastAdvance
 
 ROOT = Path(__file__).resolve().parents[1]

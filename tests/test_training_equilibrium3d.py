@@ -10,7 +10,6 @@ of 1e-8 m); corrected compiled and torch steps within 3.6e-15 of the largest mom
 4.9e-9 of the largest entry (steps of 1e-7). The tolerances are about 5 times these.
 """
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -22,7 +21,7 @@ import numpy as np
 import pytest
 import torch
 
-from ann3d_increment_worker import relaxing_network
+from other_cpus import HARD_CASES, OTHER_CPUS, relaxing_network, sheared as shared_sheared, sheared_probe, sub_batch
 from homogenization.ann import default_model_path
 from homogenization.ann.cell import AnnCell, AnnCell3D
 from training import cell_physics
@@ -32,7 +31,6 @@ from training.fast_equilibrium3d import pair_force_jacobian, residual3, residual
 from training.inference import _cells_last, FastAdvance
 from warp_hcell.core.contact import CAP_SLACK
 from warp_hcell.core.parameters import ContactLaw
-from warp_hcell.mesostructures.builders import mesostructure_arg
 
 ROOT = Path(__file__).resolve().parents[1]
 needs_model = pytest.mark.skipif(not default_model_path(3).is_file(), reason="no shipped 3D model")
@@ -42,16 +40,7 @@ needs_model = pytest.mark.skipif(not default_model_path(3).is_file(), reason="no
 def sheared():
     """30 spatial cells of the shipped model, compressed isotropically then sheared at random deviatoric
     rates (contacts slide), and one undrained probe."""
-    cell = AnnCell3D(ContactLaw(), 0.5)
-    meso = mesostructure_arg("hcell3d:alpha0=55").build(55.0)
-    rng = np.random.default_rng(0)
-    n = 30
-    state = cell.init_state(meso, n)
-    for k in range(300):
-        d = (np.full((n, 3), 1e-4) if k < 100 else
-             np.column_stack([np.full(n, 1e-4), -0.5e-4 + 3e-5 * rng.standard_normal(n), -0.5e-4 + 3e-5 * rng.standard_normal(n)]))
-        state, _ = cell.step(state, d)
-    return cell, meso, state, np.tile([1e-4, -0.5e-4, -0.5e-4], (n, 1))
+    return shared_sheared()
 
 
 @needs_model
@@ -131,30 +120,29 @@ def test_corrections_bring_every_cell_to_the_dem_tolerance_and_are_counted(shear
     assert np.array_equal(none.free_position, np.asarray(state.free_position))
 
 
-OTHER_CPUS = {"SSE2 vectors, software FMA": "generic", "AVX vectors without FMA hardware": "sandybridge"}
-"""``NUMBA_CPU_NAME`` of another CPU, emulated on this one: the corrected increment must not change a bit."""
+def assert_same_on_other_cpus(other_cpus, check: str) -> None:
+    """Every field of ``check``'s corrected increment (``tests/other_cpus.py``), counts included, bit-identical on each
+    other CPU to this process, whole batch and sub-batch."""
+    for setting in OTHER_CPUS:
+        here, index, other = other_cpus.compare(check, setting)
+        for name, value in here.items():
+            np.testing.assert_array_equal(other[f"whole_{name}"], value, err_msg=f"{name}, {setting}")
+            np.testing.assert_array_equal(other[f"part_{name}"], sub_batch(name, value, index),
+                                          err_msg=f"{name} of a sub-batch, {setting}")
 
 
 @needs_model
-def test_a_cells_corrected_increment_is_bit_identical_in_any_batch_and_on_other_cpus(sheared, tmp_path):
+@pytest.mark.other_cpus("corrected")
+def test_a_cells_corrected_increment_is_bit_identical_in_any_batch_and_on_other_cpus(sheared, other_cpus):
     cell, _, state, d_eps = sheared
-    d_eps = d_eps * (1.0 + 0.3 * np.random.default_rng(2).standard_normal((d_eps.shape[0], 1)))
+    d_eps = sheared_probe(d_eps)
     fast = FastAdvance(cell.net, 2, 1e-6)
     whole = {**fast(*state, d_eps)._asdict(), **fast.last_corrections()._asdict()}
     index = np.array([5, 0, 29, 5, 17])
     part = {**fast(*(np.asarray(a)[index] for a in state), d_eps[index])._asdict(), **fast.last_corrections()._asdict()}
     for name, value in part.items():
-        np.testing.assert_array_equal(np.asarray(value), np.asarray(whole[name])[..., index] if name == "force_ratio"
-                                      else np.asarray(whole[name])[index], err_msg=name)
-    np.savez(tmp_path / "in.npz", cell_size=np.asarray(state.cell_size), free_position=np.asarray(state.free_position),
-             shear_force=np.asarray(state.shear_force), d_eps=d_eps, index=index)
-    for setting, cpu in OTHER_CPUS.items():
-        subprocess.run([sys.executable, str(ROOT / "tests" / "ann3d_increment_worker.py"), str(tmp_path / "in.npz"),
-                        str(tmp_path / "out.npz"), "2"], env={**os.environ, "NUMBA_CPU_NAME": cpu, "PYTHONPATH": str(ROOT)},
-                       check=True, cwd=ROOT)
-        other = np.load(tmp_path / "out.npz")
-        for name, value in whole.items():
-            np.testing.assert_array_equal(other[f"whole_{name}"], np.asarray(value), err_msg=f"{name}, {setting}")
+        np.testing.assert_array_equal(np.asarray(value), sub_batch(name, np.asarray(whole[name]), index), err_msg=name)
+    assert_same_on_other_cpus(other_cpus, "corrected")
 
 
 @needs_model
@@ -178,10 +166,6 @@ def test_torch_and_compiled_corrections_agree_and_the_tangent_is_the_equilibrium
         _, minus = cell.step(state, d_eps - step)
         fd[:, :, j] = (np.diagonal(plus.moment, axis1=1, axis2=2) - np.diagonal(minus.moment, axis1=1, axis2=2)) / (2 * h)
     assert np.abs(fd - torch_response.tangent).max() <= 2.5e-8 * np.abs(fd).max()
-
-
-HARD_CASES = ROOT / "tests" / "data" / "equilibrium" / "large_axial_hard.npz"
-"""Cell-increments of ``benchmarks/cells/large_axial.toml`` where full Newton steps fail (README beside it)."""
 
 
 def test_globalised_corrections_balance_cells_where_full_newton_steps_do_not():
@@ -211,8 +195,9 @@ def test_globalised_corrections_balance_cells_where_full_newton_steps_do_not():
     assert np.abs(out.increment.free_position.numpy() - inc.free_position).max() <= 1e-14
 
 
-def test_globalised_corrections_are_bit_identical_in_any_batch_and_on_other_cpus(tmp_path):
-    fast = FastAdvance(relaxing_network(), 20)  # the worker's: the DEM's tolerance
+@pytest.mark.other_cpus("globalised")
+def test_globalised_corrections_are_bit_identical_in_any_batch_and_on_other_cpus(other_cpus):
+    fast = FastAdvance(relaxing_network(), 20)  # the DEM's tolerance, as in tests/other_cpus.py
     data = np.load(HARD_CASES)
     state = tuple(data[name] for name in ("cell_size", "free_position", "shear_force"))
     whole = {**fast(*state, data["d_eps"])._asdict(), **fast.last_corrections()._asdict()}
@@ -220,16 +205,8 @@ def test_globalised_corrections_are_bit_identical_in_any_batch_and_on_other_cpus
     index = np.array([4, 0, 2, 0])
     part = {**fast(*(a[index] for a in state), data["d_eps"][index])._asdict(), **fast.last_corrections()._asdict()}
     for name, value in part.items():
-        np.testing.assert_array_equal(np.asarray(value), np.asarray(whole[name])[..., index] if name == "force_ratio"
-                                      else np.asarray(whole[name])[index], err_msg=name)
-    np.savez(tmp_path / "in.npz", **{name: data[name] for name in data.files}, index=index)
-    for setting, cpu in OTHER_CPUS.items():
-        subprocess.run([sys.executable, str(ROOT / "tests" / "ann3d_increment_worker.py"), str(tmp_path / "in.npz"),
-                        str(tmp_path / "out.npz"), "20", "large_axial"],
-                       env={**os.environ, "NUMBA_CPU_NAME": cpu, "PYTHONPATH": str(ROOT)}, check=True, cwd=ROOT)
-        other = np.load(tmp_path / "out.npz")
-        for name, value in whole.items():
-            np.testing.assert_array_equal(other[f"whole_{name}"], np.asarray(value), err_msg=f"{name}, {setting}")
+        np.testing.assert_array_equal(np.asarray(value), sub_batch(name, np.asarray(whole[name]), index), err_msg=name)
+    assert_same_on_other_cpus(other_cpus, "globalised")
 
 
 @needs_model

@@ -9,9 +9,6 @@ rounding of ~1e-11 of it in float64.
 """
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,13 +16,12 @@ import pytest
 import torch
 
 from fast_vs_torch import assert_fast_matches_torch
-from homogenization.ann.cell import AnnCell
+from other_cpus import OTHER_CPUS, planar_loaded
 from training.cell_physics import CellSchema
 from training.inference import FastAdvance, FastIncrement
 from training.perceptron import BLOCK as MLP_BLOCK
 from training.network import MesoNet
 from warp_hcell.mesostructures.builders import resolve_mesostructure
-from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.core.parameters import ContactLaw
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,17 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def loaded():
-    cell = AnnCell(ContactLaw(), 0.5)
-    rng = np.random.default_rng(1)
-    n = 40
-    state = cell.init_state([h_cell(a) for a in rng.uniform(35.0, 65.0, n)], n)
-    shear = np.stack([np.ones(n), -np.ones(n)], axis=1) * rng.choice([-1.0, 1.0], size=(n, 1))
-    for k in range(80):
-        state, _ = cell.step(state, np.full((n, 2), 4e-4) if k < 30 else 2e-4 * shear)
-    d = 1e-4 * shear + rng.normal(scale=2e-5, size=(n, 2))
-    d[0] = 0.0
-    d[1] = [3e-8, 0.0]
-    return cell, state, d
+    return planar_loaded()
 
 
 def _reference(cell, state, d):
@@ -163,29 +149,15 @@ def test_the_tangent_is_bit_identical_in_any_batch(loaded):
     np.testing.assert_array_equal(part, whole[index])
 
 
-NARROWER_CPUS = {
-    "SSE2 vectors, software FMA, other BLAS kernels": {"NUMBA_CPU_NAME": "generic", "OPENBLAS_CORETYPE": "Nehalem"},
-    "AVX vectors without FMA hardware": {"NUMBA_CPU_NAME": "sandybridge", "OPENBLAS_CORETYPE": "Sandybridge"},
-}
-"""Compiler settings of another CPU, emulated on this one: the increment must not change a bit."""
-
-
-@pytest.mark.parametrize("setting", list(NARROWER_CPUS))
-def test_a_cells_increment_and_tangent_do_not_depend_on_the_cpus_vector_width(loaded, setting, tmp_path):
-    """The compiled step re-run in a process compiled for narrower vectors (and other BLAS kernels):
-    every field, the tangent included, bit-identical to this process, whole batch and sub-batch."""
-    cell, state, d = loaded
-    index = np.array([5, 0, 39, 5, 17])
-    np.savez(tmp_path / "in.npz", cell_size=np.asarray(state.cell_size), free_position=np.asarray(state.free_position),
-             shear_force=np.asarray(state.shear_force), d_eps=d, index=index)
-    env = {**os.environ, **NARROWER_CPUS[setting], "PYTHONPATH": str(ROOT)}
-    subprocess.run([sys.executable, str(ROOT / "tests" / "ann_increment_worker.py"), str(tmp_path / "in.npz"),
-                    str(tmp_path / "out.npz")], env=env, check=True, cwd=ROOT)
-    other = np.load(tmp_path / "out.npz")
-    fast = FastAdvance(cell.net)
-    here = fast.increment(*state, d, with_tangent=True)
-    expected = {**{name: np.asarray(value) for name, value in here[0]._asdict().items()}, "tangent": here[1]}
-    for name, value in expected.items():
+@pytest.mark.other_cpus("planar")
+@pytest.mark.parametrize("setting", list(OTHER_CPUS))
+def test_a_cells_increment_and_tangent_do_not_depend_on_the_cpus_vector_width(other_cpus, setting):
+    """The compiled step of ``loaded`` re-run in a process compiled for narrower vectors (and other BLAS kernels,
+    ``tests/other_cpus.py``): every field, the tangent included, bit-identical to this process, whole batch and
+    sub-batch."""
+    here, index, other = other_cpus.compare("planar", setting)
+    assert "tangent" in here
+    for name, value in here.items():
         np.testing.assert_array_equal(other[f"whole_{name}"], value, err_msg=f"{name}, {setting}")
         np.testing.assert_array_equal(other[f"part_{name}"], value[index], err_msg=f"{name} of a sub-batch, {setting}")
 

@@ -11,26 +11,19 @@ force-free state, ~1e-9 from loaded ones), and a short undrained triaxial run wi
 (measured 8e-9).
 """
 
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
 
 from fast_vs_torch import assert_fast_matches_torch
+from other_cpus import OTHER_CPUS, spatial_loaded
 from homogenization.ann import default_model_path
-from homogenization.ann.cell import AnnCell3D
 from training import cell_physics
 from training.fast_cells import Advanced, Before
 from training.fast_step3d import features3d, physics3d
 from training.inference import _cells_last
-from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.builders import mesostructure_arg
 
-ROOT = Path(__file__).resolve().parents[1]
 needs_model = pytest.mark.skipif(not default_model_path(3).is_file(), reason="no shipped 3D model")
 STATE_FIELDS = ("cell_size", "free_position", "shear_force", "moment", "area")
 
@@ -39,18 +32,7 @@ STATE_FIELDS = ("cell_size", "free_position", "shear_force", "moment", "area")
 def loaded():
     """40 spatial cells compressed isotropically, then sheared at random deviatoric rates until
     contacts slide; the probes include a zero one and one below the relaxation ramp."""
-    cell = AnnCell3D(ContactLaw(), 0.5)
-    meso = mesostructure_arg("hcell3d:alpha0=55").build(55.0)
-    rng = np.random.default_rng(1)
-    n = 40
-    state = cell.init_state(meso, n)
-    shear = np.array([1.0, -0.5, -0.5]) * rng.choice([-1.0, 1.0], size=(n, 1)) + rng.normal(scale=0.3, size=(n, 3))
-    for k in range(150):
-        state, _ = cell.step(state, np.full((n, 3), 3e-4) if k < 30 else 2e-4 * shear)
-    d = 1e-4 * shear + rng.normal(scale=2e-5, size=(n, 3))
-    d[0] = 0.0
-    d[1] = [3e-8, 0.0, 0.0]
-    return cell, state, d
+    return spatial_loaded()
 
 
 def _reference(cell, state, d):
@@ -112,25 +94,16 @@ def test_a_cells_increment_is_bit_identical_in_any_batch_at_any_place(loaded):
             np.testing.assert_array_equal(getattr(part, name), getattr(whole, name)[index], err_msg=name)
 
 
-OTHER_CPUS = {"SSE2 vectors, software FMA": "generic", "AVX vectors without FMA hardware": "sandybridge"}
-"""``NUMBA_CPU_NAME`` of another CPU, emulated on this one: the increment must not change a bit."""
-
-
 @needs_model
+@pytest.mark.other_cpus("spatial")
 @pytest.mark.parametrize("setting", list(OTHER_CPUS))
-def test_a_cells_increment_does_not_depend_on_the_cpus_vector_width(loaded, setting, tmp_path):
-    cell, state, d = loaded
-    index = np.array([5, 0, 39, 5, 17])
-    np.savez(tmp_path / "in.npz", cell_size=np.asarray(state.cell_size), free_position=np.asarray(state.free_position),
-             shear_force=np.asarray(state.shear_force), d_eps=d, index=index)
-    env = {**os.environ, "NUMBA_CPU_NAME": OTHER_CPUS[setting], "PYTHONPATH": str(ROOT)}
-    subprocess.run([sys.executable, str(ROOT / "tests" / "ann3d_increment_worker.py"), str(tmp_path / "in.npz"),
-                    str(tmp_path / "out.npz")], env=env, check=True, cwd=ROOT)
-    other = np.load(tmp_path / "out.npz")
-    here = cell.fast(*state, d)
-    for name, value in here._asdict().items():
-        np.testing.assert_array_equal(other[f"whole_{name}"], np.asarray(value), err_msg=f"{name}, {setting}")
-        np.testing.assert_array_equal(other[f"part_{name}"], np.asarray(value)[index], err_msg=f"{name}, {setting}")
+def test_a_cells_increment_does_not_depend_on_the_cpus_vector_width(other_cpus, setting):
+    """The compiled step of ``loaded`` re-run in a process compiled for another CPU (``tests/other_cpus.py``): every
+    field bit-identical to this process, whole batch and sub-batch."""
+    here, index, other = other_cpus.compare("spatial", setting)
+    for name, value in here.items():
+        np.testing.assert_array_equal(other[f"whole_{name}"], value, err_msg=f"{name}, {setting}")
+        np.testing.assert_array_equal(other[f"part_{name}"], value[index], err_msg=f"{name} of a sub-batch, {setting}")
 
 
 @needs_model
