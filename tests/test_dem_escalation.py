@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ann3d_increment_worker import relaxing_network
+from other_cpus import relaxing_network
 from homogenization.ann import default_model_path
 from homogenization.ann.cell import AnnCell3D
 from homogenization.ann.escalation import DemEscalation, RELEASE_RULE, RELEASE_RULE_AFTER
