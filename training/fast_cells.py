@@ -163,13 +163,18 @@ def any_within(b0, b1, reach):
 def pair_branch(x, pairs, radius, tol, p, b0, b1):
     """Pair p = (i, j) at the grain centres x (n_grains, 2, n) [m]: writes its branch x_j - x_i
     into b0, b1 (n,) [m] and returns (i, j, r_i + r_j [m], reach (r_i + r_j)(1 + tol) [m],
-    whether some cell may be within reach (``any_within``))."""
+    whether some cell may be within reach (the test of ``any_within``))."""
     i = pairs[p, 0]
     j = pairs[p, 1]
     rsum = radius[i] + radius[j]
     reach = rsum * (1.0 + tol)
     xi0, xi1, xj0, xj1 = x[i, 0], x[i, 1], x[j, 0], x[j, 1]
+    bound = (reach * (1.0 + 1e-9)) ** 2  # any_within's test, in the same pass
+    near = 0
     for c in range(b0.shape[0]):
-        b0[c] = xj0[c] - xi0[c]
-        b1[c] = xj1[c] - xi1[c]
-    return i, j, rsum, reach, any_within(b0, b1, reach)
+        branch0 = xj0[c] - xi0[c]
+        branch1 = xj1[c] - xi1[c]
+        b0[c] = branch0
+        b1[c] = branch1
+        near += np.int64(branch0 * branch0 + branch1 * branch1 <= bound)
+    return i, j, rsum, reach, near > 0

@@ -133,14 +133,14 @@ def features(size, free, shear, d_eps, cells, law, scaling, before):
         row, mean, scale = feats[4 + n_free + k], feature_mean[4 + n_free + k], inv_std[4 + n_free + k]
         for c in range(n):
             row[c] = (free_k[c] / size_a[c] - mean) * scale
-    d0, d1 = d_eps[:, 0], d_eps[:, 1]
+    probe = d_eps.reshape(2 * n)  # d_eps[c, a] = probe[2 c + a]: a constant stride, so that the loops vectorise
     for c in range(n):
-        m_out[c] = math.sqrt(d0[c] * d0[c] + d1[c] * d1[c])
+        m_out[c] = math.sqrt(probe[2 * c] * probe[2 * c] + probe[2 * c + 1] * probe[2 * c + 1])
     for a in range(2):
-        d_a, size_a = d_eps[:, a], size[a]
+        size_a = size[a]
         row, mean, scale = feats[a], feature_mean[a], inv_std[a]
         for c in range(n):
-            row[c] = ((d_a[c] / m_out[c] if m_out[c] > 0 else 0.0) - mean) * scale
+            row[c] = ((probe[2 * c + a] / m_out[c] if m_out[c] > 0 else 0.0) - mean) * scale
         row, mean, scale = feats[2 + a], feature_mean[2 + a], inv_std[2 + a]
         for c in range(n):
             row[c] = (size_a[c] * inv_diameter - mean) * scale

@@ -67,48 +67,58 @@ def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, n
         touched_g, new_free_k, free_k, d_free_k = touched[free_dofs[k, 0]], new_free[k], free[k], d_free[k]
         for c in range(n):
             new_free_k[c] = free_k[c] + d_free_k[c] if touched_g[c] else free_k[c]
+    probe = d_eps.reshape(n * dim)  # d_eps[c, a] = probe[dim c + a]: a stride the loop vectorises with
     for a in range(dim):
-        new_size_a, size_a, d_eps_a = new_size[a], size[a], d_eps[:, a]
+        new_size_a, size_a = new_size[a], size[a]
         for c in range(n):
-            new_size_a[c] = size_a[c] * (1.0 - d_eps_a[c])
-    held = np.zeros((n_grains, n), dtype=np.bool_)
+            new_size_a[c] = size_a[c] * (1.0 - probe[dim * c + a])
+    n_untouched = 0
     for k in range(n_free):
-        held_g, touched_g = held[free_dofs[k, 0]], touched[free_dofs[k, 0]]
+        touched_g = touched[free_dofs[k, 0]]
         for c in range(n):
-            held_g[c] = not touched_g[c]
+            n_untouched += np.int64(not touched_g[c])
     x = np.empty((n_grains, dim, n))
-    for _ in range(n_grains):
-        if not held.any():
-            break
-        grain_positions(new_size, new_free, frac, free_dofs, x)
-        released = False
-        for p in range(pairs.shape[0]):
-            i = pairs[p, 0]
-            j = pairs[p, 1]
-            reach = (radius[i] + radius[j]) * (1.0 + tol)
-            for c in range(n):
-                if held[i, c] or held[j, c]:
-                    square = 0.0
-                    for a in range(dim):
-                        b = x[j, a, c] - x[i, a, c]
-                        square += b * b
-                    if math.sqrt(square) <= reach:
-                        held[i, c] = False
-                        held[j, c] = False
-                        released = True
-        if not released:
-            break
+    if n_untouched == 0:  # every free grain touches: none is held
+        held_dof[:] = False
+        n_held[:] = 0
+    else:
+        held = np.zeros((n_grains, n), dtype=np.bool_)
         for k in range(n_free):
-            g = free_dofs[k, 0]
+            held_g, touched_g = held[free_dofs[k, 0]], touched[free_dofs[k, 0]]
             for c in range(n):
-                new_free[k, c] = free[k, c] if held[g, c] else free[k, c] + d_free[k, c]
-    for k in range(n_free):
-        held_dof[k] = held[free_dofs[k, 0]]
-    n_held[:] = 0
-    for g in range(n_grains):
-        held_g = held[g]
-        for c in range(n):
-            n_held[c] += 1 if held_g[c] else 0
+                held_g[c] = not touched_g[c]
+        for _ in range(n_grains):
+            if not held.any():
+                break
+            grain_positions(new_size, new_free, frac, free_dofs, x)
+            released = False
+            for p in range(pairs.shape[0]):
+                i = pairs[p, 0]
+                j = pairs[p, 1]
+                reach = (radius[i] + radius[j]) * (1.0 + tol)
+                for c in range(n):
+                    if held[i, c] or held[j, c]:
+                        square = 0.0
+                        for a in range(dim):
+                            b = x[j, a, c] - x[i, a, c]
+                            square += b * b
+                        if math.sqrt(square) <= reach:
+                            held[i, c] = False
+                            held[j, c] = False
+                            released = True
+            if not released:
+                break
+            for k in range(n_free):
+                g = free_dofs[k, 0]
+                for c in range(n):
+                    new_free[k, c] = free[k, c] if held[g, c] else free[k, c] + d_free[k, c]
+        for k in range(n_free):
+            held_dof[k] = held[free_dofs[k, 0]]
+        n_held[:] = 0
+        for g in range(n_grains):
+            held_g = held[g]
+            for c in range(n):
+                n_held[c] += 1 if held_g[c] else 0
     grain_positions(new_size, new_free, frac, free_dofs, x)
     return x
 
@@ -145,19 +155,20 @@ def subtract_outer(moment, c, force, branch):
 def moment_flags(moment, m_in, ramp, mechanism, ramped, moment_out):
     """The mechanism flag (no pair carries force: the moment (dim, dim, n) is zero) and the ramp flag
     (load fraction m_in < ramp) of each cell (n,), and the moment copied cells first into moment_out
-    (n, dim, dim); dim 2 or 3."""
+    (n, dim, dim); dim 2 or 3. One pass over the cells per component (they vectorise)."""
     dim = moment.shape[0]
-    for c in range(moment.shape[2]):
-        zero = True
-        for a in range(dim):
-            for e in range(dim):
-                zero = zero and moment[a, e, c] == 0.0
-        mechanism[c] = zero
+    n = moment.shape[2]
+    for c in range(n):
         ramped[c] = m_in[c] < ramp
-    for c in range(moment.shape[2]):
-        for a in range(dim):
-            for e in range(dim):
-                moment_out[c, a, e] = moment[a, e, c]
+        mechanism[c] = True
+    flat = moment_out.reshape((n, dim * dim))
+    for a in range(dim):
+        for e in range(dim):
+            row, column = moment[a, e], a * dim + e
+            for c in range(n):
+                value = row[c]
+                mechanism[c] = mechanism[c] and value == 0.0
+                flat[c, column] = value
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -203,8 +214,9 @@ def contact_pass(x, shear, before, cells, law, new_shear, capped_any, opened_any
 
 @numba.njit(cache=True, error_model="numpy")
 def area_and_flags(x, moment, m_in, outer, ramp, area, mechanism, ramped, moment_out):
-    """The area (n,) [m^2] of the outer polygon, the mechanism and ramp flags (n,), and the moment
-    copied cells first into moment_out (n, 2, 2)."""
+    """The area (n,) [m^2] of the outer polygon, and as ``moment_flags`` the mechanism and ramp flags (n,) and
+    the moment (2, 2, n) copied cells first into moment_out (n, 2, 2) (here with the planar stride written
+    out, so that the copy vectorises)."""
     n = x.shape[2]
     n_outer = outer.shape[0]
     area[:] = 0.0
@@ -216,7 +228,16 @@ def area_and_flags(x, moment, m_in, outer, ramp, area, mechanism, ramped, moment
             area[c] += xi0[c] * xj1[c] - xj0[c] * xi1[c]
     for c in range(n):
         area[c] = 0.5 * abs(area[c])
-    moment_flags(moment, m_in, ramp, mechanism, ramped, moment_out)
+    m00, m01, m10, m11 = moment[0, 0], moment[0, 1], moment[1, 0], moment[1, 1]
+    for c in range(n):
+        ramped[c] = m_in[c] < ramp
+        mechanism[c] = m00[c] == 0.0 and m01[c] == 0.0 and m10[c] == 0.0 and m11[c] == 0.0
+    flat = moment_out.reshape(4 * n)
+    for c in range(n):
+        flat[4 * c] = m00[c]
+        flat[4 * c + 1] = m01[c]
+        flat[4 * c + 2] = m10[c]
+        flat[4 * c + 3] = m11[c]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -235,13 +256,19 @@ def advance(size, free, shear, d_eps, out, cells, law, scaling, before, result):
 def branch_counts(result, counts):
     """The cells (int64) of ``result`` (``training.fast_cells.Advanced``) that are capped, opened, mechanism,
     ramped, and the grains held at rest summed over the cells, written into ``counts`` (5,)."""
-    counts[:] = 0
-    for c in range(result.area.shape[0]):
-        counts[0] += result.capped[c]
-        counts[1] += result.opened[c]
-        counts[2] += result.mechanism[c]
-        counts[3] += result.ramped[c]
-        counts[4] += result.n_held[c]
+    capped, opened, mechanism, ramped, n_held = result.capped, result.opened, result.mechanism, result.ramped, result.n_held
+    n_capped = n_opened = n_mechanism = n_ramped = n_grains = 0
+    for c in range(n_held.shape[0]):
+        n_capped += np.int64(capped[c])
+        n_opened += np.int64(opened[c])
+        n_mechanism += np.int64(mechanism[c])
+        n_ramped += np.int64(ramped[c])
+        n_grains += n_held[c]
+    counts[0] = n_capped
+    counts[1] = n_opened
+    counts[2] = n_mechanism
+    counts[3] = n_ramped
+    counts[4] = n_grains
 
 
 @numba.njit(cache=True, error_model="numpy")

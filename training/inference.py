@@ -50,6 +50,10 @@ from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import DemSettings
 
 
+_FLOAT64, _BOOL, _INT64 = np.dtype(np.float64), np.dtype(np.bool_), np.dtype(np.int64)
+"""dtype objects: numpy takes these faster than the scalar types (a positional dtype: the keyword is slower)."""
+
+
 def _cells_last(values: np.ndarray) -> np.ndarray:
     """(k, n) or (k, 3, n) float64 C-contiguous per-cell ``values`` (n, k) or (n, k, 3) with the cell axis
     moved last; a view where the state came from ``FastAdvance`` (whose state arrays are views of
@@ -57,8 +61,7 @@ def _cells_last(values: np.ndarray) -> np.ndarray:
     values = np.asarray(values)
     # .T, the cheaper call, moves axis 0 last where there are at most two axes
     moved = values.T if values.ndim <= 2 else values.transpose((*range(1, values.ndim), 0))
-    return moved if moved.dtype == np.float64 and moved.flags.c_contiguous else np.ascontiguousarray(
-        moved, dtype=np.float64)
+    return moved if moved.dtype == _FLOAT64 and moved.flags.c_contiguous else np.ascontiguousarray(moved, _FLOAT64)
 
 
 class _Compiled:
@@ -76,9 +79,14 @@ class _Compiled:
         self._entry = None
 
     def __call__(self, *args):
+        return self.entry(args)(*args)
+
+    def entry(self, args: tuple):
+        """The entry point (called with ``*args``) of the first call's signature, compiled or loaded for ``args``
+        the first time."""
         if self._entry is None:
             self._entry = self._kernel.compile(tuple(self._kernel.typeof_pyval(a) for a in args))
-        return self._entry(*args)
+        return self._entry
 
 
 @dataclass(frozen=True)
@@ -208,11 +216,13 @@ class _Last(NamedTuple):
 class _Workspace(NamedTuple):
     """Scratch arrays of one ``FastAdvance`` call: ``before`` (``training.fast_cells.Before``, cells
     last), ``layers``, each perceptron layer's output (width, n padded: ``Perceptron.padded_buffers``) float32,
-    and ``counts`` (5,) int64 (``FastAdvance.last_counts``)."""
+    ``counts`` (5,) int64 (``FastAdvance.last_counts``), and ``shapes``, those of the state (cells last) and probe
+    that ``FastAdvance.increment`` takes."""
 
     before: Before
     layers: tuple
     counts: np.ndarray
+    shapes: tuple
 
 
 class FastAdvance:
@@ -266,6 +276,8 @@ class FastAdvance:
         self._forward = _Compiled(forward_layers)
         self._tangent = None if kernels.tangent is None else _Compiled(kernels.tangent)
         self._step = None if kernels.step is None else _Compiled(kernels.step)
+        self._tables = (self.cells, self.law, self.scaling, self.perceptron.weight, self.perceptron.bias)
+        self._step_entry = None
         self._padded_features = kernels.padded_features
         self._branch_counts = _Compiled(branch_counts)
         if int(corrections) < 0 or (int(corrections) > 0 and kernels.newton is None):
@@ -277,6 +289,7 @@ class FastAdvance:
             raise ValueError(f"guess = {guess!r}: one of {', '.join(self.GUESSES)}, another than the network's with "
                              f"corrections only")
         self.corrections = int(corrections)
+        self._fused = self._step is not None and not self.corrections
         self.guess = guess
         if self.corrections and (halvings is None or shift is None):
             from training.fast_equilibrium3d import HALVINGS, SHIFT  # noqa: PLC0415 (spatial kernels: imported on use)
@@ -349,9 +362,13 @@ class FastAdvance:
                             np.empty((n_free, n)), np.empty((n_pairs, self.dim, n)),
                             np.empty((n_pairs, n), dtype=np.bool_),
                             np.empty((n_pairs, n)))
-            work = _Workspace(before, self.perceptron.padded_buffers(n), np.empty(5, dtype=np.int64))
+            work = _Workspace(before, self.perceptron.padded_buffers(n), np.empty(5, dtype=np.int64), self._shapes(n))
             self._local.work = work
         return work
+
+    def _shapes(self, n: int) -> tuple:
+        """The shapes of the state (cells last) and probe of ``n`` cells that ``increment`` takes."""
+        return (self.dim, n), (self.cells.free_dofs.shape[0], n), (*self._springs, n), (n, self.dim)
 
     def _mlp_tangent(self, work: _Workspace, f_dot: np.ndarray) -> np.ndarray:
         """Derivative of the network output along d_eps_n and d_eps_t, (2, n_outputs, n) float32, from
@@ -393,29 +410,35 @@ class FastAdvance:
         if with_tangent and not self.has_tangent:
             raise ValueError("the compiled tangent is planar, or of corrected spatial cells; take this one from torch autograd")
         size, free, shear = _cells_last(cell_size), _cells_last(free_position), _cells_last(shear_force)
-        d_eps = np.ascontiguousarray(d_eps, dtype=np.float64)
-        n, n_free, springs = size.shape[-1], self.cells.free_dofs.shape[0], self._springs
-        shear_shape = (*springs, n)
-        if size.shape != (dim, n) or free.shape != (n_free, n) or shear.shape != shear_shape or d_eps.shape != (n, dim):
-            raise ValueError(f"state shapes {cell_size.shape}, {free_position.shape}, {shear_force.shape} and d_eps "
-                             f"{d_eps.shape}: expected (n, {dim}), (n, {n_free}), (n, {', '.join(map(str, springs))}),"
-                             f" (n, {dim})")
+        d_eps = np.ascontiguousarray(d_eps, _FLOAT64)
+        n = size.shape[-1]
+        shapes = (size.shape, free.shape, shear.shape, d_eps.shape)
+        work = getattr(self._local, "work", None)
+        if work is None or shapes != work.shapes:  # another number of cells, or shapes that do not fit
+            if shapes != self._shapes(n):
+                n_free, springs = self.cells.free_dofs.shape[0], self._springs
+                raise ValueError(f"state shapes {cell_size.shape}, {free_position.shape}, {shear_force.shape} and "
+                                 f"d_eps {d_eps.shape}: expected (n, {dim}), (n, {n_free}), "
+                                 f"(n, {', '.join(map(str, springs))}), (n, {dim})")
+            work = self._workspace(n)
         if held is not None and not self.corrections:
             raise ValueError("held: a first guess of the corrections, and this FastAdvance takes none")
-        work = self._workspace(n)
         out = work.layers[-1]
         result = self._result(n)
         counts = work.counts
-        fused = self._step is not None and not self.corrections
+        fused = self._fused
         if fused:  # features, perceptron, advance and branch counts in one compiled call
-            self._step(size, free, shear, d_eps, self.cells, self.law, self.scaling, self.perceptron.weight,
-                       self.perceptron.bias, work.before, work.layers, result, counts)
+            args = (size, free, shear, d_eps, *self._tables, work.before, work.layers, result, counts)
+            step = self._step_entry
+            if step is None:
+                step = self._step_entry = self._step.entry(args)
+            step(*args)
         else:
             self._features(size, free, shear, d_eps, self.cells, self.law, self.scaling, work.before)
             self._forward(self.perceptron.weight, self.perceptron.bias, work.before.feats, work.layers)
-        self._local.corrections = None
-        self._local.last = None
         if self.corrections:
+            self._local.corrections = None
+            self._local.last = None
             d_free = self._displacement(out, work.before.m, work.before.unbalanced, self.scaling, self.law)
             if self.guess == "still":
                 d_free[:] = 0.0
@@ -447,10 +470,10 @@ class FastAdvance:
     def _result(self, n: int) -> Advanced:
         """Empty ``Advanced`` arrays of ``n`` cells."""
         dim, n_free = self.dim, self.cells.free_dofs.shape[0]
-        flags = np.empty((4, n), dtype=np.bool_)
+        flags = np.empty((4, n), _BOOL)
         return Advanced(np.empty((dim, n)), np.empty((n_free, n)), np.empty((*self._springs, n)),
                         np.empty((n, dim, dim)), np.empty(n), flags[0], flags[1], flags[2], flags[3],  # *flags: slower
-                        np.empty(n, dtype=np.int64), np.empty((n_free, n), dtype=np.bool_))
+                        np.empty(n, _INT64), np.empty((n_free, n), _BOOL))
 
     @staticmethod
     def _outcome(result: Advanced) -> FastIncrement:

@@ -92,11 +92,12 @@ def _eight(weight, j, k):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _accumulate8(weight, h, out, k, lo, hi):
+def _accumulate8(weight, h, out, k, lo, hi, squash):
     """out[j, c] += weight[j, k] h[k, c] + ... + weight[j, k + 7] h[k + 7, c] for every output j and
     the cells lo <= c < hi, the eight terms in input order by FMAs (``_dot8``); three outputs share
     each pass over the cells, so that each input is loaded once per three outputs and each output
-    once per eight inputs. Shapes as in ``dense``."""
+    once per eight inputs. ``squash``: then ``tanh32`` of the sum (the layer's last inputs, in the same
+    pass). Shapes as in ``dense``."""
     m = hi - lo
     h0, h1, h2, h3 = h[k, lo:hi], h[k + 1, lo:hi], h[k + 2, lo:hi], h[k + 3, lo:hi]
     h4, h5, h6, h7 = h[k + 4, lo:hi], h[k + 5, lo:hi], h[k + 6, lo:hi], h[k + 7, lo:hi]
@@ -107,28 +108,32 @@ def _accumulate8(weight, h, out, k, lo, hi):
         w0, w1, w2 = _eight(weight, j, k), _eight(weight, j + 1, k), _eight(weight, j + 2, k)
         for c in range(m):
             x = (h0[c], h1[c], h2[c], h3[c], h4[c], h5[c], h6[c], h7[c])
-            r0[c] = _dot8(w0, x, r0[c])
-            r1[c] = _dot8(w1, x, r1[c])
-            r2[c] = _dot8(w2, x, r2[c])
+            s0, s1, s2 = _dot8(w0, x, r0[c]), _dot8(w1, x, r1[c]), _dot8(w2, x, r2[c])
+            r0[c] = tanh32(s0) if squash else s0
+            r1[c] = tanh32(s1) if squash else s1
+            r2[c] = tanh32(s2) if squash else s2
         j += 3
     if j + 2 == n_out:
         r0, r1, w0, w1 = out[j, lo:hi], out[j + 1, lo:hi], _eight(weight, j, k), _eight(weight, j + 1, k)
         for c in range(m):
             x = (h0[c], h1[c], h2[c], h3[c], h4[c], h5[c], h6[c], h7[c])
-            r0[c] = _dot8(w0, x, r0[c])
-            r1[c] = _dot8(w1, x, r1[c])
+            s0, s1 = _dot8(w0, x, r0[c]), _dot8(w1, x, r1[c])
+            r0[c] = tanh32(s0) if squash else s0
+            r1[c] = tanh32(s1) if squash else s1
         j += 2
     while j < n_out:
         r0, w0 = out[j, lo:hi], _eight(weight, j, k)
         for c in range(m):
-            r0[c] = _dot8(w0, (h0[c], h1[c], h2[c], h3[c], h4[c], h5[c], h6[c], h7[c]), r0[c])
+            s0 = _dot8(w0, (h0[c], h1[c], h2[c], h3[c], h4[c], h5[c], h6[c], h7[c]), r0[c])
+            r0[c] = tanh32(s0) if squash else s0
         j += 1
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _accumulate2(weight, h, out, k, lo, hi):
+def _accumulate2(weight, h, out, k, lo, hi, squash):
     """out[j, c] += weight[j, k] h[k, c] + weight[j, k + 1] h[k + 1, c] (two FMAs, in that order) for every
-    output j and the cells lo <= c < hi, three outputs per pass (``_accumulate8`` for the inputs left)."""
+    output j and the cells lo <= c < hi, three outputs per pass, then ``tanh32`` where ``squash``
+    (``_accumulate8`` for the inputs left)."""
     m = hi - lo
     h0, h1 = h[k, lo:hi], h[k + 1, lo:hi]
     n_out = weight.shape[0]
@@ -138,14 +143,18 @@ def _accumulate2(weight, h, out, k, lo, hi):
         a0, b0, a1, b1 = weight[j, k], weight[j, k + 1], weight[j + 1, k], weight[j + 1, k + 1]
         a2, b2 = weight[j + 2, k], weight[j + 2, k + 1]
         for c in range(m):
-            r0[c] = _fma32(b0, h1[c], _fma32(a0, h0[c], r0[c]))
-            r1[c] = _fma32(b1, h1[c], _fma32(a1, h0[c], r1[c]))
-            r2[c] = _fma32(b2, h1[c], _fma32(a2, h0[c], r2[c]))
+            s0 = _fma32(b0, h1[c], _fma32(a0, h0[c], r0[c]))
+            s1 = _fma32(b1, h1[c], _fma32(a1, h0[c], r1[c]))
+            s2 = _fma32(b2, h1[c], _fma32(a2, h0[c], r2[c]))
+            r0[c] = tanh32(s0) if squash else s0
+            r1[c] = tanh32(s1) if squash else s1
+            r2[c] = tanh32(s2) if squash else s2
         j += 3
     while j < n_out:
         r0, a0, b0 = out[j, lo:hi], weight[j, k], weight[j, k + 1]
         for c in range(m):
-            r0[c] = _fma32(b0, h1[c], _fma32(a0, h0[c], r0[c]))
+            s0 = _fma32(b0, h1[c], _fma32(a0, h0[c], r0[c]))
+            r0[c] = tanh32(s0) if squash else s0
         j += 1
 
 
@@ -161,7 +170,8 @@ def dense(weight, bias, h, out, squash):
 
     Cells are processed in tiles of ``BLOCK``; inside a tile the inputs are taken eight at a
     time (``_accumulate8``), the last n_in mod 8 two (``_accumulate2``) then one at a time; the
-    order of the terms of each sum is k = 0, 1, ... regardless.
+    order of the terms of each sum is k = 0, 1, ... regardless. The tanh is taken in the pass of
+    the last inputs, or in a pass of its own after a last input taken alone (the same bits).
     """
     n_out, n_in = weight.shape
     n = h.shape[1]
@@ -171,10 +181,10 @@ def dense(weight, bias, h, out, squash):
             out[j, lo:hi] = bias[j]
         k = 0
         while k + 8 <= n_in:
-            _accumulate8(weight, h, out, k, lo, hi)
+            _accumulate8(weight, h, out, k, lo, hi, squash and k + 8 == n_in)
             k += 8
         while k + 2 <= n_in:
-            _accumulate2(weight, h, out, k, lo, hi)
+            _accumulate2(weight, h, out, k, lo, hi, squash and k + 2 == n_in)
             k += 2
         while k < n_in:
             h0 = h[k, lo:hi]
@@ -183,7 +193,7 @@ def dense(weight, bias, h, out, squash):
                 for c in range(hi - lo):
                     r0[c] = _fma32(a0, h0[c], r0[c])
             k += 1
-        if squash:
+        if squash and n_in % 2 == 1:  # the last input was taken alone
             for j in range(n_out):
                 row = out[j, lo:hi]
                 for c in range(hi - lo):
