@@ -16,7 +16,8 @@ RMS d eps_v, peak q and its strain, eps_v at the end, late dilatancy, fallbacks,
 
 ``--interlocking`` adds the interlocking friction (``calibration.interlocking``: tan phi = (e_c(p) / e)^m tan phi_g,
 e_c(p) = e_Gamma - lambda (p / p_ref)^0.7) and fits m, e_Gamma, lambda (``INTERLOCKING``) after the rule's
-parameters; with ``--cell-spread`` also the cells' spread of friction s (``Interlocking.cell_spread``, last); ``--psi`` (with ``--void-ratio``) puts the map on the state parameter (``PSI``); ``--orders L,S`` another Lebedev order and spin count (cheap scouting).
+parameters; ``--free-xi`` also xi (``XI``, per set); with ``--cell-spread`` also the cells' spread of friction s (``Interlocking.cell_spread``, last); ``--psi`` (with ``--void-ratio``) puts the map on the state parameter (``PSI``); ``--law hertz-mindlin`` the Hertz-Mindlin contact law (``HERTZ``); ``--kn-exponent N`` the linear law's kn of each test
+times (p0 / p_ref)^N (``--fit-kn-exponent``: N fitted, from --kn-exponent); ``--orders L,S`` another Lebedev order and spin count (cheap scouting).
 
 ``--max-nfev 0`` evaluates the start (no fit); ``--max-seconds T`` stops each fit after T s of wall time at the lowest chi-square set it has run (each new lowest goes to stderr); ``--fd-step F`` the Jacobian's step, F of each bound's width. ``--increment`` refines the shear increment (isotropic: the smaller of it and 1e-3). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
 data and model); the printout is the .txt when run through tee.
@@ -52,16 +53,21 @@ RULE = DEFAULTS[3]
 LAW = ("phi_g", "log10_kn", "kt_over_kn", "alpha0")
 LAW_VOID = ("phi_g", "log10_kn", "kt_over_kn", "e_min", "e_max")
 """The fitted coordinates with ``--void-ratio``: each test's alpha0 from its specimen's void ratio on the map."""
+HERTZ = ("log10_shear_modulus", "poisson")
+"""With ``--law hertz-mindlin``: the law's coordinates in place of log10 kn and kt/kn (grain G [Pa] as log10, nu)."""
 BOUNDS = {"phi_g": (10.0, 45.0), "log10_kn": (math.log10(3e6), math.log10(3e8)), "kt_over_kn": (0.1, 1.5),
           "alpha0": (45.0 + 1e-6, 70.0), "e_min": (0.2, 0.52), "e_max": (0.59, 1.2), "alpha_c_deg": (RULE.alpha_min_deg, RULE.alpha_max_deg),
           "log10_rate": (0.0, math.log10(RULE.rate_max)), "gain": (0.0, 8.0), "rate_gain": (0.0, 4.0),
           "interlocking_m": (0.0, 6.0), "e_gamma": (0.5, 1.2), "lambda_c": (0.0, 0.4),
-          "lambda_psi": (0.0, 0.2), "cell_spread": (0.0, 0.6)}
+          "lambda_psi": (0.0, 0.2), "cell_spread": (0.0, 0.6), "xi_c": (0.2, 1.0),
+          "log10_shear_modulus": (7.0, 10.5), "poisson": (0.0, 0.45),
+          "kn_exponent": (0.0, 1.0)}
 """Bounds of the fitted coordinates (the law's: the prior of bench_real_sand.py, alpha0 to 70 deg)."""
 START = {"e_min": 0.45, "e_max": 0.75, "phi_g": 35.0, "log10_kn": math.log10(2e7), "kt_over_kn": 1.0, "alpha0": 50.0,
          "alpha_c_deg": RULE.alpha_c_deg, "log10_rate": math.log10(RULE.rate), "gain": RULE.gain,
          "rate_gain": RULE.rate_gain, "interlocking_m": 1.0, "e_gamma": 0.75, "lambda_c": 0.05,
-         "lambda_psi": 0.0, "cell_spread": 0.0}
+         "lambda_psi": 0.0, "cell_spread": 0.0, "xi_c": Interlocking().xi,
+         "log10_shear_modulus": 9.0, "poisson": 0.2, "kn_exponent": 0.0}
 """Start of every fit (alpha0 from ``--starts``)."""
 PSI = ("lambda_psi",)
 """The fitted coordinate of ``--psi`` (last): each test's void ratio enters the map (and the renewal) as
@@ -70,6 +76,10 @@ e + lambda_psi (p0 / p_ref)^0.7, i.e. the map reads the state parameter psi = e 
 INTERLOCKING = ("interlocking_m", "e_gamma", "lambda_c")
 """The fitted coordinates of ``--interlocking`` (after the rule's): m, e_Gamma and lambda of
 ``calibration.interlocking``, xi fixed at ``Interlocking().xi``, phi_g its phi_mu."""
+XI = ("xi_c",)
+"""The fitted coordinate of ``--free-xi`` (with ``--interlocking``, after ``INTERLOCKING``): the line's xi per set."""
+KN_EXPONENT = ("kn_exponent",)
+"""The fitted coordinate of ``--fit-kn-exponent`` (last): n of the linear law's kn (p0 / p_ref)^n."""
 SPREAD = ("cell_spread",)
 """The fitted coordinate of ``--cell-spread`` (with ``--interlocking``, last): ``Interlocking.cell_spread``."""
 
@@ -85,12 +95,18 @@ def rule_values(names: tuple[str, ...], X: np.ndarray, tail: int = 0) -> dict[st
 
 def simulate(test: Measurement, X: np.ndarray, names: tuple[str, ...], settings: forward.ForwardSettings,
              plain: bool, interlocking: bool = False, stats: dict | None = None,
-             psi: bool = False, spread: bool = False) -> tuple[forward.Curves, np.ndarray]:
+             psi: bool = False, spread: bool = False, xi: bool = False,
+             kn_exponent: float = 0.0) -> tuple[forward.Curves, np.ndarray]:
     """Curves of ``test`` for the sets X (module docstring) and the renewals per set (0 where ``plain``);
     ``interlocking``: X's columns after the rule's are ``INTERLOCKING``'s (``stats`` gets the friction at the start
     of shear and at the end, and the clipped e_c, per set); ``psi``: X's last column is ``PSI``'s; ``spread``: X's last
-    column is ``SPREAD``'s (with ``interlocking``)."""
-    params = {"phi_g": X[:, 0], "kn": 10.0 ** X[:, 1], "kt_over_kn": X[:, 2], "alpha0": X[:, 3]}
+    column is ``SPREAD``'s (with ``interlocking``); ``xi``: ``XI``'s column follows ``INTERLOCKING``'s; ``kn_exponent``
+    n: the linear law's kn of the test is kn (p0 / p_ref)^n (p_ref 101.325 kPa)."""
+    if settings.law == "hertz-mindlin":
+        params = {"phi_g": X[:, 0], "shear_modulus": 10.0 ** X[:, 1], "poisson": X[:, 2], "alpha0": X[:, 3]}
+    else:
+        kn = 10.0 ** X[:, 1] * (test.p0 / Interlocking().p_ref) ** kn_exponent
+        params = {"phi_g": X[:, 0], "kn": kn, "kt_over_kn": X[:, 2], "alpha0": X[:, 3]}
     e_bounds = None
     if test.void_ratio is not None:  # --void-ratio: X[:, 3:5] are e_min, e_max
         e_bounds = (X[:, 3], X[:, 4])
@@ -98,7 +114,7 @@ def simulate(test: Measurement, X: np.ndarray, names: tuple[str, ...], settings:
         params["alpha0"] = opening_angle_deg(test.void_ratio + shift, *e_bounds, *OPENING_RANGE_DEG[3])
     if interlocking or psi:
         return _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, stats, interlocking, psi,
-                                      spread)
+                                      spread, xi)
     if plain or not names:
         s = replace(settings, critical_state=None if plain else RULE)
         if e_bounds is not None:  # forward.simulate maps the void ratio itself
@@ -117,14 +133,14 @@ def simulate(test: Measurement, X: np.ndarray, names: tuple[str, ...], settings:
 
 
 def _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, stats, interlocking=True, psi=False,
-                           spread=False):
+                           spread=False, xi=False):
     """``simulate`` with the interlocking friction on top of the renewal (or of the plain cell), and/or with the
     map on the state parameter (``psi``: sets whose map misses the shifted void ratio get NaN curves)."""
     missed = ~np.isfinite(params["alpha0"])
     params = {**params, "alpha0": np.where(missed, 50.0, params["alpha0"])}
     full = forward.full_parameters(params, settings)
     points = forward.population(full, settings, test.dim)
-    tail = len(INTERLOCKING) * interlocking + psi + spread
+    tail = (len(INTERLOCKING) + xi) * interlocking + psi + spread
     if not plain:
         points.renewal = PopulationRenewal(RULE, points.material, points.state, default_map(3), full["alpha0"],
                                            laws_of(full, settings.law), settings.law, settings.radius,
@@ -137,6 +153,8 @@ def _simulate_interlocking(test, X, names, settings, plain, params, e_bounds, st
             e0 = np.array([default_map(3).void_ratio(a) for a in full["alpha0"]])
         cols = X[:, X.shape[1] - tail:X.shape[1] - tail + len(INTERLOCKING)]
         per_point = {"m": cols[:, 0], "e_gamma": cols[:, 1], "lambda_c": cols[:, 2]}
+        if xi:
+            per_point["xi"] = X[:, X.shape[1] - tail + len(INTERLOCKING)]
         if spread:
             per_point["cell_spread"] = X[:, -1]
         hook = InterlockingFriction(Interlocking(), points.material, points.state, full["phi_g"], e0, per_point,
@@ -192,6 +210,14 @@ def main(argv: list[str] | None = None) -> int:
                         help="fit the interlocking friction's m, e_gamma, lambda_c too (calibration.interlocking)")
     parser.add_argument("--cell-spread", action="store_true",
                         help="with --interlocking: fit the cells' spread of friction too (Interlocking.cell_spread)")
+    parser.add_argument("--law", default="linear", choices=("linear", "hertz-mindlin"),
+                        help="the contact law; hertz-mindlin fits log10 G and nu in place of log10 kn and kt/kn")
+    parser.add_argument("--kn-exponent", type=float, default=0.0,
+                        help="linear law: each test's kn is kn (p0 / p_ref)^N (N = 1/3: Hertz's tangent stiffness)")
+    parser.add_argument("--fit-kn-exponent", action="store_true",
+                        help="fit that exponent too (KN_EXPONENT, last coordinate; --kn-exponent: its start)")
+    parser.add_argument("--free-xi", action="store_true",
+                        help="with --interlocking: fit the line's exponent xi too (XI, per set)")
     parser.add_argument("--psi", action="store_true",
                         help="with --void-ratio: the map on the state parameter, lambda_psi fitted (PSI)")
     parser.add_argument("--orders", default="", help="LEBEDEV,SPINS: a cheaper or finer orientation rule")
@@ -208,10 +234,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--split is required")
     names = tuple(n for n in args.rule_params.split(",") if n) if not args.plain else ()
     for name in names:
-        if name not in BOUNDS or name in LAW or name in INTERLOCKING or name in PSI:
+        if name not in BOUNDS or name in LAW or name in INTERLOCKING or name in PSI or name in XI + SPREAD:
             print(f"--rule-params: {name!r} is not one of alpha_c_deg, log10_rate, gain, rate_gain", file=sys.stderr)
             return 2
-    settings = replace(SETTINGS, kinematics=args.kinematics, increment=args.increment,
+    settings = replace(SETTINGS, kinematics=args.kinematics, increment=args.increment, law=args.law,
                        iso_increment=min(SETTINGS.iso_increment, args.increment))
     if args.orders:
         order, spins = (int(v) for v in args.orders.split(","))
@@ -219,12 +245,19 @@ def main(argv: list[str] | None = None) -> int:
     fitted, predicted = SPLITS[args.split]
     tests = [load(f, args.void_ratio) for f in fitted]
     law = LAW_VOID if args.void_ratio else LAW
+    if args.law == "hertz-mindlin":
+        law = law[:1] + HERTZ + law[3:]
     if args.psi and not args.void_ratio:
         parser.error("--psi needs --void-ratio")
     if args.cell_spread and (not args.interlocking or args.psi):
         parser.error("--cell-spread needs --interlocking (and no --psi)")
-    coords = (law + names + (INTERLOCKING if args.interlocking else ()) + (PSI if args.psi else ())
-              + (SPREAD if args.cell_spread else ()))
+    if args.free_xi and not args.interlocking:
+        parser.error("--free-xi needs --interlocking")
+    coords = (law + names + (INTERLOCKING if args.interlocking else ()) + (XI if args.free_xi else ())
+              + (PSI if args.psi else ())
+              + (SPREAD if args.cell_spread else ()) + (KN_EXPONENT if args.fit_kn_exponent else ()))
+    if args.fit_kn_exponent and args.law != "linear":
+        parser.error("--fit-kn-exponent needs the linear law")
     lo = np.array([BOUNDS[c][0] for c in coords])
     hi = np.array([BOUNDS[c][1] for c in coords])
     evaluations = [0]
@@ -235,9 +268,10 @@ def main(argv: list[str] | None = None) -> int:
         if time.perf_counter() > seen["deadline"]:
             raise _OutOfTime
         curves = []
+        Xs, n_kn = (X[:, :-1], X[:, -1]) if args.fit_kn_exponent else (X, args.kn_exponent)
         for test in tests:
-            c, _ = simulate(test, X, names, settings, args.plain, args.interlocking, psi=args.psi,
-                            spread=args.cell_spread)
+            c, _ = simulate(test, Xs, names, settings, args.plain, args.interlocking, psi=args.psi,
+                            spread=args.cell_spread, xi=args.free_xi, kn_exponent=n_kn)
             curves.append({"q": c.q, "p": c.p, "eps_v": c.eps_v})
         evaluations[0] += X.shape[0]
         r = bayes.residuals(tests, curves, NOISE)
@@ -257,8 +291,13 @@ def main(argv: list[str] | None = None) -> int:
         cell += " + interlocking friction (m, e_gamma, lambda_c fitted)"
     if args.psi:
         cell += " + map on psi (lambda_psi fitted)"
+    if args.free_xi:
+        cell += " + xi fitted"
     if args.cell_spread:
         cell += " + cells' friction spread (cell_spread fitted)"
+    cell += ", Hertz-Mindlin law" if args.law == "hertz-mindlin" else ""
+    cell += f", kn (p0 / p_ref)^{args.kn_exponent:g}" if args.kn_exponent and not args.fit_kn_exponent else ""
+    cell += ", kn (p0 / p_ref)^n (n fitted)" if args.fit_kn_exponent else ""
     print(f"split {args.split}, {cell}, kinematics {args.kinematics}; forward: Lebedev {settings.lebedev_order} x "
           f"{settings.n_spins}, increment {settings.increment:g}, iso {settings.iso_increment:g}; nice "
           f"{os.nice(0)}, load {os.getloadavg()[0]:.1f}", flush=True)
@@ -266,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
     fits = []
     for a0 in (float(v) for v in args.starts.split(",")):
         given = dict(item.split("=") for item in args.start.split(",") if item)
-        x0 = np.array([float(given.get(c, START[c])) for c in coords])
+        x0 = np.array([float(given.get(c, args.kn_exponent if c == "kn_exponent" else START[c])) for c in coords])
         if not args.void_ratio:
             x0[3] = a0
         t0 = time.perf_counter()
@@ -292,7 +331,9 @@ def main(argv: list[str] | None = None) -> int:
     for name in sorted((*fitted, predicted), key=lambda f: read_test(DATA / f).p0):
         test = load(name, args.void_ratio)
         stats: dict = {}
-        c, count = simulate(test, x, names, settings, args.plain, args.interlocking, stats, args.psi, args.cell_spread)
+        xs, n_kn = (x[:, :-1], x[:, -1]) if args.fit_kn_exponent else (x, args.kn_exponent)
+        c, count = simulate(test, xs, names, settings, args.plain, args.interlocking, stats, args.psi, args.cell_spread,
+                            args.free_xi, n_kn)
         if name in fitted:
             chi2 += float(np.sum(bayes.residuals([test], [{"q": c.q, "p": c.p, "eps_v": c.eps_v}], NOISE) ** 2))
         rows[name] = {"role": "predicted" if name == predicted else "fitted", **row(test, c, 0, int(count[0]))}
@@ -316,12 +357,13 @@ def main(argv: list[str] | None = None) -> int:
           + "; d eps_v / d eps1 over the last five points: "
           + ", ".join(f"{k} {v['dilatancy_end']:+.2f}" for k, v in rows.items()))
     out = {"split": args.split, "cell": cell, "start": args.start, "void_ratio": args.void_ratio, "kinematics": args.kinematics, "rule_params": list(names),
-           "interlocking": {"xi": Interlocking().xi, "p_ref": Interlocking().p_ref} if args.interlocking else None,
+           "interlocking": {"xi": "fitted" if args.free_xi else Interlocking().xi, "p_ref": Interlocking().p_ref}
+           if args.interlocking else None,
            "rule_defaults": {k: v for k, v in RULE.__dict__.items() if isinstance(v, (int, float, str))},
            "settings": {"lebedev_order": settings.lebedev_order, "n_spins": settings.n_spins,
                         "increment": settings.increment, "iso_increment": settings.iso_increment,
                         "stress_rtol": settings.stress_rtol}, "noise": NOISE,
-           "optimum": optimum, "chi_square_fitted": chi2, "fits": fits, "tests": rows, "curves": curves_out,
+           "law": args.law, "kn_exponent": args.kn_exponent, "optimum": optimum, "chi_square_fitted": chi2, "fits": fits, "tests": rows, "curves": curves_out,
            "evaluations": evaluations[0], "seconds": seconds, "load_average_at_end": list(os.getloadavg())}
     stem = f"real_sand_critical_state_{args.split.replace('+', '_')}" + (f"_{args.tag}" if args.tag else "")
     RESULTS.mkdir(exist_ok=True)
