@@ -15,7 +15,8 @@ cells corrected per increment, cell-increments with a released grain (taken agai
 those whose grain a neighbour pushed), those whose grains nothing pressed started at rest (the released-grain
 rule of newer certificates, ``homogenization.ann.escalation.RELEASE_RULE``), escalated to the DEM, left unconverged, step calls with a tangent
 and the cells of those calls that took no correction (their tangent is that of their balance, not the
-network's), and the ANN's step wall time split into phases [s]. A table of all cells and tests ends the
+network's), and the ANN's step wall time split into phases [s]. Beside each wall time, the process's CPU
+time, which other jobs on a shared machine move less, and its ratio. A table of all cells and tests ends the
 output. The load average is printed before and after. JSON lines with ``--json``.
 """
 
@@ -209,20 +210,24 @@ def main(argv=None) -> int:
                 run(model, meso, compile_args, 10 * args.increment, test)
         for test in args.tests:
             walls: dict[str, list[float]] = {"dem": [], "ann": []}
+            cpus: dict[str, list[float]] = {"dem": [], "ann": []}
             records = {}
             phases: list[dict[str, float]] = []
             for _ in range(args.repeats):
                 for name, model in (("dem", dem), ("ann", ann)):
                     timer.reset()
                     tangents.reset()
+                    cpu = time.process_time()
                     records[name], wall = run(model, meso, args, args.eps_max, test)
                     walls[name].append(wall)
+                    cpus[name].append(time.process_time() - cpu)
                     if name == "ann":
                         phases.append(dict(timer.seconds))
-                    print(f"  {test} {name}: {wall:.1f} s ({records[name].n_increments} increments; load "
+                    print(f"  {test} {name}: {wall:.1f} s, CPU {cpus[name][-1]:.1f} s ({records[name].n_increments} increments; load "
                           f"{os.getloadavg()[0]:.2f})", flush=True)
             worst, scale = difference(records["ann"], records["dem"], args.p0)
             dem_s, ann_s = statistics.median(walls["dem"]), statistics.median(walls["ann"])
+            cpu_ratio = statistics.median(cpus["ann"]) / statistics.median(cpus["dem"])
             record = records["ann"]
             n = record.n_increments
             counts = {"corrections_per_increment": total(record, "n_corrections_all_calls") / n,
@@ -237,7 +242,8 @@ def main(argv=None) -> int:
             phase = phases[-1]
             phase["outside step"] = walls["ann"][-1] - sum(phase.values())
             phase["rest of step"] = phase.pop("step", float("nan"))
-            print(f"{test}: DEM {dem_s:.1f} s, ANN {ann_s:.1f} s, ANN / DEM = {ann_s / dem_s:.3f}; max |diff| / scale = "
+            print(f"{test}: DEM {dem_s:.1f} s, ANN {ann_s:.1f} s, ANN / DEM = {ann_s / dem_s:.3f} (CPU time: "
+                  f"{cpu_ratio:.3f}); max |diff| / scale = "
                   f"{worst / scale:.2e} (scale {scale:.3g} Pa); {cells} cells, "
                   f"{n} increments, {counts['step_calls']:.0f} step calls; Newton corrections per increment "
                   f"{counts['corrections_per_increment']:.0f}, cells corrected per increment "
@@ -247,19 +253,20 @@ def main(argv=None) -> int:
                   f"{counts['escalated']:.0f}, unconverged {counts['unconverged']:.0f}; {tangents.calls} calls with a "
                   f"tangent, {tangents.uncorrected} of their cell steps uncorrected", flush=True)
             print("  ANN phases [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in phase.items()), flush=True)
-            rows.append((Path(mesostructure).stem, test, dem_s, ann_s, worst / scale, counts))
+            rows.append((Path(mesostructure).stem, test, dem_s, ann_s, worst / scale, {**counts, "cpu_ratio": cpu_ratio}))
             if args.json:
                 with open(args.json, "a", encoding="utf-8") as out:
                     out.write(json.dumps({"test": test, "model": model_path, "mesostructure": mesostructure,
                                           "rule": [args.order, args.spins], "eps_max": args.eps_max,
                                           "dem_s": walls["dem"], "ann_s": walls["ann"], "ratio": ann_s / dem_s,
+                                          "dem_cpu_s": cpus["dem"], "ann_cpu_s": cpus["ann"], "cpu_ratio": cpu_ratio,
                                           "diff_scale": worst / scale, **counts, "phases_s": phase,
                                           "load_average": os.getloadavg()}) + "\n")
     print(f"\n{cells} cells, to {args.eps_max:g} at {args.increment:g}; medians of {args.repeats} run(s) each")
-    print(f"{'cell':<24}{'test':<11}{'DEM [s]':>9}{'ANN [s]':>9}{'ANN/DEM':>9}{'diff/scale':>12}{'released':>10}"
+    print(f"{'cell':<24}{'test':<11}{'DEM [s]':>9}{'ANN [s]':>9}{'ANN/DEM':>9}{'CPU':>7}{'diff/scale':>12}{'released':>10}"
           f"{'pushed':>9}{'to DEM':>8}{'unconv.':>9}{'tangents':>10}{'uncorr.':>9}")
     for name, test, dem_s, ann_s, diff, c in rows:
-        print(f"{name:<24}{test:<11}{dem_s:>9.1f}{ann_s:>9.1f}{ann_s / dem_s:>9.3f}{diff:>12.2e}{c['released']:>10.0f}"
+        print(f"{name:<24}{test:<11}{dem_s:>9.1f}{ann_s:>9.1f}{ann_s / dem_s:>9.3f}{c['cpu_ratio']:>7.3f}{diff:>12.2e}{c['released']:>10.0f}"
               f"{c['released_pushed']:>9.0f}{c['escalated']:>8.0f}{c['unconverged']:>9.0f}{c['tangent_calls']:>10.0f}"
               f"{c['tangent_uncorrected']:>9.0f}")
     print(f"load average after: {os.getloadavg()}", flush=True)
