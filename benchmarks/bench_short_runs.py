@@ -1,4 +1,4 @@
-"""python benchmarks/bench_short_runs.py [--repeats 3] [--increment 1e-4] [--eps-max 0.03] [--cold] [--startup]: whole-process cost of short ANN runs.
+"""python benchmarks/bench_short_runs.py [--repeats 3] [--increment 1e-4] [--eps-max 0.03] [--cold] [--startup] [--gc]: whole-process cost of short ANN runs.
 
 Runs, as whole processes (``python -m homogenization.hmodel ...``, start-up, imports, model and
 certificate loading, compilation or cache loading, the run and its output all counted), a
@@ -17,6 +17,10 @@ the kernels compiled), the closed form as usual.
 the kernels' modules and numba's BLAS check, ``training.fast_cells``), the first step (numba's set-up
 of its typing and lowering registries and the cached kernels' loading), the other 320 steps of 360
 cells. Not the CLI: the phases of the run that differ from the closed form's.
+
+``--gc``: instead, the planar test's two commands (``--repeats`` pairs) with the garbage collector's
+collections counted by generation, and the seconds they took (``gc.callbacks``), beside each process's
+CPU seconds.
 
 The machine may be shared: the load average is printed before and after; CPU seconds are less
 sensitive to other processes than wall seconds, not immune.
@@ -88,6 +92,40 @@ print("scipy.linalg imported:", "scipy.linalg" in sys.modules, file=sys.stderr)
 """
 
 
+GC_WATCH = r"""
+import atexit, gc, json, runpy, sys, time
+stats, start = {0: [0, 0.0], 1: [0, 0.0], 2: [0, 0.0]}, [0.0]
+def watch(phase, info):
+    if phase == "start":
+        start[0] = time.perf_counter()
+    else:
+        stats[info["generation"]][0] += 1
+        stats[info["generation"]][1] += time.perf_counter() - start[0]
+gc.callbacks.append(watch)
+atexit.register(lambda: print(json.dumps({"collections": {g: n for g, (n, _) in stats.items()},
+                                          "seconds": {g: round(t, 3) for g, (_, t) in stats.items()}}), file=sys.stderr))
+sys.argv = ["hmodel", *sys.argv[1:]]
+runpy.run_module("homogenization.hmodel", run_name="__main__")
+"""
+
+
+def gc_counts(args, out: Path) -> None:
+    """The planar test's ANN and closed-form processes (``args.repeats`` pairs) with their garbage collections
+    counted by generation (``GC_WATCH``): collections, seconds in them, and the process's CPU seconds."""
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    argv = commands(argparse.Namespace(**{**vars(args), "tests": ["biaxial"]}), out)["biaxial 2D (360 cells)"]
+    for backend in ("ann", "analytical"):  # warm-up, as in the timed pairs
+        timed(argv[backend], env)
+    for k in range(args.repeats):
+        for backend in ("ann", "analytical"):
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            done = subprocess.run([sys.executable, "-c", GC_WATCH, *argv[backend][3:]], cwd=ROOT, env=env,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, check=True)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+            print(f"pair {k + 1}, {backend}: {done.stderr.strip().splitlines()[-1]}, CPU {cpu:.2f} s", flush=True)
+
+
 def startup(args) -> None:
     """CPU seconds of each phase of a planar ANN process (``STARTUP``), ``args.repeats`` processes, and whether
     ``scipy.linalg`` was imported."""
@@ -113,6 +151,7 @@ def main() -> None:
     parser.add_argument("--tests", nargs="+", choices=("biaxial", "triaxial"), default=["biaxial", "triaxial"])
     parser.add_argument("--cold", action="store_true", help="ANN runs with an empty NUMBA_CACHE_DIR each time")
     parser.add_argument("--startup", action="store_true", help="only the CPU time of a planar ANN process by phase")
+    parser.add_argument("--gc", action="store_true", help="only the planar test's garbage collections, both backends")
     args = parser.parse_args()
     print(f"load average (1, 5, 15 min): {os.getloadavg()}; {os.cpu_count()} CPUs", flush=True)
     if args.startup:
@@ -121,6 +160,10 @@ def main() -> None:
         return
     with tempfile.TemporaryDirectory() as scratch:
         out = Path(scratch)
+        if args.gc:
+            gc_counts(args, out)
+            print(f"load average after: {os.getloadavg()}", flush=True)
+            return
         env = {**os.environ, "MPLBACKEND": "Agg"}
         for test, argv in commands(args, out).items():
             print(f"== {test}: {' '.join(Path(a).name if a == sys.executable else a for a in argv['ann'])}", flush=True)
