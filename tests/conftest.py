@@ -1,7 +1,8 @@
 """Shared fixtures: Warp devices to test on (cpu, plus cuda:0 where Warp sees a GPU); each test starts
 with the commands' output verbosity at its default (a command's ``main`` called directly with -q
 leaves the process quiet, as ``run_main`` would not). The modules with the longest tests run first
-(``LONG_FIRST``), so that with ``make test``'s work stealing no long test is left alone at the end."""
+(``LONG_FIRST``), so that with ``make test``'s work stealing no long test is left alone at the end. The checks of
+the compiled steps on other CPUs (``other_cpus``) run once per session, whichever worker asks first."""
 
 import fcntl
 import json
@@ -46,7 +47,7 @@ def other_cpus(request, tmp_path_factory):
     """``other_cpus.Runs`` of the checks that this session's tests marked ``other_cpus`` name: the first test process
     that asks runs them (one process per CPU, every check at once); the others (pytest-xdist workers) wait for it
     and read its results."""
-    import other_cpus as runs  # noqa: PLC0415 (imports torch: only where asked)
+    import other_cpus as runs  # noqa: PLC0415 (the checks' states: built only where asked)
     from homogenization.ann import default_model_path  # noqa: PLC0415
 
     checks = sorted({mark.args[0] for item in request.session.items for mark in item.iter_markers("other_cpus")})
