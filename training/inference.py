@@ -35,6 +35,7 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 from __future__ import annotations
 
 import gc
+import sys
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -66,16 +67,18 @@ def _cells_last(values: np.ndarray) -> np.ndarray:
 
 
 def _freeze_numba_setup(compiled: bool) -> None:
-    """After the first kernel ``_Compiled`` loads or compiles in the process: ``gc.freeze()``, every object alive
-    then left out of later collections (``gc.collect()`` first where ``compiled``, so that the compiler's
-    garbage is not kept).
+    """After the first kernel ``_Compiled`` loads or compiles while a command runs
+    (``warp_hcell.core.cli.running_command``): ``gc.freeze()``, every object alive then left out of later
+    collections (``gc.collect()`` first where ``compiled``, so that the compiler's garbage is not kept).
 
     Numba's set-up at the first kernel of a process builds its typing and lowering registries, ~90 000 Python objects
     that live as long as the process and that every later full collection walked again. Frozen objects are
-    still freed when their last reference goes; a reference cycle among them is never collected. Once per
-    process; nothing where the process froze objects itself before."""
+    still freed when their last reference goes; a reference cycle among them is never collected, so a library
+    call (a notebook, a script) leaves the collector alone. Once per process; nothing where the process froze
+    objects itself before."""
     global _NUMBA_SET_UP
-    if _NUMBA_SET_UP:
+    cli = sys.modules.get("warp_hcell.core.cli")  # only commands import it: no command without it
+    if _NUMBA_SET_UP or cli is None or not cli.running_command():
         return
     _NUMBA_SET_UP = True
     if gc.get_freeze_count():
@@ -86,7 +89,7 @@ def _freeze_numba_setup(compiled: bool) -> None:
 
 
 _NUMBA_SET_UP = False
-"""Whether ``_freeze_numba_setup`` ran in this process."""
+"""Whether ``_freeze_numba_setup`` froze (or found frozen) the objects of this process."""
 
 
 class _Compiled:

@@ -388,6 +388,7 @@ def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[
     with it.
     """
     prog = _INVOKED_AS.get() or (_started_as(main) if argv is None else "hmodel")
+    _OUTPUT.command = True
     try:
         return int(main(argv) or 0)
     except (UserError, ValueError, FileNotFoundError) as exc:
@@ -401,6 +402,13 @@ def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[
         return EXIT_INTERRUPTED
     finally:
         _OUTPUT.quiet = False
+        _OUTPUT.command = False
+
+
+def running_command() -> bool:
+    """Whether a command (``run_main``) is running in this process: process-wide policies that a library
+    call must not impose on its caller (for example freezing the garbage collector's objects) apply then."""
+    return _OUTPUT.command
 
 
 # -- what a command prints ---------------------------------------------------------------------
@@ -412,9 +420,11 @@ PROGRESS_LOG_INTERVAL_S = 30.0
 
 
 class _Output:
-    """What this process prints: ``quiet`` drops progress bars and status lines (-q)."""
+    """What this process prints: ``quiet`` drops progress bars and status lines (-q); ``command``: a
+    command is running (``run_main``)."""
 
     quiet = False
+    command = False
 
 
 _OUTPUT = _Output()
