@@ -117,17 +117,15 @@ class AnnCell(ArrayStateMixin):
         contact_law: the contact law of the model's training data.
         radius: grain radius r [m], > 0; unused (the mesostructure sets it).
         model: a model's ``.pt`` (its ``.json`` beside it); None: the shipped one.
-        device: torch device ("cpu", "cuda", ...). threads: torch CPU threads (process-wide), set
-            at the torch network's first use.
+        device: torch device ("cpu", "cuda", ...). threads: torch CPU threads (process-wide).
         ood_interval: start states between out-of-distribution checks, >= 1.
-        equilibrium_corrections: most exact Newton steps on the free DOFs' balance after the
-            network's (spatial models); 0: the network alone; None: the certificate's K.
+        equilibrium_corrections: most Newton steps on the free DOFs' balance after the network's
+            (spatial models); 0: the network alone; None: the certificate's K.
         equilibrium_tolerance: force ratio above which a cell is corrected [-]; None: the
             certificate's, else the DEM's.
-        dem_escalation: with K > 0, the DEM's increment for released grains (``ann.escalation``);
-            None: the certificate's choice, else ``default_escalation``.
-        release_rule: with the escalation on CPU, what is done with the grains nothing presses, one of
-            ``escalation.RELEASE_RULES``; None: the one the certificate records, else ``RELEASE_RULE``.
+        dem_escalation: with K > 0, the released grains' rule (``ann.escalation``); None: the
+            certificate's choice, else ``default_escalation``.
+        release_rule: one of ``escalation.RELEASE_RULES``; None: the certificate's, else ``RELEASE_RULE``.
         card: ``model``'s JSON already read, or None.
 
     Raises:
