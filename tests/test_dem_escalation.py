@@ -22,16 +22,22 @@ HARD_CASES = ROOT / "tests" / "data" / "equilibrium" / "large_axial_hard.npz"
 SHIPPED_3D = default_model_path(3)
 
 
+def _pair_forces_by_hand(schema, size, free, kn) -> dict[tuple[int, int], float]:
+    """{(i, j): normal force} of one cell's pairs (linear law, f_n = kn overlap): the reference positions scaled to
+    ``size`` (dim,), the free DOFs at ``free`` (n_free,)."""
+    x = schema.reference_position * size / schema.reference_cell_size
+    for k, (grain, axis) in enumerate(schema.free_dofs):
+        x[grain, axis] = free[k]
+    return {(int(i), int(j)): kn * max(schema.radius[i] + schema.radius[j] - np.linalg.norm(x[j] - x[i]), 0.0)
+            for i, j in schema.pairs}
+
+
 def _released_by_hand(schema, cell_size, before, after, kn, ratio) -> np.ndarray:
     """The cells with a free grain that moved and that no pair presses with a normal force above ``ratio`` times
     the cell's largest (linear law, f_n = kn overlap), one grain and one pair at a time."""
     out = np.zeros(cell_size.shape[0], dtype=bool)
     for c in range(cell_size.shape[0]):
-        x = schema.reference_position * cell_size[c] / schema.reference_cell_size
-        for k, (grain, axis) in enumerate(schema.free_dofs):
-            x[grain, axis] = after[c, k]
-        force = {(int(i), int(j)): kn * max(schema.radius[i] + schema.radius[j] - np.linalg.norm(x[j] - x[i]), 0.0)
-                 for i, j in schema.pairs}
+        force = _pair_forces_by_hand(schema, cell_size[c], after[c], kn)
         largest = max(force.values())
         for grain in set(int(g) for g in schema.free_dofs[:, 0]):
             moved = any(after[c, k] != before[c, k] for k, (g, _) in enumerate(schema.free_dofs) if g == grain)
@@ -45,11 +51,7 @@ def _resting_by_hand(schema, cell_size, free, kn, ratio) -> np.ndarray:
     the cell's largest (linear law), one grain and one pair at a time."""
     out = np.zeros(free.shape, dtype=bool)
     for c in range(cell_size.shape[0]):
-        x = schema.reference_position * cell_size[c] / schema.reference_cell_size
-        for k, (grain, axis) in enumerate(schema.free_dofs):
-            x[grain, axis] = free[c, k]
-        force = {(int(i), int(j)): kn * max(schema.radius[i] + schema.radius[j] - np.linalg.norm(x[j] - x[i]), 0.0)
-                 for i, j in schema.pairs}
+        force = _pair_forces_by_hand(schema, cell_size[c], free[c], kn)
         largest = max(force.values())
         for k, (grain, _) in enumerate(schema.free_dofs):
             out[c, k] = not any(f > ratio * largest for pair, f in force.items() if int(grain) in pair)
