@@ -148,6 +148,25 @@ class TangentCount:
         self.calls, self.uncorrected = 0, 0
 
 
+def add_cell_arguments(parser, *, one_cell: bool = False, order: int = 53, spins: int = 16) -> None:
+    """The arguments that ``cells_of`` reads and a triaxial test's loading: --models/--cells (``one_cell``: one
+    stem) or --model/--mesostructure, --p0 [Pa], --eps-max, --increment [-], --order and --spins (defaults
+    ``order``, ``spins``)."""
+    from warp_hcell.core.cli import positive_float, positive_int
+
+    parser.add_argument("--models", default=None, help="folder with <cell stem>/ann.pt for the cells of benchmarks/cells")
+    parser.add_argument("--cells", nargs=1 if one_cell else "+", default=None,
+                        help="one stem of benchmarks/cells/*.toml" if one_cell
+                        else "stems of benchmarks/cells/*.toml (default: all)")
+    parser.add_argument("--model", default=None, help="a 3D meso-ANN model (.pt) of --mesostructure, certified as the hybrid")
+    parser.add_argument("--mesostructure", default=str(FINE), help="the cell of --model (a file or a builder spec)")
+    parser.add_argument("--p0", type=positive_float, default=2e5, help="isotropic pressure [Pa]")
+    parser.add_argument("--eps-max", type=positive_float, default=0.05, help="axial strain of the shear stage [-]")
+    parser.add_argument("--increment", type=positive_float, default=1e-4, help="shear increment [-]")
+    parser.add_argument("--order", type=positive_int, default=order, help="Lebedev order of the cell axes")
+    parser.add_argument("--spins", type=positive_int, default=spins, help="spins per axis")
+
+
 def cells_of(args, parser) -> list[tuple[str, str]]:
     """(mesostructure, model path) of every cell to run; a missing model or cell is a usage error."""
     if (args.model is None) == (args.models is None):
@@ -170,15 +189,7 @@ def main(argv=None) -> int:
     from warp_hcell.core.cli import Parser, positive_float, positive_int
 
     parser = Parser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--models", default=None, help="folder with <cell stem>/ann.pt for the cells of benchmarks/cells")
-    parser.add_argument("--cells", nargs="+", default=None, help="stems of benchmarks/cells/*.toml (default: all)")
-    parser.add_argument("--model", default=None, help="a 3D meso-ANN model (.pt) of --mesostructure, certified as the hybrid")
-    parser.add_argument("--mesostructure", default=str(FINE), help="the cell of --model (a file or a builder spec)")
-    parser.add_argument("--p0", type=positive_float, default=2e5, help="isotropic pressure [Pa]")
-    parser.add_argument("--eps-max", type=positive_float, default=0.05, help="axial strain of the shear stage [-]")
-    parser.add_argument("--increment", type=positive_float, default=1e-4, help="shear increment [-]")
-    parser.add_argument("--order", type=positive_int, default=53, help="Lebedev order of the cell axes")
-    parser.add_argument("--spins", type=positive_int, default=16, help="spins per axis")
+    add_cell_arguments(parser)
     parser.add_argument("--tests", nargs="+", choices=("undrained", "drained"), default=["undrained", "drained"])
     parser.add_argument("--repeats", type=positive_int, default=1, help="runs of each backend per test, interleaved")
     parser.add_argument("--equilibrium-corrections", type=int, default=None,

@@ -25,19 +25,11 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 def main(argv=None) -> int:
     import bench_finegrain_hybrid as bench
-    from warp_hcell.core.cli import Parser, positive_float, positive_int
+    from warp_hcell.core.cli import Parser
 
     parser = Parser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--models", default=None, help="folder with <cell stem>/ann.pt")
-    parser.add_argument("--cells", nargs=1, default=None, help="one stem of benchmarks/cells/*.toml")
-    parser.add_argument("--model", default=None, help="a 3D meso-ANN model (.pt) of --mesostructure")
-    parser.add_argument("--mesostructure", default=str(bench.FINE), help="the cell of --model")
+    bench.add_cell_arguments(parser, one_cell=True, order=23, spins=8)
     parser.add_argument("--tests", nargs="+", choices=("undrained", "drained"), default=["undrained", "drained"])
-    parser.add_argument("--p0", type=positive_float, default=2e5, help="isotropic pressure [Pa]")
-    parser.add_argument("--eps-max", type=positive_float, default=0.05, help="axial strain of the shear stage [-]")
-    parser.add_argument("--increment", type=positive_float, default=1e-4, help="shear increment [-]")
-    parser.add_argument("--order", type=positive_int, default=23, help="Lebedev order of the cell axes")
-    parser.add_argument("--spins", type=positive_int, default=8, help="spins per axis")
     args = parser.parse_args(argv)
     args.equilibrium_corrections = args.equilibrium_tolerance = None
     (mesostructure, model_path), = bench.cells_of(args, parser)
