@@ -125,7 +125,10 @@ class ForwardSettings:
         backend_options: extra keyword options of the backend (dem/ann: device, threads, model).
         critical_state: the cells' renewal rule (``material.critical_state``; None: none), on each set's
             void-ratio map.
-        kinematics: 3D cells' kinematics (``orientation.KINEMATICS``; "amplified": hcell3d-sand)."""
+        kinematics: 3D cells' kinematics (``orientation.KINEMATICS``; "amplified": hcell3d-sand).
+        kn_exponent: n of the linear law's pressure-dependent stiffness: each triaxial test runs kn (p0 /
+            kn_p_ref)^n (``kn_at_pressure``), kn being the value at kn_p_ref; 0 (default): kn for every test.
+        kn_p_ref: the reference pressure of ``kn_exponent`` [Pa]."""
 
     law: str = ContactLaw.name
     backend: str = "analytical"
@@ -145,11 +148,24 @@ class ForwardSettings:
     backend_options: Mapping[str, object] = field(default_factory=dict)
     critical_state: CriticalState | None = None
     kinematics: str = "projected"
+    kn_exponent: float = 0.0
+    kn_p_ref: float = 101325.0
 
     @property
     def parameters(self) -> tuple[str, ...]:
         """The parameters the forward model of ``law`` reads (``LAW_PARAMETERS``)."""
         return LAW_PARAMETERS[self.law]
+
+
+def settings_record(settings: ForwardSettings) -> dict:
+    """``settings`` as a JSON-able dict (``fixed`` a plain dict); ``kn_exponent`` and ``kn_p_ref`` only where the
+    exponent is nonzero, so that the record of a run without it reads as before that option existed."""
+    from dataclasses import asdict  # noqa: PLC0415
+
+    record = {**asdict(settings), "fixed": dict(settings.fixed)}
+    if settings.kn_exponent == 0.0:
+        del record["kn_exponent"], record["kn_p_ref"]
+    return record
 
 
 @dataclass
@@ -242,6 +258,8 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
         opening_spread.check(full["alpha0"], full[SPREAD])
     if interlocking is not None and (settings.backend != "analytical" or SPREAD in full):
         raise ValueError("the interlocking friction runs with the analytical backend and without alpha0_spread only")
+    if settings.kn_exponent != 0.0:
+        full["kn"] = kn_at_pressure(full.get("kn"), test, settings)
     if settings.backend == "analytical":
         points = population(full, settings, test.dim)
         if settings.critical_state is not None:
@@ -252,6 +270,21 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
                                                   or None, inner=points.renewal)
         return simulate_points(test, points, settings)
     return _simulate_one_by_one(test, full, settings)
+
+
+def kn_at_pressure(kn: np.ndarray, test: Measurement, settings: ForwardSettings) -> np.ndarray:
+    """The linear law's normal stiffness [N/m] that ``test`` runs: kn (p0 / kn_p_ref)^kn_exponent, shape of ``kn``
+    (its value at kn_p_ref; ``ForwardSettings``), a secant stiffness set once per test from its confining pressure.
+
+    Raises:
+        ValueError: a nonzero exponent with another law than the linear one or on a biaxial test (its p0 is
+            in N/m, not a pressure) (one line)."""
+    if settings.kn_exponent == 0.0:
+        return kn
+    if settings.law != ContactLaw.name or test.dim != 3:
+        raise ValueError(f"kn_exponent scales the linear law's kn on triaxial tests only ({test.name}: "
+                         f"{'law ' + settings.law if settings.law != ContactLaw.name else 'biaxial'})")
+    return kn * (test.p0 / settings.kn_p_ref) ** settings.kn_exponent
 
 
 E0 = "interlocking_e0"

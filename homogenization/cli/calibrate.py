@@ -37,7 +37,7 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -48,7 +48,7 @@ from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import (LAW_PARAMETERS, PARAMETERS, RULE, SPREAD, ForwardSettings,
-                                                calibratable, check_density, with_density)
+                                                calibratable, check_density, settings_record, with_density)
 from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN
 from homogenization.material import opening_spread
 from homogenization.calibration.start import START_METHODS, refit_start
@@ -154,6 +154,10 @@ def build_parser() -> argparse.ArgumentParser:
                          help="isotropic strain increment per component [-]")
     forward.add_argument("--stress-rtol", type=positive_float, default=FORWARD.stress_rtol,
                          help="relative tolerance of p = p0 and drained sigma22 = p0 [-]")
+    forward.add_argument("--kn-exponent", type=kn_exponent, default=0.0, metavar="N",
+                         help="linear law, triaxial data: each test runs kn (p0 / 101.325 kPa)^N, a contact stiffness "
+                              "growing with its confining pressure (kn and its prior: the value at 101.325 kPa; N in "
+                              "[0, 1], 0.5 as a sand's small-strain stiffness; default 0: one kn for every test)")
     forward.add_argument("--resolution", choices=RESOLUTION_MODES, default="correct",
                          help="check the forward model's discretisation error against the noise at the start "
                               "point and at the optimum: correct (default) = where it is not well below the noise, "
@@ -217,7 +221,7 @@ def configuration(args: argparse.Namespace, tests: Sequence[Measurement], prior:
 def forward_config(settings: ForwardSettings) -> dict[str, Any]:
     """The forward model's settings as run.json and chain.h5 store them; the linear law, the default,
     is not named (as ``ContactLaw.to_dict``), so that a linear chain's settings read the same as ever."""
-    config = {**asdict(settings), "fixed": dict(settings.fixed), "backend_options": {}}
+    config = {**settings_record(settings), "backend_options": {}}
     if settings.law == ForwardSettings.law:
         del config["law"]
     return config
@@ -241,7 +245,8 @@ def forward_settings(args: argparse.Namespace, dim: int = 2) -> ForwardSettings:
     return ForwardSettings(law=law.name, backend=args.backend, n_orientations=args.orientations, increment=args.increment,
                            iso_increment=args.iso_increment, radius=args.radius, stress_rtol=args.stress_rtol,
                            fixed=fixed, backend_options=options,
-                           critical_state=critical_state_rule(dim) if args.critical_state else None)
+                           critical_state=critical_state_rule(dim) if args.critical_state else None,
+                           kn_exponent=args.kn_exponent)
 
 
 def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
@@ -260,6 +265,7 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
                             "--backend analytical or dem")
     check_spread(args, tests)
     check_critical_state(args, tests)
+    check_kn_exponent(args, tests)
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
     if args.backend == "ann" and not all(RANGE_MODELS[t.dim] for t in tests):
@@ -289,6 +295,31 @@ def check_critical_state(args: argparse.Namespace, tests: Sequence[Measurement])
                         "of one dimension")
     if SPREAD in args.params or args.alpha0_spread != 0.0:
         raise UserError(f"--critical-state does not run with {SPREAD} (the renewal takes one opening angle per point)")
+
+
+def check_kn_exponent(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
+    """UserError (one line) for --kn-exponent where it has no meaning: a law other than the linear one,
+    biaxial data (their p0 is a force per length) or --backend ann (trained at one kn)."""
+    if args.kn_exponent == 0.0:
+        return
+    if args.law != ForwardSettings.law:
+        raise UserError(f"--kn-exponent scales the linear law's kn; --law {args.law} has its own pressure dependence")
+    flat = [t.name for t in tests if t.dim != 3]
+    if flat:
+        raise UserError(f"--kn-exponent needs triaxial data (a confining pressure in Pa): --data {flat[0]} is biaxial")
+    if args.backend == "ann":
+        raise UserError("--kn-exponent with --backend ann: the ANN is trained at one kn; use analytical or dem")
+
+
+def kn_exponent(text: str) -> float:
+    """argparse type: a float in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be in [0, 1]")
+    return value
 
 
 def check_rule_prior(prior: bayes.Prior, settings: ForwardSettings) -> None:

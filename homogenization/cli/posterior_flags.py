@@ -5,7 +5,8 @@
   (``homogenization.calibration.posterior``), refuses (one line, exit 2) a posterior of the other
   dimension, one whose parameters the chosen backends cannot set (the ann runs its model's own
   contact law and cell), and the flags it replaces given explicitly; then sets --law (the
-  calibration's, posterior.json's ``contact_law``; none: linear), --phi, --kn and --kt or
+  calibration's, posterior.json's ``contact_law``; none: linear), --phi, --kn and --kt (times
+  (p0 / kn_p_ref)^kn_exponent where the calibration ran ``--kn-exponent``) or
   --shear-modulus and --poisson, --alpha0 and --radius to the posterior mean (uncalibrated parameters: the calibration's fixed
   values), and --e-min and --e-max where its data gave void ratios (``check_void_ratio``: then the run
   needs --void-ratio, whose map gives alpha0; ``run_files.resolve_void_ratio``), turns --critical-state on
@@ -27,7 +28,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from homogenization.calibration.forward import DENSITY, SPREAD
+from homogenization.calibration.forward import DENSITY, SPREAD, settings_record
 from homogenization.cli.run_files import explicit_flags
 from homogenization.material import opening_spread
 from warp_hcell.core.cli import UserError
@@ -50,6 +51,8 @@ class PosteriorRun:
     seed: int
     band: dict[str, Any] | None = None
     void_ratio: float | None = None
+    kn_scale: float = 1.0
+    """The factor (p0 / kn_p_ref)^kn_exponent on the posterior's kn at the command's p0 (1 without the exponent)."""
 
     @property
     def critical_state(self) -> Any:
@@ -120,17 +123,18 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
     if DENSITY[0] in post.mean:
         args.e_min, args.e_max = post.mean["e_min"], post.mean["e_max"]
     args.law, args.phi, args.alpha0, args.radius = law.name, law.phi_g_deg, alpha0, post.radius
+    scale = (args.p0 / post.forward.kn_p_ref) ** post.forward.kn_exponent if post.forward.kn_exponent else 1.0
     if law.name == HertzMindlinLaw.name:
         args.shear_modulus, args.poisson = law.shear_modulus, law.poisson
     else:
-        args.kn, args.kt = law.kn, law.kt
+        args.kn, args.kt = law.kn * scale, law.kt * scale
     draws = None
     if args.posterior_band is not None:
         try:
             draws = post_mod.draw_samples(post, args.posterior_band, args.seed)
         except ValueError as exc:
             raise UserError(str(exc)) from None
-    return PosteriorRun(post, draws, args.seed, void_ratio=getattr(args, "void_ratio", None))
+    return PosteriorRun(post, draws, args.seed, void_ratio=getattr(args, "void_ratio", None), kn_scale=scale)
 
 
 def check_void_ratio(post: Any, void_ratio: float | None) -> None:
@@ -167,7 +171,7 @@ def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *
         model = Analytical3DCell.with_hertz_cell_laws(law.shear_modulus * ones, law.poisson * ones, law.phi_g_deg * ones,
                                                       run.posterior.radius, alpha0_deg=alpha0)
     else:
-        model = Analytical3DCell.with_cell_laws(law.kn * ones, law.kt_over_kn * ones, law.phi_g_deg * ones,
+        model = Analytical3DCell.with_cell_laws(law.kn * run.kn_scale * ones, law.kt_over_kn * ones, law.phi_g_deg * ones,
                                                 run.posterior.radius, alpha0_deg=alpha0)
     setattr(model, opening_spread.FAMILIES_ATTRIBUTE, True)
     return {**models, "analytical": model}
@@ -189,13 +193,11 @@ def run_record(run: PosteriorRun | None) -> dict[str, Any]:
     draws, seed, file and forward model); {} without --posterior."""
     if run is None:
         return {}
-    from dataclasses import asdict  # noqa: PLC0415
-
     record = run.posterior.record()
     if run.draws is not None:
         record["band"] = {"draws": int(next(iter(run.draws.values())).size), "seed": run.seed, "file": BAND_FILE,
                           "quantiles": [0.025, 0.975],
-                          "forward_model": {**asdict(run.posterior.forward), "fixed": dict(run.posterior.forward.fixed)}}
+                          "forward_model": settings_record(run.posterior.forward)}
     return {"posterior": record}
 
 
