@@ -116,19 +116,17 @@ class ForwardSettings:
         n_orientations: cell orientations per material point of a 2D test [-].
         lebedev_order, n_spins: cell orientations of a triaxial test (``orientation.orientations_3d``).
         staggered_spins: stagger the spins from axis to axis; False keeps the rule's cube symmetry.
-        increment: axial strain increment of the shear stage [-].
-        iso_increment: strain increment per component of the isotropic stage [-].
+        increment: axial strain increment of the shear [-].
+        iso_increment: strain increment per component, isotropic stage [-].
         radius: grain radius [m].
         stress_rtol: relative tolerance of p = p0 (landing) and sigma22 = p0 (drained) [-].
-        max_newton: Newton iterations allowed per drained increment [-].
+        max_newton: Newton iterations per drained increment [-].
         fixed: value of every parameter not calibrated (CLI flag units).
-        backend_options: extra keyword options of the backend (dem/ann: device, threads, model).
+        backend_options: the backend's keyword options (dem/ann: device, threads, model).
         critical_state: the cells' renewal rule (``material.critical_state``; None: none), on each set's
             void-ratio map.
         kinematics: 3D cells' kinematics (``orientation.KINEMATICS``; "amplified": hcell3d-sand).
-        kn_exponent: n of the linear law's pressure-dependent stiffness: each triaxial test runs kn (p0 /
-            kn_p_ref)^n (``kn_at_pressure``), kn being the value at kn_p_ref; 0 (default): kn for every test.
-        kn_p_ref: the reference pressure of ``kn_exponent`` [Pa]."""
+        kn_exponent, kn_p_ref [Pa]: triaxial tests run kn (p0 / kn_p_ref)^kn_exponent, ``kn_at_pressure``."""
 
     law: str = ContactLaw.name
     backend: str = "analytical"
