@@ -17,7 +17,8 @@ RMS d eps_v, peak q and its strain, eps_v at the end, late dilatancy, fallbacks,
 ``--interlocking`` adds the interlocking friction (``calibration.interlocking``: tan phi = (e_c(p) / e)^m tan phi_g,
 e_c(p) = e_Gamma - lambda (p / p_ref)^0.7) and fits m, e_Gamma, lambda (``INTERLOCKING``) after the rule's
 parameters; ``--free-xi`` also xi (``XI``, per set); with ``--cell-spread`` also the cells' spread of friction s (``Interlocking.cell_spread``, last); ``--psi`` (with ``--void-ratio``) puts the map on the state parameter (``PSI``); ``--law hertz-mindlin`` the Hertz-Mindlin contact law (``HERTZ``); ``--kn-exponent N`` the linear law's kn of each test
-times (p0 / p_ref)^N (``--fit-kn-exponent``: N fitted, from --kn-exponent); ``--orders L,S`` another Lebedev order and spin count (cheap scouting).
+times (p0 / p_ref)^N (``--fit-kn-exponent``: N fitted, from --kn-exponent); ``--orders L,S`` another Lebedev order and spin count (cheap scouting); ``--peak-sigma S`` adds each fitted
+test's smoothed strain at peak (``soft_peak_strain``) to the residuals, sigma S.
 
 ``--max-nfev 0`` evaluates the start (no fit); ``--max-seconds T`` stops each fit after T s of wall time at the lowest chi-square set it has run (each new lowest goes to stderr); ``--fd-step F`` the Jacobian's step, F of each bound's width. ``--increment`` refines the shear increment (isotropic: the smaller of it and 1e-3). ``--figure FILE.json`` redraws a result's figure. Output: studies/results/real_sand_critical_state_SPLIT[_TAG].json and .png (q and eps_v against eps1,
 data and model); the printout is the .txt when run through tee.
@@ -80,6 +81,8 @@ XI = ("xi_c",)
 """The fitted coordinate of ``--free-xi`` (with ``--interlocking``, after ``INTERLOCKING``): the line's xi per set."""
 KN_EXPONENT = ("kn_exponent",)
 """The fitted coordinate of ``--fit-kn-exponent`` (last): n of the linear law's kn (p0 / p_ref)^n."""
+PEAK_SHARPNESS = 50.0
+"""``soft_peak_strain``'s sharpness: a point 2 % of q below the peak weighs 1/e of it."""
 SPREAD = ("cell_spread",)
 """The fitted coordinate of ``--cell-spread`` (with ``--interlocking``, last): ``Interlocking.cell_spread``."""
 
@@ -189,6 +192,18 @@ def row(test: Measurement, curves: forward.Curves, i: int, renewals: int) -> dic
             "renewals": int(renewals)}
 
 
+def soft_peak_strain(eps1: np.ndarray, q: np.ndarray, sharpness: float = PEAK_SHARPNESS) -> np.ndarray:
+    """Strain at peak of curves q (n_sets, n_points) at eps1 (n_points,), smoothed: the mean of eps1 weighted by
+    exp(sharpness (q / q_max - 1)), so points within 1 / sharpness of the peak count (a ragged plateau's
+    centre instead of its highest point; a finite-difference Jacobian can see it). Returns (n_sets,), NaN
+    for a curve without a finite point."""
+    q = np.atleast_2d(q)
+    with np.errstate(all="ignore"):
+        w = np.exp(sharpness * (q / np.nanmax(q, axis=1, keepdims=True) - 1.0))
+        w = np.where(np.isfinite(w), w, 0.0)
+        return np.sum(w * eps1, axis=1) / np.sum(w, axis=1)
+
+
 class _OutOfTime(Exception):
     """A fit ran past ``--max-seconds``."""
 
@@ -225,6 +240,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="stop each fit after this wall time [s] at the lowest chi-square set it has run (0: none)")
     parser.add_argument("--fd-step", type=float, default=0.0,
                         help="the Jacobian's forward-difference step as a fraction of each bound's width (0: MAP_STEP)")
+    parser.add_argument("--peak-sigma", type=float, default=0.0,
+                        help="add each fitted test's smoothed strain at peak (soft_peak_strain, model against data) "
+                             "to the residuals with this sigma [strain] (0: not)")
     parser.add_argument("--tag", default="")
     args = parser.parse_args(argv)
     if args.figure:
@@ -275,6 +293,9 @@ def main(argv: list[str] | None = None) -> int:
             curves.append({"q": c.q, "p": c.p, "eps_v": c.eps_v})
         evaluations[0] += X.shape[0]
         r = bayes.residuals(tests, curves, NOISE)
+        if args.peak_sigma > 0:
+            r = np.hstack([r] + [((soft_peak_strain(t.eps1, c["q"]) - soft_peak_strain(t.eps1, t.observed["q"]))
+                                  / args.peak_sigma)[:, None] for t, c in zip(tests, curves)])
         r = np.where(np.isfinite(r), r, 1e3)
         chi = np.sum(r ** 2, axis=1)
         seen["calls"] += X.shape[0] == 1
@@ -298,6 +319,7 @@ def main(argv: list[str] | None = None) -> int:
     cell += ", Hertz-Mindlin law" if args.law == "hertz-mindlin" else ""
     cell += f", kn (p0 / p_ref)^{args.kn_exponent:g}" if args.kn_exponent and not args.fit_kn_exponent else ""
     cell += ", kn (p0 / p_ref)^n (n fitted)" if args.fit_kn_exponent else ""
+    cell += f", strain at peak fitted (sigma {args.peak_sigma:g})" if args.peak_sigma > 0 else ""
     print(f"split {args.split}, {cell}, kinematics {args.kinematics}; forward: Lebedev {settings.lebedev_order} x "
           f"{settings.n_spins}, increment {settings.increment:g}, iso {settings.iso_increment:g}; nice "
           f"{os.nice(0)}, load {os.getloadavg()[0]:.1f}", flush=True)
@@ -336,7 +358,11 @@ def main(argv: list[str] | None = None) -> int:
                             args.free_xi, n_kn)
         if name in fitted:
             chi2 += float(np.sum(bayes.residuals([test], [{"q": c.q, "p": c.p, "eps_v": c.eps_v}], NOISE) ** 2))
-        rows[name] = {"role": "predicted" if name == predicted else "fitted", **row(test, c, 0, int(count[0]))}
+        rows[name] = {"role": "predicted" if name == predicted else "fitted", **row(test, c, 0, int(count[0])),
+                      "eps1_soft_peak_model": float(soft_peak_strain(test.eps1, c.q[:1])[0]),
+                      "eps1_soft_peak_data": float(soft_peak_strain(test.eps1, test.observed["q"])[0])}
+        if name in fitted and args.peak_sigma > 0:
+            chi2 += ((rows[name]["eps1_soft_peak_model"] - rows[name]["eps1_soft_peak_data"]) / args.peak_sigma) ** 2
         if stats:
             rows[name].update(friction_shear_start=float(stats["friction_shear_start"][0]),
                               friction_end=float(stats["friction_end"][0]), e_c_floored=int(stats["floored"][0]),
@@ -348,6 +374,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"optimum: " + ", ".join(f"{c} {v:.4g}" for c, v in optimum.items())
           + f"; chi-square fitted {chi2:.4g}; {evaluations[0]} sets, {seconds:.0f} s, load {os.getloadavg()[0]:.1f}")
     print_prediction_table(rows, fallbacks=True)
+    print("smoothed strain at peak (soft_peak_strain) model / data [%]: " + ", ".join(
+        f"{k} {100 * v['eps1_soft_peak_model']:.2f} / {100 * v['eps1_soft_peak_data']:.2f}" for k, v in rows.items()))
     if args.interlocking:
         print("interlocking friction [deg] at the start of shear -> at the end (increments with e_c clipped, with "
               "the friction back at phi_mu): " + ", ".join(
@@ -363,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
            "settings": {"lebedev_order": settings.lebedev_order, "n_spins": settings.n_spins,
                         "increment": settings.increment, "iso_increment": settings.iso_increment,
                         "stress_rtol": settings.stress_rtol}, "noise": NOISE,
-           "law": args.law, "kn_exponent": args.kn_exponent, "optimum": optimum, "chi_square_fitted": chi2, "fits": fits, "tests": rows, "curves": curves_out,
+           "law": args.law, "kn_exponent": args.kn_exponent, "peak_sigma": args.peak_sigma, "optimum": optimum, "chi_square_fitted": chi2, "fits": fits, "tests": rows, "curves": curves_out,
            "evaluations": evaluations[0], "seconds": seconds, "load_average_at_end": list(os.getloadavg())}
     stem = f"real_sand_critical_state_{args.split.replace('+', '_')}" + (f"_{args.tag}" if args.tag else "")
     RESULTS.mkdir(exist_ok=True)
