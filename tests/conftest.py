@@ -37,11 +37,6 @@ def _default_verbosity():
     cli._OUTPUT.quiet = False
 
 
-def pytest_configure(config):
-    config.addinivalue_line("markers", "other_cpus(check): compares a check of tests/other_cpus.py (CHECKS) with its "
-                                       "run on other CPUs (fixture other_cpus)")
-
-
 @pytest.fixture(scope="session")
 def other_cpus(request, tmp_path_factory):
     """``other_cpus.Runs`` of the checks that this session's tests marked ``other_cpus`` name: the first test process

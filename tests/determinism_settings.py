@@ -1,10 +1,12 @@
-"""``make determinism``: the tests marked ``determinism`` under every CPU-feature setting, one pytest each.
+"""``make determinism``: the tests marked ``determinism`` under every CPU-feature setting, one pytest each, and
+the tests marked ``other_cpus`` once (they compile the meso-ANN's steps for other CPUs and compare the bits).
 
 numpy, OpenBLAS, torch (ATen, MKL, oneDNN), numba and glibc pick their kernels by CPU; these variables
 make them pick those of another CPU, so that one machine checks what an AVX2 or an AVX-512
 machine would compute (docs/determinism.md). Settings that need AVX-512 run only where the CPU
 has it. The settings run two at a time (each its own process; those that compile numba for another CPU
-start first). Prints one line per setting, in order, and the total time; exit status 1 if any setting failed.
+start first, after the ``other_cpus`` tests). Prints one line per setting, in order, then the ``other_cpus`` line
+and the total time; exit status 1 if any of them failed.
 
     python tests/determinism_settings.py [pytest arguments, e.g. -x]
 """
@@ -61,10 +63,10 @@ def has_avx512() -> bool:
         return False
 
 
-def marked_files() -> list[str]:
-    """The test files that hold tests marked ``determinism`` (collecting only these keeps each run short)."""
+def marked_files(marker: str = "determinism") -> list[str]:
+    """The test files that hold tests marked ``marker`` (collecting only these keeps each run short)."""
     return sorted(str(p.relative_to(ROOT)) for p in (ROOT / "tests").glob("test_*.py")
-                  if "pytest.mark.determinism" in p.read_text())
+                  if f"pytest.mark.{marker}" in p.read_text())
 
 
 WORKERS = 2
@@ -82,10 +84,11 @@ def start_order(settings: list[dict[str, str]]) -> list[int]:
     return sorted(range(1, len(settings)), key=lambda index: not compiles[index - 1])
 
 
-def run_setting(variables: dict[str, str], argv: list[str], files: list[str]) -> tuple[subprocess.CompletedProcess, float]:
-    """One pytest of the ``determinism`` tests under ``variables``: (its result, its wall time [s])."""
+def run_setting(variables: dict[str, str], argv: list[str], files: list[str],
+                marker: str = "determinism") -> tuple[subprocess.CompletedProcess, float]:
+    """One pytest of the tests marked ``marker`` under ``variables``: (its result, its wall time [s])."""
     t0 = time.perf_counter()
-    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-m", "determinism",
+    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-m", marker,
                              *argv, *files], cwd=ROOT, env={**os.environ, **variables}, capture_output=True, text=True)
     return result, time.perf_counter() - t0
 
@@ -103,10 +106,12 @@ def main(argv: list[str]) -> int:
             runnable.append((label, variables))
     first = run_setting(runnable[0][1], argv, files)
     with ThreadPoolExecutor(max_workers=WORKERS) as pool:
+        other_cpus = pool.submit(run_setting, {}, argv, marked_files("other_cpus"), "other_cpus")
         futures = {index: pool.submit(run_setting, runnable[index][1], argv, files)
                    for index in start_order([variables for _, variables in runnable])}
-        for index, (label, _) in enumerate(runnable):
-            result, seconds = futures[index].result() if index else first
+        labelled = [(label, futures[index] if index else None) for index, (label, _) in enumerate(runnable)]
+        for label, future in [*labelled, ("tests marked other_cpus, host CPU", other_cpus)]:
+            result, seconds = future.result() if future else first
             summary = (result.stdout.strip().splitlines() or ["(no output)"])[-1]
             print(f"{'ok    ' if result.returncode == 0 else 'FAILED'} {seconds:5.0f} s  {label}: {summary}", flush=True)
             if result.returncode != 0:
