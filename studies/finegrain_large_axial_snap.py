@@ -5,7 +5,9 @@ the certificate's loading and cells, Lebedev order 11 x 4 spins, ``homogenizatio
 process runs the DEM, then for each model (a) the hybrid as the certificate measures it (K = 20 Newton corrections
 at force ratio 1e-4, ``RELEASE_RULE``) and (b) a study-only variant, not a package option: the same hybrid with
 every cell-increment that ends with a released grain (``DemEscalation.released_dofs``, those pushed from rest
-included) replaced by the DEM's increment from rest (``DemEscalation.advance``). Prints per run: the certificate's
+included) replaced by the DEM's increment from rest (``DemEscalation.advance``), and (c) the hybrid without the
+released-grain rule (``AnnCell(dem_escalation=False)``: the network's guess starts every grain's corrections; a
+package option that ``hmodel certify`` does not certify for fine-grain cells). Prints per run: the certificate's
 figure (largest abs(dp) or abs(dq) over the shear stage / max(p0, largest DEM p)), the first increment above 2 %,
 the largest one-increment drop of q (the snap of a fine grain leaving its wedge) and where, the free fine grain's
 x_n [m] in the cell of the DEM's largest drop at 70, 80, 90 and 100 % of the shear stage, cell-increments handed to
@@ -190,9 +192,10 @@ def main(argv=None) -> int:
               + ", ".join(f"{v:.5f}" for v in base["fine_x_n"].values()), flush=True)
         lines.append({"test": name, "run": "dem", "seconds": wall, **base})
         for path, card in zip(args.model, cards):
-            for variant in ("certified hybrid", "released cells to the DEM (study only)"):
+            for variant in ("certified hybrid", "released cells to the DEM (study only)", "no released-grain rule"):
+                rule = {"dem_escalation": False} if variant.startswith("no ") else {"release_rule": RELEASE_RULE}
                 model = make_cell_model("ann", contact_law=law, model=Path(path), threads=1, card=card,
-                                        equilibrium_corrections=20, equilibrium_tolerance=1e-4, release_rule=RELEASE_RULE)
+                                        equilibrium_corrections=20, equilibrium_tolerance=1e-4, **rule)
                 if variant.startswith("released"):
                     released_to_dem(model)
                 record, wall = run(model)
