@@ -81,20 +81,6 @@ def test_iso_increment_follows_a_coarse_shear_increment(tmp_path):
     assert np.allclose(steps[:-1], 5e-5) and int(iso.sum()) < 1000  # 5,200 at the old 5e-6
 
 
-def test_warp_banner_only_with_verbose(tmp_path):
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
-    base = [sys.executable, "-m", "homogenization.biaxial", "--backend", "dem", "--threads", "1",
-            "--alpha0", "55", "--eps-max", "0.001", "--increment", "5e-4", "--orientations", "4"]
-    quiet = subprocess.run(base + ["--out", str(tmp_path / "q")], capture_output=True, text=True, env=env, timeout=300)
-    assert quiet.returncode == 0 and "Warp" not in quiet.stdout + quiet.stderr
-    verbose = subprocess.run(base + ["-v", "--out", str(tmp_path / "v")], capture_output=True, text=True, env=env,
-                             timeout=300)
-    assert verbose.returncode == 0 and "Warp" in verbose.stdout + verbose.stderr
-    silent = subprocess.run(base + ["-q", "--out", str(tmp_path / "s")], capture_output=True, text=True, env=env,
-                            timeout=300)
-    assert silent.returncode == 0 and silent.stdout == "" and silent.stderr == ""
-
-
 def test_command_line_names_the_module_of_a_python_m_run():
     code = "from warp_hcell.core.provenance import command_line; print(command_line())"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}

@@ -111,7 +111,7 @@ def test_a_plain_h_cell_file_runs_on_the_analytical_backend_at_its_own_alpha0(tm
     path = tmp_path / "plain.toml"
     path.write_text("\n".join(lines) + "\n")
     out = tmp_path / "file"
-    assert cli(["--mesostructure", str(path), "--alpha0", "40", "--backend", "analytical,dem", *SMALL,
+    assert cli(["--mesostructure", str(path), "--alpha0", "40", "--backend", "analytical,dem", "--workers", "1", *SMALL,
                 "--eps-max", "0.05", "--out", str(out)]) == 0
     rows = rows_by_case(out)
     ana, dem = rows[(str(path), "analytical")], rows[(str(path), "dem")]
@@ -121,7 +121,7 @@ def test_a_plain_h_cell_file_runs_on_the_analytical_backend_at_its_own_alpha0(tm
 
 def test_erosion_removes_the_fine_grain_and_the_plain_response_comes_back(fines_sweep, tmp_path):
     out = tmp_path / "erode"
-    assert cli(["--mesostructure", "hcell,hcell-fines:ratio=0.8", "--alpha0", "50", "--backend", "dem",
+    assert cli(["--mesostructure", "hcell,hcell-fines:ratio=0.8", "--alpha0", "50", "--backend", "dem", "--workers", "1",
                 "--erode-at", "0.05", *SMALL, "--out", str(out)]) == 0
     rows = rows_by_case(out)
     plain, eroded = rows[("hcell", "dem")], rows[("hcell-fines:ratio=0.8", "dem")]
@@ -238,7 +238,7 @@ def test_each_fines_cell_runs_on_the_model_of_its_mesostructure(fines_models, tm
     a MESOSTRUCTURE=PATH item names the model of one cell."""
     first, second = (fines_models[spec] for spec in ANN_FINES)
     out = tmp_path / "bare"
-    assert cli(["--mesostructure", ",".join(ANN_FINES), "--backend", "ann,dem", "--model", str(second),
+    assert cli(["--mesostructure", ",".join(ANN_FINES), "--backend", "ann,dem", "--workers", "1", "--model", str(second),
                 "--model", str(first), "--uncertified-ok", *ANN_SMALL, "--out", str(out)]) == 0
     assert _models_used(out) == {ANN_FINES[0]: str(first), ANN_FINES[1]: str(second)}
     rows = sweep.read_summary(out / sweep.SUMMARY_FILE)
