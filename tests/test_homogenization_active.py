@@ -2,6 +2,7 @@
 short certificate; one round adds the DEM states of the failing tests and repairs it."""
 
 import json
+import shutil
 from pathlib import Path
 
 import h5py
@@ -27,16 +28,28 @@ TRAIN_CONFIG = TrainConfig(epochs=30, hidden=(16,), threads=1, rollout=False)
 """``TRAIN`` as the training settings that ``active.learn`` takes."""
 
 
-@pytest.fixture()
-def tiny(tmp_path):
-    """A model of the tiny 48-sample database of test_homogenization_certificate.py."""
+@pytest.fixture(scope="module")
+def tiny_built(tmp_path_factory) -> Path:
+    """The folder of ``tiny``'s database and model, built once per module."""
     from dem_database import build
 
-    db = build(tmp_path / "db.h5", mesostructure=h_cell(55.0), precompression=(0.0, 2e-3), n_directions=6,
+    folder = tmp_path_factory.mktemp("tiny")
+    db = build(folder / "db.h5", mesostructure=h_cell(55.0), precompression=(0.0, 2e-3), n_directions=6,
                spacing=1e-2, leg_length=0.04, threads=1)
-    model = tmp_path / "m.pt"
-    assert training_train.main(["--data", str(db), "--out", str(model), *TRAIN]) == 0
-    return db, model
+    assert training_train.main(["--data", str(db), "--out", str(folder / "m.pt"), *TRAIN]) == 0
+    return folder
+
+
+@pytest.fixture()
+def tiny(tiny_built, tmp_path):
+    """A model of the tiny 48-sample database of test_homogenization_certificate.py: a copy of ``tiny_built``'s
+    files in this test's folder, which the test may change."""
+    shutil.copytree(tiny_built, tmp_path, dirs_exist_ok=True)
+    card = tmp_path / "m.json"  # as training here would have written it: its database is the copy
+    meta = json.loads(card.read_text())
+    meta["training_data"]["path"] = str(tmp_path / "db.h5")
+    card.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    return tmp_path / "db.h5", tmp_path / "m.pt"
 
 
 def test_one_round_adds_the_failing_tests_states_and_repairs_the_model(tiny, capsys):

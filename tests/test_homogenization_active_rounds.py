@@ -16,7 +16,7 @@ import pytest
 from homogenization.learning import active, certificate
 from homogenization.ann.records import Certificate, Round, TestResult
 from homogenization.learning.settings import ActiveSettings, CertificateSettings
-from test_homogenization_active import SHORT, TRAIN_CONFIG, tiny  # noqa: F401 (tiny: the fixture)
+from test_homogenization_active import SHORT, TRAIN_CONFIG, tiny, tiny_built  # noqa: F401 (the fixtures)
 from training import train as training_train
 from warp_hcell.core.parameters import DatabaseSettings
 from warp_hcell.core.provenance import file_sha256
