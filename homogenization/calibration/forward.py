@@ -270,6 +270,12 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
     return _simulate_one_by_one(test, full, settings)
 
 
+def kn_factor(p0: float, settings: ForwardSettings) -> float:
+    """(p0 / kn_p_ref)^kn_exponent [-]: the factor on the linear law's kn at confining pressure ``p0`` [Pa]; 1 without
+    the exponent."""
+    return (p0 / settings.kn_p_ref) ** settings.kn_exponent if settings.kn_exponent else 1.0
+
+
 def kn_at_pressure(kn: np.ndarray, test: Measurement, settings: ForwardSettings) -> np.ndarray:
     """The linear law's normal stiffness [N/m] that ``test`` runs: kn (p0 / kn_p_ref)^kn_exponent, shape of ``kn``
     (its value at kn_p_ref; ``ForwardSettings``), a secant stiffness set once per test from its confining pressure.
@@ -282,7 +288,7 @@ def kn_at_pressure(kn: np.ndarray, test: Measurement, settings: ForwardSettings)
     if settings.law != ContactLaw.name or test.dim != 3:
         raise ValueError(f"kn_exponent scales the linear law's kn on triaxial tests only ({test.name}: "
                          f"{'law ' + settings.law if settings.law != ContactLaw.name else 'biaxial'})")
-    return kn * (test.p0 / settings.kn_p_ref) ** settings.kn_exponent
+    return kn * kn_factor(test.p0, settings)
 
 
 E0 = "interlocking_e0"

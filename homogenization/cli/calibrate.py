@@ -66,6 +66,7 @@ from warp_hcell.core.cli import (
     add_contact_law_arguments,
     alpha0_deg,
     contact_law_from_args,
+    finite_float,
     fraction,
     positive_float,
     positive_int,
@@ -313,10 +314,7 @@ def check_kn_exponent(args: argparse.Namespace, tests: Sequence[Measurement]) ->
 
 def kn_exponent(text: str) -> float:
     """argparse type: a float in [0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    value = finite_float(text)
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"{text!r} must be in [0, 1]")
     return value

@@ -28,7 +28,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from homogenization.calibration.forward import DENSITY, SPREAD, settings_record
+from homogenization.calibration.forward import DENSITY, SPREAD, kn_factor, settings_record
 from homogenization.cli.run_files import explicit_flags
 from homogenization.material import opening_spread
 from warp_hcell.core.cli import UserError
@@ -123,7 +123,7 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
     if DENSITY[0] in post.mean:
         args.e_min, args.e_max = post.mean["e_min"], post.mean["e_max"]
     args.law, args.phi, args.alpha0, args.radius = law.name, law.phi_g_deg, alpha0, post.radius
-    scale = (args.p0 / post.forward.kn_p_ref) ** post.forward.kn_exponent if post.forward.kn_exponent else 1.0
+    scale = kn_factor(args.p0, post.forward)
     if law.name == HertzMindlinLaw.name:
         args.shear_modulus, args.poisson = law.shear_modulus, law.poisson
     else:
