@@ -86,6 +86,7 @@ def run(
     critical_state: CriticalState | None = None,
     void_ratio: float | None = None,
     density_map: DensityMap | None = None,
+    renewal: Callable[[MaterialPoints], Any] | None = None,
 ) -> Record:
     """Run ``programme`` on the oriented cells of ``cell_model``, all starting as ``mesostructure``; returns
     the ``Record``.
@@ -95,15 +96,15 @@ def run(
             weights (1 + a_f cos 2(theta - b_f)) / pi, a_f in [0, 1).
         lebedev_order, n_spins, spin_period_deg, staggered_spins: 3D orientations
             (``orientation.orientations_3d``; spin_period_deg None: the cell's own).
-        snapshot_interval: per-cell observables every this many increments (0: at stage ends).
+        snapshot_interval: per-cell observables every this many increments (0: stage ends).
         stress_rtol, max_newton_iterations: stress control's tolerance [-] and step calls per increment.
-        progress: per-stage progress callbacks (``stages.StageProgress``); None or False: none.
-        before_stage: step index -> action on the material point before that step (e.g. erosion).
+        progress: per-stage progress callbacks (``stages.StageProgress``); None/False: none.
+        before_stage: step index -> action on the material point before that step.
         critical_state: renewal rule of the cells (``material.critical_state``; None: the plain H-model);
-            diagnostics ``critical_state_renewals``, ``_rate_capped``, ``_angle_clipped``, ``_merged`` count its
-            events.
+            diagnostics ``critical_state_*`` count its events.
         void_ratio, density_map: the cells' initial void ratio [-], recorded (``Record.e0``); the cell
             must be at the map's alpha0 (None: ``density.default_map``).
+        renewal: points -> their renewal, replacing ``critical_state``'s.
 
     Raises:
         ValueError: invalid programme or options (one line).
@@ -124,7 +125,9 @@ def run(
                              fabric_anisotropy=fabric_anisotropy, fabric_direction_deg=fabric_direction_deg,
                              lebedev_order=lebedev_order, n_spins=n_spins, spin_period_deg=spin_period_deg,
                              staggered_spins=staggered_spins)
-    if critical_state is not None:
+    if renewal is not None:
+        points.renewal = renewal(points)
+    elif critical_state is not None:
         points.renewal = Renewal(critical_state, points.material, points.state, density_map)
     solver = StressControl(points, replace(STRICT, rtol=stress_rtol, max_iterations=max_newton_iterations))
     history = History(sum(s.n_increments for s in programme), 1, dim)
@@ -139,10 +142,11 @@ def run(
         warnings.warn(f"stress control met a jump of the response across its target at {jumps} increment(s): the "
                       f"side nearer the target was accepted (diagnostics 'stress_control_jump')", RuntimeWarning,
                       stacklevel=2)
-    if points.renewal is not None:
-        pad = [np.nan] * (history.rows.shape[0] - len(points.renewal.log))
+    log = getattr(points.renewal, "log", None) if points.renewal is not None else None
+    if log is not None:
+        pad = [np.nan] * (history.rows.shape[0] - len(log))
         for i, name in enumerate(("renewals", "rate_capped", "angle_clipped", "merged")):
-            history.diagnostics[f"critical_state_{name}"] = np.array([float(c[i][0]) for c in points.renewal.log] + pad)
+            history.diagnostics[f"critical_state_{name}"] = np.array([float(c[i][0]) for c in log] + pad)
     record = to_record(history, points, programme, step_seconds, dict(mesostructure.parameters))
     if density_map is not None:
         record.e0, record.density_map = float(void_ratio), density_map
