@@ -68,10 +68,19 @@ CONTACT_LAW_KEY = "contact_law"
 CRITICAL_STATE_KEY = "critical_state"
 """Key of posterior.json (and of run.json's forward settings) holding the critical-state rule at the posterior
 mean (``dataclasses.asdict``); absent: the plain cell."""
-PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson", opening_spread.NAME, *DENSITY, *RULE)
+INTERLOCKING_PRIOR = {"interlocking_m": (0.0, 6.0, False), "e_gamma": (0.5, 1.2, False), "lambda_c": (0.0, 0.4, False),
+                      "xi_c": (0.2, 1.0, False), "cell_spread": (0.0, 0.6, False)}
+"""Default prior of the interlocking friction's calibratable parameters (``INTERLOCKING``: CLI name -> ``Interlocking``
+field): uniform (low, high, log-uniform?), all [-]; read only with ``ForwardSettings.interlocking``, per set."""
+INTERLOCKING_KEY = "interlocking"
+"""Key of posterior.json (and of run.json's forward settings) holding the interlocking friction at the posterior mean
+(``dataclasses.asdict`` of ``Interlocking``); absent: none."""
+PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson", opening_spread.NAME, *DENSITY, *RULE,
+              *INTERLOCKING)
 """Names of the calibratable parameters, in the units of the CLI flags: phi_g [deg], kn [N/m],
 kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-], alpha0_spread [deg], e_min and
-e_max [-], alpha_c [deg] and renewal_rate [-] (``RULE``)."""
+e_max [-], alpha_c [deg] and renewal_rate [-] (``RULE``), the interlocking friction's m, e_gamma, lambda_c,
+xi_c and cell_spread [-] (``INTERLOCKING``)."""
 LAW_PARAMETERS = {ContactLaw.name: ("phi_g", "kn", "kt_over_kn", "alpha0"),
                   HertzMindlinLaw.name: ("phi_g", "shear_modulus", "poisson", "alpha0")}
 """The parameters of ``PARAMETERS`` that each contact law's forward model reads."""
@@ -93,9 +102,9 @@ a set whose [e_min, e_max] does not hold a test's void ratio fails (log L = -inf
 
 
 def calibratable(law: str) -> tuple[str, ...]:
-    """The parameters a calibration of ``law`` may vary: the law's, the spread of alpha0, the void-ratio map's and
-    the critical-state rule's (``RULE``)."""
-    return LAW_PARAMETERS[law] + (SPREAD,) + DENSITY + tuple(RULE)
+    """The parameters a calibration of ``law`` may vary: the law's, the spread of alpha0, the void-ratio map's,
+    the critical-state rule's (``RULE``) and the interlocking friction's (``INTERLOCKING``)."""
+    return LAW_PARAMETERS[law] + (SPREAD,) + DENSITY + tuple(RULE) + tuple(INTERLOCKING)
 
 
 def rule_at(values: Mapping[str, float], settings: "ForwardSettings") -> CriticalState | None:
@@ -104,6 +113,14 @@ def rule_at(values: Mapping[str, float], settings: "ForwardSettings") -> Critica
     if settings.critical_state is None:
         return None
     return replace(settings.critical_state, **{RULE[name]: float(v) for name, v in values.items() if name in RULE})
+
+
+def interlocking_at(values: Mapping[str, float], settings: "ForwardSettings") -> Interlocking | None:
+    """The settings' interlocking friction with the fields of ``INTERLOCKING`` that ``values`` (CLI names, floats)
+    holds replaced; None without one."""
+    if settings.interlocking is None:
+        return None
+    return replace(settings.interlocking, **{INTERLOCKING[n]: float(v) for n, v in values.items() if n in INTERLOCKING})
 
 
 @dataclass(frozen=True)
@@ -122,11 +139,12 @@ class ForwardSettings:
         stress_rtol: relative tolerance of p = p0 (landing) and sigma22 = p0 (drained) [-].
         max_newton: Newton iterations per drained increment [-].
         fixed: value of every parameter not calibrated (CLI flag units).
-        backend_options: the backend's keyword options (dem/ann: device, threads, model).
+        backend_options: the backend's keyword options (dem/ann).
         critical_state: the cells' renewal rule (``material.critical_state``; None: none), on each set's
             void-ratio map.
-        kinematics: 3D cells' kinematics (``orientation.KINEMATICS``; "amplified": hcell3d-sand).
-        kn_exponent, kn_p_ref [Pa]: triaxial tests run kn (p0 / kn_p_ref)^kn_exponent, ``kn_at_pressure``."""
+        kinematics: 3D cells' kinematics (``orientation.KINEMATICS``).
+        kn_exponent, kn_p_ref [Pa]: triaxial tests run kn (p0 / kn_p_ref)^kn_exponent, ``kn_at_pressure``.
+        interlocking: ``calibration.interlocking``'s friction, or None."""
 
     law: str = ContactLaw.name
     backend: str = "analytical"
@@ -148,6 +166,7 @@ class ForwardSettings:
     kinematics: str = "projected"
     kn_exponent: float = 0.0
     kn_p_ref: float = 101325.0
+    interlocking: Interlocking | None = None
 
     @property
     def parameters(self) -> tuple[str, ...]:
@@ -157,12 +176,15 @@ class ForwardSettings:
 
 def settings_record(settings: ForwardSettings) -> dict:
     """``settings`` as a JSON-able dict (``fixed`` a plain dict); ``kn_exponent`` and ``kn_p_ref`` only where the
-    exponent is nonzero, so that the record of a run without it reads as before that option existed."""
+    exponent is nonzero, ``interlocking`` only where set, so that the record of a run without them reads as before
+    those options existed."""
     from dataclasses import asdict  # noqa: PLC0415
 
     record = {**asdict(settings), "fixed": dict(settings.fixed)}
     if settings.kn_exponent == 0.0:
         del record["kn_exponent"], record["kn_p_ref"]
+    if settings.interlocking is None:
+        del record["interlocking"]
     return record
 
 
@@ -219,8 +241,8 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
     ``DENSITY``) to shape (n,). A test that gives its void ratio runs each set at its map's alpha0
     (``density_alpha0``); a set whose [e_min, e_max] does not hold that void ratio gets NaN curves.
     ``interlocking`` (analytical backend, no spread): phi_g is each set's phi_mu of the interlocking friction
-    (``calibration.interlocking``), e0 the test's void ratio, else the set's map's of its alpha0; m, e_gamma and
-    lambda_c per set where ``params`` holds ``INTERLOCKING``'s names; None: the plain contact law.
+    (``calibration.interlocking``), e0 the test's void ratio, else the set's map's of its alpha0; its fields per set
+    where ``params`` holds ``INTERLOCKING``'s names; None: ``settings.interlocking`` (None: the plain contact law).
 
     Raises:
         ValueError: a parameter value outside its range, the Hertz-Mindlin law on a 2D test, or alpha0_spread
@@ -231,6 +253,10 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
         raise ValueError(f"the Hertz-Mindlin contact law is defined for spheres: {test.name} is a biaxial (2D) "
                          f"test; calibrate it on triaxial data")
     full = full_parameters(params, settings)
+    interlocking = settings.interlocking if interlocking is None else interlocking
+    if interlocking is None and any(name in params for name in INTERLOCKING):
+        raise ValueError(f"{', '.join(n for n in INTERLOCKING if n in params)}: parameters of the interlocking "
+                         f"friction; the forward model runs none (ForwardSettings.interlocking)")
     if settings.critical_state is None and any(name in params for name in RULE):
         raise ValueError(f"{', '.join(n for n in RULE if n in params)}: parameters of the critical-state rule; the "
                          f"forward model runs none (ForwardSettings.critical_state)")

@@ -165,6 +165,11 @@ class InterlockingFriction:
         """The inner renewal's renewals per point (zeros without one)."""
         return self.inner.count if self.inner is not None else np.zeros(self.material.n_points, dtype=np.int64)
 
+    @property
+    def log(self) -> Any:
+        """The inner renewal's log of events (``Renewal.log``), or None without one."""
+        return self.inner.log if self.inner is not None else None
+
     def friction_at(self, state: MaterialState) -> np.ndarray:
         """The friction [deg] of each point at ``state`` (its J and p; with ``relax_strain`` the lagged void ratio
         ``e_lagged`` instead of J's), shape (n,); phi_mu where not finite."""

@@ -28,6 +28,8 @@ from homogenization.calibration.forward import (
     CONTACT_LAW_KEY,
     CRITICAL_STATE_KEY,
     DENSITY,
+    INTERLOCKING,
+    INTERLOCKING_KEY,
     RULE,
     LAW_PARAMETERS,
     SPREAD,
@@ -36,6 +38,7 @@ from homogenization.calibration.forward import (
     contact_law_at,
     simulate,
 )
+from homogenization.calibration.interlocking import Interlocking
 from homogenization.material.critical_state import CriticalState
 from warp_hcell.core.parameters import ContactLaw, Law, contact_law_from_dict
 
@@ -127,6 +130,13 @@ def read_posterior(path: Path) -> CalibratedPosterior:
             rule.check()
         except (TypeError, ValueError) as exc:
             raise ValueError(f"--posterior {path}: {CRITICAL_STATE_KEY!r} is not a critical-state rule: {exc}") from None
+    interlocking = None
+    if INTERLOCKING_KEY in data:
+        try:
+            interlocking = Interlocking(**data.pop(INTERLOCKING_KEY))
+            interlocking.check()
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"--posterior {path}: {INTERLOCKING_KEY!r} is not an interlocking friction: {exc}") from None
     mean: dict[str, float] = {}
     for name, entry in data.items():
         if name not in calibratable(law_name):
@@ -147,11 +157,12 @@ def read_posterior(path: Path) -> CalibratedPosterior:
         radius = float(forward_json["radius"])
         fields = {k: v for k, v in forward_json.items() if k in ForwardSettings.__dataclass_fields__}
         forward = ForwardSettings(**{**fields, "law": law_name, "fixed": fixed, "backend": "analytical",
-                                     "backend_options": {}, "critical_state": rule})
+                                     "backend_options": {}, "critical_state": rule, "interlocking": interlocking})
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"--posterior: {path.parent / RUN_FILE} lacks {exc} (written by an older hmodel calibrate? "
                          f"rerun the same calibrate command on {path.parent} to rewrite it)") from None
-    names = forward.parameters + tuple(name for name in (SPREAD, *DENSITY, *RULE) if name in mean or name in fixed)
+    names = forward.parameters + tuple(name for name in (SPREAD, *DENSITY, *RULE, *INTERLOCKING)
+                                       if name in mean or name in fixed)
     return CalibratedPosterior(path=path, sha256=file_sha256(path), dims=dims, calibrated=tuple(mean),
                                mean={name: mean.get(name, fixed.get(name)) for name in names}, radius=radius,
                                forward=forward, reference=_reference(run, forward))

@@ -18,8 +18,8 @@ from matplotlib.figure import Figure
 
 from homogenization.calibration import bayes, diagnostics
 from homogenization.calibration.data import Measurement
-from homogenization.calibration.forward import (CONTACT_LAW_KEY, CRITICAL_STATE_KEY, ForwardSettings, contact_law_at,
-                                                rule_at, simulate)
+from homogenization.calibration.forward import (CONTACT_LAW_KEY, CRITICAL_STATE_KEY, INTERLOCKING_KEY, ForwardSettings,
+                                                contact_law_at, interlocking_at, rule_at, simulate)
 from homogenization.output.figure_style import GRID, LABELS, apply_style, figure_legend
 from homogenization.output.figures import save_figure
 from warp_hcell.core.cli import quiet_warp
@@ -164,7 +164,8 @@ def posterior_json(summary: Mapping[str, Mapping[str, Any]], names: Sequence[str
                    settings: ForwardSettings) -> dict[str, Any]:
     """posterior.json: mean, median and ci95 of each calibrated parameter; with a law other than the
     linear one (the default, not named), ``contact_law``: that law at the posterior mean (``to_dict``); with
-    a critical-state rule, ``critical_state``: the rule at the posterior mean (``forward.rule_at``)."""
+    a critical-state rule, ``critical_state``: the rule at the posterior mean (``forward.rule_at``); with the
+    interlocking friction, ``interlocking``: it at the posterior mean (``forward.interlocking_at``)."""
     data: dict[str, Any] = {n: {k: summary[n][k] for k in ("mean", "median", "ci95")} for n in names}
     if settings.law != ForwardSettings.law:
         at_mean = {name: np.array([summary[name]["mean"] if name in summary else settings.fixed[name]])
@@ -172,6 +173,8 @@ def posterior_json(summary: Mapping[str, Mapping[str, Any]], names: Sequence[str
         data[CONTACT_LAW_KEY] = contact_law_at(at_mean, 0, settings.law).to_dict()
     if settings.critical_state is not None:
         data[CRITICAL_STATE_KEY] = asdict(rule_at({n: summary[n]["mean"] for n in names}, settings))
+    if settings.interlocking is not None:
+        data[INTERLOCKING_KEY] = asdict(interlocking_at({n: summary[n]["mean"] for n in names}, settings))
     return data
 
 

@@ -11,7 +11,11 @@ angles of that half-width [deg] about alpha0 (``homogenization.material.opening_
 --critical-state runs the cells' renewal rule (``homogenization.material.critical_state``, its
 defaults for the data's dimension) in the forward model; its alpha_c [deg] and renewal_rate [-] may
 then be calibrated; posterior.json holds the rule at the posterior mean (``critical_state``), which
-``hmodel triaxial --posterior`` and ``hmodel biaxial --posterior`` run.
+``hmodel triaxial --posterior`` and ``hmodel biaxial --posterior`` run. --interlocking (triaxial data,
+analytical backend, --confirm none) adds the interlocking friction (``homogenization.calibration.interlocking``):
+its interlocking_m, e_gamma, lambda_c, xi_c and cell_spread may then be calibrated, the others fixed by
+--interlocking-values; posterior.json holds it at the posterior mean (``interlocking``), which ``hmodel triaxial
+--posterior`` runs. --start-point starts the map fit at given values instead of prior draws.
 
 The posterior is sampled with emcee's affine-invariant ensemble, every step running the forward
 model of all walkers as one batch of cells. --start map (default) first finds the posterior's
@@ -47,8 +51,10 @@ from homogenization.ann import RANGE_MODELS
 from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
-from homogenization.calibration.forward import (LAW_PARAMETERS, PARAMETERS, RULE, SPREAD, ForwardSettings,
-                                                calibratable, check_density, settings_record, with_density)
+from homogenization.calibration.forward import (INTERLOCKING, LAW_PARAMETERS, PARAMETERS, RULE, SPREAD,
+                                                ForwardSettings, calibratable, check_density, settings_record,
+                                                with_density)
+from homogenization.calibration.interlocking import Interlocking
 from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN
 from homogenization.material import opening_spread
 from homogenization.calibration.start import START_METHODS, refit_start
@@ -142,6 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
                          help="where the walkers start: map = a ball around the best of a seeded multi-start "
                               "least-squares fit (default: no walker starts in a secondary mode), prior = the best "
                               "of 8 x --walkers prior draws")
+    sampler.add_argument("--start-point", type=start_point_values, default=None, metavar="NAME=VALUE,...",
+                         help="--start map: one least-squares fit from these values (CLI units) of every calibrated "
+                              "parameter instead of the fits from prior draws (e.g. a previous optimum)")
     sampler.add_argument("--noise", type=positive_float, default=0.02,
                          help="measurement error sd as a fraction of each channel's largest abs value")
     sampler.add_argument("--model-error", type=non_negative_float, default=0.0, metavar="FRACTION",
@@ -159,6 +168,16 @@ def build_parser() -> argparse.ArgumentParser:
                          help="linear law, triaxial data: each test runs kn (p0 / 101.325 kPa)^N, a contact stiffness "
                               "growing with its confining pressure (kn and its prior: the value at 101.325 kPa; N in "
                               "[0, 1], 0.5 as a sand's small-strain stiffness; default 0: one kn for every test)")
+    forward.add_argument("--interlocking", action="store_true",
+                         help="triaxial data, analytical backend, --confirm none: each point's contact friction "
+                              "tan phi = (e_c(p) / e)^m tan phi_g, e its void ratio, e_c(p) = e_gamma - lambda_c "
+                              "(p / 101.325 kPa)^xi_c (Chang & Hicher 2005), its cells spread by +-cell_spread about "
+                              "it; calibrate interlocking_m, e_gamma, lambda_c, xi_c, cell_spread through --params "
+                              "(docs/calibration.md)")
+    forward.add_argument("--interlocking-values", type=interlocking_values, default=None, metavar="NAME=VALUE,...",
+                         help="with --interlocking: values of its parameters not calibrated (default "
+                              + ",".join(f"{n}={getattr(Interlocking(), f):g}" for n, f in INTERLOCKING.items())
+                              + ")")
     forward.add_argument("--resolution", choices=RESOLUTION_MODES, default="correct",
                          help="check the forward model's discretisation error against the noise at the start "
                               "point and at the optimum: correct (default) = where it is not well below the noise, "
@@ -216,6 +235,7 @@ def configuration(args: argparse.Namespace, tests: Sequence[Measurement], prior:
         # new keys only where not default, so that the chains of earlier runs still resume
         **({"model_error": args.model_error} if args.model_error else {}),
         **({"resolution": args.resolution} if args.resolution != "correct" else {}),
+        **({"start_point": dict(args.start_point)} if args.start_point is not None else {}),
     }
 
 
@@ -247,7 +267,8 @@ def forward_settings(args: argparse.Namespace, dim: int = 2) -> ForwardSettings:
                            iso_increment=args.iso_increment, radius=args.radius, stress_rtol=args.stress_rtol,
                            fixed=fixed, backend_options=options,
                            critical_state=critical_state_rule(dim) if args.critical_state else None,
-                           kn_exponent=args.kn_exponent)
+                           kn_exponent=args.kn_exponent,
+                           interlocking=interlocking_settings(args) if args.interlocking else None)
 
 
 def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
@@ -267,6 +288,13 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     check_spread(args, tests)
     check_critical_state(args, tests)
     check_kn_exponent(args, tests)
+    check_interlocking(args, tests)
+    if args.start_point is not None:
+        missing = [n for n in args.params if n not in args.start_point]
+        extra = [n for n in args.start_point if n not in args.params]
+        if args.start != "map" or missing or extra:
+            raise UserError(f"--start-point gives the --start map fit a value of every calibrated parameter and no "
+                            f"other ({'--start ' + args.start if args.start != 'map' else 'missing ' + ','.join(missing) if missing else 'not calibrated: ' + ','.join(extra)})")
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
     if args.backend == "ann" and not all(RANGE_MODELS[t.dim] for t in tests):
@@ -310,6 +338,72 @@ def check_kn_exponent(args: argparse.Namespace, tests: Sequence[Measurement]) ->
         raise UserError(f"--kn-exponent needs triaxial data (a confining pressure in Pa): --data {flat[0]} is biaxial")
     if args.backend == "ann":
         raise UserError("--kn-exponent with --backend ann: the ANN is trained at one kn; use analytical or dem")
+
+
+def name_values(text: str, names: Sequence[str], flag: str) -> dict[str, float]:
+    """argparse helper: "a=1,b=2" -> {"a": 1.0, "b": 2.0}, every name one of ``names``."""
+    out: dict[str, float] = {}
+    for item in (i.strip() for i in text.split(",") if i.strip()):
+        name, sep, value = item.partition("=")
+        if not sep or name.strip() not in names:
+            raise argparse.ArgumentTypeError(f"{item!r} is not NAME=VALUE with NAME one of {','.join(names)}")
+        out[name.strip()] = finite_float(value)
+    if not out:
+        raise argparse.ArgumentTypeError(f"give NAME=VALUE,... ({flag})")
+    return out
+
+
+def interlocking_values(text: str) -> dict[str, float]:
+    """argparse type of --interlocking-values: NAME=VALUE,... of ``INTERLOCKING``'s names, floats."""
+    return name_values(text, tuple(INTERLOCKING), "--interlocking-values")
+
+
+def start_point_values(text: str) -> dict[str, float]:
+    """argparse type of --start-point: NAME=VALUE,... of ``PARAMETERS``, floats (CLI units)."""
+    return name_values(text, PARAMETERS, "--start-point")
+
+
+def interlocking_settings(args: argparse.Namespace) -> Interlocking:
+    """The ``Interlocking`` of --interlocking-values (its defaults elsewhere)."""
+    return replace(Interlocking(), **{INTERLOCKING[n]: v for n, v in (args.interlocking_values or {}).items()})
+
+
+def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
+    """UserError (one line) for the interlocking friction's parameters or --interlocking-values without
+    --interlocking, or --interlocking with biaxial data (its p_ref is a pressure), a backend other than the
+    analytical one, --confirm dem (the DEM's contacts keep phi_g), alpha0_spread, or a value out of range."""
+    own = [name for name in args.params if name in INTERLOCKING]
+    if not args.interlocking:
+        if own or args.interlocking_values is not None:
+            raise UserError(f"{'--params ' + own[0] if own else '--interlocking-values'}: the interlocking friction's; "
+                            f"add --interlocking")
+        return
+    flat = [t.name for t in tests if t.dim != 3]
+    if flat:
+        raise UserError(f"--interlocking needs triaxial data (a pressure in Pa): --data {flat[0]} is biaxial")
+    if args.backend != "analytical" or args.confirm == "dem":
+        what = f"--backend {args.backend}" if args.backend != "analytical" else "--confirm dem"
+        raise UserError(f"--interlocking: {what} runs the DEM, whose contacts keep phi_g; use --backend analytical "
+                        f"--confirm none")
+    if SPREAD in args.params or args.alpha0_spread != 0.0:
+        raise UserError(f"--interlocking does not run with {SPREAD}")
+    try:
+        interlocking_settings(args).check()
+    except ValueError as exc:
+        raise UserError(f"--interlocking-values: {exc}") from None
+
+
+def check_interlocking_prior(prior: bayes.Prior, settings: ForwardSettings) -> None:
+    """UserError (one line) where the prior of an interlocking parameter reaches outside ``Interlocking.check``."""
+    if settings.interlocking is None:
+        return
+    for name, low, high in zip(prior.names, prior.low, prior.high):
+        if name in INTERLOCKING:
+            for value in (low, high):
+                try:
+                    replace(settings.interlocking, **{INTERLOCKING[name]: float(value)}).check()
+                except ValueError as exc:
+                    raise UserError(f"the prior of {name} reaches {value:g}: {exc}") from None
 
 
 def kn_exponent(text: str) -> float:
@@ -382,6 +476,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UserError(str(exc)) from None
     settings = with_density(forward_settings(args, max(t.dim for t in tests)), tests, args.e_min, args.e_max)
     check_rule_prior(prior, settings)
+    check_interlocking_prior(prior, settings)
     try:
         check_density(tests, args.params, settings, dict(zip(prior.names, zip(prior.low, prior.high))))
     except ValueError as exc:
@@ -477,7 +572,12 @@ def resolved_start(args: argparse.Namespace, log_post: bayes.Posterior) -> tuple
     from homogenization.calibration import report, resolution  # noqa: PLC0415
 
     record: dict[str, Any] = {"mode": args.resolution, "restarts": 0, "correction": None}
-    start, start_record = START_METHODS[args.start](log_post, args.walkers, np.random.default_rng(args.seed))
+    if args.start_point is not None:  # --start map from the given values: one fit
+        given = np.array([args.start_point[n] for n in log_post.prior.names])
+        start, start_record = refit_start(log_post, log_post.prior.to_coord(given), args.walkers,
+                                          np.random.default_rng(args.seed))
+    else:
+        start, start_record = START_METHODS[args.start](log_post, args.walkers, np.random.default_rng(args.seed))
     say(report.start_line(start_record))
     if args.resolution == "off":
         return start, start_record, record

@@ -13,7 +13,10 @@
   where the calibration ran the rule (``critical_state``: the rule at the posterior mean; a posterior of the
   plain cell refuses --critical-state), and draws the band's parameter sets (--posterior-band N);
 - ``spread_models(...)``: where the posterior holds alpha0_spread, the analytical model whose cells carry
-  the point's families of opening angles (``homogenization.material.opening_spread``);
+  the point's families of opening angles (``homogenization.material.opening_spread``); where it holds the
+  interlocking friction, the analytical model with per-cell laws that ``interlocking_renewal(...)``'s rule
+  (``calibration.interlocking``, at the posterior mean; with the calibration's critical-state renewal inside
+  it) steps, as the calibration's forward model does;
 - ``run_record(...)``: what run.h5 stores of it;
 - ``write_band(...)``: the band by the calibration's forward model, its CSV beside run.h5, and
   its shading in the command's figure.
@@ -28,7 +31,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from homogenization.calibration.forward import DENSITY, SPREAD, kn_factor, settings_record
+from homogenization.calibration.forward import DENSITY, DENSITY_DEFAULTS, SPREAD, kn_factor, settings_record
 from homogenization.cli.run_files import explicit_flags
 from homogenization.material import opening_spread
 from warp_hcell.core.cli import UserError
@@ -58,6 +61,11 @@ class PosteriorRun:
     def critical_state(self) -> Any:
         """The calibration's critical-state rule at the posterior mean (``CriticalState``), or None."""
         return self.posterior.forward.critical_state
+
+    @property
+    def interlocking(self) -> Any:
+        """The calibration's interlocking friction at the posterior mean (``Interlocking``), or None."""
+        return self.posterior.forward.interlocking
 
 
 def critical_state(run: PosteriorRun | None, args: argparse.Namespace, dim: int) -> Any:
@@ -113,6 +121,9 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
             opening_spread.check(alpha0, post.mean[SPREAD])
     except ValueError as exc:
         raise UserError(f"--posterior {post.path}: {exc}") from None
+    if post.forward.interlocking is not None and set(args.backend) - {"analytical"}:
+        raise UserError(f"--posterior {post.path}: its interlocking friction runs on the analytical backend only (the "
+                        f"DEM's contacts keep phi_g); give --backend analytical")
     if SPREAD in post.mean and set(args.backend) - {"analytical"}:
         raise UserError(f"--posterior {post.path}: its {SPREAD} runs on the analytical backend only (the DEM takes one "
                         f"opening angle per model); give --backend analytical")
@@ -157,7 +168,7 @@ def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *
     whose cells carry the families of opening angles of one point (``opening_spread.cell_alpha0`` at the
     posterior mean, ``FAMILIES_ATTRIBUTE``) for the orientation rule of ``meso``, ``lebedev_order`` x
     ``n_spins``; ``models`` unchanged otherwise."""
-    if run is None or SPREAD not in run.posterior.mean:
+    if run is None or (SPREAD not in run.posterior.mean and run.interlocking is None):
         return models
     from homogenization.backends.analytical import Analytical3DCell  # noqa: PLC0415
     from homogenization.element_test.points import orientation_set  # noqa: PLC0415
@@ -165,7 +176,10 @@ def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *
     mean, law = run.posterior.mean, run.posterior.contact_law
     n = orientation_set(meso, n_orientations=1, lebedev_order=lebedev_order, n_spins=n_spins,
                         staggered_spins=staggered_spins).n_cells
-    alpha0 = opening_spread.cell_alpha0(np.array([mean["alpha0"]]), np.array([mean[SPREAD]]), n)
+    if SPREAD in mean:
+        alpha0 = opening_spread.cell_alpha0(np.array([mean["alpha0"]]), np.array([mean[SPREAD]]), n)
+    else:  # the interlocking friction: per-cell laws at the cell's own alpha0 (the void ratio's, where given)
+        alpha0 = np.full(n, float(meso.parameters["alpha0_deg"]))
     ones = np.ones(alpha0.size)
     if law.name == HertzMindlinLaw.name:
         model = Analytical3DCell.with_hertz_cell_laws(law.shear_modulus * ones, law.poisson * ones, law.phi_g_deg * ones,
@@ -173,8 +187,43 @@ def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *
     else:
         model = Analytical3DCell.with_cell_laws(law.kn * run.kn_scale * ones, law.kt_over_kn * ones, law.phi_g_deg * ones,
                                                 run.posterior.radius, alpha0_deg=alpha0)
-    setattr(model, opening_spread.FAMILIES_ATTRIBUTE, True)
+    if SPREAD in mean:
+        setattr(model, opening_spread.FAMILIES_ATTRIBUTE, True)
     return {**models, "analytical": model}
+
+
+def interlocking_renewal(run: PosteriorRun | None, meso: Any, critical_state: Any, void_ratio: float | None) -> Any:
+    """``driver.run``'s ``renewal`` where the posterior holds the interlocking friction: a callable that puts on a
+    run's points (one point, ``spread_models``' per-cell model) the calibration's ``InterlockingFriction`` at the
+    posterior mean, wrapping its critical-state renewal (``critical_state``; a ``PopulationRenewal`` on the
+    posterior's e_min, e_max) where it has one; e0 = ``void_ratio``, else the map's void ratio of the cell's
+    alpha0, as in ``forward.simulate``. None without the friction."""
+    if run is None or run.interlocking is None:
+        return None
+    from homogenization.calibration.forward import full_parameters  # noqa: PLC0415
+    from homogenization.calibration.interlocking import InterlockingFriction  # noqa: PLC0415
+    from homogenization.calibration.renewal import PopulationRenewal, laws_of  # noqa: PLC0415
+    from homogenization.material.density import OPENING_RANGE_DEG, default_map  # noqa: PLC0415
+
+    post = run.posterior
+    alpha0 = np.array([float(meso.parameters["alpha0_deg"])])
+    full = full_parameters({name: np.array([value]) for name, value in post.mean.items()}, post.forward)
+    if "kn" in full:
+        full["kn"] = full["kn"] * run.kn_scale
+    e_min, e_max = (np.array([post.mean.get(name, default)]) for name, default in zip(DENSITY, DENSITY_DEFAULTS))
+    dense, loose = OPENING_RANGE_DEG[3]
+    e0 = (np.array([void_ratio]) if void_ratio is not None else
+          e_max - (loose - alpha0) / (loose - dense) * (e_max - e_min))
+
+    def build(points: Any) -> Any:
+        inner = None
+        if critical_state is not None:
+            inner = PopulationRenewal(critical_state, points.material, points.state, default_map(3), alpha0,
+                                      laws_of(full, post.forward.law), post.forward.law, post.radius,
+                                      e_bounds=(e_min, e_max))
+        return InterlockingFriction(run.interlocking, points.material, points.state, full["phi_g"], e0, inner=inner)
+
+    return build
 
 
 def check_band_test(run: PosteriorRun | None, settings: Mapping[str, Any], what: str) -> None:

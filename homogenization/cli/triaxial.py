@@ -17,7 +17,7 @@ p0), then one shear stage (axis 1 axial, --eps-max of axial strain in increments
 ``homogenization.material.density``) gives E, instead of --alpha0.
 
 ``--posterior DIR/posterior.json`` (of ``hmodel calibrate``) runs at its posterior mean, with
-its alpha0_spread where it holds one (analytical backend); ``--posterior-band N`` adds the 95 %
+its alpha0_spread and its interlocking friction where it holds them (analytical backend); ``--posterior-band N`` adds the 95 %
 band of N draws (``homogenization.cli.posterior_flags``). ``--programme FILE`` runs any
 programme of three-component steps instead (docs/programmes.md).
 
@@ -221,6 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         models, options = build_models(args, law, meso, dim=3)
         models = posterior_flags.spread_models(calibrated, models, meso, lebedev_order=args.order, n_spins=args.spins,
                                                staggered_spins=not args.aligned_spins)
+        renewal = posterior_flags.interlocking_renewal(calibrated, meso, critical_state, args.void_ratio)
         with output_folder(out) as work:
             runs, _, written = run_backends(
                 args, models, options, law, meso,
@@ -228,7 +229,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                              n_spins=args.spins, spin_period_deg=spin_period,
                                              staggered_spins=not args.aligned_spins,
                                              void_ratio=args.void_ratio, density_map=density_map,
-                                             critical_state=critical_state, progress=stage_bars),
+                                             critical_state=critical_state, renewal=renewal, progress=stage_bars),
                 parameters=lambda record: {
                     **settings,
                     "lebedev_order": args.order,
@@ -242,6 +243,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "void_ratio": args.void_ratio,
                     "density_map": None if density_map is None else density_map.to_dict(),
                     **({} if critical_state is None else {"critical_state": asdict(critical_state)}),
+                    **({} if calibrated is None or calibrated.interlocking is None else
+                       {"interlocking": asdict(calibrated.interlocking)}),
                 },
                 work=work, command=command)
             if settings.get("test") == "oedometer":

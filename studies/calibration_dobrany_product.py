@@ -1,0 +1,176 @@
+"""python studies/calibration_dobrany_product.py --split 50+100|50+200 --tag T [--steps N] [--start-from JSON]
+                                                [--extra "FLAGS"] [--evaluate-only]
+
+Dobrany sand with the product's own ``hmodel calibrate``: the interlocking friction (``--interlocking``: m,
+e_gamma, lambda_c, xi_c and the cells' spread calibrated), the critical-state renewal (alpha_c, renewal_rate),
+the void-ratio map (e_min, e_max; each data file carries its specimen's void ratio at the start of shear), phi_g,
+kn (its value at 101.325 kPa; ``--kn-exponent``, default 1/3) and kt/kn: 13 parameters, the configuration of
+the interlocking and peak-strain studies (docs/studies/calibration_dobrany_interlocking.md), on the forward
+model they used (Lebedev 11 x 4 aligned spins, shear increments 2e-3, isotropic 1e-3, drained Newton to 1e-5,
+noise 2 %, the studies' bounds as the prior: ``PRIOR``). The walkers start around one least-squares fit from
+``--start-from`` (a study optimum, fitted on the same two tests; ``--start-point``). The predicted test never
+enters the calibration. Then all three tests at the posterior mean (what ``hmodel triaxial --posterior``
+replays) and at the start's least-squares optimum: RMS abs(dq) / q_peak, RMS d eps_v, strain at the highest q.
+
+Writes the data copies, the prior and the calibration under runs/dobrany_product/ (ignored), and
+studies/results/calibration_dobrany_product_SPLIT_TAG.json and .png (q and eps_v, data and the mean's curves).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shlex
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_real_sand import DATA, SPLITS, print_prediction_table  # noqa: E402
+from bench_real_sand_spread import metrics  # noqa: E402
+
+from homogenization.calibration import forward, posterior as post_mod  # noqa: E402
+from homogenization.calibration.data import read_test  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "studies" / "results"
+RUNS = ROOT / "runs" / "dobrany_product"
+PARAMS = ("phi_g", "kn", "kt_over_kn", "e_min", "e_max", "alpha_c", "renewal_rate", "interlocking_m", "e_gamma",
+          "lambda_c", "xi_c", "cell_spread")
+"""The calibrated parameters (12; with kn_exponent fixed)."""
+PRIOR = {"phi_g": [10.0, 45.0], "kn": {"low": 3e6, "high": 3e8, "log": True}, "kt_over_kn": [0.1, 1.5],
+         "e_min": [0.2, 0.52], "e_max": [0.59, 1.2], "alpha_c": [46.0, 62.0],
+         "renewal_rate": {"low": 1.0, "high": 1000.0, "log": True}, "interlocking_m": [0.0, 6.0],
+         "e_gamma": [0.5, 1.2], "lambda_c": [0.0, 0.4], "xi_c": [0.2, 1.0], "cell_spread": [0.0, 0.6]}
+"""The studies' bounds (``bench_real_sand_critical_state.BOUNDS``) in CLI units."""
+STUDY = {"phi_g": "phi_g", "log10_kn": "kn", "kt_over_kn": "kt_over_kn", "e_min": "e_min", "e_max": "e_max",
+         "alpha_c_deg": "alpha_c", "log10_rate": "renewal_rate", "interlocking_m": "interlocking_m",
+         "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi_c", "cell_spread": "cell_spread"}
+"""A study optimum's coordinate -> the CLI parameter (log10 ones raised)."""
+FLAGS = ["--backend", "analytical", "--critical-state", "--interlocking", "--increment", "2e-3", "--iso-increment",
+         "1e-3", "--stress-rtol", "1e-5", "--confirm", "none", "--resolution", "off", "--walkers", "26"]
+
+
+def data_copies() -> dict[str, Path]:
+    """Each Dobrany test as a calibration CSV with '# void_ratio = E' (its specimen's, at the start of shear)."""
+    folder = RUNS / "data"
+    folder.mkdir(parents=True, exist_ok=True)
+    specimens = json.loads((DATA / "specimens.json").read_text())["tests"]
+    out = {}
+    for name in ("cid_50kpa.csv", "cid_100kpa.csv", "cid_200kpa.csv"):
+        e = next(float(t["void_ratio_start_of_shear"]) for t in specimens if t.get("file") == name)
+        lines = (DATA / name).read_text().splitlines()
+        at = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+        (folder / name).write_text("\n".join(lines[:at] + [f"# void_ratio = {e!r}"] + lines[at:]) + "\n")
+        out[name] = folder / name
+    return out
+
+
+def start_point(path: Path) -> str:
+    """--start-point of a study result's optimum (its log10 coordinates raised)."""
+    optimum = json.loads(path.read_text())["optimum"]
+    values = {STUDY[k]: (10.0 ** v if k.startswith("log10_") else v) for k, v in optimum.items() if k in STUDY}
+    return ",".join(f"{n}={values[n]!r}" for n in PARAMS)
+
+
+def evaluate(out: Path, files: dict[str, Path], fitted: tuple[str, ...], predicted: str) -> dict:
+    """The three tests at the posterior mean and at the least-squares optimum of run.json's start."""
+    post = post_mod.read_posterior(out)
+    run = json.loads((out / "run.json").read_text())
+    optimum = run.get("sampler", {}).get("start", {}).get("optimum") or run.get("start", {}).get("optimum")
+    points = {"mean": dict(post.mean)}
+    if optimum:
+        points["optimum"] = {**post.mean, **optimum}
+    result = {}
+    for label, values in points.items():
+        rows, curves = {}, {}
+        for name in sorted(files, key=lambda f: read_test(files[f]).p0):
+            test = read_test(files[name])
+            with np.errstate(all="ignore"):
+                c = forward.simulate(test, {k: np.array([v]) for k, v in values.items()}, post.forward)
+            rows[name] = {"role": "predicted" if name == predicted else "fitted", **metrics(test, c.q[0], c.eps_v[0]),
+                          "forward_fallbacks": int(c.n_fallback[0])}
+            curves[name] = {"eps1": test.eps1.tolist(), "q": c.q[0].tolist(), "eps_v": c.eps_v[0].tolist(),
+                            "q_data": test.observed["q"].tolist(), "eps_v_data": test.observed["eps_v"].tolist()}
+        print(f"at the posterior {label}:" if label == "mean" else "at the start's least-squares optimum:")
+        print_prediction_table(rows, fallbacks=True)
+        result[label] = {"values": values, "tests": rows, "curves": curves}
+    return result
+
+
+def figure(result: dict, title: str, path: Path) -> None:
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig, (ax_q, ax_v) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for k, (name, c) in enumerate(result["mean"]["curves"].items()):
+        role = result["mean"]["tests"][name]["role"]
+        e = 100 * np.asarray(c["eps1"])
+        label = f"{name.split('_')[1].replace('kpa.csv', ' kPa')} ({role})"
+        style = "--" if role == "predicted" else "-"
+        ax_q.plot(e, np.asarray(c["q_data"]) / 1e3, ".", color=f"C{k}", ms=3)
+        ax_q.plot(e, np.asarray(c["q"]) / 1e3, style, color=f"C{k}", label=label)
+        ax_v.plot(e, 100 * np.asarray(c["eps_v_data"]), ".", color=f"C{k}", ms=3)
+        ax_v.plot(e, 100 * np.asarray(c["eps_v"]), style, color=f"C{k}")
+    ax_q.set(xlabel="eps1 [%]", ylabel="q [kPa]")
+    ax_v.set(xlabel="eps1 [%]", ylabel="eps_v [%] (contraction > 0)")
+    ax_q.legend(fontsize=8)
+    fig.suptitle(title + " (dots: data; lines: model at the posterior mean)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--split", choices=tuple(SPLITS), required=True)
+    parser.add_argument("--tag", required=True)
+    parser.add_argument("--steps", type=int, default=12)
+    parser.add_argument("--kn-exponent", default="0.3333333333333333")
+    parser.add_argument("--start-from", type=Path, help="a study result JSON whose optimum starts the fit")
+    parser.add_argument("--extra", default="", help="more hmodel calibrate flags")
+    parser.add_argument("--evaluate-only", action="store_true", help="evaluate an existing calibration folder")
+    args = parser.parse_args(argv)
+    files = data_copies()
+    fitted, predicted = SPLITS[args.split]
+    out = RUNS / f"{args.split.replace('+', '_')}_{args.tag}"
+    prior = RUNS / "prior.json"
+    prior.write_text(json.dumps(PRIOR, indent=1))
+    command = [sys.executable, "-m", "homogenization.calibrate", *sum((["--data", str(files[f])] for f in fitted), []),
+               "--params", ",".join(PARAMS), "--prior", str(prior), "--kn-exponent", args.kn_exponent, *FLAGS,
+               "--steps", str(args.steps), "--out", str(out), *shlex.split(args.extra)]
+    if args.start_from is not None:
+        command += ["--start-point", start_point(args.start_from)]
+    print("command:", shlex.join(command), flush=True)
+    print(f"nice {os.nice(0)}, load {os.getloadavg()[0]:.1f}", flush=True)
+    seconds = None
+    if not args.evaluate_only:
+        started = time.perf_counter()
+        subprocess.run(command, check=True)
+        seconds = time.perf_counter() - started
+        print(f"hmodel calibrate wall time: {seconds:.0f} s, load {os.getloadavg()[0]:.1f}", flush=True)
+    run = json.loads((out / "run.json").read_text())
+    result = evaluate(out, files, fitted, predicted)
+    sampler = run.get("sampler", {})
+    auto = sampler.get("autocorrelation", {})
+    print("sampler: " + json.dumps({k: auto.get(k) for k in ("tau_steps", "steps_per_tau", "converged",
+                                                            "steps_needed", "steps_retained")}))
+    print("acceptance: " + json.dumps(sampler.get("acceptance_fraction", sampler.get("acceptance"))))
+    record = {"split": args.split, "tag": args.tag, "command": shlex.join(command), "wall_seconds": seconds,
+              "sampler": sampler, "start": run.get("start", sampler.get("start")), **result}
+    stem = f"calibration_dobrany_product_{args.split.replace('+', '_')}_{args.tag}"
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f"{stem}.json").write_text(json.dumps(record, indent=1, default=str))
+    figure(result, f"Dobrany sand, hmodel calibrate --interlocking, split {args.split}, {args.tag}",
+           RESULTS / f"{stem}.png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,118 @@
+"""hmodel calibrate --interlocking: the interlocking friction reaches the forward model through its settings, its
+parameters are calibrated per set, posterior.json holds it at the posterior mean, hmodel triaxial --posterior runs
+it, bad combinations are one line and exit 2, and without the flag nothing changes."""
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from homogenization.calibration import forward
+from homogenization.calibration.data import Measurement
+from homogenization.calibration.interlocking import Interlocking
+from homogenization.cli import calibrate, triaxial
+from homogenization.material.critical_state import DEFAULTS
+from warp_hcell.core.cli import run_main
+
+EPS1 = np.array([0.004, 0.008, 0.012])
+SETTINGS = forward.ForwardSettings(lebedev_order=7, n_spins=2, increment=4e-3, iso_increment=2e-3, stress_rtol=1e-5)
+RULE = Interlocking(m=1.5, e_gamma=0.8, lambda_c=0.05, xi=0.5, cell_spread=0.3)
+TEST = Measurement("t", Path("t.csv"), True, 2e5, EPS1, {"q": np.zeros(3)}, 3, 0.6)
+FAST = ["--increment", "4e-3", "--iso-increment", "2e-3", "--confirm", "none", "--resolution", "off", "-q"]
+
+
+def _write(path: Path, test: str = "triaxial_drained") -> Path:
+    path.write_text(f"# test = {test}\n# p0 = 200000\n# void_ratio = 0.6\neps1,q,eps_v\n0.004,250000,0.001\n"
+                    f"0.008,380000,0.0015\n0.012,430000,0.001\n")
+    return path
+
+
+def test_the_settings_friction_and_its_per_set_parameters_reach_the_forward_model():
+    """settings.interlocking runs as the keyword does; a set's m in params overrides the settings' m (the other
+    set keeps it); without the friction the curve is the plain one and the parameters are refused."""
+    params = {"kn": np.array([3e7, 3e7]), "interlocking_m": np.array([RULE.m, 0.5])}
+    with_settings = forward.simulate(TEST, params, replace(SETTINGS, interlocking=RULE))
+    by_keyword = forward.simulate(TEST, params, SETTINGS, interlocking=RULE)
+    np.testing.assert_array_equal(with_settings.q, by_keyword.q)
+    at_half = forward.simulate(TEST, {"kn": np.array([3e7])}, replace(SETTINGS, interlocking=replace(RULE, m=0.5)))
+    np.testing.assert_allclose(with_settings.q[1], at_half.q[0], rtol=1e-12)  # one batch against one set
+    plain = forward.simulate(TEST, {"kn": np.array([3e7])}, SETTINGS)
+    assert abs(with_settings.q[0, -1] - plain.q[0, -1]) > 0.05 * plain.q[0, -1]  # past the elastic start
+    assert abs(with_settings.q[0, -1] - with_settings.q[1, -1]) > 0.02 * plain.q[0, -1]
+    with pytest.raises(ValueError, match="interlocking friction"):
+        forward.simulate(TEST, params, SETTINGS)
+
+
+def test_without_the_friction_the_records_read_as_before():
+    assert "interlocking" not in forward.settings_record(SETTINGS)
+    assert forward.settings_record(replace(SETTINGS, interlocking=RULE))["interlocking"]["xi"] == RULE.xi
+
+
+@pytest.mark.parametrize("flags, data, expected", [
+    (["--params", "phi_g,interlocking_m"], "triaxial_drained", "add --interlocking"),
+    (["--params", "phi_g", "--interlocking-values", "xi_c=0.5"], "triaxial_drained", "add --interlocking"),
+    (["--params", "phi_g", "--interlocking"], "drained", "needs triaxial data"),
+    (["--params", "phi_g", "--interlocking", "--confirm", "dem"], "triaxial_drained", "--confirm dem runs the DEM"),
+    (["--params", "phi_g", "--interlocking", "--interlocking-values", "xi_c=1.5"], "triaxial_drained",
+     "xi = 1.5 is out of range"),
+    (["--params", "phi_g", "--interlocking", "--interlocking-values", "m=1"], "triaxial_drained",
+     "is not NAME=VALUE"),
+    (["--params", "phi_g,cell_spread", "--interlocking", "--prior", "PRIOR"], "triaxial_drained",
+     "the prior of cell_spread reaches 1.2"),
+    (["--params", "phi_g,kn", "--start-point", "phi_g=30"], "triaxial_drained", "missing kn"),
+    (["--params", "phi_g", "--start-point", "phi_g=30", "--start", "prior"], "triaxial_drained", "--start prior"),
+])
+def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, data, expected):
+    prior = tmp_path / "prior.json"
+    prior.write_text(json.dumps({"cell_spread": [0.0, 1.2]}))
+    flags = [str(prior) if f == "PRIOR" else f for f in flags]
+    out = tmp_path / "cal"
+    args = ["--data", str(_write(tmp_path / "t.csv", data)), *flags, "--walkers", "4", "--steps", "2",
+            "--out", str(out)]
+    args += [f for f in FAST if f not in ("--confirm", "none") or "--confirm" not in flags]
+    try:  # argparse's type errors exit from the parser, the others return
+        code = run_main(calibrate.main, args)
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and expected in lines[0], lines
+    assert not out.exists()
+
+
+def test_the_posterior_holds_the_friction_and_triaxial_replays_it(tmp_path):
+    """posterior.json's ``interlocking`` is the friction at the posterior mean (calibrated m and spread, the
+    --interlocking-values elsewhere); hmodel triaxial --posterior runs it (and the critical-state renewal inside it)
+    as the calibration's forward model does, far from the plain cell's curve. The map start from --start-point is
+    recorded (run.json's start: ``refit_from``)."""
+    out = tmp_path / "cal"
+    assert run_main(calibrate.main, [
+        "--data", str(_write(tmp_path / "t.csv")), "--params", "phi_g,interlocking_m,cell_spread", "--critical-state",
+        "--interlocking", "--interlocking-values", "e_gamma=0.8,xi_c=0.5", "--walkers", "6", "--steps", "2",
+        "--start-point", "phi_g=30,interlocking_m=1.5,cell_spread=0.3", *FAST, "--out", str(out)]) == 0
+    data = json.loads((out / "posterior.json").read_text())
+    run = json.loads((out / "run.json").read_text())
+    assert run["start"]["refit_from"] == {"phi_g": 30.0, "interlocking_m": 1.5, "cell_spread": 0.3}
+    assert data["interlocking"] == {**vars(Interlocking(e_gamma=0.8, xi=0.5)), "m": data["interlocking_m"]["mean"],
+                                    "cell_spread": data["cell_spread"]["mean"]}
+    from homogenization.calibration import posterior as post_mod  # noqa: PLC0415
+
+    post = post_mod.read_posterior(out)
+    assert post.forward.interlocking == Interlocking(**data["interlocking"])
+    run_dir = tmp_path / "run"
+    assert run_main(triaxial.main, ["--posterior", str(out), "--void-ratio", "0.6", "--drained", "--p0", "2e5",
+                                    "--eps-max", "0.012", "--increment", "4e-3", "--iso-increment", "2e-3", "--order",
+                                    "11", "--spins", "4", "--aligned-spins", "-q", "--out", str(run_dir)]) == 0
+    rows = np.genfromtxt(run_dir / "curve.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    start = int(np.flatnonzero(rows["stage"] != rows["stage"][0])[0]) - 1
+    eps1, q = rows["eps11"][start + 1:] - rows["eps11"][start], rows["q"][start + 1:]
+    test = replace(TEST, eps1=eps1, observed={"q": q})
+    mean = {name: np.array([value]) for name, value in post.mean.items()}
+    expected = forward.simulate(test, mean, post.forward).q[0]
+    np.testing.assert_allclose(q, expected, rtol=1e-4)
+    plain = forward.simulate(test, {k: v for k, v in mean.items() if k not in forward.INTERLOCKING},
+                             replace(post.forward, interlocking=None)).q[0]
+    assert abs(q[-1] - plain[-1]) > 0.1 * plain[-1]
+    assert post.forward.critical_state == DEFAULTS[3]
