@@ -533,6 +533,22 @@ class FastAdvance:
         self._balance(size, free, shear, d_eps, d_free, before, result)
         return self._outcome(result)
 
+    def again_displaced(self, index: np.ndarray, d_free: np.ndarray) -> FastIncrement:
+        """The cells ``index`` (int (m,)) of this thread's last corrected ``increment`` with the free-DOF
+        displacement ``d_free`` (m, n_free) [m] as given: the rest rule and the contact law at those positions
+        (no network, no corrections; ``last_corrections`` unchanged)."""
+        last = getattr(self._local, "last", None)
+        if last is None:
+            raise ValueError("again_displaced: no corrected increment before it in this thread")
+        take = lambda a: np.take(a, index, axis=-1)  # noqa: E731 (C order; a[..., index] is not)
+        size, free, shear = take(last.size), take(last.free), take(last.shear)
+        before = Before(last.before.feats, *map(take, last.before[1:]))
+        d_eps = np.ascontiguousarray(last.d_eps[index])
+        result = self._result(d_eps.shape[0])
+        self._physics(size, free, shear, d_eps, np.ascontiguousarray(np.asarray(d_free, dtype=np.float64).T),
+                      self.cells, self.law, before, result)
+        return self._outcome(result)
+
     def _balance(self, size, free, shear, d_eps, d_free, before: Before, result: Advanced) -> None:
         """The equilibrium corrections of the first guess ``d_free`` (n_free, n) [m] (in place), then the contact law
         at the corrected positions into ``result``; this thread's ``last_corrections`` then holds their counts."""

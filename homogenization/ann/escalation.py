@@ -58,8 +58,14 @@ RELEASE_RULE = ("a free grain that no pair presses above the equilibrium toleran
 resting at the start of the increment (``DemEscalation.resting_dofs``) start the balance at rest, and a cell whose
 other grains end released (``DemEscalation.released``) is balanced again with them at rest too. A certificate of a
 hybrid with the escalation records its rule (``dem_escalation_rule``) and covers that rule only."""
-RELEASE_RULES = (RELEASE_RULE, RELEASE_RULE_AFTER)
-"""The rules the CPU hybrid runs; a certificate recording one of them runs with it (new certificates: ``RELEASE_RULE``)."""
+RELEASE_RULE_DRAG = RELEASE_RULE + ("; one that started at rest, moved and no pair presses at the end moves as the "
+                                     "DEM's relaxation from rest moves it, the friction of its contacts included")
+"""``RELEASE_RULE``, then the grains that started the corrections at rest and end released (pushed lightly: the balance
+moved them along the contact normal only) relaxed as the DEM does from rest, the other grains following the balance
+(``homogenization.ann.relaxation``; ``AnnCell._dragged``, counted in ``n_relaxed``). CPU only; elsewhere as ``RELEASE_RULE``."""
+RELEASE_RULES = (RELEASE_RULE, RELEASE_RULE_AFTER, RELEASE_RULE_DRAG)
+"""The rules the CPU hybrid runs; a certificate recording one of them runs with it (new certificates: ``RELEASE_RULE``
+unless asked)."""
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -1,0 +1,177 @@
+"""The DEM's relaxation from rest of the grains a neighbour pushed, the other grains following the balance.
+
+A free grain that nothing presses at the start of an increment starts the hybrid's corrections at rest
+(``homogenization.ann.escalation.RELEASE_RULE``). Where a neighbour pushes it lightly, the balance moves it only
+as far as the push needs, along the contact normal: at a force ratio below R a contact's tangential force,
+capped at mu f_n, is nothing. The DEM, relaxing from rest, pushes it with a finite contact force while the
+driving lasts, and the friction of that contact also drags it along the neighbour's tangential motion.
+
+``relax`` runs that relaxation for the pushed grains only: their free DOFs start at rest and move by the DEM's
+leapfrog with Cundall local damping (``warp_hcell.dem.stepping.damped_velocity``) under the DEM's spatial
+contact law of each substep (the spring carried into the tangent plane, grown by kt times the substep's
+tangential relative displacement, capped at mu f_n; ``warp_hcell.dem.laws.linear.spatial_contact``), while
+every other grain moves along the straight line from its position before the increment to the one the
+balance gave it, in ``n_drive`` substeps; the substeps then continue until the net force on every simulated
+free DOF is at most ``ratio`` times the cell's largest normal force, or ``max_substeps``. A grain whose net
+force is exactly zero is held at rest (the DEM's rule). Masses and time step are the DEM's (density
+4/3 pi r^3, dt_factor sqrt(m_min / kn)).
+
+Layout: cells first; one cell per iteration of a compiled loop, so a cell's result does not depend on its batch.
+float64. Sign convention: the DEM's (force on grain i of pair (i, j): f_s - f_n u, u = (x_j - x_i) / d).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, error_model="numpy")
+def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol, damping, n_drive, fn_max, ratio,
+          max_substeps, closing, free_mask, x_out, substeps_out):
+    """The relaxation of the module docstring, cells first.
+
+    Args:
+        x0, x1: grain centres (n, n_grains, 3) [m] before the increment and after the balance.
+        simulated: bool (n, n_grains, 3), the free DOFs relaxed (the others follow x0 -> x1).
+        shear: the pairs' tangential springs before the increment (n, n_pairs, 3) [N] (the learning state's).
+        pairs (n_pairs, 2) int64; radius (n_grains,) [m]; inv_mass (n_grains,) [1/kg]; dt [s];
+        kn, kt [N/m]; mu, tol (contact tolerance), damping [-];
+        n_drive (n,) int64 >= 1, the driving substeps; fn_max (n,) [N], the cell's largest normal force;
+        ratio [-]; max_substeps (int).
+
+    Writes x_out (n, n_grains, 3) [m], the centres after the relaxation, and substeps_out (n,) int64 (the
+    substeps taken; max_substeps where the force ratio stayed above ``ratio``)."""
+    n, n_grains, _ = x0.shape
+    n_pairs = pairs.shape[0]
+    x = np.empty((n_grains, 3))
+    v = np.zeros((n_grains, 3))
+    dx = np.empty((n_grains, 3))
+    f = np.empty((n_grains, 3))
+    spring = np.empty((n_pairs, 3))
+    moving = np.empty(n_grains, dtype=np.bool_)
+    relevant = np.empty(n_pairs, dtype=np.int64)
+    was = np.zeros(n_pairs, dtype=np.bool_)
+    dynamic = np.empty((n_grains, 3), dtype=np.bool_)
+    pushed = np.empty(n_grains, dtype=np.bool_)
+    for c in range(n):
+        for g in range(n_grains):
+            pushed[g] = simulated[c, g, 0] or simulated[c, g, 1] or simulated[c, g, 2]
+            moving[g] = pushed[g]
+        for p in range(n_pairs):
+            i, j = pairs[p, 0], pairs[p, 1]
+            if pushed[i] == pushed[j]:
+                continue
+            reach2 = ((radius[i] + radius[j]) * (1.0 + tol)) ** 2
+            for xs in (x0, x1):
+                b0, b1, b2 = xs[c, j, 0] - xs[c, i, 0], xs[c, j, 1] - xs[c, i, 1], xs[c, j, 2] - xs[c, i, 2]
+                if b0 * b0 + b1 * b1 + b2 * b2 <= reach2:
+                    moving[i] = True
+                    moving[j] = True
+        for g in range(n_grains):
+            for a in range(3):
+                dynamic[g, a] = simulated[c, g, a] or (moving[g] and free_mask[g, a])
+        n_relevant = 0
+        for p in range(n_pairs):
+            if moving[pairs[p, 0]] or moving[pairs[p, 1]]:
+                relevant[n_relevant] = p
+                n_relevant += 1
+        for g in range(n_grains):
+            for a in range(3):
+                x[g, a] = x0[c, g, a]
+                v[g, a] = 0.0
+                dx[g, a] = 0.0
+        for p in range(n_pairs):
+            for a in range(3):
+                spring[p, a] = shear[c, p, a]
+            was[p] = False
+        n_phase = max(n_drive[c], 1)
+        ds = 1.0 / n_phase
+        s_base, s, k_phase, refined = 0.0, 0.0, 0, False
+        limit = ratio * fn_max[c]
+        k = 0
+        while True:
+            closed = False
+            for g in range(n_grains):
+                f[g, 0], f[g, 1], f[g, 2] = 0.0, 0.0, 0.0
+            for q in range(n_relevant):
+                p = relevant[q]
+                i, j = pairs[p, 0], pairs[p, 1]
+                b0, b1, b2 = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
+                rsum = radius[i] + radius[j]
+                reach = rsum * (1.0 + tol)
+                dist2 = b0 * b0 + b1 * b1 + b2 * b2
+                if not dist2 <= reach * reach:
+                    spring[p, 0], spring[p, 1], spring[p, 2] = 0.0, 0.0, 0.0
+                    was[p] = False
+                    continue
+                if k > 0 and not was[p]:
+                    closed = True
+                was[p] = True
+                dist = math.sqrt(dist2)
+                u0, u1, u2 = b0 / dist, b1 / dist, b2 / dist
+                s0, s1, s2 = spring[p, 0], spring[p, 1], spring[p, 2]
+                along = s0 * u0 + s1 * u1 + s2 * u2
+                q0, q1, q2 = s0 - along * u0, s1 - along * u1, s2 - along * u2
+                before2 = s0 * s0 + s1 * s1 + s2 * s2
+                after2 = q0 * q0 + q1 * q1 + q2 * q2
+                if after2 > 0.0:
+                    scale = math.sqrt(before2 / after2)
+                    q0, q1, q2 = q0 * scale, q1 * scale, q2 * scale
+                r0, r1, r2 = dx[j, 0] - dx[i, 0], dx[j, 1] - dx[i, 1], dx[j, 2] - dx[i, 2]
+                rn = r0 * u0 + r1 * u1 + r2 * u2
+                t0, t1, t2 = q0 + kt * (r0 - rn * u0), q1 + kt * (r1 - rn * u1), q2 + kt * (r2 - rn * u2)
+                fn = kn * max(rsum - dist, 0.0)
+                cap = mu * fn
+                size = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+                if size > cap:
+                    scale = cap / size if size > 0.0 else 0.0
+                    t0, t1, t2 = t0 * scale, t1 * scale, t2 * scale
+                spring[p, 0], spring[p, 1], spring[p, 2] = t0, t1, t2
+                g0, g1, g2 = t0 - fn * u0, t1 - fn * u1, t2 - fn * u2
+                f[i, 0] += g0
+                f[i, 1] += g1
+                f[i, 2] += g2
+                f[j, 0] -= g0
+                f[j, 1] -= g1
+                f[j, 2] -= g2
+            if k_phase < n_phase:
+                if closed and not refined and closing > 1:
+                    refined = True
+                    n_rest = (n_phase - k_phase) * closing
+                    s_base, ds, n_phase, k_phase = s, (1.0 - s) / n_rest, n_rest, 0
+            else:
+                largest = 0.0
+                for g in range(n_grains):
+                    for a in range(3):
+                        if dynamic[g, a]:
+                            largest = max(largest, abs(f[g, a]))
+                if largest <= limit or k >= max_substeps:
+                    break
+            k += 1
+            if k_phase < n_phase:
+                k_phase += 1
+                s = min(s_base + k_phase * ds, 1.0) if k_phase < n_phase else 1.0
+            for g in range(n_grains):
+                unloaded = f[g, 0] == 0.0 and f[g, 1] == 0.0 and f[g, 2] == 0.0
+                for a in range(3):
+                    if dynamic[g, a]:
+                        if unloaded:
+                            v[g, a] = 0.0
+                        else:
+                            accel = f[g, a] * inv_mass[g]
+                            power = f[g, a] * (v[g, a] + 0.5 * dt * accel)
+                            sign = 1.0 if power > 0.0 else (-1.0 if power < 0.0 else 0.0)
+                            v[g, a] = v[g, a] + dt * (accel * (1.0 - damping * sign))
+                        dx[g, a] = v[g, a] * dt
+                        x[g, a] += dx[g, a]
+                    else:
+                        target = x0[c, g, a] + s * (x1[c, g, a] - x0[c, g, a])
+                        dx[g, a] = target - x[g, a]
+                        x[g, a] = target
+        for g in range(n_grains):
+            for a in range(3):
+                x_out[c, g, a] = x[g, a]
+        substeps_out[c] = k
