@@ -116,3 +116,18 @@ def test_the_posterior_holds_the_friction_and_triaxial_replays_it(tmp_path):
                              replace(post.forward, interlocking=None)).q[0]
     assert abs(q[-1] - plain[-1]) > 0.1 * plain[-1]
     assert post.forward.critical_state == DEFAULTS[3]
+
+
+def test_the_orientation_rule_flags_reach_the_forward_model(tmp_path, capsys):
+    """--order, --spins and --staggered-spins set the triaxial rule (defaults: the forward model's 11 x 4 aligned,
+    unchanged); an order outside the Lebedev rules is one line, exit 2."""
+    data = str(_write(tmp_path / "t.csv"))
+    parser = calibrate.build_parser()
+    default = calibrate.forward_settings(parser.parse_args(["--data", data, "--params", "phi_g", "--out", "x"]), 3)
+    assert (default.lebedev_order, default.n_spins, default.staggered_spins) == (11, 4, False)
+    given = calibrate.forward_settings(parser.parse_args(["--data", data, "--params", "phi_g", "--out", "x", "--order",
+                                                          "15", "--spins", "8", "--staggered-spins"]), 3)
+    assert (given.lebedev_order, given.n_spins, given.staggered_spins) == (15, 8, True)
+    with pytest.raises(SystemExit) as exc:
+        run_main(calibrate.main, ["--data", data, "--params", "phi_g", "--order", "12", "--out", str(tmp_path / "c")])
+    assert exc.value.code == 2 and "Lebedev order 12 is not one of" in capsys.readouterr().err

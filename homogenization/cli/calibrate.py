@@ -61,6 +61,7 @@ from homogenization.calibration.start import START_METHODS, refit_start
 from homogenization.cli.options import (
     add_critical_state_argument,
     add_orientations_argument,
+    add_spatial_rule_arguments,
     add_threads_argument,
     add_uncertified_argument,
     command_parser,
@@ -159,6 +160,10 @@ def build_parser() -> argparse.ArgumentParser:
                               "data far above their noise (default 0)")
     forward = parser.add_argument_group("forward model")
     add_orientations_argument(forward, FORWARD.n_orientations, "cell orientations")
+    add_spatial_rule_arguments(forward, FORWARD.lebedev_order, FORWARD.n_spins, " (triaxial data)")
+    forward.add_argument("--staggered-spins", action="store_true",
+                         help="triaxial data: stagger the spins from axis to axis (default aligned: the rule's cube "
+                              "symmetry kept)")
     forward.add_argument("--increment", type=positive_float, default=FORWARD.increment, help="shear strain increment [-]")
     forward.add_argument("--iso-increment", type=positive_float, default=FORWARD.iso_increment,
                          help="isotropic strain increment per component [-]")
@@ -263,7 +268,9 @@ def forward_settings(args: argparse.Namespace, dim: int = 2) -> ForwardSettings:
         options["device"] = args.device
     if args.threads is not None and args.backend in ("dem", "ann"):
         options["threads"] = args.threads
-    return ForwardSettings(law=law.name, backend=args.backend, n_orientations=args.orientations, increment=args.increment,
+    return ForwardSettings(law=law.name, backend=args.backend, n_orientations=args.orientations,
+                           lebedev_order=args.order, n_spins=args.spins, staggered_spins=args.staggered_spins,
+                           increment=args.increment,
                            iso_increment=args.iso_increment, radius=args.radius, stress_rtol=args.stress_rtol,
                            fixed=fixed, backend_options=options,
                            critical_state=critical_state_rule(dim) if args.critical_state else None,
