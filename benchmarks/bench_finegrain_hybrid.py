@@ -13,7 +13,8 @@ sigma33, p and q over the shear stage, increment by increment, over the path's s
 p)) and the hybrid's counts: Newton corrections per increment (every step call, trial calls included),
 cells corrected per increment, cell-increments with a released grain (taken again from rest; of them
 those whose grain a neighbour pushed), those whose grains nothing pressed started at rest (the released-grain
-rule of newer certificates, ``homogenization.ann.escalation.RELEASE_RULE``), escalated to the DEM, left unconverged, step calls with a tangent
+rule of newer certificates, ``homogenization.ann.escalation.RELEASE_RULE``), those relaxed as the DEM from rest
+(``RELEASE_RULE_DRAG``), escalated to the DEM, left unconverged, step calls with a tangent
 and the cells of those calls that took no correction (their tangent is that of their balance, not the
 network's), and the ANN's step wall time split into phases [s]. Beside each wall time, the process's CPU
 time, which other jobs on a shared machine move less, and its ratio. A table of all cells and tests ends the
@@ -108,6 +109,7 @@ def ann_model(path: str, timer: PhaseTimer | None, corrections: int | None = Non
             timer.wrap(model.escalation, "released_dofs", "release test")
             timer.wrap(model.escalation, "advance", "DEM escalation")
             timer.wrap(model, "_held_at_rest", "released again from rest")
+            timer.wrap(model, "_dragged", "pushed grains relaxed")
         timer.wrap(model, "step", "step")
     return model
 
@@ -247,6 +249,9 @@ def main(argv=None) -> int:
                       "released_pushed": total(record, "n_released_pushed_all_calls"),
                       "resting": total(record, "n_resting_all_calls"),
                       "escalated": total(record, "n_escalated_all_calls"),
+                      "relaxed": total(record, "n_relaxed_all_calls"),
+                      "relaxed_substeps": total(record, "n_relaxed_substeps_all_calls"),
+                      "relaxed_unconverged": total(record, "n_relaxed_unconverged_all_calls"),
                       "unconverged": total(record, "n_unconverged_all_calls"),
                       "step_calls": float(record.newton_iterations.sum()),
                       "tangent_calls": float(tangents.calls), "tangent_uncorrected": float(tangents.uncorrected)}
@@ -261,7 +266,9 @@ def main(argv=None) -> int:
                   f"{counts['corrected_per_increment']:.0f}; cell-increments started with a resting grain at rest "
                   f"{counts['resting']:.0f}, released {counts['released']:.0f} (taken again from rest unless their "
                   f"grain started there; of them pushed {counts['released_pushed']:.0f}), escalated to the DEM "
-                  f"{counts['escalated']:.0f}, unconverged {counts['unconverged']:.0f}; {tangents.calls} calls with a "
+                  f"{counts['escalated']:.0f}, relaxed as the DEM from rest {counts['relaxed']:.0f} ("
+                  f"{counts['relaxed_substeps']:.0f} substeps, {counts['relaxed_unconverged']:.0f} at the cap; "
+                  f"RELEASE_RULE_DRAG only, NaN otherwise), unconverged {counts['unconverged']:.0f}; {tangents.calls} calls with a "
                   f"tangent, {tangents.uncorrected} of their cell steps uncorrected", flush=True)
             print("  ANN phases [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in phase.items()), flush=True)
             rows.append((Path(mesostructure).stem, test, dem_s, ann_s, worst / scale, {**counts, "cpu_ratio": cpu_ratio}))

@@ -37,6 +37,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 FAILING = ("undrained compression p0=200000", "drained compression p0=200000", "drained compression p0=1e+06")
 TARGET = 0.02
+VARIANTS = ("certified hybrid", "released cells to the DEM (study only)", "no released-grain rule",
+            "drag rule (RELEASE_RULE_DRAG)")
 
 
 def released_to_dem(cell) -> None:
@@ -72,7 +74,10 @@ def summary(record, dem, p0: float, cell: int, fine: str) -> dict:
     return {"figure": float(off.max()), "worst_increment": int(off.argmax()) + 1,
             "first_above_target": None if above.size == 0 else int(above[0]) + 1,
             "largest_q_drop": float(drop.max()), "largest_q_drop_increment": int(drop.argmax()) + 2,
-            "fine_x_n": x, "to_dem": float(np.nansum(record.diagnostics.get("n_escalated_all_calls", [0.0])))}
+            "fine_x_n": x, "to_dem": float(np.nansum(record.diagnostics.get("n_escalated_all_calls", [0.0]))),
+            "relaxed": float(np.nansum(record.diagnostics.get("n_relaxed_all_calls", [0.0]))),
+            "relaxed_substeps": float(np.nansum(record.diagnostics.get("n_relaxed_substeps_all_calls", [0.0]))),
+            "relaxed_unconverged": float(np.nansum(record.diagnostics.get("n_relaxed_unconverged_all_calls", [0.0])))}
 
 
 def variant_certificates(paths: list[str]) -> int:
@@ -146,12 +151,14 @@ def main(argv=None) -> int:
     parser.add_argument("--cost", action="store_true", help="the product benchmark's runs of the first model instead")
     parser.add_argument("--certificate", action="store_true", help="variant (b)'s certificates instead (not written)")
     parser.add_argument("--json", default=None, help="write one JSON line per run here")
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS),
+                        help="the hybrids run per model (default: all)")
     args = parser.parse_args(argv)
     for path in args.model:
         if not Path(path).is_file():
             parser.error(f"no model {path}")
 
-    from homogenization.ann.escalation import RELEASE_RULE
+    from homogenization.ann.escalation import RELEASE_RULE, RELEASE_RULE_DRAG
     from homogenization.backends import make_cell_model
     from homogenization.element_test import driver
     from homogenization.learning import certificate as cert
@@ -192,8 +199,9 @@ def main(argv=None) -> int:
               + ", ".join(f"{v:.5f}" for v in base["fine_x_n"].values()), flush=True)
         lines.append({"test": name, "run": "dem", "seconds": wall, **base})
         for path, card in zip(args.model, cards):
-            for variant in ("certified hybrid", "released cells to the DEM (study only)", "no released-grain rule"):
-                rule = {"dem_escalation": False} if variant.startswith("no ") else {"release_rule": RELEASE_RULE}
+            for variant in args.variants:
+                rule = ({"dem_escalation": False} if variant.startswith("no ") else
+                        {"release_rule": RELEASE_RULE_DRAG} if variant.startswith("drag") else {"release_rule": RELEASE_RULE})
                 model = make_cell_model("ann", contact_law=law, model=Path(path), threads=1, card=card,
                                         equilibrium_corrections=20, equilibrium_tolerance=1e-4, **rule)
                 if variant.startswith("released"):
@@ -204,7 +212,8 @@ def main(argv=None) -> int:
                       f"{100 * row['figure']:.3f} % at shear increment {row['worst_increment']} (first above 2 %: "
                       f"{row['first_above_target']}); largest q drop {100 * row['largest_q_drop']:.2f} % at "
                       f"{row['largest_q_drop_increment']}; fine grain x_n " + ", ".join(f"{v:.5f}" for v in row["fine_x_n"].values())
-                      + f"; cell-increments to the DEM {row['to_dem']:.0f}", flush=True)
+                      + f"; cell-increments to the DEM {row['to_dem']:.0f}; relaxed {row['relaxed']:.0f} "
+                      f"({row['relaxed_substeps']:.0f} substeps, {row['relaxed_unconverged']:.0f} at the cap)", flush=True)
                 lines.append({"test": name, "run": variant, "model": path, "seconds": wall, **row})
     print(f"load average after: {os.getloadavg()}", flush=True)
     if args.json:

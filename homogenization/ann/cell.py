@@ -75,7 +75,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 
 from homogenization.ann import default_model_path, envelope
-from homogenization.ann.escalation import DemEscalation, RELEASE_RULE, RELEASE_RULE_DRAG, RELEASE_RULES
+from homogenization.ann.escalation import DemEscalation, RELAX_SUBSTEPS, RELEASE_RULE, RELEASE_RULE_DRAG, RELEASE_RULES
 from homogenization.ann.ood import OOD_INTERVAL, OodMonitor
 from homogenization.ann.policy import CertificatePolicy, default_escalation
 from homogenization.ann.records import Certificate, certificate_of
@@ -94,13 +94,6 @@ from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings, 
 TANGENT_MISS = 0.5
 """Relative miss of a cell's tangent against its secant over the second half of an increment beyond
 which ``AnnCell.failed_cells`` counts the tangent as off the step [-]."""
-RELAX_RATIO = 1e-6
-"""Force ratio of a relaxed grain's free DOFs (over the cell's largest normal force) that ends the relaxation of
-``RELEASE_RULE_DRAG`` (``homogenization.ann.relaxation.relax``), the DEM's ``force_tolerance`` [-]."""
-RELAX_SUBSTEPS = 20_000
-"""The most substeps of that relaxation per cell-increment [-]."""
-RELAX_CLOSING = False
-"""Whether that relaxation drives the rest of the increment at the DEM's closing rate once a pair closes."""
 DIAGNOSED_CELLS = 5
 """Failed cells named in the one-line diagnosis of a failed stress control (the rest are counted)."""
 
@@ -416,7 +409,7 @@ class AnnCell(ArrayStateMixin):
                  pushed: np.ndarray) -> tuple[AnnState, CellResponse]:
         """``new`` and ``response`` where the free DOFs ``pushed`` (n, n_free) bool (grains that started the
         corrections at rest and end released) move as the DEM's relaxation from rest moves them, the other grains
-        following the balance (``homogenization.ann.relaxation.relax``), then the contact law at the end
+        following the balance (``DemEscalation.relaxed``), then the contact law at the end
         (``FastAdvance.again_displaced``). Counts ``n_relaxed`` (cells), ``n_relaxed_substeps`` and
         ``n_relaxed_unconverged`` (cells that reached ``RELAX_SUBSTEPS``)."""
         cells = np.flatnonzero(pushed.any(axis=1))
@@ -427,45 +420,16 @@ class AnnCell(ArrayStateMixin):
         if not cells.size:
             return new, response
         free0 = np.asarray(state.free_position)[cells]
-        free, substeps = self.relaxed(np.asarray(state.cell_size)[cells], free0, np.asarray(state.shear_force)[cells],
-                                      np.asarray(d_eps_local, dtype=np.float64)[cells], new.cell_size[cells],
-                                      new.free_position[cells], pushed[cells])
+        schema = self.arrays.schema
+        free, substeps = self.escalation.relaxed(
+            fast_model.positions(schema, np.asarray(state.cell_size)[cells], free0),
+            fast_model.positions(schema, new.cell_size[cells], new.free_position[cells]),
+            np.asarray(state.shear_force)[cells], np.asarray(d_eps_local, dtype=np.float64)[cells], pushed[cells])
         diagnostics["n_relaxed_substeps"] = float(substeps.sum())
         diagnostics["n_relaxed_unconverged"] = float(np.count_nonzero(substeps >= RELAX_SUBSTEPS))
         inc = self.fast.again_displaced(cells, free - free0)
         return _with_cells(new, response, cells, (inc.cell_size, inc.free_position, inc.shear_force, inc.moment,
                                                   inc.area))
-
-    def relaxed(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray, d_eps_local: np.ndarray,
-                new_size: np.ndarray, new_free: np.ndarray, pushed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(free positions (m, n_free) [m], substeps (m,) int64) of ``RELEASE_RULE_DRAG``'s relaxation
-        (``homogenization.ann.relaxation.relax``) of m cells: the state before the increment (``AnnState``'s arrays),
-        the probe (m, 3), the balanced end (new_size (m, 3), new_free (m, n_free) [m]) and the relaxed DOFs
-        ``pushed`` (m, n_free) bool; the DEM's density, time step, damping and strain per substep from rest."""
-        from homogenization.ann.relaxation import relax  # noqa: PLC0415 (compiled on first use)
-
-        schema, dem = self.arrays.schema, DemSettings()
-        free_dofs = schema.free_dofs
-        if not hasattr(self, "_free_mask"):
-            self._free_mask = np.zeros(schema.driven_fraction.shape, dtype=np.bool_)
-            self._free_mask[free_dofs[:, 0], free_dofs[:, 1]] = True
-        x0 = fast_model.positions(schema, cell_size, free_position)
-        x1 = np.ascontiguousarray(fast_model.positions(schema, new_size, new_free))
-        simulated = np.zeros(x0.shape, dtype=np.bool_)
-        simulated[:, free_dofs[:, 0], free_dofs[:, 1]] = pushed
-        fn_max = fast_model.contacts(schema, x1).normal_force.max(axis=1)
-        radius = np.ascontiguousarray(schema.radius, dtype=np.float64)
-        mass = dem.density * (4.0 / 3.0) * np.pi * radius ** 3
-        dt = dem.dt_factor * float(np.sqrt(mass.min() / self.contact_law.kn))
-        largest = np.abs(d_eps_local).max(axis=1)
-        n_drive = np.maximum(np.ceil(largest / dem.rest_strain_per_substep), 1.0).astype(np.int64)
-        closing = int(round(dem.rest_strain_per_substep / dem.closing_rate))
-        x_out, substeps = np.empty_like(x0), np.empty(x0.shape[0], dtype=np.int64)
-        relax(x0, x1, simulated, np.ascontiguousarray(shear_force, dtype=np.float64),
-              np.ascontiguousarray(schema.pairs, dtype=np.int64), radius, 1.0 / mass, dt, self.contact_law.kn,
-              self.contact_law.kt, self.contact_law.mu, self.escalation.contact_tolerance, dem.damping, n_drive, fn_max,
-              RELAX_RATIO, RELAX_SUBSTEPS, closing if RELAX_CLOSING else 1, self._free_mask, x_out, substeps)
-        return np.where(pushed, x_out[:, free_dofs[:, 0], free_dofs[:, 1]], new_free), substeps
 
     def _held_at_rest(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState, response: CellResponse,
                       index: np.ndarray, released: np.ndarray) -> tuple[AnnState, CellResponse]:

@@ -63,6 +63,11 @@ RELEASE_RULE_DRAG = RELEASE_RULE + ("; one that started at rest, moved and no pa
 """``RELEASE_RULE``, then the grains that started the corrections at rest and end released (pushed lightly: the balance
 moved them along the contact normal only) relaxed as the DEM does from rest, the other grains following the balance
 (``homogenization.ann.relaxation``; ``AnnCell._dragged``, counted in ``n_relaxed``). CPU only; elsewhere as ``RELEASE_RULE``."""
+RELAX_RATIO = 1e-6
+"""Force ratio of the relaxed free DOFs (over the cell's largest normal force at the balanced end) that ends the
+relaxation of ``RELEASE_RULE_DRAG`` (``DemEscalation.relaxed``), the DEM's ``force_tolerance`` [-]."""
+RELAX_SUBSTEPS = 20_000
+"""The most substeps of that relaxation per cell-increment [-]."""
 RELEASE_RULES = (RELEASE_RULE, RELEASE_RULE_AFTER, RELEASE_RULE_DRAG)
 """The rules the CPU hybrid runs; a certificate recording one of them runs with it (new certificates: ``RELEASE_RULE``
 unless asked)."""
@@ -202,6 +207,47 @@ class DemEscalation:
                   self._reference_size, self._free_dofs, self._pairs, self._rsum, self._cut2,
                   float(self.contact_law.kn), self.force_ratio, out, dofs, bool(every))
         return dofs.T
+
+    def positions(self, cell_size: np.ndarray, free_position: np.ndarray) -> np.ndarray:
+        """Grain centres (n, n_grains, dim) [m] of the learning states (cell_size (n, dim), free_position (n, n_free)):
+        driven DOFs at x_ref l / l_ref, free ones as given."""
+        size = np.asarray(cell_size, dtype=np.float64)
+        x = self._reference_position[None] * (size / self._reference_size)[:, None, :]
+        x[:, self._free_dofs[:, 0], self._free_dofs[:, 1]] = free_position
+        return x
+
+    def relaxed(self, x0: np.ndarray, x1: np.ndarray, shear_force: np.ndarray, d_eps: np.ndarray, pushed: np.ndarray, *,
+                ratio: float = RELAX_RATIO, max_substeps: int = RELAX_SUBSTEPS,
+                settings: DemSettings = DemSettings()) -> tuple[np.ndarray, np.ndarray]:
+        """(free positions (m, n_free) [m], substeps (m,) int64): ``RELEASE_RULE_DRAG``'s relaxation
+        (``homogenization.ann.relaxation.relax``) of the free DOFs ``pushed`` (m, n_free) bool of m cells, the
+        others kept at the balance's; x0, x1: the grain centres (m, n_grains, 3) [m] before the increment and after
+        the balance, ``shear_force`` (m, n_pairs, 3) [N] the springs before it, ``d_eps`` (m, 3) the probe.
+        ``settings``: the DEM's density, time step, damping and strain per substep from rest; ``ratio`` and
+        ``max_substeps``: where the relaxation stops (the largest normal force: at x1)."""
+        from homogenization.ann.relaxation import relax  # noqa: PLC0415 (compiled on first use)
+
+        free_dofs = self._free_dofs
+        x0, x1 = np.ascontiguousarray(x0, dtype=np.float64), np.ascontiguousarray(x1, dtype=np.float64)
+        simulated = np.zeros(x0.shape, dtype=np.bool_)
+        simulated[:, free_dofs[:, 0], free_dofs[:, 1]] = pushed
+        b = x1[:, self._pairs[:, 1]] - x1[:, self._pairs[:, 0]]
+        distance = np.sqrt(b[..., 0] * b[..., 0] + b[..., 1] * b[..., 1] + b[..., 2] * b[..., 2])
+        touching = distance <= self._rsum * (1.0 + self.contact_tolerance)
+        fn_max = np.where(touching, self.contact_law.kn * np.maximum(self._rsum - distance, 0.0), 0.0).max(axis=1)
+        radius = np.ascontiguousarray(self.schema.radius, dtype=np.float64)
+        mass = settings.density * (4.0 / 3.0) * np.pi * radius ** 3
+        dt = settings.dt_factor * float(np.sqrt(mass.min() / self.contact_law.kn))
+        largest = np.abs(np.asarray(d_eps, dtype=np.float64)).max(axis=1)
+        n_drive = np.maximum(np.ceil(largest / settings.rest_strain_per_substep), 1.0).astype(np.int64)
+        free_mask = np.zeros(x0.shape[1:], dtype=np.bool_)
+        free_mask[free_dofs[:, 0], free_dofs[:, 1]] = True
+        x_out, substeps = np.empty_like(x0), np.empty(x0.shape[0], dtype=np.int64)
+        relax(x0, x1, simulated, np.ascontiguousarray(shear_force, dtype=np.float64), self._pairs, radius, 1.0 / mass,
+              dt, float(self.contact_law.kn), float(self.contact_law.kt), float(self.contact_law.mu),
+              self.contact_tolerance, float(settings.damping), n_drive, fn_max, float(ratio), int(max_substeps),
+              free_mask, x_out, substeps)
+        return np.where(pushed, x_out[:, free_dofs[:, 0], free_dofs[:, 1]], x1[:, free_dofs[:, 0], free_dofs[:, 1]]), substeps
 
     def _batch(self, n: int) -> tuple[ProbeContext, DemModel]:
         """The probe context and the DEM model of batches of ``n`` cells (built once)."""

@@ -6,15 +6,17 @@ as far as the push needs, along the contact normal: at a force ratio below R a c
 capped at mu f_n, is nothing. The DEM, relaxing from rest, pushes it with a finite contact force while the
 driving lasts, and the friction of that contact also drags it along the neighbour's tangential motion.
 
-``relax`` runs that relaxation for the pushed grains only: their free DOFs start at rest and move by the DEM's
+``relax`` runs that relaxation for the pushed grains and the grains within reach of them before or after the
+increment (their pushers, which the DEM also starts at rest): their free DOFs start at rest and move by the DEM's
 leapfrog with Cundall local damping (``warp_hcell.dem.stepping.damped_velocity``) under the DEM's spatial
 contact law of each substep (the spring carried into the tangent plane, grown by kt times the substep's
 tangential relative displacement, capped at mu f_n; ``warp_hcell.dem.laws.linear.spatial_contact``), while
-every other grain moves along the straight line from its position before the increment to the one the
-balance gave it, in ``n_drive`` substeps; the substeps then continue until the net force on every simulated
+every other DOF moves along the straight line from its position before the increment to the one the
+balance gave it, in ``n_drive`` substeps; the substeps then continue until the net force on every moving
 free DOF is at most ``ratio`` times the cell's largest normal force, or ``max_substeps``. A grain whose net
 force is exactly zero is held at rest (the DEM's rule). Masses and time step are the DEM's (density
-4/3 pi r^3, dt_factor sqrt(m_min / kn)).
+4/3 pi r^3, dt_factor sqrt(m_min / kn)). Only the pushed grains' end positions are the rule's; the
+others keep the balance's (``homogenization.ann.escalation.DemEscalation.relaxed``).
 
 Layout: cells first; one cell per iteration of a compiled loop, so a cell's result does not depend on its batch.
 float64. Sign convention: the DEM's (force on grain i of pair (i, j): f_s - f_n u, u = (x_j - x_i) / d).
@@ -30,17 +32,18 @@ import numpy as np
 
 @numba.njit(cache=True, error_model="numpy")
 def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol, damping, n_drive, fn_max, ratio,
-          max_substeps, closing, free_mask, x_out, substeps_out):
+          max_substeps, free_mask, x_out, substeps_out):
     """The relaxation of the module docstring, cells first.
 
     Args:
         x0, x1: grain centres (n, n_grains, 3) [m] before the increment and after the balance.
-        simulated: bool (n, n_grains, 3), the free DOFs relaxed (the others follow x0 -> x1).
+        simulated: bool (n, n_grains, 3), the pushed grains' free DOFs; these and the free DOFs (``free_mask``
+            (n_grains, 3) bool) of the grains within reach of them at x0 or x1 move, the others follow x0 -> x1.
         shear: the pairs' tangential springs before the increment (n, n_pairs, 3) [N] (the learning state's).
         pairs (n_pairs, 2) int64; radius (n_grains,) [m]; inv_mass (n_grains,) [1/kg]; dt [s];
         kn, kt [N/m]; mu, tol (contact tolerance), damping [-];
         n_drive (n,) int64 >= 1, the driving substeps; fn_max (n,) [N], the cell's largest normal force;
-        ratio [-]; max_substeps (int).
+        ratio [-]; max_substeps (int); free_mask: above.
 
     Writes x_out (n, n_grains, 3) [m], the centres after the relaxation, and substeps_out (n,) int64 (the
     substeps taken; max_substeps where the force ratio stayed above ``ratio``)."""
@@ -53,7 +56,6 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
     spring = np.empty((n_pairs, 3))
     moving = np.empty(n_grains, dtype=np.bool_)
     relevant = np.empty(n_pairs, dtype=np.int64)
-    was = np.zeros(n_pairs, dtype=np.bool_)
     dynamic = np.empty((n_grains, 3), dtype=np.bool_)
     pushed = np.empty(n_grains, dtype=np.bool_)
     for c in range(n):
@@ -86,14 +88,11 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
         for p in range(n_pairs):
             for a in range(3):
                 spring[p, a] = shear[c, p, a]
-            was[p] = False
         n_phase = max(n_drive[c], 1)
-        ds = 1.0 / n_phase
-        s_base, s, k_phase, refined = 0.0, 0.0, 0, False
+        s, k_phase, ds = 0.0, 0, 1.0 / n_phase
         limit = ratio * fn_max[c]
         k = 0
         while True:
-            closed = False
             for g in range(n_grains):
                 f[g, 0], f[g, 1], f[g, 2] = 0.0, 0.0, 0.0
             for q in range(n_relevant):
@@ -105,11 +104,7 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
                 dist2 = b0 * b0 + b1 * b1 + b2 * b2
                 if not dist2 <= reach * reach:
                     spring[p, 0], spring[p, 1], spring[p, 2] = 0.0, 0.0, 0.0
-                    was[p] = False
                     continue
-                if k > 0 and not was[p]:
-                    closed = True
-                was[p] = True
                 dist = math.sqrt(dist2)
                 u0, u1, u2 = b0 / dist, b1 / dist, b2 / dist
                 s0, s1, s2 = spring[p, 0], spring[p, 1], spring[p, 2]
@@ -137,12 +132,7 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
                 f[j, 0] -= g0
                 f[j, 1] -= g1
                 f[j, 2] -= g2
-            if k_phase < n_phase:
-                if closed and not refined and closing > 1:
-                    refined = True
-                    n_rest = (n_phase - k_phase) * closing
-                    s_base, ds, n_phase, k_phase = s, (1.0 - s) / n_rest, n_rest, 0
-            else:
+            if k_phase >= n_phase:
                 largest = 0.0
                 for g in range(n_grains):
                     for a in range(3):
@@ -153,7 +143,7 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
             k += 1
             if k_phase < n_phase:
                 k_phase += 1
-                s = min(s_base + k_phase * ds, 1.0) if k_phase < n_phase else 1.0
+                s = k_phase * ds if k_phase < n_phase else 1.0
             for g in range(n_grains):
                 unloaded = f[g, 0] == 0.0 and f[g, 1] == 0.0 and f[g, 2] == 0.0
                 for a in range(3):

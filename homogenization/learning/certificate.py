@@ -170,17 +170,18 @@ _ORIENTATION_ARGUMENTS = {
 def requested_settings(dim: int, *, pressures: Sequence[float] = PRESSURES, eps_max: float = EPS_MAX,
                        increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
                        spatial_rule: Sequence[int] = SPATIAL_RULE, equilibrium_corrections: int = 0,
-                       equilibrium_tolerance: float | None = None, dem_escalation: bool = False) -> dict[str, Any]:
+                       equilibrium_tolerance: float | None = None, dem_escalation: bool = False,
+                       release_rule: str = RELEASE_RULE) -> dict[str, Any]:
     """The ``settings`` a certificate of cells of dimension ``dim`` records for these options
     (planar: ``n_orientations``; spatial: ``spatial_rule`` as [order, spins], with the spins
     staggered from axis to axis, ``staggered_spins``: ``homogenization.material.orientation``;
     with ``equilibrium_corrections`` K > 0 also K and ``equilibrium_tolerance``, the resolved force
     ratio [-] of the hybrid its tests ran: ``envelope.equilibrium_settings``, and ``dem_escalation``, whether
     it handed the cells with a released grain to the DEM: ``envelope.escalation_of``, with the rule it did it
-    by, ``dem_escalation_rule``: ``homogenization.ann.escalation.RELEASE_RULE``)."""
+    by, ``dem_escalation_rule``: ``release_rule``, one of ``homogenization.ann.escalation.RELEASE_RULES``)."""
     settings = {"pressures": [float(p) for p in pressures], "eps_max": float(eps_max), "increment": float(increment)}
     hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": float(equilibrium_tolerance),
-               "dem_escalation": bool(dem_escalation), **({"dem_escalation_rule": RELEASE_RULE} if dem_escalation else {})}
+               "dem_escalation": bool(dem_escalation), **({"dem_escalation_rule": release_rule} if dem_escalation else {})}
               if equilibrium_corrections else {})
     return {**settings, **_ORIENTATION_SETTINGS[dim](n_orientations, spatial_rule), **hybrid}
 
@@ -341,10 +342,11 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
             spatial_rule: Sequence[int] = SPATIAL_RULE, target: float = TARGET, rollout: bool = True, threads: int = 1,
             dem_states: dict[str, dict[str, np.ndarray]] | None = None, state_every: int = COVERAGE_EVERY,
             equilibrium_corrections: int = 0, equilibrium_tolerance: float | None = None,
-            reproducibility: bool = True, card: ModelCard | None = None) -> Certificate:
+            reproducibility: bool = True, card: ModelCard | None = None, release_rule: str = RELEASE_RULE) -> Certificate:
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
     model's own; ``card``: the model's JSON already read (None: read here); ``reproducibility``
-    False: no ``dem_spread`` (the DEM is not run a second time, from rest).
+    False: no ``dem_spread`` (the DEM is not run a second time, from rest); ``release_rule``: the hybrid's
+    (one of ``homogenization.ann.escalation.RELEASE_RULES``), recorded.
 
     ``dem_states``, when given, receives per test name the DEM cell states every ``state_every``
     increments (``DemCell.state_to_arrays``: ``cell_size``, ``position``, ``shear_force``, local
@@ -365,7 +367,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     card = read_card(model_path) if card is None else card
     law = card.law
     hybrid = ({"equilibrium_corrections": int(equilibrium_corrections), "equilibrium_tolerance": equilibrium_tolerance,
-               "release_rule": RELEASE_RULE}
+               "release_rule": release_rule}
               if equilibrium_corrections else {"equilibrium_corrections": 0})  # never the model's earlier certificate's
     ann = make_cell_model("ann", contact_law=law, model=model_path, threads=threads, card=card, **hybrid)
     meso = mesostructure if mesostructure is not None else from_description(card.mesostructure)
@@ -379,7 +381,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
                                    n_orientations=n_orientations, spatial_rule=spatial_rule,
                                    equilibrium_corrections=equilibrium_corrections,
                                    equilibrium_tolerance=ann.force_tolerance if equilibrium_corrections else None,
-                                   dem_escalation=ann.escalation is not None)
+                                   dem_escalation=ann.escalation is not None, release_rule=release_rule)
     results = []
     n_cells = 0
     counter = _Counter(ann)
