@@ -346,7 +346,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     """The certificate of model ``model_path`` (module docstring); ``mesostructure`` None: the
     model's own; ``card``: the model's JSON already read (None: read here); ``reproducibility``
     False: no ``dem_spread`` (the DEM is not run a second time, from rest); ``release_rule``: the hybrid's
-    (one of ``homogenization.ann.escalation.RELEASE_RULES``), recorded.
+    (``escalation.RELEASE_RULES``), recorded.
 
     ``dem_states``, when given, receives per test name the DEM cell states every ``state_every``
     increments (``DemCell.state_to_arrays``: ``cell_size``, ``position``, ``shear_force``, local
