@@ -1,4 +1,4 @@
-"""python studies/finegrain_large_axial_snap.py --model M.pt [M2.pt ...] [--tests NAME ...] [--cost | --certificate] [--json OUT]: why the hybrid of benchmarks/cells/large_axial.toml misses its certificate.
+"""python studies/finegrain_large_axial_snap.py --model M.pt [M2.pt ...] [--tests NAME ...] [--variants V ...] [--cost | --certificate] [--json OUT]: why the hybrid of benchmarks/cells/large_axial.toml misses its certificate.
 
 For each certificate test named (default: the three compression tests the models of ``large_axial.toml`` fail;
 the certificate's loading and cells, Lebedev order 11 x 4 spins, ``homogenization.learning.certificate``), one
@@ -7,11 +7,14 @@ at force ratio 1e-4, ``RELEASE_RULE``) and (b) a study-only variant, not a packa
 every cell-increment that ends with a released grain (``DemEscalation.released_dofs``, those pushed from rest
 included) replaced by the DEM's increment from rest (``DemEscalation.advance``), and (c) the hybrid without the
 released-grain rule (``AnnCell(dem_escalation=False)``: the network's guess starts every grain's corrections; a
-package option that ``hmodel certify`` does not certify for fine-grain cells). Prints per run: the certificate's
+package option that ``hmodel certify`` does not certify for fine-grain cells), and (d) the hybrid under
+``RELEASE_RULE_DRAG`` (a grain pushed from rest relaxed as the DEM does from rest; ``hmodel certify --release-rule
+drag``); ``--variants`` picks among them (default: all). Prints per run: the certificate's
 figure (largest abs(dp) or abs(dq) over the shear stage / max(p0, largest DEM p)), the first increment above 2 %,
 the largest one-increment drop of q (the snap of a fine grain leaving its wedge) and where, the free fine grain's
 x_n [m] in the cell of the DEM's largest drop at 70, 80, 90 and 100 % of the shear stage, cell-increments handed to
-the DEM, and the wall time (the machine's load printed; times are indicative only).
+the DEM, the cell-increments (d) relaxed (their substeps, those at the cap) and the wall time (the machine's load
+printed; times are indicative only).
 
 ``--cost``: instead, the product benchmark's runs (``benchmarks/bench_finegrain_hybrid.py``: 7792 cells, triaxial
 compression at 2e5 Pa to 5 % at 1e-4, undrained and drained) of the DEM, (a) and (b) of the first model, one

@@ -58,6 +58,8 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
     relevant = np.empty(n_pairs, dtype=np.int64)
     dynamic = np.empty((n_grains, 3), dtype=np.bool_)
     pushed = np.empty(n_grains, dtype=np.bool_)
+    involved = np.empty(n_grains, dtype=np.bool_)
+    grains = np.empty(n_grains, dtype=np.int64)
     for c in range(n):
         for g in range(n_grains):
             pushed[g] = simulated[c, g, 0] or simulated[c, g, 1] or simulated[c, g, 2]
@@ -76,10 +78,19 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
             for a in range(3):
                 dynamic[g, a] = simulated[c, g, a] or (moving[g] and free_mask[g, a])
         n_relevant = 0
+        for g in range(n_grains):
+            involved[g] = False
         for p in range(n_pairs):
             if moving[pairs[p, 0]] or moving[pairs[p, 1]]:
                 relevant[n_relevant] = p
                 n_relevant += 1
+                involved[pairs[p, 0]] = True
+                involved[pairs[p, 1]] = True
+        n_involved = 0
+        for g in range(n_grains):
+            if involved[g]:
+                grains[n_involved] = g
+                n_involved += 1
         for g in range(n_grains):
             for a in range(3):
                 x[g, a] = x0[c, g, a]
@@ -93,7 +104,8 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
         limit = ratio * fn_max[c]
         k = 0
         while True:
-            for g in range(n_grains):
+            for h in range(n_involved):
+                g = grains[h]
                 f[g, 0], f[g, 1], f[g, 2] = 0.0, 0.0, 0.0
             for q in range(n_relevant):
                 p = relevant[q]
@@ -134,7 +146,8 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
                 f[j, 2] -= g2
             if k_phase >= n_phase:
                 largest = 0.0
-                for g in range(n_grains):
+                for h in range(n_involved):
+                    g = grains[h]
                     for a in range(3):
                         if dynamic[g, a]:
                             largest = max(largest, abs(f[g, a]))
@@ -144,7 +157,8 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
             if k_phase < n_phase:
                 k_phase += 1
                 s = k_phase * ds if k_phase < n_phase else 1.0
-            for g in range(n_grains):
+            for h in range(n_involved):  # the grains no relevant pair touches are never read
+                g = grains[h]
                 unloaded = f[g, 0] == 0.0 and f[g, 1] == 0.0 and f[g, 2] == 0.0
                 for a in range(3):
                     if dynamic[g, a]:
@@ -163,5 +177,5 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
                         x[g, a] = target
         for g in range(n_grains):
             for a in range(3):
-                x_out[c, g, a] = x[g, a]
+                x_out[c, g, a] = x[g, a] if involved[g] else x0[c, g, a] + (x1[c, g, a] - x0[c, g, a])
         substeps_out[c] = k

@@ -232,15 +232,16 @@ class _Counter:
     def _tally(self, diagnostics: dict[str, float]) -> None:
         """Add one step's equilibrium-correction counts (``AnnCell``; none without corrections) to
         ``corrections``: calls (``steps``, trial calls included), cells corrected, Newton steps, cells
-        left above the tolerance, cells with a released grain (``n_released``, ``n_released_pushed``, where the
-        hybrid reports them) and handed to the DEM (summed), and the largest force ratios before and after."""
+        left above the tolerance, cells with a released grain (``n_released``, ``n_released_pushed``, ``n_relaxed``
+        and its substeps, where the hybrid reports them) and handed to the DEM (summed), and the largest force ratios."""
         if "n_corrected" not in diagnostics:
             return
         tally = self.corrections
         tally["steps"] += 1
         for key in ("n_corrected", "n_corrections", "n_shortened", "n_shifted", "n_unconverged", "n_escalated"):
             tally[key] += int(diagnostics.get(key, 0))
-        for key in ("n_released", "n_released_pushed"):  # hybrids with a released-grain rule only
+        for key in ("n_released", "n_released_pushed", "n_relaxed", "n_relaxed_substeps", "n_relaxed_unconverged"):
+            # hybrids with a released-grain rule only; n_relaxed...: escalation.RELEASE_RULE_DRAG only
             if key in diagnostics:
                 tally[key] = tally.get(key, 0) + int(diagnostics[key])
         for key in ("force_ratio_network_max", "force_ratio_max"):
@@ -519,6 +520,8 @@ def summary_lines(cert: Certificate) -> list[str]:
                      + (f"{tally.get('n_released', 0)} with a released grain taken again at rest "
                         f"({tally.get('n_released_pushed', 0)} pushed), {tally.get('n_escalated', 0)} handed to the DEM, "
                         if escalation_of(cert) else "")
+                     + (f"{tally['n_relaxed']} relaxed as the DEM from rest ({tally.get('n_relaxed_substeps', 0)} substeps, "
+                        f"{tally.get('n_relaxed_unconverged', 0)} at the cap), " if "n_relaxed" in tally else "")
                      + f"largest force ratio {tally['force_ratio_network_max']:.3g} before, {tally['force_ratio_max']:.3g} after")
     result = verdict(cert)
     figures = (f"worst {100 * cert.worst:.3f} % ({cert.worst_test}), target {100 * cert.target:.3g} %, "
