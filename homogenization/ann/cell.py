@@ -38,7 +38,9 @@ shortened, and those whose matrix was shifted; ``training.fast_equilibrium3d``),
 ``n_escalated`` (cells handed to the DEM's own increment from rest because a free grain moved and ends
 touching nothing, which the corrections cannot place: ``homogenization.ann.escalation``; off with
 ``dem_escalation=False``; on CPU ``n_released`` cells taken again with that grain at rest instead, and under
-``escalation.RELEASE_RULE`` ``n_resting`` cells whose grains nothing pressed started the corrections at rest),
+``escalation.RELEASE_RULE`` ``n_resting`` cells whose grains nothing pressed started the corrections at rest;
+under ``escalation.RELEASE_RULE_DRAG`` also ``n_relaxed`` cells whose grains, pushed from rest, were relaxed as the
+DEM relaxes them from rest, with ``n_relaxed_substeps`` and ``n_relaxed_unconverged``),
 and the model's certificate covers it only where that certificate measured this very hybrid
 (``hmodel certify --equilibrium-corrections K``: same K and tolerance; ``certificate_problem`` says
 otherwise, as it does for a run of the network alone under a certificate of the hybrid). Each ``step``

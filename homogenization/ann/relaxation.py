@@ -35,18 +35,14 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
           max_substeps, free_mask, x_out, substeps_out):
     """The relaxation of the module docstring, cells first.
 
-    Args:
-        x0, x1: grain centres (n, n_grains, 3) [m] before the increment and after the balance.
-        simulated: bool (n, n_grains, 3), the pushed grains' free DOFs; these and the free DOFs (``free_mask``
-            (n_grains, 3) bool) of the grains within reach of them at x0 or x1 move, the others follow x0 -> x1.
-        shear: the pairs' tangential springs before the increment (n, n_pairs, 3) [N] (the learning state's).
-        pairs (n_pairs, 2) int64; radius (n_grains,) [m]; inv_mass (n_grains,) [1/kg]; dt [s];
-        kn, kt [N/m]; mu, tol (contact tolerance), damping [-];
-        n_drive (n,) int64 >= 1, the driving substeps; fn_max (n,) [N], the cell's largest normal force;
-        ratio [-]; max_substeps (int); free_mask: above.
-
-    Writes x_out (n, n_grains, 3) [m], the centres after the relaxation, and substeps_out (n,) int64 (the
-    substeps taken; max_substeps where the force ratio stayed above ``ratio``)."""
+    x0 and x1 are the grain centres (n, n_grains, 3) [m] before the increment and after the balance; ``simulated``
+    (n, n_grains, 3) bool flags the pushed grains' free DOFs: these and the free DOFs (``free_mask`` (n_grains, 3)
+    bool) of the grains within reach of them at x0 or x1 move, the others follow x0 to x1. ``shear``: the pairs'
+    springs before the increment (n, n_pairs, 3) [N]; ``pairs`` (n_pairs, 2) int64; ``radius`` (n_grains,) [m];
+    ``inv_mass`` (n_grains,) [1/kg]; ``dt`` [s]; ``kn`` and ``kt`` [N/m]; ``mu``, ``tol`` (contact tolerance) and
+    ``damping`` [-]; ``n_drive`` (n,) int64, the driving substeps; ``fn_max`` (n,) [N], the cell's largest normal
+    force; ``ratio`` [-] and ``max_substeps``: where the substeps stop. Writes ``x_out`` (n, n_grains, 3) [m], the
+    centres after the relaxation, and ``substeps_out`` (n,) int64 (max_substeps where the ratio stayed above)."""
     n, n_grains, _ = x0.shape
     n_pairs = pairs.shape[0]
     x = np.empty((n_grains, 3))
