@@ -16,7 +16,10 @@ which the homogenised stress shows as a drop at another strain (docs/ann.md, "Re
 with the released grain starting the corrections at rest (``AnnCell._held_at_rest``): a grain nothing pushes
 stays, as in the DEM, one a neighbour pushes moves as far as the balance needs. Under ``RELEASE_RULE`` the
 grains that nothing presses at the start of the increment (``DemEscalation.resting_dofs``, ``n_resting``) start
-the corrections at rest at once, and only a cell whose other grains end released is balanced again. ``DemEscalation.advance``,
+the corrections at rest at once, and only a cell whose other grains end released is balanced again; under
+``RELEASE_RULE_DRAG`` a grain that started at rest and ends released (pushed lightly: moved by the balance along the
+contact normal only) is then relaxed as the DEM relaxes it from rest, the friction of its contacts included
+(``DemEscalation.relaxed``, ``homogenization.ann.relaxation``). ``DemEscalation.advance``,
 the DEM's increment from the cell's learning state at rest (``warp_hcell.database.probing.step_from_rest``),
 replaces them on other devices and serves the sliding cells; the ANN backend counts it in ``n_escalated``.
 
