@@ -9,6 +9,7 @@ d_eps (n, 2) [-]. Sign convention: compression and contraction positive; local f
 
 import importlib.machinery
 import importlib.util
+import math
 import os
 import sys
 from typing import NamedTuple
@@ -54,6 +55,21 @@ normal_force = numba.njit(cache=True, error_model="numpy")(_normal_force)
 """``warp_hcell.core.contact.normal_force`` compiled for the kernels (scalars)."""
 coulomb_cap = numba.njit(cache=True, error_model="numpy")(_coulomb_cap)
 """``warp_hcell.core.contact.coulomb_cap`` compiled for the kernels (scalars)."""
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def carried_spring3(s0, s1, s2, u0, u1, u2):
+    """The spatial spring (s0, s1, s2) [N] carried into the plane normal to the unit vector (u0, u1, u2), its
+    length kept (``warp_hcell.dem.contact.carried_spring``): its tangential part, rescaled to the spring's length
+    where that part is not zero. Returns the three components [N]."""
+    along = s0 * u0 + s1 * u1 + s2 * u2
+    q0, q1, q2 = s0 - along * u0, s1 - along * u1, s2 - along * u2
+    before2 = s0 * s0 + s1 * s1 + s2 * s2
+    after2 = q0 * q0 + q1 * q1 + q2 * q2
+    if after2 > 0.0:
+        ratio = math.sqrt(before2 / after2)
+        q0, q1, q2 = q0 * ratio, q1 * ratio, q2 * ratio
+    return q0, q1, q2
 
 
 class CellTables(NamedTuple):

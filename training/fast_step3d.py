@@ -23,7 +23,7 @@ import math
 import numba
 import numpy as np
 
-from training.fast_cells import grain_positions, normal_force
+from training.fast_cells import carried_spring3, grain_positions, normal_force
 from training.fast_features import load_fractions
 from training.fast_increment import (free_displacement, hold_at_rest, moment_flags, open_far_pair, start_pass,
                                      subtract_outer)
@@ -178,14 +178,7 @@ def pair_force3(b0, b1, b2, ob0, ob1, ob2, stuck, s0, s1, s2, rsum, reach, kn, k
     mid0, mid1, mid2 = mid0 / mid_norm, mid1 / mid_norm, mid2 / mid_norm
     r0, r1, r2 = b0 - ob0, b1 - ob1, b2 - ob2
     if stuck:
-        along = s0 * u0 + s1 * u1 + s2 * u2
-        q0, q1, q2 = s0 - along * u0, s1 - along * u1, s2 - along * u2
-        before2 = s0 * s0 + s1 * s1 + s2 * s2
-        after2 = q0 * q0 + q1 * q1 + q2 * q2
-        if after2 > 0:
-            ratio = math.sqrt(before2 / after2)
-            q0, q1, q2 = q0 * ratio, q1 * ratio, q2 * ratio
-        s0, s1, s2 = q0, q1, q2
+        s0, s1, s2 = carried_spring3(s0, s1, s2, u0, u1, u2)
     else:
         s0, s1, s2 = 0.0, 0.0, 0.0
     along = r0 * mid0 + r1 * mid1 + r2 * mid2

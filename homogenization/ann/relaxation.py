@@ -29,6 +29,8 @@ import math
 import numba
 import numpy as np
 
+from training.fast_cells import carried_spring3
+
 
 @numba.njit(cache=True, error_model="numpy")
 def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol, damping, n_drive, fn_max, ratio,
@@ -115,14 +117,7 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
                     continue
                 dist = math.sqrt(dist2)
                 u0, u1, u2 = b0 / dist, b1 / dist, b2 / dist
-                s0, s1, s2 = spring[p, 0], spring[p, 1], spring[p, 2]
-                along = s0 * u0 + s1 * u1 + s2 * u2
-                q0, q1, q2 = s0 - along * u0, s1 - along * u1, s2 - along * u2
-                before2 = s0 * s0 + s1 * s1 + s2 * s2
-                after2 = q0 * q0 + q1 * q1 + q2 * q2
-                if after2 > 0.0:
-                    scale = math.sqrt(before2 / after2)
-                    q0, q1, q2 = q0 * scale, q1 * scale, q2 * scale
+                q0, q1, q2 = carried_spring3(spring[p, 0], spring[p, 1], spring[p, 2], u0, u1, u2)
                 r0, r1, r2 = dx[j, 0] - dx[i, 0], dx[j, 1] - dx[i, 1], dx[j, 2] - dx[i, 2]
                 rn = r0 * u0 + r1 * u1 + r2 * u2
                 t0, t1, t2 = q0 + kt * (r0 - rn * u0), q1 + kt * (r1 - rn * u1), q2 + kt * (r2 - rn * u2)
