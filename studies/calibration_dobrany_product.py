@@ -1,5 +1,6 @@
 """python studies/calibration_dobrany_product.py --split 50+100|50+200 --tag T [--steps N] [--start-from JSON]
-                                                [--extra "FLAGS"] [--evaluate-only]
+                                                [--extra "FLAGS"] [--evaluate-only] [--check-rule 23x8s]
+       python studies/calibration_dobrany_product.py --splits-figure OUT.png RESULT.json[+RESULT2.json] ...
 
 Dobrany sand with the product's own ``hmodel calibrate``: the interlocking friction (``--interlocking``: m,
 e_gamma, lambda_c, xi_c and the cells' spread calibrated), the critical-state renewal (alpha_c, renewal_rate),
@@ -10,7 +11,9 @@ model they used (Lebedev 11 x 4 aligned spins, shear increments 2e-3, isotropic 
 noise 2 %, the studies' bounds as the prior: ``PRIOR``). The walkers start around one least-squares fit from
 ``--start-from`` (a study optimum, fitted on the same two tests; ``--start-point``). The predicted test never
 enters the calibration. Then all three tests at the posterior mean (what ``hmodel triaxial --posterior``
-replays) and at the start's least-squares optimum: RMS abs(dq) / q_peak, RMS d eps_v, strain at the highest q.
+replays) and at the start's least-squares optimum: RMS abs(dq) / q_peak, RMS d eps_v, strain at the highest q;
+``--check-rule`` also at the mean on another orientation rule (ORDERxSPINS, a: aligned, s: staggered spins), e.g.
+23x8s, within about 1 % of q_peak of 35 x 8 (``scan_dobrany_orientation_rules.py``).
 
 Writes the data copies, the prior and the calibration under runs/dobrany_product/ (ignored), and
 studies/results/calibration_dobrany_product_SPLIT_TAG.json and .png (q and eps_v, data and the mean's curves).
@@ -80,26 +83,33 @@ def start_point(path: Path) -> str:
     return ",".join(f"{n}={values[n]!r}" for n in PARAMS)
 
 
-def evaluate(out: Path, files: dict[str, Path], fitted: tuple[str, ...], predicted: str) -> dict:
-    """The three tests at the posterior mean and at the least-squares optimum of run.json's start."""
+def evaluate(out: Path, files: dict[str, Path], fitted: tuple[str, ...], predicted: str,
+             check_rule: str = "") -> dict:
+    """The three tests at the posterior mean and at the least-squares optimum of run.json's start; with
+    ``check_rule`` (ORDERxSPINS[a|s]) also at the posterior mean on that orientation rule ("mean_on_RULE")."""
     post = post_mod.read_posterior(out)
     run = json.loads((out / "run.json").read_text())
     optimum = run.get("sampler", {}).get("start", {}).get("optimum") or run.get("start", {}).get("optimum")
-    points = {"mean": dict(post.mean)}
+    points = {"mean": (dict(post.mean), post.forward)}
     if optimum:
-        points["optimum"] = {**post.mean, **optimum}
+        points["optimum"] = ({**post.mean, **optimum}, post.forward)
+    if check_rule:
+        order, rest = check_rule.split("x")
+        points[f"mean_on_{check_rule}"] = (dict(post.mean), replace(
+            post.forward, lebedev_order=int(order), n_spins=int(rest[:-1]), staggered_spins=rest[-1] == "s"))
     result = {}
-    for label, values in points.items():
+    for label, (values, settings) in points.items():
         rows, curves = {}, {}
         for name in sorted(files, key=lambda f: read_test(files[f]).p0):
             test = read_test(files[name])
             with np.errstate(all="ignore"):
-                c = forward.simulate(test, {k: np.array([v]) for k, v in values.items()}, post.forward)
+                c = forward.simulate(test, {k: np.array([v]) for k, v in values.items()}, settings)
             rows[name] = {"role": "predicted" if name == predicted else "fitted", **metrics(test, c.q[0], c.eps_v[0]),
                           "forward_fallbacks": int(c.n_fallback[0])}
             curves[name] = {"eps1": test.eps1.tolist(), "q": c.q[0].tolist(), "eps_v": c.eps_v[0].tolist(),
                             "q_data": test.observed["q"].tolist(), "eps_v_data": test.observed["eps_v"].tolist()}
-        print(f"at the posterior {label}:" if label == "mean" else "at the start's least-squares optimum:")
+        print({"mean": "at the posterior mean:", "optimum": "at the start's least-squares optimum:"}.get(
+            label, f"at the posterior mean, on the orientation rule {check_rule}:"))
         print_prediction_table(rows, fallbacks=True)
         result[label] = {"values": values, "tests": rows, "curves": curves}
     return result
@@ -127,7 +137,50 @@ def figure(result: dict, title: str, path: Path) -> None:
     plt.close(fig)
 
 
+def rule_of(command: str) -> str:
+    """"Lebedev 15 x 4 staggered" of a calibrate command line (its --order, --spins, --staggered-spins)."""
+    words = shlex.split(command)
+    order = words[words.index("--order") + 1] if "--order" in words else "11"
+    spins = words[words.index("--spins") + 1] if "--spins" in words else "4"
+    return f"Lebedev {order} x {spins} {'staggered' if '--staggered-spins' in words else 'aligned'}"
+
+
+def splits_figure(rows: list[str], out: Path) -> None:
+    """One row per argument (q and eps_v against eps1, data and posterior means' curves), for the docs; an argument
+    "A.json+B.json" draws A's model thin and B's thick (one split, two calibrations)."""
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig, axes = plt.subplots(len(rows), 2, figsize=(11, 3.6 * len(rows)), squeeze=False)
+    for (ax_q, ax_v), row in zip(axes, rows):
+        paths = [Path(p) for p in row.split("+")]
+        for j, path in enumerate(paths):
+            result = json.loads(path.read_text())
+            thick = j == len(paths) - 1
+            for k, (name, c) in enumerate(result["mean"]["curves"].items()):
+                role = result["mean"]["tests"][name]["role"]
+                e = 100 * np.asarray(c["eps1"])
+                style = ("--" if role == "predicted" else "-") if thick else ":"
+                if thick:
+                    ax_q.plot(e, np.asarray(c["q_data"]) / 1e3, ".", color=f"C{k}", ms=2)
+                    ax_v.plot(e, 100 * np.asarray(c["eps_v_data"]), ".", color=f"C{k}", ms=2)
+                label = f"{name.split('_')[1].replace('kpa.csv', ' kPa')} ({role}), {rule_of(result['command'])}"
+                ax_q.plot(e, np.asarray(c["q"]) / 1e3, style, color=f"C{k}", lw=1.6 if thick else 0.9,
+                          label=label if thick or k == 0 else None)
+                ax_v.plot(e, 100 * np.asarray(c["eps_v"]), style, color=f"C{k}", lw=1.6 if thick else 0.9)
+        ax_q.set(xlabel="eps1 [%]", ylabel="q [kPa]", title=f"split {result['split']}")
+        ax_v.set(xlabel="eps1 [%]", ylabel="eps_v [%] (contraction > 0)")
+        ax_q.legend(fontsize=7)
+    fig.suptitle("Dobrany sand, hmodel calibrate --interlocking: dots data, lines the posterior means "
+                 "(dotted: the other rule)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
+    if argv is None and len(sys.argv) > 1 and sys.argv[1] == "--splits-figure":  # OUT.png RESULT.json ...
+        splits_figure(sys.argv[3:], Path(sys.argv[2]))
+        return 0
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--split", choices=tuple(SPLITS), required=True)
     parser.add_argument("--tag", required=True)
@@ -136,6 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--start-from", type=Path, help="a study result JSON whose optimum starts the fit")
     parser.add_argument("--extra", default="", help="more hmodel calibrate flags")
     parser.add_argument("--evaluate-only", action="store_true", help="evaluate an existing calibration folder")
+    parser.add_argument("--check-rule", default="", help="ORDERxSPINS[a|s]: also the mean's curves on that rule")
     args = parser.parse_args(argv)
     files = data_copies()
     fitted, predicted = SPLITS[args.split]
@@ -156,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         seconds = time.perf_counter() - started
         print(f"hmodel calibrate wall time: {seconds:.0f} s, load {os.getloadavg()[0]:.1f}", flush=True)
     run = json.loads((out / "run.json").read_text())
-    result = evaluate(out, files, fitted, predicted)
+    result = evaluate(out, files, fitted, predicted, args.check_rule)
     sampler = run.get("sampler", {})
     auto = sampler.get("autocorrelation", {})
     print("sampler: " + json.dumps({k: auto.get(k) for k in ("tau_steps", "steps_per_tau", "converged",
@@ -165,6 +219,9 @@ def main(argv: list[str] | None = None) -> int:
     record = {"split": args.split, "tag": args.tag, "command": shlex.join(command), "wall_seconds": seconds,
               "sampler": sampler, "start": run.get("start", sampler.get("start")), **result}
     stem = f"calibration_dobrany_product_{args.split.replace('+', '_')}_{args.tag}"
+    if seconds is None and (RESULTS / f"{stem}.json").is_file():  # --evaluate-only keeps the run's record
+        before = json.loads((RESULTS / f"{stem}.json").read_text())
+        record.update(wall_seconds=before.get("wall_seconds"), command=before.get("command", record["command"]))
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / f"{stem}.json").write_text(json.dumps(record, indent=1, default=str))
     figure(result, f"Dobrany sand, hmodel calibrate --interlocking, split {args.split}, {args.tag}",
