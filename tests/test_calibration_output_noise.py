@@ -51,3 +51,21 @@ def test_summary_reports_float_errors_and_advises_on_stuck_walkers():
     assert "--prior" in lines[-1] and "--walkers" in lines[-1]
     quiet = report.summary_lines(_result(0, 0))
     assert quiet[-1].startswith("sampler: ") and "floating-point errors 0" in quiet[-1]
+
+
+def test_corner_panels_without_contours_are_counted_not_logged(capsys, caplog):
+    """Three parameters whose 60 samples take two distinct values each (a stalled chain): ``corner`` finds
+    too few points for the contours of each of the 3 panels; they are counted, none is logged or printed,
+    and the summary says so. 4000 samples of a Gaussian: no such panel."""
+    prior = bayes.make_prior(("phi_g", "kt_over_kn", "alpha0"))
+    stalled = np.repeat(np.array([[25.0, 0.5, 55.0], [25.0001, 0.5001, 55.0001]]), 30, axis=0)
+    with caplog.at_level("WARNING"):
+        _, bare = report.corner_figure(stalled, prior)
+        _, none = report.corner_figure(np.random.default_rng(0).normal([25.0, 0.5, 55.0], 0.1, (4000, 3)), prior)
+    assert (bare, none) == (3, 0)
+    assert not [r for r in caplog.records if "contours" in r.getMessage()]
+    assert "contours" not in capsys.readouterr().err
+    result = _result(0, 0)
+    result["posterior"] = {n: result["posterior"]["phi_g"] for n in ("phi_g", "kt_over_kn", "alpha0")}
+    result["sampler"]["corner_panels_without_contours"] = bare
+    assert "corner.png: 3 of 3 panels without contours (too few distinct samples: a short chain)" in report.summary_lines(result)

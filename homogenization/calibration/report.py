@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -88,16 +89,44 @@ def write_samples(path: Path, samples: np.ndarray, lp: np.ndarray, prior: bayes.
                 fh.attrs[key] = value
 
 
-def corner_figure(samples: np.ndarray, prior: bayes.Prior) -> Figure:
-    """Corner plot of the posterior in CLI units (log10 kn where its prior is log-uniform)."""
+class _BareContours(logging.Filter):
+    """Drops and counts the root logger's records of ``corner``'s panels without contours."""
+
+    MESSAGE = "Too few points to create valid contours"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.count = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage().startswith(self.MESSAGE):
+            self.count += 1
+            return False
+        return True
+
+
+def corner_figure(samples: np.ndarray, prior: bayes.Prior) -> tuple[Figure, int]:
+    """Corner plot of the posterior in CLI units (log10 kn where its prior is log-uniform), and the number of
+    its 2D panels drawn without contours (too few distinct samples, as from a short chain: ``corner`` logs
+    one warning per panel, which are counted here instead of printed)."""
     import corner  # noqa: PLC0415
 
     labels = [f"log10 {n} [{bayes.UNITS[n]}]" if lg else f"{n} [{bayes.UNITS[n]}]"
               for n, lg in zip(prior.names, prior.log)]
     k = len(prior.names)
     fig = Figure(figsize=(2.2 * k + 1, 2.2 * k + 1))
-    corner.corner(samples, labels=labels, quantiles=[0.025, 0.5, 0.975], show_titles=True, fig=fig)
-    return fig
+    root, bare = logging.getLogger(), _BareContours()
+    idle = logging.lastResort if not root.handlers else None  # as Python prints, without logging.warning()'s basicConfig
+    root.addFilter(bare)
+    if idle is not None:
+        root.addHandler(idle)
+    try:
+        corner.corner(samples, labels=labels, quantiles=[0.025, 0.5, 0.975], show_titles=True, fig=fig)
+    finally:
+        root.removeFilter(bare)
+        if idle is not None:
+            root.removeHandler(idle)
+    return fig, bare.count
 
 
 def fit_figure(tests: Sequence[Measurement], log_post: bayes.Posterior, samples: np.ndarray,
@@ -256,7 +285,9 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
     }
     write_samples(out / "posterior.h5", samples, lp, prior, record)
     write_json(out / "posterior.json", posterior_json(summary, prior.names, log_post.settings))
-    save_figure(corner_figure(samples, prior), out / "corner.png")
+    corner, bare_panels = corner_figure(samples, prior)
+    save_figure(corner, out / "corner.png")
+    run["sampler"]["corner_panels_without_contours"] = bare_panels
     save_figure(fit_figure(tests, log_post, samples, mean_curves, confirm, np.random.default_rng(args.seed)),
                 out / "fits.png")
     write_json(out / "run.json", {"posterior": summary, **run})
@@ -331,6 +362,11 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
                  f"forward fallbacks {forward['fallbacks']}, failed sets {forward['failed']}, "
                  f"floating-point errors {forward.get('floating_point_errors', 0)} (overflow or NaN of diverging sets, "
                  f"not printed)")
+    bare = sampler.get("corner_panels_without_contours", 0)
+    if bare:
+        k = len(result["posterior"])
+        lines.append(f"corner.png: {bare} of {k * (k - 1) // 2} panels without contours (too few distinct samples: a "
+                     f"short chain)")
     stuck = sampler["stuck_walkers_left_out"]
     if stuck:
         lines.append(f"{stuck} of {sampler['walkers']} walkers stayed where the posterior is below exp(-"
