@@ -102,6 +102,19 @@ def _read_json(path: Path, what: str) -> Any:
         raise ValueError(f"--posterior: cannot read {path}: {exc}") from None
 
 
+def _checked_record(data: dict, key: str, record: type, what: str, path: Path) -> Any:
+    """``record(**data.pop(key))`` after its ``check()``, or None where ``data`` has no ``key``; ValueError (one
+    line naming ``path`` and ``what`` it should be) where the entry does not make a valid record."""
+    if key not in data:
+        return None
+    try:
+        value = record(**data.pop(key))
+        value.check()
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"--posterior {path}: {key!r} is not {what}: {exc}") from None
+    return value
+
+
 def read_posterior(path: Path) -> CalibratedPosterior:
     """The posterior of ``path`` (posterior.json, or the folder holding it) and its run.json.
 
@@ -123,20 +136,8 @@ def read_posterior(path: Path) -> CalibratedPosterior:
             law_name = contact_law_from_dict(data.pop(CONTACT_LAW_KEY)).name
         except (TypeError, ValueError, AttributeError) as exc:
             raise ValueError(f"--posterior {path}: {CONTACT_LAW_KEY!r} is not a contact law: {exc}") from None
-    rule = None
-    if CRITICAL_STATE_KEY in data:
-        try:
-            rule = CriticalState(**data.pop(CRITICAL_STATE_KEY))
-            rule.check()
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"--posterior {path}: {CRITICAL_STATE_KEY!r} is not a critical-state rule: {exc}") from None
-    interlocking = None
-    if INTERLOCKING_KEY in data:
-        try:
-            interlocking = Interlocking(**data.pop(INTERLOCKING_KEY))
-            interlocking.check()
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"--posterior {path}: {INTERLOCKING_KEY!r} is not an interlocking friction: {exc}") from None
+    rule = _checked_record(data, CRITICAL_STATE_KEY, CriticalState, "a critical-state rule", path)
+    interlocking = _checked_record(data, INTERLOCKING_KEY, Interlocking, "an interlocking friction", path)
     mean: dict[str, float] = {}
     for name, entry in data.items():
         if name not in calibratable(law_name):
