@@ -32,7 +32,7 @@ import numpy as np
 from training.fast_cells import carried_spring3
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _movers(c, x0, x1, simulated, pairs, radius, tol, free_mask, pushed, moving, involved, dynamic, relevant, grains):
     """Cell c: the free DOFs that move (``dynamic`` (n_grains, 3) bool: the pushed ones and the free DOFs of the
     grains within reach of a pushed grain at x0 or x1), the pairs that touch a moving grain (``relevant``), the
@@ -70,83 +70,6 @@ def _movers(c, x0, x1, simulated, pairs, radius, tol, free_mask, pushed, moving,
             grains[n_involved] = g
             n_involved += 1
     return n_relevant, n_involved
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _forces(x, dx, spring, f, pairs, radius, relevant, n_relevant, grains, n_involved, kn, kt, mu, tol):
-    """One substep's contact law on the ``relevant`` pairs at the centres x (n_grains, 3) [m] after the substep's
-    displacements dx: the springs (n_pairs, 3) [N] updated in place (carried into the tangent plane, grown by kt
-    times the tangential relative displacement, capped at mu f_n; zero out of reach) and the net forces f
-    (n_grains, 3) [N] of the ``grains`` written."""
-    for h in range(n_involved):
-        g = grains[h]
-        f[g, 0], f[g, 1], f[g, 2] = 0.0, 0.0, 0.0
-    for q in range(n_relevant):
-        p = relevant[q]
-        i, j = pairs[p, 0], pairs[p, 1]
-        b0, b1, b2 = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
-        rsum = radius[i] + radius[j]
-        reach = rsum * (1.0 + tol)
-        dist2 = b0 * b0 + b1 * b1 + b2 * b2
-        if not dist2 <= reach * reach:
-            spring[p, 0], spring[p, 1], spring[p, 2] = 0.0, 0.0, 0.0
-            continue
-        dist = math.sqrt(dist2)
-        u0, u1, u2 = b0 / dist, b1 / dist, b2 / dist
-        q0, q1, q2 = carried_spring3(spring[p, 0], spring[p, 1], spring[p, 2], u0, u1, u2)
-        r0, r1, r2 = dx[j, 0] - dx[i, 0], dx[j, 1] - dx[i, 1], dx[j, 2] - dx[i, 2]
-        rn = r0 * u0 + r1 * u1 + r2 * u2
-        t0, t1, t2 = q0 + kt * (r0 - rn * u0), q1 + kt * (r1 - rn * u1), q2 + kt * (r2 - rn * u2)
-        fn = kn * max(rsum - dist, 0.0)
-        cap = mu * fn
-        size = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-        if size > cap:
-            scale = cap / size if size > 0.0 else 0.0
-            t0, t1, t2 = t0 * scale, t1 * scale, t2 * scale
-        spring[p, 0], spring[p, 1], spring[p, 2] = t0, t1, t2
-        g0, g1, g2 = t0 - fn * u0, t1 - fn * u1, t2 - fn * u2
-        f[i, 0] += g0
-        f[i, 1] += g1
-        f[i, 2] += g2
-        f[j, 0] -= g0
-        f[j, 1] -= g1
-        f[j, 2] -= g2
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _largest_force(f, dynamic, grains, n_involved):
-    """The largest abs net force [N] on a moving free DOF."""
-    largest = 0.0
-    for h in range(n_involved):
-        g = grains[h]
-        for a in range(3):
-            if dynamic[g, a]:
-                largest = max(largest, abs(f[g, a]))
-    return largest
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _move(c, x, v, dx, f, x0, x1, s, dynamic, grains, n_involved, inv_mass, dt, damping):
-    """One substep of cell c's motion, in place: the moving free DOFs by the DEM's leapfrog with Cundall damping
-    (a grain with no net force held at rest), the others to the fraction s of the way from x0 to x1."""
-    for h in range(n_involved):  # the grains no relevant pair touches are never read
-        g = grains[h]
-        unloaded = f[g, 0] == 0.0 and f[g, 1] == 0.0 and f[g, 2] == 0.0
-        for a in range(3):
-            if dynamic[g, a]:
-                if unloaded:
-                    v[g, a] = 0.0
-                else:
-                    accel = f[g, a] * inv_mass[g]
-                    power = f[g, a] * (v[g, a] + 0.5 * dt * accel)
-                    sign = 1.0 if power > 0.0 else (-1.0 if power < 0.0 else 0.0)
-                    v[g, a] = v[g, a] + dt * (accel * (1.0 - damping * sign))
-                dx[g, a] = v[g, a] * dt
-                x[g, a] += dx[g, a]
-            else:
-                target = x0[c, g, a] + s * (x1[c, g, a] - x0[c, g, a])
-                dx[g, a] = target - x[g, a]
-                x[g, a] = target
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -191,14 +114,70 @@ def relax(x0, x1, simulated, shear, pairs, radius, inv_mass, dt, kn, kt, mu, tol
         limit = ratio * fn_max[c]
         k = 0
         while True:
-            _forces(x, dx, spring, f, pairs, radius, relevant, n_relevant, grains, n_involved, kn, kt, mu, tol)
-            if k_phase >= n_phase and (_largest_force(f, dynamic, grains, n_involved) <= limit or k >= max_substeps):
-                break
+            for h in range(n_involved):
+                g = grains[h]
+                f[g, 0], f[g, 1], f[g, 2] = 0.0, 0.0, 0.0
+            for q in range(n_relevant):  # the DEM's contact law of one substep
+                p = relevant[q]
+                i, j = pairs[p, 0], pairs[p, 1]
+                b0, b1, b2 = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
+                rsum = radius[i] + radius[j]
+                reach = rsum * (1.0 + tol)
+                dist2 = b0 * b0 + b1 * b1 + b2 * b2
+                if not dist2 <= reach * reach:
+                    spring[p, 0], spring[p, 1], spring[p, 2] = 0.0, 0.0, 0.0
+                    continue
+                dist = math.sqrt(dist2)
+                u0, u1, u2 = b0 / dist, b1 / dist, b2 / dist
+                q0, q1, q2 = carried_spring3(spring[p, 0], spring[p, 1], spring[p, 2], u0, u1, u2)
+                r0, r1, r2 = dx[j, 0] - dx[i, 0], dx[j, 1] - dx[i, 1], dx[j, 2] - dx[i, 2]
+                rn = r0 * u0 + r1 * u1 + r2 * u2
+                t0, t1, t2 = q0 + kt * (r0 - rn * u0), q1 + kt * (r1 - rn * u1), q2 + kt * (r2 - rn * u2)
+                fn = kn * max(rsum - dist, 0.0)
+                cap = mu * fn
+                size = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+                if size > cap:
+                    scale = cap / size if size > 0.0 else 0.0
+                    t0, t1, t2 = t0 * scale, t1 * scale, t2 * scale
+                spring[p, 0], spring[p, 1], spring[p, 2] = t0, t1, t2
+                g0, g1, g2 = t0 - fn * u0, t1 - fn * u1, t2 - fn * u2
+                f[i, 0] += g0
+                f[i, 1] += g1
+                f[i, 2] += g2
+                f[j, 0] -= g0
+                f[j, 1] -= g1
+                f[j, 2] -= g2
+            if k_phase >= n_phase:
+                largest = 0.0
+                for h in range(n_involved):
+                    g = grains[h]
+                    for a in range(3):
+                        if dynamic[g, a]:
+                            largest = max(largest, abs(f[g, a]))
+                if largest <= limit or k >= max_substeps:
+                    break
             k += 1
             if k_phase < n_phase:
                 k_phase += 1
                 s = k_phase * ds if k_phase < n_phase else 1.0
-            _move(c, x, v, dx, f, x0, x1, s, dynamic, grains, n_involved, inv_mass, dt, damping)
+            for h in range(n_involved):  # leapfrog with Cundall damping; the grains no relevant pair touches are never read
+                g = grains[h]
+                unloaded = f[g, 0] == 0.0 and f[g, 1] == 0.0 and f[g, 2] == 0.0
+                for a in range(3):
+                    if dynamic[g, a]:
+                        if unloaded:
+                            v[g, a] = 0.0
+                        else:
+                            accel = f[g, a] * inv_mass[g]
+                            power = f[g, a] * (v[g, a] + 0.5 * dt * accel)
+                            sign = 1.0 if power > 0.0 else (-1.0 if power < 0.0 else 0.0)
+                            v[g, a] = v[g, a] + dt * (accel * (1.0 - damping * sign))
+                        dx[g, a] = v[g, a] * dt
+                        x[g, a] += dx[g, a]
+                    else:
+                        target = x0[c, g, a] + s * (x1[c, g, a] - x0[c, g, a])
+                        dx[g, a] = target - x[g, a]
+                        x[g, a] = target
         for g in range(n_grains):
             for a in range(3):
                 x_out[c, g, a] = x[g, a] if involved[g] else x0[c, g, a] + (x1[c, g, a] - x0[c, g, a])
