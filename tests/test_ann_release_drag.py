@@ -20,6 +20,7 @@ from homogenization.learning.certificate import requested_settings
 from training import fast_model
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.parameters import ContactLaw, DemSettings
+from warp_hcell.database.learning_state import positions
 from warp_hcell.mesostructures.builders import mesostructure_arg
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -70,7 +71,7 @@ def test_the_relaxed_fine_grain_lands_where_the_dem_from_rest_puts_it():
     dem_size, dem_free, *_ = escalation.advance(size, free, shear, d_eps)
     fine = meso.schema().free_dofs[:, 0] == meso.radius.size - 1
     pushed = np.tile(fine, (size.shape[0], 1))
-    x0, x1 = escalation.positions(size, free), escalation.positions(dem_size, dem_free)
+    x0, x1 = positions(escalation.schema, size, free), positions(escalation.schema, dem_size, dem_free)
     x1[:, -1] = x0[:, -1]  # the fine grain where it started: the others at the DEM's end
     moved = np.linalg.norm((dem_free - free)[:, fine], axis=1)  # 14 mm (a snap) and 69 um (a push)
     out, substeps = escalation.relaxed(x0, x1, shear, d_eps, pushed)

@@ -515,19 +515,24 @@ class FastAdvance:
         return FastIncrement(result.new_size.T, result.new_free.T, new_shear, result.moment, result.area, result.capped,
                              result.opened, result.mechanism, result.ramped, result.n_held)
 
+    def _last_cells(self, index: np.ndarray, caller: str) -> tuple[tuple, _Last]:
+        """((size, free, shear, d_eps, before), last): the cells ``index`` (int (m,)) of this thread's last corrected
+        ``increment`` (cells last; ``before``'s features not gathered: read by no kernel after it), and that
+        increment's ``_Last``; ValueError naming ``caller`` where there is none."""
+        last = getattr(self._local, "last", None)
+        if last is None:
+            raise ValueError(f"{caller}: no corrected increment before it in this thread")
+        take = lambda a: np.take(a, index, axis=-1)  # noqa: E731 (C order; a[..., index] is not)
+        before = Before(last.before.feats, *map(take, last.before[1:]))
+        return (take(last.size), take(last.free), take(last.shear), np.ascontiguousarray(last.d_eps[index]), before), last
+
     def again_at_rest(self, index: np.ndarray, held: np.ndarray) -> FastIncrement:
         """The cells ``index`` (int (m,)) of this thread's last corrected ``increment``, taken again with the free
         DOFs ``held`` (bool (m, n_free)) starting the corrections at rest: bit for bit those cells of
         ``increment(..., held=held)``, from the first guess of the last call (no features, no network);
         ``last_corrections`` then counts these corrections."""
-        last = getattr(self._local, "last", None)
-        if last is None:
-            raise ValueError("again_at_rest: no corrected increment before it in this thread")
-        take = lambda a: np.take(a, index, axis=-1)  # noqa: E731 (C order; a[..., index] is not)
-        size, free, shear = take(last.size), take(last.free), take(last.shear)
-        before = Before(last.before.feats, *map(take, last.before[1:]))  # the features: read by no kernel here
-        d_eps = np.ascontiguousarray(last.d_eps[index])
-        d_free = take(last.guess)
+        (size, free, shear, d_eps, before), last = self._last_cells(index, "again_at_rest")
+        d_free = np.take(last.guess, index, axis=-1)
         d_free[np.asarray(held, dtype=bool).T] = 0.0
         result = self._result(d_eps.shape[0])
         self._balance(size, free, shear, d_eps, d_free, before, result)
@@ -537,13 +542,7 @@ class FastAdvance:
         """The cells ``index`` (int (m,)) of this thread's last corrected ``increment`` with the free-DOF
         displacement ``d_free`` (m, n_free) [m] as given: the rest rule and the contact law at those positions
         (no network, no corrections; ``last_corrections`` unchanged)."""
-        last = getattr(self._local, "last", None)
-        if last is None:
-            raise ValueError("again_displaced: no corrected increment before it in this thread")
-        take = lambda a: np.take(a, index, axis=-1)  # noqa: E731 (C order; a[..., index] is not)
-        size, free, shear = take(last.size), take(last.free), take(last.shear)
-        before = Before(last.before.feats, *map(take, last.before[1:]))
-        d_eps = np.ascontiguousarray(last.d_eps[index])
+        (size, free, shear, d_eps, before), _ = self._last_cells(index, "again_displaced")
         result = self._result(d_eps.shape[0])
         self._physics(size, free, shear, d_eps, np.ascontiguousarray(np.asarray(d_free, dtype=np.float64).T),
                       self.cells, self.law, before, result)

@@ -211,14 +211,6 @@ class DemEscalation:
                   float(self.contact_law.kn), self.force_ratio, out, dofs, bool(every))
         return dofs.T
 
-    def positions(self, cell_size: np.ndarray, free_position: np.ndarray) -> np.ndarray:
-        """Grain centres (n, n_grains, dim) [m] of the learning states (cell_size (n, dim), free_position (n, n_free)):
-        driven DOFs at x_ref l / l_ref, free ones as given."""
-        size = np.asarray(cell_size, dtype=np.float64)
-        x = self._reference_position[None] * (size / self._reference_size)[:, None, :]
-        x[:, self._free_dofs[:, 0], self._free_dofs[:, 1]] = free_position
-        return x
-
     def relaxed(self, x0: np.ndarray, x1: np.ndarray, shear_force: np.ndarray, d_eps: np.ndarray, pushed: np.ndarray, *,
                 ratio: float = RELAX_RATIO, max_substeps: int = RELAX_SUBSTEPS,
                 settings: DemSettings = DemSettings()) -> tuple[np.ndarray, np.ndarray]:
