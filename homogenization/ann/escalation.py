@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
+from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import ContactLaw, DemSettings
 from warp_hcell.database.learning_state import evaluate, free_coordinates
 from warp_hcell.database.probing import ProbeContext, step_from_rest
@@ -231,7 +232,7 @@ class DemEscalation:
         touching = distance <= self._rsum * (1.0 + self.contact_tolerance)
         fn_max = np.where(touching, self.contact_law.kn * np.maximum(self._rsum - distance, 0.0), 0.0).max(axis=1)
         radius = np.ascontiguousarray(self.schema.radius, dtype=np.float64)
-        mass = settings.density * (4.0 / 3.0) * np.pi * radius ** 3
+        mass = settings.density * dimension(self.schema.dim).grain_measure(radius)  # the DEM's (DemModel)
         dt = settings.dt_factor * float(np.sqrt(mass.min() / self.contact_law.kn))
         largest = np.abs(np.asarray(d_eps, dtype=np.float64)).max(axis=1)
         n_drive = np.maximum(np.ceil(largest / settings.rest_strain_per_substep), 1.0).astype(np.int64)
