@@ -203,7 +203,7 @@ def interlocking_renewal(run: PosteriorRun | None, meso: Any, critical_state: An
     from homogenization.calibration.forward import full_parameters  # noqa: PLC0415
     from homogenization.calibration.interlocking import InterlockingFriction  # noqa: PLC0415
     from homogenization.calibration.renewal import PopulationRenewal, laws_of  # noqa: PLC0415
-    from homogenization.material.density import OPENING_RANGE_DEG, default_map  # noqa: PLC0415
+    from homogenization.material.density import default_map  # noqa: PLC0415
 
     post = run.posterior
     alpha0 = np.array([float(meso.parameters["alpha0_deg"])])
@@ -211,9 +211,8 @@ def interlocking_renewal(run: PosteriorRun | None, meso: Any, critical_state: An
     if "kn" in full:
         full["kn"] = full["kn"] * run.kn_scale
     e_min, e_max = (np.array([post.mean.get(name, default)]) for name, default in zip(DENSITY, DENSITY_DEFAULTS))
-    dense, loose = OPENING_RANGE_DEG[3]
-    e0 = (np.array([void_ratio]) if void_ratio is not None else
-          e_max - (loose - alpha0) / (loose - dense) * (e_max - e_min))
+    e0 = np.array([void_ratio if void_ratio is not None else
+                   default_map(3, e_min[0], e_max[0]).void_ratio(alpha0[0])])
 
     def build(points: Any) -> Any:
         inner = None
