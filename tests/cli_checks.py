@@ -16,3 +16,19 @@ def assert_usage_error(capsys, cli: Callable[[list[str]], int], argv: Sequence[s
     assert info.value.code == 2
     assert capsys.readouterr().err.strip().splitlines()[-1].endswith(f"error: {message}")
     assert not out.exists()
+
+
+def assert_one_line_refusal(capsys, main: Callable[[list[str]], int], argv: Sequence[str], expected: str,
+                            out: Path) -> None:
+    """``run_main(main, argv)`` exits with code 2, through argparse (a flag's type) or a ``UserError``, printing
+    one stderr line that contains ``expected``, and leaves nothing at ``out``."""
+    from warp_hcell.core.cli import run_main  # noqa: PLC0415
+
+    try:
+        code = run_main(main, list(argv))
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and expected in lines[0], lines
+    assert not out.exists()

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_checks import assert_one_line_refusal
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
@@ -72,14 +73,7 @@ def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, data, expected
     args = ["--data", str(_write(tmp_path / "t.csv", data)), *flags, "--walkers", "4", "--steps", "2",
             "--out", str(out)]
     args += [f for f in FAST if f not in ("--confirm", "none") or "--confirm" not in flags]
-    try:  # argparse's type errors exit from the parser, the others return
-        code = run_main(calibrate.main, args)
-    except SystemExit as exc:
-        code = exc.code
-    assert code == 2
-    lines = capsys.readouterr().err.splitlines()
-    assert len(lines) == 1 and expected in lines[0], lines
-    assert not out.exists()
+    assert_one_line_refusal(capsys, calibrate.main, args, expected, out)
 
 
 def test_the_posterior_holds_the_friction_and_triaxial_replays_it(tmp_path):

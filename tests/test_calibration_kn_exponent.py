@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_checks import assert_one_line_refusal
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
@@ -71,15 +72,8 @@ def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, data, expected
     path = _write(tmp_path / "t.csv", data)
     params = "phi_g,shear_modulus" if "hertz-mindlin" in flags else "phi_g,kn"
     out = tmp_path / "cal"
-    try:  # argparse's type errors exit from the parser, the others return
-        code = run_main(calibrate.main, ["--data", str(path), "--params", params, *flags, "--walkers", "4", "--steps",
-                                         "2", *FAST, "--out", str(out)])
-    except SystemExit as exc:
-        code = exc.code
-    assert code == 2
-    lines = capsys.readouterr().err.splitlines()
-    assert len(lines) == 1 and expected in lines[0], lines
-    assert not out.exists()
+    assert_one_line_refusal(capsys, calibrate.main, ["--data", str(path), "--params", params, *flags, "--walkers", "4",
+                                                     "--steps", "2", *FAST, "--out", str(out)], expected, out)
 
 
 def test_the_posterior_replays_kn_at_the_commands_pressure(tmp_path):
