@@ -1,5 +1,6 @@
-"""hmodel calibrate --kn-exponent N: each triaxial test runs the linear law's kn (p0 / 101.325 kPa)^N, in the
-likelihood, in posterior.json's replay by hmodel triaxial --posterior, and nowhere without the flag."""
+"""hmodel calibrate --kn-exponent N (or --params kn_exponent, N per set): each triaxial test runs the linear law's kn
+(p0 / 101.325 kPa)^N, in the likelihood, in posterior.json's replay by hmodel triaxial --posterior, and nowhere
+without the flag."""
 
 from dataclasses import replace
 from pathlib import Path
@@ -93,4 +94,56 @@ def test_the_posterior_replays_kn_at_the_commands_pressure(tmp_path):
     factor = (4e5 / SETTINGS.kn_p_ref) ** 0.5
     assert args.kn == pytest.approx(post.contact_law.kn * factor, rel=1e-12)
     assert args.kt == pytest.approx(post.contact_law.kt * factor, rel=1e-12)
+    assert run.kn_scale == pytest.approx(factor, rel=1e-12)
+
+
+def test_a_calibrated_exponent_scales_each_sets_kn_by_its_own():
+    """--params kn_exponent: set i runs kn (p0 / p_ref)^n_i, in place of the settings' exponent; also for the sets
+    of a test whose void ratio one set's map misses."""
+    n = np.array([0.5, 0.0])
+    settings = replace(SETTINGS, kn_exponent=0.3)  # overridden by the calibrated value
+    both = forward.simulate(TEST, {"kn": np.array([KN, KN]), "kn_exponent": n}, settings)
+    scaled = forward.simulate(TEST, {"kn": np.array([KN * (P0 / SETTINGS.kn_p_ref) ** 0.5])}, SETTINGS)
+    plain = forward.simulate(TEST, {"kn": np.array([KN])}, SETTINGS)
+    np.testing.assert_allclose(both.q[0], scaled.q[0], rtol=1e-9)
+    np.testing.assert_allclose(both.q[1], plain.q[0], rtol=1e-9)
+    assert abs(both.q[0, 0] - both.q[1, 0]) > 0.05 * abs(both.q[1, 0])
+    dense = replace(TEST, void_ratio=0.6)
+    mapped = forward.simulate(dense, {"kn": np.array([KN, KN]), "e_min": np.array([0.45, 0.3]),
+                                      "e_max": np.array([0.75, 0.5]), "kn_exponent": np.array([0.5, 0.5])}, SETTINGS)
+    one = forward.simulate(dense, {"kn": np.array([KN]), "e_min": np.array([0.45]), "e_max": np.array([0.75])},
+                           replace(SETTINGS, kn_exponent=0.5))
+    np.testing.assert_allclose(mapped.q[0], one.q[0], rtol=1e-9)
+    assert np.isnan(mapped.q[1]).all()
+
+
+@pytest.mark.parametrize("flags, data, params, expected", [
+    (["--kn-exponent", "0.5"], "triaxial_drained", "phi_g,kn,kn_exponent", "the exponent is calibrated"),
+    ([], "drained", "phi_g,kn,kn_exponent", "needs triaxial data"),
+    (["--law", "hertz-mindlin"], "triaxial_drained", "phi_g,shear_modulus,kn_exponent",
+     "is not a parameter of the hertz-mindlin contact law"),
+])
+def test_a_calibrated_exponent_where_it_has_no_meaning_exits_2(tmp_path, capsys, flags, data, params, expected):
+    path = _write(tmp_path / "t.csv", data)
+    out = tmp_path / "cal"
+    assert_one_line_refusal(capsys, calibrate.main, ["--data", str(path), "--params", params, *flags, "--walkers", "6",
+                                                     "--steps", "2", *FAST, "--out", str(out)], expected, out)
+
+
+def test_the_posterior_replays_the_calibrated_exponent(tmp_path):
+    """A calibration of kn_exponent: posterior.json holds its mean, and hmodel triaxial --posterior at another p0
+    runs the mean's kn times (p0 / p_ref)^(the mean's exponent)."""
+    out = tmp_path / "cal"
+    assert run_main(calibrate.main, ["--data", str(_write(tmp_path / "t.csv")), "--params", "phi_g,kn,kn_exponent",
+                                     "--walkers", "6", "--steps", "2", "--start", "prior", *FAST, "--out", str(out)]) == 0
+    from homogenization.calibration import posterior as post_mod  # noqa: PLC0415
+
+    post = post_mod.read_posterior(out)
+    n = post.mean["kn_exponent"]
+    assert 0.0 < n < 1.0 and post.forward.kn_exponent == n
+    argv = ["--posterior", str(out), "--drained", "--p0", "4e5", "--eps-max", "0.01", "--out", str(tmp_path / "run")]
+    args = triaxial.build_parser().parse_args(argv)
+    run = posterior_flags.apply_posterior(args, argv, triaxial.build_parser(), dim=3)
+    factor = (4e5 / SETTINGS.kn_p_ref) ** n
+    assert args.kn == pytest.approx(post.contact_law.kn * factor, rel=1e-12)
     assert run.kn_scale == pytest.approx(factor, rel=1e-12)

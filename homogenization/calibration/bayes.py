@@ -27,8 +27,8 @@ from typing import Callable, Iterator, Mapping, Sequence
 import numpy as np
 
 from homogenization.calibration.data import CHANNELS, Measurement
-from homogenization.calibration.forward import (DENSITY_PRIOR, INTERLOCKING_PRIOR, RULE_PRIOR, SPREAD, SPREAD_PRIOR,
-                                                ForwardSettings, feasible, simulate)
+from homogenization.calibration.forward import (DENSITY_PRIOR, INTERLOCKING_PRIOR, KN_EXPONENT, KN_EXPONENT_PRIOR,
+                                                RULE_PRIOR, SPREAD, SPREAD_PRIOR, ForwardSettings, feasible, simulate)
 from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import (
     PRIOR_BOUNDS_2D,
@@ -45,7 +45,7 @@ HERTZ_BOUNDS = {**PRIOR_BOUNDS_3D, **PRIOR_BOUNDS_HERTZ_3D}
 ``PRIOR_BOUNDS_HERTZ_3D``, phi_g and alpha0 as ``PRIOR_BOUNDS_3D``."""
 UNITS = {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg", "shear_modulus": "Pa", "poisson": "-",
          SPREAD: "deg", "e_min": "-", "e_max": "-", "alpha_c": "deg", "renewal_rate": "-",
-         **{name: "-" for name in INTERLOCKING_PRIOR}}
+         **{name: "-" for name in INTERLOCKING_PRIOR}, KN_EXPONENT: "-"}
 """Unit of each parameter in posterior.json and the figures."""
 CONTRACTION_CONSTRAINED = 0.5
 """A parameter counts as constrained by the data where its posterior standard deviation is below
@@ -118,7 +118,7 @@ def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2, law
         raise ValueError(f"{SPREAD}: a spread of opening angles is a parameter of the ten-sphere cell; calibrate it on "
                          f"triaxial data")
     defaults = {**(HERTZ_BOUNDS if law == HertzMindlinLaw.name else DEFAULT_BOUNDS[dim]), SPREAD: SPREAD_PRIOR,
-                **DENSITY_PRIOR, **RULE_PRIOR, **INTERLOCKING_PRIOR}
+                **DENSITY_PRIOR, **RULE_PRIOR, **INTERLOCKING_PRIOR, KN_EXPONENT: KN_EXPONENT_PRIOR}
     bounds = {name: defaults[name] for name in names}
     if path is not None:
         path = Path(path)

@@ -75,12 +75,17 @@ field): uniform (low, high, log-uniform?), all [-]; read only with ``ForwardSett
 INTERLOCKING_KEY = "interlocking"
 """Key of posterior.json (and of run.json's forward settings) holding the interlocking friction at the posterior mean
 (``dataclasses.asdict`` of ``Interlocking``); absent: none."""
+KN_EXPONENT = "kn_exponent"
+"""The calibratable exponent n [-] of the linear law's kn on a triaxial test, kn (p0 / kn_p_ref)^n, per set (opt-in:
+calibrated in its place of ``ForwardSettings.kn_exponent``; ``kn_at_pressure``)."""
+KN_EXPONENT_PRIOR = (0.0, 1.0, False)
+"""Default prior of kn_exponent [-]: uniform (low, high, log-uniform?)."""
 PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson", opening_spread.NAME, *DENSITY, *RULE,
-              *INTERLOCKING)
+              *INTERLOCKING, KN_EXPONENT)
 """Names of the calibratable parameters, in the units of the CLI flags: phi_g [deg], kn [N/m],
 kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-], alpha0_spread [deg], e_min and
 e_max [-], alpha_c [deg] and renewal_rate [-] (``RULE``), the interlocking friction's m, e_gamma, lambda_c,
-xi_c and cell_spread [-] (``INTERLOCKING``)."""
+xi_c and cell_spread [-] (``INTERLOCKING``), kn's exponent [-] (``KN_EXPONENT``, linear law)."""
 LAW_PARAMETERS = {ContactLaw.name: ("phi_g", "kn", "kt_over_kn", "alpha0"),
                   HertzMindlinLaw.name: ("phi_g", "shear_modulus", "poisson", "alpha0")}
 """The parameters of ``PARAMETERS`` that each contact law's forward model reads."""
@@ -103,8 +108,10 @@ a set whose [e_min, e_max] does not hold a test's void ratio fails (log L = -inf
 
 def calibratable(law: str) -> tuple[str, ...]:
     """The parameters a calibration of ``law`` may vary: the law's, the spread of alpha0, the void-ratio map's,
-    the critical-state rule's (``RULE``) and the interlocking friction's (``INTERLOCKING``)."""
-    return LAW_PARAMETERS[law] + (SPREAD,) + DENSITY + tuple(RULE) + tuple(INTERLOCKING)
+    the critical-state rule's (``RULE``), the interlocking friction's (``INTERLOCKING``) and, for the linear law,
+    kn's exponent (``KN_EXPONENT``)."""
+    own = (KN_EXPONENT,) if law == ContactLaw.name else ()
+    return LAW_PARAMETERS[law] + (SPREAD,) + DENSITY + tuple(RULE) + tuple(INTERLOCKING) + own
 
 
 def rule_at(values: Mapping[str, float], settings: "ForwardSettings") -> CriticalState | None:
@@ -243,6 +250,7 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
     ``interlocking`` (analytical backend, no spread): phi_g is each set's phi_mu of the interlocking friction
     (``calibration.interlocking``), e0 the test's void ratio, else the set's map's of its alpha0; its fields per set
     where ``params`` holds ``INTERLOCKING``'s names; None: ``settings.interlocking`` (None: the plain contact law).
+    ``KN_EXPONENT`` in ``params``: each set's exponent of kn instead of ``settings.kn_exponent`` (``kn_at_pressure``).
 
     Raises:
         ValueError: a parameter value outside its range, the Hertz-Mindlin law on a 2D test, or alpha0_spread
@@ -253,6 +261,8 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
         raise ValueError(f"the Hertz-Mindlin contact law is defined for spheres: {test.name} is a biaxial (2D) "
                          f"test; calibrate it on triaxial data")
     full = full_parameters(params, settings)
+    if KN_EXPONENT in params:  # per set, in place of the settings' exponent
+        full[KN_EXPONENT] = np.broadcast_to(np.asarray(params[KN_EXPONENT], dtype=np.float64), full["phi_g"].shape).copy()
     interlocking = settings.interlocking if interlocking is None else interlocking
     if interlocking is None and any(name in params for name in INTERLOCKING):
         raise ValueError(f"{', '.join(n for n in INTERLOCKING if n in params)}: parameters of the interlocking "
@@ -282,7 +292,9 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
         opening_spread.check(full["alpha0"], full[SPREAD])
     if interlocking is not None and (settings.backend != "analytical" or SPREAD in full):
         raise ValueError("the interlocking friction runs with the analytical backend and without alpha0_spread only")
-    if settings.kn_exponent != 0.0:
+    if KN_EXPONENT in full:
+        full["kn"] = kn_at_pressure(full.get("kn"), test, settings, exponent=full[KN_EXPONENT])
+    elif settings.kn_exponent != 0.0:
         full["kn"] = kn_at_pressure(full.get("kn"), test, settings)
     if settings.backend == "analytical":
         points = population(full, settings, test.dim)
@@ -302,18 +314,22 @@ def kn_factor(p0: float, settings: ForwardSettings) -> float:
     return (p0 / settings.kn_p_ref) ** settings.kn_exponent if settings.kn_exponent else 1.0
 
 
-def kn_at_pressure(kn: np.ndarray, test: Measurement, settings: ForwardSettings) -> np.ndarray:
+def kn_at_pressure(kn: np.ndarray, test: Measurement, settings: ForwardSettings,
+                   exponent: np.ndarray | None = None) -> np.ndarray:
     """The linear law's normal stiffness [N/m] that ``test`` runs: kn (p0 / kn_p_ref)^kn_exponent, shape of ``kn``
-    (its value at kn_p_ref; ``ForwardSettings``), a secant stiffness set once per test from its confining pressure.
+    (its value at kn_p_ref; ``ForwardSettings``), a secant stiffness set once per test from its confining pressure;
+    ``exponent`` (shape of ``kn``, [-]): each set's own (a calibrated ``KN_EXPONENT``) instead of the settings'.
 
     Raises:
-        ValueError: a nonzero exponent with another law than the linear one or on a biaxial test (its p0 is
-            in N/m, not a pressure) (one line)."""
-    if settings.kn_exponent == 0.0:
+        ValueError: a nonzero or calibrated exponent with another law than the linear one or on a biaxial test
+            (its p0 is in N/m, not a pressure) (one line)."""
+    if exponent is None and settings.kn_exponent == 0.0:
         return kn
     if settings.law != ContactLaw.name or test.dim != 3:
         raise ValueError(f"kn_exponent scales the linear law's kn on triaxial tests only ({test.name}: "
                          f"{'law ' + settings.law if settings.law != ContactLaw.name else 'biaxial'})")
+    if exponent is not None:
+        return kn * (test.p0 / settings.kn_p_ref) ** np.asarray(exponent, dtype=np.float64)
     return kn * kn_factor(test.p0, settings)
 
 

@@ -29,6 +29,7 @@ from homogenization.calibration.forward import (
     CRITICAL_STATE_KEY,
     DENSITY,
     INTERLOCKING,
+    KN_EXPONENT,
     INTERLOCKING_KEY,
     RULE,
     LAW_PARAMETERS,
@@ -162,7 +163,9 @@ def read_posterior(path: Path) -> CalibratedPosterior:
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"--posterior: {path.parent / RUN_FILE} lacks {exc} (written by an older hmodel calibrate? "
                          f"rerun the same calibrate command on {path.parent} to rewrite it)") from None
-    names = forward.parameters + tuple(name for name in (SPREAD, *DENSITY, *RULE, *INTERLOCKING)
+    if KN_EXPONENT in mean:  # calibrated: the replay (kn_factor) runs the mean's exponent
+        forward = replace(forward, kn_exponent=mean[KN_EXPONENT])
+    names = forward.parameters + tuple(name for name in (SPREAD, *DENSITY, *RULE, *INTERLOCKING, KN_EXPONENT)
                                        if name in mean or name in fixed)
     return CalibratedPosterior(path=path, sha256=file_sha256(path), dims=dims, calibrated=tuple(mean),
                                mean={name: mean.get(name, fixed.get(name)) for name in names}, radius=radius,

@@ -15,7 +15,8 @@ then be calibrated; posterior.json holds the rule at the posterior mean (``criti
 analytical backend, --confirm none) adds the interlocking friction (``homogenization.calibration.interlocking``):
 its interlocking_m, e_gamma, lambda_c, xi_c and cell_spread may then be calibrated, the others fixed by
 --interlocking-values; posterior.json holds it at the posterior mean (``interlocking``), which ``hmodel triaxial
---posterior`` runs. --start-point starts the map fit at given values instead of prior draws.
+--posterior`` runs. --kn-exponent N runs each triaxial test at kn (p0 / 101.325 kPa)^N; --params kn_exponent
+calibrates N instead. --start-point starts the map fit at given values instead of prior draws.
 
 The posterior is sampled with emcee's affine-invariant ensemble, every step running the forward
 model of all walkers as one batch of cells. --start map (default) first finds the posterior's
@@ -51,7 +52,7 @@ from homogenization.ann import RANGE_MODELS
 from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
-from homogenization.calibration.forward import (INTERLOCKING, LAW_PARAMETERS, PARAMETERS, RULE, SPREAD,
+from homogenization.calibration.forward import (INTERLOCKING, KN_EXPONENT, LAW_PARAMETERS, PARAMETERS, RULE, SPREAD,
                                                 ForwardSettings, calibratable, check_density, settings_record,
                                                 with_density)
 from homogenization.calibration.interlocking import Interlocking
@@ -172,7 +173,8 @@ def build_parser() -> argparse.ArgumentParser:
     forward.add_argument("--kn-exponent", type=kn_exponent, default=0.0, metavar="N",
                          help="linear law, triaxial data: each test runs kn (p0 / 101.325 kPa)^N, a contact stiffness "
                               "growing with its confining pressure (kn and its prior: the value at 101.325 kPa; N in "
-                              "[0, 1], 0.5 as a sand's small-strain stiffness; default 0: one kn for every test)")
+                              "[0, 1], 0.5 as a sand's small-strain stiffness; default 0: one kn for every test; or "
+                              "calibrate N: --params kn_exponent, default prior [0, 1])")
     forward.add_argument("--interlocking", action="store_true",
                          help="triaxial data, analytical backend, --confirm none: each point's contact friction "
                               "tan phi = (e_c(p) / e)^m tan phi_g, e its void ratio, e_c(p) = e_gamma - lambda_c "
@@ -334,8 +336,17 @@ def check_critical_state(args: argparse.Namespace, tests: Sequence[Measurement])
 
 
 def check_kn_exponent(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
-    """UserError (one line) for --kn-exponent where it has no meaning: a law other than the linear one,
-    biaxial data (their p0 is a force per length) or --backend ann (trained at one kn)."""
+    """UserError (one line) for --kn-exponent or a calibrated kn_exponent where it has no meaning: a law other than
+    the linear one, biaxial data (their p0 is a force per length) or --backend ann (trained at one kn); or both."""
+    if KN_EXPONENT in args.params:
+        flat = [t.name for t in tests if t.dim != 3]
+        if args.kn_exponent != 0.0:
+            raise UserError(f"--kn-exponent {args.kn_exponent:g} with --params {KN_EXPONENT}: the exponent is "
+                            f"calibrated; drop --kn-exponent")
+        if flat:
+            raise UserError(f"--params {KN_EXPONENT} needs triaxial data (a confining pressure in Pa): --data "
+                            f"{flat[0]} is biaxial")
+        return
     if args.kn_exponent == 0.0:
         return
     if args.law != ForwardSettings.law:
