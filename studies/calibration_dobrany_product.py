@@ -1,5 +1,6 @@
 """python studies/calibration_dobrany_product.py --split 50+100|50+200 --tag T [--steps N] [--start-from JSON]
                                                 [--extra "FLAGS"] [--evaluate-only] [--check-rule 23x8s]
+                                                [--fit-kn-exponent]
        python studies/calibration_dobrany_product.py --splits-figure OUT.png RESULT.json[+RESULT2.json] ...
 
 Dobrany sand with the product's own ``hmodel calibrate``: the interlocking friction (``--interlocking``: m,
@@ -13,7 +14,9 @@ noise 2 %, the studies' bounds as the prior: ``PRIOR``). The walkers start aroun
 enters the calibration. Then all three tests at the posterior mean (what ``hmodel triaxial --posterior``
 replays) and at the start's least-squares optimum: RMS abs(dq) / q_peak, RMS d eps_v, strain at the highest q;
 ``--check-rule`` also at the mean on another orientation rule (ORDERxSPINS, a: aligned, s: staggered spins), e.g.
-23x8s, within about 1 % of q_peak of 35 x 8 (``scan_dobrany_orientation_rules.py``).
+23x8s, within about 1 % of q_peak of 35 x 8 (``scan_dobrany_orientation_rules.py``). ``--fit-kn-exponent``
+calibrates kn's exponent too (``--params ...,kn_exponent``, prior [0, 1], started at ``--kn-exponent``); a
+``--start-from`` JSON written by this script starts from its start's least-squares optimum ("optimum" "values").
 
 Writes the data copies, the prior and the calibration under runs/dobrany_product/ (ignored), and
 studies/results/calibration_dobrany_product_SPLIT_TAG.json and .png (q and eps_v, data and the mean's curves).
@@ -76,11 +79,17 @@ def data_copies() -> dict[str, Path]:
     return out
 
 
-def start_point(path: Path) -> str:
-    """--start-point of a study result's optimum (its log10 coordinates raised)."""
+def start_point(path: Path, params: tuple[str, ...] = PARAMS, kn_exponent: float | None = None) -> str:
+    """--start-point of a study result's optimum (its log10 coordinates raised), or of this script's result's
+    least-squares optimum (CLI names); ``kn_exponent`` where ``params`` holds it and the result does not."""
     optimum = json.loads(path.read_text())["optimum"]
-    values = {STUDY[k]: (10.0 ** v if k.startswith("log10_") else v) for k, v in optimum.items() if k in STUDY}
-    return ",".join(f"{n}={values[n]!r}" for n in PARAMS)
+    if "values" in optimum:  # this script's record
+        values = dict(optimum["values"])
+    else:
+        values = {STUDY[k]: (10.0 ** v if k.startswith("log10_") else v) for k, v in optimum.items() if k in STUDY}
+    if kn_exponent is not None:
+        values.setdefault("kn_exponent", kn_exponent)
+    return ",".join(f"{n}={values[n]!r}" for n in params)
 
 
 def evaluate(out: Path, files: dict[str, Path], fitted: tuple[str, ...], predicted: str,
@@ -190,17 +199,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--extra", default="", help="more hmodel calibrate flags")
     parser.add_argument("--evaluate-only", action="store_true", help="evaluate an existing calibration folder")
     parser.add_argument("--check-rule", default="", help="ORDERxSPINS[a|s]: also the mean's curves on that rule")
+    parser.add_argument("--fit-kn-exponent", action="store_true", help="calibrate kn's exponent (prior [0, 1])")
     args = parser.parse_args(argv)
+    params = PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ())
+    exponent = ["--kn-exponent", args.kn_exponent] if not args.fit_kn_exponent else []
     files = data_copies()
     fitted, predicted = SPLITS[args.split]
     out = RUNS / f"{args.split.replace('+', '_')}_{args.tag}"
-    prior = RUNS / "prior.json"
-    prior.write_text(json.dumps(PRIOR, indent=1))
+    prior = RUNS / ("prior_kn_exponent.json" if args.fit_kn_exponent else "prior.json")
+    prior.write_text(json.dumps({**PRIOR, **({"kn_exponent": [0.0, 1.0]} if args.fit_kn_exponent else {})}, indent=1))
     command = [sys.executable, "-m", "homogenization.calibrate", *sum((["--data", str(files[f])] for f in fitted), []),
-               "--params", ",".join(PARAMS), "--prior", str(prior), "--kn-exponent", args.kn_exponent, *FLAGS,
+               "--params", ",".join(params), "--prior", str(prior), *exponent, *FLAGS,
                "--steps", str(args.steps), "--out", str(out), *shlex.split(args.extra)]
     if args.start_from is not None:
-        command += ["--start-point", start_point(args.start_from)]
+        command += ["--start-point", start_point(args.start_from, params, float(args.kn_exponent))]
     print("command:", shlex.join(command), flush=True)
     print(f"nice {os.nice(0)}, load {os.getloadavg()[0]:.1f}", flush=True)
     seconds = None
