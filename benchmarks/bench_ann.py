@@ -155,7 +155,7 @@ def _median_us(fn, repeats: int) -> float:
 
 def time_parts(model, n: int, repeats: int) -> None:
     """Median time [us] of each part of the ANN step of ``n`` H-cells (as ``time_increments``), each called alone."""
-    from training.fast_cells import Advanced  # noqa: PLC0415
+    from training.fast_tables import Advanced  # noqa: PLC0415
     from training.fast_features import features  # noqa: PLC0415
     from training.fast_increment import advance, step  # noqa: PLC0415
     from training.inference import _cells_last, _Compiled  # noqa: PLC0415

@@ -63,7 +63,7 @@ def test_a_cells_increment_is_bit_identical_in_any_batch_at_any_place(loaded):
 def test_the_planar_increment_in_one_call_equals_its_kernels_apart(loaded):
     """``training.fast_increment.step`` (features, perceptron, advance and branch counts in one compiled call)
     gives the bits of the kernels called one after the other; its counts are those of the flags."""
-    from training.fast_cells import Advanced, Before  # noqa: PLC0415
+    from training.fast_tables import Advanced, Before  # noqa: PLC0415
     from training.fast_features import features  # noqa: PLC0415
     from training.fast_increment import advance, step  # noqa: PLC0415
     from training.perceptron import forward_layers  # noqa: PLC0415

@@ -19,7 +19,7 @@ from fast_vs_torch import assert_fast_matches_torch
 from other_cpus import OTHER_CPUS, spatial_loaded
 from homogenization.ann import default_model_path
 from training import cell_physics
-from training.fast_cells import Advanced, Before
+from training.fast_tables import Advanced, Before
 from training.fast_step3d import features3d, physics3d
 from training.inference import _cells_last
 from warp_hcell.mesostructures.builders import mesostructure_arg

@@ -4,7 +4,8 @@ import numba
 import numpy as np
 import pytest
 
-from training.perceptron import BLOCK, Perceptron, tanh32
+from training.mlp import Perceptron
+from training.perceptron import BLOCK, tanh32
 
 
 @numba.njit

@@ -375,7 +375,7 @@ def newton3d(size, free, shear, d_eps, d_free, cells, law, before, iterations, t
 
     Args:
         size (3, n), free (n_free, n), shear (n_pairs, 3, n), d_eps (n, 3): the state and probe;
-        before: ``training.fast_cells.Before`` of the state (``fast_step3d.features3d``);
+        before: ``training.fast_tables.Before`` of the state (``fast_step3d.features3d``);
         iterations: the most Newton steps per cell (>= 0); tolerance: force ratio [-] below which
             a cell is not corrected; halvings: the most halvings of a step (0: full steps);
             shift: a climbing step's first matrix shift, a fraction of kn (0: never).
@@ -462,8 +462,8 @@ def balance_tangent3d(size, shear, new_size, new_free, held_dof, cells, law, bef
     ``training.equilibrium.corrected_advance`` gives autograd), zero for DOFs the rest rule held; the moment's
     derivative is then taken along (eps, d) through the contact law (``pair_force_jacobian``). Branch choices
     are those of the end state. size (3, n): before the increment; new_size (3, n), new_free (n_free, n),
-    held_dof (n_free, n) bool: after it (``training.fast_cells.Advanced``); shear, before: the state and
-    ``training.fast_cells.Before`` before it. Output tangent (n, 3, 3): [c, i, j] = d S_ii / d eps_j,
+    held_dof (n_free, n) bool: after it (``training.fast_tables.Advanced``); shear, before: the state and
+    ``training.fast_tables.Before`` before it. Output tangent (n, 3, 3): [c, i, j] = d S_ii / d eps_j,
     compression positive."""
     n = size.shape[1]
     frac, free_dofs, free_slot, pairs, radius = cells.frac, cells.free_dofs, cells.free_slot, cells.pairs, cells.radius

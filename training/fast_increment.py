@@ -243,7 +243,7 @@ def area_and_flags(x, moment, m_in, outer, ramp, area, mechanism, ramped, moment
 @numba.njit(cache=True, error_model="numpy")
 def advance(size, free, shear, d_eps, out, cells, law, scaling, before, result):
     """Free-DOF displacement from the network output ``out``, then the contact law: fills ``result``
-    (``training.fast_cells.Advanced``) from the state before the increment and ``before``."""
+    (``training.fast_tables.Advanced``) from the state before the increment and ``before``."""
     d_free = free_displacement(out, before.m, before.unbalanced, scaling, law)
     x = hold_at_rest(size, free, d_eps, d_free, before.old_contact, cells, law.tol, result.new_size, result.new_free,
                      result.n_held, result.held_dof)
@@ -254,7 +254,7 @@ def advance(size, free, shear, d_eps, out, cells, law, scaling, before, result):
 
 @numba.njit(cache=True, error_model="numpy")
 def branch_counts(result, counts):
-    """The cells (int64) of ``result`` (``training.fast_cells.Advanced``) that are capped, opened, mechanism,
+    """The cells (int64) of ``result`` (``training.fast_tables.Advanced``) that are capped, opened, mechanism,
     ramped, and the grains held at rest summed over the cells, written into ``counts`` (5,)."""
     capped, opened, mechanism, ramped, n_held = result.capped, result.opened, result.mechanism, result.ramped, result.n_held
     n_capped = n_opened = n_mechanism = n_ramped = n_grains = 0

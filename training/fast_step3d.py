@@ -12,7 +12,7 @@ the mechanism and ramp flags (``fast_increment``).
 
 Layouts (cells LAST, one cell a vector lane, nothing reduced across cells): size (3, n) [m],
 free (n_free, n) [m], shear (n_pairs, 3, n) [N]; d_eps (n, 3) [-]; ``before.old_branch``
-(n_pairs, 3, n). Tables: ``training.fast_cells`` (``CellTables.outer`` holds the faces
+(n_pairs, 3, n). Tables: ``training.fast_tables`` (``CellTables.outer`` holds the faces
 (n_faces, 3)). Unit vectors are branch / length (a division, as the torch path), and a pair no
 cell has within reach is skipped after a square-root-free test (``any_within3``), which changes
 no bit. Sign convention: compression and contraction positive; local frame 0 = n, 1 = t1, 2 = t2.
@@ -245,7 +245,7 @@ def volume_and_flags(x, moment, m_in, faces, ramp, volume, mechanism, ramped, mo
 @numba.njit(cache=True, error_model="numpy")
 def advance3d(size, free, shear, d_eps, out, cells, law, scaling, before, result):
     """Free-DOF displacement from the network output ``out`` (n_free + n_free^2, n) float32, then
-    ``physics3d``: fills ``result`` (``training.fast_cells.Advanced``, new_size (3, n), new_shear
+    ``physics3d``: fills ``result`` (``training.fast_tables.Advanced``, new_size (3, n), new_shear
     (n_pairs, 3, n), moment (n, 3, 3))."""
     physics3d(size, free, shear, d_eps, free_displacement(out, before.m, before.unbalanced, scaling, law), cells, law,
               before, result)

@@ -2,7 +2,7 @@
 
 d(S_nn, S_tt)/d(eps_n, eps_t) of the increment ``training.fast_increment.advance`` took, by
 forward-mode differentiation of the features (``probe_feature_tangent``), of the network
-(``training.perceptron.Perceptron.jvp``, in ``training.inference``) and of the increment
+(``training.mlp.Perceptron.jvp``, in ``training.inference``) and of the increment
 (``moment_tangent``); equal to torch autograd of ``MesoNet.advance`` up to the float32 rounding of
 the network. A pair that no cell has within reach is skipped after the square-root-free test
 of ``training.fast_cells.pair_branch`` (its contribution is zero in every cell; no bit changes).

@@ -24,7 +24,7 @@ resolved to ~1e-7 D), so float32 only rounds the network's arithmetic (its effec
 runs is measured in ``docs/ann.md``). Every loop over cells is innermost, each cell one lane,
 and nothing reduces across cells, so a cell's result is bit-identical whatever batch it is in,
 wherever it sits in it and whatever the CPU's vector width (the cell contract's batch
-invariance). The compiled kernels take the tables of ``training.fast_cells``. The state arrays
+invariance). The compiled kernels take the records of ``training.fast_tables``. The state arrays
 returned are transposed views of cells-last arrays, so that the next increment reads them
 without a copy.
 
@@ -35,19 +35,18 @@ Sign convention: compression and contraction positive; local frame index 0 = n, 
 from __future__ import annotations
 
 import gc
+import importlib
 import sys
 import threading
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from training.fast_cells import Advanced, Before, CellTables, Normalisation, Physics
-from training.fast_increment import branch_counts, free_displacement
-from training.fast_tangent import probe_feature_tangent
+from training.fast_tables import Advanced, Before, CellTables, Normalisation, Physics
 from training.fast_model import arrays_of_net, COMPLIANCE_SCALE, GAP_CLIP, NetArrays, RELAXATION_RAMP
-from training.perceptron import forward_layers, padded_cells, Perceptron
+from training.mlp import padded_cells, Perceptron
+from training.precompiled import PrecompiledStep
 from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import DemSettings
 
@@ -100,11 +99,23 @@ class _Compiled:
     step). ``FastAdvance`` passes each argument with one fixed type (arrays of fixed dtype and
     rank, C-contiguous; scalars), so the entry point of the first call's signature serves every
     later call.
+
+    Args:
+        kernel: a numba dispatcher, or ``"module:name"``, imported on the first call (so that building a
+            ``FastAdvance`` imports no numba).
     """
 
     def __init__(self, kernel) -> None:
         self._kernel = kernel
         self._entry = None
+
+    @property
+    def kernel(self):
+        """The numba dispatcher (imported here the first time where ``kernel`` was a name)."""
+        if isinstance(self._kernel, str):
+            module, name = self._kernel.split(":")
+            self._kernel = getattr(importlib.import_module(module), name)
+        return self._kernel
 
     def __call__(self, *args):
         return self.entry(args)(*args)
@@ -113,7 +124,7 @@ class _Compiled:
         """The entry point (called with ``*args``) of the first call's signature, compiled or loaded for ``args``
         the first time."""
         if self._entry is None:
-            kernel = self._kernel
+            kernel = self.kernel
             misses = sum(kernel.stats.cache_misses.values())
             self._entry = kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
             _freeze_numba_setup(sum(kernel.stats.cache_misses.values()) > misses)
@@ -123,6 +134,8 @@ class _Compiled:
 @dataclass(frozen=True)
 class Kernels:
     """The compiled kernels of the cells of one dimension (``FastAdvance``).
+
+    Each kernel is named ``"module:name"`` (``_Compiled`` imports it on first use).
 
     Attributes:
         features, advance: steps 1 and 3 (module docstring): ``training.fast_features.features`` and
@@ -137,55 +150,25 @@ class Kernels:
             (``Perceptron.padded_buffers``: the first layer then runs whole vectors too).
     """
 
-    features: Callable
-    advance: Callable
-    tangent: Callable | None
-    hold: Callable | None
-    newton: Callable | None
-    physics: Callable | None
-    balance_tangent: Callable | None = None
-    step: Callable | None = None
+    features: str
+    advance: str
+    tangent: str | None
+    hold: str | None
+    newton: str | None
+    physics: str | None
+    balance_tangent: str | None = None
+    step: str | None = None
     padded_features: bool = False
 
 
-def _planar_kernels() -> Kernels:
-    from training.fast_features import features  # noqa: PLC0415 (each dimension's kernels imported on first use)
-    from training.fast_increment import advance, step  # noqa: PLC0415
-    from training.fast_tangent import moment_tangent  # noqa: PLC0415
-
-    return Kernels(features, advance, moment_tangent, None, None, None, step=step, padded_features=True)
-
-
-def _spatial_kernels() -> Kernels:
-    from training.fast_equilibrium3d import balance_tangent3d, hold_guess3d, newton3d  # noqa: PLC0415
-    from training.fast_step3d import advance3d, features3d, physics3d  # noqa: PLC0415
-
-    return Kernels(features3d, advance3d, None, hold_guess3d, newton3d, physics3d, balance_tangent3d)
-
-
-class _KernelTable(Mapping):
-    """Dimension -> ``Kernels``, each dimension's modules imported the first time it is looked up
-    (a planar run does not import the spatial kernels, nor the reverse)."""
-
-    _loaders = {2: _planar_kernels, 3: _spatial_kernels}
-
-    def __init__(self) -> None:
-        self._loaded: dict[int, Kernels] = {}
-
-    def __getitem__(self, dim: int) -> Kernels:
-        if dim not in self._loaded:
-            self._loaded[dim] = self._loaders[dim]()
-        return self._loaded[dim]
-
-    def __iter__(self) -> Iterator[int]:
-        return iter(self._loaders)
-
-    def __len__(self) -> int:
-        return len(self._loaders)
-
-
-KERNELS = _KernelTable()
-"""The compiled kernels of a cell by its dimension."""
+_PLANAR, _SPATIAL, _STEP3D = "training.fast_increment", "training.fast_equilibrium3d", "training.fast_step3d"
+KERNELS = {
+    2: Kernels("training.fast_features:features", f"{_PLANAR}:advance", "training.fast_tangent:moment_tangent", None,
+               None, None, step=f"{_PLANAR}:step", padded_features=True),
+    3: Kernels(f"{_STEP3D}:features3d", f"{_STEP3D}:advance3d", None, f"{_SPATIAL}:hold_guess3d",
+               f"{_SPATIAL}:newton3d", f"{_STEP3D}:physics3d", f"{_SPATIAL}:balance_tangent3d"),
+}
+"""The compiled kernels of a cell by its dimension (a planar run imports none of the spatial ones, nor the reverse)."""
 
 
 COMPACT_ROUNDS = (2, 2, 4)
@@ -245,7 +228,7 @@ class _Last(NamedTuple):
 
 
 class _Workspace(NamedTuple):
-    """Scratch arrays of one ``FastAdvance`` call: ``before`` (``training.fast_cells.Before``, cells
+    """Scratch arrays of one ``FastAdvance`` call: ``before`` (``training.fast_tables.Before``, cells
     last), ``layers``, each perceptron layer's output (width, n padded: ``Perceptron.padded_buffers``) float32,
     ``counts`` (5,) int64 (``FastAdvance.last_counts``), and ``shapes``, those of the state (cells last) and probe
     that ``FastAdvance.increment`` takes."""
@@ -273,13 +256,16 @@ class FastAdvance:
             ``training.fast_equilibrium3d.HALVINGS``).
         shift: the first shift of a climbing step's matrix, a fraction of kn (0: none; None:
             ``training.fast_equilibrium3d.SHIFT``).
-        compact: corrections in ``COMPACT_ROUNDS`` on the cells still above tolerance (same bits as False)."""
+        compact: corrections in ``COMPACT_ROUNDS`` on the cells still above tolerance (same bits as False).
+        precompiled: the planar step without corrections through ``training.precompiled`` (same bits as False,
+            without numba's import where its object is cached); ``step_path`` says which ran ("precompiled" or
+            "numba"; None before the first step) and ``precompiled_reason`` why not."""
 
     GUESSES = ("network", "still", "affine")
 
     def __init__(self, net: NetArrays | Any, corrections: int = 0, tolerance: float | None = None,
                  guess: str = "network", halvings: int | None = None, shift: float | None = None,
-                 compact: bool = True) -> None:
+                 compact: bool = True, precompiled: bool = True) -> None:
         net = net if isinstance(net, NetArrays) else arrays_of_net(net)
         schema = net.schema
         as_np = lambda a, dtype=np.float64: np.ascontiguousarray(a, dtype=dtype)  # noqa: E731
@@ -304,13 +290,16 @@ class FastAdvance:
         kernels = KERNELS[self.dim]
         self._features = _Compiled(kernels.features)
         self._advance = _Compiled(kernels.advance)
-        self._forward = _Compiled(forward_layers)
+        self._forward = _Compiled("training.perceptron:forward_layers")
         self._tangent = None if kernels.tangent is None else _Compiled(kernels.tangent)
         self._step = None if kernels.step is None else _Compiled(kernels.step)
         self._tables = (self.cells, self.law, self.scaling, self.perceptron.weight, self.perceptron.bias)
         self._step_entry = None
+        self._precompiled = bool(precompiled)
+        self.step_path: str | None = None
+        self.precompiled_reason = ""
         self._padded_features = kernels.padded_features
-        self._branch_counts = _Compiled(branch_counts)
+        self._branch_counts = _Compiled(f"{_PLANAR}:branch_counts")
         if int(corrections) < 0 or (int(corrections) > 0 and kernels.newton is None):
             raise ValueError(f"corrections = {corrections}: equilibrium corrections are >= 0 and for spatial cells only")
         tolerance = DemSettings().force_tolerance if tolerance is None else tolerance
@@ -334,7 +323,7 @@ class FastAdvance:
             raise ValueError(f"shift = {shift} must be >= 0")
         self.shift = float(shift)
         self.tolerance = float(tolerance)
-        self._displacement = _Compiled(free_displacement)
+        self._displacement = _Compiled(f"{_PLANAR}:free_displacement")
         self._hold = None if kernels.hold is None else _Compiled(kernels.hold)
         self._newton = None if kernels.newton is None else _Compiled(kernels.newton)
         self.rounds = self._rounds(self.corrections, compact)
@@ -462,8 +451,8 @@ class FastAdvance:
             args = (size, free, shear, d_eps, *self._tables, work.before, work.layers, result, counts)
             step = self._step_entry
             if step is None:
-                step = self._step_entry = self._step.entry(args)
-            step(*args)
+                step = self._step_entry = self._fused_entry(args)
+            step(args)
         else:
             self._features(size, free, shear, d_eps, self.cells, self.law, self.scaling, work.before)
             self._forward(self.perceptron.weight, self.perceptron.bias, work.before.feats, work.layers)
@@ -491,12 +480,29 @@ class FastAdvance:
             self._balance_tangent(size, shear, result.new_size, result.new_free, result.held_dof, self.cells, self.law,
                                   work.before, tangent)
         elif with_tangent:
+            from training.fast_tangent import probe_feature_tangent  # noqa: PLC0415 (numba: imported on first use)
+
             f_dot = np.empty((2, 2, n), dtype=np.float32)
             probe_feature_tangent(d_eps, work.before.m, self.scaling.feature_std, f_dot)
             tangent = np.empty((n, 2, 2))
             self._tangent(size, free, shear, d_eps, out, self._mlp_tangent(work, f_dot), self.cells, self.law,
                            self.scaling, work.before, result, tangent)
         return self._outcome(result), tangent
+
+    def _fused_entry(self, args: tuple) -> Callable[[tuple], None]:
+        """The fused step for ``args`` (its types serve every later call): precompiled where ``precompiled`` and it
+        loads or builds (``training.precompiled.PrecompiledStep``), else numba's entry point; sets ``step_path``."""
+        if self._precompiled:
+            step = PrecompiledStep(args)
+            self.precompiled_reason = step.reason
+            if step.built:
+                _freeze_numba_setup(True)
+            if step.available:
+                self.step_path = "precompiled"
+                return step
+        self.step_path = "numba"
+        entry = self._step.entry(args)
+        return lambda arguments: entry(*arguments)
 
     def _result(self, n: int) -> Advanced:
         """Empty ``Advanced`` arrays of ``n`` cells."""

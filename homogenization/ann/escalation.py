@@ -35,10 +35,8 @@ Sign convention: compression positive (moments as the DEM backend's ``CellRespon
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING
 
-import numba
 import numpy as np
 
 from warp_hcell.core.dimension import dimension
@@ -75,58 +73,6 @@ RELAX_SUBSTEPS = 20_000
 RELEASE_RULES = (RELEASE_RULE, RELEASE_RULE_AFTER, RELEASE_RULE_DRAG)
 """The rules the CPU hybrid runs; a certificate recording one of them runs with it (new certificates: ``RELEASE_RULE``
 unless asked)."""
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _released(size, before, after, reference_position, reference_size, free_dofs, pairs, rsum, cut2, kn, ratio, out,
-              dofs, every):
-    """``DemEscalation.released`` of cells last: size (dim, n) [m], before and after (n_free, n) [m]; the
-    schema's reference_position (n_grains, dim) and reference_size (dim,) [m], free_dofs (n_free, 2) and
-    pairs (n_pairs, 2) int64, rsum and cut2 (n_pairs,) [m, m^2]; kn [N/m]; ratio [-]. Writes out (n,) bool
-    and dofs (n_free, n) bool, the free DOFs of the released grains; every (bool): every grain counts as moved
-    (dofs: those of the grains nothing presses at ``after``)."""
-    n = size.shape[1]
-    n_grains, dim = reference_position.shape
-    x = np.empty((n_grains, dim, n))
-    for g in range(n_grains):
-        for a in range(dim):
-            for c in range(n):
-                x[g, a, c] = reference_position[g, a] * (size[a, c] / reference_size[a])
-    moved = np.full((n_grains, n), every, dtype=np.bool_)
-    for k in range(free_dofs.shape[0]):
-        g, a = free_dofs[k, 0], free_dofs[k, 1]
-        for c in range(n):
-            x[g, a, c] = after[k, c]
-            moved[g, c] |= after[k, c] != before[k, c]
-    normal = np.empty((pairs.shape[0], n))
-    largest = np.zeros(n)
-    for p in range(pairs.shape[0]):
-        i, j = pairs[p, 0], pairs[p, 1]
-        for c in range(n):
-            b = x[j, 0, c] - x[i, 0, c]
-            dist2 = b * b
-            for a in range(1, dim):
-                b = x[j, a, c] - x[i, a, c]
-                dist2 = dist2 + b * b
-            force = kn * max(rsum[p] - math.sqrt(dist2), 0.0) if dist2 <= cut2[p] else 0.0
-            normal[p, c] = force
-            largest[c] = max(largest[c], force)
-    pressed = np.zeros((n_grains, n), dtype=np.bool_)
-    for p in range(pairs.shape[0]):
-        i, j = pairs[p, 0], pairs[p, 1]
-        for c in range(n):
-            if normal[p, c] > ratio * largest[c]:
-                pressed[i, c] = True
-                pressed[j, c] = True
-    for c in range(n):
-        out[c] = False
-    for g in range(n_grains):
-        for c in range(n):
-            out[c] |= moved[g, c] and not pressed[g, c]
-    for k in range(free_dofs.shape[0]):
-        g = free_dofs[k, 0]
-        for c in range(n):
-            dofs[k, c] = moved[g, c] and not pressed[g, c]
 
 
 class DemEscalation:
@@ -189,7 +135,8 @@ class DemEscalation:
         cell's largest (the resolution of the corrections' balance: a grain that only one neighbour pushed
         ends in touch with such a force, which the corrections cannot tell from none); cell_size (n, dim)
         [m] and free_after (n, n_free) [m]: the state after the increment, free_before: before it. Compiled
-        (``_released``): the operations of ``learning_state.pair_normal_forces``, cells innermost."""
+        (``homogenization.ann.released.find_released``): the operations of ``learning_state.pair_normal_forces``,
+        cells innermost."""
         return self.released_dofs(cell_size, free_before, free_after).any(axis=1)
 
     def released_dofs(self, cell_size: np.ndarray, free_before: np.ndarray, free_after: np.ndarray) -> np.ndarray:
@@ -203,13 +150,15 @@ class DemEscalation:
         return self._test(cell_size, free_position, free_position, True)
 
     def _test(self, cell_size, free_before, free_after, every: bool) -> np.ndarray:
-        """The DOFs of ``_released`` (n, n_free), cells first."""
+        """The DOFs of ``homogenization.ann.released.find_released`` (n, n_free), cells first."""
+        from homogenization.ann.released import find_released  # noqa: PLC0415 (numba: compiled on first use)
+
         cells_last = lambda a: np.ascontiguousarray(np.asarray(a, dtype=np.float64).T)  # noqa: E731
         n = np.shape(cell_size)[0]
         out, dofs = np.empty(n, dtype=np.bool_), np.empty((self._free_dofs.shape[0], n), dtype=np.bool_)
-        _released(cells_last(cell_size), cells_last(free_before), cells_last(free_after), self._reference_position,
-                  self._reference_size, self._free_dofs, self._pairs, self._rsum, self._cut2,
-                  float(self.contact_law.kn), self.force_ratio, out, dofs, bool(every))
+        find_released(cells_last(cell_size), cells_last(free_before), cells_last(free_after), self._reference_position,
+                      self._reference_size, self._free_dofs, self._pairs, self._rsum, self._cut2,
+                      float(self.contact_law.kn), self.force_ratio, out, dofs, bool(every))
         return dofs.T
 
     def relaxed(self, x0: np.ndarray, x1: np.ndarray, shear_force: np.ndarray, d_eps: np.ndarray, pushed: np.ndarray, *,
