@@ -9,14 +9,17 @@ each pair the wall and CPU (user + system of the child) seconds and the ratio A 
 median and best ratio. ``--eps-max / --increment`` shear increments (300 by default) follow the
 command's isotropic stage (its default increment).
 
+Every process runs with Python's bytecode cache on (``PYTHONDONTWRITEBYTECODE`` removed from its
+environment): the warm-up pair writes the ``.pyc`` files that a user's second run reads.
+
 ``--cold``: the ANN runs with an empty ``NUMBA_CACHE_DIR`` each time (the first run on a machine:
-the kernels compiled), the closed form as usual.
+the kernels compiled, and the planar step's object, ``training.precompiled``), the closed form as usual.
 
 ``--startup``: instead, where a planar ANN process's CPU time goes, by phase, in fresh processes
-(``--repeats`` of them): numpy's import, numba's, the ANN's modules and cell model (``AnnCell``, with
-the kernels' modules and numba's BLAS check, ``training.fast_cells``), the first step (numba's set-up
-of its typing and lowering registries and the cached kernels' loading), the other 320 steps of 360
-cells. Not the CLI: the phases of the run that differ from the closed form's.
+(``--repeats`` of them): numpy's import, the ANN's modules and cell model (``AnnCell``), the first
+step (the precompiled step's key, llvmlite's import and the object's loading; numba's import and set-up
+where the step falls back to numba), the other 320 steps of 360 cells; then whether numba was imported
+and which path the step took. Not the CLI: the phases of the run that differ from the closed form's.
 
 ``--gc``: instead, the planar test's two commands (``--repeats`` pairs) with the garbage collector's
 collections counted by generation, and the seconds they took (``gc.callbacks``), beside each process's
@@ -53,6 +56,13 @@ def commands(args, out: Path) -> dict[str, dict[str, list[str]]]:
             for test, argv in tests.items() if test.split()[0] in args.tests}
 
 
+def child_environment() -> dict[str, str]:
+    """This process's environment for the timed commands: the Agg backend of matplotlib, bytecode caching on."""
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
+
+
 def timed(argv: list[str], env: dict[str, str]) -> tuple[float, float]:
     """(wall, CPU) seconds of one whole process; RuntimeError if it fails."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -72,8 +82,6 @@ def mark(name):
     marks.append((name, time.process_time()))
 import numpy as np
 mark("import numpy")
-import numba
-mark("import numba")
 from homogenization.backends import make_cell_model
 from homogenization.material.orientation import localise, orientations
 from warp_hcell.mesostructures.hcell import h_cell
@@ -83,12 +91,12 @@ mark("AnnCell (model, certificate, OOD index)")
 state = cell.init_state(h_cell(55.0), 360)
 d_eps = localise(orientations(360), np.array([1e-5, -1e-5, 0.0]))
 state, _ = cell.step(state, d_eps)
-mark("first step (numba's set-up, cached kernels)")
+mark("first step (the precompiled step loaded, or numba's set-up)")
 for _ in range(320):
     state, _ = cell.step(state, d_eps)
 mark("320 more steps")
 print(json.dumps({b[0]: round(b[1] - a[1], 4) for a, b in zip(marks, marks[1:])}))
-print("scipy.linalg imported:", "scipy.linalg" in sys.modules, file=sys.stderr)
+print(f"numba imported: {'numba' in sys.modules}, step: {cell.fast.step_path}", file=sys.stderr)
 """
 
 
@@ -112,7 +120,7 @@ runpy.run_module("homogenization.hmodel", run_name="__main__")
 def gc_counts(args, out: Path) -> None:
     """The planar test's ANN and closed-form processes (``args.repeats`` pairs) with their garbage collections
     counted by generation (``GC_WATCH``): collections, seconds in them, and the process's CPU seconds."""
-    env = {**os.environ, "MPLBACKEND": "Agg"}
+    env = child_environment()
     argv = commands(argparse.Namespace(**{**vars(args), "tests": ["biaxial"]}), out)["biaxial 2D (360 cells)"]
     for backend in ("ann", "analytical"):  # warm-up, as in the timed pairs
         timed(argv[backend], env)
@@ -127,18 +135,18 @@ def gc_counts(args, out: Path) -> None:
 
 
 def startup(args) -> None:
-    """CPU seconds of each phase of a planar ANN process (``STARTUP``), ``args.repeats`` processes, and whether
-    ``scipy.linalg`` was imported."""
-    env = {**os.environ, "MPLBACKEND": "Agg"}
-    runs, scipy_linalg = [], set()
+    """CPU seconds of each phase of a planar ANN process (``STARTUP``), ``args.repeats`` processes, whether numba
+    was imported and the step's path."""
+    env = child_environment()
+    runs, paths = [], set()
     for _ in range(args.repeats):
         done = subprocess.run([sys.executable, "-c", STARTUP], cwd=ROOT, env=env, capture_output=True, text=True,
                               check=True)
         runs.append(json.loads(done.stdout.strip().splitlines()[-1]))
-        scipy_linalg.add(done.stderr.strip().splitlines()[-1])
+        paths.add(done.stderr.strip().splitlines()[-1])
     phases = "; ".join(f"{name} {statistics.median(r[name] for r in runs):.3f}" for name in runs[0])
     total = statistics.median(sum(r.values()) for r in runs)
-    print(f"CPU seconds, median of {len(runs)} processes: {phases}; sum {total:.3f} ({', '.join(sorted(scipy_linalg))})",
+    print(f"CPU seconds, median of {len(runs)} processes: {phases}; sum {total:.3f} ({', '.join(sorted(paths))})",
           flush=True)
 
 
@@ -164,7 +172,7 @@ def main() -> None:
             gc_counts(args, out)
             print(f"load average after: {os.getloadavg()}", flush=True)
             return
-        env = {**os.environ, "MPLBACKEND": "Agg"}
+        env = child_environment()
         for test, argv in commands(args, out).items():
             print(f"== {test}: {' '.join(Path(a).name if a == sys.executable else a for a in argv['ann'])}", flush=True)
             for backend in ("ann", "analytical"):  # warm-up: caches (numba, Warp, the OS's files) as a user's second run

@@ -5,7 +5,8 @@ The first kernel ``FastAdvance`` loads sets numba up (~90 000 long-lived objects
 inside a command (``warp_hcell.core.cli.run_main``), the objects alive are frozen (``gc.freeze``), so
 that later full collections do not walk them again, and objects made afterwards are collected as usual.
 A library call (a notebook, a script) leaves the collector alone. Each case runs in a fresh process: the
-freeze is once per process.
+freeze is once per process. The step asks for the tangent, whose kernels are numba's (the planar step alone
+may be precompiled, ``training.precompiled``, and set nothing up).
 """
 
 import json
@@ -28,7 +29,7 @@ from warp_hcell.mesostructures.hcell import h_cell
 def step(argv):
     cell = make_cell_model("ann", threads=1)
     state = cell.init_state(h_cell(55.0), 3)
-    cell.step(state, np.tile([2e-5, 1e-5], (3, 1)))
+    cell.step(state, np.tile([2e-5, 1e-5], (3, 1)), with_tangent=True)
     return 0
 
 if sys.argv[1] == "command":

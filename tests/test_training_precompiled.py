@@ -1,0 +1,130 @@
+"""The planar step loaded without numba (``training.precompiled``) against numba's kernel.
+
+The precompiled step must give every output of numba's ``training.fast_increment.step`` bit for bit, build its
+object where none is cached, load it in a fresh process that never imports numba, key it on what changes the
+machine code, and fall back to numba's kernel (the same bits) where it cannot be used.
+"""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from other_cpus import planar_loaded
+from training import precompiled
+from training.inference import FastAdvance, FastIncrement
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def loaded():
+    return planar_loaded()
+
+
+def _run(fast: FastAdvance, state, d, steps: int = 3) -> list[FastIncrement]:
+    """``steps`` increments from ``state``, each from the last one's new state (copies kept)."""
+    out = []
+    for _ in range(steps):
+        inc = fast(*state, d)
+        out.append(FastIncrement(*(np.array(a) for a in inc)))
+        state = (inc.cell_size, inc.free_position, inc.shear_force)
+    return out
+
+
+def _assert_same(a: list[FastIncrement], b: list[FastIncrement]) -> None:
+    for k, (x, y) in enumerate(zip(a, b)):
+        for name in FastIncrement._fields:
+            assert getattr(x, name).tobytes() == getattr(y, name).tobytes(), f"increment {k}: {name}"
+
+
+def test_the_precompiled_step_gives_numbas_bits_and_builds_where_nothing_is_cached(loaded, tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    cell, state, d = loaded
+    built = FastAdvance(cell.net)
+    first = _run(built, state, d)
+    assert built.step_path == "precompiled", built.precompiled_reason
+    assert len(list((tmp_path / "precompiled").glob("step-*.bin"))) == 1
+    numba_path = FastAdvance(cell.net, precompiled=False)
+    _assert_same(first, _run(numba_path, state, d))
+    assert numba_path.step_path == "numba"
+    monkeypatch.setattr(precompiled, "_LOADED", {})  # as a new process: the object is read from its file
+    again = FastAdvance(cell.net)
+    _assert_same(first, _run(again, state, d))
+    assert again.step_path == "precompiled"
+
+
+def test_a_fresh_process_loads_the_step_without_importing_numba(loaded, tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    cell, state, d = loaded
+    expected = _run(FastAdvance(cell.net), state, d, steps=1)[0]  # builds the object
+    np.savez(tmp_path / "in.npz", *state, d)
+    script = f"""
+import json, sys
+import numpy as np
+from homogenization.ann.cell import AnnCell
+from training.inference import FastAdvance
+from warp_hcell.core.parameters import ContactLaw
+data = np.load({str(tmp_path / 'in.npz')!r})
+args = [data[f"arr_{{k}}"] for k in range(4)]
+fast = FastAdvance(AnnCell(ContactLaw(), 0.5).net)
+inc = fast(*args)
+np.savez({str(tmp_path / 'out.npz')!r}, *inc)
+print(json.dumps({{"numba": sorted(m for m in sys.modules if m == "numba" or m.startswith("numba.")),
+                  "path": fast.step_path, "reason": fast.precompiled_reason}}))
+"""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True, check=True)
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    assert report["path"] == "precompiled", report["reason"]
+    # only numba's C extension modules (its runtime's helpers), none of its Python
+    assert set(report["numba"]) <= {"numba._helperlib", "numba.core.runtime._nrt_python"}, report["numba"]
+    out = np.load(tmp_path / "out.npz")
+    for k, name in enumerate(FastIncrement._fields):
+        assert out[f"arr_{k}"].tobytes() == getattr(expected, name).tobytes(), name
+
+
+def test_the_key_follows_the_argument_types_numbas_settings_and_the_sources(loaded, monkeypatch):
+    cell, state, d = loaded
+    fast = FastAdvance(cell.net)
+    fast(*state, d)
+    args = fast._local.work, fast._tables  # the fixed parts of a call: tables and scratch
+    call = (np.zeros((2, 3)), np.zeros((4, 3)), np.zeros((15, 3)), np.zeros((3, 2)), *args[1], args[0].before,
+            args[0].layers, fast._result(3), args[0].counts)
+    key, fields = precompiled.step_key(call)
+    assert key == precompiled.step_key(call)[0]
+    assert "training/fast_increment.py" in fields["sources"]
+    other_dtype = (np.zeros((2, 3), dtype=np.float32), *call[1:])
+    assert precompiled.step_key(other_dtype)[0] != key
+    monkeypatch.setenv("NUMBA_CPU_NAME", "generic")
+    assert precompiled.step_key(call)[0] != key
+    monkeypatch.delenv("NUMBA_CPU_NAME")
+    monkeypatch.setattr(precompiled, "_SOURCES", precompiled._SOURCES[:-1])
+    assert precompiled.step_key(call)[0] != key
+
+
+def test_where_the_step_cannot_be_precompiled_numbas_kernel_gives_the_same_bits(loaded, tmp_path, monkeypatch):
+    cell, state, d = loaded
+    expected = _run(FastAdvance(cell.net, precompiled=False), state, d)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(precompiled, "_offsets_agree", lambda: False)
+    fast = FastAdvance(cell.net)
+    _assert_same(expected, _run(fast, state, d))
+    assert fast.step_path == "numba" and "layout" in fast.precompiled_reason
+
+
+def test_a_damaged_cache_file_is_built_again(loaded, tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    cell, state, d = loaded
+    expected = _run(FastAdvance(cell.net), state, d)
+    (path,) = (tmp_path / "precompiled").glob("step-*.bin")
+    path.write_bytes(b"\x05\x00\x00\x00\x00\x00\x00\x00{oops")
+    monkeypatch.setattr(precompiled, "_LOADED", {})
+    fast = FastAdvance(cell.net)
+    _assert_same(expected, _run(fast, state, d))
+    assert fast.step_path == "precompiled", fast.precompiled_reason
+    assert path.read_bytes()[:8] != b"\x05\x00\x00\x00\x00\x00\x00\x00"
