@@ -243,25 +243,22 @@ class FastAdvance:
     """``MesoNet.advance`` for inference on CPU: numba physics (float64) around the perceptron (float32).
 
     A cell's output does not depend on its batch or the CPU's vector width (``training.perceptron``);
-    the arrays returned are new. Spatial cells run ``training.fast_step3d`` (a compiled tangent with corrections only).
+    the arrays returned are new. Spatial cells run ``training.fast_step3d``.
 
     Args:
         net: the trained network, a ``MesoNet`` or its ``training.fast_model.NetArrays``; copied.
         corrections: the most exact Newton steps per cell-increment (spatial cells,
-            ``fast_equilibrium3d.newton3d``; 0: the network alone); ``last_corrections`` counts them.
+            ``fast_equilibrium3d.newton3d``; 0: none); ``last_corrections`` counts them.
         tolerance: force ratio [-] below which a cell is not corrected (None: the DEM's).
-        guess: first guess of the corrections: ``"network"``, ``"still"`` (free DOFs stay) or
-            ``"affine"`` (they follow the cell's strain).
-        halvings: the most line-search halvings of a Newton step (0: full steps; None:
-            ``training.fast_equilibrium3d.HALVINGS``).
-        shift: the first shift of a climbing step's matrix, a fraction of kn (0: none; None:
-            ``training.fast_equilibrium3d.SHIFT``).
+        guess: first guess of the corrections: ``"network"``, ``"still"`` or ``"affine"`` (``GUESSES``).
+        halvings, shift: the most line-search halvings of a Newton step (0: full steps) and the first
+            shift of a climbing step's matrix, a fraction of kn (None: ``fast_equilibrium3d``'s).
         compact: corrections in ``COMPACT_ROUNDS`` on the cells still above tolerance (same bits as False).
-        precompiled: the planar step without corrections through ``training.precompiled`` (same bits as False,
-            without numba's import where its object is cached); ``step_path`` says which ran ("precompiled" or
-            "numba"; None before the first step) and ``precompiled_reason`` why not."""
+        precompiled: the planar step through ``training.precompiled`` (same bits as False); ``step_path``
+            says which ran ("precompiled" or "numba"), ``precompiled_reason`` why not."""
 
     GUESSES = ("network", "still", "affine")
+    """First guesses of the corrections: the network's, the free DOFs still, or following the cell's strain."""
 
     def __init__(self, net: NetArrays | Any, corrections: int = 0, tolerance: float | None = None,
                  guess: str = "network", halvings: int | None = None, shift: float | None = None,
