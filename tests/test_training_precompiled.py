@@ -36,32 +36,44 @@ def _run(fast: FastAdvance, state, d, steps: int = 3) -> list[FastIncrement]:
     return out
 
 
+@pytest.fixture(scope="module")
+def cache(loaded, tmp_path_factory):
+    """(cache folder, its FastAdvance, its first three increments): the step built where nothing was cached."""
+    folder = tmp_path_factory.mktemp("numba_cache")
+    cell, state, d = loaded
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("NUMBA_CACHE_DIR", str(folder))
+        patch.setattr(precompiled, "_LOADED", {})
+        fast = FastAdvance(cell.net)
+        return folder, fast, _run(fast, state, d)
+
+
 def _assert_same(a: list[FastIncrement], b: list[FastIncrement]) -> None:
     for k, (x, y) in enumerate(zip(a, b)):
         for name in FastIncrement._fields:
             assert getattr(x, name).tobytes() == getattr(y, name).tobytes(), f"increment {k}: {name}"
 
 
-def test_the_precompiled_step_gives_numbas_bits_and_builds_where_nothing_is_cached(loaded, tmp_path, monkeypatch):
-    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
-    cell, state, d = loaded
-    built = FastAdvance(cell.net)
-    first = _run(built, state, d)
+def test_the_precompiled_step_gives_numbas_bits_and_builds_where_nothing_is_cached(loaded, cache, monkeypatch):
+    folder, built, first = cache
     assert built.step_path == "precompiled", built.precompiled_reason
-    assert len(list((tmp_path / "precompiled").glob("step-*.bin"))) == 1
+    assert len(list((folder / "precompiled").glob("step-*.bin"))) == 1
+    cell, state, d = loaded
     numba_path = FastAdvance(cell.net, precompiled=False)
     _assert_same(first, _run(numba_path, state, d))
     assert numba_path.step_path == "numba"
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(folder))
     monkeypatch.setattr(precompiled, "_LOADED", {})  # as a new process: the object is read from its file
     again = FastAdvance(cell.net)
     _assert_same(first, _run(again, state, d))
-    assert again.step_path == "precompiled"
+    assert again.step_path == "precompiled", again.precompiled_reason
 
 
-def test_a_fresh_process_loads_the_step_without_importing_numba(loaded, tmp_path, monkeypatch):
-    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
-    cell, state, d = loaded
-    expected = _run(FastAdvance(cell.net), state, d, steps=1)[0]  # builds the object
+def test_a_fresh_process_loads_the_step_without_importing_numba(loaded, cache, tmp_path, monkeypatch):
+    folder, _, increments = cache
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(folder))
+    _, state, d = loaded
+    expected = increments[0]
     np.savez(tmp_path / "in.npz", *state, d)
     script = f"""
 import json, sys
@@ -100,6 +112,8 @@ def test_the_key_follows_the_argument_types_numbas_settings_and_the_sources(load
     assert "training/fast_increment.py" in fields["sources"]
     other_dtype = (np.zeros((2, 3), dtype=np.float32), *call[1:])
     assert precompiled.step_key(other_dtype)[0] != key
+    monkeypatch.setenv("NUMBA_CACHE_DIR", "/elsewhere")  # where the object is kept is not what it is
+    assert precompiled.step_key(call)[0] == key
     monkeypatch.setenv("NUMBA_CPU_NAME", "generic")
     assert precompiled.step_key(call)[0] != key
     monkeypatch.delenv("NUMBA_CPU_NAME")
@@ -117,11 +131,13 @@ def test_where_the_step_cannot_be_precompiled_numbas_kernel_gives_the_same_bits(
     assert fast.step_path == "numba" and "layout" in fast.precompiled_reason
 
 
-def test_a_damaged_cache_file_is_built_again(loaded, tmp_path, monkeypatch):
+def test_a_damaged_cache_file_is_built_again(loaded, cache, tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     cell, state, d = loaded
-    expected = _run(FastAdvance(cell.net), state, d)
-    (path,) = (tmp_path / "precompiled").glob("step-*.bin")
+    expected = cache[2]
+    (built,) = (cache[0] / "precompiled").glob("step-*.bin")
+    path = tmp_path / "precompiled" / built.name
+    path.parent.mkdir()
     path.write_bytes(b"\x05\x00\x00\x00\x00\x00\x00\x00{oops")
     monkeypatch.setattr(precompiled, "_LOADED", {})
     fast = FastAdvance(cell.net)

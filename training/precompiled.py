@@ -12,7 +12,7 @@ themselves (the items of the tuples, the values of the floats, the data pointer 
 C-contiguous array: ``OBJECT_OFFSETS``, checked against ctypes before the first use), so a call costs no
 per-array conversion. A cache file is keyed (``step_key``) on the wrapper's argument types, the sources of
 the kernels, the numba and llvmlite versions, the Python version, the host CPU and its features and every
-``NUMBA_*`` setting; any change compiles a new one. Where the object cannot be built or loaded
+``NUMBA_*`` setting but the cache's folder; any change compiles a new one. Where the object cannot be built or loaded
 (``PrecompiledStep.reason``), ``FastAdvance`` calls numba's kernel instead (the same bits).
 
 The object's references into numba's runtime (its raising and allocating helpers) are resolved from numba's
@@ -79,7 +79,7 @@ def step_key(args: tuple) -> tuple[str, dict]:
         "triple": ll.get_process_triple(),
         "cpu": ll.get_host_cpu_name(),
         "features": ll.get_host_cpu_features().flatten(),
-        "numba_env": {k: v for k, v in sorted(os.environ.items()) if k.startswith("NUMBA_")},
+        "numba_env": {k: v for k, v in sorted(os.environ.items()) if k.startswith("NUMBA_") and k != "NUMBA_CACHE_DIR"},
     }
     return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest(), fields
 
