@@ -1,10 +1,11 @@
-"""python studies/diagnose_dobrany_q_error.py [--sensitivity] [--kn-exponents 0.5,0.7]
+"""python studies/diagnose_dobrany_q_error.py [--tag third_15x4s] [--sensitivity] [--kn-exponents 0.5,0.7]
 
 Where along each Dobrany test the q error of the ``hmodel calibrate --interlocking`` posterior means on Lebedev
 15 x 4 staggered spins lies (``studies/results/calibration_dobrany_product_SPLIT_third_15x4s.json``, written by
 ``calibration_dobrany_product.py``): per test and strain window (0-1 %, 1 % to the sand's peak, the peak to 10 %,
 10-15 %, 15 % to the end) the RMS and the mean of (q_model - q_data) / q_peak and the window's share of the test's
 squared error, at the mean on 15 x 4 staggered and on 23 x 8 staggered; then q model / data at a few strains.
+``--tag``: another calibration of that script (its results ``..._SPLIT_TAG.json``).
 
 ``--sensitivity``: at each split's posterior mean (its calibration folder under runs/dobrany_product/), the
 predicted test run with each calibrated parameter moved by +-10 % of its prior's width (log ones in log10; cut at the
@@ -53,9 +54,9 @@ def windows(eps1_pct: np.ndarray, dq: np.ndarray, peak_pct: float) -> list[tuple
     return out
 
 
-def error_table() -> None:
+def error_table(tag: str) -> None:
     for split in ("50+100", "50+200"):
-        result = json.loads((RESULTS / f"calibration_dobrany_product_{split.replace('+', '_')}_third_15x4s.json")
+        result = json.loads((RESULTS / f"calibration_dobrany_product_{split.replace('+', '_')}_{tag}.json")
                             .read_text())
         for label in ("mean", "mean_on_23x8s"):
             print(f"split {split}, posterior mean ({'15 x 4 s' if label == 'mean' else '23 x 8 s'}): window RMS / "
@@ -125,6 +126,7 @@ def sensitivity(kn_exponents: list[float]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tag", default="third_15x4s")
     parser.add_argument("--sensitivity", action="store_true")
     parser.add_argument("--kn-exponents", default="")
     args = parser.parse_args(argv)
@@ -133,9 +135,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.sensitivity:
             sensitivity([float(x) for x in args.kn_exponents.split(",") if x])
         else:
-            error_table()
+            error_table(args.tag)
     sys.stdout.write(buffer.getvalue())
-    stem = "diagnose_dobrany_q_error" + ("_sensitivity" if args.sensitivity else "")
+    stem = "diagnose_dobrany_q_error" + ("_sensitivity" if args.sensitivity else
+                                         "" if args.tag == "third_15x4s" else f"_{args.tag}")
     (RESULTS / f"{stem}.txt").write_text(buffer.getvalue())
     return 0
 
