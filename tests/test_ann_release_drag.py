@@ -141,3 +141,53 @@ def test_a_certificate_of_the_drag_rule_covers_that_rule_only(tmp_path):
 def test_certify_refuses_the_drag_rule_for_the_network_alone():
     with pytest.raises(UserError, match="--release-rule drag"):
         certify_cli.main(["--model", str(SHIPPED_3D), "--equilibrium-corrections", "0", "--release-rule", "drag"])
+
+
+def test_the_certificate_settings_carry_the_rule_to_certify_and_refuse_it_for_the_network_alone():
+    from homogenization.learning.settings import CertificateSettings
+
+    assert CertificateSettings().keywords()["release_rule"] == RELEASE_RULE
+    drag = CertificateSettings(equilibrium_corrections=20, equilibrium_tolerance=1e-4, release_rule="drag")
+    assert drag.keywords()["release_rule"] == RELEASE_RULE_DRAG
+    with pytest.raises(ValueError, match="a rule of the hybrid"):
+        CertificateSettings(release_rule="drag")
+    with pytest.raises(ValueError, match="one of resting, drag"):
+        CertificateSettings(equilibrium_corrections=20, release_rule="after")
+
+
+@pytest.mark.parametrize("command", ["train", "learn"])
+def test_train_and_learn_refuse_the_drag_rule_for_the_network_alone_in_one_line(command, tmp_path, capsys):
+    from homogenization.cli import hmodel
+
+    argv = (["train", "--data", str(tmp_path / "none.h5"), "--out", str(tmp_path / "m.pt")] if command == "train"
+            else ["learn", "--mesostructure", "hcell:alpha0=55", "--out", str(tmp_path / "run")])
+    assert hmodel.main([*argv, "--equilibrium-corrections", "0", "--release-rule", "drag"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--release-rule drag: a rule of the hybrid" in err[0]
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_certificate_of_another_rule_is_not_current_for_the_loop(tmp_path):
+    """``hmodel learn`` measures again a model whose certificate ran the hybrid under another released-grain rule."""
+    import dataclasses
+
+    from homogenization.ann.records import Certificate
+    from homogenization.learning.active import _current
+    from homogenization.learning.settings import CertificateSettings
+    from warp_hcell.core.provenance import file_sha256
+
+    model = tmp_path / "m.pt"
+    model.write_bytes(b"weights")
+    measured = CertificateSettings(equilibrium_corrections=20, equilibrium_tolerance=1e-4, release_rule="drag")
+    settings = requested_settings(3, pressures=measured.pressures, eps_max=measured.eps_max,
+                                  n_orientations=measured.n_orientations, spatial_rule=measured.spatial_rule,
+                                  equilibrium_corrections=20, equilibrium_tolerance=1e-4, dem_escalation=True,
+                                  release_rule=RELEASE_RULE_DRAG)
+    cert = Certificate(target=measured.target, worst=0.01, worst_test="", metric="", tests=(), rollout=None,
+                       coverage=None, dem_spread=None, settings=settings, cell_parameters={},
+                       model_sha256=file_sha256(model), revision="", seconds=0.0, within_target=True, below_minimum=[],
+                       verdict="passed", passed=True)
+    assert _current(cert, model, measured, 3)
+    resting = dataclasses.replace(cert, settings={**settings, "dem_escalation_rule": RELEASE_RULE})
+    assert not _current(resting, model, measured, 3)
+    assert _current(resting, model, dataclasses.replace(measured, release_rule="resting"), 3)

@@ -60,17 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="axial strain of each shear stage [-]")
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
     add_certificate_equilibrium_arguments(parser)
-    parser.add_argument("--release-rule", choices=RELEASE_RULE_NAMES, default=RELEASE_RULE_NAMES[0],
-                        help="the hybrid's rule for the free grains nothing presses (homogenization.ann.escalation): "
-                             "'resting' (RELEASE_RULE, the default) or 'drag' (RELEASE_RULE_DRAG: a lightly pushed "
-                             "grain also relaxed as the DEM does from rest); recorded, and runs of the other rule "
-                             "are not covered")
     parser.epilog = EXIT_CODES_HELP
     return parser
-
-
-RELEASE_RULE_NAMES = ("resting", "drag")
-"""--release-rule's choices: ``escalation.RELEASE_RULE`` (the default) and ``escalation.RELEASE_RULE_DRAG``."""
 
 
 def check_writable(args: argparse.Namespace) -> None:
@@ -128,11 +119,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     card = read_card(args.model)  # CheckpointError (one line) for a missing or unreadable JSON
     measured = certificate_settings(args, from_description(card.mesostructure))
-    if args.release_rule != RELEASE_RULE_NAMES[0] and not measured.equilibrium_corrections:
-        raise UserError(f"--release-rule {args.release_rule}: a rule of the hybrid; this certificate runs the network "
-                        f"alone (--equilibrium-corrections 0, or a cell without fine grains)")
-    from homogenization.ann.escalation import RELEASE_RULE, RELEASE_RULE_DRAG  # noqa: PLC0415
-    rule = {"resting": RELEASE_RULE, "drag": RELEASE_RULE_DRAG}[args.release_rule]
     say(equilibrium_line(measured, args.equilibrium_corrections is not None))
     if not args.verbose:
         quiet_warp()
@@ -140,7 +126,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.data is not None:
         rebuild_index(args.model, args.data, card.to_dict())
     try:
-        cert = certificate.certify(args.model, mesostructure=meso, card=card, **measured.keywords(), release_rule=rule)
+        cert = certificate.certify(args.model, mesostructure=meso, card=card, **measured.keywords())
     except driver.ControlError as exc:
         raise UserError(f"a test did not converge: {exc}") from None
     if argv is not None:

@@ -41,7 +41,7 @@ from typing import Any
 
 from homogenization.backends import BACKENDS
 from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN, OPENING_RANGE_DEG
-from homogenization.learning.settings import (ActiveSettings, CertificateSettings, default_equilibrium,
+from homogenization.learning.settings import (ActiveSettings, CertificateSettings, default_equilibrium, RELEASE_RULE_NAMES,
                                               FINES_EQUILIBRIUM_CORRECTIONS, FINES_EQUILIBRIUM_TOLERANCE)
 from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, int_at_least, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
 from warp_hcell.core.parameters import CellDefaults, DemSettings, LoadingDefaults
@@ -279,14 +279,19 @@ def add_equilibrium_arguments(parser: argparse.ArgumentParser, corrections_help:
 
 
 def add_certificate_equilibrium_arguments(parser: argparse.ArgumentParser) -> None:
-    """--equilibrium-corrections K and --equilibrium-tolerance R of the certificate's ANN runs
-    (``CertificateSettings``; default: ``settings.default_equilibrium`` of the cell)."""
+    """--equilibrium-corrections K, --equilibrium-tolerance R and --release-rule of the certificate's ANN runs
+    (``CertificateSettings``; default: ``settings.default_equilibrium`` of the cell, rule ``resting``)."""
     add_equilibrium_arguments(parser, "certify the hybrid: the tests run the ANN with up to K exact Newton steps on "
                                       "the free grains' balance after the network's step (spatial cells; "
                                       "docs/certificate.md); runs are then certified with this K and tolerance only. "
                                       f"None: K = {FINES_EQUILIBRIUM_CORRECTIONS} at tolerance "
                                       f"{FINES_EQUILIBRIUM_TOLERANCE:g} for a 3D cell with fine grains, 0 (the "
                                       "network alone) for any other; 0: the network alone")
+    parser.add_argument("--release-rule", choices=RELEASE_RULE_NAMES, default=RELEASE_RULE_NAMES[0],
+                        help="the hybrid's rule for the free grains nothing presses (homogenization.ann.escalation): "
+                             "'resting' (RELEASE_RULE, the default) or 'drag' (RELEASE_RULE_DRAG: a lightly pushed "
+                             "grain also relaxed as the DEM does from rest); recorded, and runs of the other rule "
+                             "are not covered")
 
 
 def active_settings(args: argparse.Namespace) -> ActiveSettings:
@@ -302,7 +307,8 @@ def active_settings(args: argparse.Namespace) -> ActiveSettings:
 
 def certificate_settings(args: argparse.Namespace, meso: Any = None) -> CertificateSettings:
     """The ``CertificateSettings`` of the flags of ``add_active_arguments`` and --no-rollout
-    (UserError, one line: --equilibrium-tolerance without --equilibrium-corrections, or with 0).
+    (UserError, one line: --equilibrium-tolerance without --equilibrium-corrections, or with 0; --release-rule
+    drag for the network alone).
     Without --equilibrium-corrections the cell's default surrogate (``settings.default_equilibrium``
     of ``meso``, the ``Mesostructure`` of the model; None: the network alone)."""
     if args.equilibrium_tolerance is not None and args.equilibrium_corrections is None:
@@ -311,12 +317,18 @@ def certificate_settings(args: argparse.Namespace, meso: Any = None) -> Certific
         corrections, tolerance = (0, None) if meso is None else default_equilibrium(meso)
     else:
         corrections, tolerance = args.equilibrium_corrections, args.equilibrium_tolerance
+    # without the cell, a rule other than the default can be checked against an explicit K only
+    rule = args.release_rule if meso is not None or args.equilibrium_corrections is not None else "resting"
+    if rule != "resting" and not corrections:
+        raise UserError(f"--release-rule {rule}: a rule of the hybrid; these tests run the network alone "
+                        f"(--equilibrium-corrections 0, or a cell without fine grains)")
     try:
         return CertificateSettings(n_orientations=args.orientations, spatial_rule=(args.order, args.spins),
                                    eps_max=args.eps_max, rollout=not args.no_rollout,
-                                   equilibrium_corrections=corrections, equilibrium_tolerance=tolerance)
+                                   equilibrium_corrections=corrections, equilibrium_tolerance=tolerance,
+                                   release_rule=rule)
     except ValueError as exc:
-        raise UserError(f"--equilibrium-corrections / --equilibrium-tolerance: {exc}") from None
+        raise UserError(f"--equilibrium-corrections / --equilibrium-tolerance / --release-rule: {exc}") from None
 
 
 def equilibrium_line(measured: CertificateSettings, explicit: bool) -> str:

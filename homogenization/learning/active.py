@@ -48,8 +48,8 @@ import h5py
 import numpy as np
 
 from homogenization.learning import certificate
-from homogenization.learning.settings import ActiveSettings, CertificateSettings
-from homogenization.ann.envelope import equilibrium_settings, verdict
+from homogenization.learning.settings import ActiveSettings, CertificateSettings, release_rule_text
+from homogenization.ann.envelope import equilibrium_settings, escalation_of, escalation_rule_of, verdict
 from homogenization.ann.records import Certificate, learning_of, Round, with_learning
 from training import fitting
 from training.card import ModelCard, read_card, write_card
@@ -280,7 +280,8 @@ def _certify(model: Path, card: ModelCard, measured: CertificateSettings, settin
 
 def _current(cert: Certificate | None, model: Path, measured: CertificateSettings, dim: int) -> bool:
     """Whether ``cert`` was measured on this model file with the certificate settings ``measured``
-    (the equilibrium corrections included: ``envelope.equilibrium_settings``) on cells of dimension ``dim``."""
+    (the equilibrium corrections included: ``envelope.equilibrium_settings``, and the released-grain rule of a
+    hybrid that has one) on cells of dimension ``dim``."""
     if cert is None or cert.model_sha256 != file_sha256(model):
         return False
     wanted = certificate.requested_settings(dim, pressures=measured.pressures, eps_max=measured.eps_max,
@@ -288,8 +289,9 @@ def _current(cert: Certificate | None, model: Path, measured: CertificateSetting
     wanted.pop("increment")
     hybrid = ((measured.equilibrium_corrections, measured.equilibrium_tolerance or DemSettings().force_tolerance)
               if measured.equilibrium_corrections else (0, None))
+    same_rule = not escalation_of(cert) or escalation_rule_of(cert) == release_rule_text(measured.release_rule)
     return (all(cert.settings.get(k) == v for k, v in wanted.items()) and cert.target == measured.target
-            and equilibrium_settings(cert) == hybrid)
+            and equilibrium_settings(cert) == hybrid and same_rule)
 
 
 def _record(model: Path, card: ModelCard, rounds: list[Round], cert: Certificate) -> ModelCard:

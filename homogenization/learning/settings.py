@@ -32,6 +32,19 @@ is within 0.005 % while the network's guess still decides 19-37 % of the cell-in
 "Equilibrium corrections"; the DEM's 1e-6 corrects 90-99 % of them)."""
 
 
+RELEASE_RULE_NAMES = ("resting", "drag")
+"""Names of the hybrid's released-grain rules that a certificate can measure (``--release-rule``):
+``homogenization.ann.escalation.RELEASE_RULE`` (the default) and ``RELEASE_RULE_DRAG``."""
+
+
+def release_rule_text(name: str) -> str:
+    """The rule ``name`` (``RELEASE_RULE_NAMES``) as ``homogenization.ann.escalation`` words it (and certificates
+    record it)."""
+    from homogenization.ann.escalation import RELEASE_RULE, RELEASE_RULE_DRAG  # noqa: PLC0415 (light module)
+
+    return {"resting": RELEASE_RULE, "drag": RELEASE_RULE_DRAG}[name]
+
+
 def default_equilibrium(meso: Any) -> tuple[int, float | None]:
     """(K, tolerance) of the surrogate that ``hmodel train``, ``learn`` and ``certify`` certify by
     default for cells of ``meso``: (``FINES_EQUILIBRIUM_CORRECTIONS``,
@@ -68,8 +81,17 @@ class CertificateSettings:
     equilibrium_tolerance: float | None = None
     """Force ratio above which a cell is corrected [-] (None: the DEM's ``force_tolerance``); only with
     ``equilibrium_corrections`` > 0."""
+    release_rule: str = "resting"
+    """The hybrid's rule for the free grains nothing presses, by name (``RELEASE_RULE_NAMES``): ``"resting"``
+    (``homogenization.ann.escalation.RELEASE_RULE``) or ``"drag"`` (``RELEASE_RULE_DRAG``, with
+    ``equilibrium_corrections`` > 0 only)."""
 
     def __post_init__(self) -> None:
+        if self.release_rule not in RELEASE_RULE_NAMES:
+            raise ValueError(f"release_rule = {self.release_rule!r}: one of {', '.join(RELEASE_RULE_NAMES)}")
+        if self.release_rule != RELEASE_RULE_NAMES[0] and not self.equilibrium_corrections:
+            raise ValueError(f"release rule {self.release_rule!r}: a rule of the hybrid, and these tests run the "
+                             f"network alone (equilibrium corrections 0, or a cell without fine grains)")
         if int(self.equilibrium_corrections) < 0:
             raise ValueError(f"equilibrium_corrections = {self.equilibrium_corrections} must be >= 0")
         if self.equilibrium_tolerance is not None:
@@ -79,8 +101,11 @@ class CertificateSettings:
                 raise ValueError(f"equilibrium_tolerance = {self.equilibrium_tolerance:g} must be > 0")
 
     def keywords(self) -> dict[str, Any]:
-        """The settings as keywords of ``homogenization.learning.certificate.certify``."""
-        return {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+        """The settings as keywords of ``homogenization.learning.certificate.certify`` (the release rule as
+        ``homogenization.ann.escalation`` words it)."""
+        words = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+        words["release_rule"] = release_rule_text(self.release_rule)
+        return words
 
 
 @dataclass(frozen=True)
