@@ -122,6 +122,7 @@ def test_a_calibrated_exponent_scales_each_sets_kn_by_its_own():
     ([], "drained", "phi_g,kn,kn_exponent", "needs triaxial data"),
     (["--law", "hertz-mindlin"], "triaxial_drained", "phi_g,shear_modulus,kn_exponent",
      "is not a parameter of the hertz-mindlin contact law"),
+    (["--backend", "ann"], "triaxial_drained", "phi_g,kn,kn_exponent", "the ANN is trained at one kn"),
 ])
 def test_a_calibrated_exponent_where_it_has_no_meaning_exits_2(tmp_path, capsys, flags, data, params, expected):
     path = _write(tmp_path / "t.csv", data)

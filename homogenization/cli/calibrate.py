@@ -346,6 +346,9 @@ def check_kn_exponent(args: argparse.Namespace, tests: Sequence[Measurement]) ->
         if flat:
             raise UserError(f"--params {KN_EXPONENT} needs triaxial data (a confining pressure in Pa): --data "
                             f"{flat[0]} is biaxial")
+        if args.backend == "ann":
+            raise UserError(f"--params {KN_EXPONENT} with --backend ann: the ANN is trained at one kn; use analytical "
+                            f"or dem")
         return
     if args.kn_exponent == 0.0:
         return
