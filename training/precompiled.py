@@ -1,19 +1,18 @@
 """The planar meso-ANN step (``training.fast_increment.step``) as machine code that a process loads without numba.
 
-Numba's import and its set-up at the first compiled call cost a short planar ANN run about as much as its
-300 increments. ``PrecompiledStep`` compiles, once per machine, a C-callable wrapper (``numba.cfunc``) of the
-fused step for the argument types of ``training.inference.FastAdvance``, writes its object code to a cache
-file (``cache_dir``), and in later processes loads that object with llvmlite alone (the LLVM binding numba
-is built on, ~0.03 s to import) and calls it through ctypes: the same machine code as numba's for the same
-source, options and CPU, so the same bits.
+A process that runs this step alone then pays neither numba's import nor its set-up at the first compiled call.
+``PrecompiledStep`` compiles, once per machine, a C-callable wrapper (``numba.cfunc``) of the fused step for the
+argument types of ``training.inference.FastAdvance``, writes its object code to a cache file (``cache_dir``), and
+in later processes loads that object with llvmlite alone (the LLVM binding numba is built on) and calls it
+through ctypes: the same machine code as numba's for the same source, options and CPU, so the same bits.
 
 The wrapper takes the address of the argument tuple and reads every argument from the CPython objects
 themselves (the items of the tuples, the values of the floats, the data pointer and shape of each
 C-contiguous array: ``OBJECT_OFFSETS``, checked against ctypes before the first use), so a call costs no
 per-array conversion. A cache file is keyed (``step_key``) on the wrapper's argument types, the sources of
 the kernels, the numba and llvmlite versions, the Python version, the host CPU and its features and every
-``NUMBA_*`` setting but the cache's folder; any change compiles a new one. Where the object cannot be built or loaded
-(``PrecompiledStep.reason``), ``FastAdvance`` calls numba's kernel instead (the same bits).
+``NUMBA_*`` setting but the cache's folder; any change compiles a new one. Where the object cannot be built or
+loaded (``PrecompiledStep.reason``), ``FastAdvance`` calls numba's kernel instead (the same bits).
 
 The object's references into numba's runtime (its raising and allocating helpers) are resolved from numba's
 C extension modules, loaded without the numba package.
@@ -79,7 +78,8 @@ def step_key(args: tuple) -> tuple[str, dict]:
         "triple": ll.get_process_triple(),
         "cpu": ll.get_host_cpu_name(),
         "features": ll.get_host_cpu_features().flatten(),
-        "numba_env": {k: v for k, v in sorted(os.environ.items()) if k.startswith("NUMBA_") and k != "NUMBA_CACHE_DIR"},
+        "numba_env": {k: v for k, v in sorted(os.environ.items())
+                      if k.startswith("NUMBA_") and k != "NUMBA_CACHE_DIR"},
     }
     return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest(), fields
 
