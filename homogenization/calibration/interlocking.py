@@ -43,8 +43,11 @@ P_REF = 101325.0
 """Reference pressure p_ref [Pa] of the critical-state line (one atmosphere)."""
 E_C_FLOOR = 0.05
 """Smallest critical void ratio [-]: e_c(p) is clipped to it (counted: ``InterlockingFriction.floored``)."""
+MOBILISATION_EXPONENT = 2.0 / 3.0
+"""Exponent of the mobilisation strain's pressure dependence a(p) [-] (module docstring)."""
 FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi",
-          "cell_spread": "cell_spread"}
+          "cell_spread": "cell_spread", "mobilisation_strain": "mobilisation_strain",
+          "mobilisation_start": "mobilisation_start"}
 """Per-set parameters (calibration name -> ``Interlocking`` field) that ``simulate`` reads from its params."""
 
 
@@ -60,6 +63,8 @@ class Interlocking:
         p_ref: reference pressure [Pa in 3D, N/m in 2D], > 0.
         relax_strain: gamma_r [-], >= 0, of the lagged void ratio (module docstring); 0: no lag.
         cell_spread: s [-], in [0, 1), the half-width of the cells' spread of tan phi about the point's; 0: none.
+        mobilisation_strain: a_ref [-], >= 0, the mobilisation's strain at p_ref (module docstring); 0: none.
+        mobilisation_start: r0 [-], in [0, 1], the share of tan phi mobilised at zero deviatoric strain.
     """
 
     m: float = 1.0
@@ -69,12 +74,16 @@ class Interlocking:
     p_ref: float = P_REF
     relax_strain: float = 0.0
     cell_spread: float = 0.0
+    mobilisation_strain: float = 0.0
+    mobilisation_start: float = 0.5
 
     def check(self) -> None:
         """ValueError (one line) for a parameter out of range."""
         for name, ok in (("m", self.m >= 0.0), ("e_gamma", self.e_gamma > 0.0), ("lambda_c", self.lambda_c >= 0.0),
                          ("xi", 0.0 < self.xi <= 1.0), ("p_ref", self.p_ref > 0.0),
-                         ("relax_strain", self.relax_strain >= 0.0), ("cell_spread", 0.0 <= self.cell_spread < 1.0)):
+                         ("relax_strain", self.relax_strain >= 0.0), ("cell_spread", 0.0 <= self.cell_spread < 1.0),
+                         ("mobilisation_strain", self.mobilisation_strain >= 0.0),
+                         ("mobilisation_start", 0.0 <= self.mobilisation_start <= 1.0)):
             value = getattr(self, name)
             if not (math.isfinite(value) and ok):
                 raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
@@ -92,6 +101,17 @@ def mobilised_friction_deg(phi_mu_deg: Any, e: Any, p: Any, m: Any, e_gamma: Any
     e_c = np.maximum(critical_void_ratio(p, e_gamma, lambda_c, xi, p_ref), E_C_FLOOR)
     ratio = e_c / np.asarray(e, dtype=np.float64)
     return np.degrees(np.arctan(ratio ** np.asarray(m, dtype=np.float64) * np.tan(np.radians(phi_mu_deg))))
+
+
+def mobilised_share(g: Any, p: Any, a_ref: Any, r0: Any, p_ref: float) -> np.ndarray:
+    """r = r0 + (1 - r0) g / (a(p) + g) [-] (module docstring; broadcast), 1 where a_ref = 0; g [-] >= 0."""
+    a = np.asarray(a_ref, dtype=np.float64) * (np.maximum(np.asarray(p, dtype=np.float64), 0.0) / p_ref) ** (
+        MOBILISATION_EXPONENT)
+    g = np.asarray(g, dtype=np.float64)
+    r0 = np.asarray(r0, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        r = r0 + (1.0 - r0) * g / (a + g)
+    return np.where(np.asarray(a_ref) > 0.0, np.where(np.isfinite(r), r, 1.0), 1.0)
 
 
 def spread_factors(n_cells: int, spread: float) -> np.ndarray:
@@ -121,12 +141,13 @@ class InterlockingFriction:
         state: its initial state (the friction is set from it at once).
         phi_mu_deg: each point's phi_mu [deg], shape (n,).
         e0: each point's void ratio at J = 1 [-], shape (n,).
-        per_point: m, e_gamma, lambda_c, xi, cell_spread per point (``Interlocking`` field -> shape (n,)); None:
-            ``params``'.
+        per_point: m, e_gamma, lambda_c, xi, cell_spread, mobilisation_strain, mobilisation_start per point
+            (``Interlocking`` field -> shape (n,)); None: ``params``'.
         inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
     Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped;
     ``fallbacks`` (n,): increments whose friction fell back to phi_mu (not finite, or not below 90 deg);
-    ``e_lagged`` (n,): the lagged void ratio (the void ratio itself without ``relax_strain``).
+    ``e_lagged`` (n,): the lagged void ratio (the void ratio itself without ``relax_strain``); ``distortion`` (n,):
+    the deviatoric strain g accumulated [-] (with the mobilisation).
     """
 
     def __init__(self, params: Interlocking, material: Any, state: MaterialState, phi_mu_deg: np.ndarray,
@@ -139,14 +160,16 @@ class InterlockingFriction:
         if np.size(self.owner.mu) != n * self.n_cells:
             raise ValueError(f"the cell model holds {np.size(self.owner.mu)} frictions for {n} points of "
                              f"{self.n_cells} cells")
-        keys = ("m", "e_gamma", "lambda_c", "xi", "cell_spread")
+        keys = ("m", "e_gamma", "lambda_c", "xi", "cell_spread", "mobilisation_strain", "mobilisation_start")
         values = {name: getattr(params, name) for name in keys}
         values.update(per_point or {})
-        self.m, self.e_gamma, self.lambda_c, self.xi, self.cell_spread = (
-            np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy() for k in keys)
+        (self.m, self.e_gamma, self.lambda_c, self.xi, self.cell_spread, self.mobilisation_strain,
+         self.mobilisation_start) = (np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy()
+                                     for k in keys)
         for i in range(n):
-            replace(params, m=float(self.m[i]), e_gamma=float(self.e_gamma[i]), lambda_c=float(self.lambda_c[i]),
-                    xi=float(self.xi[i]), cell_spread=float(self.cell_spread[i])).check()
+            replace(params, **{k: float(getattr(self, k)[i]) for k in keys}).check()
+        self.mobilised = bool(np.any(self.mobilisation_strain > 0.0))
+        self.distortion = np.zeros(n)
         self.phi_mu_deg = np.broadcast_to(np.asarray(phi_mu_deg, dtype=np.float64), (n,)).copy()
         self.e0 = np.broadcast_to(np.asarray(e0, dtype=np.float64), (n,)).copy()
         self.floored = np.zeros(n, dtype=np.int64)
@@ -187,6 +210,10 @@ class InterlockingFriction:
     def set_from(self, state: MaterialState) -> None:
         """Set every cell's friction (and the inner renewal's fresh cells') from ``state``."""
         self.friction_deg = self.friction_at(state)
+        if self.mobilised:
+            r = mobilised_share(self.distortion, self._mean(state.stress), self.mobilisation_strain,
+                                self.mobilisation_start, self.params.p_ref)
+            self.friction_deg = np.degrees(np.arctan(r * np.tan(np.radians(self.friction_deg))))
         self.owner.mu = np.repeat(np.tan(np.radians(self.friction_deg)), self.n_cells) * self.factors
         if self.inner is not None:
             self.inner.set_friction(self.friction_deg)
@@ -199,17 +226,24 @@ class InterlockingFriction:
         """The inner renewal's ``advance``, then the friction set from the accepted state for the next increment."""
         if self.inner is not None:
             state = self.inner.advance(state)
-        if self.params.relax_strain > 0.0:
-            self.e_lagged = self._relaxed(state)
+        if self.params.relax_strain > 0.0 or self.mobilised:
+            gamma = self._distortion(state)
+            if self.params.relax_strain > 0.0:
+                self.e_lagged = self._relaxed(state, gamma)
+            if self.mobilised:
+                self.distortion = self.distortion + np.where(np.isfinite(gamma), gamma, 0.0)
         self.set_from(state)
         return state
 
-    def _relaxed(self, state: MaterialState) -> np.ndarray:
-        """The lagged void ratio after the increment that ended at ``state`` (module docstring), shape (n,)."""
+    def _distortion(self, state: MaterialState) -> np.ndarray:
+        """The deviatoric strain d gamma [-] of the increment that ended at ``state`` (module docstring), shape (n,)."""
         d = np.array(state.strain, dtype=np.float64) - self._strain
         self._strain = np.array(state.strain, dtype=np.float64)
         d[:, self._record.dim:] /= self._record.shear_strain_factor  # engineering -> tensor shear
-        gamma = self._record.deviator(d)
+        return self._record.deviator(d)
+
+    def _relaxed(self, state: MaterialState, gamma: np.ndarray) -> np.ndarray:
+        """The lagged void ratio after the increment of deviatoric strain ``gamma`` ending at ``state``, shape (n,)."""
         e = current_void_ratio(self.e0, state.J)
         with np.errstate(all="ignore"):
             lagged = e + (self.e_lagged - e) * np.exp(-gamma / self.params.relax_strain)
