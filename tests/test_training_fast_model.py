@@ -1,4 +1,5 @@
-"""The meso-ANN read without torch (``training.fast_model``), and the compiled ANN run that never imports torch."""
+"""The meso-ANN read without torch (``training.fast_model``), and the compiled ANN run that never imports torch (nor,
+in 2D, numba)."""
 
 from __future__ import annotations
 
@@ -82,6 +83,7 @@ def test_an_ann_run_on_cpu_never_imports_torch_and_gives_the_torch_response(dim)
         out = model.response(state)
         obs = model.observables(state)
         print(json.dumps({{"torch": "torch" in sys.modules, "scipy.spatial": "scipy.spatial" in sys.modules,
+                          "numba": "numba" in sys.modules,
                           "moment": np.asarray(out.moment).tolist(), "area": np.asarray(out.area).tolist(),
                           "step_moment": np.asarray(response.moment).tolist(), "n_contacts": obs["n_contacts"].tolist(),
                           "state": [np.asarray(a).tolist() for a in state]}}))
@@ -91,6 +93,10 @@ def test_an_ann_run_on_cpu_never_imports_torch_and_gives_the_torch_response(dim)
 
     got = json.loads(done.stdout.strip().splitlines()[-1])
     assert not got["torch"] and not got["scipy.spatial"]
+    if dim == 2 and got["numba"]:  # the first planar run on a machine builds the precompiled step with numba
+        done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+        got = json.loads(done.stdout.strip().splitlines()[-1])
+    assert got["numba"] == (dim == 3)  # the planar step is precompiled (training.precompiled): no numba
     np.testing.assert_allclose(got["moment"], got["step_moment"], rtol=1e-12, atol=1e-9 * np.abs(got["moment"]).max())
     from homogenization.backends import make_cell_model  # noqa: PLC0415
     from training import cell_physics  # noqa: PLC0415
