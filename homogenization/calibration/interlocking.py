@@ -135,19 +135,17 @@ class InterlockingFriction:
     critical-state renewal or None, which runs first).
 
     Args:
-        params: the line's p_ref and relax_strain (and m, e_gamma, lambda_c, xi, cell_spread where ``per_point``
-            lacks them).
+        params: the rule (its fields that ``per_point`` lacks).
         material: the population (``forward.population(...).material``), n points of n_cells cells.
         state: its initial state (the friction is set from it at once).
         phi_mu_deg: each point's phi_mu [deg], shape (n,).
         e0: each point's void ratio at J = 1 [-], shape (n,).
-        per_point: m, e_gamma, lambda_c, xi, cell_spread, mobilisation_strain, mobilisation_start per point
-            (``Interlocking`` field -> shape (n,)); None: ``params``'.
+        per_point: per-point values, ``Interlocking`` field (not p_ref, relax_strain) -> shape (n,); None: ``params``'.
         inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
     Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped;
     ``fallbacks`` (n,): increments whose friction fell back to phi_mu (not finite, or not below 90 deg);
     ``e_lagged`` (n,): the lagged void ratio (the void ratio itself without ``relax_strain``); ``distortion`` (n,):
-    the deviatoric strain g accumulated [-] (with the mobilisation).
+    the accumulated distortion g [-] (with the mobilisation).
     """
 
     def __init__(self, params: Interlocking, material: Any, state: MaterialState, phi_mu_deg: np.ndarray,
