@@ -32,3 +32,20 @@ def assert_one_line_refusal(capsys, main: Callable[[list[str]], int], argv: Sequ
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and expected in lines[0], lines
     assert not out.exists()
+
+
+def replayed_shear(posterior: Path, out: Path):
+    """(eps1 (k,), q (k,) [Pa]) of the shear stage of ``hmodel triaxial --posterior POSTERIOR`` at void ratio 0.6,
+    drained, p0 = 2e5 Pa to 1.2 % in increments of 4e-3 (Lebedev 11 x 4 aligned), run into ``out``; eps1 counted
+    from the shear stage's start."""
+    import numpy as np  # noqa: PLC0415
+
+    from homogenization.cli import triaxial  # noqa: PLC0415
+    from warp_hcell.core.cli import run_main  # noqa: PLC0415
+
+    assert run_main(triaxial.main, ["--posterior", str(posterior), "--void-ratio", "0.6", "--drained", "--p0", "2e5",
+                                    "--eps-max", "0.012", "--increment", "4e-3", "--iso-increment", "2e-3", "--order",
+                                    "11", "--spins", "4", "--aligned-spins", "-q", "--out", str(out)]) == 0
+    rows = np.genfromtxt(out / "curve.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    start = int(np.flatnonzero(rows["stage"] != rows["stage"][0])[0]) - 1
+    return rows["eps11"][start + 1:] - rows["eps11"][start], rows["q"][start + 1:]

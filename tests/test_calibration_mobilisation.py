@@ -8,13 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_checks import assert_one_line_refusal
+from cli_checks import assert_one_line_refusal, replayed_shear
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
 from homogenization.calibration.interlocking import (Interlocking, InterlockingFriction, mobilised_friction_deg,
                                                      mobilised_share)
-from homogenization.cli import calibrate, triaxial
+from homogenization.cli import calibrate
 from homogenization.material.density import current_void_ratio
 from warp_hcell.core.cli import run_main
 
@@ -108,13 +108,7 @@ def test_the_posterior_holds_the_mobilisation_and_triaxial_replays_it(tmp_path):
     data = json.loads((out / "posterior.json").read_text())
     assert post.forward.interlocking.mobilisation_strain == data["mobilisation_strain"]["mean"] > 0.0
     assert post.forward.interlocking.mobilisation_start == 0.2
-    run_dir = tmp_path / "run"
-    assert run_main(triaxial.main, ["--posterior", str(out), "--void-ratio", "0.6", "--drained", "--p0", "2e5",
-                                    "--eps-max", "0.012", "--increment", "4e-3", "--iso-increment", "2e-3", "--order",
-                                    "11", "--spins", "4", "--aligned-spins", "-q", "--out", str(run_dir)]) == 0
-    rows = np.genfromtxt(run_dir / "curve.csv", delimiter=",", names=True, dtype=None, encoding=None)
-    start = int(np.flatnonzero(rows["stage"] != rows["stage"][0])[0]) - 1
-    eps1, q = rows["eps11"][start + 1:] - rows["eps11"][start], rows["q"][start + 1:]
+    eps1, q = replayed_shear(out, tmp_path / "run")
     test = Measurement("t", Path("t.csv"), True, 2e5, eps1, {"q": q}, 3, 0.6)
     mean = {name: np.array([value]) for name, value in post.mean.items()}
     np.testing.assert_allclose(q, forward.simulate(test, mean, post.forward).q[0], rtol=1e-4)
