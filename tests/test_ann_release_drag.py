@@ -5,11 +5,11 @@ the rule covers that rule only."""
 
 import json
 import math
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
+from model_copies import shipped_3d_copy
 
 from homogenization.ann import default_model_path
 from homogenization.ann.cell import AnnCell3D, AnnState
@@ -121,10 +121,7 @@ def test_the_hybrid_relaxes_the_pushed_grains_only_and_counts_them(monkeypatch):
 
 @needs_model
 def test_a_certificate_of_the_drag_rule_covers_that_rule_only(tmp_path):
-    model = tmp_path / "m.pt"
-    shutil.copy(SHIPPED_3D, model)
-    shutil.copy(SHIPPED_3D.with_name(f"{SHIPPED_3D.stem}_ood.npz"), tmp_path / "m_ood.npz")
-    meta = json.loads(SHIPPED_3D.with_suffix(".json").read_text())
+    model, meta = shipped_3d_copy(tmp_path)
     meta["certificate"]["settings"].update(requested_settings(3, equilibrium_corrections=2, equilibrium_tolerance=1e-3,
                                                               dem_escalation=True, release_rule=RELEASE_RULE_DRAG))
     model.with_suffix(".json").write_text(json.dumps(meta))

@@ -3,13 +3,13 @@ cell with fine grains, the network alone for any other; the ANN backend runs a m
 corrections its certificate measured without flags; ``learn.json`` records the round flags."""
 
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import h5py
 import pytest
+from model_copies import shipped_3d_copy
 
 from homogenization.ann import default_model_path
 from homogenization.ann.cell import AnnCell3D
@@ -96,10 +96,7 @@ def test_train_keeps_the_network_alone_and_the_training_defaults_elsewhere(tmp_p
 
 @needs_model
 def test_a_run_takes_the_corrections_its_certificate_measured_without_flags(tmp_path):
-    model = tmp_path / "m.pt"
-    shutil.copy(SHIPPED_3D, model)
-    shutil.copy(SHIPPED_3D.with_name(f"{SHIPPED_3D.stem}_ood.npz"), tmp_path / "m_ood.npz")
-    meta = json.loads(SHIPPED_3D.with_suffix(".json").read_text())
+    model, meta = shipped_3d_copy(tmp_path)
     assert AnnCell3D(ContactLaw(), 0.5, model=SHIPPED_3D).equilibrium_corrections == 0  # the network alone, as certified
     meta["certificate"]["settings"].update(equilibrium_corrections=2, equilibrium_tolerance=1e-3)
     model.with_suffix(".json").write_text(json.dumps(meta))
