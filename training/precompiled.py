@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import builtins
 import ctypes
+import functools
 import hashlib
 import importlib.machinery
 import importlib.util
@@ -46,6 +47,9 @@ OBJECT_OFFSETS = np.array([tuple.__basicsize__, float.__basicsize__ - 8, object.
 """Byte offsets in CPython objects that the wrapper reads: a tuple's first item, a float's value, an
 array's data pointer and its shape pointer (numpy's ``PyArrayObject``: data, then nd, then dimensions)."""
 
+_OFFSETS_ADDRESS = OBJECT_OFFSETS.ctypes.data
+"""The address of ``OBJECT_OFFSETS``'s data, passed at every call (the array lives as long as the module)."""
+
 _HEADER = 8
 """Bytes of the cache file's first field: the length of its JSON header (then the header, then the object)."""
 
@@ -66,11 +70,23 @@ def _structure(value: Any) -> Any:
 def step_key(args: tuple) -> tuple[str, dict]:
     """(sha256 hex digest, the fields hashed) of the object that serves ``args`` (``FastAdvance``'s fused-step
     arguments) on this machine."""
+    fields = {
+        "structure": _structure(args),
+        **_machine(),
+        "numba_env": {k: v for k, v in sorted(os.environ.items())
+                      if k.startswith("NUMBA_") and k != "NUMBA_CACHE_DIR"},
+    }
+    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest(), fields
+
+
+@functools.lru_cache(maxsize=1)
+def _machine() -> dict[str, Any]:
+    """The fields of ``step_key`` that a process does not change: the sources' digests, the versions, the CPU (read
+    once per process, as numba reads its kernels' sources once)."""
     import llvmlite  # noqa: PLC0415
     import llvmlite.binding as ll  # noqa: PLC0415
 
-    fields = {
-        "structure": _structure(args),
+    return {
         "sources": {name: hashlib.sha256((_ROOT / name).read_bytes()).hexdigest() for name in _SOURCES},
         "numba": hashlib.sha256((_numba_root() / "_version.py").read_bytes()).hexdigest(),
         "llvmlite": llvmlite.__version__,
@@ -78,10 +94,7 @@ def step_key(args: tuple) -> tuple[str, dict]:
         "triple": ll.get_process_triple(),
         "cpu": ll.get_host_cpu_name(),
         "features": ll.get_host_cpu_features().flatten(),
-        "numba_env": {k: v for k, v in sorted(os.environ.items())
-                      if k.startswith("NUMBA_") and k != "NUMBA_CACHE_DIR"},
     }
-    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest(), fields
 
 
 def cache_dir() -> Path:
@@ -361,4 +374,4 @@ class PrecompiledStep:
             pass
 
     def __call__(self, args: tuple) -> None:
-        self._function(id(args), OBJECT_OFFSETS.ctypes.data)
+        self._function(id(args), _OFFSETS_ADDRESS)
