@@ -149,3 +149,23 @@ def test_a_damaged_cache_file_is_built_again(loaded, cache, tmp_path, monkeypatc
     _assert_same(expected, _run(fast, state, d))
     assert fast.step_path == "precompiled", fast.precompiled_reason
     assert path.read_bytes()[:8] != b"\x05\x00\x00\x00\x00\x00\x00\x00"
+
+
+@pytest.mark.parametrize("layout_agrees", [True, False])
+def test_a_run_records_which_code_ran_its_planar_step(tmp_path, monkeypatch, layout_agrees):
+    import h5py  # noqa: PLC0415
+
+    from homogenization.cli import biaxial  # noqa: PLC0415
+    from warp_hcell.core.cli import run_main  # noqa: PLC0415
+
+    if not layout_agrees:
+        monkeypatch.setattr(precompiled, "_offsets_agree", lambda: False)
+    out = tmp_path / "run"
+    assert run_main(biaxial.main, ["--backend", "ann", "--orientations", "6", "--eps-max", "5e-4", "--increment", "1e-4",
+                                   "--p0", "2e5", "-q", "--out", str(out)]) == 0
+    with h5py.File(out / "run.h5") as run:
+        record = json.loads(run.attrs["parameters"])["ann_model"]["compiled_step"]
+    if layout_agrees:
+        assert record == {"path": "precompiled"}
+    else:
+        assert record["path"] == "numba" and "layout" in record["reason"]
