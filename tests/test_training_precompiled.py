@@ -7,6 +7,7 @@ machine code, and fall back to numba's kernel (the same bits) where it cannot be
 
 import json
 import os
+import platform
 import subprocess
 import sys
 from pathlib import Path
@@ -19,6 +20,8 @@ from training import precompiled
 from training.inference import FastAdvance, FastIncrement
 
 ROOT = Path(__file__).resolve().parents[1]
+MAPPED = sys.platform.startswith("linux") and platform.machine() == "x86_64"
+"""Whether ``training.precompiled.map_object`` loads the step here (else llvmlite's engine does)."""
 
 
 @pytest.fixture(scope="module")
@@ -67,6 +70,37 @@ def test_the_precompiled_step_gives_numbas_bits_and_builds_where_nothing_is_cach
     again = FastAdvance(cell.net)
     _assert_same(first, _run(again, state, d))
     assert again.step_path == "precompiled", again.precompiled_reason
+    assert (again.precompiled_loader == "mapped") == MAPPED, again.precompiled_loader
+
+
+def test_llvmlites_engine_loads_the_same_bits_where_the_object_cannot_be_mapped(loaded, cache, monkeypatch):
+    folder, _, first = cache
+    cell, state, d = loaded
+
+    def refuse(*args):
+        raise ValueError("refused by the test")
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(folder))
+    monkeypatch.setattr(precompiled, "_LOADED", {})
+    monkeypatch.setattr(precompiled, "map_object", refuse)
+    fast = FastAdvance(cell.net)
+    _assert_same(first, _run(fast, state, d))
+    assert fast.step_path == "precompiled" and fast.precompiled_loader == "llvmlite: refused by the test"
+
+
+@pytest.mark.skipif(not MAPPED, reason="the object is mapped by this module on x86-64 Linux only")
+def test_an_object_that_cannot_be_mapped_is_refused_and_leaves_nothing_mapped(cache):
+    (built,) = (cache[0] / "precompiled").glob("step-*.bin")
+    name, code, symbols = precompiled.PrecompiledStep._read(built)
+    mapped = len(precompiled._MAPPINGS)
+    with pytest.raises(ValueError, match="not an x86-64 ELF"):
+        precompiled.map_object(b"\x7fELF" + code[4:16] + b"\x02\x00" + code[18:], name, {})  # an executable
+    undefined = sorted(precompiled._undefined_symbols(code))
+    with pytest.raises(ValueError, match="symbol not found"):
+        precompiled.map_object(code, name, {s: 1 for s in symbols if s != undefined[0]})
+    with pytest.raises(ValueError, match="no function"):
+        precompiled.map_object(code, "absent", {s: 1 for s in symbols})
+    assert len(precompiled._MAPPINGS) == mapped
 
 
 def test_a_fresh_process_loads_the_step_without_importing_numba(loaded, cache, tmp_path, monkeypatch):
@@ -87,14 +121,15 @@ fast = FastAdvance(AnnCell(ContactLaw(), 0.5).net)
 inc = fast(*args)
 np.savez({str(tmp_path / 'out.npz')!r}, *inc)
 print(json.dumps({{"numba": sorted(m for m in sys.modules if m == "numba" or m.startswith("numba.")),
-                  "path": fast.step_path, "reason": fast.precompiled_reason}}))
+                  "llvmlite": "llvmlite" in sys.modules, "path": fast.step_path, "reason": fast.precompiled_reason}}))
 """
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     done = subprocess.run([sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True, check=True)
     report = json.loads(done.stdout.strip().splitlines()[-1])
     assert report["path"] == "precompiled", report["reason"]
-    # only numba's C extension modules (its runtime's helpers), none of its Python
+    # only numba's C extension modules (its runtime's helpers), none of its Python; no llvmlite where mapped
     assert set(report["numba"]) <= {"numba._helperlib", "numba.core.runtime._nrt_python"}, report["numba"]
+    assert report["llvmlite"] == (not MAPPED), report
     out = np.load(tmp_path / "out.npz")
     for k, name in enumerate(FastIncrement._fields):
         assert out[f"arr_{k}"].tobytes() == getattr(expected, name).tobytes(), name
@@ -117,6 +152,12 @@ def test_the_key_follows_the_argument_types_numbas_settings_and_the_sources(load
     monkeypatch.setenv("NUMBA_CPU_NAME", "generic")
     assert precompiled.step_key(call)[0] != key
     monkeypatch.delenv("NUMBA_CPU_NAME")
+    precompiled._machine.cache_clear()
+    monkeypatch.setattr(precompiled, "_host_cpu", lambda: {"model name": "another CPU"})
+    assert precompiled.step_key(call)[0] != key
+    monkeypatch.undo()
+    precompiled._machine.cache_clear()
+    assert precompiled.step_key(call)[0] == key
     monkeypatch.setattr(precompiled, "_SOURCES", precompiled._SOURCES[:-1])
     precompiled._machine.cache_clear()  # the sources are read once per process: read again here, and after the test
     try:
@@ -166,6 +207,6 @@ def test_a_run_records_which_code_ran_its_planar_step(tmp_path, monkeypatch, lay
     with h5py.File(out / "run.h5") as run:
         record = json.loads(run.attrs["parameters"])["ann_model"]["compiled_step"]
     if layout_agrees:
-        assert record == {"path": "precompiled"}
+        assert record["path"] == "precompiled" and (record["loader"] == "mapped") == MAPPED, record
     else:
         assert record["path"] == "numba" and "layout" in record["reason"]

@@ -255,7 +255,8 @@ class FastAdvance:
             shift of a climbing step's matrix, a fraction of kn (None: ``fast_equilibrium3d``'s).
         compact: corrections in ``COMPACT_ROUNDS`` on the cells still above tolerance (same bits as False).
         precompiled: the planar step through ``training.precompiled`` (same bits as False); ``step_path``
-            says which ran ("precompiled" or "numba"), ``precompiled_reason`` why not."""
+            says which ran ("precompiled" or "numba"), ``precompiled_reason`` why not, ``precompiled_loader``
+            which loader loaded it (``training.precompiled.PrecompiledStep.loader``)."""
 
     GUESSES = ("network", "still", "affine")
     """First guesses of the corrections: the network's, the free DOFs still, or following the cell's strain."""
@@ -294,7 +295,7 @@ class FastAdvance:
         self._step_entry = None
         self._precompiled = bool(precompiled)
         self.step_path: str | None = None
-        self.precompiled_reason = ""
+        self.precompiled_reason = self.precompiled_loader = ""
         self._padded_features = kernels.padded_features
         self._branch_counts = _Compiled(f"{_PLANAR}:branch_counts")
         if int(corrections) < 0 or (int(corrections) > 0 and kernels.newton is None):
@@ -491,7 +492,7 @@ class FastAdvance:
         loads or builds (``training.precompiled.PrecompiledStep``), else numba's entry point; sets ``step_path``."""
         if self._precompiled:
             step = PrecompiledStep(args)
-            self.precompiled_reason = step.reason
+            self.precompiled_reason, self.precompiled_loader = step.reason, step.loader
             if step.built:
                 _freeze_numba_setup(True)
             if step.available:

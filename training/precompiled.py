@@ -3,8 +3,8 @@
 A process that runs this step alone then pays neither numba's import nor its set-up at the first compiled call.
 ``PrecompiledStep`` compiles, once per machine, a C-callable wrapper (``numba.cfunc``) of the fused step for the
 argument types of ``training.inference.FastAdvance``, writes its object code to a cache file (``cache_dir``), and
-in later processes loads that object with llvmlite alone (the LLVM binding numba is built on) and calls it
-through ctypes: the same machine code as numba's for the same source, options and CPU, so the same bits.
+in later processes loads that object without numba and calls it through ctypes: the same machine code as numba's
+for the same source, options and CPU, so the same bits.
 
 The wrapper takes the address of the argument tuple and reads every argument from the CPython objects
 themselves (the items of the tuples, the values of the floats, the data pointer and shape of each
@@ -15,7 +15,10 @@ the kernels, the numba and llvmlite versions, the Python version, the host CPU a
 loaded (``PrecompiledStep.reason``), ``FastAdvance`` calls numba's kernel instead (the same bits).
 
 The object's references into numba's runtime (its raising and allocating helpers) are resolved from numba's
-C extension modules, loaded without the numba package.
+C extension modules, loaded without the numba package. On x86-64 Linux the object is mapped by this module itself
+(``map_object``: its sections copied into one anonymous mapping, its relocations applied, the code made
+executable), which costs well under a millisecond; elsewhere, or where the object holds something that
+``map_object`` does not support, llvmlite's MCJIT engine loads it (``PrecompiledStep.loader`` says which).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import hashlib
 import importlib.machinery
 import importlib.util
 import json
+import mmap
 import os
 import sys
 import threading
@@ -82,19 +86,39 @@ def step_key(args: tuple) -> tuple[str, dict]:
 @functools.lru_cache(maxsize=1)
 def _machine() -> dict[str, Any]:
     """The fields of ``step_key`` that a process does not change: the sources' digests, the versions, the CPU (read
-    once per process, as numba reads its kernels' sources once)."""
-    import llvmlite  # noqa: PLC0415
-    import llvmlite.binding as ll  # noqa: PLC0415
-
+    once per process, as numba reads its kernels' sources once; neither numba nor llvmlite imported)."""
     return {
         "sources": {name: hashlib.sha256((_ROOT / name).read_bytes()).hexdigest() for name in _SOURCES},
-        "numba": hashlib.sha256((_numba_root() / "_version.py").read_bytes()).hexdigest(),
-        "llvmlite": llvmlite.__version__,
+        "numba": hashlib.sha256((_package_root("numba") / "_version.py").read_bytes()).hexdigest(),
+        "llvmlite": hashlib.sha256((_package_root("llvmlite") / "_version.py").read_bytes()).hexdigest(),
         "python": sys.version,
-        "triple": ll.get_process_triple(),
-        "cpu": ll.get_host_cpu_name(),
-        "features": ll.get_host_cpu_features().flatten(),
+        "platform": [sys.platform, os.uname().machine if hasattr(os, "uname") else ""],
+        "cpu": _host_cpu(),
     }
+
+
+_CPU_FIELDS = ("vendor_id", "cpu family", "model", "model name", "stepping", "flags",
+               "CPU implementer", "CPU architecture", "CPU variant", "CPU part", "CPU revision", "Features")
+"""The fields of the first processor in ``/proc/cpuinfo`` that say which CPU and instruction set it is (what
+numba's code generation reads through LLVM's host detection), not its clock or its place in the machine."""
+
+
+def _host_cpu() -> dict[str, str]:
+    """The host CPU's identity and features: ``_CPU_FIELDS`` of ``/proc/cpuinfo`` where it has them, else LLVM's
+    host CPU name and features (llvmlite imported then)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as handle:
+            first = handle.read(1 << 16).split("\n\n", 1)[0]
+        fields = dict(line.split(":", 1) for line in first.splitlines() if ":" in line)
+        found = {key.strip(): value.strip() for key, value in fields.items() if key.strip() in _CPU_FIELDS}
+        if found:
+            return found
+    except OSError:
+        pass
+    import llvmlite.binding as ll  # noqa: PLC0415 (no /proc/cpuinfo)
+
+    return {"triple": ll.get_process_triple(), "cpu": ll.get_host_cpu_name(),
+            "features": ll.get_host_cpu_features().flatten()}
 
 
 def cache_dir() -> Path:
@@ -204,9 +228,9 @@ def _undefined_symbols(code: bytes) -> set[str]:
     return names
 
 
-def _numba_root() -> Path:
-    """The folder of the numba package (found, not imported)."""
-    return Path(importlib.util.find_spec("numba").origin).parent
+def _package_root(name: str) -> Path:
+    """The folder of the installed package ``name`` (found, not imported)."""
+    return Path(importlib.util.find_spec(name).origin).parent
 
 
 def _numba_helpers(symbols: list[str]) -> dict[str, int]:
@@ -216,7 +240,7 @@ def _numba_helpers(symbols: list[str]) -> dict[str, int]:
     def extension(name: str):
         if name in sys.modules:
             return sys.modules[name]
-        relative = _numba_root().joinpath(*name.split(".")[1:])
+        relative = _package_root("numba").joinpath(*name.split(".")[1:])
         path = next(p for p in (Path(f"{relative}{s}") for s in importlib.machinery.EXTENSION_SUFFIXES) if p.exists())
         module_spec = importlib.util.spec_from_file_location(name, path)
         module = importlib.util.module_from_spec(module_spec)
@@ -237,6 +261,135 @@ def _numba_helpers(symbols: list[str]) -> dict[str, int]:
     return helpers
 
 
+def _symbol_address(symbol: str, helpers: dict[str, int]) -> int | None:
+    """The address of ``symbol``: numba's ``helpers`` first, then this process's own symbols (CPython's, libc's)."""
+    if symbol in helpers:
+        return helpers[symbol]
+    if symbol == "_Py_NoneStruct":
+        return id(None)
+    if symbol.startswith("PyExc_") and isinstance(getattr(builtins, symbol[6:], None), type):
+        return id(getattr(builtins, symbol[6:]))
+    try:
+        return ctypes.cast(getattr(_process(), symbol), ctypes.c_void_p).value
+    except AttributeError:
+        return None
+
+
+@functools.lru_cache(maxsize=1)
+def _process() -> ctypes.CDLL:
+    """This process's own symbols (the executable's and the libraries loaded with it)."""
+    return ctypes.CDLL(None, use_errno=True)
+
+
+_SECTION = np.dtype([("name", "<u4"), ("type", "<u4"), ("flags", "<u8"), ("addr", "<u8"), ("offset", "<u8"),
+                     ("size", "<u8"), ("link", "<u4"), ("info", "<u4"), ("align", "<u8"), ("entsize", "<u8")])
+_SYMBOL = np.dtype([("name", "<u4"), ("info", "u1"), ("other", "u1"), ("shndx", "<u2"), ("value", "<u8"),
+                    ("size", "<u8")])
+_RELA = np.dtype([("offset", "<u8"), ("info", "<u8"), ("addend", "<i8")])
+_RELOCATIONS = {1: (8, False), 24: (8, True), 2: (4, True), 4: (4, True)}
+"""x86-64 relocation types ``map_object`` applies, as (width in bytes, relative to the place): R_X86_64_64,
+R_X86_64_PC64, R_X86_64_PC32, R_X86_64_PLT32."""
+_MAPPINGS: list[Any] = []
+"""The mappings of this process's mapped objects (their code lives as long as the process)."""
+
+
+def _aligned(offset: int, alignment: int) -> int:
+    return -(-offset // max(alignment, 1)) * max(alignment, 1)
+
+
+def map_object(code: bytes, name: str, external: dict[str, int]) -> int:
+    """The address of the function ``name`` of the x86-64 ELF relocatable object ``code``, mapped into this process.
+
+    The object's allocated sections are copied into one anonymous mapping (code and constants first, then a
+    zeroed writable part for its common symbols), its relocations into them applied (``_RELOCATIONS``), its
+    undefined symbols taken from ``external`` (name -> address), and the first part made read-only and
+    executable. Unwinding tables are not mapped (the step raises no C++ exception).
+
+    Raises:
+        ValueError: ``code`` is not an x86-64 ELF relocatable object, or holds a writable or thread-local section,
+            a relocation of another type or out of its range, a symbol not in ``external``, or no ``name``.
+        OSError: the mapping cannot be made executable. Nothing stays mapped after an error.
+    """
+    if (code[:4] != b"\x7fELF" or code[4:6] != b"\x02\x01" or int.from_bytes(code[16:18], "little") != 1
+            or int.from_bytes(code[18:20], "little") != 62 or not sys.platform.startswith("linux")):
+        raise ValueError("not an x86-64 ELF relocatable object on Linux")
+    sections = np.frombuffer(code, _SECTION, count=int.from_bytes(code[60:62], "little"),
+                             offset=int.from_bytes(code[40:48], "little"))
+    place: dict[int, int] = {}  # section index -> its offset in the mapping
+    size = 0
+    for k, section in enumerate(sections):
+        if not section["flags"] & 2 or section["type"] == 0x70000001:  # not allocated; x86-64 unwinding tables
+            continue
+        if section["type"] != 1 or section["flags"] & 0x401:  # PROGBITS only, neither writable nor thread-local
+            raise ValueError(f"section {k} of type {section['type']}, flags {section['flags']:#x}")
+        size = _aligned(size, int(section["align"]))
+        place[k] = size
+        size += int(section["size"])
+    (symtab,) = [s for s in sections if s["type"] == 2]
+    symbols = np.frombuffer(code, _SYMBOL, count=int(symtab["size"]) // _SYMBOL.itemsize, offset=int(symtab["offset"]))
+    strings = int(sections[symtab["link"]]["offset"])
+    names = [code[strings + n:code.index(b"\0", strings + n)].decode() if n else "" for n in symbols["name"]]
+    commons = np.flatnonzero(symbols["shndx"] == 0xFFF2)  # SHN_COMMON: value is the alignment
+    common_at, writable = [], 0
+    for index in commons:
+        writable = _aligned(writable, int(symbols["value"][index]))
+        common_at.append(writable)
+        writable += int(symbols["size"][index])
+    executable = _aligned(size, mmap.PAGESIZE)
+    mapping = mmap.mmap(-1, executable + _aligned(max(writable, 1), mmap.PAGESIZE),
+                        mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS, mmap.PROT_READ | mmap.PROT_WRITE)
+    pinned = ctypes.c_char.from_buffer(mapping)
+    base = ctypes.addressof(pinned)
+    try:
+        address = np.full(len(symbols), -1, dtype=np.int64)  # -1: not resolvable (in a section not mapped)
+        address[0] = 0
+        for index, offset in zip(commons, common_at):
+            address[index] = base + executable + offset
+        for index in np.flatnonzero(symbols["shndx"] == 0xFFF1):  # SHN_ABS
+            address[index] = symbols["value"][index]
+        for k, offset in place.items():
+            inside = symbols["shndx"] == k
+            address[inside] = base + offset + symbols["value"][inside].astype(np.int64)
+        for index in np.flatnonzero((symbols["shndx"] == 0) & (symbols["name"] != 0)):
+            if names[index] not in external:
+                raise ValueError(f"symbol not found: {names[index]}")
+            address[index] = external[names[index]]
+        image = np.frombuffer(mapping, dtype=np.uint8)
+        for k, offset in place.items():
+            start = int(sections[k]["offset"])
+            image[offset:offset + int(sections[k]["size"])] = np.frombuffer(code, np.uint8, int(sections[k]["size"]), start)
+        for rela in (s for s in sections if s["type"] == 4 and s["info"] in place):
+            entries = np.frombuffer(code, _RELA, count=int(rela["size"]) // _RELA.itemsize, offset=int(rela["offset"]))
+            kinds, target = entries["info"] & 0xFFFFFFFF, (entries["info"] >> 32).astype(np.int64)
+            at = place[int(rela["info"])] + entries["offset"].astype(np.int64)
+            if np.any(address[target] < 0) or np.any(entries["offset"] + 8 > sections[rela["info"]]["size"] + 4):
+                raise ValueError("a relocation refers to a section that is not mapped, or lies outside its section")
+            for kind in np.unique(kinds):
+                if int(kind) not in _RELOCATIONS:
+                    raise ValueError(f"relocation type {kind}")
+                width, relative = _RELOCATIONS[int(kind)]
+                chosen = kinds == kind
+                value = address[target[chosen]] + entries["addend"][chosen] - (base + at[chosen] if relative else 0)
+                if width == 4 and np.any((value < -2**31) | (value >= 2**31)):
+                    raise ValueError("a 32-bit relocation out of range")
+                data = value.astype("<i8" if width == 8 else "<i4").view(np.uint8).reshape(-1, width)
+                image[at[chosen][:, None] + np.arange(width)] = data
+        entry = [i for i, n in enumerate(names) if n == name and symbols["shndx"][i] in place]
+        if not entry:
+            raise ValueError(f"the object has no function {name}")
+        libc = _process()
+        libc.mprotect.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
+        if executable and libc.mprotect(base, executable, mmap.PROT_READ | mmap.PROT_EXEC) != 0:
+            raise OSError(ctypes.get_errno(), "the mapped object cannot be made executable")
+    except BaseException:
+        image = pinned = None  # the views of the mapping go before it is unmapped
+        mapping.close()
+        raise
+    del image  # no writable view of code that is now executable
+    _MAPPINGS.append((mapping, pinned))
+    return int(address[entry[0]])
+
+
 class _Loader:
     """llvmlite's MCJIT engine holding the loaded objects of this process (their code lives as long as it)."""
 
@@ -248,44 +401,40 @@ class _Loader:
         self._ll = ll
         machine = ll.Target.from_default_triple().create_target_machine()
         self._engine = ll.create_mcjit_compiler(ll.parse_assembly(""), machine)
-        self._helpers: dict[str, int] = {}
-        self._process = ctypes.CDLL(None)
 
-    def _address(self, symbol: str) -> int | None:
-        """The address of ``symbol``: numba's helpers first, then this process's own symbols (CPython's, libc's)."""
-        if symbol in self._helpers:
-            return self._helpers[symbol]
-        if symbol == "_Py_NoneStruct":
-            return id(None)
-        if symbol.startswith("PyExc_") and isinstance(getattr(builtins, symbol[6:], None), type):
-            return id(getattr(builtins, symbol[6:]))
-        try:
-            return ctypes.cast(getattr(self._process, symbol), ctypes.c_void_p).value
-        except AttributeError:
-            return None
-
-    def load(self, name: str, code: bytes, external: list[str]):
-        """The ctypes function ``name`` of the object ``code`` (ValueError where a symbol of ``external`` is not
-        found: nothing is loaded then)."""
-        ll = self._ll
-        self._helpers.update(_numba_helpers(external))
-        addresses = {symbol: self._address(symbol) for symbol in external}
-        missing = [symbol for symbol, address in addresses.items() if not address]
-        if missing:
-            raise ValueError(f"symbols not found: {', '.join(missing)}")
-        for symbol, address in addresses.items():
-            ll.add_symbol(symbol, address)
-        self._engine.add_object_file(ll.ObjectFileRef.from_data(code))
+    def load(self, name: str, code: bytes, external: dict[str, int]) -> int:
+        """The address of the function ``name`` of the object ``code`` (ValueError where there is none), its
+        undefined symbols taken from ``external``."""
+        for symbol, address in external.items():
+            self._ll.add_symbol(symbol, address)
+        self._engine.add_object_file(self._ll.ObjectFileRef.from_data(code))
         self._engine.finalize_object()
         address = self._engine.get_function_address(name)
         if not address:
             raise ValueError(f"the object has no function {name}")
-        return ctypes.CFUNCTYPE(None, ctypes.c_int64, ctypes.c_void_p)(address)
+        return address
+
+
+def _load(name: str, code: bytes, symbols: list[str]) -> tuple[Any, str]:
+    """(the ctypes function ``name`` of the object ``code``, the loader that loaded it: "mapped" or "llvmlite: "
+    and why not mapped); ValueError where a symbol of ``symbols`` is not found (nothing is loaded then)."""
+    global _LOADER
+    helpers = _numba_helpers(symbols)
+    external = {symbol: _symbol_address(symbol, helpers) for symbol in symbols}
+    missing = [symbol for symbol, address in external.items() if not address]
+    if missing:
+        raise ValueError(f"symbols not found: {', '.join(missing)}")
+    try:
+        address, loader = map_object(code, name, external), "mapped"
+    except (ValueError, OSError) as error:
+        _LOADER = _LOADER or _Loader()
+        address, loader = _LOADER.load(name, code, external), f"llvmlite: {error}"
+    return ctypes.CFUNCTYPE(None, ctypes.c_int64, ctypes.c_void_p)(address), loader
 
 
 _LOADER: _Loader | None = None
-_LOADED: dict[str, Any] = {}
-"""The loaded steps of this process by ``step_key`` (an object is loaded once)."""
+_LOADED: dict[str, tuple[Any, str]] = {}
+"""The loaded steps of this process and their loaders by ``step_key`` (an object is loaded once)."""
 _LOCK = threading.Lock()
 
 
@@ -307,7 +456,8 @@ class PrecompiledStep:
 
     Call it with the argument tuple of ``step`` (the same types as ``args``, arrays C-contiguous): it runs the
     step in place, as numba's kernel does. ``available`` is False where it could not be built or loaded
-    (``reason`` says why); ``built`` says whether this process compiled it (numba imported then).
+    (``reason`` says why); ``built`` says whether this process compiled it (numba imported then); ``loader``
+    which loader loaded it ("mapped": ``map_object``; "llvmlite: " and why not mapped).
 
     Args:
         args: the arguments of a first call (``FastAdvance``'s fused step), for their types.
@@ -315,12 +465,11 @@ class PrecompiledStep:
     """
 
     def __init__(self, args: tuple, *, build: bool = True) -> None:
-        self.available, self.built, self.reason = False, False, ""
+        self.available, self.built, self.reason, self.loader = False, False, "", ""
         self._function = None
         if not _offsets_agree():
             self.reason = "this Python's object layout is not the one the wrapper reads"
             return
-        global _LOADER
         try:
             with _LOCK:
                 key, _ = step_key(args)
@@ -334,9 +483,8 @@ class PrecompiledStep:
                     if stored is None:
                         self.reason = f"no precompiled step in {path.parent}"
                         return
-                    _LOADER = _LOADER or _Loader()
-                    _LOADED[key] = _LOADER.load(*stored)
-                self._function = _LOADED[key]
+                    _LOADED[key] = _load(*stored)
+                self._function, self.loader = _LOADED[key]
         except Exception as error:  # noqa: BLE001 (any failure: numba's kernel runs instead, the same bits)
             self.reason = f"{type(error).__name__}: {error}"
             return

@@ -200,7 +200,7 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
     run's cells, ``AnnCell.certificate_problem``; a model run with equilibrium corrections records
     their number and tolerance, and no certificate of the network alone covers it), its
     out-of-distribution counts (cell-increments checked and outside the threshold) and, where its planar
-    step ran compiled, which code ran it (``compiled_step``: "precompiled", or "numba" with the reason)."""
+    step ran compiled, which code ran it (``compiled_step``: "precompiled" with its loader, or "numba" with the reason)."""
     record: dict[str, Any] = {}
     if hasattr(model, "settings"):
         record["dem_settings"] = asdict(model.settings)
@@ -224,7 +224,8 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
         path = getattr(getattr(model, "fast", None), "step_path", None)
         if path is not None:  # the planar fused step ran: precompiled (training.precompiled) or numba's fallback
             record["ann_model"]["compiled_step"] = {"path": path, **({"reason": model.fast.precompiled_reason}
-                                                                     if path == "numba" else {})}
+                                                                     if path == "numba" else
+                                                                     {"loader": model.fast.precompiled_loader})}
     return record
 
 
