@@ -41,11 +41,10 @@ import numpy as np
 
 from warp_hcell.core.dimension import dimension
 from warp_hcell.core.parameters import ContactLaw, DemSettings
-from warp_hcell.database.learning_state import evaluate, free_coordinates
-from warp_hcell.database.probing import ProbeContext, step_from_rest
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 if TYPE_CHECKING:
+    from warp_hcell.database.probing import ProbeContext
     from warp_hcell.dem.model import DemModel
 
 
@@ -116,6 +115,8 @@ class DemEscalation:
         """bool (n,): cells of the learning states (cell_size (n, dim) [m], free_position (n, n_free) [m],
         shear_force (n, ``*schema.shear_shape``) [N]) where a pair of a grain free along every axis is in
         contact, pressed (f_n > 0) and sliding: abs(f_s) >= ``SLIDING_CAP`` mu f_n."""
+        from warp_hcell.database.learning_state import evaluate  # noqa: PLC0415 (the database: where a cell is tested)
+
         ev = evaluate(self.schema, cell_size, free_position, shear_force, self.contact_law, self.contact_tolerance)
         normal = ev["normal_force"]
         tangential = np.abs(ev["shear_force"]) if ev["shear_force"].ndim == 2 else np.linalg.norm(ev["shear_force"], axis=-1)
@@ -199,6 +200,7 @@ class DemEscalation:
         if n not in self._batches:
             from warp_hcell.dem.cell import DemCell  # noqa: PLC0415 (Warp only where a cell escalates)
             from warp_hcell.dem.model import DemModel  # noqa: PLC0415
+            from warp_hcell.database.probing import ProbeContext  # noqa: PLC0415
 
             settings = DemSettings(contact_tolerance=self.contact_tolerance).from_rest
             cell_model = DemCell(self.contact_law, float(self.meso.radius.mean()), settings=settings, threads=1)
@@ -215,6 +217,8 @@ class DemEscalation:
         contact: the learning state's) [N], moment (n, dim, dim) [N m], area (n,) [m^dim]) after it."""
         from warp_hcell.dem.cell import DemCellState  # noqa: PLC0415 (Warp only where a cell escalates)
         from warp_hcell.dem.state import DemState  # noqa: PLC0415
+        from warp_hcell.database.learning_state import evaluate, free_coordinates  # noqa: PLC0415
+        from warp_hcell.database.probing import step_from_rest  # noqa: PLC0415
 
         n = cell_size.shape[0]
         rows = np.minimum(np.arange(1 << (n - 1).bit_length()), n - 1)
