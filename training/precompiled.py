@@ -320,8 +320,9 @@ def map_object(code: bytes, name: str, external: dict[str, int]) -> int:
     for k, section in enumerate(sections):
         if not section["flags"] & 2 or section["type"] == 0x70000001:  # not allocated; x86-64 unwinding tables
             continue
-        if section["type"] != 1 or section["flags"] & 0x401:  # PROGBITS only, neither writable nor thread-local
-            raise ValueError(f"section {k} of type {section['type']}, flags {section['flags']:#x}")
+        if section["type"] != 1 or section["flags"] & 0x401 or section["align"] > mmap.PAGESIZE:
+            raise ValueError(f"section {k} of type {section['type']}, flags {section['flags']:#x}, alignment "
+                             f"{section['align']}")  # PROGBITS only, neither writable nor thread-local
         size = _aligned(size, int(section["align"]))
         place[k] = size
         size += int(section["size"])
@@ -362,13 +363,15 @@ def map_object(code: bytes, name: str, external: dict[str, int]) -> int:
             entries = np.frombuffer(code, _RELA, count=int(rela["size"]) // _RELA.itemsize, offset=int(rela["offset"]))
             kinds, target = entries["info"] & 0xFFFFFFFF, (entries["info"] >> 32).astype(np.int64)
             at = place[int(rela["info"])] + entries["offset"].astype(np.int64)
-            if np.any(address[target] < 0) or np.any(entries["offset"] + 8 > sections[rela["info"]]["size"] + 4):
-                raise ValueError("a relocation refers to a section that is not mapped, or lies outside its section")
+            if np.any(address[target] < 0):
+                raise ValueError("a relocation refers to a section that is not mapped")
             for kind in np.unique(kinds):
                 if int(kind) not in _RELOCATIONS:
                     raise ValueError(f"relocation type {kind}")
                 width, relative = _RELOCATIONS[int(kind)]
                 chosen = kinds == kind
+                if np.any(entries["offset"][chosen] + width > sections[rela["info"]]["size"]):
+                    raise ValueError("a relocation lies outside its section")
                 value = address[target[chosen]] + entries["addend"][chosen] - (base + at[chosen] if relative else 0)
                 if width == 4 and np.any((value < -2**31) | (value >= 2**31)):
                     raise ValueError("a 32-bit relocation out of range")
