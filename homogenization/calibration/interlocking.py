@@ -18,7 +18,9 @@ follows e over distortion, d e_r = -(e_r - e) d gamma / gamma_r (exact over an i
 exp(-d gamma / gamma_r)), d gamma the increment's deviatoric strain (the dimension's q of the strain tensor: 3D
 sqrt(3 J2), a triaxial test's abs(d eps1 - d eps3)); e_r = e at the start. e_c(p) follows p at once, so an
 isotropic compression keeps the pressure dependence; in shear the interlocking decays over gamma_r of
-distortion after the dilation rather than with it.
+distortion after the dilation rather than with it. With ``relax_exponent`` k the lag's strain grows with the
+point's mean stress, gamma_r(p) = gamma_r (p / p_ref)^k (p of the accepted state; k = 0: gamma_r), so the decay is
+spread over more distortion at a higher pressure.
 
 Opt-in spread (``Interlocking.cell_spread`` s in [0, 1)): cell k of a point steps with tan phi (1 + s u_k) instead of
 tan phi, u_k the uniform quantiles (2 j + 1) / n - 1 (j = 0 .. n - 1, n cells per point) dealt to the cells in the
@@ -47,7 +49,8 @@ MOBILISATION_EXPONENT = 2.0 / 3.0
 """Exponent of the mobilisation strain's pressure dependence a(p) [-] (module docstring)."""
 FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi",
           "cell_spread": "cell_spread", "mobilisation_strain": "mobilisation_strain",
-          "mobilisation_start": "mobilisation_start"}
+          "mobilisation_start": "mobilisation_start", "relax_strain": "relax_strain",
+          "relax_exponent": "relax_exponent"}
 """Per-set parameters (calibration name -> ``Interlocking`` field) that ``simulate`` reads from its params."""
 
 
@@ -65,6 +68,7 @@ class Interlocking:
         cell_spread: s [-], in [0, 1), the half-width of the cells' spread of tan phi about the point's; 0: none.
         mobilisation_strain: a_ref [-], >= 0, the mobilisation's strain at p_ref (module docstring); 0: none.
         mobilisation_start: r0 [-], in [0, 1], the share of tan phi mobilised at zero deviatoric strain.
+        relax_exponent: k [-], in [0, 3], of the lag's pressure dependence gamma_r (p / p_ref)^k; 0: none.
     """
 
     m: float = 1.0
@@ -76,6 +80,7 @@ class Interlocking:
     cell_spread: float = 0.0
     mobilisation_strain: float = 0.0
     mobilisation_start: float = 0.5
+    relax_exponent: float = 0.0
 
     def check(self) -> None:
         """ValueError (one line) for a parameter out of range."""
@@ -83,7 +88,8 @@ class Interlocking:
                          ("xi", 0.0 < self.xi <= 1.0), ("p_ref", self.p_ref > 0.0),
                          ("relax_strain", self.relax_strain >= 0.0), ("cell_spread", 0.0 <= self.cell_spread < 1.0),
                          ("mobilisation_strain", self.mobilisation_strain >= 0.0),
-                         ("mobilisation_start", 0.0 <= self.mobilisation_start <= 1.0)):
+                         ("mobilisation_start", 0.0 <= self.mobilisation_start <= 1.0),
+                         ("relax_exponent", 0.0 <= self.relax_exponent <= 3.0)):
             value = getattr(self, name)
             if not (math.isfinite(value) and ok):
                 raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
@@ -114,6 +120,12 @@ def mobilised_share(g: Any, p: Any, a_ref: Any, r0: Any, p_ref: float) -> np.nda
     return np.where(np.asarray(a_ref) > 0.0, np.where(np.isfinite(r), r, 1.0), 1.0)
 
 
+def relax_strain_at(p: Any, gamma_r: Any, k: Any, p_ref: float) -> np.ndarray:
+    """The lag's strain gamma_r (max(p, 0) / p_ref)^k [-] at mean stress ``p`` (module docstring; broadcast)."""
+    p = np.maximum(np.asarray(p, dtype=np.float64), 0.0)
+    return np.asarray(gamma_r, dtype=np.float64) * (p / p_ref) ** np.asarray(k, dtype=np.float64)
+
+
 def spread_factors(n_cells: int, spread: float) -> np.ndarray:
     """Each cell's factor 1 + s u_k on tan phi (module docstring), shape (n_cells,), mean 1; ones where s = 0."""
     order = np.argsort(np.mod(np.arange(n_cells) * (math.sqrt(5.0) - 1.0) / 2.0, 1.0), kind="stable")
@@ -140,11 +152,11 @@ class InterlockingFriction:
         state: its initial state (the friction is set from it at once).
         phi_mu_deg: each point's phi_mu [deg], shape (n,).
         e0: each point's void ratio at J = 1 [-], shape (n,).
-        per_point: per-point values, ``Interlocking`` field (not p_ref, relax_strain) -> shape (n,); None: ``params``'.
+        per_point: per-point values, ``Interlocking`` field (not p_ref) -> shape (n,); None: ``params``'.
         inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
     Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped;
     ``fallbacks`` (n,): increments whose friction fell back to phi_mu (not finite, or not below 90 deg);
-    ``e_lagged`` (n,): the lagged void ratio (the void ratio itself without ``relax_strain``); ``distortion`` (n,):
+    ``e_lagged`` (n,): the lagged void ratio (the void ratio itself where ``relax_strain`` is 0); ``distortion`` (n,):
     the accumulated distortion g [-] (with the mobilisation).
     """
 
@@ -158,15 +170,17 @@ class InterlockingFriction:
         if np.size(self.owner.mu) != n * self.n_cells:
             raise ValueError(f"the cell model holds {np.size(self.owner.mu)} frictions for {n} points of "
                              f"{self.n_cells} cells")
-        keys = ("m", "e_gamma", "lambda_c", "xi", "cell_spread", "mobilisation_strain", "mobilisation_start")
+        keys = ("m", "e_gamma", "lambda_c", "xi", "cell_spread", "mobilisation_strain", "mobilisation_start",
+                "relax_strain", "relax_exponent")
         values = {name: getattr(params, name) for name in keys}
         values.update(per_point or {})
         (self.m, self.e_gamma, self.lambda_c, self.xi, self.cell_spread, self.mobilisation_strain,
-         self.mobilisation_start) = (np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy()
-                                     for k in keys)
+         self.mobilisation_start, self.relax_strain, self.relax_exponent) = (
+            np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy() for k in keys)
         for i in range(n):
             replace(params, **{k: float(getattr(self, k)[i]) for k in keys}).check()
         self.mobilised = bool(np.any(self.mobilisation_strain > 0.0))
+        self.lagged = bool(np.any(self.relax_strain > 0.0))
         self.distortion = np.zeros(n)
         self.phi_mu_deg = np.broadcast_to(np.asarray(phi_mu_deg, dtype=np.float64), (n,)).copy()
         self.e0 = np.broadcast_to(np.asarray(e0, dtype=np.float64), (n,)).copy()
@@ -194,7 +208,9 @@ class InterlockingFriction:
     def friction_at(self, state: MaterialState) -> np.ndarray:
         """The friction [deg] of each point at ``state`` (its J and p; with ``relax_strain`` the lagged void ratio
         ``e_lagged`` instead of J's), shape (n,); phi_mu where not finite."""
-        e = current_void_ratio(self.e0, state.J) if self.params.relax_strain == 0.0 else self.e_lagged
+        e = current_void_ratio(self.e0, state.J)
+        if self.lagged:
+            e = np.where(self.relax_strain > 0.0, self.e_lagged, e)
         p = self._mean(state.stress)
         with np.errstate(all="ignore"):
             e_c = critical_void_ratio(p, self.e_gamma, self.lambda_c, self.xi, self.params.p_ref)
@@ -224,9 +240,9 @@ class InterlockingFriction:
         """The inner renewal's ``advance``, then the friction set from the accepted state for the next increment."""
         if self.inner is not None:
             state = self.inner.advance(state)
-        if self.params.relax_strain > 0.0 or self.mobilised:
+        if self.lagged or self.mobilised:
             gamma = self._distortion(state)
-            if self.params.relax_strain > 0.0:
+            if self.lagged:
                 self.e_lagged = self._relaxed(state, gamma)
             if self.mobilised:
                 self.distortion = self.distortion + np.where(np.isfinite(gamma), gamma, 0.0)
@@ -243,6 +259,7 @@ class InterlockingFriction:
     def _relaxed(self, state: MaterialState, gamma: np.ndarray) -> np.ndarray:
         """The lagged void ratio after the increment of deviatoric strain ``gamma`` ending at ``state``, shape (n,)."""
         e = current_void_ratio(self.e0, state.J)
+        gamma_r = relax_strain_at(self._mean(state.stress), self.relax_strain, self.relax_exponent, self.params.p_ref)
         with np.errstate(all="ignore"):
-            lagged = e + (self.e_lagged - e) * np.exp(-gamma / self.params.relax_strain)
-        return np.where(np.isfinite(lagged), lagged, e)
+            lagged = e + (self.e_lagged - e) * np.exp(-gamma / gamma_r)
+        return np.where(np.isfinite(lagged) & (self.relax_strain > 0.0), lagged, e)

@@ -14,7 +14,8 @@ then be calibrated; posterior.json holds the rule at the posterior mean (``criti
 ``hmodel triaxial --posterior`` and ``hmodel biaxial --posterior`` run. --interlocking (triaxial data,
 analytical backend, --confirm none) adds the interlocking friction (``homogenization.calibration.interlocking``):
 its interlocking_m, e_gamma, lambda_c, xi_c, cell_spread, mobilisation_strain and mobilisation_start (the
-friction's hyperbolic mobilisation with the point's distortion) may then be calibrated, the others fixed by
+friction's hyperbolic mobilisation with the point's distortion), relax_strain and relax_exponent (the void ratio
+it reads lagging over a distortion growing with the pressure) may then be calibrated, the others fixed by
 --interlocking-values; posterior.json holds it at the posterior mean (``interlocking``), which ``hmodel triaxial
 --posterior`` runs. --kn-exponent N runs each triaxial test at kn (p0 / 101.325 kPa)^N; --params kn_exponent
 calibrates N instead. --start-point starts the map fit at given values instead of prior draws.
@@ -181,8 +182,10 @@ def build_parser() -> argparse.ArgumentParser:
                               "tan phi = (e_c(p) / e)^m tan phi_g, e its void ratio, e_c(p) = e_gamma - lambda_c "
                               "(p / 101.325 kPa)^xi_c (Chang & Hicher 2005), its cells spread by +-cell_spread about "
                               "it, mobilised over a strain mobilisation_strain (p / 101.325 kPa)^(2/3) from "
-                              "mobilisation_start of it (default 0: at once); calibrate interlocking_m, e_gamma, "
-                              "lambda_c, xi_c, cell_spread, mobilisation_strain, mobilisation_start through --params "
+                              "mobilisation_start of it (default 0: at once), e lagging over a distortion "
+                              "relax_strain (p / 101.325 kPa)^relax_exponent (default 0: no lag); calibrate "
+                              "interlocking_m, e_gamma, lambda_c, xi_c, cell_spread, mobilisation_strain, "
+                              "mobilisation_start, relax_strain, relax_exponent through --params "
                               "(docs/calibration.md)")
     forward.add_argument("--interlocking-values", type=interlocking_values, default=None, metavar="NAME=VALUE,...",
                          help="with --interlocking: values of its parameters not calibrated (default "
