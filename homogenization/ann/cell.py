@@ -72,7 +72,7 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Any, NamedTuple, Sequence
+from typing import Any, NamedTuple, Sequence, TYPE_CHECKING
 
 import numpy as np
 
@@ -85,12 +85,14 @@ from training import fast_model
 from training.inference import FastAdvance
 from training.fast_model import net_arrays, RELAXATION_RAMP, StateDictError
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint, read_metadata
-from training.card import ModelCard
 from training.ood import OodIndex, probe_columns, state_features
 from warp_hcell.core.contract import ArrayStateMixin, CellResponse
 from warp_hcell.mesostructures.files import from_description
 from warp_hcell.mesostructures.mesostructure import AXIS_NAMES, cell_measure, evaluate_observables, Mesostructure, per_cell
 from warp_hcell.core.parameters import check_positive, ContactLaw, DemSettings, require_linear_law
+
+if TYPE_CHECKING:
+    from training.card import ModelCard  # the type of an argument only
 
 
 TANGENT_MISS = 0.5
