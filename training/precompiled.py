@@ -208,24 +208,10 @@ def _build(args: tuple) -> tuple[str, bytes, list[str]]:
 def _undefined_symbols(code: bytes) -> set[str]:
     """The undefined symbols of an ELF64 little-endian object ``code`` (those its code generation added to the
     module's declarations, such as ``memset``); empty for another format."""
-    import struct  # noqa: PLC0415 (building only)
-
-    if code[:4] != b"\x7fELF" or code[4] != 2 or code[5] != 1:
+    if code[:4] != b"\x7fELF" or code[4:6] != b"\x02\x01":
         return set()
-    section_offset, = struct.unpack_from("<Q", code, 0x28)
-    entry_size, count = struct.unpack_from("<HH", code, 0x3A)
-    sections = [struct.unpack_from("<IIQQQQIIQQ", code, section_offset + k * entry_size) for k in range(count)]
-    names = set()
-    for kind, link, offset, size, entsize in ((s[1], s[6], s[4], s[5], s[9]) for s in sections):
-        if kind != 2:  # SHT_SYMTAB
-            continue
-        strings = sections[link][4]
-        for start in range(offset + entsize, offset + size, entsize):  # entry 0 is the null symbol
-            name, info, _, index = struct.unpack_from("<IBBH", code, start)
-            if index == 0 and name:  # SHN_UNDEF
-                end = code.index(b"\0", strings + name)
-                names.add(code[strings + name:end].decode())
-    return names
+    _, symbols, names = _elf_tables(code)
+    return {names[k] for k in np.flatnonzero((symbols["shndx"] == 0) & (symbols["name"] != 0))}
 
 
 def _package_root(name: str) -> Path:
@@ -294,7 +280,19 @@ _MAPPINGS: list[Any] = []
 
 
 def _aligned(offset: int, alignment: int) -> int:
+    """The first multiple of ``alignment`` (at least 1) at or after ``offset``."""
     return -(-offset // max(alignment, 1)) * max(alignment, 1)
+
+
+def _elf_tables(code: bytes) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """(section headers, symbol table, the symbols' names) of the ELF64 little-endian object ``code``."""
+    sections = np.frombuffer(code, _SECTION, count=int.from_bytes(code[60:62], "little"),
+                             offset=int.from_bytes(code[40:48], "little"))
+    (symtab,) = [s for s in sections if s["type"] == 2]
+    symbols = np.frombuffer(code, _SYMBOL, count=int(symtab["size"]) // _SYMBOL.itemsize, offset=int(symtab["offset"]))
+    strings = int(sections[symtab["link"]]["offset"])
+    names = [code[strings + n:code.index(b"\0", strings + n)].decode() if n else "" for n in symbols["name"]]
+    return sections, symbols, names
 
 
 def map_object(code: bytes, name: str, external: dict[str, int]) -> int:
@@ -313,8 +311,7 @@ def map_object(code: bytes, name: str, external: dict[str, int]) -> int:
     if (code[:4] != b"\x7fELF" or code[4:6] != b"\x02\x01" or int.from_bytes(code[16:18], "little") != 1
             or int.from_bytes(code[18:20], "little") != 62 or not sys.platform.startswith("linux")):
         raise ValueError("not an x86-64 ELF relocatable object on Linux")
-    sections = np.frombuffer(code, _SECTION, count=int.from_bytes(code[60:62], "little"),
-                             offset=int.from_bytes(code[40:48], "little"))
+    sections, symbols, names = _elf_tables(code)
     place: dict[int, int] = {}  # section index -> its offset in the mapping
     size = 0
     for k, section in enumerate(sections):
@@ -326,10 +323,6 @@ def map_object(code: bytes, name: str, external: dict[str, int]) -> int:
         size = _aligned(size, int(section["align"]))
         place[k] = size
         size += int(section["size"])
-    (symtab,) = [s for s in sections if s["type"] == 2]
-    symbols = np.frombuffer(code, _SYMBOL, count=int(symtab["size"]) // _SYMBOL.itemsize, offset=int(symtab["offset"]))
-    strings = int(sections[symtab["link"]]["offset"])
-    names = [code[strings + n:code.index(b"\0", strings + n)].decode() if n else "" for n in symbols["name"]]
     commons = np.flatnonzero(symbols["shndx"] == 0xFFF2)  # SHN_COMMON: value is the alignment
     common_at, writable = [], 0
     for index in commons:
