@@ -17,9 +17,9 @@ the kernels compiled, and the planar step's object, ``training.precompiled``), t
 
 ``--startup``: instead, where a planar ANN process's CPU time goes, by phase, in fresh processes
 (``--repeats`` of them): numpy's import, the ANN's modules and cell model (``AnnCell``), the first
-step (the precompiled step's key, llvmlite's import and the object's loading; numba's import and set-up
-where the step falls back to numba), the other 320 steps of 360 cells; then whether numba was imported
-and which path the step took. Not the CLI: the phases of the run that differ from the closed form's.
+step (the precompiled step's key and the object's loading; numba's import and set-up where the step falls
+back to numba), the other 320 steps of 360 cells; then whether numba and llvmlite were imported, which
+path the step took and which loader loaded it. Not the CLI: the phases of the run that differ from the closed form's.
 
 ``--gc``: instead, the planar test's two commands (``--repeats`` pairs) with the garbage collector's
 collections counted by generation, and the seconds they took (``gc.callbacks``), beside each process's
@@ -96,7 +96,8 @@ for _ in range(320):
     state, _ = cell.step(state, d_eps)
 mark("320 more steps")
 print(json.dumps({b[0]: round(b[1] - a[1], 4) for a, b in zip(marks, marks[1:])}))
-print(f"numba imported: {'numba' in sys.modules}, step: {cell.fast.step_path}", file=sys.stderr)
+print(f"numba imported: {'numba' in sys.modules}, llvmlite imported: {'llvmlite' in sys.modules}, "
+      f"step: {cell.fast.step_path} {cell.fast.precompiled_loader}", file=sys.stderr)
 """
 
 
@@ -136,7 +137,7 @@ def gc_counts(args, out: Path) -> None:
 
 def startup(args) -> None:
     """CPU seconds of each phase of a planar ANN process (``STARTUP``), ``args.repeats`` processes, whether numba
-    was imported and the step's path."""
+    and llvmlite were imported, the step's path and its loader."""
     env = child_environment()
     runs, paths = [], set()
     for _ in range(args.repeats):
