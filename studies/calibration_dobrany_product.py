@@ -1,6 +1,7 @@
 """python studies/calibration_dobrany_product.py --split 50+100|50+200 --tag T [--steps N] [--start-from JSON]
                                                 [--extra "FLAGS"] [--evaluate-only] [--check-rule 23x8s]
                                                 [--fit-kn-exponent] [--fit-mobilisation A,R0 [--kn-factor F]]
+                                                [--fit-decay G,K [--kn-factor F]]
        python studies/calibration_dobrany_product.py --splits-figure OUT.png RESULT.json[+RESULT2.json] ...
 
 Dobrany sand with the product's own ``hmodel calibrate``: the interlocking friction (``--interlocking``: m,
@@ -19,7 +20,9 @@ calibrates kn's exponent too (``--params ...,kn_exponent``, prior [0, 1], starte
 ``--start-from`` JSON written by this script starts from its start's least-squares optimum ("optimum" "values").
 ``--fit-mobilisation A,R0`` calibrates the interlocking friction's mobilisation too (``mobilisation_strain``,
 ``mobilisation_start``; prior [0, 0.03] and [0, 1]), started at A and R0, kn started at ``--kn-factor`` times the
-start's (the mobilisation softens the first percent, which a stiffer contact restores).
+start's (the mobilisation softens the first percent, which a stiffer contact restores). ``--fit-decay G,K``
+calibrates the interlocking's lag and its pressure exponent (``relax_strain``, ``relax_exponent``; prior [0, 0.1]
+and [0, 2]), started at G and K, kn at ``--kn-factor`` times the start's.
 
 Writes the data copies, the prior and the calibration under runs/dobrany_product/ (ignored), and
 studies/results/calibration_dobrany_product_SPLIT_TAG.json and .png (q and eps_v, data and the mean's curves).
@@ -62,6 +65,10 @@ PRIOR = {"phi_g": [10.0, 45.0], "kn": {"low": 3e6, "high": 3e8, "log": True}, "k
 MOBILISATION = ("mobilisation_strain", "mobilisation_start")
 """The mobilisation's parameters (``--fit-mobilisation``)."""
 MOBILISATION_PRIOR = {"mobilisation_strain": [0.0, 0.03], "mobilisation_start": [0.0, 1.0]}
+"""Their bounds in the study's prior [-]."""
+DECAY = ("relax_strain", "relax_exponent")
+"""The lag's parameters (``--fit-decay``)."""
+DECAY_PRIOR = {"relax_strain": [0.0, 0.1], "relax_exponent": [0.0, 2.0]}
 """Their bounds in the study's prior [-]."""
 STUDY = {"phi_g": "phi_g", "log10_kn": "kn", "kt_over_kn": "kt_over_kn", "e_min": "e_min", "e_max": "e_max",
          "alpha_c_deg": "alpha_c", "log10_rate": "renewal_rate", "interlocking_m": "interlocking_m",
@@ -209,29 +216,35 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fit-kn-exponent", action="store_true", help="calibrate kn's exponent (prior [0, 1])")
     parser.add_argument("--fit-mobilisation", default="", metavar="A,R0",
                         help="calibrate mobilisation_strain and mobilisation_start too, started at A and R0")
-    parser.add_argument("--kn-factor", type=float, default=1.0, help="with --fit-mobilisation: kn's start factor")
+    parser.add_argument("--fit-decay", default="", metavar="G,K",
+                        help="calibrate relax_strain and relax_exponent too, started at G and K")
+    parser.add_argument("--kn-factor", type=float, default=1.0,
+                        help="with --fit-mobilisation or --fit-decay: kn's start factor")
     args = parser.parse_args(argv)
     params = PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ())
     params += MOBILISATION if args.fit_mobilisation else ()
+    params += DECAY if args.fit_decay else ()
     exponent = ["--kn-exponent", args.kn_exponent] if not args.fit_kn_exponent else []
     files = data_copies()
     fitted, predicted = SPLITS[args.split]
     out = RUNS / f"{args.split.replace('+', '_')}_{args.tag}"
-    prior = RUNS / ("prior_kn_exponent.json" if args.fit_kn_exponent else
-                    "prior_mobilisation.json" if args.fit_mobilisation else "prior.json")
+    prior = RUNS / ("prior" + "_kn_exponent" * args.fit_kn_exponent + "_mobilisation" * bool(args.fit_mobilisation)
+                    + "_decay" * bool(args.fit_decay) + ".json")
     prior.write_text(json.dumps({**PRIOR, **({"kn_exponent": [0.0, 1.0]} if args.fit_kn_exponent else {}),
-                                 **(MOBILISATION_PRIOR if args.fit_mobilisation else {})}, indent=1))
+                                 **(MOBILISATION_PRIOR if args.fit_mobilisation else {}),
+                                 **(DECAY_PRIOR if args.fit_decay else {})}, indent=1))
     command = [sys.executable, "-m", "homogenization.calibrate", *sum((["--data", str(files[f])] for f in fitted), []),
                "--params", ",".join(params), "--prior", str(prior), *exponent, *FLAGS,
                "--steps", str(args.steps), "--out", str(out), *shlex.split(args.extra)]
     if args.start_from is not None:
         start = start_point(args.start_from, PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ()),
                             float(args.kn_exponent))
-        if args.fit_mobilisation:
-            a_ref, r0 = (float(v) for v in args.fit_mobilisation.split(","))
+        if args.fit_mobilisation or args.fit_decay:
             values = dict(item.split("=") for item in start.split(","))
             values["kn"] = repr(float(values["kn"]) * args.kn_factor)
-            values.update(mobilisation_strain=repr(a_ref), mobilisation_start=repr(r0))
+            for names, text in ((MOBILISATION, args.fit_mobilisation), (DECAY, args.fit_decay)):
+                if text:
+                    values.update(zip(names, (repr(float(v)) for v in text.split(","))))
             start = ",".join(f"{k}={v}" for k, v in values.items())
         command += ["--start-point", start]
     print("command:", shlex.join(command), flush=True)
