@@ -254,9 +254,8 @@ class FastAdvance:
         halvings, shift: the most line-search halvings of a Newton step (0: full steps) and the first
             shift of a climbing step's matrix, a fraction of kn (None: ``fast_equilibrium3d``'s).
         compact: corrections in ``COMPACT_ROUNDS`` on the cells still above tolerance (same bits as False).
-        precompiled: the planar step through ``training.precompiled`` (same bits as False); ``step_path``
-            says which ran ("precompiled" or "numba"), ``precompiled_reason`` why not, ``precompiled_loader``
-            which loader loaded it (``training.precompiled.PrecompiledStep.loader``)."""
+        precompiled: the planar step through ``training.precompiled`` (same bits as False); ``step_path``:
+            "precompiled" (loaded by ``precompiled_loader``) or "numba" (why: ``precompiled_reason``)."""
 
     GUESSES = ("network", "still", "affine")
     """First guesses of the corrections: the network's, the free DOFs still, or following the cell's strain."""
