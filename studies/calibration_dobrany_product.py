@@ -93,6 +93,27 @@ def data_copies() -> dict[str, Path]:
     return out
 
 
+def sensitivity_setup(result: Path, rule: str, variants: list[tuple], names: tuple[str, str]
+                      ) -> tuple[dict, dict[str, np.ndarray], forward.ForwardSettings]:
+    """For a sensitivity grid around a study result (``result``, its JSON): (the record, the forward model's
+    per-variant parameters, its settings on ``rule``, e.g. "15x4s"): the posterior mean's values, kn times each
+    variant's third value, the two parameters ``names`` from its first two."""
+    from homogenization.calibration.interlocking import Interlocking  # noqa: PLC0415
+
+    record = json.loads(result.read_text())
+    mean = record["mean"]["values"]
+    out = RUNS / f"{record['split'].replace('+', '_')}_{record['tag']}"
+    settings = post_mod.read_posterior(out).forward
+    order, rest = rule.split("x")
+    settings = replace(settings, lebedev_order=int(order), n_spins=int(rest[:-1]), staggered_spins=rest[-1] == "s",
+                       interlocking=settings.interlocking or Interlocking())
+    params = {k: np.full(len(variants), float(v)) for k, v in mean.items()}
+    params["kn"] = params["kn"] * np.array([v[2] for v in variants])
+    for k, name in enumerate(names):
+        params[name] = np.array([v[k] for v in variants])
+    return record, params, settings
+
+
 def start_point(path: Path, params: tuple[str, ...] = PARAMS, kn_exponent: float | None = None) -> str:
     """--start-point of a study result's optimum (its log10 coordinates raised), or of this script's result's
     least-squares optimum (CLI names); ``kn_exponent`` where ``params`` holds it and the result does not."""

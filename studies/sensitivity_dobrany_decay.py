@@ -20,7 +20,6 @@ import json
 import os
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,11 +27,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_real_sand_spread import metrics  # noqa: E402
-from calibration_dobrany_product import RESULTS, data_copies  # noqa: E402
+from calibration_dobrany_product import RESULTS, data_copies, sensitivity_setup  # noqa: E402
 
-from homogenization.calibration import forward, posterior as post_mod  # noqa: E402
+from homogenization.calibration import forward  # noqa: E402
 from homogenization.calibration.data import read_test  # noqa: E402
-from homogenization.calibration.interlocking import Interlocking  # noqa: E402
 
 GRID = {"gamma_r": (0.0, 0.01, 0.03), "k": (0.0, 1.0), "kn_factor": (1.0,), "n": (None,)}
 """The variants: gamma_r [-], k [-], kn factor [-], kn exponent [-] (gamma_r = 0: k is not read, so only one k;
@@ -51,18 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     grid = GRID
     if args.grid:
         grid = {**GRID, **dict(zip(GRID, ([float(x) for x in part.split(",")] for part in args.grid.split(":"))))}
-    record = json.loads(args.result.read_text())
-    mean = record["mean"]["values"]
-    out = Path("runs/dobrany_product") / f"{record['split'].replace('+', '_')}_{record['tag']}"
-    settings = post_mod.read_posterior(out).forward
-    order, rest = args.rule.split("x")
-    settings = replace(settings, lebedev_order=int(order), n_spins=int(rest[:-1]), staggered_spins=rest[-1] == "s",
-                       interlocking=settings.interlocking or Interlocking())
     variants = [v for v in itertools.product(*grid.values()) if v[0] > 0.0 or v[1] == grid["k"][0]]
-    params = {k: np.full(len(variants), float(v)) for k, v in mean.items()}
-    params["kn"] = params["kn"] * np.array([v[2] for v in variants])
-    params["relax_strain"] = np.array([v[0] for v in variants])
-    params["relax_exponent"] = np.array([v[1] for v in variants])
+    record, params, settings = sensitivity_setup(args.result, args.rule, variants, ("relax_strain", "relax_exponent"))
+    mean = record["mean"]["values"]
     if any(v[3] is not None for v in variants):
         default = mean.get("kn_exponent", settings.kn_exponent)
         params["kn_exponent"] = np.array([default if v[3] is None else v[3] for v in variants])

@@ -13,7 +13,6 @@ import argparse
 import itertools
 import json
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,11 +20,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_real_sand_spread import metrics  # noqa: E402
-from calibration_dobrany_product import RESULTS, data_copies  # noqa: E402
+from calibration_dobrany_product import RESULTS, data_copies, sensitivity_setup  # noqa: E402
 
-from homogenization.calibration import forward, posterior as post_mod  # noqa: E402
+from homogenization.calibration import forward  # noqa: E402
 from homogenization.calibration.data import read_test  # noqa: E402
-from homogenization.calibration.interlocking import Interlocking  # noqa: E402
 
 GRID = {"a_ref": (0.0, 0.002, 0.005, 0.01), "r0": (0.3, 0.6), "kn_factor": (1.0, 2.0)}
 """The variants: a_ref [-], r0 [-], kn factor [-] (a_ref = 0: r0 is not read, so only one r0)."""
@@ -37,18 +35,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rule", default="15x4s")
     parser.add_argument("--tag", default="")
     args = parser.parse_args(argv)
-    record = json.loads(args.result.read_text())
-    mean = record["mean"]["values"]
-    out = Path("runs/dobrany_product") / f"{record['split'].replace('+', '_')}_{record['tag']}"
-    settings = post_mod.read_posterior(out).forward
-    order, rest = args.rule.split("x")
-    settings = replace(settings, lebedev_order=int(order), n_spins=int(rest[:-1]), staggered_spins=rest[-1] == "s",
-                       interlocking=settings.interlocking or Interlocking())
     variants = [v for v in itertools.product(*GRID.values()) if v[0] > 0.0 or v[1] == GRID["r0"][0]]
-    params = {k: np.full(len(variants), float(v)) for k, v in mean.items()}
-    params["kn"] = params["kn"] * np.array([v[2] for v in variants])
-    params["mobilisation_strain"] = np.array([v[0] for v in variants])
-    params["mobilisation_start"] = np.array([v[1] for v in variants])
+    record, params, settings = sensitivity_setup(args.result, args.rule, variants,
+                                                 ("mobilisation_strain", "mobilisation_start"))
     files = data_copies()
     rows = []
     for name in sorted(files, key=lambda f: read_test(files[f]).p0):
