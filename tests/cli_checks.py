@@ -49,3 +49,11 @@ def replayed_shear(posterior: Path, out: Path):
     rows = np.genfromtxt(out / "curve.csv", delimiter=",", names=True, dtype=None, encoding=None)
     start = int(np.flatnonzero(rows["stage"] != rows["stage"][0])[0]) - 1
     return rows["eps11"][start + 1:] - rows["eps11"][start], rows["q"][start + 1:]
+
+
+def interlocking_data(path: Path, test: str = "triaxial_drained") -> Path:
+    """A three-point calibration CSV of ``test`` at p0 = 200 kPa and void ratio 0.6 (the interlocking's flag tests),
+    written to ``path``."""
+    path.write_text(f"# test = {test}\n# p0 = 200000\n# void_ratio = 0.6\neps1,q,eps_v\n0.004,250000,0.001\n"
+                    f"0.008,380000,0.0015\n0.012,430000,0.001\n")
+    return path

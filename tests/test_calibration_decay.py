@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_checks import assert_one_line_refusal, replayed_shear
+from cli_checks import assert_one_line_refusal, replayed_shear, interlocking_data
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
@@ -93,12 +93,6 @@ def test_each_increment_relaxes_over_the_pressure_scaled_strain():
     np.testing.assert_allclose(hook.friction_deg, phi, rtol=1e-12)
 
 
-def _write(path: Path) -> Path:
-    path.write_text("# test = triaxial_drained\n# p0 = 200000\n# void_ratio = 0.6\neps1,q,eps_v\n0.004,250000,0.001\n"
-                    "0.008,380000,0.0015\n0.012,430000,0.001\n")
-    return path
-
-
 @pytest.mark.parametrize("flags, expected", [
     (["--params", "phi_g,relax_exponent"], "add --interlocking"),
     (["--params", "phi_g,relax_exponent", "--interlocking", "--prior", "PRIOR"],
@@ -111,8 +105,8 @@ def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, expected):
     prior.write_text(json.dumps({"relax_exponent": [0.0, 3.5]}))
     flags = [str(prior) if f == "PRIOR" else f for f in flags]
     out = tmp_path / "cal"
-    args = ["--data", str(_write(tmp_path / "t.csv")), *flags, "--walkers", "4", "--steps", "2", "--out", str(out),
-            *FAST]
+    args = ["--data", str(interlocking_data(tmp_path / "t.csv")), *flags, "--walkers", "4", "--steps", "2",
+            "--out", str(out), *FAST]
     assert_one_line_refusal(capsys, calibrate.main, args, expected, out)
 
 
@@ -123,7 +117,7 @@ def test_the_posterior_holds_the_exponent_and_triaxial_replays_it(tmp_path):
     prior = tmp_path / "prior.json"
     prior.write_text(json.dumps({"relax_exponent": [1.0, 2.0]}))
     assert run_main(calibrate.main, [
-        "--data", str(_write(tmp_path / "t.csv")), "--params", "phi_g,relax_exponent", "--interlocking",
+        "--data", str(interlocking_data(tmp_path / "t.csv")), "--params", "phi_g,relax_exponent", "--interlocking",
         "--prior", str(prior),
         "--interlocking-values", "interlocking_m=4,e_gamma=0.8,xi_c=0.5,relax_strain=0.01", "--walkers", "4",
         "--steps", "2", "--start-point", "phi_g=30,relax_exponent=1.5", *FAST, "--out", str(out)]) == 0

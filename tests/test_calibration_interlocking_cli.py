@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_checks import assert_one_line_refusal, replayed_shear
+from cli_checks import assert_one_line_refusal, replayed_shear, interlocking_data
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
@@ -22,12 +22,6 @@ SETTINGS = forward.ForwardSettings(lebedev_order=7, n_spins=2, increment=4e-3, i
 RULE = Interlocking(m=1.5, e_gamma=0.8, lambda_c=0.05, xi=0.5, cell_spread=0.3)
 TEST = Measurement("t", Path("t.csv"), True, 2e5, EPS1, {"q": np.zeros(3)}, 3, 0.6)
 FAST = ["--increment", "4e-3", "--iso-increment", "2e-3", "--confirm", "none", "--resolution", "off", "-q"]
-
-
-def _write(path: Path, test: str = "triaxial_drained") -> Path:
-    path.write_text(f"# test = {test}\n# p0 = 200000\n# void_ratio = 0.6\neps1,q,eps_v\n0.004,250000,0.001\n"
-                    f"0.008,380000,0.0015\n0.012,430000,0.001\n")
-    return path
 
 
 def test_the_settings_friction_and_its_per_set_parameters_reach_the_forward_model():
@@ -70,7 +64,7 @@ def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, data, expected
     prior.write_text(json.dumps({"cell_spread": [0.0, 1.2]}))
     flags = [str(prior) if f == "PRIOR" else f for f in flags]
     out = tmp_path / "cal"
-    args = ["--data", str(_write(tmp_path / "t.csv", data)), *flags, "--walkers", "4", "--steps", "2",
+    args = ["--data", str(interlocking_data(tmp_path / "t.csv", data)), *flags, "--walkers", "4", "--steps", "2",
             "--out", str(out)]
     args += [f for f in FAST if f not in ("--confirm", "none") or "--confirm" not in flags]
     assert_one_line_refusal(capsys, calibrate.main, args, expected, out)
@@ -83,7 +77,8 @@ def test_the_posterior_holds_the_friction_and_triaxial_replays_it(tmp_path):
     recorded (run.json's start: ``refit_from``)."""
     out = tmp_path / "cal"
     assert run_main(calibrate.main, [
-        "--data", str(_write(tmp_path / "t.csv")), "--params", "phi_g,interlocking_m,cell_spread", "--critical-state",
+        "--data", str(interlocking_data(tmp_path / "t.csv")), "--params", "phi_g,interlocking_m,cell_spread",
+        "--critical-state",
         "--interlocking", "--interlocking-values", "e_gamma=0.8,xi_c=0.5", "--walkers", "6", "--steps", "2",
         "--start-point", "phi_g=30,interlocking_m=1.5,cell_spread=0.3", *FAST, "--out", str(out)]) == 0
     data = json.loads((out / "posterior.json").read_text())
@@ -109,7 +104,7 @@ def test_the_posterior_holds_the_friction_and_triaxial_replays_it(tmp_path):
 def test_the_orientation_rule_flags_reach_the_forward_model(tmp_path, capsys):
     """--order, --spins and --staggered-spins set the triaxial rule (defaults: the forward model's 11 x 4 aligned,
     unchanged); an order outside the Lebedev rules is one line, exit 2."""
-    data = str(_write(tmp_path / "t.csv"))
+    data = str(interlocking_data(tmp_path / "t.csv"))
     parser = calibrate.build_parser()
     default = calibrate.forward_settings(parser.parse_args(["--data", data, "--params", "phi_g", "--out", "x"]), 3)
     assert (default.lebedev_order, default.n_spins, default.staggered_spins) == (11, 4, False)

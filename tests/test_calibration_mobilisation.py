@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_checks import assert_one_line_refusal, replayed_shear
+from cli_checks import assert_one_line_refusal, replayed_shear, interlocking_data
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
@@ -71,12 +71,6 @@ def test_zero_strain_is_the_rule_bit_for_bit_and_a_set_mobilises_its_friction():
     np.testing.assert_allclose(np.tan(np.radians(hook.friction_deg)), r * np.tan(np.radians(phi)), rtol=1e-12)
 
 
-def _write(path: Path) -> Path:
-    path.write_text("# test = triaxial_drained\n# p0 = 200000\n# void_ratio = 0.6\neps1,q,eps_v\n0.004,250000,0.001\n"
-                    "0.008,380000,0.0015\n0.012,430000,0.001\n")
-    return path
-
-
 @pytest.mark.parametrize("flags, expected", [
     (["--params", "phi_g,mobilisation_strain"], "add --interlocking"),
     (["--params", "phi_g,mobilisation_start", "--interlocking", "--prior", "PRIOR"],
@@ -89,8 +83,8 @@ def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, expected):
     prior.write_text(json.dumps({"mobilisation_start": [0.0, 1.5]}))
     flags = [str(prior) if f == "PRIOR" else f for f in flags]
     out = tmp_path / "cal"
-    args = ["--data", str(_write(tmp_path / "t.csv")), *flags, "--walkers", "4", "--steps", "2", "--out", str(out),
-            *FAST]
+    args = ["--data", str(interlocking_data(tmp_path / "t.csv")), *flags, "--walkers", "4", "--steps", "2",
+            "--out", str(out), *FAST]
     assert_one_line_refusal(capsys, calibrate.main, args, expected, out)
 
 
@@ -99,7 +93,7 @@ def test_the_posterior_holds_the_mobilisation_and_triaxial_replays_it(tmp_path):
     forward model does, apart from the curve without it."""
     out = tmp_path / "cal"
     assert run_main(calibrate.main, [
-        "--data", str(_write(tmp_path / "t.csv")), "--params", "phi_g,mobilisation_strain", "--interlocking",
+        "--data", str(interlocking_data(tmp_path / "t.csv")), "--params", "phi_g,mobilisation_strain", "--interlocking",
         "--interlocking-values", "e_gamma=0.8,xi_c=0.5,mobilisation_start=0.2", "--walkers", "4", "--steps", "2",
         "--start-point", "phi_g=30,mobilisation_strain=0.01", *FAST, "--out", str(out)]) == 0
     from homogenization.calibration import posterior as post_mod  # noqa: PLC0415
