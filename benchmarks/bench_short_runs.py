@@ -1,4 +1,4 @@
-"""python benchmarks/bench_short_runs.py [--repeats 3] [--increment 1e-4] [--eps-max 0.03] [--cold] [--startup] [--gc]: whole-process cost of short ANN runs.
+"""python benchmarks/bench_short_runs.py [--repeats 3] [--increment 1e-4] [--eps-max 0.03] [--cpu N] [--cold] [--startup] [--gc]: whole-process cost of short ANN runs.
 
 Runs, as whole processes (``python -m homogenization.hmodel ...``, start-up, imports, model and
 certificate loading, compilation or cache loading, the run and its output all counted), a
@@ -20,6 +20,9 @@ the kernels compiled, and the planar step's object, ``training.precompiled``), t
 step (the precompiled step's key and the object's loading; numba's import and set-up where the step falls
 back to numba), the other 320 steps of 360 cells; then whether numba and llvmlite were imported, which
 path the step took and which loader loaded it. Not the CLI: the phases of the run that differ from the closed form's.
+
+``--cpu N``: every process runs on CPU N alone (``os.sched_setaffinity``; Linux), which narrows the spread of
+single processes on a shared machine.
 
 ``--gc``: instead, the planar test's two commands (``--repeats`` pairs) with the garbage collector's
 collections counted by generation, and the seconds they took (``gc.callbacks``), beside each process's
@@ -161,8 +164,15 @@ def main() -> None:
     parser.add_argument("--cold", action="store_true", help="ANN runs with an empty NUMBA_CACHE_DIR each time")
     parser.add_argument("--startup", action="store_true", help="only the CPU time of a planar ANN process by phase")
     parser.add_argument("--gc", action="store_true", help="only the planar test's garbage collections, both backends")
+    parser.add_argument("--cpu", type=int, default=None,
+                        help="run every process on this CPU alone (Linux; less spread between processes)")
     args = parser.parse_args()
-    print(f"load average (1, 5, 15 min): {os.getloadavg()}; {os.cpu_count()} CPUs", flush=True)
+    if args.cpu is not None:
+        if not hasattr(os, "sched_setaffinity") or args.cpu not in os.sched_getaffinity(0):
+            parser.error(f"--cpu {args.cpu}: not a CPU this process may run on")
+        os.sched_setaffinity(0, {args.cpu})  # the timed processes inherit it
+    print(f"load average (1, 5, 15 min): {os.getloadavg()}; {os.cpu_count()} CPUs"
+          + ("" if args.cpu is None else f"; every process on CPU {args.cpu}"), flush=True)
     if args.startup:
         startup(args)
         print(f"load average after: {os.getloadavg()}", flush=True)
