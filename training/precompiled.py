@@ -17,7 +17,7 @@ loaded (``PrecompiledStep.reason``), ``FastAdvance`` calls numba's kernel instea
 The object's references into numba's runtime (its raising and allocating helpers) are resolved from numba's
 C extension modules, loaded without the numba package. On x86-64 Linux the object is mapped by this module itself
 (``map_object``: its sections copied into one anonymous mapping, its relocations applied, the code made
-executable), which costs well under a millisecond; elsewhere, or where the object holds something that
+executable), so that llvmlite is not imported; elsewhere, or where the object holds something that
 ``map_object`` does not support, llvmlite's MCJIT engine loads it (``PrecompiledStep.loader`` says which).
 """
 
