@@ -20,6 +20,7 @@ def padded_cells(n: int) -> int:
     ``LANES`` (where the loops' scalar remainder costs less than one whole vector)."""
     return n if n < LANES else -(-n // LANES) * LANES
 
+
 class Perceptron:
     """A tanh multilayer perceptron (hidden layers tanh, output layer linear) in float32, cells last.
 
