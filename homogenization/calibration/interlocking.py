@@ -22,6 +22,14 @@ distortion after the dilation rather than with it. With ``relax_exponent`` k the
 point's mean stress, gamma_r(p) = gamma_r (p / p_ref)^k (p of the accepted state; k = 0: gamma_r), so the decay is
 spread over more distortion at a higher pressure.
 
+Opt-in softening since the peak (``Interlocking.softening_strain`` gamma_s > 0, instead of ``relax_strain``): the
+rule reads e_s = e_d + (e - e_d) (1 - exp(-g_d / gamma_s(p))), e_d the point's densest void ratio so far (the
+smallest e of the run up to the accepted state), g_d the deviatoric strain accumulated since e was last at e_d (the
+sum of d gamma over the increments that ended above it), gamma_s(p) = gamma_s (p / p_ref)^k (k = ``relax_exponent``,
+p of the accepted state). Before the peak (e at e_d, contracting) e_s = e: the rise is not lagged; after it the
+interlocking is held near its peak and released to e's over about gamma_s of distortion, and then reads e itself
+(unlike the lag, whose e_r trails e by about gamma_r d e / d gamma as long as the point dilates).
+
 Opt-in spread (``Interlocking.cell_spread`` s in [0, 1)): cell k of a point steps with tan phi (1 + s u_k) instead of
 tan phi, u_k the uniform quantiles (2 j + 1) / n - 1 (j = 0 .. n - 1, n cells per point) dealt to the cells in the
 order of the fractional parts of k (sqrt(5) - 1) / 2, the same for every point; so cells of one orientation class
@@ -50,7 +58,7 @@ MOBILISATION_EXPONENT = 2.0 / 3.0
 FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi",
           "cell_spread": "cell_spread", "mobilisation_strain": "mobilisation_strain",
           "mobilisation_start": "mobilisation_start", "relax_strain": "relax_strain",
-          "relax_exponent": "relax_exponent"}
+          "relax_exponent": "relax_exponent", "softening_strain": "softening_strain"}
 """Per-set parameters (calibration name -> ``Interlocking`` field) that ``simulate`` reads from its params."""
 
 
@@ -69,6 +77,8 @@ class Interlocking:
         mobilisation_strain: a_ref [-], >= 0, the mobilisation's strain at p_ref (module docstring); 0: none.
         mobilisation_start: r0 [-], in [0, 1], the share of tan phi mobilised at zero deviatoric strain.
         relax_exponent: k [-], in [0, 3], of the lag's pressure dependence gamma_r (p / p_ref)^k; 0: none.
+        softening_strain: gamma_s [-], >= 0, of the softening since the point's densest state (module docstring);
+            0: none; not with relax_strain > 0.
     """
 
     m: float = 1.0
@@ -81,6 +91,7 @@ class Interlocking:
     mobilisation_strain: float = 0.0
     mobilisation_start: float = 0.5
     relax_exponent: float = 0.0
+    softening_strain: float = 0.0
 
     def check(self) -> None:
         """ValueError (one line) for a parameter out of range."""
@@ -89,10 +100,14 @@ class Interlocking:
                          ("relax_strain", self.relax_strain >= 0.0), ("cell_spread", 0.0 <= self.cell_spread < 1.0),
                          ("mobilisation_strain", self.mobilisation_strain >= 0.0),
                          ("mobilisation_start", 0.0 <= self.mobilisation_start <= 1.0),
-                         ("relax_exponent", 0.0 <= self.relax_exponent <= 3.0)):
+                         ("relax_exponent", 0.0 <= self.relax_exponent <= 3.0),
+                         ("softening_strain", self.softening_strain >= 0.0)):
             value = getattr(self, name)
             if not (math.isfinite(value) and ok):
                 raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
+        if self.softening_strain > 0.0 and self.relax_strain > 0.0:
+            raise ValueError(f"interlocking softening_strain = {self.softening_strain:g} with relax_strain = "
+                             f"{self.relax_strain:g}: one lag at a time (Interlocking)")
 
 
 def critical_void_ratio(p: Any, e_gamma: Any, lambda_c: Any, xi: Any, p_ref: float) -> np.ndarray:
@@ -156,8 +171,9 @@ class InterlockingFriction:
         inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
     Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped;
     ``fallbacks`` (n,): increments whose friction fell back to phi_mu (not finite, or not below 90 deg);
-    ``e_lagged`` (n,): the lagged void ratio (the void ratio itself where ``relax_strain`` is 0); ``distortion`` (n,):
-    the accumulated distortion g [-] (with the mobilisation).
+    ``e_lagged`` (n,): the lagged void ratio (the void ratio itself where ``relax_strain`` and ``softening_strain`` are
+    0; e_s with ``softening_strain``); ``e_densest`` (n,): e_d, the smallest void ratio so far; ``since_densest`` (n,):
+    g_d [-]; ``distortion`` (n,): the accumulated distortion g [-] (with the mobilisation).
     """
 
     def __init__(self, params: Interlocking, material: Any, state: MaterialState, phi_mu_deg: np.ndarray,
@@ -171,16 +187,17 @@ class InterlockingFriction:
             raise ValueError(f"the cell model holds {np.size(self.owner.mu)} frictions for {n} points of "
                              f"{self.n_cells} cells")
         keys = ("m", "e_gamma", "lambda_c", "xi", "cell_spread", "mobilisation_strain", "mobilisation_start",
-                "relax_strain", "relax_exponent")
+                "relax_strain", "relax_exponent", "softening_strain")
         values = {name: getattr(params, name) for name in keys}
         values.update(per_point or {})
         (self.m, self.e_gamma, self.lambda_c, self.xi, self.cell_spread, self.mobilisation_strain,
-         self.mobilisation_start, self.relax_strain, self.relax_exponent) = (
+         self.mobilisation_start, self.relax_strain, self.relax_exponent, self.softening_strain) = (
             np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy() for k in keys)
         for i in range(n):
             replace(params, **{k: float(getattr(self, k)[i]) for k in keys}).check()
         self.mobilised = bool(np.any(self.mobilisation_strain > 0.0))
-        self.lagged = bool(np.any(self.relax_strain > 0.0))
+        self.lag_strain = np.where(self.relax_strain > 0.0, self.relax_strain, self.softening_strain)
+        self.lagged = bool(np.any(self.lag_strain > 0.0))
         self.distortion = np.zeros(n)
         self.phi_mu_deg = np.broadcast_to(np.asarray(phi_mu_deg, dtype=np.float64), (n,)).copy()
         self.e0 = np.broadcast_to(np.asarray(e0, dtype=np.float64), (n,)).copy()
@@ -190,6 +207,8 @@ class InterlockingFriction:
         self._record = dimension(material.dim)
         self._mean = self._record.mean_stress
         self.e_lagged = current_void_ratio(self.e0, state.J)
+        self.e_densest = self.e_lagged.copy()
+        self.since_densest = np.zeros(n)
         u = spread_factors(self.n_cells, 1.0) - 1.0
         self.factors = (1.0 + self.cell_spread[:, None] * u[None, :]).ravel()
         self._strain = np.array(state.strain, dtype=np.float64)
@@ -206,11 +225,11 @@ class InterlockingFriction:
         return self.inner.log if self.inner is not None else None
 
     def friction_at(self, state: MaterialState) -> np.ndarray:
-        """The friction [deg] of each point at ``state`` (its J and p; with ``relax_strain`` the lagged void ratio
-        ``e_lagged`` instead of J's), shape (n,); phi_mu where not finite."""
+        """The friction [deg] of each point at ``state`` (its J and p; with ``relax_strain`` or ``softening_strain``
+        the lagged void ratio ``e_lagged`` instead of J's), shape (n,); phi_mu where not finite."""
         e = current_void_ratio(self.e0, state.J)
         if self.lagged:
-            e = np.where(self.relax_strain > 0.0, self.e_lagged, e)
+            e = np.where(self.lag_strain > 0.0, self.e_lagged, e)
         p = self._mean(state.stress)
         with np.errstate(all="ignore"):
             e_c = critical_void_ratio(p, self.e_gamma, self.lambda_c, self.xi, self.params.p_ref)
@@ -257,9 +276,16 @@ class InterlockingFriction:
         return self._record.deviator(d)
 
     def _relaxed(self, state: MaterialState, gamma: np.ndarray) -> np.ndarray:
-        """The lagged void ratio after the increment of deviatoric strain ``gamma`` ending at ``state``, shape (n,)."""
+        """The void ratio the rule reads after the increment of deviatoric strain ``gamma`` ending at ``state``
+        (e_r of the lag, e_s of the softening; module docstring), shape (n,); updates ``e_densest`` and
+        ``since_densest``."""
         e = current_void_ratio(self.e0, state.J)
-        gamma_r = relax_strain_at(self._mean(state.stress), self.relax_strain, self.relax_exponent, self.params.p_ref)
+        gamma_r = relax_strain_at(self._mean(state.stress), self.lag_strain, self.relax_exponent, self.params.p_ref)
+        densest = e <= self.e_densest
+        self.e_densest = np.where(densest, e, self.e_densest)
+        self.since_densest = np.where(densest, 0.0, self.since_densest + np.where(np.isfinite(gamma), gamma, 0.0))
         with np.errstate(all="ignore"):
             lagged = e + (self.e_lagged - e) * np.exp(-gamma / gamma_r)
-        return np.where(np.isfinite(lagged) & (self.relax_strain > 0.0), lagged, e)
+            held = self.e_densest + (e - self.e_densest) * -np.expm1(-self.since_densest / gamma_r)
+        lagged = np.where(self.softening_strain > 0.0, held, lagged)
+        return np.where(np.isfinite(lagged) & (self.lag_strain > 0.0), lagged, e)
