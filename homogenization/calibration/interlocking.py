@@ -72,13 +72,13 @@ class Interlocking:
         lambda_c: slope of the critical-state line in (p / p_ref)^xi [-], >= 0.
         xi: exponent of the line [-], in (0, 1].
         p_ref: reference pressure [Pa in 3D, N/m in 2D], > 0.
-        relax_strain: gamma_r [-], >= 0, of the lagged void ratio (module docstring); 0: no lag.
-        cell_spread: s [-], in [0, 1), the half-width of the cells' spread of tan phi about the point's; 0: none.
-        mobilisation_strain: a_ref [-], >= 0, the mobilisation's strain at p_ref (module docstring); 0: none.
-        mobilisation_start: r0 [-], in [0, 1], the share of tan phi mobilised at zero deviatoric strain.
-        relax_exponent: k [-], in [0, 3], of the lag's pressure dependence gamma_r (p / p_ref)^k; 0: none.
-        softening_strain: gamma_s [-], >= 0, of the softening since the point's densest state (module docstring);
-            0: none; not with relax_strain > 0.
+        relax_strain: gamma_r [-], >= 0, of the lagged void ratio; 0: no lag.
+        cell_spread: s [-], in [0, 1), the half-width of the cells' spread of tan phi; 0: none.
+        mobilisation_strain: a_ref [-], >= 0, the mobilisation's strain at p_ref; 0: none.
+        mobilisation_start: r0 [-], in [0, 1], the share of tan phi mobilised at zero distortion.
+        relax_exponent: k [-], in [0, 3], the lag's (softening's) strain's pressure exponent.
+        softening_strain: gamma_s [-], >= 0, of the softening; 0: none; not with relax_strain.
+    (Module docstring.)
     """
 
     m: float = 1.0
@@ -171,9 +171,8 @@ class InterlockingFriction:
         inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
     Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped;
     ``fallbacks`` (n,): increments whose friction fell back to phi_mu (not finite, or not below 90 deg);
-    ``e_lagged`` (n,): the lagged void ratio (the void ratio itself where ``relax_strain`` and ``softening_strain`` are
-    0; e_s with ``softening_strain``); ``e_densest`` (n,): e_d, the smallest void ratio so far; ``since_densest`` (n,):
-    g_d [-]; ``distortion`` (n,): the accumulated distortion g [-] (with the mobilisation).
+    ``e_lagged`` (n,): the void ratio the rule reads (e_r, e_s or e); ``e_densest`` (n,): e_d [-];
+    ``since_densest`` (n,): g_d [-]; ``distortion`` (n,): the accumulated distortion g [-] (with the mobilisation).
     """
 
     def __init__(self, params: Interlocking, material: Any, state: MaterialState, phi_mu_deg: np.ndarray,
