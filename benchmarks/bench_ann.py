@@ -52,6 +52,7 @@ from training.config import hidden_widths
 from warp_hcell.mesostructures.hcell import h_cell
 from warp_hcell.mesostructures.files import load_mesostructure
 from warp_hcell.core.parameters import CellDefaults
+from warp_hcell.core.provenance import cpu_model
 
 
 def _time(fn) -> float:
@@ -85,7 +86,7 @@ def main() -> None:
     parser.add_argument("--step3d-repeats", type=int, default=0,
                         help="also time the 3D step (bench_triaxial.py --part ann3d-step) with this many repeats (0: no)")
     args = parser.parse_args()
-    print(f"load average (1, 5, 15 min): {os.getloadavg()}")
+    print(f"load average (1, 5, 15 min): {os.getloadavg()}; CPU: {cpu_model()}")
     if args.parts and args.mesostructure is None:
         for n in (args.cells, 1):
             time_parts(args.model, n, args.repeats)

@@ -28,6 +28,7 @@ import numpy as np
 
 from homogenization.backends import make_cell_model, mesostructure_refusal
 from warp_hcell.mesostructures.builders import resolve_mesostructure
+from warp_hcell.core.provenance import cpu_model
 from warp_hcell.mesostructures.files import load_mesostructure
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +72,7 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=20, help="isotropic increments before the timed ones")
     parser.add_argument("--fine-model", default=None, help="an ANN model of the fine-grain cell (none is shipped)")
     args = parser.parse_args()
-    print(f"load average (1, 5, 15 min): {os.getloadavg()}", flush=True)
+    print(f"load average (1, 5, 15 min): {os.getloadavg()}; CPU: {cpu_model()}", flush=True)
     table: dict[tuple[str, int], dict[str, float]] = {}
     backends: list[str] = []
     for label, meso, options in cells(args):

@@ -45,6 +45,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from warp_hcell.core.provenance import cpu_model
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -171,7 +173,7 @@ def main() -> None:
         if not hasattr(os, "sched_setaffinity") or args.cpu not in os.sched_getaffinity(0):
             parser.error(f"--cpu {args.cpu}: not a CPU this process may run on")
         os.sched_setaffinity(0, {args.cpu})  # the timed processes inherit it
-    print(f"load average (1, 5, 15 min): {os.getloadavg()}; {os.cpu_count()} CPUs"
+    print(f"load average (1, 5, 15 min): {os.getloadavg()}; {os.cpu_count()} CPUs ({cpu_model()})"
           + ("" if args.cpu is None else f"; every process on CPU {args.cpu}"), flush=True)
     if args.startup:
         startup(args)

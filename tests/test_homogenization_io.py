@@ -38,7 +38,7 @@ def test_round_trip(tmp_path, record):
     assert np.array_equal(back.diagnostics["n_unconverged"], record.diagnostics["n_unconverged"])
     assert stored.attrs["seed"] == 7 and stored.attrs["parameters"] == {"kn": 2e8, "p0": 2e5}
     assert stored.attrs["volume_rule"].startswith("V = V0*J") and "hexagon" in stored.attrs["volume_rule"]
-    for key in ("code_version", "git_revision", "numpy_version", "warp_version", "torch_version"):
+    for key in ("code_version", "git_revision", "numpy_version", "warp_version", "torch_version", "cpu"):
         assert stored.attrs[key]
 
 

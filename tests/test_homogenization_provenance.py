@@ -106,3 +106,14 @@ def test_git_revision_marks_a_tree_with_changed_tracked_files_dirty(tmp_path):
     with open(tmp_path / "provenance.py", "a") as fh:
         fh.write("# changed\n")
     assert copy.git_revision() == head + "-dirty"
+
+
+def test_cpu_model_reads_the_systems_processor_name_and_falls_back_without_one(tmp_path):
+    listing = tmp_path / "cpuinfo"
+    listing.write_text("processor\t: 0\nvendor_id\t: Some\nmodel name\t: Example CPU 9000 @ 3.0GHz\n\n"
+                       "processor\t: 1\nmodel name\t: Another\n")
+    assert provenance.cpu_model(listing) == "Example CPU 9000 @ 3.0GHz"
+    listing.write_text("processor\t: 0\nCPU implementer\t: 0x41\n")
+    fallback = provenance.cpu_model(listing)
+    assert fallback and fallback == provenance.cpu_model(tmp_path / "missing")
+    assert provenance.provenance()["cpu"] == provenance.cpu_model()

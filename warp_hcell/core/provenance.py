@@ -1,8 +1,9 @@
-"""Provenance stored in every output file: package and library versions, git revision, command.
+"""Provenance stored in every output file: package and library versions, git revision, processor, command.
 
 ``package_versions()`` reads the versions of the installed distributions (this package and
 its numerical dependencies), ``git_revision()`` the commit of the source tree when it is a
-git checkout, and ``provenance()`` combines them with the Python version and the command
+git checkout, ``cpu_model()`` the processor (timings and results off the bit-identical paths
+depend on it), and ``provenance()`` combines them with the Python version and the command
 line, as flat strings ready for HDF5 or JSON attributes.
 """
 
@@ -33,6 +34,20 @@ def package_version(distribution: str) -> str:
 def package_versions() -> dict[str, str]:
     """Versions of this package and of its numerical dependencies, by distribution name."""
     return {name: package_version(name) for name in DISTRIBUTIONS}
+
+
+def cpu_model(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
+    """The processor as the system names it: the first ``model name`` of ``cpuinfo`` (Linux), else
+    ``platform.processor()``, else ``platform.machine()``, else "unknown"."""
+    try:
+        with open(cpuinfo, encoding="utf-8", errors="replace") as handle:
+            for line in handle:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name" and value.strip():
+                    return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
 
 
 def git_revision() -> str:
@@ -71,8 +86,8 @@ def file_sha256(path: Path) -> str:
 
 
 def provenance(command: str | None = None) -> dict[str, str]:
-    """Code version, git revision, Python and library versions, and the command line
-    (``command``, or this process's own when None)."""
+    """Code version, git revision, Python and library versions, the processor (``cpu_model``), and the
+    command line (``command``, or this process's own when None)."""
     versions = package_versions()
     return {
         "code_version": versions["meso-hmodel"],
@@ -82,5 +97,6 @@ def provenance(command: str | None = None) -> dict[str, str]:
         "h5py_version": versions["h5py"],
         "warp_version": versions["warp-lang"],
         "torch_version": versions["torch"],
+        "cpu": cpu_model(),
         "command": command_line() if command is None else command,
     }
