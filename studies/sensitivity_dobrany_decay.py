@@ -1,5 +1,5 @@
 """python studies/sensitivity_dobrany_decay.py RESULT.json [--rule 15x4s] [--tag T] [--grid G] [--tests LIST]
-                                               [--fitted-first]
+                                               [--fitted-first] [--lag softening_strain]
 
 The interlocking's decay spread over a distortion growing with pressure (``calibration.interlocking``: the lag
 ``relax_strain`` gamma_r and its pressure exponent ``relax_exponent`` k, gamma_r(p) = gamma_r (p / p_ref)^k) at a
@@ -9,7 +9,9 @@ other parameter the mean's. ``--grid`` "G1,G2:K1,K2:F1,F2[:N1,N2]" replaces the 
 per set; default the mean's or the settings'). Prints per variant and test RMS abs(dq) / q_peak, RMS d eps_v,
 strain at the highest q (model, sand), q model / sand at 0.1 %, 1 % and 10 % of axial strain; ``--fitted-first``
 then the variants in the order of the mean RMS abs(dq) / q_peak over the result's two fitted tests (a start chosen
-from it does not see the predicted test). Writes studies/results/sensitivity_dobrany_decay_TAG.json.
+from it does not see the predicted test). ``--lag softening_strain``: gamma is the lag since the point's densest
+state (``softening_strain``) instead of ``relax_strain`` (the mean's relax_strain set to 0). Writes
+studies/results/sensitivity_dobrany_decay_TAG.json.
 """
 
 from __future__ import annotations
@@ -45,12 +47,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--grid", default="", help="G1,G2:K1,K2:F1,F2[:N1,N2] (gamma_r, k, kn factor, exponent)")
     parser.add_argument("--fitted-first", action="store_true", help="rank the variants by the fitted tests")
     parser.add_argument("--tests", default="cid_50kpa.csv,cid_100kpa.csv,cid_200kpa.csv")
+    parser.add_argument("--lag", choices=("relax_strain", "softening_strain"), default="relax_strain")
     args = parser.parse_args(argv)
     grid = GRID
     if args.grid:
         grid = {**GRID, **dict(zip(GRID, ([float(x) for x in part.split(",")] for part in args.grid.split(":"))))}
     variants = [v for v in itertools.product(*grid.values()) if v[0] > 0.0 or v[1] == grid["k"][0]]
-    record, params, settings = sensitivity_setup(args.result, args.rule, variants, ("relax_strain", "relax_exponent"))
+    record, params, settings = sensitivity_setup(args.result, args.rule, variants, (args.lag, "relax_exponent"))
+    if args.lag == "softening_strain":
+        params["relax_strain"] = np.zeros(len(variants))
     mean = record["mean"]["values"]
     if any(v[3] is not None for v in variants):
         default = mean.get("kn_exponent", settings.kn_exponent)
