@@ -1,7 +1,7 @@
 """python studies/calibration_dobrany_product.py --split 50+100|50+200 --tag T [--steps N] [--start-from JSON]
                                                 [--extra "FLAGS"] [--evaluate-only] [--check-rule 23x8s]
                                                 [--fit-kn-exponent] [--fit-mobilisation A,R0 [--kn-factor F]]
-                                                [--fit-decay G,K [--kn-factor F]] [--fit-void-lag G,K,S]
+                                                [--fit-decay G,K [--kn-factor F]] [--fit-void-lag G,K,S|G,S]
        python studies/calibration_dobrany_product.py --splits-figure OUT.png RESULT.json[+RESULT2.json] ...
 
 Dobrany sand with the product's own ``hmodel calibrate``: the interlocking friction (``--interlocking``: m,
@@ -24,7 +24,7 @@ start's (the mobilisation softens the first percent, which a stiffer contact res
 calibrates the interlocking's lag and its pressure exponent (``relax_strain``, ``relax_exponent``; prior [0, 0.1]
 and [0, 2]), started at G and K, kn at ``--kn-factor`` times the start's. ``--fit-void-lag G,K,S`` calibrates the
 lag with its void-ratio factor (``relax_strain``, ``relax_exponent``, ``relax_void_slope``; prior [0, 0.1], [0, 2],
-[0, 40]), started at G, K and S.
+[0, 40]), started at G, K and S; ``--fit-void-lag G,S``: relax_exponent not calibrated (0).
 
 Writes the data copies, the prior and the calibration under runs/dobrany_product/ (ignored), and
 studies/results/calibration_dobrany_product_SPLIT_TAG.json and .png (q and eps_v, data and the mean's curves).
@@ -245,25 +245,29 @@ def main(argv: list[str] | None = None) -> int:
                         help="calibrate mobilisation_strain and mobilisation_start too, started at A and R0")
     parser.add_argument("--fit-decay", default="", metavar="G,K",
                         help="calibrate relax_strain and relax_exponent too, started at G and K")
-    parser.add_argument("--fit-void-lag", default="", metavar="G,K,S",
-                        help="calibrate relax_strain, relax_exponent and relax_void_slope too, started at G, K, S")
+    parser.add_argument("--fit-void-lag", default="", metavar="G,K,S|G,S",
+                        help="calibrate relax_strain, relax_exponent and relax_void_slope too, started at G, K, S "
+                             "(G,S: relax_exponent 0, not calibrated)")
     parser.add_argument("--kn-factor", type=float, default=1.0,
                         help="with --fit-mobilisation, --fit-decay or --fit-void-lag: kn's start factor")
     args = parser.parse_args(argv)
     params = PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ())
     params += MOBILISATION if args.fit_mobilisation else ()
     params += DECAY if args.fit_decay else ()
-    params += VOID_LAG if args.fit_void_lag else ()
+    void_lag = VOID_LAG if len(args.fit_void_lag.split(",")) == 3 else ("relax_strain", "relax_void_slope")
+    params += void_lag if args.fit_void_lag else ()
     exponent = ["--kn-exponent", args.kn_exponent] if not args.fit_kn_exponent else []
     files = data_copies()
     fitted, predicted = SPLITS[args.split]
     out = RUNS / f"{args.split.replace('+', '_')}_{args.tag}"
     prior = RUNS / ("prior" + "_kn_exponent" * args.fit_kn_exponent + "_mobilisation" * bool(args.fit_mobilisation)
-                    + "_decay" * bool(args.fit_decay) + "_void_lag" * bool(args.fit_void_lag) + ".json")
+                    + "_decay" * bool(args.fit_decay) + "_void_lag" * bool(args.fit_void_lag)
+                    + "_k0" * (len(void_lag) == 2 and bool(args.fit_void_lag)) + ".json")
     prior.write_text(json.dumps({**PRIOR, **({"kn_exponent": [0.0, 1.0]} if args.fit_kn_exponent else {}),
                                  **(MOBILISATION_PRIOR if args.fit_mobilisation else {}),
                                  **(DECAY_PRIOR if args.fit_decay else {}),
-                                 **(VOID_LAG_PRIOR if args.fit_void_lag else {})}, indent=1))
+                                 **({n: VOID_LAG_PRIOR[n] for n in void_lag} if args.fit_void_lag else {})},
+                                indent=1))
     command = [sys.executable, "-m", "homogenization.calibrate", *sum((["--data", str(files[f])] for f in fitted), []),
                "--params", ",".join(params), "--prior", str(prior), *exponent, *FLAGS,
                "--steps", str(args.steps), "--out", str(out), *shlex.split(args.extra)]
@@ -274,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
             values = dict(item.split("=") for item in start.split(","))
             values["kn"] = repr(float(values["kn"]) * args.kn_factor)
             for names, text in ((MOBILISATION, args.fit_mobilisation), (DECAY, args.fit_decay),
-                                (VOID_LAG, args.fit_void_lag)):
+                                (void_lag, args.fit_void_lag)):
                 if text:
                     values.update(zip(names, (repr(float(v)) for v in text.split(","))))
             start = ",".join(f"{k}={v}" for k, v in values.items())

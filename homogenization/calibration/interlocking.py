@@ -74,19 +74,18 @@ class Interlocking:
     """Parameters of the interlocking friction (module docstring).
 
     Attributes:
-        m: interlocking exponent [-], >= 0 (0: the friction stays phi_mu).
+        m: interlocking exponent [-], >= 0 (0: phi_mu).
         e_gamma: critical void ratio at p = 0 [-], > 0.
         lambda_c: slope of the critical-state line in (p / p_ref)^xi [-], >= 0.
         xi: exponent of the line [-], in (0, 1].
         p_ref: reference pressure [Pa in 3D, N/m in 2D], > 0.
-        relax_strain: gamma_r [-], >= 0, of the lagged void ratio; 0: no lag.
-        cell_spread: s [-], in [0, 1), the half-width of the cells' spread of tan phi; 0: none.
+        relax_strain: gamma_r [-], >= 0, the lag's strain; 0: none.
+        cell_spread: [-], in [0, 1), the cells' half-spread of tan phi; 0: none.
         mobilisation_strain: a_ref [-], >= 0, the mobilisation's strain at p_ref; 0: none.
         mobilisation_start: r0 [-], in [0, 1], the share of tan phi mobilised at zero distortion.
-        relax_exponent: k [-], in [0, 3], the lag's (softening's) strain's pressure exponent.
+        relax_exponent: k [-], in [0, 3], the lag's pressure exponent.
         softening_strain: gamma_s [-], >= 0, of the softening; 0: none; not with relax_strain.
-        relax_void_slope: s [-], abs(s) <= ``RELAX_VOID_SLOPE_MAX``, the lag's (softening's) strain's slope of
-            ln(gamma_r) in the point's initial void ratio; 0: none.
+        relax_void_slope: s [-], abs(s) <= 100, d ln(gamma_r) / d e0; 0: none.
     (Module docstring.)
     """
 
