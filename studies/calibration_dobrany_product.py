@@ -2,6 +2,7 @@
                                                 [--extra "FLAGS"] [--evaluate-only] [--check-rule 23x8s]
                                                 [--fit-kn-exponent] [--fit-mobilisation A,R0 [--kn-factor F]]
                                                 [--fit-decay G,K [--kn-factor F]] [--fit-softening G,K]
+                                                [--fit-void-lag G,K,S|G,S]
        python studies/calibration_dobrany_product.py --splits-figure OUT.png RESULT.json[+RESULT2.json] ...
 
 Dobrany sand with the product's own ``hmodel calibrate``: the interlocking friction (``--interlocking``: m,
@@ -23,7 +24,9 @@ calibrates kn's exponent too (``--params ...,kn_exponent``, prior [0, 1], starte
 start's (the mobilisation softens the first percent, which a stiffer contact restores). ``--fit-decay G,K``
 calibrates the interlocking's lag and its pressure exponent (``relax_strain``, ``relax_exponent``; prior [0, 0.1]
 and [0, 2]), started at G and K, kn at ``--kn-factor`` times the start's. ``--fit-softening G,K`` the same with the
-softening since the point's densest state (``softening_strain``, prior [0, 0.1]) instead of the lag.
+softening since the point's densest state (``softening_strain``, prior [0, 0.1]) instead of the lag. ``--fit-void-lag
+G,K,S`` calibrates the lag with its void-ratio factor (``relax_strain``, ``relax_exponent``, ``relax_void_slope``;
+prior [0, 0.1], [0, 2], [0, 40]), started at G, K and S; ``--fit-void-lag G,S``: relax_exponent not calibrated (0).
 
 Writes the data copies, the prior and the calibration under runs/dobrany_product/ (ignored), and
 studies/results/calibration_dobrany_product_SPLIT_TAG.json and .png (q and eps_v, data and the mean's curves).
@@ -74,6 +77,10 @@ DECAY_PRIOR = {"relax_strain": [0.0, 0.1], "relax_exponent": [0.0, 2.0]}
 SOFTENING = ("softening_strain", "relax_exponent")
 """The softening's parameters (``--fit-softening``)."""
 SOFTENING_PRIOR = {"softening_strain": [0.0, 0.1], "relax_exponent": [0.0, 2.0]}
+"""Their bounds in the study's prior [-]."""
+VOID_LAG = (*DECAY, "relax_void_slope")
+"""The lag's parameters with its void-ratio factor (``--fit-void-lag``)."""
+VOID_LAG_PRIOR = {**DECAY_PRIOR, "relax_void_slope": [0.0, 40.0]}
 """Their bounds in the study's prior [-]."""
 STUDY = {"phi_g": "phi_g", "log10_kn": "kn", "kt_over_kn": "kt_over_kn", "e_min": "e_min", "e_max": "e_max",
          "alpha_c_deg": "alpha_c", "log10_rate": "renewal_rate", "interlocking_m": "interlocking_m",
@@ -252,36 +259,45 @@ def main(argv: list[str] | None = None) -> int:
                         help="calibrate relax_strain and relax_exponent too, started at G and K")
     parser.add_argument("--fit-softening", default="", metavar="G,K",
                         help="calibrate softening_strain and relax_exponent too, started at G and K")
+    parser.add_argument("--fit-void-lag", default="", metavar="G,K,S|G,S",
+                        help="calibrate relax_strain, relax_exponent and relax_void_slope too, started at G, K, S "
+                             "(G,S: relax_exponent 0, not calibrated)")
     parser.add_argument("--kn-factor", type=float, default=1.0,
-                        help="with --fit-mobilisation, --fit-decay or --fit-softening: kn's start factor")
+                        help="with --fit-mobilisation, --fit-decay, --fit-softening or --fit-void-lag: kn's start factor")
     args = parser.parse_args(argv)
     params = PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ())
     params += MOBILISATION if args.fit_mobilisation else ()
-    if args.fit_decay and args.fit_softening:
-        parser.error("--fit-decay and --fit-softening: one lag at a time")
+    if sum(map(bool, (args.fit_decay, args.fit_softening, args.fit_void_lag))) > 1:
+        parser.error("--fit-decay, --fit-softening and --fit-void-lag: one lag at a time")
     params += DECAY if args.fit_decay else ()
     params += SOFTENING if args.fit_softening else ()
+    void_lag = VOID_LAG if len(args.fit_void_lag.split(",")) == 3 else ("relax_strain", "relax_void_slope")
+    params += void_lag if args.fit_void_lag else ()
     exponent = ["--kn-exponent", args.kn_exponent] if not args.fit_kn_exponent else []
     files = data_copies()
     fitted, predicted = SPLITS[args.split]
     out = RUNS / f"{args.split.replace('+', '_')}_{args.tag}"
     prior = RUNS / ("prior" + "_kn_exponent" * args.fit_kn_exponent + "_mobilisation" * bool(args.fit_mobilisation)
-                    + "_decay" * bool(args.fit_decay) + "_softening" * bool(args.fit_softening) + ".json")
+                    + "_decay" * bool(args.fit_decay) + "_softening" * bool(args.fit_softening)
+                    + "_void_lag" * bool(args.fit_void_lag)
+                    + "_k0" * (len(void_lag) == 2 and bool(args.fit_void_lag)) + ".json")
     prior.write_text(json.dumps({**PRIOR, **({"kn_exponent": [0.0, 1.0]} if args.fit_kn_exponent else {}),
                                  **(MOBILISATION_PRIOR if args.fit_mobilisation else {}),
                                  **(DECAY_PRIOR if args.fit_decay else {}),
-                                 **(SOFTENING_PRIOR if args.fit_softening else {})}, indent=1))
+                                 **(SOFTENING_PRIOR if args.fit_softening else {}),
+                                 **({n: VOID_LAG_PRIOR[n] for n in void_lag} if args.fit_void_lag else {})},
+                                indent=1))
     command = [sys.executable, "-m", "homogenization.calibrate", *sum((["--data", str(files[f])] for f in fitted), []),
                "--params", ",".join(params), "--prior", str(prior), *exponent, *FLAGS,
                "--steps", str(args.steps), "--out", str(out), *shlex.split(args.extra)]
     if args.start_from is not None:
         start = start_point(args.start_from, PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ()),
                             float(args.kn_exponent))
-        if args.fit_mobilisation or args.fit_decay or args.fit_softening:
+        if args.fit_mobilisation or args.fit_decay or args.fit_softening or args.fit_void_lag:
             values = dict(item.split("=") for item in start.split(","))
             values["kn"] = repr(float(values["kn"]) * args.kn_factor)
             for names, text in ((MOBILISATION, args.fit_mobilisation), (DECAY, args.fit_decay),
-                                (SOFTENING, args.fit_softening)):
+                                (SOFTENING, args.fit_softening), (void_lag, args.fit_void_lag)):
                 if text:
                     values.update(zip(names, (repr(float(v)) for v in text.split(","))))
             start = ",".join(f"{k}={v}" for k, v in values.items())

@@ -20,13 +20,15 @@ sqrt(3 J2), a triaxial test's abs(d eps1 - d eps3)); e_r = e at the start. e_c(p
 isotropic compression keeps the pressure dependence; in shear the interlocking decays over gamma_r of
 distortion after the dilation rather than with it. With ``relax_exponent`` k the lag's strain grows with the
 point's mean stress, gamma_r(p) = gamma_r (p / p_ref)^k (p of the accepted state; k = 0: gamma_r), so the decay is
-spread over more distortion at a higher pressure.
+spread over more distortion at a higher pressure. With ``relax_void_slope`` s it also grows with the point's initial
+void ratio e0 (the test's, ``forward.simulate``), gamma_r(p, e0) = gamma_r (p / p_ref)^k exp(s (e0 - e_ref)),
+e_ref = ``RELAX_VOID_REF`` (s = 0: no factor), so a looser specimen keeps its interlocking over more distortion.
 
 Opt-in softening since the peak (``Interlocking.softening_strain`` gamma_s > 0, instead of ``relax_strain``): the
 rule reads e_s = e_d + (e - e_d) (1 - exp(-g_d / gamma_s(p))), e_d the point's densest void ratio so far (the
 smallest e of the run up to the accepted state), g_d the deviatoric strain accumulated since e was last at e_d (the
-sum of d gamma over the increments that ended above it), gamma_s(p) = gamma_s (p / p_ref)^k (k = ``relax_exponent``,
-p of the accepted state). Before the peak (e at e_d, contracting) e_s = e: the rise is not lagged; after it the
+sum of d gamma over the increments that ended above it), gamma_s(p) = gamma_s (p / p_ref)^k exp(s (e0 - e_ref)) (k
+= ``relax_exponent``, s = ``relax_void_slope``, p of the accepted state). Before the peak (e at e_d, contracting) e_s = e: the rise is not lagged; after it the
 interlocking is held near its peak and released to e's over about gamma_s of distortion, and then reads e itself
 (unlike the lag, whose e_r trails e by about gamma_r d e / d gamma as long as the point dilates).
 
@@ -53,12 +55,17 @@ P_REF = 101325.0
 """Reference pressure p_ref [Pa] of the critical-state line (one atmosphere)."""
 E_C_FLOOR = 0.05
 """Smallest critical void ratio [-]: e_c(p) is clipped to it (counted: ``InterlockingFriction.floored``)."""
+RELAX_VOID_REF = 0.55
+"""Reference void ratio e_ref [-] of the lag's void-ratio factor exp(s (e0 - e_ref)) (module docstring)."""
+RELAX_VOID_SLOPE_MAX = 100.0
+"""Largest abs(relax_void_slope) s [-] that ``Interlocking.check`` accepts."""
 MOBILISATION_EXPONENT = 2.0 / 3.0
 """Exponent of the mobilisation strain's pressure dependence a(p) [-] (module docstring)."""
 FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi",
           "cell_spread": "cell_spread", "mobilisation_strain": "mobilisation_strain",
           "mobilisation_start": "mobilisation_start", "relax_strain": "relax_strain",
-          "relax_exponent": "relax_exponent", "softening_strain": "softening_strain"}
+          "relax_exponent": "relax_exponent", "softening_strain": "softening_strain",
+          "relax_void_slope": "relax_void_slope"}
 """Per-set parameters (calibration name -> ``Interlocking`` field) that ``simulate`` reads from its params."""
 
 
@@ -67,17 +74,18 @@ class Interlocking:
     """Parameters of the interlocking friction (module docstring).
 
     Attributes:
-        m: interlocking exponent [-], >= 0 (0: the friction stays phi_mu).
+        m: interlocking exponent [-], >= 0 (0: phi_mu).
         e_gamma: critical void ratio at p = 0 [-], > 0.
         lambda_c: slope of the critical-state line in (p / p_ref)^xi [-], >= 0.
         xi: exponent of the line [-], in (0, 1].
         p_ref: reference pressure [Pa in 3D, N/m in 2D], > 0.
-        relax_strain: gamma_r [-], >= 0, of the lagged void ratio; 0: no lag.
-        cell_spread: s [-], in [0, 1), the half-width of the cells' spread of tan phi; 0: none.
+        relax_strain: gamma_r [-], >= 0, the lag's strain; 0: none.
+        cell_spread: [-], in [0, 1), the cells' half-spread of tan phi; 0: none.
         mobilisation_strain: a_ref [-], >= 0, the mobilisation's strain at p_ref; 0: none.
         mobilisation_start: r0 [-], in [0, 1], the share of tan phi mobilised at zero distortion.
-        relax_exponent: k [-], in [0, 3], the lag's (softening's) strain's pressure exponent.
+        relax_exponent: k [-], in [0, 3], the lag's pressure exponent.
         softening_strain: gamma_s [-], >= 0, of the softening; 0: none; not with relax_strain.
+        relax_void_slope: s [-], abs(s) <= 100, d ln(gamma_r) / d e0; 0: none.
     (Module docstring.)
     """
 
@@ -92,6 +100,7 @@ class Interlocking:
     mobilisation_start: float = 0.5
     relax_exponent: float = 0.0
     softening_strain: float = 0.0
+    relax_void_slope: float = 0.0
 
     def check(self) -> None:
         """ValueError (one line) for a parameter out of range."""
@@ -101,7 +110,8 @@ class Interlocking:
                          ("mobilisation_strain", self.mobilisation_strain >= 0.0),
                          ("mobilisation_start", 0.0 <= self.mobilisation_start <= 1.0),
                          ("relax_exponent", 0.0 <= self.relax_exponent <= 3.0),
-                         ("softening_strain", self.softening_strain >= 0.0)):
+                         ("softening_strain", self.softening_strain >= 0.0),
+                         ("relax_void_slope", abs(self.relax_void_slope) <= RELAX_VOID_SLOPE_MAX)):
             value = getattr(self, name)
             if not (math.isfinite(value) and ok):
                 raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
@@ -135,10 +145,14 @@ def mobilised_share(g: Any, p: Any, a_ref: Any, r0: Any, p_ref: float) -> np.nda
     return np.where(np.asarray(a_ref) > 0.0, np.where(np.isfinite(r), r, 1.0), 1.0)
 
 
-def relax_strain_at(p: Any, gamma_r: Any, k: Any, p_ref: float) -> np.ndarray:
-    """The lag's strain gamma_r (max(p, 0) / p_ref)^k [-] at mean stress ``p`` (module docstring; broadcast)."""
+def relax_strain_at(p: Any, gamma_r: Any, k: Any, p_ref: float, e0: Any = RELAX_VOID_REF, s: Any = 0.0) -> np.ndarray:
+    """The lag's strain gamma_r (max(p, 0) / p_ref)^k exp(s (e0 - ``RELAX_VOID_REF``)) [-] at mean stress ``p`` [Pa]
+    of a point of initial void ratio ``e0`` [-] (module docstring; broadcast); s = 0: no void-ratio factor."""
     p = np.maximum(np.asarray(p, dtype=np.float64), 0.0)
-    return np.asarray(gamma_r, dtype=np.float64) * (p / p_ref) ** np.asarray(k, dtype=np.float64)
+    s = np.asarray(s, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        factor = np.where(s != 0.0, np.exp(s * (np.asarray(e0, dtype=np.float64) - RELAX_VOID_REF)), 1.0)
+    return np.asarray(gamma_r, dtype=np.float64) * (p / p_ref) ** np.asarray(k, dtype=np.float64) * factor
 
 
 def spread_factors(n_cells: int, spread: float) -> np.ndarray:
@@ -186,11 +200,12 @@ class InterlockingFriction:
             raise ValueError(f"the cell model holds {np.size(self.owner.mu)} frictions for {n} points of "
                              f"{self.n_cells} cells")
         keys = ("m", "e_gamma", "lambda_c", "xi", "cell_spread", "mobilisation_strain", "mobilisation_start",
-                "relax_strain", "relax_exponent", "softening_strain")
+                "relax_strain", "relax_exponent", "softening_strain", "relax_void_slope")
         values = {name: getattr(params, name) for name in keys}
         values.update(per_point or {})
         (self.m, self.e_gamma, self.lambda_c, self.xi, self.cell_spread, self.mobilisation_strain,
-         self.mobilisation_start, self.relax_strain, self.relax_exponent, self.softening_strain) = (
+         self.mobilisation_start, self.relax_strain, self.relax_exponent, self.softening_strain,
+         self.relax_void_slope) = (
             np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy() for k in keys)
         for i in range(n):
             replace(params, **{k: float(getattr(self, k)[i]) for k in keys}).check()
@@ -279,7 +294,8 @@ class InterlockingFriction:
         (e_r of the lag, e_s of the softening; module docstring), shape (n,); updates ``e_densest`` and
         ``since_densest``."""
         e = current_void_ratio(self.e0, state.J)
-        gamma_r = relax_strain_at(self._mean(state.stress), self.lag_strain, self.relax_exponent, self.params.p_ref)
+        gamma_r = relax_strain_at(self._mean(state.stress), self.lag_strain, self.relax_exponent, self.params.p_ref,
+                                  self.e0, self.relax_void_slope)
         densest = e <= self.e_densest
         self.e_densest = np.where(densest, e, self.e_densest)
         self.since_densest = np.where(densest, 0.0, self.since_densest + np.where(np.isfinite(gamma), gamma, 0.0))

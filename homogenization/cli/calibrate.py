@@ -14,9 +14,9 @@ then be calibrated; posterior.json holds the rule at the posterior mean (``criti
 ``hmodel triaxial --posterior`` and ``hmodel biaxial --posterior`` run. --interlocking (triaxial data,
 analytical backend, --confirm none) adds the interlocking friction (``homogenization.calibration.interlocking``):
 its interlocking_m, e_gamma, lambda_c, xi_c, cell_spread, mobilisation_strain and mobilisation_start (the
-friction's hyperbolic mobilisation with the point's distortion), relax_strain and relax_exponent (the void ratio
-it reads lagging over a distortion growing with the pressure), softening_strain (that lag from the point's densest
-state on instead) may then be calibrated, the others fixed by
+friction's hyperbolic mobilisation with the point's distortion), relax_strain, relax_exponent and
+relax_void_slope (the void ratio it reads lagging over a distortion growing with the pressure and the test's void
+ratio), softening_strain (that lag from the point's densest state on instead) may then be calibrated, the others fixed by
 --interlocking-values; posterior.json holds it at the posterior mean (``interlocking``), which ``hmodel triaxial
 --posterior`` runs. --kn-exponent N runs each triaxial test at kn (p0 / 101.325 kPa)^N; --params kn_exponent
 calibrates N instead. --start-point starts the map fit at given values instead of prior draws.
@@ -184,10 +184,12 @@ def build_parser() -> argparse.ArgumentParser:
                               "(p / 101.325 kPa)^xi_c (Chang & Hicher 2005), its cells spread by +-cell_spread about "
                               "it, mobilised over a strain mobilisation_strain (p / 101.325 kPa)^(2/3) from "
                               "mobilisation_start of it (default 0: at once), e lagging over a distortion "
-                              "relax_strain (p / 101.325 kPa)^relax_exponent (default 0: no lag; softening_strain "
+                              "relax_strain (p / 101.325 kPa)^relax_exponent exp(relax_void_slope (e0 - 0.55)), e0 "
+                              "the test's void ratio (default 0: no lag; softening_strain "
                               "instead: lagging from the densest state on); calibrate "
                               "interlocking_m, e_gamma, lambda_c, xi_c, cell_spread, mobilisation_strain, "
-                              "mobilisation_start, relax_strain, relax_exponent, softening_strain through --params "
+                              "mobilisation_start, relax_strain, relax_exponent, softening_strain, relax_void_slope "
+                              "through --params "
                               "(docs/calibration.md)")
     forward.add_argument("--interlocking-values", type=interlocking_values, default=None, metavar="NAME=VALUE,...",
                          help="with --interlocking: values of its parameters not calibrated (default "
@@ -400,8 +402,8 @@ def interlocking_settings(args: argparse.Namespace) -> Interlocking:
 def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     """UserError (one line) for the interlocking friction's parameters or --interlocking-values without
     --interlocking, or --interlocking with biaxial data (its p_ref is a pressure), a backend other than the
-    analytical one, --confirm dem (the DEM's contacts keep phi_g), alpha0_spread, both lags calibrated, or a value
-    out of range."""
+    analytical one, --confirm dem (the DEM's contacts keep phi_g), alpha0_spread, both lags calibrated, a value
+    out of range, or relax_void_slope calibrated or nonzero with a --data file that gives no void ratio."""
     own = [name for name in args.params if name in INTERLOCKING]
     if not args.interlocking:
         if own or args.interlocking_values is not None:
@@ -423,6 +425,10 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
         interlocking_settings(args).check()
     except ValueError as exc:
         raise UserError(f"--interlocking-values: {exc}") from None
+    unknown = [t.name for t in tests if t.void_ratio is None]
+    if unknown and ("relax_void_slope" in args.params or interlocking_settings(args).relax_void_slope != 0.0):
+        raise UserError(f"relax_void_slope scales the lag by the test's void ratio: --data {unknown[0]} gives none "
+                        f"('# void_ratio = E' in its header)")
 
 
 def check_interlocking_prior(prior: bayes.Prior, settings: ForwardSettings) -> None:

@@ -1,0 +1,93 @@
+"""python studies/sensitivity_dobrany_void_lag.py RESULT.json [--grid G1,G2:K1,K2:S1,S2] [--tag T]
+
+The interlocking's lag with a void-ratio factor (``calibration.interlocking``: gamma_r(p, e0) = gamma_r (p /
+p_ref)^k exp(s (e0 - 0.55)), ``relax_strain`` gamma_r, ``relax_exponent`` k, ``relax_void_slope`` s, e0 the test's
+void ratio) at a Dobrany calibration's posterior mean (a ``calibration_dobrany_product.py`` result JSON; its
+"mean" values, every other parameter the mean's) on its forward model (the result's command's flags, Lebedev 15 x 4
+staggered): the three drained tests, one batch per test, for the grid of (gamma_r, k, s). Prints per variant and
+test RMS abs(dq) / q_peak, RMS d eps_v and the strain at the highest q (model / sand), then the variants in the order
+of the mean RMS abs(dq) / q_peak over the result's two fitted tests (a start chosen from it does not see the
+predicted test). Writes studies/results/sensitivity_dobrany_void_lag_TAG.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_real_sand import SPLITS  # noqa: E402
+from bench_real_sand_spread import metrics  # noqa: E402
+from calibration_dobrany_product import RESULTS, data_copies  # noqa: E402
+
+from homogenization.calibration import forward  # noqa: E402
+from homogenization.calibration.data import read_test  # noqa: E402
+from homogenization.cli import calibrate  # noqa: E402
+
+GRID = "0.005,0.01,0.02:0,1.5:0,10,20,30"
+"""Default grid gamma_r [-] : k [-] : s [-]."""
+
+
+def settings_of(command: str) -> forward.ForwardSettings:
+    """The forward model of a result's ``hmodel calibrate`` command line (its flags; triaxial data)."""
+    words = shlex.split(command)
+    flags = words[words.index("homogenization.calibrate") + 1:]
+    return calibrate.forward_settings(calibrate.build_parser().parse_args(flags), dim=3)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("result", type=Path)
+    parser.add_argument("--grid", default=GRID, help="G1,G2:K1,K2:S1,S2 (gamma_r, k, s)")
+    parser.add_argument("--tag", default="")
+    args = parser.parse_args(argv)
+    grid = [[float(x) for x in part.split(",")] for part in args.grid.split(":")]
+    variants = list(itertools.product(*grid))
+    record = json.loads(args.result.read_text())
+    settings = settings_of(record["command"])
+    mean = record["mean"]["values"]
+    params = {k: np.full(len(variants), float(v)) for k, v in mean.items()}
+    for k, name in enumerate(("relax_strain", "relax_exponent", "relax_void_slope")):
+        params[name] = np.array([v[k] for v in variants])
+    fitted, predicted = SPLITS[record["split"]]
+    files = data_copies()
+    rows = []
+    for name in sorted(files, key=lambda f: read_test(files[f]).p0):
+        test = read_test(files[name])
+        started = time.perf_counter()
+        with np.errstate(all="ignore"):
+            c = forward.simulate(test, params, settings)
+        for i, v in enumerate(variants):
+            m = metrics(test, c.q[i], c.eps_v[i])
+            rows.append({"test": name, "gamma_r": v[0], "k": v[1], "s": v[2], **m, "fallbacks": int(c.n_fallback[i])})
+            print(f"{name:15s} e0 {test.void_ratio:.3f} gamma_r {v[0]:5.3f} k {v[1]:.2f} s {v[2]:4.1f}: RMS dq/qpk "
+                  f"{m['rms_dq_over_qpeak']:.3f} RMS deps_v {100 * m['rms_deps_v']:.2f} % peak "
+                  f"{100 * m['eps1_at_peak_model']:.2f} / {100 * m['eps1_at_peak_data']:.2f} %, fallbacks "
+                  f"{int(c.n_fallback[i])}", flush=True)
+        print(f"  ({len(variants)} variants in {time.perf_counter() - started:.0f} s)", flush=True)
+    print(f"variants by the mean RMS abs(dq)/q_peak over the fitted tests {', '.join(fitted)} (predicted {predicted}):")
+    score: dict[tuple, dict] = {}
+    for r in rows:
+        score.setdefault((r["gamma_r"], r["k"], r["s"]), {})[r["test"]] = r
+    for key, by_test in sorted(score.items(), key=lambda kv: np.mean([kv[1][n]["rms_dq_over_qpeak"] for n in fitted])):
+        print(f"  gamma_r {key[0]:5.3f} k {key[1]:.2f} s {key[2]:4.1f}: fitted "
+              f"{np.mean([by_test[n]['rms_dq_over_qpeak'] for n in fitted]):.4f}; " + "; ".join(
+                  f"{n} {t['rms_dq_over_qpeak']:.3f}, {100 * t['rms_deps_v']:.2f} %, peak "
+                  f"{100 * t['eps1_at_peak_model']:.2f}/{100 * t['eps1_at_peak_data']:.2f} %"
+                  for n, t in by_test.items()))
+    stem = f"sensitivity_dobrany_void_lag_{args.tag or record['split'].replace('+', '_')}"
+    (RESULTS / f"{stem}.json").write_text(json.dumps({"result": str(args.result), "grid": grid, "rows": rows},
+                                                    indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
