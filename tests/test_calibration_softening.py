@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_checks import assert_one_line_refusal, interlocking_data, replayed_shear
+from interlocking_cases import FAST, P_REF, SETS, SETTINGS
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
@@ -18,15 +19,10 @@ from homogenization.cli import calibrate
 from homogenization.material.density import current_void_ratio
 from warp_hcell.core.cli import run_main
 
-SETTINGS = forward.ForwardSettings(increment=2e-3, iso_increment=1e-3, lebedev_order=5, n_spins=2, stress_rtol=1e-5)
 EPS1 = np.linspace(0.002, 0.12, 60)
-P_REF = 101325.0
 TEST = Measurement("drained", Path("drained.csv"), True, 4 * P_REF, EPS1, {"q": np.zeros(60), "eps_v": np.zeros(60)},
                    dim=3, void_ratio=0.55)
-SETS = {"phi_g": np.array([30.0, 30.0]), "kn": np.array([5e7, 5e7]), "kt_over_kn": np.array([1.0, 1.0]),
-        "e_min": np.array([0.45, 0.45]), "e_max": np.array([0.7, 0.7])}
 RULE = Interlocking(m=2.0, e_gamma=0.7, lambda_c=0.02)
-FAST = ["--increment", "4e-3", "--iso-increment", "2e-3", "--confirm", "none", "--resolution", "off", "-q"]
 
 
 def test_off_is_the_rule_bit_for_bit_and_the_rise_is_not_lagged():

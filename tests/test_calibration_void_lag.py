@@ -11,21 +11,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_checks import assert_one_line_refusal, interlocking_data, replayed_shear
+from interlocking_cases import FAST, LagRecorder, P_REF, SETS, SETTINGS
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
-from homogenization.calibration.interlocking import RELAX_VOID_REF, Interlocking, InterlockingFriction, relax_strain_at
+from homogenization.calibration.interlocking import RELAX_VOID_REF, Interlocking, relax_strain_at
 from homogenization.cli import calibrate
 from homogenization.material.density import current_void_ratio
 from warp_hcell.core.cli import run_main
 
-SETTINGS = forward.ForwardSettings(increment=2e-3, iso_increment=1e-3, lebedev_order=5, n_spins=2, stress_rtol=1e-5)
 EPS1 = np.linspace(0.002, 0.06, 30)
-P_REF = 101325.0
-SETS = {"phi_g": np.array([30.0, 30.0]), "kn": np.array([5e7, 5e7]), "kt_over_kn": np.array([1.0, 1.0]),
-        "e_min": np.array([0.45, 0.45]), "e_max": np.array([0.7, 0.7])}
 RULE = Interlocking(m=2.0, e_gamma=0.7, lambda_c=0.02, relax_strain=0.02)
-FAST = ["--increment", "4e-3", "--iso-increment", "2e-3", "--confirm", "none", "--resolution", "off", "-q"]
 
 
 def drained(void_ratio: float) -> Measurement:
@@ -67,25 +63,13 @@ def test_zero_slope_is_the_lag_bit_for_bit_and_the_slope_reads_the_test_void_rat
     np.testing.assert_allclose(mixed.q[1], scaled.q[1], rtol=1e-12)
 
 
-class _Recorder(InterlockingFriction):
-    """The hook, recording each accepted increment's (lagged e before, strain before, J, strain and p after,
-    lagged e after)."""
-
-    def advance(self, state):
-        before = (self.e_lagged.copy(), self._strain.copy())
-        state = super().advance(state)
-        self.steps.append((*before, state.J.copy(), state.strain.copy(), self._mean(state.stress),
-                           self.e_lagged.copy()))
-        return state
-
-
 def test_each_increment_relaxes_over_the_void_ratio_scaled_strain():
     """Per increment and point: e_r' = e + (e_r - e) exp(-d gamma / (gamma_r (p / p_ref)^k exp(s (e0 - 0.55)))),
     each point its own e0 (0.5 and 0.62), e and p of the accepted state, d gamma = abs(d eps1 - d eps3)."""
     full = forward.full_parameters({**SETS, "alpha0": np.array([50.0, 50.0])}, SETTINGS)
     points = forward.population(full, SETTINGS, 3)
     e0 = np.array([0.5, 0.62])
-    hook = _Recorder(RULE, points.material, points.state, full["phi_g"], e0,
+    hook = LagRecorder(RULE, points.material, points.state, full["phi_g"], e0,
                      per_point={"relax_exponent": np.array([0.5, 0.5]), "relax_void_slope": np.array([10.0, 10.0])})
     hook.steps = []
     points.renewal = hook
