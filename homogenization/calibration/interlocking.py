@@ -27,10 +27,11 @@ e_ref = ``RELAX_VOID_REF`` (s = 0: no factor), so a looser specimen keeps its in
 Opt-in softening since the peak (``Interlocking.softening_strain`` gamma_s > 0, instead of ``relax_strain``): the
 rule reads e_s = e_d + (e - e_d) (1 - exp(-g_d / gamma_s(p))), e_d the point's densest void ratio so far (the
 smallest e of the run up to the accepted state), g_d the deviatoric strain accumulated since e was last at e_d (the
-sum of d gamma over the increments that ended above it), gamma_s(p) = gamma_s (p / p_ref)^k exp(s (e0 - e_ref)) (k
-= ``relax_exponent``, s = ``relax_void_slope``, p of the accepted state). Before the peak (e at e_d, contracting) e_s = e: the rise is not lagged; after it the
-interlocking is held near its peak and released to e's over about gamma_s of distortion, and then reads e itself
-(unlike the lag, whose e_r trails e by about gamma_r d e / d gamma as long as the point dilates).
+sum of d gamma over the increments that ended above it), gamma_s(p) = gamma_s (p / p_ref)^k exp(s (e0 - e_ref))
+(k = ``relax_exponent``, s = ``relax_void_slope``, p of the accepted state). Before the peak (e at e_d,
+contracting) e_s = e: the rise is not lagged; after it the interlocking is held near its peak and released to e's
+over about gamma_s of distortion, and then reads e itself (unlike the lag, whose e_r trails e by about
+gamma_r d e / d gamma as long as the point dilates).
 
 Opt-in spread (``Interlocking.cell_spread`` s in [0, 1)): cell k of a point steps with tan phi (1 + s u_k) instead of
 tan phi, u_k the uniform quantiles (2 j + 1) / n - 1 (j = 0 .. n - 1, n cells per point) dealt to the cells in the
