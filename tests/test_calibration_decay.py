@@ -9,15 +9,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_checks import assert_one_line_refusal, replayed_shear, interlocking_data
-from interlocking_cases import FAST, LagRecorder, P_REF, SETS, SETTINGS
+from cli_checks import assert_one_line_refusal, interlocking_data
+from interlocking_cases import FAST, LagRecorder, P_REF, SETS, SETTINGS, calibrated_replay
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
 from homogenization.calibration.interlocking import Interlocking, mobilised_friction_deg, relax_strain_at
 from homogenization.cli import calibrate
 from homogenization.material.density import current_void_ratio
-from warp_hcell.core.cli import run_main
 
 EPS1 = np.linspace(0.002, 0.06, 30)
 TEST = Measurement("drained", Path("drained.csv"), True, 4 * P_REF, EPS1, {"q": np.zeros(30), "eps_v": np.zeros(30)},
@@ -96,23 +95,9 @@ def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, expected):
 def test_the_posterior_holds_the_exponent_and_triaxial_replays_it(tmp_path):
     """posterior.json's interlocking holds the mean's relax_exponent; hmodel triaxial --posterior runs it as the
     forward model does (1e-6), apart from the curve at k = 0."""
-    out = tmp_path / "cal"
-    prior = tmp_path / "prior.json"
-    prior.write_text(json.dumps({"relax_exponent": [1.0, 2.0]}))
-    assert run_main(calibrate.main, [
-        "--data", str(interlocking_data(tmp_path / "t.csv")), "--params", "phi_g,relax_exponent", "--interlocking",
-        "--prior", str(prior),
-        "--interlocking-values", "interlocking_m=4,e_gamma=0.8,xi_c=0.5,relax_strain=0.01", "--walkers", "4",
-        "--steps", "2", "--start-point", "phi_g=30,relax_exponent=1.5", *FAST, "--out", str(out)]) == 0
-    from homogenization.calibration import posterior as post_mod  # noqa: PLC0415
-
-    post = post_mod.read_posterior(out)
-    data = json.loads((out / "posterior.json").read_text())
+    post, data, q, model, without = calibrated_replay(
+        tmp_path, "relax_exponent", "interlocking_m=4,e_gamma=0.8,xi_c=0.5,relax_strain=0.01", 1.5, prior=(1.0, 2.0))
     assert post.forward.interlocking.relax_exponent == data["relax_exponent"]["mean"] >= 1.0
     assert post.forward.interlocking.relax_strain == 0.01
-    eps1, q = replayed_shear(out, tmp_path / "run")
-    test = Measurement("t", Path("t.csv"), True, 2e5, eps1, {"q": q}, 3, 0.6)
-    mean = {name: np.array([value]) for name, value in post.mean.items()}
-    np.testing.assert_allclose(q, forward.simulate(test, mean, post.forward).q[0], rtol=1e-6)
-    without = forward.simulate(test, {**mean, "relax_exponent": np.zeros(1)}, post.forward).q[0]
+    np.testing.assert_allclose(q, model, rtol=1e-6)
     assert np.max(np.abs(q - without) / without) > 3e-4  # the lag barely acts by 1.2 %: 300 x the replay's rtol

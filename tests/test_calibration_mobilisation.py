@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_checks import assert_one_line_refusal, replayed_shear, interlocking_data
-from interlocking_cases import FAST, SETS, SETTINGS
+from cli_checks import assert_one_line_refusal, interlocking_data
+from interlocking_cases import FAST, SETS, SETTINGS, calibrated_replay
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
@@ -17,7 +17,6 @@ from homogenization.calibration.interlocking import (Interlocking, InterlockingF
                                                      mobilised_share)
 from homogenization.cli import calibrate
 from homogenization.material.density import current_void_ratio
-from warp_hcell.core.cli import run_main
 
 EPS1 = np.linspace(0.002, 0.04, 20)
 TEST = Measurement("drained", Path("drained.csv"), True, 1e5, EPS1, {"q": np.zeros(20), "eps_v": np.zeros(20)}, dim=3,
@@ -88,20 +87,9 @@ def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, expected):
 def test_the_posterior_holds_the_mobilisation_and_triaxial_replays_it(tmp_path):
     """posterior.json's interlocking holds the mean's mobilisation_strain; hmodel triaxial --posterior runs it as the
     forward model does, apart from the curve without it."""
-    out = tmp_path / "cal"
-    assert run_main(calibrate.main, [
-        "--data", str(interlocking_data(tmp_path / "t.csv")), "--params", "phi_g,mobilisation_strain", "--interlocking",
-        "--interlocking-values", "e_gamma=0.8,xi_c=0.5,mobilisation_start=0.2", "--walkers", "4", "--steps", "2",
-        "--start-point", "phi_g=30,mobilisation_strain=0.01", *FAST, "--out", str(out)]) == 0
-    from homogenization.calibration import posterior as post_mod  # noqa: PLC0415
-
-    post = post_mod.read_posterior(out)
-    data = json.loads((out / "posterior.json").read_text())
+    post, data, q, model, without = calibrated_replay(
+        tmp_path, "mobilisation_strain", "e_gamma=0.8,xi_c=0.5,mobilisation_start=0.2", 0.01)
     assert post.forward.interlocking.mobilisation_strain == data["mobilisation_strain"]["mean"] > 0.0
     assert post.forward.interlocking.mobilisation_start == 0.2
-    eps1, q = replayed_shear(out, tmp_path / "run")
-    test = Measurement("t", Path("t.csv"), True, 2e5, eps1, {"q": q}, 3, 0.6)
-    mean = {name: np.array([value]) for name, value in post.mean.items()}
-    np.testing.assert_allclose(q, forward.simulate(test, mean, post.forward).q[0], rtol=1e-4)
-    without = forward.simulate(test, {**mean, "mobilisation_strain": np.zeros(1)}, post.forward).q[0]
+    np.testing.assert_allclose(q, model, rtol=1e-4)
     assert abs(q[0] - without[0]) > 0.05 * without[0]

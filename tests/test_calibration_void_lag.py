@@ -10,15 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_checks import assert_one_line_refusal, interlocking_data, replayed_shear
-from interlocking_cases import FAST, LagRecorder, P_REF, SETS, SETTINGS
+from cli_checks import assert_one_line_refusal, interlocking_data
+from interlocking_cases import FAST, LagRecorder, P_REF, SETS, SETTINGS, calibrated_replay
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
 from homogenization.calibration.interlocking import RELAX_VOID_REF, Interlocking, relax_strain_at
 from homogenization.cli import calibrate
 from homogenization.material.density import current_void_ratio
-from warp_hcell.core.cli import run_main
 
 EPS1 = np.linspace(0.002, 0.06, 30)
 RULE = Interlocking(m=2.0, e_gamma=0.7, lambda_c=0.02, relax_strain=0.02)
@@ -111,23 +110,9 @@ def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, data, expected
 def test_the_posterior_holds_the_slope_and_triaxial_replays_it(tmp_path):
     """posterior.json's interlocking holds the mean's relax_void_slope; hmodel triaxial --posterior at void ratio 0.6
     runs it as the forward model does (1e-6), apart from the curve at s = 0."""
-    out = tmp_path / "cal"
-    prior = tmp_path / "prior.json"
-    prior.write_text(json.dumps({"relax_void_slope": [20.0, 30.0]}))
-    assert run_main(calibrate.main, [
-        "--data", str(interlocking_data(tmp_path / "t.csv")), "--params", "phi_g,relax_void_slope", "--interlocking",
-        "--prior", str(prior),
-        "--interlocking-values", "interlocking_m=4,e_gamma=0.8,xi_c=0.5,relax_strain=0.01", "--walkers", "4",
-        "--steps", "2", "--start-point", "phi_g=30,relax_void_slope=25", *FAST, "--out", str(out)]) == 0
-    from homogenization.calibration import posterior as post_mod  # noqa: PLC0415
-
-    post = post_mod.read_posterior(out)
-    data = json.loads((out / "posterior.json").read_text())
+    post, data, q, model, without = calibrated_replay(
+        tmp_path, "relax_void_slope", "interlocking_m=4,e_gamma=0.8,xi_c=0.5,relax_strain=0.01", 25, prior=(20.0, 30.0))
     assert post.forward.interlocking.relax_void_slope == data["relax_void_slope"]["mean"] >= 20.0
-    eps1, q = replayed_shear(out, tmp_path / "run")
-    test = Measurement("t", Path("t.csv"), True, 2e5, eps1, {"q": q}, 3, 0.6)
-    mean = {name: np.array([value]) for name, value in post.mean.items()}
-    np.testing.assert_allclose(q, forward.simulate(test, mean, post.forward).q[0], rtol=1e-6)
-    without = forward.simulate(test, {**mean, "relax_void_slope": np.zeros(1)}, post.forward).q[0]
+    np.testing.assert_allclose(q, model, rtol=1e-6)
     assert np.max(np.abs(q - without) / without) > 3e-4
     assert replace(post.forward.interlocking, relax_void_slope=0.0) != post.forward.interlocking
