@@ -44,6 +44,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -105,11 +106,11 @@ def data_copies() -> dict[str, Path]:
     return out
 
 
-def sensitivity_setup(result: Path, rule: str, variants: list[tuple], names: tuple[str, str]
+def sensitivity_setup(result: Path, rule: str, variants: list[tuple], names: tuple[str, ...], kn_factor: int | None = 2
                       ) -> tuple[dict, dict[str, np.ndarray], forward.ForwardSettings]:
     """For a sensitivity grid around a study result (``result``, its JSON): (the record, the forward model's
-    per-variant parameters, its settings on ``rule``, e.g. "15x4s"): the posterior mean's values, kn times each
-    variant's third value, the two parameters ``names`` from its first two."""
+    per-variant parameters, its settings on ``rule``, e.g. "15x4s"): the posterior mean's values, the parameters
+    ``names`` from each variant's first values, kn times its value at index ``kn_factor`` (None: kn the mean's)."""
     from homogenization.calibration.interlocking import Interlocking  # noqa: PLC0415
 
     record = json.loads(result.read_text())
@@ -126,10 +127,24 @@ def sensitivity_setup(result: Path, rule: str, variants: list[tuple], names: tup
     settings = replace(settings, lebedev_order=int(order), n_spins=int(rest[:-1]), staggered_spins=rest[-1] == "s",
                        interlocking=settings.interlocking or Interlocking())
     params = {k: np.full(len(variants), float(v)) for k, v in mean.items()}
-    params["kn"] = params["kn"] * np.array([v[2] for v in variants])
+    if kn_factor is not None:
+        params["kn"] = params["kn"] * np.array([v[kn_factor] for v in variants])
     for k, name in enumerate(names):
         params[name] = np.array([v[k] for v in variants])
     return record, params, settings
+
+
+def print_ranking(rows: list[dict], keys: tuple[str, ...], fitted: list[str], label: Callable[[tuple], str]) -> None:
+    """The variants of a sensitivity grid (``rows``: one per variant and test, with "test" and ``metrics``' fields)
+    in the order of their mean RMS abs(dq) / q_peak over the ``fitted`` tests, one line each: ``label`` of the
+    variant's values of ``keys``, that mean, then each test's RMS abs(dq) / q_peak, RMS d eps_v and peak strains."""
+    score: dict[tuple, dict] = {}
+    for r in rows:
+        score.setdefault(tuple(r[k] for k in keys), {})[r["test"]] = r
+    for key, by_test in sorted(score.items(), key=lambda kv: np.mean([kv[1][n]["rms_dq_over_qpeak"] for n in fitted])):
+        print(f"  {label(key)}: fitted {np.mean([by_test[n]['rms_dq_over_qpeak'] for n in fitted]):.4f}; " + "; ".join(
+            f"{n} {t['rms_dq_over_qpeak']:.3f}, {100 * t['rms_deps_v']:.2f} %, peak "
+            f"{100 * t['eps1_at_peak_model']:.2f}/{100 * t['eps1_at_peak_data']:.2f} %" for n, t in by_test.items()))
 
 
 def start_point(path: Path, params: tuple[str, ...] = PARAMS, kn_exponent: float | None = None) -> str:

@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_real_sand_spread import metrics  # noqa: E402
-from calibration_dobrany_product import RESULTS, data_copies, sensitivity_setup  # noqa: E402
+from calibration_dobrany_product import RESULTS, data_copies, print_ranking, sensitivity_setup  # noqa: E402
 
 from homogenization.calibration import forward  # noqa: E402
 from homogenization.calibration.data import read_test  # noqa: E402
@@ -84,17 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.fitted_first:
         fitted = [n for n, t in record["mean"]["tests"].items() if t["role"] == "fitted"]
         print(f"variants by the mean RMS abs(dq)/q_peak over the fitted tests {', '.join(fitted)}:")
-        score = {}
-        for r in rows:
-            key = (r["gamma_r"], r["k"], r["kn_factor"], r["n"])
-            score.setdefault(key, {})[r["test"]] = r
-        for key, by_test in sorted(score.items(), key=lambda kv: np.mean(
-                [kv[1][n]["rms_dq_over_qpeak"] for n in fitted])):
-            print(f"  gamma_r {key[0]:5.3f} k {key[1]:.2f} kn x{key[2]:.1f} n {key[3]}: fitted "
-                  f"{np.mean([by_test[n]['rms_dq_over_qpeak'] for n in fitted]):.4f}; " + "; ".join(
-                      f"{n} {t['rms_dq_over_qpeak']:.3f}, {100 * t['rms_deps_v']:.2f} %, peak "
-                      f"{100 * t['eps1_at_peak_model']:.2f}/{100 * t['eps1_at_peak_data']:.2f} %"
-                      for n, t in by_test.items()))
+        print_ranking(rows, ("gamma_r", "k", "kn_factor", "n"), fitted,
+                      lambda key: f"gamma_r {key[0]:5.3f} k {key[1]:.2f} kn x{key[2]:.1f} n {key[3]}")
     stem = f"sensitivity_dobrany_decay_{args.tag or record['split'].replace('+', '_')}"
     (RESULTS / f"{stem}.json").write_text(json.dumps({"result": str(args.result), "rule": args.rule,
                                                      "grid": grid, "rows": rows}, indent=1))

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -26,21 +25,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_real_sand import SPLITS  # noqa: E402
 from bench_real_sand_spread import metrics  # noqa: E402
-from calibration_dobrany_product import RESULTS, data_copies  # noqa: E402
+from calibration_dobrany_product import RESULTS, data_copies, print_ranking, sensitivity_setup  # noqa: E402
 
 from homogenization.calibration import forward  # noqa: E402
 from homogenization.calibration.data import read_test  # noqa: E402
-from homogenization.cli import calibrate  # noqa: E402
 
 GRID = "0.005,0.01,0.02:0,1.5:0,10,20,30"
 """Default grid gamma_r [-] : k [-] : s [-]."""
-
-
-def settings_of(command: str) -> forward.ForwardSettings:
-    """The forward model of a result's ``hmodel calibrate`` command line (its flags; triaxial data)."""
-    words = shlex.split(command)
-    flags = words[words.index("homogenization.calibrate") + 1:]
-    return calibrate.forward_settings(calibrate.build_parser().parse_args(flags), dim=3)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,12 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     grid = [[float(x) for x in part.split(",")] for part in args.grid.split(":")]
     variants = list(itertools.product(*grid))
-    record = json.loads(args.result.read_text())
-    settings = settings_of(record["command"])
-    mean = record["mean"]["values"]
-    params = {k: np.full(len(variants), float(v)) for k, v in mean.items()}
-    for k, name in enumerate(("relax_strain", "relax_exponent", "relax_void_slope")):
-        params[name] = np.array([v[k] for v in variants])
+    record, params, settings = sensitivity_setup(args.result, "15x4s", variants,
+                                                 ("relax_strain", "relax_exponent", "relax_void_slope"), kn_factor=None)
     fitted, predicted = SPLITS[record["split"]]
     files = data_copies()
     rows = []
@@ -74,15 +61,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{int(c.n_fallback[i])}", flush=True)
         print(f"  ({len(variants)} variants in {time.perf_counter() - started:.0f} s)", flush=True)
     print(f"variants by the mean RMS abs(dq)/q_peak over the fitted tests {', '.join(fitted)} (predicted {predicted}):")
-    score: dict[tuple, dict] = {}
-    for r in rows:
-        score.setdefault((r["gamma_r"], r["k"], r["s"]), {})[r["test"]] = r
-    for key, by_test in sorted(score.items(), key=lambda kv: np.mean([kv[1][n]["rms_dq_over_qpeak"] for n in fitted])):
-        print(f"  gamma_r {key[0]:5.3f} k {key[1]:.2f} s {key[2]:4.1f}: fitted "
-              f"{np.mean([by_test[n]['rms_dq_over_qpeak'] for n in fitted]):.4f}; " + "; ".join(
-                  f"{n} {t['rms_dq_over_qpeak']:.3f}, {100 * t['rms_deps_v']:.2f} %, peak "
-                  f"{100 * t['eps1_at_peak_model']:.2f}/{100 * t['eps1_at_peak_data']:.2f} %"
-                  for n, t in by_test.items()))
+    print_ranking(rows, ("gamma_r", "k", "s"), fitted, lambda key: f"gamma_r {key[0]:5.3f} k {key[1]:.2f} s {key[2]:4.1f}")
     stem = f"sensitivity_dobrany_void_lag_{args.tag or record['split'].replace('+', '_')}"
     (RESULTS / f"{stem}.json").write_text(json.dumps({"result": str(args.result), "grid": grid, "rows": rows},
                                                     indent=1))
