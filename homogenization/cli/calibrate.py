@@ -421,12 +421,13 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
         raise UserError(f"--interlocking does not run with {SPREAD}")
     if "relax_strain" in args.params and "softening_strain" in args.params:
         raise UserError("--params relax_strain,softening_strain: one lag at a time (calibrate one of them)")
+    settings = interlocking_settings(args)
     try:
-        interlocking_settings(args).check()
+        settings.check()
     except ValueError as exc:
         raise UserError(f"--interlocking-values: {exc}") from None
     unknown = [t.name for t in tests if t.void_ratio is None]
-    if unknown and ("relax_void_slope" in args.params or interlocking_settings(args).relax_void_slope != 0.0):
+    if unknown and ("relax_void_slope" in args.params or settings.relax_void_slope != 0.0):
         raise UserError(f"relax_void_slope scales the lag by the test's void ratio: --data {unknown[0]} gives none "
                         f"('# void_ratio = E' in its header)")
 
