@@ -72,7 +72,8 @@ INTERLOCKING_PRIOR = {"interlocking_m": (0.0, 6.0, False), "e_gamma": (0.5, 1.2,
                       "xi_c": (0.2, 1.0, False), "cell_spread": (0.0, 0.6, False),
                       "mobilisation_strain": (0.0, 0.05, False), "mobilisation_start": (0.0, 1.0, False),
                       "relax_strain": (0.0, 0.1, False), "relax_exponent": (0.0, 2.0, False),
-                      "softening_strain": (0.0, 0.1, False), "relax_void_slope": (0.0, 30.0, False)}
+                      "softening_strain": (0.0, 0.1, False), "relax_void_slope": (0.0, 30.0, False),
+                      "mobilisation_exponent": (0.0, 2.0, False), "mobilisation_void_slope": (0.0, 30.0, False)}
 """Default prior of the interlocking friction's calibratable parameters (``INTERLOCKING``: CLI name -> ``Interlocking``
 field): uniform (low, high, log-uniform?), all [-]; read only with ``ForwardSettings.interlocking``, per set."""
 INTERLOCKING_KEY = "interlocking"
@@ -88,8 +89,8 @@ PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson",
 """Names of the calibratable parameters, in the units of the CLI flags: phi_g [deg], kn [N/m],
 kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-], alpha0_spread [deg], e_min and
 e_max [-], alpha_c [deg] and renewal_rate [-] (``RULE``), the interlocking friction's m, e_gamma, lambda_c,
-xi_c, cell_spread, mobilisation_strain, mobilisation_start, relax_strain, relax_exponent, softening_strain and
-relax_void_slope [-] (``INTERLOCKING``), kn's exponent [-]
+xi_c, cell_spread, mobilisation_strain, mobilisation_start, relax_strain, relax_exponent, softening_strain,
+relax_void_slope, mobilisation_exponent and mobilisation_void_slope [-] (``INTERLOCKING``), kn's exponent [-]
 (``KN_EXPONENT``, linear law)."""
 LAW_PARAMETERS = {ContactLaw.name: ("phi_g", "kn", "kt_over_kn", "alpha0"),
                   HertzMindlinLaw.name: ("phi_g", "shear_modulus", "poisson", "alpha0")}

@@ -24,6 +24,11 @@ spread over more distortion at a higher pressure. With ``relax_void_slope`` s it
 void ratio e0 (the test's, ``forward.simulate``), gamma_r(p, e0) = gamma_r (p / p_ref)^k exp(s (e0 - e_ref)),
 e_ref = ``RELAX_VOID_REF`` (s = 0: no factor), so a looser specimen keeps its interlocking over more distortion.
 
+Opt-in mobilisation (``Interlocking.mobilisation_strain`` a_ref > 0): the point's tan phi (the rule's, lag included)
+is multiplied by r = r0 + (1 - r0) g / (a + g), g the point's accumulated distortion (the sum of its d gamma), r0 =
+``mobilisation_start``, a(p, e0) = a_ref (p / p_ref)^n exp(s_m (e0 - e_ref)), n = ``mobilisation_exponent``
+(default ``MOBILISATION_EXPONENT``), s_m = ``mobilisation_void_slope`` (0: no factor), p of the accepted state.
+
 Opt-in softening since the peak (``Interlocking.softening_strain`` gamma_s > 0, instead of ``relax_strain``): the
 rule reads e_s = e_d + (e - e_d) (1 - exp(-g_d / gamma_s(p))), e_d the point's densest void ratio so far (the
 smallest e of the run up to the accepted state), g_d the deviatoric strain accumulated since e was last at e_d (the
@@ -57,37 +62,39 @@ P_REF = 101325.0
 E_C_FLOOR = 0.05
 """Smallest critical void ratio [-]: e_c(p) is clipped to it (counted: ``InterlockingFriction.floored``)."""
 RELAX_VOID_REF = 0.55
-"""Reference void ratio e_ref [-] of the lag's void-ratio factor exp(s (e0 - e_ref)) (module docstring)."""
+"""Reference void ratio e_ref [-] of the lag's and the mobilisation's void-ratio factors exp(s (e0 - e_ref))."""
 RELAX_VOID_SLOPE_MAX = 100.0
-"""Largest abs(relax_void_slope) s [-] that ``Interlocking.check`` accepts."""
+"""Largest abs(relax_void_slope) and abs(mobilisation_void_slope) [-] that ``Interlocking.check`` accepts."""
 MOBILISATION_EXPONENT = 2.0 / 3.0
-"""Exponent of the mobilisation strain's pressure dependence a(p) [-] (module docstring)."""
+"""Default exponent n of the mobilisation strain's pressure factor [-] (module docstring)."""
 FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi",
           "cell_spread": "cell_spread", "mobilisation_strain": "mobilisation_strain",
           "mobilisation_start": "mobilisation_start", "relax_strain": "relax_strain",
           "relax_exponent": "relax_exponent", "softening_strain": "softening_strain",
-          "relax_void_slope": "relax_void_slope"}
+          "relax_void_slope": "relax_void_slope", "mobilisation_exponent": "mobilisation_exponent",
+          "mobilisation_void_slope": "mobilisation_void_slope"}
 """Per-set parameters (calibration name -> ``Interlocking`` field) that ``simulate`` reads from its params."""
 
 
 @dataclass(frozen=True)
 class Interlocking:
-    """Parameters of the interlocking friction (module docstring).
+    """Parameters of the interlocking friction (module docstring), all [-] but p_ref.
 
     Attributes:
-        m: interlocking exponent [-], >= 0 (0: phi_mu).
-        e_gamma: critical void ratio at p = 0 [-], > 0.
-        lambda_c: slope of the critical-state line in (p / p_ref)^xi [-], >= 0.
-        xi: exponent of the line [-], in (0, 1].
+        m: interlocking exponent, >= 0 (0: phi_mu).
+        e_gamma: critical void ratio at p = 0, > 0.
+        lambda_c: slope of the critical-state line in (p / p_ref)^xi, >= 0.
+        xi: exponent of the line, in (0, 1].
         p_ref: reference pressure [Pa in 3D, N/m in 2D], > 0.
-        relax_strain: gamma_r [-], >= 0, the lag's strain; 0: none.
-        cell_spread: [-], in [0, 1), the cells' half-spread of tan phi; 0: none.
-        mobilisation_strain: a_ref [-], >= 0, the mobilisation's strain at p_ref; 0: none.
-        mobilisation_start: r0 [-], in [0, 1], the share of tan phi mobilised at zero distortion.
-        relax_exponent: k [-], in [0, 3], the lag's pressure exponent.
-        softening_strain: gamma_s [-], >= 0, of the softening; 0: none; not with relax_strain.
-        relax_void_slope: s [-], abs(s) <= 100, d ln(gamma_r) / d e0; 0: none.
-    (Module docstring.)
+        relax_strain: gamma_r, >= 0, the lag's strain; 0: none.
+        cell_spread: in [0, 1), the cells' half-spread; 0: none.
+        mobilisation_strain: a_ref, >= 0, the mobilisation strain; 0: none.
+        mobilisation_start: r0, in [0, 1], the share mobilised at zero distortion.
+        relax_exponent: k, in [0, 3], the lag's pressure exponent.
+        softening_strain: gamma_s, >= 0; 0: none; not with relax_strain.
+        relax_void_slope: s, abs(s) <= 100, d ln(gamma_r) / d e0; 0: none.
+        mobilisation_exponent: n, in [0, 3], its pressure exponent.
+        mobilisation_void_slope: s_m, abs(s_m) <= 100, d ln(a) / d e0; 0: none.
     """
 
     m: float = 1.0
@@ -102,6 +109,8 @@ class Interlocking:
     relax_exponent: float = 0.0
     softening_strain: float = 0.0
     relax_void_slope: float = 0.0
+    mobilisation_exponent: float = MOBILISATION_EXPONENT
+    mobilisation_void_slope: float = 0.0
 
     def check(self) -> None:
         """ValueError (one line) for a parameter out of range."""
@@ -112,7 +121,9 @@ class Interlocking:
                          ("mobilisation_start", 0.0 <= self.mobilisation_start <= 1.0),
                          ("relax_exponent", 0.0 <= self.relax_exponent <= 3.0),
                          ("softening_strain", self.softening_strain >= 0.0),
-                         ("relax_void_slope", abs(self.relax_void_slope) <= RELAX_VOID_SLOPE_MAX)):
+                         ("relax_void_slope", abs(self.relax_void_slope) <= RELAX_VOID_SLOPE_MAX),
+                         ("mobilisation_exponent", 0.0 <= self.mobilisation_exponent <= 3.0),
+                         ("mobilisation_void_slope", abs(self.mobilisation_void_slope) <= RELAX_VOID_SLOPE_MAX)):
             value = getattr(self, name)
             if not (math.isfinite(value) and ok):
                 raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
@@ -135,10 +146,15 @@ def mobilised_friction_deg(phi_mu_deg: Any, e: Any, p: Any, m: Any, e_gamma: Any
     return np.degrees(np.arctan(ratio ** np.asarray(m, dtype=np.float64) * np.tan(np.radians(phi_mu_deg))))
 
 
-def mobilised_share(g: Any, p: Any, a_ref: Any, r0: Any, p_ref: float) -> np.ndarray:
-    """r = r0 + (1 - r0) g / (a(p) + g) [-] (module docstring; broadcast), 1 where a_ref = 0; g [-] >= 0."""
+def mobilised_share(g: Any, p: Any, a_ref: Any, r0: Any, p_ref: float, e0: Any = RELAX_VOID_REF, s: Any = 0.0,
+                    n: Any = MOBILISATION_EXPONENT) -> np.ndarray:
+    """r = r0 + (1 - r0) g / (a + g) [-], a = a_ref (max(p, 0) / p_ref)^n exp(s (e0 - ``RELAX_VOID_REF``)) (module
+    docstring; broadcast; p [Pa]), 1 where a_ref = 0; g [-] >= 0; s = 0: no void-ratio factor."""
+    s = np.asarray(s, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        factor = np.where(s != 0.0, np.exp(s * (np.asarray(e0, dtype=np.float64) - RELAX_VOID_REF)), 1.0)
     a = np.asarray(a_ref, dtype=np.float64) * (np.maximum(np.asarray(p, dtype=np.float64), 0.0) / p_ref) ** (
-        MOBILISATION_EXPONENT)
+        np.asarray(n, dtype=np.float64)) * factor
     g = np.asarray(g, dtype=np.float64)
     r0 = np.asarray(r0, dtype=np.float64)
     with np.errstate(all="ignore"):
@@ -201,12 +217,13 @@ class InterlockingFriction:
             raise ValueError(f"the cell model holds {np.size(self.owner.mu)} frictions for {n} points of "
                              f"{self.n_cells} cells")
         keys = ("m", "e_gamma", "lambda_c", "xi", "cell_spread", "mobilisation_strain", "mobilisation_start",
-                "relax_strain", "relax_exponent", "softening_strain", "relax_void_slope")
+                "relax_strain", "relax_exponent", "softening_strain", "relax_void_slope", "mobilisation_exponent",
+                "mobilisation_void_slope")
         values = {name: getattr(params, name) for name in keys}
         values.update(per_point or {})
         (self.m, self.e_gamma, self.lambda_c, self.xi, self.cell_spread, self.mobilisation_strain,
          self.mobilisation_start, self.relax_strain, self.relax_exponent, self.softening_strain,
-         self.relax_void_slope) = (
+         self.relax_void_slope, self.mobilisation_exponent, self.mobilisation_void_slope) = (
             np.broadcast_to(np.asarray(values[k], dtype=np.float64), (n,)).copy() for k in keys)
         for i in range(n):
             replace(params, **{k: float(getattr(self, k)[i]) for k in keys}).check()
@@ -260,7 +277,8 @@ class InterlockingFriction:
         self.friction_deg = self.friction_at(state)
         if self.mobilised:
             r = mobilised_share(self.distortion, self._mean(state.stress), self.mobilisation_strain,
-                                self.mobilisation_start, self.params.p_ref)
+                                self.mobilisation_start, self.params.p_ref, self.e0, self.mobilisation_void_slope,
+                                self.mobilisation_exponent)
             self.friction_deg = np.degrees(np.arctan(r * np.tan(np.radians(self.friction_deg))))
         self.owner.mu = np.repeat(np.tan(np.radians(self.friction_deg)), self.n_cells) * self.factors
         if self.inner is not None:

@@ -13,8 +13,9 @@ defaults for the data's dimension) in the forward model; its alpha_c [deg] and r
 then be calibrated; posterior.json holds the rule at the posterior mean (``critical_state``), which
 ``hmodel triaxial --posterior`` and ``hmodel biaxial --posterior`` run. --interlocking (triaxial data,
 analytical backend, --confirm none) adds the interlocking friction (``homogenization.calibration.interlocking``):
-its interlocking_m, e_gamma, lambda_c, xi_c, cell_spread, mobilisation_strain and mobilisation_start (the
-friction's hyperbolic mobilisation with the point's distortion), relax_strain, relax_exponent and
+its interlocking_m, e_gamma, lambda_c, xi_c, cell_spread, mobilisation_strain, mobilisation_start,
+mobilisation_exponent and mobilisation_void_slope (the friction's hyperbolic mobilisation with the point's
+distortion, over a strain growing with the pressure and the test's void ratio), relax_strain, relax_exponent and
 relax_void_slope (the void ratio it reads lagging over a distortion growing with the pressure and the test's void
 ratio), softening_strain (that lag from the point's densest state on instead) may then be calibrated, the others fixed by
 --interlocking-values; posterior.json holds it at the posterior mean (``interlocking``), which ``hmodel triaxial
@@ -182,14 +183,15 @@ def build_parser() -> argparse.ArgumentParser:
                          help="triaxial data, analytical backend, --confirm none: each point's contact friction "
                               "tan phi = (e_c(p) / e)^m tan phi_g, e its void ratio, e_c(p) = e_gamma - lambda_c "
                               "(p / 101.325 kPa)^xi_c (Chang & Hicher 2005), its cells spread by +-cell_spread about "
-                              "it, mobilised over a strain mobilisation_strain (p / 101.325 kPa)^(2/3) from "
+                              "it, mobilised over a strain mobilisation_strain (p / 101.325 kPa)^mobilisation_exponent "
+                              "exp(mobilisation_void_slope (e0 - 0.55)) (default exponent 2/3) from "
                               "mobilisation_start of it (default 0: at once), e lagging over a distortion "
                               "relax_strain (p / 101.325 kPa)^relax_exponent exp(relax_void_slope (e0 - 0.55)), e0 "
                               "the test's void ratio (default 0: no lag; softening_strain "
                               "instead: lagging from the densest state on); calibrate "
                               "interlocking_m, e_gamma, lambda_c, xi_c, cell_spread, mobilisation_strain, "
-                              "mobilisation_start, relax_strain, relax_exponent, softening_strain, relax_void_slope "
-                              "through --params "
+                              "mobilisation_start, relax_strain, relax_exponent, softening_strain, relax_void_slope, "
+                              "mobilisation_exponent, mobilisation_void_slope through --params "
                               "(docs/calibration.md)")
     forward.add_argument("--interlocking-values", type=interlocking_values, default=None, metavar="NAME=VALUE,...",
                          help="with --interlocking: values of its parameters not calibrated (default "
@@ -403,7 +405,9 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
     """UserError (one line) for the interlocking friction's parameters or --interlocking-values without
     --interlocking, or --interlocking with biaxial data (its p_ref is a pressure), a backend other than the
     analytical one, --confirm dem (the DEM's contacts keep phi_g), alpha0_spread, both lags calibrated, a value
-    out of range, or relax_void_slope calibrated or nonzero with a --data file that gives no void ratio."""
+    out of range, relax_void_slope or mobilisation_void_slope calibrated or nonzero with a --data file that gives no
+    void ratio, or mobilisation_exponent or mobilisation_void_slope calibrated or not at its default without
+    mobilisation_strain calibrated or nonzero."""
     own = [name for name in args.params if name in INTERLOCKING]
     if not args.interlocking:
         if own or args.interlocking_values is not None:
@@ -427,9 +431,16 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
     except ValueError as exc:
         raise UserError(f"--interlocking-values: {exc}") from None
     unknown = [t.name for t in tests if t.void_ratio is None]
-    if unknown and ("relax_void_slope" in args.params or settings.relax_void_slope != 0.0):
-        raise UserError(f"relax_void_slope scales the lag by the test's void ratio: --data {unknown[0]} gives none "
-                        f"('# void_ratio = E' in its header)")
+    for name, what in (("relax_void_slope", "the lag"), ("mobilisation_void_slope", "the mobilisation strain")):
+        if unknown and (name in args.params or getattr(settings, name) != 0.0):
+            raise UserError(f"{name} scales {what} by the test's void ratio: --data {unknown[0]} gives none "
+                            f"('# void_ratio = E' in its header)")
+    default = Interlocking()
+    idle = [n for n in ("mobilisation_exponent", "mobilisation_void_slope")
+            if n in args.params or getattr(settings, n) != getattr(default, n)]
+    if idle and "mobilisation_strain" not in args.params and settings.mobilisation_strain == 0.0:
+        raise UserError(f"{idle[0]} shapes the mobilisation strain: calibrate mobilisation_strain or give it "
+                        f"(--interlocking-values mobilisation_strain=A, A > 0)")
 
 
 def check_interlocking_prior(prior: bayes.Prior, settings: ForwardSettings) -> None:
