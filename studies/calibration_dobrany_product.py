@@ -2,7 +2,7 @@
                                                 [--extra "FLAGS"] [--evaluate-only] [--check-rule 23x8s]
                                                 [--fit-kn-exponent] [--fit-mobilisation A,R0 [--kn-factor F]]
                                                 [--fit-decay G,K [--kn-factor F]] [--fit-softening G,K]
-                                                [--fit-void-lag G,K,S|G,S]
+                                                [--fit-void-lag G,K,S|G,S] [--fit-mobilisation-void A,R0,S]
        python studies/calibration_dobrany_product.py --splits-figure OUT.png RESULT.json[+RESULT2.json] ...
 
 Dobrany sand with the product's own ``hmodel calibrate``: the interlocking friction (``--interlocking``: m,
@@ -27,6 +27,10 @@ and [0, 2]), started at G and K, kn at ``--kn-factor`` times the start's. ``--fi
 softening since the point's densest state (``softening_strain``, prior [0, 0.1]) instead of the lag. ``--fit-void-lag
 G,K,S`` calibrates the lag with its void-ratio factor (``relax_strain``, ``relax_exponent``, ``relax_void_slope``;
 prior [0, 0.1], [0, 2], [0, 40]), started at G, K and S; ``--fit-void-lag G,S``: relax_exponent not calibrated (0).
+``--fit-mobilisation-void A,R0,S`` calibrates the mobilisation with its void-ratio factor (``mobilisation_strain``,
+``mobilisation_start``, ``mobilisation_void_slope``; prior [0, 0.03], [0, 1], [0, 40]), started at A, R0 and S, kn at
+``--kn-factor`` times the start's; its pressure exponent stays at the flags' (``--extra "--interlocking-values
+mobilisation_exponent=N"``; default 2/3).
 
 Writes the data copies, the prior and the calibration under runs/dobrany_product/ (ignored), and
 studies/results/calibration_dobrany_product_SPLIT_TAG.json and .png (q and eps_v, data and the mean's curves).
@@ -82,6 +86,10 @@ SOFTENING_PRIOR = {"softening_strain": [0.0, 0.1], "relax_exponent": [0.0, 2.0]}
 VOID_LAG = (*DECAY, "relax_void_slope")
 """The lag's parameters with its void-ratio factor (``--fit-void-lag``)."""
 VOID_LAG_PRIOR = {**DECAY_PRIOR, "relax_void_slope": [0.0, 40.0]}
+"""Their bounds in the study's prior [-]."""
+MOBILISATION_VOID = (*MOBILISATION, "mobilisation_void_slope")
+"""The mobilisation's parameters with its void-ratio factor (``--fit-mobilisation-void``)."""
+MOBILISATION_VOID_PRIOR = {**MOBILISATION_PRIOR, "mobilisation_void_slope": [0.0, 40.0]}
 """Their bounds in the study's prior [-]."""
 STUDY = {"phi_g": "phi_g", "log10_kn": "kn", "kt_over_kn": "kt_over_kn", "e_min": "e_min", "e_max": "e_max",
          "alpha_c_deg": "alpha_c", "log10_rate": "renewal_rate", "interlocking_m": "interlocking_m",
@@ -277,11 +285,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fit-void-lag", default="", metavar="G,K,S|G,S",
                         help="calibrate relax_strain, relax_exponent and relax_void_slope too, started at G, K, S "
                              "(G,S: relax_exponent 0, not calibrated)")
+    parser.add_argument("--fit-mobilisation-void", default="", metavar="A,R0,S",
+                        help="calibrate mobilisation_strain, mobilisation_start and mobilisation_void_slope too, "
+                             "started at A, R0 and S")
     parser.add_argument("--kn-factor", type=float, default=1.0,
-                        help="with --fit-mobilisation, --fit-decay, --fit-softening or --fit-void-lag: kn's start factor")
+                        help="with --fit-mobilisation, --fit-decay, --fit-softening, --fit-void-lag or "
+                             "--fit-mobilisation-void: kn's start factor")
     args = parser.parse_args(argv)
+    if args.fit_mobilisation and args.fit_mobilisation_void:
+        parser.error("--fit-mobilisation and --fit-mobilisation-void: one of them")
     params = PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ())
     params += MOBILISATION if args.fit_mobilisation else ()
+    params += MOBILISATION_VOID if args.fit_mobilisation_void else ()
     if sum(map(bool, (args.fit_decay, args.fit_softening, args.fit_void_lag))) > 1:
         parser.error("--fit-decay, --fit-softening and --fit-void-lag: one lag at a time")
     params += DECAY if args.fit_decay else ()
@@ -295,12 +310,14 @@ def main(argv: list[str] | None = None) -> int:
     prior = RUNS / ("prior" + "_kn_exponent" * args.fit_kn_exponent + "_mobilisation" * bool(args.fit_mobilisation)
                     + "_decay" * bool(args.fit_decay) + "_softening" * bool(args.fit_softening)
                     + "_void_lag" * bool(args.fit_void_lag)
-                    + "_k0" * (len(void_lag) == 2 and bool(args.fit_void_lag)) + ".json")
+                    + "_k0" * (len(void_lag) == 2 and bool(args.fit_void_lag))
+                    + "_mobilisation_void" * bool(args.fit_mobilisation_void) + ".json")
     prior.write_text(json.dumps({**PRIOR, **({"kn_exponent": [0.0, 1.0]} if args.fit_kn_exponent else {}),
                                  **(MOBILISATION_PRIOR if args.fit_mobilisation else {}),
                                  **(DECAY_PRIOR if args.fit_decay else {}),
                                  **(SOFTENING_PRIOR if args.fit_softening else {}),
-                                 **({n: VOID_LAG_PRIOR[n] for n in void_lag} if args.fit_void_lag else {})},
+                                 **({n: VOID_LAG_PRIOR[n] for n in void_lag} if args.fit_void_lag else {}),
+                                 **(MOBILISATION_VOID_PRIOR if args.fit_mobilisation_void else {})},
                                 indent=1))
     command = [sys.executable, "-m", "homogenization.calibrate", *sum((["--data", str(files[f])] for f in fitted), []),
                "--params", ",".join(params), "--prior", str(prior), *exponent, *FLAGS,
@@ -308,11 +325,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.start_from is not None:
         start = start_point(args.start_from, PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ()),
                             float(args.kn_exponent))
-        if args.fit_mobilisation or args.fit_decay or args.fit_softening or args.fit_void_lag:
+        if (args.fit_mobilisation or args.fit_decay or args.fit_softening or args.fit_void_lag
+                or args.fit_mobilisation_void):
             values = dict(item.split("=") for item in start.split(","))
             values["kn"] = repr(float(values["kn"]) * args.kn_factor)
             for names, text in ((MOBILISATION, args.fit_mobilisation), (DECAY, args.fit_decay),
-                                (SOFTENING, args.fit_softening), (void_lag, args.fit_void_lag)):
+                                (SOFTENING, args.fit_softening), (void_lag, args.fit_void_lag),
+                                (MOBILISATION_VOID, args.fit_mobilisation_void)):
                 if text:
                     values.update(zip(names, (repr(float(v)) for v in text.split(","))))
             start = ",".join(f"{k}={v}" for k, v in values.items())

@@ -3,7 +3,7 @@
 The pressure exponent of the mobilisation strain a(p) = a_ref (p / p_ref)^x (``calibration.interlocking``,
 ``MOBILISATION_EXPONENT``, 2/3 in the product) at the posterior means of the two Dobrany fits with the mobilisation
 (``calibration_dobrany_product.py --tag mobil_15x4s``, their run folders under runs/dobrany_product/): the three
-drained tests with x = 2/3, 1/3 and 0 (the module constant set in this process only), every parameter the mean's,
+drained tests with x = 2/3, 1/3 and 0 (``mobilisation_exponent``, per set), every parameter the mean's,
 on the calibration's forward model. Prints per test RMS abs(dq) / q_peak, RMS d eps_v, the strain at the highest q
 (model / sand) and the highest q [kPa] (model / sand).
 """
@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_real_sand_spread import metrics  # noqa: E402
 from calibration_dobrany_product import RUNS, data_copies  # noqa: E402
 
-from homogenization.calibration import forward, interlocking, posterior as post_mod  # noqa: E402
+from homogenization.calibration import forward, posterior as post_mod  # noqa: E402
 from homogenization.calibration.data import read_test  # noqa: E402
 
 
@@ -30,12 +30,11 @@ def main() -> int:
         post = post_mod.read_posterior(RUNS / f"{split}_mobil_15x4s")
         mean = {k: np.array([v]) for k, v in post.mean.items()}
         for x in (2 / 3, 1 / 3, 0.0):
-            interlocking.MOBILISATION_EXPONENT = x
             out = []
             for name in sorted(files, key=lambda f: read_test(files[f]).p0):
                 test = read_test(files[name])
                 with np.errstate(all="ignore"):
-                    c = forward.simulate(test, mean, post.forward)
+                    c = forward.simulate(test, {**mean, "mobilisation_exponent": np.array([x])}, post.forward)
                 m = metrics(test, c.q[0], c.eps_v[0])
                 out.append(f"{name[4:7]} {m['rms_dq_over_qpeak']:.3f} {100 * m['rms_deps_v']:.2f}% pk "
                            f"{100 * m['eps1_at_peak_model']:.2f}/{100 * m['eps1_at_peak_data']:.2f} "
