@@ -287,7 +287,7 @@ def forward_settings(args: argparse.Namespace, dim: int = 2) -> ForwardSettings:
                            increment=args.increment,
                            iso_increment=args.iso_increment, radius=args.radius, stress_rtol=args.stress_rtol,
                            fixed=fixed, backend_options=options,
-                           critical_state=critical_state_rule(dim) if args.critical_state else None,
+                           critical_state=critical_state_rule(dim, args.renewal_phases) if args.critical_state else None,
                            kn_exponent=args.kn_exponent,
                            interlocking=interlocking_settings(args) if args.interlocking else None)
 
@@ -339,6 +339,8 @@ def check_critical_state(args: argparse.Namespace, tests: Sequence[Measurement])
     if rule and not args.critical_state:
         raise UserError(f"--params {rule[0]} is a parameter of the critical-state rule; add --critical-state")
     if not args.critical_state:
+        if args.renewal_phases is not None:
+            raise UserError("--renewal-phases needs --critical-state (the rule whose renewals it groups)")
         return
     if len({t.dim for t in tests}) > 1:
         raise UserError("--critical-state: the rule's defaults differ between biaxial and triaxial cells; give data "

@@ -128,17 +128,27 @@ def add_void_ratio_arguments(parser: argparse.ArgumentParser) -> None:
                        help="void ratio of the loosest cell [-] (with --void-ratio)")
 
 
+RENEWAL_PHASES = ("cell", "axis", "mirror", "mirror-spin")
+"""The choices of --renewal-phases (``homogenization.material.critical_state.PHASES``)."""
+
+
 def add_critical_state_argument(parser: argparse.ArgumentParser) -> None:
-    """--critical-state: renew the cells towards a critical state (opt-in; off: the plain H-model)."""
+    """--critical-state: renew the cells towards a critical state (opt-in; off: the plain H-model); --renewal-phases:
+    which cells its rule renews together (None: the rule's default)."""
     parser.add_argument("--critical-state", action="store_true",
                         help="renew the cells between increments towards a critical state, with the measured "
                              "parameters of the cells' dimension (docs/usage.md, Critical state)")
+    parser.add_argument("--renewal-phases", choices=RENEWAL_PHASES, default=None,
+                        help="with --critical-state: the cells renewed together (default cell: mirror-image cells; "
+                             "docs/usage.md, Critical state)")
 
 
-def critical_state_rule(dim: int):
-    """The ``CriticalState`` that --critical-state runs with cells of dimension ``dim`` (its ``DEFAULTS``)."""
+def critical_state_rule(dim: int, phases: str | None = None):
+    """The ``CriticalState`` that --critical-state runs with cells of dimension ``dim``: its ``DEFAULTS``, with
+    ``phases`` (--renewal-phases) where given."""
+    from dataclasses import replace  # noqa: PLC0415
     from homogenization.material.critical_state import DEFAULTS  # noqa: PLC0415 (only runs that ask for it)
-    return DEFAULTS[dim]
+    return DEFAULTS[dim] if phases is None else replace(DEFAULTS[dim], phases=phases)
 
 
 def add_orientations_argument(parser: argparse.ArgumentParser, default: int,

@@ -69,14 +69,21 @@ class PosteriorRun:
 
 
 def critical_state(run: PosteriorRun | None, args: argparse.Namespace, dim: int) -> Any:
-    """The rule a run applies: the posterior's where it has one, else the defaults' with --critical-state, else None."""
+    """The rule a run applies: the posterior's where it has one, else the defaults' (with --renewal-phases) with
+    --critical-state, else None; UserError (one line) for --renewal-phases without a rule of the command's or with
+    the posterior's."""
     if run is not None and run.critical_state is not None:
+        if args.renewal_phases is not None:
+            raise UserError(f"--renewal-phases with --posterior: the posterior's critical-state rule sets its phases "
+                            f"({run.critical_state.phases})")
         return run.critical_state
     if not args.critical_state:
+        if args.renewal_phases is not None:
+            raise UserError("--renewal-phases needs --critical-state (the rule whose renewals it groups)")
         return None
     from homogenization.cli.options import critical_state_rule  # noqa: PLC0415
 
-    return critical_state_rule(dim)
+    return critical_state_rule(dim, args.renewal_phases)
 
 
 def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argparse.ArgumentParser,
