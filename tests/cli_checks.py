@@ -57,3 +57,23 @@ def interlocking_data(path: Path, test: str = "triaxial_drained") -> Path:
     path.write_text(f"# test = {test}\n# p0 = 200000\n# void_ratio = 0.6\neps1,q,eps_v\n0.004,250000,0.001\n"
                     f"0.008,380000,0.0015\n0.012,430000,0.001\n")
     return path
+
+
+def assert_interlocking_refusal(tmp_path: Path, capsys, flags: Sequence[str], data: str, expected: str,
+                                prior: dict, fast: Sequence[str]) -> None:
+    """``hmodel calibrate`` on ``interlocking_data`` (its ``# void_ratio`` line dropped where ``data`` is "none"),
+    with each "PRIOR" of ``flags`` replaced by a prior file holding ``prior``, then ``fast``: one stderr line naming
+    ``expected``, exit 2, no output folder (``assert_one_line_refusal``)."""
+    import json  # noqa: PLC0415
+
+    from homogenization.cli import calibrate  # noqa: PLC0415
+
+    prior_file = tmp_path / "prior.json"
+    prior_file.write_text(json.dumps(prior))
+    flags = [str(prior_file) if f == "PRIOR" else f for f in flags]
+    path = interlocking_data(tmp_path / "t.csv")
+    if data == "none":
+        path.write_text("".join(line for line in path.read_text().splitlines(keepends=True) if "void_ratio" not in line))
+    out = tmp_path / "cal"
+    args = ["--data", str(path), *flags, "--walkers", "4", "--steps", "2", "--out", str(out), *fast]
+    assert_one_line_refusal(capsys, calibrate.main, args, expected, out)

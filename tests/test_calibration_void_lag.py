@@ -3,20 +3,18 @@ gamma_r(p, e0) = gamma_r (p / p_ref)^k exp(s (e0 - 0.55))): hand values, bit-unc
 per set in the forward model, each increment the hand recurrence at the point's e0, replayed by hmodel triaxial
 --posterior, refused in one line where it does not apply."""
 
-import json
 import math
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_checks import assert_one_line_refusal, interlocking_data
+from cli_checks import assert_interlocking_refusal
 from interlocking_cases import FAST, LagRecorder, P_REF, SETS, SETTINGS, calibrated_replay
 
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
 from homogenization.calibration.interlocking import RELAX_VOID_REF, Interlocking, relax_strain_at
-from homogenization.cli import calibrate
 from homogenization.material.density import current_void_ratio
 
 EPS1 = np.linspace(0.002, 0.06, 30)
@@ -96,15 +94,7 @@ def test_each_increment_relaxes_over_the_void_ratio_scaled_strain():
      "the prior of relax_void_slope reaches 120"),
 ])
 def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, data, expected):
-    prior = tmp_path / "prior.json"
-    prior.write_text(json.dumps({"relax_void_slope": [0.0, 120.0]}))
-    flags = [str(prior) if f == "PRIOR" else f for f in flags]
-    path = interlocking_data(tmp_path / "t.csv")
-    if data == "none":
-        path.write_text("".join(line for line in path.read_text().splitlines(keepends=True) if "void_ratio" not in line))
-    out = tmp_path / "cal"
-    args = ["--data", str(path), *flags, "--walkers", "4", "--steps", "2", "--out", str(out), *FAST]
-    assert_one_line_refusal(capsys, calibrate.main, args, expected, out)
+    assert_interlocking_refusal(tmp_path, capsys, flags, data, expected, {"relax_void_slope": [0.0, 120.0]}, FAST)
 
 
 def test_the_posterior_holds_the_slope_and_triaxial_replays_it(tmp_path):
