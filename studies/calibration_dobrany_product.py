@@ -155,6 +155,41 @@ def print_ranking(rows: list[dict], keys: tuple[str, ...], fitted: list[str], la
             f"{100 * t['eps1_at_peak_model']:.2f}/{100 * t['eps1_at_peak_data']:.2f} %" for n, t in by_test.items()))
 
 
+def grid_scan(result: Path, names: tuple[str, ...], keys: tuple[str, ...], formats: tuple[str, ...],
+              grid: list[list[float]], stem: str) -> None:
+    """A sensitivity grid at a study result's posterior mean (``sensitivity_setup`` on 15 x 4 staggered, kn the mean's):
+    the parameters ``names`` over every combination of ``grid``'s values, the three drained tests one batch each.
+    Prints per variant and test RMS abs(dq) / q_peak, RMS d eps_v, the strain at the highest q (model / sand) and the
+    forward fallbacks, each value as ``keys[i] format(v, formats[i])``, then ``print_ranking`` over the result's fitted
+    tests; writes RESULTS / ``stem``.json (the rows, one per variant and test, keyed by ``keys``)."""
+    import itertools  # noqa: PLC0415
+
+    variants = list(itertools.product(*grid))
+    record, params, settings = sensitivity_setup(result, "15x4s", variants, names, kn_factor=None)
+    fitted, predicted = SPLITS[record["split"]]
+
+    def label(values: tuple) -> str:
+        return " ".join(f"{key} {format(v, spec)}" for key, v, spec in zip(keys, values, formats))
+
+    files = data_copies()
+    rows = []
+    for name in sorted(files, key=lambda f: read_test(files[f]).p0):
+        test = read_test(files[name])
+        started = time.perf_counter()
+        with np.errstate(all="ignore"):
+            c = forward.simulate(test, params, settings)
+        for i, v in enumerate(variants):
+            m = metrics(test, c.q[i], c.eps_v[i])
+            rows.append({"test": name, **dict(zip(keys, v)), **m, "fallbacks": int(c.n_fallback[i])})
+            print(f"{name:15s} e0 {test.void_ratio:.3f} {label(v)}: RMS dq/qpk {m['rms_dq_over_qpeak']:.3f} RMS deps_v "
+                  f"{100 * m['rms_deps_v']:.2f} % peak {100 * m['eps1_at_peak_model']:.2f} / "
+                  f"{100 * m['eps1_at_peak_data']:.2f} %, fallbacks {int(c.n_fallback[i])}", flush=True)
+        print(f"  ({len(variants)} variants in {time.perf_counter() - started:.0f} s)", flush=True)
+    print(f"variants by the mean RMS abs(dq)/q_peak over the fitted tests {', '.join(fitted)} (predicted {predicted}):")
+    print_ranking(rows, keys, fitted, label)
+    (RESULTS / f"{stem}.json").write_text(json.dumps({"result": str(result), "grid": grid, "rows": rows}, indent=1))
+
+
 def start_point(path: Path, params: tuple[str, ...] = PARAMS, kn_exponent: float | None = None) -> str:
     """--start-point of a study result's optimum (its log10 coordinates raised), or of this script's result's
     least-squares optimum (CLI names); ``kn_exponent`` where ``params`` holds it and the result does not."""

@@ -13,22 +13,13 @@ predicted test). Writes studies/results/sensitivity_dobrany_void_lag_TAG.json.
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import sys
-import time
 from pathlib import Path
-
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_real_sand import SPLITS  # noqa: E402
-from bench_real_sand_spread import metrics  # noqa: E402
-from calibration_dobrany_product import RESULTS, data_copies, print_ranking, sensitivity_setup  # noqa: E402
-
-from homogenization.calibration import forward  # noqa: E402
-from homogenization.calibration.data import read_test  # noqa: E402
+from calibration_dobrany_product import grid_scan  # noqa: E402
 
 GRID = "0.005,0.01,0.02:0,1.5:0,10,20,30"
 """Default grid gamma_r [-] : k [-] : s [-]."""
@@ -41,30 +32,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tag", default="")
     args = parser.parse_args(argv)
     grid = [[float(x) for x in part.split(",")] for part in args.grid.split(":")]
-    variants = list(itertools.product(*grid))
-    record, params, settings = sensitivity_setup(args.result, "15x4s", variants,
-                                                 ("relax_strain", "relax_exponent", "relax_void_slope"), kn_factor=None)
-    fitted, predicted = SPLITS[record["split"]]
-    files = data_copies()
-    rows = []
-    for name in sorted(files, key=lambda f: read_test(files[f]).p0):
-        test = read_test(files[name])
-        started = time.perf_counter()
-        with np.errstate(all="ignore"):
-            c = forward.simulate(test, params, settings)
-        for i, v in enumerate(variants):
-            m = metrics(test, c.q[i], c.eps_v[i])
-            rows.append({"test": name, "gamma_r": v[0], "k": v[1], "s": v[2], **m, "fallbacks": int(c.n_fallback[i])})
-            print(f"{name:15s} e0 {test.void_ratio:.3f} gamma_r {v[0]:5.3f} k {v[1]:.2f} s {v[2]:4.1f}: RMS dq/qpk "
-                  f"{m['rms_dq_over_qpeak']:.3f} RMS deps_v {100 * m['rms_deps_v']:.2f} % peak "
-                  f"{100 * m['eps1_at_peak_model']:.2f} / {100 * m['eps1_at_peak_data']:.2f} %, fallbacks "
-                  f"{int(c.n_fallback[i])}", flush=True)
-        print(f"  ({len(variants)} variants in {time.perf_counter() - started:.0f} s)", flush=True)
-    print(f"variants by the mean RMS abs(dq)/q_peak over the fitted tests {', '.join(fitted)} (predicted {predicted}):")
-    print_ranking(rows, ("gamma_r", "k", "s"), fitted, lambda key: f"gamma_r {key[0]:5.3f} k {key[1]:.2f} s {key[2]:4.1f}")
-    stem = f"sensitivity_dobrany_void_lag_{args.tag or record['split'].replace('+', '_')}"
-    (RESULTS / f"{stem}.json").write_text(json.dumps({"result": str(args.result), "grid": grid, "rows": rows},
-                                                    indent=1))
+    tag = args.tag or json.loads(args.result.read_text())["split"].replace("+", "_")
+    stem = f"sensitivity_dobrany_void_lag_{tag}"
+    grid_scan(args.result, ("relax_strain", "relax_exponent", "relax_void_slope"),
+              ("gamma_r", "k", "s"), ("5.3f", ".2f", "4.1f"), grid, stem)
     return 0
 
 
