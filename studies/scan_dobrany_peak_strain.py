@@ -92,7 +92,8 @@ def variants(mean: dict[str, float], only: set[str], given: list[dict] | None = 
     return out, settings
 
 
-def row(label: str, name: str, test, values: dict[str, float], q: np.ndarray, eps_v: np.ndarray, fallbacks: int) -> dict:
+def row(label: str, name: str, test, values: dict[str, float], q: np.ndarray, eps_v: np.ndarray,
+        fallbacks: int) -> dict:
     """One variant's numbers on one test (module docstring)."""
     e, q_data = test.eps1, test.observed["q"]
     m = metrics(test, q, eps_v)
@@ -103,7 +104,8 @@ def row(label: str, name: str, test, values: dict[str, float], q: np.ndarray, ep
             "e0": test.void_ratio, "rms_dq_over_qpeak": m["rms_dq_over_qpeak"], "rms_deps_v": m["rms_deps_v"],
             "first_peak_strain": float(e[j]), "first_peak_q": float(q[j]),
             "first_peak_wide_strain": float(e[first_peak(q, DROP_WIDE)]),
-            "sand_first_peak_wide_strain": float(e[first_peak(q_data, DROP_WIDE)]), "highest_strain": float(e[np.argmax(q)]),
+            "sand_first_peak_wide_strain": float(e[first_peak(q_data, DROP_WIDE)]),
+            "highest_strain": float(e[np.argmax(q)]),
             "highest_q": float(q.max()), "reach_strain": float(e[np.argmax(q >= REACH * q.max())]),
             "sand_first_peak_strain": float(e[first_peak(q_data)]), "sand_highest_strain": float(e[np.argmax(q_data)]),
             "sand_reach_strain": float(e[np.argmax(q_data >= REACH * q_data.max())]),
@@ -117,7 +119,8 @@ def line(r: dict) -> str:
             f"{100 * r['rms_deps_v']:.2f} %; first peak {r['first_peak_q'] / 1e3:4.0f} kPa at "
             f"{100 * r['first_peak_strain']:5.2f} % (sand {100 * r['sand_first_peak_strain']:.2f}), 5 %-drop peak at "
             f"{100 * r['first_peak_wide_strain']:5.2f} % (sand {100 * r['sand_first_peak_wide_strain']:.2f}), highest "
-            f"{r['highest_q'] / 1e3:4.0f} at {100 * r['highest_strain']:5.2f} % (sand {100 * r['sand_highest_strain']:.2f}),"
+            f"{r['highest_q'] / 1e3:4.0f} at {100 * r['highest_strain']:5.2f} % "
+            f"(sand {100 * r['sand_highest_strain']:.2f}),"
             f" 95 % at {100 * r['reach_strain']:5.2f} % (sand {100 * r['sand_reach_strain']:.2f}); e/e_c at first "
             f"peak {r['void_over_critical_at_first_peak']:.3f}; fallbacks {r['forward_fallbacks']}")
 
@@ -151,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
         test = read_test(files[name])
         with np.errstate(all="ignore"):
             c = forward.simulate(test, params, settings)
-        runs = [(label, per_set[i], c.q[i], c.eps_v[i], int(c.n_fallback[i])) for i, (label, _) in enumerate(par_variants)]
+        runs = [(label, per_set[i], c.q[i], c.eps_v[i], int(c.n_fallback[i]))
+                for i, (label, _) in enumerate(par_variants)]
         for key, value in set_variants:
             one = {k: v[:1] for k, v in params.items()}
             if key == "increment":
