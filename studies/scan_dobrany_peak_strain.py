@@ -32,7 +32,7 @@ from calibration_dobrany_product import RESULTS, data_copies, sensitivity_setup 
 
 from homogenization.calibration import forward  # noqa: E402
 from homogenization.calibration.data import read_test  # noqa: E402
-from homogenization.calibration.interlocking import P_REF  # noqa: E402
+from homogenization.calibration.interlocking import P_REF, critical_void_ratio  # noqa: E402
 
 DROP = 0.02
 """A first peak is a running maximum of q from which q falls by this share of it before exceeding it [-]."""
@@ -66,8 +66,8 @@ def first_peak(q: np.ndarray, drop: float = DROP) -> int:
 
 
 def critical_void(values: dict[str, float], p: np.ndarray) -> np.ndarray:
-    """e_c(p) = e_Gamma - lambda (p / p_ref)^xi [-] of a set's values (CLI names) at p [Pa]."""
-    return values["e_gamma"] - values["lambda_c"] * (p / P_REF) ** values["xi_c"]
+    """e_c(p) [-] of a set's values (CLI names) at p [Pa] (``interlocking.critical_void_ratio``)."""
+    return critical_void_ratio(p, values["e_gamma"], values["lambda_c"], values["xi_c"], P_REF)
 
 
 def variants(mean: dict[str, float], only: set[str], given: list[dict] | None = None

@@ -146,15 +146,20 @@ def mobilised_friction_deg(phi_mu_deg: Any, e: Any, p: Any, m: Any, e_gamma: Any
     return np.degrees(np.arctan(ratio ** np.asarray(m, dtype=np.float64) * np.tan(np.radians(phi_mu_deg))))
 
 
+def void_factor(e0: Any, s: Any) -> np.ndarray:
+    """exp(s (e0 - ``RELAX_VOID_REF``)) [-] of initial void ratios ``e0`` [-] and slopes ``s`` [-] (broadcast); exactly
+    1 where s = 0 (whatever e0, NaN included)."""
+    s = np.asarray(s, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        return np.where(s != 0.0, np.exp(s * (np.asarray(e0, dtype=np.float64) - RELAX_VOID_REF)), 1.0)
+
+
 def mobilised_share(g: Any, p: Any, a_ref: Any, r0: Any, p_ref: float, e0: Any = RELAX_VOID_REF, s: Any = 0.0,
                     n: Any = MOBILISATION_EXPONENT) -> np.ndarray:
     """r = r0 + (1 - r0) g / (a + g) [-], a = a_ref (max(p, 0) / p_ref)^n exp(s (e0 - ``RELAX_VOID_REF``)) (module
     docstring; broadcast; p [Pa]), 1 where a_ref = 0; g [-] >= 0; s = 0: no void-ratio factor."""
-    s = np.asarray(s, dtype=np.float64)
-    with np.errstate(all="ignore"):
-        factor = np.where(s != 0.0, np.exp(s * (np.asarray(e0, dtype=np.float64) - RELAX_VOID_REF)), 1.0)
     a = np.asarray(a_ref, dtype=np.float64) * (np.maximum(np.asarray(p, dtype=np.float64), 0.0) / p_ref) ** (
-        np.asarray(n, dtype=np.float64)) * factor
+        np.asarray(n, dtype=np.float64)) * void_factor(e0, s)
     g = np.asarray(g, dtype=np.float64)
     r0 = np.asarray(r0, dtype=np.float64)
     with np.errstate(all="ignore"):
@@ -166,10 +171,7 @@ def relax_strain_at(p: Any, gamma_r: Any, k: Any, p_ref: float, e0: Any = RELAX_
     """The lag's strain gamma_r (max(p, 0) / p_ref)^k exp(s (e0 - ``RELAX_VOID_REF``)) [-] at mean stress ``p`` [Pa]
     of a point of initial void ratio ``e0`` [-] (module docstring; broadcast); s = 0: no void-ratio factor."""
     p = np.maximum(np.asarray(p, dtype=np.float64), 0.0)
-    s = np.asarray(s, dtype=np.float64)
-    with np.errstate(all="ignore"):
-        factor = np.where(s != 0.0, np.exp(s * (np.asarray(e0, dtype=np.float64) - RELAX_VOID_REF)), 1.0)
-    return np.asarray(gamma_r, dtype=np.float64) * (p / p_ref) ** np.asarray(k, dtype=np.float64) * factor
+    return np.asarray(gamma_r, dtype=np.float64) * (p / p_ref) ** np.asarray(k, dtype=np.float64) * void_factor(e0, s)
 
 
 def spread_factors(n_cells: int, spread: float) -> np.ndarray:
