@@ -63,7 +63,7 @@ from warp_hcell.core.parameters import (
     Law,
 )
 from warp_hcell.mesostructures import hcell
-from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell, polyhedron_volume
+from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell, polyhedron_volume_of_rows
 
 
 class AnalyticalState(NamedTuple):
@@ -98,23 +98,29 @@ class Analytical3DState(NamedTuple):
     b: AnalyticalState
 
 
-LATERAL_GRAINS = (1, 2, 4, 5)
-"""Indices (0-based) in a plane's six grains of its lateral grains: those a second plane adds to the cell."""
 TEN_SPHERE_FACES = hcell.h_cell_3d_faces()
 """Outer triangles of the ten-sphere cell."""
 
 
 def cell_positions(planes: Sequence[AnalyticalState]) -> np.ndarray:
     """Grain centres (n_cells, 2 + 4 n_planes, 1 + n_planes) [m], cell centre at the origin: the first plane's
-    six grains in (n, t1), then each further plane k's lateral grains in (n, tk)."""
-    first = hcell.grain_positions(planes[0].l1, planes[0].l2, planes[0].y2)
+    six grains in (n, t1), then each further plane k's lateral grains in (n, tk) (``grain_rows``, reordered)."""
+    return np.ascontiguousarray(np.moveaxis(grain_rows(planes), -1, 0))
+
+
+def grain_rows(planes: Sequence[AnalyticalState]) -> np.ndarray:
+    """``cell_positions`` laid out grain, then component first: shape (2 + 4 n_planes, 1 + n_planes, n_cells) [m]."""
+    first = planes[0]
+    hn, ht, y2 = 0.5 * first.l1, 0.5 * first.l2, first.y2
     n_planes = len(planes)
-    x = np.zeros((first.shape[0], 2 + 4 * n_planes, 1 + n_planes))
-    x[:, :6, 0], x[:, :6, 1] = first[..., 0], first[..., 1]
+    x = np.zeros((2 + 4 * n_planes, 1 + n_planes, hn.shape[0]))
+    x[:6, 0] = hn, y2, -y2, -hn, -y2, y2  # hcell.grain_positions, grain by grain
+    x[1:3, 1], x[4:6, 1] = -ht, ht
     for k, plane in enumerate(planes[1:], start=2):
-        lateral = hcell.grain_positions(plane.l1, plane.l2, plane.y2)[:, LATERAL_GRAINS]
-        rows = slice(4 * k - 2, 4 * k + 2)
-        x[:, rows, 0], x[:, rows, k] = lateral[..., 0], lateral[..., 1]
+        ht, y2 = 0.5 * plane.l2, plane.y2
+        rows = slice(4 * k - 2, 4 * k + 2)  # its lateral grains: 2, 3, 5 and 6 of its six
+        x[rows, 0] = y2, -y2, -y2, y2
+        x[rows, k] = -ht, -ht, ht, ht
     return x
 
 
@@ -123,7 +129,7 @@ def _hexagon_area(planes: Sequence[AnalyticalState], areas: Sequence[np.ndarray]
 
 
 def _polyhedron_volume(planes: Sequence[AnalyticalState], areas: Sequence[np.ndarray]) -> np.ndarray:
-    return polyhedron_volume(cell_positions(planes), TEN_SPHERE_FACES)
+    return polyhedron_volume_of_rows(grain_rows(planes), TEN_SPHERE_FACES)
 
 
 @dataclass(frozen=True)

@@ -201,11 +201,25 @@ def polygon_area(position: np.ndarray, outer: np.ndarray) -> np.ndarray:
 def polyhedron_volume(position: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Volume [m^3] enclosed by the triangles ``faces`` (n_faces, 3) through ``position`` (..., n_grains, 3).
 
-    abs(sum over faces of x_a . (x_b x x_c)) / 6 (divergence theorem; the faces must close the surface).
+    abs(sum over faces of x_a . (x_b x x_c)) / 6 (divergence theorem; the faces must close the surface), as
+    ``polyhedron_volume_of_rows`` adds it.
     """
-    face = np.asarray(faces)
-    a, b, c = position[..., face[:, 0], :], position[..., face[:, 1], :], position[..., face[:, 2], :]
-    return np.abs(np.einsum("...fi,...fi->...", a, np.cross(b, c))) / 6.0
+    return polyhedron_volume_of_rows(np.moveaxis(np.moveaxis(position, -1, 0), -1, 0), faces)
+
+
+def polyhedron_volume_of_rows(rows: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``polyhedron_volume`` of grain centres laid out grain, then component first: ``rows`` (n_grains, 3, ...) [m].
+
+    The triple products are added face by face in the order of ``faces`` with elementwise operations only, so a
+    cell's volume does not depend on the batch or on the CPU's vector width; each face is one pass over rows of
+    the batch's shape (which stay in cache, unlike (..., n_faces, 3) temporaries). Returns [m^3], shape (...).
+    """
+    x = np.ascontiguousarray(rows)
+    total = np.zeros(x.shape[2:])
+    for i, j, k in np.asarray(faces).tolist():
+        a, b, c = x[i], x[j], x[k]
+        total += a[0] * (b[1] * c[2] - b[2] * c[1]) + a[1] * (b[2] * c[0] - b[0] * c[2]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+    return np.abs(total) / 6.0
 
 
 def cell_measure(position: np.ndarray, outer: np.ndarray) -> np.ndarray:
