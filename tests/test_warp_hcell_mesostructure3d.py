@@ -9,7 +9,7 @@ from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.mesostructures.files import describe, from_description, load_mesostructure
 from warp_hcell.mesostructures.hcell import build_h_cell_3d
 from warp_hcell.mesostructures.hcell import plain_alpha0_3d as plain_h_cell_3d_alpha0
-from warp_hcell.mesostructures.mesostructure import MesostructureError, cell_measure
+from warp_hcell.mesostructures.mesostructure import MesostructureError, cell_measure, polyhedron_volume
 
 
 @pytest.mark.parametrize("alpha0", [46.0, 55.0, 80.0])
@@ -39,6 +39,23 @@ def test_the_volume_is_the_polyhedron_through_the_ten_centres():
     top = (h - y) * (0.5 * s * s) / 3.0
     slab = y * 0.5 * s * s
     assert float(cell_measure(meso.position, meso.outer)) == pytest.approx(8 * (top + slab), rel=1e-12)
+
+
+def test_a_cells_volume_is_the_same_bits_alone_and_in_a_batch_and_the_shuffled_cube_is_one():
+    """The volume is summed face by face (``polyhedron_volume_of_rows``): a cell's value does not depend on the
+    other cells of its batch; the unit cube through its 12 outward triangles has volume 1 wherever it sits."""
+    meso = resolve_mesostructure("hcell3d:alpha0=55")
+    rng = np.random.default_rng(3)
+    batch = meso.position[None] * rng.uniform(0.8, 1.2, (37, 1, 3)) + rng.normal(0.0, 0.01, (37, 10, 3))
+    together = polyhedron_volume(batch, meso.outer)
+    alone = np.array([polyhedron_volume(batch[i], meso.outer) for i in range(37)])
+    assert np.array_equal(together, alone) and together.shape == (37,)
+    np.testing.assert_array_equal(polyhedron_volume(batch.reshape(1, 37, 10, 3), meso.outer), together[None])
+    cube = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float)
+    faces = [(0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4), (2, 6, 7), (2, 7, 3), (0, 4, 6),
+             (0, 6, 2), (1, 3, 7), (1, 7, 5)]
+    shifted = cube[None] + rng.normal(0.0, 5.0, (4, 1, 3))
+    np.testing.assert_allclose(polyhedron_volume(shifted, np.array(faces)), 1.0, rtol=1e-12)
 
 
 def test_equal_spheres_below_45_degrees_overlap_across_the_planes():
