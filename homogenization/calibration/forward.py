@@ -37,7 +37,8 @@ import numpy as np
 from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import backend_class, make_cell_model
 from homogenization.calibration.data import Measurement
-from homogenization.calibration.interlocking import FIELDS as INTERLOCKING, Interlocking, InterlockingFriction
+from homogenization.calibration.interlocking import (FIELDS as INTERLOCKING, Interlocking, InterlockingFriction,
+                                                     state_map_void_ratio)
 from homogenization.calibration.renewal import PopulationRenewal, laws_of
 from homogenization.element_test.points import MaterialPoints, material_points, orientation_set
 from homogenization.element_test.plan import Plan
@@ -68,12 +69,16 @@ CONTACT_LAW_KEY = "contact_law"
 CRITICAL_STATE_KEY = "critical_state"
 """Key of posterior.json (and of run.json's forward settings) holding the critical-state rule at the posterior
 mean (``dataclasses.asdict``); absent: the plain cell."""
+MAP_STATE = "map_state_weight"
+"""The interlocking's state-map weight w [-] (``interlocking.state_map_void_ratio``): read by ``density_alpha0`` (the
+cell's alpha0), not by the friction."""
 INTERLOCKING_PRIOR = {"interlocking_m": (0.0, 6.0, False), "e_gamma": (0.5, 1.2, False), "lambda_c": (0.0, 0.4, False),
                       "xi_c": (0.2, 1.0, False), "cell_spread": (0.0, 0.6, False),
                       "mobilisation_strain": (0.0, 0.05, False), "mobilisation_start": (0.0, 1.0, False),
                       "relax_strain": (0.0, 0.1, False), "relax_exponent": (0.0, 2.0, False),
                       "softening_strain": (0.0, 0.1, False), "relax_void_slope": (0.0, 30.0, False),
-                      "mobilisation_exponent": (0.0, 2.0, False), "mobilisation_void_slope": (0.0, 30.0, False)}
+                      "mobilisation_exponent": (0.0, 2.0, False), "mobilisation_void_slope": (0.0, 30.0, False),
+                      MAP_STATE: (0.0, 2.0, False)}
 """Default prior of the interlocking friction's calibratable parameters (``INTERLOCKING``: CLI name -> ``Interlocking``
 field): uniform (low, high, log-uniform?), all [-]; read only with ``ForwardSettings.interlocking``, per set."""
 INTERLOCKING_KEY = "interlocking"
@@ -90,8 +95,8 @@ PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson",
 kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-], alpha0_spread [deg], e_min and
 e_max [-], alpha_c [deg] and renewal_rate [-] (``RULE``), the interlocking friction's m, e_gamma, lambda_c,
 xi_c, cell_spread, mobilisation_strain, mobilisation_start, relax_strain, relax_exponent, softening_strain,
-relax_void_slope, mobilisation_exponent and mobilisation_void_slope [-] (``INTERLOCKING``), kn's exponent [-]
-(``KN_EXPONENT``, linear law)."""
+relax_void_slope, mobilisation_exponent, mobilisation_void_slope and map_state_weight [-] (``INTERLOCKING``), kn's
+exponent [-] (``KN_EXPONENT``, linear law)."""
 LAW_PARAMETERS = {ContactLaw.name: ("phi_g", "kn", "kt_over_kn", "alpha0"),
                   HertzMindlinLaw.name: ("phi_g", "shear_modulus", "poisson", "alpha0")}
 """The parameters of ``PARAMETERS`` that each contact law's forward model reads."""
@@ -252,7 +257,7 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
              interlocking: Interlocking | None = None) -> Curves:
     """Curves of ``test`` for each parameter set; ``params`` maps names of ``settings.parameters`` (and of
     ``DENSITY``) to shape (n,). A test that gives its void ratio runs each set at its map's alpha0
-    (``density_alpha0``); a set whose [e_min, e_max] does not hold that void ratio gets NaN curves.
+    (``density_alpha0``, state map included); a set whose [e_min, e_max] does not hold it gets NaN curves.
     ``interlocking`` (analytical backend, no spread): phi_g is each set's phi_mu of the interlocking friction
     (``calibration.interlocking``), e0 the test's void ratio, else the set's map's of its alpha0; its fields per set
     where ``params`` holds ``INTERLOCKING``'s names; None: ``settings.interlocking`` (None: the plain contact law).
@@ -285,7 +290,7 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
             full[name] = np.broadcast_to(np.asarray(value, dtype=np.float64), full["phi_g"].shape).copy()
     if interlocking is not None:
         full.update(_interlocking_values(test, params, full, settings))
-    alpha0 = density_alpha0(test, params, settings)
+    alpha0 = density_alpha0(test, params, settings, interlocking)
     if alpha0 is not None:
         reached = np.isfinite(alpha0)
         full["alpha0"] = np.where(reached, alpha0, full["alpha0"])
@@ -308,8 +313,8 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
             points.renewal = _renewal(full, settings, points)
         if interlocking is not None:
             points.renewal = InterlockingFriction(interlocking, points.material, points.state, full["phi_g"], full[E0],
-                                                  {f: full[name] for name, f in INTERLOCKING.items() if name in full}
-                                                  or None, inner=points.renewal)
+                                                  {f: full[name] for name, f in INTERLOCKING.items()
+                                                   if name in full and name != MAP_STATE} or None, inner=points.renewal)
         return simulate_points(test, points, settings)
     return _simulate_one_by_one(test, full, settings)
 
@@ -374,16 +379,27 @@ def _renewal(full: dict[str, np.ndarray], settings: ForwardSettings, points: Mat
                              per_point=per_point or None, e_bounds=bounds)
 
 
-def density_alpha0(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings) -> np.ndarray | None:
+def density_alpha0(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings,
+                   interlocking: Interlocking | None = None) -> np.ndarray | None:
     """Per set, the alpha0 [deg] of a test that gives its void ratio: the map of ``density.default_map(test.dim)``
-    between the set's e_min and e_max (calibrated, else ``settings.fixed``, else the defaults), NaN where they do
-    not hold the void ratio; None for a test without one."""
+    between the set's e_min and e_max (calibrated, else ``settings.fixed``, else the defaults) at that void ratio,
+    or, with a state-map weight w (``MAP_STATE``: per set in ``params``, else the interlocking's), at
+    ``interlocking.state_map_void_ratio`` of it at the test's p0 on the set's line (lambda_c and xi_c: per set in
+    ``params``, else the interlocking's; w = 0: the void ratio itself); NaN where [e_min, e_max] does not hold that
+    void ratio; None for a test without one. ``interlocking``: None: ``settings.interlocking`` (None: no state map)."""
     if test.void_ratio is None:
         return None
     n = len(np.atleast_1d(next(iter(params.values())))) if params else 1
     bounds = [np.broadcast_to(np.asarray(params[name] if name in params else settings.fixed.get(name, default),
                                          dtype=np.float64), (n,)) for name, default in zip(DENSITY, DENSITY_DEFAULTS)]
-    return opening_angle_deg(test.void_ratio, *bounds, *OPENING_RANGE_DEG[test.dim])
+    interlocking = settings.interlocking if interlocking is None else interlocking
+    e = test.void_ratio
+    if interlocking is not None and (MAP_STATE in params or interlocking.map_state_weight != 0.0):
+        line = {name: np.broadcast_to(np.asarray(params[name] if name in params else getattr(interlocking, field),
+                                                 dtype=np.float64), (n,))
+                for name, field in ((MAP_STATE, MAP_STATE), ("lambda_c", "lambda_c"), ("xi_c", "xi"))}
+        e = state_map_void_ratio(e, test.p0, line[MAP_STATE], line["lambda_c"], line["xi_c"], interlocking.p_ref)
+    return opening_angle_deg(e, *bounds, *OPENING_RANGE_DEG[test.dim])
 
 
 def with_density(settings: ForwardSettings, tests: Sequence[Measurement], e_min: float, e_max: float) -> ForwardSettings:

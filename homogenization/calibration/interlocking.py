@@ -43,6 +43,12 @@ tan phi, u_k the uniform quantiles (2 j + 1) / n - 1 (j = 0 .. n - 1, n cells pe
 order of the fractional parts of k (sqrt(5) - 1) / 2, the same for every point; so cells of one orientation class
 (equal under the test's symmetry) reach their friction limit at different strains. The point's mean tan phi is
 the rule's. A renewal's fresh cells step with the point's friction in the increment that renews them.
+
+Opt-in state map (``Interlocking.map_state_weight`` w > 0; read by ``forward.density_alpha0``, not by the friction):
+a test of void ratio e0 at confining pressure p0 builds its cell at the void-ratio map's alpha0 of
+e_map = e0 + w lambda ((p0 / p_ref)^xi - 1) (``state_map_void_ratio``) instead of e0's. With w = 1 the cell stands for
+the state parameter psi = e0 - e_c(p0) (Been & Jefferies 1985) carried to p_ref: e_map = e_c(p_ref) + psi. The
+friction keeps reading e0.
 """
 
 from __future__ import annotations
@@ -65,6 +71,8 @@ RELAX_VOID_REF = 0.55
 """Reference void ratio e_ref [-] of the lag's and the mobilisation's void-ratio factors exp(s (e0 - e_ref))."""
 RELAX_VOID_SLOPE_MAX = 100.0
 """Largest abs(relax_void_slope) and abs(mobilisation_void_slope) [-] that ``Interlocking.check`` accepts."""
+MAP_STATE_WEIGHT_MAX = 2.0
+"""Largest map_state_weight [-] that ``Interlocking.check`` accepts."""
 MOBILISATION_EXPONENT = 2.0 / 3.0
 """Default exponent n of the mobilisation strain's pressure factor [-] (module docstring)."""
 FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi",
@@ -72,7 +80,7 @@ FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "
           "mobilisation_start": "mobilisation_start", "relax_strain": "relax_strain",
           "relax_exponent": "relax_exponent", "softening_strain": "softening_strain",
           "relax_void_slope": "relax_void_slope", "mobilisation_exponent": "mobilisation_exponent",
-          "mobilisation_void_slope": "mobilisation_void_slope"}
+          "mobilisation_void_slope": "mobilisation_void_slope", "map_state_weight": "map_state_weight"}
 """Per-set parameters (calibration name -> ``Interlocking`` field) that ``simulate`` reads from its params."""
 
 
@@ -83,7 +91,7 @@ class Interlocking:
     Attributes:
         m: interlocking exponent, >= 0 (0: phi_mu).
         e_gamma: critical void ratio at p = 0, > 0.
-        lambda_c: slope of the critical-state line in (p / p_ref)^xi, >= 0.
+        lambda_c: the line's slope lambda, >= 0.
         xi: exponent of the line, in (0, 1].
         p_ref: reference pressure [Pa in 3D, N/m in 2D], > 0.
         relax_strain: gamma_r, >= 0, the lag's strain; 0: none.
@@ -95,6 +103,7 @@ class Interlocking:
         relax_void_slope: s, abs(s) <= 100, d ln(gamma_r) / d e0; 0: none.
         mobilisation_exponent: n, in [0, 3], its pressure exponent.
         mobilisation_void_slope: s_m, abs(s_m) <= 100, d ln(a) / d e0; 0: none.
+        map_state_weight: w, in [0, 2]; 0: none.
     """
 
     m: float = 1.0
@@ -111,6 +120,7 @@ class Interlocking:
     relax_void_slope: float = 0.0
     mobilisation_exponent: float = MOBILISATION_EXPONENT
     mobilisation_void_slope: float = 0.0
+    map_state_weight: float = 0.0
 
     def check(self) -> None:
         """ValueError (one line) for a parameter out of range."""
@@ -123,7 +133,8 @@ class Interlocking:
                          ("softening_strain", self.softening_strain >= 0.0),
                          ("relax_void_slope", abs(self.relax_void_slope) <= RELAX_VOID_SLOPE_MAX),
                          ("mobilisation_exponent", 0.0 <= self.mobilisation_exponent <= 3.0),
-                         ("mobilisation_void_slope", abs(self.mobilisation_void_slope) <= RELAX_VOID_SLOPE_MAX)):
+                         ("mobilisation_void_slope", abs(self.mobilisation_void_slope) <= RELAX_VOID_SLOPE_MAX),
+                         ("map_state_weight", 0.0 <= self.map_state_weight <= MAP_STATE_WEIGHT_MAX)):
             value = getattr(self, name)
             if not (math.isfinite(value) and ok):
                 raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
@@ -136,6 +147,15 @@ def critical_void_ratio(p: Any, e_gamma: Any, lambda_c: Any, xi: Any, p_ref: flo
     """e_c(p) = e_Gamma - lambda (max(p, 0) / p_ref)^xi [-] (broadcast, xi too), before ``E_C_FLOOR``."""
     p = np.maximum(np.asarray(p, dtype=np.float64), 0.0)
     return np.asarray(e_gamma, dtype=np.float64) - np.asarray(lambda_c, dtype=np.float64) * (p / p_ref) ** xi
+
+
+def state_map_void_ratio(e0: Any, p0: Any, w: Any, lambda_c: Any, xi: Any, p_ref: float) -> np.ndarray:
+    """e_map = e0 + w lambda ((p0 / p_ref)^xi - 1) [-] (module docstring; broadcast; e0 [-], p0 > 0 [Pa], w, lambda,
+    xi [-]): the void ratio whose map's alpha0 a test's cell is built at; exactly e0 where w = 0."""
+    e0, w = np.asarray(e0, dtype=np.float64), np.asarray(w, dtype=np.float64)
+    shift = w * np.asarray(lambda_c, dtype=np.float64) * ((np.asarray(p0, dtype=np.float64) / p_ref)
+                                                           ** np.asarray(xi, dtype=np.float64) - 1.0)
+    return np.where(w != 0.0, e0 + shift, e0)
 
 
 def mobilised_friction_deg(phi_mu_deg: Any, e: Any, p: Any, m: Any, e_gamma: Any, lambda_c: Any, xi: Any,

@@ -17,10 +17,12 @@ its interlocking_m, e_gamma, lambda_c, xi_c, cell_spread, mobilisation_strain, m
 mobilisation_exponent and mobilisation_void_slope (the friction's hyperbolic mobilisation with the point's
 distortion, over a strain growing with the pressure and the test's void ratio), relax_strain, relax_exponent and
 relax_void_slope (the void ratio it reads lagging over a distortion growing with the pressure and the test's void
-ratio), softening_strain (that lag from the point's densest state on instead) may then be calibrated, the others fixed by
---interlocking-values; posterior.json holds it at the posterior mean (``interlocking``), which ``hmodel triaxial
---posterior`` runs. --kn-exponent N runs each triaxial test at kn (p0 / 101.325 kPa)^N; --params kn_exponent
-calibrates N instead. --start-point starts the map fit at given values instead of prior draws.
+ratio), softening_strain (that lag from the point's densest state on instead) and map_state_weight (each test's cell
+built at the map's alpha0 of e0 + w lambda_c ((p0 / 101.325 kPa)^xi_c - 1) instead of e0's; data with void ratios) may
+then be calibrated, the others fixed by --interlocking-values; posterior.json holds it at the posterior mean
+(``interlocking``), which ``hmodel triaxial --posterior`` runs. --kn-exponent N runs each triaxial test at kn
+(p0 / 101.325 kPa)^N; --params kn_exponent calibrates N instead. --start-point starts the map fit at given values
+instead of prior draws.
 
 The posterior is sampled with emcee's affine-invariant ensemble, every step running the forward
 model of all walkers as one batch of cells. --start map (default) first finds the posterior's
@@ -56,8 +58,8 @@ from homogenization.ann import RANGE_MODELS
 from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
-from homogenization.calibration.forward import (INTERLOCKING, KN_EXPONENT, LAW_PARAMETERS, PARAMETERS, RULE, SPREAD,
-                                                ForwardSettings, calibratable, check_density, settings_record,
+from homogenization.calibration.forward import (INTERLOCKING, KN_EXPONENT, LAW_PARAMETERS, MAP_STATE, PARAMETERS, RULE,
+                                                SPREAD, ForwardSettings, calibratable, check_density, settings_record,
                                                 with_density)
 from homogenization.calibration.interlocking import Interlocking
 from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN
@@ -188,10 +190,12 @@ def build_parser() -> argparse.ArgumentParser:
                               "mobilisation_start of it (default 0: at once), e lagging over a distortion "
                               "relax_strain (p / 101.325 kPa)^relax_exponent exp(relax_void_slope (e0 - 0.55)), e0 "
                               "the test's void ratio (default 0: no lag; softening_strain "
-                              "instead: lagging from the densest state on); calibrate "
+                              "instead: lagging from the densest state on), each test's cell at the void-ratio map's "
+                              "alpha0 of e0 + map_state_weight lambda_c ((p0 / 101.325 kPa)^xi_c - 1) (default 0: of "
+                              "e0); calibrate "
                               "interlocking_m, e_gamma, lambda_c, xi_c, cell_spread, mobilisation_strain, "
                               "mobilisation_start, relax_strain, relax_exponent, softening_strain, relax_void_slope, "
-                              "mobilisation_exponent, mobilisation_void_slope through --params "
+                              "mobilisation_exponent, mobilisation_void_slope, map_state_weight through --params "
                               "(docs/calibration.md)")
     forward.add_argument("--interlocking-values", type=interlocking_values, default=None, metavar="NAME=VALUE,...",
                          help="with --interlocking: values of its parameters not calibrated (default "
@@ -407,11 +411,15 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
     """UserError (one line) for the interlocking friction's parameters or --interlocking-values without
     --interlocking, or --interlocking with biaxial data (its p_ref is a pressure), a backend other than the
     analytical one, --confirm dem (the DEM's contacts keep phi_g), alpha0_spread, both lags calibrated, a value
-    out of range, relax_void_slope or mobilisation_void_slope calibrated or nonzero with a --data file that gives no
-    void ratio, or mobilisation_exponent or mobilisation_void_slope calibrated or not at its default without
-    mobilisation_strain calibrated or nonzero."""
+    out of range, relax_void_slope, mobilisation_void_slope or map_state_weight calibrated or nonzero with a --data
+    file that gives no void ratio, mobilisation_exponent or mobilisation_void_slope calibrated or not at its default
+    without mobilisation_strain calibrated or nonzero, or map_state_weight calibrated or nonzero on a flat line
+    (lambda_c 0, not calibrated)."""
     own = [name for name in args.params if name in INTERLOCKING]
     if not args.interlocking:
+        if MAP_STATE in own:
+            raise UserError(f"--params {MAP_STATE} moves the map along the interlocking's critical-state line "
+                            f"(lambda_c, xi_c); add --interlocking")
         if own or args.interlocking_values is not None:
             raise UserError(f"{'--params ' + own[0] if own else '--interlocking-values'}: the interlocking friction's; "
                             f"add --interlocking")
@@ -437,6 +445,13 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
         if unknown and (name in args.params or getattr(settings, name) != 0.0):
             raise UserError(f"{name} scales {what} by the test's void ratio: --data {unknown[0]} gives none "
                             f"('# void_ratio = E' in its header)")
+    state_map = MAP_STATE in args.params or settings.map_state_weight != 0.0
+    if unknown and state_map:
+        raise UserError(f"{MAP_STATE} shifts the void ratio that the map reads: --data {unknown[0]} gives none "
+                        f"('# void_ratio = E' in its header)")
+    if state_map and "lambda_c" not in args.params and settings.lambda_c == 0.0:
+        raise UserError(f"{MAP_STATE} moves the map along the critical-state line, flat at lambda_c = 0: calibrate "
+                        f"lambda_c or give it (--interlocking-values lambda_c=L, L > 0)")
     default = Interlocking()
     idle = [n for n in ("mobilisation_exponent", "mobilisation_void_slope")
             if n in args.params or getattr(settings, n) != getattr(default, n)]

@@ -9,7 +9,8 @@
   (p0 / kn_p_ref)^kn_exponent where the calibration ran ``--kn-exponent``) or
   --shear-modulus and --poisson, --alpha0 and --radius to the posterior mean (uncalibrated parameters: the calibration's fixed
   values), and --e-min and --e-max where its data gave void ratios (``check_void_ratio``: then the run
-  needs --void-ratio, whose map gives alpha0; ``run_files.resolve_void_ratio``), turns --critical-state on
+  needs --void-ratio, whose map gives alpha0; ``run_files.resolve_void_ratio``; shifted by the interlocking's state
+  map where it has one, ``state_map_bounds``), turns --critical-state on
   where the calibration ran the rule (``critical_state``: the rule at the posterior mean; a posterior of the
   plain cell refuses --critical-state), and draws the band's parameter sets (--posterior-band N);
 - ``spread_models(...)``: where the posterior holds alpha0_spread, the analytical model whose cells carry
@@ -139,7 +140,7 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
         raise UserError(f"--critical-state with --posterior {post.path}: calibrated without the critical-state rule, "
                         f"so its parameters are the plain cell's; drop --critical-state")
     if DENSITY[0] in post.mean:
-        args.e_min, args.e_max = post.mean["e_min"], post.mean["e_max"]
+        args.e_min, args.e_max = state_map_bounds(post, getattr(args, "void_ratio", None), args.p0)
     args.law, args.phi, args.alpha0, args.radius = law.name, law.phi_g_deg, alpha0, post.radius
     scale = kn_factor(args.p0, post.forward)
     if law.name == HertzMindlinLaw.name:
@@ -167,6 +168,26 @@ def check_void_ratio(post: Any, void_ratio: float | None) -> None:
                         f"the state; drop --void-ratio")
     if void_ratio is not None and SPREAD in post.mean:
         raise UserError(f"--void-ratio with --posterior {post.path}: a run of its {SPREAD} takes the posterior's alpha0")
+
+
+def state_map_bounds(post: Any, void_ratio: float | None, p0: float) -> tuple[float, float]:
+    """The posterior's e_min and e_max [-] that a run at ``void_ratio`` e0 [-] and confining pressure ``p0`` [Pa] maps
+    through: as calibrated, or, where its interlocking has a state-map weight w, both lowered by e_map - e0
+    (``interlocking.state_map_void_ratio`` on the posterior mean's line), so that the map's alpha0 of e0 is the
+    calibration's of e_map (``forward.density_alpha0``). UserError (one line) where e_map is outside the posterior's
+    [e_min, e_max] (the calibration's forward model gives such a set NaN curves)."""
+    e_min, e_max = post.mean["e_min"], post.mean["e_max"]
+    rule = post.forward.interlocking
+    if rule is None or rule.map_state_weight == 0.0 or void_ratio is None:
+        return e_min, e_max
+    from homogenization.calibration.interlocking import state_map_void_ratio  # noqa: PLC0415
+
+    e_map = float(state_map_void_ratio(void_ratio, p0, rule.map_state_weight, rule.lambda_c, rule.xi, rule.p_ref))
+    if not e_min <= e_map <= e_max:
+        raise UserError(f"--void-ratio {void_ratio:g} at --p0 {p0:g}: the state map of --posterior {post.path} "
+                        f"(map_state_weight {rule.map_state_weight:g}) reads e = {e_map:.4g}, outside its e_min, e_max "
+                        f"[{e_min:g}, {e_max:g}]")
+    return e_min - (e_map - void_ratio), e_max - (e_map - void_ratio)
 
 
 def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *, lebedev_order: int, n_spins: int,
