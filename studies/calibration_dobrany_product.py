@@ -3,6 +3,7 @@
                                                 [--fit-kn-exponent] [--fit-mobilisation A,R0 [--kn-factor F]]
                                                 [--fit-decay G,K [--kn-factor F]] [--fit-softening G,K]
                                                 [--fit-void-lag G,K,S|G,S] [--fit-mobilisation-void A,R0,S]
+                                                [--fit-state-map W]
        python studies/calibration_dobrany_product.py --splits-figure OUT.png RESULT.json[+RESULT2.json] ...
 
 Dobrany sand with the product's own ``hmodel calibrate``: the interlocking friction (``--interlocking``: m,
@@ -30,7 +31,9 @@ prior [0, 0.1], [0, 2], [0, 40]), started at G, K and S; ``--fit-void-lag G,S``:
 ``--fit-mobilisation-void A,R0,S`` calibrates the mobilisation with its void-ratio factor (``mobilisation_strain``,
 ``mobilisation_start``, ``mobilisation_void_slope``; prior [0, 0.03], [0, 1], [0, 40]), started at A, R0 and S, kn at
 ``--kn-factor`` times the start's; its pressure exponent stays at the flags' (``--extra "--interlocking-values
-mobilisation_exponent=N"``; default 2/3).
+mobilisation_exponent=N"``; default 2/3). ``--fit-state-map W`` calibrates the interlocking's state-map weight too
+(``map_state_weight``: each test's cell at the map's alpha0 of e0 + w lambda_c ((p0 / p_ref)^xi_c - 1); prior [0, 2]),
+started at W.
 
 Writes the data copies, the prior and the calibration under runs/dobrany_product/ (ignored), and
 studies/results/calibration_dobrany_product_SPLIT_TAG.json and .png (q and eps_v, data and the mean's curves).
@@ -91,6 +94,8 @@ MOBILISATION_VOID = (*MOBILISATION, "mobilisation_void_slope")
 """The mobilisation's parameters with its void-ratio factor (``--fit-mobilisation-void``)."""
 MOBILISATION_VOID_PRIOR = {**MOBILISATION_PRIOR, "mobilisation_void_slope": [0.0, 40.0]}
 """Their bounds in the study's prior [-]."""
+STATE_MAP_PRIOR = {"map_state_weight": [0.0, 2.0]}
+"""The state-map weight's bounds in the study's prior [-] (``--fit-state-map``)."""
 STUDY = {"phi_g": "phi_g", "log10_kn": "kn", "kt_over_kn": "kt_over_kn", "e_min": "e_min", "e_max": "e_max",
          "alpha_c_deg": "alpha_c", "log10_rate": "renewal_rate", "interlocking_m": "interlocking_m",
          "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi_c", "cell_spread": "cell_spread"}
@@ -323,6 +328,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fit-mobilisation-void", default="", metavar="A,R0,S",
                         help="calibrate mobilisation_strain, mobilisation_start and mobilisation_void_slope too, "
                              "started at A, R0 and S")
+    parser.add_argument("--fit-state-map", default="", metavar="W",
+                        help="calibrate map_state_weight too (prior [0, 2]), started at W")
     parser.add_argument("--kn-factor", type=float, default=1.0,
                         help="with --fit-mobilisation, --fit-decay, --fit-softening, --fit-void-lag or "
                              "--fit-mobilisation-void: kn's start factor")
@@ -332,6 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     params = PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ())
     params += MOBILISATION if args.fit_mobilisation else ()
     params += MOBILISATION_VOID if args.fit_mobilisation_void else ()
+    params += tuple(STATE_MAP_PRIOR) if args.fit_state_map else ()
     if sum(map(bool, (args.fit_decay, args.fit_softening, args.fit_void_lag))) > 1:
         parser.error("--fit-decay, --fit-softening and --fit-void-lag: one lag at a time")
     params += DECAY if args.fit_decay else ()
@@ -346,13 +354,15 @@ def main(argv: list[str] | None = None) -> int:
                     + "_decay" * bool(args.fit_decay) + "_softening" * bool(args.fit_softening)
                     + "_void_lag" * bool(args.fit_void_lag)
                     + "_k0" * (len(void_lag) == 2 and bool(args.fit_void_lag))
-                    + "_mobilisation_void" * bool(args.fit_mobilisation_void) + ".json")
+                    + "_mobilisation_void" * bool(args.fit_mobilisation_void)
+                    + "_state_map" * bool(args.fit_state_map) + ".json")
     prior.write_text(json.dumps({**PRIOR, **({"kn_exponent": [0.0, 1.0]} if args.fit_kn_exponent else {}),
                                  **(MOBILISATION_PRIOR if args.fit_mobilisation else {}),
                                  **(DECAY_PRIOR if args.fit_decay else {}),
                                  **(SOFTENING_PRIOR if args.fit_softening else {}),
                                  **({n: VOID_LAG_PRIOR[n] for n in void_lag} if args.fit_void_lag else {}),
-                                 **(MOBILISATION_VOID_PRIOR if args.fit_mobilisation_void else {})},
+                                 **(MOBILISATION_VOID_PRIOR if args.fit_mobilisation_void else {}),
+                                 **(STATE_MAP_PRIOR if args.fit_state_map else {})},
                                 indent=1))
     command = [sys.executable, "-m", "homogenization.calibrate", *sum((["--data", str(files[f])] for f in fitted), []),
                "--params", ",".join(params), "--prior", str(prior), *exponent, *FLAGS,
@@ -361,12 +371,13 @@ def main(argv: list[str] | None = None) -> int:
         start = start_point(args.start_from, PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ()),
                             float(args.kn_exponent))
         if (args.fit_mobilisation or args.fit_decay or args.fit_softening or args.fit_void_lag
-                or args.fit_mobilisation_void):
+                or args.fit_mobilisation_void or args.fit_state_map):
             values = dict(item.split("=") for item in start.split(","))
             values["kn"] = repr(float(values["kn"]) * args.kn_factor)
             for names, text in ((MOBILISATION, args.fit_mobilisation), (DECAY, args.fit_decay),
                                 (SOFTENING, args.fit_softening), (void_lag, args.fit_void_lag),
-                                (MOBILISATION_VOID, args.fit_mobilisation_void)):
+                                (MOBILISATION_VOID, args.fit_mobilisation_void),
+                                (tuple(STATE_MAP_PRIOR), args.fit_state_map)):
                 if text:
                     values.update(zip(names, (repr(float(v)) for v in text.split(","))))
             start = ",".join(f"{k}={v}" for k, v in values.items())
