@@ -33,15 +33,21 @@ def alpha_of(e: float, e_min: float = 0.45, e_max: float = 0.7) -> float:
 
 def test_the_mapped_void_ratio_by_hand_and_its_range():
     """e0 + w lambda ((p0 / p_ref)^xi - 1): 0.6 + 0.5 x 0.04 x (2 - 1) = 0.62 at 4 p_ref, xi 0.5; 0.6 - 0.02 at p_ref
-    / 4 with w 1; exactly e0 at w = 0 (NaN line included) and at p0 = p_ref; w outside [0, 2] refused."""
+    / 4 with w 1 (0.6 + 0.02 with w -1); exactly e0 at w = 0 (NaN line included) and at p0 = p_ref; w outside [-2, 2]
+    refused, by the rule and per set by density_alpha0."""
     assert Interlocking().map_state_weight == 0.0
     assert state_map_void_ratio(0.6, 4 * P_REF, 0.5, 0.04, 0.5, P_REF) == pytest.approx(0.62, abs=1e-15)
     assert state_map_void_ratio(0.6, P_REF / 4, 1.0, 0.04, 0.5, P_REF) == pytest.approx(0.58, abs=1e-15)
+    assert state_map_void_ratio(0.6, P_REF / 4, -1.0, 0.04, 0.5, P_REF) == pytest.approx(0.62, abs=1e-15)
     assert state_map_void_ratio(0.6, 4 * P_REF, 0.0, np.nan, 0.5, P_REF) == 0.6
     assert state_map_void_ratio(0.6, P_REF, 2.0, 0.04, 0.5, P_REF) == 0.6
-    for value in (-0.1, 2.1):
+    replace(Interlocking(), map_state_weight=-2.0).check()
+    for value in (-2.1, 2.1):
         with pytest.raises(ValueError, match="map_state_weight"):
             replace(Interlocking(), map_state_weight=value).check()
+        with pytest.raises(ValueError, match=f"map_state_weight = {value:g} is out of range"):
+            forward.density_alpha0(drained(0.6), {**SETS, "map_state_weight": np.array([0.0, value])},
+                                   replace(SETTINGS, interlocking=RULE))
 
 
 def test_density_alpha0_moves_by_the_formula_per_set():
@@ -100,10 +106,10 @@ def test_zero_weight_is_bit_for_bit_and_the_friction_reads_the_real_e0():
     (["--params", "phi_g", "--interlocking", "--interlocking-values", "map_state_weight=3"], "given",
      "map_state_weight = 3 is out of range"),
     (["--params", "phi_g,map_state_weight", "--interlocking", "--prior", "PRIOR"], "given",
-     "the prior of map_state_weight reaches 2.5"),
+     "the prior of map_state_weight reaches -2.5"),
 ])
 def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, data, expected):
-    assert_interlocking_refusal(tmp_path, capsys, flags, data, expected, {"map_state_weight": [0.0, 2.5]}, FAST)
+    assert_interlocking_refusal(tmp_path, capsys, flags, data, expected, {"map_state_weight": [-2.5, 1.0]}, FAST)
 
 
 def test_the_posterior_holds_the_weight_and_triaxial_replays_it(tmp_path, capsys):

@@ -37,8 +37,8 @@ import numpy as np
 from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import backend_class, make_cell_model
 from homogenization.calibration.data import Measurement
-from homogenization.calibration.interlocking import (FIELDS as INTERLOCKING, Interlocking, InterlockingFriction,
-                                                     state_map_void_ratio)
+from homogenization.calibration.interlocking import (FIELDS as INTERLOCKING, MAP_STATE_WEIGHT_MAX, Interlocking,
+                                                     InterlockingFriction, state_map_void_ratio)
 from homogenization.calibration.renewal import PopulationRenewal, laws_of
 from homogenization.element_test.points import MaterialPoints, material_points, orientation_set
 from homogenization.element_test.plan import Plan
@@ -386,7 +386,8 @@ def density_alpha0(test: Measurement, params: Mapping[str, np.ndarray], settings
     or, with a state-map weight w (``MAP_STATE``: per set in ``params``, else the interlocking's), at
     ``interlocking.state_map_void_ratio`` of it at the test's p0 on the set's line (lambda_c and xi_c: per set in
     ``params``, else the interlocking's; w = 0: the void ratio itself); NaN where [e_min, e_max] does not hold that
-    void ratio; None for a test without one. ``interlocking``: None: ``settings.interlocking`` (None: no state map)."""
+    void ratio; None for a test without one. ``interlocking``: None: ``settings.interlocking`` (None: no state map).
+    ValueError (one line) for a w outside [-2, 2] (``interlocking.MAP_STATE_WEIGHT_MAX``)."""
     if test.void_ratio is None:
         return None
     n = len(np.atleast_1d(next(iter(params.values())))) if params else 1
@@ -398,6 +399,10 @@ def density_alpha0(test: Measurement, params: Mapping[str, np.ndarray], settings
         line = {name: np.broadcast_to(np.asarray(params[name] if name in params else getattr(interlocking, field),
                                                  dtype=np.float64), (n,))
                 for name, field in ((MAP_STATE, MAP_STATE), ("lambda_c", "lambda_c"), ("xi_c", "xi"))}
+        outside = line[MAP_STATE][~(np.abs(line[MAP_STATE]) <= MAP_STATE_WEIGHT_MAX)]
+        if outside.size:
+            raise ValueError(f"{MAP_STATE} = {outside[0]:g} is out of range [-{MAP_STATE_WEIGHT_MAX:g}, "
+                             f"{MAP_STATE_WEIGHT_MAX:g}]")
         e = state_map_void_ratio(e, test.p0, line[MAP_STATE], line["lambda_c"], line["xi_c"], interlocking.p_ref)
     return opening_angle_deg(e, *bounds, *OPENING_RANGE_DEG[test.dim])
 

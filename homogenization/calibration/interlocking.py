@@ -44,7 +44,7 @@ order of the fractional parts of k (sqrt(5) - 1) / 2, the same for every point; 
 (equal under the test's symmetry) reach their friction limit at different strains. The point's mean tan phi is
 the rule's. A renewal's fresh cells step with the point's friction in the increment that renews them.
 
-Opt-in state map (``Interlocking.map_state_weight`` w > 0; read by ``forward.density_alpha0``, not by the friction):
+Opt-in state map (``Interlocking.map_state_weight`` w != 0; read by ``forward.density_alpha0``, not by the friction):
 a test of void ratio e0 at confining pressure p0 builds its cell at the void-ratio map's alpha0 of
 e_map = e0 + w lambda ((p0 / p_ref)^xi - 1) (``state_map_void_ratio``) instead of e0's. With w = 1 the cell stands for
 the state parameter psi = e0 - e_c(p0) (Been & Jefferies 1985) carried to p_ref: e_map = e_c(p_ref) + psi. The
@@ -72,7 +72,7 @@ RELAX_VOID_REF = 0.55
 RELAX_VOID_SLOPE_MAX = 100.0
 """Largest abs(relax_void_slope) and abs(mobilisation_void_slope) [-] that ``Interlocking.check`` accepts."""
 MAP_STATE_WEIGHT_MAX = 2.0
-"""Largest map_state_weight [-] that ``Interlocking.check`` accepts."""
+"""Largest abs(map_state_weight) [-] that ``Interlocking.check`` and ``forward.density_alpha0`` accept."""
 MOBILISATION_EXPONENT = 2.0 / 3.0
 """Default exponent n of the mobilisation strain's pressure factor [-] (module docstring)."""
 FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi",
@@ -103,7 +103,7 @@ class Interlocking:
         relax_void_slope: s, abs(s) <= 100, d ln(gamma_r) / d e0; 0: none.
         mobilisation_exponent: n, in [0, 3], its pressure exponent.
         mobilisation_void_slope: s_m, abs(s_m) <= 100, d ln(a) / d e0; 0: none.
-        map_state_weight: w, in [0, 2]; 0: none.
+        map_state_weight: w, in [-2, 2]; 0: none.
     """
 
     m: float = 1.0
@@ -134,7 +134,7 @@ class Interlocking:
                          ("relax_void_slope", abs(self.relax_void_slope) <= RELAX_VOID_SLOPE_MAX),
                          ("mobilisation_exponent", 0.0 <= self.mobilisation_exponent <= 3.0),
                          ("mobilisation_void_slope", abs(self.mobilisation_void_slope) <= RELAX_VOID_SLOPE_MAX),
-                         ("map_state_weight", 0.0 <= self.map_state_weight <= MAP_STATE_WEIGHT_MAX)):
+                         ("map_state_weight", abs(self.map_state_weight) <= MAP_STATE_WEIGHT_MAX)):
             value = getattr(self, name)
             if not (math.isfinite(value) and ok):
                 raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
