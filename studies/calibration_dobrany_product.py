@@ -3,7 +3,7 @@
                                                 [--fit-kn-exponent] [--fit-mobilisation A,R0 [--kn-factor F]]
                                                 [--fit-decay G,K [--kn-factor F]] [--fit-softening G,K]
                                                 [--fit-void-lag G,K,S|G,S] [--fit-mobilisation-void A,R0,S]
-                                                [--fit-state-map W]
+                                                [--fit-state-map W [--state-map-prior LOW,HIGH]]
        python studies/calibration_dobrany_product.py --splits-figure OUT.png RESULT.json[+RESULT2.json] ...
 
 Dobrany sand with the product's own ``hmodel calibrate``: the interlocking friction (``--interlocking``: m,
@@ -32,8 +32,8 @@ prior [0, 0.1], [0, 2], [0, 40]), started at G, K and S; ``--fit-void-lag G,S``:
 ``mobilisation_start``, ``mobilisation_void_slope``; prior [0, 0.03], [0, 1], [0, 40]), started at A, R0 and S, kn at
 ``--kn-factor`` times the start's; its pressure exponent stays at the flags' (``--extra "--interlocking-values
 mobilisation_exponent=N"``; default 2/3). ``--fit-state-map W`` calibrates the interlocking's state-map weight too
-(``map_state_weight``: each test's cell at the map's alpha0 of e0 + w lambda_c ((p0 / p_ref)^xi_c - 1); prior [0, 2]),
-started at W.
+(``map_state_weight``: each test's cell at the map's alpha0 of e0 + w lambda_c ((p0 / p_ref)^xi_c - 1); prior [0, 2],
+or ``--state-map-prior``'s), started at W.
 
 Writes the data copies, the prior and the calibration under runs/dobrany_product/ (ignored), and
 studies/results/calibration_dobrany_product_SPLIT_TAG.json and .png (q and eps_v, data and the mean's curves).
@@ -330,6 +330,8 @@ def main(argv: list[str] | None = None) -> int:
                              "started at A, R0 and S")
     parser.add_argument("--fit-state-map", default="", metavar="W",
                         help="calibrate map_state_weight too (prior [0, 2]), started at W")
+    parser.add_argument("--state-map-prior", default="", metavar="LOW,HIGH",
+                        help="with --fit-state-map: its prior's bounds instead of 0,2 (within [-2, 2])")
     parser.add_argument("--kn-factor", type=float, default=1.0,
                         help="with --fit-mobilisation, --fit-decay, --fit-softening, --fit-void-lag or "
                              "--fit-mobilisation-void: kn's start factor")
@@ -340,6 +342,8 @@ def main(argv: list[str] | None = None) -> int:
     params += MOBILISATION if args.fit_mobilisation else ()
     params += MOBILISATION_VOID if args.fit_mobilisation_void else ()
     params += tuple(STATE_MAP_PRIOR) if args.fit_state_map else ()
+    state_map_prior = ({"map_state_weight": [float(v) for v in args.state_map_prior.split(",")]}
+                       if args.state_map_prior else STATE_MAP_PRIOR)
     if sum(map(bool, (args.fit_decay, args.fit_softening, args.fit_void_lag))) > 1:
         parser.error("--fit-decay, --fit-softening and --fit-void-lag: one lag at a time")
     params += DECAY if args.fit_decay else ()
@@ -355,14 +359,15 @@ def main(argv: list[str] | None = None) -> int:
                     + "_void_lag" * bool(args.fit_void_lag)
                     + "_k0" * (len(void_lag) == 2 and bool(args.fit_void_lag))
                     + "_mobilisation_void" * bool(args.fit_mobilisation_void)
-                    + "_state_map" * bool(args.fit_state_map) + ".json")
+                    + "_state_map" * bool(args.fit_state_map)
+                    + ("_" + args.state_map_prior.replace(",", "_")) * bool(args.state_map_prior) + ".json")
     prior.write_text(json.dumps({**PRIOR, **({"kn_exponent": [0.0, 1.0]} if args.fit_kn_exponent else {}),
                                  **(MOBILISATION_PRIOR if args.fit_mobilisation else {}),
                                  **(DECAY_PRIOR if args.fit_decay else {}),
                                  **(SOFTENING_PRIOR if args.fit_softening else {}),
                                  **({n: VOID_LAG_PRIOR[n] for n in void_lag} if args.fit_void_lag else {}),
                                  **(MOBILISATION_VOID_PRIOR if args.fit_mobilisation_void else {}),
-                                 **(STATE_MAP_PRIOR if args.fit_state_map else {})},
+                                 **(state_map_prior if args.fit_state_map else {})},
                                 indent=1))
     command = [sys.executable, "-m", "homogenization.calibrate", *sum((["--data", str(files[f])] for f in fitted), []),
                "--params", ",".join(params), "--prior", str(prior), *exponent, *FLAGS,

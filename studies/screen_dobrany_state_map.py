@@ -43,8 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tag", default="")
     args = parser.parse_args(argv)
     weights = [float(w) for w in args.weights.split(",")]
-    if not args.result.is_file() or not all(0.0 <= w <= 2.0 for w in weights):
-        print(f"error: no file {args.result}, or a weight outside [0, 2]", file=sys.stderr)
+    if not args.result.is_file() or not all(-2.0 <= w <= 2.0 for w in weights):
+        print(f"error: no file {args.result}, or a weight outside [-2, 2]", file=sys.stderr)
         return 2
     record, params, settings = sensitivity_setup(args.result, "15x4s", [(w,) for w in weights],
                                                  (forward.MAP_STATE,), kn_factor=None)
