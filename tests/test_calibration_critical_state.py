@@ -86,3 +86,15 @@ def test_a_failed_set_does_not_stop_the_population():
     angle = renewal.fresh_angle(np.array([np.nan, 1.0]))
     assert angle[0] == SETTINGS.critical_state.alpha_c_deg and np.isfinite(angle[1])
     assert renewal.nonfinite.tolist() == [True, False]
+
+
+def test_a_sets_curves_are_the_same_bits_alone_and_in_a_population():
+    """``forward``'s promise: a point's curve does not depend on the population it runs in (V0 and the renewal's
+    clock are sums per point, not BLAS products whose order depends on the number of points)."""
+    rng = np.random.default_rng(7)
+    sets = {name: np.concatenate([v, v[::-1]] * 3)[:6] * rng.uniform(0.98, 1.02, 6) for name, v in SETS.items()}
+    together = forward.simulate(TEST, sets, SETTINGS)
+    for i in (0, 3, 5):
+        alone = forward.simulate(TEST, {name: v[i:i + 1] for name, v in sets.items()}, SETTINGS)
+        for name in ("q", "p", "eps_v"):
+            assert np.array_equal(together.channel(name)[i], alone.channel(name)[0], equal_nan=True), (i, name)

@@ -223,7 +223,8 @@ class Renewal:
         cell = sum(np.abs(d_local[:, a] - d_local[:, b]) for a in range(dim) for b in range(a + 1, dim))
         n = self.material.orient.n_cells
         weights = self.material.orient.weights
-        increment = (cell.reshape(self.material.n_points, n) @ weights) / weights.sum()
+        # a sum per point, not BLAS's matrix-vector product (whose order depends on the number of points)
+        increment = (cell.reshape(self.material.n_points, n) * weights).sum(axis=1) / weights.sum()
         rate = self.rate(J)
         return d_local, rate, np.repeat(np.minimum(rate, self.params.rate_max) * increment, n)
 
