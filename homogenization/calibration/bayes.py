@@ -13,13 +13,18 @@ A parameter set whose forward model fails (NaN, e.g. p0 not reached) has log L =
 
 Sampler: emcee's affine-invariant ensemble (``vectorize=True``: the whole population of
 walkers is one call of the forward model, one batch of cells), its chain in emcee's HDF5
-backend so that a run resumes where it stopped.
+backend so that a run resumes where it stopped. With ``workers`` > 1 (analytical backend) a call's parameter
+sets are shared among that many processes, in contiguous chunks: a set's curves do not depend on the
+population it runs in (``forward``), so the numbers are the same bits as in one process.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import multiprocessing
+import sys
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator, Mapping, Sequence
@@ -191,24 +196,26 @@ def log_likelihood(tests: Sequence[Measurement], curves: Sequence[Mapping[str, n
 class Posterior:
     """log posterior of sampled coordinates, vectorised: the callable emcee samples.
 
-    One call runs the forward model of every test on the whole population at once.
-    ``n_fallback`` counts the forward-model fallbacks fired (``forward.Curves.n_fallback``), ``n_jump`` the
-    drained increments solved at a jump of the response (``forward.Curves.n_jump``),
-    ``n_failed`` the parameter sets whose forward model failed (log L = -inf), ``n_calls`` the
-    parameter sets evaluated inside the prior, ``n_float_errors`` the numpy operations of the
-    forward model that overflowed, divided by zero or gave NaN (a drained Newton iteration that
-    diverges for an extreme parameter set): counted, not printed as RuntimeWarnings. Where alpha0_spread
-    is calibrated, the prior is also cut by alpha0 - alpha0_spread >= ALPHA_MIN_3D_DEG
-    (``forward.feasible``): sets outside get log posterior -inf without a run, counted in ``n_infeasible``.
-    ``correction`` (None, or per test channel -> shape (n_data,)) is added to every model curve: the
-    discretisation correction of ``resolution.correction``.
+    One call runs every test's forward model on the whole population, shared among ``workers`` processes on the
+    analytical backend (module docstring; ``close`` stops them). Counted, not printed: ``n_fallback`` forward
+    fallbacks (``forward.Curves.n_fallback``), ``n_jump`` drained increments solved at a jump, ``n_failed`` sets
+    whose forward model failed (log L = -inf), ``n_calls`` sets evaluated inside the prior, ``n_float_errors``
+    numpy operations that overflowed, divided by zero or gave NaN (each worker's share counts its own). Where
+    alpha0_spread is calibrated, sets with alpha0 - alpha0_spread < ALPHA_MIN_3D_DEG (``forward.feasible``) get
+    -inf without a run (``n_infeasible``). ``correction`` (None, or per test channel -> (n_data,)) is added to
+    every model curve (``resolution.correction``).
     """
 
-    def __init__(self, tests: Sequence[Measurement], prior: Prior, settings: ForwardSettings, noise: float) -> None:
+    def __init__(self, tests: Sequence[Measurement], prior: Prior, settings: ForwardSettings, noise: float,
+                 workers: int = 1) -> None:
+        if workers < 1:
+            raise ValueError(f"workers = {workers}: needs >= 1")
         self.tests = tuple(tests)
         self.prior = prior
         self.settings = settings
         self.noise = float(noise)
+        self.workers = int(workers) if settings.backend == "analytical" else 1
+        self._pool: ProcessPoolExecutor | None = None
         self.n_fallback = 0
         self.n_jump = 0
         self.n_failed = 0
@@ -228,21 +235,36 @@ class Posterior:
         ok = feasible({name: values[:, i] for i, name in enumerate(self.prior.names)}, self.settings)
         return np.ones(values.shape[0], dtype=bool) if ok is None else ok
 
-    def _count_float_error(self, kind: str, flag: int) -> None:
-        self.n_float_errors += 1
-
     def curves(self, values: np.ndarray) -> list[dict[str, np.ndarray]]:
         """Model curves of parameter sets in CLI units, shape (n, n_params): per test, channel -> (n, n_data)."""
         params = {name: values[:, i] for i, name in enumerate(self.prior.names)}
+        n = values.shape[0]
+        chunks = min(self.workers, n)
+        if chunks <= 1:
+            parts = [forward_share(self.tests, params, self.settings)]
+        else:
+            if self._pool is None:
+                method = "fork" if sys.platform == "linux" else "spawn"
+                self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context(method))
+            edges = np.linspace(0, n, chunks + 1).round().astype(int)
+            futures = [self._pool.submit(forward_share, self.tests, {k: v[a:b] for k, v in params.items()},
+                                         self.settings) for a, b in zip(edges[:-1], edges[1:])]
+            parts = [f.result() for f in futures]
         out = []
         for k, test in enumerate(self.tests):
-            with np.errstate(all="call", call=self._count_float_error):
-                c = simulate(test, params, self.settings)
-            self.n_fallback += int(c.n_fallback.sum())
-            self.n_jump += int(c.n_jump.sum())
+            self.n_fallback += sum(part[k][1] for part, _ in parts)
+            self.n_jump += sum(part[k][2] for part, _ in parts)
             shift = self.correction[k] if self.correction is not None else {}
-            out.append({name: c.channel(name) + shift[name] if name in shift else c.channel(name) for name in CHANNELS})
+            channels = {name: np.concatenate([part[k][0][name] for part, _ in parts]) for name in CHANNELS}
+            out.append({name: c + shift[name] if name in shift else c for name, c in channels.items()})
+        self.n_float_errors += sum(errors for _, errors in parts)
         return out
+
+    def close(self) -> None:
+        """Stop the worker processes (if any were started); a later call starts them again."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         x = np.atleast_2d(x)
@@ -260,6 +282,23 @@ class Posterior:
             self.n_failed += int(np.count_nonzero(~np.isfinite(ll)))
             out[inside] = lp[inside] + ll
         return out
+
+
+def forward_share(tests: Sequence[Measurement], params: Mapping[str, np.ndarray], settings: ForwardSettings
+                  ) -> tuple[list[tuple[dict[str, np.ndarray], int, int]], int]:
+    """One worker's share of ``Posterior.curves``: per test (channel -> (n, n_data), fallbacks, jumps) of the sets
+    ``params`` (name -> (n,)), and the numpy floating-point errors counted on the way (not printed)."""
+    errors = [0]
+
+    def count(kind: str, flag: int) -> None:
+        errors[0] += 1
+
+    out = []
+    for test in tests:
+        with np.errstate(all="call", call=count):
+            c = simulate(test, params, settings)
+        out.append(({name: c.channel(name) for name in CHANNELS}, int(c.n_fallback.sum()), int(c.n_jump.sum())))
+    return out, errors[0]
 
 
 def initial_walkers(log_post: Callable[[np.ndarray], np.ndarray], prior: Prior, n_walkers: int,

@@ -208,6 +208,9 @@ def build_parser() -> argparse.ArgumentParser:
                               "check = refuse (exit 2) naming the --increment and --orientations it needs; off = "
                               "no check")
     add_threads_argument(forward, "CPU threads of the DEM (dem, --confirm)")
+    forward.add_argument("--workers", type=positive_int, default=1,
+                         help="processes that share each forward run's parameter sets (analytical backend; the "
+                              "same numbers as one process, about 1.8x faster with 2 on 2 free cores)")
     parser.add_argument("--confirm", choices=("dem", "none"), default="dem",
                         help="run the DEM once at the posterior mean and report its misfit")
     parser.add_argument("--confirm-orientations", type=positive_int, default=36, help="orientations of the DEM check")
@@ -327,6 +330,9 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
                         "alpha0 = 55 deg only): triaxial data need --backend analytical or dem")
     if args.backend == "ann":
         refuse_uncertified_file(None, args)
+    if args.workers > 1 and args.backend != "analytical":
+        raise UserError(f"--workers {args.workers} shares the analytical backend's forward runs; --backend "
+                        f"{args.backend} takes --threads")
     if args.walkers < 2 * len(args.params):
         raise UserError(f"--walkers {args.walkers} must be >= 2 x the {len(args.params)} parameters")
     if args.increment > min(float(t.eps1.max()) for t in tests):
@@ -586,43 +592,47 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
                             f"seed or forward model); add --overwrite to restart it")
         if stored != config_json or args.overwrite:
             chain.unlink()
-    log_post = bayes.Posterior(tests, prior, settings, likelihood_noise(args))
-    started = time.perf_counter()
-    backend = emcee.backends.HDFBackend(str(chain))
-    done = backend.iteration if chain.exists() else 0
-    n_dim = len(prior.names)
-    sampler = emcee.EnsembleSampler(args.walkers, n_dim, log_post, vectorize=True, backend=backend)
-    # emcee's wrapper of log_post prints a traceback of any exception, Ctrl-C included, before
-    # passing it on; run_main reports it in one line instead (the chain keeps every finished step)
-    sampler.log_prob_fn = log_post
-    if done == 0:
-        backend.reset(args.walkers, n_dim)
-        with h5py.File(chain, "a") as fh:
-            fh.attrs["calibration_config"] = config_json
-        sampler.random_state = np.random.RandomState(args.seed).get_state()
-        start, start_record, resolution_record = resolved_start(args, log_post)
-        start_record["seconds"] = time.perf_counter() - started
-        with h5py.File(chain, "a") as fh:
-            fh.attrs["start_record"] = json.dumps(start_record, sort_keys=True)
-            fh.attrs["resolution_record"] = json.dumps(resolution_record, sort_keys=True)
-    else:
-        start = backend.get_last_sample()  # positions, log posterior and random state of the last step
-        with h5py.File(chain, "r") as fh:
-            stored_start = fh.attrs.get("start_record")
-            stored_resolution = fh.attrs.get("resolution_record")
-        start_record = json.loads(stored_start) if stored_start is not None else None
-        resolution_record = json.loads(stored_resolution) if stored_resolution is not None else {"mode": "off"}
-        if resolution_record.get("correction") is not None:
-            log_post.correction = [{c: np.asarray(v) for c, v in t.items()} for t in resolution_record["correction"]]
-        say(f"{chain}: resuming after {done} of {args.steps} steps")
-    seconds = time.perf_counter()
-    remaining = max(0, args.steps - done)
-    if remaining:
-        with progress_bar(total=remaining, desc="calibrate", unit="step") as bar:
-            for _ in sampler.sample(start, iterations=remaining):
-                bar.update(1)
-    seconds = time.perf_counter() - seconds
-    return report.write_outputs(out, sampler, log_post, args, seconds, config, start_record, resolution_record)
+    log_post = bayes.Posterior(tests, prior, settings, likelihood_noise(args), workers=args.workers)
+    try:
+        started = time.perf_counter()
+        backend = emcee.backends.HDFBackend(str(chain))
+        done = backend.iteration if chain.exists() else 0
+        n_dim = len(prior.names)
+        sampler = emcee.EnsembleSampler(args.walkers, n_dim, log_post, vectorize=True, backend=backend)
+        # emcee's wrapper of log_post prints a traceback of any exception, Ctrl-C included, before
+        # passing it on; run_main reports it in one line instead (the chain keeps every finished step)
+        sampler.log_prob_fn = log_post
+        if done == 0:
+            backend.reset(args.walkers, n_dim)
+            with h5py.File(chain, "a") as fh:
+                fh.attrs["calibration_config"] = config_json
+            sampler.random_state = np.random.RandomState(args.seed).get_state()
+            start, start_record, resolution_record = resolved_start(args, log_post)
+            start_record["seconds"] = time.perf_counter() - started
+            with h5py.File(chain, "a") as fh:
+                fh.attrs["start_record"] = json.dumps(start_record, sort_keys=True)
+                fh.attrs["resolution_record"] = json.dumps(resolution_record, sort_keys=True)
+        else:
+            start = backend.get_last_sample()  # positions, log posterior and random state of the last step
+            with h5py.File(chain, "r") as fh:
+                stored_start = fh.attrs.get("start_record")
+                stored_resolution = fh.attrs.get("resolution_record")
+            start_record = json.loads(stored_start) if stored_start is not None else None
+            resolution_record = json.loads(stored_resolution) if stored_resolution is not None else {"mode": "off"}
+            if resolution_record.get("correction") is not None:
+                log_post.correction = [{c: np.asarray(v) for c, v in t.items()}
+                                       for t in resolution_record["correction"]]
+            say(f"{chain}: resuming after {done} of {args.steps} steps")
+        seconds = time.perf_counter()
+        remaining = max(0, args.steps - done)
+        if remaining:
+            with progress_bar(total=remaining, desc="calibrate", unit="step") as bar:
+                for _ in sampler.sample(start, iterations=remaining):
+                    bar.update(1)
+        seconds = time.perf_counter() - seconds
+        return report.write_outputs(out, sampler, log_post, args, seconds, config, start_record, resolution_record)
+    finally:
+        log_post.close()  # its worker processes, if any
 
 
 def resolved_start(args: argparse.Namespace, log_post: bayes.Posterior) -> tuple[np.ndarray, dict, dict]:
