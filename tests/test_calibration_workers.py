@@ -1,12 +1,14 @@
-"""hmodel calibrate --workers: the forward runs' parameter sets shared among processes give the same chain, bit for
-bit, as one process (a set's curves do not depend on its population); refused in one line off the analytical
-backend."""
+"""hmodel calibrate --workers: the forward runs' parameter sets (or, fewer sets than workers, the tests) shared among
+processes give the same curves and chain, bit for bit, as one process (a set's curves do not depend on its
+population); refused in one line off the analytical backend."""
 
 import json
 
 import h5py
 import numpy as np
 
+from homogenization.calibration import bayes
+from homogenization.calibration.data import read_test
 from homogenization.cli import calibrate
 from warp_hcell.core.cli import run_main
 
@@ -53,3 +55,27 @@ def test_workers_off_the_analytical_backend_exit_2(tmp_path, capsys):
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and "--workers 2 shares the analytical backend's forward runs" in lines[0], lines
     assert not out.exists()
+
+
+def test_a_single_set_shares_its_tests_among_workers_with_the_same_bits(tmp_path):
+    """Fewer sets than workers (a least-squares step): each test runs in its own process, the same curves."""
+    paths = []
+    for name, q in (("drained", "1.2e5,1.6e5"), ("undrained", "1.0e5,1.3e5")):
+        path = tmp_path / f"{name}.csv"
+        a, b = q.split(",")
+        path.write_text(f"# test = {name}\n# p0 = 2e5\neps1,q\n0.004,{a}\n0.008,{b}\n")
+        paths.append(path)
+    args = calibrate.build_parser().parse_args(["--data", str(paths[0]), "--params", "phi_g,alpha0", "--critical-state",
+                                                *FAST, "--out", str(tmp_path / "o")])
+    tests, settings = [read_test(p) for p in paths], calibrate.forward_settings(args, 2)
+    prior = bayes.make_prior(["phi_g", "alpha0"], dim=2)
+    one, two = (bayes.Posterior(tests, prior, settings, 0.02, workers=w) for w in (1, 2))
+    try:
+        for values in (np.array([[24.0, 50.0]]), np.array([[24.0, 50.0], [30.0, 60.0], [20.0, 47.0]])):
+            a, b = one.curves(values), two.curves(values)
+            for k in range(2):
+                for name in a[k]:
+                    assert np.array_equal(a[k][name], b[k][name], equal_nan=True), (values.shape, k, name)
+        assert two._pool is not None and one._pool is None
+    finally:
+        two.close()

@@ -14,8 +14,10 @@ A parameter set whose forward model fails (NaN, e.g. p0 not reached) has log L =
 Sampler: emcee's affine-invariant ensemble (``vectorize=True``: the whole population of
 walkers is one call of the forward model, one batch of cells), its chain in emcee's HDF5
 backend so that a run resumes where it stopped. With ``workers`` > 1 (analytical backend) a call's parameter
-sets are shared among that many processes, in contiguous chunks: a set's curves do not depend on the
-population it runs in (``forward``), so the numbers are the same bits as in one process.
+sets are shared among that many processes, in contiguous chunks (fewer sets than workers: its tests are): a set's
+curves do not depend on the population it runs in (``forward``), so the curves are the same bits as in one
+process (a least-squares start may still move in its last bits: scipy's arithmetic depends on where numpy placed
+the residuals in memory).
 """
 
 from __future__ import annotations
@@ -236,28 +238,41 @@ class Posterior:
         return np.ones(values.shape[0], dtype=bool) if ok is None else ok
 
     def curves(self, values: np.ndarray) -> list[dict[str, np.ndarray]]:
-        """Model curves of parameter sets in CLI units, shape (n, n_params): per test, channel -> (n, n_data)."""
+        """Model curves of parameter sets in CLI units, shape (n, n_params): per test, channel -> (n, n_data).
+
+        With ``workers`` > 1 the sets go to the workers in contiguous chunks, or, with fewer sets than workers,
+        the tests do (a least-squares fit's single sets)."""
         params = {name: values[:, i] for i, name in enumerate(self.prior.names)}
-        n = values.shape[0]
-        chunks = min(self.workers, n)
-        if chunks <= 1:
-            parts = [forward_share(self.tests, params, self.settings)]
+        n, every = values.shape[0], tuple(range(len(self.tests)))
+        if self.workers > 1 and n >= self.workers:
+            edges = np.linspace(0, n, self.workers + 1).round().astype(int)
+            shares = [(every, a, b) for a, b in zip(edges[:-1], edges[1:])]
+        elif self.workers > 1 and len(every) > 1:
+            shares = [((k,), 0, n) for k in every]
+        else:
+            shares = [(every, 0, n)]
+        jobs = [([self.tests[k] for k in tests], {name: v[a:b] for name, v in params.items()})
+                for tests, a, b in shares]
+        if len(shares) == 1:
+            parts = [forward_share(*jobs[0], self.settings)]
         else:
             if self._pool is None:
                 method = "fork" if sys.platform == "linux" else "spawn"
                 self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context(method))
-            edges = np.linspace(0, n, chunks + 1).round().astype(int)
-            futures = [self._pool.submit(forward_share, self.tests, {k: v[a:b] for k, v in params.items()},
-                                         self.settings) for a, b in zip(edges[:-1], edges[1:])]
+            futures = [self._pool.submit(forward_share, tests, chunk, self.settings) for tests, chunk in jobs]
             parts = [f.result() for f in futures]
+        pieces: dict[int, list] = {k: [] for k in every}
+        for (tests, _, _), (per_test, errors) in zip(shares, parts):
+            self.n_float_errors += errors
+            for k, piece in zip(tests, per_test):
+                pieces[k].append(piece)
         out = []
-        for k, test in enumerate(self.tests):
-            self.n_fallback += sum(part[k][1] for part, _ in parts)
-            self.n_jump += sum(part[k][2] for part, _ in parts)
+        for k in every:
+            self.n_fallback += sum(piece[1] for piece in pieces[k])
+            self.n_jump += sum(piece[2] for piece in pieces[k])
             shift = self.correction[k] if self.correction is not None else {}
-            channels = {name: np.concatenate([part[k][0][name] for part, _ in parts]) for name in CHANNELS}
+            channels = {name: np.concatenate([piece[0][name] for piece in pieces[k]]) for name in CHANNELS}
             out.append({name: c + shift[name] if name in shift else c for name, c in channels.items()})
-        self.n_float_errors += sum(errors for _, errors in parts)
         return out
 
     def close(self) -> None:
