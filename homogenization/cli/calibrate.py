@@ -210,8 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_threads_argument(forward, "CPU threads of the DEM (dem, --confirm)")
     forward.add_argument("--workers", type=positive_int, default=1,
                          help="processes that share each forward run's parameter sets, or its tests where there are "
-                              "fewer sets (analytical backend): the same curves as one process; 1.4x faster with 2 on "
-                              "2 free cores (docs/calibration.md)")
+                              "fewer sets (analytical backend): the same curves as one process; 1.4-1.6x faster with 2 "
+                              "on 2 free cores (docs/calibration.md)")
     parser.add_argument("--confirm", choices=("dem", "none"), default="dem",
                         help="run the DEM once at the posterior mean and report its misfit")
     parser.add_argument("--confirm-orientations", type=positive_int, default=36, help="orientations of the DEM check")
