@@ -220,12 +220,13 @@ class HomogenisedMaterial:
     def _cell_tangent_average(self, C: np.ndarray) -> np.ndarray:
         """sum_k w_k A_k C_k L_k [N/m or Pa], shape (n_points, n_voigt, n_voigt), of C (n_points, N, dim, dim).
 
-        Per-point products, so a point's tangent does not depend on its batch: C_k L_k term by term in 2D (the
-        order the 2D runs' files are pinned to, bit for bit), a stacked matmul in 3D; then one matmul per point.
+        Per-point products, so a point's tangent does not depend on its batch. The two dimensions sum
+        the same terms in different orders (a stacked matmul, an einsum); each order is kept because the
+        runs' files are pinned to it bit for bit.
         """
-        n = self.orient.n_cells
         if self.dim == 2:
+            n = self.orient.n_cells
             CL = C[..., :, 0, None] * self.L[None, :, 0, None, :] + C[..., :, 1, None] * self.L[None, :, 1, None, :]
-        else:
-            CL = np.matmul(C, self.L)
-        return self.A.reshape(self.n_voigt, n * self.dim) @ CL.reshape(self.n_points, n * self.dim, self.n_voigt)
+            return self.A.reshape(self.n_voigt, n * self.dim) @ CL.reshape(self.n_points, n * self.dim, self.n_voigt)
+        CL = np.einsum("pkab,kbj->pkaj", C, self.L)
+        return np.einsum("ika,pkaj->pij", self.A, CL)
