@@ -98,6 +98,8 @@ class Analytical3DState(NamedTuple):
     b: AnalyticalState
 
 
+LATERAL_GRAINS = [1, 2, 4, 5]
+"""Indices (0-based) in a plane's six grains of its lateral grains: those a second plane adds to the cell."""
 TEN_SPHERE_FACES = hcell.h_cell_3d_faces()
 """Outer triangles of the ten-sphere cell."""
 
@@ -111,16 +113,13 @@ def cell_positions(planes: Sequence[AnalyticalState]) -> np.ndarray:
 def grain_rows(planes: Sequence[AnalyticalState]) -> np.ndarray:
     """``cell_positions`` laid out grain, then component first: shape (2 + 4 n_planes, 1 + n_planes, n_cells) [m]."""
     first = planes[0]
-    hn, ht, y2 = 0.5 * first.l1, 0.5 * first.l2, first.y2
     n_planes = len(planes)
-    x = np.zeros((2 + 4 * n_planes, 1 + n_planes, hn.shape[0]))
-    x[:6, 0] = hn, y2, -y2, -hn, -y2, y2  # hcell.grain_positions, grain by grain
-    x[1:3, 1], x[4:6, 1] = -ht, ht
+    x = np.zeros((2 + 4 * n_planes, 1 + n_planes, first.l1.shape[0]))
+    x[:6, :2] = hcell.grain_rows(first.l1, first.l2, first.y2)
     for k, plane in enumerate(planes[1:], start=2):
-        ht, y2 = 0.5 * plane.l2, plane.y2
-        rows = slice(4 * k - 2, 4 * k + 2)  # its lateral grains: 2, 3, 5 and 6 of its six
-        x[rows, 0] = y2, -y2, -y2, y2
-        x[rows, k] = -ht, -ht, ht, ht
+        lateral = hcell.grain_rows(plane.l1, plane.l2, plane.y2)[LATERAL_GRAINS, :]
+        rows = slice(4 * k - 2, 4 * k + 2)
+        x[rows, 0], x[rows, k] = lateral[:, 0], lateral[:, 1]
     return x
 
 

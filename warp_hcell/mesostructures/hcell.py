@@ -437,14 +437,20 @@ def grain_positions(l1: np.ndarray, l2: np.ndarray, y2: np.ndarray) -> np.ndarra
     Returns:
         Positions [m], shape (n_cells, 6, 2): [:, label - 1, 0] = x_n, [:, label - 1, 1] = x_t.
     """
+    return np.moveaxis(grain_rows(l1, l2, y2), (0, 1), (-2, -1))
+
+
+def grain_rows(l1: np.ndarray, l2: np.ndarray, y2: np.ndarray) -> np.ndarray:
+    """``grain_positions`` laid out grain, then component first: shape (6, 2, n_cells) [m], [label - 1, 0] = x_n,
+    [label - 1, 1] = x_t."""
     l1, l2, y2 = np.broadcast_arrays(
         np.asarray(l1, dtype=np.float64), np.asarray(l2, dtype=np.float64), np.asarray(y2, dtype=np.float64)
     )
     hn, ht = 0.5 * l1, 0.5 * l2
-    zero = np.zeros_like(hn)
-    x_n = np.stack([hn, y2, -y2, -hn, -y2, y2], axis=-1)
-    x_t = np.stack([zero, -ht, -ht, zero, ht, ht], axis=-1)
-    return np.stack([x_n, x_t], axis=-1)
+    x = np.zeros((N_GRAINS, 2, *hn.shape))
+    x[:, 0] = hn, y2, -y2, -hn, -y2, y2
+    x[1:3, 1], x[4:6, 1] = -ht, ht
+    return x
 
 
 def love_weber_moment(
