@@ -11,8 +11,8 @@ standard deviation sigma_c = noise * max(abs(observed_c)), the same for all its 
 
 A parameter set whose forward model fails (NaN, e.g. p0 not reached) has log L = -inf.
 
-Sampler: emcee's affine-invariant ensemble (``vectorize=True``: the whole population of
-walkers is one call of the forward model, one batch of cells), its chain in emcee's HDF5
+Sampler: emcee's ensemble, its stretch move or differential evolution (``sampler_moves``; ``vectorize=True``:
+the whole population of walkers is one call of the forward model, one batch of cells), its chain in emcee's HDF5
 backend so that a run resumes where it stopped. With ``workers`` > 1 (analytical backend) a call's parameter
 sets are shared among that many processes, in contiguous chunks (fewer sets than workers: its tests are): a set's
 curves do not depend on the population it runs in (``forward``), so the curves are the same bits as in one
@@ -314,6 +314,32 @@ def forward_share(tests: Sequence[Measurement], params: Mapping[str, np.ndarray]
             c = simulate(test, params, settings)
         out.append(({name: c.channel(name) for name in CHANNELS}, int(c.n_fallback.sum()), int(c.n_jump.sum())))
     return out, errors[0]
+
+
+MOVES = {
+    "stretch": "emcee's default stretch move (Goodman & Weare 2010): a walker moves along the line through another "
+               "walker; the package's chains before this option",
+    "de": "differential evolution: a walker moves along the difference of two others (0.8; DEMove, gamma "
+          "2.38 / sqrt(2 n_params)) or by the snooker update (0.2; DESnookerMove), emcee's documented mix",
+}
+"""The ensemble moves of ``hmodel calibrate --moves`` (name -> what they do)."""
+
+
+def sampler_moves(name: str) -> list | None:
+    """emcee's ``moves`` argument of the named mix (``MOVES``): None for "stretch" (emcee's default
+    ``StretchMove``, the same chain bit for bit), else (move, weight) pairs; every random draw of the moves
+    comes from the sampler's ``random_state``, so a seeded chain is reproducible and resumes bit for bit.
+
+    Raises:
+        ValueError: ``name`` is not a key of ``MOVES``.
+    """
+    import emcee  # noqa: PLC0415 (only when a calibration runs)
+
+    if name == "stretch":
+        return None
+    if name == "de":
+        return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+    raise ValueError(f"moves {name!r}: one of {', '.join(MOVES)}")
 
 
 def initial_walkers(log_post: Callable[[np.ndarray], np.ndarray], prior: Prior, n_walkers: int,

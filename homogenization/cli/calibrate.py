@@ -24,8 +24,8 @@ then be calibrated, the others fixed by --interlocking-values; posterior.json ho
 (p0 / 101.325 kPa)^N; --params kn_exponent calibrates N instead. --start-point starts the map fit at given values
 instead of prior draws.
 
-The posterior is sampled with emcee's affine-invariant ensemble, every step running the forward
-model of all walkers as one batch of cells. --start map (default) first finds the posterior's
+The posterior is sampled with emcee's ensemble (--moves: its stretch move or differential evolution), every
+step running the forward model of all walkers as one batch of cells. --start map (default) first finds the posterior's
 main mode by a seeded multi-start least-squares fit and starts the walkers around it
 (``homogenization.calibration.start``); --start prior starts them at the best prior draws. At
 the end the DEM runs once at the posterior mean (--confirm dem) and its misfit is reported.
@@ -151,6 +151,12 @@ def build_parser() -> argparse.ArgumentParser:
     sampler = parser.add_argument_group("sampler")
     sampler.add_argument("--walkers", type=positive_int, default=32, help="ensemble size (>= 2 x number of parameters)")
     sampler.add_argument("--steps", type=positive_int, default=600, help="ensemble steps in total (resume extends)")
+    sampler.add_argument("--moves", choices=tuple(bayes.MOVES), default="stretch",
+                         help="the ensemble's moves: stretch (default, emcee's) = a walker moves along the line "
+                              "through another; de = differential evolution, a walker moves along the difference "
+                              "of two others (80 %%) or by a snooker update (20 %%): pick de where the posterior is "
+                              "narrow and correlated and stretch's acceptance falls below ~0.1 "
+                              "(docs/studies/calibration_sampler_moves.md)")
     sampler.add_argument("--burn", type=fraction, default=0.5, help="fraction of the steps discarded as burn-in")
     sampler.add_argument("--start", choices=tuple(START_METHODS), default="map",
                          help="where the walkers start: map = a ball around the best of a seeded multi-start "
@@ -263,6 +269,7 @@ def configuration(args: argparse.Namespace, tests: Sequence[Measurement], prior:
         **({"model_error": args.model_error} if args.model_error else {}),
         **({"resolution": args.resolution} if args.resolution != "correct" else {}),
         **({"start_point": dict(args.start_point)} if args.start_point is not None else {}),
+        **({"moves": args.moves} if args.moves != "stretch" else {}),
     }
 
 
@@ -590,7 +597,7 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
         # no stored settings: a start interrupted before its first step, restarted
         if stored is not None and stored != config_json and not args.overwrite:
             raise UserError(f"{chain} holds a calibration with other settings (data, parameters, prior, walkers, "
-                            f"seed or forward model); add --overwrite to restart it")
+                            f"moves, seed or forward model); add --overwrite to restart it")
         if stored != config_json or args.overwrite:
             chain.unlink()
     log_post = bayes.Posterior(tests, prior, settings, likelihood_noise(args), workers=args.workers)
@@ -599,7 +606,8 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
         backend = emcee.backends.HDFBackend(str(chain))
         done = backend.iteration if chain.exists() else 0
         n_dim = len(prior.names)
-        sampler = emcee.EnsembleSampler(args.walkers, n_dim, log_post, vectorize=True, backend=backend)
+        sampler = emcee.EnsembleSampler(args.walkers, n_dim, log_post, moves=bayes.sampler_moves(args.moves),
+                                        vectorize=True, backend=backend)
         # emcee's wrapper of log_post prints a traceback of any exception, Ctrl-C included, before
         # passing it on; run_main reports it in one line instead (the chain keeps every finished step)
         sampler.log_prob_fn = log_post
