@@ -86,11 +86,12 @@ TRUTH = {"phi_g": 22.0, "alpha0": 60.0}
 def test_de_recovers_a_known_truth_inside_its_95_percent_intervals(tmp_path):
     """Synthetic biaxial tests made by the calibration's own forward model (no discretisation error) at TRUTH with
     2 % noise, calibrated with --moves de from the least-squares start: each truth inside its 95 % interval, the
-    interval narrow (the data constrain both), the walkers moving."""
+    interval narrow (the data constrain both), the walkers moving. On these data a 400-step chain puts the truth
+    at 0.5 posterior sd in both parameters (docs/studies/calibration_sampler_moves.md)."""
     argv = ["--orientations", "12", "--confirm", "none", "--resolution", "off", "--params", "phi_g,alpha0",
             "--walkers", "8", "--steps", "60", "--moves", "de", "-q", "--out", str(tmp_path / "run")]
     settings = calibrate.forward_settings(calibrate.build_parser().parse_args(["--data", "x.csv", *argv]), 2)
-    rng = np.random.default_rng(7)
+    rng = np.random.default_rng(20)  # the noise of tests/test_calibration_known_truth.py's data
     eps1 = np.linspace(0.001, 0.02, 20)
     for kind, p0, channels in (("undrained", 5e4, ("q", "p")), ("drained", 3e4, ("q", "eps_v"))):
         test, _ = synthetic_test(kind, p0, eps1, channels, TRUTH, settings, 0.02, rng)
