@@ -37,8 +37,9 @@ import numpy as np
 from homogenization.element_test import driver, programme as programmes
 from homogenization.backends import backend_class, make_cell_model
 from homogenization.calibration.data import Measurement
-from homogenization.calibration.interlocking import (FIELDS as INTERLOCKING, MAP_STATE_WEIGHT_MAX, Interlocking,
-                                                     InterlockingFriction, state_map_void_ratio)
+from homogenization.calibration.interlocking import (FIELDS as INTERLOCKING, MAP_STATE_WEIGHT_MAX,
+                                                     STIFFNESS_VOID_SLOPE_MAX, Interlocking, InterlockingFriction,
+                                                     state_map_void_ratio, stiffness_factor)
 from homogenization.calibration.renewal import PopulationRenewal, laws_of
 from homogenization.element_test.points import MaterialPoints, material_points, orientation_set
 from homogenization.element_test.plan import Plan
@@ -72,13 +73,16 @@ mean (``dataclasses.asdict``); absent: the plain cell."""
 MAP_STATE = "map_state_weight"
 """The interlocking's state-map weight w [-] (``interlocking.state_map_void_ratio``): read by ``density_alpha0`` (the
 cell's alpha0), not by the friction."""
+STIFFNESS = "stiffness_void_slope"
+"""The interlocking's stiffness slope s_k [-] (``interlocking.stiffness_factor``): read by ``simulate`` (each set's kn
+times exp(-s_k (e0 - 0.55)), linear law), not by the friction."""
 INTERLOCKING_PRIOR = {"interlocking_m": (0.0, 6.0, False), "e_gamma": (0.5, 1.2, False), "lambda_c": (0.0, 0.4, False),
                       "xi_c": (0.2, 1.0, False), "cell_spread": (0.0, 0.6, False),
                       "mobilisation_strain": (0.0, 0.05, False), "mobilisation_start": (0.0, 1.0, False),
                       "relax_strain": (0.0, 0.1, False), "relax_exponent": (0.0, 2.0, False),
                       "softening_strain": (0.0, 0.1, False), "relax_void_slope": (0.0, 30.0, False),
                       "mobilisation_exponent": (0.0, 2.0, False), "mobilisation_void_slope": (0.0, 30.0, False),
-                      MAP_STATE: (0.0, 2.0, False)}
+                      MAP_STATE: (0.0, 2.0, False), STIFFNESS: (0.0, 30.0, False)}
 """Default prior of the interlocking friction's calibratable parameters (``INTERLOCKING``: CLI name -> ``Interlocking``
 field): uniform (low, high, log-uniform?), all [-]; read only with ``ForwardSettings.interlocking``, per set."""
 INTERLOCKING_KEY = "interlocking"
@@ -95,7 +99,8 @@ PARAMETERS = ("phi_g", "kn", "kt_over_kn", "alpha0", "shear_modulus", "poisson",
 kt_over_kn [-], alpha0 [deg], shear_modulus G [Pa], poisson nu [-], alpha0_spread [deg], e_min and
 e_max [-], alpha_c [deg] and renewal_rate [-] (``RULE``), the interlocking friction's m, e_gamma, lambda_c,
 xi_c, cell_spread, mobilisation_strain, mobilisation_start, relax_strain, relax_exponent, softening_strain,
-relax_void_slope, mobilisation_exponent, mobilisation_void_slope and map_state_weight [-] (``INTERLOCKING``), kn's
+relax_void_slope, mobilisation_exponent, mobilisation_void_slope, map_state_weight and stiffness_void_slope [-]
+(``INTERLOCKING``), kn's
 exponent [-] (``KN_EXPONENT``, linear law)."""
 LAW_PARAMETERS = {ContactLaw.name: ("phi_g", "kn", "kt_over_kn", "alpha0"),
                   HertzMindlinLaw.name: ("phi_g", "shear_modulus", "poisson", "alpha0")}
@@ -262,10 +267,13 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
     (``calibration.interlocking``), e0 the test's void ratio, else the set's map's of its alpha0; its fields per set
     where ``params`` holds ``INTERLOCKING``'s names; None: ``settings.interlocking`` (None: the plain contact law).
     ``KN_EXPONENT`` in ``params``: each set's exponent of kn instead of ``settings.kn_exponent`` (``kn_at_pressure``).
+    A stiffness slope s_k (``STIFFNESS``: per set in ``params``, else the interlocking's; nonzero) multiplies each set's
+    kn, after its pressure factor, by ``interlocking.stiffness_factor`` of the interlocking's e0.
 
     Raises:
-        ValueError: a parameter value outside its range, the Hertz-Mindlin law on a 2D test, or alpha0_spread
-            on a 2D test or a backend other than the analytical one (one line).
+        ValueError: a parameter value outside its range, the Hertz-Mindlin law on a 2D test, alpha0_spread
+            on a 2D test or a backend other than the analytical one, or a stiffness slope with the Hertz-Mindlin
+            law (one line).
         homogenization.element_test.driver.ControlError: (dem/ann) a stage that cannot be run (p0 not reached).
     """
     if settings.law == HertzMindlinLaw.name and test.dim != 3:
@@ -307,6 +315,15 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
         full["kn"] = kn_at_pressure(full.get("kn"), test, settings, exponent=full[KN_EXPONENT])
     elif settings.kn_exponent != 0.0:
         full["kn"] = kn_at_pressure(full.get("kn"), test, settings)
+    if interlocking is not None and (STIFFNESS in full or interlocking.stiffness_void_slope != 0.0):
+        if settings.law != ContactLaw.name:
+            raise ValueError(f"{STIFFNESS} scales the linear law's kn; the {settings.law} law has none")
+        slope = np.broadcast_to(np.asarray(full.get(STIFFNESS, interlocking.stiffness_void_slope)), full["kn"].shape)
+        if not np.all(np.abs(slope) <= STIFFNESS_VOID_SLOPE_MAX):
+            bad = slope[~(np.abs(slope) <= STIFFNESS_VOID_SLOPE_MAX)][0]
+            raise ValueError(f"{STIFFNESS} = {bad:g} is out of range [-{STIFFNESS_VOID_SLOPE_MAX:g}, "
+                             f"{STIFFNESS_VOID_SLOPE_MAX:g}]")
+        full["kn"] = full["kn"] * stiffness_factor(full[E0], slope)
     if settings.backend == "analytical":
         points = population(full, settings, test.dim)
         if settings.critical_state is not None:
@@ -314,7 +331,8 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
         if interlocking is not None:
             points.renewal = InterlockingFriction(interlocking, points.material, points.state, full["phi_g"], full[E0],
                                                   {f: full[name] for name, f in INTERLOCKING.items()
-                                                   if name in full and name != MAP_STATE} or None, inner=points.renewal)
+                                                   if name in full and name not in (MAP_STATE, STIFFNESS)} or None,
+                                                  inner=points.renewal)
         return simulate_points(test, points, settings)
     return _simulate_one_by_one(test, full, settings)
 

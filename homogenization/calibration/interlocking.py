@@ -49,6 +49,13 @@ a test of void ratio e0 at confining pressure p0 builds its cell at the void-rat
 e_map = e0 + w lambda ((p0 / p_ref)^xi - 1) (``state_map_void_ratio``) instead of e0's. With w = 1 the cell stands for
 the state parameter psi = e0 - e_c(p0) (Been & Jefferies 1985) carried to p_ref: e_map = e_c(p_ref) + psi. The
 friction keeps reading e0.
+
+Opt-in stiffness by density (``Interlocking.stiffness_void_slope`` s_k != 0; read by ``forward.simulate``, not by the
+friction): a test's linear contact law runs kn exp(-s_k (e0 - e_ref)) (``stiffness_factor``; e_ref =
+``RELAX_VOID_REF``, e0 the point's void ratio where J = 1, after kn's pressure factor), its critical-state renewal's
+fresh cells too; s_k > 0 makes a looser specimen's contacts softer, so its elastic contraction lasts longer before
+the cells slide and dilate. The form of Hardin & Richart's void-ratio function F(e) = (2.17 - e)^2 / (1 + e) of the
+small-strain modulus as an exponential with a free slope (F's own: d ln F / d e = -1.9 at e = 0.55).
 """
 
 from __future__ import annotations
@@ -71,6 +78,8 @@ RELAX_VOID_REF = 0.55
 """Reference void ratio e_ref [-] of the lag's and the mobilisation's void-ratio factors exp(s (e0 - e_ref))."""
 RELAX_VOID_SLOPE_MAX = 100.0
 """Largest abs(relax_void_slope) and abs(mobilisation_void_slope) [-] that ``Interlocking.check`` accepts."""
+STIFFNESS_VOID_SLOPE_MAX = 100.0
+"""Largest abs(stiffness_void_slope) [-] that ``Interlocking.check`` accepts."""
 MAP_STATE_WEIGHT_MAX = 2.0
 """Largest abs(map_state_weight) [-] that ``Interlocking.check`` and ``forward.density_alpha0`` accept."""
 MOBILISATION_EXPONENT = 2.0 / 3.0
@@ -80,7 +89,8 @@ FIELDS = {"interlocking_m": "m", "e_gamma": "e_gamma", "lambda_c": "lambda_c", "
           "mobilisation_start": "mobilisation_start", "relax_strain": "relax_strain",
           "relax_exponent": "relax_exponent", "softening_strain": "softening_strain",
           "relax_void_slope": "relax_void_slope", "mobilisation_exponent": "mobilisation_exponent",
-          "mobilisation_void_slope": "mobilisation_void_slope", "map_state_weight": "map_state_weight"}
+          "mobilisation_void_slope": "mobilisation_void_slope", "map_state_weight": "map_state_weight",
+          "stiffness_void_slope": "stiffness_void_slope"}
 """Per-set parameters (calibration name -> ``Interlocking`` field) that ``simulate`` reads from its params."""
 
 
@@ -104,6 +114,7 @@ class Interlocking:
         mobilisation_exponent: n, in [0, 3], its pressure exponent.
         mobilisation_void_slope: s_m, abs(s_m) <= 100, d ln(a) / d e0; 0: none.
         map_state_weight: w, in [-2, 2]; 0: none.
+        stiffness_void_slope: s_k, abs(s_k) <= 100, -d ln(kn) / d e0; 0: none.
     """
 
     m: float = 1.0
@@ -121,6 +132,7 @@ class Interlocking:
     mobilisation_exponent: float = MOBILISATION_EXPONENT
     mobilisation_void_slope: float = 0.0
     map_state_weight: float = 0.0
+    stiffness_void_slope: float = 0.0
 
     def check(self) -> None:
         """ValueError (one line) for a parameter out of range."""
@@ -134,7 +146,8 @@ class Interlocking:
                          ("relax_void_slope", abs(self.relax_void_slope) <= RELAX_VOID_SLOPE_MAX),
                          ("mobilisation_exponent", 0.0 <= self.mobilisation_exponent <= 3.0),
                          ("mobilisation_void_slope", abs(self.mobilisation_void_slope) <= RELAX_VOID_SLOPE_MAX),
-                         ("map_state_weight", abs(self.map_state_weight) <= MAP_STATE_WEIGHT_MAX)):
+                         ("map_state_weight", abs(self.map_state_weight) <= MAP_STATE_WEIGHT_MAX),
+                         ("stiffness_void_slope", abs(self.stiffness_void_slope) <= STIFFNESS_VOID_SLOPE_MAX)):
             value = getattr(self, name)
             if not (math.isfinite(value) and ok):
                 raise ValueError(f"interlocking {name} = {value:g} is out of range (Interlocking)")
@@ -172,6 +185,12 @@ def void_factor(e0: Any, s: Any) -> np.ndarray:
     s = np.asarray(s, dtype=np.float64)
     with np.errstate(all="ignore"):
         return np.where(s != 0.0, np.exp(s * (np.asarray(e0, dtype=np.float64) - RELAX_VOID_REF)), 1.0)
+
+
+def stiffness_factor(e0: Any, s: Any) -> np.ndarray:
+    """exp(-s (e0 - ``RELAX_VOID_REF``)) [-]: the factor on kn of a point of initial void ratio ``e0`` [-] with the
+    slope ``s`` [-] (module docstring; broadcast); exactly 1 where s = 0 (whatever e0, NaN included)."""
+    return void_factor(e0, -np.asarray(s, dtype=np.float64))
 
 
 def mobilised_share(g: Any, p: Any, a_ref: Any, r0: Any, p_ref: float, e0: Any = RELAX_VOID_REF, s: Any = 0.0,

@@ -18,11 +18,11 @@ mobilisation_exponent and mobilisation_void_slope (the friction's hyperbolic mob
 distortion, over a strain growing with the pressure and the test's void ratio), relax_strain, relax_exponent and
 relax_void_slope (the void ratio it reads lagging over a distortion growing with the pressure and the test's void
 ratio), softening_strain (that lag from the point's densest state on instead) and map_state_weight (each test's cell
-built at the map's alpha0 of e0 + w lambda_c ((p0 / 101.325 kPa)^xi_c - 1) instead of e0's; data with void ratios) may
-then be calibrated, the others fixed by --interlocking-values; posterior.json holds it at the posterior mean
-(``interlocking``), which ``hmodel triaxial --posterior`` runs. --kn-exponent N runs each triaxial test at kn
-(p0 / 101.325 kPa)^N; --params kn_exponent calibrates N instead. --start-point starts the map fit at given values
-instead of prior draws.
+built at the map's alpha0 of e0 + w lambda_c ((p0 / 101.325 kPa)^xi_c - 1) instead of e0's; data with void ratios) and
+stiffness_void_slope (each test's kn times exp(-s_k (e0 - 0.55)); linear law) may then be calibrated, the others
+fixed by --interlocking-values; posterior.json holds it at the posterior mean (``interlocking``), which ``hmodel
+triaxial --posterior`` runs. --kn-exponent N runs each triaxial test at kn (p0 / 101.325 kPa)^N; --params kn_exponent
+calibrates N instead. --start-point starts the map fit at given values instead of prior draws.
 
 The posterior is sampled with emcee's ensemble (--moves: its stretch move or differential evolution), every
 step running the forward model of all walkers as one batch of cells. --start map (default) first finds the posterior's
@@ -59,8 +59,8 @@ from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
 from homogenization.calibration.forward import (INTERLOCKING, KN_EXPONENT, LAW_PARAMETERS, MAP_STATE, PARAMETERS, RULE,
-                                                SPREAD, ForwardSettings, calibratable, check_density, settings_record,
-                                                with_density)
+                                                SPREAD, STIFFNESS, ForwardSettings, calibratable, check_density,
+                                                settings_record, with_density)
 from homogenization.calibration.interlocking import Interlocking
 from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN
 from homogenization.material import opening_spread
@@ -90,7 +90,7 @@ from warp_hcell.core.cli import (
 )
 from warp_hcell.core.files import check_output_path, output_lock, temporary_of
 from warp_hcell.core.provenance import file_sha256
-from warp_hcell.core.parameters import HertzMindlinLaw
+from warp_hcell.core.parameters import ContactLaw, HertzMindlinLaw
 
 RESOLUTION_MODES = ("correct", "check", "off")
 """--resolution choices (``homogenization.calibration.resolution``)."""
@@ -198,10 +198,11 @@ def build_parser() -> argparse.ArgumentParser:
                               "the test's void ratio (default 0: no lag; softening_strain "
                               "instead: lagging from the densest state on), each test's cell at the void-ratio map's "
                               "alpha0 of e0 + map_state_weight lambda_c ((p0 / 101.325 kPa)^xi_c - 1) (default 0: of "
-                              "e0); calibrate "
+                              "e0), kn times exp(-stiffness_void_slope (e0 - 0.55)) (default 0: kn); calibrate "
                               "interlocking_m, e_gamma, lambda_c, xi_c, cell_spread, mobilisation_strain, "
                               "mobilisation_start, relax_strain, relax_exponent, softening_strain, relax_void_slope, "
-                              "mobilisation_exponent, mobilisation_void_slope, map_state_weight through --params "
+                              "mobilisation_exponent, mobilisation_void_slope, map_state_weight, "
+                              "stiffness_void_slope through --params "
                               "(docs/calibration.md)")
     forward.add_argument("--interlocking-values", type=interlocking_values, default=None, metavar="NAME=VALUE,...",
                          help="with --interlocking: values of its parameters not calibrated (default "
@@ -427,8 +428,8 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
     analytical one, --confirm dem (the DEM's contacts keep phi_g), alpha0_spread, both lags calibrated, a value
     out of range, relax_void_slope, mobilisation_void_slope or map_state_weight calibrated or nonzero with a --data
     file that gives no void ratio, mobilisation_exponent or mobilisation_void_slope calibrated or not at its default
-    without mobilisation_strain calibrated or nonzero, or map_state_weight calibrated or nonzero on a flat line
-    (lambda_c 0, not calibrated)."""
+    without mobilisation_strain calibrated or nonzero, map_state_weight calibrated or nonzero on a flat line
+    (lambda_c 0, not calibrated), or stiffness_void_slope calibrated or nonzero with a law other than the linear one."""
     own = [name for name in args.params if name in INTERLOCKING]
     if not args.interlocking:
         if MAP_STATE in own:
@@ -466,6 +467,8 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
     if state_map and "lambda_c" not in args.params and settings.lambda_c == 0.0:
         raise UserError(f"{MAP_STATE} moves the map along the critical-state line, flat at lambda_c = 0: calibrate "
                         f"lambda_c or give it (--interlocking-values lambda_c=L, L > 0)")
+    if args.law != ContactLaw.name and (STIFFNESS in args.params or settings.stiffness_void_slope != 0.0):
+        raise UserError(f"{STIFFNESS} scales the linear law's kn: --law {args.law} has none")
     default = Interlocking()
     idle = [n for n in ("mobilisation_exponent", "mobilisation_void_slope")
             if n in args.params or getattr(settings, n) != getattr(default, n)]

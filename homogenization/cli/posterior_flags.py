@@ -142,7 +142,7 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
     if DENSITY[0] in post.mean:
         args.e_min, args.e_max = state_map_bounds(post, getattr(args, "void_ratio", None), args.p0)
     args.law, args.phi, args.alpha0, args.radius = law.name, law.phi_g_deg, alpha0, post.radius
-    scale = kn_factor(args.p0, post.forward)
+    scale = kn_factor(args.p0, post.forward) * stiffness_scale(post, getattr(args, "void_ratio", None))
     if law.name == HertzMindlinLaw.name:
         args.shear_modulus, args.poisson = law.shear_modulus, law.poisson
     else:
@@ -168,6 +168,21 @@ def check_void_ratio(post: Any, void_ratio: float | None) -> None:
                         f"the state; drop --void-ratio")
     if void_ratio is not None and SPREAD in post.mean:
         raise UserError(f"--void-ratio with --posterior {post.path}: a run of its {SPREAD} takes the posterior's alpha0")
+
+
+def stiffness_scale(post: Any, void_ratio: float | None) -> float:
+    """The factor [-] on kn of the posterior's interlocking stiffness slope (``interlocking.stiffness_factor``) at
+    ``void_ratio``, else at the map's void ratio of the posterior's alpha0 (as ``forward.simulate``); 1 without one."""
+    rule = post.forward.interlocking
+    if rule is None or rule.stiffness_void_slope == 0.0:
+        return 1.0
+    from homogenization.calibration.interlocking import stiffness_factor  # noqa: PLC0415
+    from homogenization.material.density import default_map  # noqa: PLC0415
+
+    e0 = void_ratio if void_ratio is not None else default_map(3, *(post.mean.get(name, default) for name, default in
+                                                                    zip(DENSITY, DENSITY_DEFAULTS))).void_ratio(
+        post.mean["alpha0"])
+    return float(stiffness_factor(e0, rule.stiffness_void_slope))
 
 
 def state_map_bounds(post: Any, void_ratio: float | None, p0: float) -> tuple[float, float]:
