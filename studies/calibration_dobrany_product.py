@@ -4,6 +4,7 @@
                                                 [--fit-decay G,K [--kn-factor F]] [--fit-softening G,K]
                                                 [--fit-void-lag G,K,S|G,S] [--fit-mobilisation-void A,R0,S]
                                                 [--fit-state-map W [--state-map-prior LOW,HIGH]]
+                                                [--fit-stiffness-void S [--kn-factor F]]
        python studies/calibration_dobrany_product.py --splits-figure OUT.png RESULT.json[+RESULT2.json] ...
 
 Dobrany sand with the product's own ``hmodel calibrate``: the interlocking friction (``--interlocking``: m,
@@ -33,7 +34,9 @@ prior [0, 0.1], [0, 2], [0, 40]), started at G, K and S; ``--fit-void-lag G,S``:
 ``--kn-factor`` times the start's; its pressure exponent stays at the flags' (``--extra "--interlocking-values
 mobilisation_exponent=N"``; default 2/3). ``--fit-state-map W`` calibrates the interlocking's state-map weight too
 (``map_state_weight``: each test's cell at the map's alpha0 of e0 + w lambda_c ((p0 / p_ref)^xi_c - 1); prior [0, 2],
-or ``--state-map-prior``'s), started at W.
+or ``--state-map-prior``'s), started at W. ``--fit-stiffness-void S`` calibrates the interlocking's stiffness slope too
+(``stiffness_void_slope``: each test's kn times exp(-s_k (e0 - 0.55)); prior [0, 30]), started at S, kn at
+``--kn-factor`` times the start's.
 
 Writes the data copies, the prior and the calibration under runs/dobrany_product/ (ignored), and
 studies/results/calibration_dobrany_product_SPLIT_TAG.json and .png (q and eps_v, data and the mean's curves).
@@ -96,6 +99,8 @@ MOBILISATION_VOID_PRIOR = {**MOBILISATION_PRIOR, "mobilisation_void_slope": [0.0
 """Their bounds in the study's prior [-]."""
 STATE_MAP_PRIOR = {"map_state_weight": [0.0, 2.0]}
 """The state-map weight's bounds in the study's prior [-] (``--fit-state-map``)."""
+STIFFNESS_VOID_PRIOR = {"stiffness_void_slope": [0.0, 30.0]}
+"""The stiffness slope's bounds in the study's prior [-] (``--fit-stiffness-void``)."""
 STUDY = {"phi_g": "phi_g", "log10_kn": "kn", "kt_over_kn": "kt_over_kn", "e_min": "e_min", "e_max": "e_max",
          "alpha_c_deg": "alpha_c", "log10_rate": "renewal_rate", "interlocking_m": "interlocking_m",
          "e_gamma": "e_gamma", "lambda_c": "lambda_c", "xi_c": "xi_c", "cell_spread": "cell_spread"}
@@ -332,9 +337,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="calibrate map_state_weight too (prior [0, 2]), started at W")
     parser.add_argument("--state-map-prior", default="", metavar="LOW,HIGH",
                         help="with --fit-state-map: its prior's bounds instead of 0,2 (within [-2, 2])")
+    parser.add_argument("--fit-stiffness-void", default="", metavar="S",
+                        help="calibrate stiffness_void_slope too (prior [0, 30]), started at S")
     parser.add_argument("--kn-factor", type=float, default=1.0,
                         help="with --fit-mobilisation, --fit-decay, --fit-softening, --fit-void-lag or "
-                             "--fit-mobilisation-void: kn's start factor")
+                             "--fit-mobilisation-void, --fit-state-map or --fit-stiffness-void: kn's start factor")
     args = parser.parse_args(argv)
     if args.fit_mobilisation and args.fit_mobilisation_void:
         parser.error("--fit-mobilisation and --fit-mobilisation-void: one of them")
@@ -342,6 +349,7 @@ def main(argv: list[str] | None = None) -> int:
     params += MOBILISATION if args.fit_mobilisation else ()
     params += MOBILISATION_VOID if args.fit_mobilisation_void else ()
     params += tuple(STATE_MAP_PRIOR) if args.fit_state_map else ()
+    params += tuple(STIFFNESS_VOID_PRIOR) if args.fit_stiffness_void else ()
     state_map_prior = ({"map_state_weight": [float(v) for v in args.state_map_prior.split(",")]}
                        if args.state_map_prior else STATE_MAP_PRIOR)
     if sum(map(bool, (args.fit_decay, args.fit_softening, args.fit_void_lag))) > 1:
@@ -360,14 +368,16 @@ def main(argv: list[str] | None = None) -> int:
                     + "_k0" * (len(void_lag) == 2 and bool(args.fit_void_lag))
                     + "_mobilisation_void" * bool(args.fit_mobilisation_void)
                     + "_state_map" * bool(args.fit_state_map)
-                    + ("_" + args.state_map_prior.replace(",", "_")) * bool(args.state_map_prior) + ".json")
+                    + ("_" + args.state_map_prior.replace(",", "_")) * bool(args.state_map_prior)
+                    + "_stiffness_void" * bool(args.fit_stiffness_void) + ".json")
     prior.write_text(json.dumps({**PRIOR, **({"kn_exponent": [0.0, 1.0]} if args.fit_kn_exponent else {}),
                                  **(MOBILISATION_PRIOR if args.fit_mobilisation else {}),
                                  **(DECAY_PRIOR if args.fit_decay else {}),
                                  **(SOFTENING_PRIOR if args.fit_softening else {}),
                                  **({n: VOID_LAG_PRIOR[n] for n in void_lag} if args.fit_void_lag else {}),
                                  **(MOBILISATION_VOID_PRIOR if args.fit_mobilisation_void else {}),
-                                 **(state_map_prior if args.fit_state_map else {})},
+                                 **(state_map_prior if args.fit_state_map else {}),
+                                 **(STIFFNESS_VOID_PRIOR if args.fit_stiffness_void else {})},
                                 indent=1))
     command = [sys.executable, "-m", "homogenization.calibrate", *sum((["--data", str(files[f])] for f in fitted), []),
                "--params", ",".join(params), "--prior", str(prior), *exponent, *FLAGS,
@@ -376,13 +386,14 @@ def main(argv: list[str] | None = None) -> int:
         start = start_point(args.start_from, PARAMS + (("kn_exponent",) if args.fit_kn_exponent else ()),
                             float(args.kn_exponent))
         if (args.fit_mobilisation or args.fit_decay or args.fit_softening or args.fit_void_lag
-                or args.fit_mobilisation_void or args.fit_state_map):
+                or args.fit_mobilisation_void or args.fit_state_map or args.fit_stiffness_void):
             values = dict(item.split("=") for item in start.split(","))
             values["kn"] = repr(float(values["kn"]) * args.kn_factor)
             for names, text in ((MOBILISATION, args.fit_mobilisation), (DECAY, args.fit_decay),
                                 (SOFTENING, args.fit_softening), (void_lag, args.fit_void_lag),
                                 (MOBILISATION_VOID, args.fit_mobilisation_void),
-                                (tuple(STATE_MAP_PRIOR), args.fit_state_map)):
+                                (tuple(STATE_MAP_PRIOR), args.fit_state_map),
+                                (tuple(STIFFNESS_VOID_PRIOR), args.fit_stiffness_void)):
                 if text:
                     values.update(zip(names, (repr(float(v)) for v in text.split(","))))
             start = ",".join(f"{k}={v}" for k, v in values.items())

@@ -1,9 +1,9 @@
-"""python studies/screen_dobrany_dilation_delay.py RESULT.json diagnose|renewal-state|stiffness-void [--values ...]
-                                                  [--scales ...] [--tag T]
+"""python studies/screen_dobrany_dilation_delay.py RESULT.json diagnose|renewal-state|stiffness-void|mean
+                                                  [--values ...] [--scales ...] [--rule 15x4s] [--tag T]
 
 Where the model's 200 kPa Dobrany test stops contracting, and a screen (no fit) of two mechanisms that could delay a
 looser point's dilation, at a calibration's posterior mean (a ``calibration_dobrany_product.py`` result JSON;
-``sensitivity_setup`` on Lebedev 15 x 4 staggered, every other parameter the mean's). Per run and test: RMS abs(dq) /
+``sensitivity_setup`` on ``--rule``, default Lebedev 15 x 4 staggered, every other parameter the mean's). Per run and test: RMS abs(dq) /
 q_peak, RMS d eps_v, the strain at the most contraction (the largest eps_v, contraction positive) and where eps_v is
 back to 0, the first peak of q (a 5 % drop, ``scan_dobrany_peak_strain.first_peak``), the highest q, forward fallbacks.
 The model's curves are sampled on the data's eps1 (0.33 -> 0.50 -> 0.60 % between data points near the turn).
@@ -19,6 +19,7 @@ The model's curves are sampled on the data's eps1 (0.33 -> 0.50 -> 0.60 % betwee
 - ``stiffness-void`` (candidate B): each test's kn times k exp(-s (e0 - 0.55)) (looser specimen, softer contacts; Hardin
   & Richart's F(e) = (2.17 - e)^2 / (1 + e) has d ln F / d e = -1.9 at e = 0.55), for s in ``--values`` and k in
   ``--scales`` (k stands for the refit's kn).
+- ``mean``: the three tests at the mean itself (a fit's outcome), with the sand's numbers beside.
 
 Every run ranks its variants by the mean RMS abs(dq) / q_peak over the result's FITTED tests. Writes
 studies/results/screen_dobrany_dilation_delay_TAG.json (every row) and .txt (the printed lines).
@@ -191,16 +192,17 @@ def screen(tests: dict, mean: dict, settings, grid: list[tuple], kind: str, fitt
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("result", type=Path)
-    parser.add_argument("what", choices=("diagnose", "renewal-state", "stiffness-void"))
+    parser.add_argument("what", choices=("diagnose", "renewal-state", "stiffness-void", "mean"))
     parser.add_argument("--values", default="", help="renewal-state: weights w; stiffness-void: slopes s")
     parser.add_argument("--scales", default="1", help="stiffness-void: kn factors k")
     parser.add_argument("--mode", choices=("all", "loose"), default="all", help="renewal-state's form")
+    parser.add_argument("--rule", default="15x4s", help="ORDERxSPINS[a|s]: the orientation rule")
     parser.add_argument("--tag", default="")
     args = parser.parse_args(argv)
     if not args.result.is_file():
         print(f"error: no file {args.result}", file=sys.stderr)
         return 2
-    record, _, settings = sensitivity_setup(args.result, "15x4s", [(0.0,)], (), kn_factor=None)
+    record, _, settings = sensitivity_setup(args.result, args.rule, [(0.0,)], (), kn_factor=None)
     mean = record["mean"]["values"]
     fitted, predicted = SPLITS[record["split"]]
     files = data_copies()
@@ -212,8 +214,17 @@ def main(argv: list[str] | None = None) -> int:
         print(line, flush=True)
 
     started = time.perf_counter()
-    say(f"{args.what} at the mean of {args.result.name} (fitted {', '.join(fitted)}; predicted {predicted}), 15 x 4s")
-    if args.what == "diagnose":
+    say(f"{args.what} at the mean of {args.result.name} (fitted {', '.join(fitted)}; predicted {predicted}), {args.rule}")
+    if args.what == "mean":
+        rows = []
+        for name, test in tests.items():
+            r = {"test": name, **run_one(test, mean, settings)}
+            sand = shape(test, test.observed["q"], test.observed["eps_v"])
+            rows.append({**r, "sand": sand})
+            say(f"{name:15s} model: {text(r)}")
+            say(f"{'':15s} sand:  most contraction {100 * sand['most_contraction']:.2f} % at "
+                f"{100 * sand['most_contraction_strain']:.2f} %, first peak {100 * sand['first_peak_strain']:.2f} %")
+    elif args.what == "diagnose":
         rows = diagnose(tests, mean, settings, say)
     elif args.what == "renewal-state":
         patch_renewal()
@@ -223,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         rows = screen(tests, mean, settings, grid, "stiffness", fitted, say)
     say(f"wall {time.perf_counter() - started:.0f} s")
     stem = f"screen_dobrany_dilation_delay_{args.tag or args.what}"
-    (RESULTS / f"{stem}.json").write_text(json.dumps({"result": str(args.result), "rule": "15x4s", "what": args.what,
+    (RESULTS / f"{stem}.json").write_text(json.dumps({"result": str(args.result), "rule": args.rule, "what": args.what,
                                                       "rows": rows}, indent=1))
     (RESULTS / f"{stem}.txt").write_text("\n".join(lines) + "\n")
     return 0
