@@ -263,17 +263,14 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
     """Curves of ``test`` for each parameter set; ``params`` maps names of ``settings.parameters`` (and of
     ``DENSITY``) to shape (n,). A test that gives its void ratio runs each set at its map's alpha0
     (``density_alpha0``, state map included); a set whose [e_min, e_max] does not hold it gets NaN curves.
-    ``interlocking`` (analytical backend, no spread): phi_g is each set's phi_mu of the interlocking friction
-    (``calibration.interlocking``), e0 the test's void ratio, else the set's map's of its alpha0; its fields per set
-    where ``params`` holds ``INTERLOCKING``'s names; None: ``settings.interlocking`` (None: the plain contact law).
-    ``KN_EXPONENT`` in ``params``: each set's exponent of kn instead of ``settings.kn_exponent`` (``kn_at_pressure``).
-    A stiffness slope s_k (``STIFFNESS``: per set in ``params``, else the interlocking's; nonzero) multiplies each set's
-    kn, after its pressure factor, by ``interlocking.stiffness_factor`` of the interlocking's e0.
+    ``interlocking`` (analytical backend, no spread): phi_g is each set's phi_mu of the interlocking friction,
+    e0 the test's void ratio, else the set's map's of its alpha0; its fields per set where ``params`` holds
+    ``INTERLOCKING``'s names; None: ``settings.interlocking`` (None: the plain law). ``KN_EXPONENT`` in ``params``: each
+    set's exponent of kn (``kn_at_pressure``). ``STIFFNESS``: kn times ``interlocking.stiffness_factor`` of e0.
 
     Raises:
-        ValueError: a parameter value outside its range, the Hertz-Mindlin law on a 2D test, alpha0_spread
-            on a 2D test or a backend other than the analytical one, or a stiffness slope with the Hertz-Mindlin
-            law (one line).
+        ValueError: a value out of range, the Hertz-Mindlin law on a 2D test (or with ``STIFFNESS``),
+            alpha0_spread on a 2D test or a backend other than the analytical one (one line).
         homogenization.element_test.driver.ControlError: (dem/ann) a stage that cannot be run (p0 not reached).
     """
     if settings.law == HertzMindlinLaw.name and test.dim != 3:

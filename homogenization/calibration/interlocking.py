@@ -104,17 +104,17 @@ class Interlocking:
         lambda_c: the line's slope lambda, >= 0.
         xi: exponent of the line, in (0, 1].
         p_ref: reference pressure [Pa in 3D, N/m in 2D], > 0.
-        relax_strain: gamma_r, >= 0, the lag's strain; 0: none.
+        relax_strain: gamma_r >= 0; 0: none.
         cell_spread: in [0, 1), the cells' half-spread; 0: none.
-        mobilisation_strain: a_ref, >= 0, the mobilisation strain; 0: none.
-        mobilisation_start: r0, in [0, 1], the share mobilised at zero distortion.
+        mobilisation_strain: a_ref >= 0; 0: none.
+        mobilisation_start: r0 in [0, 1], mobilised at zero distortion.
         relax_exponent: k, in [0, 3], the lag's pressure exponent.
         softening_strain: gamma_s, >= 0; 0: none; not with relax_strain.
         relax_void_slope: s, abs(s) <= 100, d ln(gamma_r) / d e0; 0: none.
         mobilisation_exponent: n, in [0, 3], its pressure exponent.
         mobilisation_void_slope: s_m, abs(s_m) <= 100, d ln(a) / d e0; 0: none.
         map_state_weight: w, in [-2, 2]; 0: none.
-        stiffness_void_slope: s_k, abs(s_k) <= 100, -d ln(kn) / d e0; 0: none.
+        stiffness_void_slope: s_k, abs <= 100; 0: none.
     """
 
     m: float = 1.0
