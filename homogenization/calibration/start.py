@@ -195,14 +195,18 @@ def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generato
 
 def refit_start(log_post: bayes.Posterior, x0: np.ndarray, n_walkers: int, rng: np.random.Generator
                 ) -> tuple[np.ndarray, dict]:
-    """The ``map`` start from one least-squares fit that starts at ``x0`` (sampled coordinates; e.g. the
-    optimum before a change of the forward model): positions (n_walkers, n_params) and a record as
-    ``map_start``'s (``refit_from``: x0 in CLI units)."""
+    """The ``map`` start from least-squares fits that start at ``x0`` (sampled coordinates, (n_params,) or
+    (k, n_params): one fit from each row, the lowest chi-square kept, the first of equals; e.g. the optimum before a
+    change of the forward model): positions (n_walkers, n_params) and a record as ``map_start``'s (``refit_from``:
+    the kept fit's x0 in CLI units; ``fits``: every fit, in the rows' order)."""
     prior = log_post.prior
     lo, hi = prior.lo_coord, prior.hi_coord
     width = hi - lo
     res = Residuals(log_post)
-    chi_square, fit = least_squares_fit(res, np.clip(x0, lo, hi), lo, hi, log_post.feasible)
+    starts = np.atleast_2d(x0)
+    fits = [least_squares_fit(res, np.clip(x, lo, hi), lo, hi, log_post.feasible) for x in starts]
+    kept = min(range(len(fits)), key=lambda k: fits[k][0])
+    chi_square, fit = fits[kept]
     ball = np.clip(fit.x + width * laplace_draws(fit.jac * width, rng, n_walkers), lo, hi)
     for _ in range(100):
         outside = ~log_post.feasible(ball)
@@ -210,12 +214,16 @@ def refit_start(log_post: bayes.Posterior, x0: np.ndarray, n_walkers: int, rng: 
             break
         ball[outside] = np.clip(fit.x + width * laplace_draws(fit.jac * width, rng, int(outside.sum())), lo, hi)
     names = prior.names
-    return ball, {"method": "map", "prior_draws": 0, "least_squares_starts": 1, "more_fits": 0,
-                  "refit_from": {n: float(v) for n, v in zip(names, prior.to_values(x0))},
-                  "optimum": {n: float(v) for n, v in zip(names, prior.to_values(fit.x))}, "chi_square": chi_square,
+
+    def values(x: np.ndarray) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(names, prior.to_values(x))}
+
+    return ball, {"method": "map", "prior_draws": 0, "least_squares_starts": len(fits), "more_fits": 0,
+                  "refit_from": values(starts[kept]), "optimum": values(fit.x), "chi_square": chi_square,
                   "residuals": int(fit.fun.size),
-                  "fits": [{"chi_square": chi_square, "status": int(fit.status), "residual_evaluations": int(fit.nfev),
-                            "optimum": {n: float(v) for n, v in zip(names, prior.to_values(fit.x))}}],
+                  "fits": [{"chi_square": c, "status": int(f.status), "residual_evaluations": int(f.nfev),
+                            **({"refit_from": values(x)} if len(fits) > 1 else {}), "optimum": values(f.x)}
+                           for x, (c, f) in zip(starts, fits)],
                   "evaluations": res.evaluations, "forward_batches": res.batches, "failed_sets": res.failed,
                   "ball_fraction_of_prior_width": MAP_BALL}
 

@@ -166,6 +166,10 @@ def build_parser() -> argparse.ArgumentParser:
     sampler.add_argument("--start-point", type=start_point_values, default=None, metavar="NAME=VALUE,...",
                          help="--start map: one least-squares fit from these values (CLI units) of every calibrated "
                               "parameter instead of the fits from prior draws (e.g. a previous optimum)")
+    sampler.add_argument("--start-scales", type=start_scales, default=None, metavar="NAME=F1,F2,...",
+                         help="with --start-point: one least-squares fit from the point with NAME times each factor "
+                              "F (the others as given), the lowest chi-square kept (every fit recorded in run.json); "
+                              "for a rough objective whose fits stop near their start (e.g. kn=0.6,0.7,0.8,0.9,1)")
     sampler.add_argument("--noise", type=positive_float, default=0.02,
                          help="measurement error sd as a fraction of each channel's largest abs value")
     sampler.add_argument("--model-error", type=non_negative_float, default=0.0, metavar="FRACTION",
@@ -271,6 +275,7 @@ def configuration(args: argparse.Namespace, tests: Sequence[Measurement], prior:
         **({"model_error": args.model_error} if args.model_error else {}),
         **({"resolution": args.resolution} if args.resolution != "correct" else {}),
         **({"start_point": dict(args.start_point)} if args.start_point is not None else {}),
+        **({"start_scales": {args.start_scales[0]: list(args.start_scales[1])}} if args.start_scales else {}),
         **({"moves": args.moves} if args.moves != "stretch" else {}),
     }
 
@@ -333,6 +338,11 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
         if args.start != "map" or missing or extra:
             raise UserError(f"--start-point gives the --start map fit a value of every calibrated parameter and no "
                             f"other ({'--start ' + args.start if args.start != 'map' else 'missing ' + ','.join(missing) if missing else 'not calibrated: ' + ','.join(extra)})")
+    if args.start_scales is not None:
+        name, factors = args.start_scales
+        if args.start_point is None or name not in args.params:
+            raise UserError(f"--start-scales {name}=...: scales a calibrated parameter of --start-point "
+                            f"({'no --start-point' if args.start_point is None else name + ' is not in --params'})")
     if args.backend == "ann" and set(args.params) - {"alpha0"}:
         raise UserError("--backend ann is trained on one contact law: it can calibrate alpha0 only; use analytical")
     if args.backend == "ann" and not all(RANGE_MODELS[t.dim] for t in tests):
@@ -416,6 +426,31 @@ def interlocking_values(text: str) -> dict[str, float]:
 def start_point_values(text: str) -> dict[str, float]:
     """argparse type of --start-point: NAME=VALUE,... of ``PARAMETERS``, floats (CLI units)."""
     return name_values(text, PARAMETERS, "--start-point")
+
+
+def check_start_scales(args: argparse.Namespace, prior: bayes.Prior) -> None:
+    """UserError (one line) where a --start-scales factor takes its parameter's --start-point value out of the prior
+    (the fit would start clipped to its bound)."""
+    if args.start_scales is None:
+        return
+    name, factors = args.start_scales
+    k = prior.names.index(name)
+    for factor in factors:
+        value = args.start_point[name] * factor
+        if not prior.low[k] <= value <= prior.high[k]:
+            raise UserError(f"--start-scales {name}={factor:g}: the start {name} = {value:g} is outside the prior "
+                            f"[{prior.low[k]:g}, {prior.high[k]:g}]")
+
+
+def start_scales(text: str) -> tuple[str, tuple[float, ...]]:
+    """argparse type of --start-scales: "NAME=F1,F2,..." -> (NAME, (F1, F2, ...)), NAME one of ``PARAMETERS``, each
+    factor finite and > 0."""
+    name, sep, rest = text.partition("=")
+    factors = tuple(finite_float(f) for f in rest.split(",") if f.strip()) if sep else ()
+    if name.strip() not in PARAMETERS or not factors or min(factors) <= 0.0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not NAME=F1,F2,... with NAME one of {','.join(PARAMETERS)} "
+                                         f"and factors > 0")
+    return name.strip(), factors
 
 
 def interlocking_settings(args: argparse.Namespace) -> Interlocking:
@@ -562,6 +597,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     settings = with_density(forward_settings(args, max(t.dim for t in tests)), tests, args.e_min, args.e_max)
     check_rule_prior(prior, settings)
     check_interlocking_prior(prior, settings)
+    check_start_scales(args, prior)
     try:
         check_density(tests, args.params, settings, dict(zip(prior.names, zip(prior.low, prior.high))))
     except ValueError as exc:
@@ -662,8 +698,12 @@ def resolved_start(args: argparse.Namespace, log_post: bayes.Posterior) -> tuple
     from homogenization.calibration import report, resolution  # noqa: PLC0415
 
     record: dict[str, Any] = {"mode": args.resolution, "restarts": 0, "correction": None}
-    if args.start_point is not None:  # --start map from the given values: one fit
+    if args.start_point is not None:  # --start map from the given values: one fit (one per --start-scales factor)
         given = np.array([args.start_point[n] for n in log_post.prior.names])
+        if args.start_scales is not None:
+            name, factors = args.start_scales
+            given = np.repeat(given[None, :], len(factors), axis=0)
+            given[:, log_post.prior.names.index(name)] *= factors
         start, start_record = refit_start(log_post, log_post.prior.to_coord(given), args.walkers,
                                           np.random.default_rng(args.seed))
     else:
