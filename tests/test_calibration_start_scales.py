@@ -44,6 +44,9 @@ def test_the_lowest_of_the_scaled_fits_is_kept_and_every_fit_recorded(tmp_path, 
     chi = [f["chi_square"] for f in fits]
     kept = int(np.argmin(chi))
     assert start["chi_square"] == min(chi) and start["refit_from"] == fits[kept]["refit_from"]
+    from homogenization.calibration.report import start_line  # noqa: PLC0415
+
+    assert "the best of 3 fits from scaled start points" in start_line(start)
     assert start["optimum"] == fits[kept]["optimum"]
     assert max(chi) > 1.01 * min(chi)  # the fits stop apart: the choice matters here
     alone = _start(tmp_path, "alone", "--start-point",

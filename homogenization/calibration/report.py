@@ -310,9 +310,13 @@ def start_line(start: Mapping[str, Any]) -> str:
         return f"start: the best of {start['prior_draws']} prior draws"
     optimum = ", ".join(f"{k} {v:.4g}" for k, v in start["optimum"].items())
     if "refit_from" in start:
+        fits = start["least_squares_starts"]
+        how = ("one fit from the previous optimum" if fits == 1 else
+               f"the best of {fits} fits from scaled start points (chi-square "
+               + ", ".join(f"{fit['chi_square']:.4g}" for fit in start["fits"]) + ")")
         return (f"start: least-squares optimum {optimum} (chi-square {start['chi_square']:.4g} over {start['residuals']} "
-                f"residuals; one fit from the previous optimum, {start['evaluations']} forward evaluations); walkers "
-                f"drawn around it from its Laplace approximation")
+                f"residuals; {how}, {start['evaluations']} forward evaluations); walkers drawn around it from its "
+                f"Laplace approximation")
     return (f"start: least-squares optimum {optimum} (chi-square {start['chi_square']:.4g} over {start['residuals']} "
             f"residuals; best of {start['least_squares_starts'] + start.get('more_fits', 0)} fits from {start['prior_draws']} "
             f"prior draws{', ' + str(start['more_fits']) + ' of them because the first ones missed the data far above the noise' if start.get('more_fits') else ''}, "
