@@ -110,7 +110,8 @@ def test_the_meso_ann_and_the_learning_database_refuse_it(tmp_path):
      "--params shear_modulus is not a parameter of the linear contact law (--law linear: "
      "phi_g,kn,kt_over_kn,alpha0,alpha0_spread,e_min,e_max,alpha_c,renewal_rate,interlocking_m,e_gamma,lambda_c,"
      "xi_c,cell_spread,mobilisation_strain,mobilisation_start,relax_strain,relax_exponent,softening_strain,"
-     "relax_void_slope,mobilisation_exponent,mobilisation_void_slope,map_state_weight,kn_exponent)"),
+     "relax_void_slope,mobilisation_exponent,mobilisation_void_slope,map_state_weight,stiffness_void_slope,"
+     "kn_exponent)"),
 ])
 def test_the_commands_refuse_in_one_line(argv, message, tmp_path, capsys):
     out = tmp_path / "run"

@@ -125,9 +125,10 @@ a set whose [e_min, e_max] does not hold a test's void ratio fails (log L = -inf
 def calibratable(law: str) -> tuple[str, ...]:
     """The parameters a calibration of ``law`` may vary: the law's, the spread of alpha0, the void-ratio map's,
     the critical-state rule's (``RULE``), the interlocking friction's (``INTERLOCKING``) and, for the linear law,
-    kn's exponent (``KN_EXPONENT``)."""
+    kn's exponent (``KN_EXPONENT``) and its stiffness slope (``STIFFNESS``)."""
     own = (KN_EXPONENT,) if law == ContactLaw.name else ()
-    return LAW_PARAMETERS[law] + (SPREAD,) + DENSITY + tuple(RULE) + tuple(INTERLOCKING) + own
+    interlocking = tuple(n for n in INTERLOCKING if n != STIFFNESS or law == ContactLaw.name)
+    return LAW_PARAMETERS[law] + (SPREAD,) + DENSITY + tuple(RULE) + interlocking + own
 
 
 def rule_at(values: Mapping[str, float], settings: "ForwardSettings") -> CriticalState | None:
