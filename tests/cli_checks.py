@@ -77,3 +77,18 @@ def assert_interlocking_refusal(tmp_path: Path, capsys, flags: Sequence[str], da
     out = tmp_path / "cal"
     args = ["--data", str(path), *flags, "--walkers", "4", "--steps", "2", "--out", str(out), *fast]
     assert_one_line_refusal(capsys, calibrate.main, args, expected, out)
+
+
+TOY_CALIBRATION = ["--orientations", "4", "--increment", "4e-3", "--iso-increment", "2e-3", "--confirm", "none",
+                   "--resolution", "off", "--params", "phi_g,alpha0", "--walkers", "6", "-q"]
+"""The flags of a calibration of ``toy_biaxial_data`` that runs in about a second per step (with --start prior or a
+--start-point; --steps and --out to add)."""
+
+
+def toy_biaxial_data(folder: Path) -> list[str]:
+    """Two three-point biaxial tests (drained, undrained; p0 2e5 N/m) written into ``folder``; returns their
+    --data flags."""
+    drained, undrained = folder / "drained.csv", folder / "undrained.csv"
+    drained.write_text("# test = drained\n# p0 = 2e5\neps1,q\n0.004,1.2e5\n0.008,1.6e5\n0.012,1.8e5\n")
+    undrained.write_text("# test = undrained\n# p0 = 2e5\neps1,q\n0.004,1.0e5\n0.008,1.3e5\n0.012,1.4e5\n")
+    return ["--data", str(drained), "--data", str(undrained)]

@@ -9,24 +9,18 @@ import json
 import h5py
 import numpy as np
 
+from cli_checks import TOY_CALIBRATION, toy_biaxial_data
+
 from homogenization.calibration.synthetic import synthetic_test, write_test
 from homogenization.cli import calibrate
 from warp_hcell.core.cli import run_main
 
-FAST = ["--orientations", "4", "--increment", "4e-3", "--iso-increment", "2e-3", "--confirm", "none",
-        "--resolution", "off", "--params", "phi_g,alpha0", "--walkers", "6", "--start", "prior", "-q"]
-
-
-def _data(folder):
-    drained, undrained = folder / "drained.csv", folder / "undrained.csv"
-    drained.write_text("# test = drained\n# p0 = 2e5\neps1,q\n0.004,1.2e5\n0.008,1.6e5\n0.012,1.8e5\n")
-    undrained.write_text("# test = undrained\n# p0 = 2e5\neps1,q\n0.004,1.0e5\n0.008,1.3e5\n0.012,1.4e5\n")
-    return ["--data", str(drained), "--data", str(undrained)]
+FAST = [*TOY_CALIBRATION, "--start", "prior"]
 
 
 def _run(tmp_path, name: str, steps: int, *extra: str) -> int:
-    return run_main(calibrate.main, [*_data(tmp_path), *FAST, "--steps", str(steps), "--out", str(tmp_path / name),
-                                     *extra])
+    return run_main(calibrate.main, [*toy_biaxial_data(tmp_path), *FAST, "--steps", str(steps),
+                                     "--out", str(tmp_path / name), *extra])
 
 
 def _chain(tmp_path, name: str) -> tuple[np.ndarray, np.ndarray, dict]:

@@ -6,26 +6,18 @@ import json
 
 import numpy as np
 import pytest
-from cli_checks import assert_one_line_refusal
+from cli_checks import TOY_CALIBRATION, assert_one_line_refusal, toy_biaxial_data
 
 from homogenization.calibration import start as start_mod
 from homogenization.cli import calibrate
 from warp_hcell.core.cli import run_main
 
-FAST = ["--orientations", "4", "--increment", "4e-3", "--iso-increment", "2e-3", "--confirm", "none",
-        "--resolution", "off", "--params", "phi_g,alpha0", "--walkers", "6", "--steps", "1", "-q"]
-
-
-def _data(folder):
-    drained, undrained = folder / "drained.csv", folder / "undrained.csv"
-    drained.write_text("# test = drained\n# p0 = 2e5\neps1,q\n0.004,1.2e5\n0.008,1.6e5\n0.012,1.8e5\n")
-    undrained.write_text("# test = undrained\n# p0 = 2e5\neps1,q\n0.004,1.0e5\n0.008,1.3e5\n0.012,1.4e5\n")
-    return ["--data", str(drained), "--data", str(undrained)]
+FAST = [*TOY_CALIBRATION, "--steps", "1"]
 
 
 def _start(tmp_path, name: str, *extra: str) -> dict:
     out = tmp_path / name
-    assert run_main(calibrate.main, [*_data(tmp_path), *FAST, "--out", str(out), *extra]) == 0
+    assert run_main(calibrate.main, [*toy_biaxial_data(tmp_path), *FAST, "--out", str(out), *extra]) == 0
     return json.loads((out / "run.json").read_text())["start"]
 
 
@@ -67,5 +59,5 @@ def test_the_lowest_of_the_scaled_fits_is_kept_and_every_fit_recorded(tmp_path, 
 ])
 def test_bad_scales_exit_2_before_any_run(tmp_path, capsys, flags, expected):
     out = tmp_path / "cal"
-    assert_one_line_refusal(capsys, calibrate.main, [*_data(tmp_path), *FAST, *flags, "--out", str(out)], expected,
-                            out)
+    assert_one_line_refusal(capsys, calibrate.main, [*toy_biaxial_data(tmp_path), *FAST, *flags, "--out", str(out)],
+                            expected, out)
