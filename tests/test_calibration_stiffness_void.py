@@ -88,7 +88,8 @@ def test_the_hertz_mindlin_law_has_no_kn_to_scale():
      "the prior of stiffness_void_slope reaches 120"),
 ])
 def test_bad_flags_exit_2_before_any_run(tmp_path, capsys, flags, expected):
-    assert_interlocking_refusal(tmp_path, capsys, flags, "given", expected, {"stiffness_void_slope": [0.0, 120.0]}, FAST)
+    assert_interlocking_refusal(tmp_path, capsys, flags, "given", expected, {"stiffness_void_slope": [0.0, 120.0]},
+                                FAST)
 
 
 def test_the_posterior_holds_the_slope_and_triaxial_replays_it(tmp_path):

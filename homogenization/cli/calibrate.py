@@ -465,7 +465,7 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
     out of range, relax_void_slope, mobilisation_void_slope or map_state_weight calibrated or nonzero with a --data
     file that gives no void ratio, mobilisation_exponent or mobilisation_void_slope calibrated or not at its default
     without mobilisation_strain calibrated or nonzero, map_state_weight calibrated or nonzero on a flat line
-    (lambda_c 0, not calibrated), or stiffness_void_slope calibrated or nonzero with a law other than the linear one."""
+    (lambda_c 0, not calibrated), or stiffness_void_slope nonzero with a law other than the linear one."""
     own = [name for name in args.params if name in INTERLOCKING]
     if not args.interlocking:
         if MAP_STATE in own:
@@ -503,7 +503,7 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
     if state_map and "lambda_c" not in args.params and settings.lambda_c == 0.0:
         raise UserError(f"{MAP_STATE} moves the map along the critical-state line, flat at lambda_c = 0: calibrate "
                         f"lambda_c or give it (--interlocking-values lambda_c=L, L > 0)")
-    if args.law != ContactLaw.name and (STIFFNESS in args.params or settings.stiffness_void_slope != 0.0):
+    if args.law != ContactLaw.name and settings.stiffness_void_slope != 0.0:  # --params: refused by the law's list
         raise UserError(f"{STIFFNESS} scales the linear law's kn: --law {args.law} has none")
     default = Interlocking()
     idle = [n for n in ("mobilisation_exponent", "mobilisation_void_slope")
