@@ -124,6 +124,13 @@ def data_copies() -> dict[str, Path]:
     return out
 
 
+def dobrany_tests() -> dict:
+    """Each Dobrany test (``data_copies``) read as a ``Measurement``, keyed by file name, in order of p0."""
+    files = data_copies()
+    tests = {name: read_test(path) for name, path in files.items()}
+    return dict(sorted(tests.items(), key=lambda item: item[1].p0))
+
+
 def sensitivity_setup(result: Path, rule: str, variants: list[tuple], names: tuple[str, ...], kn_factor: int | None = 2
                       ) -> tuple[dict, dict[str, np.ndarray], forward.ForwardSettings]:
     """For a sensitivity grid around a study result (``result``, its JSON): (the record, the forward model's

@@ -27,10 +27,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_real_sand import SPLITS  # noqa: E402
 from bench_real_sand_spread import metrics  # noqa: E402
-from calibration_dobrany_product import RESULTS, data_copies, sensitivity_setup  # noqa: E402
+from calibration_dobrany_product import RESULTS, dobrany_tests, sensitivity_setup  # noqa: E402
 
 from homogenization.calibration import forward  # noqa: E402
-from homogenization.calibration.data import read_test  # noqa: E402
 
 PLATEAU = 0.01
 """Relative drop from the highest q [-] that bounds the plateau (``plateau``)."""
@@ -89,8 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         print(f"error: no file {', '.join(missing)}", file=sys.stderr)
         return 2
-    files = data_copies()
-    tests = {name: read_test(files[name]) for name in sorted(files, key=lambda f: read_test(files[f]).p0)}
+    tests = dobrany_tests()
     lines: list[str] = []
 
     def say(line: str) -> None:

@@ -40,11 +40,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_real_sand import SPLITS  # noqa: E402
 from bench_real_sand_spread import metrics  # noqa: E402
-from calibration_dobrany_product import RESULTS, data_copies, sensitivity_setup  # noqa: E402
+from calibration_dobrany_product import RESULTS, dobrany_tests, sensitivity_setup  # noqa: E402
 from scan_dobrany_peak_strain import DROP_WIDE, first_peak  # noqa: E402
 
 from homogenization.calibration import forward, interlocking as il, renewal as rn  # noqa: E402
-from homogenization.calibration.data import read_test  # noqa: E402
 from homogenization.material.density import current_void_ratio, line_angle_deg  # noqa: E402
 
 E_REF = 0.55
@@ -205,8 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     record, _, settings = sensitivity_setup(args.result, args.rule, [(0.0,)], (), kn_factor=None)
     mean = record["mean"]["values"]
     fitted, predicted = SPLITS[record["split"]]
-    files = data_copies()
-    tests = {name: read_test(files[name]) for name in sorted(files, key=lambda f: read_test(files[f]).p0)}
+    tests = dobrany_tests()
     lines: list[str] = []
 
     def say(line: str) -> None:
