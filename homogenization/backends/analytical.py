@@ -580,18 +580,32 @@ class AnalyticalCell:
         return np.stack([dS_l1 * -old.l1[:, None], dS_l2 * -old.l2[:, None]], axis=-1)
 
     def _solve(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray) -> tuple[AnalyticalState, dict]:
-        """Equilibrium y2 for the new lengths; returns the state and the diagnostics."""
-        kn, kt, mu, D, g2 = self.kn, self.kt, self.mu, self.diameter, self.g2
-        law, hertz, k_scale = self.law, self.hertz, self.stiffness_scale
-        h = 0.5 * l2
+        """Equilibrium y2 for the new lengths; returns the state and the diagnostics.
+
+        A cell leaves the iteration once converged: its values are those of its last evaluation, the
+        same bits as evaluating it again at its unchanged y2, so a cell's result does not depend on
+        the other cells of the batch."""
+        n = l1.size
+        D, g2, hertz = self.diameter, self.g2, self.hertz
+
+        def per_cell(x):
+            return isinstance(x, np.ndarray) and x.ndim == 1 and x.shape[0] == n
+
         half_l1 = 0.5 * l1
-        alpha_old, T_old, half_d1_old = old.alpha, old.T1, 0.5 * old.d1
-        lo = np.zeros_like(l1)
-        hi = half_l1
-        y = np.minimum(old.y2, half_l1)
+        # the cells' inputs, narrowed to the active cells as they converge
+        a = {"h": 0.5 * l2, "half_l1": half_l1, "alpha_old": old.alpha, "T_old": old.T1,
+             "half_d1_old": 0.5 * old.d1, "d1_old": old.d1, "moved": np.abs(l1 - old.l1) + np.abs(l2 - old.l2),
+             "lo": np.zeros_like(l1), "hi": half_l1, "y": np.minimum(old.y2, half_l1),
+             **{k: v for k, v in (("kn", self.kn), ("kt", self.kt), ("mu", self.mu), ("k_scale", self.stiffness_scale),
+                                  ("f_tol", self.f_tolerance), ("law_kn", self.law.kn), ("law_kt", self.law.kt))}}
+        active = np.arange(n)
+        final = {k: np.empty(n) for k in ("y", "u", "f", "d1", "alpha", "N1", "N2", "T1")}
         walk = None
         for iteration in range(1, self.max_iterations + 1):
-            u = half_l1 - y
+            kn, kt, mu, k_scale = a["kn"], a["kt"], a["mu"], a["k_scale"]
+            law = self.law if a["law_kn"] is self.law.kn else PairLaw(self.law.name, a["law_kn"], a["law_kt"])
+            y, h, lo, hi = a["y"], a["h"], a["lo"], a["hi"]
+            u = a["half_l1"] - y
             d1 = np.hypot(h, u)
             c = u / d1
             s = h / d1
@@ -599,29 +613,46 @@ class AnalyticalCell:
             gap1 = D - d1
             closed1 = gap1 > 0.0
             gap2 = D - 2.0 * y
-            d_alpha = alpha - alpha_old
-            d1_mid = half_d1_old + 0.5 * d1
+            d_alpha = alpha - a["alpha_old"]
+            d1_mid = a["half_d1_old"] + 0.5 * d1
             if hertz:
                 N1, N2 = law.normal(gap1), law.normal(gap2)
-                kt = law.move_stiffness(D - old.d1, gap1)
+                kt = law.move_stiffness(D - a["d1_old"], gap1)
             else:
                 N1 = kn * np.maximum(gap1, 0.0)
                 N2 = kn * np.maximum(gap2, 0.0)
-            trial = T_old + kt * d1_mid * d_alpha
+            trial = a["T_old"] + kt * d1_mid * d_alpha
             cap = mu * N1
             T1 = np.minimum(np.maximum(trial, -cap), cap)
             f = N2 - N1 * c - (s + g2) * T1
-            converged = np.abs(f) <= self.f_tolerance
-            if converged.all():
-                break
             # f > 0 at y2 = l1/2 (alpha = 90 deg, grains 2-1-6 aligned): no equilibrium in
             # the admissible range; the cell stays at that limit (reported).
-            converged |= (u == 0.0) & (f > 0.0)
-            if iteration == self.max_iterations or converged.all():
+            converged = (np.abs(f) <= a["f_tol"]) | ((u == 0.0) & (f > 0.0))
+            done = converged | (iteration == self.max_iterations)
+            n_done = np.count_nonzero(done)
+            if n_done == n:
+                for key, value in (("y", y), ("u", u), ("f", f), ("d1", d1), ("alpha", alpha), ("N1", N1),
+                                   ("N2", N2), ("T1", T1)):
+                    final[key][active] = value
                 break
-            # Converged cells keep their y (f -> 0), so a cell's result does not depend
-            # on the other cells of the batch.
-            f = np.where(converged, 0.0, f)
+            if n_done < max(1, n // 8):  # too few to narrow the arrays for: kept, frozen (f = 0 keeps their y2)
+                f = np.where(done, 0.0, f)
+            else:
+                gone = np.flatnonzero(done)
+                for key, value in (("y", y), ("u", u), ("f", f), ("d1", d1), ("alpha", alpha), ("N1", N1),
+                                   ("N2", N2), ("T1", T1)):
+                    final[key][active[gone]] = value[gone]
+                keep = np.flatnonzero(~done)
+                active = active[keep]
+                a = {k: v[keep] if per_cell(v) else v for k, v in a.items()}
+                kt = kt[keep] if isinstance(kt, np.ndarray) and kt.shape == (n,) else kt
+                n = active.size
+                kn, mu, k_scale, y, h, lo, hi = a["kn"], a["mu"], a["k_scale"], a["y"], a["h"], a["lo"], a["hi"]
+                law = self.law if a["law_kn"] is self.law.kn else PairLaw(self.law.name, a["law_kn"], a["law_kt"])
+                c, s, d1, N1, T1, f, trial, cap = (x[keep] for x in (c, s, d1, N1, T1, f, trial, cap))
+                gap1, gap2, closed1, d_alpha, d1_mid = (x[keep] for x in (gap1, gap2, closed1, d_alpha, d1_mid))
+                if walk is not None:
+                    walk = walk[keep]
             # df/dy2, with dd1/dy2 = -cos a, da/dy2 = sin a / d1.
             if hertz:
                 # the slope of kt in the overlap is left out of the Newton slope (it only steers)
@@ -644,8 +675,9 @@ class AnalyticalCell:
             y_newton = y - f / np.minimum(df, -k_scale * 1e-12)
             # Newton inside the open bracket, or a step below the resolution of y.
             inside = ((y_newton > lo) & (y_newton < hi)) | (y_newton == y)
+            a["lo"], a["hi"] = lo, hi
             if inside.all():
-                y = y_newton
+                a["y"] = y_newton
                 continue
             # Else (Newton cycles across the kinks where contacts open, or f grows with y
             # where a friction-locked cell slides back): walk towards the root by steps
@@ -653,19 +685,21 @@ class AnalyticalCell:
             # of the bracket, so the (wide) initial bracket costs no long bisection; the
             # walk may reach the limit y2 = l1/2 while that end is not yet evaluated.
             if walk is None:
-                walk = np.abs(l1 - old.l1) + np.abs(l2 - old.l2) + self.f_tolerance / k_scale
+                walk = a["moved"] + a["f_tol"] / k_scale
             mid = 0.5 * (lo + hi)
-            upper = np.where(hi == half_l1, hi, mid)
+            upper = np.where(hi == a["half_l1"], hi, mid)
             y_walk = np.where(f > 0.0, np.minimum(y + walk, upper), np.maximum(y - walk, mid))
-            y = np.where(inside, y_newton, y_walk)
+            a["y"] = np.where(inside, y_newton, y_walk)
             walk = np.where(inside, walk, 2.0 * walk)
+        u, f = final["u"], final["f"]
         n_limit = np.count_nonzero((u == 0.0) & (f > self.f_tolerance))
         diagnostics = {
             "iterations": float(iteration),
             "n_unconverged": float(np.count_nonzero(np.abs(f) > self.f_tolerance) - n_limit),
             "n_alpha_limit": float(n_limit),
         }
-        return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), diagnostics
+        return AnalyticalState(l1, l2, final["y"], final["d1"], final["alpha"], final["N1"], final["N2"],
+                               final["T1"]), diagnostics
 
     def response(self, state) -> CellResponse:
         """Meso-stress of ``state`` without advancing it: moment (n_cells, dim, dim) [N m], V_cell (``area``)."""
