@@ -595,9 +595,9 @@ class AnalyticalCell:
         # the cells' inputs, narrowed to the active cells as they converge
         a = {"h": 0.5 * l2, "half_l1": half_l1, "alpha_old": old.alpha, "T_old": old.T1,
              "half_d1_old": 0.5 * old.d1, "d1_old": old.d1, "moved": np.abs(l1 - old.l1) + np.abs(l2 - old.l2),
-             "lo": np.zeros_like(l1), "hi": half_l1, "y": np.minimum(old.y2, half_l1),
-             **{k: v for k, v in (("kn", self.kn), ("kt", self.kt), ("mu", self.mu), ("k_scale", self.stiffness_scale),
-                                  ("f_tol", self.f_tolerance), ("law_kn", self.law.kn), ("law_kt", self.law.kt))}}
+             "lo": np.zeros_like(l1), "hi": half_l1, "y": np.minimum(old.y2, half_l1), "kn": self.kn, "kt": self.kt,
+             "mu": self.mu, "k_scale": self.stiffness_scale, "f_tol": self.f_tolerance, "law_kn": self.law.kn,
+             "law_kt": self.law.kt}
         active = np.arange(n)
         final = {k: np.empty(n) for k in ("y", "u", "f", "d1", "alpha", "N1", "N2", "T1")}
         walk = None
