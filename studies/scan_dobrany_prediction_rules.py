@@ -41,27 +41,36 @@ def plateau(eps1: np.ndarray, q: np.ndarray, drop: float = PLATEAU) -> tuple[flo
     return float(eps1[top[0]]), float(eps1[top[-1]])
 
 
-def screen(result: Path, rule: str, grid: dict[str, list[float]], tests: dict, rows: list[dict], say) -> None:
-    """Every combination of ``grid``'s values (name -> values) at ``result``'s mean on ``rule``: one batch per test;
-    appends a row per variant and test to ``rows`` and says one line per variant, best first by the fitted tests."""
+def evaluate(result: Path, rule: str, grid: dict[str, list[float]], tests: dict) -> tuple[dict, dict]:
+    """Every combination of ``grid``'s values (name -> values; empty: the mean alone) at ``result``'s mean on ``rule``,
+    one batch per test: (the result's record, variant -> test name -> row of ``metrics``, the highest q, the plateau,
+    the fallbacks and the batch's seconds)."""
     names = tuple(grid)
     variants = list(itertools.product(*grid.values()))
     record, params, settings = sensitivity_setup(result, rule, variants, names, kn_factor=None)
-    fitted, _ = SPLITS[record["split"]]
-    by_variant: dict[tuple, dict] = {v: {} for v in variants}
+    rows: dict[tuple, dict] = {v: {} for v in variants}
     for name, test in tests.items():
+        started = time.perf_counter()
         with np.errstate(all="ignore"):
             c = forward.simulate(test, params, settings)
+        seconds = time.perf_counter() - started
         for i, v in enumerate(variants):
-            m = metrics(test, c.q[i], c.eps_v[i])
-            a, b = plateau(test.eps1, c.q[i])
-            row = {"result": result.name, "rule": rule, "test": name, **dict(zip(names, v)), **m,
-                   "q_max": float(np.nanmax(c.q[i])), "plateau": [a, b], "fallbacks": int(c.n_fallback[i])}
-            rows.append(row)
-            by_variant[v][name] = row
+            rows[v][name] = {"result": result.name, "rule": rule, "test": name, **dict(zip(names, v)),
+                             **metrics(test, c.q[i], c.eps_v[i]), "q_max": float(np.nanmax(c.q[i])),
+                             "plateau": list(plateau(test.eps1, c.q[i])), "fallbacks": int(c.n_fallback[i]),
+                             "seconds": seconds}
+    return record, rows
+
+
+def screen(result: Path, rule: str, grid: dict[str, list[float]], tests: dict, rows: list[dict], say) -> None:
+    """``evaluate`` of ``grid``: appends a row per variant and test to ``rows`` and says one line per variant, best
+    first by the mean RMS abs(dq) / q_peak of the result's fitted tests."""
+    record, by_variant = evaluate(result, rule, grid, tests)
+    fitted, _ = SPLITS[record["split"]]
+    rows.extend(r for by in by_variant.values() for r in by.values())
     say(f"== {result.name}, {rule}, variants by the mean RMS abs(dq)/q_peak of the fitted tests {', '.join(fitted)}")
     for v, by in sorted(by_variant.items(), key=lambda kv: np.mean([kv[1][n]["rms_dq_over_qpeak"] for n in fitted])):
-        say(" ".join(f"{n} {x:g}" for n, x in zip(names, v))
+        say(" ".join(f"{n} {x:g}" for n, x in zip(grid, v))
             + f": fitted {np.mean([by[n]['rms_dq_over_qpeak'] for n in fitted]):.4f} | " + " | ".join(
                 f"{n[4:-4]}: dq {r['rms_dq_over_qpeak']:.3f}, dv {100 * r['rms_deps_v']:.2f} %, peak "
                 f"{100 * r['eps1_at_peak_model']:.2f} % (1 %: {100 * r['plateau'][0]:.2f}-{100 * r['plateau'][1]:.2f}),"
@@ -106,21 +115,13 @@ def main(argv: list[str] | None = None) -> int:
     for result in args.results if not grid else ():
         say(f"== {result.name}")
         for rule in args.rules.split(","):
-            _, params, settings = sensitivity_setup(result, rule, [(0.0,)], (), kn_factor=None)
-            parts = [f"{rule:7s}"]
-            for name, test in tests.items():
-                started = time.perf_counter()
-                with np.errstate(all="ignore"):
-                    c = forward.simulate(test, params, settings)
-                m = metrics(test, c.q[0], c.eps_v[0])
-                a, b = plateau(test.eps1, c.q[0])
-                row = {"result": result.name, "rule": rule, "test": name, **m, "q_max": float(np.nanmax(c.q[0])),
-                       "plateau": [a, b], "fallbacks": int(c.n_fallback[0]), "seconds": time.perf_counter() - started}
-                rows.append(row)
-                parts.append(f"{name[4:-4]}: dq {m['rms_dq_over_qpeak']:.3f}, dv {100 * m['rms_deps_v']:.2f} %, peak "
-                             f"{100 * m['eps1_at_peak_model']:.2f} % (1 %: {100 * a:.2f}-{100 * b:.2f}), q "
-                             f"{row['q_max'] / 1e3:.0f}, fb {row['fallbacks']}, {row['seconds']:.0f} s")
-            say(" | ".join(parts))
+            by_test = evaluate(result, rule, {}, tests)[1][()]
+            rows.extend(by_test.values())
+            say(" | ".join([f"{rule:7s}"] + [
+                f"{name[4:-4]}: dq {r['rms_dq_over_qpeak']:.3f}, dv {100 * r['rms_deps_v']:.2f} %, peak "
+                f"{100 * r['eps1_at_peak_model']:.2f} % (1 %: {100 * r['plateau'][0]:.2f}-{100 * r['plateau'][1]:.2f}),"
+                f" q {r['q_max'] / 1e3:.0f}, fb {r['fallbacks']}, {r['seconds']:.0f} s"
+                for name, r in by_test.items()]))
     stem = f"scan_dobrany_prediction_rules_{args.tag}" if args.tag else "scan_dobrany_prediction_rules"
     (RESULTS / f"{stem}.json").write_text(json.dumps({"results": [str(p) for p in args.results], "rows": rows},
                                                      indent=1))

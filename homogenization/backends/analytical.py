@@ -611,14 +611,14 @@ class AnalyticalCell:
             n_done = np.count_nonzero(done)
             if n_done == active.size:
                 for key in final:
-                    final[key][active] = a["y"] if key == "y" else ev[key]
+                    final[key][active] = ev[key]
                 break
             if n_done < max(1, active.size // 8):  # too few to narrow for: kept, frozen (f = 0 keeps their y2)
                 ev["f"] = np.where(done, 0.0, ev["f"])
             else:
                 gone = np.flatnonzero(done)
                 for key in final:
-                    final[key][active[gone]] = (a["y"] if key == "y" else ev[key])[gone]
+                    final[key][active[gone]] = ev[key][gone]
                 keep = np.flatnonzero(~done)
                 a, ev = _narrowed(a, keep, active.size), _narrowed(ev, keep, active.size)
                 active = active[keep]
@@ -638,8 +638,8 @@ class AnalyticalCell:
         return self.law if a["law_kn"] is self.law.kn else PairLaw(self.law.name, a["law_kn"], a["law_kt"])
 
     def _equilibrium(self, a: dict) -> dict:
-        """The cells of ``a`` (``_solve``'s dict) at their iterate y2: geometry, contact forces [N] and the
-        equilibrium residual f [N] (dict of arrays, one value per cell)."""
+        """The cells of ``a`` (``_solve``'s dict) at their iterate y2: y2 itself, geometry, contact forces [N] and
+        the equilibrium residual f [N] (dict of arrays, one value per cell)."""
         D, g2, y, h = self.diameter, self.g2, a["y"], a["h"]
         u = a["half_l1"] - y
         d1 = np.hypot(h, u)
@@ -662,9 +662,9 @@ class AnalyticalCell:
         cap = a["mu"] * N1
         T1 = np.minimum(np.maximum(trial, -cap), cap)
         f = N2 - N1 * c - (s + g2) * T1
-        return {"u": u, "d1": d1, "c": c, "s": s, "alpha": alpha, "gap1": gap1, "closed1": gap1 > 0.0, "gap2": gap2,
-                "d_alpha": d_alpha, "d1_mid": d1_mid, "N1": N1, "N2": N2, "kt": kt, "trial": trial, "cap": cap,
-                "T1": T1, "f": f}
+        return {"y": y, "u": u, "d1": d1, "c": c, "s": s, "alpha": alpha, "gap1": gap1, "closed1": gap1 > 0.0,
+                "gap2": gap2, "d_alpha": d_alpha, "d1_mid": d1_mid, "N1": N1, "N2": N2, "kt": kt, "trial": trial,
+                "cap": cap, "T1": T1, "f": f}
 
     def _advance(self, a: dict, ev: dict) -> None:
         """One safeguarded Newton step of the cells of ``a`` (``_solve``'s dict; updated in place: y, lo, hi, walk)
