@@ -206,13 +206,6 @@ def cell_alpha0(mesostructure: Mesostructure | Sequence[Mesostructure], n_cells:
     return alpha0_deg
 
 
-def _narrowed(values: dict, keep: np.ndarray, n: int) -> dict:
-    """``values`` with each per-cell array (one-dimensional, length ``n``) reduced to the cells ``keep``
-    (indices); other values (scalars, None) as they are."""
-    return {k: v[keep] if isinstance(v, np.ndarray) and v.ndim == 1 and v.shape[0] == n else v
-            for k, v in values.items()}
-
-
 class AnalyticalCell:
     """Closed-form H-cell of ``dim`` dimensions (module docstring), vectorised over cells.
 
@@ -587,128 +580,92 @@ class AnalyticalCell:
         return np.stack([dS_l1 * -old.l1[:, None], dS_l2 * -old.l2[:, None]], axis=-1)
 
     def _solve(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray) -> tuple[AnalyticalState, dict]:
-        """Equilibrium y2 for the new lengths; returns the state and the diagnostics.
-
-        A cell leaves the iteration once converged: its values are those of its last evaluation, the
-        same bits as evaluating it again at its unchanged y2, so a cell's result does not depend on
-        the other cells of the batch."""
-        n = l1.size
+        """Equilibrium y2 for the new lengths; returns the state and the diagnostics."""
+        kn, kt, mu, D, g2 = self.kn, self.kt, self.mu, self.diameter, self.g2
+        law, hertz, k_scale = self.law, self.hertz, self.stiffness_scale
+        h = 0.5 * l2
         half_l1 = 0.5 * l1
-        # the cells' inputs and iterates, narrowed to the active cells as they converge
-        a = {"h": 0.5 * l2, "half_l1": half_l1, "alpha_old": old.alpha, "T_old": old.T1,
-             "half_d1_old": 0.5 * old.d1, "d1_old": old.d1, "moved": np.abs(l1 - old.l1) + np.abs(l2 - old.l2),
-             "lo": np.zeros_like(l1), "hi": half_l1, "y": np.minimum(old.y2, half_l1), "walk": None,
-             "kn": self.kn, "kt": self.kt, "mu": self.mu, "k_scale": self.stiffness_scale, "f_tol": self.f_tolerance,
-             "law_kn": self.law.kn, "law_kt": self.law.kt}
-        active = np.arange(n)
-        final = {k: np.empty(n) for k in ("y", "u", "f", "d1", "alpha", "N1", "N2", "T1")}
+        alpha_old, T_old, half_d1_old = old.alpha, old.T1, 0.5 * old.d1
+        lo = np.zeros_like(l1)
+        hi = half_l1
+        y = np.minimum(old.y2, half_l1)
+        walk = None
         for iteration in range(1, self.max_iterations + 1):
-            ev = self._equilibrium(a)
+            u = half_l1 - y
+            d1 = np.hypot(h, u)
+            c = u / d1
+            s = h / d1
+            alpha = np.arctan2(h, u)
+            gap1 = D - d1
+            closed1 = gap1 > 0.0
+            gap2 = D - 2.0 * y
+            d_alpha = alpha - alpha_old
+            d1_mid = half_d1_old + 0.5 * d1
+            if hertz:
+                N1, N2 = law.normal(gap1), law.normal(gap2)
+                kt = law.move_stiffness(D - old.d1, gap1)
+            else:
+                N1 = kn * np.maximum(gap1, 0.0)
+                N2 = kn * np.maximum(gap2, 0.0)
+            trial = T_old + kt * d1_mid * d_alpha
+            cap = mu * N1
+            T1 = np.minimum(np.maximum(trial, -cap), cap)
+            f = N2 - N1 * c - (s + g2) * T1
+            converged = np.abs(f) <= self.f_tolerance
+            if converged.all():
+                break
             # f > 0 at y2 = l1/2 (alpha = 90 deg, grains 2-1-6 aligned): no equilibrium in
             # the admissible range; the cell stays at that limit (reported).
-            converged = (np.abs(ev["f"]) <= a["f_tol"]) | ((ev["u"] == 0.0) & (ev["f"] > 0.0))
-            done = converged | (iteration == self.max_iterations)
-            n_done = np.count_nonzero(done)
-            if n_done == active.size:
-                for key in final:
-                    final[key][active] = ev[key]
+            converged |= (u == 0.0) & (f > 0.0)
+            if iteration == self.max_iterations or converged.all():
                 break
-            if n_done < max(1, active.size // 8):  # too few to narrow for: kept, frozen (f = 0 keeps their y2)
-                ev["f"] = np.where(done, 0.0, ev["f"])
+            # Converged cells keep their y (f -> 0), so a cell's result does not depend
+            # on the other cells of the batch.
+            f = np.where(converged, 0.0, f)
+            # df/dy2, with dd1/dy2 = -cos a, da/dy2 = sin a / d1.
+            if hertz:
+                # the slope of kt in the overlap is left out of the Newton slope (it only steers)
+                k1, k2 = law.normal_stiffness(gap1), law.normal_stiffness(gap2)
+                dT = np.where(np.abs(trial) < cap, kt * (d1_mid * s / d1 - 0.5 * c * d_alpha),
+                              np.copysign(mu * k1, trial) * c * closed1)
+                df = (s * (N1 * s - T1 * c) / d1 - (s + g2) * dT) - (2.0 * k2 + c * c * k1)
             else:
-                gone = np.flatnonzero(done)
-                for key in final:
-                    final[key][active[gone]] = ev[key][gone]
-                keep = np.flatnonzero(~done)
-                a, ev = _narrowed(a, keep, active.size), _narrowed(ev, keep, active.size)
-                active = active[keep]
-            self._advance(a, ev)
-        u, f = final["u"], final["f"]
+                dT = np.where(
+                    np.abs(trial) < cap,
+                    kt * (d1_mid * s / d1 - 0.5 * c * d_alpha),
+                    np.copysign(mu * kn, trial) * c * closed1,
+                )
+                df = (s * (N1 * s - T1 * c) / d1 - (s + g2) * dT) - kn * (2.0 * (gap2 > 0.0) + c * c * closed1)
+            lo = np.where(f > 0.0, y, lo)
+            hi = np.where(f < 0.0, y, hi)
+            # f mostly decreases in y2; a slope that is not negative (all contacts open, or a
+            # friction-locked cell sliding back) is made tiny and negative, so y leaves the
+            # bracket and the walk below takes over.
+            y_newton = y - f / np.minimum(df, -k_scale * 1e-12)
+            # Newton inside the open bracket, or a step below the resolution of y.
+            inside = ((y_newton > lo) & (y_newton < hi)) | (y_newton == y)
+            if inside.all():
+                y = y_newton
+                continue
+            # Else (Newton cycles across the kinks where contacts open, or f grows with y
+            # where a friction-locked cell slides back): walk towards the root by steps
+            # that start at the size of the increment and double, never beyond the middle
+            # of the bracket, so the (wide) initial bracket costs no long bisection; the
+            # walk may reach the limit y2 = l1/2 while that end is not yet evaluated.
+            if walk is None:
+                walk = np.abs(l1 - old.l1) + np.abs(l2 - old.l2) + self.f_tolerance / k_scale
+            mid = 0.5 * (lo + hi)
+            upper = np.where(hi == half_l1, hi, mid)
+            y_walk = np.where(f > 0.0, np.minimum(y + walk, upper), np.maximum(y - walk, mid))
+            y = np.where(inside, y_newton, y_walk)
+            walk = np.where(inside, walk, 2.0 * walk)
         n_limit = np.count_nonzero((u == 0.0) & (f > self.f_tolerance))
         diagnostics = {
             "iterations": float(iteration),
             "n_unconverged": float(np.count_nonzero(np.abs(f) > self.f_tolerance) - n_limit),
             "n_alpha_limit": float(n_limit),
         }
-        return AnalyticalState(l1, l2, final["y"], final["d1"], final["alpha"], final["N1"], final["N2"],
-                               final["T1"]), diagnostics
-
-    def _law_of(self, a: dict) -> PairLaw:
-        """The contact law of the cells of ``a`` (``_solve``'s dict): the cell's, or its per-cell constants narrowed."""
-        return self.law if a["law_kn"] is self.law.kn else PairLaw(self.law.name, a["law_kn"], a["law_kt"])
-
-    def _equilibrium(self, a: dict) -> dict:
-        """The cells of ``a`` (``_solve``'s dict) at their iterate y2: y2 itself, geometry, contact forces [N] and
-        the equilibrium residual f [N] (dict of arrays, one value per cell)."""
-        D, g2, y, h = self.diameter, self.g2, a["y"], a["h"]
-        u = a["half_l1"] - y
-        d1 = np.hypot(h, u)
-        c = u / d1
-        s = h / d1
-        alpha = np.arctan2(h, u)
-        gap1 = D - d1
-        gap2 = D - 2.0 * y
-        d_alpha = alpha - a["alpha_old"]
-        d1_mid = a["half_d1_old"] + 0.5 * d1
-        kt = a["kt"]
-        if self.hertz:
-            law = self._law_of(a)
-            N1, N2 = law.normal(gap1), law.normal(gap2)
-            kt = law.move_stiffness(D - a["d1_old"], gap1)
-        else:
-            N1 = a["kn"] * np.maximum(gap1, 0.0)
-            N2 = a["kn"] * np.maximum(gap2, 0.0)
-        trial = a["T_old"] + kt * d1_mid * d_alpha
-        cap = a["mu"] * N1
-        T1 = np.minimum(np.maximum(trial, -cap), cap)
-        f = N2 - N1 * c - (s + g2) * T1
-        return {"y": y, "u": u, "d1": d1, "c": c, "s": s, "alpha": alpha, "gap1": gap1, "closed1": gap1 > 0.0,
-                "gap2": gap2, "d_alpha": d_alpha, "d1_mid": d1_mid, "N1": N1, "N2": N2, "kt": kt, "trial": trial,
-                "cap": cap, "T1": T1, "f": f}
-
-    def _advance(self, a: dict, ev: dict) -> None:
-        """One safeguarded Newton step of the cells of ``a`` (``_solve``'s dict; updated in place: y, lo, hi, walk)
-        from their evaluation ``ev`` (``_equilibrium``; f = 0 for a frozen cell, which keeps its y2)."""
-        kn, mu, g2, k_scale, y, f = a["kn"], a["mu"], self.g2, a["k_scale"], a["y"], ev["f"]
-        c, s, d1, N1, T1, kt, trial, cap = (ev[k] for k in ("c", "s", "d1", "N1", "T1", "kt", "trial", "cap"))
-        d1_mid, d_alpha, closed1 = ev["d1_mid"], ev["d_alpha"], ev["closed1"]
-        # df/dy2, with dd1/dy2 = -cos a, da/dy2 = sin a / d1.
-        if self.hertz:
-            # the slope of kt in the overlap is left out of the Newton slope (it only steers)
-            law = self._law_of(a)
-            k1, k2 = law.normal_stiffness(ev["gap1"]), law.normal_stiffness(ev["gap2"])
-            dT = np.where(np.abs(trial) < cap, kt * (d1_mid * s / d1 - 0.5 * c * d_alpha),
-                          np.copysign(mu * k1, trial) * c * closed1)
-            df = (s * (N1 * s - T1 * c) / d1 - (s + g2) * dT) - (2.0 * k2 + c * c * k1)
-        else:
-            dT = np.where(
-                np.abs(trial) < cap,
-                kt * (d1_mid * s / d1 - 0.5 * c * d_alpha),
-                np.copysign(mu * kn, trial) * c * closed1,
-            )
-            df = (s * (N1 * s - T1 * c) / d1 - (s + g2) * dT) - kn * (2.0 * (ev["gap2"] > 0.0) + c * c * closed1)
-        lo = a["lo"] = np.where(f > 0.0, y, a["lo"])
-        hi = a["hi"] = np.where(f < 0.0, y, a["hi"])
-        # f mostly decreases in y2; a slope that is not negative (all contacts open, or a
-        # friction-locked cell sliding back) is made tiny and negative, so y leaves the
-        # bracket and the walk below takes over.
-        y_newton = y - f / np.minimum(df, -k_scale * 1e-12)
-        # Newton inside the open bracket, or a step below the resolution of y.
-        inside = ((y_newton > lo) & (y_newton < hi)) | (y_newton == y)
-        if inside.all():
-            a["y"] = y_newton
-            return
-        # Else (Newton cycles across the kinks where contacts open, or f grows with y
-        # where a friction-locked cell slides back): walk towards the root by steps
-        # that start at the size of the increment and double, never beyond the middle
-        # of the bracket, so the (wide) initial bracket costs no long bisection; the
-        # walk may reach the limit y2 = l1/2 while that end is not yet evaluated.
-        walk = a["walk"] if a["walk"] is not None else a["moved"] + a["f_tol"] / k_scale
-        mid = 0.5 * (lo + hi)
-        upper = np.where(hi == a["half_l1"], hi, mid)
-        y_walk = np.where(f > 0.0, np.minimum(y + walk, upper), np.maximum(y - walk, mid))
-        a["y"] = np.where(inside, y_newton, y_walk)
-        a["walk"] = np.where(inside, walk, 2.0 * walk)
+        return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), diagnostics
 
     def response(self, state) -> CellResponse:
         """Meso-stress of ``state`` without advancing it: moment (n_cells, dim, dim) [N m], V_cell (``area``)."""
