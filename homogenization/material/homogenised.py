@@ -39,6 +39,11 @@ from warp_hcell.core.contract import CellModel
 from warp_hcell.core.dimension import dimension
 from warp_hcell.mesostructures.mesostructure import Mesostructure, per_cell
 
+COMPILED_TANGENT_FROM_CELLS = 8192
+"""Spatial batches of at least this many cells (points x orientations) average their tangents with the compiled
+``tangent_average.average``, smaller ones with its two einsums, whose time there is below numba's start-up (a
+speed setting: both give the same bits)."""
+
 
 @dataclass(frozen=True)
 class MaterialState:
@@ -221,12 +226,19 @@ class HomogenisedMaterial:
         """sum_k w_k A_k C_k L_k [N/m or Pa], shape (n_points, n_voigt, n_voigt), of C (n_points, N, dim, dim).
 
         Per-point products, so a point's tangent does not depend on its batch. The two dimensions sum
-        the same terms in different orders (a stacked matmul, an einsum); each order is kept because the
-        runs' files are pinned to it bit for bit.
+        the same terms in different orders (a stacked matmul, two einsums); each order is kept because the
+        runs' files are pinned to it bit for bit. In space, batches of ``COMPILED_TANGENT_FROM_CELLS``
+        cells or more take ``tangent_average.average``, the einsums' bits in a compiled loop.
         """
+        n = self.orient.n_cells
         if self.dim == 2:
-            n = self.orient.n_cells
             CL = C[..., :, 0, None] * self.L[None, :, 0, None, :] + C[..., :, 1, None] * self.L[None, :, 1, None, :]
             return self.A.reshape(self.n_voigt, n * self.dim) @ CL.reshape(self.n_points, n * self.dim, self.n_voigt)
+        if self.n_points * n >= COMPILED_TANGENT_FROM_CELLS:
+            from homogenization.material.tangent_average import average  # noqa: PLC0415 (loads numba)
+
+            out = np.empty((self.n_points, self.n_voigt, self.n_voigt))
+            average(np.ascontiguousarray(C, dtype=np.float64), self.L, self.A, out)
+            return out
         CL = np.einsum("pkab,kbj->pkaj", C, self.L)
         return np.einsum("ika,pkaj->pij", self.A, CL)

@@ -198,6 +198,11 @@ def polygon_area(position: np.ndarray, outer: np.ndarray) -> np.ndarray:
     return 0.5 * np.abs(np.sum(p[..., 0] * q[..., 1] - q[..., 0] * p[..., 1], axis=-1))
 
 
+COMPILED_VOLUME_FROM_CELLS = 8192
+"""Batches of at least this many cells take ``polyhedron_volume_of_rows``'s compiled loop, smaller ones its numpy
+passes, whose time there is below numba's start-up (a speed setting: both give the same bits)."""
+
+
 def polyhedron_volume(position: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Volume [m^3] enclosed by the triangles ``faces`` (n_faces, 3) through ``position`` (..., n_grains, 3).
 
@@ -212,9 +217,18 @@ def polyhedron_volume_of_rows(rows: np.ndarray, faces: np.ndarray) -> np.ndarray
 
     The triple products are added face by face in the order of ``faces`` with elementwise operations only, so a
     cell's volume does not depend on the batch or on the CPU's vector width; each face is one pass over rows of
-    the batch's shape (which stay in cache, unlike (..., n_faces, 3) temporaries). Returns [m^3], shape (...).
+    the batch's shape (which stay in cache, unlike (..., n_faces, 3) temporaries); batches of
+    ``COMPILED_VOLUME_FROM_CELLS`` cells or more take ``volume_kernel.volume``, the same bits in a compiled loop.
+    Returns [m^3], shape (...).
     """
     x = np.ascontiguousarray(rows)
+    if x[0, 0].size >= COMPILED_VOLUME_FROM_CELLS:
+        from warp_hcell.mesostructures.volume_kernel import volume  # noqa: PLC0415 (numba: loaded on first use)
+
+        out = np.empty(x.shape[2:])
+        corners = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        volume(x.reshape(x.shape[0], 3, -1), corners, out.reshape(-1))
+        return out
     total = np.zeros(x.shape[2:])
     for i, j, k in np.asarray(faces).tolist():
         a, b, c = x[i], x[j], x[k]
