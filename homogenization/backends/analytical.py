@@ -43,6 +43,7 @@ index 0 = n, k = t_k.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from itertools import combinations
@@ -131,6 +132,11 @@ def _polyhedron_volume(planes: Sequence[AnalyticalState], areas: Sequence[np.nda
     return polyhedron_volume_of_rows(grain_rows(planes), TEN_SPHERE_FACES)
 
 
+def _cells_of(value: Any, keep: np.ndarray, n_cells: int) -> Any:
+    """``value``'s entries of the cells ``keep`` if it holds one per cell (shape (n_cells,)), else ``value``."""
+    return np.asarray(value)[keep] if np.ndim(value) == 1 and np.shape(value)[0] == n_cells else value
+
+
 @dataclass(frozen=True)
 class CellLayout:
     """How the planes make the closed form's cell of one dimension (``LAYOUTS``)."""
@@ -159,6 +165,11 @@ class CellLayout:
         """Number of planes: one per lateral axis."""
         return len(self.dimension.frame) - 1
 
+
+NARROW_FROM_CELLS = 8192
+"""Batches of at least this many cells go on with their unconverged cells alone once half have converged
+(``AnalyticalCell._narrowed``); smaller ones iterate whole, where gathering costs more than it saves (a speed
+setting: the same bits)."""
 
 LAYOUTS = {
     2: CellLayout(dimension(2), lambda plane: plane, lambda state: (state,), ("",), ("",), hcell.plain_alpha0,
@@ -579,18 +590,24 @@ class AnalyticalCell:
         # l_i = l_i,old (1 - d_eps_i)
         return np.stack([dS_l1 * -old.l1[:, None], dS_l2 * -old.l2[:, None]], axis=-1)
 
-    def _solve(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray) -> tuple[AnalyticalState, dict]:
-        """Equilibrium y2 for the new lengths; returns the state and the diagnostics."""
+    def _solve(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray,
+               resume: tuple | None = None) -> tuple[AnalyticalState, dict]:
+        """Equilibrium y2 for the new lengths; returns the state and the diagnostics.
+
+        ``resume``: (y, lo, hi, walk, iteration), the iterates of a batch's unconverged cells at the start of
+        that iteration (``_narrowed``); None: the first iteration from the old y2.
+        """
         kn, kt, mu, D, g2 = self.kn, self.kt, self.mu, self.diameter, self.g2
         law, hertz, k_scale = self.law, self.hertz, self.stiffness_scale
         h = 0.5 * l2
         half_l1 = 0.5 * l1
         alpha_old, T_old, half_d1_old = old.alpha, old.T1, 0.5 * old.d1
-        lo = np.zeros_like(l1)
-        hi = half_l1
-        y = np.minimum(old.y2, half_l1)
-        walk = None
-        for iteration in range(1, self.max_iterations + 1):
+        if resume is None:
+            y, lo, hi, walk, first = np.minimum(old.y2, half_l1), np.zeros_like(l1), half_l1, None, 1
+        else:
+            y, lo, hi, walk, first = resume
+        large = l1.size >= NARROW_FROM_CELLS
+        for iteration in range(first, self.max_iterations + 1):
             u = half_l1 - y
             d1 = np.hypot(h, u)
             c = u / d1
@@ -619,6 +636,9 @@ class AnalyticalCell:
             converged |= (u == 0.0) & (f > 0.0)
             if iteration == self.max_iterations or converged.all():
                 break
+            if large and np.count_nonzero(converged) >= max(1, l1.size // 2):
+                return self._narrowed(old, l1, l2, (y, lo, hi, walk, iteration), converged,
+                                      (d1, alpha, N1, N2, T1, u, f))
             # Converged cells keep their y (f -> 0), so a cell's result does not depend
             # on the other cells of the batch.
             f = np.where(converged, 0.0, f)
@@ -665,6 +685,28 @@ class AnalyticalCell:
             "n_unconverged": float(np.count_nonzero(np.abs(f) > self.f_tolerance) - n_limit),
             "n_alpha_limit": float(n_limit),
         }
+        return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), diagnostics
+
+    def _narrowed(self, old: AnalyticalState, l1: np.ndarray, l2: np.ndarray, iterates: tuple, done: np.ndarray,
+                  values: tuple) -> tuple[AnalyticalState, dict]:
+        """``_solve``'s result when the cells ``done`` have converged at the start of an iteration: theirs are
+        their ``values`` (d1, alpha, N1, N2, T1, u, f) at their y2 (``iterates``: y, lo, hi, walk, iteration),
+        the bits that evaluating them again at that y2 would give; the others' go on in a batch of their own
+        (``_solve``'s ``resume``, with their per-cell constants). A cell's result does not depend on its batch."""
+        keep = np.flatnonzero(~done)
+        part = copy.copy(self)
+        for name in ("kn", "kt", "mu", "f_tolerance"):
+            setattr(part, name, _cells_of(getattr(self, name), keep, l1.size))
+        part.law = PairLaw(self.law.name, _cells_of(self.law.kn, keep, l1.size), _cells_of(self.law.kt, keep, l1.size))
+        y, lo, hi, walk, iteration = iterates
+        new, diagnostics = part._solve(AnalyticalState(*(field[keep] for field in old)), l1[keep], l2[keep],
+                                       (y[keep], lo[keep], hi[keep], None if walk is None else walk[keep], iteration))
+        y, d1, alpha, N1, N2, T1, u, f = (np.array(v) for v in (y, *values))
+        for full, narrow in zip((y, d1, alpha, N1, N2, T1), (new.y2, new.d1, new.alpha, new.N1, new.N2, new.T1)):
+            full[keep] = narrow
+        n_limit = np.count_nonzero(done & (u == 0.0) & (f > self.f_tolerance))
+        diagnostics["n_unconverged"] += float(np.count_nonzero(done & (np.abs(f) > self.f_tolerance)) - n_limit)
+        diagnostics["n_alpha_limit"] += float(n_limit)
         return AnalyticalState(l1, l2, y, d1, alpha, N1, N2, T1), diagnostics
 
     def response(self, state) -> CellResponse:

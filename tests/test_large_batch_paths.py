@@ -1,10 +1,11 @@
-"""The compiled loops that large 3D batches take (the tangent average, the cells' volume) give the bits of the
-numpy expressions they replace, which stay in use below their thresholds."""
+"""The paths that large batches take (the compiled tangent average and cell volume, the closed form's equilibrium
+iteration narrowed to its unconverged cells) give the bits of the code that smaller batches run."""
 
 import numpy as np
 import pytest
 
-from homogenization.backends import make_cell_model
+from homogenization.backends import analytical, make_cell_model
+from homogenization.backends.analytical import Analytical3DCell, AnalyticalCell
 from homogenization.material import homogenised
 from homogenization.material.homogenised import HomogenisedMaterial
 from homogenization.material.orientation import orientations_3d
@@ -67,3 +68,47 @@ def test_the_compiled_volume_is_the_numpy_passes_bit_for_bit_and_the_cube_is_one
              (0, 6, 2), (1, 3, 7), (1, 7, 5)]
     np.testing.assert_allclose(polyhedron_volume(cube[None] + rng.normal(0.0, 5.0, (4, 1, 3)), np.array(faces)), 1.0,
                                rtol=1e-12)
+
+
+def _population(kind, n, rng):
+    """A closed-form backend whose n cells have their own laws and opening angles."""
+    alpha0 = rng.uniform(47.0, 62.0, n)
+    if kind == "hertz":
+        return Analytical3DCell.with_hertz_cell_laws(rng.uniform(5e9, 40e9, n), rng.uniform(0.1, 0.3, n),
+                                                      rng.uniform(15.0, 35.0, n), 0.5, alpha0_deg=alpha0)
+    cls = AnalyticalCell if kind == "planar" else Analytical3DCell
+    return cls.with_cell_laws(rng.uniform(1e7, 1e8, n), rng.uniform(0.3, 1.5, n), rng.uniform(15.0, 35.0, n), 0.5,
+                              alpha0_deg=alpha0)
+
+
+def _run(kind, threshold, monkeypatch):
+    """Compression, then shear and unloading of 400 cells with random local strains: (states' fields, tangents,
+    diagnostics, the narrowings that fired)."""
+    monkeypatch.setattr(analytical, "NARROW_FROM_CELLS", threshold)
+    fired = []
+    narrowed = AnalyticalCell._narrowed
+    monkeypatch.setattr(AnalyticalCell, "_narrowed", lambda self, *a: fired.append(1) or narrowed(self, *a))
+    rng = np.random.default_rng(11)
+    n = 400
+    model = _population(kind, n, rng)
+    state = model.touching_state(model.cell_alpha0_deg, n)
+    fields, tangents, diagnostics = [], [], []
+    for k in range(60):
+        d = np.full((n, model.dim), 2e-4) if k < 20 else rng.normal(0.0, 3e-4, (n, model.dim)) + (1e-4 if k < 45 else -2e-4)
+        state, response = model.step(state, d, with_tangent=k % 7 == 0)
+        fields.append(np.concatenate([np.concatenate(plane) for plane in model.layout.planes(state)]))
+        tangents.append(response.tangent)
+        diagnostics.append(response.diagnostics)
+    return fields, tangents, diagnostics, len(fired)
+
+
+@pytest.mark.parametrize("kind", ["planar", "spatial", "hertz"])
+def test_the_narrowed_equilibrium_iteration_gives_the_whole_batchs_bits(kind, monkeypatch):
+    whole = _run(kind, 10**9, monkeypatch)
+    narrowed = _run(kind, 1, monkeypatch)
+    assert whole[3] == 0 and narrowed[3] > 10  # the narrowing fired (and never without it)
+    for a, b in zip(whole[0], narrowed[0]):
+        assert a.tobytes() == b.tobytes()
+    for a, b in zip(whole[1], narrowed[1]):
+        assert (a is None and b is None) or a.tobytes() == b.tobytes()
+    assert whole[2] == narrowed[2]
