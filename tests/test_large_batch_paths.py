@@ -1,5 +1,6 @@
 """The paths that large batches take (the compiled tangent average and cell volume, the closed form's equilibrium
-iteration narrowed to its unconverged cells) give the bits of the code that smaller batches run."""
+iteration narrowed to its unconverged cells) give the bits of the code that smaller batches run; the compiled
+loops' tests are marked ``determinism`` (make determinism: under every CPU-feature setting of numpy and numba)."""
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.mesostructures.mesostructure import polyhedron_volume
 
 
+@pytest.mark.determinism
 @pytest.mark.parametrize("shape", [(1, 1), (2, 50), (3, 401)])
 def test_the_compiled_tangent_average_is_the_two_einsums_bit_for_bit(shape):
     """Random tangents with exact zeros, negative zeros and entries 1e16 apart (rounding shows in any other order)."""
@@ -46,6 +48,7 @@ def _loaded_tangent(monkeypatch, threshold):
     return update
 
 
+@pytest.mark.determinism
 def test_a_3d_material_gives_the_same_bits_through_the_compiled_loops(monkeypatch):
     numpy_path = _loaded_tangent(monkeypatch, 10**9)
     compiled = _loaded_tangent(monkeypatch, 1)
@@ -54,6 +57,7 @@ def test_a_3d_material_gives_the_same_bits_through_the_compiled_loops(monkeypatc
     assert np.all(np.isfinite(compiled.tangent)) and np.abs(compiled.tangent).max() > 0.0
 
 
+@pytest.mark.determinism
 def test_the_compiled_volume_is_the_numpy_passes_bit_for_bit_and_the_cube_is_one(monkeypatch):
     meso = resolve_mesostructure("hcell3d:alpha0=55")
     rng = np.random.default_rng(5)
