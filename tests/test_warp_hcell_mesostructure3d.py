@@ -9,6 +9,7 @@ from warp_hcell.mesostructures.builders import resolve_mesostructure
 from warp_hcell.mesostructures.files import describe, from_description, load_mesostructure
 from warp_hcell.mesostructures.hcell import build_h_cell_3d
 from warp_hcell.mesostructures.hcell import plain_alpha0_3d as plain_h_cell_3d_alpha0
+from warp_hcell.mesostructures import mesostructure
 from warp_hcell.mesostructures.mesostructure import MesostructureError, cell_measure, polyhedron_volume
 
 
@@ -41,9 +42,12 @@ def test_the_volume_is_the_polyhedron_through_the_ten_centres():
     assert float(cell_measure(meso.position, meso.outer)) == pytest.approx(8 * (top + slab), rel=1e-12)
 
 
-def test_a_cells_volume_is_the_same_bits_alone_and_in_a_batch_and_the_shuffled_cube_is_one():
-    """The volume is summed face by face (``polyhedron_volume_of_rows``): a cell's value does not depend on the
-    other cells of its batch; the unit cube through its 12 outward triangles has volume 1 wherever it sits."""
+@pytest.mark.parametrize("compiled_from", [10**9, 1], ids=["numpy", "compiled"])
+def test_a_cells_volume_is_the_same_bits_alone_and_in_a_batch_and_the_shuffled_cube_is_one(compiled_from, monkeypatch):
+    """The volume is summed face by face (``polyhedron_volume_of_rows``, its numpy passes or its compiled loop): a
+    cell's value does not depend on the other cells of its batch; the unit cube through its 12 outward triangles has
+    volume 1 wherever it sits."""
+    monkeypatch.setattr(mesostructure, "COMPILED_VOLUME_FROM_CELLS", compiled_from)
     meso = resolve_mesostructure("hcell3d:alpha0=55")
     rng = np.random.default_rng(3)
     batch = meso.position[None] * rng.uniform(0.8, 1.2, (37, 1, 3)) + rng.normal(0.0, 0.01, (37, 10, 3))

@@ -701,7 +701,7 @@ class AnalyticalCell:
         y, lo, hi, walk, iteration = iterates
         new, diagnostics = part._solve(AnalyticalState(*(field[keep] for field in old)), l1[keep], l2[keep],
                                        (y[keep], lo[keep], hi[keep], None if walk is None else walk[keep], iteration))
-        y, d1, alpha, N1, N2, T1, u, f = (np.array(v) for v in (y, *values))
+        d1, alpha, N1, N2, T1, u, f = values  # this iteration's arrays, written over at the cells kept
         for full, narrow in zip((y, d1, alpha, N1, N2, T1), (new.y2, new.d1, new.alpha, new.N1, new.N2, new.T1)):
             full[keep] = narrow
         n_limit = np.count_nonzero(done & (u == 0.0) & (f > self.f_tolerance))
