@@ -205,6 +205,10 @@ def test_hmodel_train_refuses_a_bad_budget_before_training(tmp_path, capsys):
                         "--rounds", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "rounds = -1 must be >= 0" in err[0] and not (tmp_path / "m.pt").exists()
+    assert hmodel.main(["train", "--data", str(tmp_path / "none.h5"), "--out", str(tmp_path / "m.pt"),
+                        "--round-target", "0.05"]) == 2  # looser than the certificate's target: no aim
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--round-target 0.05: above the certificate's target 0.02" in err[0]
 
 
 def test_hmodel_learn_refuses_an_out_below_a_file_in_one_line_before_any_work(tmp_path, capsys):

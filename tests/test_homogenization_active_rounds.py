@@ -284,3 +284,43 @@ def test_rounds_fine_tune_the_kept_model_with_their_samples_at_their_share(tiny,
     assert [(c.round_share, c.init_from) for c in seen] == [(0.3, str(model))] * 2
     kept = [active.kept_round(rounds[:k + 1]).worst for k in range(len(rounds))]
     assert all(b <= a for a, b in zip(kept, kept[1:])) and cert.worst == kept[-1]
+
+
+def test_a_round_target_keeps_the_rounds_going_after_a_pass_and_picks_the_tests_above_it(monkeypatch):
+    cert = dataclasses.replace(_certificate({"name": "a", "dp": 0.012, "dq": 0.0}, {"name": "b", "dp": 0.005, "dq": 0.0},
+                                            {"name": "c", "dp": 0.001, "dq": 0.0}), verdict="passed", passed=True)
+    monkeypatch.setattr(active, "verdict", lambda c: c.verdict)  # the figures alone decide, not the settings
+    plain, strict = ActiveSettings(), ActiveSettings(round_target=0.004)
+    assert active.aim(cert, plain) == 0.02 and active.aim(cert, strict) == 0.004
+    assert active.aim(cert, ActiveSettings(round_target=0.05)) == 0.02  # never looser than the target
+    assert not active.short_of_aim(cert, plain) and active.short_of_aim(cert, strict)
+    assert not active.short_of_aim(dataclasses.replace(cert, verdict="weak"), strict)  # below the minimum: no rounds
+    assert active.short_of_aim(dataclasses.replace(cert, verdict="failed"), plain)
+    states = {"cell_size": np.ones((4, 2)), "position": np.zeros((4, 6, 2)), "shear_force": np.zeros((4, 9)),
+              "cell": np.arange(4)}
+    assert active.failing_states(cert, {n: dict(states) for n in "abc"})[1] == []  # none above the target
+    picked, names = active.failing_states(cert, {n: dict(states) for n in "abc"}, threshold=active.aim(cert, strict))
+    assert names == ["a", "b"] and picked["cell"].shape[0] == 8
+    spread = _certificate({"name": "a", "dp": 0.006, "dq": 0.0, "dem_spread": 0.007})
+    assert active.unresolvable_line(spread) is None  # nothing above the target
+    assert "the aim 0.5 % is finer" in active.unresolvable_line(spread, 0.005)
+    with pytest.raises(ValueError):
+        ActiveSettings(round_target=0.0)
+
+
+def test_rounds_go_on_past_a_passed_certificate_until_the_round_target(tiny, monkeypatch, capsys):  # noqa: F811
+    """The reduced pipeline with the certificate's own target (2 %) read as the minimum's verdict: round 1 passes
+    it and the rounds stop; asked again with a stricter round target the same run continues with round 2,
+    probing the tests above that aim, while the certificate's target and verdict stay those of 2 %."""
+    db, model = tiny
+    monkeypatch.setattr(active, "verdict", lambda c: "passed" if c.worst <= c.target else "failed")
+    measured = CertificateSettings(**SHORT)
+    settings = ActiveSettings(rounds=3, samples_per_round=3000, stall_rounds=3, widen=False)
+    rounds, cert = active.learn(db, model, TRAIN_CONFIG, settings=settings, certify_settings=measured)
+    assert [r.round for r in rounds] == [0, 1] and cert.worst <= 0.02 < rounds[0].worst
+    strict = dataclasses.replace(settings, round_target=cert.worst / 10)
+    rounds, after = active.learn(db, model, TRAIN_CONFIG, settings=strict, certify_settings=measured)
+    assert [r.round for r in rounds] == [0, 1, 2, 3]  # the budget, not the pass, ended them
+    assert after.target == 0.02 and after.worst <= cert.worst
+    assert rounds[2].tests and all(cert.test(name).figure > strict.round_target for name in rounds[2].tests)
+    assert "active round 2: +3000 samples" in capsys.readouterr().out

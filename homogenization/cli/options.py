@@ -263,6 +263,10 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
                         help="size budget of the database file [MB]: a round adds only the samples that fit")
     parser.add_argument("--stall-rounds", type=positive_int, default=budget.stall_rounds,
                         help="rounds in a row without progress after which the rounds stop with a diagnosis")
+    parser.add_argument("--round-target", type=positive_float, default=None, metavar="F",
+                        help="the rounds go on until the worst test is within this fraction of its scale, stricter "
+                             f"than the certificate's target {measured.target:g} (whose verdict is unchanged); "
+                             "default: that target")
     parser.add_argument("--departure-margin", type=float, default=budget.departure_margin,
                         help="fraction of a failing test's increments before its point of departure whose "
                              "DEM states are probed with those after it (1: every state of the test)")
@@ -306,11 +310,16 @@ def add_certificate_equilibrium_arguments(parser: argparse.ArgumentParser) -> No
 
 def active_settings(args: argparse.Namespace) -> ActiveSettings:
     """The ``ActiveSettings`` of the flags of ``add_active_arguments`` (UserError, one line, if invalid)."""
+    target = CertificateSettings().target
+    if args.round_target is not None and args.round_target > target:
+        raise UserError(f"--round-target {args.round_target:g}: above the certificate's target {target:g}; "
+                        f"give a stricter aim or leave it out")
     try:
         return ActiveSettings(rounds=args.rounds, samples_per_round=args.samples_per_round,
                               max_samples=args.max_samples, max_seconds=args.max_seconds,
                               warm_start=args.warm_start, widen=args.widen, max_database_mb=args.max_database_mb,
-                              stall_rounds=args.stall_rounds, departure_margin=args.departure_margin)
+                              stall_rounds=args.stall_rounds, departure_margin=args.departure_margin,
+                              round_target=args.round_target)
     except ValueError as exc:
         raise UserError(str(exc)) from None
 

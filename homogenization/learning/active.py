@@ -28,7 +28,9 @@ tests not followed, those followed further, or a lower worst) stop the loop with
 certificate whose every failing test misses the DEM by no more than the DEM started from rest does (its
 ``dem_spread``: the target is finer than the reference resolves there, ``unresolvable_line``).
 Every round is printed (samples added,
-certificate worst, seconds) and stored in the model's JSON under ``active_learning``.
+certificate worst, seconds) and stored in the model's JSON under ``active_learning``. With
+``ActiveSettings.round_target`` the rounds go on past a pass while the worst test is above that stricter aim
+(``short_of_aim``), probing the tests above it; the certificate's verdict stays that of its own target.
 
 Layering: this module joins ``training`` and the DEM of ``warp_hcell``; neither imports it.
 Sign convention: compression and contraction positive; local frame index 0 = n, 1 = t.
@@ -84,15 +86,27 @@ MIN_ROUND_SAMPLES = 1000
 (a round costs a training and a certificate whatever it adds)."""
 
 
-def failing_states(cert: Certificate, dem_states: Mapping[str, Mapping[str, np.ndarray]], margin: float = 1.0
-                   ) -> tuple[dict[str, np.ndarray], list[str]]:
-    """The DEM states of the certificate's failing tests (max(dp, dq) > target), concatenated, and
-    those tests' names. Of a test that records its ``departure`` (the increment where the ANN
+def aim(cert: Certificate, settings: ActiveSettings) -> float:
+    """The worst figure the rounds aim at [-]: the certificate's target, or ``settings.round_target`` where stricter."""
+    return cert.target if settings.round_target is None else min(cert.target, settings.round_target)
+
+
+def short_of_aim(cert: Certificate, settings: ActiveSettings) -> bool:
+    """Whether rounds may still help ``cert``: it failed, or it passed with its worst above ``aim`` (a weak
+    certificate, below the minimum, is no matter of samples)."""
+    return verdict(cert) == "failed" or (verdict(cert) == "passed" and cert.worst > aim(cert, settings))
+
+
+def failing_states(cert: Certificate, dem_states: Mapping[str, Mapping[str, np.ndarray]], margin: float = 1.0,
+                   threshold: float | None = None) -> tuple[dict[str, np.ndarray], list[str]]:
+    """The DEM states of the certificate's failing tests (max(dp, dq) > ``threshold``; None: the
+    certificate's target), concatenated, and those tests' names. Of a test that records its ``departure`` (the increment where the ANN
     left the DEM, ``certificate.certify``; a test it could not follow included), only the states
     from ``departure - margin x n_increments`` on (``ActiveSettings.departure_margin``). States:
     ``cell_size`` (n, dim) [m], ``position`` (n, n_grains, dim) [m], ``shear_force`` (n, n_pairs)
     [N] (3D: (n, n_pairs, 3)), ``cell`` (n,) int64 (one id per test and orientation)."""
-    tests = [t for t in cert.tests if t.figure > cert.target and t.name in dem_states]
+    threshold = cert.target if threshold is None else threshold
+    tests = [t for t in cert.tests if t.figure > threshold and t.name in dem_states]
     if not tests:
         return {}, []
     keys = ("cell_size", "position", "shear_force", "cell")
@@ -170,17 +184,18 @@ def stall_line(rounds: Sequence[Round], cert: Certificate, db: Path, margin: flo
             f"{', '.join(widths) or '?'}; database {_mb(db):.1f} MB")
 
 
-def unresolvable_line(cert: Certificate) -> str | None:
-    """One line when no round can help: every test that misses the target is off the DEM by no more than the
-    DEM started from rest in every increment is (the test's ``dem_spread``, ``certificate.certify``), so the
-    target is finer than the reference resolves there; None otherwise (or where a test records no spread)."""
-    failing = [t for t in cert.tests if t.figure > cert.target]
+def unresolvable_line(cert: Certificate, threshold: float | None = None) -> str | None:
+    """One line when no round can help: every test above ``threshold`` (None: the target) is off the DEM by no more
+    than the DEM started from rest in every increment is (the test's ``dem_spread``, ``certificate.certify``), so
+    that aim is finer than the reference resolves there; None otherwise (or where a test records no spread)."""
+    threshold = cert.target if threshold is None else threshold
+    failing = [t for t in cert.tests if t.figure > threshold]
     if not failing or any(t.dem_spread is None or not t.figure <= t.dem_spread for t in failing):
         return None
     figures = "; ".join(f"{t.name} {100 * t.figure:.3f} % against {100 * t.dem_spread:.3f} %" for t in failing)
     return (f"active learning stops: every failing test is off the DEM by no more than the DEM started from rest is "
-            f"({figures}): the target {100 * cert.target:.3g} % is finer than the reference resolves there, "
-            f"and no round of samples can close that; the certificate stays failed")
+            f"({figures}): the aim {100 * threshold:.3g} % is finer than the reference resolves there, "
+            f"and no round of samples can close that; the certificate stays {verdict(cert)}")
 
 
 def _figure(entry: Round) -> str:
@@ -436,9 +451,9 @@ def _done(cert: Certificate | None, model: Path, db: Path, measured: Certificate
           rounds: Sequence[Round], stored: Sequence[Mapping[str, Any]], dim: int) -> bool:
     """Whether a run recorded in the model's JSON already finished (nothing left to do on resume)."""
     return (_current(cert, model, measured, dim) and bool(rounds) and rounds[-1].round == len(stored)
-            and (verdict(cert) != "failed" or len(stored) >= settings.rounds
+            and (not short_of_aim(cert, settings) or len(stored) >= settings.rounds
                  or sum(r["samples"] for r in stored) >= settings.max_samples or stalled(rounds, settings)
-                 or unresolvable_line(cert) is not None
+                 or unresolvable_line(cert, aim(cert, settings)) is not None
                  or budget_room(db, settings.max_database_mb)[0] < min(settings.samples_per_round, MIN_ROUND_SAMPLES)))
 
 
@@ -451,7 +466,7 @@ def _stop_line(k: int, loop: _Loop, db: Path, settings: ActiveSettings, added_to
                 f"{added_total}/{settings.max_samples}, {elapsed:.0f}/{settings.max_seconds:g} s)")
     if stalled(loop.rounds, settings):
         return stall_line(loop.rounds, loop.latest, db, settings.departure_margin)
-    return unresolvable_line(loop.cert)
+    return unresolvable_line(loop.cert, aim(loop.cert, settings))
 
 
 def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSettings = ActiveSettings(),
@@ -500,14 +515,14 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
                stored[-1], log)
     meso = from_description(str(_attrs(db)["mesostructure"]))
     added_total = sum(r["samples"] for r in stored)
-    while loop.cert.verdict == "failed":  # a weak certificate (below the minimum) is no matter of samples
+    while short_of_aim(loop.cert, settings):
         k = len(stored) + 1
         stop = _stop_line(k, loop, db, settings, added_total, time.perf_counter() - start)
         if stop is not None:
             log(stop)
             break
         t0 = time.perf_counter()
-        picked, names = failing_states(loop.cert, loop.states, settings.departure_margin)
+        picked, names = failing_states(loop.cert, loop.states, settings.departure_margin, aim(loop.cert, settings))
         if not names:
             log("active learning stops: the failing tests left no DEM states (the DEM did not run them)")
             break

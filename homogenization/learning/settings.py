@@ -140,6 +140,10 @@ class ActiveSettings:
     max_database_mb: float = 300.0
     """Size budget of the database file [MB, 1e6 bytes]: a round adds only the samples that fit
     (at the file's own bytes per sample) and none once it is spent."""
+    round_target: float | None = None
+    """Worst figure the rounds aim at [-]: they go on while the kept certificate fails or, passed, is
+    worst above this fraction of its scale (a stricter aim than the certificate's target; the verdict is
+    still the target's). None: the certificate's target."""
 
     def __post_init__(self) -> None:
         for name in ("rounds", "samples_per_round", "max_samples", "state_every", "stall_rounds"):
@@ -149,5 +153,7 @@ class ActiveSettings:
         for name in ("max_seconds", "max_database_mb"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} = {getattr(self, name):g} must be > 0")
+        if self.round_target is not None and not self.round_target > 0.0:
+            raise ValueError(f"round_target = {self.round_target:g} must be > 0")
         if not 0.0 <= self.departure_margin <= 1.0:
             raise ValueError(f"departure_margin = {self.departure_margin:g} must lie in [0, 1]")
