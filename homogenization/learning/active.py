@@ -100,8 +100,9 @@ def short_of_aim(cert: Certificate, settings: ActiveSettings) -> bool:
 def failing_states(cert: Certificate, dem_states: Mapping[str, Mapping[str, np.ndarray]], margin: float = 1.0,
                    threshold: float | None = None) -> tuple[dict[str, np.ndarray], list[str]]:
     """The DEM states of the certificate's failing tests (max(dp, dq) > ``threshold``; None: the
-    certificate's target), concatenated, and those tests' names. Of a test that records its ``departure`` (the increment where the ANN
-    left the DEM, ``certificate.certify``; a test it could not follow included), only the states
+    certificate's target), concatenated, and those tests' names. Of a test that records its
+    ``departure`` (the increment where the ANN left the DEM, ``certificate.certify``; a test it
+    could not follow included), only the states
     from ``departure - margin x n_increments`` on (``ActiveSettings.departure_margin``). States:
     ``cell_size`` (n, dim) [m], ``position`` (n, n_grains, dim) [m], ``shear_force`` (n, n_pairs)
     [N] (3D: (n, n_pairs, 3)), ``cell`` (n,) int64 (one id per test and orientation)."""
