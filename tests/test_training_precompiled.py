@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from other_cpus import planar_loaded
+from other_cpus import planar_loaded, spatial_loaded
 from training import precompiled
 from training.inference import FastAdvance, FastIncrement
 
@@ -210,3 +210,20 @@ def test_a_run_records_which_code_ran_its_planar_step(tmp_path, monkeypatch, lay
         assert record["path"] == "precompiled" and (record["loader"] == "mapped") == MAPPED, record
     else:
         assert record["path"] == "numba" and "layout" in record["reason"]
+
+
+def test_the_spatial_step_precompiled_gives_numbas_bits(tmp_path, monkeypatch):
+    """The spatial fused step (``training.fast_step3d.step3d``) is built, keyed apart from the planar one and gives
+    numba's bits."""
+    cell, state, d = spatial_loaded()
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(precompiled, "_LOADED", {})
+    built = FastAdvance(cell.net)
+    first = _run(built, state, d)
+    assert built.step_path == "precompiled", built.precompiled_reason
+    assert len(list((tmp_path / "precompiled").glob("step-*.bin"))) == 1
+    args = (np.zeros((3, 2)), 1.0)
+    assert precompiled.step_key(args, "training.fast_step3d:step3d")[0] != precompiled.step_key(args)[0]
+    numba_path = FastAdvance(cell.net, precompiled=False)
+    _assert_same(first, _run(numba_path, state, d))
+    assert numba_path.step_path == "numba"

@@ -45,6 +45,40 @@ def free_displacement(out, m_in, unbalanced, scaling, law):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def release_pair(x_i, x_j, reach, held_i, held_j, square):
+    """The rest rule's test of one pair in every cell: where grain i or j is held (held_i, held_j (n,)) and
+    the centres x_i, x_j (dim, n) [m] are within ``reach`` [m], both are released (set False). Returns
+    whether some cell released one; ``square`` (n,) is scratch. Passes over rows, so that they vectorise,
+    and no square root: sqrt(s) <= reach exactly where s <= ``sqrt_bound(reach)``."""
+    bound = sqrt_bound(reach)
+    square[:] = 0.0
+    for a in range(x_i.shape[0]):
+        row_i, row_j = x_i[a], x_j[a]
+        for c in range(square.shape[0]):
+            b = row_j[c] - row_i[c]
+            square[c] += b * b
+    released = False
+    for c in range(square.shape[0]):
+        hit = (held_i[c] | held_j[c]) & (square[c] <= bound)
+        held_i[c] = held_i[c] & (not hit)
+        held_j[c] = held_j[c] & (not hit)
+        released |= hit
+    return released
+
+
+@numba.njit(cache=True, error_model="numpy")
+def sqrt_bound(reach):
+    """The largest float64 s with math.sqrt(s) <= reach (reach >= 0): the correctly rounded square root is
+    monotone, so sqrt(s) <= reach exactly where s <= this bound."""
+    bound = reach * reach
+    while math.sqrt(bound) > reach:
+        bound = np.nextafter(bound, 0.0)
+    while math.sqrt(np.nextafter(bound, np.inf)) <= reach:
+        bound = np.nextafter(bound, np.inf)
+    return bound
+
+
+@numba.njit(cache=True, error_model="numpy")
 def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, new_free, n_held, held_dof):
     """The new cell size and free positions with the rest rule; returns the new grain centres (n_grains, dim, n).
 
@@ -83,6 +117,7 @@ def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, n
         n_held[:] = 0
     else:
         held = np.zeros((n_grains, n), dtype=np.bool_)
+        square = np.empty(n)
         for k in range(n_free):
             held_g, touched_g = held[free_dofs[k, 0]], touched[free_dofs[k, 0]]
             for c in range(n):
@@ -95,17 +130,7 @@ def hold_at_rest(size, free, d_eps, d_free, old_contact, cells, tol, new_size, n
             for p in range(pairs.shape[0]):
                 i = pairs[p, 0]
                 j = pairs[p, 1]
-                reach = (radius[i] + radius[j]) * (1.0 + tol)
-                for c in range(n):
-                    if held[i, c] or held[j, c]:
-                        square = 0.0
-                        for a in range(dim):
-                            b = x[j, a, c] - x[i, a, c]
-                            square += b * b
-                        if math.sqrt(square) <= reach:
-                            held[i, c] = False
-                            held[j, c] = False
-                            released = True
+                released |= release_pair(x[i], x[j], (radius[i] + radius[j]) * (1.0 + tol), held[i], held[j], square)
             if not released:
                 break
             for k in range(n_free):
@@ -149,6 +174,19 @@ def subtract_outer(moment, c, force, branch):
     for a in range(len(force)):
         for e in range(len(branch)):
             moment[a, e, c] -= force[a] * branch[e]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def subtract_outer_rows(moment, force, branch):
+    """moment[a, e] -= force[a] * branch[e] for every cell: one pair's forces on grain i (dim, n) [N] and
+    branches x_j - x_i (dim, n) [m] into the compression-positive moment (dim, dim, n) [N m]. A pass of its own
+    after the pair's pass over the cells, which then vectorises (the nine writes in it would need too many
+    alias checks); each moment entry takes the pairs in the same order, so no bit changes."""
+    for a in range(moment.shape[0]):
+        for e in range(moment.shape[1]):
+            row, force_a, branch_e = moment[a, e], force[a], branch[e]
+            for c in range(row.shape[0]):
+                row[c] -= force_a[c] * branch_e[c]
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -25,8 +25,9 @@ import numpy as np
 
 from training.fast_cells import carried_spring3, grain_positions, normal_force
 from training.fast_features import load_fractions
-from training.fast_increment import (free_displacement, hold_at_rest, moment_flags, open_far_pair, start_pass,
-                                     subtract_outer)
+from training.fast_increment import (branch_counts, free_displacement, hold_at_rest, moment_flags, open_far_pair,
+                                     start_pass, subtract_outer_rows)
+from training.perceptron import forward_layers
 from warp_hcell.core.contact import CAP_SLACK
 
 PAIR_WIDTH = 9
@@ -45,6 +46,13 @@ def any_within3(b0, b1, b2, reach):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _difference(a, b, out):
+    """out = a - b, rows (n,) [m]: a loop that vectorises."""
+    for c in range(out.shape[0]):
+        out[c] = a[c] - b[c]
+
+
+@numba.njit(cache=True, error_model="numpy")
 def pair_branch3(x, pairs, radius, tol, p, b0, b1, b2):
     """Pair p = (i, j) at the grain centres x (n_grains, 3, n) [m]: writes its branch x_j - x_i into
     b0, b1, b2 (n,) [m] and returns (i, j, r_i + r_j [m], reach (r_i + r_j)(1 + tol) [m], whether some
@@ -53,10 +61,9 @@ def pair_branch3(x, pairs, radius, tol, p, b0, b1, b2):
     j = pairs[p, 1]
     rsum = radius[i] + radius[j]
     reach = rsum * (1.0 + tol)
-    for c in range(b0.shape[0]):
-        b0[c] = x[j, 0, c] - x[i, 0, c]
-        b1[c] = x[j, 1, c] - x[i, 1, c]
-        b2[c] = x[j, 2, c] - x[i, 2, c]
+    _difference(x[j, 0], x[i, 0], b0)
+    _difference(x[j, 1], x[i, 1], b1)
+    _difference(x[j, 2], x[i, 2], b2)
     return i, j, rsum, reach, any_within3(b0, b1, b2, reach)
 
 
@@ -195,6 +202,26 @@ def pair_force3(b0, b1, b2, ob0, ob1, ob2, stuck, s0, s1, s2, rsum, reach, kn, k
 
 
 @numba.njit(cache=True, error_model="numpy")
+def pair_pass3(branch, old_branch, stuck, spring, old_fn, rsum, reach, kn, kt, mu, slack, new_spring, force,
+               capped_any, opened_any):
+    """``pair_force3`` of one pair in every cell: branch, old_branch, spring (3, n) and stuck, old_fn (n,) at the
+    start; writes new_spring and the force on grain i, force (3, n) [N], and raises the flags capped_any, opened_any
+    (n,). Rows of one pair, in a function of their own: the loop vectorises."""
+    for c in range(branch.shape[1]):
+        touching, fn, u0, u1, u2, f0, f1, f2, trial, cap = pair_force3(
+            branch[0, c], branch[1, c], branch[2, c], old_branch[0, c], old_branch[1, c], old_branch[2, c], stuck[c],
+            spring[0, c], spring[1, c], spring[2, c], rsum, reach, kn, kt, mu, slack)
+        new_spring[0, c] = f0
+        new_spring[1, c] = f1
+        new_spring[2, c] = f2
+        capped_any[c] |= touching and trial > cap
+        opened_any[c] |= old_fn[c] > 0.0 and fn == 0.0
+        force[0, c] = -fn * u0 + f0
+        force[1, c] = -fn * u1 + f1
+        force[2, c] = -fn * u2 + f2
+
+
+@numba.njit(cache=True, error_model="numpy")
 def contact_pass3(x, shear, before, cells, law, new_shear, capped_any, opened_any):
     """The spatial contact law at the new grain centres x (n_grains, 3, n): writes new_shear (n_pairs, 3,
     n) and the flags capped_any, opened_any (n,); returns the compression-positive moment (3, 3, n) [N m]."""
@@ -203,25 +230,16 @@ def contact_pass3(x, shear, before, cells, law, new_shear, capped_any, opened_an
     kn, kt, mu, tol = law.kn, law.kt, law.mu, law.tol
     old_branch, old_contact, old_fn = before.old_branch, before.old_contact, before.old_fn
     moment = start_pass(x, capped_any, opened_any)
-    b = np.empty((3, n))
+    b, force = np.empty((3, n)), np.empty((3, n))
     slack = 1.0 + CAP_SLACK
     for p in range(pairs.shape[0]):
         _, _, rsum, reach, near = pair_branch3(x, pairs, radius, tol, p, b[0], b[1], b[2])
         if not near:
             open_far_pair(p, old_fn, new_shear, opened_any)
             continue
-        for c in range(n):
-            b0, b1, b2 = b[0, c], b[1, c], b[2, c]
-            touching, fn, u0, u1, u2, f0, f1, f2, trial, cap = pair_force3(
-                b0, b1, b2, old_branch[p, 0, c], old_branch[p, 1, c], old_branch[p, 2, c], old_contact[p, c],
-                shear[p, 0, c], shear[p, 1, c], shear[p, 2, c], rsum, reach, kn, kt, mu, slack)
-            new_shear[p, 0, c] = f0
-            new_shear[p, 1, c] = f1
-            new_shear[p, 2, c] = f2
-            capped_any[c] |= touching and trial > cap
-            opened_any[c] |= old_fn[p, c] > 0.0 and fn == 0.0
-            g0, g1, g2 = -fn * u0 + f0, -fn * u1 + f1, -fn * u2 + f2
-            subtract_outer(moment, c, (-fn * u0 + f0, -fn * u1 + f1, -fn * u2 + f2), (b0, b1, b2))
+        pair_pass3(b, old_branch[p], old_contact[p], shear[p], old_fn[p], rsum, reach, kn, kt, mu, slack, new_shear[p],
+                   force, capped_any, opened_any)
+        subtract_outer_rows(moment, force, b)
     return moment
 
 
@@ -260,3 +278,15 @@ def physics3d(size, free, shear, d_eps, d_free, cells, law, before, result):
     moment = contact_pass3(x, shear, before, cells, law, result.new_shear, result.capped, result.opened)
     volume_and_flags(x, moment, before.m, cells.outer, law.ramp, result.area, result.mechanism, result.ramped,
                      result.moment)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def step3d(size, free, shear, d_eps, cells, law, scaling, weights, biases, before, layers, result, counts):
+    """One whole spatial increment in one call, as ``training.fast_increment.step`` for planar cells:
+    ``features3d`` into ``before``, the perceptron (``training.perceptron.forward_layers``) into ``layers``,
+    ``advance3d`` on ``layers[-1]`` into ``result`` and ``branch_counts`` into ``counts``; the same operations
+    as these calls apart."""
+    features3d(size, free, shear, d_eps, cells, law, scaling, before)
+    forward_layers(weights, biases, before.feats, layers)
+    advance3d(size, free, shear, d_eps, layers[-1], cells, law, scaling, before, result)
+    branch_counts(result, counts)

@@ -2,7 +2,7 @@
 
 NamedTuples of numpy arrays and floats, so that the numba kernels (``training.fast_cells``,
 ``training.fast_features``, ``training.fast_increment``, ``training.fast_step3d``) and the precompiled
-planar step (``training.precompiled``) take them whole; importing this module imports no numba.
+step (``training.precompiled``) take them whole; importing this module imports no numba.
 Every array is cells LAST (one cell a vector lane, nothing reduced across cells). Sign convention:
 compression and contraction positive; local frame index 0 = n, 1 = t.
 """

@@ -145,7 +145,8 @@ class Kernels:
             Newton steps: ``training.fast_equilibrium3d.hold_guess3d``, ``newton3d``) and the contact law
             after them (``training.fast_step3d.physics3d``), or None where the cells take none.
         balance_tangent: the tangent of a corrected increment (``fast_equilibrium3d.balance_tangent3d``), or None.
-        step: features, perceptron, advance and branch counts in one call (``training.fast_increment.step``), or None.
+        step: features, perceptron, advance and branch counts in one call (``training.fast_increment.step``,
+            ``training.fast_step3d.step3d``), or None.
         padded_features: whether ``features`` takes the features' scratch with more columns than cells
             (``Perceptron.padded_buffers``: the first layer then runs whole vectors too).
     """
@@ -166,7 +167,7 @@ KERNELS = {
     2: Kernels("training.fast_features:features", f"{_PLANAR}:advance", "training.fast_tangent:moment_tangent", None,
                None, None, step=f"{_PLANAR}:step", padded_features=True),
     3: Kernels(f"{_STEP3D}:features3d", f"{_STEP3D}:advance3d", None, f"{_SPATIAL}:hold_guess3d",
-               f"{_SPATIAL}:newton3d", f"{_STEP3D}:physics3d", f"{_SPATIAL}:balance_tangent3d"),
+               f"{_SPATIAL}:newton3d", f"{_STEP3D}:physics3d", f"{_SPATIAL}:balance_tangent3d", step=f"{_STEP3D}:step3d"),
 }
 """The compiled kernels of a cell by its dimension (a planar run imports none of the spatial ones, nor the reverse)."""
 
@@ -254,7 +255,7 @@ class FastAdvance:
         halvings, shift: the most line-search halvings of a Newton step (0: full steps) and the first
             shift of a climbing step's matrix, a fraction of kn (None: ``fast_equilibrium3d``'s).
         compact: corrections in ``COMPACT_ROUNDS`` on the cells still above tolerance (same bits as False).
-        precompiled: the planar step through ``training.precompiled`` (same bits as False); ``step_path``:
+        precompiled: the fused step through ``training.precompiled`` (same bits as False); ``step_path``:
             "precompiled" (loaded by ``precompiled_loader``) or "numba" (why: ``precompiled_reason``)."""
 
     GUESSES = ("network", "still", "affine")
@@ -490,7 +491,7 @@ class FastAdvance:
         """The fused step for ``args`` (its types serve every later call): precompiled where ``precompiled`` and it
         loads or builds (``training.precompiled.PrecompiledStep``), else numba's entry point; sets ``step_path``."""
         if self._precompiled:
-            step = PrecompiledStep(args)
+            step = PrecompiledStep(args, kernel=KERNELS[self.dim].step)
             self.precompiled_reason, self.precompiled_loader = step.reason, step.loader
             if step.built:
                 _freeze_numba_setup(True)

@@ -3,7 +3,7 @@
 ``Perceptron`` holds a tanh multilayer perceptron of ``training.network.MesoNet`` and evaluates it (and its
 forward-mode derivative) with the compiled kernels of ``training.perceptron``, whose arithmetic does not depend
 on the batch or the CPU's vector width; those kernels (numba) are imported on the first evaluation, so that a
-process whose planar step is precompiled (``training.precompiled``) imports no numba.
+process whose step is precompiled (``training.precompiled``) imports no numba.
 """
 
 from __future__ import annotations

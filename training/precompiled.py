@@ -1,4 +1,5 @@
-"""The planar meso-ANN step (``training.fast_increment.step``) as machine code that a process loads without numba.
+"""The fused meso-ANN step (``training.fast_increment.step``, ``training.fast_step3d.step3d``) as machine code that a
+process loads without numba.
 
 A process that runs this step alone then pays neither numba's import nor its set-up at the first compiled call.
 ``PrecompiledStep`` compiles, once per machine, a C-callable wrapper (``numba.cfunc``) of the fused step for the
@@ -40,7 +41,7 @@ from typing import Any
 import numpy as np
 
 _SOURCES = ("training/fast_increment.py", "training/fast_features.py", "training/fast_cells.py",
-            "training/perceptron.py", "training/fast_tables.py", "training/precompiled.py",
+            "training/fast_step3d.py", "training/perceptron.py", "training/fast_tables.py", "training/precompiled.py",
             "warp_hcell/core/contact.py")
 """The files whose text enters ``step_key`` (the step's kernels, their records and this wrapper)."""
 
@@ -71,10 +72,15 @@ def _structure(value: Any) -> Any:
     raise TypeError(f"the precompiled step takes arrays, floats and tuples, not {type(value).__name__}")
 
 
-def step_key(args: tuple) -> tuple[str, dict]:
+PLANAR_STEP = "training.fast_increment:step"
+"""The planar fused step, ``PrecompiledStep``'s default kernel (the spatial one: ``training.fast_step3d:step3d``)."""
+
+
+def step_key(args: tuple, kernel: str = PLANAR_STEP) -> tuple[str, dict]:
     """(sha256 hex digest, the fields hashed) of the object that serves ``args`` (``FastAdvance``'s fused-step
-    arguments) on this machine."""
+    arguments) with ``kernel`` ("module:name") on this machine."""
     fields = {
+        "kernel": kernel,
         "structure": _structure(args),
         **_machine(),
         "numba_env": {k: v for k, v in sorted(os.environ.items())
@@ -163,15 +169,16 @@ def _wrapper_source(structure: list) -> str:
     return "def wrapper(root, offsets):\n" + "\n".join(lines) + f"\n    step(*{call})\n"
 
 
-def _build(args: tuple) -> tuple[str, bytes, list[str]]:
-    """Compile the wrapper of ``step`` for ``args`` with numba: (its symbol, its object code, the symbols it
-    leaves to the loader)."""
+def _build(args: tuple, kernel: str) -> tuple[str, bytes, list[str]]:
+    """Compile the wrapper of ``kernel`` ("module:name") for ``args`` with numba: (its symbol, its object code, the
+    symbols it leaves to the loader)."""
     import numba  # noqa: PLC0415
     from llvmlite import ir  # noqa: PLC0415
     from numba import types  # noqa: PLC0415
     from numba.extending import intrinsic  # noqa: PLC0415
 
-    from training.fast_increment import step  # noqa: PLC0415
+    module, name = kernel.split(":")
+    step = getattr(importlib.import_module(module), name)
 
     def loader(result):
         def typer(typingctx, address):
@@ -448,7 +455,7 @@ def _offsets_agree() -> bool:
 
 
 class PrecompiledStep:
-    """``training.fast_increment.step`` for one argument structure, loaded from ``cache_dir`` or built there.
+    """A fused step (``kernel``) for one argument structure, loaded from ``cache_dir`` or built there.
 
     Call it with the argument tuple of ``step`` (the same types as ``args``, arrays C-contiguous): it runs the
     step in place, as numba's kernel does. ``available`` is False where it could not be built or loaded
@@ -458,9 +465,10 @@ class PrecompiledStep:
     Args:
         args: the arguments of a first call (``FastAdvance``'s fused step), for their types.
         build: compile and store the object where no cache file serves (False: only load).
+        kernel: the step, "module:name": ``PLANAR_STEP`` or ``training.fast_step3d:step3d``.
     """
 
-    def __init__(self, args: tuple, *, build: bool = True) -> None:
+    def __init__(self, args: tuple, *, build: bool = True, kernel: str = PLANAR_STEP) -> None:
         self.available, self.built, self.reason, self.loader = False, False, "", ""
         self._function = None
         if not _offsets_agree():
@@ -468,12 +476,12 @@ class PrecompiledStep:
             return
         try:
             with _LOCK:
-                key, _ = step_key(args)
+                key, _ = step_key(args, kernel)
                 if key not in _LOADED:
                     path = cache_dir() / f"step-{key}.bin"
                     stored = self._read(path)
                     if stored is None and build:
-                        stored = _build(args)
+                        stored = _build(args, kernel)
                         self.built = True
                         self._write(path, *stored)
                     if stored is None:

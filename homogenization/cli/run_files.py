@@ -199,7 +199,7 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
     sha256, its certificate (worst figure, certified, the problem where not: of the file, or of the
     run's cells, ``AnnCell.certificate_problem``; a model run with equilibrium corrections records
     their number and tolerance, and no certificate of the network alone covers it), its
-    out-of-distribution counts (cell-increments checked and outside the threshold) and, where its planar
+    out-of-distribution counts (cell-increments checked and outside the threshold) and, where its fused
     step ran compiled, which code ran it (``compiled_step``: "precompiled" with its loader, or "numba" with the reason)."""
     record: dict[str, Any] = {}
     if hasattr(model, "settings"):
@@ -222,7 +222,7 @@ def provenance_of(name: str, model: Any, options: dict[str, Any]) -> dict[str, A
             record["ann_model"]["ood"] = {"checked": int(model.ood_counts[1]), "outside": int(model.ood_counts[0]),
                                           "threshold": model.ood.threshold}
         path = getattr(getattr(model, "fast", None), "step_path", None)
-        if path is not None:  # the planar fused step ran: precompiled (training.precompiled) or numba's fallback
+        if path is not None:  # the fused step ran: precompiled (training.precompiled) or numba's fallback
             record["ann_model"]["compiled_step"] = {"path": path, **({"reason": model.fast.precompiled_reason}
                                                                      if path == "numba" else
                                                                      {"loader": model.fast.precompiled_loader})}
