@@ -51,12 +51,18 @@ def release_pair(x_i, x_j, reach, held_i, held_j, square):
     whether some cell released one; ``square`` (n,) is scratch. Passes over rows, so that they vectorise,
     and no square root: sqrt(s) <= reach exactly where s <= ``sqrt_bound(reach)``."""
     bound = sqrt_bound(reach)
-    square[:] = 0.0
-    for a in range(x_i.shape[0]):
-        row_i, row_j = x_i[a], x_j[a]
+    if x_i.shape[0] == 3:  # one pass (0.0 + b0^2 + b1^2 + b2^2 in this order, as the passes below)
+        i0, i1, i2, j0, j1, j2 = x_i[0], x_i[1], x_i[2], x_j[0], x_j[1], x_j[2]
         for c in range(square.shape[0]):
-            b = row_j[c] - row_i[c]
-            square[c] += b * b
+            b0, b1, b2 = j0[c] - i0[c], j1[c] - i1[c], j2[c] - i2[c]
+            square[c] = b0 * b0 + b1 * b1 + b2 * b2
+    else:
+        square[:] = 0.0
+        for a in range(x_i.shape[0]):
+            row_i, row_j = x_i[a], x_j[a]
+            for c in range(square.shape[0]):
+                b = row_j[c] - row_i[c]
+                square[c] += b * b
     released = False
     for c in range(square.shape[0]):
         hit = (held_i[c] | held_j[c]) & (square[c] <= bound)
@@ -161,10 +167,12 @@ def start_pass(x, capped_any, opened_any):
 def open_far_pair(p, old_fn, new_shear, opened_any):
     """Pair p, within reach of no cell: its springs new_shear[p] (n,) or (3, n) [N] are reset, and a
     cell where the pair carried a normal force old_fn[p] (n,) [N] is flagged in opened_any (n,)."""
-    new_shear[p] = 0.0
+    springs = new_shear[p].reshape(-1)
+    for k in range(springs.shape[0]):  # a loop, not a slice's fill: it vectorises
+        springs[k] = 0.0
     old_fn_p = old_fn[p]
     for c in range(old_fn_p.shape[0]):
-        opened_any[c] |= old_fn_p[c] > 0.0
+        opened_any[c] = opened_any[c] | (old_fn_p[c] > 0.0)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")

@@ -39,10 +39,27 @@ def any_within3(b0, b1, b2, reach):
     """Whether some cell's branch (b0, b1, b2) (n,) each may be within ``reach`` [m]; the margin (1e-9
     of reach) covers the rounding of the square-root-free test (``fast_cells.any_within``)."""
     bound = (reach * (1.0 + 1e-9)) ** 2
-    near = False
+    within = 0  # a count, not a flag: the loop then vectorises
     for c in range(b0.shape[0]):
-        near |= b0[c] * b0[c] + b1[c] * b1[c] + b2[c] * b2[c] <= bound
-    return near
+        within += b0[c] * b0[c] + b1[c] * b1[c] + b2[c] * b2[c] <= bound
+    return within > 0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def pair_near3(x, pairs, radius, tol, p):
+    """``pair_branch3``'s (r_i + r_j [m], reach [m], whether some cell may be within reach) of pair p, the
+    branches not stored (``any_within3``'s test on x_j - x_i, computed on the fly)."""
+    i = pairs[p, 0]
+    j = pairs[p, 1]
+    rsum = radius[i] + radius[j]
+    reach = rsum * (1.0 + tol)
+    bound = (reach * (1.0 + 1e-9)) ** 2
+    i0, i1, i2, j0, j1, j2 = x[i, 0], x[i, 1], x[i, 2], x[j, 0], x[j, 1], x[j, 2]
+    within = 0
+    for c in range(i0.shape[0]):
+        b0, b1, b2 = j0[c] - i0[c], j1[c] - i1[c], j2[c] - i2[c]
+        within += b0 * b0 + b1 * b1 + b2 * b2 <= bound
+    return rsum, reach, within > 0
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -75,6 +92,42 @@ def _zscore(row, values, mean, inv_std):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def unit_branch(b, dist, u):
+    """The length dist (n,) [m] and the unit vector u (3, n) of the branches b (3, n) [m] (one pass: it vectorises)."""
+    for c in range(dist.shape[0]):
+        d = math.sqrt(b[0, c] * b[0, c] + b[1, c] * b[1, c] + b[2, c] * b[2, c])
+        dist[c] = d
+        u[0, c] = b[0, c] / d
+        u[1, c] = b[1, c] / d
+        u[2, c] = b[2, c] / d
+
+
+@numba.njit(cache=True, error_model="numpy")
+def pair_features(dist, contact, u, fs, fn, rsum, diameter, gap_clip, force_scale, mu, rows, mean, inv_std):
+    """The ``PAIR_WIDTH`` z-scored features of one active pair into rows (PAIR_WIDTH, n) float32 (``features3d``'s
+    order), from its branch length dist and unit vector u (3, n), contact flag, spring fs (3, n) [N] and normal
+    force fn [N]; each a value in float64, z-scored with ``mean`` and ``inv_std`` (PAIR_WIDTH,), then cast, in
+    one pass per feature."""
+    n = dist.shape[0]
+    row, m, s = rows[0], mean[0], inv_std[0]
+    for c in range(n):
+        row[c] = (max((rsum - dist[c]) / diameter, -gap_clip) - m) * s
+    row, m, s = rows[1], mean[1], inv_std[1]
+    for c in range(n):
+        row[c] = ((1.0 if contact[c] else 0.0) - m) * s
+    for a in range(3):
+        _zscore(rows[2 + a], u[a], mean[2 + a], inv_std[2 + a])
+    for a in range(3):
+        row, m, s, fs_a = rows[5 + a], mean[5 + a], inv_std[5 + a], fs[a]
+        for c in range(n):
+            row[c] = (fs_a[c] / force_scale - m) * s
+    row, m, s = rows[8], mean[8], inv_std[8]
+    for c in range(n):
+        size_c = math.sqrt(fs[0, c] * fs[0, c] + fs[1, c] * fs[1, c] + fs[2, c] * fs[2, c])
+        row[c] = ((size_c / (mu * fn[c]) if fn[c] > 0 else 0.0) - m) * s
+
+
+@numba.njit(cache=True, error_model="numpy")
 def features3d(size, free, shear, d_eps, cells, law, scaling, before):
     """Z-scored features, norm(d_eps), unbalanced forces and contacts of every spatial cell before its increment.
 
@@ -103,24 +156,23 @@ def features3d(size, free, shear, d_eps, cells, law, scaling, before):
         if not near:
             contact[:] = False
             fn[:] = 0.0
-            fs[:, :] = 0.0
             if slot < 0:
                 continue
-        for c in range(n):
-            dist[c] = math.sqrt(b[0, c] * b[0, c] + b[1, c] * b[1, c] + b[2, c] * b[2, c])
-        for a in range(3):
-            u_a, b_a = u[a], b[a]
-            for c in range(n):
-                u_a[c] = b_a[c] / dist[c]
+            fs[:, :] = 0.0
+        unit_branch(b, dist, u)
         if near:
             for c in range(n):
                 touching = dist[c] <= reach
                 contact[c] = touching
                 fn[c] = normal_force(rsum - dist[c], kn) if touching else 0.0
+            shear_p = shear[p]
+            for c in range(n):
+                stuck = contact[c]
+                fs[0, c] = shear_p[0, c] if stuck else 0.0
+                fs[1, c] = shear_p[1, c] if stuck else 0.0
+                fs[2, c] = shear_p[2, c] if stuck else 0.0
             for a in range(3):
-                fs_a, shear_a, u_a = fs[a], shear[p, a], u[a]
-                for c in range(n):
-                    fs_a[c] = shear_a[c] if contact[c] else 0.0
+                fs_a, u_a = fs[a], u[a]
                 for k in (free_slot[i, a], free_slot[j, a]):
                     if k >= 0:
                         net_k, sign = unbalanced[k], 1.0 if k == free_slot[i, a] else -1.0
@@ -129,23 +181,8 @@ def features3d(size, free, shear, d_eps, cells, law, scaling, before):
         if slot < 0:
             continue
         k = base + PAIR_WIDTH * slot
-        for c in range(n):
-            value[c] = max((rsum - dist[c]) / diameter, -gap_clip)
-        _zscore(feats[k], value, feature_mean[k], inv_std[k])
-        for c in range(n):
-            value[c] = 1.0 if contact[c] else 0.0
-        _zscore(feats[k + 1], value, feature_mean[k + 1], inv_std[k + 1])
-        for a in range(3):
-            _zscore(feats[k + 2 + a], u[a], feature_mean[k + 2 + a], inv_std[k + 2 + a])
-        for a in range(3):
-            fs_a = fs[a]
-            for c in range(n):
-                value[c] = fs_a[c] / force_scale
-            _zscore(feats[k + 5 + a], value, feature_mean[k + 5 + a], inv_std[k + 5 + a])
-        for c in range(n):
-            size_c = math.sqrt(fs[0, c] * fs[0, c] + fs[1, c] * fs[1, c] + fs[2, c] * fs[2, c])
-            value[c] = size_c / (mu * fn[c]) if fn[c] > 0 else 0.0
-        _zscore(feats[k + 8], value, feature_mean[k + 8], inv_std[k + 8])
+        pair_features(dist, contact, u, fs, fn, rsum, diameter, gap_clip, force_scale, mu, feats[k:k + PAIR_WIDTH],
+                      feature_mean[k:k + PAIR_WIDTH], inv_std[k:k + PAIR_WIDTH])
     load_fractions(old_fn, active_slot, base, PAIR_WIDTH, feats, feature_mean, inv_std)
     for k in range(n_free):
         free_k, size_a = free[k], size[free_dofs[k, 1]]
@@ -233,10 +270,11 @@ def contact_pass3(x, shear, before, cells, law, new_shear, capped_any, opened_an
     b, force = np.empty((3, n)), np.empty((3, n))
     slack = 1.0 + CAP_SLACK
     for p in range(pairs.shape[0]):
-        _, _, rsum, reach, near = pair_branch3(x, pairs, radius, tol, p, b[0], b[1], b[2])
+        rsum, reach, near = pair_near3(x, pairs, radius, tol, p)
         if not near:
             open_far_pair(p, old_fn, new_shear, opened_any)
             continue
+        pair_branch3(x, pairs, radius, tol, p, b[0], b[1], b[2])
         pair_pass3(b, old_branch[p], old_contact[p], shear[p], old_fn[p], rsum, reach, kn, kt, mu, slack, new_shear[p],
                    force, capped_any, opened_any)
         subtract_outer_rows(moment, force, b)
