@@ -61,7 +61,7 @@ def test_the_shipped_model_is_within_the_target_of_the_short_certificate_which_i
         "constant-volume compression p0=200000",
         "drained compression p0=200000", "drained extension p0=200000", "constant-volume reversal p0=200000"]
     figures = np.array([[t.dp, t.dq] for t in cert.tests])
-    assert np.all(figures > 0) and np.all(figures < 0.01)  # measured 0.09-0.39 % against the DEM
+    assert np.all(figures > 0) and np.all(figures < 0.01)  # measured 0.03-0.39 % against the DEM
     assert cert.within_target and cert.worst == figures.max()
     assert not cert.passed and cert.verdict == "weak" and len(cert.below_minimum) == 4
     assert cert.below_minimum[:2] == ["pressures 200000 (minimum: 200000, 1e+06)", "eps_max 0.02 (minimum 0.1)"]
