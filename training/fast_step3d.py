@@ -35,10 +35,16 @@ PAIR_WIDTH = 9
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _within_bound(reach):
+    """The squared length [m^2] under which a branch may be within ``reach`` [m]: a margin of 1e-9 of reach covers
+    the rounding of the square-root-free test (``fast_cells.any_within``)."""
+    return (reach * (1.0 + 1e-9)) ** 2
+
+
+@numba.njit(cache=True, error_model="numpy")
 def any_within3(b0, b1, b2, reach):
-    """Whether some cell's branch (b0, b1, b2) (n,) each may be within ``reach`` [m]; the margin (1e-9
-    of reach) covers the rounding of the square-root-free test (``fast_cells.any_within``)."""
-    bound = (reach * (1.0 + 1e-9)) ** 2
+    """Whether some cell's branch (b0, b1, b2) (n,) each may be within ``reach`` [m] (``_within_bound``)."""
+    bound = _within_bound(reach)
     within = 0  # a count, not a flag: the loop then vectorises
     for c in range(b0.shape[0]):
         within += b0[c] * b0[c] + b1[c] * b1[c] + b2[c] * b2[c] <= bound
@@ -46,20 +52,26 @@ def any_within3(b0, b1, b2, reach):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def pair_near3(x, pairs, radius, tol, p):
-    """``pair_branch3``'s (r_i + r_j [m], reach [m], whether some cell may be within reach) of pair p, the
-    branches not stored (``any_within3``'s test on x_j - x_i, computed on the fly)."""
+def _pair_reach(pairs, radius, tol, p):
+    """(i, j, r_i + r_j [m], reach (r_i + r_j)(1 + tol) [m]) of pair p."""
     i = pairs[p, 0]
     j = pairs[p, 1]
     rsum = radius[i] + radius[j]
-    reach = rsum * (1.0 + tol)
-    bound = (reach * (1.0 + 1e-9)) ** 2
+    return i, j, rsum, rsum * (1.0 + tol)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def pair_near3(x, pairs, radius, tol, p):
+    """``pair_branch3``'s (i, j, r_i + r_j [m], reach [m], whether some cell may be within reach) of pair p, the
+    branches not stored (``any_within3``'s test on x_j - x_i, computed on the fly)."""
+    i, j, rsum, reach = _pair_reach(pairs, radius, tol, p)
+    bound = _within_bound(reach)
     i0, i1, i2, j0, j1, j2 = x[i, 0], x[i, 1], x[i, 2], x[j, 0], x[j, 1], x[j, 2]
     within = 0
     for c in range(i0.shape[0]):
         b0, b1, b2 = j0[c] - i0[c], j1[c] - i1[c], j2[c] - i2[c]
         within += b0 * b0 + b1 * b1 + b2 * b2 <= bound
-    return rsum, reach, within > 0
+    return i, j, rsum, reach, within > 0
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -70,17 +82,20 @@ def _difference(a, b, out):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def store_branch3(x, i, j, b0, b1, b2):
+    """The branch x_j - x_i of grains i, j at the centres x (n_grains, 3, n) [m] into b0, b1, b2 (n,) [m]."""
+    _difference(x[j, 0], x[i, 0], b0)
+    _difference(x[j, 1], x[i, 1], b1)
+    _difference(x[j, 2], x[i, 2], b2)
+
+
+@numba.njit(cache=True, error_model="numpy")
 def pair_branch3(x, pairs, radius, tol, p, b0, b1, b2):
     """Pair p = (i, j) at the grain centres x (n_grains, 3, n) [m]: writes its branch x_j - x_i into
     b0, b1, b2 (n,) [m] and returns (i, j, r_i + r_j [m], reach (r_i + r_j)(1 + tol) [m], whether some
     cell may be within reach)."""
-    i = pairs[p, 0]
-    j = pairs[p, 1]
-    rsum = radius[i] + radius[j]
-    reach = rsum * (1.0 + tol)
-    _difference(x[j, 0], x[i, 0], b0)
-    _difference(x[j, 1], x[i, 1], b1)
-    _difference(x[j, 2], x[i, 2], b2)
+    i, j, rsum, reach = _pair_reach(pairs, radius, tol, p)
+    store_branch3(x, i, j, b0, b1, b2)
     return i, j, rsum, reach, any_within3(b0, b1, b2, reach)
 
 
@@ -270,11 +285,11 @@ def contact_pass3(x, shear, before, cells, law, new_shear, capped_any, opened_an
     b, force = np.empty((3, n)), np.empty((3, n))
     slack = 1.0 + CAP_SLACK
     for p in range(pairs.shape[0]):
-        rsum, reach, near = pair_near3(x, pairs, radius, tol, p)
+        i, j, rsum, reach, near = pair_near3(x, pairs, radius, tol, p)
         if not near:
             open_far_pair(p, old_fn, new_shear, opened_any)
             continue
-        pair_branch3(x, pairs, radius, tol, p, b[0], b[1], b[2])
+        store_branch3(x, i, j, b[0], b[1], b[2])
         pair_pass3(b, old_branch[p], old_contact[p], shear[p], old_fn[p], rsum, reach, kn, kt, mu, slack, new_shear[p],
                    force, capped_any, opened_any)
         subtract_outer_rows(moment, force, b)
