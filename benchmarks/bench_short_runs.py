@@ -1,4 +1,4 @@
-"""python benchmarks/bench_short_runs.py [--repeats 3] [--increment 1e-4] [--eps-max 0.03] [--cpu N] [--cold] [--startup] [--gc]: whole-process cost of short ANN runs.
+"""python benchmarks/bench_short_runs.py [--repeats 3] [--increment 1e-4] [--eps-max 0.03] [--cpu N] [--cold] [--startup] [--gc] [--steps]: whole-process cost of short ANN runs.
 
 Runs, as whole processes (``python -m homogenization.hmodel ...``, start-up, imports, model and
 certificate loading, compilation or cache loading, the run and its output all counted), a
@@ -23,6 +23,11 @@ path the step took and which loader loaded it. Not the CLI: the phases of the ru
 
 ``--cpu N``: every process runs on CPU N alone (``os.sched_setaffinity``; Linux), which narrows the spread of
 single processes on a shared machine.
+
+``--steps``: instead, where the two backends' time differs inside the tests' processes (``STEPS``, ``--repeats``
+processes per backend): the cell model's steps (median milliseconds per call, their sum) against the whole run,
+and the ANN's compiled parts timed alone on the state of its middle increment (features, perceptron, advance:
+the physics after the network; best of 5 x 20 calls): how much of a step no network could remove.
 
 ``--gc``: instead, the planar test's two commands (``--repeats`` pairs) with the garbage collector's
 collections counted by generation, and the seconds they took (``gc.callbacks``), beside each process's
@@ -106,6 +111,98 @@ print(f"numba imported: {'numba' in sys.modules}, llvmlite imported: {'llvmlite'
 """
 
 
+STEPS = r"""
+import json, runpy, statistics, sys, time
+import homogenization.backends as backends
+calls, captured, make = [], {}, backends.make_cell_model
+def timing(model, *args, **kwargs):
+    model = make(model, *args, **kwargs)
+    step = model.step
+    def timed_step(*a, **k):
+        start = time.perf_counter()
+        try:
+            return step(*a, **k)
+        finally:
+            calls.append(time.perf_counter() - start)
+    model.step = timed_step
+    fast = getattr(model, "fast", None)
+    if fast is not None:
+        increment = fast.increment
+        def kept(*a, **k):  # the arguments of the middle step's increment (its copy: one step's median unmoved)
+            if len(calls) == MIDDLE:
+                captured["args"] = tuple(x.copy() for x in a[:4])
+            return increment(*a, **k)
+        fast.increment = kept
+        captured["fast"] = fast
+    return model
+backends.make_cell_model = timing
+MIDDLE = int(sys.argv[1])
+sys.argv = ["hmodel", *sys.argv[2:]]
+start = time.perf_counter()
+try:
+    runpy.run_module("homogenization.hmodel", run_name="__main__")
+except SystemExit as exc:
+    if exc.code:
+        raise
+row = {"run_s": time.perf_counter() - start, "steps": len(calls), "step_ms": 1e3 * statistics.median(calls),
+       "steps_s": sum(calls)}
+if captured:
+    from training.inference import _cells_last
+    fast, (size, free, shear, d_eps) = captured["fast"], captured["args"]
+    size, free, shear, d_eps = _cells_last(size), _cells_last(free), _cells_last(shear), d_eps
+    work, result = fast._workspace(d_eps.shape[0]), fast._result(d_eps.shape[0])
+    parts = {"features": lambda: fast._features(size, free, shear, d_eps, fast.cells, fast.law, fast.scaling,
+                                                work.before),
+             "perceptron": lambda: fast._forward(fast.perceptron.weight, fast.perceptron.bias, work.before.feats,
+                                                 work.layers),
+             "advance": lambda: fast._advance(size, free, shear, d_eps, work.layers[-1], fast.cells, fast.law,
+                                              fast.scaling, work.before, result)}
+    for name, call in parts.items():
+        call()
+        best = []
+        for _ in range(5):
+            start = time.perf_counter()
+            for _ in range(20):
+                call()
+            best.append((time.perf_counter() - start) / 20)
+        row[name + "_ms"] = 1e3 * min(best)
+print(json.dumps(row))
+"""
+
+
+def steps(args, out: Path) -> None:
+    """Per test, ``args.repeats`` processes of each backend under ``STEPS``: the cell model's step (median ms per
+    call), the sum of its calls against the whole run, and for the ANN its compiled parts alone; then the ratio of
+    the steps and what the ANN's features and advance alone cost against the closed form's whole step."""
+    env = child_environment()
+    middle = str(round(args.eps_max / args.increment) // 2)
+    for test, argv in commands(args, out).items():
+        print(f"== {test}", flush=True)
+        rows = {}
+        for backend in ("ann", "analytical"):
+            timed(argv[backend], env)  # warm-up, as in the timed pairs
+        for k in range(args.repeats):
+            for backend in ("ann", "analytical"):
+                done = subprocess.run([sys.executable, "-c", STEPS, middle, *argv[backend][3:]], cwd=ROOT, env=env,
+                                      capture_output=True, text=True, check=True)
+                row = json.loads(done.stdout.strip().splitlines()[-1])
+                rows.setdefault(backend, []).append(row)
+                print(f"process {k + 1}, {backend}: " + ", ".join(f"{key} {value:.3f}" if isinstance(value, float)
+                                                                 else f"{key} {value}" for key, value in row.items()),
+                      flush=True)
+        median = {backend: {key: statistics.median(r[key] for r in rs) for key in rs[0]}
+                  for backend, rs in rows.items()}
+        ann, closed = median["ann"], median["analytical"]
+        physics = ann["features_ms"] + ann["advance_ms"]
+        print(f"{test}: medians of {args.repeats}: step ANN {ann['step_ms']:.3f} ms, closed form "
+              f"{closed['step_ms']:.3f} ms (ratio {ann['step_ms'] / closed['step_ms']:.2f}); steps "
+              f"{ann['steps_s']:.2f} s of a {ann['run_s']:.2f}-s "
+              f"run against {closed['steps_s']:.2f} of {closed['run_s']:.2f} s; ANN parts alone: features "
+              f"{ann['features_ms']:.3f}, perceptron {ann['perceptron_ms']:.3f}, advance {ann['advance_ms']:.3f} ms; "
+              f"features + advance (no network) {physics:.3f} ms = {physics / closed['step_ms']:.2f} of the closed "
+              f"form's step", flush=True)
+
+
 GC_WATCH = r"""
 import atexit, gc, json, runpy, sys, time
 stats, start = {0: [0, 0.0], 1: [0, 0.0], 2: [0, 0.0]}, [0.0]
@@ -166,6 +263,8 @@ def main() -> None:
     parser.add_argument("--cold", action="store_true", help="ANN runs with an empty NUMBA_CACHE_DIR each time")
     parser.add_argument("--startup", action="store_true", help="only the CPU time of a planar ANN process by phase")
     parser.add_argument("--gc", action="store_true", help="only the planar test's garbage collections, both backends")
+    parser.add_argument("--steps", action="store_true",
+                        help="only the steps' time inside the processes, and the ANN's compiled parts alone")
     parser.add_argument("--cpu", type=int, default=None,
                         help="run every process on this CPU alone (Linux; less spread between processes)")
     args = parser.parse_args()
@@ -181,6 +280,10 @@ def main() -> None:
         return
     with tempfile.TemporaryDirectory() as scratch:
         out = Path(scratch)
+        if args.steps:
+            steps(args, out)
+            print(f"load average after: {os.getloadavg()}", flush=True)
+            return
         if args.gc:
             gc_counts(args, out)
             print(f"load average after: {os.getloadavg()}", flush=True)
