@@ -146,7 +146,7 @@ except SystemExit as exc:
         raise
 row = {"run_s": time.perf_counter() - start, "steps": len(calls), "step_ms": 1e3 * statistics.median(calls),
        "steps_s": sum(calls)}
-if captured:
+if "args" in captured:
     from training.inference import _cells_last
     fast, (size, free, shear, d_eps) = captured["fast"], captured["args"]
     size, free, shear, d_eps = _cells_last(size), _cells_last(free), _cells_last(shear), d_eps
@@ -193,6 +193,8 @@ def steps(args, out: Path) -> None:
         median = {backend: {key: statistics.median(r[key] for r in rs) for key in rs[0]}
                   for backend, rs in rows.items()}
         ann, closed = median["ann"], median["analytical"]
+        if "features_ms" not in ann:
+            raise SystemExit(f"{test}: the ANN took no compiled step at its middle increment (increment {middle})")
         physics = ann["features_ms"] + ann["advance_ms"]
         print(f"{test}: medians of {args.repeats}: step ANN {ann['step_ms']:.3f} ms, closed form "
               f"{closed['step_ms']:.3f} ms (ratio {ann['step_ms'] / closed['step_ms']:.2f}); steps "
