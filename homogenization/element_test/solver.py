@@ -133,10 +133,6 @@ class StressControl:
         self.jumps = np.zeros(points.n, dtype=np.int64)
         """Per point, the increments whose solution took the nearer side of a response jump (``Solved.jump``)."""
 
-    def with_policy(self, **changes: object) -> StressControl:
-        """This solver with some of its policy's fields changed."""
-        return StressControl(self.points, replace(self.policy, **changes))
-
     def _linear(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """x of a x = b per point (a (n, k, k), b (n, k)); None where LAPACK finds a singular a."""
         if self.policy.cramer:

@@ -195,10 +195,6 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         n = self.basis.N
         return x[n:n + len(COMPONENTS) * self.n_v].reshape(len(COMPONENTS), self.n_v)
 
-    def multiplier_of(self, x: np.ndarray) -> np.ndarray:
-        """lambda_ij per element [N/m] of the unknowns x, shape (4, n_elements)."""
-        return x[self.basis.N + len(COMPONENTS) * self.n_v:].reshape(len(COMPONENTS), self.n_l)
-
     def seed(self, isotropic_seed: float) -> np.ndarray:
         guess = super().seed(isotropic_seed)
         v = self.gradient_of(guess)
@@ -209,10 +205,6 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         guess = super().axial_guess(x, strain)
         self.gradient_of(guess)[3] -= strain
         return guess
-
-    def element_size(self) -> float:
-        """Largest element side [m]."""
-        return max(self.width / self.nx, self.height / self.ny)
 
 
 BAND_WIDTH_PER_LENGTH = 27.0

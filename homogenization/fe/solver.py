@@ -158,7 +158,6 @@ class BiaxialSpecimen:
         self.x_dofs, self.y_dofs = self.basis.split_indices()
         """Displacement DOFs along x and along y (vertices and, for higher-order elements, the others)."""
         xd, yd = self.basis.doflocs[0], self.basis.doflocs[1]
-        self.top_nodes = np.flatnonzero(np.isclose(y, height))
         self.left_dofs = self.x_dofs[np.isclose(xd[self.x_dofs], 0.0)]
         self.right_dofs = self.x_dofs[np.isclose(xd[self.x_dofs], width)]
         bottom = np.flatnonzero(np.isclose(y, 0.0))

@@ -228,11 +228,6 @@ class HertzMindlinLaw:
         """Friction coefficient tan(phi_g) [-]."""
         return math.tan(math.radians(self.phi_g_deg))
 
-    def stiffness_at(self, overlap: float, reduced_radius: float) -> float:
-        """Normal tangent stiffness dN/d(delta) = (3/2) normal_modulus sqrt(R* delta) [N/m] at ``overlap``
-        [m] of a pair of reduced radius R* [m]."""
-        return 1.5 * self.normal_modulus * math.sqrt(reduced_radius * overlap)
-
     def to_dict(self) -> dict[str, float | str]:
         """The law as file formats store it: {"law": name, field: value, ...}."""
         return {"law": self.name, **asdict(self)}

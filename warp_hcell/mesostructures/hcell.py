@@ -27,8 +27,7 @@ Exports:
 - Closed forms of the symmetric H-cell (spec sections 2, 3, 7), vectorised over cells
   (arrays of shape (n_cells,) or scalars that broadcast): ``lengths``,
   ``branches_from_alpha``, ``cell_area``, ``grain_positions``, ``love_weber_moment``,
-  ``closed_form_observables``, ``touching_cells``; the analytical backend models exactly
-  this cell with them.
+  ``touching_cells``; the analytical backend models exactly this cell with them.
 
 Sign convention: compression positive (contact forces N1, N2 > 0 push grains apart, the
 Love-Weber moment of a compressed cell is positive); T1 > 0 resists opening (alpha growing).
@@ -492,56 +491,6 @@ def love_weber_moment(
         moment[:, 0, 0] = 4.0 * axial * (N1 * c + T1 * s) + 2.0 * N2 * d2 + normal(diameter - l1) * l1
         moment[:, 1, 1] = 2.0 * l2 * (N1 * s - T1 * c) + 2.0 * normal(diameter - l2) * l2
     return moment, cell_area(l1, l2, d2)
-
-
-def closed_form_observables(
-    l1: np.ndarray,
-    l2: np.ndarray,
-    d1: np.ndarray,
-    d2: np.ndarray,
-    alpha: np.ndarray,
-    N1: np.ndarray,
-    N2: np.ndarray,
-    T1: np.ndarray,
-    moment: np.ndarray,
-    area: np.ndarray,
-) -> dict[str, np.ndarray]:
-    """The H-cell observables of the cell-model protocol, each shape (n_cells,).
-
-    Args:
-        l1, l2: axial and lateral cell lengths [m].
-        d1, d2: type-1 and type-2 branch lengths [m].
-        alpha: opening angle [rad].
-        N1, N2, T1: contact forces [N], compression positive, T1 > 0 resists opening.
-        moment: Love-Weber moment [N m], shape (n_cells, 2, 2), local frame (n, t).
-        area: V_cell [m^2].
-
-    Returns:
-        ``l1, l2, d1, d2`` [m], ``alpha_deg`` [deg], ``N1, N2, T1`` [N], ``S_nn, S_tt``
-        [N m], ``area`` [m^2], ``closed1, closed2`` (bool: the contact carries a normal
-        force) and grain centres ``x_n{i}, x_t{i}`` [m] for labels i = 1..6 (cell centre at
-        the origin).
-    """
-    out = {
-        "l1": l1,
-        "l2": l2,
-        "d1": d1,
-        "d2": d2,
-        "alpha_deg": np.degrees(alpha),
-        "N1": N1,
-        "N2": N2,
-        "T1": T1,
-        "S_nn": moment[:, 0, 0],
-        "S_tt": moment[:, 1, 1],
-        "area": area,
-        "closed1": N1 > 0.0,
-        "closed2": N2 > 0.0,
-    }
-    positions = grain_positions(l1, l2, 0.5 * d2)
-    for i in range(N_GRAINS):
-        out[f"x_n{i + 1}"] = positions[:, i, 0]
-        out[f"x_t{i + 1}"] = positions[:, i, 1]
-    return out
 
 
 def touching_cells(alpha0_deg: float | np.ndarray, n_cells: int, diameter: float) -> tuple[np.ndarray, ...]:
