@@ -239,3 +239,43 @@ def test_backend_without_tangent_is_refused_before_any_step(tmp_path, capsys, mo
     assert cli(TINY + ["--length", "0.2", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert "returns no consistent tangent" in err and err.count("\n") == 1, err
+
+
+def test_the_linear_solver_counts_are_reported_per_step_in_the_status_line_and_run_h5(tmp_path, capsys):
+    """The second-gradient solver's factorisations, pivoting fallbacks and GMRES iterations: per step in run.h5's
+    history, summed in the status line; none for a first-gradient run."""
+    out = tmp_path / "run"
+    assert cli(TINY + ["--length", "0.2", "--imperfection", "0.2", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    with h5py.File(out / "run.h5") as f:
+        counts = {name: f["history"][name][()] for name in ("factorisations", "pivoted_factorisations",
+                                                           "krylov_iterations")}
+    assert all(c.shape == (15,) and np.all(c >= 0) for c in counts.values())
+    assert counts["factorisations"].sum() >= 1 and counts["krylov_iterations"].sum() >= 1
+    assert (f"second-gradient solves: {int(counts['factorisations'].sum())} LU factorisations "
+            f"({int(counts['pivoted_factorisations'].sum())} redone with pivoting), "
+            f"{int(counts['krylov_iterations'].sum())} GMRES iterations") in printed
+    plain = tmp_path / "plain"
+    assert cli(TINY + ["--out", str(plain)]) == 0
+    assert "second-gradient solves" not in capsys.readouterr().out
+    with h5py.File(plain / "run.h5") as f:
+        assert "factorisations" not in f["history"]
+
+
+def test_a_pivot_free_factorisation_that_falls_short_is_counted_as_a_fallback(monkeypatch):
+    """Where GMRES fails on the pivot-free factors, the step pivots and counts it: here every factorisation."""
+    from homogenization.fe import second_gradient  # noqa: PLC0415
+
+    gmres = second_gradient.spla.gmres
+
+    def failing_after_factorisation(*args, **kwargs):
+        x, info = gmres(*args, **kwargs)
+        return x, (1 if "callback" not in kwargs else info)  # the solve right after a fresh pivot-free factorisation
+
+    monkeypatch.setattr(second_gradient.spla, "gmres", failing_after_factorisation)
+    specimen = SecondGradientSpecimen(2, 4, length=0.2, modulus=4e7)
+    results = specimen.run(material_for(specimen), programme(4), scale=P0)
+    per_step = {name: sum(r.diagnostics[name] for r in results)
+                for name in ("factorisations", "pivoted_factorisations")}
+    assert per_step["factorisations"] >= 1
+    assert per_step["pivoted_factorisations"] == per_step["factorisations"] == specimen.pivoted_factorisations

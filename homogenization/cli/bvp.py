@@ -158,6 +158,17 @@ def _tangent_note(results: Sequence[fe.StepResult]) -> str:
     return f"; tangents computed {computed}, reused {int(sum(r.diagnostics.get('tangents_reused', 0) for r in results))}"
 
 
+def _solver_note(results: Sequence[fe.StepResult]) -> str:
+    """"; second-gradient solves: N LU factorisations (M redone with pivoting), K GMRES iterations" (the
+    specimen's ``solver_counts``, per step in ``fe.StepResult.diagnostics``); "" for a first-gradient run."""
+    if not results or "pivoted_factorisations" not in results[0].diagnostics:
+        return ""
+    total = {name: int(sum(r.diagnostics[name] for r in results))
+             for name in ("factorisations", "pivoted_factorisations", "krylov_iterations")}
+    return (f"; second-gradient solves: {total['factorisations']} LU factorisations ({total['pivoted_factorisations']} "
+            f"redone with pivoting), {total['krylov_iterations']} GMRES iterations")
+
+
 def weak_elements(specimen: fe.BiaxialSpecimen) -> np.ndarray:
     """Elements touching the middle of the left face (0, H/2) or whose centre lies within W/4 of it.
 
@@ -314,7 +325,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{updates * material.n_cells / elapsed:.3g} cell-steps/s); "
         f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}; "
         f"corrections halved (residual grew): {int(sum(r.diagnostics.get('line_search_halvings', 0) for r in results))}"
-        + _tangent_note(results))
+        + _tangent_note(results) + _solver_note(results))
     if reference is not None and not weak.any():
         table = fe_output.curve_table(results)
         shear = np.flatnonzero(table["stage"] == "shear")

@@ -49,6 +49,11 @@ FORMAT = "hmodel-bvp/1"
 CURVE_COLUMNS = ("stage", "eps11", "eps22", "sigma11", "sigma22", "sigma12", "p", "q", "iterations")
 """Columns of curve.csv, in order."""
 SIGN_CONVENTION = "compression and contraction positive (displacements: FE sign, along +x / +y)"
+SOLVER_COUNTS = {"factorisations": "sparse LU factorisations of the second-gradient Newton corrections",
+                 "pivoted_factorisations": "factorisations redone with partial pivoting (the pivot-free factors "
+                                           "fell short)",
+                 "krylov_iterations": "preconditioned GMRES iterations of the second-gradient Newton corrections"}
+"""Per-step counts of the second-gradient specimen's linear solver (``solver_counts``) written to run.h5's history."""
 
 
 def curve_table(results: Sequence[StepResult]) -> dict[str, np.ndarray]:
@@ -122,6 +127,10 @@ def write_h5(path: Path, specimen: BiaxialSpecimen, results: Sequence[StepResult
         hist["residuals"] = residuals
         hist["line_search_halvings"] = np.array([r.diagnostics.get("line_search_halvings", 0.0) for r in results])
         hist["line_search_halvings"].attrs["description"] = "Newton corrections halved because the residual grew"
+        for name, description in SOLVER_COUNTS.items():
+            if name in results[0].diagnostics:
+                hist[name] = np.array([r.diagnostics[name] for r in results])
+                hist[name].attrs["description"] = description
         hist["residuals"].attrs["description"] = "out-of-balance force norm [N/m] before each Newton iteration"
         fields = f.create_group("fields")
         fields["displacement"] = np.stack([r.displacement for r in results])

@@ -145,7 +145,7 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         refactorised when GMRES needs more than ``MAX_KRYLOV`` iterations (or the fixed DOFs change). The residual
         stays exact, so the converged solution is that of the exact multiplier; the Jacobian's
         perturbation, of relative order E_ref / beta, only slows the final iterations. Counts:
-        ``factorisations``, ``krylov_iterations``."""
+        ``solver_counts``."""
         n = K_r.shape[0] - self._areas.size
         C = K_r[n:, :n]
         beta_over_area = self.penalty / self._areas
@@ -183,6 +183,12 @@ class SecondGradientSpecimen(BiaxialSpecimen):
         d_uv = np.zeros(n)
         d_uv[free] = d_free
         return np.concatenate([d_uv, beta_over_area * (C @ d_uv + residual[n:])])
+
+    def solver_counts(self) -> dict[str, int]:
+        """``factorisations``, ``pivoted_factorisations`` (the pivot-free factors fell short: a fallback) and
+        ``krylov_iterations`` so far."""
+        return {"factorisations": self.factorisations, "pivoted_factorisations": self.pivoted_factorisations,
+                "krylov_iterations": self.krylov_iterations}
 
     def residual_weights(self, scale: float) -> np.ndarray:
         """1 for the displacement rows [N]; 1 / W for the v rows [N m]; scale / W for the lambda rows [m^2]."""

@@ -263,6 +263,11 @@ class BiaxialSpecimen:
         """Called at the start of each load step's Newton iterations; ``fresh``: the run starts
         here or the step index is a multiple of the refresh interval (here nothing)."""
 
+    def solver_counts(self) -> dict[str, int]:
+        """The linear solver's counters so far, name -> count (here none); ``solve_step`` reports each step's
+        increase of every one among its diagnostics."""
+        return {}
+
     def newton_correction(self, K_r: sp.csr_matrix, residual: np.ndarray, fixed: np.ndarray) -> np.ndarray:
         """Correction of the reduced unknowns: K_r da = -residual with da = 0 at ``fixed`` (sparse LU)."""
         return solve(*condense(K_r, -residual, x=np.zeros(K_r.shape[0]), D=fixed))
@@ -294,8 +299,9 @@ class BiaxialSpecimen:
         each costing an iteration); the count is the diagnostic ``line_search_halvings``. Where the
         material ``defers_tangent``, an update computes its tangent only when a correction needs it
         (not for the converged iterate, nor a halving; with ``reuse_tangent`` only where the kept
-        stiffness stopped contracting); the counts are ``tangents`` and ``tangents_reused``. Where
-        ``fresh``, the kept stiffness is dropped (a resumed run repeats the arithmetic).
+        stiffness stopped contracting); the counts are ``tangents`` and ``tangents_reused``. The step's
+        increase of each of ``solver_counts`` is a diagnostic of that name. Where ``fresh``, the kept stiffness is
+        dropped (a resumed run repeats the arithmetic).
 
         Returns (x, material update, internal force vector, iterations, residual norms, diagnostics).
         """
@@ -316,6 +322,7 @@ class BiaxialSpecimen:
         totals: dict[str, float] = {}
         free = np.setdiff1d(np.arange(expand.shape[1]), fixed)
         accepted, step_x, alpha, halvings, tangents, reused = np.inf, None, 1.0, 0, 0, 0
+        counts = self.solver_counts()
         defer = material.defers_tangent
         if fresh:
             self._kept_stiffness = None
@@ -333,6 +340,7 @@ class BiaxialSpecimen:
                 totals["line_search_halvings"] = float(halvings)
                 totals["tangents"] = float(tangents)
                 totals["tangents_reused"] = float(reused)
+                totals.update({name: float(value - counts[name]) for name, value in self.solver_counts().items()})
                 return x, update, f_int, iteration, residuals, totals
             if iteration == self.max_newton:
                 break
