@@ -171,6 +171,8 @@ def test_a_friction_at_90_deg_falls_back_to_phi_mu_and_is_counted():
                                 per_set)
     assert hook.fallbacks.tolist() == [0, 1]
     assert hook.friction_deg[1] == full["phi_g"][1] and hook.friction_deg[0] > full["phi_g"][0]
+    hook.advance(points.state)  # an accepted increment: counted again and logged for the run's diagnostics
+    assert [(f.tolist(), b.tolist()) for f, b in hook.clip_log] == [([0, 0], [0, 2])]
 
 
 def test_xi_per_set_in_one_batch():
@@ -191,3 +193,20 @@ def test_xi_per_set_in_one_batch():
     assert np.all(np.isfinite(both.q)) and both.q[0].max() > 1.01 * alone.q[0].max()
     with pytest.raises(ValueError, match="xi"):
         forward.simulate(test, {**sets, "xi_c": np.array([0.7, 1.5])}, SETTINGS, interlocking=rule)
+
+
+def test_the_forward_model_counts_the_rules_clips_per_set():
+    """``Curves.n_clip`` counts, per set, the increments whose friction fell back to phi_mu (m = 400: at every one)
+    or whose e_c was floored (e_Gamma 0.06: e_c(p) below E_C_FLOOR once p passes about 0.035 p_ref); zero for a
+    plain set and without the rule."""
+    test = replace(TEST, void_ratio=0.55)
+    sets = {**{k: np.repeat(v[:1], 3) for k, v in SETS.items() if k != "alpha0"},
+            "e_min": np.full(3, 0.45), "e_max": np.full(3, 0.7), "interlocking_m": np.array([1.5, 400.0, 1.5]),
+            "e_gamma": np.array([0.75, 0.75, 0.06])}
+    curves = forward.simulate(test, sets, SETTINGS, interlocking=Interlocking(lambda_c=0.05))
+    n_shear = round(EPS1[-1] / SETTINGS.increment)
+    assert curves.n_clip[0] == 0
+    assert curves.n_clip[1] >= n_shear and curves.n_clip[2] >= n_shear
+    plain = forward.simulate(test, {k: v[:1] for k, v in sets.items() if k not in ("interlocking_m", "e_gamma")},
+                             SETTINGS)
+    assert plain.n_clip.tolist() == [0]

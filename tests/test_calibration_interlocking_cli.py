@@ -6,6 +6,7 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 from cli_checks import assert_one_line_refusal, replayed_shear, interlocking_data
@@ -99,6 +100,12 @@ def test_the_posterior_holds_the_friction_and_triaxial_replays_it(tmp_path):
                              replace(post.forward, interlocking=None)).q[0]
     assert abs(q[-1] - plain[-1]) > 0.1 * plain[-1]
     assert post.forward.critical_state == DEFAULTS[3]
+    assert run["forward_model"]["interlocking_clips"] == 0  # counted (none at these states), as the fallbacks
+    with h5py.File(tmp_path / "run" / "run.h5") as f:  # the replay counts the rule's clips per increment too
+        counts = {name: f["diagnostics"][f"interlocking_{name}"][()] for name in ("floored", "fallbacks")}
+        renewals = f["diagnostics"]["critical_state_renewals"][()]
+    for values in counts.values():
+        assert values.shape == renewals.shape and np.nanmax(values) == 0 and np.isfinite(values).sum() >= 4
 
 
 def test_the_orientation_rule_flags_reach_the_forward_model(tmp_path, capsys):

@@ -236,14 +236,14 @@ class InterlockingFriction:
     Args:
         params: the rule (its fields that ``per_point`` lacks).
         material: the population (``forward.population(...).material``), n points of n_cells cells.
-        state: its initial state (the friction is set from it at once).
+        state: its initial state (the friction is set from it).
         phi_mu_deg: each point's phi_mu [deg], shape (n,).
         e0: each point's void ratio at J = 1 [-], shape (n,).
         per_point: per-point values, ``Interlocking`` field (not p_ref) -> shape (n,); None: ``params``'.
         inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
     Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped;
-    ``fallbacks`` (n,): increments whose friction fell back to phi_mu (not finite, or not below 90 deg);
-    ``e_lagged`` (n,): the void ratio the rule reads (e_r, e_s or e); ``e_densest`` (n,): e_d [-];
+    ``fallbacks`` (n,): increments whose friction fell back to phi_mu (not finite or >= 90 deg); ``clip_log``:
+    both per accepted increment; ``e_lagged`` (n,): the void ratio read (e_r, e_s or e); ``e_densest`` (n,): e_d;
     ``since_densest`` (n,): g_d [-]; ``distortion`` (n,): the accumulated distortion g [-] (with the mobilisation).
     """
 
@@ -276,6 +276,7 @@ class InterlockingFriction:
         self.e0 = np.broadcast_to(np.asarray(e0, dtype=np.float64), (n,)).copy()
         self.floored = np.zeros(n, dtype=np.int64)
         self.fallbacks = np.zeros(n, dtype=np.int64)
+        self.clip_log: list[tuple[np.ndarray, np.ndarray]] = []
         self.friction_deg = self.phi_mu_deg.copy()
         self._record = dimension(material.dim)
         self._mean = self._record.mean_stress
@@ -340,6 +341,7 @@ class InterlockingFriction:
             if self.mobilised:
                 self.distortion = self.distortion + np.where(np.isfinite(gamma), gamma, 0.0)
         self.set_from(state)
+        self.clip_log.append((self.floored.copy(), self.fallbacks.copy()))
         return state
 
     def _distortion(self, state: MaterialState) -> np.ndarray:

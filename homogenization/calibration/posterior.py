@@ -225,9 +225,10 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
         (eps_v = sum of the normal strains since the end of stage 1, contraction positive), each
         shape (k,), quantiles over the sets whose curve is finite; ``dim``; ``<channel>_forward_at_mean``
         (the forward model at the posterior mean, to compare with the command's own run), ``n_sets``,
-        ``n_failed`` (sets whose isotropic stage did not reach p0) and ``n_fallback`` (the forward
-        model's fallbacks); ``correction``: None, or (``post.reference`` set) channel -> the largest abs
-        difference reference - model at the mean, added to every curve, and ``reference`` its settings.
+        ``n_failed`` (sets whose isotropic stage did not reach p0), ``n_fallback`` (the forward
+        model's fallbacks) and ``n_clip`` (its interlocking clips, ``forward.Curves.n_clip``); ``correction``:
+        None, or (``post.reference`` set) channel -> the largest abs difference reference - model at the mean,
+        added to every curve, and ``reference`` its settings.
     """
     eps1 = band_grid(eps_max, post.forward.increment)
     test = Measurement("band", post.path, drained, p0, eps1, {}, dim, void_ratio)
@@ -242,7 +243,7 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
         shift = {c: np.nan_to_num(fine.channel(c)[0] - curves.channel(c)[n]) for c in ("q", "p", "eps_v")}
     ok = np.all(np.isfinite(curves.q[:n]) & np.isfinite(curves.p[:n]) & np.isfinite(curves.eps_v[:n]), axis=1)
     out: dict[str, Any] = {"eps1": eps1, "dim": dim, "n_sets": n, "n_failed": int(np.count_nonzero(~ok)),
-                           "n_fallback": int(curves.n_fallback.sum()),
+                           "n_fallback": int(curves.n_fallback.sum()), "n_clip": int(curves.n_clip.sum()),
                            "correction": {c: float(np.max(np.abs(v))) for c, v in shift.items()} or None,
                            "reference": post.reference}
     for c in ("q", "p", "eps_v"):

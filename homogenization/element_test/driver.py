@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import replace
-from typing import Any, Callable, Literal, Mapping
+from typing import Any, Callable, Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -97,14 +97,15 @@ def run(
         lebedev_order, n_spins, spin_period_deg, staggered_spins: 3D orientations
             (``orientation.orientations_3d``; spin_period_deg None: the cell's own).
         snapshot_interval: per-cell observables every this many increments (0: stage ends).
-        stress_rtol, max_newton_iterations: stress control's tolerance [-] and step calls per increment.
-        progress: per-stage progress callbacks (``stages.StageProgress``); None/False: none.
-        before_stage: step index -> action on the material point before that step.
-        critical_state: renewal rule of the cells (``material.critical_state``; None: the plain H-model);
-            diagnostics ``critical_state_*`` count its events.
+        stress_rtol, max_newton_iterations: stress control's tolerance [-], step calls per increment.
+        progress: per-stage progress callbacks (``stages.StageProgress``) or None/False.
+        before_stage: step index -> action on the material point before it.
+        critical_state: renewal rule of the cells (``material.critical_state``; None: the plain H-model),
+            counted in diagnostics ``critical_state_*``.
         void_ratio, density_map: the cells' initial void ratio [-], recorded (``Record.e0``); the cell
             must be at the map's alpha0 (None: ``density.default_map``).
-        renewal: points -> their renewal, replacing ``critical_state``'s.
+        renewal: points -> their renewal, replacing ``critical_state``'s (a ``clip_log``: diagnostics
+            ``interlocking_*``).
 
     Raises:
         ValueError: invalid programme or options (one line).
@@ -142,15 +143,24 @@ def run(
         warnings.warn(f"stress control met a jump of the response across its target at {jumps} increment(s): the "
                       f"side nearer the target was accepted (diagnostics 'stress_control_jump')", RuntimeWarning,
                       stacklevel=2)
-    log = getattr(points.renewal, "log", None) if points.renewal is not None else None
-    if log is not None:
-        pad = [np.nan] * (history.rows.shape[0] - len(log))
-        for i, name in enumerate(("renewals", "rate_capped", "angle_clipped", "merged")):
-            history.diagnostics[f"critical_state_{name}"] = np.array([float(c[i][0]) for c in log] + pad)
+    _record_counts(history, getattr(points.renewal, "log", None), "critical_state",
+                   ("renewals", "rate_capped", "angle_clipped", "merged"))
+    _record_counts(history, getattr(points.renewal, "clip_log", None), "interlocking", ("floored", "fallbacks"))
     record = to_record(history, points, programme, step_seconds, dict(mesostructure.parameters))
     if density_map is not None:
         record.e0, record.density_map = float(void_ratio), density_map
     return record
+
+
+def _record_counts(history: History, log: Sequence[tuple[np.ndarray, ...]] | None, prefix: str,
+                   names: Sequence[str]) -> None:
+    """Diagnostics ``<prefix>_<name>`` of the one point's running counts that ``log`` holds per accepted increment
+    (tuples of arrays (n_points,) in ``names``' order), NaN on the rows after them; nothing where ``log`` is None."""
+    if log is None:
+        return
+    pad = [np.nan] * (history.rows.shape[0] - len(log))
+    for i, name in enumerate(names):
+        history.diagnostics[f"{prefix}_{name}"] = np.array([float(c[i][0]) for c in log] + pad)
 
 
 def _void_ratio_map(mesostructure: Mesostructure, dim: int, void_ratio: float | None,
