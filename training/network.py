@@ -42,8 +42,6 @@ from training.cell_physics import CellSchema
 from training.config import DEFAULT_HIDDEN
 from training.fast_model import ACTIVATION, COMPLIANCE_SCALE, GAP_CLIP, RELAXATION_RAMP  # noqa: F401 (torch-free home)
 
-PAPER_HIDDEN: tuple[int, ...] = (8, 8, 8)
-"""Hidden layer widths of the paper's network (spec section 11), measured for comparison."""
 PAIR_FEATURES = ("overlap", "contact", "branch_n", "branch_t", "shear", "friction_ratio")
 """Features of each active pair of a planar cell."""
 PAIR_FEATURES_3D = ("overlap", "contact", "branch_n", "branch_t1", "branch_t2", "shear_n", "shear_t1", "shear_t2",
