@@ -98,3 +98,17 @@ def test_a_sets_curves_are_the_same_bits_alone_and_in_a_population():
         alone = forward.simulate(TEST, {name: v[i:i + 1] for name, v in sets.items()}, SETTINGS)
         for name in ("q", "p", "eps_v"):
             assert np.array_equal(together.channel(name)[i], alone.channel(name)[0], equal_nan=True), (i, name)
+
+
+def test_the_renewals_clips_are_counted_per_set():
+    """``Curves.n_renewal_clip``: the loose set renews at 20 exp(1.4 x 4) = 5400 per unit distortion, capped to
+    rate_max 1000, with fresh cells of about 53 + 3 (57 - 53) = 65 deg clipped to alpha_max 62: both counted; fewer
+    with alpha_max 75, none with rate_max 1e5 too; the dense set renews too slowly to clip here; no interlocking,
+    so ``n_clip`` stays zero."""
+    counts = []
+    for changes in ({}, {"alpha_max_deg": 75.0}, {"alpha_max_deg": 75.0, "rate_max": 1e5}):
+        rule = replace(DEFAULTS[3], **changes)
+        curves = forward.simulate(TEST, SETS, replace(SETTINGS, critical_state=rule))
+        assert curves.n_renewal_clip[0] == 0 and curves.n_clip.tolist() == [0, 0]
+        counts.append(int(curves.n_renewal_clip[1]))
+    assert counts[0] > counts[1] > counts[2] == 0, counts

@@ -200,8 +200,8 @@ class Posterior:
 
     One call runs every test's forward model on the whole population, shared among ``workers`` processes on the
     analytical backend (module docstring; ``close`` stops them). Counted, not printed: ``n_fallback`` forward
-    fallbacks (``forward.Curves.n_fallback``), ``n_jump`` drained increments solved at a jump, ``n_clip`` the
-    interlocking friction's clips (``forward.Curves.n_clip``), ``n_failed`` sets
+    fallbacks (``forward.Curves.n_fallback``), ``n_jump`` drained increments solved at a jump, ``n_clip`` and
+    ``n_renewal_clip`` the rules' clips (``forward.Curves``), ``n_failed`` sets
     whose forward model failed (log L = -inf), ``n_calls`` sets evaluated inside the prior, ``n_float_errors``
     numpy operations that overflowed, divided by zero or gave NaN (each worker's share counts its own). Where
     alpha0_spread is calibrated, sets with alpha0 - alpha0_spread < ALPHA_MIN_3D_DEG (``forward.feasible``) get
@@ -222,6 +222,7 @@ class Posterior:
         self.n_fallback = 0
         self.n_jump = 0
         self.n_clip = 0
+        self.n_renewal_clip = 0
         self.n_failed = 0
         self.n_calls = 0
         self.n_float_errors = 0
@@ -273,6 +274,7 @@ class Posterior:
             self.n_fallback += sum(piece[1] for piece in pieces[k])
             self.n_jump += sum(piece[2] for piece in pieces[k])
             self.n_clip += sum(piece[3] for piece in pieces[k])
+            self.n_renewal_clip += sum(piece[4] for piece in pieces[k])
             shift = self.correction[k] if self.correction is not None else {}
             channels = {name: np.concatenate([piece[0][name] for piece in pieces[k]]) for name in CHANNELS}
             out.append({name: c + shift[name] if name in shift else c for name, c in channels.items()})
@@ -303,9 +305,9 @@ class Posterior:
 
 
 def forward_share(tests: Sequence[Measurement], params: Mapping[str, np.ndarray], settings: ForwardSettings
-                  ) -> tuple[list[tuple[dict[str, np.ndarray], int, int, int]], int]:
+                  ) -> tuple[list[tuple[dict[str, np.ndarray], int, int, int, int]], int]:
     """One worker's share of ``Posterior.curves``: per test (channel -> (n, n_data), fallbacks, jumps, interlocking
-    clips: ``forward.Curves``' counts summed over the sets) of the sets
+    and renewal clips: ``forward.Curves``' counts summed over the sets) of the sets
     ``params`` (name -> (n,)), and the numpy floating-point errors counted on the way (not printed)."""
     errors = [0]
 
@@ -317,7 +319,7 @@ def forward_share(tests: Sequence[Measurement], params: Mapping[str, np.ndarray]
         with np.errstate(all="call", call=count):
             c = simulate(test, params, settings)
         out.append(({name: c.channel(name) for name in CHANNELS}, int(c.n_fallback.sum()), int(c.n_jump.sum()),
-                    int(c.n_clip.sum())))
+                    int(c.n_clip.sum()), int(c.n_renewal_clip.sum())))
     return out, errors[0]
 
 

@@ -223,7 +223,9 @@ class Curves:
     cells, shape (n,); ``n_jump``: per point, the drained increments whose lateral stress jumps across
     its target, solved at the jump (``element_test.solver``, the nearer side), shape (n,); ``n_clip``: per point,
     the increments at which the interlocking friction clipped its critical void ratio to ``E_C_FLOOR`` or fell back
-    to phi_mu (``InterlockingFriction.floored`` + ``fallbacks``; zeros without it), shape (n,).
+    to phi_mu (``InterlockingFriction.floored`` + ``fallbacks``; zeros without it), shape (n,); ``n_renewal_clip``:
+    per point, the critical-state renewal's capped rates and clipped fresh angles (``Renewal.capped`` + ``clipped``;
+    zeros without it), shape (n,).
     """
 
     q: np.ndarray
@@ -232,6 +234,7 @@ class Curves:
     n_fallback: np.ndarray
     n_jump: np.ndarray
     n_clip: np.ndarray
+    n_renewal_clip: np.ndarray
 
     def channel(self, name: str) -> np.ndarray:
         """The curve of ``name`` ("q", "p" or "eps_v")."""
@@ -465,11 +468,11 @@ def _unreached(test: Measurement, full: dict[str, np.ndarray], settings: Forward
     """``simulate`` of the sets whose map reaches the test's void ratio; NaN curves for the others."""
     n = reached.size
     out = Curves(*(np.full((n, test.eps1.size), np.nan) for _ in range(3)),
-                 *(np.zeros(n, dtype=np.int64) for _ in range(3)))
+                 *(np.zeros(n, dtype=np.int64) for _ in range(4)))
     if reached.any():
         subset = {name: values[reached] for name, values in full.items()}  # alpha0 already mapped
         part = simulate(replace(test, void_ratio=None), subset, settings, interlocking=interlocking)
-        for name in ("q", "p", "eps_v", "n_fallback", "n_jump", "n_clip"):
+        for name in ("q", "p", "eps_v", "n_fallback", "n_jump", "n_clip", "n_renewal_clip"):
             getattr(out, name)[reached] = getattr(part, name)
     return out
 
@@ -554,9 +557,17 @@ def simulate_points(test: Measurement, points: MaterialPoints, settings: Forward
     rows[:, :, failed] = np.nan
     eps1_model = settings.increment * np.arange(rows.shape[0])
     q, p, eps_v = (_sample(eps1_model, rows[:, i].T, test.eps1) for i in range(3))
-    clip = (points.renewal.floored + points.renewal.fallbacks if isinstance(points.renewal, InterlockingFriction)
-            else np.zeros(points.n, dtype=np.int64))
-    return Curves(q, p, eps_v, fallback, solver.jumps.copy(), clip)
+    return Curves(q, p, eps_v, fallback, solver.jumps.copy(), *_rule_clips(points))
+
+
+def _rule_clips(points: MaterialPoints) -> tuple[np.ndarray, np.ndarray]:
+    """Per point, the interlocking friction's and the critical-state renewal's clips (``Curves.n_clip`` and
+    ``n_renewal_clip``), each shape (n,): zeros for a rule the population does not run."""
+    friction = points.renewal if isinstance(points.renewal, InterlockingFriction) else None
+    renewal = friction.inner if friction is not None else points.renewal
+    none = np.zeros(points.n, dtype=np.int64)
+    return (none if friction is None else friction.floored + friction.fallbacks,
+            none if renewal is None else renewal.capped + renewal.clipped)
 
 
 def _row(row: np.ndarray, start: np.ndarray, dim: int) -> np.ndarray:
@@ -603,4 +614,4 @@ def _simulate_one_by_one(test: Measurement, full: dict[str, np.ndarray], setting
             out[c, i] = np.interp(test.eps1, eps1_model, values[c])
         fallback[i] = int(np.nansum(record.diagnostics.get("n_unconverged", np.zeros(1))) > 0)
         jumps[i] = int(np.nansum(record.diagnostics.get("stress_control_jump", np.zeros(1))))
-    return Curves(out[0], out[1], out[2], fallback, jumps, np.zeros(n, dtype=np.int64))
+    return Curves(out[0], out[1], out[2], fallback, jumps, *(np.zeros(n, dtype=np.int64) for _ in range(2)))

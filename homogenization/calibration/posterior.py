@@ -226,7 +226,7 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
         shape (k,), quantiles over the sets whose curve is finite; ``dim``; ``<channel>_forward_at_mean``
         (the forward model at the posterior mean, to compare with the command's own run), ``n_sets``,
         ``n_failed`` (sets whose isotropic stage did not reach p0), ``n_fallback`` (the forward
-        model's fallbacks) and ``n_clip`` (its interlocking clips, ``forward.Curves.n_clip``); ``correction``:
+        model's fallbacks), ``n_clip`` and ``n_renewal_clip`` (its rules' clips, ``forward.Curves``); ``correction``:
         None, or (``post.reference`` set) channel -> the largest abs difference reference - model at the mean,
         added to every curve, and ``reference`` its settings.
     """
@@ -244,6 +244,7 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
     ok = np.all(np.isfinite(curves.q[:n]) & np.isfinite(curves.p[:n]) & np.isfinite(curves.eps_v[:n]), axis=1)
     out: dict[str, Any] = {"eps1": eps1, "dim": dim, "n_sets": n, "n_failed": int(np.count_nonzero(~ok)),
                            "n_fallback": int(curves.n_fallback.sum()), "n_clip": int(curves.n_clip.sum()),
+                           "n_renewal_clip": int(curves.n_renewal_clip.sum()),
                            "correction": {c: float(np.max(np.abs(v))) for c, v in shift.items()} or None,
                            "reference": post.reference}
     for c in ("q", "p", "eps_v"):

@@ -269,7 +269,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
         "forward_model": {
             "settings": config["forward"], "noise": args.noise,
             "evaluations": log_post.n_calls, "failed": log_post.n_failed, "fallbacks": log_post.n_fallback,
-            "jumps": log_post.n_jump, "interlocking_clips": log_post.n_clip,
+            "jumps": log_post.n_jump, "interlocking_clips": log_post.n_clip, "renewal_clips": log_post.n_renewal_clip,
             "floating_point_errors": log_post.n_float_errors, "model_error": getattr(args, "model_error", 0.0),
             "likelihood_sigma_fraction": log_post.noise, "resolution": resolution_run,
             **({"infeasible_sets": log_post.n_infeasible} if log_post.spread_cut else {}),
@@ -363,8 +363,8 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
             f"{_number(auto['steps_per_tau'], '.1f')} x the largest tau)")
     lines.append(f"sampler: {sampler['steps']} steps x {sampler['walkers']} walkers, acceptance "
                  f"{sampler['acceptance_fraction']:.2f}, stuck walkers left out {sampler['stuck_walkers_left_out']}, "
-                 f"forward fallbacks {forward['fallbacks']}, "
-                 f"interlocking clips {forward.get('interlocking_clips', 0)}, "
+                 f"forward fallbacks {forward['fallbacks']}, clips: interlocking "
+                 f"{forward.get('interlocking_clips', 0)}, renewal {forward.get('renewal_clips', 0)}, "
                  f"failed sets {forward['failed']}, "
                  f"floating-point errors {forward.get('floating_point_errors', 0)} (overflow or NaN of diverging sets, "
                  f"not printed)")

@@ -314,6 +314,7 @@ def write_band(run: PosteriorRun | None, work: Path) -> str | None:
     write_band_csv(work / BAND_FILE, b, {
         "posterior": run.posterior.path.resolve(), "draws": b["n_sets"], "seed": run.seed,
         "failed_draws": b["n_failed"], "forward_fallbacks": b["n_fallback"], "interlocking_clips": b["n_clip"],
+        "renewal_clips": b["n_renewal_clip"],
         "forward_model": f"closed form of the calibration: {rule}, increment {f.increment:g}, "
                          f"iso increment {f.iso_increment:g}, stress rtol {f.stress_rtol:g}",
         "columns": "q, p [N/m in 2D, Pa in 3D]; eps_v = sum of the normal strains since the end of stage 1 [-]; "
@@ -321,7 +322,7 @@ def write_band(run: PosteriorRun | None, work: Path) -> str | None:
                    "the posterior mean",
     })
     return (f"posterior band: {b['n_sets']} draws ({b['n_failed']} failed, {b['n_fallback']} forward fallbacks, "
-            f"{b['n_clip']} interlocking clips), "
+            f"clips: interlocking {b['n_clip']}, renewal {b['n_renewal_clip']}), "
             f"calibration's forward model ({rule}) -> {BAND_FILE}")
 
 
