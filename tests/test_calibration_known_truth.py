@@ -76,14 +76,14 @@ def check_band_is_corrected(folder: Path) -> None:
     post = read_posterior(folder)
     assert post.reference is not None and post.reference.increment < post.forward.increment
     out = band(post, draw_samples(post, 16, 0), dim=2, drained=True, p0=3e4, eps_max=0.02)
-    test = Measurement("band", post.path, True, 3e4, out["eps1"], {}, 2)
+    test = Measurement("band", post.path, True, 3e4, out.eps1, {}, 2)
     mean = {name: np.array([value]) for name, value in post.mean.items()}
     fine, coarse = simulate(test, mean, post.reference), simulate(test, mean, replace(post.forward))
     for c in ("q", "eps_v"):
         scale = np.max(np.abs(fine.channel(c)[0]))
-        assert np.max(np.abs(out[f"{c}_forward_at_mean"] - fine.channel(c)[0])) <= 1e-9 * scale
+        assert np.max(np.abs(out.columns[f"{c}_forward_at_mean"] - fine.channel(c)[0])) <= 1e-9 * scale
         assert np.max(np.abs(coarse.channel(c)[0] - fine.channel(c)[0])) > 0.01 * scale  # a correction that matters
-    assert out["correction"]["eps_v"] > 0.0
+    assert out.correction["eps_v"] > 0.0
 
 
 def test_resolution_check_refuses_with_the_flags_to_set(tmp_path, capsys):

@@ -214,22 +214,39 @@ def band_grid(eps_max: float, increment: float) -> np.ndarray:
     return steps * increment
 
 
-def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: int, drained: bool, p0: float,
-         eps_max: float, void_ratio: float | None = None) -> dict[str, np.ndarray]:
-    """The posterior band of a built-in test (isotropic compression to ``p0``, then drained or
-    constant-volume shear to ``eps_max``; at ``void_ratio``, each set's map's alpha0, where given) by the
-    calibration's forward model (``post.forward``), all sets in one batch.
+@dataclass(frozen=True)
+class PosteriorBand:
+    """The posterior band of a built-in test (``band``).
 
-    Returns:
-        ``eps1`` (k,), ``<channel>_lo`` / ``_median`` / ``_hi`` for q, p [N/m or Pa] and eps_v [-]
-        (eps_v = sum of the normal strains since the end of stage 1, contraction positive), each
-        shape (k,), quantiles over the sets whose curve is finite; ``dim``; ``<channel>_forward_at_mean``
-        (the forward model at the posterior mean, to compare with the command's own run), ``n_sets``,
-        ``n_failed`` (sets whose isotropic stage did not reach p0), ``n_fallback`` (the forward
-        model's fallbacks), ``n_clip`` and ``n_renewal_clip`` (its rules' clips, ``forward.Curves``); ``correction``:
-        None, or (``post.reference`` set) channel -> the largest abs difference reference - model at the mean,
-        added to every curve, and ``reference`` its settings.
+    Attributes:
+        eps1: shear strain of each row [-], shape (k,).
+        columns: ``<channel>_lo`` / ``_median`` / ``_hi`` for q, p [N/m or Pa] and eps_v [-] (the sum of the normal
+            strains since the end of stage 1, contraction positive), quantiles over the sets whose curve is finite,
+            and ``<channel>_forward_at_mean`` (the forward model at the posterior mean), each shape (k,).
+        dim: the test's dimension.
+        n_sets, n_failed: sets drawn; sets whose isotropic stage did not reach p0.
+        n_fallback, n_clip, n_renewal_clip: the forward model's fallbacks and its rules' clips (``forward.Curves``).
+        correction: None, or (``post.reference`` set) channel -> the largest abs difference reference - model at
+            the mean, added to every curve; ``reference`` its settings.
     """
+
+    eps1: np.ndarray
+    columns: dict[str, np.ndarray]
+    dim: int
+    n_sets: int
+    n_failed: int
+    n_fallback: int
+    n_clip: int
+    n_renewal_clip: int
+    correction: dict[str, float] | None = None
+    reference: ForwardSettings | None = None
+
+
+def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: int, drained: bool, p0: float,
+         eps_max: float, void_ratio: float | None = None) -> PosteriorBand:
+    """The posterior band (``PosteriorBand``) of a built-in test (isotropic compression to ``p0``, then drained or
+    constant-volume shear to ``eps_max``; at ``void_ratio``, each set's map's alpha0, where given) by the
+    calibration's forward model (``post.forward``), all sets in one batch."""
     eps1 = band_grid(eps_max, post.forward.increment)
     test = Measurement("band", post.path, drained, p0, eps1, {}, dim, void_ratio)
     n = int(next(iter(params.values())).size)
@@ -242,18 +259,16 @@ def band(post: CalibratedPosterior, params: Mapping[str, np.ndarray], *, dim: in
             fine = simulate(test, {name: np.array([value]) for name, value in post.mean.items()}, post.reference)
         shift = {c: np.nan_to_num(fine.channel(c)[0] - curves.channel(c)[n]) for c in ("q", "p", "eps_v")}
     ok = np.all(np.isfinite(curves.q[:n]) & np.isfinite(curves.p[:n]) & np.isfinite(curves.eps_v[:n]), axis=1)
-    out: dict[str, Any] = {"eps1": eps1, "dim": dim, "n_sets": n, "n_failed": int(np.count_nonzero(~ok)),
-                           "n_fallback": int(curves.n_fallback.sum()), "n_clip": int(curves.n_clip.sum()),
-                           "n_renewal_clip": int(curves.n_renewal_clip.sum()),
-                           "correction": {c: float(np.max(np.abs(v))) for c, v in shift.items()} or None,
-                           "reference": post.reference}
+    columns: dict[str, np.ndarray] = {}
     for c in ("q", "p", "eps_v"):
         values = curves.channel(c) + shift.get(c, 0.0)
         lo, med, hi = (np.quantile(values[:n][ok], q, axis=0) if ok.any() else np.full(eps1.size, np.nan)
                        for q in (BAND_QUANTILES[0], 0.5, BAND_QUANTILES[1]))
-        out[f"{c}_lo"], out[f"{c}_median"], out[f"{c}_hi"] = lo, med, hi
-        out[f"{c}_forward_at_mean"] = values[n]
-    return out
+        columns[f"{c}_lo"], columns[f"{c}_median"], columns[f"{c}_hi"] = lo, med, hi
+        columns[f"{c}_forward_at_mean"] = values[n]
+    return PosteriorBand(eps1, columns, dim, n, int(np.count_nonzero(~ok)), int(curves.n_fallback.sum()),
+                int(curves.n_clip.sum()), int(curves.n_renewal_clip.sum()),
+                {c: float(np.max(np.abs(v))) for c, v in shift.items()} or None, post.reference)
 
 
 def band_columns() -> list[str]:
@@ -261,20 +276,20 @@ def band_columns() -> list[str]:
     return ["eps1"] + [f"{c}_{s}" for c in ("q", "p", "eps_v") for s in ("lo", "median", "hi", "forward_at_mean")]
 
 
-def write_band_csv(path: Path, result: Mapping[str, Any], header: Mapping[str, Any]) -> None:
+def write_band_csv(path: Path, result: PosteriorBand, header: Mapping[str, Any]) -> None:
     """``result`` of ``band`` as CSV (atomically), ``# key = value`` comment lines first."""
     from warp_hcell.core.files import atomic_write  # noqa: PLC0415
 
     columns = band_columns()
     lines = [f"# {k} = {v}" for k, v in header.items()]
-    if result.get("correction") is not None:
-        ref = result["reference"]
+    if result.correction is not None:
+        ref = result.reference
         lines.append(f"# resolution_correction = the calibration's reference (increment {ref.increment:g}, iso "
                      f"increment {ref.iso_increment:g}, {ref.n_orientations} orientations / Lebedev {ref.lebedev_order}) "
                      f"minus the forward model at the posterior mean, added to every draw; largest abs value: "
-                     + ", ".join(f"{c} {v:.4g}" for c, v in result["correction"].items()))
+                     + ", ".join(f"{c} {v:.4g}" for c, v in result.correction.items()))
     lines.append(",".join(columns))
-    table = np.stack([result[c] for c in columns], axis=1)
+    table = np.stack([result.eps1] + [result.columns[c] for c in columns[1:]], axis=1)
     lines += [",".join(f"{v:.10g}" for v in row) for row in table.tolist()]
     with atomic_write(path) as tmp:
         tmp.write_text("\n".join(lines) + "\n")

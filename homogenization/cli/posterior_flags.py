@@ -28,7 +28,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, Sequence, TYPE_CHECKING
 
 import numpy as np
 
@@ -38,8 +38,14 @@ from homogenization.material import opening_spread
 from warp_hcell.core.cli import UserError
 from warp_hcell.core.parameters import HertzMindlinLaw, check_alpha0_deg
 
+if TYPE_CHECKING:
+    from homogenization.calibration.posterior import PosteriorBand
+
 BAND_FILE = "posterior_band.csv"
 """The band of --posterior-band, written beside run.h5 (columns ``posterior.band_columns``)."""
+RULE_TEXT = {2: "{n_orientations} orientations", 3: "Lebedev order {lebedev_order} x {n_spins} spins"}
+"""The band's orientation rule in its status line and CSV header, per dimension (``str.format`` of the forward model's
+settings)."""
 REPLACED_FLAGS = {"phi": "--phi", "kn": "--kn", "kt": "--kt", "alpha0": "--alpha0", "radius": "--radius",
                   "mesostructure": "--mesostructure", "law": "--law", "shear_modulus": "--shear-modulus",
                   "poisson": "--poisson", "e_min": "--e-min", "e_max": "--e-max"}
@@ -53,7 +59,7 @@ class PosteriorRun:
     posterior: Any
     draws: dict[str, np.ndarray] | None
     seed: int
-    band: dict[str, Any] | None = None
+    band: PosteriorBand | None = None
     void_ratio: float | None = None
     kn_scale: float = 1.0
     """The factor (p0 / kn_p_ref)^kn_exponent on the posterior's kn at the command's p0 (1 without the exponent)."""
@@ -309,20 +315,19 @@ def write_band(run: PosteriorRun | None, work: Path) -> str | None:
     from homogenization.calibration.posterior import write_band_csv  # noqa: PLC0415
 
     b, f = run.band, run.posterior.forward
-    rule = (f"Lebedev order {f.lebedev_order} x {f.n_spins} spins" if b["dim"] == 3 else
-            f"{f.n_orientations} orientations")
+    rule = RULE_TEXT[b.dim].format(n_orientations=f.n_orientations, lebedev_order=f.lebedev_order, n_spins=f.n_spins)
     write_band_csv(work / BAND_FILE, b, {
-        "posterior": run.posterior.path.resolve(), "draws": b["n_sets"], "seed": run.seed,
-        "failed_draws": b["n_failed"], "forward_fallbacks": b["n_fallback"], "interlocking_clips": b["n_clip"],
-        "renewal_clips": b["n_renewal_clip"],
+        "posterior": run.posterior.path.resolve(), "draws": b.n_sets, "seed": run.seed,
+        "failed_draws": b.n_failed, "forward_fallbacks": b.n_fallback, "interlocking_clips": b.n_clip,
+        "renewal_clips": b.n_renewal_clip,
         "forward_model": f"closed form of the calibration: {rule}, increment {f.increment:g}, "
                          f"iso increment {f.iso_increment:g}, stress rtol {f.stress_rtol:g}",
         "columns": "q, p [N/m in 2D, Pa in 3D]; eps_v = sum of the normal strains since the end of stage 1 [-]; "
                    "lo, hi: 2.5 and 97.5 % quantiles over the draws; forward_at_mean: the same forward model at "
                    "the posterior mean",
     })
-    return (f"posterior band: {b['n_sets']} draws ({b['n_failed']} failed, {b['n_fallback']} forward fallbacks, "
-            f"clips: interlocking {b['n_clip']}, renewal {b['n_renewal_clip']}), "
+    return (f"posterior band: {b.n_sets} draws ({b.n_failed} failed, {b.n_fallback} forward fallbacks, "
+            f"clips: interlocking {b.n_clip}, renewal {b.n_renewal_clip}), "
             f"calibration's forward model ({rule}) -> {BAND_FILE}")
 
 
@@ -338,12 +343,13 @@ def shade(fig, run: PosteriorRun | None, panels: Sequence[tuple[int, str, float]
     from homogenization.output.figure_style import figure_legend  # noqa: PLC0415
 
     b = run.band
-    x = 100.0 * b["eps1"]
+    x = 100.0 * b.eps1
     patch = None
     for index, channel, scale in panels:
         ax = fig.axes[index]
-        patch = ax.fill_between(x, scale * b[f"{channel}_lo"], scale * b[f"{channel}_hi"], color="0.5", alpha=0.3,
-                                lw=0, label=f"posterior 95 % band ({b['n_sets']} draws, calibration's forward model)")
+        patch = ax.fill_between(x, scale * b.columns[f"{channel}_lo"], scale * b.columns[f"{channel}_hi"], color="0.5",
+                                alpha=0.3, lw=0,
+                                label=f"posterior 95 % band ({b.n_sets} draws, calibration's forward model)")
     handles = []
     for legend in list(fig.legends):
         for handle, text in zip(legend.legend_handles, legend.get_texts()):
