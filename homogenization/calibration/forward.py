@@ -224,8 +224,8 @@ class Curves:
     its target, solved at the jump (``element_test.solver``, the nearer side), shape (n,); ``n_clip``: per point,
     the increments at which the interlocking friction clipped its critical void ratio to ``E_C_FLOOR`` or fell back
     to phi_mu (``InterlockingFriction.floored`` + ``fallbacks``; zeros without it), shape (n,); ``n_renewal_clip``:
-    per point, the critical-state renewal's capped rates and clipped fresh angles (``Renewal.capped`` + ``clipped``;
-    zeros without it), shape (n,).
+    per point, the critical-state renewal's increments with a capped rate plus its cells renewed at a clipped angle
+    (``Renewal.capped`` + ``clipped``; zeros without it), shape (n,).
     """
 
     q: np.ndarray
