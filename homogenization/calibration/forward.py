@@ -214,18 +214,17 @@ def settings_record(settings: ForwardSettings) -> dict:
 
 @dataclass
 class Curves:
-    """Model curves of n parameter sets at a test's eps1 values, each shape (n, n_data).
+    """Model curves of n parameter sets at a test's eps1 values, each shape (n, n_data), and per-point counts, each
+    shape (n,).
 
     ``q``, ``p`` [N/m in 2D, Pa in 3D], ``eps_v`` [-]; NaN for a point whose isotropic stage does not reach p0
-    within ``homogenization.element_test.programme.ISO_MAX_STRAIN`` (too soft); ``n_fallback``: per point, the
-    isotropic landings and drained Newton iterations that did not meet ``stress_rtol`` (their last
-    iterate is used), or (dem/ann, one set at a time) 1 where the backend reported unconverged
-    cells, shape (n,); ``n_jump``: per point, the drained increments whose lateral stress jumps across
-    its target, solved at the jump (``element_test.solver``, the nearer side), shape (n,); ``n_clip``: per point,
-    the increments at which the interlocking friction clipped its critical void ratio to ``E_C_FLOOR`` or fell back
-    to phi_mu (``InterlockingFriction.floored`` + ``fallbacks``; zeros without it), shape (n,); ``n_renewal_clip``:
-    per point, the critical-state renewal's increments with a capped rate plus its cells renewed at a clipped angle
-    (``Renewal.capped`` + ``clipped``; zeros without it), shape (n,).
+    within ``homogenization.element_test.programme.ISO_MAX_STRAIN`` (too soft). ``n_fallback``: the isotropic
+    landings and drained Newton iterations that did not meet ``stress_rtol`` (their last iterate is used), or
+    (dem/ann, one set at a time) 1 where the backend reported unconverged cells; ``n_jump``: the drained increments
+    whose lateral stress jumps across its target, solved at the jump (``element_test.solver``, the nearer side);
+    ``n_clip``: the increments at which the interlocking friction floored its e_c (``E_C_FLOOR``) or fell back to
+    phi_mu (``InterlockingFriction.floored`` + ``fallbacks``); ``n_renewal_clip``: the renewal's increments with a
+    capped rate plus its cells renewed at a clipped angle (``Renewal.capped`` + ``clipped``); zeros without a rule.
     """
 
     q: np.ndarray
