@@ -214,18 +214,24 @@ class Renewal:
         loose = p.rate_gain if p.rate_gain_loose is None else p.rate_gain_loose
         return p.rate * np.exp(np.where(excess > 0.0, loose, p.rate_gain) * excess)
 
-    def _tick(self, strain: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(per-cell local increments (n_cells, dim), per-point rates before the cap (n_points,), per-cell clock
-        ticks (n_cells,)) of an increment from the last advanced state to ``strain`` (n_points, n_voigt), rates at
-        ``J`` (n_points,)."""
+    def distortion_increment(self, strain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(per-cell local increments (n_cells, dim), per-point distortion s (n_points,), module docstring) of an
+        increment from the last advanced state to ``strain`` (n_points, n_voigt)."""
         d_local = self.material.localise(strain - self.last_strain)
         dim = d_local.shape[1]
         cell = sum(np.abs(d_local[:, a] - d_local[:, b]) for a in range(dim) for b in range(a + 1, dim))
         n = self.material.orient.n_cells
         weights = self.material.orient.weights
         # a sum per point, not BLAS's matrix-vector product (whose order depends on the number of points)
-        increment = (cell.reshape(self.material.n_points, n) * weights).sum(axis=1) / weights.sum()
+        return d_local, (cell.reshape(self.material.n_points, n) * weights).sum(axis=1) / weights.sum()
+
+    def _tick(self, strain: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(per-cell local increments (n_cells, dim), per-point rates before the cap (n_points,), per-cell clock
+        ticks (n_cells,)) of an increment from the last advanced state to ``strain`` (n_points, n_voigt), rates at
+        ``J`` (n_points,)."""
+        d_local, increment = self.distortion_increment(strain)
         rate = self.rate(J)
+        n = self.material.orient.n_cells
         return d_local, rate, np.repeat(np.minimum(rate, self.params.rate_max) * increment, n)
 
     def _due(self, tick: np.ndarray) -> dict:
@@ -238,14 +244,19 @@ class Renewal:
         rest = np.clip((clock - after) / np.where(due, tick, 1.0), 0.0, 1.0)
         return {"distortion": self.distortion + tick, "before": before, "after": after, "due": due, "rest": rest}
 
+    def cell_fresh_angle(self, J: np.ndarray, index: np.ndarray) -> np.ndarray:
+        """The opening angle [deg] that the cells ``index`` (flat indices, shape (k,)) are renewed at: their point's
+        fresh angle at volume ratio J (n_points,), clipped to [alpha_min_deg, alpha_max_deg], shape (k,)."""
+        n = self.material.orient.n_cells
+        return np.clip(self.fresh_angle(J), self.params.alpha_min_deg, self.params.alpha_max_deg)[index // n]
+
     def _renewed(self, cells, J: np.ndarray, due: np.ndarray, rest: np.ndarray | None, d_local: np.ndarray,
                  with_tangent: bool = False):
         """(``cells`` with the ``due`` cells (n_cells,) replaced by fresh ones at the points' current fresh angle,
         stepped by ``rest`` (n_cells,) times their increment ``d_local`` (None: force-free); with ``with_tangent``
         the fresh cells' d stress / d(d_local), shape (n_due, dim, dim), else None)."""
-        n = self.material.orient.n_cells
         index = np.flatnonzero(due)
-        alpha = np.clip(self.fresh_angle(J), self.params.alpha_min_deg, self.params.alpha_max_deg)[index // n]
+        alpha = self.cell_fresh_angle(J, index)
         model = self.material.model
         angles, which = np.unique(alpha, return_inverse=True)  # one mesostructure per distinct angle
         mesos = [self._meso(a) for a in angles]
