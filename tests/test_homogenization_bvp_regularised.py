@@ -129,6 +129,7 @@ def test_checkpoint_resume_gives_the_uninterrupted_result_bit_for_bit(tmp_path, 
     for a, b in zip(full, resumed):
         assert (a.sigma11, a.sigma22, a.eps11, a.iterations, a.residuals) == (b.sigma11, b.sigma22, b.eps11,
                                                                             b.iterations, b.residuals)
+        assert a.diagnostics == b.diagnostics  # the solver's counts too (second gradient: factorisations, ...)
         for name in ("displacement", "strain", "stress", "opening", "open_fraction"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
 
