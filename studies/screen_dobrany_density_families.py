@@ -93,9 +93,8 @@ def patch() -> None:
         return (_col(p.rate) * np.exp(gain * excess)).reshape(-1)
 
     def per_cell(self):
-        """Cells per renewal unit: a family's orientations, or a point's cells."""
-        n = self.material.orient.n_cells
-        return n // k if hasattr(self, "family_e0") else n
+        """Cells of one family of a point (its orientations); called on the family paths only."""
+        return self.material.orient.n_cells // k
 
     def tick(self, strain, J):
         if not hasattr(self, "family_e0"):
@@ -121,6 +120,8 @@ def patch() -> None:
         n_points, n = self.material.n_points, self.material.orient.n_cells
         self.capped = self.capped + (r.reshape(n_points, k) > _col(self.params.rate_max)).sum(axis=1)
         self.distortion = due["distortion"]
+        self.merged = self.merged + np.maximum(due["after"] - due["before"] - 1.0, 0.0).reshape(n_points, n).sum(
+            axis=1).astype(np.int64)
         per_family = due["due"].reshape(n_points * k, n // k).sum(axis=1)
         self.count = self.count + per_family.reshape(n_points, k).sum(axis=1)
         angle = self.fresh_angle(state.J)
