@@ -1,12 +1,13 @@
-"""python studies/fit_dobrany_density_families.py --spread S [--base RESULT.json] [--steps 8] [--workers 1] [--tag T]
-                                                 [--rules 15x4s,35x12s] [--evaluate-only --result-tag R]
+"""python studies/fit_dobrany_density_families.py --spread S [--fit-spread] [--base RESULT.json] [--start-run DIR]
+                       [--steps 8] [--workers 1] [--tag T] [--rules 15x4s,35x12s] [--evaluate-only --result-tag R]
 
-The 50 + 100 kPa Dobrany fit of a base study result (default: the kn x 0.8 start on Lebedev 15 x 4 staggered,
+The Dobrany fit of a base study result (default: the 50 + 100 kPa kn x 0.8 start on Lebedev 15 x 4 staggered,
 ``calibration_dobrany_product_50_100_mv_n0_ms_cs05_kn08_15x4s``: its ``hmodel calibrate`` command, started at its
-posterior mean) run again in this process with the density families of ``screen_dobrany_density_families`` patched in
-at a fixed spread S [deg] (not a calibrated parameter: the patch lives here, not in the package), then the three tests
-at the new posterior mean on the orientation rules ``--rules`` (``screen_dobrany_dilation_delay.shape``: q and
-volume errors, the turn to dilation, the first peak, the highest q and its plateau, the renewal's clips).
+posterior mean, or at the posterior mean of the calibration in ``--start-run``) run again in this process with the
+density families (``--alpha0-spread S``: alpha0_spread fixed at S [deg]; ``--fit-spread``: alpha0_spread calibrated,
+started at S), then the three tests at the new posterior mean on the orientation rules ``--rules``
+(``screen_dobrany_dilation_delay.shape``: q and volume errors, the turn to dilation, the first peak, the highest q and
+its plateau, the renewal's clips).
 ``--evaluate-only``: the evaluation alone, of the fit already in the folder, its results suffixed ``_R``. Writes
 studies/results/fit_dobrany_density_families_SPLIT_TAG.{json,txt}; the calibration's folder is
 runs/dobrany_product/SPLIT_families_TAG.
@@ -26,21 +27,23 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import screen_dobrany_density_families as families  # noqa: E402
 from calibration_dobrany_product import (MOBILISATION_PRIOR, MOBILISATION_VOID_PRIOR, PRIOR, RESULTS,  # noqa: E402
                                         RUNS, dobrany_tests)
 from scan_dobrany_prediction_rules import plateau  # noqa: E402
 from screen_dobrany_dilation_delay import shape, text  # noqa: E402
 
 from homogenization.calibration import forward, posterior as post_mod  # noqa: E402
+from homogenization.material.opening_spread import NAME as SPREAD  # noqa: E402
 from homogenization.cli import calibrate  # noqa: E402
 from warp_hcell.core.cli import run_main  # noqa: E402
 
 BASE = RESULTS / "calibration_dobrany_product_50_100_mv_n0_ms_cs05_kn08_15x4s.json"
 
 
-def command(record: dict, out: Path, steps: int, workers: int) -> list[str]:
-    """The base fit's ``hmodel calibrate`` arguments with its output, steps and start replaced (start: its mean)."""
+def command(record: dict, out: Path, steps: int, workers: int, start: dict[str, float] | None = None,
+            spread: float = 0.0, fit_spread: bool = False) -> list[str]:
+    """The base fit's ``hmodel calibrate`` arguments with its output, steps and start replaced (start: ``start``, else
+    its mean; alpha0 dropped), alpha0_spread fixed at ``spread`` [deg] or calibrated from it (``fit_spread``)."""
     argv = shlex.split(record["command"])[3:]
     keep, skip, last = [], False, None
     for a in argv:
@@ -54,16 +57,24 @@ def command(record: dict, out: Path, steps: int, workers: int) -> list[str]:
             a = str(RUNS / "data" / Path(a).name)
         elif last == "--prior":
             a = str(RUNS / Path(a).name)
+        elif last == "--params" and fit_spread:
+            a = a + "," + SPREAD
         keep.append(a)
         last = a
-    mean = {k: v for k, v in record["mean"]["values"].items() if k != "alpha0"}
-    start = ",".join(f"{k}={v!r}" for k, v in mean.items())
-    return keep + ["--out", str(out), "--steps", str(steps), "--workers", str(workers), "--start-point", start]
+    mean = {k: v for k, v in (start or record["mean"]["values"]).items() if k not in ("alpha0", SPREAD)}
+    if fit_spread:
+        mean[SPREAD] = spread
+    point = ",".join(f"{k}={v!r}" for k, v in mean.items())
+    extra = ["--walkers", str(2 * (argv[argv.index("--params") + 1].count(",") + 2))] if fit_spread else [
+        "--alpha0-spread", repr(spread)]  # walkers: at least 2 x the parameters
+    return keep + extra + ["--out", str(out), "--steps", str(steps), "--workers", str(workers), "--start-point", point]
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spread", type=float, required=True)
+    parser.add_argument("--fit-spread", action="store_true")
+    parser.add_argument("--start-run", type=Path, default=None)
     parser.add_argument("--base", type=Path, default=BASE)
     parser.add_argument("--steps", type=int, default=8)
     parser.add_argument("--workers", type=int, default=1)
@@ -72,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--evaluate-only", action="store_true")
     parser.add_argument("--result-tag", default="")
     args = parser.parse_args(argv)
-    tag = args.tag or f"s{args.spread:g}_15x4s"
+    tag = args.tag or f"{'fit' if args.fit_spread else ''}s{args.spread:g}_15x4s"
     record = json.loads(args.base.read_text())
     split = record["split"].replace("+", "_")
     out = RUNS / f"{split}_families_{tag}"
@@ -82,15 +93,14 @@ def main(argv: list[str] | None = None) -> int:
         print(line, flush=True)
         lines.append(line)
 
-    families.patch()
-    families.SPREAD["s"] = args.spread
-    flags = command(record, out, args.steps, args.workers)
+    start = post_mod.read_posterior(args.start_run).mean if args.start_run else None
+    flags = command(record, out, args.steps, args.workers, start, args.spread, args.fit_spread)
     prior = Path(flags[flags.index("--prior") + 1])
     if not prior.is_file():  # the base's prior as calibration_dobrany_product.py writes it (--fit-mobilisation[-void])
         prior.parent.mkdir(parents=True, exist_ok=True)
         extra = MOBILISATION_VOID_PRIOR if prior.stem.endswith("mobilisation_void") else MOBILISATION_PRIOR
         prior.write_text(json.dumps({**PRIOR, **extra}, indent=1))
-    say("hmodel calibrate " + shlex.join(flags) + f"  (density families, spread {args.spread:g} deg)")
+    say("hmodel calibrate " + shlex.join(flags))
     seconds = None
     if not args.evaluate_only:
         started = time.perf_counter()
@@ -118,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
             say(f"{rule} {name}: {text(row)}, plateau {100 * low:.2f}-{100 * high:.2f} %, renewal clips "
                 f"{row['renewal_clips']}")
     stem = RESULTS / f"fit_dobrany_density_families_{split}_{tag}{'_' + args.result_tag if args.result_tag else ''}"
-    stem.with_suffix(".json").write_text(json.dumps({"spread": args.spread, "base": str(args.base),
+    stem.with_suffix(".json").write_text(json.dumps({"spread": post.mean.get(SPREAD, args.spread), "base": str(args.base),
                                                      "command": flags, "wall_seconds": seconds,
                                                      "start": run.get("start"), "mean": post.mean, "rows": rows},
                                                     indent=1, default=str))

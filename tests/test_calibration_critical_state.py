@@ -3,6 +3,7 @@ its population (per-cell contact laws and opening angles) runs the package's ``R
 
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -10,8 +11,10 @@ import pytest
 from homogenization.backends import make_cell_model
 from homogenization.calibration import forward
 from homogenization.calibration.data import Measurement
+from homogenization.calibration.interlocking import Interlocking
 from homogenization.element_test.points import material_points, orientation_set
 from homogenization.material.critical_state import DEFAULTS, Renewal
+from homogenization.material import opening_spread
 from homogenization.material.density import default_map
 from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.hcell import plain_h_cell
@@ -48,9 +51,57 @@ def test_population_renewal_is_the_package_rule_per_set():
     assert np.max(np.abs(both.q[1] - plain.q[1])) > 0.02 * np.max(plain.q[1])
 
 
-def test_renewal_refuses_a_spread():
-    with pytest.raises(ValueError, match="alpha0_spread"):
-        forward.simulate(TEST, {**SETS, "alpha0_spread": np.array([1.0, 1.0])}, SETTINGS)
+def _strain_path(n_points: int, steps: int = 40) -> list[SimpleNamespace]:
+    """Drained-like states: eps1 in steps of 2e-3, laterals -0.7e-3 each (volume first down, then up), J from the
+    normal strains (points alike)."""
+    out = []
+    for i in range(1, steps + 1):
+        strain = np.zeros((n_points, 6))
+        strain[:, 0], strain[:, 1:3] = 2e-3 * i, -0.7e-3 * i + 1e-5 * i * i
+        out.append(SimpleNamespace(strain=strain, J=np.prod(1.0 - strain[:, :3], axis=1)))
+    return out
+
+
+def test_a_spread_point_renews_each_family_on_its_own_void_ratio():
+    """alpha0_spread with the renewal: a point of spread s = 4 deg about 55 deg holds three families at 55 + 4 x_j;
+    along one strain path each family renews, and at each fresh angle, as a point of one opening angle 55 + 4 x_j
+    alone (the renewal's clock depends on the strain and J only): the spread point's renewals and clips are the
+    families' sums, its fresh angles theirs. Shared e0 (the point's) would renew all three alike."""
+    x, _ = opening_spread.nodes()
+    full = forward.full_parameters({name: v[:1] for name, v in SETS.items()}, SETTINGS)
+    full["alpha0"] = np.array([55.0])
+    for name, default in zip(forward.DENSITY, forward.DENSITY_DEFAULTS):
+        full[name] = np.full(1, default)
+    spread = forward._renewal({**full, "alpha0_spread": np.array([4.0])}, SETTINGS,
+                              forward.population({**full, "alpha0_spread": np.array([4.0])}, SETTINGS, 3))
+    alone = []
+    for xj in x:
+        one = {**full, "alpha0": np.array([55.0 + 4.0 * xj])}
+        alone.append(forward._renewal(one, SETTINGS, forward.population(one, SETTINGS, 3)))
+    n = spread.material.orient.n_cells // 3
+    for state in _strain_path(1):
+        spread.advance(state)
+        for r in alone:
+            r.advance(state)
+        angles = spread.cell_fresh_angle(state.J, np.array([0, n, 2 * n]))
+        np.testing.assert_allclose(angles, [r.cell_fresh_angle(state.J, np.array([0]))[0] for r in alone], atol=1e-12)
+    counts = [int(r.count[0]) for r in alone]
+    assert int(spread.count[0]) == sum(counts) and len(set(counts)) == 3, counts
+    assert int(spread.clipped[0]) == sum(int(r.clipped[0]) for r in alone)
+    assert int(spread.capped[0]) == sum(int(r.capped[0]) for r in alone)
+
+
+def test_a_spread_runs_with_the_renewal_and_the_interlocking():
+    """forward.simulate with alpha0_spread, the renewal and the interlocking friction: spread 0 is the point of one
+    opening angle (its cells three times over, to 1e-9), a spread of 3 deg another curve, its renewals counted."""
+    rule = Interlocking(m=1.5, e_gamma=0.8, lambda_c=0.05, xi=0.5)
+    one = forward.simulate(TEST, SETS, SETTINGS, interlocking=rule)
+    zero = forward.simulate(TEST, {**SETS, "alpha0_spread": np.zeros(2)}, SETTINGS, interlocking=rule)
+    three = forward.simulate(TEST, {**SETS, "alpha0_spread": np.full(2, 3.0)}, SETTINGS, interlocking=rule)
+    for name in ("q", "p", "eps_v"):
+        np.testing.assert_allclose(zero.channel(name), one.channel(name), rtol=1e-9, atol=1e-9 * 1e5)
+    assert np.max(np.abs(three.q[1] - one.q[1])) > 0.01 * np.max(one.q[1])
+    assert np.all(np.isfinite(three.q)) and three.n_fallback.tolist() == [0, 0]
 
 
 def test_renewal_on_each_sets_own_void_ratio_map():
@@ -112,3 +163,12 @@ def test_the_renewals_clips_are_counted_per_set():
         assert curves.n_renewal_clip[0] == 0 and curves.n_clip.tolist() == [0, 0]
         counts.append(int(curves.n_renewal_clip[1]))
     assert counts[0] > counts[1] > counts[2] == 0, counts
+
+
+def test_a_spread_past_the_cells_smallest_opening_at_the_maps_alpha0_gets_nan():
+    """A test that gives its void ratio maps each set to its alpha0 first: a spread that takes the lowest family
+    alpha0 - spread below 45 deg there gives that set NaN curves (a failed set), not an error for the population."""
+    sets = {name: v for name, v in SETS.items() if name != "alpha0"}
+    test = replace(TEST, void_ratio=0.60)  # the default map (0.597, 0.977) gives alpha0 47.07 deg
+    curves = forward.simulate(test, {**sets, "alpha0_spread": np.array([2.0, 4.0])}, SETTINGS)
+    assert np.all(np.isfinite(curves.q[0])) and np.all(np.isnan(curves.q[1]))

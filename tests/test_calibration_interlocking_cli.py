@@ -121,3 +121,28 @@ def test_the_orientation_rule_flags_reach_the_forward_model(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         run_main(calibrate.main, ["--data", data, "--params", "phi_g", "--order", "12", "--out", str(tmp_path / "c")])
     assert exc.value.code == 2 and "Lebedev order 12 is not one of" in capsys.readouterr().err
+
+
+def test_a_spread_is_calibrated_with_the_renewal_and_replayed_family_by_family(tmp_path):
+    """--params alpha0_spread with --critical-state --interlocking: the calibration runs the density families (each
+    renewed on its own void ratio) and hmodel triaxial --posterior --void-ratio replays them about the map's alpha0 as
+    the forward model does at the posterior mean; the point of one opening angle is another curve."""
+    out = tmp_path / "cal"
+    assert run_main(calibrate.main, [
+        "--data", str(interlocking_data(tmp_path / "t.csv")), "--params", "phi_g,alpha0_spread", "--critical-state",
+        "--interlocking", "--interlocking-values", "e_gamma=0.8,xi_c=0.5", "--e-min", "0.45", "--e-max", "0.7",
+        "--walkers", "4", "--steps", "2", "--start-point", "phi_g=30,alpha0_spread=3", *FAST, "--out", str(out)]) == 0
+    from homogenization.calibration import posterior as post_mod  # noqa: PLC0415
+
+    post = post_mod.read_posterior(out)
+    assert post.mean["alpha0_spread"] > 0.5
+    eps1, q = replayed_shear(out, tmp_path / "run")
+    test = replace(TEST, eps1=eps1, observed={"q": q})
+    mean = {name: np.array([value]) for name, value in post.mean.items()}
+    settings = replace(post.forward, lebedev_order=11, n_spins=4, staggered_spins=False)
+    expected = forward.simulate(test, mean, settings).q[0]
+    np.testing.assert_allclose(q, expected, rtol=1e-4)
+    single = forward.simulate(test, {k: v for k, v in mean.items() if k != "alpha0_spread"}, settings).q[0]
+    assert np.max(np.abs(q - single)) > 1e-3 * np.max(single), np.max(np.abs(q - single)) / np.max(single)
+    with h5py.File(tmp_path / "run" / "run.h5") as f:
+        assert np.nansum(f["diagnostics"]["critical_state_renewals"][()]) > 0

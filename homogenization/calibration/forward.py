@@ -268,8 +268,9 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
              interlocking: Interlocking | None = None) -> Curves:
     """Curves of ``test`` for each parameter set; ``params`` maps names of ``settings.parameters`` (and of
     ``DENSITY``) to shape (n,). A test that gives its void ratio runs each set at its map's alpha0
-    (``density_alpha0``, state map included); a set whose [e_min, e_max] does not hold it gets NaN curves.
-    ``interlocking`` (analytical backend, no spread): phi_g is each set's phi_mu of the interlocking friction,
+    (``density_alpha0``, state map included); a set whose [e_min, e_max] does not hold it, or whose lowest family
+    alpha0 - alpha0_spread is then below ``ALPHA_MIN_3D_DEG``, gets NaN curves.
+    ``interlocking`` (analytical backend): phi_g is each set's phi_mu of the interlocking friction,
     e0 the test's void ratio, else the set's map's of its alpha0; its fields per set where ``params`` holds
     ``INTERLOCKING``'s names; None: ``settings.interlocking`` (None: the plain law). ``KN_EXPONENT`` in ``params``: each
     set's exponent of kn (``kn_at_pressure``). ``STIFFNESS``: kn times ``interlocking.stiffness_factor`` of e0.
@@ -304,6 +305,8 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
     alpha0 = density_alpha0(test, params, settings, interlocking)
     if alpha0 is not None:
         reached = np.isfinite(alpha0)
+        if SPREAD in full:  # the lowest family of the map's alpha0 must be a ten-sphere cell
+            reached = reached & opening_spread.feasible(np.where(reached, alpha0, 90.0), full[SPREAD])
         full["alpha0"] = np.where(reached, alpha0, full["alpha0"])
         if not reached.all():
             return _unreached(test, full, settings, reached, interlocking)
@@ -312,8 +315,8 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
             raise ValueError(f"alpha0_spread runs on triaxial tests with the analytical backend only ({test.name}: "
                              f"{'biaxial' if test.dim != 3 else 'backend ' + settings.backend})")
         opening_spread.check(full["alpha0"], full[SPREAD])
-    if interlocking is not None and (settings.backend != "analytical" or SPREAD in full):
-        raise ValueError("the interlocking friction runs with the analytical backend and without alpha0_spread only")
+    if interlocking is not None and settings.backend != "analytical":
+        raise ValueError("the interlocking friction runs with the analytical backend only")
     if KN_EXPONENT in full:
         full["kn"] = kn_at_pressure(full.get("kn"), test, settings, exponent=full[KN_EXPONENT])
     elif settings.kn_exponent != 0.0:
@@ -390,14 +393,13 @@ def _interlocking_values(test: Measurement, params: Mapping[str, np.ndarray], fu
 
 def _renewal(full: dict[str, np.ndarray], settings: ForwardSettings, points: MaterialPoints) -> PopulationRenewal:
     """The critical-state renewal of a population (``calibration.renewal``) on each set's void-ratio map (``full``'s
-    e_min and e_max: calibrated, else fixed, else the defaults); ValueError (one line) with a spread."""
-    if SPREAD in full:
-        raise ValueError("the critical-state renewal does not run with alpha0_spread")
+    e_min and e_max: calibrated, else fixed, else the defaults); with ``SPREAD``, each family of a point renewed on
+    its own void ratio."""
     bounds = (full["e_min"], full["e_max"])
     per_point = {field: full[name] for name, field in RULE.items() if name in full}
     return PopulationRenewal(settings.critical_state, points.material, points.state, default_map(points.dim),
                              full["alpha0"], laws_of(full, settings.law), settings.law, settings.radius,
-                             per_point=per_point or None, e_bounds=bounds)
+                             per_point=per_point or None, e_bounds=bounds, spread_deg=full.get(SPREAD))
 
 
 def density_alpha0(test: Measurement, params: Mapping[str, np.ndarray], settings: ForwardSettings,

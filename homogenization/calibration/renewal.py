@@ -3,9 +3,10 @@
 A calibration's population is one material of n points whose cell model carries per-cell contact laws and
 opening angles (``forward.population``: ``with_cell_laws``), so the package's ``Renewal`` cannot build or step
 its fresh cells through that model (it expects one law for all cells and reads alpha0 from the points'
-mesostructures). ``population_renewal`` runs the same rule, unchanged, through a view of the material whose
+mesostructures). ``PopulationRenewal`` runs the same rule, unchanged, through a view of the material whose
 model builds fresh cells touching at the asked angles (``touching_state``) and steps them with the laws of
-the cells they replace; each point's initial void ratio is its own alpha0's on the map.
+the cells they replace; each point's initial void ratio is its own alpha0's on the map, or, for a population
+with a spread of opening angles (``opening_spread``), each family's of its own angle alpha0 + spread x_j.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from homogenization.material.critical_state import CriticalState, Renewal
 from homogenization.material.density import DensityMap
+from homogenization.material import opening_spread
 from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
@@ -80,20 +82,35 @@ class PopulationRenewal(Renewal):
             checked as a ``CriticalState``); None: ``params`` for every point.
         e_bounds: each point's (e_min, e_max) [-], shapes (n,), e_min < e_max (a calibration of the map); None:
             ``density``'s.
+        spread_deg: each point's spread of opening angles [deg], shape (n,) (``opening_spread``: its cells are
+            ``N_NODES`` families, renewed each on its own void ratio); None: one opening angle per point.
     """
 
     def __init__(self, params: CriticalState, material: HomogenisedMaterial, state: MaterialState,
                  density: DensityMap, alpha0_deg: np.ndarray, laws: Mapping[str, np.ndarray], law: str,
                  radius: float, per_point: Mapping[str, np.ndarray] | None = None,
-                 e_bounds: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 e_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                 spread_deg: np.ndarray | None = None) -> None:
         self._fresh = _FreshCells(material.model, laws, law, radius, material.orient.n_cells)
         super().__init__(params, _MaterialView(material, self._fresh), state, density)
-        self.nonfinite = np.zeros(material.n_points, dtype=bool)
-        """Per point, whether its fresh angle was ever not finite (``fresh_angle``)."""
-        alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (material.n_points,))
+        n = material.n_points
+        self.nonfinite = np.zeros(n, dtype=bool)
+        """Per point, whether a fresh angle of it was ever not finite (``fresh_angle``)."""
+        alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (n,))[:, None]
+        if spread_deg is not None:
+            x, _ = opening_spread.nodes()
+            self.families = x.size
+            if material.orient.n_cells % self.families:
+                raise ValueError(f"a point of {material.orient.n_cells} cells holds no {self.families} families")
+            alpha0 = alpha0 + np.broadcast_to(np.asarray(spread_deg, dtype=np.float64), (n,))[:, None] * x[None, :]
+        k = self.families
+        alpha0 = alpha0.reshape(-1)
+
+        def per_family(v: np.ndarray) -> np.ndarray:
+            return np.repeat(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,)), k)
+
         if e_bounds is not None:
-            e_min, e_max = (np.broadcast_to(np.asarray(v, dtype=np.float64), (material.n_points,)).copy()
-                            for v in e_bounds)
+            e_min, e_max = (per_family(v) for v in e_bounds)
             if not np.all(e_min < e_max):
                 raise ValueError("every point's e_min must be below its e_max")
             self.density = SimpleNamespace(e_min=e_min, e_max=e_max, alpha_dense_deg=density.alpha_dense_deg,
@@ -101,11 +118,11 @@ class PopulationRenewal(Renewal):
         m = self.density  # DensityMap.void_ratio on arrays
         self.e0 = m.e_max - (m.alpha_loose_deg - alpha0) / (m.alpha_loose_deg - m.alpha_dense_deg) * (m.e_max - m.e_min)
         if per_point:
-            values = {name: np.broadcast_to(np.asarray(v, dtype=np.float64), (material.n_points,)).copy()
+            values = {name: np.broadcast_to(np.asarray(v, dtype=np.float64), (n,)).copy()
                       for name, v in per_point.items()}
-            for i in range(material.n_points):
+            for i in range(n):
                 replace(params, **{name: float(v[i]) for name, v in values.items()}).check()
-            self.params = SimpleNamespace(**{**asdict(params), **values})
+            self.params = SimpleNamespace(**{**asdict(params), **{name: per_family(v) for name, v in values.items()}})
 
     def set_friction(self, phi_g_deg: np.ndarray) -> None:
         """Step the fresh cells from now on with each point's friction angle ``phi_g_deg`` [deg], shape (n,)
@@ -118,7 +135,7 @@ class PopulationRenewal(Renewal):
         angle = super().fresh_angle(J)
         bad = ~np.isfinite(angle)
         if bad.any():
-            self.nonfinite = self.nonfinite | bad
+            self.nonfinite = self.nonfinite | bad.reshape(self.nonfinite.size, self.families).any(axis=1)
             angle = np.where(bad, self.params.alpha_c_deg, angle)
         return angle
 

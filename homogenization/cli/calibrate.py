@@ -363,8 +363,7 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
 
 def check_critical_state(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     """UserError (one line) for the rule's parameters (``RULE``) calibrated without --critical-state, or
-    --critical-state with data of both dimensions or with alpha0_spread (the renewal runs one opening angle
-    per point)."""
+    --critical-state with data of both dimensions."""
     rule = [name for name in args.params if name in RULE]
     if rule and not args.critical_state:
         raise UserError(f"--params {rule[0]} is a parameter of the critical-state rule; add --critical-state")
@@ -375,8 +374,6 @@ def check_critical_state(args: argparse.Namespace, tests: Sequence[Measurement])
     if len({t.dim for t in tests}) > 1:
         raise UserError("--critical-state: the rule's defaults differ between biaxial and triaxial cells; give data "
                         "of one dimension")
-    if SPREAD in args.params or args.alpha0_spread != 0.0:
-        raise UserError(f"--critical-state does not run with {SPREAD} (the renewal takes one opening angle per point)")
 
 
 def check_kn_exponent(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
@@ -461,7 +458,7 @@ def interlocking_settings(args: argparse.Namespace) -> Interlocking:
 def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     """UserError (one line) for the interlocking friction's parameters or --interlocking-values without
     --interlocking, or --interlocking with biaxial data (its p_ref is a pressure), a backend other than the
-    analytical one, --confirm dem (the DEM's contacts keep phi_g), alpha0_spread, both lags calibrated, a value
+    analytical one, --confirm dem (the DEM's contacts keep phi_g), both lags calibrated, a value
     out of range, relax_void_slope, mobilisation_void_slope or map_state_weight calibrated or nonzero with a --data
     file that gives no void ratio, mobilisation_exponent or mobilisation_void_slope calibrated or not at its default
     without mobilisation_strain calibrated or nonzero, map_state_weight calibrated or nonzero on a flat line
@@ -482,8 +479,6 @@ def check_interlocking(args: argparse.Namespace, tests: Sequence[Measurement]) -
         what = f"--backend {args.backend}" if args.backend != "analytical" else "--confirm dem"
         raise UserError(f"--interlocking: {what} runs the DEM, whose contacts keep phi_g; use --backend analytical "
                         f"--confirm none")
-    if SPREAD in args.params or args.alpha0_spread != 0.0:
-        raise UserError(f"--interlocking does not run with {SPREAD}")
     if "relax_strain" in args.params and "softening_strain" in args.params:
         raise UserError("--params relax_strain,softening_strain: one lag at a time (calibrate one of them)")
     settings = interlocking_settings(args)

@@ -164,7 +164,7 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
 
 def check_void_ratio(post: Any, void_ratio: float | None) -> None:
     """UserError (one line): a posterior whose data gave void ratios (its mean holds e_min and e_max) run
-    without --void-ratio, one whose data gave none run with it, or a void ratio with alpha0_spread."""
+    without --void-ratio or one whose data gave none run with it."""
     mapped = DENSITY[0] in post.mean
     if mapped and void_ratio is None:
         raise UserError(f"--posterior {post.path}: calibrated on data with void ratios (its e_min, e_max map the void "
@@ -172,8 +172,6 @@ def check_void_ratio(post: Any, void_ratio: float | None) -> None:
     if void_ratio is not None and not mapped:
         raise UserError(f"--void-ratio with --posterior {post.path}: its data gave no void ratios, so its alpha0 is "
                         f"the state; drop --void-ratio")
-    if void_ratio is not None and SPREAD in post.mean:
-        raise UserError(f"--void-ratio with --posterior {post.path}: a run of its {SPREAD} takes the posterior's alpha0")
 
 
 def stiffness_scale(post: Any, void_ratio: float | None) -> float:
@@ -214,9 +212,10 @@ def state_map_bounds(post: Any, void_ratio: float | None, p0: float) -> tuple[fl
 def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *, lebedev_order: int, n_spins: int,
                   staggered_spins: bool) -> dict[str, Any]:
     """``models`` with the analytical one replaced, where the posterior holds alpha0_spread, by a closed form
-    whose cells carry the families of opening angles of one point (``opening_spread.cell_alpha0`` at the
-    posterior mean, ``FAMILIES_ATTRIBUTE``) for the orientation rule of ``meso``, ``lebedev_order`` x
-    ``n_spins``; ``models`` unchanged otherwise."""
+    whose cells carry the families of opening angles of one point (``opening_spread.cell_alpha0`` about the
+    alpha0 of ``meso``: the posterior mean's, or the map's of --void-ratio; ``FAMILIES_ATTRIBUTE``) for the
+    orientation rule of ``meso``, ``lebedev_order`` x ``n_spins``; ``models`` unchanged otherwise. UserError (one
+    line) where the lowest family, alpha0 - alpha0_spread, is below the ten-sphere cell's smallest opening."""
     if run is None or (SPREAD not in run.posterior.mean and run.interlocking is None):
         return models
     from homogenization.backends.analytical import Analytical3DCell  # noqa: PLC0415
@@ -226,7 +225,12 @@ def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *
     n = orientation_set(meso, n_orientations=1, lebedev_order=lebedev_order, n_spins=n_spins,
                         staggered_spins=staggered_spins).n_cells
     if SPREAD in mean:
-        alpha0 = opening_spread.cell_alpha0(np.array([mean["alpha0"]]), np.array([mean[SPREAD]]), n)
+        centre = float(meso.parameters["alpha0_deg"])
+        try:
+            opening_spread.check(centre, mean[SPREAD])
+        except ValueError as exc:
+            raise UserError(f"--posterior {run.posterior.path} at alpha0 {centre:.4g} deg: {exc}") from None
+        alpha0 = opening_spread.cell_alpha0(np.array([centre]), np.array([mean[SPREAD]]), n)
     else:  # the interlocking friction: per-cell laws at the cell's own alpha0 (the void ratio's, where given)
         alpha0 = np.full(n, float(meso.parameters["alpha0_deg"]))
     ones = np.ones(alpha0.size)
@@ -242,12 +246,14 @@ def spread_models(run: PosteriorRun | None, models: dict[str, Any], meso: Any, *
 
 
 def interlocking_renewal(run: PosteriorRun | None, meso: Any, critical_state: Any, void_ratio: float | None) -> Any:
-    """``driver.run``'s ``renewal`` where the posterior holds the interlocking friction: a callable that puts on a
-    run's points (one point, ``spread_models``' per-cell model) the calibration's ``InterlockingFriction`` at the
-    posterior mean, wrapping its critical-state renewal (``critical_state``; a ``PopulationRenewal`` on the
-    posterior's e_min, e_max) where it has one; e0 = ``void_ratio``, else the map's void ratio of the cell's
-    alpha0, as in ``forward.simulate``. None without the friction."""
-    if run is None or run.interlocking is None:
+    """``driver.run``'s ``renewal`` where the posterior holds the interlocking friction or alpha0_spread: a callable
+    that puts on a run's points (one point, ``spread_models``' per-cell model) the calibration's
+    ``InterlockingFriction`` at the posterior mean (where it has one), wrapping its critical-state renewal
+    (``critical_state``; a ``PopulationRenewal`` on the posterior's e_min, e_max, each family of a spread renewed on
+    its own void ratio) where it has one; e0 = ``void_ratio``, else the map's void ratio of the cell's alpha0, as in
+    ``forward.simulate``. None without the friction and without a spread renewed."""
+    spread = run is not None and SPREAD in run.posterior.mean
+    if run is None or (run.interlocking is None and not (spread and critical_state is not None)):
         return None
     from homogenization.calibration.forward import full_parameters  # noqa: PLC0415
     from homogenization.calibration.interlocking import InterlockingFriction  # noqa: PLC0415
@@ -268,7 +274,9 @@ def interlocking_renewal(run: PosteriorRun | None, meso: Any, critical_state: An
         if critical_state is not None:
             inner = PopulationRenewal(critical_state, points.material, points.state, default_map(3), alpha0,
                                       laws_of(full, post.forward.law), post.forward.law, post.radius,
-                                      e_bounds=(e_min, e_max))
+                                      e_bounds=(e_min, e_max), spread_deg=full.get(SPREAD))
+        if run.interlocking is None:
+            return inner
         return InterlockingFriction(run.interlocking, points.material, points.state, full["phi_g"], e0, inner=inner)
 
     return build

@@ -18,7 +18,9 @@ e = (1 + e0) J - 1 (``homogenization.material.density``'s map, a(e) the opening 
 e, extrapolated linearly): lambda = min(rate exp(rate_gain (a(e) - alpha_c)), rate_max) (``rate_gain_loose`` where a(e) > alpha_c) and
 alpha_f = clip(alpha_c + gain (a(e) - alpha_c), alpha_min, alpha_max). A point looser than alpha_c
 renews faster with looser, contractive cells, a denser one slower with denser, dilatant cells, so
-loose and dense points head for one stationary void ratio at each pressure. ``Renewal`` counts the
+loose and dense points head for one stationary void ratio at each pressure. A point whose cells fall in families
+of initial opening angles (``opening_spread``) renews each family on its own void ratio, e0 the map's of the
+family's angle (J and the strain shared): a mixture of denser and looser sub-volumes. ``Renewal`` counts the
 renewals, the capped rates, the clipped angles and the renewals merged into one (more than one renewal
 of a cell fell due in an increment).
 """
@@ -166,7 +168,11 @@ class Renewal:
         self.radius = plains[0][1]
         alpha0 = np.array([plains[i][0] for i in material.point_mesostructure])
         self.e0 = np.array([self.density.void_ratio(a) for a in alpha0])
-        """Each point's initial void ratio [-] (the map's), shape (n_points,)."""
+        """Each family's initial void ratio [-] (the map's), shape (n_points * families,), point-major."""
+        self.families = 1
+        """Families of opening angles per point [-]: each point's cells are ``families`` runs of n_cells / families
+        cells (family-major, ``opening_spread.replicate``), each family renewed on its own void ratio
+        (``calibration.renewal.PopulationRenewal`` with a spread; here 1)."""
         n = material.orient.n_cells
         self.phase = np.tile(_phases(np.asarray(material.orient.frames), params.phases), material.n_points)
         """phi_k [-] of every cell (``_phases``), shape (n_cells,)."""
@@ -178,7 +184,7 @@ class Renewal:
         """Per point, renewals that fell due in an increment where the cell was already due (made once): more
         than one renewal per cell and increment, i.e. an increment too large for the rate."""
         self.capped = np.zeros(material.n_points, dtype=np.int64)
-        """Per point, the increments whose rate ``rate_max`` capped."""
+        """Per point, the increments (times families) whose rate ``rate_max`` capped."""
         self.clipped = np.zeros(material.n_points, dtype=np.int64)
         """Per point, the fresh cells whose opening angle [alpha_min_deg, alpha_max_deg] clipped."""
         self.log: list[tuple[np.ndarray, ...]] = []
@@ -195,20 +201,20 @@ class Renewal:
         return self._mesos[key]
 
     def density_angle(self, J: np.ndarray) -> np.ndarray:
-        """a(e) [deg]: the opening angle that the map gives the points' current void ratio e = (1 + e0) J - 1,
-        extrapolated linearly beyond [e_min, e_max], shape (n_points,)."""
-        m = self.density
+        """a(e) [deg]: the opening angle that the map gives each family's current void ratio e = (1 + e0) J - 1 (J
+        [-] per point, shape (n_points,)), extrapolated linearly beyond [e_min, e_max], shape (n_points * families,)."""
+        m, J = self.density, np.repeat(np.asarray(J, dtype=np.float64), self.families)
         return line_angle_deg(current_void_ratio(self.e0, J), m.e_min, m.e_max, m.alpha_dense_deg, m.alpha_loose_deg)
 
     def fresh_angle(self, J: np.ndarray) -> np.ndarray:
-        """Opening angle alpha_f [deg] of fresh cells of each point of volume ratio J [-] before the clip to
-        [alpha_min_deg, alpha_max_deg], shape (n_points,)."""
+        """Opening angle alpha_f [deg] of fresh cells of each family of the points of volume ratio J [-] (n_points,)
+        before the clip to [alpha_min_deg, alpha_max_deg], shape (n_points * families,)."""
         p = self.params
         return p.alpha_c_deg + p.gain * (self.density_angle(J) - p.alpha_c_deg)
 
     def rate(self, J: np.ndarray) -> np.ndarray:
-        """Renewals per unit distortion [-] of each point of volume ratio J [-] before the cap ``rate_max``,
-        shape (n_points,)."""
+        """Renewals per unit distortion [-] of each family of the points of volume ratio J [-] (n_points,) before the
+        cap ``rate_max``, shape (n_points * families,)."""
         p = self.params
         excess = self.density_angle(J) - p.alpha_c_deg
         loose = p.rate_gain if p.rate_gain_loose is None else p.rate_gain_loose
@@ -226,13 +232,14 @@ class Renewal:
         return d_local, (cell.reshape(self.material.n_points, n) * weights).sum(axis=1) / weights.sum()
 
     def _tick(self, strain: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(per-cell local increments (n_cells, dim), per-point rates before the cap (n_points,), per-cell clock
-        ticks (n_cells,)) of an increment from the last advanced state to ``strain`` (n_points, n_voigt), rates at
-        ``J`` (n_points,)."""
+        """(per-cell local increments (n_cells, dim), per-family rates before the cap (n_points * families,),
+        per-cell clock ticks (n_cells,)) of an increment from the last advanced state to ``strain`` (n_points,
+        n_voigt), rates at ``J`` (n_points,)."""
         d_local, increment = self.distortion_increment(strain)
         rate = self.rate(J)
-        n = self.material.orient.n_cells
-        return d_local, rate, np.repeat(np.minimum(rate, self.params.rate_max) * increment, n)
+        k = self.families
+        tick = np.minimum(rate, self.params.rate_max) * np.repeat(increment, k)
+        return d_local, rate, np.repeat(tick, self.material.orient.n_cells // k)
 
     def _due(self, tick: np.ndarray) -> dict:
         """Clock before and after a tick (n_cells,), the due cells and the fraction of the increment after each due
@@ -245,10 +252,10 @@ class Renewal:
         return {"distortion": self.distortion + tick, "before": before, "after": after, "due": due, "rest": rest}
 
     def cell_fresh_angle(self, J: np.ndarray, index: np.ndarray) -> np.ndarray:
-        """The opening angle [deg] that the cells ``index`` (flat indices, shape (k,)) are renewed at: their point's
-        fresh angle at volume ratio J (n_points,), clipped to [alpha_min_deg, alpha_max_deg], shape (k,)."""
-        n = self.material.orient.n_cells
-        return np.clip(self.fresh_angle(J), self.params.alpha_min_deg, self.params.alpha_max_deg)[index // n]
+        """The opening angle [deg] that the cells ``index`` (flat indices, shape (m,)) are renewed at: their family's
+        fresh angle at volume ratio J (n_points,), clipped to [alpha_min_deg, alpha_max_deg], shape (m,)."""
+        per_family = self.material.orient.n_cells // self.families
+        return np.clip(self.fresh_angle(J), self.params.alpha_min_deg, self.params.alpha_max_deg)[index // per_family]
 
     def _renewed(self, cells, J: np.ndarray, due: np.ndarray, rest: np.ndarray | None, d_local: np.ndarray,
                  with_tangent: bool = False):
@@ -318,16 +325,16 @@ class Renewal:
         due = self._due(self.next_tick if self.params.in_increment else tick)
         self.last_strain = np.array(state.strain)
         self.next_tick = tick
-        n_points, n = self.material.n_points, self.material.orient.n_cells
-        self.capped = self.capped + (rate > self.params.rate_max)
+        n_points, n, k = self.material.n_points, self.material.orient.n_cells, self.families
+        self.capped = self.capped + (rate > self.params.rate_max).reshape(n_points, k).sum(axis=1)
         self.distortion = due["distortion"]
         self.merged = self.merged + np.maximum(due["after"] - due["before"] - 1.0, 0.0).reshape(n_points, n).sum(
             axis=1).astype(np.int64)
-        per_point = due["due"].reshape(n_points, n).sum(axis=1)
-        self.count = self.count + per_point
+        per_family = due["due"].reshape(n_points * k, n // k).sum(axis=1)
+        self.count = self.count + per_family.reshape(n_points, k).sum(axis=1)
         angle = self.fresh_angle(state.J)
         clipped = (angle < self.params.alpha_min_deg) | (angle > self.params.alpha_max_deg)
-        self.clipped = self.clipped + per_point * clipped
+        self.clipped = self.clipped + (per_family * clipped).reshape(n_points, k).sum(axis=1)
         self.log.append((self.count, self.capped, self.clipped, self.merged))
         if self.params.in_increment or not due["due"].any():
             return state
