@@ -1,11 +1,12 @@
 """python studies/fit_dobrany_density_families.py --spread S [--fit-spread] [--base RESULT.json] [--start-run DIR]
-                       [--steps 8] [--workers 1] [--tag T] [--rules 15x4s,35x12s] [--evaluate-only --result-tag R]
+                       [--start-scales NAME=F1,...] [--steps 8] [--workers 1] [--tag T] [--rules 15x4s,35x12s]
+                       [--evaluate-only --result-tag R]
 
 The Dobrany fit of a base study result (default: the 50 + 100 kPa kn x 0.8 start on Lebedev 15 x 4 staggered,
 ``calibration_dobrany_product_50_100_mv_n0_ms_cs05_kn08_15x4s``: its ``hmodel calibrate`` command, started at its
 posterior mean, or at the posterior mean of the calibration in ``--start-run``) run again in this process with the
 density families (``--alpha0-spread S``: alpha0_spread fixed at S [deg]; ``--fit-spread``: alpha0_spread calibrated,
-started at S), then the three tests at the new posterior mean on the orientation rules ``--rules``
+started at S; ``--start-scales``: ``hmodel calibrate``'s), then the three tests at the new posterior mean on the orientation rules ``--rules``
 (``screen_dobrany_dilation_delay.shape``: q and volume errors, the turn to dilation, the first peak, the highest q and
 its plateau, the renewal's clips).
 ``--evaluate-only``: the evaluation alone, of the fit already in the folder, its results suffixed ``_R``. Writes
@@ -75,6 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spread", type=float, required=True)
     parser.add_argument("--fit-spread", action="store_true")
     parser.add_argument("--start-run", type=Path, default=None)
+    parser.add_argument("--start-scales", default=None, metavar="NAME=F1,F2,...")
     parser.add_argument("--base", type=Path, default=BASE)
     parser.add_argument("--steps", type=int, default=8)
     parser.add_argument("--workers", type=int, default=1)
@@ -95,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
 
     start = post_mod.read_posterior(args.start_run).mean if args.start_run else None
     flags = command(record, out, args.steps, args.workers, start, args.spread, args.fit_spread)
+    flags += ["--start-scales", args.start_scales] if args.start_scales else []
     prior = Path(flags[flags.index("--prior") + 1])
     if not prior.is_file():  # the base's prior as calibration_dobrany_product.py writes it (--fit-mobilisation[-void])
         prior.parent.mkdir(parents=True, exist_ok=True)

@@ -268,8 +268,8 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
              interlocking: Interlocking | None = None) -> Curves:
     """Curves of ``test`` for each parameter set; ``params`` maps names of ``settings.parameters`` (and of
     ``DENSITY``) to shape (n,). A test that gives its void ratio runs each set at its map's alpha0
-    (``density_alpha0``, state map included); a set whose [e_min, e_max] does not hold it, or whose lowest family
-    alpha0 - alpha0_spread is then below ``ALPHA_MIN_3D_DEG``, gets NaN curves.
+    (``density_alpha0``); NaN curves for a set whose [e_min, e_max] misses it or whose
+    alpha0 - alpha0_spread is then below 45 deg.
     ``interlocking`` (analytical backend): phi_g is each set's phi_mu of the interlocking friction,
     e0 the test's void ratio, else the set's map's of its alpha0; its fields per set where ``params`` holds
     ``INTERLOCKING``'s names; None: ``settings.interlocking`` (None: the plain law). ``KN_EXPONENT`` in ``params``: each
@@ -277,7 +277,7 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
 
     Raises:
         ValueError: a value out of range, the Hertz-Mindlin law on a 2D test (or with ``STIFFNESS``),
-            alpha0_spread on a 2D test or a backend other than the analytical one (one line).
+            alpha0_spread on a 2D test or off the analytical backend (one line).
         homogenization.element_test.driver.ControlError: (dem/ann) a stage that cannot be run (p0 not reached).
     """
     if settings.law == HertzMindlinLaw.name and test.dim != 3:

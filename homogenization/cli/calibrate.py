@@ -140,8 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="alpha0 [deg] where not calibrated")
     parser.add_argument("--alpha0-spread", type=float, default=0.0,
                         help="half-width [deg] of each point's uniform distribution of opening angles about alpha0 "
-                             f"({opening_spread.N_NODES} families of cells; triaxial data) where not calibrated; 0: "
-                             "one opening angle")
+                             f"({opening_spread.N_NODES} families of cells; triaxial data; with --critical-state each "
+                             "family renews on its own void ratio) where not calibrated; 0: one opening angle")
     parser.add_argument("--e-min", type=float, default=DEFAULT_E_MIN,
                         help="void ratio of the densest cell [-] where not calibrated (data files with '# void_ratio = E')")
     parser.add_argument("--e-max", type=float, default=DEFAULT_E_MAX,
