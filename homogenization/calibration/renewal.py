@@ -17,9 +17,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from homogenization.material import opening_spread
 from homogenization.material.critical_state import CriticalState, Renewal
 from homogenization.material.density import DensityMap
-from homogenization.material import opening_spread
 from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
