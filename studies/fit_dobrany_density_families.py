@@ -9,6 +9,7 @@ density families (``--alpha0-spread S``: alpha0_spread fixed at S [deg]; ``--fit
 started at S; ``--start-scales``: ``hmodel calibrate``'s), then the three tests at the new posterior mean on the orientation rules ``--rules``
 (``screen_dobrany_dilation_delay.shape``: q and volume errors, the turn to dilation, the first peak, the highest q and
 its plateau, the renewal's clips).
+The last rule's curves go to ``..._figure.json`` for ``calibration_dobrany_product.py --splits-figure``.
 ``--evaluate-only``: the evaluation alone, of the fit already in the folder, its results suffixed ``_R``. Writes
 studies/results/fit_dobrany_density_families_SPLIT_TAG.{json,txt}; the calibration's folder is
 runs/dobrany_product/SPLIT_families_TAG.
@@ -116,7 +117,8 @@ def main(argv: list[str] | None = None) -> int:
                                   for k in ("fallbacks", "renewal_clips", "interlocking_clips", "failed")}))
     mean = {name: np.array([value]) for name, value in post.mean.items()}
     say("mean: " + json.dumps({k: float(v[0]) for k, v in mean.items()}))
-    rows = []
+    rows, curves = [], {}
+    fitted = {Path(flags[i + 1]).name for i, a in enumerate(flags) if a == "--data"}
     for rule in args.rules.split(","):
         order, rest = rule.split("x")
         settings = replace(post.forward, lebedev_order=int(order), n_spins=int(rest[:-1]), staggered_spins=True)
@@ -128,6 +130,9 @@ def main(argv: list[str] | None = None) -> int:
                    "forward_fallbacks": int(c.n_fallback[0]), "plateau": [low, high],
                    "renewal_clips": int(c.n_renewal_clip[0])}
             rows.append(row)
+            if rule == args.rules.split(",")[-1]:  # the figure's curves (``splits_figure``'s format)
+                curves[name] = {"eps1": test.eps1, "q": c.q[0], "eps_v": c.eps_v[0], "q_data": test.observed["q"],
+                                "eps_v_data": test.observed["eps_v"]}
             say(f"{rule} {name}: {text(row)}, plateau {100 * low:.2f}-{100 * high:.2f} %, renewal clips "
                 f"{row['renewal_clips']}")
     stem = RESULTS / f"fit_dobrany_density_families_{split}_{tag}{'_' + args.result_tag if args.result_tag else ''}"
@@ -136,6 +141,11 @@ def main(argv: list[str] | None = None) -> int:
                                                      "start": run.get("start"), "mean": post.mean, "rows": rows},
                                                     indent=1, default=str))
     stem.with_suffix(".txt").write_text("\n".join(lines) + "\n")
+    order, rest = args.rules.split(",")[-1].split("x")
+    figure = {"split": record["split"], "command": f"--order {order} --spins {rest[:-1]} --staggered-spins",
+              "mean": {"curves": curves, "tests": {name: {"role": "fitted" if name in fitted else "predicted"}
+                                                   for name in curves}}}
+    Path(f"{stem}_figure.json").write_text(json.dumps(figure, default=lambda a: np.asarray(a).tolist()))
     return 0
 
 
