@@ -35,6 +35,7 @@ from screen_dobrany_dilation_delay import shape, text  # noqa: E402
 from homogenization.calibration import forward  # noqa: E402
 from homogenization.material.opening_spread import NAME as SPREAD  # noqa: E402
 
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("result", type=Path)
