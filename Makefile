@@ -64,6 +64,9 @@ docs: $(VENV)/.docs-installed
 # The shipped 2D ANN's certificate covers p0 = 2e5 to 1e6 N/m and eps1 <= 10 % (docs/ann.md): the ANN
 # runs at p0 = 2e5 to 10 % and is overlaid (hmodel plot) on the closed form and the DEM, which go on to 20 %.
 ANN_OVERLAY := --increment 1e-4 --iso-increment 1e-4 --orientations 360 --eps-max 0.1
+# The shipped 3D ANN beside the closed form, inside its certificate (hcell3d:alpha0=55, p0 = 2e5 to 1e6 Pa, 10 %);
+# its first run on a machine compiles the spatial kernels (~25 s), which later runs then find cached.
+ANN3D_DEMO := --p0 2e5 --undrained --eps-max 0.1 --increment 1e-4 --order 11 --spins 4
 
 demo: venv
 	$(BIAXIAL) --backend analytical,dem --alpha0 55 --p0 5.85e6 $(OVERLAY) --out demo/alpha55
@@ -72,8 +75,10 @@ demo: venv
 	$(PY) -m homogenization.plotting --overwrite demo/alpha55_low/analytical/run.h5 demo/alpha55_low/dem/run.h5 \
 		demo/alpha55_low_ann/run.h5 --out demo/alpha55_low/cambridge.png
 	$(BIAXIAL) --backend analytical --alpha0 40 --p0 5.85e6 --out demo/alpha40
-	@echo "Figures (q-eps1, Cambridge plane q-p, p-eps1, q/p-eps1):"
-	@ls -1 demo/*/cambridge.png
+	$(PY) -m homogenization.triaxial --overwrite --backend analytical,ann --mesostructure hcell3d:alpha0=55 $(ANN3D_DEMO) \
+		--out demo/triaxial55
+	@echo "Figures (q-eps1, Cambridge plane q-p, p-eps1, q/p-eps1; 3D: stress path, deviator, volume):"
+	@ls -1 demo/*/cambridge.png demo/triaxial55/triaxial.png
 
 FIGURES := runs/figures
 TRIAXIAL := $(PY) -m homogenization.triaxial --overwrite --backend analytical,dem --p0 2e5 --eps-max 0.15 \
