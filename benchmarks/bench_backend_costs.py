@@ -9,9 +9,11 @@ rest state, take ``--warmup`` isotropic compression increments of 2e-5 per axis,
 along n, the opposite shared by the other axes): ``step`` of all the cells at once, one thread, the
 backends one after the other in one run. Prints one line per shear, cell, number of cells and
 backend: the median wall time of one increment and that time per cell-increment [us], then a
-Markdown table of the latter (rows: shear, cells; columns: backends), with the load average. The
-DEM relaxes each increment to equilibrium, so its substeps depend on the increment; the closed
-form's iterations and the ANN's corrections much less.
+Markdown table of the latter (rows: shear, cells; columns: backends), with the load average. Beside
+each time, the work its increments took (``COUNTS``, the median over the timed increments): the DEM's
+substeps and the hybrid ANN's Newton corrections per cell-increment, the closed form's residual
+evaluations of the batch per increment. The DEM relaxes each increment to equilibrium, so its substeps
+depend on the increment.
 
 Timings are of ``CellModel.step`` alone (no stress control, no output); a whole run adds its
 start-up (``benchmarks/bench_short_runs.py``) and, for stress-controlled tests, a few trial steps
@@ -49,8 +51,13 @@ def cells(args) -> list[tuple[str, object, dict[str, dict]]]:
             ("3D cell with a fine grain (fine_off_centre.toml)", load_mesostructure(FINE), fine)]
 
 
-def time_backend(name: str, options: dict, meso, n: int, strain: float, args) -> float:
-    """Median wall seconds of one ``step`` of ``n`` cells of ``meso`` with shear ``strain`` [-] (module docstring)."""
+COUNTS = {"dem": ("substeps", True), "ann": ("n_corrections", True), "analytical": ("iterations", False)}
+"""Backend -> (its diagnostic of the work of an increment, whether it is summed over the cells)."""
+
+
+def time_backend(name: str, options: dict, meso, n: int, strain: float, args) -> tuple[float, float | None]:
+    """(median wall seconds of one ``step`` of ``n`` cells of ``meso`` with shear ``strain`` [-], the median of its
+    ``COUNTS`` diagnostic per increment, per cell where summed over them; None where the step reports none)."""
     model = make_cell_model(name, dim=meso.dim, **options)
     state = model.init_state(meso, n)
     iso = np.full((n, meso.dim), 2e-5)
@@ -58,12 +65,15 @@ def time_backend(name: str, options: dict, meso, n: int, strain: float, args) ->
     shear[:, 0] = strain
     for _ in range(args.warmup):
         state, _ = model.step(state, iso)
-    times = []
+    times, counts = [], []
+    key, per_cell = COUNTS[name]
     for _ in range(args.increments):
         start = time.perf_counter()
-        state, _ = model.step(state, shear)
+        state, response = model.step(state, shear)
         times.append(time.perf_counter() - start)
-    return float(np.median(times))
+        if key in response.diagnostics:
+            counts.append(float(response.diagnostics[key]) / (n if per_cell else 1))
+    return float(np.median(times)), (float(np.median(counts)) if counts else None)
 
 
 def main() -> None:
@@ -89,17 +99,19 @@ def main() -> None:
                 for name, opts in options.items():
                     if mesostructure_refusal(name, meso):
                         continue
-                    seconds = time_backend(name, opts, meso, n, strain, args)
+                    seconds, work = time_backend(name, opts, meso, n, strain, args)
                     per = 1e6 * seconds / n
-                    table.setdefault((strain, label, n), {})[name] = per
+                    table.setdefault((strain, label, n), {})[name] = (per, work)
                     backends += [name] if name not in backends else []
                     print(json.dumps({"shear": strain, "cell": label, "cells": n, "backend": name,
-                                      "step_ms": round(1e3 * seconds, 3), "us_per_cell_increment": round(per, 3)}),
-                          flush=True)
-    print(f"\n| shear | cell | cells | {' | '.join(f'{b} [us]' for b in backends)} |")
+                                      "step_ms": round(1e3 * seconds, 3), "us_per_cell_increment": round(per, 3),
+                                      COUNTS[name][0]: work}), flush=True)
+    print(f"\n| shear | cell | cells | {' | '.join(f'{b} [us] ({COUNTS[b][0]})' for b in backends)} |")
     print(f"|---|---|---|{'---|' * len(backends)}")
     for (strain, label, n), row in table.items():
-        print(f"| {strain:g} | {label} | {n} | {' | '.join(f'{row[b]:.2f}' if b in row else '-' for b in backends)} |")
+        entries = [f"{row[b][0]:.2f} ({'-' if row[b][1] is None else f'{row[b][1]:.3g}'})" if b in row else "-"
+                   for b in backends]
+        print(f"| {strain:g} | {label} | {n} | {' | '.join(entries)} |")
     print(f"\nload average after: {os.getloadavg()}", flush=True)
 
 
