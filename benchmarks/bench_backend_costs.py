@@ -91,10 +91,11 @@ def main() -> None:
     if args.fine_model and not Path(args.fine_model).is_file():
         parser.error(f"--fine-model {args.fine_model}: no such file")
     print(f"load average (1, 5, 15 min): {os.getloadavg()}; CPU: {cpu_model()}", flush=True)
-    table: dict[tuple[float, str, int], dict[str, float]] = {}
+    table: dict[tuple[float, str, int], dict[str, tuple[float, float | None]]] = {}
     backends: list[str] = []
+    measured = cells(args)  # read once for every shear
     for strain in args.shear:
-        for label, meso, options in cells(args):
+        for label, meso, options in measured:
             for n in args.cells:
                 for name, opts in options.items():
                     if mesostructure_refusal(name, meso):
