@@ -96,21 +96,21 @@ class PopulationRenewal(Renewal):
         n = material.n_points
         self.nonfinite = np.zeros(n, dtype=bool)
         """Per point, whether a fresh angle of it was ever not finite (``fresh_angle``)."""
-        alpha0 = np.broadcast_to(np.asarray(alpha0_deg, dtype=np.float64), (n,))[:, None]
+
+        def of_points(v) -> np.ndarray:
+            return np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))
+
+        alpha0 = of_points(alpha0_deg)[:, None]
         if spread_deg is not None:
             x, _ = opening_spread.nodes()
             self.families = x.size
             if material.orient.n_cells % self.families:
                 raise ValueError(f"a point of {material.orient.n_cells} cells holds no {self.families} families")
-            alpha0 = alpha0 + np.broadcast_to(np.asarray(spread_deg, dtype=np.float64), (n,))[:, None] * x[None, :]
+            alpha0 = alpha0 + of_points(spread_deg)[:, None] * x[None, :]
         k = self.families
         alpha0 = alpha0.reshape(-1)
-
-        def per_family(v: np.ndarray) -> np.ndarray:
-            return np.repeat(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,)), k)
-
         if e_bounds is not None:
-            e_min, e_max = (per_family(v) for v in e_bounds)
+            e_min, e_max = (np.repeat(of_points(v), k) for v in e_bounds)
             if not np.all(e_min < e_max):
                 raise ValueError("every point's e_min must be below its e_max")
             self.density = SimpleNamespace(e_min=e_min, e_max=e_max, alpha_dense_deg=density.alpha_dense_deg,
@@ -118,11 +118,10 @@ class PopulationRenewal(Renewal):
         m = self.density  # DensityMap.void_ratio on arrays
         self.e0 = m.e_max - (m.alpha_loose_deg - alpha0) / (m.alpha_loose_deg - m.alpha_dense_deg) * (m.e_max - m.e_min)
         if per_point:
-            values = {name: np.broadcast_to(np.asarray(v, dtype=np.float64), (n,)).copy()
-                      for name, v in per_point.items()}
+            values = {name: of_points(v) for name, v in per_point.items()}
             for i in range(n):
                 replace(params, **{name: float(v[i]) for name, v in values.items()}).check()
-            self.params = SimpleNamespace(**{**asdict(params), **{name: per_family(v) for name, v in values.items()}})
+            self.params = SimpleNamespace(**{**asdict(params), **{name: np.repeat(v, k) for name, v in values.items()}})
 
     def set_friction(self, phi_g_deg: np.ndarray) -> None:
         """Step the fresh cells from now on with each point's friction angle ``phi_g_deg`` [deg], shape (n,)
