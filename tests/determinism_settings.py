@@ -5,7 +5,7 @@ numpy, OpenBLAS, torch (ATen, MKL, oneDNN), numba and glibc pick their kernels b
 make them pick those of another CPU, so that one machine checks what an AVX2 or an AVX-512
 machine would compute (docs/determinism.md). Settings that need AVX-512 run only where the CPU
 has it. The settings run two at a time (each its own process; those that compile numba for another CPU
-start first, after the ``other_cpus`` tests). Prints one line per setting, in order, then the ``other_cpus`` line
+start first, after the ``other_cpus`` tests, and the one whose CPU those tests compile for starts last). Prints one line per setting, in order, then the ``other_cpus`` line
 and the total time; exit status 1 if any of them failed.
 
     python tests/determinism_settings.py [pytest arguments, e.g. -x]
@@ -19,6 +19,8 @@ import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+
+from other_cpus import OTHER_CPUS
 
 ROOT = Path(__file__).resolve().parents[1]
 NUMPY_AVX2 = "X86_V4 AVX512_ICL AVX512_SPR"
@@ -43,7 +45,6 @@ SETTINGS: list[tuple[dict[str, str], bool]] = [
     ({"DNNL_MAX_CPU_ISA": "SSE41"}, False),
     ({"DNNL_MAX_CPU_ISA": "AVX2"}, False),
     ({"DNNL_MAX_CPU_ISA": "AVX512_CORE"}, True),
-    ({"NUMBA_CPU_NAME": "generic"}, False),
     ({"NUMBA_CPU_NAME": "haswell"}, False),
     ({"NUMBA_CPU_NAME": "skylake-avx512"}, True),
     ({"GLIBC_TUNABLES": GLIBC_NO_FMA}, False),
@@ -52,7 +53,9 @@ SETTINGS: list[tuple[dict[str, str], bool]] = [
       "GLIBC_TUNABLES": GLIBC_NO_FMA}, False),
 ]
 """(environment variables, needs AVX-512): the host as it is, then one library at a time at each
-level, then every library at its lowest level together."""
+level, then every library at its lowest level together. numba's lowest level, generic, is in that last
+setting alone: the ``other_cpus`` tests compile the meso-ANN's steps for it too, and the last setting
+then loads them from numba's cache instead of compiling them a second time."""
 
 
 def has_avx512() -> bool:
@@ -69,19 +72,25 @@ def marked_files(marker: str = "determinism") -> list[str]:
                   if f"pytest.mark.{marker}" in p.read_text())
 
 
+OTHER_CPU_NAMES = {variables["NUMBA_CPU_NAME"] for variables in OTHER_CPUS.values()}
+"""The CPUs numba compiles for in the ``other_cpus`` tests (``tests/other_cpus.py``)."""
+
 WORKERS = 2
 """Settings run at once (after the first, which fills Warp's and numba's caches alone): the CI machine's cores."""
 
 
-def start_order(settings: list[dict[str, str]]) -> list[int]:
+def start_order(settings: list[dict[str, str]], compiled_elsewhere: set[str]) -> list[int]:
     """Indices of ``settings`` after the first, in the order they start: first those that compile numba for a
-    CPU no earlier setting names (several times the others' time), so that no long one is left alone at the end."""
-    seen = {settings[0].get("NUMBA_CPU_NAME")}
-    compiles = []
+    CPU that no earlier setting names and ``compiled_elsewhere`` (the CPUs the ``other_cpus`` tests compile
+    for) does not hold (several times the others' time), so that no long one is left alone at the end; last
+    those whose CPU is in ``compiled_elsewhere``, so that they find its kernels in numba's cache."""
+    seen = {settings[0].get("NUMBA_CPU_NAME")} | compiled_elsewhere
+    rank = []
     for variables in settings[1:]:
-        compiles.append(variables.get("NUMBA_CPU_NAME") not in seen)
-        seen.add(variables.get("NUMBA_CPU_NAME"))
-    return sorted(range(1, len(settings)), key=lambda index: not compiles[index - 1])
+        cpu = variables.get("NUMBA_CPU_NAME")
+        rank.append(2 if cpu in compiled_elsewhere else 0 if cpu not in seen else 1)
+        seen.add(cpu)
+    return sorted(range(1, len(settings)), key=lambda index: rank[index - 1])
 
 
 def run_setting(variables: dict[str, str], argv: list[str], files: list[str],
@@ -108,7 +117,7 @@ def main(argv: list[str]) -> int:
     with ThreadPoolExecutor(max_workers=WORKERS) as pool:
         other_cpus = pool.submit(run_setting, {}, argv, marked_files("other_cpus"), "other_cpus")
         futures = {index: pool.submit(run_setting, runnable[index][1], argv, files)
-                   for index in start_order([variables for _, variables in runnable])}
+                   for index in start_order([variables for _, variables in runnable], OTHER_CPU_NAMES)}
         labelled = [(label, futures[index] if index else None) for index, (label, _) in enumerate(runnable)]
         for label, future in [*labelled, ("tests marked other_cpus, host CPU", other_cpus)]:
             result, seconds = future.result() if future else first
