@@ -104,6 +104,20 @@ def test_a_spread_runs_with_the_renewal_and_the_interlocking():
     assert np.all(np.isfinite(three.q)) and three.n_fallback.tolist() == [0, 0]
 
 
+@pytest.mark.parametrize("phases, cell_spread, renewal", [("mirror-spin", 0.0, True), ("cell", 0.3, False)])
+def test_spread_zero_is_one_opening_angle_whatever_rule_groups_the_cells(phases, cell_spread, renewal):
+    """Spread 0 is the point of one opening angle (to 1e-9) also where the renewal's phases rank a cell's spins
+    (mirror-spin) or the interlocking spreads the cells' friction (cell_spread): each family takes one family's
+    phases and factors, not a share of three families' (which moved q by 40 % and 3.8 %)."""
+    settings = replace(SETTINGS, critical_state=replace(DEFAULTS[3], phases=phases) if renewal else None)
+    rule = Interlocking(m=1.5, e_gamma=0.8, lambda_c=0.05, xi=0.5, cell_spread=cell_spread) if cell_spread else None
+    one = forward.simulate(TEST, SETS, settings, interlocking=rule)
+    zero = forward.simulate(TEST, {**SETS, "alpha0_spread": np.zeros(2)}, settings, interlocking=rule)
+    assert np.all(np.isfinite(one.q))
+    for name in ("q", "p", "eps_v"):
+        np.testing.assert_allclose(zero.channel(name), one.channel(name), rtol=1e-9, atol=1e-9 * 1e5)
+
+
 def test_renewal_on_each_sets_own_void_ratio_map():
     """A test that gives its void ratio: each set runs at its map's alpha0 and renews on its own map, as the
     package's Renewal on that map alone; a set whose map misses the void ratio gets NaN."""

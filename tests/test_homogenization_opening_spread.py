@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from homogenization.backends.analytical import Analytical3DCell
-from homogenization.calibration import bayes
+from homogenization.calibration import bayes, forward
 from homogenization.calibration.data import Measurement
 from homogenization.calibration.forward import SPREAD, ForwardSettings, simulate
 from homogenization.cli import calibrate, hmodel
@@ -139,6 +139,24 @@ def test_calibrate_refuses_a_bad_spread_in_one_line(case, spread_data, tmp_path,
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
     assert not out.exists()
+
+
+def test_calibrate_refuses_a_fixed_spread_that_the_datas_void_ratio_rules_out(spread_data, tmp_path, capsys):
+    """A test that gives its void ratio runs at the map's alpha0 (47.07 deg at e = 0.6 on the default map): a fixed
+    spread of 5 deg takes its lowest family below 45 deg there, refused before any run; 1 deg is not."""
+    data = tmp_path / "dense.csv"
+    data.write_text(spread_data.read_text().replace("# p0 = 1e5", "# p0 = 1e5\n# void_ratio = 0.6"))
+    flags = ["--data", str(data), *[f for f in COMMON if f not in ("--alpha0", "60")], "--params", "phi_g",
+             "--confirm", "none"]
+    out = tmp_path / "cal"
+    assert run_main(calibrate.main, [*flags, "--alpha0-spread", "5", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "void ratio 0.6" in err and "47.0655 - 5 deg is below 45 deg" in err and len(err.splitlines()) == 1
+    assert not out.exists()
+    args = calibrate.build_parser().parse_args([*flags, "--alpha0-spread", "1", "--out", str(out)])
+    tests = calibrate.read_tests(args.data)
+    settings = forward.with_density(calibrate.forward_settings(args, 3), tests, args.e_min, args.e_max)
+    calibrate.check_spread_at_void_ratios(args, tests, settings)  # 46.07 deg: allowed
 
 
 def test_calibrate_refuses_a_spread_on_biaxial_data(tmp_path, capsys):

@@ -338,7 +338,8 @@ def simulate(test: Measurement, params: Mapping[str, np.ndarray], settings: Forw
             points.renewal = InterlockingFriction(interlocking, points.material, points.state, full["phi_g"], full[E0],
                                                   {f: full[name] for name, f in INTERLOCKING.items()
                                                    if name in full and name not in (MAP_STATE, STIFFNESS)} or None,
-                                                  inner=points.renewal)
+                                                  inner=points.renewal,
+                                                  families=opening_spread.N_NODES if SPREAD in full else 1)
         return simulate_points(test, points, settings)
     return _simulate_one_by_one(test, full, settings)
 

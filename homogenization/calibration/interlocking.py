@@ -237,18 +237,18 @@ class InterlockingFriction:
         params: the rule (its fields that ``per_point`` lacks).
         material: the population (``forward.population(...).material``), n points of n_cells cells.
         state: its initial state (the friction is set from it).
-        phi_mu_deg: each point's phi_mu [deg], shape (n,).
-        e0: each point's void ratio at J = 1 [-], shape (n,).
+        phi_mu_deg, e0: each point's phi_mu [deg] and void ratio at J = 1 [-], shapes (n,).
         per_point: per-point values, ``Interlocking`` field (not p_ref) -> shape (n,); None: ``params``'.
         inner: the renewal to run first (``calibration.renewal.PopulationRenewal``) or None.
-    Attributes ``friction_deg`` (n,): the friction now; ``floored`` (n,): increments whose e_c was clipped;
-    ``fallbacks`` (n,): increments whose friction fell back to phi_mu (not finite or >= 90 deg); ``clip_log``:
-    both per accepted increment; ``e_lagged`` (n,): the void ratio read (e_r, e_s or e); ``e_densest`` (n,): e_d;
-    ``since_densest`` (n,): g_d [-]; ``distortion`` (n,): the accumulated distortion g [-] (with the mobilisation).
+        families: runs of cells per point (``opening_spread``'s families), each spread as a one-family point.
+    Attributes (n,): ``friction_deg``, the friction now; ``floored``, increments whose e_c was clipped;
+    ``fallbacks``, those whose friction fell back to phi_mu (``clip_log``: both per increment); ``e_lagged``, the
+    void ratio read (e_r, e_s or e); ``e_densest``, e_d; ``since_densest``, g_d [-]; ``distortion``, g [-].
     """
 
     def __init__(self, params: Interlocking, material: Any, state: MaterialState, phi_mu_deg: np.ndarray,
-                 e0: np.ndarray, per_point: Mapping[str, np.ndarray] | None = None, inner: Any = None) -> None:
+                 e0: np.ndarray, per_point: Mapping[str, np.ndarray] | None = None, inner: Any = None,
+                 families: int = 1) -> None:
         params.check()
         n = material.n_points
         self.params, self.material, self.inner = params, material, inner
@@ -283,7 +283,9 @@ class InterlockingFriction:
         self.e_lagged = current_void_ratio(self.e0, state.J)
         self.e_densest = self.e_lagged.copy()
         self.since_densest = np.zeros(n)
-        u = spread_factors(self.n_cells, 1.0) - 1.0
+        if families < 1 or self.n_cells % families:
+            raise ValueError(f"a point of {self.n_cells} cells holds no {families} families")
+        u = np.tile(spread_factors(self.n_cells // families, 1.0) - 1.0, families)
         self.factors = (1.0 + self.cell_spread[:, None] * u[None, :]).ravel()
         self._strain = np.array(state.strain, dtype=np.float64)
         self.set_from(state)

@@ -18,7 +18,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from homogenization.material import opening_spread
-from homogenization.material.critical_state import CriticalState, Renewal
+from homogenization.material.critical_state import CriticalState, Renewal, renewal_phases
 from homogenization.material.density import DensityMap
 from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
 from warp_hcell.mesostructures.mesostructure import Mesostructure
@@ -107,6 +107,9 @@ class PopulationRenewal(Renewal):
             if material.orient.n_cells % self.families:
                 raise ValueError(f"a point of {material.orient.n_cells} cells holds no {self.families} families")
             alpha0 = alpha0 + of_points(spread_deg)[:, None] * x[None, :]
+            one = material.orient.n_cells // self.families  # phases of one family's cells, the same in every family
+            self.phase = np.tile(renewal_phases(np.asarray(material.orient.frames)[:one], params.phases),
+                                 self.families * n)
         k = self.families
         alpha0 = alpha0.reshape(-1)
         if e_bounds is not None:

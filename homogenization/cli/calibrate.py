@@ -58,9 +58,9 @@ from homogenization.ann import RANGE_MODELS
 from homogenization.backends import BACKENDS
 from homogenization.calibration import bayes
 from homogenization.calibration.data import Measurement, read_test
-from homogenization.calibration.forward import (INTERLOCKING, KN_EXPONENT, LAW_PARAMETERS, MAP_STATE, PARAMETERS, RULE,
-                                                SPREAD, STIFFNESS, ForwardSettings, calibratable, check_density,
-                                                settings_record, with_density)
+from homogenization.calibration.forward import (DENSITY, INTERLOCKING, KN_EXPONENT, LAW_PARAMETERS, MAP_STATE,
+                                                PARAMETERS, RULE, SPREAD, STIFFNESS, ForwardSettings, calibratable,
+                                                check_density, density_alpha0, settings_record, with_density)
 from homogenization.calibration.interlocking import Interlocking
 from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN
 from homogenization.material import opening_spread
@@ -579,6 +579,26 @@ def check_spread(args: argparse.Namespace, tests: Sequence[Measurement]) -> None
             raise UserError(f"--alpha0-spread: {exc}") from None
 
 
+def check_spread_at_void_ratios(args: argparse.Namespace, tests: Sequence[Measurement],
+                                settings: ForwardSettings) -> None:
+    """UserError (one line) for a fixed --alpha0-spread that a test's void ratio rules out: the test runs at the
+    void-ratio map's alpha0 (e_min, e_max and the state map fixed), and that alpha0 minus the spread is below
+    45 deg. Where the map is calibrated each set is judged on its own (NaN curves, counted as a failed set)."""
+    if SPREAD in args.params or args.alpha0_spread == 0.0:
+        return
+    if any(name in args.params for name in (*DENSITY, MAP_STATE, "lambda_c", "xi_c")):
+        return
+    for test in tests:
+        alpha0 = density_alpha0(test, {}, settings)
+        if alpha0 is None or not np.isfinite(alpha0).all():
+            continue  # no void ratio, or one outside the map (check_density's)
+        try:
+            opening_spread.check(alpha0, args.alpha0_spread)
+        except ValueError as exc:
+            raise UserError(f"--alpha0-spread at {test.name}'s void ratio {test.void_ratio:g} (the map's "
+                            f"alpha0): {exc}") from None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
     args = build_parser().parse_args(argv)
@@ -597,6 +617,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_density(tests, args.params, settings, dict(zip(prior.names, zip(prior.low, prior.high))))
     except ValueError as exc:
         raise UserError(str(exc)) from None
+    check_spread_at_void_ratios(args, tests, settings)
     check_out(args.out, args.overwrite)
     config = configuration(args, tests, prior, settings)
     started = time.perf_counter()

@@ -277,7 +277,8 @@ def interlocking_renewal(run: PosteriorRun | None, meso: Any, critical_state: An
                                       e_bounds=(e_min, e_max), spread_deg=full.get(SPREAD))
         if run.interlocking is None:
             return inner
-        return InterlockingFriction(run.interlocking, points.material, points.state, full["phi_g"], e0, inner=inner)
+        return InterlockingFriction(run.interlocking, points.material, points.state, full["phi_g"], e0, inner=inner,
+                                    families=opening_spread.N_NODES if SPREAD in full else 1)
 
     return build
 

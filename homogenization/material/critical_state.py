@@ -108,7 +108,7 @@ DEFAULTS = {2: CriticalState(rate=160.0, gain=8.0, alpha_c_deg=52.0, rate_gain=1
 and void-ratio map (docs/studies/critical_state_mechanism.md); the gains are per degree of the map's angles."""
 
 
-def _phases(frames: np.ndarray, rule: str = "cell") -> np.ndarray:
+def renewal_phases(frames: np.ndarray, rule: str = "cell") -> np.ndarray:
     """Renewal phase phi_k = frac(j g) [-] of each cell, shape (N,), of frames R_k (N, d, d) (first column the cell's
     axis): j indexes the classes of cells that share a phase under ``rule`` (``PHASES``; "cell": abs(R_k) agree to
     1e-9), in order of first appearance; such cells are renewed together."""
@@ -174,8 +174,8 @@ class Renewal:
         cells (family-major, ``opening_spread.replicate``), each family renewed on its own void ratio
         (``calibration.renewal.PopulationRenewal`` with a spread; here 1)."""
         n = material.orient.n_cells
-        self.phase = np.tile(_phases(np.asarray(material.orient.frames), params.phases), material.n_points)
-        """phi_k [-] of every cell (``_phases``), shape (n_cells,)."""
+        self.phase = np.tile(renewal_phases(np.asarray(material.orient.frames), params.phases), material.n_points)
+        """phi_k [-] of every cell (``renewal_phases``), shape (n_cells,)."""
         self.distortion = np.zeros(material.n_cells)
         """Renewal clock of every cell: its distortion times the rate, summed [-], shape (n_cells,)."""
         self.count = np.zeros(material.n_points, dtype=np.int64)
