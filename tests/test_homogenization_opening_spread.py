@@ -5,6 +5,7 @@ without it, the calibration's and hmodel triaxial --posterior's use of it and th
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -105,6 +106,21 @@ def test_the_posterior_is_cut_at_alpha0_minus_spread_45_deg():
     assert np.isneginf(lp[1]) and log_post.n_infeasible == 1 and log_post.n_calls == 3
     with pytest.raises(ValueError, match="triaxial data"):
         bayes.make_prior(("phi_g", SPREAD), None, dim=2)
+
+
+def test_the_cut_leaves_the_spread_to_the_maps_alpha0_where_the_tests_give_void_ratios():
+    """With void ratios the tests run at the map's alpha0 (54.7 deg at e = 0.95 on the default map), not the fixed
+    --alpha0: spreads of 8 and 9.9 deg about a fixed 50 deg are not cut; the map's alpha0 runs 8 and gives 9.9 NaN
+    curves (a failed set)."""
+    settings = replace(SETTINGS, fixed={**SETTINGS.fixed, "alpha0": 50.0, "e_min": 0.597, "e_max": 0.977})
+    prior = bayes.make_prior(("phi_g", SPREAD), None, dim=3)
+    test = Measurement("t", Path("t.csv"), True, 2e5, EPS1[:2], {"q": np.array([1e4, 2e4])}, 3, 0.95)
+    values = {"phi_g": np.array([30.0, 30.0]), SPREAD: np.array([8.0, 9.9])}
+    assert list(forward.feasible(values, settings)) == [False, False]  # the fixed alpha0's cut
+    assert list(bayes.Posterior([test], prior, settings, 0.02).feasible(np.array([[30.0, 8.0], [30.0, 9.9]]))) == [
+        True, True]
+    curves = simulate(test, values, settings)
+    assert np.all(np.isfinite(curves.q[0])) and np.all(np.isnan(curves.q[1]))
 
 
 @pytest.fixture(scope="module")

@@ -235,8 +235,12 @@ class Posterior:
         return SPREAD in self.prior.names or SPREAD in self.settings.fixed
 
     def feasible(self, x: np.ndarray) -> np.ndarray:
-        """Whether each set of sampled coordinates x (n, n_params) meets the prior's cut (class docstring), shape (n,)."""
+        """Whether each set of sampled coordinates x (n, n_params) meets the prior's cut (class docstring), shape (n,);
+        every set where every test gives its void ratio: each test then runs at its map's alpha0, not the set's,
+        and ``forward.simulate`` judges the spread there (NaN curves, a failed set)."""
         values = self.prior.to_values(np.atleast_2d(x))
+        if all(test.void_ratio is not None for test in self.tests):
+            return np.ones(values.shape[0], dtype=bool)
         ok = feasible({name: values[:, i] for i, name in enumerate(self.prior.names)}, self.settings)
         return np.ones(values.shape[0], dtype=bool) if ok is None else ok
 
