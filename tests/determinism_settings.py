@@ -5,8 +5,9 @@ numpy, OpenBLAS, torch (ATen, MKL, oneDNN), numba and glibc pick their kernels b
 make them pick those of another CPU, so that one machine checks what an AVX2 or an AVX-512
 machine would compute (docs/determinism.md). Settings that need AVX-512 run only where the CPU
 has it. The settings run two at a time (each its own process; those that compile numba for another CPU
-start first, after the ``other_cpus`` tests, and the one whose CPU those tests compile for starts last). Prints one line per setting, in order, then the ``other_cpus`` line
-and the total time; exit status 1 if any of them failed.
+start first, after the ``other_cpus`` tests, and the one whose CPU those tests compile for starts last). Prints
+one line per setting, in order, then the ``other_cpus`` line and the total time; exit status 1 if any of them
+failed.
 
     python tests/determinism_settings.py [pytest arguments, e.g. -x]
 """
