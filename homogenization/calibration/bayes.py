@@ -231,15 +231,17 @@ class Posterior:
 
     @property
     def spread_cut(self) -> bool:
-        """Whether the prior is cut by alpha0 - alpha0_spread >= ALPHA_MIN_3D_DEG (alpha0_spread calibrated or fixed)."""
-        return SPREAD in self.prior.names or SPREAD in self.settings.fixed
+        """Whether the prior is cut by alpha0 - alpha0_spread >= ALPHA_MIN_3D_DEG: alpha0_spread calibrated or fixed,
+        and some test without its void ratio (a test that gives one runs at its map's alpha0, not the set's, and
+        ``forward.simulate`` judges the spread there: NaN curves, a failed set)."""
+        return ((SPREAD in self.prior.names or SPREAD in self.settings.fixed)
+                and any(test.void_ratio is None for test in self.tests))
 
     def feasible(self, x: np.ndarray) -> np.ndarray:
         """Whether each set of sampled coordinates x (n, n_params) meets the prior's cut (class docstring), shape (n,);
-        every set where every test gives its void ratio: each test then runs at its map's alpha0, not the set's,
-        and ``forward.simulate`` judges the spread there (NaN curves, a failed set)."""
+        every set where there is none (``spread_cut``)."""
         values = self.prior.to_values(np.atleast_2d(x))
-        if all(test.void_ratio is not None for test in self.tests):
+        if not self.spread_cut:
             return np.ones(values.shape[0], dtype=bool)
         ok = feasible({name: values[:, i] for i, name in enumerate(self.prior.names)}, self.settings)
         return np.ones(values.shape[0], dtype=bool) if ok is None else ok
