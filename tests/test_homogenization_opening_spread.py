@@ -175,6 +175,27 @@ def test_calibrate_refuses_a_fixed_spread_that_the_datas_void_ratio_rules_out(sp
     calibrate.check_spread_at_void_ratios(args, tests, settings)  # 46.07 deg: allowed
 
 
+def test_a_spread_is_judged_at_the_void_ratios_alpha0_not_the_fixed_one(spread_data, tmp_path):
+    """Where every test gives its void ratio no test runs at the fixed --alpha0: a spread of 8 deg about a fixed
+    50 deg is calibrated (the tests run at the map's 54.7 deg, e = 0.95) and hmodel triaxial --posterior
+    --void-ratio 0.95 replays it; both refused it at 50 - 8 = 42 deg before. --void-ratio 0.65 (47.9 deg) is
+    refused at the replay's own alpha0."""
+    data = tmp_path / "loose.csv"
+    data.write_text(spread_data.read_text().replace("# p0 = 1e5", "# p0 = 1e5\n# void_ratio = 0.95"))
+    common = [f for f in COMMON if f not in ("--alpha0", "60")]
+    out = tmp_path / "cal"
+    assert run_main(calibrate.main, ["--data", str(data), *common, "--params", "phi_g", "--alpha0", "50",
+                                     "--alpha0-spread", "8", "--e-min", "0.597", "--e-max", "0.977", "--steps", "1",
+                                     "--resolution", "off", "--confirm", "none", "--out", str(out)]) == 0
+    run = ["triaxial", "--posterior", str(out), "--drained", "--p0", "1e5", "--eps-max", "8e-3", "--increment", "4e-3",
+           "--iso-increment", "2e-3", "--order", "5", "--spins", "2", "-q"]
+    assert run_main(hmodel.main, [*run, "--void-ratio", "0.95", "--out", str(tmp_path / "loose")]) == 0
+    stored = io.read_run(tmp_path / "loose" / io.RUN_FILE).attrs["parameters"]
+    assert stored["posterior"]["values"][SPREAD] == 8.0
+    assert run_main(hmodel.main, [*run, "--void-ratio", "0.65", "--out", str(tmp_path / "dense")]) == 2
+    assert not (tmp_path / "dense").exists()
+
+
 def test_calibrate_refuses_a_spread_on_biaxial_data(tmp_path, capsys):
     data = tmp_path / "u.csv"
     data.write_text("# test = undrained\n# p0 = 3e6\neps1,q\n0.004,1.1e6\n0.008,1.8e6\n")

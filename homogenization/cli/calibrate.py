@@ -562,7 +562,9 @@ def likelihood_noise(args: argparse.Namespace) -> float:
 def check_spread(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
     """UserError (one line) for alpha0_spread (calibrated or --alpha0-spread) where the forward model cannot
     run it: biaxial data, a backend other than the analytical one, --confirm dem (the DEM takes one opening
-    angle per model), or a fixed spread below 0 or past alpha0 - 45 deg."""
+    angle per model), or a fixed spread below 0 or, where a test runs at the fixed --alpha0 (one without its void
+    ratio), past alpha0 - 45 deg (``check_spread_at_void_ratios`` judges the others; a calibrated alpha0 the
+    prior's cut)."""
     if SPREAD not in args.params and args.alpha0_spread == 0.0:
         return
     if any(t.dim != 3 for t in tests):
@@ -573,8 +575,9 @@ def check_spread(args: argparse.Namespace, tests: Sequence[Measurement]) -> None
         raise UserError(f"{SPREAD}: {what} runs one opening angle per model; a spread runs on the analytical backend "
                         f"only (add --confirm none)")
     if SPREAD not in args.params:
-        try:
-            opening_spread.check(args.alpha0, args.alpha0_spread)
+        at_fixed_alpha0 = "alpha0" not in args.params and any(t.void_ratio is None for t in tests)
+        try:  # an alpha0 of +inf: the sign of the spread alone
+            opening_spread.check(args.alpha0 if at_fixed_alpha0 else np.inf, args.alpha0_spread)
         except ValueError as exc:
             raise UserError(f"--alpha0-spread: {exc}") from None
 

@@ -131,7 +131,7 @@ def apply_posterior(args: argparse.Namespace, argv: Sequence[str], parser: argpa
     alpha0 = post.mean["alpha0"]
     try:
         check_alpha0_deg(alpha0)
-        if SPREAD in post.mean:
+        if SPREAD in post.mean and DENSITY[0] not in post.mean:  # else at --void-ratio's alpha0 (spread_models)
             opening_spread.check(alpha0, post.mean[SPREAD])
     except ValueError as exc:
         raise UserError(f"--posterior {post.path}: {exc}") from None
