@@ -149,7 +149,8 @@ def test_the_shipped_certificates_meet_the_minimum_and_record_their_envelope():
 
 def test_a_run_below_the_envelope_warns_once_and_run_h5_records_it(tmp_path, capsys):
     """The shipped model at p0 = 5e4 N/m, below its certificate's lowest pressure (2e5), drained
-    to 11 % (beyond its 10 %): one warning line, the status line and run.h5 say so."""
+    to 11 % (beyond its 10 %) in increments of 1e-2 (coarser than its 1e-4): one warning line, the status line
+    and run.h5 say so."""
     model = _copy_shipped(tmp_path / "env")
     out = tmp_path / "low"
     argv = ["--backend", "ann", "--p0", "5e4", "--eps-max", "0.11", "--increment", "1e-2", "--orientations", "4",
@@ -158,11 +159,12 @@ def test_a_run_below_the_envelope_warns_once_and_run_h5_records_it(tmp_path, cap
     printed = capsys.readouterr()
     warnings = [line for line in printed.err.splitlines() if "envelope" in line]
     assert warnings == ["warning: ann: the run is outside its certificate's envelope: p0 = 50000 N/m below the "
-                        "lowest certified pressure 200000 N/m; axial strain 0.11 beyond the certified 0.1"]
+                        "lowest certified pressure 200000 N/m; axial strain 0.11 beyond the certified 0.1; axial "
+                        "strain increment 0.01 coarser than the certified 0.0001"]
     assert "OUTSIDE its certificate's envelope" in printed.out
     with h5py.File(out / "run.h5") as f:
         ann = json.loads(f.attrs["parameters"])["ann_model"]
-    assert ann["certified"] and len(ann["outside_envelope"]) == 2 and "below" in ann["outside_envelope"][0]
+    assert ann["certified"] and len(ann["outside_envelope"]) == 3 and "below" in ann["outside_envelope"][0]
 
 
 def test_the_envelope_names_every_way_out():
@@ -185,6 +187,11 @@ def test_the_envelope_names_every_way_out():
     assert outside(envelope, inside, mesostructure="hcell:alpha0=55", cell_parameters={"alpha0_deg": 55.0}) == []
     no_p0 = (programmes.constant_volume_biaxial(0.01, 10),)
     assert "before any isotropic compression" in outside(envelope, no_p0)[0]
+    fine = {**envelope, "increment": 1e-4}
+    assert outside(fine, programmes.biaxial(5e5, 0.05, 1e-4)) == []
+    assert outside(fine, programmes.biaxial(5e5, 0.05, 1e-3, drained=True)) == [
+        "axial strain increment 0.001 coarser than the certified 0.0001"]
+    assert outside(fine, reversal) == ["axial strain increment 0.001 coarser than the certified 0.0001"]
 
 
 def test_uncertified_failed_and_mismatched_models_are_refused_unless_asked(tmp_path, short_certificate, capsys):

@@ -195,7 +195,8 @@ def outside(envelope: Mapping[str, Any], programme: programmes.Programme, *, mes
     Checked: every isotropic stage's p0 (``stop_at_p``) within the certified pressures (a
     programme without one: not a certified test); the kind of every other step among the
     certified kinds (``step_kind``); the axial strain eps11 counted from the end of each
-    isotropic stage within +-eps_max; the cell's parameters where given (e.g. ``alpha0_deg``; names are not
+    isotropic stage within +-eps_max; every such step's axial strain increment at most the
+    certified ``increment`` (the network's error grows with it: docs/ann.md); the cell's parameters where given (e.g. ``alpha0_deg``; names are not
     compared: a builder spec and a file name the same cell differently, and the backend's own
     ``check_start_cell`` bounds the learning state). ``unit``: stress unit of the phrases."""
     exits: list[str] = []
@@ -203,6 +204,7 @@ def outside(envelope: Mapping[str, Any], programme: programmes.Programme, *, mes
     p0 = None
     strain, largest = 0.0, 0.0
     kinds: list[str] = []
+    coarsest = 0.0
     started = False
     for step in programme:
         if step.stop_at_p is not None:
@@ -223,12 +225,16 @@ def outside(envelope: Mapping[str, Any], programme: programmes.Programme, *, mes
         if step.control[0] == "strain":
             strain += step.target[0]
             largest = max(largest, abs(strain))
+            coarsest = max(coarsest, abs(step.target[0]) / step.n_increments)
     if kinds:
         certified = ", ".join(envelope.get("kinds", ())) or "none"
         exits.append(f"test kind {', '.join(kinds)} not certified (certified: {certified})")
     eps_max = envelope.get("eps_max")
     if eps_max is not None and largest > eps_max * (1.0 + 1e-6):
         exits.append(f"axial strain {largest:g} beyond the certified {eps_max:g}")
+    increment = envelope.get("increment")
+    if increment is not None and coarsest > increment * (1.0 + 1e-6):
+        exits.append(f"axial strain increment {coarsest:g} coarser than the certified {increment:g}")
     for key, value in (envelope.get("cell_parameters") or {}).items() if cell_parameters is not None else ():
         given = cell_parameters.get(key)
         if given is None or not math.isclose(float(given), float(value), rel_tol=1e-9):
