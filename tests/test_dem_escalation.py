@@ -199,6 +199,30 @@ def test_the_hybrid_takes_the_released_cells_again_from_rest_and_counts_them(mon
     for whole, kept in zip((*out, response.moment, response.area), (*plain, plain_response.moment, plain_response.area)):
         assert np.array_equal(whole[[0, 2]], np.asarray(kept)[[0, 2]])
     assert not np.array_equal(out.free_position[1], plain.free_position[1])  # another first guess, another balance
+    # the step's counts are those of the cells as they end: cells 0 and 2 of the first pass, cell 1 of the pass again
+    # (its Newton steps added to the first pass's)
+    first, _ = hybrid.fast.increment(*state, d_eps)
+    first_corrections = hybrid.fast.last_corrections()
+    again, _ = hybrid.fast.increment(*(np.asarray(a)[1:2] for a in state), d_eps[1:2], held=released[1:2])
+    again_corrections = hybrid.fast.last_corrections()
+    ratio = first_corrections.force_ratio[1].copy()
+    ratio[1] = again_corrections.force_ratio[1, 0]
+    d = response.diagnostics
+    assert d["force_ratio_max"] == ratio.max() and d["n_unconverged"] == np.count_nonzero(ratio > 1e-3)
+    assert d["n_corrections"] == first_corrections.steps.sum() + again_corrections.steps.sum()
+    for name, flag in (("n_coulomb_capped", "capped"), ("n_tension_clipped", "opened"), ("n_mechanism", "mechanism")):
+        ends = getattr(first, flag).copy()
+        ends[1] = getattr(again, flag)[0]
+        assert d[name] == np.count_nonzero(ends), name
+    # every cell taken again: the force ratios are the pass again's alone
+    everywhere = np.zeros_like(released)
+    everywhere[:, :2] = True
+    monkeypatch.setattr(hybrid.escalation, "released_dofs", lambda *args: everywhere)
+    _, response = hybrid.step(state, d_eps)
+    hybrid.fast.increment(*state, d_eps, held=everywhere)
+    again_corrections = hybrid.fast.last_corrections()
+    assert response.diagnostics["force_ratio_max"] == again_corrections.force_ratio[1].max()
+    assert again_corrections.force_ratio[1].max() != first_corrections.force_ratio[1].max()
 
 
 @pytest.mark.skipif(not SHIPPED_3D.is_file(), reason="3D model not installed")

@@ -82,7 +82,7 @@ from homogenization.ann.ood import OOD_INTERVAL, OodMonitor
 from homogenization.ann.policy import CertificatePolicy, default_escalation
 from homogenization.ann.records import Certificate, certificate_of
 from training import fast_model
-from training.inference import FastAdvance
+from training.inference import Corrections, FastAdvance
 from training.fast_model import net_arrays, RELAXATION_RAMP, StateDictError
 from training.checkpoint import check_compatible, check_start_cell, CheckpointError, load_checkpoint, read_metadata
 from training.ood import OodIndex, probe_columns, state_features
@@ -319,14 +319,10 @@ class AnnCell(ArrayStateMixin):
             resting = self._resting(state)
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent, held=resting)
             features = self.fast.last_features()[probe_columns(self.arrays):].T if due else None
-            capped, opened, mechanism, scaled, held = self.fast.last_counts().tolist()
-            diagnostics = {"n_coulomb_capped": float(capped), "n_tension_clipped": float(opened),
-                           "n_mechanism": float(mechanism), "n_relaxation_scaled": float(scaled),
-                           "n_grains_held": float(held),
-                           **self._correction_diagnostics(*(self.fast.last_corrections() or (None,) * 4)),
-                           **self.ood_monitor.diagnostics(due, state, features)}
+            tally = _Tally.of(inc, self.fast.last_corrections())
+            diagnostics = {**tally.diagnostics(self.force_tolerance), **self.ood_monitor.diagnostics(due, state, features)}
             return self._escalated(state, d_eps_local, AnnState(inc.cell_size, inc.free_position, inc.shear_force),
-                                   CellResponse(inc.moment, inc.area, diagnostics, tangent), resting)
+                                   CellResponse(inc.moment, inc.area, diagnostics, tangent), resting, tally)
         import torch  # noqa: PLC0415
         from training import cell_physics  # noqa: PLC0415
 
@@ -345,15 +341,12 @@ class AnnCell(ArrayStateMixin):
                 step, counts = self._advance(size, free, shear, d_eps)
         new = AnnState(*(t.detach().cpu().numpy() for t in (step.cell_size, step.free_position, step.shear_force)))
         moment = step.moment.detach().cpu().numpy()
-        diagnostics = {
-            "n_coulomb_capped": float(step.capped.any(dim=1).sum()),
-            "n_tension_clipped": float(step.opened.any(dim=1).sum()),
-            "n_mechanism": float(np.count_nonzero(np.all(moment == 0.0, axis=(1, 2)))),
-            "n_relaxation_scaled": float(np.count_nonzero(np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP)),
-            "n_grains_held": float(cell_physics.count_held_grains(self.net.schema, step.held).sum()),
-            **self._correction_diagnostics(*(None if c is None else c.detach().cpu().numpy() for c in counts)),
-            **self.ood_monitor.diagnostics(due, state, state_features(self.net, *state) if due else None),
-        }
+        flags = [step.capped.any(dim=1).cpu().numpy(), step.opened.any(dim=1).cpu().numpy(),
+                 np.all(moment == 0.0, axis=(1, 2)), np.linalg.norm(d_eps_local, axis=1) < RELAXATION_RAMP,
+                 cell_physics.count_held_grains(self.net.schema, step.held).cpu().numpy()]
+        tally = _Tally(flags, None if counts[0] is None else Corrections(*(c.detach().cpu().numpy() for c in counts)))
+        diagnostics = {**tally.diagnostics(self.force_tolerance),
+                       **self.ood_monitor.diagnostics(due, state, state_features(self.net, *state) if due else None)}
         return self._escalated(state, d_eps_local, new,
                                CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent))
 
@@ -365,14 +358,15 @@ class AnnCell(ArrayStateMixin):
             return None
         return self.escalation.resting_dofs(state.cell_size, state.free_position)
 
-    def _escalated(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState,
-                   response: CellResponse, resting: np.ndarray | None = None) -> tuple[AnnState, CellResponse]:
+    def _escalated(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState, response: CellResponse,
+                   resting: np.ndarray | None = None, tally: _Tally | None = None) -> tuple[AnnState, CellResponse]:
         """``new`` and ``response`` where a grain is released (``DemEscalation.released``; hybrids with
         ``dem_escalation`` only, counted in ``n_released``): on CPU the increment again from rest for that grain
         (``_held_at_rest``) unless it started there (``resting``, (n, n_free) bool; cells with one counted in
         ``n_resting``, the released among them in ``n_released_pushed``), on another device the DEM's increment,
         as with ``sliding`` the sliding cells (counted in ``n_escalated``). The tangent of such a cell stays the
-        hybrid's (stress control's search direction only)."""
+        hybrid's (stress control's search direction only). ``tally``: the compiled step's per-cell counts, whose
+        cells taken again on CPU count as they end (``_Tally``)."""
         if self.escalation is None:
             return new, response
         released = self.escalation.released_dofs(new.cell_size, state.free_position, new.free_position)
@@ -389,13 +383,15 @@ class AnnCell(ArrayStateMixin):
             escalated = again
         if escalated.any() and self.fast is not None:
             index = np.flatnonzero(escalated)
-            new, response = self._held_at_rest(state, d_eps_local, new, response, index, released)
+            new, response = self._held_at_rest(state, d_eps_local, new, response, index, released, tally)
             if drag:
                 pushed_dofs[index] = released[index] & self.escalation.released_dofs(
                     new.cell_size[index], np.asarray(state.free_position)[index], new.free_position[index])
             escalated = np.zeros_like(escalated)
         if drag:
-            new, response = self._dragged(state, d_eps_local, new, response, pushed_dofs)
+            new, response = self._dragged(state, d_eps_local, new, response, pushed_dofs, tally)
+        if tally is not None:
+            response.diagnostics.update(tally.diagnostics(self.force_tolerance))
         if resting is not None:
             response.diagnostics["n_released_pushed"] += pushed
         if self.escalation.with_sliding:
@@ -410,7 +406,7 @@ class AnnCell(ArrayStateMixin):
         return _with_cells(new, response, index, (size, free, shear, moment, area))
 
     def _dragged(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState, response: CellResponse,
-                 pushed: np.ndarray) -> tuple[AnnState, CellResponse]:
+                 pushed: np.ndarray, tally: _Tally | None) -> tuple[AnnState, CellResponse]:
         """``new`` and ``response`` where the free DOFs ``pushed`` (n, n_free) bool (grains that started the
         corrections at rest and end released) move as the DEM's relaxation from rest moves them, the other grains
         following the balance (``DemEscalation.relaxed``), then the contact law at the end
@@ -432,22 +428,23 @@ class AnnCell(ArrayStateMixin):
         diagnostics["n_relaxed_substeps"] = float(substeps.sum())
         diagnostics["n_relaxed_unconverged"] = float(np.count_nonzero(substeps >= RELAX_SUBSTEPS))
         inc = self.fast.again_displaced(cells, free - free0)
+        if tally is not None:
+            tally.take(cells, inc, None)
         return _with_cells(new, response, cells, (inc.cell_size, inc.free_position, inc.shear_force, inc.moment,
                                                   inc.area))
 
     def _held_at_rest(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState, response: CellResponse,
-                      index: np.ndarray, released: np.ndarray) -> tuple[AnnState, CellResponse]:
+                      index: np.ndarray, released: np.ndarray, tally: _Tally | None) -> tuple[AnnState, CellResponse]:
         """``new`` and ``response`` with the increment of the cells ``index`` taken again, the DOFs of their
         released grains (``released`` (n, n_free) bool) starting the corrections at rest
         (``FastAdvance.again_at_rest``): a grain that nothing pushes stays where it was, one that a
         neighbour pushes moves as far as the balance needs. Counts ``n_released_pushed`` (cells with a
-        released grain again after it) and adds those corrections to ``n_corrections``."""
+        released grain again after it); ``tally`` takes those cells as they end, their corrections added."""
         inc = self.fast.again_at_rest(index, released[index])
-        diagnostics = response.diagnostics
-        diagnostics["n_released_pushed"] = float(np.count_nonzero(
+        response.diagnostics["n_released_pushed"] = float(np.count_nonzero(
             self.escalation.released(inc.cell_size, np.asarray(state.free_position)[index], inc.free_position)))
-        if "n_corrections" in diagnostics:
-            diagnostics["n_corrections"] += float(self.fast.last_corrections().steps.sum())
+        if tally is not None:
+            tally.take(index, inc, self.fast.last_corrections())
         return _with_cells(new, response, index, (inc.cell_size, inc.free_position, inc.shear_force, inc.moment,
                                                   inc.area))
 
@@ -460,17 +457,6 @@ class AnnCell(ArrayStateMixin):
 
         out = corrected_advance(self.net, size, free, shear, d_eps, self.equilibrium_corrections, self.force_tolerance)
         return out.increment, (out.force_ratio, out.corrections, out.shortened, out.shifted)
-
-    def _correction_diagnostics(self, force_ratio: np.ndarray | None, corrections: np.ndarray | None,
-                                shortened: np.ndarray | None, shifted: np.ndarray | None) -> dict[str, float]:
-        """The counts of the equilibrium corrections of one step (module docstring); {} without them."""
-        if force_ratio is None:
-            return {}
-        return {"n_corrected": float(np.count_nonzero(corrections)), "n_corrections": float(corrections.sum()),
-                "n_shortened": float(shortened.sum()), "n_shifted": float(shifted.sum()),
-                "n_unconverged": float(np.count_nonzero(force_ratio[1] > self.force_tolerance)),
-                "force_ratio_network_max": float(force_ratio[0].max(initial=0.0)),
-                "force_ratio_max": float(force_ratio[1].max(initial=0.0))}
 
     def failed_cells(self, state: AnnState, d_eps_local: np.ndarray) -> dict[str, np.ndarray]:
         """The cells whose step or tangent fails over the increment ``d_eps_local`` (n, dim) from ``state``.
@@ -586,6 +572,48 @@ class AnnCell3D(AnnCell):
     the backend ``ann`` of 3D runs (``homogenization.backends.BACKENDS``)."""
 
     default_dim = 3
+
+
+class _Tally:
+    """The compiled step's counts per cell, so that a cell taken again (``AnnCell._held_at_rest``, ``_dragged``)
+    counts as it ends: the branch flags (``training.inference.FastIncrement``: capped, opened, mechanism,
+    relaxation-scaled, grains held) and the equilibrium corrections (``training.inference.Corrections``; the
+    force ratios as they end, the Newton steps, shortened and shifted of every pass added)."""
+
+    def __init__(self, flags: list[np.ndarray], corrections: Any) -> None:
+        self.flags = flags
+        self.corrections = corrections
+
+    @classmethod
+    def of(cls, inc: Any, corrections: Any) -> _Tally:
+        """The counts of one ``FastAdvance.increment``'s outcome ``inc`` and its ``last_corrections()`` (copies)."""
+        flags = [np.array(a) for a in (inc.capped, inc.opened, inc.mechanism, inc.relaxation_scaled, inc.grains_held)]
+        return cls(flags, None if corrections is None else type(corrections)(*(np.array(a) for a in corrections)))
+
+    def take(self, index: np.ndarray, inc: Any, corrections: Any) -> None:
+        """Cells ``index`` as the pass ``inc`` (their outcome) ends them, its ``corrections`` (None: none taken)."""
+        for whole, part in zip(self.flags, (inc.capped, inc.opened, inc.mechanism, inc.relaxation_scaled,
+                                            inc.grains_held)):
+            whole[index] = part
+        if corrections is not None and self.corrections is not None:
+            self.corrections.force_ratio[1, index] = corrections.force_ratio[1]
+            for whole, part in zip(self.corrections[1:], corrections[1:]):
+                whole[index] += part
+
+    def diagnostics(self, tolerance: float | None) -> dict[str, float]:
+        """The step's counts (module docstring): the branch counts, and those of the corrections where taken."""
+        capped, opened, mechanism, scaled, held = self.flags
+        counts = {"n_coulomb_capped": float(np.count_nonzero(capped)), "n_tension_clipped": float(np.count_nonzero(opened)),
+                  "n_mechanism": float(np.count_nonzero(mechanism)), "n_relaxation_scaled": float(np.count_nonzero(scaled)),
+                  "n_grains_held": float(held.sum())}
+        if self.corrections is None:
+            return counts
+        ratio, steps, shortened, shifted = self.corrections
+        return {**counts, "n_corrected": float(np.count_nonzero(steps)), "n_corrections": float(steps.sum()),
+                "n_shortened": float(shortened.sum()), "n_shifted": float(shifted.sum()),
+                "n_unconverged": float(np.count_nonzero(ratio[1] > tolerance)),
+                "force_ratio_network_max": float(ratio[0].max(initial=0.0)),
+                "force_ratio_max": float(ratio[1].max(initial=0.0))}
 
 
 def _with_cells(new: AnnState, response: CellResponse, index: np.ndarray,
