@@ -319,7 +319,7 @@ class AnnCell(ArrayStateMixin):
             resting = self._resting(state)
             inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent, held=resting)
             features = self.fast.last_features()[probe_columns(self.arrays):].T if due else None
-            tally = _Tally.of(inc, self.fast.last_corrections())
+            tally = _Tally.of(inc, self.fast.last_corrections(), self.fast.last_counts())
             diagnostics = {**tally.diagnostics(self.force_tolerance), **self.ood_monitor.diagnostics(due, state, features)}
             return self._escalated(state, d_eps_local, AnnState(inc.cell_size, inc.free_position, inc.shear_force),
                                    CellResponse(inc.moment, inc.area, diagnostics, tangent), resting, tally)
@@ -575,23 +575,32 @@ class AnnCell3D(AnnCell):
 
 
 class _Tally:
-    """The compiled step's counts per cell, so that a cell taken again (``AnnCell._held_at_rest``, ``_dragged``)
-    counts as it ends: the branch flags (``training.inference.FastIncrement``: capped, opened, mechanism,
-    relaxation-scaled, grains held) and the equilibrium corrections (``training.inference.Corrections``; the
-    force ratios as they end, the Newton steps, shortened and shifted of every pass added)."""
+    """The counts of one step, so that a cell taken again (``AnnCell._held_at_rest``, ``_dragged``) counts as it
+    ends: the branch flags per cell (``training.inference.FastIncrement``: capped, opened, mechanism,
+    relaxation-scaled, grains held; ``counts``, their sums where given, until a cell is taken again) and the
+    equilibrium corrections (``training.inference.Corrections``: the force ratios as they end, the Newton steps,
+    shortened and shifted of every pass added). The arrays are copied before the first cell is taken again."""
 
-    def __init__(self, flags: list[np.ndarray], corrections: Any) -> None:
+    def __init__(self, flags: list[np.ndarray], corrections: Corrections | None, counts: list[int] | None = None) -> None:
         self.flags = flags
         self.corrections = corrections
+        self.counts = counts
+        self.owned = False
 
     @classmethod
-    def of(cls, inc: Any, corrections: Any) -> _Tally:
-        """The counts of one ``FastAdvance.increment``'s outcome ``inc`` and its ``last_corrections()`` (copies)."""
-        flags = [np.array(a) for a in (inc.capped, inc.opened, inc.mechanism, inc.relaxation_scaled, inc.grains_held)]
-        return cls(flags, None if corrections is None else type(corrections)(*(np.array(a) for a in corrections)))
+    def of(cls, inc: Any, corrections: Corrections | None, counts: np.ndarray) -> _Tally:
+        """The tally of one ``FastAdvance.increment``'s outcome ``inc``, its ``last_corrections()`` and its
+        ``last_counts()`` (read now)."""
+        return cls([inc.capped, inc.opened, inc.mechanism, inc.relaxation_scaled, inc.grains_held], corrections,
+                   counts.tolist())
 
-    def take(self, index: np.ndarray, inc: Any, corrections: Any) -> None:
+    def take(self, index: np.ndarray, inc: Any, corrections: Corrections | None) -> None:
         """Cells ``index`` as the pass ``inc`` (their outcome) ends them, its ``corrections`` (None: none taken)."""
+        if not self.owned:
+            self.flags = [np.array(a) for a in self.flags]
+            if self.corrections is not None:
+                self.corrections = Corrections(*(np.array(a) for a in self.corrections))
+            self.counts, self.owned = None, True
         for whole, part in zip(self.flags, (inc.capped, inc.opened, inc.mechanism, inc.relaxation_scaled,
                                             inc.grains_held)):
             whole[index] = part
@@ -602,10 +611,10 @@ class _Tally:
 
     def diagnostics(self, tolerance: float | None) -> dict[str, float]:
         """The step's counts (module docstring): the branch counts, and those of the corrections where taken."""
-        capped, opened, mechanism, scaled, held = self.flags
-        counts = {"n_coulomb_capped": float(np.count_nonzero(capped)), "n_tension_clipped": float(np.count_nonzero(opened)),
-                  "n_mechanism": float(np.count_nonzero(mechanism)), "n_relaxation_scaled": float(np.count_nonzero(scaled)),
-                  "n_grains_held": float(held.sum())}
+        capped, opened, mechanism, scaled, held = (
+            self.counts or [np.count_nonzero(a) for a in self.flags[:4]] + [self.flags[4].sum()])
+        counts = {"n_coulomb_capped": float(capped), "n_tension_clipped": float(opened), "n_mechanism": float(mechanism),
+                  "n_relaxation_scaled": float(scaled), "n_grains_held": float(held)}
         if self.corrections is None:
             return counts
         ratio, steps, shortened, shifted = self.corrections
