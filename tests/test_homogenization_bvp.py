@@ -49,8 +49,9 @@ def test_homogeneous_specimen_follows_the_material_point(homogeneous):
     assert np.abs(curve["sigma22"][shear] / P0 - 1.0).max() <= 1e-8
     q_point = record.q[record.stage == "shear"]
     p_point = record.p[record.stage == "shear"]
-    assert np.abs(curve["q"][shear] - q_point).max() <= 5e-3 * P0
-    assert np.abs(curve["p"][shear] - p_point).max() <= 5e-3 * P0
+    # measured 2.4e-7 and 4.4e-7 of p0 (docs/studies/bvp_fe_vs_material_point.md)
+    assert np.abs(curve["q"][shear] - q_point).max() <= 1e-6 * P0
+    assert np.abs(curve["p"][shear] - p_point).max() <= 2e-6 * P0
     assert curve["q"][shear][-1] > 0.15 * P0  # the specimen was really sheared
     assert curve["iterations"][shear].max() <= 8
 
@@ -69,6 +70,11 @@ def test_newton_converges_quadratically(homogeneous):
 def test_output_files(homogeneous):
     with h5py.File(homogeneous / "run.h5") as f:
         n_steps = f["history/eps11"].shape[0]
+        # the backend's counts at each step's converged update (the closed form: its batch solve's iterations,
+        # none unconverged, no cell held at 90 deg)
+        assert {"material_iterations", "material_n_unconverged", "material_n_alpha_limit"} <= set(f["history"])
+        assert f["history/material_iterations"][()].min() >= 1
+        assert not f["history/material_n_unconverged"][()].any() and not f["history/material_n_alpha_limit"][()].any()
         assert f["fields/displacement"].shape == (n_steps, 15, 2)
         assert f["fields/stress"].shape == (n_steps, 32, 3)
         assert "V = V0*J" in f.attrs["volume_rule"]
@@ -123,7 +129,8 @@ def test_existing_output_is_kept(homogeneous, capsys):
 
 def test_acceptance_case_4x8_72_orientations(tmp_path):
     """Issue 13: homogeneous specimen, alpha0 = 40, p0 = 5.85e6, to 5 % at 1e-3, 72 orientations,
-    4 x 8 elements: within 0.5 % of p0 of biaxial --drained, every shear step <= 8 Newton iterations."""
+    4 x 8 elements: within 0.5 % of p0 of biaxial --drained (measured: q 1.65e-6, p 7.4e-6 of p0,
+    docs/bvp.md; checked at about 4x those), every shear step <= 8 Newton iterations."""
     out = tmp_path / "acceptance"
     assert cli(["--alpha0", "40", "--p0", "5.85e6", "--eps-max", "0.05", "--increment", "1e-3",
                 "--orientations", "72", "--elements", "4,8", "--out", str(out)]) == 0
@@ -131,7 +138,7 @@ def test_acceptance_case_4x8_72_orientations(tmp_path):
     record = driver.run(make_cell_model("analytical"), programmes.biaxial(P0, 0.05, 1e-3, drained=True),
                         mesostructure=h_cell(40.0), n_orientations=72, progress=False)
     shear = curve["stage"] == "shear"
-    for name in ("q", "p", "sigma11", "sigma22"):
+    for name, tolerance in (("q", 7e-6), ("p", 3e-5), ("sigma11", 3e-5), ("sigma22", 3e-5)):
         deviation = np.abs(curve[name][shear] - getattr(record, name)[record.stage == "shear"]).max()
-        assert deviation <= 5e-3 * P0, (name, deviation / P0)
+        assert deviation <= tolerance * P0, (name, deviation / P0)
     assert curve["iterations"][shear].max() <= 8

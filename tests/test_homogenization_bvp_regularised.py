@@ -47,14 +47,14 @@ def material_for(specimen: fe.BiaxialSpecimen, n_orientations: int = 12) -> Homo
 
 def test_homogeneous_specimen_the_second_gradient_terms_vanish():
     """Uniform strain: v = grad u, grad v = 0, lambda = 0, so the regularised specimen follows the
-    plain one (which follows the material point) within 1e-3 p0."""
+    plain one (which follows the material point): measured within 1e-12 p0, checked within 1e-9 p0."""
     plain = fe.BiaxialSpecimen(2, 4)
     regular = SecondGradientSpecimen(2, 4, length=0.2, modulus=4e7)
     a = plain.run(material_for(plain), programme(), scale=P0)
     b = regular.run(material_for(regular), programme(), scale=P0)
     for name in ("sigma11", "sigma22", "eps11", "eps22"):
         deviation = max(abs(getattr(r, name) - getattr(s, name)) for r, s in zip(a, b))
-        assert deviation <= (1e-3 * P0 if name.startswith("sigma") else 1e-9), name
+        assert deviation <= (1e-9 * P0 if name.startswith("sigma") else 1e-12), name
     assert (b[-1].sigma11 - b[-1].sigma22) > 2.0 * P0  # really sheared
 
 

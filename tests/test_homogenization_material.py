@@ -42,7 +42,7 @@ def test_tangent_matches_central_differences(model):
     reference = _fd(material, state, d_e, 1e-8)
     scale = np.abs(reference).max(axis=(1, 2))
     error = np.abs(update.tangent - reference).max(axis=(1, 2)) / scale
-    assert error.max() <= 1e-5, error
+    assert error.max() <= 5e-7, error  # docs/studies/bvp_tangent_accuracy.md: 1.1e-7 (analytical)
     # plane strain, isotropic fabric: the shear row is not trivial
     assert np.abs(update.tangent[:, 2, 2]).min() > 1e-3 * scale.min()
 

@@ -158,6 +158,16 @@ def _tangent_note(results: Sequence[fe.StepResult]) -> str:
     return f"; tangents computed {computed}, reused {int(sum(r.diagnostics.get('tangents_reused', 0) for r in results))}"
 
 
+def _material_note(results: Sequence[fe.StepResult]) -> str:
+    """The backend's counts that fired at the steps' converged updates, summed over steps (``fe_output.material_counts``;
+    run.h5's ``history/material_*`` per step); "" where none fired."""
+    from homogenization.fe import output as fe_output  # noqa: PLC0415 (scikit-fem)
+
+    totals = {name: sum(r.diagnostics.get(name, 0.0) for r in results) for name in fe_output.material_counts(results)}
+    fired = ", ".join(f"{name} {value:.6g}" for name, value in totals.items() if value)
+    return f"backend counts at the converged updates, summed over steps: {fired}" if fired else ""
+
+
 def _solver_note(results: Sequence[fe.StepResult]) -> str:
     """"; second-gradient solves: N LU factorisations (M redone with pivoting), K GMRES iterations" (the
     specimen's ``solver_counts``, per step in ``fe.StepResult.diagnostics``); "" for a first-gradient run."""
@@ -326,6 +336,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}; "
         f"corrections halved (residual grew): {int(sum(r.diagnostics.get('line_search_halvings', 0) for r in results))}"
         + _tangent_note(results) + _solver_note(results))
+    if _material_note(results):
+        say(_material_note(results))
     if reference is not None and not weak.any():
         table = fe_output.curve_table(results)
         shear = np.flatnonzero(table["stage"] == "shear")

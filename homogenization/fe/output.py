@@ -56,6 +56,15 @@ SOLVER_COUNTS = {"factorisations": "sparse LU factorisations of the second-gradi
 """Per-step counts of the second-gradient specimen's linear solver (``solver_counts``) written to run.h5's history."""
 
 
+NOT_MATERIAL = {"line_search_halvings", "tangents", "tangents_reused", *SOLVER_COUNTS}
+"""Keys of ``StepResult.diagnostics`` that count the solver's work, not the backend's rules."""
+
+
+def material_counts(results: Sequence[StepResult]) -> list[str]:
+    """The backend's counts in the steps' diagnostics (the keys not in ``NOT_MATERIAL``), sorted."""
+    return sorted({name for r in results for name in r.diagnostics} - NOT_MATERIAL)
+
+
 def curve_table(results: Sequence[StepResult]) -> dict[str, np.ndarray]:
     """Columns of curve.csv as arrays (p = (s11 + s22) / 2, q = s11 - s22)."""
     table = {name: np.array([getattr(r, name) for r in results]) for name in CURVE_COLUMNS if name not in ("p", "q")}
@@ -131,6 +140,9 @@ def write_h5(path: Path, specimen: BiaxialSpecimen, results: Sequence[StepResult
             if name in results[0].diagnostics:
                 hist[name] = np.array([r.diagnostics[name] for r in results])
                 hist[name].attrs["description"] = description
+        for name in material_counts(results):
+            hist[f"material_{name}"] = np.array([r.diagnostics.get(name, 0.0) for r in results])
+            hist[f"material_{name}"].attrs["description"] = f"the backend's {name} at the step's converged material update"
         hist["residuals"].attrs["description"] = "out-of-balance force norm [N/m] before each Newton iteration"
         fields = f.create_group("fields")
         fields["displacement"] = np.stack([r.displacement for r in results])

@@ -97,7 +97,8 @@ class StepResult:
         displacement: nodal displacement [m], shape (n_nodes, 2), (u_x, u_y), tension-positive FE sign.
         strain: Gauss-point strain (eps_xx, eps_yy, gamma_xy) [-], shape (n_points, 3), compression positive.
         stress: Gauss-point stress (sigma_xx, sigma_yy, sigma_xy) [N/m], shape (n_points, 3), compression positive.
-        diagnostics: backend diagnostics summed over the step's material updates.
+        diagnostics: the backend's counts at the converged material update (``MaterialUpdate.diagnostics``)
+            and the solver's (halvings, tangents, ``solver_counts``).
         opening: fabric-weighted mean opening angle of each Gauss point's cells [deg], shape
             (n_points,); NaN where the backend gives none.
         open_fraction: fraction of each Gauss point's contacts that are open [-], shape (n_points,).
@@ -319,7 +320,6 @@ class BiaxialSpecimen:
             f_ext[self.master] -= step.platen_force * self.width
         eps_start = self.strain(self.displacement_of(x_start))
         residuals: list[float] = []
-        totals: dict[str, float] = {}
         free = np.setdiff1d(np.arange(expand.shape[1]), fixed)
         accepted, step_x, alpha, halvings, tangents, reused = np.inf, None, 1.0, 0, 0, 0
         counts = self.solver_counts()
@@ -330,13 +330,12 @@ class BiaxialSpecimen:
             d_e = self.strain(self.displacement_of(x)) - eps_start
             update = material.update(state, d_e, with_tangent=not defer)
             tangents += not defer
-            for name, value in update.diagnostics.items():
-                totals[name] = totals.get(name, 0.0) + float(value)
             f_int, K = self.system(x, update.stress, update.tangent)
             residual = expand.T @ f_int - f_ext
             norm = float(np.linalg.norm((residual * self.residual_weights(scale))[free]))
             residuals.append(norm / self.width)
             if norm <= self.newton_rtol * scale * self.width:
+                totals = {name: float(value) for name, value in update.diagnostics.items()}
                 totals["line_search_halvings"] = float(halvings)
                 totals["tangents"] = float(tangents)
                 totals["tangents_reused"] = float(reused)
