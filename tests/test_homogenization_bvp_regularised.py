@@ -58,6 +58,34 @@ def test_homogeneous_specimen_the_second_gradient_terms_vanish():
     assert (b[-1].sigma11 - b[-1].sigma22) > 2.0 * P0  # really sheared
 
 
+def _face_average(specimen: fe.BiaxialSpecimen, u: np.ndarray, dofs: np.ndarray) -> float:
+    """u_x over one lateral face averaged along its length: the trapezoid rule between nodes (bilinear elements),
+    Simpson's per element (8-node elements, their edges quadratic)."""
+    y = specimen.basis.doflocs[1][dofs]
+    order = np.argsort(y)
+    y, v = y[order], u[dofs][order]
+    if isinstance(specimen, SecondGradientSpecimen):
+        h = y[2::2] - y[:-2:2]
+        return float(np.sum(h * (v[:-2:2] + 4.0 * v[1::2] + v[2::2]) / 6.0) / (y[-1] - y[0]))
+    return float(np.sum(np.diff(y) * 0.5 * (v[1:] + v[:-1])) / (y[-1] - y[0]))
+
+
+@pytest.mark.parametrize("second_gradient", [False, True], ids=["plain", "second gradient"])
+def test_the_lateral_strain_averages_each_face_over_its_length(second_gradient):
+    """A weak zone bends the lateral faces: eps22 is u_x averaged along each face (the trapezoid rule, Simpson's
+    on 8-node edges), not the mean over its nodes, which weights the end and the midside nodes wrongly."""
+    specimen = SecondGradientSpecimen(4, 8, length=0.05, modulus=4e7) if second_gradient else fe.BiaxialSpecimen(4, 8)
+    weak = np.repeat(bvp.weak_elements(specimen), specimen.points_per_element())
+    material = HomogenisedMaterial(make_cell_model("analytical"), orientation.orientations(12),
+                                   [h_cell(50.0) if w else h_cell(40.0) for w in weak], specimen.n_points)
+    result = specimen.run(material, fe.isotropic_stage(P0, 5) + fe.shear_stage(P0, 0.03, 15), scale=P0)[-1]
+    u = specimen.displacement_of(specimen.last_unknowns)
+    faces = -(_face_average(specimen, u, specimen.right_dofs) - _face_average(specimen, u, specimen.left_dofs))
+    assert result.eps22 == pytest.approx(faces / specimen.width, rel=1e-12, abs=0.0)
+    nodes = -(u[specimen.right_dofs].mean() - u[specimen.left_dofs].mean()) / specimen.width
+    assert abs(nodes - result.eps22) > 1e-6 * abs(result.eps22)  # the faces do bend: the rule matters here
+
+
 def test_second_gradient_newton_converges_fast_to_the_exact_constraint():
     """Each Newton iteration cuts the residual by >= 1e3 (the augmented-Lagrangian step's rate is
     about E_ref / beta = 1e-4), and the converged v is grad u in each element's mean."""

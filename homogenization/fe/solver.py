@@ -20,8 +20,8 @@ material is fed and returns compression-positive Voigt quantities in the (x, y) 
 ((eps_xx, eps_yy, gamma_xy), (sigma_xx, sigma_yy, sigma_xy)); scikit-fem works with
 tension-positive displacements gradients: eps_c = -sym grad u, sigma_t = -sigma_c, same
 tangent. Specimen averages (``StepResult``) use the biaxial convention: 1 = axial (y),
-2 = lateral (x), compression positive: eps11 = -U_top / H, eps22 = -(mean u_x on the right
-face - mean u_x on the left face) / W, sigma11 = -(force of the top platen on the specimen) / W,
+2 = lateral (x), compression positive: eps11 = -U_top / H, eps22 = -(u_x averaged over the right
+face's length - the same on the left face) / W (the integral of the interpolated u_x), sigma11 = -(force of the top platen on the specimen) / W,
 sigma22 and sigma12 = area averages of the Gauss-point sigma_xx and sigma_xy.
 """
 
@@ -166,6 +166,9 @@ class BiaxialSpecimen:
         lateral = self.mesh.facets_satisfying(lambda p: np.isclose(p[0], 0.0) | np.isclose(p[0], width))
         self.unit_pressure = _outward_normal_load.assemble(FacetBasis(self.mesh, element, facets=lateral,
                                                                       intorder=QUADRATURE_ORDER))
+        # each lateral face's u_x averaged over its length: the nodes weighted by their shape functions' integrals
+        self.face_weights = [np.abs(self.unit_pressure[d]) / np.abs(self.unit_pressure[d]).sum()
+                             for d in (self.left_dofs, self.right_dofs)]
         # reduced unknowns: every DOF but the top u_y, which share one master DOF (the last)
         n = self.basis.N
         top_y = self.y_dofs[np.isclose(yd[self.y_dofs], height)]
@@ -231,7 +234,8 @@ class BiaxialSpecimen:
         """(eps11, eps22, sigma11, sigma22, sigma12) of the specimen (1 = axial, 2 = lateral)."""
         U = u[self.top_y[0]]
         eps11 = -U / self.height
-        eps22 = -(u[self.right_dofs].mean() - u[self.left_dofs].mean()) / self.width
+        left, right = self.face_weights
+        eps22 = -(right @ u[self.right_dofs] - left @ u[self.left_dofs]) / self.width
         # force of the top platen on the specimen = internal force of the master DOF (< 0 in compression)
         sigma11 = -float(np.sum(f_int[self.top_y])) / self.width
         area = self.weights.sum()
