@@ -68,7 +68,8 @@ def test_a_bad_command_line_is_one_line_naming_the_flag_and_the_fix(command, kin
     ([], "the following arguments are required: --out; add --out OUT"),
     (["-q", "-v", "--out", "o"], "argument -v/--verbose: not allowed with argument -q/--quiet; give only one of them"),
     (["--seed", "x", "--out", "o"], "argument --seed: invalid int value: 'x'; give an integer"),
-    (["--o", "x"], "ambiguous option: --o could match"),
+    (["--o", "x"], "unrecognized arguments: --o x"),  # no abbreviations: --mod is not --model-error
+    (["--outp", "x"], "unrecognized arguments: --outp x"),
     (["--bogus", "1"], "unrecognized arguments: --bogus 1; see 'hmodel biaxial --help'"),
     (["--mesostructure", "nope", "--out", "o"], "argument --mesostructure: mesostructure 'nope' is neither a file"),
 ])

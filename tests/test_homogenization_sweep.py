@@ -152,6 +152,8 @@ def test_changed_options_on_an_existing_sweep_are_refused(fines_sweep, capsys):
     (["--alpha0", "50,20"], "alpha0 = 20 deg is outside [30, 90) deg"),
     (["--erode-at", "0.2", "--mesostructure", "hcell-fines:ratio=0.5"], "--erode-at 0.2 must be below --eps-max 0.15"),
     (["--model", "x.pt"], "--model applies to --backend ann only"),
+    (["--mesostructure", "hcell3d:alpha0=55"], "a 3D cell; a sweep runs biaxial tests of planar cells"),
+    (["--eps-max", "5"], "--eps-max: 5 is outside (0, 1)"),
     (["--backend", "ann", "--model", "missing.pt"], "--model missing.pt: no such model file"),
 ])
 def test_bad_input_is_one_line_and_exit_2_before_any_work(tmp_path, capsys, args, message):
@@ -165,6 +167,22 @@ def test_bad_input_is_one_line_and_exit_2_before_any_work(tmp_path, capsys, args
     err = capsys.readouterr().err.strip().splitlines()
     assert message in err[-1] and (len(err) == 1 or err[0].startswith("usage:"))
     assert not out.exists()
+
+
+def test_a_case_interrupted_while_drawing_its_figure_gets_it_on_the_next_run(tmp_path):
+    """A kill while the case's figure was written leaves run.h5 and curve.csv and a temporary file: the run again
+    draws the figure from the stored run (the case not run again) and removes the temporary file."""
+    out = tmp_path / "s"
+    argv = ["--mesostructure", "hcell", "--alpha0", "50", "--backend", "analytical", "--workers", "1", *SMALL,
+            "--eps-max", "0.01", "--out", str(out)]
+    assert cli(argv) == 0
+    folder = next((out / sweep.CASES_DIR).iterdir())
+    (folder / sweep.FIGURE_FILE).unlink()
+    (folder / f".{sweep.FIGURE_FILE}.abcdefgh.tmp").write_bytes(b"")
+    run = (folder / "run.h5").stat().st_mtime_ns
+    assert cli(argv) == 0
+    assert (folder / sweep.FIGURE_FILE).read_bytes()[:4] == b"\x89PNG"
+    assert not list(folder.glob("*.tmp")) and (folder / "run.h5").stat().st_mtime_ns == run
 
 
 def test_a_foreign_non_empty_folder_is_not_touched(tmp_path, capsys):

@@ -344,7 +344,7 @@ def train_and_save(data: Path, out: Path, config: TrainConfig = TrainConfig(), *
 
     Raises:
         DataError (one line, before any training): ``out`` (or its .json/.png) exists without
-            ``overwrite``, is a folder or cannot be written; ``config.init_from`` is no file; ``data``
+            ``overwrite``, is a folder, does not end in .pt or cannot be written; ``config.init_from`` is no file; ``data``
             is no learning database.
     """
     out = Path(out)
@@ -353,6 +353,8 @@ def train_and_save(data: Path, out: Path, config: TrainConfig = TrainConfig(), *
         raise DataError(f"{out} (or its .json/.png) exists; pass --overwrite to replace it")
     if out.is_dir():
         raise DataError(f"--out {out} is a folder; give a file name")
+    if out.suffix != ".pt":
+        raise DataError(f"--out {out}: the model's file name ends in .pt (its metadata go to the .json beside it)")
     if config.init_from is not None and not Path(config.init_from).is_file():
         raise DataError(f"--init-from {config.init_from}: no such model file")
     check_output_path(out, overwrite=True)  # writable, checked before training

@@ -30,6 +30,7 @@ from warp_hcell.core.cli import (
 from warp_hcell.core.execution import make_execution, SchedulerUnreachable
 from warp_hcell.core.files import check_output_path
 from warp_hcell.core.parameters import CellDefaults, DatabaseSettings
+from warp_hcell.database.exploration import UnreachableLevel
 from warp_hcell.database.generate import generate
 from warp_hcell.database.shards import DiskFull
 from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
@@ -117,7 +118,7 @@ def _run(argv: Sequence[str] | None) -> int:
                                threads=args.threads, execution=execution, clean=args.clean,
                                max_chunks=args.max_chunks, discard_partial=args.overwrite, progress=bar,
                                explore_progress=_walk_bar)
-    except SchedulerUnreachable as exc:
+    except (SchedulerUnreachable, UnreachableLevel) as exc:
         raise UserError(str(exc)) from None
     except DiskFull as exc:
         raise UserError(f"no space left on the device writing {exc.filename}; free space and rerun the same "

@@ -41,7 +41,10 @@ from warp_hcell.core.parameters import (
     PRIOR_BOUNDS_2D,
     PRIOR_BOUNDS_3D,
     PRIOR_BOUNDS_HERTZ_3D,
+    ContactLaw,
     HertzMindlinLaw,
+    check_alpha0_deg,
+    check_positive,
 )
 
 DEFAULT_BOUNDS = {2: PRIOR_BOUNDS_2D, 3: PRIOR_BOUNDS_3D}
@@ -50,6 +53,11 @@ DEFAULT_BOUNDS = {2: PRIOR_BOUNDS_2D, 3: PRIOR_BOUNDS_3D}
 HERTZ_BOUNDS = {**PRIOR_BOUNDS_3D, **PRIOR_BOUNDS_HERTZ_3D}
 """Default prior of the Hertz-Mindlin law's calibration (triaxial data only): G [Pa], nu [-] from
 ``PRIOR_BOUNDS_HERTZ_3D``, phi_g and alpha0 as ``PRIOR_BOUNDS_3D``."""
+DEFINED = {"phi_g": lambda v: ContactLaw(phi_g_deg=v), "kn": lambda v: check_positive("kn", v),
+           "kt_over_kn": lambda v: check_positive("kt_over_kn", v), "alpha0": check_alpha0_deg,
+           "shear_modulus": lambda v: check_positive("shear_modulus", v), "poisson": lambda v: HertzMindlinLaw(poisson=v)}
+"""ValueError (one line) where a value of the parameter is outside the range where the cell and its contact law are
+defined (``warp_hcell.core.parameters``): a prior file's bounds are checked with it."""
 UNITS = {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg", "shear_modulus": "Pa", "poisson": "-",
          SPREAD: "deg", "e_min": "-", "e_max": "-", "alpha_c": "deg", "renewal_rate": "-",
          **{name: "-" for name in INTERLOCKING_PRIOR}, KN_EXPONENT: "-"}
@@ -118,8 +126,9 @@ def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2, law
         dim: 3 where any test is triaxial (the ten-sphere cell: alpha0 >= ``Dimension.min_opening_deg``), else 2.
 
     Raises:
-        ValueError: one line naming the file for a missing, malformed or inconsistent prior, or
-            an alpha0 prior reaching below ``Dimension.min_opening_deg`` (dim 3).
+        ValueError: one line naming the file for a missing, malformed or inconsistent prior, bounds
+            outside where the model is defined (``DEFINED``), or an alpha0 prior reaching below
+            ``Dimension.min_opening_deg`` (dim 3).
     """
     if SPREAD in names and dim != 3:
         raise ValueError(f"{SPREAD}: a spread of opening angles is a parameter of the ten-sphere cell; calibrate it on "
@@ -150,6 +159,12 @@ def make_prior(names: Sequence[str], path: Path | None = None, dim: int = 2, law
             lo, hi = float(spec[0]), float(spec[1])
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) or (log and lo <= 0.0):
                 raise ValueError(f"{path}: prior of {name!r} needs finite low < high (and low > 0 if log)")
+            for value in (lo, np.nextafter(hi, lo)) if name in DEFINED else ():
+                try:
+                    DEFINED[name](value)
+                except ValueError as exc:
+                    raise ValueError(f"{path}: the prior of {name!r}, [{lo:g}, {hi:g}], reaches where the model is "
+                                     f"undefined: {exc}") from None
             bounds[name] = (lo, hi, log)
     if SPREAD in bounds and bounds[SPREAD][0] < 0.0:
         raise ValueError(f"{path}: the prior of {SPREAD} reaches below 0 deg (it is a half-width)")

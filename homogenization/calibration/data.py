@@ -143,6 +143,10 @@ def read_test(path: Path) -> Measurement:
         raise ValueError(f"{path}: eps1 must be > 0 and increasing (counted from the end of the isotropic stage)")
     if eps1[-1] >= 0.5:
         raise ValueError(f"{path}: eps1 reaches {eps1[-1]:g}; strains are fractions, not percent")
+    flat = [name for name, values in columns.items() if not np.any(values != 0.0)]
+    if flat:
+        raise ValueError(f"{path}: column {flat[0]} is 0 throughout, so it sets no scale for its misfit (the "
+                         f"likelihood's sigma is a fraction of each column's largest value); drop it")
     dim, drained = next(key for key, name in TEST_KINDS.items() if name == kind)
     return Measurement(path.name, path, drained, p0, eps1, columns, dim, void_ratio)
 

@@ -123,10 +123,15 @@ def run_mesostructure(args: argparse.Namespace) -> Mesostructure:
 
     Raises:
         warp_hcell.mesostructures.mesostructure.MesostructureError: a file or spec that does not build (one line).
+        UserError: a 3D cell (one line).
     """
-    if args.mesostructure is not None:
-        return args.mesostructure.build(args.alpha0)
-    return h_cell(args.alpha0, args.radius)
+    if args.mesostructure is None:
+        return h_cell(args.alpha0, args.radius)
+    meso = args.mesostructure.build(args.alpha0)
+    if meso.dim != 2:
+        raise UserError(f"--mesostructure {args.mesostructure.text}: a 3D cell; hmodel biaxial runs planar cells "
+                        f"(e.g. hcell:alpha0=55), hmodel triaxial 3D ones")
+    return meso
 
 
 def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[programmes.Programme, dict[str, Any]]:

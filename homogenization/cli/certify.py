@@ -34,7 +34,7 @@ from typing import Sequence
 from homogenization.cli.options import (add_certificate_equilibrium_arguments, add_spatial_rule_arguments, certificate_settings,
                                         command_parser, equilibrium_line, EXIT_CODES_HELP)
 from homogenization.learning.settings import CertificateSettings
-from warp_hcell.core.cli import positive_float, positive_int, quiet_warp, say, set_verbosity, UserError, writing_to
+from warp_hcell.core.cli import axial_strain, positive_float, positive_int, quiet_warp, say, set_verbosity, UserError, writing_to
 from warp_hcell.core.files import atomic_write, check_output_path
 from warp_hcell.mesostructures.builders import mesostructure_arg
 
@@ -56,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--orientations", type=positive_int, default=measured.n_orientations,
                         help="cell orientations per test (planar cells)")
     add_spatial_rule_arguments(parser, *measured.spatial_rule, " per test")
-    parser.add_argument("--eps-max", type=positive_float, default=measured.eps_max,
+    parser.add_argument("--eps-max", type=axial_strain, default=measured.eps_max,
                         help="axial strain of each shear stage [-]")
     parser.add_argument("--no-rollout", action="store_true", help="leave out the single-cell rollouts")
     add_certificate_equilibrium_arguments(parser)
@@ -65,12 +65,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def check_writable(args: argparse.Namespace) -> None:
-    """UserError (one line) before any work: --out an existing file without --overwrite, a folder, or
-    in a folder that cannot be written; --write with a model JSON or folder that cannot be written;
+    """UserError (one line) before any work: --out an existing file without --overwrite, a folder, the model's
+    .pt or .json, or in a folder that cannot be written; --write with a model JSON or folder that cannot be written;
     --data not a file."""
     if args.out is not None:
         if args.out.is_dir():
             raise UserError(f"--out {args.out} is a folder; give a JSON file name")
+        model = Path(args.model).resolve()
+        if args.out.resolve() in (model, model.with_suffix(".json")):
+            raise UserError(f"--out {args.out} is the model's own file; give another JSON file name (--write stores "
+                            f"the certificate in the model's JSON)")
         check_output_path(args.out, overwrite=args.overwrite)
     if args.write:
         from training.checkpoint import metadata_path  # noqa: PLC0415 (torch: only when the command runs)

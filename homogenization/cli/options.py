@@ -43,7 +43,7 @@ from homogenization.backends import BACKENDS
 from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN, OPENING_RANGE_DEG
 from homogenization.learning.settings import (ActiveSettings, CertificateSettings, default_equilibrium, RELEASE_RULE_NAMES,
                                               FINES_EQUILIBRIUM_CORRECTIONS, FINES_EQUILIBRIUM_TOLERANCE)
-from warp_hcell.core.cli import UserError, alpha0_deg, command_parser, int_at_least, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
+from warp_hcell.core.cli import UserError, alpha0_deg, axial_strain, command_parser, int_at_least, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
 from warp_hcell.core.parameters import CellDefaults, DemSettings, LoadingDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 
@@ -88,7 +88,7 @@ def add_programme_arguments(parser: argparse.ArgumentParser, *, stress_unit: str
     group = parser.add_argument_group("built-in programme (not with --programme)")
     group.add_argument("--p0", type=positive_float, default=CellDefaults.p0,
                        help=f"confining pressure of stage 1 [{stress_unit}], > 0")
-    group.add_argument("--eps-max", type=positive_float, default=eps_max, help=eps_max_help)
+    group.add_argument("--eps-max", type=axial_strain, default=eps_max, help=eps_max_help)
     group.add_argument("--increment", type=positive_float, default=increment,
                        help="axial strain increment of the shear stage [-], <= --eps-max")
     group.add_argument("--iso-increment", type=positive_float, default=argparse.SUPPRESS,
@@ -272,7 +272,7 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
                              "DEM states are probed with those after it (1: every state of the test)")
     add_orientations_argument(parser, measured.n_orientations, "cell orientations per certificate test (planar cells)")
     add_spatial_rule_arguments(parser, *measured.spatial_rule, " in the certificate's tests")
-    parser.add_argument("--eps-max", type=positive_float, default=measured.eps_max,
+    parser.add_argument("--eps-max", type=axial_strain, default=measured.eps_max,
                         help="axial strain of each certificate shear stage [-]")
     add_certificate_equilibrium_arguments(parser)
 

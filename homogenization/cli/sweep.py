@@ -71,6 +71,7 @@ from warp_hcell.mesostructures.builders import (
 from warp_hcell.core.cli import (
     UserError,
     alpha0_deg,
+    axial_strain,
     positive_float,
     positive_int,
     run_main,
@@ -142,7 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--p0", type=float_list(positive_float), default=f"{cell.p0:g}",
                         help="comma list of confining pressures [N/m]")
     parser.add_argument("--backend", type=backend_list, default="dem", help="comma list of cell models")
-    parser.add_argument("--eps-max", type=positive_float, default=load.eps_max,
+    parser.add_argument("--eps-max", type=axial_strain, default=load.eps_max,
                         help="axial strain at the end of the shear stage, counted from its start [-]")
     parser.add_argument("--increment", type=positive_float, default=load.increment, help="axial strain increment of the shear stage [-]")
     parser.add_argument("--iso-increment", type=positive_float, default=load.iso_increment,
@@ -211,7 +212,8 @@ def write_case(case: Case, record: driver.Record, out: Path, seed: int) -> dict[
 
 
 def stored_row(case: Case, out: Path, *, overwrite: bool) -> dict[str, Any] | None:
-    """Summary row of a finished case (same parameters on disk), None if it must run.
+    """Summary row of a finished case (same parameters on disk; its figure drawn again where missing), None if it
+    must run.
 
     Raises:
         UserError: the folder holds a run with other parameters and not ``overwrite``.
@@ -227,6 +229,11 @@ def stored_row(case: Case, out: Path, *, overwrite: bool) -> dict[str, Any] | No
             return None
         raise
     if stored.attrs["parameters"] == json.loads(json.dumps(case.parameters)):
+        if not (folder / FIGURE_FILE).is_file():  # interrupted while drawing it: drawn from the stored run
+            for stale in folder.glob(f".{FIGURE_FILE}.*.tmp"):
+                stale.unlink()
+            figures.save_figure(figures.overlay_figure([figures.Run(stored.record, case.parameters)]),
+                                folder / FIGURE_FILE)
         return _summary_row(case, stored.record)
     if overwrite:
         return None

@@ -49,6 +49,9 @@ COMPONENTS_3D = dimension_of(3).normal_components
 """Controlled components of a spatial (triaxial) step; axis 1 is the axial direction."""
 ISO_MAX_STRAIN = 0.1
 """Largest strain per component the isotropic stage may apply before giving up [-]."""
+MAX_INCREMENTS = 10_000_000
+"""Most increments of one step [-]: a run's record holds every increment (a smaller increment for its strain is
+refused, not left to exhaust the memory)."""
 
 
 @dataclass(frozen=True)
@@ -79,6 +82,9 @@ class Step:
             raise ValueError(f"step {self.label!r}: target must be {count} finite numbers, got {self.target}")
         if isinstance(self.n_increments, bool) or int(self.n_increments) != self.n_increments or self.n_increments < 1:
             raise ValueError(f"step {self.label!r}: n_increments = {self.n_increments} must be an integer >= 1")
+        if self.n_increments > MAX_INCREMENTS:
+            raise ValueError(f"step {self.label!r}: {self.n_increments:g} increments, more than {MAX_INCREMENTS:g} (an "
+                             f"increment too small for its strain?)")
         object.__setattr__(self, "n_increments", int(self.n_increments))
         if not self.label or not self.label.isidentifier():
             raise ValueError(f"step label {self.label!r} must be a non-empty identifier (letters, digits, _)")
@@ -138,10 +144,15 @@ def dimension(programme: Programme) -> int:
 
 
 def n_increments_for(strain: float, increment: float) -> int:
-    """Number of increments of size ``increment`` [-] that cover ``strain`` [-] (at least 1)."""
+    """Number of increments of size ``increment`` [-] that cover ``strain`` [-] (at least 1, at most
+    ``MAX_INCREMENTS``: ValueError beyond)."""
     if not (increment > 0.0 and math.isfinite(increment)):
         raise ValueError(f"increment = {increment:g} must be finite and > 0")
-    return max(1, round(abs(strain) / increment))
+    count = abs(strain) / increment
+    if count > MAX_INCREMENTS:
+        raise ValueError(f"increment {increment:g} cuts the strain {strain:g} into {count:.3g} increments, more than "
+                         f"{MAX_INCREMENTS:g}")
+    return max(1, round(count))
 
 
 def isotropic(

@@ -177,6 +177,9 @@ def plan(args: Any) -> tuple[list[Case], list[str]]:
                 meso = source.build(alpha0)
             except MesostructureError as exc:
                 raise UserError(str(exc)) from None
+            if meso.dim != 2:
+                raise UserError(f"--mesostructure {source.text}: a 3D cell; a sweep runs biaxial tests of planar cells "
+                                f"(hmodel triaxial runs 3D ones)")
             plain = _closed_form_cell(meso)
             erodible = bool(np.any(~meso.driven.any(axis=1)))
             for p0 in args.p0:

@@ -203,6 +203,14 @@ def fraction(text: str) -> float:
     return value
 
 
+def axial_strain(text: str) -> float:
+    """argparse type: an axial strain [-] in (0, 1), a fraction (0.05 for 5 %)."""
+    value = _float(text)
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"{text} is outside (0, 1): a strain is a fraction (0.05 for 5 %)")
+    return value
+
+
 def int_at_least(smallest: int):
     """argparse type factory: an integer >= ``smallest``."""
     def parse(text: str) -> int:
@@ -328,7 +336,7 @@ def command_parser(module: str, description: str, *, device: bool = True) -> arg
     False ``verbosity_parser`` only."""
     parent = common_parser() if device else verbosity_parser()
     return Parser(prog=command_prog(module), description=description, parents=[parent],
-                  formatter_class=DefaultsHelpFormatter)
+                  formatter_class=DefaultsHelpFormatter, allow_abbrev=False)
 
 
 def verbosity_parser() -> argparse.ArgumentParser:

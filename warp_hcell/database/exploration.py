@@ -56,6 +56,10 @@ TURN_STREAM = 0x7475726E
 """First word of the seed of the turning branches' draws (then the start id)."""
 
 
+class UnreachableLevel(ValueError):
+    """A precompression level that no start cell reaches on its isotropic path (one line)."""
+
+
 def leg_directions(settings: DatabaseSettings, dim: int = 2) -> np.ndarray:
     """Unit directions of the legs in the local strain space, shape (n, dim).
 
@@ -332,6 +336,12 @@ def explore(cell_model, start_state, schema: StateSchema, settings: DatabaseSett
     iso.update(path_id=start_ids[cell] * stride, start_id=start_ids[cell], precompression=iso_eps,
                direction_deg=np.full(iso_eps.size, np.nan))
 
+    reached = np.isin(levels, iso_eps)
+    if not reached.all():
+        raise UnreachableLevel(f"precompression {levels[~reached][0]:g}: no start cell reaches it on its isotropic path "
+                               f"(the paths stop by the exploration's stop rules, e.g. an overlap above max_overlap "
+                               f"{settings.max_overlap:g} (r_i + r_j); the largest isotropic strain reached: "
+                               f"{iso_eps.max(initial=0.0):g}); give levels up to that")
     origin = np.flatnonzero(np.isin(iso_eps, levels))
     directions = leg_directions(settings, dim)
     n_dir = directions.shape[0]

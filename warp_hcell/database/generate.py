@@ -42,7 +42,7 @@ from warp_hcell.database import clean as cleaning
 from warp_hcell.database import format as database
 from warp_hcell.core.files import output_lock
 from warp_hcell.core.execution import InProcess, make_execution
-from warp_hcell.database.exploration import DEM_PREFIX, WalkProgress
+from warp_hcell.database.exploration import DEM_PREFIX, UnreachableLevel, WalkProgress
 from warp_hcell.database.learning_state import free_coordinates
 from warp_hcell.mesostructures.mesostructure import Mesostructure, shares_state_schema
 from warp_hcell.mesostructures.files import describe, description_sha256
@@ -233,7 +233,12 @@ def _generate(execution, physics: Physics, meso: Mesostructure, settings: Databa
     states = sidecar.load(states_file)
     if states is None:
         explore_inputs = ExploreInputs(physics, tuple(description["starts"]), settings, explore_progress)
-        states = _explore(execution, sidecar, explore_inputs)
+        try:
+            states = _explore(execution, sidecar, explore_inputs)
+        except UnreachableLevel:
+            if {p.name for p in sidecar.path.iterdir()} <= {"run.json"}:  # nothing computed: no sidecar left
+                sidecar.remove()
+            raise
         sidecar.save(states_file, states)
     chunks = {c: sidecar.load(sidecar.file("chunk", c), _chunk_check(settings, c, meso.dim))
               for c in range(n_chunks(settings))}
