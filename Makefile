@@ -25,7 +25,7 @@ BIAXIAL := $(PY) -m homogenization.biaxial --overwrite
 # within 0.1 % of p0 of its converged curve (docs/dem_homogenization.md).
 OVERLAY := --increment 1e-4 --iso-increment 1e-4 --orientations 360 --eps-max 0.2
 
-.PHONY: venv test determinism docs demo figures bench reproduce clean
+.PHONY: venv test determinism docs demo figures bench reproduce clean clean-kernels
 
 # uv installs what pip would (pip's configuration, .ci/uv_pip_install.py), faster from a cold cache.
 UV_PIP_INSTALL := $(PY) .ci/uv_pip_install.py
@@ -119,6 +119,12 @@ reproduce: venv
 	$(PY) -m homogenization.train --data runs/db_6e5.h5 --out runs/ann.pt --overwrite --no-widen --rounds 10 --max-samples 200000 --stall-rounds 3 --warm-start --round-share 0.3 --hidden 24,24 --seed 1
 	$(BIAXIAL) --backend analytical,dem,ann --model runs/ann.pt --alpha0 55 --p0 5.85e6 $(OVERLAY) --out runs/alpha55
 	@echo "Figure: runs/alpha55/cambridge.png"
+
+# numba keys a kernel's cache on the kernel's own file: after editing a module a kernel calls, drop every
+# compiled kernel (numba's caches beside the sources and the precompiled steps) so that the next run compiles.
+clean-kernels:
+	find warp_hcell training homogenization -path '*/__pycache__/*' \( -name '*.nbi' -o -name '*.nbc' \) -delete
+	rm -rf training/__pycache__/precompiled
 
 clean:
 	rm -rf $(VENV) .warp_cache demo docs/_build docs/_autosummary

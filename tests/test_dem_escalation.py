@@ -256,6 +256,26 @@ def test_the_hybrid_starts_the_resting_grains_at_rest_and_takes_again_the_cells_
         assert not np.array_equal(out.free_position[c], plain.free_position[c])  # another first guess, another balance
 
 
+@pytest.mark.skipif(not SHIPPED_3D.is_file(), reason="3D model not installed")
+def test_off_cpu_the_hybrid_with_a_release_rule_is_not_certified(tmp_path):
+    """The released-grain rules run on the compiled CPU path only; on another device (torch's meta device here)
+    a released cell takes the DEM's increment, which the certificate did not measure: certificate_problem says so."""
+    import json  # noqa: PLC0415
+    import shutil  # noqa: PLC0415
+
+    for path in SHIPPED_3D.parent.glob(f"{SHIPPED_3D.stem}*"):
+        shutil.copy(path, tmp_path / path.name)
+    meta = tmp_path / f"{SHIPPED_3D.stem}.json"
+    record = json.loads(meta.read_text())
+    record["certificate"]["settings"].update(equilibrium_corrections=2, equilibrium_tolerance=1e-3,
+                                             dem_escalation=True, dem_escalation_rule=RELEASE_RULE)
+    meta.write_text(json.dumps(record))
+    cells = {device: AnnCell3D(ContactLaw(), 0.5, model=tmp_path / SHIPPED_3D.name, equilibrium_corrections=2,
+                               equilibrium_tolerance=1e-3, dem_escalation=True, device=device) for device in ("cpu", "meta")}
+    assert cells["cpu"].certificate_problem is None
+    assert "runs on CPU only" in cells["meta"].certificate_problem
+
+
 def test_a_certificate_counts_the_released_grains_where_the_hybrid_reports_them():
     """The certificate's tally sums n_released / n_released_pushed of a hybrid with the released-grain rule
     and records no such key for a hybrid without it (its certificate stays as it was)."""

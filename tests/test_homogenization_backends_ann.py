@@ -188,12 +188,12 @@ def test_shipped_model_follows_the_analytical_cell_in_a_short_constant_volume_te
 
 
 @pytest.mark.skipif(not default_model_path().is_file(), reason="default model not installed")
-@pytest.mark.parametrize("p0", [2e5, 3e5])
-def test_shipped_model_follows_the_analytical_cell_through_a_constant_volume_reversal(p0):
+@pytest.mark.parametrize("p0, p_tolerance, q_tolerance", [(2e5, 0.0035, 0.01), (3e5, 0.01, 0.02)])
+def test_shipped_model_follows_the_analytical_cell_through_a_constant_volume_reversal(p0, p_tolerance, q_tolerance):
     """+5 % then -5 % at constant volume, increments 1e-4 (the test the model missed by 7 % of p0
     before the active-learning rounds of `make reproduce`; p0 = 3e5 is a pressure the rounds never
-    probed). Measured with 24 cells: 0.07 / 0.21 % (2e5), 0.32 / 0.55 % (3e5) of p0 (docs/benchmarks.md);
-    the DEM follows the analytical cell here to 0.02 % of p0."""
+    probed). Measured with 24 cells: 0.07 / 0.21 % (2e5), 0.32 / 0.55 % (3e5) of p0 (2026-12-07, the 2 x 24 model),
+    checked within 5x; the DEM follows the analytical cell here to 0.02 % of p0."""
     n = programmes.n_increments_for(0.05, 1e-4)
     programme = (programmes.isotropic(p0, increment=1e-4), programmes.constant_volume_biaxial(0.05, n, label="shear"),
                  programmes.constant_volume_biaxial(-0.1, 2 * n, label="reverse"))
@@ -203,6 +203,6 @@ def test_shipped_model_follows_the_analytical_cell_through_a_constant_volume_rev
     p = {name: r.p[shear[name]] for name, r in runs.items()}
     q = {name: r.q[shear[name]] for name, r in runs.items()}
     assert p["ann"].size == p["analytical"].size == 3 * n
-    assert np.abs(p["ann"] - p["analytical"]).max() <= 0.01 * p0
-    assert np.abs(q["ann"] - q["analytical"]).max() <= 0.02 * p0
+    assert np.abs(p["ann"] - p["analytical"]).max() <= p_tolerance * p0
+    assert np.abs(q["ann"] - q["analytical"]).max() <= q_tolerance * p0
     assert np.ptp(q["analytical"]) > 0.5 * p0  # the reversal swings q through the test

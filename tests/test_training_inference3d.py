@@ -150,3 +150,23 @@ def test_the_compiled_features_are_the_torch_features(loaded):
         expected = ((raw - cell.net.feature_mean) / cell.net.feature_std).numpy()
     assert cell.net.load_features and expected.shape[1] == cell.fast.last_features().shape[0]
     np.testing.assert_allclose(cell.fast.last_features().T, expected, rtol=1e-6, atol=1e-6)
+
+
+@needs_model
+def test_asking_for_the_tangent_leaves_the_step_the_compiled_one():
+    """The spatial network alone has no compiled tangent (torch's autograd gives it), but its state and moment
+    are the compiled step's whether the tangent is asked or not (they were torch's, 1e-9 apart, with it), so a
+    stress-controlled run accepts the same bits as a strain-controlled one would."""
+    from homogenization.ann.cell import AnnCell3D  # noqa: PLC0415
+    from warp_hcell.core.parameters import ContactLaw  # noqa: PLC0415
+
+    cell = AnnCell3D(ContactLaw(), 0.5, model=default_model_path(3))
+    state = cell.init_state(mesostructure_arg("hcell3d:alpha0=55").build(None), 8)
+    for _ in range(20):
+        state, _ = cell.step(state, np.full((8, 3), 2e-4))
+    d_eps = 1e-4 * np.random.default_rng(0).normal(size=(8, 3))
+    plain, response = cell.step(state, d_eps)
+    asked, with_tangent = cell.step(state, d_eps, with_tangent=True)
+    assert all(np.array_equal(a, b) for a, b in zip(plain, asked))
+    assert np.array_equal(response.moment, with_tangent.moment) and with_tangent.tangent.shape == (8, 3, 3)
+    assert np.isfinite(with_tangent.tangent).all()

@@ -210,6 +210,10 @@ class AnnCell(ArrayStateMixin):
         self.policy = CertificatePolicy(self.metadata, path, self.dim, self.equilibrium_corrections,
                                         self.force_tolerance, self.escalation is not None, self.release_rule)
         """The certificate and its envelope (``homogenization.ann.policy.CertificatePolicy``)."""
+        if self.escalation is not None and self.fast is None and self.policy.problem is None:
+            self.policy.problem = (f"{path}: its certificate measured the hybrid's released-grain rule, which runs "
+                                   f"on CPU only; on {self.device_name} a released cell takes the DEM's increment "
+                                   f"instead (run with --device cpu)")
         self.ood_monitor = OodMonitor(self.arrays, path, ood_interval)
         """The out-of-distribution checks (``homogenization.ann.ood.OodMonitor``)."""
 
@@ -309,36 +313,27 @@ class AnnCell(ArrayStateMixin):
             with_tangent: also return ``CellResponse.tangent`` = d(S_nn, S_tt[, S_t2t2])/d(d_eps)
                 [N m], shape (n_cells, dim, dim), the derivative of the whole increment (network
                 and contact law): compiled on CPU where ``FastAdvance.has_tangent`` (planar cells; spatial
-                cells with corrections), torch autograd otherwise.
+                cells with corrections), torch autograd otherwise (on CPU the state and moment stay the
+                compiled step's, whether a tangent is asked or not).
 
         Returns:
             The state at the end of the increment and its response (diagnostics: module docstring).
         """
         due = self.ood_monitor.due(state)
-        if self.fast is not None and not (with_tangent and not self.fast.has_tangent):
+        if self.fast is not None:
             resting = self._resting(state)
-            inc, tangent = self.fast.increment(*state, d_eps_local, with_tangent, held=resting)
+            compiled = with_tangent and self.fast.has_tangent
+            inc, tangent = self.fast.increment(*state, d_eps_local, compiled, held=resting)
+            if with_tangent and not compiled:  # the compiled step's state, torch's tangent (a search direction)
+                tangent = self._torch_step(state, d_eps_local, True)[2]
             features = self.fast.last_features()[probe_columns(self.arrays):].T if due else None
             tally = _Tally.of(inc, self.fast.last_corrections(), self.fast.last_counts())
             diagnostics = {**tally.diagnostics(self.force_tolerance), **self.ood_monitor.diagnostics(due, state, features)}
             return self._escalated(state, d_eps_local, AnnState(inc.cell_size, inc.free_position, inc.shear_force),
                                    CellResponse(inc.moment, inc.area, diagnostics, tangent), resting, tally)
-        import torch  # noqa: PLC0415
         from training import cell_physics  # noqa: PLC0415
 
-        size, free, shear = self._tensors(state)
-        d_eps = torch.as_tensor(np.asarray(d_eps_local, dtype=np.float64), device=self.device)
-        tangent = None
-        counts: tuple = (None,) * 4
-        if with_tangent:
-            d_eps = d_eps.clone().requires_grad_(True)
-            step, counts = self._advance(size, free, shear, d_eps)
-            rows = [torch.autograd.grad(step.moment[:, i, i].sum(), d_eps, retain_graph=i < self.dim - 1)[0]
-                    for i in range(self.dim)]
-            tangent = torch.stack(rows, dim=1).detach().cpu().numpy()
-        else:
-            with torch.inference_mode() if not self.equilibrium_corrections else torch.no_grad():
-                step, counts = self._advance(size, free, shear, d_eps)
+        step, counts, tangent = self._torch_step(state, d_eps_local, with_tangent)
         new = AnnState(*(t.detach().cpu().numpy() for t in (step.cell_size, step.free_position, step.shear_force)))
         moment = step.moment.detach().cpu().numpy()
         flags = [step.capped.any(dim=1).cpu().numpy(), step.opened.any(dim=1).cpu().numpy(),
@@ -349,6 +344,22 @@ class AnnCell(ArrayStateMixin):
                        **self.ood_monitor.diagnostics(due, state, state_features(self.net, *state) if due else None)}
         return self._escalated(state, d_eps_local, new,
                                CellResponse(moment, step.area.detach().cpu().numpy(), diagnostics, tangent))
+
+    def _torch_step(self, state: AnnState, d_eps_local: np.ndarray, with_tangent: bool) -> tuple[Any, tuple, Any]:
+        """The torch increment (``_advance``) of ``state`` by ``d_eps_local`` (n, dim): (its outcome, its
+        corrections' counts, the tangent (n, dim, dim) [N m] by autograd where ``with_tangent``, else None)."""
+        import torch  # noqa: PLC0415
+
+        size, free, shear = self._tensors(state)
+        d_eps = torch.as_tensor(np.asarray(d_eps_local, dtype=np.float64), device=self.device)
+        if not with_tangent:
+            with torch.inference_mode() if not self.equilibrium_corrections else torch.no_grad():
+                return (*self._advance(size, free, shear, d_eps), None)
+        d_eps = d_eps.clone().requires_grad_(True)
+        step, counts = self._advance(size, free, shear, d_eps)
+        rows = [torch.autograd.grad(step.moment[:, i, i].sum(), d_eps, retain_graph=i < self.dim - 1)[0]
+                for i in range(self.dim)]
+        return step, counts, torch.stack(rows, dim=1).detach().cpu().numpy()
 
     def _resting(self, state: AnnState) -> np.ndarray | None:
         """bool (n, n_free): the free DOFs that start the corrections at rest under ``RELEASE_RULE``, those of the
