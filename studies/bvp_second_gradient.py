@@ -16,7 +16,8 @@ then every run folder there is analysed:
   (gamma = eps1 - eps2); Coulomb 45 + phi/2, Roscoe 45 + psi/2, Arthur 45 + (phi + psi)/4 [deg].
 
 --eps1-end E analyses every run up to the shear strain E (a run still going is read from its
-checkpoint). Writes studies/results/bvp_second_gradient/summary.json and profiles.png.
+checkpoint). Writes studies/results/bvp_second_gradient/[TAG/]summary.json, profiles.png and fields.png
+(--tag TAG: runs and outputs in that subfolder; --no-plain: the second-gradient runs only).
 """
 
 from __future__ import annotations
@@ -52,9 +53,9 @@ BAND_WINDOW = 0.02
 """Default strain window before --eps1-end whose deviatoric-strain increment locates the band [-]."""
 
 
-def run_case(nx: int, ny: int, length: float | None, orientations: int) -> Path:
+def run_case(nx: int, ny: int, length: float | None, orientations: int, folder: Path = OUT) -> Path:
     name = f"{nx}x{ny}_" + ("plain" if length is None else f"L{length:g}")
-    out = OUT / name
+    out = folder / name
     argv = [sys.executable, "-m", "homogenization.bvp", "--alpha0", str(ALPHA0), "--p0", str(P0),
             "--eps-max", str(EPS_MAX), "--increment", str(INCREMENT), "--orientations", str(orientations),
             "--elements", f"{nx},{ny}", "--imperfection", str(F), "--iso-steps", "20", "--checkpoint-every", "10",
@@ -149,22 +150,25 @@ def main() -> None:
     parser.add_argument("--length", type=float, default=0.02)
     parser.add_argument("--orientations", type=int, default=24)
     parser.add_argument("--run", action="store_true")
+    parser.add_argument("--no-plain", action="store_true", help="with --run: the second-gradient runs only")
+    parser.add_argument("--tag", default="", help="runs and outputs in studies/results/bvp_second_gradient/TAG/")
     parser.add_argument("--window", type=float, default=BAND_WINDOW, help="band window [-]")
     parser.add_argument("--eps1-end", type=float, default=EPS_MAX,
                         help="analyse every run up to this shear strain (runs still going: their checkpoint)")
     args = parser.parse_args()
     meshes = [tuple(int(v) for v in m.split(",")) for m in args.meshes]
+    out = OUT / args.tag
     if args.run:
         for nx, ny in meshes:
-            for length in (None, args.length):
-                run_case(nx, ny, length, args.orientations)
+            for length in (args.length,) if args.no_plain else (None, args.length):
+                run_case(nx, ny, length, args.orientations, out)
     finest = max(nx for nx, _ in meshes)
-    folders = [folder for folder in sorted(OUT.iterdir())
+    folders = [folder for folder in sorted(out.iterdir())
                if (folder / "run.h5").exists() or (folder / "checkpoint.h5").exists()]
     rows = [analyse(folder, 0.5 / finest, args.eps1_end, args.window) for folder in folders]
     summary = {"eps1_end": args.eps1_end, "p0": P0, "alpha0": ALPHA0, "imperfection": F, "orientations": args.orientations,
                "band_window": args.window, "predictions": predictions(args.orientations), "runs": rows}
-    (OUT / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     print("case | complete | eps1 end | peak q/p0 (eps1) | q/p0 at peak + 2 % | q/p0 at eps1 end | band width [m] | angle [deg] | its/step mean, max | wall [s]")
     for r in rows:
         print(f"{r['case']} | {r['complete']} | {100 * r['eps1_end']:.1f} % | {r['peak_q_over_p0']:.4f} ({100 * r['peak_eps1']:.1f} %) | {r['q_over_p0_2pc_past_peak']:.4f} | "
@@ -184,7 +188,7 @@ def main() -> None:
              title="profile across the band")
     ax_q.legend(fontsize=7)
     ax_p.legend(fontsize=7)
-    fig.savefig(OUT / "profiles.png", dpi=110)
+    fig.savefig(out / "profiles.png", dpi=110)
     fig = Figure(figsize=(2.2 * len(FIELDS), 4.2), layout="constrained")
     for ax, (name, (xy, value)) in zip(np.atleast_1d(fig.subplots(1, len(FIELDS))), sorted(FIELDS.items())):
         dots = ax.scatter(xy[:, 0], xy[:, 1], c=value, s=2.0 if len(value) > 4000 else 5.0, cmap="viridis")
@@ -194,7 +198,7 @@ def main() -> None:
         fig.colorbar(dots, ax=ax, shrink=0.6).ax.tick_params(labelsize=6)
     fig.suptitle(f"deviatoric strain increment over the last {100 * args.window:.0f} % before eps1 = "
                  f"{100 * args.eps1_end:.1f} %", fontsize=9)
-    fig.savefig(OUT / "fields.png", dpi=110)
+    fig.savefig(out / "fields.png", dpi=110)
 
 
 if __name__ == "__main__":

@@ -236,6 +236,10 @@ def test_mesh_too_coarse_for_the_length_and_bad_resume(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--length 0.005: the expected band" in err and "use at least 3" in err and err.count("\n") == 1, err
     assert not (tmp_path / "x").exists()
+    # a larger length widens the band far less than 27 L (0.23 m measured at 15 mm): 8 x 16 elements of 0.125 m
+    coarse = [*TINY[:TINY.index("--elements")], "--elements", "8,16", *TINY[TINY.index("--elements") + 2:]]
+    assert cli(coarse + ["--length", "0.015", "--out", str(tmp_path / "z")]) == 2
+    assert "the expected band (0.2 m wide) spans 1.6 elements" in capsys.readouterr().err
     assert cli(TINY + ["--resume", "--out", str(tmp_path / "y")]) == 2
     assert capsys.readouterr().err.strip().endswith(f"--resume: {tmp_path / 'y' / 'checkpoint.h5'} does not exist")
 
@@ -245,9 +249,12 @@ def test_resume_with_other_settings_is_refused(tmp_path, capsys):
     assert cli(TINY + ["--checkpoint-every", "5", "--out", str(out)]) == 0
     capsys.readouterr()
     before = (out / "curve.csv").read_bytes()
-    assert cli(TINY + ["--p0", "3e5", "--resume", "--out", str(out)]) == 2
+    assert cli(TINY + ["--p0", "3e5", "--checkpoint-every", "5", "--resume", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "was written with other settings (p0)" in err and err.count("\n") == 1, err
+    # the interval sets when solver data are renewed: another one (or none) would not repeat the arithmetic
+    assert cli(TINY + ["--resume", "--out", str(out)]) == 2
+    assert "was written with other settings (checkpoint_every)" in capsys.readouterr().err
     assert (out / "curve.csv").read_bytes() == before
 
 

@@ -58,6 +58,7 @@ from homogenization.cli.run_files import backend_options, check_models_take, che
 from homogenization.material.homogenised import HomogenisedMaterial
 from warp_hcell.core.cli import (
     UserError,
+    axial_strain,
     fraction,
     positive_float,
     positive_int,
@@ -118,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_backend_argument(parser)
     add_alpha0_argument(parser)
     parser.add_argument("--p0", type=positive_float, default=cell.p0, help="confining pressure [N/m], > 0")
-    parser.add_argument("--eps-max", type=positive_float, default=bvp.eps_max,
+    parser.add_argument("--eps-max", type=axial_strain, default=bvp.eps_max,
                         help="axial strain at the end of the shear stage, counted from its start [-]")
     parser.add_argument("--increment", type=positive_float, default=bvp.increment,
                         help="axial strain of one shear step (platen displacement / H) [-]")
@@ -294,7 +295,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     }
     checkpoint = None
     if args.checkpoint_every is not None or args.resume:
-        settings = {k: v for k, v in parameters.items() if k != "ann_certificate"}
+        # the interval sets when solver data are renewed (``fe.REFRESH_EVERY``): a resume keeps it, for the same bits
+        settings = {**{k: v for k, v in parameters.items() if k != "ann_certificate"},
+                    "checkpoint_every": args.checkpoint_every}
         checkpoint = Checkpoint(checkpoint_path, args.checkpoint_every or len(steps), settings)
         if args.resume:
             checkpoint.check()

@@ -46,10 +46,10 @@ REFRESH_EVERY = 10
 """Without checkpoints, solver data kept across steps (``begin_step``) is renewed every this many
 steps; with checkpoints, every checkpoint interval, so that a resumed run repeats the arithmetic [-]."""
 MAX_HALVINGS = 4
+"""Halvings of a Newton correction after which it is taken even if the residual grew [-]."""
 REUSE_CONTRACTION = 0.1
 """With ``reuse_tangent``, a Newton correction takes the kept stiffness where it is the step's first
 or the previous correction cut the residual to at most this fraction [-]."""
-"""Halvings of a Newton correction after which it is taken even if the residual grew [-]."""
 
 
 class NewtonError(RuntimeError):
