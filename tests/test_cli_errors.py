@@ -67,7 +67,9 @@ def test_a_bad_command_line_is_one_line_naming_the_flag_and_the_fix(command, kin
 @pytest.mark.parametrize("argv, expected", [
     ([], "the following arguments are required: --out; add --out OUT"),
     (["-q", "-v", "--out", "o"], "argument -v/--verbose: not allowed with argument -q/--quiet; give only one of them"),
-    (["--seed", "x", "--out", "o"], "argument --seed: invalid int value: 'x'; give an integer"),
+    (["--seed", "x", "--out", "o"], "argument --seed: 'x' is not an integer"),
+    (["--seed", "99999999999999999999999", "--out", "o"], "argument --seed: 99999999999999999999999 must be below 2**63"),
+    (["--seed", "-1", "--out", "o"], "argument --seed: -1 must be >= 0"),
     (["--o", "x"], "unrecognized arguments: --o x"),  # no abbreviations: --mod is not --model-error
     (["--outp", "x"], "unrecognized arguments: --outp x"),
     (["--bogus", "1"], "unrecognized arguments: --bogus 1; see 'hmodel biaxial --help'"),

@@ -56,3 +56,20 @@ def test_train_and_certify_never_write_over_the_models_own_files(tmp_path, capsy
     if model.is_file():
         assert_one_line_refusal(capsys, certify.main, ["--model", str(model), "--out", str(model.with_suffix(".json"))],
                                 "is the model's own file", tmp_path / "none")
+
+
+def test_a_csv_saved_by_a_spreadsheet_with_a_byte_order_mark_is_read(tmp_path):
+    """Excel's "CSV UTF-8" starts with a byte-order mark: the data read the same as without it."""
+    from homogenization.calibration.data import read_test  # noqa: PLC0415
+
+    text = UNDRAINED + "eps1,q\n0.004,1.1e6\n0.008,1.8e6\n"
+    (tmp_path / "plain.csv").write_text(text, encoding="utf-8")
+    (tmp_path / "excel.csv").write_text(text, encoding="utf-8-sig")
+    plain, excel = read_test(tmp_path / "plain.csv"), read_test(tmp_path / "excel.csv")
+    assert (excel.p0, list(excel.eps1), list(excel.observed["q"])) == (plain.p0, list(plain.eps1), list(plain.observed["q"]))
+
+
+def test_generate_refuses_start_cells_for_a_mesostructure_that_starts_from_itself(tmp_path, capsys):
+    out = tmp_path / "db.h5"
+    assert_one_line_refusal(capsys, generate.main, ["--mesostructure", "hcell:alpha0=55", "--n-alpha0", "4",
+                                                    "--out", str(out)], "--n-alpha0 sets the plain H-cell's", out)

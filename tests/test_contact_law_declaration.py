@@ -179,8 +179,10 @@ def test_the_law_flags_are_built_from_the_declarations():
     assert contact_law_from_args(parser.parse_args(["--kn", "1e8", "--kt", "3e7", "--phi", "25"])) == \
         ContactLaw(kn=1e8, kt_over_kn=3e7 / 1e8, phi_g_deg=25.0)
     assert contact_law_from_args(parser.parse_args(["--law", "hertz-mindlin", "--shear-modulus", "1e9", "--poisson",
-                                                    "0.3", "--phi", "25", "--kn", "5"])) == \
+                                                    "0.3", "--phi", "25"])) == \
         HertzMindlinLaw(shear_modulus=1e9, poisson=0.3, phi_g_deg=25.0)
+    with pytest.raises(ValueError, match="--kn is a flag of the linear law, which --law hertz-mindlin ignores"):
+        contact_law_from_args(parser.parse_args(["--law", "hertz-mindlin", "--kn", "5"]))  # it would be ignored
     assert contact_law_from_args(parser.parse_args(["--law", "hertz-mindlin"])) == HertzMindlinLaw()
     with pytest.raises(SystemExit):
         parser.parse_args(["--shear-modulus", "-1"])

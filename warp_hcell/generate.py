@@ -101,6 +101,8 @@ def _run(argv: Sequence[str] | None) -> int:
     check_output_path(args.out, overwrite=args.overwrite)
     if args.out.is_dir():
         raise UserError(f"{args.out} is a folder; --out must be a file")
+    if args.mesostructure is not None and args.n_alpha0 != StartCells.n_alpha0:
+        raise UserError("--n-alpha0 sets the plain H-cell's start cells; a --mesostructure starts from itself alone")
     if args.mesostructure is None:
         meso = h_cell(CellDefaults.alpha0_deg, CellDefaults.radius)
         starts = StartCells(n_alpha0=args.n_alpha0).build(CellDefaults.radius)

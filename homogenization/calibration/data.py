@@ -83,7 +83,7 @@ def read_test(path: Path) -> Measurement:
     if not path.is_file():
         raise ValueError(f"{path}: no such data file")
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: cannot read: {exc}") from None
     meta: dict[str, str] = {}

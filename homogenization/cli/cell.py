@@ -108,7 +108,7 @@ def read_path(path: Path) -> np.ndarray:
     if not path.is_file():
         raise UserError(f"path file {path} does not exist")
     try:
-        lines = path.read_text().rstrip().splitlines()
+        lines = path.read_text(encoding="utf-8-sig").rstrip().splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(f"cannot read path file {path}: {exc}") from None
     header = tuple(name.strip() for name in lines[0].split(",")) if lines else ()

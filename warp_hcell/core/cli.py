@@ -228,6 +228,14 @@ positive_int = int_at_least(1)
 """argparse type: an integer >= 1."""
 
 
+def seed(text: str) -> int:
+    """argparse type of --seed: an integer in [0, 2**63) (numpy's seeds are >= 0; run.h5 stores it as int64)."""
+    value = int_at_least(0)(text)
+    if value >= 2**63:
+        raise argparse.ArgumentTypeError(f"{text} must be below 2**63")
+    return value
+
+
 def alpha0_deg(text: str) -> float:
     """argparse type: initial opening angle [deg] in [30, 90)."""
     try:
@@ -355,7 +363,7 @@ def common_parser() -> argparse.ArgumentParser:
     parser = Parser(add_help=False, parents=[verbosity_parser()])
     parser.add_argument("--device", type=device_name, default="cpu",
                         help="compute device: cpu, or cuda / cuda:N where the machine has a GPU")
-    parser.add_argument("--seed", type=int, default=0, help="seed of every random choice (runs are bit-reproducible)")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of every random choice (runs are bit-reproducible)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing output instead of refusing")
     return parser
 
@@ -381,8 +389,17 @@ def add_contact_law_arguments(parser: argparse.ArgumentParser) -> None:
 
 def contact_law_from_args(args: argparse.Namespace) -> Law:
     """The contact law of the flags added by ``add_contact_law_arguments`` (its ``from_flags`` of the
-    flags it declares that ``args`` holds); ValueError (one line) for values outside the law's ranges."""
+    flags it declares that ``args`` holds); ValueError (one line) for values outside the law's ranges, or a flag
+    of another law set away from its default (it would be ignored)."""
     law = CONTACT_LAWS[getattr(args, "law", ContactLaw.name)]
+    own = {flag.flag for flag in law.flags}
+    for other in CONTACT_LAWS.values():
+        defaults = {f.name: f.default for f in fields(other)}
+        for flag in other.flags:
+            value = getattr(args, flag.flag[2:].replace("-", "_"), None)
+            if flag.flag not in own and value is not None and value != defaults.get(flag.parameter):
+                raise ValueError(f"{flag.flag} is a flag of the {other.name} law, which --law {law.name} ignores; "
+                                 f"that law takes {', '.join(sorted(own))}")
     values = {flag.parameter: getattr(args, flag.flag[2:].replace("-", "_"), None) for flag in law.flags}
     return law.from_flags(**{name: value for name, value in values.items() if value is not None})
 
