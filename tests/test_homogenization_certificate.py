@@ -140,8 +140,11 @@ def test_the_shipped_certificates_meet_the_minimum_and_record_their_envelope():
             continue
         cert = Certificate.from_dict(json.loads(path.with_suffix(".json").read_text())["certificate"])
         assert shortfalls(cert, dim) == [] and verdict(cert) == "passed" == cert.verdict
-        # the recorded envelope is the one its settings and tests give
-        assert cert.envelope == envelope_of(dataclasses.replace(cert, envelope=None))
+        # the recorded envelope is the one its settings and tests give (with each test's kind, sense and p0)
+        derived = envelope_of(dataclasses.replace(cert, envelope=None))
+        assert cert.envelope == {k: v for k, v in derived.items() if k != "tests"}
+        assert envelope_of(cert)["tests"] == derived["tests"] == sorted(
+            [t.kind, t.sense, float(t.p0)] for t in cert.tests)
         stored = cert.envelope
         assert stored["pressures"] == [2e5, 1e6] and stored["eps_max"] == 0.1
         assert stored["kinds"] == (["constant-volume", "drained"] if dim == 2 else ["drained", "undrained"])
@@ -187,6 +190,18 @@ def test_the_envelope_names_every_way_out():
     assert outside(envelope, inside, mesostructure="hcell:alpha0=55", cell_parameters={"alpha0_deg": 55.0}) == []
     no_p0 = (programmes.constant_volume_biaxial(0.01, 10),)
     assert "before any isotropic compression" in outside(envelope, no_p0)[0]
+    tested = {**envelope, "tests": [["constant-volume", "compression", 2e5], ["constant-volume", "compression", 1e6],
+                                    ["constant-volume", "reversal", 2e5], ["drained", "compression", 2e5],
+                                    ["drained", "compression", 1e6]]}
+    assert outside(tested, reversal) == []  # a reversal at the certified 2e5
+    assert outside(tested, (programmes.isotropic(5e5), *reversal[1:])) == [
+        "a constant-volume reversal stage at p0 = 500000 N/m (certified at 200000 N/m)"]
+    assert outside(tested, programmes.biaxial(5e5, 0.05, 1e-3)) == []
+    extension = (programmes.isotropic(5e5), programmes.constant_volume_biaxial(-0.05, 50))
+    assert outside(tested, extension) == []  # the compression turned by 90 deg
+    drained = programmes.biaxial(5e5, 0.05, 1e-3, drained=True)
+    cyclic = (*drained, dataclasses.replace(drained[1], target=(-0.08, 5e5), n_increments=80, label="back"))
+    assert outside(tested, cyclic) == ["a drained reversal stage, which no certified test ran"]
     fine = {**envelope, "increment": 1e-4}
     assert outside(fine, programmes.biaxial(5e5, 0.05, 1e-4)) == []
     assert outside(fine, programmes.biaxial(5e5, 0.05, 1e-3, drained=True)) == [

@@ -150,13 +150,16 @@ def verdict(cert: Certificate) -> str:
 
 def envelope_of(cert: Certificate) -> dict[str, Any]:
     """The envelope of certificate ``cert`` (module docstring): its ``envelope`` entry where it
-    records one, else derived from its ``settings`` and ``tests``."""
-    if cert.envelope is not None:
-        return dict(cert.envelope)
-    settings = cert.settings
+    records one, else derived from its ``settings`` and ``tests``; ``tests`` ([kind, sense, p0] of every test)
+    from its tests where the entry has none."""
     tests = cert.tests
+    tested = sorted({(str(t.kind), str(t.sense), float(t.p0)) for t in tests})
+    if cert.envelope is not None:
+        return {"tests": [list(t) for t in tested], **cert.envelope}
+    settings = cert.settings
     p0 = [float(t.p0) for t in tests] or [float(p) for p in settings.get("pressures", ())]
     return {
+        "tests": [list(t) for t in tested],
         "pressures": [min(p0), max(p0)] if p0 else None,
         "eps_max": float(settings["eps_max"]) if "eps_max" in settings else None,
         "increment": float(settings["increment"]) if "increment" in settings else None,
@@ -194,7 +197,9 @@ def outside(envelope: Mapping[str, Any], programme: programmes.Programme, *, mes
 
     Checked: every isotropic stage's p0 (``stop_at_p``) within the certified pressures (a
     programme without one: not a certified test); the kind of every other step among the
-    certified kinds (``step_kind``); the axial strain eps11 counted from the end of each
+    certified kinds (``step_kind``); each shear stage's kind and sense (compression, extension, or
+    reversal where its axial strain turns) among the certified tests', at a p0 within theirs
+    (``_untested``; where the envelope lists its ``tests``); the axial strain eps11 counted from the end of each
     isotropic stage within +-eps_max; every such step's axial strain increment at most the
     certified ``increment`` (the network's error grows with it: docs/ann.md); the cell's parameters where given (e.g. ``alpha0_deg``; names are not
     compared: a builder spec and a file name the same cell differently, and the backend's own
@@ -206,9 +211,11 @@ def outside(envelope: Mapping[str, Any], programme: programmes.Programme, *, mes
     kinds: list[str] = []
     coarsest = 0.0
     started = False
+    segments: list[tuple[float | None, set[str], set[float]]] = []  # per isotropic stage: p0, kinds, axial signs
     for step in programme:
         if step.stop_at_p is not None:
             p0 = step.stop_at_p
+            segments.append((p0, set(), set()))
             if low is not None and p0 < low * (1.0 - PRESSURE_RTOL):
                 exits.append(f"p0 = {p0:g} {unit} below the lowest certified pressure {low:g} {unit}")
             elif high is not None and p0 > high * (1.0 + PRESSURE_RTOL):
@@ -222,6 +229,10 @@ def outside(envelope: Mapping[str, Any], programme: programmes.Programme, *, mes
         kind = step_kind(step, p0)
         if kind not in envelope.get("kinds", ()) and kind not in kinds:
             kinds.append(kind)
+        if segments:
+            segments[-1][1].add(kind)
+            if step.control[0] == "strain" and step.target[0] != 0.0:
+                segments[-1][2].add(math.copysign(1.0, step.target[0]))
         if step.control[0] == "strain":
             strain += step.target[0]
             largest = max(largest, abs(strain))
@@ -232,6 +243,9 @@ def outside(envelope: Mapping[str, Any], programme: programmes.Programme, *, mes
     eps_max = envelope.get("eps_max")
     if eps_max is not None and largest > eps_max * (1.0 + 1e-6):
         exits.append(f"axial strain {largest:g} beyond the certified {eps_max:g}")
+    within = [(p, k, s) for p, k, s in segments  # a p0 outside the pressures is reported above
+              if low is None or low * (1.0 - PRESSURE_RTOL) <= p <= high * (1.0 + PRESSURE_RTOL)]
+    exits += _untested(envelope.get("tests"), within, unit)
     increment = envelope.get("increment")
     if increment is not None and coarsest > increment * (1.0 + 1e-6):
         exits.append(f"axial strain increment {coarsest:g} coarser than the certified {increment:g}")
@@ -240,6 +254,34 @@ def outside(envelope: Mapping[str, Any], programme: programmes.Programme, *, mes
         if given is None or not math.isclose(float(given), float(value), rel_tol=1e-9):
             shown = "none" if given is None else f"{float(given):g}"
             exits.append(f"cell {mesostructure!r}: {key} = {shown} (certified: {float(value):g})")
+    return exits
+
+
+def _untested(tests: Sequence[Sequence[Any]] | None, segments: Sequence[tuple[float | None, set[str], set[float]]],
+              unit: str) -> list[str]:
+    """Where a shear stage (``segments``: its p0, step kinds and the signs of its axial strain steps) is of a
+    (kind, sense) no certified test ran (``tests``: [kind, sense, p0]) or at a p0 outside those tests' range;
+    sense: "reversal" where the axial strain turns, else "compression" or "extension". A planar constant-volume
+    extension counts as the compression (the same test turned by 90 deg, ``MinimumCertificate.planar_tests``)."""
+    if not tests:
+        return []
+    ranges: dict[tuple[str, str], list[float]] = {}
+    for kind, sense, p0 in tests:
+        ranges.setdefault((str(kind), str(sense)), []).append(float(p0))
+    exits = []
+    for p0, kinds, signs in segments:
+        sense = "reversal" if len(signs) > 1 else "extension" if signs == {-1.0} else "compression"
+        for kind in sorted(kinds - {"other"}):
+            key = (kind, sense)
+            if key not in ranges and key == ("constant-volume", "extension"):
+                key = ("constant-volume", "compression")
+            if key not in ranges:
+                exits.append(f"a {kind} {sense} stage, which no certified test ran")
+            elif p0 is not None and not (min(ranges[key]) * (1.0 - PRESSURE_RTOL) <= p0
+                                         <= max(ranges[key]) * (1.0 + PRESSURE_RTOL)):
+                lo, hi = min(ranges[key]), max(ranges[key])
+                where = f"{lo:g} {unit}" if lo == hi else f"{lo:g} to {hi:g} {unit}"
+                exits.append(f"a {kind} {sense} stage at p0 = {p0:g} {unit} (certified at {where})")
     return exits
 
 
