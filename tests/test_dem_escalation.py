@@ -162,7 +162,7 @@ def test_the_escalated_increment_is_the_dems_equilibrium_in_the_learning_state()
     meso = mesostructure_arg(str(LARGE_AXIAL)).build(None)
     law = ContactLaw()
     (size, free, shear), d_eps = _hard_cases()
-    new_size, new_free, new_shear, moment, area = DemEscalation(meso, law, meso.contact_tolerance).advance(
+    new_size, new_free, new_shear, moment, area, converged = DemEscalation(meso, law, meso.contact_tolerance).advance(
         size, free, shear, d_eps)
     assert np.array_equal(new_size, size * (1.0 - d_eps))
     ev = evaluate(meso.schema(), new_size, new_free, new_shear, law, meso.contact_tolerance)
@@ -172,6 +172,7 @@ def test_the_escalated_increment_is_the_dems_equilibrium_in_the_learning_state()
     scale = np.abs(moment).max(axis=(1, 2))[:, None, None]
     assert np.abs(ev["moment"].reshape(moment.shape) - moment).max() <= 1e-9 * scale.max()
     assert np.allclose(ev["area"], area, rtol=1e-12)
+    assert converged.dtype == bool and converged.all()  # reported as n_escalated_unconverged where not
 
 
 @pytest.mark.skipif(not SHIPPED_3D.is_file(), reason="3D model not installed")

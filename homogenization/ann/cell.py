@@ -375,7 +375,8 @@ class AnnCell(ArrayStateMixin):
         ``dem_escalation`` only, counted in ``n_released``): on CPU the increment again from rest for that grain
         (``_held_at_rest``) unless it started there (``resting``, (n, n_free) bool; cells with one counted in
         ``n_resting``, the released among them in ``n_released_pushed``), on another device the DEM's increment,
-        as with ``sliding`` the sliding cells (counted in ``n_escalated``). The tangent of such a cell stays the
+        as with ``sliding`` the sliding cells (counted in ``n_escalated``; those whose DEM did not reach equilibrium in
+        ``n_escalated_unconverged``). The tangent of such a cell stays the
         hybrid's (stress control's search direction only). ``tally``: the compiled step's per-cell counts, whose
         cells taken again on CPU count as they end (``_Tally``)."""
         if self.escalation is None:
@@ -408,12 +409,14 @@ class AnnCell(ArrayStateMixin):
         if self.escalation.with_sliding:
             escalated |= self.escalation.sliding(new.cell_size, new.free_position, new.shear_force)
         response.diagnostics["n_escalated"] = float(np.count_nonzero(escalated))
+        response.diagnostics["n_escalated_unconverged"] = 0.0
         if not escalated.any():
             return new, response
         index = np.flatnonzero(escalated)
-        size, free, shear, moment, area = self.escalation.advance(
+        size, free, shear, moment, area, converged = self.escalation.advance(
             state.cell_size[index], state.free_position[index], state.shear_force[index],
             np.asarray(d_eps_local, dtype=np.float64)[index])
+        response.diagnostics["n_escalated_unconverged"] = float(np.count_nonzero(~converged))
         return _with_cells(new, response, index, (size, free, shear, moment, area))
 
     def _dragged(self, state: AnnState, d_eps_local: np.ndarray, new: AnnState, response: CellResponse,

@@ -210,11 +210,12 @@ class DemEscalation:
         return self._batches[n]
 
     def advance(self, cell_size: np.ndarray, free_position: np.ndarray, shear_force: np.ndarray,
-                d_eps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                d_eps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The DEM's increment of the cells (first axis n) from their learning states at rest.
 
         Returns (cell_size (n, dim) [m], free_position (n, n_free) [m], shear_force (capped, zero out of
-        contact: the learning state's) [N], moment (n, dim, dim) [N m], area (n,) [m^dim]) after it."""
+        contact: the learning state's) [N], moment (n, dim, dim) [N m], area (n,) [m^dim]) after it, and whether
+        each cell's DEM reached equilibrium (bool (n,))."""
         from warp_hcell.dem.cell import DemCellState  # noqa: PLC0415 (Warp only where a cell escalates)
         from warp_hcell.dem.state import DemState  # noqa: PLC0415
         from warp_hcell.database.learning_state import evaluate, free_coordinates  # noqa: PLC0415
@@ -230,4 +231,4 @@ class DemEscalation:
         shear = evaluate(self.schema, after["cell_size"][:n], free, after["shear_force"][:n], self.contact_law,
                          self.contact_tolerance)["shear_force"]
         return (after["cell_size"][:n], free, shear, np.asarray(response.moment)[:n],
-                np.asarray(response.area)[:n])
+                np.asarray(response.area)[:n], np.asarray(after["converged"])[:n] == 1)
