@@ -10,7 +10,8 @@
 - ``envelope_of(cert)``: what a certificate covers: ``pressures`` [lowest, highest] p0 of its
   tests [N/m in 2D, Pa in 3D], ``eps_max`` (largest axial strain of a shear stage counted
   from its start, either sense [-]), ``kinds`` (the test kinds, ``step_kind``), ``senses``,
-  ``increment`` [-], ``mesostructure`` (name) and ``cell_parameters`` (e.g. ``alpha0_deg``).
+  ``increment`` [-], ``mesostructure`` (name), ``cell_parameters`` (e.g. ``alpha0_deg``) and
+  ``tests`` ([kind, sense, p0] of each test).
   Derived from the recorded ``settings`` and ``tests`` (a certificate written before the
   envelope was recorded has the same information).
 - ``outside(envelope, programme, meso)``: where a run leaves the envelope, one phrase each.
@@ -199,11 +200,12 @@ def outside(envelope: Mapping[str, Any], programme: programmes.Programme, *, mes
     programme without one: not a certified test); the kind of every other step among the
     certified kinds (``step_kind``); each shear stage's kind and sense (compression, extension, or
     reversal where its axial strain turns) among the certified tests', at a p0 within theirs
-    (``_untested``; where the envelope lists its ``tests``); the axial strain eps11 counted from the end of each
-    isotropic stage within +-eps_max; every such step's axial strain increment at most the
-    certified ``increment`` (the network's error grows with it: docs/ann.md); the cell's parameters where given (e.g. ``alpha0_deg``; names are not
-    compared: a builder spec and a file name the same cell differently, and the backend's own
-    ``check_start_cell`` bounds the learning state). ``unit``: stress unit of the phrases."""
+    (``_untested``; where the envelope lists its ``tests``); the axial strain eps11 counted from the
+    end of each isotropic stage within +-eps_max; every such step's axial strain increment at most
+    the certified ``increment`` (the network's error grows with it: docs/ann.md); the cell's
+    parameters where given (e.g. ``alpha0_deg``; names are not compared: a builder spec and a file
+    name the same cell differently, and the backend's own ``check_start_cell`` bounds the learning
+    state). ``unit``: stress unit of the phrases."""
     exits: list[str] = []
     low, high = envelope.get("pressures") or (None, None)
     p0 = None
