@@ -47,9 +47,9 @@ DIAMETER = 2.0 * CellDefaults.radius
 FORCE_RTOL = 1e-3
 """DEM contact forces: tolerance as a fraction of the case's largest force [-] (docs/benchmarks.md:
 measured 3.4e-4 at worst)."""
-POSITION_TOL = 1e-6 * DIAMETER
+POSITION_TOL = 5e-7 * DIAMETER
 """DEM grain positions where the cell carries force [m] (measured 1.9e-7 D)."""
-ALPHA_TOL_DEG = 1e-4
+ALPHA_TOL_DEG = 3e-5
 """DEM opening angle where the cell carries force [deg] (measured 9.1e-6 deg)."""
 ANALYTICAL_TOLERANCES = (1e-4, 1e-7 * DIAMETER, 5e-6)
 """The closed form's force [-], position [m] and alpha [deg] tolerances: about 2-3 times what
