@@ -315,3 +315,22 @@ def test_a_pivot_free_factorisation_that_falls_short_is_counted_as_a_fallback(mo
                 for name in ("factorisations", "pivoted_factorisations")}
     assert per_step["factorisations"] >= 1
     assert per_step["pivoted_factorisations"] == per_step["factorisations"] == specimen.pivoted_factorisations
+
+
+@pytest.mark.parametrize("max_halvings", [4, 0])
+def test_a_correction_that_raises_the_residual_is_halved_or_counted_as_taken(monkeypatch, max_halvings):
+    """One Newton correction made three times too long raises the residual: it is halved (``line_search_halvings``),
+    or, once the halvings are spent (none allowed here), taken all the same and counted in ``growths_taken``."""
+    specimen = fe.BiaxialSpecimen(2, 4)
+    exact, calls = specimen.newton_correction, []
+
+    def overshooting(*args):
+        calls.append(1)
+        return exact(*args) * (3.0 if len(calls) == 12 else 1.0)
+
+    monkeypatch.setattr(specimen, "newton_correction", overshooting)
+    monkeypatch.setattr(fe, "MAX_HALVINGS", max_halvings)
+    results = specimen.run(material_for(specimen), programme(), scale=P0)
+    halved = sum(r.diagnostics["line_search_halvings"] for r in results)
+    taken = sum(r.diagnostics["growths_taken"] for r in results)
+    assert (halved > 0 and taken == 0) if max_halvings else (halved == 0 and taken == 1), (halved, taken)

@@ -337,7 +337,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"({updates * specimen.n_points / elapsed:.3g} material-point updates/s, "
         f"{updates * material.n_cells / elapsed:.3g} cell-steps/s); "
         f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}; "
-        f"corrections halved (residual grew): {int(sum(r.diagnostics.get('line_search_halvings', 0) for r in results))}"
+        f"corrections halved (residual grew): {int(sum(r.diagnostics.get('line_search_halvings', 0) for r in results))}, "
+        f"taken though it grew: {int(sum(r.diagnostics.get('growths_taken', 0) for r in results))}"
         + _tangent_note(results) + _solver_note(results))
     if _material_note(results):
         say(_material_note(results))

@@ -56,7 +56,7 @@ SOLVER_COUNTS = {"factorisations": "sparse LU factorisations of the second-gradi
 """Per-step counts of the second-gradient specimen's linear solver (``solver_counts``) written to run.h5's history."""
 
 
-NOT_MATERIAL = {"line_search_halvings", "tangents", "tangents_reused", *SOLVER_COUNTS}
+NOT_MATERIAL = {"line_search_halvings", "growths_taken", "tangents", "tangents_reused", *SOLVER_COUNTS}
 """Keys of ``StepResult.diagnostics`` that count the solver's work, not the backend's rules."""
 
 
@@ -136,6 +136,8 @@ def write_h5(path: Path, specimen: BiaxialSpecimen, results: Sequence[StepResult
         hist["residuals"] = residuals
         hist["line_search_halvings"] = np.array([r.diagnostics.get("line_search_halvings", 0.0) for r in results])
         hist["line_search_halvings"].attrs["description"] = "Newton corrections halved because the residual grew"
+        hist["growths_taken"] = np.array([r.diagnostics.get("growths_taken", 0.0) for r in results])
+        hist["growths_taken"].attrs["description"] = "iterates taken though the residual grew (halvings exhausted)"
         for name, description in SOLVER_COUNTS.items():
             if name in results[0].diagnostics:
                 hist[name] = np.array([r.diagnostics[name] for r in results])

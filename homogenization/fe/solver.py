@@ -301,7 +301,8 @@ class BiaxialSpecimen:
         """Newton iterations of one load step from the converged unknowns ``x_start`` and ``state``.
 
         Where a correction increases the residual, it is halved (at most ``MAX_HALVINGS`` times,
-        each costing an iteration); the count is the diagnostic ``line_search_halvings``. Where the
+        each costing an iteration); the count is the diagnostic ``line_search_halvings``, and
+        ``growths_taken`` counts the iterates taken after ``MAX_HALVINGS`` halvings though the residual grew. Where the
         material ``defers_tangent``, an update computes its tangent only when a correction needs it
         (not for the converged iterate, nor a halving; with ``reuse_tangent`` only where the kept
         stiffness stopped contracting); the counts are ``tangents`` and ``tangents_reused``. The step's
@@ -325,7 +326,7 @@ class BiaxialSpecimen:
         eps_start = self.strain(self.displacement_of(x_start))
         residuals: list[float] = []
         free = np.setdiff1d(np.arange(expand.shape[1]), fixed)
-        accepted, step_x, alpha, halvings, tangents, reused = np.inf, None, 1.0, 0, 0, 0
+        accepted, step_x, alpha, halvings, tangents, reused, grown = np.inf, None, 1.0, 0, 0, 0, 0
         counts = self.solver_counts()
         defer = material.defers_tangent
         if fresh:
@@ -341,6 +342,7 @@ class BiaxialSpecimen:
             if norm <= self.newton_rtol * scale * self.width:
                 totals = {name: float(value) for name, value in update.diagnostics.items()}
                 totals["line_search_halvings"] = float(halvings)
+                totals["growths_taken"] = float(grown)
                 totals["tangents"] = float(tangents)
                 totals["tangents_reused"] = float(reused)
                 totals.update({name: float(value - counts[name]) for name, value in self.solver_counts().items()})
@@ -353,6 +355,7 @@ class BiaxialSpecimen:
                 halvings += 1
                 x = x_base + alpha * step_x
                 continue
+            grown += norm > accepted  # halved MAX_HALVINGS times and still grown: taken all the same
             kept = self._kept_stiffness
             if K is None and kept is not None and (step_x is None or norm <= REUSE_CONTRACTION * accepted):
                 K = kept
