@@ -159,6 +159,13 @@ def _tangent_note(results: Sequence[fe.StepResult]) -> str:
     return f"; tangents computed {computed}, reused {int(sum(r.diagnostics.get('tangents_reused', 0) for r in results))}"
 
 
+def _halving_note(results: Sequence[fe.StepResult]) -> str:
+    """The run's Newton corrections halved because the residual grew, and the iterates taken though it grew."""
+    halved, taken = (int(sum(r.diagnostics.get(name, 0) for r in results)) for name in ("line_search_halvings",
+                                                                                          "growths_taken"))
+    return f"corrections halved (residual grew): {halved}, taken though it grew: {taken}"
+
+
 def _material_note(results: Sequence[fe.StepResult]) -> str:
     """The backend's counts that fired at the steps' converged updates, summed over steps (``fe_output.material_counts``;
     run.h5's ``history/material_*`` per step); "" where none fired."""
@@ -337,9 +344,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"({updates * specimen.n_points / elapsed:.3g} material-point updates/s, "
         f"{updates * material.n_cells / elapsed:.3g} cell-steps/s); "
         f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}; "
-        f"corrections halved (residual grew): {int(sum(r.diagnostics.get('line_search_halvings', 0) for r in results))}, "
-        f"taken though it grew: {int(sum(r.diagnostics.get('growths_taken', 0) for r in results))}"
-        + _tangent_note(results) + _solver_note(results))
+        + _halving_note(results) + _tangent_note(results) + _solver_note(results))
     if _material_note(results):
         say(_material_note(results))
     if reference is not None and not weak.any():
