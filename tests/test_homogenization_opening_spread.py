@@ -186,7 +186,8 @@ def test_a_spread_is_judged_at_the_void_ratios_alpha0_not_the_fixed_one(spread_d
     out = tmp_path / "cal"
     assert run_main(calibrate.main, ["--data", str(data), *common, "--params", "phi_g", "--alpha0", "50",
                                      "--alpha0-spread", "8", "--e-min", "0.597", "--e-max", "0.977", "--steps", "1",
-                                     "--resolution", "off", "--confirm", "none", "--out", str(out)]) == 0
+                                     "--order", "5", "--spins", "2", "--resolution", "off", "--confirm", "none",
+                                     "--out", str(out)]) == 0
     run = ["triaxial", "--posterior", str(out), "--drained", "--p0", "1e5", "--eps-max", "8e-3", "--increment", "4e-3",
            "--iso-increment", "2e-3", "--order", "5", "--spins", "2", "-q"]
     assert run_main(hmodel.main, [*run, "--void-ratio", "0.95", "--out", str(tmp_path / "loose")]) == 0
