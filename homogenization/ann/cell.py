@@ -605,8 +605,12 @@ class _Tally:
     def of(cls, inc: Any, corrections: Corrections | None, counts: np.ndarray) -> _Tally:
         """The tally of one ``FastAdvance.increment``'s outcome ``inc``, its ``last_corrections()`` and its
         ``last_counts()`` (read now)."""
-        return cls([inc.capped, inc.opened, inc.mechanism, inc.relaxation_scaled, inc.grains_held], corrections,
-                   counts.tolist())
+        return cls(cls._flags_of(inc), corrections, counts.tolist())
+
+    @staticmethod
+    def _flags_of(inc: Any) -> list[np.ndarray]:
+        """The per-cell branch flags of a ``FastIncrement``, in the tally's order."""
+        return [inc.capped, inc.opened, inc.mechanism, inc.relaxation_scaled, inc.grains_held]
 
     def take(self, index: np.ndarray, inc: Any, corrections: Corrections | None) -> None:
         """Cells ``index`` as the pass ``inc`` (their outcome) ends them, its ``corrections`` (None: none taken)."""
@@ -615,8 +619,7 @@ class _Tally:
             if self.corrections is not None:
                 self.corrections = Corrections(*(np.array(a) for a in self.corrections))
             self.counts, self.owned = None, True
-        for whole, part in zip(self.flags, (inc.capped, inc.opened, inc.mechanism, inc.relaxation_scaled,
-                                            inc.grains_held)):
+        for whole, part in zip(self.flags, self._flags_of(inc)):
             whole[index] = part
         if corrections is not None and self.corrections is not None:
             self.corrections.force_ratio[1, index] = corrections.force_ratio[1]

@@ -345,8 +345,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{updates * material.n_cells / elapsed:.3g} cell-steps/s); "
         f"Newton iterations per shear step: max {max(shear_iterations)}, mean {np.mean(shear_iterations):.2f}; "
         + _halving_note(results) + _tangent_note(results) + _solver_note(results))
-    if _material_note(results):
-        say(_material_note(results))
+    fired = _material_note(results)
+    if fired:
+        say(fired)
     if reference is not None and not weak.any():
         table = fe_output.curve_table(results)
         shear = np.flatnonzero(table["stage"] == "shear")
