@@ -3,9 +3,11 @@ the tests marked ``other_cpus`` once (they compile the meso-ANN's steps for othe
 
 numpy, OpenBLAS, torch (ATen, MKL, oneDNN), numba and glibc pick their kernels by CPU; these variables
 make them pick those of another CPU, so that one machine checks what an AVX2 or an AVX-512
-machine would compute (docs/determinism.md). Settings that need AVX-512 run only where the CPU
+machine would compute (docs/determinism.md). A setting puts every library at one level at once (each
+library picks its kernels on its own, so one run checks them all); a setting that fails is run again one
+library at a time, so that the log names the library. Settings that need AVX-512 run only where the CPU
 has it. The settings run two at a time (each its own process; those that compile numba for another CPU
-start first, after the ``other_cpus`` tests, and the one whose CPU those tests compile for starts last). Prints
+start first, after the ``other_cpus`` tests, and the one whose CPU those tests compile for starts after them). Prints
 one line per setting, in order, then the ``other_cpus`` line and the total time; exit status 1 if any of them
 failed.
 
@@ -32,31 +34,19 @@ GLIBC_NO_FMA = "glibc.cpu.hwcaps=-AVX2_Usable,-FMA_Usable,-FMA"
 """glibc's exp, log, sin, cos, atan2 ... without their AVX2 and FMA variants (as on a CPU without FMA)."""
 SETTINGS: list[tuple[dict[str, str], bool]] = [
     ({}, False),
-    ({"NPY_DISABLE_CPU_FEATURES": NUMPY_AVX2}, False),
-    ({"NPY_DISABLE_CPU_FEATURES": NUMPY_BASELINE}, False),
-    ({"OPENBLAS_CORETYPE": "Sandybridge"}, False),
-    ({"OPENBLAS_CORETYPE": "Haswell"}, False),
-    ({"OPENBLAS_CORETYPE": "SkylakeX"}, True),
-    ({"ATEN_CPU_CAPABILITY": "default"}, False),
-    ({"ATEN_CPU_CAPABILITY": "avx2"}, False),
-    ({"ATEN_CPU_CAPABILITY": "avx512"}, True),
-    ({"MKL_CBWR": "COMPATIBLE"}, False),
-    ({"MKL_CBWR": "AVX2"}, False),
-    ({"MKL_CBWR": "AVX512"}, True),
-    ({"DNNL_MAX_CPU_ISA": "SSE41"}, False),
-    ({"DNNL_MAX_CPU_ISA": "AVX2"}, False),
-    ({"DNNL_MAX_CPU_ISA": "AVX512_CORE"}, True),
-    ({"NUMBA_CPU_NAME": "haswell"}, False),
-    ({"NUMBA_CPU_NAME": "skylake-avx512"}, True),
-    ({"GLIBC_TUNABLES": GLIBC_NO_FMA}, False),
+    ({"NPY_DISABLE_CPU_FEATURES": NUMPY_AVX2, "OPENBLAS_CORETYPE": "Haswell", "ATEN_CPU_CAPABILITY": "avx2",
+      "MKL_CBWR": "AVX2", "DNNL_MAX_CPU_ISA": "AVX2", "NUMBA_CPU_NAME": "haswell"}, False),
+    ({"OPENBLAS_CORETYPE": "SkylakeX", "ATEN_CPU_CAPABILITY": "avx512", "MKL_CBWR": "AVX512",
+      "DNNL_MAX_CPU_ISA": "AVX512_CORE", "NUMBA_CPU_NAME": "skylake-avx512"}, True),
     ({"NPY_DISABLE_CPU_FEATURES": NUMPY_BASELINE, "OPENBLAS_CORETYPE": "Sandybridge", "ATEN_CPU_CAPABILITY": "default",
       "MKL_CBWR": "COMPATIBLE", "DNNL_MAX_CPU_ISA": "SSE41", "NUMBA_CPU_NAME": "generic",
       "GLIBC_TUNABLES": GLIBC_NO_FMA}, False),
 ]
-"""(environment variables, needs AVX-512): the host as it is, then one library at a time at each
-level, then every library at its lowest level together. numba's lowest level, generic, is in that last
-setting alone: the ``other_cpus`` tests compile the meso-ANN's steps for it too, and the last setting
-then loads them from numba's cache instead of compiling them a second time."""
+"""(environment variables, needs AVX-512): the host as it is, then every library at its AVX2 level, at its
+AVX-512 level, and at its lowest level (numpy's SSE4.2 baseline, OpenBLAS's and glibc's kernels for a CPU
+without FMA, numba's generic x86-64). numba's generic level is that last setting's: the ``other_cpus``
+tests compile the meso-ANN's steps for it too, and the last setting then loads them from numba's cache
+instead of compiling them a second time."""
 
 
 def has_avx512() -> bool:
@@ -103,30 +93,51 @@ def run_setting(variables: dict[str, str], argv: list[str], files: list[str],
     return result, time.perf_counter() - t0
 
 
+def label_of(variables: dict[str, str]) -> str:
+    """The setting as the log names it."""
+    return " ".join(f"{k}={v!r}" for k, v in variables.items()) or "host CPU as it is"
+
+
+def report(label: str, result: subprocess.CompletedProcess, seconds: float) -> None:
+    """One line for a setting's run, then the tail of its output where it failed."""
+    summary = (result.stdout.strip().splitlines() or ["(no output)"])[-1]
+    print(f"{'ok    ' if result.returncode == 0 else 'FAILED'} {seconds:5.0f} s  {label}: {summary}", flush=True)
+    if result.returncode != 0:
+        print(result.stdout[-4000:] + result.stderr[-2000:], flush=True)
+
+
 def main(argv: list[str]) -> int:
     avx512 = has_avx512()
     files = marked_files()
     failed, start = [], time.perf_counter()
     runnable = []
     for variables, needs_avx512 in SETTINGS:
-        label = " ".join(f"{k}={v!r}" for k, v in variables.items()) or "host CPU as it is"
         if needs_avx512 and not avx512:
-            print(f"skipped (no AVX-512): {label}", flush=True)
+            print(f"skipped (no AVX-512): {label_of(variables)}", flush=True)
         else:
-            runnable.append((label, variables))
-    first = run_setting(runnable[0][1], argv, files)
+            runnable.append(variables)
+    first = run_setting(runnable[0], argv, files)
     with ThreadPoolExecutor(max_workers=WORKERS) as pool:
         other_cpus = pool.submit(run_setting, {}, argv, marked_files("other_cpus"), "other_cpus")
-        futures = {index: pool.submit(run_setting, runnable[index][1], argv, files)
-                   for index in start_order([variables for _, variables in runnable], OTHER_CPU_NAMES)}
-        labelled = [(label, futures[index] if index else None) for index, (label, _) in enumerate(runnable)]
-        for label, future in [*labelled, ("tests marked other_cpus, host CPU", other_cpus)]:
+
+        def setting(variables):
+            if variables.get("NUMBA_CPU_NAME") in OTHER_CPU_NAMES:
+                other_cpus.result()  # their numba kernels: compiled by the other_cpus tests, then loaded from the cache
+            return run_setting(variables, argv, files)
+
+        futures = {index: pool.submit(setting, runnable[index])
+                   for index in start_order(runnable, OTHER_CPU_NAMES)}
+        labelled = [(label_of(variables), futures[index] if index else None, variables)
+                    for index, variables in enumerate(runnable)]
+        for label, future, variables in [*labelled, ("tests marked other_cpus, host CPU", other_cpus, {})]:
             result, seconds = future.result() if future else first
-            summary = (result.stdout.strip().splitlines() or ["(no output)"])[-1]
-            print(f"{'ok    ' if result.returncode == 0 else 'FAILED'} {seconds:5.0f} s  {label}: {summary}", flush=True)
+            report(label, result, seconds)
             if result.returncode != 0:
                 failed.append(label)
-                print(result.stdout[-4000:] + result.stderr[-2000:], flush=True)
+                if len(variables) > 1:  # which library: each of the setting's variables alone
+                    print("  the same tests with one library at this level at a time:", flush=True)
+                    for name, value in variables.items():
+                        report(f"  {name}={value!r}", *run_setting({name: value}, argv, files))
     print(f"determinism: {len(failed)} of the settings failed in {time.perf_counter() - start:.0f} s"
           + (": " + "; ".join(failed) if failed else ""))
     return 1 if failed else 0
