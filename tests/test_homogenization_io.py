@@ -44,6 +44,7 @@ def test_round_trip(tmp_path, record):
 
 def test_datasets_carry_units_and_sign(tmp_path, record):
     path = io.write_run_h5(tmp_path / "run.h5", record, parameters={}, seed=0)
+    assert np.array_equal(io.read_run(tmp_path).record.q, record.q)  # a run's folder reads as its run.h5
     with h5py.File(path, "r") as f:
         assert f["history/sigma11"].attrs["units"] == "N/m"
         assert f["history/eps22"].attrs["units"] == "1"
@@ -66,6 +67,11 @@ def test_curve_csv(tmp_path, record):
 def test_missing_and_corrupt_files(tmp_path):
     with pytest.raises(UserError, match=f"^{tmp_path / 'nope.h5'}: no such run file$"):
         io.read_run(tmp_path / "nope.h5")
+    (tmp_path / "runs" / "dem").mkdir(parents=True)
+    (tmp_path / "runs" / "dem" / io.RUN_FILE).write_bytes(b"")
+    with pytest.raises(UserError, match=f"^{tmp_path / 'runs'}: a folder without run.h5; the runs in it: "
+                                        f"{tmp_path / 'runs' / 'dem' / 'run.h5'}$"):
+        io.read_run(tmp_path / "runs")
     bad = tmp_path / "bad.h5"
     bad.write_bytes(b"not hdf5 at all")
     with pytest.raises(UserError, match=f"^{bad}: unreadable or corrupt run file"):

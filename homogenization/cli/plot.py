@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
         "and title come from the runs' metadata: the parts every run shares (test, backend, "
         "mesostructure, alpha0, p0, N) make the title, the parts that differ the legend.",
         device=False)
-    parser.add_argument("runs", type=Path, nargs="+", metavar="RUN.h5", help="run files to overlay")
+    parser.add_argument("runs", type=Path, nargs="+", metavar="RUN.h5", help="run files (or run folders) to overlay")
     parser.add_argument("--out", type=Path, required=True, help="figure file: .png, .pdf or .svg")
     add_figure_arguments(parser)
     parser.add_argument("--title", default=None, help="figure title (None: what the runs share)")

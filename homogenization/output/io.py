@@ -281,12 +281,19 @@ def _void_ratio(attrs: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def read_run(path: Path) -> StoredRun:
-    """Read a run file written by ``write_run_h5``.
+    """Read a run file written by ``write_run_h5``; ``path`` may also be a run's folder (its ``run.h5``).
 
     Raises:
-        UserError: one line, if the file is missing, not HDF5 or not a run file.
+        UserError: one line, if the file is missing (a folder without ``run.h5``: naming the runs in its
+            subfolders), not HDF5 or not a run file.
     """
     path = Path(path)
+    if path.is_dir():
+        if not (path / RUN_FILE).is_file():
+            inside = sorted(str(run) for run in path.glob(f"*/{RUN_FILE}"))
+            raise UserError(f"{path}: a folder without {RUN_FILE}"
+                            + (f"; the runs in it: {' '.join(inside)}" if inside else ""))
+        path = path / RUN_FILE
     if not path.is_file():
         raise UserError(f"{path}: no such run file")
     try:
