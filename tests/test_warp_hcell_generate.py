@@ -226,7 +226,7 @@ def test_hcell_observables_follow_the_generic_state(h_db):
 def test_unconverged_probes_are_flagged(tmp_path):
     strict = DemSettings(force_tolerance=1e-18, max_substeps=20_000)  # below round-off: loaded cells never converge
     settings = DatabaseSettings(samples=300, chunk_size=300, precompression=(0.0, 1e-3), n_directions=4,
-                                sample_spacing=2e-3, leg_length=6e-3)
+                                sample_spacing=2e-3, leg_length=6e-3, reversal_arc=(2e-3, 6e-3))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         written, _ = run(tmp_path, settings=settings, dem_settings=strict, clean=True)
@@ -240,6 +240,16 @@ def test_increments_beyond_max_substeps_are_refused_before_work(tmp_path):
     with pytest.raises(ValueError, match="needs more substeps than max_substeps"):
         run(tmp_path, dem_settings=DemSettings(max_substeps=1000))
     assert not generate.sidecar_path(tmp_path / "db.h5").exists()
+
+
+def test_a_reversal_arc_without_a_sampled_state_is_refused_before_work(tmp_path):
+    """A leg sampled at path lengths 0.005 to 0.045 has no state in (0.3001, 0.3002): the turns would have left
+    the leg outside the arc asked for (before: silently at its last state)."""
+    with pytest.raises(ValueError, match=r"reversal_arc = \(0.3001, 0.3002\) holds none of a leg's sampled path "
+                                         r"lengths \(0.005, 0.015, 0.025, 0.035, \.\.\."):
+        generate.generate(h_cell(), replace(SMALL, reversal_arc=(0.3001, 0.3002)), tmp_path / "db.h5", seed=3)
+    assert not generate.sidecar_path(tmp_path / "db.h5").exists() and not (tmp_path / "db.h5").exists()
+    assert exploration.turn_candidates(replace(SMALL, reversal_arc=(0.3001, 0.3002), reversal_legs=0)).size == 0
 
 
 def test_same_seed_same_bytes_whatever_workers(tmp_path):

@@ -104,6 +104,22 @@ def leg_steps(settings: DatabaseSettings, directions: np.ndarray, arc: np.ndarra
     return np.searchsorted(arc, reach, side="right").astype(np.int64)
 
 
+def turn_candidates(settings: DatabaseSettings) -> np.ndarray:
+    """Indices into ``leg_arc`` of the leg's sampled states whose path length lies in ``reversal_arc``, shape (m,).
+
+    Raises:
+        ValueError: one line, where none does (with reversal legs: the turns could not lie in the arc asked for).
+    """
+    arc = leg_arc(settings)
+    lo, hi = settings.reversal_arc
+    candidates = np.flatnonzero((arc >= lo * (1.0 - 1e-12)) & (arc <= hi * (1.0 + 1e-12)))
+    if not candidates.size and settings.reversal_legs:
+        shown = ", ".join(f"{a:g}" for a in arc[:4]) + (", ..." if arc.size > 4 else "")
+        raise ValueError(f"reversal_arc = ({lo:g}, {hi:g}) holds none of a leg's sampled path lengths ({shown}: "
+                         f"sample_spacing, leg_refinement, leg_length); widen it or sample more finely")
+    return candidates
+
+
 def turn_draws(settings: DatabaseSettings, start_id: int, n_levels: int,
                dim: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Turns of the branches of one start cell (module docstring), each shape
@@ -113,11 +129,7 @@ def turn_draws(settings: DatabaseSettings, start_id: int, n_levels: int,
     a standard normal vector per branch, shape (..., 3), that picks the plane of the turn
     (``turned``); None for dim = 2. The planar draws come first, so they do not depend on dim."""
     rng = np.random.default_rng([TURN_STREAM, int(start_id)])
-    arc = leg_arc(settings)
-    lo, hi = settings.reversal_arc
-    candidates = np.flatnonzero((arc >= lo * (1.0 - 1e-12)) & (arc <= hi * (1.0 + 1e-12)))
-    if not candidates.size:
-        candidates = np.array([min(int(np.searchsorted(arc, lo * (1.0 - 1e-12))), arc.size - 1)])
+    candidates = turn_candidates(settings)
     shape = (n_levels, settings.n_directions, settings.reversal_legs)
     steps = candidates[rng.integers(0, candidates.size, size=shape)] + 1
     negated = rng.random(shape) < settings.reversal_negated_fraction

@@ -42,7 +42,7 @@ from warp_hcell.database import clean as cleaning
 from warp_hcell.database import format as database
 from warp_hcell.core.files import output_lock
 from warp_hcell.core.execution import InProcess, make_execution
-from warp_hcell.database.exploration import DEM_PREFIX, UnreachableLevel, WalkProgress
+from warp_hcell.database.exploration import DEM_PREFIX, UnreachableLevel, WalkProgress, turn_candidates
 from warp_hcell.database.learning_state import free_coordinates
 from warp_hcell.mesostructures.mesostructure import Mesostructure, shares_state_schema
 from warp_hcell.mesostructures.files import describe, description_sha256
@@ -183,8 +183,7 @@ def generate(
         settings, seed: generator settings; seed of the probes and state order.
         starts: start cells (same learning state); None = ``[meso]``.
         contact_law, dem_settings, device: the DEM's physics and numerics.
-        threads, workers, execution: DEM threads, worker processes, where tasks run (no effect
-            on the result).
+        threads, workers, execution: DEM threads, worker processes, where tasks run (not the result).
         clean: apply ``warp_hcell.clean`` first.
         max_chunks: at most this many new chunks, then return None.
         discard_partial: drop an unfinished run of other options.
@@ -196,14 +195,15 @@ def generate(
         ``out`` once written, or None when stopped by ``max_chunks``.
 
     Raises:
-        ValueError: a start of another learning state, an increment beyond max_substeps, a
-            non-linear law, an unfinished run of other options.
+        ValueError: a start of another learning state, an increment beyond max_substeps, an empty
+            ``reversal_arc``, a non-linear law, an unfinished run of other options.
         UserError: another run writes ``out``. DiskFull: no space left."""
     require_linear_law(contact_law, "the learning database (its format stores kn, kt and phi_g; the meso-ANN "
                                     "learns from it)")
     starts = [meso] if starts is None else list(starts)
     check_starts(meso, starts)
     check_increments(settings, dem_settings)
+    turn_candidates(settings)  # the turns' arc holds a sampled state (else ValueError, before any work)
     out = Path(out)
     description = run_description(meso, starts, settings, seed, contact_law, dem_settings)
     physics = Physics(contact_law, description["mesostructure"], dem_settings, str(device), int(threads))
