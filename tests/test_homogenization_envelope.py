@@ -15,9 +15,14 @@ SHIPPED = json.loads(default_model_path().with_suffix(".json").read_text())["cer
 
 
 def _cert(settings, tests, *, rollout=None, target=0.02, worst=0.0, passed=True):
-    """A certificate of these settings, (kind, sense) tests and figures (the rest placeholders)."""
-    rows = tuple(TestResult(name=f"{k} {s}", kind=k, sense=s, p0=2e5, dp=worst, dq=worst, scale=2e5, n_increments=1)
-                 for k, s in tests)
+    """A certificate of these settings, tests and figures (the rest placeholders): a test (kind, sense, p0), or
+    (kind, sense) at every pressure of ``settings`` (a reversal at the lowest)."""
+    pressures = sorted(settings.get("pressures", [2e5]))
+    full = [test for test in tests if len(test) == 3]
+    full += [(k, s, p) for k, s in (test for test in tests if len(test) == 2)
+             for p in (pressures[:1] if s == "reversal" else pressures)]
+    rows = tuple(TestResult(name=f"{k} {s} {p:g}", kind=k, sense=s, p0=p, dp=worst, dq=worst, scale=p, n_increments=1)
+                 for k, s, p in full)
     return Certificate(target=target, worst=worst, worst_test="", metric="", tests=rows, rollout=rollout, coverage=None,
                        dem_spread=None, settings=settings, cell_parameters={}, model_sha256="", revision="", seconds=0.0,
                        within_target=worst <= target, below_minimum=[], verdict="", passed=passed)
@@ -31,13 +36,28 @@ def test_the_certificate_defaults_are_the_minimum_and_meet_it():
         envelope.MINIMUM.pressures, envelope.MINIMUM.eps_max, envelope.MINIMUM.increment, envelope.MINIMUM.target,
         envelope.MINIMUM.n_orientations, envelope.MINIMUM.spatial_rule)
     for dim in (2, 3):
-        tests = [(info["kind"], info["sense"]) for info, _ in certificate.tests_of(dim=dim)]
+        tests = [(info["kind"], info["sense"], info["p0"]) for info, _ in certificate.tests_of(dim=dim)]
         settings = certificate.requested_settings(dim)
         cert = _cert(settings, tests, rollout={"x": 1}, target=certificate.TARGET)
         assert envelope.shortfalls(cert, dim) == []
         weaker = dataclasses.replace(cert, settings={**settings, "pressures": [2e5]}, rollout=None)
         assert envelope.shortfalls(weaker, dim) == ["pressures 200000 (minimum: 200000, 1e+06)",
                                                     "no rollouts (the minimum runs them)"]
+
+
+def test_a_test_missing_at_one_pressure_is_a_shortfall():
+    """Every required test at every minimum pressure the certificate ran (the reversal at the lowest): a certificate
+    whose drained compression ran at 2e5 only, or whose reversal ran at 1e6 only, is weak."""
+    settings = {"pressures": [2e5, 1e6], "eps_max": 0.1, "increment": 1e-4, "n_orientations": 24}
+    whole = [(k, s, p) for k, s in envelope.MINIMUM.planar_tests for p in ((2e5,) if s == "reversal" else (2e5, 1e6))]
+    assert envelope.shortfalls(_cert(settings, whole, rollout={"x": 1}), 2) == []
+    lacking = [t for t in whole if t != ("drained", "compression", 1e6)]
+    assert envelope.shortfalls(_cert(settings, lacking, rollout={"x": 1}), 2) == [
+        "no drained compression at p0 1e+06 test"]
+    moved = [t if t[1] != "reversal" else (*t[:2], 1e6) for t in whole]
+    assert envelope.verdict(_cert(settings, moved, rollout={"x": 1})) == "weak"
+    assert envelope.shortfalls(_cert(settings, moved, rollout={"x": 1}), 2) == [
+        "no constant-volume reversal at p0 200000 test"]
 
 
 def test_a_weak_certificate_within_its_target_is_not_passed_whatever_its_flag():

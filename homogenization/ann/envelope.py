@@ -109,11 +109,25 @@ def shortfalls(cert: Certificate, dim: int, minimum: MinimumCertificate = MINIMU
     missing += _ORIENTATION_SHORTFALLS[dim](settings, minimum)
     if minimum.rollout and not cert.rollout:
         missing.append("no rollouts (the minimum runs them)")
-    held = {(t.kind, t.sense) for t in cert.tests}
-    absent = [f"{kind} {sense}" for kind, sense in minimum.tests(dim) if (kind, sense) not in held]
-    if absent:
-        missing.append(f"no {', '.join(absent)} test")
+    missing += _absent_tests(cert, dim, minimum, pressures)
     return missing
+
+
+def _absent_tests(cert: Certificate, dim: int, minimum: MinimumCertificate, pressures: list[float]) -> list[str]:
+    """The phrase naming the required tests ``cert`` lacks: each (kind, sense) of ``minimum.tests(dim)`` at every
+    minimum pressure the certificate ran (``pressures``), a reversal at the lowest of them; empty if none lacks."""
+    ran = sorted(q for q in minimum.pressures if any(math.isclose(p, q, rel_tol=PRESSURE_RTOL) for p in pressures))
+    absent = []
+    for kind, sense in minimum.tests(dim):
+        need = ran[:1] if sense == "reversal" else ran
+        lacking = [q for q in need if not any((t.kind, t.sense) == (kind, sense)
+                                              and math.isclose(float(t.p0), q, rel_tol=PRESSURE_RTOL) for t in cert.tests)]
+        held = any((t.kind, t.sense) == (kind, sense) for t in cert.tests)
+        if not held:
+            absent.append(f"{kind} {sense}")
+        elif lacking:
+            absent.append(f"{kind} {sense} at p0 {', '.join(f'{q:g}' for q in lacking)}")
+    return [f"no {', '.join(absent)} test"] if absent else []
 
 
 def _planar_orientation_shortfalls(settings: Mapping[str, Any], minimum: MinimumCertificate) -> list[str]:
