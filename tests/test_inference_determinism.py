@@ -30,8 +30,8 @@ INCREMENTS_3D_DIGEST = "62bb01a6f1a196068a5fe6531e0cdd52541869e2b6ad915e511b0e40
 def _network(meso=None, load_features: bool = False) -> MesoNet:
     """The network of ``meso`` (None: the H-cell, alpha0 = 55 deg), two hidden layers of 16 (the shipped
     models' depth: numba compiles the step once per depth, so these are the kernels the shipped models run), weights
-    and normalisation from numpy's generator (seed 7) at sizes that move the free grains by ~1e-2 D per 1e-4 of
-    strain."""
+    and normalisation from numpy's generator (seed 7) at sizes that move the free grains by up to 1e-2 D (median 1e-3 D) per
+    1e-4 of strain."""
     meso, law = h_cell(55.0) if meso is None else meso, ContactLaw()
     schema = CellSchema.from_arrays(radius=meso.radius, reference_position=meso.position,
                                     reference_cell_size=meso.cell_size, driven=meso.driven, pairs=meso.pairs,

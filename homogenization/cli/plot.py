@@ -1,7 +1,7 @@
-"""hmodel plot RUN.h5 [RUN.h5 ...] --out fig.png|fig.pdf|fig.svg [--deviator t] [--fourth-panel W2] [--normalise] [--csl]
+"""hmodel plot RUN [RUN ...] --out fig.png|fig.pdf|fig.svg [--deviator t] [--fourth-panel W2] [--normalise] [--csl]
 
-(also ``python -m homogenization.plotting``.) Overlays finished runs in the 2x2 biaxial figure
-of ``homogenization.output.figures``; whether the third panel shows p or eps_v is read from the files
+(also ``python -m homogenization.plotting``.) Overlays finished runs (run.h5 files or their folders) in the
+2x2 biaxial figure of ``homogenization.output.figures``; whether the third panel shows p or eps_v is read from the files
 (``drained`` parameter, else: a stress-controlled component after the first step).
 
 Sign convention: compression and contraction positive; stresses in N/m (2D).
@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
         "and title come from the runs' metadata: the parts every run shares (test, backend, "
         "mesostructure, alpha0, p0, N) make the title, the parts that differ the legend.",
         device=False)
-    parser.add_argument("runs", type=Path, nargs="+", metavar="RUN.h5", help="run files (or run folders) to overlay")
+    parser.add_argument("runs", type=Path, nargs="+", metavar="RUN", help="run files (run.h5) or run folders to overlay")
     parser.add_argument("--out", type=Path, required=True, help="figure file: .png, .pdf or .svg")
     add_figure_arguments(parser)
     parser.add_argument("--title", default=None, help="figure title (None: what the runs share)")

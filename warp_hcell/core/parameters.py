@@ -495,7 +495,7 @@ class DatabaseSettings:
     way) and runs like a leg (same increments, path length and volumetric limits); 0 = none."""
     reversal_arc: tuple[float, float] = (0.01, 0.2)
     """Range of the leg's path length at the turn [-]; the turn is one of the leg's sampled
-    states in it, drawn uniformly (the generator refuses a range holding none; constant-volume shear to eps1 = 5 %
+    states in it, drawn uniformly (with reversal legs the generator refuses a range holding none; constant-volume shear to eps1 = 5 %
     moves a cell by up to 0.05 sqrt 2 = 0.07)."""
     reversal_negated_fraction: float = 0.5
     """Fraction of the branches whose direction is the leg's negated [-]; the others turn by an
