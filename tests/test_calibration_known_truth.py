@@ -124,11 +124,15 @@ def test_model_error_widens_sigma_in_quadrature_and_bad_values_exit_2(tmp_path, 
 
 
 def test_refined_settings_halve_the_increment_and_double_the_orientations():
-    s = ForwardSettings(n_orientations=36, increment=1e-3, iso_increment=5e-4, lebedev_order=11)
+    """In 3D both factors of the product rule: two Lebedev orders up and twice the spins (the spins alone, held at
+    4, left a triaxial calibration biased past its interval: an audit's truth alpha0 = 62 outside [61.16, 61.85])."""
+    s = ForwardSettings(n_orientations=36, increment=1e-3, iso_increment=5e-4, lebedev_order=11, n_spins=4)
     assert resolution.refined(s, "increment").increment == 5e-4
     assert resolution.refined(s, "increment").iso_increment == 2.5e-4
     finer = resolution.refined(s, "orientations")
-    assert finer.n_orientations == 72 and finer.lebedev_order == 15 and finer.increment == 1e-3
+    assert (finer.n_orientations, finer.lebedev_order, finer.n_spins, finer.increment) == (72, 15, 8, 1e-3)
+    assert calibrate.RULE_FLAGS[3](finer) == "--order 15 --spins 8"  # what --resolution check names (not --orientations)
+    assert calibrate.RULE_FLAGS[2](finer) == "--orientations 72"
 
 
 def test_error_estimate_adds_the_knobs_richardson_scaled():

@@ -54,6 +54,7 @@ def test_the_lowest_of_the_scaled_fits_is_kept_and_every_fit_recorded(tmp_path, 
     (["--start-scales", "phi_g=0.5,1"], "no --start-point"),
     (["--start-point", "phi_g=20,alpha0=55", "--start-scales", "kn=0.5,1"], "kn is not in --params"),
     (["--start-point", "phi_g=20,alpha0=55", "--start-scales", "phi_g=0.5,3"], "outside the prior"),
+    (["--start-point", "phi_g=60,alpha0=55"], "--start-point phi_g=60 is outside the prior"),  # was clipped silently
     (["--start-point", "phi_g=20,alpha0=55", "--start-scales", "phi_g=0,1"], "factors > 0"),
     (["--start-point", "phi_g=20,alpha0=55", "--start-scales", "phi_g"], "is not NAME=F1,F2"),
 ])

@@ -383,6 +383,11 @@ def test_triaxial_data_get_a_default_prior_of_the_ten_sphere_cell(tmp_path, caps
                         "--out", str(tmp_path / "out")])
     assert code == 2 and "alpha0 >= 45" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+    code = hmodel.main(["calibrate", "--data", str(data), "--params", "phi_g", "--alpha0", "40",
+                        "--out", str(tmp_path / "out")])  # a fixed alpha0 below: ran the undefined cell, exit 0
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "--alpha0 40: triaxial data" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "out").exists()
 
 
 def test_an_ann_calibration_records_the_models_certificate_in_run_json(tmp_path):

@@ -285,7 +285,8 @@ def write_band_csv(path: Path, result: PosteriorBand, header: Mapping[str, Any])
     if result.correction is not None:
         ref = result.reference
         lines.append(f"# resolution_correction = the calibration's reference (increment {ref.increment:g}, iso "
-                     f"increment {ref.iso_increment:g}, {ref.n_orientations} orientations / Lebedev {ref.lebedev_order}) "
+                     f"increment {ref.iso_increment:g}, {ref.n_orientations} orientations (2D) / Lebedev "
+                     f"{ref.lebedev_order} x {ref.n_spins} spins (3D)) "
                      f"minus the forward model at the posterior mean, added to every draw; largest abs value: "
                      + ", ".join(f"{c} {v:.4g}" for c, v in result.correction.items()))
     lines.append(",".join(columns))

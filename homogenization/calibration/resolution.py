@@ -66,11 +66,12 @@ def richardson(knob: str) -> float:
 
 def refined(settings: ForwardSettings, knob: str) -> ForwardSettings:
     """``settings`` with ``knob`` refined: "increment" halves increment and iso_increment; "orientations"
-    doubles n_orientations (2D) and raises lebedev_order two steps of ``LEBEDEV_ORDERS`` (3D)."""
+    doubles n_orientations (2D), and raises lebedev_order two steps of ``LEBEDEV_ORDERS`` and doubles n_spins
+    (3D: both factors of the product rule)."""
     if knob == "increment":
         return replace(settings, increment=settings.increment / 2.0, iso_increment=settings.iso_increment / 2.0)
     higher = [o for o in LEBEDEV_ORDERS if o > settings.lebedev_order]
-    return replace(settings, n_orientations=2 * settings.n_orientations,
+    return replace(settings, n_orientations=2 * settings.n_orientations, n_spins=2 * settings.n_spins,
                    lebedev_order=higher[1] if len(higher) > 1 else (higher[0] if higher else settings.lebedev_order))
 
 
@@ -167,7 +168,7 @@ class Check:
         s = self.settings
         rms, shift = self.error_rms(), self.error_shift()
         return (f"forward-model resolution at the {self.where} (increment {s['increment']:g}, {s['n_orientations']} "
-                f"orientations / Lebedev {s['lebedev_order']}), its difference to "
+                f"orientations (2D) / Lebedev {s['lebedev_order']} x {s['n_spins']} spins (3D)), its difference to "
                 + ("a refined one: " if "reference" not in self.rms_over_sigma else "the reference: ") + "; ".join(parts)
                 + f"; estimated error {max(rms.values(), default=0.0):.2f} sigma rms, parameter shift "
                 f"{max(shift.values(), default=0.0):.2f} sd -> {'resolved' if self.passed else 'NOT resolved'} "

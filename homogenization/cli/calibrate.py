@@ -88,6 +88,7 @@ from warp_hcell.core.cli import (
     say,
     set_verbosity,
 )
+from warp_hcell.core.dimension import dimension
 from warp_hcell.core.files import check_output_path, output_lock, temporary_of
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.core.parameters import ContactLaw, HertzMindlinLaw
@@ -329,6 +330,7 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
             raise UserError("--backend ann is trained on the linear contact law: --law hertz-mindlin needs "
                             "--backend analytical or dem")
     check_spread(args, tests)
+    check_fixed_alpha0(args, tests)
     check_critical_state(args, tests)
     check_kn_exponent(args, tests)
     check_interlocking(args, tests)
@@ -359,6 +361,16 @@ def check_args(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
         raise UserError(f"--increment {args.increment:g} is larger than the strain range of a data file")
     if args.iso_increment >= 0.1:
         raise UserError(f"--iso-increment {args.iso_increment:g} must be < 0.1")
+
+
+def check_fixed_alpha0(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
+    """UserError (one line) for a fixed --alpha0 below the ten-sphere cell's least opening with a triaxial test that
+    runs at it (one without its void ratio, which would run at the void-ratio map's alpha0)."""
+    floor = {t.name: dimension(t.dim).min_opening_deg or 0.0 for t in tests if t.void_ratio is None}
+    below = [name for name, least in floor.items() if args.alpha0 < least]
+    if "alpha0" not in args.params and below:
+        raise UserError(f"--alpha0 {args.alpha0:g}: triaxial data ({below[0]}) need alpha0 >= {floor[below[0]]:g} deg "
+                        f"(below, the ten-sphere cell's two planes overlap)")
 
 
 def check_critical_state(args: argparse.Namespace, tests: Sequence[Measurement]) -> None:
@@ -426,8 +438,12 @@ def start_point_values(text: str) -> dict[str, float]:
 
 
 def check_start_scales(args: argparse.Namespace, prior: bayes.Prior) -> None:
-    """UserError (one line) where a --start-scales factor takes its parameter's --start-point value out of the prior
+    """UserError (one line) where a --start-point value, or a --start-scales factor of it, lies outside the prior
     (the fit would start clipped to its bound)."""
+    for name, value in (args.start_point or {}).items():
+        k = prior.names.index(name)
+        if not prior.low[k] <= value <= prior.high[k]:
+            raise UserError(f"--start-point {name}={value:g} is outside the prior [{prior.low[k]:g}, {prior.high[k]:g}]")
     if args.start_scales is None:
         return
     name, factors = args.start_scales
@@ -703,6 +719,11 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
         log_post.close()  # its worker processes, if any
 
 
+RULE_FLAGS = {2: lambda ref: f"--orientations {ref.n_orientations}",
+              3: lambda ref: f"--order {ref.lebedev_order} --spins {ref.n_spins}"}
+"""The flags of a forward model's orientation rule (``ForwardSettings``) by the data's dimension."""
+
+
 def resolved_start(args: argparse.Namespace, log_post: bayes.Posterior) -> tuple[np.ndarray, dict, dict]:
     """The walkers' start (--start) with the forward model's resolution checked there (--resolution): where
     its discretisation error is not well below the noise, ``resolution.reference`` finds a finer model
@@ -735,7 +756,7 @@ def resolved_start(args: argparse.Namespace, log_post: bayes.Posterior) -> tuple
         ref, levels = resolution.reference(log_post, x)
     except resolution.ResolutionError as exc:
         raise UserError(f"the forward model is still too coarse for these data after {resolution.MAX_REFINEMENTS} "
-                        f"refinements ({exc}); give finer --increment and --orientations, or --model-error, or "
+                        f"refinements ({exc}); give finer --increment and --orientations (2D) or --order and --spins (3D), or --model-error, or "
                         f"--resolution off") from None
     for level in levels:
         say(level.line())
@@ -744,9 +765,10 @@ def resolved_start(args: argparse.Namespace, log_post: bayes.Posterior) -> tuple
     if len(levels) == 1:
         return start, start_record, record
     if args.resolution == "check":
+        rule = RULE_FLAGS[max(t.dim for t in log_post.tests)](ref)
         raise UserError(f"the forward model's discretisation error is not well below the noise ({levels[0].line()}); "
-                        f"set --increment {ref.increment:g} --iso-increment {ref.iso_increment:g} --orientations "
-                        f"{ref.n_orientations}, or --resolution correct")
+                        f"set --increment {ref.increment:g} --iso-increment {ref.iso_increment:g} {rule}, or "
+                        f"--resolution correct")
     checks = []
     for restart in range(1, RESOLUTION_RESTARTS + 1):
         log_post.correction = resolution.correction(log_post, ref, x)
