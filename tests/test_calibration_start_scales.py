@@ -62,3 +62,17 @@ def test_bad_scales_exit_2_before_any_run(tmp_path, capsys, flags, expected):
     out = tmp_path / "cal"
     assert_one_line_refusal(capsys, calibrate.main, [*toy_biaxial_data(tmp_path), *FAST, *flags, "--out", str(out)],
                             expected, out)
+
+
+def test_a_chain_whose_every_walker_failed_is_no_posterior(tmp_path, capsys):
+    """A drained test at p0 = 3e4 to 2 %: at phi_g = 44.5 deg its forward runs fail (non-finite curves), so every
+    walker keeps a log posterior of -inf. The run said "phi_g: constrained" and exited 0; now no posterior."""
+    data, out = tmp_path / "drained.csv", tmp_path / "cal"
+    data.write_text("# test = drained\n# p0 = 3e4\neps1,q\n0.005,1.5e5\n0.01,2.6e5\n0.015,3.4e5\n0.02,4.1e5\n")
+    argv = ["--data", str(data), "--orientations", "12", "--confirm", "none", "--resolution", "off", "--params",
+            "phi_g,alpha0", "--walkers", "6", "--steps", "2", "--start-point", "phi_g=44.5,alpha0=50", "-q",
+            "--out", str(out)]
+    assert run_main(calibrate.main, argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "error: no posterior" in err[0] and "at every retained step" in err[0], err
+    assert not (out / "posterior.json").exists() and not (out / "run.json").exists()

@@ -25,6 +25,7 @@ from homogenization.output.figure_style import GRID, LABELS, apply_style, figure
 from homogenization.output.figures import save_figure
 from warp_hcell.core.cli import quiet_warp
 from warp_hcell.core.dimension import dimension
+from warp_hcell.core.errors import UserError
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.provenance import provenance
 
@@ -233,11 +234,18 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
                   config: Mapping[str, Any], start: Mapping[str, Any] | None = None,
                   resolution_record: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Write posterior.h5, posterior.json, corner.png, fits.png and run.json; returns run.json's content.
-    ``resolution_record``: the forward model's resolution checks at the start (``cli.calibrate.resolved_start``)."""
+    ``resolution_record``: the forward model's resolution checks at the start (``cli.calibrate.resolved_start``).
+
+    Raises:
+        UserError: every retained sample has a log posterior of -inf (nothing is written)."""
     from homogenization.calibration import resolution  # noqa: PLC0415
 
     prior, tests = log_post.prior, log_post.tests
     samples, lp, discard, stuck = retained_samples(sampler, args.burn)
+    if not np.isfinite(lp).any():
+        raise UserError(f"no posterior: the forward model failed (a non-finite curve) or the prior refused every "
+                        f"walker at every retained step ({int(lp.size)} samples); start elsewhere (--start-point) or "
+                        f"narrow the prior (--prior)")
     autocorrelation = diagnostics.chain_diagnostics(retained_chain(sampler, args.burn)[0], prior.names)
     summary = bayes.summarise(samples, prior)
     corr = bayes.correlations(samples, prior)

@@ -710,7 +710,8 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
         seconds = time.perf_counter()
         remaining = max(0, args.steps - done)
         if remaining:
-            with progress_bar(total=remaining, desc="calibrate", unit="step") as bar:
+            # emcee's acceptance of a walker at -inf (a failed forward run) is nan; failures are counted and reported
+            with progress_bar(total=remaining, desc="calibrate", unit="step") as bar, np.errstate(invalid="ignore"):
                 for _ in sampler.sample(start, iterations=remaining):
                     bar.update(1)
         seconds = time.perf_counter() - seconds
