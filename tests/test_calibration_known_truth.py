@@ -94,6 +94,7 @@ def test_resolution_check_refuses_with_the_flags_to_set(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--increment" in err and "--orientations" in err
     assert not (tmp_path / "run" / "posterior.json").exists()
+    assert not (tmp_path / "run" / "chain.h5").exists()  # a stamped empty chain blocked the rerun it recommends
 
 
 def test_misfit_far_above_the_noise_is_measured_and_a_model_error_brings_it_to_one(tmp_path):

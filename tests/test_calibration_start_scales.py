@@ -76,3 +76,16 @@ def test_a_chain_whose_every_walker_failed_is_no_posterior(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "error: no posterior" in err[0] and "at every retained step" in err[0], err
     assert not (out / "posterior.json").exists() and not (out / "run.json").exists()
+
+
+def test_an_overwrite_whose_start_is_refused_keeps_the_finished_run(tmp_path, capsys):
+    """--overwrite replaces a finished calibration only once the new one has started: a start refused by the
+    resolution check left an empty chain beside the old posterior (the chain deleted first)."""
+    out = tmp_path / "cal"
+    argv = [*toy_biaxial_data(tmp_path), *TOY_CALIBRATION, "--start-point", "phi_g=25,alpha0=55", "--out", str(out)]
+    assert run_main(calibrate.main, [*argv, "--steps", "2"]) == 0
+    before = {name: (out / name).read_bytes() for name in ("chain.h5", "posterior.json", "run.json")}
+    refused = [a for a in argv if a not in ("--resolution", "off")]
+    assert run_main(calibrate.main, [*refused, "--steps", "3", "--resolution", "check", "--overwrite"]) == 2
+    assert "--resolution correct" in capsys.readouterr().err
+    assert {name: (out / name).read_bytes() for name in before} == before

@@ -41,6 +41,8 @@ LABELS_3D = {"q": r"$q = \sqrt{3 J_2}$ [Pa]", "p": r"$p = \mathrm{tr}\,\sigma / 
 """Axis labels of the channels of a triaxial test (``LABELS`` holds the 2D ones)."""
 
 
+OUTPUT_FILES = ("posterior.h5", "posterior.json", "corner.png", "fits.png", "run.json")
+"""The files ``write_outputs`` writes beside the chain."""
 STUCK_LOG_POSTERIOR = 20.0
 """A walker whose mean log posterior over the retained steps is this far below the median walker's
 is stuck in a negligible mode (its density there is below exp(-20) of the bulk's) and left out of

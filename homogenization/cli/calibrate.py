@@ -650,6 +650,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def stored_chain(chain: Path, overwrite: bool) -> tuple[str | None, int]:
+    """The settings (``calibration_config``; None: none recorded) and the steps of the chain file ``chain``; (None, 0)
+    where there is none, or an unreadable one and ``overwrite``.
+
+    Raises:
+        UserError: an unreadable chain without ``overwrite``."""
+    import emcee  # noqa: PLC0415
+    import h5py  # noqa: PLC0415
+
+    if not chain.exists():
+        return None, 0
+    try:
+        with h5py.File(chain, "r") as fh:
+            stored = fh.attrs.get("calibration_config")
+        return stored, int(emcee.backends.HDFBackend(str(chain), read_only=True).iteration)
+    except (OSError, KeyError):
+        if overwrite:
+            return None, 0
+        raise UserError(f"{chain} is unreadable (a run killed while writing it?); add --overwrite to restart "
+                        f"the chain") from None
+
+
 def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prior: bayes.Prior,
                     settings: ForwardSettings, config: dict[str, Any]) -> dict[str, Any]:
     """Sample (resuming chain.h5 where it matches ``config``), then write every output."""
@@ -662,41 +684,29 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
     out.mkdir(parents=True, exist_ok=True)
     chain = out / CHAIN_FILE
     config_json = json.dumps(config, sort_keys=True)
-    if chain.exists():
-        try:
-            with h5py.File(chain, "r") as fh:
-                stored = fh.attrs.get("calibration_config")
-        except OSError:
-            raise UserError(f"{chain} is unreadable (a run killed while writing it?); add --overwrite to restart "
-                            f"the chain") from None
-        # no stored settings: a start interrupted before its first step, restarted
-        if stored is not None and stored != config_json and not args.overwrite:
-            raise UserError(f"{chain} holds a calibration with other settings (data, parameters, prior, walkers, "
-                            f"moves, seed or forward model); add --overwrite to restart it")
-        if stored != config_json or args.overwrite:
-            chain.unlink()
+    stored, done = stored_chain(chain, args.overwrite)
+    if done and stored != config_json and not args.overwrite:
+        raise UserError(f"{chain} holds a calibration with other settings (data, parameters, prior, walkers, "
+                        f"moves, seed or forward model); add --overwrite to restart it")
+    restart = args.overwrite or not done or stored != config_json
     log_post = bayes.Posterior(tests, prior, settings, likelihood_noise(args), workers=args.workers)
     try:
         started = time.perf_counter()
-        backend = emcee.backends.HDFBackend(str(chain))
-        done = backend.iteration if chain.exists() else 0
         n_dim = len(prior.names)
-        sampler = emcee.EnsembleSampler(args.walkers, n_dim, log_post, moves=bayes.sampler_moves(args.moves),
-                                        vectorize=True, backend=backend)
-        # emcee's wrapper of log_post prints a traceback of any exception, Ctrl-C included, before
-        # passing it on; run_main reports it in one line instead (the chain keeps every finished step)
-        sampler.log_prob_fn = log_post
-        if done == 0:
+        if restart:  # the start first: a refused or interrupted one leaves the folder as it was
+            start, start_record, resolution_record = resolved_start(args, log_post)
+            start_record["seconds"] = time.perf_counter() - started
+            for name in (CHAIN_FILE, *report.OUTPUT_FILES):
+                (out / name).unlink(missing_ok=True)
+            backend = emcee.backends.HDFBackend(str(chain))
             backend.reset(args.walkers, n_dim)
             with h5py.File(chain, "a") as fh:
                 fh.attrs["calibration_config"] = config_json
-            sampler.random_state = np.random.RandomState(args.seed).get_state()
-            start, start_record, resolution_record = resolved_start(args, log_post)
-            start_record["seconds"] = time.perf_counter() - started
-            with h5py.File(chain, "a") as fh:
                 fh.attrs["start_record"] = json.dumps(start_record, sort_keys=True)
                 fh.attrs["resolution_record"] = json.dumps(resolution_record, sort_keys=True)
+            done = 0
         else:
+            backend = emcee.backends.HDFBackend(str(chain))
             start = backend.get_last_sample()  # positions, log posterior and random state of the last step
             with h5py.File(chain, "r") as fh:
                 stored_start = fh.attrs.get("start_record")
@@ -707,6 +717,13 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
                 log_post.correction = [{c: np.asarray(v) for c, v in t.items()}
                                        for t in resolution_record["correction"]]
             say(f"{chain}: resuming after {done} of {args.steps} steps")
+        sampler = emcee.EnsembleSampler(args.walkers, n_dim, log_post, moves=bayes.sampler_moves(args.moves),
+                                        vectorize=True, backend=backend)
+        # emcee's wrapper of log_post prints a traceback of any exception, Ctrl-C included, before
+        # passing it on; run_main reports it in one line instead (the chain keeps every finished step)
+        sampler.log_prob_fn = log_post
+        if restart:
+            sampler.random_state = np.random.RandomState(args.seed).get_state()
         seconds = time.perf_counter()
         remaining = max(0, args.steps - done)
         if remaining:
