@@ -56,8 +56,11 @@ BAD = {
     "short row": (GOOD.replace("0.004,9e5,5.7e6", "0.004,9e5"), "line 5"),
     "not a number": (GOOD.replace("9e5", "abc"), "not a number"),
     "nan": (GOOD.replace("9e5", "nan"), "finite"),
-    "decreasing eps1": (GOOD.replace("0.006", "0.001"), "increasing"),
+    "decreasing eps1": (GOOD.replace("0.006", "0.001"), "line 6: eps1 must be > 0 and increasing"),
     "percent": (GOOD.replace("0.006", "6.0"), "percent"),
+    "eps_v in percent": (GOOD.replace("q,p", "q,eps_v").replace("5.8e6", "2.56").replace("5.7e6", "1.2")
+                         .replace("5.6e6", "0.5"), "eps_v reaches 2.56; strains are fractions"),
+    "a second test line": (GOOD.replace("# p0", "# test = drained\n# p0"), "line 2: a second '# test = ...' line"),
 }
 
 
@@ -410,3 +413,12 @@ def test_an_ann_calibration_records_the_models_certificate_in_run_json(tmp_path)
     assert stored["certificate_worst"] == meta["certificate"]["worst"] > 0
     assert stored["certified"] is (certificate_problem(meta, path) is None)
     assert stored["certificate_problem"] == certificate_problem(meta, path)
+
+
+def test_a_synthetic_test_keeps_its_void_ratio_through_its_file(tmp_path):
+    """``synthetic.write_test`` then ``read_test``: the void ratio came back None (the line was not written)."""
+    from homogenization.calibration.synthetic import write_test
+
+    test = read_test(write(tmp_path, GOOD.replace("# p0", "# void_ratio = 0.7\n# p0")))
+    write_test(tmp_path / "again.csv", test)
+    assert read_test(tmp_path / "again.csv").void_ratio == 0.7 == test.void_ratio

@@ -89,12 +89,15 @@ def read_test(path: Path) -> Measurement:
     meta: dict[str, str] = {}
     header: list[str] | None = None
     rows: list[list[float]] = []
+    numbers: list[int] = []
     for number, raw in enumerate(lines, start=1):
         line = raw.strip()
         if not line:
             continue
         if line.startswith("#"):
             key, sep, value = line[1:].partition("=")
+            if sep and key.strip().lower() in META_KEYS and key.strip().lower() in meta:
+                raise ValueError(f"{path}, line {number}: a second '# {key.strip()} = ...' line")
             if sep:
                 meta[key.strip().lower()] = value.strip()
             continue
@@ -112,6 +115,7 @@ def read_test(path: Path) -> Measurement:
         if not all(math.isfinite(v) for v in values):
             raise ValueError(f"{path}, line {number}: values must be finite")
         rows.append(values)
+        numbers.append(number)
     if header is None:
         raise ValueError(f"{path}: no header line (eps1 and any of {', '.join(CHANNELS)})")
     if len(rows) < 2:
@@ -139,16 +143,25 @@ def read_test(path: Path) -> Measurement:
     table = np.array(rows)
     columns = {name: table[:, i].copy() for i, name in enumerate(header)}
     eps1 = columns.pop("eps1")
-    if not (eps1[0] > 0.0 and np.all(np.diff(eps1) > 0.0)):
-        raise ValueError(f"{path}: eps1 must be > 0 and increasing (counted from the end of the isotropic stage)")
+    bad = np.flatnonzero(np.diff(np.concatenate([[0.0], eps1])) <= 0.0)
+    if bad.size:
+        raise ValueError(f"{path}, line {numbers[bad[0]]}: eps1 must be > 0 and increasing (counted from the end of "
+                         f"the isotropic stage)")
     if eps1[-1] >= 0.5:
         raise ValueError(f"{path}: eps1 reaches {eps1[-1]:g}; strains are fractions, not percent")
+    if "eps_v" in columns and np.max(np.abs(columns["eps_v"])) >= 0.5:
+        raise ValueError(f"{path}: eps_v reaches {np.max(np.abs(columns['eps_v'])):g}; strains are fractions, not "
+                         f"percent")
     flat = [name for name, values in columns.items() if not np.any(values != 0.0)]
     if flat:
         raise ValueError(f"{path}: column {flat[0]} is 0 throughout, so it sets no scale for its misfit (the "
                          f"likelihood's sigma is a fraction of each column's largest value); drop it")
     dim, drained = next(key for key, name in TEST_KINDS.items() if name == kind)
     return Measurement(path.name, path, drained, p0, eps1, columns, dim, void_ratio)
+
+
+META_KEYS = ("test", "p0", "void_ratio")
+"""The comment lines' keys the reader takes (each once; other ``# key = value`` lines are comments)."""
 
 
 def _check_header(path: Path, number: int, header: list[str]) -> None:

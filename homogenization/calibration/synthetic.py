@@ -48,6 +48,7 @@ def synthetic_test(kind: str, p0: float, eps1: np.ndarray, channels: Sequence[st
 def write_test(path: Path, test: Measurement, comment: str = "") -> None:
     """``test`` as a calibration CSV (``data`` module format) at ``path``; ``comment``: one more comment line."""
     lines = [f"# test = {test.kind}", f"# p0 = {test.p0:.10g}"] + ([f"# {comment}"] if comment else [])
+    lines += [f"# void_ratio = {test.void_ratio:.10g}"] if test.void_ratio is not None else []
     lines.append(",".join(("eps1", *test.observed)))
     table = np.stack([test.eps1, *test.observed.values()], axis=1)
     lines += [",".join(f"{v:.10g}" for v in row) for row in table.tolist()]
