@@ -47,7 +47,7 @@ def _result(stuck: int, float_errors: int) -> dict:
 
 def test_summary_reports_float_errors_and_advises_on_stuck_walkers():
     lines = report.summary_lines(_result(6, 41))
-    assert "forward fallbacks 28, clips: interlocking 3, renewal 5, failed sets 2, floating-point errors 41" in lines[-2]
+    assert "forward fallbacks 28, jumps 0, clips: interlocking 3, renewal 5, failed sets 2, floating-point errors 41" in lines[-2]
     assert lines[-1].startswith("6 of 32 walkers stayed where the posterior is below exp(-20)")
     assert "--prior" in lines[-1] and "--walkers" in lines[-1]
     quiet = report.summary_lines(_result(0, 0))

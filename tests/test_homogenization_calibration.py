@@ -211,6 +211,11 @@ def test_resume_continues_the_chain_exactly(tmp_path, chain_only):
     whole = read_chain(tmp_path / "whole")
     assert whole.shape == (4, 4, 2) and np.ptp(whole[:, :, 0]) > 0.0
     np.testing.assert_array_equal(whole, read_chain(tmp_path / "split"))
+    counts = []
+    for name in ("whole", "split"):
+        with h5py.File(tmp_path / name / "chain.h5", "r") as fh:
+            counts.append(json.loads(fh.attrs["forward_counts"]))
+    assert counts[0] == counts[1] and counts[0]["n_calls"] > 0  # the resumed run adds to the first process's
 
 
 def test_other_settings_on_an_existing_chain_need_overwrite(tmp_path, capsys, chain_only):

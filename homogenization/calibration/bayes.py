@@ -244,6 +244,19 @@ class Posterior:
         self.n_infeasible = 0
         self.correction: list[dict[str, np.ndarray]] | None = None
 
+    COUNTS = ("n_calls", "n_failed", "n_fallback", "n_jump", "n_clip", "n_renewal_clip", "n_float_errors",
+              "n_infeasible")
+    """The counters of the forward runs (``counts``): kept in the chain file, so that a resumed run adds to them."""
+
+    def counts(self) -> dict[str, int]:
+        """Every counter of ``COUNTS`` by name."""
+        return {name: int(getattr(self, name)) for name in self.COUNTS}
+
+    def add_counts(self, counts: Mapping[str, int]) -> None:
+        """Add ``counts`` (a ``counts()`` of an earlier process of the same chain; missing names: 0) to the counters."""
+        for name in self.COUNTS:
+            setattr(self, name, getattr(self, name) + int(counts.get(name, 0)))
+
     @property
     def spread_cut(self) -> bool:
         """Whether the prior is cut by alpha0 - alpha0_spread >= ALPHA_MIN_3D_DEG: alpha0_spread calibrated or fixed,

@@ -373,9 +373,10 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
             f"{_number(auto['steps_per_tau'], '.1f')} x the largest tau)")
     lines.append(f"sampler: {sampler['steps']} steps x {sampler['walkers']} walkers, acceptance "
                  f"{sampler['acceptance_fraction']:.2f}, stuck walkers left out {sampler['stuck_walkers_left_out']}, "
-                 f"forward fallbacks {forward['fallbacks']}, clips: interlocking "
+                 f"forward fallbacks {forward['fallbacks']}, jumps {forward.get('jumps', 0)}, clips: interlocking "
                  f"{forward.get('interlocking_clips', 0)}, renewal {forward.get('renewal_clips', 0)}, "
                  f"failed sets {forward['failed']}, "
+                 + (f"infeasible sets {forward['infeasible_sets']}, " if "infeasible_sets" in forward else "") +
                  f"floating-point errors {forward.get('floating_point_errors', 0)} (overflow or NaN of diverging sets, "
                  f"not printed)")
     bare = sampler.get("corner_panels_without_contours", 0)

@@ -711,6 +711,7 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
             with h5py.File(chain, "r") as fh:
                 stored_start = fh.attrs.get("start_record")
                 stored_resolution = fh.attrs.get("resolution_record")
+                log_post.add_counts(json.loads(fh.attrs.get("forward_counts", "{}")))  # the earlier processes'
             start_record = json.loads(stored_start) if stored_start is not None else None
             resolution_record = json.loads(stored_resolution) if stored_resolution is not None else {"mode": "off"}
             if resolution_record.get("correction") is not None:
@@ -730,6 +731,8 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
             # emcee's acceptance of a walker at -inf (a failed forward run) is nan; failures are counted and reported
             with progress_bar(total=remaining, desc="calibrate", unit="step") as bar, np.errstate(invalid="ignore"):
                 for _ in sampler.sample(start, iterations=remaining):
+                    with h5py.File(chain, "a") as fh:  # the counts so far, for a resumed run to add to
+                        fh.attrs["forward_counts"] = json.dumps(log_post.counts())
                     bar.update(1)
         seconds = time.perf_counter() - seconds
         return report.write_outputs(out, sampler, log_post, args, seconds, config, start_record, resolution_record)
