@@ -777,8 +777,8 @@ def resolved_start(args: argparse.Namespace, log_post: bayes.Posterior) -> tuple
         ref, levels = resolution.reference(log_post, x)
     except resolution.ResolutionError as exc:
         raise UserError(f"the forward model is still too coarse for these data after {resolution.MAX_REFINEMENTS} "
-                        f"refinements ({exc}); give finer --increment and --orientations (2D) or --order and --spins (3D), or --model-error, or "
-                        f"--resolution off") from None
+                        f"refinements ({exc}); give finer --increment and --orientations (2D) or --order and --spins "
+                        f"(3D), or --model-error, or --resolution off") from None
     for level in levels:
         say(level.line())
     record.update(levels=[level.to_dict() for level in levels], reference=resolution.knob_settings(ref),
