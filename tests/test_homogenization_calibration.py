@@ -55,6 +55,7 @@ BAD = {
     "unknown column": (GOOD.replace("eps1,q,p", "eps1,q,tau"), "unknown column 'tau'"),
     "short row": (GOOD.replace("0.004,9e5,5.7e6", "0.004,9e5"), "line 5"),
     "not a number": (GOOD.replace("9e5", "abc"), "not a number"),
+    "underscore digits": (GOOD.replace("9e5", "900_000"), "line 5: not a number"),
     "nan": (GOOD.replace("9e5", "nan"), "finite"),
     "decreasing eps1": (GOOD.replace("0.006", "0.001"), "line 6: eps1 must be > 0 and increasing"),
     "percent": (GOOD.replace("0.006", "6.0"), "percent"),
@@ -79,6 +80,7 @@ def test_bad_data_file_is_one_line_and_exit_2_before_any_run(tmp_path, capsys, c
 @pytest.mark.parametrize("argv, expected", [
     (["--params", "phi_g,mu"], "unknown parameter 'mu'"),
     (["--params", "phi_g", "--data", "missing.csv"], "no such data file"),
+    (["--params", "phi_g", "--data", str(DATA)], f"{DATA}: a folder, not a data file"),
     (["--params", "phi_g", "--prior", "missing.json"], "no such prior file"),
     (["--params", "kn", "--backend", "ann"], "alpha0 only"),
     (["--params", "phi_g,kn,alpha0", "--walkers", "4"], "--walkers 4"),
