@@ -77,6 +77,23 @@ def test_bad_data_file_is_one_line_and_exit_2_before_any_run(tmp_path, capsys, c
     assert not out.exists()
 
 
+def test_comments_are_ignored_whatever_their_bytes_a_data_line_is_not(tmp_path, capsys):
+    """A Latin-1 byte in a comment line (a lab's 'Prüfung') is read past; one in a data line is refused in one
+    line naming that line (the file was refused as a whole: 'cannot read: 'utf-8' codec can't decode')."""
+    latin = GOOD.replace("# p0", "# Pr\xfcfung, 20 \xb0C\n# p0").encode("latin-1")
+    test = read_test(write_bytes(tmp_path / "latin.csv", b"\xef\xbb\xbf" + latin))
+    assert test.p0 == 5.85e6 and test.eps1.size == 3
+    bad = write_bytes(tmp_path / "a.csv", GOOD.encode().replace(b"9e5", b"9e5\xb0"))
+    code = run_main(calibrate.main, ["--data", str(bad), "--params", "phi_g", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "a.csv, line 5: not UTF-8 text" in err
+
+
+def write_bytes(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
+
+
 @pytest.mark.parametrize("argv, expected", [
     (["--params", "phi_g,mu"], "unknown parameter 'mu'"),
     (["--params", "phi_g", "--data", "missing.csv"], "no such data file"),

@@ -18,7 +18,7 @@ A test that gives its void ratio starts its cells at the alpha0 of the void-rati
 (``homogenization.material.density``; e_min and e_max calibratable), the others at alpha0.
 
 Comment lines start with ``#``; ``key = value`` comments give the test; other comments are
-ignored. The header names ``eps1`` (axial strain counted from the end of the isotropic stage,
+ignored, whatever their bytes (the other lines are UTF-8). The header names ``eps1`` (axial strain counted from the end of the isotropic stage,
 > 0 and increasing) and at least one of ``q`` (sigma11 - sigma22; 3D: sqrt(3 J2), which is
 sigma11 - sigma33 where sigma22 = sigma33), ``p`` ((sigma11 + sigma22) / 2; 3D: tr(sigma) / 3)
 and ``eps_v`` (eps11 + eps22, 3D: eps11 + eps22 + eps33, from the end of the isotropic stage).
@@ -85,15 +85,15 @@ def read_test(path: Path) -> Measurement:
     if not path.is_file():
         raise ValueError(f"{path}: no such data file")
     try:
-        lines = path.read_text(encoding="utf-8-sig").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
+        lines = path.read_bytes().removeprefix(b"\xef\xbb\xbf").splitlines()  # UTF-8, byte-order mark or not
+    except OSError as exc:
         raise ValueError(f"{path}: cannot read: {exc}") from None
     meta: dict[str, str] = {}
     header: list[str] | None = None
     rows: list[list[float]] = []
     numbers: list[int] = []
     for number, raw in enumerate(lines, start=1):
-        line = raw.strip()
+        line = _text(path, number, raw.strip()).strip()
         if not line:
             continue
         if line.startswith("#"):
@@ -162,6 +162,19 @@ def read_test(path: Path) -> Measurement:
                          f"likelihood's sigma is a fraction of each column's largest value); drop it")
     dim, drained = next(key for key, name in TEST_KINDS.items() if name == kind)
     return Measurement(path.name, path, drained, p0, eps1, columns, dim, void_ratio)
+
+
+def _text(path: Path, number: int, line: bytes) -> str:
+    """The stripped line ``number`` of ``path`` as text: a comment's bytes that are not UTF-8 (a lab's Latin-1 note)
+    are replaced, as the comment is ignored (a key's value is then not a number, refused); ValueError (one line) for
+    those of any other line."""
+    if line.startswith(b"#"):
+        return line.decode("utf-8", errors="replace")
+    try:
+        return line.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}, line {number}: not UTF-8 text (byte 0x{line[exc.start]:02x} at column "
+                         f"{exc.start + 1}); save the file as UTF-8") from None
 
 
 META_KEYS = ("test", "p0", "void_ratio")
