@@ -40,6 +40,17 @@ def test_read_test_parses_comments_header_and_values(tmp_path):
     np.testing.assert_array_equal(test.observed["q"], [4e5, 9e5, 1.3e6])
 
 
+def test_every_shipped_data_file_passes_the_unit_check(tmp_path):
+    """The p0 check (first p within [1/30, 30], largest abs(q) within [0.01, 300] x p0) refuses none of the repository's
+    files; Dobrany's in kPa would be (largest q 3.5-5.8 x p0: 0.0035-0.0058)."""
+    lab = Path(__file__).parents[1] / "benchmarks" / "lab_data" / "dobrany_sand"
+    tests = [read_test(path) for path in [*sorted(lab.glob("ci*.csv")), DATA / "undrained.csv", DATA / "drained.csv"]]
+    assert len(tests) == 5
+    kpa = tests[0].path.read_text().replace("# p0 = 100000", "# p0 = 100000000")  # as if q were in kPa
+    with pytest.raises(ValueError, match="stresses in kPa and p0 in Pa"):
+        read_test(write(tmp_path, kpa))
+
+
 def test_shipped_synthetic_files_parse():
     tests = [read_test(DATA / name) for name in ("undrained.csv", "drained.csv")]
     assert [t.kind for t in tests] == ["undrained", "drained"]
@@ -62,6 +73,11 @@ BAD = {
     "eps_v in percent": (GOOD.replace("q,p", "q,eps_v").replace("5.8e6", "2.56").replace("5.7e6", "1.2")
                          .replace("5.6e6", "0.5"), "eps_v reaches 2.56; strains are fractions"),
     "a second test line": (GOOD.replace("# p0", "# test = drained\n# p0"), "line 2: a second '# test = ...' line"),
+    "stresses in kPa, p0 in Pa": (GOOD.replace("4e5,5.6e6", "4e2,5.6e3").replace("9e5,5.7e6", "9e2,5.7e3")
+                                  .replace("1.3e6,5.8e6", "1.3e3,5.8e3"), "line 4: p = 5600 is 0.000957 x p0"),
+    "stresses in Pa, p0 in kPa": (GOOD.replace("5.85e6", "5.85e3"), "(stresses in Pa and p0 in kPa?)"),
+    "q only, in kPa": ("# test = triaxial_drained\n# p0 = 1e5\neps1,q,eps_v\n0.001,40,1e-4\n0.002,70,2e-4\n",
+                       "line 5: q = 70 is 0.0007 x p0 = 100000, outside [0.01, 300]"),
 }
 
 

@@ -22,7 +22,8 @@ ignored, whatever their bytes (the other lines are UTF-8). The header names ``ep
 > 0 and increasing) and at least one of ``q`` (sigma11 - sigma22; 3D: sqrt(3 J2), which is
 sigma11 - sigma33 where sigma22 = sigma33), ``p`` ((sigma11 + sigma22) / 2; 3D: tr(sigma) / 3)
 and ``eps_v`` (eps11 + eps22, 3D: eps11 + eps22 + eps33, from the end of the isotropic stage).
-Every value is a finite number.
+Every value is a finite number; the first p and the largest abs(q) are within ``UNIT_RATIOS`` of p0 (else a unit
+mistake, e.g. kPa against Pa).
 ``read_test`` raises ValueError with one line naming the file and the line for anything else.
 """
 
@@ -161,7 +162,31 @@ def read_test(path: Path) -> Measurement:
         raise ValueError(f"{path}: column {flat[0]} is 0 throughout, so it sets no scale for its misfit (the "
                          f"likelihood's sigma is a fraction of each column's largest value); drop it")
     dim, drained = next(key for key, name in TEST_KINDS.items() if name == kind)
+    _check_units(path, p0, columns, numbers, dim)
     return Measurement(path.name, path, drained, p0, eps1, columns, dim, void_ratio)
+
+
+STRESS_UNITS = {2: "N/m", 3: "Pa"}
+"""The stresses' unit by the data's dimension."""
+UNIT_RATIOS = {"p": (1.0 / 30.0, 30.0), "q": (0.01, 300.0)}
+"""Bounds [-] of the first p, and of the largest abs(q), over p0: outside, the file mixes units (e.g. kPa and Pa) and
+is refused. p starts at p0; on real curves the largest q/p0 lies between about 0.1 (loose, undrained) and 30."""
+
+
+def _check_units(path: Path, p0: float, columns: dict[str, np.ndarray], numbers: list[int], dim: int) -> None:
+    """ValueError (one line naming the line) where a stress is outside ``UNIT_RATIOS`` of p0."""
+    for name, (low, high) in UNIT_RATIOS.items():
+        if name not in columns:
+            continue
+        row = 0 if name == "p" else int(np.argmax(np.abs(columns[name])))
+        value = float(columns[name][row])
+        ratio = abs(value) / p0 if name == "q" else value / p0
+        if low <= ratio <= high:
+            continue
+        hint = ("compression is positive" if ratio <= 0.0 else "a unit mistake (stresses in " +
+                ("kPa and p0 in Pa?)" if ratio < 1.0 else "Pa and p0 in kPa?)"))
+        raise ValueError(f"{path}, line {numbers[row]}: {name} = {value:g} is {ratio:.3g} x p0 = {p0:g}, outside "
+                         f"[{low:.2g}, {high:g}] x p0: {hint}; give both in {STRESS_UNITS[dim]}")
 
 
 def _text(path: Path, number: int, line: bytes) -> str:
