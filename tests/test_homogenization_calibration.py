@@ -253,6 +253,20 @@ def test_resume_continues_the_chain_exactly(tmp_path, chain_only):
     assert counts[0] == counts[1] and counts[0]["n_calls"] > 0  # the resumed run adds to the first process's
 
 
+def test_fewer_steps_than_the_chain_holds_are_refused(tmp_path, capsys, chain_only):
+    """--steps is the chain's total: 4 stored steps and --steps 2 is one line, exit 2, the chain untouched (every
+    stored step was reported silently); --overwrite restarts it with 2."""
+    assert tiny_run(tmp_path, "run", 4) == 0
+    capsys.readouterr()
+    first = read_chain(tmp_path / "run")
+    assert tiny_run(tmp_path, "run", 2) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "holds 4 steps" in err and "--steps 4" in err and "--overwrite" in err
+    np.testing.assert_array_equal(read_chain(tmp_path / "run"), first)
+    assert tiny_run(tmp_path, "run", 2, "--overwrite") == 0
+    assert read_chain(tmp_path / "run").shape == (2, 4, 2)
+
+
 def test_other_settings_on_an_existing_chain_need_overwrite(tmp_path, capsys, chain_only):
     assert tiny_run(tmp_path, "run", 2) == 0
     first = read_chain(tmp_path / "run")

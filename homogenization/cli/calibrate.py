@@ -33,8 +33,8 @@ the end the DEM runs once at the posterior mean (--confirm dem) and its misfit i
 DIR receives: chain.h5 (emcee's backend: the whole chain, resumable), posterior.h5 (retained
 samples in CLI units, log posterior), posterior.json (mean, median, ci95 per parameter in the
 CLI flags' units), corner.png, fits.png, run.json (identifiability, correlations, diagnostics,
-provenance). The same settings resume the chain up to --steps; other settings need --overwrite,
-which restarts it.
+provenance). The same settings resume the chain up to --steps (fewer steps than it holds are refused); other
+settings need --overwrite, which restarts it.
 
 Bad input (missing or malformed file, unknown parameter or one the backend cannot vary, a
 folder holding other files or being written by another calibration, an unwritable --out) is one
@@ -688,6 +688,9 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
     if done and stored != config_json and not args.overwrite:
         raise UserError(f"{chain} holds a calibration with other settings (data, parameters, prior, walkers, "
                         f"moves, seed or forward model); add --overwrite to restart it")
+    if done > args.steps and not args.overwrite:  # --steps is the total, as emcee's backend keeps every step
+        raise UserError(f"{chain} already holds {done} steps, more than --steps {args.steps}; pass --steps {done} to "
+                        f"report on them (more extends the chain), or add --overwrite to restart it with {args.steps}")
     restart = args.overwrite or not done or stored != config_json
     log_post = bayes.Posterior(tests, prior, settings, likelihood_noise(args), workers=args.workers)
     try:
