@@ -304,6 +304,26 @@ def test_outputs_of_a_tiny_run(tmp_path):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
 
 
+def test_a_short_chain_leaves_the_constrained_verdict_undetermined(tmp_path):
+    """6 steps (walkers still in their start ball, ~1 % of the prior wide) said "phi_g: constrained (posterior sd =
+    0.07 x prior sd)"; a chain short of its autocorrelation times decides no "constrained" now. A long chain keeps
+    the verdicts: constrained below 0.5 x the prior's sd, NOT constrained above."""
+    assert tiny_run(tmp_path, "run", 6) == 0
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert run["sampler"]["autocorrelation"]["short"]
+    for name, entry in run["posterior"].items():
+        assert entry["contraction"] < 0.5 and entry["constrained"] is None
+        assert entry["verdict"] == "undetermined: chain too short"
+    assert [line.split(" (")[0] for line in run["identifiability"]] == [
+        "phi_g: undetermined: chain too short", "alpha0: undetermined: chain too short"]
+    prior = bayes.make_prior(("phi_g", "alpha0"))
+    samples = prior.to_coord(np.random.default_rng(0).uniform([25.0, 40.0], [26.0, 80.0], (400, 2)))
+    for short, verdicts in ((False, [True, False]), (True, [None, False])):
+        summary = bayes.summarise(samples, prior, short=short)
+        assert [summary[n]["constrained"] for n in prior.names] == verdicts
+    assert bayes.identifiability_note(bayes.summarise(samples, prior), {})[0].startswith("phi_g: constrained (")
+
+
 @pytest.mark.parametrize("drained", [False, True])
 def test_dem_forward_one_set_at_a_time_agrees_with_the_batched_analytical(tmp_path, drained):
     """The DEM path (each set its own backend, through the driver) against the batched closed form."""

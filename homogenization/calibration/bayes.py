@@ -64,7 +64,7 @@ UNITS = {"phi_g": "deg", "kn": "N/m", "kt_over_kn": "-", "alpha0": "deg", "shear
 """Unit of each parameter in posterior.json and the figures."""
 CONTRACTION_CONSTRAINED = 0.5
 """A parameter counts as constrained by the data where its posterior standard deviation is below
-this fraction of its prior's (in the sampled coordinate) [-]."""
+this fraction of its prior's (in the sampled coordinate) and the chain is not short (``summarise``) [-]."""
 
 
 @dataclass(frozen=True)
@@ -391,13 +391,17 @@ def initial_walkers(log_post: Callable[[np.ndarray], np.ndarray], prior: Prior, 
     return draws[np.argsort(-lp, kind="stable")[:n_walkers]]
 
 
-def summarise(samples: np.ndarray, prior: Prior) -> dict[str, dict[str, float | list[float] | str | bool]]:
+def summarise(samples: np.ndarray, prior: Prior, short: bool = False
+              ) -> dict[str, dict[str, float | list[float] | str | bool | None]]:
     """posterior.json entries: mean, median, ci95 (2.5 and 97.5 % quantiles) in CLI units, and
     the contraction sd_post / sd_prior in the sampled coordinate (``constrained`` below
-    ``CONTRACTION_CONSTRAINED``).
+    ``CONTRACTION_CONSTRAINED``; ``verdict`` in words).
 
     Args:
         samples: posterior draws in sampled coordinates, shape (n_samples, n_params).
+        short: the chain is short of its autocorrelation times (``diagnostics.chain_diagnostics``): its walkers may
+            not have spread from their start yet, so a contraction below the threshold decides nothing
+            (``constrained`` None, "undetermined: chain too short"); one above it stays "not constrained".
     """
     values = prior.to_values(samples)
     prior_sd = (prior.hi_coord - prior.lo_coord) / math.sqrt(12.0)
@@ -405,15 +409,21 @@ def summarise(samples: np.ndarray, prior: Prior) -> dict[str, dict[str, float | 
     for i, name in enumerate(prior.names):
         v = values[:, i]
         contraction = float(np.std(samples[:, i]) / prior_sd[i])
+        constrained = None if short and contraction < CONTRACTION_CONSTRAINED else contraction < CONTRACTION_CONSTRAINED
         out[name] = {
             "mean": float(np.mean(v)),
             "median": float(np.median(v)),
             "ci95": [float(np.quantile(v, 0.025)), float(np.quantile(v, 0.975))],
             "unit": UNITS[name],
             "contraction": contraction,
-            "constrained": contraction < CONTRACTION_CONSTRAINED,
+            "constrained": constrained,
+            "verdict": VERDICTS[constrained],
         }
     return out
+
+
+VERDICTS = {True: "constrained", False: "not constrained", None: "undetermined: chain too short"}
+"""``summarise``'s verdict of each ``constrained`` value."""
 
 
 def correlations(samples: np.ndarray, prior: Prior) -> dict[str, float]:
@@ -427,7 +437,10 @@ def identifiability_note(summary: Mapping[str, Mapping], corr: Mapping[str, floa
     """Plain sentences: which parameters the data constrain, which not, and strong trade-offs."""
     lines = []
     for name, s in summary.items():
-        if s["constrained"]:
+        if s["constrained"] is None:
+            lines.append(f"{name}: {VERDICTS[None]} (posterior sd = {s['contraction']:.2f} x prior sd so far; its "
+                         f"walkers may still be spreading from their start: run more --steps)")
+        elif s["constrained"]:
             lines.append(f"{name}: constrained (posterior sd = {s['contraction']:.2f} x prior sd)")
         else:
             lines.append(f"{name}: NOT constrained by these data (posterior sd = {s['contraction']:.2f} x prior sd); "

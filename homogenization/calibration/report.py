@@ -249,7 +249,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
                         f"walker at every retained step ({int(lp.size)} samples); start elsewhere (--start-point) or "
                         f"narrow the prior (--prior)")
     autocorrelation = diagnostics.chain_diagnostics(retained_chain(sampler, args.burn)[0], prior.names)
-    summary = bayes.summarise(samples, prior)
+    summary = bayes.summarise(samples, prior, short=autocorrelation["short"])
     corr = bayes.correlations(samples, prior)
     note = bayes.identifiability_note(summary, corr)
     mean = np.array([summary[n]["mean"] for n in prior.names])
