@@ -344,3 +344,14 @@ def test_the_lock_of_a_folder_removes_the_temporaries_of_its_files(tmp_path):
     (out / "chain.h5").write_text("kept")
     with files.output_lock(out):
         assert not left.exists() and (out / "chain.h5").read_text() == "kept"
+
+
+def test_a_python_warning_in_a_command_is_one_line():
+    """Python's warning display (file, line and source: two lines), not pytest's capture, hence a process."""
+    code = ("import warnings; from warp_hcell.core import cli\n"
+            "def main(argv):\n    warnings.warn('a warning\\n  over two lines', RuntimeWarning)\n"
+            "before = warnings.formatwarning\nassert cli.run_main(main, []) == 0\n"
+            "assert warnings.formatwarning is before")
+    done = subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONPATH": str(ROOT)},
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stderr == "hmodel: warning: a warning over two lines\n", done.stderr

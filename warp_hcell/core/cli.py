@@ -35,6 +35,7 @@ import math
 import os
 import re
 import sys
+import warnings
 from contextlib import contextmanager
 from dataclasses import fields
 from pathlib import Path
@@ -410,10 +411,12 @@ def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[
     The line names the command the user typed: the ``invoked_as`` name (``hmodel COMMAND``),
     else, for a process started as ``python -m MODULE`` (``argv`` None), that; a call from
     Python with ``argv`` says "hmodel". The verbosity ``main`` set (``set_verbosity``) ends
-    with it.
+    with it, and so does its format of Python warnings: one line, "PROG: warning: TEXT".
     """
     prog = _INVOKED_AS.get() or (_started_as(main) if argv is None else "hmodel")
     _OUTPUT.command = True
+    formatwarning = warnings.formatwarning
+    warnings.formatwarning = lambda message, *_, **__: f"{prog}: warning: {' '.join(str(message).split())}\n"
     try:
         return int(main(argv) or 0)
     except (UserError, ValueError, FileNotFoundError) as exc:
@@ -426,6 +429,7 @@ def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
+        warnings.formatwarning = formatwarning
         _OUTPUT.quiet = False
         _OUTPUT.command = False
 
