@@ -21,7 +21,9 @@ gives its own); a backend that does not model it stops the command before any ru
 Backend-specific options go to their backend only (--threads, --model, --device).
 
 DIR is written as a unit: a hidden sibling folder replaces it only when the run has finished
-(--overwrite); a second run on the same DIR exits at once.
+(--overwrite); a second run on the same DIR exits at once. A run interrupted (Ctrl-C, kill)
+resumes when the same command runs again, from its last checkpoint (--checkpoint-seconds, in
+.DIR.resume), with the uninterrupted run's result; --restart discards the checkpoint.
 
 Sign convention: compression and contraction positive; stresses in N/m (2D). Bad input
 (unknown backend, alpha0 outside [30, 90) deg, --void-ratio outside [--e-min, --e-max], negative
@@ -35,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import shlex
+import shutil
 import sys
 from dataclasses import asdict
 from pathlib import Path
@@ -48,6 +51,7 @@ from homogenization.cli.options import (
     add_alpha0_argument,
     add_backend_list_argument,
     add_cell_arguments,
+    add_checkpoint_arguments,
     add_critical_state_argument,
     add_orientations_argument,
     add_posterior_arguments,
@@ -56,7 +60,7 @@ from homogenization.cli.options import (
     add_void_ratio_arguments,
     command_parser,
 )
-from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment
+from homogenization.cli.run_files import build_models, check_run, checkpoint_folder, refuse_programme_flags, resolve_void_ratio, run_backends, run_checkpoints, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -115,6 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "CPU threads of the DEM or of torch inference (dem and ann; None: the backend's own default)")
     add_uncertified_argument(parser)
     add_posterior_arguments(parser)
+    add_checkpoint_arguments(parser)
     return parser
 
 
@@ -195,17 +200,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     meso = run_mesostructure(args)
     with output_lock(out):
         models, options = build_models(args, law, meso)
+        checkpoints = run_checkpoints(args, models, options, law, meso, programme)
         drained = figures.is_drained({"drained": args.drained or None}, programme)
         p0 = next((s.stop_at_p for s in programme if s.stop_at_p is not None), None)
         with output_folder(out) as work:
             records, stored, written = run_backends(
                 args, models, options, law, meso,
-                run=lambda model: driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,
+                run=lambda model, checkpoint: driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,
                                              fabric_anisotropy=args.fabric_anisotropy,
                                              fabric_direction_deg=args.fabric_direction,
                                              snapshot_interval=args.snapshot_interval or 0,
                                              void_ratio=args.void_ratio, density_map=density_map,
-                                             critical_state=critical_state, progress=stage_bars),
+                                             critical_state=critical_state, progress=stage_bars,
+                                             checkpoint=checkpoint),
                 parameters=lambda record: {
                     "p0": p0,
                     **settings,
@@ -220,7 +227,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "density_map": None if density_map is None else density_map.to_dict(),
                     **({} if critical_state is None else {"critical_state": asdict(critical_state)}),
                 },
-                work=work, command=command)
+                work=work, command=command, checkpoints=checkpoints)
             posterior_flags.compute_band(calibrated, dim=2, drained=args.drained, p0=args.p0, eps_max=args.eps_max)
             with writing_to(out):
                 band_line = posterior_flags.write_band(calibrated, work)
@@ -235,6 +242,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 (2, "eps_v", 100.0) if drained else (2, "p", scale)))
             with writing_to(out):
                 figures.save_figure(fig, work / FIGURE_FILE)
+        shutil.rmtree(checkpoint_folder(out), ignore_errors=True)  # the run is in place: its checkpoints are spent
     say(*written, *([band_line.replace(posterior_flags.BAND_FILE, str(out / posterior_flags.BAND_FILE))]
                     if band_line else []),
         f"figure -> {out / FIGURE_FILE}" + (f" ({plot.csl_summary(slopes)})" if slopes is not None else ""))

@@ -43,7 +43,7 @@ from homogenization.backends import BACKENDS
 from homogenization.material.density import DEFAULT_E_MAX, DEFAULT_E_MIN, OPENING_RANGE_DEG
 from homogenization.learning.settings import (ActiveSettings, CertificateSettings, default_equilibrium, RELEASE_RULE_NAMES,
                                               FINES_EQUILIBRIUM_CORRECTIONS, FINES_EQUILIBRIUM_TOLERANCE)
-from warp_hcell.core.cli import UserError, alpha0_deg, axial_strain, command_parser, int_at_least, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
+from warp_hcell.core.cli import UserError, alpha0_deg, axial_strain, command_parser, int_at_least, non_negative_float, positive_float, positive_int  # noqa: F401 (command_parser: the commands import it from here)
 from warp_hcell.core.parameters import CellDefaults, DemSettings, LoadingDefaults
 from warp_hcell.mesostructures.builders import MESOSTRUCTURE_HELP, mesostructure_arg
 
@@ -185,6 +185,21 @@ def add_cell_arguments(parser: argparse.ArgumentParser, cell_help: str, threads_
     parser.add_argument("--mesostructure", type=mesostructure_arg, default=None, help=f"{cell_help} {MESOSTRUCTURE_HELP}")
     add_threads_argument(parser, threads_help)
     parser.add_argument("--model", type=Path, default=None, help="ANN checkpoint (ann only; None: the installed model)")
+
+
+CHECKPOINT_SECONDS = 60.0
+"""Default wall time [s] between two checkpoints of a run command (``--checkpoint-seconds``)."""
+
+
+def add_checkpoint_arguments(parser: argparse.ArgumentParser) -> None:
+    """--checkpoint-seconds and --restart of the run commands (``run_files.run_checkpoints``)."""
+    group = parser.add_argument_group("interruption and resume")
+    group.add_argument("--checkpoint-seconds", type=non_negative_float, default=CHECKPOINT_SECONDS, metavar="S",
+                       help="save the run's state every S s of wall time (0: after every increment) in .OUT.resume "
+                            "next to --out; the same command run again after an interruption resumes from it and "
+                            "gives the uninterrupted run's result")
+    group.add_argument("--restart", action="store_true",
+                       help="discard the checkpoint of an interrupted run on --out and start from the first increment")
 
 
 def add_uncertified_argument(parser: argparse.ArgumentParser) -> None:

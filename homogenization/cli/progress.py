@@ -15,12 +15,12 @@ from warp_hcell.core.cli import progress_bar
 
 
 @contextlib.contextmanager
-def stage_bars(plan: Plan) -> Iterator[Progress]:
-    """A progress bar of the stage ``plan`` while the body runs; gives the per-increment callback that
-    advances it. A stage that stops on p has no known length: its bar has no total and shows p as a
-    percentage of stop_at_p."""
+def stage_bars(plan: Plan, done: int = 0) -> Iterator[Progress]:
+    """A progress bar of the stage ``plan`` while the body runs, starting at ``done`` increments (a resumed
+    stage); gives the per-increment callback that advances it. A stage that stops on p has no known length:
+    its bar has no total and shows p as a percentage of stop_at_p."""
     total = None if plan.stop_at_p is not None else plan.n_increments
-    with progress_bar(total=total, desc=plan.label, unit="incr", leave=False) as shown:
+    with progress_bar(total=total, initial=done, desc=plan.label, unit="incr", leave=False) as shown:
         def advance(_plan: Plan, points: MaterialPoints) -> None:
             if plan.stop_at_p is not None and not shown.disable:
                 p = float(points.mean(points.stress)[0])

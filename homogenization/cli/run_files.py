@@ -17,12 +17,15 @@ folder, the parameters and the status line of each backend's run.
 - ``build_models(...)`` and ``run_backends(...)``: every backend built and checked before any
   run (an ANN model without a passed certificate refused unless --uncertified-ok), then run,
   stored and reported one after the other; ``envelope_note``: where an ANN run left its
-  certificate's envelope (one warning, the status line, run.h5's ``ann_model.outside_envelope``).
+  certificate's envelope (one warning, the status line, run.h5's ``ann_model.outside_envelope``);
+- ``run_checkpoints(...)``: each backend's checkpoint in ``.OUT.resume`` (``element_test.checkpoint``), from
+  which the same command resumes an interrupted run; ``checkpoint_folder(out)`` is removed after a finished one.
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 import time
 from dataclasses import asdict
@@ -39,7 +42,7 @@ from homogenization.cli.options import ISO_TO_SHEAR_INCREMENT, certificate_note,
 from homogenization.element_test.driver import Record
 from homogenization.material.density import DensityMap, default_map
 from homogenization.ann.envelope import summary as envelope_summary
-from warp_hcell.core.cli import quiet_warp, UserError, writing_to
+from warp_hcell.core.cli import quiet_warp, say, UserError, writing_to
 from warp_hcell.core.files import check_output_path
 from warp_hcell.core.parameters import ContactLaw
 from warp_hcell.mesostructures.mesostructure import Mesostructure
@@ -325,9 +328,58 @@ def build_models(args: argparse.Namespace, law: ContactLaw, meso: Mesostructure,
     return models, options
 
 
+CHECKPOINT_TAG = "resume"
+"""The hidden folder ``.OUT.resume`` next to --out holds a run's checkpoints, one ``BACKEND.h5`` per backend."""
+_NOT_IN_KEY = ("quiet", "verbose", "overwrite", "restart", "checkpoint_seconds", "out", "deviator", "fourth_panel",
+               "normalise", "csl")
+"""Flags that change no run's arithmetic (the figure's, the output's, the verbosity): a resumed command may differ in them."""
+
+
+def checkpoint_folder(out: Path) -> Path:
+    """The folder of the checkpoints of the runs on ``out`` (``CHECKPOINT_TAG``)."""
+    return Path(out).parent / f".{Path(out).name}.{CHECKPOINT_TAG}"
+
+
+def _key_value(value: Any) -> Any:
+    """A flag's value as the checkpoint key stores it: paths and mesostructures as text, tuples as lists."""
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, (tuple, list)):
+        return [_key_value(v) for v in value]
+    return getattr(value, "text", value)
+
+
+def run_checkpoints(args: argparse.Namespace, models: dict[str, Any], options: dict[str, dict[str, Any]],
+                    law: ContactLaw, meso: Mesostructure, programme: programmes.Programme
+                    ) -> dict[str, driver.RunCheckpoint]:
+    """A checkpoint per backend in ``checkpoint_folder(--out)``, keyed on the flags that change the run, the
+    programme and the backend's stored parameters (--checkpoint-seconds apart; --restart removes the folder first).
+
+    Raises:
+        UserError: (one line, before any run) a checkpoint there written by a command with other settings.
+    """
+    folder = checkpoint_folder(args.out)
+    if args.restart and folder.exists():
+        shutil.rmtree(folder)
+    common = {"flags": {k: _key_value(v) for k, v in vars(args).items() if k not in _NOT_IN_KEY},
+              "programme": programmes.to_dict(programme)}
+    checkpoints = {}
+    for name, model in models.items():
+        key = {**common, "backend": backend_parameters(name, model, options[name], law, args.radius, meso)}
+        checkpoint = driver.RunCheckpoint(folder / f"{name}.h5", key, args.checkpoint_seconds)
+        if checkpoint.exists():
+            try:
+                checkpoint.check()
+            except UserError as exc:
+                raise UserError(f"{exc}: run that command again to resume it, or add --restart to discard it") from None
+        checkpoints[name] = checkpoint
+    return checkpoints
+
+
 def run_backends(args: argparse.Namespace, models: dict[str, Any], options: dict[str, dict[str, Any]],
-                 law: ContactLaw, meso: Mesostructure, run: Callable[[Any], Record],
-                 parameters: Callable[[Record], dict[str, Any]], *, work: Path, command: str
+                 law: ContactLaw, meso: Mesostructure, run: Callable[[Any, driver.RunCheckpoint], Record],
+                 parameters: Callable[[Record], dict[str, Any]], *, work: Path, command: str,
+                 checkpoints: dict[str, driver.RunCheckpoint]
                  ) -> tuple[dict[str, Record], dict[str, dict[str, Any]], list[str]]:
     """Run every backend, one after the other, and write its run files into ``work``.
 
@@ -335,7 +387,8 @@ def run_backends(args: argparse.Namespace, models: dict[str, Any], options: dict
         args: the command's arguments (--backend, --radius, --seed, --out).
         models, options: from ``build_models``.
         law, meso: the contact law and the cell of the run.
-        run: ``run(model)`` -> the backend's ``driver.Record``.
+        run: ``run(model, checkpoint)`` -> the backend's ``driver.Record``, saved in and resumed from ``checkpoint``.
+        checkpoints: by backend (``run_checkpoints``); a resumed one is said in a line.
         parameters: the command's stored parameters of a record, after ``backend_parameters``.
         work: the folder being written (``output_folder``); command: the command line stored.
 
@@ -351,10 +404,17 @@ def run_backends(args: argparse.Namespace, models: dict[str, Any], options: dict
     written: list[str] = []
     for name, model in models.items():
         start = time.perf_counter()
+        if checkpoints[name].exists():
+            done, stages = checkpoints[name].progress()
+            say(f"{name}: resuming from {checkpoints[name].path} ({done} increments, {stages} stages finished)")
         try:
-            record = run(model)
+            record = run(model, checkpoints[name])
         except driver.ControlError as exc:
             raise UserError(f"{name}: {exc}") from None
+        except KeyboardInterrupt:
+            if not any(checkpoint.exists() for checkpoint in checkpoints.values()):
+                raise
+            raise KeyboardInterrupt(f"the same command resumes from {checkpoint_folder(args.out)}") from None
         elapsed = time.perf_counter() - start
         stored[name] = {**backend_parameters(name, model, options[name], law, args.radius, meso), **parameters(record)}
         note = backend_note(model)

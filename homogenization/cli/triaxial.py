@@ -23,7 +23,8 @@ programme of three-component steps instead (docs/programmes.md).
 
 Outputs as ``hmodel biaxial``: DIR/run.h5 and DIR/curve.csv (header
 ``stage,eps11,eps22,eps33,sigma11,sigma22,sigma33,p,q,e``, e the current void ratio) per backend, DIR/triaxial.png overlaying
-every backend; the folder is replaced as a unit (--overwrite).
+every backend; the folder is replaced as a unit (--overwrite), and an interrupted run resumes as
+``hmodel biaxial``'s (--checkpoint-seconds, --restart).
 
 Sign convention: compression and contraction positive; stresses in Pa. Bad input (unknown
 backend, an ann model without a passed certificate of its own file unless --uncertified-ok, a
@@ -37,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import shlex
+import shutil
 import sys
 from dataclasses import asdict
 from pathlib import Path
@@ -47,8 +49,8 @@ from homogenization.cli.progress import stage_bars
 from homogenization.output import figures, oedometer
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
-from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, add_void_ratio_arguments, add_critical_state_argument, command_parser, lebedev_order
-from homogenization.cli.run_files import build_models, check_run, refuse_programme_flags, resolve_void_ratio, run_backends, shear_iso_increment
+from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_checkpoint_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, add_void_ratio_arguments, add_critical_state_argument, command_parser, lebedev_order
+from homogenization.cli.run_files import build_models, check_run, checkpoint_folder, refuse_programme_flags, resolve_void_ratio, run_backends, run_checkpoints, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -130,6 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
                                       "increment; docs/ann.md)")
     add_uncertified_argument(parser)
     add_posterior_arguments(parser)
+    add_checkpoint_arguments(parser)
     return parser
 
 
@@ -222,14 +225,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         models = posterior_flags.spread_models(calibrated, models, meso, lebedev_order=args.order, n_spins=args.spins,
                                                staggered_spins=not args.aligned_spins)
         renewal = posterior_flags.interlocking_renewal(calibrated, meso, critical_state, args.void_ratio)
+        checkpoints = run_checkpoints(args, models, options, law, meso, programme)
         with output_folder(out) as work:
             runs, _, written = run_backends(
                 args, models, options, law, meso,
-                run=lambda model: driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
+                run=lambda model, checkpoint: driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
                                              n_spins=args.spins, spin_period_deg=spin_period,
                                              staggered_spins=not args.aligned_spins,
                                              void_ratio=args.void_ratio, density_map=density_map,
-                                             critical_state=critical_state, renewal=renewal, progress=stage_bars),
+                                             critical_state=critical_state, renewal=renewal, progress=stage_bars,
+                                             checkpoint=checkpoint),
                 parameters=lambda record: {
                     **settings,
                     "lebedev_order": args.order,
@@ -246,7 +251,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     **({} if calibrated is None or calibrated.interlocking is None else
                        {"interlocking": asdict(calibrated.interlocking)}),
                 },
-                work=work, command=command)
+                work=work, command=command, checkpoints=checkpoints)
             if settings.get("test") == "oedometer":
                 with writing_to(out):
                     for name, record in runs.items():
@@ -260,6 +265,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             posterior_flags.shade(fig, calibrated, ((1, "q", 1.0), (2, "eps_v", 100.0)))
             with writing_to(out):
                 figures.save_figure(fig, work / FIGURE_FILE)
+        shutil.rmtree(checkpoint_folder(out), ignore_errors=True)  # the run is in place: its checkpoints are spent
     say(*written, *([band_line.replace(posterior_flags.BAND_FILE, str(out / posterior_flags.BAND_FILE))]
                     if band_line else []),
         f"figure -> {out / FIGURE_FILE}")

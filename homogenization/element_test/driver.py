@@ -30,6 +30,8 @@ from typing import Any, Callable, Literal, Mapping, Sequence
 
 import numpy as np
 
+from homogenization.element_test import checkpoint as checkpoint_mod
+from homogenization.element_test.checkpoint import RunCheckpoint
 from homogenization.element_test.points import MaterialPoints, material_points
 from homogenization.material.critical_state import CriticalState, Renewal
 from homogenization.material.density import DensityMap, default_map
@@ -41,7 +43,7 @@ from warp_hcell.core.contract import CellModel
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
 
-__all__ = ["JUMP_WIDTH", "LEBEDEV_ORDER", "N_SPINS", "ControlError", "Record", "run", "to_record"]
+__all__ = ["JUMP_WIDTH", "LEBEDEV_ORDER", "N_SPINS", "ControlError", "Record", "RunCheckpoint", "run", "to_record"]
 
 LEBEDEV_ORDER = 53
 """Default Lebedev order of the 3D cell axes (``orientation``: 487 axes on the hemisphere).
@@ -87,29 +89,31 @@ def run(
     void_ratio: float | None = None,
     density_map: DensityMap | None = None,
     renewal: Callable[[MaterialPoints], Any] | None = None,
+    checkpoint: RunCheckpoint | None = None,
 ) -> Record:
-    """Run ``programme`` on the oriented cells of ``cell_model``, all starting as ``mesostructure``; returns
-    the ``Record``.
+    """The ``Record`` of ``programme`` run on the oriented cells of ``cell_model``, all starting as ``mesostructure``.
 
     Args:
-        n_orientations, fabric_anisotropy, fabric_direction_deg: planar orientations theta_k = k pi / N,
-            weights (1 + a_f cos 2(theta - b_f)) / pi, a_f in [0, 1).
+        n_orientations, fabric_anisotropy, fabric_direction_deg: planar orientations
+            (``orientation.orientations``).
         lebedev_order, n_spins, spin_period_deg, staggered_spins: 3D orientations
             (``orientation.orientations_3d``; spin_period_deg None: the cell's own).
         snapshot_interval: per-cell observables every this many increments (0: stage ends).
         stress_rtol, max_newton_iterations: stress control's tolerance [-], step calls per increment.
-        progress: per-stage progress callbacks (``stages.StageProgress``) or None/False.
+        progress: per-stage callbacks (``stages.StageProgress``) or None/False.
         before_stage: step index -> action on the material point before it.
-        critical_state: renewal rule of the cells (``material.critical_state``; None: the plain H-model),
-            counted in diagnostics ``critical_state_*``.
-        void_ratio, density_map: the cells' initial void ratio [-], recorded (``Record.e0``); the cell
-            must be at the map's alpha0 (None: ``density.default_map``).
+        critical_state: renewal rule of the cells (``material.critical_state``; None: none), counted in
+            diagnostics ``critical_state_*``.
+        void_ratio, density_map: the cells' initial void ratio [-] (``Record.e0``) and its map (None: the
+            default); the cell must be at the map's alpha0.
         renewal: points -> their renewal, replacing ``critical_state``'s (a ``clip_log``: diagnostics
             ``interlocking_*``).
+        checkpoint: where the run saves itself and resumes from (``element_test.checkpoint``).
 
     Raises:
-        ValueError: invalid programme or options (one line).
+        ValueError: invalid programme or options.
         ControlError: an unsolved stress-controlled increment.
+        UserError: a checkpoint of other settings, or unreadable.
     """
     programme = validate(programme)
     if progress is True:
@@ -132,9 +136,19 @@ def run(
         points.renewal = Renewal(critical_state, points.material, points.state, density_map)
     solver = StressControl(points, replace(STRICT, rtol=stress_rtol, max_iterations=max_newton_iterations))
     history = History(sum(s.n_increments for s in programme), 1, dim)
+    resume = None
+    if checkpoint is not None:
+        why = checkpoint_mod.supports(points, before_stage)
+        if why is not None:
+            warnings.warn(f"this run keeps no checkpoint: {why}", RuntimeWarning, stacklevel=2)
+            checkpoint = None
+        elif checkpoint.exists():
+            checkpoint.check()
+            resume = checkpoint.load(solver, history)
     try:
         step_seconds, _, _ = run_stages(solver, programme, history, snapshot_interval=snapshot_interval,
-                                     progress=progress or None, before_stage=before_stage)
+                                     progress=progress or None, before_stage=before_stage, checkpoint=checkpoint,
+                                     resume=resume)
     except ControlError as exc:
         raise _diagnosed(exc, points, programme, mesostructure) from None
     k = history.k

@@ -196,6 +196,14 @@ def positive_float(text: str) -> float:
     return value
 
 
+def non_negative_float(text: str) -> float:
+    """argparse type: a finite float >= 0."""
+    value = _float(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"{text} must be >= 0")
+    return value
+
+
 def fraction(text: str) -> float:
     """argparse type: a finite float in [0, 1) (fabric anisotropy, imperfection)."""
     value = _float(text)
@@ -411,7 +419,9 @@ def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[
     The line names the command the user typed: the ``invoked_as`` name (``hmodel COMMAND``),
     else, for a process started as ``python -m MODULE`` (``argv`` None), that; a call from
     Python with ``argv`` says "hmodel". The verbosity ``main`` set (``set_verbosity``) ends
-    with it, and so does its format of Python warnings: one line, "PROG: warning: TEXT".
+    with it, and so does its format of Python warnings: one line, "PROG: warning: TEXT". Ctrl-C or
+    SIGTERM is the line "interrupted" (with the ``KeyboardInterrupt``'s text: what resumes the work)
+    and exit code 130.
     """
     prog = _INVOKED_AS.get() or (_started_as(main) if argv is None else "hmodel")
     _OUTPUT.command = True
@@ -425,8 +435,9 @@ def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[
         message = " ".join(str(exc).split()) or type(exc).__name__
         print(f"{prog}: error: {message}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        note = " ".join(str(exc).split())  # what resumes the work, where the command says
+        print(f"{prog}: interrupted" + (f"; {note}" if note else ""), file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
         warnings.formatwarning = formatwarning
