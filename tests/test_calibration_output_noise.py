@@ -40,14 +40,15 @@ def _result(stuck: int, float_errors: int) -> dict:
         "identifiability": [],
         "misfit_rms_over_sigma": {},
         "sampler": {"steps": 500, "walkers": 32, "acceptance_fraction": 0.39, "stuck_walkers_left_out": stuck},
-        "forward_model": {"fallbacks": 28, "interlocking_clips": 3, "renewal_clips": 5,
+        "forward_model": {"evaluations": 16032, "fallbacks": 28, "interlocking_clips": 3, "renewal_clips": 5,
                           "failed": 2, "floating_point_errors": float_errors},
     }
 
 
 def test_summary_reports_float_errors_and_advises_on_stuck_walkers():
     lines = report.summary_lines(_result(6, 41))
-    assert "forward fallbacks 28, jumps 0, clips: interlocking 3, renewal 5, failed sets 2, floating-point errors 41" in lines[-2]
+    assert ("forward fallbacks 28 in 16032 evaluations, jumps 0, clips: interlocking 3, renewal 5, failed sets 2, "
+            "floating-point errors 41") in lines[-2]
     assert lines[-1].startswith("6 of 32 walkers stayed where the posterior is below exp(-20)")
     assert "--prior" in lines[-1] and "--walkers" in lines[-1]
     quiet = report.summary_lines(_result(0, 0))

@@ -304,6 +304,29 @@ def test_outputs_of_a_tiny_run(tmp_path):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
 
 
+def test_fallbacks_are_counted_against_the_evaluations_that_made_them(tmp_path, monkeypatch):
+    """Every forward run of a set is made a fallback: the sampler's fallbacks equal its evaluations, and the start's
+    (least-squares fits, resolution checks) are a pair of their own. The fallbacks counted the start's runs and the
+    evaluations did not (16 evaluations against 505 fallbacks)."""
+    real = bayes.forward_share
+
+    def one_fallback_per_set(tests, params, settings):
+        out, errors = real(tests, params, settings)
+        n = len(next(iter(params.values())))
+        return [(piece[0], n, *piece[2:]) for piece in out], errors
+
+    monkeypatch.setattr(bayes, "forward_share", one_fallback_per_set)
+    assert tiny_run(tmp_path, "run", 3) == 0
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    forward = run["forward_model"]
+    assert forward["fallbacks"] == forward["evaluations"] == 4 * 4  # emcee's first look at the walkers + 3 steps
+    start = run["start"]["forward_counts"]
+    assert start["fallbacks"] == start["evaluations"] >= run["start"]["evaluations"] > 0
+    line = next(line for line in report.summary_lines(run) if line.startswith("sampler: "))
+    assert f"forward fallbacks 16 in 16 evaluations (the start's: {start['fallbacks']} in {start['evaluations']})" \
+        in line
+
+
 def test_a_short_chain_leaves_the_constrained_verdict_undetermined(tmp_path):
     """6 steps (walkers still in their start ball, ~1 % of the prior wide) said "phi_g: constrained (posterior sd =
     0.07 x prior sd)"; a chain short of its autocorrelation times decides no "constrained" now. A long chain keeps

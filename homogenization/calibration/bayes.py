@@ -214,8 +214,9 @@ class Posterior:
     """log posterior of sampled coordinates, vectorised: the callable emcee samples.
 
     One call runs every test's forward model on the whole population, shared among ``workers`` processes on the
-    analytical backend (module docstring; ``close`` stops them). Counted, not printed: ``n_fallback`` forward
-    fallbacks (``forward.Curves.n_fallback``), ``n_jump`` drained increments solved at a jump, ``n_clip`` and
+    analytical backend (module docstring; ``close`` stops them). Counted, not printed: ``n_sets`` parameter sets run
+    by the forward model (start fits and checks included), ``n_fallback`` forward fallbacks
+    (``forward.Curves.n_fallback``), ``n_jump`` drained increments solved at a jump, ``n_clip`` and
     ``n_renewal_clip`` the rules' clips (``forward.Curves``), ``n_failed`` sets
     whose forward model failed (log L = -inf), ``n_calls`` sets evaluated inside the prior, ``n_float_errors``
     numpy operations that overflowed, divided by zero or gave NaN (each worker's share counts its own). Where
@@ -234,6 +235,7 @@ class Posterior:
         self.noise = float(noise)
         self.workers = int(workers) if settings.backend == "analytical" else 1
         self._pool: ProcessPoolExecutor | None = None
+        self.n_sets = 0
         self.n_fallback = 0
         self.n_jump = 0
         self.n_clip = 0
@@ -244,13 +246,20 @@ class Posterior:
         self.n_infeasible = 0
         self.correction: list[dict[str, np.ndarray]] | None = None
 
-    COUNTS = ("n_calls", "n_failed", "n_fallback", "n_jump", "n_clip", "n_renewal_clip", "n_float_errors",
+    COUNTS = ("n_calls", "n_sets", "n_failed", "n_fallback", "n_jump", "n_clip", "n_renewal_clip", "n_float_errors",
               "n_infeasible")
     """The counters of the forward runs (``counts``): kept in the chain file, so that a resumed run adds to them."""
 
     def counts(self) -> dict[str, int]:
         """Every counter of ``COUNTS`` by name."""
         return {name: int(getattr(self, name)) for name in self.COUNTS}
+
+    def take_counts(self) -> dict[str, int]:
+        """``counts()``, the counters then set to 0 (the start's runs, kept apart from the sampler's)."""
+        counts = self.counts()
+        for name in self.COUNTS:
+            setattr(self, name, 0)
+        return counts
 
     def add_counts(self, counts: Mapping[str, int]) -> None:
         """Add ``counts`` (a ``counts()`` of an earlier process of the same chain; missing names: 0) to the counters."""
@@ -298,6 +307,7 @@ class Posterior:
                 self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context(method))
             futures = [self._pool.submit(forward_share, tests, chunk, self.settings) for tests, chunk in jobs]
             parts = [f.result() for f in futures]
+        self.n_sets += n
         pieces: dict[int, list] = {k: [] for k in every}
         for (tests, _, _), (per_test, errors) in zip(shares, parts):
             self.n_float_errors += errors

@@ -243,6 +243,7 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
     from homogenization.calibration import resolution  # noqa: PLC0415
 
     prior, tests = log_post.prior, log_post.tests
+    counts = forward_counts(log_post.counts())  # the sampler's runs (the start's are in ``start``), not the ones below
     samples, lp, discard, stuck = retained_samples(sampler, args.burn)
     if not np.isfinite(lp).any():
         raise UserError(f"no posterior: the forward model failed (a non-finite curve) or the prior refused every "
@@ -278,11 +279,9 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
         "start": dict(start) if start is not None else None,
         "forward_model": {
             "settings": config["forward"], "noise": args.noise,
-            "evaluations": log_post.n_calls, "failed": log_post.n_failed, "fallbacks": log_post.n_fallback,
-            "jumps": log_post.n_jump, "interlocking_clips": log_post.n_clip, "renewal_clips": log_post.n_renewal_clip,
-            "floating_point_errors": log_post.n_float_errors, "model_error": getattr(args, "model_error", 0.0),
+            **{k: v for k, v in counts.items() if k != "infeasible_sets" or log_post.spread_cut},
+            "model_error": getattr(args, "model_error", 0.0),
             "likelihood_sigma_fraction": log_post.noise, "resolution": resolution_run,
-            **({"infeasible_sets": log_post.n_infeasible} if log_post.spread_cut else {}),
             **_ann_model(config["forward"]["backend"]),
         },
         "maximum_a_posteriori": {n: float(v) for n, v in zip(prior.names, best)},
@@ -302,6 +301,16 @@ def write_outputs(out: Path, sampler, log_post: bayes.Posterior, args: argparse.
                 out / "fits.png")
     write_json(out / "run.json", {"posterior": summary, **run})
     return {"posterior": summary, **run}
+
+
+def forward_counts(counts: Mapping[str, int], start: bool = False) -> dict[str, int]:
+    """run.json's names of the counters ``bayes.Posterior.counts``: ``evaluations`` the sets that the sampler's log
+    posterior ran (``start``: every set run, for the start's fits and checks; failed and infeasible sets are the start
+    record's own there)."""
+    out = {"evaluations": counts["n_sets" if start else "n_calls"], "fallbacks": counts["n_fallback"],
+           "jumps": counts["n_jump"], "interlocking_clips": counts["n_clip"], "renewal_clips": counts["n_renewal_clip"],
+           "floating_point_errors": counts["n_float_errors"]}
+    return out if start else {**out, "failed": counts["n_failed"], "infeasible_sets": counts["n_infeasible"]}
 
 
 def _ann_model(backend: str) -> dict[str, Any]:
@@ -358,6 +367,7 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
                      f"{fit['residuals']} residuals ({'FAR ABOVE' if fit['far_above_noise'] else 'within'} the noise; "
                      f"limit {fit['limit']:.2f})")
     sampler, forward = result["sampler"], result["forward_model"]
+    start = (result.get("start") or {}).get("forward_counts")  # none in a chain started before the start's were kept
     auto = sampler.get("autocorrelation")  # absent from a result made without a chain
     if auto is not None and "converged" in auto:
         lines.append(f"chains converged: {'yes' if auto['converged'] else 'NO'} ({_number(auto['steps_per_tau'], '.1f')} "
@@ -373,7 +383,9 @@ def summary_lines(result: Mapping[str, Any]) -> list[str]:
             f"{_number(auto['steps_per_tau'], '.1f')} x the largest tau)")
     lines.append(f"sampler: {sampler['steps']} steps x {sampler['walkers']} walkers, acceptance "
                  f"{sampler['acceptance_fraction']:.2f}, stuck walkers left out {sampler['stuck_walkers_left_out']}, "
-                 f"forward fallbacks {forward['fallbacks']}, jumps {forward.get('jumps', 0)}, clips: interlocking "
+                 f"forward fallbacks {forward['fallbacks']} in {forward['evaluations']} evaluations"
+                 + (f" (the start's: {start['fallbacks']} in {start['evaluations']})" if start else "") +
+                 f", jumps {forward.get('jumps', 0)}, clips: interlocking "
                  f"{forward.get('interlocking_clips', 0)}, renewal {forward.get('renewal_clips', 0)}, "
                  f"failed sets {forward['failed']}, "
                  + (f"infeasible sets {forward['infeasible_sets']}, " if "infeasible_sets" in forward else "") +

@@ -699,6 +699,7 @@ def run_calibration(args: argparse.Namespace, tests: Sequence[Measurement], prio
         if restart:  # the start first: a refused or interrupted one leaves the folder as it was
             start, start_record, resolution_record = resolved_start(args, log_post)
             start_record["seconds"] = time.perf_counter() - started
+            start_record["forward_counts"] = report.forward_counts(log_post.take_counts(), start=True)
             for name in (CHAIN_FILE, *report.OUTPUT_FILES):
                 (out / name).unlink(missing_ok=True)
             backend = emcee.backends.HDFBackend(str(chain))
