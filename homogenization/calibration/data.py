@@ -17,13 +17,13 @@ sigma22 = p0), 2D; ``triaxial_undrained`` (isochoric: d_eps22 = d_eps33, volume 
 A test that gives its void ratio starts its cells at the alpha0 of the void-ratio map
 (``homogenization.material.density``; e_min and e_max calibratable), the others at alpha0.
 
-Comment lines start with ``#``; ``key = value`` comments give the test; other comments are
-ignored, whatever their bytes (the other lines are UTF-8). The header names ``eps1`` (axial strain counted from the end of the isotropic stage,
-> 0 and increasing) and at least one of ``q`` (sigma11 - sigma22; 3D: sqrt(3 J2), which is
-sigma11 - sigma33 where sigma22 = sigma33), ``p`` ((sigma11 + sigma22) / 2; 3D: tr(sigma) / 3)
-and ``eps_v`` (eps11 + eps22, 3D: eps11 + eps22 + eps33, from the end of the isotropic stage).
-Every value is a finite number; the first p and the largest abs(q) are within ``UNIT_RATIOS`` of p0 (else a unit
-mistake, e.g. kPa against Pa).
+Comment lines start with ``#``; ``key = value`` comments give the test; other comments are ignored,
+whatever their bytes (the other lines are UTF-8). The header names ``eps1`` (axial strain counted
+from the end of the isotropic stage, > 0 and increasing) and at least one of ``q`` (sigma11 -
+sigma22; 3D: sqrt(3 J2), which is sigma11 - sigma33 where sigma22 = sigma33), ``p`` ((sigma11 +
+sigma22) / 2; 3D: tr(sigma) / 3) and ``eps_v`` (eps11 + eps22, 3D: eps11 + eps22 + eps33, from the
+end of the isotropic stage). Every value is a finite number; the first p and the largest abs(q) are
+within ``UNIT_RATIOS`` of p0 (else a unit mistake, e.g. kPa against Pa).
 ``read_test`` raises ValueError with one line naming the file and the line for anything else.
 """
 
