@@ -82,6 +82,7 @@ from warp_hcell.core.cli import (
     contact_law_from_args,
     finite_float,
     fraction,
+    non_negative_float,
     positive_float,
     positive_int,
     progress_bar,
@@ -557,17 +558,6 @@ def check_rule_prior(prior: bayes.Prior, settings: ForwardSettings) -> None:
                     replace(settings.critical_state, **{RULE[name]: float(value)}).check()
                 except ValueError as exc:
                     raise UserError(f"the prior of {name} reaches {value:g}: {exc}") from None
-
-
-def non_negative_float(text: str) -> float:
-    """argparse type: a finite float >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (value >= 0.0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"{text!r} must be finite and >= 0")
-    return value
 
 
 def likelihood_noise(args: argparse.Namespace) -> float:
