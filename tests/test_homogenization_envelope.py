@@ -97,8 +97,8 @@ def test_a_sweep_plans_which_ann_cases_leave_the_envelope_and_warns_once(tmp_pat
     from homogenization.cli import sweep
     from homogenization.sweeps.plan import plan
 
-    args = sweep.build_parser().parse_args(["--backend", "ann,analytical", "--p0", "5e4,2e5", "--eps-max", "0.05",
-                                            "--out", str(tmp_path / "s")])
+    args = sweep.parse_args(["--backend", "ann,analytical", "--p0", "5e4,2e5", "--eps-max", "0.05",
+                             "--out", str(tmp_path / "s")])
     cases, _ = plan(args)
     ann = {case.p0: case.parameters["ann_model"]["outside_envelope"] for case in cases if case.backend == "ann"}
     assert ann == {5e4: ["p0 = 50000 N/m below the lowest certified pressure 200000 N/m"], 2e5: []}

@@ -169,20 +169,27 @@ def test_bad_input_is_one_line_and_exit_2_before_any_work(tmp_path, capsys, args
     assert not out.exists()
 
 
-def test_a_case_interrupted_while_drawing_its_figure_gets_it_on_the_next_run(tmp_path):
-    """A kill while the case's figure was written leaves run.h5 and curve.csv and a temporary file: the run again
-    draws the figure from the stored run (the case not run again) and removes the temporary file."""
+def test_an_overwrite_interrupted_while_writing_a_case_leaves_its_old_folder_whole(tmp_path, monkeypatch):
+    """A case's folder is written as a unit: an --overwrite run stopped while drawing a case's figure (its run.h5
+    and curve.csv written) leaves the old case whole, which the next --overwrite run recomputes; before, the new
+    run.h5 and curve.csv sat beside the old figure and counted as finished."""
     out = tmp_path / "s"
     argv = ["--mesostructure", "hcell", "--alpha0", "50", "--backend", "analytical", "--workers", "1", *SMALL,
-            "--eps-max", "0.01", "--out", str(out)]
-    assert cli(argv) == 0
+            "--out", str(out)]
+    assert cli([*argv, "--eps-max", "0.01"]) == 0
     folder = next((out / sweep.CASES_DIR).iterdir())
-    (folder / sweep.FIGURE_FILE).unlink()
-    (folder / f".{sweep.FIGURE_FILE}.abcdefgh.tmp").write_bytes(b"")
-    run = (folder / "run.h5").stat().st_mtime_ns
-    assert cli(argv) == 0
-    assert (folder / sweep.FIGURE_FILE).read_bytes()[:4] == b"\x89PNG"
-    assert not list(folder.glob("*.tmp")) and (folder / "run.h5").stat().st_mtime_ns == run
+    old = {name: (folder / name).read_bytes() for name in ("run.h5", "curve.csv", sweep.FIGURE_FILE)}
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    with monkeypatch.context() as patch:
+        patch.setattr(sweep.figures, "save_figure", interrupted)
+        assert cli([*argv, "--eps-max", "0.02", "--overwrite"]) == 130
+    assert {name: (folder / name).read_bytes() for name in old} == old
+    assert sorted(p.name for p in folder.parent.iterdir()) == [folder.name]
+    assert cli([*argv, "--eps-max", "0.02", "--overwrite"]) == 0
+    assert io.read_run(folder / "run.h5").attrs["parameters"]["eps_max"] == 0.02
+    assert (folder / sweep.FIGURE_FILE).read_bytes() != old[sweep.FIGURE_FILE]
 
 
 def test_a_foreign_non_empty_folder_is_not_touched(tmp_path, capsys):
@@ -351,3 +358,28 @@ def test_an_ann_case_records_its_models_certificate_in_run_h5(fines_models, tmp_
     stored = io.read_run(tmp_path / "c" / sweep.CASES_DIR / row["case"] / "run.h5").attrs["parameters"]["ann_model"]
     assert stored["certified"] is True and stored["certificate_worst"] == 0.0123 and stored["certificate_problem"] is None
     assert cli([*argv, "--out", str(out)]) == 2
+
+
+def test_a_second_sweep_on_a_busy_folder_exits_2(tmp_path, capsys):
+    from warp_hcell.core.files import output_lock
+
+    out = tmp_path / "s"
+    with output_lock(out):
+        assert cli(["--backend", "analytical", *SMALL, "--out", str(out)]) == 2
+    assert "is being written by another run" in capsys.readouterr().err
+
+
+def test_a_case_of_an_edited_mesostructure_file_runs_again(tmp_path, capsys):
+    """A case's identity holds its cell's geometry (the description's sha256), not only the file's name: an edited
+    file is a case with other parameters (refused without --overwrite), not a finished one."""
+    meso = tmp_path / "cell.toml"
+    h_cell_file = Path(__file__).resolve().parents[1] / "warp_hcell" / "data" / "h_cell_fine_grain.toml"
+    meso.write_text(h_cell_file.read_text())
+    argv = ["--mesostructure", str(meso), "--backend", "dem", "--workers", "1", "--p0", "2e5", "--eps-max", "0.004",
+            "--increment", "1e-3", "--orientations", "6", "--out", str(tmp_path / "s")]
+    assert cli(argv) == 0
+    text = meso.read_text()
+    assert "radius = 0.26091387708279157" in text
+    meso.write_text(text.replace("radius = 0.26091387708279157", "radius = 0.25"))  # a smaller, free fine grain
+    assert cli(argv) == 2
+    assert "holds a run with other mesostructure_sha256" in capsys.readouterr().err

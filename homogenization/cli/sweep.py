@@ -31,9 +31,11 @@ Output:
 Cases are planned by ``homogenization.sweeps.plan``, computed by ``homogenization.sweeps.case``
 as tasks of ``warp_hcell.core.execution`` (this process, --workers N, or --scheduler ADDRESS;
 docs/distributed.md); this process writes every file, so results do not depend on the execution.
-Rerunning keeps finished cases (same parameters in run.h5); a case holding other parameters is
-an error unless --overwrite. Bad input is one line on stderr, exit code 2, before any case
-runs; cases that fail while running are listed, exit code 1.
+Each case's folder is written as a unit, under a lock of DIR (a second sweep on DIR exits 2);
+rerunning keeps finished cases (same parameters in run.h5, the mesostructure's geometry
+included); a case holding other parameters is an error unless --overwrite. Bad input is one
+line on stderr, exit code 2, before any case runs; cases that fail while running are listed,
+exit code 1. Ctrl-C or kill: one line, exit 130, and the same command resumes.
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ from matplotlib.figure import Figure
 from homogenization.element_test import driver
 from homogenization.output import figures, io, run_labels
 from homogenization.cli.options import (
+    ISO_TO_SHEAR_INCREMENT,
     add_orientations_argument,
     add_threads_argument,
     add_uncertified_argument,
@@ -62,6 +65,7 @@ from homogenization.cli.options import (
     refuse_uncertified_file,
 )
 from homogenization.output.figure_style import LABELS
+from homogenization.cli.run_files import shear_iso_increment
 from homogenization.sweeps.case import case_task, summarise
 from homogenization.sweeps.plan import Case, ModelChoice, plan
 from warp_hcell.mesostructures.builders import (
@@ -80,10 +84,12 @@ from warp_hcell.core.cli import (
     task_setup,
     writing_to,
 )
-from warp_hcell.core.files import atomic_write, check_output_path
+from warp_hcell.core.files import atomic_write, check_output_path, output_folder, output_lock
 from warp_hcell.core.execution import make_execution, SchedulerUnreachable
-from warp_hcell.core.parameters import CellDefaults, LoadingDefaults
+from warp_hcell.core.parameters import CellDefaults, DatabaseSettings, LoadingDefaults
 
+COARSE_INCREMENT = DatabaseSettings.probe_max
+"""Shear increments above this [-] run with a warning (as ``hmodel biaxial``'s)."""
 CASES_DIR = "cases"
 SUMMARY_FILE = "summary.csv"
 SUMMARY_FIGURE = "summary.png"
@@ -116,8 +122,6 @@ def erode_strain(text: str) -> float:
     return value
 
 
-
-
 def model_arg(text: str) -> ModelChoice:
     """argparse type: ``PATH`` or ``MESOSTRUCTURE=PATH`` (split at the last ``=``)."""
     key, sep, path = str(text).rpartition("=")
@@ -126,8 +130,6 @@ def model_arg(text: str) -> ModelChoice:
     if not key.strip() or not path.strip():
         raise argparse.ArgumentTypeError(f"{text!r} is not PATH or MESOSTRUCTURE=PATH")
     return ModelChoice(key.strip(), Path(path.strip()))
-
-
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -145,9 +147,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--backend", type=backend_list, default="dem", help="comma list of cell models")
     parser.add_argument("--eps-max", type=axial_strain, default=load.eps_max,
                         help="axial strain at the end of the shear stage, counted from its start [-]")
-    parser.add_argument("--increment", type=positive_float, default=load.increment, help="axial strain increment of the shear stage [-]")
-    parser.add_argument("--iso-increment", type=positive_float, default=load.iso_increment,
-                        help="strain increment per component of the isotropic stage [-]")
+    parser.add_argument("--increment", type=positive_float, default=load.increment,
+                        help="axial strain increment of the shear stage [-], <= --eps-max")
+    parser.add_argument("--iso-increment", type=positive_float, default=argparse.SUPPRESS,
+                        help=f"strain increment per component of the isotropic stage [-] "
+                             f"(default: {ISO_TO_SHEAR_INCREMENT:g} x --increment)")
     add_orientations_argument(parser, cell.n_orientations)
     parser.add_argument("--drained", action="store_true", help="hold sigma22 = p0 during shear instead of constant volume")
     parser.add_argument("--stress-rtol", type=positive_float, default=load.stress_rtol,
@@ -169,24 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-
-
-
-
-
-
-
-
-
-
 # -- one case's files ----------------------------------------------------------------------------
-
-
-
-
-
-
-
 
 
 def _summary_row(case: Case, record: driver.Record) -> dict[str, Any]:
@@ -196,31 +183,25 @@ def _summary_row(case: Case, record: driver.Record) -> dict[str, Any]:
             "n_grains": prm["n_grains"], "case": case.folder}
 
 
-
-
-
-
-
-
 def write_case(case: Case, record: driver.Record, out: Path, seed: int) -> dict[str, Any]:
-    """Write the folder of a computed case (run.h5, curve.csv, figure); returns its summary row."""
+    """Write the folder of a computed case (run.h5, curve.csv, figure) as a unit (``output_folder``: an interrupted
+    write leaves the case's previous folder whole); returns its summary row."""
     prm = case.parameters
-    folder = Path(out) / CASES_DIR / case.folder
-    io.write_run(folder, record, parameters=prm, seed=seed)
-    figures.save_figure(figures.overlay_figure([figures.Run(record, prm)]), folder / FIGURE_FILE)
+    with output_folder(Path(out) / CASES_DIR / case.folder) as work:
+        io.write_run(work, record, parameters=prm, seed=seed)
+        figures.save_figure(figures.overlay_figure([figures.Run(record, prm)]), work / FIGURE_FILE)
     return _summary_row(case, record)
 
 
 def stored_row(case: Case, out: Path, *, overwrite: bool) -> dict[str, Any] | None:
-    """Summary row of a finished case (same parameters on disk; its figure drawn again where missing), None if it
-    must run.
+    """Summary row of a finished case (its three files, with the same parameters in run.h5), None if it must run.
 
     Raises:
         UserError: the folder holds a run with other parameters and not ``overwrite``.
     """
     folder = out / CASES_DIR / case.folder
-    run_file, curve_file = folder / io.RUN_FILE, folder / io.CURVE_FILE
-    if not (run_file.is_file() and curve_file.is_file()):
+    run_file = folder / io.RUN_FILE
+    if not all((folder / name).is_file() for name in (io.RUN_FILE, io.CURVE_FILE, FIGURE_FILE)):
         return None
     try:
         stored = io.read_run(run_file)
@@ -229,11 +210,6 @@ def stored_row(case: Case, out: Path, *, overwrite: bool) -> dict[str, Any] | No
             return None
         raise
     if stored.attrs["parameters"] == json.loads(json.dumps(case.parameters)):
-        if not (folder / FIGURE_FILE).is_file():  # interrupted while drawing it: drawn from the stored run
-            for stale in folder.glob(f".{FIGURE_FILE}.*.tmp"):
-                stale.unlink()
-            figures.save_figure(figures.overlay_figure([figures.Run(stored.record, case.parameters)]),
-                                folder / FIGURE_FILE)
         return _summary_row(case, stored.record)
     if overwrite:
         return None
@@ -345,29 +321,46 @@ def warn_outside_envelope(cases: Sequence[Case]) -> int:
     return len(outside)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """The command's arguments, --iso-increment resolved (``run_files.shear_iso_increment``); a warning line where
+    the shear increments exceed ``COARSE_INCREMENT``.
+
+    Raises:
+        UserError: --device cuda without a dem or ann backend; increments the programme cannot take (one line).
+    """
     args = build_parser().parse_args(argv)
     set_verbosity(args)
-    out: Path = args.out
     if args.device != "cpu" and not {"dem", "ann"} & set(args.backend):
         raise UserError("--device applies to --backend dem or ann only (analytical runs on the cpu)")
+    args.iso_increment = shear_iso_increment(args, f": the shear stage would be one increment of {args.eps_max:g}")
+    if args.increment > COARSE_INCREMENT:
+        print(f"warning: shear increments of {args.increment:g} > {COARSE_INCREMENT:g}: coarse kinematics (~1 % of "
+              f"p0 and more){'; the ANN extrapolates beyond its training probes' if 'ann' in args.backend else ''}",
+              file=sys.stderr)
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (user errors are mapped to 2 by ``run_main``)."""
+    args = parse_args(argv)
+    out: Path = args.out
     cases, skipped = plan(args)
     for model in {case.parameters["backend_options"].get("model") for case in cases if case.backend == "ann"}:
         refuse_uncertified_file(model, args)
     warn_outside_envelope(cases)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; give a folder")
-    rows = {case.folder: stored_row(case, out, overwrite=args.overwrite) for case in cases}
-    todo = [case for case in cases if rows[case.folder] is None]
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    workers = min(args.workers or cores, max(len(todo), 1))
-    try:
-        execution = make_execution(workers, args.scheduler, setup=task_setup(args))
-    except SchedulerUnreachable as exc:
-        raise UserError(str(exc)) from None
-    with execution:
-        return _run(args, cases, skipped, rows, todo, execution)
+    with output_lock(out):
+        rows = {case.folder: stored_row(case, out, overwrite=args.overwrite) for case in cases}
+        todo = [case for case in cases if rows[case.folder] is None]
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        workers = min(args.workers or cores, max(len(todo), 1))
+        try:
+            execution = make_execution(workers, args.scheduler, setup=task_setup(args))
+        except SchedulerUnreachable as exc:
+            raise UserError(str(exc)) from None
+        with execution:
+            return _run(args, cases, skipped, rows, todo, execution)
 
 
 def _run(args: argparse.Namespace, cases: list[Case], skipped: list[str], rows: dict[str, dict | None],

@@ -212,6 +212,7 @@ def plan(args: Any) -> tuple[list[Case], list[str]]:
                         "drained": args.drained, "stress_rtol": args.stress_rtol,
                         "mesostructure": source.text, "mesostructure_name": meso.name,
                         "mesostructure_file": source.text if source.kind is None else None,
+                        "mesostructure_sha256": description_sha256(describe(meso)),
                         "n_grains": meso.n_grains, "erode_at": erode_at,
                         "eroded_grains": ([int(g) + 1 for g in np.flatnonzero(~meso.driven.any(axis=1))]
                                           if erode_at is not None else None),
@@ -222,6 +223,9 @@ def plan(args: Any) -> tuple[list[Case], list[str]]:
                     cases.append(Case(source.text, backend, case_alpha0, p0, _slug(name), parameters, options))
     if not cases:
         raise UserError("no case to run: " + "; ".join(skipped))
+    if args.erode_at is not None and all(case.parameters["erode_at"] is None for case in cases):
+        raise UserError(f"--erode-at {args.erode_at:g}: no case's cell has grains free along every axis (fines) "
+                        f"to remove")
     _unique_folders(cases)
     return cases, skipped
 
