@@ -175,3 +175,36 @@ def test_dem_backend_through_the_same_cli(tmp_path, capsys):
     dem, ana = tables["dem"][1], tables["analytical"][1]
     forces = slice(5, 8)  # N1, N2, T1
     assert np.abs(dem[:, forces] - ana[:, forces]).max() <= 1e-3 * np.abs(ana[:, forces]).max()
+
+
+def test_the_backends_counts_are_said_in_the_status_line(tmp_path, capsys, monkeypatch):
+    """A rule that fires in a step (an ``n_*`` diagnostic) is summed over the increments and said; it was dropped."""
+    real = cell.make_cell_model
+
+    class Counting:
+        def __init__(self, model):
+            self.model = model
+
+        def __getattr__(self, name):
+            return getattr(self.model, name)
+
+        def step(self, state, d_eps):
+            state, response = self.model.step(state, d_eps)
+            response.diagnostics["n_fired"] = 1.0
+            return state, response
+
+    monkeypatch.setattr(cell, "make_cell_model", lambda *a, **k: Counting(real(*a, **k)))
+    out = tmp_path / "out.csv"
+    assert run_main(cell.main, ["--path", str(_compression(tmp_path, n=3)), "--out", str(out)]) == 0
+    assert capsys.readouterr().out.strip() == f"analytical: 3 increments -> {out} (counts over the increments: n_fired 3)"
+
+
+def test_a_builder_spec_is_built_at_the_radius_given(tmp_path, capsys):
+    """--mesostructure hcell --radius 0.25 ran the DEM on 0.5 m grains (the spec's default), silently."""
+    out = tmp_path / "out.csv"
+    code, err = _run(["--backend", "dem", "--mesostructure", "hcell", "--radius", 0.25, "--alpha0", 55,
+                      "--path", _compression(tmp_path, n=1), "--out", out], capsys)
+    assert code == 0
+    header, table = _read(out)
+    l1 = table[0, header.split(",").index("l1")]
+    np.testing.assert_allclose(l1, 2 * 0.25 * (1 + 2 * np.cos(np.radians(55.0))) * (1 - 1e-5), rtol=1e-6)

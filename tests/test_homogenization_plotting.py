@@ -143,6 +143,27 @@ def test_plot_refuses_bad_suffix_mixed_runs_and_existing_figure(runs, tmp_path, 
     assert len(err) == 3 and all(line.startswith("hmodel: error:") for line in err)
 
 
+def test_plot_refuses_the_planar_figures_options_for_3d_runs_and_names_a_sweeps_runs(tmp_path, capsys):
+    """--csl, --normalise, --deviator and --fourth-panel drew nothing on a 3D run's figure (the same bytes as
+    without), and --csl tested its end with planar p, q and eps_v; a sweep's folder named no run."""
+    from homogenization.cli import hmodel, sweep
+    from warp_hcell.core.cli import run_main
+
+    run = tmp_path / "tx"
+    assert hmodel.main(["triaxial", "--order", "11", "--spins", "4", "--p0", "2e5", "--eps-max", "0.005",
+                        "--increment", "5e-4", "--out", str(run), "-q"]) == 0
+    for flags in (["--csl"], ["--normalise"], ["--deviator", "t"], ["--fourth-panel", "W2"]):
+        assert run_main(plot.main, [str(run), *flags, "--out", str(tmp_path / "f.png")]) == 2
+        assert f"{flags[0]} apply to planar (biaxial) runs" in capsys.readouterr().err
+    assert run_main(plot.main, [str(run), "--out", str(tmp_path / "f.png")]) == 0
+    out = tmp_path / "s"
+    assert run_main(sweep.main, ["--backend", "analytical", "--orientations", "12", "--eps-max", "0.005",
+                                 "--increment", "5e-4", "--workers", "1", "--out", str(out), "-q"]) == 0
+    capsys.readouterr()
+    assert run_main(plot.main, [str(out), "--out", str(tmp_path / "g.png")]) == 2
+    assert f"the runs in it: {next((out / 'cases').iterdir()) / 'run.h5'}" in capsys.readouterr().err
+
+
 def test_plot_command_prints_nothing_of_folders_and_reports_the_figure(runs, tmp_path, capsys):
     files = [_stored_run(tmp_path, name, record, False) for name, record in runs.items()]
     assert plot.main([*files, "--out", str(tmp_path / "f.png")]) == 0

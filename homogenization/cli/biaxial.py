@@ -16,7 +16,7 @@ posterior draws (DIR/posterior_band.csv; ``homogenization.cli.posterior_flags``)
 --backend takes one name or a comma list: every backend runs the same programme. One backend
 writes DIR/run.h5 and DIR/curve.csv, several DIR/<backend>/...; DIR/cambridge.png overlays all
 backends (q-eps1, q-p, p-eps1 or eps_v-eps1, q/p-eps1). The cells start from the H-cell of
---alpha0 and --radius, or --mesostructure (a file or a builder spec, built at --alpha0 unless it
+--alpha0 and --radius, or --mesostructure (a file or a builder spec, built at --alpha0 and --radius unless it
 gives its own); a backend that does not model it stops the command before any run.
 Backend-specific options go to their backend only (--threads, --model, --device).
 
@@ -124,7 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run_mesostructure(args: argparse.Namespace) -> Mesostructure:
-    """The cell of the run: --mesostructure built at --alpha0, else the H-cell of --alpha0 and --radius.
+    """The cell of the run: --mesostructure built at --alpha0 and --radius, else the H-cell of --alpha0 and --radius.
 
     Raises:
         warp_hcell.mesostructures.mesostructure.MesostructureError: a file or spec that does not build (one line).
@@ -132,7 +132,7 @@ def run_mesostructure(args: argparse.Namespace) -> Mesostructure:
     """
     if args.mesostructure is None:
         return h_cell(args.alpha0, args.radius)
-    meso = args.mesostructure.build(args.alpha0)
+    meso = args.mesostructure.build(args.alpha0, args.radius)
     if meso.dim != 2:
         raise UserError(f"--mesostructure {args.mesostructure.text}: a 3D cell; hmodel biaxial runs planar cells "
                         f"(e.g. hcell:alpha0=55), hmodel triaxial 3D ones")

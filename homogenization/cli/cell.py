@@ -45,6 +45,7 @@ from warp_hcell.core.cli import (
     contact_law_from_args,
     quiet_warp,
     run_main,
+    say,
     set_verbosity,
     writing_to,
 )
@@ -165,7 +166,7 @@ def check_path_for_backend(path: Path, d_eps: np.ndarray, backend: str) -> None:
 
 
 def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
-             positions: bool) -> tuple[list[str], np.ndarray]:
+             positions: bool) -> tuple[list[str], np.ndarray, dict[str, float]]:
     """Drive one cell of ``model`` along ``d_eps`` from its initial state.
 
     Args:
@@ -176,15 +177,20 @@ def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
         positions: also return the grain centres x_n{i}, x_t{i} [m] (3D: x_n{i}, x_t1{i}, x_t2{i}).
 
     Returns:
-        (columns, table): the names of the observables written, and their values after
-        every increment, shape (n_increments, n_columns).
+        (columns, table, counts): the names of the observables written, their values after every
+        increment, shape (n_increments, n_columns), and the backend's counts (its ``n_*`` diagnostics,
+        e.g. the closed form's ``n_alpha_limit``) summed over the increments.
     """
     state = model.init_state(mesostructure, 1)
     rows = []
+    counts: dict[str, float] = {}
     columns: list[str] | None = None
     wanted = {2: COLUMNS, 3: COLUMNS_3D}[mesostructure.dim]
     for increment in d_eps:
-        state, _ = model.step(state, increment[None, :])
+        state, response = model.step(state, increment[None, :])
+        for name, value in response.diagnostics.items():
+            if name.startswith("n_"):
+                counts[name] = counts.get(name, 0.0) + float(value)
         observed = model.observables(state)
         if columns is None:
             columns = [name for name in wanted if name in observed]
@@ -192,7 +198,7 @@ def run_path(model, mesostructure: Mesostructure, d_eps: np.ndarray, *,
                 labels = sorted({int(name[3:]) for name in observed if name.startswith("x_n") and name[3:].isdigit()})
                 columns += [f"x_{axis}{label}" for label in labels for axis in AXIS_NAMES[mesostructure.dim]]
         rows.append([float(observed[name][0]) for name in columns])
-    return columns, np.array(rows, dtype=np.float64)
+    return columns, np.array(rows, dtype=np.float64), counts
 
 
 def path_cell(args: argparse.Namespace, dim: int) -> Mesostructure:
@@ -202,7 +208,7 @@ def path_cell(args: argparse.Namespace, dim: int) -> Mesostructure:
     if args.mesostructure is None:
         return plain_h_cell(dim, args.alpha0, args.radius)
     spec = args.mesostructure
-    meso = spec.build(args.alpha0)
+    meso = spec.build(args.alpha0, args.radius)
     if meso.dim != dim:
         raise UserError(f"{args.path}: a path of {len(PATH_HEADERS[dim])} columns ({','.join(PATH_HEADERS[dim])}) "
                         f"but --mesostructure {spec.text} is a {CELL_KINDS[meso.dim]} cell, whose "
@@ -224,9 +230,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     model = make_cell_model(args.backend, contact_law=law, radius=args.radius, dim=meso.dim, **_backend_options(args))
     refuse_uncertified(model, args)
     with output_lock(args.out):
-        columns, table = run_path(model, meso, d_eps, positions=args.positions)
+        columns, table, counts = run_path(model, meso, d_eps, positions=args.positions)
         with writing_to(args.out), atomic_write(args.out) as tmp:
             np.savetxt(tmp, table, fmt="%.17g", delimiter=",", header=",".join(columns), comments="")
+    fired = ", ".join(f"{name} {value:g}" for name, value in counts.items() if value)
+    say(f"{args.backend}: {len(table)} increments -> {args.out}" + (f" (counts over the increments: {fired})"
+                                                                    if fired else ""))
     return 0
 
 

@@ -67,6 +67,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UserError(f"--out {args.out} is a folder; give a file name")
     check_output_path(args.out, overwrite=args.overwrite)
     runs = [figures.Run(stored.record, stored.attrs["parameters"]) for stored in map(io.read_run, args.runs)]
+    parser = build_parser()
+    planar_only = [flag for flag, dest in (("--csl", "csl"), ("--normalise", "normalise"), ("--deviator", "deviator"),
+                                           ("--fourth-panel", "fourth_panel"))
+                   if getattr(args, dest) != parser.get_default(dest)]
+    if planar_only and any(run.record.dim == 3 for run in runs):
+        raise UserError(f"{', '.join(planar_only)} apply to planar (biaxial) runs; the figure of 3D runs draws their "
+                        f"q, p and eps_v as hmodel triaxial does")
     if len({figures.run_drained(run) for run in runs}) > 1:
         raise UserError("the runs mix drained and constant-volume tests; plot each kind separately")
     if args.normalise:

@@ -70,7 +70,7 @@ from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 FIGURE_FILE = "triaxial.png"
 DEFAULT_MESOSTRUCTURE = "hcell3d"
-"""Builder spec of the cell when --mesostructure is not given (built at --alpha0)."""
+"""Builder spec of the cell when --mesostructure is not given (built at --alpha0 and --radius)."""
 TESTS = {"undrained": "--undrained", "drained": "--drained", "extension": "--extension",
          "constant_p": "--constant-p", "true": "--true", "cyclic": "--cyclic", "oedometer": "--oedometer"}
 """Shear stage (``programme.TRIAXIAL_TESTS``) -> its flag."""
@@ -176,11 +176,11 @@ def build_programme(args: argparse.Namespace, argv: Sequence[str]) -> tuple[prog
 
 
 def run_mesostructure(args: argparse.Namespace) -> Mesostructure:
-    """The 3D cell of the run: --mesostructure (or ``DEFAULT_MESOSTRUCTURE``) built at --alpha0; UserError
+    """The 3D cell of the run: --mesostructure (or ``DEFAULT_MESOSTRUCTURE``) built at --alpha0 and --radius; UserError
     (one line) for a planar cell."""
     spec = args.mesostructure if args.mesostructure is not None else mesostructure_arg(
         f"{DEFAULT_MESOSTRUCTURE}:radius={args.radius!r}")
-    meso = spec.build(args.alpha0)
+    meso = spec.build(args.alpha0, args.radius)
     if meso.dim != 3:
         raise UserError(f"--mesostructure {spec.text}: a planar cell; hmodel triaxial needs a 3D cell "
                         f"(e.g. hcell3d:alpha0=55 or hcell3d-fines:ratio=0.5)")

@@ -285,12 +285,13 @@ def read_run(path: Path) -> StoredRun:
 
     Raises:
         UserError: one line, if the file is missing (a folder without ``run.h5``: naming the runs in its
-            subfolders), not HDF5 or not a run file.
+            subfolders, or theirs), not HDF5 or not a run file.
     """
     path = Path(path)
     if path.is_dir():
         if not (path / RUN_FILE).is_file():
-            inside = sorted(str(run) for run in path.glob(f"*/{RUN_FILE}"))
+            inside = sorted(str(run) for run in path.glob(f"*/{RUN_FILE}")) or sorted(
+                str(run) for run in path.glob(f"*/*/{RUN_FILE}"))  # a sweep's: DIR/cases/CASE/run.h5
             raise UserError(f"{path}: a folder without {RUN_FILE}"
                             + (f"; the runs in it: {' '.join(inside)}" if inside else ""))
         path = path / RUN_FILE

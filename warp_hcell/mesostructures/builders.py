@@ -95,8 +95,9 @@ class MesostructureSource:
         """Short name for folders and legends: the spec text, or the file's stem."""
         return self.text if self.kind is not None else Path(self.text).stem
 
-    def build(self, alpha0_deg: float | None = None) -> Mesostructure:
-        """The mesostructure; ``alpha0_deg`` is used by specs without their own alpha0.
+    def build(self, alpha0_deg: float | None = None, radius: float | None = None) -> Mesostructure:
+        """The mesostructure; ``alpha0_deg`` [deg] and ``radius`` [m] are used by specs without their own
+        alpha0 and radius (None: the defaults).
 
         Raises:
             MesostructureError: unreadable file or invalid geometry (one line).
@@ -112,7 +113,7 @@ class MesostructureSource:
         if n_fines:
             axes = AXIS_NAMES[3 if spatial else 2]
             offsets = tuple(zip(*(_per_grain(self.text, key, opts.get(key, (0.0,)), n_fines) for key in axes)))
-        size = {"radius": float(opts.get("radius", CellDefaults.radius)),  # type: ignore[arg-type]
+        size = {"radius": float(opts.get("radius", CellDefaults.radius if radius is None else radius)),  # type: ignore[arg-type]
                 "lateral": float(opts.get("lateral", 1.0))}  # type: ignore[arg-type]
         if spatial:
             return build_h_cell_3d(float(alpha0), **size, plane_angle_deg=float(opts.get("plane", 90.0)),  # type: ignore[arg-type]
