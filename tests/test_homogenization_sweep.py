@@ -383,3 +383,18 @@ def test_a_case_of_an_edited_mesostructure_file_runs_again(tmp_path, capsys):
     meso.write_text(text.replace("radius = 0.26091387708279157", "radius = 0.25"))  # a smaller, free fine grain
     assert cli(argv) == 2
     assert "holds a run with other mesostructure_sha256" in capsys.readouterr().err
+
+
+def test_the_summary_counts_the_rules_that_fired():
+    """summary.csv had n_unconverged only: the closed form's n_alpha_limit and the ANN's out-of-distribution
+    counts never reached it."""
+    from types import SimpleNamespace
+
+    from homogenization.sweeps.case import fired_counts
+
+    nan = float("nan")
+    record = SimpleNamespace(diagnostics={"n_alpha_limit": np.array([1.0, 2.0, nan]), "n_unconverged": np.ones(3),
+                                          "n_ood": np.zeros(3), "n_alpha_limit_all_calls": np.ones(3) * 5,
+                                          "substeps": np.ones(3)})
+    assert fired_counts(record) == "n_alpha_limit=3"
+    assert "counts" in sweep.SUMMARY_COLUMNS

@@ -71,7 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     planar_only = [flag for flag, dest in (("--csl", "csl"), ("--normalise", "normalise"), ("--deviator", "deviator"),
                                            ("--fourth-panel", "fourth_panel"))
                    if getattr(args, dest) != parser.get_default(dest)]
-    if planar_only and any(run.record.dim == 3 for run in runs):
+    if planar_only and any(figures.triaxial_runs([run]) for run in runs):
         raise UserError(f"{', '.join(planar_only)} apply to planar (biaxial) runs; the figure of 3D runs draws their "
                         f"q, p and eps_v as hmodel triaxial does")
     if len({figures.run_drained(run) for run in runs}) > 1:

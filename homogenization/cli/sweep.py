@@ -24,7 +24,7 @@ Output:
   compression positive, eps1 from the end of the isotropic stage; peak_q the largest q,
   first_peak_q the first maximum after which q falls by more than
   ``homogenization.sweeps.case.SOFTENING_DROP`` p0 (NaN if none); p_at_5pct.. p at eps1 = 5,
-  10, 15 %.
+  10, 15 %; counts the backend's rules that fired (``case.fired_counts``, e.g. ``n_alpha_limit=373``).
 - DIR/summary.png: the q/p0 and p/p0 curves and (p/p0, q/p0) paths of every case.
 - DIR/sweep.json: the options of the sweep.
 
@@ -66,7 +66,7 @@ from homogenization.cli.options import (
 )
 from homogenization.output.figure_style import LABELS
 from homogenization.cli.run_files import shear_iso_increment
-from homogenization.sweeps.case import case_task, summarise
+from homogenization.sweeps.case import case_task, fired_counts, summarise
 from homogenization.sweeps.plan import Case, ModelChoice, plan
 from warp_hcell.mesostructures.builders import (
     MESOSTRUCTURE_HELP,
@@ -98,7 +98,7 @@ FIGURE_FILE = "cambridge.png"
 SUMMARY_COLUMNS = (
     "mesostructure", "backend", "alpha0", "p0", "peak_q", "eps1_at_peak", "p_at_peak", "p_end", "q_end", "eps1_end",
     "p_at_5pct", "p_at_10pct", "p_at_15pct", "first_peak_q", "eps1_at_first_peak", "p_at_first_peak",
-    "erode_at", "n_grains", "n_unconverged", "case",
+    "erode_at", "n_grains", "n_unconverged", "counts", "case",
 )
 """Columns of summary.csv, in order."""
 
@@ -180,7 +180,7 @@ def _summary_row(case: Case, record: driver.Record) -> dict[str, Any]:
     prm = case.parameters
     return {"mesostructure": case.source, "backend": case.backend, "alpha0": case.alpha0, "p0": case.p0,
             **summarise(record, case.p0), "erode_at": prm["erode_at"] if prm["erode_at"] is not None else math.nan,
-            "n_grains": prm["n_grains"], "case": case.folder}
+            "n_grains": prm["n_grains"], "counts": fired_counts(record), "case": case.folder}
 
 
 def write_case(case: Case, record: driver.Record, out: Path, seed: int) -> dict[str, Any]:
@@ -260,7 +260,7 @@ def read_summary(path: Path) -> list[dict[str, Any]]:
     """summary.csv back as rows (numeric columns as float)."""
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
-    text_columns = {"mesostructure", "backend", "case"}
+    text_columns = {"mesostructure", "backend", "counts", "case"}
     return [{k: (v if k in text_columns else float(v)) for k, v in row.items()} for row in rows]
 
 

@@ -494,6 +494,12 @@ def critical_state_lines(runs: Sequence[Run], names: Sequence[str], warn: Callab
     return slopes
 
 
+def triaxial_runs(runs: Sequence[Run]) -> bool:
+    """Whether ``runs`` are 3D runs, which ``overlay_figure`` draws as ``triaxial_figure`` (without the planar
+    figure's options)."""
+    return {run.record.dim for run in runs} == {3}
+
+
 def overlay_figure(runs: Sequence[Run], *, fourth: str = "q/p", deviator: str = "q", normalise: bool = False,
                    csl: Sequence[float | None] | None = None, title: str | None = None) -> Figure:
     """The 2x2 figure of stored runs, labelled from their metadata (``run_labels.split_labels``);
@@ -516,7 +522,7 @@ def overlay_figure(runs: Sequence[Run], *, fourth: str = "q/p", deviator: str = 
     if not runs:
         raise ValueError("nothing to plot: no runs given")
     dims = {run.record.dim for run in runs}
-    if dims == {3}:
+    if triaxial_runs(runs):
         common, labels = run_labels.split_labels([describe_run(run) for run in runs])
         return triaxial_figure(dict(zip(labels, (run.record for run in runs))), title=common if title is None else title)
     if len(dims) > 1:

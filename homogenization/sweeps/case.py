@@ -89,6 +89,15 @@ def summarise(record: driver.Record, p0: float) -> dict[str, float]:
     return {k: float(v) for k, v in row.items()}
 
 
+def fired_counts(record: driver.Record) -> str:
+    """The backend's counts of ``record`` summed over its increments, ``NAME=VALUE`` joined by ``;``: every ``n_*``
+    diagnostic but ``n_unconverged`` (a column of its own) and the ``*_all_calls`` sums, where not 0 (e.g. the closed
+    form's ``n_alpha_limit``, the ANN's ``n_ood`` of ``n_ood_checked``); "" where none fired."""
+    sums = {name: float(np.nansum(values)) for name, values in record.diagnostics.items()
+            if name.startswith("n_") and name != "n_unconverged" and not name.endswith("_all_calls")}
+    return ";".join(f"{name}={value:g}" for name, value in sorted(sums.items()) if value)
+
+
 def compute_case(case: Case) -> driver.Record:
     """The record of one case (no file written): the task a worker runs."""
     prm = case.parameters
