@@ -398,3 +398,22 @@ def test_the_summary_counts_the_rules_that_fired():
                                           "substeps": np.ones(3)})
     assert fired_counts(record) == "n_alpha_limit=3"
     assert "counts" in sweep.SUMMARY_COLUMNS
+
+
+def test_a_warning_inside_a_case_is_one_line_naming_the_case(tmp_path, capsys, monkeypatch):
+    """A case's warnings came out of a worker in Python's two-line form, naming no case."""
+    import warnings
+
+    from homogenization.sweeps import case as case_module
+
+    real = case_module.compute_case
+
+    def warning(case):
+        warnings.warn("something\n  fired", RuntimeWarning)
+        return real(case)
+    monkeypatch.setattr(case_module, "compute_case", warning)
+    out = tmp_path / "s"
+    assert cli(["--backend", "analytical", "--workers", "1", *SMALL, "--eps-max", "0.01", "--out", str(out)]) == 0
+    folder = next((out / sweep.CASES_DIR).iterdir()).name
+    assert [line for line in capsys.readouterr().err.splitlines() if "warning" in line] == [
+        f"warning: {folder}: something fired"]

@@ -220,14 +220,17 @@ def stored_row(case: Case, out: Path, *, overwrite: bool) -> dict[str, Any] | No
 
 def run_cases(cases: Sequence[Case], out: Path, seed: int, execution: Any,
               report: Callable[[Case, float | None, str | None], None]) -> tuple[dict[str, dict], dict[str, str]]:
-    """Run ``cases`` on ``execution`` (``warp_hcell.core.execution``); write each case as it comes back.
+    """Run ``cases`` on ``execution`` (``warp_hcell.core.execution``); write each case as it comes back and say the
+    warnings it raised, one line each naming the case.
 
     Returns:
         (rows, failures): summary rows and error messages, keyed by case folder.
     """
     rows: dict[str, dict] = {}
     failures: dict[str, str] = {}
-    for case, (record, seconds, error) in execution.map(case_task, None, cases):
+    for case, (record, seconds, error, raised) in execution.map(case_task, None, cases):
+        for line in raised:
+            print(f"warning: {case.folder}: {line}", file=sys.stderr)
         if error is not None:
             failures[case.folder] = error
             report(case, None, error)

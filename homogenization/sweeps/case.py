@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -113,13 +114,17 @@ CASE_ERRORS = (driver.ControlError, ValueError, UserError, RuntimeError)
 """Exceptions that fail one case (listed at the end) instead of the sweep."""
 
 
-def case_task(_shared: Any, case: Case) -> tuple[driver.Record | None, float, str | None]:
-    """``warp_hcell.core.execution`` task: (record, wall seconds, None), or (None, seconds, error line)."""
+def case_task(_shared: Any, case: Case) -> tuple[driver.Record | None, float, str | None, list[str]]:
+    """``warp_hcell.core.execution`` task: (record, wall seconds, None, warnings), or (None, seconds, error line,
+    warnings); the warnings the case raised are returned as one line each (the process that writes says them)."""
     start = time.perf_counter()
-    try:
-        record = compute_case(case)
-    except CASE_ERRORS as exc:
-        return None, time.perf_counter() - start, " ".join(str(exc).split()) or type(exc).__name__
-    return record, time.perf_counter() - start, None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            record, error = compute_case(case), None
+        except CASE_ERRORS as exc:
+            record, error = None, " ".join(str(exc).split()) or type(exc).__name__
+    lines = list(dict.fromkeys(" ".join(str(w.message).split()) for w in caught))
+    return record, time.perf_counter() - start, error, lines
 
 
