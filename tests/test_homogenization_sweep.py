@@ -417,3 +417,13 @@ def test_a_warning_inside_a_case_is_one_line_naming_the_case(tmp_path, capsys, m
     folder = next((out / sweep.CASES_DIR).iterdir()).name
     assert [line for line in capsys.readouterr().err.splitlines() if "warning" in line] == [
         f"warning: {folder}: something fired"]
+
+
+def test_a_rerun_with_fewer_cases_says_which_folders_its_summary_leaves_out(tmp_path, capsys):
+    out = tmp_path / "s"
+    argv = ["--backend", "analytical", "--workers", "1", *SMALL, "--eps-max", "0.005", "--out", str(out)]
+    assert cli([*argv, "--alpha0", "50,55"]) == 0
+    capsys.readouterr()
+    assert cli([*argv, "--alpha0", "55"]) == 0
+    assert "1 case folder(s) of other settings in" in capsys.readouterr().out
+    assert len((out / sweep.SUMMARY_FILE).read_text().splitlines()) == 2

@@ -371,10 +371,15 @@ def _run(args: argparse.Namespace, cases: list[Case], skipped: list[str], rows: 
     out: Path = args.out
     options = {k: v for k, v in vars(args).items() if k not in ("out", "overwrite", "scheduler", "quiet", "verbose")}
     options["model"] = [f"{m.key}={m.path}" if m.key else str(m.path) for m in args.model or ()] or None
-    options["mesostructure"] = [c.source for c in cases]
+    options["mesostructure"] = [m.text for m in args.mesostructure] if args.mesostructure else None
     _prepare_out(out, options, overwrite=args.overwrite)
     say(*(f"skipped: {note}" for note in skipped))
     say(f"{len(cases)} cases: {len(cases) - len(todo)} finished before, {len(todo)} to run")
+    others = sorted({p.name for p in (out / CASES_DIR).glob("*") if p.is_dir() and not p.name.startswith(".")}
+                    - {case.folder for case in cases})
+    if others:
+        say(f"{len(others)} case folder(s) of other settings in {out / CASES_DIR} are not in this summary "
+            f"(e.g. {others[0]})")
 
     def report(case: Case, seconds: float | None, error: str | None) -> None:
         state = f"failed: {error}" if error else f"{seconds:.1f} s"
