@@ -135,6 +135,9 @@ def test_dem_and_ann_runs_resume_bit_for_bit(tmp_path, backend, dim):
     if backend == "ann":
         assert models[0].ood_counts[1] > 0
         assert models[-1].ood_counts.tolist() == models[0].ood_counts.tolist()
+        # from the last increment's checkpoint: no step taken, and which code ran the step is still known (run.h5)
+        assert_same_record(run(stopping_at(None), RunCheckpoint(tmp_path / "run.ckpt.h5", {"case": 1}, 0.0)), whole)
+        assert models[-1].fast.step_path == models[0].fast.step_path is not None
 
 
 def run_h5(path: Path) -> dict[str, bytes]:
@@ -176,8 +179,10 @@ def test_a_killed_biaxial_command_resumes_with_the_uninterrupted_result(tmp_path
 
     changed = [("2e-4" if value == "1e-4" else value) for value in argv]  # another --increment
     assert cli.run_main(biaxial.main, [*changed, "--out", str(out)]) == 2
-    assert "other settings (flags, programme): run that command again to resume it, or add --restart" in \
-        capsys.readouterr().err
+    assert "other settings (flags.increment, programme.steps): run that command again to resume it, or add " \
+        "--restart" in capsys.readouterr().err
+    assert cli.run_main(biaxial.main, [*argv[2:], "--backend", "dem", "--out", str(out)]) == 2  # not the analytical's
+    assert "holds the checkpoint of an interrupted run of other backends (analytical)" in capsys.readouterr().err
     shutil.copytree(resume, tmp_path / ".other.resume")
     assert cli.run_main(biaxial.main, [*argv, "--out", str(out)]) == 0
     assert not resume.exists()
@@ -204,3 +209,33 @@ def test_a_run_it_cannot_keep_runs_without_a_checkpoint_and_says_so(tmp_path):
         record = driver.run(AnalyticalCell(LAW, 0.5), programme, mesostructure=h_cell(55.0, 0.5), n_orientations=6,
                             renewal=lambda points: Unknown(), checkpoint=RunCheckpoint(path, {}, 0.0))
     assert record.n_increments > 10 and not path.exists()
+
+
+def test_a_backend_that_others_follow_keeps_its_last_increment(tmp_path):
+    """Without ``keep_last`` a run shorter than the interval saves nothing; with it (every backend of a command
+    but the last) its finished state is kept, so an interruption in a later backend does not run it again."""
+    programme = programmes.biaxial(1e6, 1e-3, 1e-4, iso_increment=1e-4)
+    for keep in (False, True):
+        checkpoint = RunCheckpoint(tmp_path / f"{keep}.h5", {}, 1e9)
+        checkpoint.keep_last = keep
+        record = driver.run(AnalyticalCell(LAW, 0.5), programme, mesostructure=h_cell(55.0, 0.5), n_orientations=6,
+                            checkpoint=checkpoint)
+        assert checkpoint.exists() == keep
+    assert checkpoint.progress() == (record.n_increments, len(programme))
+
+
+def test_the_key_holds_the_cells_geometry_and_the_model_files(tmp_path):
+    """An edited mesostructure file (same path) or ANN sidecar file resumed a checkpoint of the old ones."""
+    import json
+
+    from homogenization.cli.run_files import run_checkpoints
+
+    args = biaxial.build_parser().parse_args(["--out", str(tmp_path / "run")])
+    programme = programmes.biaxial(1e6, 1e-3, 1e-4)
+    models, options = {"analytical": AnalyticalCell(LAW, 0.5)}, {"analytical": {}}
+    keys = [json.loads(run_checkpoints(args, models, options, LAW, h_cell(a, 0.5), programme)["analytical"].key)
+            for a in (55.0, 56.0)]
+    assert keys[0]["mesostructure_sha256"] != keys[1]["mesostructure_sha256"]
+    ann = make_cell_model("ann", contact_law=LAW, radius=0.5)
+    key = json.loads(run_checkpoints(args, {"ann": ann}, {"ann": {}}, LAW, h_cell(55.0, 0.5), programme)["ann"].key)
+    assert {name.endswith("_ood.npz") for name in key["model_files"]} == {True, False}

@@ -195,7 +195,8 @@ def add_checkpoint_arguments(parser: argparse.ArgumentParser) -> None:
     """--checkpoint-seconds and --restart of the run commands (``run_files.run_checkpoints``)."""
     group = parser.add_argument_group("interruption and resume")
     group.add_argument("--checkpoint-seconds", type=non_negative_float, default=CHECKPOINT_SECONDS, metavar="S",
-                       help="save the run's state every S s of wall time (0: after every increment) in .OUT.resume "
+                       help="save the run's state every S s of wall time (0: after every increment, each save "
+                            "writing the whole state and history) in .OUT.resume "
                             "next to --out; the same command run again after an interruption resumes from it and "
                             "gives the uninterrupted run's result")
     group.add_argument("--restart", action="store_true",

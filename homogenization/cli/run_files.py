@@ -25,6 +25,7 @@ folder, the parameters and the status line of each backend's run.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import shutil
 import sys
 import time
@@ -43,8 +44,9 @@ from homogenization.element_test.driver import Record
 from homogenization.material.density import DensityMap, default_map
 from homogenization.ann.envelope import summary as envelope_summary
 from warp_hcell.core.cli import quiet_warp, say, UserError, writing_to
-from warp_hcell.core.files import check_output_path
+from warp_hcell.core.files import TEMPORARY_SUFFIX, check_output_path
 from warp_hcell.core.parameters import ContactLaw
+from warp_hcell.mesostructures.files import describe, description_sha256
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 
@@ -361,12 +363,20 @@ def run_checkpoints(args: argparse.Namespace, models: dict[str, Any], options: d
     folder = checkpoint_folder(args.out)
     if args.restart and folder.exists():
         shutil.rmtree(folder)
+    others = sorted(p.stem for p in folder.glob("*.h5") if p.stem not in models)
+    if others:
+        raise UserError(f"{folder} holds the checkpoint of an interrupted run of other backends ({', '.join(others)}): "
+                        f"run that command again to resume it, or add --restart to discard it")
+    for stale in folder.glob(f".*{TEMPORARY_SUFFIX}"):  # of a save that a kill -9 cut short
+        stale.unlink()
     common = {"flags": {k: _key_value(v) for k, v in vars(args).items() if k not in _NOT_IN_KEY},
-              "programme": programmes.to_dict(programme)}
+              "programme": programmes.to_dict(programme), "mesostructure_sha256": description_sha256(describe(meso))}
     checkpoints = {}
     for name, model in models.items():
-        key = {**common, "backend": backend_parameters(name, model, options[name], law, args.radius, meso)}
+        key = {**common, "backend": backend_parameters(name, model, options[name], law, args.radius, meso),
+               "model_files": _model_files(model)}
         checkpoint = driver.RunCheckpoint(folder / f"{name}.h5", key, args.checkpoint_seconds)
+        checkpoint.keep_last = name != list(models)[-1]
         if checkpoint.exists():
             try:
                 checkpoint.check()
@@ -374,6 +384,17 @@ def run_checkpoints(args: argparse.Namespace, models: dict[str, Any], options: d
                 raise UserError(f"{exc}: run that command again to resume it, or add --restart to discard it") from None
         checkpoints[name] = checkpoint
     return checkpoints
+
+
+def _model_files(model: Any) -> dict[str, str]:
+    """sha256 of the files of a model read from a file (``model_path``: its network, out-of-distribution index,
+    certificate...: every file of its folder named after it); {} for other models."""
+    path = getattr(model, "model_path", None)
+    if path is None:
+        return {}
+    path = Path(path)
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(path.parent.glob(f"{path.stem}*"))
+            if p.is_file()}
 
 
 def run_backends(args: argparse.Namespace, models: dict[str, Any], options: dict[str, dict[str, Any]],
@@ -404,23 +425,26 @@ def run_backends(args: argparse.Namespace, models: dict[str, Any], options: dict
     written: list[str] = []
     for name, model in models.items():
         start = time.perf_counter()
-        if checkpoints[name].exists():
+        resumed = checkpoints[name].exists()
+        if resumed:
             done, stages = checkpoints[name].progress()
             say(f"{name}: resuming from {checkpoints[name].path} ({done} increments, {stages} stages finished)")
         try:
-            record = run(model, checkpoints[name])
-        except driver.ControlError as exc:
-            raise UserError(f"{name}: {exc}") from None
+            try:
+                record = run(model, checkpoints[name])
+            except driver.ControlError as exc:
+                raise UserError(f"{name}: {exc}") from None
+            elapsed = time.perf_counter() - start
+            stored[name] = {**backend_parameters(name, model, options[name], law, args.radius, meso),
+                            **parameters(record)}
+            note = backend_note(model) + (", resumed: the time is this process's" if resumed else "")
+            if name == "ann":
+                note += envelope_note(model, record, meso, stored[name]["ann_model"])
+            written.append(write_backend_run(work, args.out, name, record, stored[name], several=len(models) > 1,
+                                             seed=args.seed, command=command, elapsed=elapsed, note=note))
         except KeyboardInterrupt:
             if not any(checkpoint.exists() for checkpoint in checkpoints.values()):
                 raise
             raise KeyboardInterrupt(f"the same command resumes from {checkpoint_folder(args.out)}") from None
-        elapsed = time.perf_counter() - start
-        stored[name] = {**backend_parameters(name, model, options[name], law, args.radius, meso), **parameters(record)}
-        note = backend_note(model)
-        if name == "ann":
-            note += envelope_note(model, record, meso, stored[name]["ann_model"])
-        written.append(write_backend_run(work, args.out, name, record, stored[name], several=len(models) > 1,
-                                         seed=args.seed, command=command, elapsed=elapsed, note=note))
         records[name] = record
     return records, stored, written

@@ -1,8 +1,8 @@
 """Checkpoints of an element test, so that a killed run resumes where it stopped with the same result.
 
-``RunCheckpoint(path, key, seconds)`` is handed to ``driver.run``: after a recorded increment (the last
-included), once ``seconds`` of wall time have passed since the last save (0: after every increment), the
-run's whole state is written to ``path`` (HDF5, atomically: a kill during the write leaves
+``RunCheckpoint(path, key, seconds)`` is handed to ``driver.run``: after a recorded increment, once
+``seconds`` of wall time have passed since the last save (0: after every increment; after the last
+increment also where ``keep_last``), the run's whole state is written to ``path`` (HDF5, atomically: a kill during the write leaves
 the previous checkpoint): the material points' state (the cells' ``state_to_arrays``, J, strain, stress,
 the largest stress so far), the stage and increment reached with the stage's solver state
 (``stages.StageState``), the recorded history (``record.History``), the jumps taken, the wall time so far,
@@ -78,6 +78,16 @@ def _monitor(points: MaterialPoints) -> Any:
     return getattr(points.model, "ood_monitor", None)
 
 
+_STEP_PROVENANCE = ("step_path", "precompiled_reason", "precompiled_loader")
+"""Which code ran the ANN's fused step (``training.inference``): set by its first step, so kept for a run resumed
+from its last increment, which takes none."""
+
+
+def _step_provenance(points: MaterialPoints) -> dict[str, Any]:
+    fast = getattr(points.model, "fast", None)
+    return {} if fast is None or fast.step_path is None else {k: getattr(fast, k) for k in _STEP_PROVENANCE}
+
+
 class RunCheckpoint:
     """Where and how often an element test saves itself (module docstring).
 
@@ -92,6 +102,8 @@ class RunCheckpoint:
             raise ValueError(f"checkpoint interval {seconds} s must be >= 0")
         self.path, self.seconds = Path(path), float(seconds)
         self.key = json.dumps(dict(key), sort_keys=True, default=str)
+        self.keep_last = False
+        """Also save after the last increment when not due (a backend that other backends of the command follow)."""
         self._last = time.monotonic()
         self.saves = 0
         """Checkpoints written by this object."""
@@ -110,9 +122,9 @@ class RunCheckpoint:
         if fmt != FORMAT:
             raise UserError(f"{self.path} is no element-test checkpoint (format {fmt!r})")
         if stored != self.key:
-            old, new = json.loads(stored), json.loads(self.key)
-            differ = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
-            raise UserError(f"checkpoint {self.path} was written with other settings ({', '.join(differ)})")
+            differ = _differences(json.loads(stored), json.loads(self.key))
+            raise UserError(f"checkpoint {self.path} was written with other settings ({', '.join(differ[:6])}"
+                            f"{', ...' if len(differ) > 6 else ''})")
 
     def progress(self) -> tuple[int, int]:
         """(increments recorded, stages finished) that the checkpoint holds."""
@@ -130,7 +142,8 @@ class RunCheckpoint:
         last), the wall time ``seconds`` of every stage so far."""
         points, k = solver.points, history.k
         with atomic_write(self.path) as tmp, h5py.File(tmp, "w") as f:
-            f.attrs.update(format=FORMAT, key=self.key, k=k, stage=stage)
+            f.attrs.update(format=FORMAT, key=self.key, k=k, stage=stage,
+                           step_provenance=json.dumps(_step_provenance(points)))
             _put(f.create_group("cells"), points.model.state_to_arrays(points.state.cells))
             _put(f.create_group("points"), {
                 "J": points.state.J, "strain": points.state.strain, "stress": points.state.stress,
@@ -183,8 +196,18 @@ class RunCheckpoint:
                 _restore_object(points.renewal, _get(f["renewal"]))
             if "monitor" in f:
                 _restore_object(_monitor(points), _get(f["monitor"]))
+            for name, value in json.loads(f.attrs["step_provenance"]).items():
+                setattr(points.model.fast, name, value)  # a step of this process sets them again
         self._last = time.monotonic()
         return stage, p["stage_stress"], at, p["seconds"]
+
+
+def _differences(old: Any, new: Any, where: str = "") -> list[str]:
+    """The dotted names of the entries that differ between two JSON values (mappings compared entry by entry)."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        return [name for k in sorted(set(old) | set(new), key=str)
+                for name in _differences(old.get(k), new.get(k), f"{where}.{k}" if where else str(k))]
+    return [] if old == new else [where or "key"]
 
 
 def _put(group: h5py.Group, arrays: Mapping[str, Any]) -> None:

@@ -179,6 +179,6 @@ def run_stages(solver: StressControl, stages: Iterable[Step | Plan], history: Hi
         unreached |= short
         history.snapshot(points, stage)
         seconds[stage] = time.perf_counter() - start
-    if checkpoint is not None and checkpoint.due():
+    if checkpoint is not None and (checkpoint.due() or checkpoint.keep_last):
         checkpoint.save(solver, history, len(stages), points.stress, None, seconds)
     return seconds, fallback, unreached
