@@ -355,3 +355,19 @@ def test_a_python_warning_in_a_command_is_one_line():
     done = subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONPATH": str(ROOT)},
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stderr == "hmodel: warning: a warning over two lines\n", done.stderr
+
+
+def test_a_kill_lost_in_a_destructor_is_delivered_again():
+    """Python ignores a KeyboardInterrupt raised inside ``__del__`` or a weakref callback (Warp's arrays have them):
+    a ``kill`` of a DEM run was lost there and the run went on to exit 0; the signal is sent again."""
+    class Swallowing:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.1)  # the handler runs here, and its KeyboardInterrupt is ignored
+
+    start = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        with files.sigterm_as_interrupt():
+            Swallowing()
+            time.sleep(5.0)
+    assert time.monotonic() - start < 3.0

@@ -33,7 +33,7 @@ from homogenization.element_test.stages import StageState
 from homogenization.material.critical_state import Renewal
 from homogenization.material.homogenised import MaterialState
 from warp_hcell.core.errors import UserError
-from warp_hcell.core.files import atomic_write
+from warp_hcell.core.files import atomic_write, stored_settings_differ
 
 FORMAT = "hmodel-element-test-checkpoint/1"
 _LOGS = ("log",)
@@ -114,15 +114,8 @@ class RunCheckpoint:
 
     def check(self) -> None:
         """UserError (one line) unless the checkpoint is readable and was written with this key."""
-        try:
-            with h5py.File(self.path, "r") as f:
-                fmt, stored = f.attrs.get("format"), f.attrs.get("key")
-        except OSError as exc:
-            raise UserError(f"cannot read checkpoint {self.path}: {exc}") from None
-        if fmt != FORMAT:
-            raise UserError(f"{self.path} is no element-test checkpoint (format {fmt!r})")
-        if stored != self.key:
-            differ = _differences(json.loads(stored), json.loads(self.key))
+        differ = stored_settings_differ(self.path, FORMAT, "key", self.key)
+        if differ:
             raise UserError(f"checkpoint {self.path} was written with other settings ({', '.join(differ[:6])}"
                             f"{', ...' if len(differ) > 6 else ''})")
 
@@ -200,14 +193,6 @@ class RunCheckpoint:
                 setattr(points.model.fast, name, value)  # a step of this process sets them again
         self._last = time.monotonic()
         return stage, p["stage_stress"], at, p["seconds"]
-
-
-def _differences(old: Any, new: Any, where: str = "") -> list[str]:
-    """The dotted names of the entries that differ between two JSON values (mappings compared entry by entry)."""
-    if isinstance(old, dict) and isinstance(new, dict):
-        return [name for k in sorted(set(old) | set(new), key=str)
-                for name in _differences(old.get(k), new.get(k), f"{where}.{k}" if where else str(k))]
-    return [] if old == new else [where or "key"]
 
 
 def _put(group: h5py.Group, arrays: Mapping[str, Any]) -> None:

@@ -22,7 +22,7 @@ import numpy as np
 from homogenization.fe.solver import StepResult
 from homogenization.material.homogenised import HomogenisedMaterial, MaterialState
 from warp_hcell.core.errors import UserError
-from warp_hcell.core.files import atomic_write
+from warp_hcell.core.files import atomic_write, stored_settings_differ
 
 FORMAT = "hmodel-bvp-checkpoint/1"
 _ARRAYS = ("displacement", "strain", "stress", "opening", "open_fraction")
@@ -55,16 +55,8 @@ class Checkpoint:
 
     def check(self) -> None:
         """UserError (one line) unless the checkpoint is readable and was written with these parameters."""
-        try:
-            with h5py.File(self.path, "r") as f:
-                fmt, stored = f.attrs.get("format"), f.attrs.get("parameters")
-        except OSError as exc:
-            raise UserError(f"cannot read checkpoint {self.path}: {exc}") from None
-        if fmt != FORMAT:
-            raise UserError(f"{self.path} is no bvp checkpoint (format {fmt!r})")
-        if stored != self.parameters:
-            old, new = json.loads(stored), json.loads(self.parameters)
-            differ = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        differ = stored_settings_differ(self.path, FORMAT, "parameters", self.parameters)
+        if differ:
             raise UserError(f"checkpoint {self.path} was written with other settings ({', '.join(differ)}); "
                             f"resume with the same flags")
 

@@ -14,15 +14,17 @@ from __future__ import annotations
 import ctypes
 import errno
 import fcntl
+import json
 import os
 import re
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 from warp_hcell.core.errors import UserError
 
@@ -105,18 +107,35 @@ def _sibling(path: Path, tag: str) -> Path:
     return path.parent / f".{path.name}.{tag}"
 
 
+REDELIVER_S = 0.5
+"""Seconds after which ``sigterm_as_interrupt`` sends an interrupting signal again while its KeyboardInterrupt has
+not left the body: Python ignores one raised inside a weakref callback or ``__del__`` (Warp's arrays have them), so
+a ``kill`` of a DEM run could be lost and the run go on."""
+_INTERRUPTING = threading.Event()
+
+
 @contextmanager
 def sigterm_as_interrupt() -> Iterator[None]:
-    """Turn SIGTERM into KeyboardInterrupt for the body (main thread only), so that ``kill``
-    runs the same clean-up as Ctrl-C; the previous handler is restored afterwards."""
+    """Turn SIGTERM (and SIGINT) into KeyboardInterrupt for the body (main thread only), so that ``kill``
+    runs the same clean-up as Ctrl-C, the signal sent again every ``REDELIVER_S`` until the interrupt has left
+    the body (a lost one is not printed); the previous handlers are restored afterwards."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in (signal.SIGTERM, signal.SIGINT)}
+    hook = sys.unraisablehook
+
+    def quiet(unraisable: Any) -> None:  # a lost interrupt is sent again: no traceback of it on stderr
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+            hook(unraisable)
+    sys.unraisablehook = quiet
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        _INTERRUPTING.clear()
+        sys.unraisablehook = hook
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 @contextmanager
@@ -207,4 +226,41 @@ def output_folder(path: Path) -> Iterator[Path]:
 
 
 def _raise_interrupt(signum, frame) -> None:
+    _INTERRUPTING.set()
+    timer = threading.Timer(REDELIVER_S, _redeliver, (signum,))
+    timer.daemon = True
+    timer.start()
     raise KeyboardInterrupt
+
+
+def _redeliver(signum: int) -> None:
+    """The interrupting signal again, where its KeyboardInterrupt was lost (``REDELIVER_S``)."""
+    if _INTERRUPTING.is_set():
+        os.kill(os.getpid(), signum)
+
+
+def stored_settings_differ(path: Path, fmt: str, attribute: str, settings: str) -> list[str]:
+    """The dotted names of the settings (JSON text ``settings``) that differ from those stored as JSON in the
+    attribute ``attribute`` of the HDF5 file ``path`` (a checkpoint); [] where equal.
+
+    Raises:
+        UserError: (one line) the file cannot be read, or its ``format`` attribute is not ``fmt``.
+    """
+    import h5py  # noqa: PLC0415 (the file helpers above need no HDF5)
+
+    try:
+        with h5py.File(path, "r") as f:
+            found, stored = f.attrs.get("format"), f.attrs.get(attribute)
+    except OSError as exc:
+        raise UserError(f"cannot read checkpoint {path}: {exc}") from None
+    if found != fmt:
+        raise UserError(f"{path} is no {fmt} file (format {found!r})")
+    return [] if stored == settings else _differences(json.loads(stored), json.loads(settings))
+
+
+def _differences(old: Any, new: Any, where: str = "") -> list[str]:
+    """The dotted names of the entries that differ between two JSON values (mappings compared entry by entry)."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        return [name for k in sorted(set(old) | set(new), key=str)
+                for name in _differences(old.get(k), new.get(k), f"{where}.{k}" if where else str(k))]
+    return [] if old == new else [where or "settings"]
