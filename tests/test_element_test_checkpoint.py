@@ -239,3 +239,20 @@ def test_the_key_holds_the_cells_geometry_and_the_model_files(tmp_path):
     ann = make_cell_model("ann", contact_law=LAW, radius=0.5)
     key = json.loads(run_checkpoints(args, {"ann": ann}, {"ann": {}}, LAW, h_cell(55.0, 0.5), programme)["ann"].key)
     assert {name.endswith("_ood.npz") for name in key["model_files"]} == {True, False}
+
+
+def test_a_file_given_as_a_flag_is_keyed_by_its_content(tmp_path):
+    """A --posterior (or any file flag) rewritten between the interrupted run and the rerun resumed and mixed them."""
+    import json
+
+    from homogenization.cli.run_files import run_checkpoints
+
+    given = tmp_path / "programme.json"
+    models, options = {"analytical": AnalyticalCell(LAW, 0.5)}, {"analytical": {}}
+    keys = []
+    for text in ("one", "two"):
+        given.write_text(text)
+        args = biaxial.build_parser().parse_args(["--out", str(tmp_path / "run"), "--programme", str(given)])
+        checkpoint = run_checkpoints(args, models, options, LAW, h_cell(55.0, 0.5), programmes.biaxial(1e6, 1e-3, 1e-4))
+        keys.append(json.loads(checkpoint["analytical"].key)["flags"]["programme"])
+    assert keys[0]["path"] == keys[1]["path"] and keys[0]["sha256"] != keys[1]["sha256"]

@@ -103,6 +103,11 @@ def test_comments_are_ignored_whatever_their_bytes_a_data_line_is_not(tmp_path, 
     code = run_main(calibrate.main, ["--data", str(bad), "--params", "phi_g", "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "a.csv, line 5: not UTF-8 text" in err
+    indented = write_bytes(tmp_path / "b.csv", GOOD.encode().replace(b"\n", b"\n   ").replace(b"9e5", b"9e5\xb0"))
+    with pytest.raises(ValueError, match=r"line 5: not UTF-8 text \(byte 0xb0 at column (\d+)\)") as caught:
+        read_test(indented)
+    column = indented.read_bytes().split(b"\n")[4].index(b"\xb0") + 1
+    assert f"at column {column})" in str(caught.value) and column > 4  # counted as written, indent included
 
 
 def write_bytes(path: Path, data: bytes) -> Path:

@@ -94,7 +94,7 @@ def read_test(path: Path) -> Measurement:
     rows: list[list[float]] = []
     numbers: list[int] = []
     for number, raw in enumerate(lines, start=1):
-        line = _text(path, number, raw.strip()).strip()
+        line = _text(path, number, raw).strip()
         if not line:
             continue
         if line.startswith("#"):
@@ -190,10 +190,10 @@ def _check_units(path: Path, p0: float, columns: dict[str, np.ndarray], numbers:
 
 
 def _text(path: Path, number: int, line: bytes) -> str:
-    """The stripped line ``number`` of ``path`` as text: a comment's bytes that are not UTF-8 (a lab's Latin-1 note)
-    are replaced, as the comment is ignored (a key's value is then not a number, refused); ValueError (one line) for
-    those of any other line."""
-    if line.startswith(b"#"):
+    """The line ``number`` of ``path`` as text: a comment's bytes that are not UTF-8 (a lab's Latin-1 note)
+    are replaced, as the comment is ignored (a key's value is then not a number, refused); ValueError (one line,
+    the byte's column counted in the line as written) for those of any other line."""
+    if line.lstrip().startswith(b"#"):
         return line.decode("utf-8", errors="replace")
     try:
         return line.decode("utf-8")

@@ -333,8 +333,9 @@ def build_models(args: argparse.Namespace, law: ContactLaw, meso: Mesostructure,
 CHECKPOINT_TAG = "resume"
 """The hidden folder ``.OUT.resume`` next to --out holds a run's checkpoints, one ``BACKEND.h5`` per backend."""
 _NOT_IN_KEY = ("quiet", "verbose", "overwrite", "restart", "checkpoint_seconds", "out", "deviator", "fourth_panel",
-               "normalise", "csl")
-"""Flags that change no run's arithmetic (the figure's, the output's, the verbosity): a resumed command may differ in them."""
+               "normalise", "csl", "uncertified_ok", "posterior_band")
+"""Flags that change no run's arithmetic (the figure's, the band's, the output's, the verbosity, the certificate's
+refusal): a resumed command may differ in them."""
 
 
 def checkpoint_folder(out: Path) -> Path:
@@ -343,9 +344,11 @@ def checkpoint_folder(out: Path) -> Path:
 
 
 def _key_value(value: Any) -> Any:
-    """A flag's value as the checkpoint key stores it: paths and mesostructures as text, tuples as lists."""
+    """A flag's value as the checkpoint key stores it: a file as its path and sha256 (e.g. --posterior), other
+    paths and mesostructures as text, tuples as lists."""
     if isinstance(value, Path):
-        return str(value)
+        return {"path": str(value), "sha256": hashlib.sha256(value.read_bytes()).hexdigest()} if value.is_file() \
+            else str(value)
     if isinstance(value, (tuple, list)):
         return [_key_value(v) for v in value]
     return getattr(value, "text", value)
@@ -381,7 +384,9 @@ def run_checkpoints(args: argparse.Namespace, models: dict[str, Any], options: d
             try:
                 checkpoint.check()
             except UserError as exc:
-                raise UserError(f"{exc}: run that command again to resume it, or add --restart to discard it") from None
+                advice = ("run that command again to resume it, or add --restart to discard it"
+                          if "other settings" in str(exc) else "add --restart to discard it")
+                raise UserError(f"{exc}: {advice}") from None
         checkpoints[name] = checkpoint
     return checkpoints
 
