@@ -105,8 +105,6 @@ class RunCheckpoint:
         self.keep_last = False
         """Also save after the last increment when not due (a backend that other backends of the command follow)."""
         self._last = time.monotonic()
-        self.saves = 0
-        """Checkpoints written by this object."""
 
     def exists(self) -> bool:
         """Whether the checkpoint file is there."""
@@ -159,7 +157,6 @@ class RunCheckpoint:
             if _monitor(points) is not None:
                 _put(f.create_group("monitor"), _object_state(_monitor(points)))
         self._last = time.monotonic()
-        self.saves += 1
 
     def load(self, solver: StressControl, history: History) -> tuple[int, np.ndarray, StageState | None, np.ndarray]:
         """Put the saved state into ``solver.points``, ``solver`` and ``history`` (made as for a new run); returns
