@@ -5,7 +5,7 @@ and its perceptron one fixed sequence of float32 fused multiply-adds per cell, w
 vector width numba compiles for (``NUMBA_CPU_NAME``). The network here is the H-cell's with
 weights drawn by numpy (torch's initialisation is not needed), so the digest does not move when
 the shipped model is regenerated. ``make determinism`` runs this under every CPU-feature
-setting, ``NUMBA_CPU_NAME`` = generic, haswell and skylake-avx512 among them (docs/determinism.md).
+setting, ``NUMBA_CPU_NAME`` = generic and haswell among them (docs/determinism.md).
 """
 
 import hashlib
