@@ -12,6 +12,7 @@ import pytest
 from homogenization.calibration import bayes, resolution
 from homogenization.calibration.data import read_test
 from homogenization.calibration.forward import ForwardSettings
+from homogenization.calibration.start import far_above_noise
 from homogenization.calibration.synthetic import synthetic_test, write_test
 from homogenization.cli import calibrate
 from warp_hcell.core.cli import run_main
@@ -61,6 +62,10 @@ def test_known_truth_lies_inside_the_intervals_with_the_default_increment(tmp_pa
     assert res["optimum"]["passed"]
     assert not run["misfit_against_noise"]["far_above_noise"]
     assert "converged" in run["sampler"]["autocorrelation"]
+    start, limit = run["start"], far_above_noise(run["start"]["residuals"], len(TRUTH))
+    chi_squares = [fit["chi_square"] for fit in start["fits"]]  # the first starts miss far above the noise here:
+    assert 0 < start["more_fits"] < start["prior_draws"] - start["least_squares_starts"]  # more fits, not all draws,
+    assert chi_squares[-1] <= limit < min(chi_squares[:-1]) and start["chi_square"] == chi_squares[-1]  # up to the first within
     check_band_is_corrected(tmp_path / "run")
 
 

@@ -21,8 +21,8 @@ ten-sphere cell's smallest opening; ``bayes.Posterior.feasible``) gets ``FAILED_
 run, counted in ``infeasible``, and a Jacobian step that would leave the cut goes the other way;
 the walkers' ball is drawn again where it leaves the cut. Where the best of the ``MAP_STARTS`` fits
 misses the data far above their noise (``MAP_MISFIT_QUANTILE``; e.g. a secondary mode, which a
-narrow, curved valley of the posterior can hold), the start also fits from each of the other
-draws (recorded as ``more_fits``) and keeps the best.
+narrow, curved valley of the posterior can hold), the start also fits from the other draws, best
+first, until a fit is within that quantile (recorded as ``more_fits``), and keeps the best fit.
 """
 
 from __future__ import annotations
@@ -48,7 +48,8 @@ MAP_BALL = 1e-2
 coordinates [-]."""
 MAP_MISFIT_QUANTILE = 0.999
 """Where the best fit's chi-square is above this quantile of chi-square (residuals - parameters degrees of
-freedom), far above the noise, the ``map`` start also fits from every other of its ``MAP_DRAWS`` draws [-]."""
+freedom), far above the noise, the ``map`` start also fits from its other ``MAP_DRAWS`` draws until a fit is
+below it [-]."""
 FAILED_RESIDUAL = 1e3
 """Residual [sigma] given to every point of a parameter set whose forward model failed [-]."""
 
@@ -159,11 +160,13 @@ def map_start(log_post: bayes.Posterior, n_walkers: int, rng: np.random.Generato
     fits = [least_squares_fit(res, x0, lo, hi, log_post.feasible) for x0 in starts]
     best_chi2, best = min(fits, key=lambda item: item[0])
     more = 0
-    if best_chi2 > far_above_noise(res.n_residuals, len(prior.names)):
-        others = draws[np.argsort(cost, kind="stable")[MAP_STARTS:]]
-        fits += [least_squares_fit(res, x0, lo, hi, log_post.feasible) for x0 in others]
-        more = len(others)
-        best_chi2, best = min(fits, key=lambda item: item[0])
+    limit = far_above_noise(res.n_residuals, len(prior.names))
+    for x0 in draws[np.argsort(cost, kind="stable")[MAP_STARTS:]] if best_chi2 > limit else ():
+        fits.append(least_squares_fit(res, x0, lo, hi, log_post.feasible))
+        more += 1
+        if fits[-1][0] <= limit:
+            break
+    best_chi2, best = min(fits, key=lambda item: item[0])
     centre = best.x
     ball = np.clip(centre + width * laplace_draws(best.jac * width, rng, n_walkers), lo, hi)
     redrawn = 0
