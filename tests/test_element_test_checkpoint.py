@@ -258,3 +258,22 @@ def test_a_file_given_as_a_flag_is_keyed_by_its_content(tmp_path):
         checkpoint = run_checkpoints(args, models, options, LAW, h_cell(55.0, 0.5), programmes.biaxial(1e6, 1e-3, 1e-4))
         keys.append(json.loads(checkpoint["analytical"].key)["flags"]["programme"])
     assert keys[0]["path"] == keys[1]["path"] and keys[0]["sha256"] != keys[1]["sha256"]
+
+
+def test_a_resumed_ann_run_says_the_out_of_distribution_warning_of_the_interrupted_one(tmp_path):
+    """The warning is said once per run, when the cumulative fraction first exceeds the threshold: a run resumed after
+    it says it again (its restored counts are past it), as the user of the resumed process would otherwise not know."""
+    programme = programmes.biaxial(1e6, 0.3, 5e-3, iso_increment=2e-4)  # 30 % strain: far beyond the database
+
+    def run(progress, checkpoint):
+        model = make_cell_model("ann", contact_law=LAW, radius=0.5, dim=2, ood_interval=1)
+        return driver.run(model, programme, mesostructure=plain_h_cell(2, 55.0, 0.5), n_orientations=6,
+                          progress=progress, checkpoint=checkpoint)
+
+    with pytest.warns(RuntimeWarning, match="beyond the out-of-distribution threshold"):
+        whole = run(False, None)
+    path = tmp_path / "run.ckpt.h5"
+    with pytest.warns(RuntimeWarning, match="beyond the out-of-distribution threshold"), pytest.raises(Stop):
+        run(stopping_at(whole.n_increments - 2), RunCheckpoint(path, {"case": 1}, 0.0))
+    with pytest.warns(RuntimeWarning, match="beyond the out-of-distribution threshold"):
+        assert_same_record(run(stopping_at(None), RunCheckpoint(path, {"case": 1}, 0.0)), whole)

@@ -4,7 +4,8 @@ With the index file beside the model (``training.ood.index_path``), every ``inte
 start state of the cell's ``step`` is checked: its cells' z-scored state features are compared with
 the indexed database states. A step's diagnostics then hold ``n_ood_checked`` (cells checked at this
 increment: n_cells or 0) and ``n_ood`` (those beyond the index's threshold). Once the cumulative
-fraction exceeds ``training.ood.WARN_FRACTION`` one ``RuntimeWarning`` says so. Without an index file
+fraction exceeds ``training.ood.WARN_FRACTION`` one ``RuntimeWarning`` says so (again in a run resumed
+from a checkpoint past it: ``resumed``). Without an index file
 the two counts are absent and ``index`` is None.
 """
 
@@ -77,10 +78,18 @@ class OodMonitor:
         self.counts += (n_out, features.shape[0])
         if not self._warned and self.counts[0] > WARN_FRACTION * self.counts[1]:
             self._warned = True
-            warnings.warn(f"ann: {self.counts[0]} of {self.counts[1]} checked cell-increments lie beyond the "
-                          f"out-of-distribution threshold of {self.path.name} (> {WARN_FRACTION:.0%}): the "
-                          f"network extrapolates (diagnostics n_ood, n_ood_checked)", RuntimeWarning, stacklevel=4)
+            self._warn(stacklevel=5)
         return float(n_out), float(features.shape[0])
+
+    def _warn(self, stacklevel: int) -> None:
+        warnings.warn(f"ann: {self.counts[0]} of {self.counts[1]} checked cell-increments lie beyond the "
+                      f"out-of-distribution threshold of {self.path.name} (> {WARN_FRACTION:.0%}): the "
+                      f"network extrapolates (diagnostics n_ood, n_ood_checked)", RuntimeWarning, stacklevel=stacklevel)
+
+    def resumed(self) -> None:
+        """After the counts of an interrupted run were restored (a checkpoint): its warning again, where it was said."""
+        if self._warned:
+            self._warn(stacklevel=3)
 
     def diagnostics(self, due: bool | None, state: Any, features: np.ndarray | None) -> dict[str, float]:
         """``n_ood``, ``n_ood_checked`` of this call (zeros where its state is not checked); {} without an index.

@@ -186,6 +186,7 @@ class RunCheckpoint:
                 _restore_object(points.renewal, _get(f["renewal"]))
             if "monitor" in f:
                 _restore_object(_monitor(points), _get(f["monitor"]))
+                _monitor(points).resumed()  # its warning, which the interrupted process said
             for name, value in json.loads(f.attrs["step_provenance"]).items():
                 setattr(points.model.fast, name, value)  # a step of this process sets them again
         self._last = time.monotonic()
