@@ -277,3 +277,25 @@ def test_a_resumed_ann_run_says_the_out_of_distribution_warning_of_the_interrupt
         run(stopping_at(whole.n_increments - 2), RunCheckpoint(path, {"case": 1}, 0.0))
     with pytest.warns(RuntimeWarning, match="beyond the out-of-distribution threshold"):
         assert_same_record(run(stopping_at(None), RunCheckpoint(path, {"case": 1}, 0.0)), whole)
+
+
+def test_an_interruption_while_the_figure_is_drawn_says_where_the_command_resumes(tmp_path, capsys, monkeypatch):
+    """After the runs, before the output is in place (band, figure), the checkpoints are still there: the one line
+    says so, and the same command then writes the output from them."""
+    from homogenization.output import figures  # noqa: PLC0415
+
+    argv = ["--backend", "analytical", "--orientations", "6", "--p0", "1e6", "--eps-max", "2e-3", "--increment",
+            "2e-4", "--checkpoint-seconds", "0", "-q", "--out", str(tmp_path / "run")]
+    save = figures.save_figure
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(figures, "save_figure", interrupted)
+    assert cli.run_main(biaxial.main, argv) == 130
+    resume = tmp_path / ".run.resume"
+    assert capsys.readouterr().err.strip().endswith(f"interrupted; the same command resumes from {resume}")
+    assert (resume / "analytical.h5").is_file() and not (tmp_path / "run").exists()
+    monkeypatch.setattr(figures, "save_figure", save)
+    assert cli.run_main(biaxial.main, argv) == 0
+    assert (tmp_path / "run" / "curve.csv").is_file() and not resume.exists()

@@ -60,7 +60,7 @@ from homogenization.cli.options import (
     add_void_ratio_arguments,
     command_parser,
 )
-from homogenization.cli.run_files import build_models, check_run, checkpoint_folder, refuse_programme_flags, resolve_void_ratio, run_backends, run_checkpoints, shear_iso_increment
+from homogenization.cli.run_files import build_models, check_run, checkpoint_folder, refuse_programme_flags, resolve_void_ratio, resumable, run_backends, run_checkpoints, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -203,7 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         checkpoints = run_checkpoints(args, models, options, law, meso, programme)
         drained = figures.is_drained({"drained": args.drained or None}, programme)
         p0 = next((s.stop_at_p for s in programme if s.stop_at_p is not None), None)
-        with output_folder(out) as work:
+        with resumable(out, checkpoints), output_folder(out) as work:
             records, stored, written = run_backends(
                 args, models, options, law, meso,
                 run=lambda model, checkpoint: driver.run(model, programme, mesostructure=meso, n_orientations=args.orientations,

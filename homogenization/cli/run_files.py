@@ -19,19 +19,21 @@ folder, the parameters and the status line of each backend's run.
   stored and reported one after the other; ``envelope_note``: where an ANN run left its
   certificate's envelope (one warning, the status line, run.h5's ``ann_model.outside_envelope``);
 - ``run_checkpoints(...)``: each backend's checkpoint in ``.OUT.resume`` (``element_test.checkpoint``), from
-  which the same command resumes an interrupted run; ``checkpoint_folder(out)`` is removed after a finished one.
+  which the same command resumes an interrupted run; ``checkpoint_folder(out)`` is removed after a finished one;
+  ``resumable(out, checkpoints)``: an interruption inside says so.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import shutil
 import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -435,21 +437,29 @@ def run_backends(args: argparse.Namespace, models: dict[str, Any], options: dict
             done, stages = checkpoints[name].progress()
             say(f"{name}: resuming from {checkpoints[name].path} ({done} increments, {stages} stages finished)")
         try:
-            try:
-                record = run(model, checkpoints[name])
-            except driver.ControlError as exc:
-                raise UserError(f"{name}: {exc}") from None
-            elapsed = time.perf_counter() - start
-            stored[name] = {**backend_parameters(name, model, options[name], law, args.radius, meso),
-                            **parameters(record)}
-            note = backend_note(model) + (", resumed: the time is this process's" if resumed else "")
-            if name == "ann":
-                note += envelope_note(model, record, meso, stored[name]["ann_model"])
-            written.append(write_backend_run(work, args.out, name, record, stored[name], several=len(models) > 1,
-                                             seed=args.seed, command=command, elapsed=elapsed, note=note))
-        except KeyboardInterrupt:
-            if not any(checkpoint.exists() for checkpoint in checkpoints.values()):
-                raise
-            raise KeyboardInterrupt(f"the same command resumes from {checkpoint_folder(args.out)}") from None
+            record = run(model, checkpoints[name])
+        except driver.ControlError as exc:
+            raise UserError(f"{name}: {exc}") from None
+        elapsed = time.perf_counter() - start
+        stored[name] = {**backend_parameters(name, model, options[name], law, args.radius, meso),
+                        **parameters(record)}
+        note = backend_note(model) + (", resumed: the time is this process's" if resumed else "")
+        if name == "ann":
+            note += envelope_note(model, record, meso, stored[name]["ann_model"])
+        written.append(write_backend_run(work, args.out, name, record, stored[name], several=len(models) > 1,
+                                         seed=args.seed, command=command, elapsed=elapsed, note=note))
         records[name] = record
     return records, stored, written
+
+
+@contextlib.contextmanager
+def resumable(out: Path, checkpoints: dict[str, driver.RunCheckpoint]) -> Iterator[None]:
+    """An interruption (Ctrl-C, ``kill``) inside says where the same command resumes from, where a checkpoint of
+    ``checkpoints`` (``run_checkpoints(--out = out)``) is there: while the backends run and after (the band, the
+    figure)."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        if not any(checkpoint.exists() for checkpoint in checkpoints.values()):
+            raise
+        raise KeyboardInterrupt(f"the same command resumes from {checkpoint_folder(out)}") from None

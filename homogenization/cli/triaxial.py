@@ -50,7 +50,7 @@ from homogenization.output import figures, oedometer
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
 from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_checkpoint_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, add_void_ratio_arguments, add_critical_state_argument, command_parser, lebedev_order
-from homogenization.cli.run_files import build_models, check_run, checkpoint_folder, refuse_programme_flags, resolve_void_ratio, run_backends, run_checkpoints, shear_iso_increment
+from homogenization.cli.run_files import build_models, check_run, checkpoint_folder, refuse_programme_flags, resolve_void_ratio, resumable, run_backends, run_checkpoints, shear_iso_increment
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -226,7 +226,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                staggered_spins=not args.aligned_spins)
         renewal = posterior_flags.interlocking_renewal(calibrated, meso, critical_state, args.void_ratio)
         checkpoints = run_checkpoints(args, models, options, law, meso, programme)
-        with output_folder(out) as work:
+        with resumable(out, checkpoints), output_folder(out) as work:
             runs, _, written = run_backends(
                 args, models, options, law, meso,
                 run=lambda model, checkpoint: driver.run(model, programme, mesostructure=meso, lebedev_order=args.order,
