@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +23,7 @@ from homogenization.backends import make_cell_model
 from homogenization.element_test.points import MaterialPoints
 from homogenization.sweeps.plan import Case
 from warp_hcell.core.errors import UserError
+from warp_hcell.core.execution import task_warnings
 from warp_hcell.core.parameters import contact_law_from_dict
 from warp_hcell.mesostructures.builders import parse_mesostructure
 from warp_hcell.mesostructures.mesostructure import Mesostructure
@@ -118,13 +118,11 @@ def case_task(_shared: Any, case: Case) -> tuple[driver.Record | None, float, st
     """``warp_hcell.core.execution`` task: (record, wall seconds, None, warnings), or (None, seconds, error line,
     warnings); the warnings the case raised are returned as one line each (the process that writes says them)."""
     start = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with task_warnings() as caught:
         try:
             record, error = compute_case(case), None
         except CASE_ERRORS as exc:
             record, error = None, " ".join(str(exc).split()) or type(exc).__name__
-    lines = list(dict.fromkeys(" ".join(str(w.message).split()) for w in caught))
-    return record, time.perf_counter() - start, error, lines
+    return record, time.perf_counter() - start, error, list(dict.fromkeys(caught))
 
 

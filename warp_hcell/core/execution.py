@@ -15,6 +15,9 @@ more than one worker -> a Dask LocalCluster; else in process. ``setup()`` (optio
 silencing Warp's start-up messages) runs in the process of every task, before the task; it
 must be picklable and cheap after its first call in a process.
 
+``task_warnings()`` collects the warnings a task raises in its own thread (a worker of a remote scheduler may run
+several tasks at once in threads, where ``warnings.catch_warnings`` would mix and lose them).
+
 A LocalCluster keeps its scratch files (worker folders, locks, spilled data) in a temporary
 folder of its own (under ``TMPDIR``), removed when the execution closes: a run leaves no
 ``dask-scratch-space`` behind.
@@ -22,14 +25,57 @@ folder of its own (under ``TMPDIR``), removed when the execution closes: a run l
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import shutil
 import tempfile
+import threading
+import warnings
 from typing import Any, Callable, Iterable, Iterator
 
 CONNECT_TIMEOUT_S = 10.0
 """Seconds to wait for a Dask scheduler before giving up [s]."""
+
+
+_SINK = threading.local()
+_SHOW_AT_IMPORT = warnings.showwarning
+_CAPTURE_LOCK = threading.Lock()
+_capturing = {"threads": 0, "saved": None}
+
+
+def _show(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` while tasks collect: into the calling thread's list, or as before elsewhere."""
+    lines = getattr(_SINK, "lines", None)
+    if lines is None:  # (no saved one: a catch_warnings block of a thread put this back after the last block ended)
+        show = _capturing["saved"][0] if _capturing["saved"] else _SHOW_AT_IMPORT
+        show(message, category, filename, lineno, file, line)
+    else:
+        lines.append(" ".join(str(message).split()))
+
+
+@contextlib.contextmanager
+def task_warnings() -> Iterator[list[str]]:
+    """A list that receives, as one line each, every warning raised in this thread inside the block (each time it is
+    raised; a thread's own warnings only, whatever other threads do meanwhile). Warnings of threads not inside such a
+    block are shown as before. Python's warning filters stay process-wide: a thread that silences warnings in a
+    ``warnings.catch_warnings`` block silences every thread's meanwhile."""
+    with _CAPTURE_LOCK:
+        if _capturing["threads"] == 0:
+            _capturing["saved"] = (warnings.showwarning, warnings.filters[:])
+            warnings.showwarning = _show
+            warnings.simplefilter("always")
+        _capturing["threads"] += 1
+    _SINK.lines = lines = []
+    try:
+        yield lines
+    finally:
+        _SINK.lines = None
+        with _CAPTURE_LOCK:
+            _capturing["threads"] -= 1
+            if _capturing["threads"] == 0:
+                warnings.showwarning, warnings.filters[:] = _capturing["saved"]
+                _capturing["saved"] = None
 
 
 class SchedulerUnreachable(ConnectionError):
