@@ -370,6 +370,14 @@ def test_csl_skips_a_liquefied_run_with_one_warning(runs, tmp_path, monkeypatch,
     assert _legend(fig) == ["DEM", "ANN; $M$ = 0.800", "critical-state lines $q = M p$"]
 
 
+def test_csl_refuses_an_end_without_deviator(runs):
+    """A run that ends steady at q = 0 (p, q and the volume steady) was called a critical state with M = 0."""
+    with pytest.raises(figures.NoCriticalState, match=r"not sheared: abs\(q/p\) falls to 0 < 0.02"):
+        figures.critical_state(figures.shear_curve(synthetic(runs["analytical"], 0.5 * P0, slope=0.0)), P0)
+    assert figures.critical_state(figures.shear_curve(synthetic(runs["analytical"], 0.5 * P0, slope=-0.5)),
+                                  P0).slope == pytest.approx(-0.5, rel=1e-12)  # in extension: M < 0
+
+
 def test_csl_is_drawn_with_its_rates_where_the_run_reached_a_steady_state(runs, tmp_path, monkeypatch, capsys):
     """The synthetic run holds p, q and the volume steady over its last 40 %: a line, M and the rates reported."""
     steady = _write(tmp_path / "a", synthetic(runs["analytical"], 0.5 * P0), backend="dem", p0=P0)

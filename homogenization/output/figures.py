@@ -62,6 +62,9 @@ CSL_MIN_P = 0.05
 """Points with p <= CSL_MIN_P p0 are left out of the critical-state fit [-]."""
 CSL_MAX_SPREAD = 0.1
 """Largest range max(q/p) - min(q/p) over the fitted points for the end to count as a critical state [-]."""
+CSL_MIN_RATIO = 0.02
+"""Smallest abs(q/p) over the fitted points for a critical state [-]: an end nearly without deviator (e.g. a run
+unloaded to q = 0, where p, q and the volume are steady too) is no critical state of shearing."""
 CSL_MAX_P_RATE = 0.1
 """Largest abs(dp/deps1) / p over the fitted points for a critical state [-]: p moves by at most 0.1 % of
 itself per 1 % of axial strain."""
@@ -77,7 +80,7 @@ CSL_RULE = (f"q = M p, M by least squares through the origin over the last {100 
             f"points with p > {CSL_MIN_P:g} p0, drawn only where the run reached a critical state there: "
             f"least-squares rates against eps1 of abs(dp/deps1)/p <= {CSL_MAX_P_RATE:g}, "
             f"abs(dq/deps1)/p <= {CSL_MAX_Q_RATE:g} and abs(deps_v/deps1) <= {CSL_MAX_V_RATE:g}, q/p ranging over "
-            f"at most {CSL_MAX_SPREAD:g}, fewer than half of those points near the origin (static liquefaction); "
+            f"at most {CSL_MAX_SPREAD:g} and abs(q/p) at least {CSL_MIN_RATIO:g} (sheared), fewer than half of those points near the origin (static liquefaction); "
             f"any other run gets no line and a one-line warning")
 """The critical-state rule, as in --help and docs/programmes.md."""
 
@@ -431,7 +434,8 @@ def critical_state(curve: ShearCurve, p0: float) -> CriticalState:
     Raises:
         NoCriticalState: fewer than half of those points have p > CSL_MIN_P p0 (a run that
             ends near the origin: static liquefaction), q/p ranges over more than
-            ``CSL_MAX_SPREAD`` among them (reversed or cyclic loading), a rate exceeds its
+            ``CSL_MAX_SPREAD`` among them (reversed or cyclic loading), abs(q/p) falls below ``CSL_MIN_RATIO``
+            (an unsheared end, e.g. unloaded to q = 0), a rate exceeds its
             limit (p, q or the volume still changing), or the curve has no shear stage.
     """
     p, q, e1, ev = curve.p[1:], curve.q[1:], curve.eps1[1:], curve.eps_v[1:]
@@ -449,6 +453,9 @@ def critical_state(curve: ShearCurve, p0: float) -> CriticalState:
         raise NoCriticalState(f"q/p is not stationary over its last {100 * CSL_TAIL:g} % of points (from "
                               f"{ratio[0]:.3g} to {ratio[-1]:.3g}, range {ratio.max() - ratio.min():.3g} > "
                               f"{CSL_MAX_SPREAD:g}: reversed or cyclic loading)")
+    if np.abs(ratio).min() < CSL_MIN_RATIO:
+        raise NoCriticalState(f"its end is not sheared: abs(q/p) falls to {np.abs(ratio).min():.2g} < {CSL_MIN_RATIO:g} "
+                              f"over its last {100 * CSL_TAIL:g} % of points")
     if p.size < 2 or e1.max() == e1.min():
         raise NoCriticalState("its last points span no axial strain: no rates to check")
     p_mean = float(p.mean())
