@@ -292,6 +292,20 @@ def test_a_fines_cell_without_its_model_is_one_line_and_exit_2(fines_models, tmp
     assert not out.exists()
 
 
+def test_a_bare_model_of_other_grains_is_refused_for_the_plain_cell_before_any_case(fines_models, tmp_path, capsys):
+    """The plain H-cell runs on the single bare --model whatever its alpha0; a model of a cell with other grains
+    (here a fines cell's) failed inside the run (exit 1) instead."""
+    from homogenization.ann import default_model_path
+
+    out = tmp_path / "plain"
+    argv = ["--mesostructure", "hcell", "--backend", "ann", "--uncertified-ok", *ANN_SMALL, "--out", str(out)]
+    assert cli([*argv, "--model", str(fines_models[ANN_FINES[0]])]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"is a model of {ANN_FINES[0]}, whose grains differ from those of hcell:" in err[0], err
+    assert not out.exists()
+    assert cli([*argv, "--alpha0", "50", "--model", str(default_model_path())]) == 0  # the H-cell's model: any alpha0
+
+
 # -- execution: in process, local Dask cluster, remote scheduler ----------------------------------
 TINY = ["--mesostructure", "hcell,hcell-fines:ratio=0.8", "--alpha0", "50,55", "--p0", "2e5", "--eps-max", "0.03",
         "--increment", "1e-3", "--iso-increment", "1e-3", "--orientations", "8"]

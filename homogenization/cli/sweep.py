@@ -10,8 +10,8 @@ combinations are listed.
 ANN models (--model, repeatable; a model records its mesostructure's sha256):
 ``--model MESOSTRUCTURE=PATH`` gives the model of one mesostructure of --mesostructure;
 ``--model PATH`` is used where its recorded mesostructure is the case's. The plain H-cell runs
-on its own model, else the single bare --model, else the installed model. A fines cell without
-a model is an error before any case runs.
+on its own model, else the single bare --model (a model of an H-cell: other grains are refused),
+else the installed model. A fines cell without a model is an error before any case runs.
 
 --erode-at EPS (dem): grains free along every axis (fines) are removed at eps1 = EPS
 (``warp_hcell.dem.erosion``); one increment (stage ``erode``) records the relaxation, then the

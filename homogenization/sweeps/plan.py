@@ -38,6 +38,12 @@ class ModelChoice:
     path: Path
 
 
+def _topology(pairs: Any, driven: Any) -> tuple[str, str]:
+    """A cell's grains as a network sees them (its pairs and driven dofs), comparable between a model's schema and a
+    mesostructure."""
+    return json.dumps(np.asarray(pairs).tolist()), json.dumps(np.asarray(driven).tolist())
+
+
 class ModelTable:
     """The --model items, checked: which model file runs which ann case.
 
@@ -50,6 +56,7 @@ class ModelTable:
         from training.checkpoint import CheckpointError, read_metadata  # noqa: PLC0415 torch only for ann
 
         self.sha256: dict[Path, str] = {}
+        self._cells: dict[Path, tuple[str, Any]] = {}  # a model's cell: (its name, its grains' pairs and driven dofs)
         self.keyed: dict[str, Path] = {}
         self.bare: list[Path] = []
         self._records: dict[Path | None, dict[str, Any]] = {}
@@ -59,9 +66,12 @@ class ModelTable:
             if not choice.path.is_file():
                 raise UserError(f"--model {choice.path}: no such model file")
             try:
-                self.sha256[choice.path] = read_metadata(choice.path)["mesostructure_sha256"]
+                metadata = read_metadata(choice.path)
             except CheckpointError as exc:
                 raise UserError(str(exc)) from None
+            self.sha256[choice.path] = metadata["mesostructure_sha256"]
+            self._cells[choice.path] = (json.loads(metadata["mesostructure"])["name"],
+                                        _topology(metadata["schema"]["pairs"], metadata["schema"]["driven"]))
             if choice.key is None:
                 self.bare.append(choice.path)
                 continue
@@ -86,7 +96,12 @@ class ModelTable:
         if path is None:
             path = next((p for p in self.bare if self.sha256[p] == sha), None)
         if path is None and plain:
-            return self.bare[0] if len(self.bare) == 1 else None
+            path = self.bare[0] if len(self.bare) == 1 else None
+            name, topology = self._cells.get(path, (None, None))
+            if path is not None and topology != _topology(meso.pairs, meso.driven):
+                raise UserError(f"--model {path} is a model of {name}, whose grains differ from those of "
+                                f"{source.text}: give its model with --model {source.text}=PATH, or none")
+            return path
         if path is None:
             raise UserError(f"no ANN model for mesostructure {source.text} ({meso.name}, sha256 {sha[:12]}); "
                             f"pass --model {source.text}=PATH with a model trained on it")
