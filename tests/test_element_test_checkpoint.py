@@ -299,3 +299,28 @@ def test_an_interruption_while_the_figure_is_drawn_says_where_the_command_resume
     monkeypatch.setattr(figures, "save_figure", save)
     assert cli.run_main(biaxial.main, argv) == 0
     assert (tmp_path / "run" / "curve.csv").is_file() and not resume.exists()
+
+
+def test_a_dem_run_resumes_under_other_threads_and_an_ann_run_does_not(tmp_path, capsys, monkeypatch):
+    """The DEM's results do not depend on --threads (its cells are independent of the chunks): its checkpoint resumes
+    under another --threads, to the uninterrupted run's files; the ANN's (a torch tangent) is refused."""
+    from homogenization.output import figures  # noqa: PLC0415
+
+    common = ["--orientations", "4", "--p0", "1e6", "--eps-max", "1e-3", "--increment", "2e-4", "--checkpoint-seconds",
+              "0", "-q"]
+    assert cli.run_main(biaxial.main, ["--backend", "dem", *common, "--threads", "1", "--out", str(tmp_path / "whole")]) == 0
+    save = figures.save_figure
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    for backend, resumes in (("dem", True), ("ann", False)):
+        argv = ["--backend", backend, *common, "--out", str(tmp_path / backend)]
+        monkeypatch.setattr(figures, "save_figure", interrupted)
+        assert cli.run_main(biaxial.main, [*argv, "--threads", "1"]) == 130
+        monkeypatch.setattr(figures, "save_figure", save)
+        capsys.readouterr()
+        assert cli.run_main(biaxial.main, [*argv, "--threads", "2"]) == (0 if resumes else 2)
+        err = capsys.readouterr().err
+        assert ("flags.threads" in err) != resumes, err
+    assert (tmp_path / "dem" / "curve.csv").read_bytes() == (tmp_path / "whole" / "curve.csv").read_bytes()

@@ -340,6 +340,12 @@ _NOT_IN_KEY = ("quiet", "verbose", "overwrite", "restart", "checkpoint_seconds",
 refusal): a resumed command may differ in them."""
 
 
+_THREADS_KEEP_BITS = ("analytical", "dem")
+"""Backends whose results do not depend on --threads (the DEM's cells are independent of the chunks its threads
+step; tests/test_homogenization_backends_dem.py): their checkpoints resume under other --threads. The ANN's torch
+tangent may not."""
+
+
 def checkpoint_folder(out: Path) -> Path:
     """The folder of the checkpoints of the runs on ``out`` (``CHECKPOINT_TAG``)."""
     return Path(out).parent / f".{Path(out).name}.{CHECKPOINT_TAG}"
@@ -378,8 +384,12 @@ def run_checkpoints(args: argparse.Namespace, models: dict[str, Any], options: d
               "programme": programmes.to_dict(programme), "mesostructure_sha256": description_sha256(describe(meso))}
     checkpoints = {}
     for name, model in models.items():
-        key = {**common, "backend": backend_parameters(name, model, options[name], law, args.radius, meso),
-               "model_files": _model_files(model)}
+        backend = backend_parameters(name, model, options[name], law, args.radius, meso)
+        key = {**common, "backend": backend, "model_files": _model_files(model)}
+        if name in _THREADS_KEEP_BITS:  # resumed on other threads, the run is the same
+            key["flags"] = {k: v for k, v in common["flags"].items() if k != "threads"}
+            key["backend"] = {**{k: v for k, v in backend.items() if not k.endswith("threads")},  # (dem_threads)
+                              "backend_options": {k: v for k, v in backend["backend_options"].items() if k != "threads"}}
         checkpoint = driver.RunCheckpoint(folder / f"{name}.h5", key, args.checkpoint_seconds)
         checkpoint.keep_last = name != list(models)[-1]
         if checkpoint.exists():
