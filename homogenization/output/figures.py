@@ -80,7 +80,8 @@ CSL_RULE = (f"q = M p, M by least squares through the origin over the last {100 
             f"points with p > {CSL_MIN_P:g} p0, drawn only where the run reached a critical state there: "
             f"least-squares rates against eps1 of abs(dp/deps1)/p <= {CSL_MAX_P_RATE:g}, "
             f"abs(dq/deps1)/p <= {CSL_MAX_Q_RATE:g} and abs(deps_v/deps1) <= {CSL_MAX_V_RATE:g}, q/p ranging over "
-            f"at most {CSL_MAX_SPREAD:g} and abs(q/p) at least {CSL_MIN_RATIO:g} (sheared), fewer than half of those points near the origin (static liquefaction); "
+            f"at most {CSL_MAX_SPREAD:g} and abs(q/p) at least {CSL_MIN_RATIO:g} (sheared), fewer than half of "
+            f"those points near the origin (static liquefaction); "
             f"any other run gets no line and a one-line warning")
 """The critical-state rule, as in --help and docs/programmes.md."""
 
