@@ -127,3 +127,41 @@ def test_a_stored_programme_keeps_reading_back():
     with pytest.raises(programmes.UnknownKey, match="unknown key 'extra' in step 2;"):
         programmes.from_dict({"steps": [*programmes.to_dict(programme)["steps"][:1],
                                      {**programmes.to_dict(programme)["steps"][1], "extra": 1}]})
+
+
+SPATIAL_CELL = ROOT / "benchmarks" / "cells" / "fine_off_centre.toml"
+INVALID_CELLS = {  # (file, old text, new text, the message): each loaded before, with a wrong volume or silently
+    "polygon crossing itself": (CELL, "outer = [1, 2, 3, 4, 5, 6]", "outer = [1, 3, 2, 4, 6, 5]",
+                                "the outer polygon's edges 1-3 and 2-4 cross"),  # area 0.940 instead of 2.087
+    "nested outer": (CELL, "outer = [1, 2, 3, 4, 5, 6]", "outer = [[1, 2, 3], [4, 5, 6]]", "is not a grain label"),
+    "fractional label": (CELL, "outer = [1, 2, 3, 4, 5, 6]", "outer = [1.5, 2, 3, 4, 5, 6]", "1.5 is not a grain label"),
+    "labelled twice": (CELL, "type2 = [[2, 3], [5, 6]]", "type2 = [[2, 3], [5, 6], [1, 2]]",
+                       "pair 1-2 is labelled both type 1 and type 2"),
+    "fine grain outside": (CELL, "position = [0.0, 0.0]", "position = [5.0, 5.0]",
+                           "grain 7 lies outside the cell's outer polygon"),
+    "radius as text": (CELL, "radius = 0.5\n", 'radius = "0.5"\n', "'0.5' is not a number"),
+    "surface with a face missing": (SPATIAL_CELL, "[1, 6, 10], ", "", "the outer triangles do not close an oriented "
+                                    "surface"),  # volume 1.71 instead of 1.82
+    "surface with a face turned": (SPATIAL_CELL, "[1, 6, 10]", "[1, 10, 6]", "do not close an oriented surface"),
+    "sphere outside": (SPATIAL_CELL, "position = [-0.035, 0.025, -0.02]", "position = [-0.035, 0.025, 9.0]",
+                       "grain 11 lies outside the cell's outer polyhedron"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(INVALID_CELLS))
+def test_a_cell_file_whose_boundary_labels_or_values_are_wrong_is_refused_in_one_line(case, tmp_path):
+    source, old, new, message = INVALID_CELLS[case]
+    path = edited(tmp_path, source, old, new, source.name)
+    with pytest.raises(MesostructureError, match=message.replace("(", r"\(").replace(")", r"\)")) as caught:
+        load_mesostructure(path)
+    assert "\n" not in str(caught.value)
+
+
+def test_a_cell_file_that_is_not_utf8_is_one_line_and_a_byte_order_mark_is_read(tmp_path):
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes(CELL.read_text().replace('name = "dense', 'name = "caf\u00e9 dense').encode("latin-1"))
+    with pytest.raises(MesostructureError, match=r"not UTF-8 text \(byte [0-9]+ is 0xe9\)"):
+        load_mesostructure(latin)  # an AttributeError (exit 1) before
+    bom = tmp_path / "bom.toml"
+    bom.write_bytes(b"\xef\xbb\xbf" + CELL.read_bytes())
+    assert load_mesostructure(bom).name == load_mesostructure(CELL).name

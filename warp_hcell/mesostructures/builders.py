@@ -220,7 +220,7 @@ def mesostructure_list_arg(text: str) -> list[MesostructureSource]:
 
 MESOSTRUCTURE_HELP = (
     "mesostructure: a TOML/JSON file, or a builder spec KIND[:KEY=VALUE,...] with KIND hcell | hcell-unequal | "
-    "hcell-fines (2D) or hcell3d | hcell3d-fines | hcell3d-axisym | hcell3d-sand (3D, ten spheres) and keys alpha0 (deg; default: --alpha0), "
+    "hcell-fines (2D) or hcell3d | hcell3d-fines | hcell3d-axisym | hcell3d-sand (3D, ten spheres) and keys alpha0 (deg; default: the command's --alpha0, where it has one), "
     "radius (r of grains 1, 4 [m]), lateral (radius of the lateral grains / r), plane (3D: angle between the two "
     "planes, deg), ratio (fine-grain radius / r, 'a/b' for several), n, t (2D) or n, t1, t2 (3D) (fine-grain "
     "offset from the pore centre / r); e.g. hcell-fines:alpha0=50,ratio=0.76 or hcell3d:alpha0=55")

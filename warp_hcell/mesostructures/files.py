@@ -56,9 +56,12 @@ def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettin
         MesostructureError: unreadable file, unknown key or invalid description (one line)."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # (a byte-order mark is taken off)
         data = tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
-    except (OSError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
+        raise MesostructureError(f"cannot read mesostructure file {path}: not UTF-8 text (byte {exc.start} is "
+                                 f"0x{exc.object[exc.start]:02x})") from None
+    except OSError as exc:
         raise MesostructureError(f"cannot read mesostructure file {path}: {exc.strerror or exc}") from None
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         raise MesostructureError(f"mesostructure file {path} is not valid {path.suffix[1:].upper()}: {exc}") from None
@@ -116,24 +119,46 @@ def check_keys(data: Any, path: str | Path) -> None:
                                                              path, GRAIN_KEYS))
 
 
+def _number(value: Any) -> float:
+    """A number of a file as a float; TypeError for text, booleans and other values."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{value!r} is not a number")
+    return float(value)
+
+
+def _label(value: Any) -> int:
+    """A grain label of a file as an int; TypeError for text, booleans, fractions and other values."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{value!r} is not a grain label (an integer)")
+    return value
+
+
+def _outer(value: Any, dim: int) -> np.ndarray:
+    """The ``outer`` of a file: a list of labels (2D) or of label triples (3D); TypeError for another shape."""
+    rows = value if dim == 3 else [value]
+    if not isinstance(value, list) or not all(isinstance(row, list) and (dim == 2 or len(row) == 3) for row in rows):
+        raise TypeError(f"outer must be {'a list of [a, b, c] triangles' if dim == 3 else 'a list of grain labels'}")
+    return np.asarray([[_label(v) for v in row] for row in rows], dtype=np.int64).reshape(-1 if dim == 2 else (-1, 3))
+
+
 def _from_mapping(data: Mapping[str, Any], *, default_name: str, contact_tolerance: float) -> Mesostructure:
     name = str(data.get("name", default_name))
     try:
         grains = data["grains"]
-        radius = [float(g["radius"]) for g in grains]
-        position = [[float(v) for v in g["position"]] for g in grains]
+        radius = [_number(g["radius"]) for g in grains]
+        position = [[_number(v) for v in g["position"]] for g in grains]
         driven = [list(g["driven"]) for g in grains]
         axes = AXIS_NAMES.get(len(position[0]) if position else 2, AXIS_NAMES[2])
         if not all(isinstance(v, bool) and len(d) == len(axes) for d in driven for v in d):
             raise MesostructureError(f"mesostructure {name!r}: each grain needs driven = "
                                      f"[{', '.join(['bool'] * len(axes))}] ({', '.join(axes)})")
-        to_index = lambda labels: [[int(a) - 1 for a in p] for p in labels]  # noqa: E731
+        to_index = lambda labels: [[_label(a) - 1 for a in p] for p in labels]  # noqa: E731
         pairs = data.get("pairs")
         pairs = list(combinations(range(len(radius)), 2)) if pairs is None else [tuple(sorted(p)) for p in to_index(pairs)]
         meso = Mesostructure(name=name, radius=np.asarray(radius, float), position=np.asarray(position, float),
                              driven=np.asarray(driven), pairs=np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
-                             outer=np.asarray(data["outer"], dtype=np.int64) - 1,
-                             cell_size=np.asarray([float(v) for v in data["cell_size"]], float),
+                             outer=_outer(data["outer"], len(axes)) - 1,
+                             cell_size=np.asarray([_number(v) for v in data["cell_size"]], float),
                              pair_label=hcell.file_labels(name, pairs, data), contact_tolerance=contact_tolerance)
         return _with_kinematics(with_declarations(meso), data.get("kinematics"), f"mesostructure {name!r}")
     except KeyError as exc:

@@ -80,6 +80,10 @@ branch 2 -> 1) [deg], the branch lengths d1, d2 [m], the normal forces N1, N2 [N
 def _labels(name: str, pairs: Sequence[tuple[int, int]], type1, type2) -> np.ndarray:
     """``pair_label`` of ``pairs`` (0-based) from type-1 / type-2 pairs given by 1-based labels."""
     labels = {tuple(sorted((int(a) - 1, int(b) - 1))): 1 for a, b in type1}
+    both = sorted(set(labels) & {tuple(sorted((int(a) - 1, int(b) - 1))) for a, b in type2})
+    if both:
+        raise MesostructureError(f"mesostructure {name!r}: pair {both[0][0] + 1}-{both[0][1] + 1} is labelled both "
+                                 f"type 1 and type 2")
     labels.update({tuple(sorted((int(a) - 1, int(b) - 1))): 2 for a, b in type2})
     unknown = set(labels) - {tuple(p) for p in pairs}
     if unknown:

@@ -295,14 +295,75 @@ def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_labe
     for axis in range(dim):
         if not driven[:, axis].any():
             raise MesostructureError(f"mesostructure {name!r}: needs at least one DOF driven along {cell.frame[axis]}")
+    _check_boundary(name, position, outer)
     if not cell_measure(position, outer) > 0.0:
         raise MesostructureError(f"mesostructure {name!r}: the outer {cell.empty_boundary}")
+    outside = [g + 1 for g in sorted(set(range(n_grains)) - set(np.unique(outer).tolist()))
+               if not _inside(position, outer, position[g])]
+    if outside:
+        raise MesostructureError(f"mesostructure {name!r}: grain {outside[0]} lies outside the cell's outer "
+                                 f"{cell.boundary}")
     for i, j in combinations(range(n_grains), 2):
         gap = math.dist(position[i], position[j]) - radius[i] - radius[j]
         if gap < -tolerance * (radius[i] + radius[j]):
             raise MesostructureError(
                 f"mesostructure {name!r}: grains {i + 1} and {j + 1} overlap by {-gap:.3g} m "
                 f"(more than the contact tolerance)")
+
+
+def _check_boundary(name: str, position: np.ndarray, outer: np.ndarray) -> None:
+    """MesostructureError (one line) where the outer boundary does not enclose a region once: a planar polygon whose
+    edges cross or touch other than at shared corners, or triangles that do not close an oriented surface (each edge
+    a -> b of one triangle once, and b -> a of another once), whose area or volume would be wrong."""
+    if outer.ndim == 1:
+        p = position[outer]
+        n = p.shape[0]
+        for i, j in combinations(range(n), 2):
+            if j - i in (1, n - 1):
+                continue  # adjacent edges share a corner
+            if _segments_meet(p[i], p[(i + 1) % n], p[j], p[(j + 1) % n]):
+                raise MesostructureError(f"mesostructure {name!r}: the outer polygon's edges {outer[i] + 1}-"
+                                         f"{outer[(i + 1) % n] + 1} and {outer[j] + 1}-{outer[(j + 1) % n] + 1} "
+                                         f"cross: its grains must go round the cell in order")
+        return
+    edges = [(int(f[k]), int(f[(k + 1) % 3])) for f in outer.tolist() for k in range(3)]
+    seen = set(edges)
+    bad = next((e for e in edges if edges.count(e) > 1 or (e[1], e[0]) not in seen), None)
+    if bad is not None:
+        raise MesostructureError(f"mesostructure {name!r}: the outer triangles do not close an oriented surface at "
+                                 f"edge {bad[0] + 1}-{bad[1] + 1} (each edge must be walked once each way, by two "
+                                 f"triangles of one orientation)")
+
+
+def _segments_meet(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> bool:
+    """Whether the planar segments a-b and c-d cross or touch."""
+    def side(p, q, r):
+        return float(np.sign((q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])))
+
+    def within(p, q, r):  # r on the line through p, q: inside their box
+        return min(p[0], q[0]) <= r[0] <= max(p[0], q[0]) and min(p[1], q[1]) <= r[1] <= max(p[1], q[1])
+
+    s1, s2, s3, s4 = side(a, b, c), side(a, b, d), side(c, d, a), side(c, d, b)
+    if s1 * s2 < 0 and s3 * s4 < 0:
+        return True
+    return any(s == 0 and within(p, q, r) for s, p, q, r in ((s1, a, b, c), (s2, a, b, d), (s3, c, d, a), (s4, c, d, b)))
+
+
+def _inside(position: np.ndarray, outer: np.ndarray, point: np.ndarray) -> bool:
+    """Whether ``point`` lies inside the closed outer boundary: winding number of the polygon (2D) or solid angle of
+    the triangles (3D, Van Oosterom and Strackee) about it, nonzero inside."""
+    if outer.ndim == 1:
+        rel = position[outer] - point
+        angle = np.arctan2(rel[:, 1], rel[:, 0])
+        turn = np.diff(np.append(angle, angle[0]))
+        return abs(float(np.sum((turn + np.pi) % (2.0 * np.pi) - np.pi))) > np.pi
+    r = position[outer] - point  # (faces, 3 corners, 3)
+    a, b, c = r[:, 0], r[:, 1], r[:, 2]
+    la, lb, lc = (np.linalg.norm(v, axis=1) for v in (a, b, c))
+    numerator = np.einsum("fi,fi->f", a, np.cross(b, c))
+    denominator = (la * lb * lc + np.einsum("fi,fi->f", a, b) * lc + np.einsum("fi,fi->f", a, c) * lb
+                   + np.einsum("fi,fi->f", b, c) * la)
+    return abs(float(np.sum(2.0 * np.arctan2(numerator, denominator)))) > 2.0 * np.pi
 
 
 def shares_state_schema(meso: Mesostructure, other: Mesostructure, rtol: float = 1e-12) -> bool:
