@@ -165,3 +165,20 @@ def test_a_cell_file_that_is_not_utf8_is_one_line_and_a_byte_order_mark_is_read(
     bom = tmp_path / "bom.toml"
     bom.write_bytes(b"\xef\xbb\xbf" + CELL.read_bytes())
     assert load_mesostructure(bom).name == load_mesostructure(CELL).name
+
+
+@pytest.mark.parametrize("edit, message", [
+    ({"contact_tolerance": float("nan")}, r"contact_tolerance = nan is outside \[0, 1e-3\)"),  # no overlap check then
+    ({"version": 99}, "of version 99: this package reads 1"),
+    ({"extra": 1}, "unknown key 'extra'"),
+    ({"driven": [["no", "no"]] * 7}, "driven flags must be booleans"),  # read as True
+    ({"pair_type": [300] * 15}, "malformed entry"),  # an OverflowError
+])
+def test_a_stored_cell_description_is_checked_as_a_file_is(edit, message):
+    """Descriptions (databases, model metadata, checkpoints) were read with few checks."""
+    from warp_hcell.mesostructures.files import describe, from_description  # noqa: PLC0415
+
+    data = json.loads(describe(load_mesostructure(CELL)))
+    assert from_description(json.dumps(data)).name == data["name"]
+    with pytest.raises(MesostructureError, match=message):
+        from_description(json.dumps({**data, **edit}))

@@ -202,6 +202,13 @@ def from_description(text: str) -> Mesostructure:
         raise MesostructureError(f"mesostructure description is not JSON: {exc}") from None
     if not isinstance(data, dict) or data.get("format") != "meso-hmodel-mesostructure":
         raise MesostructureError("text is not a mesostructure description (format meso-hmodel-mesostructure)")
+    unknown = sorted(set(data) - {"format", "version", "name", "contact_tolerance", "kinematics", *DESCRIPTION_FIELDS})
+    if data.get("version") != 1:
+        raise MesostructureError(f"mesostructure description of version {data.get('version')!r}: this package reads 1")
+    if unknown:
+        raise MesostructureError(f"mesostructure description: unknown key {unknown[0]!r}")
+    if not all(isinstance(v, bool) for row in data.get("driven", []) for v in (row if isinstance(row, list) else [row])):
+        raise MesostructureError("mesostructure description: driven flags must be booleans")
     try:
         return _with_kinematics(with_declarations(Mesostructure(
             name=str(data["name"]), radius=np.asarray(data["radius"], np.float64),
@@ -211,6 +218,10 @@ def from_description(text: str) -> Mesostructure:
             contact_tolerance=float(data["contact_tolerance"]))), data.get("kinematics"), "mesostructure description")
     except KeyError as exc:
         raise MesostructureError(f"mesostructure description: missing key {exc.args[0]!r}") from None
+    except (TypeError, ValueError, OverflowError) as exc:
+        if isinstance(exc, MesostructureError):
+            raise
+        raise MesostructureError(f"mesostructure description: malformed entry ({exc})") from None
 
 
 def description_sha256(text: str) -> str:

@@ -260,6 +260,8 @@ def _validate_observables(name, observables, pairs, n_grains) -> None:
 
 def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_label, tolerance) -> None:
     n_grains = radius.size
+    if not 0.0 <= tolerance < 1e-3:
+        raise MesostructureError(f"mesostructure {name!r}: contact_tolerance = {tolerance:g} is outside [0, 1e-3)")
     if n_grains < 2:
         raise MesostructureError(f"mesostructure {name!r}: needs at least 2 grains, got {n_grains}")
     bad = np.flatnonzero(~(np.isfinite(radius) & (radius > 0.0)))
