@@ -133,12 +133,18 @@ def _label(value: Any) -> int:
     return value
 
 
+_OUTER_SHAPES = {2: (None, "a list of grain labels"), 3: (3, "a list of [a, b, c] triangles")}
+"""By dimension: labels per face of ``outer`` (None: one polygon) and what the file must give."""
+
+
 def _outer(value: Any, dim: int) -> np.ndarray:
-    """The ``outer`` of a file: a list of labels (2D) or of label triples (3D); TypeError for another shape."""
-    rows = value if dim == 3 else [value]
-    if not isinstance(value, list) or not all(isinstance(row, list) and (dim == 2 or len(row) == 3) for row in rows):
-        raise TypeError(f"outer must be {'a list of [a, b, c] triangles' if dim == 3 else 'a list of grain labels'}")
-    return np.asarray([[_label(v) for v in row] for row in rows], dtype=np.int64).reshape(-1 if dim == 2 else (-1, 3))
+    """The ``outer`` of a file (``_OUTER_SHAPES``); TypeError for another shape."""
+    corners, what = _OUTER_SHAPES[dim]
+    rows = [value] if corners is None else value
+    if not isinstance(value, list) or not all(isinstance(row, list) and corners in (None, len(row)) for row in rows):
+        raise TypeError(f"outer must be {what}")
+    labels = np.asarray([[_label(v) for v in row] for row in rows], dtype=np.int64)
+    return labels.reshape(-1) if corners is None else labels.reshape(-1, corners)
 
 
 def _from_mapping(data: Mapping[str, Any], *, default_name: str, contact_tolerance: float) -> Mesostructure:
