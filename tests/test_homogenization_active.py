@@ -108,9 +108,10 @@ def test_hmodel_learn_writes_every_stage_resumes_and_refuses_other_options(tmp_p
     assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == code
     second = capsys.readouterr().out
     assert second.count("(done before)") == 4 and (out / "ann.pt").read_bytes() == sha
-    assert hmodel.main(["learn", *LEARN, "--samples", "3000", "--out", str(out)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "holds a learn run with other options" in err[0] and (out / "db.h5").is_file()
+    for other in (["--samples", "3000"], ["--spins", "2"], ["--order", "5"]):  # the 3D certificate's rule was not kept
+        assert hmodel.main(["learn", *LEARN, *other, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "holds a learn run with other options" in err[0] and (out / "db.h5").is_file()
     assert hmodel.main(["learn", *LEARN, "--out", str(tmp_path)]) == 2
     assert "holds files that are not a learn run" in capsys.readouterr().err
 

@@ -13,8 +13,8 @@ skipped when its output is complete (a second call continues; an interrupted sta
    appended to ``db.h5`` and the model is retrained from scratch;
 4. ``DIR/certificate.png``: p and q of the ANN and the DEM on the certificate's worst test.
 
-``DIR/learn.json`` records the options of the run (the certified surrogate and the round flags
---stall-rounds, --departure-margin and --max-database-mb included): a second call with other options is refused
+``DIR/learn.json`` records the options of the run (the certified surrogate, --order, --spins, --release-rule and
+the round flags --stall-rounds, --departure-margin and --max-database-mb included): a second call with other options is refused
 (one line, exit 2) unless --overwrite, which starts the folder again (a folder with other files
 and no ``learn.json`` is refused). The exit code is the final certificate's verdict
 (``certificate.exit_code``: 0 passed, 3 failed, 4 below the minimum certificate; bad input 2),
@@ -72,17 +72,19 @@ def _options(args: argparse.Namespace, meso, measured: CertificateSettings) -> d
     cell's default) and the round flags ``ROUND_OPTIONS`` included."""
     return {"mesostructure": args.mesostructure.text, "mesostructure_sha256": description_sha256(describe(meso)),
             "samples": args.samples, "seed": args.seed, "hidden": list(args.hidden), "epochs": args.epochs,
-            "orientations": args.orientations, "eps_max": args.eps_max, "rollout": not args.no_rollout,
+            "orientations": args.orientations, "spatial_rule": list(measured.spatial_rule),
+            "release_rule": measured.release_rule, "eps_max": args.eps_max, "rollout": not args.no_rollout,
             **{name: getattr(args, name) for name in ROUND_OPTIONS},
             **({"equilibrium_corrections": measured.equilibrium_corrections,
                 "equilibrium_tolerance": measured.equilibrium_tolerance} if measured.equilibrium_corrections else {})}
 
 
 def _recorded(path: Path) -> dict:
-    """The options of ``learn.json`` at ``path``, the round flags it lacks (``ROUND_OPTIONS``) at
-    their defaults."""
-    defaults = ActiveSettings()
-    return {**{name: getattr(defaults, name) for name in ROUND_OPTIONS}, **json.loads(path.read_text())}
+    """The options of ``learn.json`` at ``path``, the round flags it lacks (``ROUND_OPTIONS``), the 3D certificate's
+    rule (--order, --spins) and --release-rule at their defaults."""
+    defaults, measured = ActiveSettings(), CertificateSettings()
+    return {**{name: getattr(defaults, name) for name in ROUND_OPTIONS}, "spatial_rule": list(measured.spatial_rule),
+            "release_rule": measured.release_rule, **json.loads(path.read_text())}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
