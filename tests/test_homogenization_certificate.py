@@ -278,6 +278,23 @@ def test_certify_refuses_bad_input_before_any_test(tmp_path, capsys):
     assert "exit codes: 0" in certify.build_parser().format_help()
 
 
+def test_certify_refuses_the_database_of_another_cell_and_keeps_the_index(tmp_path, capsys):
+    """--data of another mesostructure rebuilt the model's out-of-distribution index from the wrong cell (its coverage
+    fell from 34 % to 0) or raised a traceback (a 3D database)."""
+    from dem_database import build  # noqa: PLC0415
+    from warp_hcell.mesostructures.hcell import h_cell  # noqa: PLC0415
+
+    model = _copy_shipped(tmp_path / "m")
+    index = (model.parent / "m_ood.npz").read_bytes()
+    db = build(tmp_path / "db40.h5", mesostructure=h_cell(40.0), precompression=(0.0, 2e-3), n_directions=4,
+               spacing=1e-2, leg_length=0.02, threads=1)
+    argv = ["--model", str(model), "--data", str(db), "--orientations", "2", "--eps-max", "0.0005", "--no-rollout"]
+    assert run_main(certify.main, argv) == 2
+    error = _one_error(capsys)
+    assert "is a database of mesostructure" in error and error.endswith("give the model's own database")
+    assert (model.parent / "m_ood.npz").read_bytes() == index
+
+
 def test_certify_of_a_failing_model_exits_3(tmp_path, capsys):
     model = _copy_shipped(tmp_path / "f")
     _perturb(model, 2.0)

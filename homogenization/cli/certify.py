@@ -100,6 +100,9 @@ def rebuild_index(model: Path, data: Path, metadata: dict | None = None) -> None
         database = load_database(data)
     except (OSError, KeyError) as exc:
         raise UserError(f"--data {data}: not a learning database ({exc})") from None
+    if database.mesostructure_sha256 != meta.get("mesostructure_sha256"):
+        raise UserError(f"--data {data} is a database of mesostructure {database.mesostructure_sha256[:12]}, the model's "
+                        f"is {str(meta.get('mesostructure_sha256'))[:12]}: give the model's own database")
     index = index_for_model(net, meta["config"], database)
     with writing_to(index_path(model)):
         say(f"out-of-distribution index: {index.points.shape[0]} states, threshold {index.threshold:.4g} -> "
