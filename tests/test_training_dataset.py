@@ -80,6 +80,17 @@ def test_split_is_by_whole_paths(db_file):
     assert active_pairs(db, split.train).sum() >= 6  # the H-cell's six contacts
 
 
+def test_a_database_too_small_for_a_test_set_is_refused_before_training():
+    """Three paths: the 10 % test set rounded to none and the training crashed at its end (an audit)."""
+    from training.dataset import _held_out  # noqa: PLC0415
+
+    rng = np.random.default_rng(0)
+    with pytest.raises(DataError, match="3 paths are too few to split into training, validation and test"):
+        _held_out(np.arange(3), 0.2, 0.1, rng, "db.h5")
+    test, val = _held_out(np.arange(10), 0.2, 0.1, rng, "db.h5")
+    assert test.size == 1 and val.size == 2
+
+
 @pytest.mark.parametrize("case, message", [("missing", "no such database file"), ("text", "not a readable HDF5"),
                                            ("version1", "not the generic database")])
 def test_bad_files_give_one_line_errors(tmp_path, case, message):

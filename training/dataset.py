@@ -216,11 +216,11 @@ def split_by_path(db: Database, *, val_fraction: float, test_fraction: float, se
 def _held_out(paths: np.ndarray, val_fraction: float, test_fraction: float, rng: np.random.Generator, source: str,
               strict: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(test, validation) path ids drawn from ``paths``; ``strict``: DataError where no path is
-    left for training or validation."""
+    left for training, validation or (a ``test_fraction`` above 0) testing."""
     order = rng.permutation(paths)
     n_test = int(round(test_fraction * paths.size))
     n_val = int(round(val_fraction * (paths.size - n_test)))
-    if paths.size - n_test - n_val < 1 or n_val < 1:
+    if paths.size - n_test - n_val < 1 or n_val < 1 or (test_fraction > 0.0 and n_test < 1):
         if strict:
             raise DataError(f"{source}: {paths.size} paths are too few to split into training, validation and test")
         return order[:0], order[:0]
