@@ -17,6 +17,7 @@ from training import train as training_train
 from training.card import read_card
 from training.config import config_record, TrainConfig
 from training.dataset import load_database
+from warp_hcell.core.errors import UserError
 from warp_hcell.core.provenance import file_sha256
 from warp_hcell.database.format import ACTIVE_GROUP
 from warp_hcell.mesostructures.hcell import h_cell
@@ -288,10 +289,15 @@ def test_an_earlier_run_is_recognised_by_its_rounds_data_and_options_not_by_what
     copy = tmp_path / "m_db.h5"
     assert continues(copy, training_data={"path": str(copy)})  # retrained on the copy beside the model
     assert continues(copy)  # the copy is made, its first round not yet retrained
-    assert not continues(active_learning=[{"round": 0, "hidden": [16]}])
     assert not continues(active_learning=None)
-    assert not continues(config={**meta["config"], "lr": 1e-4})
+    # another option of an earlier run is named (it said "exists; pass --overwrite"); --threads may change
+    for changes, named in (({"active_learning": [{"round": 0, "hidden": [16]}]}, "hidden"),
+                           ({"config": {**meta["config"], "lr": 1e-4}}, "lr")):
+        with pytest.raises(UserError, match=rf"a run with other training options \({named}\): rerun that command"):
+            continues(**changes)
+    assert continues(config={**meta["config"], "threads": config["threads"] + 1})
     first = {"round": 0, "hidden": config["hidden"], "train_seed": config["seed"]}
     assert continues(config={**meta["config"], "seed": config["seed"] + 1}, active_learning=[first])  # a restart kept
-    assert not continues(active_learning=[{**first, "train_seed": config["seed"] + 3}])  # another --seed
+    with pytest.raises(UserError, match=r"other training options \(seed\)"):  # another --seed
+        continues(active_learning=[{**first, "train_seed": config["seed"] + 3}])
     assert not continues(training_data={"path": str(tmp_path / "other.h5")})

@@ -46,6 +46,8 @@ from warp_hcell.core.files import atomic_write, output_lock
 
 ENRICHED_SUFFIX = "_db.h5"
 """Name ending of the enriched copy of the database beside the model (``enriched_path``)."""
+RESUME_MAY_CHANGE = ("threads",)
+"""Training options a continued run may change (the rounds after it run with the new value)."""
 ROUND_SET = ("hidden", "init_from", "seed", "round_share")
 """Training options that the active-learning rounds set themselves (wider network, warm start, the
 seed of a round that restarts after a rejected one) or that act on the rounds' samples only (their share)."""
@@ -81,7 +83,8 @@ def _continues(args: argparse.Namespace, database: Path):
     """The card (``training.card.ModelCard``) of ``args.out`` where it is the model of an earlier run
     of this command with these options: its JSON records active-learning rounds (none yet, too),
     training data --data or ``database``, and the training configuration of ``args``, but for what
-    the rounds set (``ROUND_SET``: the hidden widths and training seed are those of its round 0); None otherwise."""
+    the rounds set (``ROUND_SET``: the hidden widths and training seed are those of its round 0) and --threads; None where
+    it is no such model. UserError (one line) naming the options of an earlier run of this command that differ."""
     from training.card import read_card  # noqa: PLC0415 (torch: only when the command runs)
     from training.checkpoint import metadata_path  # noqa: PLC0415
 
@@ -96,9 +99,13 @@ def _continues(args: argparse.Namespace, database: Path):
     ours = training_config.config_record(training_command.config_of(args))
     first_seed = rounds[0].get("train_seed") if rounds else None
     first_seed = card.config.get("seed") if first_seed is None else first_seed
-    same = first_hidden == ours["hidden"] and first_seed == ours["seed"] and all(
-        card.config.get(k) == v for k, v in ours.items() if k not in ROUND_SET)
-    return card if same else None
+    first = {"hidden": first_hidden, "seed": first_seed}  # round 0's: the rounds change them
+    differ = ([k for k, v in first.items() if v != ours[k]]
+              + [k for k, v in ours.items() if k not in (*ROUND_SET, *RESUME_MAY_CHANGE) and card.config.get(k) != v])
+    if differ:
+        raise UserError(f"{args.out} is the model of a run with other training options ({', '.join(differ)}): rerun "
+                        f"that command to continue it, or pass --overwrite to train again")
+    return card
 
 
 def _database_mesostructure(path: Path):
