@@ -10,7 +10,7 @@ skipped when its output is complete (a second call continues; an interrupted sta
 3. the certificate and the active-learning rounds (``homogenization.learning.active.learn``): while the
    certificate fails, the budget (``ActiveSettings``: rounds, samples, seconds, the database's
    size) is left and rounds make progress, the DEM states of the failing tests are probed,
-   appended to ``db.h5`` and the model is retrained from scratch;
+   appended to ``db.h5`` and the model is retrained (from scratch, or from the kept weights with --warm-start);
 4. ``DIR/certificate.png``: p and q of the ANN and the DEM on the certificate's worst test.
 
 ``DIR/learn.json`` records the options of the run (the certified surrogate, --order, --spins, --release-rule and
