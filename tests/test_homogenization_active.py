@@ -109,6 +109,11 @@ def test_hmodel_learn_writes_every_stage_resumes_and_refuses_other_options(tmp_p
     assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == code
     second = capsys.readouterr().out
     assert second.count("(done before)") == 4 and (out / "ann.pt").read_bytes() == sha
+    with h5py.File(out / "db.h5", "a") as f:  # db.h5 changed after the kept model (a rejected round's samples)
+        f.attrs["edited"] = 1
+    assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == code
+    third = capsys.readouterr().out  # the kept model and its rounds stay: they were retrained from scratch
+    assert f"model: {out / 'ann.pt'} (done before)" in third and (out / "ann.pt").read_bytes() == sha
     for other in (["--samples", "3000"], ["--spins", "2"], ["--order", "5"]):  # the 3D certificate's rule was not kept
         assert hmodel.main(["learn", *LEARN, *other, "--out", str(out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()

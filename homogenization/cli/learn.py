@@ -6,7 +6,7 @@ skipped when its output is complete (a second call continues; an interrupted sta
 1. ``DIR/db.h5``: the learning database (``warp_hcell.database.generate``; resumes from its
    sidecar ``DIR/db.h5.parts``);
 2. ``DIR/ann.pt``, ``DIR/ann.json``: the meso-ANN (``training.train``), skipped when the JSON's
-   training data is the current ``db.h5``;
+   training data is the current ``db.h5`` or it is the kept model of earlier rounds on it;
 3. the certificate and the active-learning rounds (``homogenization.learning.active.learn``): while the
    certificate fails, the budget (``ActiveSettings``: rounds, samples, seconds, the database's
    size) is left and rounds make progress, the DEM states of the failing tests are probed,
@@ -156,7 +156,8 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
 
     db, model, figure = out / "db.h5", out / "ann.pt", out / "certificate.png"
     bar = EpochBar()
-    if _database_complete(db):
+    generated = not _database_complete(db)
+    if not generated:
         say(f"database: {db} (done before)")
     else:
         try:
@@ -167,7 +168,10 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
                             f"command to resume") from None
         say(f"database: {db}, {settings.samples} samples")
     card = read_card(model) if metadata_path(model).is_file() and model.is_file() else None
-    if card is not None and card.training_data["sha256"] == file_sha256(db):
+    # the kept model of earlier rounds on this database: a round's samples (a rejected round's, or appended before an
+    # interruption) change db.h5 after it; the rounds go on from their record
+    of_rounds = card is not None and not generated and bool(card.active_learning)
+    if card is not None and (of_rounds or card.training_data["sha256"] == file_sha256(db)):
         say(f"model: {model} (done before)")
     else:
         card = active.train_model(db, model, config, [], progress=bar, log=say)
