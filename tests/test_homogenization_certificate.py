@@ -306,9 +306,10 @@ def test_certify_of_a_failing_model_exits_3(tmp_path, capsys):
     assert cert["verdict"] == "failed" and not cert["passed"] and cert["worst"] > certificate.TARGET
 
 
-def test_hmodel_train_certifies_and_a_model_of_a_tiny_database_fails_and_is_refused(tmp_path, capsys):
+def test_hmodel_train_certifies_and_a_model_of_a_tiny_database_fails_and_is_refused(tmp_path, capsys, monkeypatch):
     """A few epochs on a small database (the issue's model known to fail): `hmodel train --no-enrich`
-    writes it with its failed certificate; the backend refuses it in one line."""
+    writes it with its failed certificate; the backend refuses it in one line. Interrupted during its certificate,
+    the same command certifies the model it trained (it was refused: the model existed)."""
     from dem_database import build
     from homogenization.cli import hmodel
     from warp_hcell.mesostructures.hcell import h_cell
@@ -316,9 +317,21 @@ def test_hmodel_train_certifies_and_a_model_of_a_tiny_database_fails_and_is_refu
     db = build(tmp_path / "db.h5", mesostructure=h_cell(55.0), precompression=(0.0, 2e-3), n_directions=6,
                spacing=1e-2, leg_length=0.04, threads=1)
     model = tmp_path / "m.pt"
-    assert hmodel.main(["train", "--data", str(db), "--out", str(model), "--epochs", "2", "--hidden", "8",
-                        "--threads", "1", "--no-rollout", "--no-enrich"]) == certificate.EXIT_FAILED
+    argv = ["train", "--data", str(db), "--out", str(model), "--epochs", "2", "--hidden", "8", "--threads", "1",
+            "--no-rollout", "--no-enrich"]
+    certify = certificate.certify
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(certificate, "certify", interrupted)
+    assert run_main(hmodel.main, argv) == 130
+    trained = model.read_bytes()
+    monkeypatch.setattr(certificate, "certify", certify)
+    capsys.readouterr()
+    assert hmodel.main(argv) == certificate.EXIT_FAILED
     printed = capsys.readouterr().out
+    assert "trained before with these options, not yet certified" in printed and model.read_bytes() == trained
     meta = json.loads(model.with_suffix(".json").read_text())
     cert = meta["certificate"]
     assert "active round" not in printed and "active_learning" not in meta  # --no-enrich: certify only

@@ -42,7 +42,8 @@ from homogenization.cli.options import (active_settings, add_active_arguments, c
 from training import config as training_config
 from training import train as training_command
 from warp_hcell.core.cli import UserError, command_prog, quiet_warp, say, set_verbosity
-from warp_hcell.core.files import atomic_write, output_lock
+from warp_hcell.core.files import atomic_write, output_lock, sigterm_as_interrupt
+from warp_hcell.core.provenance import file_sha256
 
 ENRICHED_SUFFIX = "_db.h5"
 """Name ending of the enriched copy of the database beside the model (``enriched_path``)."""
@@ -106,6 +107,20 @@ def _continues(args: argparse.Namespace, database: Path):
         raise UserError(f"{args.out} is the model of a run with other training options ({', '.join(differ)}): rerun "
                         f"that command to continue it, or pass --overwrite to train again")
     return card
+
+
+def _uncertified(args: argparse.Namespace, config):
+    """The card of ``args.out`` where it is a model this command trained with these options on --data and has not yet
+    certified (an interruption during its certificate); None otherwise (--overwrite: None)."""
+    from training.card import read_card  # noqa: PLC0415 (torch: only when the command runs)
+    from training.checkpoint import metadata_path  # noqa: PLC0415
+
+    if args.overwrite or not (args.out.is_file() and metadata_path(args.out).is_file()):
+        return None
+    card = read_card(args.out)
+    same = (card.certificate is None and card.config == training_config.config_record(config)
+            and card.training_data.get("sha256") == file_sha256(args.data))
+    return card if same else None
 
 
 def _database_mesostructure(path: Path):
@@ -177,17 +192,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         say(equilibrium_line(measured, args.equilibrium_corrections is not None)
             + (f"; training {config.epochs} epochs at most, patience {config.patience}" if measured.equilibrium_corrections
                else ""))
+    uncertified = None if enrich or args.no_certify else _uncertified(args, config)
     if resumed:
         say(f"{args.out}: an earlier run of these options, continued")
     else:
         if database != args.data and database.exists() and not args.overwrite:
             raise UserError(f"{database} exists; pass --overwrite to replace it")
-        fitting.train_and_save(args.data, args.out, config, overwrite=args.overwrite, progress=bar, log=say)
+        if uncertified is not None:
+            say(f"{args.out}: trained before with these options, not yet certified")
+        else:
+            fitting.train_and_save(args.data, args.out, config, overwrite=args.overwrite, progress=bar, log=say)
         if args.no_certify:
             return 0
         card = read_card(args.out)
         if not enrich:
-            cert = certificate.certify(args.out, card=card, **measured.keywords())
+            with sigterm_as_interrupt():  # a kill is the one-line interruption; the same command then certifies
+                cert = certificate.certify(args.out, card=card, **measured.keywords())
             say(*certificate.summary_lines(cert),
                 f"certificate -> {certificate.write_certificate(args.out, cert, card)}")
             return certificate.exit_code(cert)
