@@ -208,3 +208,16 @@ def test_a_builder_spec_is_built_at_the_radius_given(tmp_path, capsys):
     header, table = _read(out)
     l1 = table[0, header.split(",").index("l1")]
     np.testing.assert_allclose(l1, 2 * 0.25 * (1 + 2 * np.cos(np.radians(55.0))) * (1 - 1e-5), rtol=1e-6)
+
+
+@pytest.mark.parametrize("spec, warned", [("hcell:alpha0=50", True), ("hcell", False),
+                                          (str(Path(cell.__file__).parents[2] / "warp_hcell" / "data" /
+                                               "h_cell_fine_grain.toml"), True)])
+def test_an_alpha0_the_cell_does_not_take_is_said(spec, warned, tmp_path, capsys, recwarn):
+    """A spec with its own alpha0, or a file, ran at its own angle whatever --alpha0 said, silently."""
+    out = tmp_path / "out.csv"
+    code, _ = _run(["--backend", "dem", "--mesostructure", spec, "--alpha0", 35, "--path", _compression(tmp_path, n=1),
+                    "--out", out], capsys)
+    said = [str(w.message) for w in recwarn if "--alpha0 is not used" in str(w.message)]
+    assert code == 0 and len(said) == int(warned), said
+    assert all(message.endswith("gives its own opening angle") for message in said)

@@ -126,6 +126,16 @@ def explicit_flags(parser: argparse.ArgumentParser, argv: Sequence[str], dests: 
     return {dest for dest in dests if parsed.get(dest, unset) is not unset}
 
 
+def unused_alpha0(parser: argparse.ArgumentParser, argv: Sequence[str], source: Any) -> str | None:
+    """One warning line where ``argv`` gives --alpha0 but the cell ``source`` (``--mesostructure``, None: the H-cell of
+    --alpha0) does not take it: a file, or a spec with its own alpha0; None otherwise."""
+    if source is None or "alpha0" not in explicit_flags(parser, argv, ("alpha0",)):
+        return None
+    if source.kind is not None and "alpha0" not in dict(source.options):
+        return None
+    return f"--alpha0 is not used: --mesostructure {source.text} gives its own opening angle"
+
+
 def refuse_programme_flags(parser: argparse.ArgumentParser, argv: Sequence[str], flags: dict[str, str]) -> None:
     """UserError (one line) naming the flags of the built-in programme (``flags``: argparse dest ->
     flag) that ``argv`` sets along with --programme; ``parser`` is a fresh parser of the command."""
