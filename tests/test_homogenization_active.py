@@ -306,3 +306,27 @@ def test_an_earlier_run_is_recognised_by_its_rounds_data_and_options_not_by_what
     with pytest.raises(UserError, match=r"other training options \(seed\)"):  # another --seed
         continues(active_learning=[{**first, "train_seed": config["seed"] + 3}])
     assert not continues(training_data={"path": str(tmp_path / "other.h5")})
+
+
+def test_learn_overwrite_keeps_the_finished_run_until_the_new_one_finishes(tmp_path, monkeypatch):
+    """--overwrite deleted the earlier run before the new one had done anything: an interruption lost both."""
+    from homogenization.cli import hmodel, learn  # noqa: PLC0415
+
+    out, replaced = tmp_path / "run", tmp_path / ".run.replaced"
+
+    def finishing(args, out, *rest):
+        (out / "ann.pt").write_text(f"model of {args.samples}")
+        return 0
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(learn, "_learn", finishing)
+    assert hmodel.main(["learn", *LEARN, "--out", str(out)]) == 0
+    monkeypatch.setattr(learn, "_learn", interrupted)
+    for samples in ("3000", "4000"):  # interrupted twice: the finished run is kept, not the unfinished one
+        assert hmodel.main(["learn", *LEARN, "--samples", samples, "--overwrite", "--out", str(out)]) == 130
+        assert (replaced / "ann.pt").read_text() == "model of 2000" and not (out / "ann.pt").exists()
+    monkeypatch.setattr(learn, "_learn", finishing)
+    assert hmodel.main(["learn", *LEARN, "--samples", "4000", "--out", str(out)]) == 0  # the same command finishes
+    assert (out / "ann.pt").read_text() == "model of 4000" and not replaced.exists()

@@ -15,8 +15,8 @@ skipped when its output is complete (a second call continues; an interrupted sta
 
 ``DIR/learn.json`` records the options of the run (the certified surrogate, --order, --spins, --release-rule and
 the round flags --stall-rounds, --departure-margin and --max-database-mb included): a second call with other options is refused
-(one line, exit 2) unless --overwrite, which starts the folder again (a folder with other files
-and no ``learn.json`` is refused). The exit code is the final certificate's verdict
+(one line, exit 2) unless --overwrite, which starts the folder again; the earlier run is moved to ``.DIR.replaced``
+beside it and removed once the new run finishes (a folder with other files and no ``learn.json`` is refused). The exit code is the final certificate's verdict
 (``certificate.exit_code``: 0 passed, 3 failed, 4 below the minimum certificate; bad input 2),
 also printed and stored in ``ann.json``.
 """
@@ -107,6 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UserError(f"--out {out} is a file; give a folder")
     check_output_path(out, overwrite=True)  # the nearest existing folder above --out can be written
     record, options = out / "learn.json", _options(args, meso, measured)
+    replaced = out.parent / f".{out.name}.replaced"
     if not args.verbose:
         quiet_warp()
     with output_lock(out):
@@ -116,14 +117,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not args.overwrite:
                 raise UserError(f"{out} holds a learn run with other options; rerun it with the same options or "
                                 f"pass --overwrite to start again")
-            shutil.rmtree(out)
+            if replaced.exists():  # out is an unfinished run that replaces it: the finished one stays
+                shutil.rmtree(out)
+            else:
+                out.rename(replaced)
+            say(f"the earlier run is kept in {replaced} until this one finishes")
         out.mkdir(parents=True, exist_ok=True)
         with atomic_write(record) as tmp:
             tmp.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
         say(equilibrium_line(measured, args.equilibrium_corrections is not None)
             + (f"; training {config.epochs} epochs at most, patience {config.patience}" if measured.equilibrium_corrections
                else ""))
-        return _learn(args, out, meso, settings, budget, measured, config)
+        code = _learn(args, out, meso, settings, budget, measured, config)
+        shutil.rmtree(replaced, ignore_errors=True)  # this run finished: the one it replaces goes
+        return code
 
 
 def _database_complete(path: Path) -> bool:
