@@ -187,6 +187,7 @@ def test_a_spread_is_judged_at_the_void_ratios_alpha0_not_the_fixed_one(spread_d
     assert run_main(calibrate.main, ["--data", str(data), *common, "--params", "phi_g", "--alpha0", "50",
                                      "--alpha0-spread", "8", "--e-min", "0.597", "--e-max", "0.977", "--steps", "1",
                                      "--order", "5", "--spins", "2", "--resolution", "off", "--confirm", "none",
+                                     "--start", "prior",
                                      "--out", str(out)]) == 0
     run = ["triaxial", "--posterior", str(out), "--drained", "--p0", "1e5", "--eps-max", "8e-3", "--increment", "4e-3",
            "--iso-increment", "2e-3", "--order", "5", "--spins", "2", "-q"]
