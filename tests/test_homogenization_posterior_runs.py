@@ -40,7 +40,7 @@ def posterior_3d(tmp_path_factory) -> Path:
     assert run_main(calibrate.main, ["--data", str(data), "--params", "phi_g,kt_over_kn", "--walkers", "4",
                                      "--steps", "4", "--kn", "3e8", "--alpha0", "60", "--increment", str(INC),
                                      "--iso-increment", str(ISO), "--resolution", "off", "--confirm", "none", "-q",
-                                     "--out", str(out)]) == 0
+                                     "--start", "prior", "--out", str(out)]) == 0
     return out
 
 
@@ -52,7 +52,7 @@ def posterior_2d(tmp_path_factory) -> Path:
     out = folder / "cal"
     assert run_main(calibrate.main, ["--data", str(data), "--params", "phi_g,alpha0", "--walkers", "4", "--steps",
                                      "3", "--orientations", "4", "--increment", "4e-3", "--iso-increment", "2e-3",
-                                     "--confirm", "none", "-q", "--out", str(out)]) == 0
+                                     "--confirm", "none", "-q", "--start", "prior", "--out", str(out)]) == 0
     return out
 
 
