@@ -45,6 +45,7 @@ def calibrate_run(paths: list[Path], out: Path, *extra: str) -> int:
     return run_main(calibrate.main, argv)
 
 
+@pytest.mark.slow  # 20-33 s: the resolution check refines to 192 orientations at 3e-5 (also bench_calibrate_truths.py)
 def test_known_truth_lies_inside_the_intervals_with_the_default_increment(tmp_path):
     """The default increment (1e-3) is several sigma away from the converged curves of these low-pressure
     tests: without the resolution check (and the start's further fits) the posterior misses the truth by

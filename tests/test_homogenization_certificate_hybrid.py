@@ -67,6 +67,7 @@ def test_a_tiny_certificate_of_the_hybrid_records_k_and_covers_that_hybrid_only(
 
 
 @needs_model
+@pytest.mark.slow  # 18-22 s: the full default certificate of the 3D hybrid
 def test_the_default_certificate_of_the_hybrid_passes_and_covers_its_runs_only(tmp_path, _hmodel):
     """The full default certificate of the shipped 3D model with K = 2 at 1e-3 (without the DEM from rest,
     which it does not check) against the network alone's, the shipped model's own certificate (both have their
