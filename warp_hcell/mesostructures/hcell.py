@@ -51,7 +51,7 @@ from warp_hcell.core.parameters import (
     check_alpha0_deg,
     check_positive,
 )
-from warp_hcell.mesostructures.mesostructure import Mesostructure, MesostructureError, PairObservable
+from warp_hcell.mesostructures.mesostructure import inside_outer, Mesostructure, MesostructureError, PairObservable
 
 N_GRAINS = 6
 """Grains of the H-cell skeleton (labels 1..6); fine grains follow."""
@@ -244,9 +244,8 @@ def build_h_cell(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: float =
     offsets = [(0.0, 0.0)] * len(fines) if fine_offsets is None else list(fine_offsets)
     if len(offsets) != len(fines):
         raise MesostructureError(f"mesostructure {label!r}: {len(fines)} fine grains but {len(offsets)} positions")
-    hexagon = position[[0, 1, 2, 3, 4, 5]]
     fine_radius, fine_position = _place_fines(
-        label, fines, offsets, radius, 2, inside=lambda centre: _inside(hexagon, centre),
+        label, fines, offsets, radius, 2, inside=lambda centre: inside_outer(position, np.arange(N_GRAINS), centre),
         room=lambda offset: pore_ratio(alpha0_deg, lateral=lateral, n=offset[0], t=offset[1]),
         where=lambda offset: f"n={offset[0]:g}, t={offset[1]:g}", pore="the pore (hexagon 1-2-3-4-5-6)",
         note=f" (alpha0 = {alpha0_deg:g} deg)")
@@ -310,14 +309,6 @@ def _default_name(alpha0_deg: float, lateral: float, fines: tuple[float, ...]) -
     if any(f > 0.0 for f in fines):
         parts.append("fines r_f/r=" + "/".join(f"{f:g}" for f in fines))
     return ", ".join(parts)
-
-
-def _inside(polygon: np.ndarray, point: np.ndarray) -> bool:
-    """True if ``point`` lies strictly inside the convex ``polygon`` (ordered vertices)."""
-    edge = np.roll(polygon, -1, axis=0) - polygon
-    rel = point - polygon
-    cross = edge[:, 0] * rel[:, 1] - edge[:, 1] * rel[:, 0]
-    return bool(np.all(cross > 0.0) or np.all(cross < 0.0))
 
 
 def plain_alpha0(meso: Mesostructure) -> tuple[float, float] | None:
@@ -625,10 +616,8 @@ def build_h_cell_3d(alpha0_deg: float = CellDefaults.alpha0_deg, *, radius: floa
     offsets = [(0.0, 0.0, 0.0)] * len(fines) if fine_offsets is None else list(fine_offsets)
     if len(offsets) != len(fines):
         raise MesostructureError(f"mesostructure {label!r}: {len(fines)} fine grains but {len(offsets)} positions")
-    a, b, c = (position[faces[:, m]] for m in range(3))
     fine_radius, fine_position = _place_fines(
-        label, fines, offsets, radius, 3,
-        inside=lambda centre: bool(np.all(np.einsum("fi,fi->f", np.cross(b - a, c - a), centre - a) < 0.0)),
+        label, fines, offsets, radius, 3, inside=lambda centre: inside_outer(position, faces, centre),
         room=lambda offset: float(np.min(np.linalg.norm(position - np.asarray(offset) * radius, axis=1)
                                          - radii)) / radius,
         where=lambda offset: f"{tuple(offset)}", pore="the pore (the cell's outer surface)", note="")

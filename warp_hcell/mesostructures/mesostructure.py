@@ -14,6 +14,7 @@ Exports:
 - ``MesostructureError``: raised, with a one-line message, for invalid descriptions.
 - ``state_schema(meso)``: the learning state of the cell (``warp_hcell.core.contract.StateSchema``).
 - ``shares_state_schema(a, b)``: True when cells of ``b`` are states of ``a``'s schema.
+- ``inside_outer(position, outer, point)``: whether a point lies inside a cell's outer boundary.
 - ``per_cell(mesostructure, n_cells)``: the distinct mesostructures of a batch of cells and
   each cell's index into them (``CellModel.init_state`` takes one or one per cell).
 - ``topology_arrays(meso, n_cells)``: the topology repeated per cell, for state arrays
@@ -301,7 +302,7 @@ def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_labe
     if not cell_measure(position, outer) > 0.0:
         raise MesostructureError(f"mesostructure {name!r}: the outer {cell.empty_boundary}")
     outside = [g + 1 for g in sorted(set(range(n_grains)) - set(np.unique(outer).tolist()))
-               if not _inside(position, outer, position[g])]
+               if not inside_outer(position, outer, position[g])]
     if outside:
         raise MesostructureError(f"mesostructure {name!r}: grain {outside[0]} lies outside the cell's outer "
                                  f"{cell.boundary}")
@@ -351,9 +352,10 @@ def _segments_meet(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -
     return any(s == 0 and within(p, q, r) for s, p, q, r in ((s1, a, b, c), (s2, a, b, d), (s3, c, d, a), (s4, c, d, b)))
 
 
-def _inside(position: np.ndarray, outer: np.ndarray, point: np.ndarray) -> bool:
-    """Whether ``point`` lies inside the closed outer boundary: winding number of the polygon (2D) or solid angle of
-    the triangles (3D, Van Oosterom and Strackee) about it, nonzero inside."""
+def inside_outer(position: np.ndarray, outer: np.ndarray, point: np.ndarray) -> bool:
+    """Whether ``point`` [m] lies inside the closed outer boundary through ``position`` [m] (n_grains, dim): the winding
+    number of the polygon ``outer`` (n_outer,) (2D) or the solid angle of the triangles ``outer`` (n_faces, 3) (3D, Van
+    Oosterom and Strackee) about it, nonzero inside; convex or not."""
     if outer.ndim == 1:
         rel = position[outer] - point
         angle = np.arctan2(rel[:, 1], rel[:, 0])
