@@ -46,9 +46,9 @@ SETTINGS: list[tuple[dict[str, str], bool]] = [
 AVX-512 level, and at its lowest level (numpy's SSE4.2 baseline, OpenBLAS's and glibc's kernels for a CPU
 without FMA, numba's generic x86-64). The AVX-512 setting leaves numba at the host's CPU: it runs only on a host
 with AVX-512, for which numba compiles AVX-512 code already (and loads the first setting's kernels instead of
-compiling them for a named AVX-512 CPU, about 40 s of CPU). numba's generic level is that last setting's: the ``other_cpus``
-tests compile the meso-ANN's steps for it too, and the last setting then loads them from numba's cache
-instead of compiling them a second time."""
+compiling them for a named AVX-512 CPU, about 40 s of CPU). The ``other_cpus`` tests compile the meso-ANN's steps
+for numba's haswell and generic CPUs, the AVX2 and the last setting's: those two settings then load them from
+numba's cache instead of compiling them a second time."""
 
 
 def has_avx512() -> bool:
