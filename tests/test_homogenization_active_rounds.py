@@ -7,6 +7,7 @@ import dataclasses
 import json
 import math
 import re
+from pathlib import Path
 from types import SimpleNamespace
 
 import h5py
@@ -215,6 +216,30 @@ def test_the_database_is_stored_compressed(model_3d):
         assert f["after/normal_force"].dtype == np.float32 and "after/normal_force" in f.attrs["float32_datasets"]
 
 
+def test_a_promotion_cut_short_is_completed(tmp_path, monkeypatch):
+    """A kill between the renames of an accepted round's files leaves the new weights beside the old JSON; the next
+    run completes the move (the weights, JSON and index one model's again)."""
+    model = tmp_path / "ann.pt"
+    for old, new in zip(active.model_files(model), active.model_files(active.candidate_path(model))):
+        old.write_text("old " + old.name)
+        new.write_text("new " + old.name)
+    real = active.os.replace
+
+    def killed_at_the_json(source, target):
+        if Path(target).suffix == ".json":
+            raise KeyboardInterrupt
+        real(source, target)
+
+    monkeypatch.setattr(active.os, "replace", killed_at_the_json)
+    with pytest.raises(KeyboardInterrupt):
+        active._promote(active.candidate_path(model), model)
+    monkeypatch.setattr(active.os, "replace", real)
+    assert model.read_text() == "new ann.pt" and model.with_suffix(".json").read_text() == "old ann.json"
+    assert active.finish_promotion(model) and not active.finish_promotion(model)
+    assert [f.read_text() for f in active.model_files(model)] == [f"new {f.name}" for f in active.model_files(model)]
+    assert not any(f.exists() for f in active.model_files(active.candidate_path(model)))
+
+
 def test_bad_budget_settings_are_refused():
     for bad in ({"max_database_mb": 0.0}, {"stall_rounds": 0}, {"departure_margin": 1.5}):
         with pytest.raises(ValueError):
@@ -319,6 +344,10 @@ def test_rounds_go_on_past_a_passed_certificate_until_the_round_target(tiny, mon
     rounds, cert = active.learn(db, model, TRAIN_CONFIG, settings=settings, certify_settings=measured)
     assert [r.round for r in rounds] == [0, 1] and cert.worst <= 0.02 < rounds[0].worst
     strict = dataclasses.replace(settings, round_target=cert.worst / 10)
+    spent = sum(r.seconds for r in rounds)  # a resumed run's time budget counts the rounds of earlier processes
+    again, _ = active.learn(db, model, TRAIN_CONFIG, settings=dataclasses.replace(strict, max_seconds=spent),
+                            certify_settings=measured)
+    assert [r.round for r in again] == [0, 1] and "active learning stops: budget spent" in capsys.readouterr().out
     rounds, after = active.learn(db, model, TRAIN_CONFIG, settings=strict, certify_settings=measured)
     assert [r.round for r in rounds] == [0, 1, 2, 3]  # the budget, not the pass, ended them
     assert after.target == 0.02 and after.worst <= cert.worst

@@ -174,6 +174,7 @@ def _learn(args: argparse.Namespace, out: Path, meso, settings: DatabaseSettings
             raise UserError(f"no space left on the device writing {exc.filename}; free space and rerun the same "
                             f"command to resume") from None
         say(f"database: {db}, {settings.samples} samples")
+    active.finish_promotion(model)  # a round's model moved in half before an interruption
     card = read_card(model) if metadata_path(model).is_file() and model.is_file() else None
     # the kept model of earlier rounds on this database: a round's samples (a rejected round's, or appended before an
     # interruption) change db.h5 after it; the rounds go on from their record

@@ -270,7 +270,7 @@ def add_active_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-samples", type=positive_int, default=budget.max_samples,
                         help="samples added over all rounds at most")
     parser.add_argument("--max-seconds", type=positive_float, default=budget.max_seconds,
-                        help="wall time [s] after which no new round starts")
+                        help="wall time [s] after which no new round starts (a resumed run counts its earlier rounds' time)")
     parser.add_argument("--warm-start", action=argparse.BooleanOptionalAction, default=budget.warm_start,
                         help="retrain each round from the previous round's weights")
     parser.add_argument("--widen", action=argparse.BooleanOptionalAction, default=budget.widen,

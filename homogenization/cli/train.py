@@ -183,6 +183,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     enrich = not (args.no_certify or args.no_enrich or budget.rounds == 0)
     config = training_command.config_of(args)
     database = enriched_path(args) if enrich else args.data
+    if enrich:
+        active.finish_promotion(args.out)  # a round's model moved in half before an interruption
     card = _continues(args, database) if enrich else None
     resumed = card is not None
     if not args.verbose:

@@ -390,12 +390,31 @@ def model_files(model: Path) -> list[Path]:
             model.with_name(f"{model.stem}_ood.npz")]
 
 
+def _promotion_marker(model: Path) -> Path:
+    """The file whose presence says that the candidate's files are being moved onto ``model``'s."""
+    return candidate_path(model).with_suffix(".promoting")
+
+
 def _promote(candidate: Path, model: Path) -> None:
-    """Move the files of ``candidate`` onto those of ``model`` (each an atomic rename; the JSON last)."""
-    pairs = list(zip(model_files(candidate), model_files(model)))
+    """Move the files of ``candidate`` (``candidate_path(model)``, complete) onto those of ``model``: a marker
+    first, then each file by an atomic rename, the JSON last (``finish_promotion`` completes an interrupted one)."""
+    _promotion_marker(model).touch()
+    finish_promotion(model)
+
+
+def finish_promotion(model: Path) -> bool:
+    """Complete a promotion of the candidate onto ``model`` that an interruption left half done (its marker
+    present): the candidate's files still there replace ``model``'s, so that the weights, the JSON and the
+    out-of-distribution index are one model's again. Returns whether there was one to complete."""
+    marker = _promotion_marker(model)
+    if not marker.exists():
+        return False
+    pairs = list(zip(model_files(candidate_path(model)), model_files(model)))
     for source, target in pairs[2:] + pairs[:1] + pairs[1:2]:
         if source.exists():
             os.replace(source, target)
+    marker.unlink()
+    return True
 
 
 def _discard(candidate: Path) -> None:
@@ -492,10 +511,11 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         progress: receives every training's epochs (``training.fitting.Progress``; None: silent).
     """
     start = time.perf_counter()
-    card = read_card(model) if card is None else card
+    card = read_card(model) if card is None or finish_promotion(model) else card
     stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
     stored_cert, rounds = learning_of(card)
     rounds = [r for r in rounds if r.round <= len(stored)]
+    spent = sum(r.seconds for r in rounds)  # by earlier processes of this run: --max-seconds counts them too
     dim = from_description(card.mesostructure).dim
     if not rounds and card.training_data["sha256"] != file_sha256(db):  # not trained on this database
         widths = tuple((stored[-1].get("hidden") if stored else None) or card.architecture["hidden"])
@@ -518,7 +538,7 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
     added_total = sum(r["samples"] for r in stored)
     while short_of_aim(loop.cert, settings):
         k = len(stored) + 1
-        stop = _stop_line(k, loop, db, settings, added_total, time.perf_counter() - start)
+        stop = _stop_line(k, loop, db, settings, added_total, spent + time.perf_counter() - start)
         if stop is not None:
             log(stop)
             break

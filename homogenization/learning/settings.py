@@ -119,7 +119,7 @@ class ActiveSettings:
     max_samples: int = 100_000
     """Samples added over all rounds at most [-]."""
     max_seconds: float = 4 * 3600.0
-    """Wall time [s] after which no new round starts."""
+    """Wall time [s] after which no new round starts; a resumed run counts its earlier processes' rounds too."""
     state_every: int = 10
     """Increments between two DEM states kept along a certificate test [-]."""
     warm_start: bool = False
