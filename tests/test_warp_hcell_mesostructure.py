@@ -107,6 +107,8 @@ def _square(**changes):
     (dict(driven=[[1, 1]] * 4), "mesostructure 'square': driven flags must be booleans, shape (4, 2)"),
     (dict(pairs=[[1, 1]]), "mesostructure 'square': pairs must be (i, j) with 1 <= i < j <= 4"),
     (dict(pairs=[[0, 1], [0, 1]]), "mesostructure 'square': duplicate contact pairs"),
+    (dict(pairs=[[0, 1], [1, 2], [2, 3]]), "mesostructure 'square': grains 1 and 4 touch but are not a candidate "
+     "pair (their contact would carry no force): add [1, 4] to pairs"),
     (dict(outer=[0, 1, 1]), "mesostructure 'square': outer polygon needs >= 3 distinct grains in 1..4"),
     (dict(cell_size=[1.0, 0.0]), "mesostructure 'square': cell_size must be two finite values > 0"),
 ])

@@ -40,7 +40,7 @@ def load_mesostructure(path: str | Path, *, contact_tolerance: float = DemSettin
         name = "h-cell, lateral grains 0.7 D"
         cell_size = [l1_ref, l2_ref]
         outer = [1, 2, 3, 4, 5, 6]          # ordered polygon whose area is V_cell
-        pairs = [[1, 2], ...]               # optional; default: all pairs
+        pairs = [[1, 2], ...]               # optional; default: all pairs (touching grains must be one)
         type1 = [[1, 2], [1, 6], ...]       # optional H-cell labels (``hcell.file_labels``)
         type2 = [[2, 3], [5, 6]]
         [[grains]]                          # one table per grain, in label order

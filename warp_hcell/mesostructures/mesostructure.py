@@ -306,12 +306,17 @@ def _validate(name, radius, position, driven, pairs, outer, cell_size, pair_labe
     if outside:
         raise MesostructureError(f"mesostructure {name!r}: grain {outside[0]} lies outside the cell's outer "
                                  f"{cell.boundary}")
+    listed = set(map(tuple, pairs.tolist()))
     for i, j in combinations(range(n_grains), 2):
         gap = math.dist(position[i], position[j]) - radius[i] - radius[j]
         if gap < -tolerance * (radius[i] + radius[j]):
             raise MesostructureError(
                 f"mesostructure {name!r}: grains {i + 1} and {j + 1} overlap by {-gap:.3g} m "
                 f"(more than the contact tolerance)")
+        if gap <= tolerance * (radius[i] + radius[j]) and (i, j) not in listed:
+            raise MesostructureError(f"mesostructure {name!r}: grains {i + 1} and {j + 1} touch but are not a "
+                                     f"candidate pair (their contact would carry no force): add [{i + 1}, {j + 1}] "
+                                     f"to pairs")
 
 
 def _check_boundary(name: str, position: np.ndarray, outer: np.ndarray) -> None:
