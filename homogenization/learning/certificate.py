@@ -47,6 +47,7 @@ Sign convention: compression and contraction positive; stresses in N/m.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import sys
 import time
@@ -68,7 +69,7 @@ from training.rollout import rollout_report
 from warp_hcell.core.files import atomic_write
 from warp_hcell.core.parameters import DemSettings
 from warp_hcell.core.provenance import file_sha256, git_revision
-from warp_hcell.mesostructures.files import from_description
+from warp_hcell.mesostructures.files import describe, description_sha256, from_description
 from warp_hcell.mesostructures.mesostructure import Mesostructure
 
 TARGET = MINIMUM.target
@@ -338,6 +339,47 @@ def _widest_spread(results: list[dict[str, Any]], target: float) -> dict[str, An
             "above_target": [t["name"] for t in results if t["dem_spread"] > target]}
 
 
+@dataclasses.dataclass(frozen=True)
+class _DemReference:
+    """The DEM's side of a certificate's tests (it does not depend on the model): per test its record and
+    its ``dem_spread`` entry ({} without the reproducibility run), and ``_Sampler``'s states and coverage."""
+
+    records: list[driver.Record]
+    spreads: list[dict[str, Any]]
+    states: dict[int, list[dict[str, np.ndarray]]]
+    coverage: list[dict[str, np.ndarray]]
+
+
+_LAST_REFERENCE: dict[str, _DemReference] = {}
+"""The latest ``_DemReference`` by its key (one entry): the rounds of ``hmodel learn`` certify every candidate on
+the same tests in one process, and the DEM then runs them once."""
+
+
+def _dem_reference(meso: Mesostructure, law: Any, settings: DemSettings, tests: list, requested: dict[str, Any],
+                   state_every: int, reproducibility: bool, threads: int) -> _DemReference:
+    """The DEM runs of ``tests`` (``tests_of``) on ``meso`` with the contact ``law`` and ``settings``, states kept
+    every ``state_every`` increments, the reproducibility runs where asked; the latest call's result again where
+    nothing of these differs (the DEM's results do not depend on ``threads``)."""
+    key = json.dumps([description_sha256(describe(meso)), repr(law), dataclasses.asdict(settings),
+                      [info for info, _ in tests], requested, state_every, reproducibility], default=str,
+                     sort_keys=True)
+    if key in _LAST_REFERENCE:
+        return _LAST_REFERENCE[key]
+    dem = make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()), settings=settings, threads=threads)
+    sampler = _Sampler(dem, state_every)
+    rest = FromRest(dem) if reproducibility else None
+    records, spreads = [], []
+    for k, test in enumerate(tests):
+        sampler.test = k
+        d = run_test(sampler, test[1], meso, requested)
+        scale = max(float(test[0]["p0"]), float(np.max(d.p)))
+        records.append(d)
+        spreads.append({} if rest is None else _dem_spread(rest, test, meso, requested, d, scale))
+    _LAST_REFERENCE.clear()
+    _LAST_REFERENCE[key] = _DemReference(records, spreads, sampler.states, sampler.coverage)
+    return _LAST_REFERENCE[key]
+
+
 def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pressures: Sequence[float] = PRESSURES,
             eps_max: float = EPS_MAX, increment: float = INCREMENT, n_orientations: int = N_ORIENTATIONS,
             spatial_rule: Sequence[int] = SPATIAL_RULE, target: float = TARGET, rollout: bool = True, threads: int = 1,
@@ -374,26 +416,22 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     meso = mesostructure if mesostructure is not None else from_description(card.mesostructure)
     ann.check_trained_on(meso)
     settings = DemSettings(contact_tolerance=float(card.contact_tolerance))
-    dem = make_cell_model("dem", contact_law=law, radius=float(meso.radius.mean()), settings=settings, threads=threads)
     free = ann.net.schema.free_dofs.cpu().numpy()
-    sampler = _Sampler(dem, int(state_every))
-    rest = FromRest(dem) if reproducibility else None
     requested = requested_settings(meso.dim, pressures=pressures, eps_max=eps_max, increment=increment,
                                    n_orientations=n_orientations, spatial_rule=spatial_rule,
                                    equilibrium_corrections=equilibrium_corrections,
                                    equilibrium_tolerance=ann.force_tolerance if equilibrium_corrections else None,
                                    dem_escalation=ann.escalation is not None, release_rule=release_rule)
+    tests = tests_of(pressures, eps_max, increment, n_orientations, meso.dim)
+    reference = _dem_reference(meso, law, settings, tests, requested, int(state_every), reproducibility, threads)
     results = []
-    n_cells = 0
+    n_cells = reference.records[0].weights.size
     counter = _Counter(ann)
-    for k, test in enumerate(tests_of(pressures, eps_max, increment, n_orientations, meso.dim)):
+    for k, (test, d, spread) in enumerate(zip(tests, reference.records, reference.spreads)):
         info, programme = test
-        sampler.test = counter.test = k
-        d = run_test(sampler, programme, meso, requested)
-        n_cells = d.weights.size
+        counter.test = k
         scale = max(float(info["p0"]), float(np.max(d.p)))
         length = {"n_increments": int(d.p.size)}
-        spread = {} if rest is None else _dem_spread(rest, test, meso, requested, d, scale)
         try:
             a = run_test(counter, programme, meso, requested)
         except driver.ControlError as exc:  # the ANN cannot follow the programme: the test fails
@@ -404,13 +442,13 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     rows = tuple(TestResult.from_dict(t) for t in results)
     worst = max(rows, key=lambda t: t.figure)
     if dem_states is not None:
-        for k, parts in sampler.states.items():
+        for k, parts in reference.states.items():
             merged = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
             cells = np.concatenate([np.arange(part["cell_size"].shape[0]) for part in parts])
             dem_states[results[k]["name"]] = {**merged, "cell": k * n_cells + cells}
     coverage = None
-    if ann.ood is not None and sampler.coverage:
-        size, position, shear = (np.concatenate([part[name] for part in sampler.coverage])
+    if ann.ood is not None and reference.coverage:
+        size, position, shear = (np.concatenate([part[name] for part in reference.coverage])
                                  for name in ("cell_size", "position", "shear_force"))
         inside = ~ann.ood.outside(state_features(ann.net, size, position[:, free[:, 0], free[:, 1]], shear))
         coverage = {"fraction_within": float(inside.mean()), "n_states": int(inside.size),
