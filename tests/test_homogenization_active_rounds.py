@@ -353,3 +353,17 @@ def test_rounds_go_on_past_a_passed_certificate_until_the_round_target(tiny, mon
     assert after.target == 0.02 and after.worst <= cert.worst
     assert rounds[2].tests and all(cert.test(name).figure > strict.round_target for name in rounds[2].tests)
     assert "active round 2: +3000 samples" in capsys.readouterr().out
+
+
+def test_certificates_of_one_process_run_their_dem_tests_once(tiny, monkeypatch):  # noqa: F811 (the fixture)
+    """The rounds certify every candidate on the same tests: the DEM's side (records, states, reproducibility runs)
+    runs once per process and settings, and the figures are those of a fresh run."""
+    _, model = tiny
+    certificate._LAST_REFERENCE.clear()
+    made, real = [], certificate.make_cell_model
+    monkeypatch.setattr(certificate, "make_cell_model", lambda kind, **kw: made.append(kind) or real(kind, **kw))
+    first = certificate.certify(model, **SHORT)
+    again = certificate.certify(model, **SHORT)
+    assert made.count("dem") == 1 and again.tests == first.tests and again.dem_spread == first.dem_spread
+    certificate.certify(model, **{**SHORT, "eps_max": 0.01})  # other tests: the DEM runs them
+    assert made.count("dem") == 2
