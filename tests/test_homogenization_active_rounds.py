@@ -235,7 +235,16 @@ def test_a_promotion_cut_short_is_completed(tmp_path, monkeypatch):
         active._promote(active.candidate_path(model), model)
     monkeypatch.setattr(active.os, "replace", real)
     assert model.read_text() == "new ann.pt" and model.with_suffix(".json").read_text() == "old ann.json"
-    assert active.finish_promotion(model) and not active.finish_promotion(model)
+    read = []
+
+    def card_of(path):  # learn reads the model's JSON only after completing the move
+        read.append(path.with_suffix(".json").read_text())
+        raise LookupError
+
+    monkeypatch.setattr(active, "read_card", card_of)
+    with pytest.raises(LookupError):
+        active.learn(tmp_path / "db.h5", model, TRAIN_CONFIG)
+    assert read == ["new ann.json"] and not active.finish_promotion(model)
     assert [f.read_text() for f in active.model_files(model)] == [f"new {f.name}" for f in active.model_files(model)]
     assert not any(f.exists() for f in active.model_files(active.candidate_path(model)))
 

@@ -511,7 +511,8 @@ def learn(db: Path, model: Path, config: TrainConfig, *, settings: ActiveSetting
         progress: receives every training's epochs (``training.fitting.Progress``; None: silent).
     """
     start = time.perf_counter()
-    card = read_card(model) if card is None or finish_promotion(model) else card
+    finished = finish_promotion(model)  # a round's files moved in half before an interruption: the card changes
+    card = read_card(model) if card is None or finished else card
     stored = json.loads(str(_attrs(db).get("active_learning", "[]")))
     stored_cert, rounds = learning_of(card)
     rounds = [r for r in rounds if r.round <= len(stored)]
