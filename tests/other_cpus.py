@@ -35,6 +35,9 @@ OTHER_CPUS = {
 """Compiler settings (and BLAS kernels) of another CPU, emulated on this one: no increment may change a bit. The
 two ends of x86-64 below the AVX-512 host: no vectors wider than SSE2 and no FMA, and the AVX2 and FMA of most
 CI machines (``make determinism``'s AVX2 and lowest settings then load these CPUs' kernels from numba's cache)."""
+COMPILED_SIGNAL = "OTHER_CPUS_COMPILED"
+"""Environment variable naming a file that ``run_other_cpus``'s caller creates once the other CPUs' processes have
+finished (``make determinism``'s settings for those CPUs then start: numba's cache holds their kernels)."""
 
 
 def relaxing_network(spec: str = str(LARGE_AXIAL)):
