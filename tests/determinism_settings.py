@@ -121,8 +121,8 @@ def main(argv: list[str]) -> int:
         else:
             runnable.append(variables)
     first = run_setting(runnable[0], argv, files)
-    compiled = Path(tempfile.mkdtemp(prefix="other_cpus_")) / "compiled"
-    with ThreadPoolExecutor(max_workers=WORKERS) as pool:
+    with tempfile.TemporaryDirectory(prefix="other_cpus_") as signals, ThreadPoolExecutor(max_workers=WORKERS) as pool:
+        compiled = Path(signals) / "compiled"
         other_cpus = pool.submit(run_setting, {COMPILED_SIGNAL: str(compiled)}, argv, marked_files("other_cpus"),
                                  "other_cpus")
 
