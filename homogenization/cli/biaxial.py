@@ -60,7 +60,7 @@ from homogenization.cli.options import (
     add_void_ratio_arguments,
     command_parser,
 )
-from homogenization.cli.run_files import build_models, check_run, checkpoint_folder, refuse_programme_flags, resolve_void_ratio, resumable, run_backends, run_checkpoints, shear_iso_increment, unused_alpha0
+from homogenization.cli.run_files import build_models, check_run, checkpoint_folder, refuse_programme_flags, resolve_void_ratio, resumable, run_backends, run_checkpoints, shear_iso_increment, warn_unused_alpha0
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -198,9 +198,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         say(f"programme: {programmes.to_dict(programme)}", f"contact law: {law.to_dict()}, radius {args.radius:g} m")
 
     meso = run_mesostructure(args)
-    unused = unused_alpha0(build_parser(), argv_given, args.mesostructure)
-    if unused:
-        warn(unused)
+    warn_unused_alpha0(build_parser(), argv_given, args.mesostructure)
     with output_lock(out):
         models, options = build_models(args, law, meso)
         checkpoints = run_checkpoints(args, models, options, law, meso, programme)

@@ -31,14 +31,13 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import warnings
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from homogenization.cli.options import add_alpha0_argument, add_backend_argument, add_uncertified_argument, command_parser, refuse_uncertified
-from homogenization.cli.run_files import DEVICE_BACKENDS, unused_alpha0
+from homogenization.cli.run_files import DEVICE_BACKENDS, warn_unused_alpha0
 from homogenization.backends import make_cell_model
 from warp_hcell.mesostructures.builders import mesostructure_arg, MESOSTRUCTURE_HELP
 from warp_hcell.core.cli import (
@@ -225,9 +224,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     _check_out(args.out, overwrite=args.overwrite)
     d_eps = read_path(args.path)
     meso = path_cell(args, d_eps.shape[1])
-    unused = unused_alpha0(build_parser(), sys.argv[1:] if argv is None else argv, args.mesostructure)
-    if unused:
-        warnings.warn(unused, UserWarning, stacklevel=1)
+    warn_unused_alpha0(build_parser(), sys.argv[1:] if argv is None else argv, args.mesostructure)
     check_path_for_backend(args.path, d_eps, args.backend)
     if args.backend in (DEM_ONLY_BACKEND, "ann") and not args.verbose:  # the ANN's hybrid may hand cells to the DEM
         quiet_warp(args.device)

@@ -31,6 +31,7 @@ import hashlib
 import shutil
 import sys
 import time
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
@@ -126,14 +127,15 @@ def explicit_flags(parser: argparse.ArgumentParser, argv: Sequence[str], dests: 
     return {dest for dest in dests if parsed.get(dest, unset) is not unset}
 
 
-def unused_alpha0(parser: argparse.ArgumentParser, argv: Sequence[str], source: Any) -> str | None:
-    """One warning line where ``argv`` gives --alpha0 but the cell ``source`` (``--mesostructure``, None: the H-cell of
-    --alpha0) does not take it: a file, or a spec with its own alpha0; None otherwise."""
+def warn_unused_alpha0(parser: argparse.ArgumentParser, argv: Sequence[str], source: Any) -> None:
+    """A ``UserWarning`` (one line) where ``argv`` gives --alpha0 but the cell ``source`` (``--mesostructure``, None:
+    the H-cell of --alpha0) does not take it: a file, or a spec with its own alpha0."""
     if source is None or "alpha0" not in explicit_flags(parser, argv, ("alpha0",)):
-        return None
+        return
     if source.kind is not None and "alpha0" not in dict(source.options):
-        return None
-    return f"--alpha0 is not used: --mesostructure {source.text} gives its own opening angle"
+        return
+    warnings.warn(f"--alpha0 is not used: --mesostructure {source.text} gives its own opening angle", UserWarning,
+                  stacklevel=2)
 
 
 def refuse_programme_flags(parser: argparse.ArgumentParser, argv: Sequence[str], flags: dict[str, str]) -> None:

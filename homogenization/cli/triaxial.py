@@ -40,7 +40,6 @@ import argparse
 import shlex
 import shutil
 import sys
-import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
@@ -51,7 +50,7 @@ from homogenization.output import figures, oedometer
 from homogenization.backends import BACKENDS
 from homogenization.cli import posterior_flags
 from homogenization.cli.options import add_alpha0_argument, add_backend_list_argument, add_cell_arguments, add_checkpoint_arguments, add_equilibrium_arguments, add_posterior_arguments, add_programme_arguments, add_uncertified_argument, add_void_ratio_arguments, add_critical_state_argument, command_parser, lebedev_order
-from homogenization.cli.run_files import build_models, check_run, checkpoint_folder, refuse_programme_flags, resolve_void_ratio, resumable, run_backends, run_checkpoints, shear_iso_increment, unused_alpha0
+from homogenization.cli.run_files import build_models, check_run, checkpoint_folder, refuse_programme_flags, resolve_void_ratio, resumable, run_backends, run_checkpoints, shear_iso_increment, warn_unused_alpha0
 from warp_hcell.core.cli import (
     UserError,
     add_contact_law_arguments,
@@ -218,9 +217,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     posterior_flags.check_band_test(calibrated, settings, "")
     law = contact_law_from_args(args)
     meso = run_mesostructure(args)
-    unused = unused_alpha0(build_parser(), argv_given, args.mesostructure)
-    if unused:
-        warnings.warn(unused, UserWarning, stacklevel=1)
+    warn_unused_alpha0(build_parser(), argv_given, args.mesostructure)
     spin_period = meso.spin_period_deg()
     if args.verbose:
         say(f"programme: {programmes.to_dict(programme)}", f"contact law: {law.to_dict()}, radius {args.radius:g} m")
