@@ -339,6 +339,11 @@ def _widest_spread(results: list[dict[str, Any]], target: float) -> dict[str, An
             "above_target": [t["name"] for t in results if t["dem_spread"] > target]}
 
 
+def _scale(info: dict[str, Any], d: driver.Record) -> float:
+    """The scale of a test's figures (module docstring): max(p0, the largest p of the DEM's record ``d``)."""
+    return max(float(info["p0"]), float(np.max(d.p)))
+
+
 @dataclasses.dataclass(frozen=True)
 class _DemReference:
     """The DEM's side of a certificate's tests (it does not depend on the model): per test its record and
@@ -372,9 +377,8 @@ def _dem_reference(meso: Mesostructure, law: Any, settings: DemSettings, tests: 
     for k, test in enumerate(tests):
         sampler.test = k
         d = run_test(sampler, test[1], meso, requested)
-        scale = max(float(test[0]["p0"]), float(np.max(d.p)))
         records.append(d)
-        spreads.append({} if rest is None else _dem_spread(rest, test, meso, requested, d, scale))
+        spreads.append({} if rest is None else _dem_spread(rest, test, meso, requested, d, _scale(test[0], d)))
     _LAST_REFERENCE.clear()
     _LAST_REFERENCE[key] = _DemReference(records, spreads, sampler.states, sampler.coverage)
     return _LAST_REFERENCE[key]
@@ -430,7 +434,7 @@ def certify(model_path: Path, *, mesostructure: Mesostructure | None = None, pre
     for k, (test, d, spread) in enumerate(zip(tests, reference.records, reference.spreads)):
         info, programme = test
         counter.test = k
-        scale = max(float(info["p0"]), float(np.max(d.p)))
+        scale = _scale(info, d)
         length = {"n_increments": int(d.p.size)}
         try:
             a = run_test(counter, programme, meso, requested)
